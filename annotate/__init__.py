@@ -1,0 +1,1 @@
+"""Human labels of true outliers: SQLite store, labelling page, true accuracy."""

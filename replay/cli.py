@@ -1,0 +1,64 @@
+"""The ``zcut`` console script.
+
+Each subcommand lives in its own module (``replay.commands.<name>`` or ``annotate.commands``) with
+``add_arguments(parser)`` and ``run(args) -> int``; modules import their heavy dependencies inside
+``run`` so that ``zcut --help`` stays fast. This is the only place that turns errors into messages
+and exit codes (SPEC §6): 0 success, 1 user error (one line on stderr), 3 finished with data loss.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from zcut.errors import ZcutError
+
+EXIT_OK = 0
+EXIT_USER_ERROR = 1
+EXIT_DATA_LOSS = 3
+
+# name -> (module, one-line help). Order is the order shown by --help.
+COMMANDS: dict[str, tuple[str, str]] = {
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="zcut",
+        description="Replay bin-picking scans through the z-cut outlier filter, "
+        "log every stage to Rerun, and measure true accuracy against labels.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module_name, help_text) in COMMANDS.items():
+        module = importlib.import_module(module_name)
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        module.add_arguments(p)
+        p.set_defaults(_module=module)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "_module", None) is None:
+        parser.print_help()
+        return EXIT_USER_ERROR if argv is None and len(sys.argv) <= 1 else EXIT_OK
+    try:
+        return int(args._module.run(args) or 0)
+    except ZcutError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except FileNotFoundError as e:
+        print(f"error: no such file: {e.filename}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except (IsADirectoryError, PermissionError) as e:
+        print(f"error: {e.strerror}: {e.filename}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,46 @@
+"""One organized scan as zcut replays it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from zcut.cloud import Intrinsics
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """An organized cloud with what was recorded beside it (paired by header stamp).
+
+    Attributes
+    ----------
+    xyz : (H, W, 3) float32 ndarray
+        Metres, camera optical frame; NaN where invalid ((0, 0, 0) points are turned into NaN).
+    rgb : (H, W, 3) uint8 ndarray or None
+        Colour image (from the Image topic, else from the cloud's rgb/rgba field).
+    stamp_ns : int
+        Header stamp of the cloud in nanoseconds.
+    frame_id : str
+    intrinsics : Intrinsics or None
+        From a paired CameraInfo.
+    topic : str
+        The cloud's topic.
+    index : int
+        0-based index of the frame in the log.
+    masks : dict[str, (H, W) bool ndarray]
+        mono8 mask topics with the same stamp (e.g. ``/ground_truth/outliers``), 255 -> True.
+    """
+
+    xyz: np.ndarray
+    rgb: np.ndarray | None
+    stamp_ns: int
+    frame_id: str
+    intrinsics: Intrinsics | None
+    topic: str
+    index: int
+    masks: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.xyz.shape[0], self.xyz.shape[1]
