@@ -1,0 +1,134 @@
+"""annotate.accuracy: the SPEC §4 report on a frame counted by hand."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from annotate.accuracy import (
+    METHODS,
+    METRIC_KEYS,
+    accuracy_report,
+    format_accuracy_table,
+    frame_accuracy,
+    jsonable,
+    method_masks,
+    report_json,
+)
+from zcut.errors import InputShapeError, ParameterError
+
+
+def _mask(shape, pixels):
+    m = np.zeros(shape, bool)
+    for r, c in pixels:
+        m[r, c] = True
+    return m
+
+
+SHAPE = (4, 6)
+# Truth: cluster A = {(0,0),(0,1)}, cluster B = {(3,5)}.
+TRUTH = _mask(SHAPE, [(0, 0), (0, 1), (3, 5)])
+# z-cut: {(0,0),(1,1)} (one 8-connected cluster, half in A) and {(2,3)} (false).
+ZCUT = _mask(SHAPE, [(0, 0), (1, 1), (2, 3)])
+# SOR: {(0,1)} and {(3,5)}, both true.
+SOR = _mask(SHAPE, [(0, 1), (3, 5)])
+
+# Hand counts: method -> (tp, fp, fn, precision, recall, iou, cluster_precision, cluster_recall)
+HAND = {
+    "zcut": (1, 2, 2, 1 / 3, 1 / 3, 1 / 5, 1 / 2, 1 / 2),
+    "sor": (2, 0, 1, 1.0, 2 / 3, 2 / 3, 1.0, 1.0),
+    "union": (3, 2, 0, 3 / 5, 1.0, 3 / 5, 2 / 3, 1.0),
+    "intersection": (0, 0, 3, math.nan, 0.0, 0.0, math.nan, 0.0),
+}
+
+
+def _close(a, b):
+    return (math.isnan(a) and math.isnan(b)) or a == pytest.approx(b)
+
+
+def test_report_matches_hand_count():
+    f = frame_accuracy(7, 123_000, {"zcut": ZCUT, "sor": SOR}, TRUTH)
+    report = accuracy_report([f])
+    assert set(report) == {"pooled", "frames"}
+    assert set(report["pooled"]) == set(METHODS)
+    (fr,) = report["frames"]
+    assert fr["index"] == 7 and fr["stamp_ns"] == 123_000
+    for m, (tp, fp, fn, p, r, iou, cp, cr) in HAND.items():
+        e = fr[m]
+        assert list(e) == list(METRIC_KEYS)
+        assert (e["tp"], e["fp"], e["fn"]) == (tp, fp, fn), m
+        assert all(type(e[k]) is int for k in ("tp", "fp", "fn"))
+        for k, v in zip(("precision", "recall", "iou", "cluster_precision", "cluster_recall"), (p, r, iou, cp, cr)):
+            assert _close(e[k], v), (m, k, e[k], v)
+        assert jsonable(e) == jsonable(report["pooled"][m])  # one frame: pooled = per frame
+
+
+def test_reviewed_restricts_counts():
+    reviewed = np.ones(SHAPE, bool)
+    reviewed[2, 3] = False  # the false z-cut cluster was not reviewed
+    f = frame_accuracy(0, 0, {"zcut": ZCUT, "sor": SOR}, TRUTH, reviewed=reviewed)
+    assert (f.counts["zcut"].tp, f.counts["zcut"].fp, f.counts["zcut"].fn) == (1, 1, 2)
+    assert f.counts["zcut"].cluster_precision == pytest.approx(1.0)
+
+
+def test_pooled_sums_counts_over_frames():
+    f1 = frame_accuracy(0, 10, {"zcut": ZCUT, "sor": SOR}, TRUTH)
+    f2 = frame_accuracy(1, 20, {"zcut": np.zeros(SHAPE, bool), "sor": TRUTH.copy()}, TRUTH)
+    report = accuracy_report([f1, f2])
+    assert report["pooled"]["zcut"]["tp"] == 1
+    assert report["pooled"]["zcut"]["fn"] == 2 + 3
+    assert report["pooled"]["sor"]["tp"] == 2 + 3
+    assert report["pooled"]["sor"]["recall"] == pytest.approx(5 / 6)
+    assert [f["index"] for f in report["frames"]] == [0, 1]
+
+
+def test_empty_report_has_zero_counts():
+    report = accuracy_report([])
+    assert report["frames"] == []
+    assert all(report["pooled"][m]["tp"] == 0 for m in METHODS)
+
+
+def test_json_has_null_for_undefined_rates_and_int_counts():
+    report = accuracy_report([frame_accuracy(0, 5, {"zcut": ZCUT, "sor": SOR}, TRUTH)])
+    text = report_json(report)
+    assert "NaN" not in text and "Infinity" not in text
+    back = json.loads(text)
+    assert back["pooled"]["intersection"]["precision"] is None
+    assert back["pooled"]["intersection"]["fn"] == 3
+    assert isinstance(back["frames"][0]["zcut"]["tp"], int)
+    assert jsonable({"a": [float("inf"), np.float32(0.5), np.int64(3)]}) == {"a": [None, 0.5, 3]}
+
+
+def test_table_lists_every_method():
+    report = accuracy_report([frame_accuracy(3, 5, {"zcut": ZCUT, "sor": SOR}, TRUTH)])
+    table = format_accuracy_table(report)
+    for m in METHODS:
+        assert m in table
+    assert "pooled over 1 frame" in table
+    pooled_line = [ln for ln in table.splitlines() if ln.startswith("sor ")][-1]
+    assert pooled_line.split()[1:4] == ["2", "0", "1"]
+    # parsed-back JSON (None rates) formats too
+    assert "-" in format_accuracy_table(json.loads(report_json(report)), per_frame=False)
+
+
+def test_method_masks_union_intersection():
+    mm = method_masks(ZCUT, SOR)
+    assert np.array_equal(mm["union"], ZCUT | SOR)
+    assert not mm["intersection"].any()
+
+
+@pytest.mark.parametrize(
+    ("preds", "truth", "exc", "match"),
+    [
+        ({"zcut": ZCUT}, TRUTH, ParameterError, "missing"),
+        ({"zcut": ZCUT, "sor": SOR[:2]}, TRUTH, InputShapeError, "sor"),
+        ({"zcut": ZCUT.astype(np.uint8), "sor": SOR}, TRUTH, InputShapeError, "zcut"),
+        ({"zcut": ZCUT, "sor": SOR}, TRUTH[None], InputShapeError, "outliers"),
+    ],
+)
+def test_bad_input(preds, truth, exc, match):
+    with pytest.raises(exc, match=match):
+        frame_accuracy(0, 0, preds, truth)
