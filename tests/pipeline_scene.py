@@ -1,0 +1,100 @@
+"""A tiny ray-cast bin scene for the pipeline tests: boxes seen by a pinhole camera looking down +z.
+
+Table: dark plane at z = 0.60 m. Bin: bright plastic, a floor slab and four walls (rim at z = 0.50 m).
+Parts: mid-gray boxes lying on the floor. Flying pixels can be added as a few floating specks.
+Everything is exact geometry, so the tests know the truth of every pixel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from replay.frame import Frame
+from zcut.cloud import Intrinsics
+
+TABLE_Z = 0.60
+RIM_Z = 0.50
+FLOOR_Z = 0.585  # top of the floor slab
+WALL = 0.008
+HALF = (0.10, 0.075)  # outer half extents (x, y)
+
+DARK, BRIGHT, PART = (40, 40, 45), (220, 220, 210), (120, 110, 100)
+
+
+def intrinsics(h: int = 120, w: int = 160) -> Intrinsics:
+    f = 0.9 * w  # ~ 0.3 m wide view at 0.5 m
+    return Intrinsics(fx=f, fy=f, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
+
+
+def bin_boxes(shift=(0.0, 0.0, 0.0)) -> list[tuple[np.ndarray, np.ndarray]]:
+    hx, hy = HALF
+    s = np.asarray(shift, float)
+    boxes = [
+        ((-hx, -hy, FLOOR_Z), (hx, hy, TABLE_Z)),  # floor slab
+        ((-hx, -hy, RIM_Z), (-hx + WALL, hy, TABLE_Z)),
+        ((hx - WALL, -hy, RIM_Z), (hx, hy, TABLE_Z)),
+        ((-hx, -hy, RIM_Z), (hx, -hy + WALL, TABLE_Z)),
+        ((-hx, hy - WALL, RIM_Z), (hx, hy, TABLE_Z)),
+    ]
+    return [(np.array(lo) + s, np.array(hi) + s) for lo, hi in boxes]
+
+
+def part_boxes(shift=(0.0, 0.0, 0.0)) -> list[tuple[np.ndarray, np.ndarray]]:
+    s = np.asarray(shift, float)
+    parts = [
+        ((-0.05, -0.03, FLOOR_Z - 0.02), (-0.01, 0.02, FLOOR_Z)),
+        ((0.01, -0.04, FLOOR_Z - 0.03), (0.06, 0.00, FLOOR_Z)),
+        ((0.00, 0.02, FLOOR_Z - 0.025), (0.05, 0.05, FLOOR_Z)),
+    ]
+    return [(np.array(lo) + s, np.array(hi) + s) for lo, hi in parts]
+
+
+def render(K: Intrinsics, boxes, colours) -> tuple[np.ndarray, np.ndarray]:
+    """Ray-cast axis-aligned boxes over a table plane. Returns xyz (H, W, 3) float32 and rgb."""
+    v, u = np.mgrid[0:K.height, 0:K.width].astype(np.float64)
+    d = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones_like(u)], -1)
+    best = np.full(u.shape, TABLE_Z)  # ray parameter t == z since d_z = 1
+    rgb = np.empty(u.shape + (3,), np.uint8)
+    rgb[:] = DARK
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / d
+        for (lo, hi), col in zip(boxes, colours):
+            t1 = (lo - 0.0) * inv
+            t2 = (hi - 0.0) * inv
+            tmin = np.nanmax(np.minimum(t1, t2), axis=-1)
+            tmax = np.nanmin(np.maximum(t1, t2), axis=-1)
+            hit = (tmax >= tmin) & (tmin > 0) & (tmin < best)
+            best = np.where(hit, tmin, best)
+            rgb[hit] = col
+    xyz = (d * best[..., None]).astype(np.float32)
+    return xyz, rgb
+
+
+def scene(*, h: int = 120, w: int = 160, shift=(0.0, 0.0, 0.0), parts: bool = True,
+          specks: int = 0, seed: int = 0) -> tuple[Frame, np.ndarray]:
+    """A frame of the bin (shifted by ``shift`` metres) and the mask of its floating specks."""
+    K = intrinsics(h, w)
+    boxes = bin_boxes(shift) + (part_boxes(shift) if parts else [])
+    colours = [BRIGHT] * 5 + [PART] * (len(boxes) - 5)
+    xyz, rgb = render(K, boxes, colours)
+    truth = np.zeros((h, w), bool)
+    if specks:
+        rng = np.random.default_rng(seed)
+        # specks: single pixels inside the bin lifted 15 mm above their neighbours
+        rows = rng.integers(h // 3, 2 * h // 3, specks)
+        cols = rng.integers(w // 3, 2 * w // 3, specks)
+        for r, c in zip(rows, cols):
+            if truth[max(r - 1, 0):r + 2, max(c - 1, 0):c + 2].any():
+                continue
+            xyz[r, c] *= np.float32((xyz[r, c, 2] - 0.015) / xyz[r, c, 2])
+            truth[r, c] = True
+    frame = Frame(xyz=xyz, rgb=rgb, stamp_ns=1_000_000_000, frame_id="camera", intrinsics=K,
+                  topic="/camera/points", index=0, masks={"/ground_truth/outliers": truth})
+    return frame, truth
+
+
+def model_from_empty(*, h: int = 120, w: int = 160) -> np.ndarray:
+    """(N, 3) float64 points of the empty bin at its nominal pose (the bright pixels)."""
+    frame, _ = scene(h=h, w=w, parts=False)
+    bright = (frame.rgb == np.array(BRIGHT, np.uint8)).all(axis=2)
+    return frame.xyz[bright].astype(np.float64)

@@ -1,0 +1,164 @@
+"""The bin footprint from the RGB image (paper §5.1/§5.2).
+
+RGB -> gray -> threshold -> dilate -> connected components -> the component covering the image
+centre (else the largest) -> fill holes. The bright plastic walls and rim of the bin survive the
+threshold; filling the holes adds the (possibly dark) parts inside, so the result is the bin's
+footprint on the image. Everything outside it is table.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .errors import InputShapeError, ParameterError, describe_array
+from .types import RGB, Mask
+
+
+@dataclass(frozen=True, slots=True)
+class BinMaskResult:
+    """The bin footprint of one image.
+
+    Attributes
+    ----------
+    mask : (H, W) bool ndarray
+        The footprint: the chosen component with its holes filled.
+    walls : (H, W) bool ndarray
+        The bright pixels of the chosen component (before dilation and filling): the walls and the
+        rim the bin model is registered to.
+    found : bool
+        False when no bright component of at least ``min_area_frac`` of the image exists; then both
+        masks are all False.
+    area_px : int
+        Pixels in ``mask``.
+    n_components : int
+        Bright components after dilation (all sizes).
+    centroid_rc : tuple of float
+        (row, col) centroid of ``mask``; NaN when not found.
+    bbox_rc : tuple of int
+        (row0, col0, row1, col1) of ``mask``, end exclusive; zeros when not found.
+    covers_centre : bool
+        True when the chosen component covers the image centre pixel.
+    """
+
+    mask: Mask
+    walls: Mask
+    found: bool
+    area_px: int
+    n_components: int
+    centroid_rc: tuple[float, float]
+    bbox_rc: tuple[int, int, int, int]
+    covers_centre: bool
+
+
+def _check_rgb(rgb: RGB) -> np.ndarray:
+    a = np.asarray(rgb)
+    if a.ndim != 3 or a.shape[2] != 3 or a.dtype != np.uint8:
+        raise InputShapeError(f"rgb must be an (H, W, 3) uint8 array, got {describe_array(a)}")
+    return a
+
+
+def fill_holes(mask: Mask) -> Mask:
+    """Fill the holes of a binary mask: background pixels not 4-connected to the image border.
+
+    Parameters
+    ----------
+    mask : (H, W) bool ndarray
+
+    Returns
+    -------
+    (H, W) bool ndarray
+    """
+    m = np.ascontiguousarray(mask, dtype=np.uint8)
+    h, w = m.shape
+    padded = np.zeros((h + 2, w + 2), np.uint8)
+    padded[1:-1, 1:-1] = m
+    flood = np.zeros((h + 4, w + 4), np.uint8)
+    cv2.floodFill(padded, flood, (0, 0), 2, flags=4)
+    return (padded[1:-1, 1:-1] != 2)
+
+
+def bin_mask(
+    rgb: RGB,
+    *,
+    threshold: float = 150.0,
+    dilate_px: int = 3,
+    min_area_frac: float = 0.01,
+    prefer_centre: bool = True,
+) -> BinMaskResult:
+    """Segment the bin footprint from an RGB image.
+
+    Parameters
+    ----------
+    rgb : (H, W, 3) uint8 ndarray
+    threshold : float
+        Gray level (0-255); pixels brighter than this are bin-plastic candidates.
+    dilate_px : int
+        Radius of the elliptic dilation closing small gaps in the walls (0: none).
+    min_area_frac : float
+        Smallest accepted component, as a fraction of the image.
+    prefer_centre : bool
+        Take the component covering the image centre after filling when there is one (a bin is
+        usually centred); otherwise, or when none covers it, the largest.
+
+    Returns
+    -------
+    BinMaskResult
+    """
+    a = _check_rgb(rgb)
+    if not 0.0 <= threshold <= 255.0:
+        raise ParameterError(f"threshold must be in [0, 255], got {threshold!r}")
+    if int(dilate_px) != dilate_px or dilate_px < 0:
+        raise ParameterError(f"dilate_px must be a non-negative integer, got {dilate_px!r}")
+    if not 0.0 <= min_area_frac <= 1.0:
+        raise ParameterError(f"min_area_frac must be in [0, 1], got {min_area_frac!r}")
+    h, w = a.shape[:2]
+    empty = np.zeros((h, w), bool)
+    if h == 0 or w == 0:
+        return BinMaskResult(empty, empty, False, 0, 0, (np.nan, np.nan), (0, 0, 0, 0), False)
+    gray = cv2.cvtColor(np.ascontiguousarray(a), cv2.COLOR_RGB2GRAY)
+    bright = gray.astype(np.float64) > float(threshold)
+    grown = bright.astype(np.uint8)
+    if dilate_px > 0:
+        k = 2 * int(dilate_px) + 1
+        grown = cv2.dilate(grown, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(grown, connectivity=8, ltype=cv2.CV_32S)
+    n_components = n - 1
+    min_area = max(1, int(np.ceil(min_area_frac * h * w)))
+    candidates = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= min_area]
+    if not candidates:
+        return BinMaskResult(empty, empty, False, 0, n_components, (np.nan, np.nan), (0, 0, 0, 0), False)
+    chosen = None
+    covers = False
+    cr, cc = h // 2, w // 2
+    if prefer_centre:
+        # Does any candidate's filled footprint cover the centre? Test cheaply with bounding boxes first.
+        for i in sorted(candidates, key=lambda i: -stats[i, cv2.CC_STAT_AREA]):
+            x, y, bw, bh = stats[i, :4]
+            if not (y <= cr < y + bh and x <= cc < x + bw):
+                continue
+            sub = fill_holes(labels[y:y + bh, x:x + bw] == i)
+            if sub[cr - y, cc - x]:
+                chosen, covers = i, True
+                break
+    if chosen is None:
+        chosen = max(candidates, key=lambda i: stats[i, cv2.CC_STAT_AREA])
+    x, y, bw, bh = (int(v) for v in stats[chosen, :4])
+    mask = np.zeros((h, w), bool)
+    comp = labels[y:y + bh, x:x + bw] == chosen
+    mask[y:y + bh, x:x + bw] = fill_holes(comp)
+    walls = np.zeros((h, w), bool)
+    walls[y:y + bh, x:x + bw] = comp & bright[y:y + bh, x:x + bw]
+    rows, cols = np.nonzero(mask)
+    return BinMaskResult(
+        mask=mask,
+        walls=walls,
+        found=True,
+        area_px=int(rows.size),
+        n_components=n_components,
+        centroid_rc=(float(rows.mean()), float(cols.mean())),
+        bbox_rc=(y, x, y + bh, x + bw),
+        covers_centre=covers,
+    )
