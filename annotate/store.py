@@ -1,0 +1,666 @@
+"""The label store: one SQLite file per labelling project.
+
+Design
+------
+- **Durability.** WAL journal with ``synchronous=FULL``: a commit returns only after the WAL is
+  fsync'ed, so an acknowledged label survives a process kill *and* a power cut. (``NORMAL`` with WAL
+  survives a crash of the process but may lose the last commits on power loss; label edits are
+  small and rare, so the extra fsync per commit costs nothing that matters.) ``save_label`` returns
+  only after its transaction committed; the server acknowledges an edit only after that.
+- **Concurrency.** Every write runs in ``BEGIN IMMEDIATE`` (one writer at a time, readers go on);
+  ``busy_timeout`` lets other processes (``zcut accuracy`` while the page runs) wait instead of
+  failing. One connection per store object, guarded by a lock (the server calls from a thread pool).
+- **Schema versioning.** ``PRAGMA user_version`` holds the schema version; :data:`MIGRATIONS` step it
+  up one version at a time inside a transaction. A file from a newer zcut is refused.
+- **Identity.** A log is its content: the sha256 of the file (streamed), so a renamed or copied log
+  keeps its labels. A frame is (log, topic, stamp_ns).
+- **Append-only labels.** Every save appends a revision (1, 2, ...) per (frame, annotator);
+  triggers forbid UPDATE and DELETE on the label table. The current label of an annotator is the
+  latest revision. A save names the revision it was based on; if another save for the same
+  frame and annotator landed in between, it is refused (:class:`LabelConflictError`).
+- **Masks** are stored as ``zlib(packbits(mask.ravel()))`` with their shape; L ⊆ R ⊆ valid is
+  checked before anything is written.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import sqlite3
+import threading
+import time
+import zlib
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from zcut.errors import InputShapeError, ZcutError, describe_array
+
+SCHEMA_VERSION = 1
+BUSY_TIMEOUT_MS = 10_000
+#: Largest mask the store accepts (pixels), a guard against absurd shapes from a client.
+MAX_PIXELS = 64_000_000
+MAX_ANNOTATOR_LEN = 64
+
+# Each entry moves the schema from version i to i + 1 (a list of statements, run in one transaction).
+MIGRATIONS: list[list[str]] = [
+    [
+        """CREATE TABLE logs (
+            id INTEGER PRIMARY KEY,
+            sha256 TEXT NOT NULL UNIQUE CHECK (length(sha256) = 64),
+            name TEXT NOT NULL,
+            size_bytes INTEGER NOT NULL,
+            added_ns INTEGER NOT NULL
+        )""",
+        """CREATE TABLE frames (
+            id INTEGER PRIMARY KEY,
+            log_id INTEGER NOT NULL REFERENCES logs(id),
+            topic TEXT NOT NULL,
+            stamp_ns INTEGER NOT NULL,
+            frame_index INTEGER NOT NULL,
+            frame_id TEXT NOT NULL DEFAULT '',
+            height INTEGER NOT NULL CHECK (height > 0),
+            width INTEGER NOT NULL CHECK (width > 0),
+            valid BLOB,
+            UNIQUE (log_id, topic, stamp_ns)
+        )""",
+        """CREATE TABLE labels (
+            id INTEGER PRIMARY KEY,
+            frame_id INTEGER NOT NULL REFERENCES frames(id),
+            annotator TEXT NOT NULL CHECK (length(annotator) BETWEEN 1 AND 64),
+            revision INTEGER NOT NULL CHECK (revision >= 1),
+            created_ns INTEGER NOT NULL,
+            height INTEGER NOT NULL,
+            width INTEGER NOT NULL,
+            outliers BLOB NOT NULL,
+            reviewed BLOB NOT NULL,
+            n_outliers INTEGER NOT NULL,
+            n_reviewed INTEGER NOT NULL,
+            source TEXT NOT NULL DEFAULT 'page',
+            UNIQUE (frame_id, annotator, revision)
+        )""",
+        "CREATE INDEX labels_current ON labels (frame_id, annotator, revision DESC)",
+        """CREATE TRIGGER labels_append_only_update BEFORE UPDATE ON labels
+            BEGIN SELECT RAISE(ABORT, 'labels are append-only'); END""",
+        """CREATE TRIGGER labels_append_only_delete BEFORE DELETE ON labels
+            BEGIN SELECT RAISE(ABORT, 'labels are append-only'); END""",
+    ],
+]
+
+
+class StoreError(ZcutError):
+    """The label store cannot be opened or used; the message names the file and the problem."""
+
+
+class LabelConflictError(StoreError):
+    """A save was based on a revision that is no longer the latest (someone saved in between)."""
+
+    def __init__(self, message: str, *, latest: int) -> None:
+        super().__init__(message)
+        self.latest = latest
+
+
+class LabelValidationError(StoreError, ValueError):
+    """A label breaks L ⊆ R ⊆ valid, or its masks have the wrong shape."""
+
+
+@dataclass(frozen=True, slots=True)
+class LogRecord:
+    """A registered log: ``id`` in the store, ``sha256`` of its bytes, file ``name``, ``size_bytes``."""
+
+    id: int
+    sha256: str
+    name: str
+    size_bytes: int
+
+
+@dataclass(frozen=True, slots=True)
+class FrameRecord:
+    """A registered frame of a log, keyed by (log, topic, stamp_ns); shape (height, width)."""
+
+    id: int
+    log_id: int
+    topic: str
+    stamp_ns: int
+    index: int
+    frame_id: str
+    height: int
+    width: int
+
+
+@dataclass(frozen=True, slots=True)
+class Label:
+    """One label revision.
+
+    Attributes
+    ----------
+    frame : int
+        Store id of the frame.
+    annotator : str
+    revision : int
+        1, 2, ... per (frame, annotator).
+    outliers : (H, W) bool ndarray
+        L, the true outliers.
+    reviewed : (H, W) bool ndarray
+        R, the pixels the annotator reviewed; L ⊆ R.
+    created_ns : int
+        Wall-clock time of the commit.
+    source : str
+        ``page``, ``import`` ...
+    """
+
+    frame: int
+    annotator: str
+    revision: int
+    outliers: np.ndarray
+    reviewed: np.ndarray
+    created_ns: int
+    source: str
+
+
+@dataclass(frozen=True, slots=True)
+class LabelSummary:
+    """The current label of one annotator on one frame, without its masks."""
+
+    frame: int
+    annotator: str
+    revision: int
+    n_outliers: int
+    n_reviewed: int
+    created_ns: int
+
+
+def file_sha256(path: str | os.PathLike, *, chunk_bytes: int = 1 << 20) -> str:
+    """Hex sha256 of a file's bytes, read in chunks (never the whole file in memory)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while True:
+            b = f.read(chunk_bytes)
+            if not b:
+                break
+            h.update(b)
+    return h.hexdigest()
+
+
+def pack_mask(mask: np.ndarray) -> bytes:
+    """``zlib(packbits(mask.ravel()))`` of an (H, W) bool mask (MSB first, like numpy)."""
+    return zlib.compress(np.packbits(np.ascontiguousarray(mask, dtype=bool).ravel()).tobytes(), 6)
+
+
+def unpack_mask(blob: bytes, shape: tuple[int, int]) -> np.ndarray:
+    """Inverse of :func:`pack_mask`; raises :class:`LabelValidationError` if the blob does not fit."""
+    h, w = shape
+    n = h * w
+    try:
+        d = zlib.decompressobj()
+        raw = d.decompress(blob, (n + 7) // 8 + 1)
+        if not d.eof or d.unconsumed_tail:
+            raise LabelValidationError(f"mask blob does not decompress to {(n + 7) // 8} bytes for shape {shape}")
+    except zlib.error as e:
+        raise LabelValidationError(f"mask blob is not zlib data: {e}") from None
+    if len(raw) != (n + 7) // 8:
+        raise LabelValidationError(f"mask blob holds {len(raw)} bytes, shape {shape} needs {(n + 7) // 8}")
+    bits = np.unpackbits(np.frombuffer(raw, np.uint8), count=n)
+    return bits.view(bool).reshape(h, w)
+
+
+def check_label(outliers: np.ndarray, reviewed: np.ndarray, *, valid: np.ndarray | None) -> None:
+    """Raise :class:`LabelValidationError` unless L ⊆ R ⊆ valid with equal (H, W) bool shapes."""
+    for name, m in (("outliers", outliers), ("reviewed", reviewed)):
+        if not isinstance(m, np.ndarray) or m.ndim != 2 or m.dtype != np.bool_:
+            raise LabelValidationError(f"{name} must be an (H, W) bool array, got {describe_array(m)}")
+    if outliers.shape != reviewed.shape:
+        raise LabelValidationError(f"outliers {outliers.shape} and reviewed {reviewed.shape} differ in shape")
+    if outliers.size > MAX_PIXELS:
+        raise LabelValidationError(f"label shape {outliers.shape} exceeds {MAX_PIXELS} pixels")
+    if (outliers & ~reviewed).any():
+        n = int((outliers & ~reviewed).sum())
+        raise LabelValidationError(f"outliers must lie inside reviewed: {n} outlier pixels are not reviewed")
+    if valid is not None:
+        if valid.shape != reviewed.shape:
+            raise LabelValidationError(f"label shape {reviewed.shape} differs from the frame's {valid.shape}")
+        if (reviewed & ~valid).any():
+            n = int((reviewed & ~valid).sum())
+            raise LabelValidationError(f"reviewed must lie inside the valid pixels: {n} reviewed pixels are invalid")
+
+
+def _check_annotator(annotator: str) -> str:
+    if not isinstance(annotator, str) or not (1 <= len(annotator) <= MAX_ANNOTATOR_LEN) or not annotator.isprintable():
+        raise LabelValidationError(
+            f"annotator must be 1..{MAX_ANNOTATOR_LEN} printable characters, got {annotator!r:.80}"
+        )
+    return annotator
+
+
+class LabelStore:
+    """A labelling project in one SQLite file (see the module docstring for the guarantees).
+
+    Parameters
+    ----------
+    path : path-like
+        The SQLite file; created (with the current schema) if absent.
+
+    Use as a context manager or call :meth:`close`.
+    """
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        self._lock = threading.RLock()
+        try:
+            self._db = sqlite3.connect(
+                self.path, timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None, check_same_thread=False
+            )
+        except sqlite3.Error as e:
+            raise StoreError(f"cannot open label store {self.path}: {e}") from e
+        try:
+            self._configure()
+            self._migrate()
+        except sqlite3.DatabaseError as e:
+            self._db.close()
+            raise StoreError(f"cannot use {self.path} as a label store: {e}") from e
+        except BaseException:
+            self._db.close()
+            raise
+
+    # ------------------------------------------------------------------ setup
+    def _configure(self) -> None:
+        db = self._db
+        db.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
+        mode = db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+        if mode.lower() != "wal":
+            raise StoreError(f"label store {self.path}: cannot switch to WAL journal (got {mode})")
+        db.execute("PRAGMA synchronous = FULL")
+        db.execute("PRAGMA foreign_keys = ON")
+
+    def _migrate(self) -> None:
+        with self._lock:
+            version = self.schema_version
+            if version > SCHEMA_VERSION:
+                raise StoreError(
+                    f"label store {self.path} has schema version {version}; this zcut knows up to {SCHEMA_VERSION}"
+                )
+            while version < SCHEMA_VERSION:
+                with self._write():
+                    # re-read inside the write lock: another process may have migrated meanwhile
+                    current = self._db.execute("PRAGMA user_version").fetchone()[0]
+                    if current == version:
+                        for stmt in MIGRATIONS[version]:
+                            self._db.execute(stmt)
+                        self._db.execute(f"PRAGMA user_version = {version + 1}")
+                version = self.schema_version
+
+    @property
+    def schema_version(self) -> int:
+        """The file's ``PRAGMA user_version``."""
+        return int(self._db.execute("PRAGMA user_version").fetchone()[0])
+
+    def close(self) -> None:
+        """Close the connection (committed data is on disk already)."""
+        with self._lock:
+            self._db.close()
+
+    def __enter__(self) -> LabelStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    class _Tx:
+        def __init__(self, store: LabelStore) -> None:
+            self.store = store
+
+        def __enter__(self) -> sqlite3.Connection:
+            self.store._lock.acquire()
+            try:
+                self.store._db.execute("BEGIN IMMEDIATE")
+            except BaseException:
+                self.store._lock.release()
+                raise
+            return self.store._db
+
+        def __exit__(self, exc_type, exc, tb) -> None:
+            try:
+                if exc_type is None:
+                    self.store._db.execute("COMMIT")
+                else:
+                    self.store._db.execute("ROLLBACK")
+            finally:
+                self.store._lock.release()
+
+    def _write(self) -> LabelStore._Tx:
+        return LabelStore._Tx(self)
+
+    def _query(self, sql: str, params: Sequence = ()) -> list[tuple]:
+        with self._lock:
+            return self._db.execute(sql, params).fetchall()
+
+    # ------------------------------------------------------------------- logs
+    def add_log(self, path: str | os.PathLike, *, sha256: str | None = None) -> LogRecord:
+        """Register a log by its content hash (idempotent); returns its record."""
+        p = Path(path)
+        digest = sha256 or file_sha256(p)
+        size = p.stat().st_size
+        with self._write() as db:
+            db.execute(
+                "INSERT OR IGNORE INTO logs (sha256, name, size_bytes, added_ns) VALUES (?, ?, ?, ?)",
+                (digest, p.name, size, time.time_ns()),
+            )
+        rec = self.log_by_sha(digest)
+        assert rec is not None
+        return rec
+
+    def log_by_sha(self, sha256: str) -> LogRecord | None:
+        rows = self._query("SELECT id, sha256, name, size_bytes FROM logs WHERE sha256 = ?", (sha256,))
+        return LogRecord(*rows[0]) if rows else None
+
+    def logs(self) -> list[LogRecord]:
+        return [LogRecord(*r) for r in self._query("SELECT id, sha256, name, size_bytes FROM logs ORDER BY id")]
+
+    # ----------------------------------------------------------------- frames
+    def add_frame(
+        self,
+        log: LogRecord,
+        *,
+        topic: str,
+        stamp_ns: int,
+        index: int,
+        shape: tuple[int, int],
+        frame_id: str = "",
+        valid: np.ndarray | None = None,
+    ) -> FrameRecord:
+        """Register a frame (idempotent on (log, topic, stamp_ns)); ``valid`` is its (H, W) bool mask."""
+        h, w = (int(shape[0]), int(shape[1]))
+        if valid is not None and (valid.shape != (h, w) or valid.dtype != np.bool_):
+            raise InputShapeError(f"valid must be a ({h}, {w}) bool array, got {describe_array(valid)}")
+        with self._write() as db:
+            db.execute(
+                "INSERT OR IGNORE INTO frames (log_id, topic, stamp_ns, frame_index, frame_id, height, width, valid)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (log.id, topic, int(stamp_ns), int(index), frame_id, h, w, None if valid is None else pack_mask(valid)),
+            )
+        rec = self.frame(log, topic=topic, stamp_ns=stamp_ns)
+        assert rec is not None
+        if (rec.height, rec.width) != (h, w):
+            raise StoreError(
+                f"frame {topic}@{stamp_ns} is registered as {rec.height}x{rec.width}, not {h}x{w}"
+            )
+        return rec
+
+    _FRAME_COLS = "id, log_id, topic, stamp_ns, frame_index, frame_id, height, width"
+
+    def frame(self, log: LogRecord, *, topic: str, stamp_ns: int) -> FrameRecord | None:
+        rows = self._query(
+            f"SELECT {self._FRAME_COLS} FROM frames WHERE log_id = ? AND topic = ? AND stamp_ns = ?",
+            (log.id, topic, int(stamp_ns)),
+        )
+        return FrameRecord(*rows[0]) if rows else None
+
+    def frames(self, log: LogRecord) -> list[FrameRecord]:
+        rows = self._query(
+            f"SELECT {self._FRAME_COLS} FROM frames WHERE log_id = ? ORDER BY frame_index, stamp_ns", (log.id,)
+        )
+        return [FrameRecord(*r) for r in rows]
+
+    def frames_by_stamp(self, *, topic: str, stamp_ns: int) -> list[FrameRecord]:
+        """Frames of any log with this (topic, stamp) — to match a results file to its source log."""
+        rows = self._query(
+            f"SELECT {self._FRAME_COLS} FROM frames WHERE topic = ? AND stamp_ns = ? ORDER BY id", (topic, int(stamp_ns))
+        )
+        return [FrameRecord(*r) for r in rows]
+
+    def valid_mask(self, frame: FrameRecord) -> np.ndarray | None:
+        rows = self._query("SELECT valid FROM frames WHERE id = ?", (frame.id,))
+        if not rows or rows[0][0] is None:
+            return None
+        return unpack_mask(rows[0][0], (frame.height, frame.width))
+
+    # ----------------------------------------------------------------- labels
+    def save_label(
+        self,
+        frame: FrameRecord,
+        *,
+        annotator: str,
+        outliers: np.ndarray,
+        reviewed: np.ndarray,
+        base_revision: int | None,
+        source: str = "page",
+    ) -> int:
+        """Append a label revision and commit it; returns the new revision number.
+
+        Parameters
+        ----------
+        frame : FrameRecord
+        annotator : str
+        outliers, reviewed : (H, W) bool ndarray
+            L and R with L ⊆ R ⊆ the frame's valid pixels (when the store knows them).
+        base_revision : int or None
+            The annotator's revision this edit started from (None or 0: none yet). If a later revision
+            exists, nothing is written and :class:`LabelConflictError` is raised.
+        source : str
+            Where the label came from (``page``, ``import``, ...).
+
+        Returns
+        -------
+        int
+            The committed revision.
+        """
+        _check_annotator(annotator)
+        if (frame.height, frame.width) != tuple(np.shape(outliers)):
+            raise LabelValidationError(
+                f"label shape {tuple(np.shape(outliers))} differs from frame {frame.height}x{frame.width}"
+            )
+        valid = self.valid_mask(frame)
+        check_label(outliers, reviewed, valid=valid)
+        blob_l, blob_r = pack_mask(outliers), pack_mask(reviewed)
+        n_l, n_r = int(outliers.sum()), int(reviewed.sum())
+        base = int(base_revision or 0)
+        with self._write() as db:
+            latest = db.execute(
+                "SELECT COALESCE(MAX(revision), 0) FROM labels WHERE frame_id = ? AND annotator = ?",
+                (frame.id, annotator),
+            ).fetchone()[0]
+            if latest != base:
+                raise LabelConflictError(
+                    f"frame {frame.index}: {annotator!r} is at revision {latest}, the edit was based on {base}",
+                    latest=latest,
+                )
+            db.execute(
+                "INSERT INTO labels (frame_id, annotator, revision, created_ns, height, width, outliers, reviewed,"
+                " n_outliers, n_reviewed, source) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (frame.id, annotator, latest + 1, time.time_ns(), frame.height, frame.width, blob_l, blob_r, n_l, n_r, source),
+            )
+        return latest + 1
+
+    _LABEL_COLS = "frame_id, annotator, revision, outliers, reviewed, created_ns, source, height, width"
+
+    def _label_from_row(self, row: tuple) -> Label:
+        fid, ann, rev, bl, br, created, source, h, w = row
+        return Label(fid, ann, rev, unpack_mask(bl, (h, w)), unpack_mask(br, (h, w)), created, source)
+
+    def label(self, frame: FrameRecord, *, annotator: str, revision: int | None = None) -> Label | None:
+        """The annotator's latest label of the frame (or a given revision); None if there is none."""
+        if revision is None:
+            rows = self._query(
+                f"SELECT {self._LABEL_COLS} FROM labels WHERE frame_id = ? AND annotator = ?"
+                " ORDER BY revision DESC LIMIT 1",
+                (frame.id, annotator),
+            )
+        else:
+            rows = self._query(
+                f"SELECT {self._LABEL_COLS} FROM labels WHERE frame_id = ? AND annotator = ? AND revision = ?",
+                (frame.id, annotator, int(revision)),
+            )
+        return self._label_from_row(rows[0]) if rows else None
+
+    def label_blobs(self, frame: FrameRecord, *, annotator: str) -> tuple[int, bytes, bytes] | None:
+        """(revision, packed outliers, packed reviewed) of the latest label, as stored (for the page)."""
+        rows = self._query(
+            "SELECT revision, outliers, reviewed FROM labels WHERE frame_id = ? AND annotator = ?"
+            " ORDER BY revision DESC LIMIT 1",
+            (frame.id, annotator),
+        )
+        return (rows[0][0], bytes(rows[0][1]), bytes(rows[0][2])) if rows else None
+
+    def revisions(self, frame: FrameRecord, *, annotator: str) -> list[int]:
+        rows = self._query(
+            "SELECT revision FROM labels WHERE frame_id = ? AND annotator = ? ORDER BY revision", (frame.id, annotator)
+        )
+        return [r[0] for r in rows]
+
+    def annotators(self, log: LogRecord | None = None) -> list[str]:
+        if log is None:
+            rows = self._query("SELECT DISTINCT annotator FROM labels ORDER BY annotator")
+        else:
+            rows = self._query(
+                "SELECT DISTINCT l.annotator FROM labels l JOIN frames f ON f.id = l.frame_id"
+                " WHERE f.log_id = ? ORDER BY l.annotator",
+                (log.id,),
+            )
+        return [r[0] for r in rows]
+
+    def current_labels(self, log: LogRecord, *, annotator: str) -> dict[int, LabelSummary]:
+        """Frame id -> summary of the annotator's latest label, for every labelled frame of the log."""
+        rows = self._query(
+            "SELECT l.frame_id, l.annotator, l.revision, l.n_outliers, l.n_reviewed, l.created_ns"
+            " FROM labels l JOIN frames f ON f.id = l.frame_id"
+            " WHERE f.log_id = ? AND l.annotator = ? AND l.revision ="
+            " (SELECT MAX(revision) FROM labels m WHERE m.frame_id = l.frame_id AND m.annotator = l.annotator)",
+            (log.id, annotator),
+        )
+        return {r[0]: LabelSummary(*r) for r in rows}
+
+    def label_count(self) -> int:
+        """Number of label revisions in the store (all annotators, all revisions)."""
+        return int(self._query("SELECT COUNT(*) FROM labels")[0][0])
+
+
+def iter_current_labels(store: LabelStore, log: LogRecord, *, annotator: str) -> Iterable[tuple[FrameRecord, Label]]:
+    """(frame, latest label) for every frame of the log the annotator labelled, in frame order."""
+    current = store.current_labels(log, annotator=annotator)
+    for fr in store.frames(log):
+        if fr.id in current:
+            lab = store.label(fr, annotator=annotator)
+            if lab is not None:
+                yield fr, lab
+
+
+# ------------------------------------------------------------------ MCAP export / import
+LABEL_OUTLIERS_TOPIC = "/labels/outliers"
+LABEL_REVIEWED_TOPIC = "/labels/reviewed"
+LABELS_METADATA = "zcut.labels"
+
+
+def export_labels(store: LabelStore, log: LogRecord, path: str | os.PathLike, *, annotator: str) -> int:
+    """Write an annotator's current labels of a log to MCAP (SPEC §5).
+
+    Each labelled frame gives two mono8 images (255 = set) stamped like its cloud:
+    ``/labels/outliers`` (L) and ``/labels/reviewed`` (R). The metadata record ``zcut.labels`` names
+    the log (sha256, file name), the cloud topic of every frame and the annotator, so that
+    :func:`import_labels` can put the labels back on the same frames.
+
+    Returns
+    -------
+    int
+        Number of frames written.
+    """
+    from replay.logwrite import LogWriter
+
+    pairs = list(iter_current_labels(store, log, annotator=annotator))
+    topics = sorted({fr.topic for fr, _ in pairs})
+    meta = {
+        LABELS_METADATA: {
+            "log_sha256": log.sha256,
+            "log_name": log.name,
+            "annotator": annotator,
+            "cloud_topics": ",".join(topics),
+            "schema_version": str(SCHEMA_VERSION),
+        }
+    }
+    with LogWriter(path, metadata=meta) as w:
+        for fr, lab in pairs:
+            w.write_mask(LABEL_OUTLIERS_TOPIC, lab.outliers, stamp_ns=fr.stamp_ns, frame_id=fr.frame_id)
+            w.write_mask(LABEL_REVIEWED_TOPIC, lab.reviewed, stamp_ns=fr.stamp_ns, frame_id=fr.frame_id)
+    return len(pairs)
+
+
+def read_label_masks(path: str | os.PathLike) -> tuple[dict[str, str], dict[int, dict[str, np.ndarray]]]:
+    """Read an exported label MCAP: (``zcut.labels`` metadata, stamp_ns -> {topic: (H, W) bool})."""
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from replay.errors import LogFormatError
+
+    meta: dict[str, str] = {}
+    masks: dict[int, dict[str, np.ndarray]] = {}
+    try:
+        with open(path, "rb") as f:
+            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            for rec in reader.iter_metadata():
+                if rec.name == LABELS_METADATA:
+                    meta = dict(rec.metadata)
+            f.seek(0)
+            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            for _schema, _channel, message, msg in reader.iter_decoded_messages(
+                topics=[LABEL_OUTLIERS_TOPIC, LABEL_REVIEWED_TOPIC]
+            ):
+                if msg.encoding != "mono8":
+                    raise LogFormatError(f"{path}: {_channel.topic} has encoding {msg.encoding!r}, expected mono8")
+                h, w, step = int(msg.height), int(msg.width), int(msg.step)
+                data = np.frombuffer(bytes(msg.data), np.uint8)
+                if data.size < h * step or step < w:
+                    raise LogFormatError(f"{path}: {_channel.topic} image data too short for {h}x{w}")
+                m = data[: h * step].reshape(h, step)[:, :w] > 0
+                stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+                masks.setdefault(stamp, {})[_channel.topic] = m
+    except McapError as e:
+        raise LogFormatError(f"{path}: not a readable MCAP label file: {e}") from e
+    if not meta:
+        raise LogFormatError(f"{path}: no {LABELS_METADATA!r} metadata record; not a zcut label export")
+    return meta, masks
+
+
+def import_labels(
+    store: LabelStore, path: str | os.PathLike, *, annotator: str | None = None
+) -> int:
+    """Append the labels of an exported MCAP as new revisions (``source='import'``).
+
+    Frames are found by the log's sha256 and (cloud topic, stamp_ns); the log must be registered
+    in the store (open it once with ``zcut annotate`` or :meth:`LabelStore.add_log`). Each imported
+    label goes on top of the annotator's current revision (nothing is overwritten).
+
+    Returns
+    -------
+    int
+        Number of labels imported.
+    """
+    meta, masks = read_label_masks(path)
+    log = store.log_by_sha(meta.get("log_sha256", ""))
+    if log is None:
+        raise StoreError(
+            f"{path}: labels are for log {meta.get('log_name', '?')} (sha256 {meta.get('log_sha256', '?')[:12]}…), "
+            f"which is not registered in {store.path}"
+        )
+    who = annotator or meta.get("annotator", "")
+    topics = [t for t in meta.get("cloud_topics", "").split(",") if t]
+    n = 0
+    for stamp, pair in sorted(masks.items()):
+        if LABEL_OUTLIERS_TOPIC not in pair or LABEL_REVIEWED_TOPIC not in pair:
+            raise StoreError(f"{path}: stamp {stamp} lacks one of {LABEL_OUTLIERS_TOPIC}, {LABEL_REVIEWED_TOPIC}")
+        frames = [fr for t in topics if (fr := store.frame(log, topic=t, stamp_ns=stamp)) is not None]
+        if len(frames) != 1:
+            raise StoreError(f"{path}: stamp {stamp} matches {len(frames)} frames of {log.name}, expected 1")
+        fr = frames[0]
+        latest = store.revisions(fr, annotator=who)
+        store.save_label(
+            fr,
+            annotator=who,
+            outliers=pair[LABEL_OUTLIERS_TOPIC],
+            reviewed=pair[LABEL_REVIEWED_TOPIC],
+            base_revision=latest[-1] if latest else 0,
+            source="import",
+        )
+        n += 1
+    return n

@@ -1,0 +1,217 @@
+"""annotate.store on a real SQLite file: revisions, conflicts, validation, schema, MCAP round trip."""
+
+from __future__ import annotations
+
+import hashlib
+import sqlite3
+
+import numpy as np
+import pytest
+
+from annotate.store import (
+    SCHEMA_VERSION,
+    LabelConflictError,
+    LabelStore,
+    LabelValidationError,
+    StoreError,
+    export_labels,
+    file_sha256,
+    import_labels,
+    pack_mask,
+    read_label_masks,
+    unpack_mask,
+)
+
+SHAPE = (12, 17)
+
+
+@pytest.fixture
+def log_file(tmp_path):
+    p = tmp_path / "scan.mcap"
+    p.write_bytes(b"not really a log, but content is what identifies it" * 100)
+    return p
+
+
+@pytest.fixture
+def valid(rng):
+    v = rng.random(SHAPE) > 0.1
+    return v
+
+
+@pytest.fixture
+def store_frame(tmp_path, log_file, valid):
+    store = LabelStore(tmp_path / "labels.sqlite")
+    log = store.add_log(log_file)
+    fr = store.add_frame(log, topic="/camera/points", stamp_ns=1_000, index=0, shape=SHAPE, valid=valid)
+    yield store, log, fr
+    store.close()
+
+
+def _label(rng, valid):
+    reviewed = valid & (rng.random(SHAPE) > 0.2)
+    outliers = reviewed & (rng.random(SHAPE) > 0.7)
+    return outliers, reviewed
+
+
+def test_pack_roundtrip(rng):
+    for shape in [(1, 1), (3, 5), (7, 8), (120, 160)]:
+        m = rng.random(shape) > 0.5
+        assert np.array_equal(unpack_mask(pack_mask(m), shape), m)
+
+
+def test_unpack_rejects_bad_blobs():
+    with pytest.raises(LabelValidationError, match="zlib"):
+        unpack_mask(b"garbage", (4, 4))
+    with pytest.raises(LabelValidationError, match="bytes"):
+        unpack_mask(pack_mask(np.ones((4, 4), bool)), (8, 8))
+
+
+def test_file_sha256_streams_the_content(log_file):
+    assert file_sha256(log_file, chunk_bytes=7) == hashlib.sha256(log_file.read_bytes()).hexdigest()
+
+
+def test_log_identity_is_content(tmp_path, log_file):
+    with LabelStore(tmp_path / "l.sqlite") as store:
+        a = store.add_log(log_file)
+        copy = tmp_path / "renamed.mcap"
+        copy.write_bytes(log_file.read_bytes())
+        assert store.add_log(copy).id == a.id
+        other = tmp_path / "other.mcap"
+        other.write_bytes(b"x")
+        assert store.add_log(other).id != a.id
+
+
+def test_revisions_append_and_latest_wins(store_frame, rng, valid):
+    store, log, fr = store_frame
+    l1, r1 = _label(rng, valid)
+    l2, r2 = _label(rng, valid)
+    assert store.save_label(fr, annotator="ann", outliers=l1, reviewed=r1, base_revision=None) == 1
+    assert store.save_label(fr, annotator="ann", outliers=l2, reviewed=r2, base_revision=1) == 2
+    assert store.save_label(fr, annotator="bob", outliers=l1, reviewed=r1, base_revision=0) == 1
+    cur = store.label(fr, annotator="ann")
+    assert cur.revision == 2 and np.array_equal(cur.outliers, l2) and np.array_equal(cur.reviewed, r2)
+    old = store.label(fr, annotator="ann", revision=1)
+    assert np.array_equal(old.outliers, l1)
+    assert store.revisions(fr, annotator="ann") == [1, 2]
+    assert store.annotators(log) == ["ann", "bob"]
+    summ = store.current_labels(log, annotator="ann")
+    assert summ[fr.id].revision == 2 and summ[fr.id].n_outliers == int(l2.sum())
+
+
+def test_stale_base_revision_is_a_conflict(store_frame, rng, valid):
+    store, _, fr = store_frame
+    l1, r1 = _label(rng, valid)
+    store.save_label(fr, annotator="ann", outliers=l1, reviewed=r1, base_revision=0)
+    with pytest.raises(LabelConflictError, match="revision 1") as e:
+        store.save_label(fr, annotator="ann", outliers=l1, reviewed=r1, base_revision=0)
+    assert e.value.latest == 1
+    assert store.revisions(fr, annotator="ann") == [1]
+
+
+def test_labels_are_append_only_in_sql(store_frame, rng, valid, tmp_path):
+    store, _, fr = store_frame
+    l1, r1 = _label(rng, valid)
+    store.save_label(fr, annotator="ann", outliers=l1, reviewed=r1, base_revision=0)
+    db = sqlite3.connect(tmp_path / "labels.sqlite")
+    with pytest.raises(sqlite3.IntegrityError, match="append-only"):
+        db.execute("UPDATE labels SET annotator = 'x'")
+    with pytest.raises(sqlite3.IntegrityError, match="append-only"):
+        db.execute("DELETE FROM labels")
+    db.close()
+
+
+@pytest.mark.parametrize(
+    ("make", "match"),
+    [
+        (lambda v: (v.copy(), np.zeros_like(v)), "outliers must lie inside reviewed"),
+        (lambda v: (np.zeros_like(v), np.ones_like(v)), "inside the valid pixels"),
+        (lambda v: (np.zeros((3, 3), bool), np.zeros((3, 3), bool)), "differs from frame"),
+        (lambda v: (v.astype(np.uint8), v), "bool"),
+    ],
+)
+def test_invalid_labels_store_nothing(store_frame, valid, make, match):
+    store, _, fr = store_frame
+    outliers, reviewed = make(valid)
+    with pytest.raises(LabelValidationError, match=match):
+        store.save_label(fr, annotator="ann", outliers=outliers, reviewed=reviewed, base_revision=0)
+    assert store.label_count() == 0
+
+
+@pytest.mark.parametrize("name", ["", "x" * 65, "tab\there", 7])
+def test_bad_annotator_names(store_frame, valid, name):
+    store, _, fr = store_frame
+    with pytest.raises(LabelValidationError, match="annotator"):
+        store.save_label(fr, annotator=name, outliers=valid & False, reviewed=valid, base_revision=0)
+
+
+def test_reopen_keeps_everything_and_pragmas(tmp_path, log_file, rng, valid):
+    path = tmp_path / "p.sqlite"
+    with LabelStore(path) as store:
+        log = store.add_log(log_file)
+        fr = store.add_frame(log, topic="/c", stamp_ns=5, index=0, shape=SHAPE, valid=valid)
+        l1, r1 = _label(rng, valid)
+        store.save_label(fr, annotator="ann", outliers=l1, reviewed=r1, base_revision=0)
+    with LabelStore(path) as store:
+        assert store.schema_version == SCHEMA_VERSION
+        log = store.log_by_sha(file_sha256(log_file))
+        fr = store.frame(log, topic="/c", stamp_ns=5)
+        assert np.array_equal(store.label(fr, annotator="ann").outliers, l1)
+        assert np.array_equal(store.valid_mask(fr), valid)
+    db = sqlite3.connect(path)
+    assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
+    db.close()
+
+
+def test_newer_schema_is_refused(tmp_path):
+    path = tmp_path / "future.sqlite"
+    db = sqlite3.connect(path)
+    db.execute(f"PRAGMA user_version = {SCHEMA_VERSION + 1}")
+    db.close()
+    with pytest.raises(StoreError, match="schema version"):
+        LabelStore(path)
+
+
+def test_not_a_database_is_a_store_error(tmp_path):
+    path = tmp_path / "junk.sqlite"
+    path.write_bytes(b"hello, this is not sqlite at all" * 200)
+    with pytest.raises(StoreError, match="junk.sqlite"):
+        LabelStore(path)
+
+
+def test_export_import_roundtrip(store_frame, rng, valid, tmp_path):
+    store, log, fr0 = store_frame
+    fr1 = store.add_frame(log, topic="/camera/points", stamp_ns=2_000, index=1, shape=SHAPE, valid=valid)
+    labels = {}
+    for fr in (fr0, fr1):
+        labels[fr.stamp_ns] = _label(rng, valid)
+        store.save_label(fr, annotator="ann", outliers=labels[fr.stamp_ns][0], reviewed=labels[fr.stamp_ns][1], base_revision=0)
+    out = tmp_path / "labels.mcap"
+    assert export_labels(store, log, out, annotator="ann") == 2
+    meta, masks = read_label_masks(out)
+    assert meta["log_sha256"] == log.sha256 and meta["annotator"] == "ann"
+    assert np.array_equal(masks[2_000]["/labels/outliers"], labels[2_000][0])
+    assert np.array_equal(masks[2_000]["/labels/reviewed"], labels[2_000][1])
+
+    # import into a fresh store as another annotator: same masks, source 'import'
+    with LabelStore(tmp_path / "fresh.sqlite") as fresh:
+        flog = fresh.add_log(tmp_path / "scan.mcap")
+        for i, stamp in enumerate((1_000, 2_000)):
+            fresh.add_frame(flog, topic="/camera/points", stamp_ns=stamp, index=i, shape=SHAPE, valid=valid)
+        assert import_labels(fresh, out, annotator="carol") == 2
+        fr = fresh.frame(flog, topic="/camera/points", stamp_ns=1_000)
+        lab = fresh.label(fr, annotator="carol")
+        assert lab.source == "import" and np.array_equal(lab.outliers, labels[1_000][0])
+    # importing again on top of existing labels appends revisions
+    assert import_labels(store, out) == 2
+    assert store.revisions(fr0, annotator="ann") == [1, 2]
+
+
+def test_import_needs_the_log(tmp_path, store_frame, rng, valid):
+    store, log, fr = store_frame
+    l1, r1 = _label(rng, valid)
+    store.save_label(fr, annotator="ann", outliers=l1, reviewed=r1, base_revision=0)
+    export_labels(store, log, tmp_path / "x.mcap", annotator="ann")
+    with LabelStore(tmp_path / "empty.sqlite") as other:
+        with pytest.raises(StoreError, match="not registered"):
+            import_labels(other, tmp_path / "x.mcap")
