@@ -1,0 +1,481 @@
+"""Stream organized scans out of a ROS 2 MCAP log (SPEC §5).
+
+:class:`LogReader` opens a log, finds the topics zcut uses (the organized ``PointCloud2``, a colour
+``Image`` and a ``CameraInfo`` of the same size, and every ``mono8`` Image of that size as a mask)
+and then streams :class:`~replay.frame.Frame` objects, pairing each cloud with the other topics by
+header stamp. The file is never loaded whole: it is scanned chunk by chunk (see
+:mod:`replay.mcapscan`), and only a bounded window of messages is buffered for the pairing.
+
+Damage (a truncated file, a corrupt chunk) does not stop the stream: every intact frame is
+delivered and :attr:`LogReader.damage` then holds one-line notes. Anything that makes the log
+unusable for zcut (not MCAP, a ROS 1 log, no organized cloud, an ambiguous cloud topic, an image
+whose size differs from its cloud, a malformed message) raises
+:class:`~replay.errors.LogFormatError` with a one-line message.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from zcut.cloud import Intrinsics
+
+from . import ros_msgs as rm
+from .errors import LogDamageError, LogFormatError
+from .frame import Frame
+from .mcapscan import (
+    OP_CHANNEL,
+    OP_MESSAGE,
+    OP_METADATA,
+    OP_SCHEMA,
+    Channel,
+    McapFile,
+    Message,
+    Schema,
+    _Bad,
+)
+
+#: A frame waits for its image, camera info and masks until this many later clouds have arrived.
+PAIRING_WINDOW = 2
+_PEEK_AFTER_FIRST_CLOUD = 64  # messages scanned past the first cloud when the file has no summary
+_TYPES = (rm.POINTCLOUD2, rm.IMAGE, rm.CAMERAINFO)
+
+
+@dataclass
+class TopicInfo:
+    """What :class:`LogReader` learned about one topic (for ``zcut topics``)."""
+
+    topic: str
+    msg_type: str
+    message_encoding: str
+    count: int | None
+    height: int | None = None
+    width: int | None = None
+    encoding: str | None = None  # Image encoding of the first message
+    fields: tuple[str, ...] = ()  # PointCloud2 field names of the first message
+    channel_ids: list[int] = field(default_factory=list)
+
+
+def _ns(topic: str) -> str:
+    return topic.rsplit("/", 1)[0]
+
+
+class LogReader:
+    """Read organized frames from a ROS 2 MCAP log.
+
+    Parameters
+    ----------
+    path : str or Path
+    cloud_topic, image_topic, info_topic : str or None
+        Choose topics explicitly (``--topic``, ``--image-topic``); found automatically when None.
+
+    Attributes
+    ----------
+    cloud_topic : str
+    image_topic, info_topic : str or None
+    mask_topics : list[str]
+        mono8 Image topics of the cloud's size; delivered in :attr:`Frame.masks`.
+    metadata : dict[str, dict[str, str]]
+        MCAP metadata records (from the summary; for a file without one, filled while iterating).
+    n_frames : int or None
+        Number of clouds on ``cloud_topic`` according to the summary.
+    damage : list[str]
+        One-line notes about damage met by the last :meth:`frames` iteration (empty = intact).
+    topics : dict[str, TopicInfo]
+    start_ns, end_ns : int or None
+        Log time span from the summary statistics.
+    profile, library : str
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        cloud_topic: str | None = None,
+        image_topic: str | None = None,
+        info_topic: str | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self.damage: list[str] = []
+        self.metadata: dict[str, dict[str, str]] = {}
+        self.n_frames: int | None = None
+        self.start_ns: int | None = None
+        self.end_ns: int | None = None
+        self.notes: list[str] = []
+        with McapFile(self.path) as mf:
+            self.profile, self.library = mf.profile, mf.library
+            if mf.summary_damage:
+                self.notes.append(mf.summary_damage)
+            schemas: dict[int, Schema] = {}
+            channels: dict[int, Channel] = {}
+            if mf.summary is not None:
+                schemas.update(mf.summary.schemas)
+                channels.update(mf.summary.channels)
+                self.metadata, notes = mf.read_metadata()
+                self.notes += notes
+                self.start_ns = mf.summary.message_start_time
+                self.end_ns = mf.summary.message_end_time
+            firsts, peek_damage = self._peek(mf, schemas, channels)
+        self._schemas = schemas
+        self._channels = channels
+        counts = mf.summary.channel_message_counts if mf.summary is not None else None
+        self.topics: dict[str, TopicInfo] = {}
+        for cid, ch in sorted(channels.items()):
+            sc = schemas.get(ch.schema_id)
+            msg_type = sc.name if sc is not None else "?"
+            info = self.topics.get(ch.topic)
+            n = counts.get(cid, 0) if counts is not None else None
+            if info is None:
+                info = self.topics[ch.topic] = TopicInfo(ch.topic, msg_type, ch.message_encoding, n)
+            elif n is not None and info.count is not None:
+                info.count += n
+            info.channel_ids.append(cid)
+            got = firsts.get(cid)
+            if isinstance(got, rm.CloudMsg):
+                info.height, info.width = got.height, got.width
+                info.fields = tuple(f.name for f in got.fields)
+            elif isinstance(got, rm.ImageMsg):
+                info.height, info.width, info.encoding = got.height, got.width, got.encoding
+            elif isinstance(got, rm.CameraInfoMsg):
+                info.height, info.width = got.height, got.width
+        self._choose_topics(cloud_topic, image_topic, info_topic, peek_damage)
+        cinfo = self.topics[self.cloud_topic]
+        if counts is not None:
+            self.n_frames = cinfo.count
+
+    # ------------------------------------------------------------------ opening
+    def _peek(
+        self, mf: McapFile, schemas: dict[int, Schema], channels: dict[int, Channel]
+    ) -> tuple[dict[int, object], list[str]]:
+        """First decoded message (header only) of every PointCloud2/Image/CameraInfo channel."""
+        firsts: dict[int, object] = {}
+        damage: list[str] = []
+
+        def wanted(cid: int) -> bool:
+            ch = channels.get(cid)
+            if ch is None or ch.message_encoding != "cdr":
+                return False
+            sc = schemas.get(ch.schema_id)
+            return sc is not None and sc.name in _TYPES
+
+        def take(msg: Message) -> None:
+            ch = channels[msg.channel_id]
+            name = schemas[ch.schema_id].name
+            where = f"{self.path.name}: topic {ch.topic}, first message"
+            try:
+                if name == rm.POINTCLOUD2:
+                    firsts[msg.channel_id] = rm.decode_cloud(msg.data, where=where)
+                elif name == rm.IMAGE:
+                    firsts[msg.channel_id] = rm.decode_image(msg.data, where=where)
+                else:
+                    firsts[msg.channel_id] = rm.decode_camera_info(msg.data, where=where)
+            except LogFormatError as e:
+                firsts[msg.channel_id] = e
+
+        summary = mf.summary
+        if summary is not None and summary.chunk_indexes:
+            todo = {cid for cid in channels if wanted(cid)}
+            for ci in summary.chunk_indexes:
+                need = todo & set(ci.message_index_offsets)
+                if not need:
+                    continue
+                try:
+                    rec = mf._read_record_at(ci.chunk_start_offset, expect_len=ci.chunk_length)
+                    if rec is None:
+                        raise _Bad("chunk runs past the end of the file")
+                    for op, b in mf._chunk_records(rec[1], ""):
+                        if op == OP_MESSAGE:
+                            msg = mf._parse_inner(op, b)
+                            if msg.channel_id in need and msg.channel_id not in firsts:
+                                take(msg)
+                except _Bad as e:
+                    damage.append(f"chunk at byte {ci.chunk_start_offset} is corrupt ({e})")
+                    continue
+                todo -= set(firsts)
+                if not todo:
+                    break
+            return firsts, damage
+        # no summary (or an unchunked file): scan from the start, a little past the first cloud
+        after = None
+        for op, rec in mf.records(damage):
+            if op == OP_SCHEMA:
+                schemas[rec.id] = rec
+            elif op == OP_CHANNEL:
+                channels[rec.id] = rec
+            elif op == OP_METADATA:
+                self.metadata[rec[0]] = rec[1]
+            elif op == OP_MESSAGE:
+                if rec.channel_id not in firsts and wanted(rec.channel_id):
+                    take(rec)
+                    if after is None and isinstance(firsts[rec.channel_id], rm.CloudMsg):
+                        after = 0
+                if after is not None:
+                    after += 1
+                    if after > _PEEK_AFTER_FIRST_CLOUD:
+                        break
+        return firsts, damage
+
+    def _choose_topics(
+        self, cloud_topic: str | None, image_topic: str | None, info_topic: str | None,
+        peek_damage: list[str],
+    ) -> None:
+        name = self.path.name
+        topics = self.topics
+        encodings = {t.message_encoding for t in topics.values()}
+        if self.profile == "ros1" or (encodings and encodings <= {"ros1"}):
+            raise LogFormatError(
+                f"{name} is a ROS 1 log (message encoding ros1); zcut reads ROS 2 logs "
+                "(profile ros2, cdr). Convert it first, e.g. with rosbags-convert"
+            )
+        clouds = [t for t in topics.values() if t.msg_type == rm.POINTCLOUD2 and t.message_encoding == "cdr"]
+        organized = [t for t in clouds if t.height is not None and t.height > 1]
+
+        def desc(t: TopicInfo) -> str:
+            return f"{t.topic} ({t.height}x{t.width})" if t.height is not None else f"{t.topic} (no messages)"
+
+        if cloud_topic is not None:
+            t = topics.get(cloud_topic)
+            if t is None or t.msg_type != rm.POINTCLOUD2:
+                have = ", ".join(desc(c) for c in clouds) or "none"
+                raise LogFormatError(
+                    f"{name} has no PointCloud2 topic '{cloud_topic}' (PointCloud2 topics: {have})"
+                )
+            if t.height is None:
+                raise LogFormatError(f"{name}: topic {cloud_topic} has no readable message")
+            if t.height <= 1:
+                raise LogFormatError(
+                    f"{name}: topic {cloud_topic} holds unorganized clouds (height {t.height}, "
+                    f"width {t.width}); zcut needs organized clouds (height > 1)"
+                )
+            chosen = t
+        elif len(organized) == 1:
+            chosen = organized[0]
+        elif len(organized) > 1:
+            raise LogFormatError(
+                f"{name} has several organized PointCloud2 topics: "
+                f"{', '.join(desc(t) for t in organized)}; choose one with --topic"
+            )
+        else:
+            if not topics and peek_damage:
+                raise LogDamageError(f"{name} is damaged before its first message: {peek_damage[0]}")
+            if clouds:
+                raise LogFormatError(
+                    f"{name} has no organized PointCloud2: "
+                    + ", ".join(
+                        f"{t.topic} has height {t.height} (width {t.width})" if t.height is not None
+                        else f"{t.topic} has no readable message"
+                        for t in clouds
+                    )
+                    + "; zcut needs organized clouds (height > 1)"
+                )
+            if peek_damage and not any(t.msg_type == rm.POINTCLOUD2 for t in topics.values()):
+                raise LogDamageError(f"{name} is damaged before its first cloud: {peek_damage[0]}")
+            have = ", ".join(f"{t.topic} [{t.msg_type}]" for t in topics.values()) or "none"
+            raise LogFormatError(f"{name} has no sensor_msgs/msg/PointCloud2 topic (topics: {have})")
+        self.cloud_topic = chosen.topic
+        shape = (chosen.height, chosen.width)
+
+        images = [
+            t for t in topics.values()
+            if t.msg_type == rm.IMAGE and t.message_encoding == "cdr" and t.encoding in rm.COLOR_ENCODINGS
+        ]
+        if image_topic is not None:
+            t = topics.get(image_topic)
+            if t is None or t.msg_type != rm.IMAGE:
+                have = ", ".join(i.topic for i in images) or "none"
+                raise LogFormatError(f"{name} has no Image topic '{image_topic}' (colour images: {have})")
+            if t.encoding not in rm.COLOR_ENCODINGS:
+                raise LogFormatError(
+                    f"{name}: image topic {image_topic} has encoding '{t.encoding}'; "
+                    f"zcut pairs colour images ({', '.join(rm.COLOR_ENCODINGS)})"
+                )
+            img = t
+        elif len(images) == 1:
+            img = images[0]
+        elif len(images) > 1:
+            same = [t for t in images if (t.height, t.width) == shape]
+            near = [t for t in same if _ns(t.topic) == _ns(self.cloud_topic)]
+            if len(same) == 1:
+                img = same[0]
+            elif len(near) == 1:
+                img = near[0]
+            else:
+                raise LogFormatError(
+                    f"{name} has several colour Image topics: "
+                    f"{', '.join(desc(t) for t in images)}; choose one with --image-topic"
+                )
+        else:
+            img = None
+        if img is not None and (img.height, img.width) != shape:
+            raise LogFormatError(
+                f"{name}: image topic {img.topic} is {img.height}x{img.width} but cloud topic "
+                f"{self.cloud_topic} is {shape[0]}x{shape[1]}; zcut pairs images of the cloud's size"
+            )
+        self.image_topic = img.topic if img is not None else None
+
+        infos = [t for t in topics.values() if t.msg_type == rm.CAMERAINFO and t.message_encoding == "cdr"]
+        if info_topic is not None:
+            if info_topic not in {t.topic for t in infos}:
+                have = ", ".join(t.topic for t in infos) or "none"
+                raise LogFormatError(f"{name} has no CameraInfo topic '{info_topic}' (CameraInfo topics: {have})")
+            self.info_topic: str | None = info_topic
+        else:
+            fit = [t for t in infos if (t.height, t.width) == shape] or infos
+            pref = [_ns(self.image_topic)] if self.image_topic else []
+            pref.append(_ns(self.cloud_topic))
+            choice = None
+            for ns in pref:
+                near = [t for t in fit if _ns(t.topic) == ns]
+                if near:
+                    choice = near[0]
+                    break
+            if choice is None and fit:
+                choice = sorted(fit, key=lambda t: t.topic)[0]
+            self.info_topic = choice.topic if choice is not None else None
+
+        self.mask_topics = sorted(
+            t.topic for t in topics.values()
+            if t.msg_type == rm.IMAGE and t.message_encoding == "cdr" and t.encoding == "mono8"
+            and (t.height, t.width) == shape
+        )
+
+    # ------------------------------------------------------------------ streaming
+    def frames(self, *, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        """Yield the frames with ``start <= index < stop`` in log order.
+
+        Each cloud is paired with the image, camera info and masks of the same header stamp that
+        arrive within :data:`PAIRING_WINDOW` clouds of it. Damage met on the way is appended to
+        :attr:`damage` (reset at the start of each iteration). Raises :class:`LogDamageError` if the
+        log is damaged so that not one frame could be delivered, :class:`LogFormatError` on a
+        malformed message.
+        """
+        if start < 0 or (stop is not None and stop < start):
+            raise LogFormatError(f"frames: bad range start={start}, stop={stop}")
+        self.damage = []
+        companions = [t for t in (self.image_topic, self.info_topic) if t] + list(self.mask_topics)
+        orphan_limit = 4 * len(companions) + 4
+        pending: list[dict] = []  # {"index", "stamp", "cloud", "parts": {topic: decoded}}
+        orphans: list[tuple[int, str, object]] = []  # (stamp, topic, decoded)
+        next_index = 0
+        delivered = 0
+        want_topics = {self.cloud_topic, *companions}
+
+        def complete(p: dict) -> bool:
+            return all(t in p["parts"] for t in companions)
+
+        def emit_ready(final: bool) -> Iterator[Frame]:
+            nonlocal delivered
+            while pending and (final or complete(pending[0]) or len(pending) > PAIRING_WINDOW):
+                if pending[0]["cloud"] is None:
+                    return
+                p = pending.pop(0)
+                if p["index"] >= start and (stop is None or p["index"] < stop):
+                    delivered += 1
+                    yield self._build(p)
+
+        schemas = dict(self._schemas)
+        channels = dict(self._channels)
+        with McapFile(self.path) as mf:
+            for op, rec in mf.records(self.damage):
+                if op == OP_MESSAGE:
+                    ch = channels.get(rec.channel_id)
+                    if ch is None or ch.topic not in want_topics:
+                        continue
+                    topic = ch.topic
+                    if topic == self.cloud_topic:
+                        idx = next_index
+                        next_index += 1
+                        if idx < start:
+                            continue
+                        if stop is not None and idx >= stop:
+                            # past the range: only counts towards the pairing window
+                            pending.append({"index": idx, "stamp": None, "cloud": None, "parts": {}})
+                            yield from emit_ready(False)
+                            if pending[0]["cloud"] is None:
+                                break
+                            continue
+                        where = f"{self.path.name}: topic {topic}, message {idx}"
+                        cloud = rm.decode_cloud(rec.data, where=where)
+                        p = {"index": idx, "stamp": cloud.stamp_ns, "cloud": cloud, "parts": {}}
+                        keep = []
+                        for o in orphans:
+                            if o[0] == cloud.stamp_ns and o[1] not in p["parts"]:
+                                p["parts"][o[1]] = o[2]
+                            else:
+                                keep.append(o)
+                        orphans[:] = keep
+                        pending.append(p)
+                    else:
+                        where = f"{self.path.name}: topic {topic}, message at log time {rec.log_time}"
+                        sc = schemas.get(ch.schema_id)
+                        if sc is not None and sc.name == rm.CAMERAINFO:
+                            msg = rm.decode_camera_info(rec.data, where=where)
+                        else:
+                            msg = rm.decode_image(rec.data, where=where)
+                        for p in pending:
+                            if p["stamp"] == msg.stamp_ns and topic not in p["parts"]:
+                                p["parts"][topic] = msg
+                                break
+                        else:
+                            orphans.append((msg.stamp_ns, topic, msg))
+                            if len(orphans) > orphan_limit:
+                                orphans.pop(0)
+                    yield from emit_ready(False)
+                elif op == OP_CHANNEL:
+                    channels[rec.id] = rec
+                elif op == OP_SCHEMA:
+                    schemas[rec.id] = rec
+                elif op == OP_METADATA:
+                    self.metadata.setdefault(rec[0], rec[1])
+            yield from emit_ready(True)
+        if delivered == 0 and self.damage and (stop is None or stop > start):
+            raise LogDamageError(f"{self.path.name}: no frame could be read: {'; '.join(self.damage)}")
+
+    def _build(self, p: dict) -> Frame:
+        idx = p["index"]
+        cloud: rm.CloudMsg = p["cloud"]
+        where = f"{self.path.name}: topic {self.cloud_topic}, message {idx}"
+        if cloud.height <= 1:
+            raise LogFormatError(
+                f"{where}: unorganized cloud (height {cloud.height}, width {cloud.width}); "
+                "zcut needs organized clouds (height > 1)"
+            )
+        xyz, rgb = rm.cloud_to_arrays(cloud, where=where)
+        shape = (cloud.height, cloud.width)
+        parts = p["parts"]
+        img = parts.get(self.image_topic) if self.image_topic else None
+        if img is not None:
+            iwhere = f"{self.path.name}: topic {self.image_topic}, stamp {img.stamp_ns}"
+            if (img.height, img.width) != shape:
+                raise LogFormatError(
+                    f"{iwhere}: image is {img.height}x{img.width} but its cloud ({self.cloud_topic}, "
+                    f"message {idx}) is {shape[0]}x{shape[1]}"
+                )
+            rgb = rm.image_to_rgb(img, where=iwhere)
+        intrinsics: Intrinsics | None = None
+        info = parts.get(self.info_topic) if self.info_topic else None
+        if info is not None and any(info.k):
+            iwhere = f"{self.path.name}: topic {self.info_topic}, stamp {info.stamp_ns}"
+            if (info.height, info.width) != shape:
+                raise LogFormatError(
+                    f"{iwhere}: camera info is for {info.height}x{info.width} but its cloud "
+                    f"({self.cloud_topic}, message {idx}) is {shape[0]}x{shape[1]}"
+                )
+            intrinsics = rm.camera_info_to_intrinsics(info, where=iwhere)
+        masks = {}
+        for topic in self.mask_topics:
+            m = parts.get(topic)
+            if m is None:
+                continue
+            mwhere = f"{self.path.name}: topic {topic}, stamp {m.stamp_ns}"
+            if (m.height, m.width) != shape:
+                raise LogFormatError(
+                    f"{mwhere}: mask is {m.height}x{m.width} but its cloud is {shape[0]}x{shape[1]}"
+                )
+            masks[topic] = rm.image_to_mask(m, where=mwhere)
+        return Frame(
+            xyz=xyz, rgb=rgb, stamp_ns=cloud.stamp_ns, frame_id=cloud.frame_id,
+            intrinsics=intrinsics, topic=self.cloud_topic, index=idx, masks=masks,
+        )

@@ -1,0 +1,485 @@
+"""A small, defensive MCAP record scanner (the parts of the format zcut needs).
+
+Why not ``mcap.reader``: on a damaged file it stops at the first bad record (or, with a corrupt
+length, asks Python for a buffer of that length), so the intact chunks after the damage are lost
+and absurd sizes can exhaust memory. This scanner
+
+- checks every length against the bytes that are really there before reading;
+- decompresses chunks (zstd, lz4, none) incrementally, never past the declared
+  ``uncompressed_size`` (itself capped by :data:`MAX_CHUNK_BYTES`), and checks their CRC;
+- on a corrupt chunk records a damage note and moves on to the next chunk, using the summary's
+  chunk index when the file has one (so a corrupt record length does not lose the rest);
+- on a truncated file delivers every complete record before the cut, then a damage note.
+
+Format reference: https://mcap.dev/spec (all integers little-endian).
+"""
+
+from __future__ import annotations
+
+import io
+import struct
+import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .errors import LogFormatError
+
+MAGIC = b"\x89MCAP0\r\n"
+
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
+OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_ATTACHMENT, OP_ATTACHMENT_INDEX = 0x07, 0x08, 0x09, 0x0A
+OP_STATISTICS, OP_METADATA, OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = (
+    0x0B, 0x0C, 0x0D, 0x0E, 0x0F,
+)
+
+#: Largest chunk (uncompressed) or summary section zcut will hold in memory.
+MAX_CHUNK_BYTES = 1 << 31
+_READ_PIECE = 16 << 20
+
+
+class _Bad(Exception):
+    """Internal: a record does not parse (turned into LogFormatError or a damage note)."""
+
+
+class _Buf:
+    """Bounds-checked little-endian reader over a memoryview."""
+
+    __slots__ = ("mv", "pos", "end")
+
+    def __init__(self, mv: memoryview, pos: int = 0, end: int | None = None) -> None:
+        self.mv = mv
+        self.pos = pos
+        self.end = len(mv) if end is None else end
+
+    def take(self, n: int) -> int:
+        s = self.pos
+        if n < 0 or s + n > self.end:
+            raise _Bad(f"field of {n} bytes at {s} runs past the record end {self.end}")
+        self.pos = s + n
+        return s
+
+    def u8(self) -> int:
+        return self.mv[self.take(1)]
+
+    def u16(self) -> int:
+        return struct.unpack_from("<H", self.mv, self.take(2))[0]
+
+    def u32(self) -> int:
+        return struct.unpack_from("<I", self.mv, self.take(4))[0]
+
+    def u64(self) -> int:
+        return struct.unpack_from("<Q", self.mv, self.take(8))[0]
+
+    def string(self) -> str:
+        n = self.u32()
+        s = self.take(n)
+        try:
+            return bytes(self.mv[s : s + n]).decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise _Bad("string is not UTF-8") from e
+
+    def blob32(self) -> memoryview:
+        n = self.u32()
+        s = self.take(n)
+        return self.mv[s : s + n]
+
+    def str_map(self) -> dict[str, str]:
+        n = self.u32()
+        end = self.take(n) + n
+        out: dict[str, str] = {}
+        sub = _Buf(self.mv, self.pos - n, end)
+        while sub.pos < end:
+            k = sub.string()
+            out[k] = sub.string()
+        return out
+
+
+@dataclass(frozen=True, slots=True)
+class Schema:
+    id: int
+    name: str
+    encoding: str
+    data: bytes
+
+
+@dataclass(frozen=True, slots=True)
+class Channel:
+    id: int
+    schema_id: int
+    topic: str
+    message_encoding: str
+    metadata: dict[str, str]
+
+
+@dataclass(frozen=True, slots=True)
+class Message:
+    channel_id: int
+    sequence: int
+    log_time: int
+    publish_time: int
+    data: memoryview
+
+
+@dataclass(frozen=True, slots=True)
+class ChunkIndex:
+    message_start_time: int
+    message_end_time: int
+    chunk_start_offset: int
+    chunk_length: int
+    message_index_offsets: dict[int, int]
+    message_index_length: int
+    compression: str
+    compressed_size: int
+    uncompressed_size: int
+
+
+@dataclass
+class Summary:
+    """What the summary section says (empty containers when the file has none)."""
+
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    chunk_indexes: list[ChunkIndex] = field(default_factory=list)
+    metadata_offsets: list[tuple[str, int, int]] = field(default_factory=list)
+    channel_message_counts: dict[int, int] | None = None
+    message_start_time: int | None = None
+    message_end_time: int | None = None
+
+
+def parse_schema(b: _Buf) -> Schema:
+    sid = b.u16()
+    name = b.string()
+    enc = b.string()
+    return Schema(sid, name, enc, bytes(b.blob32()))
+
+
+def parse_channel(b: _Buf) -> Channel:
+    cid = b.u16()
+    sid = b.u16()
+    topic = b.string()
+    enc = b.string()
+    return Channel(cid, sid, topic, enc, b.str_map())
+
+
+def parse_message(b: _Buf) -> Message:
+    cid = b.u16()
+    seq = b.u32()
+    log_time = b.u64()
+    pub = b.u64()
+    s = b.take(b.end - b.pos)
+    return Message(cid, seq, log_time, pub, b.mv[s : b.end])
+
+
+def parse_chunk_index(b: _Buf) -> ChunkIndex:
+    t0, t1, start, length = b.u64(), b.u64(), b.u64(), b.u64()
+    n = b.u32()
+    end = b.take(n) + n
+    sub = _Buf(b.mv, end - n, end)
+    offsets: dict[int, int] = {}
+    while sub.pos < end:
+        cid = sub.u16()
+        offsets[cid] = sub.u64()
+    mi_len = b.u64()
+    comp = b.string()
+    return ChunkIndex(t0, t1, start, length, offsets, mi_len, comp, b.u64(), b.u64())
+
+
+def decompress(compression: str, data: memoryview, size: int) -> bytes:
+    """Decompress a chunk's records to exactly ``size`` bytes or raise :class:`_Bad`."""
+    if size > MAX_CHUNK_BYTES:
+        raise _Bad(f"claims {size} uncompressed bytes, more than the {MAX_CHUNK_BYTES} zcut accepts")
+    if compression == "":
+        if len(data) != size:
+            raise _Bad(f"holds {len(data)} bytes but claims {size}")
+        return bytes(data)
+    parts: list[bytes] = []
+    total = 0
+    try:
+        if compression == "zstd":
+            import zstandard
+
+            reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data), read_across_frames=True)
+            while total <= size:
+                piece = reader.read(min(_READ_PIECE, size + 1 - total))
+                if not piece:
+                    break
+                parts.append(piece)
+                total += len(piece)
+        elif compression == "lz4":
+            import lz4.frame
+
+            dec = lz4.frame.LZ4FrameDecompressor()
+            pending = bytes(data)
+            while total <= size and not dec.eof:
+                piece = dec.decompress(pending, max_length=min(_READ_PIECE, size + 1 - total))
+                pending = b""
+                if not piece:
+                    if dec.needs_input:
+                        break
+                    continue
+                parts.append(piece)
+                total += len(piece)
+        else:
+            raise _Bad(f"uses unknown compression '{compression}'")
+    except _Bad:
+        raise
+    except Exception as e:  # zstd / lz4 errors on corrupt data
+        raise _Bad(f"does not decompress ({compression}: {e})") from e
+    if total != size:
+        raise _Bad(f"decompresses to {'more than ' if total > size else ''}{total} bytes, not {size}")
+    return b"".join(parts)
+
+
+class McapFile:
+    """An MCAP file opened for defensive scanning.
+
+    Parameters
+    ----------
+    path : Path
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._f = open(self.path, "rb")
+        self._f.seek(0, io.SEEK_END)
+        self.size = self._f.tell()
+        self._f.seek(0)
+        head = self._f.read(8)
+        if head != MAGIC:
+            self._f.close()
+            what = "is empty" if self.size == 0 else "does not start with the MCAP magic"
+            raise LogFormatError(f"{self.path} is not an MCAP file ({what})")
+        self.profile = ""
+        self.library = ""
+        rec = self._read_record_at(8)
+        if rec is None or rec[0] != OP_HEADER:
+            self._f.close()
+            raise LogFormatError(f"{self.path}: damaged MCAP header record")
+        try:
+            b = _Buf(rec[1])
+            self.profile = b.string()
+            self.library = b.string()
+        except _Bad as e:
+            self._f.close()
+            raise LogFormatError(f"{self.path}: damaged MCAP header record ({e})") from e
+        self.data_start = 8 + 9 + len(rec[1])
+        self.data_end: int | None = None  # known when the footer is intact
+        self.summary_damage: str | None = None
+        self.summary: Summary | None = None
+        try:
+            self.summary = self._read_summary()
+        except _Bad as e:
+            self.summary_damage = f"the summary section is damaged ({e}); read sequentially"
+            self.summary = None
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> McapFile:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ low level
+    def _read_record_at(self, offset: int, *, expect_len: int | None = None) -> tuple[int, memoryview] | None:
+        """(opcode, body) of the record at ``offset``, or None if it runs past the end of file."""
+        if offset + 9 > self.size:
+            return None
+        self._f.seek(offset)
+        head = self._f.read(9)
+        if len(head) < 9:
+            return None
+        op, length = struct.unpack("<BQ", head)
+        if offset + 9 + length > self.size:
+            return None
+        if expect_len is not None and 9 + length != expect_len:
+            raise _Bad(f"record at {offset} is {9 + length} bytes, the index says {expect_len}")
+        if length > MAX_CHUNK_BYTES:
+            raise _Bad(f"record at {offset} claims {length} bytes")
+        body = self._f.read(length)
+        if len(body) != length:
+            return None
+        return op, memoryview(body)
+
+    def _read_summary(self) -> Summary | None:
+        footer_at = self.size - 8 - 29
+        if footer_at < self.data_start:
+            return None
+        self._f.seek(self.size - 8)
+        if self._f.read(8) != MAGIC:
+            return None
+        rec = self._read_record_at(footer_at)
+        if rec is None or rec[0] != OP_FOOTER or len(rec[1]) != 20:
+            raise _Bad("the footer record is damaged")
+        summary_start, _, _ = struct.unpack("<QQI", rec[1])
+        s = Summary()
+        if summary_start == 0:
+            self.data_end = footer_at
+            return s
+        if not (self.data_start <= summary_start <= footer_at):
+            raise _Bad(f"the footer points at offset {summary_start}, outside the file")
+        self.data_end = summary_start
+        n = footer_at - summary_start
+        if n > MAX_CHUNK_BYTES:
+            raise _Bad(f"summary section of {n} bytes")
+        self._f.seek(summary_start)
+        mv = memoryview(self._f.read(n))
+        pos = 0
+        while pos + 9 <= n:
+            op, length = struct.unpack_from("<BQ", mv, pos)
+            if pos + 9 + length > n:
+                raise _Bad(f"summary record at {summary_start + pos} runs past the footer")
+            b = _Buf(mv, pos + 9, pos + 9 + length)
+            if op == OP_SCHEMA:
+                sc = parse_schema(b)
+                s.schemas[sc.id] = sc
+            elif op == OP_CHANNEL:
+                ch = parse_channel(b)
+                s.channels[ch.id] = ch
+            elif op == OP_CHUNK_INDEX:
+                s.chunk_indexes.append(parse_chunk_index(b))
+            elif op == OP_METADATA_INDEX:
+                off, ln = b.u64(), b.u64()
+                s.metadata_offsets.append((b.string(), off, ln))
+            elif op == OP_STATISTICS:
+                b.u64(), b.u16(), b.u32(), b.u32(), b.u32(), b.u32()
+                s.message_start_time, s.message_end_time = b.u64(), b.u64()
+                m = b.u32()
+                end = b.take(m) + m
+                sub = _Buf(mv, end - m, end)
+                counts: dict[int, int] = {}
+                while sub.pos < end:
+                    cid = sub.u16()
+                    counts[cid] = sub.u64()
+                s.channel_message_counts = counts
+            pos += 9 + length
+        s.chunk_indexes.sort(key=lambda c: c.chunk_start_offset)
+        return s
+
+    def read_metadata(self) -> tuple[dict[str, dict[str, str]], list[str]]:
+        """Metadata records listed in the summary: (name -> key/values, damage notes)."""
+        out: dict[str, dict[str, str]] = {}
+        notes: list[str] = []
+        for name, off, ln in self.summary.metadata_offsets if self.summary else []:
+            try:
+                rec = self._read_record_at(off, expect_len=ln)
+                if rec is None or rec[0] != OP_METADATA:
+                    raise _Bad(f"no metadata record at offset {off}")
+                b = _Buf(rec[1])
+                got = b.string()
+                out[got] = b.str_map()
+            except _Bad as e:
+                notes.append(f"metadata record '{name}' is damaged ({e})")
+        return out, notes
+
+    def _chunk_records(self, body: memoryview, where: str) -> Iterator[tuple[int, _Buf]]:
+        b = _Buf(body)
+        b.u64(), b.u64()
+        usize = b.u64()
+        crc = b.u32()
+        comp = b.string()
+        n = b.u64()
+        s = b.take(n)
+        data = decompress(comp, body[s : s + n], usize)
+        if crc != 0 and zlib.crc32(data) != crc:
+            raise _Bad("fails its CRC check")
+        mv = memoryview(data)
+        records = []
+        pos = 0
+        end = len(mv)
+        while pos < end:
+            if pos + 9 > end:
+                raise _Bad(f"has a partial record at {pos}")
+            op, length = struct.unpack_from("<BQ", mv, pos)
+            if pos + 9 + length > end:
+                raise _Bad(f"record at {pos} claims {length} bytes, past the chunk end")
+            records.append((op, _Buf(mv, pos + 9, pos + 9 + length)))
+            pos += 9 + length
+        yield from records
+
+    # ------------------------------------------------------------------ scanning
+    def records(self, damage: list[str]) -> Iterator[tuple[int, object]]:
+        """Yield (opcode, parsed record) for Schema, Channel, Message and Metadata records in file
+        order, chunk contents included. Damage is appended to ``damage`` as one-line notes; the
+        scan then resumes at the next chunk the summary knows about, or stops."""
+        resume = [c.chunk_start_offset for c in self.summary.chunk_indexes] if self.summary else []
+        pos = self.data_start
+        limit = self.size if self.data_end is None else self.data_end
+        while True:
+            if pos + 9 > limit:
+                if self.data_end is None:
+                    damage.append(
+                        f"{self.path.name} is truncated: it ends at byte {self.size} inside the "
+                        "data section (no DataEnd/Footer record)"
+                    )
+                return
+            self._f.seek(pos)
+            op, length = struct.unpack("<BQ", self._f.read(9))
+            nxt = pos + 9 + length
+            if op in (OP_DATA_END, OP_FOOTER):
+                if self.data_end is None or nxt >= self.data_end:
+                    return
+                later = [r for r in resume if r > pos]
+                damage.append(
+                    f"unexpected end-of-data record at byte {pos}"
+                    + (f"; skipped to the next chunk at byte {later[0]}" if later else "")
+                )
+                if not later:
+                    return
+                pos = later[0]
+                continue
+            if nxt > limit or length > MAX_CHUNK_BYTES:
+                later = [r for r in resume if r > pos]
+                if later:
+                    damage.append(
+                        f"record at byte {pos} claims {length} bytes, past the end of the file; "
+                        f"skipped to the next chunk at byte {later[0]}"
+                    )
+                    pos = later[0]
+                    continue
+                if self.data_end is None:
+                    damage.append(
+                        f"{self.path.name} is truncated: the record at byte {pos} needs {length} "
+                        f"bytes but only {self.size - pos - 9} remain"
+                    )
+                else:
+                    damage.append(
+                        f"record at byte {pos} claims {length} bytes, past the end of the data "
+                        "section; the rest of the data section is lost"
+                    )
+                return
+            if op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_METADATA, OP_CHUNK):
+                body = memoryview(self._f.read(length))
+                try:
+                    if op == OP_CHUNK:
+                        for iop, ib in self._chunk_records(body, f"chunk at byte {pos}"):
+                            rec = self._parse_inner(iop, ib)
+                            if rec is not None:
+                                yield iop, rec
+                    else:
+                        rec = self._parse_inner(op, _Buf(body))
+                        if rec is not None:
+                            yield op, rec
+                except _Bad as e:
+                    what = "chunk" if op == OP_CHUNK else "record"
+                    damage.append(f"{what} at byte {pos} is corrupt ({e}); its messages are lost")
+                    later = [r for r in resume if r > pos]
+                    if later and later[0] != nxt and op != OP_CHUNK:
+                        pos = later[0]
+                        continue
+            pos = nxt
+
+    @staticmethod
+    def _parse_inner(op: int, b: _Buf) -> object | None:
+        if op == OP_MESSAGE:
+            return parse_message(b)
+        if op == OP_SCHEMA:
+            return parse_schema(b)
+        if op == OP_CHANNEL:
+            return parse_channel(b)
+        if op == OP_METADATA:
+            name = b.string()
+            return name, b.str_map()
+        return None
