@@ -1,0 +1,271 @@
+"""The paper's six part kinds (Figure 8) as solids made of convex primitives, in millimetres.
+
+Every part is a union of convex primitives (polygon prisms given as half-spaces, spheres) minus at
+most one convex hole. A part is placed by a rotation ``R`` (3 x 3) and a translation; its
+*height profile* on a world grid is, for every vertical line through a grid node, the lowest and the
+highest point of the solid on that line (a height-field footprint, which is all a top-down scene
+needs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True, slots=True)
+class PartKind:
+    """Geometry of one part kind, in millimetres (the numbers the paper's §5.4 presets need).
+
+    Attributes
+    ----------
+    name : str
+        Key in :data:`PART_KINDS`.
+    label : str
+        What the paper calls it (Figure 8).
+    p_min_mm : float
+        Smallest edge of the part's bounding box (paper §5.4, sets the z-cut step and max depth).
+    face_area_mm2 : float
+        Area of the largest face the sensor sees (``a_max`` in mm²; divide by the pixel footprint
+        squared for pixels, see :func:`face_area_px`).
+    shiny : bool
+        Polished or zinc-plated metal (many outliers) versus black oxide (few).
+    bounding_radius_mm : float
+        Radius of a sphere about the part origin that contains the solid.
+    """
+
+    name: str
+    label: str
+    p_min_mm: float
+    face_area_mm2: float
+    shiny: bool
+    bounding_radius_mm: float
+
+
+# Dimensions: ISO 4032 M12 nut (s = 18, m = 10.8, bore 10.5 shown), ISO 4017 M12 x 40 bolt
+# (head s = 18, k = 7.5), M16 rod 80 mm long, 20 mm balls, ANSI-40 20-tooth plate sprocket
+# (88 mm outside, 7 mm thick, 16 mm bore).
+_HEX_S, _HEX_M, _NUT_BORE = 18.0, 10.8, 10.5
+_HEX_AREA = np.sqrt(3.0) / 2.0 * _HEX_S**2
+_SPROCKET_R_ROOT, _SPROCKET_R_TIP, _SPROCKET_TEETH, _SPROCKET_T, _SPROCKET_BORE = 38.0, 44.0, 20, 7.0, 8.0
+
+PART_KINDS: dict[str, PartKind] = {
+    "spheres": PartKind("spheres", "metal spheres", 20.0, np.pi * 10.0**2, True, 10.0),
+    "zinc_nuts": PartKind(
+        "zinc_nuts", "M12 zinc nuts", _HEX_M, _HEX_AREA - np.pi * (_NUT_BORE / 2) ** 2, True, 12.0
+    ),
+    "rods": PartKind("rods", "M16 metal rods", 16.0, 16.0 * 80.0, True, 41.0),
+    "black_screws": PartKind(
+        "black_screws", "M12 black screws", _HEX_S, 12.0 * 40.0 + 7.5 * _HEX_S * 2 / np.sqrt(3.0), False, 25.5
+    ),
+    "black_nuts": PartKind(
+        "black_nuts", "M12 black nuts", _HEX_M, _HEX_AREA - np.pi * (_NUT_BORE / 2) ** 2, False, 12.0
+    ),
+    "sprockets": PartKind(
+        "sprockets",
+        "sprockets",
+        _SPROCKET_T,
+        np.pi * (_SPROCKET_R_ROOT**2 - _SPROCKET_BORE**2) + _SPROCKET_TEETH * 0.5 * (6.0 + 2.5) * 6.0,
+        True,
+        44.5,
+    ),
+}
+
+# Display colours (RGB, before shading).
+PART_COLOURS: dict[str, tuple[int, int, int]] = {
+    "spheres": (200, 202, 208),
+    "zinc_nuts": (205, 204, 188),
+    "rods": (178, 178, 184),
+    "black_screws": (38, 37, 40),
+    "black_nuts": (33, 33, 36),
+    "sprockets": (185, 172, 150),
+}
+
+
+def face_area_px(kind: PartKind, *, fx: float, fy: float, distance_m: float) -> float:
+    """Pixel count of the part's largest face seen from ``distance_m`` (``a_max`` of paper eq. 5).
+
+    Parameters
+    ----------
+    kind : PartKind
+    fx, fy : float
+        Focal lengths in pixels.
+    distance_m : float
+        Camera-to-surface distance in metres.
+    """
+    footprint_x_mm = 1000.0 * distance_m / fx
+    footprint_y_mm = 1000.0 * distance_m / fy
+    return float(kind.face_area_mm2 / (footprint_x_mm * footprint_y_mm))
+
+
+# ---------------------------------------------------------------------------------------------
+# Primitives: ("poly", normals (k, 3), offsets (k,)) = {p : normals @ p <= offsets};
+#             ("sphere", centre (3,), radius).
+
+
+def _regular_polygon(n: int, circumradius: float, phase: float = 0.0) -> np.ndarray:
+    a = phase + 2.0 * np.pi * np.arange(n) / n
+    return np.stack([circumradius * np.cos(a), circumradius * np.sin(a)], axis=1)
+
+
+def _prism(poly: np.ndarray, z0: float, z1: float, R: np.ndarray | None = None) -> tuple:
+    """Convex prism {(x, y) in poly (CCW), z0 <= z <= z1}, optionally rotated by R about the origin."""
+    nxt = np.roll(poly, -1, axis=0)
+    edge = nxt - poly
+    normals2 = np.stack([edge[:, 1], -edge[:, 0]], axis=1)
+    normals2 /= np.linalg.norm(normals2, axis=1, keepdims=True)
+    offsets = np.einsum("ij,ij->i", normals2, poly)
+    normals = np.concatenate([np.c_[normals2, np.zeros(len(poly))], [[0, 0, 1.0], [0, 0, -1.0]]])
+    offsets = np.concatenate([offsets, [z1, -z0]])
+    if R is not None:
+        normals = normals @ R.T
+    return ("poly", normals, offsets)
+
+
+_ALONG_X = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # maps local z to x
+
+
+def _cylinder_x(radius: float, x0: float, x1: float, sides: int = 40, phase: float = 0.0) -> tuple:
+    return _prism(_regular_polygon(sides, radius / np.cos(np.pi / sides), phase), x0, x1, _ALONG_X)
+
+
+def _hexagon(s: float, phase: float = 0.0) -> np.ndarray:
+    return _regular_polygon(6, s / np.sqrt(3.0), phase)
+
+
+def part_solid(name: str, rng: np.random.Generator) -> tuple[list[tuple], tuple | None]:
+    """Primitives of one part of kind ``name`` in its local frame (origin near the centroid).
+
+    Returns
+    -------
+    primitives : list of primitive tuples (union)
+    hole : primitive tuple or None (subtracted)
+    """
+    if name == "spheres":
+        return [("sphere", np.zeros(3), 10.0)], None
+    if name in ("zinc_nuts", "black_nuts"):
+        body = _prism(_hexagon(_HEX_S, rng.uniform(0, np.pi / 3)), -_HEX_M / 2, _HEX_M / 2)
+        hole = _prism(_regular_polygon(24, _NUT_BORE / 2 / np.cos(np.pi / 24)), -_HEX_M, _HEX_M)
+        return [body], hole
+    if name == "rods":
+        return [_cylinder_x(8.0, -40.0, 40.0, phase=rng.uniform(0, 0.2))], None
+    if name == "black_screws":
+        # shaft along +x from the head; the assembly is centred at the origin (total 47.5 mm)
+        shaft = _cylinder_x(6.0, -16.25, 23.75)
+        head = _prism(_hexagon(_HEX_S, rng.uniform(0, np.pi / 3)), -23.75, -16.25, _ALONG_X)
+        return [shaft, head], None
+    if name == "sprockets":
+        half = _SPROCKET_T / 2
+        prims = [_prism(_regular_polygon(64, _SPROCKET_R_ROOT / np.cos(np.pi / 64)), -half, half)]
+        for k in range(_SPROCKET_TEETH):
+            a = 2 * np.pi * k / _SPROCKET_TEETH
+            # trapezoidal tooth, 6 mm wide at the root, 2.5 mm at the tip, radially outward
+            local = np.array(
+                [[_SPROCKET_R_ROOT - 1.0, -3.0], [_SPROCKET_R_TIP, -1.25], [_SPROCKET_R_TIP, 1.25],
+                 [_SPROCKET_R_ROOT - 1.0, 3.0]]
+            )
+            c, s = np.cos(a), np.sin(a)
+            poly = local @ np.array([[c, s], [-s, c]])
+            prims.append(_prism(poly, -half, half))
+        hole = _prism(_regular_polygon(32, _SPROCKET_BORE / np.cos(np.pi / 32)), -_SPROCKET_T, _SPROCKET_T)
+        return prims, hole
+    raise KeyError(name)
+
+
+def _rot_z(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _rot_axis(axis: np.ndarray, a: float) -> np.ndarray:
+    axis = axis / np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
+
+
+def random_rest_rotation(name: str, rng: np.random.Generator) -> np.ndarray:
+    """A plausible resting orientation (3 x 3 rotation, local -> world) for a dropped part."""
+    yaw = rng.uniform(0.0, 2.0 * np.pi)
+    tilt_axis = np.array([np.cos(yaw + 1.0), np.sin(yaw + 1.0), 0.0])
+    if name == "spheres":
+        return _rot_z(yaw)
+    if name in ("zinc_nuts", "black_nuts"):
+        rest = np.eye(3) if rng.random() < 0.8 else _rot_axis(np.array([1.0, 0, 0]), np.pi / 2)
+        tilt = min(abs(rng.normal(0.0, np.radians(12))), np.radians(35))
+    elif name in ("rods", "black_screws"):
+        rest = _rot_axis(np.array([1.0, 0, 0]), rng.uniform(0, 2 * np.pi))  # roll about own axis
+        tilt = min(abs(rng.normal(0.0, np.radians(8))), np.radians(25))
+    elif name == "sprockets":
+        rest = np.eye(3)
+        tilt = min(abs(rng.normal(0.0, np.radians(10))), np.radians(30))
+    else:
+        raise KeyError(name)
+    return _rot_axis(tilt_axis, tilt) @ _rot_z(yaw) @ rest
+
+
+def height_profile(
+    primitives: list[tuple], hole: tuple | None, R: np.ndarray, xs: np.ndarray, ys: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Lowest and highest point of the rotated solid on each vertical line (x, y).
+
+    Parameters
+    ----------
+    primitives, hole : from :func:`part_solid`
+    R : (3, 3) float ndarray
+        Rotation local -> world; the part origin is at (0, 0, 0).
+    xs : (nx,) float ndarray, ys : (ny,) float ndarray
+        Grid node coordinates in mm relative to the part origin.
+
+    Returns
+    -------
+    lo, hi : (ny, nx) float64 ndarray
+        z of the bottom and top surface (mm, relative to the origin); NaN where the line misses.
+    """
+    X, Y = np.meshgrid(xs, ys)
+    lo = np.full(X.shape, np.inf)
+    hi = np.full(X.shape, -np.inf)
+    for prim in primitives:
+        plo, phi = _interval(prim, R, X, Y)
+        hit = plo <= phi
+        lo = np.where(hit, np.minimum(lo, plo), lo)
+        hi = np.where(hit, np.maximum(hi, phi), hi)
+    if hole is not None:
+        hlo, hhi = _interval(hole, R, X, Y)
+        inh = hlo <= hhi
+        covered = inh & (hlo <= lo) & (hhi >= hi)
+        low_cut = inh & ~covered & (hlo <= lo) & (hhi > lo)
+        top_cut = inh & ~covered & (hhi >= hi) & (hlo < hi)
+        lo = np.where(low_cut, hhi, lo)
+        hi = np.where(top_cut, hlo, hi)
+        lo = np.where(covered, np.inf, lo)
+        hi = np.where(covered, -np.inf, hi)
+    empty = ~(lo <= hi)
+    lo[empty] = np.nan
+    hi[empty] = np.nan
+    return lo, hi
+
+
+def _interval(prim: tuple, R: np.ndarray, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    if prim[0] == "sphere":
+        c = R @ prim[1]
+        r2 = prim[2] ** 2 - (X - c[0]) ** 2 - (Y - c[1]) ** 2
+        h = np.sqrt(np.maximum(r2, 0.0))
+        lo = np.where(r2 >= 0, c[2] - h, np.inf)
+        hi = np.where(r2 >= 0, c[2] + h, -np.inf)
+        return lo, hi
+    normals = prim[1] @ R.T
+    offsets = prim[2]
+    lo = np.full(X.shape, -np.inf)
+    hi = np.full(X.shape, np.inf)
+    for n, o in zip(normals, offsets):
+        b = o - n[0] * X - n[1] * Y
+        if n[2] > 1e-12:
+            hi = np.minimum(hi, b / n[2])
+        elif n[2] < -1e-12:
+            lo = np.maximum(lo, b / n[2])
+        else:
+            bad = b < 0
+            lo = np.where(bad, np.inf, lo)
+            hi = np.where(bad, -np.inf, hi)
+    return lo, hi

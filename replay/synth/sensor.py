@@ -1,0 +1,273 @@
+"""A structured-light sensor above the bin: pinhole camera + offset projector, z-buffer rendering.
+
+The height field is rendered as a triangle mesh (two triangles per grid cell) with a z-buffer; the
+depth of every pixel is the exact intersection of the pixel's ray with the triangle's plane, so a
+point ``xyz = depth * ((u - cx) / fx, (v - cy) / fy, 1)`` projects back onto its pixel centre
+(``u`` = column, ``v`` = row). The projector is a second pinhole offset along the camera x axis;
+a pixel is measured only where the projector sees the same surface (shadow-map test) and neither
+line of sight grazes the surface.
+
+Camera optical frame: x right, y down, z forward; the camera looks straight down at the table, so
+camera x = world x, camera y = -world y, camera z = camera height - world z.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from zcut.cloud import Intrinsics
+
+from .scene import LABEL_NONE, Scene
+
+FULL_SIZE = (1200, 1920)  # (height, width)
+FULL_FX = 1600.0  # pixels at 1920 wide: ~62 deg horizontal field of view
+CAMERA_HEIGHT_MM = 580.0  # camera above the table top
+PROJECTOR_BASELINE_MM = 150.0
+MAX_OBLIQUITY_DEG = 78.0
+NOISE_MM_AT_500 = 0.10  # depth noise sigma at 0.5 m on matte surfaces
+SHINY_NOISE_FACTOR = 1.6
+
+
+def default_intrinsics(size: tuple[int, int] = FULL_SIZE) -> Intrinsics:
+    """Intrinsics of the simulated camera for an image of ``size`` = (height, width).
+
+    The field of view is the same at every size (focal length scales with the width).
+    """
+    h, w = int(size[0]), int(size[1])
+    f = FULL_FX * w / FULL_SIZE[1]
+    return Intrinsics(fx=f, fy=f, cx=(w - 1) / 2.0, cy=(h - 1) / 2.0, width=w, height=h)
+
+
+def view_half_extent_mm(intrinsics: Intrinsics, *, camera_height_mm: float = CAMERA_HEIGHT_MM) -> tuple[float, float]:
+    """Half extent (x, y) of the table area the camera sees, in mm."""
+    K = intrinsics
+    hx = camera_height_mm * max(K.cx, K.width - 1 - K.cx) / K.fx
+    hy = camera_height_mm * max(K.cy, K.height - 1 - K.cy) / K.fy
+    return hx, hy
+
+
+@dataclass(frozen=True, slots=True)
+class Render:
+    """What the z-buffer saw, before the sensor's losses and errors.
+
+    Attributes
+    ----------
+    depth_mm : (H, W) float64 ndarray
+        Camera z of the first surface hit (inf where nothing was hit).
+    normal : (H, W, 3) float64 ndarray
+        Unit surface normal in the camera frame, facing the camera.
+    label : (H, W) uint8 ndarray
+        LABEL_* of the surface.
+    part_id : (H, W) int32 ndarray
+        1-based placed-part index, 0 for non-parts.
+    """
+
+    depth_mm: np.ndarray
+    normal: np.ndarray
+    label: np.ndarray
+    part_id: np.ndarray
+
+
+@numba.njit(cache=True, nogil=True)
+def _raster(Xc, Yc, Zc, node_label, node_pid, fx, fy, cx, cy, depth, normal, label, pid):  # pragma: no cover - numba
+    ny, nx = Zc.shape
+    H, W = depth.shape
+    for i in range(ny - 1):
+        for j in range(nx - 1):
+            for t in range(2):
+                if t == 0:
+                    ia, ja, ib, jb, ic, jc = i, j, i, j + 1, i + 1, j + 1
+                else:
+                    ia, ja, ib, jb, ic, jc = i, j, i + 1, j + 1, i + 1, j
+                za, zb, zc = Zc[ia, ja], Zc[ib, jb], Zc[ic, jc]
+                if za <= 1.0 or zb <= 1.0 or zc <= 1.0:
+                    continue
+                xa, ya = Xc[ia, ja], Yc[ia, ja]
+                xb, yb = Xc[ib, jb], Yc[ib, jb]
+                xc_, yc_ = Xc[ic, jc], Yc[ic, jc]
+                ua, va = fx * xa / za + cx, fy * ya / za + cy
+                ub, vb = fx * xb / zb + cx, fy * yb / zb + cy
+                uc, vc = fx * xc_ / zc + cx, fy * yc_ / zc + cy
+                area = (ub - ua) * (vc - va) - (uc - ua) * (vb - va)
+                if abs(area) < 1e-12:
+                    continue
+                c0 = int(np.ceil(min(ua, ub, uc)))
+                c1 = int(np.floor(max(ua, ub, uc)))
+                r0 = int(np.ceil(min(va, vb, vc)))
+                r1 = int(np.floor(max(va, vb, vc)))
+                if c0 < 0:
+                    c0 = 0
+                if r0 < 0:
+                    r0 = 0
+                if c1 > W - 1:
+                    c1 = W - 1
+                if r1 > H - 1:
+                    r1 = H - 1
+                if c0 > c1 or r0 > r1:
+                    continue
+                # plane normal (camera frame)
+                ex, ey, ez = xb - xa, yb - ya, zb - za
+                fx_, fy_, fz_ = xc_ - xa, yc_ - ya, zc - za
+                nx_ = ey * fz_ - ez * fy_
+                ny_ = ez * fx_ - ex * fz_
+                nz_ = ex * fy_ - ey * fx_
+                nn = np.sqrt(nx_ * nx_ + ny_ * ny_ + nz_ * nz_)
+                if nn == 0.0:
+                    continue
+                nx_ /= nn
+                ny_ /= nn
+                nz_ /= nn
+                d0 = nx_ * xa + ny_ * ya + nz_ * za
+                # label of the vertex nearest the camera
+                if za <= zb and za <= zc:
+                    lab, pp = node_label[ia, ja], node_pid[ia, ja]
+                elif zb <= zc:
+                    lab, pp = node_label[ib, jb], node_pid[ib, jb]
+                else:
+                    lab, pp = node_label[ic, jc], node_pid[ic, jc]
+                inv = 1.0 / area
+                for r in range(r0, r1 + 1):
+                    for c in range(c0, c1 + 1):
+                        w0 = ((ub - c) * (vc - r) - (uc - c) * (vb - r)) * inv
+                        w1 = ((uc - c) * (va - r) - (ua - c) * (vc - r)) * inv
+                        w2 = 1.0 - w0 - w1
+                        if w0 < -1e-9 or w1 < -1e-9 or w2 < -1e-9:
+                            continue
+                        rx = (c - cx) / fx
+                        ry = (r - cy) / fy
+                        den = nx_ * rx + ny_ * ry + nz_
+                        if abs(den) < 1e-12:
+                            continue
+                        z = d0 / den
+                        if z > 0.0 and z < depth[r, c]:
+                            depth[r, c] = z
+                            s = -1.0 if den > 0 else 1.0
+                            normal[r, c, 0] = s * nx_
+                            normal[r, c, 1] = s * ny_
+                            normal[r, c, 2] = s * nz_
+                            label[r, c] = lab
+                            pid[r, c] = pp
+
+
+def _node_camera_coords(scene: Scene, *, camera_height_mm: float, offset_x_mm: float = 0.0):
+    g = scene.grid
+    X = np.broadcast_to(g.xs[None, :] - offset_x_mm, scene.height.shape)
+    Y = np.broadcast_to(-g.ys[:, None], scene.height.shape)
+    Z = camera_height_mm - scene.height
+    return np.ascontiguousarray(X, np.float64), np.ascontiguousarray(Y, np.float64), np.ascontiguousarray(Z)
+
+
+def render(scene: Scene, intrinsics: Intrinsics, *, camera_height_mm: float = CAMERA_HEIGHT_MM, offset_x_mm: float = 0.0) -> Render:
+    """Z-buffer render of the scene's height field seen by a downward pinhole at (offset_x, 0, height)."""
+    K = intrinsics
+    X, Y, Z = _node_camera_coords(scene, camera_height_mm=camera_height_mm, offset_x_mm=offset_x_mm)
+    H, W = K.height, K.width
+    depth = np.full((H, W), np.inf)
+    normal = np.zeros((H, W, 3))
+    label = np.full((H, W), LABEL_NONE, np.uint8)
+    pid = np.zeros((H, W), np.int32)
+    _raster(X, Y, Z, scene.label, scene.part_id, float(K.fx), float(K.fy), float(K.cx), float(K.cy), depth, normal, label, pid)
+    return Render(depth, normal, label, pid)
+
+
+def pixel_rays(intrinsics: Intrinsics) -> np.ndarray:
+    """(H, W, 3) float64: ``((u - cx) / fx, (v - cy) / fy, 1)`` for every pixel (u = column, v = row)."""
+    K = intrinsics
+    u = (np.arange(K.width) - K.cx) / K.fx
+    v = (np.arange(K.height) - K.cy) / K.fy
+    rays = np.empty((K.height, K.width, 3))
+    rays[..., 0] = u[None, :]
+    rays[..., 1] = v[:, None]
+    rays[..., 2] = 1.0
+    return rays
+
+
+def measurable(
+    scene: Scene,
+    view: Render,
+    intrinsics: Intrinsics,
+    *,
+    camera_height_mm: float = CAMERA_HEIGHT_MM,
+    baseline_mm: float = PROJECTOR_BASELINE_MM,
+    max_obliquity_deg: float = MAX_OBLIQUITY_DEG,
+) -> np.ndarray:
+    """(H, W) bool: the projector lights the surface the camera sees, and neither view is too oblique.
+
+    The projector is a pinhole at camera x + ``baseline_mm`` looking the same way; its shadow map is
+    rendered with the same rasterizer at the camera's focal length, wide enough for the scene.
+    """
+    K = intrinsics
+    rays = pixel_rays(K)
+    hit = np.isfinite(view.depth_mm)
+    P = rays * np.where(hit, view.depth_mm, 1.0)[..., None]
+    Pp = P.copy()
+    Pp[..., 0] -= baseline_mm
+    # projector intrinsics covering the whole grid
+    X, Y, Z = _node_camera_coords(scene, camera_height_mm=camera_height_mm, offset_x_mm=baseline_mm)
+    ux = X / Z
+    vy = Y / Z
+    f = float(K.fx)
+    cxp = -f * float(ux.min()) + 1.0
+    cyp = -f * float(vy.min()) + 1.0
+    wp = int(np.ceil(f * float(ux.max()) + cxp)) + 2
+    hp = int(np.ceil(f * float(vy.max()) + cyp)) + 2
+    proj = Intrinsics(fx=f, fy=f, cx=cxp, cy=cyp, width=wp, height=hp)
+    shadow = render(scene, proj, camera_height_mm=camera_height_mm, offset_x_mm=baseline_mm).depth_mm
+    zp = Pp[..., 2]
+    up = f * Pp[..., 0] / zp + cxp
+    vp = f * Pp[..., 1] / zp + cyp
+    c0 = np.clip(np.floor(up).astype(np.int64), 0, wp - 2)
+    r0 = np.clip(np.floor(vp).astype(np.int64), 0, hp - 2)
+    # most lenient of the four surrounding shadow-map samples
+    dmax = np.maximum.reduce(
+        [shadow[r0, c0], shadow[r0, c0 + 1], shadow[r0 + 1, c0], shadow[r0 + 1, c0 + 1]]
+    )
+    dmax = np.where(np.isfinite(dmax), dmax, np.inf)
+    n = view.normal
+    to_cam = -rays / np.linalg.norm(rays, axis=2, keepdims=True)
+    to_proj = -Pp / np.linalg.norm(Pp, axis=2, keepdims=True)
+    cos_c = np.einsum("ijk,ijk->ij", n, to_cam)
+    cos_p = np.einsum("ijk,ijk->ij", n, to_proj)
+    cos_min = np.cos(np.radians(max_obliquity_deg))
+    footprint = zp / f
+    bias = 0.3 + 2.0 * footprint / np.maximum(cos_p, 0.1)
+    lit = zp <= dmax + bias
+    return hit & lit & (cos_c > cos_min) & (cos_p > cos_min)
+
+
+def depth_noise_sigma_mm(depth_mm: np.ndarray, *, shiny: np.ndarray | bool) -> np.ndarray:
+    """Per-pixel depth noise sigma (mm): 0.1 mm at 0.5 m on matte surfaces, growing with depth²."""
+    s = NOISE_MM_AT_500 * (np.asarray(depth_mm) / 500.0) ** 2
+    return s * np.where(shiny, SHINY_NOISE_FACTOR, 1.0)
+
+
+def shade_rgb(
+    view: Render,
+    intrinsics: Intrinsics,
+    colours: np.ndarray,
+    shiny: np.ndarray,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """(H, W, 3) uint8 colour image: Lambert + ambient, a specular lobe on shiny pixels, sensor noise.
+
+    Parameters
+    ----------
+    colours : (H, W, 3) float ndarray
+        Base colour per pixel (0..255).
+    shiny : (H, W) bool ndarray
+    """
+    rays = pixel_rays(intrinsics)
+    to_cam = -rays / np.linalg.norm(rays, axis=2, keepdims=True)
+    n = view.normal
+    to_light = np.array([-0.25, 0.35, -1.0])  # a lamp beside the camera
+    to_light /= np.linalg.norm(to_light)
+    lam = np.clip(np.einsum("ijk,k->ij", n, to_light), 0.0, 1.0)
+    half = to_light + to_cam
+    half /= np.linalg.norm(half, axis=2, keepdims=True)
+    spec = np.clip(np.einsum("ijk,ijk->ij", n, half), 0.0, 1.0) ** 60
+    img = colours * (0.6 + 0.4 * lam)[..., None] + np.where(shiny, 230.0 * spec, 0.0)[..., None]
+    img = img + rng.normal(0.0, 1.5, img.shape)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
