@@ -112,15 +112,20 @@ def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | Non
     if len(cand) == 0:
         return out
     tree = cKDTree(model)
-    dist, idx = tree.query(points[cand], k=1, distance_upper_bound=radius_m, workers=-1)
-    hit = np.isfinite(dist)
     if normals is None:
-        ok = hit & (dist <= delta_m)
+        dist, _ = tree.query(points[cand], k=1, distance_upper_bound=radius_m, workers=-1)
+        ok = dist <= delta_m
     else:
-        ok = np.zeros(len(cand), bool)
-        j = idx[hit]
-        d_plane = np.abs(np.einsum("ij,ij->i", points[cand[hit]] - model[j], normals[j]))
-        ok[hit] = d_plane <= delta_m
+        # the smallest point-to-plane distance over the model points within the radius (near an
+        # edge the nearest point may lie on the other face)
+        k = 8
+        dist, idx = tree.query(points[cand], k=k, distance_upper_bound=radius_m, workers=-1)
+        hit = np.isfinite(dist)
+        j = np.where(hit, idx, 0)
+        diff = points[cand][:, None, :] - model[j]
+        d_plane = np.abs(np.einsum("ijk,ijk->ij", diff, normals[j]))
+        d_plane[~hit] = np.inf
+        ok = d_plane.min(axis=1) <= delta_m
     out[cand[ok]] = True
     return out
 

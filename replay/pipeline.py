@@ -1,0 +1,226 @@
+"""The paper's pipeline on one frame (§5.2-§5.3): no I/O, no viewer.
+
+bin mask (RGB) -> registration of the bin model (ICP) -> removal of table, easy outliers and bin ->
+z-cut clusters and outliers on the remaining zone -> SOR on the same zone -> α, β.
+
+With no RGB image, no bin model, or no bin found in the image, the bin stages are skipped (a
+warning is recorded in the result) and the z-cut runs on the whole frame: then
+``result.zcut_outliers == zcut.zcut_outliers(-1000 * z, ...)`` exactly (SPEC §5).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from zcut.binmask import BinMaskResult, bin_mask
+from zcut.cuts import CutResult, find_clusters
+from zcut.metrics import RelativeMetrics, relative_metrics
+from zcut.params import ZCutParams
+from zcut.registration import RegistrationResult, register_bin
+from zcut.removal import BinModel, RemovalResult, remove_table_and_bin
+from zcut.sor import sor_outliers
+
+from .config import PipelineConfig
+from .errors import ConfigError
+from .frame import Frame
+
+STAGES = ("bin_mask", "registration", "removal", "zcut", "sor", "metrics")
+
+
+@dataclass(frozen=True, slots=True)
+class FrameResult:
+    """Everything the pipeline computed for one frame.
+
+    Attributes
+    ----------
+    index : int
+    stamp_ns : int
+    valid : (H, W) bool ndarray
+        Pixels with a finite point.
+    bin_mask : BinMaskResult or None
+        None when the bin stages were skipped.
+    registration : RegistrationResult or None
+        None when the bin stages were skipped before it.
+    removal : RemovalResult or None
+        None when the bin stages were skipped.
+    zone : (H, W) bool ndarray
+        Pixels the z-cut and SOR judge (valid minus table, easy outliers and bin).
+    height_mm : (H, W) float64 ndarray
+        The height image given to the z-cut.
+    cut : CutResult
+        Clusters and levels of the z-cut.
+    zcut_outliers : (H, W) bool ndarray
+        z-cut outliers in the zone, plus the easy outliers above the rim.
+    sor_outliers : (H, W) bool ndarray
+        SOR outliers in the zone, plus the easy outliers (all False when SOR is disabled).
+    metrics : RelativeMetrics
+        α, β of the zone-only masks (paper eqs. 3-4): the easy outliers are common to both and left out.
+    timings : dict[str, float]
+        Seconds per stage (keys from :data:`STAGES` that ran) and ``"total"``.
+    warnings : tuple of str
+        Stages skipped or failed, for the user to see.
+    """
+
+    index: int
+    stamp_ns: int
+    valid: np.ndarray
+    bin_mask: BinMaskResult | None
+    registration: RegistrationResult | None
+    removal: RemovalResult | None
+    zone: np.ndarray
+    height_mm: np.ndarray
+    cut: CutResult
+    zcut_outliers: np.ndarray
+    sor_outliers: np.ndarray
+    metrics: RelativeMetrics
+    timings: dict[str, float]
+    warnings: tuple[str, ...]
+
+    @property
+    def easy_outliers(self) -> np.ndarray:
+        """(H, W) bool: points above the rim (all False when the bin stages were skipped)."""
+        if self.removal is None:
+            return np.zeros_like(self.valid)
+        return self.removal.easy_outliers
+
+    @property
+    def both_outliers(self) -> np.ndarray:
+        """(H, W) bool: found by both the z-cut and SOR."""
+        return self.zcut_outliers & self.sor_outliers
+
+    @property
+    def T_cam_bin(self) -> np.ndarray | None:
+        """The converged registration's pose, else None."""
+        r = self.registration
+        return r.T_cam_bin if r is not None and r.converged else None
+
+
+def zcut_params(config: PipelineConfig) -> ZCutParams:
+    """The resolved config's z-cut parameters (``max_area_px`` must be set: see ``config.resolve``)."""
+    z = config.zcut
+    if z.max_area_px is None:
+        raise ConfigError("zcut.max_area_px is not set: resolve the config first (replay.config.resolve)")
+    return ZCutParams(step=float(z.step_mm), max_depth=float(z.max_depth_mm),
+                      max_area=float(z.max_area_px),
+                      a_max=None if z.a_max_px is None else float(z.a_max_px))
+
+
+def run_frame(
+    frame: Frame,
+    config: PipelineConfig,
+    *,
+    bin_model: BinModel | None = None,
+    previous: FrameResult | None = None,
+) -> FrameResult:
+    """Run every stage on one frame.
+
+    Parameters
+    ----------
+    frame : Frame
+    config : PipelineConfig
+        Resolved (``config.zcut.max_area_px`` set).
+    bin_model : BinModel, optional
+        Without it the bin stages are skipped.
+    previous : FrameResult, optional
+        The previous frame's result; its converged pose seeds the registration when
+        ``config.registration.use_previous``.
+
+    Returns
+    -------
+    FrameResult
+    """
+    params = zcut_params(config)
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    warnings: list[str] = []
+    xyz = frame.xyz
+    valid = np.isfinite(xyz).all(axis=2)
+
+    bm: BinMaskResult | None = None
+    reg: RegistrationResult | None = None
+    rem: RemovalResult | None = None
+    if not config.bin_mask.enabled:
+        warnings.append("bin stages disabled (bin_mask.enabled = false): z-cut on the whole frame")
+    elif frame.rgb is None:
+        warnings.append("no RGB image: bin stages skipped, z-cut on the whole frame")
+    elif bin_model is None:
+        warnings.append("no bin model (--bin-model): bin stages skipped, z-cut on the whole frame")
+    else:
+        t = time.perf_counter()
+        c = config.bin_mask
+        bm = bin_mask(frame.rgb, threshold=c.threshold, dilate_px=c.dilate_px, min_area_frac=c.min_area_frac)
+        timings["bin_mask"] = time.perf_counter() - t
+        if not bm.found:
+            warnings.append("no bin found in the RGB image: bin stages skipped, z-cut on the whole frame")
+            bm = None
+    if bm is not None:
+        assert bin_model is not None
+        t = time.perf_counter()
+        c = config.registration
+        init = previous.T_cam_bin if (previous is not None and c.use_previous) else None
+        target = xyz[bm.walls & valid].astype(np.float64)
+        reg = register_bin(bin_model.points, target, init=init, method=c.method,
+                           voxel_m=c.voxel_mm / 1000.0, max_correspondence_m=c.max_correspondence_mm / 1000.0,
+                           max_iterations=c.max_iterations, min_fitness=c.min_fitness,
+                           max_rmse_m=c.max_rmse_mm / 1000.0)
+        timings["registration"] = time.perf_counter() - t
+        t = time.perf_counter()
+        r = config.removal
+        if reg.converged:
+            rem = remove_table_and_bin(
+                xyz, bm.mask, model=bin_model, T_cam_bin=reg.T_cam_bin, delta_m=r.delta_mm / 1000.0,
+                rim_offset_m=r.rim_offset_mm / 1000.0,
+                search_radius_m=None if r.search_radius_mm is None else r.search_radius_mm / 1000.0)
+        else:
+            warnings.append(f"bin registration failed ({reg.reason}): only the table removed")
+            rem = remove_table_and_bin(xyz, bm.mask)
+        timings["removal"] = time.perf_counter() - t
+
+    if rem is None:
+        zone = valid
+        height = -1000.0 * xyz[..., 2].astype(np.float64)
+        sor_xyz = xyz
+        easy = np.zeros_like(valid)
+    else:
+        zone = rem.zone
+        height = rem.height_mm
+        sor_xyz = np.where(zone[..., None], xyz, np.float32(np.nan)).astype(xyz.dtype, copy=False)
+        easy = rem.easy_outliers
+
+    t = time.perf_counter()
+    cut = find_clusters(height, params=params, connectivity=config.zcut.connectivity)
+    z_zone = cut.outliers & zone
+    timings["zcut"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    s = config.sor
+    if s.enabled:
+        s_zone = sor_outliers(sor_xyz, k=s.k, std_ratio=s.std_ratio, convention=s.convention) & zone
+    else:
+        s_zone = np.zeros_like(valid)
+        warnings.append("SOR disabled (sor.enabled = false)")
+    timings["sor"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    metrics = relative_metrics(s_zone, z_zone)
+    timings["metrics"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - t_start
+    return FrameResult(
+        index=frame.index,
+        stamp_ns=frame.stamp_ns,
+        valid=valid,
+        bin_mask=bm,
+        registration=reg,
+        removal=rem,
+        zone=zone,
+        height_mm=height,
+        cut=cut,
+        zcut_outliers=z_zone | easy,
+        sor_outliers=s_zone | easy,
+        metrics=metrics,
+        timings=timings,
+        warnings=tuple(warnings),
+    )

@@ -1,0 +1,330 @@
+"""Every pipeline stage in Rerun. The only module of zcut that imports ``rerun``.
+
+An explicit :class:`rerun.RecordingStream` is passed in (no global recording). Entity paths:
+
+====================================  ==========================================================
+``image/rgb``                         the RGB image (JPEG at default detail), or a gray height
+                                      image when the frame has no RGB
+``image/bin_mask``                    bin footprint (1) and its bright walls (2), over the image
+``image/removal``                     table (1), bin (2), easy outliers (3), zone (4)
+``image/clusters``                    tagged z-cut clusters; each class labelled with area, level, ρ
+``image/outliers``                    z-cut only (1), SOR only (2), both (3), above the rim (4)
+``zcut/cuts``                         the z-cuts: scrub the ``depth_um`` timeline (see below)
+``world/cloud``                       the cloud (every 4th pixel at default detail)
+``world/outliers``                    the outliers in 3D, coloured as in ``image/outliers``
+``world/bin_model``                   the registered bin model (pose per frame) + fitness/RMSE
+``counts/*``, ``metrics/*``,          per-frame scalars: outlier counts, α, β, stage times (ms),
+``timings_ms/*``, ``registration/*``  registration fitness and RMSE (mm)
+``config``                            the resolved config (TOML), static
+``log``                               per-frame warnings (skipped or failed stages)
+====================================  ==========================================================
+
+The z-cuts cost one small image per frame: ``zcut/cuts`` holds the pixel level (the first cut a
+pixel belongs to) as a segmentation image, and for every level k one AnnotationContext, logged at
+``depth_um`` = k·Δd in micrometres, colours the classes 0..k and leaves the deeper ones transparent:
+scrubbing ``depth_um`` shows the real cut Z_k. Levels repeat from frame to frame, so the depth
+timeline shows the last frame logged (replay one frame with ``--frames N:N+1`` to debug it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from zcut.removal import BinModel
+
+from .frame import Frame
+from .pipeline import FrameResult
+
+OUTLIER_CLASSES = (
+    (1, "z-cut only", (255, 140, 0)),
+    (2, "SOR only", (30, 144, 255)),
+    (3, "both", (220, 20, 220)),
+    (4, "above the rim", (255, 0, 0)),
+)
+REMOVAL_CLASSES = (
+    (1, "table", (60, 60, 140)),
+    (2, "bin", (0, 200, 200)),
+    (3, "above the rim", (255, 0, 0)),
+    (4, "zone", (80, 200, 80)),
+)
+BIN_MASK_CLASSES = (
+    (1, "bin footprint", (0, 160, 255)),
+    (2, "bin walls", (255, 255, 0)),
+)
+
+
+@dataclass(frozen=True, slots=True)
+class VizOptions:
+    """How much to log.
+
+    Attributes
+    ----------
+    full_detail : bool
+        Raw images, every point, every level at full resolution.
+    cloud_stride : int
+        Log every n-th row and column of the cloud in 3D.
+    level_stride : int
+        Resolution divisor of the z-cut level image.
+    jpeg_quality : int
+        Quality of the RGB image (when not full detail).
+    max_cluster_labels : int
+        Clusters beyond this many get no label (the colour stays).
+    """
+
+    full_detail: bool = False
+    cloud_stride: int = 4
+    level_stride: int = 2
+    jpeg_quality: int = 85
+    max_cluster_labels: int = 2000
+
+    @classmethod
+    def full(cls) -> VizOptions:
+        return cls(full_detail=True, cloud_stride=1, level_stride=1)
+
+
+def new_recording(*, application_id: str = "zcut", recording_id: str | None = None) -> rr.RecordingStream:
+    """A recording stream that is nobody's global default."""
+    return rr.RecordingStream(application_id, recording_id=recording_id, make_default=False,
+                              make_thread_default=False)
+
+
+def default_blueprint() -> rrb.Blueprint:
+    """Image stages on the left, 3D and the z-cuts in the middle, scalars and config on the right."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Spatial2DView(name="RGB + bin mask", origin="image",
+                                  contents=["image/rgb", "image/bin_mask"]),
+                rrb.Spatial2DView(name="Removal", origin="image", contents=["image/rgb", "image/removal"]),
+                rrb.Spatial2DView(name="Outliers (z-cut / SOR / both)", origin="image",
+                                  contents=["image/rgb", "image/outliers"]),
+            ),
+            rrb.Vertical(
+                rrb.Spatial3DView(name="3D: cloud, outliers, bin model", origin="world"),
+                rrb.Horizontal(
+                    rrb.Spatial2DView(name="Clusters", origin="image", contents=["image/rgb", "image/clusters"]),
+                    rrb.Spatial2DView(name="z-cuts (scrub depth_um)", origin="zcut/cuts"),
+                ),
+            ),
+            rrb.Vertical(
+                rrb.TimeSeriesView(name="Outlier counts", origin="counts"),
+                rrb.TimeSeriesView(name="α, β", origin="metrics"),
+                rrb.TimeSeriesView(name="Stage times (ms)", origin="timings_ms"),
+                rrb.TimeSeriesView(name="Registration", origin="registration"),
+                rrb.Tabs(rrb.TextDocumentView(name="Config", origin="config"),
+                         rrb.TextLogView(name="Warnings", origin="log")),
+            ),
+            column_shares=[2, 3, 2],
+        ),
+        collapse_panels=False,
+    )
+
+
+def open_sink(rec: rr.RecordingStream, *, rrd: str | None = None, spawn: bool = False,
+              connect: str | None = None) -> None:
+    """Send ``rec`` to a file, a spawned viewer or a running viewer, with the default blueprint."""
+    bp = default_blueprint()
+    if rrd is not None:
+        rec.save(rrd, default_blueprint=bp)
+    elif spawn:
+        rec.spawn(default_blueprint=bp)
+    elif connect is not None:
+        rec.connect_grpc(connect, default_blueprint=bp)
+
+
+def _ctx(classes) -> rr.AnnotationContext:
+    return rr.AnnotationContext([rr.AnnotationInfo(id=0, label="none", color=(0, 0, 0, 0))]
+                                + [rr.AnnotationInfo(id=i, label=name, color=col) for i, name, col in classes])
+
+
+def log_static(rec: rr.RecordingStream, *, config_toml: str, notes: tuple[str, ...] = (),
+               bin_model: BinModel | None = None, source: str = "") -> None:
+    """Things that do not change per frame: annotation contexts, axes, the config, the bin model."""
+    rec.log("image/outliers", _ctx(OUTLIER_CLASSES), static=True)
+    rec.log("image/removal", _ctx(REMOVAL_CLASSES), static=True)
+    rec.log("image/bin_mask", _ctx(BIN_MASK_CLASSES), static=True)
+    rec.log("world/outliers", _ctx(OUTLIER_CLASSES), static=True)
+    rec.log("world", rr.ViewCoordinates.RDF, static=True)
+    head = f"# zcut replay\n\n{source}\n\n" if source else "# zcut replay\n\n"
+    body = "".join(f"- {n}\n" for n in notes)
+    text = f"{head}{body}\n## Resolved config\n\n```toml\n{config_toml}```\n"
+    rec.log("config", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
+    if bin_model is not None:
+        pts = bin_model.points
+        if len(pts) > 200_000:
+            pts = pts[:: int(np.ceil(len(pts) / 200_000))]
+        rec.log("world/bin_model/points", rr.Points3D(pts.astype(np.float32), colors=(0, 120, 255),
+                                                      radii=rr.Radius.ui_points(1.5)), static=True)
+
+
+def set_frame_time(rec: rr.RecordingStream, frame: Frame) -> None:
+    """The frame's timelines: ``frame`` (index) and ``stamp`` (the cloud's header stamp)."""
+    rec.set_time("frame", sequence=int(frame.index))
+    rec.set_time("stamp", timestamp=np.datetime64(int(frame.stamp_ns), "ns"))
+
+
+def _image(rgb: np.ndarray, opts: VizOptions):
+    img = rr.Image(np.ascontiguousarray(rgb), color_model="RGB")
+    return img if opts.full_detail else img.compress(jpeg_quality=opts.jpeg_quality)
+
+
+def _height_gray(height_mm: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8 rendering of a height image (high = bright; invalid = black)."""
+    ok = np.isfinite(height_mm)
+    out = np.zeros(height_mm.shape, np.uint8)
+    if ok.any():
+        lo, hi = np.percentile(height_mm[ok], [1, 99])
+        span = max(hi - lo, 1e-9)
+        out[ok] = (np.clip((height_mm[ok] - lo) / span, 0, 1) * 230 + 25).astype(np.uint8)
+    return np.repeat(out[..., None], 3, axis=2)
+
+
+def log_image(rec: rr.RecordingStream, frame: Frame, result: FrameResult, opts: VizOptions) -> None:
+    """The RGB image, or a gray rendering of the height when the frame has none."""
+    rgb = frame.rgb if frame.rgb is not None else _height_gray(-1000.0 * frame.xyz[..., 2].astype(np.float64))
+    rec.log("image/rgb", _image(rgb, opts))
+
+
+def log_bin_stages(rec: rr.RecordingStream, frame: Frame, result: FrameResult) -> None:
+    """Bin mask, removal classes, registered bin model with fitness/RMSE (or a Clear when skipped)."""
+    if result.bin_mask is None:
+        rec.log("image/bin_mask", rr.Clear(recursive=False))
+    else:
+        m = result.bin_mask.mask.astype(np.uint8)
+        m[result.bin_mask.walls] = 2
+        rec.log("image/bin_mask", rr.SegmentationImage(m, opacity=0.35))
+    rem = result.removal
+    if rem is None:
+        rec.log("image/removal", rr.Clear(recursive=False))
+    else:
+        c = np.zeros(rem.zone.shape, np.uint8)
+        c[rem.table] = 1
+        c[rem.bin_points] = 2
+        c[rem.easy_outliers] = 3
+        c[rem.zone] = 4
+        rec.log("image/removal", rr.SegmentationImage(c, opacity=0.4))
+    reg = result.registration
+    if reg is None:
+        rec.log("world/bin_model", rr.Transform3D(translation=(0, 0, 0), mat3x3=np.eye(3)))
+        rec.log("world/bin_model/status", rr.Clear(recursive=False))
+        return
+    T = reg.T_cam_bin
+    rec.log("world/bin_model", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
+    status = (f"fitness {reg.fitness:.3f}, RMSE {reg.inlier_rmse * 1000:.2f} mm" if reg.converged
+              else f"registration FAILED: {reg.reason}")
+    colour = (0, 120, 255) if reg.converged else (255, 0, 0)
+    rec.log("world/bin_model/status", rr.Points3D([[0.0, 0.0, 0.0]], labels=[status], colors=[colour],
+                                                  show_labels=True))
+    rec.log("registration/fitness", rr.Scalars(reg.fitness))
+    rec.log("registration/rmse_mm", rr.Scalars(reg.inlier_rmse * 1000.0))
+
+
+def _level_colours(n: int) -> np.ndarray:
+    """(n, 3) uint8: a blue -> yellow gradient for levels 0 .. n-1 (shallow = warm)."""
+    t = np.linspace(0.0, 1.0, max(n, 1))
+    r = (255 * (1 - t) + 40 * t).astype(np.uint8)
+    g = (220 * (1 - t) + 90 * t).astype(np.uint8)
+    b = (40 * (1 - t) + 200 * t).astype(np.uint8)
+    return np.stack([r, g, b], axis=1)[:n]
+
+
+def log_cuts(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions, *, step_mm: float) -> None:
+    """The z-cuts, scrubbable on the ``depth_um`` timeline (see the module docstring)."""
+    cut = result.cut
+    s = 1 if opts.full_detail else max(int(opts.level_stride), 1)
+    lvl = cut.pixel_level[::s, ::s]
+    seg = (lvl.astype(np.int32) + 1).astype(np.uint16)  # class = level + 1, 0 = beyond K + 1 / invalid
+    n_cls = cut.n_levels + 2  # levels 0 .. K + 1
+    colours = _level_colours(n_cls)
+    rec.set_time("depth_um", sequence=0)
+    rec.log("zcut/cuts", rr.SegmentationImage(seg))
+    for k in range(n_cls):
+        rec.set_time("depth_um", sequence=int(round(k * step_mm * 1000.0)))
+        infos = [rr.AnnotationInfo(id=0, color=(0, 0, 0, 0))]
+        infos += [rr.AnnotationInfo(id=c + 1, label=f"level {c}", color=tuple(colours[c]) + (255,))
+                  for c in range(k + 1)]
+        infos += [rr.AnnotationInfo(id=c + 1, color=(0, 0, 0, 0)) for c in range(k + 1, n_cls)]
+        rec.log("zcut/cuts", rr.AnnotationContext(infos))
+    rec.disable_timeline("depth_um")
+
+
+def log_clusters(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions) -> None:
+    """Tagged clusters as a segmentation image; each class labelled with its area, level and ρ."""
+    cut = result.cut
+    n = cut.n_clusters
+    dtype = np.uint16 if n < 65535 else np.uint32
+    infos = [rr.AnnotationInfo(id=0, color=(0, 0, 0, 0))]
+    rng = np.random.default_rng(7)
+    cols = rng.integers(60, 256, size=(min(n, opts.max_cluster_labels), 3))
+    for i in range(min(n, opts.max_cluster_labels)):
+        rho = cut.rho[i]
+        rho_txt = f", ρ {rho:.3f}" if np.isfinite(rho) else ""
+        infos.append(rr.AnnotationInfo(id=i + 1, label=f"cluster {i + 1}: {int(cut.areas[i])} px, "
+                                       f"level {int(cut.levels[i])}{rho_txt}", color=tuple(int(v) for v in cols[i])))
+    rec.log("image/clusters", rr.AnnotationContext(infos))
+    rec.log("image/clusters", rr.SegmentationImage(cut.clusters.astype(dtype)))
+
+
+def _outlier_classes(result: FrameResult) -> np.ndarray:
+    z, s, easy = result.zcut_outliers, result.sor_outliers, result.easy_outliers
+    c = np.zeros(z.shape, np.uint8)
+    c[z & ~s] = 1
+    c[s & ~z] = 2
+    c[z & s] = 3
+    c[easy] = 4
+    return c
+
+
+def log_outliers(rec: rr.RecordingStream, frame: Frame, result: FrameResult) -> None:
+    """Outliers of the z-cut, SOR and both, in 2D (segmentation) and 3D (points), same colours."""
+    c = _outlier_classes(result)
+    rec.log("image/outliers", rr.SegmentationImage(c, opacity=0.8))
+    rows, cols = np.nonzero(c)
+    pts = frame.xyz[rows, cols]
+    rec.log("world/outliers", rr.Points3D(pts, class_ids=c[rows, cols], radii=rr.Radius.ui_points(3.0)))
+
+
+def log_cloud(rec: rr.RecordingStream, frame: Frame, opts: VizOptions) -> None:
+    """The cloud in 3D (strided at default detail), in its RGB colours when there are some."""
+    s = 1 if opts.full_detail else max(int(opts.cloud_stride), 1)
+    xyz = frame.xyz[::s, ::s].reshape(-1, 3)
+    ok = np.isfinite(xyz).all(axis=1)
+    colours = None
+    if frame.rgb is not None:
+        colours = frame.rgb[::s, ::s].reshape(-1, 3)[ok]
+    rec.log("world/cloud", rr.Points3D(xyz[ok], colors=colours, radii=rr.Radius.ui_points(1.0)))
+
+
+def log_scalars(rec: rr.RecordingStream, result: FrameResult) -> None:
+    """Counts, α, β and stage times of the frame."""
+    z, s = result.zcut_outliers, result.sor_outliers
+    rec.log("counts/zcut", rr.Scalars(float(z.sum())))
+    rec.log("counts/sor", rr.Scalars(float(s.sum())))
+    rec.log("counts/both", rr.Scalars(float((z & s).sum())))
+    rec.log("counts/above_rim", rr.Scalars(float(result.easy_outliers.sum())))
+    rec.log("counts/clusters", rr.Scalars(float(result.cut.n_clusters)))
+    m = result.metrics
+    rec.log("metrics/alpha", rr.Scalars(float(m.alpha)))
+    rec.log("metrics/beta_sor", rr.Scalars(float(m.beta1)))
+    rec.log("metrics/beta_zcut", rr.Scalars(float(m.beta2)))
+    for stage, sec in result.timings.items():
+        rec.log(f"timings_ms/{stage}", rr.Scalars(sec * 1000.0))
+
+
+def log_frame(rec: rr.RecordingStream, frame: Frame, result: FrameResult, *,
+              step_mm: float, opts: VizOptions = VizOptions()) -> None:
+    """Log every stage of one frame."""
+    set_frame_time(rec, frame)
+    log_image(rec, frame, result, opts)
+    log_bin_stages(rec, frame, result)
+    log_cuts(rec, result, opts, step_mm=step_mm)
+    log_clusters(rec, result, opts)
+    log_outliers(rec, frame, result)
+    log_cloud(rec, frame, opts)
+    log_scalars(rec, result)
+    for w in result.warnings:
+        rec.log("log", rr.TextLog(f"frame {frame.index}: {w}", level=rr.TextLogLevel.WARN))
