@@ -62,6 +62,144 @@ def _ns(topic: str) -> str:
     return topic.rsplit("/", 1)[0]
 
 
+def _peek(
+    mf: McapFile, schemas: dict[int, Schema], channels: dict[int, Channel],
+    metadata: dict[str, dict[str, str]],
+) -> tuple[dict[int, object], list[str]]:
+    """First decoded message (header only) of every PointCloud2/Image/CameraInfo channel."""
+    firsts: dict[int, object] = {}
+    damage: list[str] = []
+
+    def wanted(cid: int) -> bool:
+        ch = channels.get(cid)
+        if ch is None or ch.message_encoding != "cdr":
+            return False
+        sc = schemas.get(ch.schema_id)
+        return sc is not None and sc.name in _TYPES
+
+    def take(msg: Message) -> None:
+        ch = channels[msg.channel_id]
+        name = schemas[ch.schema_id].name
+        where = f"{mf.path.name}: topic {ch.topic}, first message"
+        try:
+            if name == rm.POINTCLOUD2:
+                firsts[msg.channel_id] = rm.decode_cloud(msg.data, where=where)
+            elif name == rm.IMAGE:
+                firsts[msg.channel_id] = rm.decode_image(msg.data, where=where)
+            else:
+                firsts[msg.channel_id] = rm.decode_camera_info(msg.data, where=where)
+        except LogFormatError as e:
+            firsts[msg.channel_id] = e
+
+    summary = mf.summary
+    if summary is not None and summary.chunk_indexes:
+        todo = {cid for cid in channels if wanted(cid)}
+        for ci in summary.chunk_indexes:
+            need = todo & set(ci.message_index_offsets)
+            if not need:
+                continue
+            try:
+                rec = mf._read_record_at(ci.chunk_start_offset, expect_len=ci.chunk_length)
+                if rec is None:
+                    raise _Bad("chunk runs past the end of the file")
+                for op, b in mf._chunk_records(rec[1], ""):
+                    if op == OP_MESSAGE:
+                        msg = mf._parse_inner(op, b)
+                        if msg.channel_id in need and msg.channel_id not in firsts:
+                            take(msg)
+            except _Bad as e:
+                damage.append(f"chunk at byte {ci.chunk_start_offset} is corrupt ({e})")
+                continue
+            todo -= set(firsts)
+            if not todo:
+                break
+        return firsts, damage
+    # no summary (or an unchunked file): scan from the start, a little past the first cloud
+    after = None
+    for op, rec in mf.records(damage):
+        if op == OP_SCHEMA:
+            schemas[rec.id] = rec
+        elif op == OP_CHANNEL:
+            channels[rec.id] = rec
+        elif op == OP_METADATA:
+            metadata[rec[0]] = rec[1]
+        elif op == OP_MESSAGE:
+            if rec.channel_id not in firsts and wanted(rec.channel_id):
+                take(rec)
+                if after is None and isinstance(firsts[rec.channel_id], rm.CloudMsg):
+                    after = 0
+            if after is not None:
+                after += 1
+                if after > _PEEK_AFTER_FIRST_CLOUD:
+                    break
+    return firsts, damage
+
+@dataclass
+class LogInfo:
+    """What a log holds, before zcut chooses topics (see :func:`inspect_log`)."""
+
+    path: Path
+    profile: str
+    library: str
+    topics: dict[str, TopicInfo]
+    metadata: dict[str, dict[str, str]]
+    start_ns: int | None
+    end_ns: int | None
+    has_summary: bool
+    notes: list[str]
+    peek_damage: list[str]
+    schemas: dict[int, Schema]
+    channels: dict[int, Channel]
+
+
+def inspect_log(path: str | os.PathLike) -> LogInfo:
+    """List the topics of an MCAP log with the size of their first message (no topic choice).
+
+    Raises :class:`LogFormatError` if the file is not MCAP.
+    """
+    path = Path(path)
+    metadata: dict[str, dict[str, str]] = {}
+    notes: list[str] = []
+    start_ns = end_ns = None
+    with McapFile(path) as mf:
+        if mf.summary_damage:
+            notes.append(mf.summary_damage)
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        summary = mf.summary
+        if summary is not None:
+            schemas.update(summary.schemas)
+            channels.update(summary.channels)
+            metadata, more = mf.read_metadata()
+            notes += more
+            start_ns, end_ns = summary.message_start_time, summary.message_end_time
+        firsts, peek_damage = _peek(mf, schemas, channels, metadata)
+    counts = summary.channel_message_counts if summary is not None else None
+    topics: dict[str, TopicInfo] = {}
+    for cid, ch in sorted(channels.items()):
+        sc = schemas.get(ch.schema_id)
+        msg_type = sc.name if sc is not None else "?"
+        info = topics.get(ch.topic)
+        n = counts.get(cid, 0) if counts is not None else None
+        if info is None:
+            info = topics[ch.topic] = TopicInfo(ch.topic, msg_type, ch.message_encoding, n)
+        elif n is not None and info.count is not None:
+            info.count += n
+        info.channel_ids.append(cid)
+        got = firsts.get(cid)
+        if isinstance(got, rm.CloudMsg):
+            info.height, info.width = got.height, got.width
+            info.fields = tuple(f.name for f in got.fields)
+        elif isinstance(got, rm.ImageMsg):
+            info.height, info.width, info.encoding = got.height, got.width, got.encoding
+        elif isinstance(got, rm.CameraInfoMsg):
+            info.height, info.width = got.height, got.width
+    return LogInfo(
+        path, mf.profile, mf.library, topics, metadata, start_ns, end_ns,
+        counts is not None, notes, peek_damage, schemas, channels,
+    )
+
+
 class LogReader:
     """Read organized frames from a ROS 2 MCAP log.
 
@@ -97,126 +235,19 @@ class LogReader:
         image_topic: str | None = None,
         info_topic: str | None = None,
     ) -> None:
-        self.path = Path(path)
+        info = inspect_log(path)
+        self.path = info.path
+        self.profile, self.library = info.profile, info.library
+        self.topics = info.topics
+        self.metadata = info.metadata
+        self.notes = info.notes
+        self.start_ns, self.end_ns = info.start_ns, info.end_ns
         self.damage: list[str] = []
-        self.metadata: dict[str, dict[str, str]] = {}
-        self.n_frames: int | None = None
-        self.start_ns: int | None = None
-        self.end_ns: int | None = None
-        self.notes: list[str] = []
-        with McapFile(self.path) as mf:
-            self.profile, self.library = mf.profile, mf.library
-            if mf.summary_damage:
-                self.notes.append(mf.summary_damage)
-            schemas: dict[int, Schema] = {}
-            channels: dict[int, Channel] = {}
-            if mf.summary is not None:
-                schemas.update(mf.summary.schemas)
-                channels.update(mf.summary.channels)
-                self.metadata, notes = mf.read_metadata()
-                self.notes += notes
-                self.start_ns = mf.summary.message_start_time
-                self.end_ns = mf.summary.message_end_time
-            firsts, peek_damage = self._peek(mf, schemas, channels)
-        self._schemas = schemas
-        self._channels = channels
-        counts = mf.summary.channel_message_counts if mf.summary is not None else None
-        self.topics: dict[str, TopicInfo] = {}
-        for cid, ch in sorted(channels.items()):
-            sc = schemas.get(ch.schema_id)
-            msg_type = sc.name if sc is not None else "?"
-            info = self.topics.get(ch.topic)
-            n = counts.get(cid, 0) if counts is not None else None
-            if info is None:
-                info = self.topics[ch.topic] = TopicInfo(ch.topic, msg_type, ch.message_encoding, n)
-            elif n is not None and info.count is not None:
-                info.count += n
-            info.channel_ids.append(cid)
-            got = firsts.get(cid)
-            if isinstance(got, rm.CloudMsg):
-                info.height, info.width = got.height, got.width
-                info.fields = tuple(f.name for f in got.fields)
-            elif isinstance(got, rm.ImageMsg):
-                info.height, info.width, info.encoding = got.height, got.width, got.encoding
-            elif isinstance(got, rm.CameraInfoMsg):
-                info.height, info.width = got.height, got.width
-        self._choose_topics(cloud_topic, image_topic, info_topic, peek_damage)
-        cinfo = self.topics[self.cloud_topic]
-        if counts is not None:
-            self.n_frames = cinfo.count
+        self._schemas, self._channels = info.schemas, info.channels
+        self._choose_topics(cloud_topic, image_topic, info_topic, info.peek_damage)
+        self.n_frames: int | None = self.topics[self.cloud_topic].count if info.has_summary else None
 
     # ------------------------------------------------------------------ opening
-    def _peek(
-        self, mf: McapFile, schemas: dict[int, Schema], channels: dict[int, Channel]
-    ) -> tuple[dict[int, object], list[str]]:
-        """First decoded message (header only) of every PointCloud2/Image/CameraInfo channel."""
-        firsts: dict[int, object] = {}
-        damage: list[str] = []
-
-        def wanted(cid: int) -> bool:
-            ch = channels.get(cid)
-            if ch is None or ch.message_encoding != "cdr":
-                return False
-            sc = schemas.get(ch.schema_id)
-            return sc is not None and sc.name in _TYPES
-
-        def take(msg: Message) -> None:
-            ch = channels[msg.channel_id]
-            name = schemas[ch.schema_id].name
-            where = f"{self.path.name}: topic {ch.topic}, first message"
-            try:
-                if name == rm.POINTCLOUD2:
-                    firsts[msg.channel_id] = rm.decode_cloud(msg.data, where=where)
-                elif name == rm.IMAGE:
-                    firsts[msg.channel_id] = rm.decode_image(msg.data, where=where)
-                else:
-                    firsts[msg.channel_id] = rm.decode_camera_info(msg.data, where=where)
-            except LogFormatError as e:
-                firsts[msg.channel_id] = e
-
-        summary = mf.summary
-        if summary is not None and summary.chunk_indexes:
-            todo = {cid for cid in channels if wanted(cid)}
-            for ci in summary.chunk_indexes:
-                need = todo & set(ci.message_index_offsets)
-                if not need:
-                    continue
-                try:
-                    rec = mf._read_record_at(ci.chunk_start_offset, expect_len=ci.chunk_length)
-                    if rec is None:
-                        raise _Bad("chunk runs past the end of the file")
-                    for op, b in mf._chunk_records(rec[1], ""):
-                        if op == OP_MESSAGE:
-                            msg = mf._parse_inner(op, b)
-                            if msg.channel_id in need and msg.channel_id not in firsts:
-                                take(msg)
-                except _Bad as e:
-                    damage.append(f"chunk at byte {ci.chunk_start_offset} is corrupt ({e})")
-                    continue
-                todo -= set(firsts)
-                if not todo:
-                    break
-            return firsts, damage
-        # no summary (or an unchunked file): scan from the start, a little past the first cloud
-        after = None
-        for op, rec in mf.records(damage):
-            if op == OP_SCHEMA:
-                schemas[rec.id] = rec
-            elif op == OP_CHANNEL:
-                channels[rec.id] = rec
-            elif op == OP_METADATA:
-                self.metadata[rec[0]] = rec[1]
-            elif op == OP_MESSAGE:
-                if rec.channel_id not in firsts and wanted(rec.channel_id):
-                    take(rec)
-                    if after is None and isinstance(firsts[rec.channel_id], rm.CloudMsg):
-                        after = 0
-                if after is not None:
-                    after += 1
-                    if after > _PEEK_AFTER_FIRST_CLOUD:
-                        break
-        return firsts, damage
-
     def _choose_topics(
         self, cloud_topic: str | None, image_topic: str | None, info_topic: str | None,
         peek_damage: list[str],

@@ -1,0 +1,59 @@
+"""``zcut topics LOG.mcap``: what a log holds and what zcut would use."""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("log", metavar="LOG.mcap", help="ROS 2 MCAP log")
+    parser.add_argument("--topic", help="the PointCloud2 topic to use (when several are organized)")
+    parser.add_argument("--image-topic", help="the colour Image topic to use (when several)")
+
+
+def _stamp(ns: int) -> str:
+    t = _dt.datetime.fromtimestamp(ns / 1e9, tz=_dt.timezone.utc)
+    return t.strftime("%Y-%m-%d %H:%M:%S.%f")[:-3] + " UTC"
+
+
+def run(args: argparse.Namespace) -> int:
+    from replay.errors import LogFormatError
+    from replay.logread import LogReader, inspect_log
+
+    info = inspect_log(args.log)
+    print(f"{info.path}  (profile {info.profile or '-'}, written by {info.library or '-'})")
+    if info.start_ns is not None and info.end_ns is not None:
+        span = (info.end_ns - info.start_ns) / 1e9
+        print(f"time span: {_stamp(info.start_ns)} .. {_stamp(info.end_ns)}  ({span:.3f} s)")
+    else:
+        print("time span: unknown (the file has no summary)")
+    rows = []
+    for t in info.topics.values():
+        size = f"{t.height}x{t.width}" if t.height is not None else "-"
+        extra = t.encoding or (" ".join(t.fields) if t.fields else "")
+        rows.append((t.topic, t.msg_type, t.message_encoding, "?" if t.count is None else str(t.count), size, extra))
+    head = ("topic", "type", "encoding", "messages", "HxW", "image encoding / fields")
+    widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
+    for r in [head, *rows]:
+        print("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
+    for name, kv in info.metadata.items():
+        print(f"metadata '{name}':")
+        for k, v in kv.items():
+            first = v.splitlines()[0] if v else ""
+            more = f" … ({len(v.splitlines())} lines)" if "\n" in v.strip() else ""
+            print(f"  {k}: {first}{more}")
+    for note in info.notes + info.peek_damage:
+        print(f"warning: {note}")
+    try:
+        r = LogReader(args.log, cloud_topic=args.topic, image_topic=args.image_topic)
+    except LogFormatError:
+        print("zcut would use: nothing (see the error below)", flush=True)
+        raise
+    print("zcut would use:")
+    n = "?" if r.n_frames is None else r.n_frames
+    print(f"  cloud:       {r.cloud_topic}  ({n} frames)")
+    print(f"  image:       {r.image_topic or '- (colours from the cloud, if any)'}")
+    print(f"  camera info: {r.info_topic or '-'}")
+    print(f"  masks:       {', '.join(r.mask_topics) or '-'}")
+    return 0
