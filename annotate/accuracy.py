@@ -232,3 +232,89 @@ def format_accuracy_table(report: dict, *, per_frame: bool = True) -> str:
     rows = [_row([m], report["pooled"][m]) for m in METHODS]
     parts.append(f"pooled over {n} frame{'s' if n != 1 else ''}\n" + _render(["method", *_HEADER], rows, left=1))
     return "\n\n".join(parts)
+
+
+# ------------------------------------------------------------------ agreement between annotators
+@dataclass(frozen=True, slots=True)
+class AgreementCounts:
+    """Pixel confusion of two annotators' outlier masks over the pixels both reviewed.
+
+    ``both`` = outlier for A and B, ``only_a``, ``only_b``, ``neither``; they add up over frames.
+    """
+
+    both: int
+    only_a: int
+    only_b: int
+    neither: int
+
+    def __add__(self, other: AgreementCounts) -> AgreementCounts:
+        return AgreementCounts(self.both + other.both, self.only_a + other.only_a,
+                               self.only_b + other.only_b, self.neither + other.neither)
+
+    @property
+    def n(self) -> int:
+        return self.both + self.only_a + self.only_b + self.neither
+
+    @property
+    def iou(self) -> float:
+        """|A ∩ B| / |A ∪ B| (NaN when both are empty)."""
+        d = self.both + self.only_a + self.only_b
+        return self.both / d if d else math.nan
+
+    @property
+    def kappa(self) -> float:
+        """Cohen's kappa of the two binary labellings (NaN when undefined: no pixels, or p_e = 1)."""
+        n = self.n
+        if n == 0:
+            return math.nan
+        po = (self.both + self.neither) / n
+        pa, pb = (self.both + self.only_a) / n, (self.both + self.only_b) / n
+        pe = pa * pb + (1 - pa) * (1 - pb)
+        return (po - pe) / (1 - pe) if pe < 1 else math.nan
+
+    def as_dict(self) -> dict[str, int | float]:
+        return {"pixels": self.n, "both": self.both, "only_a": self.only_a, "only_b": self.only_b,
+                "iou": self.iou, "kappa": self.kappa}
+
+
+def agreement_counts(outliers_a: Mask, reviewed_a: Mask, outliers_b: Mask, reviewed_b: Mask) -> AgreementCounts:
+    """Confusion of two labels over R_A ∩ R_B.
+
+    Parameters
+    ----------
+    outliers_a, reviewed_a, outliers_b, reviewed_b : (H, W) bool ndarray
+        The two annotators' L and R.
+    """
+    la = _as_mask(outliers_a, name="outliers_a", shape=None)
+    shape = la.shape
+    ra = _as_mask(reviewed_a, name="reviewed_a", shape=shape)
+    lb = _as_mask(outliers_b, name="outliers_b", shape=shape)
+    rb = _as_mask(reviewed_b, name="reviewed_b", shape=shape)
+    r = ra & rb
+    a, b = la & r, lb & r
+    both = int(np.count_nonzero(a & b))
+    na, nb, nr = int(np.count_nonzero(a)), int(np.count_nonzero(b)), int(np.count_nonzero(r))
+    return AgreementCounts(both=both, only_a=na - both, only_b=nb - both, neither=nr - na - nb + both)
+
+
+def agreement_report(annotator_a: str, annotator_b: str,
+                     frames: Iterable[tuple[int, int, AgreementCounts]]) -> dict:
+    """``{"annotators": [A, B], "pooled": {...}, "frames": [{"index", "stamp_ns", ...}]}`` (NaN kept)."""
+    frames = list(frames)
+    pooled = AgreementCounts(0, 0, 0, 0)
+    for _, _, c in frames:
+        pooled = pooled + c
+    return {"annotators": [annotator_a, annotator_b], "pooled": pooled.as_dict(),
+            "frames": [{"index": int(i), "stamp_ns": int(s), **c.as_dict()} for i, s, c in frames]}
+
+
+def format_agreement_table(report: dict) -> str:
+    """Plain-text table of :func:`agreement_report`."""
+    a, b = report["annotators"]
+    head = ["frame", "stamp_ns", "pixels", "both", f"only {a}", f"only {b}", "IoU", "kappa"]
+    rows = [[str(f["index"]), str(f["stamp_ns"]), str(f["pixels"]), str(f["both"]), str(f["only_a"]),
+             str(f["only_b"]), _fmt_rate(f["iou"]), _fmt_rate(f["kappa"])] for f in report["frames"]]
+    p = report["pooled"]
+    rows.append(["pooled", "", str(p["pixels"]), str(p["both"]), str(p["only_a"]), str(p["only_b"]),
+                 _fmt_rate(p["iou"]), _fmt_rate(p["kappa"])])
+    return f"agreement of {a} and {b} over the pixels both reviewed\n" + _render(head, rows, left=2)

@@ -410,6 +410,11 @@ class LabelStore:
         )
         return [FrameRecord(*r) for r in rows]
 
+    def frames_at_stamp(self, stamp_ns: int) -> list[FrameRecord]:
+        """Frames of any log and topic with this stamp (a results file re-publishes its source's stamps)."""
+        rows = self._query(f"SELECT {self._FRAME_COLS} FROM frames WHERE stamp_ns = ? ORDER BY id", (int(stamp_ns),))
+        return [FrameRecord(*r) for r in rows]
+
     def valid_mask(self, frame: FrameRecord) -> np.ndarray | None:
         rows = self._query("SELECT valid FROM frames WHERE id = ?", (frame.id,))
         if not rows or rows[0][0] is None:

@@ -1,0 +1,1 @@
+"""``zcut annotate`` and ``zcut accuracy`` (registered in ``replay.cli.COMMANDS``)."""

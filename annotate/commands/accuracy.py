@@ -1,0 +1,145 @@
+"""``zcut accuracy LOG_OR_RESULTS.mcap``: true accuracy of z-cut, SOR, union and intersection (SPEC §4)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+GT_TOPIC = "/ground_truth/outliers"
+ZCUT_TOPIC = "/zcut/outliers"
+SOR_TOPIC = "/zcut/sor_outliers"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("log", type=Path, metavar="LOG_OR_RESULTS.mcap",
+                   help="a log (predictions computed by the pipeline) or a results file of `zcut replay`")
+    p.add_argument("--labels", type=Path, default=None, metavar="DB",
+                   help="human labels (zcut annotate's SQLite file); default: the log's /ground_truth/outliers")
+    p.add_argument("--annotator", default=None, help="whose labels (needed when the DB has several annotators)")
+    p.add_argument("--agreement", nargs=2, metavar=("A", "B"), default=None,
+                   help="instead: agreement of two annotators (IoU, Cohen's kappa over the pixels both reviewed)")
+    p.add_argument("--json", action="store_true", help="print the SPEC §4 JSON object instead of tables")
+    p.add_argument("--config", type=Path, default=None, help="pipeline config (TOML) when predictions are computed")
+
+
+def _match(store, log, frame):
+    """The store's frame for a log frame: by (log, topic, stamp), else by a unique stamp (results files)."""
+    if log is not None:
+        rec = store.frame(log, topic=frame.topic, stamp_ns=frame.stamp_ns)
+        if rec is not None:
+            return rec
+    recs = store.frames_at_stamp(frame.stamp_ns)
+    if log is not None:
+        recs = [r for r in recs if r.log_id == log.id] or recs
+    return recs[0] if len(recs) == 1 else None
+
+
+def run(args: argparse.Namespace) -> int:
+    from annotate.accuracy import (
+        accuracy_report,
+        agreement_counts,
+        agreement_report,
+        format_accuracy_table,
+        format_agreement_table,
+        frame_accuracy,
+        report_json,
+    )
+    from annotate.candidates import PipelineRunner
+    from annotate.store import LabelStore, file_sha256
+    from replay.logread import LogReader
+    from zcut.errors import ParameterError, ZcutError
+
+    if not args.log.is_file():
+        raise FileNotFoundError(2, "no such file", str(args.log))
+    if args.agreement and args.labels is None:
+        raise ParameterError("--agreement needs --labels DB")
+    if args.labels is not None and not args.labels.is_file():
+        raise FileNotFoundError(2, "no such file", str(args.labels))
+
+    reader = LogReader(args.log)
+    store = LabelStore(args.labels) if args.labels is not None else None
+    try:
+        log = store.log_by_sha(file_sha256(args.log)) if store is not None else None
+        annotator = None
+        if store is not None and not args.agreement:
+            known = store.annotators(log) if log is not None else store.annotators()
+            if args.annotator is not None:
+                if args.annotator not in known:
+                    raise ParameterError(f"--annotator {args.annotator!r}: no labels by them in {args.labels} "
+                                         f"(annotators: {', '.join(known) or 'none'})")
+                annotator = args.annotator
+            elif len(known) == 1:
+                annotator = known[0]
+            else:
+                raise ParameterError(f"{args.labels} has labels by {len(known)} annotators "
+                                     f"({', '.join(known) or 'none'}): choose one with --annotator")
+
+        if args.agreement:
+            a, b = args.agreement
+            rows = []
+            for frame in reader.frames():
+                rec = _match(store, log, frame)
+                la = store.label(rec, annotator=a) if rec else None
+                lb = store.label(rec, annotator=b) if rec else None
+                if la is not None and lb is not None:
+                    rows.append((frame.index, frame.stamp_ns,
+                                 agreement_counts(la.outliers, la.reviewed, lb.outliers, lb.reviewed)))
+            if not rows:
+                raise ZcutError(f"no frame of {args.log} is labelled by both {a!r} and {b!r} in {args.labels}")
+            rep = agreement_report(a, b, rows)
+            print(report_json(rep, indent=None) if args.json else format_agreement_table(rep))
+            return _status(reader)
+
+        runner = PipelineRunner(reader.metadata, config_path=args.config)
+        results, skipped, computed = [], 0, 0
+        for frame in reader.frames():
+            valid = (frame.xyz == frame.xyz).all(axis=2)  # finite: NaN != NaN
+            if store is not None:
+                rec = _match(store, log, frame)
+                lab = store.label(rec, annotator=annotator) if rec is not None else None
+                if lab is None:
+                    skipped += 1
+                    continue
+                if lab.outliers.shape != frame.shape:
+                    raise ZcutError(f"labels of frame {frame.index} are {lab.outliers.shape}, the frame is {frame.shape}")
+                truth, reviewed = lab.outliers, lab.reviewed
+            else:
+                gt = frame.masks.get(GT_TOPIC)
+                if gt is None:
+                    skipped += 1
+                    continue
+                truth, reviewed = gt & valid, valid
+            if ZCUT_TOPIC in frame.masks and SOR_TOPIC in frame.masks:
+                preds = {"zcut": frame.masks[ZCUT_TOPIC], "sor": frame.masks[SOR_TOPIC]}
+            else:
+                r = runner.run(frame)
+                preds = {"zcut": r.zcut_outliers, "sor": r.sor_outliers}
+                computed += 1
+            results.append(frame_accuracy(frame.index, frame.stamp_ns, preds, truth, reviewed=reviewed))
+        if not results:
+            what = (f"no frame of {args.log} is labelled by {annotator!r} in {args.labels}" if store is not None
+                    else f"{args.log} has no {GT_TOPIC}: give human labels with --labels DB")
+            raise ZcutError(what)
+        report = accuracy_report(results)
+        if args.json:
+            print(report_json(report))
+        else:
+            src = f"labels by {annotator} ({args.labels})" if store is not None else f"ground truth {GT_TOPIC}"
+            pred = "computed by the pipeline" if computed else f"from {ZCUT_TOPIC}, {SOR_TOPIC}"
+            print(f"truth: {src}; predictions: {pred}")
+            if skipped:
+                print(f"{skipped} frame(s) without truth skipped")
+            print(format_accuracy_table(report))
+        return _status(reader)
+    finally:
+        if store is not None:
+            store.close()
+
+
+def _status(reader) -> int:
+    if reader.damage:
+        for d in reader.damage:
+            print(f"warning: {d}", file=sys.stderr)
+        return 3
+    return 0

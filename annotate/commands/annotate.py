@@ -1,0 +1,58 @@
+"""``zcut annotate LOG.mcap``: the labelling page on 127.0.0.1, with a token in its URL."""
+
+from __future__ import annotations
+
+import argparse
+import getpass
+from pathlib import Path
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("log", type=Path, metavar="LOG.mcap", help="the log to label")
+    p.add_argument("--db", type=Path, default=None, metavar="LABELS.sqlite",
+                   help="label store (default: LOG.labels.sqlite next to the log)")
+    p.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (default: a free one)")
+    p.add_argument("--no-browser", action="store_true", help="do not open a browser")
+    p.add_argument("--annotator", default=None, help="your name on the labels (default: the login name)")
+    p.add_argument("--config", type=Path, default=None, help="pipeline config (TOML) for the candidates")
+
+
+def run(args: argparse.Namespace) -> int:
+    import socket
+    import webbrowser
+
+    import uvicorn
+
+    from annotate.server import create_app, open_session
+    from zcut.errors import ParameterError
+
+    if not (0 <= args.port <= 65535):
+        raise ParameterError(f"--port must be in 0..65535, got {args.port}")
+    if not args.log.is_file():
+        raise FileNotFoundError(2, "no such file", str(args.log))
+    db = args.db or args.log.with_suffix(".labels.sqlite")
+    annotator = args.annotator or getpass.getuser() or "annotator"
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind(("127.0.0.1", args.port))
+    except OSError as e:
+        sock.close()
+        raise ParameterError(f"--port {args.port}: cannot listen on 127.0.0.1: {e.strerror}") from None
+    port = sock.getsockname()[1]
+    session = open_session(args.log, db, annotator=annotator, config_path=args.config)
+    try:
+        url = f"http://127.0.0.1:{port}/?token={session.token}"
+        print(f"labels: {db}", flush=True)
+        print(f"annotator: {session.annotator}", flush=True)
+        print(url, flush=True)
+        if not args.no_browser:
+            webbrowser.open(url)
+        config = uvicorn.Config(create_app(session), log_level="warning", access_log=False,
+                                timeout_graceful_shutdown=5)
+        uvicorn.Server(config).run(sockets=[sock])
+    finally:
+        session.catalog.stop()
+        session.store.close()
+        sock.close()
+    return 0

@@ -1,0 +1,208 @@
+"""What the labelling page shows of a frame, computed once per frame and cached in memory.
+
+For each frame of the log the pipeline (``replay.pipeline.run_frame``) proposes candidates; this
+module turns a frame and its result into a :class:`PreparedFrame`: JPEGs of the RGB image and of a
+height colour map, and one compact binary *bundle* with the valid mask and the candidate clusters
+of the z-cut and of SOR, ready to send as is.
+
+Bundle layout (little endian): ``uint32 n`` | ``n`` bytes of JSON header | sections. The header
+lists the sections as ``{"name", "kind", "dtype", "offset", "length"}`` (offset from the first byte
+after the header). ``kind = "bits"``: ``zlib(packbits(mask.ravel()))`` (MSB first, as
+:func:`annotate.store.pack_mask`); ``kind = "ids"``: ``zlib(array.ravel().tobytes())`` of an unsigned
+integer array (``dtype`` ``uint8``, ``uint16`` or ``uint32``), 0 = no cluster.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import zlib
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from zcut.cloud import height_mm
+
+from .store import pack_mask
+
+EIGHT = np.ones((3, 3), bool)
+JPEG_QUALITY = 90
+INVALID_GRAY = 48
+
+
+@dataclass(frozen=True, slots=True)
+class PreparedFrame:
+    """A frame as the page needs it.
+
+    Attributes
+    ----------
+    index : int
+    stamp_ns : int
+    topic : str
+    frame_id : str
+    height, width : int
+    valid : (H, W) bool ndarray
+    zcut_clusters, sor_clusters : (H, W) uint ndarray
+        Candidate cluster ids (0 = none).
+    n_zcut, n_sor : int
+        Number of candidate clusters.
+    rgb_jpeg : bytes or None
+        None when the log has no colour for the frame.
+    height_jpeg : bytes
+        Height colour map (turbo, 1st-99th percentile of the valid heights; invalid pixels grey).
+    bundle : bytes
+        See the module docstring.
+    warnings : tuple of str
+        The pipeline's warnings for the frame.
+    """
+
+    index: int
+    stamp_ns: int
+    topic: str
+    frame_id: str
+    height: int
+    width: int
+    valid: np.ndarray
+    zcut_clusters: np.ndarray
+    sor_clusters: np.ndarray
+    n_zcut: int
+    n_sor: int
+    rgb_jpeg: bytes | None
+    height_jpeg: bytes
+    bundle: bytes
+    warnings: tuple[str, ...]
+
+
+def _small_uint(ids: np.ndarray, n: int) -> np.ndarray:
+    dtype = np.uint8 if n < 256 else np.uint16 if n < 65536 else np.uint32
+    return ids.astype(dtype, copy=False)
+
+
+def make_bundle(header: dict, sections: list[tuple[str, str, np.ndarray]]) -> bytes:
+    """Pack a header dict and ``(name, kind, array)`` sections into one bundle (module docstring)."""
+    parts: list[bytes] = []
+    meta = []
+    offset = 0
+    for name, kind, arr in sections:
+        if kind == "bits":
+            blob = pack_mask(arr)
+            dtype = "bool"
+        elif kind == "ids":
+            a = np.ascontiguousarray(arr)
+            blob = zlib.compress(a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes(), 1)
+            dtype = a.dtype.name
+        else:  # pragma: no cover - internal
+            raise AssertionError(kind)
+        meta.append({"name": name, "kind": kind, "dtype": dtype, "offset": offset, "length": len(blob)})
+        parts.append(blob)
+        offset += len(blob)
+    head = json.dumps({**header, "sections": meta}).encode()
+    return struct.pack("<I", len(head)) + head + b"".join(parts)
+
+
+def bundle_with_blobs(header: dict, blobs: list[tuple[str, bytes]]) -> bytes:
+    """A bundle of already packed ``bits`` sections (label masks straight from the store)."""
+    meta, offset = [], 0
+    for name, blob in blobs:
+        meta.append({"name": name, "kind": "bits", "dtype": "bool", "offset": offset, "length": len(blob)})
+        offset += len(blob)
+    head = json.dumps({**header, "sections": meta}).encode()
+    return struct.pack("<I", len(head)) + head + b"".join(b for _, b in blobs)
+
+
+def height_colormap(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8 BGR turbo colour map of the height ``-1000 z``; invalid pixels grey."""
+    h = height_mm(xyz)
+    out = np.full(valid.shape + (3,), INVALID_GRAY, np.uint8)
+    if valid.any():
+        v = h[valid]
+        lo, hi = np.percentile(v, [1.0, 99.0])
+        scale = 255.0 / max(hi - lo, 1e-9)
+        g = np.clip((h - lo) * scale, 0, 255)
+        g = np.where(valid, g, 0).astype(np.uint8)
+        cm = cv2.applyColorMap(g, cv2.COLORMAP_TURBO)
+        out[valid] = cm[valid]
+    return out
+
+
+def _jpeg(bgr: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    assert ok
+    return buf.tobytes()
+
+
+def candidate_clusters(zcut_outliers: np.ndarray, cut_clusters: np.ndarray | None, sor_outliers: np.ndarray
+                       ) -> tuple[np.ndarray, int, np.ndarray, int]:
+    """Clickable clusters: the z-cut's own clusters (other z-cut outliers, e.g. above the rim, as their
+    8-connected components) and the 8-connected components of the SOR outliers.
+
+    Returns
+    -------
+    zcut_ids : (H, W) uint ndarray, n_zcut : int, sor_ids : (H, W) uint ndarray, n_sor : int
+    """
+    z = np.zeros(zcut_outliers.shape, np.int64)
+    n_z = 0
+    if cut_clusters is not None and cut_clusters.shape == zcut_outliers.shape:
+        # renumber the z-cut's clusters that hold outliers 1..n, in order
+        ids = np.where(zcut_outliers, cut_clusters, 0)
+        used = np.unique(ids[ids > 0])
+        if used.size:
+            lut = np.zeros(int(used.max()) + 1, np.int64)
+            lut[used] = np.arange(1, used.size + 1)
+            z = lut[ids]
+            n_z = int(used.size)
+    rest = zcut_outliers & (z == 0)
+    if rest.any():
+        extra, n_extra = ndimage.label(rest, structure=EIGHT)
+        z = np.where(extra > 0, extra + n_z, z)
+        n_z += int(n_extra)
+    s, n_s = ndimage.label(sor_outliers, structure=EIGHT)
+    return _small_uint(z, n_z), n_z, _small_uint(s, int(n_s)), int(n_s)
+
+
+def prepare_frame(frame, *, zcut_outliers: np.ndarray, sor_outliers: np.ndarray,
+                  cut_clusters: np.ndarray | None, warnings: tuple[str, ...] = ()) -> PreparedFrame:
+    """Build the page's view of a frame from the frame and the pipeline's masks.
+
+    Parameters
+    ----------
+    frame : replay.frame.Frame
+    zcut_outliers, sor_outliers : (H, W) bool ndarray
+        Candidates of the two filters.
+    cut_clusters : (H, W) int ndarray or None
+        The z-cut's cluster labels (``CutResult.clusters``).
+    warnings : tuple of str
+    """
+    valid = np.isfinite(frame.xyz).all(axis=2)
+    zc = np.asarray(zcut_outliers, bool) & valid
+    sc = np.asarray(sor_outliers, bool) & valid
+    z_ids, n_z, s_ids, n_s = candidate_clusters(zc, cut_clusters, sc)
+    hbgr = height_colormap(frame.xyz, valid)
+    rgb_jpeg = None if frame.rgb is None else _jpeg(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR))
+    H, W = valid.shape
+    header = {"index": frame.index, "stamp_ns": frame.stamp_ns, "topic": frame.topic, "height": H, "width": W,
+              "n_zcut": n_z, "n_sor": n_s, "has_rgb": frame.rgb is not None, "warnings": list(warnings)}
+    bundle = make_bundle(header, [("valid", "bits", valid), ("zcut", "ids", z_ids), ("sor", "ids", s_ids)])
+    return PreparedFrame(
+        index=frame.index, stamp_ns=frame.stamp_ns, topic=frame.topic, frame_id=frame.frame_id, height=H, width=W,
+        valid=valid, zcut_clusters=z_ids, sor_clusters=s_ids, n_zcut=n_z, n_sor=n_s, rgb_jpeg=rgb_jpeg,
+        height_jpeg=_jpeg(hbgr), bundle=bundle, warnings=tuple(warnings),
+    )
+
+
+def parse_bundle(data: bytes) -> tuple[dict, dict[str, np.ndarray]]:
+    """Decode a bundle back into (header, name -> array) — what the page does, in Python (for tests)."""
+    (n,) = struct.unpack_from("<I", data, 0)
+    header = json.loads(data[4:4 + n])
+    body = data[4 + n:]
+    shape = (header["height"], header["width"])
+    out = {}
+    for s in header["sections"]:
+        raw = zlib.decompress(body[s["offset"]:s["offset"] + s["length"]])
+        if s["kind"] == "bits":
+            out[s["name"]] = np.unpackbits(np.frombuffer(raw, np.uint8), count=shape[0] * shape[1]).view(bool).reshape(shape)
+        else:
+            out[s["name"]] = np.frombuffer(raw, np.dtype(s["dtype"]).newbyteorder("<")).reshape(shape)
+    return header, out
