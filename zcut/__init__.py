@@ -5,12 +5,36 @@ No file I/O, no viewer, no database here: see ``replay`` and ``annotate`` for th
 
 from .cloud import Intrinsics, height_mm, valid_mask
 from .errors import InputShapeError, ParameterError, ZcutError
+from .metrics import (
+    AccuracyCounts,
+    RelativeMetrics,
+    Sensitivity,
+    accuracy_counts,
+    cohen_kappa,
+    mask_iou,
+    ratio,
+    relative_metrics,
+    sensitivity,
+    sensitivity_of,
+)
+from .sor import sor_outliers
 
 __all__ = [
     "Intrinsics",
     "InputShapeError",
     "ParameterError",
     "ZcutError",
+    "AccuracyCounts",
+    "RelativeMetrics",
+    "Sensitivity",
+    "accuracy_counts",
+    "cohen_kappa",
+    "mask_iou",
+    "ratio",
+    "relative_metrics",
+    "sensitivity",
+    "sensitivity_of",
+    "sor_outliers",
     "height_mm",
     "valid_mask",
 ]

@@ -337,18 +337,13 @@ def _tile_phase(x, y, z, valid, rows, cols, radius2, m, divisor, tlo, thi, slo, 
                     sd[ns] = d
                     sid[ns] = i * sw + j
                     ns += 1
-        order = sid[:ns][np.argsort(sd[:ns])]
-        sd_all = np.full(sh * sw, np.inf)
-        for o in range(ns):
-            sd_all[sid[o]] = sd[o]
-        sd = sd_all
+        order = np.argsort(sd[:ns])
         measured = 0
         aborted = False
-        for o in range(order.shape[0]):
-            s = order[o]
-            cur = min(lim, best[m - 1]) * slack
-            if sd[s] > cur:
+        for o in range(ns):
+            if sd[order[o]] > min(lim, best[m - 1]) * slack:
                 break
+            s = sid[order[o]]
             si = s // sw
             sj = s % sw
             for ti in range(si * _SUPER, min(th, (si + 1) * _SUPER)):
