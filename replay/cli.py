@@ -22,6 +22,8 @@ EXIT_DATA_LOSS = 3
 COMMANDS: dict[str, tuple[str, str]] = {
     "record": ("replay.commands.record", "turn organized .ply/.pcd files (or folders of them) into a ROS 2 MCAP log"),
     "topics": ("replay.commands.topics", "show what a log holds and which topics zcut would use"),
+    "replay": ("replay.commands.replay", "run the pipeline (bin removal, z-cut, SOR) on a log; log every stage to Rerun"),
+    "bin-model": ("replay.commands.bin_model", "build the bin model (PLY) from empty-bin scans, or import a CAD/PLY model"),
     "accuracy": ("annotate.commands.accuracy", "true accuracy of z-cut, SOR, union, intersection against labels or ground truth"),
     "annotate": ("annotate.commands.annotate", "label true outliers in a local web page (127.0.0.1, token in the URL)"),
 }

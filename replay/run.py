@@ -1,0 +1,288 @@
+"""Replay a log through the pipeline: read, resolve the config, run, log to Rerun, write results.
+
+Library code: it never prints. The command modules (``zcut replay``, ``zcut demo``) pass callbacks
+to show progress and the per-frame table.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from zcut.removal import BinModel
+
+from . import config as cfg
+from .errors import ConfigError
+from .frame import Frame
+from .pipeline import FrameResult, run_frame
+
+OUTLIERS_TOPIC = "/zcut/outliers"
+SOR_TOPIC = "/zcut/sor_outliers"
+BIN_MASK_TOPIC = "/zcut/bin_mask"
+FILTERED_TOPIC = "/zcut/filtered"
+SYNTH_METADATA = "zcut.synth"
+RESULTS_METADATA = "zcut.results"
+
+
+@dataclass(frozen=True, slots=True)
+class FrameRow:
+    """One line of the per-frame table (and of the JSON summary)."""
+
+    index: int
+    stamp_ns: int
+    valid_px: int
+    zcut: int
+    sor: int
+    both: int
+    above_rim: int
+    clusters: int
+    alpha: float
+    beta_sor: float
+    beta_zcut: float
+    fitness: float
+    rmse_mm: float
+    time_s: float
+    warnings: tuple[str, ...]
+
+    @classmethod
+    def of(cls, result: FrameResult) -> FrameRow:
+        reg = result.registration
+        m = result.metrics
+        return cls(
+            index=result.index, stamp_ns=result.stamp_ns, valid_px=int(result.valid.sum()),
+            zcut=int(result.zcut_outliers.sum()), sor=int(result.sor_outliers.sum()),
+            both=int(result.both_outliers.sum()), above_rim=int(result.easy_outliers.sum()),
+            clusters=result.cut.n_clusters, alpha=float(m.alpha), beta_sor=float(m.beta1),
+            beta_zcut=float(m.beta2),
+            fitness=float(reg.fitness) if reg is not None else math.nan,
+            rmse_mm=float(reg.inlier_rmse) * 1000.0 if reg is not None else math.nan,
+            time_s=float(result.timings["total"]), warnings=result.warnings,
+        )
+
+    def as_dict(self) -> dict[str, Any]:
+        d = {k: getattr(self, k) for k in self.__slots__}
+        d["warnings"] = list(self.warnings)
+        return {k: _json_number(v) for k, v in d.items()}
+
+
+def _json_number(v: Any) -> Any:
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+@dataclass(slots=True)
+class ReplaySummary:
+    """What a replay did (mutable while it runs; final when :func:`replay_log` returns)."""
+
+    log: str
+    resolved: cfg.Resolved | None = None
+    rows: list[FrameRow] = field(default_factory=list)
+    damage: list[str] = field(default_factory=list)
+    outputs: dict[str, str] = field(default_factory=dict)
+    part_kind: str | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        total = {k: sum(getattr(r, k) for r in self.rows)
+                 for k in ("valid_px", "zcut", "sor", "both", "above_rim", "clusters")}
+        t = sum(r.time_s for r in self.rows)
+        return {
+            "log": self.log,
+            "part_kind": self.part_kind,
+            "notes": list(self.resolved.notes) if self.resolved else [],
+            "config": cfg.to_dict(self.resolved.config) if self.resolved else None,
+            "frames": [r.as_dict() for r in self.rows],
+            "totals": {**total, "frames": len(self.rows), "time_s": t,
+                       "frames_per_s": _json_number(len(self.rows) / t if t > 0 else math.nan)},
+            "damage": list(self.damage),
+            "outputs": dict(self.outputs),
+        }
+
+
+def parse_frames(text: str | None) -> tuple[int, int | None]:
+    """``"A:B"``, ``"A:"``, ``":B"`` or ``"N"`` (one frame) -> (start, stop)."""
+    if text is None or text == "":
+        return 0, None
+    try:
+        if ":" in text:
+            a, b = text.split(":", 1)
+            start = int(a) if a.strip() else 0
+            stop = int(b) if b.strip() else None
+        else:
+            start = int(text)
+            stop = start + 1
+    except ValueError:
+        raise ConfigError(f"--frames must look like A:B, A:, :B or N, got {text!r}") from None
+    if start < 0 or (stop is not None and stop <= start):
+        raise ConfigError(f"--frames must satisfy 0 <= A < B, got {text!r}")
+    return start, stop
+
+
+def synth_info(metadata: dict[str, dict[str, str]]) -> tuple[str | None, float | None]:
+    """(part_kind, camera distance in mm) from a log's ``zcut.synth`` metadata (None when absent)."""
+    meta = metadata.get(SYNTH_METADATA, {})
+    kind = meta.get("part_kind") or None
+    dist = None
+    for key, scale in (("a_max_distance_mm", 1.0), ("pile_distance_mm", 1.0), ("camera_distance_mm", 1.0),
+                       ("pile_distance_m", 1000.0), ("camera_distance_m", 1000.0)):
+        if key in meta:
+            try:
+                dist = float(meta[key]) * scale
+                break
+            except ValueError:
+                continue
+    return kind, dist
+
+
+def config_path_for(output: str | Path) -> Path:
+    """Where the resolved config goes beside an output: ``OUT.rrd`` -> ``OUT.config.toml``."""
+    p = Path(output)
+    return p.with_name(p.stem + ".config.toml")
+
+
+def replay_log(
+    path: str | Path,
+    *,
+    config_file: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+    frames: tuple[int, int | None] = (0, None),
+    topic: str | None = None,
+    bin_model: BinModel | None = None,
+    rrd: str | Path | None = None,
+    spawn: bool = False,
+    connect: str | None = None,
+    out: str | Path | None = None,
+    full_detail: bool = False,
+    on_start: Callable[[ReplaySummary], None] | None = None,
+    on_frame: Callable[[Frame, FrameResult, FrameRow], None] | None = None,
+    keep_results: bool = False,
+) -> tuple[ReplaySummary, list[tuple[Frame, FrameResult]]]:
+    """Replay a log.
+
+    Parameters
+    ----------
+    path : str or Path
+        ROS 2 MCAP log.
+    config_file : path, optional
+        TOML config (:func:`replay.config.load_toml`).
+    overrides : dict, optional
+        Command-line layer (:func:`replay.config.cli_layer`).
+    frames : (start, stop)
+        Frame index range, ``stop`` exclusive or None.
+    topic : str, optional
+        Cloud topic.
+    bin_model : BinModel, optional
+        Without it the bin stages are skipped (each result carries the warning).
+    rrd, spawn, connect
+        Rerun sinks (any one; none: no Rerun logging).
+    out : path, optional
+        Results MCAP (SPEC §5 topics).
+    full_detail : bool
+        Rerun logging at full detail.
+    on_start : callable, optional
+        Called once the config is resolved (after the first frame is read).
+    on_frame : callable, optional
+        Called after each frame.
+    keep_results : bool
+        Return every (frame, result) (memory!) for callers that score them.
+
+    Returns
+    -------
+    (ReplaySummary, list of (Frame, FrameResult))
+        ``summary.damage`` is non-empty when the log was damaged after intact frames.
+    """
+    from .logread import LogReader
+
+    file_layer = cfg.load_toml(config_file) if config_file is not None else {}
+    reader = LogReader(path, cloud_topic=topic)
+    part_kind, distance_mm = synth_info(reader.metadata)
+    summary = ReplaySummary(log=str(path), part_kind=part_kind)
+    kept: list[tuple[Frame, FrameResult]] = []
+    rec = None
+    writer = None
+    use_viz = rrd is not None or spawn or connect is not None
+    start, stop = frames
+    previous: FrameResult | None = None
+    opts = None
+    try:
+        for frame in reader.frames(start=start, stop=stop):
+            if summary.resolved is None:
+                K = frame.intrinsics
+                summary.resolved = cfg.resolve(
+                    file_layer=file_layer, cli=overrides, part_kind=part_kind,
+                    camera_distance_mm=distance_mm, fx=K.fx if K else None, fy=K.fy if K else None,
+                    image_shape=frame.shape)
+                config = summary.resolved.config
+                toml = cfg.to_toml(config, header=f"zcut resolved config for {Path(path).name}")
+                for o in (rrd, out):
+                    if o is not None:
+                        cp = config_path_for(o)
+                        cp.write_text(toml)
+                        summary.outputs["config"] = str(cp)
+                if use_viz:
+                    from . import viz
+
+                    opts = viz.VizOptions.full() if full_detail else viz.VizOptions()
+                    rec = viz.new_recording()
+                    viz.open_sink(rec, rrd=None if rrd is None else str(rrd), spawn=spawn, connect=connect)
+                    viz.log_static(rec, config_toml=toml, notes=summary.resolved.notes,
+                                   bin_model=bin_model, source=f"log: {Path(path).name}")
+                    if rrd is not None:
+                        summary.outputs["rrd"] = str(rrd)
+                if out is not None:
+                    from .logwrite import LogWriter
+
+                    meta = {RESULTS_METADATA: {"source": str(Path(path).name), "config_toml": toml}}
+                    if SYNTH_METADATA in reader.metadata:
+                        meta[SYNTH_METADATA] = dict(reader.metadata[SYNTH_METADATA])
+                    writer = LogWriter(out, metadata=meta)
+                    summary.outputs["results"] = str(out)
+                if on_start is not None:
+                    on_start(summary)
+            config = summary.resolved.config
+            result = run_frame(frame, config, bin_model=bin_model, previous=previous)
+            previous = result
+            if rec is not None:
+                from . import viz
+
+                viz.log_frame(rec, frame, result, step_mm=config.zcut.step_mm, opts=opts)
+            if writer is not None:
+                _write_results(writer, frame, result)
+            row = FrameRow.of(result)
+            summary.rows.append(row)
+            if keep_results:
+                kept.append((frame, result))
+            if on_frame is not None:
+                on_frame(frame, result, row)
+    finally:
+        summary.damage = list(reader.damage)
+        if writer is not None:
+            writer.close()
+        if rec is not None:
+            rec.flush()
+            if rrd is not None:
+                rec.disconnect()
+    return summary, kept
+
+
+def _write_results(writer, frame: Frame, result: FrameResult) -> None:
+    kw = {"stamp_ns": frame.stamp_ns, "frame_id": frame.frame_id}
+    writer.write_mask(OUTLIERS_TOPIC, result.zcut_outliers, **kw)
+    writer.write_mask(SOR_TOPIC, result.sor_outliers, **kw)
+    if result.bin_mask is not None:
+        writer.write_mask(BIN_MASK_TOPIC, result.bin_mask.mask, **kw)
+    filtered = frame.xyz.copy()
+    filtered[result.zcut_outliers] = np.nan
+    writer.write_cloud(FILTERED_TOPIC, filtered, rgb=frame.rgb, **kw)
+    if frame.rgb is not None:
+        writer.write_image("/camera/image", frame.rgb, **kw)
+    if frame.intrinsics is not None:
+        writer.write_camera_info("/camera/camera_info", frame.intrinsics, **kw)
+    for topic, mask in frame.masks.items():
+        if not topic.startswith("/zcut/"):
+            writer.write_mask(topic, mask, **kw)
