@@ -3,9 +3,10 @@
 Kinds of true outliers (values of the ``kind`` image):
 
 - ``OUTLIER_CLUSTER``: multipath / specular ghosts on shiny parts, blobs of a few to hundreds of
-  connected pixels floating in front of the surfaces around them by millimetres to centimetres
-  (some are referenced to the surface right under them instead, so they may sit lower than a
-  neighbouring surface in the image);
+  connected pixels floating in front of the surfaces around them by 1-15 mm (some are referenced
+  to the surface right under them instead, so they may sit lower than a neighbouring surface in
+  the image). They are centred on the exposed top layer (within ``TOP_ZONE_MM`` of the highest
+  real part surface), where the projector and camera see the shiny parts most directly;
 - ``OUTLIER_SPIKE``: isolated pixels displaced along the ray (mostly toward the camera);
 - ``OUTLIER_FLYING``: mixed pixels at depth edges, interpolated between the foreground and the
   background depth.
@@ -59,8 +60,9 @@ class OutlierRates:
     dropouts: float
 
 
-SHINY_RATES = OutlierRates(60.0, (0.002, 0.1), (1.0, 20.0), 0.15, 3e-4, 0.3, 30.0)
+SHINY_RATES = OutlierRates(60.0, (0.002, 0.1), (1.0, 15.0), 0.15, 3e-4, 0.3, 30.0)
 MATTE_RATES = OutlierRates(3.0, (0.002, 0.03), (1.0, 10.0), 0.15, 2e-5, 0.05, 3.0)
+TOP_ZONE_MM = 20.0  # ghost clusters arise among the exposed top layer of parts
 FIG11_PATCHES = 4  # NaN-surrounded real patches per frame
 FLYING_MIN_JUMP_MM = 3.0
 
@@ -149,16 +151,20 @@ def figure11_patches(
         if c is None:
             break
         rows, cols, m = blob((H, W), c, _log_uniform(rng, 0.01, 0.6) * a_max_px, rng)
-        full = np.zeros((H, W), bool)
-        full[rows, cols] = m
-        full &= valid & inner
-        if not full.any() or (keep_out & ndimage.binary_dilation(full, _EIGHT, iterations=margin)).any():
+        pad = 2 * margin + 3
+        r0, r1 = max(rows.start - pad, 0), min(rows.stop + pad, H)
+        c0, c1 = max(cols.start - pad, 0), min(cols.stop + pad, W)
+        win = (slice(r0, r1), slice(c0, c1))
+        full = np.zeros((r1 - r0, c1 - c0), bool)
+        full[rows.start - r0:rows.stop - r0, cols.start - c0:cols.stop - c0] = m
+        full &= valid[win] & inner[win]
+        if not full.any() or (keep_out[win] & ndimage.binary_dilation(full, _EIGHT, iterations=margin)).any():
             continue
         grown = ndimage.binary_dilation(full, _EIGHT, iterations=ring_px)
         ring = grown & ~full
-        valid[ring] = False
-        patches |= full
-        keep_out |= ndimage.binary_dilation(grown, _EIGHT, iterations=3)
+        valid[win][ring] = False
+        patches[win] |= full
+        keep_out[win] |= ndimage.binary_dilation(grown, _EIGHT, iterations=3)
         made += 1
     return patches, keep_out
 
@@ -206,7 +212,7 @@ def flying_pixels(
 def spikes(
     depth: np.ndarray, valid: np.ndarray, where: np.ndarray, *, prob: float, rng: np.random.Generator
 ) -> np.ndarray:
-    """Displace random single pixels along the ray (85 % toward the camera by 1-15 mm, else away by 1-10 mm).
+    """Displace random single pixels along the ray (85 % toward the camera, 15 % away, by 1-10 mm).
 
     Returns
     -------
@@ -219,7 +225,7 @@ def spikes(
         return out
     idx = rng.choice(cand, size=n, replace=False)
     toward = rng.random(n) < 0.85
-    mag = np.exp(np.where(toward, rng.uniform(np.log(1.0), np.log(15.0), n), rng.uniform(np.log(1.0), np.log(10.0), n)))
+    mag = np.exp(rng.uniform(np.log(1.0), np.log(10.0), n))
     flat = depth.reshape(-1)
     flat[idx] += np.where(toward, -mag, mag)
     out.reshape(-1)[idx] = True
@@ -241,7 +247,8 @@ def floating_clusters(
 ) -> np.ndarray:
     """Paint ``count`` ghost clusters into ``depth`` / ``valid`` (in place).
 
-    Each cluster is a blob centred on a ``where`` pixel, clipped to ``allowed``. Its reference depth
+    Each cluster is a blob centred on a ``where`` pixel, clipped to ``allowed``, not touching an
+    earlier cluster (a blob that would is redrawn, up to ``3 * count`` draws). Its reference depth
     is the nearest surface among the blob's own pixels and its one-pixel ring (or, for an
     "attached" cluster, the median depth right under it); it floats ``offset`` mm in front of that,
     with a gentle tilt that only brings parts of it nearer, plus depth noise.
@@ -254,7 +261,10 @@ def floating_clusters(
     ids = np.zeros((H, W), np.int32)
     cand = np.flatnonzero(where & allowed)
     lo, hi = rates.cluster_rho
-    for k in range(1, count + 1):
+    k = 0
+    for _ in range(3 * count):
+        if k == count:
+            break
         c = _pick(rng, cand, (H, W))
         if c is None:
             break
@@ -265,8 +275,9 @@ def floating_clusters(
         M = np.zeros((r1 - r0, c1 - c0), bool)
         M[rows.start - r0:rows.stop - r0, cols.start - c0:cols.stop - c0] = m
         M &= allowed[r0:r1, c0:c1]
-        if not M.any():
-            continue
+        if not M.any() or (ids[r0:r1, c0:c1] > 0).any():
+            continue  # clusters do not touch each other (each has its own ring)
+        k += 1
         ring = ndimage.binary_dilation(M, _EIGHT) & ~M
         win_depth = depth[r0:r1, c0:c1]
         win_valid = valid[r0:r1, c0:c1]

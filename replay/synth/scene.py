@@ -215,14 +215,15 @@ def drop_pile(
     geometry: BinGeometry = BIN,
     fill_mm: float = 45.0,
     max_parts: int = 4000,
-    settle_tries: int = 12,
+    settle_tries: int = 16,
 ) -> Scene:
     """Drop parts of ``kind`` into the bin until the mean pile height above the floor reaches ``fill_mm``.
 
     Each part gets a random resting orientation and a position (snapped to the grid) whose footprint
     stays over the flat floor; it falls straight down until it touches the height field. Of
-    ``settle_tries`` drop points around a random one, the part keeps the one where it rests lowest
-    (a crude stand-in for rolling into gaps, which packs the pile densely).
+    ``settle_tries`` drop points around a random one, the part keeps the one where it rests lowest and
+    then moves downhill in steps of half its radius while that lowers it (a crude stand-in for
+    rolling and sliding into gaps, which packs the pile densely and keeps its top nearly level).
     """
     height, label = bin_height_field(grid, pose, geometry)
     bin_height = height.copy()
@@ -252,26 +253,41 @@ def drop_pile(
         extent = float(np.max(np.hypot(rel[ii[:, None]], rel[jj[:, None]]))) + g
         if extent >= min(fxh, fyh):
             continue
-        # settle: of a few nearby drop points, the part ends where it comes to rest lowest
-        u0 = rng.uniform(-(fxh - extent), fxh - extent)
-        v0 = rng.uniform(-(fyh - extent), fyh - extent)
-        jitter = rng.uniform(-1.0, 1.0, (settle_tries, 2)) * r
-        jitter[0] = 0.0
-        best = None
-        for du, dv in jitter:
-            u = float(np.clip(u0 + du, -(fxh - extent), fxh - extent))
-            v = float(np.clip(v0 + dv, -(fyh - extent), fyh - extent))
+        # settle: of a few nearby drop points the part takes the one where it rests lowest, then
+        # rolls downhill (moves of half its radius while that lowers it)
+        lim_u, lim_v = fxh - extent, fyh - extent
+        u0 = rng.uniform(-lim_u, lim_u)
+        v0 = rng.uniform(-lim_v, lim_v)
+
+        def rest(u: float, v: float):
+            u = float(np.clip(u, -lim_u, lim_u))
+            v = float(np.clip(v, -lim_v, lim_v))
             wx, wy = R2 @ np.array([u, v]) + np.array([pose.x_mm, pose.y_mm])
             cj = int(round((wx - grid.x0) / g))
             ci = int(round((wy - grid.y0) / g))
             if ci - n < 0 or cj - n < 0 or ci + n + 1 > grid.ny or cj + n + 1 > grid.nx:
-                continue
+                return None
             b = float(np.max(height[ci - n:ci + n + 1, cj - n:cj + n + 1][hit] - lo[hit]))
-            if best is None or b < best[0]:
-                best = (b, ci, cj)
+            return (b, ci, cj, u, v)
+
+        best = None
+        jitter = rng.uniform(-2.0, 2.0, (settle_tries, 2)) * r
+        jitter[0] = 0.0
+        for du, dv in jitter:
+            cand = rest(u0 + du, v0 + dv)
+            if cand is not None and (best is None or cand[0] < best[0]):
+                best = cand
+        for _ in range(8 if best is not None else 0):
+            moved = False
+            for a in range(8):
+                cand = rest(best[3] + 0.5 * r * np.cos(a * np.pi / 4), best[4] + 0.5 * r * np.sin(a * np.pi / 4))
+                if cand is not None and cand[0] < best[0] - 1e-9:
+                    best, moved = cand, True
+            if not moved:
+                break
         if best is None:
             continue
-        base, ci, cj = best
+        base, ci, cj = best[0], best[1], best[2]
         rows = slice(ci - n, ci + n + 1)
         cols = slice(cj - n, cj + n + 1)
         win = height[rows, cols]

@@ -195,8 +195,10 @@ def synthesize_frame(
     spike_where = on_part if part is not None else (surface == LABEL_FLOOR)
     spiked = out.spikes(depth, valid, spike_where & allowed & ~flying, prob=rates.spike_prob, rng=rng)
     if part is not None:
+        part_z = np.where(on_part & np.isfinite(clean), clean, np.inf)
+        top_zone = part_z <= float(np.percentile(part_z[on_part], 0.5)) + out.TOP_ZONE_MM if on_part.any() else on_part
         cluster_id = out.floating_clusters(
-            depth, clean, valid, on_part, allowed, sigma,
+            depth, clean, valid, on_part & top_zone, allowed, sigma,
             count=int(rng.poisson(rates.clusters)), rates=rates, a_max_px=a_max, rng=rng,
         )
     else:
