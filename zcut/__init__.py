@@ -4,6 +4,7 @@ No file I/O, no viewer, no database here: see ``replay`` and ``annotate`` for th
 """
 
 from .cloud import Intrinsics, height_mm, valid_mask
+from .cuts import CutResult, find_clusters, zcut_outliers, zcut_outliers_reference
 from .errors import InputShapeError, ParameterError, ZcutError
 from .metrics import (
     AccuracyCounts,
@@ -17,9 +18,15 @@ from .metrics import (
     sensitivity,
     sensitivity_of,
 )
+from .params import ZCutParams
 from .sor import sor_outliers
 
 __all__ = [
+    "CutResult",
+    "ZCutParams",
+    "find_clusters",
+    "zcut_outliers",
+    "zcut_outliers_reference",
     "Intrinsics",
     "InputShapeError",
     "ParameterError",

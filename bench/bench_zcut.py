@@ -1,0 +1,134 @@
+"""Benchmark: fast z-cut (component tree, numba) vs the literal per-level loop, 1920 x 1200.
+
+Run: ``.venv/bin/python bench/bench_zcut.py [--repeat-fast N] [--repeat-ref N]``
+
+Two frames, heights in mm (larger = higher), seeded:
+- ``pile``: a top-down view of a bin (floor, walls, rim) with parts piled ~100 mm deep, floating
+  specular clusters above the parts and NaN holes (shadows); nominal parameters step 0.2 mm,
+  max_depth 30 mm, max_area = 0.07 * a_max.
+- ``dense``: a gently curved surface with noise whose whole range lies inside the cut range, so
+  every pixel takes part in every level.
+
+Prints the times, the ratio reference / fast and checks that the masks are identical.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+
+from zcut.cuts import zcut_outliers, zcut_outliers_reference
+from zcut.params import NOMINAL_MAX_DEPTH_MM, NOMINAL_RHO_THR, NOMINAL_STEP_MM
+
+H, W = 1200, 1920
+A_MAX = 3000.0  # pixels of a part's largest face
+
+
+def pile_frame(seed: int = 7) -> np.ndarray:
+    """Heights (mm) of a bin seen from above, parts piled ~100 mm deep on the floor (0 mm).
+
+    The table and the bin walls (200 mm) are set to NaN, as the pipeline's bin stage does before
+    the z-cut (paper Section 5.2).
+    """
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+    z = np.full((H, W), -50.0)  # table below the bin
+    r0, r1, c0, c1 = 100, H - 100, 150, W - 150
+    inside = (yy >= r0) & (yy < r1) & (xx >= c0) & (xx < c1)
+    z[inside] = 0.0  # bin floor
+    wall = inside & ((yy < r0 + 20) | (yy >= r1 - 20) | (xx < c0 + 20) | (xx >= c1 - 20))
+    z[wall] = 200.0  # bin walls and rim
+    floor = inside & ~wall
+    # a heap: higher in the middle, ~100 mm at the top
+    cy, cx = (r0 + r1) / 2, (c0 + c1) / 2
+    heap = 100.0 * np.clip(1.0 - ((yy - cy) / (0.55 * (r1 - r0))) ** 2
+                           - ((xx - cx) / (0.55 * (c1 - c0))) ** 2, 0.0, 1.0)
+    surface = np.where(floor, heap, z)
+    # parts: ellipsoidal caps (15..45 px radii, 8..20 mm tall) resting on the heap
+    for _ in range(1500):
+        py = rng.uniform(r0 + 20, r1 - 20)
+        px = rng.uniform(c0 + 20, c1 - 20)
+        ry, rx = rng.uniform(15, 45, 2)
+        h = rng.uniform(8, 20)
+        y0, y1 = int(max(py - ry, r0 + 20)), int(min(py + ry + 1, r1 - 20))
+        x0, x1 = int(max(px - rx, c0 + 20)), int(min(px + rx + 1, c1 - 20))
+        sy, sx = yy[y0:y1, x0:x1], xx[y0:y1, x0:x1]
+        e = 1.0 - ((sy - py) / ry) ** 2 - ((sx - px) / rx) ** 2
+        rest = heap[int(py), int(px)] + rng.uniform(-5.0, 5.0)
+        cap = np.where(e > 0, rest + h * np.sqrt(np.clip(e, 0.0, 1.0)), -np.inf)
+        surface[y0:y1, x0:x1] = np.maximum(surface[y0:y1, x0:x1], cap)
+    z = surface + rng.normal(0.0, 0.05, (H, W))  # sensor noise 0.05 mm
+    # floating specular clusters: small patches 1..15 mm above the local surface
+    for _ in range(400):
+        py, px = rng.integers(r0 + 30, r1 - 30), rng.integers(c0 + 30, c1 - 30)
+        ry, rx = rng.integers(1, 6, 2)
+        sl = (slice(py - ry, py + ry + 1), slice(px - rx, px + rx + 1))
+        z[sl] = z[sl].max() + rng.uniform(1.0, 15.0) + rng.normal(0.0, 0.05, z[sl].shape)
+    # NaN holes (shadows next to parts) and scattered dropouts
+    for _ in range(600):
+        py, px = rng.integers(0, H), rng.integers(0, W)
+        ry, rx = rng.integers(2, 25, 2)
+        z[max(py - ry, 0):py + ry, max(px - rx, 0):px + rx] = np.nan
+    z[rng.random((H, W)) < 0.01] = np.nan
+    # the table and the bin walls are removed before the z-cut (paper Section 5.2)
+    z[~floor] = np.nan
+    return z
+
+
+def dense_frame(seed: int = 11) -> np.ndarray:
+    """Every pixel within max_depth of the top: a 25 mm deep curved surface plus noise."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+    z = 12.0 * np.sin(yy / 90.0) * np.cos(xx / 130.0) + rng.normal(0.0, 0.3, (H, W))
+    return np.clip(z, -12.0, 12.0)
+
+
+def timed(fn, repeat: int) -> tuple[float, float, np.ndarray]:
+    """Median wall-clock and median CPU time (process_time: less disturbed by other processes
+    on a shared machine) of ``repeat`` calls, and the last result."""
+    wall, cpu = [], []
+    out = None
+    for _ in range(repeat):
+        t0, c0 = time.perf_counter(), time.process_time()
+        out = fn()
+        cpu.append(time.process_time() - c0)
+        wall.append(time.perf_counter() - t0)
+    return statistics.median(wall), statistics.median(cpu), out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat-fast", type=int, default=7)
+    ap.add_argument("--repeat-ref", type=int, default=2)
+    args = ap.parse_args()
+
+    params = dict(step=NOMINAL_STEP_MM, max_depth=NOMINAL_MAX_DEPTH_MM,
+                  max_area=NOMINAL_RHO_THR * A_MAX)
+    t0 = time.perf_counter()
+    zcut_outliers(np.zeros((3, 3)), **params)  # numba: load the cache or compile
+    warm = time.perf_counter() - t0
+    print(f"numba warm-up (compile or cache load): {warm:.2f} s")
+
+    frames = {"pile": pile_frame(), "dense": dense_frame()}
+    ok = True
+    for name, z in frames.items():
+        valid = np.isfinite(z)
+        in_range = valid & (z >= np.nanmax(z) - params["max_depth"] - params["step"])
+        w_fast, c_fast, m_fast = timed(lambda: zcut_outliers(z, **params), args.repeat_fast)
+        w_ref, c_ref, m_ref = timed(lambda: zcut_outliers_reference(z, **params), args.repeat_ref)
+        same = np.array_equal(m_fast, m_ref)
+        ok &= same
+        print(f"{name:6s} {H}x{W}: {in_range.mean():5.1%} of pixels in the cut range, "
+              f"{int(m_ref.sum())} outliers, identical: {same}")
+        print(f"    wall: reference {w_ref * 1e3:8.1f} ms, fast {w_fast * 1e3:7.1f} ms, "
+              f"ratio {w_ref / w_fast:6.1f}x")
+        print(f"    cpu:  reference {c_ref * 1e3:8.1f} ms, fast {c_fast * 1e3:7.1f} ms, "
+              f"ratio {c_ref / c_fast:6.1f}x")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,709 @@
+"""The z-cut outlier filter (paper Section 3, Figure 7; contract in SPEC §1).
+
+Two implementations with the identical result for every input:
+
+- :func:`zcut_outliers_reference` is the literal loop of the paper: one connected-components
+  labelling (``scipy.ndimage.label``) per level, comparing the components of the cuts at levels
+  ``k`` and ``k + 1``. It is the oracle of the tests.
+- :func:`zcut_outliers` builds the component tree of all the cuts at once: the pixels are sorted by
+  their quantized level ``q`` (the smallest ``k`` with the pixel inside the cut at level ``k``) and
+  added level by level to a union-find (numba). A component that neither gains a pixel nor merges
+  between levels ``k`` and ``k + 1`` is exactly a pair of identical clusters of the paper.
+
+:func:`find_clusters` runs the same pass and returns the stage view (:class:`CutResult`): the
+clusters, their areas and levels, and the component count of every cut.
+
+Notation (SPEC §1): ``z~`` is the height with invalid pixels set to ``z_min``; the cut at level
+``k`` is ``S_k = {z~ >= z_max - k * step}`` with the threshold computed in float64 with an integer
+``k``; ``K = floor(max_depth / step + 1e-9)``. The thresholds never increase with ``k`` (float
+rounding is monotone), so the cuts are nested and a pixel is in ``S_k`` iff ``q <= k``.
+"""
+
+from __future__ import annotations
+
+import math
+import operator
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numba
+import numpy as np
+from scipy import ndimage
+
+from .errors import InputShapeError, ParameterError, describe_array
+from .types import FloatImage, Labels, Mask
+
+if TYPE_CHECKING:
+    from .params import ZCutParams
+
+__all__ = [
+    "CutResult",
+    "find_clusters",
+    "n_levels",
+    "zcut_outliers",
+    "zcut_outliers_reference",
+]
+
+#: Largest level count :func:`find_clusters` accepts (``pixel_level`` is int16).
+MAX_STAGE_LEVELS = 32766
+# K beyond this is treated as "every level" (more than any float64 range / step can need).
+_K_CAP = 1 << 60
+
+
+# --------------------------------------------------------------------------------------------
+# Input checking shared by both implementations
+# --------------------------------------------------------------------------------------------
+
+
+def _check_height(height: FloatImage) -> np.ndarray:
+    a = np.asarray(height)
+    if a.ndim != 2 or a.dtype.kind != "f":
+        raise InputShapeError(
+            f"height must be an (H, W) real float array, got {describe_array(a)}"
+        )
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _real(name: str, value: object) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ParameterError(f"{name} must be a real number, got {value!r}")
+    return float(value)
+
+
+def _check_params(
+    step: object, max_depth: object, max_area: object, connectivity: object
+) -> tuple[float, float, float, int]:
+    s = _real("step", step)
+    if not (math.isfinite(s) and s > 0):
+        raise ParameterError(f"step must be a finite number > 0, got {step!r}")
+    d = _real("max_depth", max_depth)
+    if not (math.isfinite(d) and d >= 0):
+        raise ParameterError(f"max_depth must be a finite number >= 0, got {max_depth!r}")
+    a = _real("max_area", max_area)
+    if not a > 0:  # +inf allowed: no area limit
+        raise ParameterError(f"max_area must be a number > 0 (pixels), got {max_area!r}")
+    if isinstance(connectivity, (bool, np.bool_)):
+        raise ParameterError(f"connectivity must be 4 or 8, got {connectivity!r}")
+    try:
+        c = operator.index(connectivity)  # type: ignore[arg-type]
+    except TypeError:
+        c = None
+    if c not in (4, 8):
+        raise ParameterError(f"connectivity must be 4 or 8, got {connectivity!r}")
+    return s, d, a, c
+
+
+def n_levels(step: float, max_depth: float) -> int:
+    """K = floor(max_depth / step + 1e-9), the number of level pairs the filter checks.
+
+    Capped at 2**60 (beyond any level a float64 height range can reach).
+    """
+    x = max_depth / step + 1e-9
+    if not x < _K_CAP:
+        return _K_CAP
+    return math.floor(x)
+
+
+def _valid_range(z: np.ndarray) -> tuple[np.ndarray, float, float] | None:
+    """Valid mask (finite heights), z_min, z_max; None when no pixel is valid."""
+    valid = np.isfinite(z)
+    n, z_min, z_max = _finite_min_max(z)
+    if n == 0:
+        return None
+    return valid, z_min, z_max
+
+
+@numba.njit(cache=True)
+def _finite_min_max(z):
+    n = 0
+    lo = np.inf
+    hi = -np.inf
+    for v in z.ravel():
+        if np.isfinite(v):
+            n += 1
+            if v < lo:
+                lo = v
+            if v > hi:
+                hi = v
+    return n, lo, hi
+
+
+# --------------------------------------------------------------------------------------------
+# The oracle
+# --------------------------------------------------------------------------------------------
+
+
+def zcut_outliers_reference(
+    height: FloatImage,
+    *,
+    step: float,
+    max_depth: float,
+    max_area: float,
+    connectivity: int = 8,
+) -> Mask:
+    """The z-cut filter as the literal loop of SPEC §1 (slow, obviously correct).
+
+    Parameters
+    ----------
+    height : (H, W) float ndarray
+        Larger = higher; NaN (or any non-finite value) = invalid. float32 is upcast to float64.
+    step, max_depth : float
+        Δd > 0 and d_max >= 0, in the unit of ``height``.
+    max_area : float
+        μ_thr in pixels: only components with fewer pixels are tagged (+inf: no limit).
+    connectivity : {8, 4}
+        Pixel adjacency of the components.
+
+    Returns
+    -------
+    (H, W) bool ndarray
+        True on the valid pixels of the tagged components.
+    """
+    z = _check_height(height)
+    step, max_depth, max_area, connectivity = _check_params(step, max_depth, max_area, connectivity)
+    out = np.zeros(z.shape, dtype=bool)
+    rng = _valid_range(z)
+    K = n_levels(step, max_depth)
+    if rng is None or K < 1:
+        return out
+    valid, z_min, z_max = rng
+    zt = np.where(valid, z, z_min)
+    structure = ndimage.generate_binary_structure(2, 2 if connectivity == 8 else 1)
+
+    def cut(k: int) -> tuple[np.ndarray, int]:
+        return ndimage.label(zt >= z_max - k * step, structure=structure)
+
+    lab_b, n_b = cut(1)
+    for k in range(1, K + 1):
+        lab_a, n_a = lab_b, n_b  # the cut at level k, labelled in the previous round
+        lab_b, n_b = cut(k + 1)
+        area_a = np.bincount(lab_a.ravel(), minlength=n_a + 1)
+        area_b = np.bincount(lab_b.ravel(), minlength=n_b + 1)
+        inside = lab_a > 0
+        container = np.zeros(n_a + 1, dtype=np.intp)  # the component of B holding each one of A
+        container[lab_a[inside]] = lab_b[inside]
+        tagged = (area_a == area_b[container]) & (area_a < max_area)
+        tagged[0] = False
+        if tagged.any():
+            out |= tagged[lab_a]
+    return out & valid
+
+
+# --------------------------------------------------------------------------------------------
+# The component tree (numba)
+# --------------------------------------------------------------------------------------------
+
+
+@numba.njit(cache=True, inline="always")
+def _inside(zt: float, z_max: float, step: float, k: np.int64, hi: np.int64) -> bool:
+    # pixel in the cut at level k; level hi stands for "beyond" (always true)
+    if k >= hi:
+        return True
+    return zt >= z_max - k * step
+
+
+@numba.njit(cache=True)
+def _qlevel(zt: float, z_max: float, step: float, hi: np.int64) -> np.int64:
+    """Smallest k in [0, hi) with zt >= z_max - k*step (exact float64 test), else hi."""
+    g = (z_max - zt) / step
+    if g >= hi:
+        k = hi
+    elif g > 0:
+        k = np.int64(g)
+    else:
+        k = np.int64(0)
+    # the division only gives a guess; the exact comparison decides
+    if _inside(zt, z_max, step, k, hi):
+        if k == 0 or not _inside(zt, z_max, step, k - 1, hi):
+            return k
+        good = k - 1
+        d = np.int64(2)
+        bad = np.int64(-1)
+        while True:
+            j = good - d
+            if j < 0:
+                break
+            if _inside(zt, z_max, step, j, hi):
+                good = j
+                d *= 2
+            else:
+                bad = j
+                break
+    else:
+        if _inside(zt, z_max, step, k + 1, hi):
+            return k + 1
+        bad = k + 1
+        d = np.int64(2)
+        while True:
+            j = bad + d
+            if j >= hi:
+                good = hi
+                break
+            if _inside(zt, z_max, step, j, hi):
+                good = j
+                break
+            bad = j
+            d *= 2
+    while good - bad > 1:
+        mid = bad + (good - bad) // 2
+        if _inside(zt, z_max, step, mid, hi):
+            good = mid
+        else:
+            bad = mid
+    return good
+
+
+@numba.njit(cache=True)
+def _pixel_levels(z, valid, z_min, z_max, step, hi, sentinel, q):
+    """Fill q, the (H + 2) * (W + 2) padded level image: interior = level, border = sentinel."""
+    H, W = z.shape
+    Wp = W + 2
+    for c in range(Wp):
+        q[c] = sentinel
+        q[(H + 1) * Wp + c] = sentinel
+    for r in range(H):
+        base = (r + 1) * Wp
+        q[base] = sentinel
+        q[base + W + 1] = sentinel
+        for c in range(W):
+            zt = z[r, c] if valid[r, c] else z_min
+            q[base + 1 + c] = _qlevel(zt, z_max, step, hi)
+
+
+@numba.njit(cache=True, inline="always")
+def _find(par, x):
+    """Root of x, with path halving (writes only where a path gets shorter)."""
+    px = par[x]
+    while px != x:
+        gp = par[px]
+        if gp == px:
+            return px
+        par[x] = gp
+        x = gp
+        px = par[x]
+    return x
+
+
+@numba.njit(cache=True, inline="always")
+def _join(par, rec, p, rp, nb, rank, pend_node, pend_root, n_pend):
+    """Merge the set of neighbour nb with p's set (root rp, or -1 if p is not in a set yet).
+
+    rec[r] = (size, node, stamp) of a root r; stamp = rank of the level at which r last changed.
+    Returns (p's root, n_pend, 1 if two sets became one else 0).
+    """
+    rn = _find(par, nb)
+    if rn == rp:
+        return rp, n_pend, 0
+    if rec[rn, 2] != rank:  # an older component changes now: its node ends at this level
+        rec[rn, 2] = rank
+        if rec[rn, 1] >= 0:
+            pend_node[n_pend] = rec[rn, 1]
+            pend_root[n_pend] = rn
+            n_pend += 1
+        rec[rn, 1] = -1
+    if rp < 0:  # p joins as a leaf
+        par[p] = rn
+        rec[rn, 0] += 1
+        return rn, n_pend, 1
+    if rec[rn, 0] < rec[rp, 0]:
+        par[rn] = rp
+        rec[rp, 0] += rec[rn, 0]
+        return rp, n_pend, 1
+    par[rp] = rn
+    rec[rn, 0] += rec[rp, 0]
+    return rn, n_pend, 1
+
+
+@numba.njit(cache=True)
+def _component_tree(q, W, K, top, conn8, max_area):
+    """Union-find over the pixels in level order; one node per (component, last change).
+
+    q : padded level image from :func:`_pixel_levels`; pixels with q <= top (= K + 1) take part.
+    Returns ``order`` (the padded indices of those pixels sorted by level, raster order inside a
+    level), ``first`` (the first node holding ``order[t]``), the nodes' birth level, size, parent
+    (the node that replaced it, -1 if it lives to the end) and tag, and the component count
+    after each processed level.
+    """
+    n = q.size
+    Wp = W + 2
+    # ---- order the pixels by level (stable: raster order inside a level)
+    m = 0
+    for i in range(n):
+        if q[i] <= top:
+            m += 1
+    order = np.empty(m, np.int32)
+    if top + 2 <= 4 * n + 64:
+        cnt = np.zeros(top + 2, np.int64)
+        for i in range(n):
+            if q[i] <= top:
+                cnt[q[i] + 1] += 1
+        for lv in range(1, top + 2):
+            cnt[lv] += cnt[lv - 1]
+        for i in range(n):
+            qi = q[i]
+            if qi <= top:
+                order[cnt[qi]] = i
+                cnt[qi] += 1
+    else:  # more levels than pixels: sort instead of counting
+        sel = np.empty(m, np.int64)
+        j = 0
+        for i in range(n):
+            if q[i] <= top:
+                sel[j] = i
+                j += 1
+        o = np.argsort(q[sel], kind="mergesort")
+        for j in range(m):
+            order[j] = sel[o[j]]
+
+    par = np.empty(n, np.int32)  # union-find parent
+    rec = np.empty((n, 4), np.int32)  # at roots only: size, node, stamp (one cache line)
+    first = np.empty(m, np.int32)  # by position in order: p's root right after p was added,
+    # then the node holding p at the end of its level
+    node_b = np.empty(m, np.int64)
+    node_size = np.empty(m, np.int64)
+    node_parent = np.empty(m, np.int32)
+    tagged = np.zeros(m, np.bool_)
+    pend_node = np.empty(m, np.int32)
+    pend_root = np.empty(m, np.int32)
+    lev_value = np.empty(m, np.int64)
+    lev_count = np.empty(m, np.int64)
+    n_nodes = 0
+    n_lev = 0
+    count = 0
+    offs4 = np.array([-Wp, -1, 1, Wp])
+
+    i = 0
+    while i < m:
+        lvl = q[order[i]]
+        j = i
+        while j < m and q[order[j]] == lvl:
+            j += 1
+        rank = n_lev
+        n_pend = 0
+        # ---- add the pixels of this level. A neighbour is in the cut already if its level is
+        # lower, or equal and it comes before p in raster order (the later one does the joining).
+        for t in range(i, j):
+            p = order[t]
+            count += 1
+            rp = -1
+            if conn8:
+                # two neighbours that touch each other are in one set already: skip the second
+                nw = q[p - Wp - 1] <= lvl
+                nn = q[p - Wp] <= lvl
+                ne = q[p - Wp + 1] <= lvl
+                ww = q[p - 1] <= lvl
+                ee = q[p + 1] < lvl
+                sw = q[p + Wp - 1] < lvl
+                ss = q[p + Wp] < lvl
+                se = q[p + Wp + 1] < lvl
+                if nn:  # N touches NW, NE, W, E
+                    rp, n_pend, k = _join(par, rec, p, rp, p - Wp, rank, pend_node, pend_root, n_pend)
+                    count -= k
+                    if ss:  # S touches SW, SE
+                        rp, n_pend, k = _join(par, rec, p, rp, p + Wp, rank, pend_node, pend_root, n_pend)
+                        count -= k
+                    else:
+                        if sw:
+                            rp, n_pend, k = _join(par, rec, p, rp, p + Wp - 1, rank, pend_node, pend_root, n_pend)
+                            count -= k
+                        if se:
+                            rp, n_pend, k = _join(par, rec, p, rp, p + Wp + 1, rank, pend_node, pend_root, n_pend)
+                            count -= k
+                elif ss:  # S touches SW, SE, W, E
+                    rp, n_pend, k = _join(par, rec, p, rp, p + Wp, rank, pend_node, pend_root, n_pend)
+                    count -= k
+                    if nw and not ww:
+                        rp, n_pend, k = _join(par, rec, p, rp, p - Wp - 1, rank, pend_node, pend_root, n_pend)
+                        count -= k
+                    if ne and not ee:
+                        rp, n_pend, k = _join(par, rec, p, rp, p - Wp + 1, rank, pend_node, pend_root, n_pend)
+                        count -= k
+                else:
+                    if ww:  # W touches NW, SW
+                        rp, n_pend, k = _join(par, rec, p, rp, p - 1, rank, pend_node, pend_root, n_pend)
+                        count -= k
+                    else:
+                        if nw:
+                            rp, n_pend, k = _join(par, rec, p, rp, p - Wp - 1, rank, pend_node, pend_root, n_pend)
+                            count -= k
+                        if sw:
+                            rp, n_pend, k = _join(par, rec, p, rp, p + Wp - 1, rank, pend_node, pend_root, n_pend)
+                            count -= k
+                    if ee:  # E touches NE, SE
+                        rp, n_pend, k = _join(par, rec, p, rp, p + 1, rank, pend_node, pend_root, n_pend)
+                        count -= k
+                    else:
+                        if ne:
+                            rp, n_pend, k = _join(par, rec, p, rp, p - Wp + 1, rank, pend_node, pend_root, n_pend)
+                            count -= k
+                        if se:
+                            rp, n_pend, k = _join(par, rec, p, rp, p + Wp + 1, rank, pend_node, pend_root, n_pend)
+                            count -= k
+            else:
+                for u in range(4):
+                    nb = p + offs4[u]
+                    qn = q[nb]
+                    if qn < lvl or (qn == lvl and u < 2):
+                        rp, n_pend, k = _join(par, rec, p, rp, nb, rank, pend_node, pend_root, n_pend)
+                        count -= k
+            if rp < 0:  # no neighbour in the cut: a new singleton
+                par[p] = p
+                rec[p, 0] = 1
+                rec[p, 1] = -1
+                rec[p, 2] = rank
+                rp = p
+            first[t] = rp
+        # ---- one new node per component that changed at this level
+        for t in range(i, j):
+            r = _find(par, first[t])
+            if rec[r, 1] < 0:
+                rec[r, 1] = n_nodes
+                node_b[n_nodes] = lvl
+                node_size[n_nodes] = rec[r, 0]
+                node_parent[n_nodes] = -1
+                n_nodes += 1
+            first[t] = rec[r, 1]
+        # ---- the nodes that ended here were unchanged over the levels [b, lvl - 1]
+        for t in range(n_pend):
+            old = pend_node[t]
+            node_parent[old] = rec[_find(par, pend_root[t]), 1]
+            lo = max(node_b[old], 1)
+            hi = min(K, lvl - 2)
+            tagged[old] = lo <= hi and node_size[old] < max_area
+        lev_value[n_lev] = lvl
+        lev_count[n_lev] = count
+        n_lev += 1
+        i = j
+    # ---- the nodes that live to the end (e = K + 2)
+    for a in range(n_nodes):
+        if node_parent[a] < 0:
+            tagged[a] = max(node_b[a], 1) <= K and node_size[a] < max_area
+    return (order, first, node_b[:n_nodes], node_size[:n_nodes], node_parent[:n_nodes],
+            tagged[:n_nodes], lev_value[:n_lev], lev_count[:n_lev])
+
+
+@numba.njit(cache=True)
+def _outlier_pad(order, first, node_parent, tagged, out):
+    """out (padded, all False on entry): True where some node holding the pixel is tagged."""
+    flag = tagged.copy()
+    for a in range(tagged.size - 1, -1, -1):  # parents are created after their children
+        pa = node_parent[a]
+        if pa >= 0 and flag[pa]:
+            flag[a] = True
+    for t in range(order.size):
+        if flag[first[t]]:
+            out[order[t]] = True
+
+
+@numba.njit(cache=True)
+def _cluster_labels(order, first, node_parent, tagged, valid, labels):
+    """Label of the outermost tagged node over each valid pixel, numbered in raster order."""
+    n_nodes = tagged.size
+    outer = np.full(n_nodes, -1, np.int64)  # outermost tagged ancestor (or self), -1 none
+    for a in range(n_nodes - 1, -1, -1):
+        pa = node_parent[a]
+        if pa >= 0 and outer[pa] >= 0:
+            outer[a] = outer[pa]
+        elif tagged[a]:
+            outer[a] = a
+    H, W = labels.shape
+    Wp = W + 2
+    outer_pad = np.full((H + 2) * Wp, -1, np.int64)
+    for t in range(order.size):
+        outer_pad[order[t]] = outer[first[t]]
+    number = np.zeros(n_nodes, np.int64)
+    tops = np.empty(n_nodes, np.int64)
+    n = 0
+    for r in range(H):
+        base = (r + 1) * Wp + 1
+        for c in range(W):
+            labels[r, c] = 0
+            t = outer_pad[base + c]
+            if t < 0 or not valid[r, c]:
+                continue
+            if number[t] == 0:
+                tops[n] = t
+                n += 1
+                number[t] = n
+            labels[r, c] = number[t]
+    return tops[:n]
+
+
+def _tree(z: np.ndarray, valid: np.ndarray, z_min: float, z_max: float, step: float, K: int,
+          max_area: float, connectivity: int):
+    """Padded pixel levels and the component tree of the cuts 0 .. min(K, Q + 1) + 1."""
+    K = min(K, _K_CAP)
+    q_min = int(_qlevel(z_min, z_max, step, np.int64(K + 2)))  # the deepest level of any pixel
+    k_eff = min(K, q_min + 1)  # levels past q_min + 1 change nothing (see module notes)
+    H, W = z.shape
+    if (H + 2) * (W + 2) >= 2**31 - 1:
+        raise InputShapeError(f"height is too large for zcut (int32 indices), got {describe_array(z)}")
+    dtype = np.int32 if k_eff + 3 < 2**31 - 1 else np.int64
+    sentinel = np.iinfo(dtype).max
+    q = np.empty((H + 2) * (W + 2), dtype)
+    _pixel_levels(z, valid, z_min, z_max, step, np.int64(k_eff + 2), sentinel, q)
+    tree = _component_tree(q, W, np.int64(k_eff), q.dtype.type(k_eff + 1), connectivity == 8,
+                           float(max_area))
+    return q, k_eff, tree
+
+
+def zcut_outliers(
+    height: FloatImage,
+    *,
+    step: float,
+    max_depth: float,
+    max_area: float,
+    connectivity: int = 8,
+) -> Mask:
+    """The z-cut filter (SPEC §1): pixels of small clusters floating at least ``step`` apart.
+
+    Same result as :func:`zcut_outliers_reference` for every input, in one union-find pass over
+    the pixels ordered by level (the component tree of all the cuts).
+
+    Parameters
+    ----------
+    height : (H, W) float ndarray
+        Larger = higher; NaN (or any non-finite value) = invalid. float32 is upcast to float64.
+    step, max_depth : float
+        Δd > 0 and d_max >= 0, in the unit of ``height``.
+    max_area : float
+        μ_thr in pixels: only components with fewer pixels are tagged (+inf: no limit).
+    connectivity : {8, 4}
+        Pixel adjacency of the components.
+
+    Returns
+    -------
+    (H, W) bool ndarray
+        True on the valid pixels of the tagged components.
+    """
+    z = _check_height(height)
+    step, max_depth, max_area, connectivity = _check_params(step, max_depth, max_area, connectivity)
+    out = np.zeros(z.shape, dtype=bool)
+    rng = _valid_range(z)
+    K = n_levels(step, max_depth)
+    if rng is None or K < 1:
+        return out
+    valid, z_min, z_max = rng
+    _, _, (order, first, _, _, node_parent, tagged, _, _) = _tree(
+        z, valid, z_min, z_max, step, K, max_area, connectivity
+    )
+    H, W = z.shape
+    out_pad = np.zeros((H + 2, W + 2), dtype=bool)
+    _outlier_pad(order, first, node_parent, tagged, out_pad.reshape(-1))
+    return out_pad[1:-1, 1:-1] & valid
+
+
+# --------------------------------------------------------------------------------------------
+# The stage view
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class CutResult:
+    """Everything the z-cut stage found on one height image.
+
+    Attributes
+    ----------
+    outliers : (H, W) bool ndarray
+        Equal to :func:`zcut_outliers` with the same parameters.
+    clusters : (H, W) int32 ndarray
+        0 = none, i = the i-th cluster (numbered in raster order of first pixel). A cluster is an
+        outermost tagged component, restricted to its valid pixels; ``outliers == clusters > 0``.
+    areas : (n,) int64 ndarray
+        Valid pixels of each cluster (``np.bincount(clusters)[1:]``). The tag test itself compares
+        the component's full size, NaN-filled pixels included, with ``max_area``.
+    rho : (n,) float64 ndarray
+        ``areas / a_max`` (paper eq. 5); NaN when ``a_max`` is unknown.
+    levels : (n,) int32 ndarray
+        The smallest k at which the cluster (that exact pixel set) is tagged.
+    level_counts : (K + 1,) int64 ndarray
+        Number of components of the cut at k = 1 .. K + 1 (NaN-filled pixels included).
+    pixel_level : (H, W) int16 ndarray
+        Smallest k >= 0 with the pixel in the cut at level k; -1 if beyond K + 1.
+    z_max, z_min : float
+        Extremes of the valid heights (NaN without valid pixels).
+    n_levels : int
+        K = floor(max_depth / step + 1e-9).
+    """
+
+    outliers: Mask
+    clusters: Labels
+    areas: np.ndarray
+    rho: np.ndarray
+    levels: np.ndarray
+    level_counts: np.ndarray
+    pixel_level: np.ndarray
+    z_max: float
+    z_min: float
+    n_levels: int
+
+    @property
+    def n_clusters(self) -> int:
+        """Number of clusters."""
+        return int(self.areas.size)
+
+
+def find_clusters(height: FloatImage, *, params: ZCutParams, connectivity: int = 8) -> CutResult:
+    """Run the z-cut and return the stage view (clusters, areas, levels, per-level counts).
+
+    Parameters
+    ----------
+    height : (H, W) float ndarray
+        Larger = higher; NaN = invalid.
+    params : ZCutParams
+        step, max_depth, max_area and optionally a_max (for ``rho``).
+    connectivity : {8, 4}
+        Pixel adjacency of the components.
+
+    Returns
+    -------
+    CutResult
+        ``result.outliers`` equals :func:`zcut_outliers` with the same parameters.
+    """
+    from .params import ZCutParams
+
+    if not isinstance(params, ZCutParams):
+        raise ParameterError(f"params must be a ZCutParams, got {type(params).__name__}")
+    z = _check_height(height)
+    step, max_depth, max_area, connectivity = _check_params(
+        params.step, params.max_depth, params.max_area, connectivity
+    )
+    K = n_levels(step, max_depth)
+    if K > MAX_STAGE_LEVELS:
+        raise ParameterError(
+            f"max_depth / step gives {K} levels, more than find_clusters supports "
+            f"({MAX_STAGE_LEVELS}); use zcut_outliers or a larger step"
+        )
+    K = max(K, 0)
+    H, W = z.shape
+    outliers = np.zeros((H, W), dtype=bool)
+    clusters = np.zeros((H, W), dtype=np.int32)
+    level_counts = np.zeros(K + 1, dtype=np.int64)
+    pixel_level = np.full((H, W), -1, dtype=np.int16)
+    empty_i64 = np.zeros(0, dtype=np.int64)
+    rng = _valid_range(z)
+    if rng is None:
+        return CutResult(outliers, clusters, empty_i64, np.zeros(0), np.zeros(0, np.int32),
+                         level_counts, pixel_level, math.nan, math.nan, K)
+    valid, z_min, z_max = rng
+    q, k_eff, tree = _tree(z, valid, z_min, z_max, step, K, max_area, connectivity)
+    order, first, node_b, _, node_parent, tagged, lev_value, lev_count = tree
+    # pixel levels (k_eff >= K or nothing lies deeper than k_eff + 1, so q is exact up to K + 1)
+    q2 = q.reshape(H + 2, W + 2)[1:-1, 1:-1]
+    inside = q2 <= K + 1
+    pixel_level[inside] = q2[inside]
+    # component count of the cut at k = 1 .. K + 1: the count after the last level <= k
+    if lev_value.size:
+        idx = np.searchsorted(lev_value, np.arange(1, K + 2), side="right") - 1
+        level_counts[:] = np.where(idx >= 0, lev_count[np.maximum(idx, 0)], 0)
+    if K >= 1:
+        tops = _cluster_labels(order, first, node_parent, tagged, valid, clusters)
+        outliers = clusters > 0
+    else:
+        tops = empty_i64
+    areas = np.bincount(clusters.ravel(), minlength=tops.size + 1)[1:].astype(np.int64)
+    levels = np.maximum(node_b[tops], 1).astype(np.int32)
+    a_max = params.a_max
+    rho = areas / float(a_max) if a_max is not None else np.full(areas.size, math.nan)
+    return CutResult(outliers, clusters, areas, rho, levels, level_counts, pixel_level,
+                     z_max, z_min, K)
