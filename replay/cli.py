@@ -22,6 +22,7 @@ EXIT_DATA_LOSS = 3
 COMMANDS: dict[str, tuple[str, str]] = {
     "record": ("replay.commands.record", "turn organized .ply/.pcd files (or folders of them) into a ROS 2 MCAP log"),
     "topics": ("replay.commands.topics", "show what a log holds and which topics zcut would use"),
+    "synth": ("replay.commands.synth", "synthesise a bin-picking log (six part kinds, empty bin) with exact ground-truth outliers"),
     "replay": ("replay.commands.replay", "run the pipeline (bin removal, z-cut, SOR) on a log; log every stage to Rerun"),
     "bin-model": ("replay.commands.bin_model", "build the bin model (PLY) from empty-bin scans, or import a CAD/PLY model"),
     "accuracy": ("annotate.commands.accuracy", "true accuracy of z-cut, SOR, union, intersection against labels or ground truth"),

@@ -237,15 +237,3 @@ def synthesize_frame(
     return SynthFrame(frame, truth, kind_img, cluster_id, surface, figure11, scene, is_shiny, a_max)
 
 
-__all__ = [
-    "EMPTY_POSITIONS_MM",
-    "FRAME_ID",
-    "LABEL_TABLE",
-    "SynthFrame",
-    "TRUTH_TOPIC",
-    "camera_distance_m",
-    "pile_distance_m",
-    "stamp_ns",
-    "synthesize_frame",
-    "Intrinsics",
-]
