@@ -80,10 +80,13 @@ def scene(*, h: int = 120, w: int = 160, shift=(0.0, 0.0, 0.0), parts: bool = Tr
     truth = np.zeros((h, w), bool)
     if specks:
         rng = np.random.default_rng(seed)
-        # specks: single pixels inside the bin lifted 15 mm above their neighbours
-        rows = rng.integers(h // 3, 2 * h // 3, specks)
-        cols = rng.integers(w // 3, 2 * w // 3, specks)
-        for r, c in zip(rows, cols):
+        # specks: single pixels on the parts lifted 15 mm above their neighbours
+        on_part = (rgb == np.array(PART, np.uint8)).all(axis=2)
+        on_part[:2] = on_part[-2:] = False
+        on_part[:, :2] = on_part[:, -2:] = False
+        cand = np.flatnonzero(on_part)
+        picks = rng.choice(cand, size=min(specks, cand.size), replace=False) if cand.size else []
+        for r, c in (divmod(int(i), w) for i in picks):
             if truth[max(r - 1, 0):r + 2, max(c - 1, 0):c + 2].any():
                 continue
             xyz[r, c] *= np.float32((xyz[r, c, 2] - 0.015) / xyz[r, c, 2])

@@ -1,9 +1,11 @@
 """The bin footprint from the RGB image (paper §5.1/§5.2).
 
 RGB -> gray -> threshold -> dilate -> connected components -> the component covering the image
-centre (else the largest) -> fill holes. The bright plastic walls and rim of the bin survive the
-threshold; filling the holes adds the (possibly dark) parts inside, so the result is the bin's
-footprint on the image. Everything outside it is table.
+centre (else the largest) -> fill holes -> erode back by the dilation radius. The bright plastic
+walls and rim of the bin survive the threshold; filling the holes adds the (possibly dark) parts
+inside, so the result is the bin's footprint on the image. The final erosion (with the dilation, a
+morphological closing) removes the fringe of table the dilation added. Everything outside the
+footprint is table.
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ class BinMaskResult:
     Attributes
     ----------
     mask : (H, W) bool ndarray
-        The footprint: the chosen component with its holes filled.
+        The footprint: the chosen component with its holes filled, eroded back by the dilation
+        radius (never losing a bright pixel of the component).
     walls : (H, W) bool ndarray
         The bright pixels of the chosen component (before dilation and filling): the walls and the
         rim the bin model is registered to.
@@ -148,7 +151,15 @@ def bin_mask(
     x, y, bw, bh = (int(v) for v in stats[chosen, :4])
     mask = np.zeros((h, w), bool)
     comp = labels[y:y + bh, x:x + bw] == chosen
-    mask[y:y + bh, x:x + bw] = fill_holes(comp)
+    filled = fill_holes(comp)
+    if dilate_px > 0:
+        # erode back by the same radius (a closing): the dilation's fringe of table is not bin
+        k = 2 * int(dilate_px) + 1
+        pad = int(dilate_px) + 1
+        f = np.pad(filled.astype(np.uint8), pad)
+        f = cv2.erode(f, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
+        filled = f[pad:-pad, pad:-pad].astype(bool) | (comp & bright[y:y + bh, x:x + bw])
+    mask[y:y + bh, x:x + bw] = filled
     walls = np.zeros((h, w), bool)
     walls[y:y + bh, x:x + bw] = comp & bright[y:y + bh, x:x + bw]
     rows, cols = np.nonzero(mask)
