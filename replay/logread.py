@@ -102,11 +102,9 @@ def _peek(
                 rec = mf._read_record_at(ci.chunk_start_offset, expect_len=ci.chunk_length)
                 if rec is None:
                     raise _Bad("chunk runs past the end of the file")
-                for op, b in mf._chunk_records(rec[1], ""):
-                    if op == OP_MESSAGE:
-                        msg = mf._parse_inner(op, b)
-                        if msg.channel_id in need and msg.channel_id not in firsts:
-                            take(msg)
+                for op, msg in mf._chunk_records(rec[1]):
+                    if op == OP_MESSAGE and msg.channel_id in need and msg.channel_id not in firsts:
+                        take(msg)
             except _Bad as e:
                 damage.append(f"chunk at byte {ci.chunk_start_offset} is corrupt ({e})")
                 continue
@@ -116,7 +114,7 @@ def _peek(
         return firsts, damage
     # no summary (or an unchunked file): scan from the start, a little past the first cloud
     after = None
-    for op, rec in mf.records(damage):
+    for op, rec in mf.records(damage, prefetch=0):
         if op == OP_SCHEMA:
             schemas[rec.id] = rec
         elif op == OP_CHANNEL:

@@ -19,9 +19,13 @@ from __future__ import annotations
 import io
 import struct
 import zlib
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import numpy as np
 
 from .errors import LogFormatError
 
@@ -185,27 +189,33 @@ def parse_chunk_index(b: _Buf) -> ChunkIndex:
     return ChunkIndex(t0, t1, start, length, offsets, mi_len, comp, b.u64(), b.u64())
 
 
-def decompress(compression: str, data: memoryview, size: int) -> bytes:
-    """Decompress a chunk's records to exactly ``size`` bytes or raise :class:`_Bad`."""
+def decompress(compression: str, data: memoryview, size: int) -> memoryview:
+    """Decompress a chunk's records to exactly ``size`` bytes or raise :class:`_Bad`.
+
+    The output buffer is allocated once at the declared size (capped by :data:`MAX_CHUNK_BYTES`;
+    ``np.empty`` only commits the pages actually written) and never grows past it.
+    """
     if size > MAX_CHUNK_BYTES:
         raise _Bad(f"claims {size} uncompressed bytes, more than the {MAX_CHUNK_BYTES} zcut accepts")
     if compression == "":
         if len(data) != size:
             raise _Bad(f"holds {len(data)} bytes but claims {size}")
-        return bytes(data)
-    parts: list[bytes] = []
+        return data
+    out = memoryview(np.empty(size, dtype=np.uint8))
     total = 0
+    extra = 0
     try:
         if compression == "zstd":
             import zstandard
 
-            reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data), read_across_frames=True)
-            while total <= size:
-                piece = reader.read(min(_READ_PIECE, size + 1 - total))
-                if not piece:
+            reader = zstandard.ZstdDecompressor().stream_reader(data, read_across_frames=True)
+            while total < size:
+                n = reader.readinto(out[total:])
+                if n == 0:
                     break
-                parts.append(piece)
-                total += len(piece)
+                total += n
+            if total == size:
+                extra = len(reader.read(1))
         elif compression == "lz4":
             import lz4.frame
 
@@ -218,7 +228,10 @@ def decompress(compression: str, data: memoryview, size: int) -> bytes:
                     if dec.needs_input:
                         break
                     continue
-                parts.append(piece)
+                if total + len(piece) > size:
+                    extra = 1
+                    break
+                out[total : total + len(piece)] = piece
                 total += len(piece)
         else:
             raise _Bad(f"uses unknown compression '{compression}'")
@@ -226,9 +239,9 @@ def decompress(compression: str, data: memoryview, size: int) -> bytes:
         raise
     except Exception as e:  # zstd / lz4 errors on corrupt data
         raise _Bad(f"does not decompress ({compression}: {e})") from e
-    if total != size:
-        raise _Bad(f"decompresses to {'more than ' if total > size else ''}{total} bytes, not {size}")
-    return b"".join(parts)
+    if total != size or extra:
+        raise _Bad(f"decompresses to {'more than ' if extra else ''}{total} bytes, not {size}")
+    return out
 
 
 class McapFile:
@@ -374,7 +387,8 @@ class McapFile:
                 notes.append(f"metadata record '{name}' is damaged ({e})")
         return out, notes
 
-    def _chunk_records(self, body: memoryview, where: str) -> Iterator[tuple[int, _Buf]]:
+    def _chunk_records(self, body: memoryview, where: str = "") -> list[tuple[int, object]]:
+        """Decompress, CRC-check and parse one chunk: [(opcode, record)], or raise :class:`_Bad`."""
         b = _Buf(body)
         b.u64(), b.u64()
         usize = b.u64()
@@ -382,10 +396,9 @@ class McapFile:
         comp = b.string()
         n = b.u64()
         s = b.take(n)
-        data = decompress(comp, body[s : s + n], usize)
-        if crc != 0 and zlib.crc32(data) != crc:
+        mv = decompress(comp, body[s : s + n], usize)
+        if crc != 0 and zlib.crc32(mv) != crc:
             raise _Bad("fails its CRC check")
-        mv = memoryview(data)
         records = []
         pos = 0
         end = len(mv)
@@ -395,15 +408,53 @@ class McapFile:
             op, length = struct.unpack_from("<BQ", mv, pos)
             if pos + 9 + length > end:
                 raise _Bad(f"record at {pos} claims {length} bytes, past the chunk end")
-            records.append((op, _Buf(mv, pos + 9, pos + 9 + length)))
+            rec = self._parse_inner(op, _Buf(mv, pos + 9, pos + 9 + length))
+            if rec is not None:
+                records.append((op, rec))
             pos += 9 + length
-        yield from records
+        return records
 
     # ------------------------------------------------------------------ scanning
-    def records(self, damage: list[str]) -> Iterator[tuple[int, object]]:
+    def records(self, damage: list[str], *, prefetch: int = 2) -> Iterator[tuple[int, object]]:
         """Yield (opcode, parsed record) for Schema, Channel, Message and Metadata records in file
-        order, chunk contents included. Damage is appended to ``damage`` as one-line notes; the
-        scan then resumes at the next chunk the summary knows about, or stops."""
+        order, chunk contents included.
+
+        Damage is appended to ``damage`` as one-line notes; the scan then resumes at the next chunk
+        the summary knows about, or stops. Up to ``prefetch`` chunks are decompressed ahead in a
+        worker thread (zstd and crc32 release the GIL), overlapping I/O with the caller's work.
+        """
+        queue: deque[tuple[int, int, object]] = deque()
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mcap-chunks") if prefetch else None
+        try:
+            for pos, op, body in self._outer(damage):
+                if op == OP_CHUNK:
+                    job: object = pool.submit(self._chunk_records, body) if pool else body
+                else:
+                    job = body
+                queue.append((pos, op, job))
+                while len(queue) > max(prefetch, 0):
+                    yield from self._finish(*queue.popleft(), damage)
+            while queue:
+                yield from self._finish(*queue.popleft(), damage)
+        finally:
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
+
+    def _finish(self, pos: int, op: int, job: object, damage: list[str]) -> Iterator[tuple[int, object]]:
+        try:
+            if op == OP_CHUNK:
+                recs = job.result() if isinstance(job, Future) else self._chunk_records(job)
+            else:
+                rec = self._parse_inner(op, _Buf(job))
+                recs = [] if rec is None else [(op, rec)]
+        except _Bad as e:
+            what = "chunk" if op == OP_CHUNK else "record"
+            damage.append(f"{what} at byte {pos} is corrupt ({e}); its messages are lost")
+            return
+        yield from recs
+
+    def _outer(self, damage: list[str]) -> Iterator[tuple[int, int, memoryview]]:
+        """(offset, opcode, body) of the data-section records zcut needs, with damage handling."""
         resume = [c.chunk_start_offset for c in self.summary.chunk_indexes] if self.summary else []
         pos = self.data_start
         limit = self.size if self.data_end is None else self.data_end
@@ -418,10 +469,10 @@ class McapFile:
             self._f.seek(pos)
             op, length = struct.unpack("<BQ", self._f.read(9))
             nxt = pos + 9 + length
+            later = [r for r in resume if r > pos]
             if op in (OP_DATA_END, OP_FOOTER):
                 if self.data_end is None or nxt >= self.data_end:
                     return
-                later = [r for r in resume if r > pos]
                 damage.append(
                     f"unexpected end-of-data record at byte {pos}"
                     + (f"; skipped to the next chunk at byte {later[0]}" if later else "")
@@ -431,10 +482,9 @@ class McapFile:
                 pos = later[0]
                 continue
             if nxt > limit or length > MAX_CHUNK_BYTES:
-                later = [r for r in resume if r > pos]
                 if later:
                     damage.append(
-                        f"record at byte {pos} claims {length} bytes, past the end of the file; "
+                        f"record at byte {pos} claims {length} bytes, past the end of the data; "
                         f"skipped to the next chunk at byte {later[0]}"
                     )
                     pos = later[0]
@@ -442,7 +492,7 @@ class McapFile:
                 if self.data_end is None:
                     damage.append(
                         f"{self.path.name} is truncated: the record at byte {pos} needs {length} "
-                        f"bytes but only {self.size - pos - 9} remain"
+                        f"bytes but only {max(self.size - pos - 9, 0)} remain"
                     )
                 else:
                     damage.append(
@@ -451,24 +501,7 @@ class McapFile:
                     )
                 return
             if op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_METADATA, OP_CHUNK):
-                body = memoryview(self._f.read(length))
-                try:
-                    if op == OP_CHUNK:
-                        for iop, ib in self._chunk_records(body, f"chunk at byte {pos}"):
-                            rec = self._parse_inner(iop, ib)
-                            if rec is not None:
-                                yield iop, rec
-                    else:
-                        rec = self._parse_inner(op, _Buf(body))
-                        if rec is not None:
-                            yield op, rec
-                except _Bad as e:
-                    what = "chunk" if op == OP_CHUNK else "record"
-                    damage.append(f"{what} at byte {pos} is corrupt ({e}); its messages are lost")
-                    later = [r for r in resume if r > pos]
-                    if later and later[0] != nxt and op != OP_CHUNK:
-                        pos = later[0]
-                        continue
+                yield pos, op, memoryview(self._f.read(length))
             pos = nxt
 
     @staticmethod

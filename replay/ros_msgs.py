@@ -19,6 +19,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from zcut.cloud import Intrinsics
@@ -499,28 +500,50 @@ def cloud_to_arrays(msg: CloudMsg, *, where: str) -> tuple[np.ndarray, np.ndarra
             formats.append(bo + "u4")  # FLOAT32-packed colour is the same 4 bytes
             offsets.append(color.offset)
     dt = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
-    buf = np.frombuffer(msg.data, dtype=np.uint8, count=need)
-    rows = np.lib.stride_tricks.as_strided(
-        buf, shape=(h, w * step), strides=(row_step, 1), writeable=False
-    )
-    if row_step == w * step:
-        pts = np.frombuffer(msg.data, dtype=dt, count=h * w).reshape(h, w)
-    else:
-        pts = np.ascontiguousarray(rows).view(dt).reshape(h, w)
+    # zero-copy view: rows row_step apart, points point_step apart (padding never touched)
+    pts = np.ndarray((h, w), dtype=dt, buffer=msg.data, offset=0, strides=(row_step, step))
+    px, py, pz = pts["x"], pts["y"], pts["z"]
+    if msg.is_bigendian or px.dtype != py.dtype or px.dtype != pz.dtype:  # numba wants native order
+        px, py, pz = (a.astype(np.float64) for a in (px, py, pz))
     xyz = np.empty((h, w, 3), dtype=np.float32)
-    xyz[..., 0] = pts["x"]
-    xyz[..., 1] = pts["y"]
-    xyz[..., 2] = pts["z"]
-    invalid = ~np.isfinite(xyz).all(axis=2) | ~xyz.any(axis=2)
-    xyz[invalid] = np.nan
     rgb = None
     if color is not None:
-        c = pts["c"].astype(np.uint32, copy=False)
+        c = pts["c"]
+        if msg.is_bigendian:
+            c = c.astype(np.uint32)
         rgb = np.empty((h, w, 3), dtype=np.uint8)
-        rgb[..., 0] = (c >> 16) & 0xFF
-        rgb[..., 1] = (c >> 8) & 0xFF
-        rgb[..., 2] = c & 0xFF
+        _unpack_xyz_rgb(px, py, pz, c, xyz, rgb)
+    else:
+        _unpack_xyz(px, py, pz, xyz)
     return xyz, rgb
+
+
+@numba.njit(cache=True, nogil=True)
+def _unpack_xyz(px, py, pz, xyz):  # pragma: no cover - compiled
+    h, w = px.shape
+    nan = np.float32(np.nan)
+    for i in range(h):
+        for j in range(w):
+            x = np.float32(px[i, j])
+            y = np.float32(py[i, j])
+            z = np.float32(pz[i, j])
+            if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)) or (x == 0 and y == 0 and z == 0):
+                x = y = z = nan
+            xyz[i, j, 0] = x
+            xyz[i, j, 1] = y
+            xyz[i, j, 2] = z
+
+
+@numba.njit(cache=True, nogil=True)
+def _unpack_xyz_rgb(px, py, pz, c, xyz, rgb):  # pragma: no cover - compiled
+    _unpack_xyz(px, py, pz, xyz)
+    h, w = px.shape
+    for i in range(h):
+        for j in range(w):
+            v = np.uint32(c[i, j])
+            rgb[i, j, 0] = (v >> 16) & 0xFF
+            rgb[i, j, 1] = (v >> 8) & 0xFF
+            rgb[i, j, 2] = v & 0xFF
 
 
 def arrays_to_cloud_data(xyz: np.ndarray, rgb: np.ndarray | None) -> bytes:

@@ -1,0 +1,137 @@
+"""Decode 1920 x 1200 PointCloud2 frames with rgba: zcut's LogReader vs the generic path.
+
+Generic path = ``mcap.reader.make_reader`` + ``mcap_ros2.decoder.DecoderFactory`` (the CDR decoder
+builds a Python object per message, ``data`` as bytes), then the (H, W, 3) xyz and rgb arrays are
+rebuilt from the decoded message the way a user would:
+
+- "read_points": sensor_msgs_py-style (a structured numpy dtype from the fields, then stack x, y, z
+  and unpack rgba) — the good generic case;
+- "struct": ``struct.iter_unpack`` over the points — the naive case (run on one frame only).
+
+Both paths produce identical arrays (checked). Prints seconds per frame and the ratios.
+Usage: .venv/bin/python bench/bench_logread.py [--frames N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import struct
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from replay.logread import LogReader  # noqa: E402
+from replay.logwrite import LogWriter  # noqa: E402
+
+H, W = 1200, 1920
+_PF = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
+
+
+def make_log(path: Path, n: int, *, scene: str = "noise") -> list[np.ndarray]:
+    """``noise``: random points/colours (incompressible, worst case for both readers);
+    ``scene``: a tilted plane seen by a pinhole camera with smooth colours and 10 % NaN holes."""
+    rng = np.random.default_rng(1)
+    xyzs = []
+    rows, cols = np.mgrid[0:H, 0:W].astype(np.float32)
+    with LogWriter(path) as w:
+        for i in range(n):
+            if scene == "noise":
+                xyz = rng.normal(size=(H, W, 3)).astype(np.float32)
+                xyz[..., 2] += 1.0
+                rgb = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
+            else:
+                z = 1.0 + 0.0002 * rows + 0.00005 * cols + rng.normal(0, 0.0005, (H, W)).astype(np.float32)
+                xyz = np.stack([(cols - W / 2) / 1800 * z, (rows - H / 2) / 1800 * z, z], -1).astype(np.float32)
+                rgb = np.stack([rows % 256, cols % 256, (rows + cols + i) % 256], -1).astype(np.uint8)
+            xyz[rng.random((H, W)) < 0.1] = np.nan
+            w.write_cloud("/camera/points", xyz, rgb=rgb, stamp_ns=i * 10**8, frame_id="cam")
+            xyzs.append(xyz)
+    return xyzs
+
+
+def generic_read_points(path: Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    out = []
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, _, _, msg in reader.iter_decoded_messages(topics=["/camera/points"]):
+            bo = ">" if msg.is_bigendian else "<"
+            dt = np.dtype({
+                "names": [fl.name for fl in msg.fields],
+                "formats": [bo + _PF[fl.datatype] for fl in msg.fields],
+                "offsets": [fl.offset for fl in msg.fields],
+                "itemsize": msg.point_step,
+            })
+            pts = np.frombuffer(msg.data, dtype=dt).reshape(msg.height, msg.width)
+            xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=-1).astype(np.float32)
+            xyz[~np.isfinite(xyz).all(axis=2) | ~xyz.any(axis=2)] = np.nan
+            c = pts["rgba"].astype(np.uint32)
+            rgb = np.stack([(c >> 16) & 255, (c >> 8) & 255, c & 255], axis=-1).astype(np.uint8)
+            out.append((xyz, rgb))
+    return out
+
+
+def generic_struct(path: Path, limit: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    out = []
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, _, _, msg in reader.iter_decoded_messages(topics=["/camera/points"]):
+            xyz = np.empty((msg.height * msg.width, 3), np.float32)
+            rgb = np.empty((msg.height * msg.width, 3), np.uint8)
+            for i, (x, y, z, c) in enumerate(struct.iter_unpack("<fffI", msg.data)):
+                if (x == 0 and y == 0 and z == 0) or x != x or y != y or z != z:
+                    x = y = z = float("nan")
+                xyz[i] = (x, y, z)
+                rgb[i] = ((c >> 16) & 255, (c >> 8) & 255, c & 255)
+            out.append((xyz.reshape(msg.height, msg.width, 3), rgb.reshape(msg.height, msg.width, 3)))
+            if len(out) >= limit:
+                break
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--frames", type=int, default=6)
+    ap.add_argument("--scene", choices=("noise", "scene"), default="scene")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as d:
+        warm = Path(d) / "warm.mcap"  # compile the numba kernels once, outside the timing
+        with LogWriter(warm) as w:
+            w.write_cloud("/p", np.ones((2, 2, 3), np.float32), rgb=np.zeros((2, 2, 3), np.uint8),
+                          stamp_ns=0, frame_id="f")
+        list(LogReader(warm).frames())
+        path = Path(d) / "bench.mcap"
+        make_log(path, args.frames, scene=args.scene)
+        print(f"{args.frames} frames of {H}x{W} xyz+rgba ({args.scene}), "
+              f"{path.stat().st_size / 1e6:.0f} MB on disk")
+
+        t = time.perf_counter()
+        ours = [(f.xyz, f.rgb) for f in LogReader(path).frames()]
+        t_ours = (time.perf_counter() - t) / args.frames
+
+        t = time.perf_counter()
+        gen = generic_read_points(path)
+        t_gen = (time.perf_counter() - t) / args.frames
+
+        t = time.perf_counter()
+        naive = generic_struct(path, 1)
+        t_naive = time.perf_counter() - t
+
+        for (a, b), (c, e) in zip(ours, gen, strict=True):
+            assert np.array_equal(a, c, equal_nan=True) and np.array_equal(b, e)
+        assert np.array_equal(ours[0][0], naive[0][0], equal_nan=True)
+        assert np.array_equal(ours[0][1], naive[0][1])
+
+        print(f"zcut LogReader                          {t_ours * 1e3:8.1f} ms/frame")
+        print(f"mcap_ros2 decoder + read_points rebuild {t_gen * 1e3:8.1f} ms/frame   ratio {t_gen / t_ours:6.1f}x")
+        print(f"mcap_ros2 decoder + struct per point    {t_naive * 1e3:8.1f} ms/frame   ratio {t_naive / t_ours:6.1f}x")
+
+
+if __name__ == "__main__":
+    main()
