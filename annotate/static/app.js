@@ -478,7 +478,8 @@ window.zcut.state = () => {
   let nL = 0, nR = 0;
   for (let i = 0; i < fd.L.length; i++) { nL += fd.L[i]; nR += fd.R[i]; }
   return { index: fd.index, rev: fd.rev, dirty: fd.dirty, saving: fd.saving, conflict: fd.conflict, nL, nR,
-           W: fd.W, H: fd.H, tool: state.tool, zoom: state.zoom, annotator: state.annotator };
+           W: fd.W, H: fd.H, tool: state.tool, zoom: state.zoom, annotator: state.annotator,
+           brush: state.brush, view: state.showH ? 'height' : 'rgb', progress: $('progress').textContent };
 };
 
 canvas.addEventListener('contextmenu', (e) => e.preventDefault());

@@ -1,0 +1,154 @@
+"""The labelling page in Debian's chromium (headless, driven by Playwright) against a real server."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import httpx
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from annotate.frames import parse_bundle
+from annotate.store import LabelStore, file_sha256
+from annotate_helpers import ServerProcess, write_spike_log
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run", "--disable-quic"]
+
+
+@pytest.fixture(scope="module")
+def browser():
+    sync_api = pytest.importorskip("playwright.sync_api")
+    import os
+
+    if not os.path.exists(CHROMIUM):
+        pytest.skip(f"{CHROMIUM} not installed")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+def _open(browser, url):
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(url)
+    page.wait_for_function("window.zcut && window.zcut.ready === true", timeout=60_000)
+    return page, errors
+
+
+def _wait_saved(page):
+    page.wait_for_function("(() => { const s = window.zcut.state(); return s && !s.dirty && !s.saving; })()",
+                           timeout=30_000)
+    # no timer pending: nothing unsaved
+    page.wait_for_timeout(400)
+    page.wait_for_function("(() => { const s = window.zcut.state(); return s && !s.dirty && !s.saving; })()",
+                           timeout=30_000)
+
+
+def _click_pixel(page, x, y):
+    pt = page.evaluate(f"window.zcut.imageToClient({x}, {y})")
+    page.mouse.click(pt["x"], pt["y"])
+
+
+def test_label_by_clicking_and_painting_persists_and_counts(tmp_path, browser):
+    log = tmp_path / "scan.mcap"
+    truths = write_spike_log(log, frames=2)
+    db = tmp_path / "labels.sqlite"
+    srv = ServerProcess(log, db, annotator="alice")
+    try:
+        _, arrays = parse_bundle(httpx.get(f"{srv.base}/api/frames/0/bundle", headers=srv.headers()).content)
+        zids, valid = arrays["zcut"].astype(np.int64), arrays["valid"]
+        assert zids.max() >= 2, "the test log should give at least two z-cut clusters"
+        page, errors = _open(browser, srv.url)
+        st = page.evaluate("window.zcut.state()")
+        assert st["index"] == 0 and st["nL"] == 0 and st["rev"] == 0
+        assert "reviewed 0 / 2" in st["progress"]
+
+        def first_pixel(cid):
+            r, c = np.argwhere(zids == cid)[0]
+            return int(c), int(r)
+
+        # accept cluster 1, accept cluster 2, undo the second
+        _click_pixel(page, *first_pixel(1))
+        _click_pixel(page, *first_pixel(2))
+        assert page.evaluate("window.zcut.state().nL") == int((zids == 1).sum() + (zids == 2).sum())
+        page.keyboard.press("Control+z")
+        assert page.evaluate("window.zcut.state().nL") == int((zids == 1).sum())
+
+        # paint the truth spike the z-cut covers least, with a brush of radius 3
+        comps, n = ndimage.label(truths[0], structure=np.ones((3, 3), bool))
+        cover = [((zids > 0) & (comps == k)).sum() / (comps == k).sum() for k in range(1, n + 1)]
+        k = int(np.argmin(cover)) + 1
+        r0, c0 = np.round(ndimage.center_of_mass(comps == k)).astype(int)
+        page.keyboard.press("b")
+        for _ in range(5):
+            page.keyboard.press("[")
+        assert page.evaluate("window.zcut.state().brush") == 3
+        _click_pixel(page, int(c0), int(r0))
+        _wait_saved(page)
+        st = page.evaluate("window.zcut.state()")
+        assert st["rev"] >= 1 and "reviewed 1 / 2" in st["progress"]
+
+        # the store has what the page shows: cluster 1 + a disc of radius ~3 around the spike centre
+        with LabelStore(db) as s:
+            fr0 = s.frames(s.log_by_sha(file_sha256(log)))[0]
+            lab = s.label(fr0, annotator="alice")
+        rr, cc = np.mgrid[0:valid.shape[0], 0:valid.shape[1]]
+        d2 = (rr - r0) ** 2 + (cc - c0) ** 2
+        assert lab.revision == st["rev"]
+        assert np.array_equal(lab.reviewed, valid)
+        assert (lab.outliers[zids == 1]).all() and not (lab.outliers & (zids == 2) & (d2 > 16)).any()
+        assert lab.outliers[(d2 <= 4) & valid].all()
+        assert not (lab.outliers & (zids != 1) & (d2 > 16)).any()
+        assert int(lab.outliers.sum()) == st["nL"]
+
+        # reload: the labels persist
+        page.close()
+        page, errors2 = _open(browser, srv.url)
+        st2 = page.evaluate("window.zcut.state()")
+        assert (st2["index"], st2["rev"], st2["nL"]) == (0, st["rev"], st["nL"])
+        # height colour map, then mark frame 0 reviewed and go on; frame 1 reviewed with no outliers
+        page.keyboard.press("h")
+        assert page.evaluate("window.zcut.state().view") == "height"
+        page.keyboard.press("Enter")
+        page.wait_for_function("window.zcut.state().index === 1", timeout=30_000)
+        page.keyboard.press("Enter")
+        _wait_saved(page)
+        page.wait_for_function("window.zcut.state().progress.startsWith('reviewed 2 / 2')", timeout=30_000)
+        assert not errors and not errors2, errors + errors2
+        assert page.evaluate("window.zcut.errors") == []
+        page.close()
+        # the z-cut candidates the page showed (the accuracy command recomputes them with the pipeline)
+        candidates = [parse_bundle(httpx.get(f"{srv.base}/api/frames/{i}/bundle", headers=srv.headers()).content)[1]["zcut"]
+                      for i in range(2)]
+    finally:
+        srv.stop()
+
+    # accuracy against these labels matches a count by hand (numpy on the stored masks)
+    out = subprocess.run([sys.executable, "-m", "replay.cli", "accuracy", str(log), "--labels", str(db), "--json"],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    with LabelStore(db) as s:
+        frs = s.frames(s.log_by_sha(file_sha256(log)))
+        labs = [s.label(f, annotator="alice") for f in frs]
+    assert labs[1].outliers.sum() == 0 and labs[1].reviewed.sum() > 0.9 * labs[1].reviewed.size
+    tot = {"tp": 0, "fp": 0, "fn": 0}
+    for i, lab in enumerate(labs):
+        P = candidates[i] > 0
+        L, R = lab.outliers, lab.reviewed
+        hand = {"tp": int((P & L & R).sum()), "fp": int((P & R & ~L).sum()), "fn": int((L & ~P).sum())}
+        got = report["frames"][i]["zcut"]
+        assert {k: got[k] for k in hand} == hand
+        for k in tot:
+            tot[k] += hand[k]
+    assert {k: report["pooled"]["zcut"][k] for k in tot} == tot
+    assert report["frames"][1]["zcut"]["fn"] == 0 and report["frames"][1]["zcut"]["recall"] is None
