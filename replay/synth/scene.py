@@ -75,7 +75,7 @@ class BinGeometry:
 BIN = BinGeometry()
 
 # Bright plastic bin on a dark table (paper §5.1 segments the bin by grey level).
-BIN_COLOUR = (214, 210, 198)
+BIN_COLOUR = (224, 220, 208)
 TABLE_COLOUR = (52, 50, 56)
 
 

@@ -249,6 +249,7 @@ def shade_rgb(
     intrinsics: Intrinsics,
     colours: np.ndarray,
     shiny: np.ndarray,
+    ambient: np.ndarray,
     rng: np.random.Generator,
 ) -> np.ndarray:
     """(H, W, 3) uint8 colour image: Lambert + ambient, a specular lobe on shiny pixels, sensor noise.
@@ -258,6 +259,8 @@ def shade_rgb(
     colours : (H, W, 3) float ndarray
         Base colour per pixel (0..255).
     shiny : (H, W) bool ndarray
+    ambient : (H, W) float ndarray
+        Share of diffuse room light (0..1); the rest is the Lambert term of a lamp by the camera.
     """
     rays = pixel_rays(intrinsics)
     to_cam = -rays / np.linalg.norm(rays, axis=2, keepdims=True)
@@ -268,6 +271,6 @@ def shade_rgb(
     half = to_light + to_cam
     half /= np.linalg.norm(half, axis=2, keepdims=True)
     spec = np.clip(np.einsum("ijk,ijk->ij", n, half), 0.0, 1.0) ** 60
-    img = colours * (0.6 + 0.4 * lam)[..., None] + np.where(shiny, 230.0 * spec, 0.0)[..., None]
+    img = colours * (ambient + (1.0 - ambient) * lam)[..., None] + np.where(shiny, 230.0 * spec, 0.0)[..., None]
     img = img + rng.normal(0.0, 1.5, img.shape)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)

@@ -6,7 +6,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zcut.cloud import Intrinsics
 from zcut.errors import ParameterError
 
 from replay.frame import Frame
@@ -19,7 +18,6 @@ from .scene import (
     LABEL_FLOOR,
     LABEL_PART,
     LABEL_RIM,
-    LABEL_TABLE,
     LABEL_WALL,
     TABLE_COLOUR,
     BinPose,
@@ -80,6 +78,8 @@ class SynthFrame:
         1-based index of the floating cluster a pixel belongs to (0 elsewhere).
     surface : (H, W) uint8 ndarray
         LABEL_* of the real surface on each pixel's ray.
+    surface_depth_mm : (H, W) float32 ndarray
+        Camera z (mm) of that real surface, noise-free (inf where the ray hits nothing).
     figure11 : (H, W) bool ndarray
         Real-surface patches fully surrounded by NaN (not outliers).
     scene : Scene
@@ -93,6 +93,7 @@ class SynthFrame:
     outlier_kind: np.ndarray
     cluster_id: np.ndarray
     surface: np.ndarray
+    surface_depth_mm: np.ndarray
     figure11: np.ndarray
     scene: Scene
     shiny: bool
@@ -222,7 +223,10 @@ def synthesize_frame(
     colours[bin_px] = BIN_COLOUR
     if part is not None:
         colours[on_part] = PART_COLOURS[part.name]
-    rgb = shade_rgb(view, K, colours, shiny_px, rng)
+    # plastic scatters the room light: the bin stays bright even on its steep walls (paper §5.1
+    # thresholds the gray image to find it)
+    ambient = np.where(bin_px, 0.8, 0.6)
+    rgb = shade_rgb(view, K, colours, shiny_px, ambient, rng)
 
     frame = Frame(
         xyz=xyz,
@@ -234,6 +238,8 @@ def synthesize_frame(
         index=int(index),
         masks={TRUTH_TOPIC: truth},
     )
-    return SynthFrame(frame, truth, kind_img, cluster_id, surface, figure11, scene, is_shiny, a_max)
+    return SynthFrame(
+        frame, truth, kind_img, cluster_id, surface, clean.astype(np.float32), figure11, scene, is_shiny, a_max
+    )
 
 
