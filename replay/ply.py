@@ -181,7 +181,15 @@ def read_ply(path: str | os.PathLike, *, shape: tuple[int, int] | None = None) -
         if table.size != nv * len(pnames):
             raise LogFormatError(f"{name}: PLY ascii vertex data has {table.size} values, needs {nv * len(pnames)}")
         table = table.reshape(nv, len(pnames))
-        cols_of = {p: table[:, i] for i, p in enumerate(pnames)}
+        cols_of = {}
+        for i, p in enumerate(vert.props):
+            t = np.dtype(_TYPES[p[1]])
+            col = table[:, i]
+            if t.kind != "f":
+                if not np.isfinite(col).all():
+                    raise LogFormatError(f"{name}: PLY ascii integer property '{p[0]}' has a non-number")
+                col = col.astype(np.int64)
+            cols_of[p[0]] = col.astype(t)
         rest = lines[nv:]
         if vi + 1 < len(elements) and elements[vi + 1].name == "range_grid":
             grid = np.full(n_cells, -1, dtype=np.int64)
