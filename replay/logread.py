@@ -27,6 +27,7 @@ from .errors import LogDamageError, LogFormatError
 from .frame import Frame
 from .mcapscan import (
     OP_CHANNEL,
+    OP_LOST,
     OP_MESSAGE,
     OP_METADATA,
     OP_SCHEMA,
@@ -452,6 +453,15 @@ class LogReader:
                             if len(orphans) > orphan_limit:
                                 orphans.pop(0)
                     yield from emit_ready(False)
+                elif op == OP_LOST:
+                    cloud_ids = {cid for cid, ch in channels.items() if ch.topic == self.cloud_topic}
+                    if rec is None:
+                        self.damage.append(
+                            "the number of clouds in the lost chunk is unknown: frame indices after "
+                            f"frame {next_index - 1} may be shifted"
+                        )
+                    else:
+                        next_index += sum(n for cid, n in rec.items() if cid in cloud_ids)
                 elif op == OP_CHANNEL:
                     channels[rec.id] = rec
                 elif op == OP_SCHEMA:

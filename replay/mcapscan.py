@@ -40,6 +40,9 @@ OP_STATISTICS, OP_METADATA, OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = 
 #: Largest chunk (uncompressed) or summary section zcut will hold in memory.
 MAX_CHUNK_BYTES = 1 << 31
 _READ_PIECE = 16 << 20
+_FIRST_BUF = 16 << 20
+#: pseudo opcode yielded by :meth:`McapFile.records` after a lost chunk: {channel_id: count} or None
+OP_LOST = 0x100
 
 
 class _Bad(Exception):
@@ -201,7 +204,9 @@ def decompress(compression: str, data: memoryview, size: int) -> memoryview:
         if len(data) != size:
             raise _Bad(f"holds {len(data)} bytes but claims {size}")
         return data
-    out = memoryview(np.empty(size, dtype=np.uint8))
+    # grow the output as real data arrives (doubling), never past the declared size: a lying
+    # header costs nothing, a decompression bomb stops at ``size``
+    buf = np.empty(min(size, _FIRST_BUF + 64 * len(data)), dtype=np.uint8)
     total = 0
     extra = 0
     try:
@@ -210,7 +215,11 @@ def decompress(compression: str, data: memoryview, size: int) -> memoryview:
 
             reader = zstandard.ZstdDecompressor().stream_reader(data, read_across_frames=True)
             while total < size:
-                n = reader.readinto(out[total:])
+                if total == len(buf):
+                    bigger = np.empty(min(size, 2 * len(buf)), dtype=np.uint8)
+                    bigger[:total] = buf
+                    buf = bigger
+                n = reader.readinto(memoryview(buf)[total:])
                 if n == 0:
                     break
                 total += n
@@ -231,17 +240,23 @@ def decompress(compression: str, data: memoryview, size: int) -> memoryview:
                 if total + len(piece) > size:
                     extra = 1
                     break
-                out[total : total + len(piece)] = piece
+                if total + len(piece) > len(buf):
+                    bigger = np.empty(min(size, max(2 * len(buf), total + len(piece))), dtype=np.uint8)
+                    bigger[:total] = buf[:total]
+                    buf = bigger
+                buf[total : total + len(piece)] = np.frombuffer(piece, dtype=np.uint8)
                 total += len(piece)
         else:
             raise _Bad(f"uses unknown compression '{compression}'")
     except _Bad:
         raise
+    except MemoryError as e:
+        raise _Bad(f"needs more memory than available to decompress {size} bytes") from e
     except Exception as e:  # zstd / lz4 errors on corrupt data
         raise _Bad(f"does not decompress ({compression}: {e})") from e
     if total != size or extra:
         raise _Bad(f"decompresses to {'more than ' if extra else ''}{total} bytes, not {size}")
-    return out
+    return memoryview(buf)
 
 
 class McapFile:
@@ -441,6 +456,9 @@ class McapFile:
                 pool.shutdown(wait=True, cancel_futures=True)
 
     def _finish(self, pos: int, op: int, job: object, damage: list[str]) -> Iterator[tuple[int, object]]:
+        if op == OP_LOST:
+            yield OP_LOST, self.lost_counts(pos)
+            return
         try:
             if op == OP_CHUNK:
                 recs = job.result() if isinstance(job, Future) else self._chunk_records(job)
@@ -450,8 +468,48 @@ class McapFile:
         except _Bad as e:
             what = "chunk" if op == OP_CHUNK else "record"
             damage.append(f"{what} at byte {pos} is corrupt ({e}); its messages are lost")
+            if op == OP_CHUNK:
+                yield OP_LOST, self.lost_counts(pos)
             return
         yield from recs
+
+    def lost_counts(self, chunk_start: int) -> dict[int, int] | None:
+        """Messages per channel in the chunk at ``chunk_start``, from its message indexes (the
+        summary's chunk index, else the MessageIndex records right after the chunk); None if
+        unknown."""
+        counts: dict[int, int] = {}
+        try:
+            offsets: list[int] = []
+            ci = next((c for c in self.summary.chunk_indexes if c.chunk_start_offset == chunk_start), None) if self.summary else None
+            if ci is not None:
+                offsets = sorted(ci.message_index_offsets.values())
+            else:
+                self._f.seek(chunk_start)
+                head = self._f.read(9)
+                if len(head) < 9:
+                    return None
+                at = chunk_start + 9 + struct.unpack_from("<Q", head, 1)[0]
+                while True:
+                    rec = self._read_record_at(at)
+                    if rec is None or rec[0] != OP_MESSAGE_INDEX:
+                        break
+                    offsets.append(at)
+                    at += 9 + len(rec[1])
+                if not offsets:
+                    return None
+            for off in offsets:
+                rec = self._read_record_at(off)
+                if rec is None or rec[0] != OP_MESSAGE_INDEX:
+                    return None
+                b = _Buf(rec[1])
+                cid = b.u16()
+                n = b.u32()
+                if n % 16 or n > len(rec[1]):
+                    return None
+                counts[cid] = counts.get(cid, 0) + n // 16
+        except _Bad:
+            return None
+        return counts
 
     def _outer(self, damage: list[str]) -> Iterator[tuple[int, int, memoryview]]:
         """(offset, opcode, body) of the data-section records zcut needs, with damage handling."""
@@ -487,6 +545,8 @@ class McapFile:
                         f"record at byte {pos} claims {length} bytes, past the end of the data; "
                         f"skipped to the next chunk at byte {later[0]}"
                     )
+                    if pos in resume:  # a chunk the summary knows: count what it held
+                        yield pos, OP_LOST, memoryview(b"")
                     pos = later[0]
                     continue
                 if self.data_end is None:
