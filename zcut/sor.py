@@ -49,7 +49,8 @@ if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY
 
 _TILE = 8            # pixels per tile edge
 _SUPER = 8           # tiles per super-tile edge
-_TILE_SEARCH_CAP = 1 << 16   # pixels a tile search may measure before handing over to the KD-tree
+_TILE_SEARCH_CAP = 1 << 14   # pixels a tile search may measure before handing over to the KD-tree
+_KD_ALL_ABOVE = 4096  # more unproven points than this and than n / 8: KD-tree for all of them
 _MARGIN = 1e-9       # relative safety margin of the window bound (units of |P|)
 
 # status codes of the window phase
@@ -392,9 +393,9 @@ def _kdtree_mean_distances(pts: np.ndarray, queries: np.ndarray, m: int, divisor
     from scipy.spatial import cKDTree
 
     tree = cKDTree(pts, balanced_tree=False, compact_nodes=False)
-    dist, _ = tree.query(pts[queries], k=m)
+    dist, _ = tree.query(pts[queries], k=[m])
     # every point whose exactly computed distance could tie the m-th: radius slightly enlarged
-    radius = dist[:, m - 1] * (1.0 + 1e-9) + 1e-300
+    radius = dist[:, 0] * (1.0 + 1e-9) + 1e-300
     lists = tree.query_ball_point(pts[queries], radius, workers=-1)
     lengths = np.fromiter((len(a) for a in lists), dtype=np.int64, count=len(lists))
     offsets = np.zeros(len(lists) + 1, dtype=np.int64)
@@ -503,9 +504,9 @@ def _split_planes(a):
 def _prepare(xyz: XYZ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """float64 x, y, z planes (+inf where invalid) and the valid mask."""
     a = check_xyz(xyz)
-    if a.dtype not in (np.float32, np.float64):
-        a = a.astype(np.float64)
-    return _split_planes(a)
+    if a.dtype != np.float32:  # one compiled variant per dtype: float32 or float64, C order
+        a = a.astype(np.float64, copy=False)
+    return _split_planes(np.ascontiguousarray(a))
 
 
 def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl") -> np.ndarray:
@@ -558,7 +559,8 @@ def _mean_distances(x, y, z, valid, m: int, divisor: float) -> np.ndarray:
     w_cap = max(6, w0 + 4)
     dbar, status, radius2 = _window_phase(x, y, z, valid, m, divisor, w_cap, use_bound, *bounds)
     rows, cols = np.nonzero(status == _UNPROVEN)
-    if rows.size:
+    n = int(np.count_nonzero(valid))
+    if rows.size and rows.size <= max(_KD_ALL_ABOVE, n // 8):  # else not organized enough: KD-tree for all
         tlo, thi = _tile_boxes(x, y, z, valid, _TILE)
         slo, shi = _merge_boxes(tlo, thi, _SUPER)
         vals, ok = _tile_phase(
@@ -568,7 +570,7 @@ def _mean_distances(x, y, z, valid, m: int, divisor: float) -> np.ndarray:
         rows, cols = rows[~ok], cols[~ok]
     if rows.size:
         index = np.full(valid.shape, -1, dtype=np.int64)
-        index[valid] = np.arange(int(valid.sum()))
+        index[valid] = np.arange(n)
         pts = np.stack([x[valid], y[valid], z[valid]], axis=1)
         dbar[rows, cols] = _kdtree_mean_distances(pts, index[rows, cols], m, divisor)
     return dbar

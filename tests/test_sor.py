@@ -1,0 +1,311 @@
+"""zcut.sor: the "open3d" convention against Open3D itself, "pcl" against a brute-force reference."""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+from reference.sor_reference import mean_distances_reference, sor_outliers_reference
+
+import zcut.sor as sor_module
+from zcut import InputShapeError, ParameterError, sor_outliers
+from zcut.sor import sor_mean_distances
+
+
+def open3d_outliers(xyz: np.ndarray, *, k: int, std_ratio: float) -> np.ndarray:
+    """Outlier mask of Open3D's remove_statistical_outlier over the valid pixels in row-major order."""
+    valid = np.isfinite(xyz).all(axis=2)
+    pts = np.ascontiguousarray(xyz[valid], dtype=np.float64)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    _, kept = cloud.remove_statistical_outlier(nb_neighbors=k, std_ratio=std_ratio)
+    keep = np.zeros(pts.shape[0], dtype=bool)
+    keep[np.asarray(kept, dtype=np.int64)] = True
+    out = np.zeros(valid.shape, dtype=bool)
+    out[valid] = ~keep
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# cloud generators (seeded)
+# ------------------------------------------------------------------------------------------------
+def pinhole(rng: np.random.Generator, h: int, w: int, *, f: float = 60.0, flying: float = 0.05) -> np.ndarray:
+    """A wavy surface 0.5 m in front of a pinhole camera, noise along the rays, flying pixels."""
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    z = 0.5 + 0.03 * np.sin(u / rng.uniform(3, 15)) * np.cos(v / rng.uniform(3, 15))
+    z = z + (u > w * rng.uniform(0.3, 0.7)) * rng.uniform(-0.1, 0.1)  # a depth step
+    z = z * (1 + rng.normal(0, 1e-3, z.shape))
+    fly = rng.random(z.shape) < flying
+    z = np.where(fly, z + rng.normal(0, 0.05, z.shape), z)
+    return np.stack([(u - w / 2) / f * z, (v - h / 2) / f * z, z], axis=-1)
+
+
+def with_holes(rng: np.random.Generator, xyz: np.ndarray, frac: float) -> np.ndarray:
+    xyz = xyz.copy()
+    xyz[rng.random(xyz.shape[:2]) < frac] = np.nan
+    if xyz.shape[0] > 4 and xyz.shape[1] > 4:  # a rectangular hole, and a single NaN coordinate
+        r, c = rng.integers(0, xyz.shape[0] - 3), rng.integers(0, xyz.shape[1] - 3)
+        xyz[r:r + 3, c:c + 3] = np.nan
+        xyz[rng.integers(0, xyz.shape[0]), rng.integers(0, xyz.shape[1]), rng.integers(0, 3)] = np.nan
+    return xyz
+
+
+def quantized(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """Coordinates on a coarse grid: many exact distance ties and coincident points."""
+    q = rng.choice([0.005, 0.01, 0.03])
+    return np.round(pinhole(rng, h, w) / q) * q
+
+
+def coincident(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """Pinhole cloud with groups of exactly coincident points (d̄ = 0 for the open3d convention)."""
+    xyz = pinhole(rng, h, w, flying=0.0)
+    for _ in range(max(1, h * w // 20)):
+        r, c = rng.integers(0, h), rng.integers(0, max(1, w - 6))
+        xyz[r, c:c + rng.integers(2, 7)] = xyz[r, c]
+    return xyz
+
+
+def scattered(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """No camera at all: organized only by name (window bound useless, fallback path)."""
+    return rng.normal(size=(h, w, 3)) * rng.uniform(0.1, 10.0)
+
+
+def behind(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """Some z <= 0 (exactly 0 too): the window bound does not apply."""
+    xyz = pinhole(rng, h, w)
+    xyz[..., 2] -= 0.5
+    xyz[rng.random((h, w)) < 0.1, 2] = 0.0
+    return xyz
+
+
+KINDS = {
+    "pinhole": pinhole,
+    "quantized": quantized,
+    "coincident": coincident,
+    "scattered": scattered,
+    "behind": behind,
+}
+
+
+def random_case(seed: int, kind: str) -> tuple[np.ndarray, int, float]:
+    rng = np.random.default_rng(1000 * seed + len(kind))
+    h, w = int(rng.integers(1, 45)), int(rng.integers(1, 45))
+    xyz = KINDS[kind](rng, h, w)
+    xyz = with_holes(rng, xyz, float(rng.choice([0.0, 0.05, 0.3])))
+    if rng.random() < 0.3:
+        xyz = xyz.astype(np.float32)
+    k = int(rng.choice([1, 2, 3, 4, 5, 8, 12]))
+    std_ratio = float(rng.choice([0.3, 1.0, 1.7, 3.0]))
+    return xyz, k, std_ratio
+
+
+CASES = [(seed, kind) for kind in KINDS for seed in range(12)]
+
+
+# ------------------------------------------------------------------------------------------------
+# equivalence
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(("seed", "kind"), CASES)
+def test_open3d_convention_equals_open3d(seed: int, kind: str) -> None:
+    xyz, k, std_ratio = random_case(seed, kind)
+    got = sor_outliers(xyz, k=k, std_ratio=std_ratio, convention="open3d")
+    n = int(np.isfinite(xyz).all(axis=2).sum())
+    if n < k + 1:
+        assert not got.any()
+    else:
+        np.testing.assert_array_equal(got, open3d_outliers(xyz, k=k, std_ratio=std_ratio))
+
+
+@pytest.mark.parametrize(("seed", "kind"), CASES)
+def test_pcl_convention_equals_reference(seed: int, kind: str) -> None:
+    xyz, k, std_ratio = random_case(seed, kind)
+    got = sor_outliers(xyz, k=k, std_ratio=std_ratio, convention="pcl")
+    np.testing.assert_array_equal(got, sor_outliers_reference(xyz, k=k, std_ratio=std_ratio, convention="pcl"))
+
+
+@pytest.mark.parametrize("kind", ["pinhole", "quantized", "coincident"])
+@pytest.mark.parametrize("k", [1, 4, 9])
+def test_open3d_reference_is_open3d(kind: str, k: int) -> None:
+    # the brute-force reference's open3d branch is itself checked against Open3D
+    rng = np.random.default_rng(k)
+    xyz = with_holes(rng, KINDS[kind](rng, 30, 40), 0.1)
+    np.testing.assert_array_equal(
+        sor_outliers_reference(xyz, k=k, std_ratio=1.0, convention="open3d"),
+        open3d_outliers(xyz, k=k, std_ratio=1.0),
+    )
+
+
+@pytest.fixture(params=["auto", "tiles", "kdtree"])
+def search_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Force the unproven points through the tile search or the KD-tree."""
+    if request.param == "tiles":
+        monkeypatch.setattr(sor_module, "_KD_ALL_ABOVE", 1 << 40)
+        monkeypatch.setattr(sor_module, "_TILE_SEARCH_CAP", 1 << 40)
+    elif request.param == "kdtree":
+        monkeypatch.setattr(sor_module, "_TILE_SEARCH_CAP", 0)
+    return request.param
+
+
+@pytest.mark.parametrize("convention", ["pcl", "open3d"])
+@pytest.mark.parametrize("kind", ["pinhole", "quantized", "coincident", "scattered", "behind"])
+def test_mean_distances_bit_identical(search_path: str, convention: str, kind: str) -> None:
+    rng = np.random.default_rng(7)
+    xyz = with_holes(rng, KINDS[kind](rng, 36, 48), 0.05)
+    for k in (1, 4, 7):
+        got = sor_mean_distances(xyz, k=k, convention=convention)
+        want = mean_distances_reference(xyz, k=k, convention=convention)
+        np.testing.assert_array_equal(got, want)  # NaN where invalid, bit-identical elsewhere
+
+
+@pytest.mark.parametrize("convention", ["pcl", "open3d"])
+def test_camera_cloud_with_flying_pixels(convention: str) -> None:
+    # big enough for the window bound, the tile search and a steep wall to matter
+    rng = np.random.default_rng(3)
+    xyz = with_holes(rng, pinhole(rng, 72, 96, f=150.0, flying=0.02), 0.05)
+    for k, std_ratio in ((4, 1.0), (10, 2.0)):
+        got = sor_outliers(xyz, k=k, std_ratio=std_ratio, convention=convention)
+        if convention == "open3d":
+            want = open3d_outliers(xyz, k=k, std_ratio=std_ratio)
+        else:
+            want = sor_outliers_reference(xyz, k=k, std_ratio=std_ratio, convention="pcl")
+        np.testing.assert_array_equal(got, want)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    xyz=arrays(
+        np.float64,
+        st.tuples(st.integers(1, 6), st.integers(1, 6), st.just(3)),
+        elements=st.one_of(
+            st.sampled_from([0.0, 1.0, -1.0, 0.5, np.nan, np.inf]),
+            st.floats(-10, 10, allow_nan=False, width=64),
+        ),
+    ),
+    k=st.integers(1, 5),
+    std_ratio=st.sampled_from([0.1, 1.0, 2.5]),
+    convention=st.sampled_from(["pcl", "open3d"]),
+)
+def test_property_equals_reference(xyz: np.ndarray, k: int, std_ratio: float, convention: str) -> None:
+    got = sor_outliers(xyz, k=k, std_ratio=std_ratio, convention=convention)
+    valid = np.isfinite(xyz).all(axis=2)
+    assert not (got & ~valid).any()  # outliers are valid pixels
+    np.testing.assert_array_equal(got, sor_outliers_reference(xyz, k=k, std_ratio=std_ratio, convention=convention))
+
+
+# ------------------------------------------------------------------------------------------------
+# hand-checked cases and edges
+# ------------------------------------------------------------------------------------------------
+def test_isolated_point_is_the_outlier() -> None:
+    # a 3 x 4 grid of points 1 apart in a plane, one of them lifted far away
+    u, v = np.meshgrid(np.arange(4.0), np.arange(3.0))
+    xyz = np.stack([u, v, np.full_like(u, 5.0)], axis=-1)
+    xyz[1, 2, 2] = 50.0
+    for convention in ("pcl", "open3d"):
+        got = sor_outliers(xyz, k=2, std_ratio=1.0, convention=convention)
+        want = np.zeros((3, 4), dtype=bool)
+        want[1, 2] = True
+        np.testing.assert_array_equal(got, want)
+
+
+def test_open3d_drops_points_with_k_coincident_copies() -> None:
+    # Open3D keeps only 0 < d̄: a point with k - 1 exact copies has d̄ = 0 and is removed
+    rng = np.random.default_rng(5)
+    xyz = pinhole(rng, 10, 10, flying=0.0)
+    xyz[4, 4] = xyz[4, 5] = xyz[4, 6]
+    got = sor_outliers(xyz, k=3, std_ratio=3.0, convention="open3d")
+    assert got[4, 4] and got[4, 5] and got[4, 6]
+    np.testing.assert_array_equal(got, open3d_outliers(xyz, k=3, std_ratio=3.0))
+    assert not sor_outliers(xyz, k=3, std_ratio=3.0, convention="pcl")[4, 4:7].any()
+
+
+@pytest.mark.parametrize("convention", ["pcl", "open3d"])
+def test_too_few_valid_points_means_no_outliers(convention: str) -> None:
+    xyz = np.full((3, 3, 3), np.nan)
+    xyz[0, 0] = (0.0, 0.0, 1.0)
+    xyz[1, 1] = (0.0, 0.0, 2.0)
+    xyz[2, 2] = (0.0, 0.0, 30.0)
+    assert not sor_outliers(xyz, k=3, convention=convention).any()  # 3 valid < k + 1
+    assert sor_outliers(xyz, k=2, std_ratio=0.5, convention=convention).any()  # 3 valid = k + 1
+
+
+@pytest.mark.parametrize("shape", [(0, 0, 3), (0, 5, 3), (4, 0, 3), (1, 1, 3)])
+def test_empty_and_single_pixel(shape: tuple[int, int, int]) -> None:
+    out = sor_outliers(np.ones(shape), k=1)
+    assert out.shape == shape[:2] and out.dtype == bool and not out.any()
+
+
+def test_all_nan_and_one_row() -> None:
+    assert not sor_outliers(np.full((5, 7, 3), np.nan)).any()
+    rng = np.random.default_rng(11)
+    row = rng.normal(size=(1, 50, 3))
+    for convention in ("pcl", "open3d"):
+        np.testing.assert_array_equal(
+            sor_outliers(row, k=3, convention=convention),
+            sor_outliers_reference(row, k=3, std_ratio=1.0, convention=convention),
+        )
+
+
+def test_inf_is_invalid_like_nan() -> None:
+    rng = np.random.default_rng(2)
+    xyz = pinhole(rng, 20, 20)
+    a, b = xyz.copy(), xyz.copy()
+    a[3, 3, 0] = np.inf
+    b[3, 3, :] = np.nan
+    for convention in ("pcl", "open3d"):
+        out = sor_outliers(a, convention=convention)
+        assert not out[3, 3]
+        np.testing.assert_array_equal(out, sor_outliers(b, convention=convention))
+
+
+def test_float32_is_upcast() -> None:
+    rng = np.random.default_rng(4)
+    xyz = pinhole(rng, 25, 30).astype(np.float32)
+    np.testing.assert_array_equal(sor_outliers(xyz), sor_outliers(xyz.astype(np.float64)))
+
+
+def test_input_is_not_modified() -> None:
+    rng = np.random.default_rng(6)
+    xyz = with_holes(rng, pinhole(rng, 10, 12), 0.2)
+    before = xyz.copy()
+    sor_outliers(xyz, convention="open3d")
+    np.testing.assert_array_equal(xyz, before)
+
+
+# ------------------------------------------------------------------------------------------------
+# bad input
+# ------------------------------------------------------------------------------------------------
+GOOD = np.zeros((4, 4, 3))
+
+
+@pytest.mark.parametrize(
+    ("xyz", "kwargs", "error", "match"),
+    [
+        (np.zeros((4, 4)), {}, InputShapeError, r"xyz must be an \(H, W, 3\) float array, got shape \(4, 4\)"),
+        (np.zeros((4, 4, 2)), {}, InputShapeError, r"shape \(4, 4, 2\)"),
+        (np.zeros((4, 4, 3), dtype=np.int32), {}, InputShapeError, r"int32"),
+        ([[1.0, 2.0, 3.0]], {}, InputShapeError, r"shape \(1, 3\)"),
+        (GOOD, {"k": 0}, ParameterError, r"k must be an integer >= 1, got 0"),
+        (GOOD, {"k": -2}, ParameterError, r"k must be an integer >= 1, got -2"),
+        (GOOD, {"k": 2.0}, ParameterError, r"k must be an integer >= 1, got 2.0"),
+        (GOOD, {"k": True}, ParameterError, r"k must be an integer >= 1, got True"),
+        (GOOD, {"k": "4"}, ParameterError, r"k must be an integer >= 1, got '4'"),
+        (GOOD, {"std_ratio": 0.0}, ParameterError, r"std_ratio must be a finite number > 0, got 0.0"),
+        (GOOD, {"std_ratio": -1}, ParameterError, r"std_ratio must be a finite number > 0, got -1"),
+        (GOOD, {"std_ratio": float("nan")}, ParameterError, r"std_ratio must be a finite number > 0, got nan"),
+        (GOOD, {"std_ratio": float("inf")}, ParameterError, r"got inf"),
+        (GOOD, {"std_ratio": "1"}, ParameterError, r"got '1'"),
+        (GOOD, {"convention": "matlab"}, ParameterError, r"convention must be one of \('pcl', 'open3d'\), got 'matlab'"),
+        (GOOD, {"convention": None}, ParameterError, r"got None"),
+    ],
+)
+def test_bad_input(xyz: object, kwargs: dict, error: type[Exception], match: str) -> None:
+    with pytest.raises(error, match=match):
+        sor_outliers(xyz, **kwargs)
+
+
+def test_numpy_integer_k_is_accepted() -> None:
+    rng = np.random.default_rng(8)
+    xyz = pinhole(rng, 12, 12)
+    np.testing.assert_array_equal(sor_outliers(xyz, k=np.int64(3)), sor_outliers(xyz, k=3))
