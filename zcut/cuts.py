@@ -314,6 +314,39 @@ def _join(par, rec, p, rp, nb, rank, pend_node, pend_root, n_pend):
     return rn, n_pend, 1
 
 
+def _ring_table(ring: list[tuple[int, int]], touching: bool) -> tuple[np.ndarray, np.ndarray]:
+    """For every subset (bit mask) of the ring neighbours in the cut, one neighbour per group of
+    mutually touching ones (8-connectivity: ring pixels at Chebyshev distance 1 touch; they are
+    in one set already, so joining one of them is enough). Returns (reps (2^n, 4), counts)."""
+    n = len(ring)
+    reps = np.zeros((1 << n, 4), np.int64)
+    counts = np.zeros(1 << n, np.int64)
+    for mask in range(1 << n):
+        active = [i for i in range(n) if mask >> i & 1]
+        seen: set[int] = set()
+        for i in active:
+            if i in seen:
+                continue
+            reps[mask, counts[mask]] = i
+            counts[mask] += 1
+            stack = [i]
+            seen.add(i)
+            while stack:
+                a = stack.pop()
+                for b in active:
+                    if b not in seen and touching and max(
+                        abs(ring[a][0] - ring[b][0]), abs(ring[a][1] - ring[b][1])
+                    ) <= 1:
+                        seen.add(b)
+                        stack.append(b)
+    return reps, counts
+
+
+# ring order: the neighbours before p in raster order first
+_RING8 = _ring_table([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)], True)
+_RING4 = _ring_table([(-1, 0), (0, -1), (0, 1), (1, 0)], False)
+
+
 @numba.njit(cache=True)
 def _component_tree(q, W, K, top, conn8, max_area):
     """Union-find over the pixels in level order; one node per (component, last change).
@@ -370,7 +403,14 @@ def _component_tree(q, W, K, top, conn8, max_area):
     n_nodes = 0
     n_lev = 0
     count = 0
-    offs4 = np.array([-Wp, -1, 1, Wp])
+    if conn8:
+        offs = np.array([-Wp - 1, -Wp, -Wp + 1, -1, 1, Wp - 1, Wp, Wp + 1])
+        reps, reps_n = _RING8
+    else:
+        offs = np.array([-Wp, -1, 1, Wp])
+        reps, reps_n = _RING4
+    n_ring = offs.size
+    n_prev = n_ring // 2  # the ring neighbours before p in raster order come first
 
     i = 0
     while i < m:
@@ -380,72 +420,24 @@ def _component_tree(q, W, K, top, conn8, max_area):
             j += 1
         rank = n_lev
         n_pend = 0
+        lvl_prev = np.int64(lvl)
+        lvl_next = np.int64(lvl) - 1
         # ---- add the pixels of this level. A neighbour is in the cut already if its level is
         # lower, or equal and it comes before p in raster order (the later one does the joining).
         for t in range(i, j):
             p = order[t]
             count += 1
             rp = -1
-            if conn8:
-                # two neighbours that touch each other are in one set already: skip the second
-                nw = q[p - Wp - 1] <= lvl
-                nn = q[p - Wp] <= lvl
-                ne = q[p - Wp + 1] <= lvl
-                ww = q[p - 1] <= lvl
-                ee = q[p + 1] < lvl
-                sw = q[p + Wp - 1] < lvl
-                ss = q[p + Wp] < lvl
-                se = q[p + Wp + 1] < lvl
-                if nn:  # N touches NW, NE, W, E
-                    rp, n_pend, k = _join(par, rec, p, rp, p - Wp, rank, pend_node, pend_root, n_pend)
-                    count -= k
-                    if ss:  # S touches SW, SE
-                        rp, n_pend, k = _join(par, rec, p, rp, p + Wp, rank, pend_node, pend_root, n_pend)
-                        count -= k
-                    else:
-                        if sw:
-                            rp, n_pend, k = _join(par, rec, p, rp, p + Wp - 1, rank, pend_node, pend_root, n_pend)
-                            count -= k
-                        if se:
-                            rp, n_pend, k = _join(par, rec, p, rp, p + Wp + 1, rank, pend_node, pend_root, n_pend)
-                            count -= k
-                elif ss:  # S touches SW, SE, W, E
-                    rp, n_pend, k = _join(par, rec, p, rp, p + Wp, rank, pend_node, pend_root, n_pend)
-                    count -= k
-                    if nw and not ww:
-                        rp, n_pend, k = _join(par, rec, p, rp, p - Wp - 1, rank, pend_node, pend_root, n_pend)
-                        count -= k
-                    if ne and not ee:
-                        rp, n_pend, k = _join(par, rec, p, rp, p - Wp + 1, rank, pend_node, pend_root, n_pend)
-                        count -= k
-                else:
-                    if ww:  # W touches NW, SW
-                        rp, n_pend, k = _join(par, rec, p, rp, p - 1, rank, pend_node, pend_root, n_pend)
-                        count -= k
-                    else:
-                        if nw:
-                            rp, n_pend, k = _join(par, rec, p, rp, p - Wp - 1, rank, pend_node, pend_root, n_pend)
-                            count -= k
-                        if sw:
-                            rp, n_pend, k = _join(par, rec, p, rp, p + Wp - 1, rank, pend_node, pend_root, n_pend)
-                            count -= k
-                    if ee:  # E touches NE, SE
-                        rp, n_pend, k = _join(par, rec, p, rp, p + 1, rank, pend_node, pend_root, n_pend)
-                        count -= k
-                    else:
-                        if ne:
-                            rp, n_pend, k = _join(par, rec, p, rp, p - Wp + 1, rank, pend_node, pend_root, n_pend)
-                            count -= k
-                        if se:
-                            rp, n_pend, k = _join(par, rec, p, rp, p + Wp + 1, rank, pend_node, pend_root, n_pend)
-                            count -= k
-            else:
-                for u in range(4):
-                    nb = p + offs4[u]
-                    qn = q[nb]
-                    if qn < lvl or (qn == lvl and u < 2):
-                        rp, n_pend, k = _join(par, rec, p, rp, nb, rank, pend_node, pend_root, n_pend)
-                        count -= k
+            # which ring neighbours are in the cut already: lower level, or the same level and
+            # before p in raster order (the later one of two same-level pixels does the joining)
+            mask = 0
+            for u in range(n_ring):
+                mask |= (np.int64(q[p + offs[u]]) <= (lvl_prev if u < n_prev else lvl_next)) << u
+            # join one neighbour per group of touching ring neighbours (one set already)
+            for u in range(reps_n[mask]):
+                rp, n_pend, k = _join(par, rec, p, rp, p + offs[reps[mask, u]], rank,
+                                      pend_node, pend_root, n_pend)
+                count -= k
             if rp < 0:  # no neighbour in the cut: a new singleton
                 par[p] = p
                 rec[p, 0] = 1
