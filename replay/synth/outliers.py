@@ -3,7 +3,7 @@
 Kinds of true outliers (values of the ``kind`` image):
 
 - ``OUTLIER_CLUSTER``: multipath / specular ghosts on shiny parts, blobs of a few to hundreds of
-  connected pixels floating in front of the surfaces around them by 1-15 mm (some are referenced
+  connected pixels floating in front of the surfaces around them by 1-12 mm (some are referenced
   to the surface right under them instead, so they may sit lower than a neighbouring surface in
   the image). They are centred on the exposed top layer (within ``TOP_ZONE_MM`` of the highest
   real part surface), where the projector and camera see the shiny parts most directly;
@@ -60,9 +60,9 @@ class OutlierRates:
     dropouts: float
 
 
-SHINY_RATES = OutlierRates(60.0, (0.002, 0.1), (1.0, 15.0), 0.15, 3e-4, 0.3, 30.0)
-MATTE_RATES = OutlierRates(3.0, (0.002, 0.03), (1.0, 10.0), 0.15, 2e-5, 0.05, 3.0)
-TOP_ZONE_MM = 20.0  # ghost clusters arise among the exposed top layer of parts
+SHINY_RATES = OutlierRates(60.0, (0.002, 0.1), (1.0, 12.0), 0.15, 3e-4, 0.3, 30.0)
+MATTE_RATES = OutlierRates(3.0, (0.002, 0.03), (1.0, 8.0), 0.15, 2e-5, 0.05, 3.0)
+TOP_ZONE_MM = 15.0  # ghost clusters arise among the exposed top layer of parts
 FIG11_PATCHES = 4  # NaN-surrounded real patches per frame
 FLYING_MIN_JUMP_MM = 3.0
 
@@ -212,7 +212,7 @@ def flying_pixels(
 def spikes(
     depth: np.ndarray, valid: np.ndarray, where: np.ndarray, *, prob: float, rng: np.random.Generator
 ) -> np.ndarray:
-    """Displace random single pixels along the ray (85 % toward the camera, 15 % away, by 1-10 mm).
+    """Displace random single pixels along the ray (85 % toward the camera, 15 % away, by 1-8 mm).
 
     Returns
     -------
@@ -225,7 +225,7 @@ def spikes(
         return out
     idx = rng.choice(cand, size=n, replace=False)
     toward = rng.random(n) < 0.85
-    mag = np.exp(rng.uniform(np.log(1.0), np.log(10.0), n))
+    mag = np.exp(rng.uniform(np.log(1.0), np.log(8.0), n))
     flat = depth.reshape(-1)
     flat[idx] += np.where(toward, -mag, mag)
     out.reshape(-1)[idx] = True
@@ -250,8 +250,9 @@ def floating_clusters(
     Each cluster is a blob centred on a ``where`` pixel, clipped to ``allowed``, not touching an
     earlier cluster (a blob that would is redrawn, up to ``3 * count`` draws). Its reference depth
     is the nearest surface among the blob's own pixels and its one-pixel ring (or, for an
-    "attached" cluster, the median depth right under it); it floats ``offset`` mm in front of that,
-    with a gentle tilt that only brings parts of it nearer, plus depth noise.
+    "attached" cluster, the nearest surface right under it, ignoring the ring); it floats
+    ``offset`` mm in front of that, with a gentle tilt that only brings parts of it nearer, plus
+    depth noise. Every cluster pixel is thus in front of the real surface on its own ray.
 
     Returns
     -------
@@ -287,7 +288,7 @@ def floating_clusters(
         if under.size == 0:
             continue
         if rng.random() < rates.attached_fraction:
-            ref = float(np.median(under))
+            ref = float(under.min())
         else:
             near = win_depth[ring & win_valid]
             ref = float(min(under.min(), near.min() if near.size else np.inf))

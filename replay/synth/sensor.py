@@ -20,7 +20,7 @@ import numpy as np
 
 from zcut.cloud import Intrinsics
 
-from .scene import LABEL_NONE, Scene
+from .scene import LABEL_NONE, LABEL_RIM, LABEL_WALL, Scene
 
 FULL_SIZE = (1200, 1920)  # (height, width)
 FULL_FX = 1600.0  # pixels at 1920 wide: ~62 deg horizontal field of view
@@ -128,6 +128,8 @@ def _raster(Xc, Yc, Zc, node_label, node_pid, fx, fy, cx, cy, depth, normal, lab
                     lab, pp = node_label[ib, jb], node_pid[ib, jb]
                 else:
                     lab, pp = node_label[ic, jc], node_pid[ic, jc]
+                if lab == LABEL_RIM and abs(nz_) < 0.5:
+                    lab = LABEL_WALL  # the steep faces below the rim's edges are walls
                 inv = 1.0 / area
                 for r in range(r0, r1 + 1):
                     for c in range(c0, c1 + 1):
