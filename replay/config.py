@@ -94,7 +94,7 @@ class RegistrationConfig:
     method: str = "point_to_plane"
     voxel_mm: float = 3.0
     max_correspondence_mm: float = 10.0
-    max_iterations: int = 50
+    max_iterations: int = 30
     min_fitness: float = 0.3
     max_rmse_mm: float = 5.0
     use_previous: bool = True
@@ -116,11 +116,15 @@ class RemovalConfig:
     delta_mm: float = 0.1
     rim_offset_mm: float = 5.0
     search_radius_mm: float | None = None
+    straggler_mm: float = 2.0
+    straggler_neighbours: int = 3
 
     def __post_init__(self) -> None:
         _num(self, "delta_mm", ge=0)
         _num(self, "rim_offset_mm", ge=0)
         _num(self, "search_radius_mm", gt=0, optional=True)
+        _num(self, "straggler_mm", ge=0)
+        _num(self, "straggler_neighbours", ge=0, le=8, integer=True)
 
 
 @dataclass(frozen=True, slots=True)

@@ -162,7 +162,7 @@ def run_frame(
         c = config.registration
         init = previous.T_cam_bin if (previous is not None and c.use_previous) else None
         target = xyz[bm.walls & valid].astype(np.float64)
-        reg = register_bin(bin_model.points, target, init=init, method=c.method,
+        reg = register_bin(bin_model.points, target, model_normals=bin_model.normals, init=init, method=c.method,
                            voxel_m=c.voxel_mm / 1000.0, max_correspondence_m=c.max_correspondence_mm / 1000.0,
                            max_iterations=c.max_iterations, min_fitness=c.min_fitness,
                            max_rmse_m=c.max_rmse_mm / 1000.0)
@@ -173,7 +173,8 @@ def run_frame(
             rem = remove_table_and_bin(
                 xyz, bm.mask, model=bin_model, T_cam_bin=reg.T_cam_bin, delta_m=r.delta_mm / 1000.0,
                 rim_offset_m=r.rim_offset_mm / 1000.0,
-                search_radius_m=None if r.search_radius_mm is None else r.search_radius_mm / 1000.0)
+                search_radius_m=None if r.search_radius_mm is None else r.search_radius_mm / 1000.0,
+                straggler_m=r.straggler_mm / 1000.0, straggler_neighbours=r.straggler_neighbours)
         else:
             warnings.append(f"bin registration failed ({reg.reason}): only the table removed")
             rem = remove_table_and_bin(xyz, bm.mask)

@@ -127,6 +127,8 @@ def synth_info(metadata: dict[str, dict[str, str]]) -> tuple[str | None, float |
     """(part_kind, camera distance in mm) from a log's ``zcut.synth`` metadata (None when absent)."""
     meta = metadata.get(SYNTH_METADATA, {})
     kind = meta.get("part_kind") or None
+    if kind == "empty":  # an empty-bin log has no parts to derive a preset from
+        kind = None
     dist = None
     for key, scale in (("a_max_distance_mm", 1.0), ("pile_distance_mm", 1.0), ("camera_distance_mm", 1.0),
                        ("pile_distance_m", 1000.0), ("camera_distance_m", 1000.0)):

@@ -25,8 +25,8 @@ class RegistrationResult:
     T_cam_bin : (4, 4) float64 ndarray
         Model (bin) frame -> camera frame. The initial guess when the registration failed early.
     fitness : float
-        Fraction of (downsampled) model points with a target point within the final correspondence
-        distance (Open3D's ``fitness``); 0 when not run.
+        Fraction of the frame's (downsampled) bin points with a model point within the final
+        correspondence distance (Open3D's ``fitness``); 0 when not run.
     inlier_rmse : float
         RMSE of those correspondences in metres; NaN when not run.
     converged : bool
@@ -100,30 +100,62 @@ def _cloud(points: np.ndarray, voxel_m: float):
     return pc
 
 
+_MODEL_CLOUDS: dict[tuple[int, float], tuple[np.ndarray, object]] = {}
+
+
+def _model_cloud(model: np.ndarray, normals: np.ndarray | None, voxel_m: float, normal_radius: float):
+    """The downsampled model with normals, built once per (model array, voxel)."""
+    import open3d as o3d
+
+    key = (id(model), float(voxel_m))
+    hit = _MODEL_CLOUDS.get(key)
+    if hit is not None and hit[0] is model:
+        return hit[1]
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(model, np.float64)))
+    if normals is not None:
+        pc.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals, np.float64))
+    if voxel_m > 0:
+        pc = pc.voxel_down_sample(voxel_m)
+    if normals is None or not pc.has_normals():
+        pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normal_radius, max_nn=30))
+    else:
+        pc.normalize_normals()
+    if len(_MODEL_CLOUDS) >= 4:
+        _MODEL_CLOUDS.pop(next(iter(_MODEL_CLOUDS)))
+    _MODEL_CLOUDS[key] = (model, pc)
+    return pc
+
+
 def register_bin(
     model: np.ndarray,
     target: np.ndarray,
     *,
+    model_normals: np.ndarray | None = None,
     init: np.ndarray | None = None,
     method: str = "point_to_plane",
     voxel_m: float = 0.003,
     max_correspondence_m: float = 0.01,
-    max_iterations: int = 50,
+    max_iterations: int = 30,
     min_fitness: float = 0.3,
     max_rmse_m: float = 0.005,
     min_points: int = 50,
 ) -> RegistrationResult:
     """ICP-register a bin model to the bin points of a frame.
 
-    Runs twice, coarse (``max_correspondence_m``) then fine (a third of it), on voxel-downsampled
-    copies; fitness and RMSE are those of the fine pass.
+    The frame's points are aligned to the model (whose downsampled copy and normals are built once
+    per model array and reused frame after frame) and the transform inverted. Runs twice, coarse
+    (``max_correspondence_m``) then fine (a third of it), on voxel-downsampled copies; fitness and
+    RMSE are those of the fine pass.
 
     Parameters
     ----------
     model : (N, 3) float ndarray
-        Bin model points in the bin frame, metres.
+        Bin model points in the bin frame, metres. Pass the same array every frame (the cache
+        is keyed on it).
     target : (M, 3) float ndarray
         Bin points of the frame (camera frame, metres); non-finite rows are dropped.
+    model_normals : (N, 3) float ndarray, optional
+        Normals of the model (estimated when absent).
     init : (4, 4) float ndarray, optional
         Initial ``T_cam_bin`` (e.g. the previous frame's); default :func:`initial_guess`.
     method : {"point_to_plane", "point_to_point"}
@@ -132,6 +164,7 @@ def register_bin(
     max_correspondence_m : float
         Correspondence distance of the coarse pass.
     max_iterations : int
+        Per pass.
     min_fitness, max_rmse_m : float
         Bounds for ``converged``.
     min_points : int
@@ -140,6 +173,8 @@ def register_bin(
     Returns
     -------
     RegistrationResult
+        ``fitness``: the fraction of the frame's (downsampled) bin points with a model point
+        within the fine correspondence distance.
     """
     import open3d as o3d
 
@@ -153,6 +188,11 @@ def register_bin(
     if int(max_iterations) != max_iterations or max_iterations < 1:
         raise ParameterError(f"max_iterations must be a positive integer, got {max_iterations!r}")
     m = _check_points(model, "model")
+    if m.shape[0] != np.shape(model)[0]:
+        raise InputShapeError("model must not contain non-finite points")
+    m = model if (isinstance(model, np.ndarray) and model.dtype == np.float64) else m
+    if model_normals is not None and np.shape(model_normals) != np.shape(m):
+        raise InputShapeError(f"model_normals must match model {np.shape(m)}, got {describe_array(model_normals)}")
     t = _check_points(target, "target")
     if init is None:
         T0 = initial_guess(m, t)
@@ -160,27 +200,27 @@ def register_bin(
         T0 = np.asarray(init, dtype=np.float64)
         if T0.shape != (4, 4) or not np.isfinite(T0).all():
             raise InputShapeError(f"init must be a finite (4, 4) array, got {describe_array(T0)}")
-    src = _cloud(m, voxel_m)
-    dst = _cloud(t, voxel_m)
-    n_m, n_t = len(src.points), len(dst.points)
+    normal_radius = max(3.0 * voxel_m, 2.0 * max_correspondence_m / 3.0)
+    src = _cloud(t, voxel_m)
+    dst = _model_cloud(m, model_normals, voxel_m, normal_radius)
+    n_m, n_t = len(dst.points), len(src.points)
     if n_m < min_points or n_t < min_points:
         return RegistrationResult(
             T0.copy(), 0.0, float("nan"), False,
             f"too few points (model {n_m}, target {n_t}, need {min_points})", n_m, n_t, T0.copy(),
         )
-    normal_radius = max(3.0 * voxel_m, 2.0 * max_correspondence_m / 3.0)
     if method == "point_to_plane":
-        dst.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normal_radius, max_nn=30))
         est = o3d.pipelines.registration.TransformationEstimationPointToPlane()
     else:
         est = o3d.pipelines.registration.TransformationEstimationPointToPoint()
     crit = o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=int(max_iterations))
-    T = T0
+    T = np.linalg.inv(T0)  # frame -> model
     reg = None
     for dist in (max_correspondence_m, max_correspondence_m / 3.0):
         reg = o3d.pipelines.registration.registration_icp(src, dst, dist, T, est, crit)
         T = np.asarray(reg.transformation, dtype=np.float64).copy()
     assert reg is not None
+    T_cam_bin = np.linalg.inv(T)
     fitness = float(reg.fitness)
     rmse = float(reg.inlier_rmse) if fitness > 0 else float("nan")
     reasons = []
@@ -188,4 +228,4 @@ def register_bin(
         reasons.append(f"fitness {fitness:.3f} < {min_fitness:g}")
     if not (rmse <= max_rmse_m):
         reasons.append(f"RMSE {rmse * 1000:.2f} mm > {max_rmse_m * 1000:g} mm")
-    return RegistrationResult(T, fitness, rmse, not reasons, "; ".join(reasons), n_m, n_t, T0.copy())
+    return RegistrationResult(T_cam_bin, fitness, rmse, not reasons, "; ".join(reasons), n_m, n_t, T0.copy())

@@ -23,6 +23,7 @@ from .types import XYZ, FloatImage, Mask
 
 # In the bin frame "up" is -z: models are built in a top-down camera's optical frame.
 BIN_UP = np.array([0.0, 0.0, -1.0])
+STRAGGLER_PASSES = 8
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,43 +91,50 @@ class RemovalResult:
         return self.table | self.easy_outliers | self.bin_points
 
 
-def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | None, *,
-                delta_m: float, radius_m: float) -> np.ndarray:
-    """(M,) bool: points within ``delta_m`` of the model surface (see :func:`remove_table_and_bin`)."""
+_TREES: dict[int, tuple[np.ndarray, object]] = {}
+
+
+def _model_tree(points: np.ndarray):
+    """A cKDTree of the model points, built once per model array (a small identity cache)."""
     from scipy.spatial import cKDTree
 
+    hit = _TREES.get(id(points))
+    if hit is not None and hit[0] is points:
+        return hit[1]
+    tree = cKDTree(points)
+    if len(_TREES) >= 4:
+        _TREES.pop(next(iter(_TREES)))
+    _TREES[id(points)] = (points, tree)
+    return tree
+
+
+def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | None, *,
+                delta_m: float, radius_m: float) -> np.ndarray:
+    """(M,) bool: points within ``delta_m`` of the model surface.
+
+    ``points`` and ``model`` in the same frame. With normals: the smallest point-to-plane
+    distance over the model points within ``radius_m`` (up to 8; near an edge the nearest point
+    may lie on the other face); without: the distance to the nearest model point.
+    """
     out = np.zeros(len(points), bool)
     if len(points) == 0 or len(model) == 0:
         return out
-    # Cheap pre-filter on a voxel hash with cells of the search radius: a point within the radius
-    # of a model point lies in the model point's cell or one of its 26 neighbours.
-    cell = radius_m
-    lo = np.minimum(model.min(axis=0), points.min(axis=0)) - 2 * cell
-    mk = np.floor((model - lo) / cell).astype(np.int64)
-    pk = np.floor((points - lo) / cell).astype(np.int64)
-    dims = np.maximum(mk.max(axis=0), pk.max(axis=0)) + 2
-    offs = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(-1, 3)
-    mk_all = np.unique((mk[:, None, :] + offs[None]).reshape(-1, 3) @ np.array([dims[1] * dims[2], dims[2], 1]))
-    pkey = pk @ np.array([dims[1] * dims[2], dims[2], 1])
-    cand = np.nonzero(np.isin(pkey, mk_all, assume_unique=False))[0]
+    tree = _model_tree(model)
+    if normals is None:
+        dist, _ = tree.query(points, k=1, distance_upper_bound=delta_m, workers=-1)
+        return dist <= delta_m
+    # cheap first pass: only points with a model point within the radius go on
+    d1, _ = tree.query(points, k=1, distance_upper_bound=radius_m, workers=-1)
+    cand = np.flatnonzero(np.isfinite(d1))
     if len(cand) == 0:
         return out
-    tree = cKDTree(model)
-    if normals is None:
-        dist, _ = tree.query(points[cand], k=1, distance_upper_bound=radius_m, workers=-1)
-        ok = dist <= delta_m
-    else:
-        # the smallest point-to-plane distance over the model points within the radius (near an
-        # edge the nearest point may lie on the other face)
-        k = 8
-        dist, idx = tree.query(points[cand], k=k, distance_upper_bound=radius_m, workers=-1)
-        hit = np.isfinite(dist)
-        j = np.where(hit, idx, 0)
-        diff = points[cand][:, None, :] - model[j]
-        d_plane = np.abs(np.einsum("ijk,ijk->ij", diff, normals[j]))
-        d_plane[~hit] = np.inf
-        ok = d_plane.min(axis=1) <= delta_m
-    out[cand[ok]] = True
+    pc = points[cand]
+    dist, idx = tree.query(pc, k=8, distance_upper_bound=radius_m, workers=-1)
+    hit = np.isfinite(dist)
+    j = np.where(hit, idx, 0)
+    d_plane = np.abs(np.einsum("ijk,ijk->ij", pc[:, None, :] - model[j], normals[j]))
+    d_plane[~hit] = np.inf
+    out[cand] = d_plane.min(axis=1) <= delta_m
     return out
 
 
@@ -139,6 +147,8 @@ def remove_table_and_bin(
     delta_m: float = 1e-4,
     rim_offset_m: float = 0.005,
     search_radius_m: float | None = None,
+    straggler_m: float = 0.0,
+    straggler_neighbours: int = 5,
 ) -> RemovalResult:
     """Label table, easy outliers and bin points; return the classes and the zone's height image.
 
@@ -161,6 +171,14 @@ def remove_table_and_bin(
     search_radius_m : float, optional
         Nearest-model-point search radius for the point-to-plane test; default
         ``max(delta_m, 1.5 * model.spacing_m)``.
+    straggler_m : float
+        A second, looser test for the noise tail of the bin surface: a remaining pixel with at
+        least ``straggler_neighbours`` of its 8 neighbours labelled table or bin, and within
+        ``straggler_m`` of the model, is bin too (0: off); repeated up to
+        :data:`STRAGGLER_PASSES` times, so that it grows along clumps of such pixels. Without it a few noisy rim pixels stay
+        in the zone, become its highest points and move the z-cut's z_max up to the rim.
+    straggler_neighbours : int
+        See ``straggler_m``.
 
     Returns
     -------
@@ -170,7 +188,9 @@ def remove_table_and_bin(
     fp = np.asarray(footprint)
     if fp.shape != a.shape[:2] or fp.dtype != np.bool_:
         raise InputShapeError(f"footprint must be an {a.shape[:2]} bool array, got {describe_array(fp)}")
-    for name, v in (("delta_m", delta_m), ("rim_offset_m", rim_offset_m)):
+    if int(straggler_neighbours) != straggler_neighbours or not 0 <= straggler_neighbours <= 8:
+        raise ParameterError(f"straggler_neighbours must be an integer in 0..8, got {straggler_neighbours!r}")
+    for name, v in (("delta_m", delta_m), ("rim_offset_m", rim_offset_m), ("straggler_m", straggler_m)):
         if not (np.isfinite(v) and v >= 0):
             raise ParameterError(f"{name} must be a non-negative number, got {v!r}")
     if (model is None) != (T_cam_bin is None):
@@ -189,23 +209,45 @@ def remove_table_and_bin(
         T = np.asarray(T_cam_bin, dtype=np.float64)
         R, t = T[:3, :3], T[:3, 3]
         up = R @ BIN_UP
-        model_cam = model.points @ R.T + t
-        h_model = model_cam @ up
-        rim = float(np.percentile(h_model, 99.5))
-        floor = float(np.percentile(h_model, 0.5))
+        # heights along up = -z in the bin frame; work in the bin frame so that the model's
+        # KD-tree is built once per model, not once per frame
+        h_model = -model.points[:, 2]
+        rim_b = float(np.percentile(h_model, 99.5))
+        floor_b = float(np.percentile(h_model, 0.5))
+        shift = float(t @ up)  # height of the bin origin along up, camera frame
+        rim, floor = rim_b + shift, floor_b + shift
         rows, cols = np.nonzero(inside)
-        p = a[rows, cols].astype(np.float64)
-        h = p @ up
-        is_easy = h > rim + rim_offset_m
+        p_bin = (a[rows, cols].astype(np.float64) - t) @ R
+        h = -p_bin[:, 2]
+        is_easy = h > rim_b + rim_offset_m
         easy[rows[is_easy], cols[is_easy]] = True
-        rest = ~is_easy
-        normals_cam = None if model.normals is None else model.normals @ R.T
+        rest = np.flatnonzero(~is_easy)
         radius = search_radius_m if search_radius_m is not None else max(delta_m, 1.5 * model.spacing_m)
-        if normals_cam is None:
-            radius = delta_m
+        radius = max(radius, delta_m, 1e-9)
         if delta_m > 0:
-            near = _near_model(p[rest], model_cam, normals_cam, delta_m=delta_m, radius_m=max(radius, 1e-9))
-            binp[rows[rest][near], cols[rest][near]] = True
+            near = _near_model(p_bin[rest], model.points, model.normals, delta_m=delta_m, radius_m=radius)
+            binp[rows[rest[near]], cols[rest[near]]] = True
+        if straggler_m > 0:
+            import cv2
+
+            index = np.full(valid.shape, -1, np.int64)
+            index[rows, cols] = np.arange(len(rows))
+            tried = np.zeros_like(valid)
+            kernel = np.ones((3, 3), np.float32)
+            for _ in range(STRAGGLER_PASSES):  # grows along the noisy rim, one ring per pass
+                lab = (table | binp).astype(np.uint8)
+                n_lab = cv2.filter2D(lab, -1, kernel, borderType=cv2.BORDER_CONSTANT) - lab
+                loose = inside & ~easy & ~binp & ~tried & (n_lab >= straggler_neighbours)
+                if not loose.any():
+                    break
+                tried |= loose
+                sel = index[loose]
+                near = _near_model(p_bin[sel], model.points, model.normals, delta_m=straggler_m,
+                                   radius_m=max(radius, straggler_m))
+                if not near.any():
+                    break
+                binp[rows[sel[near]], cols[sel[near]]] = True
+                tried[rows[sel[near]], cols[sel[near]]] = False
         # floor plane {q : q . up = floor}: z at (x, y) solves x*ux + y*uy + z*uz = floor
         if abs(up[2]) > 1e-6:
             x64 = a[..., 0].astype(np.float64)
