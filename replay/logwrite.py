@@ -161,7 +161,8 @@ class LogWriter:
         xyz : (H, W, 3) float ndarray
             Metres, NaN invalid (written as NaN, ``is_dense = false``).
         rgb : (H, W, 3) uint8 ndarray or None
-            Packed into ``rgba`` as ``0xAARRGGBB`` with alpha 255 (white when None).
+            Packed into ``rgba`` as ``0xAARRGGBB`` with alpha 255; without it the cloud has only
+            the x, y, z fields (same point_step 16).
         """
         xyz = np.asarray(xyz)
         if xyz.ndim != 3 or xyz.shape[2] != 3 or not np.issubdtype(xyz.dtype, np.floating):
@@ -177,7 +178,8 @@ class LogWriter:
                 )
         data = rm.arrays_to_cloud_data(xyz, rgb)
         msg = rm.encode_cloud(
-            stamp_ns=stamp_ns, frame_id=frame_id, height=h, width=w, fields=rm.XYZRGBA_FIELDS,
+            stamp_ns=stamp_ns, frame_id=frame_id, height=h, width=w,
+            fields=rm.XYZRGBA_FIELDS if rgb is not None else rm.XYZ_FIELDS,
             point_step=16, row_step=16 * w, data=data,
             is_dense=bool(np.isfinite(xyz).all()),
         )

@@ -43,7 +43,7 @@ class Cloud:
     rgb: np.ndarray | None
 
 
-@numba.njit(cache=False, nogil=True)
+@numba.njit(cache=True, nogil=True)
 def _lzf_decompress(src: np.ndarray, out: np.ndarray) -> int:
     """LZF-decompress ``src`` into ``out``; return bytes written, or -1 on corrupt input."""
     ip = 0

@@ -89,7 +89,7 @@ def _header(raw: bytes, name: str) -> tuple[str, list[_Element], dict[str, int],
     return fmt, elements, info, nl + 1
 
 
-@numba.njit(cache=False)
+@numba.njit(cache=True)
 def _grid_from_lists(buf: np.ndarray, start: int, n_cells: int, cnt_size: int, idx_size: int,
                      big: bool, n_vertex: int, out: np.ndarray) -> int:
     """Parse binary range_grid lists; out[i] = vertex index or -1. Returns end offset or -1."""

@@ -547,7 +547,8 @@ def _unpack_xyz_rgb(px, py, pz, c, xyz, rgb):  # pragma: no cover - compiled
 
 
 def arrays_to_cloud_data(xyz: np.ndarray, rgb: np.ndarray | None) -> bytes:
-    """Pack (H, W, 3) xyz (+ optional (H, W, 3) uint8 rgb) as x, y, z FLOAT32 + rgba UINT32."""
+    """Pack (H, W, 3) xyz (+ optional (H, W, 3) uint8 rgb) as x, y, z FLOAT32 + rgba UINT32
+    (16 bytes per point; the last 4 are zero padding when rgb is None)."""
     h, w = xyz.shape[:2]
     out = np.zeros((h, w, 4), dtype="<f4")
     out[..., :3] = xyz
@@ -555,8 +556,6 @@ def arrays_to_cloud_data(xyz: np.ndarray, rgb: np.ndarray | None) -> bytes:
         r = rgb.astype(np.uint32)
         packed = (0xFF << 24) | (r[..., 0] << 16) | (r[..., 1] << 8) | r[..., 2]
         out.view("<u4")[..., 3] = packed
-    else:
-        out.view("<u4")[..., 3] = 0xFFFFFFFF
     return out.tobytes()
 
 

@@ -121,3 +121,42 @@ def test_not_mcap(tmp_path):
     p.write_bytes(b"hello world, not an mcap file")
     with pytest.raises(LogFormatError, match="not an MCAP file"):
         LogReader(p)
+
+
+def test_frame_without_colour_stays_without(tmp_path):
+    xyz = np.ones((3, 4, 3), np.float32)
+    with LogWriter(tmp_path / "nocolour.mcap") as w:
+        w.write_cloud("/camera/points", xyz, stamp_ns=5, frame_id="f")
+    r = LogReader(tmp_path / "nocolour.mcap")
+    assert r.image_topic is None and r.topics["/camera/points"].fields == ("x", "y", "z")
+    (f,) = r.frames()
+    assert f.rgb is None and f.intrinsics is None and f.masks == {}
+    np.testing.assert_array_equal(f.xyz, xyz)
+
+
+def test_results_topics_of_spec(tmp_path, rng):
+    """The SPEC §5 result topics: masks as mono8 Images, /zcut/filtered as an organized cloud."""
+    xyz = rng.normal(size=(H, W, 3)).astype(np.float32)
+    out = xyz.copy()
+    out[rng.random((H, W)) < 0.3] = np.nan
+    topics = ["/zcut/outliers", "/zcut/sor_outliers", "/zcut/bin_mask", "/ground_truth/outliers",
+              "/labels/outliers", "/labels/reviewed"]
+    masks = {t: rng.random((H, W)) < 0.5 for t in topics}
+    p = tmp_path / "results.mcap"
+    with LogWriter(p) as w:
+        w.write_cloud("/camera/points", xyz, stamp_ns=9, frame_id="f")
+        w.write_cloud("/zcut/filtered", out, stamp_ns=9, frame_id="f")
+        for t, m in masks.items():
+            w.write_mask(t, m, stamp_ns=9, frame_id="f")
+    with pytest.raises(LogFormatError, match="several organized PointCloud2 topics: .*choose one with --topic"):
+        LogReader(p)
+    r = LogReader(p, cloud_topic="/zcut/filtered")
+    assert r.mask_topics == sorted(topics)
+    (f,) = r.frames()
+    np.testing.assert_array_equal(f.xyz, out)
+    for t, m in masks.items():
+        np.testing.assert_array_equal(f.masks[t], m)
+    with open(p, "rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        enc = {ch.topic: msg.encoding for _, ch, _, msg in reader.iter_decoded_messages() if hasattr(msg, "encoding")}
+    assert enc == {t: "mono8" for t in topics}

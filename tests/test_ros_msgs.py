@@ -231,3 +231,32 @@ def test_schema_texts_parse_with_mcap_ros2():
         assert name in classes
     assert "MSG: std_msgs/Header" in rm.SCHEMAS[rm.IMAGE]
     assert "MSG: sensor_msgs/RegionOfInterest" in rm.SCHEMAS[rm.CAMERAINFO]
+
+
+# ---------------------------------------------------------------------------- properties
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+from hypothesis.extra.numpy import arrays  # noqa: E402
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    xyz=arrays(np.float32, st.tuples(st.integers(2, 6), st.integers(1, 6), st.just(3)),
+               elements=st.sampled_from([0.0, -0.0, 1.5, -2.25, np.nan, np.inf, -np.inf, 1e-30, 3e38])),
+    with_rgb=st.booleans(),
+)
+def test_pack_unpack_law(xyz, with_rgb):
+    """Written then read: valid points unchanged; any non-finite or (0, 0, 0) point -> all NaN."""
+    h, w = xyz.shape[:2]
+    rgb = (np.arange(h * w * 3, dtype=np.uint8).reshape(h, w, 3) * 7) if with_rgb else None
+    raw = rm.encode_cloud(stamp_ns=1, frame_id="f", height=h, width=w,
+                          fields=rm.XYZRGBA_FIELDS if with_rgb else rm.XYZ_FIELDS, point_step=16,
+                          row_step=16 * w, data=rm.arrays_to_cloud_data(xyz, rgb), is_dense=True)
+    got, got_rgb = rm.cloud_to_arrays(rm.decode_cloud(raw), where="t")
+    invalid = ~np.isfinite(xyz).all(axis=2) | (xyz == 0).all(axis=2)
+    assert np.isnan(got[invalid]).all()
+    np.testing.assert_array_equal(got[~invalid], xyz[~invalid])
+    if with_rgb:
+        np.testing.assert_array_equal(got_rgb, rgb)
+    else:
+        assert got_rgb is None
