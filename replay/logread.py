@@ -282,6 +282,9 @@ class LogReader:
             chosen = t
         elif len(organized) == 1:
             chosen = organized[0]
+        elif len([t for t in organized if not t.topic.startswith("/zcut/")]) == 1:
+            # a results log: the input cloud, not zcut's own /zcut/filtered output
+            chosen = next(t for t in organized if not t.topic.startswith("/zcut/"))
         elif len(organized) > 1:
             raise LogFormatError(
                 f"{name} has several organized PointCloud2 topics: "
