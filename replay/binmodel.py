@@ -120,6 +120,19 @@ def save_bin_model(model: BinModel, path: str | Path) -> None:
         raise LogFormatError(f"{path}: could not write the bin model")
 
 
+def _ply_has_faces(path: Path) -> bool:
+    """True when a PLY header declares a non-empty ``face`` element (a mesh, not a point cloud)."""
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    if not head.startswith(b"ply"):
+        raise LogFormatError(f"{path}: not a PLY file (expected a PLY point cloud or mesh)")
+    for line in head.split(b"end_header")[0].splitlines():
+        parts = line.split()
+        if len(parts) == 3 and parts[0] == b"element" and parts[1] == b"face":
+            return int(parts[2]) > 0
+    return False
+
+
 def load_bin_model(path: str | Path, *, voxel_mm: float = 1.0) -> BinModel:
     """Read a bin model PLY: a point cloud (as saved here) or a mesh (a CAD model, sampled).
 
@@ -131,8 +144,8 @@ def load_bin_model(path: str | Path, *, voxel_mm: float = 1.0) -> BinModel:
     if not p.is_file():
         raise FileNotFoundError(2, "No such file", str(p))
     voxel_m = voxel_mm / 1000.0
-    mesh = o3d.io.read_triangle_mesh(str(p))
-    if len(mesh.triangles) > 0:
+    if _ply_has_faces(p):
+        mesh = o3d.io.read_triangle_mesh(str(p))
         area = mesh.get_surface_area()
         n = int(min(max(area / (voxel_m * voxel_m), 1000), 2_000_000))
         pc = mesh.sample_points_uniformly(number_of_points=n)
@@ -145,3 +158,40 @@ def load_bin_model(path: str | Path, *, voxel_mm: float = 1.0) -> BinModel:
         spacing = float(np.median(np.asarray(pc.compute_nearest_neighbor_distance()))) if len(pts) > 1 else voxel_m
         return BinModel(pts.copy(), np.asarray(pc.normals, dtype=np.float64).copy(), max(spacing, 1e-4))
     return model_from_points(pts, voxel_mm=voxel_mm)
+
+
+def ensure_sample_bin_model(*, progress=None) -> Path:
+    """The bin model of the demo's sample: built once from a synthetic empty-bin log, then cached.
+
+    Five empty-bin scans (the paper's five positions, §4) at the sample's size are synthesised
+    next to the sample log, turned into a model (:func:`build_bin_model`) and saved as PLY; an
+    interrupted run leaves no partial file behind.
+
+    Parameters
+    ----------
+    progress : callable, optional
+        Passed to :func:`replay.synth.log.write_synthetic_log`.
+    """
+    import os
+
+    from .logread import LogReader
+    from .synth.log import GENERATOR_VERSION, SAMPLE_SEED, SAMPLE_SIZE, sample_log_path, write_synthetic_log
+
+    h, w = SAMPLE_SIZE
+    base = sample_log_path().parent
+    target = base / f"sample_bin_model_seed{SAMPLE_SEED}_{w}x{h}_v{GENERATOR_VERSION}.ply"
+    if target.is_file():
+        return target
+    base.mkdir(parents=True, exist_ok=True)
+    empty = base / f".sample_empty_{os.getpid()}.mcap"
+    tmp = base / f".{target.stem}.tmp{os.getpid()}.ply"
+    try:
+        write_synthetic_log(empty, empty=True, frames=5, seed=SAMPLE_SEED, size=SAMPLE_SIZE, progress=progress)
+        model, _ = build_bin_model(LogReader(empty).frames(), PipelineConfig())
+        save_bin_model(model, tmp)
+        os.replace(tmp, target)
+    finally:
+        for p in (empty, tmp):
+            if p.exists():
+                p.unlink()
+    return target

@@ -20,6 +20,7 @@ EXIT_DATA_LOSS = 3
 
 # name -> (module, one-line help). Order is the order shown by --help.
 COMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("replay.commands.demo", "the whole job on the bundled synthetic sample: replay, .rrd, true accuracy"),
     "record": ("replay.commands.record", "turn organized .ply/.pcd files (or folders of them) into a ROS 2 MCAP log"),
     "topics": ("replay.commands.topics", "show what a log holds and which topics zcut would use"),
     "synth": ("replay.commands.synth", "synthesise a bin-picking log (six part kinds, empty bin) with exact ground-truth outliers"),
