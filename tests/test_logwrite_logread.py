@@ -159,3 +159,44 @@ def test_results_topics_of_spec(tmp_path, rng):
         reader = make_reader(fh, decoder_factories=[DecoderFactory()])
         enc = {ch.topic: msg.encoding for _, ch, _, msg in reader.iter_decoded_messages() if hasattr(msg, "encoding")}
     assert enc == {t: "mono8" for t in topics}
+
+
+def test_real_ros2_kinect_log_equals_its_pcd_sources(real_data):
+    """mosd_clutter_kinect_ros2.mcap holds mOSD test55 and test60 (float-packed rgb, label field)."""
+    from replay.pcd import read_pcd
+
+    r = LogReader(real_data / "mosd_clutter_kinect_ros2.mcap")
+    assert (r.cloud_topic, r.image_topic, r.n_frames) == ("/camera/depth/points", None, 2)
+    assert r.topics["/camera/depth/points"].fields == ("x", "y", "z", "rgb", "label")
+    frames = list(r.frames())
+    for f, name in zip(frames, ["mosd_test55.pcd", "mosd_test60.pcd"], strict=True):
+        src = read_pcd(real_data / name)
+        np.testing.assert_array_equal(f.xyz, src.xyz)
+        np.testing.assert_array_equal(f.rgb, src.rgb)  # colours from the cloud's packed rgb
+        assert f.frame_id == "camera_depth_optical_frame"
+    assert [f.stamp_ns for f in frames] == [0, 1_000_000_000]
+
+
+def test_real_ros2_ouster_log(real_data):
+    """64 x 2048 lidar: organized, (0, 0, 0) invalid although is_dense is true, mono8 side images."""
+    r = LogReader(real_data / "ouster_os1_64_ros2_reencoded.mcap")
+    assert r.cloud_topic == "/os1_cloud_node/points" and r.image_topic is None
+    assert r.mask_topics == ["/img_node/intensity_image", "/img_node/noise_image", "/img_node/range_image"]
+    frames = list(r.frames())
+    assert len(frames) == 2 and r.damage == []
+    with open(real_data / "ouster_os1_64_ros2_reencoded.mcap", "rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        raw = [m for _, _, _, m in reader.iter_decoded_messages(topics=["/os1_cloud_node/points"])]
+    for f, m in zip(frames, raw, strict=True):
+        assert m.is_dense and f.shape == (64, 2048) and f.rgb is None
+        pts = np.frombuffer(bytes(m.data), dtype="<f4").reshape(64, 2048, 12)[..., :3]
+        zero = (pts == 0).all(axis=2)
+        assert 0 < zero.sum() < 64 * 2048
+        assert np.isnan(f.xyz[zero]).all()
+        np.testing.assert_array_equal(f.xyz[~zero], pts[~zero])
+        assert f.stamp_ns == m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+
+
+def test_ros1_log_is_refused(real_data):
+    with pytest.raises(LogFormatError, match=r"^ouster_os1_64_ros1_original.mcap is a ROS 1 log \(message encoding ros1\)"):
+        LogReader(real_data / "ouster_os1_64_ros1_original.mcap")
