@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from zcut.cloud import Intrinsics
+from zcut.errors import ParameterError
 
 from . import ros_msgs as rm
 from .errors import LogDamageError, LogFormatError
@@ -385,15 +386,16 @@ class LogReader:
         malformed message.
         """
         if start < 0 or (stop is not None and stop < start):
-            raise LogFormatError(f"frames: bad range start={start}, stop={stop}")
+            raise ParameterError(f"frames: need 0 <= start <= stop, got start={start}, stop={stop}")
         self.damage = []
         companions = [t for t in (self.image_topic, self.info_topic) if t] + list(self.mask_topics)
         orphan_limit = 4 * len(companions) + 4
         pending: list[dict] = []  # {"index", "stamp", "cloud", "parts": {topic: decoded}}
         orphans: list[tuple[int, str, object]] = []  # (stamp, topic, decoded)
-        next_index = 0
         delivered = 0
         want_topics = {self.cloud_topic, *companions}
+        # seek: begin at the chunk holding cloud start - PAIRING_WINDOW (companions may precede)
+        begin, next_index = self._seek(max(0, start - PAIRING_WINDOW)) if start > 0 else (None, 0)
 
         def complete(p: dict) -> bool:
             return all(t in p["parts"] for t in companions)
@@ -411,7 +413,7 @@ class LogReader:
         schemas = dict(self._schemas)
         channels = dict(self._channels)
         with McapFile(self.path) as mf:
-            for op, rec in mf.records(self.damage):
+            for op, rec in mf.records(self.damage, start_offset=begin):
                 if op == OP_MESSAGE:
                     ch = channels.get(rec.channel_id)
                     if ch is None or ch.topic not in want_topics:
@@ -474,6 +476,30 @@ class LogReader:
             yield from emit_ready(True)
         if delivered == 0 and self.damage and (stop is None or stop > start):
             raise LogDamageError(f"{self.path.name}: no frame could be read: {'; '.join(self.damage)}")
+
+    def _seek(self, k: int) -> tuple[int | None, int]:
+        """(file offset of the chunk holding the k-th cloud, number of clouds before that chunk),
+        from the summary's chunk and message indexes; (None, 0) = scan from the start."""
+        cloud_ids = {cid for cid, ch in self._channels.items() if ch.topic == self.cloud_topic}
+        try:
+            with McapFile(self.path) as mf:
+                if mf.summary is None or not mf.summary.chunk_indexes:
+                    return None, 0
+                before = 0
+                for ci in mf.summary.chunk_indexes:
+                    offs = [o for cid, o in ci.message_index_offsets.items() if cid in cloud_ids]
+                    n = 0
+                    for off in offs:
+                        got = mf.message_index_count(off)
+                        if got is None:
+                            return None, 0
+                        n += got
+                    if before + n > k:
+                        return ci.chunk_start_offset, before
+                    before += n
+        except _Bad:
+            pass
+        return None, 0
 
     def _build(self, p: dict) -> Frame:
         idx = p["index"]

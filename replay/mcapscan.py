@@ -430,18 +430,21 @@ class McapFile:
         return records
 
     # ------------------------------------------------------------------ scanning
-    def records(self, damage: list[str], *, prefetch: int = 2) -> Iterator[tuple[int, object]]:
+    def records(
+        self, damage: list[str], *, prefetch: int = 2, start_offset: int | None = None
+    ) -> Iterator[tuple[int, object]]:
         """Yield (opcode, parsed record) for Schema, Channel, Message and Metadata records in file
         order, chunk contents included.
 
         Damage is appended to ``damage`` as one-line notes; the scan then resumes at the next chunk
-        the summary knows about, or stops. Up to ``prefetch`` chunks are decompressed ahead in a
+        the summary knows about, or stops. ``start_offset`` starts the scan at a record (a chunk
+        found through the summary) instead of the beginning. Up to ``prefetch`` chunks are decompressed ahead in a
         worker thread (zstd and crc32 release the GIL), overlapping I/O with the caller's work.
         """
         queue: deque[tuple[int, int, object]] = deque()
         pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mcap-chunks") if prefetch else None
         try:
-            for pos, op, body in self._outer(damage):
+            for pos, op, body in self._outer(damage, start_offset):
                 if op == OP_CHUNK:
                     job: object = pool.submit(self._chunk_records, body) if pool else body
                 else:
@@ -473,6 +476,19 @@ class McapFile:
             return
         yield from recs
 
+    def message_index_count(self, offset: int) -> int | None:
+        """Number of entries of the MessageIndex record at ``offset`` (None if it is damaged)."""
+        try:
+            rec = self._read_record_at(offset)
+        except _Bad:
+            return None
+        if rec is None or rec[0] != OP_MESSAGE_INDEX or len(rec[1]) < 6:
+            return None
+        n = struct.unpack_from("<I", rec[1], 2)[0]
+        if n % 16 or 6 + n > len(rec[1]):
+            return None
+        return n // 16
+
     def lost_counts(self, chunk_start: int) -> dict[int, int] | None:
         """Messages per channel in the chunk at ``chunk_start``, from its message indexes (the
         summary's chunk index, else the MessageIndex records right after the chunk); None if
@@ -499,22 +515,19 @@ class McapFile:
                     return None
             for off in offsets:
                 rec = self._read_record_at(off)
-                if rec is None or rec[0] != OP_MESSAGE_INDEX:
+                n = self.message_index_count(off)
+                if rec is None or n is None:
                     return None
-                b = _Buf(rec[1])
-                cid = b.u16()
-                n = b.u32()
-                if n % 16 or n > len(rec[1]):
-                    return None
-                counts[cid] = counts.get(cid, 0) + n // 16
+                cid = struct.unpack_from("<H", rec[1], 0)[0]
+                counts[cid] = counts.get(cid, 0) + n
         except _Bad:
             return None
         return counts
 
-    def _outer(self, damage: list[str]) -> Iterator[tuple[int, int, memoryview]]:
+    def _outer(self, damage: list[str], start_offset: int | None = None) -> Iterator[tuple[int, int, memoryview]]:
         """(offset, opcode, body) of the data-section records zcut needs, with damage handling."""
         resume = [c.chunk_start_offset for c in self.summary.chunk_indexes] if self.summary else []
-        pos = self.data_start
+        pos = self.data_start if start_offset is None else start_offset
         limit = self.size if self.data_end is None else self.data_end
         while True:
             if pos + 9 > limit:

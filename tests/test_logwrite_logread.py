@@ -200,3 +200,28 @@ def test_real_ros2_ouster_log(real_data):
 def test_ros1_log_is_refused(real_data):
     with pytest.raises(LogFormatError, match=r"^ouster_os1_64_ros1_original.mcap is a ROS 1 log \(message encoding ros1\)"):
         LogReader(real_data / "ouster_os1_64_ros1_original.mcap")
+
+
+def test_start_seeks_through_the_summary(tmp_path, rng):
+    """frames(start=k) jumps to the right chunk (indices and pairing unchanged), with or without
+    the summary."""
+    frames = _frames(rng, 8)
+    p = tmp_path / "eight.mcap"
+    with LogWriter(p, chunk_size=1024) as w:
+        for f in frames:
+            w.write_frame(f)
+    r = LogReader(p)
+    offset, before = r._seek(5)
+    assert offset is not None and before == 5  # one cloud per chunk here
+    for start in range(8):
+        got = list(r.frames(start=start, stop=start + 2))
+        assert [g.index for g in got] == list(range(start, min(start + 2, 8)))
+        for g in got:
+            np.testing.assert_array_equal(g.xyz, frames[g.index].xyz)
+            np.testing.assert_array_equal(g.masks["/zcut/outliers"], frames[g.index].masks["/zcut/outliers"])
+            assert g.intrinsics == frames[g.index].intrinsics
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(p.read_bytes()[:-200])  # no summary: scans from the start, same answer
+    assert [g.index for g in LogReader(cut).frames(start=6)] == [6, 7]
+    with pytest.raises(ValueError, match="need 0 <= start <= stop, got start=3, stop=1"):
+        list(r.frames(start=3, stop=1))
