@@ -12,7 +12,7 @@ class PipelineRunner:
 
     The config is resolved as ``zcut replay`` resolves it: the TOML file if given, else the preset of a
     synthetic log's part kind (``zcut.synth`` metadata), else defaults derived from the image size.
-    The bin stages run without a bin model (skipped with a warning), so the z-cut judges the frame.
+    Without a bin model the bin stages are skipped (with a warning) and the z-cut judges the frame.
 
     Parameters
     ----------
@@ -20,27 +20,29 @@ class PipelineRunner:
         The log's MCAP metadata records (``LogReader.metadata``).
     config_path : path-like, optional
         Pipeline config (TOML).
+    bin_model : replay.binmodel.BinModel, optional
+        Enables the bin stages.
     """
 
-    def __init__(self, metadata: dict[str, dict[str, str]], *, config_path: str | Path | None = None) -> None:
+    def __init__(self, metadata: dict[str, dict[str, str]], *, config_path: str | Path | None = None,
+                 bin_model=None) -> None:
         self.metadata = metadata
         self.config_path = config_path
+        self.bin_model = bin_model
         self.config = None
         self.previous = None
         self.notes: tuple[str, ...] = ()
 
     def _resolve(self, frame) -> None:
         from replay import config as rc
+        from replay.run import synth_info
 
-        synth = self.metadata.get("zcut.synth", {})
-        dist = synth.get("camera_distance_mm")
-        if dist is None and synth.get("camera_distance_m") is not None:
-            dist = float(synth["camera_distance_m"]) * 1000.0
+        part_kind, dist = synth_info(self.metadata)
         intr = frame.intrinsics
         resolved = rc.resolve(
             file_layer=rc.load_toml(self.config_path) if self.config_path else None,
-            part_kind=synth.get("part_kind"),
-            camera_distance_mm=None if dist is None else float(dist),
+            part_kind=part_kind,
+            camera_distance_mm=dist,
             fx=None if intr is None else intr.fx,
             fy=None if intr is None else intr.fy,
             image_shape=frame.shape,
@@ -54,7 +56,7 @@ class PipelineRunner:
 
         if self.config is None:
             self._resolve(frame)
-        result = run_frame(frame, self.config, previous=self.previous)
+        result = run_frame(frame, self.config, bin_model=self.bin_model, previous=self.previous)
         self.previous = result
         return result
 

@@ -49,7 +49,7 @@ from .store import (
 MAX_BODY_BYTES = 8 * 1024 * 1024
 TOKEN_HEADER = "x-zcut-token"
 FRAME_WAIT_S = 300.0
-STATIC_FILES = {"app.js": "text/javascript", "style.css": "text/css"}
+STATIC_FILES = {"app.js": "text/javascript", "worker.js": "text/javascript", "style.css": "text/css"}
 
 
 # --------------------------------------------------------------------------- frame catalog
@@ -400,6 +400,7 @@ def open_session(
     *,
     annotator: str,
     config_path: str | Path | None = None,
+    bin_model=None,
     token: str | None = None,
 ) -> Session:
     """Open the log and the store, resolve the pipeline config and start preparing frames.
@@ -414,7 +415,7 @@ def open_session(
     store = LabelStore(db_path)
     try:
         log = store.add_log(log_path)
-        setup = PipelineRunner(reader.metadata, config_path=config_path)
+        setup = PipelineRunner(reader.metadata, config_path=config_path, bin_model=bin_model)
         catalog = Catalog(frames_iter=lambda: reader.frames(), prepare=setup.prepare_for_page, store=store, log=log,
                           total_hint=reader.n_frames)
         session = Session(log_path=log_path, store=store, log=log, catalog=catalog,

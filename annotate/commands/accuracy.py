@@ -21,6 +21,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="instead: agreement of two annotators (IoU, Cohen's kappa over the pixels both reviewed)")
     p.add_argument("--json", action="store_true", help="print the SPEC §4 JSON object instead of tables")
     p.add_argument("--config", type=Path, default=None, help="pipeline config (TOML) when predictions are computed")
+    p.add_argument("--bin-model", type=Path, default=None, help="bin model (PLY) for the bin stages of the pipeline")
 
 
 def _match(store, log, frame):
@@ -91,7 +92,10 @@ def run(args: argparse.Namespace) -> int:
             print(report_json(rep, indent=None) if args.json else format_agreement_table(rep))
             return _status(reader)
 
-        runner = PipelineRunner(reader.metadata, config_path=args.config)
+        from replay.binmodel import load_bin_model
+
+        model = load_bin_model(args.bin_model) if args.bin_model else None
+        runner = PipelineRunner(reader.metadata, config_path=args.config, bin_model=model)
         results, skipped, computed = [], 0, 0
         for frame in reader.frames():
             valid = (frame.xyz == frame.xyz).all(axis=2)  # finite: NaN != NaN

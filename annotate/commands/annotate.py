@@ -15,6 +15,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-browser", action="store_true", help="do not open a browser")
     p.add_argument("--annotator", default=None, help="your name on the labels (default: the login name)")
     p.add_argument("--config", type=Path, default=None, help="pipeline config (TOML) for the candidates")
+    p.add_argument("--bin-model", type=Path, default=None, help="bin model (PLY) for the bin stages of the pipeline")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -40,7 +41,10 @@ def run(args: argparse.Namespace) -> int:
         sock.close()
         raise ParameterError(f"--port {args.port}: cannot listen on 127.0.0.1: {e.strerror}") from None
     port = sock.getsockname()[1]
-    session = open_session(args.log, db, annotator=annotator, config_path=args.config)
+    from replay.binmodel import load_bin_model
+
+    model = load_bin_model(args.bin_model) if args.bin_model else None
+    session = open_session(args.log, db, annotator=annotator, config_path=args.config, bin_model=model)
     try:
         url = f"http://127.0.0.1:{port}/?token={session.token}"
         print(f"labels: {db}", flush=True)

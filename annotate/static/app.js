@@ -12,51 +12,26 @@ function api(path, opts = {}) {
   return fetch(path, Object.assign({}, opts, { headers }));
 }
 
-// ------------------------------------------------------------------ binary helpers
-async function inflate(u8) {
-  const s = new Blob([u8]).stream().pipeThrough(new DecompressionStream('deflate'));
-  return new Uint8Array(await new Response(s).arrayBuffer());
+async function fetchOk(path) {
+  const r = await api(path);
+  if (!r.ok) throw new Error(`${path}: HTTP ${r.status}`);
+  return r;
 }
-async function deflate(u8) {
-  const s = new Blob([u8]).stream().pipeThrough(new CompressionStream('deflate'));
-  return new Uint8Array(await new Response(s).arrayBuffer());
-}
-function unpackBits(bytes, n) {
-  const out = new Uint8Array(n);
-  const full = n >> 3;
-  for (let b = 0; b < full; b++) {
-    const v = bytes[b];
-    if (v === 0) continue;
-    const o = b << 3;
-    out[o] = v >> 7; out[o + 1] = (v >> 6) & 1; out[o + 2] = (v >> 5) & 1; out[o + 3] = (v >> 4) & 1;
-    out[o + 4] = (v >> 3) & 1; out[o + 5] = (v >> 2) & 1; out[o + 6] = (v >> 1) & 1; out[o + 7] = v & 1;
-  }
-  for (let i = full << 3; i < n; i++) out[i] = (bytes[i >> 3] >> (7 - (i & 7))) & 1;
-  return out;
-}
-function packBits(a) {
-  const n = a.length, out = new Uint8Array((n + 7) >> 3);
-  for (let i = 0; i < n; i++) if (a[i]) out[i >> 3] |= 128 >> (i & 7);
-  return out;
-}
-function b64(u8) {
-  let s = '';
-  for (let i = 0; i < u8.length; i += 0x8000) s += String.fromCharCode.apply(null, u8.subarray(i, i + 0x8000));
-  return btoa(s);
-}
-async function parseBundle(buf) {
-  const dv = new DataView(buf);
-  const n = dv.getUint32(0, true);
-  const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
-  const base = 4 + n, npx = header.height * header.width, out = {};
-  await Promise.all(header.sections.map(async (s) => {
-    const raw = await inflate(new Uint8Array(buf, base + s.offset, s.length));
-    if (s.kind === 'bits') out[s.name] = unpackBits(raw, npx);
-    else if (s.dtype === 'uint8') out[s.name] = raw;
-    else if (s.dtype === 'uint16') out[s.name] = new Uint16Array(raw.buffer, raw.byteOffset, npx);
-    else out[s.name] = new Uint32Array(raw.buffer, raw.byteOffset, npx);
-  }));
-  return { header, arrays: out };
+
+// ------------------------------------------------------------------ the worker (fetch, decode, pack)
+const worker = new Worker(`/static/worker.js?token=${encodeURIComponent(TOKEN)}`);
+worker.postMessage({ type: 'token', token: TOKEN });
+const pending = new Map();
+let nextId = 1;
+worker.onmessage = (e) => {
+  const m = e.data, p = pending.get(m.id);
+  if (!p) return;
+  pending.delete(m.id);
+  if (m.ok) p.resolve(m); else p.reject(new Error(m.error));
+};
+function call(msg, transfer = []) {
+  const id = nextId++;
+  return new Promise((resolve, reject) => { pending.set(id, { resolve, reject }); worker.postMessage({ ...msg, id }, transfer); });
 }
 
 // ------------------------------------------------------------------ state
@@ -68,7 +43,7 @@ const state = {
   zoom: 1, px: 0, py: 0, fitted: false,
 };
 const cache = new Map();  // index -> Promise<frame>
-const CACHE_RADIUS = 3;
+const CACHE_RADIUS = 2;
 window.zcut = { switchTimes: [], acks: [], errors: [] };
 
 const COL_L = rgba(255, 30, 60, 200), COL_Z = rgba(255, 170, 0, 120), COL_S = rgba(40, 150, 255, 120);
@@ -76,40 +51,40 @@ const COL_ZS = rgba(190, 90, 255, 140), COL_UNREV = rgba(0, 0, 0, 150);
 function rgba(r, g, b, a) { return ((a << 24) | (b << 16) | (g << 8) | r) >>> 0; }
 
 // ------------------------------------------------------------------ loading frames
-async function fetchOk(path) {
-  const r = await api(path);
-  if (!r.ok) throw new Error(`${path}: HTTP ${r.status}`);
-  return r;
-}
-async function fetchBitmap(path) { return createImageBitmap(await (await fetchOk(path)).blob()); }
+function flags() { return { showL: state.showL, showZ: state.showZ, showS: state.showS }; }
+function sameFlags(a, b) { return a && a.showL === b.showL && a.showZ === b.showZ && a.showS === b.showS; }
+function viewKind() { return state.showH ? 'height' : 'rgb'; }
 
-async function loadLabel(fd) {
-  const buf = await (await fetchOk(`/api/frames/${fd.index}/label?annotator=${encodeURIComponent(state.annotator)}`)).arrayBuffer();
-  const { header, arrays } = await parseBundle(buf);
-  fd.rev = header.revision;
-  const npx = fd.W * fd.H;
-  fd.L = arrays.outliers || new Uint8Array(npx);
-  fd.R = arrays.reviewed || new Uint8Array(npx);
-  fd.hasR = fd.rev > 0 && fd.R.some((v) => v);
+function setLabel(fd, lab) {
+  fd.rev = lab.rev; fd.L = lab.L; fd.R = lab.R; fd.hasR = lab.hasR;
   fd.committedL = fd.L.slice(); fd.committedR = fd.R.slice();
   fd.undo = []; fd.redo = []; fd.dirty = false; fd.conflict = 0;
 }
 
+async function loadLabel(fd) {
+  setLabel(fd, await call({ type: 'label', index: fd.index, annotator: state.annotator, W: fd.W, H: fd.H }));
+  fd.ovFlags = null;
+}
+
 function loadFrame(index) {
   if (cache.has(index)) return cache.get(index);
+  const kind = viewKind();
   const p = (async () => {
-    const [bundleBuf, rgbBmp, heightBmp] = await Promise.all([
-      fetchOk(`/api/frames/${index}/bundle`).then((r) => r.arrayBuffer()),
-      fetchBitmap(`/api/frames/${index}/image/rgb`),
-      fetchBitmap(`/api/frames/${index}/image/height`),
-    ]);
-    const { header, arrays } = await parseBundle(bundleBuf);
+    const m = await call({ type: 'frame', index, annotator: state.annotator, flags: flags(), images: [kind] });
+    const h = m.header;
     const fd = {
-      index, stamp: header.stamp_ns, W: header.width, H: header.height, header,
-      valid: arrays.valid, zIds: arrays.zcut, sIds: arrays.sor, rgbBmp, heightBmp,
-      saving: false, pendingSave: false,
+      index, stamp: h.stamp_ns, W: h.width, H: h.height, header: h,
+      valid: m.valid, zIds: m.zIds, sIds: m.sIds, bmp: { [kind]: m.bitmaps[0] },
+      saving: false, pendingSave: false, annotator: state.annotator,
     };
-    await loadLabel(fd);
+    setLabel(fd, m);
+    fd.ovCanvas = document.createElement('canvas');
+    fd.ovCanvas.width = fd.W; fd.ovCanvas.height = fd.H;
+    fd.octx = fd.ovCanvas.getContext('2d');
+    fd.ovImg = new ImageData(m.ov, fd.W, fd.H);
+    fd.ov32 = new Uint32Array(m.ov.buffer);
+    fd.octx.putImageData(fd.ovImg, 0, 0);
+    fd.ovFlags = m.ovFlagsUsed || flags();
     return fd;
   })();
   cache.set(index, p);
@@ -117,30 +92,36 @@ function loadFrame(index) {
   return p;
 }
 
+function bitmapFor(fd) {
+  const kind = viewKind();
+  if (fd.bmp[kind]) return fd.bmp[kind];
+  if (!fd.bmpLoading) {
+    fd.bmpLoading = call({ type: 'image', index: fd.index, kind }).then((m) => {
+      fd.bmp[kind] = m.bitmap; fd.bmpLoading = null; requestDraw();
+    }, (e) => { fd.bmpLoading = null; showError(String(e)); });
+  }
+  return fd.bmp.rgb || fd.bmp.height;
+}
+
 function evict(center) {
   for (const [i, p] of cache) {
     if (Math.abs(i - center) <= CACHE_RADIUS) continue;
-    p.then((fd) => { if (!fd.dirty && !fd.saving) { cache.delete(i); fd.rgbBmp.close(); fd.heightBmp.close(); } }, () => {});
+    p.then((fd) => {
+      if (fd.dirty || fd.saving || state.cur === fd) return;
+      cache.delete(i);
+      for (const b of Object.values(fd.bmp)) b.close();
+      fd.ovCanvas.width = fd.ovCanvas.height = 0;
+    }, () => {});
   }
 }
 
 // ------------------------------------------------------------------ overlay + drawing
 const canvas = $('canvas'), ctx = canvas.getContext('2d');
-const overlay = document.createElement('canvas');
-const octx = overlay.getContext('2d');
-let ovImg = null, ov32 = null;
-
-function ensureOverlay(fd) {
-  if (overlay.width !== fd.W || overlay.height !== fd.H || !ovImg) {
-    overlay.width = fd.W; overlay.height = fd.H;
-    ovImg = octx.createImageData(fd.W, fd.H);
-    ov32 = new Uint32Array(ovImg.data.buffer);
-  }
-}
 
 function renderOverlay(x0 = 0, y0 = 0, x1 = null, y1 = null) {
   const fd = state.cur; if (!fd) return;
-  const W = fd.W;
+  const W = fd.W, ov32 = fd.ov32;
+  if (x1 === null && y1 === null && x0 === 0 && y0 === 0) fd.ovFlags = flags();
   x1 = x1 === null ? fd.W : Math.min(x1, fd.W); y1 = y1 === null ? fd.H : Math.min(y1, fd.H);
   x0 = Math.max(0, x0 | 0); y0 = Math.max(0, y0 | 0); x1 = Math.ceil(x1); y1 = Math.ceil(y1);
   if (x1 <= x0 || y1 <= y0) return;
@@ -159,7 +140,7 @@ function renderOverlay(x0 = 0, y0 = 0, x1 = null, y1 = null) {
       ov32[i] = c;
     }
   }
-  octx.putImageData(ovImg, 0, 0, x0, y0, x1 - x0, y1 - y0);
+  fd.octx.putImageData(fd.ovImg, 0, 0, x0, y0, x1 - x0, y1 - y0);
 }
 
 let drawQueued = false;
@@ -180,9 +161,9 @@ function draw() {
   const z = state.zoom * dpr;
   ctx.setTransform(z, 0, 0, z, state.px * dpr, state.py * dpr);
   ctx.imageSmoothingEnabled = state.zoom < 1;
-  ctx.drawImage(state.showH ? fd.heightBmp : fd.rgbBmp, 0, 0);
+  ctx.drawImage(bitmapFor(fd), 0, 0);
   ctx.imageSmoothingEnabled = false;
-  ctx.drawImage(overlay, 0, 0);
+  ctx.drawImage(fd.ovCanvas, 0, 0);
   // tool previews (image coordinates)
   ctx.lineWidth = 1.5 / state.zoom; ctx.strokeStyle = '#fff';
   if (drag && drag.kind === 'box') {
@@ -216,8 +197,7 @@ async function goTo(index, t0 = performance.now()) {
   if (my !== navToken) return;
   const sameShape = state.cur && state.cur.W === fd.W && state.cur.H === fd.H;
   state.cur = fd;
-  ensureOverlay(fd);
-  renderOverlay();
+  if (!sameFlags(fd.ovFlags, flags())) renderOverlay();
   if (!sameShape || !state.fitted) { fit(); state.fitted = true; }
   draw();
   updateInfo();
@@ -226,11 +206,14 @@ async function goTo(index, t0 = performance.now()) {
     window.zcut.shown = index;
   });
   history.replaceState(null, '', `?token=${encodeURIComponent(TOKEN)}#${index}`);
-  for (const d of [1, -1, 2, -2]) {
-    const j = index + d;
-    if (j >= 0 && (!state.total || j < state.total)) loadFrame(j).catch(() => {});
-  }
   evict(index);
+  (async () => {  // prefetch the neighbours one at a time, the next one first
+    for (const d of [1, -1, 2, -2]) {
+      const j = index + d;
+      if (my !== navToken) return;
+      if (j >= 0 && (!state.total || j < state.total)) { try { await loadFrame(j); } catch (e) { /* shown on use */ } }
+    }
+  })();
 }
 
 function updateInfo() {
@@ -421,9 +404,10 @@ async function saveNow(fd) {
   setSaveState('saving…', 'saving');
   let retry = false;
   try {
-    const [l, r] = await Promise.all([deflate(packBits(fd.L)), deflate(packBits(fd.R))]);
-    const body = JSON.stringify({ annotator: state.annotator, base_revision: fd.rev, height: fd.H, width: fd.W,
-                                  outliers: b64(l), reviewed: b64(r) });
+    const L = fd.L.slice(), R = fd.R.slice();
+    const packed = await call({ type: 'pack', L, R }, [L.buffer, R.buffer]);
+    const body = JSON.stringify({ annotator: fd.annotator, base_revision: fd.rev, height: fd.H, width: fd.W,
+                                  outliers: packed.outliers, reviewed: packed.reviewed });
     const resp = await api(`/api/frames/${fd.index}/label`, { method: 'PUT', headers: { 'Content-Type': 'application/json' }, body });
     if (resp.ok) {
       const j = await resp.json();
@@ -469,6 +453,7 @@ function toImage(e) {
   const r = canvas.getBoundingClientRect();
   return { x: (e.clientX - r.left - state.px) / state.zoom, y: (e.clientY - r.top - state.py) / state.zoom };
 }
+window.zcut.goTo = (i) => goTo(i);
 window.zcut.imageToClient = (x, y) => {
   const r = canvas.getBoundingClientRect();
   return { x: r.left + state.px + (x + 0.5) * state.zoom, y: r.top + state.py + (y + 0.5) * state.zoom };
@@ -613,7 +598,9 @@ $('annotator').onchange = async (e) => {
   if (!name || name === state.annotator) { e.target.value = state.annotator; return; }
   for (const p of cache.values()) { try { const fd = await p; await saveNow(fd); } catch (err) { /* shown */ } }
   state.annotator = name; localStorage.setItem('zcut.annotator', name);
-  for (const p of cache.values()) { try { await loadLabel(await p); } catch (err) { /* shown */ } }
+  for (const p of cache.values()) {
+    try { const fd = await p; fd.annotator = name; await loadLabel(fd); } catch (err) { /* shown */ }
+  }
   renderOverlay(); requestDraw(); await refreshFrames(); updateInfo();
 };
 

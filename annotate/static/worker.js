@@ -1,0 +1,127 @@
+// zcut labelling page: loading and packing off the main thread, so that a frame switch only draws.
+// Messages in:  {id, type: 'frame', index, annotator, flags, images: ['rgb'|'height', ...]}
+//               {id, type: 'label', index, annotator, W, H}
+//               {id, type: 'overlay', W, H, flags, L, R, valid, zIds, sIds, hasR}  (buffers are copies)
+//               {id, type: 'pack', L, R}
+// Messages out: {id, ok: true, ...result} or {id, ok: false, error}
+'use strict';
+
+let TOKEN = null;
+
+function api(path) { return fetch(path, { headers: { 'X-Zcut-Token': TOKEN } }); }
+async function fetchOk(path) {
+  const r = await api(path);
+  if (!r.ok) throw new Error(`${path}: HTTP ${r.status}`);
+  return r;
+}
+async function inflate(u8) {
+  const s = new Blob([u8]).stream().pipeThrough(new DecompressionStream('deflate'));
+  return new Uint8Array(await new Response(s).arrayBuffer());
+}
+async function deflate(u8) {
+  const s = new Blob([u8]).stream().pipeThrough(new CompressionStream('deflate'));
+  return new Uint8Array(await new Response(s).arrayBuffer());
+}
+function unpackBits(bytes, n) {
+  const out = new Uint8Array(n);
+  const full = n >> 3;
+  for (let b = 0; b < full; b++) {
+    const v = bytes[b];
+    if (v === 0) continue;
+    const o = b << 3;
+    out[o] = v >> 7; out[o + 1] = (v >> 6) & 1; out[o + 2] = (v >> 5) & 1; out[o + 3] = (v >> 4) & 1;
+    out[o + 4] = (v >> 3) & 1; out[o + 5] = (v >> 2) & 1; out[o + 6] = (v >> 1) & 1; out[o + 7] = v & 1;
+  }
+  for (let i = full << 3; i < n; i++) out[i] = (bytes[i >> 3] >> (7 - (i & 7))) & 1;
+  return out;
+}
+function packBits(a) {
+  const n = a.length, out = new Uint8Array((n + 7) >> 3);
+  for (let i = 0; i < n; i++) if (a[i]) out[i >> 3] |= 128 >> (i & 7);
+  return out;
+}
+function b64(u8) {
+  let s = '';
+  for (let i = 0; i < u8.length; i += 0x8000) s += String.fromCharCode.apply(null, u8.subarray(i, i + 0x8000));
+  return btoa(s);
+}
+async function parseBundle(buf) {
+  const dv = new DataView(buf);
+  const n = dv.getUint32(0, true);
+  const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
+  const base = 4 + n, npx = header.height * header.width, out = {};
+  await Promise.all(header.sections.map(async (s) => {
+    const raw = await inflate(new Uint8Array(buf, base + s.offset, s.length));
+    if (s.kind === 'bits') out[s.name] = unpackBits(raw, npx);
+    else if (s.dtype === 'uint8') out[s.name] = raw;
+    else if (s.dtype === 'uint16') out[s.name] = new Uint16Array(raw.buffer, raw.byteOffset, npx);
+    else out[s.name] = new Uint32Array(raw.buffer, raw.byteOffset, npx);
+  }));
+  return { header, arrays: out };
+}
+
+// Overlay colours (RGBA little endian in a Uint32Array); the same function runs on the main thread.
+function rgba(r, g, b, a) { return ((a << 24) | (b << 16) | (g << 8) | r) >>> 0; }
+const COL_L = rgba(255, 30, 60, 200), COL_Z = rgba(255, 170, 0, 120), COL_S = rgba(40, 150, 255, 120);
+const COL_ZS = rgba(190, 90, 255, 140), COL_UNREV = rgba(0, 0, 0, 150);
+function renderOverlay(ov32, W, H, f, L, R, valid, zIds, sIds, hasR) {
+  for (let i = 0, n = W * H; i < n; i++) {
+    let c = 0;
+    if (f.showL && L[i]) c = COL_L;
+    else {
+      const z = f.showZ && zIds[i] !== 0, s = f.showS && sIds[i] !== 0;
+      if (z) c = s ? COL_ZS : COL_Z; else if (s) c = COL_S;
+      else if (hasR && valid[i] && !R[i]) c = COL_UNREV;
+    }
+    ov32[i] = c;
+  }
+}
+function anyTrue(a) { for (let i = 0; i < a.length; i++) if (a[i]) return true; return false; }
+
+async function loadLabel(index, annotator, npx) {
+  const r = await fetchOk(`/api/frames/${index}/label?annotator=${encodeURIComponent(annotator)}`);
+  const { header, arrays } = await parseBundle(await r.arrayBuffer());
+  const L = arrays.outliers || new Uint8Array(npx), R = arrays.reviewed || new Uint8Array(npx);
+  return { rev: header.revision, L, R, hasR: header.revision > 0 && anyTrue(R) };
+}
+
+async function handle(m) {
+  if (m.type === 'frame') {
+    const images = m.images.map((k) => fetchOk(`/api/frames/${m.index}/image/${k}`).then((r) => r.blob()).then((b) => createImageBitmap(b)));
+    const bundle = await (await fetchOk(`/api/frames/${m.index}/bundle`)).arrayBuffer();
+    const { header, arrays } = await parseBundle(bundle);
+    const npx = header.width * header.height;
+    const lab = await loadLabel(m.index, m.annotator, npx);
+    const ov = new Uint8ClampedArray(npx * 4);
+    renderOverlay(new Uint32Array(ov.buffer), header.width, header.height, m.flags, lab.L, lab.R, arrays.valid,
+                  arrays.zcut, arrays.sor, lab.hasR);
+    const bitmaps = await Promise.all(images);
+    const res = { header, valid: arrays.valid, zIds: arrays.zcut, sIds: arrays.sor, ...lab, ov, bitmaps };
+    const transfer = [arrays.valid.buffer, arrays.zcut.buffer, arrays.sor.buffer, lab.L.buffer, lab.R.buffer, ov.buffer, ...bitmaps];
+    return [res, [...new Set(transfer)]];
+  }
+  if (m.type === 'image') {
+    const bmp = await createImageBitmap(await (await fetchOk(`/api/frames/${m.index}/image/${m.kind}`)).blob());
+    return [{ bitmap: bmp }, [bmp]];
+  }
+  if (m.type === 'label') {
+    const lab = await loadLabel(m.index, m.annotator, m.W * m.H);
+    return [lab, [lab.L.buffer, lab.R.buffer]];
+  }
+  if (m.type === 'pack') {
+    const [l, r] = await Promise.all([deflate(packBits(m.L)), deflate(packBits(m.R))]);
+    return [{ outliers: b64(l), reviewed: b64(r) }, []];
+  }
+  throw new Error(`unknown message ${m.type}`);
+}
+
+self.onmessage = async (e) => {
+  const m = e.data;
+  if (m.type === 'token') { TOKEN = m.token; return; }
+  try {
+    const [res, transfer] = await handle(m);
+    self.postMessage({ id: m.id, ok: true, ...res }, transfer);
+  } catch (err) {
+    self.postMessage({ id: m.id, ok: false, error: String(err) });
+  }
+};

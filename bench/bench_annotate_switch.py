@@ -1,0 +1,136 @@
+"""Frame switch time of the labelling page at 1920 x 1200 in headless chromium.
+
+Synthesises a small full-resolution log (or takes one), serves it with ``zcut annotate``, and drives
+Debian's chromium with Playwright. The page measures each switch itself with ``performance.now()``:
+from the navigation key event (``event.timeStamp``) to the animation frame after the new frame was
+drawn. Two cases:
+
+- ``next``: the → key with a dwell of ``--dwell`` ms on each frame, as an annotator works (the page
+  has prefetched the neighbours meanwhile);
+- ``cold``: jumps to frames not prefetched (network + decode of the candidates included).
+
+Prints p50 / p95 against the 150 ms target.
+
+    .venv/bin/python bench/bench_annotate_switch.py [--log LOG.mcap] [--frames 8] [--switches 40]
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+TARGET_MS = 150.0
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run", "--disable-quic"]
+
+
+def start_server(log: Path, db: Path) -> tuple[subprocess.Popen, str, str]:
+    cmd = [sys.executable, "-m", "replay.cli", "annotate", str(log), "--db", str(db), "--port", "0", "--no-browser",
+           "--annotator", "bench"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    for line in proc.stdout:
+        m = re.match(r"(http://127\.0\.0\.1:\d+)/\?token=(\S+)", line.strip())
+        if m:
+            return proc, m.group(1), m.group(2)
+    raise SystemExit(f"server did not start (exit {proc.wait()})")
+
+
+def wait_prepared(base: str, token: str) -> float:
+    import httpx
+
+    t0 = time.perf_counter()
+    while True:
+        try:
+            j = httpx.get(f"{base}/api/session", headers={"X-Zcut-Token": token}, timeout=10).json()
+            if j["done"]:
+                if j["error"]:
+                    raise SystemExit(f"preparing frames failed: {j['error']}")
+                return time.perf_counter() - t0
+        except httpx.TransportError:
+            pass
+        time.sleep(0.5)
+
+
+def stats(name: str, ms: list[float]) -> None:
+    a = np.asarray(ms)
+    p50, p95 = np.percentile(a, [50, 95])
+    print(f"{name:>5}: n={a.size:3d}  p50 {p50:6.1f} ms  p95 {p95:6.1f} ms  max {a.max():6.1f} ms  "
+          f"p95/target {p95 / TARGET_MS:.2f}  ({'meets' if p95 <= TARGET_MS else 'misses'} the {TARGET_MS:.0f} ms target)")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--log", type=Path, default=None, help="a log to serve (default: synthesise 1920x1200 spheres)")
+    ap.add_argument("--frames", type=int, default=8)
+    ap.add_argument("--switches", type=int, default=40)
+    ap.add_argument("--dwell", type=float, default=600.0, help="ms spent on a frame before the next key")
+    ap.add_argument("--viewport", default="1920x1080")
+    args = ap.parse_args()
+
+    from playwright.sync_api import sync_playwright
+
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        log = args.log
+        if log is None:
+            from replay.synth.log import write_synthetic_log
+
+            log = tmp / "bench.mcap"
+            t0 = time.perf_counter()
+            write_synthetic_log(log, kind="spheres", frames=args.frames, seed=7, size=(1200, 1920))
+            print(f"synthesised {args.frames} frames of 1920x1200 in {time.perf_counter() - t0:.1f} s")
+        proc, base, token = start_server(log, tmp / "labels.sqlite")
+        try:
+            t_prep = wait_prepared(base, token)
+            print(f"server prepared the candidates in {t_prep:.1f} s")
+            vw, vh = (int(v) for v in args.viewport.split("x"))
+            with sync_playwright() as p:
+                browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
+                page = browser.new_page(viewport={"width": vw, "height": vh})
+                page.goto(f"{base}/?token={token}")
+                page.wait_for_function("window.zcut && window.zcut.ready === true", timeout=120_000)
+                st = page.evaluate("window.zcut.state()")
+                print(f"frame {st['W']}x{st['H']} in a {vw}x{vh} viewport")
+                n_frames = page.evaluate("document.querySelectorAll('#framelist li').length")
+
+                def switch(action) -> float:
+                    before = page.evaluate("window.zcut.switchTimes.length")
+                    action()
+                    page.wait_for_function(f"window.zcut.switchTimes.length > {before}", timeout=60_000)
+                    return page.evaluate("window.zcut.switchTimes[window.zcut.switchTimes.length - 1]")
+
+                nxt = []
+                direction = 1
+                for _ in range(args.switches):
+                    cur = page.evaluate("window.zcut.state().index")
+                    if not (0 <= cur + direction < n_frames):
+                        direction = -direction
+                    page.wait_for_timeout(args.dwell)
+                    nxt.append(switch(lambda: page.keyboard.press("ArrowRight" if direction > 0 else "ArrowLeft")))
+                cold = []
+                if n_frames >= 8:
+                    for k in range(max(4, args.switches // 4)):
+                        # jump across the cache radius: never prefetched
+                        cur = page.evaluate("window.zcut.state().index")
+                        target = (cur + 4) % n_frames if cur + 4 < n_frames else cur - 4
+                        page.wait_for_timeout(args.dwell)
+                        cold.append(switch(lambda t=target: page.evaluate(f"window.zcut.goTo({t})")))
+                browser.close()
+        finally:
+            proc.terminate()
+            proc.wait(timeout=30)
+    stats("next", nxt)
+    if cold:
+        stats("cold", cold)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
