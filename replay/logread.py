@@ -58,6 +58,7 @@ class TopicInfo:
     encoding: str | None = None  # Image encoding of the first message
     fields: tuple[str, ...] = ()  # PointCloud2 field names of the first message
     channel_ids: list[int] = field(default_factory=list)
+    error: str | None = None  # why the first message could not be decoded
 
 
 def _ns(topic: str) -> str:
@@ -134,6 +135,7 @@ def _peek(
                     break
     return firsts, damage
 
+
 @dataclass
 class LogInfo:
     """What a log holds, before zcut chooses topics (see :func:`inspect_log`)."""
@@ -194,6 +196,8 @@ def inspect_log(path: str | os.PathLike) -> LogInfo:
             info.height, info.width, info.encoding = got.height, got.width, got.encoding
         elif isinstance(got, rm.CameraInfoMsg):
             info.height, info.width = got.height, got.width
+        elif isinstance(got, LogFormatError):
+            info.error = str(got)
     return LogInfo(
         path, mf.profile, mf.library, topics, metadata, start_ns, end_ns,
         counts is not None, notes, peek_damage, schemas, channels,
@@ -274,7 +278,7 @@ class LogReader:
                     f"{name} has no PointCloud2 topic '{cloud_topic}' (PointCloud2 topics: {have})"
                 )
             if t.height is None:
-                raise LogFormatError(f"{name}: topic {cloud_topic} has no readable message")
+                raise LogFormatError(t.error or f"{name}: topic {cloud_topic} has no readable message")
             if t.height <= 1:
                 raise LogFormatError(
                     f"{name}: topic {cloud_topic} holds unorganized clouds (height {t.height}, "
@@ -299,7 +303,7 @@ class LogReader:
                     f"{name} has no organized PointCloud2: "
                     + ", ".join(
                         f"{t.topic} has height {t.height} (width {t.width})" if t.height is not None
-                        else f"{t.topic} has no readable message"
+                        else f"{t.topic} has no readable message" + (f" ({t.error})" if t.error else "")
                         for t in clouds
                     )
                     + "; zcut needs organized clouds (height > 1)"

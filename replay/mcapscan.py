@@ -496,7 +496,8 @@ class McapFile:
         counts: dict[int, int] = {}
         try:
             offsets: list[int] = []
-            ci = next((c for c in self.summary.chunk_indexes if c.chunk_start_offset == chunk_start), None) if self.summary else None
+            known = self.summary.chunk_indexes if self.summary else []
+            ci = next((c for c in known if c.chunk_start_offset == chunk_start), None)
             if ci is not None:
                 offsets = sorted(ci.message_index_offsets.values())
             else:

@@ -208,7 +208,8 @@ def read_pcd(path: str | os.PathLike) -> Cloud:
         off = 0
         for u, f in zip(uniq, formats, strict=True):
             k = f.itemsize * n_pts
-            arr[u] = np.frombuffer(plain, dtype=f.base, count=n_pts * (f.itemsize // f.base.itemsize), offset=off).reshape(arr[u].shape)
+            count = n_pts * (f.itemsize // f.base.itemsize)
+            arr[u] = np.frombuffer(plain, dtype=f.base, count=count, offset=off).reshape(arr[u].shape)
             off += k
     else:
         raise LogFormatError(f"{name}: unknown PCD DATA '{data_kind}' (ascii, binary, binary_compressed)")

@@ -243,4 +243,6 @@ def read_ply(path: str | os.PathLike, *, shape: tuple[int, int] | None = None) -
     xyz = xyz.reshape(gshape[0], gshape[1], 3)
     bad = ~np.isfinite(xyz).all(axis=2) | ~xyz.any(axis=2)
     xyz[bad] = np.nan
-    return Cloud(np.ascontiguousarray(xyz), None if rgb is None else np.ascontiguousarray(rgb.reshape(gshape[0], gshape[1], 3)))
+    if rgb is not None:
+        rgb = np.ascontiguousarray(rgb.reshape(gshape[0], gshape[1], 3))
+    return Cloud(np.ascontiguousarray(xyz), rgb)

@@ -266,15 +266,25 @@ def test_ply_from_open3d_with_explicit_shape(tmp_path, crop):
         read_ply(p, shape=(30, 46))
 
 
+_PLY_XY = b"ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+
+
+def _PLY_GRID(rows: int, cols: int) -> bytes:  # noqa: N802 - reads like a constant in the table
+    return (
+        f"ply\nformat binary_little_endian 1.0\nobj_info num_cols {cols}\nobj_info num_rows {rows}\n"
+        "element vertex 4\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+    ).encode()
+
+
 @pytest.mark.parametrize(
     "text,match",
     [
-        (b"ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\nproperty float y\nend_header\n" + bytes(32), "no 'z' property"),
+        (_PLY_XY + b"end_header\n" + bytes(32), "no 'z' property"),
         (b"ply\nformat ascii 2.0\nend_header\n", "format version 2.0"),
         (b"solid cube\n", "not a PLY file"),
-        (b"ply\nformat binary_little_endian 1.0\nobj_info num_cols 2\nobj_info num_rows 2\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nend_header\n" + bytes(20), "needs 48 \\(truncated\\)"),
-        (b"ply\nformat binary_little_endian 1.0\nobj_info num_cols 4\nobj_info num_rows 1\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nend_header\n" + bytes(48), "not organized"),
-        (b"ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nproperty list uchar int idx\nend_header\n", "list property"),
+        (_PLY_GRID(2, 2) + bytes(20), "needs 48 \\(truncated\\)"),
+        (_PLY_GRID(1, 4) + bytes(48), "not organized"),
+        (_PLY_XY + b"property float z\nproperty list uchar int idx\nend_header\n", "list property"),
     ],
 )
 def test_bad_ply(tmp_path, text, match):

@@ -21,7 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="header stamp of the first frame, seconds since the epoch (default 0)",
     )
     parser.add_argument("--period", type=float, default=1.0, metavar="SECONDS", help="time between frames (default 1)")
-    parser.add_argument("--frame-id", default="camera_optical_frame", help="header frame_id (default camera_optical_frame)")
+    parser.add_argument(
+        "--frame-id", default="camera_optical_frame", help="header frame_id (default camera_optical_frame)"
+    )
     parser.add_argument(
         "--shape", metavar="HxW",
         help="grid shape for PLY files without organization info (e.g. 1200x1920)",
