@@ -283,21 +283,17 @@ def test_find_clusters_consistency(seed: int) -> None:
         for i, level in enumerate(res.levels, start=1):
             assert 1 <= level <= K
             member = res.clusters == i
-            comps = []
+            seed_px = tuple(np.argwhere(member)[0])
+            comps = []  # the component holding the cluster's first pixel in the cuts L-1, L, L+1
             for k in (level - 1, level, level + 1):
-                lab, _ = ndimage.label(zt >= z_max - k * step_of(p), structure=structure)
-                comp = lab == lab[np.argwhere(member)[0][0], np.argwhere(member)[0][1]]
-                comps.append(comp if lab[tuple(np.argwhere(member)[0])] else np.zeros_like(comp))
+                lab, _ = ndimage.label(zt >= z_max - k * p["step"], structure=structure)
+                comps.append((lab == lab[seed_px]) & (lab[seed_px] > 0))
             assert np.array_equal(comps[1], comps[2])
             assert np.array_equal(comps[1] & np.isfinite(z), member)
             assert comps[1].sum() < p["max_area"]
             assert level == 1 or not np.array_equal(comps[0], comps[1])
             checked += 1
     assert checked > 0
-
-
-def step_of(p: dict) -> float:
-    return p["step"]
 
 
 def test_find_clusters_without_a_max_and_without_valid_pixels() -> None:

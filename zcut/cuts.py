@@ -17,6 +17,16 @@ Notation (SPEC §1): ``z~`` is the height with invalid pixels set to ``z_min``; 
 ``k`` is ``S_k = {z~ >= z_max - k * step}`` with the threshold computed in float64 with an integer
 ``k``; ``K = floor(max_depth / step + 1e-9)``. The thresholds never increase with ``k`` (float
 rounding is monotone), so the cuts are nested and a pixel is in ``S_k`` iff ``q <= k``.
+
+The tree: a component (node) is born at the level ``b`` where it last changed (a pixel joined or
+two components merged) and lives unchanged until the level ``e`` where it next changes
+(``e = K + 2`` if never up to ``K + 1``). The loop of SPEC §1 tags it iff it is a component of
+both ``S_k`` and ``S_{k+1}`` for some ``1 <= k <= K``, i.e. iff ``max(b, 1) <= min(K, e - 2)``, and
+it has fewer than ``max_area`` pixels. A pixel is an outlier iff some node holding it is tagged
+(and it is valid). ``q`` is found from the guess ``floor((z_max - z~) / step)`` corrected with the
+exact comparison. With ``Q`` the level of ``z_min`` (the deepest level of any pixel), every level
+past ``Q + 1`` changes nothing and ``K`` can be replaced by ``min(K, Q + 1)``: huge ``max_depth /
+step`` ratios cost nothing.
 """
 
 from __future__ import annotations
@@ -526,7 +536,7 @@ def _tree(z: np.ndarray, valid: np.ndarray, z_min: float, z_max: float, step: fl
     """Padded pixel levels and the component tree of the cuts 0 .. min(K, Q + 1) + 1."""
     K = min(K, _K_CAP)
     q_min = int(_qlevel(z_min, z_max, step, np.int64(K + 2)))  # the deepest level of any pixel
-    k_eff = min(K, q_min + 1)  # levels past q_min + 1 change nothing (see module notes)
+    k_eff = min(K, q_min + 1)  # levels past q_min + 1 change nothing (module notes)
     H, W = z.shape
     if (H + 2) * (W + 2) >= 2**31 - 1:
         raise InputShapeError(f"height is too large for zcut (int32 indices), got {describe_array(z)}")
