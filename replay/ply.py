@@ -10,7 +10,13 @@ this order, and fails with a one-line error naming the file otherwise:
      vertex_indices`` (PCL's organized writer: a cell lists 0 or 1 vertex; empty cells are NaN).
 2. an explicit ``shape=(H, W)`` from the caller (``zcut record --shape HxW``) when the file has
    ``element vertex H*W`` and no organization info (e.g. a Zivid or MATLAB export that kept every
-   point in row-major order).
+   point in row-major order);
+3. PCL's ``element camera`` (written by ``pcl::io::savePLYFile`` with its camera on): its
+   ``viewportx`` / ``viewporty`` are W / H, again with every cell a vertex or a range_grid.
+
+Elements after the vertices with scalar properties only (like ``camera``) are read or skipped;
+reading stops at the first element with a list property other than ``range_grid``. MATLAB's
+``pcwrite`` cannot be used: it drops NaN points from PLY files (save PCD from MATLAB instead).
 
 Formats: ``ascii``, ``binary_little_endian`` and ``binary_big_endian`` 1.0. The vertex element
 must come first (elements before it must be empty); it needs ``x y z`` (float/double), and may
@@ -119,6 +125,30 @@ def _grid_from_lists(buf: np.ndarray, start: int, n_cells: int, cnt_size: int, i
     return pos
 
 
+def _ascii_table(lines: list[bytes], el: _Element, name: str) -> dict[str, np.ndarray]:
+    """Columns of an ascii element with scalar properties, in their declared types."""
+    try:
+        table = np.array(b" ".join(lines).split()).astype(np.float64)
+    except ValueError as e:
+        raise LogFormatError(f"{name}: PLY ascii '{el.name}' data has a non-number ({e})") from e
+    n = len(el.props)
+    if table.size != len(lines) * n:
+        raise LogFormatError(
+            f"{name}: PLY ascii '{el.name}' data has {table.size} values, needs {len(lines) * n}"
+        )
+    table = table.reshape(len(lines), n)
+    out = {}
+    for i, p in enumerate(el.props):
+        t = np.dtype(_TYPES[p[1]])
+        col = table[:, i]
+        if t.kind != "f":
+            if not np.isfinite(col).all():
+                raise LogFormatError(f"{name}: PLY ascii integer property '{p[0]}' has a non-number")
+            col = col.astype(np.int64)
+        out[p[0]] = col.astype(t)
+    return out
+
+
 def read_ply(path: str | os.PathLike, *, shape: tuple[int, int] | None = None) -> Cloud:
     """Read an organized PLY cloud (conventions in the module docstring).
 
@@ -155,68 +185,90 @@ def read_ply(path: str | os.PathLike, *, shape: tuple[int, int] | None = None) -
     bo = ">" if fmt == "binary_big_endian" else "<"
     dt = np.dtype([(f"p{i}", bo + _TYPES[p[1]]) for i, p in enumerate(vert.props)])
     nv = vert.count
-    grid = None
-    rows, cols = info.get("num_rows"), info.get("num_cols")
-    if rows is not None and cols is not None:
-        gshape = (rows, cols)
-    elif shape is not None:
-        gshape = (int(shape[0]), int(shape[1]))
-    else:
-        raise LogFormatError(
-            f"{name}: PLY with {nv} vertices has no organization info ('obj_info num_rows/num_cols'); "
-            "pass the grid shape (zcut record --shape HxW)"
-        )
-    if gshape[0] <= 1 or gshape[1] < 1:
-        raise LogFormatError(f"{name}: PLY grid {gshape[0]}x{gshape[1]} is not organized (need height > 1)")
-    n_cells = gshape[0] * gshape[1]
     body = memoryview(raw)[body_at:]
+    # 1. the vertices
     if fmt == "ascii":
         lines = bytes(body).split(b"\n")
         if len(lines) < nv:
             raise LogFormatError(f"{name}: PLY ascii data has {len(lines)} lines, needs {nv} vertices")
-        try:
-            table = np.array(b" ".join(lines[:nv]).split()).astype(np.float64)
-        except ValueError as e:
-            raise LogFormatError(f"{name}: PLY ascii vertex data has a non-number ({e})") from e
-        if table.size != nv * len(pnames):
-            raise LogFormatError(f"{name}: PLY ascii vertex data has {table.size} values, needs {nv * len(pnames)}")
-        table = table.reshape(nv, len(pnames))
-        cols_of = {}
-        for i, p in enumerate(vert.props):
-            t = np.dtype(_TYPES[p[1]])
-            col = table[:, i]
-            if t.kind != "f":
-                if not np.isfinite(col).all():
-                    raise LogFormatError(f"{name}: PLY ascii integer property '{p[0]}' has a non-number")
-                col = col.astype(np.int64)
-            cols_of[p[0]] = col.astype(t)
-        rest = lines[nv:]
-        if vi + 1 < len(elements) and elements[vi + 1].name == "range_grid":
-            grid = np.full(n_cells, -1, dtype=np.int64)
-            if len(rest) < n_cells:
-                raise LogFormatError(f"{name}: PLY range_grid has {len(rest)} lines, needs {n_cells}")
-            for i in range(n_cells):
-                t = rest[i].split()
-                if t and int(t[0]) > 0:
-                    grid[i] = int(t[1])
+        cols_of = _ascii_table(lines[:nv], vert, name)
+        line_at = nv
     else:
         need = dt.itemsize * nv
         if len(body) < need:
             raise LogFormatError(f"{name}: PLY vertex data has {len(body)} bytes, needs {need} (truncated)")
         arr = np.frombuffer(body, dtype=dt, count=nv)
         cols_of = {p: arr[f"p{i}"] for i, p in enumerate(pnames)}
-        if vi + 1 < len(elements) and elements[vi + 1].name == "range_grid":
-            g = elements[vi + 1]
-            lp = g.props[0] if g.props else None
-            if lp is None or lp[1] != "list" or lp[2] not in _TYPES or lp[3] not in _TYPES:
-                raise LogFormatError(f"{name}: PLY range_grid must hold one list property")
-            grid = np.empty(n_cells, dtype=np.int64)
-            buf = np.frombuffer(body, dtype=np.uint8)
-            end = _grid_from_lists(
-                buf, need, n_cells, np.dtype(_TYPES[lp[2]]).itemsize, np.dtype(_TYPES[lp[3]]).itemsize,
-                bo == ">", nv, grid,
+        byte_at = need
+    # 2. the elements after them: scalar ones (PCL's 'camera') are read, then an optional range_grid
+    camera: dict[str, float] = {}
+    grid_el = None
+    for el in elements[vi + 1 :]:
+        if el.name == "range_grid":
+            grid_el = el
+            break
+        if any(p[1] == "list" or p[1] not in _TYPES for p in el.props):
+            break  # e.g. faces: nothing zcut needs comes after them
+        if fmt == "ascii":
+            if el.count:
+                vals = _ascii_table(lines[line_at : line_at + el.count], el, name)
+                if el.name == "camera":
+                    camera = {k: float(v[0]) for k, v in vals.items()}
+            line_at += el.count
+        else:
+            edt = np.dtype([(f"p{i}", bo + _TYPES[p[1]]) for i, p in enumerate(el.props)])
+            if byte_at + edt.itemsize * el.count > len(body):
+                raise LogFormatError(f"{name}: PLY element '{el.name}' is truncated")
+            if el.name == "camera" and el.count:
+                rec = np.frombuffer(body, dtype=edt, count=1, offset=byte_at)
+                camera = {p[0]: float(rec[f"p{i}"][0]) for i, p in enumerate(el.props)}
+            byte_at += edt.itemsize * el.count
+    # 3. the grid shape
+    rows, cols = info.get("num_rows"), info.get("num_cols")
+    if rows is not None and cols is not None:
+        gshape = (rows, cols)
+    elif shape is not None:
+        gshape = (int(shape[0]), int(shape[1]))
+    elif camera.get("viewportx", 0) >= 1 and camera.get("viewporty", 0) >= 1:
+        gshape = (int(camera["viewporty"]), int(camera["viewportx"]))
+    else:
+        raise LogFormatError(
+            f"{name}: PLY with {nv} vertices has no organization info ('obj_info num_rows/num_cols' or "
+            "a PCL camera element); pass the grid shape (zcut record --shape HxW)"
+        )
+    if gshape[0] <= 1 or gshape[1] < 1:
+        raise LogFormatError(f"{name}: PLY grid {gshape[0]}x{gshape[1]} is not organized (need height > 1)")
+    n_cells = gshape[0] * gshape[1]
+    # 4. the range grid: cell -> vertex (PCL's organized writer leaves invalid cells empty)
+    grid = None
+    if grid_el is not None:
+        lp = grid_el.props[0] if len(grid_el.props) == 1 else None
+        if lp is None or lp[1] != "list" or lp[2] not in _TYPES or lp[3] not in _TYPES:
+            raise LogFormatError(f"{name}: PLY range_grid must hold one list property")
+        if grid_el.count != n_cells:
+            raise LogFormatError(
+                f"{name}: PLY range_grid has {grid_el.count} cells but the grid is {gshape[0]}x{gshape[1]}"
             )
-            if end < 0 or g.count != n_cells:
+        grid = np.full(n_cells, -1, dtype=np.int64)
+        if fmt == "ascii":
+            rest = lines[line_at : line_at + n_cells]
+            if len(rest) < n_cells:
+                raise LogFormatError(f"{name}: PLY range_grid has {len(rest)} lines, needs {n_cells}")
+            try:
+                for i, line in enumerate(rest):
+                    t = line.split()
+                    if t and int(t[0]) > 0:
+                        grid[i] = int(t[1])
+            except (ValueError, IndexError) as e:
+                raise LogFormatError(f"{name}: PLY range_grid line {i} is malformed") from e
+            if ((grid < -1) | (grid >= nv)).any():
+                raise LogFormatError(f"{name}: PLY range_grid points outside the {nv} vertices")
+        else:
+            end = _grid_from_lists(
+                np.frombuffer(body, dtype=np.uint8), byte_at, n_cells, np.dtype(_TYPES[lp[2]]).itemsize,
+                np.dtype(_TYPES[lp[3]]).itemsize, bo == ">", nv, grid,
+            )
+            if end < 0:
                 raise LogFormatError(f"{name}: PLY range_grid is truncated or points outside the vertices")
     if grid is None and nv != n_cells:
         raise LogFormatError(

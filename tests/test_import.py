@@ -95,6 +95,11 @@ def write_ply(path, xyz, rgb, *, fmt="binary_little_endian", organized="obj_info
     if col is not None:
         head += ["property uchar red", "property uchar green", "property uchar blue"]
     head += ["property float intensity"]
+    cam_names = ["view_px", "view_py", "view_pz", "x_axisx", "x_axisy", "x_axisz", "y_axisx", "y_axisy",
+                 "y_axisz", "z_axisx", "z_axisy", "z_axisz", "focal", "scalex", "scaley", "centerx",
+                 "centery", "viewportx", "viewporty", "k1", "k2"]
+    if organized == "camera":  # PCL's savePLYFile with its camera element
+        head += ["element camera 1"] + [f"property float {n}" for n in cam_names]
     if grid:
         head += [f"element range_grid {h * w}", "property list uchar int vertex_indices"]
     head += ["end_header"]
@@ -111,14 +116,18 @@ def write_ply(path, xyz, rgb, *, fmt="binary_little_endian", organized="obj_info
     rec["i"] = 0.5
     index_of = np.full(h * w, -1)
     index_of[keep] = np.arange(len(keep))
+    cam = np.zeros(len(cam_names), dtype=bo + "f4")
+    cam[cam_names.index("viewportx")], cam[cam_names.index("viewporty")] = w, h
     if fmt == "ascii":
-        lines = [" ".join(repr(float(v)) if isinstance(v, np.floating) else str(v) for v in r) for r in rec.tolist()]
         out += ("\n".join(" ".join(str(v) for v in r) for r in rec.tolist()) + "\n").encode()
-        del lines
+        if organized == "camera":
+            out += (" ".join(str(float(v)) for v in cam) + "\n").encode()
         if grid:
             out += ("\n".join("1 %d" % index_of[i] if index_of[i] >= 0 else "0" for i in range(h * w)) + "\n").encode()
     else:
         out += rec.tobytes()
+        if organized == "camera":
+            out += cam.tobytes()
         if grid:
             parts = []
             for i in range(h * w):
@@ -237,7 +246,9 @@ def crop(real_data):
 
 
 @pytest.mark.parametrize("fmt", ["binary_little_endian", "binary_big_endian", "ascii"])
-@pytest.mark.parametrize("organized,grid", [("obj_info", False), ("comment", False), ("obj_info", True)])
+@pytest.mark.parametrize(
+    "organized,grid", [("obj_info", False), ("comment", False), ("obj_info", True), ("camera", False), ("camera", True)]
+)
 def test_ply_round_trip(tmp_path, crop, fmt, organized, grid):
     xyz, rgb = crop
     p = tmp_path / "c.ply"
