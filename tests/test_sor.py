@@ -309,3 +309,33 @@ def test_numpy_integer_k_is_accepted() -> None:
     rng = np.random.default_rng(8)
     xyz = pinhole(rng, 12, 12)
     np.testing.assert_array_equal(sor_outliers(xyz, k=np.int64(3)), sor_outliers(xyz, k=3))
+
+
+# ------------------------------------------------------------------------------------------------
+# real sensor data: Kinect clouds with depth quantization, flying pixels and NaN holes
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["mosd_test16.pcd", "table_scene_mug_stereo_textured.pcd"])
+def test_real_clouds_equal_open3d(real_data, name: str) -> None:
+    cloud = o3d.io.read_point_cloud(str(real_data / name), remove_nan_points=False, remove_infinite_points=False)
+    xyz = np.asarray(cloud.points).reshape(480, 640, 3)
+    assert np.isfinite(xyz).all(axis=2).sum() > 100_000
+    for k, std_ratio in ((4, 1.0), (8, 2.0)):
+        np.testing.assert_array_equal(
+            sor_outliers(xyz, k=k, std_ratio=std_ratio, convention="open3d"),
+            open3d_outliers(xyz, k=k, std_ratio=std_ratio),
+        )
+
+
+def test_real_crop_pcl_equals_reference(real_data) -> None:
+    cloud = o3d.io.read_point_cloud(
+        str(real_data / "mosd_test20.pcd"), remove_nan_points=False, remove_infinite_points=False
+    )
+    xyz = np.asarray(cloud.points).reshape(480, 640, 3)[200:260, 300:380]
+    for k in (4, 6):
+        np.testing.assert_array_equal(
+            sor_mean_distances(xyz, k=k, convention="pcl"), mean_distances_reference(xyz, k=k, convention="pcl")
+        )
+        np.testing.assert_array_equal(
+            sor_outliers(xyz, k=k, convention="pcl"),
+            sor_outliers_reference(xyz, k=k, std_ratio=1.0, convention="pcl"),
+        )
