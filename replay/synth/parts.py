@@ -100,7 +100,8 @@ def face_area_px(kind: PartKind, *, fx: float, fy: float, distance_m: float) -> 
 
 
 # ---------------------------------------------------------------------------------------------
-# Primitives: ("poly", normals (k, 3), offsets (k,)) = {p : normals @ p <= offsets};
+# Primitives: ("poly", normals (k, 3), offsets (k,), centre (3,), radius)
+#                 = {p : normals @ p <= offsets}, inside the ball (centre, radius);
 #             ("sphere", centre (3,), radius).
 
 
@@ -118,9 +119,13 @@ def _prism(poly: np.ndarray, z0: float, z1: float, R: np.ndarray | None = None) 
     offsets = np.einsum("ij,ij->i", normals2, poly)
     normals = np.concatenate([np.c_[normals2, np.zeros(len(poly))], [[0, 0, 1.0], [0, 0, -1.0]]])
     offsets = np.concatenate([offsets, [z1, -z0]])
+    verts = np.concatenate([np.c_[poly, np.full(len(poly), z0)], np.c_[poly, np.full(len(poly), z1)]])
+    centre = verts.mean(axis=0)
+    radius = float(np.max(np.linalg.norm(verts - centre, axis=1)))
     if R is not None:
         normals = normals @ R.T
-    return ("poly", normals, offsets)
+        centre = R @ centre
+    return ("poly", normals, offsets, centre, radius)
 
 
 _ALONG_X = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # maps local z to x
@@ -222,28 +227,46 @@ def height_profile(
     lo, hi : (ny, nx) float64 ndarray
         z of the bottom and top surface (mm, relative to the origin); NaN where the line misses.
     """
-    X, Y = np.meshgrid(xs, ys)
-    lo = np.full(X.shape, np.inf)
-    hi = np.full(X.shape, -np.inf)
+    lo = np.full((len(ys), len(xs)), np.inf)
+    hi = np.full((len(ys), len(xs)), -np.inf)
     for prim in primitives:
+        win = _window(prim, R, xs, ys)
+        if win is None:
+            continue
+        X, Y = np.meshgrid(xs[win[1]], ys[win[0]])
         plo, phi = _interval(prim, R, X, Y)
         hit = plo <= phi
-        lo = np.where(hit, np.minimum(lo, plo), lo)
-        hi = np.where(hit, np.maximum(hi, phi), hi)
-    if hole is not None:
+        lo[win] = np.where(hit, np.minimum(lo[win], plo), lo[win])
+        hi[win] = np.where(hit, np.maximum(hi[win], phi), hi[win])
+    if hole is not None and (win := _window(hole, R, xs, ys)) is not None:
+        X, Y = np.meshgrid(xs[win[1]], ys[win[0]])
         hlo, hhi = _interval(hole, R, X, Y)
+        wlo, whi = lo[win], hi[win]
         inh = hlo <= hhi
-        covered = inh & (hlo <= lo) & (hhi >= hi)
-        low_cut = inh & ~covered & (hlo <= lo) & (hhi > lo)
-        top_cut = inh & ~covered & (hhi >= hi) & (hlo < hi)
-        lo = np.where(low_cut, hhi, lo)
-        hi = np.where(top_cut, hlo, hi)
-        lo = np.where(covered, np.inf, lo)
-        hi = np.where(covered, -np.inf, hi)
+        covered = inh & (hlo <= wlo) & (hhi >= whi)
+        low_cut = inh & ~covered & (hlo <= wlo) & (hhi > wlo)
+        top_cut = inh & ~covered & (hhi >= whi) & (hlo < whi)
+        wlo2 = np.where(low_cut, hhi, wlo)
+        whi2 = np.where(top_cut, hlo, whi)
+        lo[win] = np.where(covered, np.inf, wlo2)
+        hi[win] = np.where(covered, -np.inf, whi2)
     empty = ~(lo <= hi)
     lo[empty] = np.nan
     hi[empty] = np.nan
     return lo, hi
+
+
+def _window(prim: tuple, R: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> tuple[slice, slice] | None:
+    """Grid window (rows, cols) covering the primitive's bounding ball, None when off the grid."""
+    c = R @ (prim[1] if prim[0] == "sphere" else prim[3])
+    r = prim[2] if prim[0] == "sphere" else prim[4]
+    j0, j1 = np.searchsorted(xs, [c[0] - r, c[0] + r], side="left")
+    i0, i1 = np.searchsorted(ys, [c[1] - r, c[1] + r], side="left")
+    j1 = min(j1 + 1, len(xs))
+    i1 = min(i1 + 1, len(ys))
+    if j0 >= j1 or i0 >= i1:
+        return None
+    return slice(int(i0), int(i1)), slice(int(j0), int(j1))
 
 
 def _interval(prim: tuple, R: np.ndarray, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from .parts import PART_KINDS, height_profile, part_solid, random_rest_rotation
@@ -206,6 +207,50 @@ def bin_height_field(grid: Grid, pose: BinPose, geometry: BinGeometry = BIN) -> 
     return height, label
 
 
+@numba.njit(cache=True, nogil=True)
+def _rest(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, u, v):  # pragma: no cover - numba
+    """Resting base (mm) of a part whose origin is dropped at bin-frame (u, v); -inf if off-grid."""
+    u = min(max(u, -lim_u), lim_u)
+    v = min(max(v, -lim_v), lim_v)
+    wx = R2[0, 0] * u + R2[0, 1] * v + tx
+    wy = R2[1, 0] * u + R2[1, 1] * v + ty
+    cj = int(np.rint((wx - x0) / g))
+    ci = int(np.rint((wy - y0) / g))
+    ny, nx = height.shape
+    if ci - n < 0 or cj - n < 0 or ci + n + 1 > ny or cj + n + 1 > nx:
+        return -np.inf, ci, cj, u, v
+    b = -np.inf
+    for k in range(lo_hit.size):
+        d = height[ci + di[k], cj + dj[k]] - lo_hit[k]
+        if d > b:
+            b = d
+    return b, ci, cj, u, v
+
+
+@numba.njit(cache=True, nogil=True)
+def _settle(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, us, vs, roll):  # pragma: no cover
+    """Lowest rest among the drop points (us, vs), then downhill moves of ``roll`` mm in 8 directions."""
+    best_b, best_i, best_j, best_u, best_v = -np.inf, 0, 0, 0.0, 0.0
+    for k in range(us.size):
+        b, ci, cj, u, v = _rest(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, us[k], vs[k])
+        if b != -np.inf and (best_b == -np.inf or b < best_b):
+            best_b, best_i, best_j, best_u, best_v = b, ci, cj, u, v
+    if best_b == -np.inf:
+        return best_b, best_i, best_j
+    for _ in range(8):
+        moved = False
+        for a in range(8):
+            u = best_u + roll * np.cos(a * np.pi / 4)
+            v = best_v + roll * np.sin(a * np.pi / 4)
+            b, ci, cj, u, v = _rest(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, u, v)
+            if b != -np.inf and b < best_b - 1e-9:
+                best_b, best_i, best_j, best_u, best_v = b, ci, cj, u, v
+                moved = True
+        if not moved:
+            break
+    return best_b, best_i, best_j
+
+
 def drop_pile(
     grid: Grid,
     pose: BinPose,
@@ -258,36 +303,15 @@ def drop_pile(
         lim_u, lim_v = fxh - extent, fyh - extent
         u0 = rng.uniform(-lim_u, lim_u)
         v0 = rng.uniform(-lim_v, lim_v)
-
-        def rest(u: float, v: float):
-            u = float(np.clip(u, -lim_u, lim_u))
-            v = float(np.clip(v, -lim_v, lim_v))
-            wx, wy = R2 @ np.array([u, v]) + np.array([pose.x_mm, pose.y_mm])
-            cj = int(round((wx - grid.x0) / g))
-            ci = int(round((wy - grid.y0) / g))
-            if ci - n < 0 or cj - n < 0 or ci + n + 1 > grid.ny or cj + n + 1 > grid.nx:
-                return None
-            b = float(np.max(height[ci - n:ci + n + 1, cj - n:cj + n + 1][hit] - lo[hit]))
-            return (b, ci, cj, u, v)
-
-        best = None
         jitter = rng.uniform(-2.0, 2.0, (settle_tries, 2)) * r
         jitter[0] = 0.0
-        for du, dv in jitter:
-            cand = rest(u0 + du, v0 + dv)
-            if cand is not None and (best is None or cand[0] < best[0]):
-                best = cand
-        for _ in range(8 if best is not None else 0):
-            moved = False
-            for a in range(8):
-                cand = rest(best[3] + 0.5 * r * np.cos(a * np.pi / 4), best[4] + 0.5 * r * np.sin(a * np.pi / 4))
-                if cand is not None and cand[0] < best[0] - 1e-9:
-                    best, moved = cand, True
-            if not moved:
-                break
-        if best is None:
+        best = _settle(
+            height, lo[hit], ii - n, jj - n, n, grid.x0, grid.y0, g, R2, pose.x_mm, pose.y_mm,
+            lim_u, lim_v, u0 + jitter[:, 0], v0 + jitter[:, 1], 0.5 * r,
+        )
+        if best[0] == -np.inf:
             continue
-        base, ci, cj = best[0], best[1], best[2]
+        base, ci, cj = best[0], int(best[1]), int(best[2])
         rows = slice(ci - n, ci + n + 1)
         cols = slice(cj - n, cj + n + 1)
         win = height[rows, cols]

@@ -19,6 +19,7 @@ import numba
 import numpy as np
 
 from zcut.cloud import Intrinsics
+from zcut.errors import ParameterError
 
 from .scene import LABEL_NONE, LABEL_RIM, LABEL_WALL, Scene
 
@@ -31,12 +32,23 @@ NOISE_MM_AT_500 = 0.10  # depth noise sigma at 0.5 m on matte surfaces
 SHINY_NOISE_FACTOR = 1.6
 
 
+def check_size(size: object) -> tuple[int, int]:
+    """``size`` as (height, width) ints in 8..8192, or :class:`ParameterError` naming it."""
+    try:
+        h, w = (int(v) for v in size)  # type: ignore[union-attr]
+    except (TypeError, ValueError) as e:
+        raise ParameterError(f"size must be (height, width), got {size!r}") from e
+    if not (8 <= h <= 8192 and 8 <= w <= 8192):
+        raise ParameterError(f"size must be (height, width) between 8 and 8192, got {size!r}")
+    return h, w
+
+
 def default_intrinsics(size: tuple[int, int] = FULL_SIZE) -> Intrinsics:
     """Intrinsics of the simulated camera for an image of ``size`` = (height, width).
 
     The field of view is the same at every size (focal length scales with the width).
     """
-    h, w = int(size[0]), int(size[1])
+    h, w = check_size(size)
     f = FULL_FX * w / FULL_SIZE[1]
     return Intrinsics(fx=f, fy=f, cx=(w - 1) / 2.0, cy=(h - 1) / 2.0, width=w, height=h)
 
@@ -72,7 +84,7 @@ class Render:
 
 
 @numba.njit(cache=True, nogil=True)
-def _raster(Xc, Yc, Zc, node_label, node_pid, fx, fy, cx, cy, depth, normal, label, pid):  # pragma: no cover - numba
+def _raster(Xc, Yc, Zc, U, V, node_label, node_pid, fx, fy, cx, cy, depth, normal, label, pid):  # pragma: no cover
     ny, nx = Zc.shape
     H, W = depth.shape
     for i in range(ny - 1):
@@ -85,12 +97,9 @@ def _raster(Xc, Yc, Zc, node_label, node_pid, fx, fy, cx, cy, depth, normal, lab
                 za, zb, zc = Zc[ia, ja], Zc[ib, jb], Zc[ic, jc]
                 if za <= 1.0 or zb <= 1.0 or zc <= 1.0:
                     continue
-                xa, ya = Xc[ia, ja], Yc[ia, ja]
-                xb, yb = Xc[ib, jb], Yc[ib, jb]
-                xc_, yc_ = Xc[ic, jc], Yc[ic, jc]
-                ua, va = fx * xa / za + cx, fy * ya / za + cy
-                ub, vb = fx * xb / zb + cx, fy * yb / zb + cy
-                uc, vc = fx * xc_ / zc + cx, fy * yc_ / zc + cy
+                ua, va = U[ia, ja], V[ia, ja]
+                ub, vb = U[ib, jb], V[ib, jb]
+                uc, vc = U[ic, jc], V[ic, jc]
                 area = (ub - ua) * (vc - va) - (uc - ua) * (vb - va)
                 if abs(area) < 1e-12:
                     continue
@@ -109,6 +118,9 @@ def _raster(Xc, Yc, Zc, node_label, node_pid, fx, fy, cx, cy, depth, normal, lab
                 if c0 > c1 or r0 > r1:
                     continue
                 # plane normal (camera frame)
+                xa, ya = Xc[ia, ja], Yc[ia, ja]
+                xb, yb = Xc[ib, jb], Yc[ib, jb]
+                xc_, yc_ = Xc[ic, jc], Yc[ic, jc]
                 ex, ey, ez = xb - xa, yb - ya, zb - za
                 fx_, fy_, fz_ = xc_ - xa, yc_ - ya, zc - za
                 nx_ = ey * fz_ - ez * fy_
@@ -171,7 +183,10 @@ def render(scene: Scene, intrinsics: Intrinsics, *, camera_height_mm: float = CA
     normal = np.zeros((H, W, 3))
     label = np.full((H, W), LABEL_NONE, np.uint8)
     pid = np.zeros((H, W), np.int32)
-    _raster(X, Y, Z, scene.label, scene.part_id, float(K.fx), float(K.fy), float(K.cx), float(K.cy), depth, normal, label, pid)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        U = K.fx * X / Z + K.cx
+        V = K.fy * Y / Z + K.cy
+    _raster(X, Y, Z, U, V, scene.label, scene.part_id, float(K.fx), float(K.fy), float(K.cx), float(K.cy), depth, normal, label, pid)
     return Render(depth, normal, label, pid)
 
 
@@ -202,11 +217,6 @@ def measurable(
     rendered with the same rasterizer at the camera's focal length, wide enough for the scene.
     """
     K = intrinsics
-    rays = pixel_rays(K)
-    hit = np.isfinite(view.depth_mm)
-    P = rays * np.where(hit, view.depth_mm, 1.0)[..., None]
-    Pp = P.copy()
-    Pp[..., 0] -= baseline_mm
     # projector intrinsics covering the whole grid
     X, Y, Z = _node_camera_coords(scene, camera_height_mm=camera_height_mm, offset_x_mm=baseline_mm)
     ux = X / Z
@@ -218,26 +228,45 @@ def measurable(
     hp = int(np.ceil(f * float(vy.max()) + cyp)) + 2
     proj = Intrinsics(fx=f, fy=f, cx=cxp, cy=cyp, width=wp, height=hp)
     shadow = render(scene, proj, camera_height_mm=camera_height_mm, offset_x_mm=baseline_mm).depth_mm
-    zp = Pp[..., 2]
-    up = f * Pp[..., 0] / zp + cxp
-    vp = f * Pp[..., 1] / zp + cyp
-    c0 = np.clip(np.floor(up).astype(np.int64), 0, wp - 2)
-    r0 = np.clip(np.floor(vp).astype(np.int64), 0, hp - 2)
-    # most lenient of the four surrounding shadow-map samples
-    dmax = np.maximum.reduce(
-        [shadow[r0, c0], shadow[r0, c0 + 1], shadow[r0 + 1, c0], shadow[r0 + 1, c0 + 1]]
+    ok = np.zeros(view.depth_mm.shape, bool)
+    _measurable(
+        view.depth_mm, view.normal, shadow, float(K.fx), float(K.fy), float(K.cx), float(K.cy),
+        f, cxp, cyp, float(baseline_mm), float(np.cos(np.radians(max_obliquity_deg))), ok,
     )
-    dmax = np.where(np.isfinite(dmax), dmax, np.inf)
-    n = view.normal
-    to_cam = -rays / np.linalg.norm(rays, axis=2, keepdims=True)
-    to_proj = -Pp / np.linalg.norm(Pp, axis=2, keepdims=True)
-    cos_c = np.einsum("ijk,ijk->ij", n, to_cam)
-    cos_p = np.einsum("ijk,ijk->ij", n, to_proj)
-    cos_min = np.cos(np.radians(max_obliquity_deg))
-    footprint = zp / f
-    bias = 0.3 + 2.0 * footprint / np.maximum(cos_p, 0.1)
-    lit = zp <= dmax + bias
-    return hit & lit & (cos_c > cos_min) & (cos_p > cos_min)
+    return ok
+
+
+@numba.njit(cache=True, nogil=True)
+def _measurable(depth, normal, shadow, fx, fy, cx, cy, fp, cxp, cyp, baseline, cos_min, ok):  # pragma: no cover
+    H, W = depth.shape
+    hp, wp = shadow.shape
+    for r in range(H):
+        for c in range(W):
+            z = depth[r, c]
+            if not np.isfinite(z):
+                continue
+            rx = (c - cx) / fx
+            ry = (r - cy) / fy
+            nx, ny, nz = normal[r, c, 0], normal[r, c, 1], normal[r, c, 2]
+            # towards the camera
+            inv = 1.0 / np.sqrt(rx * rx + ry * ry + 1.0)
+            cos_c = -(nx * rx + ny * ry + nz) * inv
+            if cos_c <= cos_min:
+                continue
+            # towards the projector (at +baseline on the camera x axis)
+            px, py, pz = rx * z - baseline, ry * z, z
+            pn = np.sqrt(px * px + py * py + pz * pz)
+            cos_p = -(nx * px + ny * py + nz * pz) / pn
+            if cos_p <= cos_min:
+                continue
+            up = fp * px / pz + cxp
+            vp = fp * py / pz + cyp
+            c0 = min(max(int(np.floor(up)), 0), wp - 2)
+            r0 = min(max(int(np.floor(vp)), 0), hp - 2)
+            # the most lenient of the four surrounding shadow-map samples
+            d = max(shadow[r0, c0], shadow[r0, c0 + 1], shadow[r0 + 1, c0], shadow[r0 + 1, c0 + 1])
+            bias = 0.3 + 2.0 * (pz / fp) / max(cos_p, 0.1)
+            ok[r, c] = pz <= d + bias
 
 
 def depth_noise_sigma_mm(depth_mm: np.ndarray, *, shiny: np.ndarray | bool) -> np.ndarray:
@@ -264,15 +293,32 @@ def shade_rgb(
     ambient : (H, W) float ndarray
         Share of diffuse room light (0..1); the rest is the Lambert term of a lamp by the camera.
     """
-    rays = pixel_rays(intrinsics)
-    to_cam = -rays / np.linalg.norm(rays, axis=2, keepdims=True)
-    n = view.normal
-    to_light = np.array([-0.25, 0.35, -1.0])  # a lamp beside the camera
-    to_light /= np.linalg.norm(to_light)
-    lam = np.clip(np.einsum("ijk,k->ij", n, to_light), 0.0, 1.0)
-    half = to_light + to_cam
-    half /= np.linalg.norm(half, axis=2, keepdims=True)
-    spec = np.clip(np.einsum("ijk,ijk->ij", n, half), 0.0, 1.0) ** 60
-    img = colours * (ambient + (1.0 - ambient) * lam)[..., None] + np.where(shiny, 230.0 * spec, 0.0)[..., None]
-    img = img + rng.normal(0.0, 1.5, img.shape)
+    K = intrinsics
+    img = np.empty(colours.shape)
+    _shade(view.normal, colours, shiny, ambient, float(K.fx), float(K.fy), float(K.cx), float(K.cy), img)
+    img += rng.normal(0.0, 1.5, img.shape)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+@numba.njit(cache=True, nogil=True)
+def _shade(normal, colours, shiny, ambient, fx, fy, cx, cy, img):  # pragma: no cover - numba
+    H, W = shiny.shape
+    lx, ly, lz = -0.25, 0.35, -1.0  # towards a lamp beside the camera
+    ln = np.sqrt(lx * lx + ly * ly + lz * lz)
+    lx, ly, lz = lx / ln, ly / ln, lz / ln
+    for r in range(H):
+        for c in range(W):
+            nx, ny, nz = normal[r, c, 0], normal[r, c, 1], normal[r, c, 2]
+            lam = min(max(nx * lx + ny * ly + nz * lz, 0.0), 1.0)
+            k = ambient[r, c] + (1.0 - ambient[r, c]) * lam
+            spec = 0.0
+            if shiny[r, c]:
+                rx = (c - cx) / fx
+                ry = (r - cy) / fy
+                inv = 1.0 / np.sqrt(rx * rx + ry * ry + 1.0)
+                hx, hy, hz = lx - rx * inv, ly - ry * inv, lz - inv
+                hn = np.sqrt(hx * hx + hy * hy + hz * hz)
+                ch = min(max((nx * hx + ny * hy + nz * hz) / hn, 0.0), 1.0)
+                spec = 230.0 * ch**60
+            for ch_ in range(3):
+                img[r, c, ch_] = colours[r, c, ch_] * k + spec

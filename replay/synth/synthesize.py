@@ -29,6 +29,7 @@ from .scene import (
 from .sensor import (
     CAMERA_HEIGHT_MM,
     FULL_SIZE,
+    check_size,
     default_intrinsics,
     depth_noise_sigma_mm,
     measurable,
@@ -100,16 +101,6 @@ class SynthFrame:
     a_max_px: float
 
 
-def _check_size(size: tuple[int, int]) -> tuple[int, int]:
-    try:
-        h, w = int(size[0]), int(size[1])
-    except (TypeError, ValueError, IndexError) as e:
-        raise ParameterError(f"size must be (height, width), got {size!r}") from e
-    if h < 8 or w < 8 or h > 8192 or w > 8192:
-        raise ParameterError(f"size must be (height, width) between 8 and 8192, got {size!r}")
-    return h, w
-
-
 def bin_pose_for(rng: np.random.Generator, *, empty: bool, index: int) -> BinPose:
     """Bin pose of a frame: small random yaw and offset; the empty series cycles the 5 positions."""
     if empty:
@@ -146,12 +137,12 @@ def synthesize_frame(
     """
     if not empty and kind not in PART_KINDS:
         raise ParameterError(f"kind must be one of {', '.join(PART_KINDS)}, got {kind!r}")
-    h, w = _check_size(size)
+    h, w = check_size(size)
     rng = np.random.default_rng([int(seed) % (2**63), int(index), int(empty)])
     K = default_intrinsics((h, w))
     half_x, half_y = view_half_extent_mm(K)
     fp_floor = (CAMERA_HEIGHT_MM - BIN.floor_mm) / K.fx
-    grid_step = float(np.clip(0.8 * fp_floor, 0.4, 1.0))
+    grid_step = float(np.clip(0.8 * fp_floor, 0.5, 1.0))
     grid = make_grid(half_x_mm=half_x + 5 * grid_step, half_y_mm=half_y + 5 * grid_step, step_mm=grid_step)
     pose = bin_pose_for(rng, empty=empty, index=index)
     if fill_mm is None:
