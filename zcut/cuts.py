@@ -399,7 +399,8 @@ def _component_tree(q, W, K, top, conn8, max_area):
             order[j] = sel[o[j]]
 
     par = np.empty(n, np.int32)  # union-find parent
-    rec = np.empty((n, 4), np.int32)  # at roots only: size, node, stamp (one cache line)
+    rec = np.empty((n, 4), np.int32)  # at roots only: size, node, stamp (one cache line), and
+    # at the end of a level, for each root touched in it, the node its set became
     first = np.empty(m, np.int32)  # by position in order: p's root right after p was added,
     # then the node holding p at the end of its level
     node_b = np.empty(m, np.int64)
@@ -454,24 +455,31 @@ def _component_tree(q, W, K, top, conn8, max_area):
                 rec[p, 1] = -1
                 rec[p, 2] = rank
                 rp = p
+                pend_node[n_pend] = -1
+                pend_root[n_pend] = p
+                n_pend += 1
             first[t] = rp
-        # ---- one new node per component that changed at this level
-        for t in range(i, j):
-            r = _find(par, first[t])
+        # ---- one new node per component that changed at this level. Every root touched at this
+        # level is listed in pend_root (with the node it ends, or -1 for a new singleton).
+        for t in range(n_pend):
+            x = pend_root[t]
+            r = _find(par, x)
             if rec[r, 1] < 0:
                 rec[r, 1] = n_nodes
                 node_b[n_nodes] = lvl
                 node_size[n_nodes] = rec[r, 0]
                 node_parent[n_nodes] = -1
                 n_nodes += 1
-            first[t] = rec[r, 1]
-        # ---- the nodes that ended here were unchanged over the levels [b, lvl - 1]
-        for t in range(n_pend):
+            rec[x, 3] = rec[r, 1]  # the node at this level of what x's set became
+            # the node that ended here was unchanged over the levels [b, lvl - 1]
             old = pend_node[t]
-            node_parent[old] = rec[_find(par, pend_root[t]), 1]
-            lo = max(node_b[old], 1)
-            hi = min(K, lvl - 2)
-            tagged[old] = lo <= hi and node_size[old] < max_area
+            if old >= 0:
+                node_parent[old] = rec[r, 1]
+                lo = max(node_b[old], 1)
+                hi = min(K, lvl - 2)
+                tagged[old] = lo <= hi and node_size[old] < max_area
+        for t in range(i, j):  # each pixel's root right after it was added was a touched root
+            first[t] = rec[first[t], 3]
         lev_value[n_lev] = lvl
         lev_count[n_lev] = count
         n_lev += 1
