@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from zcut.errors import InputShapeError, ParameterError, describe_array
-from zcut.metrics import AccuracyCounts, accuracy_counts
+from zcut.metrics import AccuracyCounts, accuracy_counts, ratio
 from zcut.types import Mask
 
 #: Methods of the report, in the order shown.
@@ -258,19 +258,17 @@ class AgreementCounts:
     @property
     def iou(self) -> float:
         """|A ∩ B| / |A ∪ B| (NaN when both are empty)."""
-        d = self.both + self.only_a + self.only_b
-        return self.both / d if d else math.nan
+        return ratio(self.both, self.both + self.only_a + self.only_b)
 
     @property
     def kappa(self) -> float:
-        """Cohen's kappa of the two binary labellings (NaN when undefined: no pixels, or p_e = 1)."""
+        """Cohen's kappa, (p_o − p_e) / (1 − p_e) from integer counts (NaN when p_e = 1), as
+        :func:`zcut.metrics.cohen_kappa` computes it."""
         n = self.n
-        if n == 0:
-            return math.nan
-        po = (self.both + self.neither) / n
-        pa, pb = (self.both + self.only_a) / n, (self.both + self.only_b) / n
-        pe = pa * pb + (1 - pa) * (1 - pb)
-        return (po - pe) / (1 - pe) if pe < 1 else math.nan
+        n_a, n_b = self.both + self.only_a, self.both + self.only_b
+        agree = self.both + self.neither
+        chance = n_a * n_b + (n - n_a) * (n - n_b)
+        return ratio(n * agree - chance, n * n - chance)
 
     def as_dict(self) -> dict[str, int | float]:
         return {"pixels": self.n, "both": self.both, "only_a": self.only_a, "only_b": self.only_b,

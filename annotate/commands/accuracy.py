@@ -98,7 +98,6 @@ def run(args: argparse.Namespace) -> int:
         runner = PipelineRunner(reader.metadata, config_path=args.config, bin_model=model)
         results, skipped, computed = [], 0, 0
         for frame in reader.frames():
-            valid = (frame.xyz == frame.xyz).all(axis=2)  # finite: NaN != NaN
             if store is not None:
                 rec = _match(store, log, frame)
                 lab = store.label(rec, annotator=annotator) if rec is not None else None
@@ -113,7 +112,10 @@ def run(args: argparse.Namespace) -> int:
                 if gt is None:
                     skipped += 1
                     continue
-                truth, reviewed = gt & valid, valid
+                # over every pixel: the same counts as over the valid ones for a log (predictions and
+                # truth are valid points), and right for a results file, whose /zcut/filtered cloud
+                # has the z-cut outliers set to NaN
+                truth, reviewed = gt, None
             if ZCUT_TOPIC in frame.masks and SOR_TOPIC in frame.masks:
                 preds = {"zcut": frame.masks[ZCUT_TOPIC], "sor": frame.masks[SOR_TOPIC]}
             else:

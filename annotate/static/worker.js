@@ -78,20 +78,23 @@ function renderOverlay(ov32, W, H, f, L, R, valid, zIds, sIds, hasR) {
 }
 function anyTrue(a) { for (let i = 0; i < a.length; i++) if (a[i]) return true; return false; }
 
-async function loadLabel(index, annotator, npx) {
-  const r = await fetchOk(`/api/frames/${index}/label?annotator=${encodeURIComponent(annotator)}`);
-  const { header, arrays } = await parseBundle(await r.arrayBuffer());
+function labelFrom({ header, arrays }, npx) {
   const L = arrays.outliers || new Uint8Array(npx), R = arrays.reviewed || new Uint8Array(npx);
   return { rev: header.revision, L, R, hasR: header.revision > 0 && anyTrue(R) };
+}
+async function loadLabel(index, annotator, npx) {
+  const r = await fetchOk(`/api/frames/${index}/label?annotator=${encodeURIComponent(annotator)}`);
+  return labelFrom(await parseBundle(await r.arrayBuffer()), npx);
 }
 
 async function handle(m) {
   if (m.type === 'frame') {
     const images = m.images.map((k) => fetchOk(`/api/frames/${m.index}/image/${k}`).then((r) => r.blob()).then((b) => createImageBitmap(b)));
+    const labelBuf = fetchOk(`/api/frames/${m.index}/label?annotator=${encodeURIComponent(m.annotator)}`).then((r) => r.arrayBuffer());
     const bundle = await (await fetchOk(`/api/frames/${m.index}/bundle`)).arrayBuffer();
     const { header, arrays } = await parseBundle(bundle);
     const npx = header.width * header.height;
-    const lab = await loadLabel(m.index, m.annotator, npx);
+    const lab = labelFrom(await parseBundle(await labelBuf), npx);
     const ov = new Uint8ClampedArray(npx * 4);
     renderOverlay(new Uint32Array(ov.buffer), header.width, header.height, m.flags, lab.L, lab.R, arrays.valid,
                   arrays.zcut, arrays.sor, lab.hasR);
