@@ -49,8 +49,10 @@ def format_row(row) -> str:
             f"{_fmt(row.fitness, '7.3f'):>7} {_fmt(row.rmse_mm, '7.2f'):>7} {row.time_s:>6.2f}")
 
 
-def print_table_callbacks(*, json_mode: bool, total: int | None, out=sys.stdout, err=sys.stderr):
+def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=None):
     """(on_start, on_frame) printing notes, warnings and progress on stderr, rows on stdout."""
+    out = sys.stdout if out is None else out
+    err = sys.stderr if err is None else err
     seen_warnings: set[str] = set()
 
     def on_start(summary) -> None:
