@@ -93,6 +93,16 @@ def test_shiny_clusters_span_a_few_to_hundreds_of_pixels():
     # clusters do not touch each other: each is its own 8-connected component of ghosts
     labels, n = ndimage.label(sf.cluster_id > 0, structure=EIGHT)
     assert n == len(areas)
+    # most touch real surface in the image yet float above all of it by more than two z-cut steps
+    height = -1000.0 * sf.frame.xyz[..., 2].astype(np.float64)
+    real = np.isfinite(height) & ~sf.truth
+    floating = 0
+    for i in np.unique(sf.cluster_id[sf.cluster_id > 0]):
+        m = sf.cluster_id == i
+        ring = ndimage.binary_dilation(m, EIGHT) & ~m & real
+        if ring.any() and height[m].min() - height[ring].max() > 0.4:
+            floating += 1
+    assert floating >= 0.7 * len(areas)
 
 
 def test_deterministic_for_a_seed():
