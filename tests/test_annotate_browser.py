@@ -152,3 +152,71 @@ def test_label_by_clicking_and_painting_persists_and_counts(tmp_path, browser):
             tot[k] += hand[k]
     assert {k: report["pooled"]["zcut"][k] for k in tot} == tot
     assert report["frames"][1]["zcut"]["fn"] == 0 and report["frames"][1]["zcut"]["recall"] is None
+
+
+def _drag(page, pts, *, shift=False):
+    xy = [page.evaluate(f"window.zcut.imageToClient({x}, {y})") for x, y in pts]
+    if shift:
+        page.keyboard.down("Shift")
+    page.mouse.move(xy[0]["x"], xy[0]["y"])
+    page.mouse.down()
+    for p in xy[1:]:
+        page.mouse.move(p["x"], p["y"], steps=3)
+    page.mouse.up()
+    if shift:
+        page.keyboard.up("Shift")
+
+
+def test_box_lasso_eraser_unreviewed_undo_redo_zoom(tmp_path, browser):
+    log = tmp_path / "scan.mcap"
+    write_spike_log(log, frames=1, shape=(96, 128))
+    db = tmp_path / "labels.sqlite"
+    srv = ServerProcess(log, db, annotator="carol")
+    try:
+        _, arrays = parse_bundle(httpx.get(f"{srv.base}/api/frames/0/bundle", headers=srv.headers()).content)
+        valid = arrays["valid"]
+        page, errors = _open(browser, srv.url)
+        state = lambda: page.evaluate("window.zcut.state()")  # noqa: E731
+
+        page.keyboard.press("x")  # box: fills the valid pixels whose centres are inside
+        _drag(page, [(10, 10), (40, 30)])
+        n_box = state()["nL"]
+        assert abs(n_box - int(valid[10:31, 10:41].sum())) <= 2 * (31 + 21)  # up to the border pixels
+        _drag(page, [(15, 12), (25, 20)], shift=True)  # shift: box erase
+        n_erased = state()["nL"]
+        assert n_erased < n_box - 0.8 * int(valid[13:20, 16:25].sum())
+        page.keyboard.press("l")  # lasso: a triangle elsewhere
+        _drag(page, [(60, 50), (100, 50), (80, 80), (60, 50)])
+        n_lasso = state()["nL"]
+        assert n_lasso > n_erased + 200
+        page.keyboard.press("u")  # not reviewed: takes pixels out of R (and L)
+        _drag(page, [(12, 12), (38, 12)])
+        st = state()
+        assert st["nR"] < int(valid.sum()) and st["nL"] < n_lasso
+        page.keyboard.press("e")  # eraser
+        _drag(page, [(80, 60), (80, 70)])
+        n_final = state()["nL"]
+        assert n_final < st["nL"]
+        for _ in range(5):
+            page.keyboard.press("Control+z")
+        assert state()["nL"] == 0
+        for _ in range(5):
+            page.keyboard.press("Control+y")
+        assert state()["nL"] == n_final
+        # zoom with the wheel around the cursor, pan with a right drag, fit back
+        z0 = state()["zoom"]
+        page.mouse.move(400, 300)
+        page.mouse.wheel(0, -400)
+        page.wait_for_function(f"window.zcut.state().zoom > {z0} * 1.5")
+        page.keyboard.press("f")
+        assert state()["zoom"] == pytest.approx(z0)
+        _wait_saved(page)
+        assert not errors
+        page.close()
+    finally:
+        srv.stop()
+    with LabelStore(db) as s:
+        lab = s.label(s.frames(s.log_by_sha(file_sha256(log)))[0], annotator="carol")
+    assert int(lab.outliers.sum()) == n_final
+    assert not (lab.outliers & ~lab.reviewed).any() and not (lab.reviewed & ~valid).any()
+    assert lab.reviewed.sum() < valid.sum() and np.array_equal(lab.reviewed[40:], valid[40:])  # stroke at row 12
