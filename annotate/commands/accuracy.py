@@ -37,6 +37,8 @@ def _match(store, log, frame):
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from annotate.accuracy import (
         accuracy_report,
         agreement_counts,
@@ -112,9 +114,6 @@ def run(args: argparse.Namespace) -> int:
                 if gt is None:
                     skipped += 1
                     continue
-                # over every pixel: the same counts as over the valid ones for a log (predictions and
-                # truth are valid points), and right for a results file, whose /zcut/filtered cloud
-                # has the z-cut outliers set to NaN
                 truth, reviewed = gt, None
             if ZCUT_TOPIC in frame.masks and SOR_TOPIC in frame.masks:
                 preds = {"zcut": frame.masks[ZCUT_TOPIC], "sor": frame.masks[SOR_TOPIC]}
@@ -122,6 +121,12 @@ def run(args: argparse.Namespace) -> int:
                 r = runner.run(frame)
                 preds = {"zcut": r.zcut_outliers, "sor": r.sor_outliers}
                 computed += 1
+            if reviewed is None:
+                # ground truth counts over the valid pixels (R = valid, L = truth ∩ valid). A results
+                # file's /zcut/filtered cloud has the outliers set to NaN: its valid pixels plus the
+                # predictions are the source's valid pixels.
+                reviewed = np.isfinite(frame.xyz).all(axis=2) | preds["zcut"] | preds["sor"]
+                truth = truth & reviewed
             results.append(frame_accuracy(frame.index, frame.stamp_ns, preds, truth, reviewed=reviewed))
         if not results:
             what = (f"no frame of {args.log} is labelled by {annotator!r} in {args.labels}" if store is not None
