@@ -5,7 +5,8 @@ What ``ros2 bag record -s mcap`` writes, and what :class:`LogWriter` reproduces:
 - header profile ``ros2``; one ``ros2msg`` schema per message type with the full dependency text;
 - one channel per topic, message encoding ``cdr``, channel metadata ``offered_qos_profiles`` (the
   YAML list rosbag2 stores);
-- zstd-compressed chunks with CRCs, message indexes, statistics and the summary section;
+- zstd-compressed chunks with CRCs, message indexes, statistics and the summary section
+  (written by :mod:`replay.mcapwrite`);
 - a ``rosbag2`` metadata record whose ``serialized_metadata`` key holds the bag info YAML
   (``rosbag2_bagfile_information``: storage identifier, duration, start, message counts per topic).
 
@@ -20,13 +21,13 @@ from pathlib import Path
 from types import TracebackType
 
 import numpy as np
-from mcap.writer import CompressionType, Writer
 
 from zcut.cloud import Intrinsics
 from zcut.errors import InputShapeError, describe_array
 
 from . import ros_msgs as rm
 from .frame import Frame
+from .mcapwrite import McapWriter
 
 CLOUD_TOPIC = "/camera/points"
 IMAGE_TOPIC = "/camera/image"
@@ -51,7 +52,7 @@ OFFERED_QOS_PROFILES = (
     "  avoid_ros_namespace_conventions: false"
 )
 
-LIBRARY = "zcut replay.logwrite (mcap-python)"
+LIBRARY = "zcut replay.logwrite"
 
 
 def _yaml_str(s: str) -> str:
@@ -69,6 +70,8 @@ class LogWriter:
         Extra MCAP metadata records, name -> key/value strings (e.g. ``{"zcut.synth": {...}}``).
     chunk_size : int
         Target uncompressed chunk size in bytes (each big cloud gets a chunk of its own).
+    zstd_level : int
+        Chunk compression level (1: fast; rosbag2 uses a fast level too).
 
     Examples
     --------
@@ -82,13 +85,12 @@ class LogWriter:
         *,
         metadata: dict[str, dict[str, str]] | None = None,
         chunk_size: int = 4 * 1024 * 1024,
+        zstd_level: int = 1,
     ) -> None:
         self.path = Path(path)
         self._meta = {str(k): {str(a): str(b) for a, b in v.items()} for k, v in (metadata or {}).items()}
         self._file = open(self.path, "wb")
-        self._writer = Writer(
-            self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD, enable_crcs=True
-        )
+        self._writer = McapWriter(self._file, chunk_size=chunk_size, zstd_level=zstd_level)
         self._writer.start(profile="ros2", library=LIBRARY)
         # user metadata first, so that even a truncated log keeps it
         for name, data in self._meta.items():

@@ -106,6 +106,47 @@ def test_written_file_is_rosbag2_shaped(log3):
             assert msg.k[0] == 500.0 and msg.k[4] == 501.0 and msg.k[2] == 7.5 and msg.width == W
 
 
+def test_written_file_passes_mcap_validation(log3):
+    """mcap's stream reader with every CRC checked (chunks and data section), its indexed reader,
+    the message indexes against the messages, and the footer's summary CRC."""
+    import struct
+    import zlib
+
+    from mcap.records import Chunk, MessageIndex
+    from mcap.stream_reader import StreamReader, breakup_chunk
+
+    path, frames = log3
+    big = path.with_name("big.mcap")
+    with LogWriter(big, chunk_size=2000) as w:  # several chunks
+        for f in frames:
+            w.write_frame(f)
+    path = big
+    kinds: dict[str, int] = {}
+    chunks = []
+    indexes = []
+    with open(path, "rb") as fh:
+        for rec in StreamReader(fh, validate_crcs=True, emit_chunks=True).records:
+            kinds[type(rec).__name__] = kinds.get(type(rec).__name__, 0) + 1
+            if isinstance(rec, Chunk):
+                chunks.append(rec)
+                indexes.append([])
+            elif isinstance(rec, MessageIndex):
+                indexes[-1].append(rec)
+    assert kinds["Chunk"] >= 3 and kinds["DataEnd"] == 1 and kinds["Footer"] == 1
+    assert kinds["Statistics"] == 1 and kinds["ChunkIndex"] == kinds["Chunk"] and kinds["SummaryOffset"] >= 4
+    for chunk, idx in zip(chunks, indexes, strict=True):
+        records = breakup_chunk(chunk, validate_crc=True)
+        n_msgs = sum(type(r).__name__ == "Message" for r in records)
+        assert n_msgs == sum(len(m.records) for m in idx)
+    with open(path, "rb") as fh:
+        reader = make_reader(fh, validate_crcs=True)
+        assert sum(1 for _ in reader.iter_messages()) == 15
+        assert sum(1 for _ in reader.iter_messages(topics=["/zcut/outliers"])) == 3
+    raw = path.read_bytes()
+    summary_start, offset_start, crc = struct.unpack_from("<QQI", raw, len(raw) - 8 - 20)
+    assert zlib.crc32(raw[summary_start : len(raw) - 8 - 4]) == crc
+
+
 def test_writer_rejects_bad_arrays(tmp_path):
     with LogWriter(tmp_path / "x.mcap") as w:
         with pytest.raises(ValueError, match=r"xyz must be an \(H, W, 3\) float array, got shape \(4, 4\)"):
