@@ -28,16 +28,25 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bin-model": ("replay.commands.bin_model", "build the bin model (PLY) from empty-bin scans, or import a CAD/PLY model"),
     "accuracy": ("annotate.commands.accuracy", "true accuracy of z-cut, SOR, union, intersection against labels or ground truth"),
     "annotate": ("annotate.commands.annotate", "label true outliers in a local web page (127.0.0.1, token in the URL)"),
+    "labels": ("annotate.commands.labels", "list, export (MCAP) and import human labels of a label store"),
 }
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with SPEC §6 exit status: a usage error is a user error (1), not argparse's 2."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.print_usage(sys.stderr)
+        self.exit(EXIT_USER_ERROR, f"error: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="zcut",
         description="Replay bin-picking scans through the z-cut outlier filter, "
         "log every stage to Rerun, and measure true accuracy against labels.",
     )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name, (module_name, help_text) in COMMANDS.items():
         module = importlib.import_module(module_name)
         p = sub.add_parser(name, help=help_text, description=help_text)

@@ -22,3 +22,12 @@ def test_cli_help_works():
     out = subprocess.run([sys.executable, "-m", "replay.cli", "--help"], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert "zcut" in out.stdout
+
+
+def test_cli_usage_error_exits_1_with_one_line():
+    out = subprocess.run(
+        [sys.executable, "-m", "replay.cli", "synth", "--no-such-flag"], capture_output=True, text=True
+    )
+    assert out.returncode == 1
+    assert out.stderr.strip().splitlines()[-1].startswith("error: unrecognized arguments")
+    assert "Traceback" not in out.stderr
