@@ -164,3 +164,34 @@ def test_errors(spike_log, tmp_path, capsys):
     LabelStore(empty).close()
     assert main(["accuracy", str(log), "--labels", str(empty)]) == 1
     assert "0 annotators" in capsys.readouterr().err
+
+
+def test_labels_list_export_import(spike_log, tmp_path, capsys):
+    log, truths = spike_log
+    valid = [np.isfinite(fr.xyz).all(axis=2) for fr in LogReader(log).frames()]
+    db = tmp_path / "labels.sqlite"
+    _label_store(db, log, {"ann": {0: (truths[0] & valid[0], valid[0]), 1: (truths[1] & valid[1], valid[1])}})
+    assert main(["labels", "list", str(log), "--db", str(db)]) == 0
+    assert "ann: 2 frame(s) labelled" in capsys.readouterr().out
+    out = tmp_path / "ann.mcap"
+    assert main(["labels", "export", str(log), "--db", str(db), "-o", str(out)]) == 0
+    assert "wrote 2 labelled frame(s) by ann" in capsys.readouterr().out
+    # the export is an MCAP with mono8 /labels/outliers and /labels/reviewed, stamped like the clouds
+    from annotate.store import read_label_masks
+
+    meta, masks = read_label_masks(out)
+    stamps = sorted(masks)
+    assert stamps == [fr.stamp_ns for fr in LogReader(log).frames()][:2]
+    assert np.array_equal(masks[stamps[1]]["/labels/outliers"], truths[1] & valid[1])
+    # import as another annotator: accuracy by them equals accuracy by ann
+    assert main(["labels", "import", str(out), "--db", str(db), "--annotator", "dan"]) == 0
+    assert "imported 2 label(s)" in capsys.readouterr().out
+    a = _json(capsys, ["accuracy", str(log), "--labels", str(db), "--annotator", "ann", "--json"])
+    d = _json(capsys, ["accuracy", str(log), "--labels", str(db), "--annotator", "dan", "--json"])
+    assert a == d
+    assert main(["labels", "export", str(log), "--db", str(db), "-o", str(out)]) == 1
+    assert "2 annotators" in capsys.readouterr().err
+    other = tmp_path / "other.mcap"
+    write_spike_log(other, frames=1, seed=5)
+    assert main(["labels", "list", str(other), "--db", str(db)]) == 1
+    assert "not registered" in capsys.readouterr().err

@@ -1,0 +1,60 @@
+"""``zcut labels``: list, export (MCAP ``/labels/outliers``, ``/labels/reviewed``) and import human labels."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
+    ls = sub.add_parser("list", help="annotators and labelled frames of a log")
+    ls.add_argument("log", type=Path, metavar="LOG.mcap")
+    ls.add_argument("--db", type=Path, required=True, metavar="LABELS.sqlite")
+    ex = sub.add_parser("export", help="write an annotator's current labels of a log to MCAP")
+    ex.add_argument("log", type=Path, metavar="LOG.mcap")
+    ex.add_argument("--db", type=Path, required=True, metavar="LABELS.sqlite")
+    ex.add_argument("-o", "--out", type=Path, required=True, metavar="LABELS.mcap")
+    ex.add_argument("--annotator", default=None, help="needed when the log has labels by several annotators")
+    im = sub.add_parser("import", help="append the labels of an exported MCAP as new revisions")
+    im.add_argument("labels", type=Path, metavar="LABELS.mcap")
+    im.add_argument("--db", type=Path, required=True, metavar="LABELS.sqlite")
+    im.add_argument("--annotator", default=None, help="store them under this name (default: the exporter's)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from annotate.store import LabelStore, StoreError, export_labels, file_sha256, import_labels
+    from zcut.errors import ParameterError
+
+    for path in (getattr(args, "log", None), getattr(args, "labels", None), args.db):
+        if path is not None and not path.is_file():
+            raise FileNotFoundError(2, "no such file", str(path))
+    with LabelStore(args.db) as store:
+        if args.action == "import":
+            n = import_labels(store, args.labels, annotator=args.annotator)
+            print(f"imported {n} label(s) from {args.labels} into {args.db}")
+            return 0
+        log = store.log_by_sha(file_sha256(args.log))
+        if log is None:
+            raise StoreError(f"{args.log} is not registered in {args.db} (open it once with zcut annotate)")
+        known = store.annotators(log)
+        if args.action == "list":
+            frames = store.frames(log)
+            print(f"{log.name}  sha256 {log.sha256[:16]}…  {len(frames)} frame(s) registered")
+            for who in known:
+                cur = store.current_labels(log, annotator=who)
+                n_out = sum(c.n_outliers for c in cur.values())
+                print(f"  {who}: {len(cur)} frame(s) labelled, {n_out} outlier pixels")
+            return 0
+        if args.annotator is None:
+            if len(known) != 1:
+                raise ParameterError(f"{args.log} has labels by {len(known)} annotators "
+                                     f"({', '.join(known) or 'none'}): choose one with --annotator")
+            who = known[0]
+        elif args.annotator not in known:
+            raise ParameterError(f"--annotator {args.annotator!r}: no labels by them for {args.log}")
+        else:
+            who = args.annotator
+        n = export_labels(store, log, args.out, annotator=who)
+        print(f"wrote {n} labelled frame(s) by {who} to {args.out}")
+        return 0
