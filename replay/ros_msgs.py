@@ -17,6 +17,7 @@ mismatch (never a numpy or struct exception).
 from __future__ import annotations
 
 import struct
+import sys
 from dataclasses import dataclass
 
 import numba
@@ -546,17 +547,50 @@ def _unpack_xyz_rgb(px, py, pz, c, xyz, rgb):  # pragma: no cover - compiled
             rgb[i, j, 2] = v & 0xFF
 
 
-def arrays_to_cloud_data(xyz: np.ndarray, rgb: np.ndarray | None) -> bytes:
+def arrays_to_cloud_data(xyz: np.ndarray, rgb: np.ndarray | None) -> memoryview:
     """Pack (H, W, 3) xyz (+ optional (H, W, 3) uint8 rgb) as x, y, z FLOAT32 + rgba UINT32
-    (16 bytes per point; the last 4 are zero padding when rgb is None)."""
+    little-endian (16 bytes per point; the last 4 are zero padding when rgb is None)."""
     h, w = xyz.shape[:2]
-    out = np.zeros((h, w, 4), dtype="<f4")
-    out[..., :3] = xyz
-    if rgb is not None:
-        r = rgb.astype(np.uint32)
-        packed = (0xFF << 24) | (r[..., 0] << 16) | (r[..., 1] << 8) | r[..., 2]
-        out.view("<u4")[..., 3] = packed
-    return out.tobytes()
+    out = np.empty((h, w, 4), dtype="<f4")
+    if sys.byteorder == "little":
+        if rgb is None:
+            _pack_xyz(xyz, out)
+        else:
+            _pack_xyz_rgb(xyz, rgb, out)
+    else:  # pragma: no cover - big-endian hosts
+        out[..., :3] = xyz
+        out.view("<u4")[..., 3] = 0
+        if rgb is not None:
+            r = rgb.astype(np.uint32)
+            out.view("<u4")[..., 3] = (0xFF << 24) | (r[..., 0] << 16) | (r[..., 1] << 8) | r[..., 2]
+    return memoryview(out).cast("B")
+
+
+@numba.njit(cache=True, nogil=True)
+def _pack_xyz(xyz, out):  # pragma: no cover - compiled
+    h, w = out.shape[0], out.shape[1]
+    bits = out.view(np.uint32)
+    for i in range(h):
+        for j in range(w):
+            out[i, j, 0] = xyz[i, j, 0]
+            out[i, j, 1] = xyz[i, j, 1]
+            out[i, j, 2] = xyz[i, j, 2]
+            bits[i, j, 3] = 0
+
+
+@numba.njit(cache=True, nogil=True)
+def _pack_xyz_rgb(xyz, rgb, out):  # pragma: no cover - compiled
+    h, w = out.shape[0], out.shape[1]
+    bits = out.view(np.uint32)
+    for i in range(h):
+        for j in range(w):
+            out[i, j, 0] = xyz[i, j, 0]
+            out[i, j, 1] = xyz[i, j, 1]
+            out[i, j, 2] = xyz[i, j, 2]
+            bits[i, j, 3] = (
+                np.uint32(0xFF000000) | (np.uint32(rgb[i, j, 0]) << 16) | (np.uint32(rgb[i, j, 1]) << 8)
+                | np.uint32(rgb[i, j, 2])
+            )
 
 
 _IMAGE_CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}
