@@ -26,7 +26,7 @@ def test_cli_help_works():
 
 def test_cli_usage_error_exits_1_with_one_line():
     out = subprocess.run(
-        [sys.executable, "-m", "replay.cli", "synth", "--no-such-flag"], capture_output=True, text=True
+        [sys.executable, "-m", "replay.cli", "synth", "-o", "never.mcap", "--no-such-flag"], capture_output=True, text=True
     )
     assert out.returncode == 1
     assert out.stderr.strip().splitlines()[-1].startswith("error: unrecognized arguments")
