@@ -333,17 +333,14 @@ class LogReader:
         elif len(images) == 1:
             img = images[0]
         elif len(images) > 1:
-            same = [t for t in images if (t.height, t.width) == shape]
-            near = [t for t in same if _ns(t.topic) == _ns(self.cloud_topic)]
-            if len(same) == 1:
-                img = same[0]
-            elif len(near) == 1:
-                img = near[0]
-            else:
-                raise LogFormatError(
-                    f"{name} has several colour Image topics: "
-                    f"{', '.join(desc(t) for t in images)}; choose one with --image-topic"
-                )
+            # the cloud's size first, then the cloud's namespace, then the first name
+            same = [t for t in images if (t.height, t.width) == shape] or images
+            near = [t for t in same if _ns(t.topic) == _ns(self.cloud_topic)] or same
+            img = sorted(near, key=lambda t: t.topic)[0]
+            self.notes.append(
+                f"several colour Image topics ({', '.join(desc(t) for t in images)}); using {img.topic} "
+                "(choose with --image-topic)"
+            )
         else:
             img = None
         if img is not None and (img.height, img.width) != shape:

@@ -237,6 +237,20 @@ def test_choose_topic_explicitly(tmp_path):
         LogReader(p, cloud_topic="/c")
 
 
+def test_several_colour_images(tmp_path, capsys):
+    p = tmp_path / "imgs.mcap"
+    _raw_log(p, [("/cam/points", rm.POINTCLOUD2, _cloud(4, 5)), ("/other/image", rm.IMAGE, _image(4, 5)),
+                 ("/cam/image", rm.IMAGE, _image(4, 5)), ("/cam/small", rm.IMAGE, _image(2, 3))])
+    r = LogReader(p)
+    assert r.image_topic == "/cam/image"  # the cloud's size, then its namespace
+    assert "several colour Image topics" in r.notes[-1] and "using /cam/image" in r.notes[-1]
+    assert LogReader(p, image_topic="/other/image").image_topic == "/other/image"
+    with pytest.raises(LogFormatError, match="image topic /cam/small is 2x3 but cloud topic /cam/points is 4x5"):
+        LogReader(p, image_topic="/cam/small")
+    assert main(["topics", str(p)]) == 0
+    assert "note: several colour Image topics" in capsys.readouterr().out
+
+
 def test_interleaved_pairing_within_window(tmp_path):
     """Images and masks may arrive before or after their cloud, in any order within the window."""
     msgs = []

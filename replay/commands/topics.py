@@ -55,6 +55,9 @@ def run(args: argparse.Namespace) -> int:
     except LogFormatError:
         print("zcut would use: nothing (see the error below)", flush=True)
         raise
+    for note in r.notes:
+        if note not in info.notes:
+            print(f"note: {note}")
     print("zcut would use:")
     n = "?" if r.n_frames is None else r.n_frames
     print(f"  cloud:       {r.cloud_topic}  ({n} frames)")
