@@ -24,6 +24,8 @@ from replay.mcapscan import McapFile
 H, W = 24, 32
 N = 6
 
+pytestmark = pytest.mark.timeout(60)  # a damaged log must never make the reader hang
+
 
 def _frames(seed: int = 5) -> list[Frame]:
     rng = np.random.default_rng(seed)
@@ -69,7 +71,6 @@ def _check_prefix(got, frames):
         assert g.stamp_ns == f.stamp_ns
 
 
-@pytest.mark.timeout(60)
 def test_truncation_at_many_offsets(small_log, tmp_path):
     path, frames, chunks, data_end, cloud_end = small_log
     raw = path.read_bytes()
@@ -334,7 +335,6 @@ def _uncompressed_log(path):
         w.finish()
 
 
-@pytest.mark.timeout(60)
 def test_seeded_mutator(small_log, real_data, tmp_path):
     """~320 mutants of three logs: only LogFormatError (or subclasses) may come out."""
     rng = np.random.default_rng(20240611)
