@@ -122,6 +122,7 @@ def main() -> int:
                         target = (cur + 4) % n_frames if cur + 4 < n_frames else cur - 4
                         page.wait_for_timeout(args.dwell)
                         cold.append(switch(lambda t=target: page.evaluate(f"window.zcut.goTo({t})")))
+                loads = page.evaluate("window.zcut.loads")
                 browser.close()
         finally:
             proc.terminate()
@@ -129,6 +130,10 @@ def main() -> int:
     stats("next", nxt)
     if cold:
         stats("cold", cold)
+    keys = ["worker", "fetch", "parse", "label", "overlay", "images", "main"]
+    med = {k: float(np.median([ld[k] for ld in loads])) for k in keys}
+    print("loading one frame (median ms; worker = fetch + parse + label + overlay + images, then main):")
+    print("  " + "  ".join(f"{k} {v:.1f}" for k, v in med.items()))
     return 0
 
 

@@ -115,6 +115,7 @@ def test_label_by_clicking_and_painting_persists_and_counts(tmp_path, browser):
         page, errors2 = _open(browser, srv.url)
         st2 = page.evaluate("window.zcut.state()")
         assert (st2["index"], st2["rev"], st2["nL"]) == (0, st["rev"], st["nL"])
+        assert page.evaluate("window.zcut.overlayConsistent()")
         # height colour map, then mark frame 0 reviewed and go on; frame 1 reviewed with no outliers
         page.keyboard.press("h")
         assert page.evaluate("window.zcut.state().view") == "height"
@@ -211,6 +212,10 @@ def test_box_lasso_eraser_unreviewed_undo_redo_zoom(tmp_path, browser):
         page.keyboard.press("f")
         assert state()["zoom"] == pytest.approx(z0)
         _wait_saved(page)
+        page.reload()
+        page.wait_for_function("window.zcut && window.zcut.ready === true", timeout=60_000)
+        assert state()["nL"] == n_final and state()["nR"] < int(valid.sum())
+        assert page.evaluate("window.zcut.overlayConsistent()")  # incl. the not-reviewed shading
         assert not errors
         page.close()
     finally:

@@ -24,11 +24,17 @@ def test_bundle_roundtrip(rng, n_ids):
     shape = (301, 257)  # pixel count not a multiple of 8
     mask = rng.random(shape) < 0.3
     ids = rng.integers(0, n_ids, shape).astype(np.uint8 if n_ids < 256 else np.uint16 if n_ids < 65536 else np.uint32)
-    data = make_bundle({"height": shape[0], "width": shape[1], "x": 1}, [("m", "bits", mask), ("ids", "ids", ids)])
+    ids[rng.random(shape) < 0.9] = 0
+    data = make_bundle({"height": shape[0], "width": shape[1], "x": 1},
+                       [("m", "bits", mask), ("ids", "ids", ids), ("sp", "sparse", ids)])
     header, arrays = parse_bundle(data)
-    assert header["x"] == 1 and [s["name"] for s in header["sections"]] == ["m", "ids"]
+    assert header["x"] == 1 and [s["name"] for s in header["sections"]] == ["m", "ids", "sp"]
+    assert header["sections"][2]["count"] == int((ids > 0).sum())
     assert np.array_equal(arrays["m"], mask) and np.array_equal(arrays["ids"], ids)
+    assert np.array_equal(arrays["sp"], ids) and arrays["sp"].dtype == ids.dtype
     assert arrays["ids"].dtype == ids.dtype
+    empty = parse_bundle(make_bundle({"height": 2, "width": 3}, [("sp", "sparse", np.zeros((2, 3), np.uint8))]))
+    assert not empty[1]["sp"].any() and empty[0]["sections"][0]["count"] == 0
     blob = bundle_with_blobs({"height": shape[0], "width": shape[1]}, [("m", pack_mask(mask))])
     assert np.array_equal(parse_bundle(blob)[1]["m"], mask)
 

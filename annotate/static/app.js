@@ -44,7 +44,7 @@ const state = {
 };
 const cache = new Map();  // index -> Promise<frame>
 const CACHE_RADIUS = 2;
-window.zcut = { switchTimes: [], acks: [], errors: [] };
+window.zcut = { switchTimes: [], acks: [], errors: [], loads: [] };
 
 const COL_L = rgba(255, 30, 60, 200), COL_Z = rgba(255, 170, 0, 120), COL_S = rgba(40, 150, 255, 120);
 const COL_ZS = rgba(190, 90, 255, 140), COL_UNREV = rgba(0, 0, 0, 150);
@@ -70,7 +70,9 @@ function loadFrame(index) {
   if (cache.has(index)) return cache.get(index);
   const kind = viewKind();
   const p = (async () => {
+    const t0 = performance.now();
     const m = await call({ type: 'frame', index, annotator: state.annotator, flags: flags(), images: [kind] });
+    const t1 = performance.now();
     const h = m.header;
     const fd = {
       index, stamp: h.stamp_ns, W: h.width, H: h.height, header: h,
@@ -84,7 +86,8 @@ function loadFrame(index) {
     fd.ovImg = new ImageData(m.ov, fd.W, fd.H);
     fd.ov32 = new Uint32Array(m.ov.buffer);
     fd.octx.putImageData(fd.ovImg, 0, 0);
-    fd.ovFlags = m.ovFlagsUsed || flags();
+    fd.ovFlags = flags();
+    window.zcut.loads.push({ index, worker: t1 - t0, main: performance.now() - t1, ...m.timing });
     return fd;
   })();
   cache.set(index, p);
@@ -454,6 +457,13 @@ function toImage(e) {
   return { x: (e.clientX - r.left - state.px) / state.zoom, y: (e.clientY - r.top - state.py) / state.zoom };
 }
 window.zcut.goTo = (i) => goTo(i);
+window.zcut.overlayConsistent = () => {  // the worker's overlay of the frame equals the main thread's
+  const fd = state.cur; if (!fd) return false;
+  const before = fd.ov32.slice();
+  renderOverlay();
+  for (let i = 0; i < before.length; i++) if (before[i] !== fd.ov32[i]) return false;
+  return true;
+};
 window.zcut.imageToClient = (x, y) => {
   const r = canvas.getBoundingClientRect();
   return { x: r.left + state.px + (x + 0.5) * state.zoom, y: r.top + state.py + (y + 0.5) * state.zoom };

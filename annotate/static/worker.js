@@ -53,6 +53,16 @@ async function parseBundle(buf) {
   await Promise.all(header.sections.map(async (s) => {
     const raw = await inflate(new Uint8Array(buf, base + s.offset, s.length));
     if (s.kind === 'bits') out[s.name] = unpackBits(raw, npx);
+    else if (s.kind === 'sparse') {
+      const n = s.count;
+      const Arr = s.dtype === 'uint8' ? Uint8Array : s.dtype === 'uint16' ? Uint16Array : Uint32Array;
+      const deltas = new Uint32Array(raw.buffer, raw.byteOffset, n);
+      const values = new Arr(raw.buffer.slice(raw.byteOffset + 4 * n, raw.byteOffset + 4 * n + n * Arr.BYTES_PER_ELEMENT));
+      const dense = new Arr(npx), idx = new Uint32Array(n);
+      let p = 0;
+      for (let k = 0; k < n; k++) { p += deltas[k]; idx[k] = p; dense[p] = values[k]; }
+      out[s.name] = dense; out[s.name + 'Idx'] = idx;
+    }
     else if (s.dtype === 'uint8') out[s.name] = raw;
     else if (s.dtype === 'uint16') out[s.name] = new Uint16Array(raw.buffer, raw.byteOffset, npx);
     else out[s.name] = new Uint32Array(raw.buffer, raw.byteOffset, npx);
@@ -60,21 +70,17 @@ async function parseBundle(buf) {
   return { header, arrays: out };
 }
 
-// Overlay colours (RGBA little endian in a Uint32Array); the same function runs on the main thread.
+// Overlay colours (RGBA little endian in a Uint32Array), as app.js paints them.
 function rgba(r, g, b, a) { return ((a << 24) | (b << 16) | (g << 8) | r) >>> 0; }
 const COL_L = rgba(255, 30, 60, 200), COL_Z = rgba(255, 170, 0, 120), COL_S = rgba(40, 150, 255, 120);
 const COL_ZS = rgba(190, 90, 255, 140), COL_UNREV = rgba(0, 0, 0, 150);
-function renderOverlay(ov32, W, H, f, L, R, valid, zIds, sIds, hasR) {
-  for (let i = 0, n = W * H; i < n; i++) {
-    let c = 0;
-    if (f.showL && L[i]) c = COL_L;
-    else {
-      const z = f.showZ && zIds[i] !== 0, s = f.showS && sIds[i] !== 0;
-      if (z) c = s ? COL_ZS : COL_Z; else if (s) c = COL_S;
-      else if (hasR && valid[i] && !R[i]) c = COL_UNREV;
-    }
-    ov32[i] = c;
-  }
+// The same picture from the candidates' pixel lists: the dense loop only where R is partial.
+function renderOverlaySparse(ov32, f, L, R, valid, sIds, zIdx, sIdx, hasR) {
+  ov32.fill(0);
+  if (hasR) for (let i = 0; i < ov32.length; i++) if (valid[i] && !R[i]) ov32[i] = COL_UNREV;
+  if (f.showS) for (let k = 0; k < sIdx.length; k++) ov32[sIdx[k]] = COL_S;
+  if (f.showZ) for (let k = 0; k < zIdx.length; k++) { const i = zIdx[k]; ov32[i] = (f.showS && sIds[i] !== 0) ? COL_ZS : COL_Z; }
+  if (f.showL) for (let i = 0; i < L.length; i++) if (L[i]) ov32[i] = COL_L;
 }
 function anyTrue(a) { for (let i = 0; i < a.length; i++) if (a[i]) return true; return false; }
 
@@ -90,16 +96,22 @@ async function loadLabel(index, annotator, npx) {
 async function handle(m) {
   if (m.type === 'frame') {
     const images = m.images.map((k) => fetchOk(`/api/frames/${m.index}/image/${k}`).then((r) => r.blob()).then((b) => createImageBitmap(b)));
+    const t0 = performance.now();
     const labelBuf = fetchOk(`/api/frames/${m.index}/label?annotator=${encodeURIComponent(m.annotator)}`).then((r) => r.arrayBuffer());
     const bundle = await (await fetchOk(`/api/frames/${m.index}/bundle`)).arrayBuffer();
+    const t1 = performance.now();
     const { header, arrays } = await parseBundle(bundle);
+    const t2 = performance.now();
     const npx = header.width * header.height;
     const lab = labelFrom(await parseBundle(await labelBuf), npx);
+    const t3 = performance.now();
     const ov = new Uint8ClampedArray(npx * 4);
-    renderOverlay(new Uint32Array(ov.buffer), header.width, header.height, m.flags, lab.L, lab.R, arrays.valid,
-                  arrays.zcut, arrays.sor, lab.hasR);
+    renderOverlaySparse(new Uint32Array(ov.buffer), m.flags, lab.L, lab.R, arrays.valid, arrays.sor,
+                        arrays.zcutIdx, arrays.sorIdx, lab.hasR);
+    const t4 = performance.now();
     const bitmaps = await Promise.all(images);
-    const res = { header, valid: arrays.valid, zIds: arrays.zcut, sIds: arrays.sor, ...lab, ov, bitmaps };
+    const timing = { fetch: t1 - t0, parse: t2 - t1, label: t3 - t2, overlay: t4 - t3, images: performance.now() - t4 };
+    const res = { timing, header, valid: arrays.valid, zIds: arrays.zcut, sIds: arrays.sor, ...lab, ov, bitmaps };
     const transfer = [arrays.valid.buffer, arrays.zcut.buffer, arrays.sor.buffer, lab.L.buffer, lab.R.buffer, ov.buffer, ...bitmaps];
     return [res, [...new Set(transfer)]];
   }
