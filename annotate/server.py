@@ -244,6 +244,7 @@ class Session:
     token: str
     annotator: str
     pipeline: object | None = None  # has ``notes``: what the config resolution decided
+    reader: object | None = None  # the LogReader: ``damage`` lists what a damaged log lost
 
 
 def create_app(session: Session, *, max_body_bytes: int = MAX_BODY_BYTES, allowed_hosts: tuple[str, ...] = ("127.0.0.1", "localhost")):
@@ -275,7 +276,8 @@ def create_app(session: Session, *, max_body_bytes: int = MAX_BODY_BYTES, allowe
         return JSONResponse({
             "log": session.log.name, "sha256": session.log.sha256, "annotator": session.annotator,
             "total": c.total, "prepared": len(c.frames), "done": c.done, "error": c.error,
-            "notes": list(getattr(session.pipeline, "notes", ())), "annotators": session.store.annotators(session.log),
+            "notes": list(getattr(session.pipeline, "notes", ())),
+            "damage": list(getattr(session.reader, "damage", ())), "annotators": session.store.annotators(session.log),
         })
 
     def api_frames(request: Request) -> Response:
@@ -409,7 +411,12 @@ def open_session(
     does it (TOML file, else the preset of a synthetic log's part kind, else image-size defaults).
     """
     from replay.logread import LogReader
+    from zcut.errors import ParameterError
 
+    try:
+        annotator = _annotator(annotator)
+    except BadRequest as e:
+        raise ParameterError(f"annotator {annotator!r:.80}: {e}") from None
     log_path = Path(log_path)
     reader = LogReader(log_path)  # validates the log before anything is registered
     store = LabelStore(db_path)
@@ -419,7 +426,7 @@ def open_session(
         catalog = Catalog(frames_iter=lambda: reader.frames(), prepare=setup.prepare_for_page, store=store, log=log,
                           total_hint=reader.n_frames)
         session = Session(log_path=log_path, store=store, log=log, catalog=catalog,
-                          token=token or new_token(), annotator=_annotator(annotator), pipeline=setup)
+                          token=token or new_token(), annotator=annotator, pipeline=setup, reader=reader)
     except BaseException:
         store.close()
         raise

@@ -264,3 +264,29 @@ def test_kill_9_during_a_burst_keeps_every_acknowledged_edit(tmp_path):
             assert rev in revs
             assert np.array_equal(s.label(fr, annotator="bob", revision=rev).outliers, L)
         assert revs == list(range(1, len(revs) + 1))
+
+
+def test_annotate_command_errors(tmp_path, capsys):
+    from replay.cli import main
+
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"this is not an mcap file" * 10)
+    log = tmp_path / "ok.mcap"
+    write_spike_log(log, frames=1, shape=(40, 60))
+    busy = socket.socket()
+    busy.bind(("127.0.0.1", 0))
+    busy.listen(1)
+    try:
+        cases = [
+            (["annotate", str(tmp_path / "missing.mcap"), "--no-browser"], "no such file"),
+            (["annotate", str(junk), "--no-browser", "--db", str(tmp_path / "j.sqlite")], "junk.mcap"),
+            (["annotate", str(log), "--no-browser", "--port", "70000"], "--port"),
+            (["annotate", str(log), "--no-browser", "--port", str(busy.getsockname()[1])], "cannot listen"),
+            (["annotate", str(log), "--no-browser", "--annotator", "tab\there"], "annotator"),
+        ]
+        for argv, msg in cases:
+            assert main(argv) == 1, argv
+            assert msg in capsys.readouterr().err
+    finally:
+        busy.close()
+    assert not (tmp_path / "j.sqlite").exists()  # nothing created for a log that cannot be read

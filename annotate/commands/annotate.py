@@ -32,20 +32,23 @@ def run(args: argparse.Namespace) -> int:
     if not args.log.is_file():
         raise FileNotFoundError(2, "no such file", str(args.log))
     db = args.db or args.log.with_suffix(".labels.sqlite")
-    annotator = args.annotator or getpass.getuser() or "annotator"
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
-        sock.bind(("127.0.0.1", args.port))
-    except OSError as e:
-        sock.close()
-        raise ParameterError(f"--port {args.port}: cannot listen on 127.0.0.1: {e.strerror}") from None
-    port = sock.getsockname()[1]
+        annotator = args.annotator or getpass.getuser()
+    except (OSError, KeyError):  # no login name (e.g. a container without a passwd entry)
+        annotator = "annotator"
     from replay.binmodel import load_bin_model
 
     model = load_bin_model(args.bin_model) if args.bin_model else None
-    session = open_session(args.log, db, annotator=annotator, config_path=args.config, bin_model=model)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # restart at once on the same port
+    session = None
     try:
+        try:
+            sock.bind(("127.0.0.1", args.port))
+        except OSError as e:
+            raise ParameterError(f"--port {args.port}: cannot listen on 127.0.0.1: {e.strerror}") from None
+        port = sock.getsockname()[1]
+        session = open_session(args.log, db, annotator=annotator, config_path=args.config, bin_model=model)
         url = f"http://127.0.0.1:{port}/?token={session.token}"
         print(f"labels: {db}", flush=True)
         print(f"annotator: {session.annotator}", flush=True)
@@ -56,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
                                 timeout_graceful_shutdown=5)
         uvicorn.Server(config).run(sockets=[sock])
     finally:
-        session.catalog.stop()
-        session.store.close()
+        if session is not None:
+            session.catalog.stop()
+            session.store.close()
         sock.close()
     return 0

@@ -619,7 +619,8 @@ $('annotator').onchange = async (e) => {
   $('logname').textContent = BOOT.log;
   setTool('select'); setBrush(8);
   const s = await (await fetchOk('/api/session')).json();
-  if (s.notes.length) $('notes').textContent = s.notes.join('\n');
+  const notes = s.notes.concat((s.damage || []).map((d) => `data loss: ${d}`));
+  if (notes.length) $('notes').textContent = notes.join('\n');
   await refreshFrames();
   const want = parseInt(location.hash.slice(1), 10);
   await goTo(Number.isFinite(want) ? want : 0);
