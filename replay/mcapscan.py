@@ -551,6 +551,19 @@ class McapFile:
                 )
                 if not later:
                     return
+                if pos in resume:
+                    yield pos, OP_LOST, memoryview(b"")
+                pos = later[0]
+                continue
+            if op == 0 or 0x10 <= op < 0x80:  # reserved opcodes: not MCAP, the bytes are damaged
+                damage.append(
+                    f"invalid record opcode 0x{op:02x} at byte {pos}"
+                    + (f"; skipped to the next chunk at byte {later[0]}" if later else "; the rest is lost")
+                )
+                if not later:
+                    return
+                if pos in resume:  # a chunk the summary knows: count what it held
+                    yield pos, OP_LOST, memoryview(b"")
                 pos = later[0]
                 continue
             if nxt > limit or length > MAX_CHUNK_BYTES:

@@ -398,3 +398,22 @@ def test_chunk_crc_is_checked(small_log, tmp_path):
     r = LogReader(p)
     assert [g.index for g in r.frames()] == [0, 1, 2, 3, 5]
     assert "fails its CRC check" in r.damage[0]
+
+
+def test_zeroed_region_is_damage_not_a_slow_scan(small_log, tmp_path):
+    """A run of zero bytes (opcode 0 is reserved) ends the scan or skips to the next indexed chunk
+    at once, instead of walking it 9 bytes at a time."""
+    path, frames, chunks, _, cloud_end = small_log
+    raw = bytearray(path.read_bytes())
+    victim = next(c for c in chunks if c.chunk_start_offset + c.chunk_length == cloud_end[3])
+    raw[victim.chunk_start_offset : victim.chunk_start_offset + 64] = bytes(64)
+    p = tmp_path / "zeros.mcap"
+    p.write_bytes(bytes(raw))
+    r = LogReader(p)
+    assert [g.index for g in r.frames()] == [0, 1, 2, 4, 5]
+    assert r.damage[0].startswith(f"invalid record opcode 0x00 at byte {victim.chunk_start_offset}")
+    cut = tmp_path / "zeros_tail.mcap"
+    cut.write_bytes(bytes(raw[: victim.chunk_start_offset]) + bytes(50_000_000))  # no summary left
+    r = LogReader(cut)
+    assert [g.index for g in r.frames()] == [0, 1, 2]
+    assert "invalid record opcode 0x00" in r.damage[0] and "the rest is lost" in r.damage[0]
