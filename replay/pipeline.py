@@ -28,6 +28,7 @@ from .errors import ConfigError
 from .frame import Frame
 
 STAGES = ("bin_mask", "registration", "removal", "zcut", "sor", "metrics")
+REGISTRATION_MAX_POINTS = 150_000
 
 
 @dataclass(frozen=True, slots=True)
@@ -161,7 +162,10 @@ def run_frame(
         t = time.perf_counter()
         c = config.registration
         init = previous.T_cam_bin if (previous is not None and c.use_previous) else None
-        target = xyz[bm.walls & valid].astype(np.float64)
+        walls = bm.walls & valid
+        # the ICP downsamples to voxel_mm anyway: a regular subgrid of at most ~150k pixels is enough
+        s = max(1, int(np.ceil(np.sqrt(walls.sum() / REGISTRATION_MAX_POINTS))))
+        target = xyz[::s, ::s][walls[::s, ::s]].astype(np.float64)
         reg = register_bin(bin_model.points, target, model_normals=bin_model.normals, init=init, method=c.method,
                            voxel_m=c.voxel_mm / 1000.0, max_correspondence_m=c.max_correspondence_mm / 1000.0,
                            max_iterations=c.max_iterations, min_fitness=c.min_fitness,

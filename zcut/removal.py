@@ -91,21 +91,57 @@ class RemovalResult:
         return self.table | self.easy_outliers | self.bin_points
 
 
-_TREES: dict[int, tuple[np.ndarray, object]] = {}
+@dataclass(frozen=True, slots=True)
+class _ModelIndex:
+    """Per-model search structures, built once: KD-tree, dilated occupancy grid, planes."""
+
+    tree: object
+    cell: float
+    origin: np.ndarray
+    occupied: np.ndarray  # (X, Y, Z) bool, dilated by one cell
+    points32: np.ndarray
+    normals32: np.ndarray | None
+    offsets32: np.ndarray | None  # n . m per model point
+    rim_b: float  # 99.5th percentile of the model's height (-z), bin frame
+    floor_b: float  # 0.5th percentile
 
 
-def _model_tree(points: np.ndarray):
-    """A cKDTree of the model points, built once per model array (a small identity cache)."""
+_INDEX: dict[tuple[int, float], tuple[np.ndarray, _ModelIndex]] = {}
+
+
+GRID_CELL_M = 0.002
+
+
+def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) -> _ModelIndex:
+    """Search structures of a model array, valid for search radii up to ``radius`` (cached)."""
     from scipy.spatial import cKDTree
 
-    hit = _TREES.get(id(points))
+    cell = max(GRID_CELL_M, float(radius))
+    key = (id(points), cell)
+    hit = _INDEX.get(key)
     if hit is not None and hit[0] is points:
         return hit[1]
-    tree = cKDTree(points)
-    if len(_TREES) >= 4:
-        _TREES.pop(next(iter(_TREES)))
-    _TREES[id(points)] = (points, tree)
-    return tree
+    origin = points.min(axis=0) - 2 * cell
+    ijk = np.floor((points - origin) / cell).astype(np.int64)
+    dims = ijk.max(axis=0) + 3
+    core = np.zeros(tuple(int(d) for d in dims), bool)
+    core[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
+    occ = core.copy()  # dilate by one cell: the union of the 26 shifted copies
+    for a in range(3):
+        grown = occ.copy()
+        grown[(slice(None),) * a + (slice(1, None),)] |= occ[(slice(None),) * a + (slice(None, -1),)]
+        grown[(slice(None),) * a + (slice(None, -1),)] |= occ[(slice(None),) * a + (slice(1, None),)]
+        occ = grown
+    n32 = None if normals is None else np.ascontiguousarray(normals, np.float32)
+    off = None if normals is None else np.einsum("ij,ij->i", points, normals).astype(np.float32)
+    h = -points[:, 2]
+    index = _ModelIndex(cKDTree(points), float(cell), origin, occ,
+                        np.ascontiguousarray(points, np.float32), n32, off,
+                        float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5)))
+    if len(_INDEX) >= 6:
+        _INDEX.pop(next(iter(_INDEX)))
+    _INDEX[key] = (points, index)
+    return index
 
 
 def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | None, *,
@@ -113,28 +149,44 @@ def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | Non
     """(M,) bool: points within ``delta_m`` of the model surface.
 
     ``points`` and ``model`` in the same frame. With normals: the smallest point-to-plane
-    distance over the model points within ``radius_m`` (up to 8; near an edge the nearest point
-    may lie on the other face); without: the distance to the nearest model point.
+    distance over the model points within ``radius_m`` (up to 4; near an edge the nearest point
+    may lie on the other face); without: the distance to the nearest model point. A dilated
+    occupancy grid of the model rejects most far points before the KD-tree is asked.
     """
     out = np.zeros(len(points), bool)
     if len(points) == 0 or len(model) == 0:
         return out
-    tree = _model_tree(model)
-    if normals is None:
-        dist, _ = tree.query(points, k=1, distance_upper_bound=delta_m, workers=-1)
-        return dist <= delta_m
-    # cheap first pass: only points with a model point within the radius go on
-    d1, _ = tree.query(points, k=1, distance_upper_bound=radius_m, workers=-1)
-    cand = np.flatnonzero(np.isfinite(d1))
+    reach = delta_m if normals is None else radius_m
+    index = _model_index(model, normals, reach)
+    ijk = np.floor((points - index.origin) / index.cell).astype(np.int64)
+    dims = np.array(index.occupied.shape)
+    inb = ((ijk >= 0) & (ijk < dims)).all(axis=1)
+    cand = np.flatnonzero(inb)
+    cand = cand[index.occupied[ijk[cand, 0], ijk[cand, 1], ijk[cand, 2]]]
     if len(cand) == 0:
         return out
     pc = points[cand]
-    dist, idx = tree.query(pc, k=8, distance_upper_bound=radius_m, workers=-1)
+    if normals is None:
+        dist, _ = index.tree.query(pc, k=1, distance_upper_bound=delta_m, workers=-1)
+        out[cand] = dist <= delta_m
+        return out
+    pc32 = pc.astype(np.float32)
+    # the nearest model point's plane decides for most points ...
+    dist, idx = index.tree.query(pc, k=1, distance_upper_bound=radius_m, workers=-1)
     hit = np.isfinite(dist)
     j = np.where(hit, idx, 0)
-    d_plane = np.abs(np.einsum("ijk,ijk->ij", pc[:, None, :] - model[j], normals[j]))
-    d_plane[~hit] = np.inf
-    out[cand] = d_plane.min(axis=1) <= delta_m
+    d1 = np.abs(np.einsum("ik,ik->i", pc32, index.normals32[j]) - index.offsets32[j])
+    ok = hit & (d1 <= delta_m)
+    # ... the others (near an edge the nearest point may lie on the other face) ask 4 neighbours
+    again = np.flatnonzero(hit & ~ok)
+    if len(again):
+        dist4, idx4 = index.tree.query(pc[again], k=4, distance_upper_bound=radius_m, workers=-1)
+        hit4 = np.isfinite(dist4)
+        j4 = np.where(hit4, idx4, 0)
+        d4 = np.abs(np.einsum("ik,ijk->ij", pc32[again], index.normals32[j4]) - index.offsets32[j4])
+        d4[~hit4] = np.inf
+        ok[again] = d4.min(axis=1) <= delta_m
+    out[cand] = ok
     return out
 
 
@@ -211,9 +263,8 @@ def remove_table_and_bin(
         up = R @ BIN_UP
         # heights along up = -z in the bin frame; work in the bin frame so that the model's
         # KD-tree is built once per model, not once per frame
-        h_model = -model.points[:, 2]
-        rim_b = float(np.percentile(h_model, 99.5))
-        floor_b = float(np.percentile(h_model, 0.5))
+        mi = _model_index(model.points, model.normals, 0.0)
+        rim_b, floor_b = mi.rim_b, mi.floor_b
         shift = float(t @ up)  # height of the bin origin along up, camera frame
         rim, floor = rim_b + shift, floor_b + shift
         rows, cols = np.nonzero(inside)
