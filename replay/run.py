@@ -86,6 +86,7 @@ class ReplaySummary:
     damage: list[str] = field(default_factory=list)
     outputs: dict[str, str] = field(default_factory=dict)
     part_kind: str | None = None
+    n_planned: int | None = None  # frames in the requested range, when the log's summary says
 
     def as_dict(self) -> dict[str, Any]:
         total = {k: sum(getattr(r, k) for r in self.rows)
@@ -204,6 +205,9 @@ def replay_log(
     reader = LogReader(path, cloud_topic=topic)
     part_kind, distance_mm = synth_info(reader.metadata)
     summary = ReplaySummary(log=str(path), part_kind=part_kind)
+    if reader.n_frames is not None:
+        end = reader.n_frames if frames[1] is None else min(frames[1], reader.n_frames)
+        summary.n_planned = max(end - frames[0], 0)
     kept: list[tuple[Frame, FrameResult]] = []
     rec = None
     writer = None

@@ -55,7 +55,11 @@ def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=N
     err = sys.stderr if err is None else err
     seen_warnings: set[str] = set()
 
+    planned = [total]
+
     def on_start(summary) -> None:
+        if summary.n_planned is not None:
+            planned[0] = summary.n_planned
         for note in summary.resolved.notes:
             print(f"zcut: {note}", file=err)
         if not json_mode:
@@ -68,7 +72,7 @@ def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=N
                 print(f"warning: {w}", file=err)
         if result.registration is not None and not result.registration.converged:
             print(f"warning: frame {frame.index}: registration failed: {result.registration.reason}", file=err)
-        n = f"/{total}" if total else ""
+        n = f"/{planned[0]}" if planned[0] else ""
         print(f"[{len(seen_rows) + 1}{n}] frame {frame.index}: {row.time_s:.2f} s", file=err, flush=True)
         seen_rows.append(row.index)
         if not json_mode:
