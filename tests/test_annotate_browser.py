@@ -204,6 +204,14 @@ def test_box_lasso_eraser_unreviewed_undo_redo_zoom(tmp_path, browser):
         for _ in range(5):
             page.keyboard.press("Control+y")
         assert state()["nL"] == n_final
+        # A: every z-cut candidate at once, one undo step
+        page.keyboard.press("v")
+        n_zcut, n_sor = int((arrays["zcut"] > 0).sum()), int((arrays["sor"] > 0).sum())
+        page.keyboard.press("a" if n_zcut else "Alt+a")  # (Alt: SOR's, when this frame has no z-cut candidate)
+        n_cand = n_zcut or n_sor
+        assert n_cand > 0 and n_cand <= state()["nL"] <= n_final + n_cand
+        page.keyboard.press("Control+z")
+        assert state()["nL"] == n_final
         # zoom with the wheel around the cursor, pan with a right drag, fit back
         z0 = state()["zoom"]
         page.mouse.move(400, 300)

@@ -282,16 +282,23 @@ function endAction(fd) {
     x0 = Math.max(0, Math.floor(a.x0)); y0 = Math.max(0, Math.floor(a.y0));
     x1 = Math.min(fd.W, Math.ceil(a.x1)); y1 = Math.min(fd.H, Math.ceil(a.y1));
   }
-  const idx = [], oL = [], oR = [];
-  for (let y = y0; y < y1; y++) for (let i = y * W + x0, e = y * W + x1; i < e; i++) {
-    if (fd.L[i] !== fd.committedL[i] || fd.R[i] !== fd.committedR[i]) {
-      idx.push(i); oL.push(fd.committedL[i]); oR.push(fd.committedR[i]);
-      fd.committedL[i] = fd.L[i]; fd.committedR[i] = fd.R[i];
+  let rec;
+  if (a.full) {
+    // the first edit of a frame marks every valid pixel reviewed: keep whole snapshots, not diffs
+    rec = { full: true, oL: fd.committedL, oR: fd.committedR, nL: fd.L.slice(), nR: fd.R.slice(), hadR: false };
+    fd.committedL = fd.L.slice(); fd.committedR = fd.R.slice();
+  } else {
+    const idx = [], oL = [], oR = [];
+    for (let y = y0; y < y1; y++) for (let i = y * W + x0, e = y * W + x1; i < e; i++) {
+      if (fd.L[i] !== fd.committedL[i] || fd.R[i] !== fd.committedR[i]) {
+        idx.push(i); oL.push(fd.committedL[i]); oR.push(fd.committedR[i]);
+        fd.committedL[i] = fd.L[i]; fd.committedR[i] = fd.R[i];
+      }
     }
+    if (!idx.length) return;
+    rec = { idx: Int32Array.from(idx), oL: Uint8Array.from(oL), oR: Uint8Array.from(oR), hadR: true };
+    rec.nL = Uint8Array.from(rec.idx, (i) => fd.L[i]); rec.nR = Uint8Array.from(rec.idx, (i) => fd.R[i]);
   }
-  if (!idx.length && !a.full) return;
-  const rec = { idx: Int32Array.from(idx), oL: Uint8Array.from(oL), oR: Uint8Array.from(oR), hadR: !a.full };
-  rec.nL = Uint8Array.from(rec.idx, (i) => fd.L[i]); rec.nR = Uint8Array.from(rec.idx, (i) => fd.R[i]);
   fd.undo.push(rec); if (fd.undo.length > 200) fd.undo.shift();
   fd.redo = [];
   renderOverlay(a.full ? 0 : x0, a.full ? 0 : y0, a.full ? null : x1, a.full ? null : y1);
@@ -301,7 +308,9 @@ function endAction(fd) {
 
 function applyRecord(fd, rec, forward) {
   const vL = forward ? rec.nL : rec.oL, vR = forward ? rec.nR : rec.oR;
-  for (let k = 0; k < rec.idx.length; k++) {
+  if (rec.full) {
+    fd.L.set(vL); fd.R.set(vR); fd.committedL.set(vL); fd.committedR.set(vR);
+  } else for (let k = 0; k < rec.idx.length; k++) {
     const i = rec.idx[k];
     fd.L[i] = fd.committedL[i] = vL[k]; fd.R[i] = fd.committedR[i] = vR[k];
   }
@@ -358,6 +367,20 @@ function toggleCluster(fd, x, y, preferSor) {
   touch(x0, y0, x1 + 1, y1 + 1);
   endAction(fd);
   return true;
+}
+
+function acceptAll(ids) {  // every candidate pixel of one filter becomes an outlier (one undo step)
+  const fd = state.cur; if (!fd || !ids) return;
+  beginAction(fd);
+  let x0 = fd.W, y0 = fd.H, x1 = 0, y1 = 0;
+  for (let i = 0; i < ids.length; i++) {
+    if (ids[i] === 0) continue;
+    setPixel(fd, i, 'add');
+    const x = i % fd.W, y = (i / fd.W) | 0;
+    if (x < x0) x0 = x; if (x > x1) x1 = x; if (y < y0) y0 = y; if (y > y1) y1 = y;
+  }
+  touch(x0, y0, x1 + 1, y1 + 1);
+  endAction(fd);
 }
 
 function fillPolygon(fd, pts, mode) {
@@ -573,6 +596,7 @@ window.addEventListener('keydown', (e) => {
     case 'u': case 'U': setTool('unreviewed'); break;
     case '[': setBrush(state.brush - (state.brush > 10 ? 2 : 1)); break;
     case ']': setBrush(state.brush + (state.brush >= 10 ? 2 : 1)); break;
+    case 'a': case 'A': acceptAll(e.altKey ? fd && fd.sIds : fd && fd.zIds); break;
     case 'z': undo(); break;
     case 'Z': redo(); break;
     case 'f': case 'F': case '0': fit(); break;
