@@ -99,6 +99,18 @@ def lzf_decompress(data: bytes | memoryview, size: int) -> bytes:
     return out.tobytes()
 
 
+def invalid_to_nan(xyz: np.ndarray) -> None:
+    """Set points with a non-finite coordinate or exactly (0, 0, 0) to NaN, in place.
+
+    Parameters
+    ----------
+    xyz : (H, W, 3) float32 ndarray
+    """
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isfinite(xyz).all(axis=2) | (xyz == 0).all(axis=2)
+    xyz[bad] = np.nan
+
+
 def _parse_header(raw: bytes, name: str) -> tuple[dict[str, list[str]], int]:
     fields: dict[str, list[str]] = {}
     pos = 0
@@ -215,10 +227,10 @@ def read_pcd(path: str | os.PathLike) -> Cloud:
         raise LogFormatError(f"{name}: unknown PCD DATA '{data_kind}' (ascii, binary, binary_compressed)")
     arr = arr.reshape(height, width)
     xyz = np.empty((height, width, 3), dtype=np.float32)
-    for j, axis in enumerate("xyz"):
-        xyz[..., j] = arr[uniq[names.index(axis)]]
-    bad = ~np.isfinite(xyz).all(axis=2) | ~xyz.any(axis=2)
-    xyz[bad] = np.nan
+    with np.errstate(invalid="ignore", over="ignore"):  # signalling NaN / huge doubles in the file
+        for j, axis in enumerate("xyz"):
+            xyz[..., j] = arr[uniq[names.index(axis)]]
+    invalid_to_nan(xyz)
     rgb = None
     for cname in ("rgba", "rgb"):
         if cname in names:

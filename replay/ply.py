@@ -34,7 +34,7 @@ import numba
 import numpy as np
 
 from .errors import LogFormatError
-from .pcd import Cloud
+from .pcd import Cloud, invalid_to_nan
 
 _TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -275,12 +275,14 @@ def read_ply(path: str | os.PathLike, *, shape: tuple[int, int] | None = None) -
             f"{name}: PLY has {nv} vertices but the grid is {gshape[0]}x{gshape[1]} = {n_cells} "
             "(an unorganized export dropped invalid points?)"
         )
-    xyz_v = np.stack([np.asarray(cols_of[a], dtype=np.float32) for a in "xyz"], axis=-1)
+    with np.errstate(invalid="ignore", over="ignore"):  # signalling NaN / huge doubles in the file
+        xyz_v = np.stack([np.asarray(cols_of[a], dtype=np.float32) for a in "xyz"], axis=-1)
     rgb_v = None
     if all(c in cols_of for c in ("red", "green", "blue")):
         rgb_v = np.stack([np.asarray(cols_of[c]) for c in ("red", "green", "blue")], axis=-1)
         if rgb_v.dtype.kind == "f":  # float colours in [0, 1]
-            rgb_v = np.clip(np.round(rgb_v * 255.0), 0, 255)
+            with np.errstate(invalid="ignore", over="ignore"):
+                rgb_v = np.clip(np.round(np.nan_to_num(rgb_v.astype(np.float64)) * 255.0), 0, 255)
         rgb_v = rgb_v.astype(np.uint8)
     if grid is not None:
         xyz = np.full((n_cells, 3), np.nan, dtype=np.float32)
@@ -293,8 +295,7 @@ def read_ply(path: str | os.PathLike, *, shape: tuple[int, int] | None = None) -
     else:
         xyz, rgb = xyz_v, rgb_v
     xyz = xyz.reshape(gshape[0], gshape[1], 3)
-    bad = ~np.isfinite(xyz).all(axis=2) | ~xyz.any(axis=2)
-    xyz[bad] = np.nan
+    invalid_to_nan(xyz)
     if rgb is not None:
         rgb = np.ascontiguousarray(rgb.reshape(gshape[0], gshape[1], 3))
     return Cloud(np.ascontiguousarray(xyz), rgb)

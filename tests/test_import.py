@@ -382,3 +382,37 @@ def test_topics_command(real_data, tmp_path):
     assert "/os1_node/lidar_packets" in bad.stdout  # still lists what is there
     assert bad.stderr.startswith("error: ouster_os1_64_ros1_original.mcap is a ROS 1 log")
     assert bad.stderr.count("\n") == 1 and "Traceback" not in bad.stderr
+
+
+@pytest.mark.timeout(60)
+def test_import_mutants_only_raise_logformaterror(tmp_path, crop, rng):
+    """Seeded mutants (flips, truncations, absurd sizes, inserted/zeroed runs) of PCD and PLY files
+    in every format: a cloud or a one-line LogFormatError, never another exception or a warning."""
+    from log_helpers import mutations
+
+    xyz, rgb = crop
+    xyz = xyz[:12, :16]
+    rgb = rgb[:12, :16]
+    files = []
+    for data in ("ascii", "binary", "binary_compressed"):
+        p = tmp_path / f"c_{data}.pcd"
+        write_pcd(p, xyz, rgb, data=data)
+        files.append((p, read_pcd))
+    for fmt in ("ascii", "binary_little_endian", "binary_big_endian"):
+        for organized, grid in (("obj_info", False), ("camera", True)):
+            p = tmp_path / f"c_{fmt}_{organized}.ply"
+            write_ply(p, xyz, rgb, fmt=fmt, organized=organized, grid=grid)
+            files.append((p, read_ply))
+    outcomes = {"ok": 0, "error": 0}
+    for path, reader in files:
+        for _, data in mutations(path.read_bytes(), rng, 40):
+            q = tmp_path / ("mutant" + path.suffix)
+            q.write_bytes(data)
+            try:
+                cloud = reader(q)
+                assert cloud.xyz.dtype == np.float32 and cloud.xyz.shape[0] > 1
+                outcomes["ok"] += 1
+            except LogFormatError as e:
+                assert "\n" not in str(e)
+                outcomes["error"] += 1
+    assert outcomes["ok"] > 20 and outcomes["error"] > 20, outcomes

@@ -1,0 +1,37 @@
+"""Helpers shared by the log tests (tests/ is on sys.path, like annotate_helpers)."""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterator
+
+import numpy as np
+
+
+def mutations(raw: bytes, rng: np.random.Generator, n: int) -> Iterator[tuple[int, bytes]]:
+    """``n`` seeded mutants of ``raw``: (kind, bytes); kinds cycle through flips, truncation,
+    absurd 8-byte and 4-byte values, inserted/deleted runs and zeroed runs."""
+    for k in range(n):
+        b = bytearray(raw)
+        kind = k % 6
+        if kind == 0:  # flip a few bytes anywhere
+            for pos in rng.integers(0, len(b), int(rng.integers(1, 9))):
+                b[pos] ^= int(rng.integers(1, 256))
+        elif kind == 1:  # truncate
+            b = b[: int(rng.integers(0, len(b)))]
+        elif kind == 2:  # absurd 8-byte value (a length, a size, a count)
+            pos = int(rng.integers(0, len(b) - 8))
+            b[pos : pos + 8] = struct.pack("<Q", [2**31, 2**32 - 1, 2**40, 2**63, 2**64 - 1][int(rng.integers(5))])
+        elif kind == 3:  # absurd 4-byte value
+            pos = int(rng.integers(0, len(b) - 4))
+            b[pos : pos + 4] = struct.pack("<I", [0, 2**31, 2**32 - 1, 1 << 24][int(rng.integers(4))])
+        elif kind == 4:  # delete or insert a run of bytes
+            pos = int(rng.integers(0, len(b)))
+            if rng.random() < 0.5:
+                del b[pos : pos + int(rng.integers(1, 64))]
+            else:
+                b[pos:pos] = bytes(rng.integers(0, 256, int(rng.integers(1, 64)), dtype=np.uint8))
+        else:  # zero a range
+            pos = int(rng.integers(0, len(b)))
+            b[pos : pos + int(rng.integers(1, 512))] = bytes(min(len(b) - pos, 512))[: len(b[pos : pos + 512])]
+        yield kind, bytes(b)
