@@ -29,6 +29,9 @@ from .frame import Frame
 
 STAGES = ("bin_mask", "registration", "removal", "zcut", "sor", "metrics")
 REGISTRATION_MAX_POINTS = 150_000
+# a fine-only registration from the previous pose is kept when its fitness is at least this
+# fraction of the previous frame's; else the full coarse-to-fine registration runs
+PREVIOUS_FITNESS_KEPT = 0.95
 
 
 @dataclass(frozen=True, slots=True)
@@ -166,10 +169,17 @@ def run_frame(
         # the ICP downsamples to voxel_mm anyway: a regular subgrid of at most ~150k pixels is enough
         s = max(1, int(np.ceil(np.sqrt(walls.sum() / REGISTRATION_MAX_POINTS))))
         target = xyz[::s, ::s][walls[::s, ::s]].astype(np.float64)
-        reg = register_bin(bin_model.points, target, model_normals=bin_model.normals, init=init, method=c.method,
-                           voxel_m=c.voxel_mm / 1000.0, max_correspondence_m=c.max_correspondence_mm / 1000.0,
-                           max_iterations=c.max_iterations, min_fitness=c.min_fitness,
-                           max_rmse_m=c.max_rmse_mm / 1000.0)
+        kw = dict(model_normals=bin_model.normals, method=c.method, voxel_m=c.voxel_mm / 1000.0,
+                  max_correspondence_m=c.max_correspondence_mm / 1000.0, max_iterations=c.max_iterations,
+                  min_fitness=c.min_fitness, max_rmse_m=c.max_rmse_mm / 1000.0)
+        reg = None
+        if init is not None:
+            # a static bin: the previous pose needs only the fine pass; a moved bin falls back below
+            reg = register_bin(bin_model.points, target, init=init, coarse=False, **kw)
+            if not reg.converged or reg.fitness < PREVIOUS_FITNESS_KEPT * previous.registration.fitness:
+                reg = None
+        if reg is None:
+            reg = register_bin(bin_model.points, target, **kw)
         timings["registration"] = time.perf_counter() - t
         t = time.perf_counter()
         r = config.removal

@@ -139,6 +139,7 @@ def register_bin(
     min_fitness: float = 0.3,
     max_rmse_m: float = 0.005,
     min_points: int = 50,
+    coarse: bool = True,
 ) -> RegistrationResult:
     """ICP-register a bin model to the bin points of a frame.
 
@@ -169,6 +170,8 @@ def register_bin(
         Bounds for ``converged``.
     min_points : int
         Fewer model or target points than this after downsampling: not run, reported as failed.
+    coarse : bool
+        Run the coarse pass (skip it when ``init`` is already close, e.g. the previous frame's pose).
 
     Returns
     -------
@@ -216,7 +219,8 @@ def register_bin(
     crit = o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=int(max_iterations))
     T = np.linalg.inv(T0)  # frame -> model
     reg = None
-    for dist in (max_correspondence_m, max_correspondence_m / 3.0):
+    passes = (max_correspondence_m, max_correspondence_m / 3.0) if coarse else (max_correspondence_m / 3.0,)
+    for dist in passes:
         reg = o3d.pipelines.registration.registration_icp(src, dst, dist, T, est, crit)
         T = np.asarray(reg.transformation, dtype=np.float64).copy()
     assert reg is not None

@@ -144,18 +144,20 @@ def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) 
     return index
 
 
-def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | None, *,
-                delta_m: float, radius_m: float) -> np.ndarray:
-    """(M,) bool: points within ``delta_m`` of the model surface.
+def _plane_test(points: np.ndarray, model: np.ndarray, normals: np.ndarray | None, *,
+                delta_m: float, radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """((M,) bool ok, (M,) int64 nearest model point within the radius or -1).
 
-    ``points`` and ``model`` in the same frame. With normals: the smallest point-to-plane
-    distance over the model points within ``radius_m`` (up to 4; near an edge the nearest point
-    may lie on the other face); without: the distance to the nearest model point. A dilated
-    occupancy grid of the model rejects most far points before the KD-tree is asked.
+    ``points`` and ``model`` in the same frame. With normals: ok when a model point within
+    ``radius_m`` (the nearest, else any of the 4 nearest: near an edge the nearest point may lie on
+    the other face) has its tangent plane within ``delta_m``; without: the nearest model point is
+    within ``delta_m``. A dilated occupancy grid of the model rejects most far points before the
+    KD-tree is asked.
     """
-    out = np.zeros(len(points), bool)
+    ok_all = np.zeros(len(points), bool)
+    near_all = np.full(len(points), -1, np.int64)
     if len(points) == 0 or len(model) == 0:
-        return out
+        return ok_all, near_all
     reach = delta_m if normals is None else radius_m
     index = _model_index(model, normals, reach)
     ijk = np.floor((points - index.origin) / index.cell).astype(np.int64)
@@ -164,12 +166,13 @@ def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | Non
     cand = np.flatnonzero(inb)
     cand = cand[index.occupied[ijk[cand, 0], ijk[cand, 1], ijk[cand, 2]]]
     if len(cand) == 0:
-        return out
+        return ok_all, near_all
     pc = points[cand]
     if normals is None:
-        dist, _ = index.tree.query(pc, k=1, distance_upper_bound=delta_m, workers=-1)
-        out[cand] = dist <= delta_m
-        return out
+        dist, idx = index.tree.query(pc, k=1, distance_upper_bound=delta_m, workers=-1)
+        ok_all[cand] = dist <= delta_m
+        near_all[cand] = np.where(np.isfinite(dist), idx, -1)
+        return ok_all, near_all
     pc32 = pc.astype(np.float32)
     # the nearest model point's plane decides for most points ...
     dist, idx = index.tree.query(pc, k=1, distance_upper_bound=radius_m, workers=-1)
@@ -177,7 +180,7 @@ def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | Non
     j = np.where(hit, idx, 0)
     d1 = np.abs(np.einsum("ik,ik->i", pc32, index.normals32[j]) - index.offsets32[j])
     ok = hit & (d1 <= delta_m)
-    # ... the others (near an edge the nearest point may lie on the other face) ask 4 neighbours
+    # ... the others ask their 4 nearest
     again = np.flatnonzero(hit & ~ok)
     if len(again):
         dist4, idx4 = index.tree.query(pc[again], k=4, distance_upper_bound=radius_m, workers=-1)
@@ -186,8 +189,15 @@ def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | Non
         d4 = np.abs(np.einsum("ik,ijk->ij", pc32[again], index.normals32[j4]) - index.offsets32[j4])
         d4[~hit4] = np.inf
         ok[again] = d4.min(axis=1) <= delta_m
-    out[cand] = ok
-    return out
+    ok_all[cand] = ok
+    near_all[cand] = np.where(hit, idx, -1)
+    return ok_all, near_all
+
+
+def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | None, *,
+                delta_m: float, radius_m: float) -> np.ndarray:
+    """(M,) bool: points within ``delta_m`` of the model surface (see :func:`_plane_test`)."""
+    return _plane_test(points, model, normals, delta_m=delta_m, radius_m=radius_m)[0]
 
 
 def remove_table_and_bin(
