@@ -16,6 +16,7 @@ Format reference: https://mcap.dev/spec (all integers little-endian).
 
 from __future__ import annotations
 
+import bisect
 import io
 import struct
 import zlib
@@ -527,7 +528,8 @@ class McapFile:
 
     def _outer(self, damage: list[str], start_offset: int | None = None) -> Iterator[tuple[int, int, memoryview]]:
         """(offset, opcode, body) of the data-section records zcut needs, with damage handling."""
-        resume = [c.chunk_start_offset for c in self.summary.chunk_indexes] if self.summary else []
+        resume = sorted(c.chunk_start_offset for c in self.summary.chunk_indexes) if self.summary else []
+        resume_set = set(resume)
         pos = self.data_start if start_offset is None else start_offset
         limit = self.size if self.data_end is None else self.data_end
         while True:
@@ -541,7 +543,8 @@ class McapFile:
             self._f.seek(pos)
             op, length = struct.unpack("<BQ", self._f.read(9))
             nxt = pos + 9 + length
-            later = [r for r in resume if r > pos]
+            i = bisect.bisect_right(resume, pos)  # the next chunk the summary knows about
+            later = resume[i : i + 1]
             if op in (OP_DATA_END, OP_FOOTER):
                 if self.data_end is None or nxt >= self.data_end:
                     return
@@ -551,7 +554,7 @@ class McapFile:
                 )
                 if not later:
                     return
-                if pos in resume:
+                if pos in resume_set:
                     yield pos, OP_LOST, memoryview(b"")
                 pos = later[0]
                 continue
@@ -562,7 +565,7 @@ class McapFile:
                 )
                 if not later:
                     return
-                if pos in resume:  # a chunk the summary knows: count what it held
+                if pos in resume_set:  # a chunk the summary knows: count what it held
                     yield pos, OP_LOST, memoryview(b"")
                 pos = later[0]
                 continue
@@ -572,7 +575,7 @@ class McapFile:
                         f"record at byte {pos} claims {length} bytes, past the end of the data; "
                         f"skipped to the next chunk at byte {later[0]}"
                     )
-                    if pos in resume:  # a chunk the summary knows: count what it held
+                    if pos in resume_set:  # a chunk the summary knows: count what it held
                         yield pos, OP_LOST, memoryview(b"")
                     pos = later[0]
                     continue
