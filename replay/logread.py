@@ -115,8 +115,10 @@ def _peek(
             if not todo:
                 break
         return firsts, damage
-    # no summary (or an unchunked file): scan from the start, a little past the first cloud
+    # no summary (or an unchunked file): scan from the start to a little past the first cloud
+    # (at least _PEEK_AFTER_FIRST_CLOUD messages and one second of log time after it)
     after = None
+    t_cloud = 0
     for op, rec in mf.records(damage, prefetch=0):
         if op == OP_SCHEMA:
             schemas[rec.id] = rec
@@ -128,10 +130,12 @@ def _peek(
             if rec.channel_id not in firsts and wanted(rec.channel_id):
                 take(rec)
                 if after is None and isinstance(firsts[rec.channel_id], rm.CloudMsg):
-                    after = 0
+                    after, t_cloud = 0, rec.log_time
             if after is not None:
                 after += 1
-                if after > _PEEK_AFTER_FIRST_CLOUD:
+                if after > _PEEK_AFTER_FIRST_CLOUD and (
+                    rec.log_time > t_cloud + 1_000_000_000 or after > 64 * _PEEK_AFTER_FIRST_CLOUD
+                ):
                     break
     return firsts, damage
 
