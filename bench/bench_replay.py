@@ -15,6 +15,7 @@ frame (numba compilation, model caches):
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import tempfile
 import time
@@ -45,14 +46,14 @@ def prepare(d: Path, kind: str, frames: int) -> tuple[Path, Path]:
     return log, ply
 
 
-def timed_replay(log: Path, model, **kw) -> tuple[float, int, list]:
-    """Replay frames 1.. after frame 0 as warm-up; returns (seconds, frames, results' timings)."""
+def timed_replay(log: Path, model, **kw) -> tuple[float, float, int, list]:
+    """Replay frames 1.. after frame 0 as warm-up; returns (wall s, CPU s, frames, timings)."""
     replay_log(log, bin_model=model, frames=(0, 1))  # warm-up: numba, KD-tree and ICP model caches
     timings = []
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     summary, _ = replay_log(log, bin_model=model, frames=(1, None),
                             on_frame=lambda f, r, row: timings.append(r.timings), **kw)
-    return time.perf_counter() - t0, len(summary.rows), timings
+    return time.perf_counter() - t0, time.process_time() - c0, len(summary.rows), timings
 
 
 def main() -> None:
@@ -65,15 +66,18 @@ def main() -> None:
     log, ply = prepare(d, args.kind, args.frames)
     model = load_bin_model(ply)
 
-    t_plain, n, timings = timed_replay(log, model)
+    t_plain, c_plain, n, timings = timed_replay(log, model)
     fps = n / t_plain
     rrd = d / "bench.rrd"
-    t_rrd, n2, _ = timed_replay(log, model, rrd=rrd)
+    t_rrd, c_rrd, n2, _ = timed_replay(log, model, rrd=rrd)
     overhead = t_rrd / t_plain - 1.0
     size_mb = rrd.stat().st_size / 1e6 / n2
     print(f"\n{n} frames of {args.kind}, {SIZE[1]}x{SIZE[0]}, bin model {len(model.points)} points")
-    print(f"no viewer : {t_plain:7.2f} s  {fps:5.2f} frames/s   (target >= 2; ratio {fps / 2:.2f})")
-    print(f".rrd      : {t_rrd:7.2f} s  overhead {100 * overhead:5.1f} %   (target <= 50 %; ratio {overhead / 0.5:.2f})")
+    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (a loaded machine slows the wall times)")
+    print(f"no viewer : {t_plain:7.2f} s  {fps:5.2f} frames/s   (target >= 2; ratio {fps / 2:.2f}); "
+          f"CPU {c_plain / n:.2f} s/frame")
+    print(f".rrd      : {t_rrd:7.2f} s  overhead {100 * overhead:5.1f} %   (target <= 50 %; ratio {overhead / 0.5:.2f}); "
+          f"CPU overhead {100 * (c_rrd / c_plain - 1):.1f} %")
     print(f".rrd size : {size_mb:7.2f} MB per frame (target <= 10 MB; ratio {size_mb / 10:.2f})")
     print("\nmedian stage times (no viewer):")
     for stage in timings[0]:
