@@ -37,6 +37,7 @@ from .mcapscan import (
     Message,
     Schema,
     _Bad,
+    decompress,
 )
 
 #: A frame waits for its image, camera info and masks until this many later clouds have arrived.
@@ -59,6 +60,28 @@ class TopicInfo:
     fields: tuple[str, ...] = ()  # PointCloud2 field names of the first message
     channel_ids: list[int] = field(default_factory=list)
     error: str | None = None  # why the first message could not be decoded
+
+
+_ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+
+
+def _payload(data: memoryview, where: str) -> memoryview:
+    """The CDR bytes of a message; rosbag2's per-message compression (``--compression-mode
+    message``, zstd) is undone here, bounded like chunks."""
+    if bytes(data[:4]) != _ZSTD_MAGIC:
+        return data
+    import zstandard
+
+    try:
+        size = zstandard.frame_content_size(data)
+    except zstandard.ZstdError as e:
+        raise LogFormatError(f"{where}: damaged zstd-compressed message ({e})") from e
+    if size < 0:
+        raise LogFormatError(f"{where}: zstd-compressed message without a content size")
+    try:
+        return decompress("zstd", data, size)
+    except _Bad as e:
+        raise LogFormatError(f"{where}: zstd-compressed message {e}") from e
 
 
 def _ns(topic: str) -> str:
@@ -86,11 +109,11 @@ def _peek(
         where = f"{mf.path.name}: topic {ch.topic}, first message"
         try:
             if name == rm.POINTCLOUD2:
-                firsts[msg.channel_id] = rm.decode_cloud(msg.data, where=where)
+                firsts[msg.channel_id] = rm.decode_cloud(_payload(msg.data, where), where=where)
             elif name == rm.IMAGE:
-                firsts[msg.channel_id] = rm.decode_image(msg.data, where=where)
+                firsts[msg.channel_id] = rm.decode_image(_payload(msg.data, where), where=where)
             else:
-                firsts[msg.channel_id] = rm.decode_camera_info(msg.data, where=where)
+                firsts[msg.channel_id] = rm.decode_camera_info(_payload(msg.data, where), where=where)
         except LogFormatError as e:
             firsts[msg.channel_id] = e
 
@@ -437,7 +460,7 @@ class LogReader:
                                 break
                             continue
                         where = f"{self.path.name}: topic {topic}, message {idx}"
-                        cloud = rm.decode_cloud(rec.data, where=where)
+                        cloud = rm.decode_cloud(_payload(rec.data, where), where=where)
                         p = {"index": idx, "stamp": cloud.stamp_ns, "cloud": cloud, "parts": {}}
                         keep = []
                         for o in orphans:
@@ -451,9 +474,9 @@ class LogReader:
                         where = f"{self.path.name}: topic {topic}, message at log time {rec.log_time}"
                         sc = schemas.get(ch.schema_id)
                         if sc is not None and sc.name == rm.CAMERAINFO:
-                            msg = rm.decode_camera_info(rec.data, where=where)
+                            msg = rm.decode_camera_info(_payload(rec.data, where), where=where)
                         else:
-                            msg = rm.decode_image(rec.data, where=where)
+                            msg = rm.decode_image(_payload(rec.data, where), where=where)
                         for p in pending:
                             if p["stamp"] == msg.stamp_ns and topic not in p["parts"]:
                                 p["parts"][topic] = msg

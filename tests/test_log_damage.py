@@ -392,3 +392,24 @@ def test_zeroed_region_is_damage_not_a_slow_scan(small_log, tmp_path):
     r = LogReader(cut)
     assert [g.index for g in r.frames()] == [0, 1, 2]
     assert "invalid record opcode 0x00" in r.damage[0] and "the rest is lost" in r.damage[0]
+
+
+def test_rosbag2_per_message_zstd_compression(tmp_path):
+    """``ros2 bag record --compression-mode message --compression-format zstd`` stores each CDR
+    message as a zstd frame: read transparently; a damaged frame is a one-line error."""
+    import zstandard
+
+    xyz = np.arange(4 * 5 * 3, dtype=np.float32).reshape(4, 5, 3) + 1
+    cloud = _cloud(4, 5, data=rm.arrays_to_cloud_data(xyz, None))
+    p = tmp_path / "msgz.mcap"
+    _raw_log(p, [("/p", rm.POINTCLOUD2, zstandard.compress(cloud)),
+                 ("/i", rm.IMAGE, zstandard.compress(_image(4, 5)))])
+    r = LogReader(p)
+    assert r.image_topic == "/i"
+    (f,) = r.frames()
+    np.testing.assert_array_equal(f.xyz, xyz)
+    bad = bytearray(zstandard.compress(cloud))
+    bad[-6] ^= 0xFF
+    _raw_log(p, [("/p", rm.POINTCLOUD2, _cloud(4, 5)), ("/p", rm.POINTCLOUD2, bytes(bad))])
+    with pytest.raises(LogFormatError, match="^msgz.mcap: topic /p, message 1: zstd-compressed message"):
+        list(LogReader(p).frames())
