@@ -193,3 +193,12 @@ def test_full_detail_logs_everything(setup, tmp_path):
     assert column(data["/image/rgb"], "Image:buffer")
     seg = column(data["/zcut/cuts"], "SegmentationImage:buffer")[0][0]
     assert len(seg) == H * W * 2  # uint16 level image at full resolution
+
+
+def test_the_default_blueprint_is_in_the_file(recording):
+    path, _, _, _ = recording
+    reader = rr.chunk.RrdReader(str(path))
+    (bp,) = reader.blueprints()
+    views = {ch.entity_path for ch in reader.stream(store=bp) if ch.entity_path.startswith("/view/")
+             and not ch.entity_path.endswith("ViewContents")}
+    assert len(views) == 12  # 5 image views, 3D, 4 time series, config and warnings (default_blueprint)
