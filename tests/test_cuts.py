@@ -20,6 +20,7 @@ from zcut import (
     zcut_outliers,
     zcut_outliers_reference,
 )
+from zcut import cuts
 from zcut.cuts import n_levels
 
 STEPS = (0.2, 0.25, 0.3, 0.5, 1.0, 0.1)
@@ -67,8 +68,17 @@ def random_frame(rng: np.random.Generator) -> tuple[np.ndarray, dict]:
     return z, params
 
 
+@pytest.fixture(params=["flood", "union-find"])
+def kernel(request, monkeypatch) -> str:
+    """Run a test with each component-tree kernel of zcut_outliers / find_clusters: the flood
+    (default up to cuts._FLOOD_MAX_LEVELS levels) and the union-find (used beyond)."""
+    if request.param == "union-find":
+        monkeypatch.setattr(cuts, "_FLOOD_MAX_LEVELS", 0)
+    return request.param
+
+
 @pytest.mark.parametrize("seed", range(10))
-def test_fast_equals_reference_on_random_frames(seed: int) -> None:
+def test_fast_equals_reference_on_random_frames(seed: int, kernel: str) -> None:
     rng = np.random.default_rng(1000 + seed)
     n_outliers = 0
     for _ in range(60):  # 10 x 60 = 600 frames
@@ -138,7 +148,7 @@ NASTY = {
 
 @pytest.mark.parametrize("conn", [8, 4])
 @pytest.mark.parametrize("name", list(NASTY))
-def test_nasty_cases(name: str, conn: int) -> None:
+def test_nasty_cases(name: str, conn: int, kernel: str) -> None:
     z, case, expected = NASTY[name]
     params = {**case, "connectivity": conn}
     fast = zcut_outliers(z, **params)
@@ -167,6 +177,27 @@ def test_very_many_levels_use_the_sort_path() -> None:
     np.testing.assert_array_equal(out, [[False, False, True]])
     out = zcut_outliers(z, step=1e-9, max_depth=10.0, max_area=1)
     assert not out.any()
+
+
+@pytest.mark.parametrize("n_levels_above", [-1, 0, 1])
+def test_kernels_meet_at_the_level_limit(n_levels_above: int) -> None:
+    """Around cuts._FLOOD_MAX_LEVELS levels (the flood's bucket queue fills all its 64 x 64 bits
+    just below; the union-find takes over at the limit): both agree with the reference."""
+    rng = np.random.default_rng(5 + n_levels_above)
+    step = 1.0
+    K = cuts._FLOOD_MAX_LEVELS - 2 + n_levels_above  # levels 0 .. K + 1 take part
+    z = rng.integers(0, K + 3, (7, 9)).astype(np.float64) * step
+    z[0, 0], z[6, 8] = K + 2, 0.0  # the full range: z_min at level K + 2 (beyond the cuts)
+    z[6, 6:8] = 1.0  # level K + 1, the last one of the cuts
+    z[3:5, 3:5] = np.nan
+    z[1, 1:3] = K + 1.5  # a pair floating near the top
+    for conn in (8, 4):
+        params = dict(step=step, max_depth=K * step, max_area=3, connectivity=conn)
+        ref = zcut_outliers_reference(z, **params)
+        assert ref.any()
+        np.testing.assert_array_equal(zcut_outliers(z, **params), ref)
+        res = find_clusters(z, params=ZCutParams(step, K * step, 3), connectivity=conn)
+        np.testing.assert_array_equal(res.outliers, ref)
 
 
 def test_large_max_depth_is_capped() -> None:
@@ -253,7 +284,7 @@ def brute_stage(z: np.ndarray, step: float, max_depth: float, connectivity: int)
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_find_clusters_consistency(seed: int) -> None:
+def test_find_clusters_consistency(seed: int, kernel: str) -> None:
     rng = np.random.default_rng(2000 + seed)
     checked = 0
     for _ in range(40):

@@ -5,10 +5,13 @@ Two implementations with the identical result for every input:
 - :func:`zcut_outliers_reference` is the literal loop of the paper: one connected-components
   labelling (``scipy.ndimage.label``) per level, comparing the components of the cuts at levels
   ``k`` and ``k + 1``. It is the oracle of the tests.
-- :func:`zcut_outliers` builds the component tree of all the cuts at once: the pixels are sorted by
-  their quantized level ``q`` (the smallest ``k`` with the pixel inside the cut at level ``k``) and
-  added level by level to a union-find (numba). A component that neither gains a pixel nor merges
-  between levels ``k`` and ``k + 1`` is exactly a pair of identical clusters of the paper.
+- :func:`zcut_outliers` builds the component tree of all the cuts at once, over the quantized level
+  ``q`` of every pixel (the smallest ``k`` with the pixel inside the cut at level ``k``). A
+  component that neither gains a pixel nor merges between levels ``k`` and ``k + 1`` is exactly a
+  pair of identical clusters of the paper. Two numba kernels build the same tree: a flood with a
+  bucket queue over the levels (Nistér & Stewénius, "Linear time maximally stable extremal
+  regions", ECCV 2008; linear, cache-friendly; used up to ``_FLOOD_MAX_LEVELS`` levels, i.e. any
+  practical ``max_depth / step``) and, beyond, a union-find over the pixels sorted by level.
 
 :func:`find_clusters` runs the same pass and returns the stage view (:class:`CutResult`): the
 clusters, their areas and levels, and the component count of every cut.
@@ -18,9 +21,9 @@ Notation (SPEC §1): ``z~`` is the height with invalid pixels set to ``z_min``; 
 ``k``; ``K = floor(max_depth / step + 1e-9)``. The thresholds never increase with ``k`` (float
 rounding is monotone), so the cuts are nested and a pixel is in ``S_k`` iff ``q <= k``.
 
-The tree: a component (node) is born at the level ``b`` where it last changed (a pixel joined or
-two components merged) and lives unchanged until the level ``e`` where it next changes
-(``e = K + 2`` if never up to ``K + 1``). The loop of SPEC §1 tags it iff it is a component of
+The tree: a node is a component of the cut at the level ``b`` where it last changed (a pixel
+joined or two components merged); it lives unchanged until the level ``e`` where it next changes
+(``e = K + 2`` if never up to ``K + 1``) and becomes part of its parent node, born at ``e``. The loop of SPEC §1 tags it iff it is a component of
 both ``S_k`` and ``S_{k+1}`` for some ``1 <= k <= K``, i.e. iff ``max(b, 1) <= min(K, e - 2)``, and
 it has fewer than ``max_area`` pixels. A pixel is an outlier iff some node holding it is tagged
 (and it is valid). ``q`` is found from the guess ``floor((z_max - z~) / step)`` corrected with the
@@ -38,6 +41,7 @@ from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
+from numba.cpython.unsafe.numbers import trailing_zeros
 from scipy import ndimage
 
 from .errors import InputShapeError, ParameterError, describe_array
@@ -492,25 +496,249 @@ def _component_tree(q, W, K, top, conn8, max_area):
             tagged[:n_nodes], lev_value[:n_lev], lev_count[:n_lev])
 
 
+# --------------------------------------------------------------------------------------------
+# The component tree by flooding (Nistér & Stewénius, "Linear time maximally stable extremal
+# regions", ECCV 2008): the default for up to _FLOOD_MAX_LEVELS levels
+# --------------------------------------------------------------------------------------------
+
+#: Levels 0 .. top with top < this go to :func:`_flood_tree` (its bucket queue finds the lowest
+#: non-empty level in a 64 x 64 bit map); more levels go to the union-find :func:`_component_tree`.
+_FLOOD_MAX_LEVELS = 4096
+_U1 = np.uint64(1)
+
+
+@numba.njit(cache=True, inline="always")
+def _bit_set(occ, summ, lv):
+    w = lv >> 6
+    occ[w] |= _U1 << np.uint64(lv & 63)
+    return summ | (_U1 << np.uint64(w))
+
+
+@numba.njit(cache=True, inline="always")
+def _bit_clear(occ, summ, lv):
+    w = lv >> 6
+    occ[w] &= ~(_U1 << np.uint64(lv & 63))
+    if occ[w] == 0:
+        return summ & ~(_U1 << np.uint64(w))
+    return summ
+
+
+@numba.njit(cache=True, inline="always")
+def _bit_next(occ, summ, lv):
+    """Lowest set level >= lv, or -1."""
+    w = lv >> 6
+    x = occ[w] >> np.uint64(lv & 63)
+    if x != 0:
+        return lv + np.int64(trailing_zeros(x))
+    if w >= 63:
+        return np.int64(-1)
+    y = summ >> np.uint64(w + 1)
+    if y == 0:
+        return np.int64(-1)
+    w2 = w + 1 + np.int64(trailing_zeros(y))
+    return w2 * 64 + np.int64(trailing_zeros(occ[w2]))
+
+
+@numba.njit(cache=True, inline="always")
+def _close(a, size, parent, e, K, max_area, node_b, node_size, node_parent, tagged, fin, n_fin):
+    """Node a (a component of the cut at its level node_b[a]) ends: it next changes at level e
+    (K + 2: never); parent is the node it becomes part of (-1: none). Returns n_fin + 1."""
+    node_size[a] = size
+    node_parent[a] = parent
+    tagged[a] = max(node_b[a], 1) <= min(K, e - 2) and size < max_area
+    fin[n_fin] = a
+    return n_fin + 1
+
+
 @numba.njit(cache=True)
-def _outlier_pad(order, first, node_parent, tagged, out):
-    """out (padded, all False on entry): True where some node holding the pixel is tagged."""
+def _flood_tree(q, W, K, top, conn8, max_area):
+    """Component tree of the cuts by flooding, with a bucket queue over the levels.
+
+    q : padded level image from :func:`_pixel_levels`; pixels with q <= top (= K + 1 < 4096)
+    take part. The flood visits each pixel once, in a cache-friendly order: from the current
+    pixel it descends at once into any unvisited neighbour of a lower level (pushing the current
+    pixel back, to resume at the next neighbour), and queues the others in the bucket of their
+    level; the next pixel is the last one queued in the lowest non-empty bucket. A stack holds
+    the components being built, at strictly increasing levels from top to bottom; when the
+    flood rises to level lv, the components below lv are complete: each ends (is closed) and
+    becomes part of the next one on the stack, or of a new component at lv.
+
+    Returns ``lab`` (n,) int32, the node holding each pixel at its own level (-1: none), and the
+    nodes' birth level, size, parent (-1: lives to the end), tag, and ``fin``, the nodes in
+    closing order (every node is closed before its parent).
+    """
+    n = q.size
+    Wp = W + 2
+    nlev = top + 1
+    start = np.zeros(nlev + 1, np.int64)
+    # st: the level of an unseen pixel (>= 0); once seen (queued, or not in the cuts) -1 - the
+    # neighbour to go on with when the pixel is popped (0 for a queued pixel)
+    st = np.empty(n, np.int16)
+    lab = np.empty(n, np.int32)  # written for every pixel: here, or when it is first visited
+    for i in range(n):
+        qi = q[i]
+        if qi <= top:
+            start[qi + 1] += 1
+            st[i] = qi
+        else:
+            st[i] = -1
+            lab[i] = -1
+    for lv in range(nlev):
+        start[lv + 1] += start[lv]
+    m = start[nlev]
+    fill = start[:nlev].copy()  # bucket lv = bucket[start[lv]:fill[lv]], a stack
+    bucket = np.empty(m, np.int32)  # a pixel is queued at most once at a time, at its level
+    occ = np.zeros(64, np.uint64)  # bit lv: bucket lv non-empty
+    summ = np.uint64(0)  # bit w: occ[w] != 0
+    stk_lv = np.empty(nlev + 1, np.int64)
+    stk_area = np.empty(nlev + 1, np.int64)
+    stk_node = np.empty(nlev + 1, np.int32)
+    node_b = np.empty(m, np.int64)
+    node_size = np.empty(m, np.int64)
+    node_parent = np.empty(m, np.int32)
+    tagged = np.zeros(m, np.bool_)
+    fin = np.empty(m, np.int32)
+    if conn8:
+        offs = np.array([-Wp - 1, -Wp, -Wp + 1, -1, 1, Wp - 1, Wp, Wp + 1])
+    else:
+        offs = np.array([-Wp, -1, 1, Wp])
+    ne = offs.size
+    n_nodes = 0
+    n_fin = 0
+    for s in range(n):
+        if st[s] < 0:
+            continue
+        # ---- flood the region of the cuts that holds s
+        p = s
+        cur = np.int64(st[s])
+        st[p] = -1
+        stk_lv[0] = cur
+        stk_area[0] = 1
+        stk_node[0] = n_nodes
+        node_b[n_nodes] = cur
+        lab[p] = n_nodes
+        node = n_nodes  # the node on top of the stack
+        n_nodes += 1
+        sp = 1
+        e = 0
+        while True:
+            while e < ne:
+                nb = p + offs[e]
+                e += 1
+                qn = np.int64(st[nb])
+                if qn < 0:
+                    continue
+                st[nb] = -1
+                if qn >= cur:  # queue it
+                    slot = fill[qn]
+                    bucket[slot] = nb
+                    fill[qn] = slot + 1
+                    if slot == start[qn]:
+                        summ = _bit_set(occ, summ, qn)
+                    continue
+                # a lower neighbour: push p back (if it has neighbours left), descend
+                if e < ne:
+                    st[p] = -1 - e
+                    slot = fill[cur]
+                    bucket[slot] = p
+                    fill[cur] = slot + 1
+                    if slot == start[cur]:
+                        summ = _bit_set(occ, summ, cur)
+                p = nb
+                cur = qn
+                stk_lv[sp] = cur
+                stk_area[sp] = 1
+                stk_node[sp] = n_nodes
+                node_b[n_nodes] = cur
+                lab[p] = n_nodes
+                node = n_nodes
+                n_nodes += 1
+                sp += 1
+                e = 0
+            # ---- p is done: pop the next pixel from the lowest non-empty bucket
+            if fill[cur] > start[cur]:
+                lv = cur
+            else:
+                lv = _bit_next(occ, summ, cur)
+                if lv < 0:
+                    break
+            slot = fill[lv] - 1
+            p = bucket[slot]
+            fill[lv] = slot
+            if slot == start[lv]:
+                summ = _bit_clear(occ, summ, lv)
+            e = -1 - np.int64(st[p])
+            if lv > cur:  # rising: close the components below lv
+                while True:
+                    t = sp - 1
+                    if sp >= 2 and stk_lv[t - 1] <= lv:  # becomes part of the next one
+                        n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], stk_lv[t - 1], K,
+                                       max_area, node_b, node_size, node_parent, tagged, fin, n_fin)
+                        stk_area[t - 1] += stk_area[t]
+                        sp -= 1
+                        if stk_lv[t - 1] == lv:
+                            break
+                    else:  # becomes part of a new component at lv
+                        n_fin = _close(stk_node[t], stk_area[t], n_nodes, lv, K, max_area,
+                                       node_b, node_size, node_parent, tagged, fin, n_fin)
+                        stk_lv[t] = lv
+                        stk_node[t] = n_nodes
+                        node_b[n_nodes] = lv
+                        n_nodes += 1
+                        break
+                cur = lv
+                node = stk_node[sp - 1]
+            if e == 0:  # first visit (else p resumes after a descent)
+                lab[p] = node
+                stk_area[sp - 1] += 1
+        # ---- the region is flooded: each component left becomes part of the next one, and the
+        # last one (the whole region) lives to the end
+        while sp > 1:
+            t = sp - 1
+            n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], stk_lv[t - 1], K, max_area,
+                           node_b, node_size, node_parent, tagged, fin, n_fin)
+            stk_area[t - 1] += stk_area[t]
+            sp -= 1
+        n_fin = _close(stk_node[0], stk_area[0], -1, K + 2, K, max_area,
+                       node_b, node_size, node_parent, tagged, fin, n_fin)
+    return (lab, node_b[:n_nodes], node_size[:n_nodes], node_parent[:n_nodes], tagged[:n_nodes],
+            fin[:n_fin])
+
+
+@numba.njit(cache=True)
+def _lab_from_order(order, first, n):
+    """Node image of the union-find kernel: first[t] is the node holding pixel order[t]."""
+    lab = np.full(n, -1, np.int32)
+    for t in range(order.size):
+        lab[order[t]] = first[t]
+    return lab
+
+
+@numba.njit(cache=True)
+def _outlier_mask(lab, fin, node_parent, tagged, valid, out):
+    """out (H, W): True on the valid pixels held by a tagged node or by a node inside one."""
     flag = tagged.copy()
-    for a in range(tagged.size - 1, -1, -1):  # parents are created after their children
+    for t in range(fin.size - 1, -1, -1):  # parents are closed after their children
+        a = fin[t]
         pa = node_parent[a]
         if pa >= 0 and flag[pa]:
             flag[a] = True
-    for t in range(order.size):
-        if flag[first[t]]:
-            out[order[t]] = True
+    H, W = out.shape
+    Wp = W + 2
+    for r in range(H):
+        base = (r + 1) * Wp + 1
+        for c in range(W):
+            a = lab[base + c]
+            out[r, c] = a >= 0 and flag[a] and valid[r, c]
 
 
 @numba.njit(cache=True)
-def _cluster_labels(order, first, node_parent, tagged, valid, labels):
+def _cluster_labels(lab, fin, node_parent, tagged, valid, labels):
     """Label of the outermost tagged node over each valid pixel, numbered in raster order."""
     n_nodes = tagged.size
     outer = np.full(n_nodes, -1, np.int64)  # outermost tagged ancestor (or self), -1 none
-    for a in range(n_nodes - 1, -1, -1):
+    for t in range(fin.size - 1, -1, -1):
+        a = fin[t]
         pa = node_parent[a]
         if pa >= 0 and outer[pa] >= 0:
             outer[a] = outer[pa]
@@ -518,9 +746,6 @@ def _cluster_labels(order, first, node_parent, tagged, valid, labels):
             outer[a] = a
     H, W = labels.shape
     Wp = W + 2
-    outer_pad = np.full((H + 2) * Wp, -1, np.int64)
-    for t in range(order.size):
-        outer_pad[order[t]] = outer[first[t]]
     number = np.zeros(n_nodes, np.int64)
     tops = np.empty(n_nodes, np.int64)
     n = 0
@@ -528,8 +753,11 @@ def _cluster_labels(order, first, node_parent, tagged, valid, labels):
         base = (r + 1) * Wp + 1
         for c in range(W):
             labels[r, c] = 0
-            t = outer_pad[base + c]
-            if t < 0 or not valid[r, c]:
+            a = lab[base + c]
+            if a < 0 or not valid[r, c]:
+                continue
+            t = outer[a]
+            if t < 0:
                 continue
             if number[t] == 0:
                 tops[n] = t
@@ -539,22 +767,56 @@ def _cluster_labels(order, first, node_parent, tagged, valid, labels):
     return tops[:n]
 
 
+@numba.njit(cache=True)
+def _level_counts(node_b, node_parent, counts):
+    """counts[k - 1] = number of components of the cut at level k = 1 .. K + 1 (counts (K + 1,)):
+    the nodes with b <= k < e (e = the birth of the parent; never for a root)."""
+    n_k = counts.size  # K + 1
+    diff = np.zeros(n_k + 2, np.int64)
+    for a in range(node_b.size):
+        pa = node_parent[a]
+        e = node_b[pa] if pa >= 0 else n_k + 1
+        diff[min(node_b[a], n_k + 1)] += 1
+        diff[min(e, n_k + 1)] -= 1
+    c = np.int64(0)
+    for k in range(n_k + 1):
+        c += diff[k]
+        if k >= 1:
+            counts[k - 1] = c
+
+
 def _tree(z: np.ndarray, valid: np.ndarray, z_min: float, z_max: float, step: float, K: int,
           max_area: float, connectivity: int):
-    """Padded pixel levels and the component tree of the cuts 0 .. min(K, Q + 1) + 1."""
+    """Padded pixel levels and the component tree of the cuts 0 .. min(K, Q + 1) + 1.
+
+    Returns ``(q, k_eff, lab, node_b, node_parent, tagged, fin)``: ``lab`` (padded, flat) is the
+    node holding each pixel at its own level (< 0: none), ``fin`` lists the nodes children first.
+    """
     K = min(K, _K_CAP)
     q_min = int(_qlevel(z_min, z_max, step, np.int64(K + 2)))  # the deepest level of any pixel
     k_eff = min(K, q_min + 1)  # levels past q_min + 1 change nothing (module notes)
     H, W = z.shape
     if (H + 2) * (W + 2) >= 2**31 - 1:
         raise InputShapeError(f"height is too large for zcut (int32 indices), got {describe_array(z)}")
-    dtype = np.int32 if k_eff + 3 < 2**31 - 1 else np.int64
+    if k_eff + 3 < 2**15 - 1:
+        dtype = np.int16
+    elif k_eff + 3 < 2**31 - 1:
+        dtype = np.int32
+    else:
+        dtype = np.int64
     sentinel = np.iinfo(dtype).max
     q = np.empty((H + 2) * (W + 2), dtype)
     _pixel_levels(z, valid, z_min, z_max, step, np.int64(k_eff + 2), sentinel, q)
-    tree = _component_tree(q, W, np.int64(k_eff), q.dtype.type(k_eff + 1), connectivity == 8,
-                           float(max_area))
-    return q, k_eff, tree
+    top = k_eff + 1
+    if top < _FLOOD_MAX_LEVELS:
+        lab, node_b, _, node_parent, tagged, fin = _flood_tree(
+            q, W, np.int64(k_eff), np.int64(top), connectivity == 8, float(max_area))
+    else:
+        order, first, node_b, _, node_parent, tagged, _, _ = _component_tree(
+            q, W, np.int64(k_eff), q.dtype.type(top), connectivity == 8, float(max_area))
+        lab = _lab_from_order(order, first, q.size)
+        fin = np.arange(node_b.size, dtype=np.int32)  # parents are created after children
+    return q, k_eff, lab, node_b, node_parent, tagged, fin
 
 
 def zcut_outliers(
@@ -594,13 +856,11 @@ def zcut_outliers(
     if rng is None or K < 1:
         return out
     valid, z_min, z_max = rng
-    _, _, (order, first, _, _, node_parent, tagged, _, _) = _tree(
+    _, _, lab, _, node_parent, tagged, fin = _tree(
         z, valid, z_min, z_max, step, K, max_area, connectivity
     )
-    H, W = z.shape
-    out_pad = np.zeros((H + 2, W + 2), dtype=bool)
-    _outlier_pad(order, first, node_parent, tagged, out_pad.reshape(-1))
-    return out_pad[1:-1, 1:-1] & valid
+    _outlier_mask(lab, fin, node_parent, tagged, valid, out)
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -696,18 +956,16 @@ def find_clusters(height: FloatImage, *, params: ZCutParams, connectivity: int =
         return CutResult(outliers, clusters, empty_i64, np.zeros(0), np.zeros(0, np.int32),
                          level_counts, pixel_level, math.nan, math.nan, K)
     valid, z_min, z_max = rng
-    q, k_eff, tree = _tree(z, valid, z_min, z_max, step, K, max_area, connectivity)
-    order, first, node_b, _, node_parent, tagged, lev_value, lev_count = tree
+    q, k_eff, lab, node_b, node_parent, tagged, fin = _tree(
+        z, valid, z_min, z_max, step, K, max_area, connectivity
+    )
     # pixel levels (k_eff >= K or nothing lies deeper than k_eff + 1, so q is exact up to K + 1)
     q2 = q.reshape(H + 2, W + 2)[1:-1, 1:-1]
     inside = q2 <= K + 1
     pixel_level[inside] = q2[inside]
-    # component count of the cut at k = 1 .. K + 1: the count after the last level <= k
-    if lev_value.size:
-        idx = np.searchsorted(lev_value, np.arange(1, K + 2), side="right") - 1
-        level_counts[:] = np.where(idx >= 0, lev_count[np.maximum(idx, 0)], 0)
+    _level_counts(node_b, node_parent, level_counts)
     if K >= 1:
-        tops = _cluster_labels(order, first, node_parent, tagged, valid, clusters)
+        tops = _cluster_labels(lab, fin, node_parent, tagged, valid, clusters)
         outliers = clusters > 0
     else:
         tops = empty_i64
