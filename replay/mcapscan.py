@@ -432,7 +432,7 @@ class McapFile:
 
     # ------------------------------------------------------------------ scanning
     def records(
-        self, damage: list[str], *, prefetch: int = 2, start_offset: int | None = None
+        self, damage: list[str], *, prefetch: int = 1, start_offset: int | None = None
     ) -> Iterator[tuple[int, object]]:
         """Yield (opcode, parsed record) for Schema, Channel, Message and Metadata records in file
         order, chunk contents included.
