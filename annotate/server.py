@@ -262,7 +262,11 @@ def create_app(session: Session, *, max_body_bytes: int = MAX_BODY_BYTES, allowe
         html = (static / "index.html").read_text()
         boot = json.dumps({"token": session.token, "annotator": session.annotator, "log": session.log.name})
         html = html.replace("{{BOOT}}", boot.replace("<", "\\u003c")).replace("{{TOKEN}}", session.token)
-        return HTMLResponse(html, headers={"Cache-Control": "no-store", "Referrer-Policy": "no-referrer"})
+        return HTMLResponse(html, headers={
+            "Cache-Control": "no-store", "Referrer-Policy": "no-referrer", "X-Frame-Options": "DENY",
+            "X-Content-Type-Options": "nosniff",
+            "Content-Security-Policy": "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
+        })
 
     def static_file(request: Request) -> Response:
         name = request.path_params["name"]

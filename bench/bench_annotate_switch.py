@@ -58,6 +58,15 @@ def wait_prepared(base: str, token: str) -> float:
         time.sleep(0.5)
 
 
+def wait_until(page, expr: str, *, timeout_s: float = 120.0) -> None:
+    """Poll a JS expression (the page's CSP forbids the eval behind Playwright's own waiting)."""
+    deadline = time.monotonic() + timeout_s
+    while not page.evaluate(f"(() => {{ try {{ return !!({expr}); }} catch (e) {{ return false; }} }})()"):
+        if time.monotonic() > deadline:
+            raise SystemExit(f"timed out waiting for {expr}")
+        page.wait_for_timeout(5)
+
+
 def stats(name: str, ms: list[float]) -> None:
     a = np.asarray(ms)
     p50, p95 = np.percentile(a, [50, 95])
@@ -95,7 +104,7 @@ def main() -> int:
                 browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
                 page = browser.new_page(viewport={"width": vw, "height": vh})
                 page.goto(f"{base}/?token={token}")
-                page.wait_for_function("window.zcut && window.zcut.ready === true", timeout=120_000)
+                wait_until(page, "window.zcut && window.zcut.ready === true")
                 st = page.evaluate("window.zcut.state()")
                 print(f"frame {st['W']}x{st['H']} in a {vw}x{vh} viewport")
                 n_frames = page.evaluate("document.querySelectorAll('#framelist li').length")
@@ -103,7 +112,7 @@ def main() -> int:
                 def switch(action) -> float:
                     before = page.evaluate("window.zcut.switchTimes.length")
                     action()
-                    page.wait_for_function(f"window.zcut.switchTimes.length > {before}", timeout=60_000)
+                    wait_until(page, f"window.zcut.switchTimes.length > {before}")
                     return page.evaluate("window.zcut.switchTimes[window.zcut.switchTimes.length - 1]")
 
                 nxt = []

@@ -35,22 +35,32 @@ def browser():
         b.close()
 
 
+def wait_until(page, expr: str, *, timeout_s: float = 60.0) -> None:
+    """Poll a JS expression with page.evaluate: the page's CSP forbids the eval that Playwright's
+    waiting helper needs, and the tests run under the page's real CSP."""
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while not page.evaluate(f"(() => {{ try {{ return !!({expr}); }} catch (e) {{ return false; }} }})()"):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {expr}")
+        page.wait_for_timeout(30)
+
+
 def _open(browser, url):
     page = browser.new_page(viewport={"width": 1280, "height": 800})
     errors = []
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.goto(url)
-    page.wait_for_function("window.zcut && window.zcut.ready === true", timeout=60_000)
+    wait_until(page, "window.zcut && window.zcut.ready === true")
     return page, errors
 
 
 def _wait_saved(page):
-    page.wait_for_function("(() => { const s = window.zcut.state(); return s && !s.dirty && !s.saving; })()",
-                           timeout=30_000)
+    wait_until(page, "window.zcut.state() && !window.zcut.state().dirty && !window.zcut.state().saving")
     # no timer pending: nothing unsaved
     page.wait_for_timeout(400)
-    page.wait_for_function("(() => { const s = window.zcut.state(); return s && !s.dirty && !s.saving; })()",
-                           timeout=30_000)
+    wait_until(page, "window.zcut.state() && !window.zcut.state().dirty && !window.zcut.state().saving")
 
 
 def _click_pixel(page, x, y):
@@ -120,10 +130,10 @@ def test_label_by_clicking_and_painting_persists_and_counts(tmp_path, browser):
         page.keyboard.press("h")
         assert page.evaluate("window.zcut.state().view") == "height"
         page.keyboard.press("Enter")
-        page.wait_for_function("window.zcut.state().index === 1", timeout=30_000)
+        wait_until(page, "window.zcut.state().index === 1")
         page.keyboard.press("Enter")
         _wait_saved(page)
-        page.wait_for_function("window.zcut.state().progress.startsWith('reviewed 2 / 2')", timeout=30_000)
+        wait_until(page, "window.zcut.state().progress.startsWith('reviewed 2 / 2')")
         assert not errors and not errors2, errors + errors2
         assert page.evaluate("window.zcut.errors") == []
         page.close()
@@ -216,12 +226,12 @@ def test_box_lasso_eraser_unreviewed_undo_redo_zoom(tmp_path, browser):
         z0 = state()["zoom"]
         page.mouse.move(400, 300)
         page.mouse.wheel(0, -400)
-        page.wait_for_function(f"window.zcut.state().zoom > {z0} * 1.5")
+        wait_until(page, f"window.zcut.state().zoom > {z0} * 1.5")
         page.keyboard.press("f")
         assert state()["zoom"] == pytest.approx(z0)
         _wait_saved(page)
         page.reload()
-        page.wait_for_function("window.zcut && window.zcut.ready === true", timeout=60_000)
+        wait_until(page, "window.zcut && window.zcut.ready === true")
         assert state()["nL"] == n_final and state()["nR"] < int(valid.sum())
         assert page.evaluate("window.zcut.overlayConsistent()")  # incl. the not-reviewed shading
         assert not errors

@@ -75,6 +75,7 @@ def test_page_and_frames(served):
     srv, log, _, truths = served
     r = httpx.get(srv.url)
     assert r.status_code == 200 and "zcut annotate" in r.text and srv.token in r.text
+    assert "default-src 'self'" in r.headers["content-security-policy"] and r.headers["x-frame-options"] == "DENY"
     j = httpx.get(f"{srv.base}/api/frames", headers=srv.headers()).json()
     assert j["total"] == 3 and j["done"] and [f["index"] for f in j["frames"]] == [0, 1, 2]
     frames = list(LogReader(log).frames())
