@@ -20,7 +20,7 @@ from zcut.cuts import CutResult, find_clusters
 from zcut.metrics import RelativeMetrics, relative_metrics
 from zcut.params import ZCutParams
 from zcut.registration import RegistrationResult, register_bin
-from zcut.removal import BinModel, RemovalResult, remove_table_and_bin
+from zcut.removal import BinModel, RemovalResult, finite_xyz, remove_table_and_bin
 from zcut.sor import sor_outliers
 
 from .config import PipelineConfig
@@ -141,7 +141,7 @@ def run_frame(
     timings: dict[str, float] = {}
     warnings: list[str] = []
     xyz = frame.xyz
-    valid = np.isfinite(xyz).all(axis=2)
+    valid = finite_xyz(xyz)
 
     bm: BinMaskResult | None = None
     reg: RegistrationResult | None = None
