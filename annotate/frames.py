@@ -37,6 +37,25 @@ INVALID_GRAY = 48
 
 
 @dataclass(frozen=True, slots=True)
+class ServedFrame:
+    """What the server keeps of a frame: the encoded bytes and a few numbers (no dense arrays, so
+    that a long log at 1920 x 1200 costs about a megabyte per frame)."""
+
+    index: int
+    stamp_ns: int
+    topic: str
+    frame_id: str
+    height: int
+    width: int
+    n_zcut: int
+    n_sor: int
+    rgb_jpeg: bytes | None
+    height_jpeg: bytes
+    bundle: bytes
+    warnings: tuple[str, ...]
+
+
+@dataclass(frozen=True, slots=True)
 class PreparedFrame:
     """A frame as the page needs it.
 
@@ -77,6 +96,13 @@ class PreparedFrame:
     height_jpeg: bytes
     bundle: bytes
     warnings: tuple[str, ...]
+
+    def served(self) -> ServedFrame:
+        """The bytes and numbers the server keeps."""
+        return ServedFrame(index=self.index, stamp_ns=self.stamp_ns, topic=self.topic, frame_id=self.frame_id,
+                           height=self.height, width=self.width, n_zcut=self.n_zcut, n_sor=self.n_sor,
+                           rgb_jpeg=self.rgb_jpeg, height_jpeg=self.height_jpeg, bundle=self.bundle,
+                           warnings=self.warnings)
 
 
 def _small_uint(ids: np.ndarray, n: int) -> np.ndarray:

@@ -34,7 +34,7 @@ from starlette.responses import HTMLResponse, JSONResponse, Response
 from starlette.routing import Route
 
 from .candidates import PipelineRunner
-from .frames import PreparedFrame, bundle_with_blobs
+from .frames import PreparedFrame, ServedFrame, bundle_with_blobs
 from .store import (
     MAX_ANNOTATOR_LEN,
     FrameRecord,
@@ -58,7 +58,8 @@ class Catalog:
     """Frames of the log prepared for the page, in log order, by one background thread.
 
     ``prepare`` turns a :class:`replay.frame.Frame` into a :class:`PreparedFrame` (candidates run
-    once per frame); every prepared frame is registered in the store.
+    once per frame); every prepared frame is registered in the store (with its valid mask) and
+    kept as a :class:`ServedFrame`.
     """
 
     frames_iter: Callable[[], object]
@@ -66,7 +67,7 @@ class Catalog:
     store: LabelStore
     log: LogRecord
     total_hint: int | None = None
-    frames: list[PreparedFrame] = field(default_factory=list)
+    frames: list[ServedFrame] = field(default_factory=list)
     records: list[FrameRecord] = field(default_factory=list)
     done: bool = False
     error: str | None = None
@@ -94,7 +95,7 @@ class Catalog:
                     shape=(pf.height, pf.width), frame_id=pf.frame_id, valid=pf.valid,
                 )
                 with self._cond:
-                    self.frames.append(pf)
+                    self.frames.append(pf.served())
                     self.records.append(rec)
                     self._cond.notify_all()
         except Exception as e:  # shown on the page; the frames prepared so far stay usable
@@ -109,7 +110,7 @@ class Catalog:
         with self._cond:
             return self._cond.wait_for(lambda: self.done, timeout=timeout)
 
-    def get(self, index: int, *, timeout: float = FRAME_WAIT_S) -> tuple[PreparedFrame, FrameRecord] | None:
+    def get(self, index: int, *, timeout: float = FRAME_WAIT_S) -> tuple[ServedFrame, FrameRecord] | None:
         """The prepared frame ``index`` (waiting while it is being prepared); None if there is none."""
         with self._cond:
             self._cond.wait_for(lambda: len(self.frames) > index or self.done, timeout=timeout)
@@ -251,7 +252,7 @@ def create_app(session: Session, *, max_body_bytes: int = MAX_BODY_BYTES, allowe
     """The ASGI app of a session (token gate outermost, then the body limit, then the host check)."""
     static = resources.files("annotate") / "static"
 
-    def _frame(request: Request) -> tuple[PreparedFrame, FrameRecord]:
+    def _frame(request: Request) -> tuple[ServedFrame, FrameRecord]:
         raw = request.path_params["index"]
         got = session.catalog.get(raw)
         if got is None:
