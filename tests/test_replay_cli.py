@@ -72,6 +72,9 @@ def test_replay_with_bin_model_writes_rrd_results_and_config(tmp_path, capsys, l
         assert f.masks["/zcut/outliers"].sum() == row["zcut"]
         assert f.masks["/zcut/sor_outliers"].sum() == row["sor"]
         assert f.masks["/zcut/bin_mask"].any()
+    # with the bin removed, most z-cut outliers are true ones (the noisy rim is not in the zone)
+    tp = sum(int((f.masks["/zcut/outliers"] & f.masks["/ground_truth/outliers"]).sum()) for f in frames)
+    assert tp >= 0.5 * sum(row["zcut"] for row in summary["frames"]) > 0
     src = list(LogReader(filled).frames())
     for f, s in zip(frames, src):
         assert np.array_equal(f.masks["/ground_truth/outliers"], s.masks["/ground_truth/outliers"])
