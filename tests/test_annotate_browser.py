@@ -243,3 +243,46 @@ def test_box_lasso_eraser_unreviewed_undo_redo_zoom(tmp_path, browser):
     assert int(lab.outliers.sum()) == n_final
     assert not (lab.outliers & ~lab.reviewed).any() and not (lab.reviewed & ~valid).any()
     assert lab.reviewed.sum() < valid.sum() and np.array_equal(lab.reviewed[40:], valid[40:])  # stroke at row 12
+
+
+def test_conflicting_save_is_shown_and_resolved(tmp_path, browser):
+    import base64
+
+    from annotate.store import pack_mask
+
+    log = tmp_path / "scan.mcap"
+    write_spike_log(log, frames=1, shape=(96, 128))
+    db = tmp_path / "labels.sqlite"
+    srv = ServerProcess(log, db, annotator="erin")
+    try:
+        _, arrays = parse_bundle(httpx.get(f"{srv.base}/api/frames/0/bundle", headers=srv.headers()).content)
+        valid = arrays["valid"]
+        page, errors = _open(browser, srv.url)
+        # another tab of erin saves first
+        theirs = np.zeros_like(valid)
+        theirs[40:44, 40:44] = True
+        theirs &= valid
+        body = {"annotator": "erin", "base_revision": 0, "height": valid.shape[0], "width": valid.shape[1],
+                "outliers": base64.b64encode(pack_mask(theirs)).decode(),
+                "reviewed": base64.b64encode(pack_mask(valid)).decode()}
+        assert httpx.put(f"{srv.base}/api/frames/0/label", json=body, headers=srv.headers()).json()["revision"] == 1
+        # this page, still at revision 0, paints: its save is refused and the conflict shown
+        page.keyboard.press("b")
+        _click_pixel(page, 10, 10)
+        wait_until(page, "window.zcut.state().conflict === 1")
+        assert page.is_visible("#conflict")
+        mine = page.evaluate("window.zcut.state().nL")
+        page.click("#overwrite")  # keep mine: saved on top of theirs, as revision 2
+        _wait_saved(page)
+        st = page.evaluate("window.zcut.state()")
+        assert (st["rev"], st["conflict"], st["nL"]) == (2, 0, mine)
+        assert not page.is_visible("#conflict")
+        assert not errors
+        page.close()
+    finally:
+        srv.stop()
+    with LabelStore(db) as s:
+        fr = s.frames(s.log_by_sha(file_sha256(log)))[0]
+        assert s.revisions(fr, annotator="erin") == [1, 2]
+        assert np.array_equal(s.label(fr, annotator="erin", revision=1).outliers, theirs)  # kept in the history
+        assert int(s.label(fr, annotator="erin").outliers.sum()) == mine

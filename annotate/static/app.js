@@ -199,7 +199,10 @@ async function goTo(index, t0 = performance.now()) {
   try { fd = await loadFrame(index); } catch (e) { showError(String(e)); return; }
   if (my !== navToken) return;
   const sameShape = state.cur && state.cur.W === fd.W && state.cur.H === fd.H;
+  const dir = state.cur && index < state.cur.index ? -1 : 1;
   state.cur = fd;
+  $('conflict').hidden = !fd.conflict;
+  $('latest').textContent = fd.conflict || '';
   if (!sameFlags(fd.ovFlags, flags())) renderOverlay();
   if (!sameShape || !state.fitted) { fit(); state.fitted = true; }
   draw();
@@ -210,8 +213,8 @@ async function goTo(index, t0 = performance.now()) {
   });
   history.replaceState(null, '', `?token=${encodeURIComponent(TOKEN)}#${index}`);
   evict(index);
-  (async () => {  // prefetch the neighbours one at a time, the next one first
-    for (const d of [1, -1, 2, -2]) {
+  (async () => {  // prefetch the neighbours one at a time, the next one in the direction of travel first
+    for (const d of [dir, -dir, 2 * dir, -2 * dir]) {
       const j = index + d;
       if (my !== navToken) return;
       if (j >= 0 && (!state.total || j < state.total)) { try { await loadFrame(j); } catch (e) { /* shown on use */ } }
