@@ -259,8 +259,9 @@ def load_toml(path: str | Path) -> dict[str, Any]:
 
 
 def cli_layer(*, step: float | None = None, max_depth: float | None = None,
-              max_area: float | None = None) -> dict[str, Any]:
-    """The ``--step/--max-depth/--max-area`` overrides as a layer."""
+              max_area: float | None = None, preset: str | None = None) -> dict[str, Any]:
+    """The ``--step/--max-depth/--max-area/--preset`` overrides as a layer."""
+    out: dict[str, Any] = {} if preset is None else {"preset": preset}
     z: dict[str, Any] = {}
     if step is not None:
         z["step_mm"] = float(step)
@@ -268,7 +269,9 @@ def cli_layer(*, step: float | None = None, max_depth: float | None = None,
         z["max_depth_mm"] = float(max_depth)
     if max_area is not None:
         z["max_area_px"] = float(max_area)
-    return {"zcut": z} if z else {}
+    if z:
+        out["zcut"] = z
+    return out
 
 
 def _toml_value(v: Any) -> str:
@@ -352,7 +355,7 @@ def resolve(
     file_layer : dict, optional
         From :func:`load_toml`. A ``preset`` key there beats ``part_kind``.
     cli : dict, optional
-        From :func:`cli_layer`.
+        From :func:`cli_layer`; its ``preset`` beats the file's.
     part_kind : str, optional
         From the log's ``zcut.synth`` metadata.
     camera_distance_mm, fx, fy : float, optional
@@ -368,12 +371,18 @@ def resolve(
     file_layer = file_layer or {}
     cli = cli or {}
     notes: list[str] = []
-    kind = file_layer.get("preset", part_kind)
+    if cli.get("preset") is not None:
+        kind, src = cli["preset"], "the command line"
+    elif file_layer.get("preset") is not None:
+        kind, src = file_layer["preset"], "the config file"
+    else:
+        kind, src = part_kind, "the log's zcut.synth metadata"
     layers: list[dict[str, Any]] = []
     if kind is not None:
         layers.append(preset_layer(kind, camera_distance_mm=camera_distance_mm, fx=fx, fy=fy))
-        src = "the config file" if "preset" in file_layer else "the log's zcut.synth metadata"
         notes.append(f"using the {kind!r} preset (part kind from {src})")
+        if camera_distance_mm is None or fx is None or fy is None:
+            notes.append("the preset's a_max needs the camera distance and intrinsics: not known here")
     d = merge(to_dict(PipelineConfig()), *layers, file_layer, cli)
     z = d["zcut"]
     if "max_area_px" not in z or z["max_area_px"] is None:

@@ -142,6 +142,37 @@ def synth_info(metadata: dict[str, dict[str, str]]) -> tuple[str | None, float |
     return kind, dist
 
 
+def intrinsics_from_cloud(xyz: np.ndarray):
+    """Pinhole intrinsics fitted to an organized cloud (x/z = (u - cx)/fx, y/z = (v - cy)/fy).
+
+    Least squares over the valid points with z > 0; None when fewer than 100 such points or a
+    non-positive focal length comes out.
+    """
+    from zcut.cloud import Intrinsics
+
+    h, w = xyz.shape[:2]
+    z = xyz[..., 2].astype(np.float64)
+    ok = np.isfinite(xyz).all(axis=2) & (z > 0)
+    if ok.sum() < 100:
+        return None
+    v, u = np.nonzero(ok)
+    fits = []
+    for coord, pix in ((xyz[..., 0][ok] / z[ok], u), (xyz[..., 1][ok] / z[ok], v)):
+        slope, intercept = np.polyfit(pix.astype(np.float64), coord.astype(np.float64), 1)
+        if not slope > 0:
+            return None
+        fits.append((1.0 / slope, -intercept / slope))
+    (fx, cx), (fy, cy) = fits
+    return Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy, width=w, height=h)
+
+
+def _median_depth_mm(frame: Frame) -> float | None:
+    """Median z of the valid points (mm): the camera distance a preset's a_max is measured at."""
+    z = frame.xyz[..., 2]
+    z = z[np.isfinite(z)]
+    return float(np.median(z)) * 1000.0 if z.size else None
+
+
 def config_path_for(output: str | Path) -> Path:
     """Where the resolved config goes beside an output: ``OUT.rrd`` -> ``OUT.config.toml``."""
     p = Path(output)
@@ -219,10 +250,23 @@ def replay_log(
         for frame in reader.frames(start=start, stop=stop):
             if summary.resolved is None:
                 K = frame.intrinsics
+                wants_preset = (overrides or {}).get("preset") or file_layer.get("preset")
+                extra: list[str] = []
+                if wants_preset and distance_mm is None:
+                    distance_mm = _median_depth_mm(frame)
+                    if distance_mm is not None:
+                        extra.append(f"camera distance for the preset's a_max: the median depth, {distance_mm:.0f} mm")
+                if wants_preset and K is None:
+                    K = intrinsics_from_cloud(frame.xyz)
+                    if K is not None:
+                        extra.append(f"intrinsics estimated from the organized cloud: fx {K.fx:.1f}, fy {K.fy:.1f} px")
                 summary.resolved = cfg.resolve(
                     file_layer=file_layer, cli=overrides, part_kind=part_kind,
                     camera_distance_mm=distance_mm, fx=K.fx if K else None, fy=K.fy if K else None,
                     image_shape=frame.shape)
+                if extra:
+                    r = summary.resolved
+                    summary.resolved = cfg.Resolved(r.config, tuple(extra) + r.notes)
                 config = summary.resolved.config
                 toml = cfg.to_toml(config, header=f"zcut resolved config for {Path(path).name}")
                 for o in (rrd, out):

@@ -203,3 +203,26 @@ def test_demo_end_to_end(tmp_path, capsys, monkeypatch):
     rows = [ln for ln in out.splitlines() if ln.split() and ln.split()[0] in ("zcut", "sor")]
     assert len(rows) == 2
     assert (tmp_path / "out" / "zcut_demo.rrd").stat().st_size < 10 * 1024 * 1024 * 3
+
+
+def test_preset_on_a_real_log_estimates_the_camera(capsys, real_data):
+    log = real_data / "mosd_clutter_kinect_ros2.mcap"
+    rc, out, err = run_cli(capsys, "replay", log, "--preset", "black_nuts", "--frames", "0", "--json")
+    assert rc == 0, err
+    assert "using the 'black_nuts' preset (part kind from the command line)" in err
+    assert "intrinsics estimated from the organized cloud: fx 525.0" in err  # the Kinect's focal length
+    z = json.loads(out)["config"]["zcut"]
+    assert z["max_area_px"] == pytest.approx(0.07 * z["a_max_px"])
+    rc, _, err = run_cli(capsys, "replay", log, "--preset", "bolts")
+    assert rc == 1 and "preset must be one of" in err
+
+
+def test_intrinsics_from_an_organized_cloud():
+    import pipeline_scene as ps
+    from replay.run import intrinsics_from_cloud
+
+    frame, _ = ps.scene(h=60, w=80)
+    K = intrinsics_from_cloud(frame.xyz)
+    true = ps.intrinsics(60, 80)
+    assert K.fx == pytest.approx(true.fx, rel=1e-4) and K.cy == pytest.approx(true.cy, abs=1e-3)
+    assert intrinsics_from_cloud(np.full((20, 20, 3), np.nan, np.float32)) is None

@@ -23,6 +23,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--step", type=float, metavar="MM", help="z-cut step Δd in mm (overrides the config)")
     p.add_argument("--max-depth", type=float, metavar="MM", help="z-cut depth d_max in mm (overrides the config)")
     p.add_argument("--max-area", type=float, metavar="PX", help="z-cut cluster area threshold μ_thr in pixels")
+    p.add_argument("--preset", metavar="KIND", help="part-kind preset (spheres, zinc_nuts, rods, black_screws, "
+                   "black_nuts, sprockets); synthetic logs choose theirs from their metadata")
     p.add_argument("--frames", metavar="A:B", help="frame index range (B exclusive), or N for one frame")
     p.add_argument("--topic", metavar="T", help="cloud topic (when the log has several)")
     p.add_argument("--bin-model", metavar="PLY", help="bin model (from `zcut bin-model` or a CAD PLY); "
@@ -89,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
     from replay.run import parse_frames, replay_log
 
     frames = parse_frames(args.frames)
-    overrides = cfg.cli_layer(step=args.step, max_depth=args.max_depth, max_area=args.max_area)
+    overrides = cfg.cli_layer(step=args.step, max_depth=args.max_depth, max_area=args.max_area,
+                              preset=args.preset)
     cfg.from_dict(overrides, source="command line")  # bad values fail before reading the log
     model = load_bin_model(args.bin_model) if args.bin_model else None
     total = None if frames[1] is None else frames[1] - frames[0]
