@@ -7,11 +7,15 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from annotate.accuracy import (
     METHODS,
     METRIC_KEYS,
     accuracy_report,
+    agreement_counts,
     format_accuracy_table,
     frame_accuracy,
     jsonable,
@@ -132,3 +136,34 @@ def test_method_masks_union_intersection():
 def test_bad_input(preds, truth, exc, match):
     with pytest.raises(exc, match=match):
         frame_accuracy(0, 0, preds, truth)
+
+
+# ---------------------------------------------------------------- laws (hypothesis)
+_masks = st.integers(1, 12).flatmap(
+    lambda h: st.integers(1, 12).flatmap(
+        lambda w: st.tuples(*[arrays(np.bool_, (h, w)) for _ in range(4)])))
+
+
+@settings(max_examples=60, deadline=None)
+@given(_masks)
+def test_union_and_intersection_laws(ms):
+    z, s, truth, reviewed = ms
+    truth = truth & reviewed
+    c = frame_accuracy(0, 0, {"zcut": z, "sor": s}, truth, reviewed=reviewed).counts
+    assert c["union"].tp == c["zcut"].tp + c["sor"].tp - c["intersection"].tp
+    assert c["union"].fp == c["zcut"].fp + c["sor"].fp - c["intersection"].fp
+    assert c["intersection"].tp <= min(c["zcut"].tp, c["sor"].tp)
+    for m in METHODS:  # every true outlier is either found or missed
+        assert c[m].tp + c[m].fn == int(truth.sum())
+
+
+@settings(max_examples=60, deadline=None)
+@given(_masks)
+def test_agreement_is_symmetric_and_perfect_with_itself(ms):
+    a, b, ra, rb = ms
+    a, b = a & ra, b & rb
+    ab, ba = agreement_counts(a, ra, b, rb), agreement_counts(b, rb, a, ra)
+    assert (ab.both, ab.only_a, ab.only_b, ab.neither) == (ba.both, ba.only_b, ba.only_a, ba.neither)
+    same = agreement_counts(a, ra, a, ra)
+    assert same.only_a == same.only_b == 0
+    assert math.isnan(same.kappa) or same.kappa == pytest.approx(1.0)

@@ -7,6 +7,8 @@ import sqlite3
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis.extra.numpy import array_shapes, arrays
 
 from annotate.store import (
     SCHEMA_VERSION,
@@ -215,3 +217,9 @@ def test_import_needs_the_log(tmp_path, store_frame, rng, valid):
     with LabelStore(tmp_path / "empty.sqlite") as other:
         with pytest.raises(StoreError, match="not registered"):
             import_labels(other, tmp_path / "x.mcap")
+
+
+@settings(max_examples=100, deadline=None)
+@given(arrays(np.bool_, array_shapes(min_dims=2, max_dims=2, min_side=1, max_side=40)))
+def test_pack_roundtrip_any_shape(m):
+    assert np.array_equal(unpack_mask(pack_mask(m), m.shape), m)
