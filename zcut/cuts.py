@@ -267,11 +267,29 @@ def _qlevel(zt: float, z_max: float, step: float, hi: np.int64) -> np.int64:
     return good
 
 
+@numba.njit(cache=True, inline="always")
+def _qlevel_guess(zt, z_max, step, inv_step, hi):
+    """:func:`_qlevel`, fast when the guess ``floor((z_max - zt) * inv_step)`` or the next level is
+    right (checked with the exact comparisons); else :func:`_qlevel` itself."""
+    g = (z_max - zt) * inv_step
+    if g >= 0 and g < hi - 1:  # (False for NaN)
+        k = np.int64(g)
+        if zt >= z_max - k * step:
+            if k == 0 or not zt >= z_max - (k - 1) * step:
+                return k
+        elif zt >= z_max - (k + 1) * step:  # in the cut k + 1, not in k
+            return k + 1
+    elif g >= hi - 1 and not zt >= z_max - (hi - 1) * step:  # not in the last cut
+        return hi
+    return _qlevel(zt, z_max, step, hi)
+
+
 @numba.njit(cache=True)
 def _pixel_levels(z, valid, z_min, z_max, step, hi, sentinel, q):
     """Fill q, the (H + 2) * (W + 2) padded level image: interior = level, border = sentinel."""
     H, W = z.shape
     Wp = W + 2
+    inv_step = 1.0 / step
     for c in range(Wp):
         q[c] = sentinel
         q[(H + 1) * Wp + c] = sentinel
@@ -281,7 +299,7 @@ def _pixel_levels(z, valid, z_min, z_max, step, hi, sentinel, q):
         q[base + W + 1] = sentinel
         for c in range(W):
             zt = z[r, c] if valid[r, c] else z_min
-            q[base + 1 + c] = _qlevel(zt, z_max, step, hi)
+            q[base + 1 + c] = _qlevel_guess(zt, z_max, step, inv_step, hi)
 
 
 @numba.njit(cache=True, inline="always")
