@@ -27,6 +27,7 @@ BIN_MASK_TOPIC = "/zcut/bin_mask"
 FILTERED_TOPIC = "/zcut/filtered"
 SYNTH_METADATA = "zcut.synth"
 RESULTS_METADATA = "zcut.results"
+VIEWER_FLUSH_TIMEOUT_S = 10.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -87,6 +88,7 @@ class ReplaySummary:
     outputs: dict[str, str] = field(default_factory=dict)
     part_kind: str | None = None
     n_planned: int | None = None  # frames in the requested range, when the log's summary says
+    viewer_error: str | None = None  # --spawn/--connect: the viewer did not take the data
 
     def as_dict(self) -> dict[str, Any]:
         total = {k: sum(getattr(r, k) for r in self.rows)
@@ -314,9 +316,14 @@ def replay_log(
         if writer is not None:
             writer.close()
         if rec is not None:
-            rec.flush()
             if rrd is not None:
-                rec.disconnect()
+                rec.flush()
+            else:  # a viewer that is gone must not hang the replay
+                try:
+                    rec.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)
+                except Exception as e:  # rerun raises a plain exception on timeout
+                    summary.viewer_error = f"the viewer did not take the data within {VIEWER_FLUSH_TIMEOUT_S:g} s ({e})"
+            rec.disconnect()
     return summary, kept
 
 

@@ -226,3 +226,17 @@ def test_intrinsics_from_an_organized_cloud():
     true = ps.intrinsics(60, 80)
     assert K.fx == pytest.approx(true.fx, rel=1e-4) and K.cy == pytest.approx(true.cy, abs=1e-3)
     assert intrinsics_from_cloud(np.full((20, 20, 3), np.nan, np.float32)) is None
+
+
+@pytest.mark.slow
+def test_connect_to_a_missing_viewer_does_not_hang(capsys, real_data):
+    import socket
+
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    log = real_data / "mosd_clutter_kinect_ros2.mcap"
+    rc, out, err = run_cli(capsys, "replay", log, "--connect", f"rerun+http://127.0.0.1:{port}/proxy", "--frames", "0")
+    assert rc == 0
+    assert "the viewer did not take the data" in err
+    assert len(out.strip().splitlines()) == 2

@@ -109,6 +109,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"zcut: wrote {name}: {path}", file=sys.stderr)
     if "rrd" in summary.outputs:
         print(f"zcut: open it with: rerun {summary.outputs['rrd']}", file=sys.stderr)
+    if summary.viewer_error:
+        print(f"warning: {summary.viewer_error}", file=sys.stderr)
     if summary.damage:
         for d in summary.damage:
             print(f"warning: data loss: {d}", file=sys.stderr)
