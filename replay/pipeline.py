@@ -19,7 +19,7 @@ from zcut.binmask import BinMaskResult, bin_mask
 from zcut.cuts import CutResult, find_clusters
 from zcut.metrics import RelativeMetrics, relative_metrics
 from zcut.params import ZCutParams
-from zcut.registration import RegistrationResult, register_bin
+from zcut.registration import RegistrationResult, pose_fitness, register_bin
 from zcut.removal import BinModel, RemovalResult, finite_xyz, remove_table_and_bin
 from zcut.sor import sor_outliers
 
@@ -29,9 +29,9 @@ from .frame import Frame
 
 STAGES = ("bin_mask", "registration", "removal", "zcut", "sor", "metrics")
 REGISTRATION_MAX_POINTS = 150_000
-# a fine-only registration from the previous pose is kept when its fitness is at least this
-# fraction of the previous frame's; else the full coarse-to-fine registration runs
-PREVIOUS_FITNESS_KEPT = 0.95
+# the previous frame's pose is refined with the fine pass only when, on this frame, it already fits
+# at least this fraction as well as it did there; else the full coarse-to-fine registration runs
+PREVIOUS_FITNESS_KEPT = 0.9
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,10 +174,14 @@ def run_frame(
                   min_fitness=c.min_fitness, max_rmse_m=c.max_rmse_mm / 1000.0)
         reg = None
         if init is not None:
-            # a static bin: the previous pose needs only the fine pass; a moved bin falls back below
-            reg = register_bin(bin_model.points, target, init=init, coarse=False, **kw)
-            if not reg.converged or reg.fitness < PREVIOUS_FITNESS_KEPT * previous.registration.fitness:
-                reg = None
+            # a static bin: the previous pose needs only the fine pass (a moved bin: the full one)
+            fine = c.max_correspondence_mm / 3000.0
+            f0 = pose_fitness(bin_model.points, target, init, model_normals=bin_model.normals,
+                              voxel_m=c.voxel_mm / 1000.0, max_correspondence_m=fine)
+            if f0 >= PREVIOUS_FITNESS_KEPT * previous.registration.fitness:
+                reg = register_bin(bin_model.points, target, init=init, coarse=False, **kw)
+                if not reg.converged:
+                    reg = None
         if reg is None:
             reg = register_bin(bin_model.points, target, **kw)
         timings["registration"] = time.perf_counter() - t

@@ -144,3 +144,13 @@ def test_unresolved_config_is_refused():
         zcut_params(PipelineConfig())
     p = zcut_params(from_dict({"zcut": {"max_area_px": 7.0, "a_max_px": 100.0}}))
     assert (p.step, p.max_depth, p.max_area, p.a_max) == (0.2, 30.0, 7.0, 100.0)
+
+
+def test_a_moved_bin_is_registered_afresh(model, config):
+    a, _ = ps.scene(h=H, w=W, shift=SHIFT)
+    b, _ = ps.scene(h=H, w=W, shift=(SHIFT[0] + 0.03, SHIFT[1], SHIFT[2]))  # the bin moved 3 cm
+    first = run_frame(a, config, bin_model=model)
+    second = run_frame(b, config, bin_model=model, previous=first)
+    assert not np.array_equal(second.registration.T_init, first.registration.T_cam_bin)
+    assert second.registration.converged
+    assert second.registration.T_cam_bin[0, 3] == pytest.approx(SHIFT[0] + 0.03, abs=0.002)

@@ -231,3 +231,21 @@ def test_model_from_points_downsamples_with_normals():
     assert np.allclose(np.abs(m.normals[:, 2]), 1.0, atol=1e-6)
     assert (m.normals[:, 2] < 0).all()  # oriented towards the camera at the origin
     assert isinstance(PipelineConfig().registration.voxel_mm, float)
+
+
+def test_pose_fitness_scores_a_pose_without_icp(filled, model):
+    from zcut.registration import pose_fitness
+
+    frame, _ = filled
+    target = frame.xyz[bin_mask(frame.rgb).walls].astype(np.float64)
+    r = register_bin(model.points, target, model_normals=model.normals, voxel_m=0.001)
+    fine = 0.01 / 3.0
+    at_pose = pose_fitness(model.points, target, r.T_cam_bin, model_normals=model.normals, voxel_m=0.001,
+                           max_correspondence_m=fine)
+    assert at_pose == pytest.approx(r.fitness, abs=0.02)
+    moved = r.T_cam_bin.copy()
+    moved[:3, 3] += [0.0, 0.0, 0.02]  # 2 cm deeper: the rim and walls no longer fit
+    assert pose_fitness(model.points, target, moved, model_normals=model.normals, voxel_m=0.001,
+                        max_correspondence_m=fine) < 0.5 * at_pose
+    with pytest.raises(InputShapeError, match="T_cam_bin"):
+        pose_fitness(model.points, target, np.eye(3))

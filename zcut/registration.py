@@ -233,3 +233,41 @@ def register_bin(
     if not (rmse <= max_rmse_m):
         reasons.append(f"RMSE {rmse * 1000:.2f} mm > {max_rmse_m * 1000:g} mm")
     return RegistrationResult(T_cam_bin, fitness, rmse, not reasons, "; ".join(reasons), n_m, n_t, T0.copy())
+
+
+def pose_fitness(
+    model: np.ndarray,
+    target: np.ndarray,
+    T_cam_bin: np.ndarray,
+    *,
+    model_normals: np.ndarray | None = None,
+    voxel_m: float = 0.003,
+    max_correspondence_m: float = 0.01,
+) -> float:
+    """Fitness of a given pose without running ICP (one nearest-neighbour pass).
+
+    The fraction of the frame's (downsampled) bin points with a model point within
+    ``max_correspondence_m`` once the model is placed at ``T_cam_bin``; 0 without target points.
+    Used to decide whether the previous frame's pose is still close (a static bin).
+
+    Parameters
+    ----------
+    model : (N, 3) float ndarray
+    target : (M, 3) float ndarray
+    T_cam_bin : (4, 4) float ndarray
+    model_normals, voxel_m, max_correspondence_m
+        As for :func:`register_bin` (the same model cache is used).
+    """
+    import open3d as o3d
+
+    T = np.asarray(T_cam_bin, dtype=np.float64)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise InputShapeError(f"T_cam_bin must be a finite (4, 4) array, got {describe_array(T)}")
+    m = model if (isinstance(model, np.ndarray) and model.dtype == np.float64) else _check_points(model, "model")
+    t = _check_points(target, "target")
+    if len(t) == 0 or len(m) == 0:
+        return 0.0
+    src = _cloud(t, voxel_m)
+    dst = _model_cloud(m, model_normals, voxel_m, max(3.0 * voxel_m, 2.0 * max_correspondence_m / 3.0))
+    ev = o3d.pipelines.registration.evaluate_registration(src, dst, max_correspondence_m, np.linalg.inv(T))
+    return float(ev.fitness)
