@@ -200,6 +200,21 @@ def test_kernels_meet_at_the_level_limit(n_levels_above: int) -> None:
         np.testing.assert_array_equal(res.outliers, ref)
 
 
+def test_int32_levels() -> None:
+    # 40000 levels between the top pixel and the floor: int32 level image, union-find kernel
+    z = np.array([[0.0, 0.0, 40.0], [0.0, 39.9995, 0.0]])
+    params = dict(step=1e-3, max_depth=50.0)
+    out = zcut_outliers(z, max_area=3, **params)
+    np.testing.assert_array_equal(out, [[False, False, True], [False, True, False]])
+    out = zcut_outliers(z, max_area=3, connectivity=4, **params)  # two separate singletons
+    np.testing.assert_array_equal(out, [[False, False, True], [False, True, False]])
+    out = zcut_outliers(z, max_area=2, **params)  # 8-connected: one pair, from level 1 on
+    np.testing.assert_array_equal(out, np.zeros((2, 3), bool))
+    res = find_clusters(z, params=ZCutParams(step=1e-3, max_depth=30.0, max_area=3))
+    assert res.pixel_level[0, 2] == 0 and res.pixel_level[1, 1] == 1 and res.pixel_level[0, 0] == -1
+    np.testing.assert_array_equal(res.levels, [1])
+
+
 def test_large_max_depth_is_capped() -> None:
     z = np.array([[0.0, 0.0, 5.0]])
     assert n_levels(1e-300, 1e300) == 2**60
