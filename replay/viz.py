@@ -20,9 +20,10 @@ An explicit :class:`rerun.RecordingStream` is passed in (no global recording). E
 ====================================  ==========================================================
 
 The z-cuts cost one small image per frame: ``zcut/cuts`` holds the pixel level (the first cut a
-pixel belongs to) as a segmentation image, and for every level k one AnnotationContext, logged at
-``depth_um`` = k·Δd in micrometres, colours the classes 0..k and leaves the deeper ones transparent:
-scrubbing ``depth_um`` shows the real cut Z_k. Levels repeat from frame to frame, so the depth
+pixel belongs to) as a segmentation image, and for every shown level k one AnnotationContext,
+logged at ``depth_um`` = k·Δd in micrometres, colours the levels up to k and leaves the deeper ones
+transparent: scrubbing ``depth_um`` shows the real cut Z_k (every level at full detail, at most 32
+evenly spaced ones by default). Levels repeat from frame to frame, so the depth
 timeline shows the last frame logged (replay one frame with ``--frames N:N+1`` to debug it).
 """
 
@@ -73,6 +74,8 @@ class VizOptions:
         Quality of the RGB image (when not full detail).
     max_cluster_labels : int
         Clusters beyond this many get no label (the colour stays).
+    max_scrub_levels : int
+        Cut levels shown on the depth timeline per frame (full detail: all).
     """
 
     full_detail: bool = False
@@ -80,6 +83,7 @@ class VizOptions:
     level_stride: int = 2
     jpeg_quality: int = 85
     max_cluster_labels: int = 2000
+    max_scrub_levels: int = 32
 
     @classmethod
     def full(cls) -> VizOptions:
@@ -232,22 +236,43 @@ def _level_colours(n: int) -> np.ndarray:
     return np.stack([r, g, b], axis=1)[:n]
 
 
+def scrub_levels(n_levels: int, opts: VizOptions) -> tuple[int, list[int]]:
+    """(m, levels): the cut levels shown on the depth timeline, every m-th of 0 .. K + 1 and K + 1.
+
+    Full detail shows every level; by default at most ``opts.max_scrub_levels`` (an
+    AnnotationContext per shown level is the cost of scrubbing).
+    """
+    top = n_levels + 1
+    m = 1 if opts.full_detail else max(1, -(-(top + 1) // max(int(opts.max_scrub_levels), 2)))
+    levels = list(range(0, top + 1, m))
+    if levels[-1] != top:
+        levels.append(top)
+    return m, levels
+
+
 def log_cuts(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions, *, step_mm: float) -> None:
-    """The z-cuts, scrubbable on the ``depth_um`` timeline (see the module docstring)."""
+    """The z-cuts, scrubbable on the ``depth_um`` timeline (see the module docstring).
+
+    The level image holds class ``ceil(level / m) + 1`` (0: deeper than K + 1 or invalid); the
+    context logged at ``depth_um`` = k·Δd for each shown level k = q·m colours the classes 1 .. q + 1
+    and hides the rest, so the cut shown at k is exactly Z_k.
+    """
     cut = result.cut
     s = 1 if opts.full_detail else max(int(opts.level_stride), 1)
-    lvl = cut.pixel_level[::s, ::s]
-    seg = (lvl.astype(np.int32) + 1).astype(np.uint16)  # class = level + 1, 0 = beyond K + 1 / invalid
-    n_cls = cut.n_levels + 2  # levels 0 .. K + 1
+    m, levels = scrub_levels(cut.n_levels, opts)
+    lvl = cut.pixel_level[::s, ::s].astype(np.int32)
+    seg = np.where(lvl >= 0, (lvl + m - 1) // m + 1, 0).astype(np.uint16)
+    n_cls = (cut.n_levels + 1 + m - 1) // m + 1  # classes 1 .. n_cls
     colours = _level_colours(n_cls)
     rec.set_time("depth_um", sequence=0)
     rec.log("zcut/cuts", rr.SegmentationImage(seg))
-    for k in range(n_cls):
+    for k in levels:
+        q = (k + m - 1) // m
         rec.set_time("depth_um", sequence=int(round(k * step_mm * 1000.0)))
         infos = [rr.AnnotationInfo(id=0, color=(0, 0, 0, 0))]
-        infos += [rr.AnnotationInfo(id=c + 1, label=f"level {c}", color=tuple(colours[c]) + (255,))
-                  for c in range(k + 1)]
-        infos += [rr.AnnotationInfo(id=c + 1, color=(0, 0, 0, 0)) for c in range(k + 1, n_cls)]
+        infos += [rr.AnnotationInfo(id=c + 1, label=f"levels <= {min(c * m, cut.n_levels + 1)}",
+                                    color=tuple(int(v) for v in colours[c]) + (255,)) for c in range(q + 1)]
+        infos += [rr.AnnotationInfo(id=c + 1, color=(0, 0, 0, 0)) for c in range(q + 1, n_cls)]
         rec.log("zcut/cuts", rr.AnnotationContext(infos))
     rec.disable_timeline("depth_um")
 

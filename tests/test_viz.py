@@ -140,8 +140,41 @@ def test_cuts_are_scrubbable_on_the_depth_timeline(recording):
     assert "depth_um" in timelines and "frame" in timelines
     # one context per level 0 .. K + 1 per frame
     K = results[0][1].cut.n_levels
-    assert n_ctx == 2 * (K + 2)
-    assert depths == {k * 1000 for k in range(K + 2)}  # depth_um = k * step (1 mm)
+    m, levels = viz.scrub_levels(K, viz.VizOptions())
+    assert levels[0] == 0 and levels[-1] == K + 1 and len(levels) <= 33
+    assert n_ctx == 2 * len(levels)
+    assert depths == {k * 1000 for k in levels}  # depth_um = k * step (1 mm)
+
+
+@pytest.mark.parametrize("K, full, expect", [
+    (40, True, list(range(42))),
+    (40, False, list(range(0, 42, 2))),          # 42 levels > 32: every 2nd, 0 .. 40 and 41
+    (10, False, list(range(12))),
+    (150, False, list(range(0, 152, 5)) + [151]),
+])
+def test_scrub_levels(K, full, expect):
+    m, levels = viz.scrub_levels(K, viz.VizOptions.full() if full else viz.VizOptions())
+    assert levels == (expect if expect[-1] == K + 1 else expect + [K + 1])
+
+
+def test_a_shown_cut_is_exactly_the_cut(recording):
+    """The level image's classes visible at level k are exactly the pixels with pixel_level <= k."""
+    path, _, results, _ = recording
+    r = results[-1][1]
+    m, levels = viz.scrub_levels(r.cut.n_levels, viz.VizOptions())
+    seg = None
+    for chunk in rr.chunk.RrdReader(str(path)).stream():
+        if chunk.entity_path == "/zcut/cuts":
+            rb = chunk.to_record_batch()
+            if "SegmentationImage:buffer" in rb.schema.names:
+                bufs = [b for b in rb.column("SegmentationImage:buffer").to_pylist() if b]
+                seg = np.asarray(bufs[-1][0], np.uint8).view(np.uint16).reshape(H // 2, W // 2)
+    assert seg is not None
+    pl = r.cut.pixel_level[::2, ::2].astype(np.int32)
+    for k in levels:
+        q = (k + m - 1) // m
+        shown = (seg >= 1) & (seg <= q + 1)
+        assert np.array_equal(shown, (pl >= 0) & (pl <= k))
 
 
 def test_clusters_carry_area_and_level(recording):
