@@ -91,6 +91,33 @@ def test_fast_equals_reference_on_random_frames(seed: int, kernel: str) -> None:
     assert n_outliers > 0  # the frames do exercise the tagging
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_fast_equals_reference_with_many_levels(seed: int, kernel: str) -> None:
+    """Larger noisy frames with 60 .. 400 levels: the flood's bucket queue spans several words of
+    its bit map, its stack gets deep, and it descends and rises often."""
+    rng = np.random.default_rng(3000 + seed)
+    n_outliers = 0
+    for _ in range(8):
+        H, W = (int(x) for x in rng.integers(20, 60, 2))
+        step = float(rng.choice([0.1, 0.2, 0.25]))
+        n_lev = int(rng.integers(60, 400))
+        yy, xx = np.mgrid[0:H, 0:W]
+        z = n_lev * step / 2 * (1 + np.sin(yy / rng.uniform(3, 12)) * np.cos(xx / rng.uniform(3, 12)))
+        z = z + rng.normal(0.0, float(rng.choice([0.3, 1.0, 3.0])) * step, z.shape)
+        z = np.round(z / (step / 2)) * (step / 2)
+        z[rng.random(z.shape) < 0.03] = np.nan
+        params = dict(step=step, max_depth=float(rng.integers(n_lev // 2, n_lev + 5)) * step,
+                      max_area=float(rng.choice([3, 20, 200, math.inf])),
+                      connectivity=int(rng.choice([4, 8])))
+        ref = zcut_outliers_reference(z, **params)
+        np.testing.assert_array_equal(zcut_outliers(z, **params), ref)
+        res = find_clusters(z, params=ZCutParams(params["step"], params["max_depth"], params["max_area"]),
+                            connectivity=params["connectivity"])
+        np.testing.assert_array_equal(res.outliers, ref)
+        n_outliers += int(ref.sum())
+    assert n_outliers > 0
+
+
 # --------------------------------------------------------------------------------------------
 # Nasty cases: each checked against the reference and against the expected mask where it is known
 # --------------------------------------------------------------------------------------------
