@@ -212,9 +212,10 @@ def log_bin_stages(rec: rr.RecordingStream, frame: Frame, result: FrameResult) -
         c[rem.zone] = 4
         rec.log("image/removal", rr.SegmentationImage(c, opacity=0.4))
     reg = result.registration
-    if reg is None:
-        rec.log("world/bin_model", rr.Transform3D(translation=(0, 0, 0), mat3x3=np.eye(3)))
-        rec.log("world/bin_model/status", rr.Clear(recursive=False))
+    if reg is None:  # the model keeps its last pose; the label says this frame did not register it
+        why = result.warnings[0] if result.warnings else "bin stages skipped"
+        rec.log("world/bin_model/status", rr.Points3D([[0.0, 0.0, 0.0]], labels=[f"not registered: {why}"],
+                                                      colors=[(255, 0, 0)], show_labels=True))
         return
     T = reg.T_cam_bin
     rec.log("world/bin_model", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))

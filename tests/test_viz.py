@@ -200,6 +200,9 @@ def test_skipped_bin_stages_are_cleared_and_warned(recording):
     logs = column(data["/log"], "TextLog:text")
     assert any("frame 1" in t[0] and "no RGB image" in t[0] for t in logs)
     assert any("Clear:is_recursive" in cols for _, cols in data["/image/bin_mask"])
+    status = [lab[0] for lab in column(data["/world/bin_model/status"], "Points3D:labels")]
+    assert status[0].startswith("fitness ") and "RMSE" in status[0]
+    assert status[1].startswith("not registered: no RGB image")
 
 
 def test_default_detail_downsamples_the_cloud(recording):
