@@ -102,7 +102,8 @@ def test_fast_equals_reference_with_many_levels(seed: int, kernel: str) -> None:
         step = float(rng.choice([0.1, 0.2, 0.25]))
         n_lev = int(rng.integers(60, 400))
         yy, xx = np.mgrid[0:H, 0:W]
-        z = n_lev * step / 2 * (1 + np.sin(yy / rng.uniform(3, 12)) * np.cos(xx / rng.uniform(3, 12)))
+        wave = np.sin(yy / rng.uniform(3, 12)) * np.cos(xx / rng.uniform(3, 12))
+        z = n_lev * step / 2 * (1 + wave)
         z = z + rng.normal(0.0, float(rng.choice([0.3, 1.0, 3.0])) * step, z.shape)
         z = np.round(z / (step / 2)) * (step / 2)
         z[rng.random(z.shape) < 0.03] = np.nan

@@ -23,11 +23,12 @@ rounding is monotone), so the cuts are nested and a pixel is in ``S_k`` iff ``q 
 
 The tree: a node is a component of the cut at the level ``b`` where it last changed (a pixel
 joined or two components merged); it lives unchanged until the level ``e`` where it next changes
-(``e = K + 2`` if never up to ``K + 1``) and becomes part of its parent node, born at ``e``. The loop of SPEC §1 tags it iff it is a component of
-both ``S_k`` and ``S_{k+1}`` for some ``1 <= k <= K``, i.e. iff ``max(b, 1) <= min(K, e - 2)``, and
-it has fewer than ``max_area`` pixels. A pixel is an outlier iff some node holding it is tagged
-(and it is valid). ``q`` is found from the guess ``floor((z_max - z~) / step)`` corrected with the
-exact comparison. With ``Q`` the level of ``z_min`` (the deepest level of any pixel), every level
+(``e = K + 2`` if never up to ``K + 1``) and becomes part of its parent node, born at ``e``.
+The loop of SPEC §1 tags it iff it is a component of both ``S_k`` and ``S_{k+1}`` for some
+``1 <= k <= K``, i.e. iff ``max(b, 1) <= min(K, e - 2)``, and it has fewer than ``max_area``
+pixels. A pixel is an outlier iff some node holding it is tagged (and it is valid). ``q`` is
+found from the guess ``floor((z_max - z~) * (1 / step))`` corrected with the exact comparisons.
+With ``Q`` the level of ``z_min`` (the deepest level of any pixel), every level
 past ``Q + 1`` changes nothing and ``K`` can be replaced by ``min(K, Q + 1)``: huge ``max_depth /
 step`` ratios cost nothing.
 """
