@@ -100,9 +100,6 @@ def test_cli_layer_only_sets_what_was_given():
     assert cfg.cli_layer(max_area=12) == {"zcut": {"max_area_px": 12.0}}
 
 
-synth = pytest.importorskip("replay.synth")
-
-
 @pytest.mark.parametrize("kind", ["spheres", "zinc_nuts", "rods", "black_screws", "black_nuts", "sprockets"])
 def test_presets_follow_section_5_4(kind):
     from replay.synth import PART_KINDS
