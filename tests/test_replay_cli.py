@@ -240,3 +240,21 @@ def test_connect_to_a_missing_viewer_does_not_hang(capsys, real_data):
     assert rc == 0
     assert "the viewer did not take the data" in err
     assert len(out.strip().splitlines()) == 2
+
+
+def test_bin_model_from_a_cad_mesh_in_millimetres_with_z_up(tmp_path, capsys):
+    import open3d as o3d
+
+    from replay.binmodel import load_bin_model
+
+    box = o3d.geometry.TriangleMesh.create_box(400.0, 300.0, 120.0)  # mm, +z up, origin at a corner
+    cad = tmp_path / "bin_cad.ply"
+    o3d.io.write_triangle_mesh(str(cad), box)
+    out = tmp_path / "bin.ply"
+    rc, _, err = run_cli(capsys, "bin-model", "--model", cad, "--z-up", "--scale", "0.001", "--voxel", "5", "-o", out)
+    assert rc == 0, err
+    m = load_bin_model(out)
+    assert np.allclose(m.points.min(axis=0), [0.0, -0.3, -0.12], atol=0.006)
+    assert np.allclose(m.points.max(axis=0), [0.4, 0.0, 0.0], atol=0.006)
+    top = m.points[:, 2] < -0.119  # the box's top face (z = 120 mm) is now the nearest to a camera
+    assert top.any() and np.median(np.abs(m.normals[top][:, 2])) > 0.99

@@ -12,6 +12,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", metavar="bin.ply", required=True, help="where to write the model (PLY)")
     p.add_argument("--model", metavar="PLY", help="use this CAD/PLY model instead of building one "
                    "(metres, up = -z); it is sampled, given normals and written to -o")
+    p.add_argument("--z-up", action="store_true", help="the --model has +z up (CAD convention): turn it over "
+                   "into zcut's camera-like bin frame (up = -z)")
+    p.add_argument("--scale", type=float, default=1.0, metavar="S",
+                   help="multiply the --model's coordinates by S (e.g. 0.001 for a model in millimetres)")
     p.add_argument("--config", metavar="F.toml", help="pipeline config ([bin_mask] and [registration] are used)")
     p.add_argument("--voxel", type=float, default=1.0, metavar="MM", help="downsampling voxel (default 1 mm)")
     p.add_argument("--frames", metavar="A:B", help="frame index range of the empty scans")
@@ -29,7 +33,16 @@ def run(args: argparse.Namespace) -> int:
     if (args.log is None) == (args.model is None):
         raise ConfigError("give either EMPTY.mcap or --model PLY (not both)")
     if args.model is not None:
-        model = load_bin_model(args.model, voxel_mm=args.voxel)
+        import numpy as np
+
+        from zcut.removal import BinModel
+
+        if not (np.isfinite(args.scale) and args.scale > 0):
+            raise ConfigError(f"--scale must be > 0, got {args.scale!r}")
+        model = load_bin_model(args.model, voxel_mm=args.voxel / args.scale)
+        flip = np.array([1.0, -1.0, -1.0]) if args.z_up else np.ones(3)  # 180 degrees about x
+        model = BinModel(model.points * (flip * args.scale), None if model.normals is None else model.normals * flip,
+                         model.spacing_m * args.scale)
         save_bin_model(model, args.output)
         print(f"zcut: wrote {args.output}: {len(model.points)} points from {args.model}", file=sys.stderr)
         return 0
