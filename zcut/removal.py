@@ -241,7 +241,7 @@ def remove_table_and_bin(
         ``max(delta_m, 1.5 * model.spacing_m)``.
     straggler_m : float
         A second, looser test for the noise tail of the bin surface: a remaining pixel with at
-        least ``straggler_neighbours`` of its 8 neighbours labelled table or bin, and within
+        least ``straggler_neighbours`` of its 8 neighbours labelled table or bin or invalid, and within
         ``straggler_m`` of the model, is bin too (0: off); repeated up to
         :data:`STRAGGLER_PASSES` times, so that it grows along clumps of such pixels. Without it a few noisy rim pixels stay
         in the zone, become its highest points and move the z-cut's z_max up to the rim.
@@ -302,7 +302,7 @@ def remove_table_and_bin(
             tried = np.zeros_like(valid)
             kernel = np.ones((3, 3), np.float32)
             for _ in range(STRAGGLER_PASSES):  # grows along the noisy rim, one ring per pass
-                lab = (table | binp).astype(np.uint8)
+                lab = (table | binp | ~valid).astype(np.uint8)  # invalid neighbours count as not zone
                 n_lab = cv2.filter2D(lab, -1, kernel, borderType=cv2.BORDER_CONSTANT) - lab
                 loose = inside & ~easy & ~binp & ~tried & (n_lab >= straggler_neighbours)
                 if not loose.any():
