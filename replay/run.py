@@ -89,6 +89,7 @@ class ReplaySummary:
     part_kind: str | None = None
     n_planned: int | None = None  # frames in the requested range, when the log's summary says
     viewer_error: str | None = None  # --spawn/--connect: the viewer did not take the data
+    n_log_frames: int | None = None  # clouds in the log, when its summary says
 
     def as_dict(self) -> dict[str, Any]:
         total = {k: sum(getattr(r, k) for r in self.rows)
@@ -238,6 +239,7 @@ def replay_log(
     reader = LogReader(path, cloud_topic=topic)
     part_kind, distance_mm = synth_info(reader.metadata)
     summary = ReplaySummary(log=str(path), part_kind=part_kind)
+    summary.n_log_frames = reader.n_frames
     if reader.n_frames is not None:
         end = reader.n_frames if frames[1] is None else min(frames[1], reader.n_frames)
         summary.n_planned = max(end - frames[0], 0)

@@ -103,8 +103,11 @@ def run(args: argparse.Namespace) -> int:
         full_detail=args.full_detail, on_start=on_start, on_frame=on_frame)
     if args.json:
         print(json.dumps(summary.as_dict(), indent=1))
-    if not summary.rows:
-        print(f"warning: no frame in range {args.frames or '0:'} of {args.log}", file=sys.stderr)
+    if not summary.rows and not summary.damage:
+        from replay.errors import ConfigError
+
+        have = f" (it has {summary.n_log_frames} frames)" if summary.n_log_frames is not None else ""
+        raise ConfigError(f"no frame of {args.log} in --frames {args.frames or '0:'}{have}")
     for name, path in summary.outputs.items():
         print(f"zcut: wrote {name}: {path}", file=sys.stderr)
     if "rrd" in summary.outputs:
