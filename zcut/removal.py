@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from .cloud import check_xyz
@@ -98,29 +99,26 @@ class RemovalResult:
 
 @dataclass(frozen=True, slots=True)
 class _ModelIndex:
-    """Per-model search structures, built once: KD-tree, dilated occupancy grid, planes."""
+    """Per-model search structures, built once: a grid of cells with their model points (CSR)."""
 
-    tree: object
     cell: float
-    origin: np.ndarray
-    occupied: np.ndarray  # (X, Y, Z) bool, dilated by one cell
-    points32: np.ndarray
-    normals32: np.ndarray | None
-    offsets32: np.ndarray | None  # n . m per model point
+    origin: np.ndarray  # (3,) float64
+    dims: np.ndarray  # (3,) int64
+    start: np.ndarray  # (n_cells + 1,) int64: the points of cell c are order[start[c]:start[c + 1]]
+    order: np.ndarray  # (N,) int64
+    points: np.ndarray  # (N, 3) float64
+    normals: np.ndarray  # (N, 3) float64 (zeros when the model has none)
+    offsets: np.ndarray  # (N,) float64: n . m
     rim_b: float  # 99.5th percentile of the model's height (-z), bin frame
     floor_b: float  # 0.5th percentile
 
 
 _INDEX: dict[tuple[int, float], tuple[np.ndarray, _ModelIndex]] = {}
-
-
 GRID_CELL_M = 0.002
 
 
 def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) -> _ModelIndex:
     """Search structures of a model array, valid for search radii up to ``radius`` (cached)."""
-    from scipy.spatial import cKDTree
-
     cell = max(GRID_CELL_M, float(radius))
     key = (id(points), cell)
     hit = _INDEX.get(key)
@@ -129,19 +127,14 @@ def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) 
     origin = points.min(axis=0) - 2 * cell
     ijk = np.floor((points - origin) / cell).astype(np.int64)
     dims = ijk.max(axis=0) + 3
-    core = np.zeros(tuple(int(d) for d in dims), bool)
-    core[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
-    occ = core.copy()  # dilate by one cell: the union of the 26 shifted copies
-    for a in range(3):
-        grown = occ.copy()
-        grown[(slice(None),) * a + (slice(1, None),)] |= occ[(slice(None),) * a + (slice(None, -1),)]
-        grown[(slice(None),) * a + (slice(None, -1),)] |= occ[(slice(None),) * a + (slice(1, None),)]
-        occ = grown
-    n32 = None if normals is None else np.ascontiguousarray(normals, np.float32)
-    off = None if normals is None else np.einsum("ij,ij->i", points, normals).astype(np.float32)
+    flat = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+    order = np.argsort(flat, kind="stable").astype(np.int64)
+    counts = np.bincount(flat, minlength=int(np.prod(dims)))
+    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    nrm = np.zeros_like(points) if normals is None else np.ascontiguousarray(normals, np.float64)
     h = -points[:, 2]
-    index = _ModelIndex(cKDTree(points), float(cell), origin, occ,
-                        np.ascontiguousarray(points, np.float32), n32, off,
+    index = _ModelIndex(cell, origin, dims.astype(np.int64), start, order,
+                        np.ascontiguousarray(points, np.float64), nrm, np.einsum("ij,ij->i", points, nrm),
                         float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5)))
     if len(_INDEX) >= 6:
         _INDEX.pop(next(iter(_INDEX)))
@@ -149,61 +142,120 @@ def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) 
     return index
 
 
-def _plane_test(points: np.ndarray, model: np.ndarray, normals: np.ndarray | None, *,
-                delta_m: float, radius_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """((M,) bool ok, (M,) int64 nearest model point within the radius or -1).
-
-    ``points`` and ``model`` in the same frame. With normals: ok when a model point within
-    ``radius_m`` (the nearest, else any of the 4 nearest: near an edge the nearest point may lie on
-    the other face) has its tangent plane within ``delta_m``; without: the nearest model point is
-    within ``delta_m``. A dilated occupancy grid of the model rejects most far points before the
-    KD-tree is asked.
-    """
-    ok_all = np.zeros(len(points), bool)
-    near_all = np.full(len(points), -1, np.int64)
-    if len(points) == 0 or len(model) == 0:
-        return ok_all, near_all
-    reach = delta_m if normals is None else radius_m
-    index = _model_index(model, normals, reach)
-    ijk = np.floor((points - index.origin) * (1.0 / index.cell)).astype(np.int64)
-    i, j_, k = ijk[:, 0], ijk[:, 1], ijk[:, 2]
-    d0, d1_, d2 = index.occupied.shape
-    inb = (i >= 0) & (i < d0) & (j_ >= 0) & (j_ < d1_) & (k >= 0) & (k < d2)
-    cand = np.flatnonzero(inb)
-    cand = cand[index.occupied[i[cand], j_[cand], k[cand]]]
-    if len(cand) == 0:
-        return ok_all, near_all
-    pc = points[cand]
-    if normals is None:
-        dist, idx = index.tree.query(pc, k=1, distance_upper_bound=delta_m, workers=-1)
-        ok_all[cand] = dist <= delta_m
-        near_all[cand] = np.where(np.isfinite(dist), idx, -1)
-        return ok_all, near_all
-    pc32 = pc.astype(np.float32)
-    # the nearest model point's plane decides for most points ...
-    dist, idx = index.tree.query(pc, k=1, distance_upper_bound=radius_m, workers=-1)
-    hit = np.isfinite(dist)
-    j = np.where(hit, idx, 0)
-    d1 = np.abs(np.einsum("ik,ik->i", pc32, index.normals32[j]) - index.offsets32[j])
-    ok = hit & (d1 <= delta_m)
-    # ... the others ask their 4 nearest
-    again = np.flatnonzero(hit & ~ok)
-    if len(again):
-        dist4, idx4 = index.tree.query(pc[again], k=4, distance_upper_bound=radius_m, workers=-1)
-        hit4 = np.isfinite(dist4)
-        j4 = np.where(hit4, idx4, 0)
-        d4 = np.abs(np.einsum("ik,ijk->ij", pc32[again], index.normals32[j4]) - index.offsets32[j4])
-        d4[~hit4] = np.inf
-        ok[again] = d4.min(axis=1) <= delta_m
-    ok_all[cand] = ok
-    near_all[cand] = np.where(hit, idx, -1)
-    return ok_all, near_all
+@numba.njit(parallel=True, cache=True)
+def _grid_test(P, origin, cell, dims, start, order, pts, nrm, off, delta, radius, planes):  # pragma: no cover - numba
+    """(M,) bool: some model point within ``radius`` passes (plane distance, or distance, <= delta)."""
+    M = P.shape[0]
+    ok = np.zeros(M, np.bool_)
+    r2 = radius * radius
+    for i in numba.prange(M):
+        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+        if not (np.isfinite(px) and np.isfinite(py) and np.isfinite(pz)):
+            continue
+        ci = int(np.floor((px - origin[0]) / cell))
+        cj = int(np.floor((py - origin[1]) / cell))
+        ck = int(np.floor((pz - origin[2]) / cell))
+        # model points lie in cells 2 .. dims - 3: a point outside 1 .. dims - 2 is farther than a cell
+        if ci < 1 or cj < 1 or ck < 1 or ci > dims[0] - 2 or cj > dims[1] - 2 or ck > dims[2] - 2:
+            continue
+        found = False
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                for dz in range(-1, 2):
+                    c = ((ci + dx) * dims[1] + (cj + dy)) * dims[2] + (ck + dz)
+                    for s in range(start[c], start[c + 1]):
+                        j = order[s]
+                        ex = px - pts[j, 0]
+                        ey = py - pts[j, 1]
+                        ez = pz - pts[j, 2]
+                        d2 = ex * ex + ey * ey + ez * ez
+                        if d2 > r2:
+                            continue
+                        if planes:
+                            d = abs(nrm[j, 0] * px + nrm[j, 1] * py + nrm[j, 2] * pz - off[j])
+                        else:
+                            d = np.sqrt(d2)
+                        if d <= delta:
+                            found = True
+                            break
+                    if found:
+                        break
+                if found:
+                    break
+            if found:
+                break
+        ok[i] = found
+    return ok
 
 
 def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | None, *,
                 delta_m: float, radius_m: float) -> np.ndarray:
-    """(M,) bool: points within ``delta_m`` of the model surface (see :func:`_plane_test`)."""
-    return _plane_test(points, model, normals, delta_m=delta_m, radius_m=radius_m)[0]
+    """(M,) bool: points within ``delta_m`` of the model surface.
+
+    ``points`` and ``model`` in the same frame. With normals: some model point within ``radius_m``
+    has its tangent plane within ``delta_m`` of the point; without: some model point lies within
+    ``delta_m``. A grid of model points (cells of at least the radius) is searched in the 27 cells
+    around each point, in parallel (numba).
+    """
+    if len(points) == 0 or len(model) == 0:
+        return np.zeros(len(points), bool)
+    planes = normals is not None
+    radius = radius_m if planes else delta_m
+    index = _model_index(model, normals, radius)
+    return _grid_test(np.ascontiguousarray(points, np.float64), index.origin, index.cell, index.dims,
+                      index.start, index.order, index.points, index.normals, index.offsets,
+                      float(delta_m), float(radius), planes)
+
+
+_OFFSETS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
+
+
+def _straggler_passes(binp: Mask, table: Mask, valid: Mask, allowed: Mask, rows: np.ndarray,
+                      cols: np.ndarray, p_bin: np.ndarray, model: BinModel, *, straggler_m: float,
+                      radius_m: float, neighbours: int) -> None:
+    """Grow ``binp`` (in place) along the noisy bin surface, see ``straggler_m``.
+
+    Pass 1 looks at every allowed pixel; later passes only at the neighbours of the pixels the
+    previous pass labelled (no other pixel's count of labelled neighbours changed, and a pixel
+    once tested is not tested again: its distance to the model does not change).
+    """
+    import cv2
+
+    H, W = valid.shape
+    index = np.full(valid.shape, -1, np.int64)
+    index[rows, cols] = np.arange(len(rows))
+    index_f = index.reshape(-1)
+    lab = (table | binp | ~valid).astype(np.uint8)  # invalid neighbours count as not zone
+    n_lab = cv2.filter2D(lab, -1, np.ones((3, 3), np.float32), borderType=cv2.BORDER_CONSTANT) - lab
+    cand = np.flatnonzero(allowed & ~binp & (n_lab >= neighbours))
+    tried = np.zeros(H * W, bool)
+    binp_f, lab_f, allowed_f = binp.reshape(-1), lab.reshape(-1), allowed.reshape(-1)
+    for _ in range(STRAGGLER_PASSES):
+        if cand.size == 0:
+            break
+        tried[cand] = True
+        near = _near_model(p_bin[index_f[cand]], model.points, model.normals, delta_m=straggler_m,
+                           radius_m=radius_m)
+        new = cand[near]
+        if new.size == 0:
+            break
+        binp_f[new] = True
+        lab_f[new] = 1
+        r, c = np.divmod(new, W)
+        nr = (r[:, None] + _OFFSETS[None, :, 0]).ravel()
+        nc = (c[:, None] + _OFFSETS[None, :, 1]).ravel()
+        inb = (nr >= 0) & (nr < H) & (nc >= 0) & (nc < W)
+        mark = np.zeros(H * W, bool)  # cheaper than np.unique on large passes
+        mark[nr[inb] * W + nc[inb]] = True
+        mark &= allowed_f & ~binp_f & ~tried
+        nb = np.flatnonzero(mark)
+        r, c = np.divmod(nb, W)
+        count = np.zeros(len(nb), np.int64)
+        for dr, dc in _OFFSETS:
+            rr, cc = r + dr, c + dc
+            ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+            count[ok] += lab[rr[ok], cc[ok]]
+        cand = nb[count >= neighbours]
 
 
 def remove_table_and_bin(
@@ -295,26 +347,9 @@ def remove_table_and_bin(
             near = _near_model(p_bin[rest], model.points, model.normals, delta_m=delta_m, radius_m=radius)
             binp[rows[rest[near]], cols[rest[near]]] = True
         if straggler_m > 0:
-            import cv2
-
-            index = np.full(valid.shape, -1, np.int64)
-            index[rows, cols] = np.arange(len(rows))
-            tried = np.zeros_like(valid)
-            kernel = np.ones((3, 3), np.float32)
-            for _ in range(STRAGGLER_PASSES):  # grows along the noisy rim, one ring per pass
-                lab = (table | binp | ~valid).astype(np.uint8)  # invalid neighbours count as not zone
-                n_lab = cv2.filter2D(lab, -1, kernel, borderType=cv2.BORDER_CONSTANT) - lab
-                loose = inside & ~easy & ~binp & ~tried & (n_lab >= straggler_neighbours)
-                if not loose.any():
-                    break
-                tried |= loose
-                sel = index[loose]
-                near = _near_model(p_bin[sel], model.points, model.normals, delta_m=straggler_m,
-                                   radius_m=max(radius, straggler_m))
-                if not near.any():
-                    break
-                binp[rows[sel[near]], cols[sel[near]]] = True
-                tried[rows[sel[near]], cols[sel[near]]] = False
+            _straggler_passes(binp, table, valid, inside & ~easy, rows, cols, p_bin, model,
+                              straggler_m=straggler_m, radius_m=max(radius, straggler_m),
+                              neighbours=int(straggler_neighbours))
         # floor plane {q : q . up = floor}: z at (x, y) solves x*ux + y*uy + z*uz = floor
         if abs(up[2]) > 1e-6:
             x64 = a[..., 0].astype(np.float64)
