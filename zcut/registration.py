@@ -79,16 +79,50 @@ def initial_guess(model: np.ndarray, target: np.ndarray) -> np.ndarray:
     -------
     (4, 4) float64 ndarray
     """
-    m = _check_points(model, "model")
+    m = _model_points(model)
     t = _check_points(target, "target")
     T = np.eye(4)
     if len(m) == 0 or len(t) == 0:
         return T
-    mc = 0.5 * (np.percentile(m[:, :2], 1, axis=0) + np.percentile(m[:, :2], 99, axis=0))
-    tc = 0.5 * (np.percentile(t[:, :2], 1, axis=0) + np.percentile(t[:, :2], 99, axis=0))
+    mc, mtop = _top_and_centre(m, cache=True)
+    tc, ttop = _top_and_centre(t, cache=False)
     T[:2, 3] = tc - mc
-    T[2, 3] = np.percentile(t[:, 2], 1) - np.percentile(m[:, 2], 1)
+    T[2, 3] = ttop - mtop
     return T
+
+
+_STATS: dict[int, tuple[np.ndarray, tuple[np.ndarray, float]]] = {}
+_MODELS: dict[int, np.ndarray] = {}
+
+
+def _top_and_centre(p: np.ndarray, *, cache: bool) -> tuple[np.ndarray, float]:
+    """(x, y) centre of the 1..99 % bounding box and the 1st percentile of z (the top)."""
+    hit = _STATS.get(id(p)) if cache else None
+    if hit is not None and hit[0] is p:
+        return hit[1]
+    lo = np.percentile(p, 1, axis=0)
+    hi = np.percentile(p[:, :2], 99, axis=0)
+    out = (0.5 * (lo[:2] + hi), float(lo[2]))
+    if cache:
+        if len(_STATS) >= 4:
+            _STATS.pop(next(iter(_STATS)))
+        _STATS[id(p)] = (p, out)
+    return out
+
+
+def _model_points(model: np.ndarray) -> np.ndarray:
+    """The model as a finite (N, 3) float64 array, checked once per array (models are reused)."""
+    if isinstance(model, np.ndarray) and _MODELS.get(id(model)) is model:
+        return model
+    m = _check_points(model, "model")
+    if m.shape[0] != np.shape(model)[0]:
+        raise InputShapeError("model must not contain non-finite points")
+    if isinstance(model, np.ndarray) and model.dtype == np.float64 and model.flags.c_contiguous:
+        if len(_MODELS) >= 4:
+            _MODELS.pop(next(iter(_MODELS)))
+        _MODELS[id(model)] = model
+        return model
+    return m
 
 
 def _cloud(points: np.ndarray, voxel_m: float):
@@ -190,10 +224,7 @@ def register_bin(
         raise ParameterError(f"max_correspondence_m must be > 0, got {max_correspondence_m!r}")
     if int(max_iterations) != max_iterations or max_iterations < 1:
         raise ParameterError(f"max_iterations must be a positive integer, got {max_iterations!r}")
-    m = _check_points(model, "model")
-    if m.shape[0] != np.shape(model)[0]:
-        raise InputShapeError("model must not contain non-finite points")
-    m = model if (isinstance(model, np.ndarray) and model.dtype == np.float64) else m
+    m = _model_points(model)
     if model_normals is not None and np.shape(model_normals) != np.shape(m):
         raise InputShapeError(f"model_normals must match model {np.shape(m)}, got {describe_array(model_normals)}")
     t = _check_points(target, "target")
@@ -207,6 +238,10 @@ def register_bin(
     src = _cloud(t, voxel_m)
     dst = _model_cloud(m, model_normals, voxel_m, normal_radius)
     n_m, n_t = len(dst.points), len(src.points)
+    # the coarse pass runs on twice the voxel (a quarter of the points); the fine pass on voxel_m
+    coarse_voxel = 2.0 * voxel_m
+    src_c = src.voxel_down_sample(coarse_voxel) if (coarse and voxel_m > 0) else src
+    dst_c = _model_cloud(m, model_normals, coarse_voxel, 2.0 * normal_radius) if (coarse and voxel_m > 0) else dst
     if n_m < min_points or n_t < min_points:
         return RegistrationResult(
             T0.copy(), 0.0, float("nan"), False,
@@ -219,9 +254,11 @@ def register_bin(
     crit = o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=int(max_iterations))
     T = np.linalg.inv(T0)  # frame -> model
     reg = None
-    passes = (max_correspondence_m, max_correspondence_m / 3.0) if coarse else (max_correspondence_m / 3.0,)
-    for dist in passes:
-        reg = o3d.pipelines.registration.registration_icp(src, dst, dist, T, est, crit)
+    passes = [(src, dst, max_correspondence_m / 3.0)]
+    if coarse:
+        passes.insert(0, (src_c, dst_c, max_correspondence_m))
+    for s_pc, d_pc, dist in passes:
+        reg = o3d.pipelines.registration.registration_icp(s_pc, d_pc, dist, T, est, crit)
         T = np.asarray(reg.transformation, dtype=np.float64).copy()
     assert reg is not None
     T_cam_bin = np.linalg.inv(T)
@@ -263,7 +300,7 @@ def pose_fitness(
     T = np.asarray(T_cam_bin, dtype=np.float64)
     if T.shape != (4, 4) or not np.isfinite(T).all():
         raise InputShapeError(f"T_cam_bin must be a finite (4, 4) array, got {describe_array(T)}")
-    m = model if (isinstance(model, np.ndarray) and model.dtype == np.float64) else _check_points(model, "model")
+    m = _model_points(model)
     t = _check_points(target, "target")
     if len(t) == 0 or len(m) == 0:
         return 0.0
