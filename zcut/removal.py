@@ -356,7 +356,7 @@ def remove_table_and_bin(
             y64 = a[..., 1].astype(np.float64)
             zfloor = (floor - x64 * up[0] - y64 * up[1]) / up[2]
         else:  # a bin seen from the side: fall back to the farthest point
-            zfloor = np.full(z64.shape, np.nanmax(z64[valid]))
+            zfloor = np.full(z64.shape, np.nanmax(z64[valid]) if valid.any() else np.nan)
     labelled = table | easy | binp
     zone = valid & ~labelled
     z_new = np.where(labelled, zfloor, z64)
