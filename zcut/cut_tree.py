@@ -1,0 +1,645 @@
+"""Numba kernels of the z-cut: pixel levels and the component tree of all the cuts.
+
+Used by :mod:`zcut.cuts`, whose module docstring explains the tree and why it equals the literal
+loop of SPEC §1. Two kernels build the same tree: :func:`_flood_tree` (flooding with a bucket queue
+over the levels, the default) and :func:`_component_tree` (union-find over the pixels sorted by
+level, for more than ``FLOOD_MAX_LEVELS`` levels). The remaining kernels read the tree back as the
+outlier mask, the cluster labels and the per-level component counts.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba.cpython.unsafe.numbers import trailing_zeros
+
+# --------------------------------------------------------------------------------------------
+# The component tree (numba)
+# --------------------------------------------------------------------------------------------
+
+
+@numba.njit(cache=True, inline="always")
+def _inside(zt: float, z_max: float, step: float, k: np.int64, hi: np.int64) -> bool:
+    # pixel in the cut at level k; level hi stands for "beyond" (always true)
+    if k >= hi:
+        return True
+    return zt >= z_max - k * step
+
+
+@numba.njit(cache=True)
+def _qlevel(zt: float, z_max: float, step: float, hi: np.int64) -> np.int64:
+    """Smallest k in [0, hi) with zt >= z_max - k*step (exact float64 test), else hi."""
+    g = (z_max - zt) / step
+    if g >= hi:
+        k = hi
+    elif g > 0:
+        k = np.int64(g)
+    else:
+        k = np.int64(0)
+    # the division only gives a guess; the exact comparison decides
+    if _inside(zt, z_max, step, k, hi):
+        if k == 0 or not _inside(zt, z_max, step, k - 1, hi):
+            return k
+        good = k - 1
+        d = np.int64(2)
+        bad = np.int64(-1)
+        while True:
+            j = good - d
+            if j < 0:
+                break
+            if _inside(zt, z_max, step, j, hi):
+                good = j
+                d *= 2
+            else:
+                bad = j
+                break
+    else:
+        if _inside(zt, z_max, step, k + 1, hi):
+            return k + 1
+        bad = k + 1
+        d = np.int64(2)
+        while True:
+            j = bad + d
+            if j >= hi:
+                good = hi
+                break
+            if _inside(zt, z_max, step, j, hi):
+                good = j
+                break
+            bad = j
+            d *= 2
+    while good - bad > 1:
+        mid = bad + (good - bad) // 2
+        if _inside(zt, z_max, step, mid, hi):
+            good = mid
+        else:
+            bad = mid
+    return good
+
+
+@numba.njit(cache=True, inline="always")
+def _qlevel_guess(zt, z_max, step, inv_step, hi):
+    """:func:`_qlevel`, fast when the guess ``floor((z_max - zt) * inv_step)`` or the next level is
+    right (checked with the exact comparisons); else :func:`_qlevel` itself."""
+    g = (z_max - zt) * inv_step
+    if g >= 0 and g < hi - 1:  # (False for NaN)
+        k = np.int64(g)
+        if zt >= z_max - k * step:
+            if k == 0 or not zt >= z_max - (k - 1) * step:
+                return k
+        elif zt >= z_max - (k + 1) * step:  # in the cut k + 1, not in k
+            return k + 1
+    elif g >= hi - 1 and not zt >= z_max - (hi - 1) * step:  # not in the last cut
+        return hi
+    return _qlevel(zt, z_max, step, hi)
+
+
+@numba.njit(cache=True)
+def _pixel_levels(z, valid, z_min, z_max, step, hi, sentinel, q):
+    """Fill q, the (H + 2) * (W + 2) padded level image: interior = level, border = sentinel."""
+    H, W = z.shape
+    Wp = W + 2
+    inv_step = 1.0 / step
+    for c in range(Wp):
+        q[c] = sentinel
+        q[(H + 1) * Wp + c] = sentinel
+    for r in range(H):
+        base = (r + 1) * Wp
+        q[base] = sentinel
+        q[base + W + 1] = sentinel
+        for c in range(W):
+            zt = z[r, c] if valid[r, c] else z_min
+            q[base + 1 + c] = _qlevel_guess(zt, z_max, step, inv_step, hi)
+
+
+@numba.njit(cache=True, inline="always")
+def _find(par, x):
+    """Root of x, with path halving (writes only where a path gets shorter)."""
+    px = par[x]
+    while px != x:
+        gp = par[px]
+        if gp == px:
+            return px
+        par[x] = gp
+        x = gp
+        px = par[x]
+    return x
+
+
+@numba.njit(cache=True, inline="always")
+def _join(par, rec, p, rp, nb, rank, pend_node, pend_root, n_pend):
+    """Merge the set of neighbour nb with p's set (root rp, or -1 if p is not in a set yet).
+
+    rec[r] = (size, node, stamp) of a root r; stamp = rank of the level at which r last changed.
+    Returns (p's root, n_pend, 1 if two sets became one else 0).
+    """
+    rn = _find(par, nb)
+    if rn == rp:
+        return rp, n_pend, 0
+    if rec[rn, 2] != rank:  # an older component changes now: its node ends at this level
+        rec[rn, 2] = rank
+        if rec[rn, 1] >= 0:
+            pend_node[n_pend] = rec[rn, 1]
+            pend_root[n_pend] = rn
+            n_pend += 1
+        rec[rn, 1] = -1
+    if rp < 0:  # p joins as a leaf
+        par[p] = rn
+        rec[rn, 0] += 1
+        return rn, n_pend, 1
+    if rec[rn, 0] < rec[rp, 0]:
+        par[rn] = rp
+        rec[rp, 0] += rec[rn, 0]
+        return rp, n_pend, 1
+    par[rp] = rn
+    rec[rn, 0] += rec[rp, 0]
+    return rn, n_pend, 1
+
+
+def _ring_table(ring: list[tuple[int, int]], touching: bool) -> tuple[np.ndarray, np.ndarray]:
+    """For every subset (bit mask) of the ring neighbours in the cut, one neighbour per group of
+    mutually touching ones (8-connectivity: ring pixels at Chebyshev distance 1 touch; they are
+    in one set already, so joining one of them is enough). Returns (reps (2^n, 4), counts)."""
+    n = len(ring)
+    reps = np.zeros((1 << n, 4), np.int64)
+    counts = np.zeros(1 << n, np.int64)
+    for mask in range(1 << n):
+        active = [i for i in range(n) if mask >> i & 1]
+        seen: set[int] = set()
+        for i in active:
+            if i in seen:
+                continue
+            reps[mask, counts[mask]] = i
+            counts[mask] += 1
+            stack = [i]
+            seen.add(i)
+            while stack:
+                a = stack.pop()
+                for b in active:
+                    if b not in seen and touching and max(
+                        abs(ring[a][0] - ring[b][0]), abs(ring[a][1] - ring[b][1])
+                    ) <= 1:
+                        seen.add(b)
+                        stack.append(b)
+    return reps, counts
+
+
+# ring order: the neighbours before p in raster order first
+_RING8 = _ring_table([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)], True)
+_RING4 = _ring_table([(-1, 0), (0, -1), (0, 1), (1, 0)], False)
+
+
+@numba.njit(cache=True)
+def _component_tree(q, W, K, top, conn8, max_area):
+    """Union-find over the pixels in level order; one node per (component, last change).
+
+    q : padded level image from :func:`_pixel_levels`; pixels with q <= top (= K + 1) take part.
+    Returns ``order`` (the padded indices of those pixels sorted by level, raster order inside a
+    level), ``first`` (the first node holding ``order[t]``), the nodes' birth level, size, parent
+    (the node that replaced it, -1 if it lives to the end) and tag, and the component count
+    after each processed level.
+    """
+    n = q.size
+    Wp = W + 2
+    # ---- order the pixels by level (stable: raster order inside a level)
+    m = 0
+    for i in range(n):
+        if q[i] <= top:
+            m += 1
+    order = np.empty(m, np.int32)
+    if top + 2 <= 4 * n + 64:
+        cnt = np.zeros(top + 2, np.int64)
+        for i in range(n):
+            if q[i] <= top:
+                cnt[q[i] + 1] += 1
+        for lv in range(1, top + 2):
+            cnt[lv] += cnt[lv - 1]
+        for i in range(n):
+            qi = q[i]
+            if qi <= top:
+                order[cnt[qi]] = i
+                cnt[qi] += 1
+    else:  # more levels than pixels: sort instead of counting
+        sel = np.empty(m, np.int64)
+        j = 0
+        for i in range(n):
+            if q[i] <= top:
+                sel[j] = i
+                j += 1
+        o = np.argsort(q[sel], kind="mergesort")
+        for j in range(m):
+            order[j] = sel[o[j]]
+
+    par = np.empty(n, np.int32)  # union-find parent
+    rec = np.empty((n, 4), np.int32)  # at roots only: size, node, stamp (one cache line), and
+    # at the end of a level, for each root touched in it, the node its set became
+    first = np.empty(m, np.int32)  # by position in order: p's root right after p was added,
+    # then the node holding p at the end of its level
+    node_b = np.empty(m, np.int64)
+    node_size = np.empty(m, np.int64)
+    node_parent = np.empty(m, np.int32)
+    tagged = np.zeros(m, np.bool_)
+    pend_node = np.empty(m, np.int32)
+    pend_root = np.empty(m, np.int32)
+    lev_value = np.empty(m, np.int64)
+    lev_count = np.empty(m, np.int64)
+    n_nodes = 0
+    n_lev = 0
+    count = 0
+    if conn8:
+        offs = np.array([-Wp - 1, -Wp, -Wp + 1, -1, 1, Wp - 1, Wp, Wp + 1])
+        reps, reps_n = _RING8
+    else:
+        offs = np.array([-Wp, -1, 1, Wp])
+        reps, reps_n = _RING4
+    n_ring = offs.size
+    n_prev = n_ring // 2  # the ring neighbours before p in raster order come first
+
+    i = 0
+    while i < m:
+        lvl = q[order[i]]
+        j = i
+        while j < m and q[order[j]] == lvl:
+            j += 1
+        rank = n_lev
+        n_pend = 0
+        lvl_prev = np.int64(lvl)
+        lvl_next = np.int64(lvl) - 1
+        # ---- add the pixels of this level. A neighbour is in the cut already if its level is
+        # lower, or equal and it comes before p in raster order (the later one does the joining).
+        for t in range(i, j):
+            p = order[t]
+            count += 1
+            rp = -1
+            # which ring neighbours are in the cut already: lower level, or the same level and
+            # before p in raster order (the later one of two same-level pixels does the joining)
+            mask = 0
+            for u in range(n_ring):
+                mask |= (np.int64(q[p + offs[u]]) <= (lvl_prev if u < n_prev else lvl_next)) << u
+            # join one neighbour per group of touching ring neighbours (one set already)
+            for u in range(reps_n[mask]):
+                rp, n_pend, k = _join(par, rec, p, rp, p + offs[reps[mask, u]], rank,
+                                      pend_node, pend_root, n_pend)
+                count -= k
+            if rp < 0:  # no neighbour in the cut: a new singleton
+                par[p] = p
+                rec[p, 0] = 1
+                rec[p, 1] = -1
+                rec[p, 2] = rank
+                rp = p
+                pend_node[n_pend] = -1
+                pend_root[n_pend] = p
+                n_pend += 1
+            first[t] = rp
+        # ---- one new node per component that changed at this level. Every root touched at this
+        # level is listed in pend_root (with the node it ends, or -1 for a new singleton).
+        for t in range(n_pend):
+            x = pend_root[t]
+            r = _find(par, x)
+            if rec[r, 1] < 0:
+                rec[r, 1] = n_nodes
+                node_b[n_nodes] = lvl
+                node_size[n_nodes] = rec[r, 0]
+                node_parent[n_nodes] = -1
+                n_nodes += 1
+            rec[x, 3] = rec[r, 1]  # the node at this level of what x's set became
+            # the node that ended here was unchanged over the levels [b, lvl - 1]
+            old = pend_node[t]
+            if old >= 0:
+                node_parent[old] = rec[r, 1]
+                lo = max(node_b[old], 1)
+                hi = min(K, lvl - 2)
+                tagged[old] = lo <= hi and node_size[old] < max_area
+        for t in range(i, j):  # each pixel's root right after it was added was a touched root
+            first[t] = rec[first[t], 3]
+        lev_value[n_lev] = lvl
+        lev_count[n_lev] = count
+        n_lev += 1
+        i = j
+    # ---- the nodes that live to the end (e = K + 2)
+    for a in range(n_nodes):
+        if node_parent[a] < 0:
+            tagged[a] = max(node_b[a], 1) <= K and node_size[a] < max_area
+    return (order, first, node_b[:n_nodes], node_size[:n_nodes], node_parent[:n_nodes],
+            tagged[:n_nodes], lev_value[:n_lev], lev_count[:n_lev])
+
+
+# --------------------------------------------------------------------------------------------
+# The component tree by flooding (Nistér & Stewénius, "Linear time maximally stable extremal
+# regions", ECCV 2008): the default for up to FLOOD_MAX_LEVELS levels
+# --------------------------------------------------------------------------------------------
+
+#: Levels 0 .. top with top < this go to :func:`_flood_tree` (its bucket queue finds the lowest
+#: non-empty level in a 64 x 64 bit map); more levels go to the union-find :func:`_component_tree`.
+FLOOD_MAX_LEVELS = 4096
+_U1 = np.uint64(1)
+
+
+@numba.njit(cache=True, inline="always")
+def _bit_set(occ, summ, lv):
+    w = lv >> 6
+    occ[w] |= _U1 << np.uint64(lv & 63)
+    return summ | (_U1 << np.uint64(w))
+
+
+@numba.njit(cache=True, inline="always")
+def _bit_clear(occ, summ, lv):
+    w = lv >> 6
+    occ[w] &= ~(_U1 << np.uint64(lv & 63))
+    if occ[w] == 0:
+        return summ & ~(_U1 << np.uint64(w))
+    return summ
+
+
+@numba.njit(cache=True, inline="always")
+def _bit_next(occ, summ, lv):
+    """Lowest set level >= lv, or -1."""
+    w = lv >> 6
+    x = occ[w] >> np.uint64(lv & 63)
+    if x != 0:
+        return lv + np.int64(trailing_zeros(x))
+    if w >= 63:
+        return np.int64(-1)
+    y = summ >> np.uint64(w + 1)
+    if y == 0:
+        return np.int64(-1)
+    w2 = w + 1 + np.int64(trailing_zeros(y))
+    return w2 * 64 + np.int64(trailing_zeros(occ[w2]))
+
+
+@numba.njit(cache=True, inline="always")
+def _close(a, size, parent, e, K, max_area, node_b, node_size, node_parent, tagged, fin, n_fin):
+    """Node a (a component of the cut at its level node_b[a]) ends: it next changes at level e
+    (K + 2: never); parent is the node it becomes part of (-1: none). Returns n_fin + 1."""
+    node_size[a] = size
+    node_parent[a] = parent
+    tagged[a] = max(node_b[a], 1) <= min(K, e - 2) and size < max_area
+    fin[n_fin] = a
+    return n_fin + 1
+
+
+@numba.njit(cache=True)
+def _flood_tree(q, W, K, top, conn8, max_area):
+    """Component tree of the cuts by flooding, with a bucket queue over the levels.
+
+    q : padded level image from :func:`_pixel_levels`; pixels with q <= top (= K + 1 < 4096)
+    take part. The flood visits each pixel once, in a cache-friendly order: from the current
+    pixel it descends at once into any unvisited neighbour of a lower level (pushing the current
+    pixel back, to resume at the next neighbour), and queues the others in the bucket of their
+    level; the next pixel is the last one queued in the lowest non-empty bucket. A stack holds
+    the components being built, at strictly increasing levels from top to bottom; when the
+    flood rises to level lv, the components below lv are complete: each ends (is closed) and
+    becomes part of the next one on the stack, or of a new component at lv.
+
+    Returns ``lab`` (n,) int32, the node holding each pixel at its own level (-1: none), and the
+    nodes' birth level, size, parent (-1: lives to the end), tag, and ``fin``, the nodes in
+    closing order (every node is closed before its parent).
+    """
+    n = q.size
+    Wp = W + 2
+    nlev = top + 1
+    start = np.zeros(nlev + 1, np.int64)
+    # st: the level of an unseen pixel (>= 0); once seen (queued, or not in the cuts) -1 - the
+    # neighbour to go on with when the pixel is popped (0 for a queued pixel)
+    st = np.empty(n, np.int16)
+    lab = np.empty(n, np.int32)  # written for every pixel: here, or when it is first visited
+    for i in range(n):
+        qi = q[i]
+        if qi <= top:
+            start[qi + 1] += 1
+            st[i] = qi
+        else:
+            st[i] = -1
+            lab[i] = -1
+    for lv in range(nlev):
+        start[lv + 1] += start[lv]
+    m = start[nlev]
+    fill = start[:nlev].copy()  # bucket lv = bucket[start[lv]:fill[lv]], a stack
+    bucket = np.empty(m, np.int32)  # a pixel is queued at most once at a time, at its level
+    occ = np.zeros(64, np.uint64)  # bit lv: bucket lv non-empty
+    summ = np.uint64(0)  # bit w: occ[w] != 0
+    stk_lv = np.empty(nlev + 1, np.int64)
+    stk_area = np.empty(nlev + 1, np.int64)
+    stk_node = np.empty(nlev + 1, np.int32)
+    node_b = np.empty(m, np.int64)
+    node_size = np.empty(m, np.int64)
+    node_parent = np.empty(m, np.int32)
+    tagged = np.zeros(m, np.bool_)
+    fin = np.empty(m, np.int32)
+    if conn8:
+        offs = np.array([-Wp - 1, -Wp, -Wp + 1, -1, 1, Wp - 1, Wp, Wp + 1])
+    else:
+        offs = np.array([-Wp, -1, 1, Wp])
+    ne = offs.size
+    n_nodes = 0
+    n_fin = 0
+    for s in range(n):
+        if st[s] < 0:
+            continue
+        # ---- flood the region of the cuts that holds s. Kept in registers: the level cur of the
+        # top of the stack, its node and area, and the fill of its bucket (bucket cur's bit in
+        # occ is only brought up to date when cur changes)
+        p = s
+        cur = np.int64(st[s])
+        st[p] = -1
+        ftop = fill[cur]
+        sbeg = start[cur]
+        node = n_nodes
+        node_b[node] = cur
+        lab[p] = node
+        n_nodes += 1
+        area = np.int64(1)
+        stk_lv[0] = cur
+        stk_node[0] = node
+        sp = 1
+        e = 0  # the neighbour of p to go on with
+        while True:
+            # a loop of constant trip count (unrolled by the compiler: twice as fast as a loop
+            # from e to ne), leaving at the first lower neighbour
+            d = -1
+            dq = np.int64(0)
+            for u in range(8):
+                if u < e:
+                    continue
+                if u >= ne:
+                    break
+                nb = p + offs[u]
+                qn = np.int64(st[nb])
+                if qn < 0:  # seen
+                    continue
+                st[nb] = -1
+                if qn == cur:  # queue it
+                    bucket[ftop] = nb
+                    ftop += 1
+                    continue
+                if qn > cur:  # queue it
+                    slot = fill[qn]
+                    bucket[slot] = nb
+                    fill[qn] = slot + 1
+                    if slot == start[qn]:
+                        summ = _bit_set(occ, summ, qn)
+                    continue
+                d = u
+                dq = qn
+                break
+            if d >= 0:
+                # a lower neighbour: push p back (if it has neighbours left), descend
+                if d + 1 < ne:
+                    st[p] = -2 - d
+                    bucket[ftop] = p
+                    ftop += 1
+                fill[cur] = ftop
+                if ftop > sbeg:
+                    summ = _bit_set(occ, summ, cur)
+                else:
+                    summ = _bit_clear(occ, summ, cur)
+                stk_area[sp - 1] = area
+                p = p + offs[d]
+                cur = dq
+                ftop = fill[cur]
+                sbeg = start[cur]
+                node = n_nodes
+                node_b[node] = cur
+                lab[p] = node
+                n_nodes += 1
+                area = 1
+                stk_lv[sp] = cur
+                stk_node[sp] = node
+                sp += 1
+                e = 0
+                continue
+            # ---- p is done: pop the next pixel from the lowest non-empty bucket
+            if ftop > sbeg:
+                ftop -= 1
+                p = bucket[ftop]
+                e = -1 - np.int64(st[p])
+                if e == 0:  # first visit (else p resumes after a descent)
+                    lab[p] = node
+                    area += 1
+                continue
+            fill[cur] = ftop
+            summ = _bit_clear(occ, summ, cur)
+            stk_area[sp - 1] = area
+            lv = _bit_next(occ, summ, cur)
+            if lv < 0:
+                break
+            # rising: close the components below lv
+            while True:
+                t = sp - 1
+                if sp >= 2 and stk_lv[t - 1] <= lv:  # becomes part of the next one
+                    n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], stk_lv[t - 1], K,
+                                   max_area, node_b, node_size, node_parent, tagged, fin, n_fin)
+                    stk_area[t - 1] += stk_area[t]
+                    sp -= 1
+                    if stk_lv[t - 1] == lv:
+                        break
+                else:  # becomes part of a new component at lv
+                    n_fin = _close(stk_node[t], stk_area[t], n_nodes, lv, K, max_area,
+                                   node_b, node_size, node_parent, tagged, fin, n_fin)
+                    stk_lv[t] = lv
+                    stk_node[t] = n_nodes
+                    node_b[n_nodes] = lv
+                    n_nodes += 1
+                    break
+            cur = lv
+            node = stk_node[sp - 1]
+            area = stk_area[sp - 1]
+            sbeg = start[cur]
+            ftop = fill[cur] - 1
+            p = bucket[ftop]
+            e = -1 - np.int64(st[p])
+            if e == 0:
+                lab[p] = node
+                area += 1
+        # ---- the region is flooded: each component left becomes part of the next one, and the
+        # last one (the whole region) lives to the end
+        while sp > 1:
+            t = sp - 1
+            n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], stk_lv[t - 1], K, max_area,
+                           node_b, node_size, node_parent, tagged, fin, n_fin)
+            stk_area[t - 1] += stk_area[t]
+            sp -= 1
+        n_fin = _close(stk_node[0], stk_area[0], -1, K + 2, K, max_area,
+                       node_b, node_size, node_parent, tagged, fin, n_fin)
+    return (lab, node_b[:n_nodes], node_size[:n_nodes], node_parent[:n_nodes], tagged[:n_nodes],
+            fin[:n_fin])
+
+
+@numba.njit(cache=True)
+def _lab_from_order(order, first, n):
+    """Node image of the union-find kernel: first[t] is the node holding pixel order[t]."""
+    lab = np.full(n, -1, np.int32)
+    for t in range(order.size):
+        lab[order[t]] = first[t]
+    return lab
+
+
+@numba.njit(cache=True)
+def _outlier_mask(lab, fin, node_parent, tagged, valid, out):
+    """out (H, W): True on the valid pixels held by a tagged node or by a node inside one."""
+    flag = tagged.copy()
+    for t in range(fin.size - 1, -1, -1):  # parents are closed after their children
+        a = fin[t]
+        pa = node_parent[a]
+        if pa >= 0 and flag[pa]:
+            flag[a] = True
+    H, W = out.shape
+    Wp = W + 2
+    for r in range(H):
+        base = (r + 1) * Wp + 1
+        for c in range(W):
+            a = lab[base + c]
+            out[r, c] = a >= 0 and flag[a] and valid[r, c]
+
+
+@numba.njit(cache=True)
+def _cluster_labels(lab, fin, node_parent, tagged, valid, labels):
+    """Label of the outermost tagged node over each valid pixel, numbered in raster order."""
+    n_nodes = tagged.size
+    outer = np.full(n_nodes, -1, np.int64)  # outermost tagged ancestor (or self), -1 none
+    for t in range(fin.size - 1, -1, -1):
+        a = fin[t]
+        pa = node_parent[a]
+        if pa >= 0 and outer[pa] >= 0:
+            outer[a] = outer[pa]
+        elif tagged[a]:
+            outer[a] = a
+    H, W = labels.shape
+    Wp = W + 2
+    number = np.zeros(n_nodes, np.int64)
+    tops = np.empty(n_nodes, np.int64)
+    n = 0
+    for r in range(H):
+        base = (r + 1) * Wp + 1
+        for c in range(W):
+            labels[r, c] = 0
+            a = lab[base + c]
+            if a < 0 or not valid[r, c]:
+                continue
+            t = outer[a]
+            if t < 0:
+                continue
+            if number[t] == 0:
+                tops[n] = t
+                n += 1
+                number[t] = n
+            labels[r, c] = number[t]
+    return tops[:n]
+
+
+@numba.njit(cache=True)
+def _level_counts(node_b, node_parent, counts):
+    """counts[k - 1] = number of components of the cut at level k = 1 .. K + 1 (counts (K + 1,)):
+    the nodes with b <= k < e (e = the birth of the parent; never for a root)."""
+    n_k = counts.size  # K + 1
+    diff = np.zeros(n_k + 2, np.int64)
+    for a in range(node_b.size):
+        pa = node_parent[a]
+        e = node_b[pa] if pa >= 0 else n_k + 1
+        diff[min(node_b[a], n_k + 1)] += 1
+        diff[min(e, n_k + 1)] -= 1
+    c = np.int64(0)
+    for k in range(n_k + 1):
+        c += diff[k]
+        if k >= 1:
+            counts[k - 1] = c
