@@ -591,37 +591,34 @@ def export_labels(store: LabelStore, log: LogRecord, path: str | os.PathLike, *,
 
 
 def read_label_masks(path: str | os.PathLike) -> tuple[dict[str, str], dict[int, dict[str, np.ndarray]]]:
-    """Read an exported label MCAP: (``zcut.labels`` metadata, stamp_ns -> {topic: (H, W) bool})."""
-    from mcap.exceptions import McapError
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
+    """Read an exported label MCAP: (``zcut.labels`` metadata, stamp_ns -> {topic: (H, W) bool}).
 
+    Uses the same defensive MCAP scanner and Image codec as the log reader; a damaged file is a
+    :class:`~replay.errors.LogFormatError` (labels are imported whole or not at all).
+    """
     from replay.errors import LogFormatError
+    from replay.mcapscan import OP_CHANNEL, OP_LOST, OP_MESSAGE, McapFile
+    from replay.ros_msgs import decode_image, image_to_mask
 
-    meta: dict[str, str] = {}
+    wanted = (LABEL_OUTLIERS_TOPIC, LABEL_REVIEWED_TOPIC)
     masks: dict[int, dict[str, np.ndarray]] = {}
-    try:
-        with open(path, "rb") as f:
-            reader = make_reader(f, decoder_factories=[DecoderFactory()])
-            for rec in reader.iter_metadata():
-                if rec.name == LABELS_METADATA:
-                    meta = dict(rec.metadata)
-            f.seek(0)
-            reader = make_reader(f, decoder_factories=[DecoderFactory()])
-            for _schema, _channel, message, msg in reader.iter_decoded_messages(
-                topics=[LABEL_OUTLIERS_TOPIC, LABEL_REVIEWED_TOPIC]
-            ):
-                if msg.encoding != "mono8":
-                    raise LogFormatError(f"{path}: {_channel.topic} has encoding {msg.encoding!r}, expected mono8")
-                h, w, step = int(msg.height), int(msg.width), int(msg.step)
-                data = np.frombuffer(bytes(msg.data), np.uint8)
-                if data.size < h * step or step < w:
-                    raise LogFormatError(f"{path}: {_channel.topic} image data too short for {h}x{w}")
-                m = data[: h * step].reshape(h, step)[:, :w] > 0
-                stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-                masks.setdefault(stamp, {})[_channel.topic] = m
-    except McapError as e:
-        raise LogFormatError(f"{path}: not a readable MCAP label file: {e}") from e
+    damage: list[str] = []
+    with McapFile(path) as f:
+        metadata, notes = f.read_metadata()
+        damage += notes
+        topics: dict[int, str] = {}
+        for op, rec in f.records(damage, prefetch=0):
+            if op == OP_CHANNEL and rec.topic in wanted:
+                topics[rec.id] = rec.topic
+            elif op == OP_MESSAGE and rec.channel_id in topics:
+                where = f"{path}: {topics[rec.channel_id]}"
+                msg = decode_image(rec.data, where=where)
+                masks.setdefault(msg.stamp_ns, {})[topics[rec.channel_id]] = image_to_mask(msg, where=where)
+            elif op == OP_LOST:
+                damage.append("messages were lost")
+    if damage:
+        raise LogFormatError(f"{path}: damaged label file: {damage[0]}")
+    meta = metadata.get(LABELS_METADATA, {})
     if not meta:
         raise LogFormatError(f"{path}: no {LABELS_METADATA!r} metadata record; not a zcut label export")
     return meta, masks

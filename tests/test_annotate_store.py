@@ -223,3 +223,20 @@ def test_import_needs_the_log(tmp_path, store_frame, rng, valid):
 @given(arrays(np.bool_, array_shapes(min_dims=2, max_dims=2, min_side=1, max_side=40)))
 def test_pack_roundtrip_any_shape(m):
     assert np.array_equal(unpack_mask(pack_mask(m), m.shape), m)
+
+
+def test_damaged_label_export_is_refused_and_stores_nothing(store_frame, rng, valid, tmp_path):
+    from replay.errors import LogFormatError
+
+    store, log, fr = store_frame
+    l1, r1 = _label(rng, valid)
+    store.save_label(fr, annotator="ann", outliers=l1, reviewed=r1, base_revision=0)
+    out = tmp_path / "labels.mcap"
+    export_labels(store, log, out, annotator="ann")
+    data = out.read_bytes()
+    for cut in (len(data) // 3, len(data) // 2, len(data) - 40):
+        bad = tmp_path / f"cut{cut}.mcap"
+        bad.write_bytes(data[:cut])
+        with pytest.raises(LogFormatError, match=bad.name):
+            import_labels(store, bad)
+    assert store.revisions(fr, annotator="ann") == [1]
