@@ -43,6 +43,9 @@ from .mcapscan import (
 #: A frame waits for its image, camera info and masks until this many later clouds have arrived.
 PAIRING_WINDOW = 2
 _PEEK_AFTER_FIRST_CLOUD = 64  # messages scanned past the first cloud when the file has no summary
+#: Chunks parsed while opening a log are kept (up to this many uncompressed bytes) for the first
+#: :meth:`LogReader.frames` iteration, so that opening and reading the first frame decompress them once.
+KEEP_PEEKED_BYTES = 128 << 20
 _TYPES = (rm.POINTCLOUD2, rm.IMAGE, rm.CAMERAINFO)
 
 
@@ -90,9 +93,13 @@ def _ns(topic: str) -> str:
 
 def _peek(
     mf: McapFile, schemas: dict[int, Schema], channels: dict[int, Channel],
-    metadata: dict[str, dict[str, str]],
+    metadata: dict[str, dict[str, str]], keep: dict[tuple[int, int], list] | None = None,
 ) -> tuple[dict[int, object], list[str]]:
-    """First decoded message (header only) of every PointCloud2/Image/CameraInfo channel."""
+    """First decoded message (header only) of every PointCloud2/Image/CameraInfo channel.
+
+    With ``keep``, the parsed chunks (intact ones, up to :data:`KEEP_PEEKED_BYTES`) are stored
+    there by (offset, record length) for :meth:`McapFile.records`.
+    """
     firsts: dict[int, object] = {}
     damage: list[str] = []
 
@@ -120,17 +127,20 @@ def _peek(
     summary = mf.summary
     if summary is not None and summary.chunk_indexes:
         todo = {cid for cid in channels if wanted(cid)}
+        kept = 0
         for ci in summary.chunk_indexes:
             need = todo & set(ci.message_index_offsets)
             if not need:
                 continue
             try:
-                rec = mf._read_record_at(ci.chunk_start_offset, expect_len=ci.chunk_length)
-                if rec is None:
-                    raise _Bad("chunk runs past the end of the file")
-                for op, msg in mf._chunk_records(rec[1]):
+                recs = mf.chunk_records_at(ci.chunk_start_offset, ci.chunk_length)
+                for op, msg in recs:
                     if op == OP_MESSAGE and msg.channel_id in need and msg.channel_id not in firsts:
                         take(msg)
+                size = sum(len(m.data) for op, m in recs if op == OP_MESSAGE)
+                if keep is not None and kept + size <= KEEP_PEEKED_BYTES:
+                    keep[(ci.chunk_start_offset, ci.chunk_length - 9)] = recs
+                    kept += size
             except _Bad as e:
                 damage.append(f"chunk at byte {ci.chunk_start_offset} is corrupt ({e})")
                 continue
@@ -179,13 +189,18 @@ class LogInfo:
     peek_damage: list[str]
     schemas: dict[int, Schema]
     channels: dict[int, Channel]
+    #: chunks parsed while peeking, by (offset, record length) (only with ``keep_chunks``)
+    chunks: dict[tuple[int, int], list] = field(default_factory=dict)
 
 
-def inspect_log(path: str | os.PathLike) -> LogInfo:
+def inspect_log(path: str | os.PathLike, *, keep_chunks: bool = False) -> LogInfo:
     """List the topics of an MCAP log with the size of their first message (no topic choice).
 
-    Raises :class:`LogFormatError` if the file is not MCAP.
+    With ``keep_chunks``, :attr:`LogInfo.chunks` keeps the chunks read to find the first messages
+    (up to :data:`KEEP_PEEKED_BYTES`) for a following scan. Raises :class:`LogFormatError` if the
+    file is not MCAP.
     """
+    kept: dict[tuple[int, int], list] = {}
     path = Path(path)
     metadata: dict[str, dict[str, str]] = {}
     notes: list[str] = []
@@ -202,7 +217,7 @@ def inspect_log(path: str | os.PathLike) -> LogInfo:
             metadata, more = mf.read_metadata()
             notes += more
             start_ns, end_ns = summary.message_start_time, summary.message_end_time
-        firsts, peek_damage = _peek(mf, schemas, channels, metadata)
+        firsts, peek_damage = _peek(mf, schemas, channels, metadata, kept if keep_chunks else None)
     counts = summary.channel_message_counts if summary is not None else None
     topics: dict[str, TopicInfo] = {}
     for cid, ch in sorted(channels.items()):
@@ -227,7 +242,7 @@ def inspect_log(path: str | os.PathLike) -> LogInfo:
             info.error = str(got)
     return LogInfo(
         path, mf.profile, mf.library, topics, metadata, start_ns, end_ns,
-        counts is not None, notes, peek_damage, schemas, channels,
+        counts is not None, notes, peek_damage, schemas, channels, kept,
     )
 
 
@@ -266,7 +281,8 @@ class LogReader:
         image_topic: str | None = None,
         info_topic: str | None = None,
     ) -> None:
-        info = inspect_log(path)
+        info = inspect_log(path, keep_chunks=True)
+        self._chunks = info.chunks  # for the first frames() scan
         self.path = info.path
         self.profile, self.library = info.profile, info.library
         self.topics = info.topics
@@ -441,7 +457,8 @@ class LogReader:
         schemas = dict(self._schemas)
         channels = dict(self._channels)
         with McapFile(self.path) as mf:
-            for op, rec in mf.records(self.damage, start_offset=begin):
+            cached, self._chunks = self._chunks, {}
+            for op, rec in mf.records(self.damage, start_offset=begin, cached=cached):
                 if op == OP_MESSAGE:
                     ch = channels.get(rec.channel_id)
                     if ch is None or ch.topic not in want_topics:

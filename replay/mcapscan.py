@@ -6,7 +6,10 @@ and absurd sizes can exhaust memory. This scanner
 
 - checks every length against the bytes that are really there before reading;
 - decompresses chunks (zstd, lz4, none) incrementally, never past the declared
-  ``uncompressed_size`` (itself capped by :data:`MAX_CHUNK_BYTES`), and checks their CRC;
+  ``uncompressed_size`` (itself capped by :data:`MAX_CHUNK_BYTES`), and checks their CRC
+  (ISA-L's CRC-32, the zlib polynomial, about 4x faster than ``zlib.crc32``);
+- reads, decompresses and checks the next chunks in worker threads while the caller decodes the
+  current one (zstd and the CRC release the GIL);
 - on a corrupt chunk records a damage note and moves on to the next chunk, using the summary's
   chunk index when the file has one (so a corrupt record length does not lose the rest);
 - on a truncated file delivers every complete record before the cut, then a damage note.
@@ -18,8 +21,8 @@ from __future__ import annotations
 
 import bisect
 import io
+import os
 import struct
-import zlib
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from collections.abc import Iterator
@@ -27,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from isal.isal_zlib import crc32
 
 from .errors import LogFormatError
 
@@ -44,6 +48,10 @@ _READ_PIECE = 16 << 20
 _FIRST_BUF = 16 << 20
 #: pseudo opcode yielded by :meth:`McapFile.records` after a lost chunk: {channel_id: count} or None
 OP_LOST = 0x100
+#: Chunks read ahead of the caller by :meth:`McapFile.records` (one worker thread each, at most
+#: the number of CPUs), and the most uncompressed bytes they may hold beyond the first.
+PREFETCH = 2
+PREFETCH_BYTES = 256 << 20
 
 
 class _Bad(Exception):
@@ -140,6 +148,15 @@ class ChunkIndex:
     compression: str
     compressed_size: int
     uncompressed_size: int
+
+
+@dataclass(frozen=True, slots=True)
+class _ChunkRef:
+    """Where a chunk record is (read later, in a worker thread)."""
+
+    offset: int
+    length: int  # of the record body
+    usize: int  # uncompressed size its header claims (for the read-ahead budget; unchecked)
 
 
 @dataclass
@@ -403,6 +420,13 @@ class McapFile:
                 notes.append(f"metadata record '{name}' is damaged ({e})")
         return out, notes
 
+    def _chunk_at(self, ref: _ChunkRef) -> list[tuple[int, object]]:
+        """Read (``os.pread``: safe from any thread), decompress, CRC-check and parse a chunk."""
+        body = os.pread(self._f.fileno(), ref.length, ref.offset + 9)
+        if len(body) != ref.length:
+            raise _Bad(f"runs past the end of the file ({len(body)} of {ref.length} bytes)")
+        return self._chunk_records(memoryview(body))
+
     def _chunk_records(self, body: memoryview, where: str = "") -> list[tuple[int, object]]:
         """Decompress, CRC-check and parse one chunk: [(opcode, record)], or raise :class:`_Bad`."""
         b = _Buf(body)
@@ -413,7 +437,7 @@ class McapFile:
         n = b.u64()
         s = b.take(n)
         mv = decompress(comp, body[s : s + n], usize)
-        if crc != 0 and zlib.crc32(mv) != crc:
+        if crc != 0 and crc32(mv) != crc:
             raise _Bad("fails its CRC check")
         records = []
         pos = 0
@@ -432,32 +456,61 @@ class McapFile:
 
     # ------------------------------------------------------------------ scanning
     def records(
-        self, damage: list[str], *, prefetch: int = 1, start_offset: int | None = None
+        self, damage: list[str], *, prefetch: int = PREFETCH, start_offset: int | None = None,
+        cached: dict[tuple[int, int], list[tuple[int, object]]] | None = None,
     ) -> Iterator[tuple[int, object]]:
         """Yield (opcode, parsed record) for Schema, Channel, Message and Metadata records in file
         order, chunk contents included.
 
         Damage is appended to ``damage`` as one-line notes; the scan then resumes at the next chunk
         the summary knows about, or stops. ``start_offset`` starts the scan at a record (a chunk
-        found through the summary) instead of the beginning. Up to ``prefetch`` chunks are decompressed ahead in a
-        worker thread (zstd and crc32 release the GIL), overlapping I/O with the caller's work.
+        found through the summary) instead of the beginning. Up to ``prefetch`` chunks (and at most
+        :data:`PREFETCH_BYTES` uncompressed bytes beyond the first) are read, decompressed and
+        CRC-checked ahead in worker threads, overlapping with the caller's work; 0 does all of it
+        in the calling thread. ``cached`` maps (offset, record length) of chunks already parsed by
+        :meth:`chunk_records_at` to their records (used instead of reading them again; entries
+        are removed as they are used).
         """
-        queue: deque[tuple[int, int, object]] = deque()
-        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mcap-chunks") if prefetch else None
+        queue: deque[tuple[int, int, object, int]] = deque()
+        workers = max(1, min(prefetch, os.cpu_count() or 1))
+        pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="mcap-chunks") if prefetch > 0 else None
+        ahead = 0  # uncompressed bytes of the queued chunks
         try:
-            for pos, op, body in self._outer(damage, start_offset):
+            for pos, op, body in self._outer(damage, start_offset, lazy=pool is not None):
+                size = 0
                 if op == OP_CHUNK:
-                    job: object = pool.submit(self._chunk_records, body) if pool else body
+                    key = (pos, body.length if isinstance(body, _ChunkRef) else len(body))
+                    if cached and key in cached:
+                        job: object = cached.pop(key)
+                    elif pool is not None:
+                        job = pool.submit(self._chunk_at, body)
+                        size = min(body.usize, MAX_CHUNK_BYTES)
+                    else:
+                        job = body
                 else:
                     job = body
-                queue.append((pos, op, job))
-                while len(queue) > max(prefetch, 0):
-                    yield from self._finish(*queue.popleft(), damage)
+                queue.append((pos, op, job, size))
+                ahead += size
+                while len(queue) > max(prefetch, 0) or (len(queue) > 1 and ahead - queue[0][3] > PREFETCH_BYTES):
+                    pos0, op0, job0, size0 = queue.popleft()
+                    ahead -= size0
+                    yield from self._finish(pos0, op0, job0, damage)
             while queue:
-                yield from self._finish(*queue.popleft(), damage)
+                pos0, op0, job0, _ = queue.popleft()
+                yield from self._finish(pos0, op0, job0, damage)
         finally:
             if pool is not None:
                 pool.shutdown(wait=True, cancel_futures=True)
+
+    def chunk_records_at(self, offset: int, length: int) -> list[tuple[int, object]]:
+        """Records of the chunk at ``offset`` whose record is ``length`` bytes long (from a chunk
+        index): [(opcode, record)] or raise :class:`_Bad`."""
+        rec = self._read_record_at(offset, expect_len=length)
+        if rec is None:
+            raise _Bad("chunk runs past the end of the file")
+        if rec[0] != OP_CHUNK:
+            raise _Bad(f"no chunk record at offset {offset} (opcode 0x{rec[0]:02x})")
+        return self._chunk_records(rec[1])
 
     def _finish(self, pos: int, op: int, job: object, damage: list[str]) -> Iterator[tuple[int, object]]:
         if op == OP_LOST:
@@ -465,7 +518,12 @@ class McapFile:
             return
         try:
             if op == OP_CHUNK:
-                recs = job.result() if isinstance(job, Future) else self._chunk_records(job)
+                if isinstance(job, Future):
+                    recs = job.result()
+                elif isinstance(job, list):
+                    recs = job
+                else:
+                    recs = self._chunk_records(job)
             else:
                 rec = self._parse_inner(op, _Buf(job))
                 recs = [] if rec is None else [(op, rec)]
@@ -526,8 +584,11 @@ class McapFile:
             return None
         return counts
 
-    def _outer(self, damage: list[str], start_offset: int | None = None) -> Iterator[tuple[int, int, memoryview]]:
-        """(offset, opcode, body) of the data-section records zcut needs, with damage handling."""
+    def _outer(
+        self, damage: list[str], start_offset: int | None = None, *, lazy: bool = False,
+    ) -> Iterator[tuple[int, int, memoryview | _ChunkRef]]:
+        """(offset, opcode, body) of the data-section records zcut needs, with damage handling.
+        With ``lazy``, a chunk's body is not read: a :class:`_ChunkRef` says where it is."""
         resume = sorted(c.chunk_start_offset for c in self.summary.chunk_indexes) if self.summary else []
         resume_set = set(resume)
         pos = self.data_start if start_offset is None else start_offset
@@ -541,7 +602,8 @@ class McapFile:
                     )
                 return
             self._f.seek(pos)
-            op, length = struct.unpack("<BQ", self._f.read(9))
+            head = self._f.read(33)  # opcode, length and (for a chunk) the uncompressed size
+            op, length = struct.unpack_from("<BQ", head)
             nxt = pos + 9 + length
             i = bisect.bisect_right(resume, pos)  # the next chunk the summary knows about
             later = resume[i : i + 1]
@@ -590,7 +652,11 @@ class McapFile:
                         "section; the rest of the data section is lost"
                     )
                 return
-            if op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_METADATA, OP_CHUNK):
+            if op == OP_CHUNK and lazy:
+                usize = struct.unpack_from("<Q", head, 25)[0] if len(head) == 33 and length >= 24 else 0
+                yield pos, op, _ChunkRef(pos, length, usize)
+            elif op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_METADATA, OP_CHUNK):
+                self._f.seek(pos + 9)
                 yield pos, op, memoryview(self._f.read(length))
             pos = nxt
 

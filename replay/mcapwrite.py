@@ -12,10 +12,10 @@ with ``mcap.reader`` (CRCs validated) and with Rerun's MCAP importer.
 from __future__ import annotations
 
 import struct
-import zlib
 from typing import BinaryIO
 
 import zstandard
+from isal.isal_zlib import crc32
 
 from .mcapscan import (
     MAGIC,
@@ -103,7 +103,7 @@ class McapWriter:
         data = b"".join(self._parts)
         comp = self._zstd.compress(data)
         head = struct.pack(
-            "<QQQI", self._c_min or 0, self._c_max or 0, len(data), zlib.crc32(data)
+            "<QQQI", self._c_min or 0, self._c_max or 0, len(data), crc32(data)
         ) + _s("zstd") + struct.pack("<Q", len(comp))
         start = self._pos
         self._write(struct.pack("<BQ", OP_CHUNK, len(head) + len(comp)))
@@ -202,7 +202,7 @@ class McapWriter:
         for op, start, length in groups:
             summary.extend(_record(OP_SUMMARY_OFFSET, struct.pack("<BQQ", op, start, length)))
         footer_head = struct.pack("<BQQQ", OP_FOOTER, 20, summary_start, summary_offset_start)
-        crc = zlib.crc32(bytes(summary) + footer_head)
+        crc = crc32(bytes(summary) + footer_head)
         self._write(bytes(summary))
         self._write(footer_head + struct.pack("<I", crc))
         self._write(MAGIC)

@@ -537,10 +537,19 @@ def _unpack_xyz(px, py, pz, xyz):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True)
 def _unpack_xyz_rgb(px, py, pz, c, xyz, rgb):  # pragma: no cover - compiled
-    _unpack_xyz(px, py, pz, xyz)
+    # one pass: each point's bytes are read from memory once
     h, w = px.shape
+    nan = np.float32(np.nan)
     for i in range(h):
         for j in range(w):
+            x = np.float32(px[i, j])
+            y = np.float32(py[i, j])
+            z = np.float32(pz[i, j])
+            if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)) or (x == 0 and y == 0 and z == 0):
+                x = y = z = nan
+            xyz[i, j, 0] = x
+            xyz[i, j, 1] = y
+            xyz[i, j, 2] = z
             v = np.uint32(c[i, j])
             rgb[i, j, 0] = (v >> 16) & 0xFF
             rgb[i, j, 1] = (v >> 8) & 0xFF
