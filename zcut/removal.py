@@ -99,16 +99,19 @@ class RemovalResult:
 
 @dataclass(frozen=True, slots=True)
 class _ModelIndex:
-    """Per-model search structures, built once: a grid of cells with their model points (CSR)."""
+    """Per-model search structures, built once: a grid of cells with their model points (CSR).
+
+    The points, normals and offsets are stored sorted by cell, so that a cell's points are
+    contiguous in memory: those of cell c are rows ``start[c]:start[c + 1]``.
+    """
 
     cell: float
     origin: np.ndarray  # (3,) float64
     dims: np.ndarray  # (3,) int64
-    start: np.ndarray  # (n_cells + 1,) int64: the points of cell c are order[start[c]:start[c + 1]]
-    order: np.ndarray  # (N,) int64
-    points: np.ndarray  # (N, 3) float64
-    normals: np.ndarray  # (N, 3) float64 (zeros when the model has none)
-    offsets: np.ndarray  # (N,) float64: n . m
+    start: np.ndarray  # (n_cells + 1,) int64
+    points: np.ndarray  # (N, 3) float64, sorted by cell
+    normals: np.ndarray  # (N, 3) float64 (zeros when the model has none), sorted by cell
+    offsets: np.ndarray  # (N,) float64: n . m, sorted by cell
     rim_b: float  # 99.5th percentile of the model's height (-z), bin frame
     floor_b: float  # 0.5th percentile
 
@@ -133,129 +136,219 @@ def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) 
     start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     nrm = np.zeros_like(points) if normals is None else np.ascontiguousarray(normals, np.float64)
     h = -points[:, 2]
-    index = _ModelIndex(cell, origin, dims.astype(np.int64), start, order,
-                        np.ascontiguousarray(points, np.float64), nrm, np.einsum("ij,ij->i", points, nrm),
-                        float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5)))
+    offsets = np.einsum("ij,ij->i", points, nrm)
+    index = _ModelIndex(cell, origin, dims.astype(np.int64), start,
+                        np.ascontiguousarray(points[order], np.float64), np.ascontiguousarray(nrm[order]),
+                        offsets[order], float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5)))
     if len(_INDEX) >= 6:
         _INDEX.pop(next(iter(_INDEX)))
     _INDEX[key] = (points, index)
     return index
 
 
-@numba.njit(parallel=True, cache=True)
-def _grid_test(P, origin, cell, dims, start, order, pts, nrm, off, delta, radius, planes):  # pragma: no cover - numba
-    """(M,) bool: some model point within ``radius`` passes (plane distance, or distance, <= delta)."""
-    M = P.shape[0]
-    ok = np.zeros(M, np.bool_)
+@numba.njit(cache=True, inline="always")
+def _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radius, planes):  # pragma: no cover - numba
+    """Some model point within ``radius`` of (px, py, pz) passes (plane distance, or distance, <= delta).
+
+    Only the neighbouring cells that the radius reaches are searched (a cell's points lie within
+    its bounds up to rounding; the 1 nm margin covers it).
+    """
+    fx = (px - origin[0]) / cell
+    fy = (py - origin[1]) / cell
+    fz = (pz - origin[2]) / cell
+    ci = int(np.floor(fx))
+    cj = int(np.floor(fy))
+    ck = int(np.floor(fz))
+    # model points lie in cells 2 .. dims - 3: a point outside 1 .. dims - 2 is farther than a cell
+    if ci < 1 or cj < 1 or ck < 1 or ci > dims[0] - 2 or cj > dims[1] - 2 or ck > dims[2] - 2:
+        return False
+    reach = radius + 1e-9
+    x0 = -1 if (fx - ci) * cell <= reach else 0
+    x1 = 1 if (ci + 1 - fx) * cell <= reach else 0
+    y0 = -1 if (fy - cj) * cell <= reach else 0
+    y1 = 1 if (cj + 1 - fy) * cell <= reach else 0
+    z0 = -1 if (fz - ck) * cell <= reach else 0
+    z1 = 1 if (ck + 1 - fz) * cell <= reach else 0
     r2 = radius * radius
-    for i in numba.prange(M):
-        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
-        if not (np.isfinite(px) and np.isfinite(py) and np.isfinite(pz)):
-            continue
-        ci = int(np.floor((px - origin[0]) / cell))
-        cj = int(np.floor((py - origin[1]) / cell))
-        ck = int(np.floor((pz - origin[2]) / cell))
-        # model points lie in cells 2 .. dims - 3: a point outside 1 .. dims - 2 is farther than a cell
-        if ci < 1 or cj < 1 or ck < 1 or ci > dims[0] - 2 or cj > dims[1] - 2 or ck > dims[2] - 2:
-            continue
-        found = False
-        for dx in range(-1, 2):
-            for dy in range(-1, 2):
-                for dz in range(-1, 2):
-                    c = ((ci + dx) * dims[1] + (cj + dy)) * dims[2] + (ck + dz)
-                    for s in range(start[c], start[c + 1]):
-                        j = order[s]
-                        ex = px - pts[j, 0]
-                        ey = py - pts[j, 1]
-                        ez = pz - pts[j, 2]
-                        d2 = ex * ex + ey * ey + ez * ez
-                        if d2 > r2:
-                            continue
-                        if planes:
-                            d = abs(nrm[j, 0] * px + nrm[j, 1] * py + nrm[j, 2] * pz - off[j])
-                        else:
-                            d = np.sqrt(d2)
-                        if d <= delta:
-                            found = True
-                            break
-                    if found:
-                        break
-                if found:
-                    break
-            if found:
-                break
-        ok[i] = found
+    for dx in range(x0, x1 + 1):
+        for dy in range(y0, y1 + 1):
+            for dz in range(z0, z1 + 1):
+                c = ((ci + dx) * dims[1] + (cj + dy)) * dims[2] + (ck + dz)
+                for j in range(start[c], start[c + 1]):
+                    ex = px - pts[j, 0]
+                    ey = py - pts[j, 1]
+                    ez = pz - pts[j, 2]
+                    d2 = ex * ex + ey * ey + ez * ez
+                    if d2 > r2:
+                        continue
+                    if planes:
+                        d = abs(nrm[j, 0] * px + nrm[j, 1] * py + nrm[j, 2] * pz - off[j])
+                    else:
+                        d = np.sqrt(d2)
+                    if d <= delta:
+                        return True
+    return False
+
+
+@numba.njit(cache=True, inline="always")
+def _to_bin(a, r, c, R, t):  # pragma: no cover - numba
+    """Pixel (r, c) of ``a`` in the bin frame: ``(p - t) @ R`` in float64."""
+    dx = np.float64(a[r, c, 0]) - t[0]
+    dy = np.float64(a[r, c, 1]) - t[1]
+    dz = np.float64(a[r, c, 2]) - t[2]
+    return (dx * R[0, 0] + dy * R[1, 0] + dz * R[2, 0],
+            dx * R[0, 1] + dy * R[1, 1] + dz * R[2, 1],
+            dx * R[0, 2] + dy * R[1, 2] + dz * R[2, 2])
+
+
+@numba.njit(parallel=True, cache=True)
+def _classify(a, fp, R, t, easy_above, test_bin, origin, cell, dims, start, pts, nrm, off, delta,
+              radius, planes, valid, table, easy, binp):  # pragma: no cover - numba
+    """Fill the (H, W) bool masks valid, table, easy, binp (zeroed) in one pass over the frame."""
+    H, W = fp.shape
+    for r in numba.prange(H):
+        for c in range(W):
+            if not (np.isfinite(a[r, c, 0]) and np.isfinite(a[r, c, 1]) and np.isfinite(a[r, c, 2])):
+                continue
+            valid[r, c] = True
+            if not fp[r, c]:
+                table[r, c] = True
+                continue
+            px, py, pz = _to_bin(a, r, c, R, t)
+            if -pz > easy_above:
+                easy[r, c] = True
+            elif test_bin:
+                binp[r, c] = _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta,
+                                       radius, planes)
+
+
+@numba.njit(parallel=True, cache=True)
+def _first_candidates(lab, open_, neighbours):  # pragma: no cover - numba
+    """(H, W) bool: ``open_`` pixels with at least ``neighbours`` of their 8 neighbours in ``lab``."""
+    H, W = lab.shape
+    out = np.zeros((H, W), np.bool_)
+    for r in numba.prange(H):
+        for c in range(W):
+            if not open_[r, c]:
+                continue
+            n = 0
+            for rr in range(max(r - 1, 0), min(r + 2, H)):
+                for cc in range(max(c - 1, 0), min(c + 2, W)):
+                    if (rr != r or cc != c) and lab[rr, cc]:
+                        n += 1
+            out[r, c] = n >= neighbours
+    return out
+
+
+@numba.njit(parallel=True, cache=True)
+def _test_pixels(a, flat, R, t, origin, cell, dims, start, pts, nrm, off, delta, radius,
+                 planes):  # pragma: no cover - numba
+    """(M,) bool: the pixels ``flat`` (row-major indices) are within ``delta`` of the model."""
+    W = a.shape[1]
+    ok = np.zeros(flat.shape[0], np.bool_)
+    for i in numba.prange(flat.shape[0]):
+        r = flat[i] // W
+        c = flat[i] - r * W
+        px, py, pz = _to_bin(a, r, c, R, t)
+        ok[i] = _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radius, planes)
     return ok
 
 
-def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | None, *,
-                delta_m: float, radius_m: float) -> np.ndarray:
-    """(M,) bool: points within ``delta_m`` of the model surface.
+@numba.njit(cache=True)
+def _next_candidates(new, lab, open_, seen, neighbours):  # pragma: no cover - numba
+    """Row-major indices of the ``open_`` neighbours of ``new`` with >= ``neighbours`` pixels in ``lab``.
 
-    ``points`` and ``model`` in the same frame. With normals: some model point within ``radius_m``
-    has its tangent plane within ``delta_m`` of the point; without: some model point lies within
-    ``delta_m``. A grid of model points (cells of at least the radius) is searched in the 27 cells
-    around each point, in parallel (numba).
+    ``lab``, ``open_`` and ``seen`` are flat (H * W,) views of (H, W) arrays; ``seen`` is scratch,
+    all False on entry and on exit.
     """
-    if len(points) == 0 or len(model) == 0:
-        return np.zeros(len(points), bool)
-    planes = normals is not None
-    radius = radius_m if planes else delta_m
-    index = _model_index(model, normals, radius)
-    return _grid_test(np.ascontiguousarray(points, np.float64), index.origin, index.cell, index.dims,
-                      index.start, index.order, index.points, index.normals, index.offsets,
-                      float(delta_m), float(radius), planes)
+    H, W = open_.shape
+    lab_f = lab.reshape(-1)
+    open_f = open_.reshape(-1)
+    seen_f = seen.reshape(-1)
+    out = np.empty(8 * new.shape[0], np.int64)
+    n = 0
+    for p in new:
+        r = p // W
+        c = p - r * W
+        for rr in range(max(r - 1, 0), min(r + 2, H)):
+            for cc in range(max(c - 1, 0), min(c + 2, W)):
+                q = rr * W + cc
+                if open_f[q] and not seen_f[q]:
+                    seen_f[q] = True
+                    out[n] = q
+                    n += 1
+    keep = 0
+    for i in range(n):
+        q = out[i]
+        seen_f[q] = False
+        r = q // W
+        c = q - r * W
+        k = 0
+        for rr in range(max(r - 1, 0), min(r + 2, H)):
+            for cc in range(max(c - 1, 0), min(c + 2, W)):
+                if (rr != r or cc != c) and lab_f[rr * W + cc]:
+                    k += 1
+        if k >= neighbours:
+            out[keep] = q
+            keep += 1
+    return out[:keep]
 
 
-_OFFSETS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
+@numba.njit(parallel=True, cache=True)
+def _finish(a, valid, labelled, plane, floor, up, z_far, height, xyz_out):  # pragma: no cover - numba
+    """Height image (mm, NaN invalid) and float32 cloud with the labelled pixels' z on the floor.
+
+    ``plane``: the floor is the plane {q : q . up = floor} (z solves x*ux + y*uy + z*uz = floor);
+    else the constant ``z_far``.
+    """
+    H, W = valid.shape
+    for r in numba.prange(H):
+        for c in range(W):
+            xyz_out[r, c, 0] = np.float32(a[r, c, 0])
+            xyz_out[r, c, 1] = np.float32(a[r, c, 1])
+            xyz_out[r, c, 2] = np.float32(a[r, c, 2])
+            if not valid[r, c]:
+                height[r, c] = np.nan
+            elif labelled[r, c]:
+                if plane:
+                    zf = (floor - np.float64(a[r, c, 0]) * up[0] - np.float64(a[r, c, 1]) * up[1]) / up[2]
+                else:
+                    zf = z_far
+                height[r, c] = -1000.0 * zf
+                xyz_out[r, c, 2] = np.float32(zf)
+            else:
+                height[r, c] = -1000.0 * np.float64(a[r, c, 2])
 
 
-def _straggler_passes(binp: Mask, table: Mask, valid: Mask, allowed: Mask, rows: np.ndarray,
-                      cols: np.ndarray, p_bin: np.ndarray, model: BinModel, *, straggler_m: float,
-                      radius_m: float, neighbours: int) -> None:
+def _grid_args(index: _ModelIndex) -> tuple:
+    return (index.origin, index.cell, index.dims, index.start, index.points, index.normals, index.offsets)
+
+
+def _straggler_passes(a: np.ndarray, binp: Mask, lab: np.ndarray, open_: Mask, R: np.ndarray,
+                      t: np.ndarray, index: _ModelIndex, *, straggler_m: float, radius_m: float,
+                      planes: bool, neighbours: int) -> None:
     """Grow ``binp`` (in place) along the noisy bin surface, see ``straggler_m``.
 
-    Pass 1 looks at every allowed pixel; later passes only at the neighbours of the pixels the
-    previous pass labelled (no other pixel's count of labelled neighbours changed, and a pixel
-    once tested is not tested again: its distance to the model does not change).
+    ``lab`` (uint8: table, bin or invalid) and ``open_`` (allowed, not bin, not yet tried) are
+    updated too. Pass 1 looks at every open pixel; later passes only at the neighbours of the
+    pixels the previous pass labelled (no other pixel's count of labelled neighbours changed, and a
+    pixel once tested is not tested again: its distance to the model does not change).
     """
-    import cv2
-
-    H, W = valid.shape
-    index = np.full(valid.shape, -1, np.int64)
-    index[rows, cols] = np.arange(len(rows))
-    index_f = index.reshape(-1)
-    lab = (table | binp | ~valid).astype(np.uint8)  # invalid neighbours count as not zone
-    n_lab = cv2.filter2D(lab, -1, np.ones((3, 3), np.float32), borderType=cv2.BORDER_CONSTANT) - lab
-    cand = np.flatnonzero(allowed & ~binp & (n_lab >= neighbours))
-    tried = np.zeros(H * W, bool)
-    binp_f, lab_f, allowed_f = binp.reshape(-1), lab.reshape(-1), allowed.reshape(-1)
+    grid = _grid_args(index)
+    cand = np.flatnonzero(_first_candidates(lab, open_, neighbours))
+    seen = np.zeros_like(open_)
+    binp_f, lab_f, open_f = binp.reshape(-1), lab.reshape(-1), open_.reshape(-1)
     for _ in range(STRAGGLER_PASSES):
         if cand.size == 0:
             break
-        tried[cand] = True
-        near = _near_model(p_bin[index_f[cand]], model.points, model.normals, delta_m=straggler_m,
-                           radius_m=radius_m)
+        open_f[cand] = False
+        near = _test_pixels(a, cand, R, t, *grid, float(straggler_m), float(radius_m), planes)
         new = cand[near]
         if new.size == 0:
             break
         binp_f[new] = True
         lab_f[new] = 1
-        r, c = np.divmod(new, W)
-        nr = (r[:, None] + _OFFSETS[None, :, 0]).ravel()
-        nc = (c[:, None] + _OFFSETS[None, :, 1]).ravel()
-        inb = (nr >= 0) & (nr < H) & (nc >= 0) & (nc < W)
-        mark = np.zeros(H * W, bool)  # cheaper than np.unique on large passes
-        mark[nr[inb] * W + nc[inb]] = True
-        mark &= allowed_f & ~binp_f & ~tried
-        nb = np.flatnonzero(mark)
-        r, c = np.divmod(nb, W)
-        count = np.zeros(len(nb), np.int64)
-        for dr, dc in _OFFSETS:
-            rr, cc = r + dr, c + dc
-            ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
-            count[ok] += lab[rr[ok], cc[ok]]
-        cand = nb[count >= neighbours]
+        cand = _next_candidates(new, lab, open_, seen, neighbours)
 
 
 def remove_table_and_bin(
@@ -315,53 +408,58 @@ def remove_table_and_bin(
             raise ParameterError(f"{name} must be a non-negative number, got {v!r}")
     if (model is None) != (T_cam_bin is None):
         raise ParameterError("model and T_cam_bin must be given together")
+    if model is None:
+        return _remove_table(a, fp)
+    if not a.flags.c_contiguous:
+        a = np.ascontiguousarray(a)
+    fp = np.ascontiguousarray(fp)
+    T = np.asarray(T_cam_bin, dtype=np.float64)
+    R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
+    up = R @ BIN_UP
+    # heights along up = -z in the bin frame; work in the bin frame so that the model's search grid
+    # is built once per model, not once per frame
+    mi = _model_index(model.points, model.normals, 0.0)
+    rim_b, floor_b = mi.rim_b, mi.floor_b
+    shift = float(t @ up)  # height of the bin origin along up, camera frame
+    rim, floor = rim_b + shift, floor_b + shift
+    planes = model.normals is not None
+    radius = search_radius_m if search_radius_m is not None else max(delta_m, 1.5 * model.spacing_m)
+    radius = max(radius, delta_m, 1e-9)
+    r_bin = radius if planes else delta_m
+    index = _model_index(model.points, model.normals, r_bin)
+    shape = fp.shape
+    valid, table, easy, binp = (np.zeros(shape, bool) for _ in range(4))
+    _classify(a, fp, R, t, rim_b + rim_offset_m, delta_m > 0, *_grid_args(index), float(delta_m),
+              float(r_bin), planes, valid, table, easy, binp)
+    if straggler_m > 0:
+        r_str = max(radius, straggler_m) if planes else straggler_m
+        lab = (table | binp | ~valid).view(np.uint8)  # invalid neighbours count as not zone
+        open_ = valid & fp & ~easy & ~binp
+        _straggler_passes(a, binp, lab, open_, R, t, _model_index(model.points, model.normals, r_str),
+                          straggler_m=straggler_m, radius_m=r_str, planes=planes,
+                          neighbours=int(straggler_neighbours))
+    labelled = table | easy | binp
+    zone = valid & ~labelled
+    plane = abs(up[2]) > 1e-6
+    z_far = np.nan
+    if not plane:  # a bin seen from the side: fall back to the farthest point
+        z_far = float(np.nanmax(a[..., 2][valid])) if valid.any() else np.nan
+    height = np.empty(shape, np.float64)
+    xyz_out = np.empty(a.shape, np.float32)
+    _finish(a, valid, labelled, plane, float(floor), up, float(z_far), height, xyz_out)
+    return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up)
+
+
+def _remove_table(a: np.ndarray, fp: Mask) -> RemovalResult:
+    """Without a model: only the table is removed; the floor is the farthest valid point."""
     z64 = a[..., 2].astype(np.float64)
     valid = finite_xyz(a)
     table = valid & ~fp
-    inside = valid & fp
-    easy = np.zeros_like(valid)
-    binp = np.zeros_like(valid)
-    if model is None:
-        up = BIN_UP.copy()
-        rim = floor = float("nan")
-        zfloor = np.full(z64.shape, np.nanmax(z64[valid]) if valid.any() else np.nan)
-    else:
-        T = np.asarray(T_cam_bin, dtype=np.float64)
-        R, t = T[:3, :3], T[:3, 3]
-        up = R @ BIN_UP
-        # heights along up = -z in the bin frame; work in the bin frame so that the model's
-        # KD-tree is built once per model, not once per frame
-        mi = _model_index(model.points, model.normals, 0.0)
-        rim_b, floor_b = mi.rim_b, mi.floor_b
-        shift = float(t @ up)  # height of the bin origin along up, camera frame
-        rim, floor = rim_b + shift, floor_b + shift
-        rows, cols = np.nonzero(inside)
-        p_bin = (a[rows, cols].astype(np.float64) - t) @ R
-        h = -p_bin[:, 2]
-        is_easy = h > rim_b + rim_offset_m
-        easy[rows[is_easy], cols[is_easy]] = True
-        rest = np.flatnonzero(~is_easy)
-        radius = search_radius_m if search_radius_m is not None else max(delta_m, 1.5 * model.spacing_m)
-        radius = max(radius, delta_m, 1e-9)
-        if delta_m > 0:
-            near = _near_model(p_bin[rest], model.points, model.normals, delta_m=delta_m, radius_m=radius)
-            binp[rows[rest[near]], cols[rest[near]]] = True
-        if straggler_m > 0:
-            _straggler_passes(binp, table, valid, inside & ~easy, rows, cols, p_bin, model,
-                              straggler_m=straggler_m, radius_m=max(radius, straggler_m),
-                              neighbours=int(straggler_neighbours))
-        # floor plane {q : q . up = floor}: z at (x, y) solves x*ux + y*uy + z*uz = floor
-        if abs(up[2]) > 1e-6:
-            x64 = a[..., 0].astype(np.float64)
-            y64 = a[..., 1].astype(np.float64)
-            zfloor = (floor - x64 * up[0] - y64 * up[1]) / up[2]
-        else:  # a bin seen from the side: fall back to the farthest point
-            zfloor = np.full(z64.shape, np.nanmax(z64[valid]) if valid.any() else np.nan)
-    labelled = table | easy | binp
-    zone = valid & ~labelled
-    z_new = np.where(labelled, zfloor, z64)
-    height = -1000.0 * z_new
+    zfloor = np.nanmax(z64[valid]) if valid.any() else np.nan
+    height = -1000.0 * np.where(table, zfloor, z64)
     height[~valid] = np.nan
     xyz_out = a.astype(np.float32, copy=True)
-    xyz_out[..., 2] = np.where(labelled, zfloor, xyz_out[..., 2]).astype(np.float32)
-    return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up)
+    xyz_out[..., 2] = np.where(table, zfloor, xyz_out[..., 2]).astype(np.float32)
+    nothing = np.zeros_like(valid)
+    return RemovalResult(table, nothing, nothing.copy(), valid & ~table, height, xyz_out, float("nan"),
+                         float("nan"), BIN_UP.copy())
