@@ -23,6 +23,8 @@ import bisect
 import io
 import os
 import struct
+import threading
+import weakref
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from collections.abc import Iterator
@@ -52,10 +54,64 @@ OP_LOST = 0x100
 #: the number of CPUs), and the most uncompressed bytes they may hold beyond the first.
 PREFETCH = 2
 PREFETCH_BYTES = 256 << 20
+_OP_NOTE = -1  # internal: a damage note queued among the records
 
 
 class _Bad(Exception):
     """Internal: a record does not parse (turned into LogFormatError or a damage note)."""
+
+
+class BufferPool:
+    """Large byte buffers that are handed out again once nothing references them.
+
+    A 37 MB chunk is read and decompressed per 1920 x 1200 cloud; fresh buffers cost their page
+    faults (the kernel zeroing every page) each time. :meth:`get` returns an array whose memory
+    goes back to the pool when that array -- and so every memoryview made from it, which keeps it
+    alive -- is gone (``weakref.finalize``). Hand out only memoryviews of it: a numpy slice of
+    the array would not keep it alive.
+
+    Parameters
+    ----------
+    max_free_bytes : int
+        Free buffers kept beyond this many bytes are dropped (oldest first).
+    """
+
+    MIN_BYTES = 1 << 20  # smaller requests are plain np.empty
+
+    def __init__(self, *, max_free_bytes: int = 384 << 20) -> None:
+        self._free: list[np.ndarray] = []
+        self._lock = threading.RLock()
+        self._max_free = max_free_bytes
+        self._closed = False
+
+    def get(self, n: int) -> np.ndarray:
+        """(n,) uint8 array (uninitialised): a free buffer of n to 2 n bytes, or a new one."""
+        if n < self.MIN_BYTES:
+            return np.empty(n, dtype=np.uint8)
+        base = None
+        with self._lock:
+            fits = [i for i, a in enumerate(self._free) if n <= a.size <= 2 * n]
+            if fits:
+                base = self._free.pop(min(fits, key=lambda i: self._free[i].size))
+        if base is None:
+            base = np.empty(n, dtype=np.uint8)
+        out = base[:n]
+        weakref.finalize(out, self._release, base).atexit = False
+        return out
+
+    def _release(self, base: np.ndarray) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._free.append(base)
+            while sum(a.size for a in self._free) > self._max_free:
+                self._free.pop(0)
+
+    def close(self) -> None:
+        """Drop the free buffers; buffers in use are freed normally when released."""
+        with self._lock:
+            self._closed = True
+            self._free.clear()
 
 
 class _Buf:
@@ -210,12 +266,16 @@ def parse_chunk_index(b: _Buf) -> ChunkIndex:
     return ChunkIndex(t0, t1, start, length, offsets, mi_len, comp, b.u64(), b.u64())
 
 
-def decompress(compression: str, data: memoryview, size: int) -> memoryview:
+def decompress(
+    compression: str, data: memoryview, size: int, *, pool: BufferPool | None = None
+) -> memoryview:
     """Decompress a chunk's records to exactly ``size`` bytes or raise :class:`_Bad`.
 
-    The output buffer is allocated once at the declared size (capped by :data:`MAX_CHUNK_BYTES`;
-    ``np.empty`` only commits the pages actually written) and never grows past it.
+    The output buffer (from ``pool`` when given) starts at the declared size or, if that is much
+    larger than the compressed data suggests, smaller, and grows as data really arrives, never
+    past ``size`` (itself capped by :data:`MAX_CHUNK_BYTES`).
     """
+    new = pool.get if pool is not None else (lambda n: np.empty(n, dtype=np.uint8))
     if size > MAX_CHUNK_BYTES:
         raise _Bad(f"claims {size} uncompressed bytes, more than the {MAX_CHUNK_BYTES} zcut accepts")
     if compression == "":
@@ -224,7 +284,7 @@ def decompress(compression: str, data: memoryview, size: int) -> memoryview:
         return data
     # grow the output as real data arrives (doubling), never past the declared size: a lying
     # header costs nothing, a decompression bomb stops at ``size``
-    buf = np.empty(min(size, _FIRST_BUF + 64 * len(data)), dtype=np.uint8)
+    buf = new(min(size, _FIRST_BUF + 64 * len(data)))
     total = 0
     extra = 0
     try:
@@ -234,7 +294,7 @@ def decompress(compression: str, data: memoryview, size: int) -> memoryview:
             reader = zstandard.ZstdDecompressor().stream_reader(data, read_across_frames=True)
             while total < size:
                 if total == len(buf):
-                    bigger = np.empty(min(size, 2 * len(buf)), dtype=np.uint8)
+                    bigger = new(min(size, 2 * len(buf)))
                     bigger[:total] = buf
                     buf = bigger
                 n = reader.readinto(memoryview(buf)[total:])
@@ -259,7 +319,7 @@ def decompress(compression: str, data: memoryview, size: int) -> memoryview:
                     extra = 1
                     break
                 if total + len(piece) > len(buf):
-                    bigger = np.empty(min(size, max(2 * len(buf), total + len(piece))), dtype=np.uint8)
+                    bigger = new(min(size, max(2 * len(buf), total + len(piece))))
                     bigger[:total] = buf[:total]
                     buf = bigger
                 buf[total : total + len(piece)] = np.frombuffer(piece, dtype=np.uint8)
@@ -287,6 +347,7 @@ class McapFile:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
+        self.pool = BufferPool()
         self._f = open(self.path, "rb")
         self._f.seek(0, io.SEEK_END)
         self.size = self._f.tell()
@@ -321,6 +382,7 @@ class McapFile:
 
     def close(self) -> None:
         self._f.close()
+        self.pool.close()
 
     def __enter__(self) -> McapFile:
         return self
@@ -344,10 +406,10 @@ class McapFile:
             raise _Bad(f"record at {offset} is {9 + length} bytes, the index says {expect_len}")
         if length > MAX_CHUNK_BYTES:
             raise _Bad(f"record at {offset} claims {length} bytes")
-        body = self._f.read(length)
-        if len(body) != length:
+        body = memoryview(self.pool.get(length))
+        if self._f.readinto(body) != length:
             return None
-        return op, memoryview(body)
+        return op, body
 
     def _read_summary(self) -> Summary | None:
         footer_at = self.size - 8 - 29
@@ -422,10 +484,11 @@ class McapFile:
 
     def _chunk_at(self, ref: _ChunkRef) -> list[tuple[int, object]]:
         """Read (``os.pread``: safe from any thread), decompress, CRC-check and parse a chunk."""
-        body = os.pread(self._f.fileno(), ref.length, ref.offset + 9)
-        if len(body) != ref.length:
-            raise _Bad(f"runs past the end of the file ({len(body)} of {ref.length} bytes)")
-        return self._chunk_records(memoryview(body))
+        body = memoryview(self.pool.get(ref.length))
+        got = os.preadv(self._f.fileno(), [body], ref.offset + 9)
+        if got != ref.length:
+            raise _Bad(f"runs past the end of the file ({got} of {ref.length} bytes)")
+        return self._chunk_records(body)
 
     def _chunk_records(self, body: memoryview, where: str = "") -> list[tuple[int, object]]:
         """Decompress, CRC-check and parse one chunk: [(opcode, record)], or raise :class:`_Bad`."""
@@ -436,7 +499,7 @@ class McapFile:
         comp = b.string()
         n = b.u64()
         s = b.take(n)
-        mv = decompress(comp, body[s : s + n], usize)
+        mv = decompress(comp, body[s : s + n], usize, pool=self.pool)
         if crc != 0 and crc32(mv) != crc:
             raise _Bad("fails its CRC check")
         records = []
@@ -475,8 +538,11 @@ class McapFile:
         workers = max(1, min(prefetch, os.cpu_count() or 1))
         pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="mcap-chunks") if prefetch > 0 else None
         ahead = 0  # uncompressed bytes of the queued chunks
+        notes: list[str] = []  # the scan's damage notes, queued so they keep their place in file order
         try:
-            for pos, op, body in self._outer(damage, start_offset, lazy=pool is not None):
+            for pos, op, body in self._outer(notes, start_offset, lazy=pool is not None):
+                queue.extend((pos, _OP_NOTE, note, 0) for note in notes)
+                notes.clear()
                 size = 0
                 if op == OP_CHUNK:
                     key = (pos, body.length if isinstance(body, _ChunkRef) else len(body))
@@ -495,6 +561,7 @@ class McapFile:
                     pos0, op0, job0, size0 = queue.popleft()
                     ahead -= size0
                     yield from self._finish(pos0, op0, job0, damage)
+            queue.extend((0, _OP_NOTE, note, 0) for note in notes)
             while queue:
                 pos0, op0, job0, _ = queue.popleft()
                 yield from self._finish(pos0, op0, job0, damage)
@@ -513,6 +580,9 @@ class McapFile:
         return self._chunk_records(rec[1])
 
     def _finish(self, pos: int, op: int, job: object, damage: list[str]) -> Iterator[tuple[int, object]]:
+        if op == _OP_NOTE:
+            damage.append(job)
+            return
         if op == OP_LOST:
             yield OP_LOST, self.lost_counts(pos)
             return

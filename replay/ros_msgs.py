@@ -640,7 +640,7 @@ def image_to_rgb(msg: ImageMsg, *, where: str) -> np.ndarray:
         return np.repeat(px, 3, axis=2)
     if enc in ("bgr8", "bgra8"):
         return np.ascontiguousarray(px[..., 2::-1])
-    return np.ascontiguousarray(px[..., :3])
+    return np.array(px[..., :3], order="C")  # a copy even for rgb8: never pin the chunk buffer
 
 
 def image_to_mask(msg: ImageMsg, *, where: str) -> np.ndarray:
