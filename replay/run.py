@@ -7,7 +7,9 @@ to show progress and the per-frame table.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+import queue
+import threading
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -176,6 +178,60 @@ def _median_depth_mm(frame: Frame) -> float | None:
     return float(np.median(z)) * 1000.0 if z.size else None
 
 
+def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Iterator[Frame]:
+    """Iterate ``frames`` in a background thread, up to ``depth`` frames ahead of the consumer.
+
+    Decoding the next frame (zstd and the cloud unpacking release the GIL) then overlaps the
+    pipeline on the current one. Exceptions of the iterator are raised to the consumer where they
+    happened in the sequence; closing this generator (or an exception in the consumer, once the
+    caller closes it) stops and joins the thread and closes ``frames``.
+    """
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.05)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def produce() -> None:
+        try:
+            for f in frames:
+                if not put(("frame", f)):
+                    return
+            put(("end", None))
+        except BaseException as e:  # noqa: BLE001 - handed to the consumer, raised there
+            put(("error", e))
+        finally:
+            close = getattr(frames, "close", None)
+            if close is not None:
+                close()
+
+    worker = threading.Thread(target=produce, name="zcut-frame-reader", daemon=True)
+    worker.start()
+    try:
+        while True:
+            kind, item = q.get()
+            if kind == "frame":
+                yield item
+            elif kind == "error":
+                raise item
+            else:
+                return
+    finally:
+        stop.set()
+        while worker.is_alive():
+            try:  # unblock a producer waiting on a full queue
+                q.get_nowait()
+            except queue.Empty:
+                pass
+            worker.join(timeout=0.05)
+
+
 def config_path_for(output: str | Path) -> Path:
     """Where the resolved config goes beside an output: ``OUT.rrd`` -> ``OUT.config.toml``."""
     p = Path(output)
@@ -250,8 +306,9 @@ def replay_log(
     start, stop = frames
     previous: FrameResult | None = None
     opts = None
+    frame_iter = prefetched(reader.frames(start=start, stop=stop))
     try:
-        for frame in reader.frames(start=start, stop=stop):
+        for frame in frame_iter:
             if summary.resolved is None:
                 K = frame.intrinsics
                 wants_preset = (overrides or {}).get("preset") or file_layer.get("preset")
@@ -314,6 +371,7 @@ def replay_log(
             if on_frame is not None:
                 on_frame(frame, result, row)
     finally:
+        frame_iter.close()  # joins the reader thread: reader.damage is final
         summary.damage = list(reader.damage)
         if writer is not None:
             writer.close()

@@ -7,10 +7,10 @@ under the parameter combinations the two code paths branch on.
 from __future__ import annotations
 
 import numpy as np
-import pytest
-
 import pipeline_scene as ps
+import pytest
 from reference.removal_reference import remove_table_and_bin_reference
+
 from replay.binmodel import model_from_points
 from zcut.binmask import bin_mask
 from zcut.removal import BinModel, remove_table_and_bin

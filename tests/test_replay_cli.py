@@ -259,3 +259,42 @@ def test_bin_model_from_a_cad_mesh_in_millimetres_with_z_up(tmp_path, capsys):
     assert np.allclose(m.points.max(axis=0), [0.4, 0.0, 0.0], atol=0.006)
     top = m.points[:, 2] < -0.119  # the box's top face (z = 120 mm) is now the nearest to a camera
     assert top.any() and np.median(np.abs(m.normals[top][:, 2])) > 0.99
+
+
+# ------------------------------------------------------------------ the reader thread (replay.run.prefetched)
+
+def test_prefetched_yields_in_order_and_raises_where_the_iterator_did():
+    import threading
+
+    from replay.run import prefetched
+
+    def gen():
+        yield from range(5)
+        raise ValueError("frame 5 is broken")
+
+    got = []
+    with pytest.raises(ValueError, match="frame 5 is broken"):
+        for x in prefetched(gen(), depth=2):
+            got.append(x)
+    assert got == [0, 1, 2, 3, 4]
+    assert not any(t.name == "zcut-frame-reader" for t in threading.enumerate())
+
+
+def test_prefetched_close_stops_the_thread_and_closes_the_iterator():
+    import threading
+
+    from replay.run import prefetched
+
+    closed = []
+
+    def gen():
+        try:
+            yield from range(1000)
+        finally:
+            closed.append(True)
+
+    it = prefetched(gen())
+    assert [next(it), next(it)] == [0, 1]
+    it.close()
+    assert closed == [True]
+    assert not any(t.name == "zcut-frame-reader" for t in threading.enumerate())
