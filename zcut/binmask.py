@@ -122,7 +122,8 @@ def bin_mask(
     if h == 0 or w == 0:
         return BinMaskResult(empty, empty, False, 0, 0, (np.nan, np.nan), (0, 0, 0, 0), False)
     gray = cv2.cvtColor(np.ascontiguousarray(a), cv2.COLOR_RGB2GRAY)
-    bright = gray.astype(np.float64) > float(threshold)
+    # gray is an integer: gray > threshold <=> gray > floor(threshold) (no float64 copy of the image)
+    bright = gray > int(np.floor(threshold))
     grown = bright.astype(np.uint8)
     if dilate_px > 0:
         k = 2 * int(dilate_px) + 1
@@ -135,6 +136,7 @@ def bin_mask(
         return BinMaskResult(empty, empty, False, 0, n_components, (np.nan, np.nan), (0, 0, 0, 0), False)
     chosen = None
     covers = False
+    filled = None
     cr, cc = h // 2, w // 2
     if prefer_centre:
         # Does any candidate's filled footprint cover the centre? Test cheaply with bounding boxes first.
@@ -144,14 +146,15 @@ def bin_mask(
                 continue
             sub = fill_holes(labels[y:y + bh, x:x + bw] == i)
             if sub[cr - y, cc - x]:
-                chosen, covers = i, True
+                chosen, covers, filled = i, True, sub
                 break
     if chosen is None:
         chosen = max(candidates, key=lambda i: stats[i, cv2.CC_STAT_AREA])
     x, y, bw, bh = (int(v) for v in stats[chosen, :4])
     mask = np.zeros((h, w), bool)
     comp = labels[y:y + bh, x:x + bw] == chosen
-    filled = fill_holes(comp)
+    if filled is None:
+        filled = fill_holes(comp)
     if dilate_px > 0:
         # erode back by the same radius (a closing): the dilation's fringe of table is not bin
         k = 2 * int(dilate_px) + 1
@@ -162,14 +165,19 @@ def bin_mask(
     mask[y:y + bh, x:x + bw] = filled
     walls = np.zeros((h, w), bool)
     walls[y:y + bh, x:x + bw] = comp & bright[y:y + bh, x:x + bw]
-    rows, cols = np.nonzero(mask)
+    # centroid from per-row and per-column counts: integer sums, exact like the mean of np.nonzero
+    per_row = np.count_nonzero(filled, axis=1)
+    per_col = np.count_nonzero(filled, axis=0)
+    area = int(per_row.sum())
+    r_sum = int(per_row @ np.arange(y, y + bh, dtype=np.int64))
+    c_sum = int(per_col @ np.arange(x, x + bw, dtype=np.int64))
     return BinMaskResult(
         mask=mask,
         walls=walls,
         found=True,
-        area_px=int(rows.size),
+        area_px=area,
         n_components=n_components,
-        centroid_rc=(float(rows.mean()), float(cols.mean())),
+        centroid_rc=(r_sum / area, c_sum / area),
         bbox_rc=(y, x, y + bh, x + bw),
         covers_centre=covers,
     )
