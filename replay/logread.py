@@ -458,6 +458,8 @@ class LogReader:
         channels = dict(self._channels)
         with McapFile(self.path) as mf:
             cached, self._chunks = self._chunks, {}
+            if begin is not None:  # chunks before the seek target are never reached
+                cached = {k: v for k, v in cached.items() if k[0] >= begin}
             for op, rec in mf.records(self.damage, start_offset=begin, cached=cached):
                 if op == OP_MESSAGE:
                     ch = channels.get(rec.channel_id)

@@ -485,7 +485,12 @@ class McapFile:
     def _chunk_at(self, ref: _ChunkRef) -> list[tuple[int, object]]:
         """Read (``os.pread``: safe from any thread), decompress, CRC-check and parse a chunk."""
         body = memoryview(self.pool.get(ref.length))
-        got = os.preadv(self._f.fileno(), [body], ref.offset + 9)
+        if hasattr(os, "preadv"):
+            got = os.preadv(self._f.fileno(), [body], ref.offset + 9)
+        else:  # pragma: no cover - Windows: a handle of its own
+            with open(self.path, "rb") as f:
+                f.seek(ref.offset + 9)
+                got = f.readinto(body)
         if got != ref.length:
             raise _Bad(f"runs past the end of the file ({got} of {ref.length} bytes)")
         return self._chunk_records(body)
@@ -546,12 +551,11 @@ class McapFile:
                 size = 0
                 if op == OP_CHUNK:
                     key = (pos, body.length if isinstance(body, _ChunkRef) else len(body))
-                    if cached and key in cached:
-                        job: object = cached.pop(key)
-                    elif pool is not None:
+                    job: object = cached.pop(key, None) if cached else None  # None: not kept
+                    if job is None and pool is not None:
                         job = pool.submit(self._chunk_at, body)
                         size = min(body.usize, MAX_CHUNK_BYTES)
-                    else:
+                    elif job is None:
                         job = body
                 else:
                     job = body
