@@ -249,3 +249,23 @@ def test_pose_fitness_scores_a_pose_without_icp(filled, model):
                         max_correspondence_m=fine) < 0.5 * at_pose
     with pytest.raises(InputShapeError, match="T_cam_bin"):
         pose_fitness(model.points, target, np.eye(3))
+
+
+def test_pose_fitness_equals_open3d_evaluate_registration(filled, model):
+    import open3d as o3d
+
+    from zcut.registration import _cloud, _model_cloud, pose_fitness
+
+    frame, _ = filled
+    target = frame.xyz[bin_mask(frame.rgb).walls].astype(np.float64)
+    r = register_bin(model.points, target, model_normals=model.normals, voxel_m=0.001)
+    src = _cloud(target[np.isfinite(target).all(axis=1)], 0.001)
+    for shift_mm, dist in [(0.0, 0.01 / 3), (1.0, 0.01 / 3), (3.0, 0.002), (0.5, 0.01)]:
+        T = r.T_cam_bin.copy()
+        T[:3, 3] += [shift_mm / 1000.0, -shift_mm / 2000.0, shift_mm / 1000.0]
+        dst = _model_cloud(model.points, model.normals, 0.001, max(0.003, 2.0 * dist / 3.0))
+        want = o3d.pipelines.registration.evaluate_registration(src, dst, dist, np.linalg.inv(T)).fitness
+        got = pose_fitness(model.points, target, T, model_normals=model.normals, voxel_m=0.001,
+                           max_correspondence_m=dist)
+        assert got == want and 0.0 < got
+    assert pose_fitness(model.points, target[:0], r.T_cam_bin, voxel_m=0.001) == 0.0

@@ -134,7 +134,36 @@ def _cloud(points: np.ndarray, voxel_m: float):
     return pc
 
 
+_TARGET: list = []  # [(target array, voxel_m, checked points, downsampled cloud)]: the last target
+
+
+def _target_cloud(target: np.ndarray, voxel_m: float):
+    """(checked points, downsampled cloud) of a frame's target; the last one is kept, so that
+    :func:`pose_fitness` and :func:`register_bin` on the same array downsample it once."""
+    if _TARGET and _TARGET[0][0] is target and _TARGET[0][1] == voxel_m:
+        return _TARGET[0][2], _TARGET[0][3]
+    t = _check_points(target, "target")
+    pc = _cloud(t, voxel_m)
+    _TARGET[:] = [(target, voxel_m, t, pc)]
+    return t, pc
+
+
 _MODEL_CLOUDS: dict[tuple[int, float], tuple[np.ndarray, object]] = {}
+_MODEL_TREES: dict[int, tuple[object, object]] = {}
+
+
+def _model_tree(pc):
+    """A scipy KD-tree of a (cached) model cloud's points, built once per cloud."""
+    from scipy.spatial import cKDTree
+
+    hit = _MODEL_TREES.get(id(pc))
+    if hit is not None and hit[0] is pc:
+        return hit[1]
+    tree = cKDTree(np.asarray(pc.points, dtype=np.float64))
+    if len(_MODEL_TREES) >= 4:
+        _MODEL_TREES.pop(next(iter(_MODEL_TREES)))
+    _MODEL_TREES[id(pc)] = (pc, tree)
+    return tree
 
 
 def _model_cloud(model: np.ndarray, normals: np.ndarray | None, voxel_m: float, normal_radius: float):
@@ -227,7 +256,7 @@ def register_bin(
     m = _model_points(model)
     if model_normals is not None and np.shape(model_normals) != np.shape(m):
         raise InputShapeError(f"model_normals must match model {np.shape(m)}, got {describe_array(model_normals)}")
-    t = _check_points(target, "target")
+    t, src = _target_cloud(target, voxel_m)
     if init is None:
         T0 = initial_guess(m, t)
     else:
@@ -235,7 +264,6 @@ def register_bin(
         if T0.shape != (4, 4) or not np.isfinite(T0).all():
             raise InputShapeError(f"init must be a finite (4, 4) array, got {describe_array(T0)}")
     normal_radius = max(3.0 * voxel_m, 2.0 * max_correspondence_m / 3.0)
-    src = _cloud(t, voxel_m)
     dst = _model_cloud(m, model_normals, voxel_m, normal_radius)
     n_m, n_t = len(dst.points), len(src.points)
     # the coarse pass runs on twice the voxel (a quarter of the points); the fine pass on voxel_m
@@ -295,16 +323,17 @@ def pose_fitness(
     model_normals, voxel_m, max_correspondence_m
         As for :func:`register_bin` (the same model cache is used).
     """
-    import open3d as o3d
-
     T = np.asarray(T_cam_bin, dtype=np.float64)
     if T.shape != (4, 4) or not np.isfinite(T).all():
         raise InputShapeError(f"T_cam_bin must be a finite (4, 4) array, got {describe_array(T)}")
     m = _model_points(model)
-    t = _check_points(target, "target")
+    t, src = _target_cloud(target, voxel_m)
     if len(t) == 0 or len(m) == 0:
         return 0.0
-    src = _cloud(t, voxel_m)
     dst = _model_cloud(m, model_normals, voxel_m, max(3.0 * voxel_m, 2.0 * max_correspondence_m / 3.0))
-    ev = o3d.pipelines.registration.evaluate_registration(src, dst, max_correspondence_m, np.linalg.inv(T))
-    return float(ev.fitness)
+    # Open3D's evaluate_registration, with the model's KD-tree built once instead of every call
+    p = transform_points(np.linalg.inv(T), np.asarray(src.points))
+    if len(p) == 0:
+        return 0.0
+    d, _ = _model_tree(dst).query(p, k=1, distance_upper_bound=max_correspondence_m, workers=-1)
+    return float(np.count_nonzero(d <= max_correspondence_m)) / len(p)
