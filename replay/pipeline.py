@@ -112,6 +112,27 @@ def zcut_params(config: PipelineConfig) -> ZCutParams:
                       a_max=None if z.a_max_px is None else float(z.a_max_px))
 
 
+def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, **kw) -> np.ndarray:
+    """(H, W) bool: SOR outliers among the zone's points only (the rest of the frame set to NaN).
+
+    SOR sees only the zone's points, so it runs on the zone's bounding box: the same point set in
+    the same row-major order, hence the same result as on the whole NaN-masked frame, with less
+    to scan. ``whole``: the zone is every valid pixel, ``xyz`` is used as it is.
+    """
+    if whole:
+        return sor_outliers(xyz, **kw) & zone
+    out = np.zeros_like(zone)
+    rows = np.flatnonzero(zone.any(axis=1))
+    if rows.size == 0:
+        return out
+    cols = np.flatnonzero(zone.any(axis=0))
+    r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    z = zone[r0:r1, c0:c1]
+    sub = np.where(z[..., None], xyz[r0:r1, c0:c1], np.float32(np.nan)).astype(xyz.dtype, copy=False)
+    out[r0:r1, c0:c1] = sor_outliers(sub, **kw) & z
+    return out
+
+
 def run_frame(
     frame: Frame,
     config: PipelineConfig,
@@ -201,12 +222,10 @@ def run_frame(
     if rem is None:
         zone = valid
         height = -1000.0 * xyz[..., 2].astype(np.float64)
-        sor_xyz = xyz
         easy = np.zeros_like(valid)
     else:
         zone = rem.zone
         height = rem.height_mm
-        sor_xyz = np.where(zone[..., None], xyz, np.float32(np.nan)).astype(xyz.dtype, copy=False)
         easy = rem.easy_outliers
 
     t = time.perf_counter()
@@ -217,7 +236,8 @@ def run_frame(
     t = time.perf_counter()
     s = config.sor
     if s.enabled:
-        s_zone = sor_outliers(sor_xyz, k=s.k, std_ratio=s.std_ratio, convention=s.convention) & zone
+        s_zone = _sor_on_zone(xyz, zone, whole=rem is None, k=s.k, std_ratio=s.std_ratio,
+                              convention=s.convention)
     else:
         s_zone = np.zeros_like(valid)
         warnings.append("SOR disabled (sor.enabled = false)")

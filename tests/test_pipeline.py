@@ -154,3 +154,27 @@ def test_a_moved_bin_is_registered_afresh(model, config):
     assert not np.array_equal(second.registration.T_init, first.registration.T_cam_bin)
     assert second.registration.converged
     assert second.registration.T_cam_bin[0, 3] == pytest.approx(SHIFT[0] + 0.03, abs=0.002)
+
+
+@pytest.mark.parametrize("zone_kind", ["blob", "scattered", "corner", "empty"])
+def test_sor_on_the_zone_bounding_box_equals_sor_on_the_masked_frame(zone_kind):
+    from replay.pipeline import _sor_on_zone
+
+    rng = np.random.default_rng(8)
+    h, w = 90, 120
+    v, u = np.mgrid[0:h, 0:w]
+    xyz = np.stack([(u - 60) * 0.001, (v - 45) * 0.001, 0.5 + rng.normal(0, 0.002, (h, w))], axis=2)
+    xyz = xyz.astype(np.float32)
+    xyz[rng.random((h, w)) < 0.03] = np.nan
+    zone = np.zeros((h, w), bool)
+    if zone_kind == "blob":
+        zone[20:70, 30:100] = True
+    elif zone_kind == "scattered":
+        zone = rng.random((h, w)) < 0.4
+    elif zone_kind == "corner":
+        zone[h - 15:, w - 20:] = True
+    zone &= np.isfinite(xyz).all(axis=2)
+    got = _sor_on_zone(xyz, zone, whole=False, k=4, std_ratio=1.0, convention="pcl")
+    want = sor_outliers(np.where(zone[..., None], xyz, np.nan).astype(np.float32), k=4, std_ratio=1.0) & zone
+    assert np.array_equal(got, want)
+    assert got.any() == (zone_kind != "empty")
