@@ -500,19 +500,32 @@ def cloud_to_arrays(msg: CloudMsg, *, where: str) -> tuple[np.ndarray, np.ndarra
             names.append("c")
             formats.append(bo + "u4")  # FLOAT32-packed colour is the same 4 bytes
             offsets.append(color.offset)
+    xyz = np.empty((h, w, 3), dtype=np.float32)
+    rgb = np.empty((h, w, 3), dtype=np.uint8) if color is not None else None
+    words_ok = (
+        not msg.is_bigendian and sys.byteorder == "little" and coord_types == {FLOAT32}
+        and step % 4 == 0 and row_step % 4 == 0 and all(o % 4 == 0 for o in offsets)
+    )
+    if words_ok:
+        # the common layouts (zivid-ros, PCL): the points as 32-bit words, checked bitwise
+        words = np.ndarray((h, w, step // 4), dtype=np.uint32, buffer=msg.data, offset=0,
+                           strides=(row_step, step, 4))
+        ox, oy, oz = (o // 4 for o in offsets[:3])
+        if rgb is not None:
+            _unpack_words_rgb(words, ox, oy, oz, offsets[3] // 4, xyz, rgb)
+        else:
+            _unpack_words(words, ox, oy, oz, xyz)
+        return xyz, rgb
     dt = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
     # zero-copy view: rows row_step apart, points point_step apart (padding never touched)
     pts = np.ndarray((h, w), dtype=dt, buffer=msg.data, offset=0, strides=(row_step, step))
     px, py, pz = pts["x"], pts["y"], pts["z"]
     if msg.is_bigendian or px.dtype != py.dtype or px.dtype != pz.dtype:  # numba wants native order
         px, py, pz = (a.astype(np.float64) for a in (px, py, pz))
-    xyz = np.empty((h, w, 3), dtype=np.float32)
-    rgb = None
-    if color is not None:
+    if rgb is not None:
         c = pts["c"]
         if msg.is_bigendian:
             c = c.astype(np.uint32)
-        rgb = np.empty((h, w, 3), dtype=np.uint8)
         _unpack_xyz_rgb(px, py, pz, c, xyz, rgb)
     else:
         _unpack_xyz(px, py, pz, xyz)
@@ -551,6 +564,46 @@ def _unpack_xyz_rgb(px, py, pz, c, xyz, rgb):  # pragma: no cover - compiled
             xyz[i, j, 1] = y
             xyz[i, j, 2] = z
             v = np.uint32(c[i, j])
+            rgb[i, j, 0] = (v >> 16) & 0xFF
+            rgb[i, j, 1] = (v >> 8) & 0xFF
+            rgb[i, j, 2] = v & 0xFF
+
+
+_EXP = np.uint32(0x7F800000)  # float32 exponent bits: all set = inf or NaN
+_ABS = np.uint32(0x7FFFFFFF)
+_NAN = np.uint32(0x7FC00000)  # the bits of np.float32(np.nan)
+
+
+@numba.njit(cache=True, nogil=True)
+def _unpack_words(words, ox, oy, oz, xyz):  # pragma: no cover - compiled
+    # same result as _unpack_xyz for little-endian FLOAT32 coordinates, bitwise and branch-free
+    h, w = words.shape[0], words.shape[1]
+    out = xyz.view(np.uint32)
+    for i in range(h):
+        for j in range(w):
+            x = words[i, j, ox]
+            y = words[i, j, oy]
+            z = words[i, j, oz]
+            bad = ((x & _EXP) == _EXP) | ((y & _EXP) == _EXP) | ((z & _EXP) == _EXP) | (((x | y | z) & _ABS) == 0)
+            out[i, j, 0] = _NAN if bad else x
+            out[i, j, 1] = _NAN if bad else y
+            out[i, j, 2] = _NAN if bad else z
+
+
+@numba.njit(cache=True, nogil=True)
+def _unpack_words_rgb(words, ox, oy, oz, oc, xyz, rgb):  # pragma: no cover - compiled
+    h, w = words.shape[0], words.shape[1]
+    out = xyz.view(np.uint32)
+    for i in range(h):
+        for j in range(w):
+            x = words[i, j, ox]
+            y = words[i, j, oy]
+            z = words[i, j, oz]
+            bad = ((x & _EXP) == _EXP) | ((y & _EXP) == _EXP) | ((z & _EXP) == _EXP) | (((x | y | z) & _ABS) == 0)
+            out[i, j, 0] = _NAN if bad else x
+            out[i, j, 1] = _NAN if bad else y
+            out[i, j, 2] = _NAN if bad else z
+            v = words[i, j, oc]
             rgb[i, j, 0] = (v >> 16) & 0xFF
             rgb[i, j, 1] = (v >> 8) & 0xFF
             rgb[i, j, 2] = v & 0xFF

@@ -260,3 +260,47 @@ def test_pack_unpack_law(xyz, with_rgb):
         np.testing.assert_array_equal(got_rgb, rgb)
     else:
         assert got_rgb is None
+
+
+@pytest.mark.parametrize("offsets,point_step,row_pad", [
+    ((0, 4, 8, 12), 16, 0),  # zivid-ros points/xyzrgba
+    ((0, 4, 8, 16), 32, 0),  # PCL PointXYZRGB (padding after z)
+    ((8, 0, 4, 20), 24, 4),  # any order, padded rows
+    ((0, 4, 8, 12), 16, 2),  # rows not 4-byte aligned: the field-view path
+    ((0, 4, 8, None), 12, 0),  # no colour
+])
+def test_cloud_word_layouts_match_a_numpy_reference(rng, offsets, point_step, row_pad):
+    """Little-endian FLOAT32 layouts on 4-byte boundaries are unpacked bitwise: same result as
+    the definition (NaN where a coordinate is not finite or the point is (0, 0, 0), -0.0 too)."""
+    h, w = 9, 11
+    row_step = w * point_step + row_pad
+    buf = rng.integers(0, 256, h * row_step, dtype=np.uint8)
+    specials = np.array([np.nan, np.inf, -np.inf, 0.0, -0.0, 1e-40, -2.5, 3.0e38], np.float32)
+    coords = rng.choice(specials, (h, w, 3)).astype(np.float32)
+    coords[rng.random((h, w)) < 0.3] = rng.normal(size=3).astype(np.float32)
+    coords[0, 0] = (0.0, -0.0, 0.0)
+    coords[0, 1] = (0.0, 0.0, 1e-40)  # a denormal is a valid point
+    colour = rng.integers(0, 2**32, (h, w), dtype=np.uint32)
+    for i in range(h):
+        for j in range(w):
+            base = i * row_step + j * point_step
+            for k in range(3):
+                buf[base + offsets[k] : base + offsets[k] + 4] = np.frombuffer(coords[i, j, k].astype("<f4").tobytes(), np.uint8)
+            if offsets[3] is not None:
+                buf[base + offsets[3] : base + offsets[3] + 4] = np.frombuffer(colour[i, j].astype("<u4").tobytes(), np.uint8)
+    fields = [rm.PointField(n, o, rm.FLOAT32, 1) for n, o in zip("xyz", offsets)]
+    if offsets[3] is not None:
+        fields.append(rm.PointField("rgba", offsets[3], rm.UINT32, 1))
+    raw = rm.encode_cloud(stamp_ns=1, frame_id="f", height=h, width=w, fields=fields, point_step=point_step,
+                          row_step=row_step, data=buf.tobytes(), is_dense=False)
+    xyz, rgb = rm.cloud_to_arrays(rm.decode_cloud(raw), where="t")
+    expect = coords.copy()
+    bad = ~np.isfinite(expect).all(axis=2) | (expect == 0).all(axis=2)
+    expect[bad] = np.nan
+    assert bad[0, 0] and not bad[0, 1]
+    np.testing.assert_array_equal(xyz, expect)
+    assert np.array_equal(xyz.view(np.uint32)[~bad], coords.view(np.uint32)[~bad])  # bits kept
+    if offsets[3] is None:
+        assert rgb is None
+    else:
+        np.testing.assert_array_equal(rgb, np.stack([(colour >> 16) & 255, (colour >> 8) & 255, colour & 255], -1))
