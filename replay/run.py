@@ -10,6 +10,7 @@ import math
 import queue
 import threading
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -307,6 +308,8 @@ def replay_log(
     previous: FrameResult | None = None
     opts = None
     frame_iter = prefetched(reader.frames(start=start, stop=stop))
+    outputs = _Outputs()
+    completed = False
     try:
         for frame in frame_iter:
             if summary.resolved is None:
@@ -358,33 +361,79 @@ def replay_log(
             config = summary.resolved.config
             result = run_frame(frame, config, bin_model=bin_model, previous=previous)
             previous = result
-            if rec is not None:
-                from . import viz
-
-                viz.log_frame(rec, frame, result, step_mm=config.zcut.step_mm, opts=opts)
-            if writer is not None:
-                _write_results(writer, frame, result)
+            if rec is not None or writer is not None:
+                outputs.submit(_log_and_write, rec, writer, frame, result, step_mm=config.zcut.step_mm,
+                               opts=opts)
             row = FrameRow.of(result)
             summary.rows.append(row)
             if keep_results:
                 kept.append((frame, result))
             if on_frame is not None:
                 on_frame(frame, result, row)
+        completed = True
     finally:
         frame_iter.close()  # joins the reader thread: reader.damage is final
         summary.damage = list(reader.damage)
-        if writer is not None:
-            writer.close()
-        if rec is not None:
-            if rrd is not None:
-                rec.flush()
-            else:  # a viewer that is gone must not hang the replay
-                try:
-                    rec.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)
-                except Exception as e:  # rerun raises a plain exception on timeout
-                    summary.viewer_error = f"the viewer did not take the data within {VIEWER_FLUSH_TIMEOUT_S:g} s ({e})"
-            rec.disconnect()
+        try:
+            outputs.close(raise_errors=completed)  # every frame logged and written
+        finally:
+            if writer is not None:
+                writer.close()
+            if rec is not None:
+                if rrd is not None:
+                    rec.flush()
+                else:  # a viewer that is gone must not hang the replay
+                    try:
+                        rec.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)
+                    except Exception as e:  # rerun raises a plain exception on timeout
+                        summary.viewer_error = f"the viewer did not take the data within {VIEWER_FLUSH_TIMEOUT_S:g} s ({e})"
+                rec.disconnect()
     return summary, kept
+
+
+class _Outputs:
+    """Runs the Rerun logging and results writing of frame k in one worker thread, in frame order,
+    while the pipeline runs on frame k + 1 (at most one frame pending: memory stays bounded).
+
+    An error of the worker is raised at the next :meth:`submit` or at :meth:`close`.
+    """
+
+    def __init__(self) -> None:
+        self._pool: ThreadPoolExecutor | None = None
+        self._pending: Future | None = None
+
+    def submit(self, fn: Callable[..., None], *args: Any, **kw: Any) -> None:
+        self._wait()
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="zcut-outputs")
+        self._pending = self._pool.submit(fn, *args, **kw)
+
+    def _wait(self) -> None:
+        if self._pending is not None:
+            f, self._pending = self._pending, None
+            f.result()
+
+    def close(self, *, raise_errors: bool) -> None:
+        """Wait for the last job and stop the thread; ``raise_errors=False`` when another error is
+        already on its way (that one is the one to report)."""
+        try:
+            self._wait()
+        except Exception:
+            if raise_errors:
+                raise
+        finally:
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
+                self._pool = None
+
+
+def _log_and_write(rec, writer, frame: Frame, result: FrameResult, *, step_mm: float, opts) -> None:
+    if rec is not None:
+        from . import viz
+
+        viz.log_frame(rec, frame, result, step_mm=step_mm, opts=opts)
+    if writer is not None:
+        _write_results(writer, frame, result)
 
 
 def _write_results(writer, frame: Frame, result: FrameResult) -> None:

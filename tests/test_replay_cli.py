@@ -298,3 +298,35 @@ def test_prefetched_close_stops_the_thread_and_closes_the_iterator():
     it.close()
     assert closed == [True]
     assert not any(t.name == "zcut-frame-reader" for t in threading.enumerate())
+
+
+def test_outputs_worker_runs_in_order_and_reports_its_error():
+    import threading
+
+    from replay.run import _Outputs
+
+    done = []
+    out = _Outputs()
+    for i in range(5):
+        out.submit(lambda i=i: done.append((i, threading.current_thread().name)))
+    out.close(raise_errors=True)
+    assert [i for i, _ in done] == list(range(5))
+    assert all(name.startswith("zcut-outputs") for _, name in done)
+
+    def boom():
+        raise OSError("disk full")
+
+    for raise_errors in (True, False):
+        out = _Outputs()
+        out.submit(boom)
+        if raise_errors:
+            with pytest.raises(OSError, match="disk full"):
+                out.close(raise_errors=True)
+        else:
+            out.close(raise_errors=False)  # another error is already on its way
+    out = _Outputs()
+    out.submit(boom)
+    with pytest.raises(OSError, match="disk full"):
+        out.submit(done.clear)  # raised at the next frame
+    out.close(raise_errors=False)
+    assert done  # the job after the failed one did not run

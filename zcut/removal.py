@@ -201,7 +201,7 @@ def _to_bin(a, r, c, R, t):  # pragma: no cover - numba
             dx * R[0, 2] + dy * R[1, 2] + dz * R[2, 2])
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, nogil=True)
 def _classify(a, fp, R, t, easy_above, test_bin, origin, cell, dims, start, pts, nrm, off, delta,
               radius, planes, valid, table, easy, binp):  # pragma: no cover - numba
     """Fill the (H, W) bool masks valid, table, easy, binp (zeroed) in one pass over the frame."""
@@ -222,7 +222,7 @@ def _classify(a, fp, R, t, easy_above, test_bin, origin, cell, dims, start, pts,
                                        radius, planes)
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, nogil=True)
 def _first_candidates(lab, open_, neighbours):  # pragma: no cover - numba
     """(H, W) bool: ``open_`` pixels with at least ``neighbours`` of their 8 neighbours in ``lab``."""
     H, W = lab.shape
@@ -240,7 +240,7 @@ def _first_candidates(lab, open_, neighbours):  # pragma: no cover - numba
     return out
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, nogil=True)
 def _test_pixels(a, flat, R, t, origin, cell, dims, start, pts, nrm, off, delta, radius,
                  planes):  # pragma: no cover - numba
     """(M,) bool: the pixels ``flat`` (row-major indices) are within ``delta`` of the model."""
@@ -254,7 +254,7 @@ def _test_pixels(a, flat, R, t, origin, cell, dims, start, pts, nrm, off, delta,
     return ok
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _next_candidates(new, lab, open_, seen, neighbours):  # pragma: no cover - numba
     """Row-major indices of the ``open_`` neighbours of ``new`` with >= ``neighbours`` pixels in ``lab``.
 
@@ -294,7 +294,7 @@ def _next_candidates(new, lab, open_, seen, neighbours):  # pragma: no cover - n
     return out[:keep]
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, nogil=True)
 def _finish(a, valid, labelled, plane, floor, up, z_far, height, xyz_out):  # pragma: no cover - numba
     """Height image (mm, NaN invalid) and float32 cloud with the labelled pixels' z on the floor.
 
