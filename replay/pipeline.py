@@ -112,6 +112,111 @@ def zcut_params(config: PipelineConfig) -> ZCutParams:
                       a_max=None if z.a_max_px is None else float(z.a_max_px))
 
 
+@dataclass(frozen=True, slots=True)
+class BinLocation:
+    """The bin stages that depend on no other frame but the previous one's pose: bin mask and
+    registration (:func:`locate_bin`).
+
+    Attributes
+    ----------
+    valid : (H, W) bool ndarray
+        Pixels with a finite point.
+    bin_mask : BinMaskResult or None
+        None when the bin stages were skipped.
+    registration : RegistrationResult or None
+        None when the bin stages were skipped.
+    timings : dict[str, float]
+        Seconds of ``"bin_mask"`` and ``"registration"`` (those that ran).
+    seconds : float
+        Their total, with the glue.
+    warnings : tuple of str
+    """
+
+    valid: np.ndarray
+    bin_mask: BinMaskResult | None
+    registration: RegistrationResult | None
+    timings: dict[str, float]
+    seconds: float
+    warnings: tuple[str, ...]
+
+
+def locate_bin(
+    frame: Frame,
+    config: PipelineConfig,
+    *,
+    bin_model: BinModel | None = None,
+    previous: RegistrationResult | None = None,
+) -> BinLocation:
+    """Bin mask and registration of one frame (the first stages of :func:`run_frame`).
+
+    No numba-parallel kernels run here (OpenCV, Open3D, scipy), so that this may run in another
+    thread while :func:`run_frame` finishes the previous frame.
+
+    Parameters
+    ----------
+    frame : Frame
+    config : PipelineConfig
+    bin_model : BinModel, optional
+        Without it the bin stages are skipped.
+    previous : RegistrationResult, optional
+        The previous frame's registration; when converged (and ``config.registration.use_previous``)
+        its pose seeds this one.
+
+    Returns
+    -------
+    BinLocation
+    """
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    warnings: list[str] = []
+    xyz = frame.xyz
+    valid = finite_xyz(xyz)
+
+    bm: BinMaskResult | None = None
+    reg: RegistrationResult | None = None
+    if not config.bin_mask.enabled:
+        warnings.append("bin stages disabled (bin_mask.enabled = false): z-cut on the whole frame")
+    elif frame.rgb is None:
+        warnings.append("no RGB image: bin stages skipped, z-cut on the whole frame")
+    elif bin_model is None:
+        warnings.append("no bin model (--bin-model): bin stages skipped, z-cut on the whole frame")
+    else:
+        t = time.perf_counter()
+        c = config.bin_mask
+        bm = bin_mask(frame.rgb, threshold=c.threshold, dilate_px=c.dilate_px, min_area_frac=c.min_area_frac)
+        timings["bin_mask"] = time.perf_counter() - t
+        if not bm.found:
+            warnings.append("no bin found in the RGB image: bin stages skipped, z-cut on the whole frame")
+            bm = None
+    if bm is not None:
+        assert bin_model is not None
+        t = time.perf_counter()
+        c = config.registration
+        use = previous is not None and previous.converged and c.use_previous
+        init = previous.T_cam_bin if use else None
+        walls = bm.walls & valid
+        # the ICP downsamples to voxel_mm anyway: a regular subgrid of at most ~150k pixels is enough
+        s = max(1, int(np.ceil(np.sqrt(walls.sum() / REGISTRATION_MAX_POINTS))))
+        target = xyz[::s, ::s][walls[::s, ::s]].astype(np.float64)
+        kw = dict(model_normals=bin_model.normals, method=c.method, voxel_m=c.voxel_mm / 1000.0,
+                  max_correspondence_m=c.max_correspondence_mm / 1000.0, max_iterations=c.max_iterations,
+                  min_fitness=c.min_fitness, max_rmse_m=c.max_rmse_mm / 1000.0)
+        reg = None
+        if init is not None:
+            # a static bin: the previous pose needs only the fine pass (a moved bin: the full one)
+            fine = c.max_correspondence_mm / 3000.0
+            f0 = pose_fitness(bin_model.points, target, init, model_normals=bin_model.normals,
+                              voxel_m=c.voxel_mm / 1000.0, max_correspondence_m=fine)
+            if f0 >= PREVIOUS_FITNESS_KEPT * previous.fitness:
+                reg = register_bin(bin_model.points, target, init=init, coarse=False, **kw)
+                if not reg.converged:
+                    reg = None
+        if reg is None:
+            reg = register_bin(bin_model.points, target, **kw)
+        timings["registration"] = time.perf_counter() - t
+    return BinLocation(valid, bm, reg, timings, time.perf_counter() - t_start, tuple(warnings))
+
+
 def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, **kw) -> np.ndarray:
     """(H, W) bool: SOR outliers among the zone's points only (the rest of the frame set to NaN).
 
@@ -139,6 +244,7 @@ def run_frame(
     *,
     bin_model: BinModel | None = None,
     previous: FrameResult | None = None,
+    located: BinLocation | None = None,
 ) -> FrameResult:
     """Run every stage on one frame.
 
@@ -152,60 +258,28 @@ def run_frame(
     previous : FrameResult, optional
         The previous frame's result; its converged pose seeds the registration when
         ``config.registration.use_previous``.
+    located : BinLocation, optional
+        :func:`locate_bin` of this frame, already computed (e.g. in another thread, while the
+        previous frame finished); then ``previous`` is not used.
 
     Returns
     -------
     FrameResult
     """
     params = zcut_params(config)
+    if located is None:
+        prev_reg = previous.registration if previous is not None else None
+        located = locate_bin(frame, config, bin_model=bin_model, previous=prev_reg)
     t_start = time.perf_counter()
-    timings: dict[str, float] = {}
-    warnings: list[str] = []
+    timings = dict(located.timings)
+    warnings = list(located.warnings)
     xyz = frame.xyz
-    valid = finite_xyz(xyz)
-
-    bm: BinMaskResult | None = None
-    reg: RegistrationResult | None = None
+    valid = located.valid
+    bm = located.bin_mask
+    reg = located.registration
     rem: RemovalResult | None = None
-    if not config.bin_mask.enabled:
-        warnings.append("bin stages disabled (bin_mask.enabled = false): z-cut on the whole frame")
-    elif frame.rgb is None:
-        warnings.append("no RGB image: bin stages skipped, z-cut on the whole frame")
-    elif bin_model is None:
-        warnings.append("no bin model (--bin-model): bin stages skipped, z-cut on the whole frame")
-    else:
-        t = time.perf_counter()
-        c = config.bin_mask
-        bm = bin_mask(frame.rgb, threshold=c.threshold, dilate_px=c.dilate_px, min_area_frac=c.min_area_frac)
-        timings["bin_mask"] = time.perf_counter() - t
-        if not bm.found:
-            warnings.append("no bin found in the RGB image: bin stages skipped, z-cut on the whole frame")
-            bm = None
     if bm is not None:
-        assert bin_model is not None
-        t = time.perf_counter()
-        c = config.registration
-        init = previous.T_cam_bin if (previous is not None and c.use_previous) else None
-        walls = bm.walls & valid
-        # the ICP downsamples to voxel_mm anyway: a regular subgrid of at most ~150k pixels is enough
-        s = max(1, int(np.ceil(np.sqrt(walls.sum() / REGISTRATION_MAX_POINTS))))
-        target = xyz[::s, ::s][walls[::s, ::s]].astype(np.float64)
-        kw = dict(model_normals=bin_model.normals, method=c.method, voxel_m=c.voxel_mm / 1000.0,
-                  max_correspondence_m=c.max_correspondence_mm / 1000.0, max_iterations=c.max_iterations,
-                  min_fitness=c.min_fitness, max_rmse_m=c.max_rmse_mm / 1000.0)
-        reg = None
-        if init is not None:
-            # a static bin: the previous pose needs only the fine pass (a moved bin: the full one)
-            fine = c.max_correspondence_mm / 3000.0
-            f0 = pose_fitness(bin_model.points, target, init, model_normals=bin_model.normals,
-                              voxel_m=c.voxel_mm / 1000.0, max_correspondence_m=fine)
-            if f0 >= PREVIOUS_FITNESS_KEPT * previous.registration.fitness:
-                reg = register_bin(bin_model.points, target, init=init, coarse=False, **kw)
-                if not reg.converged:
-                    reg = None
-        if reg is None:
-            reg = register_bin(bin_model.points, target, **kw)
-        timings["registration"] = time.perf_counter() - t
+        assert bin_model is not None and reg is not None
         t = time.perf_counter()
         r = config.removal
         if reg.converged:
@@ -246,7 +320,7 @@ def run_frame(
     t = time.perf_counter()
     metrics = relative_metrics(s_zone, z_zone)
     timings["metrics"] = time.perf_counter() - t
-    timings["total"] = time.perf_counter() - t_start
+    timings["total"] = located.seconds + time.perf_counter() - t_start
     return FrameResult(
         index=frame.index,
         stamp_ns=frame.stamp_ns,

@@ -22,7 +22,7 @@ from zcut.removal import BinModel
 from . import config as cfg
 from .errors import ConfigError
 from .frame import Frame
-from .pipeline import FrameResult, run_frame
+from .pipeline import FrameResult, locate_bin, run_frame
 
 OUTLIERS_TOPIC = "/zcut/outliers"
 SOR_TOPIC = "/zcut/sor_outliers"
@@ -305,13 +305,39 @@ def replay_log(
     writer = None
     use_viz = rrd is not None or spawn or connect is not None
     start, stop = frames
-    previous: FrameResult | None = None
     opts = None
     frame_iter = prefetched(reader.frames(start=start, stop=stop))
     outputs = _Outputs()
     completed = False
+    # the bin mask and registration of frame k + 1 (OpenCV, Open3D: no numba) run in a thread
+    # while the removal, z-cut and SOR (numba) finish frame k
+    locator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="zcut-locate")
+    pending: tuple[Frame, Future] | None = None
+
+    def finish(frame: Frame, located) -> None:
+        config = summary.resolved.config
+        result = run_frame(frame, config, bin_model=bin_model, located=located)
+        if rec is not None or writer is not None:
+            outputs.submit(_log_and_write, rec, writer, frame, result, step_mm=config.zcut.step_mm,
+                           opts=opts)
+        row = FrameRow.of(result)
+        summary.rows.append(row)
+        if keep_results:
+            kept.append((frame, result))
+        if on_frame is not None:
+            on_frame(frame, result, row)
+
     try:
-        for frame in frame_iter:
+        while True:
+            try:
+                frame = next(frame_iter)
+            except StopIteration:
+                break
+            except BaseException:
+                if pending is not None:  # the frames before the reader's error still count
+                    finish(pending[0], pending[1].result())
+                    pending = None
+                raise
             if summary.resolved is None:
                 K = frame.intrinsics
                 wants_preset = (overrides or {}).get("preset") or file_layer.get("preset")
@@ -359,19 +385,20 @@ def replay_log(
                 if on_start is not None:
                     on_start(summary)
             config = summary.resolved.config
-            result = run_frame(frame, config, bin_model=bin_model, previous=previous)
-            previous = result
-            if rec is not None or writer is not None:
-                outputs.submit(_log_and_write, rec, writer, frame, result, step_mm=config.zcut.step_mm,
-                               opts=opts)
-            row = FrameRow.of(result)
-            summary.rows.append(row)
-            if keep_results:
-                kept.append((frame, result))
-            if on_frame is not None:
-                on_frame(frame, result, row)
+            if pending is None:
+                pending = (frame, locator.submit(locate_bin, frame, config, bin_model=bin_model))
+            else:
+                before, future = pending
+                located = future.result()
+                pending = (frame, locator.submit(locate_bin, frame, config, bin_model=bin_model,
+                                                 previous=located.registration))
+                finish(before, located)
+        if pending is not None:
+            finish(pending[0], pending[1].result())
+            pending = None
         completed = True
     finally:
+        locator.shutdown(wait=True, cancel_futures=True)
         frame_iter.close()  # joins the reader thread: reader.damage is final
         summary.damage = list(reader.damage)
         try:
