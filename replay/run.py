@@ -290,6 +290,8 @@ def replay_log(
     (ReplaySummary, list of (Frame, FrameResult))
         ``summary.damage`` is non-empty when the log was damaged after intact frames.
     """
+    from threadpoolctl import threadpool_limits
+
     from .logread import LogReader
 
     file_layer = cfg.load_toml(config_file) if config_file is not None else {}
@@ -327,6 +329,9 @@ def replay_log(
         if on_frame is not None:
             on_frame(frame, result, row)
 
+    # BLAS is only used for tiny products here, and its spinning worker threads steal the cores
+    # from the numba and Open3D threads that overlap during a replay: one BLAS thread
+    blas = threadpool_limits(limits=1, user_api="blas")
     try:
         while True:
             try:
@@ -399,6 +404,7 @@ def replay_log(
         completed = True
     finally:
         locator.shutdown(wait=True, cancel_futures=True)
+        blas.restore_original_limits()
         frame_iter.close()  # joins the reader thread: reader.damage is final
         summary.damage = list(reader.damage)
         try:
