@@ -29,6 +29,7 @@ timeline shows the last frame logged (replay one frame with ``--frames N:N+1`` t
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -263,19 +264,26 @@ def log_cuts(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions, *, 
     m, levels = scrub_levels(cut.n_levels, opts)
     lvl = cut.pixel_level[::s, ::s].astype(np.int32)
     seg = np.where(lvl >= 0, (lvl + m - 1) // m + 1, 0).astype(np.uint16)
-    n_cls = (cut.n_levels + 1 + m - 1) // m + 1  # classes 1 .. n_cls
-    colours = _level_colours(n_cls)
     rec.set_time("depth_um", sequence=0)
     rec.log("zcut/cuts", rr.SegmentationImage(seg))
     for k in levels:
-        q = (k + m - 1) // m
         rec.set_time("depth_um", sequence=int(round(k * step_mm * 1000.0)))
-        infos = [rr.AnnotationInfo(id=0, color=(0, 0, 0, 0))]
-        infos += [rr.AnnotationInfo(id=c + 1, label=f"levels <= {min(c * m, cut.n_levels + 1)}",
-                                    color=tuple(int(v) for v in colours[c]) + (255,)) for c in range(q + 1)]
-        infos += [rr.AnnotationInfo(id=c + 1, color=(0, 0, 0, 0)) for c in range(q + 1, n_cls)]
-        rec.log("zcut/cuts", rr.AnnotationContext(infos))
+        rec.log("zcut/cuts", _cut_context(cut.n_levels, m, k))
     rec.disable_timeline("depth_um")
+
+
+@functools.lru_cache(maxsize=512)
+def _cut_context(n_levels: int, m: int, k: int) -> rr.AnnotationContext:
+    """The context showing cut k (classes 1 .. q + 1 coloured, the rest hidden); the same for every
+    frame with the same K, so built once (building ~1000 class descriptions per frame was slow)."""
+    n_cls = (n_levels + 1 + m - 1) // m + 1  # classes 1 .. n_cls
+    colours = _level_colours(n_cls)
+    q = (k + m - 1) // m
+    infos = [rr.AnnotationInfo(id=0, color=(0, 0, 0, 0))]
+    infos += [rr.AnnotationInfo(id=c + 1, label=f"levels <= {min(c * m, n_levels + 1)}",
+                                color=tuple(int(v) for v in colours[c]) + (255,)) for c in range(q + 1)]
+    infos += [rr.AnnotationInfo(id=c + 1, color=(0, 0, 0, 0)) for c in range(q + 1, n_cls)]
+    return rr.AnnotationContext(infos)
 
 
 def log_clusters(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions) -> None:
