@@ -24,7 +24,7 @@ def run(args: argparse.Namespace) -> int:
     from annotate.accuracy import accuracy_report, format_accuracy_table, frame_accuracy, jsonable
     from replay.binmodel import ensure_sample_bin_model, load_bin_model
     from replay.cli import EXIT_DATA_LOSS
-    from replay.commands.replay import print_table_callbacks
+    from replay.commands.replay import print_table_callbacks, viewer_command
     from replay.run import replay_log
     from replay.synth.log import ensure_sample_log, sample_log_path
 
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
               f"SOR found {ps['tp']} (recall {_pct(ps['recall'])}, precision {_pct(ps['precision'])}).")
     for name, path in summary.outputs.items():
         print(f"zcut: wrote {name}: {path}", file=err)
-    print(f"\nOpen the recording with:  rerun {rrd}", file=sys.stdout if not args.json else err)
+    print(f"\nOpen the recording with:  {viewer_command()} {rrd}", file=sys.stdout if not args.json else err)
     if summary.damage:
         for d in summary.damage:
             print(f"warning: data loss: {d}", file=err)

@@ -33,6 +33,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of the table")
 
 
+def viewer_command() -> str:
+    """How to start the Rerun viewer: the ``rerun`` binary beside this Python (a venv install
+    does not put it on PATH), else plain ``rerun``."""
+    import shutil
+    from pathlib import Path
+
+    beside = Path(sys.executable).with_name("rerun")
+    if beside.is_file() and shutil.which("rerun") != str(beside):
+        return str(beside)
+    return "rerun"
+
+
 def _fmt(v: float, spec: str) -> str:
     if isinstance(v, float) and math.isnan(v):
         return "-"
@@ -111,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     for name, path in summary.outputs.items():
         print(f"zcut: wrote {name}: {path}", file=sys.stderr)
     if "rrd" in summary.outputs:
-        print(f"zcut: open it with: rerun {summary.outputs['rrd']}", file=sys.stderr)
+        print(f"zcut: open it with: {viewer_command()} {summary.outputs['rrd']}", file=sys.stderr)
     if summary.viewer_error:
         print(f"warning: {summary.viewer_error}", file=sys.stderr)
     if summary.damage:
