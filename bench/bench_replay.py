@@ -9,6 +9,8 @@ frame (numba compilation, model caches):
 - ``no viewer``: the pipeline only (reading the log included), frames/s; target >= 2;
 - ``.rrd``: the same with every stage logged to Rerun (default detail); overhead vs no viewer,
   target <= 50 %; .rrd size per frame, target <= 10 MB;
+- both ``--repeats`` times, alternating, and the medians compared (on a shared, loaded machine one
+  run of each swings the overhead by tens of percent either way);
 - the per-stage times of the no-viewer run (median over frames). The replay overlaps stages: the
   next frame is decoded, and its bin mask and registration run, while the removal, z-cut and SOR
   finish the current frame (and Rerun logging runs behind them), so the stage times (measured
@@ -63,16 +65,22 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=4)
     ap.add_argument("--kind", default="zinc_nuts")
+    ap.add_argument("--repeats", type=int, default=3, help="alternating runs of each; medians compared")
     ap.add_argument("--dir", default=str(Path(tempfile.gettempdir()) / "zcut_bench_replay"))
     args = ap.parse_args()
     d = Path(args.dir)
     log, ply = prepare(d, args.kind, args.frames)
     model = load_bin_model(ply)
 
-    t_plain, c_plain, n, timings = timed_replay(log, model)
-    fps = n / t_plain
     rrd = d / "bench.rrd"
-    t_rrd, c_rrd, n2, _ = timed_replay(log, model, rrd=rrd)
+    plain, logged = [], []
+    for _ in range(max(args.repeats, 1)):
+        plain.append(timed_replay(log, model))
+        logged.append(timed_replay(log, model, rrd=rrd))
+    t_plain, c_plain = statistics.median(p[0] for p in plain), statistics.median(p[1] for p in plain)
+    t_rrd, c_rrd = statistics.median(p[0] for p in logged), statistics.median(p[1] for p in logged)
+    n, n2, timings = plain[0][2], logged[0][2], plain[0][3]
+    fps = n / t_plain
     overhead = t_rrd / t_plain - 1.0
     size_mb = rrd.stat().st_size / 1e6 / n2
     print(f"\n{n} frames of {args.kind}, {SIZE[1]}x{SIZE[0]}, bin model {len(model.points)} points")
@@ -81,6 +89,8 @@ def main() -> None:
           f"CPU {c_plain / n:.2f} s/frame")
     print(f".rrd      : {t_rrd:7.2f} s  overhead {100 * overhead:5.1f} %   (target <= 50 %; ratio {overhead / 0.5:.2f}); "
           f"CPU overhead {100 * (c_rrd / c_plain - 1):.1f} %")
+    print("  per repeat: " + ", ".join(f"{100 * (lg[0] / pl[0] - 1):.0f} %" for pl, lg in zip(plain, logged))
+          + f" (medians of {len(plain)} alternating runs above)")
     print(f".rrd size : {size_mb:7.2f} MB per frame (target <= 10 MB; ratio {size_mb / 10:.2f})")
     print("\nmedian stage times (no viewer; bin_mask and registration overlap the other stages):")
     for stage in timings[0]:

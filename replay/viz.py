@@ -333,7 +333,7 @@ def log_cuts(rec: rr.RecordingStream, frame: Frame, result: FrameResult, opts: V
     rec.set_time("depth_um", sequence=0)
     rec.log("zcut/cuts", rr.SegmentationImage(seg))
     rec.disable_timeline("depth_um")
-    depths = np.array([int(round(k * step_mm * 1000.0)) for k in levels], np.int64)
+    depths = np.array([round(k * step_mm * 1000.0) for k in levels], np.int64)
     n = len(levels)
     rec.send_columns("zcut/cuts", indexes=[
         rr.TimeColumn("frame", sequence=np.full(n, int(frame.index), np.int64)),
