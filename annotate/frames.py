@@ -13,7 +13,15 @@ integer array (``dtype`` ``uint8``, ``uint16`` or ``uint32``), 0 = no cluster; `
 the same array by its ``count`` non-zero pixels, ``zlib(deltas + values)`` where ``deltas`` are
 the differences of the increasing flat pixel indices (first one from 0) as ``uint32`` and
 ``values`` the ids there in ``dtype`` (candidates cover a few per cent of a frame: this is
-smaller and much faster to decode than the dense array).
+smaller and much faster to decode than the dense array); ``kind = "runs"``: a mask as
+``zlib(uint32 run lengths)``, alternating runs of false and true pixels in raster order, the first
+one (possibly empty) false — decoded with a few ``fill`` calls, so used for the valid mask whenever
+its runs take no more bytes than its packed bits (:func:`mask_kind`).
+
+A *view* (``GET /api/frames/{i}/view``) is everything the page needs to show a frame in one
+response: ``uint32 n`` | ``n`` bytes of JSON ``{"parts": [[name, offset, length], ...]}`` | parts
+(offset from the first byte after the header); the parts are the frame's bundle, the annotator's
+label bundle and the JPEG of the requested image (:func:`make_view`, :func:`parse_view`).
 """
 
 from __future__ import annotations
@@ -120,6 +128,9 @@ def make_bundle(header: dict, sections: list[tuple[str, str, np.ndarray]]) -> by
         if kind == "bits":
             blob = pack_mask(arr)
             dtype = "bool"
+        elif kind == "runs":
+            blob = zlib.compress(mask_runs(arr).astype("<u4").tobytes(), 6)
+            dtype = "bool"
         elif kind == "ids":
             a = np.ascontiguousarray(arr)
             blob = zlib.compress(a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes(), 1)
@@ -138,6 +149,40 @@ def make_bundle(header: dict, sections: list[tuple[str, str, np.ndarray]]) -> by
         offset += len(blob)
     head = json.dumps({**header, "sections": meta}).encode()
     return struct.pack("<I", len(head)) + head + b"".join(parts)
+
+
+def mask_runs(mask: np.ndarray) -> np.ndarray:
+    """(n,) int64 run lengths of a mask in raster order: false, true, false, ... (the first may be 0)."""
+    flat = np.ascontiguousarray(mask, dtype=bool).ravel()
+    if flat.size == 0:
+        return np.zeros(0, np.int64)
+    change = np.flatnonzero(flat[1:] != flat[:-1]) + 1
+    lengths = np.diff(np.concatenate(([0], change, [flat.size])))
+    return np.concatenate(([0], lengths)) if flat[0] else lengths
+
+
+def mask_kind(mask: np.ndarray) -> str:
+    """``"runs"`` when the mask's uint32 run lengths take no more bytes than its packed bits, else ``"bits"``."""
+    flat = np.ascontiguousarray(mask, dtype=bool).ravel()
+    n_runs = 1 + int(np.count_nonzero(flat[1:] != flat[:-1])) if flat.size else 0
+    return "runs" if 4 * n_runs <= (flat.size + 7) // 8 else "bits"
+
+
+def make_view(parts: list[tuple[str, bytes]]) -> bytes:
+    """Concatenate named byte strings into one view (module docstring)."""
+    meta, offset = [], 0
+    for name, blob in parts:
+        meta.append([name, offset, len(blob)])
+        offset += len(blob)
+    head = json.dumps({"parts": meta}).encode()
+    return struct.pack("<I", len(head)) + head + b"".join(b for _, b in parts)
+
+
+def parse_view(data: bytes) -> dict[str, bytes]:
+    """Split a view back into name -> bytes."""
+    (n,) = struct.unpack_from("<I", data, 0)
+    base = 4 + n
+    return {name: data[base + off:base + off + length] for name, off, length in json.loads(data[4:base])["parts"]}
 
 
 def bundle_with_blobs(header: dict, blobs: list[tuple[str, bytes]]) -> bytes:
@@ -222,7 +267,7 @@ def prepare_frame(frame, *, zcut_outliers: np.ndarray, sor_outliers: np.ndarray,
     H, W = valid.shape
     header = {"index": frame.index, "stamp_ns": frame.stamp_ns, "topic": frame.topic, "height": H, "width": W,
               "n_zcut": n_z, "n_sor": n_s, "has_rgb": frame.rgb is not None, "warnings": list(warnings)}
-    bundle = make_bundle(header, [("valid", "bits", valid), ("zcut", "sparse", z_ids), ("sor", "sparse", s_ids)])
+    bundle = make_bundle(header, [("valid", mask_kind(valid), valid), ("zcut", "sparse", z_ids), ("sor", "sparse", s_ids)])
     return PreparedFrame(
         index=frame.index, stamp_ns=frame.stamp_ns, topic=frame.topic, frame_id=frame.frame_id, height=H, width=W,
         valid=valid, zcut_clusters=z_ids, sor_clusters=s_ids, n_zcut=n_z, n_sor=n_s, rgb_jpeg=rgb_jpeg,
@@ -239,7 +284,13 @@ def parse_bundle(data: bytes) -> tuple[dict, dict[str, np.ndarray]]:
     out = {}
     for s in header["sections"]:
         raw = zlib.decompress(body[s["offset"]:s["offset"] + s["length"]])
-        if s["kind"] == "bits":
+        if s["kind"] == "runs":
+            lengths = np.frombuffer(raw, "<u4").astype(np.int64)
+            if int(lengths.sum()) != shape[0] * shape[1]:
+                raise ValueError(f"bundle section {s['name']!r}: runs cover {int(lengths.sum())} pixels, not {shape}")
+            flat = np.repeat(np.arange(lengths.size) % 2 == 1, lengths)
+            out[s["name"]] = flat.reshape(shape)
+        elif s["kind"] == "bits":
             out[s["name"]] = np.unpackbits(np.frombuffer(raw, np.uint8), count=shape[0] * shape[1]).view(bool).reshape(shape)
         elif s["kind"] == "sparse":
             n = s["count"]

@@ -34,7 +34,7 @@ from starlette.responses import HTMLResponse, JSONResponse, Response
 from starlette.routing import Route
 
 from .candidates import PipelineRunner
-from .frames import PreparedFrame, ServedFrame, bundle_with_blobs
+from .frames import PreparedFrame, ServedFrame, bundle_with_blobs, make_view
 from .store import (
     MAX_ANNOTATOR_LEN,
     FrameRecord,
@@ -315,15 +315,28 @@ def create_app(session: Session, *, max_body_bytes: int = MAX_BODY_BYTES, allowe
             raise BadRequest(404, f"no image kind {kind!r}")
         return Response(data, media_type="image/jpeg", headers={"Cache-Control": "no-store"})
 
-    def api_label_get(request: Request) -> Response:
-        pf, rec = _frame(request)
+    def _label_bundle(pf: ServedFrame, rec: FrameRecord, request: Request) -> bytes:
         who = _annotator(request.query_params.get("annotator", session.annotator))
         got = session.store.label_blobs(rec, annotator=who)
         header = {"index": pf.index, "height": pf.height, "width": pf.width, "annotator": who,
                   "revision": got[0] if got else 0}
         blobs = [("outliers", got[1]), ("reviewed", got[2])] if got else []
-        return Response(bundle_with_blobs(header, blobs), media_type="application/octet-stream",
+        return bundle_with_blobs(header, blobs)
+
+    def api_label_get(request: Request) -> Response:
+        pf, rec = _frame(request)
+        return Response(_label_bundle(pf, rec, request), media_type="application/octet-stream",
                         headers={"Cache-Control": "no-store"})
+
+    def api_view(request: Request) -> Response:
+        """Bundle + label + one JPEG in one response: a frame switch costs one round trip."""
+        pf, rec = _frame(request)
+        kind = request.query_params.get("image", "rgb")
+        if kind not in ("rgb", "height"):
+            raise BadRequest(400, f"image must be rgb or height, got {kind[:20]!r}")
+        image = pf.height_jpeg if kind == "height" or pf.rgb_jpeg is None else pf.rgb_jpeg
+        parts = [("bundle", pf.bundle), ("label", _label_bundle(pf, rec, request)), ("image", image)]
+        return Response(make_view(parts), media_type="application/octet-stream", headers={"Cache-Control": "no-store"})
 
     async def api_label_put(request: Request) -> Response:
         index_ = request.path_params["index"]
@@ -384,6 +397,7 @@ def create_app(session: Session, *, max_body_bytes: int = MAX_BODY_BYTES, allowe
         Route("/api/frames", api_frames),
         Route("/api/frames/{index:int}/bundle", api_bundle),
         Route("/api/frames/{index:int}/image/{kind}", api_image),
+        Route("/api/frames/{index:int}/view", api_view),
         Route("/api/frames/{index:int}/label", api_label_get, methods=["GET"]),
         Route("/api/frames/{index:int}/label", api_label_put, methods=["PUT"]),
     ]

@@ -139,9 +139,10 @@ def main() -> int:
     stats("next", nxt)
     if cold:
         stats("cold", cold)
-    keys = ["worker", "fetch", "parse", "label", "overlay", "images", "main"]
+    keys = ["worker", "fetch", "parse", "label", "overlay", "main", "image", "wait"]
     med = {k: float(np.median([ld[k] for ld in loads])) for k in keys}
-    print("loading one frame (median ms; worker = fetch + parse + label + overlay + images, then main):")
+    print("loading one frame (median ms; worker = fetch + parse + label + overlay, then main; "
+          "image = fetch to decoded JPEG in the worker, wait = main waiting for it):")
     print("  " + "  ".join(f"{k} {v:.1f}" for k, v in med.items()))
     return 0
 

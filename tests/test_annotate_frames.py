@@ -12,7 +12,11 @@ from annotate.frames import (
     candidate_clusters,
     height_colormap,
     make_bundle,
+    make_view,
+    mask_kind,
+    mask_runs,
     parse_bundle,
+    parse_view,
     prepare_frame,
 )
 from annotate.store import pack_mask
@@ -37,6 +41,29 @@ def test_bundle_roundtrip(rng, n_ids):
     assert not empty[1]["sp"].any() and empty[0]["sections"][0]["count"] == 0
     blob = bundle_with_blobs({"height": shape[0], "width": shape[1]}, [("m", pack_mask(mask))])
     assert np.array_equal(parse_bundle(blob)[1]["m"], mask)
+
+
+@pytest.mark.parametrize("case", ["blob", "starts_true", "all_false", "all_true", "noise"])
+def test_runs_roundtrip_and_choice(rng, case):
+    shape = (301, 257)
+    yy, xx = np.mgrid[:shape[0], :shape[1]]
+    mask = {"blob": (yy - 150) ** 2 + (xx - 120) ** 2 < 90 ** 2, "starts_true": (xx < 40) | (yy > 250),
+            "all_false": np.zeros(shape, bool), "all_true": np.ones(shape, bool),
+            "noise": rng.random(shape) < 0.5}[case]
+    runs = mask_runs(mask)
+    assert runs.sum() == mask.size and (runs[1:] > 0).all()
+    assert (runs[0] == 0) == bool(mask.flat[0])
+    data = make_bundle({"height": shape[0], "width": shape[1]}, [("m", "runs", mask)])
+    assert np.array_equal(parse_bundle(data)[1]["m"], mask)
+    # runs for smooth masks (few runs), packed bits for noise
+    assert mask_kind(mask) == ("bits" if case == "noise" else "runs")
+    assert np.array_equal(parse_bundle(make_bundle({"height": shape[0], "width": shape[1]},
+                                                   [("m", mask_kind(mask), mask)]))[1]["m"], mask)
+
+
+def test_view_roundtrip():
+    parts = [("bundle", b"\x00\x01abc"), ("label", b""), ("image", bytes(range(256)) * 3)]
+    assert parse_view(make_view(parts)) == dict(parts)
 
 
 def test_candidate_clusters():

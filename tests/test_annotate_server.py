@@ -13,7 +13,7 @@ import httpx
 import numpy as np
 import pytest
 
-from annotate.frames import parse_bundle
+from annotate.frames import parse_bundle, parse_view
 from annotate.server import MAX_BODY_BYTES
 from annotate.store import LabelStore, file_sha256, pack_mask
 from annotate_helpers import ServerProcess, write_spike_log
@@ -54,7 +54,8 @@ def _label_count(db):
 
 
 @pytest.mark.parametrize("path", ["/", "/static/app.js", "/api/session", "/api/frames", "/api/frames/0/bundle",
-                                  "/api/frames/0/image/rgb", "/api/frames/0/label"])
+                                  "/api/frames/0/image/rgb", "/api/frames/0/label",
+                                  "/api/frames/0/view"])
 def test_every_request_needs_the_token(served, path):
     srv = served[0]
     assert httpx.get(srv.base + path).status_code == 403
@@ -91,6 +92,25 @@ def test_page_and_frames(served):
     assert img.headers["content-type"] == "image/jpeg" and img.content[:2] == b"\xff\xd8"
     assert httpx.get(f"{srv.base}/api/frames/9/bundle", headers=srv.headers()).status_code == 404
     assert httpx.get(f"{srv.base}/static/../server.py", headers=srv.headers()).status_code == 404
+
+
+def test_view_is_bundle_label_and_image_in_one(served):
+    srv = served[0]
+    for kind in ("rgb", "height"):
+        r = httpx.get(f"{srv.base}/api/frames/2/view", params={"annotator": "alice", "image": kind},
+                      headers=srv.headers())
+        assert r.status_code == 200 and r.headers["content-type"] == "application/octet-stream"
+        parts = parse_view(r.content)
+        assert sorted(parts) == ["bundle", "image", "label"]
+        assert parts["bundle"] == httpx.get(f"{srv.base}/api/frames/2/bundle", headers=srv.headers()).content
+        assert parts["image"] == httpx.get(f"{srv.base}/api/frames/2/image/{kind}", headers=srv.headers()).content
+        label = httpx.get(f"{srv.base}/api/frames/2/label", params={"annotator": "alice"}, headers=srv.headers())
+        assert parts["label"] == label.content
+    bad = httpx.get(f"{srv.base}/api/frames/2/view", params={"image": "../x"}, headers=srv.headers())
+    assert bad.status_code == 400
+    assert httpx.get(f"{srv.base}/api/frames/9/view", headers=srv.headers()).status_code == 404
+    bad_name = httpx.get(f"{srv.base}/api/frames/2/view", params={"annotator": ""}, headers=srv.headers())
+    assert bad_name.status_code == 422
 
 
 def test_save_reload_and_conflict(served):

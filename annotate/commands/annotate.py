@@ -41,6 +41,8 @@ def run(args: argparse.Namespace) -> int:
     model = load_bin_model(args.bin_model) if args.bin_model else None
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # restart at once on the same port
+    # small responses (a label, the session) otherwise wait ~40 ms for the client's delayed ACK
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     session = None
     try:
         try:

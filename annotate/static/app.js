@@ -33,6 +33,10 @@ function call(msg, transfer = []) {
   const id = nextId++;
   return new Promise((resolve, reject) => { pending.set(id, { resolve, reject }); worker.postMessage({ ...msg, id }, transfer); });
 }
+function expectReply() {  // a second reply to one message (the frame's image): [id, promise]
+  const id = nextId++;
+  return [id, new Promise((resolve, reject) => pending.set(id, { resolve, reject }))];
+}
 
 // ------------------------------------------------------------------ state
 const state = {
@@ -71,12 +75,19 @@ function loadFrame(index) {
   const kind = viewKind();
   const p = (async () => {
     const t0 = performance.now();
-    const m = await call({ type: 'frame', index, annotator: state.annotator, flags: flags(), images: [kind] });
+    const [imageId, image] = expectReply();
+    let m;
+    try {
+      m = await call({ type: 'frame', index, annotator: state.annotator, flags: flags(), image: kind, imageId });
+    } catch (e) {
+      pending.delete(imageId);
+      throw e;
+    }
     const t1 = performance.now();
     const h = m.header;
     const fd = {
       index, stamp: h.stamp_ns, W: h.width, H: h.height, header: h,
-      valid: m.valid, zIds: m.zIds, sIds: m.sIds, bmp: { [kind]: m.bitmaps[0] },
+      valid: m.valid, zIds: m.zIds, sIds: m.sIds, bmp: {},
       saving: false, pendingSave: false, annotator: state.annotator,
     };
     setLabel(fd, m);
@@ -87,7 +98,11 @@ function loadFrame(index) {
     fd.ov32 = new Uint32Array(m.ov.buffer);
     fd.octx.putImageData(fd.ovImg, 0, 0);
     fd.ovFlags = flags();
-    window.zcut.loads.push({ index, worker: t1 - t0, main: performance.now() - t1, ...m.timing });
+    const t2 = performance.now();
+    const im = await image;  // decoded meanwhile
+    fd.bmp[kind] = im.bitmap;
+    window.zcut.loads.push({ index, worker: t1 - t0, main: t2 - t1, image: im.decoded, wait: performance.now() - t2,
+                             ...m.timing });
     return fd;
   })();
   cache.set(index, p);
