@@ -204,7 +204,7 @@ def log_image(rec: rr.RecordingStream, frame: Frame, result: FrameResult, opts: 
     if frame.rgb is not None:
         rec.log("image/rgb", _image(frame.rgb, opts))
         return
-    gray = _height_gray(-1000.0 * frame.xyz[..., 2].astype(np.float64))
+    gray = _height_gray(frame.xyz[..., 2] * np.float32(-1000.0))  # float32: only a rendering
     if opts.full_detail:
         rec.log("image/rgb", rr.Image(gray, color_model="L"))
     else:
