@@ -7,7 +7,7 @@ of the z-cut and of SOR, ready to send as is.
 
 Bundle layout (little endian): ``uint32 n`` | ``n`` bytes of JSON header | sections. The header
 lists the sections as ``{"name", "kind", "dtype", "offset", "length"}`` (offset from the first byte
-after the header). ``kind = "bits"``: ``zlib(packbits(mask.ravel()))`` (MSB first, as
+after the header; ``"zlib": false`` when the section is stored without the zlib step written below). ``kind = "bits"``: ``zlib(packbits(mask.ravel()))`` (MSB first, as
 :func:`annotate.store.pack_mask`); ``kind = "ids"``: ``zlib(array.ravel().tobytes())`` of an unsigned
 integer array (``dtype`` ``uint8``, ``uint16`` or ``uint32``), 0 = no cluster; ``kind = "sparse"``:
 the same array by its ``count`` non-zero pixels, ``zlib(deltas + values)`` where ``deltas`` are
@@ -118,8 +118,13 @@ def _small_uint(ids: np.ndarray, n: int) -> np.ndarray:
     return ids.astype(dtype, copy=False)
 
 
-def make_bundle(header: dict, sections: list[tuple[str, str, np.ndarray]]) -> bytes:
-    """Pack a header dict and ``(name, kind, array)`` sections into one bundle (module docstring)."""
+def make_bundle(header: dict, sections: list[tuple[str, str, np.ndarray]], *, compress: bool = True) -> bytes:
+    """Pack a header dict and ``(name, kind, array)`` sections into one bundle (module docstring).
+
+    ``compress=False`` leaves out the zlib step of every section (marked ``"zlib": false``): the page
+    then reads the sections in place, which beats inflating them when the bytes only cross the
+    loopback interface.
+    """
     parts: list[bytes] = []
     meta = []
     offset = 0
@@ -144,6 +149,9 @@ def make_bundle(header: dict, sections: list[tuple[str, str, np.ndarray]]) -> by
             extra["count"] = int(idx.size)
         else:  # pragma: no cover - internal
             raise AssertionError(kind)
+        if not compress:
+            blob = zlib.decompress(blob)
+            extra["zlib"] = False
         meta.append({"name": name, "kind": kind, "dtype": dtype, "offset": offset, "length": len(blob), **extra})
         parts.append(blob)
         offset += len(blob)
@@ -267,7 +275,8 @@ def prepare_frame(frame, *, zcut_outliers: np.ndarray, sor_outliers: np.ndarray,
     H, W = valid.shape
     header = {"index": frame.index, "stamp_ns": frame.stamp_ns, "topic": frame.topic, "height": H, "width": W,
               "n_zcut": n_z, "n_sor": n_s, "has_rgb": frame.rgb is not None, "warnings": list(warnings)}
-    bundle = make_bundle(header, [("valid", mask_kind(valid), valid), ("zcut", "sparse", z_ids), ("sor", "sparse", s_ids)])
+    bundle = make_bundle(header, [("valid", mask_kind(valid), valid), ("zcut", "sparse", z_ids), ("sor", "sparse", s_ids)],
+                         compress=False)
     return PreparedFrame(
         index=frame.index, stamp_ns=frame.stamp_ns, topic=frame.topic, frame_id=frame.frame_id, height=H, width=W,
         valid=valid, zcut_clusters=z_ids, sor_clusters=s_ids, n_zcut=n_z, n_sor=n_s, rgb_jpeg=rgb_jpeg,
@@ -283,7 +292,9 @@ def parse_bundle(data: bytes) -> tuple[dict, dict[str, np.ndarray]]:
     shape = (header["height"], header["width"])
     out = {}
     for s in header["sections"]:
-        raw = zlib.decompress(body[s["offset"]:s["offset"] + s["length"]])
+        raw = body[s["offset"]:s["offset"] + s["length"]]
+        if s.get("zlib", True):
+            raw = zlib.decompress(raw)
         if s["kind"] == "runs":
             lengths = np.frombuffer(raw, "<u4").astype(np.int64)
             if int(lengths.sum()) != shape[0] * shape[1]:

@@ -31,6 +31,10 @@ def test_bundle_roundtrip(rng, n_ids):
     ids[rng.random(shape) < 0.9] = 0
     data = make_bundle({"height": shape[0], "width": shape[1], "x": 1},
                        [("m", "bits", mask), ("ids", "ids", ids), ("sp", "sparse", ids)])
+    raw = make_bundle({"height": shape[0], "width": shape[1]},
+                      [("m", "bits", mask), ("ids", "ids", ids), ("sp", "sparse", ids)], compress=False)
+    assert all(s["zlib"] is False for s in parse_bundle(raw)[0]["sections"])
+    assert all(np.array_equal(a, b) for a, b in zip(parse_bundle(raw)[1].values(), parse_bundle(data)[1].values()))
     header, arrays = parse_bundle(data)
     assert header["x"] == 1 and [s["name"] for s in header["sections"]] == ["m", "ids", "sp"]
     assert header["sections"][2]["count"] == int((ids > 0).sum())

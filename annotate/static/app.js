@@ -91,16 +91,16 @@ function loadFrame(index) {
       saving: false, pendingSave: false, annotator: state.annotator,
     };
     setLabel(fd, m);
-    fd.ovCanvas = document.createElement('canvas');
-    fd.ovCanvas.width = fd.W; fd.ovCanvas.height = fd.H;
-    fd.octx = fd.ovCanvas.getContext('2d');
+    // the overlay arrives as pixels (ov32, edited here) and as a bitmap the worker made of them
+    // (drawn until the first edit: then ensureOvCanvas uploads the pixels to a canvas)
+    fd.ovCanvas = null; fd.octx = null;
     fd.ovImg = new ImageData(m.ov, fd.W, fd.H);
     fd.ov32 = new Uint32Array(m.ov.buffer);
-    fd.octx.putImageData(fd.ovImg, 0, 0);
     fd.ovFlags = flags();
     const t2 = performance.now();
     const im = await image;  // decoded meanwhile
     fd.bmp[kind] = im.bitmap;
+    fd.ovBmp = im.overlay;
     window.zcut.loads.push({ index, worker: t1 - t0, main: t2 - t1, image: im.decoded, wait: performance.now() - t2,
                              ...m.timing });
     return fd;
@@ -128,7 +128,8 @@ function evict(center) {
       if (fd.dirty || fd.saving || state.cur === fd) return;
       cache.delete(i);
       for (const b of Object.values(fd.bmp)) b.close();
-      fd.ovCanvas.width = fd.ovCanvas.height = 0;
+      if (fd.ovBmp) { fd.ovBmp.close(); fd.ovBmp = null; }
+      if (fd.ovCanvas) fd.ovCanvas.width = fd.ovCanvas.height = 0;
     }, () => {});
   }
 }
@@ -136,8 +137,18 @@ function evict(center) {
 // ------------------------------------------------------------------ overlay + drawing
 const canvas = $('canvas'), ctx = canvas.getContext('2d');
 
+function ensureOvCanvas(fd) {
+  if (fd.ovCanvas) return;
+  fd.ovCanvas = document.createElement('canvas');
+  fd.ovCanvas.width = fd.W; fd.ovCanvas.height = fd.H;
+  fd.octx = fd.ovCanvas.getContext('2d');
+  fd.octx.putImageData(fd.ovImg, 0, 0);
+  if (fd.ovBmp) { fd.ovBmp.close(); fd.ovBmp = null; }
+}
+
 function renderOverlay(x0 = 0, y0 = 0, x1 = null, y1 = null) {
   const fd = state.cur; if (!fd) return;
+  ensureOvCanvas(fd);
   const W = fd.W, ov32 = fd.ov32;
   if (x1 === null && y1 === null && x0 === 0 && y0 === 0) fd.ovFlags = flags();
   x1 = x1 === null ? fd.W : Math.min(x1, fd.W); y1 = y1 === null ? fd.H : Math.min(y1, fd.H);
@@ -181,7 +192,7 @@ function draw() {
   ctx.imageSmoothingEnabled = state.zoom < 1;
   ctx.drawImage(bitmapFor(fd), 0, 0);
   ctx.imageSmoothingEnabled = false;
-  ctx.drawImage(fd.ovCanvas, 0, 0);
+  ctx.drawImage(fd.ovCanvas || fd.ovBmp, 0, 0);
   // tool previews (image coordinates)
   ctx.lineWidth = 1.5 / state.zoom; ctx.strokeStyle = '#fff';
   if (drag && drag.kind === 'box') {

@@ -1,6 +1,7 @@
 // zcut labelling page: loading and packing off the main thread, so that a frame switch only draws.
 // Messages in:  {id, type: 'frame', index, annotator, flags, image: 'rgb'|'height', imageId}
-//               (two replies: the masks under id, then the decoded image {bitmap} under imageId)
+//               (two replies: the masks and overlay pixels under id, then the decoded image and the
+//               overlay as ImageBitmaps {bitmap, overlay} under imageId)
 //               {id, type: 'label', index, annotator, W, H}
 //               {id, type: 'pack', L, R}
 // Messages out: {id, ok: true, ...result} or {id, ok: false, error}
@@ -62,7 +63,8 @@ async function parseBundle(u8) {
   const header = JSON.parse(new TextDecoder().decode(u8.subarray(4, 4 + n)));
   const base = 4 + n, npx = header.height * header.width, out = {};
   await Promise.all(header.sections.map(async (s) => {
-    const raw = await inflate(u8.subarray(base + s.offset, base + s.offset + s.length));
+    const bytes = u8.subarray(base + s.offset, base + s.offset + s.length);
+    const raw = s.zlib === false ? bytes.slice() : await inflate(bytes);  // slice: aligned, owned
     if (s.kind === 'bits') { out[s.name + 'Any'] = anyByte(raw); out[s.name] = unpackBits(raw, npx); }
     else if (s.kind === 'runs') { out[s.name] = unpackRuns(raw, npx); out[s.name + 'Any'] = raw.byteLength > 4; }
     else if (s.kind === 'sparse') {
@@ -132,8 +134,10 @@ async function handle(m) {
     const t4 = performance.now();
     // the masks go out at once (the page uploads the overlay while the JPEG still decodes); the
     // image follows as its own reply, under m.imageId
-    bitmap.then((b) => self.postMessage({ id: m.imageId, ok: true, bitmap: b, decoded: performance.now() - t0 }, [b]),
-                (err) => self.postMessage({ id: m.imageId, ok: false, error: String(err) }));
+    const overlay = createImageBitmap(new ImageData(ov, header.width, header.height));  // copies ov
+    Promise.all([bitmap, overlay]).then(
+      ([b, o]) => self.postMessage({ id: m.imageId, ok: true, bitmap: b, overlay: o, decoded: performance.now() - t0 }, [b, o]),
+      (err) => self.postMessage({ id: m.imageId, ok: false, error: String(err) }));
     const timing = { fetch: t1 - t0, parse: t2 - t1, label: t3 - t2, overlay: t4 - t3 };
     const res = { timing, header, valid: arrays.valid, zIds: arrays.zcut, sIds: arrays.sor, ...lab, ov };
     const transfer = [arrays.valid.buffer, arrays.zcut.buffer, arrays.sor.buffer, lab.L.buffer, lab.R.buffer, ov.buffer];
