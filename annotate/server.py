@@ -329,13 +329,14 @@ def create_app(session: Session, *, max_body_bytes: int = MAX_BODY_BYTES, allowe
                         headers={"Cache-Control": "no-store"})
 
     def api_view(request: Request) -> Response:
-        """Bundle + label + one JPEG in one response: a frame switch costs one round trip."""
+        """Bundle + label (+ one JPEG unless ``image=none``) in one response."""
         pf, rec = _frame(request)
         kind = request.query_params.get("image", "rgb")
-        if kind not in ("rgb", "height"):
-            raise BadRequest(400, f"image must be rgb or height, got {kind[:20]!r}")
-        image = pf.height_jpeg if kind == "height" or pf.rgb_jpeg is None else pf.rgb_jpeg
-        parts = [("bundle", pf.bundle), ("label", _label_bundle(pf, rec, request)), ("image", image)]
+        if kind not in ("rgb", "height", "none"):
+            raise BadRequest(400, f"image must be rgb, height or none, got {kind[:20]!r}")
+        parts = [("bundle", pf.bundle), ("label", _label_bundle(pf, rec, request))]
+        if kind != "none":
+            parts.append(("image", pf.height_jpeg if kind == "height" or pf.rgb_jpeg is None else pf.rgb_jpeg))
         return Response(make_view(parts), media_type="application/octet-stream", headers={"Cache-Control": "no-store"})
 
     async def api_label_put(request: Request) -> Response:

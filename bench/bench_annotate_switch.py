@@ -157,7 +157,7 @@ def main() -> int:
     keys = [k for k in ["worker", "fetch", "parse", "label", "overlay", "main", "image", "wait"] if k in loads[0]]
     med = {k: float(np.median([ld[k] for ld in loads])) for k in keys}
     print("loading one frame (median ms; worker = fetch + parse + label + overlay, then main; "
-          "image = fetch to decoded JPEG in the worker, wait = main waiting for it):")
+          "image = fetch + decode of the JPEG in the second worker, in parallel; wait = main waiting for it):")
     print("  " + "  ".join(f"{k} {v:.1f}" for k, v in med.items()))
     return 0
 

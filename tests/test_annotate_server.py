@@ -106,6 +106,8 @@ def test_view_is_bundle_label_and_image_in_one(served):
         assert parts["image"] == httpx.get(f"{srv.base}/api/frames/2/image/{kind}", headers=srv.headers()).content
         label = httpx.get(f"{srv.base}/api/frames/2/label", params={"annotator": "alice"}, headers=srv.headers())
         assert parts["label"] == label.content
+    bare = parse_view(httpx.get(f"{srv.base}/api/frames/2/view", params={"image": "none"}, headers=srv.headers()).content)
+    assert sorted(bare) == ["bundle", "label"]
     bad = httpx.get(f"{srv.base}/api/frames/2/view", params={"image": "../x"}, headers=srv.headers())
     assert bad.status_code == 400
     assert httpx.get(f"{srv.base}/api/frames/9/view", headers=srv.headers()).status_code == 404

@@ -23,15 +23,18 @@ const worker = new Worker(`/static/worker.js?token=${encodeURIComponent(TOKEN)}`
 worker.postMessage({ type: 'token', token: TOKEN });
 const pending = new Map();
 let nextId = 1;
-worker.onmessage = (e) => {
+// a second worker only decodes JPEGs: the image decodes in parallel with the masks
+const imageWorker = new Worker(`/static/worker.js?token=${encodeURIComponent(TOKEN)}`);
+imageWorker.postMessage({ type: 'token', token: TOKEN });
+worker.onmessage = imageWorker.onmessage = (e) => {
   const m = e.data, p = pending.get(m.id);
   if (!p) return;
   pending.delete(m.id);
   if (m.ok) p.resolve(m); else p.reject(new Error(m.error));
 };
-function call(msg, transfer = []) {
+function call(msg, transfer = [], w = worker) {
   const id = nextId++;
-  return new Promise((resolve, reject) => { pending.set(id, { resolve, reject }); worker.postMessage({ ...msg, id }, transfer); });
+  return new Promise((resolve, reject) => { pending.set(id, { resolve, reject }); w.postMessage({ ...msg, id }, transfer); });
 }
 function expectReply() {  // a second reply to one message (the frame's image): [id, promise]
   const id = nextId++;
@@ -75,12 +78,14 @@ function loadFrame(index) {
   const kind = viewKind();
   const p = (async () => {
     const t0 = performance.now();
-    const [imageId, image] = expectReply();
+    const [imageId, overlay] = expectReply();
+    const image = call({ type: 'image', index, kind }, [], imageWorker);
     let m;
     try {
-      m = await call({ type: 'frame', index, annotator: state.annotator, flags: flags(), image: kind, imageId });
+      m = await call({ type: 'frame', index, annotator: state.annotator, flags: flags(), imageId });
     } catch (e) {
       pending.delete(imageId);
+      image.then((im) => im.bitmap.close(), () => {});
       throw e;
     }
     const t1 = performance.now();
@@ -98,9 +103,10 @@ function loadFrame(index) {
     fd.ov32 = new Uint32Array(m.ov.buffer);
     fd.ovFlags = flags();
     const t2 = performance.now();
-    const im = await image;  // decoded meanwhile
+    let im;
+    try { im = await image; } catch (e) { overlay.then((o) => o.overlay.close(), () => {}); throw e; }  // decoded meanwhile
     fd.bmp[kind] = im.bitmap;
-    fd.ovBmp = im.overlay;
+    fd.ovBmp = (await overlay).overlay;
     window.zcut.loads.push({ index, worker: t1 - t0, main: t2 - t1, image: im.decoded, wait: performance.now() - t2,
                              ...m.timing });
     return fd;
@@ -114,7 +120,7 @@ function bitmapFor(fd) {
   const kind = viewKind();
   if (fd.bmp[kind]) return fd.bmp[kind];
   if (!fd.bmpLoading) {
-    fd.bmpLoading = call({ type: 'image', index: fd.index, kind }).then((m) => {
+    fd.bmpLoading = call({ type: 'image', index: fd.index, kind }, [], imageWorker).then((m) => {
       fd.bmp[kind] = m.bitmap; fd.bmpLoading = null; requestDraw();
     }, (e) => { fd.bmpLoading = null; showError(String(e)); });
   }

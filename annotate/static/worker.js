@@ -1,7 +1,8 @@
 // zcut labelling page: loading and packing off the main thread, so that a frame switch only draws.
-// Messages in:  {id, type: 'frame', index, annotator, flags, image: 'rgb'|'height', imageId}
-//               (two replies: the masks and overlay pixels under id, then the decoded image and the
-//               overlay as ImageBitmaps {bitmap, overlay} under imageId)
+// Messages in:  {id, type: 'frame', index, annotator, flags, imageId}
+//               (two replies: the masks and overlay pixels under id, then the overlay as an
+//               ImageBitmap {overlay} under imageId; the page decodes the JPEG in a second worker)
+//               {id, type: 'image', index, kind: 'rgb'|'height'} -> {bitmap}
 //               {id, type: 'label', index, annotator, W, H}
 //               {id, type: 'pack', L, R}
 // Messages out: {id, ok: true, ...result} or {id, ok: false, error}
@@ -119,10 +120,9 @@ async function handle(m) {
   if (m.type === 'frame') {
     // one request (bundle + label + JPEG); the JPEG decodes while the masks unpack
     const t0 = performance.now();
-    const r = await fetchOk(`/api/frames/${m.index}/view?annotator=${encodeURIComponent(m.annotator)}&image=${m.image}`);
+    const r = await fetchOk(`/api/frames/${m.index}/view?annotator=${encodeURIComponent(m.annotator)}&image=none`);
     const parts = parseView(await r.arrayBuffer());
     const t1 = performance.now();
-    const bitmap = createImageBitmap(new Blob([parts.image], { type: 'image/jpeg' }));
     const [{ header, arrays }, labelBundle] = await Promise.all([parseBundle(parts.bundle), parseBundle(parts.label)]);
     const t2 = performance.now();
     const npx = header.width * header.height;
@@ -135,8 +135,8 @@ async function handle(m) {
     // the masks go out at once (the page uploads the overlay while the JPEG still decodes); the
     // image follows as its own reply, under m.imageId
     const overlay = createImageBitmap(new ImageData(ov, header.width, header.height));  // copies ov
-    Promise.all([bitmap, overlay]).then(
-      ([b, o]) => self.postMessage({ id: m.imageId, ok: true, bitmap: b, overlay: o, decoded: performance.now() - t0 }, [b, o]),
+    overlay.then(
+      (o) => self.postMessage({ id: m.imageId, ok: true, overlay: o }, [o]),
       (err) => self.postMessage({ id: m.imageId, ok: false, error: String(err) }));
     const timing = { fetch: t1 - t0, parse: t2 - t1, label: t3 - t2, overlay: t4 - t3 };
     const res = { timing, header, valid: arrays.valid, zIds: arrays.zcut, sIds: arrays.sor, ...lab, ov };
@@ -144,8 +144,9 @@ async function handle(m) {
     return [res, [...new Set(transfer)]];
   }
   if (m.type === 'image') {
+    const t0 = performance.now();
     const bmp = await createImageBitmap(await (await fetchOk(`/api/frames/${m.index}/image/${m.kind}`)).blob());
-    return [{ bitmap: bmp }, [bmp]];
+    return [{ bitmap: bmp, decoded: performance.now() - t0 }, [bmp]];
   }
   if (m.type === 'label') {
     const lab = await loadLabel(m.index, m.annotator, m.W * m.H);
