@@ -28,7 +28,11 @@ def browser():
     import os
 
     if not os.path.exists(CHROMIUM):
-        pytest.skip(f"{CHROMIUM} not installed")
+        # CI installs chromium (scripts/install.sh --test): there a missing browser is a failure,
+        # not a reason to pass without the browser tests.
+        if os.environ.get("CI"):
+            pytest.fail(f"{CHROMIUM} not installed (run: bash scripts/install.sh --test)")
+        pytest.skip(f"{CHROMIUM} not installed (run: bash scripts/install.sh --test)")
     with sync_api.sync_playwright() as p:
         b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         yield b
