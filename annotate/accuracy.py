@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zcut.errors import InputShapeError, ParameterError, describe_array
+from zcut.cloud import check_mask
+from zcut.errors import ParameterError
 from zcut.metrics import AccuracyCounts, accuracy_counts, ratio
 from zcut.types import Mask
 
@@ -55,15 +56,6 @@ class FrameAccuracy:
     counts: dict[str, AccuracyCounts]
 
 
-def _as_mask(a: object, *, name: str, shape: tuple[int, ...] | None) -> np.ndarray:
-    m = np.asarray(a)
-    if m.ndim != 2 or m.dtype != np.bool_:
-        raise InputShapeError(f"{name} must be an (H, W) bool array, got {describe_array(m)}")
-    if shape is not None and m.shape != shape:
-        raise InputShapeError(f"{name} must have the truth's shape {shape}, got {describe_array(m)}")
-    return m
-
-
 def method_masks(zcut: Mask, sor: Mask) -> dict[str, Mask]:
     """The four predictions of the report from the two filters' masks.
 
@@ -77,8 +69,8 @@ def method_masks(zcut: Mask, sor: Mask) -> dict[str, Mask]:
     dict[str, (H, W) bool ndarray]
         Keys :data:`METHODS`: ``zcut``, ``sor``, ``union`` (either), ``intersection`` (both).
     """
-    z = _as_mask(zcut, name="zcut", shape=None)
-    s = _as_mask(sor, name="sor", shape=z.shape)
+    z = check_mask(zcut, name="zcut", shape=None)
+    s = check_mask(sor, name="sor", shape=z.shape)
     return {"zcut": z, "sor": s, "union": z | s, "intersection": z & s}
 
 
@@ -112,12 +104,12 @@ def frame_accuracy(
     missing = [m for m in BASE_METHODS if m not in predictions]
     if missing:
         raise ParameterError(f"predictions must hold {list(BASE_METHODS)}, missing {missing}")
-    truth = _as_mask(outliers, name="outliers", shape=None)
+    truth = check_mask(outliers, name="outliers", shape=None)
     if reviewed is not None:
-        reviewed = _as_mask(reviewed, name="reviewed", shape=truth.shape)
+        reviewed = check_mask(reviewed, name="reviewed", shape=truth.shape)
     preds = method_masks(
-        _as_mask(predictions["zcut"], name="predictions['zcut']", shape=truth.shape),
-        _as_mask(predictions["sor"], name="predictions['sor']", shape=truth.shape),
+        check_mask(predictions["zcut"], name="predictions['zcut']", shape=truth.shape),
+        check_mask(predictions["sor"], name="predictions['sor']", shape=truth.shape),
     )
     counts = {m: accuracy_counts(preds[m], truth, reviewed=reviewed) for m in METHODS}
     return FrameAccuracy(index=int(index), stamp_ns=int(stamp_ns), counts=counts)
@@ -283,11 +275,11 @@ def agreement_counts(outliers_a: Mask, reviewed_a: Mask, outliers_b: Mask, revie
     outliers_a, reviewed_a, outliers_b, reviewed_b : (H, W) bool ndarray
         The two annotators' L and R.
     """
-    la = _as_mask(outliers_a, name="outliers_a", shape=None)
+    la = check_mask(outliers_a, name="outliers_a", shape=None)
     shape = la.shape
-    ra = _as_mask(reviewed_a, name="reviewed_a", shape=shape)
-    lb = _as_mask(outliers_b, name="outliers_b", shape=shape)
-    rb = _as_mask(reviewed_b, name="reviewed_b", shape=shape)
+    ra = check_mask(reviewed_a, name="reviewed_a", shape=shape)
+    lb = check_mask(outliers_b, name="outliers_b", shape=shape)
+    rb = check_mask(reviewed_b, name="reviewed_b", shape=shape)
     r = ra & rb
     a, b = la & r, lb & r
     both = int(np.count_nonzero(a & b))

@@ -45,6 +45,17 @@ def check_xyz(xyz: XYZ, *, name: str = "xyz") -> np.ndarray:
     return a
 
 
+def check_mask(mask: object, *, name: str, shape: tuple[int, ...] | None = None) -> Mask:
+    """Return ``mask`` as an (H, W) bool array (of ``shape`` when given) or raise
+    :class:`InputShapeError` naming ``name``, the shape and the dtype it got."""
+    m = np.asarray(mask)
+    if m.ndim != 2 or m.dtype != np.bool_:
+        raise InputShapeError(f"{name} must be an (H, W) bool array, got {describe_array(m)}")
+    if shape is not None and m.shape != tuple(shape):
+        raise InputShapeError(f"{name} must have shape {tuple(shape)} like the other masks, got {describe_array(m)}")
+    return m
+
+
 def valid_mask(xyz: XYZ) -> Mask:
     """(H, W) bool: True where all three coordinates are finite."""
     a = check_xyz(xyz)

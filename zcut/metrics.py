@@ -12,7 +12,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 from scipy import ndimage
 
-from .errors import InputShapeError, ParameterError, describe_array
+from .cloud import check_mask
+from .errors import ParameterError
 from .types import Mask
 
 __all__ = [
@@ -45,15 +46,6 @@ def ratio(num: float, den: float) -> float:
             return math.nan
         return math.inf if num > 0 else -math.inf
     return float(num / den)
-
-
-def _mask(a: object, name: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
-    m = np.asarray(a)
-    if m.ndim != 2 or m.dtype != np.bool_:
-        raise InputShapeError(f"{name} must be an (H, W) bool array, got {describe_array(m)}")
-    if shape is not None and m.shape != shape:
-        raise InputShapeError(f"{name} must have shape {shape} like the first mask, got {describe_array(m)}")
-    return m
 
 
 # ------------------------------------------------------------------------------------------------
@@ -106,8 +98,8 @@ def relative_metrics(sor_mask: Mask, zcut_mask: Mask) -> RelativeMetrics:
     -------
     RelativeMetrics
     """
-    s = _mask(sor_mask, "sor_mask")
-    z = _mask(zcut_mask, "zcut_mask", s.shape)
+    s = check_mask(sor_mask, name="sor_mask")
+    z = check_mask(zcut_mask, name="zcut_mask", shape=s.shape)
     n_both = int(np.count_nonzero(s & z))
     return RelativeMetrics.from_counts(n_both, int(np.count_nonzero(s)) - n_both, int(np.count_nonzero(z)) - n_both)
 
@@ -299,13 +291,13 @@ def accuracy_counts(
     ParameterError
         L is not inside R, or R is not inside ``valid``.
     """
-    p = _mask(predicted, "predicted")
-    lab = _mask(outliers, "outliers", p.shape)
-    v = None if valid is None else _mask(valid, "valid", p.shape)
+    p = check_mask(predicted, name="predicted")
+    lab = check_mask(outliers, name="outliers", shape=p.shape)
+    v = None if valid is None else check_mask(valid, name="valid", shape=p.shape)
     if reviewed is None:
         r = np.ones(p.shape, dtype=bool) if v is None else v
     else:
-        r = _mask(reviewed, "reviewed", p.shape)
+        r = check_mask(reviewed, name="reviewed", shape=p.shape)
         if v is not None:
             outside = int(np.count_nonzero(r & ~v))
             if outside:
@@ -326,11 +318,11 @@ def accuracy_counts(
 # inter-annotator agreement
 # ------------------------------------------------------------------------------------------------
 def _pair(a: Mask, b: Mask, where: Mask | None) -> tuple[np.ndarray, np.ndarray]:
-    ma = _mask(a, "a")
-    mb = _mask(b, "b", ma.shape)
+    ma = check_mask(a, name="a")
+    mb = check_mask(b, name="b", shape=ma.shape)
     if where is None:
         return ma.ravel(), mb.ravel()
-    w = _mask(where, "where", ma.shape)
+    w = check_mask(where, name="where", shape=ma.shape)
     return ma[w], mb[w]
 
 
