@@ -351,6 +351,32 @@ def _straggler_passes(a: np.ndarray, binp: Mask, lab: np.ndarray, open_: Mask, R
         cand = _next_candidates(new, lab, open_, seen, neighbours)
 
 
+def check_removal_args(
+    xyz: XYZ,
+    footprint: Mask,
+    *,
+    model: BinModel | None,
+    T_cam_bin: np.ndarray | None,
+    delta_m: float,
+    rim_offset_m: float,
+    straggler_m: float,
+    straggler_neighbours: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Validate the arguments of :func:`remove_table_and_bin`; return ``(xyz, footprint)`` as arrays."""
+    a = check_xyz(xyz)
+    fp = np.asarray(footprint)
+    if fp.shape != a.shape[:2] or fp.dtype != np.bool_:
+        raise InputShapeError(f"footprint must be an {a.shape[:2]} bool array, got {describe_array(fp)}")
+    if int(straggler_neighbours) != straggler_neighbours or not 0 <= straggler_neighbours <= 8:
+        raise ParameterError(f"straggler_neighbours must be an integer in 0..8, got {straggler_neighbours!r}")
+    for name, v in (("delta_m", delta_m), ("rim_offset_m", rim_offset_m), ("straggler_m", straggler_m)):
+        if not (np.isfinite(v) and v >= 0):
+            raise ParameterError(f"{name} must be a non-negative number, got {v!r}")
+    if (model is None) != (T_cam_bin is None):
+        raise ParameterError("model and T_cam_bin must be given together")
+    return a, fp
+
+
 def remove_table_and_bin(
     xyz: XYZ,
     footprint: Mask,
@@ -397,17 +423,10 @@ def remove_table_and_bin(
     -------
     RemovalResult
     """
-    a = check_xyz(xyz)
-    fp = np.asarray(footprint)
-    if fp.shape != a.shape[:2] or fp.dtype != np.bool_:
-        raise InputShapeError(f"footprint must be an {a.shape[:2]} bool array, got {describe_array(fp)}")
-    if int(straggler_neighbours) != straggler_neighbours or not 0 <= straggler_neighbours <= 8:
-        raise ParameterError(f"straggler_neighbours must be an integer in 0..8, got {straggler_neighbours!r}")
-    for name, v in (("delta_m", delta_m), ("rim_offset_m", rim_offset_m), ("straggler_m", straggler_m)):
-        if not (np.isfinite(v) and v >= 0):
-            raise ParameterError(f"{name} must be a non-negative number, got {v!r}")
-    if (model is None) != (T_cam_bin is None):
-        raise ParameterError("model and T_cam_bin must be given together")
+    a, fp = check_removal_args(
+        xyz, footprint, model=model, T_cam_bin=T_cam_bin, delta_m=delta_m, rim_offset_m=rim_offset_m,
+        straggler_m=straggler_m, straggler_neighbours=straggler_neighbours,
+    )
     if model is None:
         return _remove_table(a, fp)
     if not a.flags.c_contiguous:

@@ -11,9 +11,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from zcut.cloud import check_xyz
-from zcut.errors import InputShapeError, ParameterError, describe_array
-from zcut.removal import BIN_UP, STRAGGLER_PASSES, BinModel, RemovalResult, finite_xyz
+from zcut.removal import BIN_UP, STRAGGLER_PASSES, BinModel, RemovalResult, check_removal_args, finite_xyz
 from zcut.types import XYZ, Mask
 
 
@@ -190,51 +188,12 @@ def remove_table_and_bin_reference(
     straggler_m: float = 0.0,
     straggler_neighbours: int = 5,
 ) -> RemovalResult:
-    """Label table, easy outliers and bin points; return the classes and the zone's height image.
-
-    Parameters
-    ----------
-    xyz : (H, W, 3) float ndarray
-        Metres, camera optical frame, NaN = invalid.
-    footprint : (H, W) bool ndarray
-        The bin footprint (:func:`zcut.binmask.bin_mask`); outside it is table.
-    model : BinModel, optional
-        The bin model; with ``T_cam_bin`` it gives the rim, the floor and the bin points. Without,
-        only the table is removed and the floor is the farthest valid point.
-    T_cam_bin : (4, 4) float ndarray, optional
-        The registered pose of the model.
-    delta_m : float
-        δ: a point this close to the model surface (point-to-plane when the model has normals,
-        else to the nearest model point) is bin. Paper: 0.1 mm.
-    rim_offset_m : float
-        A point higher than the rim by more than this is an easy outlier.
-    search_radius_m : float, optional
-        Nearest-model-point search radius for the point-to-plane test; default
-        ``max(delta_m, 1.5 * model.spacing_m)``.
-    straggler_m : float
-        A second, looser test for the noise tail of the bin surface: a remaining pixel with at
-        least ``straggler_neighbours`` of its 8 neighbours labelled table or bin or invalid, and within
-        ``straggler_m`` of the model, is bin too (0: off); repeated up to
-        :data:`STRAGGLER_PASSES` times, so that it grows along clumps of such pixels. Without it a few noisy rim pixels stay
-        in the zone, become its highest points and move the z-cut's z_max up to the rim.
-    straggler_neighbours : int
-        See ``straggler_m``.
-
-    Returns
-    -------
-    RemovalResult
-    """
-    a = check_xyz(xyz)
-    fp = np.asarray(footprint)
-    if fp.shape != a.shape[:2] or fp.dtype != np.bool_:
-        raise InputShapeError(f"footprint must be an {a.shape[:2]} bool array, got {describe_array(fp)}")
-    if int(straggler_neighbours) != straggler_neighbours or not 0 <= straggler_neighbours <= 8:
-        raise ParameterError(f"straggler_neighbours must be an integer in 0..8, got {straggler_neighbours!r}")
-    for name, v in (("delta_m", delta_m), ("rim_offset_m", rim_offset_m), ("straggler_m", straggler_m)):
-        if not (np.isfinite(v) and v >= 0):
-            raise ParameterError(f"{name} must be a non-negative number, got {v!r}")
-    if (model is None) != (T_cam_bin is None):
-        raise ParameterError("model and T_cam_bin must be given together")
+    """The removal as it was before the fused numba kernels (:func:`zcut.removal.remove_table_and_bin`
+    has the same contract and parameters); kept to prove the fast path bit for bit."""
+    a, fp = check_removal_args(
+        xyz, footprint, model=model, T_cam_bin=T_cam_bin, delta_m=delta_m, rim_offset_m=rim_offset_m,
+        straggler_m=straggler_m, straggler_neighbours=straggler_neighbours,
+    )
     z64 = a[..., 2].astype(np.float64)
     valid = finite_xyz(a)
     table = valid & ~fp
