@@ -95,6 +95,15 @@ def _header(raw: bytes, name: str) -> tuple[str, list[_Element], dict[str, int],
     return fmt, elements, info, nl + 1
 
 
+@numba.njit(cache=True, inline="always")
+def _uint_at(buf: np.ndarray, pos: int, size: int, big: bool) -> int:
+    """Unsigned integer of ``size`` bytes at ``buf[pos]``, big- or little-endian."""
+    v = 0
+    for b in range(size):
+        v = (v << 8) | np.int64(buf[pos + (b if big else size - 1 - b)])
+    return v
+
+
 @numba.njit(cache=True)
 def _grid_from_lists(buf: np.ndarray, start: int, n_cells: int, cnt_size: int, idx_size: int,
                      big: bool, n_vertex: int, out: np.ndarray) -> int:
@@ -104,19 +113,13 @@ def _grid_from_lists(buf: np.ndarray, start: int, n_cells: int, cnt_size: int, i
     for i in range(n_cells):
         if pos + cnt_size > n:
             return -1
-        c = 0
-        for b in range(cnt_size):
-            byte = np.int64(buf[pos + (cnt_size - 1 - b if not big else b)])
-            c = (c << 8) | byte
+        c = _uint_at(buf, pos, cnt_size, big)
         pos += cnt_size
         out[i] = -1
         for j in range(c):
             if pos + idx_size > n:
                 return -1
-            v = 0
-            for b in range(idx_size):
-                byte = np.int64(buf[pos + (idx_size - 1 - b if not big else b)])
-                v = (v << 8) | byte
+            v = _uint_at(buf, pos, idx_size, big)
             pos += idx_size
             if j == 0:
                 if v < 0 or v >= n_vertex:
