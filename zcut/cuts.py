@@ -38,7 +38,6 @@ from __future__ import annotations
 import math
 import operator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
@@ -56,10 +55,9 @@ from .cut_tree import (
     _qlevel,
 )
 from .errors import InputShapeError, ParameterError, describe_array
+from .params import _K_CAP, ZCutParams, n_levels
 from .types import FloatImage, Labels, Mask
 
-if TYPE_CHECKING:
-    from .params import ZCutParams
 
 __all__ = [
     "CutResult",
@@ -71,8 +69,6 @@ __all__ = [
 
 #: Largest level count :func:`find_clusters` accepts (``pixel_level`` is int16).
 MAX_STAGE_LEVELS = 32766
-# K beyond this is treated as "every level" (more than any float64 range / step can need).
-_K_CAP = 1 << 60
 #: Trees of up to this many levels are built by flooding, larger ones by union-find (tests lower it
 #: to exercise the union-find kernel on every input).
 _FLOOD_MAX_LEVELS = FLOOD_MAX_LEVELS
@@ -119,17 +115,6 @@ def _check_params(
     if c not in (4, 8):
         raise ParameterError(f"connectivity must be 4 or 8, got {connectivity!r}")
     return s, d, a, c
-
-
-def n_levels(step: float, max_depth: float) -> int:
-    """K = floor(max_depth / step + 1e-9), the number of level pairs the filter checks.
-
-    Capped at 2**60 (beyond any level a float64 height range can reach).
-    """
-    x = max_depth / step + 1e-9
-    if not x < _K_CAP:
-        return _K_CAP
-    return math.floor(x)
 
 
 def _valid_range(z: np.ndarray) -> tuple[np.ndarray, float, float] | None:

@@ -21,6 +21,7 @@ __all__ = [
     "STEP_RANGE",
     "ZCutParams",
     "a_max_from_camera",
+    "n_levels",
 ]
 
 #: Paper nominal values (Section 5.4): Δd* = 0.2 mm, d*_max = 30 mm, ρ*_thr = 0.07.
@@ -37,6 +38,21 @@ RHO_THR_RANGE = (0.05, 0.075)  # × a_max
 #: Defaults of :meth:`ZCutParams.from_geometry`, inside the ranges above.
 DEFAULT_STEP_FRACTION = 0.02  # × p_min: the middle of the range (0.2 mm for a 10 mm part)
 DEFAULT_MAX_DEPTH_FRACTION = 3.0  # × p_min, clipped into [p_min, 0.7·b_h]
+
+
+# K beyond this is treated as "every level" (more than any float64 range / step can need).
+_K_CAP = 1 << 60
+
+
+def n_levels(step: float, max_depth: float) -> int:
+    """K = floor(max_depth / step + 1e-9), the number of level pairs the filter checks (SPEC §1).
+
+    Capped at 2**60 (beyond any level a float64 height range can reach).
+    """
+    x = max_depth / step + 1e-9
+    if not x < _K_CAP:
+        return _K_CAP
+    return math.floor(x)
 
 
 def _positive(name: str, value: object, *, allow_inf: bool = False) -> float:
@@ -85,8 +101,6 @@ class ZCutParams:
     @property
     def n_levels(self) -> int:
         """K = floor(max_depth / step + 1e-9), the number of level pairs checked."""
-        from .cuts import n_levels
-
         return n_levels(self.step, self.max_depth)
 
     @property
