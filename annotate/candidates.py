@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .frames import PreparedFrame, prepare_frame
+from annotate.payload import PreparedFrame, prepare_frame
 
 
 class PipelineRunner:
@@ -20,7 +20,7 @@ class PipelineRunner:
         The log's MCAP metadata records (``LogReader.metadata``).
     config_path : path-like, optional
         Pipeline config (TOML).
-    bin_model : replay.binmodel.BinModel, optional
+    bin_model : replay.pipeline.bin_model.BinModel, optional
         Enables the bin stages.
     """
 
@@ -34,8 +34,8 @@ class PipelineRunner:
         self.notes: tuple[str, ...] = ()
 
     def _resolve(self, frame) -> None:
-        from replay import config as rc
-        from replay.run import synth_info
+        from replay.pipeline import config as rc
+        from replay.pipeline.session import synth_info
 
         part_kind, dist = synth_info(self.metadata)
         intr = frame.intrinsics
@@ -51,8 +51,8 @@ class PipelineRunner:
         self.notes = resolved.notes
 
     def run(self, frame):
-        """``replay.pipeline.run_frame`` on the frame (FrameResult)."""
-        from replay.pipeline import run_frame
+        """``replay.pipeline.stages.run_frame`` on the frame (FrameResult)."""
+        from replay.pipeline.stages import run_frame
 
         if self.config is None:
             self._resolve(frame)

@@ -33,9 +33,9 @@ from starlette.requests import ClientDisconnect, Request
 from starlette.responses import HTMLResponse, JSONResponse, Response
 from starlette.routing import Route
 
-from .candidates import PipelineRunner
-from .frames import PreparedFrame, ServedFrame, bundle_with_blobs, make_view
-from .store import (
+from annotate.candidates import PipelineRunner
+from annotate.payload import PreparedFrame, ServedFrame, bundle_with_blobs, make_view
+from annotate.store import (
     MAX_ANNOTATOR_LEN,
     FrameRecord,
     LabelConflictError,
@@ -57,7 +57,7 @@ STATIC_FILES = {"app.js": "text/javascript", "worker.js": "text/javascript", "st
 class Catalog:
     """Frames of the log prepared for the page, in log order, by one background thread.
 
-    ``prepare`` turns a :class:`replay.frame.Frame` into a :class:`PreparedFrame` (candidates run
+    ``prepare`` turns a :class:`replay.logs.frame.Frame` into a :class:`PreparedFrame` (candidates run
     once per frame); every prepared frame is registered in the store (with its valid mask) and
     kept as a :class:`ServedFrame`.
     """
@@ -427,10 +427,10 @@ def open_session(
 ) -> Session:
     """Open the log and the store, resolve the pipeline config and start preparing frames.
 
-    Candidates come from ``replay.pipeline.run_frame`` with the config resolved as ``zcut replay``
+    Candidates come from ``replay.pipeline.stages.run_frame`` with the config resolved as ``zcut replay``
     does it (TOML file, else the preset of a synthetic log's part kind, else image-size defaults).
     """
-    from replay.logread import LogReader
+    from replay.logs.reader import LogReader
     from zcut.errors import ParameterError
 
     try:

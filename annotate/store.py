@@ -570,7 +570,7 @@ def export_labels(store: LabelStore, log: LogRecord, path: str | os.PathLike, *,
     int
         Number of frames written.
     """
-    from replay.logwrite import LogWriter
+    from replay.logs.writer import LogWriter
 
     pairs = list(iter_current_labels(store, log, annotator=annotator))
     topics = sorted({fr.topic for fr, _ in pairs})
@@ -597,8 +597,8 @@ def read_label_masks(path: str | os.PathLike) -> tuple[dict[str, str], dict[int,
     :class:`~replay.errors.LogFormatError` (labels are imported whole or not at all).
     """
     from replay.errors import LogFormatError
-    from replay.mcapscan import OP_CHANNEL, OP_LOST, OP_MESSAGE, McapFile
-    from replay.ros_msgs import decode_image, image_to_mask
+    from replay.logs.mcap_scan import OP_CHANNEL, OP_LOST, OP_MESSAGE, McapFile
+    from replay.logs.ros2_msgs import decode_image, image_to_mask
 
     wanted = (LABEL_OUTLIERS_TOPIC, LABEL_REVIEWED_TOPIC)
     masks: dict[int, dict[str, np.ndarray]] = {}

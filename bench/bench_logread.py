@@ -39,8 +39,8 @@ from mcap_ros2.decoder import DecoderFactory
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from replay.logread import LogReader  # noqa: E402
-from replay.logwrite import LogWriter  # noqa: E402
+from replay.logs.reader import LogReader  # noqa: E402
+from replay.logs.writer import LogWriter  # noqa: E402
 
 H, W = 1200, 1920
 _PF = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
@@ -100,7 +100,7 @@ def codec_only(path: Path) -> tuple[float, float]:
     """Seconds per message for CDR decode + array rebuild on already-decompressed bytes."""
     from mcap_ros2._dynamic import generate_dynamic
 
-    from replay import ros_msgs as rm
+    from replay.logs import ros2_msgs as rm
 
     with open(path, "rb") as f:
         raws = [bytes(m.data) for _, _, m in make_reader(f).iter_messages(topics=["/camera/points"])]

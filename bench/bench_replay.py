@@ -26,10 +26,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from replay.binmodel import build_bin_model, load_bin_model, save_bin_model
-from replay.config import PipelineConfig
-from replay.logread import LogReader
-from replay.run import replay_log
+from replay.pipeline.bin_model import build_bin_model, load_bin_model, save_bin_model
+from replay.pipeline.config import PipelineConfig
+from replay.logs.reader import LogReader
+from replay.pipeline.session import replay_log
 from replay.synth.log import write_synthetic_log
 
 SIZE = (1200, 1920)

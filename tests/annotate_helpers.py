@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from replay.frame import Frame
-from replay.logwrite import LogWriter
+from replay.logs.frame import Frame
+from replay.logs.writer import LogWriter
 from zcut.cloud import Intrinsics
 
 GT_TOPIC = "/ground_truth/outliers"

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from replay.frame import Frame
+from replay.logs.frame import Frame
 from zcut.cloud import Intrinsics
 
 TABLE_Z = 0.60

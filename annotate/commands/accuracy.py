@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from annotate.candidates import PipelineRunner
     from annotate.store import LabelStore, file_sha256
-    from replay.logread import LogReader
+    from replay.logs.reader import LogReader
     from zcut.errors import ParameterError, ZcutError
 
     if not args.log.is_file():
@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
             print(report_json(rep, indent=None) if args.json else format_agreement_table(rep))
             return _status(reader)
 
-        from replay.binmodel import load_bin_model
+        from replay.pipeline.bin_model import load_bin_model
 
         model = load_bin_model(args.bin_model) if args.bin_model else None
         runner = PipelineRunner(reader.metadata, config_path=args.config, bin_model=model)

@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
         annotator = args.annotator or getpass.getuser()
     except (OSError, KeyError):  # no login name (e.g. a container without a passwd entry)
         annotator = "annotator"
-    from replay.binmodel import load_bin_model
+    from replay.pipeline.bin_model import load_bin_model
 
     model = load_bin_model(args.bin_model) if args.bin_model else None
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)

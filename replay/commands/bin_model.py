@@ -23,10 +23,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from replay import config as cfg
-    from replay.binmodel import build_bin_model, load_bin_model, save_bin_model
+    from replay.pipeline import config as cfg
+    from replay.pipeline.bin_model import build_bin_model, load_bin_model, save_bin_model
     from replay.errors import ConfigError
-    from replay.run import parse_frames
+    from replay.pipeline.session import parse_frames
 
     if not args.voxel > 0:
         raise ConfigError(f"--voxel must be > 0 mm, got {args.voxel!r}")
@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
         save_bin_model(model, args.output)
         print(f"zcut: wrote {args.output}: {len(model.points)} points from {args.model}", file=sys.stderr)
         return 0
-    from replay.logread import LogReader
+    from replay.logs.reader import LogReader
 
     layer = cfg.load_toml(args.config) if args.config else {}
     config = cfg.from_dict(layer, source=args.config or "config")

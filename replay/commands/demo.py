@@ -22,10 +22,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from annotate.accuracy import accuracy_report, format_accuracy_table, frame_accuracy, jsonable
-    from replay.binmodel import ensure_sample_bin_model, load_bin_model
+    from replay.pipeline.bin_model import ensure_sample_bin_model, load_bin_model
     from replay.cli import EXIT_DATA_LOSS
     from replay.commands.replay import print_table_callbacks, viewer_command
-    from replay.run import replay_log
+    from replay.pipeline.session import replay_log
     from replay.synth.log import ensure_sample_log, sample_log_path
 
     err = sys.stderr

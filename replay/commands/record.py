@@ -74,9 +74,9 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from replay.errors import ConfigError, LogFormatError
-    from replay.logwrite import CLOUD_TOPIC, IMAGE_TOPIC, LogWriter
-    from replay.pcd import read_pcd
-    from replay.ply import read_ply
+    from replay.logs.writer import CLOUD_TOPIC, IMAGE_TOPIC, LogWriter
+    from replay.logs.pcd import read_pcd
+    from replay.logs.ply import read_ply
 
     files = expand_inputs(args.inputs)
     shape = _parse_shape(args.shape)

@@ -97,10 +97,10 @@ def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=N
 
 
 def run(args: argparse.Namespace) -> int:
-    from replay import config as cfg
-    from replay.binmodel import load_bin_model
+    from replay.pipeline import config as cfg
+    from replay.pipeline.bin_model import load_bin_model
     from replay.cli import EXIT_DATA_LOSS
-    from replay.run import parse_frames, replay_log
+    from replay.pipeline.session import parse_frames, replay_log
 
     frames = parse_frames(args.frames)
     overrides = cfg.cli_layer(step=args.step, max_depth=args.max_depth, max_area=args.max_area,

@@ -24,7 +24,7 @@ def _stamp(ns: int) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from replay.errors import LogFormatError
-    from replay.logread import LogReader, inspect_log
+    from replay.logs.reader import LogReader, inspect_log
 
     info = inspect_log(args.log)
     print(f"{info.path}  (profile {info.profile or '-'}, written by {info.library or '-'})")

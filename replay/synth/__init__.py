@@ -6,7 +6,7 @@ field), ``sensor`` (pinhole camera + offset projector, z-buffer rendering, noise
 with its truth), ``log`` (MCAP logs and the demo's sample).
 """
 
-from .log import (
+from replay.synth.log import (
     METADATA_NAME,
     SAMPLE_FRAMES,
     SAMPLE_KIND,
@@ -17,9 +17,9 @@ from .log import (
     synth_metadata,
     write_synthetic_log,
 )
-from .outliers import OUTLIER_CLUSTER, OUTLIER_FLYING, OUTLIER_NONE, OUTLIER_SPIKE
-from .parts import PART_KINDS, PartKind, face_area_px
-from .scene import (
+from replay.synth.outliers import OUTLIER_CLUSTER, OUTLIER_FLYING, OUTLIER_NONE, OUTLIER_SPIKE
+from replay.synth.parts import PART_KINDS, PartKind, face_area_px
+from replay.synth.scene import (
     BIN,
     LABEL_FLOOR,
     LABEL_NONE,
@@ -30,8 +30,8 @@ from .scene import (
     BinGeometry,
     BinPose,
 )
-from .sensor import CAMERA_HEIGHT_MM, FULL_SIZE, PROJECTOR_BASELINE_MM, default_intrinsics
-from .synthesize import (
+from replay.synth.sensor import CAMERA_HEIGHT_MM, FULL_SIZE, PROJECTOR_BASELINE_MM, default_intrinsics
+from replay.synth.synthesize import (
     EMPTY_POSITIONS_MM,
     TRUTH_TOPIC,
     SynthFrame,

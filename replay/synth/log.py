@@ -16,11 +16,11 @@ from pathlib import Path
 
 from zcut.errors import ParameterError
 
-from ..logwrite import LogWriter
-from .outliers import TOP_ZONE_MM
-from .parts import PART_KINDS, face_area_px
-from .scene import BIN
-from .sensor import (
+from replay.logs.writer import LogWriter
+from replay.synth.outliers import TOP_ZONE_MM
+from replay.synth.parts import PART_KINDS, face_area_px
+from replay.synth.scene import BIN
+from replay.synth.sensor import (
     CAMERA_HEIGHT_MM,
     FULL_SIZE,
     MAX_OBLIQUITY_DEG,
@@ -29,7 +29,7 @@ from .sensor import (
     SHINY_NOISE_FACTOR,
     default_intrinsics,
 )
-from .synthesize import SynthFrame, camera_distance_m, pile_distance_m, synthesize_frame
+from replay.synth.synthesize import SynthFrame, camera_distance_m, pile_distance_m, synthesize_frame
 
 METADATA_NAME = "zcut.synth"
 GENERATOR_VERSION = "1"

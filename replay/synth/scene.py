@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from .parts import PART_KINDS, height_profile, part_solid, random_rest_rotation
+from replay.synth.parts import PART_KINDS, height_profile, part_solid, random_rest_rotation
 
 # surface labels (per grid node, per pixel)
 LABEL_NONE = 0

@@ -21,7 +21,7 @@ import numpy as np
 from zcut.cloud import Intrinsics
 from zcut.errors import ParameterError
 
-from .scene import LABEL_NONE, LABEL_RIM, LABEL_WALL, Scene
+from replay.synth.scene import LABEL_NONE, LABEL_RIM, LABEL_WALL, Scene
 
 FULL_SIZE = (1200, 1920)  # (height, width)
 FULL_FX = 1600.0  # pixels at 1920 wide: ~62 deg horizontal field of view

@@ -8,11 +8,11 @@ import numpy as np
 
 from zcut.errors import ParameterError
 
-from replay.frame import Frame
+from replay.logs.frame import Frame
 
-from . import outliers as out
-from .parts import PART_COLOURS, PART_KINDS, face_area_px
-from .scene import (
+from replay.synth import outliers as out
+from replay.synth.parts import PART_COLOURS, PART_KINDS, face_area_px
+from replay.synth.scene import (
     BIN,
     BIN_COLOUR,
     LABEL_FLOOR,
@@ -26,7 +26,7 @@ from .scene import (
     empty_scene,
     make_grid,
 )
-from .sensor import (
+from replay.synth.sensor import (
     CAMERA_HEIGHT_MM,
     FULL_SIZE,
     check_size,

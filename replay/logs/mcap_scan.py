@@ -1,0 +1,748 @@
+"""A small, defensive MCAP record scanner (the parts of the format zcut needs).
+
+Why not ``mcap.reader``: on a damaged file it stops at the first bad record (or, with a corrupt
+length, asks Python for a buffer of that length), so the intact chunks after the damage are lost
+and absurd sizes can exhaust memory. This scanner
+
+- checks every length against the bytes that are really there before reading;
+- decompresses chunks (zstd, lz4, none) incrementally, never past the declared
+  ``uncompressed_size`` (itself capped by :data:`MAX_CHUNK_BYTES`), and checks their CRC
+  (ISA-L's CRC-32, the zlib polynomial, about 4x faster than ``zlib.crc32``);
+- reads, decompresses and checks the next chunks in worker threads while the caller decodes the
+  current one (zstd and the CRC release the GIL);
+- on a corrupt chunk records a damage note and moves on to the next chunk, using the summary's
+  chunk index when the file has one (so a corrupt record length does not lose the rest);
+- on a truncated file delivers every complete record before the cut, then a damage note.
+
+Format reference: https://mcap.dev/spec (all integers little-endian).
+"""
+
+from __future__ import annotations
+
+import bisect
+import io
+import os
+import struct
+import threading
+import weakref
+from collections import deque
+from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from isal.isal_zlib import crc32
+
+from replay.errors import LogFormatError
+
+MAGIC = b"\x89MCAP0\r\n"
+
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
+OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_ATTACHMENT, OP_ATTACHMENT_INDEX = 0x07, 0x08, 0x09, 0x0A
+OP_STATISTICS, OP_METADATA, OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = (
+    0x0B, 0x0C, 0x0D, 0x0E, 0x0F,
+)
+
+#: Largest chunk (uncompressed) or summary section zcut will hold in memory.
+MAX_CHUNK_BYTES = 1 << 31
+_READ_PIECE = 16 << 20
+_FIRST_BUF = 16 << 20
+#: pseudo opcode yielded by :meth:`McapFile.records` after a lost chunk: {channel_id: count} or None
+OP_LOST = 0x100
+#: Chunks read ahead of the caller by :meth:`McapFile.records` (one worker thread each, at most
+#: the number of CPUs), and the most uncompressed bytes they may hold beyond the first.
+PREFETCH = 2
+PREFETCH_BYTES = 256 << 20
+_OP_NOTE = -1  # internal: a damage note queued among the records
+
+
+class _Bad(Exception):
+    """Internal: a record does not parse (turned into LogFormatError or a damage note)."""
+
+
+class BufferPool:
+    """Large byte buffers that are handed out again once nothing references them.
+
+    A 37 MB chunk is read and decompressed per 1920 x 1200 cloud; fresh buffers cost their page
+    faults (the kernel zeroing every page) each time. :meth:`get` returns an array whose memory
+    goes back to the pool when that array -- and so every memoryview made from it, which keeps it
+    alive -- is gone (``weakref.finalize``). Hand out only memoryviews of it: a numpy slice of
+    the array would not keep it alive.
+
+    Parameters
+    ----------
+    max_free_bytes : int
+        Free buffers kept beyond this many bytes are dropped (oldest first).
+    """
+
+    MIN_BYTES = 1 << 20  # smaller requests are plain np.empty
+
+    def __init__(self, *, max_free_bytes: int = 384 << 20) -> None:
+        self._free: list[np.ndarray] = []
+        self._lock = threading.RLock()
+        self._max_free = max_free_bytes
+        self._closed = False
+
+    def get(self, n: int) -> np.ndarray:
+        """(n,) uint8 array (uninitialised): a free buffer of n to 2 n bytes, or a new one."""
+        if n < self.MIN_BYTES:
+            return np.empty(n, dtype=np.uint8)
+        base = None
+        with self._lock:
+            fits = [i for i, a in enumerate(self._free) if n <= a.size <= 2 * n]
+            if fits:
+                base = self._free.pop(min(fits, key=lambda i: self._free[i].size))
+        if base is None:
+            base = np.empty(n, dtype=np.uint8)
+        out = base[:n]
+        weakref.finalize(out, self._release, base).atexit = False
+        return out
+
+    def _release(self, base: np.ndarray) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._free.append(base)
+            while sum(a.size for a in self._free) > self._max_free:
+                self._free.pop(0)
+
+    def close(self) -> None:
+        """Drop the free buffers; buffers in use are freed normally when released."""
+        with self._lock:
+            self._closed = True
+            self._free.clear()
+
+
+class _Buf:
+    """Bounds-checked little-endian reader over a memoryview."""
+
+    __slots__ = ("mv", "pos", "end")
+
+    def __init__(self, mv: memoryview, pos: int = 0, end: int | None = None) -> None:
+        self.mv = mv
+        self.pos = pos
+        self.end = len(mv) if end is None else end
+
+    def take(self, n: int) -> int:
+        s = self.pos
+        if n < 0 or s + n > self.end:
+            raise _Bad(f"field of {n} bytes at {s} runs past the record end {self.end}")
+        self.pos = s + n
+        return s
+
+    def u8(self) -> int:
+        return self.mv[self.take(1)]
+
+    def u16(self) -> int:
+        return struct.unpack_from("<H", self.mv, self.take(2))[0]
+
+    def u32(self) -> int:
+        return struct.unpack_from("<I", self.mv, self.take(4))[0]
+
+    def u64(self) -> int:
+        return struct.unpack_from("<Q", self.mv, self.take(8))[0]
+
+    def string(self) -> str:
+        n = self.u32()
+        s = self.take(n)
+        try:
+            return bytes(self.mv[s : s + n]).decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise _Bad("string is not UTF-8") from e
+
+    def blob32(self) -> memoryview:
+        n = self.u32()
+        s = self.take(n)
+        return self.mv[s : s + n]
+
+    def str_map(self) -> dict[str, str]:
+        n = self.u32()
+        end = self.take(n) + n
+        out: dict[str, str] = {}
+        sub = _Buf(self.mv, self.pos - n, end)
+        while sub.pos < end:
+            k = sub.string()
+            out[k] = sub.string()
+        return out
+
+
+@dataclass(frozen=True, slots=True)
+class Schema:
+    id: int
+    name: str
+    encoding: str
+    data: bytes
+
+
+@dataclass(frozen=True, slots=True)
+class Channel:
+    id: int
+    schema_id: int
+    topic: str
+    message_encoding: str
+    metadata: dict[str, str]
+
+
+@dataclass(frozen=True, slots=True)
+class Message:
+    channel_id: int
+    sequence: int
+    log_time: int
+    publish_time: int
+    data: memoryview
+
+
+@dataclass(frozen=True, slots=True)
+class ChunkIndex:
+    message_start_time: int
+    message_end_time: int
+    chunk_start_offset: int
+    chunk_length: int
+    message_index_offsets: dict[int, int]
+    message_index_length: int
+    compression: str
+    compressed_size: int
+    uncompressed_size: int
+
+
+@dataclass(frozen=True, slots=True)
+class _ChunkRef:
+    """Where a chunk record is (read later, in a worker thread)."""
+
+    offset: int
+    length: int  # of the record body
+    usize: int  # uncompressed size its header claims (for the read-ahead budget; unchecked)
+
+
+@dataclass
+class Summary:
+    """What the summary section says (empty containers when the file has none)."""
+
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    chunk_indexes: list[ChunkIndex] = field(default_factory=list)
+    metadata_offsets: list[tuple[str, int, int]] = field(default_factory=list)
+    channel_message_counts: dict[int, int] | None = None
+    message_start_time: int | None = None
+    message_end_time: int | None = None
+
+
+def parse_schema(b: _Buf) -> Schema:
+    sid = b.u16()
+    name = b.string()
+    enc = b.string()
+    return Schema(sid, name, enc, bytes(b.blob32()))
+
+
+def parse_channel(b: _Buf) -> Channel:
+    cid = b.u16()
+    sid = b.u16()
+    topic = b.string()
+    enc = b.string()
+    return Channel(cid, sid, topic, enc, b.str_map())
+
+
+def parse_message(b: _Buf) -> Message:
+    cid = b.u16()
+    seq = b.u32()
+    log_time = b.u64()
+    pub = b.u64()
+    s = b.take(b.end - b.pos)
+    return Message(cid, seq, log_time, pub, b.mv[s : b.end])
+
+
+def parse_chunk_index(b: _Buf) -> ChunkIndex:
+    t0, t1, start, length = b.u64(), b.u64(), b.u64(), b.u64()
+    n = b.u32()
+    end = b.take(n) + n
+    sub = _Buf(b.mv, end - n, end)
+    offsets: dict[int, int] = {}
+    while sub.pos < end:
+        cid = sub.u16()
+        offsets[cid] = sub.u64()
+    mi_len = b.u64()
+    comp = b.string()
+    return ChunkIndex(t0, t1, start, length, offsets, mi_len, comp, b.u64(), b.u64())
+
+
+def decompress(
+    compression: str, data: memoryview, size: int, *, pool: BufferPool | None = None
+) -> memoryview:
+    """Decompress a chunk's records to exactly ``size`` bytes or raise :class:`_Bad`.
+
+    The output buffer (from ``pool`` when given) starts at the declared size or, if that is much
+    larger than the compressed data suggests, smaller, and grows as data really arrives, never
+    past ``size`` (itself capped by :data:`MAX_CHUNK_BYTES`).
+    """
+    new = pool.get if pool is not None else (lambda n: np.empty(n, dtype=np.uint8))
+    if size > MAX_CHUNK_BYTES:
+        raise _Bad(f"claims {size} uncompressed bytes, more than the {MAX_CHUNK_BYTES} zcut accepts")
+    if compression == "":
+        if len(data) != size:
+            raise _Bad(f"holds {len(data)} bytes but claims {size}")
+        return data
+    # grow the output as real data arrives (doubling), never past the declared size: a lying
+    # header costs nothing, a decompression bomb stops at ``size``
+    buf = new(min(size, _FIRST_BUF + 64 * len(data)))
+    total = 0
+    extra = 0
+    try:
+        if compression == "zstd":
+            import zstandard
+
+            reader = zstandard.ZstdDecompressor().stream_reader(data, read_across_frames=True)
+            while total < size:
+                if total == len(buf):
+                    bigger = new(min(size, 2 * len(buf)))
+                    bigger[:total] = buf
+                    buf = bigger
+                n = reader.readinto(memoryview(buf)[total:])
+                if n == 0:
+                    break
+                total += n
+            if total == size:
+                extra = len(reader.read(1))
+        elif compression == "lz4":
+            import lz4.frame
+
+            dec = lz4.frame.LZ4FrameDecompressor()
+            pending = bytes(data)
+            while total <= size and not dec.eof:
+                piece = dec.decompress(pending, max_length=min(_READ_PIECE, size + 1 - total))
+                pending = b""
+                if not piece:
+                    if dec.needs_input:
+                        break
+                    continue
+                if total + len(piece) > size:
+                    extra = 1
+                    break
+                if total + len(piece) > len(buf):
+                    bigger = new(min(size, max(2 * len(buf), total + len(piece))))
+                    bigger[:total] = buf[:total]
+                    buf = bigger
+                buf[total : total + len(piece)] = np.frombuffer(piece, dtype=np.uint8)
+                total += len(piece)
+        else:
+            raise _Bad(f"uses unknown compression '{compression}'")
+    except _Bad:
+        raise
+    except MemoryError as e:
+        raise _Bad(f"needs more memory than available to decompress {size} bytes") from e
+    except Exception as e:  # zstd / lz4 errors on corrupt data
+        raise _Bad(f"does not decompress ({compression}: {e})") from e
+    if total != size or extra:
+        raise _Bad(f"decompresses to {'more than ' if extra else ''}{total} bytes, not {size}")
+    return memoryview(buf)
+
+
+class McapFile:
+    """An MCAP file opened for defensive scanning.
+
+    Parameters
+    ----------
+    path : Path
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.pool = BufferPool()
+        self._f = open(self.path, "rb")
+        self._f.seek(0, io.SEEK_END)
+        self.size = self._f.tell()
+        self._f.seek(0)
+        head = self._f.read(8)
+        if head != MAGIC:
+            self._f.close()
+            what = "is empty" if self.size == 0 else "does not start with the MCAP magic"
+            raise LogFormatError(f"{self.path} is not an MCAP file ({what})")
+        self.profile = ""
+        self.library = ""
+        rec = self._read_record_at(8)
+        if rec is None or rec[0] != OP_HEADER:
+            self._f.close()
+            raise LogFormatError(f"{self.path}: damaged MCAP header record")
+        try:
+            b = _Buf(rec[1])
+            self.profile = b.string()
+            self.library = b.string()
+        except _Bad as e:
+            self._f.close()
+            raise LogFormatError(f"{self.path}: damaged MCAP header record ({e})") from e
+        self.data_start = 8 + 9 + len(rec[1])
+        self.data_end: int | None = None  # known when the footer is intact
+        self.summary_damage: str | None = None
+        self.summary: Summary | None = None
+        try:
+            self.summary = self._read_summary()
+        except _Bad as e:
+            self.summary_damage = f"the summary section is damaged ({e}); read sequentially"
+            self.summary = None
+
+    def close(self) -> None:
+        self._f.close()
+        self.pool.close()
+
+    def __enter__(self) -> McapFile:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ low level
+    def _read_record_at(self, offset: int, *, expect_len: int | None = None) -> tuple[int, memoryview] | None:
+        """(opcode, body) of the record at ``offset``, or None if it runs past the end of file."""
+        if offset + 9 > self.size:
+            return None
+        self._f.seek(offset)
+        head = self._f.read(9)
+        if len(head) < 9:
+            return None
+        op, length = struct.unpack("<BQ", head)
+        if offset + 9 + length > self.size:
+            return None
+        if expect_len is not None and 9 + length != expect_len:
+            raise _Bad(f"record at {offset} is {9 + length} bytes, the index says {expect_len}")
+        if length > MAX_CHUNK_BYTES:
+            raise _Bad(f"record at {offset} claims {length} bytes")
+        body = memoryview(self.pool.get(length))
+        if self._f.readinto(body) != length:
+            return None
+        return op, body
+
+    def _read_summary(self) -> Summary | None:
+        footer_at = self.size - 8 - 29
+        if footer_at < self.data_start:
+            return None
+        self._f.seek(self.size - 8)
+        if self._f.read(8) != MAGIC:
+            return None
+        rec = self._read_record_at(footer_at)
+        if rec is None or rec[0] != OP_FOOTER or len(rec[1]) != 20:
+            raise _Bad("the footer record is damaged")
+        summary_start, _, _ = struct.unpack("<QQI", rec[1])
+        s = Summary()
+        if summary_start == 0:
+            self.data_end = footer_at
+            return s
+        if not (self.data_start <= summary_start <= footer_at):
+            raise _Bad(f"the footer points at offset {summary_start}, outside the file")
+        self.data_end = summary_start
+        n = footer_at - summary_start
+        if n > MAX_CHUNK_BYTES:
+            raise _Bad(f"summary section of {n} bytes")
+        self._f.seek(summary_start)
+        mv = memoryview(self._f.read(n))
+        pos = 0
+        while pos + 9 <= n:
+            op, length = struct.unpack_from("<BQ", mv, pos)
+            if pos + 9 + length > n:
+                raise _Bad(f"summary record at {summary_start + pos} runs past the footer")
+            b = _Buf(mv, pos + 9, pos + 9 + length)
+            if op == OP_SCHEMA:
+                sc = parse_schema(b)
+                s.schemas[sc.id] = sc
+            elif op == OP_CHANNEL:
+                ch = parse_channel(b)
+                s.channels[ch.id] = ch
+            elif op == OP_CHUNK_INDEX:
+                s.chunk_indexes.append(parse_chunk_index(b))
+            elif op == OP_METADATA_INDEX:
+                off, ln = b.u64(), b.u64()
+                s.metadata_offsets.append((b.string(), off, ln))
+            elif op == OP_STATISTICS:
+                b.u64(), b.u16(), b.u32(), b.u32(), b.u32(), b.u32()
+                s.message_start_time, s.message_end_time = b.u64(), b.u64()
+                m = b.u32()
+                end = b.take(m) + m
+                sub = _Buf(mv, end - m, end)
+                counts: dict[int, int] = {}
+                while sub.pos < end:
+                    cid = sub.u16()
+                    counts[cid] = sub.u64()
+                s.channel_message_counts = counts
+            pos += 9 + length
+        s.chunk_indexes.sort(key=lambda c: c.chunk_start_offset)
+        return s
+
+    def read_metadata(self) -> tuple[dict[str, dict[str, str]], list[str]]:
+        """Metadata records listed in the summary: (name -> key/values, damage notes)."""
+        out: dict[str, dict[str, str]] = {}
+        notes: list[str] = []
+        for name, off, ln in self.summary.metadata_offsets if self.summary else []:
+            try:
+                rec = self._read_record_at(off, expect_len=ln)
+                if rec is None or rec[0] != OP_METADATA:
+                    raise _Bad(f"no metadata record at offset {off}")
+                b = _Buf(rec[1])
+                got = b.string()
+                out[got] = b.str_map()
+            except _Bad as e:
+                notes.append(f"metadata record '{name}' is damaged ({e})")
+        return out, notes
+
+    def _chunk_at(self, ref: _ChunkRef) -> list[tuple[int, object]]:
+        """Read (``os.pread``: safe from any thread), decompress, CRC-check and parse a chunk."""
+        body = memoryview(self.pool.get(ref.length))
+        if hasattr(os, "preadv"):
+            got = os.preadv(self._f.fileno(), [body], ref.offset + 9)
+        else:  # pragma: no cover - Windows: a handle of its own
+            with open(self.path, "rb") as f:
+                f.seek(ref.offset + 9)
+                got = f.readinto(body)
+        if got != ref.length:
+            raise _Bad(f"runs past the end of the file ({got} of {ref.length} bytes)")
+        return self._chunk_records(body)
+
+    def _chunk_records(self, body: memoryview, where: str = "") -> list[tuple[int, object]]:
+        """Decompress, CRC-check and parse one chunk: [(opcode, record)], or raise :class:`_Bad`."""
+        b = _Buf(body)
+        b.u64(), b.u64()
+        usize = b.u64()
+        crc = b.u32()
+        comp = b.string()
+        n = b.u64()
+        s = b.take(n)
+        mv = decompress(comp, body[s : s + n], usize, pool=self.pool)
+        if crc != 0 and crc32(mv) != crc:
+            raise _Bad("fails its CRC check")
+        records = []
+        pos = 0
+        end = len(mv)
+        while pos < end:
+            if pos + 9 > end:
+                raise _Bad(f"has a partial record at {pos}")
+            op, length = struct.unpack_from("<BQ", mv, pos)
+            if pos + 9 + length > end:
+                raise _Bad(f"record at {pos} claims {length} bytes, past the chunk end")
+            rec = self._parse_inner(op, _Buf(mv, pos + 9, pos + 9 + length))
+            if rec is not None:
+                records.append((op, rec))
+            pos += 9 + length
+        return records
+
+    # ------------------------------------------------------------------ scanning
+    def records(
+        self, damage: list[str], *, prefetch: int = PREFETCH, start_offset: int | None = None,
+        cached: dict[tuple[int, int], list[tuple[int, object]]] | None = None,
+    ) -> Iterator[tuple[int, object]]:
+        """Yield (opcode, parsed record) for Schema, Channel, Message and Metadata records in file
+        order, chunk contents included.
+
+        Damage is appended to ``damage`` as one-line notes; the scan then resumes at the next chunk
+        the summary knows about, or stops. ``start_offset`` starts the scan at a record (a chunk
+        found through the summary) instead of the beginning. Up to ``prefetch`` chunks (and at most
+        :data:`PREFETCH_BYTES` uncompressed bytes beyond the first) are read, decompressed and
+        CRC-checked ahead in worker threads, overlapping with the caller's work; 0 does all of it
+        in the calling thread. ``cached`` maps (offset, record length) of chunks already parsed by
+        :meth:`chunk_records_at` to their records (used instead of reading them again; entries
+        are removed as they are used).
+        """
+        queue: deque[tuple[int, int, object, int]] = deque()
+        workers = max(1, min(prefetch, os.cpu_count() or 1))
+        pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="mcap-chunks") if prefetch > 0 else None
+        ahead = 0  # uncompressed bytes of the queued chunks
+        notes: list[str] = []  # the scan's damage notes, queued so they keep their place in file order
+        try:
+            for pos, op, body in self._outer(notes, start_offset, lazy=pool is not None):
+                queue.extend((pos, _OP_NOTE, note, 0) for note in notes)
+                notes.clear()
+                size = 0
+                if op == OP_CHUNK:
+                    key = (pos, body.length if isinstance(body, _ChunkRef) else len(body))
+                    job: object = cached.pop(key, None) if cached else None  # None: not kept
+                    if job is None and pool is not None:
+                        job = pool.submit(self._chunk_at, body)
+                        size = min(body.usize, MAX_CHUNK_BYTES)
+                    elif job is None:
+                        job = body
+                else:
+                    job = body
+                queue.append((pos, op, job, size))
+                ahead += size
+                while len(queue) > max(prefetch, 0) or (len(queue) > 1 and ahead - queue[0][3] > PREFETCH_BYTES):
+                    pos0, op0, job0, size0 = queue.popleft()
+                    ahead -= size0
+                    yield from self._finish(pos0, op0, job0, damage)
+            queue.extend((0, _OP_NOTE, note, 0) for note in notes)
+            while queue:
+                pos0, op0, job0, _ = queue.popleft()
+                yield from self._finish(pos0, op0, job0, damage)
+        finally:
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
+
+    def chunk_records_at(self, offset: int, length: int) -> list[tuple[int, object]]:
+        """Records of the chunk at ``offset`` whose record is ``length`` bytes long (from a chunk
+        index): [(opcode, record)] or raise :class:`_Bad`."""
+        rec = self._read_record_at(offset, expect_len=length)
+        if rec is None:
+            raise _Bad("chunk runs past the end of the file")
+        if rec[0] != OP_CHUNK:
+            raise _Bad(f"no chunk record at offset {offset} (opcode 0x{rec[0]:02x})")
+        return self._chunk_records(rec[1])
+
+    def _finish(self, pos: int, op: int, job: object, damage: list[str]) -> Iterator[tuple[int, object]]:
+        if op == _OP_NOTE:
+            damage.append(job)
+            return
+        if op == OP_LOST:
+            yield OP_LOST, self.lost_counts(pos)
+            return
+        try:
+            if op == OP_CHUNK:
+                if isinstance(job, Future):
+                    recs = job.result()
+                elif isinstance(job, list):
+                    recs = job
+                else:
+                    recs = self._chunk_records(job)
+            else:
+                rec = self._parse_inner(op, _Buf(job))
+                recs = [] if rec is None else [(op, rec)]
+        except _Bad as e:
+            what = "chunk" if op == OP_CHUNK else "record"
+            damage.append(f"{what} at byte {pos} is corrupt ({e}); its messages are lost")
+            if op == OP_CHUNK:
+                yield OP_LOST, self.lost_counts(pos)
+            return
+        yield from recs
+
+    def message_index_count(self, offset: int) -> int | None:
+        """Number of entries of the MessageIndex record at ``offset`` (None if it is damaged)."""
+        try:
+            rec = self._read_record_at(offset)
+        except _Bad:
+            return None
+        if rec is None or rec[0] != OP_MESSAGE_INDEX or len(rec[1]) < 6:
+            return None
+        n = struct.unpack_from("<I", rec[1], 2)[0]
+        if n % 16 or 6 + n > len(rec[1]):
+            return None
+        return n // 16
+
+    def lost_counts(self, chunk_start: int) -> dict[int, int] | None:
+        """Messages per channel in the chunk at ``chunk_start``, from its message indexes (the
+        summary's chunk index, else the MessageIndex records right after the chunk); None if
+        unknown."""
+        counts: dict[int, int] = {}
+        try:
+            offsets: list[int] = []
+            known = self.summary.chunk_indexes if self.summary else []
+            ci = next((c for c in known if c.chunk_start_offset == chunk_start), None)
+            if ci is not None:
+                offsets = sorted(ci.message_index_offsets.values())
+            else:
+                self._f.seek(chunk_start)
+                head = self._f.read(9)
+                if len(head) < 9:
+                    return None
+                at = chunk_start + 9 + struct.unpack_from("<Q", head, 1)[0]
+                while True:
+                    rec = self._read_record_at(at)
+                    if rec is None or rec[0] != OP_MESSAGE_INDEX:
+                        break
+                    offsets.append(at)
+                    at += 9 + len(rec[1])
+                if not offsets:
+                    return None
+            for off in offsets:
+                rec = self._read_record_at(off)
+                n = self.message_index_count(off)
+                if rec is None or n is None:
+                    return None
+                cid = struct.unpack_from("<H", rec[1], 0)[0]
+                counts[cid] = counts.get(cid, 0) + n
+        except _Bad:
+            return None
+        return counts
+
+    def _outer(
+        self, damage: list[str], start_offset: int | None = None, *, lazy: bool = False,
+    ) -> Iterator[tuple[int, int, memoryview | _ChunkRef]]:
+        """(offset, opcode, body) of the data-section records zcut needs, with damage handling.
+        With ``lazy``, a chunk's body is not read: a :class:`_ChunkRef` says where it is."""
+        resume = sorted(c.chunk_start_offset for c in self.summary.chunk_indexes) if self.summary else []
+        resume_set = set(resume)
+        pos = self.data_start if start_offset is None else start_offset
+        limit = self.size if self.data_end is None else self.data_end
+        while True:
+            if pos + 9 > limit:
+                if self.data_end is None:
+                    damage.append(
+                        f"{self.path.name} is truncated: it ends at byte {self.size} inside the "
+                        "data section (no DataEnd/Footer record)"
+                    )
+                return
+            self._f.seek(pos)
+            head = self._f.read(33)  # opcode, length and (for a chunk) the uncompressed size
+            op, length = struct.unpack_from("<BQ", head)
+            nxt = pos + 9 + length
+            i = bisect.bisect_right(resume, pos)  # the next chunk the summary knows about
+            later = resume[i : i + 1]
+            if op in (OP_DATA_END, OP_FOOTER):
+                if self.data_end is None or nxt >= self.data_end:
+                    return
+                damage.append(
+                    f"unexpected end-of-data record at byte {pos}"
+                    + (f"; skipped to the next chunk at byte {later[0]}" if later else "")
+                )
+                if not later:
+                    return
+                if pos in resume_set:
+                    yield pos, OP_LOST, memoryview(b"")
+                pos = later[0]
+                continue
+            if op == 0 or 0x10 <= op < 0x80:  # reserved opcodes: not MCAP, the bytes are damaged
+                damage.append(
+                    f"invalid record opcode 0x{op:02x} at byte {pos}"
+                    + (f"; skipped to the next chunk at byte {later[0]}" if later else "; the rest is lost")
+                )
+                if not later:
+                    return
+                if pos in resume_set:  # a chunk the summary knows: count what it held
+                    yield pos, OP_LOST, memoryview(b"")
+                pos = later[0]
+                continue
+            if nxt > limit or length > MAX_CHUNK_BYTES:
+                if later:
+                    damage.append(
+                        f"record at byte {pos} claims {length} bytes, past the end of the data; "
+                        f"skipped to the next chunk at byte {later[0]}"
+                    )
+                    if pos in resume_set:  # a chunk the summary knows: count what it held
+                        yield pos, OP_LOST, memoryview(b"")
+                    pos = later[0]
+                    continue
+                if self.data_end is None:
+                    damage.append(
+                        f"{self.path.name} is truncated: the record at byte {pos} needs {length} "
+                        f"bytes but only {max(self.size - pos - 9, 0)} remain"
+                    )
+                else:
+                    damage.append(
+                        f"record at byte {pos} claims {length} bytes, past the end of the data "
+                        "section; the rest of the data section is lost"
+                    )
+                return
+            if op == OP_CHUNK and lazy:
+                usize = struct.unpack_from("<Q", head, 25)[0] if len(head) == 33 and length >= 24 else 0
+                yield pos, op, _ChunkRef(pos, length, usize)
+            elif op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_METADATA, OP_CHUNK):
+                self._f.seek(pos + 9)
+                yield pos, op, memoryview(self._f.read(length))
+            pos = nxt
+
+    @staticmethod
+    def _parse_inner(op: int, b: _Buf) -> object | None:
+        if op == OP_MESSAGE:
+            return parse_message(b)
+        if op == OP_SCHEMA:
+            return parse_schema(b)
+        if op == OP_CHANNEL:
+            return parse_channel(b)
+        if op == OP_METADATA:
+            name = b.string()
+            return name, b.str_map()
+        return None

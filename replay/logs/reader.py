@@ -1,0 +1,596 @@
+"""Stream organized scans out of a ROS 2 MCAP log (SPEC §5).
+
+:class:`LogReader` opens a log, finds the topics zcut uses (the organized ``PointCloud2``, a colour
+``Image`` and a ``CameraInfo`` of the same size, and every ``mono8`` Image of that size as a mask)
+and then streams :class:`~replay.logs.frame.Frame` objects, pairing each cloud with the other topics by
+header stamp. The file is never loaded whole: it is scanned chunk by chunk (see
+:mod:`replay.logs.mcap_scan`), and only a bounded window of messages is buffered for the pairing.
+
+Damage (a truncated file, a corrupt chunk) does not stop the stream: every intact frame is
+delivered and :attr:`LogReader.damage` then holds one-line notes. Anything that makes the log
+unusable for zcut (not MCAP, a ROS 1 log, no organized cloud, an ambiguous cloud topic, an image
+whose size differs from its cloud, a malformed message) raises
+:class:`~replay.errors.LogFormatError` with a one-line message.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from zcut.cloud import Intrinsics
+from zcut.errors import ParameterError
+
+from replay.logs import ros2_msgs as rm
+from replay.errors import LogDamageError, LogFormatError
+from replay.logs.frame import Frame
+from replay.logs.mcap_scan import (
+    OP_CHANNEL,
+    OP_LOST,
+    OP_MESSAGE,
+    OP_METADATA,
+    OP_SCHEMA,
+    Channel,
+    McapFile,
+    Message,
+    Schema,
+    _Bad,
+    decompress,
+)
+
+#: A frame waits for its image, camera info and masks until this many later clouds have arrived.
+PAIRING_WINDOW = 2
+_PEEK_AFTER_FIRST_CLOUD = 64  # messages scanned past the first cloud when the file has no summary
+#: Chunks parsed while opening a log are kept (up to this many uncompressed bytes) for the first
+#: :meth:`LogReader.frames` iteration, so that opening and reading the first frame decompress them once.
+KEEP_PEEKED_BYTES = 128 << 20
+_TYPES = (rm.POINTCLOUD2, rm.IMAGE, rm.CAMERAINFO)
+
+
+@dataclass
+class TopicInfo:
+    """What :class:`LogReader` learned about one topic (for ``zcut topics``)."""
+
+    topic: str
+    msg_type: str
+    message_encoding: str
+    count: int | None
+    height: int | None = None
+    width: int | None = None
+    encoding: str | None = None  # Image encoding of the first message
+    fields: tuple[str, ...] = ()  # PointCloud2 field names of the first message
+    channel_ids: list[int] = field(default_factory=list)
+    error: str | None = None  # why the first message could not be decoded
+
+
+_ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+
+
+def _payload(data: memoryview, where: str) -> memoryview:
+    """The CDR bytes of a message; rosbag2's per-message compression (``--compression-mode
+    message``, zstd) is undone here, bounded like chunks."""
+    if bytes(data[:4]) != _ZSTD_MAGIC:
+        return data
+    import zstandard
+
+    try:
+        size = zstandard.frame_content_size(data)
+    except zstandard.ZstdError as e:
+        raise LogFormatError(f"{where}: damaged zstd-compressed message ({e})") from e
+    if size < 0:
+        raise LogFormatError(f"{where}: zstd-compressed message without a content size")
+    try:
+        return decompress("zstd", data, size)
+    except _Bad as e:
+        raise LogFormatError(f"{where}: zstd-compressed message {e}") from e
+
+
+def _ns(topic: str) -> str:
+    return topic.rsplit("/", 1)[0]
+
+
+def _peek(
+    mf: McapFile, schemas: dict[int, Schema], channels: dict[int, Channel],
+    metadata: dict[str, dict[str, str]], keep: dict[tuple[int, int], list] | None = None,
+) -> tuple[dict[int, object], list[str]]:
+    """First decoded message (header only) of every PointCloud2/Image/CameraInfo channel.
+
+    With ``keep``, the parsed chunks (intact ones, up to :data:`KEEP_PEEKED_BYTES`) are stored
+    there by (offset, record length) for :meth:`McapFile.records`.
+    """
+    firsts: dict[int, object] = {}
+    damage: list[str] = []
+
+    def wanted(cid: int) -> bool:
+        ch = channels.get(cid)
+        if ch is None or ch.message_encoding != "cdr":
+            return False
+        sc = schemas.get(ch.schema_id)
+        return sc is not None and sc.name in _TYPES
+
+    def take(msg: Message) -> None:
+        ch = channels[msg.channel_id]
+        name = schemas[ch.schema_id].name
+        where = f"{mf.path.name}: topic {ch.topic}, first message"
+        try:
+            if name == rm.POINTCLOUD2:
+                firsts[msg.channel_id] = rm.decode_cloud(_payload(msg.data, where), where=where)
+            elif name == rm.IMAGE:
+                firsts[msg.channel_id] = rm.decode_image(_payload(msg.data, where), where=where)
+            else:
+                firsts[msg.channel_id] = rm.decode_camera_info(_payload(msg.data, where), where=where)
+        except LogFormatError as e:
+            firsts[msg.channel_id] = e
+
+    summary = mf.summary
+    if summary is not None and summary.chunk_indexes:
+        todo = {cid for cid in channels if wanted(cid)}
+        kept = 0
+        for ci in summary.chunk_indexes:
+            need = todo & set(ci.message_index_offsets)
+            if not need:
+                continue
+            try:
+                recs = mf.chunk_records_at(ci.chunk_start_offset, ci.chunk_length)
+                for op, msg in recs:
+                    if op == OP_MESSAGE and msg.channel_id in need and msg.channel_id not in firsts:
+                        take(msg)
+                size = sum(len(m.data) for op, m in recs if op == OP_MESSAGE)
+                if keep is not None and kept + size <= KEEP_PEEKED_BYTES:
+                    keep[(ci.chunk_start_offset, ci.chunk_length - 9)] = recs
+                    kept += size
+            except _Bad as e:
+                damage.append(f"chunk at byte {ci.chunk_start_offset} is corrupt ({e})")
+                continue
+            todo -= set(firsts)
+            if not todo:
+                break
+        return firsts, damage
+    # no summary (or an unchunked file): scan from the start to a little past the first cloud
+    # (at least _PEEK_AFTER_FIRST_CLOUD messages and one second of log time after it)
+    after = None
+    t_cloud = 0
+    for op, rec in mf.records(damage, prefetch=0):
+        if op == OP_SCHEMA:
+            schemas[rec.id] = rec
+        elif op == OP_CHANNEL:
+            channels[rec.id] = rec
+        elif op == OP_METADATA:
+            metadata[rec[0]] = rec[1]
+        elif op == OP_MESSAGE:
+            if rec.channel_id not in firsts and wanted(rec.channel_id):
+                take(rec)
+                if after is None and isinstance(firsts[rec.channel_id], rm.CloudMsg):
+                    after, t_cloud = 0, rec.log_time
+            if after is not None:
+                after += 1
+                if after > _PEEK_AFTER_FIRST_CLOUD and (
+                    rec.log_time > t_cloud + 1_000_000_000 or after > 64 * _PEEK_AFTER_FIRST_CLOUD
+                ):
+                    break
+    return firsts, damage
+
+
+@dataclass
+class LogInfo:
+    """What a log holds, before zcut chooses topics (see :func:`inspect_log`)."""
+
+    path: Path
+    profile: str
+    library: str
+    topics: dict[str, TopicInfo]
+    metadata: dict[str, dict[str, str]]
+    start_ns: int | None
+    end_ns: int | None
+    has_summary: bool
+    notes: list[str]
+    peek_damage: list[str]
+    schemas: dict[int, Schema]
+    channels: dict[int, Channel]
+    #: chunks parsed while peeking, by (offset, record length) (only with ``keep_chunks``)
+    chunks: dict[tuple[int, int], list] = field(default_factory=dict)
+
+
+def inspect_log(path: str | os.PathLike, *, keep_chunks: bool = False) -> LogInfo:
+    """List the topics of an MCAP log with the size of their first message (no topic choice).
+
+    With ``keep_chunks``, :attr:`LogInfo.chunks` keeps the chunks read to find the first messages
+    (up to :data:`KEEP_PEEKED_BYTES`) for a following scan. Raises :class:`LogFormatError` if the
+    file is not MCAP.
+    """
+    kept: dict[tuple[int, int], list] = {}
+    path = Path(path)
+    metadata: dict[str, dict[str, str]] = {}
+    notes: list[str] = []
+    start_ns = end_ns = None
+    with McapFile(path) as mf:
+        if mf.summary_damage:
+            notes.append(mf.summary_damage)
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        summary = mf.summary
+        if summary is not None:
+            schemas.update(summary.schemas)
+            channels.update(summary.channels)
+            metadata, more = mf.read_metadata()
+            notes += more
+            start_ns, end_ns = summary.message_start_time, summary.message_end_time
+        firsts, peek_damage = _peek(mf, schemas, channels, metadata, kept if keep_chunks else None)
+    counts = summary.channel_message_counts if summary is not None else None
+    topics: dict[str, TopicInfo] = {}
+    for cid, ch in sorted(channels.items()):
+        sc = schemas.get(ch.schema_id)
+        msg_type = sc.name if sc is not None else "?"
+        info = topics.get(ch.topic)
+        n = counts.get(cid, 0) if counts is not None else None
+        if info is None:
+            info = topics[ch.topic] = TopicInfo(ch.topic, msg_type, ch.message_encoding, n)
+        elif n is not None and info.count is not None:
+            info.count += n
+        info.channel_ids.append(cid)
+        got = firsts.get(cid)
+        if isinstance(got, rm.CloudMsg):
+            info.height, info.width = got.height, got.width
+            info.fields = tuple(f.name for f in got.fields)
+        elif isinstance(got, rm.ImageMsg):
+            info.height, info.width, info.encoding = got.height, got.width, got.encoding
+        elif isinstance(got, rm.CameraInfoMsg):
+            info.height, info.width = got.height, got.width
+        elif isinstance(got, LogFormatError):
+            info.error = str(got)
+    return LogInfo(
+        path, mf.profile, mf.library, topics, metadata, start_ns, end_ns,
+        counts is not None, notes, peek_damage, schemas, channels, kept,
+    )
+
+
+class LogReader:
+    """Read organized frames from a ROS 2 MCAP log.
+
+    Parameters
+    ----------
+    path : str or Path
+    cloud_topic, image_topic, info_topic : str or None
+        Choose topics explicitly (``--topic``, ``--image-topic``); found automatically when None.
+
+    Attributes
+    ----------
+    cloud_topic : str
+    image_topic, info_topic : str or None
+    mask_topics : list[str]
+        mono8 Image topics of the cloud's size; delivered in :attr:`Frame.masks`.
+    metadata : dict[str, dict[str, str]]
+        MCAP metadata records (from the summary; for a file without one, filled while iterating).
+    n_frames : int or None
+        Number of clouds on ``cloud_topic`` according to the summary.
+    damage : list[str]
+        One-line notes about damage met by the last :meth:`frames` iteration (empty = intact).
+    topics : dict[str, TopicInfo]
+    start_ns, end_ns : int or None
+        Log time span from the summary statistics.
+    profile, library : str
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        cloud_topic: str | None = None,
+        image_topic: str | None = None,
+        info_topic: str | None = None,
+    ) -> None:
+        info = inspect_log(path, keep_chunks=True)
+        self._chunks = info.chunks  # for the first frames() scan
+        self.path = info.path
+        self.profile, self.library = info.profile, info.library
+        self.topics = info.topics
+        self.metadata = info.metadata
+        self.notes = info.notes
+        self.start_ns, self.end_ns = info.start_ns, info.end_ns
+        self.damage: list[str] = []
+        self._schemas, self._channels = info.schemas, info.channels
+        self._choose_topics(cloud_topic, image_topic, info_topic, info.peek_damage)
+        self.n_frames: int | None = self.topics[self.cloud_topic].count if info.has_summary else None
+
+    # ------------------------------------------------------------------ opening
+    def _choose_topics(
+        self, cloud_topic: str | None, image_topic: str | None, info_topic: str | None,
+        peek_damage: list[str],
+    ) -> None:
+        name = self.path.name
+        topics = self.topics
+        encodings = {t.message_encoding for t in topics.values()}
+        if self.profile == "ros1" or (encodings and encodings <= {"ros1"}):
+            raise LogFormatError(
+                f"{name} is a ROS 1 log (message encoding ros1); zcut reads ROS 2 logs "
+                "(profile ros2, cdr). Convert it first, e.g. with rosbags-convert"
+            )
+        clouds = [t for t in topics.values() if t.msg_type == rm.POINTCLOUD2 and t.message_encoding == "cdr"]
+        organized = [t for t in clouds if t.height is not None and t.height > 1]
+
+        def desc(t: TopicInfo) -> str:
+            return f"{t.topic} ({t.height}x{t.width})" if t.height is not None else f"{t.topic} (no messages)"
+
+        if cloud_topic is not None:
+            t = topics.get(cloud_topic)
+            if t is None or t.msg_type != rm.POINTCLOUD2:
+                have = ", ".join(desc(c) for c in clouds) or "none"
+                raise LogFormatError(
+                    f"{name} has no PointCloud2 topic '{cloud_topic}' (PointCloud2 topics: {have})"
+                )
+            if t.height is None:
+                raise LogFormatError(t.error or f"{name}: topic {cloud_topic} has no readable message")
+            if t.height <= 1:
+                raise LogFormatError(
+                    f"{name}: topic {cloud_topic} holds unorganized clouds (height {t.height}, "
+                    f"width {t.width}); zcut needs organized clouds (height > 1)"
+                )
+            chosen = t
+        elif len(organized) == 1:
+            chosen = organized[0]
+        elif len([t for t in organized if not t.topic.startswith("/zcut/")]) == 1:
+            # a results log: the input cloud, not zcut's own /zcut/filtered output
+            chosen = next(t for t in organized if not t.topic.startswith("/zcut/"))
+        elif len(organized) > 1:
+            raise LogFormatError(
+                f"{name} has several organized PointCloud2 topics: "
+                f"{', '.join(desc(t) for t in organized)}; choose one with --topic"
+            )
+        else:
+            if not topics and peek_damage:
+                raise LogDamageError(f"{name} is damaged before its first message: {peek_damage[0]}")
+            if clouds:
+                raise LogFormatError(
+                    f"{name} has no organized PointCloud2: "
+                    + ", ".join(
+                        f"{t.topic} has height {t.height} (width {t.width})" if t.height is not None
+                        else f"{t.topic} has no readable message" + (f" ({t.error})" if t.error else "")
+                        for t in clouds
+                    )
+                    + "; zcut needs organized clouds (height > 1)"
+                )
+            if peek_damage and not any(t.msg_type == rm.POINTCLOUD2 for t in topics.values()):
+                raise LogDamageError(f"{name} is damaged before its first cloud: {peek_damage[0]}")
+            have = ", ".join(f"{t.topic} [{t.msg_type}]" for t in topics.values()) or "none"
+            raise LogFormatError(f"{name} has no sensor_msgs/msg/PointCloud2 topic (topics: {have})")
+        self.cloud_topic = chosen.topic
+        shape = (chosen.height, chosen.width)
+
+        images = [
+            t for t in topics.values()
+            if t.msg_type == rm.IMAGE and t.message_encoding == "cdr" and t.encoding in rm.COLOR_ENCODINGS
+        ]
+        if image_topic is not None:
+            t = topics.get(image_topic)
+            if t is None or t.msg_type != rm.IMAGE:
+                have = ", ".join(i.topic for i in images) or "none"
+                raise LogFormatError(f"{name} has no Image topic '{image_topic}' (colour images: {have})")
+            if t.encoding not in rm.COLOR_ENCODINGS:
+                raise LogFormatError(
+                    f"{name}: image topic {image_topic} has encoding '{t.encoding}'; "
+                    f"zcut pairs colour images ({', '.join(rm.COLOR_ENCODINGS)})"
+                )
+            img = t
+        elif len(images) == 1:
+            img = images[0]
+        elif len(images) > 1:
+            # the cloud's size first, then the cloud's namespace, then the first name
+            same = [t for t in images if (t.height, t.width) == shape] or images
+            near = [t for t in same if _ns(t.topic) == _ns(self.cloud_topic)] or same
+            img = sorted(near, key=lambda t: t.topic)[0]
+            self.notes.append(
+                f"several colour Image topics ({', '.join(desc(t) for t in images)}); using {img.topic} "
+                "(choose with --image-topic)"
+            )
+        else:
+            img = None
+        if img is not None and (img.height, img.width) != shape:
+            raise LogFormatError(
+                f"{name}: image topic {img.topic} is {img.height}x{img.width} but cloud topic "
+                f"{self.cloud_topic} is {shape[0]}x{shape[1]}; zcut pairs images of the cloud's size"
+            )
+        self.image_topic = img.topic if img is not None else None
+
+        infos = [t for t in topics.values() if t.msg_type == rm.CAMERAINFO and t.message_encoding == "cdr"]
+        if info_topic is not None:
+            if info_topic not in {t.topic for t in infos}:
+                have = ", ".join(t.topic for t in infos) or "none"
+                raise LogFormatError(f"{name} has no CameraInfo topic '{info_topic}' (CameraInfo topics: {have})")
+            self.info_topic: str | None = info_topic
+        else:
+            fit = [t for t in infos if (t.height, t.width) == shape] or infos
+            pref = [_ns(self.image_topic)] if self.image_topic else []
+            pref.append(_ns(self.cloud_topic))
+            choice = None
+            for ns in pref:
+                near = [t for t in fit if _ns(t.topic) == ns]
+                if near:
+                    choice = near[0]
+                    break
+            if choice is None and fit:
+                choice = sorted(fit, key=lambda t: t.topic)[0]
+            self.info_topic = choice.topic if choice is not None else None
+
+        self.mask_topics = sorted(
+            t.topic for t in topics.values()
+            if t.msg_type == rm.IMAGE and t.message_encoding == "cdr" and t.encoding == "mono8"
+            and (t.height, t.width) == shape
+        )
+
+    # ------------------------------------------------------------------ streaming
+    def frames(self, *, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        """Yield the frames with ``start <= index < stop`` in log order.
+
+        Each cloud is paired with the image, camera info and masks of the same header stamp that
+        arrive within :data:`PAIRING_WINDOW` clouds of it. Damage met on the way is appended to
+        :attr:`damage` (reset at the start of each iteration). Raises :class:`LogDamageError` if the
+        log is damaged so that not one frame could be delivered, :class:`LogFormatError` on a
+        malformed message.
+        """
+        if start < 0 or (stop is not None and stop < start):
+            raise ParameterError(f"frames: need 0 <= start <= stop, got start={start}, stop={stop}")
+        self.damage = []
+        companions = [t for t in (self.image_topic, self.info_topic) if t] + list(self.mask_topics)
+        orphan_limit = 4 * len(companions) + 4
+        pending: list[dict] = []  # {"index", "stamp", "cloud", "parts": {topic: decoded}}
+        orphans: list[tuple[int, str, object]] = []  # (stamp, topic, decoded)
+        delivered = 0
+        want_topics = {self.cloud_topic, *companions}
+        # seek: begin at the chunk holding cloud start - PAIRING_WINDOW (companions may precede)
+        begin, next_index = self._seek(max(0, start - PAIRING_WINDOW)) if start > 0 else (None, 0)
+
+        def complete(p: dict) -> bool:
+            return all(t in p["parts"] for t in companions)
+
+        def emit_ready(final: bool) -> Iterator[Frame]:
+            nonlocal delivered
+            while pending and (final or complete(pending[0]) or len(pending) > PAIRING_WINDOW):
+                if pending[0]["cloud"] is None:
+                    return
+                p = pending.pop(0)
+                if p["index"] >= start and (stop is None or p["index"] < stop):
+                    delivered += 1
+                    yield self._build(p)
+
+        schemas = dict(self._schemas)
+        channels = dict(self._channels)
+        with McapFile(self.path) as mf:
+            cached, self._chunks = self._chunks, {}
+            if begin is not None:  # chunks before the seek target are never reached
+                cached = {k: v for k, v in cached.items() if k[0] >= begin}
+            for op, rec in mf.records(self.damage, start_offset=begin, cached=cached):
+                if op == OP_MESSAGE:
+                    ch = channels.get(rec.channel_id)
+                    if ch is None or ch.topic not in want_topics:
+                        continue
+                    topic = ch.topic
+                    if topic == self.cloud_topic:
+                        idx = next_index
+                        next_index += 1
+                        if idx < start:
+                            continue
+                        if stop is not None and idx >= stop:
+                            # past the range: only counts towards the pairing window
+                            pending.append({"index": idx, "stamp": None, "cloud": None, "parts": {}})
+                            yield from emit_ready(False)
+                            if pending[0]["cloud"] is None:
+                                break
+                            continue
+                        where = f"{self.path.name}: topic {topic}, message {idx}"
+                        cloud = rm.decode_cloud(_payload(rec.data, where), where=where)
+                        p = {"index": idx, "stamp": cloud.stamp_ns, "cloud": cloud, "parts": {}}
+                        keep = []
+                        for o in orphans:
+                            if o[0] == cloud.stamp_ns and o[1] not in p["parts"]:
+                                p["parts"][o[1]] = o[2]
+                            else:
+                                keep.append(o)
+                        orphans[:] = keep
+                        pending.append(p)
+                    else:
+                        where = f"{self.path.name}: topic {topic}, message at log time {rec.log_time}"
+                        sc = schemas.get(ch.schema_id)
+                        if sc is not None and sc.name == rm.CAMERAINFO:
+                            msg = rm.decode_camera_info(_payload(rec.data, where), where=where)
+                        else:
+                            msg = rm.decode_image(_payload(rec.data, where), where=where)
+                        for p in pending:
+                            if p["stamp"] == msg.stamp_ns and topic not in p["parts"]:
+                                p["parts"][topic] = msg
+                                break
+                        else:
+                            orphans.append((msg.stamp_ns, topic, msg))
+                            if len(orphans) > orphan_limit:
+                                orphans.pop(0)
+                    yield from emit_ready(False)
+                elif op == OP_LOST:
+                    cloud_ids = {cid for cid, ch in channels.items() if ch.topic == self.cloud_topic}
+                    if rec is None:
+                        self.damage.append(
+                            "the number of clouds in the lost chunk is unknown: frame indices after "
+                            f"frame {next_index - 1} may be shifted"
+                        )
+                    else:
+                        next_index += sum(n for cid, n in rec.items() if cid in cloud_ids)
+                elif op == OP_CHANNEL:
+                    channels[rec.id] = rec
+                elif op == OP_SCHEMA:
+                    schemas[rec.id] = rec
+                elif op == OP_METADATA:
+                    self.metadata.setdefault(rec[0], rec[1])
+            yield from emit_ready(True)
+        if delivered == 0 and self.damage and (stop is None or stop > start):
+            raise LogDamageError(f"{self.path.name}: no frame could be read: {'; '.join(self.damage)}")
+
+    def _seek(self, k: int) -> tuple[int | None, int]:
+        """(file offset of the chunk holding the k-th cloud, number of clouds before that chunk),
+        from the summary's chunk and message indexes; (None, 0) = scan from the start."""
+        cloud_ids = {cid for cid, ch in self._channels.items() if ch.topic == self.cloud_topic}
+        try:
+            with McapFile(self.path) as mf:
+                if mf.summary is None or not mf.summary.chunk_indexes:
+                    return None, 0
+                before = 0
+                for ci in mf.summary.chunk_indexes:
+                    offs = [o for cid, o in ci.message_index_offsets.items() if cid in cloud_ids]
+                    n = 0
+                    for off in offs:
+                        got = mf.message_index_count(off)
+                        if got is None:
+                            return None, 0
+                        n += got
+                    if before + n > k:
+                        return ci.chunk_start_offset, before
+                    before += n
+        except _Bad:
+            pass
+        return None, 0
+
+    def _build(self, p: dict) -> Frame:
+        idx = p["index"]
+        cloud: rm.CloudMsg = p["cloud"]
+        where = f"{self.path.name}: topic {self.cloud_topic}, message {idx}"
+        if cloud.height <= 1:
+            raise LogFormatError(
+                f"{where}: unorganized cloud (height {cloud.height}, width {cloud.width}); "
+                "zcut needs organized clouds (height > 1)"
+            )
+        xyz, rgb = rm.cloud_to_arrays(cloud, where=where)
+        shape = (cloud.height, cloud.width)
+        parts = p["parts"]
+        img = parts.get(self.image_topic) if self.image_topic else None
+        if img is not None:
+            iwhere = f"{self.path.name}: topic {self.image_topic}, stamp {img.stamp_ns}"
+            if (img.height, img.width) != shape:
+                raise LogFormatError(
+                    f"{iwhere}: image is {img.height}x{img.width} but its cloud ({self.cloud_topic}, "
+                    f"message {idx}) is {shape[0]}x{shape[1]}"
+                )
+            rgb = rm.image_to_rgb(img, where=iwhere)
+        intrinsics: Intrinsics | None = None
+        info = parts.get(self.info_topic) if self.info_topic else None
+        if info is not None and any(info.k):
+            iwhere = f"{self.path.name}: topic {self.info_topic}, stamp {info.stamp_ns}"
+            if (info.height, info.width) != shape:
+                raise LogFormatError(
+                    f"{iwhere}: camera info is for {info.height}x{info.width} but its cloud "
+                    f"({self.cloud_topic}, message {idx}) is {shape[0]}x{shape[1]}"
+                )
+            intrinsics = rm.camera_info_to_intrinsics(info, where=iwhere)
+        masks = {}
+        for topic in self.mask_topics:
+            m = parts.get(topic)
+            if m is None:
+                continue
+            mwhere = f"{self.path.name}: topic {topic}, stamp {m.stamp_ns}"
+            if (m.height, m.width) != shape:
+                raise LogFormatError(
+                    f"{mwhere}: mask is {m.height}x{m.width} but its cloud is {shape[0]}x{shape[1]}"
+                )
+            masks[topic] = rm.image_to_mask(m, where=mwhere)
+        return Frame(
+            xyz=xyz, rgb=rgb, stamp_ns=cloud.stamp_ns, frame_id=cloud.frame_id,
+            intrinsics=intrinsics, topic=self.cloud_topic, index=idx, masks=masks,
+        )

@@ -1,0 +1,715 @@
+"""ROS 2 message schemas and fast CDR codecs for the messages zcut reads and writes.
+
+Only four message types matter here: ``sensor_msgs/msg/PointCloud2``, ``sensor_msgs/msg/Image``,
+``sensor_msgs/msg/CameraInfo`` (with their dependencies ``std_msgs/msg/Header``,
+``builtin_interfaces/msg/Time``, ``sensor_msgs/msg/PointField``,
+``sensor_msgs/msg/RegionOfInterest``). They are encoded and decoded by hand (XCDR1, as ROS 2's
+rmw implementations write it: a 4-byte encapsulation header, then fields aligned to their size
+relative to the end of that header). The big ``uint8[] data`` arrays are never copied field by
+field: the decoders return a ``memoryview`` slice of the message and the numpy codecs view it
+with a structured dtype built from the ``PointField`` list.
+
+Every size is checked against the byte length before a view is made; a malformed message raises
+:class:`~replay.errors.LogFormatError` whose message names the topic, the message index and the
+mismatch (never a numpy or struct exception).
+"""
+
+from __future__ import annotations
+
+import struct
+import sys
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from zcut.cloud import Intrinsics
+from zcut.errors import ZcutError
+
+from replay.errors import LogFormatError
+
+# --------------------------------------------------------------------------------------------
+# Schema texts (ros2msg, dependencies appended the way rosbag2 / mcap_ros2 expect them)
+# --------------------------------------------------------------------------------------------
+
+_SEP = "=" * 80 + "\n"
+
+TIME_MSG = "int32 sec\nuint32 nanosec\n"
+HEADER_MSG = "builtin_interfaces/Time stamp\nstring frame_id\n"
+POINTFIELD_MSG = (
+    "uint8 INT8    = 1\nuint8 UINT8   = 2\nuint8 INT16   = 3\nuint8 UINT16  = 4\n"
+    "uint8 INT32   = 5\nuint8 UINT32  = 6\nuint8 FLOAT32 = 7\nuint8 FLOAT64 = 8\n"
+    "string name\nuint32 offset\nuint8  datatype\nuint32 count\n"
+)
+ROI_MSG = "uint32 x_offset\nuint32 y_offset\nuint32 height\nuint32 width\nbool do_rectify\n"
+POINTCLOUD2_MSG = (
+    "std_msgs/Header header\nuint32 height\nuint32 width\nsensor_msgs/PointField[] fields\n"
+    "bool    is_bigendian\nuint32  point_step\nuint32  row_step\nuint8[] data\nbool is_dense\n"
+)
+IMAGE_MSG = (
+    "std_msgs/Header header\nuint32 height\nuint32 width\nstring encoding\nuint8 is_bigendian\n"
+    "uint32 step\nuint8[] data\n"
+)
+CAMERAINFO_MSG = (
+    "std_msgs/Header header\nuint32 height\nuint32 width\nstring distortion_model\nfloat64[] d\n"
+    "float64[9]  k\nfloat64[9]  r\nfloat64[12] p\nuint32 binning_x\nuint32 binning_y\n"
+    "sensor_msgs/RegionOfInterest roi\n"
+)
+
+
+def _with_deps(main: str, deps: list[tuple[str, str]]) -> str:
+    text = main
+    for name, body in deps:
+        text += "\n" + _SEP + f"MSG: {name}\n" + body
+    return text
+
+
+POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+IMAGE = "sensor_msgs/msg/Image"
+CAMERAINFO = "sensor_msgs/msg/CameraInfo"
+
+#: Full ros2msg schema text (with dependency definitions) per message type.
+SCHEMAS: dict[str, str] = {
+    POINTCLOUD2: _with_deps(
+        POINTCLOUD2_MSG,
+        [
+            ("std_msgs/Header", HEADER_MSG),
+            ("builtin_interfaces/Time", TIME_MSG),
+            ("sensor_msgs/PointField", POINTFIELD_MSG),
+        ],
+    ),
+    IMAGE: _with_deps(
+        IMAGE_MSG, [("std_msgs/Header", HEADER_MSG), ("builtin_interfaces/Time", TIME_MSG)]
+    ),
+    CAMERAINFO: _with_deps(
+        CAMERAINFO_MSG,
+        [
+            ("std_msgs/Header", HEADER_MSG),
+            ("builtin_interfaces/Time", TIME_MSG),
+            ("sensor_msgs/RegionOfInterest", ROI_MSG),
+        ],
+    ),
+}
+
+# PointField datatypes -> (numpy kind+size)
+_PF_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
+INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64 = range(1, 9)
+
+# --------------------------------------------------------------------------------------------
+# Decoded messages (headers only; the payload stays a memoryview into the message bytes)
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class PointField:
+    name: str
+    offset: int
+    datatype: int
+    count: int
+
+
+@dataclass(frozen=True, slots=True)
+class CloudMsg:
+    """A decoded ``PointCloud2``; ``data`` is a view into the message bytes (not a copy)."""
+
+    stamp_ns: int
+    frame_id: str
+    height: int
+    width: int
+    fields: tuple[PointField, ...]
+    is_bigendian: bool
+    point_step: int
+    row_step: int
+    data: memoryview
+    is_dense: bool
+
+
+@dataclass(frozen=True, slots=True)
+class ImageMsg:
+    """A decoded ``Image``; ``data`` is a view into the message bytes (not a copy)."""
+
+    stamp_ns: int
+    frame_id: str
+    height: int
+    width: int
+    encoding: str
+    is_bigendian: bool
+    step: int
+    data: memoryview
+
+
+@dataclass(frozen=True, slots=True)
+class CameraInfoMsg:
+    stamp_ns: int
+    frame_id: str
+    height: int
+    width: int
+    distortion_model: str
+    d: tuple[float, ...]
+    k: tuple[float, ...]
+    r: tuple[float, ...]
+    p: tuple[float, ...]
+
+
+# --------------------------------------------------------------------------------------------
+# CDR reading
+# --------------------------------------------------------------------------------------------
+
+
+class _Cdr:
+    """Bounds-checked XCDR1 reader over a bytes-like object."""
+
+    __slots__ = ("buf", "pos", "end", "bo", "where")
+
+    def __init__(self, data: bytes | memoryview, where: str) -> None:
+        self.buf = memoryview(data).cast("B") if not isinstance(data, bytes) else memoryview(data)
+        self.end = len(self.buf)
+        self.where = where
+        if self.end < 4:
+            self.fail(f"message has {self.end} bytes, too short for a CDR header")
+        kind = self.buf[1]
+        if self.buf[0] != 0 or kind not in (0, 1):
+            self.fail(
+                f"unsupported CDR encapsulation {bytes(self.buf[:2]).hex()} "
+                "(expected 0001 little-endian or 0000 big-endian CDR)"
+            )
+        self.bo = "<" if kind == 1 else ">"
+        self.pos = 4
+
+    def fail(self, what: str) -> None:
+        raise LogFormatError(f"{self.where}: {what}")
+
+    def _align(self, n: int) -> None:
+        r = (self.pos - 4) % n
+        if r:
+            self.pos += n - r
+
+    def _take(self, n: int, what: str) -> int:
+        start = self.pos
+        if n < 0 or start + n > self.end:
+            self.fail(
+                f"{what} needs {n} bytes at offset {start} but the message has only "
+                f"{max(self.end - start, 0)} left"
+            )
+        self.pos = start + n
+        return start
+
+    def u8(self, what: str) -> int:
+        return self.buf[self._take(1, what)]
+
+    def u32(self, what: str) -> int:
+        self._align(4)
+        s = self._take(4, what)
+        return struct.unpack_from(self.bo + "I", self.buf, s)[0]
+
+    def i32(self, what: str) -> int:
+        self._align(4)
+        s = self._take(4, what)
+        return struct.unpack_from(self.bo + "i", self.buf, s)[0]
+
+    def f64s(self, n: int, what: str) -> tuple[float, ...]:
+        if n == 0:
+            return ()
+        self._align(8)
+        s = self._take(8 * n, what)
+        return struct.unpack_from(f"{self.bo}{n}d", self.buf, s)
+
+    def string(self, what: str) -> str:
+        n = self.u32(what + " length")
+        s = self._take(n, what)
+        raw = bytes(self.buf[s : s + n])
+        if raw.endswith(b"\x00"):
+            raw = raw[:-1]
+        try:
+            return raw.decode("utf-8")
+        except UnicodeDecodeError:
+            self.fail(f"{what} is not valid UTF-8")
+            raise AssertionError  # unreachable
+
+    def blob(self, what: str) -> memoryview:
+        n = self.u32(what + " length")
+        s = self._take(n, what)
+        return self.buf[s : s + n]
+
+    def header(self) -> tuple[int, str]:
+        sec = self.i32("header.stamp.sec")
+        nsec = self.u32("header.stamp.nanosec")
+        frame_id = self.string("header.frame_id")
+        return sec * 1_000_000_000 + nsec, frame_id
+
+
+def decode_cloud(data: bytes | memoryview, *, where: str = "PointCloud2") -> CloudMsg:
+    """Decode a CDR ``PointCloud2`` (``data`` stays a view). Raises :class:`LogFormatError`."""
+    r = _Cdr(data, where)
+    stamp_ns, frame_id = r.header()
+    height = r.u32("height")
+    width = r.u32("width")
+    n_fields = r.u32("fields length")
+    if n_fields > (r.end - r.pos) // 13:  # each field takes at least 13 bytes
+        r.fail(f"claims {n_fields} point fields, more than the message can hold")
+    fields = []
+    for i in range(n_fields):
+        name = r.string(f"fields[{i}].name")
+        offset = r.u32(f"fields[{i}].offset")
+        datatype = r.u8(f"fields[{i}].datatype")
+        count = r.u32(f"fields[{i}].count")
+        fields.append(PointField(name, offset, datatype, count))
+    is_bigendian = bool(r.u8("is_bigendian"))
+    point_step = r.u32("point_step")
+    row_step = r.u32("row_step")
+    blob = r.blob("data")
+    is_dense = bool(r.u8("is_dense")) if r.pos < r.end else False
+    return CloudMsg(
+        stamp_ns, frame_id, height, width, tuple(fields), is_bigendian, point_step, row_step, blob,
+        is_dense,
+    )
+
+
+def decode_image(data: bytes | memoryview, *, where: str = "Image") -> ImageMsg:
+    """Decode a CDR ``Image`` (``data`` stays a view). Raises :class:`LogFormatError`."""
+    r = _Cdr(data, where)
+    stamp_ns, frame_id = r.header()
+    height = r.u32("height")
+    width = r.u32("width")
+    encoding = r.string("encoding")
+    is_bigendian = bool(r.u8("is_bigendian"))
+    step = r.u32("step")
+    blob = r.blob("data")
+    return ImageMsg(stamp_ns, frame_id, height, width, encoding, is_bigendian, step, blob)
+
+
+def decode_camera_info(data: bytes | memoryview, *, where: str = "CameraInfo") -> CameraInfoMsg:
+    """Decode a CDR ``CameraInfo``. Raises :class:`LogFormatError`."""
+    r = _Cdr(data, where)
+    stamp_ns, frame_id = r.header()
+    height = r.u32("height")
+    width = r.u32("width")
+    model = r.string("distortion_model")
+    n_d = r.u32("d length")
+    if n_d > (r.end - r.pos) // 8:
+        r.fail(f"claims {n_d} distortion coefficients, more than the message can hold")
+    d = r.f64s(n_d, "d")
+    k = r.f64s(9, "k")
+    rr = r.f64s(9, "r")
+    p = r.f64s(12, "p")
+    return CameraInfoMsg(stamp_ns, frame_id, height, width, model, d, k, rr, p)
+
+
+# --------------------------------------------------------------------------------------------
+# CDR writing (little-endian)
+# --------------------------------------------------------------------------------------------
+
+
+class _CdrOut:
+    __slots__ = ("parts", "pos")
+
+    def __init__(self) -> None:
+        self.parts: list[bytes] = [b"\x00\x01\x00\x00"]
+        self.pos = 0  # position after the encapsulation header
+
+    def _pad(self, n: int) -> None:
+        r = self.pos % n
+        if r:
+            self.parts.append(b"\x00" * (n - r))
+            self.pos += n - r
+
+    def raw(self, b: bytes) -> None:
+        self.parts.append(b)
+        self.pos += len(b)
+
+    def u8(self, v: int) -> None:
+        self.raw(struct.pack("<B", v))
+
+    def u32(self, v: int) -> None:
+        self._pad(4)
+        self.raw(struct.pack("<I", v))
+
+    def i32(self, v: int) -> None:
+        self._pad(4)
+        self.raw(struct.pack("<i", v))
+
+    def f64s(self, vals) -> None:
+        vals = list(vals)
+        if vals:
+            self._pad(8)
+            self.raw(struct.pack(f"<{len(vals)}d", *vals))
+
+    def string(self, s: str) -> None:
+        b = s.encode("utf-8") + b"\x00"
+        self.u32(len(b))
+        self.raw(b)
+
+    def blob(self, b: bytes | memoryview) -> None:
+        self.u32(len(b))
+        self.raw(b)  # type: ignore[arg-type]
+
+    def header(self, stamp_ns: int, frame_id: str) -> None:
+        sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+        self.i32(sec)
+        self.u32(nsec)
+        self.string(frame_id)
+
+    def bytes(self) -> bytes:
+        return b"".join(self.parts)
+
+
+def encode_cloud(
+    *,
+    stamp_ns: int,
+    frame_id: str,
+    height: int,
+    width: int,
+    fields: list[PointField] | tuple[PointField, ...],
+    point_step: int,
+    row_step: int,
+    data: bytes | memoryview,
+    is_dense: bool,
+    is_bigendian: bool = False,
+) -> bytes:
+    """CDR bytes of a ``PointCloud2``."""
+    w = _CdrOut()
+    w.header(stamp_ns, frame_id)
+    w.u32(height)
+    w.u32(width)
+    w.u32(len(fields))
+    for f in fields:
+        w.string(f.name)
+        w.u32(f.offset)
+        w.u8(f.datatype)
+        w.u32(f.count)
+    w.u8(int(is_bigendian))
+    w.u32(point_step)
+    w.u32(row_step)
+    w.blob(data)
+    w.u8(int(is_dense))
+    return w.bytes()
+
+
+def encode_image(
+    *, stamp_ns: int, frame_id: str, height: int, width: int, encoding: str, step: int,
+    data: bytes | memoryview,
+) -> bytes:
+    """CDR bytes of an ``Image``."""
+    w = _CdrOut()
+    w.header(stamp_ns, frame_id)
+    w.u32(height)
+    w.u32(width)
+    w.string(encoding)
+    w.u8(0)
+    w.u32(step)
+    w.blob(data)
+    return w.bytes()
+
+
+def encode_camera_info(intrinsics: Intrinsics, *, stamp_ns: int, frame_id: str) -> bytes:
+    """CDR bytes of a ``CameraInfo`` (plumb_bob, no distortion, identity R)."""
+    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    w = _CdrOut()
+    w.header(stamp_ns, frame_id)
+    w.u32(intrinsics.height)
+    w.u32(intrinsics.width)
+    w.string("plumb_bob")
+    w.u32(5)
+    w.f64s([0.0] * 5)
+    w.f64s([fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0])
+    w.f64s([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0])
+    w.f64s([fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0])
+    w.u32(0)
+    w.u32(0)
+    for _ in range(4):
+        w.u32(0)
+    w.u8(0)
+    return w.bytes()
+
+
+# --------------------------------------------------------------------------------------------
+# numpy codecs
+# --------------------------------------------------------------------------------------------
+
+#: Fields of the clouds zcut writes (like zivid-ros ``points/xyzrgba``).
+XYZRGBA_FIELDS = (
+    PointField("x", 0, FLOAT32, 1),
+    PointField("y", 4, FLOAT32, 1),
+    PointField("z", 8, FLOAT32, 1),
+    PointField("rgba", 12, UINT32, 1),
+)
+XYZ_FIELDS = XYZRGBA_FIELDS[:3]
+
+
+def cloud_to_arrays(msg: CloudMsg, *, where: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """View a ``PointCloud2`` as arrays.
+
+    Parameters
+    ----------
+    msg : CloudMsg
+    where : str
+        "topic /x, message 3" style prefix for error messages.
+
+    Returns
+    -------
+    xyz : (H, W, 3) float32 ndarray
+        Metres; NaN where any coordinate is non-finite or the point is exactly (0, 0, 0),
+        whatever ``is_dense`` claims.
+    rgb : (H, W, 3) uint8 ndarray or None
+        From an ``rgb``/``rgba`` field (UINT32 or FLOAT32-packed ``0x00RRGGBB``), else None.
+    """
+    h, w, step, row_step = msg.height, msg.width, msg.point_step, msg.row_step
+    by_name = {f.name: f for f in msg.fields}
+    for name in ("x", "y", "z"):
+        if name not in by_name:
+            have = ", ".join(f.name for f in msg.fields) or "none"
+            raise LogFormatError(f"{where}: PointCloud2 has no '{name}' field (fields: {have})")
+    if h < 1 or w < 1:
+        raise LogFormatError(f"{where}: PointCloud2 is empty (height {h}, width {w})")
+    if step < 1:
+        raise LogFormatError(f"{where}: PointCloud2 point_step is {step}")
+    if row_step < w * step:
+        raise LogFormatError(
+            f"{where}: PointCloud2 row_step {row_step} is smaller than width {w} x point_step {step}"
+        )
+    need = (h - 1) * row_step + w * step
+    if need > len(msg.data):
+        raise LogFormatError(
+            f"{where}: PointCloud2 of {h}x{w} with row_step {row_step}, point_step {step} needs "
+            f"{need} bytes of data but has {len(msg.data)}"
+        )
+    bo = ">" if msg.is_bigendian else "<"
+    coord_types = set()
+    for name in ("x", "y", "z"):
+        f = by_name[name]
+        if f.datatype not in (FLOAT32, FLOAT64):
+            raise LogFormatError(
+                f"{where}: PointCloud2 field '{name}' has datatype {f.datatype}; "
+                "zcut reads x, y, z as FLOAT32 (7) or FLOAT64 (8)"
+            )
+        coord_types.add(f.datatype)
+        size = 4 if f.datatype == FLOAT32 else 8
+        if f.offset + size > step:
+            raise LogFormatError(
+                f"{where}: PointCloud2 field '{name}' at offset {f.offset} does not fit in "
+                f"point_step {step}"
+            )
+    names = ["x", "y", "z"]
+    formats = [bo + _PF_TYPES[by_name[n].datatype] for n in names]
+    offsets = [by_name[n].offset for n in names]
+    color = by_name.get("rgba") or by_name.get("rgb")
+    if color is not None:
+        if color.datatype not in (UINT32, FLOAT32, INT32) or color.offset + 4 > step:
+            color = None  # an unusual colour field: ignore it rather than guess
+        else:
+            names.append("c")
+            formats.append(bo + "u4")  # FLOAT32-packed colour is the same 4 bytes
+            offsets.append(color.offset)
+    xyz = np.empty((h, w, 3), dtype=np.float32)
+    rgb = np.empty((h, w, 3), dtype=np.uint8) if color is not None else None
+    words_ok = (
+        not msg.is_bigendian and sys.byteorder == "little" and coord_types == {FLOAT32}
+        and step % 4 == 0 and row_step % 4 == 0 and all(o % 4 == 0 for o in offsets)
+    )
+    if words_ok:
+        # the common layouts (zivid-ros, PCL): the points as 32-bit words, checked bitwise
+        words = np.ndarray((h, w, step // 4), dtype=np.uint32, buffer=msg.data, offset=0,
+                           strides=(row_step, step, 4))
+        ox, oy, oz = (o // 4 for o in offsets[:3])
+        if rgb is not None:
+            _unpack_words_rgb(words, ox, oy, oz, offsets[3] // 4, xyz, rgb)
+        else:
+            _unpack_words(words, ox, oy, oz, xyz)
+        return xyz, rgb
+    dt = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
+    # zero-copy view: rows row_step apart, points point_step apart (padding never touched)
+    pts = np.ndarray((h, w), dtype=dt, buffer=msg.data, offset=0, strides=(row_step, step))
+    px, py, pz = pts["x"], pts["y"], pts["z"]
+    if msg.is_bigendian or px.dtype != py.dtype or px.dtype != pz.dtype:  # numba wants native order
+        px, py, pz = (a.astype(np.float64) for a in (px, py, pz))
+    if rgb is not None:
+        c = pts["c"]
+        if msg.is_bigendian:
+            c = c.astype(np.uint32)
+        _unpack_xyz_rgb(px, py, pz, c, xyz, rgb)
+    else:
+        _unpack_xyz(px, py, pz, xyz)
+    return xyz, rgb
+
+
+@numba.njit(cache=True, nogil=True)
+def _unpack_xyz(px, py, pz, xyz):  # pragma: no cover - compiled
+    h, w = px.shape
+    nan = np.float32(np.nan)
+    for i in range(h):
+        for j in range(w):
+            x = np.float32(px[i, j])
+            y = np.float32(py[i, j])
+            z = np.float32(pz[i, j])
+            if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)) or (x == 0 and y == 0 and z == 0):
+                x = y = z = nan
+            xyz[i, j, 0] = x
+            xyz[i, j, 1] = y
+            xyz[i, j, 2] = z
+
+
+@numba.njit(cache=True, nogil=True)
+def _unpack_xyz_rgb(px, py, pz, c, xyz, rgb):  # pragma: no cover - compiled
+    # one pass: each point's bytes are read from memory once
+    h, w = px.shape
+    nan = np.float32(np.nan)
+    for i in range(h):
+        for j in range(w):
+            x = np.float32(px[i, j])
+            y = np.float32(py[i, j])
+            z = np.float32(pz[i, j])
+            if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)) or (x == 0 and y == 0 and z == 0):
+                x = y = z = nan
+            xyz[i, j, 0] = x
+            xyz[i, j, 1] = y
+            xyz[i, j, 2] = z
+            v = np.uint32(c[i, j])
+            rgb[i, j, 0] = (v >> 16) & 0xFF
+            rgb[i, j, 1] = (v >> 8) & 0xFF
+            rgb[i, j, 2] = v & 0xFF
+
+
+_EXP = np.uint32(0x7F800000)  # float32 exponent bits: all set = inf or NaN
+_ABS = np.uint32(0x7FFFFFFF)
+_NAN = np.uint32(0x7FC00000)  # the bits of np.float32(np.nan)
+
+
+@numba.njit(cache=True, nogil=True)
+def _unpack_words(words, ox, oy, oz, xyz):  # pragma: no cover - compiled
+    # same result as _unpack_xyz for little-endian FLOAT32 coordinates, bitwise and branch-free
+    h, w = words.shape[0], words.shape[1]
+    out = xyz.view(np.uint32)
+    for i in range(h):
+        for j in range(w):
+            x = words[i, j, ox]
+            y = words[i, j, oy]
+            z = words[i, j, oz]
+            bad = ((x & _EXP) == _EXP) | ((y & _EXP) == _EXP) | ((z & _EXP) == _EXP) | (((x | y | z) & _ABS) == 0)
+            out[i, j, 0] = _NAN if bad else x
+            out[i, j, 1] = _NAN if bad else y
+            out[i, j, 2] = _NAN if bad else z
+
+
+@numba.njit(cache=True, nogil=True)
+def _unpack_words_rgb(words, ox, oy, oz, oc, xyz, rgb):  # pragma: no cover - compiled
+    h, w = words.shape[0], words.shape[1]
+    out = xyz.view(np.uint32)
+    for i in range(h):
+        for j in range(w):
+            x = words[i, j, ox]
+            y = words[i, j, oy]
+            z = words[i, j, oz]
+            bad = ((x & _EXP) == _EXP) | ((y & _EXP) == _EXP) | ((z & _EXP) == _EXP) | (((x | y | z) & _ABS) == 0)
+            out[i, j, 0] = _NAN if bad else x
+            out[i, j, 1] = _NAN if bad else y
+            out[i, j, 2] = _NAN if bad else z
+            v = words[i, j, oc]
+            rgb[i, j, 0] = (v >> 16) & 0xFF
+            rgb[i, j, 1] = (v >> 8) & 0xFF
+            rgb[i, j, 2] = v & 0xFF
+
+
+def arrays_to_cloud_data(xyz: np.ndarray, rgb: np.ndarray | None) -> memoryview:
+    """Pack (H, W, 3) xyz (+ optional (H, W, 3) uint8 rgb) as x, y, z FLOAT32 + rgba UINT32
+    little-endian (16 bytes per point; the last 4 are zero padding when rgb is None)."""
+    h, w = xyz.shape[:2]
+    out = np.empty((h, w, 4), dtype="<f4")
+    if sys.byteorder == "little":
+        if rgb is None:
+            _pack_xyz(xyz, out)
+        else:
+            _pack_xyz_rgb(xyz, rgb, out)
+    else:  # pragma: no cover - big-endian hosts
+        out[..., :3] = xyz
+        out.view("<u4")[..., 3] = 0
+        if rgb is not None:
+            r = rgb.astype(np.uint32)
+            out.view("<u4")[..., 3] = (0xFF << 24) | (r[..., 0] << 16) | (r[..., 1] << 8) | r[..., 2]
+    return memoryview(out).cast("B")
+
+
+@numba.njit(cache=True, nogil=True)
+def _pack_xyz(xyz, out):  # pragma: no cover - compiled
+    h, w = out.shape[0], out.shape[1]
+    bits = out.view(np.uint32)
+    for i in range(h):
+        for j in range(w):
+            out[i, j, 0] = xyz[i, j, 0]
+            out[i, j, 1] = xyz[i, j, 1]
+            out[i, j, 2] = xyz[i, j, 2]
+            bits[i, j, 3] = 0
+
+
+@numba.njit(cache=True, nogil=True)
+def _pack_xyz_rgb(xyz, rgb, out):  # pragma: no cover - compiled
+    h, w = out.shape[0], out.shape[1]
+    bits = out.view(np.uint32)
+    for i in range(h):
+        for j in range(w):
+            out[i, j, 0] = xyz[i, j, 0]
+            out[i, j, 1] = xyz[i, j, 1]
+            out[i, j, 2] = xyz[i, j, 2]
+            bits[i, j, 3] = (
+                np.uint32(0xFF000000) | (np.uint32(rgb[i, j, 0]) << 16) | (np.uint32(rgb[i, j, 1]) << 8)
+                | np.uint32(rgb[i, j, 2])
+            )
+
+
+_IMAGE_CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}
+COLOR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8")
+
+
+def _image_pixels(msg: ImageMsg, *, where: str) -> np.ndarray:
+    ch = _IMAGE_CHANNELS.get(msg.encoding)
+    if ch is None:
+        raise LogFormatError(
+            f"{where}: Image encoding '{msg.encoding}' is not supported "
+            f"(zcut reads {', '.join(_IMAGE_CHANNELS)})"
+        )
+    h, w, step = msg.height, msg.width, msg.step
+    if h < 1 or w < 1:
+        raise LogFormatError(f"{where}: Image is empty (height {h}, width {w})")
+    if step < w * ch:
+        raise LogFormatError(
+            f"{where}: Image step {step} is smaller than width {w} x {ch} bytes ({msg.encoding})"
+        )
+    need = (h - 1) * step + w * ch
+    if need > len(msg.data):
+        raise LogFormatError(
+            f"{where}: Image {h}x{w} {msg.encoding} with step {step} needs {need} bytes of data "
+            f"but has {len(msg.data)}"
+        )
+    buf = np.frombuffer(msg.data, dtype=np.uint8, count=need)
+    return np.lib.stride_tricks.as_strided(
+        buf, shape=(h, w, ch), strides=(step, ch, 1), writeable=False
+    )
+
+
+def image_to_rgb(msg: ImageMsg, *, where: str) -> np.ndarray:
+    """(H, W, 3) uint8 RGB copy of an rgb8/bgr8/rgba8/bgra8/mono8 ``Image`` (step padding dropped)."""
+    px = _image_pixels(msg, where=where)
+    enc = msg.encoding
+    if enc == "mono8":
+        return np.repeat(px, 3, axis=2)
+    if enc in ("bgr8", "bgra8"):
+        return np.ascontiguousarray(px[..., 2::-1])
+    return np.array(px[..., :3], order="C")  # a copy even for rgb8: never pin the chunk buffer
+
+
+def image_to_mask(msg: ImageMsg, *, where: str) -> np.ndarray:
+    """(H, W) bool of a mono8 mask ``Image``: nonzero (255 as zcut writes it) -> True."""
+    if msg.encoding != "mono8":
+        raise LogFormatError(f"{where}: a mask must be a mono8 Image, got '{msg.encoding}'")
+    return _image_pixels(msg, where=where)[..., 0] != 0
+
+
+def camera_info_to_intrinsics(msg: CameraInfoMsg, *, where: str) -> Intrinsics:
+    """:class:`zcut.cloud.Intrinsics` from ``K`` of a ``CameraInfo``."""
+    k = msg.k
+    try:
+        return Intrinsics(
+            fx=float(k[0]), fy=float(k[4]), cx=float(k[2]), cy=float(k[5]),
+            width=int(msg.width), height=int(msg.height),
+        )
+    except ZcutError as e:
+        raise LogFormatError(f"{where}: CameraInfo is unusable: {e}") from e

@@ -1,0 +1,197 @@
+"""Build, save and load the bin model (paper §5.1).
+
+Each empty-bin scan is masked from its RGB image (:func:`zcut.binmask.bin_mask`); the valid 3D
+points of the mask are ICP-registered into the first scan's frame; the union is voxel-downsampled,
+given normals (oriented towards the camera) and saved as a PLY point cloud. A CAD model given as a
+PLY mesh or cloud may be used instead (:func:`load_bin_model`); its frame must be camera-like: up is
+-z (what a top-down camera's optical frame gives), metres.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from zcut.binmask import bin_mask
+from zcut.registration import RegistrationResult, register_bin
+from zcut.removal import BinModel
+
+from replay.pipeline.config import PipelineConfig
+from replay.errors import LogFormatError
+from replay.logs.frame import Frame
+
+
+@dataclass(frozen=True, slots=True)
+class ScanReport:
+    """How one empty scan went into the model."""
+
+    index: int
+    n_points: int
+    registration: RegistrationResult | None  # None for the first scan (the reference) or a skipped one
+    skipped: str  # why the scan was left out, else ""
+
+
+def _with_normals(points: np.ndarray, voxel_m: float):
+    import open3d as o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, np.float64)))
+    if voxel_m > 0:
+        pc = pc.voxel_down_sample(voxel_m)
+    radius = max(3.0 * voxel_m, 0.003)
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=30))
+    pc.orient_normals_towards_camera_location(np.zeros(3))
+    return pc
+
+
+def model_from_points(points: np.ndarray, *, voxel_mm: float = 1.0) -> BinModel:
+    """Downsample (N, 3) metre points and estimate normals: a :class:`BinModel`."""
+    pc = _with_normals(points, voxel_mm / 1000.0)
+    return BinModel(np.asarray(pc.points, dtype=np.float64).copy(),
+                    np.asarray(pc.normals, dtype=np.float64).copy(), max(voxel_mm / 1000.0, 1e-4))
+
+
+def build_bin_model(
+    frames: Iterable[Frame],
+    config: PipelineConfig,
+    *,
+    voxel_mm: float = 1.0,
+) -> tuple[BinModel, list[ScanReport]]:
+    """Build a bin model from empty-bin scans.
+
+    Parameters
+    ----------
+    frames : iterable of Frame
+        Empty-bin scans with RGB images.
+    config : PipelineConfig
+        Its ``bin_mask`` and ``registration`` sections are used.
+    voxel_mm : float
+        Downsampling voxel of the model.
+
+    Returns
+    -------
+    (BinModel, list of ScanReport)
+        Raises :class:`LogFormatError` when no scan gave bin points.
+    """
+    c, r = config.bin_mask, config.registration
+    parts: list[np.ndarray] = []
+    reports: list[ScanReport] = []
+    reference: np.ndarray | None = None
+    for frame in frames:
+        if frame.rgb is None:
+            reports.append(ScanReport(frame.index, 0, None, "no RGB image"))
+            continue
+        bm = bin_mask(frame.rgb, threshold=c.threshold, dilate_px=c.dilate_px, min_area_frac=c.min_area_frac)
+        valid = np.isfinite(frame.xyz).all(axis=2)
+        pts = frame.xyz[bm.mask & valid].astype(np.float64)
+        if not bm.found or len(pts) == 0:
+            reports.append(ScanReport(frame.index, 0, None, "no bin found in the RGB image"))
+            continue
+        if reference is None:
+            reference = pts
+            parts.append(pts)
+            reports.append(ScanReport(frame.index, len(pts), None, ""))
+            continue
+        # register this scan (source) into the reference frame (target)
+        reg = register_bin(pts, reference, method=r.method, voxel_m=r.voxel_mm / 1000.0,
+                           max_correspondence_m=r.max_correspondence_mm / 1000.0,
+                           max_iterations=r.max_iterations, min_fitness=r.min_fitness,
+                           max_rmse_m=r.max_rmse_mm / 1000.0)
+        if not reg.converged:
+            reports.append(ScanReport(frame.index, len(pts), reg, f"registration failed: {reg.reason}"))
+            continue
+        parts.append(pts @ reg.T_cam_bin[:3, :3].T + reg.T_cam_bin[:3, 3])
+        reports.append(ScanReport(frame.index, len(pts), reg, ""))
+    if not parts:
+        raise LogFormatError("no empty-bin scan gave bin points (need RGB images showing the bin)")
+    return model_from_points(np.concatenate(parts), voxel_mm=voxel_mm), reports
+
+
+def save_bin_model(model: BinModel, path: str | Path) -> None:
+    """Write the model as a PLY point cloud with normals."""
+    import open3d as o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(model.points))
+    if model.normals is not None:
+        pc.normals = o3d.utility.Vector3dVector(model.normals)
+    if not o3d.io.write_point_cloud(str(path), pc, write_ascii=False):
+        raise LogFormatError(f"{path}: could not write the bin model")
+
+
+def _ply_has_faces(path: Path) -> bool:
+    """True when a PLY header declares a non-empty ``face`` element (a mesh, not a point cloud)."""
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    if not head.startswith(b"ply"):
+        raise LogFormatError(f"{path}: not a PLY file (expected a PLY point cloud or mesh)")
+    for line in head.split(b"end_header")[0].splitlines():
+        parts = line.split()
+        if len(parts) == 3 and parts[0] == b"element" and parts[1] == b"face":
+            return int(parts[2]) > 0
+    return False
+
+
+def load_bin_model(path: str | Path, *, voxel_mm: float = 1.0) -> BinModel:
+    """Read a bin model PLY: a point cloud (as saved here) or a mesh (a CAD model, sampled).
+
+    Points are metres in a frame whose up is -z. Normals are estimated when the file has none.
+    """
+    import open3d as o3d
+
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(2, "No such file", str(p))
+    voxel_m = voxel_mm / 1000.0
+    if _ply_has_faces(p):
+        mesh = o3d.io.read_triangle_mesh(str(p))
+        area = mesh.get_surface_area()
+        n = int(min(max(area / (voxel_m * voxel_m), 1000), 2_000_000))
+        pc = mesh.sample_points_uniformly(number_of_points=n)
+        return model_from_points(np.asarray(pc.points), voxel_mm=voxel_mm)
+    pc = o3d.io.read_point_cloud(str(p))
+    pts = np.asarray(pc.points, dtype=np.float64)
+    if len(pts) == 0:
+        raise LogFormatError(f"{p}: no points in the bin model (expected a PLY point cloud or mesh)")
+    if pc.has_normals():
+        spacing = float(np.median(np.asarray(pc.compute_nearest_neighbor_distance()))) if len(pts) > 1 else voxel_m
+        return BinModel(pts.copy(), np.asarray(pc.normals, dtype=np.float64).copy(), max(spacing, 1e-4))
+    return model_from_points(pts, voxel_mm=voxel_mm)
+
+
+def ensure_sample_bin_model(*, progress=None) -> Path:
+    """The bin model of the demo's sample: built once from a synthetic empty-bin log, then cached.
+
+    Five empty-bin scans (the paper's five positions, §4) at the sample's size are synthesised
+    next to the sample log, turned into a model (:func:`build_bin_model`) and saved as PLY; an
+    interrupted run leaves no partial file behind.
+
+    Parameters
+    ----------
+    progress : callable, optional
+        Passed to :func:`replay.synth.log.write_synthetic_log`.
+    """
+    import os
+
+    from replay.logs.reader import LogReader
+    from replay.synth.log import GENERATOR_VERSION, SAMPLE_SEED, SAMPLE_SIZE, sample_log_path, write_synthetic_log
+
+    h, w = SAMPLE_SIZE
+    base = sample_log_path().parent
+    target = base / f"sample_bin_model_seed{SAMPLE_SEED}_{w}x{h}_v{GENERATOR_VERSION}.ply"
+    if target.is_file():
+        return target
+    base.mkdir(parents=True, exist_ok=True)
+    empty = base / f".sample_empty_{os.getpid()}.mcap"
+    tmp = base / f".{target.stem}.tmp{os.getpid()}.ply"
+    try:
+        write_synthetic_log(empty, empty=True, frames=5, seed=SAMPLE_SEED, size=SAMPLE_SIZE, progress=progress)
+        model, _ = build_bin_model(LogReader(empty).frames(), PipelineConfig())
+        save_bin_model(model, tmp)
+        os.replace(tmp, target)
+    finally:
+        for p in (empty, tmp):
+            if p.exists():
+                p.unlink()
+    return target

@@ -1,0 +1,339 @@
+"""The paper's pipeline on one frame (§5.2-§5.3): no I/O, no viewer.
+
+bin mask (RGB) -> registration of the bin model (ICP) -> removal of table, easy outliers and bin ->
+z-cut clusters and outliers on the remaining zone -> SOR on the same zone -> α, β.
+
+With no RGB image, no bin model, or no bin found in the image, the bin stages are skipped (a
+warning is recorded in the result) and the z-cut runs on the whole frame: then
+``result.zcut_outliers == zcut.zcut_outliers(-1000 * z, ...)`` exactly (SPEC §5).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from zcut.binmask import BinMaskResult, bin_mask
+from zcut.cuts import CutResult, find_clusters
+from zcut.metrics import RelativeMetrics, relative_metrics
+from zcut.params import ZCutParams
+from zcut.registration import RegistrationResult, pose_fitness, register_bin
+from zcut.removal import BinModel, RemovalResult, finite_xyz, remove_table_and_bin
+from zcut.sor import sor_outliers
+
+from replay.pipeline.config import PipelineConfig
+from replay.errors import ConfigError
+from replay.logs.frame import Frame
+
+STAGES = ("bin_mask", "registration", "removal", "zcut", "sor", "metrics")
+REGISTRATION_MAX_POINTS = 150_000
+# the previous frame's pose is refined with the fine pass only when, on this frame, it already fits
+# at least this fraction as well as it did there; else the full coarse-to-fine registration runs
+PREVIOUS_FITNESS_KEPT = 0.9
+
+
+@dataclass(frozen=True, slots=True)
+class FrameResult:
+    """Everything the pipeline computed for one frame.
+
+    Attributes
+    ----------
+    index : int
+    stamp_ns : int
+    valid : (H, W) bool ndarray
+        Pixels with a finite point.
+    bin_mask : BinMaskResult or None
+        None when the bin stages were skipped.
+    registration : RegistrationResult or None
+        None when the bin stages were skipped before it.
+    removal : RemovalResult or None
+        None when the bin stages were skipped.
+    zone : (H, W) bool ndarray
+        Pixels the z-cut and SOR judge (valid minus table, easy outliers and bin).
+    height_mm : (H, W) float64 ndarray
+        The height image given to the z-cut.
+    cut : CutResult
+        Clusters and levels of the z-cut.
+    zcut_outliers : (H, W) bool ndarray
+        z-cut outliers in the zone, plus the easy outliers above the rim.
+    sor_outliers : (H, W) bool ndarray
+        SOR outliers in the zone, plus the easy outliers (all False when SOR is disabled).
+    metrics : RelativeMetrics
+        α, β of the zone-only masks (paper eqs. 3-4): the easy outliers are common to both and left out.
+    timings : dict[str, float]
+        Seconds per stage (keys from :data:`STAGES` that ran) and ``"total"``.
+    warnings : tuple of str
+        Stages skipped or failed, for the user to see.
+    """
+
+    index: int
+    stamp_ns: int
+    valid: np.ndarray
+    bin_mask: BinMaskResult | None
+    registration: RegistrationResult | None
+    removal: RemovalResult | None
+    zone: np.ndarray
+    height_mm: np.ndarray
+    cut: CutResult
+    zcut_outliers: np.ndarray
+    sor_outliers: np.ndarray
+    metrics: RelativeMetrics
+    timings: dict[str, float]
+    warnings: tuple[str, ...]
+
+    @property
+    def easy_outliers(self) -> np.ndarray:
+        """(H, W) bool: points above the rim (all False when the bin stages were skipped)."""
+        if self.removal is None:
+            return np.zeros_like(self.valid)
+        return self.removal.easy_outliers
+
+    @property
+    def both_outliers(self) -> np.ndarray:
+        """(H, W) bool: found by both the z-cut and SOR."""
+        return self.zcut_outliers & self.sor_outliers
+
+    @property
+    def T_cam_bin(self) -> np.ndarray | None:
+        """The converged registration's pose, else None."""
+        r = self.registration
+        return r.T_cam_bin if r is not None and r.converged else None
+
+
+def zcut_params(config: PipelineConfig) -> ZCutParams:
+    """The resolved config's z-cut parameters (``max_area_px`` must be set: see ``config.resolve``)."""
+    z = config.zcut
+    if z.max_area_px is None:
+        raise ConfigError("zcut.max_area_px is not set: resolve the config first (replay.pipeline.config.resolve)")
+    return ZCutParams(step=float(z.step_mm), max_depth=float(z.max_depth_mm),
+                      max_area=float(z.max_area_px),
+                      a_max=None if z.a_max_px is None else float(z.a_max_px))
+
+
+@dataclass(frozen=True, slots=True)
+class BinLocation:
+    """The bin stages that depend on no other frame but the previous one's pose: bin mask and
+    registration (:func:`locate_bin`).
+
+    Attributes
+    ----------
+    valid : (H, W) bool ndarray
+        Pixels with a finite point.
+    bin_mask : BinMaskResult or None
+        None when the bin stages were skipped.
+    registration : RegistrationResult or None
+        None when the bin stages were skipped.
+    timings : dict[str, float]
+        Seconds of ``"bin_mask"`` and ``"registration"`` (those that ran).
+    seconds : float
+        Their total, with the glue.
+    warnings : tuple of str
+    """
+
+    valid: np.ndarray
+    bin_mask: BinMaskResult | None
+    registration: RegistrationResult | None
+    timings: dict[str, float]
+    seconds: float
+    warnings: tuple[str, ...]
+
+
+def locate_bin(
+    frame: Frame,
+    config: PipelineConfig,
+    *,
+    bin_model: BinModel | None = None,
+    previous: RegistrationResult | None = None,
+) -> BinLocation:
+    """Bin mask and registration of one frame (the first stages of :func:`run_frame`).
+
+    No numba-parallel kernels run here (OpenCV, Open3D, scipy), so that this may run in another
+    thread while :func:`run_frame` finishes the previous frame.
+
+    Parameters
+    ----------
+    frame : Frame
+    config : PipelineConfig
+    bin_model : BinModel, optional
+        Without it the bin stages are skipped.
+    previous : RegistrationResult, optional
+        The previous frame's registration; when converged (and ``config.registration.use_previous``)
+        its pose seeds this one.
+
+    Returns
+    -------
+    BinLocation
+    """
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    warnings: list[str] = []
+    xyz = frame.xyz
+    valid = finite_xyz(xyz)
+
+    bm: BinMaskResult | None = None
+    reg: RegistrationResult | None = None
+    if not config.bin_mask.enabled:
+        warnings.append("bin stages disabled (bin_mask.enabled = false): z-cut on the whole frame")
+    elif frame.rgb is None:
+        warnings.append("no RGB image: bin stages skipped, z-cut on the whole frame")
+    elif bin_model is None:
+        warnings.append("no bin model (--bin-model): bin stages skipped, z-cut on the whole frame")
+    else:
+        t = time.perf_counter()
+        c = config.bin_mask
+        bm = bin_mask(frame.rgb, threshold=c.threshold, dilate_px=c.dilate_px, min_area_frac=c.min_area_frac)
+        timings["bin_mask"] = time.perf_counter() - t
+        if not bm.found:
+            warnings.append("no bin found in the RGB image: bin stages skipped, z-cut on the whole frame")
+            bm = None
+    if bm is not None:
+        assert bin_model is not None
+        t = time.perf_counter()
+        c = config.registration
+        use = previous is not None and previous.converged and c.use_previous
+        init = previous.T_cam_bin if use else None
+        walls = bm.walls & valid
+        # the ICP downsamples to voxel_mm anyway: a regular subgrid of at most ~150k pixels is enough
+        s = max(1, int(np.ceil(np.sqrt(walls.sum() / REGISTRATION_MAX_POINTS))))
+        target = xyz[::s, ::s][walls[::s, ::s]].astype(np.float64)
+        kw = dict(model_normals=bin_model.normals, method=c.method, voxel_m=c.voxel_mm / 1000.0,
+                  max_correspondence_m=c.max_correspondence_mm / 1000.0, max_iterations=c.max_iterations,
+                  min_fitness=c.min_fitness, max_rmse_m=c.max_rmse_mm / 1000.0)
+        reg = None
+        if init is not None:
+            # a static bin: the previous pose needs only the fine pass (a moved bin: the full one)
+            fine = c.max_correspondence_mm / 3000.0
+            f0 = pose_fitness(bin_model.points, target, init, model_normals=bin_model.normals,
+                              voxel_m=c.voxel_mm / 1000.0, max_correspondence_m=fine)
+            if f0 >= PREVIOUS_FITNESS_KEPT * previous.fitness:
+                reg = register_bin(bin_model.points, target, init=init, coarse=False, **kw)
+                if not reg.converged:
+                    reg = None
+        if reg is None:
+            reg = register_bin(bin_model.points, target, **kw)
+        timings["registration"] = time.perf_counter() - t
+    return BinLocation(valid, bm, reg, timings, time.perf_counter() - t_start, tuple(warnings))
+
+
+def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, **kw) -> np.ndarray:
+    """(H, W) bool: SOR outliers among the zone's points only (the rest of the frame set to NaN).
+
+    SOR sees only the zone's points, so it runs on the zone's bounding box: the same point set in
+    the same row-major order, hence the same result as on the whole NaN-masked frame, with less
+    to scan. ``whole``: the zone is every valid pixel, ``xyz`` is used as it is.
+    """
+    if whole:
+        return sor_outliers(xyz, **kw) & zone
+    out = np.zeros_like(zone)
+    rows = np.flatnonzero(zone.any(axis=1))
+    if rows.size == 0:
+        return out
+    cols = np.flatnonzero(zone.any(axis=0))
+    r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    z = zone[r0:r1, c0:c1]
+    sub = np.where(z[..., None], xyz[r0:r1, c0:c1], np.float32(np.nan)).astype(xyz.dtype, copy=False)
+    out[r0:r1, c0:c1] = sor_outliers(sub, **kw) & z
+    return out
+
+
+def run_frame(
+    frame: Frame,
+    config: PipelineConfig,
+    *,
+    bin_model: BinModel | None = None,
+    previous: FrameResult | None = None,
+    located: BinLocation | None = None,
+) -> FrameResult:
+    """Run every stage on one frame.
+
+    Parameters
+    ----------
+    frame : Frame
+    config : PipelineConfig
+        Resolved (``config.zcut.max_area_px`` set).
+    bin_model : BinModel, optional
+        Without it the bin stages are skipped.
+    previous : FrameResult, optional
+        The previous frame's result; its converged pose seeds the registration when
+        ``config.registration.use_previous``.
+    located : BinLocation, optional
+        :func:`locate_bin` of this frame, already computed (e.g. in another thread, while the
+        previous frame finished); then ``previous`` is not used.
+
+    Returns
+    -------
+    FrameResult
+    """
+    params = zcut_params(config)
+    if located is None:
+        prev_reg = previous.registration if previous is not None else None
+        located = locate_bin(frame, config, bin_model=bin_model, previous=prev_reg)
+    t_start = time.perf_counter()
+    timings = dict(located.timings)
+    warnings = list(located.warnings)
+    xyz = frame.xyz
+    valid = located.valid
+    bm = located.bin_mask
+    reg = located.registration
+    rem: RemovalResult | None = None
+    if bm is not None:
+        assert bin_model is not None and reg is not None
+        t = time.perf_counter()
+        r = config.removal
+        if reg.converged:
+            rem = remove_table_and_bin(
+                xyz, bm.mask, model=bin_model, T_cam_bin=reg.T_cam_bin, delta_m=r.delta_mm / 1000.0,
+                rim_offset_m=r.rim_offset_mm / 1000.0,
+                search_radius_m=None if r.search_radius_mm is None else r.search_radius_mm / 1000.0,
+                straggler_m=r.straggler_mm / 1000.0, straggler_neighbours=r.straggler_neighbours)
+        else:
+            warnings.append(f"bin registration failed ({reg.reason}): only the table removed")
+            rem = remove_table_and_bin(xyz, bm.mask)
+        timings["removal"] = time.perf_counter() - t
+
+    if rem is None:
+        zone = valid
+        height = -1000.0 * xyz[..., 2].astype(np.float64)
+        easy = np.zeros_like(valid)
+    else:
+        zone = rem.zone
+        height = rem.height_mm
+        easy = rem.easy_outliers
+
+    t = time.perf_counter()
+    cut = find_clusters(height, params=params, connectivity=config.zcut.connectivity)
+    z_zone = cut.outliers & zone
+    timings["zcut"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    s = config.sor
+    if s.enabled:
+        s_zone = _sor_on_zone(xyz, zone, whole=rem is None, k=s.k, std_ratio=s.std_ratio,
+                              convention=s.convention)
+    else:
+        s_zone = np.zeros_like(valid)
+        warnings.append("SOR disabled (sor.enabled = false)")
+    timings["sor"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    metrics = relative_metrics(s_zone, z_zone)
+    timings["metrics"] = time.perf_counter() - t
+    timings["total"] = located.seconds + time.perf_counter() - t_start
+    return FrameResult(
+        index=frame.index,
+        stamp_ns=frame.stamp_ns,
+        valid=valid,
+        bin_mask=bm,
+        registration=reg,
+        removal=rem,
+        zone=zone,
+        height_mm=height,
+        cut=cut,
+        zcut_outliers=z_zone | easy,
+        sor_outliers=s_zone | easy,
+        metrics=metrics,
+        timings=timings,
+        warnings=tuple(warnings),
+    )

@@ -1,0 +1,443 @@
+"""Every pipeline stage in Rerun. The only module of zcut that imports ``rerun``.
+
+An explicit :class:`rerun.RecordingStream` is passed in (no global recording). Entity paths:
+
+====================================  ==========================================================
+``image/rgb``                         the RGB image (JPEG at default detail), or a gray height
+                                      image when the frame has no RGB
+``image/bin_mask``                    bin footprint (1) and its bright walls (2), over the image
+``image/removal``                     table (1), bin (2), easy outliers (3), zone (4)
+``image/clusters``                    tagged z-cut clusters; each class labelled with area, level, ρ
+``image/outliers``                    z-cut only (1), SOR only (2), both (3), above the rim (4)
+``zcut/cuts``                         the z-cuts: scrub the ``depth_um`` timeline (see below)
+``world/cloud``                       the cloud (every 4th pixel at default detail)
+``world/outliers``                    the outliers in 3D, coloured as in ``image/outliers``
+``world/bin_model``                   the registered bin model (pose per frame) + fitness/RMSE
+``counts/*``, ``metrics/*``,          per-frame scalars: outlier counts, α, β, stage times (ms),
+``timings_ms/*``, ``registration/*``  registration fitness and RMSE (mm)
+``config``                            the resolved config (TOML), static
+``log``                               per-frame warnings (skipped or failed stages)
+====================================  ==========================================================
+
+The z-cuts cost one small image per frame: ``zcut/cuts`` holds the pixel level (the first cut a
+pixel belongs to) as a segmentation image, and for every shown level k one AnnotationContext,
+logged at ``depth_um`` = k·Δd in micrometres, colours the levels up to k and leaves the deeper ones
+transparent: scrubbing ``depth_um`` shows the real cut Z_k (every level at full detail, at most 32
+evenly spaced ones by default). Levels repeat from frame to frame, so the depth
+timeline shows the last frame logged (replay one frame with ``--frames N:N+1`` to debug it).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import pyarrow as pa
+import rerun as rr
+import rerun.blueprint as rrb
+
+from zcut.removal import BinModel
+
+from replay.logs.frame import Frame
+from replay.pipeline.stages import FrameResult
+
+OUTLIER_CLASSES = (
+    (1, "z-cut only", (255, 140, 0)),
+    (2, "SOR only", (30, 144, 255)),
+    (3, "both", (220, 20, 220)),
+    (4, "above the rim", (255, 0, 0)),
+)
+REMOVAL_CLASSES = (
+    (1, "table", (60, 60, 140)),
+    (2, "bin", (0, 200, 200)),
+    (3, "above the rim", (255, 0, 0)),
+    (4, "zone", (80, 200, 80)),
+)
+BIN_MASK_CLASSES = (
+    (1, "bin footprint", (0, 160, 255)),
+    (2, "bin walls", (255, 255, 0)),
+)
+
+
+@dataclass(frozen=True, slots=True)
+class VizOptions:
+    """How much to log.
+
+    Attributes
+    ----------
+    full_detail : bool
+        Raw images, every point, every level at full resolution.
+    cloud_stride : int
+        Log every n-th row and column of the cloud in 3D.
+    level_stride : int
+        Resolution divisor of the z-cut level image.
+    jpeg_quality : int
+        Quality of the RGB image (when not full detail).
+    max_cluster_labels : int
+        Clusters beyond this many get no label (the colour stays).
+    max_scrub_levels : int
+        Cut levels shown on the depth timeline per frame (full detail: all).
+    """
+
+    full_detail: bool = False
+    cloud_stride: int = 4
+    level_stride: int = 2
+    jpeg_quality: int = 85
+    max_cluster_labels: int = 2000
+    max_scrub_levels: int = 32
+
+    @classmethod
+    def full(cls) -> VizOptions:
+        return cls(full_detail=True, cloud_stride=1, level_stride=1)
+
+
+def new_recording(*, application_id: str = "zcut", recording_id: str | None = None) -> rr.RecordingStream:
+    """A recording stream that is nobody's global default."""
+    return rr.RecordingStream(application_id, recording_id=recording_id, make_default=False,
+                              make_thread_default=False)
+
+
+def default_blueprint() -> rrb.Blueprint:
+    """Image stages on the left, 3D and the z-cuts in the middle, scalars and config on the right."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Spatial2DView(name="RGB + bin mask", origin="image",
+                                  contents=["image/rgb", "image/bin_mask"]),
+                rrb.Spatial2DView(name="Removal", origin="image", contents=["image/rgb", "image/removal"]),
+                rrb.Spatial2DView(name="Outliers (z-cut / SOR / both)", origin="image",
+                                  contents=["image/rgb", "image/outliers"]),
+            ),
+            rrb.Vertical(
+                rrb.Spatial3DView(name="3D: cloud, outliers, bin model", origin="world"),
+                rrb.Horizontal(
+                    rrb.Spatial2DView(name="Clusters", origin="image", contents=["image/rgb", "image/clusters"]),
+                    rrb.Spatial2DView(name="z-cuts (scrub depth_um)", origin="zcut/cuts"),
+                ),
+            ),
+            rrb.Vertical(
+                rrb.TimeSeriesView(name="Outlier counts", origin="counts"),
+                rrb.TimeSeriesView(name="α, β", origin="metrics"),
+                rrb.TimeSeriesView(name="Stage times (ms)", origin="timings_ms"),
+                rrb.TimeSeriesView(name="Registration", origin="registration"),
+                rrb.Tabs(rrb.TextDocumentView(name="Config", origin="config"),
+                         rrb.TextLogView(name="Warnings", origin="log")),
+            ),
+            column_shares=[2, 3, 2],
+        ),
+        collapse_panels=False,
+    )
+
+
+def open_sink(rec: rr.RecordingStream, *, rrd: str | None = None, spawn: bool = False,
+              connect: str | None = None) -> None:
+    """Send ``rec`` to a file, a spawned viewer or a running viewer, with the default blueprint."""
+    bp = default_blueprint()
+    if rrd is not None:
+        rec.save(rrd, default_blueprint=bp)
+    elif spawn:
+        rec.spawn(default_blueprint=bp)
+    elif connect is not None:
+        rec.connect_grpc(connect, default_blueprint=bp)
+
+
+def _ctx(classes) -> rr.AnnotationContext:
+    return rr.AnnotationContext([rr.AnnotationInfo(id=0, label="none", color=(0, 0, 0, 0))]
+                                + [rr.AnnotationInfo(id=i, label=name, color=col) for i, name, col in classes])
+
+
+def log_static(rec: rr.RecordingStream, *, config_toml: str, notes: tuple[str, ...] = (),
+               bin_model: BinModel | None = None, source: str = "") -> None:
+    """Things that do not change per frame: annotation contexts, axes, the config, the bin model."""
+    rec.log("image/outliers", _ctx(OUTLIER_CLASSES), static=True)
+    rec.log("image/removal", _ctx(REMOVAL_CLASSES), static=True)
+    rec.log("image/bin_mask", _ctx(BIN_MASK_CLASSES), static=True)
+    rec.log("world/outliers", _ctx(OUTLIER_CLASSES), static=True)
+    rec.log("world", rr.ViewCoordinates.RDF, static=True)
+    head = f"# zcut replay\n\n{source}\n\n" if source else "# zcut replay\n\n"
+    body = "".join(f"- {n}\n" for n in notes)
+    text = f"{head}{body}\n## Resolved config\n\n```toml\n{config_toml}```\n"
+    rec.log("config", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
+    if bin_model is not None:
+        pts = bin_model.points
+        if len(pts) > 200_000:
+            pts = pts[:: int(np.ceil(len(pts) / 200_000))]
+        rec.log("world/bin_model/points", rr.Points3D(pts.astype(np.float32), colors=(0, 120, 255),
+                                                      radii=rr.Radius.ui_points(1.5)), static=True)
+
+
+def set_frame_time(rec: rr.RecordingStream, frame: Frame) -> None:
+    """The frame's timelines: ``frame`` (index) and ``stamp`` (the cloud's header stamp)."""
+    rec.set_time("frame", sequence=int(frame.index))
+    rec.set_time("stamp", timestamp=np.datetime64(int(frame.stamp_ns), "ns"))
+
+
+def _image(rgb: np.ndarray, opts: VizOptions):
+    """Raw at full detail; else JPEG-encoded once with OpenCV (faster than ``rr.Image.compress``)."""
+    if opts.full_detail:
+        return rr.Image(np.ascontiguousarray(rgb), color_model="RGB")
+    bgr = rgb if rgb.ndim == 2 else cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+    ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(opts.jpeg_quality)])
+    if not ok:  # pragma: no cover - OpenCV encodes every uint8 image
+        return rr.Image(np.ascontiguousarray(rgb), color_model="RGB").compress(jpeg_quality=opts.jpeg_quality)
+    return rr.EncodedImage(contents=buf.tobytes(), media_type="image/jpeg")
+
+
+def _height_gray(height_mm: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 rendering of a height image (high = bright; invalid = black); the 1 % and 99 %
+    percentiles that stretch it come from every 4th row and column."""
+    ok = np.isfinite(height_mm)
+    out = np.zeros(height_mm.shape, np.uint8)
+    sub = height_mm[::4, ::4]
+    sub = sub[np.isfinite(sub)]
+    if ok.any():
+        lo, hi = np.percentile(sub if sub.size else height_mm[ok], [1, 99])
+        span = max(hi - lo, 1e-9)
+        out[ok] = (np.clip((height_mm[ok] - lo) / span, 0, 1) * 230 + 25).astype(np.uint8)
+    return out
+
+
+def log_image(rec: rr.RecordingStream, frame: Frame, result: FrameResult, opts: VizOptions) -> None:
+    """The RGB image, or a gray rendering of the height when the frame has none."""
+    if frame.rgb is not None:
+        rec.log("image/rgb", _image(frame.rgb, opts))
+        return
+    gray = _height_gray(frame.xyz[..., 2] * np.float32(-1000.0))  # float32: only a rendering
+    if opts.full_detail:
+        rec.log("image/rgb", rr.Image(gray, color_model="L"))
+    else:
+        rec.log("image/rgb", _image(gray, opts))
+
+
+def _u8(mask: np.ndarray) -> np.ndarray:
+    """(H, W) bool -> the same memory as uint8 0/1 (no copy)."""
+    return np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
+
+
+def log_bin_stages(rec: rr.RecordingStream, frame: Frame, result: FrameResult) -> None:
+    """Bin mask, removal classes, registered bin model with fitness/RMSE (or a Clear when skipped)."""
+    if result.bin_mask is None:
+        rec.log("image/bin_mask", rr.Clear(recursive=False))
+    else:
+        m = np.maximum(_u8(result.bin_mask.mask), _u8(result.bin_mask.walls) * np.uint8(2))  # walls win
+        rec.log("image/bin_mask", rr.SegmentationImage(m, opacity=0.35))
+    rem = result.removal
+    if rem is None:
+        rec.log("image/removal", rr.Clear(recursive=False))
+    else:
+        # the higher class wins, as if table, bin, easy outliers and zone were painted in that order
+        c = np.maximum(_u8(rem.table), _u8(rem.bin_points) * np.uint8(2))
+        np.maximum(c, _u8(rem.easy_outliers) * np.uint8(3), out=c)
+        np.maximum(c, _u8(rem.zone) * np.uint8(4), out=c)
+        rec.log("image/removal", rr.SegmentationImage(c, opacity=0.4))
+    reg = result.registration
+    if reg is None:  # the model keeps its last pose; the label says this frame did not register it
+        why = result.warnings[0] if result.warnings else "bin stages skipped"
+        rec.log("world/bin_model/status", rr.Points3D([[0.0, 0.0, 0.0]], labels=[f"not registered: {why}"],
+                                                      colors=[(255, 0, 0)], show_labels=True))
+        return
+    T = reg.T_cam_bin
+    rec.log("world/bin_model", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
+    status = (f"fitness {reg.fitness:.3f}, RMSE {reg.inlier_rmse * 1000:.2f} mm" if reg.converged
+              else f"registration FAILED: {reg.reason}")
+    colour = (0, 120, 255) if reg.converged else (255, 0, 0)
+    rec.log("world/bin_model/status", rr.Points3D([[0.0, 0.0, 0.0]], labels=[status], colors=[colour],
+                                                  show_labels=True))
+    rec.log("registration/fitness", rr.Scalars(reg.fitness))
+    rec.log("registration/rmse_mm", rr.Scalars(reg.inlier_rmse * 1000.0))
+
+
+def _level_colours(n: int) -> np.ndarray:
+    """(n, 3) uint8: a blue -> yellow gradient for levels 0 .. n-1 (shallow = warm)."""
+    t = np.linspace(0.0, 1.0, max(n, 1))
+    r = (255 * (1 - t) + 40 * t).astype(np.uint8)
+    g = (220 * (1 - t) + 90 * t).astype(np.uint8)
+    b = (40 * (1 - t) + 200 * t).astype(np.uint8)
+    return np.stack([r, g, b], axis=1)[:n]
+
+
+def _rgba32(rgb: np.ndarray, alpha: int | np.ndarray = 255) -> np.ndarray:
+    """(n, 3) uint8 -> (n,) uint32 packed 0xRRGGBBAA (Rerun's colour layout; no per-value Python)."""
+    c = np.asarray(rgb).astype(np.uint32)
+    return (c[:, 0] << 24) | (c[:, 1] << 16) | (c[:, 2] << 8) | np.asarray(alpha, np.uint32)
+
+
+_CTX_TYPE = rr.components.AnnotationContextBatch._ARROW_DATATYPE
+_ELEM_TYPE = _CTX_TYPE.value_type
+_DESC_TYPE = _ELEM_TYPE.field("class_description").type
+_INFO_TYPE = _DESC_TYPE.field("info").type
+
+
+def _contexts_arrow(ids: np.ndarray, labels: list[str | None], colours: np.ndarray,
+                    offsets: np.ndarray) -> pa.Array:
+    """AnnotationContexts built directly in Arrow (``rr.AnnotationInfo`` costs ~75 µs per class).
+
+    Parameters
+    ----------
+    ids : (n,) integer ndarray
+        Class ids of all contexts, concatenated.
+    labels : list of n str or None
+    colours : (n,) uint32 ndarray
+        Packed RGBA colours.
+    offsets : (m + 1,) integer ndarray
+        Context j holds entries ``offsets[j] .. offsets[j + 1]``.
+
+    Returns
+    -------
+    pyarrow.Array
+        m rows of Rerun's AnnotationContext component type.
+    """
+    n = len(ids)
+    id16 = pa.array(np.asarray(ids, np.uint16), pa.uint16())
+    info = pa.StructArray.from_arrays([id16, pa.array(labels, pa.string()), pa.array(colours, pa.uint32())],
+                                      fields=list(_INFO_TYPE))
+    no_offsets = pa.array(np.zeros(n + 1, np.int32))
+    kp = [pa.ListArray.from_arrays(no_offsets, pa.array([], _DESC_TYPE.field(name).type.value_type),
+                                   type=_DESC_TYPE.field(name).type)
+          for name in ("keypoint_annotations", "keypoint_connections")]
+    desc = pa.StructArray.from_arrays([info, *kp], fields=list(_DESC_TYPE))
+    elem = pa.StructArray.from_arrays([id16, desc], fields=list(_ELEM_TYPE))
+    return pa.ListArray.from_arrays(pa.array(np.asarray(offsets, np.int32)), elem, type=_CTX_TYPE)
+
+
+def scrub_levels(n_levels: int, opts: VizOptions) -> tuple[int, list[int]]:
+    """(m, levels): the cut levels shown on the depth timeline, every m-th of 0 .. K + 1 and K + 1.
+
+    Full detail shows every level; by default at most ``opts.max_scrub_levels`` (an
+    AnnotationContext per shown level is the cost of scrubbing).
+    """
+    top = n_levels + 1
+    m = 1 if opts.full_detail else max(1, -(-(top + 1) // max(int(opts.max_scrub_levels), 2)))
+    levels = list(range(0, top + 1, m))
+    if levels[-1] != top:
+        levels.append(top)
+    return m, levels
+
+
+def log_cuts(rec: rr.RecordingStream, frame: Frame, result: FrameResult, opts: VizOptions, *,
+             step_mm: float) -> None:
+    """The z-cuts, scrubbable on the ``depth_um`` timeline (see the module docstring).
+
+    The level image holds class ``ceil(level / m) + 1`` (0: deeper than K + 1 or invalid); the
+    context logged at ``depth_um`` = k·Δd for each shown level k = q·m colours the classes 1 .. q + 1
+    and hides the rest, so the cut shown at k is exactly Z_k. The contexts of all shown levels go
+    out in one ``send_columns`` call, on the frame's ``frame`` and ``stamp`` timelines too.
+    """
+    cut = result.cut
+    s = 1 if opts.full_detail else max(int(opts.level_stride), 1)
+    m, levels = scrub_levels(cut.n_levels, opts)
+    lvl = cut.pixel_level[::s, ::s].astype(np.int32)
+    seg = np.where(lvl >= 0, (lvl + m - 1) // m + 1, 0).astype(np.uint16)
+    rec.set_time("depth_um", sequence=0)
+    rec.log("zcut/cuts", rr.SegmentationImage(seg))
+    rec.disable_timeline("depth_um")
+    depths = np.array([round(k * step_mm * 1000.0) for k in levels], np.int64)
+    n = len(levels)
+    rec.send_columns("zcut/cuts", indexes=[
+        rr.TimeColumn("frame", sequence=np.full(n, int(frame.index), np.int64)),
+        rr.TimeColumn("stamp", timestamp=np.full(n, int(frame.stamp_ns), np.int64).astype("datetime64[ns]")),
+        rr.TimeColumn("depth_um", sequence=depths)],
+        columns=rr.AnnotationContext.columns(context=_cut_contexts(cut.n_levels, m, tuple(levels))))
+
+
+@functools.lru_cache(maxsize=64)
+def _cut_contexts(n_levels: int, m: int, levels: tuple[int, ...]) -> pa.Array:
+    """One context per shown level k (classes 1 .. q + 1 coloured, the rest hidden), built in Arrow
+    in one go and reused by every frame with the same K."""
+    n_cls = (n_levels + 1 + m - 1) // m + 1  # classes 1 .. n_cls
+    colours = np.concatenate([[0], _rgba32(_level_colours(n_cls))])  # class id -> colour (0 hidden)
+    names = [None] + [f"levels <= {min(c * m, n_levels + 1)}" for c in range(n_cls)]
+    q = np.array([(k + m - 1) // m for k in levels])
+    ids = np.tile(np.arange(n_cls + 1), len(levels))
+    shown = (ids >= 1) & (ids <= np.repeat(q, n_cls + 1) + 1)
+    labels = [names[i] if v else None for i, v in zip(ids.tolist(), shown.tolist())]
+    return _contexts_arrow(ids, labels, np.where(shown, colours[ids], 0).astype(np.uint32),
+                           np.arange(len(levels) + 1) * (n_cls + 1))
+
+
+@functools.lru_cache(maxsize=1)
+def _cluster_palette(n: int) -> np.ndarray:
+    """(n,) uint32: random bright colours for cluster ids 1 .. n (fixed seed: stable across frames)."""
+    return _rgba32(np.random.default_rng(7).integers(60, 256, size=(n, 3)))
+
+
+def log_clusters(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions) -> None:
+    """Tagged clusters as a segmentation image; each class labelled with its area, level and ρ."""
+    cut = result.cut
+    n = cut.n_clusters
+    k = min(n, opts.max_cluster_labels)
+    areas, levels, rho = cut.areas[:k].tolist(), cut.levels[:k].tolist(), cut.rho[:k].tolist()
+    labels = [None] + [f"cluster {i + 1}: {a} px, level {lv}" + (f", ρ {r:.3f}" if np.isfinite(r) else "")
+                       for i, (a, lv, r) in enumerate(zip(areas, levels, rho))]
+    colours = np.concatenate([[0], _cluster_palette(max(int(opts.max_cluster_labels), 1))[:k]]).astype(np.uint32)
+    ctx = _contexts_arrow(np.arange(k + 1), labels, colours, np.array([0, k + 1]))
+    rec.log("image/clusters", rr.AnnotationContext(ctx))
+    dtype = np.uint8 if n < 256 else np.uint16 if n < 65536 else np.uint32  # the smallest that holds every id
+    rec.log("image/clusters", rr.SegmentationImage(cut.clusters.astype(dtype)))
+
+
+def _outlier_classes(result: FrameResult) -> np.ndarray:
+    """(H, W) uint8: z-cut only 1, SOR only 2, both 3, above the rim 4 (wins)."""
+    s = _u8(result.sor_outliers)
+    c = _u8(result.zcut_outliers) + s
+    c += s
+    return np.maximum(c, _u8(result.easy_outliers) * np.uint8(4), out=c)
+
+
+def log_outliers(rec: rr.RecordingStream, frame: Frame, result: FrameResult, classes: np.ndarray) -> None:
+    """Outliers of the z-cut, SOR and both, in 2D (segmentation) and 3D (points), same colours."""
+    rec.log("image/outliers", rr.SegmentationImage(classes, opacity=0.8))
+    idx = np.flatnonzero(result.zcut_outliers | result.sor_outliers | result.easy_outliers)  # bool: fast
+    rows, cols = np.divmod(idx, classes.shape[1])
+    rec.log("world/outliers", rr.Points3D(frame.xyz[rows, cols], class_ids=classes.ravel()[idx],
+                                          radii=rr.Radius.ui_points(3.0)))
+
+
+def log_cloud(rec: rr.RecordingStream, frame: Frame, opts: VizOptions) -> None:
+    """The cloud in 3D (strided at default detail), in its RGB colours when there are some."""
+    s = 1 if opts.full_detail else max(int(opts.cloud_stride), 1)
+    ok = np.isfinite(frame.xyz[::s, ::s, 2])  # z first (one strided pass), then x and y of those only
+    idx = np.flatnonzero(ok)
+    flat = (idx // ok.shape[1]) * (s * frame.xyz.shape[1]) + (idx % ok.shape[1]) * s  # into the full grid
+    xyz = np.take(frame.xyz.reshape(-1, 3), flat, axis=0)
+    colours = None if frame.rgb is None else np.take(frame.rgb.reshape(-1, 3), flat, axis=0)
+    good = np.isfinite(xyz[:, 0]) & np.isfinite(xyz[:, 1])
+    if not good.all():
+        xyz = xyz[good]
+        colours = None if colours is None else colours[good]
+    rec.log("world/cloud", rr.Points3D(xyz, colors=None if colours is None else _rgba32(colours),
+                                       radii=rr.Radius.ui_points(1.0)))
+
+
+def log_scalars(rec: rr.RecordingStream, result: FrameResult, classes: np.ndarray) -> None:
+    """Counts, α, β and stage times of the frame."""
+    z, s = result.zcut_outliers, result.sor_outliers
+    rec.log("counts/zcut", rr.Scalars(float(np.count_nonzero(z))))
+    rec.log("counts/sor", rr.Scalars(float(np.count_nonzero(s))))
+    rec.log("counts/both", rr.Scalars(float(np.count_nonzero(z & s))))
+    rec.log("counts/above_rim", rr.Scalars(float(np.count_nonzero(result.easy_outliers))))
+    rec.log("counts/clusters", rr.Scalars(float(result.cut.n_clusters)))
+    m = result.metrics
+    rec.log("metrics/alpha", rr.Scalars(float(m.alpha)))
+    rec.log("metrics/beta_sor", rr.Scalars(float(m.beta1)))
+    rec.log("metrics/beta_zcut", rr.Scalars(float(m.beta2)))
+    for stage, sec in result.timings.items():
+        rec.log(f"timings_ms/{stage}", rr.Scalars(sec * 1000.0))
+
+
+def log_frame(rec: rr.RecordingStream, frame: Frame, result: FrameResult, *,
+              step_mm: float, opts: VizOptions = VizOptions()) -> None:
+    """Log every stage of one frame."""
+    set_frame_time(rec, frame)
+    log_image(rec, frame, result, opts)
+    log_bin_stages(rec, frame, result)
+    log_cuts(rec, frame, result, opts, step_mm=step_mm)
+    log_clusters(rec, result, opts)
+    classes = _outlier_classes(result)
+    log_outliers(rec, frame, result, classes)
+    log_cloud(rec, frame, opts)
+    log_scalars(rec, result, classes)
+    for w in result.warnings:
+        rec.log("log", rr.TextLog(f"frame {frame.index}: {w}", level=rr.TextLogLevel.WARN))

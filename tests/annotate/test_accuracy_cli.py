@@ -1,0 +1,197 @@
+"""``zcut accuracy`` on real small logs, results files and a real label store."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from annotate.accuracy import agreement_counts
+from annotate.store import LabelStore
+from annotate_helpers import spike_frame, write_spike_log
+from replay.cli import main
+from replay.logs.reader import LogReader
+from replay.logs.writer import LogWriter
+from zcut.metrics import cohen_kappa, mask_iou
+
+
+
+@pytest.fixture(scope="module")
+def spike_log(tmp_path_factory):
+    d = tmp_path_factory.mktemp("acc")
+    log = d / "scan.mcap"
+    truths = write_spike_log(log, frames=3)
+    return log, truths
+
+
+@pytest.fixture(scope="module")
+def predictions(spike_log):
+    """The pipeline's masks per frame, as `zcut replay` writes them to a results file."""
+    log, _ = spike_log
+    results = log.with_name("results.mcap")
+    assert main(["replay", str(log), "--out", str(results)]) == 0
+    preds = []
+    for fr in LogReader(results).frames():
+        preds.append((fr.masks["/zcut/outliers"], fr.masks["/zcut/sor_outliers"]))
+    return results, preds
+
+
+def _json(capsys, argv):
+    capsys.readouterr()
+    code = main(argv)
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    return json.loads(out.out)
+
+
+def _hand(P, L, R):
+    return {"tp": int((P & L & R).sum()), "fp": int((P & R & ~L).sum()), "fn": int((L & R & ~P).sum())}
+
+
+def test_ground_truth_from_log_and_from_results_agree_and_match_hand_counts(spike_log, predictions, capsys):
+    log, truths = spike_log
+    results, preds = predictions
+    from_log = _json(capsys, ["accuracy", str(log), "--json"])
+    from_results = _json(capsys, ["accuracy", str(results), "--json"])
+    assert from_log == from_results
+    assert [f["index"] for f in from_log["frames"]] == [0, 1, 2]
+    pooled = {m: {"tp": 0, "fp": 0, "fn": 0} for m in ("zcut", "sor", "union", "intersection")}
+    everything = np.ones(truths[0].shape, bool)
+    for f, L, (z, s) in zip(from_log["frames"], truths, preds):
+        for m, P in (("zcut", z), ("sor", s), ("union", z | s), ("intersection", z & s)):
+            hand = _hand(P, L, everything)
+            assert {k: f[m][k] for k in hand} == hand, m
+            for k in hand:
+                pooled[m][k] += hand[k]
+    for m in pooled:
+        assert {k: from_log["pooled"][m][k] for k in ("tp", "fp", "fn")} == pooled[m]
+        assert all(isinstance(from_log["pooled"][m][k], int) for k in ("tp", "fp", "fn"))
+    assert from_log["pooled"]["zcut"]["tp"] > 0  # the flying spikes are found at all
+
+
+def test_table_output(spike_log, predictions, capsys):
+    log, _ = spike_log
+    results, _ = predictions
+    assert main(["accuracy", str(results)]) == 0
+    out = capsys.readouterr().out
+    assert "truth: ground truth /ground_truth/outliers; predictions: from /zcut/outliers" in out
+    assert "pooled over 3 frames" in out and "intersection" in out
+
+
+def _label_store(db, log, labels_by_annotator):
+    with LabelStore(db) as s:
+        lg = s.add_log(log)
+        recs = {}
+        for fr in LogReader(log).frames():
+            recs[fr.index] = s.add_frame(lg, topic=fr.topic, stamp_ns=fr.stamp_ns, index=fr.index, shape=fr.shape,
+                                         frame_id=fr.frame_id, valid=np.isfinite(fr.xyz).all(axis=2))
+        for who, per_frame in labels_by_annotator.items():
+            for i, (L, R) in per_frame.items():
+                s.save_label(recs[i], annotator=who, outliers=L, reviewed=R, base_revision=0)
+
+
+def test_human_labels_and_agreement(spike_log, predictions, tmp_path, capsys):
+    log, truths = spike_log
+    results, preds = predictions
+    rng = np.random.default_rng(11)
+    valid = [np.isfinite(fr.xyz).all(axis=2) for fr in LogReader(log).frames()]
+    # ann labels frames 0 and 2 with the truth, reviewing the left 3/4 of frame 2 only; bob labels frame 2
+    R2 = valid[2].copy()
+    R2[:, 120:] = False
+    ann = {0: (truths[0] & valid[0], valid[0]), 2: (truths[2] & R2, R2)}
+    bob_L = (truths[2] | (rng.random(R2.shape) < 0.02)) & valid[2]
+    bob = {2: (bob_L, valid[2])}
+    db = tmp_path / "labels.sqlite"
+    _label_store(db, log, {"ann": ann, "bob": bob})
+
+    # two annotators: must choose
+    assert main(["accuracy", str(log), "--labels", str(db)]) == 1
+    assert "--annotator" in capsys.readouterr().err
+    assert main(["accuracy", str(log), "--labels", str(db), "--annotator", "zoe"]) == 1
+    assert "zoe" in capsys.readouterr().err
+
+    rep = _json(capsys, ["accuracy", str(log), "--labels", str(db), "--annotator", "ann", "--json"])
+    assert [f["index"] for f in rep["frames"]] == [0, 2]  # frame 1 has no label: skipped
+    for f in rep["frames"]:
+        L, R = ann[f["index"]]
+        z, s = preds[f["index"]]
+        assert {k: f["zcut"][k] for k in ("tp", "fp", "fn")} == _hand(z, L, R)
+        assert {k: f["sor"][k] for k in ("tp", "fp", "fn")} == _hand(s, L, R)
+    # the results file finds the same labels by stamp (its cloud topic is /zcut/filtered)
+    assert _json(capsys, ["accuracy", str(results), "--labels", str(db), "--annotator", "ann", "--json"]) == rep
+
+    agree = _json(capsys, ["accuracy", str(log), "--labels", str(db), "--agreement", "ann", "bob", "--json"])
+    assert agree["annotators"] == ["ann", "bob"] and [f["index"] for f in agree["frames"]] == [2]
+    where = R2 & valid[2]
+    f = agree["frames"][0]
+    assert f["pixels"] == int(where.sum())
+    assert f["iou"] == pytest.approx(mask_iou(ann[2][0], bob_L, where=where))
+    assert f["kappa"] == pytest.approx(cohen_kappa(ann[2][0], bob_L, where=where))
+    assert agree["pooled"]["pixels"] == f["pixels"]
+    assert main(["accuracy", str(log), "--labels", str(db), "--agreement", "ann", "bob"]) == 0
+    assert "agreement of ann and bob" in capsys.readouterr().out
+
+
+def test_agreement_counts_match_metrics(rng):
+    for _ in range(30):
+        a, b, ra, rb = (rng.random((13, 7)) < p for p in (0.3, 0.3, 0.8, 0.7))
+        a &= ra
+        b &= rb
+        c = agreement_counts(a, ra, b, rb)
+        assert c.n == int((ra & rb).sum())
+        k = cohen_kappa(a, b, where=ra & rb)
+        assert (np.isnan(k) and np.isnan(c.kappa)) or c.kappa == pytest.approx(k)
+        assert c.iou == pytest.approx(mask_iou(a, b, where=ra & rb), nan_ok=True)
+
+
+def test_errors(spike_log, tmp_path, capsys):
+    log, _ = spike_log
+    bare = tmp_path / "bare.mcap"
+    with LogWriter(bare) as w:
+        fr, _ = spike_frame(0)
+        w.write_cloud("/camera/points", fr.xyz, stamp_ns=fr.stamp_ns, frame_id="cam")
+    cases = [
+        (["accuracy", str(bare)], "no /ground_truth/outliers"),
+        (["accuracy", str(tmp_path / "missing.mcap")], "no such file"),
+        (["accuracy", str(log), "--agreement", "a", "b"], "--agreement needs --labels"),
+        (["accuracy", str(log), "--labels", str(tmp_path / "none.sqlite")], "no such file"),
+    ]
+    for argv, msg in cases:
+        assert main(argv) == 1, argv
+        assert msg in capsys.readouterr().err
+    empty = tmp_path / "empty.sqlite"
+    LabelStore(empty).close()
+    assert main(["accuracy", str(log), "--labels", str(empty)]) == 1
+    assert "0 annotators" in capsys.readouterr().err
+
+
+def test_labels_list_export_import(spike_log, tmp_path, capsys):
+    log, truths = spike_log
+    valid = [np.isfinite(fr.xyz).all(axis=2) for fr in LogReader(log).frames()]
+    db = tmp_path / "labels.sqlite"
+    _label_store(db, log, {"ann": {0: (truths[0] & valid[0], valid[0]), 1: (truths[1] & valid[1], valid[1])}})
+    assert main(["labels", "list", str(log), "--db", str(db)]) == 0
+    assert "ann: 2 frame(s) labelled" in capsys.readouterr().out
+    out = tmp_path / "ann.mcap"
+    assert main(["labels", "export", str(log), "--db", str(db), "-o", str(out)]) == 0
+    assert "wrote 2 labelled frame(s) by ann" in capsys.readouterr().out
+    # the export is an MCAP with mono8 /labels/outliers and /labels/reviewed, stamped like the clouds
+    from annotate.store import read_label_masks
+
+    meta, masks = read_label_masks(out)
+    stamps = sorted(masks)
+    assert stamps == [fr.stamp_ns for fr in LogReader(log).frames()][:2]
+    assert np.array_equal(masks[stamps[1]]["/labels/outliers"], truths[1] & valid[1])
+    # import as another annotator: accuracy by them equals accuracy by ann
+    assert main(["labels", "import", str(out), "--db", str(db), "--annotator", "dan"]) == 0
+    assert "imported 2 label(s)" in capsys.readouterr().out
+    a = _json(capsys, ["accuracy", str(log), "--labels", str(db), "--annotator", "ann", "--json"])
+    d = _json(capsys, ["accuracy", str(log), "--labels", str(db), "--annotator", "dan", "--json"])
+    assert a == d
+    assert main(["labels", "export", str(log), "--db", str(db), "-o", str(out)]) == 1
+    assert "2 annotators" in capsys.readouterr().err
+    other = tmp_path / "other.mcap"
+    write_spike_log(other, frames=1, seed=5)
+    assert main(["labels", "list", str(other), "--db", str(db)]) == 1
+    assert "not registered" in capsys.readouterr().err

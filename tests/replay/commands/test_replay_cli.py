@@ -1,0 +1,332 @@
+"""``zcut replay``, ``zcut bin-model``, ``zcut demo`` end to end on real small MCAP files."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+
+import numpy as np
+import pytest
+import rerun as rr
+
+from replay.cli import main
+from replay.logs.reader import LogReader
+from replay.logs.writer import LogWriter
+from replay.synth.log import write_synthetic_log
+from zcut.cuts import zcut_outliers
+
+SIZE = (150, 240)
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("logs")
+    filled = write_synthetic_log(d / "rods.mcap", kind="rods", frames=2, seed=7, size=SIZE)
+    empty = write_synthetic_log(d / "empty.mcap", empty=True, frames=5, seed=7, size=SIZE)
+    return d, filled, empty
+
+
+@pytest.fixture(scope="module")
+def bin_ply(logs):
+    d, _, empty = logs
+    out = d / "bin.ply"
+    assert main(["bin-model", str(empty), "-o", str(out)]) == 0
+    return out
+
+
+def run_cli(capsys, *argv):
+    rc = main([str(a) for a in argv])
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def test_bin_model_from_empty_scans(bin_ply, logs):
+    from replay.pipeline.bin_model import load_bin_model
+
+    m = load_bin_model(bin_ply)
+    assert len(m.points) > 1000 and m.normals is not None
+    # a bin of 400 x 300 mm: the model spans about that (metres)
+    ext = m.points.max(axis=0) - m.points.min(axis=0)
+    assert 0.3 < ext[0] < 0.5 and 0.2 < ext[1] < 0.4
+
+
+def test_replay_with_bin_model_writes_rrd_results_and_config(tmp_path, capsys, logs, bin_ply):
+    _, filled, _ = logs
+    rrd, res = tmp_path / "r.rrd", tmp_path / "res.mcap"
+    rc, out, err = run_cli(capsys, "replay", filled, "--bin-model", bin_ply, "--rrd", rrd, "--out", res, "--json")
+    assert rc == 0, err
+    assert "using the 'rods' preset (part kind from the log's zcut.synth metadata)" in err
+    summary = json.loads(out)
+    assert [f["index"] for f in summary["frames"]] == [0, 1]
+    assert all(f["fitness"] is not None and f["fitness"] > 0.3 for f in summary["frames"])
+    assert summary["config"]["preset"] == "rods"
+    # the resolved config is beside the outputs and reads back to the same values
+    for p in (tmp_path / "r.config.toml", tmp_path / "res.config.toml"):
+        assert tomllib.loads(p.read_text())["zcut"] == summary["config"]["zcut"]
+    # results: SPEC §5 topics, ground truth passed through, counts as in the summary
+    r = LogReader(res)
+    assert {"/zcut/outliers", "/zcut/sor_outliers", "/zcut/bin_mask", "/ground_truth/outliers"} <= set(r.mask_topics)
+    assert "/zcut/filtered" in r.topics
+    frames = list(r.frames())
+    for f, row in zip(frames, summary["frames"]):
+        assert f.masks["/zcut/outliers"].sum() == row["zcut"]
+        assert f.masks["/zcut/sor_outliers"].sum() == row["sor"]
+        assert f.masks["/zcut/bin_mask"].any()
+    # with the bin removed, most z-cut outliers are true ones (the noisy rim is not in the zone)
+    tp = sum(int((f.masks["/zcut/outliers"] & f.masks["/ground_truth/outliers"]).sum()) for f in frames)
+    assert tp >= 0.5 * sum(row["zcut"] for row in summary["frames"]) > 0
+    src = list(LogReader(filled).frames())
+    for f, s in zip(frames, src):
+        assert np.array_equal(f.masks["/ground_truth/outliers"], s.masks["/ground_truth/outliers"])
+        assert np.isnan(f.xyz[f.masks["/zcut/outliers"]]).all()  # /zcut/filtered has the outliers NaN
+        keep = ~f.masks["/zcut/outliers"] & np.isfinite(s.xyz).all(axis=2)
+        assert np.array_equal(f.xyz[keep], s.xyz[keep])
+    # the .rrd holds both frames' counts
+    counts = []
+    for ch in rr.chunk.RrdReader(str(rrd)).stream():
+        if ch.entity_path == "/counts/zcut":
+            counts += [v[0] for v in ch.to_record_batch().column("Scalars:scalars").to_pylist()]
+    assert counts == [float(f["zcut"]) for f in summary["frames"]]
+
+
+def test_table_and_overrides_and_one_frame(tmp_path, capsys, logs):
+    _, filled, _ = logs
+    rrd = tmp_path / "one.rrd"
+    rc, out, err = run_cli(capsys, "replay", filled, "--frames", "1:2", "--step", "0.5", "--max-depth", "20",
+                           "--max-area", "77", "--rrd", rrd)
+    assert rc == 0, err
+    lines = out.strip().splitlines()
+    assert lines[0].split()[:5] == ["frame", "stamp_ns", "valid", "px", "z-cut"]
+    assert len(lines) == 2 and lines[1].split()[0] == "1"
+    assert "no bin model (--bin-model): bin stages skipped" in err  # a visible warning
+    z = tomllib.loads((tmp_path / "one.config.toml").read_text())["zcut"]
+    assert (z["step_mm"], z["max_depth_mm"], z["max_area_px"]) == (0.5, 20.0, 77.0)
+    assert f"rerun {rrd}" in err
+
+
+def test_config_file_and_its_errors(tmp_path, capsys, logs):
+    _, filled, _ = logs
+    good = tmp_path / "c.toml"
+    good.write_text("[zcut]\nmax_area_px = 55.0\n[sor]\nk = 6\n")
+    rc, out, err = run_cli(capsys, "replay", filled, "--frames", "0", "--config", good, "--json")
+    assert rc == 0, err
+    c = json.loads(out)["config"]
+    assert c["zcut"]["max_area_px"] == 55.0 and c["sor"]["k"] == 6
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[zcut]\nstepmm = 1\n")
+    rc, out, err = run_cli(capsys, "replay", filled, "--config", bad)
+    assert rc == 1 and err.startswith("error: ") and "unknown key zcut.stepmm" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("argv, msg", [
+    (["--frames", "3:1"], "--frames must satisfy"),
+    (["--frames", "x"], "--frames must look like"),
+    (["--step", "-1"], "zcut.step_mm must be a number > 0, got -1.0"),
+    (["--bin-model", "/nonexistent/bin.ply"], "no such file"),
+    (["--frames", "5:9"], "in --frames 5:9 (it has 2 frames)"),
+])
+def test_bad_options_are_one_line_errors(capsys, logs, argv, msg):
+    _, filled, _ = logs
+    rc, _, err = run_cli(capsys, "replay", filled, *argv)
+    assert rc == 1 and msg in err and len(err.strip().splitlines()) == 1
+
+
+def test_truncated_log_processes_intact_frames_and_exits_3(tmp_path, capsys, rng):
+    from replay.logs.frame import Frame
+
+    path = tmp_path / "t.mcap"
+    with LogWriter(path, chunk_size=1024) as w:  # a chunk per message: a cut loses only the tail
+        for i in range(4):
+            xyz = np.stack(np.meshgrid(np.linspace(-0.1, 0.1, 64), np.linspace(-0.1, 0.1, 48)), -1)
+            z = 0.5 + 0.002 * rng.standard_normal((48, 64))
+            z[10, 10] -= 0.05
+            xyz = np.concatenate([xyz, z[..., None]], -1).astype(np.float32)
+            w.write_frame(Frame(xyz, None, 1000 + i, "cam", None, "/camera/points", i))
+    data = path.read_bytes()
+    (tmp_path / "cut.mcap").write_bytes(data[: int(len(data) * 0.6)])
+    rc, out, err = run_cli(capsys, "replay", tmp_path / "cut.mcap", "--json", "--max-area", "5")
+    assert rc == 3, err
+    summary = json.loads(out)
+    assert 1 <= len(summary["frames"]) < 4 and summary["damage"]
+    assert "data loss" in err
+    assert all(f["zcut"] >= 1 for f in summary["frames"])  # the lifted pixel is found in every intact frame
+
+
+def test_real_kinect_log_without_bin_equals_bare_zcut(tmp_path, capsys, real_data):
+    log = real_data / "mosd_clutter_kinect_ros2.mcap"
+    res = tmp_path / "res.mcap"
+    rc, out, err = run_cli(capsys, "replay", log, "--out", res, "--json", "--step", "0.5", "--max-depth", "40",
+                           "--max-area", "200")
+    assert rc == 0, err
+    assert "no RGB image" in err or "no bin model" in err
+    summary = json.loads(out)
+    assert len(summary["frames"]) == 2
+    got = {f.stamp_ns: f.masks["/zcut/outliers"] for f in LogReader(res).frames()}
+    for f in LogReader(log).frames():
+        expect = zcut_outliers(-1000.0 * f.xyz[..., 2].astype(np.float64), step=0.5, max_depth=40.0, max_area=200.0)
+        assert np.array_equal(got[f.stamp_ns], expect)
+        assert expect.any()
+
+
+def test_real_pcd_recorded_then_replayed(tmp_path, capsys, real_data):
+    log = tmp_path / "mug.mcap"
+    assert main(["record", str(real_data / "table_scene_mug_stereo_textured.pcd"), "-o", str(log)]) == 0
+    capsys.readouterr()
+    rrd = tmp_path / "mug.rrd"
+    rc, out, err = run_cli(capsys, "replay", log, "--rrd", rrd, "--json")
+    assert rc == 0, err
+    row = json.loads(out)["frames"][0]
+    assert row["valid_px"] > 50_000 and row["zcut"] > 0 and row["sor"] > 0
+    assert "no bin model" in err
+    assert rrd.stat().st_size > 0
+
+
+def test_bin_model_from_a_given_ply(tmp_path, capsys, bin_ply):
+    out = tmp_path / "copy.ply"
+    rc, _, err = run_cli(capsys, "bin-model", "--model", bin_ply, "-o", out)
+    assert rc == 0 and "points from" in err
+    rc, _, err = run_cli(capsys, "bin-model", "-o", out)
+    assert rc == 1 and "give either EMPTY.mcap or --model PLY" in err
+    notply = tmp_path / "x.ply"
+    notply.write_text("hello")
+    rc, _, err = run_cli(capsys, "bin-model", "--model", notply, "-o", out)
+    assert rc == 1 and "not a PLY file" in err
+
+
+@pytest.mark.slow
+def test_demo_end_to_end(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("ZCUT_CACHE", str(tmp_path / "cache"))
+    rc, out, err = run_cli(capsys, "demo", "--out-dir", tmp_path / "out")
+    assert rc == 0, err
+    assert "True accuracy against the sample's exact ground truth" in out
+    assert "rerun " + str(tmp_path / "out" / "zcut_demo.rrd") in out
+    assert "using the 'rods' preset" in err
+    rows = [ln for ln in out.splitlines() if ln.split() and ln.split()[0] in ("zcut", "sor")]
+    assert len(rows) == 2
+    assert (tmp_path / "out" / "zcut_demo.rrd").stat().st_size < 10 * 1024 * 1024 * 3
+
+
+def test_preset_on_a_real_log_estimates_the_camera(capsys, real_data):
+    log = real_data / "mosd_clutter_kinect_ros2.mcap"
+    rc, out, err = run_cli(capsys, "replay", log, "--preset", "black_nuts", "--frames", "0", "--json")
+    assert rc == 0, err
+    assert "using the 'black_nuts' preset (part kind from the command line)" in err
+    assert "intrinsics estimated from the organized cloud: fx 525.0" in err  # the Kinect's focal length
+    z = json.loads(out)["config"]["zcut"]
+    assert z["max_area_px"] == pytest.approx(0.07 * z["a_max_px"])
+    rc, _, err = run_cli(capsys, "replay", log, "--preset", "bolts")
+    assert rc == 1 and "preset must be one of" in err
+
+
+def test_intrinsics_from_an_organized_cloud():
+    import pipeline_scene as ps
+    from replay.pipeline.session import intrinsics_from_cloud
+
+    frame, _ = ps.scene(h=60, w=80)
+    K = intrinsics_from_cloud(frame.xyz)
+    true = ps.intrinsics(60, 80)
+    assert K.fx == pytest.approx(true.fx, rel=1e-4) and K.cy == pytest.approx(true.cy, abs=1e-3)
+    assert intrinsics_from_cloud(np.full((20, 20, 3), np.nan, np.float32)) is None
+
+
+@pytest.mark.slow
+def test_connect_to_a_missing_viewer_does_not_hang(capsys, real_data):
+    import socket
+
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    log = real_data / "mosd_clutter_kinect_ros2.mcap"
+    rc, out, err = run_cli(capsys, "replay", log, "--connect", f"rerun+http://127.0.0.1:{port}/proxy", "--frames", "0")
+    assert rc == 0
+    assert "the viewer did not take the data" in err
+    assert len(out.strip().splitlines()) == 2
+
+
+def test_bin_model_from_a_cad_mesh_in_millimetres_with_z_up(tmp_path, capsys):
+    import open3d as o3d
+
+    from replay.pipeline.bin_model import load_bin_model
+
+    box = o3d.geometry.TriangleMesh.create_box(400.0, 300.0, 120.0)  # mm, +z up, origin at a corner
+    cad = tmp_path / "bin_cad.ply"
+    o3d.io.write_triangle_mesh(str(cad), box)
+    out = tmp_path / "bin.ply"
+    rc, _, err = run_cli(capsys, "bin-model", "--model", cad, "--z-up", "--scale", "0.001", "--voxel", "5", "-o", out)
+    assert rc == 0, err
+    m = load_bin_model(out)
+    assert np.allclose(m.points.min(axis=0), [0.0, -0.3, -0.12], atol=0.006)
+    assert np.allclose(m.points.max(axis=0), [0.4, 0.0, 0.0], atol=0.006)
+    top = m.points[:, 2] < -0.119  # the box's top face (z = 120 mm) is now the nearest to a camera
+    assert top.any() and np.median(np.abs(m.normals[top][:, 2])) > 0.99
+
+
+# ------------------------------------------------------------------ the reader thread (replay.pipeline.session.prefetched)
+
+def test_prefetched_yields_in_order_and_raises_where_the_iterator_did():
+    import threading
+
+    from replay.pipeline.session import prefetched
+
+    def gen():
+        yield from range(5)
+        raise ValueError("frame 5 is broken")
+
+    got = []
+    with pytest.raises(ValueError, match="frame 5 is broken"):
+        for x in prefetched(gen(), depth=2):
+            got.append(x)  # noqa: PERF402 - the items before the error
+    assert got == [0, 1, 2, 3, 4]
+    assert not any(t.name == "zcut-frame-reader" for t in threading.enumerate())
+
+
+def test_prefetched_close_stops_the_thread_and_closes_the_iterator():
+    import threading
+
+    from replay.pipeline.session import prefetched
+
+    closed = []
+
+    def gen():
+        try:
+            yield from range(1000)
+        finally:
+            closed.append(True)
+
+    it = prefetched(gen())
+    assert [next(it), next(it)] == [0, 1]
+    it.close()
+    assert closed == [True]
+    assert not any(t.name == "zcut-frame-reader" for t in threading.enumerate())
+
+
+def test_outputs_worker_runs_in_order_and_reports_its_error():
+    import threading
+
+    from replay.pipeline.session import _Outputs
+
+    done = []
+    out = _Outputs()
+    for i in range(5):
+        out.submit(lambda i=i: done.append((i, threading.current_thread().name)))
+    out.close(raise_errors=True)
+    assert [i for i, _ in done] == list(range(5))
+    assert all(name.startswith("zcut-outputs") for _, name in done)
+
+    def boom():
+        raise OSError("disk full")
+
+    for raise_errors in (True, False):
+        out = _Outputs()
+        out.submit(boom)
+        if raise_errors:
+            with pytest.raises(OSError, match="disk full"):
+                out.close(raise_errors=True)
+        else:
+            out.close(raise_errors=False)  # another error is already on its way
+    out = _Outputs()
+    out.submit(boom)
+    with pytest.raises(OSError, match="disk full"):
+        out.submit(done.clear)  # raised at the next frame
+    out.close(raise_errors=False)
+    assert done  # the job after the failed one did not run

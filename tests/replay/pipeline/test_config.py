@@ -1,0 +1,131 @@
+"""The pipeline config: validation, TOML layers, CLI overrides, resolution and presets."""
+
+from __future__ import annotations
+
+import tomllib
+
+import pytest
+
+from replay.pipeline import config as cfg
+from replay.pipeline.config import ConfigError, PipelineConfig, ZCutConfig
+
+
+def test_defaults_are_the_papers_nominal_values():
+    c = PipelineConfig()
+    assert (c.zcut.step_mm, c.zcut.max_depth_mm, c.zcut.rho_thr) == (0.2, 30.0, 0.07)
+    assert c.removal.delta_mm == 0.1
+    assert (c.sor.k, c.sor.std_ratio, c.sor.convention) == (4, 1.0, "pcl")
+
+
+@pytest.mark.parametrize("section, kw, match", [
+    ("zcut", {"step_mm": 0.0}, r"zcut\.step_mm must be a number > 0, got 0"),
+    ("zcut", {"max_depth_mm": -1}, r"zcut\.max_depth_mm .* got -1"),
+    ("zcut", {"max_area_px": float("nan")}, r"zcut\.max_area_px .* got nan"),
+    ("zcut", {"connectivity": 6}, r"zcut\.connectivity must be 4 or 8, got 6"),
+    ("zcut", {"step_mm": "0.2"}, r"zcut\.step_mm .* got '0\.2'"),
+    ("sor", {"k": 2.5}, r"sor\.k must be an integer >= 1, got 2\.5"),
+    ("sor", {"convention": "matlab"}, r"sor\.convention must be one of pcl, open3d, got 'matlab'"),
+    ("sor", {"enabled": 1}, r"sor\.enabled must be true or false, got 1"),
+    ("bin_mask", {"threshold": 256}, r"bin_mask\.threshold .* <= 255, got 256"),
+    ("registration", {"method": "ndt"}, r"registration\.method must be one of"),
+    ("registration", {"min_fitness": 1.5}, r"registration\.min_fitness"),
+    ("removal", {"delta_mm": -0.1}, r"removal\.delta_mm .* got -0\.1"),
+])
+def test_bad_values_name_field_and_value(section, kw, match):
+    with pytest.raises(ConfigError, match=match):
+        cfg.SECTIONS[section](**kw)
+    with pytest.raises(ConfigError, match=match):
+        cfg.from_dict({section: kw})
+
+
+def test_config_error_is_a_value_error():
+    with pytest.raises(ValueError):
+        ZCutConfig(step_mm=-1.0)
+
+
+@pytest.mark.parametrize("text, match", [
+    ("[zcut]\nstep = 0.2\n", r"unknown key zcut\.step \(known: .*step_mm"),
+    ("[zcutt]\nstep_mm = 0.2\n", r"unknown section \[zcutt\]"),
+    ("zcut = 3\n", r"\[zcut\] must be a table"),
+    ("[zcut]\nstep_mm = -0.2\n", r"cfg\.toml: .*zcut\.step_mm must be a number > 0, got -0\.2"),
+    ("[zcut\nstep_mm = 1\n", r"cfg\.toml: not valid TOML"),
+    ("preset = 3\n", r"preset must be a string"),
+])
+def test_toml_errors_name_the_file_and_key(tmp_path, text, match):
+    p = tmp_path / "cfg.toml"
+    p.write_text(text)
+    with pytest.raises(ConfigError, match=match):
+        cfg.load_toml(p)
+
+
+def test_toml_round_trip(tmp_path):
+    c = cfg.from_dict({"zcut": {"step_mm": 0.3, "max_area_px": 123.5}, "sor": {"convention": "open3d"},
+                       "removal": {"search_radius_mm": 2.0}, "bin_mask": {"enabled": False}})
+    text = cfg.to_toml(c, header="a header\nsecond line")
+    assert text.startswith("# a header\n# second line\n")
+    p = tmp_path / "c.toml"
+    p.write_text(text)
+    assert cfg.from_dict(cfg.load_toml(p)) == c
+    assert tomllib.loads(text)["zcut"]["max_area_px"] == 123.5
+
+
+def test_layers_file_beats_defaults_and_cli_beats_file(tmp_path):
+    p = tmp_path / "c.toml"
+    p.write_text("[zcut]\nstep_mm = 0.5\nmax_depth_mm = 20.0\nmax_area_px = 40\n")
+    r = cfg.resolve(file_layer=cfg.load_toml(p), cli=cfg.cli_layer(step=0.25))
+    z = r.config.zcut
+    assert (z.step_mm, z.max_depth_mm, z.max_area_px) == (0.25, 20.0, 40)
+    assert r.config.sor == cfg.SorConfig()
+
+
+def test_max_area_is_derived_from_rho_and_a_max():
+    r = cfg.resolve(file_layer={"zcut": {"a_max_px": 1000.0, "rho_thr": 0.05}})
+    assert r.config.zcut.max_area_px == pytest.approx(50.0)
+
+
+def test_fallback_a_max_from_image_size_is_announced():
+    r = cfg.resolve(image_shape=(100, 200))
+    assert r.config.zcut.a_max_px == pytest.approx(200.0)
+    assert r.config.zcut.max_area_px == pytest.approx(0.07 * 200.0)
+    assert any("no part size known" in n for n in r.notes)
+
+
+def test_unresolvable_max_area_is_an_error():
+    with pytest.raises(ConfigError, match="max_area_px cannot be derived"):
+        cfg.resolve()
+
+
+def test_cli_layer_only_sets_what_was_given():
+    assert cfg.cli_layer() == {}
+    assert cfg.cli_layer(max_area=12) == {"zcut": {"max_area_px": 12.0}}
+
+
+@pytest.mark.parametrize("kind", ["spheres", "zinc_nuts", "rods", "black_screws", "black_nuts", "sprockets"])
+def test_presets_follow_section_5_4(kind):
+    from replay.synth import PART_KINDS
+    from replay.synth.scene import BIN
+
+    part = PART_KINDS[kind]
+    fx = fy = 2000.0
+    dist = 450.0
+    r = cfg.resolve(part_kind=kind, camera_distance_mm=dist, fx=fx, fy=fy)
+    z = r.config.zcut
+    assert r.config.preset == kind
+    assert 0.01 * part.p_min_mm <= z.step_mm <= 0.04 * part.p_min_mm
+    assert part.p_min_mm - 1e-9 <= z.max_depth_mm <= max(0.7 * BIN.height_mm, part.p_min_mm) + 1e-9
+    a_max = part.face_area_mm2 * fx * fy / dist**2
+    assert z.a_max_px == pytest.approx(a_max)
+    assert z.max_area_px == pytest.approx(0.07 * a_max)
+    assert any(kind in n and "metadata" in n for n in r.notes)
+
+
+def test_preset_in_the_file_beats_the_metadata_and_file_values_beat_the_preset():
+    r = cfg.resolve(file_layer={"preset": "rods", "zcut": {"step_mm": 0.5}}, part_kind="spheres",
+                    camera_distance_mm=450.0, fx=1000.0, fy=1000.0)
+    assert r.config.preset == "rods" and r.config.zcut.step_mm == 0.5
+    assert any("config file" in n for n in r.notes)
+
+
+def test_unknown_preset():
+    with pytest.raises(ConfigError, match="preset must be one of .*got 'bolts'"):
+        cfg.resolve(part_kind="bolts", image_shape=(10, 10))
