@@ -35,9 +35,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from zcut.cloud import height_mm
-
 from annotate.store import pack_mask
+from zcut.cloud import height_mm
 
 EIGHT = np.ones((3, 3), bool)
 JPEG_QUALITY = 90

@@ -26,9 +26,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from replay.logs.reader import LogReader
 from replay.pipeline.bin_model import build_bin_model, load_bin_model, save_bin_model
 from replay.pipeline.config import PipelineConfig
-from replay.logs.reader import LogReader
 from replay.pipeline.session import replay_log
 from replay.synth.log import write_synthetic_log
 

@@ -11,11 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
+from replay.logs import layout
 from replay.logs.frame import Frame
 from replay.logs.writer import LogWriter
 from zcut.cloud import Intrinsics
-
-GT_TOPIC = "/ground_truth/outliers"
 
 
 def spike_frame(index: int, *, shape=(120, 160), seed=0, n_spikes=4) -> tuple[Frame, np.ndarray]:
@@ -45,7 +44,7 @@ def spike_frame(index: int, *, shape=(120, 160), seed=0, n_spikes=4) -> tuple[Fr
     rgb[truth] = (230, 230, 60)
     frame = Frame(xyz=xyz, rgb=rgb, stamp_ns=1_000_000_000 + index * 100_000_000, frame_id="cam",
                   intrinsics=Intrinsics(fx=fx, fy=fy, cx=w / 2, cy=h / 2, width=w, height=h),
-                  topic="/camera/points", index=index, masks={GT_TOPIC: truth})
+                  topic=layout.CLOUD, index=index, masks={layout.TRUTH_OUTLIERS: truth})
     return frame, truth
 
 

@@ -6,9 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-GT_TOPIC = "/ground_truth/outliers"
-ZCUT_TOPIC = "/zcut/outliers"
-SOR_TOPIC = "/zcut/sor_outliers"
+from replay.logs import layout
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -110,13 +108,13 @@ def run(args: argparse.Namespace) -> int:
                     raise ZcutError(f"labels of frame {frame.index} are {lab.outliers.shape}, the frame is {frame.shape}")
                 truth, reviewed = lab.outliers, lab.reviewed
             else:
-                gt = frame.masks.get(GT_TOPIC)
+                gt = frame.masks.get(layout.TRUTH_OUTLIERS)
                 if gt is None:
                     skipped += 1
                     continue
                 truth, reviewed = gt, None
-            if ZCUT_TOPIC in frame.masks and SOR_TOPIC in frame.masks:
-                preds = {"zcut": frame.masks[ZCUT_TOPIC], "sor": frame.masks[SOR_TOPIC]}
+            if layout.ZCUT_OUTLIERS in frame.masks and layout.SOR_OUTLIERS in frame.masks:
+                preds = {"zcut": frame.masks[layout.ZCUT_OUTLIERS], "sor": frame.masks[layout.SOR_OUTLIERS]}
             else:
                 r = runner.run(frame)
                 preds = {"zcut": r.zcut_outliers, "sor": r.sor_outliers}
@@ -130,14 +128,14 @@ def run(args: argparse.Namespace) -> int:
             results.append(frame_accuracy(frame.index, frame.stamp_ns, preds, truth, reviewed=reviewed))
         if not results:
             what = (f"no frame of {args.log} is labelled by {annotator!r} in {args.labels}" if store is not None
-                    else f"{args.log} has no {GT_TOPIC}: give human labels with --labels DB")
+                    else f"{args.log} has no {layout.TRUTH_OUTLIERS}: give human labels with --labels DB")
             raise ZcutError(what)
         report = accuracy_report(results)
         if args.json:
             print(report_json(report))
         else:
-            src = f"labels by {annotator} ({args.labels})" if store is not None else f"ground truth {GT_TOPIC}"
-            pred = "computed by the pipeline" if computed else f"from {ZCUT_TOPIC}, {SOR_TOPIC}"
+            src = f"labels by {annotator} ({args.labels})" if store is not None else f"ground truth {layout.TRUTH_OUTLIERS}"
+            pred = "computed by the pipeline" if computed else f"from {layout.ZCUT_OUTLIERS}, {layout.SOR_OUTLIERS}"
             print(f"truth: {src}; predictions: {pred}")
             if skipped:
                 print(f"{skipped} frame(s) without truth skipped")

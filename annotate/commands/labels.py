@@ -23,7 +23,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from annotate.store import LabelStore, StoreError, export_labels, file_sha256, import_labels
+    from annotate.label_files import export_labels, import_labels
+    from annotate.store import LabelStore, StoreError, file_sha256
     from zcut.errors import ParameterError
 
     for path in (getattr(args, "log", None), getattr(args, "labels", None), args.db):

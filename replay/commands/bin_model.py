@@ -23,9 +23,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from replay.pipeline import config as cfg
-    from replay.pipeline.bin_model import build_bin_model, load_bin_model, save_bin_model
     from replay.errors import ConfigError
+    from replay.pipeline import config as cfg
+    from replay.pipeline.bin_model import (
+        build_bin_model,
+        load_bin_model,
+        save_bin_model,
+    )
     from replay.pipeline.session import parse_frames
 
     if not args.voxel > 0:

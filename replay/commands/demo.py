@@ -12,6 +12,8 @@ import json
 import sys
 from pathlib import Path
 
+from replay.logs import layout
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out-dir", default="out", metavar="DIR", help="where to write the .rrd and results (default ./out)")
@@ -21,10 +23,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from annotate.accuracy import accuracy_report, format_accuracy_table, frame_accuracy, jsonable
-    from replay.pipeline.bin_model import ensure_sample_bin_model, load_bin_model
+    from annotate.accuracy import (
+        accuracy_report,
+        format_accuracy_table,
+        frame_accuracy,
+        jsonable,
+    )
     from replay.cli import EXIT_DATA_LOSS
     from replay.commands.replay import print_table_callbacks, viewer_command
+    from replay.pipeline.bin_model import ensure_sample_bin_model, load_bin_model
     from replay.pipeline.session import replay_log
     from replay.synth.log import ensure_sample_log, sample_log_path
 
@@ -49,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
 
     def on_frame(frame, result, row) -> None:
         on_frame_print(frame, result, row)
-        truth = frame.masks.get("/ground_truth/outliers")
+        truth = frame.masks.get(layout.TRUTH_OUTLIERS)
         if truth is not None:
             frames_acc.append(frame_accuracy(frame.index, frame.stamp_ns,
                                              {"zcut": result.zcut_outliers, "sor": result.sor_outliers},

@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from replay.logs import layout
+
 CLOUD_SUFFIXES = (".pcd", ".ply")
 
 
@@ -74,9 +76,9 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from replay.errors import ConfigError, LogFormatError
-    from replay.logs.writer import CLOUD_TOPIC, IMAGE_TOPIC, LogWriter
     from replay.logs.pcd import read_pcd
     from replay.logs.ply import read_ply
+    from replay.logs.writer import LogWriter
 
     files = expand_inputs(args.inputs)
     shape = _parse_shape(args.shape)
@@ -117,9 +119,9 @@ def run(args: argparse.Namespace) -> int:
                     rgb = np.ascontiguousarray(bgr[..., ::-1])
                     src = png.name
                 stamp = start_ns + i * period_ns
-                w.write_cloud(CLOUD_TOPIC, xyz, rgb=rgb, stamp_ns=stamp, frame_id=args.frame_id)
+                w.write_cloud(layout.CLOUD, xyz, rgb=rgb, stamp_ns=stamp, frame_id=args.frame_id)
                 if rgb is not None:
-                    w.write_image(IMAGE_TOPIC, rgb, stamp_ns=stamp, frame_id=args.frame_id)
+                    w.write_image(layout.IMAGE, rgb, stamp_ns=stamp, frame_id=args.frame_id)
                 n_valid = int(np.isfinite(xyz).all(axis=2).sum())
                 print(
                     f"{i:4d} {f.name}: {xyz.shape[0]}x{xyz.shape[1]}, {n_valid} valid points, "

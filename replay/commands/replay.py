@@ -97,9 +97,9 @@ def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=N
 
 
 def run(args: argparse.Namespace) -> int:
+    from replay.cli import EXIT_DATA_LOSS
     from replay.pipeline import config as cfg
     from replay.pipeline.bin_model import load_bin_model
-    from replay.cli import EXIT_DATA_LOSS
     from replay.pipeline.session import parse_frames, replay_log
 
     frames = parse_frames(args.frames)

@@ -39,9 +39,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from zcut.errors import ParameterError
-
     from replay.synth import write_synthetic_log
+    from zcut.errors import ParameterError
 
     if args.frames < 1:
         raise ParameterError(f"--frames must be at least 1, got {args.frames}")

@@ -20,11 +20,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from zcut.cloud import Intrinsics
-from zcut.errors import ParameterError
-
-from replay.logs import ros2_msgs as rm
 from replay.errors import LogDamageError, LogFormatError
+from replay.logs import layout
+from replay.logs import ros2_msgs as rm
 from replay.logs.frame import Frame
 from replay.logs.mcap_scan import (
     OP_CHANNEL,
@@ -39,6 +37,8 @@ from replay.logs.mcap_scan import (
     _Bad,
     decompress,
 )
+from zcut.cloud import Intrinsics
+from zcut.errors import ParameterError
 
 #: A frame waits for its image, camera info and masks until this many later clouds have arrived.
 PAIRING_WINDOW = 2
@@ -330,9 +330,9 @@ class LogReader:
             chosen = t
         elif len(organized) == 1:
             chosen = organized[0]
-        elif len([t for t in organized if not t.topic.startswith("/zcut/")]) == 1:
+        elif len([t for t in organized if not t.topic.startswith(layout.RESULTS_PREFIX)]) == 1:
             # a results log: the input cloud, not zcut's own /zcut/filtered output
-            chosen = next(t for t in organized if not t.topic.startswith("/zcut/"))
+            chosen = next(t for t in organized if not t.topic.startswith(layout.RESULTS_PREFIX))
         elif len(organized) > 1:
             raise LogFormatError(
                 f"{name} has several organized PointCloud2 topics: "
@@ -594,3 +594,35 @@ class LogReader:
             xyz=xyz, rgb=rgb, stamp_ns=cloud.stamp_ns, frame_id=cloud.frame_id,
             intrinsics=intrinsics, topic=self.cloud_topic, index=idx, masks=masks,
         )
+
+
+def read_mask_topics(path: str | os.PathLike, wanted: tuple[str, ...]):
+    """Every mono8 mask of the ``wanted`` topics in a small MCAP file (e.g. a label export).
+
+    The file is read whole with the same defensive scanner and Image codec as :class:`LogReader`;
+    any damage is a :class:`LogFormatError` (such files are taken whole or not at all).
+
+    Returns
+    -------
+    (metadata, masks)
+        ``metadata``: the MCAP metadata records, name -> key/value strings; ``masks``:
+        stamp_ns -> {topic: (H, W) bool ndarray}.
+    """
+    masks: dict[int, dict[str, object]] = {}
+    damage: list[str] = []
+    with McapFile(path) as f:
+        metadata, notes = f.read_metadata()
+        damage += notes
+        chosen: dict[int, str] = {}
+        for op, rec in f.records(damage, prefetch=0):
+            if op == OP_CHANNEL and rec.topic in wanted:
+                chosen[rec.id] = rec.topic
+            elif op == OP_MESSAGE and rec.channel_id in chosen:
+                where = f"{path}: {chosen[rec.channel_id]}"
+                msg = rm.decode_image(rec.data, where=where)
+                masks.setdefault(msg.stamp_ns, {})[chosen[rec.channel_id]] = rm.image_to_mask(msg, where=where)
+            elif op == OP_LOST:
+                damage.append("messages were lost")
+    if damage:
+        raise LogFormatError(f"{path}: damaged file: {damage[0]}")
+    return metadata, masks

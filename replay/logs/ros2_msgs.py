@@ -23,10 +23,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from replay.errors import LogFormatError
 from zcut.cloud import Intrinsics
 from zcut.errors import ZcutError
-
-from replay.errors import LogFormatError
 
 # --------------------------------------------------------------------------------------------
 # Schema texts (ros2msg, dependencies appended the way rosbag2 / mcap_ros2 expect them)

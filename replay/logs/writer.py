@@ -22,16 +22,12 @@ from types import TracebackType
 
 import numpy as np
 
-from zcut.cloud import Intrinsics
-from zcut.errors import InputShapeError, describe_array
-
+from replay.logs import layout
 from replay.logs import ros2_msgs as rm
 from replay.logs.frame import Frame
 from replay.logs.mcap_write import McapWriter
-
-CLOUD_TOPIC = "/camera/points"
-IMAGE_TOPIC = "/camera/image"
-INFO_TOPIC = "/camera/camera_info"
+from zcut.cloud import Intrinsics
+from zcut.errors import InputShapeError, describe_array
 
 #: The QoS profile list rosbag2 stores for a reliable, volatile publisher (Humble YAML layout).
 OFFERED_QOS_PROFILES = (
@@ -76,7 +72,7 @@ class LogWriter:
     Examples
     --------
     >>> with LogWriter(tmp / "x.mcap") as w:                          # doctest: +SKIP
-    ...     w.write_cloud("/camera/points", xyz, rgb=rgb, stamp_ns=0, frame_id="camera")
+    ...     w.write_cloud(layout.CLOUD, xyz, rgb=rgb, stamp_ns=0, frame_id="camera")
     """
 
     def __init__(
@@ -226,11 +222,11 @@ class LogWriter:
         ``frame.rgb`` is set), ``/camera/camera_info`` (when intrinsics are set), and every mask of
         ``frame.masks`` under its own topic, all stamped ``frame.stamp_ns``."""
         kw = {"stamp_ns": frame.stamp_ns, "frame_id": frame.frame_id}
-        self.write_cloud(CLOUD_TOPIC, frame.xyz, rgb=frame.rgb, **kw)
+        self.write_cloud(layout.CLOUD, frame.xyz, rgb=frame.rgb, **kw)
         if frame.rgb is not None:
-            self.write_image(IMAGE_TOPIC, frame.rgb, **kw)
+            self.write_image(layout.IMAGE, frame.rgb, **kw)
         if frame.intrinsics is not None:
-            self.write_camera_info(INFO_TOPIC, frame.intrinsics, **kw)
+            self.write_camera_info(layout.CAMERA_INFO, frame.intrinsics, **kw)
         for topic, mask in frame.masks.items():
             self.write_mask(topic, mask, **kw)
 

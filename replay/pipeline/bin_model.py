@@ -15,13 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
+from replay.errors import LogFormatError
+from replay.logs.frame import Frame
+from replay.pipeline.config import PipelineConfig
 from zcut.binmask import bin_mask
 from zcut.registration import RegistrationResult, register_bin
 from zcut.removal import BinModel
-
-from replay.pipeline.config import PipelineConfig
-from replay.errors import LogFormatError
-from replay.logs.frame import Frame
 
 
 @dataclass(frozen=True, slots=True)
@@ -175,7 +174,13 @@ def ensure_sample_bin_model(*, progress=None) -> Path:
     import os
 
     from replay.logs.reader import LogReader
-    from replay.synth.log import GENERATOR_VERSION, SAMPLE_SEED, SAMPLE_SIZE, sample_log_path, write_synthetic_log
+    from replay.synth.log import (
+        GENERATOR_VERSION,
+        SAMPLE_SEED,
+        SAMPLE_SIZE,
+        sample_log_path,
+        write_synthetic_log,
+    )
 
     h, w = SAMPLE_SIZE
     base = sample_log_path().parent

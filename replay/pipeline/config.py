@@ -319,9 +319,8 @@ def preset_layer(part_kind: str, *, camera_distance_mm: float | None = None,
     [p_min, 0.7·b_h]) and ``a_max_from_camera`` (the part's largest face in pixels at the camera
     distance); μ_thr = ρ_thr·a_max follows in :func:`resolve`.
     """
+    from replay.presets import BIN, PART_KINDS
     from zcut.params import ZCutParams, a_max_from_camera
-
-    from replay.synth import BIN, PART_KINDS
 
     if part_kind not in PART_KINDS:
         raise ConfigError(f"preset must be one of {', '.join(PART_KINDS)}, got {part_kind!r}")

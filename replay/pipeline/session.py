@@ -17,19 +17,13 @@ from typing import Any
 
 import numpy as np
 
+from replay.errors import ConfigError
+from replay.logs import layout
+from replay.logs.frame import Frame
+from replay.pipeline import config as cfg
+from replay.pipeline.stages import FrameResult, locate_bin, run_frame
 from zcut.removal import BinModel
 
-from replay.pipeline import config as cfg
-from replay.errors import ConfigError
-from replay.logs.frame import Frame
-from replay.pipeline.stages import FrameResult, locate_bin, run_frame
-
-OUTLIERS_TOPIC = "/zcut/outliers"
-SOR_TOPIC = "/zcut/sor_outliers"
-BIN_MASK_TOPIC = "/zcut/bin_mask"
-FILTERED_TOPIC = "/zcut/filtered"
-SYNTH_METADATA = "zcut.synth"
-RESULTS_METADATA = "zcut.results"
 VIEWER_FLUSH_TIMEOUT_S = 10.0
 
 
@@ -132,7 +126,7 @@ def parse_frames(text: str | None) -> tuple[int, int | None]:
 
 def synth_info(metadata: dict[str, dict[str, str]]) -> tuple[str | None, float | None]:
     """(part_kind, camera distance in mm) from a log's ``zcut.synth`` metadata (None when absent)."""
-    meta = metadata.get(SYNTH_METADATA, {})
+    meta = metadata.get(layout.SYNTH_METADATA, {})
     kind = meta.get("part_kind") or None
     if kind == "empty":  # an empty-bin log has no parts to derive a preset from
         kind = None
@@ -382,9 +376,9 @@ def replay_log(
                 if out is not None:
                     from replay.logs.writer import LogWriter
 
-                    meta = {RESULTS_METADATA: {"source": str(Path(path).name), "config_toml": toml}}
-                    if SYNTH_METADATA in reader.metadata:
-                        meta[SYNTH_METADATA] = dict(reader.metadata[SYNTH_METADATA])
+                    meta = {layout.RESULTS_METADATA: {"source": str(Path(path).name), "config_toml": toml}}
+                    if layout.SYNTH_METADATA in reader.metadata:
+                        meta[layout.SYNTH_METADATA] = dict(reader.metadata[layout.SYNTH_METADATA])
                     writer = LogWriter(out, metadata=meta)
                     summary.outputs["results"] = str(out)
                 if on_start is not None:
@@ -471,17 +465,17 @@ def _log_and_write(rec, writer, frame: Frame, result: FrameResult, *, step_mm: f
 
 def _write_results(writer, frame: Frame, result: FrameResult) -> None:
     kw = {"stamp_ns": frame.stamp_ns, "frame_id": frame.frame_id}
-    writer.write_mask(OUTLIERS_TOPIC, result.zcut_outliers, **kw)
-    writer.write_mask(SOR_TOPIC, result.sor_outliers, **kw)
+    writer.write_mask(layout.ZCUT_OUTLIERS, result.zcut_outliers, **kw)
+    writer.write_mask(layout.SOR_OUTLIERS, result.sor_outliers, **kw)
     if result.bin_mask is not None:
-        writer.write_mask(BIN_MASK_TOPIC, result.bin_mask.mask, **kw)
+        writer.write_mask(layout.BIN_MASK, result.bin_mask.mask, **kw)
     filtered = frame.xyz.copy()
     filtered[result.zcut_outliers] = np.nan
-    writer.write_cloud(FILTERED_TOPIC, filtered, rgb=frame.rgb, **kw)
+    writer.write_cloud(layout.FILTERED, filtered, rgb=frame.rgb, **kw)
     if frame.rgb is not None:
-        writer.write_image("/camera/image", frame.rgb, **kw)
+        writer.write_image(layout.IMAGE, frame.rgb, **kw)
     if frame.intrinsics is not None:
-        writer.write_camera_info("/camera/camera_info", frame.intrinsics, **kw)
+        writer.write_camera_info(layout.CAMERA_INFO, frame.intrinsics, **kw)
     for topic, mask in frame.masks.items():
-        if not topic.startswith("/zcut/"):
+        if not topic.startswith(layout.RESULTS_PREFIX):
             writer.write_mask(topic, mask, **kw)

@@ -15,6 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from replay.errors import ConfigError
+from replay.logs.frame import Frame
+from replay.pipeline.config import PipelineConfig
 from zcut.binmask import BinMaskResult, bin_mask
 from zcut.cuts import CutResult, find_clusters
 from zcut.metrics import RelativeMetrics, relative_metrics
@@ -22,10 +25,6 @@ from zcut.params import ZCutParams
 from zcut.registration import RegistrationResult, pose_fitness, register_bin
 from zcut.removal import BinModel, RemovalResult, finite_xyz, remove_table_and_bin
 from zcut.sor import sor_outliers
-
-from replay.pipeline.config import PipelineConfig
-from replay.errors import ConfigError
-from replay.logs.frame import Frame
 
 STAGES = ("bin_mask", "registration", "removal", "zcut", "sor", "metrics")
 REGISTRATION_MAX_POINTS = 150_000

@@ -38,10 +38,9 @@ import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
 
-from zcut.removal import BinModel
-
 from replay.logs.frame import Frame
 from replay.pipeline.stages import FrameResult
+from zcut.removal import BinModel
 
 OUTLIER_CLASSES = (
     (1, "z-cut only", (255, 140, 0)),

@@ -6,8 +6,8 @@ field), ``sensor`` (pinhole camera + offset projector, z-buffer rendering, noise
 with its truth), ``log`` (MCAP logs and the demo's sample).
 """
 
+from replay.presets import BIN, PART_KINDS, BinGeometry, PartKind
 from replay.synth.log import (
-    METADATA_NAME,
     SAMPLE_FRAMES,
     SAMPLE_KIND,
     SAMPLE_SEED,
@@ -17,23 +17,30 @@ from replay.synth.log import (
     synth_metadata,
     write_synthetic_log,
 )
-from replay.synth.outliers import OUTLIER_CLUSTER, OUTLIER_FLYING, OUTLIER_NONE, OUTLIER_SPIKE
-from replay.synth.parts import PART_KINDS, PartKind, face_area_px
+from replay.synth.outliers import (
+    OUTLIER_CLUSTER,
+    OUTLIER_FLYING,
+    OUTLIER_NONE,
+    OUTLIER_SPIKE,
+)
+from replay.synth.parts import face_area_px
 from replay.synth.scene import (
-    BIN,
     LABEL_FLOOR,
     LABEL_NONE,
     LABEL_PART,
     LABEL_RIM,
     LABEL_TABLE,
     LABEL_WALL,
-    BinGeometry,
     BinPose,
 )
-from replay.synth.sensor import CAMERA_HEIGHT_MM, FULL_SIZE, PROJECTOR_BASELINE_MM, default_intrinsics
+from replay.synth.sensor import (
+    CAMERA_HEIGHT_MM,
+    FULL_SIZE,
+    PROJECTOR_BASELINE_MM,
+    default_intrinsics,
+)
 from replay.synth.synthesize import (
     EMPTY_POSITIONS_MM,
-    TRUTH_TOPIC,
     SynthFrame,
     camera_distance_m,
     pile_distance_m,
@@ -52,7 +59,6 @@ __all__ = [
     "LABEL_RIM",
     "LABEL_TABLE",
     "LABEL_WALL",
-    "METADATA_NAME",
     "OUTLIER_CLUSTER",
     "OUTLIER_FLYING",
     "OUTLIER_NONE",
@@ -63,7 +69,6 @@ __all__ = [
     "SAMPLE_KIND",
     "SAMPLE_SEED",
     "SAMPLE_SIZE",
-    "TRUTH_TOPIC",
     "BinGeometry",
     "BinPose",
     "PartKind",

@@ -14,12 +14,11 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from zcut.errors import ParameterError
-
+from replay.logs import layout
 from replay.logs.writer import LogWriter
+from replay.presets import BIN, PART_KINDS
 from replay.synth.outliers import TOP_ZONE_MM
-from replay.synth.parts import PART_KINDS, face_area_px
-from replay.synth.scene import BIN
+from replay.synth.parts import face_area_px
 from replay.synth.sensor import (
     CAMERA_HEIGHT_MM,
     FULL_SIZE,
@@ -29,9 +28,14 @@ from replay.synth.sensor import (
     SHINY_NOISE_FACTOR,
     default_intrinsics,
 )
-from replay.synth.synthesize import SynthFrame, camera_distance_m, pile_distance_m, synthesize_frame
+from replay.synth.synthesize import (
+    SynthFrame,
+    camera_distance_m,
+    pile_distance_m,
+    synthesize_frame,
+)
+from zcut.errors import ParameterError
 
-METADATA_NAME = "zcut.synth"
 GENERATOR_VERSION = "1"
 
 #: The sample the demo replays: three frames of M16 rods (the paper's Figures 13 and 14 show rods)
@@ -72,7 +76,7 @@ def synth_metadata(
         "noise_mm_at_0.5m": f"{NOISE_MM_AT_500:g}",
         "shiny_noise_factor": f"{SHINY_NOISE_FACTOR:g}",
         "ghost_top_zone_mm": f"{TOP_ZONE_MM:g}",
-        "truth_topic": "/ground_truth/outliers",
+        "truth_topic": layout.TRUTH_OUTLIERS,
         **BIN.as_metadata(),
     }
     if not empty:
@@ -130,7 +134,7 @@ def write_synthetic_log(
     is_shiny = (False if empty else PART_KINDS[kind].shiny) if shiny is None else bool(shiny)
     meta = synth_metadata(kind=kind, seed=seed, frames=int(frames), size=size, shiny=is_shiny, empty=empty)
     path = Path(path)
-    with LogWriter(path, metadata={METADATA_NAME: meta}) as writer:
+    with LogWriter(path, metadata={layout.SYNTH_METADATA: meta}) as writer:
         for i in range(int(frames)):
             t0 = time.perf_counter()
             sf = synthesize_frame(kind=kind, seed=seed, index=i, size=size, shiny=shiny, empty=empty)

@@ -9,68 +9,35 @@ needs).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-
-@dataclass(frozen=True, slots=True)
-class PartKind:
-    """Geometry of one part kind, in millimetres (the numbers the paper's §5.4 presets need).
-
-    Attributes
-    ----------
-    name : str
-        Key in :data:`PART_KINDS`.
-    label : str
-        What the paper calls it (Figure 8).
-    p_min_mm : float
-        Smallest edge of the part's bounding box (paper §5.4, sets the z-cut step and max depth).
-    face_area_mm2 : float
-        Area of the largest face the sensor sees (``a_max`` in mm²; divide by the pixel footprint
-        squared for pixels, see :func:`face_area_px`).
-    shiny : bool
-        Polished or zinc-plated metal (many outliers) versus black oxide (few).
-    bounding_radius_mm : float
-        Radius of a sphere about the part origin that contains the solid.
-    """
-
-    name: str
-    label: str
-    p_min_mm: float
-    face_area_mm2: float
-    shiny: bool
-    bounding_radius_mm: float
-
-
-# Dimensions: ISO 4032 M12 nut (s = 18, m = 10.8, bore 10.5 shown), ISO 4017 M12 x 40 bolt
-# (head s = 18, k = 7.5), M16 rod 80 mm long, 20 mm balls, ANSI-40 20-tooth plate sprocket
-# (88 mm outside, 7 mm thick, 16 mm bore).
-_HEX_S, _HEX_M, _NUT_BORE = 18.0, 10.8, 10.5
-_HEX_AREA = np.sqrt(3.0) / 2.0 * _HEX_S**2
-_SPROCKET_R_ROOT, _SPROCKET_R_TIP, _SPROCKET_TEETH, _SPROCKET_T, _SPROCKET_BORE = 38.0, 44.0, 20, 7.0, 8.0
-
-PART_KINDS: dict[str, PartKind] = {
-    "spheres": PartKind("spheres", "metal spheres", 20.0, np.pi * 10.0**2, True, 10.0),
-    "zinc_nuts": PartKind(
-        "zinc_nuts", "M12 zinc nuts", _HEX_M, _HEX_AREA - np.pi * (_NUT_BORE / 2) ** 2, True, 12.0
-    ),
-    "rods": PartKind("rods", "M16 metal rods", 16.0, 16.0 * 80.0, True, 41.0),
-    "black_screws": PartKind(
-        "black_screws", "M12 black screws", _HEX_S, 12.0 * 40.0 + 7.5 * _HEX_S * 2 / np.sqrt(3.0), False, 25.5
-    ),
-    "black_nuts": PartKind(
-        "black_nuts", "M12 black nuts", _HEX_M, _HEX_AREA - np.pi * (_NUT_BORE / 2) ** 2, False, 12.0
-    ),
-    "sprockets": PartKind(
-        "sprockets",
-        "sprockets",
-        _SPROCKET_T,
-        np.pi * (_SPROCKET_R_ROOT**2 - _SPROCKET_BORE**2) + _SPROCKET_TEETH * 0.5 * (6.0 + 2.5) * 6.0,
-        True,
-        44.5,
-    ),
-}
+from replay.presets import (
+    HEX_M_MM as _HEX_M,
+)
+from replay.presets import (
+    HEX_S_MM as _HEX_S,
+)
+from replay.presets import (
+    NUT_BORE_MM as _NUT_BORE,
+)
+from replay.presets import (
+    SPROCKET_BORE_MM as _SPROCKET_BORE,
+)
+from replay.presets import (
+    SPROCKET_R_ROOT_MM as _SPROCKET_R_ROOT,
+)
+from replay.presets import (
+    SPROCKET_R_TIP_MM as _SPROCKET_R_TIP,
+)
+from replay.presets import (
+    SPROCKET_T_MM as _SPROCKET_T,
+)
+from replay.presets import (
+    SPROCKET_TEETH as _SPROCKET_TEETH,
+)
+from replay.presets import (
+    PartKind,
+)
 
 # Display colours (RGB, before shading).
 PART_COLOURS: dict[str, tuple[int, int, int]] = {

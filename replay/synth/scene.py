@@ -15,7 +15,13 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from replay.synth.parts import PART_KINDS, height_profile, part_solid, random_rest_rotation
+from replay.presets import BIN, BinGeometry
+from replay.synth.parts import (
+    PART_KINDS,
+    height_profile,
+    part_solid,
+    random_rest_rotation,
+)
 
 # surface labels (per grid node, per pixel)
 LABEL_NONE = 0
@@ -26,54 +32,6 @@ LABEL_RIM = 4
 LABEL_PART = 5
 
 
-@dataclass(frozen=True, slots=True)
-class BinGeometry:
-    """The plastic bin, in millimetres.
-
-    Attributes
-    ----------
-    outer_length_mm, outer_width_mm : float
-        Outer size of the rim (x, y in the bin frame).
-    height_mm : float
-        Rim top above the table (``b_h`` of paper §5.4).
-    rim_mm : float
-        Width of the flat rim (wall top plus flange) seen from above.
-    floor_mm : float
-        Floor thickness: the inner floor is this high above the table.
-    draft_deg : float
-        Draft of the inner walls (the opening narrows towards the floor).
-    """
-
-    outer_length_mm: float = 400.0
-    outer_width_mm: float = 300.0
-    height_mm: float = 120.0
-    rim_mm: float = 15.0
-    floor_mm: float = 3.0
-    draft_deg: float = 4.0
-
-    @property
-    def inner_top_half(self) -> tuple[float, float]:
-        return self.outer_length_mm / 2 - self.rim_mm, self.outer_width_mm / 2 - self.rim_mm
-
-    @property
-    def floor_half(self) -> tuple[float, float]:
-        """Half sizes of the flat inner floor."""
-        inset = (self.height_mm - self.floor_mm) * np.tan(np.radians(self.draft_deg))
-        lx, ly = self.inner_top_half
-        return lx - inset, ly - inset
-
-    def as_metadata(self) -> dict[str, str]:
-        return {
-            "bin_outer_length_mm": f"{self.outer_length_mm:g}",
-            "bin_outer_width_mm": f"{self.outer_width_mm:g}",
-            "bin_height_mm": f"{self.height_mm:g}",
-            "bin_rim_mm": f"{self.rim_mm:g}",
-            "bin_floor_mm": f"{self.floor_mm:g}",
-            "bin_draft_deg": f"{self.draft_deg:g}",
-        }
-
-
-BIN = BinGeometry()
 
 # Bright plastic bin on a dark table (paper §5.1 segments the bin by grey level).
 BIN_COLOUR = (224, 220, 208)

@@ -18,10 +18,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from replay.synth.scene import LABEL_NONE, LABEL_RIM, LABEL_WALL, Scene
 from zcut.cloud import Intrinsics
 from zcut.errors import ParameterError
-
-from replay.synth.scene import LABEL_NONE, LABEL_RIM, LABEL_WALL, Scene
 
 FULL_SIZE = (1200, 1920)  # (height, width)
 FULL_FX = 1600.0  # pixels at 1920 wide: ~62 deg horizontal field of view

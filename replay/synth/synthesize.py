@@ -6,10 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zcut.errors import ParameterError
-
+from replay.logs import layout
 from replay.logs.frame import Frame
-
 from replay.synth import outliers as out
 from replay.synth.parts import PART_COLOURS, PART_KINDS, face_area_px
 from replay.synth.scene import (
@@ -38,8 +36,8 @@ from replay.synth.sensor import (
     shade_rgb,
     view_half_extent_mm,
 )
+from zcut.errors import ParameterError
 
-TRUTH_TOPIC = "/ground_truth/outliers"
 FRAME_ID = "zivid_optical_frame"
 STAMP_BASE_NS = 1_706_140_800_000_000_000  # 2024-01-25T00:00:00Z (the paper's publication date)
 FRAME_PERIOD_NS = 500_000_000
@@ -225,9 +223,9 @@ def synthesize_frame(
         stamp_ns=stamp_ns(seed, index),
         frame_id=FRAME_ID,
         intrinsics=K,
-        topic="/camera/points",
+        topic=layout.CLOUD,
         index=int(index),
-        masks={TRUTH_TOPIC: truth},
+        masks={layout.TRUTH_OUTLIERS: truth},
     )
     return SynthFrame(
         frame, truth, kind_img, cluster_id, surface, clean.astype(np.float32), figure11, scene, is_shiny, a_max

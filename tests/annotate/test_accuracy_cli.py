@@ -6,15 +6,14 @@ import json
 
 import numpy as np
 import pytest
+from annotate_helpers import spike_frame, write_spike_log
 
 from annotate.accuracy import agreement_counts
 from annotate.store import LabelStore
-from annotate_helpers import spike_frame, write_spike_log
 from replay.cli import main
 from replay.logs.reader import LogReader
 from replay.logs.writer import LogWriter
 from zcut.metrics import cohen_kappa, mask_iou
-
 
 
 @pytest.fixture(scope="module")
@@ -177,7 +176,7 @@ def test_labels_list_export_import(spike_log, tmp_path, capsys):
     assert main(["labels", "export", str(log), "--db", str(db), "-o", str(out)]) == 0
     assert "wrote 2 labelled frame(s) by ann" in capsys.readouterr().out
     # the export is an MCAP with mono8 /labels/outliers and /labels/reviewed, stamped like the clouds
-    from annotate.store import read_label_masks
+    from annotate.label_files import read_label_masks
 
     meta, masks = read_label_masks(out)
     stamps = sorted(masks)

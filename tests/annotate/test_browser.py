@@ -9,11 +9,11 @@ import sys
 import httpx
 import numpy as np
 import pytest
+from annotate_helpers import ServerProcess, write_spike_log
 from scipy import ndimage
 
 from annotate.payload import parse_bundle
 from annotate.store import LabelStore, file_sha256
-from annotate_helpers import ServerProcess, write_spike_log
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from annotate_helpers import spike_frame
 
 from annotate.payload import (
     INVALID_GRAY,
@@ -20,7 +21,6 @@ from annotate.payload import (
     prepare_frame,
 )
 from annotate.store import pack_mask
-from annotate_helpers import spike_frame
 
 
 @pytest.mark.parametrize("n_ids", [3, 300, 70_000])

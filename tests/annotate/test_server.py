@@ -12,11 +12,11 @@ import zlib
 import httpx
 import numpy as np
 import pytest
+from annotate_helpers import ServerProcess, write_spike_log
 
 from annotate.payload import parse_bundle, parse_view
 from annotate.server import MAX_BODY_BYTES
 from annotate.store import LabelStore, file_sha256, pack_mask
-from annotate_helpers import ServerProcess, write_spike_log
 from replay.logs.reader import LogReader
 
 pytestmark = pytest.mark.slow

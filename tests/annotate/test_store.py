@@ -10,17 +10,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis.extra.numpy import array_shapes, arrays
 
+from annotate.label_files import export_labels, import_labels, read_label_masks
 from annotate.store import (
     SCHEMA_VERSION,
     LabelConflictError,
     LabelStore,
     LabelValidationError,
     StoreError,
-    export_labels,
     file_sha256,
-    import_labels,
     pack_mask,
-    read_label_masks,
     unpack_mask,
 )
 

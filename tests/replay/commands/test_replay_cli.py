@@ -220,6 +220,7 @@ def test_preset_on_a_real_log_estimates_the_camera(capsys, real_data):
 
 def test_intrinsics_from_an_organized_cloud():
     import pipeline_scene as ps
+
     from replay.pipeline.session import intrinsics_from_cloud
 
     frame, _ = ps.scene(h=60, w=80)

@@ -11,17 +11,16 @@ import zlib
 
 import numpy as np
 import pytest
+from log_helpers import mutations
 from mcap.writer import CompressionType, Writer
 
-from replay.logs import ros2_msgs as rm
 from replay.cli import main
 from replay.errors import LogDamageError, LogFormatError
+from replay.logs import ros2_msgs as rm
 from replay.logs.frame import Frame
+from replay.logs.mcap_scan import McapFile
 from replay.logs.reader import LogReader
 from replay.logs.writer import LogWriter
-from replay.logs.mcap_scan import McapFile
-
-from log_helpers import mutations
 
 H, W = 24, 32
 N = 6

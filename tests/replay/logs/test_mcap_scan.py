@@ -10,15 +10,14 @@ import zlib
 
 import numpy as np
 import pytest
+from log_helpers import mutations
 
 import replay.logs.mcap_scan as ms
 from replay.errors import LogFormatError
 from replay.logs.frame import Frame
+from replay.logs.mcap_scan import BufferPool, McapFile
 from replay.logs.reader import LogReader
 from replay.logs.writer import LogWriter
-from replay.logs.mcap_scan import BufferPool, McapFile
-
-from log_helpers import mutations
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -13,9 +13,9 @@ import pytest
 
 from replay.cli import main
 from replay.errors import LogFormatError
-from replay.logs.reader import LogReader
 from replay.logs.pcd import lzf_decompress, read_pcd
 from replay.logs.ply import read_ply
+from replay.logs.reader import LogReader
 
 REAL_PCDS = [
     "frame_20121214T142255.814212.pcd", "milk_cartoon_all_small_clorox.pcd", "mosd_test16.pcd",

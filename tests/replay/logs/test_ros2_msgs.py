@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from mcap_ros2._dynamic import generate_dynamic
 
-from replay.logs import ros2_msgs as rm
 from replay.errors import LogFormatError
+from replay.logs import ros2_msgs as rm
 from zcut.cloud import Intrinsics
 
 H, W = 5, 7

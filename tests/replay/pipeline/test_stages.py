@@ -5,9 +5,9 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pipeline_scene as ps
 import pytest
 
-import pipeline_scene as ps
 from replay.pipeline.bin_model import build_bin_model
 from replay.pipeline.config import ConfigError, PipelineConfig, from_dict, resolve
 from replay.pipeline.stages import STAGES, run_frame, zcut_params

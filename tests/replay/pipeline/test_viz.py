@@ -7,10 +7,10 @@ import math
 from collections import defaultdict
 
 import numpy as np
+import pipeline_scene as ps
 import pytest
 import rerun as rr
 
-import pipeline_scene as ps
 from replay.pipeline import config as cfg
 from replay.pipeline import viz
 from replay.pipeline.bin_model import build_bin_model

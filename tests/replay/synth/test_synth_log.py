@@ -6,12 +6,11 @@ import numpy as np
 import pytest
 
 from replay.cli import main
+from replay.logs import layout
 from replay.logs.reader import LogReader
 from replay.synth import (
     BIN,
     EMPTY_POSITIONS_MM,
-    METADATA_NAME,
-    TRUTH_TOPIC,
     camera_distance_m,
     ensure_sample_log,
     sample_log_path,
@@ -28,11 +27,11 @@ SIZE = (120, 160)
 def test_log_holds_the_frames_and_their_truth(tmp_path):
     path = write_synthetic_log(tmp_path / "rods.mcap", kind="rods", frames=2, seed=9, size=SIZE)
     reader = LogReader(path)
-    assert reader.cloud_topic == "/camera/points"
-    assert reader.image_topic == "/camera/image"
-    assert TRUTH_TOPIC in reader.mask_topics
+    assert reader.cloud_topic == layout.CLOUD
+    assert reader.image_topic == layout.IMAGE
+    assert layout.TRUTH_OUTLIERS in reader.mask_topics
     assert reader.n_frames == 2
-    meta = reader.metadata[METADATA_NAME]
+    meta = reader.metadata[layout.SYNTH_METADATA]
     assert meta["part_kind"] == "rods" and meta["seed"] == "9" and meta["shiny"] == "true"
     assert float(meta["camera_distance_m"]) == pytest.approx(camera_distance_m())
     assert 0.45 < camera_distance_m() < 0.55
@@ -48,10 +47,10 @@ def test_log_holds_the_frames_and_their_truth(tmp_path):
         assert f.frame_id == sf.frame.frame_id
         np.testing.assert_array_equal(f.xyz, sf.frame.xyz)  # NaN where NaN, bit-equal elsewhere
         np.testing.assert_array_equal(f.rgb, sf.frame.rgb)
-        np.testing.assert_array_equal(f.masks[TRUTH_TOPIC], sf.truth)
-        assert f.masks[TRUTH_TOPIC].any()
+        np.testing.assert_array_equal(f.masks[layout.TRUTH_OUTLIERS], sf.truth)
+        assert f.masks[layout.TRUTH_OUTLIERS].any()
         assert f.intrinsics == sf.frame.intrinsics
-        assert np.isfinite(f.xyz[f.masks[TRUTH_TOPIC]]).all()
+        assert np.isfinite(f.xyz[f.masks[layout.TRUTH_OUTLIERS]]).all()
 
 
 def test_same_seed_same_bytes(tmp_path):
@@ -69,11 +68,11 @@ def test_same_seed_same_bytes(tmp_path):
 def test_empty_bin_series_moves_the_bin(tmp_path):
     path = write_synthetic_log(tmp_path / "empty.mcap", empty=True, frames=5, seed=1, size=(240, 320))
     reader = LogReader(path)
-    assert reader.metadata[METADATA_NAME]["part_kind"] == "empty"
-    assert reader.metadata[METADATA_NAME]["empty"] == "true"
+    assert reader.metadata[layout.SYNTH_METADATA]["part_kind"] == "empty"
+    assert reader.metadata[layout.SYNTH_METADATA]["empty"] == "true"
     centroids = []
     for f in reader.frames():
-        assert not f.masks[TRUTH_TOPIC][np.isnan(f.xyz[..., 2])].any()
+        assert not f.masks[layout.TRUTH_OUTLIERS][np.isnan(f.xyz[..., 2])].any()
         res = bin_mask(f.rgb)
         assert res.found
         centroids.append(res.centroid_rc)
@@ -107,10 +106,10 @@ def test_cli_synth(tmp_path, capsys):
     assert rc == 0
     err = capsys.readouterr().err
     assert "frame 1/2" in err and "frame 2/2" in err and "true outliers" in err
-    meta = LogReader(out).metadata[METADATA_NAME]
+    meta = LogReader(out).metadata[layout.SYNTH_METADATA]
     assert meta["part_kind"] == "black_nuts" and meta["shiny"] == "true" and meta["seed"] == "3"
     assert main(["synth", "-o", str(tmp_path / "e.mcap"), "--empty", "--size", "160x120"]) == 0
-    assert LogReader(tmp_path / "e.mcap").metadata[METADATA_NAME]["part_kind"] == "empty"
+    assert LogReader(tmp_path / "e.mcap").metadata[layout.SYNTH_METADATA]["part_kind"] == "empty"
     assert main(["synth", "-o", str(tmp_path / "z.mcap"), "--frames", "0"]) == 1
     assert "--frames must be at least 1" in capsys.readouterr().err
 
@@ -125,8 +124,8 @@ def test_sample_log_is_made_once(tmp_path, monkeypatch):
     mtime = path.stat().st_mtime_ns
     assert ensure_sample_log() == path and path.stat().st_mtime_ns == mtime
     reader = LogReader(path)
-    meta = reader.metadata[METADATA_NAME]
+    meta = reader.metadata[layout.SYNTH_METADATA]
     assert meta["shiny"] == "true"
     assert reader.n_frames >= 2
     frames = list(reader.frames())
-    assert all(f.masks[TRUTH_TOPIC].sum() > 100 for f in frames)
+    assert all(f.masks[layout.TRUTH_OUTLIERS].sum() > 100 for f in frames)

@@ -5,8 +5,24 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from replay.synth import BIN, LABEL_FLOOR, LABEL_PART, LABEL_RIM, LABEL_TABLE, LABEL_WALL, PART_KINDS, BinPose
-from replay.synth.parts import _ALONG_X, _rot_axis, face_area_px, height_profile, part_solid, random_rest_rotation
+from replay.synth import (
+    BIN,
+    LABEL_FLOOR,
+    LABEL_PART,
+    LABEL_RIM,
+    LABEL_TABLE,
+    LABEL_WALL,
+    PART_KINDS,
+    BinPose,
+)
+from replay.synth.parts import (
+    _ALONG_X,
+    _rot_axis,
+    face_area_px,
+    height_profile,
+    part_solid,
+    random_rest_rotation,
+)
 from replay.synth.scene import bin_height_field, drop_pile, make_grid
 
 STEP = 0.2  # mm, fine enough for 1-2 % area accuracy
