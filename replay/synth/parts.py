@@ -11,33 +11,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from replay.presets import (
-    HEX_M_MM as _HEX_M,
-)
-from replay.presets import (
-    HEX_S_MM as _HEX_S,
-)
-from replay.presets import (
-    NUT_BORE_MM as _NUT_BORE,
-)
-from replay.presets import (
-    SPROCKET_BORE_MM as _SPROCKET_BORE,
-)
-from replay.presets import (
-    SPROCKET_R_ROOT_MM as _SPROCKET_R_ROOT,
-)
-from replay.presets import (
-    SPROCKET_R_TIP_MM as _SPROCKET_R_TIP,
-)
-from replay.presets import (
-    SPROCKET_T_MM as _SPROCKET_T,
-)
-from replay.presets import (
-    SPROCKET_TEETH as _SPROCKET_TEETH,
-)
-from replay.presets import (
-    PartKind,
-)
+from replay.presets import HEX_M_MM as _HEX_M
+from replay.presets import HEX_S_MM as _HEX_S
+from replay.presets import NUT_BORE_MM as _NUT_BORE
+from replay.presets import SPROCKET_BORE_MM as _SPROCKET_BORE
+from replay.presets import SPROCKET_R_ROOT_MM as _SPROCKET_R_ROOT
+from replay.presets import SPROCKET_R_TIP_MM as _SPROCKET_R_TIP
+from replay.presets import SPROCKET_T_MM as _SPROCKET_T
+from replay.presets import SPROCKET_TEETH as _SPROCKET_TEETH
+from replay.presets import PartKind
 
 # Display colours (RGB, before shading).
 PART_COLOURS: dict[str, tuple[int, int, int]] = {

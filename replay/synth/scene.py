@@ -15,9 +15,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from replay.presets import BIN, BinGeometry
+from replay.presets import BIN, PART_KINDS, BinGeometry
 from replay.synth.parts import (
-    PART_KINDS,
     height_profile,
     part_solid,
     random_rest_rotation,

@@ -8,8 +8,9 @@ import numpy as np
 
 from replay.logs import layout
 from replay.logs.frame import Frame
+from replay.presets import PART_KINDS
 from replay.synth import outliers as out
-from replay.synth.parts import PART_COLOURS, PART_KINDS, face_area_px
+from replay.synth.parts import PART_COLOURS, face_area_px
 from replay.synth.scene import (
     BIN,
     BIN_COLOUR,
