@@ -36,5 +36,8 @@ LABEL_REVIEWED = "/labels/reviewed"
 
 # MCAP metadata record names
 SYNTH_METADATA = "zcut.synth"
+#: true bin pose of every synthetic frame: key = str(stamp_ns), value = the 16 row-major floats of
+#: ``T_cam_bin`` (metres, camera optical frame <- bin frame) joined by commas
+SYNTH_POSES_METADATA = "zcut.synth.poses"
 RESULTS_METADATA = "zcut.results"
 LABELS_METADATA = "zcut.labels"
