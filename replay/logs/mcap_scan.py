@@ -4,14 +4,17 @@ Why not ``mcap.reader``: on a damaged file it stops at the first bad record (or,
 length, asks Python for a buffer of that length), so the intact chunks after the damage are lost
 and absurd sizes can exhaust memory. This scanner
 
+- opens regular files only (a FIFO or device is refused before a byte is read);
 - checks every length against the bytes that are really there before reading;
 - decompresses chunks (zstd, lz4, none) incrementally, never past the declared
-  ``uncompressed_size`` (itself capped by :data:`MAX_CHUNK_BYTES`), and checks their CRC
+  ``uncompressed_size`` (itself capped by ``max_chunk_bytes``), and checks their CRC
   (ISA-L's CRC-32, the zlib polynomial, about 4x faster than ``zlib.crc32``);
 - reads, decompresses and checks the next chunks in worker threads while the caller decodes the
   current one (zstd and the CRC release the GIL);
 - on a corrupt chunk records a damage note and moves on to the next chunk, using the summary's
-  chunk index when the file has one (so a corrupt record length does not lose the rest);
+  chunk index when the file has one (so a corrupt record length does not lose the rest, nor
+  swallow the chunks it claims to cover), and says which messages were lost (per channel, their
+  log times, from the chunk's message indexes);
 - on a truncated file delivers every complete record before the cut, then a damage note.
 
 Format reference: https://mcap.dev/spec (all integers little-endian).
@@ -20,7 +23,6 @@ Format reference: https://mcap.dev/spec (all integers little-endian).
 from __future__ import annotations
 
 import bisect
-import io
 import os
 import struct
 import threading
@@ -35,6 +37,7 @@ import numpy as np
 from isal.isal_zlib import crc32
 
 from replay.errors import LogFormatError
+from replay.logs.files import CHUNK_SLACK_BYTES, DEFAULT_MAX_MESSAGE_BYTES, open_input
 
 MAGIC = b"\x89MCAP0\r\n"
 
@@ -44,11 +47,11 @@ OP_STATISTICS, OP_METADATA, OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = 
     0x0B, 0x0C, 0x0D, 0x0E, 0x0F,
 )
 
-#: Largest chunk (uncompressed) or summary section zcut will hold in memory.
-MAX_CHUNK_BYTES = 1 << 31
+#: Default largest chunk (uncompressed), record or summary section zcut will hold in memory.
+MAX_CHUNK_BYTES = DEFAULT_MAX_MESSAGE_BYTES + CHUNK_SLACK_BYTES
 _READ_PIECE = 16 << 20
 _FIRST_BUF = 16 << 20
-#: pseudo opcode yielded by :meth:`McapFile.records` after a lost chunk: {channel_id: count} or None
+#: pseudo opcode yielded by :meth:`McapFile.records` after a lost chunk: a :class:`Lost`
 OP_LOST = 0x100
 #: Chunks read ahead of the caller by :meth:`McapFile.records` (one worker thread each, at most
 #: the number of CPUs), and the most uncompressed bytes they may hold beyond the first.
@@ -207,6 +210,23 @@ class ChunkIndex:
 
 
 @dataclass(frozen=True, slots=True)
+class Lost:
+    """What a lost chunk held, from its message indexes.
+
+    Attributes
+    ----------
+    offset : int
+        File offset of the chunk.
+    log_times : dict[int, list[int]] or None
+        channel id -> log times of its messages in the chunk, in file order; None when unknown
+        (no intact message index).
+    """
+
+    offset: int
+    log_times: dict[int, list[int]] | None
+
+
+@dataclass(frozen=True, slots=True)
 class _ChunkRef:
     """Where a chunk record is (read later, in a worker thread)."""
 
@@ -267,17 +287,18 @@ def parse_chunk_index(b: _Buf) -> ChunkIndex:
 
 
 def decompress(
-    compression: str, data: memoryview, size: int, *, pool: BufferPool | None = None
+    compression: str, data: memoryview, size: int, *, pool: BufferPool | None = None,
+    max_size: int = MAX_CHUNK_BYTES,
 ) -> memoryview:
     """Decompress a chunk's records to exactly ``size`` bytes or raise :class:`_Bad`.
 
-    The output buffer (from ``pool`` when given) starts at the declared size or, if that is much
-    larger than the compressed data suggests, smaller, and grows as data really arrives, never
-    past ``size`` (itself capped by :data:`MAX_CHUNK_BYTES`).
+    ``size`` is checked against ``max_size`` before anything is allocated. The output buffer
+    (from ``pool`` when given) starts at the declared size or, if that is much larger than the
+    compressed data suggests, smaller, and grows as data really arrives, never past ``size``.
     """
     new = pool.get if pool is not None else (lambda n: np.empty(n, dtype=np.uint8))
-    if size > MAX_CHUNK_BYTES:
-        raise _Bad(f"claims {size} uncompressed bytes, more than the {MAX_CHUNK_BYTES} zcut accepts")
+    if size > max_size:
+        raise _Bad(f"claims {size} uncompressed bytes, more than the cap of {max_size}")
     if compression == "":
         if len(data) != size:
             raise _Bad(f"holds {len(data)} bytes but claims {size}")
@@ -343,15 +364,21 @@ class McapFile:
     Parameters
     ----------
     path : Path
+    max_chunk_bytes : int
+        Largest record, uncompressed chunk or summary section read into memory; larger ones are
+        damage (the scan goes on at the next chunk).
+
+    Raises
+    ------
+    LogFormatError
+        Not a regular file, not MCAP, or a damaged header record.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, *, max_chunk_bytes: int = MAX_CHUNK_BYTES) -> None:
         self.path = Path(path)
+        self.max_chunk_bytes = int(max_chunk_bytes)
+        self._f, self.size = open_input(self.path, "an MCAP log")
         self.pool = BufferPool()
-        self._f = open(self.path, "rb")
-        self._f.seek(0, io.SEEK_END)
-        self.size = self._f.tell()
-        self._f.seek(0)
         head = self._f.read(8)
         if head != MAGIC:
             self._f.close()
@@ -404,8 +431,8 @@ class McapFile:
             return None
         if expect_len is not None and 9 + length != expect_len:
             raise _Bad(f"record at {offset} is {9 + length} bytes, the index says {expect_len}")
-        if length > MAX_CHUNK_BYTES:
-            raise _Bad(f"record at {offset} claims {length} bytes")
+        if length > self.max_chunk_bytes:
+            raise _Bad(f"record at {offset} claims {length} bytes, more than the cap of {self.max_chunk_bytes}")
         body = memoryview(self.pool.get(length))
         if self._f.readinto(body) != length:
             return None
@@ -430,8 +457,8 @@ class McapFile:
             raise _Bad(f"the footer points at offset {summary_start}, outside the file")
         self.data_end = summary_start
         n = footer_at - summary_start
-        if n > MAX_CHUNK_BYTES:
-            raise _Bad(f"summary section of {n} bytes")
+        if n > self.max_chunk_bytes:
+            raise _Bad(f"summary section of {n} bytes, more than the cap of {self.max_chunk_bytes}")
         self._f.seek(summary_start)
         mv = memoryview(self._f.read(n))
         pos = 0
@@ -504,7 +531,7 @@ class McapFile:
         comp = b.string()
         n = b.u64()
         s = b.take(n)
-        mv = decompress(comp, body[s : s + n], usize, pool=self.pool)
+        mv = decompress(comp, body[s : s + n], usize, pool=self.pool, max_size=self.max_chunk_bytes)
         if crc != 0 and crc32(mv) != crc:
             raise _Bad("fails its CRC check")
         records = []
@@ -554,7 +581,7 @@ class McapFile:
                     job: object = cached.pop(key, None) if cached else None  # None: not kept
                     if job is None and pool is not None:
                         job = pool.submit(self._chunk_at, body)
-                        size = min(body.usize, MAX_CHUNK_BYTES)
+                        size = min(body.usize, self.max_chunk_bytes)
                     elif job is None:
                         job = body
                 else:
@@ -588,7 +615,7 @@ class McapFile:
             damage.append(job)
             return
         if op == OP_LOST:
-            yield OP_LOST, self.lost_counts(pos)
+            yield OP_LOST, Lost(pos, self.lost_messages(pos))
             return
         try:
             if op == OP_CHUNK:
@@ -605,28 +632,34 @@ class McapFile:
             what = "chunk" if op == OP_CHUNK else "record"
             damage.append(f"{what} at byte {pos} is corrupt ({e}); its messages are lost")
             if op == OP_CHUNK:
-                yield OP_LOST, self.lost_counts(pos)
+                yield OP_LOST, Lost(pos, self.lost_messages(pos))
             return
         yield from recs
 
-    def message_index_count(self, offset: int) -> int | None:
-        """Number of entries of the MessageIndex record at ``offset`` (None if it is damaged)."""
+    def message_index(self, offset: int) -> tuple[int, list[int]] | None:
+        """(channel id, log times) of the MessageIndex record at ``offset``; None if damaged."""
         try:
             rec = self._read_record_at(offset)
         except _Bad:
             return None
         if rec is None or rec[0] != OP_MESSAGE_INDEX or len(rec[1]) < 6:
             return None
-        n = struct.unpack_from("<I", rec[1], 2)[0]
+        cid, n = struct.unpack_from("<HI", rec[1], 0)
         if n % 16 or 6 + n > len(rec[1]):
             return None
-        return n // 16
+        times = np.frombuffer(rec[1], dtype="<u8", count=n // 8, offset=6)[::2]
+        return cid, times.tolist()
 
-    def lost_counts(self, chunk_start: int) -> dict[int, int] | None:
-        """Messages per channel in the chunk at ``chunk_start``, from its message indexes (the
-        summary's chunk index, else the MessageIndex records right after the chunk); None if
-        unknown."""
-        counts: dict[int, int] = {}
+    def message_index_count(self, offset: int) -> int | None:
+        """Number of entries of the MessageIndex record at ``offset`` (None if it is damaged)."""
+        got = self.message_index(offset)
+        return None if got is None else len(got[1])
+
+    def lost_messages(self, chunk_start: int) -> dict[int, list[int]] | None:
+        """Log times of the messages per channel in the chunk at ``chunk_start``, from its
+        message indexes (the summary's chunk index, else the MessageIndex records right after
+        the chunk); None if unknown."""
+        out: dict[int, list[int]] = {}
         try:
             offsets: list[int] = []
             known = self.summary.chunk_indexes if self.summary else []
@@ -648,15 +681,13 @@ class McapFile:
                 if not offsets:
                     return None
             for off in offsets:
-                rec = self._read_record_at(off)
-                n = self.message_index_count(off)
-                if rec is None or n is None:
+                got = self.message_index(off)
+                if got is None:
                     return None
-                cid = struct.unpack_from("<H", rec[1], 0)[0]
-                counts[cid] = counts.get(cid, 0) + n
+                out.setdefault(got[0], []).extend(got[1])
         except _Bad:
             return None
-        return counts
+        return out
 
     def _outer(
         self, damage: list[str], start_offset: int | None = None, *, lazy: bool = False,
@@ -705,7 +736,29 @@ class McapFile:
                     yield pos, OP_LOST, memoryview(b"")
                 pos = later[0]
                 continue
-            if nxt > limit or length > MAX_CHUNK_BYTES:
+            wanted = op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_METADATA, OP_CHUNK)
+            if nxt <= limit and length > self.max_chunk_bytes and wanted and not (later and nxt > later[0]):
+                # an intact-looking record too large to hold: skip it whole (the next one follows)
+                what = "chunk" if op == OP_CHUNK else "record"
+                damage.append(
+                    f"{what} at byte {pos} holds {length} bytes, more than the cap of "
+                    f"{self.max_chunk_bytes}; skipped"
+                )
+                if op == OP_CHUNK:
+                    yield pos, OP_LOST, memoryview(b"")
+                pos = nxt
+                continue
+            if later and nxt > later[0] and nxt <= limit:
+                # a (corrupt) length that would swallow a chunk the summary knows about
+                damage.append(
+                    f"record at byte {pos} claims {length} bytes, over the chunk at byte {later[0]}; "
+                    f"skipped to the next chunk at byte {later[0]}"
+                )
+                if pos in resume_set:
+                    yield pos, OP_LOST, memoryview(b"")
+                pos = later[0]
+                continue
+            if nxt > limit:
                 if later:
                     damage.append(
                         f"record at byte {pos} claims {length} bytes, past the end of the data; "
@@ -729,7 +782,7 @@ class McapFile:
             if op == OP_CHUNK and lazy:
                 usize = struct.unpack_from("<Q", head, 25)[0] if len(head) == 33 and length >= 24 else 0
                 yield pos, op, _ChunkRef(pos, length, usize)
-            elif op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_METADATA, OP_CHUNK):
+            elif wanted:
                 self._f.seek(pos + 9)
                 yield pos, op, memoryview(self._f.read(length))
             pos = nxt

@@ -6,11 +6,31 @@ and then streams :class:`~replay.logs.frame.Frame` objects, pairing each cloud w
 header stamp. The file is never loaded whole: it is scanned chunk by chunk (see
 :mod:`replay.logs.mcap_scan`), and only a bounded window of messages is buffered for the pairing.
 
-Damage (a truncated file, a corrupt chunk) does not stop the stream: every intact frame is
-delivered and :attr:`LogReader.damage` then holds one-line notes. Anything that makes the log
-unusable for zcut (not MCAP, a ROS 1 log, no organized cloud, an ambiguous cloud topic, an image
-whose size differs from its cloud, a malformed message) raises
-:class:`~replay.errors.LogFormatError` with a one-line message.
+The exit-status contract of SPEC §6 is kept here: damage (a truncated file, a corrupt or missing
+chunk, a malformed message, a mask of the wrong size, a cloud over the size caps) does not stop
+the stream. A frame that cannot be read is skipped, every intact frame is delivered with the
+log's own index (a lost frame leaves a gap), and :attr:`LogReader.damage` holds one-line notes,
+one per loss, naming the frame (index, and its stamp or log time when known), e.g.::
+
+    chunk at byte 5120 is corrupt (fails its CRC check); its messages are lost
+    frame 2 (log time 3.000000000) lost with the chunk at byte 5120
+    frame 4 (stamp 5.000000000) skipped: topic /camera/points: PointCloud2 row_step 16 is smaller ...
+    frame 1 lost: /camera/points message sequence jumps from 0 to 2 (a chunk is missing)
+
+Lost frames are counted from what the file still holds: the summary's chunk indexes and message
+counts, the MessageIndex records after each chunk, and the per-channel message sequence numbers
+(when they count up, as zcut's writer and recent rosbag2 write them). Anything that makes the log
+unusable as a whole (not MCAP, not a regular file, a ROS 1 log, no organized cloud, an ambiguous
+cloud topic, an image topic whose size differs from the cloud topic) raises
+:class:`~replay.errors.LogFormatError` with a one-line message at open.
+
+Log-level facts that the config resolution needs (:attr:`LogReader.intrinsics`,
+:attr:`LogReader.first_shape`) are read once at open from the first intact messages anywhere in
+the log, so they do not depend on which frames survive.
+
+Sizes are bounded (see :mod:`replay.logs.files`): ``max_message_bytes`` caps a message, a
+compressed message's content and (plus a slack) a chunk before decompression; ``max_pixels`` caps
+a cloud's or image's grid before any array is allocated.
 """
 
 from __future__ import annotations
@@ -23,6 +43,7 @@ from pathlib import Path
 from replay.errors import LogDamageError, LogFormatError
 from replay.logs import layout
 from replay.logs import ros2_msgs as rm
+from replay.logs.files import CHUNK_SLACK_BYTES, DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_MAX_PIXELS, check_caps
 from replay.logs.frame import Frame
 from replay.logs.mcap_scan import (
     OP_CHANNEL,
@@ -31,6 +52,7 @@ from replay.logs.mcap_scan import (
     OP_METADATA,
     OP_SCHEMA,
     Channel,
+    Lost,
     McapFile,
     Message,
     Schema,
@@ -62,15 +84,19 @@ class TopicInfo:
     encoding: str | None = None  # Image encoding of the first message
     fields: tuple[str, ...] = ()  # PointCloud2 field names of the first message
     channel_ids: list[int] = field(default_factory=list)
-    error: str | None = None  # why the first message could not be decoded
+    error: str | None = None  # why no message could be decoded (the first error met)
+    first: object | None = None  # the first decodable message (CloudMsg, ImageMsg, CameraInfoMsg)
 
 
 _ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
 
 
-def _payload(data: memoryview, where: str) -> memoryview:
+def _payload(data: memoryview, where: str, max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> memoryview:
     """The CDR bytes of a message; rosbag2's per-message compression (``--compression-mode
-    message``, zstd) is undone here, bounded like chunks."""
+    message``, zstd) is undone here. The message and its content size are checked against
+    ``max_bytes`` first."""
+    if len(data) > max_bytes:
+        raise LogFormatError(f"{where}: message of {len(data)} bytes, more than the cap of {max_bytes}")
     if bytes(data[:4]) != _ZSTD_MAGIC:
         return data
     import zstandard
@@ -82,9 +108,16 @@ def _payload(data: memoryview, where: str) -> memoryview:
     if size < 0:
         raise LogFormatError(f"{where}: zstd-compressed message without a content size")
     try:
-        return decompress("zstd", data, size)
+        return decompress("zstd", data, size, max_size=max_bytes)
     except _Bad as e:
         raise LogFormatError(f"{where}: zstd-compressed message {e}") from e
+
+
+def stamp_text(ns: int) -> str:
+    """Nanoseconds as exact seconds, ``1700000000.100000000``."""
+    sign = "-" if ns < 0 else ""
+    q, r = divmod(abs(int(ns)), 1_000_000_000)
+    return f"{sign}{q}.{r:09d}"
 
 
 def _ns(topic: str) -> str:
@@ -94,13 +127,18 @@ def _ns(topic: str) -> str:
 def _peek(
     mf: McapFile, schemas: dict[int, Schema], channels: dict[int, Channel],
     metadata: dict[str, dict[str, str]], keep: dict[tuple[int, int], list] | None = None,
+    *, max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
 ) -> tuple[dict[int, object], list[str]]:
-    """First decoded message (header only) of every PointCloud2/Image/CameraInfo channel.
+    """First decodable message (header only) of every PointCloud2/Image/CameraInfo channel, or
+    the first error when none decodes (channel id -> message or LogFormatError).
 
-    With ``keep``, the parsed chunks (intact ones, up to :data:`KEEP_PEEKED_BYTES`) are stored
-    there by (offset, record length) for :meth:`McapFile.records`.
+    A message that does not decode does not end the search: the next one of its channel is tried
+    (in intact chunks anywhere in the log when it has a summary). With ``keep``, the parsed chunks
+    (intact ones, up to :data:`KEEP_PEEKED_BYTES`) are stored there by (offset, record length)
+    for :meth:`McapFile.records`.
     """
     firsts: dict[int, object] = {}
+    errors: dict[int, LogFormatError] = {}
     damage: list[str] = []
 
     def wanted(cid: int) -> bool:
@@ -113,16 +151,17 @@ def _peek(
     def take(msg: Message) -> None:
         ch = channels[msg.channel_id]
         name = schemas[ch.schema_id].name
-        where = f"{mf.path.name}: topic {ch.topic}, first message"
+        where = f"{mf.path.name}: topic {ch.topic}, message at log time {stamp_text(msg.log_time)}"
         try:
+            data = _payload(msg.data, where, max_bytes)
             if name == rm.POINTCLOUD2:
-                firsts[msg.channel_id] = rm.decode_cloud(_payload(msg.data, where), where=where)
+                firsts[msg.channel_id] = rm.decode_cloud(data, where=where)
             elif name == rm.IMAGE:
-                firsts[msg.channel_id] = rm.decode_image(_payload(msg.data, where), where=where)
+                firsts[msg.channel_id] = rm.decode_image(data, where=where)
             else:
-                firsts[msg.channel_id] = rm.decode_camera_info(_payload(msg.data, where), where=where)
+                firsts[msg.channel_id] = rm.decode_camera_info(data, where=where)
         except LogFormatError as e:
-            firsts[msg.channel_id] = e
+            errors.setdefault(msg.channel_id, e)
 
     summary = mf.summary
     if summary is not None and summary.chunk_indexes:
@@ -147,12 +186,14 @@ def _peek(
             todo -= set(firsts)
             if not todo:
                 break
-        return firsts, damage
+        return {**errors, **firsts}, damage
     # no summary (or an unchunked file): scan from the start to a little past the first cloud
     # (at least _PEEK_AFTER_FIRST_CLOUD messages and one second of log time after it)
     after = None
     t_cloud = 0
     for op, rec in mf.records(damage, prefetch=0):
+        if op == OP_LOST:
+            continue
         if op == OP_SCHEMA:
             schemas[rec.id] = rec
         elif op == OP_CHANNEL:
@@ -162,7 +203,7 @@ def _peek(
         elif op == OP_MESSAGE:
             if rec.channel_id not in firsts and wanted(rec.channel_id):
                 take(rec)
-                if after is None and isinstance(firsts[rec.channel_id], rm.CloudMsg):
+                if after is None and isinstance(firsts.get(rec.channel_id), rm.CloudMsg):
                     after, t_cloud = 0, rec.log_time
             if after is not None:
                 after += 1
@@ -170,7 +211,7 @@ def _peek(
                     rec.log_time > t_cloud + 1_000_000_000 or after > 64 * _PEEK_AFTER_FIRST_CLOUD
                 ):
                     break
-    return firsts, damage
+    return {**errors, **firsts}, damage
 
 
 @dataclass
@@ -189,25 +230,34 @@ class LogInfo:
     peek_damage: list[str]
     schemas: dict[int, Schema]
     channels: dict[int, Channel]
+    #: the damage notes among ``notes`` (a damaged summary or metadata record)
+    damage: list[str] = field(default_factory=list)
     #: chunks parsed while peeking, by (offset, record length) (only with ``keep_chunks``)
     chunks: dict[tuple[int, int], list] = field(default_factory=dict)
 
 
-def inspect_log(path: str | os.PathLike, *, keep_chunks: bool = False) -> LogInfo:
-    """List the topics of an MCAP log with the size of their first message (no topic choice).
+def inspect_log(
+    path: str | os.PathLike, *, keep_chunks: bool = False,
+    max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
+) -> LogInfo:
+    """List the topics of an MCAP log with the size of their first decodable message (no topic
+    choice).
 
     With ``keep_chunks``, :attr:`LogInfo.chunks` keeps the chunks read to find the first messages
-    (up to :data:`KEEP_PEEKED_BYTES`) for a following scan. Raises :class:`LogFormatError` if the
-    file is not MCAP.
+    (up to :data:`KEEP_PEEKED_BYTES`) for a following scan. ``max_message_bytes`` caps a message
+    (and, plus a slack of :data:`~replay.logs.files.CHUNK_SLACK_BYTES`, a chunk). Raises
+    :class:`LogFormatError` if the file is not a regular file or not MCAP.
     """
     kept: dict[tuple[int, int], list] = {}
     path = Path(path)
     metadata: dict[str, dict[str, str]] = {}
     notes: list[str] = []
+    damage: list[str] = []
     start_ns = end_ns = None
-    with McapFile(path) as mf:
+    with McapFile(path, max_chunk_bytes=max_message_bytes + CHUNK_SLACK_BYTES) as mf:
         if mf.summary_damage:
             notes.append(mf.summary_damage)
+            damage.append(mf.summary_damage)
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
         summary = mf.summary
@@ -216,8 +266,11 @@ def inspect_log(path: str | os.PathLike, *, keep_chunks: bool = False) -> LogInf
             channels.update(summary.channels)
             metadata, more = mf.read_metadata()
             notes += more
+            damage += more
             start_ns, end_ns = summary.message_start_time, summary.message_end_time
-        firsts, peek_damage = _peek(mf, schemas, channels, metadata, kept if keep_chunks else None)
+        firsts, peek_damage = _peek(
+            mf, schemas, channels, metadata, kept if keep_chunks else None, max_bytes=max_message_bytes
+        )
     counts = summary.channel_message_counts if summary is not None else None
     topics: dict[str, TopicInfo] = {}
     for cid, ch in sorted(channels.items()):
@@ -231,6 +284,13 @@ def inspect_log(path: str | os.PathLike, *, keep_chunks: bool = False) -> LogInf
             info.count += n
         info.channel_ids.append(cid)
         got = firsts.get(cid)
+        if isinstance(got, LogFormatError):
+            if info.first is None and info.error is None:
+                info.error = str(got)
+            continue
+        if got is None or info.first is not None:
+            continue
+        info.first, info.error = got, None
         if isinstance(got, rm.CloudMsg):
             info.height, info.width = got.height, got.width
             info.fields = tuple(f.name for f in got.fields)
@@ -238,11 +298,9 @@ def inspect_log(path: str | os.PathLike, *, keep_chunks: bool = False) -> LogInf
             info.height, info.width, info.encoding = got.height, got.width, got.encoding
         elif isinstance(got, rm.CameraInfoMsg):
             info.height, info.width = got.height, got.width
-        elif isinstance(got, LogFormatError):
-            info.error = str(got)
     return LogInfo(
         path, mf.profile, mf.library, topics, metadata, start_ns, end_ns,
-        counts is not None, notes, peek_damage, schemas, channels, kept,
+        counts is not None, notes, peek_damage, schemas, channels, damage, kept,
     )
 
 
@@ -254,6 +312,15 @@ class LogReader:
     path : str or Path
     cloud_topic, image_topic, info_topic : str or None
         Choose topics explicitly (``--topic``, ``--image-topic``); found automatically when None.
+    max_pixels : int
+        Largest cloud or image grid (H x W) decoded; a larger one is a skipped frame (checked
+        before any array is allocated). Default :data:`~replay.logs.files.DEFAULT_MAX_PIXELS`
+        (2**24 = 16.8 Mpx).
+    max_message_bytes : int
+        Largest message (and decompressed content of a compressed message) read; a chunk may
+        hold this plus :data:`~replay.logs.files.CHUNK_SLACK_BYTES` (64 MiB) uncompressed, checked
+        before decompressing. Default :data:`~replay.logs.files.DEFAULT_MAX_MESSAGE_BYTES`
+        (256 MiB).
 
     Attributes
     ----------
@@ -266,7 +333,13 @@ class LogReader:
     n_frames : int or None
         Number of clouds on ``cloud_topic`` according to the summary.
     damage : list[str]
-        One-line notes about damage met by the last :meth:`frames` iteration (empty = intact).
+        One-line notes about damage met by the last :meth:`frames` iteration (empty = intact):
+        every lost or skipped frame is named in one of them.
+    intrinsics : Intrinsics or None
+        From the first decodable CameraInfo of ``info_topic`` (anywhere in the log), when it is
+        calibrated (K not all zero) and of the cloud's size; the same whatever frames survive.
+    first_shape : (int, int)
+        (H, W) of the first decodable cloud of ``cloud_topic`` (anywhere in the log).
     topics : dict[str, TopicInfo]
     start_ns, end_ns : int or None
         Log time span from the summary statistics.
@@ -280,9 +353,15 @@ class LogReader:
         cloud_topic: str | None = None,
         image_topic: str | None = None,
         info_topic: str | None = None,
+        max_pixels: int = DEFAULT_MAX_PIXELS,
+        max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
     ) -> None:
-        info = inspect_log(path, keep_chunks=True)
+        check_caps(max_pixels, max_message_bytes)
+        self.max_pixels, self.max_message_bytes = max_pixels, max_message_bytes
+        info = inspect_log(path, keep_chunks=True, max_message_bytes=max_message_bytes)
         self._chunks = info.chunks  # for the first frames() scan
+        self._open_damage = list(info.damage)  # a damaged summary or metadata record
+        self._has_summary = info.has_summary
         self.path = info.path
         self.profile, self.library = info.profile, info.library
         self.topics = info.topics
@@ -293,6 +372,31 @@ class LogReader:
         self._schemas, self._channels = info.schemas, info.channels
         self._choose_topics(cloud_topic, image_topic, info_topic, info.peek_damage)
         self.n_frames: int | None = self.topics[self.cloud_topic].count if info.has_summary else None
+        t = self.topics[self.cloud_topic]
+        self.first_shape: tuple[int, int] = (t.height, t.width)
+        self.intrinsics: Intrinsics | None = self._first_intrinsics()
+
+    def _mcap(self) -> McapFile:
+        return McapFile(self.path, max_chunk_bytes=self.max_message_bytes + CHUNK_SLACK_BYTES)
+
+    def _first_intrinsics(self) -> Intrinsics | None:
+        if self.info_topic is None:
+            return None
+        msg = self.topics[self.info_topic].first
+        if not isinstance(msg, rm.CameraInfoMsg) or not any(msg.k):
+            return None
+        where = f"{self.path.name}: topic {self.info_topic}, stamp {stamp_text(msg.stamp_ns)}"
+        if (msg.height, msg.width) != self.first_shape:
+            self.notes.append(
+                f"{where}: camera info is for {msg.height}x{msg.width} but the cloud is "
+                f"{self.first_shape[0]}x{self.first_shape[1]}; intrinsics not used"
+            )
+            return None
+        try:
+            return rm.camera_info_to_intrinsics(msg, where=where)
+        except LogFormatError as e:
+            self.notes.append(f"{e}; intrinsics not used")
+            return None
 
     # ------------------------------------------------------------------ opening
     def _choose_topics(
@@ -421,42 +525,68 @@ class LogReader:
 
     # ------------------------------------------------------------------ streaming
     def frames(self, *, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
-        """Yield the frames with ``start <= index < stop`` in log order.
+        """Yield the intact frames with ``start <= index < stop`` in log order.
 
         Each cloud is paired with the image, camera info and masks of the same header stamp that
-        arrive within :data:`PAIRING_WINDOW` clouds of it. Damage met on the way is appended to
-        :attr:`damage` (reset at the start of each iteration). Raises :class:`LogDamageError` if the
-        log is damaged so that not one frame could be delivered, :class:`LogFormatError` on a
-        malformed message.
+        arrive within :data:`PAIRING_WINDOW` clouds of it. A frame that cannot be read (its chunk
+        lost, a malformed cloud or companion message, a mask of the wrong size, a grid over
+        ``max_pixels``) is skipped with a note in :attr:`damage` that names it; indices stay the
+        log's own. :attr:`damage` is reset at the start of each iteration (a damaged summary or
+        metadata record is noted again each time). Raises :class:`LogDamageError` if the log is
+        damaged so that not one frame of the range could be delivered.
         """
         if start < 0 or (stop is not None and stop < start):
             raise ParameterError(f"frames: need 0 <= start <= stop, got start={start}, stop={stop}")
-        self.damage = []
+        self.damage = list(self._open_damage)
         companions = [t for t in (self.image_topic, self.info_topic) if t] + list(self.mask_topics)
         orphan_limit = 4 * len(companions) + 4
-        pending: list[dict] = []  # {"index", "stamp", "cloud", "parts": {topic: decoded}}
+        pending: list[_Pending] = []
         orphans: list[tuple[int, str, object]] = []  # (stamp, topic, decoded)
+        lost_parts: dict[str, set[int]] = {}  # companion topic -> log times of its lost messages
         delivered = 0
+        stopped = False  # left the scan before the end of the log
         want_topics = {self.cloud_topic, *companions}
         # seek: begin at the chunk holding cloud start - PAIRING_WINDOW (companions may precede)
         begin, next_index = self._seek(max(0, start - PAIRING_WINDOW)) if start > 0 else (None, 0)
+        # sequence numbers find clouds lost without a trace when there is no intact summary
+        seq = _Sequences(enabled=not self._has_summary and begin is None)
+        unknown_loss: list[int] = []  # frame index after which a chunk of unknown content was lost
 
-        def complete(p: dict) -> bool:
-            return all(t in p["parts"] for t in companions)
+        def in_range(idx: int) -> bool:
+            return idx >= start and (stop is None or idx < stop)
+
+        def lost(first: int, n: int, why: str, times: list[int] | None = None) -> None:
+            ks = [k for k in range(first, first + n) if in_range(k)]
+            if not ks:
+                return
+            when = ""
+            if times:
+                t = [times[k - first] for k in ks if k - first < len(times)]
+                if t:
+                    when = f" (log time {stamp_text(t[0])})" if len(t) == 1 else (
+                        f" (log times {stamp_text(t[0])} .. {stamp_text(t[-1])})")
+            what = f"frame {ks[0]}" if len(ks) == 1 else f"frames {ks[0]}-{ks[-1]}"
+            self.damage.append(f"{what}{when} {why}")
 
         def emit_ready(final: bool) -> Iterator[Frame]:
             nonlocal delivered
-            while pending and (final or complete(pending[0]) or len(pending) > PAIRING_WINDOW):
-                if pending[0]["cloud"] is None:
+            while pending and (final or pending[0].complete(companions) or len(pending) > PAIRING_WINDOW):
+                if pending[0].cloud is None:
                     return
                 p = pending.pop(0)
-                if p["index"] >= start and (stop is None or p["index"] < stop):
-                    delivered += 1
-                    yield self._build(p)
+                if not in_range(p.index):
+                    continue
+                try:
+                    frame = self._build(p, lost_parts)
+                except LogFormatError as e:
+                    self.damage.append(f"frame {p.index} (stamp {stamp_text(p.stamp)}) skipped: {e}")
+                    continue
+                delivered += 1
+                yield frame
 
         schemas = dict(self._schemas)
         channels = dict(self._channels)
-        with McapFile(self.path) as mf:
+        with self._mcap() as mf:
             cached, self._chunks = self._chunks, {}
             if begin is not None:  # chunks before the seek target are never reached
                 cached = {k: v for k, v in cached.items() if k[0] >= begin}
@@ -467,38 +597,56 @@ class LogReader:
                         continue
                     topic = ch.topic
                     if topic == self.cloud_topic:
+                        gap = seq.gap(rec.channel_id, rec.sequence)
+                        if gap:
+                            lost(next_index, gap, f"lost: {topic} message sequence jumps from "
+                                 f"{rec.sequence - gap - 1} to {rec.sequence} (a chunk is missing)")
+                            next_index += gap
+                            if unknown_loss:  # the gap says how many the unknown chunk held
+                                self.damage.remove(_unknown_note(unknown_loss.pop()))
                         idx = next_index
                         next_index += 1
                         if idx < start:
                             continue
                         if stop is not None and idx >= stop:
                             # past the range: only counts towards the pairing window
-                            pending.append({"index": idx, "stamp": None, "cloud": None, "parts": {}})
+                            pending.append(_Pending(idx, None, None, rec.log_time))
                             yield from emit_ready(False)
-                            if pending[0]["cloud"] is None:
+                            if pending[0].cloud is None:
+                                stopped = True
                                 break
                             continue
                         where = f"{self.path.name}: topic {topic}, message {idx}"
-                        cloud = rm.decode_cloud(_payload(rec.data, where), where=where)
-                        p = {"index": idx, "stamp": cloud.stamp_ns, "cloud": cloud, "parts": {}}
+                        try:
+                            cloud = rm.decode_cloud(_payload(rec.data, where, self.max_message_bytes), where=where)
+                        except LogFormatError as e:
+                            self.damage.append(f"frame {idx} (log time {stamp_text(rec.log_time)}) skipped: {e}")
+                            continue
+                        p = _Pending(idx, cloud.stamp_ns, cloud, rec.log_time)
                         keep = []
                         for o in orphans:
-                            if o[0] == cloud.stamp_ns and o[1] not in p["parts"]:
-                                p["parts"][o[1]] = o[2]
+                            if o[0] == cloud.stamp_ns and o[1] not in p.parts:
+                                p.parts[o[1]] = o[2]
                             else:
                                 keep.append(o)
                         orphans[:] = keep
                         pending.append(p)
                     else:
-                        where = f"{self.path.name}: topic {topic}, message at log time {rec.log_time}"
+                        where = f"{self.path.name}: topic {topic}, message at log time {stamp_text(rec.log_time)}"
                         sc = schemas.get(ch.schema_id)
-                        if sc is not None and sc.name == rm.CAMERAINFO:
-                            msg = rm.decode_camera_info(_payload(rec.data, where), where=where)
-                        else:
-                            msg = rm.decode_image(_payload(rec.data, where), where=where)
+                        try:
+                            data = _payload(rec.data, where, self.max_message_bytes)
+                            if sc is not None and sc.name == rm.CAMERAINFO:
+                                msg = rm.decode_camera_info(data, where=where)
+                            else:
+                                msg = rm.decode_image(data, where=where)
+                        except LogFormatError as e:
+                            self.damage.append(f"{e}; its frame cannot be told (not paired)")
+                            lost_parts.setdefault(topic, set()).add(rec.log_time)
+                            continue
                         for p in pending:
-                            if p["stamp"] == msg.stamp_ns and topic not in p["parts"]:
-                                p["parts"][topic] = msg
+                            if p.stamp == msg.stamp_ns and topic not in p.parts:
+                                p.parts[topic] = msg
                                 break
                         else:
                             orphans.append((msg.stamp_ns, topic, msg))
@@ -506,14 +654,10 @@ class LogReader:
                                 orphans.pop(0)
                     yield from emit_ready(False)
                 elif op == OP_LOST:
+                    self._account_lost(rec, channels, lost_parts, seq, lost, next_index, unknown_loss)
                     cloud_ids = {cid for cid, ch in channels.items() if ch.topic == self.cloud_topic}
-                    if rec is None:
-                        self.damage.append(
-                            "the number of clouds in the lost chunk is unknown: frame indices after "
-                            f"frame {next_index - 1} may be shifted"
-                        )
-                    else:
-                        next_index += sum(n for cid, n in rec.items() if cid in cloud_ids)
+                    if rec.log_times is not None:
+                        next_index += sum(len(v) for cid, v in rec.log_times.items() if cid in cloud_ids)
                 elif op == OP_CHANNEL:
                     channels[rec.id] = rec
                 elif op == OP_SCHEMA:
@@ -521,15 +665,41 @@ class LogReader:
                 elif op == OP_METADATA:
                     self.metadata.setdefault(rec[0], rec[1])
             yield from emit_ready(True)
+        expected = self.n_frames
+        if not stopped and begin is None and expected is not None and next_index < expected:
+            lost(next_index, expected - next_index,
+                 f"lost: the summary lists {expected} messages on {self.cloud_topic}, the file holds {next_index}")
         if delivered == 0 and self.damage and (stop is None or stop > start):
             raise LogDamageError(f"{self.path.name}: no frame could be read: {'; '.join(self.damage)}")
+
+    def _account_lost(self, rec: Lost, channels: dict[int, Channel], lost_parts: dict[str, set[int]],
+                      seq: _Sequences, lost, next_index: int, unknown_loss: list[int]) -> None:
+        """Name the frames (and companion messages) of a lost chunk."""
+        if rec.log_times is None:
+            unknown_loss.append(next_index - 1)
+            self.damage.append(_unknown_note(next_index - 1))
+            return
+        n = 0
+        times: list[int] = []
+        for cid, ts in rec.log_times.items():
+            ch = channels.get(cid)
+            if ch is None:
+                continue
+            seq.skip(cid, len(ts))
+            if ch.topic == self.cloud_topic:
+                n += len(ts)
+                times += ts
+            else:
+                lost_parts.setdefault(ch.topic, set()).update(ts)
+        if n:
+            lost(next_index, n, f"lost with the chunk at byte {rec.offset}", sorted(times))
 
     def _seek(self, k: int) -> tuple[int | None, int]:
         """(file offset of the chunk holding the k-th cloud, number of clouds before that chunk),
         from the summary's chunk and message indexes; (None, 0) = scan from the start."""
         cloud_ids = {cid for cid, ch in self._channels.items() if ch.topic == self.cloud_topic}
         try:
-            with McapFile(self.path) as mf:
+            with self._mcap() as mf:
                 if mf.summary is None or not mf.summary.chunk_indexes:
                     return None, 0
                 before = 0
@@ -548,31 +718,36 @@ class LogReader:
             pass
         return None, 0
 
-    def _build(self, p: dict) -> Frame:
-        idx = p["index"]
-        cloud: rm.CloudMsg = p["cloud"]
+    def _build(self, p: _Pending, lost_parts: dict[str, set[int]]) -> Frame:
+        """The frame of a pending cloud, or LogFormatError naming why it cannot be read."""
+        idx = p.index
+        cloud = p.cloud
         where = f"{self.path.name}: topic {self.cloud_topic}, message {idx}"
         if cloud.height <= 1:
             raise LogFormatError(
                 f"{where}: unorganized cloud (height {cloud.height}, width {cloud.width}); "
                 "zcut needs organized clouds (height > 1)"
             )
-        xyz, rgb = rm.cloud_to_arrays(cloud, where=where)
         shape = (cloud.height, cloud.width)
-        parts = p["parts"]
+        parts = p.parts
+        for topic in p.missing(self.image_topic, self.info_topic, self.mask_topics):
+            gone = lost_parts.get(topic, ())
+            if p.stamp in gone or p.log_time in gone:
+                raise LogFormatError(f"{where}: its {topic} message was lost")
+        xyz, rgb = rm.cloud_to_arrays(cloud, where=where, max_pixels=self.max_pixels)
         img = parts.get(self.image_topic) if self.image_topic else None
         if img is not None:
-            iwhere = f"{self.path.name}: topic {self.image_topic}, stamp {img.stamp_ns}"
+            iwhere = f"{self.path.name}: topic {self.image_topic}, stamp {stamp_text(img.stamp_ns)}"
             if (img.height, img.width) != shape:
                 raise LogFormatError(
                     f"{iwhere}: image is {img.height}x{img.width} but its cloud ({self.cloud_topic}, "
                     f"message {idx}) is {shape[0]}x{shape[1]}"
                 )
-            rgb = rm.image_to_rgb(img, where=iwhere)
+            rgb = rm.image_to_rgb(img, where=iwhere, max_pixels=self.max_pixels)
         intrinsics: Intrinsics | None = None
         info = parts.get(self.info_topic) if self.info_topic else None
         if info is not None and any(info.k):
-            iwhere = f"{self.path.name}: topic {self.info_topic}, stamp {info.stamp_ns}"
+            iwhere = f"{self.path.name}: topic {self.info_topic}, stamp {stamp_text(info.stamp_ns)}"
             if (info.height, info.width) != shape:
                 raise LogFormatError(
                     f"{iwhere}: camera info is for {info.height}x{info.width} but its cloud "
@@ -584,16 +759,67 @@ class LogReader:
             m = parts.get(topic)
             if m is None:
                 continue
-            mwhere = f"{self.path.name}: topic {topic}, stamp {m.stamp_ns}"
+            mwhere = f"{self.path.name}: topic {topic}, stamp {stamp_text(m.stamp_ns)}"
             if (m.height, m.width) != shape:
                 raise LogFormatError(
                     f"{mwhere}: mask is {m.height}x{m.width} but its cloud is {shape[0]}x{shape[1]}"
                 )
-            masks[topic] = rm.image_to_mask(m, where=mwhere)
+            masks[topic] = rm.image_to_mask(m, where=mwhere, max_pixels=self.max_pixels)
         return Frame(
             xyz=xyz, rgb=rgb, stamp_ns=cloud.stamp_ns, frame_id=cloud.frame_id,
             intrinsics=intrinsics, topic=self.cloud_topic, index=idx, masks=masks,
         )
+
+
+def _unknown_note(after: int) -> str:
+    return (f"the number of clouds in the lost chunk is unknown: frame indices after frame {after} "
+            "may be shifted")
+
+
+@dataclass
+class _Pending:
+    """A cloud waiting for its companions (``cloud`` None: a placeholder past the range)."""
+
+    index: int
+    stamp: int | None
+    cloud: rm.CloudMsg | None
+    log_time: int
+    parts: dict[str, object] = field(default_factory=dict)
+
+    def complete(self, companions: list[str]) -> bool:
+        return all(t in self.parts for t in companions)
+
+    def missing(self, image: str | None, info: str | None, masks: list[str]) -> list[str]:
+        return [t for t in (image, info, *masks) if t and t not in self.parts]
+
+
+class _Sequences:
+    """Per-channel message sequence numbers, trusted to find lost messages only while they count
+    0, 1, 2, … from the first message of the log (zcut's writer; rosbag2 writes all zeros, which
+    turns the check off at the second message)."""
+
+    def __init__(self, *, enabled: bool) -> None:
+        self.enabled = enabled
+        self.expected: dict[int, int | None] = {}  # None: not trusted
+
+    def gap(self, cid: int, s: int) -> int:
+        """Messages missing on channel ``cid`` before one with sequence ``s``."""
+        if not self.enabled:
+            return 0
+        exp = self.expected.get(cid, 0)
+        if exp is None:
+            return 0
+        if s < exp or (cid not in self.expected and s != 0):
+            self.expected[cid] = None
+            return 0
+        self.expected[cid] = s + 1
+        return s - exp
+
+    def skip(self, cid: int, n: int) -> None:
+        """``n`` messages of ``cid`` were accounted for (a lost chunk's message index)."""
+        exp = self.expected.get(cid, 0)
+        if exp is not None:
+            self.expected[cid] = exp + n
 
 
 def read_mask_topics(path: str | os.PathLike, wanted: tuple[str, ...]):
@@ -622,7 +848,7 @@ def read_mask_topics(path: str | os.PathLike, wanted: tuple[str, ...]):
                 msg = rm.decode_image(rec.data, where=where)
                 masks.setdefault(msg.stamp_ns, {})[chosen[rec.channel_id]] = rm.image_to_mask(msg, where=where)
             elif op == OP_LOST:
-                damage.append("messages were lost")
+                damage.append(f"messages were lost with the chunk at byte {rec.offset}")
     if damage:
         raise LogFormatError(f"{path}: damaged file: {damage[0]}")
     return metadata, masks

@@ -298,6 +298,20 @@ def decode_camera_info(data: bytes | memoryview, *, where: str = "CameraInfo") -
 # CDR writing (little-endian)
 # --------------------------------------------------------------------------------------------
 
+#: Largest header stamp a ROS 2 message can carry (``builtin_interfaces/Time``: int32 seconds,
+#: so 2038-01-19 03:14:07.999999999 UTC); zcut writes stamps in [0, MAX_STAMP_NS].
+MAX_STAMP_NS = (2**31 - 1) * 1_000_000_000 + 999_999_999
+
+
+def check_stamp(stamp_ns: int) -> None:
+    """Raise ValueError (one line) unless ``0 <= stamp_ns <= MAX_STAMP_NS``."""
+    if not 0 <= int(stamp_ns) <= MAX_STAMP_NS:
+        raise ValueError(
+            f"stamp {stamp_ns} ns is outside the ROS 2 time range 0 .. {MAX_STAMP_NS} ns "
+            "(int32 seconds: up to 2038-01-19 03:14:07 UTC)"
+        )
+
+
 
 class _CdrOut:
     __slots__ = ("parts", "pos")
@@ -343,6 +357,7 @@ class _CdrOut:
         self.raw(b)  # type: ignore[arg-type]
 
     def header(self, stamp_ns: int, frame_id: str) -> None:
+        check_stamp(stamp_ns)
         sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
         self.i32(sec)
         self.u32(nsec)
@@ -435,14 +450,29 @@ XYZRGBA_FIELDS = (
 XYZ_FIELDS = XYZRGBA_FIELDS[:3]
 
 
-def cloud_to_arrays(msg: CloudMsg, *, where: str) -> tuple[np.ndarray, np.ndarray | None]:
+def check_grid(h: int, w: int, max_pixels: int | None, *, what: str, where: str) -> None:
+    """Raise :class:`LogFormatError` if an ``h`` x ``w`` grid exceeds ``max_pixels`` (None: no cap)."""
+    if max_pixels is not None and h * w > max_pixels:
+        raise LogFormatError(
+            f"{where}: {what} of {h}x{w} = {h * w} pixels is more than the cap of {max_pixels} (max_pixels)"
+        )
+
+
+def cloud_to_arrays(
+    msg: CloudMsg, *, where: str, max_pixels: int | None = None
+) -> tuple[np.ndarray, np.ndarray | None]:
     """View a ``PointCloud2`` as arrays.
+
+    The size is checked against the bytes present and ``max_pixels`` before the output arrays
+    are allocated.
 
     Parameters
     ----------
     msg : CloudMsg
     where : str
         "topic /x, message 3" style prefix for error messages.
+    max_pixels : int or None
+        Largest H x W accepted (None: no cap).
 
     Returns
     -------
@@ -472,6 +502,7 @@ def cloud_to_arrays(msg: CloudMsg, *, where: str) -> tuple[np.ndarray, np.ndarra
             f"{where}: PointCloud2 of {h}x{w} with row_step {row_step}, point_step {step} needs "
             f"{need} bytes of data but has {len(msg.data)}"
         )
+    check_grid(h, w, max_pixels, what="PointCloud2", where=where)
     bo = ">" if msg.is_bigendian else "<"
     coord_types = set()
     for name in ("x", "y", "z"):
@@ -658,7 +689,7 @@ _IMAGE_CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}
 COLOR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8")
 
 
-def _image_pixels(msg: ImageMsg, *, where: str) -> np.ndarray:
+def _image_pixels(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -> np.ndarray:
     ch = _IMAGE_CHANNELS.get(msg.encoding)
     if ch is None:
         raise LogFormatError(
@@ -678,15 +709,17 @@ def _image_pixels(msg: ImageMsg, *, where: str) -> np.ndarray:
             f"{where}: Image {h}x{w} {msg.encoding} with step {step} needs {need} bytes of data "
             f"but has {len(msg.data)}"
         )
+    check_grid(h, w, max_pixels, what="Image", where=where)
     buf = np.frombuffer(msg.data, dtype=np.uint8, count=need)
     return np.lib.stride_tricks.as_strided(
         buf, shape=(h, w, ch), strides=(step, ch, 1), writeable=False
     )
 
 
-def image_to_rgb(msg: ImageMsg, *, where: str) -> np.ndarray:
-    """(H, W, 3) uint8 RGB copy of an rgb8/bgr8/rgba8/bgra8/mono8 ``Image`` (step padding dropped)."""
-    px = _image_pixels(msg, where=where)
+def image_to_rgb(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -> np.ndarray:
+    """(H, W, 3) uint8 RGB copy of an rgb8/bgr8/rgba8/bgra8/mono8 ``Image`` (step padding dropped;
+    H x W checked against the bytes present and ``max_pixels`` first)."""
+    px = _image_pixels(msg, where=where, max_pixels=max_pixels)
     enc = msg.encoding
     if enc == "mono8":
         return np.repeat(px, 3, axis=2)
@@ -695,11 +728,11 @@ def image_to_rgb(msg: ImageMsg, *, where: str) -> np.ndarray:
     return np.array(px[..., :3], order="C")  # a copy even for rgb8: never pin the chunk buffer
 
 
-def image_to_mask(msg: ImageMsg, *, where: str) -> np.ndarray:
+def image_to_mask(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -> np.ndarray:
     """(H, W) bool of a mono8 mask ``Image``: nonzero (255 as zcut writes it) -> True."""
     if msg.encoding != "mono8":
         raise LogFormatError(f"{where}: a mask must be a mono8 Image, got '{msg.encoding}'")
-    return _image_pixels(msg, where=where)[..., 0] != 0
+    return _image_pixels(msg, where=where, max_pixels=max_pixels)[..., 0] != 0
 
 
 def camera_info_to_intrinsics(msg: CameraInfoMsg, *, where: str) -> Intrinsics:

@@ -135,8 +135,10 @@ class LogWriter:
         if self._closed:
             raise ValueError(f"LogWriter for {self.path} is closed")
         stamp_ns = int(stamp_ns)
-        if stamp_ns < 0:
-            raise InputShapeError(f"stamp_ns must be >= 0, got {stamp_ns}")
+        if not 0 <= stamp_ns <= rm.MAX_STAMP_NS:
+            raise InputShapeError(
+                f"stamp_ns must be in the ROS 2 time range 0 .. {rm.MAX_STAMP_NS} (2038-01-19), got {stamp_ns}"
+            )
         cid = self._channel(topic, msg_type)
         self._writer.add_message(
             channel_id=cid, log_time=stamp_ns, data=data, publish_time=stamp_ns,

@@ -3,6 +3,7 @@ own error types, no hang, no absurd memory. The mutator is seeded and bounded (<
 
 from __future__ import annotations
 
+import re
 import resource
 import struct
 import subprocess
@@ -119,9 +120,14 @@ def test_corrupt_chunk_keeps_the_others_and_indices(small_log, tmp_path, with_su
     p = tmp_path / "flip.mcap"
     p.write_bytes(bad)
     r, got = _read_all(p)
-    assert [g.index for g in got] == [0, 1, 3, 4, 5]  # true indices survive the lost cloud
+    # the chunk held frame 1's image and mask and frame 2's cloud: frame 1 cannot be read whole
+    # (skipped, named), frame 2 is lost (named), the others keep their true indices
+    assert [g.index for g in got] == [0, 3, 4, 5]
     _check_prefix(got, frames)
     assert any(f"chunk at byte {victim.chunk_start_offset} is corrupt" in d for d in r.damage)
+    assert any(d.startswith("frame 1 (stamp 2.000000000) skipped: ") and "/camera/image message was lost" in d
+               for d in r.damage), r.damage
+    assert f"frame 2 (log time 3.000000000) lost with the chunk at byte {victim.chunk_start_offset}" in r.damage
 
 
 def test_bad_record_length_resumes_at_next_chunk(small_log, tmp_path):
@@ -205,7 +211,7 @@ def _image(h, w, enc="rgb8", stamp=7):
          "image topic /img is 4x6 but cloud topic /p is 4x5"),
         ([("/p", rm.POINTCLOUD2, _cloud(4, 5)), ("/img", rm.IMAGE, _image(4, 5)),
           ("/p", rm.POINTCLOUD2, _cloud(4, 5, stamp_ns=9)), ("/img", rm.IMAGE, _image(3, 5, stamp=9))], "frames",
-         "topic /img, stamp 9: image is 3x5 but its cloud \\(/p, message 1\\) is 4x5"),
+         "topic /img, stamp 0.000000009: image is 3x5 but its cloud \\(/p, message 1\\) is 4x5"),
         ([("/p", rm.POINTCLOUD2, _cloud(4, 5)), ("/p", rm.POINTCLOUD2, _cloud(4, 2**31 - 1, row_step=16, data=bytes(64)))],
          "frames", "topic /p, message 1: PointCloud2 row_step 16 is smaller"),
         ([("/p", rm.POINTCLOUD2, _cloud(4, 5)), ("/p", rm.POINTCLOUD2, _cloud(2**20, 2**11, data=bytes(64)))],
@@ -222,10 +228,12 @@ def test_hostile_messages(tmp_path, messages, where, match):
     if where == "open":
         with pytest.raises(LogFormatError, match="^h.mcap.*" + match):
             LogReader(p)
-    else:
+    else:  # SPEC §6: the unreadable frame 1 is skipped and named, the stream goes on
+        _raw_log(p, [*messages, ("/p", rm.POINTCLOUD2, _cloud(4, 5, stamp_ns=11))])
         r = LogReader(p)
-        with pytest.raises(LogFormatError, match="^h.mcap: " + match):
-            list(r.frames())
+        assert [f.index for f in r.frames()] == [0, 2]
+        assert len(r.damage) == 1, r.damage
+        assert re.match(r"^frame 1 \((stamp|log time) [0-9.]+\) skipped: h.mcap: " + match, r.damage[0]), r.damage
 
 
 def test_choose_topic_explicitly(tmp_path):
@@ -370,8 +378,10 @@ def test_chunk_crc_is_checked(small_log, tmp_path):
     p = tmp_path / "crc.mcap"
     p.write_bytes(bytes(raw))
     r = LogReader(p)
-    assert [g.index for g in r.frames()] == [0, 1, 2, 3, 5]
+    # the chunk held frame 3's image and mask and frame 4's cloud (contract: both named, skipped)
+    assert [g.index for g in r.frames()] == [0, 1, 2, 5]
     assert "fails its CRC check" in r.damage[0]
+    assert sorted(d.split(" (")[0] for d in r.damage[1:]) == ["frame 3", "frame 4"], r.damage
 
 
 def test_zeroed_region_is_damage_not_a_slow_scan(small_log, tmp_path):
@@ -384,7 +394,7 @@ def test_zeroed_region_is_damage_not_a_slow_scan(small_log, tmp_path):
     p = tmp_path / "zeros.mcap"
     p.write_bytes(bytes(raw))
     r = LogReader(p)
-    assert [g.index for g in r.frames()] == [0, 1, 2, 4, 5]
+    assert [g.index for g in r.frames()] == [0, 1, 4, 5]  # frame 2's image and frame 3 were in it
     assert r.damage[0].startswith(f"invalid record opcode 0x00 at byte {victim.chunk_start_offset}")
     cut = tmp_path / "zeros_tail.mcap"
     cut.write_bytes(bytes(raw[: victim.chunk_start_offset]) + bytes(50_000_000))  # no summary left
@@ -410,5 +420,7 @@ def test_rosbag2_per_message_zstd_compression(tmp_path):
     bad = bytearray(zstandard.compress(cloud))
     bad[-6] ^= 0xFF
     _raw_log(p, [("/p", rm.POINTCLOUD2, _cloud(4, 5)), ("/p", rm.POINTCLOUD2, bytes(bad))])
-    with pytest.raises(LogFormatError, match="^msgz.mcap: topic /p, message 1: zstd-compressed message"):
-        list(LogReader(p).frames())
+    r = LogReader(p)
+    assert [f.index for f in r.frames()] == [0]  # SPEC §6: skipped and named, not the end of the run
+    assert re.match(r"^frame 1 \(log time 0\.000000001\) skipped: msgz.mcap: topic /p, message 1: "
+                    "zstd-compressed message", r.damage[0]), r.damage
