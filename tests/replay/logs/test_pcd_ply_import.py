@@ -13,7 +13,7 @@ import pytest
 
 from replay.cli import main
 from replay.errors import LogFormatError
-from replay.logs.pcd import lzf_decompress, read_pcd
+from replay.logs.pcd import read_pcd
 from replay.logs.ply import read_ply
 from replay.logs.reader import LogReader
 
@@ -181,13 +181,27 @@ def test_pcd_zero_points_become_nan(tmp_path):
     assert np.isnan(got.xyz[1, 1]).all() and np.isfinite(got.xyz).sum() == 11 * 3
 
 
-def test_lzf_reference_vectors():
-    # literal "abc", then a back reference of length 3 + 2 to offset 3 (overlapping copy)
-    assert lzf_decompress(b"\x02abc" + bytes([0x60, 0x02]), 8) == b"abcabcab"
-    with pytest.raises(LogFormatError, match="corrupt"):
-        lzf_decompress(bytes([0x60, 0x10]), 5)  # reference before the start
-    with pytest.raises(LogFormatError, match="expands to 3 bytes, not 4"):
-        lzf_decompress(b"\x02abc", 4)
+_PCD_2X1 = b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 2\nPOINTS 2\nDATA binary_compressed\n"
+
+
+@pytest.mark.parametrize(
+    "stream,match",
+    [
+        # literal 1.0f, then a back reference of 20 bytes to offset 4 (an overlapping copy)
+        (bytes([3, 0, 0, 0x80, 0x3F, 0xE0, 0x0B, 0x03]), None),
+        (bytes([0x60, 0x10]), "LZF data is corrupt"),  # a reference before the start
+        (bytes([3, 0, 0, 0x80, 0x3F]), "LZF data is corrupt"),  # expands to 4 bytes, not 24
+    ],
+)
+def test_lzf_reference_vectors(tmp_path, stream, match):
+    """PCL's binary_compressed LZF, read through pypcd4 (liblzf): back references, corrupt data."""
+    p = tmp_path / "lzf.pcd"
+    p.write_bytes(_PCD_2X1 + struct.pack("<II", len(stream), 24) + stream)
+    if match is None:
+        assert (read_pcd(p).xyz == 1.0).all()
+    else:
+        with pytest.raises(LogFormatError, match="^lzf.pcd: PCD binary_compressed: " + match):
+            read_pcd(p)
 
 
 def test_pcd_corrupt_compressed_data_never_crashes(real_data, tmp_path, rng):
