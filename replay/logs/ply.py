@@ -22,77 +22,33 @@ Formats: ``ascii``, ``binary_little_endian`` and ``binary_big_endian`` 1.0. The 
 must come first (elements before it must be empty); it needs ``x y z`` (float/double), and may
 have ``red green blue`` (uchar) — every other scalar property is skipped. A vertex element with a
 list property is refused. Coordinates are returned as stored (the caller chooses the unit).
+
+Division of work (``bench/bench_pcd_ply.py``, README dependency table): plyfile parses the header
+(elements, properties, comments, obj_info) and the ascii data; binary elements are read with
+plyfile's dtypes straight from the file, only the bytes the grid needs. Kept here: the
+organisation conventions above, the size checks (the grid against ``max_pixels``, every element
+against the bytes in the file and ``max_message_bytes``, before anything is allocated) and the
+binary ``range_grid`` reader (numba): plyfile reads variable-length lists one row at a time in
+Python, ~20x slower on PCL's range_grid.
 """
 
 from __future__ import annotations
 
+import io
 import os
 import re
+import warnings
 from pathlib import Path
 
 import numba
 import numpy as np
 
 from replay.errors import LogFormatError
+from replay.logs.files import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_MAX_PIXELS, check_caps, open_input
 from replay.logs.pcd import Cloud, invalid_to_nan
 
-_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
-    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
-    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
-}
 _MAX_HEADER = 64 * 1024
-
-
-class _Element:
-    def __init__(self, name: str, count: int) -> None:
-        self.name = name
-        self.count = count
-        self.props: list[tuple[str, str, str | None, str | None]] = []  # name, type, list count t, list item t
-
-
-def _header(raw: bytes, name: str) -> tuple[str, list[_Element], dict[str, int], int]:
-    if not raw.startswith(b"ply"):
-        raise LogFormatError(f"{name}: not a PLY file (no 'ply' magic)")
-    end = raw.find(b"end_header", 0, _MAX_HEADER)
-    if end < 0:
-        raise LogFormatError(f"{name}: PLY header has no end_header")
-    nl = raw.find(b"\n", end)
-    if nl < 0:
-        raise LogFormatError(f"{name}: PLY file ends after its header")
-    text = raw[:end].decode("ascii", errors="replace")
-    fmt = None
-    elements: list[_Element] = []
-    info: dict[str, int] = {}
-    for line in text.splitlines()[1:]:
-        parts = line.split()
-        if not parts:
-            continue
-        key = parts[0]
-        try:
-            if key == "format":
-                fmt = parts[1]
-                if parts[2] != "1.0":
-                    raise LogFormatError(f"{name}: PLY format version {parts[2]} (zcut reads 1.0)")
-            elif key in ("comment", "obj_info"):
-                m = re.match(r"\s*(?:comment|obj_info)\s+(num_rows|num_cols)\s+(\d+)", line)
-                if m:
-                    info[m.group(1)] = int(m.group(2))
-            elif key == "element":
-                elements.append(_Element(parts[1], int(parts[2])))
-            elif key == "property":
-                if not elements:
-                    raise LogFormatError(f"{name}: PLY property before any element")
-                if parts[1] == "list":
-                    elements[-1].props.append((parts[4], "list", parts[2], parts[3]))
-                else:
-                    elements[-1].props.append((parts[2], parts[1], None, None))
-        except (IndexError, ValueError) as e:
-            raise LogFormatError(f"{name}: malformed PLY header line {line!r}") from e
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise LogFormatError(f"{name}: unknown PLY format {fmt!r}")
-    return fmt, elements, info, nl + 1
+_ORG = re.compile(r"\s*(num_rows|num_cols)\s+(\d+)")
 
 
 @numba.njit(cache=True, inline="always")
@@ -128,31 +84,31 @@ def _grid_from_lists(buf: np.ndarray, start: int, n_cells: int, cnt_size: int, i
     return pos
 
 
-def _ascii_table(lines: list[bytes], el: _Element, name: str) -> dict[str, np.ndarray]:
-    """Columns of an ascii element with scalar properties, in their declared types."""
+def _header(f, size: int, name: str):
+    """plyfile's parse of the header (at most :data:`_MAX_HEADER` bytes), and the data offset."""
+    from plyfile import PlyData, PlyParseError
+
+    raw = f.read(_MAX_HEADER)
+    if not raw.startswith(b"ply"):
+        raise LogFormatError(f"{name}: not a PLY file (no 'ply' magic)")
+    end = raw.find(b"end_header")
+    nl = raw.find(b"\n", end) if end >= 0 else -1
+    if nl < 0:
+        raise LogFormatError(f"{name}: PLY header has no end_header in its first {len(raw)} bytes")
+    m = re.search(rb"^format\s+(\S+)\s+(\S+)", raw[:end], re.M)
+    if m and m.group(2) != b"1.0":
+        raise LogFormatError(f"{name}: PLY format version {m.group(2).decode('ascii', 'replace')} (zcut reads 1.0)")
     try:
-        table = np.array(b" ".join(lines).split()).astype(np.float64)
-    except ValueError as e:
-        raise LogFormatError(f"{name}: PLY ascii '{el.name}' data has a non-number ({e})") from e
-    n = len(el.props)
-    if table.size != len(lines) * n:
-        raise LogFormatError(
-            f"{name}: PLY ascii '{el.name}' data has {table.size} values, needs {len(lines) * n}"
-        )
-    table = table.reshape(len(lines), n)
-    out = {}
-    for i, p in enumerate(el.props):
-        t = np.dtype(_TYPES[p[1]])
-        col = table[:, i]
-        if t.kind != "f":
-            if not np.isfinite(col).all():
-                raise LogFormatError(f"{name}: PLY ascii integer property '{p[0]}' has a non-number")
-            col = col.astype(np.int64)
-        out[p[0]] = col.astype(t)
-    return out
+        ply = PlyData._parse_header(io.BytesIO(raw[: nl + 1]))
+    except (PlyParseError, UnicodeDecodeError, ValueError) as e:
+        raise LogFormatError(f"{name}: malformed PLY header ({str(e)[:120]})") from None
+    return ply, nl + 1
 
 
-def read_ply(path: str | os.PathLike, *, shape: tuple[int, int] | None = None) -> Cloud:
+def read_ply(
+    path: str | os.PathLike, *, shape: tuple[int, int] | None = None,
+    max_pixels: int = DEFAULT_MAX_PIXELS, max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
+) -> Cloud:
     """Read an organized PLY cloud (conventions in the module docstring).
 
     Parameters
@@ -160,119 +116,132 @@ def read_ply(path: str | os.PathLike, *, shape: tuple[int, int] | None = None) -
     path : str or Path
     shape : (H, W) or None
         Grid shape for files without organization info (vertex count must be H*W).
+    max_pixels : int
+        Largest grid (and vertex count) accepted; default 2**24.
+    max_message_bytes : int
+        Largest data section read; default 256 MiB.
 
     Returns
     -------
     Cloud
         ``xyz`` (H, W, 3) float32 as stored, NaN invalid; ``rgb`` (H, W, 3) uint8 or None.
+
+    Raises
+    ------
+    LogFormatError
+        Not a regular file, not a PLY, no organization, a size over a cap or past the end of the
+        file, malformed data; the message names the file.
     """
+    check_caps(max_pixels, max_message_bytes)
     path = Path(path)
     name = path.name
-    raw = path.read_bytes()
-    fmt, elements, info, body_at = _header(raw, name)
+    f, size = open_input(path, "a PLY file")
+    with f:
+        ply, body_at = _header(f, size, name)
+        return _read(f, size, ply, body_at, name, shape, max_pixels, max_message_bytes)
+
+
+def _read(f, size, ply, body_at, name, shape, max_pixels, max_message_bytes) -> Cloud:
+    from plyfile import PlyData, PlyListProperty, PlyParseError
+
+    elements = list(ply.elements)
     vi = next((i for i, e in enumerate(elements) if e.name == "vertex"), None)
     if vi is None:
         raise LogFormatError(f"{name}: PLY has no vertex element")
     if any(e.count for e in elements[:vi]):
         raise LogFormatError(f"{name}: PLY elements before 'vertex' are not supported")
     vert = elements[vi]
-    if any(p[1] == "list" for p in vert.props):
+    if any(isinstance(p, PlyListProperty) for p in vert.properties):
         raise LogFormatError(f"{name}: PLY vertex element has a list property (not a point cloud)")
-    pnames = [p[0] for p in vert.props]
+    pnames = [p.name for p in vert.properties]
     for axis in "xyz":
         if axis not in pnames:
             raise LogFormatError(f"{name}: PLY vertex has no '{axis}' property (has {' '.join(pnames)})")
-    for p in vert.props:
-        if p[1] not in _TYPES:
-            raise LogFormatError(f"{name}: PLY property '{p[0]}' has unknown type {p[1]!r}")
-    bo = ">" if fmt == "binary_big_endian" else "<"
-    dt = np.dtype([(f"p{i}", bo + _TYPES[p[1]]) for i, p in enumerate(vert.props)])
     nv = vert.count
-    body = memoryview(raw)[body_at:]
-    # 1. the vertices
-    if fmt == "ascii":
-        lines = bytes(body).split(b"\n")
-        if len(lines) < nv:
-            raise LogFormatError(f"{name}: PLY ascii data has {len(lines)} lines, needs {nv} vertices")
-        cols_of = _ascii_table(lines[:nv], vert, name)
-        line_at = nv
-    else:
-        need = dt.itemsize * nv
-        if len(body) < need:
-            raise LogFormatError(f"{name}: PLY vertex data has {len(body)} bytes, needs {need} (truncated)")
-        arr = np.frombuffer(body, dtype=dt, count=nv)
-        cols_of = {p: arr[f"p{i}"] for i, p in enumerate(pnames)}
-        byte_at = need
-    # 2. the elements after them: scalar ones (PCL's 'camera') are read, then an optional range_grid
-    camera: dict[str, float] = {}
-    grid_el = None
-    for el in elements[vi + 1 :]:
-        if el.name == "range_grid":
-            grid_el = el
-            break
-        if any(p[1] == "list" or p[1] not in _TYPES for p in el.props):
-            break  # e.g. faces: nothing zcut needs comes after them
-        if fmt == "ascii":
-            if el.count:
-                vals = _ascii_table(lines[line_at : line_at + el.count], el, name)
-                if el.name == "camera":
-                    camera = {k: float(v[0]) for k, v in vals.items()}
-            line_at += el.count
-        else:
-            edt = np.dtype([(f"p{i}", bo + _TYPES[p[1]]) for i, p in enumerate(el.props)])
-            if byte_at + edt.itemsize * el.count > len(body):
-                raise LogFormatError(f"{name}: PLY element '{el.name}' is truncated")
-            if el.name == "camera" and el.count:
-                rec = np.frombuffer(body, dtype=edt, count=1, offset=byte_at)
-                camera = {p[0]: float(rec[f"p{i}"][0]) for i, p in enumerate(el.props)}
-            byte_at += edt.itemsize * el.count
-    # 3. the grid shape
+    # the grid shape, before any data is read
+    info: dict[str, int] = {}
+    for line in [*ply.obj_info, *ply.comments]:
+        m = _ORG.match(line)
+        if m:
+            info.setdefault(m.group(1), int(m.group(2)))
     rows, cols = info.get("num_rows"), info.get("num_cols")
-    if rows is not None and cols is not None:
-        gshape = (rows, cols)
-    elif shape is not None:
-        gshape = (int(shape[0]), int(shape[1]))
-    elif camera.get("viewportx", 0) >= 1 and camera.get("viewporty", 0) >= 1:
-        gshape = (int(camera["viewporty"]), int(camera["viewportx"]))
-    else:
+    if nv > max_pixels:
+        raise LogFormatError(f"{name}: PLY has {nv} vertices, more than the cap of {max_pixels} (max_pixels)")
+    rest = size - body_at
+    if rest > max_message_bytes and ply.text:
         raise LogFormatError(
-            f"{name}: PLY with {nv} vertices has no organization info ('obj_info num_rows/num_cols' or "
-            "a PCL camera element); pass the grid shape (zcut record --shape HxW)"
+            f"{name}: PLY ascii data of {rest} bytes is more than the cap of {max_message_bytes} (max_message_bytes)"
         )
-    if gshape[0] <= 1 or gshape[1] < 1:
-        raise LogFormatError(f"{name}: PLY grid {gshape[0]}x{gshape[1]} is not organized (need height > 1)")
-    n_cells = gshape[0] * gshape[1]
-    # 4. the range grid: cell -> vertex (PCL's organized writer leaves invalid cells empty)
-    grid = None
-    if grid_el is not None:
-        lp = grid_el.props[0] if len(grid_el.props) == 1 else None
-        if lp is None or lp[1] != "list" or lp[2] not in _TYPES or lp[3] not in _TYPES:
-            raise LogFormatError(f"{name}: PLY range_grid must hold one list property")
-        if grid_el.count != n_cells:
+    later = []  # the scalar elements after the vertices, then an optional range_grid
+    for el in elements[vi + 1 :]:
+        if el.name == "range_grid" or any(isinstance(p, PlyListProperty) for p in el.properties):
+            later.append(el)
+            break  # nothing zcut needs comes after a list element other than range_grid
+        later.append(el)
+    grid_el = later[-1] if later and later[-1].name == "range_grid" else None
+    need = 0  # bytes the elements take at least (ascii: two characters a value)
+    for el in [vert, *later]:
+        if el.count > max_pixels:
+            raise LogFormatError(f"{name}: PLY element '{el.name}' has {el.count} items, more than the cap of {max_pixels}")
+        per = 2 * len(el.properties) if ply.text else (0 if el is grid_el else el.dtype(ply.byte_order).itemsize)
+        need += el.count * (per + (1 if el is grid_el else 0))
+        if need > rest:
             raise LogFormatError(
-                f"{name}: PLY range_grid has {grid_el.count} cells but the grid is {gshape[0]}x{gshape[1]}"
+                f"{name}: PLY {el.name} data has {rest} bytes after the header, needs {need} (truncated)"
             )
-        grid = np.full(n_cells, -1, dtype=np.int64)
-        if fmt == "ascii":
-            rest = lines[line_at : line_at + n_cells]
-            if len(rest) < n_cells:
-                raise LogFormatError(f"{name}: PLY range_grid has {len(rest)} lines, needs {n_cells}")
-            try:
-                for i, line in enumerate(rest):
-                    t = line.split()
-                    if t and int(t[0]) > 0:
-                        grid[i] = int(t[1])
-            except (ValueError, IndexError) as e:
-                raise LogFormatError(f"{name}: PLY range_grid line {i} is malformed") from e
+    camera: dict[str, float] = {}
+    grid = None
+    if ply.text:  # plyfile reads ascii data (bounded above by the file size)
+        f.seek(0)
+        try:
+            with warnings.catch_warnings():  # plyfile reads an empty ascii list with np.loadtxt
+                warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
+                data = PlyData.read(io.BytesIO(f.read()))
+        except (PlyParseError, ValueError, ArithmeticError, UnicodeDecodeError, LookupError, StopIteration) as e:
+            raise LogFormatError(f"{name}: PLY ascii data does not parse ({str(e)[:120]})") from None
+        cols_of = {p: data["vertex"].data[p] for p in pnames}
+        if any(e.name == "camera" and e.count for e in later):
+            camera = {k: float(data["camera"].data[k][0]) for k in data["camera"].data.dtype.names}
+        gshape = _grid_shape(name, nv, rows, cols, shape, camera)
+        if grid_el is not None:
+            lists = data["range_grid"].data[grid_el.properties[0].name]
+            grid = np.full(len(lists), -1, dtype=np.int64)
+            for i, lst in enumerate(lists):
+                if len(lst):
+                    grid[i] = int(lst[0])
             if ((grid < -1) | (grid >= nv)).any():
                 raise LogFormatError(f"{name}: PLY range_grid points outside the {nv} vertices")
-        else:
-            end = _grid_from_lists(
-                np.frombuffer(body, dtype=np.uint8), byte_at, n_cells, np.dtype(_TYPES[lp[2]]).itemsize,
-                np.dtype(_TYPES[lp[3]]).itemsize, bo == ">", nv, grid,
-            )
+    else:  # binary: plyfile's dtypes, only the bytes the grid needs
+        bo = ply.byte_order
+        dt = vert.dtype(bo)
+        f.seek(body_at)
+        arr = np.frombuffer(f.read(dt.itemsize * nv), dtype=dt, count=nv)
+        cols_of = {p: arr[p] for p in pnames}
+        byte_at = body_at + dt.itemsize * nv
+        for el in later:
+            if el is grid_el:
+                break
+            edt = el.dtype(bo)
+            if el.name == "camera" and el.count:
+                f.seek(byte_at)
+                rec = np.frombuffer(f.read(edt.itemsize), dtype=edt, count=1)
+                camera = {p: float(rec[p][0]) for p in edt.names}
+            byte_at += edt.itemsize * el.count
+        gshape = _grid_shape(name, nv, rows, cols, shape, camera)
+        if grid_el is not None:
+            lp = grid_el.properties[0]
+            n_cells = gshape[0] * gshape[1]
+            _check_grid_el(name, grid_el, gshape)
+            cnt, idx = np.dtype(lp.len_dtype).itemsize, np.dtype(lp.val_dtype).itemsize
+            f.seek(byte_at)
+            buf = np.frombuffer(f.read(min(size - byte_at, n_cells * (cnt + idx))), dtype=np.uint8)
+            grid = np.full(n_cells, -1, dtype=np.int64)
+            end = _grid_from_lists(buf, 0, n_cells, cnt, idx, bo == ">", nv, grid)
             if end < 0:
                 raise LogFormatError(f"{name}: PLY range_grid is truncated or points outside the vertices")
+    if grid_el is not None:
+        _check_grid_el(name, grid_el, gshape)
+    n_cells = gshape[0] * gshape[1]
     if grid is None and nv != n_cells:
         raise LogFormatError(
             f"{name}: PLY has {nv} vertices but the grid is {gshape[0]}x{gshape[1]} = {n_cells} "
@@ -302,3 +271,33 @@ def read_ply(path: str | os.PathLike, *, shape: tuple[int, int] | None = None) -
     if rgb is not None:
         rgb = np.ascontiguousarray(rgb.reshape(gshape[0], gshape[1], 3))
     return Cloud(np.ascontiguousarray(xyz), rgb)
+
+
+def _check_grid_el(name: str, el, gshape: tuple[int, int]) -> None:
+    from plyfile import PlyListProperty
+
+    if len(el.properties) != 1 or not isinstance(el.properties[0], PlyListProperty):
+        raise LogFormatError(f"{name}: PLY range_grid must hold one list property")
+    if el.count != gshape[0] * gshape[1]:
+        raise LogFormatError(
+            f"{name}: PLY range_grid has {el.count} cells but the grid is {gshape[0]}x{gshape[1]}"
+        )
+
+
+def _grid_shape(name: str, nv: int, rows: int | None, cols: int | None, shape, camera: dict[str, float]):
+    """(H, W) from obj_info/comment, the caller's shape, or PCL's camera viewport."""
+    vx, vy = camera.get("viewportx", 0.0), camera.get("viewporty", 0.0)
+    if rows is not None and cols is not None:
+        gshape = (rows, cols)
+    elif shape is not None:
+        gshape = (int(shape[0]), int(shape[1]))
+    elif np.isfinite(vx) and np.isfinite(vy) and 1 <= vx < 2**31 and 1 <= vy < 2**31:
+        gshape = (int(vy), int(vx))
+    else:
+        raise LogFormatError(
+            f"{name}: PLY with {nv} vertices has no organization info ('obj_info num_rows/num_cols' or "
+            "a PCL camera element); pass the grid shape (zcut record --shape HxW)"
+        )
+    if gshape[0] <= 1 or gshape[1] < 1:
+        raise LogFormatError(f"{name}: PLY grid {gshape[0]}x{gshape[1]} is not organized (need height > 1)")
+    return gshape
