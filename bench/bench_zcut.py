@@ -1,7 +1,9 @@
 """Benchmark: fast z-cut (component tree, numba) vs the literal per-level loop, 1920 x 1200.
 
 The fast version's default kernel is the flood (bucket queue over the levels); the union-find
-kernel (sorted pixels; the default before, now used beyond 4095 levels) is timed as well.
+kernel (sorted pixels; the default before, now used beyond 4095 levels) is timed as well, through
+``find_clusters(..., kernel=...)`` (the stage view: the same tree, more read-outs), next to the flood
+through the same function.
 
 Run: ``.venv/bin/python bench/bench_zcut.py [--repeat-fast N] [--repeat-ref N]``
 
@@ -24,9 +26,8 @@ import time
 
 import numpy as np
 
-from zcut import cuts
-from zcut.cuts import zcut_outliers, zcut_outliers_reference
-from zcut.params import NOMINAL_MAX_DEPTH_MM, NOMINAL_RHO_THR, NOMINAL_STEP_MM
+from zcut.cuts import find_clusters, zcut_outliers, zcut_outliers_reference
+from zcut.params import NOMINAL_MAX_DEPTH_MM, NOMINAL_RHO_THR, NOMINAL_STEP_MM, ZCutParams
 
 H, W = 1200, 1920
 A_MAX = 3000.0  # pixels of a part's largest face
@@ -124,12 +125,13 @@ def main() -> int:
         in_range = valid & (z >= np.nanmax(z) - params["max_depth"] - params["step"])
         w_fast, c_fast, m_fast = timed(lambda: zcut_outliers(z, **params), args.repeat_fast)
         w_ref, c_ref, m_ref = timed(lambda: zcut_outliers_reference(z, **params), args.repeat_ref)
-        flood_max, cuts._FLOOD_MAX_LEVELS = cuts._FLOOD_MAX_LEVELS, 0  # force the union-find
-        try:
-            w_uf, c_uf, m_uf = timed(lambda: zcut_outliers(z, **params), args.repeat_fast)
-        finally:
-            cuts._FLOOD_MAX_LEVELS = flood_max
-        same = np.array_equal(m_fast, m_ref) and np.array_equal(m_uf, m_ref)
+        zp = ZCutParams(params["step"], params["max_depth"], params["max_area"])
+        stage = {
+            kernel: timed(lambda k=kernel: find_clusters(z, params=zp, kernel=k), args.repeat_fast)
+            for kernel in ("flood", "union-find")
+        }
+        same = np.array_equal(m_fast, m_ref) and all(
+            np.array_equal(res.outliers, m_ref) for _, _, res in stage.values())
         ok &= same
         print(f"{name:6s} {H}x{W}: {in_range.mean():5.1%} of pixels in the cut range, "
               f"{int(m_ref.sum())} outliers, identical: {same}")
@@ -137,8 +139,9 @@ def main() -> int:
               f"ratio {w_ref / w_fast:6.1f}x")
         print(f"    cpu:  reference {c_ref * 1e3:8.1f} ms, fast {c_fast * 1e3:7.1f} ms, "
               f"ratio {c_ref / c_fast:6.1f}x")
-        print(f"    union-find kernel: wall {w_uf * 1e3:7.1f} ms, cpu {c_uf * 1e3:7.1f} ms, "
-              f"cpu ratio {c_ref / c_uf:6.1f}x")
+        for kernel, (w_k, c_k, _) in stage.items():
+            print(f"    find_clusters, {kernel + ' kernel:':18s} wall {w_k * 1e3:7.1f} ms, "
+                  f"cpu {c_k * 1e3:7.1f} ms, cpu ratio {c_ref / c_k:6.1f}x")
     return 0 if ok else 1
 
 

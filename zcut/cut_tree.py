@@ -1,10 +1,29 @@
-"""Numba kernels of the z-cut: pixel levels and the component tree of all the cuts.
+"""Numba kernels of the z-cut: pixel levels, the component tree of all the cuts, its read-outs.
 
-Used by :mod:`zcut.cuts`, whose module docstring explains the tree and why it equals the literal
-loop of SPEC §1. Two kernels build the same tree: :func:`_flood_tree` (flooding with a bucket queue
-over the levels, the default) and :func:`_component_tree` (union-find over the pixels sorted by
-level, for more than ``FLOOD_MAX_LEVELS`` levels). The remaining kernels read the tree back as the
-outlier mask, the cluster labels and the per-level component counts.
+:mod:`zcut.cuts` explains the tree and why it equals the literal loop of SPEC §1;
+:mod:`zcut.cut_grid` explains why one tree answers every (d_max, μ_thr) pair. The kernels work on
+the *padded* flat image of ``(H + 2) * (W + 2)`` pixels (a border of non-members saves the bounds
+checks); a node is a component of the cut at the level where it last changed.
+
+Building the tree
+
+- :func:`qlevel` — the level of one height: the smallest ``k`` with ``z >= z_max - k * step``
+  (exact float64 comparisons).
+- :func:`pixel_levels` — that level for every pixel, into the padded level image ``q``.
+- :func:`flood_tree` — the tree by flooding with a bucket queue over the levels (the default, up
+  to ``FLOOD_MAX_LEVELS`` levels).
+- :func:`union_find_tree` — the same tree by union-find over the pixels sorted by level (any
+  number of levels); :func:`node_image` turns its output into the flood's node image.
+
+Reading it back
+
+- :func:`outlier_mask` — the outlier mask of one parameter set (tags given per node).
+- :func:`cluster_labels` — the outermost tagged nodes as (H, W) cluster labels.
+- :func:`level_counts` — the number of components of every cut.
+- :func:`taggable_forest` — the nodes that some ``(K, max_area)`` can tag, and for each pixel the
+  lowest one holding it (the index of :class:`zcut.cut_grid.ZCutTree`).
+- :func:`forest_mask` — the outlier mask of one ``(K, max_area)`` from that forest.
+- :func:`grid_counts` — TP, FP and predicted pixel counts of a whole (K, max_area) grid from it.
 """
 
 from __future__ import annotations
@@ -12,6 +31,21 @@ from __future__ import annotations
 import numba
 import numpy as np
 from numba.cpython.unsafe.numbers import trailing_zeros
+
+__all__ = [
+    "FLOOD_MAX_LEVELS",
+    "cluster_labels",
+    "flood_tree",
+    "forest_mask",
+    "grid_counts",
+    "level_counts",
+    "node_image",
+    "outlier_mask",
+    "pixel_levels",
+    "qlevel",
+    "taggable_forest",
+    "union_find_tree",
+]
 
 # --------------------------------------------------------------------------------------------
 # The component tree (numba)
@@ -27,7 +61,7 @@ def _inside(zt: float, z_max: float, step: float, k: np.int64, hi: np.int64) -> 
 
 
 @numba.njit(cache=True)
-def _qlevel(zt: float, z_max: float, step: float, hi: np.int64) -> np.int64:
+def qlevel(zt: float, z_max: float, step: float, hi: np.int64) -> np.int64:
     """Smallest k in [0, hi) with zt >= z_max - k*step (exact float64 test), else hi."""
     g = (z_max - zt) / step
     if g >= hi:
@@ -79,8 +113,8 @@ def _qlevel(zt: float, z_max: float, step: float, hi: np.int64) -> np.int64:
 
 @numba.njit(cache=True, inline="always")
 def _qlevel_guess(zt, z_max, step, inv_step, hi):
-    """:func:`_qlevel`, fast when the guess ``floor((z_max - zt) * inv_step)`` or the next level is
-    right (checked with the exact comparisons); else :func:`_qlevel` itself."""
+    """:func:`qlevel`, fast when the guess ``floor((z_max - zt) * inv_step)`` or the next level is
+    right (checked with the exact comparisons); else :func:`qlevel` itself."""
     g = (z_max - zt) * inv_step
     if g >= 0 and g < hi - 1:  # (False for NaN)
         k = np.int64(g)
@@ -91,11 +125,11 @@ def _qlevel_guess(zt, z_max, step, inv_step, hi):
             return k + 1
     elif g >= hi - 1 and not zt >= z_max - (hi - 1) * step:  # not in the last cut
         return hi
-    return _qlevel(zt, z_max, step, hi)
+    return qlevel(zt, z_max, step, hi)
 
 
 @numba.njit(cache=True)
-def _pixel_levels(z, valid, z_min, z_max, step, hi, sentinel, q):
+def pixel_levels(z, valid, z_min, z_max, step, hi, sentinel, q):
     """Fill q, the (H + 2) * (W + 2) padded level image: interior = level, border = sentinel."""
     H, W = z.shape
     Wp = W + 2
@@ -181,6 +215,8 @@ def _ring_table(ring: list[tuple[int, int]], touching: bool) -> tuple[np.ndarray
                     ) <= 1:
                         seen.add(b)
                         stack.append(b)
+    reps.flags.writeable = False
+    counts.flags.writeable = False
     return reps, counts
 
 
@@ -190,10 +226,10 @@ _RING4 = _ring_table([(-1, 0), (0, -1), (0, 1), (1, 0)], False)
 
 
 @numba.njit(cache=True)
-def _component_tree(q, W, K, top, conn8, max_area):
+def union_find_tree(q, W, K, top, conn8, max_area):
     """Union-find over the pixels in level order; one node per (component, last change).
 
-    q : padded level image from :func:`_pixel_levels`; pixels with q <= top (= K + 1) take part.
+    q : padded level image from :func:`pixel_levels`; pixels with q <= top (= K + 1) take part.
     Returns ``order`` (the padded indices of those pixels sorted by level, raster order inside a
     level), ``first`` (the first node holding ``order[t]``), the nodes' birth level, size, parent
     (the node that replaced it, -1 if it lives to the end) and tag, and the component count
@@ -329,8 +365,8 @@ def _component_tree(q, W, K, top, conn8, max_area):
 # regions", ECCV 2008): the default for up to FLOOD_MAX_LEVELS levels
 # --------------------------------------------------------------------------------------------
 
-#: Levels 0 .. top with top < this go to :func:`_flood_tree` (its bucket queue finds the lowest
-#: non-empty level in a 64 x 64 bit map); more levels go to the union-find :func:`_component_tree`.
+#: Levels 0 .. top with top < this go to :func:`flood_tree` (its bucket queue finds the lowest
+#: non-empty level in a 64 x 64 bit map); more levels go to the union-find :func:`union_find_tree`.
 FLOOD_MAX_LEVELS = 4096
 _U1 = np.uint64(1)
 
@@ -379,10 +415,10 @@ def _close(a, size, parent, e, K, max_area, node_b, node_size, node_parent, tagg
 
 
 @numba.njit(cache=True)
-def _flood_tree(q, W, K, top, conn8, max_area):
+def flood_tree(q, W, K, top, conn8, max_area):
     """Component tree of the cuts by flooding, with a bucket queue over the levels.
 
-    q : padded level image from :func:`_pixel_levels`; pixels with q <= top (= K + 1 < 4096)
+    q : padded level image from :func:`pixel_levels`; pixels with q <= top (= K + 1 < 4096)
     take part. The flood visits each pixel once, in a cache-friendly order: from the current
     pixel it descends at once into any unvisited neighbour of a lower level (pushing the current
     pixel back, to resume at the next neighbour), and queues the others in the bucket of their
@@ -566,7 +602,7 @@ def _flood_tree(q, W, K, top, conn8, max_area):
 
 
 @numba.njit(cache=True)
-def _lab_from_order(order, first, n):
+def node_image(order, first, n):
     """Node image of the union-find kernel: first[t] is the node holding pixel order[t]."""
     lab = np.full(n, -1, np.int32)
     for t in range(order.size):
@@ -575,7 +611,7 @@ def _lab_from_order(order, first, n):
 
 
 @numba.njit(cache=True)
-def _outlier_mask(lab, fin, node_parent, tagged, valid, out):
+def outlier_mask(lab, fin, node_parent, tagged, valid, out):
     """out (H, W): True on the valid pixels held by a tagged node or by a node inside one."""
     flag = tagged.copy()
     for t in range(fin.size - 1, -1, -1):  # parents are closed after their children
@@ -593,7 +629,7 @@ def _outlier_mask(lab, fin, node_parent, tagged, valid, out):
 
 
 @numba.njit(cache=True)
-def _cluster_labels(lab, fin, node_parent, tagged, valid, labels):
+def cluster_labels(lab, fin, node_parent, tagged, valid, labels):
     """Label of the outermost tagged node over each valid pixel, numbered in raster order."""
     n_nodes = tagged.size
     outer = np.full(n_nodes, -1, np.int64)  # outermost tagged ancestor (or self), -1 none
@@ -628,7 +664,7 @@ def _cluster_labels(lab, fin, node_parent, tagged, valid, labels):
 
 
 @numba.njit(cache=True)
-def _level_counts(node_b, node_parent, counts):
+def level_counts(node_b, node_parent, counts):
     """counts[k - 1] = number of components of the cut at level k = 1 .. K + 1 (counts (K + 1,)):
     the nodes with b <= k < e (e = the birth of the parent; never for a root)."""
     n_k = counts.size  # K + 1
@@ -643,3 +679,183 @@ def _level_counts(node_b, node_parent, counts):
         c += diff[k]
         if k >= 1:
             counts[k - 1] = c
+
+
+# --------------------------------------------------------------------------------------------
+# The taggable forest: every (K, max_area) answered from one tree (zcut.cut_grid)
+# --------------------------------------------------------------------------------------------
+
+
+@numba.njit(cache=True)
+def taggable_forest(lab, fin, node_b, node_size, node_parent, taggable, valid, node_of_pixel):
+    """The nodes some ``(K, max_area)`` can tag, linked to their nearest taggable ancestor.
+
+    Parameters
+    ----------
+    lab : (n,) int32 ndarray
+        Padded node image (the node holding each pixel at its own level, -1: none).
+    fin : (n_nodes,) int32 ndarray
+        Every node, each before its parent.
+    node_b, node_size, node_parent : (n_nodes,) ndarray
+        Birth level, size (pixels, NaN-filled ones included) and parent of each node.
+    taggable : (n_nodes,) bool ndarray
+        The tags of the tree built with no area limit: node ``a`` is tagged at ``K`` iff
+        ``taggable[a]`` and ``max(node_b[a], 1) <= K`` (:mod:`zcut.cut_grid`).
+    valid : (H, W) bool ndarray
+    node_of_pixel : (H, W) int32 ndarray, written
+        The lowest taggable node holding each *valid* pixel, as an index into the returned
+        arrays; -1 where no taggable node holds it, and on every invalid pixel.
+
+    Returns
+    -------
+    kmin : (m,) int64 ndarray
+        ``max(node_b, 1)`` of the m taggable nodes: the smallest K at which each is tagged.
+    size : (m,) int64 ndarray
+    parent : (m,) int32 ndarray
+        The nearest taggable strict ancestor (index into these arrays), -1 if none.
+    has_valid : (m,) bool ndarray
+        The node holds at least one valid pixel.
+    """
+    n_nodes = taggable.size
+    compact = np.full(n_nodes, -1, np.int32)
+    m = 0
+    for a in range(n_nodes):
+        if taggable[a]:
+            compact[a] = m
+            m += 1
+    kmin = np.empty(m, np.int64)
+    size = np.empty(m, np.int64)
+    parent = np.empty(m, np.int32)
+    has_valid = np.zeros(m, np.bool_)
+    low = np.full(n_nodes, -1, np.int32)  # the lowest taggable node holding node a (a or above)
+    for t in range(fin.size - 1, -1, -1):  # parents first
+        a = fin[t]
+        pa = node_parent[a]
+        above = low[pa] if pa >= 0 else -1
+        if taggable[a]:
+            c = compact[a]
+            kmin[c] = max(node_b[a], 1)
+            size[c] = node_size[a]
+            parent[c] = above
+            low[a] = c
+        else:
+            low[a] = above
+    H, W = node_of_pixel.shape
+    Wp = W + 2
+    for r in range(H):
+        base = (r + 1) * Wp + 1
+        for c in range(W):
+            a = lab[base + c]
+            x = np.int32(-1)
+            if a >= 0 and valid[r, c]:
+                x = low[a]
+                if x >= 0:
+                    has_valid[x] = True
+            node_of_pixel[r, c] = x
+    for t in range(fin.size):  # children first: a valid pixel is in every ancestor too
+        a = fin[t]
+        if taggable[a]:
+            c = compact[a]
+            if has_valid[c] and parent[c] >= 0:
+                has_valid[parent[c]] = True
+    return kmin, size, parent, has_valid
+
+
+@numba.njit(cache=True)
+def forest_mask(node_of_pixel, tagged, out):
+    """out (H, W) = the pixel's lowest taggable node is tagged (``tagged`` per forest node)."""
+    H, W = out.shape
+    for r in range(H):
+        for c in range(W):
+            x = node_of_pixel[r, c]
+            out[r, c] = x >= 0 and tagged[x]
+
+
+@numba.njit(cache=True)
+def grid_counts(node_of_pixel, kmin, size, ks, areas, truth, scored, within, has_within, plus,
+                has_plus, tp, fp, n_pred):
+    """Pixel counts of P = (outliers(K, A) ∩ within) ∪ plus against L = truth over S = scored, for
+    every K in ``ks`` and A in ``areas`` at once.
+
+    A valid pixel is an outlier at (K, A) iff its lowest taggable node x has
+    ``kmin[x] <= K`` and ``size[x] < A`` (:mod:`zcut.cut_grid`). So the weights of the pixels
+    (TP: in L and S; FP: in S, not in L; 1 for the predicted count) are summed per node, each
+    node's sums go to the grid cell of the smallest K and smallest A that tag it, and a 2-D
+    cumulative sum gives every grid point.
+
+    Parameters
+    ----------
+    node_of_pixel : (H, W) int32 ndarray
+        From :func:`taggable_forest`.
+    kmin, size : (m,) int64 ndarray
+        From :func:`taggable_forest`.
+    ks : (n_d,) int64 ndarray, ascending
+    areas : (n_a,) float64 ndarray, ascending
+    truth, scored : (H, W) bool ndarray
+    within, plus : (H, W) bool ndarray
+        Read only when ``has_within`` / ``has_plus`` (else: every pixel / no pixel).
+    tp, fp, n_pred : (n_d, n_a) int64 ndarray, written
+        |P ∩ L ∩ S|, |P ∩ S ∖ L|, |P|.
+
+    Returns
+    -------
+    int
+        |L ∩ S| (FN = |L ∩ S| - TP).
+    """
+    m = kmin.size
+    w_tp = np.zeros(m, np.int64)
+    w_fp = np.zeros(m, np.int64)
+    w_n = np.zeros(m, np.int64)
+    tp0 = np.int64(0)
+    fp0 = np.int64(0)
+    n0 = np.int64(0)
+    n_ls = np.int64(0)
+    H, W = node_of_pixel.shape
+    for r in range(H):
+        for c in range(W):
+            s = scored[r, c]
+            t = truth[r, c]
+            if s and t:
+                n_ls += 1
+            if has_plus and plus[r, c]:
+                n0 += 1
+                if s:
+                    if t:
+                        tp0 += 1
+                    else:
+                        fp0 += 1
+                continue
+            x = node_of_pixel[r, c]
+            if x < 0 or (has_within and not within[r, c]):
+                continue
+            w_n[x] += 1
+            if s:
+                if t:
+                    w_tp[x] += 1
+                else:
+                    w_fp[x] += 1
+    n_d = ks.size
+    n_a = areas.size
+    h_tp = np.zeros((n_d + 1, n_a + 1), np.int64)  # row n_d / column n_a: tagged nowhere
+    h_fp = np.zeros((n_d + 1, n_a + 1), np.int64)
+    h_n = np.zeros((n_d + 1, n_a + 1), np.int64)
+    for x in range(m):
+        if w_n[x] == 0:
+            continue
+        i = np.searchsorted(ks, kmin[x])  # first K >= kmin
+        j = np.searchsorted(areas, np.float64(size[x]), side="right")  # first A > size
+        h_tp[i, j] += w_tp[x]
+        h_fp[i, j] += w_fp[x]
+        h_n[i, j] += w_n[x]
+    for i in range(n_d):
+        a_tp = np.int64(0)
+        a_fp = np.int64(0)
+        a_n = np.int64(0)
+        for j in range(n_a):
+            a_tp += h_tp[i, j]
+            a_fp += h_fp[i, j]
+            a_n += h_n[i, j]
+            tp[i, j] = a_tp + (tp[i - 1, j] if i > 0 else tp0)
+            fp[i, j] = a_fp + (fp[i - 1, j] if i > 0 else fp0)
+            n_pred[i, j] = a_n + (n_pred[i - 1, j] if i > 0 else n0)
+    return n_ls

@@ -10,11 +10,14 @@ Two implementations with the identical result for every input:
   component that neither gains a pixel nor merges between levels ``k`` and ``k + 1`` is exactly a
   pair of identical clusters of the paper. Two numba kernels build the same tree: a flood with a
   bucket queue over the levels (Nistér & Stewénius, "Linear time maximally stable extremal
-  regions", ECCV 2008; linear, cache-friendly; used up to ``_FLOOD_MAX_LEVELS`` levels, i.e. any
-  practical ``max_depth / step``) and, beyond, a union-find over the pixels sorted by level.
+  regions", ECCV 2008; linear, cache-friendly; used below ``FLOOD_MAX_LEVELS`` levels, i.e. any
+  practical ``max_depth / step``) and, beyond, a union-find over the pixels sorted by level
+  (:mod:`zcut.cut_tree` holds the kernels).
 
 :func:`find_clusters` runs the same pass and returns the stage view (:class:`CutResult`): the
-clusters, their areas and levels, and the component count of every cut.
+clusters, their areas and levels, and the component count of every cut. Its ``kernel`` argument
+picks the tree kernel explicitly (the tests run every input through both). One tree answers every
+``(max_depth, max_area)`` pair at once: :mod:`zcut.cut_grid`.
 
 Notation (SPEC §1): ``z~`` is the height with invalid pixels set to ``z_min``; the cut at level
 ``k`` is ``S_k = {z~ >= z_max - k * step}`` with the threshold computed in float64 with an integer
@@ -45,14 +48,14 @@ from scipy import ndimage
 
 from .cut_tree import (
     FLOOD_MAX_LEVELS,
-    _cluster_labels,
-    _component_tree,
-    _flood_tree,
-    _lab_from_order,
-    _level_counts,
-    _outlier_mask,
-    _pixel_levels,
-    _qlevel,
+    cluster_labels,
+    flood_tree,
+    level_counts,
+    node_image,
+    outlier_mask,
+    pixel_levels,
+    qlevel,
+    union_find_tree,
 )
 from .errors import InputShapeError, ParameterError, describe_array
 from .params import _K_CAP, ZCutParams, n_levels
@@ -60,6 +63,7 @@ from .types import FloatImage, Labels, Mask
 
 
 __all__ = [
+    "KERNELS",
     "CutResult",
     "find_clusters",
     "n_levels",
@@ -69,9 +73,9 @@ __all__ = [
 
 #: Largest level count :func:`find_clusters` accepts (``pixel_level`` is int16).
 MAX_STAGE_LEVELS = 32766
-#: Trees of up to this many levels are built by flooding, larger ones by union-find (tests lower it
-#: to exercise the union-find kernel on every input).
-_FLOOD_MAX_LEVELS = FLOOD_MAX_LEVELS
+#: The component-tree kernels: ``"auto"`` floods below ``FLOOD_MAX_LEVELS`` levels and uses the
+#: union-find beyond; ``"flood"`` and ``"union-find"`` force one (the result is the same).
+KERNELS = ("auto", "flood", "union-find")
 
 
 # --------------------------------------------------------------------------------------------
@@ -94,18 +98,28 @@ def _real(name: str, value: object) -> float:
     return float(value)
 
 
-def _check_params(
-    step: object, max_depth: object, max_area: object, connectivity: object
-) -> tuple[float, float, float, int]:
+def _check_step(step: object) -> float:
     s = _real("step", step)
     if not (math.isfinite(s) and s > 0):
         raise ParameterError(f"step must be a finite number > 0, got {step!r}")
-    d = _real("max_depth", max_depth)
+    return s
+
+
+def _check_depth(max_depth: object, name: str = "max_depth") -> float:
+    d = _real(name, max_depth)
     if not (math.isfinite(d) and d >= 0):
-        raise ParameterError(f"max_depth must be a finite number >= 0, got {max_depth!r}")
-    a = _real("max_area", max_area)
+        raise ParameterError(f"{name} must be a finite number >= 0, got {max_depth!r}")
+    return d
+
+
+def _check_area(max_area: object, name: str = "max_area") -> float:
+    a = _real(name, max_area)
     if not a > 0:  # +inf allowed: no area limit
-        raise ParameterError(f"max_area must be a number > 0 (pixels), got {max_area!r}")
+        raise ParameterError(f"{name} must be a number > 0 (pixels), got {max_area!r}")
+    return a
+
+
+def _check_connectivity(connectivity: object) -> int:
     if isinstance(connectivity, (bool, np.bool_)):
         raise ParameterError(f"connectivity must be 4 or 8, got {connectivity!r}")
     try:
@@ -114,7 +128,20 @@ def _check_params(
         c = None
     if c not in (4, 8):
         raise ParameterError(f"connectivity must be 4 or 8, got {connectivity!r}")
-    return s, d, a, c
+    return c
+
+
+def _check_kernel(kernel: object) -> str:
+    if not isinstance(kernel, str) or kernel not in KERNELS:
+        raise ParameterError(f"kernel must be one of {', '.join(map(repr, KERNELS))}, got {kernel!r}")
+    return kernel
+
+
+def _check_params(
+    step: object, max_depth: object, max_area: object, connectivity: object
+) -> tuple[float, float, float, int]:
+    return (_check_step(step), _check_depth(max_depth), _check_area(max_area),
+            _check_connectivity(connectivity))
 
 
 def _valid_range(z: np.ndarray) -> tuple[np.ndarray, float, float] | None:
@@ -203,14 +230,15 @@ def zcut_outliers_reference(
 
 
 def _tree(z: np.ndarray, valid: np.ndarray, z_min: float, z_max: float, step: float, K: int,
-          max_area: float, connectivity: int):
+          max_area: float, connectivity: int, kernel: str = "auto"):
     """Padded pixel levels and the component tree of the cuts 0 .. min(K, Q + 1) + 1.
 
-    Returns ``(q, k_eff, lab, node_b, node_parent, tagged, fin)``: ``lab`` (padded, flat) is the
-    node holding each pixel at its own level (< 0: none), ``fin`` lists the nodes children first.
+    Returns ``(q, k_eff, lab, node_b, node_size, node_parent, tagged, fin)``: ``lab`` (padded,
+    flat) is the node holding each pixel at its own level (< 0: none), ``fin`` lists the nodes
+    children first. ``kernel`` is one of :data:`KERNELS`.
     """
     K = min(K, _K_CAP)
-    q_min = int(_qlevel(z_min, z_max, step, np.int64(K + 2)))  # the deepest level of any pixel
+    q_min = int(qlevel(z_min, z_max, step, np.int64(K + 2)))  # the deepest level of any pixel
     k_eff = min(K, q_min + 1)  # levels past q_min + 1 change nothing (module notes)
     H, W = z.shape
     if (H + 2) * (W + 2) >= 2**31 - 1:
@@ -223,17 +251,22 @@ def _tree(z: np.ndarray, valid: np.ndarray, z_min: float, z_max: float, step: fl
         dtype = np.int64
     sentinel = np.iinfo(dtype).max
     q = np.empty((H + 2) * (W + 2), dtype)
-    _pixel_levels(z, valid, z_min, z_max, step, np.int64(k_eff + 2), sentinel, q)
+    pixel_levels(z, valid, z_min, z_max, step, np.int64(k_eff + 2), sentinel, q)
     top = k_eff + 1
-    if top < _FLOOD_MAX_LEVELS:
-        lab, node_b, _, node_parent, tagged, fin = _flood_tree(
+    if kernel == "flood" and top >= FLOOD_MAX_LEVELS:
+        raise ParameterError(
+            f"kernel 'flood' builds trees of fewer than {FLOOD_MAX_LEVELS} levels, this one needs "
+            f"{top + 1}; use kernel 'auto' or 'union-find'"
+        )
+    if kernel == "flood" or (kernel == "auto" and top < FLOOD_MAX_LEVELS):
+        lab, node_b, node_size, node_parent, tagged, fin = flood_tree(
             q, W, np.int64(k_eff), np.int64(top), connectivity == 8, float(max_area))
     else:
-        order, first, node_b, _, node_parent, tagged, _, _ = _component_tree(
+        order, first, node_b, node_size, node_parent, tagged, _, _ = union_find_tree(
             q, W, np.int64(k_eff), q.dtype.type(top), connectivity == 8, float(max_area))
-        lab = _lab_from_order(order, first, q.size)
+        lab = node_image(order, first, q.size)
         fin = np.arange(node_b.size, dtype=np.int32)  # parents are created after children
-    return q, k_eff, lab, node_b, node_parent, tagged, fin
+    return q, k_eff, lab, node_b, node_size, node_parent, tagged, fin
 
 
 def zcut_outliers(
@@ -273,10 +306,10 @@ def zcut_outliers(
     if rng is None or K < 1:
         return out
     valid, z_min, z_max = rng
-    _, _, lab, _, node_parent, tagged, fin = _tree(
+    _, _, lab, _, _, node_parent, tagged, fin = _tree(
         z, valid, z_min, z_max, step, K, max_area, connectivity
     )
-    _outlier_mask(lab, fin, node_parent, tagged, valid, out)
+    outlier_mask(lab, fin, node_parent, tagged, valid, out)
     return out
 
 
@@ -330,7 +363,9 @@ class CutResult:
         return int(self.areas.size)
 
 
-def find_clusters(height: FloatImage, *, params: ZCutParams, connectivity: int = 8) -> CutResult:
+def find_clusters(
+    height: FloatImage, *, params: ZCutParams, connectivity: int = 8, kernel: str = "auto"
+) -> CutResult:
     """Run the z-cut and return the stage view (clusters, areas, levels, per-level counts).
 
     Parameters
@@ -341,20 +376,21 @@ def find_clusters(height: FloatImage, *, params: ZCutParams, connectivity: int =
         step, max_depth, max_area and optionally a_max (for ``rho``).
     connectivity : {8, 4}
         Pixel adjacency of the components.
+    kernel : {"auto", "flood", "union-find"}
+        The component-tree kernel (:data:`KERNELS`); every choice gives the same result.
 
     Returns
     -------
     CutResult
         ``result.outliers`` equals :func:`zcut_outliers` with the same parameters.
     """
-    from .params import ZCutParams
-
     if not isinstance(params, ZCutParams):
         raise ParameterError(f"params must be a ZCutParams, got {type(params).__name__}")
     z = _check_height(height)
     step, max_depth, max_area, connectivity = _check_params(
         params.step, params.max_depth, params.max_area, connectivity
     )
+    kernel = _check_kernel(kernel)
     K = n_levels(step, max_depth)
     if K > MAX_STAGE_LEVELS:
         raise ParameterError(
@@ -365,24 +401,24 @@ def find_clusters(height: FloatImage, *, params: ZCutParams, connectivity: int =
     H, W = z.shape
     outliers = np.zeros((H, W), dtype=bool)
     clusters = np.zeros((H, W), dtype=np.int32)
-    level_counts = np.zeros(K + 1, dtype=np.int64)
+    counts = np.zeros(K + 1, dtype=np.int64)
     pixel_level = np.full((H, W), -1, dtype=np.int16)
     empty_i64 = np.zeros(0, dtype=np.int64)
     rng = _valid_range(z)
     if rng is None:
         return CutResult(outliers, clusters, empty_i64, np.zeros(0), np.zeros(0, np.int32),
-                         level_counts, pixel_level, math.nan, math.nan, K)
+                         counts, pixel_level, math.nan, math.nan, K)
     valid, z_min, z_max = rng
-    q, k_eff, lab, node_b, node_parent, tagged, fin = _tree(
-        z, valid, z_min, z_max, step, K, max_area, connectivity
+    q, k_eff, lab, node_b, _, node_parent, tagged, fin = _tree(
+        z, valid, z_min, z_max, step, K, max_area, connectivity, kernel
     )
     # pixel levels (k_eff >= K or nothing lies deeper than k_eff + 1, so q is exact up to K + 1)
     q2 = q.reshape(H + 2, W + 2)[1:-1, 1:-1]
     inside = q2 <= K + 1
     pixel_level[inside] = q2[inside]
-    _level_counts(node_b, node_parent, level_counts)
+    level_counts(node_b, node_parent, counts)
     if K >= 1:
-        tops = _cluster_labels(lab, fin, node_parent, tagged, valid, clusters)
+        tops = cluster_labels(lab, fin, node_parent, tagged, valid, clusters)
         outliers = clusters > 0
     else:
         tops = empty_i64
@@ -390,5 +426,5 @@ def find_clusters(height: FloatImage, *, params: ZCutParams, connectivity: int =
     levels = np.maximum(node_b[tops], 1).astype(np.int32)
     a_max = params.a_max
     rho = areas / float(a_max) if a_max is not None else np.full(areas.size, math.nan)
-    return CutResult(outliers, clusters, areas, rho, levels, level_counts, pixel_level,
+    return CutResult(outliers, clusters, areas, rho, levels, counts, pixel_level,
                      z_max, z_min, K)

@@ -20,8 +20,9 @@ from zcut import (
     zcut_outliers,
     zcut_outliers_reference,
 )
-from zcut import cuts
-from zcut.cuts import n_levels
+from zcut.cut_grid import zcut_tree
+from zcut.cut_tree import FLOOD_MAX_LEVELS
+from zcut.cuts import KERNELS, n_levels
 
 STEPS = (0.2, 0.25, 0.3, 0.5, 1.0, 0.1)
 
@@ -69,12 +70,19 @@ def random_frame(rng: np.random.Generator) -> tuple[np.ndarray, dict]:
 
 
 @pytest.fixture(params=["flood", "union-find"])
-def kernel(request, monkeypatch) -> str:
-    """Run a test with each component-tree kernel of zcut_outliers / find_clusters: the flood
-    (default up to cuts._FLOOD_MAX_LEVELS levels) and the union-find (used beyond)."""
-    if request.param == "union-find":
-        monkeypatch.setattr(cuts, "_FLOOD_MAX_LEVELS", 0)
+def kernel(request) -> str:
+    """Each component-tree kernel, passed explicitly to find_clusters and zcut_tree: the flood
+    (what zcut_outliers uses below FLOOD_MAX_LEVELS levels) and the union-find (used beyond)."""
     return request.param
+
+
+def kernel_outliers(z: np.ndarray, kernel: str, **params) -> np.ndarray:
+    """The outlier mask computed with ``kernel``, through the tree view (its read-out differs from
+    zcut_outliers', the tree is the same)."""
+    step, max_depth, max_area = params["step"], params["max_depth"], params["max_area"]
+    tree = zcut_tree(z, step=step, max_depth=max_depth, connectivity=params.get("connectivity", 8),
+                     kernel=kernel)
+    return tree.outliers(max_depth, max_area)
 
 
 @pytest.mark.parametrize("seed", range(10))
@@ -87,6 +95,10 @@ def test_fast_equals_reference_on_random_frames(seed: int, kernel: str) -> None:
         ref = zcut_outliers_reference(z, **params)
         assert fast.shape == z.shape and fast.dtype == bool
         np.testing.assert_array_equal(fast, ref, err_msg=repr((z.tolist(), params)))
+        np.testing.assert_array_equal(kernel_outliers(z, kernel, **params), ref)
+        res = find_clusters(z, params=ZCutParams(params["step"], params["max_depth"], params["max_area"]),
+                            connectivity=params["connectivity"], kernel=kernel)
+        np.testing.assert_array_equal(res.outliers, ref)
         n_outliers += int(ref.sum())
     assert n_outliers > 0  # the frames do exercise the tagging
 
@@ -112,8 +124,9 @@ def test_fast_equals_reference_with_many_levels(seed: int, kernel: str) -> None:
                       connectivity=int(rng.choice([4, 8])))
         ref = zcut_outliers_reference(z, **params)
         np.testing.assert_array_equal(zcut_outliers(z, **params), ref)
+        np.testing.assert_array_equal(kernel_outliers(z, kernel, **params), ref)
         res = find_clusters(z, params=ZCutParams(params["step"], params["max_depth"], params["max_area"]),
-                            connectivity=params["connectivity"])
+                            connectivity=params["connectivity"], kernel=kernel)
         np.testing.assert_array_equal(res.outliers, ref)
         n_outliers += int(ref.sum())
     assert n_outliers > 0
@@ -185,8 +198,9 @@ def test_nasty_cases(name: str, conn: int, kernel: str) -> None:
     if expected is not None and conn == case.get("connectivity", 8):
         np.testing.assert_array_equal(fast, expected)
     res = find_clusters(z, params=ZCutParams(params["step"], params["max_depth"], params["max_area"]),
-                        connectivity=params["connectivity"])
+                        connectivity=params["connectivity"], kernel=kernel)
     np.testing.assert_array_equal(res.outliers, fast)
+    np.testing.assert_array_equal(kernel_outliers(z, kernel, **params), fast)
 
 
 def test_float32_is_upcast_before_the_comparison() -> None:
@@ -209,11 +223,11 @@ def test_very_many_levels_use_the_sort_path() -> None:
 
 @pytest.mark.parametrize("n_levels_above", [-1, 0, 1])
 def test_kernels_meet_at_the_level_limit(n_levels_above: int) -> None:
-    """Around cuts._FLOOD_MAX_LEVELS levels (the flood's bucket queue fills all its 64 x 64 bits
+    """Around FLOOD_MAX_LEVELS levels (the flood's bucket queue fills all its 64 x 64 bits
     just below; the union-find takes over at the limit): both agree with the reference."""
     rng = np.random.default_rng(5 + n_levels_above)
     step = 1.0
-    K = cuts._FLOOD_MAX_LEVELS - 2 + n_levels_above  # levels 0 .. K + 1 take part
+    K = FLOOD_MAX_LEVELS - 2 + n_levels_above  # levels 0 .. K + 1 take part
     z = rng.integers(0, K + 3, (7, 9)).astype(np.float64) * step
     z[0, 0], z[6, 8] = K + 2, 0.0  # the full range: z_min at level K + 2 (beyond the cuts)
     z[6, 6:8] = 1.0  # level K + 1, the last one of the cuts
@@ -224,8 +238,16 @@ def test_kernels_meet_at_the_level_limit(n_levels_above: int) -> None:
         ref = zcut_outliers_reference(z, **params)
         assert ref.any()
         np.testing.assert_array_equal(zcut_outliers(z, **params), ref)
-        res = find_clusters(z, params=ZCutParams(step, K * step, 3), connectivity=conn)
-        np.testing.assert_array_equal(res.outliers, ref)
+        for kernel in KERNELS:
+            if kernel == "flood" and n_levels_above > 0:  # levels 0 .. 4096: too many to flood
+                with pytest.raises(ParameterError, match=r"kernel 'flood' .*fewer than 4096 levels"):
+                    find_clusters(z, params=ZCutParams(step, K * step, 3), connectivity=conn,
+                                  kernel=kernel)
+                continue
+            res = find_clusters(z, params=ZCutParams(step, K * step, 3), connectivity=conn,
+                                kernel=kernel)
+            np.testing.assert_array_equal(res.outliers, ref)
+            np.testing.assert_array_equal(kernel_outliers(z, kernel, **params), ref)
 
 
 def test_int32_levels() -> None:
@@ -499,3 +521,5 @@ def test_find_clusters_bad_input() -> None:
         find_clusters(np.zeros((2, 2)), params=ZCutParams(**GOOD), connectivity=5)
     with pytest.raises(InputShapeError, match=r"height .*shape \(4,\)"):
         find_clusters(np.zeros(4), params=ZCutParams(**GOOD))
+    with pytest.raises(ParameterError, match="kernel must be one of 'auto', 'flood', 'union-find', got 'fast'"):
+        find_clusters(np.zeros((2, 2)), params=ZCutParams(**GOOD), kernel="fast")
