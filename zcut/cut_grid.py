@@ -2,7 +2,7 @@
 
 For one height image and one step Δd, :func:`zcut_tree` builds the component tree of the cuts
 once (for the largest d_max of the sweep) and returns a frozen :class:`ZCutTree`.
-``tree.outliers(max_depth, max_area)`` is then two comparisons per pixel and equals
+``tree.outliers(max_depth, max_area)`` is then one look-up per pixel and equals
 ``zcut_outliers(height, step=step, max_depth=max_depth, max_area=max_area, ...)`` exactly, for
 every ``max_depth`` up to the tree's and every ``max_area``; ``tree.counts(...)`` scores a whole
 grid of them against labels (SPEC §4 pixel counts) without building any mask.
@@ -14,17 +14,18 @@ Why one tree answers everything (notation of :mod:`zcut.cuts`: a node ``a`` is b
 1. *One tree for every K.* The cuts ``S_k`` do not depend on K or on ``max_area``, so the tree
    built for K_T, cut off below level ``K + 1``, is the tree for any ``K <= K_T``: the same nodes,
    sizes and ends, except that a node living past ``K + 1`` ends at ``K + 2`` there, which changes
-   nothing in ``min(K, e - 2)``. With ``kmin = max(b, 1)`` the tag is ``kmin <= K`` and
-   ``kmin <= e - 2`` and ``|a| < max_area``. The middle condition (the node is *taggable*) holds
-   for some K iff it holds for K_T: it is the tag of the tree built with ``max_area = inf``. (The
-   trees stop at level ``Q + 1``, one past the deepest pixel; every node is born at ``b <= Q``,
-   so ``kmin <= Q + 1`` and stopping there changes no tag either.)
+   nothing in ``min(K, e - 2)``. With ``kmin = max(b, 1)`` the tag at ``K <= K_T`` is
+   ``kmin <= K`` and ``kmin <= min(K_T, e - 2)`` and ``|a| < max_area``. The middle condition
+   (the node is *taggable*) depends neither on K nor on ``max_area``: it is the tag of the K_T
+   tree built with ``max_area = inf``. (The kernels stop at level ``Q + 1``, one past the
+   deepest pixel, when ``K > Q``; every node is born at ``b <= Q``, so ``kmin <= Q + 1`` and
+   stopping there changes no tag either.)
 2. *Nesting.* Let ``x`` be a taggable node and ``y`` a taggable node above it (y holds x). ``y``
    is born where a node between them changed, at or after ``e_x >= kmin_x + 2``, so
    ``kmin_y > kmin_x``; and ``y`` holds every pixel of ``x`` and more, ``|y| > |x|``. So ``y``
    tagged at ``(K, A)`` implies ``x`` tagged at ``(K, A)``: a pixel is an outlier at ``(K, A)``
    iff the *lowest* taggable node holding it (``node_of_pixel``) has ``kmin <= K`` and
-   ``size < A``, and is valid (SPEC §1: the result is ANDed with the valid mask).
+   ``size < A`` and the pixel is valid (SPEC §1: the result is ANDed with the valid mask).
 3. *Counting.* A grid count is therefore a sum over the forest nodes of the node's pixel
    weights times ``[kmin <= K] [size < A]``: each node's weights go to the grid cell of the
    smallest K and smallest A that tag it, and a 2-D cumulative sum gives every grid point
