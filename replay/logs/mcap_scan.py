@@ -1,21 +1,30 @@
-"""A small, defensive MCAP record scanner (the parts of the format zcut needs).
+"""Damage-tolerant MCAP reading built on the ``mcap`` library's record parsing.
 
-Why not ``mcap.reader``: on a damaged file it stops at the first bad record (or, with a corrupt
-length, asks Python for a buffer of that length), so the intact chunks after the damage are lost
-and absurd sizes can exhaust memory. This scanner
+Division of work. The ``mcap`` library parses every record body (``mcap.records``: Header,
+Footer, Schema, Channel, Message, Chunk, MessageIndex, ChunkIndex, Statistics, Metadata,
+MetadataIndex) through :func:`parse_record`, which hands it a bounds-checked view of the body so
+that a field can never run past its record and a message's data stays a view of its chunk (no
+copy). What zcut adds is what the library's readers do not do (``mcap.reader`` stops at the
+first bad record, takes a corrupt length at its word and decompresses lz4 chunks without a
+bound):
 
-- opens regular files only (a FIFO or device is refused before a byte is read);
-- checks every length against the bytes that are really there before reading;
-- decompresses chunks (zstd, lz4, none) incrementally, never past the declared
-  ``uncompressed_size`` (itself capped by ``max_chunk_bytes``), and checks their CRC
-  (ISA-L's CRC-32, the zlib polynomial, about 4x faster than ``zlib.crc32``);
-- reads, decompresses and checks the next chunks in worker threads while the caller decodes the
-  current one (zstd and the CRC release the GIL);
-- on a corrupt chunk records a damage note and moves on to the next chunk, using the summary's
+- regular files only (a FIFO or device is refused before a byte is read);
+- the record framing: every length is checked against the bytes that are really there and
+  against ``max_chunk_bytes`` before reading;
+- chunks are decompressed (zstd, lz4, none) incrementally, never past the declared
+  ``uncompressed_size`` (itself checked against ``max_chunk_bytes`` before any allocation), and
+  CRC-checked with ISA-L's CRC-32 (the zlib polynomial, about 4x faster than ``zlib.crc32``);
+- the next chunks are read, decompressed and checked in worker threads while the caller decodes
+  the current one (zstd and the CRC release the GIL), into reused buffers (:class:`BufferPool`);
+- on a corrupt chunk a damage note, then the scan goes on at the next chunk, using the summary's
   chunk index when the file has one (so a corrupt record length does not lose the rest, nor
   swallow the chunks it claims to cover), and says which messages were lost (per channel, their
-  log times, from the chunk's message indexes);
-- on a truncated file delivers every complete record before the cut, then a damage note.
+  log times, from the chunk's message indexes: a :class:`Lost`);
+- on a truncated file every complete record before the cut, then a damage note.
+
+``bench/bench_logread.py`` (3) credits this scanner and the PointCloud2 codec separately: the
+scanner alone costs about what ``mcap``'s own reader with CRC checks costs (it is kept for the
+damage handling above, not for speed); the zero-copy codec is the speed-up.
 
 Format reference: https://mcap.dev/spec (all integers little-endian).
 """
@@ -35,6 +44,22 @@ from pathlib import Path
 
 import numpy as np
 from isal.isal_zlib import crc32
+
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.records import (
+    Channel,
+    Chunk,
+    ChunkIndex,
+    Footer,
+    Header,
+    Message,
+    MessageIndex,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+)
 
 from replay.errors import LogFormatError
 from replay.logs.files import CHUNK_SLACK_BYTES, DEFAULT_MAX_MESSAGE_BYTES, open_input
@@ -117,8 +142,13 @@ class BufferPool:
             self._free.clear()
 
 
-class _Buf:
-    """Bounds-checked little-endian reader over a memoryview."""
+class _View:
+    """A stream over ``mv[pos:end]`` for mcap's record parsers (``mcap.records.X.read``).
+
+    ``read(n)`` returns a slice of the buffer (no copy: a message's data stays a view of its
+    chunk) and refuses to read past the record (mcap's ``ReadDataStream`` accepts a short read
+    and would return a truncated string).
+    """
 
     __slots__ = ("mv", "pos", "end")
 
@@ -127,86 +157,38 @@ class _Buf:
         self.pos = pos
         self.end = len(mv) if end is None else end
 
-    def take(self, n: int) -> int:
+    def read(self, n: int) -> memoryview:
         s = self.pos
         if n < 0 or s + n > self.end:
             raise _Bad(f"field of {n} bytes at {s} runs past the record end {self.end}")
         self.pos = s + n
-        return s
-
-    def u8(self) -> int:
-        return self.mv[self.take(1)]
-
-    def u16(self) -> int:
-        return struct.unpack_from("<H", self.mv, self.take(2))[0]
-
-    def u32(self) -> int:
-        return struct.unpack_from("<I", self.mv, self.take(4))[0]
-
-    def u64(self) -> int:
-        return struct.unpack_from("<Q", self.mv, self.take(8))[0]
-
-    def string(self) -> str:
-        n = self.u32()
-        s = self.take(n)
-        try:
-            return bytes(self.mv[s : s + n]).decode("utf-8")
-        except UnicodeDecodeError as e:
-            raise _Bad("string is not UTF-8") from e
-
-    def blob32(self) -> memoryview:
-        n = self.u32()
-        s = self.take(n)
         return self.mv[s : s + n]
 
-    def str_map(self) -> dict[str, str]:
-        n = self.u32()
-        end = self.take(n) + n
-        out: dict[str, str] = {}
-        sub = _Buf(self.mv, self.pos - n, end)
-        while sub.pos < end:
-            k = sub.string()
-            out[k] = sub.string()
-        return out
+
+_INNER = (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_METADATA)  # the records zcut uses in the data section
+_PARSERS = {
+    OP_HEADER: Header.read, OP_FOOTER: Footer.read, OP_SCHEMA: Schema.read, OP_CHANNEL: Channel.read,
+    OP_MESSAGE_INDEX: MessageIndex.read, OP_CHUNK_INDEX: ChunkIndex.read, OP_STATISTICS: Statistics.read,
+    OP_METADATA: Metadata.read, OP_METADATA_INDEX: MetadataIndex.read, OP_CHUNK: Chunk.read,
+}
 
 
-@dataclass(frozen=True, slots=True)
-class Schema:
-    id: int
-    name: str
-    encoding: str
-    data: bytes
-
-
-@dataclass(frozen=True, slots=True)
-class Channel:
-    id: int
-    schema_id: int
-    topic: str
-    message_encoding: str
-    metadata: dict[str, str]
-
-
-@dataclass(frozen=True, slots=True)
-class Message:
-    channel_id: int
-    sequence: int
-    log_time: int
-    publish_time: int
-    data: memoryview
-
-
-@dataclass(frozen=True, slots=True)
-class ChunkIndex:
-    message_start_time: int
-    message_end_time: int
-    chunk_start_offset: int
-    chunk_length: int
-    message_index_offsets: dict[int, int]
-    message_index_length: int
-    compression: str
-    compressed_size: int
-    uncompressed_size: int
+def parse_record(op: int, mv: memoryview, start: int = 0, end: int | None = None):
+    """mcap's record class (``mcap.records``) parsed from the body ``mv[start:end]``, or raise
+    :class:`_Bad` (any field past the body, bad UTF-8, …)."""
+    view = _View(mv, start, end)
+    stream = ReadDataStream(view)
+    try:
+        if op == OP_MESSAGE:
+            return Message.read(stream, view.end - start)
+        rec = _PARSERS[op](stream)
+        if op == OP_SCHEMA:
+            rec.data = bytes(rec.data)  # small; a record that does not pin its chunk's buffer
+        return rec
+    except _Bad:
+        raise
+    except (McapError, struct.error, UnicodeDecodeError, ValueError, OverflowError) as e:
+        raise _Bad(f"does not parse ({type(e).__name__}: {e})") from None
 
 
 @dataclass(frozen=True, slots=True)
@@ -246,44 +228,6 @@ class Summary:
     channel_message_counts: dict[int, int] | None = None
     message_start_time: int | None = None
     message_end_time: int | None = None
-
-
-def parse_schema(b: _Buf) -> Schema:
-    sid = b.u16()
-    name = b.string()
-    enc = b.string()
-    return Schema(sid, name, enc, bytes(b.blob32()))
-
-
-def parse_channel(b: _Buf) -> Channel:
-    cid = b.u16()
-    sid = b.u16()
-    topic = b.string()
-    enc = b.string()
-    return Channel(cid, sid, topic, enc, b.str_map())
-
-
-def parse_message(b: _Buf) -> Message:
-    cid = b.u16()
-    seq = b.u32()
-    log_time = b.u64()
-    pub = b.u64()
-    s = b.take(b.end - b.pos)
-    return Message(cid, seq, log_time, pub, b.mv[s : b.end])
-
-
-def parse_chunk_index(b: _Buf) -> ChunkIndex:
-    t0, t1, start, length = b.u64(), b.u64(), b.u64(), b.u64()
-    n = b.u32()
-    end = b.take(n) + n
-    sub = _Buf(b.mv, end - n, end)
-    offsets: dict[int, int] = {}
-    while sub.pos < end:
-        cid = sub.u16()
-        offsets[cid] = sub.u64()
-    mi_len = b.u64()
-    comp = b.string()
-    return ChunkIndex(t0, t1, start, length, offsets, mi_len, comp, b.u64(), b.u64())
 
 
 def decompress(
@@ -391,9 +335,8 @@ class McapFile:
             self._f.close()
             raise LogFormatError(f"{self.path}: damaged MCAP header record")
         try:
-            b = _Buf(rec[1])
-            self.profile = b.string()
-            self.library = b.string()
+            header = parse_record(OP_HEADER, rec[1])
+            self.profile, self.library = header.profile, header.library
         except _Bad as e:
             self._f.close()
             raise LogFormatError(f"{self.path}: damaged MCAP header record ({e})") from e
@@ -448,7 +391,7 @@ class McapFile:
         rec = self._read_record_at(footer_at)
         if rec is None or rec[0] != OP_FOOTER or len(rec[1]) != 20:
             raise _Bad("the footer record is damaged")
-        summary_start, _, _ = struct.unpack("<QQI", rec[1])
+        summary_start = parse_record(OP_FOOTER, rec[1]).summary_start
         s = Summary()
         if summary_start == 0:
             self.data_end = footer_at
@@ -466,29 +409,19 @@ class McapFile:
             op, length = struct.unpack_from("<BQ", mv, pos)
             if pos + 9 + length > n:
                 raise _Bad(f"summary record at {summary_start + pos} runs past the footer")
-            b = _Buf(mv, pos + 9, pos + 9 + length)
-            if op == OP_SCHEMA:
-                sc = parse_schema(b)
-                s.schemas[sc.id] = sc
-            elif op == OP_CHANNEL:
-                ch = parse_channel(b)
-                s.channels[ch.id] = ch
-            elif op == OP_CHUNK_INDEX:
-                s.chunk_indexes.append(parse_chunk_index(b))
-            elif op == OP_METADATA_INDEX:
-                off, ln = b.u64(), b.u64()
-                s.metadata_offsets.append((b.string(), off, ln))
-            elif op == OP_STATISTICS:
-                b.u64(), b.u16(), b.u32(), b.u32(), b.u32(), b.u32()
-                s.message_start_time, s.message_end_time = b.u64(), b.u64()
-                m = b.u32()
-                end = b.take(m) + m
-                sub = _Buf(mv, end - m, end)
-                counts: dict[int, int] = {}
-                while sub.pos < end:
-                    cid = sub.u16()
-                    counts[cid] = sub.u64()
-                s.channel_message_counts = counts
+            if op in (OP_SCHEMA, OP_CHANNEL, OP_CHUNK_INDEX, OP_METADATA_INDEX, OP_STATISTICS):
+                rec = parse_record(op, mv, pos + 9, pos + 9 + length)
+                if op == OP_SCHEMA:
+                    s.schemas[rec.id] = rec
+                elif op == OP_CHANNEL:
+                    s.channels[rec.id] = rec
+                elif op == OP_CHUNK_INDEX:
+                    s.chunk_indexes.append(rec)
+                elif op == OP_METADATA_INDEX:
+                    s.metadata_offsets.append((rec.name, rec.offset, rec.length))
+                else:
+                    s.message_start_time, s.message_end_time = rec.message_start_time, rec.message_end_time
+                    s.channel_message_counts = dict(rec.channel_message_counts)
             pos += 9 + length
         s.chunk_indexes.sort(key=lambda c: c.chunk_start_offset)
         return s
@@ -502,9 +435,8 @@ class McapFile:
                 rec = self._read_record_at(off, expect_len=ln)
                 if rec is None or rec[0] != OP_METADATA:
                     raise _Bad(f"no metadata record at offset {off}")
-                b = _Buf(rec[1])
-                got = b.string()
-                out[got] = b.str_map()
+                meta = parse_record(OP_METADATA, rec[1])
+                out[meta.name] = meta.metadata
             except _Bad as e:
                 notes.append(f"metadata record '{name}' is damaged ({e})")
         return out, notes
@@ -524,14 +456,10 @@ class McapFile:
 
     def _chunk_records(self, body: memoryview, where: str = "") -> list[tuple[int, object]]:
         """Decompress, CRC-check and parse one chunk: [(opcode, record)], or raise :class:`_Bad`."""
-        b = _Buf(body)
-        b.u64(), b.u64()
-        usize = b.u64()
-        crc = b.u32()
-        comp = b.string()
-        n = b.u64()
-        s = b.take(n)
-        mv = decompress(comp, body[s : s + n], usize, pool=self.pool, max_size=self.max_chunk_bytes)
+        chunk = parse_record(OP_CHUNK, body)
+        crc = chunk.uncompressed_crc
+        mv = decompress(chunk.compression, chunk.data, chunk.uncompressed_size, pool=self.pool,
+                        max_size=self.max_chunk_bytes)
         if crc != 0 and crc32(mv) != crc:
             raise _Bad("fails its CRC check")
         records = []
@@ -543,9 +471,8 @@ class McapFile:
             op, length = struct.unpack_from("<BQ", mv, pos)
             if pos + 9 + length > end:
                 raise _Bad(f"record at {pos} claims {length} bytes, past the chunk end")
-            rec = self._parse_inner(op, _Buf(mv, pos + 9, pos + 9 + length))
-            if rec is not None:
-                records.append((op, rec))
+            if op in (OP_MESSAGE, OP_SCHEMA, OP_CHANNEL):
+                records.append((op, parse_record(op, mv, pos + 9, pos + 9 + length)))
             pos += 9 + length
         return records
 
@@ -626,8 +553,7 @@ class McapFile:
                 else:
                     recs = self._chunk_records(job)
             else:
-                rec = self._parse_inner(op, _Buf(job))
-                recs = [] if rec is None else [(op, rec)]
+                recs = [(op, parse_record(op, job))] if op in _INNER else []
         except _Bad as e:
             what = "chunk" if op == OP_CHUNK else "record"
             damage.append(f"{what} at byte {pos} is corrupt ({e}); its messages are lost")
@@ -640,15 +566,12 @@ class McapFile:
         """(channel id, log times) of the MessageIndex record at ``offset``; None if damaged."""
         try:
             rec = self._read_record_at(offset)
+            if rec is None or rec[0] != OP_MESSAGE_INDEX:
+                return None
+            mi = parse_record(OP_MESSAGE_INDEX, rec[1])
         except _Bad:
             return None
-        if rec is None or rec[0] != OP_MESSAGE_INDEX or len(rec[1]) < 6:
-            return None
-        cid, n = struct.unpack_from("<HI", rec[1], 0)
-        if n % 16 or 6 + n > len(rec[1]):
-            return None
-        times = np.frombuffer(rec[1], dtype="<u8", count=n // 8, offset=6)[::2]
-        return cid, times.tolist()
+        return mi.channel_id, [t for t, _ in mi.records]
 
     def message_index_count(self, offset: int) -> int | None:
         """Number of entries of the MessageIndex record at ``offset`` (None if it is damaged)."""
@@ -786,16 +709,3 @@ class McapFile:
                 self._f.seek(pos + 9)
                 yield pos, op, memoryview(self._f.read(length))
             pos = nxt
-
-    @staticmethod
-    def _parse_inner(op: int, b: _Buf) -> object | None:
-        if op == OP_MESSAGE:
-            return parse_message(b)
-        if op == OP_SCHEMA:
-            return parse_schema(b)
-        if op == OP_CHANNEL:
-            return parse_channel(b)
-        if op == OP_METADATA:
-            name = b.string()
-            return name, b.str_map()
-        return None

@@ -199,7 +199,7 @@ def _peek(
         elif op == OP_CHANNEL:
             channels[rec.id] = rec
         elif op == OP_METADATA:
-            metadata[rec[0]] = rec[1]
+            metadata[rec.name] = rec.metadata
         elif op == OP_MESSAGE:
             if rec.channel_id not in firsts and wanted(rec.channel_id):
                 take(rec)
@@ -663,7 +663,7 @@ class LogReader:
                 elif op == OP_SCHEMA:
                     schemas[rec.id] = rec
                 elif op == OP_METADATA:
-                    self.metadata.setdefault(rec[0], rec[1])
+                    self.metadata.setdefault(rec.name, rec.metadata)
             yield from emit_ready(True)
         expected = self.n_frames
         if not stopped and begin is None and expected is not None and next_index < expected:
