@@ -1,28 +1,35 @@
 """Synthetic logs in the SPEC §5 layout, and the bundled sample the demo replays.
 
 A synthetic log holds, per frame and all with the same header stamp: the organized cloud with
-``rgba`` on ``/camera/points``, the colour image on ``/camera/image``, ``/camera/camera_info``, and
-the exact outliers on ``/ground_truth/outliers`` (mono8, 255 = outlier). An MCAP metadata record
-``zcut.synth`` describes how it was made (part kind, seed, finish, camera distance, bin geometry,
-size, ...). The same arguments give the same bytes.
+``rgba`` on ``/camera/points``, the colour image on ``/camera/image``, ``/camera/camera_info``, the
+exact outliers on ``/ground_truth/outliers`` (mono8, 255 = outlier) and their kinds on
+``/ground_truth/outlier_kind`` (mono8, SPEC §5 codes). The MCAP metadata record ``zcut.synth``
+describes how it was made (part kind, seed, finish, camera distance, bin geometry, size, ...), and
+``zcut.synth.poses`` holds every frame's true bin pose (:func:`true_poses` reads it back). The same
+arguments give the same bytes.
 """
 
 from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
+import numpy as np
+
+from replay.errors import LogFormatError
 from replay.logs import layout
+from replay.logs import ros2_msgs as rm
 from replay.logs.writer import LogWriter
 from replay.presets import BIN, PART_KINDS
-from replay.synth.outliers import TOP_ZONE_MM
+from replay.synth import outliers as out
 from replay.synth.parts import face_area_px
 from replay.synth.sensor import (
     CAMERA_HEIGHT_MM,
     FULL_SIZE,
     MAX_OBLIQUITY_DEG,
+    NOISE_CORRELATION_PX,
     NOISE_MM_AT_500,
     PROJECTOR_BASELINE_MM,
     SHINY_NOISE_FACTOR,
@@ -31,12 +38,15 @@ from replay.synth.sensor import (
 from replay.synth.synthesize import (
     SynthFrame,
     camera_distance_m,
+    check_quantize,
+    frame_pose,
     pile_distance_m,
+    stamp_ns,
     synthesize_frame,
 )
 from zcut.errors import ParameterError
 
-GENERATOR_VERSION = "1"
+GENERATOR_VERSION = "2"
 
 #: The sample the demo replays: three frames of M16 rods (the paper's Figures 13 and 14 show rods)
 #: at half the sensor's resolution, so that synthesising and replaying it take seconds.
@@ -49,10 +59,11 @@ ProgressFn = Callable[[int, int, SynthFrame, float], None]
 
 
 def synth_metadata(
-    *, kind: str, seed: int, frames: int, size: tuple[int, int], shiny: bool, empty: bool
+    *, kind: str, seed: int, frames: int, size: tuple[int, int], shiny: bool, empty: bool, quantize_mm: float = 0.0
 ) -> dict[str, str]:
     """The ``zcut.synth`` metadata record (all values strings)."""
     K = default_intrinsics(size)
+    rates = out.SHINY_RATES if shiny else out.MATTE_RATES
     meta = {
         "generator": "zcut replay.synth",
         "generator_version": GENERATOR_VERSION,
@@ -75,8 +86,17 @@ def synth_metadata(
         "max_obliquity_deg": f"{MAX_OBLIQUITY_DEG:g}",
         "noise_mm_at_0.5m": f"{NOISE_MM_AT_500:g}",
         "shiny_noise_factor": f"{SHINY_NOISE_FACTOR:g}",
-        "ghost_top_zone_mm": f"{TOP_ZONE_MM:g}",
+        "noise_correlation_px": f"{NOISE_CORRELATION_PX:g}",
+        "quantize_mm": f"{quantize_mm:g}",
+        "ghost_clusters_per_frame": f"{rates.clusters:g}",
+        "ghost_rho_range": f"{rates.cluster_rho[0]:g}-{rates.cluster_rho[1]:g}",
+        "above_rim_groups_per_frame": f"{rates.above_rim:g}",
+        "figure11_patches_per_frame": f"{rates.figure11:g}",
         "truth_topic": layout.TRUTH_OUTLIERS,
+        "outlier_kind_topic": layout.TRUTH_OUTLIER_KIND,
+        "outlier_kinds": ",".join(f"{code}={name}" for code, name in sorted(layout.OUTLIER_KINDS.items())),
+        "poses_metadata": layout.SYNTH_POSES_METADATA,
+        "bin_frame": "camera optical frame with the bin at its nominal pose (centred below the camera, yaw 0)",
         **BIN.as_metadata(),
     }
     if not empty:
@@ -92,6 +112,59 @@ def synth_metadata(
     return meta
 
 
+def pose_metadata(*, seed: int, frames: int, empty: bool) -> dict[str, str]:
+    """The ``zcut.synth.poses`` record: ``str(stamp_ns)`` -> the 16 floats of ``T_cam_bin``, row-major."""
+    return {
+        str(stamp_ns(seed, i)): ",".join(repr(float(v)) for v in frame_pose(seed, i, empty=empty).ravel())
+        for i in range(int(frames))
+    }
+
+
+def true_poses(metadata: Mapping[str, Mapping[str, str]]) -> dict[int, np.ndarray]:
+    """Every frame's true ``T_cam_bin`` from a synthetic log's metadata (``LogReader.metadata``).
+
+    Parameters
+    ----------
+    metadata : mapping
+        MCAP metadata records, name -> key/value strings.
+
+    Returns
+    -------
+    dict[int, (4, 4) float64 ndarray]
+        Header stamp (ns) -> bin frame to camera optical frame, metres (see
+        :func:`replay.synth.synthesize.T_cam_bin`); empty when the log carries no poses.
+    """
+    record = metadata.get(layout.SYNTH_POSES_METADATA)
+    if record is None:
+        return {}
+    poses: dict[int, np.ndarray] = {}
+    for key, value in record.items():
+        where = f"{layout.SYNTH_POSES_METADATA}[{key!r}]"
+        try:
+            stamp = int(key)
+            T = np.array([float(v) for v in value.split(",")], dtype=np.float64)
+        except ValueError:
+            raise LogFormatError(f"{where}: expected an integer stamp and 16 comma-separated floats") from None
+        if T.size != 16 or not np.isfinite(T).all():
+            raise LogFormatError(f"{where}: expected 16 finite comma-separated floats, got {T.size} values")
+        poses[stamp] = T.reshape(4, 4)
+    return poses
+
+
+def _write_outlier_kind(writer: LogWriter, sf: SynthFrame) -> None:
+    """``/ground_truth/outlier_kind``: the kind codes as a mono8 Image, stamped like the cloud.
+
+    ``LogWriter.write_mask`` writes bool masks only (255 = set); the codes go through the same
+    Image encoder and the writer's channel bookkeeping.
+    """
+    kinds = np.ascontiguousarray(sf.outlier_kind, dtype=np.uint8)
+    h, w = kinds.shape
+    f = sf.frame
+    msg = rm.encode_image(stamp_ns=f.stamp_ns, frame_id=f.frame_id, height=h, width=w, encoding="mono8",
+                          step=w, data=kinds.tobytes())
+    writer._add(layout.TRUTH_OUTLIER_KIND, rm.IMAGE, msg, f.stamp_ns)
+
+
 def write_synthetic_log(
     path: str | os.PathLike,
     *,
@@ -101,6 +174,7 @@ def write_synthetic_log(
     size: tuple[int, int] = FULL_SIZE,
     empty: bool = False,
     shiny: bool | None = None,
+    quantize_mm: float = 0.0,
     progress: ProgressFn | None = None,
 ) -> Path:
     """Synthesise ``frames`` scans and write them as a ROS 2 MCAP log.
@@ -120,6 +194,9 @@ def write_synthetic_log(
         Empty-bin scans (to build the bin model, paper §5.1).
     shiny : bool or None
         Override the kind's finish.
+    quantize_mm : float
+        Depth step of a quantizing sensor (e.g. 1 or 2 mm, as consumer stereo and ToF cameras
+        give); 0 (default) = continuous depth.
     progress : callable or None
         Called as ``progress(index, frames, synth_frame, seconds)`` after each frame is written.
 
@@ -131,14 +208,18 @@ def write_synthetic_log(
         raise ParameterError(f"kind must be one of {', '.join(PART_KINDS)}, got {kind!r}")
     if int(frames) != frames or frames < 1:
         raise ParameterError(f"frames must be a positive integer, got {frames!r}")
+    q = check_quantize(quantize_mm)
     is_shiny = (False if empty else PART_KINDS[kind].shiny) if shiny is None else bool(shiny)
-    meta = synth_metadata(kind=kind, seed=seed, frames=int(frames), size=size, shiny=is_shiny, empty=empty)
+    meta = synth_metadata(kind=kind, seed=seed, frames=int(frames), size=size, shiny=is_shiny, empty=empty,
+                          quantize_mm=q)
+    poses = pose_metadata(seed=seed, frames=int(frames), empty=empty)
     path = Path(path)
-    with LogWriter(path, metadata={layout.SYNTH_METADATA: meta}) as writer:
+    with LogWriter(path, metadata={layout.SYNTH_METADATA: meta, layout.SYNTH_POSES_METADATA: poses}) as writer:
         for i in range(int(frames)):
             t0 = time.perf_counter()
-            sf = synthesize_frame(kind=kind, seed=seed, index=i, size=size, shiny=shiny, empty=empty)
+            sf = synthesize_frame(kind=kind, seed=seed, index=i, size=size, shiny=shiny, empty=empty, quantize_mm=q)
             writer.write_frame(sf.frame)
+            _write_outlier_kind(writer, sf)
             if progress is not None:
                 progress(i, int(frames), sf, time.perf_counter() - t0)
     return path

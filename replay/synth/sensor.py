@@ -9,6 +9,12 @@ line of sight grazes the surface.
 
 Camera optical frame: x right, y down, z forward; the camera looks straight down at the table, so
 camera x = world x, camera y = -world y, camera z = camera height - world z.
+
+Depth noise is spatially correlated (white noise smoothed by a Gaussian of
+``NOISE_CORRELATION_PX`` pixels and rescaled to the per-pixel sigma), as a structured-light sensor's
+own smoothing makes it; the colour image is lit by a lamp beside the camera plus the projector
+itself, whose mirror reflection on shiny parts saturates the image (and the depth there, see
+:func:`shade_rgb`).
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
+from scipy import ndimage
 
 from replay.synth.scene import LABEL_NONE, LABEL_RIM, LABEL_WALL, Scene
 from zcut.cloud import Intrinsics
@@ -29,6 +36,12 @@ PROJECTOR_BASELINE_MM = 150.0
 MAX_OBLIQUITY_DEG = 78.0
 NOISE_MM_AT_500 = 0.10  # depth noise sigma at 0.5 m on matte surfaces
 SHINY_NOISE_FACTOR = 1.6
+#: Gaussian smoothing (pixels) of the depth noise: Zivid One settings files enable a Gaussian filter
+#: of sigma 1.5 (zivid-python-samples, settings/*.yml); see docs/synthetic.md
+NOISE_CORRELATION_PX = 1.5
+#: specular lobes of shiny parts lit by the projector: (amplitude, exponent) of a sharp core that
+#: saturates the image and of a broad glow, on the 0..255 scale
+SPECULAR_LOBES = ((420.0, 400.0), (70.0, 25.0))
 
 
 def check_size(size: object) -> tuple[int, int]:
@@ -88,6 +101,23 @@ def _raster(Xc, Yc, Zc, U, V, node_label, node_pid, fx, fy, cx, cy, depth, norma
     H, W = depth.shape
     for i in range(ny - 1):
         for j in range(nx - 1):
+            # the cell's own normal (its bilinear patch at the centre), shared by its two triangles:
+            # the depth is exact per triangle, but normals do not flicker with the triangulation
+            gx = 0.5 * (Xc[i, j + 1] + Xc[i + 1, j + 1] - Xc[i, j] - Xc[i + 1, j])
+            gy = 0.5 * (Yc[i, j + 1] + Yc[i + 1, j + 1] - Yc[i, j] - Yc[i + 1, j])
+            gz = 0.5 * (Zc[i, j + 1] + Zc[i + 1, j + 1] - Zc[i, j] - Zc[i + 1, j])
+            hx = 0.5 * (Xc[i + 1, j] + Xc[i + 1, j + 1] - Xc[i, j] - Xc[i, j + 1])
+            hy = 0.5 * (Yc[i + 1, j] + Yc[i + 1, j + 1] - Yc[i, j] - Yc[i, j + 1])
+            hz = 0.5 * (Zc[i + 1, j] + Zc[i + 1, j + 1] - Zc[i, j] - Zc[i, j + 1])
+            cnx = gy * hz - gz * hy
+            cny = gz * hx - gx * hz
+            cnz = gx * hy - gy * hx
+            cnn = np.sqrt(cnx * cnx + cny * cny + cnz * cnz)
+            if cnn == 0.0:
+                continue
+            cnx /= cnn
+            cny /= cnn
+            cnz /= cnn
             for t in range(2):
                 if t == 0:
                     ia, ja, ib, jb, ic, jc = i, j, i, j + 1, i + 1, j + 1
@@ -139,7 +169,7 @@ def _raster(Xc, Yc, Zc, U, V, node_label, node_pid, fx, fy, cx, cy, depth, norma
                     lab, pp = node_label[ib, jb], node_pid[ib, jb]
                 else:
                     lab, pp = node_label[ic, jc], node_pid[ic, jc]
-                if lab == LABEL_RIM and abs(nz_) < 0.5:
+                if lab == LABEL_RIM and abs(cnz) < 0.5:
                     lab = LABEL_WALL  # the steep faces below the rim's edges are walls
                 inv = 1.0 / area
                 for r in range(r0, r1 + 1):
@@ -157,10 +187,10 @@ def _raster(Xc, Yc, Zc, U, V, node_label, node_pid, fx, fy, cx, cy, depth, norma
                         z = d0 / den
                         if z > 0.0 and z < depth[r, c]:
                             depth[r, c] = z
-                            s = -1.0 if den > 0 else 1.0
-                            normal[r, c, 0] = s * nx_
-                            normal[r, c, 1] = s * ny_
-                            normal[r, c, 2] = s * nz_
+                            s = -1.0 if cnx * rx + cny * ry + cnz > 0 else 1.0
+                            normal[r, c, 0] = s * cnx
+                            normal[r, c, 1] = s * cny
+                            normal[r, c, 2] = s * cnz
                             label[r, c] = lab
                             pid[r, c] = pp
 
@@ -215,6 +245,29 @@ def measurable(
     The projector is a pinhole at camera x + ``baseline_mm`` looking the same way; its shadow map is
     rendered with the same rasterizer at the camera's focal length, wide enough for the scene.
     """
+    return measure(scene, view, intrinsics, camera_height_mm=camera_height_mm, baseline_mm=baseline_mm,
+                   max_obliquity_deg=max_obliquity_deg)[0]
+
+
+def measure(
+    scene: Scene,
+    view: Render,
+    intrinsics: Intrinsics,
+    *,
+    camera_height_mm: float = CAMERA_HEIGHT_MM,
+    baseline_mm: float = PROJECTOR_BASELINE_MM,
+    max_obliquity_deg: float = MAX_OBLIQUITY_DEG,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`measurable` and the grazing cosine it was decided on.
+
+    Returns
+    -------
+    ok : (H, W) bool ndarray
+        As :func:`measurable`.
+    cosine : (H, W) float32 ndarray
+        The smaller of the cosines between the surface normal and the directions to the camera and
+        to the projector (1 = seen head-on by both; -1 where nothing was hit).
+    """
     K = intrinsics
     # projector intrinsics covering the whole grid
     X, Y, Z = _node_camera_coords(scene, camera_height_mm=camera_height_mm, offset_x_mm=baseline_mm)
@@ -228,15 +281,16 @@ def measurable(
     proj = Intrinsics(fx=f, fy=f, cx=cxp, cy=cyp, width=wp, height=hp)
     shadow = render(scene, proj, camera_height_mm=camera_height_mm, offset_x_mm=baseline_mm).depth_mm
     ok = np.zeros(view.depth_mm.shape, bool)
+    cosine = np.full(view.depth_mm.shape, -1.0, np.float32)
     _measurable(
         view.depth_mm, view.normal, shadow, float(K.fx), float(K.fy), float(K.cx), float(K.cy),
-        f, cxp, cyp, float(baseline_mm), float(np.cos(np.radians(max_obliquity_deg))), ok,
+        f, cxp, cyp, float(baseline_mm), float(np.cos(np.radians(max_obliquity_deg))), ok, cosine,
     )
-    return ok
+    return ok, cosine
 
 
 @numba.njit(cache=True, nogil=True)
-def _measurable(depth, normal, shadow, fx, fy, cx, cy, fp, cxp, cyp, baseline, cos_min, ok):  # pragma: no cover
+def _measurable(depth, normal, shadow, fx, fy, cx, cy, fp, cxp, cyp, baseline, cos_min, ok, cosine):  # pragma: no cover
     H, W = depth.shape
     hp, wp = shadow.shape
     for r in range(H):
@@ -250,13 +304,12 @@ def _measurable(depth, normal, shadow, fx, fy, cx, cy, fp, cxp, cyp, baseline, c
             # towards the camera
             inv = 1.0 / np.sqrt(rx * rx + ry * ry + 1.0)
             cos_c = -(nx * rx + ny * ry + nz) * inv
-            if cos_c <= cos_min:
-                continue
             # towards the projector (at +baseline on the camera x axis)
             px, py, pz = rx * z - baseline, ry * z, z
             pn = np.sqrt(px * px + py * py + pz * pz)
             cos_p = -(nx * px + ny * py + nz * pz) / pn
-            if cos_p <= cos_min:
+            cosine[r, c] = min(cos_c, cos_p)
+            if cos_c <= cos_min or cos_p <= cos_min:
                 continue
             up = fp * px / pz + cxp
             vp = fp * py / pz + cyp
@@ -274,6 +327,40 @@ def depth_noise_sigma_mm(depth_mm: np.ndarray, *, shiny: np.ndarray | bool) -> n
     return s * np.where(shiny, SHINY_NOISE_FACTOR, 1.0)
 
 
+def _gaussian_gain(sigma_px: float, truncate: float) -> float:
+    """Standard deviation of unit white noise after ``ndimage.gaussian_filter(sigma_px, truncate)``."""
+    r = int(truncate * sigma_px + 0.5)
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    w = np.exp(-0.5 * (x / sigma_px) ** 2)
+    w /= w.sum()
+    return float(np.sum(w * w))  # separable: the 2-D sum of squares is (sum w²)², its root sum w²
+
+
+def correlated_noise(
+    shape: tuple[int, int], rng: np.random.Generator, *, sigma_px: float = NOISE_CORRELATION_PX
+) -> np.ndarray:
+    """(H, W) float32 unit-variance noise, smoothed by a Gaussian of ``sigma_px`` pixels (0: white).
+
+    Neighbouring pixels move together (correlation 0.9 one pixel apart at 1.5 px), so the noise
+    makes few isolated peaks: a pixel rises above all its neighbours by the z-cut's nominal step
+    (0.2 mm) about as rarely as the paper's Figure 20 shows at that step.
+    """
+    noise = rng.standard_normal(shape, dtype=np.float32)
+    if sigma_px <= 0:
+        return noise
+    truncate = 3.0
+    noise = ndimage.gaussian_filter(noise, sigma_px, mode="reflect", truncate=truncate)
+    noise *= np.float32(1.0 / _gaussian_gain(sigma_px, truncate))
+    return noise
+
+
+def quantize_depth(depth_mm: np.ndarray, step_mm: float) -> np.ndarray:
+    """Depth rounded to multiples of ``step_mm`` (a sensor reporting z in fixed units; 0: unchanged)."""
+    if step_mm <= 0:
+        return depth_mm
+    return np.round(depth_mm / step_mm) * step_mm
+
+
 def shade_rgb(
     view: Render,
     intrinsics: Intrinsics,
@@ -281,26 +368,47 @@ def shade_rgb(
     shiny: np.ndarray,
     ambient: np.ndarray,
     rng: np.random.Generator,
-) -> np.ndarray:
-    """(H, W, 3) uint8 colour image: Lambert + ambient, a specular lobe on shiny pixels, sensor noise.
+    *,
+    baseline_mm: float = PROJECTOR_BASELINE_MM,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Colour image: Lambert + ambient, the projector's specular reflection on shiny pixels, noise.
+
+    The 2-D image of a structured-light camera is taken under the projector's white light, so a
+    shiny surface whose normal bisects the directions to the camera and to the projector mirrors
+    the projector into the camera: a core that saturates (:data:`SPECULAR_LOBES`) in a broad glow.
 
     Parameters
     ----------
+    view : Render
+        Depth and normals (camera frame).
     colours : (H, W, 3) float ndarray
         Base colour per pixel (0..255).
     shiny : (H, W) bool ndarray
     ambient : (H, W) float ndarray
         Share of diffuse room light (0..1); the rest is the Lambert term of a lamp by the camera.
+    baseline_mm : float
+        Projector position on the camera x axis.
+
+    Returns
+    -------
+    rgb : (H, W, 3) uint8 ndarray
+    saturated : (H, W) bool ndarray
+        Pixels whose three channels clip at 255 before the image noise (specular highlights).
     """
     K = intrinsics
-    img = np.empty(colours.shape)
-    _shade(view.normal, colours, shiny, ambient, float(K.fx), float(K.fy), float(K.cx), float(K.cy), img)
-    img += rng.normal(0.0, 1.5, img.shape)
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    img = np.empty(colours.shape, np.float32)
+    saturated = np.zeros(shiny.shape, np.bool_)
+    lobes = np.asarray(SPECULAR_LOBES, np.float64)
+    _shade(view.normal, view.depth_mm, colours, shiny, ambient, float(K.fx), float(K.fy), float(K.cx), float(K.cy),
+           float(baseline_mm), lobes, img, saturated)
+    img += rng.standard_normal(img.shape, dtype=np.float32) * np.float32(1.5)
+    np.rint(img, out=img)
+    np.clip(img, 0, 255, out=img)
+    return img.astype(np.uint8), saturated
 
 
 @numba.njit(cache=True, nogil=True)
-def _shade(normal, colours, shiny, ambient, fx, fy, cx, cy, img):  # pragma: no cover - numba
+def _shade(normal, depth, colours, shiny, ambient, fx, fy, cx, cy, baseline, lobes, img, saturated):  # pragma: no cover
     H, W = shiny.shape
     lx, ly, lz = -0.25, 0.35, -1.0  # towards a lamp beside the camera
     ln = np.sqrt(lx * lx + ly * ly + lz * lz)
@@ -311,13 +419,23 @@ def _shade(normal, colours, shiny, ambient, fx, fy, cx, cy, img):  # pragma: no 
             lam = min(max(nx * lx + ny * ly + nz * lz, 0.0), 1.0)
             k = ambient[r, c] + (1.0 - ambient[r, c]) * lam
             spec = 0.0
-            if shiny[r, c]:
+            if shiny[r, c] and np.isfinite(depth[r, c]):
                 rx = (c - cx) / fx
                 ry = (r - cy) / fy
-                inv = 1.0 / np.sqrt(rx * rx + ry * ry + 1.0)
-                hx, hy, hz = lx - rx * inv, ly - ry * inv, lz - inv
+                z = depth[r, c]
+                # unit vectors from the surface point to the camera (origin) and to the projector
+                px, py, pz = -rx * z, -ry * z, -z
+                pn = np.sqrt(px * px + py * py + pz * pz)
+                qx, qy, qz = baseline - rx * z, -ry * z, -z
+                qn = np.sqrt(qx * qx + qy * qy + qz * qz)
+                hx, hy, hz = px / pn + qx / qn, py / pn + qy / qn, pz / pn + qz / qn
                 hn = np.sqrt(hx * hx + hy * hy + hz * hz)
                 ch = min(max((nx * hx + ny * hy + nz * hz) / hn, 0.0), 1.0)
-                spec = 230.0 * ch**60
+                for j in range(lobes.shape[0]):
+                    spec += lobes[j, 0] * ch ** lobes[j, 1]
+            low = 1e9
             for ch_ in range(3):
-                img[r, c, ch_] = colours[r, c, ch_] * k + spec
+                v = colours[r, c, ch_] * k + spec
+                img[r, c, ch_] = v
+                low = min(low, v)
+            saturated[r, c] = low >= 255.0

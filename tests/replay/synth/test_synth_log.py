@@ -1,23 +1,34 @@
-"""replay.synth logs: SPEC §5 layout read back with LogReader, same bytes per seed, CLI, demo sample."""
+"""replay.synth logs: SPEC §5 layout read back with LogReader and the mcap library, outlier kinds,
+true poses, same bytes per seed, CLI, demo sample."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from scipy import ndimage
 
 from replay.cli import main
+from replay.errors import LogFormatError
 from replay.logs import layout
 from replay.logs.reader import LogReader
 from replay.synth import (
     BIN,
     EMPTY_POSITIONS_MM,
+    GENERATOR_VERSION,
+    LABEL_RIM,
     camera_distance_m,
+    default_intrinsics,
     ensure_sample_log,
+    frame_pose,
     sample_log_path,
     stamp_ns,
     synthesize_frame,
+    true_poses,
     write_synthetic_log,
 )
+from replay.synth.sensor import pixel_rays
 from zcut.binmask import bin_mask
 from zcut.errors import ParameterError
 
@@ -51,18 +62,99 @@ def test_log_holds_the_frames_and_their_truth(tmp_path):
         assert f.masks[layout.TRUTH_OUTLIERS].any()
         assert f.intrinsics == sf.frame.intrinsics
         assert np.isfinite(f.xyz[f.masks[layout.TRUTH_OUTLIERS]]).all()
+        # the kind image is a mono8 mask topic too: nonzero exactly where the truth is
+        np.testing.assert_array_equal(f.masks[layout.TRUTH_OUTLIER_KIND], sf.truth)
+    # its codes, read with the mcap library's own ROS 2 decoder, same stamps as the clouds
+    kinds = _kind_images(path)
+    assert sorted(kinds) == [stamp_ns(9, 0), stamp_ns(9, 1)]
+    for i in range(2):
+        np.testing.assert_array_equal(kinds[stamp_ns(9, i)], synthesize_frame(kind="rods", seed=9, index=i,
+                                                                               size=SIZE).outlier_kind)
+    assert meta["outlier_kind_topic"] == layout.TRUTH_OUTLIER_KIND
+    assert meta["generator_version"] == GENERATOR_VERSION and meta["quantize_mm"] == "0"
+
+
+def _kind_images(path) -> dict[int, np.ndarray]:
+    """``/ground_truth/outlier_kind`` of a log: header stamp -> (H, W) uint8 codes."""
+    out = {}
+    with open(path, "rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        for _, _, _, msg in reader.iter_decoded_messages(topics=[layout.TRUTH_OUTLIER_KIND]):
+            assert msg.encoding == "mono8" and msg.step == msg.width
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            out[stamp] = np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.width)
+    return out
+
+
+def test_log_carries_the_true_poses(tmp_path):
+    path = write_synthetic_log(tmp_path / "nuts.mcap", kind="black_nuts", frames=3, seed=4, size=SIZE)
+    reader = LogReader(path)
+    poses = true_poses(reader.metadata)
+    assert reader.metadata[layout.SYNTH_METADATA]["poses_metadata"] == layout.SYNTH_POSES_METADATA
+    assert sorted(poses) == [f.stamp_ns for f in reader.frames()]
+    for i, stamp in enumerate(sorted(poses)):
+        T = poses[stamp]
+        assert T.shape == (4, 4) and T.dtype == np.float64
+        np.testing.assert_array_equal(T, frame_pose(4, i))  # bit-exact through the text
+        np.testing.assert_array_equal(T, synthesize_frame(kind="black_nuts", seed=4, index=i, size=SIZE).T_cam_bin)
+        np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(T[:3, :3]) == pytest.approx(1.0) and (T[3] == [0, 0, 0, 1]).all()
+    # a log without poses (a recorded one) has none
+    assert true_poses({layout.SYNTH_METADATA: {"part_kind": "rods"}}) == {}
+
+
+@pytest.mark.parametrize(
+    "record, match",
+    [
+        ({"frame0": ",".join(["0"] * 16)}, "expected an integer stamp and 16 comma-separated floats"),
+        ({"12": "1,0,0"}, "expected 16 finite comma-separated floats, got 3 values"),
+        ({"12": ",".join(["nan"] * 16)}, "expected 16 finite comma-separated floats"),
+        ({"12": "a,b"}, "expected an integer stamp and 16 comma-separated floats"),
+    ],
+)
+def test_bad_pose_metadata(record, match):
+    with pytest.raises(LogFormatError, match=match):
+        true_poses({layout.SYNTH_POSES_METADATA: record})
+
+
+def test_true_pose_maps_the_nominal_bin_onto_the_frames_bin():
+    """T_cam_bin carries the bin seen at its nominal pose (the empty series' first scan, the frame a
+    bin model built from that series is in) onto the bin of a frame: its rim lands on the rim."""
+    size = (480, 640)
+    ref = synthesize_frame(empty=True, seed=2, index=0, size=size)
+    np.testing.assert_array_equal(ref.T_cam_bin, np.eye(4))  # the series starts at the nominal pose
+    K = default_intrinsics(size)
+    rim = ndimage.binary_erosion(ref.surface == LABEL_RIM, np.ones((7, 7), bool))
+    pts = pixel_rays(K)[rim] * (ref.surface_depth_mm[rim, None] / 1000.0)  # noise-free, metres
+
+    def landing_on_rim(frame, T):
+        p = pts @ T[:3, :3].T + T[:3, 3]
+        col = np.rint(K.fx * p[:, 0] / p[:, 2] + K.cx).astype(int)
+        row = np.rint(K.fy * p[:, 1] / p[:, 2] + K.cy).astype(int)
+        inside = (row >= 0) & (row < size[0]) & (col >= 0) & (col < size[1])
+        return np.mean(frame.surface[row[inside], col[inside]] == LABEL_RIM)
+
+    for index in range(3):
+        sf = synthesize_frame(kind="sprockets", seed=2, index=index, size=size)
+        assert landing_on_rim(sf, sf.T_cam_bin) > 0.99
+        assert landing_on_rim(sf, np.eye(4)) < 0.95  # the test can tell a wrong pose
 
 
 def test_same_seed_same_bytes(tmp_path):
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     (tmp_path / "c").mkdir()
-    kw = dict(kind="black_screws", frames=2, size=SIZE)
+    (tmp_path / "d").mkdir()
+    (tmp_path / "e").mkdir()
+    kw = {"kind": "black_screws", "frames": 2, "size": SIZE}
     a = write_synthetic_log(tmp_path / "a" / "log.mcap", seed=5, **kw).read_bytes()
     b = write_synthetic_log(tmp_path / "b" / "log.mcap", seed=5, **kw).read_bytes()
     c = write_synthetic_log(tmp_path / "c" / "log.mcap", seed=6, **kw).read_bytes()
     assert a == b
     assert a != c
+    d = write_synthetic_log(tmp_path / "d" / "log.mcap", seed=5, quantize_mm=1.0, **kw).read_bytes()
+    e = write_synthetic_log(tmp_path / "e" / "log.mcap", seed=5, quantize_mm=1.0, **kw).read_bytes()
+    assert d == e and d != a
 
 
 def test_empty_bin_series_moves_the_bin(tmp_path):
@@ -77,6 +169,8 @@ def test_empty_bin_series_moves_the_bin(tmp_path):
         assert res.found
         centroids.append(res.centroid_rc)
     c = np.array(centroids)
+    poses = true_poses(reader.metadata)
+    np.testing.assert_array_equal(poses[stamp_ns(1, 0)], np.eye(4))  # the model's frame
     # the footprint (outlined by the rim, 460 mm from the camera) moves as the series says:
     # +x -> +col, +y (world) -> -row (camera y points down); +-3 mm jitter, +-2 deg yaw
     fx = 1600.0 * 320 / 1920
@@ -88,10 +182,11 @@ def test_empty_bin_series_moves_the_bin(tmp_path):
 @pytest.mark.parametrize(
     "kwargs, match",
     [
-        (dict(kind="bolts"), "kind must be one of"),
-        (dict(kind="rods", frames=0), "frames must be a positive integer"),
-        (dict(kind="rods", size=(4, 4)), "size must be"),
-        (dict(kind="rods", size="big"), "size must be"),
+        ({"kind": "bolts"}, "kind must be one of"),
+        ({"kind": "rods", "frames": 0}, "frames must be a positive integer"),
+        ({"kind": "rods", "size": (4, 4)}, "size must be"),
+        ({"kind": "rods", "size": "big"}, "size must be"),
+        ({"kind": "rods", "quantize_mm": -2}, "quantize_mm must be between 0 and 10 mm, got -2"),
     ],
 )
 def test_bad_arguments(tmp_path, kwargs, match):

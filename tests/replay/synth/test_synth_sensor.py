@@ -17,7 +17,14 @@ from replay.synth import (
     synthesize_frame,
 )
 from replay.synth.scene import BinPose, empty_scene, make_grid
-from replay.synth.sensor import NOISE_MM_AT_500, measurable, render, view_half_extent_mm
+from replay.synth.sensor import (
+    NOISE_CORRELATION_PX,
+    NOISE_MM_AT_500,
+    correlated_noise,
+    measurable,
+    render,
+    view_half_extent_mm,
+)
 from zcut.binmask import bin_mask
 
 SIZE = (240, 320)
@@ -47,7 +54,8 @@ def test_points_project_back_onto_their_pixels(spheres):
     p = xyz[ok] @ K.T
     np.testing.assert_allclose(p[:, 0] / p[:, 2], cols, atol=1e-3)
     np.testing.assert_allclose(p[:, 1] / p[:, 2], rows, atol=1e-3)
-    assert (xyz[ok][:, 2] > 0.4).all() and (xyz[ok][:, 2] < 0.6).all()
+    # from the points above the rim (at most 150 mm higher: 0.31 m from the camera) to the table
+    assert (xyz[ok][:, 2] > 0.3).all() and (xyz[ok][:, 2] < 0.6).all()
 
 
 def test_surfaces_lie_where_the_scene_puts_them(spheres):
@@ -71,6 +79,28 @@ def test_surfaces_lie_where_the_scene_puts_them(spheres):
     part = ok & (spheres.surface == LABEL_PART)
     assert (z_mm[part] > CAMERA_HEIGHT_MM - BIN.height_mm).all()
     assert (z_mm[part] < CAMERA_HEIGHT_MM - BIN.floor_mm).all()
+
+
+def test_depth_noise_is_smooth_like_a_filtered_sensor(spheres):
+    """The noise of neighbouring pixels is correlated (a Gaussian of NOISE_CORRELATION_PX pixels):
+    on the flat table, next-pixel residuals correlate at exp(-1 / (4 s²)) ≈ 0.9 for s = 1.5."""
+    z_mm = 1000.0 * spheres.frame.xyz[..., 2].astype(np.float64)
+    resid = np.where((spheres.surface == LABEL_TABLE) & ~spheres.truth, z_mm - CAMERA_HEIGHT_MM, np.nan)
+    a, b = resid[:, :-1], resid[:, 1:]
+    ok = np.isfinite(a) & np.isfinite(b)
+    assert ok.sum() > 1000
+    rho = np.corrcoef(a[ok], b[ok])[0, 1]
+    assert rho == pytest.approx(np.exp(-1.0 / (4.0 * NOISE_CORRELATION_PX**2)), abs=0.08)
+
+
+def test_correlated_noise_has_unit_variance():
+    rng = np.random.default_rng(1)
+    n = correlated_noise((400, 600), rng)
+    assert n.dtype == np.float32
+    assert n.std() == pytest.approx(1.0, abs=0.03) and abs(n.mean()) < 0.05
+    assert np.corrcoef(n[:, :-1].ravel(), n[:, 1:].ravel())[0, 1] == pytest.approx(np.exp(-1 / 9), abs=0.02)
+    white = correlated_noise((400, 600), rng, sigma_px=0.0)
+    assert abs(np.corrcoef(white[:, :-1].ravel(), white[:, 1:].ravel())[0, 1]) < 0.02
 
 
 def test_render_depth_is_exact_for_a_plane():
