@@ -95,12 +95,12 @@ class OutlierRates:
 
 
 SHINY_RATES = OutlierRates(
-    clusters=60.0, cluster_rho=(0.002, 0.25), cluster_offset_mm=(1.0, 15.0), attached_fraction=0.5,
+    clusters=60.0, cluster_rho=(0.002, 0.15), cluster_offset_mm=(1.0, 15.0), attached_fraction=0.5,
     roughness_mm=(0.03, 1.5), hole_fraction=0.4, spike_prob=3e-4, spike_up_fraction=0.85, flying_prob=0.3,
     dropouts=30.0, above_rim=6.0, above_rim_mm=(10.0, 100.0), above_rim_rho=(0.0005, 0.05), figure11=0.5,
 )
 MATTE_RATES = OutlierRates(
-    clusters=3.0, cluster_rho=(0.002, 0.15), cluster_offset_mm=(1.0, 8.0), attached_fraction=0.5,
+    clusters=3.0, cluster_rho=(0.002, 0.1), cluster_offset_mm=(1.0, 8.0), attached_fraction=0.5,
     roughness_mm=(0.03, 1.0), hole_fraction=0.4, spike_prob=2e-5, spike_up_fraction=0.85, flying_prob=0.05,
     dropouts=3.0, above_rim=0.3, above_rim_mm=(10.0, 100.0), above_rim_rho=(0.0005, 0.02), figure11=0.5,
 )
