@@ -15,7 +15,11 @@ For each part kind, ``--frames`` frames of one seeded log (``synthesize_frame(ki
   surface is a part or the bin floor, minus the points above the rim (the removal flags those);
 - how many of the zone's z-cut false positives are the Figure-11 patches (``fig11``), the
   generator's calibrated traps (paper §5.4: two such clusters in an M8-screw scan, none in the six
-  datasets), and the share of shiny part pixels whose colour saturates.
+  datasets), and the share of shiny part pixels whose colour saturates (``sat%``);
+- the floating clusters' spread: the share at least μ_thr = 0.07·a_max pixels (``>=mu%``, which
+  the nominal z-cut cannot tag), the share whose real surface lies more than 30 mm below the
+  highest part (``deep%``, beyond the nominal d_max when nothing floats higher), and the pile's
+  depth in layers of the part's smallest edge (``layers``: highest part above the floor / p_min).
 
 Counts are totals over the frames divided by the number of frames.
 """
@@ -29,8 +33,8 @@ import numpy as np
 from scipy import ndimage
 
 from replay.logs.layout import OUTLIER_KINDS
-from replay.presets import PART_KINDS
-from replay.synth import LABEL_FLOOR, LABEL_PART, OUTLIER_ABOVE_RIM, synthesize_frame
+from replay.presets import BIN, PART_KINDS
+from replay.synth import CAMERA_HEIGHT_MM, LABEL_FLOOR, LABEL_PART, OUTLIER_ABOVE_RIM, synthesize_frame
 from zcut.cuts import zcut_outliers
 from zcut.sor import sor_outliers
 
@@ -67,7 +71,8 @@ def main() -> None:
           f"per-frame means; recall = found/true pixels of that kind; fp = false-positive components")
     print()
     print("true outliers per frame: pixels / components")
-    print(f"{'kind':13s} " + " ".join(f"{n:>15s}" for n in names) + f" {'sat%':>6s} {'cpu s':>6s}")
+    print(f"{'kind':13s} " + " ".join(f"{n:>15s}" for n in names)
+          + f" {'sat%':>6s} {'>=mu%':>6s} {'deep%':>6s} {'layers':>6s} {'cpu s':>6s}")
     rows = {}
     for kind in args.kinds.split(","):
         acc = {r: {"zc_found": np.zeros(6), "so_found": np.zeros(6), "zc_fp": 0, "so_fp": 0, "fig11": 0,
@@ -75,6 +80,7 @@ def main() -> None:
         px = np.zeros(6)
         comp = np.zeros(6)
         sat, shiny_px, cpu = 0, 0, 0.0
+        n_clusters, big, deep, layers = 0, 0, 0, 0.0
         for i in range(args.frames):
             c0 = time.process_time()
             sf = synthesize_frame(kind=kind, seed=args.seed, index=i, size=(h, w), quantize_mm=args.quantize_mm)
@@ -84,6 +90,16 @@ def main() -> None:
                 m = kinds == c
                 px[c] += m.sum()
                 comp[c] += components(m)
+            surf_h = CAMERA_HEIGHT_MM - sf.surface_depth_mm.astype(np.float64)
+            top = surf_h[sf.surface == LABEL_PART].max()
+            layers += (top - BIN.floor_mm) / PART_KINDS[kind].p_min_mm
+            ids = np.unique(sf.cluster_id[sf.cluster_id > 0])
+            if ids.size:
+                area = np.bincount(sf.cluster_id.ravel())[ids]
+                under = ndimage.median(surf_h, sf.cluster_id, ids)
+                n_clusters += ids.size
+                big += int((area >= 0.07 * sf.a_max_px).sum())
+                deep += int((top - np.asarray(under) > 30.0).sum())
             if sf.shiny:
                 part = sf.surface == LABEL_PART
                 sat += int((sf.saturated & part).sum())
@@ -112,7 +128,9 @@ def main() -> None:
         nf = args.frames
         cells = " ".join(f"{px[c] / nf:8.0f} /{comp[c] / nf:5.0f}" for c in CODES)
         satp = f"{100 * sat / shiny_px:6.2f}" if shiny_px else f"{'-':>6s}"
-        print(f"{kind:13s} {cells} {satp} {cpu / nf:6.2f}")
+        spread = (f"{100 * big / n_clusters:6.0f} {100 * deep / n_clusters:6.0f}" if n_clusters
+                  else f"{'-':>6s} {'-':>6s}")
+        print(f"{kind:13s} {cells} {satp} {spread} {layers / nf:6.1f} {cpu / nf:6.2f}")
         rows[kind] = acc
     for r in regions:
         print()
