@@ -1,27 +1,45 @@
-"""What the labelling page shows of a frame, computed once per frame and cached in memory.
+"""What the labelling page shows of a frame, computed once per frame.
 
-For each frame of the log the pipeline (``replay.pipeline.stages.run_frame``) proposes candidates; this
-module turns a frame and its result into a :class:`PreparedFrame`: JPEGs of the RGB image and of a
-height colour map, and one compact binary *bundle* with the valid mask and the candidate clusters
-of the z-cut and of SOR, ready to send as is.
+For each frame of the log the pipeline (``replay.pipeline.stages.run_frame``) proposes candidates;
+:func:`prepare_frame` turns the frame and its :class:`~replay.pipeline.stages.FrameResult` into a
+:class:`PreparedFrame`: JPEGs of the RGB image and of a height colour map, one compact binary
+*bundle* with the valid mask, the candidate clusters of the z-cut and of SOR and the *candidate
+table*, and the frame's points (``geometry``) that the server spills to disk and serves by
+rectangles (:func:`make_geometry`) for the exact views: height and xyz under the cursor, the
+profile and the 3D view. The JPEG is only a picture; every number the page shows comes from the
+float32 points.
 
 Bundle layout (little endian): ``uint32 n`` | ``n`` bytes of JSON header | sections. The header
 lists the sections as ``{"name", "kind", "dtype", "offset", "length"}`` (offset from the first byte
-after the header; ``"zlib": false`` when the section is stored without the zlib step written below). ``kind = "bits"``: ``zlib(packbits(mask.ravel()))`` (MSB first, as
-:func:`annotate.store.pack_mask`); ``kind = "ids"``: ``zlib(array.ravel().tobytes())`` of an unsigned
-integer array (``dtype`` ``uint8``, ``uint16`` or ``uint32``), 0 = no cluster; ``kind = "sparse"``:
-the same array by its ``count`` non-zero pixels, ``zlib(deltas + values)`` where ``deltas`` are
-the differences of the increasing flat pixel indices (first one from 0) as ``uint32`` and
-``values`` the ids there in ``dtype`` (candidates cover a few per cent of a frame: this is
-smaller and much faster to decode than the dense array); ``kind = "runs"``: a mask as
+after the header; ``"zlib": false`` when the section is stored without the zlib step written
+below). ``kind = "bits"``: ``zlib(packbits(mask.ravel()))`` (MSB first, as
+:func:`annotate.store.pack_mask`); ``kind = "ids"``: ``zlib(array.ravel().tobytes())`` of an
+unsigned integer array (``dtype`` ``uint8``, ``uint16`` or ``uint32``), 0 = no cluster;
+``kind = "sparse"``: the same array by its ``count`` non-zero pixels, ``zlib(deltas + values)``
+where ``deltas`` are the differences of the increasing flat pixel indices (first one from 0) as
+``uint32`` and ``values`` the ids there in ``dtype`` (candidates cover a few per cent of a frame:
+this is smaller and much faster to decode than the dense array); ``kind = "runs"``: a mask as
 ``zlib(uint32 run lengths)``, alternating runs of false and true pixels in raster order, the first
 one (possibly empty) false — decoded with a few ``fill`` calls, so used for the valid mask whenever
-its runs take no more bytes than its packed bits (:func:`mask_kind`).
+its runs take no more bytes than its packed bits (:func:`mask_kind`); ``kind = "table"``: a
+``(rows, cols)`` float32 array in row-major order, ``zlib``'ed, with ``"rows"`` and ``"cols"`` in
+the section's entry.
+
+The frame's bundle holds ``valid``, ``zcut`` and ``sor`` (sparse ids), ``zone`` (only when the bin
+stages ran: the pixels the filters judge) and ``candidates``, the table of :data:`CANDIDATE_COLUMNS`
+(named in the header's ``candidate_columns``; one row per z-cut cluster and per SOR cluster of at
+least :data:`SOR_LIST_MIN_PX` pixels, at most :data:`SOR_LIST_MAX` of them, the largest). Its
+header also carries ``height_lo_mm`` and ``height_hi_mm``, the heights that the colour map's first
+and last colours stand for.
 
 A *view* (``GET /api/frames/{i}/view``) is everything the page needs to show a frame in one
 response: ``uint32 n`` | ``n`` bytes of JSON ``{"parts": [[name, offset, length], ...]}`` | parts
 (offset from the first byte after the header); the parts are the frame's bundle, the annotator's
 label bundle and the JPEG of the requested image (:func:`make_view`, :func:`parse_view`).
+
+A *geometry* rectangle (``GET /api/frames/{i}/geometry``): ``uint32 n`` | ``n`` bytes of JSON
+``{"x0", "y0", "width", "height", "channels": ["x_m", "y_m", "z_m"], "dtype": "float32"}`` |
+``float32`` planes, one per channel, each ``height x width`` in raster order (NaN = no point).
 """
 
 from __future__ import annotations
@@ -41,51 +59,50 @@ from zcut.cloud import height_mm
 EIGHT = np.ones((3, 3), bool)
 JPEG_QUALITY = 90
 INVALID_GRAY = 48
+#: Columns of the candidate table (float32). ``source``: 0 = z-cut, 1 = SOR; ``id``: the cluster's id
+#: in that source's id image; ``x0, y0, x1, y1``: bounding box (end exclusive); ``cx, cy``: centroid;
+#: ``h_min_mm, h_max_mm``: its heights; ``below_mm``: the highest valid pixel within
+#: :data:`RING_PX` pixels around it (NaN if none); ``gap_mm = h_min_mm - below_mm`` (> 0: it floats
+#: above everything around it); ``both``: its pixels the other filter flags too; ``level``: the
+#: z-cut level that tagged it (-1 for SOR and for z-cut outliers outside a cluster).
+CANDIDATE_COLUMNS = ("source", "id", "n", "x0", "y0", "x1", "y1", "cx", "cy", "h_min_mm", "h_max_mm",
+                     "below_mm", "gap_mm", "both", "level")
+COLUMN = {name: i for i, name in enumerate(CANDIDATE_COLUMNS)}
+SOURCE_ZCUT, SOURCE_SOR = 0, 1
+RING_PX = 2
+SOR_LIST_MIN_PX = 2
+SOR_LIST_MAX = 4000
+#: The page's default SOR size filter; also what a frame's disagreement count uses.
+SOR_DEFAULT_MIN_PX = 5
+GEOMETRY_CHANNELS = ("x_m", "y_m", "z_m")
 
 
 @dataclass(frozen=True, slots=True)
 class ServedFrame:
-    """What the server keeps of a frame: the encoded bytes and a few numbers (no dense arrays, so
-    that a long log at 1920 x 1200 costs about a megabyte per frame)."""
-
-    index: int
-    stamp_ns: int
-    topic: str
-    frame_id: str
-    height: int
-    width: int
-    n_zcut: int
-    n_sor: int
-    rgb_jpeg: bytes | None
-    height_jpeg: bytes
-    bundle: bytes
-    warnings: tuple[str, ...]
-
-
-@dataclass(frozen=True, slots=True)
-class PreparedFrame:
-    """A frame as the page needs it.
+    """What the server keeps of a frame in memory: the encoded bytes and a few numbers.
 
     Attributes
     ----------
-    index : int
-    stamp_ns : int
-    topic : str
-    frame_id : str
+    index, stamp_ns : int
+    topic, frame_id : str
     height, width : int
-    valid : (H, W) bool ndarray
-    zcut_clusters, sor_clusters : (H, W) uint ndarray
-        Candidate cluster ids (0 = none).
     n_zcut, n_sor : int
-        Number of candidate clusters.
+        Candidate clusters of each filter (all of them, listed or not).
+    n_sor_listed : int
+        SOR clusters of at least :data:`SOR_DEFAULT_MIN_PX` pixels.
+    n_valid : int
+        Valid pixels: a label whose reviewed mask has that many pixels reviews the whole frame.
+    disagreement : int
+        Candidates (z-cut, and SOR of at least :data:`SOR_DEFAULT_MIN_PX` pixels) that the other
+        filter flags on fewer than half of their pixels.
     rgb_jpeg : bytes or None
-        None when the log has no colour for the frame.
-    height_jpeg : bytes
-        Height colour map (turbo, 1st-99th percentile of the valid heights; invalid pixels grey).
-    bundle : bytes
-        See the module docstring.
+    height_jpeg, bundle : bytes
     warnings : tuple of str
-        The pipeline's warnings for the frame.
+    cand_pixels : (k,) int32 ndarray
+        Flat pixel indices of the candidates counted in ``disagreement`` (z-cut clusters and SOR
+        clusters of at least :data:`SOR_DEFAULT_MIN_PX` pixels), grouped by candidate.
+    cand_starts : (n_cand + 1,) int64 ndarray
+        Candidate ``j`` owns ``cand_pixels[cand_starts[j]:cand_starts[j + 1]]``.
     """
 
     index: int
@@ -94,22 +111,60 @@ class PreparedFrame:
     frame_id: str
     height: int
     width: int
-    valid: np.ndarray
-    zcut_clusters: np.ndarray
-    sor_clusters: np.ndarray
     n_zcut: int
     n_sor: int
+    n_sor_listed: int
+    n_valid: int
+    disagreement: int
     rgb_jpeg: bytes | None
     height_jpeg: bytes
     bundle: bytes
     warnings: tuple[str, ...]
+    cand_pixels: np.ndarray
+    cand_starts: np.ndarray
 
-    def served(self) -> ServedFrame:
-        """The bytes and numbers the server keeps."""
-        return ServedFrame(index=self.index, stamp_ns=self.stamp_ns, topic=self.topic, frame_id=self.frame_id,
-                           height=self.height, width=self.width, n_zcut=self.n_zcut, n_sor=self.n_sor,
-                           rgb_jpeg=self.rgb_jpeg, height_jpeg=self.height_jpeg, bundle=self.bundle,
-                           warnings=self.warnings)
+    def decisions(self, outliers: np.ndarray, reviewed: np.ndarray) -> tuple[int, int]:
+        """(decided, accepted): candidates with at least half of their pixels reviewed / outliers.
+
+        Parameters
+        ----------
+        outliers, reviewed : (H, W) bool ndarray
+            A label's L and R.
+        """
+        n = self.cand_starts.size - 1
+        if n == 0:
+            return 0, 0
+        seg = np.repeat(np.arange(n), np.diff(self.cand_starts))
+        size = np.diff(self.cand_starts)
+        in_r = np.bincount(seg, weights=reviewed.ravel()[self.cand_pixels], minlength=n)
+        in_l = np.bincount(seg, weights=outliers.ravel()[self.cand_pixels], minlength=n)
+        return int((2 * in_r >= size).sum()), int((2 * in_l >= size).sum())
+
+
+@dataclass(frozen=True, slots=True)
+class PreparedFrame:
+    """A frame as the page needs it.
+
+    Attributes
+    ----------
+    served : ServedFrame
+        What the server keeps in memory (see there).
+    valid : (H, W) bool ndarray
+    zcut_clusters, sor_clusters : (H, W) uint ndarray
+        Candidate cluster ids (0 = none).
+    candidates : (n, len(CANDIDATE_COLUMNS)) float32 ndarray
+        The candidate table (:data:`CANDIDATE_COLUMNS`).
+    geometry : (H, W, 3) float32 ndarray
+        The frame's points (x, y, z in metres, camera frame; NaN where invalid), for the server to
+        spill to disk and serve by rectangles.
+    """
+
+    served: ServedFrame
+    valid: np.ndarray
+    zcut_clusters: np.ndarray
+    sor_clusters: np.ndarray
+    candidates: np.ndarray
+    geometry: np.ndarray
 
 
 def _small_uint(ids: np.ndarray, n: int) -> np.ndarray:
@@ -128,7 +183,7 @@ def make_bundle(header: dict, sections: list[tuple[str, str, np.ndarray]], *, co
     meta = []
     offset = 0
     for name, kind, arr in sections:
-        extra: dict[str, int] = {}
+        extra: dict[str, object] = {}
         if kind == "bits":
             blob = pack_mask(arr)
             dtype = "bool"
@@ -146,6 +201,11 @@ def make_bundle(header: dict, sections: list[tuple[str, str, np.ndarray]], *, co
             blob = zlib.compress(deltas.tobytes() + flat[idx].astype(flat.dtype.newbyteorder("<")).tobytes(), 6)
             dtype = flat.dtype.name
             extra["count"] = int(idx.size)
+        elif kind == "table":
+            t = np.ascontiguousarray(arr, dtype="<f4")
+            blob = zlib.compress(t.tobytes(), 1)
+            dtype = "float32"
+            extra["rows"], extra["cols"] = int(t.shape[0]), int(t.shape[1])
         else:  # pragma: no cover - internal
             raise AssertionError(kind)
         if not compress:
@@ -166,6 +226,23 @@ def mask_runs(mask: np.ndarray) -> np.ndarray:
     change = np.flatnonzero(flat[1:] != flat[:-1]) + 1
     lengths = np.diff(np.concatenate(([0], change, [flat.size])))
     return np.concatenate(([0], lengths)) if flat[0] else lengths
+
+
+def runs_to_mask(runs: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Inverse of :func:`mask_runs`: an (H, W) bool mask from its run lengths.
+
+    Raises
+    ------
+    ValueError
+        If a run is negative or the runs do not cover ``H * W`` pixels exactly.
+    """
+    r = np.asarray(runs, dtype=np.int64)
+    if r.ndim != 1 or (r < 0).any():
+        raise ValueError("run lengths must be a 1-D array of non-negative integers")
+    total = int(r.sum())
+    if total != shape[0] * shape[1]:
+        raise ValueError(f"runs cover {total} pixels, the frame has {shape[0] * shape[1]}")
+    return np.repeat(np.arange(r.size) % 2 == 1, r).reshape(shape)
 
 
 def mask_kind(mask: np.ndarray) -> str:
@@ -192,6 +269,32 @@ def parse_view(data: bytes) -> dict[str, bytes]:
     return {name: data[base + off:base + off + length] for name, off, length in json.loads(data[4:base])["parts"]}
 
 
+def make_geometry(points: np.ndarray, *, x0: int, y0: int) -> bytes:
+    """Encode a rectangle of the frame's points (module docstring).
+
+    Parameters
+    ----------
+    points : (h, w, 3) float ndarray
+        x, y, z in metres of the pixels ``[y0:y0+h, x0:x0+w]``.
+    x0, y0 : int
+        The rectangle's top-left pixel (column, row).
+    """
+    h, w = points.shape[:2]
+    head = json.dumps({"x0": int(x0), "y0": int(y0), "width": int(w), "height": int(h),
+                       "channels": list(GEOMETRY_CHANNELS), "dtype": "float32"}).encode()
+    planes = np.ascontiguousarray(np.moveaxis(np.asarray(points, dtype="<f4"), 2, 0))
+    return struct.pack("<I", len(head)) + head + planes.tobytes()
+
+
+def parse_geometry(data: bytes) -> tuple[dict, np.ndarray]:
+    """(header, (h, w, 3) float32 points) of a geometry rectangle."""
+    (n,) = struct.unpack_from("<I", data, 0)
+    header = json.loads(data[4:4 + n])
+    h, w = header["height"], header["width"]
+    planes = np.frombuffer(data, "<f4", offset=4 + n, count=len(header["channels"]) * h * w)
+    return header, np.moveaxis(planes.reshape(len(header["channels"]), h, w), 0, 2)
+
+
 def bundle_with_blobs(header: dict, blobs: list[tuple[str, bytes]]) -> bytes:
     """A bundle of already packed ``bits`` sections (label masks straight from the store)."""
     meta, offset = [], 0
@@ -202,19 +305,38 @@ def bundle_with_blobs(header: dict, blobs: list[tuple[str, bytes]]) -> bytes:
     return struct.pack("<I", len(head)) + head + b"".join(b for _, b in blobs)
 
 
-def height_colormap(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """(H, W, 3) uint8 BGR turbo colour map of the height ``-1000 z``; invalid pixels grey."""
+def height_limits(heights: np.ndarray, valid: np.ndarray) -> tuple[float, float]:
+    """(lo, hi): the 1st and 99th percentile of the valid heights (mm) — the colour map's range.
+
+    (0, 1) without valid pixels; ``hi > lo`` always.
+    """
+    if not valid.any():
+        return 0.0, 1.0
+    lo, hi = np.percentile(heights[valid], [1.0, 99.0])
+    return float(lo), float(max(hi, lo + 1e-6))
+
+
+def height_colormap(xyz: np.ndarray, valid: np.ndarray, *, limits: tuple[float, float] | None = None) -> np.ndarray:
+    """(H, W, 3) uint8 BGR turbo colour map of the height ``-1000 z``; invalid pixels grey.
+
+    ``limits`` (mm) are the heights of the first and the last colour (default :func:`height_limits`).
+    """
     h = height_mm(xyz)
     out = np.full(valid.shape + (3,), INVALID_GRAY, np.uint8)
     if valid.any():
-        v = h[valid]
-        lo, hi = np.percentile(v, [1.0, 99.0])
+        lo, hi = height_limits(h, valid) if limits is None else limits
         scale = 255.0 / max(hi - lo, 1e-9)
         g = np.clip((h - lo) * scale, 0, 255)
         g = np.where(valid, g, 0).astype(np.uint8)
         cm = cv2.applyColorMap(g, cv2.COLORMAP_TURBO)
         out[valid] = cm[valid]
     return out
+
+
+def turbo_lut() -> list[list[int]]:
+    """The 256 RGB colours of the height colour map (OpenCV's turbo), for the page's legend."""
+    bgr = cv2.applyColorMap(np.arange(256, dtype=np.uint8).reshape(1, 256), cv2.COLORMAP_TURBO)[0]
+    return bgr[:, ::-1].astype(int).tolist()
 
 
 def _jpeg(bgr: np.ndarray) -> bytes:
@@ -252,35 +374,187 @@ def candidate_clusters(zcut_outliers: np.ndarray, cut_clusters: np.ndarray | Non
     return _small_uint(z, n_z), n_z, _small_uint(s, int(n_s)), int(n_s)
 
 
-def prepare_frame(frame, *, zcut_outliers: np.ndarray, sor_outliers: np.ndarray,
-                  cut_clusters: np.ndarray | None, warnings: tuple[str, ...] = ()) -> PreparedFrame:
-    """Build the page's view of a frame from the frame and the pipeline's masks.
+def _cluster_stats(ids: np.ndarray, n: int, heights: np.ndarray, valid: np.ndarray, other: np.ndarray
+                   ) -> dict[str, np.ndarray]:
+    """Per-cluster numbers of an id image (ids 1..n): size, box, centroid, heights, gap, overlap."""
+    H, W = ids.shape
+    flat = ids.ravel()
+    pix = np.flatnonzero(flat)
+    lab = flat[pix].astype(np.int64)
+    ys, xs = np.divmod(pix, W)
+    hf = heights.ravel()
+    cnt = np.bincount(lab, minlength=n + 1)[1:]
+    safe = np.maximum(cnt, 1)
+    big = np.iinfo(np.int64).max
+    x0 = np.full(n + 1, big)
+    y0 = np.full(n + 1, big)
+    x1 = np.full(n + 1, -1)
+    y1 = np.full(n + 1, -1)
+    np.minimum.at(x0, lab, xs)
+    np.minimum.at(y0, lab, ys)
+    np.maximum.at(x1, lab, xs)
+    np.maximum.at(y1, lab, ys)
+    hv = hf[pix]
+    h_min = np.full(n + 1, np.inf)
+    h_max = np.full(n + 1, -np.inf)
+    np.minimum.at(h_min, lab, hv)
+    np.maximum.at(h_max, lab, hv)
+    below = np.full(n + 1, -np.inf)
+    vflat = valid.ravel()
+    for dy in range(-RING_PX, RING_PX + 1):
+        for dx in range(-RING_PX, RING_PX + 1):
+            if dy == 0 and dx == 0:
+                continue
+            yy, xx = ys + dy, xs + dx
+            ok = (yy >= 0) & (yy < H) & (xx >= 0) & (xx < W)
+            f = yy[ok] * W + xx[ok]
+            ll = lab[ok]
+            keep = vflat[f] & (flat[f] != ll)
+            np.maximum.at(below, ll[keep], hf[f[keep]])
+    below = below[1:]
+    below[~np.isfinite(below)] = np.nan
+    h_min, h_max = h_min[1:], h_max[1:]
+    return {
+        "n": cnt, "x0": x0[1:], "y0": y0[1:], "x1": x1[1:] + 1, "y1": y1[1:] + 1,
+        "cx": np.bincount(lab, weights=xs + 0.5, minlength=n + 1)[1:] / safe,
+        "cy": np.bincount(lab, weights=ys + 0.5, minlength=n + 1)[1:] / safe,
+        "h_min_mm": h_min, "h_max_mm": h_max, "below_mm": below, "gap_mm": h_min - below,
+        "both": np.bincount(lab, weights=other.ravel()[pix], minlength=n + 1)[1:],
+    }
+
+
+def candidate_table(z_ids: np.ndarray, n_z: int, s_ids: np.ndarray, n_s: int, *, heights: np.ndarray,
+                    valid: np.ndarray, z_levels: np.ndarray | None = None) -> np.ndarray:
+    """The candidate table (:data:`CANDIDATE_COLUMNS`): every z-cut cluster, then the SOR clusters of at
+    least :data:`SOR_LIST_MIN_PX` pixels (the :data:`SOR_LIST_MAX` largest), in id order.
+
+    Parameters
+    ----------
+    z_ids, s_ids : (H, W) uint ndarray
+        Cluster ids of the two filters (0 = none), from :func:`candidate_clusters`.
+    n_z, n_s : int
+        Number of clusters of each.
+    heights : (H, W) float ndarray
+        Heights in mm (larger = higher; NaN where invalid).
+    valid : (H, W) bool ndarray
+    z_levels : (n_z,) int ndarray, optional
+        The z-cut level of each z-cut cluster (-1 where none).
+
+    Returns
+    -------
+    (n, len(CANDIDATE_COLUMNS)) float32 ndarray
+    """
+    rows = []
+    for src, ids, n, other, levels in ((SOURCE_ZCUT, z_ids, n_z, s_ids > 0, z_levels),
+                                       (SOURCE_SOR, s_ids, n_s, z_ids > 0, None)):
+        if n == 0:
+            continue
+        st = _cluster_stats(ids, n, heights, valid, other)
+        keep = np.arange(n)
+        if src == SOURCE_SOR:
+            keep = keep[st["n"] >= SOR_LIST_MIN_PX]
+            if keep.size > SOR_LIST_MAX:
+                keep = np.sort(keep[np.argsort(-st["n"][keep], kind="stable")[:SOR_LIST_MAX]])
+        lev = np.full(n, -1.0) if levels is None else np.asarray(levels, np.float64)
+        cols = {"source": np.full(n, float(src)), "id": np.arange(1, n + 1, dtype=np.float64), "level": lev, **st}
+        rows.append(np.stack([np.asarray(cols[c], np.float64)[keep] for c in CANDIDATE_COLUMNS], axis=1))
+    if not rows:
+        return np.zeros((0, len(CANDIDATE_COLUMNS)), np.float32)
+    return np.concatenate(rows).astype(np.float32)
+
+
+def _z_levels(z_ids: np.ndarray, n_z: int, cut) -> np.ndarray:
+    """The z-cut level of each renumbered z-cut cluster (-1 for outliers outside the cut's clusters)."""
+    out = np.full(n_z, -1, np.int64)
+    clusters = getattr(cut, "clusters", None)
+    levels = getattr(cut, "levels", None)
+    if n_z == 0 or clusters is None or levels is None or clusters.shape != z_ids.shape:
+        return out
+    pix = np.flatnonzero(z_ids.ravel())
+    orig = clusters.ravel()[pix].astype(np.int64)
+    new = z_ids.ravel()[pix].astype(np.int64)
+    ok = (orig > 0) & (orig <= len(levels))
+    out[new[ok] - 1] = np.asarray(levels, np.int64)[orig[ok] - 1]
+    return out
+
+
+def _listed_pixels(z_ids: np.ndarray, s_ids: np.ndarray, table: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of the candidates that frame counts use (z-cut, and SOR of >= SOR_DEFAULT_MIN_PX px),
+    grouped by candidate: (flat indices, starts)."""
+    src = table[:, COLUMN["source"]].astype(int)
+    ids = table[:, COLUMN["id"]].astype(np.int64)
+    n = table[:, COLUMN["n"]]
+    pieces = []
+    for s, id_img in ((SOURCE_ZCUT, z_ids), (SOURCE_SOR, s_ids)):
+        want = ids[(src == s) & ((s == SOURCE_ZCUT) | (n >= SOR_DEFAULT_MIN_PX))]
+        if want.size == 0:
+            continue
+        flat = id_img.ravel()
+        pix = np.flatnonzero(flat)
+        lab = flat[pix].astype(np.int64)
+        lut = np.full(int(lab.max(initial=0)) + 1, -1, np.int64)
+        lut[want] = np.arange(want.size)
+        rank = lut[lab]
+        keep = rank >= 0
+        order = np.argsort(rank[keep], kind="stable")
+        pieces.append((pix[keep][order], np.bincount(rank[keep], minlength=want.size)))
+    if not pieces:
+        return np.zeros(0, np.int32), np.zeros(1, np.int64)
+    pixels = np.concatenate([p for p, _ in pieces]).astype(np.int32)
+    sizes = np.concatenate([c for _, c in pieces])
+    return pixels, np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
+
+
+def prepare_frame(frame, result) -> PreparedFrame:
+    """Build the page's view of a frame from the frame and the pipeline's result for it.
 
     Parameters
     ----------
     frame : replay.logs.frame.Frame
-    zcut_outliers, sor_outliers : (H, W) bool ndarray
-        Candidates of the two filters.
-    cut_clusters : (H, W) int ndarray or None
-        The z-cut's cluster labels (``CutResult.clusters``).
-    warnings : tuple of str
+    result : replay.pipeline.stages.FrameResult
+        Uses ``valid``, ``zone``, ``cut`` (clusters and levels), ``zcut_outliers``, ``sor_outliers``
+        and ``warnings``.
+
+    Returns
+    -------
+    PreparedFrame
     """
-    valid = np.isfinite(frame.xyz).all(axis=2)
-    zc = np.asarray(zcut_outliers, bool) & valid
-    sc = np.asarray(sor_outliers, bool) & valid
-    z_ids, n_z, s_ids, n_s = candidate_clusters(zc, cut_clusters, sc)
-    hbgr = height_colormap(frame.xyz, valid)
+    valid = np.asarray(result.valid, bool)
+    zc = np.asarray(result.zcut_outliers, bool) & valid
+    sc = np.asarray(result.sor_outliers, bool) & valid
+    z_ids, n_z, s_ids, n_s = candidate_clusters(zc, result.cut.clusters, sc)
+    heights = height_mm(frame.xyz)
+    lo, hi = height_limits(heights, valid)
+    table = candidate_table(z_ids, n_z, s_ids, n_s, heights=heights, valid=valid,
+                            z_levels=_z_levels(z_ids, n_z, result.cut))
+    src, n_px, both = table[:, COLUMN["source"]], table[:, COLUMN["n"]], table[:, COLUMN["both"]]
+    counted = (src == SOURCE_ZCUT) | (n_px >= SOR_DEFAULT_MIN_PX)
+    disagreement = int((counted & (2 * both < n_px)).sum())
+    n_sor_listed = int(((src == SOURCE_SOR) & (n_px >= SOR_DEFAULT_MIN_PX)).sum())
+    hbgr = height_colormap(frame.xyz, valid, limits=(lo, hi))
     rgb_jpeg = None if frame.rgb is None else _jpeg(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR))
     H, W = valid.shape
+    warnings = tuple(result.warnings)
     header = {"index": frame.index, "stamp_ns": frame.stamp_ns, "topic": frame.topic, "height": H, "width": W,
-              "n_zcut": n_z, "n_sor": n_s, "has_rgb": frame.rgb is not None, "warnings": list(warnings)}
-    bundle = make_bundle(header, [("valid", mask_kind(valid), valid), ("zcut", "sparse", z_ids), ("sor", "sparse", s_ids)],
-                         compress=False)
-    return PreparedFrame(
+              "n_zcut": n_z, "n_sor": n_s, "n_sor_listed": n_sor_listed, "n_valid": int(valid.sum()),
+              "disagreement": disagreement, "has_rgb": frame.rgb is not None, "warnings": list(warnings),
+              "height_lo_mm": lo, "height_hi_mm": hi, "sor_default_min_px": SOR_DEFAULT_MIN_PX,
+              "candidate_columns": list(CANDIDATE_COLUMNS)}
+    sections = [("valid", mask_kind(valid), valid), ("zcut", "sparse", z_ids), ("sor", "sparse", s_ids),
+                ("candidates", "table", table)]
+    zone = np.asarray(result.zone, bool)
+    if not np.array_equal(zone, valid):
+        sections.append(("zone", mask_kind(zone), zone))
+    bundle = make_bundle(header, sections, compress=False)
+    pixels, starts = _listed_pixels(z_ids, s_ids, table)
+    served = ServedFrame(
         index=frame.index, stamp_ns=frame.stamp_ns, topic=frame.topic, frame_id=frame.frame_id, height=H, width=W,
-        valid=valid, zcut_clusters=z_ids, sor_clusters=s_ids, n_zcut=n_z, n_sor=n_s, rgb_jpeg=rgb_jpeg,
-        height_jpeg=_jpeg(hbgr), bundle=bundle, warnings=tuple(warnings),
+        n_zcut=n_z, n_sor=n_s, n_sor_listed=n_sor_listed, n_valid=int(valid.sum()), disagreement=disagreement,
+        rgb_jpeg=rgb_jpeg, height_jpeg=_jpeg(hbgr), bundle=bundle, warnings=warnings,
+        cand_pixels=pixels, cand_starts=starts,
     )
+    return PreparedFrame(served=served, valid=valid, zcut_clusters=z_ids, sor_clusters=s_ids, candidates=table,
+                         geometry=np.asarray(frame.xyz, np.float32))
 
 
 def parse_bundle(data: bytes) -> tuple[dict, dict[str, np.ndarray]]:
@@ -295,19 +569,18 @@ def parse_bundle(data: bytes) -> tuple[dict, dict[str, np.ndarray]]:
         if s.get("zlib", True):
             raw = zlib.decompress(raw)
         if s["kind"] == "runs":
-            lengths = np.frombuffer(raw, "<u4").astype(np.int64)
-            if int(lengths.sum()) != shape[0] * shape[1]:
-                raise ValueError(f"bundle section {s['name']!r}: runs cover {int(lengths.sum())} pixels, not {shape}")
-            flat = np.repeat(np.arange(lengths.size) % 2 == 1, lengths)
-            out[s["name"]] = flat.reshape(shape)
+            out[s["name"]] = runs_to_mask(np.frombuffer(raw, "<u4"), shape)
         elif s["kind"] == "bits":
-            out[s["name"]] = np.unpackbits(np.frombuffer(raw, np.uint8), count=shape[0] * shape[1]).view(bool).reshape(shape)
+            bits = np.unpackbits(np.frombuffer(raw, np.uint8), count=shape[0] * shape[1])
+            out[s["name"]] = bits.view(bool).reshape(shape)
         elif s["kind"] == "sparse":
             n = s["count"]
             idx = np.cumsum(np.frombuffer(raw, "<u4", count=n).astype(np.int64))
             a = np.zeros(shape[0] * shape[1], np.dtype(s["dtype"]))
             a[idx] = np.frombuffer(raw, np.dtype(s["dtype"]).newbyteorder("<"), count=n, offset=4 * n)
             out[s["name"]] = a.reshape(shape)
+        elif s["kind"] == "table":
+            out[s["name"]] = np.frombuffer(raw, "<f4").reshape(s["rows"], -1)
         else:
             out[s["name"]] = np.frombuffer(raw, np.dtype(s["dtype"]).newbyteorder("<")).reshape(shape)
     return header, out

@@ -20,29 +20,50 @@ Design
   frame and annotator landed in between, it is refused (:class:`LabelConflictError`).
 - **Masks** are stored as ``zlib(packbits(mask.ravel()))`` with their shape; L ⊆ R ⊆ valid is
   checked before anything is written.
+- **One page, a sequence of full states.** A save from the labelling page names the page (``client``,
+  a random id per browser tab) and its sequence number. A page's saves are whole labels, not diffs,
+  so a save whose base is stale only because *the same page* saved since (two of its requests in
+  flight, e.g. the last one sent as the tab closed) is not a conflict: it is appended if it is the
+  newer state, and dropped (:class:`LabelSupersededError`, nothing written) if a newer state of that
+  page is stored already. Saves of any other page or tool in between are a conflict as before.
+- **Names.** An annotator name is stored in NFKC form, stripped, with letters, digits and
+  ``space . - _ '`` only, in one script (Han may go with Latin, kana, Hangul or Bopomofo);
+  :func:`normalize_annotator` refuses anything else, so a Cyrillic ``а`` cannot hide in ``alice``.
+  :meth:`LabelStore.check_new_annotator` also refuses a name whose :func:`annotator_skeleton`
+  (look-alike letters, case and separators folded) equals an existing annotator's.
+- **Servers.** Each ``zcut annotate`` registers itself in the ``servers`` table and updates its
+  heartbeat every few seconds (this table is the only one with updates); :meth:`LabelStore.live_servers`
+  tells a server (and through it the page) that another one serves the same store. Both may run:
+  every write is still a transaction and conflicts are still detected, but two people labelling
+  as the same annotator in two servers will meet conflicts.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import socket
 import sqlite3
 import threading
 import time
+import unicodedata
 import zlib
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Self
 
 import numpy as np
 
 from zcut.errors import InputShapeError, ZcutError, describe_array
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 BUSY_TIMEOUT_MS = 10_000
 #: Largest mask the store accepts (pixels), a guard against absurd shapes from a client.
 MAX_PIXELS = 64_000_000
 MAX_ANNOTATOR_LEN = 64
+#: A server whose heartbeat is older than this is taken for gone (it was killed).
+SERVER_STALE_S = 20.0
 
 # Each entry moves the schema from version i to i + 1 (a list of statements, run in one transaction).
 MIGRATIONS: list[list[str]] = [
@@ -87,6 +108,20 @@ MIGRATIONS: list[list[str]] = [
         """CREATE TRIGGER labels_append_only_delete BEFORE DELETE ON labels
             BEGIN SELECT RAISE(ABORT, 'labels are append-only'); END""",
     ],
+    [
+        "ALTER TABLE labels ADD COLUMN client TEXT",
+        "ALTER TABLE labels ADD COLUMN client_seq INTEGER",
+        """CREATE TABLE servers (
+            id INTEGER PRIMARY KEY,
+            pid INTEGER NOT NULL,
+            host TEXT NOT NULL,
+            port INTEGER,
+            log_sha256 TEXT NOT NULL,
+            started_ns INTEGER NOT NULL,
+            heartbeat_ns INTEGER NOT NULL,
+            stopped_ns INTEGER
+        )""",
+    ],
 ]
 
 
@@ -103,7 +138,28 @@ class LabelConflictError(StoreError):
 
 
 class LabelValidationError(StoreError, ValueError):
-    """A label breaks L ⊆ R ⊆ valid, or its masks have the wrong shape."""
+    """A label breaks L ⊆ R ⊆ valid, or its masks have the wrong shape, or its annotator name is refused."""
+
+
+class LabelSupersededError(StoreError):
+    """A page's save arrived after a newer state of the same page was stored: nothing was written."""
+
+    def __init__(self, message: str, *, latest: int) -> None:
+        super().__init__(message)
+        self.latest = latest
+
+
+@dataclass(frozen=True, slots=True)
+class ServerRecord:
+    """A running ``zcut annotate`` registered in the store (``port`` None when unknown)."""
+
+    id: int
+    pid: int
+    host: str
+    port: int | None
+    log_sha256: str
+    started_ns: int
+    heartbeat_ns: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -226,10 +282,80 @@ def check_label(outliers: np.ndarray, reviewed: np.ndarray, *, valid: np.ndarray
             raise LabelValidationError(f"reviewed must lie inside the valid pixels: {n} reviewed pixels are invalid")
 
 
-def _check_annotator(annotator: str) -> str:
-    if not isinstance(annotator, str) or not (1 <= len(annotator) <= MAX_ANNOTATOR_LEN) or not annotator.isprintable():
+# Letters of other scripts that look like Latin ones (from Unicode's confusables.txt, the common
+# Cyrillic, Greek and Armenian ones) and digits that look like letters.
+_LOOKALIKE = str.maketrans({
+    **dict(zip("авеһіјкӏмнорсѕтуԁԛԝхүѵ", "abehijklmhopcstydqwxyv")),
+    **dict(zip("АВЕНІЈКМОРСЅТХУҮԀԌԜ", "ABEHIJKMOPCSTXYYDGW")),
+    **dict(zip("αβεικνορτυχγ", "abeikvoptuxy")),
+    **dict(zip("ΑΒΕΖΗΙΚΜΝΟΡΤΥΧ", "ABEZHIKMNOPTYX")),
+    **dict(zip("օսհոզ", "ouhnq")),
+    "0": "o", "1": "l", "|": "l",
+})
+_SEPARATORS = " .-_'"
+# Han goes with these scripts in one name (Unicode TS 39, "highly restrictive").
+_SCRIPT_SETS = ({"LATIN", "CJK", "HIRAGANA", "KATAKANA"}, {"LATIN", "CJK", "HANGUL"}, {"LATIN", "CJK", "BOPOMOFO"})
+
+
+def _script(ch: str) -> str:
+    """The script of a letter, from its Unicode name's first word (``LATIN``, ``CYRILLIC``, ``CJK`` ...)."""
+    name = unicodedata.name(ch, "")
+    return name.split(" ", 1)[0] if name else f"U+{ord(ch):04X}"
+
+
+def normalize_annotator(name: object) -> str:
+    """The stored form of an annotator name: NFKC, stripped, inner white space as one space.
+
+    Raises
+    ------
+    LabelValidationError
+        If the name is empty or longer than :data:`MAX_ANNOTATOR_LEN` characters, holds anything but
+        letters, digits, combining marks and ``space . - _ '``, or mixes scripts (a Cyrillic ``а``
+        in ``alice``); the message names the character or the scripts.
+    """
+    if not isinstance(name, str):
+        raise LabelValidationError(f"annotator must be a string, got {type(name).__name__}")
+    s = " ".join(unicodedata.normalize("NFKC", name).split())
+    if not 1 <= len(s) <= MAX_ANNOTATOR_LEN:
+        raise LabelValidationError(f"annotator must be 1..{MAX_ANNOTATOR_LEN} characters, got {len(s)}: {name!r:.80}")
+    scripts: set[str] = set()
+    prev_letter = False
+    for ch in s:
+        cat = unicodedata.category(ch)
+        if cat.startswith("L"):
+            scripts.add(_script(ch))
+            prev_letter = True
+        elif cat.startswith("M") and prev_letter:
+            pass
+        elif cat == "Nd" or ch in _SEPARATORS:
+            prev_letter = False
+        else:
+            label = unicodedata.name(ch, "unnamed")
+            raise LabelValidationError(
+                f"annotator {name!r:.80}: character U+{ord(ch):04X} ({label}) is not allowed "
+                "(letters, digits, space . - _ ' only)")
+    if len(scripts) > 1 and not any(scripts <= allowed for allowed in _SCRIPT_SETS):
         raise LabelValidationError(
-            f"annotator must be 1..{MAX_ANNOTATOR_LEN} printable characters, got {annotator!r:.80}"
+            f"annotator {name!r:.80} mixes scripts ({', '.join(sorted(scripts)).lower()}): "
+            "look-alike letters are refused")
+    return s
+
+
+def annotator_skeleton(name: str) -> str:
+    """What a name looks like: look-alike letters mapped to Latin, case folded, separators dropped.
+
+    Two different names with one skeleton (``alice``, ``Alice``, ``a1ice``, all-Cyrillic ``аӏісе``)
+    would pass for one person in agreement figures.
+    """
+    s = unicodedata.normalize("NFKC", name).translate(_LOOKALIKE).casefold()
+    s = "".join(ch for ch in s if ch not in _SEPARATORS)
+    return s.replace("rn", "m").replace("vv", "w").replace("cl", "d")
+
+
+def _check_annotator(annotator: object) -> str:
+    if not isinstance(annotator, str) or normalize_annotator(annotator) != annotator:
+        raise LabelValidationError(
+            f"annotator {annotator!r:.80} is not in normal form (NFKC, stripped): use normalize_annotator"
         )
     return annotator
 
@@ -301,7 +427,7 @@ class LabelStore:
         with self._lock:
             self._db.close()
 
-    def __enter__(self) -> LabelStore:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -431,6 +557,8 @@ class LabelStore:
         reviewed: np.ndarray,
         base_revision: int | None,
         source: str = "page",
+        client: str | None = None,
+        client_seq: int | None = None,
     ) -> int:
         """Append a label revision and commit it; returns the new revision number.
 
@@ -438,20 +566,35 @@ class LabelStore:
         ----------
         frame : FrameRecord
         annotator : str
+            In normal form (:func:`normalize_annotator`).
         outliers, reviewed : (H, W) bool ndarray
             L and R with L ⊆ R ⊆ the frame's valid pixels (when the store knows them).
         base_revision : int or None
             The annotator's revision this edit started from (None or 0: none yet). If a later revision
-            exists, nothing is written and :class:`LabelConflictError` is raised.
+            exists, nothing is written and :class:`LabelConflictError` is raised — unless every later
+            revision came from the same ``client`` (see the module docstring).
         source : str
             Where the label came from (``page``, ``import``, ...).
+        client : str, optional
+            The page that sent the label (a random id per browser tab), with ``client_seq``.
+        client_seq : int, optional
+            The page's sequence number of this save (increasing per page).
 
         Returns
         -------
         int
             The committed revision.
+
+        Raises
+        ------
+        LabelConflictError
+            Someone else saved since ``base_revision``.
+        LabelSupersededError
+            The same page saved a newer state since ``base_revision``: nothing is written.
         """
         _check_annotator(annotator)
+        if (client is None) != (client_seq is None):
+            raise LabelValidationError("client and client_seq come together")
         if (frame.height, frame.width) != tuple(np.shape(outliers)):
             raise LabelValidationError(
                 f"label shape {tuple(np.shape(outliers))} differs from frame {frame.height}x{frame.width}"
@@ -467,14 +610,25 @@ class LabelStore:
                 (frame.id, annotator),
             ).fetchone()[0]
             if latest != base:
-                raise LabelConflictError(
-                    f"frame {frame.index}: {annotator!r} is at revision {latest}, the edit was based on {base}",
-                    latest=latest,
-                )
+                since = db.execute(
+                    "SELECT client, client_seq FROM labels WHERE frame_id = ? AND annotator = ? AND revision > ?",
+                    (frame.id, annotator, base),
+                ).fetchall()
+                if client is None or base > latest or any(c != client for c, _ in since):
+                    raise LabelConflictError(
+                        f"frame {frame.index}: {annotator!r} is at revision {latest}, the edit was based on {base}",
+                        latest=latest,
+                    )
+                if any(seq >= client_seq for _, seq in since):
+                    raise LabelSupersededError(
+                        f"frame {frame.index}: a newer state of this page is stored already (revision {latest})",
+                        latest=latest,
+                    )
             db.execute(
                 "INSERT INTO labels (frame_id, annotator, revision, created_ns, height, width, outliers, reviewed,"
-                " n_outliers, n_reviewed, source) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                (frame.id, annotator, latest + 1, time.time_ns(), frame.height, frame.width, blob_l, blob_r, n_l, n_r, source),
+                " n_outliers, n_reviewed, source, client, client_seq) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (frame.id, annotator, latest + 1, time.time_ns(), frame.height, frame.width, blob_l, blob_r, n_l, n_r,
+                 source, client, client_seq),
             )
         return latest + 1
 
@@ -539,6 +693,73 @@ class LabelStore:
     def label_count(self) -> int:
         """Number of label revisions in the store (all annotators, all revisions)."""
         return int(self._query("SELECT COUNT(*) FROM labels")[0][0])
+
+    # ------------------------------------------------------------------ names
+    def check_new_annotator(self, name: object, *, also: Iterable[str] = ()) -> str:
+        """The normal form of ``name``, refused if it looks like another annotator's.
+
+        Parameters
+        ----------
+        name : str
+        also : iterable of str
+            Names in use that the store may not hold yet (other pages of a running server).
+
+        Raises
+        ------
+        LabelValidationError
+            :func:`normalize_annotator` refuses it, or its :func:`annotator_skeleton` equals that of
+            a different name in the store or in ``also`` (the message names that one).
+        """
+        s = normalize_annotator(name)
+        skel = annotator_skeleton(s)
+        for other in [*self.annotators(), *also]:
+            if other != s and annotator_skeleton(other) == skel:
+                raise LabelValidationError(
+                    f"annotator {s!r} looks like the existing annotator {other!r}: use {other!r} if that is you, "
+                    "else a name that looks different")
+        return s
+
+    # ---------------------------------------------------------------- servers
+    def register_server(self, *, log_sha256: str, port: int | None = None) -> ServerRecord:
+        """Record this process as a server of the store (see :meth:`live_servers`)."""
+        now = time.time_ns()
+        with self._write() as db:
+            cur = db.execute(
+                "INSERT INTO servers (pid, host, port, log_sha256, started_ns, heartbeat_ns) VALUES (?, ?, ?, ?, ?, ?)",
+                (os.getpid(), socket.gethostname(), port, log_sha256, now, now),
+            )
+            sid = int(cur.lastrowid)
+        return ServerRecord(sid, os.getpid(), socket.gethostname(), port, log_sha256, now, now)
+
+    def heartbeat_server(self, server_id: int) -> None:
+        """Tell the others that the server ``server_id`` still runs."""
+        with self._write() as db:
+            db.execute("UPDATE servers SET heartbeat_ns = ? WHERE id = ?", (time.time_ns(), int(server_id)))
+
+    def unregister_server(self, server_id: int) -> None:
+        """The server ``server_id`` stopped."""
+        with self._write() as db:
+            db.execute("UPDATE servers SET stopped_ns = ? WHERE id = ?", (time.time_ns(), int(server_id)))
+
+    def live_servers(self, *, stale_after_s: float = SERVER_STALE_S) -> list[ServerRecord]:
+        """Servers of this store that have not stopped and beat within ``stale_after_s`` seconds (on
+        this host: whose process still exists), oldest first."""
+        since = time.time_ns() - int(stale_after_s * 1e9)
+        rows = self._query(
+            "SELECT id, pid, host, port, log_sha256, started_ns, heartbeat_ns FROM servers"
+            " WHERE stopped_ns IS NULL AND heartbeat_ns >= ? ORDER BY id", (since,))
+        here = socket.gethostname()
+        return [ServerRecord(*r) for r in rows if r[2] != here or _pid_alive(r[1])]
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True
+    return True
 
 
 def iter_current_labels(store: LabelStore, log: LogRecord, *, annotator: str) -> Iterable[tuple[FrameRecord, Label]]:

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -48,6 +50,54 @@ def spike_frame(index: int, *, shape=(120, 160), seed=0, n_spikes=4) -> tuple[Fr
     return frame, truth
 
 
+#: (rows, cols) of the 13 floating clusters of :func:`review_frame`: twelve of at most 4 pixels, one of 20.
+REVIEW_CLUSTERS = [(1, 1), (1, 1), (1, 2), (2, 1), (1, 2), (2, 2), (1, 3), (2, 2), (1, 1), (2, 2), (1, 2), (2, 2), (4, 5)]
+
+
+def review_frame(index: int = 0, *, shape=(1200, 1920), seed: int = 5) -> tuple[Frame, np.ndarray]:
+    """A bin-like scan to review by hand: a smooth floor 1 m below the camera with three rounded parts
+    on it and 13 small floating clusters (:data:`REVIEW_CLUSTERS`, 4 to 16 mm above the surface), spread
+    over the frame so that at the overview zoom each covers at most a few screen pixels.
+
+    Returns the frame (no truth topic) and the (H, W) truth mask of the floating clusters.
+    """
+    rng = np.random.default_rng(seed + index)
+    h, w = shape
+    fx = fy = 0.8 * w
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    z = 1.0 + 0.00002 * (xx - w / 2) / 10 + 0.00002 * rng.standard_normal((h, w))
+    for cy, cx, r in ((0.3, 0.25, 0.12), (0.65, 0.6, 0.15), (0.35, 0.75, 0.1)):  # parts: spherical caps
+        d2 = ((yy - cy * h) ** 2 + (xx - cx * w) ** 2) / (r * w) ** 2
+        z -= np.where(d2 < 1, 0.008 * np.sqrt(np.clip(1 - d2, 0, 1)), 0)
+    truth = np.zeros((h, w), bool)
+    cells = rng.permutation(24)[:len(REVIEW_CLUSTERS)]  # one cluster per cell of a 4 x 6 grid
+    for k, ((sh, sw), cell) in enumerate(zip(REVIEW_CLUSTERS, cells)):
+        r = int((cell // 6 + rng.uniform(0.2, 0.8)) * h / 4)
+        c = int((cell % 6 + rng.uniform(0.2, 0.8)) * w / 6)
+        z[r:r + sh, c:c + sw] = z[r - 3:r + sh + 3, c - 3:c + sw + 3].min() - 0.004 - 0.001 * k
+        truth[r:r + sh, c:c + sw] = True
+    xyz = np.stack([(xx - w / 2) * z / fx, (yy - h / 2) * z / fy, z], axis=2).astype(np.float32)
+    shade = np.clip(255 * (1.03 - z) / 0.05, 0, 255)
+    rgb = np.stack([0.5 * shade + 60, 0.55 * shade + 60, 0.6 * shade + 70], axis=2)
+    rgb += rng.normal(0, 4, rgb.shape)
+    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+    frame = Frame(xyz=xyz, rgb=rgb, stamp_ns=2_000_000_000 + index * 100_000_000, frame_id="cam",
+                  intrinsics=Intrinsics(fx=fx, fy=fy, cx=w / 2, cy=h / 2, width=w, height=h),
+                  topic=layout.CLOUD, index=index, masks={})
+    return frame, truth
+
+
+def write_review_log(path: Path, *, frames=2, shape=(1200, 1920)) -> list[np.ndarray]:
+    """Write a log of :func:`review_frame` frames; returns the truth masks."""
+    truths = []
+    with LogWriter(path) as wr:
+        for i in range(frames):
+            fr, t = review_frame(i, shape=shape)
+            wr.write_frame(fr)
+            truths.append(t)
+    return truths
+
+
 def write_spike_log(path: Path, *, frames=3, shape=(120, 160), seed=0) -> list[np.ndarray]:
     """Write a small MCAP log of :func:`spike_frame` frames; returns the truth masks."""
     truths = []
@@ -59,14 +109,72 @@ def write_spike_log(path: Path, *, frames=3, shape=(120, 160), seed=0) -> list[n
     return truths
 
 
+def pipeline_result(frame: Frame, *, metadata=None):
+    """The pipeline's result for one frame, with the config resolved as ``zcut annotate`` resolves it
+    (no config file, no bin model): what :func:`annotate.payload.prepare_frame` takes."""
+    from annotate.candidates import PipelineRunner
+
+    return PipelineRunner(metadata or {}).run(frame)
+
+
+@contextlib.contextmanager
+def page_client(base: str, token: str, **kw):
+    """An httpx client with the page-session cookie of ``GET /?token=`` and this server's Origin."""
+    import httpx
+
+    with httpx.Client(base_url=base, headers={"Origin": base}, timeout=kw.pop("timeout", 60), **kw) as c:
+        r = c.get("/", params={"token": token})
+        assert r.status_code == 200 and "set-cookie" in r.headers, r.text
+        yield c
+
+
+class LiveServer:
+    """``annotate.server.make_server`` for a session, in a thread of this process, on a free port of
+    127.0.0.1 (``base``): for a gated catalog or short timeouts. :meth:`stop` also closes the session."""
+
+    def __init__(self, session, **server_kw) -> None:
+        import socket
+        import threading
+
+        from annotate.server import make_server
+
+        self.session = session
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.port = self.sock.getsockname()[1]
+        self.base = f"http://127.0.0.1:{self.port}"
+        self.token = session.token
+        self.server = make_server(session, **server_kw)
+        self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]}, daemon=True)
+        self.thread.start()
+        deadline = time.monotonic() + 30
+        while not self.server.started:
+            if time.monotonic() > deadline or not self.thread.is_alive():
+                raise RuntimeError("in-process server did not start")
+            time.sleep(0.01)
+
+    def headers(self) -> dict[str, str]:
+        return {"X-Zcut-Token": self.token}
+
+    def stop(self) -> None:
+        self.server.should_exit = True
+        self.thread.join(timeout=30)
+        self.sock.close()
+        self.session.close()
+
+
 class ServerProcess:
     """``zcut annotate LOG --no-browser`` in a subprocess on a free port; ``url``, ``token``, ``base``."""
 
-    def __init__(self, log: Path, db: Path, *, annotator: str = "tester", extra=()) -> None:
+    def __init__(self, log: Path, db: Path, *, annotator: str | None = "tester", extra=()) -> None:
+        who = [] if annotator is None else ["--annotator", annotator]
         cmd = [sys.executable, "-m", "replay.cli", "annotate", str(log), "--db", str(db), "--port", "0",
-               "--no-browser", "--annotator", annotator, *extra]
+               "--no-browser", *who, *extra]
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        self.stderr_lines: list[str] = []  # drained by a thread: a full pipe would stall the server
+        self._drain = threading.Thread(target=lambda: self.stderr_lines.extend(self.proc.stderr), daemon=True)
+        self._drain.start()
         self.url = None
         deadline = time.monotonic() + 60
         lines = []
@@ -82,7 +190,7 @@ class ServerProcess:
                 break
         if self.url is None:
             self.kill()
-            raise RuntimeError(f"server did not start: {''.join(lines)} {self.proc.stderr.read()}")
+            raise RuntimeError(f"server did not start: {''.join(lines)} {''.join(self.stderr_lines)}")
         self._wait_ready()
 
     def _wait_ready(self, timeout=120.0) -> None:
@@ -97,17 +205,24 @@ class ServerProcess:
             except httpx.TransportError:
                 pass
             if self.proc.poll() is not None:
-                raise RuntimeError(f"server exited: {self.proc.stderr.read()}")
+                self._drain.join(timeout=10)
+                raise RuntimeError(f"server exited: {''.join(self.stderr_lines)}")
             time.sleep(0.1)
         raise RuntimeError("server did not finish preparing frames")
 
     def headers(self) -> dict[str, str]:
         return {"X-Zcut-Token": self.token}
 
+    def page_client(self, **kw):
+        """An httpx client that behaves like the page: it opened the URL (the token became a cookie) and
+        names this server as the Origin of its writes."""
+        return page_client(self.base, self.token, **kw)
+
     def kill(self) -> None:
         if self.proc.poll() is None:
             self.proc.kill()
         self.proc.wait(timeout=30)
+        self._drain.join(timeout=10)
         for s in (self.proc.stdout, self.proc.stderr):
             if s:
                 s.close()

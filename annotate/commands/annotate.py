@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import getpass
+import sys
 from pathlib import Path
 
 
@@ -13,18 +14,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="label store (default: LOG.labels.sqlite next to the log)")
     p.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (default: a free one)")
     p.add_argument("--no-browser", action="store_true", help="do not open a browser")
-    p.add_argument("--annotator", default=None, help="your name on the labels (default: the login name)")
+    who = p.add_mutually_exclusive_group()
+    who.add_argument("--annotator", default=None,
+                     help="the name every page labels as (default: the login name)")
+    who.add_argument("--ask-annotator", action="store_true",
+                     help="each page session chooses its annotator name once (several people, one server)")
     p.add_argument("--config", type=Path, default=None, help="pipeline config (TOML) for the candidates")
     p.add_argument("--bin-model", type=Path, default=None, help="bin model (PLY) for the bin stages of the pipeline")
+
+
+def _default_annotator() -> str:
+    try:
+        return getpass.getuser()
+    except (OSError, KeyError):  # no login name (e.g. a container without a passwd entry)
+        return "annotator"
 
 
 def run(args: argparse.Namespace) -> int:
     import socket
     import webbrowser
 
-    import uvicorn
-
-    from annotate.server import create_app, open_session
+    from annotate.server import make_server, open_session
     from zcut.errors import ParameterError
 
     if not (0 <= args.port <= 65535):
@@ -32,10 +42,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.log.is_file():
         raise FileNotFoundError(2, "no such file", str(args.log))
     db = args.db or args.log.with_suffix(".labels.sqlite")
-    try:
-        annotator = args.annotator or getpass.getuser()
-    except (OSError, KeyError):  # no login name (e.g. a container without a passwd entry)
-        annotator = "annotator"
+    annotator = None if args.ask_annotator else _default_annotator() if args.annotator is None else args.annotator
     from replay.pipeline.bin_model import load_bin_model
 
     model = load_bin_model(args.bin_model) if args.bin_model else None
@@ -51,18 +58,18 @@ def run(args: argparse.Namespace) -> int:
             raise ParameterError(f"--port {args.port}: cannot listen on 127.0.0.1: {e.strerror}") from None
         port = sock.getsockname()[1]
         session = open_session(args.log, db, annotator=annotator, config_path=args.config, bin_model=model)
-        url = f"http://127.0.0.1:{port}/?token={session.token}"
+        for other in session.announce(port):
+            print(f"warning: {other} serves the same label store {db}: edits from both are kept, "
+                  "but the same annotator on both will meet conflicts", file=sys.stderr, flush=True)
         print(f"labels: {db}", flush=True)
-        print(f"annotator: {session.annotator}", flush=True)
+        print(f"annotator: {session.annotator or '(each page chooses its own)'}", flush=True)
+        url = f"http://127.0.0.1:{port}/?token={session.token}"
         print(url, flush=True)
         if not args.no_browser:
             webbrowser.open(url)
-        config = uvicorn.Config(create_app(session), log_level="warning", access_log=False,
-                                timeout_graceful_shutdown=5)
-        uvicorn.Server(config).run(sockets=[sock])
+        make_server(session).run(sockets=[sock])
     finally:
         if session is not None:
-            session.catalog.stop()
-            session.store.close()
+            session.close()
         sock.close()
     return 0

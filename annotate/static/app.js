@@ -1,31 +1,43 @@
-// zcut labelling page. Vanilla JS + canvas, no build step.
-// Data per frame: one binary bundle (valid mask, candidate cluster ids), a JPEG per view, and the
-// annotator's current label (outliers L, reviewed R). L ⊆ R ⊆ valid is kept by every tool.
+// zcut labelling page. Vanilla JS + canvas (+ WebGL for the 3D view), no build step, nothing from the
+// network: every file comes from this server.
+// Data per frame: one binary bundle (valid mask, candidate cluster ids, the candidate table), a JPEG
+// per view, the annotator's current label (outliers L, reviewed R), and exact points (x, y, z) fetched
+// by 64 x 64 tiles for the cursor read-out, the profile and the 3D view. L ⊆ R ⊆ valid is kept by every
+// tool; R grows only by decisions (accept, reject, paint) and by the explicit "reviewed" (Enter).
 'use strict';
 
+import { PointView } from './view3d.js';
+
 const BOOT = JSON.parse(document.getElementById('boot').textContent);
-const TOKEN = BOOT.token;
 const $ = (id) => document.getElementById(id);
+const TILE = 64;
+const CLIENT = Array.from(crypto.getRandomValues(new Uint8Array(12)), (b) => b.toString(16).padStart(2, '0')).join('');
+const KEEPALIVE_MAX = 60000;  // bytes a keepalive request may carry (browsers allow 64 KiB in flight)
 
-function api(path, opts = {}) {
-  const headers = Object.assign({}, opts.headers || {}, { 'X-Zcut-Token': TOKEN });
-  return fetch(path, Object.assign({}, opts, { headers }));
+// The token came in the URL: the server answered with a cookie; take the token out of the address
+// bar and the history at once.
+if (location.search) history.replaceState(null, '', '/' + location.hash);
+
+async function fetchRetry(path, opts = {}, onWait = null) {  // 503 + Retry-After: ask again
+  for (let tries = 0; ; tries++) {
+    const r = await fetch(path, opts);
+    if (r.status !== 503 || tries >= 600) return r;
+    const wait = Math.min(5, Math.max(0.2, parseFloat(r.headers.get('Retry-After') || '1')));
+    if (onWait) onWait(wait);
+    await new Promise((res) => setTimeout(res, wait * 1000));
+  }
 }
-
 async function fetchOk(path) {
-  const r = await api(path);
-  if (!r.ok) throw new Error(`${path}: HTTP ${r.status}`);
+  const r = await fetchRetry(path);
+  if (!r.ok) throw new Error(`${path}: HTTP ${r.status} ${(await r.text()).slice(0, 200)}`);
   return r;
 }
 
-// ------------------------------------------------------------------ the worker (fetch, decode, pack)
-const worker = new Worker(`/static/worker.js?token=${encodeURIComponent(TOKEN)}`);
-worker.postMessage({ type: 'token', token: TOKEN });
+// ------------------------------------------------------------------ the workers (fetch, decode)
+const worker = new Worker('/static/worker.js');
+const imageWorker = new Worker('/static/worker.js');  // decodes JPEGs while the first unpacks masks
 const pending = new Map();
 let nextId = 1;
-// a second worker only decodes JPEGs: the image decodes in parallel with the masks
-const imageWorker = new Worker(`/static/worker.js?token=${encodeURIComponent(TOKEN)}`);
-imageWorker.postMessage({ type: 'token', token: TOKEN });
 worker.onmessage = imageWorker.onmessage = (e) => {
   const m = e.data, p = pending.get(m.id);
   if (!p) return;
@@ -36,41 +48,41 @@ function call(msg, transfer = [], w = worker) {
   const id = nextId++;
   return new Promise((resolve, reject) => { pending.set(id, { resolve, reject }); w.postMessage({ ...msg, id }, transfer); });
 }
-function expectReply() {  // a second reply to one message (the frame's image): [id, promise]
+function expectReply() {  // a second reply to one message (the frame's overlay bitmap): [id, promise]
   const id = nextId++;
   return [id, new Promise((resolve, reject) => pending.set(id, { resolve, reject }))];
 }
 
 // ------------------------------------------------------------------ state
 const state = {
-  annotator: localStorage.getItem('zcut.annotator') || BOOT.annotator,
-  frames: [], total: 0, done: false,
-  cur: null, tool: 'select', brush: 8,
-  showZ: true, showS: true, showL: true, showH: false,
-  zoom: 1, px: 0, py: 0, fitted: false,
+  annotator: BOOT.annotator, mode: BOOT.mode,
+  frames: [], order: [], orderBy: 'index', total: 0, done: false, target: null,
+  cur: null, tool: 'select', brush: 8, sorMin: 5, sortKey: 'gap',
+  showZ: true, showS: true, showL: true, showH: false, showMini: true,
+  zoom: 1, px: 0, py: 0, fitted: false, sel: -1, profile: null, conflictView: 'mine', turbo: null,
 };
 const cache = new Map();  // index -> Promise<frame>
+const loaded = new Map();  // index -> frame, once loaded (read synchronously when the page goes away)
 const CACHE_RADIUS = 2;
-window.zcut = { switchTimes: [], acks: [], errors: [], loads: [] };
+window.zcut = { switchTimes: [], acks: [], errors: [], loads: [], viewTimes: [], inputs: 0, pans: 0 };
 
-const COL_L = rgba(255, 30, 60, 200), COL_Z = rgba(255, 170, 0, 120), COL_S = rgba(40, 150, 255, 120);
-const COL_ZS = rgba(190, 90, 255, 140), COL_UNREV = rgba(0, 0, 0, 150);
+const COL_L = rgba(255, 30, 60, 200), COL_Z = rgba(255, 170, 0, 150), COL_S = rgba(40, 150, 255, 140);
+const COL_ZS = rgba(190, 90, 255, 160), COL_UNREV = rgba(0, 0, 0, 150), COL_DIFF = rgba(255, 0, 255, 220);
 function rgba(r, g, b, a) { return ((a << 24) | (b << 16) | (g << 8) | r) >>> 0; }
+const COL = {  // candidate colours by source and state (markers, list, profile, 3D)
+  z: '#ffaa00', s: '#2896ff', L: '#ff4da6', accepted: '#ff1e3c', rejected: '#5fd38d', sel: '#ffffff',
+};
+const RGB = { accepted: [255, 30, 60], rejected: [95, 211, 141], z: [255, 170, 0], s: [40, 150, 255], L: [255, 77, 166] };
 
 // ------------------------------------------------------------------ loading frames
-function flags() { return { showL: state.showL, showZ: state.showZ, showS: state.showS }; }
-function sameFlags(a, b) { return a && a.showL === b.showL && a.showZ === b.showZ && a.showS === b.showS; }
+function flags() { return { showL: state.showL, showZ: state.showZ, showS: state.showS, sorMin: state.sorMin }; }
+function sameFlags(a, b) { return a && a.showL === b.showL && a.showZ === b.showZ && a.showS === b.showS && a.sorMin === b.sorMin; }
 function viewKind() { return state.showH ? 'height' : 'rgb'; }
 
 function setLabel(fd, lab) {
-  fd.rev = lab.rev; fd.L = lab.L; fd.R = lab.R; fd.hasR = lab.hasR;
+  fd.rev = lab.rev; fd.L = lab.L; fd.R = lab.R; fd.nR = lab.nR;
   fd.committedL = fd.L.slice(); fd.committedR = fd.R.slice();
-  fd.undo = []; fd.redo = []; fd.dirty = false; fd.conflict = 0;
-}
-
-async function loadLabel(fd) {
-  setLabel(fd, await call({ type: 'label', index: fd.index, annotator: state.annotator, W: fd.W, H: fd.H }));
-  fd.ovFlags = null;
+  fd.undo = []; fd.redo = []; fd.dirty = false; fd.conflict = null;
 }
 
 function loadFrame(index) {
@@ -82,7 +94,7 @@ function loadFrame(index) {
     const image = call({ type: 'image', index, kind }, [], imageWorker);
     let m;
     try {
-      m = await call({ type: 'frame', index, annotator: state.annotator, flags: flags(), imageId });
+      m = await call({ type: 'frame', index, flags: flags(), imageId });
     } catch (e) {
       pending.delete(imageId);
       image.then((im) => im.bitmap.close(), () => {});
@@ -91,24 +103,25 @@ function loadFrame(index) {
     const t1 = performance.now();
     const h = m.header;
     const fd = {
-      index, stamp: h.stamp_ns, W: h.width, H: h.height, header: h,
-      valid: m.valid, zIds: m.zIds, sIds: m.sIds, bmp: {},
-      saving: false, pendingSave: false, annotator: state.annotator,
+      index, stamp: h.stamp_ns, W: h.width, H: h.height, header: h, nValid: h.n_valid,
+      valid: m.valid, zone: m.zone, zIds: m.zIds, sIds: m.sIds, sSize: m.sSize, bmp: {},
+      zStart: m.zStart, zPix: m.zPix, sStart: m.sStart, sPix: m.sPix, cand: m.cand, cols: h.candidate_columns,
+      tiles: new Map(), saving: false, pendingSave: false, seq: 0,
     };
     setLabel(fd, m);
-    // the overlay arrives as pixels (ov32, edited here) and as a bitmap the worker made of them
-    // (drawn until the first edit: then ensureOvCanvas uploads the pixels to a canvas)
+    buildEntries(fd);
     fd.ovCanvas = null; fd.octx = null;
     fd.ovImg = new ImageData(m.ov, fd.W, fd.H);
     fd.ov32 = new Uint32Array(m.ov.buffer);
-    fd.ovFlags = flags();
+    fd.ovFlags = flags(); fd.ovShade = m.shade;
     const t2 = performance.now();
     let im;
-    try { im = await image; } catch (e) { overlay.then((o) => o.overlay.close(), () => {}); throw e; }  // decoded meanwhile
+    try { im = await image; } catch (e) { overlay.then((o) => o.overlay.close(), () => {}); throw e; }
     fd.bmp[kind] = im.bitmap;
     fd.ovBmp = (await overlay).overlay;
     window.zcut.loads.push({ index, worker: t1 - t0, main: t2 - t1, image: im.decoded, wait: performance.now() - t2,
                              ...m.timing });
+    loaded.set(index, fd);
     return fd;
   })();
   cache.set(index, p);
@@ -121,18 +134,22 @@ function bitmapFor(fd) {
   if (fd.bmp[kind]) return fd.bmp[kind];
   if (!fd.bmpLoading) {
     fd.bmpLoading = call({ type: 'image', index: fd.index, kind }, [], imageWorker).then((m) => {
-      fd.bmp[kind] = m.bitmap; fd.bmpLoading = null; requestDraw();
+      fd.bmp[kind] = m.bitmap; fd.bmpLoading = null; fd.mini = null; requestDraw();
     }, (e) => { fd.bmpLoading = null; showError(String(e)); });
   }
   return fd.bmp.rgb || fd.bmp.height;
 }
 
 function evict(center) {
+  const keep = new Set();
+  const k = state.order.indexOf(center);
+  for (let d = -CACHE_RADIUS; d <= CACHE_RADIUS; d++) if (k + d >= 0 && k + d < state.order.length) keep.add(state.order[k + d]);
+  keep.add(center);
   for (const [i, p] of cache) {
-    if (Math.abs(i - center) <= CACHE_RADIUS) continue;
+    if (keep.has(i)) continue;
     p.then((fd) => {
-      if (fd.dirty || fd.saving || state.cur === fd) return;
-      cache.delete(i);
+      if (fd.dirty || fd.saving || fd.conflict || state.cur === fd) return;
+      cache.delete(i); loaded.delete(i);
       for (const b of Object.values(fd.bmp)) b.close();
       if (fd.ovBmp) { fd.ovBmp.close(); fd.ovBmp = null; }
       if (fd.ovCanvas) fd.ovCanvas.width = fd.ovCanvas.height = 0;
@@ -140,8 +157,401 @@ function evict(center) {
   }
 }
 
+// ------------------------------------------------------------------ candidates
+// An entry: {src: 'z' | 's' | 'L', id, n, x0, y0, x1, y1, cx, cy, hmin, below, gap, both, level, pix}
+function buildEntries(fd) {
+  const c = fd.cols, nc = c.length, rows = fd.cand.length / nc, col = Object.fromEntries(c.map((n, i) => [n, i]));
+  const out = [];
+  for (let r = 0; r < rows; r++) {
+    const v = (name) => fd.cand[r * nc + col[name]];
+    const src = v('source') === 0 ? 'z' : 's', id = v('id');
+    const start = src === 'z' ? fd.zStart : fd.sStart, pixAll = src === 'z' ? fd.zPix : fd.sPix;
+    out.push({ src, id, n: v('n'), x0: v('x0'), y0: v('y0'), x1: v('x1'), y1: v('y1'), cx: v('cx'), cy: v('cy'),
+               hmin: v('h_min_mm'), hmax: v('h_max_mm'), below: v('below_mm'), gap: v('gap_mm'), both: v('both'),
+               level: v('level'), pix: pixAll.subarray(start[id], start[id + 1]) });
+  }
+  fd.base = out;
+  fd.labelEntries = labelComponents(fd);
+  refreshList(fd, false);
+}
+
+// Components of L that no listed candidate covers (painted by hand): listed as 'L' entries.
+function labelComponents(fd) {
+  const W = fd.W, H = fd.H, L = fd.L, out = [];
+  const covered = new Uint8Array(L.length);
+  for (const e of fd.base) for (const i of e.pix) covered[i] = 1;
+  const seen = new Uint8Array(L.length);
+  const stack = [];
+  for (let i = 0; i < L.length; i++) {
+    if (!L[i] || seen[i] || covered[i]) continue;
+    const pix = []; let x0 = W, y0 = H, x1 = 0, y1 = 0, sx = 0, sy = 0;
+    stack.push(i); seen[i] = 1;
+    while (stack.length) {
+      const j = stack.pop(); pix.push(j);
+      const x = j % W, y = (j / W) | 0;
+      x0 = Math.min(x0, x); x1 = Math.max(x1, x); y0 = Math.min(y0, y); y1 = Math.max(y1, y); sx += x + 0.5; sy += y + 0.5;
+      for (let dy = -1; dy <= 1; dy++) for (let dx = -1; dx <= 1; dx++) {
+        const xx = x + dx, yy = y + dy;
+        if (xx < 0 || yy < 0 || xx >= W || yy >= H) continue;
+        const k = yy * W + xx;
+        if (L[k] && !seen[k] && !covered[k]) { seen[k] = 1; stack.push(k); }
+      }
+    }
+    out.push({ src: 'L', id: out.length + 1, n: pix.length, x0, y0, x1: x1 + 1, y1: y1 + 1, cx: sx / pix.length,
+               cy: sy / pix.length, hmin: NaN, hmax: NaN, below: NaN, gap: NaN, both: 0, level: -1, pix: Int32Array.from(pix) });
+    if (out.length >= 2000) break;
+  }
+  return out;
+}
+
+function entryState(fd, e) {
+  let inL = 0, inR = 0;
+  for (const i of e.pix) { inL += fd.L[i]; inR += fd.R[i]; }
+  return 2 * inL >= e.n ? 'accepted' : 2 * inR >= e.n ? 'rejected' : 'undecided';
+}
+
+const SORTS = {
+  gap: (a, b) => (isNaN(b.gap) ? -Infinity : b.gap) - (isNaN(a.gap) ? -Infinity : a.gap),
+  size: (a, b) => b.n - a.n,
+  disagree: (a, b) => (a.both / a.n) - (b.both / b.n) || SORTS.gap(a, b),
+  position: (a, b) => (a.cy - b.cy) || (a.cx - b.cx),
+};
+
+// The list: every z-cut cluster, SOR clusters of at least sorMin pixels that the z-cut does not
+// mostly cover (those are decided with it), and the hand-painted components; sorted by sortKey.
+function refreshList(fd, keepSel = true) {
+  const selE = keepSel && state.cur === fd && state.sel >= 0 ? fd.entries[state.sel] : null;
+  const list = fd.base.filter((e) => (e.src === 'z' && state.showZ) ||
+    (e.src === 's' && state.showS && e.n >= state.sorMin && 2 * e.both < e.n));
+  list.push(...fd.labelEntries);
+  list.sort((a, b) => SORTS[state.sortKey](a, b) || (a.cy - b.cy) || (a.cx - b.cx));
+  fd.entries = list;
+  if (state.cur === fd) {
+    state.sel = selE ? list.indexOf(selE) : -1;
+    renderList();
+  }
+}
+
+function renderList() {
+  const fd = state.cur, box = $('candlist');
+  if (!fd) { box.innerHTML = ''; return; }
+  const states = fd.entries.map((e) => entryState(fd, e));
+  fd.states = states;
+  const nUnd = states.filter((s) => s === 'undecided').length;
+  $('candcount').textContent = `${fd.entries.length} · ${fd.entries.length - nUnd} decided`;
+  const frag = document.createDocumentFragment();
+  const MAX_ROWS = 300;
+  fd.entries.slice(0, MAX_ROWS).forEach((e, k) => {
+    const row = document.createElement('div');
+    row.className = `cand ${states[k]}${k === state.sel ? ' sel' : ''}`;
+    row.dataset.k = k;
+    const agree = e.src === 'L' ? 'by hand' : `${Math.round(100 * e.both / e.n)} %`;
+    const gap = isNaN(e.gap) ? 'gap ?' : `gap ${e.gap.toFixed(2)} mm`;
+    row.innerHTML = `<span class="src ${e.src}">${e.src === 'z' ? 'z-cut' : e.src === 's' ? 'SOR' : 'label'}</span>` +
+      `<span>${e.n} px</span><span>${gap}</span><span class="agree">${agree}</span><span class="st">${
+        states[k] === 'accepted' ? 'outlier' : states[k] === 'rejected' ? 'not outlier' : '·'}</span>`;
+    row.onclick = () => { window.zcut.inputs++; select(k, { zoom: true }); };
+    frag.appendChild(row);
+  });
+  if (fd.entries.length > MAX_ROWS) {
+    const more = document.createElement('div');
+    more.className = 'more'; more.textContent = `… ${fd.entries.length - MAX_ROWS} more (raise the SOR size filter)`;
+    frag.appendChild(more);
+  }
+  const head = document.createElement('div');
+  head.className = 'cand head';
+  head.innerHTML = '<span>filter</span><span>size</span><span>gap below</span><span title="pixels the other filter flags too">other</span><span>decision</span>';
+  box.replaceChildren(head, frag);
+  const selRow = box.querySelector('.sel');
+  if (selRow) selRow.scrollIntoView({ block: 'nearest' });
+  updateStatus();
+}
+
+function select(k, { zoom = true, t0 = performance.now() } = {}) {
+  const fd = state.cur; if (!fd) return;
+  if (k < 0 || k >= fd.entries.length) { state.sel = -1; renderList(); requestDraw(); return; }
+  state.sel = k;
+  const e = fd.entries[k];
+  if (zoom) zoomTo(e);
+  state.profile = defaultProfile(fd, e);
+  renderList();
+  requestDraw();
+  showViews(fd, e, t0);
+  prefetchNeighbourhoods(fd, k);
+}
+
+function nextUndecided(fd, from) {
+  const n = fd.entries.length;
+  for (let d = 1; d <= n; d++) {
+    const k = (from + d + n) % n;
+    if (entryState(fd, fd.entries[k]) === 'undecided') return k;
+  }
+  return -1;
+}
+
+function decide(accept, t0) {
+  const fd = state.cur; if (!fd || state.sel < 0) return;
+  const e = fd.entries[state.sel];
+  beginAction(fd);
+  for (const i of e.pix) setPixel(fd, i, accept ? 'add' : 'erase');
+  touch(e.x0, e.y0, e.x1, e.y1);
+  endAction(fd);
+  const k = nextUndecided(fd, state.sel);
+  if (k >= 0) select(k, { zoom: true, t0 });
+  else { state.sel = -1; renderList(); requestDraw(); setSaveState('every candidate decided: Enter marks the frame reviewed', 'saved'); }
+}
+
+function decideAll(accept) {  // every undecided listed candidate (one undo step)
+  const fd = state.cur; if (!fd) return;
+  beginAction(fd);
+  fd.entries.forEach((e) => {
+    if (entryState(fd, e) !== 'undecided') return;
+    for (const i of e.pix) setPixel(fd, i, accept ? 'add' : 'erase');
+    touch(e.x0, e.y0, e.x1, e.y1);
+  });
+  endAction(fd);
+}
+
+// ------------------------------------------------------------------ geometry tiles (exact points)
+function tileKey(tx, ty) { return ty * 100000 + tx; }
+function ensureTiles(fd, x0, y0, x1, y1) {  // Promise: every 64 x 64 tile touching the rectangle loaded
+  x0 = Math.max(0, Math.floor(x0)); y0 = Math.max(0, Math.floor(y0));
+  x1 = Math.min(fd.W, Math.ceil(x1)); y1 = Math.min(fd.H, Math.ceil(y1));
+  const waits = [], missing = [];
+  for (let ty = Math.floor(y0 / TILE); ty * TILE < y1; ty++) for (let tx = Math.floor(x0 / TILE); tx * TILE < x1; tx++) {
+    const t = fd.tiles.get(tileKey(tx, ty));
+    if (t instanceof Promise) waits.push(t); else if (!t) missing.push([tx, ty]);
+  }
+  if (missing.length) {
+    // one request per row of missing tiles (at most 4 tiles a row: 256 px)
+    const rows = new Map();
+    for (const [tx, ty] of missing) { if (!rows.has(ty)) rows.set(ty, []); rows.get(ty).push(tx); }
+    for (const [ty, txs] of rows) {
+      txs.sort((a, b) => a - b);
+      for (let a = 0; a < txs.length; a += 4) {
+        const group = txs.slice(a, a + 4), tA = group[0], tB = group[group.length - 1];
+        const p = fetchTiles(fd, tA, tB, ty);
+        for (let tx = tA; tx <= tB; tx++) if (!fd.tiles.get(tileKey(tx, ty))) fd.tiles.set(tileKey(tx, ty), p);
+        waits.push(p);
+      }
+    }
+  }
+  return Promise.all(waits);
+}
+async function fetchTiles(fd, tA, tB, ty) {
+  const x0 = tA * TILE, x1 = Math.min(fd.W, (tB + 1) * TILE), y0 = ty * TILE, y1 = Math.min(fd.H, (ty + 1) * TILE);
+  const r = await fetchOk(`/api/frames/${fd.index}/geometry?x0=${x0}&y0=${y0}&x1=${x1}&y1=${y1}`);
+  const buf = await r.arrayBuffer();
+  const n = new DataView(buf).getUint32(0, true);
+  const head = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
+  const w = head.width, h = head.height, planes = new Float32Array(buf.slice(4 + n));
+  for (let tx = tA; tx <= tB; tx++) {
+    const t = new Float32Array(3 * TILE * TILE).fill(NaN);
+    for (let c = 0; c < 3; c++) for (let yy = 0; yy < h; yy++) for (let xx = 0; xx < TILE; xx++) {
+      const gx = tx * TILE + xx - x0;
+      if (gx >= w) break;
+      t[c * TILE * TILE + yy * TILE + xx] = planes[c * w * h + yy * w + gx];
+    }
+    fd.tiles.set(tileKey(tx, ty), t);
+  }
+}
+function point(fd, x, y) {  // [x, y, z] metres of pixel (x, y), or null (not loaded / no point)
+  const t = fd.tiles.get(tileKey(Math.floor(x / TILE), Math.floor(y / TILE)));
+  if (!(t instanceof Float32Array)) return null;
+  const k = (y % TILE) * TILE + (x % TILE), X = t[k];
+  if (Number.isNaN(X)) return null;
+  return [X, t[TILE * TILE + k], t[2 * TILE * TILE + k]];
+}
+
+function neighbourhood(fd, e) {  // square around the cluster: 3 x its size, 48..128 px
+  const side = Math.min(128, Math.max(48, 3 * Math.max(e.x1 - e.x0, e.y1 - e.y0)));
+  const cx = (e.x0 + e.x1) / 2, cy = (e.y0 + e.y1) / 2;
+  const x0 = Math.max(0, Math.round(cx - side / 2)), y0 = Math.max(0, Math.round(cy - side / 2));
+  return { x0, y0, x1: Math.min(fd.W, x0 + side), y1: Math.min(fd.H, y0 + side) };
+}
+function prefetchNeighbourhoods(fd, k) {
+  for (let d = 1; d <= 2; d++) {
+    const e = fd.entries[k + d];
+    if (e) { const nb = neighbourhood(fd, e); ensureTiles(fd, nb.x0, nb.y0, nb.x1, nb.y1).catch(() => {}); }
+  }
+}
+
+// ------------------------------------------------------------------ profile and 3D view
+function defaultProfile(fd, e) {  // a horizontal line through the cluster's centre
+  const half = Math.max(32, 2 * (e.x1 - e.x0));
+  const y = Math.min(fd.H - 1, Math.floor(e.cy));
+  return { x0: Math.max(0, Math.floor(e.cx - half)), y0: y, x1: Math.min(fd.W - 1, Math.ceil(e.cx + half)), y1: y, entry: e };
+}
+
+function pixelClass(fd, i) {
+  if (fd.L[i]) return 'accepted';
+  if (fd.zIds[i]) return fd.R[i] ? 'rejected' : 'z';
+  if (fd.sIds[i] && fd.sSize[fd.sIds[i]] >= state.sorMin) return fd.R[i] ? 'rejected' : 's';
+  return null;
+}
+
+async function showViews(fd, e, t0) {
+  const token = (showViews.token = (showViews.token || 0) + 1);
+  const nb = neighbourhood(fd, e), pr = state.profile;
+  const x0 = Math.min(nb.x0, pr.x0, pr.x1), x1 = Math.max(nb.x1, pr.x0 + 1, pr.x1 + 1);
+  const y0 = Math.min(nb.y0, pr.y0, pr.y1), y1 = Math.max(nb.y1, pr.y0 + 1, pr.y1 + 1);
+  try { await ensureTiles(fd, x0, y0, x1, y1); } catch (err) { showError(String(err)); return; }
+  if (token !== showViews.token || state.cur !== fd) return;
+  if (isNaN(e.gap) && e.src === 'L') fillLabelEntryHeights(fd, e);
+  drawProfile();
+  draw3d(fd, e, nb);
+  requestAnimationFrame(() => {
+    const ms = performance.now() - t0;
+    window.zcut.viewTimes.push({ index: fd.index, entry: state.sel, profile: ms, view3d: ms });
+  });
+}
+
+function fillLabelEntryHeights(fd, e) {  // heights of a painted component, from the loaded tiles
+  const inE = new Set(e.pix);
+  let hmin = Infinity, below = -Infinity;
+  for (const i of e.pix) { const p = point(fd, i % fd.W, (i / fd.W) | 0); if (p) hmin = Math.min(hmin, -1000 * p[2]); }
+  for (const i of e.pix) {
+    const x = i % fd.W, y = (i / fd.W) | 0;
+    for (let dy = -2; dy <= 2; dy++) for (let dx = -2; dx <= 2; dx++) {
+      const xx = x + dx, yy = y + dy;
+      if (xx < 0 || yy < 0 || xx >= fd.W || yy >= fd.H || inE.has(yy * fd.W + xx)) continue;
+      const p = point(fd, xx, yy); if (p) below = Math.max(below, -1000 * p[2]);
+    }
+  }
+  if (Number.isFinite(hmin)) e.hmin = hmin;
+  if (Number.isFinite(below)) { e.below = below; e.gap = hmin - below; }
+}
+
+function sampleProfile(fd, pr) {  // pixels along the line, with heights (mm) and a distance (mm)
+  const len = Math.hypot(pr.x1 - pr.x0, pr.y1 - pr.y0), n = Math.max(2, Math.ceil(len * 2));
+  const out = [], seen = new Set();
+  for (let k = 0; k <= n; k++) {
+    const x = Math.round(pr.x0 + (pr.x1 - pr.x0) * k / n), y = Math.round(pr.y0 + (pr.y1 - pr.y0) * k / n);
+    const i = y * fd.W + x;
+    if (seen.has(i)) continue;
+    seen.add(i);
+    const p = point(fd, x, y);
+    out.push({ t: len * k / n, i, p, h: p ? -1000 * p[2] : NaN });
+  }
+  // mm per pixel along the line, from neighbouring surface points (the candidates float: not them)
+  const ratios = [];
+  for (let k = 1; k < out.length; k++) {
+    const a = out[k - 1], b = out[k];
+    if (!a.p || !b.p || pixelClass(fd, a.i) || pixelClass(fd, b.i)) continue;
+    ratios.push(1000 * Math.hypot(b.p[0] - a.p[0], b.p[1] - a.p[1]) / Math.max(b.t - a.t, 1e-9));
+  }
+  ratios.sort((a, b) => a - b);
+  const mmPerPx = ratios.length ? ratios[ratios.length >> 1] : 1;
+  for (const s of out) s.s = s.t * mmPerPx;
+  return { samples: out, mmPerPx };
+}
+
+function niceStep(range, n) {
+  const raw = range / n, p = Math.pow(10, Math.floor(Math.log10(raw))), f = raw / p;
+  return (f < 1.5 ? 1 : f < 3.5 ? 2 : f < 7.5 ? 5 : 10) * p;
+}
+
+function drawProfile() {
+  const fd = state.cur, pr = state.profile, cv = $('profile'), g = cv.getContext('2d');
+  const dpr = window.devicePixelRatio || 1, W = Math.round(cv.clientWidth * dpr), H = Math.round(cv.clientHeight * dpr);
+  if (cv.width !== W || cv.height !== H) { cv.width = W; cv.height = H; }
+  g.setTransform(dpr, 0, 0, dpr, 0, 0);
+  const w = cv.clientWidth, h = cv.clientHeight;
+  g.fillStyle = '#121214'; g.fillRect(0, 0, w, h);
+  if (!fd || !pr) { $('profinfo').textContent = ''; return; }
+  const { samples, mmPerPx } = sampleProfile(fd, pr);
+  const valid = samples.filter((s) => s.p);
+  if (!valid.length) { $('profinfo').textContent = 'no points on this line'; return; }
+  const e = pr.entry;
+  let lo = Math.min(...valid.map((s) => s.h)), hi = Math.max(...valid.map((s) => s.h));
+  if (e && !isNaN(e.below)) lo = Math.min(lo, e.below);
+  const pad = Math.max(0.5, 0.08 * (hi - lo));
+  lo -= pad; hi += pad;
+  const sMax = samples[samples.length - 1].s || 1;
+  const L = 46, R = 8, T = 10, B = 22;
+  const X = (s) => L + (w - L - R) * s / sMax, Y = (v) => T + (h - T - B) * (hi - v) / (hi - lo);
+  // axes and ticks (mm)
+  g.strokeStyle = '#444'; g.fillStyle = '#9aa'; g.font = '10px system-ui'; g.lineWidth = 1;
+  const hs = niceStep(hi - lo, 4);
+  for (let v = Math.ceil(lo / hs) * hs; v <= hi; v += hs) {
+    g.beginPath(); g.moveTo(L, Y(v)); g.lineTo(w - R, Y(v)); g.stroke();
+    g.fillText(v.toFixed(hs < 1 ? 1 : 0), 2, Y(v) + 3);
+  }
+  const ss = niceStep(sMax, 5);
+  for (let v = 0; v <= sMax; v += ss) g.fillText(`${v.toFixed(ss < 1 ? 1 : 0)}`, X(v) - 6, h - 8);
+  g.fillText('mm', 2, h - 8);
+  // the surface as a line, every point as a dot coloured by its class
+  g.strokeStyle = '#8a8f96'; g.beginPath();
+  let started = false;
+  for (const s of samples) {
+    if (!s.p || pixelClass(fd, s.i)) { started = false; continue; }
+    if (started) g.lineTo(X(s.s), Y(s.h)); else g.moveTo(X(s.s), Y(s.h));
+    started = true;
+  }
+  g.stroke();
+  const inSel = e ? new Set(e.pix) : new Set();
+  for (const s of valid) {
+    const c = pixelClass(fd, s.i);
+    g.fillStyle = c ? COL[c] : '#c8ccd0';
+    const r = inSel.has(s.i) ? 3.5 : c ? 2.5 : 1.5;
+    g.fillRect(X(s.s) - r, Y(s.h) - r, 2 * r, 2 * r);
+  }
+  // the gap between the selected cluster and the surface below it
+  let info = `vertical ×${((w - L - R) / sMax / ((h - T - B) / (hi - lo))).toFixed(1)}, ${mmPerPx.toFixed(2)} mm/px`;
+  if (e && !isNaN(e.gap) && !isNaN(e.below)) {
+    const onLine = valid.filter((s) => inSel.has(s.i));
+    const xs = onLine.length ? X(onLine.reduce((a, s) => a + s.s, 0) / onLine.length) : X(sMax / 2);
+    g.setLineDash([4, 3]); g.strokeStyle = COL.sel;
+    for (const v of [e.hmin, e.below]) { g.beginPath(); g.moveTo(xs - 30, Y(v)); g.lineTo(xs + 30, Y(v)); g.stroke(); }
+    g.setLineDash([]);
+    g.beginPath(); g.moveTo(xs, Y(e.hmin)); g.lineTo(xs, Y(e.below)); g.stroke();
+    for (const [v, d] of [[e.hmin, 1], [e.below, -1]]) {
+      g.beginPath(); g.moveTo(xs - 4, Y(v) + 6 * d); g.lineTo(xs, Y(v)); g.lineTo(xs + 4, Y(v) + 6 * d); g.stroke();
+    }
+    g.fillStyle = COL.sel; g.font = 'bold 12px system-ui';
+    const label = `gap ${e.gap.toFixed(2)} mm`;
+    g.fillText(label, Math.min(xs + 8, w - R - g.measureText(label).width), (Y(e.hmin) + Y(e.below)) / 2 + 4);
+    info = `gap ${e.gap.toFixed(2)} mm above the surface · ${info}`;
+  }
+  $('profinfo').textContent = info;
+}
+
+function draw3d(fd, e, nb) {
+  if (!view3d) return;
+  const pos = [], col = [], big = [], bigCol = [];
+  const inSel = new Set(e.pix);
+  const c0 = point(fd, Math.min(fd.W - 1, Math.floor(e.cx)), Math.min(fd.H - 1, Math.floor(e.cy)));
+  let ox = 0, oy = 0, oz = 0, n0 = 0;
+  for (let y = nb.y0; y < nb.y1; y++) for (let x = nb.x0; x < nb.x1; x++) {
+    const p = point(fd, x, y); if (p) { ox += p[0]; oy += p[1]; oz += p[2]; n0++; }
+  }
+  if (!n0) return;
+  ox /= n0; oy /= n0; oz /= n0;
+  if (c0) { ox = c0[0]; oy = c0[1]; }
+  const hs = [];
+  for (let y = nb.y0; y < nb.y1; y++) for (let x = nb.x0; x < nb.x1; x++) { const p = point(fd, x, y); if (p) hs.push(-1000 * p[2]); }
+  hs.sort((a, b) => a - b);
+  const hlo = hs[Math.floor(0.02 * (hs.length - 1))], hhi = hs[Math.floor(0.98 * (hs.length - 1))];
+  for (let y = nb.y0; y < nb.y1; y++) for (let x = nb.x0; x < nb.x1; x++) {
+    const p = point(fd, x, y); if (!p) continue;
+    const i = y * fd.W + x, cls = pixelClass(fd, i);
+    let rgb;
+    if (cls) rgb = RGB[cls];
+    else { const t = Math.max(0, Math.min(1, (-1000 * p[2] - hlo) / Math.max(hhi - hlo, 1e-6))); const v = 70 + 150 * t; rgb = [v, v, v + 8]; }
+    const q = [1000 * (p[0] - ox), -1000 * (p[1] - oy), -1000 * (p[2] - oz)];
+    if (inSel.has(i)) { big.push(...q); bigCol.push(...(cls ? RGB[cls] : [255, 255, 255])); } else { pos.push(...q); col.push(...rgb); }
+  }
+  let ext = 0;
+  for (let k = 0; k < pos.length; k += 3) ext = Math.max(ext, Math.abs(pos[k]), Math.abs(pos[k + 1]));
+  const radius = ext || 20;
+  view3d.setPoints(new Float32Array([...big, ...pos]), new Uint8Array([...bigCol, ...col]), big.length / 3, Math.max(radius, 5));
+  $('v3info').textContent = `${(big.length + pos.length) / 3} points · ${view3d.kind} · drag to turn`;
+}
+
 // ------------------------------------------------------------------ overlay + drawing
 const canvas = $('canvas'), ctx = canvas.getContext('2d');
+let view3d = null;
+try { view3d = new PointView($('view3d')); } catch (e) { showError(`3D view: ${e}`); }
 
 function ensureOvCanvas(fd) {
   if (fd.ovCanvas) return;
@@ -152,27 +562,36 @@ function ensureOvCanvas(fd) {
   if (fd.ovBmp) { fd.ovBmp.close(); fd.ovBmp = null; }
 }
 
+function shadeUnreviewed(fd) { return fd.nR > 0 && 2 * fd.nR >= fd.nValid; }
+function countR(fd) { let n = 0; const R = fd.R; for (let i = 0; i < R.length; i++) n += R[i]; fd.nR = n; }
+
 function renderOverlay(x0 = 0, y0 = 0, x1 = null, y1 = null) {
   const fd = state.cur; if (!fd) return;
   ensureOvCanvas(fd);
   const W = fd.W, ov32 = fd.ov32;
-  if (x1 === null && y1 === null && x0 === 0 && y0 === 0) fd.ovFlags = flags();
+  const shade = shadeUnreviewed(fd);
+  if ((x1 === null && y1 === null && x0 === 0 && y0 === 0) || shade !== fd.ovShade) {
+    fd.ovFlags = flags(); fd.ovShade = shade; x0 = 0; y0 = 0; x1 = null; y1 = null;
+  }
   x1 = x1 === null ? fd.W : Math.min(x1, fd.W); y1 = y1 === null ? fd.H : Math.min(y1, fd.H);
   x0 = Math.max(0, x0 | 0); y0 = Math.max(0, y0 | 0); x1 = Math.ceil(x1); y1 = Math.ceil(y1);
   if (x1 <= x0 || y1 <= y0) return;
-  const { L, R, valid, zIds, sIds } = fd;
-  const sL = state.showL, sZ = state.showZ, sS = state.showS, hasR = fd.hasR;
+  const { R, valid, zIds, sIds, sSize } = fd;
+  const c = fd.conflict, cv = c && c.theirs ? state.conflictView : 'mine';
+  const L = cv === 'theirs' ? c.theirs.L : fd.L, other = cv === 'diff' ? c.theirs.L : null;
+  const sL = state.showL, sZ = state.showZ, sS = state.showS, sorMin = state.sorMin;
   for (let y = y0; y < y1; y++) {
     let i = y * W + x0;
     for (let x = x0; x < x1; x++, i++) {
-      let c = 0;
-      if (sL && L[i]) c = COL_L;
+      let col = 0;
+      if (other && L[i] !== other[i]) col = COL_DIFF;
+      else if (sL && L[i]) col = COL_L;
       else {
-        const z = sZ && zIds[i] !== 0, s = sS && sIds[i] !== 0;
-        if (z) c = s ? COL_ZS : COL_Z; else if (s) c = COL_S;
-        else if (hasR && valid[i] && !R[i]) c = COL_UNREV;
+        const z = sZ && zIds[i] !== 0, s = sS && sIds[i] !== 0 && sSize[sIds[i]] >= sorMin;
+        if (z) col = s ? COL_ZS : COL_Z; else if (s) col = COL_S;
+        else if (shade && valid[i] && !R[i]) col = COL_UNREV;
       }
-      ov32[i] = c;
+      ov32[i] = col;
     }
   }
   fd.octx.putImageData(fd.ovImg, 0, 0, x0, y0, x1 - x0, y1 - y0);
@@ -211,118 +630,302 @@ function draw() {
   if (hover && ['brush', 'eraser', 'unreviewed'].includes(state.tool)) {
     ctx.beginPath(); ctx.arc(hover.x, hover.y, state.brush, 0, 2 * Math.PI); ctx.stroke();
   }
+  // screen space: candidate markers (visible at any zoom), the profile line
+  ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+  drawMarkers(fd);
+  const pr = state.profile;
+  if (pr) {
+    const a = toScreen(pr.x0 + 0.5, pr.y0 + 0.5), b = toScreen(pr.x1 + 0.5, pr.y1 + 0.5);
+    ctx.setLineDash([6, 4]); ctx.strokeStyle = '#7fe3ff'; ctx.lineWidth = 1.5;
+    ctx.beginPath(); ctx.moveTo(a.x, a.y); ctx.lineTo(b.x, b.y); ctx.stroke(); ctx.setLineDash([]);
+  }
+  if (drag && drag.kind === 'profile') {
+    const a = toScreen(drag.x0, drag.y0), b = toScreen(drag.x, drag.y);
+    ctx.strokeStyle = '#7fe3ff'; ctx.beginPath(); ctx.moveTo(a.x, a.y); ctx.lineTo(b.x, b.y); ctx.stroke();
+  }
+  drawMinimap(fd);
+  if (!hover) drawLegend(fd);
 }
 
+function toScreen(x, y) { return { x: state.px + x * state.zoom, y: state.py + y * state.zoom }; }
+
+function drawMarkers(fd) {
+  if (!fd.entries) return;
+  const vw = canvas.clientWidth, vh = canvas.clientHeight;
+  const states = fd.states || [];
+  const rank = { s: 0, L: 1, z: 2 };  // z-cut drawn last (on top), the selected one after all
+  const order = fd.entries.map((e, k) => k).sort((a, b) => (a === state.sel) - (b === state.sel) ||
+    rank[fd.entries[a].src] - rank[fd.entries[b].src]);
+  order.forEach((k) => {
+    const e = fd.entries[k];
+    // a ring of at least 7 px around a small cluster, a box around a large one: seen at any zoom
+    const c = toScreen(e.cx, e.cy), p0 = toScreen(e.x0, e.y0), p1 = toScreen(e.x1, e.y1);
+    const big = Math.max(p1.x - p0.x, p1.y - p0.y) > 24;
+    const r = big ? Math.hypot(p1.x - p0.x, p1.y - p0.y) / 2 : Math.max(7, 0.5 * Math.hypot(p1.x - p0.x, p1.y - p0.y) + 4);
+    if (c.x < -r || c.y < -r || c.x > vw + r || c.y > vh + r) return;
+    const st = states[k] || 'undecided';
+    ctx.strokeStyle = st === 'undecided' ? COL[e.src] : COL[st];
+    ctx.lineWidth = k === state.sel ? 3 : 1.5;
+    if (st === 'rejected') ctx.setLineDash([3, 3]);
+    ctx.beginPath();
+    if (big) ctx.rect(p0.x - 3, p0.y - 3, p1.x - p0.x + 6, p1.y - p0.y + 6); else ctx.arc(c.x, c.y, r, 0, 2 * Math.PI);
+    ctx.stroke();
+    ctx.setLineDash([]);
+    if (e.src === 'z' && !big && st === 'undecided') {  // a z-cut candidate: a dot in its ring as well
+      ctx.fillStyle = COL.z; ctx.beginPath(); ctx.arc(c.x, c.y, 2.5, 0, 2 * Math.PI); ctx.fill();
+    }
+    if (k === state.sel) {
+      ctx.strokeStyle = COL.sel; ctx.lineWidth = 2;
+      ctx.beginPath(); ctx.arc(c.x, c.y, r + 5, 0, 2 * Math.PI); ctx.stroke();
+      for (const [dx, dy] of [[1, 0], [-1, 0], [0, 1], [0, -1]]) {
+        ctx.beginPath(); ctx.moveTo(c.x + dx * (r + 6), c.y + dy * (r + 6)); ctx.lineTo(c.x + dx * (r + 16), c.y + dy * (r + 16)); ctx.stroke();
+      }
+    }
+  });
+}
+
+function drawMinimap(fd) {
+  const mm = $('minimap');
+  mm.hidden = !state.showMini;
+  if (!state.showMini) return;
+  const dpr = window.devicePixelRatio || 1, w = 220, h = Math.round(220 * fd.H / fd.W);
+  if (mm.width !== w * dpr || mm.height !== h * dpr) { mm.width = w * dpr; mm.height = h * dpr; mm.style.width = `${w}px`; mm.style.height = `${h}px`; }
+  const g = mm.getContext('2d');
+  if (!fd.mini || fd.mini.kind !== viewKind() || fd.mini.w !== mm.width) {
+    const base = new OffscreenCanvas(mm.width, mm.height), bg = base.getContext('2d');
+    bg.imageSmoothingEnabled = true; bg.drawImage(bitmapFor(fd), 0, 0, mm.width, mm.height);
+    fd.mini = { kind: viewKind(), w: mm.width, base };
+  }
+  g.setTransform(1, 0, 0, 1, 0, 0);
+  g.drawImage(fd.mini.base, 0, 0);
+  g.setTransform(dpr * w / fd.W, 0, 0, dpr * h / fd.H, 0, 0);
+  const s = fd.W / w;
+  (fd.entries || []).forEach((e, k) => {
+    const st = (fd.states || [])[k] || 'undecided';
+    g.fillStyle = k === state.sel ? COL.sel : st === 'undecided' ? COL[e.src] : COL[st];
+    const r = (k === state.sel ? 3.5 : 2) * s;
+    g.fillRect(e.cx - r, e.cy - r, 2 * r, 2 * r);
+  });
+  g.strokeStyle = '#fff'; g.lineWidth = 1.2 * s;
+  const vx = -state.px / state.zoom, vy = -state.py / state.zoom;
+  g.strokeRect(vx, vy, canvas.clientWidth / state.zoom, canvas.clientHeight / state.zoom);
+}
+
+function fitZoom(fd) { return Math.min(canvas.clientWidth / fd.W, canvas.clientHeight / fd.H); }
 function fit() {
   const fd = state.cur; if (!fd) return;
   const vw = canvas.clientWidth, vh = canvas.clientHeight;
-  state.zoom = Math.min(vw / fd.W, vh / fd.H);
+  state.zoom = fitZoom(fd);
   state.px = (vw - fd.W * state.zoom) / 2; state.py = (vh - fd.H * state.zoom) / 2;
   requestDraw();
+}
+function zoomTo(e) {  // the cluster's neighbourhood fills about half the view
+  const fd = state.cur, nb = neighbourhood(fd, e);
+  const vw = canvas.clientWidth, vh = canvas.clientHeight, side = Math.max(nb.x1 - nb.x0, nb.y1 - nb.y0);
+  state.zoom = Math.max(fitZoom(fd), Math.min(24, 0.5 * Math.min(vw, vh) / side));
+  state.px = vw / 2 - e.cx * state.zoom; state.py = vh / 2 - e.cy * state.zoom;
+  requestDraw();
+}
+
+// ------------------------------------------------------------------ height legend and read-out
+function drawLegend(fd, hCursor) {
+  const box = $('legend');
+  box.hidden = !(state.showH && fd && state.turbo);
+  if (box.hidden) return;
+  const cv = $('legendbar'), g = cv.getContext('2d'), lo = fd.header.height_lo_mm, hi = fd.header.height_hi_mm;
+  const w = 16, h = 160;
+  if (cv.width !== w || cv.height !== h) { cv.width = w; cv.height = h; }
+  for (let y = 0; y < h; y++) {
+    const c = state.turbo[Math.round(255 * (1 - y / (h - 1)))];
+    g.fillStyle = `rgb(${c[0]},${c[1]},${c[2]})`; g.fillRect(0, y, w, 1);
+  }
+  if (hCursor !== undefined && !isNaN(hCursor)) {
+    const y = Math.max(0, Math.min(h - 1, (hi - hCursor) / (hi - lo) * (h - 1)));
+    g.fillStyle = '#fff'; g.fillRect(0, y - 1, w, 3); g.fillStyle = '#000'; g.fillRect(0, y, w, 1);
+  }
+  $('legendhi').textContent = `${hi.toFixed(1)} mm`;
+  $('legendlo').textContent = `${lo.toFixed(1)} mm`;
+  $('legendmid').textContent = `${((lo + hi) / 2).toFixed(1)}`;
+}
+
+let readoutQueued = false;
+function updateReadout() {
+  if (readoutQueued) return;
+  readoutQueued = true;
+  requestAnimationFrame(() => { readoutQueued = false; readout(); });
+}
+function readout() {
+  const fd = state.cur, box = $('readout');
+  if (!fd || !hover) { box.textContent = ''; return; }
+  const x = Math.floor(hover.x), y = Math.floor(hover.y);
+  if (x < 0 || y < 0 || x >= fd.W || y >= fd.H) { box.textContent = ''; drawLegend(fd); return; }
+  const i = y * fd.W + x;
+  const p = point(fd, x, y);
+  if (!p && !fd.tiles.get(tileKey(Math.floor(x / TILE), Math.floor(y / TILE)))) {
+    ensureTiles(fd, x, y, x + 1, y + 1).then(updateReadout, () => {});
+  }
+  const parts = [`row ${y} col ${x}`];
+  if (p) {
+    const hmm = -1000 * p[2];
+    parts.push(`height ${hmm.toFixed(2)} mm`, `x ${(1000 * p[0]).toFixed(2)} y ${(1000 * p[1]).toFixed(2)} z ${(1000 * p[2]).toFixed(2)} mm`);
+    drawLegend(fd, hmm);
+  } else {
+    parts.push(fd.valid[i] ? 'height …' : 'no point'); drawLegend(fd);
+  }
+  if (fd.zone && fd.valid[i] && !fd.zone[i]) parts.push('table / bin (not judged)');
+  const cls = pixelClass(fd, i);
+  if (fd.zIds[i]) parts.push(`z-cut #${fd.zIds[i]}`);
+  if (fd.sIds[i]) parts.push(`SOR #${fd.sIds[i]} (${fd.sSize[fd.sIds[i]]} px)`);
+  parts.push(fd.L[i] ? 'labelled outlier' : fd.R[i] ? 'reviewed, not outlier' : cls ? 'undecided' : 'not reviewed');
+  box.textContent = parts.join(' · ');
 }
 
 // ------------------------------------------------------------------ navigation
 let navToken = 0;
 async function goTo(index, t0 = performance.now()) {
-  if (index < 0 || (state.total && index >= state.total)) return;
+  if (index === undefined || index === null) return;
+  if (!state.frames.some((f) => f.index === index)) return;
   const my = ++navToken;
-  if (state.cur) saveNow(state.cur);
+  state.target = index;
+  if (state.cur && state.cur.index !== index) saveNow(state.cur);
+  if (!state.cur || state.cur.index !== index) $('frameinfo').textContent = `→ frame ${index} …`;
   let fd;
   try { fd = await loadFrame(index); } catch (e) { showError(String(e)); return; }
   if (my !== navToken) return;
-  const sameShape = state.cur && state.cur.W === fd.W && state.cur.H === fd.H;
-  const dir = state.cur && index < state.cur.index ? -1 : 1;
   state.cur = fd;
-  $('conflict').hidden = !fd.conflict;
-  $('latest').textContent = fd.conflict || '';
+  state.sel = -1; state.profile = null; state.conflictView = 'mine';
+  showConflict(fd);
+  refreshList(fd, false);
   if (!sameFlags(fd.ovFlags, flags())) renderOverlay();
-  if (!sameShape || !state.fitted) { fit(); state.fitted = true; }
+  fit();  // a new frame starts at the overview, its candidates marked
   draw();
+  drawProfile();
   updateInfo();
   requestAnimationFrame(() => {
     window.zcut.switchTimes.push(performance.now() - t0);
     window.zcut.shown = index;
   });
-  history.replaceState(null, '', `?token=${encodeURIComponent(TOKEN)}#${index}`);
+  history.replaceState(null, '', `/#${index}`);
   evict(index);
-  (async () => {  // prefetch the neighbours one at a time, the next one in the direction of travel first
-    for (const d of [dir, -dir, 2 * dir, -2 * dir]) {
-      const j = index + d;
+  (async () => {  // prefetch the neighbours in list order, one at a time, the next one first
+    const k = state.order.indexOf(index);
+    for (const d of [1, -1, 2, -2]) {
+      const j = state.order[k + d];
       if (my !== navToken) return;
-      if (j >= 0 && (!state.total || j < state.total)) { try { await loadFrame(j); } catch (e) { /* shown on use */ } }
+      if (j !== undefined) { try { await loadFrame(j); } catch (e) { /* shown on use */ } }
     }
   })();
 }
 
+function step(d, t0) {  // navigation keys queue: each press moves the target one frame further
+  if (!state.order.length) return;
+  const from = state.target !== null ? state.target : state.cur ? state.cur.index : state.order[0];
+  const k = state.order.indexOf(from);
+  const j = Math.max(0, Math.min(state.order.length - 1, k + d));
+  if (state.order[j] !== from || !state.cur || state.cur.index !== from) goTo(state.order[j], t0);
+}
+
+function frameRow(index) { return state.frames.find((f) => f.index === index); }
+
+function updateStatus() {
+  const fd = state.cur; if (!fd) return;
+  const st = fd.states || [], und = st.filter((s) => s === 'undecided').length;
+  const el = $('status');
+  if (fd.nR >= fd.nValid) { el.textContent = 'frame reviewed ✓'; el.className = 'reviewed'; }
+  else if (fd.nR > 0) {
+    el.textContent = shadeUnreviewed(fd) ? `reviewed except ${fd.nValid - fd.nR} px (shaded)`
+      : `not reviewed yet · ${st.length - und} / ${st.length} candidates decided (Enter: reviewed)`;
+    el.className = 'partial';
+  } else { el.textContent = `not reviewed · ${st.length} candidates`; el.className = 'todo'; }
+}
+
 function updateInfo() {
   const fd = state.cur;
-  if (fd) $('frameinfo').textContent = `frame ${fd.index} / ${Math.max(state.total - 1, 0)}  stamp ${fd.stamp}  ` +
+  if (fd) $('frameinfo').textContent = `frame ${fd.index} (${state.order.indexOf(fd.index) + 1} of ${state.order.length})  ` +
     `z-cut ${fd.header.n_zcut} · SOR ${fd.header.n_sor} clusters  rev ${fd.rev}`;
   const reviewed = state.frames.filter((f) => f.reviewed).length;
   $('progress').textContent = `reviewed ${reviewed} / ${state.total}` + (state.done ? '' : ' (preparing…)');
+  updateStatus();
   const ol = $('framelist');
-  if (ol.children.length !== state.frames.length) {
-    ol.innerHTML = '';
-    for (const f of state.frames) {
+  if (ol.children.length !== state.order.length || ol.dataset.order !== state.orderBy) {
+    ol.replaceChildren(...state.order.map((i) => {
       const li = document.createElement('li');
-      li.textContent = `${f.stamp_ns}`;
-      li.onclick = () => goTo(f.index);
-      ol.appendChild(li);
-    }
+      li.dataset.index = i;
+      li.onclick = () => { window.zcut.inputs++; goTo(i); };
+      return li;
+    }));
+    ol.dataset.order = state.orderBy;
   }
-  state.frames.forEach((f, k) => {
-    const li = ol.children[k];
+  for (const li of ol.children) {
+    const f = frameRow(+li.dataset.index);
+    if (!f) continue;
+    const mark = f.reviewed ? '✓' : f.revision ? '◐' : '';
+    li.title = `frame ${f.index}: ${f.n_zcut} z-cut and ${f.n_sor_listed} SOR candidates, ${f.decided} decided, ` +
+      `${f.n_outliers} outlier px labelled, the filters disagree on ${f.disagreement}`;
+    li.innerHTML = `<b>${f.index}</b><span>${f.n_candidates} cand.</span><span>${f.decided} dec.</span>` +
+      `<span>${f.n_outliers} px</span><span class="dis">≠${f.disagreement}</span><span class="mk">${mark}</span>`;
     li.classList.toggle('rev', !!f.reviewed);
     li.classList.toggle('cur', !!fd && f.index === fd.index);
-  });
+  }
 }
 
-async function refreshFrames() {
-  const r = await api(`/api/frames?annotator=${encodeURIComponent(state.annotator)}`);
-  if (!r.ok) return;
-  const j = await r.json();
-  state.frames = j.frames; state.total = j.total; state.done = j.done;
-  if (j.error) showError(`preparing frames stopped: ${j.error}`);
+function setOrder(by) {
+  state.orderBy = by;
+  const rows = state.frames.slice();
+  if (by === 'disagreement') rows.sort((a, b) => b.disagreement - a.disagreement || a.index - b.index);
+  state.order = rows.map((f) => f.index);
   updateInfo();
-  if (!state.done) setTimeout(refreshFrames, 1000);
+}
+
+async function refreshFrames({ again = false } = {}) {  // again: poll while frames are being prepared
+  const r = await fetch('/api/frames');
+  if (r.ok) {
+    const j = await r.json();
+    state.frames = j.frames; state.total = j.total; state.done = j.done;
+    setOrder(state.orderBy);
+    if (j.error) showError(`preparing frames stopped: ${j.error}`);
+  }
+  if (again && !state.done) setTimeout(() => refreshFrames({ again: true }), 1000);
+}
+
+async function refreshSession() {
+  try {
+    const s = await (await fetchOk('/api/session')).json();
+    const b = $('banner');
+    if (s.other_servers.length) {
+      b.textContent = `Another server uses this label store: ${s.other_servers.join('; ')}. ` +
+        'Edits from both are kept; the same annotator on both will meet conflicts.';
+      b.hidden = false;
+    } else b.hidden = true;
+    return s;
+  } finally { setTimeout(refreshSession, 10000); }
 }
 
 function nextUnreviewed() {
-  const start = state.cur ? state.cur.index : -1;
-  const f = state.frames.find((g) => g.index > start && !g.reviewed) || state.frames.find((g) => !g.reviewed);
+  const k = state.cur ? state.order.indexOf(state.cur.index) : -1;
+  const rows = state.order.map(frameRow);
+  const f = rows.slice(k + 1).find((g) => g && !g.reviewed) || rows.find((g) => g && !g.reviewed);
   if (f) goTo(f.index);
 }
 
 // ------------------------------------------------------------------ editing
-function ensureReviewed(fd) {
-  if (!fd.hasR) { fd.R.set(fd.valid); fd.hasR = true; return true; }
-  return false;
-}
-
 let action = null;  // {x0, y0, x1, y1} dirty box of the running edit
-function beginAction(fd) {
-  action = { x0: Infinity, y0: Infinity, x1: -Infinity, y1: -Infinity, full: ensureReviewed(fd) };
-}
+function beginAction() { action = { x0: Infinity, y0: Infinity, x1: -Infinity, y1: -Infinity }; }
 function touch(x0, y0, x1, y1) {
   action.x0 = Math.min(action.x0, x0); action.y0 = Math.min(action.y0, y0);
   action.x1 = Math.max(action.x1, x1); action.y1 = Math.max(action.y1, y1);
 }
-function endAction(fd) {
+function endAction(fd, full = null) {
   const a = action; action = null;
   if (!a) return;
   const W = fd.W;
-  let x0 = 0, y0 = 0, x1 = fd.W, y1 = fd.H;
-  if (!a.full) {
-    if (a.x1 < a.x0) return;
-    x0 = Math.max(0, Math.floor(a.x0)); y0 = Math.max(0, Math.floor(a.y0));
-    x1 = Math.min(fd.W, Math.ceil(a.x1)); y1 = Math.min(fd.H, Math.ceil(a.y1));
-  }
   let rec;
-  if (a.full) {
-    // the first edit of a frame marks every valid pixel reviewed: keep whole snapshots, not diffs
-    rec = { full: true, oL: fd.committedL, oR: fd.committedR, nL: fd.L.slice(), nR: fd.R.slice(), hadR: false };
-    fd.committedL = fd.L.slice(); fd.committedR = fd.R.slice();
+  if (full) {
+    rec = full;
   } else {
+    if (a.x1 < a.x0) return;
+    const x0 = Math.max(0, Math.floor(a.x0)), y0 = Math.max(0, Math.floor(a.y0));
+    const x1 = Math.min(fd.W, Math.ceil(a.x1)), y1 = Math.min(fd.H, Math.ceil(a.y1));
     const idx = [], oL = [], oR = [];
     for (let y = y0; y < y1; y++) for (let i = y * W + x0, e = y * W + x1; i < e; i++) {
       if (fd.L[i] !== fd.committedL[i] || fd.R[i] !== fd.committedR[i]) {
@@ -331,13 +934,21 @@ function endAction(fd) {
       }
     }
     if (!idx.length) return;
-    rec = { idx: Int32Array.from(idx), oL: Uint8Array.from(oL), oR: Uint8Array.from(oR), hadR: true };
+    rec = { idx: Int32Array.from(idx), oL: Uint8Array.from(oL), oR: Uint8Array.from(oR), box: [x0, y0, x1, y1] };
     rec.nL = Uint8Array.from(rec.idx, (i) => fd.L[i]); rec.nR = Uint8Array.from(rec.idx, (i) => fd.R[i]);
   }
   fd.undo.push(rec); if (fd.undo.length > 200) fd.undo.shift();
   fd.redo = [];
-  renderOverlay(a.full ? 0 : x0, a.full ? 0 : y0, a.full ? null : x1, a.full ? null : y1);
+  afterEdit(fd, rec.box);
+}
+
+function afterEdit(fd, box) {
+  countR(fd);
+  if (box) renderOverlay(...box); else renderOverlay();
+  fd.labelEntries = labelComponents(fd);
+  refreshList(fd, true);
   requestDraw();
+  if (state.profile) drawProfile();
   scheduleSave(fd);
 }
 
@@ -349,8 +960,7 @@ function applyRecord(fd, rec, forward) {
     const i = rec.idx[k];
     fd.L[i] = fd.committedL[i] = vL[k]; fd.R[i] = fd.committedR[i] = vR[k];
   }
-  fd.hasR = forward ? true : rec.hadR;
-  renderOverlay(); requestDraw(); scheduleSave(fd);
+  afterEdit(fd, null);
 }
 function undo() { const fd = state.cur; if (fd && fd.undo.length) { const r = fd.undo.pop(); applyRecord(fd, r, false); fd.redo.push(r); } }
 function redo() { const fd = state.cur; if (fd && fd.redo.length) { const r = fd.redo.pop(); applyRecord(fd, r, true); fd.undo.push(r); } }
@@ -368,54 +978,47 @@ function paintDisc(fd, cx, cy, r, mode) {
   touch(x0, y0, x1 + 1, y1 + 1);
   renderOverlay(x0, y0, x1 + 1, y1 + 1);
 }
-function setPixel(fd, i, mode) {
+function setPixel(fd, i, mode) {  // every decision reviews the pixel: L ⊆ R
   if (!fd.valid[i]) return;
   if (mode === 'add') { fd.L[i] = 1; fd.R[i] = 1; }
-  else if (mode === 'erase') { fd.L[i] = 0; }
+  else if (mode === 'erase') { fd.L[i] = 0; fd.R[i] = 1; }
   else if (mode === 'unreview') { fd.L[i] = 0; fd.R[i] = 0; }
 }
 function paintLine(fd, a, b, mode) {
-  const d = Math.hypot(b.x - a.x, b.y - a.y), step = Math.max(1, state.brush / 3);
-  const n = Math.max(1, Math.ceil(d / step));
+  const d = Math.hypot(b.x - a.x, b.y - a.y), stepLen = Math.max(1, state.brush / 3);
+  const n = Math.max(1, Math.ceil(d / stepLen));
   for (let k = 1; k <= n; k++) paintDisc(fd, a.x + (b.x - a.x) * k / n, a.y + (b.y - a.y) * k / n, state.brush, mode);
 }
 
-function toggleCluster(fd, x, y, preferSor) {
+function clickCluster(fd, x, y, preferSor) {  // toggle the cluster under the pointer, select its entry
   x = Math.floor(x); y = Math.floor(y);
   if (x < 0 || y < 0 || x >= fd.W || y >= fd.H) return false;
   const i = y * fd.W + x;
-  const order = preferSor ? [[fd.sIds, state.showS], [fd.zIds, state.showZ]] : [[fd.zIds, state.showZ], [fd.sIds, state.showS]];
-  let ids = null, id = 0;
-  for (const [arr, shown] of order) if (shown && arr[i] !== 0) { ids = arr; id = arr[i]; break; }
-  if (!ids) return false;
+  const sOk = fd.sIds[i] !== 0 && state.showS;
+  const order = preferSor ? [['s', sOk], ['z', fd.zIds[i] !== 0 && state.showZ]] : [['z', fd.zIds[i] !== 0 && state.showZ], ['s', sOk]];
+  let src = null;
+  for (const [s, ok] of order) if (ok) { src = s; break; }
+  let e = null;
+  if (src) {
+    const id = src === 'z' ? fd.zIds[i] : fd.sIds[i];
+    e = fd.base.find((b) => b.src === src && b.id === id);
+    if (!e) {  // a SOR cluster too small to be listed
+      const start = src === 'z' ? fd.zStart : fd.sStart, pix = src === 'z' ? fd.zPix : fd.sPix;
+      const p = pix.subarray(start[id], start[id + 1]);
+      let x0 = fd.W, y0 = fd.H, x1 = 0, y1 = 0;
+      for (const j of p) { const px = j % fd.W, py = (j / fd.W) | 0; x0 = Math.min(x0, px); x1 = Math.max(x1, px); y0 = Math.min(y0, py); y1 = Math.max(y1, py); }
+      e = { src, id, n: p.length, pix: p, x0, y0, x1: x1 + 1, y1: y1 + 1 };
+    }
+  } else e = fd.labelEntries.find((l) => l.pix.includes(i));
+  if (!e) return false;
+  const accept = entryState(fd, e) !== 'accepted';
   beginAction(fd);
-  let n = 0, inL = 0;
-  const members = [];
-  for (let k = 0; k < ids.length; k++) if (ids[k] === id) { members.push(k); n++; if (fd.L[k]) inL++; }
-  const accept = inL * 2 < n;
-  let x0 = fd.W, y0 = fd.H, x1 = 0, y1 = 0;
-  for (const k of members) {
-    setPixel(fd, k, accept ? 'add' : 'erase');
-    const px = k % fd.W, py = (k / fd.W) | 0;
-    if (px < x0) x0 = px; if (px > x1) x1 = px; if (py < y0) y0 = py; if (py > y1) y1 = py;
-  }
-  touch(x0, y0, x1 + 1, y1 + 1);
+  for (const j of e.pix) setPixel(fd, j, accept ? 'add' : 'erase');
+  touch(e.x0, e.y0, e.x1, e.y1);
   endAction(fd);
+  const k = fd.entries.indexOf(e);
+  if (k >= 0) select(k, { zoom: false });
   return true;
-}
-
-function acceptAll(ids) {  // every candidate pixel of one filter becomes an outlier (one undo step)
-  const fd = state.cur; if (!fd || !ids) return;
-  beginAction(fd);
-  let x0 = fd.W, y0 = fd.H, x1 = 0, y1 = 0;
-  for (let i = 0; i < ids.length; i++) {
-    if (ids[i] === 0) continue;
-    setPixel(fd, i, 'add');
-    const x = i % fd.W, y = (i / fd.W) | 0;
-    if (x < x0) x0 = x; if (x > x1) x1 = x; if (y < y0) y0 = y; if (y > y1) y1 = y;
-  }
-  touch(x0, y0, x1 + 1, y1 + 1);
-  endAction(fd);
 }
 
 function fillPolygon(fd, pts, mode) {
@@ -438,12 +1041,19 @@ function fillPolygon(fd, pts, mode) {
   touch(x0, y0, x1, y1);
 }
 
-function markReviewedAndNext() {
+function markReviewed(fd) {  // the explicit "reviewed": every valid pixel reviewed, L kept
+  if (fd.nR >= fd.nValid) return;
+  const oL = fd.L.slice(), oR = fd.R.slice();
+  fd.R.set(fd.valid);
+  const rec = { full: true, oL, oR, nL: fd.L.slice(), nR: fd.R.slice() };
+  fd.committedR.set(fd.R);
+  beginAction(); endAction(fd, rec);
+}
+function markReviewedAndNext(t0) {
   const fd = state.cur; if (!fd) return;
-  beginAction(fd); endAction(fd);
-  if (!fd.dirty && fd.rev === 0) scheduleSave(fd);
+  markReviewed(fd);
   saveNow(fd);
-  if (fd.index + 1 < state.total) goTo(fd.index + 1);
+  step(1, t0);
 }
 
 // ------------------------------------------------------------------ saving
@@ -454,35 +1064,54 @@ function scheduleSave(fd) {
   fd.dirty = true;
   setSaveState('unsaved', 'saving');
   clearTimeout(fd.saveTimer);
-  fd.saveTimer = setTimeout(() => saveNow(fd), 300);
+  fd.saveTimer = setTimeout(() => saveNow(fd), 250);
 }
 
-async function saveNow(fd) {
+function runsB64(mask, base) {  // uint32 runs (false, true, ...) of mask (or of base ∧ ¬mask), base64
+  const runs = [];
+  let cur = 0, len = 0;
+  for (let i = 0; i < mask.length; i++) {
+    const v = base ? (base[i] && !mask[i] ? 1 : 0) : mask[i];
+    if (v === cur) { len++; continue; }
+    runs.push(len); cur = v; len = 1;
+  }
+  runs.push(len);
+  const bytes = new Uint8Array(Uint32Array.from(runs).buffer);
+  let s = '';
+  for (let i = 0; i < bytes.length; i += 0x8000) s += String.fromCharCode.apply(null, bytes.subarray(i, i + 0x8000));
+  return btoa(s);
+}
+function labelBody(fd, seq) {
+  return JSON.stringify({ base_revision: fd.rev, height: fd.H, width: fd.W, client: CLIENT, seq,
+                          outliers_runs: runsB64(fd.L, null), unreviewed_runs: runsB64(fd.R, fd.valid) });
+}
+
+async function saveNow(fd, { keepalive = false } = {}) {
   clearTimeout(fd.saveTimer);
   if (!fd.dirty || fd.conflict) return;
-  if (fd.saving) { fd.pendingSave = true; return; }
+  if (fd.saving && !keepalive) { fd.pendingSave = true; return; }
+  const body = labelBody(fd, ++fd.seq);
+  if (keepalive && body.length > KEEPALIVE_MAX) return;  // too big to outlive the page: beforeunload asks
   fd.saving = true; fd.dirty = false;
   setSaveState('saving…', 'saving');
   let retry = false;
   try {
-    const L = fd.L.slice(), R = fd.R.slice();
-    const packed = await call({ type: 'pack', L, R }, [L.buffer, R.buffer]);
-    const body = JSON.stringify({ annotator: fd.annotator, base_revision: fd.rev, height: fd.H, width: fd.W,
-                                  outliers: packed.outliers, reviewed: packed.reviewed });
-    const resp = await api(`/api/frames/${fd.index}/label`, { method: 'PUT', headers: { 'Content-Type': 'application/json' }, body });
+    const resp = await fetch(`/api/frames/${fd.index}/label`, { method: 'PUT', keepalive,
+      headers: { 'Content-Type': 'application/json' }, body });
     if (resp.ok) {
       const j = await resp.json();
-      fd.rev = j.revision;
-      window.zcut.acks.push({ index: fd.index, revision: j.revision, n_outliers: j.n_outliers, annotator: j.annotator });
-      const f = state.frames.find((g) => g.index === fd.index);
-      if (f) { f.reviewed = j.n_reviewed > 0; f.revision = j.revision; f.n_outliers = j.n_outliers; }
+      fd.rev = Math.max(fd.rev, j.revision);
+      window.zcut.acks.push({ index: fd.index, revision: j.revision, n_outliers: j.n_outliers, annotator: j.annotator,
+                              superseded: j.superseded });
+      const f = frameRow(fd.index);
+      if (f && !j.superseded) Object.assign(f, { reviewed: j.reviewed, revision: j.revision, n_outliers: j.n_outliers,
+                                                 decided: j.decided, accepted: j.accepted });
       setSaveState(`saved (frame ${fd.index} rev ${j.revision})`, 'saved');
       updateInfo();
     } else if (resp.status === 409) {
       const j = await resp.json();
-      fd.dirty = true; fd.conflict = j.latest;
-      if (fd === state.cur) { $('latest').textContent = j.latest; $('conflict').hidden = false; }
-      showError(`conflict on frame ${fd.index}`);
+      fd.dirty = true;
+      await openConflict(fd, j.latest);
     } else {
       const t = await resp.text();
       fd.dirty = true;
@@ -501,11 +1130,44 @@ async function saveNow(fd) {
   }
 }
 
-async function resolveConflict(keepMine) {
+// leaving the page (reload, close, another site): what is not saved goes out as keepalive requests,
+// which the browser finishes after the page is gone
+function flushOnLeave() {
+  for (const fd of loaded.values()) if (fd.dirty && !fd.conflict) saveNow(fd, { keepalive: true });
+}
+
+// ------------------------------------------------------------------ conflicts: both versions, merge
+async function openConflict(fd, latest) {
+  let theirs;
+  try { theirs = await call({ type: 'label', index: fd.index, W: fd.W, H: fd.H, nValid: fd.nValid }); } catch (e) { showError(String(e)); return; }
+  fd.conflict = { latest: theirs.rev, theirs };
+  showError(`frame ${fd.index} was saved elsewhere meanwhile (revision ${latest}): choose how to merge`);
+  if (fd === state.cur) { showConflict(fd); renderOverlay(); requestDraw(); }
+}
+function showConflict(fd) {
+  const box = $('conflict'), c = fd && fd.conflict;
+  box.hidden = !c;
+  if (!c) return;
+  let mine = 0, theirs = 0, differ = 0, mineR = 0, theirsR = 0;
+  for (let i = 0; i < fd.L.length; i++) {
+    mine += fd.L[i]; theirs += c.theirs.L[i]; differ += fd.L[i] !== c.theirs.L[i]; mineR += fd.R[i]; theirsR += c.theirs.R[i];
+  }
+  $('conflictinfo').textContent = `Frame ${fd.index} was saved elsewhere (revision ${c.latest}). Mine: ${mine} outlier px, ` +
+    `${mineR} reviewed px. Theirs: ${theirs} outlier px, ${theirsR} reviewed px. They differ at ${differ} px.`;
+  for (const b of document.querySelectorAll('#conflict [data-view]')) b.classList.toggle('active', b.dataset.view === state.conflictView);
+}
+function setConflictView(v) { state.conflictView = v; showConflict(state.cur); renderOverlay(); requestDraw(); }
+function resolveConflict(how) {
   const fd = state.cur; if (!fd || !fd.conflict) return;
-  $('conflict').hidden = true;
-  if (keepMine) { fd.rev = fd.conflict; fd.conflict = 0; fd.dirty = true; saveNow(fd); }
-  else { fd.conflict = 0; await loadLabel(fd); renderOverlay(); requestDraw(); updateInfo(); }
+  const t = fd.conflict.theirs;
+  if (how === 'union') for (let i = 0; i < fd.L.length; i++) { fd.L[i] |= t.L[i]; fd.R[i] |= t.R[i]; }
+  else if (how === 'theirs') { fd.L.set(t.L); fd.R.set(t.R); }
+  fd.rev = fd.conflict.latest; fd.conflict = null; state.conflictView = 'mine';
+  fd.committedL.set(fd.L); fd.committedR.set(fd.R); fd.undo = []; fd.redo = [];
+  showConflict(fd);
+  countR(fd); renderOverlay(); fd.labelEntries = labelComponents(fd); refreshList(fd, true); requestDraw();
+  if (how === 'theirs') { fd.dirty = false; setSaveState(`frame ${fd.index}: theirs kept (rev ${fd.rev})`, 'saved'); updateInfo(); }
+  else { fd.dirty = true; saveNow(fd); }
 }
 
 // ------------------------------------------------------------------ input
@@ -530,23 +1192,38 @@ window.zcut.state = () => {
   const fd = state.cur; if (!fd) return null;
   let nL = 0, nR = 0;
   for (let i = 0; i < fd.L.length; i++) { nL += fd.L[i]; nR += fd.R[i]; }
-  return { index: fd.index, rev: fd.rev, dirty: fd.dirty, saving: fd.saving, conflict: fd.conflict, nL, nR,
-           W: fd.W, H: fd.H, tool: state.tool, zoom: state.zoom, annotator: state.annotator,
-           brush: state.brush, view: state.showH ? 'height' : 'rgb', progress: $('progress').textContent };
+  const r = canvas.getBoundingClientRect();
+  const e = state.sel >= 0 ? fd.entries[state.sel] : null;
+  return { index: fd.index, rev: fd.rev, dirty: fd.dirty, saving: fd.saving, conflict: fd.conflict ? fd.conflict.latest : 0,
+           nL, nR, nValid: fd.nValid, W: fd.W, H: fd.H, tool: state.tool, zoom: state.zoom, annotator: state.annotator,
+           brush: state.brush, view: state.showH ? 'height' : 'rgb', progress: $('progress').textContent,
+           status: $('status').textContent, target: state.target, sel: state.sel, entries: fd.entries.length,
+           states: fd.states ? fd.states.slice() : [], selected: e ? { src: e.src, id: e.id, n: e.n, cx: e.cx, cy: e.cy,
+             gap: e.gap, x0: e.x0, y0: e.y0, x1: e.x1, y1: e.y1, screen: toScreen(e.cx, e.cy) } : null,
+           viewport: { x: r.left, y: r.top, width: r.width, height: r.height }, order: state.order.slice() };
 };
+window.zcut.entries = () => {
+  const fd = state.cur; if (!fd) return [];
+  return fd.entries.map((e, k) => ({ src: e.src, id: e.id, n: e.n, cx: e.cx, cy: e.cy, gap: e.gap, both: e.both,
+                                     state: (fd.states || [])[k] }));
+};
+window.zcut.readout = () => $('readout').textContent;
+window.zcut.profileInfo = () => $('profinfo').textContent;
 
 canvas.addEventListener('contextmenu', (e) => e.preventDefault());
 canvas.addEventListener('pointerdown', (e) => {
   const fd = state.cur; if (!fd) return;
   canvas.setPointerCapture(e.pointerId);
+  window.zcut.inputs++;
   const p = toImage(e);
   if (e.button === 2 || e.button === 1 || spaceDown) {
+    window.zcut.pans++;
     drag = { kind: 'pan', sx: e.clientX, sy: e.clientY, px: state.px, py: state.py };
     return;
   }
   if (e.button !== 0) return;
   const t = state.tool;
-  if (t === 'select') { toggleCluster(fd, p.x, p.y, e.altKey); return; }
+  if (t === 'select') { clickCluster(fd, p.x, p.y, e.altKey); return; }
   if (t === 'brush' || t === 'eraser' || t === 'unreviewed') {
     const mode = t === 'brush' ? 'add' : t === 'eraser' ? 'erase' : 'unreview';
     beginAction(fd);
@@ -557,6 +1234,8 @@ canvas.addEventListener('pointerdown', (e) => {
     drag = { kind: 'box', x0: p.x, y0: p.y, x: p.x, y: p.y, erase: e.shiftKey };
   } else if (t === 'lasso') {
     drag = { kind: 'lasso', pts: [[p.x, p.y]], erase: e.shiftKey };
+  } else if (t === 'profile') {
+    drag = { kind: 'profile', x0: p.x, y0: p.y, x: p.x, y: p.y };
   }
 });
 canvas.addEventListener('pointermove', (e) => {
@@ -566,9 +1245,10 @@ canvas.addEventListener('pointermove', (e) => {
   if (drag && fd) {
     if (drag.kind === 'pan') { state.px = drag.px + e.clientX - drag.sx; state.py = drag.py + e.clientY - drag.sy; }
     else if (drag.kind === 'paint') { paintLine(fd, drag.last, p, drag.mode); drag.last = p; }
-    else if (drag.kind === 'box') { drag.x = p.x; drag.y = p.y; }
+    else if (drag.kind === 'box' || drag.kind === 'profile') { drag.x = p.x; drag.y = p.y; }
     else if (drag.kind === 'lasso') drag.pts.push([p.x, p.y]);
   }
+  updateReadout();
   requestDraw();
 });
 canvas.addEventListener('pointerup', (e) => {
@@ -580,10 +1260,17 @@ canvas.addEventListener('pointerup', (e) => {
     beginAction(fd); fillPolygon(fd, pts, d.erase || e.shiftKey ? 'erase' : 'add'); endAction(fd);
   } else if (d.kind === 'lasso' && d.pts.length > 2) {
     beginAction(fd); fillPolygon(fd, d.pts, d.erase || e.shiftKey ? 'erase' : 'add'); endAction(fd);
+  } else if (d.kind === 'profile') {
+    const c = (v, hi) => Math.max(0, Math.min(hi - 1, Math.floor(v)));
+    state.profile = { x0: c(d.x0, fd.W), y0: c(d.y0, fd.H), x1: c(d.x, fd.W), y1: c(d.y, fd.H),
+                      entry: state.sel >= 0 ? fd.entries[state.sel] : null };
+    const pr = state.profile;
+    ensureTiles(fd, Math.min(pr.x0, pr.x1), Math.min(pr.y0, pr.y1), Math.max(pr.x0, pr.x1) + 1, Math.max(pr.y0, pr.y1) + 1)
+      .then(() => drawProfile(), (err) => showError(String(err)));
   }
   requestDraw();
 });
-canvas.addEventListener('pointerleave', () => { hover = null; requestDraw(); });
+canvas.addEventListener('pointerleave', () => { hover = null; updateReadout(); requestDraw(); });
 canvas.addEventListener('wheel', (e) => {
   e.preventDefault();
   const r = canvas.getBoundingClientRect();
@@ -593,6 +1280,15 @@ canvas.addEventListener('wheel', (e) => {
   state.zoom = z;
   requestDraw();
 }, { passive: false });
+function minimapGo(e) {
+  const fd = state.cur; if (!fd) return;
+  const r = $('minimap').getBoundingClientRect();
+  const x = (e.clientX - r.left) / r.width * fd.W, y = (e.clientY - r.top) / r.height * fd.H;
+  state.px = canvas.clientWidth / 2 - x * state.zoom; state.py = canvas.clientHeight / 2 - y * state.zoom;
+  requestDraw();
+}
+$('minimap').addEventListener('pointerdown', (e) => { window.zcut.inputs++; $('minimap').setPointerCapture(e.pointerId); minimapGo(e); });
+$('minimap').addEventListener('pointermove', (e) => { if (e.buttons) minimapGo(e); });
 
 function setTool(t) {
   state.tool = t;
@@ -604,9 +1300,16 @@ function setBrush(v) {
   $('brushsize').value = state.brush; $('brushval').textContent = state.brush;
   requestDraw();
 }
-function toggle(key, box) {
-  state[key] = !state[key]; $(box).checked = state[key];
-  renderOverlay(); requestDraw();
+function setSorMin(v) {
+  state.sorMin = Math.max(1, Math.min(200, v | 0));
+  $('sormin').value = state.sorMin; $('sorminval').textContent = state.sorMin;
+  const fd = state.cur;
+  if (fd) { refreshList(fd, true); renderOverlay(); requestDraw(); }
+}
+function toggle(key) {
+  state[key] = !state[key]; $(key).checked = state[key];
+  if (state.cur) { refreshList(state.cur, true); renderOverlay(); }
+  requestDraw();
 }
 
 window.addEventListener('keydown', (e) => {
@@ -615,73 +1318,103 @@ window.addEventListener('keydown', (e) => {
   const ctrl = e.ctrlKey || e.metaKey;
   const t0 = e.timeStamp || performance.now();
   if (k === ' ') { spaceDown = true; e.preventDefault(); return; }
-  if (ctrl && (k === 'z' || k === 'Z')) { e.shiftKey ? redo() : undo(); e.preventDefault(); return; }
-  if (ctrl && (k === 'y' || k === 'Y')) { redo(); e.preventDefault(); return; }
-  if (ctrl) return;
+  if (ctrl && (k === 'z' || k === 'Z')) { e.shiftKey ? redo() : undo(); e.preventDefault(); window.zcut.inputs++; return; }
+  if (ctrl && (k === 'y' || k === 'Y')) { redo(); e.preventDefault(); window.zcut.inputs++; return; }
+  if (ctrl || e.altKey) return;
   switch (k) {
-    case 'ArrowRight': case 'PageDown': if (fd) goTo(fd.index + 1, t0); break;
-    case 'ArrowLeft': case 'PageUp': if (fd) goTo(fd.index - 1, t0); break;
+    case 'Tab': if (fd && fd.entries.length) {
+      const n = fd.entries.length, d = e.shiftKey ? -1 : 1;
+      select(state.sel < 0 ? (d > 0 ? 0 : n - 1) : (state.sel + d + n) % n, { zoom: true, t0 });
+    } break;
+    case 'a': decide(true, t0); break;
+    case 'r': decide(false, t0); break;
+    case 'A': decideAll(true); break;
+    case 'R': decideAll(false); break;
+    case 'Escape': if (fd) select(-1); break;
+    case 'c': case 'C': if (fd && state.sel >= 0) zoomTo(fd.entries[state.sel]); break;
+    case 'ArrowRight': case 'PageDown': step(1, t0); break;
+    case 'ArrowLeft': case 'PageUp': step(-1, t0); break;
     case 'n': case 'N': nextUnreviewed(); break;
-    case 'Enter': markReviewedAndNext(); break;
+    case 'Enter': markReviewedAndNext(t0); break;
     case 'v': case 'V': setTool('select'); break;
     case 'b': case 'B': setTool('brush'); break;
     case 'e': case 'E': setTool('eraser'); break;
     case 'x': case 'X': setTool('box'); break;
     case 'l': case 'L': setTool('lasso'); break;
     case 'u': case 'U': setTool('unreviewed'); break;
+    case 'p': case 'P': setTool('profile'); break;
     case '[': setBrush(state.brush - (state.brush > 10 ? 2 : 1)); break;
     case ']': setBrush(state.brush + (state.brush >= 10 ? 2 : 1)); break;
-    case 'a': case 'A': acceptAll(e.altKey ? fd && fd.sIds : fd && fd.zIds); break;
     case 'z': undo(); break;
     case 'Z': redo(); break;
     case 'f': case 'F': case '0': fit(); break;
-    case '1': toggle('showZ', 'showZ'); break;
-    case '2': toggle('showS', 'showS'); break;
-    case '3': toggle('showL', 'showL'); break;
-    case 'h': case 'H': toggle('showH', 'showH'); break;
+    case 'm': case 'M': state.showMini = !state.showMini; requestDraw(); break;
+    case 'd': case 'D': if (fd && fd.conflict) setConflictView({ mine: 'theirs', theirs: 'diff', diff: 'mine' }[state.conflictView]); break;
+    case '1': toggle('showZ'); break;
+    case '2': toggle('showS'); break;
+    case '3': toggle('showL'); break;
+    case 'h': case 'H': toggle('showH'); break;
     default: return;
   }
+  window.zcut.inputs++;
   e.preventDefault();
 });
 window.addEventListener('keyup', (e) => { if (e.key === ' ') spaceDown = false; });
 window.addEventListener('resize', () => requestDraw());
-window.addEventListener('beforeunload', (e) => {
-  for (const p of cache.values()) p.then((fd) => { if (fd.dirty) saveNow(fd); }, () => {});
-  if (state.cur && (state.cur.dirty || state.cur.saving)) { e.preventDefault(); e.returnValue = ''; }
+window.addEventListener('pagehide', flushOnLeave);
+document.addEventListener('visibilitychange', () => { if (document.visibilityState === 'hidden') flushOnLeave(); });
+window.addEventListener('beforeunload', (e) => {  // only if the keepalive request could not carry the edit
+  const fd = state.cur;
+  if (fd && fd.dirty && labelBody(fd, 0).length > KEEPALIVE_MAX) { e.preventDefault(); e.returnValue = ''; }
 });
 
-for (const b of document.querySelectorAll('#tools button')) b.onclick = () => setTool(b.dataset.tool);
+const buttonAction = (f) => () => { window.zcut.inputs++; f(); document.activeElement.blur(); };
+for (const b of document.querySelectorAll('#tools button')) b.onclick = buttonAction(() => setTool(b.dataset.tool));
 $('brushsize').oninput = (e) => setBrush(+e.target.value);
-for (const [key, box] of [['showZ', 'showZ'], ['showS', 'showS'], ['showL', 'showL'], ['showH', 'showH']]) {
-  $(box).onchange = () => { state[key] = $(box).checked; renderOverlay(); requestDraw(); };
+$('sormin').oninput = (e) => setSorMin(+e.target.value);
+for (const key of ['showZ', 'showS', 'showL', 'showH']) $(key).onchange = () => { toggle(key); $(key).blur(); };
+$('sortkey').onchange = (e) => { state.sortKey = e.target.value; e.target.blur(); if (state.cur) refreshList(state.cur, true); requestDraw(); };
+$('orderby').onchange = (e) => { setOrder(e.target.value); e.target.blur(); };
+$('prev').onclick = buttonAction(() => step(-1));
+$('next').onclick = buttonAction(() => step(1));
+$('done').onclick = buttonAction(() => markReviewedAndNext());
+$('undo').onclick = buttonAction(undo); $('redo').onclick = buttonAction(redo);
+$('accept').onclick = buttonAction(() => decide(true)); $('reject').onclick = buttonAction(() => decide(false));
+for (const b of document.querySelectorAll('#conflict [data-merge]')) b.onclick = buttonAction(() => resolveConflict(b.dataset.merge));
+for (const b of document.querySelectorAll('#conflict [data-view]')) b.onclick = buttonAction(() => setConflictView(b.dataset.view));
+
+// ------------------------------------------------------------------ the annotator (chosen once)
+function chooseAnnotator() {
+  return new Promise((resolve) => {
+    const box = $('namebox'), input = $('namein'), msg = $('namemsg');
+    box.hidden = false; input.focus();
+    $('nameform').onsubmit = async (ev) => {
+      ev.preventDefault();
+      const r = await fetch('/api/annotator', { method: 'POST', headers: { 'Content-Type': 'application/json' },
+                                                body: JSON.stringify({ name: input.value }) });
+      const j = await r.json().catch(() => ({}));
+      if (r.ok || r.status === 409 && j.annotator) { box.hidden = true; resolve(j.annotator); }
+      else msg.textContent = j.error || `HTTP ${r.status}`;
+    };
+  });
 }
-$('prev').onclick = () => state.cur && goTo(state.cur.index - 1);
-$('next').onclick = () => state.cur && goTo(state.cur.index + 1);
-$('done').onclick = markReviewedAndNext;
-$('undo').onclick = undo; $('redo').onclick = redo;
-$('reload').onclick = () => resolveConflict(false);
-$('overwrite').onclick = () => resolveConflict(true);
-$('annotator').value = state.annotator;
-$('annotator').onchange = async (e) => {
-  const name = e.target.value.trim();
-  if (!name || name === state.annotator) { e.target.value = state.annotator; return; }
-  for (const p of cache.values()) { try { const fd = await p; await saveNow(fd); } catch (err) { /* shown */ } }
-  state.annotator = name; localStorage.setItem('zcut.annotator', name);
-  for (const p of cache.values()) {
-    try { const fd = await p; fd.annotator = name; await loadLabel(fd); } catch (err) { /* shown */ }
-  }
-  renderOverlay(); requestDraw(); await refreshFrames(); updateInfo();
-};
 
 // ------------------------------------------------------------------ start
 (async () => {
   $('logname').textContent = BOOT.log;
-  setTool('select'); setBrush(8);
-  const s = await (await fetchOk('/api/session')).json();
+  setTool('select'); setBrush(8); setSorMin(state.sorMin);
+  const s = await refreshSession();
+  state.turbo = s.turbo;
+  if (!state.annotator) state.annotator = await chooseAnnotator();
+  $('who').textContent = `annotator: ${state.annotator}`;
+  $('who').title = state.mode === 'fixed' ? 'set when the server started (zcut annotate --annotator)'
+    : 'chosen for this page session; it does not change';
   const notes = s.notes.concat((s.damage || []).map((d) => `data loss: ${d}`));
   if (notes.length) $('notes').textContent = notes.join('\n');
   await refreshFrames();
+  while (!state.frames.length && !state.done) { await new Promise((r) => setTimeout(r, 300)); await refreshFrames(); }
+  if (!state.done) refreshFrames({ again: true });
   const want = parseInt(location.hash.slice(1), 10);
-  await goTo(Number.isFinite(want) ? want : 0);
+  await goTo(Number.isFinite(want) && frameRow(want) ? want : state.order[0]);
   window.zcut.ready = true;
 })().catch((e) => showError(String(e)));

@@ -1,27 +1,28 @@
-// zcut labelling page: loading and packing off the main thread, so that a frame switch only draws.
-// Messages in:  {id, type: 'frame', index, annotator, flags, imageId}
-//               (two replies: the masks and overlay pixels under id, then the overlay as an
-//               ImageBitmap {overlay} under imageId; the page decodes the JPEG in a second worker)
+// zcut labelling page: loading and decoding off the main thread, so that a frame switch only draws.
+// Messages in:  {id, type: 'frame', index, flags, imageId}
+//               (two replies: the masks, candidates and overlay pixels under id, then the overlay
+//               as an ImageBitmap {overlay} under imageId; the page decodes the JPEG in a second worker)
 //               {id, type: 'image', index, kind: 'rgb'|'height'} -> {bitmap}
-//               {id, type: 'label', index, annotator, W, H}
-//               {id, type: 'pack', L, R}
+//               {id, type: 'label', index, W, H} -> the annotator's latest label
 // Messages out: {id, ok: true, ...result} or {id, ok: false, error}
+// Requests carry the page's session cookie (same origin); a frame still being prepared answers 503
+// with Retry-After and is asked again (the reply says how long it waited).
 'use strict';
 
-let TOKEN = null;
-
-function api(path) { return fetch(path, { headers: { 'X-Zcut-Token': TOKEN } }); }
 async function fetchOk(path) {
-  const r = await api(path);
-  if (!r.ok) throw new Error(`${path}: HTTP ${r.status}`);
-  return r;
+  for (let tries = 0; ; tries++) {
+    const r = await fetch(path);
+    if (r.status === 503 && tries < 600) {
+      const wait = Math.min(5, Math.max(0.2, parseFloat(r.headers.get('Retry-After') || '1')));
+      await new Promise((res) => setTimeout(res, wait * 1000));
+      continue;
+    }
+    if (!r.ok) throw new Error(`${path}: HTTP ${r.status} ${(await r.text()).slice(0, 200)}`);
+    return r;
+  }
 }
 async function inflate(u8) {
   const s = new Blob([u8]).stream().pipeThrough(new DecompressionStream('deflate'));
-  return new Uint8Array(await new Response(s).arrayBuffer());
-}
-async function deflate(u8) {
-  const s = new Blob([u8]).stream().pipeThrough(new CompressionStream('deflate'));
   return new Uint8Array(await new Response(s).arrayBuffer());
 }
 function unpackBits(bytes, n) {
@@ -38,16 +39,6 @@ function unpackBits(bytes, n) {
   for (let i = full << 3; i < n; i++) out[i] = (bytes[i >> 3] >> (7 - (i & 7))) & 1;
   return out;
 }
-function packBits(a) {
-  const n = a.length, out = new Uint8Array((n + 7) >> 3);
-  for (let i = 0; i < n; i++) if (a[i]) out[i >> 3] |= 128 >> (i & 7);
-  return out;
-}
-function b64(u8) {
-  let s = '';
-  for (let i = 0; i < u8.length; i += 0x8000) s += String.fromCharCode.apply(null, u8.subarray(i, i + 0x8000));
-  return btoa(s);
-}
 function anyByte(u8) { for (let i = 0; i < u8.length; i++) if (u8[i]) return true; return false; }
 function unpackRuns(raw, n) {  // uint32 run lengths: false, true, false, ...
   const out = new Uint8Array(n), runs = new Uint32Array(raw.buffer, raw.byteOffset, raw.byteLength >> 2);
@@ -56,7 +47,7 @@ function unpackRuns(raw, n) {  // uint32 run lengths: false, true, false, ...
   if (p !== n) throw new Error(`runs cover ${p} pixels, not ${n}`);
   return out;
 }
-// A bundle (see annotate/frames.py) from the bytes u8 (a view into a larger buffer is fine).
+// A bundle (see annotate/payload.py) from the bytes u8 (a view into a larger buffer is fine).
 // arrays[name + 'Any'] tells whether a mask has any pixel set, from its compressed form.
 async function parseBundle(u8) {
   const dv = new DataView(u8.buffer, u8.byteOffset, u8.byteLength);
@@ -76,15 +67,16 @@ async function parseBundle(u8) {
       const dense = new Arr(npx), idx = new Uint32Array(n);
       let p = 0;
       for (let k = 0; k < n; k++) { p += deltas[k]; idx[k] = p; dense[p] = values[k]; }
-      out[s.name] = dense; out[s.name + 'Idx'] = idx;
+      out[s.name] = dense; out[s.name + 'Idx'] = idx; out[s.name + 'Val'] = values;
     }
+    else if (s.kind === 'table') out[s.name] = new Float32Array(raw.buffer, raw.byteOffset, s.rows * s.cols);
     else if (s.dtype === 'uint8') out[s.name] = raw;
     else if (s.dtype === 'uint16') out[s.name] = new Uint16Array(raw.buffer, raw.byteOffset, npx);
     else out[s.name] = new Uint32Array(raw.buffer, raw.byteOffset, npx);
   }));
   return { header, arrays: out };
 }
-// A view (annotate/frames.py make_view): name -> Uint8Array into buf.
+// A view (annotate/payload.py make_view): name -> Uint8Array into buf.
 function parseView(buf) {
   const n = new DataView(buf).getUint32(0, true);
   const head = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
@@ -92,55 +84,73 @@ function parseView(buf) {
   for (const [name, off, len] of head.parts) parts[name] = new Uint8Array(buf, 4 + n + off, len);
   return parts;
 }
+// The pixels of each cluster id, grouped: pixels of id k are pix[start[k] .. start[k + 1]).
+function groupById(idx, values, nIds) {
+  const start = new Uint32Array(nIds + 2);
+  for (let k = 0; k < values.length; k++) start[values[k] + 1]++;
+  for (let k = 1; k < start.length; k++) start[k] += start[k - 1];
+  const fill = start.slice(0, nIds + 1), pix = new Uint32Array(idx.length);
+  for (let k = 0; k < values.length; k++) pix[fill[values[k]]++] = idx[k];
+  return { start, pix };
+}
 
 // Overlay colours (RGBA little endian in a Uint32Array), as app.js paints them.
 function rgba(r, g, b, a) { return ((a << 24) | (b << 16) | (g << 8) | r) >>> 0; }
-const COL_L = rgba(255, 30, 60, 200), COL_Z = rgba(255, 170, 0, 120), COL_S = rgba(40, 150, 255, 120);
-const COL_ZS = rgba(190, 90, 255, 140), COL_UNREV = rgba(0, 0, 0, 150);
-// The same picture from the candidates' pixel lists: the dense loop only where R is partial.
-function renderOverlaySparse(ov32, f, L, R, valid, sIds, zIdx, sIdx, hasR, hasL) {
+const COL_L = rgba(255, 30, 60, 200), COL_Z = rgba(255, 170, 0, 150), COL_S = rgba(40, 150, 255, 140);
+const COL_ZS = rgba(190, 90, 255, 160), COL_UNREV = rgba(0, 0, 0, 150);
+// The overlay from the candidates' pixel lists: the dense loop only where R is shaded.
+function renderOverlaySparse(ov32, f, lab, valid, sIds, zIdx, sIdx, sSize) {
   // ov32 is a fresh (all 0) buffer
-  if (hasR) for (let i = 0; i < ov32.length; i++) if (valid[i] && !R[i]) ov32[i] = COL_UNREV;
-  if (f.showS) for (let k = 0; k < sIdx.length; k++) ov32[sIdx[k]] = COL_S;
-  if (f.showZ) for (let k = 0; k < zIdx.length; k++) { const i = zIdx[k]; ov32[i] = (f.showS && sIds[i] !== 0) ? COL_ZS : COL_Z; }
-  if (f.showL && hasL) for (let i = 0; i < L.length; i++) if (L[i]) ov32[i] = COL_L;
+  const { L, R } = lab;
+  if (lab.shade) for (let i = 0; i < ov32.length; i++) if (valid[i] && !R[i]) ov32[i] = COL_UNREV;
+  if (f.showS) for (let k = 0; k < sIdx.length; k++) { const i = sIdx[k]; if (sSize[sIds[i]] >= f.sorMin) ov32[i] = COL_S; }
+  if (f.showZ) for (let k = 0; k < zIdx.length; k++) {
+    const i = zIdx[k];
+    ov32[i] = (f.showS && sIds[i] !== 0 && sSize[sIds[i]] >= f.sorMin) ? COL_ZS : COL_Z;
+  }
+  if (f.showL && lab.hasL) for (let i = 0; i < L.length; i++) if (L[i]) ov32[i] = COL_L;
 }
 
-function labelFrom({ header, arrays }, npx) {
+function count(u8) { let n = 0; for (let i = 0; i < u8.length; i++) n += u8[i]; return n; }
+function labelFrom({ header, arrays }, npx, nValid) {
   const L = arrays.outliers || new Uint8Array(npx), R = arrays.reviewed || new Uint8Array(npx);
-  return { rev: header.revision, L, R, hasR: header.revision > 0 && !!arrays.reviewedAny,
-           hasL: !!arrays.outliersAny };
-}
-async function loadLabel(index, annotator, npx) {
-  const r = await fetchOk(`/api/frames/${index}/label?annotator=${encodeURIComponent(annotator)}`);
-  return labelFrom(await parseBundle(new Uint8Array(await r.arrayBuffer())), npx);
+  const nR = arrays.reviewedAny ? count(R) : 0;
+  return { rev: header.revision, L, R, nR, hasL: !!arrays.outliersAny, shade: 2 * nR >= nValid && nR > 0 };
 }
 
 async function handle(m) {
   if (m.type === 'frame') {
-    // one request (bundle + label + JPEG); the JPEG decodes while the masks unpack
     const t0 = performance.now();
-    const r = await fetchOk(`/api/frames/${m.index}/view?annotator=${encodeURIComponent(m.annotator)}&image=none`);
+    const r = await fetchOk(`/api/frames/${m.index}/view?image=none`);
     const parts = parseView(await r.arrayBuffer());
     const t1 = performance.now();
     const [{ header, arrays }, labelBundle] = await Promise.all([parseBundle(parts.bundle), parseBundle(parts.label)]);
     const t2 = performance.now();
     const npx = header.width * header.height;
-    const lab = labelFrom(labelBundle, npx);
+    const lab = labelFrom(labelBundle, npx, header.n_valid);
+    const z = groupById(arrays.zcutIdx, arrays.zcutVal, header.n_zcut);
+    const s = groupById(arrays.sorIdx, arrays.sorVal, header.n_sor);
+    const sSize = new Uint32Array(header.n_sor + 1);
+    for (let k = 1; k <= header.n_sor; k++) sSize[k] = s.start[k + 1] - s.start[k];
     const t3 = performance.now();
     const ov = new Uint8ClampedArray(npx * 4);
-    renderOverlaySparse(new Uint32Array(ov.buffer), m.flags, lab.L, lab.R, arrays.valid, arrays.sor,
-                        arrays.zcutIdx, arrays.sorIdx, lab.hasR, lab.hasL);
+    renderOverlaySparse(new Uint32Array(ov.buffer), m.flags, lab, arrays.valid, arrays.sor, arrays.zcutIdx,
+                        arrays.sorIdx, sSize);
     const t4 = performance.now();
     // the masks go out at once (the page uploads the overlay while the JPEG still decodes); the
-    // image follows as its own reply, under m.imageId
+    // overlay bitmap follows as its own reply, under m.imageId
     const overlay = createImageBitmap(new ImageData(ov, header.width, header.height));  // copies ov
     overlay.then(
       (o) => self.postMessage({ id: m.imageId, ok: true, overlay: o }, [o]),
       (err) => self.postMessage({ id: m.imageId, ok: false, error: String(err) }));
     const timing = { fetch: t1 - t0, parse: t2 - t1, label: t3 - t2, overlay: t4 - t3 };
-    const res = { timing, header, valid: arrays.valid, zIds: arrays.zcut, sIds: arrays.sor, ...lab, ov };
-    const transfer = [arrays.valid.buffer, arrays.zcut.buffer, arrays.sor.buffer, lab.L.buffer, lab.R.buffer, ov.buffer];
+    const res = {
+      timing, header, valid: arrays.valid, zone: arrays.zone || null, zIds: arrays.zcut, sIds: arrays.sor,
+      cand: arrays.candidates, zStart: z.start, zPix: z.pix, sStart: s.start, sPix: s.pix, sSize, ...lab, ov,
+    };
+    const transfer = [arrays.valid.buffer, arrays.zcut.buffer, arrays.sor.buffer, arrays.candidates.buffer, z.start.buffer,
+                      z.pix.buffer, s.start.buffer, s.pix.buffer, sSize.buffer, lab.L.buffer, lab.R.buffer, ov.buffer];
+    if (arrays.zone) transfer.push(arrays.zone.buffer);
     return [res, [...new Set(transfer)]];
   }
   if (m.type === 'image') {
@@ -149,19 +159,15 @@ async function handle(m) {
     return [{ bitmap: bmp, decoded: performance.now() - t0 }, [bmp]];
   }
   if (m.type === 'label') {
-    const lab = await loadLabel(m.index, m.annotator, m.W * m.H);
+    const r = await fetchOk(`/api/frames/${m.index}/label`);
+    const lab = labelFrom(await parseBundle(new Uint8Array(await r.arrayBuffer())), m.W * m.H, m.nValid);
     return [lab, [lab.L.buffer, lab.R.buffer]];
-  }
-  if (m.type === 'pack') {
-    const [l, r] = await Promise.all([deflate(packBits(m.L)), deflate(packBits(m.R))]);
-    return [{ outliers: b64(l), reviewed: b64(r) }, []];
   }
   throw new Error(`unknown message ${m.type}`);
 }
 
 self.onmessage = async (e) => {
   const m = e.data;
-  if (m.type === 'token') { TOKEN = m.token; return; }
   try {
     const [res, transfer] = await handle(m);
     self.postMessage({ id: m.id, ok: true, ...res }, transfer);

@@ -5,20 +5,31 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from annotate_helpers import spike_frame
+from annotate_helpers import pipeline_result, review_frame, spike_frame
 
 from annotate.payload import (
+    CANDIDATE_COLUMNS,
+    COLUMN,
     INVALID_GRAY,
+    SOR_DEFAULT_MIN_PX,
+    SOURCE_SOR,
+    SOURCE_ZCUT,
     bundle_with_blobs,
     candidate_clusters,
+    candidate_table,
     height_colormap,
+    height_limits,
     make_bundle,
+    make_geometry,
     make_view,
     mask_kind,
     mask_runs,
     parse_bundle,
+    parse_geometry,
     parse_view,
     prepare_frame,
+    runs_to_mask,
+    turbo_lut,
 )
 from annotate.store import pack_mask
 
@@ -98,18 +109,107 @@ def test_height_colormap_marks_invalid_grey():
     assert (height_colormap(nothing, np.zeros((4, 5), bool)) == INVALID_GRAY).all()
 
 
+def test_runs_to_mask_refuses_what_does_not_fit():
+    assert np.array_equal(runs_to_mask(np.array([2, 3, 1]), (2, 3)), [[False, False, True], [True, True, False]])
+    with pytest.raises(ValueError, match="cover 5 pixels, the frame has 6"):
+        runs_to_mask(np.array([2, 3]), (2, 3))
+    with pytest.raises(ValueError, match="non-negative"):
+        runs_to_mask(np.array([7, -1]), (2, 3))
+
+
+def test_geometry_roundtrip(rng):
+    pts = rng.normal(size=(5, 7, 3)).astype(np.float32)
+    pts[1, 2] = np.nan
+    header, back = parse_geometry(make_geometry(pts, x0=30, y0=40))
+    assert (header["x0"], header["y0"], header["width"], header["height"]) == (30, 40, 7, 5)
+    assert header["channels"] == ["x_m", "y_m", "z_m"]
+    assert np.array_equal(back, pts, equal_nan=True)
+
+
+def test_candidate_table_by_hand():
+    """Two floating squares on a floor (heights in mm), one flagged by the z-cut, one by SOR."""
+    h = np.full((12, 14), 100.0)
+    valid = np.ones_like(h, bool)
+    h[2:4, 2:4] = 103.5          # 3.5 mm above the floor
+    h[1, 1] = 101.0              # a higher point next to it: the surface below is at 101
+    h[8:10, 9:12] = 99.0         # a hollow: "gap" below zero
+    valid[0, :] = False
+    h[0, :] = np.nan
+    z = np.zeros(h.shape, bool)
+    z[2:4, 2:4] = True
+    s = np.zeros(h.shape, bool)
+    s[8:10, 9:12] = True
+    s[3, 3] = True               # SOR agrees on one pixel of the z-cut cluster...
+    s[11, 0] = True              # ...and flags a single pixel (not listed: below SOR_LIST_MIN_PX)
+    zi, nz, si, ns = candidate_clusters(z, None, s)
+    table = candidate_table(zi, nz, si, ns, heights=h, valid=valid, z_levels=np.array([7]))
+    assert table.shape == (2, len(CANDIDATE_COLUMNS)) and table.dtype == np.float32
+    row = dict(zip(CANDIDATE_COLUMNS, table[0]))
+    assert row["source"] == SOURCE_ZCUT and row["n"] == 4 and row["level"] == 7
+    assert (row["x0"], row["y0"], row["x1"], row["y1"], row["cx"], row["cy"]) == (2, 2, 4, 4, 3, 3)
+    assert (row["h_min_mm"], row["h_max_mm"], row["below_mm"]) == (103.5, 103.5, 101.0)
+    assert row["gap_mm"] == pytest.approx(2.5) and row["both"] == 1
+    row = dict(zip(CANDIDATE_COLUMNS, table[1]))
+    assert row["source"] == SOURCE_SOR and row["n"] == 6 and row["both"] == 0 and row["level"] == -1
+    assert row["below_mm"] == 100.0 and row["gap_mm"] == pytest.approx(-1.0)
+
+
+def test_height_limits_and_lut():
+    h = np.arange(100.0).reshape(10, 10)
+    valid = np.ones((10, 10), bool)
+    assert height_limits(h, valid) == pytest.approx((0.99, 98.01))
+    assert height_limits(h, ~valid) == (0.0, 1.0)
+    lut = turbo_lut()
+    assert len(lut) == 256 and all(len(c) == 3 for c in lut)
+    # the legend's colours are the map's colours: a pixel at the top of the range has the last colour
+    xyz = np.zeros((1, 2, 3), np.float32)
+    xyz[0, :, 2] = [-0.001, -0.002]  # heights 1 and 2 mm
+    bgr = height_colormap(xyz, np.ones((1, 2), bool), limits=(1.0, 2.0))
+    assert bgr[0, 1, ::-1].tolist() == lut[255] and bgr[0, 0, ::-1].tolist() == lut[0]
+
+
+def test_prepare_frame_review_scene():
+    """The 13 small floating clusters of the review scene are the z-cut's candidates, with the gap
+    to the surface below as built (4..16 mm), and the counts the frame list shows."""
+    fr, truth = review_frame(0, shape=(300, 480))
+    res = pipeline_result(fr)
+    pf = prepare_frame(fr, res)
+    sf = pf.served
+    header, arrays = parse_bundle(sf.bundle)
+    t = arrays["candidates"]
+    z = t[t[:, COLUMN["source"]] == SOURCE_ZCUT]
+    assert np.array_equal(arrays["zcut"] > 0, truth) and len(z) == 13 == header["n_zcut"]
+    assert (z[:, COLUMN["n"]] <= 20).all() and (z[:, COLUMN["gap_mm"]] > 3.5).all()
+    # each was built 4 + k mm above the highest point within 3 px (the gap's ring is 2 px: not lower)
+    gaps = np.sort(z[:, COLUMN["gap_mm"]])
+    assert (gaps >= np.arange(4, 17) - 0.1).all() and (gaps <= np.arange(4, 17) + 1).all()
+    assert header["candidate_columns"] == list(CANDIDATE_COLUMNS)
+    assert header["height_lo_mm"] < header["height_hi_mm"]
+    assert np.array_equal(pf.geometry, fr.xyz, equal_nan=True) and "zone" not in arrays  # no bin stages
+    sor = t[t[:, COLUMN["source"]] == SOURCE_SOR]
+    assert sf.n_sor_listed == int((sor[:, COLUMN["n"]] >= SOR_DEFAULT_MIN_PX).sum())
+    counted = np.concatenate([z, sor[sor[:, COLUMN["n"]] >= SOR_DEFAULT_MIN_PX]])
+    assert sf.disagreement == int((2 * counted[:, COLUMN["both"]] < counted[:, COLUMN["n"]]).sum())
+    # decisions: accepting every z-cut cluster decides those 13 (and the SOR ones they cover)
+    L = truth.copy()
+    decided, accepted = sf.decisions(L, L)
+    assert decided == accepted >= 13
+    assert sf.decisions(L & False, arrays["valid"]) == (13 + sf.n_sor_listed, 0)
+
+
 def test_prepare_frame():
-    fr, truth = spike_frame(1, shape=(48, 64))
+    fr, _ = spike_frame(1, shape=(48, 64))
     valid = np.isfinite(fr.xyz).all(axis=2)
-    pf = prepare_frame(fr, zcut_outliers=truth, sor_outliers=truth & False, cut_clusters=None)
-    header, arrays = parse_bundle(pf.bundle)
+    res = pipeline_result(fr)
+    pf = prepare_frame(fr, res)
+    header, arrays = parse_bundle(pf.served.bundle)
     assert (header["height"], header["width"], header["index"], header["stamp_ns"]) == (48, 64, 1, fr.stamp_ns)
-    assert np.array_equal(arrays["valid"], valid)
-    assert np.array_equal(arrays["zcut"] > 0, truth & valid) and header["n_zcut"] == pf.n_zcut == 4
-    assert header["n_sor"] == 0 and not arrays["sor"].any()
-    for jpeg in (pf.rgb_jpeg, pf.height_jpeg):
+    assert np.array_equal(arrays["valid"], valid) and header["n_valid"] == int(valid.sum())
+    assert np.array_equal(arrays["zcut"] > 0, res.zcut_outliers & valid) and header["n_zcut"] == pf.served.n_zcut
+    assert np.array_equal(arrays["sor"] > 0, res.sor_outliers & valid)
+    for jpeg in (pf.served.rgb_jpeg, pf.served.height_jpeg):
         img = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
         assert img.shape == (48, 64, 3)
-    no_rgb = prepare_frame(type(fr)(**{**{k: getattr(fr, k) for k in fr.__slots__}, "rgb": None}),
-                           zcut_outliers=truth, sor_outliers=truth, cut_clusters=None)
-    assert no_rgb.rgb_jpeg is None and parse_bundle(no_rgb.bundle)[0]["has_rgb"] is False
+    no_rgb = type(fr)(**{**{k: getattr(fr, k) for k in fr.__slots__}, "rgb": None})
+    pf2 = prepare_frame(no_rgb, pipeline_result(no_rgb))
+    assert pf2.served.rgb_jpeg is None and parse_bundle(pf2.served.bundle)[0]["has_rgb"] is False

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from annotate_helpers import ServerProcess, write_spike_log
 
-from annotate.payload import parse_bundle, parse_view
+from annotate.payload import mask_runs, parse_bundle, parse_view
 from annotate.server import MAX_BODY_BYTES
 from annotate.store import LabelStore, file_sha256, pack_mask
 from replay.logs.reader import LogReader
@@ -36,10 +36,9 @@ def _b64(mask):
     return base64.b64encode(pack_mask(mask)).decode()
 
 
-def _body(mask_l, mask_r, *, annotator="alice", base=0):
+def _body(mask_l, mask_r, *, base=0):
     h, w = mask_l.shape
-    return {"annotator": annotator, "base_revision": base, "height": h, "width": w,
-            "outliers": _b64(mask_l), "reviewed": _b64(mask_r)}
+    return {"base_revision": base, "height": h, "width": w, "outliers": _b64(mask_l), "reviewed": _b64(mask_r)}
 
 
 def _valid(srv, index):
@@ -53,15 +52,21 @@ def _label_count(db):
         return s.label_count()
 
 
-@pytest.mark.parametrize("path", ["/", "/static/app.js", "/api/session", "/api/frames", "/api/frames/0/bundle",
-                                  "/api/frames/0/image/rgb", "/api/frames/0/label",
-                                  "/api/frames/0/view"])
+@pytest.mark.parametrize("path", ["/", "/static/app.js", "/static/view3d.js", "/api/session", "/api/frames",
+                                  "/api/frames/0/bundle", "/api/frames/0/image/rgb", "/api/frames/0/label",
+                                  "/api/frames/0/view", "/api/frames/0/geometry?x0=0&y0=0&x1=8&y1=8"])
 def test_every_request_needs_the_token(served, path):
+    """The token in the header (scripts) or the page session's cookie; in the URL only for the page."""
     srv = served[0]
     assert httpx.get(srv.base + path).status_code == 403
     assert httpx.get(srv.base + path, params={"token": "wrong"}).status_code == 403
     assert httpx.get(srv.base + path, headers={"X-Zcut-Token": srv.token[:-1]}).status_code == 403
-    assert httpx.get(srv.base + path, params={"token": srv.token}).status_code == 200
+    assert httpx.get(srv.base + path, headers={"Cookie": "zcut-0123456789abcdef=made-up"}).status_code == 403
+    assert httpx.get(srv.base + path, headers=srv.headers()).status_code == 200
+    with srv.page_client() as c:
+        assert c.get(path).status_code == 200
+    in_url = httpx.get(srv.base + path + ("&" if "?" in path else "?") + f"token={srv.token}")
+    assert in_url.status_code == (200 if path == "/" else 403)
 
 
 def test_put_without_token_is_refused_and_stores_nothing(served):
@@ -74,9 +79,9 @@ def test_put_without_token_is_refused_and_stores_nothing(served):
 
 
 def test_page_and_frames(served):
-    srv, log, _, truths = served
+    srv, log, _, _ = served
     r = httpx.get(srv.url)
-    assert r.status_code == 200 and "zcut annotate" in r.text and srv.token in r.text
+    assert r.status_code == 200 and "zcut annotate" in r.text and srv.token not in r.text
     assert "default-src 'self'" in r.headers["content-security-policy"] and r.headers["x-frame-options"] == "DENY"
     j = httpx.get(f"{srv.base}/api/frames", headers=srv.headers()).json()
     assert j["total"] == 3 and j["done"] and [f["index"] for f in j["frames"]] == [0, 1, 2]
@@ -97,22 +102,22 @@ def test_page_and_frames(served):
 def test_view_is_bundle_label_and_image_in_one(served):
     srv = served[0]
     for kind in ("rgb", "height"):
-        r = httpx.get(f"{srv.base}/api/frames/2/view", params={"annotator": "alice", "image": kind},
-                      headers=srv.headers())
+        r = httpx.get(f"{srv.base}/api/frames/2/view", params={"image": kind}, headers=srv.headers())
         assert r.status_code == 200 and r.headers["content-type"] == "application/octet-stream"
         parts = parse_view(r.content)
         assert sorted(parts) == ["bundle", "image", "label"]
         assert parts["bundle"] == httpx.get(f"{srv.base}/api/frames/2/bundle", headers=srv.headers()).content
         assert parts["image"] == httpx.get(f"{srv.base}/api/frames/2/image/{kind}", headers=srv.headers()).content
-        label = httpx.get(f"{srv.base}/api/frames/2/label", params={"annotator": "alice"}, headers=srv.headers())
+        label = httpx.get(f"{srv.base}/api/frames/2/label", headers=srv.headers())
         assert parts["label"] == label.content
     bare = parse_view(httpx.get(f"{srv.base}/api/frames/2/view", params={"image": "none"}, headers=srv.headers()).content)
     assert sorted(bare) == ["bundle", "label"]
     bad = httpx.get(f"{srv.base}/api/frames/2/view", params={"image": "../x"}, headers=srv.headers())
     assert bad.status_code == 400
     assert httpx.get(f"{srv.base}/api/frames/9/view", headers=srv.headers()).status_code == 404
-    bad_name = httpx.get(f"{srv.base}/api/frames/2/view", params={"annotator": ""}, headers=srv.headers())
-    assert bad_name.status_code == 422
+    # the annotator comes from the server, never from the request
+    other = httpx.get(f"{srv.base}/api/frames/2/view", params={"annotator": "mallory"}, headers=srv.headers())
+    assert parse_bundle(parse_view(other.content)["label"])[0]["annotator"] == "alice"
 
 
 def test_save_reload_and_conflict(served):
@@ -125,7 +130,7 @@ def test_save_reload_and_conflict(served):
     rev = r.json()["revision"]
     assert rev == 1
     # stored and served back
-    got = httpx.get(f"{srv.base}/api/frames/1/label", params={"annotator": "alice"}, headers=srv.headers())
+    got = httpx.get(f"{srv.base}/api/frames/1/label", headers=srv.headers())
     header, back = parse_bundle(got.content)
     assert header["revision"] == 1 and np.array_equal(back["outliers"], L) and np.array_equal(back["reviewed"], valid)
     with LabelStore(db) as s:
@@ -137,7 +142,7 @@ def test_save_reload_and_conflict(served):
     r = httpx.put(f"{srv.base}/api/frames/1/label", json=_body(L & False, valid, base=0), headers=srv.headers())
     assert r.status_code == 409 and r.json()["latest"] == 1
     assert _label_count(db) == before
-    frames = httpx.get(f"{srv.base}/api/frames", params={"annotator": "alice"}, headers=srv.headers()).json()
+    frames = httpx.get(f"{srv.base}/api/frames", headers=srv.headers()).json()
     assert frames["reviewed"] >= 1 and frames["frames"][1]["revision"] == 1
 
 
@@ -151,7 +156,9 @@ def test_malformed_payloads_are_4xx_and_store_nothing(served):
     _, arrays = _valid(srv, 0)
     valid = arrays["valid"]
     h, w = valid.shape
-    good = _body(valid & False, valid, annotator="mallory")
+    good = _body(valid & False, valid)
+    runs = {k: v for k, v in good.items() if k not in ("outliers", "reviewed")}
+    u32 = lambda *a: base64.b64encode(np.array(a, "<u4").tobytes()).decode()
     cases = [
         (b"{not json", 400),
         (json.dumps([1, 2]).encode(), 422),
@@ -159,12 +166,20 @@ def test_malformed_payloads_are_4xx_and_store_nothing(served):
         (json.dumps({**good, "outliers": base64.b64encode(b"zzz").decode()}).encode(), 422),
         (json.dumps({**good, "outliers": base64.b64encode(zlib.compress(b"\xff" * 10)).decode()}).encode(), 422),
         (json.dumps({**good, "height": h + 1}).encode(), 422),
-        (json.dumps({**good, "annotator": ""}).encode(), 422),
-        (json.dumps({**good, "annotator": 5}).encode(), 422),
+        (json.dumps({**good, "annotator": ""}).encode(), 403),        # never from the body
+        (json.dumps({**good, "annotator": "mallory"}).encode(), 403),
+        (json.dumps({**good, "annotator": 5}).encode(), 403),
+        (json.dumps({**good, "client": "x"}).encode(), 422),
+        (json.dumps({**good, "client": "tab-00000001", "seq": -1}).encode(), 422),
+        (json.dumps({**good, "base_revision": 10 ** 30}).encode(), 422),
+        (json.dumps({**runs, "outliers_runs": u32(h * w), "unreviewed_runs": u32(h * w - 1)}).encode(), 422),
+        (json.dumps({**runs, "outliers_runs": u32(h * w)[:-4] + "AAA=", "unreviewed_runs": u32(h * w)}).encode(), 422),
+        (json.dumps({**runs, "outliers_runs": u32(0, h * w), "unreviewed_runs": u32(h * w)}).encode(), 422),  # L ⊄ R
+        (json.dumps({**runs, "outliers_runs": u32(h * w), "unreviewed_runs": u32(0, h * w)}).encode(), 422),  # invalid
         (json.dumps({**good, "base_revision": -1}).encode(), 422),
         (json.dumps({**good, "base_revision": "1"}).encode(), 422),
-        (json.dumps(_body(valid, valid & False, annotator="mallory")).encode(), 422),  # L not in R
-        (json.dumps(_body(valid & False, np.ones_like(valid), annotator="mallory")).encode(), 422),  # R not in valid
+        (json.dumps(_body(valid, valid & False)).encode(), 422),  # L not in R
+        (json.dumps(_body(valid & False, np.ones_like(valid))).encode(), 422),  # R not in valid
     ]
     before = _label_count(db)
     for body, status in cases:
@@ -175,9 +190,22 @@ def test_malformed_payloads_are_4xx_and_store_nothing(served):
     bomb = base64.b64encode(zlib.compress(b"\x00" * 50_000_000, 9)).decode()
     assert _raw_put(srv, json.dumps({**good, "outliers": bomb}).encode()).status_code == 422
     assert _label_count(db) == before
-    # the good body is accepted (so the rejections above were about the defects)
-    assert _raw_put(srv, json.dumps(good).encode()).status_code == 200
-    assert _label_count(db) == before + 1
+    # the good bodies are accepted (so the rejections above were about the defects): packed bits, and
+    # runs of L and of the valid pixels not reviewed (what the page sends)
+    r = _raw_put(srv, json.dumps(good).encode())
+    assert r.status_code == 200 and r.json()["annotator"] == "alice"
+    L = np.zeros_like(valid)
+    L[5:9, 5:9] = valid[5:9, 5:9]
+    R = valid.copy()
+    R[50:60] = False
+    page = {**runs, "base_revision": r.json()["revision"], "outliers_runs": base64.b64encode(
+        mask_runs(L).astype("<u4").tobytes()).decode(),
+        "unreviewed_runs": base64.b64encode(mask_runs(valid & ~R).astype("<u4").tobytes()).decode()}
+    assert _raw_put(srv, json.dumps(page).encode()).json()["n_reviewed"] == int(R.sum())
+    assert _label_count(db) == before + 2
+    with LabelStore(db) as s:
+        lab = s.label(s.frames(s.logs()[0])[0], annotator="alice")
+    assert np.array_equal(lab.outliers, L) and np.array_equal(lab.reviewed, R)
 
 
 def _status_line(s: socket.socket) -> bytes:
@@ -228,8 +256,19 @@ def test_foreign_host_header_is_refused(served):
     assert r.status_code == 400
 
 
-def test_four_annotators_at_once_lose_nothing(served):
-    srv, log, db, _ = served
+def test_four_annotators_at_once_lose_nothing(tmp_path):
+    """One server, four page sessions that each chose their name (``--ask-annotator``), saving at once."""
+    log = tmp_path / "scan.mcap"
+    write_spike_log(log, frames=3)
+    db = tmp_path / "labels.sqlite"
+    srv = ServerProcess(log, db, annotator=None, extra=["--ask-annotator"])
+    try:
+        _run_four(srv, log, db)
+    finally:
+        srv.stop()
+
+
+def _run_four(srv, log, db):
     _, arrays = _valid(srv, 2)
     valid = arrays["valid"]
     rng = np.random.default_rng(4)
@@ -239,10 +278,11 @@ def test_four_annotators_at_once_lose_nothing(served):
     errors = []
 
     def work(annotator):
-        with httpx.Client(base_url=srv.base, headers=srv.headers(), timeout=60) as c:
+        with srv.page_client() as c:
+            assert c.post("/api/annotator", json={"name": annotator}).json() == {"annotator": annotator}
             base = 0
             for L in plans[annotator]:
-                r = c.put("/api/frames/2/label", json=_body(L, valid, annotator=annotator, base=base))
+                r = c.put("/api/frames/2/label", json=_body(L, valid, base=base))
                 if r.status_code != 200:
                     errors.append((annotator, r.status_code, r.text))
                     return
@@ -283,7 +323,7 @@ def test_kill_9_during_a_burst_keeps_every_acknowledged_edit(tmp_path):
                 while not stop.is_set():
                     L = valid & (rng.random(valid.shape) < 0.1)
                     try:
-                        r = c.put("/api/frames/0/label", json=_body(L, valid, annotator="bob", base=base))
+                        r = c.put("/api/frames/0/label", json=_body(L, valid, base=base))
                     except httpx.TransportError:
                         return  # the server died mid-request: that edit was never acknowledged
                     if r.status_code == 200:
@@ -326,11 +366,15 @@ def test_annotate_command_errors(tmp_path, capsys):
             (["annotate", str(junk), "--no-browser", "--db", str(tmp_path / "j.sqlite")], "junk.mcap"),
             (["annotate", str(log), "--no-browser", "--port", "70000"], "--port"),
             (["annotate", str(log), "--no-browser", "--port", str(busy.getsockname()[1])], "cannot listen"),
-            (["annotate", str(log), "--no-browser", "--annotator", "tab\there"], "annotator"),
+            (["annotate", str(log), "--no-browser", "--annotator", "\u0430lice"], "mixes scripts"),
+            (["annotate", str(log), "--no-browser", "--annotator", ""], "1..64 characters"),
         ]
         for argv, msg in cases:
             assert main(argv) == 1, argv
             assert msg in capsys.readouterr().err
+        with pytest.raises(SystemExit):  # one annotator for all, or each page its own: not both
+            main(["annotate", str(log), "--no-browser", "--annotator", "bob", "--ask-annotator"])
+        assert "not allowed with" in capsys.readouterr().err
     finally:
         busy.close()
     assert not (tmp_path / "j.sqlite").exists()  # nothing created for a log that cannot be read

@@ -12,12 +12,16 @@ from hypothesis.extra.numpy import array_shapes, arrays
 
 from annotate.label_files import export_labels, import_labels, read_label_masks
 from annotate.store import (
+    MIGRATIONS,
     SCHEMA_VERSION,
     LabelConflictError,
     LabelStore,
+    LabelSupersededError,
     LabelValidationError,
     StoreError,
+    annotator_skeleton,
     file_sha256,
+    normalize_annotator,
     pack_mask,
     unpack_mask,
 )
@@ -137,7 +141,7 @@ def test_invalid_labels_store_nothing(store_frame, valid, make, match):
     assert store.label_count() == 0
 
 
-@pytest.mark.parametrize("name", ["", "x" * 65, "tab\there", 7])
+@pytest.mark.parametrize("name", ["", "x" * 65, "tab\there", 7, " alice", "ａｌｉｃｅ", "a\u0430lice"])
 def test_bad_annotator_names(store_frame, valid, name):
     store, _, fr = store_frame
     with pytest.raises(LabelValidationError, match="annotator"):
@@ -212,9 +216,8 @@ def test_import_needs_the_log(tmp_path, store_frame, rng, valid):
     l1, r1 = _label(rng, valid)
     store.save_label(fr, annotator="ann", outliers=l1, reviewed=r1, base_revision=0)
     export_labels(store, log, tmp_path / "x.mcap", annotator="ann")
-    with LabelStore(tmp_path / "empty.sqlite") as other:
-        with pytest.raises(StoreError, match="not registered"):
-            import_labels(other, tmp_path / "x.mcap")
+    with LabelStore(tmp_path / "empty.sqlite") as other, pytest.raises(StoreError, match="not registered"):
+        import_labels(other, tmp_path / "x.mcap")
 
 
 @settings(max_examples=100, deadline=None)
@@ -238,3 +241,130 @@ def test_damaged_label_export_is_refused_and_stores_nothing(store_frame, rng, va
         with pytest.raises(LogFormatError, match=bad.name):
             import_labels(store, bad)
     assert store.revisions(fr, annotator="ann") == [1]
+
+
+@pytest.mark.parametrize(("name", "stored"), [
+    ("alice", "alice"),
+    ("  alice  ", "alice"),
+    ("ａｌｉｃｅ", "alice"),                  # fullwidth: NFKC
+    ("Anne  Marie", "Anne Marie"),           # inner white space: one space
+    ("O'Neil-Smith_2", "O'Neil-Smith_2"),
+    ("José", "José"),                         # e + combining acute: composed
+    ("Ольга", "Ольга"),                       # one script, not Latin
+    ("山田はなこ", "山田はなこ"),               # Han with Hiragana
+    ("Zoë Ø", "Zoë Ø"),
+])
+def test_annotator_names_are_normalised(name, stored):
+    assert normalize_annotator(name) == stored
+
+
+@pytest.mark.parametrize(("name", "match"), [
+    ("", "1..64 characters"),
+    ("x" * 65, "1..64 characters"),
+    (None, "must be a string"),
+    ("\u0430lice", "mixes scripts \\(cyrillic, latin\\)"),   # Cyrillic а in alice
+    ("bοb", "mixes scripts \\(greek, latin\\)"),            # Greek ο
+    ("al\u200bice", "U\\+200B"),                             # zero-width space
+    ("alice\u202e", "U\\+202E"),                             # right-to-left override
+    ("bob\tsmith\x00", "U\\+0000"),
+    ("bob@example", "U\\+0040"),
+    ("Ͱ\u0301a", "mixes scripts"),
+])
+def test_annotator_names_refused(name, match):
+    with pytest.raises(LabelValidationError, match=match):
+        normalize_annotator(name)
+
+
+def test_look_alikes_of_existing_annotators_are_refused(store_frame, valid):
+    store, _, fr = store_frame
+    store.save_label(fr, annotator="alice", outliers=valid & False, reviewed=valid, base_revision=0)
+    assert store.check_new_annotator("alice") == "alice"       # the same person again
+    assert store.check_new_annotator("bob") == "bob"
+    for twin in ["Alice", "ALICE", "a1ice", "al.ice", "\u0430\u04cf\u0456\u0441\u0435", "ａｌｉｃｅ "[:-1] + "_"]:
+        with pytest.raises(LabelValidationError, match="looks like the existing annotator 'alice'"):
+            store.check_new_annotator(twin)
+    with pytest.raises(LabelValidationError, match="looks like the existing annotator 'rn'"):
+        store.check_new_annotator("m", also=["rn"])
+    assert annotator_skeleton("\u0430\u04cf\u0456\u0441\u0435") == annotator_skeleton("alice") == "alice"
+
+
+def test_one_page_saving_full_states_is_not_a_conflict(store_frame, rng, valid):
+    """A page's saves in flight together (the last one as the tab closes) land in the order of the
+    page's own sequence numbers; another page's save in between is a conflict."""
+    store, _, fr = store_frame
+    states = [_label(rng, valid) for _ in range(4)]
+    save = lambda k, base, client="tab-aaaa1", seq=None: store.save_label(
+        fr, annotator="ann", outliers=states[k][0], reviewed=states[k][1], base_revision=base, client=client,
+        client_seq=k if seq is None else seq)
+    assert save(0, 0) == 1
+    # seq 2 (sent as the tab closed) arrives before seq 1, both based on revision 1
+    assert save(2, 1) == 2
+    with pytest.raises(LabelSupersededError, match="newer state") as e:
+        save(1, 1)
+    assert e.value.latest == 2 and store.revisions(fr, annotator="ann") == [1, 2]
+    assert np.array_equal(store.label(fr, annotator="ann").outliers, states[2][0])
+    # in order: seq 3 on base 1 follows seq 2 of the same page
+    assert save(3, 1) == 3
+    # another page (or a save without a page id) based on an old revision: a conflict
+    with pytest.raises(LabelConflictError):
+        save(0, 2, client="tab-bbbb2", seq=9)
+    with pytest.raises(LabelConflictError):
+        store.save_label(fr, annotator="ann", outliers=states[0][0], reviewed=states[0][1], base_revision=1)
+    with pytest.raises(LabelConflictError):  # a base from the future
+        save(0, 7, seq=10)
+    with pytest.raises(LabelValidationError, match="together"):
+        store.save_label(fr, annotator="ann", outliers=states[0][0], reviewed=states[0][1], base_revision=3,
+                         client="tab-aaaa1")
+    assert store.revisions(fr, annotator="ann") == [1, 2, 3]
+
+
+def test_servers_register_beat_and_leave(tmp_path, log_file):
+    import os
+    import subprocess
+    import sys
+
+    with LabelStore(tmp_path / "s.sqlite") as a, LabelStore(tmp_path / "s.sqlite") as b:
+        me = a.register_server(log_sha256="0" * 64, port=8000)
+        other = b.register_server(log_sha256="1" * 64, port=8001)
+        live = a.live_servers()
+        assert [s.id for s in live] == [me.id, other.id] and live[0].pid == os.getpid() and live[1].port == 8001
+        b.unregister_server(other.id)
+        assert [s.id for s in a.live_servers()] == [me.id]
+        # a server that stopped beating (killed) is gone after the stale time
+        stale = b.register_server(log_sha256="1" * 64, port=8002)
+        assert stale.id in [s.id for s in a.live_servers(stale_after_s=60)]
+        import time
+        time.sleep(0.05)
+        a.heartbeat_server(me.id)
+        assert [s.id for s in a.live_servers(stale_after_s=0.03)] == [me.id]
+        # on this host, a server whose process is gone is gone at once
+        done = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                              check=True)
+        dead = int(done.stdout)
+        b._db.execute("UPDATE servers SET pid = ? WHERE id = ?", (dead, stale.id))
+        assert stale.id not in [s.id for s in a.live_servers(stale_after_s=60)]
+
+
+def test_a_version_1_store_is_migrated_and_keeps_its_labels(tmp_path, log_file, rng, valid):
+    path = tmp_path / "v1.sqlite"
+    db = sqlite3.connect(path)
+    for stmt in MIGRATIONS[0]:
+        db.execute(stmt)
+    db.execute("PRAGMA user_version = 1")
+    db.execute("INSERT INTO logs (sha256, name, size_bytes, added_ns) VALUES (?, 'scan.mcap', 1, 0)",
+               (file_sha256(log_file),))
+    db.execute("INSERT INTO frames (log_id, topic, stamp_ns, frame_index, height, width, valid)"
+               " VALUES (1, '/c', 5, 0, ?, ?, ?)", (*SHAPE, pack_mask(valid)))
+    l1, r1 = _label(rng, valid)
+    db.execute("INSERT INTO labels (frame_id, annotator, revision, created_ns, height, width, outliers, reviewed,"
+               " n_outliers, n_reviewed) VALUES (1, 'ann', 1, 0, ?, ?, ?, ?, ?, ?)",
+               (*SHAPE, pack_mask(l1), pack_mask(r1), int(l1.sum()), int(r1.sum())))
+    db.commit()
+    db.close()
+    with LabelStore(path) as store:
+        assert store.schema_version == SCHEMA_VERSION == 2
+        fr = store.frame(store.log_by_sha(file_sha256(log_file)), topic="/c", stamp_ns=5)
+        assert np.array_equal(store.label(fr, annotator="ann").outliers, l1)
+        assert store.save_label(fr, annotator="ann", outliers=l1, reviewed=r1, base_revision=1,
+                                client="tab-cccc3", client_seq=1) == 2
+        assert store.register_server(log_sha256="0" * 64).id == 1
