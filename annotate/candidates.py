@@ -1,18 +1,21 @@
-"""Run the replay pipeline over a log's frames for the candidates (page) and predictions (accuracy)."""
+"""The pipeline's candidates for the labelling page, run as ``zcut replay`` runs them.
+
+The page prepares a log's frames in log order, one at a time (``annotate.server.Catalog``).
+:class:`PipelineRunner` resolves the config with :func:`replay.pipeline.config.resolve_config` at
+the first frame it is given (the log's first readable frame, as a
+:class:`~replay.pipeline.session.ReplaySession` does), prepares the bin model once for it, and runs
+``run_frame`` with the previous frame's registration as the seed, as the session does: the page shows
+the masks ``zcut replay`` writes for the same log, config file and overrides.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
-
-from annotate.payload import PreparedFrame, prepare_frame
+from typing import Any
 
 
 class PipelineRunner:
     """Resolve the pipeline config once (at the first frame) and run ``run_frame`` frame by frame.
-
-    The config is resolved as ``zcut replay`` resolves it: the TOML file if given, else the preset of a
-    synthetic log's part kind (``zcut.synth`` metadata), else defaults derived from the image size.
-    Without a bin model the bin stages are skipped (with a warning) and the z-cut judges the frame.
 
     Parameters
     ----------
@@ -20,48 +23,44 @@ class PipelineRunner:
         The log's MCAP metadata records (``LogReader.metadata``).
     config_path : path-like, optional
         Pipeline config (TOML).
-    bin_model : replay.pipeline.bin_model.BinModel, optional
+    bin_model : zcut.bin_model.BinModel, optional
         Enables the bin stages.
+    overrides : dict, optional
+        The command line's layer (:func:`replay.pipeline.config.cli_layer`).
+    intrinsics : zcut.cloud.Intrinsics, optional
+        The log's camera intrinsics (``LogReader.intrinsics``) when known apart from the frames.
     """
 
     def __init__(self, metadata: dict[str, dict[str, str]], *, config_path: str | Path | None = None,
-                 bin_model=None) -> None:
+                 bin_model=None, overrides: dict[str, Any] | None = None, intrinsics=None) -> None:
         self.metadata = metadata
         self.config_path = config_path
         self.bin_model = bin_model
+        self.overrides = overrides
+        self.intrinsics = intrinsics
         self.config = None
+        self.prepared = None
         self.previous = None
         self.notes: tuple[str, ...] = ()
 
     def _resolve(self, frame) -> None:
-        from replay.pipeline import config as rc
-        from replay.pipeline.session import synth_info
+        from replay.pipeline import config as cfg
+        from zcut.bin_model import prepare_bin_model
 
-        part_kind, dist = synth_info(self.metadata)
-        intr = frame.intrinsics
-        resolved = rc.resolve(
-            file_layer=rc.load_toml(self.config_path) if self.config_path else None,
-            part_kind=part_kind,
-            camera_distance_mm=dist,
-            fx=None if intr is None else intr.fx,
-            fy=None if intr is None else intr.fy,
-            image_shape=frame.shape,
-        )
+        resolved = cfg.resolve_config(self.metadata, frame, config_file=self.config_path,
+                                      overrides=self.overrides, intrinsics=self.intrinsics)
         self.config = resolved.config
         self.notes = resolved.notes
+        if self.bin_model is not None:
+            self.prepared = prepare_bin_model(self.bin_model, registration=self.config.registration,
+                                              removal=self.config.removal)
 
     def run(self, frame):
-        """``replay.pipeline.stages.run_frame`` on the frame (FrameResult)."""
+        """``replay.pipeline.stages.run_frame`` on the next frame in log order (FrameResult)."""
         from replay.pipeline.stages import run_frame
 
         if self.config is None:
             self._resolve(frame)
-        result = run_frame(frame, self.config, bin_model=self.bin_model, previous=self.previous)
+        result = run_frame(frame, self.config, bin_model=self.prepared, previous=self.previous)
         self.previous = result
         return result
-
-    def prepare_for_page(self, frame) -> PreparedFrame:
-        """The page's view of the frame with the pipeline's candidates."""
-        result = self.run(frame)
-        return prepare_frame(frame, zcut_outliers=result.zcut_outliers, sor_outliers=result.sor_outliers,
-                             cut_clusters=result.cut.clusters, warnings=tuple(result.warnings))

@@ -28,8 +28,8 @@ from pathlib import Path
 
 from replay.logs.reader import LogReader
 from replay.pipeline.bin_model import build_bin_model, load_bin_model, save_bin_model
-from replay.pipeline.config import PipelineConfig
-from replay.pipeline.session import replay_log
+from replay.pipeline.session import ReplaySession
+from replay.pipeline.sinks import BackgroundSinks, RerunSink
 from replay.synth.log import write_synthetic_log
 
 SIZE = (1200, 1920)
@@ -46,18 +46,21 @@ def prepare(d: Path, kind: str, frames: int) -> tuple[Path, Path]:
         empty = d / "bench_empty.mcap"
         print(f"synthesising 5 empty-bin scans -> {empty}")
         write_synthetic_log(empty, empty=True, frames=5, seed=11, size=SIZE)
-        model, _ = build_bin_model(LogReader(empty).frames(), PipelineConfig())
+        model, _ = build_bin_model(LogReader(empty).frames())
         save_bin_model(model, ply)
     return log, ply
 
 
-def timed_replay(log: Path, model, **kw) -> tuple[float, float, int, list]:
+def timed_replay(log: Path, model, *, rrd: Path | None = None) -> tuple[float, float, int, list]:
     """Replay frames 1.. after frame 0 as warm-up; returns (wall s, CPU s, frames, timings)."""
-    replay_log(log, bin_model=model, frames=(0, 1))  # warm-up: numba, KD-tree and ICP model caches
+    session = ReplaySession.open(log, bin_model=model)
+    session.run(frames=(0, 1))  # warm-up: numba kernels
     timings = []
+    if rrd is not None and rrd.exists():
+        rrd.unlink()
+    sink = BackgroundSinks([RerunSink(rrd=rrd)] if rrd is not None else [])
     t0, c0 = time.perf_counter(), time.process_time()
-    summary, _ = replay_log(log, bin_model=model, frames=(1, None),
-                            on_frame=lambda f, r, row: timings.append(r.timings), **kw)
+    summary = session.run(sink, frames=(1, None), on_frame=lambda f, r, row: timings.append(r.timings))
     return time.perf_counter() - t0, time.process_time() - c0, len(summary.rows), timings
 
 

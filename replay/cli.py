@@ -1,17 +1,28 @@
-"""The ``zcut`` console script.
+"""The ``zcut`` console script: the one composition root.
 
-Each subcommand lives in its own module (``replay.commands.<name>`` or ``annotate.commands``) with
-``add_arguments(parser)`` and ``run(args) -> int``; modules import their heavy dependencies inside
-``run`` so that ``zcut --help`` stays fast. This is the only place that turns errors into messages
-and exit codes (SPEC §6): 0 success, 1 user error (one line on stderr), 3 finished with data loss.
+It imports every package's commands explicitly (each a module with ``add_arguments(parser)`` and
+``run(args) -> int``, importing its heavy dependencies inside ``run`` so that ``zcut --help`` stays
+fast), sets the process-wide settings a command line owns (the numba threading layer), and is the
+only place that turns errors into messages and exit codes (SPEC §6): 0 success, 1 user error (one
+line on stderr, no traceback), 3 finished with data loss.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
+import errno
+import os
 import sys
 
+from annotate.commands import accuracy as accuracy_cmd
+from annotate.commands import annotate as annotate_cmd
+from annotate.commands import labels as labels_cmd
+from replay.commands import bin_model as bin_model_cmd
+from replay.commands import demo as demo_cmd
+from replay.commands import record as record_cmd
+from replay.commands import replay as replay_cmd
+from replay.commands import synth as synth_cmd
+from replay.commands import topics as topics_cmd
 from zcut.errors import ZcutError
 
 EXIT_OK = 0
@@ -19,17 +30,27 @@ EXIT_USER_ERROR = 1
 EXIT_DATA_LOSS = 3
 
 # name -> (module, one-line help). Order is the order shown by --help.
-COMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("replay.commands.demo", "the whole job on the bundled synthetic sample: replay, .rrd, true accuracy"),
-    "record": ("replay.commands.record", "turn organized .ply/.pcd files (or folders of them) into a ROS 2 MCAP log"),
-    "topics": ("replay.commands.topics", "show what a log holds and which topics zcut would use"),
-    "synth": ("replay.commands.synth", "synthesise a bin-picking log (six part kinds, empty bin) with exact ground-truth outliers"),
-    "replay": ("replay.commands.replay", "run the pipeline (bin removal, z-cut, SOR) on a log; log every stage to Rerun"),
-    "bin-model": ("replay.commands.bin_model", "build the bin model (PLY) from empty-bin scans, or import a CAD/PLY model"),
-    "accuracy": ("annotate.commands.accuracy", "true accuracy of z-cut, SOR, union, intersection against labels or ground truth"),
-    "annotate": ("annotate.commands.annotate", "label true outliers in a local web page (127.0.0.1, token in the URL)"),
-    "labels": ("annotate.commands.labels", "list, export (MCAP) and import human labels of a label store"),
+COMMANDS = {
+    "demo": (demo_cmd, "the whole job on the bundled synthetic sample: replay, .rrd, true accuracy"),
+    "record": (record_cmd, "turn organized .ply/.pcd files (or folders of them) into a ROS 2 MCAP log"),
+    "topics": (topics_cmd, "show what a log holds and which topics zcut would use"),
+    "synth": (synth_cmd, "synthesise a bin-picking log (six part kinds, empty bin) with exact ground-truth outliers"),
+    "replay": (replay_cmd, "run the pipeline (bin removal, z-cut, SOR) on a log; log every stage to Rerun"),
+    "bin-model": (bin_model_cmd, "build the bin model (PLY) from empty-bin scans, or import a CAD/PLY model"),
+    "accuracy": (accuracy_cmd, "true accuracy of z-cut, SOR, union, intersection against labels or ground truth"),
+    "annotate": (annotate_cmd, "label true outliers in a local web page (127.0.0.1, token in the URL)"),
+    "labels": (labels_cmd, "list, export (MCAP) and import human labels of a label store"),
 }
+
+
+def version() -> str:
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("zcut")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
+        return "unknown"
 
 
 class _Parser(argparse.ArgumentParser):
@@ -46,16 +67,42 @@ def build_parser() -> argparse.ArgumentParser:
         description="Replay bin-picking scans through the z-cut outlier filter, "
         "log every stage to Rerun, and measure true accuracy against labels.",
     )
+    parser.add_argument("--version", action="version", version=f"zcut {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for name, (module_name, help_text) in COMMANDS.items():
-        module = importlib.import_module(module_name)
+    for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         module.add_arguments(p)
         p.set_defaults(_module=module)
     return parser
 
 
+def configure_process() -> None:
+    """Process-wide settings that belong to the command line, not to the library.
+
+    numba's own workqueue threads unless the user chose a layer: OpenMP workers spin after each
+    parallel region and steal the CPU on a busy machine (measured 2-3x slower here), and an old TBB
+    shipped by other wheels makes numba warn when it probes the "tbb" layer.
+    """
+    if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
+        os.environ["NUMBA_THREADING_LAYER_PRIORITY"] = "workqueue omp tbb"
+        if "numba" in sys.modules:  # numba read its config at import: set it there too
+            import numba
+
+            numba.config.THREADING_LAYER_PRIORITY = ["workqueue", "omp", "tbb"]
+
+
+def _os_error_message(e: OSError) -> str:
+    what = e.strerror or str(e)
+    if e.errno == errno.ENOSPC:
+        what = "no space left on the device"
+    elif e.errno == errno.ENOTDIR:
+        what = "a part of the path is a file, not a folder"
+    name = e.filename if e.filename is not None else ""
+    return f"{what}: {name}" if name else what
+
+
 def main(argv: list[str] | None = None) -> int:
+    configure_process()
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "_module", None) is None:
@@ -66,11 +113,24 @@ def main(argv: list[str] | None = None) -> int:
     except ZcutError as e:
         print(f"error: {e}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except BrokenPipeError:
+        # the reader of stdout went away (`zcut topics LOG | head`): nothing more to say to anyone
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+        except OSError:
+            pass
+        return EXIT_OK
     except FileNotFoundError as e:
         print(f"error: no such file: {e.filename}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except (IsADirectoryError, PermissionError) as e:
-        print(f"error: {e.strerror}: {e.filename}", file=sys.stderr)
+    except OSError as e:
+        print(f"error: {_os_error_message(e)}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except (OverflowError, RecursionError, MemoryError) as e:
+        kind = {OverflowError: "a number is out of range", RecursionError: "input nested too deeply",
+                MemoryError: "not enough memory"}[type(e)]
+        print(f"error: {kind} ({e})" if str(e) else f"error: {kind}", file=sys.stderr)
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -5,8 +5,12 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import numpy as np
-import pytest
+# the command line's process settings (replay.cli.configure_process) before numba is imported:
+# numba's own workqueue threads, not an old TBB that warns when probed
+os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 REAL_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 if not REAL_DATA.is_dir():  # a checkout elsewhere may point at the data explicitly

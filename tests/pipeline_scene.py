@@ -101,3 +101,17 @@ def model_from_empty(*, h: int = 120, w: int = 160) -> np.ndarray:
     frame, _ = scene(h=h, w=w, parts=False)
     bright = (frame.rgb == np.array(BRIGHT, np.uint8)).all(axis=2)
     return frame.xyz[bright].astype(np.float64)
+
+
+def resolved_config(layer: dict, shape: tuple[int, int] = (240, 320)):
+    """The pipeline config resolved from a config layer, for a frame of ``shape`` without metadata."""
+    from replay.pipeline import config as cfg
+
+    return cfg.resolve(cfg.LogFacts(None, None, None, shape), file_layer=layer).config
+
+
+def prepared(model, config):
+    """The bin model prepared for ``config`` (what a replay session builds once)."""
+    from zcut.bin_model import prepare_bin_model
+
+    return prepare_bin_model(model, registration=config.registration, removal=config.removal)

@@ -31,3 +31,66 @@ def test_cli_usage_error_exits_1_with_one_line():
     assert out.returncode == 1
     assert out.stderr.strip().splitlines()[-1].startswith("error: unrecognized arguments")
     assert "Traceback" not in out.stderr
+
+
+def test_zcut_modules_hold_no_mutable_module_level_state():
+    """zcut is pure: no caches or registries at module level (state an algorithm needs across frames
+    is an object built once and passed in, e.g. zcut.bin_model.PreparedBinModel)."""
+    code = r'''
+import importlib, pkgutil, types, sys
+import numpy as np
+import zcut
+bad = []
+for m in pkgutil.iter_modules(zcut.__path__):
+    mod = importlib.import_module("zcut." + m.name)
+    for name, v in vars(mod).items():
+        if name.startswith("__"):
+            continue
+        if isinstance(v, (dict, list, set, bytearray)) and name != "__all__":
+            bad.append(f"{mod.__name__}.{name}: {type(v).__name__}")
+        elif isinstance(v, np.ndarray) and v.flags.writeable:
+            bad.append(f"{mod.__name__}.{name}: writable ndarray")
+print("\n".join(bad))
+'''
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "", f"mutable module-level state in zcut:\n{out.stdout}"
+
+
+def test_importing_zcut_changes_no_global_setting():
+    code = (
+        "import os, numba, numpy, scipy.ndimage, cv2  # third-party imports change what they change\n"
+        "before = (dict(os.environ), list(numba.config.THREADING_LAYER_PRIORITY), numba.config.THREADING_LAYER)\n"
+        "import pkgutil, importlib, zcut\n"
+        "for m in pkgutil.iter_modules(zcut.__path__): importlib.import_module('zcut.' + m.name)\n"
+        "after = (dict(os.environ), list(numba.config.THREADING_LAYER_PRIORITY), numba.config.THREADING_LAYER)\n"
+        "print(before == after)\n"
+    )
+    env = {k: v for k, v in __import__("os").environ.items() if not k.startswith("NUMBA_THREADING")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+    assert out.stdout.strip() == "True"
+
+
+def test_the_console_script_is_the_one_composition_root():
+    """replay.cli imports every command module explicitly; no command module imports another's."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    tree = ast.parse((root / "replay" / "cli.py").read_text())
+    imported = {f"{n.module}.{a.name}" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module
+                for a in n.names}
+    commands = {f"{pkg}.commands.{p.stem}" for pkg in ("replay", "annotate")
+                for p in (root / pkg / "commands").glob("*.py") if p.stem not in ("__init__", "common")}
+    assert commands <= imported, f"not in the command table: {sorted(commands - imported)}"
+    assert "import_module" not in (root / "replay" / "cli.py").read_text()
+
+
+def test_replaying_a_real_log_does_not_import_the_scene_generator():
+    code = (
+        "import sys\n"
+        "from replay.pipeline import config, session, stages, sinks\n"
+        "from replay.commands import replay\n"
+        "print([m for m in sys.modules if m.startswith('replay.synth')])\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

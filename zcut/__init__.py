@@ -3,7 +3,9 @@
 No file I/O, no viewer, no database here: see ``replay`` and ``annotate`` for those.
 """
 
+from .bin_model import BinModel, PreparedBinModel, prepare_bin_model
 from .cloud import Intrinsics, height_mm, valid_mask
+from .cut_grid import ZCutTree, zcut_tree
 from .cuts import CutResult, find_clusters, zcut_outliers, zcut_outliers_reference
 from .errors import InputShapeError, ParameterError, ZcutError
 from .metrics import (
@@ -18,12 +20,21 @@ from .metrics import (
     sensitivity,
     sensitivity_of,
 )
-from .params import ZCutParams
+from .params import BinMaskParams, RegistrationParams, RemovalParams, SorParams, ZCutParams
 from .sor import sor_outliers
 
 __all__ = [
+    "BinMaskParams",
+    "BinModel",
     "CutResult",
+    "PreparedBinModel",
+    "RegistrationParams",
+    "RemovalParams",
+    "SorParams",
     "ZCutParams",
+    "ZCutTree",
+    "prepare_bin_model",
+    "zcut_tree",
     "find_clusters",
     "zcut_outliers",
     "zcut_outliers_reference",

@@ -34,6 +34,7 @@ __all__ = [
 ACCURACY_KEYS = ("tp", "fp", "fn", "precision", "recall", "f1", "iou", "cluster_precision", "cluster_recall")
 
 _EIGHT = np.ones((3, 3), dtype=bool)
+_EIGHT.setflags(write=False)
 
 
 def ratio(num: float, den: float) -> float:

@@ -1,8 +1,16 @@
-"""Parameters of the z-cut filter and how to derive them (paper Section 5.4).
+"""The parameters of every stage, each a frozen dataclass validated once, in its constructor.
 
-The filter takes three numbers: the step Δd and depth d_max (mm, in the unit of the height image)
-and the area threshold μ_thr (pixels), usually given as ρ_thr · a_max (paper eq. 5) where a_max is
-the pixel count of the part's largest face seen by the sensor.
+- :class:`ZCutParams`: the z-cut filter (paper §3). It takes three numbers: the step Δd and depth
+  d_max (in the unit of the height image: mm in the pipeline) and the area threshold μ_thr
+  (pixels), usually given as ρ_thr · a_max (paper eq. 5) where a_max is the pixel count of the
+  part's largest face seen by the sensor; how to derive them from geometry (§5.4) is here too.
+- :class:`BinMaskParams`, :class:`RegistrationParams`, :class:`RemovalParams`, :class:`SorParams`:
+  the other stages of the pipeline (paper §5.1-§5.3). Lengths are given in millimetres, as a user
+  writes them in a config file; the stage functions, which work on clouds in metres, read them
+  through the ``*_m`` properties: the one place where units are converted.
+
+``replay.pipeline.config.PipelineConfig`` nests one of each; an invalid value raises
+:class:`~zcut.errors.ParameterError` naming the class, the field and the value.
 """
 
 from __future__ import annotations
@@ -19,6 +27,10 @@ __all__ = [
     "MAX_DEPTH_RANGE",
     "RHO_THR_RANGE",
     "STEP_RANGE",
+    "BinMaskParams",
+    "RegistrationParams",
+    "RemovalParams",
+    "SorParams",
     "ZCutParams",
     "a_max_from_camera",
     "n_levels",
@@ -60,8 +72,42 @@ def _positive(name: str, value: object, *, allow_inf: bool = False) -> float:
         raise ParameterError(f"{name} must be a number > 0, got {value!r}")
     v = float(value)  # type: ignore[arg-type]
     if not (v > 0 and (allow_inf or math.isfinite(v))):
-        raise ParameterError(f"{name} must be a {'' if allow_inf else 'finite '}number > 0, got {value!r}")
+        raise ParameterError(f"{name} must be a number > 0, got {value!r}")
     return v
+
+
+def _number(obj: object, name: str, *, gt: float | None = None, ge: float | None = None,
+            le: float | None = None, integer: bool = False, optional: bool = False) -> None:
+    """Check ``obj.name`` is a finite number in range (an ``int`` when ``integer``; None when
+    ``optional``); raise :class:`ParameterError` naming the class, the field and the value."""
+    v = getattr(obj, name)
+    if v is None and optional:
+        return
+    bad = isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+    if not bad and integer and int(v) != v:
+        bad = True
+    if not bad and ((gt is not None and not v > gt) or (ge is not None and not v >= ge)
+                    or (le is not None and not v <= le)):
+        bad = True
+    if bad:
+        rng = [f"> {gt:g}"] if gt is not None else []
+        rng += [f">= {ge:g}"] if ge is not None else []
+        rng += [f"<= {le:g}"] if le is not None else []
+        kind = "an integer" if integer else "a number"
+        raise ParameterError(f"{type(obj).__name__}.{name} must be {' '.join([kind, ' and '.join(rng)]).strip()}, "
+                             f"got {v!r}")
+
+
+def _boolean(obj: object, name: str) -> None:
+    v = getattr(obj, name)
+    if not isinstance(v, bool):
+        raise ParameterError(f"{type(obj).__name__}.{name} must be true or false, got {v!r}")
+
+
+def _choice(obj: object, name: str, choices: tuple[str, ...]) -> None:
+    v = getattr(obj, name)
+    if not isinstance(v, str) or v not in choices:
+        raise ParameterError(f"{type(obj).__name__}.{name} must be one of {', '.join(choices)}, got {v!r}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -79,24 +125,31 @@ class ZCutParams:
         (+inf: no limit).
     a_max : float or None
         Pixel count of the part's largest face (for ρ = area / a_max); None if unknown.
+    connectivity : {8, 4}
+        Pixel connectivity of the cuts' components.
     """
 
     step: float
     max_depth: float
     max_area: float
     a_max: float | None = None
+    connectivity: int = 8
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "step", _positive("ZCutParams.step", self.step))
         md = self.max_depth
         if isinstance(md, bool) or not isinstance(md, (int, float)) and not hasattr(md, "__float__"):
-            raise ParameterError(f"ZCutParams.max_depth must be a finite number >= 0, got {md!r}")
+            raise ParameterError(f"ZCutParams.max_depth must be a number >= 0, got {md!r}")
         if not (math.isfinite(float(md)) and float(md) >= 0):
-            raise ParameterError(f"ZCutParams.max_depth must be a finite number >= 0, got {md!r}")
+            raise ParameterError(f"ZCutParams.max_depth must be a number >= 0, got {md!r}")
         object.__setattr__(self, "max_depth", float(md))
         object.__setattr__(self, "max_area", _positive("ZCutParams.max_area", self.max_area, allow_inf=True))
         if self.a_max is not None:
             object.__setattr__(self, "a_max", _positive("ZCutParams.a_max", self.a_max))
+        c = self.connectivity
+        if isinstance(c, bool) or c not in (4, 8):
+            raise ParameterError(f"ZCutParams.connectivity must be 4 or 8, got {c!r}")
+        object.__setattr__(self, "connectivity", int(c))
 
     @property
     def n_levels(self) -> int:
@@ -210,3 +263,178 @@ def a_max_from_camera(face_area_mm2: float, *, distance_mm: float, fx_px: float,
     fx = _positive("fx_px", fx_px)
     fy = _positive("fy_px", fy_px)
     return area * fx * fy / (d * d)
+
+
+#: The SOR conventions (SPEC §2) and the regions SOR may judge in the pipeline.
+SOR_CONVENTIONS = ("pcl", "open3d")
+SOR_REGIONS = ("top", "zone")
+REGISTRATION_METHODS = ("point_to_plane", "point_to_point")
+
+
+@dataclass(frozen=True, slots=True)
+class BinMaskParams:
+    """The RGB bin footprint (:func:`zcut.binmask.bin_mask`, paper §5.1).
+
+    Attributes
+    ----------
+    enabled : bool
+        False: the pipeline skips the bin stages (the z-cut judges the whole frame).
+    threshold : float
+        Gray level (0-255) above which a pixel is bin plastic.
+    dilate_px : int
+        Radius of the closing of the walls.
+    min_area_frac : float
+        Smallest bin component, as a fraction of the image.
+    """
+
+    enabled: bool = True
+    threshold: float = 150.0
+    dilate_px: int = 3
+    min_area_frac: float = 0.01
+
+    def __post_init__(self) -> None:
+        _boolean(self, "enabled")
+        _number(self, "threshold", ge=0, le=255)
+        _number(self, "dilate_px", ge=0, integer=True)
+        _number(self, "min_area_frac", ge=0, le=1)
+
+
+@dataclass(frozen=True, slots=True)
+class RegistrationParams:
+    """ICP of the bin model (:func:`zcut.registration.register_bin`, paper §5.2).
+
+    Attributes
+    ----------
+    method : {"point_to_plane", "point_to_point"}
+    voxel_mm : float
+        Voxel size of the downsampling (0: none).
+    max_correspondence_mm : float
+        Correspondence distance of the coarse pass; the fine pass uses a third of it.
+    max_iterations : int
+        ICP iterations per pass.
+    min_fitness : float
+        A registration whose bin fitness (the fraction of the bin's visible rim the frame confirms)
+        is lower failed.
+    max_rmse_mm : float
+        A registration whose RMSE is higher failed.
+    use_previous : bool
+        Seed each frame with the previous frame's converged pose.
+    """
+
+    method: str = "point_to_plane"
+    voxel_mm: float = 3.0
+    max_correspondence_mm: float = 10.0
+    max_iterations: int = 30
+    min_fitness: float = 0.3
+    max_rmse_mm: float = 5.0
+    use_previous: bool = True
+
+    def __post_init__(self) -> None:
+        _choice(self, "method", REGISTRATION_METHODS)
+        _number(self, "voxel_mm", ge=0)
+        _number(self, "max_correspondence_mm", gt=0)
+        _number(self, "max_iterations", ge=1, integer=True)
+        _number(self, "min_fitness", ge=0, le=1)
+        _number(self, "max_rmse_mm", gt=0)
+        _boolean(self, "use_previous")
+
+    @property
+    def voxel_m(self) -> float:
+        return self.voxel_mm / 1000.0
+
+    @property
+    def max_correspondence_m(self) -> float:
+        """Correspondence distance of the coarse pass (metres)."""
+        return self.max_correspondence_mm / 1000.0
+
+    @property
+    def fine_correspondence_m(self) -> float:
+        """Correspondence distance of the fine pass: a third of the coarse one (metres)."""
+        return self.max_correspondence_mm / 3000.0
+
+    @property
+    def max_rmse_m(self) -> float:
+        return self.max_rmse_mm / 1000.0
+
+
+@dataclass(frozen=True, slots=True)
+class RemovalParams:
+    """Table, easy outliers and bin points (:func:`zcut.removal.remove_table_and_bin`, paper §5.2).
+
+    Attributes
+    ----------
+    delta_mm : float
+        δ: a point this close to the registered model is bin (paper: 0.1 mm).
+    rim_offset_mm : float
+        A point higher than the rim by more than this is an easy outlier (paper Fig. 3a).
+    search_radius_mm : float or None
+        Nearest-model-point search radius of the point-to-plane test (None: 1.5 × the model's
+        point spacing).
+    straggler_mm : float
+        The looser second test for the bin surface's noise tail (0: off).
+    straggler_neighbours : int
+        Labelled neighbours (of 8) a straggler needs.
+    """
+
+    delta_mm: float = 0.1
+    rim_offset_mm: float = 5.0
+    search_radius_mm: float | None = None
+    straggler_mm: float = 2.0
+    straggler_neighbours: int = 3
+
+    def __post_init__(self) -> None:
+        _number(self, "delta_mm", ge=0)
+        _number(self, "rim_offset_mm", ge=0)
+        _number(self, "search_radius_mm", gt=0, optional=True)
+        _number(self, "straggler_mm", ge=0)
+        _number(self, "straggler_neighbours", ge=0, le=8, integer=True)
+
+    @property
+    def delta_m(self) -> float:
+        return self.delta_mm / 1000.0
+
+    @property
+    def rim_offset_m(self) -> float:
+        return self.rim_offset_mm / 1000.0
+
+    @property
+    def search_radius_m(self) -> float | None:
+        return None if self.search_radius_mm is None else self.search_radius_mm / 1000.0
+
+    @property
+    def straggler_m(self) -> float:
+        return self.straggler_mm / 1000.0
+
+
+@dataclass(frozen=True, slots=True)
+class SorParams:
+    """Statistical outlier removal (:func:`zcut.sor.sor_outliers`), the paper's comparison.
+
+    Attributes
+    ----------
+    enabled : bool
+        False: the pipeline skips SOR.
+    k : int
+        Neighbours.
+    std_ratio : float
+        Outlier iff d̄ > μ + std_ratio·σ.
+    convention : {"pcl", "open3d"}
+        SPEC §2.
+    region : {"top", "zone"}
+        Which points SOR judges in the pipeline: ``"top"`` the top part of the pile, the points
+        within the z-cut's depth d_max of the zone's highest point, as the paper ran it (§5.3);
+        ``"zone"`` every point the bin stages left.
+    """
+
+    enabled: bool = True
+    k: int = 4
+    std_ratio: float = 1.0
+    convention: str = "pcl"
+    region: str = "top"
+
+    def __post_init__(self) -> None:
+        _boolean(self, "enabled")
+        _number(self, "k", ge=1, integer=True)
+        _number(self, "std_ratio", ge=0)
+        _choice(self, "convention", SOR_CONVENTIONS)
+        _choice(self, "region", SOR_REGIONS)

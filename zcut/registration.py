@@ -1,8 +1,11 @@
 """Register a bin model to the bin points of a frame with Open3D ICP (paper §5.2, ``pcregistericp``).
 
-The model is an (N, 3) float64 point set in its own frame ("bin"); the result is ``T_cam_bin``, the
-4 x 4 transform taking model points into the camera frame. A registration whose fitness or RMSE is
-out of bounds is returned with ``converged=False`` and the reason, never silently accepted.
+The model is a :class:`~zcut.bin_model.BinModel` (an (N, 3) float64 point set in its own frame,
+"bin"), prepared once per replay (:func:`prepare_icp_model`: downsampled copies with normals and a
+KD-tree); the frame's bin points are prepared once per frame (:func:`prepare_target`). The result is
+``T_cam_bin``, the 4 x 4 transform taking model points into the camera frame. A registration whose
+fitness or RMSE is out of bounds is returned with ``converged=False`` and the reason, never
+silently accepted.
 """
 
 from __future__ import annotations
@@ -11,9 +14,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .bin_model import BinModel
 from .errors import InputShapeError, ParameterError, describe_array
+from .params import RegistrationParams
 
-METHODS = ("point_to_point", "point_to_plane")
+__all__ = [
+    "IcpModel",
+    "RegistrationResult",
+    "TargetPoints",
+    "initial_guess",
+    "pose_fitness",
+    "prepare_icp_model",
+    "prepare_target",
+    "register_bin",
+    "transform_points",
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,6 +80,13 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     return p @ T[:3, :3].T + T[:3, 3]
 
 
+def _top_and_centre(p: np.ndarray) -> tuple[np.ndarray, float]:
+    """(x, y) centre of the 1..99 % bounding box and the 1st percentile of z (the top)."""
+    lo = np.percentile(p, 1, axis=0)
+    hi = np.percentile(p[:, :2], 99, axis=0)
+    return 0.5 * (lo[:2] + hi), float(lo[2])
+
+
 def initial_guess(model: np.ndarray, target: np.ndarray) -> np.ndarray:
     """A translation-only guess: bounding-box centres matched in x, y; tops (near z) matched in z.
 
@@ -79,50 +101,20 @@ def initial_guess(model: np.ndarray, target: np.ndarray) -> np.ndarray:
     -------
     (4, 4) float64 ndarray
     """
-    m = _model_points(model)
+    m = _check_points(model, "model")
     t = _check_points(target, "target")
+    return _guess(_top_and_centre(m) if len(m) else None, t)
+
+
+def _guess(model_top_centre: tuple[np.ndarray, float] | None, t: np.ndarray) -> np.ndarray:
     T = np.eye(4)
-    if len(m) == 0 or len(t) == 0:
+    if model_top_centre is None or len(t) == 0:
         return T
-    mc, mtop = _top_and_centre(m, cache=True)
-    tc, ttop = _top_and_centre(t, cache=False)
+    mc, mtop = model_top_centre
+    tc, ttop = _top_and_centre(t)
     T[:2, 3] = tc - mc
     T[2, 3] = ttop - mtop
     return T
-
-
-_STATS: dict[int, tuple[np.ndarray, tuple[np.ndarray, float]]] = {}
-_MODELS: dict[int, np.ndarray] = {}
-
-
-def _top_and_centre(p: np.ndarray, *, cache: bool) -> tuple[np.ndarray, float]:
-    """(x, y) centre of the 1..99 % bounding box and the 1st percentile of z (the top)."""
-    hit = _STATS.get(id(p)) if cache else None
-    if hit is not None and hit[0] is p:
-        return hit[1]
-    lo = np.percentile(p, 1, axis=0)
-    hi = np.percentile(p[:, :2], 99, axis=0)
-    out = (0.5 * (lo[:2] + hi), float(lo[2]))
-    if cache:
-        if len(_STATS) >= 4:
-            _STATS.pop(next(iter(_STATS)))
-        _STATS[id(p)] = (p, out)
-    return out
-
-
-def _model_points(model: np.ndarray) -> np.ndarray:
-    """The model as a finite (N, 3) float64 array, checked once per array (models are reused)."""
-    if isinstance(model, np.ndarray) and _MODELS.get(id(model)) is model:
-        return model
-    m = _check_points(model, "model")
-    if m.shape[0] != np.shape(model)[0]:
-        raise InputShapeError("model must not contain non-finite points")
-    if isinstance(model, np.ndarray) and model.dtype == np.float64 and model.flags.c_contiguous:
-        if len(_MODELS) >= 4:
-            _MODELS.pop(next(iter(_MODELS)))
-        _MODELS[id(model)] = model
-        return model
-    return m
 
 
 def _cloud(points: np.ndarray, voxel_m: float):
@@ -134,46 +126,10 @@ def _cloud(points: np.ndarray, voxel_m: float):
     return pc
 
 
-_TARGET: list = []  # [(target array, voxel_m, checked points, downsampled cloud)]: the last target
-
-
-def _target_cloud(target: np.ndarray, voxel_m: float):
-    """(checked points, downsampled cloud) of a frame's target; the last one is kept, so that
-    :func:`pose_fitness` and :func:`register_bin` on the same array downsample it once."""
-    if _TARGET and _TARGET[0][0] is target and _TARGET[0][1] == voxel_m:
-        return _TARGET[0][2], _TARGET[0][3]
-    t = _check_points(target, "target")
-    pc = _cloud(t, voxel_m)
-    _TARGET[:] = [(target, voxel_m, t, pc)]
-    return t, pc
-
-
-_MODEL_CLOUDS: dict[tuple[int, float], tuple[np.ndarray, object]] = {}
-_MODEL_TREES: dict[int, tuple[object, object]] = {}
-
-
-def _model_tree(pc):
-    """A scipy KD-tree of a (cached) model cloud's points, built once per cloud."""
-    from scipy.spatial import cKDTree
-
-    hit = _MODEL_TREES.get(id(pc))
-    if hit is not None and hit[0] is pc:
-        return hit[1]
-    tree = cKDTree(np.asarray(pc.points, dtype=np.float64))
-    if len(_MODEL_TREES) >= 4:
-        _MODEL_TREES.pop(next(iter(_MODEL_TREES)))
-    _MODEL_TREES[id(pc)] = (pc, tree)
-    return tree
-
-
 def _model_cloud(model: np.ndarray, normals: np.ndarray | None, voxel_m: float, normal_radius: float):
-    """The downsampled model with normals, built once per (model array, voxel)."""
+    """The downsampled model with unit normals (estimated when the model has none)."""
     import open3d as o3d
 
-    key = (id(model), float(voxel_m))
-    hit = _MODEL_CLOUDS.get(key)
-    if hit is not None and hit[0] is model:
-        return hit[1]
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(model, np.float64)))
     if normals is not None:
         pc.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals, np.float64))
@@ -183,58 +139,101 @@ def _model_cloud(model: np.ndarray, normals: np.ndarray | None, voxel_m: float, 
         pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normal_radius, max_nn=30))
     else:
         pc.normalize_normals()
-    if len(_MODEL_CLOUDS) >= 4:
-        _MODEL_CLOUDS.pop(next(iter(_MODEL_CLOUDS)))
-    _MODEL_CLOUDS[key] = (model, pc)
     return pc
 
 
-def register_bin(
-    model: np.ndarray,
-    target: np.ndarray,
-    *,
-    model_normals: np.ndarray | None = None,
-    init: np.ndarray | None = None,
-    method: str = "point_to_plane",
-    voxel_m: float = 0.003,
-    max_correspondence_m: float = 0.01,
-    max_iterations: int = 30,
-    min_fitness: float = 0.3,
-    max_rmse_m: float = 0.005,
-    min_points: int = 50,
-    coarse: bool = True,
-) -> RegistrationResult:
-    """ICP-register a bin model to the bin points of a frame.
+@dataclass(frozen=True, slots=True)
+class IcpModel:
+    """A bin model prepared for ICP with one :class:`~zcut.params.RegistrationParams` (read-only).
 
-    The frame's points are aligned to the model (whose downsampled copy and normals are built once
-    per model array and reused frame after frame) and the transform inverted. Runs twice, coarse
-    (``max_correspondence_m``) then fine (a third of it), on voxel-downsampled copies; fitness and
-    RMSE are those of the fine pass.
+    Attributes
+    ----------
+    points : (N, 3) float64 ndarray
+        The model's points (bin frame, metres).
+    top_centre : ((2,) float64 ndarray, float)
+        The model's (x, y) centre and top z, for :func:`initial_guess`.
+    fine, coarse : open3d.geometry.PointCloud
+        Downsampled at the voxel (fine pass) and twice the voxel (coarse pass), with unit normals.
+    tree : scipy.spatial.cKDTree
+        Over the points of ``fine``, for :func:`pose_fitness`.
+    params : RegistrationParams
+    """
+
+    points: np.ndarray
+    top_centre: tuple[np.ndarray, float]
+    fine: object
+    coarse: object
+    tree: object
+    params: RegistrationParams
+
+
+def prepare_icp_model(model: BinModel, params: RegistrationParams) -> IcpModel:
+    """Downsample the model (fine and coarse voxels), give it normals, index it (once per replay)."""
+    from scipy.spatial import cKDTree
+
+    m = model.points
+    voxel = params.voxel_m
+    normal_radius = max(3.0 * voxel, 2.0 * params.max_correspondence_m / 3.0)
+    fine = _model_cloud(m, model.normals, voxel, normal_radius)
+    coarse = _model_cloud(m, model.normals, 2.0 * voxel, 2.0 * normal_radius) if voxel > 0 else fine
+    tree = cKDTree(np.asarray(fine.points, dtype=np.float64))
+    return IcpModel(m, _top_and_centre(m) if len(m) else None, fine, coarse, tree, params)
+
+
+@dataclass(frozen=True, slots=True)
+class TargetPoints:
+    """A frame's bin points prepared once for :func:`register_bin` and :func:`pose_fitness`.
+
+    Attributes
+    ----------
+    points : (M, 3) float64 ndarray
+        The finite target points (camera frame, metres).
+    cloud : open3d.geometry.PointCloud
+        Downsampled at ``voxel_m``.
+    voxel_m : float
+    """
+
+    points: np.ndarray
+    cloud: object
+    voxel_m: float
+
+
+def prepare_target(target: np.ndarray, *, voxel_m: float) -> TargetPoints:
+    """Check and downsample a frame's bin points: (M, 3) float array, non-finite rows dropped."""
+    t = _check_points(target, "target")
+    return TargetPoints(t, _cloud(t, voxel_m), float(voxel_m))
+
+
+def register_bin(
+    model: IcpModel,
+    target: TargetPoints,
+    *,
+    params: RegistrationParams | None = None,
+    init: np.ndarray | None = None,
+    coarse: bool = True,
+    min_points: int = 50,
+) -> RegistrationResult:
+    """ICP-register a prepared bin model to the prepared bin points of a frame.
+
+    The frame's points are aligned to the model and the transform inverted. Runs twice, coarse
+    (``params.max_correspondence_mm`` on twice the voxel) then fine (a third of it, on the voxel);
+    fitness and RMSE are those of the fine pass.
 
     Parameters
     ----------
-    model : (N, 3) float ndarray
-        Bin model points in the bin frame, metres. Pass the same array every frame (the cache
-        is keyed on it).
-    target : (M, 3) float ndarray
-        Bin points of the frame (camera frame, metres); non-finite rows are dropped.
-    model_normals : (N, 3) float ndarray, optional
-        Normals of the model (estimated when absent).
+    model : IcpModel
+        From :func:`prepare_icp_model`.
+    target : TargetPoints
+        From :func:`prepare_target` (downsampled at ``params.voxel_m``).
+    params : RegistrationParams, optional
+        Default: those the model was prepared with; others must keep its voxel and correspondence
+        distance (which its structures depend on).
     init : (4, 4) float ndarray, optional
         Initial ``T_cam_bin`` (e.g. the previous frame's); default :func:`initial_guess`.
-    method : {"point_to_plane", "point_to_point"}
-    voxel_m : float
-        Voxel size of the downsampling (0: none).
-    max_correspondence_m : float
-        Correspondence distance of the coarse pass.
-    max_iterations : int
-        Per pass.
-    min_fitness, max_rmse_m : float
-        Bounds for ``converged``.
-    min_points : int
-        Fewer model or target points than this after downsampling: not run, reported as failed.
     coarse : bool
         Run the coarse pass (skip it when ``init`` is already close, e.g. the previous frame's pose).
+    min_points : int
+        Fewer model or target points than this after downsampling: not run, reported as failed.
 
     Returns
     -------
@@ -244,47 +243,37 @@ def register_bin(
     """
     import open3d as o3d
 
-    if method not in METHODS:
-        raise ParameterError(f"method must be one of {METHODS}, got {method!r}")
-    for name, v in (("voxel_m", voxel_m), ("max_correspondence_m", max_correspondence_m)):
-        if not (np.isfinite(v) and v >= 0):
-            raise ParameterError(f"{name} must be a non-negative number, got {v!r}")
-    if max_correspondence_m <= 0:
-        raise ParameterError(f"max_correspondence_m must be > 0, got {max_correspondence_m!r}")
-    if int(max_iterations) != max_iterations or max_iterations < 1:
-        raise ParameterError(f"max_iterations must be a positive integer, got {max_iterations!r}")
-    m = _model_points(model)
-    if model_normals is not None and np.shape(model_normals) != np.shape(m):
-        raise InputShapeError(f"model_normals must match model {np.shape(m)}, got {describe_array(model_normals)}")
-    t, src = _target_cloud(target, voxel_m)
+    params = model.params if params is None else params
+    if (params.voxel_mm, params.max_correspondence_mm) != (model.params.voxel_mm, model.params.max_correspondence_mm):
+        raise ParameterError("register_bin: params must keep the voxel and correspondence distance the model was "
+                             f"prepared with ({model.params.voxel_mm} mm, {model.params.max_correspondence_mm} mm)")
+    if target.voxel_m != params.voxel_m:
+        raise InputShapeError(f"target was prepared with voxel {target.voxel_m} m, the model with {params.voxel_m} m")
+    src = target.cloud
     if init is None:
-        T0 = initial_guess(m, t)
+        T0 = _guess(model.top_centre, target.points)
     else:
         T0 = np.asarray(init, dtype=np.float64)
         if T0.shape != (4, 4) or not np.isfinite(T0).all():
             raise InputShapeError(f"init must be a finite (4, 4) array, got {describe_array(T0)}")
-    normal_radius = max(3.0 * voxel_m, 2.0 * max_correspondence_m / 3.0)
-    dst = _model_cloud(m, model_normals, voxel_m, normal_radius)
+    dst = model.fine
     n_m, n_t = len(dst.points), len(src.points)
-    # the coarse pass runs on twice the voxel (a quarter of the points); the fine pass on voxel_m
-    coarse_voxel = 2.0 * voxel_m
-    src_c = src.voxel_down_sample(coarse_voxel) if (coarse and voxel_m > 0) else src
-    dst_c = _model_cloud(m, model_normals, coarse_voxel, 2.0 * normal_radius) if (coarse and voxel_m > 0) else dst
     if n_m < min_points or n_t < min_points:
         return RegistrationResult(
             T0.copy(), 0.0, float("nan"), False,
             f"too few points (model {n_m}, target {n_t}, need {min_points})", n_m, n_t, T0.copy(),
         )
-    if method == "point_to_plane":
+    if params.method == "point_to_plane":
         est = o3d.pipelines.registration.TransformationEstimationPointToPlane()
     else:
         est = o3d.pipelines.registration.TransformationEstimationPointToPoint()
-    crit = o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=int(max_iterations))
+    crit = o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=int(params.max_iterations))
     T = np.linalg.inv(T0)  # frame -> model
     reg = None
-    passes = [(src, dst, max_correspondence_m / 3.0)]
+    passes = [(src, dst, params.fine_correspondence_m)]
     if coarse:
-        passes.insert(0, (src_c, dst_c, max_correspondence_m))
+        src_c = src.voxel_down_sample(2.0 * params.voxel_m) if params.voxel_m > 0 else src
+        passes.insert(0, (src_c, model.coarse, params.max_correspondence_m))
     for s_pc, d_pc, dist in passes:
         reg = o3d.pipelines.registration.registration_icp(s_pc, d_pc, dist, T, est, crit)
         T = np.asarray(reg.transformation, dtype=np.float64).copy()
@@ -293,47 +282,34 @@ def register_bin(
     fitness = float(reg.fitness)
     rmse = float(reg.inlier_rmse) if fitness > 0 else float("nan")
     reasons = []
-    if fitness < min_fitness:
-        reasons.append(f"fitness {fitness:.3f} < {min_fitness:g}")
-    if not (rmse <= max_rmse_m):
-        reasons.append(f"RMSE {rmse * 1000:.2f} mm > {max_rmse_m * 1000:g} mm")
+    if fitness < params.min_fitness:
+        reasons.append(f"fitness {fitness:.3f} < {params.min_fitness:g}")
+    if not (rmse <= params.max_rmse_m):
+        reasons.append(f"RMSE {rmse * 1000:.2f} mm > {params.max_rmse_mm:g} mm")
     return RegistrationResult(T_cam_bin, fitness, rmse, not reasons, "; ".join(reasons), n_m, n_t, T0.copy())
 
 
-def pose_fitness(
-    model: np.ndarray,
-    target: np.ndarray,
-    T_cam_bin: np.ndarray,
-    *,
-    model_normals: np.ndarray | None = None,
-    voxel_m: float = 0.003,
-    max_correspondence_m: float = 0.01,
-) -> float:
+def pose_fitness(model: IcpModel, target: TargetPoints, T_cam_bin: np.ndarray, *,
+                 max_correspondence_m: float) -> float:
     """Fitness of a given pose without running ICP (one nearest-neighbour pass).
 
     The fraction of the frame's (downsampled) bin points with a model point within
-    ``max_correspondence_m`` once the model is placed at ``T_cam_bin``; 0 without target points.
-    Used to decide whether the previous frame's pose is still close (a static bin).
+    ``max_correspondence_m`` once the model is placed at ``T_cam_bin`` (Open3D's
+    ``evaluate_registration``, with the model's KD-tree built once); 0 without target points. Used
+    to decide whether the previous frame's pose is still close (a static bin).
 
     Parameters
     ----------
-    model : (N, 3) float ndarray
-    target : (M, 3) float ndarray
+    model : IcpModel
+    target : TargetPoints
     T_cam_bin : (4, 4) float ndarray
-    model_normals, voxel_m, max_correspondence_m
-        As for :func:`register_bin` (the same model cache is used).
+    max_correspondence_m : float
     """
     T = np.asarray(T_cam_bin, dtype=np.float64)
     if T.shape != (4, 4) or not np.isfinite(T).all():
         raise InputShapeError(f"T_cam_bin must be a finite (4, 4) array, got {describe_array(T)}")
-    m = _model_points(model)
-    t, src = _target_cloud(target, voxel_m)
-    if len(t) == 0 or len(m) == 0:
+    p = transform_points(np.linalg.inv(T), np.asarray(target.cloud.points))
+    if len(p) == 0 or len(model.points) == 0:
         return 0.0
-    dst = _model_cloud(m, model_normals, voxel_m, max(3.0 * voxel_m, 2.0 * max_correspondence_m / 3.0))
-    # Open3D's evaluate_registration, with the model's KD-tree built once instead of every call
-    p = transform_points(np.linalg.inv(T), np.asarray(src.points))
-    if len(p) == 0:
-        return 0.0
-    d, _ = _model_tree(dst).query(p, k=1, distance_upper_bound=max_correspondence_m, workers=-1)
+    d, _ = model.tree.query(p, k=1, distance_upper_bound=max_correspondence_m, workers=-1)
     return float(np.count_nonzero(d <= max_correspondence_m)) / len(p)

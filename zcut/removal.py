@@ -18,48 +18,21 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from .bin_model import BinModel
 from .cloud import check_xyz
 from .errors import InputShapeError, ParameterError, describe_array
+from .params import RemovalParams
 from .types import XYZ, FloatImage, Mask
 
 # In the bin frame "up" is -z: models are built in a top-down camera's optical frame.
 BIN_UP = np.array([0.0, 0.0, -1.0])
+BIN_UP.setflags(write=False)
 STRAGGLER_PASSES = 8
 
 
 def finite_xyz(xyz: XYZ) -> Mask:
     """(H, W) bool: all three coordinates finite (per-channel ANDs: faster than ``.all(axis=2)``)."""
     return np.isfinite(xyz[..., 0]) & np.isfinite(xyz[..., 1]) & np.isfinite(xyz[..., 2])
-
-
-@dataclass(frozen=True, slots=True)
-class BinModel:
-    """A bin model in its own frame.
-
-    Attributes
-    ----------
-    points : (N, 3) float64 ndarray
-        Metres, bin frame (the camera frame of the first empty scan: up is -z).
-    normals : (N, 3) float64 ndarray or None
-        Unit normals, for point-to-plane distances in the bin-point test.
-    spacing_m : float
-        Typical distance between neighbouring model points (the downsampling voxel).
-    """
-
-    points: np.ndarray
-    normals: np.ndarray | None
-    spacing_m: float
-
-    def __post_init__(self) -> None:
-        p = np.asarray(self.points)
-        if p.ndim != 2 or p.shape[1] != 3 or p.dtype != np.float64:
-            raise InputShapeError(f"BinModel.points must be (N, 3) float64, got {describe_array(p)}")
-        if self.normals is not None and np.shape(self.normals) != p.shape:
-            raise InputShapeError(
-                f"BinModel.normals must match points {p.shape}, got {describe_array(self.normals)}"
-            )
-        if not (np.isfinite(self.spacing_m) and self.spacing_m > 0):
-            raise ParameterError(f"BinModel.spacing_m must be > 0, got {self.spacing_m!r}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -116,17 +89,12 @@ class _ModelIndex:
     floor_b: float  # 0.5th percentile
 
 
-_INDEX: dict[tuple[int, float], tuple[np.ndarray, _ModelIndex]] = {}
 GRID_CELL_M = 0.002
 
 
 def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) -> _ModelIndex:
-    """Search structures of a model array, valid for search radii up to ``radius`` (cached)."""
+    """Search structures of a model array, valid for search radii up to ``radius``."""
     cell = max(GRID_CELL_M, float(radius))
-    key = (id(points), cell)
-    hit = _INDEX.get(key)
-    if hit is not None and hit[0] is points:
-        return hit[1]
     origin = points.min(axis=0) - 2 * cell
     ijk = np.floor((points - origin) / cell).astype(np.int64)
     dims = ijk.max(axis=0) + 3
@@ -137,13 +105,52 @@ def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) 
     nrm = np.zeros_like(points) if normals is None else np.ascontiguousarray(normals, np.float64)
     h = -points[:, 2]
     offsets = np.einsum("ij,ij->i", points, nrm)
-    index = _ModelIndex(cell, origin, dims.astype(np.int64), start,
-                        np.ascontiguousarray(points[order], np.float64), np.ascontiguousarray(nrm[order]),
-                        offsets[order], float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5)))
-    if len(_INDEX) >= 6:
-        _INDEX.pop(next(iter(_INDEX)))
-    _INDEX[key] = (points, index)
-    return index
+    return _ModelIndex(cell, origin, dims.astype(np.int64), start,
+                       np.ascontiguousarray(points[order], np.float64), np.ascontiguousarray(nrm[order]),
+                       offsets[order], float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5)))
+
+
+@dataclass(frozen=True, slots=True)
+class RemovalIndex:
+    """A bin model prepared for :func:`remove_table_and_bin` with one :class:`RemovalParams`.
+
+    Attributes
+    ----------
+    model : BinModel
+    params : RemovalParams
+    rim_b, floor_b : float
+        The model's rim and floor heights (99.5th and 0.5th percentile of -z, bin frame, metres).
+    radius_m : float
+        The resolved nearest-model-point search radius.
+    bin : _ModelIndex
+        Cell grid for the bin-point test (radius ``radius_m`` with normals, else ``delta``).
+    straggler : _ModelIndex or None
+        Cell grid for the straggler test (None when ``params.straggler_mm`` is 0).
+    """
+
+    model: BinModel
+    params: RemovalParams
+    rim_b: float
+    floor_b: float
+    radius_m: float
+    bin: _ModelIndex
+    straggler: _ModelIndex | None
+
+
+def prepare_removal_index(model: BinModel, params: RemovalParams) -> RemovalIndex:
+    """Build the cell grids of ``model`` the removal needs with ``params`` (once per replay)."""
+    h = -model.points[:, 2]
+    planes = model.normals is not None
+    delta = params.delta_m
+    radius = params.search_radius_m if params.search_radius_m is not None else max(delta, 1.5 * model.spacing_m)
+    radius = max(radius, delta, 1e-9)
+    r_bin = radius if planes else delta
+    straggler = None
+    if params.straggler_m > 0:
+        r_str = max(radius, params.straggler_m) if planes else params.straggler_m
+        straggler = _model_index(model.points, model.normals, r_str)
+    return RemovalIndex(model, params, float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5)), radius,
+                        _model_index(model.points, model.normals, r_bin), straggler)
 
 
 @numba.njit(cache=True, inline="always")
@@ -381,13 +388,8 @@ def remove_table_and_bin(
     xyz: XYZ,
     footprint: Mask,
     *,
-    model: BinModel | None = None,
+    index: RemovalIndex | None = None,
     T_cam_bin: np.ndarray | None = None,
-    delta_m: float = 1e-4,
-    rim_offset_m: float = 0.005,
-    search_radius_m: float | None = None,
-    straggler_m: float = 0.0,
-    straggler_neighbours: int = 5,
 ) -> RemovalResult:
     """Label table, easy outliers and bin points; return the classes and the zone's height image.
 
@@ -397,37 +399,34 @@ def remove_table_and_bin(
         Metres, camera optical frame, NaN = invalid.
     footprint : (H, W) bool ndarray
         The bin footprint (:func:`zcut.binmask.bin_mask`); outside it is table.
-    model : BinModel, optional
-        The bin model; with ``T_cam_bin`` it gives the rim, the floor and the bin points. Without,
-        only the table is removed and the floor is the farthest valid point.
+    index : RemovalIndex, optional
+        The bin model prepared with the removal parameters (:func:`prepare_removal_index`); with
+        ``T_cam_bin`` it gives the rim, the floor and the bin points. Without, only the table is
+        removed and the floor is the farthest valid point. Its :class:`~zcut.params.RemovalParams`:
+        ``delta_mm`` (δ: a point this close to the model surface, point-to-plane when the model has
+        normals, else to the nearest model point, is bin; paper: 0.1 mm), ``rim_offset_mm`` (a point
+        higher than the rim by more than this is an easy outlier), ``search_radius_mm`` (the
+        nearest-model-point search radius of the point-to-plane test; default 1.5 × the model's
+        spacing), ``straggler_mm`` and ``straggler_neighbours`` (a second, looser test for the noise
+        tail of the bin surface: a remaining pixel with at least ``straggler_neighbours`` of its 8
+        neighbours labelled table, bin or invalid, and within ``straggler_mm`` of the model, is bin
+        too; repeated up to :data:`STRAGGLER_PASSES` times so that it grows along clumps of such
+        pixels; without it a few noisy rim pixels stay in the zone, become its highest points and
+        move the z-cut's z_max up to the rim; 0: off).
     T_cam_bin : (4, 4) float ndarray, optional
         The registered pose of the model.
-    delta_m : float
-        δ: a point this close to the model surface (point-to-plane when the model has normals,
-        else to the nearest model point) is bin. Paper: 0.1 mm.
-    rim_offset_m : float
-        A point higher than the rim by more than this is an easy outlier.
-    search_radius_m : float, optional
-        Nearest-model-point search radius for the point-to-plane test; default
-        ``max(delta_m, 1.5 * model.spacing_m)``.
-    straggler_m : float
-        A second, looser test for the noise tail of the bin surface: a remaining pixel with at
-        least ``straggler_neighbours`` of its 8 neighbours labelled table or bin or invalid, and within
-        ``straggler_m`` of the model, is bin too (0: off); repeated up to
-        :data:`STRAGGLER_PASSES` times, so that it grows along clumps of such pixels. Without it a few noisy rim pixels stay
-        in the zone, become its highest points and move the z-cut's z_max up to the rim.
-    straggler_neighbours : int
-        See ``straggler_m``.
 
     Returns
     -------
     RemovalResult
     """
+    p = index.params if index is not None else RemovalParams()
     a, fp = check_removal_args(
-        xyz, footprint, model=model, T_cam_bin=T_cam_bin, delta_m=delta_m, rim_offset_m=rim_offset_m,
-        straggler_m=straggler_m, straggler_neighbours=straggler_neighbours,
+        xyz, footprint, model=None if index is None else index.model, T_cam_bin=T_cam_bin,
+        delta_m=p.delta_m, rim_offset_m=p.rim_offset_m, straggler_m=p.straggler_m,
+        straggler_neighbours=p.straggler_neighbours,
     )
-    if model is None:
+    if index is None:
         return _remove_table(a, fp)
     if not a.flags.c_contiguous:
         a = np.ascontiguousarray(a)
@@ -437,26 +436,22 @@ def remove_table_and_bin(
     up = R @ BIN_UP
     # heights along up = -z in the bin frame; work in the bin frame so that the model's search grid
     # is built once per model, not once per frame
-    mi = _model_index(model.points, model.normals, 0.0)
-    rim_b, floor_b = mi.rim_b, mi.floor_b
     shift = float(t @ up)  # height of the bin origin along up, camera frame
-    rim, floor = rim_b + shift, floor_b + shift
-    planes = model.normals is not None
-    radius = search_radius_m if search_radius_m is not None else max(delta_m, 1.5 * model.spacing_m)
-    radius = max(radius, delta_m, 1e-9)
-    r_bin = radius if planes else delta_m
-    index = _model_index(model.points, model.normals, r_bin)
+    rim, floor = index.rim_b + shift, index.floor_b + shift
+    planes = index.model.normals is not None
+    delta_m = p.delta_m
+    r_bin = index.radius_m if planes else delta_m
     shape = fp.shape
     valid, table, easy, binp = (np.zeros(shape, bool) for _ in range(4))
-    _classify(a, fp, R, t, rim_b + rim_offset_m, delta_m > 0, *_grid_args(index), float(delta_m),
+    _classify(a, fp, R, t, index.rim_b + p.rim_offset_m, delta_m > 0, *_grid_args(index.bin), float(delta_m),
               float(r_bin), planes, valid, table, easy, binp)
-    if straggler_m > 0:
-        r_str = max(radius, straggler_m) if planes else straggler_m
+    if index.straggler is not None:
+        r_str = max(index.radius_m, p.straggler_m) if planes else p.straggler_m
         lab = (table | binp | ~valid).view(np.uint8)  # invalid neighbours count as not zone
         open_ = valid & fp & ~easy & ~binp
-        _straggler_passes(a, binp, lab, open_, R, t, _model_index(model.points, model.normals, r_str),
-                          straggler_m=straggler_m, radius_m=r_str, planes=planes,
-                          neighbours=int(straggler_neighbours))
+        _straggler_passes(a, binp, lab, open_, R, t, index.straggler,
+                          straggler_m=p.straggler_m, radius_m=r_str, planes=planes,
+                          neighbours=int(p.straggler_neighbours))
     labelled = table | easy | binp
     zone = valid & ~labelled
     plane = abs(up[2]) > 1e-6

@@ -10,6 +10,8 @@ from replay.logs import layout
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from replay.commands.common import add_pipeline_options
+
     p.add_argument("log", type=Path, metavar="LOG_OR_RESULTS.mcap",
                    help="a log (predictions computed by the pipeline) or a results file of `zcut replay`")
     p.add_argument("--labels", type=Path, default=None, metavar="DB",
@@ -18,8 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--agreement", nargs=2, metavar=("A", "B"), default=None,
                    help="instead: agreement of two annotators (IoU, Cohen's kappa over the pixels both reviewed)")
     p.add_argument("--json", action="store_true", help="print the SPEC §4 JSON object instead of tables")
-    p.add_argument("--config", type=Path, default=None, help="pipeline config (TOML) when predictions are computed")
-    p.add_argument("--bin-model", type=Path, default=None, help="bin model (PLY) for the bin stages of the pipeline")
+    add_pipeline_options(p)
 
 
 def _match(store, log, frame):
@@ -46,8 +47,8 @@ def run(args: argparse.Namespace) -> int:
         frame_accuracy,
         report_json,
     )
-    from annotate.candidates import PipelineRunner
     from annotate.store import LabelStore, file_sha256
+    from replay.commands.common import load_model, open_session, overrides_of
     from replay.logs.reader import LogReader
     from zcut.errors import ParameterError, ZcutError
 
@@ -57,8 +58,9 @@ def run(args: argparse.Namespace) -> int:
         raise ParameterError("--agreement needs --labels DB")
     if args.labels is not None and not args.labels.is_file():
         raise FileNotFoundError(2, "no such file", str(args.labels))
+    overrides = overrides_of(args)  # bad values fail before the log is read
 
-    reader = LogReader(args.log)
+    reader = LogReader(args.log, cloud_topic=args.topic)
     store = LabelStore(args.labels) if args.labels is not None else None
     try:
         log = store.log_by_sha(file_sha256(args.log)) if store is not None else None
@@ -92,12 +94,16 @@ def run(args: argparse.Namespace) -> int:
             print(report_json(rep, indent=None) if args.json else format_agreement_table(rep))
             return _status(reader)
 
-        from replay.pipeline.bin_model import load_bin_model
-
-        model = load_bin_model(args.bin_model) if args.bin_model else None
-        runner = PipelineRunner(reader.metadata, config_path=args.config, bin_model=model)
-        results, skipped, computed = [], 0, 0
-        for frame in reader.frames():
+        is_results = layout.ZCUT_OUTLIERS in reader.mask_topics and layout.SOR_OUTLIERS in reader.mask_topics
+        session = None
+        if is_results:
+            frames = ((f, None) for f in reader.frames())
+        else:  # predictions computed as `zcut replay` computes them (the same resolved config)
+            session = open_session(args.log, args, bin_model=load_model(args), overrides=overrides)
+            reader = session.reader
+            frames = session.results()
+        results, skipped = [], 0
+        for frame, r in frames:
             if store is not None:
                 rec = _match(store, log, frame)
                 lab = store.label(rec, annotator=annotator) if rec is not None else None
@@ -113,12 +119,10 @@ def run(args: argparse.Namespace) -> int:
                     skipped += 1
                     continue
                 truth, reviewed = gt, None
-            if layout.ZCUT_OUTLIERS in frame.masks and layout.SOR_OUTLIERS in frame.masks:
+            if r is None:
                 preds = {"zcut": frame.masks[layout.ZCUT_OUTLIERS], "sor": frame.masks[layout.SOR_OUTLIERS]}
             else:
-                r = runner.run(frame)
                 preds = {"zcut": r.zcut_outliers, "sor": r.sor_outliers}
-                computed += 1
             if reviewed is None:
                 # ground truth counts over the valid pixels (R = valid, L = truth ∩ valid). A results
                 # file's /zcut/filtered cloud has the outliers set to NaN: its valid pixels plus the
@@ -126,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
                 reviewed = np.isfinite(frame.xyz).all(axis=2) | preds["zcut"] | preds["sor"]
                 truth = truth & reviewed
             results.append(frame_accuracy(frame.index, frame.stamp_ns, preds, truth, reviewed=reviewed))
+        computed = session is not None
         if not results:
             what = (f"no frame of {args.log} is labelled by {annotator!r} in {args.labels}" if store is not None
                     else f"{args.log} has no {layout.TRUTH_OUTLIERS}: give human labels with --labels DB")

@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     if args.model is not None:
         import numpy as np
 
-        from zcut.removal import BinModel
+        from zcut.bin_model import BinModel
 
         if not (np.isfinite(args.scale) and args.scale > 0):
             raise ConfigError(f"--scale must be > 0, got {args.scale!r}")
@@ -52,11 +52,15 @@ def run(args: argparse.Namespace) -> int:
         return 0
     from replay.logs.reader import LogReader
 
+    from zcut.params import BinMaskParams, RegistrationParams
+
     layer = cfg.load_toml(args.config) if args.config else {}
-    config = cfg.from_dict(layer, source=args.config or "config")
     reader = LogReader(args.log, cloud_topic=args.topic)
     start, stop = parse_frames(args.frames)
-    model, reports = build_bin_model(reader.frames(start=start, stop=stop), config, voxel_mm=args.voxel)
+    model, reports = build_bin_model(reader.frames(start=start, stop=stop),
+                                     bin_mask_params=BinMaskParams(**layer.get("bin_mask", {})),
+                                     registration=RegistrationParams(**layer.get("registration", {})),
+                                     voxel_mm=args.voxel)
     for r in reports:
         if r.skipped:
             print(f"warning: scan {r.index} left out: {r.skipped}", file=sys.stderr)

@@ -31,8 +31,10 @@ def run(args: argparse.Namespace) -> int:
     )
     from replay.cli import EXIT_DATA_LOSS
     from replay.commands.replay import print_table_callbacks, viewer_command
+    from replay.outputs import OutputPlan, config_path_for
     from replay.pipeline.bin_model import ensure_sample_bin_model, load_bin_model
-    from replay.pipeline.session import replay_log
+    from replay.pipeline.session import ReplaySession
+    from replay.pipeline.sinks import BackgroundSinks, ConfigBeside, RerunSink, ResultsSink
     from replay.synth.log import ensure_sample_log, sample_log_path
 
     err = sys.stderr
@@ -62,8 +64,16 @@ def run(args: argparse.Namespace) -> int:
                                              {"zcut": result.zcut_outliers, "sor": result.sor_outliers},
                                              truth & result.valid, reviewed=result.valid))
 
-    summary, _ = replay_log(sample, bin_model=model, rrd=rrd, out=results, full_detail=args.full_detail,
-                            on_start=on_start, on_frame=on_frame)
+    # the demo replaces its own outputs in its own folder (never the sample it reads)
+    plan = OutputPlan([sample], force=True)
+    for path, what in ((rrd, "the .rrd"), (results, "the results file")):
+        plan.add(path, what)
+        plan.add(config_path_for(path), f"the config beside {what}")
+    session = ReplaySession.open(sample, bin_model=model)
+    on_start(session, planned=session.reader.n_frames)
+    sinks = [RerunSink(rrd=rrd, full_detail=args.full_detail), ConfigBeside(rrd), ResultsSink(results),
+             ConfigBeside(results)]
+    summary = session.run(BackgroundSinks(sinks), on_frame=on_frame)
     report = accuracy_report(frames_acc) if frames_acc else None
     if args.json:
         print(json.dumps({"replay": summary.as_dict(), "accuracy": jsonable(report) if report else None}, indent=1))

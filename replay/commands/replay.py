@@ -12,6 +12,8 @@ import sys
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from replay.commands.common import add_force_option, add_pipeline_options
+
     p.add_argument("log", metavar="LOG.mcap", help="ROS 2 MCAP log with an organized PointCloud2")
     sink = p.add_mutually_exclusive_group()
     sink.add_argument("--rrd", metavar="OUT.rrd", help="write a Rerun recording (open with `rerun OUT.rrd`)")
@@ -19,18 +21,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     sink.add_argument("--connect", metavar="URL", help="stream to a running viewer (e.g. rerun+http://127.0.0.1:9876/proxy)")
     p.add_argument("--out", metavar="RESULTS.mcap", help="write results: /zcut/outliers, /zcut/sor_outliers, "
                    "/zcut/bin_mask, /zcut/filtered (+ ground truth passed through)")
-    p.add_argument("--config", metavar="F.toml", help="pipeline config (TOML); see the resolved config beside outputs")
-    p.add_argument("--step", type=float, metavar="MM", help="z-cut step Δd in mm (overrides the config)")
-    p.add_argument("--max-depth", type=float, metavar="MM", help="z-cut depth d_max in mm (overrides the config)")
-    p.add_argument("--max-area", type=float, metavar="PX", help="z-cut cluster area threshold μ_thr in pixels")
-    p.add_argument("--preset", metavar="KIND", help="part-kind preset (spheres, zinc_nuts, rods, black_screws, "
-                   "black_nuts, sprockets); synthetic logs choose theirs from their metadata")
     p.add_argument("--frames", metavar="A:B", help="frame index range (B exclusive), or N for one frame")
-    p.add_argument("--topic", metavar="T", help="cloud topic (when the log has several)")
-    p.add_argument("--bin-model", metavar="PLY", help="bin model (from `zcut bin-model` or a CAD PLY); "
-                   "without it the bin stages are skipped")
     p.add_argument("--full-detail", action="store_true", help="log full-resolution images and clouds to Rerun")
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of the table")
+    add_force_option(p)
+    add_pipeline_options(p)
 
 
 def viewer_command() -> str:
@@ -69,12 +64,12 @@ def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=N
     err = sys.stderr if err is None else err
     seen_warnings: set[str] = set()
 
-    planned = [total]
+    planned_ = [total]
 
-    def on_start(summary) -> None:
-        if summary.n_planned is not None:
-            planned[0] = summary.n_planned
-        for note in summary.resolved.notes:
+    def on_start(session, *, planned: int | None = None) -> None:
+        if planned is not None:
+            planned_[0] = planned
+        for note in session.notes:
             print(f"zcut: {note}", file=err)
         if not json_mode:
             print(HEADER, file=out, flush=True)
@@ -86,7 +81,7 @@ def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=N
                 print(f"warning: {w}", file=err)
         if result.registration is not None and not result.registration.converged:
             print(f"warning: frame {frame.index}: registration failed: {result.registration.reason}", file=err)
-        n = f"/{planned[0]}" if planned[0] else ""
+        n = f"/{planned_[0]}" if planned_[0] else ""
         print(f"[{len(seen_rows) + 1}{n}] frame {frame.index}: {row.time_s:.2f} s", file=err, flush=True)
         seen_rows.append(row.index)
         if not json_mode:
@@ -96,28 +91,75 @@ def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=N
     return on_start, on_frame
 
 
+def plan_outputs(args: argparse.Namespace, *, inputs: list) -> list:
+    """Check ``--rrd``/``--out`` (and the configs written beside them) before any work; the sinks."""
+    from replay.outputs import OutputPlan, config_path_for
+    from replay.pipeline.sinks import ConfigBeside, RerunSink, ResultsSink
+
+    plan = OutputPlan(inputs, force=args.force)
+    sinks = []
+    if args.rrd is not None:
+        plan.add(args.rrd, "the .rrd")
+        plan.add(config_path_for(args.rrd), "the config beside the .rrd")
+        sinks += [RerunSink(rrd=args.rrd, full_detail=args.full_detail), ConfigBeside(args.rrd)]
+    elif args.spawn or args.connect is not None:
+        if args.connect is not None:
+            check_viewer_url(args.connect)
+        sinks.append(RerunSink(spawn=args.spawn, connect=args.connect, full_detail=args.full_detail))
+    if args.out is not None:
+        plan.add(args.out, "the results file")
+        plan.add(config_path_for(args.out), "the config beside the results file")
+        sinks += [ResultsSink(args.out), ConfigBeside(args.out)]
+    return sinks
+
+
+def check_viewer_url(url: str) -> None:
+    """A ``--connect`` URL must be rerun+http(s)://HOST:PORT/proxy (or plain http)."""
+    from urllib.parse import urlsplit
+
+    from replay.errors import ConfigError
+
+    try:
+        u = urlsplit(url)
+        port = u.port
+    except ValueError:
+        u, port = None, None
+    if u is None or u.scheme not in ("rerun+http", "rerun+https", "rerun", "http", "https") or not u.hostname \
+            or port is None:
+        raise ConfigError(f"--connect {url!r}: expected a viewer URL like rerun+http://127.0.0.1:9876/proxy")
+    import socket
+
+    try:
+        with socket.create_connection((u.hostname, port), timeout=3.0):
+            pass
+    except OSError as e:
+        raise ConfigError(f"--connect {url}: no viewer listens at {u.hostname}:{port} ({e.strerror or e}); "
+                          "start one with `rerun` or use --spawn") from None
+
+
 def run(args: argparse.Namespace) -> int:
     from replay.cli import EXIT_DATA_LOSS
-    from replay.pipeline import config as cfg
-    from replay.pipeline.bin_model import load_bin_model
-    from replay.pipeline.session import parse_frames, replay_log
+    from replay.commands.common import inputs_of, load_model, open_session, overrides_of
+    from replay.errors import ConfigError
+    from replay.pipeline.session import parse_frames
+    from replay.pipeline.sinks import BackgroundSinks
 
     frames = parse_frames(args.frames)
-    overrides = cfg.cli_layer(step=args.step, max_depth=args.max_depth, max_area=args.max_area,
-                              preset=args.preset)
-    cfg.from_dict(overrides, source="command line")  # bad values fail before reading the log
-    model = load_bin_model(args.bin_model) if args.bin_model else None
+    overrides = overrides_of(args)  # bad values fail before the log is read
+    sinks = plan_outputs(args, inputs=[args.log, *inputs_of(args)])
+    model = load_model(args)
+    session = open_session(args.log, args, bin_model=model, overrides=overrides)
     total = None if frames[1] is None else frames[1] - frames[0]
     on_start, on_frame = print_table_callbacks(json_mode=args.json, total=total)
-    summary, _ = replay_log(
-        args.log, config_file=args.config, overrides=overrides, frames=frames, topic=args.topic,
-        bin_model=model, rrd=args.rrd, spawn=args.spawn, connect=args.connect, out=args.out,
-        full_detail=args.full_detail, on_start=on_start, on_frame=on_frame)
+    planned = _planned(session, frames)
+    if planned == 0:
+        raise ConfigError(f"no frame of {args.log} in --frames {args.frames or '0:'} "
+                          f"(it has {session.reader.n_frames} frames)")
+    on_start(session, planned=planned)
+    summary = session.run(BackgroundSinks(sinks), frames=frames, on_frame=on_frame)
     if args.json:
         print(json.dumps(summary.as_dict(), indent=1))
     if not summary.rows and not summary.damage:
-        from replay.errors import ConfigError
-
         have = f" (it has {summary.n_log_frames} frames)" if summary.n_log_frames is not None else ""
         raise ConfigError(f"no frame of {args.log} in --frames {args.frames or '0:'}{have}")
     for name, path in summary.outputs.items():
@@ -125,10 +167,19 @@ def run(args: argparse.Namespace) -> int:
     if "rrd" in summary.outputs:
         print(f"zcut: open it with: {viewer_command()} {summary.outputs['rrd']}", file=sys.stderr)
     if summary.viewer_error:
-        print(f"warning: {summary.viewer_error}", file=sys.stderr)
+        print(f"error: {summary.viewer_error}", file=sys.stderr)
+        return 1
     if summary.damage:
         for d in summary.damage:
             print(f"warning: data loss: {d}", file=sys.stderr)
         print(f"zcut: {len(summary.rows)} intact frame(s) processed; the log is damaged", file=sys.stderr)
         return EXIT_DATA_LOSS
     return 0
+
+
+def _planned(session, frames) -> int | None:
+    n = session.reader.n_frames
+    if n is None:
+        return None
+    end = n if frames[1] is None else min(frames[1], n)
+    return max(end - frames[0], 0)

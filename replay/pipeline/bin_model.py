@@ -17,10 +17,10 @@ import numpy as np
 
 from replay.errors import LogFormatError
 from replay.logs.frame import Frame
-from replay.pipeline.config import PipelineConfig
+from zcut.bin_model import BinModel
 from zcut.binmask import bin_mask
-from zcut.registration import RegistrationResult, register_bin
-from zcut.removal import BinModel
+from zcut.params import BinMaskParams, RegistrationParams
+from zcut.registration import RegistrationResult, prepare_icp_model, prepare_target, register_bin
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,8 +54,9 @@ def model_from_points(points: np.ndarray, *, voxel_mm: float = 1.0) -> BinModel:
 
 def build_bin_model(
     frames: Iterable[Frame],
-    config: PipelineConfig,
     *,
+    bin_mask_params: BinMaskParams | None = None,
+    registration: RegistrationParams | None = None,
     voxel_mm: float = 1.0,
 ) -> tuple[BinModel, list[ScanReport]]:
     """Build a bin model from empty-bin scans.
@@ -64,8 +65,8 @@ def build_bin_model(
     ----------
     frames : iterable of Frame
         Empty-bin scans with RGB images.
-    config : PipelineConfig
-        Its ``bin_mask`` and ``registration`` sections are used.
+    bin_mask_params, registration : optional
+        How each scan's bin is masked and registered to the first (default: the defaults).
     voxel_mm : float
         Downsampling voxel of the model.
 
@@ -74,10 +75,11 @@ def build_bin_model(
     (BinModel, list of ScanReport)
         Raises :class:`LogFormatError` when no scan gave bin points.
     """
-    c, r = config.bin_mask, config.registration
+    c = bin_mask_params or BinMaskParams()
+    r = registration or RegistrationParams()
     parts: list[np.ndarray] = []
     reports: list[ScanReport] = []
-    reference: np.ndarray | None = None
+    reference = None
     for frame in frames:
         if frame.rgb is None:
             reports.append(ScanReport(frame.index, 0, None, "no RGB image"))
@@ -89,15 +91,13 @@ def build_bin_model(
             reports.append(ScanReport(frame.index, 0, None, "no bin found in the RGB image"))
             continue
         if reference is None:
-            reference = pts
+            reference = prepare_target(pts, voxel_m=r.voxel_m)
             parts.append(pts)
             reports.append(ScanReport(frame.index, len(pts), None, ""))
             continue
-        # register this scan (source) into the reference frame (target)
-        reg = register_bin(pts, reference, method=r.method, voxel_m=r.voxel_mm / 1000.0,
-                           max_correspondence_m=r.max_correspondence_mm / 1000.0,
-                           max_iterations=r.max_iterations, min_fitness=r.min_fitness,
-                           max_rmse_m=r.max_rmse_mm / 1000.0)
+        # register this scan (as the "model") into the reference frame (as the "target")
+        scan = prepare_icp_model(BinModel(pts, None, max(r.voxel_m, 1e-4)), r)
+        reg = register_bin(scan, reference)
         if not reg.converged:
             reports.append(ScanReport(frame.index, len(pts), reg, f"registration failed: {reg.reason}"))
             continue
@@ -192,7 +192,7 @@ def ensure_sample_bin_model(*, progress=None) -> Path:
     tmp = base / f".{target.stem}.tmp{os.getpid()}.ply"
     try:
         write_synthetic_log(empty, empty=True, frames=5, seed=SAMPLE_SEED, size=SAMPLE_SIZE, progress=progress)
-        model, _ = build_bin_model(LogReader(empty).frames(), PipelineConfig())
+        model, _ = build_bin_model(LogReader(empty).frames())
         save_bin_model(model, tmp)
         os.replace(tmp, target)
     finally:

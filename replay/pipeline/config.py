@@ -1,13 +1,19 @@
-"""Pipeline configuration: one frozen dataclass per stage, nested in :class:`PipelineConfig`.
+"""Pipeline configuration: the stage parameters of :mod:`zcut.params`, nested in one
+:class:`PipelineConfig`, and the one function that resolves them for a log.
 
-Layers, later ones win: built-in defaults < the part-kind preset (paper §5.4; chosen from a
-synthetic log's ``zcut.synth`` metadata or ``preset = "..."`` in the file) < the TOML file
-(``--config``) < command-line overrides (``--step`` ...). Every layer is a nested dict; unknown
-keys are errors. :func:`resolve` is the one place where derived defaults (the z-cut area threshold
-from ρ_thr and a_max, the preset's values) are filled in; its result is written next to every
-output (:func:`to_toml`) and logged to Rerun as a document.
+Layers, later ones win: built-in defaults (the paper's nominal z-cut parameters, SPEC §1) < the
+TOML file (``--config``) < command-line overrides (``--step`` ...). Every layer is a nested dict
+with the TOML file's keys; unknown keys are errors. :func:`resolve_config` is the one place where
+derived values are filled in (the z-cut's area threshold μ_thr = ρ_thr · a_max, a_max from the
+part's geometry and the camera, the §5.4 geometry-derived Δd and d_max when asked for); every
+command calls it, so that ``zcut replay``, ``accuracy``, ``annotate``, ``sweep`` and ``batch`` run
+the same filter on a log (SPEC §4, "Same filter everywhere"). Its result is written next to every
+output (:func:`to_toml`) and logged to Rerun as a document, with notes saying where each derived
+value came from.
 
-Units follow the paper: millimetres for lengths, pixels for areas.
+Units follow the paper and the config file: millimetres for lengths, pixels for areas. The stage
+types hold the same fields as the file's keys (the z-cut's with the short names of
+:class:`~zcut.params.ZCutParams`: ``step_mm`` is ``step``), and convert to metres themselves.
 """
 
 from __future__ import annotations
@@ -20,258 +26,237 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from replay.errors import ConfigError
+import numpy as np
 
-SOR_CONVENTIONS = ("pcl", "open3d")
-REG_METHODS = ("point_to_plane", "point_to_point")
-# Without a part size or a_max, assume a part's largest face covers this fraction of the image.
+from replay.errors import ConfigError
+from replay.logs import layout
+from zcut.cloud import Intrinsics
+from zcut.errors import ParameterError
+from zcut.params import (
+    NOMINAL_MAX_DEPTH_MM,
+    NOMINAL_RHO_THR,
+    NOMINAL_STEP_MM,
+    BinMaskParams,
+    RegistrationParams,
+    RemovalParams,
+    SorParams,
+    ZCutParams,
+    a_max_from_camera,
+)
+
+#: How the z-cut's Δd and d_max are chosen: the paper's nominal values (its choice for all six
+#: datasets, the default) or the §5.4 ranges applied to the part's geometry.
+PARAMETER_MODES = ("nominal", "geometry")
+#: Without a part size or a_max, assume a part's largest face covers this fraction of the image.
 DEFAULT_FACE_FRACTION = 0.01
 
+#: [zcut] keys of the file -> fields of ZCutParams; ``rho_thr`` is an input of the derivation only.
+ZCUT_KEYS = {"step_mm": "step", "max_depth_mm": "max_depth", "max_area_px": "max_area", "a_max_px": "a_max",
+             "connectivity": "connectivity"}
+ZCUT_INPUTS = (*ZCUT_KEYS, "rho_thr")
+TOP_KEYS = ("part", "parameters", "preset")
 
-def _num(obj: object, name: str, *, gt: float | None = None, ge: float | None = None,
-         le: float | None = None, integer: bool = False, optional: bool = False) -> None:
-    section = _section_name(obj)
-    v = getattr(obj, name)
-    if v is None and optional:
-        return
-    bad = isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
-    if not bad and integer and int(v) != v:
-        bad = True
-    if not bad and ((gt is not None and not v > gt) or (ge is not None and not v >= ge)
-                    or (le is not None and not v <= le)):
-        bad = True
-    if bad:
-        rng = []
-        if gt is not None:
-            rng.append(f"> {gt:g}")
-        if ge is not None:
-            rng.append(f">= {ge:g}")
-        if le is not None:
-            rng.append(f"<= {le:g}")
-        kind = "an integer" if integer else "a number"
-        raise ConfigError(f"{section}.{name} must be {' '.join([kind, ' and '.join(rng)]).strip()}, got {v!r}")
-
-
-def _section_name(obj: object) -> str:
-    for name, cls in SECTIONS.items():
-        if type(obj) is cls:
-            return name
-    return type(obj).__name__
-
-
-def _bool(obj: object, name: str) -> None:
-    v = getattr(obj, name)
-    if not isinstance(v, bool):
-        raise ConfigError(f"{_section_name(obj)}.{name} must be true or false, got {v!r}")
-
-
-def _choice(obj: object, name: str, choices: tuple[str, ...]) -> None:
-    v = getattr(obj, name)
-    if v not in choices:
-        raise ConfigError(f"{_section_name(obj)}.{name} must be one of {', '.join(choices)}, got {v!r}")
-
-
-@dataclass(frozen=True, slots=True)
-class BinMaskConfig:
-    """RGB bin footprint (:func:`zcut.binmask.bin_mask`)."""
-
-    enabled: bool = True
-    threshold: float = 150.0
-    dilate_px: int = 3
-    min_area_frac: float = 0.01
-
-    def __post_init__(self) -> None:
-        _bool(self, "enabled")
-        _num(self, "threshold", ge=0, le=255)
-        _num(self, "dilate_px", ge=0, integer=True)
-        _num(self, "min_area_frac", ge=0, le=1)
-
-
-@dataclass(frozen=True, slots=True)
-class RegistrationConfig:
-    """ICP of the bin model (:func:`zcut.registration.register_bin`)."""
-
-    method: str = "point_to_plane"
-    voxel_mm: float = 3.0
-    max_correspondence_mm: float = 10.0
-    max_iterations: int = 30
-    min_fitness: float = 0.3
-    max_rmse_mm: float = 5.0
-    use_previous: bool = True
-
-    def __post_init__(self) -> None:
-        _choice(self, "method", REG_METHODS)
-        _num(self, "voxel_mm", ge=0)
-        _num(self, "max_correspondence_mm", gt=0)
-        _num(self, "max_iterations", ge=1, integer=True)
-        _num(self, "min_fitness", ge=0, le=1)
-        _num(self, "max_rmse_mm", gt=0)
-        _bool(self, "use_previous")
-
-
-@dataclass(frozen=True, slots=True)
-class RemovalConfig:
-    """Table, easy outliers and bin points (:func:`zcut.removal.remove_table_and_bin`)."""
-
-    delta_mm: float = 0.1
-    rim_offset_mm: float = 5.0
-    search_radius_mm: float | None = None
-    straggler_mm: float = 2.0
-    straggler_neighbours: int = 3
-
-    def __post_init__(self) -> None:
-        _num(self, "delta_mm", ge=0)
-        _num(self, "rim_offset_mm", ge=0)
-        _num(self, "search_radius_mm", gt=0, optional=True)
-        _num(self, "straggler_mm", ge=0)
-        _num(self, "straggler_neighbours", ge=0, le=8, integer=True)
-
-
-@dataclass(frozen=True, slots=True)
-class ZCutConfig:
-    """z-cut parameters (paper §3, §5.4): Δd, d_max in mm; μ_thr in px, given or ρ_thr·a_max."""
-
-    step_mm: float = 0.2
-    max_depth_mm: float = 30.0
-    max_area_px: float | None = None
-    rho_thr: float = 0.07
-    a_max_px: float | None = None
-    connectivity: int = 8
-
-    def __post_init__(self) -> None:
-        _num(self, "step_mm", gt=0)
-        _num(self, "max_depth_mm", gt=0)
-        _num(self, "max_area_px", gt=0, optional=True)
-        _num(self, "rho_thr", gt=0)
-        _num(self, "a_max_px", gt=0, optional=True)
-        if self.connectivity not in (4, 8) or isinstance(self.connectivity, bool):
-            raise ConfigError(f"zcut.connectivity must be 4 or 8, got {self.connectivity!r}")
-
-
-@dataclass(frozen=True, slots=True)
-class SorConfig:
-    """Statistical outlier removal (:func:`zcut.sor.sor_outliers`), the paper's comparison."""
-
-    enabled: bool = True
-    k: int = 4
-    std_ratio: float = 1.0
-    convention: str = "pcl"
-
-    def __post_init__(self) -> None:
-        _bool(self, "enabled")
-        _num(self, "k", ge=1, integer=True)
-        _num(self, "std_ratio", ge=0)
-        _choice(self, "convention", SOR_CONVENTIONS)
-
-
-SECTIONS: dict[str, type] = {
-    "bin_mask": BinMaskConfig,
-    "registration": RegistrationConfig,
-    "removal": RemovalConfig,
-    "zcut": ZCutConfig,
-    "sor": SorConfig,
+#: The other sections: the stage types of zcut.params, whose fields are the file's keys.
+STAGE_SECTIONS: dict[str, type] = {
+    "bin_mask": BinMaskParams,
+    "registration": RegistrationParams,
+    "removal": RemovalParams,
+    "sor": SorParams,
 }
+SECTION_NAMES = ("bin_mask", "registration", "removal", "zcut", "sor")
+_CLASS_SECTION = {cls.__name__: name for name, cls in STAGE_SECTIONS.items()} | {"ZCutParams": "zcut"}
+
+
+def _config_error(e: ParameterError, source: str | None = None) -> ConfigError:
+    """A stage type's ParameterError in the file's words: ``ZCutParams.step`` -> ``zcut.step_mm``."""
+    msg = str(e)
+    head, _, rest = msg.partition(" ")
+    cls, _, name = head.partition(".")
+    if cls in _CLASS_SECTION:
+        if cls == "ZCutParams":
+            name = {v: k for k, v in ZCUT_KEYS.items()}.get(name, name)
+        msg = f"{_CLASS_SECTION[cls]}.{name} {rest}"
+    return ConfigError(f"{source}: {msg}" if source else msg)
+
+
+def _zcut_section(**keys: Any) -> dict[str, Any]:
+    """Validate a [zcut] table (each value as ZCutParams would; max_area_px, a_max_px optional)."""
+    for k in keys:
+        if k not in ZCUT_INPUTS:
+            raise ConfigError(f"unknown key zcut.{k} (known: {', '.join(sorted(ZCUT_INPUTS))})")
+    probe = {"step": 1.0, "max_depth": 1.0, "max_area": 1.0}
+    for k, v in keys.items():
+        if k == "rho_thr":
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and 0 < v <= 1):
+                raise ConfigError(f"zcut.rho_thr must be a number > 0 and <= 1, got {v!r}")
+            continue
+        if k in ("max_area_px", "a_max_px") and v is not None and not isinstance(v, bool) \
+                and isinstance(v, (int, float)) and not math.isfinite(v):
+            raise ConfigError(f"zcut.{k} must be a number > 0, got {v!r}")
+        try:
+            ZCutParams(**{**probe, ZCUT_KEYS[k]: v})
+        except ParameterError as e:
+            raise _config_error(e) from None
+    return keys
+
+
+def _stage_section(name: str):
+    cls = STAGE_SECTIONS[name]
+
+    def build(**keys: Any):
+        names = {f.name for f in dataclasses.fields(cls)}
+        for k in keys:
+            if k not in names:
+                raise ConfigError(f"unknown key {name}.{k} (known: {', '.join(sorted(names))})")
+        try:
+            return cls(**keys)
+        except ParameterError as e:
+            raise _config_error(e) from None
+
+    return build
+
+
+#: Section name -> a function that validates the section's keys (raises ConfigError naming
+#: ``section.key`` and the value).
+SECTIONS = {name: _stage_section(name) for name in STAGE_SECTIONS} | {"zcut": _zcut_section}
 
 
 @dataclass(frozen=True, slots=True)
 class PipelineConfig:
-    """The whole pipeline's configuration.
+    """The whole pipeline's configuration (resolved: every value set).
 
     Attributes
     ----------
-    preset : str or None
-        The part-kind preset the values were derived from (``replay.synth.PART_KINDS`` key).
+    zcut : ZCutParams
+        Δd, d_max (mm), μ_thr (px), a_max (px, or None when unknown), connectivity.
+    sor, bin_mask, registration, removal : the stage parameters of :mod:`zcut.params`
+    part : str or None
+        The part kind (``replay.presets.PART_KINDS`` key) whose geometry gave a_max (and Δd,
+        d_max with ``parameters = "geometry"``).
+    parameters : {"nominal", "geometry"}
+        How Δd and d_max were chosen (before any explicit value in the file or on the command line).
     """
 
-    bin_mask: BinMaskConfig = field(default_factory=BinMaskConfig)
-    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
-    removal: RemovalConfig = field(default_factory=RemovalConfig)
-    zcut: ZCutConfig = field(default_factory=ZCutConfig)
-    sor: SorConfig = field(default_factory=SorConfig)
-    preset: str | None = None
+    zcut: ZCutParams
+    sor: SorParams = field(default_factory=SorParams)
+    bin_mask: BinMaskParams = field(default_factory=BinMaskParams)
+    registration: RegistrationParams = field(default_factory=RegistrationParams)
+    removal: RemovalParams = field(default_factory=RemovalParams)
+    part: str | None = None
+    parameters: str = "nominal"
 
     def __post_init__(self) -> None:
-        for name, cls in SECTIONS.items():
+        types = {"zcut": ZCutParams, **STAGE_SECTIONS}
+        for name, cls in types.items():
             if not isinstance(getattr(self, name), cls):
                 raise ConfigError(f"PipelineConfig.{name} must be a {cls.__name__}, got {getattr(self, name)!r}")
-        if self.preset is not None and not isinstance(self.preset, str):
-            raise ConfigError(f"PipelineConfig.preset must be a string, got {self.preset!r}")
+        if self.parameters not in PARAMETER_MODES:
+            raise ConfigError(f"parameters must be one of {', '.join(PARAMETER_MODES)}, got {self.parameters!r}")
+
+    def replace(self, **changes: Any) -> PipelineConfig:
+        """A copy with some stage parameters replaced (e.g. one grid point of a sweep)."""
+        return dataclasses.replace(self, **changes)
 
 
 # ----------------------------------------------------------------------------------- dict layers
 
 
 def to_dict(config: PipelineConfig) -> dict[str, Any]:
-    """Nested dict of the config, ``None`` values left out (TOML has no null)."""
-    out: dict[str, Any] = {}
-    if config.preset is not None:
-        out["preset"] = config.preset
-    for name in SECTIONS:
+    """Nested dict of the config in the file's keys, ``None`` values left out (TOML has no null)."""
+    out: dict[str, Any] = {"parameters": config.parameters}
+    if config.part is not None:
+        out["part"] = config.part
+    for name in SECTION_NAMES:
         sec = getattr(config, name)
-        out[name] = {f.name: getattr(sec, f.name) for f in dataclasses.fields(sec)
-                     if getattr(sec, f.name) is not None}
+        if name == "zcut":
+            out[name] = {k: getattr(sec, f) for k, f in ZCUT_KEYS.items() if getattr(sec, f) is not None}
+        else:
+            out[name] = {f.name: getattr(sec, f.name) for f in dataclasses.fields(sec)
+                         if getattr(sec, f.name) is not None}
     return out
 
 
-def merge(base: dict[str, Any], *layers: dict[str, Any], source: str = "config") -> dict[str, Any]:
-    """Deep-merge layers of nested dicts; unknown sections or keys raise :class:`ConfigError`."""
-    out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in base.items()}
-    for layer in layers:
-        for key, value in layer.items():
-            if key == "preset":
-                if value is not None and not isinstance(value, str):
-                    raise ConfigError(f"{source}: preset must be a string, got {value!r}")
-                out["preset"] = value
-                continue
-            if key not in SECTIONS:
-                raise ConfigError(f"{source}: unknown section [{key}] (known: {', '.join(SECTIONS)}, preset)")
-            if not isinstance(value, dict):
-                raise ConfigError(f"{source}: [{key}] must be a table, got {value!r}")
-            names = {f.name for f in dataclasses.fields(SECTIONS[key])}
-            for k in value:
-                if k not in names:
-                    raise ConfigError(f"{source}: unknown key {key}.{k} (known: {', '.join(sorted(names))})")
-            out.setdefault(key, {}).update(value)
-    return out
+def check_layer(layer: dict[str, Any], *, source: str) -> dict[str, Any]:
+    """Validate one layer (keys and values); raise :class:`ConfigError` naming ``source``.
+
+    ``preset = KIND`` is shorthand for ``part = KIND`` with ``parameters = "geometry"``.
+    """
+    if not isinstance(layer, dict):
+        raise ConfigError(f"{source}: expected a table of sections, got {type(layer).__name__}")
+    for key, value in layer.items():
+        if key in ("part", "preset"):
+            if value is not None and not isinstance(value, str):
+                raise ConfigError(f"{source}: {key} must be a string, got {value!r}")
+            if value is not None:
+                _check_part(value, source=source, key=key)
+            continue
+        if key == "parameters":
+            if value not in PARAMETER_MODES:
+                raise ConfigError(f"{source}: parameters must be one of {', '.join(PARAMETER_MODES)}, got {value!r}")
+            continue
+        if key not in SECTIONS:
+            raise ConfigError(f"{source}: unknown section [{key}] (known: {', '.join(SECTION_NAMES)}, "
+                              f"{', '.join(TOP_KEYS)})")
+        if not isinstance(value, dict):
+            raise ConfigError(f"{source}: [{key}] must be a table, got {value!r}")
+        if key == "zcut" and "rho_thr" in value and "max_area_px" in value:
+            raise ConfigError(f"{source}: give zcut.max_area_px or zcut.rho_thr, not both "
+                              "(max_area_px = rho_thr × a_max_px)")
+        try:
+            SECTIONS[key](**value)
+        except ConfigError as e:
+            raise ConfigError(f"{source}: {e}") from None
+    return layer
 
 
-def from_dict(d: dict[str, Any], *, source: str = "config") -> PipelineConfig:
-    """Build a config from a nested dict (missing keys take the defaults)."""
-    d = merge({}, d, source=source)
-    try:
-        sections = {name: cls(**d.get(name, {})) for name, cls in SECTIONS.items()}
-        return PipelineConfig(**sections, preset=d.get("preset"))
-    except ConfigError as e:
-        raise ConfigError(f"{source}: {e}") from None
+def _check_part(kind: str, *, source: str, key: str = "part") -> None:
+    from replay.presets import PART_KINDS
+
+    if kind not in PART_KINDS:
+        raise ConfigError(f"{source}: {key} must be one of {', '.join(PART_KINDS)}, got {kind!r}")
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
-    """Read a TOML config file as a validated layer (nested dict)."""
+    """Read a TOML config file as a validated layer (nested dict).
+
+    Raises :class:`ConfigError` naming the file for anything wrong in it: not UTF-8 text, not TOML,
+    nested too deeply, unknown keys, bad values.
+    """
     p = Path(path)
     try:
-        with p.open("rb") as f:
-            data = tomllib.load(f)
+        raw = p.read_bytes()
+    except IsADirectoryError:
+        raise ConfigError(f"{p}: is a directory, not a config file") from None
+    if len(raw) > 1 << 20:
+        raise ConfigError(f"{p}: {len(raw)} bytes is too large for a config file (at most 1 MiB)")
+    try:
+        text = raw.decode("utf-8")
+        data = tomllib.loads(text)
+    except UnicodeDecodeError:
+        raise ConfigError(f"{p}: not a text file (not UTF-8): is it really the config?") from None
     except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{p}: not valid TOML: {e}") from e
-    merge({}, data, source=str(p))
-    from_dict(data, source=str(p))  # validates values early, naming the file
-    return data
+        raise ConfigError(f"{p}: not valid TOML: {e}") from None
+    except RecursionError:
+        raise ConfigError(f"{p}: not valid TOML: nested too deeply") from None
+    return check_layer(data, source=str(p))
 
 
-def cli_layer(*, step: float | None = None, max_depth: float | None = None,
-              max_area: float | None = None, preset: str | None = None) -> dict[str, Any]:
-    """The ``--step/--max-depth/--max-area/--preset`` overrides as a layer."""
-    out: dict[str, Any] = {} if preset is None else {"preset": preset}
+def cli_layer(*, step: float | None = None, max_depth: float | None = None, max_area: float | None = None,
+              rho: float | None = None, part: str | None = None, parameters: str | None = None,
+              preset: str | None = None) -> dict[str, Any]:
+    """The command-line overrides (``--step/--max-depth/--max-area/--rho/--part/--parameters/
+    --preset``) as a validated layer."""
+    out: dict[str, Any] = {}
+    for key, value in (("preset", preset), ("part", part), ("parameters", parameters)):
+        if value is not None:
+            out[key] = value
     z: dict[str, Any] = {}
-    if step is not None:
-        z["step_mm"] = float(step)
-    if max_depth is not None:
-        z["max_depth_mm"] = float(max_depth)
-    if max_area is not None:
-        z["max_area_px"] = float(max_area)
+    for key, value in (("step_mm", step), ("max_depth_mm", max_depth), ("max_area_px", max_area), ("rho_thr", rho)):
+        if value is not None:
+            z[key] = float(value)
     if z:
         out["zcut"] = z
-    return out
+    return check_layer(out, source="command line")
 
 
 def _toml_value(v: Any) -> str:
@@ -287,17 +272,45 @@ def _toml_value(v: Any) -> str:
 
 
 def to_toml(config: PipelineConfig, *, header: str = "") -> str:
-    """The config as TOML text that :func:`load_toml` reads back to the same config."""
+    """The config as TOML text that :func:`load_toml` reads back to the same config.
+
+    ``max_area_px`` is written exactly (it decides which components are tagged); ρ_thr follows as
+    a comment.
+    """
     d = to_dict(config)
     lines = [f"# {line}" for line in header.splitlines()] if header else []
-    if "preset" in d:
-        lines.append(f"preset = {_toml_value(d['preset'])}")
-    for name in SECTIONS:
+    lines.append(f"parameters = {_toml_value(d['parameters'])}")
+    if "part" in d:
+        lines.append(f"part = {_toml_value(d['part'])}")
+    for name in SECTION_NAMES:
         lines.append("")
         lines.append(f"[{name}]")
         for k, v in d[name].items():
-            lines.append(f"{k} = {_toml_value(v)}")
+            line = f"{k} = {_toml_value(v)}"
+            if name == "zcut" and k == "max_area_px" and config.zcut.rho_thr is not None:
+                line += f"  # rho_thr = {config.zcut.rho_thr:.6g} of a_max_px"
+            lines.append(line)
     return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def from_dict(d: dict[str, Any], *, source: str = "config") -> PipelineConfig:
+    """A resolved config from a nested dict in the file's keys (``zcut.max_area_px`` must be set,
+    e.g. a config written by :func:`to_toml`); missing sections take the defaults."""
+    check_layer(d, source=source)
+    z = dict(d.get("zcut", {}))
+    if z.get("max_area_px") is None:
+        raise ConfigError(f"{source}: zcut.max_area_px is not set (a resolved config has it)")
+    z.pop("rho_thr", None)
+    z.setdefault("step_mm", NOMINAL_STEP_MM)
+    z.setdefault("max_depth_mm", NOMINAL_MAX_DEPTH_MM)
+    try:
+        zc = ZCutParams(**{ZCUT_KEYS[k]: v for k, v in z.items()})
+        stages = {name: cls(**d.get(name, {})) for name, cls in STAGE_SECTIONS.items()}
+    except ParameterError as e:
+        raise _config_error(e, source) from None
+    part = d.get("part") if d.get("part") is not None else d.get("preset")
+    mode = d.get("parameters") or ("geometry" if d.get("preset") else "nominal")
+    return PipelineConfig(zcut=zc, **stages, part=part, parameters=mode)
 
 
 # ----------------------------------------------------------------------------------- resolution
@@ -311,91 +324,232 @@ class Resolved:
     notes: tuple[str, ...]
 
 
-def preset_layer(part_kind: str, *, camera_distance_mm: float | None = None,
-                 fx: float | None = None, fy: float | None = None) -> dict[str, Any]:
-    """The z-cut values of a synthetic part kind, derived per paper §5.4.
+@dataclass(frozen=True, slots=True)
+class LogFacts:
+    """What a log tells about its parameters (gathered by :func:`log_facts`).
 
-    ``zcut.params.ZCutParams.from_geometry`` (Δd = 0.02·p_min, d_max = 3·p_min clipped into
-    [p_min, 0.7·b_h]) and ``a_max_from_camera`` (the part's largest face in pixels at the camera
-    distance); μ_thr = ρ_thr·a_max follows in :func:`resolve`.
+    Attributes
+    ----------
+    part : str or None
+        Part kind from a synthetic log's ``zcut.synth`` metadata.
+    camera_distance_mm : float or None
+        The distance a part's face is seen from: the synthetic log's, else the first frame's
+        median depth.
+    intrinsics : Intrinsics or None
+        From the log's CameraInfo, else fitted to the first frame's organized cloud.
+    image_shape : (H, W)
+    sources : dict[str, str]
+        Where each fact came from, for the notes.
     """
-    from replay.presets import BIN, PART_KINDS
-    from zcut.params import ZCutParams, a_max_from_camera
 
-    if part_kind not in PART_KINDS:
-        raise ConfigError(f"preset must be one of {', '.join(PART_KINDS)}, got {part_kind!r}")
-    kind = PART_KINDS[part_kind]
-    a_max = None
-    if camera_distance_mm is not None and fx is not None and fy is not None:
-        a_max = a_max_from_camera(kind.face_area_mm2, distance_mm=camera_distance_mm, fx_px=fx, fy_px=fy)
-    # Δd and d_max do not depend on a_max; without a camera only they are taken from the preset.
-    p = ZCutParams.from_geometry(p_min_mm=kind.p_min_mm, bin_height_mm=BIN.height_mm,
-                                 a_max_px=1.0 if a_max is None else a_max)
-    z: dict[str, Any] = {"step_mm": float(p.step), "max_depth_mm": float(p.max_depth)}
-    if a_max is not None:
-        z["a_max_px"] = float(a_max)
-    return {"preset": part_kind, "zcut": z}
+    part: str | None
+    camera_distance_mm: float | None
+    intrinsics: Intrinsics | None
+    image_shape: tuple[int, int]
+    sources: dict[str, str] = field(default_factory=dict)
 
 
-def resolve(
-    *,
-    file_layer: dict[str, Any] | None = None,
-    cli: dict[str, Any] | None = None,
-    part_kind: str | None = None,
-    camera_distance_mm: float | None = None,
-    fx: float | None = None,
-    fy: float | None = None,
-    image_shape: tuple[int, int] | None = None,
-) -> Resolved:
-    """The one function that fills in derived defaults.
+def synth_info(metadata: dict[str, dict[str, str]]) -> tuple[str | None, float | None]:
+    """(part kind, camera distance in mm) from a log's ``zcut.synth`` metadata (None when absent)."""
+    meta = metadata.get(layout.SYNTH_METADATA, {})
+    kind = meta.get("part_kind") or None
+    if kind == "empty":  # an empty-bin log has no parts to derive parameters from
+        kind = None
+    dist = None
+    for key, scale in (("a_max_distance_mm", 1.0), ("pile_distance_mm", 1.0), ("camera_distance_mm", 1.0),
+                       ("pile_distance_m", 1000.0), ("camera_distance_m", 1000.0)):
+        if key in meta:
+            try:
+                d = float(meta[key]) * scale
+            except ValueError:
+                continue
+            if math.isfinite(d) and d > 0:
+                dist = d
+                break
+    return kind, dist
+
+
+def intrinsics_from_cloud(xyz: np.ndarray) -> Intrinsics | None:
+    """Pinhole intrinsics fitted to an organized cloud (x/z = (u - cx)/fx, y/z = (v - cy)/fy).
+
+    Least squares over the valid points with z > 0; None when fewer than 100 such points or a
+    non-positive focal length comes out.
+    """
+    h, w = xyz.shape[:2]
+    z = xyz[..., 2].astype(np.float64)
+    ok = np.isfinite(xyz).all(axis=2) & (z > 0)
+    if ok.sum() < 100:
+        return None
+    v, u = np.nonzero(ok)
+    fits = []
+    for coord, pix in ((xyz[..., 0][ok] / z[ok], u), (xyz[..., 1][ok] / z[ok], v)):
+        slope, intercept = np.polyfit(pix.astype(np.float64), coord.astype(np.float64), 1)
+        if not (slope > 0 and math.isfinite(1.0 / slope)):
+            return None
+        fits.append((1.0 / slope, -intercept / slope))
+    (fx, cx), (fy, cy) = fits
+    try:
+        return Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy, width=w, height=h)
+    except ParameterError:
+        return None
+
+
+def log_facts(metadata: dict[str, dict[str, str]], first_frame, *,
+              intrinsics: Intrinsics | None = None) -> LogFacts:
+    """The facts :func:`resolve` needs, from a log's metadata and its first readable frame.
 
     Parameters
     ----------
+    metadata : dict
+        The log's MCAP metadata records.
+    first_frame : replay.logs.frame.Frame
+        The log's first readable frame (whatever frame range a command processes).
+    intrinsics : Intrinsics, optional
+        The log's camera intrinsics (its first readable CameraInfo); else the frame's, else
+        fitted to the frame's cloud.
+    """
+    sources: dict[str, str] = {}
+    part, distance = synth_info(metadata)
+    if part is not None:
+        sources["part"] = "the log's zcut.synth metadata"
+    if distance is not None:
+        sources["camera_distance_mm"] = "the log's zcut.synth metadata"
+    else:
+        z = first_frame.xyz[..., 2]
+        z = z[np.isfinite(z)]
+        if z.size:
+            distance = float(np.median(z)) * 1000.0
+            sources["camera_distance_mm"] = f"the median depth of the first frame, {distance:.0f} mm"
+    K = intrinsics if intrinsics is not None else first_frame.intrinsics
+    if K is not None:
+        sources["intrinsics"] = "the log's CameraInfo"
+    else:
+        K = intrinsics_from_cloud(first_frame.xyz)
+        if K is not None:
+            sources["intrinsics"] = f"fitted to the first frame's organized cloud: fx {K.fx:.1f}, fy {K.fy:.1f} px"
+    return LogFacts(part, distance if (distance is None or distance > 0) else None, K, first_frame.shape, sources)
+
+
+def _merge(*layers: dict[str, Any]) -> tuple[dict[str, Any], str | None]:
+    """Deep-merge validated layers; also say which of max_area_px / rho_thr was given last."""
+    out: dict[str, Any] = {}
+    area_key = None
+    for layer in layers:
+        for key, value in layer.items():
+            if key == "preset":
+                if value is not None:
+                    out["part"], out["parameters"] = value, "geometry"
+                continue
+            if key in ("part", "parameters"):
+                out[key] = value
+                continue
+            out.setdefault(key, {}).update(value)
+            if key == "zcut":
+                for k in ("max_area_px", "rho_thr"):
+                    if k in value:
+                        area_key = k
+    return out, area_key
+
+
+def resolve(facts: LogFacts, *, file_layer: dict[str, Any] | None = None,
+            cli: dict[str, Any] | None = None) -> Resolved:
+    """The one function that fills in derived values: the resolved config and its notes.
+
+    Parameters
+    ----------
+    facts : LogFacts
+        From :func:`log_facts`.
     file_layer : dict, optional
-        From :func:`load_toml`. A ``preset`` key there beats ``part_kind``.
+        From :func:`load_toml`.
     cli : dict, optional
-        From :func:`cli_layer`; its ``preset`` beats the file's.
-    part_kind : str, optional
-        From the log's ``zcut.synth`` metadata.
-    camera_distance_mm, fx, fy : float, optional
-        The camera, for a_max of the preset's part.
-    image_shape : (H, W), optional
-        For the fallback a_max when nothing else gives one.
+        From :func:`cli_layer`.
 
     Returns
     -------
     Resolved
-        ``config.zcut.max_area_px`` is always set.
     """
-    file_layer = file_layer or {}
-    cli = cli or {}
+    from replay.presets import BIN, PART_KINDS
+
+    d, area_key = _merge(file_layer or {}, cli or {})
     notes: list[str] = []
-    if cli.get("preset") is not None:
-        kind, src = cli["preset"], "the command line"
-    elif file_layer.get("preset") is not None:
-        kind, src = file_layer["preset"], "the config file"
+    part = d.get("part")
+    if part is not None:
+        notes.append(f"part: {part} (from {'the command line' if (cli or {}).get('part') or (cli or {}).get('preset') else 'the config file'})")
+    elif facts.part is not None:
+        part = facts.part
+        notes.append(f"part: {part} (from {facts.sources.get('part', 'the log')})")
+    mode = d.get("parameters", "nominal")
+    z = dict(d.get("zcut", {}))
+    if mode == "geometry":
+        if part is None:
+            raise ConfigError("parameters = \"geometry\" needs the part kind: give part = KIND (or --part KIND)")
+        kind = PART_KINDS[part]
+        g = ZCutParams.from_geometry(p_min_mm=kind.p_min_mm, bin_height_mm=BIN.height_mm, a_max_px=1.0)
+        step, depth = g.step, g.max_depth
+        notes.append(f"z-cut Δd and d_max from the paper's §5.4 ranges for {part} (p_min {kind.p_min_mm:g} mm, "
+                     f"bin height {BIN.height_mm:g} mm): Δd = 0.02·p_min, d_max = 3·p_min in [p_min, 0.7·b_h]")
     else:
-        kind, src = part_kind, "the log's zcut.synth metadata"
-    layers: list[dict[str, Any]] = []
-    if kind is not None:
-        layers.append(preset_layer(kind, camera_distance_mm=camera_distance_mm, fx=fx, fy=fy))
-        notes.append(f"using the {kind!r} preset (part kind from {src})")
-        if camera_distance_mm is None or fx is None or fy is None:
-            notes.append("the preset's a_max needs the camera distance and intrinsics: not known here")
-    d = merge(to_dict(PipelineConfig()), *layers, file_layer, cli)
-    z = d["zcut"]
-    if "max_area_px" not in z or z["max_area_px"] is None:
-        a_max = z.get("a_max_px")
-        if a_max is None and image_shape is not None:
-            a_max = DEFAULT_FACE_FRACTION * image_shape[0] * image_shape[1]
-            z["a_max_px"] = float(a_max)
-            notes.append(f"no part size known: a_max = {DEFAULT_FACE_FRACTION:.0%} of the image = "
-                         f"{a_max:.0f} px (set zcut.a_max_px or --max-area)")
-        if a_max is None:
-            raise ConfigError("zcut.max_area_px cannot be derived: give max_area_px, a_max_px or a preset")
-        z["max_area_px"] = float(z["rho_thr"]) * float(a_max)
-    config = from_dict(d, source="resolved config")
-    zc = config.zcut
-    notes.append(f"z-cut: step {zc.step_mm:g} mm, max depth {zc.max_depth_mm:g} mm, "
-                 f"max area {zc.max_area_px:.1f} px")
+        step, depth = NOMINAL_STEP_MM, NOMINAL_MAX_DEPTH_MM
+        notes.append("z-cut Δd and d_max: the paper's nominal values (0.2 mm, 30 mm)")
+    step = z.get("step_mm", step)
+    depth = z.get("max_depth_mm", depth)
+    a_max = z.get("a_max_px")
+    if a_max is not None:
+        notes.append(f"a_max = {a_max:g} px (given)")
+    elif part is not None and facts.intrinsics is not None and facts.camera_distance_mm is not None:
+        K = facts.intrinsics
+        a_max = a_max_from_camera(PART_KINDS[part].face_area_mm2, distance_mm=facts.camera_distance_mm,
+                                  fx_px=K.fx, fy_px=K.fy)
+        notes.append(f"a_max = {a_max:.1f} px: the {part} part's largest face ({PART_KINDS[part].face_area_mm2:.0f} mm²) "
+                     f"at {facts.camera_distance_mm:.0f} mm (distance: {facts.sources.get('camera_distance_mm', '?')}; "
+                     f"intrinsics: {facts.sources.get('intrinsics', '?')})")
+    elif area_key != "max_area_px":
+        h, w = facts.image_shape
+        a_max = DEFAULT_FACE_FRACTION * h * w
+        why = "no part known" if part is None else "the camera is not known"
+        notes.append(f"{why}: a_max = {DEFAULT_FACE_FRACTION:.0%} of the image = {a_max:.0f} px "
+                     f"(set zcut.a_max_px, part = KIND or --max-area)")
+    if area_key == "max_area_px":
+        max_area = z["max_area_px"]
+        notes.append(f"μ_thr = {max_area:g} px (given)")
+    else:
+        rho = z.get("rho_thr", NOMINAL_RHO_THR)
+        max_area = rho * a_max
+        notes.append(f"μ_thr = ρ_thr · a_max = {rho:g} × {a_max:.1f} = {max_area:.2f} px")
+    try:
+        zc = ZCutParams(step=step, max_depth=depth, max_area=max_area, a_max=a_max,
+                        connectivity=z.get("connectivity", 8))
+        stages = {name: cls(**d.get(name, {})) for name, cls in STAGE_SECTIONS.items()}
+    except ParameterError as e:
+        raise _config_error(e, "resolved config") from None
+    config = PipelineConfig(zcut=zc, **stages, part=part, parameters=mode)
+    notes.append(f"z-cut: step {zc.step:g} mm, max depth {zc.max_depth:g} mm, max area {zc.max_area:.2f} px; "
+                 f"SOR: k {config.sor.k}, std_ratio {config.sor.std_ratio:g} on the "
+                 f"{'top of the pile (within d_max of the highest point)' if config.sor.region == 'top' else 'whole zone'}")
     return Resolved(config, tuple(notes))
+
+
+def resolve_config(metadata: dict[str, dict[str, str]], first_frame, *, config_file: str | Path | None = None,
+                   overrides: dict[str, Any] | None = None, intrinsics: Intrinsics | None = None) -> Resolved:
+    """Resolve the pipeline config of a log: what every command calls.
+
+    Parameters
+    ----------
+    metadata : dict
+        The log's MCAP metadata records.
+    first_frame : replay.logs.frame.Frame
+        The log's first readable frame.
+    config_file : path, optional
+        TOML config (``--config``).
+    overrides : dict, optional
+        The command line's layer (:func:`cli_layer`).
+    intrinsics : Intrinsics, optional
+        The log's camera intrinsics, when known apart from the frame.
+
+    Returns
+    -------
+    Resolved
+    """
+    file_layer = load_toml(config_file) if config_file is not None else None
+    return resolve(log_facts(metadata, first_frame, intrinsics=intrinsics), file_layer=file_layer,
+                   cli=overrides)

@@ -1,7 +1,17 @@
-"""Replay a log through the pipeline: read, resolve the config, run, log to Rerun, write results.
+"""The replay session: open a log and resolve its config once, then run the pipeline into sinks.
 
-Library code: it never prints. The command modules (``zcut replay``, ``zcut demo``) pass callbacks
-to show progress and the per-frame table.
+In the manner of KISS-ICP's pipeline, a replay is a few named steps::
+
+    session = ReplaySession.open(log, config_file=..., overrides=..., bin_model=...)  # read + resolve
+    summary = session.run(sink, frames=(0, None), on_frame=...)                      # pipeline -> sink
+
+:meth:`ReplaySession.open` resolves the config from the log's metadata and its first readable frame
+(:func:`replay.pipeline.config.resolve_config`), whatever frame range is run later, so every command
+that opens a session runs the same filter on a log; it prepares the bin model once for that config.
+:meth:`ReplaySession.results` yields ``(frame, result)`` for a frame range, reading the next frame in
+a background thread (:func:`prefetched`) and locating the bin of frame k + 1 while frame k finishes;
+:meth:`ReplaySession.run` feeds them to a sink (:mod:`replay.pipeline.sinks`) and returns a
+:class:`ReplaySummary`. Library code: it never prints; commands pass an ``on_frame`` callback.
 """
 
 from __future__ import annotations
@@ -15,16 +25,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from replay.errors import ConfigError
-from replay.logs import layout
+from replay.errors import ConfigError, LogDamageError
 from replay.logs.frame import Frame
 from replay.pipeline import config as cfg
+from replay.pipeline.sinks import FrameSink, NullSink, ReplayStart
 from replay.pipeline.stages import FrameResult, locate_bin, run_frame
-from zcut.removal import BinModel
-
-VIEWER_FLUSH_TIMEOUT_S = 10.0
+from zcut.bin_model import BinModel, PreparedBinModel, prepare_bin_model
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,7 +82,7 @@ def _json_number(v: Any) -> Any:
 
 @dataclass(slots=True)
 class ReplaySummary:
-    """What a replay did (mutable while it runs; final when :func:`replay_log` returns)."""
+    """What a replay did (mutable while it runs; final when :meth:`ReplaySession.run` returns)."""
 
     log: str
     resolved: cfg.Resolved | None = None
@@ -122,55 +128,6 @@ def parse_frames(text: str | None) -> tuple[int, int | None]:
     if start < 0 or (stop is not None and stop <= start):
         raise ConfigError(f"--frames must satisfy 0 <= A < B, got {text!r}")
     return start, stop
-
-
-def synth_info(metadata: dict[str, dict[str, str]]) -> tuple[str | None, float | None]:
-    """(part_kind, camera distance in mm) from a log's ``zcut.synth`` metadata (None when absent)."""
-    meta = metadata.get(layout.SYNTH_METADATA, {})
-    kind = meta.get("part_kind") or None
-    if kind == "empty":  # an empty-bin log has no parts to derive a preset from
-        kind = None
-    dist = None
-    for key, scale in (("a_max_distance_mm", 1.0), ("pile_distance_mm", 1.0), ("camera_distance_mm", 1.0),
-                       ("pile_distance_m", 1000.0), ("camera_distance_m", 1000.0)):
-        if key in meta:
-            try:
-                dist = float(meta[key]) * scale
-                break
-            except ValueError:
-                continue
-    return kind, dist
-
-
-def intrinsics_from_cloud(xyz: np.ndarray):
-    """Pinhole intrinsics fitted to an organized cloud (x/z = (u - cx)/fx, y/z = (v - cy)/fy).
-
-    Least squares over the valid points with z > 0; None when fewer than 100 such points or a
-    non-positive focal length comes out.
-    """
-    from zcut.cloud import Intrinsics
-
-    h, w = xyz.shape[:2]
-    z = xyz[..., 2].astype(np.float64)
-    ok = np.isfinite(xyz).all(axis=2) & (z > 0)
-    if ok.sum() < 100:
-        return None
-    v, u = np.nonzero(ok)
-    fits = []
-    for coord, pix in ((xyz[..., 0][ok] / z[ok], u), (xyz[..., 1][ok] / z[ok], v)):
-        slope, intercept = np.polyfit(pix.astype(np.float64), coord.astype(np.float64), 1)
-        if not slope > 0:
-            return None
-        fits.append((1.0 / slope, -intercept / slope))
-    (fx, cx), (fy, cy) = fits
-    return Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy, width=w, height=h)
-
-
-def _median_depth_mm(frame: Frame) -> float | None:
-    """Median z of the valid points (mm): the camera distance a preset's a_max is measured at."""
-    z = frame.xyz[..., 2]
-    z = z[np.isfinite(z)]
-    return float(np.median(z)) * 1000.0 if z.size else None
 
 
 def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Iterator[Frame]:
@@ -227,255 +184,168 @@ def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Iterator[Frame]:
             worker.join(timeout=0.05)
 
 
-def config_path_for(output: str | Path) -> Path:
-    """Where the resolved config goes beside an output: ``OUT.rrd`` -> ``OUT.config.toml``."""
-    p = Path(output)
-    return p.with_name(p.stem + ".config.toml")
 
 
-def replay_log(
-    path: str | Path,
-    *,
-    config_file: str | Path | None = None,
-    overrides: dict[str, Any] | None = None,
-    frames: tuple[int, int | None] = (0, None),
-    topic: str | None = None,
-    bin_model: BinModel | None = None,
-    rrd: str | Path | None = None,
-    spawn: bool = False,
-    connect: str | None = None,
-    out: str | Path | None = None,
-    full_detail: bool = False,
-    on_start: Callable[[ReplaySummary], None] | None = None,
-    on_frame: Callable[[Frame, FrameResult, FrameRow], None] | None = None,
-    keep_results: bool = False,
-) -> tuple[ReplaySummary, list[tuple[Frame, FrameResult]]]:
-    """Replay a log.
+class ReplaySession:
+    """A log opened for replay, with its config resolved once and its bin model prepared once.
 
-    Parameters
-    ----------
-    path : str or Path
-        ROS 2 MCAP log.
-    config_file : path, optional
-        TOML config (:func:`replay.pipeline.config.load_toml`).
-    overrides : dict, optional
-        Command-line layer (:func:`replay.pipeline.config.cli_layer`).
-    frames : (start, stop)
-        Frame index range, ``stop`` exclusive or None.
-    topic : str, optional
-        Cloud topic.
-    bin_model : BinModel, optional
-        Without it the bin stages are skipped (each result carries the warning).
-    rrd, spawn, connect
-        Rerun sinks (any one; none: no Rerun logging).
-    out : path, optional
-        Results MCAP (SPEC §5 topics).
-    full_detail : bool
-        Rerun logging at full detail.
-    on_start : callable, optional
-        Called once the config is resolved (after the first frame is read).
-    on_frame : callable, optional
-        Called after each frame.
-    keep_results : bool
-        Return every (frame, result) (memory!) for callers that score them.
-
-    Returns
-    -------
-    (ReplaySummary, list of (Frame, FrameResult))
-        ``summary.damage`` is non-empty when the log was damaged after intact frames.
+    Use :meth:`open`. Attributes: ``path``, ``reader`` (a :class:`replay.logs.reader.LogReader`),
+    ``resolved`` (config and notes), ``bin_model`` (the :class:`BinModel` or None) and ``prepared``
+    (its :class:`PreparedBinModel` for this config, or None).
     """
-    from threadpoolctl import threadpool_limits
 
-    from replay.logs.reader import LogReader
+    def __init__(self, path: Path, reader, resolved: cfg.Resolved, bin_model: BinModel | None) -> None:
+        self.path = path
+        self.reader = reader
+        self.resolved = resolved
+        self.bin_model = bin_model
+        c = resolved.config
+        self.prepared: PreparedBinModel | None = None
+        if bin_model is not None:
+            self.prepared = prepare_bin_model(bin_model, registration=c.registration, removal=c.removal)
 
-    file_layer = cfg.load_toml(config_file) if config_file is not None else {}
-    reader = LogReader(path, cloud_topic=topic)
-    part_kind, distance_mm = synth_info(reader.metadata)
-    summary = ReplaySummary(log=str(path), part_kind=part_kind)
-    summary.n_log_frames = reader.n_frames
-    if reader.n_frames is not None:
-        end = reader.n_frames if frames[1] is None else min(frames[1], reader.n_frames)
-        summary.n_planned = max(end - frames[0], 0)
-    kept: list[tuple[Frame, FrameResult]] = []
-    rec = None
-    writer = None
-    use_viz = rrd is not None or spawn or connect is not None
-    start, stop = frames
-    opts = None
-    frame_iter = prefetched(reader.frames(start=start, stop=stop))
-    outputs = _Outputs()
-    completed = False
-    # the bin mask and registration of frame k + 1 (OpenCV, Open3D: no numba) run in a thread
-    # while the removal, z-cut and SOR (numba) finish frame k
-    locator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="zcut-locate")
-    pending: tuple[Frame, Future] | None = None
+    @classmethod
+    def open(cls, path: str | Path, *, config_file: str | Path | None = None,
+             overrides: dict[str, Any] | None = None, topic: str | None = None,
+             bin_model: BinModel | None = None, reader_options: dict[str, Any] | None = None) -> ReplaySession:
+        """Open a log and resolve its config from its metadata and first readable frame.
 
-    def finish(frame: Frame, located) -> None:
-        config = summary.resolved.config
-        result = run_frame(frame, config, bin_model=bin_model, located=located)
-        if rec is not None or writer is not None:
-            outputs.submit(_log_and_write, rec, writer, frame, result, step_mm=config.zcut.step_mm,
-                           opts=opts)
-        row = FrameRow.of(result)
-        summary.rows.append(row)
-        if keep_results:
-            kept.append((frame, result))
-        if on_frame is not None:
-            on_frame(frame, result, row)
+        Parameters
+        ----------
+        path : path
+            ROS 2 MCAP log.
+        config_file : path, optional
+            TOML config (``--config``).
+        overrides : dict, optional
+            The command line's layer (:func:`replay.pipeline.config.cli_layer`).
+        topic : str, optional
+            Cloud topic (when the log has several).
+        bin_model : BinModel, optional
+            Without it the bin stages are skipped (each result carries the warning).
+        reader_options : dict, optional
+            Keyword arguments of :class:`~replay.logs.reader.LogReader` (e.g. resource caps).
 
-    # BLAS is only used for tiny products here, and its spinning worker threads steal the cores
-    # from the numba and Open3D threads that overlap during a replay: one BLAS thread
-    blas = threadpool_limits(limits=1, user_api="blas")
-    try:
-        while True:
-            try:
-                frame = next(frame_iter)
-            except StopIteration:
-                break
-            except BaseException:
-                if pending is not None:  # the frames before the reader's error still count
-                    finish(pending[0], pending[1].result())
-                    pending = None
-                raise
-            if summary.resolved is None:
-                K = frame.intrinsics
-                wants_preset = (overrides or {}).get("preset") or file_layer.get("preset")
-                extra: list[str] = []
-                if wants_preset and distance_mm is None:
-                    distance_mm = _median_depth_mm(frame)
-                    if distance_mm is not None:
-                        extra.append(f"camera distance for the preset's a_max: the median depth, {distance_mm:.0f} mm")
-                if wants_preset and K is None:
-                    K = intrinsics_from_cloud(frame.xyz)
-                    if K is not None:
-                        extra.append(f"intrinsics estimated from the organized cloud: fx {K.fx:.1f}, fy {K.fy:.1f} px")
-                summary.resolved = cfg.resolve(
-                    file_layer=file_layer, cli=overrides, part_kind=part_kind,
-                    camera_distance_mm=distance_mm, fx=K.fx if K else None, fy=K.fy if K else None,
-                    image_shape=frame.shape)
-                if extra:
-                    r = summary.resolved
-                    summary.resolved = cfg.Resolved(r.config, tuple(extra) + r.notes)
-                config = summary.resolved.config
-                toml = cfg.to_toml(config, header=f"zcut resolved config for {Path(path).name}")
-                for o in (rrd, out):
-                    if o is not None:
-                        cp = config_path_for(o)
-                        cp.write_text(toml)
-                        summary.outputs["config"] = str(cp)
-                if use_viz:
-                    from replay.pipeline import viz
+        Raises
+        ------
+        LogFormatError, LogDamageError, ConfigError
+        """
+        from replay.logs.reader import LogReader
 
-                    opts = viz.VizOptions.full() if full_detail else viz.VizOptions()
-                    rec = viz.new_recording()
-                    viz.open_sink(rec, rrd=None if rrd is None else str(rrd), spawn=spawn, connect=connect)
-                    viz.log_static(rec, config_toml=toml, notes=summary.resolved.notes,
-                                   bin_model=bin_model, source=f"log: {Path(path).name}")
-                    if rrd is not None:
-                        summary.outputs["rrd"] = str(rrd)
-                if out is not None:
-                    from replay.logs.writer import LogWriter
+        path = Path(path)
+        file_layer = cfg.load_toml(config_file) if config_file is not None else None
+        reader = LogReader(path, cloud_topic=topic, **(reader_options or {}))
+        it = reader.frames(start=0)
+        try:
+            first = next(it, None)
+        finally:
+            it.close()
+        if first is None:
+            raise LogDamageError(f"{path.name}: no readable frame on {reader.cloud_topic}"
+                                 + (f" ({reader.damage[0]})" if reader.damage else ""))
+        facts = cfg.log_facts(reader.metadata, first, intrinsics=getattr(reader, "intrinsics", None))
+        resolved = cfg.resolve(facts, file_layer=file_layer, cli=overrides)
+        return cls(path, reader, resolved, bin_model)
 
-                    meta = {layout.RESULTS_METADATA: {"source": str(Path(path).name), "config_toml": toml}}
-                    if layout.SYNTH_METADATA in reader.metadata:
-                        meta[layout.SYNTH_METADATA] = dict(reader.metadata[layout.SYNTH_METADATA])
-                    writer = LogWriter(out, metadata=meta)
-                    summary.outputs["results"] = str(out)
-                if on_start is not None:
-                    on_start(summary)
-            config = summary.resolved.config
-            if pending is None:
-                pending = (frame, locator.submit(locate_bin, frame, config, bin_model=bin_model))
-            else:
+    @property
+    def config(self) -> cfg.PipelineConfig:
+        return self.resolved.config
+
+    @property
+    def notes(self) -> tuple[str, ...]:
+        return self.resolved.notes
+
+    def config_toml(self) -> str:
+        """The resolved config as TOML, headed with the log's name."""
+        return cfg.to_toml(self.config, header=f"zcut resolved config for {self.path.name}")
+
+    def start_info(self) -> ReplayStart:
+        return ReplayStart(self.path.name, self.config_toml(), self.notes, self.reader.metadata, self.bin_model)
+
+    def results(self, *, frames: tuple[int, int | None] = (0, None),
+                config: cfg.PipelineConfig | None = None) -> Iterator[tuple[Frame, FrameResult]]:
+        """``(frame, result)`` of every readable frame in ``frames`` (start, stop exclusive or None).
+
+        The next frame is read in a background thread while this one runs; the bin mask and
+        registration of frame k + 1 (OpenCV, Open3D: no numba) run in another thread while the
+        removal, z-cut and SOR (numba) finish frame k. BLAS is limited to one thread meanwhile (its
+        spinning workers otherwise steal the cores from those threads). Closing the generator
+        stops and joins both threads. ``config``: run another config than the resolved one (it must
+        keep the resolved registration and removal parameters, which the bin model was prepared
+        with).
+        """
+        from threadpoolctl import threadpool_limits
+
+        config = self.config if config is None else config
+        if self.prepared is not None and (config.registration != self.config.registration
+                                          or config.removal != self.config.removal):
+            raise ConfigError("results(config=...) must keep the registration and removal parameters "
+                              "the bin model was prepared with")
+        bin_model = self.prepared
+        start, stop = frames
+        frame_iter = prefetched(self.reader.frames(start=start, stop=stop))
+        locator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="zcut-locate")
+        blas = threadpool_limits(limits=1, user_api="blas")
+        pending: tuple[Frame, Future] | None = None
+        try:
+            while True:
+                try:
+                    frame = next(frame_iter)
+                except StopIteration:
+                    break
+                except BaseException:
+                    if pending is not None:  # the frames before the reader's error still count
+                        yield pending[0], run_frame(pending[0], config, bin_model=bin_model,
+                                                    located=pending[1].result())
+                        pending = None
+                    raise
+                if pending is None:
+                    pending = (frame, locator.submit(locate_bin, frame, config, bin_model=bin_model))
+                    continue
                 before, future = pending
                 located = future.result()
                 pending = (frame, locator.submit(locate_bin, frame, config, bin_model=bin_model,
                                                  previous=located.registration))
-                finish(before, located)
-        if pending is not None:
-            finish(pending[0], pending[1].result())
-            pending = None
-        completed = True
-    finally:
-        locator.shutdown(wait=True, cancel_futures=True)
-        blas.restore_original_limits()
-        frame_iter.close()  # joins the reader thread: reader.damage is final
-        summary.damage = list(reader.damage)
-        try:
-            outputs.close(raise_errors=completed)  # every frame logged and written
+                yield before, run_frame(before, config, bin_model=bin_model, located=located)
+            if pending is not None:
+                before, future = pending
+                pending = None
+                yield before, run_frame(before, config, bin_model=bin_model, located=future.result())
         finally:
-            if writer is not None:
-                writer.close()
-            if rec is not None:
-                if rrd is not None:
-                    rec.flush()
-                else:  # a viewer that is gone must not hang the replay
-                    try:
-                        rec.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)
-                    except Exception as e:  # rerun raises a plain exception on timeout
-                        summary.viewer_error = f"the viewer did not take the data within {VIEWER_FLUSH_TIMEOUT_S:g} s ({e})"
-                rec.disconnect()
-    return summary, kept
+            locator.shutdown(wait=True, cancel_futures=True)
+            blas.restore_original_limits()
+            frame_iter.close()  # joins the reader thread: reader.damage is final
 
+    def run(self, sink: FrameSink | None = None, *, frames: tuple[int, int | None] = (0, None),
+            on_frame: Callable[[Frame, FrameResult, FrameRow], None] | None = None) -> ReplaySummary:
+        """Run the pipeline over ``frames`` into ``sink``; returns the summary.
 
-class _Outputs:
-    """Runs the Rerun logging and results writing of frame k in one worker thread, in frame order,
-    while the pipeline runs on frame k + 1 (at most one frame pending: memory stays bounded).
-
-    An error of the worker is raised at the next :meth:`submit` or at :meth:`close`.
-    """
-
-    def __init__(self) -> None:
-        self._pool: ThreadPoolExecutor | None = None
-        self._pending: Future | None = None
-
-    def submit(self, fn: Callable[..., None], *args: Any, **kw: Any) -> None:
-        self._wait()
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="zcut-outputs")
-        self._pending = self._pool.submit(fn, *args, **kw)
-
-    def _wait(self) -> None:
-        if self._pending is not None:
-            f, self._pending = self._pending, None
-            f.result()
-
-    def close(self, *, raise_errors: bool) -> None:
-        """Wait for the last job and stop the thread; ``raise_errors=False`` when another error is
-        already on its way (that one is the one to report)."""
+        ``summary.damage`` is non-empty when frames were lost (the command exits 3).
+        """
+        sink = NullSink() if sink is None else sink
+        summary = ReplaySummary(log=str(self.path), resolved=self.resolved, part_kind=self.config.part)
+        reader = self.reader
+        summary.n_log_frames = reader.n_frames
+        if reader.n_frames is not None:
+            end = reader.n_frames if frames[1] is None else min(frames[1], reader.n_frames)
+            summary.n_planned = max(end - frames[0], 0)
+        completed = False
+        sink.start(self.start_info())
         try:
-            self._wait()
-        except Exception:
-            if raise_errors:
-                raise
+            results = self.results(frames=frames)
+            try:
+                for frame, result in results:
+                    sink.write(frame, result)
+                    row = FrameRow.of(result)
+                    summary.rows.append(row)
+                    if on_frame is not None:
+                        on_frame(frame, result, row)
+            finally:
+                results.close()
+            completed = True
         finally:
-            if self._pool is not None:
-                self._pool.shutdown(wait=True)
-                self._pool = None
+            summary.damage = list(reader.damage)
+            sink.close(completed=completed)
+            summary.outputs = sink.outputs()
+            summary.viewer_error = getattr(sink, "viewer_error", None)
+        return summary
 
-
-def _log_and_write(rec, writer, frame: Frame, result: FrameResult, *, step_mm: float, opts) -> None:
-    if rec is not None:
-        from replay.pipeline import viz
-
-        viz.log_frame(rec, frame, result, step_mm=step_mm, opts=opts)
-    if writer is not None:
-        _write_results(writer, frame, result)
-
-
-def _write_results(writer, frame: Frame, result: FrameResult) -> None:
-    kw = {"stamp_ns": frame.stamp_ns, "frame_id": frame.frame_id}
-    writer.write_mask(layout.ZCUT_OUTLIERS, result.zcut_outliers, **kw)
-    writer.write_mask(layout.SOR_OUTLIERS, result.sor_outliers, **kw)
-    if result.bin_mask is not None:
-        writer.write_mask(layout.BIN_MASK, result.bin_mask.mask, **kw)
-    filtered = frame.xyz.copy()
-    filtered[result.zcut_outliers] = np.nan
-    writer.write_cloud(layout.FILTERED, filtered, rgb=frame.rgb, **kw)
-    if frame.rgb is not None:
-        writer.write_image(layout.IMAGE, frame.rgb, **kw)
-    if frame.intrinsics is not None:
-        writer.write_camera_info(layout.CAMERA_INFO, frame.intrinsics, **kw)
-    for topic, mask in frame.masks.items():
-        if not topic.startswith(layout.RESULTS_PREFIX):
-            writer.write_mask(topic, mask, **kw)

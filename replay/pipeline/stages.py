@@ -15,15 +15,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from replay.errors import ConfigError
 from replay.logs.frame import Frame
 from replay.pipeline.config import PipelineConfig
+from zcut.bin_model import PreparedBinModel
 from zcut.binmask import BinMaskResult, bin_mask
 from zcut.cuts import CutResult, find_clusters
+from zcut.errors import ParameterError
 from zcut.metrics import RelativeMetrics, relative_metrics
 from zcut.params import ZCutParams
-from zcut.registration import RegistrationResult, pose_fitness, register_bin
-from zcut.removal import BinModel, RemovalResult, finite_xyz, remove_table_and_bin
+from zcut.registration import RegistrationResult, pose_fitness, prepare_target, register_bin
+from zcut.removal import RemovalResult, finite_xyz, remove_table_and_bin
 from zcut.sor import sor_outliers
 
 STAGES = ("bin_mask", "registration", "removal", "zcut", "sor", "metrics")
@@ -101,16 +102,6 @@ class FrameResult:
         return r.T_cam_bin if r is not None and r.converged else None
 
 
-def zcut_params(config: PipelineConfig) -> ZCutParams:
-    """The resolved config's z-cut parameters (``max_area_px`` must be set: see ``config.resolve``)."""
-    z = config.zcut
-    if z.max_area_px is None:
-        raise ConfigError("zcut.max_area_px is not set: resolve the config first (replay.pipeline.config.resolve)")
-    return ZCutParams(step=float(z.step_mm), max_depth=float(z.max_depth_mm),
-                      max_area=float(z.max_area_px),
-                      a_max=None if z.a_max_px is None else float(z.a_max_px))
-
-
 @dataclass(frozen=True, slots=True)
 class BinLocation:
     """The bin stages that depend on no other frame but the previous one's pose: bin mask and
@@ -143,7 +134,7 @@ def locate_bin(
     frame: Frame,
     config: PipelineConfig,
     *,
-    bin_model: BinModel | None = None,
+    bin_model: PreparedBinModel | None = None,
     previous: RegistrationResult | None = None,
 ) -> BinLocation:
     """Bin mask and registration of one frame (the first stages of :func:`run_frame`).
@@ -155,8 +146,9 @@ def locate_bin(
     ----------
     frame : Frame
     config : PipelineConfig
-    bin_model : BinModel, optional
-        Without it the bin stages are skipped.
+    bin_model : PreparedBinModel, optional
+        Prepared with ``config``'s registration and removal parameters; without it the bin stages
+        are skipped.
     previous : RegistrationResult, optional
         The previous frame's registration; when converged (and ``config.registration.use_previous``)
         its pose seeds this one.
@@ -196,24 +188,36 @@ def locate_bin(
         walls = bm.walls & valid
         # the ICP downsamples to voxel_mm anyway: a regular subgrid of at most ~150k pixels is enough
         s = max(1, int(np.ceil(np.sqrt(walls.sum() / REGISTRATION_MAX_POINTS))))
-        target = xyz[::s, ::s][walls[::s, ::s]].astype(np.float64)
-        kw = dict(model_normals=bin_model.normals, method=c.method, voxel_m=c.voxel_mm / 1000.0,
-                  max_correspondence_m=c.max_correspondence_mm / 1000.0, max_iterations=c.max_iterations,
-                  min_fitness=c.min_fitness, max_rmse_m=c.max_rmse_mm / 1000.0)
+        target = prepare_target(xyz[::s, ::s][walls[::s, ::s]].astype(np.float64), voxel_m=c.voxel_m)
         reg = None
         if init is not None:
             # a static bin: the previous pose needs only the fine pass (a moved bin: the full one)
-            fine = c.max_correspondence_mm / 3000.0
-            f0 = pose_fitness(bin_model.points, target, init, model_normals=bin_model.normals,
-                              voxel_m=c.voxel_mm / 1000.0, max_correspondence_m=fine)
+            f0 = pose_fitness(bin_model.icp, target, init, max_correspondence_m=c.fine_correspondence_m)
             if f0 >= PREVIOUS_FITNESS_KEPT * previous.fitness:
-                reg = register_bin(bin_model.points, target, init=init, coarse=False, **kw)
+                reg = register_bin(bin_model.icp, target, params=c, init=init, coarse=False)
                 if not reg.converged:
                     reg = None
         if reg is None:
-            reg = register_bin(bin_model.points, target, **kw)
+            reg = register_bin(bin_model.icp, target, params=c)
         timings["registration"] = time.perf_counter() - t
     return BinLocation(valid, bm, reg, timings, time.perf_counter() - t_start, tuple(warnings))
+
+
+def sor_region(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams) -> np.ndarray:
+    """(H, W) bool: the top part of the pile SOR judges (``sor.region = "top"``, paper §5.3).
+
+    The zone's pixels at or above the z-cut's lowest cut: height ≥ z_max − K·Δd, with z_max the
+    highest valid height and K = floor(d_max / Δd + 1e-9), computed as the z-cut computes its
+    thresholds (SPEC §1). SOR and the z-cut then judge the same top portion of the data.
+    """
+    h = np.where(zone, height_mm, np.nan)
+    finite = np.isfinite(height_mm)
+    if not finite.any():
+        return np.zeros_like(zone)
+    z_max = float(np.max(height_mm[finite]))
+    threshold = z_max - zcut.n_levels * zcut.step
+    with np.errstate(invalid="ignore"):
+        return zone & (h >= threshold)
 
 
 def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, **kw) -> np.ndarray:
@@ -241,7 +245,7 @@ def run_frame(
     frame: Frame,
     config: PipelineConfig,
     *,
-    bin_model: BinModel | None = None,
+    bin_model: PreparedBinModel | None = None,
     previous: FrameResult | None = None,
     located: BinLocation | None = None,
 ) -> FrameResult:
@@ -251,9 +255,10 @@ def run_frame(
     ----------
     frame : Frame
     config : PipelineConfig
-        Resolved (``config.zcut.max_area_px`` set).
-    bin_model : BinModel, optional
-        Without it the bin stages are skipped.
+        Resolved (:func:`replay.pipeline.config.resolve_config`).
+    bin_model : PreparedBinModel, optional
+        Prepared with ``config``'s registration and removal parameters; without it the bin stages
+        are skipped.
     previous : FrameResult, optional
         The previous frame's result; its converged pose seeds the registration when
         ``config.registration.use_previous``.
@@ -265,7 +270,6 @@ def run_frame(
     -------
     FrameResult
     """
-    params = zcut_params(config)
     if located is None:
         prev_reg = previous.registration if previous is not None else None
         located = locate_bin(frame, config, bin_model=bin_model, previous=prev_reg)
@@ -280,13 +284,11 @@ def run_frame(
     if bm is not None:
         assert bin_model is not None and reg is not None
         t = time.perf_counter()
-        r = config.removal
+        if bin_model.removal.params != config.removal:
+            raise ParameterError("run_frame: the bin model was prepared with other removal parameters than "
+                                 "the config's (prepare it with zcut.bin_model.prepare_bin_model)")
         if reg.converged:
-            rem = remove_table_and_bin(
-                xyz, bm.mask, model=bin_model, T_cam_bin=reg.T_cam_bin, delta_m=r.delta_mm / 1000.0,
-                rim_offset_m=r.rim_offset_mm / 1000.0,
-                search_radius_m=None if r.search_radius_mm is None else r.search_radius_mm / 1000.0,
-                straggler_m=r.straggler_mm / 1000.0, straggler_neighbours=r.straggler_neighbours)
+            rem = remove_table_and_bin(xyz, bm.mask, index=bin_model.removal, T_cam_bin=reg.T_cam_bin)
         else:
             warnings.append(f"bin registration failed ({reg.reason}): only the table removed")
             rem = remove_table_and_bin(xyz, bm.mask)
@@ -302,15 +304,16 @@ def run_frame(
         easy = rem.easy_outliers
 
     t = time.perf_counter()
-    cut = find_clusters(height, params=params, connectivity=config.zcut.connectivity)
+    cut = find_clusters(height, params=config.zcut)
     z_zone = cut.outliers & zone
     timings["zcut"] = time.perf_counter() - t
 
     t = time.perf_counter()
     s = config.sor
     if s.enabled:
-        s_zone = _sor_on_zone(xyz, zone, whole=rem is None, k=s.k, std_ratio=s.std_ratio,
-                              convention=s.convention)
+        judged = zone if s.region == "zone" else sor_region(height, zone, config.zcut)
+        s_zone = _sor_on_zone(xyz, judged, whole=rem is None and s.region == "zone", k=s.k,
+                              std_ratio=s.std_ratio, convention=s.convention)
     else:
         s_zone = np.zeros_like(valid)
         warnings.append("SOR disabled (sor.enabled = false)")

@@ -40,7 +40,7 @@ import rerun.blueprint as rrb
 
 from replay.logs.frame import Frame
 from replay.pipeline.stages import FrameResult
-from zcut.removal import BinModel
+from zcut.bin_model import BinModel
 
 OUTLIER_CLASSES = (
     (1, "z-cut only", (255, 140, 0)),

@@ -11,7 +11,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from zcut.removal import BIN_UP, STRAGGLER_PASSES, BinModel, RemovalResult, check_removal_args, finite_xyz
+from zcut.bin_model import BinModel
+from zcut.removal import BIN_UP, STRAGGLER_PASSES, RemovalResult, check_removal_args, finite_xyz
 from zcut.types import XYZ, Mask
 
 

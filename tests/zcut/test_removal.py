@@ -12,8 +12,10 @@ import pytest
 from reference.removal_reference import remove_table_and_bin_reference
 
 from replay.pipeline.bin_model import model_from_points
+from zcut.bin_model import BinModel
 from zcut.binmask import bin_mask
-from zcut.removal import BinModel, remove_table_and_bin
+from zcut.params import RemovalParams
+from zcut.removal import prepare_removal_index, remove_table_and_bin
 
 H, W = 180, 240
 FIELDS = ("table", "easy_outliers", "bin_points", "zone", "height_mm", "xyz")
@@ -46,9 +48,27 @@ def _pose(angle_deg: float, shift=(0.004, -0.003, 0.002)) -> np.ndarray:
     return T
 
 
+def _params(kw: dict) -> RemovalParams:
+    """RemovalParams from the reference's metre keywords (the old function's defaults otherwise)."""
+    mm = {k.replace("_m", "_mm"): v * 1000.0 for k, v in kw.items() if k.endswith("_m")}
+    return RemovalParams(**{"straggler_mm": 0.0, "straggler_neighbours": 5, **mm,
+                            **{k: v for k, v in kw.items() if not k.endswith("_m")}})
+
+
+def _fast(xyz, fp, *, model=None, T_cam_bin=None, **kw):
+    index = None if model is None else prepare_removal_index(model, _params(kw))
+    return remove_table_and_bin(xyz, fp, index=index, T_cam_bin=T_cam_bin)
+
+
 def _reference(xyz, fp, **kw):
+    """The reference with the very metre values the params give the fast path."""
+    model = kw.pop("model", None)
+    T = kw.pop("T_cam_bin", None)
+    p = _params(kw)
+    metres = dict(delta_m=p.delta_m, rim_offset_m=p.rim_offset_m, search_radius_m=p.search_radius_m,
+                  straggler_m=p.straggler_m, straggler_neighbours=p.straggler_neighbours)
     with np.errstate(invalid="ignore"):  # the reference multiplies an infinite x by up_x = 0
-        return remove_table_and_bin_reference(xyz, fp, **kw)
+        return remove_table_and_bin_reference(xyz, fp, model=model, T_cam_bin=T, **metres)
 
 
 def _assert_same(fast, ref):
@@ -74,13 +94,13 @@ def test_fast_removal_equals_the_reference(noisy, model, kw, normals):
     xyz, fp = noisy
     m = model if normals else BinModel(model.points, None, model.spacing_m)
     T = _pose(0.0)
-    fast = remove_table_and_bin(xyz, fp, model=m, T_cam_bin=T, **kw)
+    fast = _fast(xyz, fp, model=m, T_cam_bin=T, **kw)
     ref = _reference(xyz, fp, model=m, T_cam_bin=T, **kw)
     _assert_same(fast, ref)
     if normals and kw["delta_m"] >= 5e-4:
         assert fast.bin_points.sum() > 0.05 * fp.sum()  # the test exercises the bin search
     if "straggler_m" in kw and kw["delta_m"] > 0 and kw.get("straggler_neighbours", 5) < 8:
-        plain = remove_table_and_bin(xyz, fp, model=m, T_cam_bin=T, delta_m=kw["delta_m"])
+        plain = _fast(xyz, fp, model=m, T_cam_bin=T, delta_m=kw["delta_m"])
         assert fast.bin_points.sum() > plain.bin_points.sum()  # and the straggler passes
 
 
@@ -102,6 +122,6 @@ def test_fast_removal_equals_the_reference_on_odd_inputs(noisy, model, case):
         T = None
     elif case == "all_nan":
         xyz = np.full_like(xyz, np.nan)
-    fast = remove_table_and_bin(xyz, fp, T_cam_bin=T, **kw)
+    fast = _fast(xyz, fp, T_cam_bin=T, **kw)
     ref = _reference(xyz, fp, T_cam_bin=T, **kw)
     _assert_same(fast, ref)

@@ -35,7 +35,10 @@ def bin_ply(logs):
 
 
 def run_cli(capsys, *argv):
-    rc = main([str(a) for a in argv])
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as e:  # a usage error: argparse exits with the user-error status
+        rc = e.code
     cap = capsys.readouterr()
     return rc, cap.out, cap.err
 
@@ -55,11 +58,12 @@ def test_replay_with_bin_model_writes_rrd_results_and_config(tmp_path, capsys, l
     rrd, res = tmp_path / "r.rrd", tmp_path / "res.mcap"
     rc, out, err = run_cli(capsys, "replay", filled, "--bin-model", bin_ply, "--rrd", rrd, "--out", res, "--json")
     assert rc == 0, err
-    assert "using the 'rods' preset (part kind from the log's zcut.synth metadata)" in err
+    assert "part: rods (from the log's zcut.synth metadata)" in err
+    assert "the paper's nominal values" in err
     summary = json.loads(out)
     assert [f["index"] for f in summary["frames"]] == [0, 1]
     assert all(f["fitness"] is not None and f["fitness"] > 0.3 for f in summary["frames"])
-    assert summary["config"]["preset"] == "rods"
+    assert summary["config"]["part"] == "rods" and summary["config"]["parameters"] == "nominal"
     # the resolved config is beside the outputs and reads back to the same values
     for p in (tmp_path / "r.config.toml", tmp_path / "res.config.toml"):
         assert tomllib.loads(p.read_text())["zcut"] == summary["config"]["zcut"]
@@ -200,7 +204,7 @@ def test_demo_end_to_end(tmp_path, capsys, monkeypatch):
     assert rc == 0, err
     assert "True accuracy against the sample's exact ground truth" in out
     assert "rerun " + str(tmp_path / "out" / "zcut_demo.rrd") in out
-    assert "using the 'rods' preset" in err
+    assert "part: rods (from the log's zcut.synth metadata)" in err
     rows = [ln for ln in out.splitlines() if ln.split() and ln.split()[0] in ("zcut", "sor")]
     assert len(rows) == 2
     assert (tmp_path / "out" / "zcut_demo.rrd").stat().st_size < 10 * 1024 * 1024 * 3
@@ -210,18 +214,18 @@ def test_preset_on_a_real_log_estimates_the_camera(capsys, real_data):
     log = real_data / "mosd_clutter_kinect_ros2.mcap"
     rc, out, err = run_cli(capsys, "replay", log, "--preset", "black_nuts", "--frames", "0", "--json")
     assert rc == 0, err
-    assert "using the 'black_nuts' preset (part kind from the command line)" in err
-    assert "intrinsics estimated from the organized cloud: fx 525.0" in err  # the Kinect's focal length
+    assert "part: black_nuts (from the command line)" in err and "§5.4 ranges for black_nuts" in err
+    assert "fitted to the first frame's organized cloud: fx 525.0" in err  # the Kinect's focal length
     z = json.loads(out)["config"]["zcut"]
     assert z["max_area_px"] == pytest.approx(0.07 * z["a_max_px"])
     rc, _, err = run_cli(capsys, "replay", log, "--preset", "bolts")
-    assert rc == 1 and "preset must be one of" in err
+    assert rc == 1 and "invalid choice: 'bolts'" in err
 
 
 def test_intrinsics_from_an_organized_cloud():
     import pipeline_scene as ps
 
-    from replay.pipeline.session import intrinsics_from_cloud
+    from replay.pipeline.config import intrinsics_from_cloud
 
     frame, _ = ps.scene(h=60, w=80)
     K = intrinsics_from_cloud(frame.xyz)
@@ -239,9 +243,10 @@ def test_connect_to_a_missing_viewer_does_not_hang(capsys, real_data):
         port = s.getsockname()[1]
     log = real_data / "mosd_clutter_kinect_ros2.mcap"
     rc, out, err = run_cli(capsys, "replay", log, "--connect", f"rerun+http://127.0.0.1:{port}/proxy", "--frames", "0")
-    assert rc == 0
-    assert "the viewer did not take the data" in err
-    assert len(out.strip().splitlines()) == 2
+    assert rc == 1 and out == ""
+    assert err.startswith("error: --connect") and "no viewer" in err and len(err.strip().splitlines()) == 1
+    rc, out, err = run_cli(capsys, "replay", log, "--connect", "not a url")
+    assert rc == 1 and "expected a viewer URL like rerun+http://" in err
 
 
 def test_bin_model_from_a_cad_mesh_in_millimetres_with_z_up(tmp_path, capsys):
@@ -301,33 +306,47 @@ def test_prefetched_close_stops_the_thread_and_closes_the_iterator():
     assert not any(t.name == "zcut-frame-reader" for t in threading.enumerate())
 
 
-def test_outputs_worker_runs_in_order_and_reports_its_error():
+def test_background_sinks_run_in_order_in_one_thread_and_report_errors():
     import threading
 
-    from replay.pipeline.session import _Outputs
+    from replay.pipeline.sinks import BackgroundSinks
 
-    done = []
-    out = _Outputs()
+    class Recorder:
+        def __init__(self, fail_at=None):
+            self.seen, self.closed, self.fail_at = [], None, fail_at
+
+        def start(self, info):
+            pass
+
+        def write(self, frame, result):
+            if frame == self.fail_at:
+                raise OSError("disk full")
+            self.seen.append((frame, threading.current_thread().name))
+
+        def close(self, *, completed):
+            self.closed = completed
+
+        def outputs(self):
+            return {}
+
+    rec = Recorder()
+    sinks = BackgroundSinks([rec])
     for i in range(5):
-        out.submit(lambda i=i: done.append((i, threading.current_thread().name)))
-    out.close(raise_errors=True)
-    assert [i for i, _ in done] == list(range(5))
-    assert all(name.startswith("zcut-outputs") for _, name in done)
-
-    def boom():
-        raise OSError("disk full")
-
-    for raise_errors in (True, False):
-        out = _Outputs()
-        out.submit(boom)
-        if raise_errors:
-            with pytest.raises(OSError, match="disk full"):
-                out.close(raise_errors=True)
-        else:
-            out.close(raise_errors=False)  # another error is already on its way
-    out = _Outputs()
-    out.submit(boom)
+        sinks.write(i, None)
+    sinks.close(completed=True)
+    assert [i for i, _ in rec.seen] == list(range(5)) and rec.closed is True
+    assert all(name.startswith("zcut-sinks") for _, name in rec.seen)
+    rec = Recorder(fail_at=1)
+    sinks = BackgroundSinks([rec])
+    sinks.write(0, None)
+    sinks.write(1, None)
     with pytest.raises(OSError, match="disk full"):
-        out.submit(done.clear)  # raised at the next frame
-    out.close(raise_errors=False)
-    assert done  # the job after the failed one did not run
+        sinks.write(2, None)  # raised at the next frame
+    sinks.close(completed=False)
+    assert rec.closed is False and [i for i, _ in rec.seen] == [0]
+    rec = Recorder(fail_at=0)
+    sinks = BackgroundSinks([rec])
+    sinks.write(0, None)
+    with pytest.raises(OSError, match="disk full"):
+        sinks.close(completed=True)  # or at the close, and the file sinks leave nothing behind
+    assert rec.closed is False

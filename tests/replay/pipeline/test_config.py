@@ -7,14 +7,24 @@ import tomllib
 import pytest
 
 from replay.pipeline import config as cfg
-from replay.pipeline.config import ConfigError, PipelineConfig, ZCutConfig
+from replay.pipeline.config import ConfigError, LogFacts
+from zcut.cloud import Intrinsics
+
+NO_FACTS = LogFacts(None, None, None, (100, 200))
+
+
+def facts(part=None, distance=None, fx=None, fy=None, shape=(100, 200)) -> LogFacts:
+    K = None if fx is None else Intrinsics(fx=fx, fy=fy, cx=shape[1] / 2, cy=shape[0] / 2, width=shape[1],
+                                           height=shape[0])
+    return LogFacts(part, distance, K, shape, {"part": "the log's zcut.synth metadata"} if part else {})
 
 
 def test_defaults_are_the_papers_nominal_values():
-    c = PipelineConfig()
-    assert (c.zcut.step_mm, c.zcut.max_depth_mm, c.zcut.rho_thr) == (0.2, 30.0, 0.07)
+    c = cfg.resolve(NO_FACTS).config
+    assert (c.zcut.step, c.zcut.max_depth, c.zcut.rho_thr) == (0.2, 30.0, pytest.approx(0.07))
+    assert c.parameters == "nominal"
     assert c.removal.delta_mm == 0.1
-    assert (c.sor.k, c.sor.std_ratio, c.sor.convention) == (4, 1.0, "pcl")
+    assert (c.sor.k, c.sor.std_ratio, c.sor.convention, c.sor.region) == (4, 1.0, "pcl", "top")
 
 
 @pytest.mark.parametrize("section, kw, match", [
@@ -35,12 +45,12 @@ def test_bad_values_name_field_and_value(section, kw, match):
     with pytest.raises(ConfigError, match=match):
         cfg.SECTIONS[section](**kw)
     with pytest.raises(ConfigError, match=match):
-        cfg.from_dict({section: kw})
+        cfg.check_layer({section: kw}, source="config")
 
 
 def test_config_error_is_a_value_error():
     with pytest.raises(ValueError):
-        ZCutConfig(step_mm=-1.0)
+        cfg.SECTIONS["zcut"](step_mm=-1.0)
 
 
 @pytest.mark.parametrize("text, match", [
@@ -50,12 +60,28 @@ def test_config_error_is_a_value_error():
     ("[zcut]\nstep_mm = -0.2\n", r"cfg\.toml: .*zcut\.step_mm must be a number > 0, got -0\.2"),
     ("[zcut\nstep_mm = 1\n", r"cfg\.toml: not valid TOML"),
     ("preset = 3\n", r"preset must be a string"),
+    ("part = \"bolts\"\n", r"part must be one of .*got 'bolts'"),
+    ("parameters = \"tuned\"\n", r"parameters must be one of nominal, geometry"),
+    ("[zcut]\nrho_thr = 0.07\nmax_area_px = 5\n", r"max_area_px or zcut\.rho_thr, not both"),
+    ("[zcut]\nrho_thr = 1.5\n", r"zcut\.rho_thr must be a number > 0 and <= 1, got 1\.5"),
+    ("[sor]\nregion = \"all\"\n", r"sor\.region must be one of top, zone"),
 ])
 def test_toml_errors_name_the_file_and_key(tmp_path, text, match):
     p = tmp_path / "cfg.toml"
     p.write_text(text)
     with pytest.raises(ConfigError, match=match):
         cfg.load_toml(p)
+
+
+def test_toml_errors_of_a_binary_or_deep_file(tmp_path):
+    b = tmp_path / "bin.toml"
+    b.write_bytes(bytes(range(256)))
+    with pytest.raises(ConfigError, match=r"bin\.toml: not a text file"):
+        cfg.load_toml(b)
+    d = tmp_path / "deep.toml"
+    d.write_text("a = " + "[" * 100_000 + "]" * 100_000 + "\n")
+    with pytest.raises(ConfigError, match=r"deep\.toml: not valid TOML"):
+        cfg.load_toml(d)
 
 
 def test_toml_round_trip(tmp_path):
@@ -72,27 +98,34 @@ def test_toml_round_trip(tmp_path):
 def test_layers_file_beats_defaults_and_cli_beats_file(tmp_path):
     p = tmp_path / "c.toml"
     p.write_text("[zcut]\nstep_mm = 0.5\nmax_depth_mm = 20.0\nmax_area_px = 40\n")
-    r = cfg.resolve(file_layer=cfg.load_toml(p), cli=cfg.cli_layer(step=0.25))
+    r = cfg.resolve(NO_FACTS, file_layer=cfg.load_toml(p), cli=cfg.cli_layer(step=0.25))
     z = r.config.zcut
-    assert (z.step_mm, z.max_depth_mm, z.max_area_px) == (0.25, 20.0, 40)
-    assert r.config.sor == cfg.SorConfig()
+    assert (z.step, z.max_depth, z.max_area) == (0.25, 20.0, 40)
+    assert r.config.sor == cfg.SorParams()
 
 
 def test_max_area_is_derived_from_rho_and_a_max():
-    r = cfg.resolve(file_layer={"zcut": {"a_max_px": 1000.0, "rho_thr": 0.05}})
-    assert r.config.zcut.max_area_px == pytest.approx(50.0)
+    r = cfg.resolve(NO_FACTS, file_layer={"zcut": {"a_max_px": 1000.0, "rho_thr": 0.05}})
+    assert r.config.zcut.max_area == pytest.approx(50.0)
+
+
+def test_the_later_layer_decides_between_max_area_and_rho():
+    file_layer = {"zcut": {"a_max_px": 1000.0, "max_area_px": 40.0}}
+    assert cfg.resolve(NO_FACTS, file_layer=file_layer).config.zcut.max_area == 40.0
+    r = cfg.resolve(NO_FACTS, file_layer=file_layer, cli=cfg.cli_layer(rho=0.05))
+    assert r.config.zcut.max_area == pytest.approx(50.0)
 
 
 def test_fallback_a_max_from_image_size_is_announced():
-    r = cfg.resolve(image_shape=(100, 200))
-    assert r.config.zcut.a_max_px == pytest.approx(200.0)
-    assert r.config.zcut.max_area_px == pytest.approx(0.07 * 200.0)
-    assert any("no part size known" in n for n in r.notes)
+    r = cfg.resolve(NO_FACTS)
+    assert r.config.zcut.a_max == pytest.approx(200.0)
+    assert r.config.zcut.max_area == pytest.approx(0.07 * 200.0)
+    assert any("no part known" in n for n in r.notes)
 
 
-def test_unresolvable_max_area_is_an_error():
-    with pytest.raises(ConfigError, match="max_area_px cannot be derived"):
-        cfg.resolve()
+def test_geometry_parameters_need_a_part():
+    with pytest.raises(ConfigError, match="needs the part kind"):
+        cfg.resolve(NO_FACTS, cli=cfg.cli_layer(parameters="geometry"))
 
 
 def test_cli_layer_only_sets_what_was_given():
@@ -101,31 +134,42 @@ def test_cli_layer_only_sets_what_was_given():
 
 
 @pytest.mark.parametrize("kind", ["spheres", "zinc_nuts", "rods", "black_screws", "black_nuts", "sprockets"])
-def test_presets_follow_section_5_4(kind):
-    from replay.synth import PART_KINDS
-    from replay.synth.scene import BIN
+def test_geometry_parameters_follow_section_5_4(kind):
+    from replay.presets import BIN, PART_KINDS
 
     part = PART_KINDS[kind]
     fx = fy = 2000.0
     dist = 450.0
-    r = cfg.resolve(part_kind=kind, camera_distance_mm=dist, fx=fx, fy=fy)
+    r = cfg.resolve(facts(kind, dist, fx, fy), cli=cfg.cli_layer(parameters="geometry"))
     z = r.config.zcut
-    assert r.config.preset == kind
-    assert 0.01 * part.p_min_mm <= z.step_mm <= 0.04 * part.p_min_mm
-    assert part.p_min_mm - 1e-9 <= z.max_depth_mm <= max(0.7 * BIN.height_mm, part.p_min_mm) + 1e-9
+    assert (r.config.part, r.config.parameters) == (kind, "geometry")
+    assert 0.01 * part.p_min_mm <= z.step <= 0.04 * part.p_min_mm
+    assert part.p_min_mm - 1e-9 <= z.max_depth <= max(0.7 * BIN.height_mm, part.p_min_mm) + 1e-9
     a_max = part.face_area_mm2 * fx * fy / dist**2
-    assert z.a_max_px == pytest.approx(a_max)
-    assert z.max_area_px == pytest.approx(0.07 * a_max)
+    assert z.a_max == pytest.approx(a_max)
+    assert z.max_area == pytest.approx(0.07 * a_max)
     assert any(kind in n and "metadata" in n for n in r.notes)
+    assert any("§5.4" in n for n in r.notes)
+
+
+@pytest.mark.parametrize("kind", ["spheres", "rods"])
+def test_a_synthetic_log_gets_the_nominal_parameters_with_its_part_a_max(kind):
+    from replay.presets import PART_KINDS
+
+    r = cfg.resolve(facts(kind, 450.0, 2000.0, 2000.0))
+    z = r.config.zcut
+    assert (z.step, z.max_depth) == (0.2, 30.0) and r.config.parameters == "nominal"
+    assert z.a_max == pytest.approx(PART_KINDS[kind].face_area_mm2 * 2000.0**2 / 450.0**2)
+    assert any("nominal" in n for n in r.notes)
 
 
 def test_preset_in_the_file_beats_the_metadata_and_file_values_beat_the_preset():
-    r = cfg.resolve(file_layer={"preset": "rods", "zcut": {"step_mm": 0.5}}, part_kind="spheres",
-                    camera_distance_mm=450.0, fx=1000.0, fy=1000.0)
-    assert r.config.preset == "rods" and r.config.zcut.step_mm == 0.5
+    r = cfg.resolve(facts("spheres", 450.0, 1000.0, 1000.0),
+                    file_layer={"preset": "rods", "zcut": {"step_mm": 0.5}})
+    assert r.config.part == "rods" and r.config.parameters == "geometry" and r.config.zcut.step == 0.5
     assert any("config file" in n for n in r.notes)
 
 
 def test_unknown_preset():
     with pytest.raises(ConfigError, match="preset must be one of .*got 'bolts'"):
-        cfg.resolve(part_kind="bolts", image_shape=(10, 10))
+        cfg.cli_layer(preset="bolts")

@@ -9,8 +9,8 @@ import pipeline_scene as ps
 import pytest
 
 from replay.pipeline.bin_model import build_bin_model
-from replay.pipeline.config import ConfigError, PipelineConfig, from_dict, resolve
-from replay.pipeline.stages import STAGES, run_frame, zcut_params
+from replay.pipeline.config import PipelineConfig
+from replay.pipeline.stages import STAGES, run_frame, sor_region
 from zcut import sor_outliers
 from zcut.cuts import zcut_outliers
 from zcut.metrics import relative_metrics
@@ -19,12 +19,13 @@ H, W = 240, 320
 SHIFT = (0.006, -0.004, 0.003)
 LAYER = {"zcut": {"step_mm": 1.0, "max_depth_mm": 40.0, "max_area_px": 30.0},
          "removal": {"delta_mm": 2.0, "search_radius_mm": 5.0},
-         "registration": {"voxel_mm": 1.0}}
+         "registration": {"voxel_mm": 1.0},
+         "sor": {"region": "zone"}}
 
 
 @pytest.fixture(scope="module")
 def config() -> PipelineConfig:
-    return resolve(file_layer=LAYER).config
+    return ps.resolved_config(LAYER, (H, W))
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +34,8 @@ def model(config):
     for i, s in enumerate([(0, 0, 0), (0.02, 0, 0), (-0.02, 0, 0), (0, 0.02, 0), (0, -0.02, 0)]):
         f, _ = ps.scene(h=H, w=W, shift=s, parts=False)
         frames.append(dataclasses.replace(f, index=i))
-    return build_bin_model(frames, config, voxel_mm=1.0)[0]
+    raw = build_bin_model(frames, bin_mask_params=config.bin_mask, registration=config.registration, voxel_mm=1.0)[0]
+    return ps.prepared(raw, config)
 
 
 @pytest.fixture(scope="module")
@@ -85,13 +87,13 @@ def test_without_bin_the_zcut_runs_on_the_whole_frame_exactly(filled, model, con
     else:
         bm, c = model, dataclasses.replace(config, bin_mask=dataclasses.replace(config.bin_mask, enabled=False))
     # the rim is the top of the whole frame: reach down to the parts
-    c = dataclasses.replace(c, zcut=dataclasses.replace(c.zcut, max_depth_mm=100.0))
+    c = dataclasses.replace(c, zcut=dataclasses.replace(c.zcut, max_depth=100.0))
     r = run_frame(frame, c, bin_model=bm)
     assert len(r.warnings) == 1 and "z-cut on the whole frame" in r.warnings[0]
     assert r.bin_mask is None and r.registration is None and r.removal is None
     z = c.zcut
-    expected = zcut_outliers(-1000 * frame.xyz[..., 2].astype(np.float64), step=z.step_mm,
-                             max_depth=z.max_depth_mm, max_area=z.max_area_px)
+    expected = zcut_outliers(-1000 * frame.xyz[..., 2].astype(np.float64), step=z.step,
+                             max_depth=z.max_depth, max_area=z.max_area)
     assert expected.any()
     assert np.array_equal(r.zcut_outliers, expected)
     assert np.array_equal(r.sor_outliers, sor_outliers(frame.xyz, k=4, std_ratio=1.0))
@@ -139,11 +141,27 @@ def test_all_nan_frame_gives_empty_masks(config):
     assert not r.zcut_outliers.any() and not r.sor_outliers.any() and r.cut.n_clusters == 0
 
 
-def test_unresolved_config_is_refused():
-    with pytest.raises(ConfigError, match="max_area_px is not set"):
-        zcut_params(PipelineConfig())
-    p = zcut_params(from_dict({"zcut": {"max_area_px": 7.0, "a_max_px": 100.0}}))
-    assert (p.step, p.max_depth, p.max_area, p.a_max) == (0.2, 30.0, 7.0, 100.0)
+def test_sor_region_top_is_the_zcuts_depth_range(filled, model, config):
+    frame, _ = filled
+    top = dataclasses.replace(config, sor=dataclasses.replace(config.sor, region="top"),
+                              zcut=dataclasses.replace(config.zcut, max_depth=10.0))
+    r = run_frame(frame, top, bin_model=model)
+    judged = sor_region(r.height_mm, r.zone, top.zcut)
+    finite = np.isfinite(r.height_mm)
+    assert judged.any() and (judged & ~r.zone).sum() == 0
+    assert (r.height_mm[judged] >= r.height_mm[finite].max() - 10.0).all()
+    assert (judged.sum() < r.zone.sum())
+    zone_xyz = np.where(judged[..., None], frame.xyz, np.nan).astype(np.float32)
+    assert np.array_equal(r.sor_outliers & ~r.easy_outliers, sor_outliers(zone_xyz, k=4, std_ratio=1.0) & judged)
+
+
+def test_a_model_prepared_for_other_removal_parameters_is_refused(filled, model, config):
+    from zcut.errors import ParameterError
+
+    frame, _ = filled
+    other = dataclasses.replace(config, removal=dataclasses.replace(config.removal, delta_mm=1.0))
+    with pytest.raises(ParameterError, match="other removal parameters"):
+        run_frame(frame, other, bin_model=model)
 
 
 def test_a_moved_bin_is_registered_afresh(model, config):

@@ -45,13 +45,14 @@ def column(entries, name):
 
 @pytest.fixture(scope="module")
 def setup():
-    resolved = cfg.resolve(file_layer=LAYER)
+    resolved = cfg.resolve(cfg.LogFacts(None, None, None, (H, W)), file_layer=LAYER)
     config = resolved.config
     frames = []
     for i, s in enumerate([(0, 0, 0), (0.02, 0, 0), (-0.02, 0, 0), (0, 0.02, 0), (0, -0.02, 0)]):
         f, _ = ps.scene(h=H, w=W, shift=s, parts=False)
         frames.append(dataclasses.replace(f, index=i))
-    model = build_bin_model(frames, config, voxel_mm=2.0)[0]
+    model = build_bin_model(frames, bin_mask_params=config.bin_mask, registration=config.registration,
+                            voxel_mm=2.0)[0]
     return resolved, model
 
 
@@ -70,8 +71,8 @@ def recording(setup, tmp_path_factory):
         frame = dataclasses.replace(frame, index=i, stamp_ns=1_000 + i)
         if i == 1:
             frame = dataclasses.replace(frame, rgb=None)  # second frame: bin stages skipped
-        r = run_frame(frame, config, bin_model=model)
-        viz.log_frame(rec, frame, r, step_mm=config.zcut.step_mm)
+        r = run_frame(frame, config, bin_model=ps.prepared(model, config))
+        viz.log_frame(rec, frame, r, step_mm=config.zcut.step)
         results.append((frame, r))
     rec.flush()
     rec.disconnect()
@@ -217,7 +218,7 @@ def test_default_detail_downsamples_the_cloud(recording):
 def test_full_detail_logs_everything(setup, tmp_path):
     resolved, model = setup
     frame, _ = ps.scene(h=H, w=W, specks=3)
-    r = run_frame(frame, resolved.config, bin_model=model)
+    r = run_frame(frame, resolved.config, bin_model=ps.prepared(model, resolved.config))
     path = tmp_path / "full.rrd"
     rec = viz.new_recording()
     viz.open_sink(rec, rrd=str(path))

@@ -1,0 +1,70 @@
+"""Options and steps that several commands share: the pipeline's inputs, outputs, the session.
+
+Every command that runs the pipeline on a log (``replay``, ``demo``, ``accuracy``, ``annotate``,
+``sweep``, ``batch``) takes the same options from :func:`add_pipeline_options` and opens its log
+with :func:`open_session`, so that it resolves the same config (SPEC §4, "Same filter everywhere").
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from replay.presets import PART_KINDS
+
+
+def add_pipeline_options(p: argparse.ArgumentParser, *, bin_model: bool = True) -> None:
+    """``--config``, the z-cut overrides, ``--part/--parameters/--preset``, ``--topic``, ``--bin-model``."""
+    g = p.add_argument_group("pipeline (the same options resolve the same filter in every command)")
+    g.add_argument("--config", metavar="F.toml", help="pipeline config (TOML); the resolved config is written beside outputs")
+    g.add_argument("--step", type=float, metavar="MM", help="z-cut step Δd in mm (overrides the config)")
+    g.add_argument("--max-depth", type=float, metavar="MM", help="z-cut depth d_max in mm (overrides the config)")
+    g.add_argument("--max-area", type=float, metavar="PX", help="z-cut cluster area threshold μ_thr in pixels")
+    g.add_argument("--rho", type=float, metavar="R", help="z-cut relative area threshold ρ_thr (μ_thr = ρ_thr·a_max)")
+    g.add_argument("--part", metavar="KIND", choices=list(PART_KINDS),
+                   help=f"the part kind in the bin, for a_max ({', '.join(PART_KINDS)}); synthetic logs name theirs")
+    g.add_argument("--parameters", choices=("nominal", "geometry"),
+                   help="z-cut Δd and d_max: the paper's nominal 0.2/30 mm (default) or its §5.4 ranges for the part")
+    g.add_argument("--preset", metavar="KIND", choices=list(PART_KINDS),
+                   help="shorthand for --part KIND --parameters geometry")
+    g.add_argument("--topic", metavar="T", help="cloud topic (when the log has several)")
+    if bin_model:
+        g.add_argument("--bin-model", metavar="PLY", help="bin model (from `zcut bin-model` or a CAD PLY); "
+                       "without it the bin stages are skipped")
+
+
+def overrides_of(args: argparse.Namespace) -> dict[str, Any]:
+    """The command line's config layer (validated: a bad value fails before the log is read)."""
+    from replay.pipeline import config as cfg
+
+    return cfg.cli_layer(step=args.step, max_depth=args.max_depth, max_area=args.max_area, rho=args.rho,
+                         part=args.part, parameters=args.parameters, preset=args.preset)
+
+
+def inputs_of(args: argparse.Namespace) -> list[str]:
+    """The files the pipeline options name (for the outputs check)."""
+    return [p for p in (getattr(args, "config", None), getattr(args, "bin_model", None)) if p]
+
+
+def load_model(args: argparse.Namespace):
+    """The ``--bin-model`` (None without one)."""
+    from replay.pipeline.bin_model import load_bin_model
+
+    path = getattr(args, "bin_model", None)
+    return load_bin_model(path) if path else None
+
+
+def open_session(log: str | Path, args: argparse.Namespace, *, bin_model=None, overrides=None):
+    """Open ``log`` as a :class:`~replay.pipeline.session.ReplaySession` with the pipeline options."""
+    from replay.pipeline.session import ReplaySession
+
+    if config := getattr(args, "config", None):
+        if not Path(config).is_file():
+            raise FileNotFoundError(2, "no such file", str(config))
+    return ReplaySession.open(log, config_file=args.config, overrides=overrides_of(args) if overrides is None else overrides,
+                              topic=getattr(args, "topic", None), bin_model=bin_model)
+
+
+def add_force_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--force", action="store_true", help="replace existing outputs")

@@ -1,0 +1,322 @@
+"""Where a replay's results go: sinks behind one small protocol.
+
+A sink is told once that the replay starts (:meth:`FrameSink.start`, with the resolved config and
+its notes), then gets every frame with its result (:meth:`FrameSink.write`) in frame order, then
+:meth:`FrameSink.close` (``completed=False`` when the replay failed: a file sink then leaves no
+output behind). :class:`NullSink` does nothing; :class:`RerunSink` logs every stage to Rerun (a
+file, a spawned viewer or a running one); :class:`ResultsSink` writes the SPEC §5 results MCAP.
+:class:`BackgroundSinks` runs a list of sinks in one worker thread, at most one frame behind the
+pipeline, so that writing frame k overlaps computing frame k + 1 (threading lives here and in the
+session's frame prefetcher, nowhere else).
+
+File sinks write through :class:`replay.outputs.AtomicOutput` (a unique temporary name, renamed
+into place when complete) and write the resolved config beside their output
+(``OUT.config.toml``); the paths must have been checked with an :class:`replay.outputs.OutputPlan`.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from replay.logs import layout
+from replay.logs.frame import Frame
+from replay.outputs import AtomicOutput, config_path_for
+from replay.pipeline.stages import FrameResult
+from zcut.bin_model import BinModel
+
+VIEWER_FLUSH_TIMEOUT_S = 10.0
+
+
+@dataclass(frozen=True, slots=True)
+class ReplayStart:
+    """What a sink learns when a replay starts.
+
+    Attributes
+    ----------
+    log : str
+        The log's file name.
+    config_toml : str
+        The resolved config as TOML (:func:`replay.pipeline.config.to_toml`).
+    notes : tuple of str
+        How the config was resolved.
+    metadata : dict
+        The log's MCAP metadata records.
+    bin_model : BinModel or None
+    """
+
+    log: str
+    config_toml: str
+    notes: tuple[str, ...]
+    metadata: dict[str, dict[str, str]]
+    bin_model: BinModel | None
+
+
+class FrameSink(Protocol):
+    """The protocol every sink follows."""
+
+    def start(self, info: ReplayStart) -> None: ...
+
+    def write(self, frame: Frame, result: FrameResult) -> None: ...
+
+    def close(self, *, completed: bool) -> None: ...
+
+    def outputs(self) -> dict[str, str]:
+        """What the sink wrote, name -> path (after a completed close)."""
+        ...
+
+
+class NullSink:
+    """Writes nothing (``zcut replay`` without ``--rrd/--spawn/--connect/--out``, sweeps, scoring)."""
+
+    def start(self, info: ReplayStart) -> None:
+        pass
+
+    def write(self, frame: Frame, result: FrameResult) -> None:
+        pass
+
+    def close(self, *, completed: bool) -> None:
+        pass
+
+    def outputs(self) -> dict[str, str]:
+        return {}
+
+
+def _write_config_beside(path: Path, info: ReplayStart) -> Path:
+    cp = config_path_for(path)
+    with AtomicOutput(cp) as out:
+        out.temp.write_text(info.config_toml)
+    return cp
+
+
+class RerunSink:
+    """Log every stage to Rerun: to an .rrd file, a spawned viewer, or a running viewer.
+
+    Parameters
+    ----------
+    rrd : path, optional
+        Write a recording (through a temporary file renamed into place when complete).
+    spawn : bool
+        Spawn a viewer.
+    connect : str, optional
+        A running viewer's URL (``rerun+http://127.0.0.1:9876/proxy``).
+    full_detail : bool
+        Log full-resolution images and clouds.
+    """
+
+    def __init__(self, *, rrd: str | Path | None = None, spawn: bool = False, connect: str | None = None,
+                 full_detail: bool = False) -> None:
+        self.rrd = None if rrd is None else Path(rrd)
+        self.spawn, self.connect, self.full_detail = spawn, connect, full_detail
+        self._rec = None
+        self._file: AtomicOutput | None = None
+        self._opts = None
+        self._step = 0.0
+        self._outputs: dict[str, str] = {}
+        self.viewer_error: str | None = None
+
+    def start(self, info: ReplayStart) -> None:
+        from replay.pipeline import config as cfg
+        from replay.pipeline import viz
+
+        self._opts = viz.VizOptions.full() if self.full_detail else viz.VizOptions()
+        self._step = cfg.from_dict(_toml_dict(info.config_toml)).zcut.step
+        self._rec = viz.new_recording()
+        if self.rrd is not None:
+            self._file = AtomicOutput(self.rrd)
+        viz.open_sink(self._rec, rrd=None if self._file is None else str(self._file.temp), spawn=self.spawn,
+                      connect=self.connect)
+        viz.log_static(self._rec, config_toml=info.config_toml, notes=info.notes, bin_model=info.bin_model,
+                       source=f"log: {info.log}")
+
+    def write(self, frame: Frame, result: FrameResult) -> None:
+        from replay.pipeline import viz
+
+        viz.log_frame(self._rec, frame, result, step_mm=self._step, opts=self._opts)
+
+    def close(self, *, completed: bool) -> None:
+        rec, self._rec = self._rec, None
+        if rec is None:
+            return
+        try:
+            if self._file is not None:
+                rec.flush()
+            else:  # a viewer that is gone must not hang the replay
+                try:
+                    rec.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)
+                except Exception as e:  # rerun raises a plain exception on timeout
+                    self.viewer_error = (f"the viewer did not take the data within {VIEWER_FLUSH_TIMEOUT_S:g} s "
+                                         f"({e})")
+        finally:
+            rec.disconnect()
+        if self._file is not None:
+            if completed:
+                self._outputs["rrd"] = str(self._file.commit())
+            else:
+                self._file.abort()
+
+    def outputs(self) -> dict[str, str]:
+        return dict(self._outputs)
+
+
+def _toml_dict(text: str) -> dict:
+    import tomllib
+
+    return tomllib.loads(text)
+
+
+class ResultsSink:
+    """The results MCAP (SPEC §5): ``/zcut/outliers``, ``/zcut/sor_outliers``, ``/zcut/bin_mask``,
+    ``/zcut/filtered``, with the source's image, camera info and masks (ground truth) passed through.
+
+    Parameters
+    ----------
+    path : path
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._file: AtomicOutput | None = None
+        self._writer = None
+        self._outputs: dict[str, str] = {}
+
+    def start(self, info: ReplayStart) -> None:
+        from replay.logs.writer import LogWriter
+
+        meta = {layout.RESULTS_METADATA: {"source": info.log, "config_toml": info.config_toml}}
+        for name, record in info.metadata.items():  # the synthetic truth's records travel along
+            if name.startswith(layout.SYNTH_METADATA):
+                meta[name] = dict(record)
+        self._file = AtomicOutput(self.path)
+        self._writer = LogWriter(self._file.temp, metadata=meta)
+
+    def write(self, frame: Frame, result: FrameResult) -> None:
+        w = self._writer
+        kw = {"stamp_ns": frame.stamp_ns, "frame_id": frame.frame_id}
+        w.write_mask(layout.ZCUT_OUTLIERS, result.zcut_outliers, **kw)
+        w.write_mask(layout.SOR_OUTLIERS, result.sor_outliers, **kw)
+        if result.bin_mask is not None:
+            w.write_mask(layout.BIN_MASK, result.bin_mask.mask, **kw)
+        filtered = frame.xyz.copy()
+        filtered[result.zcut_outliers] = np.nan
+        w.write_cloud(layout.FILTERED, filtered, rgb=frame.rgb, **kw)
+        if frame.rgb is not None:
+            w.write_image(layout.IMAGE, frame.rgb, **kw)
+        if frame.intrinsics is not None:
+            w.write_camera_info(layout.CAMERA_INFO, frame.intrinsics, **kw)
+        for topic, mask in frame.masks.items():
+            if not topic.startswith(layout.RESULTS_PREFIX):
+                w.write_mask(topic, mask, **kw)
+
+    def close(self, *, completed: bool) -> None:
+        writer, self._writer = self._writer, None
+        if writer is None:
+            return
+        try:
+            writer.close()
+        finally:
+            if completed:
+                self._outputs["results"] = str(self._file.commit())
+            else:
+                self._file.abort()
+
+    def outputs(self) -> dict[str, str]:
+        return dict(self._outputs)
+
+
+class ConfigBeside:
+    """Writes the resolved config beside an output path (``OUT.config.toml``) when a replay
+    completes; a replay that fails leaves none."""
+
+    def __init__(self, output: str | Path) -> None:
+        self.output = Path(output)
+        self._info: ReplayStart | None = None
+        self._outputs: dict[str, str] = {}
+
+    def start(self, info: ReplayStart) -> None:
+        self._info = info
+
+    def write(self, frame: Frame, result: FrameResult) -> None:
+        pass
+
+    def close(self, *, completed: bool) -> None:
+        if completed and self._info is not None:
+            self._outputs[f"config of {self.output.name}"] = str(_write_config_beside(self.output, self._info))
+
+    def outputs(self) -> dict[str, str]:
+        return dict(self._outputs)
+
+
+class BackgroundSinks:
+    """Several sinks fed in one worker thread, in frame order, at most one frame behind.
+
+    An error of a sink is raised at the next :meth:`write` or at :meth:`close`.
+    """
+
+    def __init__(self, sinks: list[FrameSink]) -> None:
+        self.sinks = list(sinks)
+        self._pool: ThreadPoolExecutor | None = None
+        self._pending: Future | None = None
+
+    def start(self, info: ReplayStart) -> None:
+        for s in self.sinks:
+            s.start(info)
+
+    def _wait(self) -> None:
+        if self._pending is not None:
+            f, self._pending = self._pending, None
+            f.result()
+
+    def write(self, frame: Frame, result: FrameResult) -> None:
+        if not any(not isinstance(s, (NullSink, ConfigBeside)) for s in self.sinks):
+            return
+        self._wait()
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="zcut-sinks")
+        self._pending = self._pool.submit(self._write_all, frame, result)
+
+    def _write_all(self, frame: Frame, result: FrameResult) -> None:
+        for s in self.sinks:
+            s.write(frame, result)
+
+    def close(self, *, completed: bool) -> None:
+        """Wait for the last frame, then close every sink (``completed=False`` when another error is
+        already on its way: that one is reported, and the file sinks leave nothing behind)."""
+        error: BaseException | None = None
+        try:
+            self._wait()
+        except Exception as e:
+            if completed:
+                error = e
+            completed = False
+        finally:
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
+                self._pool = None
+        for s in self.sinks:
+            try:
+                s.close(completed=completed)
+            except Exception as e:
+                if error is None and completed:
+                    error = e
+                completed = False
+        if error is not None:
+            raise error
+
+    def outputs(self) -> dict[str, str]:
+        out: dict[str, str] = {}
+        for s in self.sinks:
+            out.update(s.outputs())
+        return out
+
+    @property
+    def viewer_error(self) -> str | None:
+        for s in self.sinks:
+            e = getattr(s, "viewer_error", None)
+            if e:
+                return e
+        return None
