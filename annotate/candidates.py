@@ -3,9 +3,9 @@
 The page prepares a log's frames in log order, one at a time (``annotate.server.Catalog``).
 :class:`PipelineRunner` resolves the config with :func:`replay.pipeline.config.resolve_config` at
 the first frame it is given (the log's first readable frame, as a
-:class:`~replay.pipeline.session.ReplaySession` does), prepares the bin model once for it, and runs
-``run_frame`` with the previous frame's registration as the seed, as the session does: the page shows
-the masks ``zcut replay`` writes for the same log, config file and overrides.
+:class:`~replay.pipeline.session.ReplaySession` does), prepares the bin model once for it, registers
+that first frame as the seed of every frame's registration, and runs ``run_frame`` as the session
+does: the page shows the masks ``zcut replay`` writes for the same log, config file and overrides.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ class PipelineRunner:
         self.intrinsics = intrinsics
         self.config = None
         self.prepared = None
-        self.previous = None
+        self.seed = None
         self.notes: tuple[str, ...] = ()
 
     def _resolve(self, frame) -> None:
@@ -52,15 +52,18 @@ class PipelineRunner:
         self.config = resolved.config
         self.notes = resolved.notes
         if self.bin_model is not None:
+            from replay.pipeline.stages import locate_bin
+
             self.prepared = prepare_bin_model(self.bin_model, registration=self.config.registration,
                                               removal=self.config.removal)
+            if self.config.registration.seed_from_first_frame:
+                self.seed = locate_bin(frame, self.config, bin_model=self.prepared).registration
 
     def run(self, frame):
-        """``replay.pipeline.stages.run_frame`` on the next frame in log order (FrameResult)."""
+        """``replay.pipeline.stages.run_frame`` on a frame of the log (FrameResult); the first call must
+        be with the log's first readable frame."""
         from replay.pipeline.stages import run_frame
 
         if self.config is None:
             self._resolve(frame)
-        result = run_frame(frame, self.config, bin_model=self.prepared, previous=self.previous)
-        self.previous = result
-        return result
+        return run_frame(frame, self.config, bin_model=self.prepared, seed=self.seed)

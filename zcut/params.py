@@ -317,8 +317,11 @@ class RegistrationParams:
         is lower failed.
     max_rmse_mm : float
         A registration whose RMSE is higher failed.
-    use_previous : bool
-        Seed each frame with the previous frame's converged pose.
+    seed_from_first_frame : bool
+        Seed every frame's registration with the converged pose of the log's first frame (a static
+        bin: a fine pass only, when that pose still fits the frame). Every frame is then
+        registered independently of the others, so a frame gets the same result whatever order or
+        split the frames are processed in (``zcut replay``, ``batch``, ``sweep``).
     """
 
     method: str = "point_to_plane"
@@ -327,7 +330,7 @@ class RegistrationParams:
     max_iterations: int = 30
     min_fitness: float = 0.3
     max_rmse_mm: float = 5.0
-    use_previous: bool = True
+    seed_from_first_frame: bool = True
 
     def __post_init__(self) -> None:
         _choice(self, "method", REGISTRATION_METHODS)
@@ -336,7 +339,7 @@ class RegistrationParams:
         _number(self, "max_iterations", ge=1, integer=True)
         _number(self, "min_fitness", ge=0, le=1)
         _number(self, "max_rmse_mm", gt=0)
-        _boolean(self, "use_previous")
+        _boolean(self, "seed_from_first_frame")
 
     @property
     def voxel_m(self) -> float:

@@ -31,6 +31,7 @@ from replay.pipeline import config as cfg
 from replay.pipeline.sinks import FrameSink, NullSink, ReplayStart
 from replay.pipeline.stages import FrameResult, locate_bin, run_frame
 from zcut.bin_model import BinModel, PreparedBinModel, prepare_bin_model
+from zcut.registration import RegistrationResult
 
 
 @dataclass(frozen=True, slots=True)
@@ -194,15 +195,21 @@ class ReplaySession:
     (its :class:`PreparedBinModel` for this config, or None).
     """
 
-    def __init__(self, path: Path, reader, resolved: cfg.Resolved, bin_model: BinModel | None) -> None:
+    def __init__(self, path: Path, reader, resolved: cfg.Resolved, bin_model: BinModel | None,
+                 first_frame: Frame | None = None) -> None:
         self.path = path
         self.reader = reader
         self.resolved = resolved
         self.bin_model = bin_model
         c = resolved.config
         self.prepared: PreparedBinModel | None = None
+        self.seed: RegistrationResult | None = None
         if bin_model is not None:
             self.prepared = prepare_bin_model(bin_model, registration=c.registration, removal=c.removal)
+            if first_frame is not None and c.registration.seed_from_first_frame:
+                # the log's first frame's pose seeds every frame (a static bin): each frame's result
+                # then depends on that frame alone, whatever order or split the frames run in
+                self.seed = locate_bin(first_frame, c, bin_model=self.prepared).registration
 
     @classmethod
     def open(cls, path: str | Path, *, config_file: str | Path | None = None,
@@ -244,7 +251,7 @@ class ReplaySession:
                                  + (f" ({reader.damage[0]})" if reader.damage else ""))
         facts = cfg.log_facts(reader.metadata, first, intrinsics=getattr(reader, "intrinsics", None))
         resolved = cfg.resolve(facts, file_layer=file_layer, cli=overrides)
-        return cls(path, reader, resolved, bin_model)
+        return cls(path, reader, resolved, bin_model, first)
 
     @property
     def config(self) -> cfg.PipelineConfig:
@@ -267,11 +274,12 @@ class ReplaySession:
 
         The next frame is read in a background thread while this one runs; the bin mask and
         registration of frame k + 1 (OpenCV, Open3D: no numba) run in another thread while the
-        removal, z-cut and SOR (numba) finish frame k. BLAS is limited to one thread meanwhile (its
-        spinning workers otherwise steal the cores from those threads). Closing the generator
-        stops and joins both threads. ``config``: run another config than the resolved one (it must
-        keep the resolved registration and removal parameters, which the bin model was prepared
-        with).
+        removal, z-cut and SOR (numba) finish frame k. Every frame's registration starts from the
+        log's first frame's pose (:attr:`seed`), so a frame's result does not depend on which frames
+        ran before it. BLAS is limited to one thread meanwhile (its spinning workers otherwise steal
+        the cores from those threads). Closing the generator stops and joins both threads.
+        ``config``: run another config than the resolved one (it must keep the resolved registration
+        and removal parameters, which the bin model was prepared with).
         """
         from threadpoolctl import threadpool_limits
 
@@ -280,7 +288,7 @@ class ReplaySession:
                                           or config.removal != self.config.removal):
             raise ConfigError("results(config=...) must keep the registration and removal parameters "
                               "the bin model was prepared with")
-        bin_model = self.prepared
+        bin_model, seed = self.prepared, self.seed
         start, stop = frames
         frame_iter = prefetched(self.reader.frames(start=start, stop=stop))
         locator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="zcut-locate")
@@ -298,14 +306,11 @@ class ReplaySession:
                                                     located=pending[1].result())
                         pending = None
                     raise
-                if pending is None:
-                    pending = (frame, locator.submit(locate_bin, frame, config, bin_model=bin_model))
-                    continue
-                before, future = pending
-                located = future.result()
-                pending = (frame, locator.submit(locate_bin, frame, config, bin_model=bin_model,
-                                                 previous=located.registration))
-                yield before, run_frame(before, config, bin_model=bin_model, located=located)
+                ahead = (frame, locator.submit(locate_bin, frame, config, bin_model=bin_model, seed=seed))
+                if pending is not None:
+                    before, future = pending
+                    yield before, run_frame(before, config, bin_model=bin_model, located=future.result())
+                pending = ahead
             if pending is not None:
                 before, future = pending
                 pending = None

@@ -29,9 +29,9 @@ from zcut.sor import sor_outliers
 
 STAGES = ("bin_mask", "registration", "removal", "zcut", "sor", "metrics")
 REGISTRATION_MAX_POINTS = 150_000
-# the previous frame's pose is refined with the fine pass only when, on this frame, it already fits
-# at least this fraction as well as it did there; else the full coarse-to-fine registration runs
-PREVIOUS_FITNESS_KEPT = 0.9
+# the seed pose (the log's first frame's) is refined with the fine pass only when, on this frame, it
+# already fits at least this fraction as well as it did there; else the full coarse-to-fine runs
+SEED_FITNESS_KEPT = 0.9
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,8 +104,7 @@ class FrameResult:
 
 @dataclass(frozen=True, slots=True)
 class BinLocation:
-    """The bin stages that depend on no other frame but the previous one's pose: bin mask and
-    registration (:func:`locate_bin`).
+    """The bin stages of one frame: bin mask and registration (:func:`locate_bin`).
 
     Attributes
     ----------
@@ -135,12 +134,13 @@ def locate_bin(
     config: PipelineConfig,
     *,
     bin_model: PreparedBinModel | None = None,
-    previous: RegistrationResult | None = None,
+    seed: RegistrationResult | None = None,
 ) -> BinLocation:
     """Bin mask and registration of one frame (the first stages of :func:`run_frame`).
 
     No numba-parallel kernels run here (OpenCV, Open3D, scipy), so that this may run in another
-    thread while :func:`run_frame` finishes the previous frame.
+    thread while :func:`run_frame` finishes another frame. The result depends on this frame and the
+    seed only (no other frame), so frames may be processed in any order or split.
 
     Parameters
     ----------
@@ -149,9 +149,9 @@ def locate_bin(
     bin_model : PreparedBinModel, optional
         Prepared with ``config``'s registration and removal parameters; without it the bin stages
         are skipped.
-    previous : RegistrationResult, optional
-        The previous frame's registration; when converged (and ``config.registration.use_previous``)
-        its pose seeds this one.
+    seed : RegistrationResult, optional
+        The log's first frame's registration (:meth:`~replay.pipeline.session.ReplaySession.open`);
+        when converged (and ``config.registration.seed_from_first_frame``) its pose seeds this one.
 
     Returns
     -------
@@ -183,17 +183,17 @@ def locate_bin(
         assert bin_model is not None
         t = time.perf_counter()
         c = config.registration
-        use = previous is not None and previous.converged and c.use_previous
-        init = previous.T_cam_bin if use else None
+        use = seed is not None and seed.converged and c.seed_from_first_frame
+        init = seed.T_cam_bin if use else None
         walls = bm.walls & valid
         # the ICP downsamples to voxel_mm anyway: a regular subgrid of at most ~150k pixels is enough
         s = max(1, int(np.ceil(np.sqrt(walls.sum() / REGISTRATION_MAX_POINTS))))
         target = prepare_target(xyz[::s, ::s][walls[::s, ::s]].astype(np.float64), voxel_m=c.voxel_m)
         reg = None
         if init is not None:
-            # a static bin: the previous pose needs only the fine pass (a moved bin: the full one)
+            # a static bin: the seed pose needs only the fine pass (a moved bin: the full one)
             f0 = pose_fitness(bin_model.icp, target, init, max_correspondence_m=c.fine_correspondence_m)
-            if f0 >= PREVIOUS_FITNESS_KEPT * previous.fitness:
+            if f0 >= SEED_FITNESS_KEPT * seed.fitness:
                 reg = register_bin(bin_model.icp, target, params=c, init=init, coarse=False)
                 if not reg.converged:
                     reg = None
@@ -246,7 +246,7 @@ def run_frame(
     config: PipelineConfig,
     *,
     bin_model: PreparedBinModel | None = None,
-    previous: FrameResult | None = None,
+    seed: RegistrationResult | None = None,
     located: BinLocation | None = None,
 ) -> FrameResult:
     """Run every stage on one frame.
@@ -259,20 +259,19 @@ def run_frame(
     bin_model : PreparedBinModel, optional
         Prepared with ``config``'s registration and removal parameters; without it the bin stages
         are skipped.
-    previous : FrameResult, optional
-        The previous frame's result; its converged pose seeds the registration when
-        ``config.registration.use_previous``.
+    seed : RegistrationResult, optional
+        The log's first frame's registration; its converged pose seeds this frame's when
+        ``config.registration.seed_from_first_frame``.
     located : BinLocation, optional
         :func:`locate_bin` of this frame, already computed (e.g. in another thread, while the
-        previous frame finished); then ``previous`` is not used.
+        previous frame finished); then ``seed`` is not used.
 
     Returns
     -------
     FrameResult
     """
     if located is None:
-        prev_reg = previous.registration if previous is not None else None
-        located = locate_bin(frame, config, bin_model=bin_model, previous=prev_reg)
+        located = locate_bin(frame, config, bin_model=bin_model, seed=seed)
     t_start = time.perf_counter()
     timings = dict(located.timings)
     warnings = list(located.warnings)

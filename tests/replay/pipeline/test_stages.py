@@ -117,13 +117,14 @@ def test_failed_registration_is_reported_and_only_the_table_removed(filled, mode
     assert r.T_cam_bin is None
 
 
-def test_previous_pose_seeds_the_registration(filled, model, config):
+def test_the_first_frames_pose_seeds_the_registration(filled, model, config):
     frame, _ = filled
     first = run_frame(frame, config, bin_model=model)
-    second = run_frame(frame, config, bin_model=model, previous=first)
+    second = run_frame(frame, config, bin_model=model, seed=first.registration)
     assert np.array_equal(second.registration.T_init, first.registration.T_cam_bin)
-    no_prev = dataclasses.replace(config, registration=dataclasses.replace(config.registration, use_previous=False))
-    third = run_frame(frame, no_prev, bin_model=model, previous=first)
+    no_seed = dataclasses.replace(config, registration=dataclasses.replace(config.registration,
+                                                                           seed_from_first_frame=False))
+    third = run_frame(frame, no_seed, bin_model=model, seed=first.registration)
     assert np.array_equal(third.registration.T_init, first.registration.T_init)
 
 
@@ -168,7 +169,7 @@ def test_a_moved_bin_is_registered_afresh(model, config):
     a, _ = ps.scene(h=H, w=W, shift=SHIFT)
     b, _ = ps.scene(h=H, w=W, shift=(SHIFT[0] + 0.03, SHIFT[1], SHIFT[2]))  # the bin moved 3 cm
     first = run_frame(a, config, bin_model=model)
-    second = run_frame(b, config, bin_model=model, previous=first)
+    second = run_frame(b, config, bin_model=model, seed=first.registration)
     assert not np.array_equal(second.registration.T_init, first.registration.T_cam_bin)
     assert second.registration.converged
     assert second.registration.T_cam_bin[0, 3] == pytest.approx(SHIFT[0] + 0.03, abs=0.002)
