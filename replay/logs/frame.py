@@ -30,6 +30,9 @@ class Frame:
         0-based index of the frame in the log.
     masks : dict[str, (H, W) bool ndarray]
         mono8 mask topics with the same stamp (e.g. ``/ground_truth/outliers``), 255 -> True.
+    codes : dict[str, (H, W) uint8 ndarray]
+        mono8 topics whose values are codes (``replay.logs.layout.CODE_TOPICS``, e.g.
+        ``/ground_truth/outlier_kind``), as they are.
     """
 
     xyz: np.ndarray
@@ -40,6 +43,7 @@ class Frame:
     topic: str
     index: int
     masks: dict[str, np.ndarray] = field(default_factory=dict)
+    codes: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def shape(self) -> tuple[int, int]:

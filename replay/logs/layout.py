@@ -15,6 +15,8 @@ ZCUT_OUTLIERS = "/zcut/outliers"
 SOR_OUTLIERS = "/zcut/sor_outliers"
 BIN_MASK = "/zcut/bin_mask"
 FILTERED = "/zcut/filtered"
+#: the pixels the filters judged (valid minus table and bin, plus the above-the-rim points)
+ZONE = "/zcut/zone"
 RESULTS_PREFIX = "/zcut/"
 
 # synthetic truth: mono8, 255 = true outlier; the kind image holds the codes of OUTLIER_KINDS
@@ -29,6 +31,9 @@ OUTLIER_KINDS: dict[int, str] = {
     4: "flying",     # flying pixel between two surfaces at a depth edge
     5: "above_rim",  # above the bin's rim
 }
+
+#: mono8 topics whose values are codes, not a mask: a Frame holds them in ``Frame.codes`` (uint8)
+CODE_TOPICS = (TRUTH_OUTLIER_KIND,)
 
 # exported human labels (``zcut labels export``): mono8
 LABEL_OUTLIERS = "/labels/outliers"

@@ -754,7 +754,7 @@ class LogReader:
                     f"({self.cloud_topic}, message {idx}) is {shape[0]}x{shape[1]}"
                 )
             intrinsics = rm.camera_info_to_intrinsics(info, where=iwhere)
-        masks = {}
+        masks, codes = {}, {}
         for topic in self.mask_topics:
             m = parts.get(topic)
             if m is None:
@@ -764,10 +764,13 @@ class LogReader:
                 raise LogFormatError(
                     f"{mwhere}: mask is {m.height}x{m.width} but its cloud is {shape[0]}x{shape[1]}"
                 )
-            masks[topic] = rm.image_to_mask(m, where=mwhere, max_pixels=self.max_pixels)
+            if topic in layout.CODE_TOPICS:
+                codes[topic] = rm.image_to_codes(m, where=mwhere, max_pixels=self.max_pixels)
+            else:
+                masks[topic] = rm.image_to_mask(m, where=mwhere, max_pixels=self.max_pixels)
         return Frame(
             xyz=xyz, rgb=rgb, stamp_ns=cloud.stamp_ns, frame_id=cloud.frame_id,
-            intrinsics=intrinsics, topic=self.cloud_topic, index=idx, masks=masks,
+            intrinsics=intrinsics, topic=self.cloud_topic, index=idx, masks=masks, codes=codes,
         )
 
 

@@ -735,6 +735,13 @@ def image_to_mask(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -
     return _image_pixels(msg, where=where, max_pixels=max_pixels)[..., 0] != 0
 
 
+def image_to_codes(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -> np.ndarray:
+    """(H, W) uint8 of a mono8 ``Image`` whose values are codes (e.g. an outlier-kind image)."""
+    if msg.encoding != "mono8":
+        raise LogFormatError(f"{where}: a code image must be a mono8 Image, got '{msg.encoding}'")
+    return np.ascontiguousarray(_image_pixels(msg, where=where, max_pixels=max_pixels)[..., 0])
+
+
 def camera_info_to_intrinsics(msg: CameraInfoMsg, *, where: str) -> Intrinsics:
     """:class:`zcut.cloud.Intrinsics` from ``K`` of a ``CameraInfo``."""
     k = msg.k

@@ -210,6 +210,18 @@ class LogWriter:
         )
         self._add(topic, rm.IMAGE, msg, stamp_ns)
 
+    def write_codes(self, topic: str, codes: np.ndarray, *, stamp_ns: int, frame_id: str) -> None:
+        """Write an (H, W) uint8 code image (e.g. ``/ground_truth/outlier_kind``) as a ``mono8`` Image."""
+        codes = np.asarray(codes)
+        if codes.ndim != 2 or codes.dtype != np.uint8 or codes.size == 0:
+            raise InputShapeError(f"codes must be an (H, W) uint8 array, got {describe_array(codes)}")
+        h, w = codes.shape
+        msg = rm.encode_image(
+            stamp_ns=stamp_ns, frame_id=frame_id, height=h, width=w, encoding="mono8", step=w,
+            data=np.ascontiguousarray(codes).tobytes(),
+        )
+        self._add(topic, rm.IMAGE, msg, stamp_ns)
+
     def write_camera_info(
         self, topic: str, intrinsics: Intrinsics, *, stamp_ns: int, frame_id: str
     ) -> None:

@@ -211,6 +211,10 @@ class ResultsSink:
         for topic, mask in frame.masks.items():
             if not topic.startswith(layout.RESULTS_PREFIX):
                 w.write_mask(topic, mask, **kw)
+        for topic, codes in frame.codes.items():
+            w.write_codes(topic, codes, **kw)
+        if result.removal is not None:  # the scored region of `zcut accuracy` (SPEC §4 "zone")
+            w.write_mask(layout.ZONE, result.zone | result.easy_outliers, **kw)
 
     def close(self, *, completed: bool) -> None:
         writer, self._writer = self._writer, None
