@@ -182,7 +182,8 @@ def check_quantize(quantize_mm: object) -> float:
     return q
 
 
-def _colour_image(scene: Scene, view: Render, K: Intrinsics, part_colour, shiny_px: np.ndarray, rng):
+def _colour_image(view: Render, K: Intrinsics, part_colour, shiny_px: np.ndarray, rng: np.random.Generator):
+    """(rgb, saturated) of :func:`shade_rgb` with the table, bin and part colours of each pixel."""
     surface = view.label
     colours = np.empty(surface.shape + (3,))
     colours[:] = TABLE_COLOUR
@@ -259,7 +260,7 @@ def synthesize_frame(
     surface = view.label
     on_part = surface == LABEL_PART
     shiny_px = on_part & is_shiny
-    rgb, saturated = _colour_image(scene, view, K, PART_COLOURS[part.name] if part else None, shiny_px, rng)
+    rgb, saturated = _colour_image(view, K, PART_COLOURS[part.name] if part else None, shiny_px, rng)
 
     # what the sensor loses: shadows and grazing views, saturated highlights, specular dropouts;
     # the renderer's NaN-fenced slivers are healed, Figure-11 patches made at the paper's rate
