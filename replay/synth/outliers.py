@@ -17,7 +17,8 @@ Kinds of true outliers, with the codes of ``/ground_truth/outlier_kind`` (SPEC �
 
 Not outliers, but traps for a filter: specular dropouts (NaN blobs, and the saturated highlights),
 and the paper's Figure-11 patches, small pieces of real surface fully surrounded by NaN, made at a
-calibrated rate; the renderer's own NaN-fenced slivers are removed first (:func:`heal_islands`).
+calibrated rate; the renderer's own NaN-fenced slivers are removed first
+(:func:`drop_steep_fragments`, :func:`drop_surface_fragments`, :func:`heal_islands`).
 Where every number comes from: ``docs/synthetic.md``.
 """
 
@@ -180,6 +181,13 @@ def heal_islands(valid: np.ndarray, *, max_px: float) -> int:
     saw about none). Removing them leaves the Figure-11 traps to :func:`figure11_patches`, whose
     rate is set explicitly.
 
+    Parameters
+    ----------
+    valid : (H, W) bool ndarray
+        Measured pixels; updated in place.
+    max_px : float
+        Islands of fewer pixels are removed.
+
     Returns
     -------
     int
@@ -209,6 +217,19 @@ def drop_steep_fragments(
     neighbours are NaN: each is higher than every valid pixel around it, a trap for the z-cut
     (paper Figure 11). A real sensor's validity falls off smoothly with the angle, so its steep
     points continue the face above them; the paper saw almost no such traps (§5.4).
+
+    Parameters
+    ----------
+    valid : (H, W) bool ndarray
+        Measured pixels; updated in place.
+    cosine : (H, W) float ndarray
+        Grazing cosine of each pixel (:func:`replay.synth.sensor.measure`).
+    depth_mm : (H, W) float ndarray
+        Noise-free camera z of each pixel's surface.
+    surface_id : (H, W) int ndarray
+        Which surface each pixel shows (a part, or one kind of bin surface).
+    steep_cos : float
+        Pixels with a smaller cosine are steep.
 
     Returns
     -------
@@ -264,6 +285,15 @@ def drop_surface_fragments(valid: np.ndarray, surface_id: np.ndarray, *, max_px:
     shadow limits leave many such slivers on steep flanks and in creases, each fenced off by NaN
     from the face it continues (a trap for the z-cut, paper Figure 11); a real sensor's validity
     falls off smoothly, and the paper saw almost none of these traps (§5.4).
+
+    Parameters
+    ----------
+    valid : (H, W) bool ndarray
+        Measured pixels; updated in place.
+    surface_id : (H, W) int ndarray
+        Which surface each pixel shows.
+    max_px : float
+        Pieces of fewer pixels (other than each surface's largest) are removed.
 
     Returns
     -------
