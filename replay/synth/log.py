@@ -20,7 +20,6 @@ import numpy as np
 
 from replay.errors import LogFormatError
 from replay.logs import layout
-from replay.logs import ros2_msgs as rm
 from replay.logs.writer import LogWriter
 from replay.presets import BIN, PART_KINDS
 from replay.synth import outliers as out
@@ -151,18 +150,13 @@ def true_poses(metadata: Mapping[str, Mapping[str, str]]) -> dict[int, np.ndarra
     return poses
 
 
-def _write_outlier_kind(writer: LogWriter, sf: SynthFrame) -> None:
-    """``/ground_truth/outlier_kind``: the kind codes as a mono8 Image, stamped like the cloud.
-
-    ``LogWriter.write_mask`` writes bool masks only (255 = set); the codes go through the same
-    Image encoder and the writer's channel bookkeeping.
-    """
-    kinds = np.ascontiguousarray(sf.outlier_kind, dtype=np.uint8)
-    h, w = kinds.shape
+def _write_frame(writer: LogWriter, sf: SynthFrame) -> None:
+    """The frame's cloud, image, camera info and truth mask, then its code images
+    (``/ground_truth/outlier_kind``), all stamped like the cloud."""
     f = sf.frame
-    msg = rm.encode_image(stamp_ns=f.stamp_ns, frame_id=f.frame_id, height=h, width=w, encoding="mono8",
-                          step=w, data=kinds.tobytes())
-    writer._add(layout.TRUTH_OUTLIER_KIND, rm.IMAGE, msg, f.stamp_ns)
+    writer.write_frame(f)
+    for topic, codes in f.codes.items():
+        writer.write_codes(topic, codes, stamp_ns=f.stamp_ns, frame_id=f.frame_id)
 
 
 def write_synthetic_log(
@@ -218,8 +212,7 @@ def write_synthetic_log(
         for i in range(int(frames)):
             t0 = time.perf_counter()
             sf = synthesize_frame(kind=kind, seed=seed, index=i, size=size, shiny=shiny, empty=empty, quantize_mm=q)
-            writer.write_frame(sf.frame)
-            _write_outlier_kind(writer, sf)
+            _write_frame(writer, sf)
             if progress is not None:
                 progress(i, int(frames), sf, time.perf_counter() - t0)
     return path

@@ -103,8 +103,9 @@ class SynthFrame:
     Attributes
     ----------
     frame : Frame
-        What a log holds (xyz float32 metres NaN-invalid, rgb, intrinsics, masks with the truth
-        under ``/ground_truth/outliers``).
+        What a log holds (xyz float32 metres NaN-invalid, rgb, intrinsics, the truth under
+        ``/ground_truth/outliers`` in its masks and the kinds under ``/ground_truth/outlier_kind``
+        in its codes).
     truth : (H, W) bool ndarray
         Exact outliers (every one a finite point).
     outlier_kind : (H, W) uint8 ndarray
@@ -344,6 +345,7 @@ def synthesize_frame(
         topic=layout.CLOUD,
         index=int(index),
         masks={layout.TRUTH_OUTLIERS: truth},
+        codes={layout.TRUTH_OUTLIER_KIND: kind_img},
     )
     return SynthFrame(
         frame, truth, kind_img, cluster_id, surface, clean.astype(np.float32), figure11, saturated, scene,

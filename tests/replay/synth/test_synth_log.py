@@ -62,9 +62,10 @@ def test_log_holds_the_frames_and_their_truth(tmp_path):
         assert f.masks[layout.TRUTH_OUTLIERS].any()
         assert f.intrinsics == sf.frame.intrinsics
         assert np.isfinite(f.xyz[f.masks[layout.TRUTH_OUTLIERS]]).all()
-        # the kind image is a mono8 mask topic too: nonzero exactly where the truth is
-        np.testing.assert_array_equal(f.masks[layout.TRUTH_OUTLIER_KIND], sf.truth)
-    # its codes, read with the mcap library's own ROS 2 decoder, same stamps as the clouds
+        # the kind image comes back as codes, nonzero exactly where the truth is
+        np.testing.assert_array_equal(f.codes[layout.TRUTH_OUTLIER_KIND], sf.outlier_kind)
+        np.testing.assert_array_equal(f.codes[layout.TRUTH_OUTLIER_KIND] > 0, f.masks[layout.TRUTH_OUTLIERS])
+    # read with the mcap library's own ROS 2 decoder: one image per cloud, the cloud's stamp
     kinds = _kind_images(path)
     assert sorted(kinds) == [stamp_ns(9, 0), stamp_ns(9, 1)]
     for i in range(2):
@@ -82,6 +83,7 @@ def _kind_images(path) -> dict[int, np.ndarray]:
         for _, _, _, msg in reader.iter_decoded_messages(topics=[layout.TRUTH_OUTLIER_KIND]):
             assert msg.encoding == "mono8" and msg.step == msg.width
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            assert stamp not in out
             out[stamp] = np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.width)
     return out
 

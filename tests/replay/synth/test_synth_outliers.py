@@ -53,6 +53,7 @@ def test_every_true_outlier_is_a_valid_point(frame):
     valid = np.isfinite(frame.frame.xyz).all(axis=2)
     assert not (frame.truth & ~valid).any()
     assert (frame.frame.masks[layout.TRUTH_OUTLIERS] == frame.truth).all()
+    assert frame.frame.codes[layout.TRUTH_OUTLIER_KIND] is frame.outlier_kind
     assert frame.outlier_kind.dtype == np.uint8
     assert ((frame.outlier_kind > 0) == frame.truth).all()
     assert set(np.unique(frame.outlier_kind)) <= {0, *layout.OUTLIER_KINDS}
