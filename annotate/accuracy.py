@@ -1,16 +1,25 @@
-"""True accuracy of the outlier filters against labels (SPEC §4): the report and its table.
+"""True accuracy of the outlier filters against the truth (SPEC §4): the report and its table.
 
 Pure functions on arrays: no file I/O, no printing. The callers (``zcut accuracy``, ``zcut demo``)
 gather per-frame predictions and truth, then::
 
-    frames = [frame_accuracy(i, stamp_ns, {"zcut": z, "sor": s}, truth, reviewed=r) for ...]
-    report = accuracy_report(frames)          # the SPEC §4 dict (floats may be NaN / inf)
+    frames = [frame_accuracy(i, stamp_ns, {"zcut": z, "sor": s}, truth,
+                             reviewed=r, valid=v, region=zone, kinds=kind_image) for ...]
+    unscored = [UnscoredFrame(i, stamp_ns, "no /ground_truth/outliers"), ...]
+    report = accuracy_report(frames, region="zone", unscored=unscored)  # SPEC §4 dict (NaN kept)
     print(report_json(report))                # NaN / inf -> null, every count an int
     print(format_accuracy_table(report))
 
 A method's prediction is an (H, W) bool mask; ``union`` and ``intersection`` are derived from
-``zcut`` and ``sor``. Counts are taken over the reviewed pixels (default: every pixel, or the valid
-ones when the caller passes them as ``reviewed``); pooled figures sum the counts (micro average).
+``zcut`` and ``sor``. Counts are taken over the scored pixels S = R ∩ region (R: the reviewed
+pixels, default the valid ones or every pixel; region: the caller's mask of the region it names,
+``zone`` or ``valid``, default every pixel). Components of >= 2 pixels are clusters, one-pixel
+components singletons, counted apart. With a kind image (``/ground_truth/outlier_kind``, the codes
+of :data:`replay.logs.layout.OUTLIER_KINDS`) recall is also given per kind. Pooled figures sum the
+counts over frames (micro average); pooled precision, recall and F1 carry a 95 % percentile
+bootstrap interval over frames (:func:`zcut.metrics.bootstrap_ci_many`, :data:`N_BOOT` resamples,
+seed :data:`BOOT_SEED`: the same input gives the same interval; degenerate with one frame).
+Frames the caller could not score are listed under ``unscored`` with the reason, not dropped.
 """
 
 from __future__ import annotations
@@ -22,19 +31,42 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from replay.logs.layout import OUTLIER_KINDS
 from zcut.cloud import check_mask
 from zcut.errors import ParameterError
-from zcut.metrics import AccuracyCounts, accuracy_counts, ratio
+from zcut.metrics import (
+    ACCURACY_KEYS,
+    BOOTSTRAP_STATS,
+    AccuracyCounts,
+    KindCounts,
+    bootstrap_ci_many,
+    ratio,
+    scored_truth,
+)
 from zcut.types import Mask
 
 #: Methods of the report, in the order shown.
 METHODS: tuple[str, ...] = ("zcut", "sor", "union", "intersection")
 #: Methods a caller predicts; the other two are derived from them.
 BASE_METHODS: tuple[str, ...] = ("zcut", "sor")
-#: Keys of one method's entry (SPEC §4), in the order shown.
+#: Keys of one method's entry (SPEC §4), in the order shown; then ``ci95`` (pooled) and ``by_kind``.
 COUNT_KEYS: tuple[str, ...] = ("tp", "fp", "fn")
-RATE_KEYS: tuple[str, ...] = ("precision", "recall", "f1", "iou", "cluster_precision", "cluster_recall")
-METRIC_KEYS: tuple[str, ...] = COUNT_KEYS + RATE_KEYS
+RATE_KEYS: tuple[str, ...] = ACCURACY_KEYS[3:]
+METRIC_KEYS: tuple[str, ...] = ACCURACY_KEYS
+#: Pooled figures with a 95 % interval (``ci95``).
+CI_KEYS: tuple[str, ...] = BOOTSTRAP_STATS
+#: Names of the scored regions (SPEC §4) and what each scores.
+REGIONS: dict[str, str] = {
+    "zone": "the pixels the filters judge: valid minus table and bin, plus the above-the-rim points",
+    "valid": "every valid pixel",
+}
+#: Kind codes of the truth's kind image and their names (SPEC §5).
+KINDS: dict[int, str] = dict(OUTLIER_KINDS)
+N_KINDS: int = max(KINDS)
+#: Bootstrap resamples and seed of the report's intervals (SPEC §4: >= 1000, fixed seed).
+N_BOOT: int = 2000
+BOOT_SEED: int = 0
+_MIN_BOOT = 1000
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,12 +80,47 @@ class FrameAccuracy:
     stamp_ns : int
         Header stamp of the frame's cloud.
     counts : dict[str, AccuracyCounts]
-        One entry per name in :data:`METHODS`.
+        One entry per name in :data:`METHODS`; with ``kinds`` when the frame has kind truth.
     """
 
     index: int
     stamp_ns: int
     counts: dict[str, AccuracyCounts]
+
+    @property
+    def has_kinds(self) -> bool:
+        return self.counts[METHODS[0]].kinds is not None
+
+
+@dataclass(frozen=True, slots=True)
+class UnscoredFrame:
+    """A frame the caller could not score (e.g. its truth is missing), listed in the report.
+
+    Attributes
+    ----------
+    index : int
+        0-based index of the frame in its log.
+    stamp_ns : int
+        Header stamp of the frame's cloud.
+    reason : str
+        Why it is not scored, one line (e.g. ``"no /ground_truth/outliers"``).
+    """
+
+    index: int
+    stamp_ns: int
+    reason: str
+
+    def __post_init__(self) -> None:
+        for name in ("index", "stamp_ns"):
+            v = getattr(self, name)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+                raise ParameterError(f"UnscoredFrame.{name} must be an integer, got {v!r}")
+            object.__setattr__(self, name, int(v))
+        if not isinstance(self.reason, str) or not self.reason.strip() or "\n" in self.reason:
+            raise ParameterError(f"UnscoredFrame.reason must be a non-empty line of text, got {self.reason!r}")
+
+    def as_dict(self) -> dict[str, int | str]:
+        return {"index": self.index, "stamp_ns": self.stamp_ns, "reason": self.reason}
 
 
 def method_masks(zcut: Mask, sor: Mask) -> dict[str, Mask]:
@@ -81,8 +148,11 @@ def frame_accuracy(
     outliers: Mask,
     *,
     reviewed: Mask | None = None,
+    valid: Mask | None = None,
+    region: Mask | None = None,
+    kinds: np.ndarray | None = None,
 ) -> FrameAccuracy:
-    """Count TP / FP / FN and clusters of every method on one frame (SPEC §4).
+    """Count pixels, clusters, singletons and kinds of every method on one frame (SPEC §4).
 
     Parameters
     ----------
@@ -93,71 +163,161 @@ def frame_accuracy(
     predictions : mapping str -> (H, W) bool ndarray
         At least ``"zcut"`` and ``"sor"``; ``union`` and ``intersection`` are derived.
     outliers : (H, W) bool ndarray
-        True outliers L (labels or synthetic ground truth); L must lie inside ``reviewed``.
+        True outliers L (labels or synthetic ground truth); L ⊆ R.
     reviewed : (H, W) bool ndarray, optional
-        Reviewed pixels R; counts are taken over R. Default: every pixel.
+        Reviewed pixels R. Default: ``valid`` if given, else every pixel.
+    valid : (H, W) bool ndarray, optional
+        Valid pixels; when given, R ⊆ valid is checked.
+    region : (H, W) bool ndarray, optional
+        The scored region's pixels (the mask of the region named in :func:`accuracy_report`):
+        counts are taken over S = R ∩ region; labels outside it are not scored. Default: every
+        pixel.
+    kinds : (H, W) uint8 ndarray, optional
+        Kind codes of :data:`KINDS`, nonzero exactly where ``outliers`` is set (restrict it as
+        ``outliers`` is restricted, e.g. ``np.where(truth, kind, 0)``). Adds per-kind counts.
 
     Returns
     -------
     FrameAccuracy
+
+    Raises
+    ------
+    ParameterError
+        A base prediction is missing; L ⊄ R or R ⊄ valid; a kind code outside 0..5, or a kind
+        where L is not set (or none where it is).
+    InputShapeError
+        A mask (or the kind image) is not 2-D bool (uint8) of the truth's shape.
     """
     missing = [m for m in BASE_METHODS if m not in predictions]
     if missing:
         raise ParameterError(f"predictions must hold {list(BASE_METHODS)}, missing {missing}")
     truth = check_mask(outliers, name="outliers", shape=None)
-    if reviewed is not None:
-        reviewed = check_mask(reviewed, name="reviewed", shape=truth.shape)
     preds = method_masks(
         check_mask(predictions["zcut"], name="predictions['zcut']", shape=truth.shape),
         check_mask(predictions["sor"], name="predictions['sor']", shape=truth.shape),
     )
-    counts = {m: accuracy_counts(preds[m], truth, reviewed=reviewed) for m in METHODS}
+    scored = scored_truth(truth, reviewed=reviewed, valid=valid, region=region, kinds=kinds,
+                          n_kinds=N_KINDS)
+    counts = {m: scored.counts(preds[m]) for m in METHODS}
     return FrameAccuracy(index=int(index), stamp_ns=int(stamp_ns), counts=counts)
 
 
 def pooled_counts(frames: Iterable[FrameAccuracy]) -> dict[str, AccuracyCounts]:
-    """Sum the counts of every method over the frames (micro average); zero counts if none."""
-    total = {m: _zero_counts() for m in METHODS}
-    for f in frames:
-        for m in METHODS:
-            total[m] = total[m] + f.counts[m]
-    return total
+    """Sum the counts of every method over the frames (micro average); zero counts if none.
+
+    Raises
+    ------
+    ParameterError
+        Some frames have kind truth and others not.
+    """
+    frames = list(frames)
+    with_kinds = sum(f.has_kinds for f in frames)
+    if 0 < with_kinds < len(frames):
+        raise ParameterError(f"kind truth is given for {with_kinds} of {len(frames)} frames: give it for every "
+                             f"scored frame or for none (list the others as unscored)")
+    if not frames:
+        return {m: AccuracyCounts.zero() for m in METHODS}
+    return {m: sum((f.counts[m] for f in frames[1:]), frames[0].counts[m]) for m in METHODS}
 
 
-def _zero_counts() -> AccuracyCounts:
-    return AccuracyCounts(
-        tp=0, fp=0, fn=0, true_clusters=0, true_clusters_found=0, pred_clusters=0, pred_clusters_correct=0
-    )
+def by_kind(kinds: KindCounts) -> dict[str, dict[str, int | float]]:
+    """The ``by_kind`` entry: ``{KIND: {"n", "found", "recall"}}`` for the kinds the truth holds.
 
-
-def _entry(c: AccuracyCounts) -> dict[str, int | float]:
-    d = c.as_dict()
-    out: dict[str, int | float] = {}
-    for k in METRIC_KEYS:
-        v = d[k]
-        out[k] = int(v) if k in COUNT_KEYS else float(v)
-    return out
-
-
-def accuracy_report(frames: Iterable[FrameAccuracy]) -> dict:
-    """The SPEC §4 report object.
+    Parameters
+    ----------
+    kinds : KindCounts
+        Per-kind counts with the codes of :data:`KINDS`.
 
     Returns
     -------
     dict
-        ``{"pooled": {METHOD: {tp, fp, fn, precision, recall, f1, iou, cluster_precision,
-        cluster_recall}}, "frames": [{"index", "stamp_ns", METHOD: {...}}]}`` with METHOD in
-        :data:`METHODS`. Counts are ``int``; rates are ``float`` and may be NaN (0/0) — use
-        :func:`report_json` or :func:`jsonable` to serialise them as ``null``.
+        In code order; ``n`` = true outlier pixels of the kind in the scored region, ``found`` =
+        those predicted, ``recall`` = found / n (NaN when n = 0: the kind is held only outside
+        the region).
     """
+    if kinds.n_kinds != N_KINDS:
+        raise ParameterError(f"kinds must count the {N_KINDS} kind codes of the truth, got {kinds.n_kinds}")
+    return {KINDS[c]: {"n": kinds.n[c - 1], "found": kinds.found[c - 1], "recall": kinds.recall(c)}
+            for c in kinds.held}
+
+
+def _entry(c: AccuracyCounts, ci: Mapping[str, list[float]] | None = None) -> dict:
+    out: dict = {}
+    for k, v in c.as_dict().items():
+        out[k] = int(v) if k in COUNT_KEYS else float(v)
+    if ci is not None:
+        out["ci95"] = {k: list(ci[k]) for k in CI_KEYS}
+    if c.kinds is not None:
+        out["by_kind"] = by_kind(c.kinds)
+    return out
+
+
+def accuracy_report(
+    frames: Iterable[FrameAccuracy],
+    *,
+    region: str = "valid",
+    unscored: Iterable[UnscoredFrame] = (),
+    n_boot: int = N_BOOT,
+    seed: int = BOOT_SEED,
+) -> dict:
+    """The SPEC §4 report object.
+
+    Parameters
+    ----------
+    frames : iterable of FrameAccuracy
+        The scored frames, in the order to list them.
+    region : {"zone", "valid"}
+        Name of the region the frames' ``region`` masks describe; ``"valid"`` when they were
+        counted without a region mask over the valid pixels.
+    unscored : iterable of UnscoredFrame
+        Frames the caller could not score, listed with their reason.
+    n_boot : int
+        Bootstrap resamples of the intervals (>= 1000).
+    seed : int
+        Seed of the bootstrap (the same frames and seed give the same intervals).
+
+    Returns
+    -------
+    dict
+        ``{"region", "pooled": {METHOD: {tp, fp, fn, precision, recall, f1, iou,
+        cluster_precision, cluster_recall, singletons_precision, singletons_recall,
+        "ci95": {"precision": [lo, hi], "recall": [lo, hi], "f1": [lo, hi]}, "by_kind": {...}}},
+        "frames": [{"index", "stamp_ns", METHOD: {... the same keys but ci95}}],
+        "unscored": [{"index", "stamp_ns", "reason"}]}`` with METHOD in :data:`METHODS`;
+        ``by_kind`` only with kind truth. Counts are ``int``; rates are ``float`` and may be NaN
+        (0/0) — :func:`report_json` writes them as ``null``. With no frame the intervals are NaN;
+        with one they are degenerate (lo = hi = the pooled figure).
+
+    Raises
+    ------
+    ParameterError
+        Unknown region name; ``n_boot`` < 1000; a frame both scored and unscored; kind truth in
+        some frames only.
+    """
+    if region not in REGIONS:
+        raise ParameterError(f"region must be one of {', '.join(REGIONS)}, got {region!r}")
+    if isinstance(n_boot, (bool, np.bool_)) or not isinstance(n_boot, (int, np.integer)) or n_boot < _MIN_BOOT:
+        raise ParameterError(f"n_boot must be an integer >= {_MIN_BOOT} (SPEC §4), got {n_boot!r}")
     frames = list(frames)
+    unscored = list(unscored)
+    for u in unscored:
+        if not isinstance(u, UnscoredFrame):
+            raise ParameterError(f"unscored must hold UnscoredFrame entries, got {type(u).__name__}")
+    both = sorted({f.index for f in frames} & {u.index for u in unscored})
+    if both:
+        raise ParameterError(f"frame(s) {both} are listed both as scored and as unscored")
     pooled = pooled_counts(frames)
+    per_frame = {k: np.array([[getattr(f.counts[m], k) for f in frames] for m in METHODS], dtype=np.int64)
+                 .reshape(len(METHODS), len(frames)) for k in COUNT_KEYS}
+    ci = bootstrap_ci_many(per_frame["tp"], per_frame["fp"], per_frame["fn"], n_boot=int(n_boot), seed=seed)
     return {
-        "pooled": {m: _entry(pooled[m]) for m in METHODS},
+        "region": region,
+        "pooled": {m: _entry(pooled[m], {k: ci[k][i].tolist() for k in CI_KEYS}) for i, m in enumerate(METHODS)},
         "frames": [
             {"index": f.index, "stamp_ns": f.stamp_ns, **{m: _entry(f.counts[m]) for m in METHODS}}
             for f in frames
         ],
+        "unscored": [u.as_dict() for u in unscored],
     }
 
 
@@ -182,47 +342,89 @@ def report_json(report: dict, *, indent: int | None = None) -> str:
     return json.dumps(jsonable(report), indent=indent, allow_nan=False)
 
 
+# ------------------------------------------------------------------ text tables
 def _fmt_rate(v: float | None) -> str:
     if v is None or not math.isfinite(v):
         return "-"
     return f"{v:.3f}"
 
 
-_HEADER = ("tp", "fp", "fn", "prec", "recall", "F1", "IoU", "cl.prec", "cl.recall")
+def _fmt_ci(v: float | None, ci: list | None) -> str:
+    lo, hi = (None, None) if ci is None else ci
+    if lo is None or hi is None or not (math.isfinite(lo) and math.isfinite(hi)):
+        return _fmt_rate(v) if v is not None and math.isfinite(v) else "-"
+    return f"{_fmt_rate(v)} [{lo:.3f}, {hi:.3f}]"
 
 
-def _row(prefix: list[str], e: Mapping[str, float | int | None]) -> list[str]:
-    return prefix + [str(e["tp"]), str(e["fp"]), str(e["fn"])] + [_fmt_rate(e[k]) for k in RATE_KEYS]
+_FRAME_HEADER = ("tp", "fp", "fn", "prec", "recall", "F1", "IoU", "cl.P", "cl.R", "1px.P", "1px.R")
+_LEGEND = "cl.P, cl.R: cluster (>= 2 px) precision, recall; 1px.P, 1px.R: singleton (1 px) precision, recall"
+_CLUSTER_ROWS = (("cluster precision (>= 2 px)", "cluster_precision"), ("cluster recall", "cluster_recall"),
+                 ("singleton precision (1 px)", "singletons_precision"), ("singleton recall", "singletons_recall"))
 
 
-def _render(header: list[str], rows: list[list[str]], left: int) -> str:
+def _render(header: list[str], rows: list[list[str]], left: int, tight: int | None = None) -> str:
+    """Columns ``< left`` left-aligned, the others right-aligned; two spaces between columns, one
+    between the columns from ``tight`` on (fixed-width rates)."""
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
     lines = []
     for r in [header, *rows]:
         cells = [c.ljust(w) if i < left else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))]
-        lines.append("  ".join(cells).rstrip())
+        line = cells[0]
+        for i, c in enumerate(cells[1:], start=1):
+            line += (" " if tight is not None and i > tight else "  ") + c
+        lines.append(line.rstrip())
     return "\n".join(lines)
 
 
+def _frame_row(prefix: list[str], e: Mapping) -> list[str]:
+    return prefix + [str(e[k]) for k in COUNT_KEYS] + [_fmt_rate(e[k]) for k in RATE_KEYS]
+
+
 def format_accuracy_table(report: dict, *, per_frame: bool = True) -> str:
-    """Plain-text tables of a report: per frame (optional) and pooled, ``-`` for undefined rates.
+    """Plain-text tables of a report (at most ~120 columns; ``-`` for undefined rates).
+
+    The region; per frame (optional) every method's counts and rates; pooled counts with the 95 %
+    intervals of precision, recall and F1; pooled cluster and singleton rates; pooled recall by
+    kind when the truth has kinds; the unscored frames with their reasons.
 
     Parameters
     ----------
     report : dict
         As returned by :func:`accuracy_report` (or parsed back from :func:`report_json`).
     per_frame : bool
-        Include one row per frame and method before the pooled table.
+        Include one row per frame and method before the pooled tables.
     """
-    parts = []
-    if per_frame and report["frames"]:
-        rows = [
-            _row([str(f["index"]), str(f["stamp_ns"]), m], f[m]) for f in report["frames"] for m in METHODS
-        ]
-        parts.append("per frame\n" + _render(["frame", "stamp_ns", "method", *_HEADER], rows, left=3))
-    n = len(report["frames"])
-    rows = [_row([m], report["pooled"][m]) for m in METHODS]
-    parts.append(f"pooled over {n} frame{'s' if n != 1 else ''}\n" + _render(["method", *_HEADER], rows, left=1))
+    region = report["region"]
+    parts = [f"region: {region} ({REGIONS.get(region, 'unknown region')})"]
+    frames = report["frames"]
+    if per_frame and frames:
+        rows = [_frame_row([str(f["index"]), str(f["stamp_ns"]), m], f[m]) for f in frames for m in METHODS]
+        table = _render(["frame", "stamp_ns", "method", *_FRAME_HEADER], rows, left=3, tight=6)
+        parts.append(f"per frame\n{table}\n{_LEGEND}")
+    n = len(frames)
+    pooled = report["pooled"]
+    note = {0: "no frame: no intervals", 1: "one frame: the intervals are degenerate (lo = hi)"}.get(
+        n, "95 % percentile bootstrap intervals over the frames")
+    rows = [[m, *(str(pooled[m][k]) for k in COUNT_KEYS),
+             *(_fmt_ci(pooled[m][k], pooled[m].get("ci95", {}).get(k)) for k in CI_KEYS),
+             _fmt_rate(pooled[m]["iou"])] for m in METHODS]
+    head = ["method", *COUNT_KEYS, "precision [95 %]", "recall [95 %]", "F1 [95 %]", "IoU"]
+    parts.append(f"pooled over {n} frame{'s' if n != 1 else ''} ({note})\n" + _render(head, rows, left=1))
+    rows = [[label, *(_fmt_rate(pooled[m][k]) for m in METHODS)] for label, k in _CLUSTER_ROWS]
+    parts.append("clusters and singletons, pooled\n" + _render(["", *METHODS], rows, left=1))
+    kinds = [k for k in KINDS.values() if any(k in pooled[m].get("by_kind", {}) for m in METHODS)]
+    if kinds:
+        rows = []
+        for k in kinds:
+            e = {m: pooled[m]["by_kind"][k] for m in METHODS}
+            rows.append([k, str(e[METHODS[0]]["n"]),
+                         *(f"{_fmt_rate(e[m]['recall'])} ({e[m]['found']})" for m in METHODS)])
+        parts.append("recall by kind, pooled: recall (found) of the n true outlier pixels of each kind in the region\n"
+                     + _render(["kind", "n", *METHODS], rows, left=1))
+    unscored = report.get("unscored", [])
+    if unscored:
+        lines = [f"  frame {u['index']} (stamp_ns {u['stamp_ns']}): {u['reason']}" for u in unscored]
+        parts.append(f"unscored: {len(unscored)} frame{'s' if len(unscored) != 1 else ''}\n" + "\n".join(lines))
     return "\n\n".join(parts)
 
 

@@ -1,5 +1,12 @@
 """Metrics: the paper's relative metrics (SPEC §3), true accuracy (SPEC §4), annotator agreement.
 
+True accuracy: :func:`scored_truth` checks one frame's truth (L ⊆ R ⊆ valid, the scored region,
+the kind image) once and labels its components; :meth:`ScoredTruth.counts` scores a predicted
+mask against it (pixels, clusters of >= 2 pixels, singletons, kinds) as :class:`AccuracyCounts`,
+which add up over frames (micro average). :func:`bootstrap_ci` / :func:`bootstrap_ci_many` give
+the 95 % percentile-bootstrap intervals over frames of the pooled precision, recall and F1 from
+per-frame counts (vectorised: one matrix product per batch of methods or parameter sets).
+
 All functions are pure. Ratios follow one rule: x / 0 is +inf for x > 0 (-inf for x < 0) and NaN
 for 0 / 0 (JSON writers turn both into ``null``).
 """
@@ -13,25 +20,33 @@ import numpy as np
 from scipy import ndimage
 
 from .cloud import check_mask
-from .errors import ParameterError
+from .errors import InputShapeError, ParameterError, describe_array
 from .types import Mask
 
 __all__ = [
     "ACCURACY_KEYS",
+    "BOOTSTRAP_STATS",
     "AccuracyCounts",
+    "KindCounts",
     "RelativeMetrics",
+    "ScoredTruth",
     "Sensitivity",
     "accuracy_counts",
+    "bootstrap_ci",
+    "bootstrap_ci_many",
+    "bootstrap_weights",
     "cohen_kappa",
     "mask_iou",
     "ratio",
     "relative_metrics",
+    "scored_truth",
     "sensitivity",
     "sensitivity_of",
 ]
 
 #: The keys of :meth:`AccuracyCounts.as_dict`, in SPEC §4 order.
-ACCURACY_KEYS = ("tp", "fp", "fn", "precision", "recall", "f1", "iou", "cluster_precision", "cluster_recall")
+ACCURACY_KEYS = ("tp", "fp", "fn", "precision", "recall", "f1", "iou", "cluster_precision", "cluster_recall",
+                 "singletons_precision", "singletons_recall")
 
 _EIGHT = np.ones((3, 3), dtype=bool)
 _EIGHT.setflags(write=False)
@@ -159,18 +174,99 @@ def sensitivity_of(
 # ------------------------------------------------------------------------------------------------
 # SPEC §4: true accuracy
 # ------------------------------------------------------------------------------------------------
+def _count(v: object, name: str) -> int:
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 0:
+        raise ParameterError(f"{name} must be a non-negative integer, got {v!r}")
+    return int(v)
+
+
+@dataclass(frozen=True, slots=True)
+class KindCounts:
+    """True outlier pixels of each kind and how many of them a prediction found (SPEC §4, Kinds).
+
+    Entry ``c - 1`` of each tuple belongs to kind code ``c`` (codes ``1 .. n_kinds``; the names are
+    the caller's, e.g. ``replay.logs.layout.OUTLIER_KINDS``). ``+`` pools two frames.
+
+    Attributes
+    ----------
+    labelled : (n_kinds,) tuple of int
+        |L ∩ {kind = c}|: true outliers of the kind anywhere in the frame (scored or not); a kind
+        is *held* by the truth iff this is > 0.
+    n : (n_kinds,) tuple of int
+        |L ∩ S ∩ {kind = c}|: those in the scored pixels S.
+    found : (n_kinds,) tuple of int
+        |P ∩ L ∩ S ∩ {kind = c}|: those the prediction P found.
+    """
+
+    labelled: tuple[int, ...]
+    n: tuple[int, ...]
+    found: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        size = len(self.labelled)
+        if size == 0:
+            raise ParameterError("KindCounts needs at least one kind, got none")
+        for name in ("labelled", "n", "found"):
+            values = tuple(getattr(self, name))
+            if len(values) != size:
+                raise ParameterError(f"KindCounts.{name} has {len(values)} entries, labelled has {size}")
+            object.__setattr__(self, name, tuple(_count(v, f"KindCounts.{name}[{i}]") for i, v in enumerate(values)))
+        for i, (lab, n, found) in enumerate(zip(self.labelled, self.n, self.found)):
+            if not found <= n <= lab:
+                raise ParameterError(f"KindCounts of kind code {i + 1} must have found <= n <= labelled, "
+                                     f"got found {found}, n {n}, labelled {lab}")
+
+    def __add__(self, other: object) -> KindCounts:
+        if not isinstance(other, KindCounts):
+            return NotImplemented
+        if len(other.labelled) != len(self.labelled):
+            raise ParameterError(f"cannot pool KindCounts of {len(self.labelled)} and {len(other.labelled)} kinds")
+        return KindCounts(*(tuple(a + b for a, b in zip(getattr(self, k), getattr(other, k)))
+                            for k in ("labelled", "n", "found")))
+
+    @property
+    def n_kinds(self) -> int:
+        return len(self.labelled)
+
+    @property
+    def held(self) -> tuple[int, ...]:
+        """The kind codes the truth holds (``labelled > 0``), ascending."""
+        return tuple(i + 1 for i, lab in enumerate(self.labelled) if lab > 0)
+
+    def recall(self, code: int) -> float:
+        """found / n of kind ``code`` (NaN when no pixel of the kind is scored)."""
+        if not 1 <= code <= self.n_kinds:
+            raise ParameterError(f"kind code must be in 1..{self.n_kinds}, got {code!r}")
+        return ratio(self.found[code - 1], self.n[code - 1])
+
+
+_PAIRS = (("true_clusters_found", "true_clusters"), ("pred_clusters_correct", "pred_clusters"),
+          ("true_singletons_found", "true_singletons"), ("pred_singletons_correct", "pred_singletons"))
+
+
 @dataclass(frozen=True, slots=True)
 class AccuracyCounts:
-    """Pixel and cluster counts of one prediction against labels; ``+`` and ``sum()`` pool them.
+    """Pixel and cluster counts of one prediction P against the truth L over the scored pixels S.
+
+    ``+`` and ``sum()`` pool frames (micro average: the rates of a sum are the pooled rates).
+    Components are 8-connected; a component of two or more pixels is a *cluster*, a one-pixel
+    component a *singleton*; the two are counted apart (SPEC §4).
 
     Attributes
     ----------
     tp, fp, fn : int
-        |P ∩ L|, |P ∩ R ∖ L|, |L ∖ P| over the reviewed pixels R.
+        |P ∩ L ∩ S|, |P ∩ S ∖ L|, |L ∩ S ∖ P|.
     true_clusters, true_clusters_found : int
-        8-connected components of L, and those with >= 50 % of their pixels in P.
+        Components of L ∩ S with >= 2 pixels, and those with >= 50 % of their pixels in P.
     pred_clusters, pred_clusters_correct : int
-        8-connected components of P ∩ R, and those with >= 50 % of their pixels in L.
+        Components of P ∩ S with >= 2 pixels, and those with >= 50 % of their pixels in L.
+    true_singletons, true_singletons_found : int
+        One-pixel components of L ∩ S, and those whose pixel is in P.
+    pred_singletons, pred_singletons_correct : int
+        One-pixel components of P ∩ S, and those whose pixel is in L.
+    kinds : KindCounts or None
+        Per-kind counts when the truth says what each outlier is; None otherwise. Counts with and
+        without kinds cannot be pooled.
     """
 
     tp: int
@@ -180,33 +276,36 @@ class AccuracyCounts:
     true_clusters_found: int
     pred_clusters: int
     pred_clusters_correct: int
+    true_singletons: int
+    true_singletons_found: int
+    pred_singletons: int
+    pred_singletons_correct: int
+    kinds: KindCounts | None = None
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 0:
-                raise ParameterError(f"AccuracyCounts.{f.name} must be a non-negative integer, got {v!r}")
-            object.__setattr__(self, f.name, int(v))
-        if self.true_clusters_found > self.true_clusters:
-            raise ParameterError(
-                f"AccuracyCounts.true_clusters_found ({self.true_clusters_found}) exceeds "
-                f"true_clusters ({self.true_clusters})"
-            )
-        if self.pred_clusters_correct > self.pred_clusters:
-            raise ParameterError(
-                f"AccuracyCounts.pred_clusters_correct ({self.pred_clusters_correct}) exceeds "
-                f"pred_clusters ({self.pred_clusters})"
-            )
+            if f.name != "kinds":
+                object.__setattr__(self, f.name, _count(getattr(self, f.name), f"AccuracyCounts.{f.name}"))
+        for part, whole in _PAIRS:
+            if getattr(self, part) > getattr(self, whole):
+                raise ParameterError(f"AccuracyCounts.{part} ({getattr(self, part)}) exceeds "
+                                     f"{whole} ({getattr(self, whole)})")
+        if self.kinds is not None and not isinstance(self.kinds, KindCounts):
+            raise ParameterError(f"AccuracyCounts.kinds must be a KindCounts or None, got {type(self.kinds).__name__}")
 
     @classmethod
     def zero(cls) -> AccuracyCounts:
-        """All counts 0 (the neutral element of ``+``)."""
-        return cls(0, 0, 0, 0, 0, 0, 0)
+        """All counts 0 and no kinds (the neutral element of ``+`` for counts without kinds)."""
+        return cls(0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
 
     def __add__(self, other: object) -> AccuracyCounts:
         if not isinstance(other, AccuracyCounts):
             return NotImplemented
-        return AccuracyCounts(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
+        if (self.kinds is None) != (other.kinds is None):
+            raise ParameterError("cannot pool accuracy counts with and without kind truth")
+        kinds = None if self.kinds is None else self.kinds + other.kinds
+        return AccuracyCounts(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)
+                                if f.name != "kinds"), kinds=kinds)
 
     def __radd__(self, other: object) -> AccuracyCounts:
         if isinstance(other, int) and not isinstance(other, bool) and other == 0:  # sum() starts at 0
@@ -231,74 +330,197 @@ class AccuracyCounts:
 
     @property
     def cluster_precision(self) -> float:
+        """Predicted clusters (>= 2 px) that are correct / predicted clusters."""
         return ratio(self.pred_clusters_correct, self.pred_clusters)
 
     @property
     def cluster_recall(self) -> float:
+        """True clusters (>= 2 px) found / true clusters."""
         return ratio(self.true_clusters_found, self.true_clusters)
 
+    @property
+    def singletons_precision(self) -> float:
+        """One-pixel predicted components that are correct / one-pixel predicted components."""
+        return ratio(self.pred_singletons_correct, self.pred_singletons)
+
+    @property
+    def singletons_recall(self) -> float:
+        """One-pixel true components found / one-pixel true components."""
+        return ratio(self.true_singletons_found, self.true_singletons)
+
     def as_dict(self) -> dict[str, int | float]:
-        """The SPEC §4 entry: counts as ``int``, rates as ``float`` (NaN for 0/0)."""
-        return {
-            "tp": self.tp,
-            "fp": self.fp,
-            "fn": self.fn,
-            "precision": self.precision,
-            "recall": self.recall,
-            "f1": self.f1,
-            "iou": self.iou,
-            "cluster_precision": self.cluster_precision,
-            "cluster_recall": self.cluster_recall,
-        }
+        """The numeric keys of a SPEC §4 entry (:data:`ACCURACY_KEYS`): counts as ``int``, rates as
+        ``float`` (NaN for 0/0). ``ci95`` and ``by_kind`` are the report's (``annotate.accuracy``)."""
+        return {k: getattr(self, k) for k in ACCURACY_KEYS}
 
 
-def _clusters_hit(components: np.ndarray, other: np.ndarray) -> tuple[int, int]:
-    """(number of 8-connected components of ``components``, those with >= 50 % inside ``other``)."""
-    labels, n = ndimage.label(components, structure=_EIGHT)
-    if n == 0:
-        return 0, 0
-    size = np.bincount(labels.ravel(), minlength=n + 1)[1:]
-    inside = np.bincount(labels[other], minlength=n + 1)[1:]
-    return int(n), int(np.count_nonzero(2 * inside >= size))
+@dataclass(frozen=True, slots=True, eq=False)
+class ScoredTruth:
+    """One frame's truth, checked once and prepared to score any number of predictions.
+
+    Build it with :func:`scored_truth`; :meth:`counts` scores one predicted mask. The arrays are
+    read-only.
+
+    Attributes
+    ----------
+    scored : (H, W) bool ndarray
+        The scored pixels S = R ∩ region.
+    true_index : (n_true,) int64 ndarray
+        Flat (row-major) indices of the pixels of L ∩ S, ascending.
+    true_component : (n_true,) int64 ndarray
+        The 8-connected component (1-based) of L ∩ S each of those pixels belongs to.
+    true_sizes : (n_components + 1,) int64 ndarray
+        Pixels per component; entry 0 is 0.
+    true_kind : (n_true,) uint8 ndarray or None
+        Kind code of each pixel of L ∩ S, when kinds were given.
+    kind_labelled : (n_kinds,) tuple of int or None
+        |L ∩ {kind = c}| for c = 1 .. n_kinds (the whole truth, scored or not).
+    """
+
+    scored: Mask
+    true_index: np.ndarray
+    true_component: np.ndarray
+    true_sizes: np.ndarray
+    true_kind: np.ndarray | None
+    kind_labelled: tuple[int, ...] | None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.scored.shape
+
+    def counts(self, predicted: Mask) -> AccuracyCounts:
+        """Score one predicted outlier mask P (SPEC §4).
+
+        Parameters
+        ----------
+        predicted : (H, W) bool ndarray
+            P, on the truth's grid. Pixels outside S are ignored.
+
+        Returns
+        -------
+        AccuracyCounts
+            With ``kinds`` when the truth has kinds.
+        """
+        p = check_mask(predicted, name="predicted", shape=self.shape)
+        hit = p.ravel()[self.true_index]  # P at the pixels of L ∩ S
+        n_true = int(self.true_index.size)
+        tp = int(np.count_nonzero(hit))
+        ps = p & self.scored
+        fp = int(np.count_nonzero(ps)) - tp
+        # true components: found iff >= 50 % of their pixels are in P
+        t_size = self.true_sizes[1:]
+        t_inside = np.bincount(self.true_component[hit], minlength=t_size.size + 1)[1:]
+        t_found = 2 * t_inside >= t_size
+        t_single = t_size == 1
+        # predicted components: correct iff >= 50 % of their pixels are in L (⇔ in L ∩ S: they lie in S)
+        labels, n_pred = ndimage.label(ps, structure=_EIGHT)
+        if n_pred:
+            flat = labels.ravel()
+            p_size = np.bincount(flat[ps.ravel()], minlength=n_pred + 1)[1:]
+            p_inside = np.bincount(flat[self.true_index], minlength=n_pred + 1)[1:]
+        else:
+            p_size = p_inside = np.zeros(0, dtype=np.int64)
+        p_correct = 2 * p_inside >= p_size
+        p_single = p_size == 1
+        kinds = None
+        if self.true_kind is not None:
+            n_kinds = len(self.kind_labelled)
+            n = np.bincount(self.true_kind, minlength=n_kinds + 1)[1:]
+            found = np.bincount(self.true_kind[hit], minlength=n_kinds + 1)[1:]
+            kinds = KindCounts(self.kind_labelled, tuple(int(v) for v in n), tuple(int(v) for v in found))
+        return AccuracyCounts(
+            tp=tp, fp=fp, fn=n_true - tp,
+            true_clusters=int(np.count_nonzero(~t_single)),
+            true_clusters_found=int(np.count_nonzero(t_found & ~t_single)),
+            pred_clusters=int(np.count_nonzero(~p_single)),
+            pred_clusters_correct=int(np.count_nonzero(p_correct & ~p_single)),
+            true_singletons=int(np.count_nonzero(t_single)),
+            true_singletons_found=int(np.count_nonzero(t_found & t_single)),
+            pred_singletons=int(np.count_nonzero(p_single)),
+            pred_singletons_correct=int(np.count_nonzero(p_correct & p_single)),
+            kinds=kinds,
+        )
 
 
-def accuracy_counts(
-    predicted: Mask, outliers: Mask, *, reviewed: Mask | None = None, valid: Mask | None = None
-) -> AccuracyCounts:
-    """True accuracy counts of a predicted outlier mask against labels (SPEC §4).
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
+
+
+def _check_kinds(kinds: object, truth: Mask, n_kinds: object) -> np.ndarray:
+    if isinstance(n_kinds, (bool, np.bool_)) or not isinstance(n_kinds, (int, np.integer)) or not 1 <= n_kinds <= 255:
+        raise ParameterError(f"n_kinds must be an integer in 1..255 when kinds are given, got {n_kinds!r}")
+    k = np.asarray(kinds)
+    if k.ndim != 2 or k.dtype != np.uint8 or k.shape != truth.shape:
+        raise InputShapeError(f"kinds must be an (H, W) uint8 array of shape {truth.shape} like the outliers, "
+                              f"got {describe_array(k)}")
+    bad = k > n_kinds
+    if bad.any():
+        codes = np.unique(k[bad])
+        raise ParameterError(f"kinds holds code(s) {codes.tolist()} outside 0..{int(n_kinds)} "
+                             f"at {int(np.count_nonzero(bad))} pixel(s)")
+    coded = k != 0
+    extra = int(np.count_nonzero(coded & ~truth))
+    if extra:
+        raise ParameterError(f"kinds must be nonzero exactly where outliers is set: "
+                             f"{extra} pixel(s) have a kind but are not outliers")
+    missing = int(np.count_nonzero(truth & ~coded))
+    if missing:
+        raise ParameterError(f"kinds must be nonzero exactly where outliers is set: "
+                             f"{missing} outlier pixel(s) have kind 0")
+    return k
+
+
+def scored_truth(
+    outliers: Mask,
+    *,
+    reviewed: Mask | None = None,
+    valid: Mask | None = None,
+    region: Mask | None = None,
+    kinds: np.ndarray | None = None,
+    n_kinds: int | None = None,
+) -> ScoredTruth:
+    """Check one frame's truth and prepare it for scoring (SPEC §4).
+
+    The scored pixels are S = R ∩ region. Labels outside the region are not scored (no error);
+    labels outside R are an error (L ⊆ R ⊆ valid).
 
     Parameters
     ----------
-    predicted : (H, W) bool ndarray
-        Predicted outliers P.
     outliers : (H, W) bool ndarray
-        Labelled true outliers L; must lie inside the reviewed pixels R.
+        True outliers L (human labels or synthetic ground truth).
     reviewed : (H, W) bool ndarray, optional
         Reviewed pixels R. Default: ``valid`` if given, else every pixel.
     valid : (H, W) bool ndarray, optional
         Valid pixels of the frame; when given, R must lie inside it.
+    region : (H, W) bool ndarray, optional
+        The scored region (the caller's ``zone`` or ``valid`` mask). Default: every pixel (S = R).
+    kinds : (H, W) uint8 ndarray, optional
+        Kind code of each true outlier, 0 elsewhere: nonzero exactly where ``outliers`` is set,
+        codes in ``0 .. n_kinds``. Restrict it as ``outliers`` is restricted (e.g. to the valid
+        pixels) before passing both.
+    n_kinds : int, optional
+        The highest kind code (1..255); needed with ``kinds``, ignored without.
 
     Returns
     -------
-    AccuracyCounts
-        TP = |P ∩ L|, FP = |P ∩ R ∖ L|, FN = |L ∖ P|; true clusters = 8-connected components of L
-        (found iff >= 50 % of their pixels are in P); predicted clusters = components of P ∩ R
-        (correct iff >= 50 % of their pixels are in L).
+    ScoredTruth
 
     Raises
     ------
     InputShapeError
-        A mask is not 2-D bool or its shape differs from ``predicted``'s.
+        A mask is not 2-D bool of the outliers' shape; ``kinds`` is not (H, W) uint8 of that shape.
     ParameterError
-        L is not inside R, or R is not inside ``valid``.
+        L is not inside R; R is not inside ``valid``; ``kinds`` holds a code above ``n_kinds``, a
+        code where L is not set or 0 where it is; ``n_kinds`` is missing or out of range.
     """
-    p = check_mask(predicted, name="predicted")
-    lab = check_mask(outliers, name="outliers", shape=p.shape)
-    v = None if valid is None else check_mask(valid, name="valid", shape=p.shape)
+    lab = check_mask(outliers, name="outliers")
+    shape = lab.shape
+    v = None if valid is None else check_mask(valid, name="valid", shape=shape)
     if reviewed is None:
-        r = np.ones(p.shape, dtype=bool) if v is None else v
+        r = np.ones(shape, dtype=bool) if v is None else v
     else:
-        r = check_mask(reviewed, name="reviewed", shape=p.shape)
+        r = check_mask(reviewed, name="reviewed", shape=shape)
         if v is not None:
             outside = int(np.count_nonzero(r & ~v))
             if outside:
@@ -306,13 +528,234 @@ def accuracy_counts(
     outside = int(np.count_nonzero(lab & ~r))
     if outside:
         raise ParameterError(f"outliers must lie inside reviewed: {outside} labelled pixel(s) are not reviewed")
-    pr = p & r
-    tp = int(np.count_nonzero(pr & lab))
-    fp = int(np.count_nonzero(pr & ~lab))
-    fn = int(np.count_nonzero(lab & ~p))
-    true_n, true_found = _clusters_hit(lab, p)
-    pred_n, pred_correct = _clusters_hit(pr, lab)
-    return AccuracyCounts(tp, fp, fn, true_n, true_found, pred_n, pred_correct)
+    s = r if region is None else r & check_mask(region, name="region", shape=shape)
+    k = None if kinds is None else _check_kinds(kinds, lab, n_kinds)
+    truth = lab & s
+    components, n = ndimage.label(truth, structure=_EIGHT)
+    index = np.flatnonzero(truth)
+    component = components.ravel()[index].astype(np.int64)
+    sizes = np.bincount(component, minlength=n + 1).astype(np.int64)
+    true_kind = kind_labelled = None
+    if k is not None:
+        true_kind = _readonly(k.ravel()[index])
+        kind_labelled = tuple(int(c) for c in np.bincount(k[lab], minlength=int(n_kinds) + 1)[1:])
+    return ScoredTruth(
+        scored=_readonly(s.copy()), true_index=_readonly(index), true_component=_readonly(component),
+        true_sizes=_readonly(sizes), true_kind=true_kind, kind_labelled=kind_labelled,
+    )
+
+
+def accuracy_counts(
+    predicted: Mask,
+    outliers: Mask,
+    *,
+    reviewed: Mask | None = None,
+    valid: Mask | None = None,
+    region: Mask | None = None,
+    kinds: np.ndarray | None = None,
+    n_kinds: int | None = None,
+) -> AccuracyCounts:
+    """True accuracy counts of one predicted outlier mask (SPEC §4).
+
+    ``scored_truth(outliers, ...).counts(predicted)``; to score several predictions against one
+    truth, build the :class:`ScoredTruth` once.
+
+    Parameters
+    ----------
+    predicted : (H, W) bool ndarray
+        Predicted outliers P.
+    outliers, reviewed, valid, region, kinds, n_kinds
+        As in :func:`scored_truth`.
+
+    Returns
+    -------
+    AccuracyCounts
+        Over S = R ∩ region: TP = |P ∩ L ∩ S|, FP = |P ∩ S ∖ L|, FN = |L ∩ S ∖ P|; the
+        8-connected components of L ∩ S (found iff >= 50 % of their pixels are in P) and of
+        P ∩ S (correct iff >= 50 % of their pixels are in L), components of >= 2 pixels as
+        clusters and one-pixel components as singletons; per-kind counts with ``kinds``.
+
+    Raises
+    ------
+    InputShapeError, ParameterError
+        As :func:`scored_truth`; ``predicted`` not 2-D bool of the outliers' shape.
+    """
+    p = check_mask(predicted, name="predicted")
+    check_mask(outliers, name="outliers", shape=p.shape)
+    truth = scored_truth(outliers, reviewed=reviewed, valid=valid, region=region, kinds=kinds, n_kinds=n_kinds)
+    return truth.counts(p)
+
+
+# ------------------------------------------------------------------------------------------------
+# SPEC §4: bootstrap intervals over frames
+# ------------------------------------------------------------------------------------------------
+#: The pooled figures that carry an interval, in SPEC §4 order.
+BOOTSTRAP_STATS: tuple[str, ...] = ("precision", "recall", "f1")
+_CHUNK_ELEMENTS = 1 << 21  # rows x resamples handled at once (bounded memory for big sweeps)
+
+
+def _check_int(v: object, name: str, lo: int) -> int:
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < lo:
+        raise ParameterError(f"{name} must be an integer >= {lo}, got {v!r}")
+    return int(v)
+
+
+def bootstrap_weights(n_frames: int, *, n_boot: int = 2000, seed: int = 0) -> np.ndarray:
+    """How often each frame is drawn in each bootstrap resample.
+
+    Resample ``b`` draws ``n_frames`` frame indices uniformly with replacement: the rows of
+    ``np.random.default_rng(seed).integers(0, n_frames, size=(n_boot, n_frames))``. The result
+    depends only on ``(n_frames, n_boot, seed)``, so every method and every parameter set scored
+    on the same frames is resampled the same way (paired comparisons).
+
+    Parameters
+    ----------
+    n_frames : int
+        Number of frames (>= 1).
+    n_boot : int
+        Number of resamples (>= 1).
+    seed : int
+        Seed of the generator (>= 0).
+
+    Returns
+    -------
+    (n_boot, n_frames) float64 ndarray
+        Entry ``[b, i]`` = how many times frame ``i`` is in resample ``b``; every row sums to
+        ``n_frames``.
+    """
+    n = _check_int(n_frames, "n_frames", 1)
+    b = _check_int(n_boot, "n_boot", 1)
+    idx = np.random.default_rng(_check_int(seed, "seed", 0)).integers(0, n, size=(b, n))
+    idx += (n * np.arange(b, dtype=idx.dtype))[:, None]
+    return np.bincount(idx.ravel(), minlength=b * n).reshape(b, n).astype(np.float64)
+
+
+def _frame_counts(a: object, name: str, shape: tuple[int, ...] | None) -> np.ndarray:
+    arr = np.asarray(a)
+    if arr.dtype.kind not in "iu" or arr.ndim < 1:
+        raise InputShapeError(f"{name} must be an integer array of per-frame counts (frames on the last axis), "
+                              f"got {describe_array(arr)}")
+    if shape is not None and arr.shape != shape:
+        raise InputShapeError(f"{name} must have shape {shape} like tp, got {describe_array(arr)}")
+    if arr.size and arr.min() < 0:
+        raise ParameterError(f"{name} must hold non-negative counts, got {arr.min()}")
+    return arr
+
+
+def _percentile_rows(x: np.ndarray, qs: tuple[float, ...]) -> list[np.ndarray]:
+    """Percentiles (numpy's ``linear`` method) of each row of ``x`` over its non-NaN entries."""
+    s = np.sort(x, axis=-1)  # NaN sort last
+    k = x.shape[-1] - np.count_nonzero(np.isnan(x), axis=-1)
+    last = np.maximum(k - 1, 0)
+    out = []
+    for q in qs:
+        pos = q * last
+        i0 = np.minimum(np.floor(pos).astype(np.int64), last)
+        i1 = np.minimum(i0 + 1, last)
+        t = pos - i0
+        a = np.take_along_axis(s, i0[:, None], axis=-1)[:, 0]
+        b = np.take_along_axis(s, i1[:, None], axis=-1)[:, 0]
+        diff = b - a
+        v = np.where(t >= 0.5, b - diff * (1.0 - t), a + diff * t)
+        v = np.where(a == b, a, v)
+        v[k == 0] = np.nan
+        out.append(v)
+    return out
+
+
+def bootstrap_ci_many(
+    tp: np.ndarray, fp: np.ndarray, fn: np.ndarray, *, n_boot: int = 2000, seed: int = 0, level: float = 0.95
+) -> dict[str, np.ndarray]:
+    """Percentile bootstrap intervals over frames of pooled precision, recall and F1, for a batch.
+
+    The pooled (micro) figures of a set of frames are ratios of summed counts, e.g. precision =
+    ΣTP / (ΣTP + ΣFP). A resample draws the frames with replacement (:func:`bootstrap_weights`)
+    and recomputes the pooled figures from its summed counts; the interval is the
+    ``(1 - level) / 2`` and ``(1 + level) / 2`` percentiles (numpy's ``linear`` method) of the
+    resampled figures (the percentile method). Resamples where a figure is 0/0 (no predicted
+    pixel in the resample, for precision; no true one, for recall) are left out of its
+    percentiles; when no resample defines it the interval is (NaN, NaN) — always so when the
+    pooled figure itself is 0/0. With one frame every resample is that frame: the interval is
+    degenerate, lo = hi = the pooled figure. Every row of the batch uses the same resamples.
+
+    Vectorised: the resampled sums are ``counts @ weights.T`` (exact: integers below 2**53 in
+    float64), so a batch of parameter sets × methods costs one matrix product and one sort per
+    figure.
+
+    Parameters
+    ----------
+    tp, fp, fn : (..., n_frames) int ndarray
+        Per-frame TP, FP, FN counts, frames on the last axis, the same shape each; the leading
+        axes are a batch (methods, parameter sets...).
+    n_boot : int
+        Number of resamples (>= 1; SPEC §4 asks for >= 1000).
+    seed : int
+        Seed of the resampling (>= 0): the same input and seed give the same interval.
+    level : float
+        Confidence level, in (0, 1).
+
+    Returns
+    -------
+    dict of str to (..., 2) float64 ndarray
+        Keys :data:`BOOTSTRAP_STATS`; ``[..., 0]`` = lo, ``[..., 1]`` = hi; NaN where undefined
+        (and everywhere when ``n_frames`` is 0).
+    """
+    t = _frame_counts(tp, "tp", None)
+    f_p = _frame_counts(fp, "fp", t.shape)
+    f_n = _frame_counts(fn, "fn", t.shape)
+    lvl = float(level) if isinstance(level, (int, float, np.floating)) and not isinstance(level, bool) else math.nan
+    if not 0.0 < lvl < 1.0:
+        raise ParameterError(f"level must be a number in (0, 1), got {level!r}")
+    n_boot = _check_int(n_boot, "n_boot", 1)
+    seed = _check_int(seed, "seed", 0)
+    batch, n = t.shape[:-1], t.shape[-1]
+    out = {k: np.full((*batch, 2), np.nan) for k in BOOTSTRAP_STATS}
+    if n == 0:
+        return out
+    wt = np.ascontiguousarray(bootstrap_weights(n, n_boot=n_boot, seed=seed).T)  # (n, n_boot)
+    rows = int(np.prod(batch, dtype=np.int64))
+    T, F, N = (a.reshape(rows, n).astype(np.float64) for a in (t, f_p, f_n))
+    flat = {k: v.reshape(rows, 2) for k, v in out.items()}
+    qs = ((1.0 - lvl) / 2.0, (1.0 + lvl) / 2.0)
+    step = max(1, _CHUNK_ELEMENTS // n_boot)
+    for start in range(0, rows, step):
+        sl = slice(start, start + step)
+        st, sf, sn = T[sl] @ wt, F[sl] @ wt, N[sl] @ wt  # (rows, n_boot) resampled sums
+        for key, num, den in (("precision", st, st + sf), ("recall", st, st + sn),
+                              ("f1", 2.0 * st, 2.0 * st + sf + sn)):
+            stat = np.divide(num, den, out=np.full_like(num, np.nan), where=den > 0)
+            lo, hi = _percentile_rows(stat, qs)
+            flat[key][sl, 0] = lo
+            flat[key][sl, 1] = hi
+    return out
+
+
+def bootstrap_ci(
+    tp: np.ndarray, fp: np.ndarray, fn: np.ndarray, *, n_boot: int = 2000, seed: int = 0, level: float = 0.95
+) -> dict[str, tuple[float, float]]:
+    """Percentile bootstrap interval over frames of pooled precision, recall and F1 (one method).
+
+    :func:`bootstrap_ci_many` for one set of per-frame counts; read its notes.
+
+    Parameters
+    ----------
+    tp, fp, fn : (n_frames,) int ndarray
+        Per-frame TP, FP, FN counts.
+    n_boot, seed, level
+        As in :func:`bootstrap_ci_many`.
+
+    Returns
+    -------
+    dict of str to (float, float)
+        ``{"precision": (lo, hi), "recall": (lo, hi), "f1": (lo, hi)}``; (NaN, NaN) where
+        undefined; lo = hi = the pooled figure with one frame.
+    """
+    for name, a in (("tp", tp), ("fp", fp), ("fn", fn)):
+        arr = np.asarray(a)
+        if arr.ndim != 1:
+            raise InputShapeError(f"{name} must be a 1-D array of per-frame counts, got {describe_array(arr)}")
+    got = bootstrap_ci_many(tp, fp, fn, n_boot=n_boot, seed=seed, level=level)
+    return {k: (float(v[0]), float(v[1])) for k, v in got.items()}
 
 
 # ------------------------------------------------------------------------------------------------

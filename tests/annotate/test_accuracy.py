@@ -40,12 +40,16 @@ ZCUT = _mask(SHAPE, [(0, 0), (1, 1), (2, 3)])
 # SOR: {(0,1)} and {(3,5)}, both true.
 SOR = _mask(SHAPE, [(0, 1), (3, 5)])
 
-# Hand counts: method -> (tp, fp, fn, precision, recall, iou, cluster_precision, cluster_recall)
+# Hand counts: method -> (tp, fp, fn, precision, recall, iou, cluster_precision, cluster_recall,
+#                         singletons_precision, singletons_recall)
+# Clusters are components of >= 2 pixels, singletons the one-pixel ones (SPEC §4): true cluster A,
+# true singleton B; z-cut: cluster {(0,0),(1,1)} (half in A: correct), singleton (2,3) (wrong);
+# SOR: singletons (0,1), (3,5) (both correct); union: cluster {(0,0),(0,1),(1,1)}, singletons (2,3), (3,5).
 HAND = {
-    "zcut": (1, 2, 2, 1 / 3, 1 / 3, 1 / 5, 1 / 2, 1 / 2),
-    "sor": (2, 0, 1, 1.0, 2 / 3, 2 / 3, 1.0, 1.0),
-    "union": (3, 2, 0, 3 / 5, 1.0, 3 / 5, 2 / 3, 1.0),
-    "intersection": (0, 0, 3, math.nan, 0.0, 0.0, math.nan, 0.0),
+    "zcut": (1, 2, 2, 1 / 3, 1 / 3, 1 / 5, 1.0, 1.0, 0.0, 0.0),
+    "sor": (2, 0, 1, 1.0, 2 / 3, 2 / 3, math.nan, 1.0, 1.0, 1.0),
+    "union": (3, 2, 0, 3 / 5, 1.0, 3 / 5, 1.0, 1.0, 1 / 2, 1.0),
+    "intersection": (0, 0, 3, math.nan, 0.0, 0.0, math.nan, 0.0, math.nan, 0.0),
 }
 
 
@@ -56,18 +60,25 @@ def _close(a, b):
 def test_report_matches_hand_count():
     f = frame_accuracy(7, 123_000, {"zcut": ZCUT, "sor": SOR}, TRUTH)
     report = accuracy_report([f])
-    assert set(report) == {"pooled", "frames"}
+    assert list(report) == ["region", "pooled", "frames", "unscored"]
+    assert report["region"] == "valid" and report["unscored"] == []
     assert set(report["pooled"]) == set(METHODS)
     (fr,) = report["frames"]
     assert fr["index"] == 7 and fr["stamp_ns"] == 123_000
-    for m, (tp, fp, fn, p, r, iou, cp, cr) in HAND.items():
+    for m, (tp, fp, fn, p, r, iou, cp, cr, sp, sr) in HAND.items():
         e = fr[m]
         assert list(e) == list(METRIC_KEYS)
         assert (e["tp"], e["fp"], e["fn"]) == (tp, fp, fn), m
         assert all(type(e[k]) is int for k in ("tp", "fp", "fn"))
-        for k, v in zip(("precision", "recall", "iou", "cluster_precision", "cluster_recall"), (p, r, iou, cp, cr)):
+        keys = ("precision", "recall", "iou", "cluster_precision", "cluster_recall", "singletons_precision",
+                "singletons_recall")
+        for k, v in zip(keys, (p, r, iou, cp, cr, sp, sr)):
             assert _close(e[k], v), (m, k, e[k], v)
-        assert jsonable(e) == jsonable(report["pooled"][m])  # one frame: pooled = per frame
+        pooled = dict(report["pooled"][m])
+        ci = pooled.pop("ci95")
+        assert jsonable(e) == jsonable(pooled)  # one frame: pooled = per frame
+        for k in ("precision", "recall", "f1"):  # and the intervals are degenerate
+            assert jsonable(ci[k]) == jsonable([e[k], e[k]])
 
 
 def test_reviewed_restricts_counts():
