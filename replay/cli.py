@@ -23,6 +23,8 @@ from replay.commands import record as record_cmd
 from replay.commands import replay as replay_cmd
 from replay.commands import synth as synth_cmd
 from replay.commands import topics as topics_cmd
+from studies.commands import batch as batch_cmd
+from studies.commands import sweep as sweep_cmd
 from zcut.errors import ZcutError
 
 EXIT_OK = 0
@@ -40,6 +42,8 @@ COMMANDS = {
     "accuracy": (accuracy_cmd, "true accuracy of z-cut, SOR, union, intersection against labels or ground truth"),
     "annotate": (annotate_cmd, "label true outliers in a local web page (127.0.0.1, token in the URL)"),
     "labels": (labels_cmd, "list, export (MCAP) and import human labels of a label store"),
+    "sweep": (sweep_cmd, "parameter study of the z-cut and SOR scored by true accuracy; tuned parameters, report"),
+    "batch": (batch_cmd, "replay many logs on all cores (or a Ray cluster): one table of every frame, scored"),
 }
 
 

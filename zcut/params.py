@@ -438,6 +438,6 @@ class SorParams:
     def __post_init__(self) -> None:
         _boolean(self, "enabled")
         _number(self, "k", ge=1, integer=True)
-        _number(self, "std_ratio", ge=0)
+        _number(self, "std_ratio", gt=0)
         _choice(self, "convention", SOR_CONVENTIONS)
         _choice(self, "region", SOR_REGIONS)

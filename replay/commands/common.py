@@ -14,14 +14,17 @@ from typing import Any
 from replay.presets import PART_KINDS
 
 
-def add_pipeline_options(p: argparse.ArgumentParser, *, bin_model: bool = True) -> None:
-    """``--config``, the z-cut overrides, ``--part/--parameters/--preset``, ``--topic``, ``--bin-model``."""
+def add_pipeline_options(p: argparse.ArgumentParser, *, bin_model: bool = True, zcut: bool = True) -> None:
+    """``--config``, the z-cut overrides, ``--part/--parameters/--preset``, ``--topic``, ``--bin-model``.
+
+    ``zcut=False``: no ``--step/--max-depth/--max-area/--rho`` (a sweep takes lists there)."""
     g = p.add_argument_group("pipeline (the same options resolve the same filter in every command)")
     g.add_argument("--config", metavar="F.toml", help="pipeline config (TOML); the resolved config is written beside outputs")
-    g.add_argument("--step", type=float, metavar="MM", help="z-cut step Δd in mm (overrides the config)")
-    g.add_argument("--max-depth", type=float, metavar="MM", help="z-cut depth d_max in mm (overrides the config)")
-    g.add_argument("--max-area", type=float, metavar="PX", help="z-cut cluster area threshold μ_thr in pixels")
-    g.add_argument("--rho", type=float, metavar="R", help="z-cut relative area threshold ρ_thr (μ_thr = ρ_thr·a_max)")
+    if zcut:
+        g.add_argument("--step", type=float, metavar="MM", help="z-cut step Δd in mm (overrides the config)")
+        g.add_argument("--max-depth", type=float, metavar="MM", help="z-cut depth d_max in mm (overrides the config)")
+        g.add_argument("--max-area", type=float, metavar="PX", help="z-cut cluster area threshold μ_thr in pixels")
+        g.add_argument("--rho", type=float, metavar="R", help="z-cut relative area threshold ρ_thr (μ_thr = ρ_thr·a_max)")
     g.add_argument("--part", metavar="KIND", choices=list(PART_KINDS),
                    help=f"the part kind in the bin, for a_max ({', '.join(PART_KINDS)}); synthetic logs name theirs")
     g.add_argument("--parameters", choices=("nominal", "geometry"),
@@ -29,6 +32,7 @@ def add_pipeline_options(p: argparse.ArgumentParser, *, bin_model: bool = True) 
     g.add_argument("--preset", metavar="KIND", choices=list(PART_KINDS),
                    help="shorthand for --part KIND --parameters geometry")
     g.add_argument("--topic", metavar="T", help="cloud topic (when the log has several)")
+    p.set_defaults(zcut_overrides=zcut)
     if bin_model:
         g.add_argument("--bin-model", metavar="PLY", help="bin model (from `zcut bin-model` or a CAD PLY); "
                        "without it the bin stages are skipped")
@@ -38,8 +42,8 @@ def overrides_of(args: argparse.Namespace) -> dict[str, Any]:
     """The command line's config layer (validated: a bad value fails before the log is read)."""
     from replay.pipeline import config as cfg
 
-    return cfg.cli_layer(step=args.step, max_depth=args.max_depth, max_area=args.max_area, rho=args.rho,
-                         part=args.part, parameters=args.parameters, preset=args.preset)
+    z = {k: getattr(args, k, None) for k in ("step", "max_depth", "max_area", "rho")} if args.zcut_overrides else {}
+    return cfg.cli_layer(**z, part=args.part, parameters=args.parameters, preset=args.preset)
 
 
 def inputs_of(args: argparse.Namespace) -> list[str]:

@@ -20,7 +20,8 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("-o", "--output", metavar="LOG.mcap", required=True, help="log to write (replaced if it exists)")
+    p.add_argument("-o", "--output", metavar="LOG.mcap", required=True, help="log to write")
+    p.add_argument("--force", action="store_true", help="replace the output if it exists")
     p.add_argument("--parts", default="spheres", choices=PART_KIND_NAMES,
                    help="part kind of the paper's Figure 8 (default spheres)")
     p.add_argument("--frames", type=int, default=1, metavar="N", help="number of scans (default 1)")
@@ -34,6 +35,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         help="treat the parts as matte (few outliers) whatever their kind")
     p.add_argument("--empty", action="store_true",
                    help="scan the empty bin instead (the 5-position series of paper §4, repeating)")
+    p.add_argument("--quantize-mm", type=float, default=0.0, metavar="MM",
+                   help="quantize depth to steps of MM (a consumer stereo or ToF camera, e.g. 1); default 0: off")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -53,7 +56,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"frame {i + 1}/{n}: {what} {w}x{h}, {len(sf.scene.parts)} parts, {n_valid} valid points, "
               f"{n_out} true outliers, {seconds:.1f} s", file=sys.stderr, flush=True)
 
-    path = write_synthetic_log(args.output, kind=args.parts, frames=args.frames, seed=args.seed,
-                               size=(h, w), empty=args.empty, shiny=args.shiny, progress=progress)
-    print(f"zcut: wrote {path} ({args.frames} frame(s), seed {args.seed})", file=sys.stderr)
+    from replay.outputs import AtomicOutput, OutputPlan
+
+    OutputPlan([], force=args.force).add(args.output, "the log")
+    with AtomicOutput(args.output) as out:
+        write_synthetic_log(out.temp, kind=args.parts, frames=args.frames, seed=args.seed, size=(h, w),
+                            empty=args.empty, shiny=args.shiny, quantize_mm=args.quantize_mm, progress=progress)
+    print(f"zcut: wrote {args.output} ({args.frames} frame(s), seed {args.seed})", file=sys.stderr)
     return 0

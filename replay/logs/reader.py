@@ -694,6 +694,33 @@ class LogReader:
         if n:
             lost(next_index, n, f"lost with the chunk at byte {rec.offset}", sorted(times))
 
+    def chunk_frame_ranges(self) -> list[tuple[int, int]] | None:
+        """The cloud index range ``(start, stop)`` of every chunk that holds clouds, in file order,
+        from the summary's chunk and message indexes; None when the log has no usable index (then
+        only a scan from the start can number its frames). Used to split a long log into units of
+        whole chunks that read independently (``zcut batch``)."""
+        cloud_ids = {cid for cid, ch in self._channels.items() if ch.topic == self.cloud_topic}
+        out: list[tuple[int, int]] = []
+        try:
+            with self._mcap() as mf:
+                if mf.summary is None or not mf.summary.chunk_indexes:
+                    return None
+                before = 0
+                for ci in mf.summary.chunk_indexes:
+                    n = 0
+                    for cid, off in ci.message_index_offsets.items():
+                        if cid in cloud_ids:
+                            got = mf.message_index_count(off)
+                            if got is None:
+                                return None
+                            n += got
+                    if n:
+                        out.append((before, before + n))
+                    before += n
+        except _Bad:
+            return None
+        return out
+
     def _seek(self, k: int) -> tuple[int | None, int]:
         """(file offset of the chunk holding the k-th cloud, number of clouds before that chunk),
         from the summary's chunk and message indexes; (None, 0) = scan from the start."""

@@ -29,7 +29,7 @@ from replay.errors import ConfigError, LogDamageError
 from replay.logs.frame import Frame
 from replay.pipeline import config as cfg
 from replay.pipeline.sinks import FrameSink, NullSink, ReplayStart
-from replay.pipeline.stages import FrameResult, locate_bin, run_frame
+from replay.pipeline.stages import FrameResult, Zone, bin_zone, locate_bin, run_frame
 from zcut.bin_model import BinModel, PreparedBinModel, prepare_bin_model
 from zcut.registration import RegistrationResult
 
@@ -268,26 +268,21 @@ class ReplaySession:
     def start_info(self) -> ReplayStart:
         return ReplayStart(self.path.name, self.config_toml(), self.notes, self.reader.metadata, self.bin_model)
 
-    def results(self, *, frames: tuple[int, int | None] = (0, None),
-                config: cfg.PipelineConfig | None = None) -> Iterator[tuple[Frame, FrameResult]]:
-        """``(frame, result)`` of every readable frame in ``frames`` (start, stop exclusive or None).
+    def located(self, *, frames: tuple[int, int | None] = (0, None),
+                config: cfg.PipelineConfig | None = None) -> Iterator[tuple[Frame, Future]]:
+        """``(frame, future of its BinLocation)`` for every readable frame in ``frames``.
 
         The next frame is read in a background thread while this one runs; the bin mask and
-        registration of frame k + 1 (OpenCV, Open3D: no numba) run in another thread while the
-        removal, z-cut and SOR (numba) finish frame k. Every frame's registration starts from the
-        log's first frame's pose (:attr:`seed`), so a frame's result does not depend on which frames
-        ran before it. BLAS is limited to one thread meanwhile (its spinning workers otherwise steal
-        the cores from those threads). Closing the generator stops and joins both threads.
-        ``config``: run another config than the resolved one (it must keep the resolved registration
-        and removal parameters, which the bin model was prepared with).
+        registration (OpenCV, Open3D: no numba) of each frame start in another thread as soon as the
+        frame is read, so they overlap the numba stages the caller runs on the frame before. Every
+        frame's registration starts from the log's first frame's pose (:attr:`seed`), so a frame's
+        result does not depend on which frames ran before it. BLAS is limited to one thread meanwhile
+        (its spinning workers otherwise steal the cores from those threads). Closing the generator
+        stops and joins both threads.
         """
         from threadpoolctl import threadpool_limits
 
-        config = self.config if config is None else config
-        if self.prepared is not None and (config.registration != self.config.registration
-                                          or config.removal != self.config.removal):
-            raise ConfigError("results(config=...) must keep the registration and removal parameters "
-                              "the bin model was prepared with")
+        config = self._check(config)
         bin_model, seed = self.prepared, self.seed
         start, stop = frames
         frame_iter = prefetched(self.reader.frames(start=start, stop=stop))
@@ -302,23 +297,51 @@ class ReplaySession:
                     break
                 except BaseException:
                     if pending is not None:  # the frames before the reader's error still count
-                        yield pending[0], run_frame(pending[0], config, bin_model=bin_model,
-                                                    located=pending[1].result())
+                        yield pending
                         pending = None
                     raise
                 ahead = (frame, locator.submit(locate_bin, frame, config, bin_model=bin_model, seed=seed))
                 if pending is not None:
-                    before, future = pending
-                    yield before, run_frame(before, config, bin_model=bin_model, located=future.result())
+                    yield pending
                 pending = ahead
             if pending is not None:
-                before, future = pending
+                yield pending
                 pending = None
-                yield before, run_frame(before, config, bin_model=bin_model, located=future.result())
         finally:
             locator.shutdown(wait=True, cancel_futures=True)
             blas.restore_original_limits()
             frame_iter.close()  # joins the reader thread: reader.damage is final
+
+    def _check(self, config: cfg.PipelineConfig | None) -> cfg.PipelineConfig:
+        config = self.config if config is None else config
+        if self.prepared is not None and (config.registration != self.config.registration
+                                          or config.removal != self.config.removal):
+            raise ConfigError("another config must keep the registration and removal parameters "
+                              "the bin model was prepared with")
+        return config
+
+    def results(self, *, frames: tuple[int, int | None] = (0, None),
+                config: cfg.PipelineConfig | None = None) -> Iterator[tuple[Frame, FrameResult]]:
+        """``(frame, result)`` of every readable frame in ``frames`` (start, stop exclusive or None),
+        computed as :meth:`located` describes. ``config``: run another config than the resolved one
+        (it must keep the resolved registration and removal parameters, which the bin model was
+        prepared with)."""
+        config = self._check(config)
+        located = self.located(frames=frames, config=config)
+        try:
+            for frame, future in located:
+                yield frame, run_frame(frame, config, bin_model=self.prepared, located=future.result())
+        finally:
+            located.close()
+
+    def zones(self, *, frames: tuple[int, int | None] = (0, None)) -> Iterator[tuple[Frame, Zone]]:
+        """``(frame, zone)``: the bin stages only, for callers that filter a zone many ways (a sweep)."""
+        located = self.located(frames=frames)
+        try:
+            for frame, future in located:
+                yield frame, bin_zone(frame, self.config, bin_model=self.prepared, located=future.result())
+        finally:
+            located.close()
 
     def run(self, sink: FrameSink | None = None, *, frames: tuple[int, int | None] = (0, None),
             on_frame: Callable[[Frame, FrameResult, FrameRow], None] | None = None) -> ReplaySummary:

@@ -220,25 +220,127 @@ def sor_region(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams) -> np.
         return zone & (h >= threshold)
 
 
-def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, **kw) -> np.ndarray:
-    """(H, W) bool: SOR outliers among the zone's points only (the rest of the frame set to NaN).
+def _zone_crop(xyz: np.ndarray, zone: np.ndarray, *, whole: bool):
+    """(crop slices, the zone's points with everything else NaN) on the zone's bounding box; None
+    when the zone is empty. ``whole``: the zone is every valid pixel, ``xyz`` is used as it is.
 
     SOR sees only the zone's points, so it runs on the zone's bounding box: the same point set in
     the same row-major order, hence the same result as on the whole NaN-masked frame, with less
-    to scan. ``whole``: the zone is every valid pixel, ``xyz`` is used as it is.
+    to scan.
     """
     if whole:
-        return sor_outliers(xyz, **kw) & zone
-    out = np.zeros_like(zone)
+        return (slice(None), slice(None)), xyz
     rows = np.flatnonzero(zone.any(axis=1))
     if rows.size == 0:
-        return out
+        return None
     cols = np.flatnonzero(zone.any(axis=0))
-    r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
-    z = zone[r0:r1, c0:c1]
-    sub = np.where(z[..., None], xyz[r0:r1, c0:c1], np.float32(np.nan)).astype(xyz.dtype, copy=False)
-    out[r0:r1, c0:c1] = sor_outliers(sub, **kw) & z
+    sl = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+    z = zone[sl]
+    return sl, np.where(z[..., None], xyz[sl], np.float32(np.nan)).astype(xyz.dtype, copy=False)
+
+
+def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, **kw) -> np.ndarray:
+    """(H, W) bool: SOR outliers among the zone's points only (the rest of the frame set to NaN)."""
+    out = np.zeros_like(zone)
+    crop = _zone_crop(xyz, zone, whole=whole)
+    if crop is None:
+        return out
+    sl, sub = crop
+    out[sl] = sor_outliers(sub, **kw) & zone[sl]
     return out
+
+
+def sor_masks_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, k: int, convention: str,
+                      std_ratios) -> np.ndarray:
+    """(n, H, W) bool: :func:`_sor_on_zone` for every std_ratio from one d̄ computation (a sweep),
+    exactly equal to it for each ratio."""
+    from zcut.sor import sor_mean_distances, sor_outliers_from_distances
+
+    ratios = list(std_ratios)
+    out = np.zeros((len(ratios), *zone.shape), dtype=bool)
+    crop = _zone_crop(xyz, zone, whole=whole)
+    if crop is None:
+        return out
+    sl, sub = crop
+    dbar = sor_mean_distances(sub, k=k, convention=convention)
+    out[(slice(None), *sl)] = sor_outliers_from_distances(dbar, k=k, std_ratios=ratios, convention=convention) \
+        & zone[sl][None]
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class Zone:
+    """What the bin stages leave for the filters (:func:`bin_zone`).
+
+    Attributes
+    ----------
+    located : BinLocation
+    removal : RemovalResult or None
+        None when the bin stages were skipped.
+    zone : (H, W) bool ndarray
+        Pixels the z-cut and SOR judge (valid minus table, easy outliers and bin).
+    height_mm : (H, W) float64 ndarray
+        The height image given to the z-cut.
+    easy : (H, W) bool ndarray
+        The points above the rim (all False when the bin stages were skipped).
+    timings : dict[str, float]
+        Seconds of the bin stages that ran.
+    warnings : tuple of str
+    """
+
+    located: BinLocation
+    removal: RemovalResult | None
+    zone: np.ndarray
+    height_mm: np.ndarray
+    easy: np.ndarray
+    timings: dict[str, float]
+    warnings: tuple[str, ...]
+
+
+def bin_zone(frame: Frame, config: PipelineConfig, *, bin_model: PreparedBinModel | None = None,
+             seed: RegistrationResult | None = None, located: BinLocation | None = None) -> Zone:
+    """The bin stages of :func:`run_frame`: bin mask, registration and removal, up to the zone and
+    its height image (shared by ``run_frame`` and a sweep, which filters one zone many times)."""
+    if located is None:
+        located = locate_bin(frame, config, bin_model=bin_model, seed=seed)
+    timings = dict(located.timings)
+    warnings = list(located.warnings)
+    xyz = frame.xyz
+    valid = located.valid
+    bm = located.bin_mask
+    reg = located.registration
+    rem: RemovalResult | None = None
+    if bm is not None:
+        assert bin_model is not None and reg is not None
+        t = time.perf_counter()
+        if bin_model.removal.params != config.removal:
+            raise ParameterError("run_frame: the bin model was prepared with other removal parameters than "
+                                 "the config's (prepare it with zcut.bin_model.prepare_bin_model)")
+        if reg.converged:
+            rem = remove_table_and_bin(xyz, bm.mask, index=bin_model.removal, T_cam_bin=reg.T_cam_bin)
+        else:
+            warnings.append(f"bin registration failed ({reg.reason}): only the table removed")
+            rem = remove_table_and_bin(xyz, bm.mask)
+        timings["removal"] = time.perf_counter() - t
+    if rem is None:
+        return Zone(located, None, valid, -1000.0 * xyz[..., 2].astype(np.float64), np.zeros_like(valid),
+                    timings, tuple(warnings))
+    return Zone(located, rem, rem.zone, rem.height_mm, rem.easy_outliers, timings, tuple(warnings))
+
+
+def sor_judged(zone: Zone, config: PipelineConfig) -> np.ndarray:
+    """(H, W) bool: the points SOR judges for ``config.sor.region``."""
+    if config.sor.region == "zone":
+        return zone.zone
+    return sor_region(zone.height_mm, zone.zone, config.zcut)
+
+
+def sor_on_zone(frame: Frame, zone: Zone, config: PipelineConfig) -> np.ndarray:
+    """(H, W) bool: SOR's outliers among the points it judges (easy outliers not included)."""
+    s = config.sor
+    return _sor_on_zone(frame.xyz, sor_judged(zone, config),
+                        whole=zone.removal is None and s.region == "zone", k=s.k, std_ratio=s.std_ratio,
+                        convention=s.convention)
 
 
 def run_frame(
@@ -270,37 +372,12 @@ def run_frame(
     -------
     FrameResult
     """
-    if located is None:
-        located = locate_bin(frame, config, bin_model=bin_model, seed=seed)
     t_start = time.perf_counter()
-    timings = dict(located.timings)
-    warnings = list(located.warnings)
-    xyz = frame.xyz
-    valid = located.valid
-    bm = located.bin_mask
-    reg = located.registration
-    rem: RemovalResult | None = None
-    if bm is not None:
-        assert bin_model is not None and reg is not None
-        t = time.perf_counter()
-        if bin_model.removal.params != config.removal:
-            raise ParameterError("run_frame: the bin model was prepared with other removal parameters than "
-                                 "the config's (prepare it with zcut.bin_model.prepare_bin_model)")
-        if reg.converged:
-            rem = remove_table_and_bin(xyz, bm.mask, index=bin_model.removal, T_cam_bin=reg.T_cam_bin)
-        else:
-            warnings.append(f"bin registration failed ({reg.reason}): only the table removed")
-            rem = remove_table_and_bin(xyz, bm.mask)
-        timings["removal"] = time.perf_counter() - t
-
-    if rem is None:
-        zone = valid
-        height = -1000.0 * xyz[..., 2].astype(np.float64)
-        easy = np.zeros_like(valid)
-    else:
-        zone = rem.zone
-        height = rem.height_mm
-        easy = rem.easy_outliers
+    z = bin_zone(frame, config, bin_model=bin_model, seed=seed, located=located)
+    located = z.located
+    timings = dict(z.timings)
+    warnings = list(z.warnings)
+    valid, zone, height, easy = located.valid, z.zone, z.height_mm, z.easy
 
     t = time.perf_counter()
     cut = find_clusters(height, params=config.zcut)
@@ -308,11 +385,8 @@ def run_frame(
     timings["zcut"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    s = config.sor
-    if s.enabled:
-        judged = zone if s.region == "zone" else sor_region(height, zone, config.zcut)
-        s_zone = _sor_on_zone(xyz, judged, whole=rem is None and s.region == "zone", k=s.k,
-                              std_ratio=s.std_ratio, convention=s.convention)
+    if config.sor.enabled:
+        s_zone = sor_on_zone(frame, z, config)
     else:
         s_zone = np.zeros_like(valid)
         warnings.append("SOR disabled (sor.enabled = false)")
@@ -326,9 +400,9 @@ def run_frame(
         index=frame.index,
         stamp_ns=frame.stamp_ns,
         valid=valid,
-        bin_mask=bm,
-        registration=reg,
-        removal=rem,
+        bin_mask=located.bin_mask,
+        registration=located.registration,
+        removal=z.removal,
         zone=zone,
         height_mm=height,
         cut=cut,

@@ -1,0 +1,171 @@
+"""What a frame is scored against (SPEC §4): the true outliers L, the reviewed pixels R, the scored
+region, and the kind of every true outlier where the truth says it.
+
+Two sources of truth, one interface (:meth:`TruthSource.truth` -> :class:`FrameTruth`, or a string
+saying why the frame is unscored):
+
+- :class:`SyntheticTruth`: a synthetic log's exact ``/ground_truth/outliers`` (R = the valid pixels)
+  and ``/ground_truth/outlier_kind``;
+- :class:`LabelTruth`: an annotator's labels in a label store (``--labels DB``), matched to the frame
+  by the log's content hash, the cloud topic and the stamp.
+
+:func:`scored_region` gives the region S is taken in (``zone``: the pixels the filters judge, the
+default; ``valid``: every valid pixel). ``zcut accuracy``, ``zcut batch`` and ``zcut sweep`` all score
+through this module, so they score alike.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from replay.logs import layout
+from zcut.errors import ParameterError
+
+REGIONS = ("zone", "valid")
+METHODS = ("zcut", "sor", "union", "intersection")
+
+
+@dataclass(frozen=True, slots=True)
+class FrameTruth:
+    """The truth of one frame.
+
+    Attributes
+    ----------
+    outliers : (H, W) bool ndarray
+        L, inside ``reviewed``.
+    reviewed : (H, W) bool ndarray
+        R, inside the valid pixels.
+    kind : (H, W) uint8 ndarray or None
+        ``/ground_truth/outlier_kind`` codes where the truth has them.
+    source : str
+        What the truth is, for the tables ("ground truth /ground_truth/outliers", "labels by alice").
+    """
+
+    outliers: np.ndarray
+    reviewed: np.ndarray
+    kind: np.ndarray | None
+    source: str
+
+
+def check_region(name: str) -> str:
+    if name not in REGIONS:
+        raise ParameterError(f"--region must be one of {', '.join(REGIONS)}, got {name!r}")
+    return name
+
+
+def scored_region(result, name: str) -> np.ndarray:
+    """(H, W) bool: the region of a :class:`~replay.pipeline.stages.FrameResult` that is scored.
+
+    ``zone``: the zone the z-cut and SOR judged plus the above-the-rim points (which the pipeline
+    flags itself); when the bin stages were skipped that is every valid pixel. ``valid``: every
+    valid pixel.
+    """
+    check_region(name)
+    if name == "valid":
+        return result.valid
+    return result.zone | result.easy_outliers
+
+
+def region_of_results_frame(frame, name: str) -> np.ndarray:
+    """The scored region of a frame of a results file: ``/zcut/zone`` when the replay wrote one (the
+    bin stages ran), else every valid pixel of the source (the filtered cloud plus the outliers)."""
+    check_region(name)
+    valid = np.isfinite(frame.xyz).all(axis=2) | frame.masks[layout.ZCUT_OUTLIERS] | frame.masks[layout.SOR_OUTLIERS]
+    if name == "zone" and layout.ZONE in frame.masks:
+        return frame.masks[layout.ZONE] & valid
+    return valid
+
+
+class SyntheticTruth:
+    """A synthetic log's exact truth: L = ``/ground_truth/outliers`` ∩ valid, R = valid."""
+
+    name = f"ground truth {layout.TRUTH_OUTLIERS}"
+
+    def truth(self, frame, valid: np.ndarray) -> FrameTruth | str:
+        gt = frame.masks.get(layout.TRUTH_OUTLIERS)
+        if gt is None:
+            return f"no {layout.TRUTH_OUTLIERS} message with this frame"
+        kind = frame.codes.get(layout.TRUTH_OUTLIER_KIND)
+        if kind is not None and kind.shape != gt.shape:
+            return f"{layout.TRUTH_OUTLIER_KIND} is {kind.shape}, the truth {gt.shape}"
+        return FrameTruth(gt & valid, valid, None if kind is None else np.where(valid, kind, 0).astype(np.uint8),
+                          self.name)
+
+
+class LabelTruth:
+    """An annotator's labels of a log in a label store.
+
+    Parameters
+    ----------
+    db : path
+        The label store (``zcut annotate``'s SQLite file).
+    log : path
+        The log (found in the store by its content hash; a results file is matched by stamp).
+    annotator : str, optional
+        Whose labels; needed when the log has several annotators.
+    """
+
+    def __init__(self, db: str | os.PathLike, log: str | os.PathLike, *, annotator: str | None = None) -> None:
+        from annotate.store import LabelStore, file_sha256
+
+        self.db = Path(db)
+        if not self.db.is_file():
+            raise FileNotFoundError(2, "no such file", str(db))
+        self.store = LabelStore(self.db)
+        self.log = self.store.log_by_sha(file_sha256(log))
+        known = self.store.annotators(self.log) if self.log is not None else self.store.annotators()
+        if annotator is not None:
+            if annotator not in known:
+                self.close()
+                raise ParameterError(f"--annotator {annotator!r}: no labels by them in {db} "
+                                     f"(annotators: {', '.join(known) or 'none'})")
+        elif len(known) == 1:
+            annotator = known[0]
+        else:
+            self.close()
+            raise ParameterError(f"{db} has labels by {len(known)} annotators "
+                                 f"({', '.join(known) or 'none'}): choose one with --annotator")
+        self.annotator = annotator
+        self.name = f"labels by {annotator} ({self.db})"
+
+    def record(self, frame):
+        """The store's frame record for a log frame: by (log, topic, stamp), else by a unique stamp."""
+        if self.log is not None:
+            rec = self.store.frame(self.log, topic=frame.topic, stamp_ns=frame.stamp_ns)
+            if rec is not None:
+                return rec
+        recs = self.store.frames_at_stamp(frame.stamp_ns)
+        if self.log is not None:
+            recs = [r for r in recs if r.log_id == self.log.id] or recs
+        return recs[0] if len(recs) == 1 else None
+
+    def truth(self, frame, valid: np.ndarray) -> FrameTruth | str:
+        rec = self.record(frame)
+        lab = self.store.label(rec, annotator=self.annotator) if rec is not None else None
+        if lab is None:
+            return f"not labelled by {self.annotator}"
+        if lab.outliers.shape != frame.shape:
+            raise ParameterError(f"labels of frame {frame.index} are {lab.outliers.shape[0]}x{lab.outliers.shape[1]}, "
+                                 f"the frame is {frame.shape[0]}x{frame.shape[1]}: labels of another log?")
+        return FrameTruth(lab.outliers, lab.reviewed, None, self.name)
+
+    def close(self) -> None:
+        self.store.close()
+
+
+def method_predictions(zcut: np.ndarray, sor: np.ndarray) -> dict[str, np.ndarray]:
+    """The four predictions of SPEC §4 from the two filters' masks."""
+    return {"zcut": zcut, "sor": sor, "union": zcut | sor, "intersection": zcut & sor}
+
+
+def pixel_counts(predicted: np.ndarray, truth: FrameTruth, region: np.ndarray) -> tuple[int, int, int]:
+    """(TP, FP, FN) over S = R ∩ region (SPEC §4): |P∩L∩S|, |P∩S∖L|, |L∩S∖P|."""
+    s = truth.reviewed & region
+    p = predicted & s
+    lab = truth.outliers & s
+    tp = int(np.count_nonzero(p & lab))
+    return tp, int(np.count_nonzero(p)) - tp, int(np.count_nonzero(lab)) - tp

@@ -1,0 +1,1 @@
+"""``zcut batch`` and ``zcut sweep`` (registered in ``replay.cli.COMMANDS``)."""

@@ -1,0 +1,134 @@
+"""``zcut batch INPUT… -o DIR``: replay every frame of many logs on all cores or a Ray cluster.
+
+Writes ``DIR/frames.parquet`` (one row per frame) and ``DIR/summary.json``; ``--results`` and ``--rrd``
+add one results MCAP and one .rrd per log under ``DIR/results`` and ``DIR/rrd``. Running it again over
+the same DIR skips the frames already done; a damaged log does not stop the others (exit 3 at the end).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+FRAMES_PER_UNIT = 8
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from replay.commands.common import add_pipeline_options
+
+    p.add_argument("inputs", nargs="+", metavar="INPUT", help="MCAP logs or folders of them")
+    p.add_argument("-o", "--out", required=True, metavar="DIR", help="output folder (created; rerun to resume)")
+    p.add_argument("--workers", type=int, default=None, metavar="N", help="local processes (default: the cores)")
+    p.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster: its address, or `auto` (RAY_ADDRESS)")
+    p.add_argument("--labels", metavar="DB", help="score against an annotator's labels (default: synthetic truth)")
+    p.add_argument("--annotator", help="whose labels (when the store has several)")
+    p.add_argument("--region", default="zone", help="scored region: zone (default, what the filters judge) or valid")
+    p.add_argument("--results", action="store_true", help="also write a results MCAP per log (DIR/results)")
+    p.add_argument("--rrd", action="store_true", help="also write a Rerun .rrd per log (DIR/rrd)")
+    p.add_argument("--frames-per-unit", type=int, default=FRAMES_PER_UNIT, metavar="N",
+                   help=f"frames per unit of work: whole chunks of one log (default {FRAMES_PER_UNIT})")
+    p.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    add_pipeline_options(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    from annotate.truth import check_region
+    from replay.cli import EXIT_DATA_LOSS
+    from replay.commands.common import overrides_of
+    from replay.errors import ConfigError
+    from studies import batch
+    from studies.driver import Progress, execute, file_identity, identity, plan_logs
+    from studies.executors import make_executor
+    from studies.parts import PartStore
+    from studies.work import Job, run_batch_unit
+
+    t0 = time.perf_counter()
+    check_region(args.region)
+    if args.frames_per_unit < 1:
+        raise ConfigError(f"--frames-per-unit must be >= 1, got {args.frames_per_unit}")
+    overrides = overrides_of(args)
+    for path, what in ((args.config, "--config"), (args.bin_model, "--bin-model"), (args.labels, "--labels")):
+        if path is not None:
+            from pathlib import Path
+
+            if not Path(path).is_file():
+                raise FileNotFoundError(2, "no such file", str(path))
+    executor = make_executor(workers=args.workers, ray=args.ray)  # an unreachable cluster fails here
+    try:
+        err = sys.stderr
+
+        def planning(i, n, path) -> None:
+            if n > 1 and (i % 20 == 0 or i == n - 1):
+                print(f"zcut: reading {n} logs: {i + 1}/{n} {path.name}", file=err, flush=True)
+
+        plans = plan_logs(args.inputs, config_file=args.config, overrides=overrides, topic=args.topic,
+                          frames_per_unit=args.frames_per_unit, whole=args.results or args.rrd, progress=planning)
+        options = {"config_sha256": file_identity(args.config), "overrides": overrides,
+                   "bin_model_sha256": file_identity(args.bin_model), "topic": args.topic, "labels": args.labels,
+                   "annotator": args.annotator, "region": args.region, "frames_per_unit": args.frames_per_unit,
+                   "results": args.results, "rrd": args.rrd}
+        store = PartStore(args.out, identity("batch", options, plans))
+        for p in plans:
+            if p.error:
+                print(f"warning: {p.path}: {p.error} (left out; exit 3 at the end)", file=err)
+        units = [u for p in plans for u in p.units]
+        job = Job(config_file=args.config, overrides=overrides, bin_model=args.bin_model, topic=args.topic,
+                  labels=args.labels, annotator=args.annotator, region=args.region,
+                  configs={p.sha256: p.config_toml for p in plans if p.units},
+                  extra={"out_dir": str(store.root) if (args.results or args.rrd) else None,
+                         "results": args.results, "rrd": args.rrd})
+        todo = [u for u in units if not store.done(u.key)]
+        total = sum(u.n_frames or 0 for u in todo) or None
+        skipped = len(units) - len(todo)
+        print(f"zcut: {len(plans)} log(s), {len(units)} unit(s) of work"
+              + (f", {skipped} already done in {store.root}" if skipped else "")
+              + f"; {executor.name}: {executor.workers} worker(s)", file=err, flush=True)
+        progress = Progress(total)
+        results = execute(units, job, run_batch_unit, executor, store, progress=progress)
+        progress.finish()
+    finally:
+        executor.close()
+    table = batch.frames_table(store)
+    frames_path = store.write_table("frames.parquet", table)
+    summ = batch.summary(plans, store, table, results, executor_name=executor.name, workers=executor.workers,
+                         seconds=time.perf_counter() - t0)
+    summ["accuracy"]["region"] = args.region
+    summ_path = store.write_json("summary.json", batch.jsonable(summ))
+    for e in summ["logs"]:
+        for d in e["damage"]:
+            print(f"warning: data loss: {d}", file=err)
+        for x in e["errors"]:
+            print(f"warning: {e['log']}: {x}", file=err)
+    print(f"zcut: wrote {frames_path} ({table.num_rows} frames) and {summ_path}", file=err)
+    if args.json:
+        print(json.dumps(batch.jsonable(summ), indent=1))
+    else:
+        _print_table(summ)
+    return EXIT_DATA_LOSS if summ["data_loss"] else 0
+
+
+def _print_table(summ: dict) -> None:
+    t = summ["totals"]
+    print(f"{t['frames']} frames of {t['logs']} log(s): z-cut {t['zcut']} px, SOR {t['sor']} px, "
+          f"both {t['both']} px, above the rim {t['above_rim']} px")
+    pooled = summ["accuracy"]["pooled"]
+    if pooled:
+        print(f"true accuracy over the scored region ({summ['accuracy']['region']}), pooled:")
+        print(f"  {'method':13s} {'precision':>22s} {'recall':>22s} {'F1':>22s}")
+        for m, e in pooled.items():
+            cells = []
+            for k in ("precision", "recall", "f1"):
+                v, ci = e[k], e["ci95"][k]
+                cells.append("-" if v is None else f"{v:.3f} [{_f(ci[0])}, {_f(ci[1])}]")
+            print(f"  {m:13s} " + " ".join(f"{c:>22s}" for c in cells))
+    r = summ["this_run"]
+    if r["frames"]:
+        print(f"this run: {r['frames']} frames in {r['seconds']:.1f} s ({r['frames_per_s']:.2f} frames/s, "
+              f"{r['cpu_seconds_per_frame']:.2f} CPU-s/frame) on {r['workers']} worker(s) ({r['executor']}), "
+              f"peak {r['peak_rss_mb_per_worker']:.0f} MB per worker")
+
+
+def _f(v) -> str:
+    return "-" if v is None or v != v else f"{v:.2f}"

@@ -1,0 +1,264 @@
+"""``zcut sweep LOG… -o DIR``: a parameter study of the z-cut and SOR scored by true accuracy (SPEC §6).
+
+Writes ``DIR/sweep.parquet`` (one row per log × frame × parameter set × method), ``DIR/summary.json``
+(pooled figures per set with 95 % intervals, the paper's relative figures, the tuned and the chosen
+points), ``DIR/tuned.toml`` (a config ``zcut replay --config`` accepts), the plots (PNG) and
+``DIR/report.html``. Running it again over the same DIR continues where it stopped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from pathlib import Path
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from replay.commands.common import add_pipeline_options
+    from studies.grid import DEFAULT_MAX_POINTS
+
+    p.add_argument("inputs", nargs="+", metavar="LOG_OR_RESULTS.mcap", help="logs (or folders of them) with "
+                   "synthetic truth, logs labelled in --labels, or results files of `zcut replay --out`")
+    p.add_argument("-o", "--out", required=True, metavar="DIR", help="output folder (created; rerun to continue)")
+    g = p.add_argument_group("the grid (LIST: a,b,c or start:stop:count; an axis not given keeps the config's value)")
+    g.add_argument("--step", metavar="LIST", help="z-cut Δd values, mm")
+    g.add_argument("--max-depth", metavar="LIST", help="z-cut d_max values, mm")
+    g.add_argument("--rho", metavar="LIST", help="z-cut ρ_thr values (μ_thr = ρ_thr·a_max)")
+    g.add_argument("--sor-k", metavar="LIST", help="SOR k values")
+    g.add_argument("--sor-std", metavar="LIST", help="SOR std_ratio values")
+    g.add_argument("--max-points", type=int, default=DEFAULT_MAX_POINTS, metavar="N",
+                   help=f"refuse grids larger than this without --force (default {DEFAULT_MAX_POINTS})")
+    g.add_argument("--force", action="store_true", help="run a grid larger than --max-points")
+    p.add_argument("--objective", default="f1",
+                   help="what tuned.toml maximises: f1 (default), recall@precision=P or precision@recall=R")
+    p.add_argument("--labels", metavar="DB", help="score against an annotator's labels (default: synthetic truth)")
+    p.add_argument("--annotator", help="whose labels (when the store has several)")
+    p.add_argument("--region", default="zone", help="scored region: zone (default) or valid")
+    p.add_argument("--workers", type=int, default=None, metavar="N", help="local processes (default: the cores)")
+    p.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster: its address, or `auto`")
+    p.add_argument("--frames-per-unit", type=int, default=4, metavar="N", help="frames per unit of work (default 4)")
+    p.add_argument("--no-report", action="store_true", help="skip the plots and report.html")
+    add_pipeline_options(p, zcut=False)
+
+
+def _source_of_results(path: Path) -> Path | None:
+    """The source log a results file names (beside it), when it is one; the path itself otherwise."""
+    from replay.logs import layout
+    from replay.logs.reader import inspect_log
+
+    meta = inspect_log(path).metadata.get(layout.RESULTS_METADATA)
+    if not meta:
+        return path
+    src = path.parent / meta.get("source", "")
+    return src if meta.get("source") and src.is_file() and src != path else None
+
+
+def run(args: argparse.Namespace) -> int:
+    from annotate.truth import check_region
+    from replay.cli import EXIT_DATA_LOSS
+    from replay.commands.common import overrides_of
+    from replay.errors import ConfigError
+    from replay.logs import layout
+    from replay.logs.reader import LogReader
+    from replay.pipeline import config as cfg
+    from studies import batch, sweep
+    from studies.driver import Progress, execute, file_identity, identity, plan_logs
+    from studies.executors import make_executor
+    from studies.grid import make_grid, parse_list
+    from studies.parts import PartStore
+    from studies.units import expand_logs
+    from studies.work import Job
+
+    t0 = time.perf_counter()
+    err = sys.stderr
+    check_region(args.region)
+    objective = sweep.parse_objective(args.objective)
+    axes = dict(steps=parse_list(args.step, name="--step"), depths=parse_list(args.max_depth, name="--max-depth"),
+                rhos=parse_list(args.rho, name="--rho"), sor_ks=parse_list(args.sor_k, name="--sor-k", integer=True),
+                sor_stds=parse_list(args.sor_std, name="--sor-std"))
+    if args.frames_per_unit < 1:
+        raise ConfigError(f"--frames-per-unit must be >= 1, got {args.frames_per_unit}")
+    for path in (args.config, args.bin_model, args.labels):
+        if path is not None and not Path(path).is_file():
+            raise FileNotFoundError(2, "no such file", str(path))
+    overrides = overrides_of(args)
+    # results files: their source log (the filtered cloud has its outliers removed)
+    logs = []
+    for p in expand_logs(args.inputs):
+        src = _source_of_results(p)
+        if src is None:
+            raise ConfigError(f"{p} is a results file whose source log (named in it) is not beside it: "
+                              "sweep the source log")
+        if src != p:
+            print(f"zcut: {p.name} is a results file: sweeping its source log {src}", file=err)
+        logs.append(str(src))
+    # the truth must exist before any work
+    if args.labels is None:
+        for p in logs:
+            if layout.TRUTH_OUTLIERS not in LogReader(p, cloud_topic=args.topic).mask_topics:
+                raise ConfigError(f"{p} has no {layout.TRUTH_OUTLIERS} (not a synthetic log): label it "
+                                  "(zcut annotate) and give --labels DB")
+    executor = make_executor(workers=args.workers, ray=args.ray)
+    try:
+        plans = plan_logs(logs, config_file=args.config, overrides=overrides, topic=args.topic,
+                          frames_per_unit=args.frames_per_unit, whole=False)
+        first = next(p for p in plans if p.units)
+        base = cfg.from_dict(__import__("tomllib").loads(first.config_toml), source=str(first.path))
+        grid = make_grid(**axes, config=base, max_points=args.max_points, force=args.force)
+        options = {"config_sha256": file_identity(args.config), "overrides": overrides,
+                   "bin_model_sha256": file_identity(args.bin_model), "topic": args.topic, "labels": args.labels,
+                   "annotator": args.annotator, "region": args.region, "frames_per_unit": args.frames_per_unit,
+                   "grid": grid.as_dict()}
+        store = PartStore(args.out, identity("sweep", options, plans))
+        for p in plans:
+            if p.error:
+                print(f"warning: {p.path}: {p.error} (left out; exit 3 at the end)", file=err)
+        units = [u for p in plans for u in p.units]
+        job = Job(config_file=args.config, overrides=overrides, bin_model=args.bin_model, topic=args.topic,
+                  labels=args.labels, annotator=args.annotator, region=args.region,
+                  configs={p.sha256: p.config_toml for p in plans if p.units},
+                  extra={"grid": sweep.grid_dict(grid)})
+        todo = [u for u in units if not store.done(u.key)]
+        per_frame = len(grid.steps)
+        total = sum((u.n_frames or 0) for u in todo) * per_frame or None
+        n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if base.sor.enabled else 0)
+        print(f"zcut: {len(plans)} log(s), {n_sets} parameter sets ({grid.n_zcut} z-cut, "
+              f"{n_sets - grid.n_zcut} SOR), {len(units)} unit(s)"
+              + (f", {len(units) - len(todo)} already done" if len(units) > len(todo) else "")
+              + f"; {executor.name}: {executor.workers} worker(s)", file=err, flush=True)
+        progress = Progress(total, what="frames × Δd")
+        progress_scale = _Scaled(progress, per_frame)
+        results = execute(units, job, sweep.run_sweep_unit, executor, store, progress=progress_scale)
+        progress.finish()
+    finally:
+        executor.close()
+    table = store.table()
+    if table.num_rows:
+        table = table.sort_by([("log_sha256", "ascending"), ("frame", "ascending"), ("method", "ascending")])
+    store.write_table("sweep.parquet", table)
+    if not table.num_rows:
+        raise ConfigError("no frame was scored (no truth in any frame): nothing to sum up")
+    sets = sweep.pooled_sets(table)
+    tuned = sweep.tune(sets, objective, part=base.part)
+    chosen = grid.chosen
+    summary = {
+        "logs": [{"log": str(p.path), "sha256": p.sha256, "error": p.error} for p in plans],
+        "frames": len({(r, f) for r, f in zip(table.column("log_sha256").to_pylist(), table.column("frame").to_pylist())}),
+        "region": args.region, "objective": args.objective, "truth": "labels" if args.labels else "synthetic",
+        "grid": grid.as_dict(), "config": first.config_toml, "notes": list(first.notes),
+        "sets": sets, "tuned": tuned,
+        "chosen": {"zcut": _find(sets, "zcut", chosen[0], chosen[1], chosen[2]),
+                   "sor": _find_sor(sets, chosen[3], chosen[4], chosen[0], chosen[1])},
+        "nominal": _find(sets, "zcut", 0.2, 30.0, 0.07),
+        "sensitivity": {"chosen": sweep.sensitivity_at(sets, chosen[:3]),
+                        "tuned": sweep.sensitivity_at(sets, (tuned["zcut"]["step_mm"], tuned["zcut"]["max_depth_mm"],
+                                                             tuned["zcut"]["rho_thr"])) if tuned["zcut"] else None},
+        "damage": [d for m in store.metas().values() for d in m["damage"]],
+        "errors": [f"{r.unit.log}: {r.error}" for r in results if r.error],
+        "unscored": [u for m in store.metas().values() for u in m["unscored"]],
+        "reproduce": _reproduce(args),
+        "seconds": time.perf_counter() - t0,
+    }
+    store.write_json("summary.json", batch.jsonable(summary))
+    tuned_path = _write_tuned(store, base, tuned, args)
+    if not args.no_report:
+        from studies.report import write_report
+
+        write_report(store.root, summary)
+    _print(summary, tuned_path)
+    loss = bool(summary["damage"] or summary["errors"] or any(p.error for p in plans))
+    return EXIT_DATA_LOSS if loss else 0
+
+
+def _reproduce(args) -> str:
+    """The command line that reruns this sweep."""
+    parts = ["zcut", "sweep", *args.inputs, "-o", args.out]
+    for opt in ("step", "max_depth", "rho", "sor_k", "sor_std", "objective", "labels", "annotator", "region",
+                "config", "bin_model", "part", "parameters", "preset", "topic"):
+        v = getattr(args, opt, None)
+        if v is not None and not (opt == "objective" and v == "f1") and not (opt == "region" and v == "zone"):
+            parts += ["--" + opt.replace("_", "-"), str(v)]
+    return " ".join(shlex.quote(str(p)) for p in parts)
+
+
+class _Scaled:
+    """Progress in frames × Δd from units' frames."""
+
+    def __init__(self, progress, scale: int) -> None:
+        self.progress, self.scale = progress, scale
+
+    def update(self, n: int, *, note: str = "", force: bool = False) -> None:
+        self.progress.update(n * self.scale, note=note, force=force)
+
+
+def _find(sets, method, step, depth, rho):
+    from studies.sweep import _close
+
+    for e in sets:
+        if e["method"] == method and _close(e["step_mm"], step) and _close(e["max_depth_mm"], depth) \
+                and _close(e["rho_thr"], rho):
+            return e
+    return None
+
+
+def _find_sor(sets, k, std, step, depth):
+    from studies.sweep import _close
+
+    for e in sets:
+        if e["method"] == "sor" and e["sor_k"] == k and _close(e["sor_std_ratio"], std) \
+                and (e["step_mm"] is None or (_close(e["step_mm"], step) and _close(e["max_depth_mm"], depth))):
+            return e
+    return None
+
+
+def _write_tuned(store, base, tuned: dict, args) -> Path | None:
+    """``tuned.toml``: the base config with the tuned z-cut and SOR parameters."""
+    import dataclasses
+
+    from replay.pipeline import config as cfg
+
+    z, s = tuned["zcut"], tuned["sor"]
+    if z is None:
+        return None
+    zc = dataclasses.replace(base.zcut, step=z["step_mm"], max_depth=z["max_depth_mm"],
+                             max_area=z["rho_thr"] * base.zcut.a_max if z["rho_thr"] is not None else z["max_area_px"])
+    sor = dataclasses.replace(base.sor, k=s["sor_k"], std_ratio=s["sor_std_ratio"]) if s else base.sor
+    tuned_cfg = base.replace(zcut=zc, sor=sor)
+    f = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
+    header = (f"zcut sweep: tuned by {args.objective} over {store.root}\n"
+              f"z-cut: precision {f(z['precision'])}, recall {f(z['recall'])}, F1 {f(z['f1'])}"
+              + (f"\nSOR: precision {f(s['precision'])}, recall {f(s['recall'])}, F1 {f(s['f1'])}" if s else "")
+              + (f"\nnote: {tuned['note']}" if tuned["note"] else ""))
+    path = store.root / "tuned.toml"
+    from replay.outputs import AtomicOutput
+
+    with AtomicOutput(path) as out:
+        out.temp.write_text(cfg.to_toml(tuned_cfg, header=header))
+    return path
+
+
+def _print(summary: dict, tuned_path) -> None:
+    def row(name, e):
+        if e is None:
+            return f"  {name:10s} -"
+        ci = e["ci95"]
+        cells = [f"{e[k]:.3f} [{ci[k][0]:.3f}, {ci[k][1]:.3f}]" if e[k] is not None and ci[k][0] is not None
+                 else ("-" if e[k] is None else f"{e[k]:.3f}") for k in ("precision", "recall", "f1")]
+        params = (f"Δd {e['step_mm']:g} d_max {e['max_depth_mm']:g} ρ {e['rho_thr']:g}" if e["method"] == "zcut"
+                  else f"k {e['sor_k']} std {e['sor_std_ratio']:g}")
+        return f"  {name:10s} {params:32s} " + "  ".join(f"{c:>22s}" for c in cells)
+
+    print(f"{summary['frames']} frame(s) scored over the {summary['region']} region; objective {summary['objective']}")
+    print(f"  {'':10s} {'parameters':32s} " + "  ".join(f"{h:>22s}" for h in ("precision", "recall", "F1")))
+    print(row("chosen", summary["chosen"]["zcut"]))
+    print(row("nominal", summary["nominal"]))
+    print(row("tuned", summary["tuned"]["zcut"]))
+    print(row("SOR chosen", summary["chosen"]["sor"]))
+    print(row("SOR tuned", summary["tuned"]["sor"]))
+    if summary["tuned"]["note"]:
+        print(f"note: {summary['tuned']['note']}")
+    if tuned_path is not None:
+        print(f"tuned config: {tuned_path}")

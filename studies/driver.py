@@ -1,0 +1,170 @@
+"""The driver of a study: find the logs, resolve each one's config, plan the units, run the ones not
+done yet on an executor, keep every finished unit, show progress.
+
+Named steps, shared by ``zcut batch`` and ``zcut sweep``::
+
+    logs = plan_logs(inputs, job_options)            # hash, resolve, split into units (bad logs noted)
+    store = PartStore(out_dir, identity(...))        # refuses another config's run before any work
+    results = execute(units, job, executor, store)   # runs what is not done, writes each part
+"""
+
+from __future__ import annotations
+
+import hashlib
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from replay.errors import ConfigError
+from studies.units import WorkUnit, expand_logs, plan_log
+from studies.work import Job, UnitResult, toml_sha
+from zcut.errors import ZcutError
+
+
+@dataclass(slots=True)
+class LogPlan:
+    """One input log: its identity, resolved config and units (or why it cannot be used)."""
+
+    path: Path
+    sha256: str = ""
+    n_frames: int | None = None
+    config_toml: str = ""
+    notes: tuple[str, ...] = ()
+    units: list[WorkUnit] = field(default_factory=list)
+    error: str | None = None
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while b := f.read(1 << 22):
+            h.update(b)
+    return h.hexdigest()
+
+
+def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict, topic: str | None,
+              frames_per_unit: int, whole: bool, progress=None) -> list[LogPlan]:
+    """Every input log with its resolved config and units; a log that cannot be opened keeps its
+    error (a warning and exit 3 at the end) unless no log at all can be used (an error)."""
+    from replay.logs.reader import LogReader
+    from replay.pipeline import config as cfg
+
+    paths = expand_logs(inputs)
+    file_layer = cfg.load_toml(config_file) if config_file is not None else None
+    plans: list[LogPlan] = []
+    for i, path in enumerate(paths):
+        if progress is not None:
+            progress(i, len(paths), path)
+        plan = LogPlan(path)
+        try:
+            plan.sha256 = file_sha256(path)
+            plan.units, plan.n_frames = plan_log(path, sha256=plan.sha256, frames_per_unit=frames_per_unit,
+                                                 whole=whole, topic=topic)
+            reader = LogReader(path, cloud_topic=topic)
+            it = reader.frames(start=0)
+            try:
+                first = next(it, None)
+            finally:
+                it.close()
+            if first is None:
+                raise ZcutError(f"{path.name}: no readable frame")
+            resolved = cfg.resolve(cfg.log_facts(reader.metadata, first, intrinsics=getattr(reader, "intrinsics", None)),
+                                   file_layer=file_layer, cli=overrides)
+            plan.config_toml = cfg.to_toml(resolved.config, header=f"zcut resolved config for {path.name}")
+            plan.notes = resolved.notes
+        except ConfigError:
+            raise  # the options are wrong for every log: an error before any work
+        except (ZcutError, OSError) as e:
+            plan.error = str(e) if isinstance(e, ZcutError) else f"{e.strerror or e}: {path}"
+            plan.units = []
+        plans.append(plan)
+    if not any(p.units for p in plans):
+        first_error = next((p.error for p in plans if p.error), "no frames")
+        raise ZcutError(f"no usable log among {len(plans)} input(s): {first_error}")
+    return plans
+
+
+def identity(kind: str, options: dict[str, Any], plans: list[LogPlan]) -> dict[str, Any]:
+    """What identifies a study in its output folder (``run.json``)."""
+    return {"kind": kind, "options": options,
+            "logs": {p.sha256: toml_sha(p.config_toml) for p in plans if p.units}}
+
+
+def file_identity(path: str | None) -> str | None:
+    """A file's content hash for the study's identity (None without a file)."""
+    return None if path is None else file_sha256(Path(path))
+
+
+class Progress:
+    """A one-line progress bar on stderr: frames done, rate, time left (a line per update when
+    stderr is not a terminal, at most every few seconds)."""
+
+    def __init__(self, total: int | None, *, what: str = "frames", stream=None) -> None:
+        self.total, self.what = total, what
+        self.stream = sys.stderr if stream is None else stream
+        self.done = 0
+        self.t0 = time.perf_counter()
+        self._last = 0.0
+        self._shown = -1
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+
+    def update(self, n: int, *, note: str = "", force: bool = False) -> None:
+        self.done += n
+        now = time.perf_counter()
+        if not force and not self.tty and now - self._last < 5.0:
+            return
+        self._last = now
+        self._shown = self.done
+        dt = now - self.t0
+        rate = self.done / dt if dt > 0 else 0.0
+        if self.total:
+            frac = min(self.done / self.total, 1.0)
+            bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
+            left = (self.total - self.done) / rate if rate > 0 else float("nan")
+            eta = _hms(left) if left == left else "?"
+            text = f"[{bar}] {self.done}/{self.total} {self.what}  {rate:.2f}/s  {eta} left"
+        else:
+            text = f"{self.done} {self.what}  {rate:.2f}/s"
+        if note:
+            text += f"  {note}"
+        end = "\r" if self.tty else "\n"
+        print(text, file=self.stream, end=end, flush=True)
+
+    def finish(self) -> None:
+        if self._shown != self.done:
+            self.update(0, force=True)
+        if self.tty:
+            print(file=self.stream)
+
+
+def _hms(s: float) -> str:
+    s = int(round(s))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
+
+
+def execute(units: list[WorkUnit], job: Job, fn, executor, store, *, progress: Progress | None = None,
+            schema=None) -> list[UnitResult]:
+    """Run the units not done yet; write each finished unit's part at once; return this run's
+    results (failed units are not marked done: a rerun tries them again)."""
+    todo = [u for u in units if not store.done(u.key)]
+    out: list[UnitResult] = []
+    try:
+        for unit, res in executor.run(fn, todo, job):
+            out.append(res)
+            if res.error is None:
+                store.write(unit.key, res.rows, meta_of(res), schema=schema)
+            if progress is not None:
+                note = f"{Path(unit.log).name} failed: {res.error.splitlines()[0][:60]}" if res.error else ""
+                progress.update(res.frames, note=note, force=bool(note))
+    finally:
+        executor.close()
+    return out
+
+
+def meta_of(res: UnitResult) -> dict[str, Any]:
+    u = res.unit
+    return {"log": u.log, "sha256": u.sha256, "start": u.start, "stop": u.stop, "frames": res.frames,
+            "damage": res.damage, "unscored": res.unscored, "seconds": res.seconds, "cpu_seconds": res.cpu_seconds,
+            "peak_rss_mb": res.peak_rss_mb}

@@ -1,0 +1,136 @@
+"""The parameter grid of a sweep (SPEC §6): LIST options and the grid they make.
+
+A LIST is ``a,b,c`` or ``start:stop:count`` (inclusive, evenly spaced). Axes not given take the
+resolved config's value. The z-cut axes are Δd (``--step``), d_max (``--max-depth``) and ρ_thr
+(``--rho``, μ_thr = ρ_thr · a_max); the SOR axes are k (``--sor-k``) and std_ratio (``--sor-std``).
+Around the config's own point (the "chosen point") the grid always holds 0.5× and 1.5× its d_max
+and ρ_thr, for the paper's sensitivity ratios ω and θ (SPEC §3).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from replay.errors import ConfigError
+
+#: Grid points a sweep runs without --force.
+DEFAULT_MAX_POINTS = 5000
+
+
+def parse_list(text: str | None, *, name: str, integer: bool = False) -> tuple[float, ...] | None:
+    """``a,b,c`` or ``start:stop:count`` -> sorted unique values; None when not given."""
+    if text is None:
+        return None
+    t = text.strip()
+    try:
+        if ":" in t:
+            parts = t.split(":")
+            if len(parts) != 3:
+                raise ValueError
+            start, stop, count = float(parts[0]), float(parts[1]), int(parts[2])
+            if not (math.isfinite(start) and math.isfinite(stop)):
+                raise ConfigError(f"{name} {text!r}: start and stop must be finite numbers")
+            if count < 1:
+                raise ConfigError(f"{name} {text!r}: the count must be >= 1, got {count}")
+            if stop < start:
+                raise ConfigError(f"{name} {text!r}: an inverted range (stop {stop:g} < start {start:g})")
+            if count == 1 and stop != start:
+                raise ConfigError(f"{name} {text!r}: one value cannot span {start:g}..{stop:g} (count >= 2)")
+            values = [start + (stop - start) * i / (count - 1) for i in range(count)] if count > 1 else [start]
+        else:
+            items = [x for x in t.split(",") if x.strip()]
+            if not items:
+                raise ConfigError(f"{name}: an empty list")
+            values = [float(x) for x in items]
+    except ValueError:
+        raise ConfigError(f"{name} must be a,b,c or start:stop:count, got {text!r}") from None
+    if integer:
+        if any(v != int(v) for v in values):
+            raise ConfigError(f"{name} must be integers, got {text!r}")
+        values = [int(v) for v in values]
+    for v in values:
+        if not math.isfinite(v):
+            raise ConfigError(f"{name}: {v!r} is not a finite number")
+    return tuple(sorted(set(values)))
+
+
+@dataclass(frozen=True, slots=True)
+class Grid:
+    """The values of every axis; the z-cut grid is steps × depths × rhos, SOR's ks × stds (per
+    step and depth when SOR judges the top of the pile, which depends on them).
+
+    Attributes
+    ----------
+    steps, depths, rhos : tuple of float
+        Δd (mm), d_max (mm), ρ_thr.
+    sor_ks : tuple of int
+    sor_stds : tuple of float
+    chosen : (step, depth, rho, k, std)
+        The config's own point.
+    """
+
+    steps: tuple[float, ...]
+    depths: tuple[float, ...]
+    rhos: tuple[float, ...]
+    sor_ks: tuple[int, ...]
+    sor_stds: tuple[float, ...]
+    chosen: tuple[float, float, float, int, float]
+
+    @property
+    def n_zcut(self) -> int:
+        return len(self.steps) * len(self.depths) * len(self.rhos)
+
+    def n_sor(self, *, per_depth: bool) -> int:
+        scale = len(self.steps) * len(self.depths) if per_depth else 1
+        return scale * len(self.sor_ks) * len(self.sor_stds)
+
+    def as_dict(self) -> dict:
+        return {"step_mm": list(self.steps), "max_depth_mm": list(self.depths), "rho_thr": list(self.rhos),
+                "sor_k": list(self.sor_ks), "sor_std_ratio": list(self.sor_stds),
+                "chosen": dict(zip(("step_mm", "max_depth_mm", "rho_thr", "sor_k", "sor_std_ratio"), self.chosen))}
+
+
+def make_grid(*, steps, depths, rhos, sor_ks, sor_stds, config, max_points: int = DEFAULT_MAX_POINTS,
+              force: bool = False) -> Grid:
+    """Check the axes against the stage types' rules and add the chosen point and its neighbours.
+
+    Raises
+    ------
+    ConfigError
+        A value out of range (Δd ≤ 0, d_max ≤ 0, ρ outside (0, 1], k < 1, std_ratio ≤ 0), ρ without a
+        known a_max, or more than ``max_points`` grid points without ``force``.
+    """
+    z = config.zcut
+    if z.a_max is None and rhos is not None:
+        raise ConfigError("--rho needs a_max (the part's face in pixels): give part = KIND, --part or zcut.a_max_px")
+    rho0 = z.rho_thr if z.rho_thr is not None else None
+    chosen = (z.step, z.max_depth, rho0, config.sor.k, config.sor.std_ratio)
+    steps = steps or (z.step,)
+    depths = tuple(sorted(set(depths or (z.max_depth,)) | ({0.5 * z.max_depth, z.max_depth, 1.5 * z.max_depth})))
+    if rho0 is None:
+        rhos = ()
+    else:
+        rhos = tuple(sorted(set(rhos or (rho0,)) | {r for r in (0.5 * rho0, rho0, 1.5 * rho0) if r <= 1}))
+    sor_ks = sor_ks or (config.sor.k,)
+    sor_stds = sor_stds or (config.sor.std_ratio,)
+    for v in steps:
+        if not v > 0:
+            raise ConfigError(f"--step values must be > 0 mm, got {v:g}")
+    for v in depths:
+        if not v > 0:
+            raise ConfigError(f"--max-depth values must be > 0 mm, got {v:g}")
+    for v in rhos:
+        if not 0 < v <= 1:
+            raise ConfigError(f"--rho values must be in (0, 1], got {v:g}")
+    for v in sor_ks:
+        if v < 1:
+            raise ConfigError(f"--sor-k values must be integers >= 1, got {v}")
+    for v in sor_stds:
+        if not v > 0:
+            raise ConfigError(f"--sor-std values must be > 0, got {v:g}")
+    grid = Grid(tuple(steps), depths, rhos, tuple(int(k) for k in sor_ks), tuple(sor_stds), chosen)
+    n = grid.n_zcut + grid.n_sor(per_depth=config.sor.region == "top")
+    if n > max_points and not force:
+        raise ConfigError(f"the grid has {n} parameter sets (more than {max_points}): narrow it, or use --force")
+    return grid

@@ -1,0 +1,129 @@
+"""A study's output folder: what was asked (``run.json``), one part file per finished unit, and the
+merged tables.
+
+Each finished unit is written at once, atomically, as ``parts/UNIT.parquet`` (its rows) and
+``parts/UNIT.json`` (its damage, unscored frames and cost). Running the same study again over the
+same folder skips the units whose parts exist, so an interrupted run (even ``kill -9`` of the driver)
+loses at most the units in flight. ``run.json`` holds what identifies the study: the kind of study,
+its options, and per log (by content hash) the resolved config; a folder holding another config's
+run is refused before any work, never mixed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from replay.errors import ConfigError
+from replay.outputs import AtomicOutput
+
+RUN_FILE = "run.json"
+PARTS = "parts"
+
+
+class PartStore:
+    """The output folder of one study.
+
+    Parameters
+    ----------
+    root : path
+        The folder (created if missing; its parent must exist).
+    identity : dict
+        What the study is: ``{"kind": ..., "options": {...}, "logs": {sha256: config_sha}}``.
+    """
+
+    def __init__(self, root: str | os.PathLike, identity: dict[str, Any]) -> None:
+        self.root = Path(root)
+        if self.root.exists() and not self.root.is_dir():
+            raise ConfigError(f"-o {self.root}: exists and is not a folder")
+        if not self.root.parent.is_dir():
+            raise ConfigError(f"-o {self.root}: the folder {self.root.parent} does not exist")
+        self.identity = identity
+        run = self.root / RUN_FILE
+        if run.is_file():
+            try:
+                old = json.loads(run.read_text())
+            except (OSError, ValueError):
+                raise ConfigError(f"{run}: not a zcut study's run file (delete the folder or choose another)") from None
+            self._check_compatible(old)
+            merged = dict(old)
+            merged["logs"] = {**old.get("logs", {}), **identity.get("logs", {})}
+            self.identity = merged
+        elif self.root.is_dir() and any(self.root.iterdir()):
+            raise ConfigError(f"-o {self.root}: the folder holds other files and no {RUN_FILE}: "
+                              "choose an empty or new folder")
+        self.root.mkdir(exist_ok=True)
+        (self.root / PARTS).mkdir(exist_ok=True)
+        self._write_json(run, self.identity)
+
+    def _check_compatible(self, old: dict) -> None:
+        new = self.identity
+        if old.get("kind") != new.get("kind"):
+            raise ConfigError(f"-o {self.root}: holds a {old.get('kind')} run, not a {new.get('kind')}: "
+                              "choose another folder")
+        if old.get("options") != new.get("options"):
+            diff = sorted(k for k in set(old.get("options", {})) | set(new.get("options", {}))
+                          if old.get("options", {}).get(k) != new.get("options", {}).get(k))
+            raise ConfigError(f"-o {self.root}: holds a run with other options ({', '.join(diff)}): "
+                              "choose another folder (a different config is a new run, not a mix)")
+        for sha, cfg in new.get("logs", {}).items():
+            had = old.get("logs", {}).get(sha)
+            if had is not None and had != cfg:
+                raise ConfigError(f"-o {self.root}: holds a run of log {sha[:12]}… with another resolved config: "
+                                  "choose another folder (a different config is a new run, not a mix)")
+
+    def _write_json(self, path: Path, obj: Any) -> None:
+        with AtomicOutput(path) as out:
+            out.temp.write_text(json.dumps(obj, indent=1, sort_keys=True) + "\n")
+
+    def done(self, key: str) -> bool:
+        """True when the unit ``key`` finished in an earlier (or this) run."""
+        return (self.root / PARTS / f"{key}.json").is_file()
+
+    def write(self, key: str, rows: list[dict], meta: dict, *, schema=None) -> None:
+        """Write a finished unit: its rows (parquet), then its meta (the marker of a finished unit)."""
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        table = pa.Table.from_pylist(rows, schema=schema)
+        with AtomicOutput(self.root / PARTS / f"{key}.parquet") as out:
+            pq.write_table(table, out.temp)
+        self._write_json(self.root / PARTS / f"{key}.json", meta)
+
+    def metas(self) -> dict[str, dict]:
+        out = {}
+        for p in sorted((self.root / PARTS).glob("*.json")):
+            try:
+                out[p.stem] = json.loads(p.read_text())
+            except (OSError, ValueError):
+                continue  # an unreadable marker: the unit runs again
+        return out
+
+    def table(self, keys: list[str] | None = None, *, schema=None):
+        """The rows of the finished units (of ``keys``, default all) as one pyarrow Table."""
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        metas = self.metas()
+        keys = sorted(metas) if keys is None else [k for k in keys if k in metas]
+        tables = [pq.read_table(self.root / PARTS / f"{k}.parquet") for k in keys
+                  if (self.root / PARTS / f"{k}.parquet").is_file()]
+        tables = [t for t in tables if t.num_rows]
+        if not tables:
+            return pa.Table.from_pylist([], schema=schema)
+        return pa.concat_tables(tables, promote_options="default")
+
+    def write_table(self, name: str, table) -> Path:
+        import pyarrow.parquet as pq
+
+        path = self.root / name
+        with AtomicOutput(path) as out:
+            pq.write_table(table, out.temp)
+        return path
+
+    def write_json(self, name: str, obj: Any) -> Path:
+        path = self.root / name
+        self._write_json(path, obj)
+        return path

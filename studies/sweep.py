@@ -1,0 +1,323 @@
+"""``zcut sweep``: the z-cut and SOR over a parameter grid, every grid point scored by true accuracy.
+
+Speed comes from reuse, not brute force. Per frame, the bin stages (bin mask, registration, removal)
+run once. Per frame and Δd, one component tree (:func:`zcut.zcut_tree`) answers every (d_max, μ_thr)
+pair, and scores them without building a mask. Per frame, k and judged region, one d̄ computation
+answers every std_ratio (:func:`replay.pipeline.stages.sor_masks_on_zone`). The counts at any grid
+point equal those of ``zcut replay`` with the same parameters (the tests check it).
+
+Rows (``sweep.parquet``): one per log × frame × parameter set × method. A z-cut row's parameters
+are Δd, d_max, ρ_thr (μ_thr = ρ_thr·a_max); a SOR row's are k and std_ratio, with Δd and d_max
+when SOR judges the top of the pile (``sor.region = "top"``: the points within the z-cut's depth).
+Besides TP/FP/FN over S = R ∩ region, a z-cut row holds its overlap with SOR at the config's own k
+and std_ratio (N_both, N1, N2 of SPEC §3), for the paper's relative figures.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from studies.grid import Grid
+from studies.work import Job, UnitResult, _peak_rss_mb, open_unit_session, truth_source
+from zcut.errors import ZcutError
+
+ZCUT_COLUMNS = ("step_mm", "max_depth_mm", "rho_thr", "max_area_px")
+SOR_COLUMNS = ("sor_k", "sor_std_ratio")
+
+
+def grid_of(job: Job) -> Grid:
+    g = job.extra["grid"]
+    return Grid(tuple(g["steps"]), tuple(g["depths"]), tuple(g["rhos"]), tuple(g["sor_ks"]), tuple(g["sor_stds"]),
+                tuple(g["chosen"]))
+
+
+def grid_dict(grid: Grid) -> dict:
+    return dataclasses.asdict(grid)
+
+
+def _row(unit, frame, method: str, **kw) -> dict:
+    out = {"log": Path(unit.log).name, "log_sha256": unit.sha256, "frame": frame.index,
+           "stamp_ns": frame.stamp_ns, "method": method}
+    for c in ZCUT_COLUMNS + SOR_COLUMNS + ("tp", "fp", "fn", "n_pred", "n_both", "n_sor_only", "n_zcut_only"):
+        out[c] = kw.get(c)
+    return out
+
+
+def sweep_frame(unit, frame, zone, config, grid: Grid, truth, region) -> list[dict]:
+    """Every grid point of one frame (see the module docstring)."""
+    from replay.pipeline.stages import sor_masks_on_zone, sor_region
+    from zcut import zcut_tree
+
+    rows: list[dict] = []
+    z = config.zcut
+    L = truth.outliers
+    S = truth.reviewed & region
+    easy = zone.easy
+    a_max = z.a_max
+    areas = [r * a_max for r in grid.rhos] if a_max is not None else [z.max_area]
+    rhos = list(grid.rhos) if a_max is not None else [None]
+    whole = zone.removal is None and config.sor.region == "zone"
+    top = config.sor.region == "top"
+    sor_cache: dict[Any, np.ndarray] = {}
+
+    def sor_masks(k: int, judged: np.ndarray) -> np.ndarray:
+        key = (k, judged.tobytes()) if top else (k, None)
+        if key not in sor_cache:
+            sor_cache[key] = sor_masks_on_zone(frame.xyz, judged, whole=whole, k=k,
+                                               convention=config.sor.convention, std_ratios=grid.sor_stds)
+        return sor_cache[key]
+
+    def counts(pred: np.ndarray) -> dict:
+        p = pred & S
+        lab = L & S
+        tp = int(np.count_nonzero(p & lab))
+        return {"tp": tp, "fp": int(np.count_nonzero(p)) - tp, "fn": int(np.count_nonzero(lab)) - tp,
+                "n_pred": int(np.count_nonzero(pred))}
+
+    k0, std0 = config.sor.k, config.sor.std_ratio
+    for step in grid.steps:
+        tree = zcut_tree(zone.height_mm, step=step, max_depth=max(grid.depths), connectivity=z.connectivity)
+        c = tree.counts(grid.depths, areas, truth=L, scored=S, within=zone.zone, plus=easy)
+        for i, depth in enumerate(grid.depths):
+            params = dataclasses.replace(z, step=step, max_depth=depth)
+            judged = sor_region(zone.height_mm, zone.zone, params) if top else zone.zone
+            # SOR at the config's own k and std_ratio, for the relative figures (zone-only masks,
+            # as the replay computes α and β)
+            if not config.sor.enabled:
+                s_ref = np.zeros_like(zone.zone)
+            elif std0 in grid.sor_stds and k0 in grid.sor_ks:
+                s_ref = sor_masks(k0, judged)[grid.sor_stds.index(std0)]
+            else:
+                s_ref = sor_masks_on_zone(frame.xyz, judged, whole=whole, k=k0, convention=config.sor.convention,
+                                          std_ratios=[std0])[0]
+            ov = tree.counts([depth], areas, truth=s_ref, scored=zone.zone, within=zone.zone)
+            n_sor = int(np.count_nonzero(s_ref))
+            for j, (rho, area) in enumerate(zip(rhos, areas)):
+                both = int(ov["tp"][0, j])
+                rows.append(_row(unit, frame, "zcut", step_mm=step, max_depth_mm=depth, rho_thr=rho, max_area_px=area,
+                                 tp=int(c["tp"][i, j]), fp=int(c["fp"][i, j]), fn=int(c["fn"][i, j]),
+                                 n_pred=int(c["n_pred"][i, j]), n_both=both, n_sor_only=n_sor - both,
+                                 n_zcut_only=int(ov["fp"][0, j])))
+            if config.sor.enabled and (top or (step == grid.steps[0] and i == 0)):
+                for k in grid.sor_ks:
+                    masks = sor_masks(k, judged)
+                    for std, m in zip(grid.sor_stds, masks):
+                        extra = {"step_mm": step, "max_depth_mm": depth} if top else {}
+                        rows.append(_row(unit, frame, "sor", sor_k=k, sor_std_ratio=std, **extra,
+                                         **counts(m | easy)))
+    return rows
+
+
+def run_sweep_unit(unit, job: Job) -> UnitResult:
+    """The grid over the unit's frames (``job.extra["grid"]``)."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = UnitResult(unit)
+    truth_src = None
+    grid = grid_of(job)
+    try:
+        session = open_unit_session(unit, job)
+        truth_src = truth_source(unit, job)
+        zones = session.zones(frames=(unit.start, unit.stop))
+        try:
+            for frame, zone in zones:
+                t = truth_src.truth(frame, zone.located.valid)
+                res.frames += 1
+                if isinstance(t, str):
+                    res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": t})
+                    continue
+                # the region of the replay's result: zone ∪ easy (or every valid pixel)
+                region = _region(zone, job.region)
+                res.rows += sweep_frame(unit, frame, zone, session.config, grid, t, region)
+        finally:
+            zones.close()
+            res.damage = list(session.reader.damage)
+    except ZcutError as e:
+        res.error = str(e)
+    except OSError as e:
+        res.error = f"{e.strerror or e}: {e.filename or unit.log}"
+    except Exception as e:  # a bug must not stop the other units
+        res.error = f"{type(e).__name__}: {e} ({traceback.format_exc(limit=3).splitlines()[-1]})"
+    finally:
+        if truth_src is not None and hasattr(truth_src, "close"):
+            truth_src.close()
+    res.seconds = time.perf_counter() - t0
+    res.cpu_seconds = time.process_time() - c0
+    res.peak_rss_mb = _peak_rss_mb()
+    return res
+
+
+def _region(zone, name: str) -> np.ndarray:
+    """The scored region of :func:`annotate.truth.scored_region`, from the zone (before the filters)."""
+    if name == "valid":
+        return zone.located.valid
+    return zone.zone | zone.easy
+
+
+# ----------------------------------------------------------------------------------- the summary
+
+
+def _set_key(cols: dict, i: int) -> tuple:
+    """A parameter set: the method and its parameters (μ_thr only when ρ_thr is not known: across logs
+    of other parts, one ρ_thr is one set whatever a_max each log has)."""
+    key = [cols["method"][i]] + [cols[c][i] for c in ZCUT_COLUMNS + SOR_COLUMNS]
+    if key[3] is not None:  # rho_thr known: max_area_px is per log
+        key[4] = None
+    return tuple(key)
+
+
+def pooled_sets(table) -> list[dict]:
+    """Per parameter set and method: pooled counts, precision/recall/F1 with 95 % intervals (a
+    bootstrap over frames, the same resamples for every set), and for the z-cut the relative figures
+    N_both, N1, N2, α, β (SPEC §3)."""
+    from zcut.metrics import bootstrap_ci_many, ratio
+
+    cols = table.to_pydict()
+    n = table.num_rows
+    groups: dict[tuple, list[int]] = {}
+    for i in range(n):
+        groups.setdefault(_set_key(cols, i), []).append(i)
+    out = []
+    by_frames: dict[int, list[tuple[tuple, list[int]]]] = {}
+    for key, idx in groups.items():
+        by_frames.setdefault(len(idx), []).append((key, idx))
+    for n_frames, items in by_frames.items():
+        arr = {c: np.array([[cols[c][i] for i in idx] for _, idx in items], dtype=np.int64)
+               for c in ("tp", "fp", "fn")}
+        cis = bootstrap_ci_many(arr["tp"], arr["fp"], arr["fn"])
+        for j, (key, idx) in enumerate(items):
+            T, F, N = (int(arr[c][j].sum()) for c in ("tp", "fp", "fn"))
+            e = {"method": key[0], **dict(zip(ZCUT_COLUMNS + SOR_COLUMNS, key[1:])), "frames": n_frames,
+                 "tp": T, "fp": F, "fn": N, "n_pred": sum(cols["n_pred"][i] for i in idx),
+                 "precision": _r(T, T + F), "recall": _r(T, T + N), "f1": _r(2 * T, 2 * T + F + N),
+                 "ci95": {k: (_nan_none(v[j, 0]), _nan_none(v[j, 1])) for k, v in cis.items()}}
+            if key[0] == "zcut":
+                both = sum(cols["n_both"][i] for i in idx)
+                n1 = sum(cols["n_sor_only"][i] for i in idx)
+                n2 = sum(cols["n_zcut_only"][i] for i in idx)
+                e.update(n_both=both, n1=n1, n2=n2, alpha=ratio(n1, n2), beta_sor=ratio(both, n1),
+                         beta_zcut=ratio(both, n2))
+            out.append(e)
+    out.sort(key=lambda e: (e["method"], *[(-1 if e[c] is None else e[c]) for c in ZCUT_COLUMNS + SOR_COLUMNS]))
+    return out
+
+
+def _nan_none(v: float) -> float | None:
+    return None if v != v else float(v)
+
+
+def _r(a: int, b: int) -> float | None:
+    return a / b if b else None
+
+
+OBJECTIVES = ("f1", "recall@precision", "precision@recall")
+
+
+def parse_objective(text: str) -> tuple[str, float | None]:
+    """``f1``, ``recall@precision=0.9`` or ``precision@recall=0.8`` -> (kind, floor)."""
+    from replay.errors import ConfigError
+
+    t = text.strip()
+    if t == "f1":
+        return "f1", None
+    for kind in ("recall@precision", "precision@recall"):
+        if t.startswith(kind + "="):
+            try:
+                v = float(t.split("=", 1)[1])
+            except ValueError:
+                break
+            if not 0 < v <= 1:
+                raise ConfigError(f"--objective {text!r}: the floor must be in (0, 1]")
+            return kind, v
+    raise ConfigError(f"--objective must be f1, recall@precision=P or precision@recall=R, got {text!r}")
+
+
+def score(e: dict, objective: tuple[str, float | None]) -> float:
+    """The objective's value of a set (-inf when it misses the floor or is undefined)."""
+    kind, floor = objective
+    p, r, f = e["precision"], e["recall"], e["f1"]
+    if kind == "f1":
+        return f if f is not None else -math.inf
+    if kind == "recall@precision":
+        return r if (p is not None and r is not None and p >= floor) else -math.inf
+    return p if (p is not None and r is not None and r >= floor) else -math.inf
+
+
+def section_5_4_ranges(part: str | None) -> dict[str, tuple[float, float]] | None:
+    """The paper's §5.4 ranges for the part (None when the part is unknown)."""
+    if part is None:
+        return None
+    from replay.presets import BIN, PART_KINDS
+    from zcut.params import MAX_DEPTH_RANGE, RHO_THR_RANGE, STEP_RANGE
+
+    p = PART_KINDS[part].p_min_mm
+    return {"step_mm": (STEP_RANGE[0] * p, STEP_RANGE[1] * p),
+            "max_depth_mm": (MAX_DEPTH_RANGE[0] * p, max(MAX_DEPTH_RANGE[1] * BIN.height_mm, p)),
+            "rho_thr": RHO_THR_RANGE}
+
+
+def _inside(e: dict, ranges) -> bool:
+    if ranges is None:
+        return True
+    eps = 1e-9
+    return all(e[c] is not None and lo * (1 - eps) <= e[c] <= hi * (1 + eps) for c, (lo, hi) in ranges.items())
+
+
+def tune(sets: list[dict], objective, *, part: str | None) -> dict[str, Any]:
+    """The best z-cut set within the §5.4 ranges (all sets when none lies inside, said so) and the best
+    SOR set, by the objective."""
+    ranges = section_5_4_ranges(part)
+    zc = [e for e in sets if e["method"] == "zcut"]
+    inside = [e for e in zc if _inside(e, ranges)]
+    note = None
+    if ranges is None:
+        note = "the part is unknown: the §5.4 ranges cannot be applied, every z-cut set was a candidate"
+        pool = zc
+    elif not inside:
+        note = "no z-cut set of the grid lies within the §5.4 ranges: every set was a candidate"
+        pool = zc
+    else:
+        pool = inside
+    best_z = max(pool, key=lambda e: score(e, objective), default=None)
+    best_s = max((e for e in sets if e["method"] == "sor"), key=lambda e: score(e, objective), default=None)
+    if best_z is not None and score(best_z, objective) == -math.inf:
+        note = (note + "; " if note else "") + "no z-cut set meets the objective's floor"
+        best_z = None
+    return {"zcut": best_z, "sor": best_s, "ranges": ranges, "note": note}
+
+
+def sensitivity_at(sets: list[dict], point: tuple[float, float, float]) -> dict[str, Any] | None:
+    """θ (ρ_thr) and ω (d_max) of SPEC §3 around a z-cut point (step, depth, rho), for both methods,
+    from the grid's sets at 0.5× and 1.5× (None when the grid lacks them)."""
+    from zcut.metrics import sensitivity
+
+    def find(step, depth, rho):
+        for e in sets:
+            if e["method"] == "zcut" and _close(e["step_mm"], step) and _close(e["max_depth_mm"], depth) \
+                    and _close(e["rho_thr"], rho):
+                return e
+        return None
+
+    step, depth, rho = point
+    mid = find(step, depth, rho)
+    if mid is None or rho is None:
+        return None
+    out: dict[str, Any] = {}
+    for name, lo, hi in (("theta", find(step, depth, 0.5 * rho), find(step, depth, 1.5 * rho)),
+                         ("omega", find(step, 0.5 * depth, rho), find(step, 1.5 * depth, rho))):
+        if lo is None or hi is None:
+            continue
+        for n, key in ((1, "n1"), (2, "n2")):
+            s = sensitivity(lo[key], mid[key], hi[key])
+            out[f"{name}_{n}"] = {"lo": s.lo, "hi": s.hi}
+    return out or None
+
+
+def _close(a, b) -> bool:
+    return a is not None and b is not None and abs(a - b) <= 1e-9 * max(1.0, abs(a), abs(b))

@@ -1,0 +1,245 @@
+"""What one unit of a study computes, in a worker process.
+
+A :class:`Job` says what every unit of a study needs (small and picklable: paths and options,
+never arrays); :func:`run_batch_unit` and ``studies.sweep.run_sweep_unit`` take a
+:class:`~studies.units.WorkUnit` and the job, open the unit's log as a
+:class:`~replay.pipeline.session.ReplaySession` (resolving the same config as ``zcut replay`` does:
+the worker checks it against the config the driver resolved), run the frames of the unit, and return
+a :class:`UnitResult`: plain rows (dicts) for the tables, the damage met, the time and memory spent.
+Any error of a damaged log is caught and returned in the result: one bad log never stops a study.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import math
+import resource
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from zcut.errors import ZcutError
+
+#: replay --json's per-frame counts, the columns every study table shares
+COUNT_COLUMNS = ("valid_px", "zcut", "sor", "both", "above_rim", "clusters")
+STAGE_COLUMNS = ("bin_mask", "registration", "removal", "zcut", "sor", "metrics", "total")
+
+
+@dataclass(frozen=True, slots=True)
+class Job:
+    """What every unit of a study needs.
+
+    Attributes
+    ----------
+    config_file : str or None
+    overrides : dict
+        The command line's config layer.
+    bin_model : str or None
+        Path of the bin model PLY.
+    topic : str or None
+    labels : str or None
+        Label store (truth from an annotator's labels instead of the synthetic truth).
+    annotator : str or None
+    region : {"zone", "valid"}
+    configs : dict[str, str]
+        Log sha256 -> the resolved config (TOML) the driver found; a worker that resolves another
+        reports an error instead of computing a different filter.
+    extra : dict
+        Study-specific options (the sweep's grid, per-log outputs).
+    """
+
+    config_file: str | None
+    overrides: dict
+    bin_model: str | None
+    topic: str | None
+    labels: str | None
+    annotator: str | None
+    region: str
+    configs: dict[str, str]
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass(slots=True)
+class UnitResult:
+    """What a unit returns to the driver.
+
+    Attributes
+    ----------
+    unit : WorkUnit
+    rows : list of dict
+        The table rows (one per frame for a batch; per frame × parameter set × method for a sweep).
+    damage : list of str
+        Frames of the unit's range that could not be read, one note each.
+    error : str or None
+        Why the unit failed as a whole (its frames are then not in ``rows``).
+    frames : int
+        Frames processed.
+    seconds, cpu_seconds : float
+    peak_rss_mb : float
+        The worker process's peak resident memory.
+    unscored : list of dict
+        Frames without truth: index, stamp_ns, reason.
+    """
+
+    unit: Any
+    rows: list[dict] = field(default_factory=list)
+    damage: list[str] = field(default_factory=list)
+    error: str | None = None
+    frames: int = 0
+    seconds: float = 0.0
+    cpu_seconds: float = 0.0
+    peak_rss_mb: float = 0.0
+    unscored: list[dict] = field(default_factory=list)
+
+    @classmethod
+    def failure(cls, unit, why: str) -> UnitResult:
+        return cls(unit, error=why)
+
+
+def toml_sha(text: str) -> str:
+    """The identity of a resolved config: the sha256 of its TOML body (comments and header aside)."""
+    body = "\n".join(line.split("#", 1)[0].rstrip() for line in text.splitlines() if not line.startswith("#"))
+    return hashlib.sha256(body.encode()).hexdigest()
+
+
+@functools.lru_cache(maxsize=2)
+def _bin_model(path: str | None):
+    if path is None:
+        return None
+    from replay.pipeline.bin_model import load_bin_model
+
+    return load_bin_model(path)
+
+
+@functools.lru_cache(maxsize=2)
+def _session_cached(log: str, config_file: str | None, overrides_key: str, bin_model: str | None, topic: str | None):
+    import json
+
+    from replay.pipeline.session import ReplaySession
+
+    return ReplaySession.open(log, config_file=config_file, overrides=json.loads(overrides_key),
+                              topic=topic, bin_model=_bin_model(bin_model))
+
+
+def open_unit_session(unit, job: Job):
+    """The unit's log as a replay session (one per log and worker), its config checked against the
+    driver's."""
+    import json
+
+    session = _session_cached(unit.log, job.config_file, json.dumps(job.overrides, sort_keys=True), job.bin_model,
+                              job.topic)
+    want = job.configs.get(unit.sha256)
+    if want is not None and toml_sha(session.config_toml()) != toml_sha(want):
+        raise ZcutError(f"{Path(unit.log).name}: the worker resolved another config than the driver")
+    return session
+
+
+def truth_source(unit, job: Job):
+    """The unit's truth: the annotator's labels (``--labels``) or the synthetic ground truth."""
+    from annotate.truth import LabelTruth, SyntheticTruth
+
+    if job.labels is not None:
+        return LabelTruth(job.labels, unit.log, annotator=job.annotator)
+    return SyntheticTruth()
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _finite(v: float) -> float | None:
+    return v if isinstance(v, float) and math.isfinite(v) else None
+
+
+def batch_row(unit, frame, result, row, truth, region) -> dict:
+    """One row of ``frames.parquet``: the replay table's counts, fitness, stage timings and, where
+    there is truth, TP/FP/FN per method over S = R ∩ region."""
+    from annotate.truth import METHODS, method_predictions, pixel_counts
+
+    out: dict = {"log": Path(unit.log).name, "log_sha256": unit.sha256, "frame": frame.index,
+                 "stamp_ns": frame.stamp_ns}
+    for c in COUNT_COLUMNS:
+        out[c] = int(getattr(row, c))
+    out["fitness"] = _finite(row.fitness)
+    out["rmse_mm"] = _finite(row.rmse_mm)
+    for s in STAGE_COLUMNS:
+        out[f"t_{s}_s"] = _finite(float(result.timings[s])) if s in result.timings else None
+    out["warnings"] = "; ".join(result.warnings)
+    out["scored"] = truth is not None
+    preds = method_predictions(result.zcut_outliers, result.sor_outliers)
+    for m in METHODS:
+        tp = fp = fn = None
+        if truth is not None:
+            tp, fp, fn = pixel_counts(preds[m], truth, region)
+        out[f"{m}_tp"], out[f"{m}_fp"], out[f"{m}_fn"] = tp, fp, fn
+    return out
+
+
+def run_batch_unit(unit, job: Job) -> UnitResult:
+    """Replay the unit's frames; one row per frame (see :func:`batch_row`)."""
+    from annotate.truth import scored_region
+    from replay.pipeline.session import FrameRow
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = UnitResult(unit)
+    truth_src = None
+    try:
+        session = open_unit_session(unit, job)
+        truth_src = truth_source(unit, job)
+        sinks = _per_log_sinks(unit, job)
+        results = session.results(frames=(unit.start, unit.stop))
+        try:
+            for frame, result in results:
+                row = FrameRow.of(result)
+                for s in sinks:
+                    s.write(frame, result)
+                t = truth_src.truth(frame, result.valid)
+                if isinstance(t, str):
+                    res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": t})
+                    t = None
+                res.rows.append(batch_row(unit, frame, result, row, t, scored_region(result, job.region)))
+                res.frames += 1
+        finally:
+            results.close()
+            res.damage = list(session.reader.damage)
+            for s in sinks:
+                s.close(completed=res.error is None)
+    except ZcutError as e:
+        res.error = str(e)
+    except OSError as e:
+        res.error = f"{e.strerror or e}: {e.filename or unit.log}"
+    except Exception as e:  # a bug must not stop the other units; its trace goes to the summary
+        res.error = f"{type(e).__name__}: {e} ({traceback.format_exc(limit=3).splitlines()[-1]})"
+    finally:
+        if truth_src is not None and hasattr(truth_src, "close"):
+            truth_src.close()
+    res.seconds = time.perf_counter() - t0
+    res.cpu_seconds = time.process_time() - c0
+    res.peak_rss_mb = _peak_rss_mb()
+    return res
+
+
+def _per_log_sinks(unit, job: Job) -> list:
+    """``--results`` / ``--rrd``: one results MCAP and one .rrd per log (a log is then one unit)."""
+    out_dir = job.extra.get("out_dir")
+    sinks = []
+    if out_dir is None:
+        return sinks
+    from replay.pipeline.sinks import ReplayStart, RerunSink, ResultsSink
+
+    session = _session_cached(unit.log, job.config_file, __import__("json").dumps(job.overrides, sort_keys=True),
+                              job.bin_model, job.topic)
+    stem = f"{Path(unit.log).stem}-{unit.sha256[:8]}"
+    if job.extra.get("results"):
+        (Path(out_dir) / "results").mkdir(exist_ok=True)
+        sinks.append(ResultsSink(Path(out_dir) / "results" / f"{stem}.results.mcap"))
+    if job.extra.get("rrd"):
+        (Path(out_dir) / "rrd").mkdir(exist_ok=True)
+        sinks.append(RerunSink(rrd=Path(out_dir) / "rrd" / f"{stem}.rrd"))
+    info: ReplayStart = session.start_info()
+    for s in sinks:
+        s.start(info)
+    return sinks
