@@ -1,4 +1,5 @@
-"""zcut.binmask: the RGB bin footprint on a ray-cast bin scene with known geometry."""
+"""zcut.binmask: the RGB bin footprint on a ray-cast bin scene with known geometry; the bin pixels
+(rim and upper walls) on synthetic scans whose shiny parts are as bright as the bin."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import numpy as np
 import pipeline_scene as ps
 import pytest
 
-from zcut.binmask import bin_mask, fill_holes
+from zcut.binmask import BinMaskResult, bin_mask, bin_pixels, fill_holes
 from zcut.errors import InputShapeError, ParameterError
 
 H, W = 240, 320
@@ -80,3 +81,84 @@ def test_bin_mask_bad_image(rgb):
         bin_mask(rgb)
 
 
+
+
+# --- bin_pixels: the ring along the footprint's border ----------------------------------------------
+
+
+def _result(mask: np.ndarray, walls: np.ndarray) -> BinMaskResult:
+    rows, cols = np.nonzero(mask)
+    bbox = (rows.min(), cols.min(), rows.max() + 1, cols.max() + 1)
+    return BinMaskResult(mask, walls, True, int(mask.sum()), 1, (rows.mean(), cols.mean()), bbox, True)
+
+
+def test_bin_pixels_is_a_ring_of_the_footprint_measured_from_its_border():
+    from scipy.ndimage import distance_transform_edt
+
+    h, w = 100, 200
+    mask = np.zeros((h, w), bool)
+    mask[10:91, 0:151] = True  # cut by the image's left edge: no wall there
+    xyz = np.ones((h, w, 3), np.float32)
+    xyz[50, 140] = np.nan
+    r = _result(mask, mask.copy())
+    frac = 0.25
+    got = bin_pixels(r, xyz, ring_frac=frac)
+    dist = distance_transform_edt(mask)  # the distance to the nearest background pixel of the image
+    want = mask & (dist <= frac * dist.max()) & np.isfinite(xyz).all(axis=2)
+    differ = got != want
+    assert np.abs(dist[differ] - frac * dist.max()).max(initial=0.0) < 1e-3  # float32 ties at most
+    assert differ.sum() <= 4
+    assert got[12, 75] and got[88, 75] and got[50, 148]          # top, bottom and right borders
+    assert not got[50, 0] and not got[50, 75] and not got[50, 140]  # image edge, middle, invalid point
+    # only the bright pixels of the component: a dark pixel of the ring is not bin plastic
+    walls = mask.copy()
+    walls[12, 75] = False
+    assert not bin_pixels(_result(mask, walls), xyz, ring_frac=frac)[12, 75]
+
+
+def test_bin_pixels_with_the_whole_ring_is_the_bright_component(filled):
+    frame, _ = filled
+    r = bin_mask(frame.rgb)
+    xyz = frame.xyz.copy()
+    xyz[::9, ::4] = np.nan
+    assert np.array_equal(bin_pixels(r, xyz, ring_frac=1.0), r.walls & np.isfinite(xyz).all(axis=2))
+    ring = bin_pixels(r, xyz)
+    assert ring.any() and not (ring & ~r.walls).any()
+
+
+def test_bin_pixels_without_a_bin_or_a_border():
+    xyz = np.zeros((20, 30, 3), np.float32)
+    assert not bin_pixels(bin_mask(np.full((20, 30, 3), 20, np.uint8)), xyz).any()
+    whole = np.ones((20, 30), bool)
+    assert bin_pixels(_result(whole, whole), xyz).all()  # the footprint is the image: all of it
+
+
+def test_bin_pixels_are_bin_and_not_parts_on_a_synthetic_shiny_pile():
+    from replay.synth.scene import LABEL_PART, LABEL_RIM
+    from replay.synth.synthesize import synthesize_frame
+
+    sf = synthesize_frame(kind="spheres", seed=12, index=0, size=(300, 480))
+    f = sf.frame
+    r = bin_mask(f.rgb)
+    valid = np.isfinite(f.xyz).all(axis=2)
+    part = sf.surface == LABEL_PART
+    assert part[r.walls & valid].mean() > 0.3  # the shiny spheres are as bright as the bin
+    px = bin_pixels(r, f.xyz)
+    assert not (px & part).any()
+    rim = (sf.surface == LABEL_RIM) & r.walls & valid
+    assert px[rim].mean() > 0.97
+
+
+@pytest.mark.parametrize("xyz, kw, exc, match", [
+    (np.zeros((24, 32, 3), np.float32), {}, InputShapeError, r"xyz must be an \(240, 320, 3\) float array"),
+    (np.zeros((240, 320), np.float32), {}, InputShapeError, "xyz must be an"),
+    (np.zeros((240, 320, 3), np.int32), {}, InputShapeError, "xyz must be an"),
+    (np.zeros((240, 320, 3), np.float32), {"ring_frac": 0.0}, ParameterError, "ring_frac"),
+    (np.zeros((240, 320, 3), np.float32), {"ring_frac": 1.5}, ParameterError, "ring_frac"),
+    (np.zeros((240, 320, 3), np.float32), {"ring_frac": True}, ParameterError, "ring_frac"),
+    (np.zeros((240, 320, 3), np.float32), {"ring_frac": "0.2"}, ParameterError, "ring_frac"),
+])
+def test_bin_pixels_bad_input(filled, xyz, kw, exc, match):
+    frame, _ = filled
+    with pytest.raises(exc, match=match):
+        bin_pixels(bin_mask(frame.rgb), xyz, **kw)

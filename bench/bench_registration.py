@@ -1,0 +1,232 @@
+"""Benchmark: bin registration before and after registering to bin pixels only, on the six synthetic kinds.
+
+Run: ``.venv/bin/python bench/bench_registration.py [--size 1200x1920] [--frames 3] [--dir DIR]``
+
+Synthesises (once, cached in ``--dir``) five empty-bin scans and, per part kind, a log of
+``--frames`` filled-bin frames (fixed seeds), builds the bin model from the empty scans with
+:func:`replay.pipeline.bin_model.build_bin_model`, then registers every frame two ways, as
+``locate_bin`` does (the pixels subsampled to at most 150 000, the target prepared, coarse then fine
+ICP from the translation-only initial guess):
+
+- ``before``: the target is every bright pixel of the bin component (``bin_mask(...).walls & valid``)
+  and the fitness Open3D's (the fraction of target points with a model point within the fine
+  correspondence distance): the measure ``RegistrationResult.fitness`` had;
+- ``after``: the target is :func:`zcut.binmask.bin_pixels` (the rim and upper walls) and the
+  fitness the bin fitness (the share of the model's rim in view that the frame confirms within the
+  fine correspondence distance, :func:`zcut.registration.pose_fitness`).
+
+Per kind: the fitness before and after, the share of part pixels in each target (from the
+synthesis truth, frames re-synthesised in memory), the pose error of each against the true pose
+the log carries (``zcut.synth.poses``: translation of the model's centre in mm, rotation in
+degrees), and the CPU time of each (target selection + preparation + ICP + fitness; median of
+``--repeats``), with the ratio after/before. ``before`` runs today's ``register_bin``, so its time
+includes the bin fitness too (the ``fit s`` column: about a millisecond), which the old code did
+not compute. Then a deliberately wrong start: the true pose moved
+5 cm and turned 20 degrees, refined by the fine pass only (as when the previous frame's pose
+seeds a moved bin): its bin fitness, whether it is reported as converged, and its reason.
+
+The replay's budget is about 0.5 CPU-s per 1920 x 1200 frame for every stage together.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from replay.logs.reader import LogReader
+from replay.pipeline.bin_model import build_bin_model
+from replay.presets import PART_KINDS
+from replay.synth.log import GENERATOR_VERSION, true_poses, write_synthetic_log
+from replay.synth.scene import LABEL_PART
+from replay.synth.synthesize import synthesize_frame
+from zcut.binmask import bin_mask, bin_pixels
+from zcut.params import RegistrationParams
+from zcut.registration import pose_fitness, prepare_icp_model, prepare_target, register_bin
+
+MAX_POINTS = 150_000  # replay.pipeline.stages.REGISTRATION_MAX_POINTS
+EMPTY_SEED = 11
+KIND_SEED = 21
+MIN_FITNESS = 0.9  # the proposed RegistrationParams.min_fitness for the bin fitness
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    h, w = (int(v) for v in text.lower().split("x"))
+    return h, w
+
+
+def prepare_logs(d: Path, size: tuple[int, int], frames: int, quantize_mm: float) -> tuple[Path, dict[str, Path]]:
+    d.mkdir(parents=True, exist_ok=True)
+    h, w = size
+    tag = f"{w}x{h}_v{GENERATOR_VERSION}"
+    qtag = f"_q{quantize_mm:g}mm" if quantize_mm else ""
+    empty = d / f"empty_seed{EMPTY_SEED}_{tag}.mcap"
+    if not empty.is_file():
+        print(f"synthesising 5 empty-bin scans -> {empty}", flush=True)
+        write_synthetic_log(empty, empty=True, frames=5, seed=EMPTY_SEED, size=size)
+    logs = {}
+    for i, kind in enumerate(PART_KINDS):
+        log = d / f"{kind}_seed{KIND_SEED + i}_{frames}f_{tag}{qtag}.mcap"
+        if not log.is_file():
+            print(f"synthesising {frames} frames of {kind} -> {log}", flush=True)
+            write_synthetic_log(log, kind=kind, frames=frames, seed=KIND_SEED + i, size=size, quantize_mm=quantize_mm)
+        logs[kind] = log
+    return empty, logs
+
+
+def pose_error(T: np.ndarray, T_true: np.ndarray, centre: np.ndarray) -> tuple[float, float]:
+    """(mm, degrees): where the model's centre lands, and the rotation between the two poses."""
+    p = T[:3, :3] @ centre + T[:3, 3]
+    q = T_true[:3, :3] @ centre + T_true[:3, 3]
+    R = T_true[:3, :3].T @ T[:3, :3]
+    angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+    return float(np.linalg.norm(p - q) * 1000.0), float(angle)
+
+
+def select_before(bm, xyz: np.ndarray) -> np.ndarray:
+    return bm.walls & np.isfinite(xyz).all(axis=2)
+
+
+def select_after(bm, xyz: np.ndarray, ring_frac: float) -> np.ndarray:
+    return bin_pixels(bm, xyz, ring_frac=ring_frac)
+
+
+def target_from(xyz: np.ndarray, sel: np.ndarray, params: RegistrationParams, intrinsics):
+    """What locate_bin does with the chosen pixels: a regular subgrid of at most MAX_POINTS, prepared."""
+    s = max(1, int(np.ceil(np.sqrt(sel.sum() / MAX_POINTS))))
+    pts = xyz[::s, ::s][sel[::s, ::s]].astype(np.float64)
+    return prepare_target(pts, voxel_m=params.voxel_m, intrinsics=intrinsics)
+
+
+def timed(fn, repeats: int):
+    """(result of the last call, median CPU seconds)."""
+    times, out = [], None
+    for _ in range(max(repeats, 1)):
+        c0 = time.process_time()
+        out = fn()
+        times.append(time.process_time() - c0)
+    return out, statistics.median(times)
+
+
+def wrong_start(T_true: np.ndarray, *, shift_m: float = 0.05, turn_deg: float = 20.0) -> np.ndarray:
+    """The true pose turned about the camera's optical axis and moved sideways."""
+    c, s = np.cos(np.radians(turn_deg)), np.sin(np.radians(turn_deg))
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    T = T_true.copy()
+    T[:3, :3] = R @ T_true[:3, :3]
+    T[:3, 3] = R @ T_true[:3, 3] + [shift_m, 0.0, 0.0]
+    return T
+
+
+def measure(icp, params: RegistrationParams, frame, bm, T_true: np.ndarray, on_part: np.ndarray,
+            centre: np.ndarray, args) -> dict:
+    """One frame registered before and after, timed; the wrong start; one row of the table."""
+    xyz, K = frame.xyz, frame.intrinsics
+    sel_b, sel_a = select_before(bm, xyz), select_after(bm, xyz, args.ring_frac)
+    rb, tb = timed(lambda: register_bin(icp, target_from(xyz, select_before(bm, xyz), params, K)), args.repeats)
+    ra, ta = timed(lambda: register_bin(icp, target_from(xyz, select_after(bm, xyz, args.ring_frac), params, K)),
+                   args.repeats)
+    tgt_a, tgt_b = target_from(xyz, sel_a, params, K), target_from(xyz, sel_b, params, K)
+    dist = params.fine_correspondence_m
+    _, tf = timed(lambda: pose_fitness(icp, tgt_a, ra.T_cam_bin, max_correspondence_m=dist), args.repeats)
+    rw = register_bin(icp, tgt_a, init=wrong_start(T_true), coarse=False)
+    return {
+        "frame": frame.index,
+        "fit_before": rb.icp_fitness,  # what RegistrationResult.fitness was
+        "fit_after": ra.fitness,
+        "new_at_before": pose_fitness(icp, tgt_b, rb.T_cam_bin, max_correspondence_m=dist),
+        "icp_after": ra.icp_fitness,
+        "parts_before": float(on_part[sel_b].mean()),
+        "parts_after": float(on_part[sel_a].mean()),
+        "err_before": pose_error(rb.T_cam_bin, T_true, centre),
+        "err_after": pose_error(ra.T_cam_bin, T_true, centre),
+        "cpu_before": tb,
+        "cpu_after": ta,
+        "cpu_fitness": tf,
+        "converged": ra.converged,
+        "reason": ra.reason,
+        "wrong_fitness": rw.fitness,
+        "wrong_converged": rw.converged,
+        "wrong_reason": rw.reason,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", default="1200x1920", type=parse_size, help="HxW (default 1200x1920)")
+    ap.add_argument("--frames", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=3, help="timed runs per frame and method; medians")
+    ap.add_argument("--ring-frac", type=float, default=0.2)
+    ap.add_argument("--min-fitness", type=float, default=MIN_FITNESS)
+    ap.add_argument("--quantize-mm", type=float, default=0.0, help="depth step of the filled scans (0: continuous)")
+    ap.add_argument("--dir", default=str(Path(tempfile.gettempdir()) / "zcut_bench_registration"))
+    args = ap.parse_args()
+    size = args.size
+    empty, logs = prepare_logs(Path(args.dir), size, args.frames, args.quantize_mm)
+
+    params = RegistrationParams(min_fitness=args.min_fitness)
+    c0 = time.process_time()
+    model, reports = build_bin_model(LogReader(empty).frames())
+    print(f"bin model: {len(model.points)} points from {len(reports)} empty scans "
+          f"({time.process_time() - c0:.1f} CPU-s); scans: "
+          + ", ".join(f"{r.index}: " + (f"fitness {r.registration.fitness:.3f} icp {r.registration.icp_fitness:.3f}"
+                                        if r.registration else (r.skipped or "reference")) for r in reports))
+    icp = prepare_icp_model(model, params)
+    centre = 0.5 * (model.points.min(axis=0) + model.points.max(axis=0))
+    print(f"rim: {len(icp.rim)} of {len(icp.fine.points)} model points at the {params.voxel_mm:g} mm voxel; "
+          f"up {np.round(icp.up, 4).tolist()}; min_fitness {params.min_fitness:g}, ring_frac {args.ring_frac:g}, "
+          f"size {size[1]}x{size[0]}, depth step {args.quantize_mm:g} mm")
+    print()
+    head = (f"{'kind':13s} {'frm':>3s} | {'fit bef':>7s} {'fit aft':>7s} {'new@bef':>7s} {'icp aft':>7s} | "
+            f"{'parts bef':>9s} {'parts aft':>9s} | {'err bef mm/deg':>15s} {'err aft mm/deg':>15s} | "
+            f"{'CPU bef s':>9s} {'CPU aft s':>9s} {'ratio':>5s} {'fit s':>6s} | wrong start: fitness, converged")
+    print(head)
+    print("-" * len(head))
+    rows = []
+    for k, (kind, log) in enumerate(logs.items()):
+        reader = LogReader(log)
+        poses = true_poses(reader.metadata)
+        for frame in reader.frames():
+            T_true = poses[frame.stamp_ns]
+            truth = synthesize_frame(kind=kind, seed=KIND_SEED + k, index=frame.index, size=size,
+                                     quantize_mm=args.quantize_mm)
+            assert np.allclose(truth.T_cam_bin, T_true)
+            on_part = truth.surface == LABEL_PART
+            bm = bin_mask(frame.rgb)
+            row = measure(icp, params, frame, bm, T_true, on_part, centre, args)
+            rows.append(row)
+            row["kind"] = kind
+            eb, ea = row["err_before"], row["err_after"]
+            print(f"{kind:13s} {frame.index:3d} | {row['fit_before']:7.3f} {row['fit_after']:7.3f} "
+                  f"{row['new_at_before']:7.3f} {row['icp_after']:7.3f} | {row['parts_before']:9.3f} "
+                  f"{row['parts_after']:9.3f} | {eb[0]:7.3f}/{eb[1]:6.4f} {ea[0]:7.3f}/{ea[1]:6.4f} | "
+                  f"{row['cpu_before']:9.3f} {row['cpu_after']:9.3f} {row['cpu_after'] / row['cpu_before']:5.2f} "
+                  f"{row['cpu_fitness']:6.4f} | {row['wrong_fitness']:.3f}, {row['wrong_converged']}"
+                  + ("" if row["converged"] else f"   AFTER NOT CONVERGED: {row['reason']}"), flush=True)
+    print()
+    print("per kind (mean over frames):")
+    print(f"{'kind':13s} | {'fit bef':>7s} {'fit aft':>7s} | {'err bef mm':>10s} {'err aft mm':>10s} "
+          f"{'err aft deg':>11s} | {'CPU bef s':>9s} {'CPU aft s':>9s} {'ratio':>5s} | {'wrong fit':>9s}")
+    for kind in logs:
+        rs = [r for r in rows if r["kind"] == kind]
+
+        def mean(key, i=None, rs=rs):
+            return float(np.mean([r[key] if i is None else r[key][i] for r in rs]))
+
+        print(f"{kind:13s} | {mean('fit_before'):7.3f} {mean('fit_after'):7.3f} | {mean('err_before', 0):10.3f} "
+              f"{mean('err_after', 0):10.3f} {mean('err_after', 1):11.4f} | {mean('cpu_before'):9.3f} "
+              f"{mean('cpu_after'):9.3f} {mean('cpu_after') / mean('cpu_before'):5.2f} | {mean('wrong_fitness'):9.3f}")
+    ok = all(r["fit_after"] >= 0.95 and r["converged"] for r in rows)
+    wrong_ok = all(not r["wrong_converged"] for r in rows)
+    print()
+    print(f"after: fitness >= 0.95 and converged on every frame: {ok}; min {min(r['fit_after'] for r in rows):.3f}")
+    print(f"wrong start (5 cm, 20 deg, fine pass only): never converged: {wrong_ok}; "
+          f"max fitness {max(r['wrong_fitness'] for r in rows):.3f}; e.g. reason: {rows[0]['wrong_reason']}")
+
+
+if __name__ == "__main__":
+    main()
