@@ -411,7 +411,7 @@ def format_accuracy_table(report: dict, *, per_frame: bool = True) -> str:
     head = ["method", *COUNT_KEYS, "precision [95 %]", "recall [95 %]", "F1 [95 %]", "IoU"]
     parts.append(f"pooled over {n} frame{'s' if n != 1 else ''} ({note})\n" + _render(head, rows, left=1))
     rows = [[label, *(_fmt_rate(pooled[m][k]) for m in METHODS)] for label, k in _CLUSTER_ROWS]
-    parts.append("clusters and singletons, pooled\n" + _render(["", *METHODS], rows, left=1))
+    parts.append(_render(["clusters and singletons, pooled", *METHODS], rows, left=1))
     kinds = [k for k in KINDS.values() if any(k in pooled[m].get("by_kind", {}) for m in METHODS)]
     if kinds:
         rows = []

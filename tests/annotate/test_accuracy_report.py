@@ -220,6 +220,10 @@ def test_table(report):
     assert kinds["flying"][:3] == ["0", "-", "(0)"]
     assert kinds["above_rim"][:3] == ["1", "0.000", "(0)"]
     assert "unscored: 1 frame\n  frame 2 (stamp_ns 300): no /ground_truth/outliers" in table
+    # a method name starts a line only in the pooled pixel table (per-frame rows start with the index)
+    for per_frame in (True, False):
+        t = format_accuracy_table(report, per_frame=per_frame)
+        assert [ln.split()[0] for ln in t.splitlines() if ln.split() and ln.split()[0] in METHODS] == list(METHODS)
     # the table of the parsed-back JSON (null rates) is the same text
     assert format_accuracy_table(json.loads(report_json(report))) == table
     assert "per frame" not in format_accuracy_table(report, per_frame=False)
