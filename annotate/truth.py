@@ -147,7 +147,7 @@ class LabelTruth:
         rec = self.record(frame)
         lab = self.store.label(rec, annotator=self.annotator) if rec is not None else None
         if lab is None:
-            return f"not labelled by {self.annotator}"
+            return "not labelled"
         if lab.outliers.shape != frame.shape:
             raise ParameterError(f"labels of frame {frame.index} are {lab.outliers.shape[0]}x{lab.outliers.shape[1]}, "
                                  f"the frame is {frame.shape[0]}x{frame.shape[1]}: labels of another log?")

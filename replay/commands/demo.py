@@ -12,8 +12,6 @@ import json
 import sys
 from pathlib import Path
 
-from replay.logs import layout
-
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out-dir", default="out", metavar="DIR", help="where to write the .rrd and results (default ./out)")
@@ -29,6 +27,7 @@ def run(args: argparse.Namespace) -> int:
         frame_accuracy,
         jsonable,
     )
+    from annotate.truth import SyntheticTruth, scored_region
     from replay.cli import EXIT_DATA_LOSS
     from replay.commands.replay import print_table_callbacks, viewer_command
     from replay.outputs import OutputPlan, config_path_for
@@ -56,13 +55,16 @@ def run(args: argparse.Namespace) -> int:
     frames_acc = []
     on_start, on_frame_print = print_table_callbacks(json_mode=args.json, total=None)
 
+    truth_src = SyntheticTruth()
+
     def on_frame(frame, result, row) -> None:
         on_frame_print(frame, result, row)
-        truth = frame.masks.get(layout.TRUTH_OUTLIERS)
-        if truth is not None:
+        t = truth_src.truth(frame, result.valid)
+        if not isinstance(t, str):
             frames_acc.append(frame_accuracy(frame.index, frame.stamp_ns,
                                              {"zcut": result.zcut_outliers, "sor": result.sor_outliers},
-                                             truth & result.valid, reviewed=result.valid))
+                                             t.outliers, reviewed=t.reviewed, valid=result.valid,
+                                             region=scored_region(result, "zone"), kinds=t.kind))
 
     # the demo replaces its own outputs in its own folder (never the sample it reads)
     plan = OutputPlan([sample], force=True)
@@ -74,12 +76,13 @@ def run(args: argparse.Namespace) -> int:
     sinks = [RerunSink(rrd=rrd, full_detail=args.full_detail), ConfigBeside(rrd), ResultsSink(results),
              ConfigBeside(results)]
     summary = session.run(BackgroundSinks(sinks), on_frame=on_frame)
-    report = accuracy_report(frames_acc) if frames_acc else None
+    report = accuracy_report(frames_acc, region="zone") if frames_acc else None
     if args.json:
         print(json.dumps({"replay": summary.as_dict(), "accuracy": jsonable(report) if report else None}, indent=1))
     elif report is not None:
         print()
-        print("True accuracy against the sample's exact ground truth (/ground_truth/outliers):")
+        print("True accuracy against the sample's exact ground truth (/ground_truth/outliers), "
+              "over the zone the filters judge:")
         print(format_accuracy_table(report, per_frame=False))
         pz, ps = report["pooled"]["zcut"], report["pooled"]["sor"]
         print(f"\nz-cut found {pz['tp']} of {pz['tp'] + pz['fn']} true outliers "

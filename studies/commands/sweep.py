@@ -9,7 +9,6 @@ points), ``DIR/tuned.toml`` (a config ``zcut replay --config`` accepts), the plo
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 import sys
 import time

@@ -15,7 +15,7 @@ from replay.logs.writer import LogWriter
 from replay.synth.log import write_synthetic_log
 from zcut.cuts import zcut_outliers
 
-SIZE = (150, 240)
+SIZE = (300, 480)  # at 240 x 150 a pixel spans ~3.7 mm: the nominal 0.2 mm step cuts the noise into slivers
 
 
 @pytest.fixture(scope="module")
