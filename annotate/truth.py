@@ -81,15 +81,27 @@ def region_of_results_frame(frame, name: str) -> np.ndarray:
 
 
 class SyntheticTruth:
-    """A synthetic log's exact truth: L = ``/ground_truth/outliers`` ∩ valid, R = valid."""
+    """A synthetic log's exact truth: L = ``/ground_truth/outliers`` ∩ valid, R = valid.
+
+    Parameters
+    ----------
+    with_kinds : bool
+        The log has ``/ground_truth/outlier_kind``: a frame without its kind image is unscored (the
+        report's per-kind recall needs every frame's kinds).
+    """
 
     name = f"ground truth {layout.TRUTH_OUTLIERS}"
+
+    def __init__(self, *, with_kinds: bool = False) -> None:
+        self.with_kinds = with_kinds
 
     def truth(self, frame, valid: np.ndarray) -> FrameTruth | str:
         gt = frame.masks.get(layout.TRUTH_OUTLIERS)
         if gt is None:
             return f"no {layout.TRUTH_OUTLIERS} message with this frame"
         kind = frame.codes.get(layout.TRUTH_OUTLIER_KIND)
+        if kind is None and self.with_kinds:
+            return f"no {layout.TRUTH_OUTLIER_KIND} message with this frame"
         if kind is not None and kind.shape != gt.shape:
             return f"{layout.TRUTH_OUTLIER_KIND} is {kind.shape}, the truth {gt.shape}"
         return FrameTruth(gt & valid, valid, None if kind is None else np.where(valid, kind, 0).astype(np.uint8),

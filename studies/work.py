@@ -143,7 +143,7 @@ def truth_source(unit, job: Job):
 
     if job.labels is not None:
         return LabelTruth(job.labels, unit.log, annotator=job.annotator)
-    return SyntheticTruth()
+    return SyntheticTruth()  # pixel counts only: no per-kind recall in the tables
 
 
 def _peak_rss_mb() -> float:

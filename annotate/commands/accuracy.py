@@ -58,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
     if args.agreement:
         return _agreement(args)
     reader = LogReader(args.log, cloud_topic=args.topic)
-    truth_src = LabelTruth(args.labels, args.log, annotator=args.annotator) if args.labels else SyntheticTruth()
+    truth_src = (LabelTruth(args.labels, args.log, annotator=args.annotator) if args.labels
+                 else SyntheticTruth(with_kinds=layout.TRUTH_OUTLIER_KIND in reader.mask_topics))
     try:
         is_results = layout.ZCUT_OUTLIERS in reader.mask_topics and layout.SOR_OUTLIERS in reader.mask_topics
         if args.labels is None and layout.TRUTH_OUTLIERS not in reader.mask_topics:

@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     frames_acc = []
     on_start, on_frame_print = print_table_callbacks(json_mode=args.json, total=None)
 
-    truth_src = SyntheticTruth()
+    truth_src = SyntheticTruth(with_kinds=True)
 
     def on_frame(frame, result, row) -> None:
         on_frame_print(frame, result, row)

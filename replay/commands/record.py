@@ -18,6 +18,7 @@ CLOUD_SUFFIXES = (".pcd", ".ply")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("inputs", nargs="+", metavar="INPUT", help="organized .ply/.pcd files or folders of them")
     parser.add_argument("-o", "--output", required=True, metavar="LOG.mcap", help="the log to write")
+    parser.add_argument("--force", action="store_true", help="replace the output if it exists")
     parser.add_argument(
         "--stamp-start", type=float, default=0.0, metavar="SECONDS",
         help="header stamp of the first frame, seconds since the epoch (default 0)",
@@ -80,21 +81,28 @@ def run(args: argparse.Namespace) -> int:
     from replay.logs.ply import read_ply
     from replay.logs.writer import LogWriter
 
+    from replay.logs.ros2_msgs import MAX_STAMP_NS
+    from replay.outputs import AtomicOutput, OutputPlan
+
     files = expand_inputs(args.inputs)
     shape = _parse_shape(args.shape)
-    if not np.isfinite(args.stamp_start) or args.stamp_start < 0:
-        raise ConfigError(f"--stamp-start must be >= 0 seconds, got {args.stamp_start}")
-    if not np.isfinite(args.period) or args.period <= 0:
-        raise ConfigError(f"--period must be > 0 seconds, got {args.period}")
-    out = Path(args.output)
-    if out.resolve() in {f.resolve() for f in files}:
-        raise ConfigError(f"output {out} is one of the inputs")
+    max_s = MAX_STAMP_NS / 1e9
+    if not (np.isfinite(args.stamp_start) and 0 <= args.stamp_start <= max_s):
+        raise ConfigError(f"--stamp-start must be in 0 .. {max_s:.0f} seconds (the ROS 2 time range, "
+                          f"up to 2038-01-19), got {args.stamp_start}")
+    if not (np.isfinite(args.period) and 0 < args.period <= max_s):
+        raise ConfigError(f"--period must be > 0 and at most {max_s:.0f} seconds, got {args.period}")
     start_ns = int(round(args.stamp_start * 1e9))
     period_ns = int(round(args.period * 1e9))
-    tmp = out.with_name(out.name + ".partial")
+    last_ns = start_ns + (len(files) - 1) * period_ns
+    if last_ns > MAX_STAMP_NS:
+        raise ConfigError(f"--stamp-start {args.stamp_start:g} + {len(files) - 1} × --period {args.period:g} s "
+                          "goes past the ROS 2 time range (2038-01-19)")
+    out = Path(args.output)
+    OutputPlan([str(f) for f in files], force=args.force).add(out, "the log")
     meta = {"zcut.record": {"sources": "\n".join(str(f) for f in files), "unit": args.unit}}
-    try:
-        with LogWriter(tmp, metadata=meta) as w:
+    with AtomicOutput(out) as target:
+        with LogWriter(target.temp, metadata=meta) as w:
             for i, f in enumerate(files):
                 cloud = read_pcd(f) if f.suffix.lower() == ".pcd" else read_ply(f, shape=shape)
                 xyz = cloud.xyz
@@ -127,9 +135,5 @@ def run(args: argparse.Namespace) -> int:
                     f"{i:4d} {f.name}: {xyz.shape[0]}x{xyz.shape[1]}, {n_valid} valid points, "
                     f"unit {unit}, image from {src}"
                 )
-        tmp.replace(out)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     print(f"wrote {len(files)} frames to {out}")
     return 0

@@ -140,7 +140,10 @@ def run(args: argparse.Namespace) -> int:
     store.write_table("sweep.parquet", table)
     if not table.num_rows:
         raise ConfigError("no frame was scored (no truth in any frame): nothing to sum up")
-    sets = sweep.pooled_sets(table)
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):  # OpenBLAS's spinning threads cost ~20x here
+        sets = sweep.pooled_sets(table)
     tuned = sweep.tune(sets, objective, part=base.part)
     chosen = grid.chosen
     summary = {
