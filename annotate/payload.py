@@ -580,7 +580,7 @@ def parse_bundle(data: bytes) -> tuple[dict, dict[str, np.ndarray]]:
             a[idx] = np.frombuffer(raw, np.dtype(s["dtype"]).newbyteorder("<"), count=n, offset=4 * n)
             out[s["name"]] = a.reshape(shape)
         elif s["kind"] == "table":
-            out[s["name"]] = np.frombuffer(raw, "<f4").reshape(s["rows"], -1)
+            out[s["name"]] = np.frombuffer(raw, "<f4").reshape(s["rows"], s["cols"])
         else:
             out[s["name"]] = np.frombuffer(raw, np.dtype(s["dtype"]).newbyteorder("<")).reshape(shape)
     return header, out

@@ -224,6 +224,8 @@ class Catalog:
                 return self.frames[index], self.records[index]
             if self.done or (self.total_hint is not None and index >= self.total_hint):
                 return None
+            if self.frames and index < max(self.frames):  # frames come in order: this one was lost
+                return None
             ahead = max(1, index - max(self.frames, default=-1))
             wait = ahead * self.seconds_per_frame
         raise FrameNotReady(index, int(min(30, max(1, math.ceil(wait)))))

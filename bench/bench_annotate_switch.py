@@ -10,8 +10,10 @@ drawn. Two cases:
 - ``random jump``: ``goTo`` a random frame at least 3 away, i.e. outside the page's cache and
   prefetch radius (one request, JPEG decode and unpacking of the masks all included).
 
-Prints p50 / p95 of both against the 150 ms target (issue 6), the median split of loading one
-frame, and the load average (other processes on the machine slow the page down).
+Every request of the browser not to 127.0.0.1 is blocked. Prints p50 / p95 of both against the
+150 ms target (issues 6 and 15), the median split of loading one frame and of the switch itself
+(wait for the frame, draw the canvas, update the rest of the page, then paint), and the load average
+(other processes on the machine slow the page down).
 
     .venv/bin/python bench/bench_annotate_switch.py [--log LOG.mcap] [--frames 8] [--switches 40] [--jumps 40]
 """
@@ -30,9 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from annotate_helpers import CHROMIUM, CHROMIUM_ARGS, local_only
+
 TARGET_MS = 150.0
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-                 "--disable-sync", "--no-first-run", "--disable-quic"]
 
 
 def start_server(log: Path, db: Path) -> tuple[subprocess.Popen, str, str]:
@@ -111,8 +114,9 @@ def main() -> int:
             print(f"server prepared the candidates in {t_prep:.1f} s")
             vw, vh = (int(v) for v in args.viewport.split("x"))
             with sync_playwright() as p:
-                browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
-                page = browser.new_page(viewport={"width": vw, "height": vh})
+                browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+                page = browser.new_context(viewport={"width": vw, "height": vh}).new_page()
+                blocked = local_only(page)
                 page.goto(f"{base}/?token={token}")
                 wait_until(page, "window.zcut && window.zcut.ready === true")
                 st = page.evaluate("window.zcut.state()")
@@ -143,6 +147,7 @@ def main() -> int:
                         page.wait_for_timeout(args.dwell)
                         cold.append(switch(lambda t=target: page.evaluate(f"window.zcut.goTo({t})")))
                 loads = page.evaluate("window.zcut.loads")
+                parts = page.evaluate("window.zcut.switchParts")
                 browser.close()
         finally:
             proc.terminate()
@@ -159,6 +164,12 @@ def main() -> int:
     print("loading one frame (median ms; worker = fetch + parse + label + overlay, then main; "
           "image = fetch + decode of the JPEG in the second worker, in parallel; wait = main waiting for it):")
     print("  " + "  ".join(f"{k} {v:.1f}" for k, v in med.items()))
+    keys = ["wait", "canvas", "page", "paint"]
+    print("one switch (median ms; wait = for the frame, canvas = image, overlay and markers, page = the lists and "
+          "panels, paint = to the next animation frame):")
+    print("  " + "  ".join(f"{k} {np.median([q[k] for q in parts]):.1f}" for k in keys))
+    if blocked:
+        print(f"blocked requests (not to 127.0.0.1): {blocked}")
     return 0
 
 

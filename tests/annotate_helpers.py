@@ -235,3 +235,58 @@ class ServerProcess:
             except subprocess.TimeoutExpired:
                 pass
         self.kill()
+
+
+# --------------------------------------------------------------------------- the browser
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run", "--disable-quic", "--disable-extensions",
+                 "--disable-default-apps", "--no-default-browser-check", "--metrics-recording-only"]
+
+
+def wait_until(page, expr: str, *, timeout_s: float = 60.0) -> None:
+    """Poll a JS expression with page.evaluate: the page's CSP forbids the eval that Playwright's
+    waiting helper needs, and the tests run under the page's real CSP."""
+    deadline = time.monotonic() + timeout_s
+    while not page.evaluate(f"(() => {{ try {{ return !!({expr}); }} catch (e) {{ return false; }} }})()"):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {expr}")
+        page.wait_for_timeout(20)
+
+
+def local_only(page) -> list[str]:
+    """Abort every request of the page (and its workers) that is not to 127.0.0.1; returns the list
+    the aborted URLs are appended to (the page must need none)."""
+    from urllib.parse import urlparse
+
+    blocked: list[str] = []
+
+    def route(r):
+        if r.request.url.startswith(("data:", "blob:")) or urlparse(r.request.url).hostname == "127.0.0.1":
+            r.continue_()
+        else:
+            blocked.append(r.request.url)
+            r.abort()
+
+    page.context.route("**/*", route)
+    return blocked
+
+
+def open_page(browser, url: str, *, viewport=(1280, 800), ready: bool = True):
+    """A new page (own context: own cookies) on ``url``, local requests only; waits for the page to be
+    ready. Returns (page, errors, blocked)."""
+    ctx = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]})
+    page = ctx.new_page()
+    blocked = local_only(page)
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(url)
+    if ready:
+        wait_until(page, "window.zcut && window.zcut.ready === true")
+    return page, errors, blocked
+
+
+def close_page(page) -> None:
+    ctx = page.context
+    page.close()
+    ctx.close()

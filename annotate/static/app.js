@@ -64,7 +64,7 @@ const state = {
 const cache = new Map();  // index -> Promise<frame>
 const loaded = new Map();  // index -> frame, once loaded (read synchronously when the page goes away)
 const CACHE_RADIUS = 2;
-window.zcut = { switchTimes: [], acks: [], errors: [], loads: [], viewTimes: [], inputs: 0, pans: 0 };
+window.zcut = { switchTimes: [], switchParts: [], acks: [], errors: [], loads: [], viewTimes: [], inputs: 0, pans: 0 };
 
 const COL_L = rgba(255, 30, 60, 200), COL_Z = rgba(255, 170, 0, 150), COL_S = rgba(40, 150, 255, 140);
 const COL_ZS = rgba(190, 90, 255, 160), COL_UNREV = rgba(0, 0, 0, 150), COL_DIFF = rgba(255, 0, 255, 220);
@@ -104,7 +104,7 @@ function loadFrame(index) {
     const h = m.header;
     const fd = {
       index, stamp: h.stamp_ns, W: h.width, H: h.height, header: h, nValid: h.n_valid,
-      valid: m.valid, zone: m.zone, zIds: m.zIds, sIds: m.sIds, sSize: m.sSize, bmp: {},
+      valid: m.valid, zone: m.zone, zIds: m.zIds, sIds: m.sIds, sSize: m.sSize, bmp: {}, small: {},
       zStart: m.zStart, zPix: m.zPix, sStart: m.sStart, sPix: m.sPix, cand: m.cand, cols: h.candidate_columns,
       tiles: new Map(), saving: false, pendingSave: false, seq: 0,
     };
@@ -117,7 +117,7 @@ function loadFrame(index) {
     const t2 = performance.now();
     let im;
     try { im = await image; } catch (e) { overlay.then((o) => o.overlay.close(), () => {}); throw e; }
-    fd.bmp[kind] = im.bitmap;
+    fd.bmp[kind] = im.bitmap; fd.small[kind] = im.small;
     fd.ovBmp = (await overlay).overlay;
     window.zcut.loads.push({ index, worker: t1 - t0, main: t2 - t1, image: im.decoded, wait: performance.now() - t2,
                              ...m.timing });
@@ -134,7 +134,7 @@ function bitmapFor(fd) {
   if (fd.bmp[kind]) return fd.bmp[kind];
   if (!fd.bmpLoading) {
     fd.bmpLoading = call({ type: 'image', index: fd.index, kind }, [], imageWorker).then((m) => {
-      fd.bmp[kind] = m.bitmap; fd.bmpLoading = null; fd.mini = null; requestDraw();
+      fd.bmp[kind] = m.bitmap; fd.small[kind] = m.small; fd.bmpLoading = null; requestDraw();
     }, (e) => { fd.bmpLoading = null; showError(String(e)); });
   }
   return fd.bmp.rgb || fd.bmp.height;
@@ -150,7 +150,7 @@ function evict(center) {
     p.then((fd) => {
       if (fd.dirty || fd.saving || fd.conflict || state.cur === fd) return;
       cache.delete(i); loaded.delete(i);
-      for (const b of Object.values(fd.bmp)) b.close();
+      for (const b of [...Object.values(fd.bmp), ...Object.values(fd.small)]) b.close();
       if (fd.ovBmp) { fd.ovBmp.close(); fd.ovBmp = null; }
       if (fd.ovCanvas) fd.ovCanvas.width = fd.ovCanvas.height = 0;
     }, () => {});
@@ -171,19 +171,20 @@ function buildEntries(fd) {
                level: v('level'), pix: pixAll.subarray(start[id], start[id + 1]) });
   }
   fd.base = out;
+  fd.covered = new Uint8Array(fd.W * fd.H);  // pixels of the candidates (z-cut, and SOR of >= 2 px)
+  for (const e of out) for (const i of e.pix) fd.covered[i] = 1;
   fd.labelEntries = labelComponents(fd);
   refreshList(fd, false);
 }
 
 // Components of L that no listed candidate covers (painted by hand): listed as 'L' entries.
 function labelComponents(fd) {
-  const W = fd.W, H = fd.H, L = fd.L, out = [];
-  const covered = new Uint8Array(L.length);
-  for (const e of fd.base) for (const i of e.pix) covered[i] = 1;
-  const seen = new Uint8Array(L.length);
+  const W = fd.W, H = fd.H, L = fd.L, covered = fd.covered, out = [];
+  let seen = null;
   const stack = [];
   for (let i = 0; i < L.length; i++) {
-    if (!L[i] || seen[i] || covered[i]) continue;
+    if (!L[i] || covered[i] || (seen && seen[i])) continue;
+    if (!seen) seen = new Uint8Array(L.length);
     const pix = []; let x0 = W, y0 = H, x1 = 0, y1 = 0, sx = 0, sy = 0;
     stack.push(i); seen[i] = 1;
     while (stack.length) {
@@ -219,7 +220,7 @@ const SORTS = {
 
 // The list: every z-cut cluster, SOR clusters of at least sorMin pixels that the z-cut does not
 // mostly cover (those are decided with it), and the hand-painted components; sorted by sortKey.
-function refreshList(fd, keepSel = true) {
+function refreshList(fd, keepSel = true, render = true) {
   const selE = keepSel && state.cur === fd && state.sel >= 0 ? fd.entries[state.sel] : null;
   const list = fd.base.filter((e) => (e.src === 'z' && state.showZ) ||
     (e.src === 's' && state.showS && e.n >= state.sorMin && 2 * e.both < e.n));
@@ -228,15 +229,15 @@ function refreshList(fd, keepSel = true) {
   fd.entries = list;
   if (state.cur === fd) {
     state.sel = selE ? list.indexOf(selE) : -1;
-    renderList();
+    fd.states = list.map((e) => entryState(fd, e));
+    if (render) renderList();
   }
 }
 
 function renderList() {
   const fd = state.cur, box = $('candlist');
   if (!fd) { box.innerHTML = ''; return; }
-  const states = fd.entries.map((e) => entryState(fd, e));
-  fd.states = states;
+  const states = fd.states;
   const nUnd = states.filter((s) => s === 'undecided').length;
   $('candcount').textContent = `${fd.entries.length} · ${fd.entries.length - nUnd} decided`;
   const frag = document.createDocumentFragment();
@@ -497,7 +498,8 @@ function drawProfile() {
     g.fillRect(X(s.s) - r, Y(s.h) - r, 2 * r, 2 * r);
   }
   // the gap between the selected cluster and the surface below it
-  let info = `vertical ×${((w - L - R) / sMax / ((h - T - B) / (hi - lo))).toFixed(1)}, ${mmPerPx.toFixed(2)} mm/px`;
+  const exaggeration = ((h - T - B) / (hi - lo)) / ((w - L - R) / sMax);  // screen px per mm: vertical / horizontal
+  let info = `heights ×${exaggeration < 10 ? exaggeration.toFixed(1) : exaggeration.toFixed(0)}, ${mmPerPx.toFixed(2)} mm/px`;
   if (e && !isNaN(e.gap) && !isNaN(e.below)) {
     const onLine = valid.filter((s) => inSel.has(s.i));
     const xs = onLine.length ? X(onLine.reduce((a, s) => a + s.s, 0) / onLine.length) : X(sMax / 2);
@@ -520,14 +522,15 @@ function draw3d(fd, e, nb) {
   if (!view3d) return;
   const pos = [], col = [], big = [], bigCol = [];
   const inSel = new Set(e.pix);
-  const c0 = point(fd, Math.min(fd.W - 1, Math.floor(e.cx)), Math.min(fd.H - 1, Math.floor(e.cy)));
-  let ox = 0, oy = 0, oz = 0, n0 = 0;
+  // the origin: the middle of the points' bounding box (the cluster and the surface below both in view)
+  let x0 = Infinity, x1 = -Infinity, y0 = Infinity, y1 = -Infinity, z0 = Infinity, z1 = -Infinity;
   for (let y = nb.y0; y < nb.y1; y++) for (let x = nb.x0; x < nb.x1; x++) {
-    const p = point(fd, x, y); if (p) { ox += p[0]; oy += p[1]; oz += p[2]; n0++; }
+    const p = point(fd, x, y); if (!p) continue;
+    x0 = Math.min(x0, p[0]); x1 = Math.max(x1, p[0]); y0 = Math.min(y0, p[1]); y1 = Math.max(y1, p[1]);
+    z0 = Math.min(z0, p[2]); z1 = Math.max(z1, p[2]);
   }
-  if (!n0) return;
-  ox /= n0; oy /= n0; oz /= n0;
-  if (c0) { ox = c0[0]; oy = c0[1]; }
+  if (!Number.isFinite(x0)) { view3d.clear(); $('v3info').textContent = 'no points here'; return; }
+  const ox = (x0 + x1) / 2, oy = (y0 + y1) / 2, oz = (z0 + z1) / 2;
   const hs = [];
   for (let y = nb.y0; y < nb.y1; y++) for (let x = nb.x0; x < nb.x1; x++) { const p = point(fd, x, y); if (p) hs.push(-1000 * p[2]); }
   hs.sort((a, b) => a - b);
@@ -541,9 +544,7 @@ function draw3d(fd, e, nb) {
     const q = [1000 * (p[0] - ox), -1000 * (p[1] - oy), -1000 * (p[2] - oz)];
     if (inSel.has(i)) { big.push(...q); bigCol.push(...(cls ? RGB[cls] : [255, 255, 255])); } else { pos.push(...q); col.push(...rgb); }
   }
-  let ext = 0;
-  for (let k = 0; k < pos.length; k += 3) ext = Math.max(ext, Math.abs(pos[k]), Math.abs(pos[k + 1]));
-  const radius = ext || 20;
+  const radius = 500 * Math.max(x1 - x0, y1 - y0, z1 - z0) || 20;
   view3d.setPoints(new Float32Array([...big, ...pos]), new Uint8Array([...bigCol, ...col]), big.length / 3, Math.max(radius, 5));
   $('v3info').textContent = `${(big.length + pos.length) / 3} points · ${view3d.kind} · drag to turn`;
 }
@@ -644,7 +645,7 @@ function draw() {
     ctx.strokeStyle = '#7fe3ff'; ctx.beginPath(); ctx.moveTo(a.x, a.y); ctx.lineTo(b.x, b.y); ctx.stroke();
   }
   drawMinimap(fd);
-  if (!hover) drawLegend(fd);
+  drawLegend(fd, hover ? state.cursorH : undefined);
 }
 
 function toScreen(x, y) { return { x: state.px + x * state.zoom, y: state.py + y * state.zoom }; }
@@ -691,13 +692,9 @@ function drawMinimap(fd) {
   const dpr = window.devicePixelRatio || 1, w = 220, h = Math.round(220 * fd.H / fd.W);
   if (mm.width !== w * dpr || mm.height !== h * dpr) { mm.width = w * dpr; mm.height = h * dpr; mm.style.width = `${w}px`; mm.style.height = `${h}px`; }
   const g = mm.getContext('2d');
-  if (!fd.mini || fd.mini.kind !== viewKind() || fd.mini.w !== mm.width) {
-    const base = new OffscreenCanvas(mm.width, mm.height), bg = base.getContext('2d');
-    bg.imageSmoothingEnabled = true; bg.drawImage(bitmapFor(fd), 0, 0, mm.width, mm.height);
-    fd.mini = { kind: viewKind(), w: mm.width, base };
-  }
   g.setTransform(1, 0, 0, 1, 0, 0);
-  g.drawImage(fd.mini.base, 0, 0);
+  const small = fd.small[viewKind()] || fd.small.rgb || fd.small.height;
+  if (small) g.drawImage(small, 0, 0, mm.width, mm.height); else { g.fillStyle = '#000'; g.fillRect(0, 0, mm.width, mm.height); }
   g.setTransform(dpr * w / fd.W, 0, 0, dpr * h / fd.H, 0, 0);
   const s = fd.W / w;
   (fd.entries || []).forEach((e, k) => {
@@ -712,12 +709,18 @@ function drawMinimap(fd) {
 }
 
 function fitZoom(fd) { return Math.min(canvas.clientWidth / fd.W, canvas.clientHeight / fd.H); }
-function fit() {
+function fit(redraw = true) {
   const fd = state.cur; if (!fd) return;
   const vw = canvas.clientWidth, vh = canvas.clientHeight;
   state.zoom = fitZoom(fd);
   state.px = (vw - fd.W * state.zoom) / 2; state.py = (vh - fd.H * state.zoom) / 2;
-  requestDraw();
+  if (redraw) requestDraw();
+}
+function zoomToBox(x0, y0, x1, y1) {  // a box of the image, with a margin, fills the view
+  const fd = state.cur, vw = canvas.clientWidth, vh = canvas.clientHeight;
+  const m = 0.15 * Math.max(x1 - x0, y1 - y0) + 16;
+  state.zoom = Math.max(fitZoom(fd), Math.min(24, Math.min(vw / (x1 - x0 + 2 * m), vh / (y1 - y0 + 2 * m))));
+  state.px = vw / 2 - (x0 + x1) / 2 * state.zoom; state.py = vh / 2 - (y0 + y1) / 2 * state.zoom;
 }
 function zoomTo(e) {  // the cluster's neighbourhood fills about half the view
   const fd = state.cur, nb = neighbourhood(fd, e);
@@ -745,7 +748,6 @@ function drawLegend(fd, hCursor) {
   }
   $('legendhi').textContent = `${hi.toFixed(1)} mm`;
   $('legendlo').textContent = `${lo.toFixed(1)} mm`;
-  $('legendmid').textContent = `${((lo + hi) / 2).toFixed(1)}`;
 }
 
 let readoutQueued = false;
@@ -758,6 +760,7 @@ function readout() {
   const fd = state.cur, box = $('readout');
   if (!fd || !hover) { box.textContent = ''; return; }
   const x = Math.floor(hover.x), y = Math.floor(hover.y);
+  state.cursorH = undefined;
   if (x < 0 || y < 0 || x >= fd.W || y >= fd.H) { box.textContent = ''; drawLegend(fd); return; }
   const i = y * fd.W + x;
   const p = point(fd, x, y);
@@ -767,6 +770,7 @@ function readout() {
   const parts = [`row ${y} col ${x}`];
   if (p) {
     const hmm = -1000 * p[2];
+    state.cursorH = hmm;
     parts.push(`height ${hmm.toFixed(2)} mm`, `x ${(1000 * p[0]).toFixed(2)} y ${(1000 * p[1]).toFixed(2)} z ${(1000 * p[2]).toFixed(2)} mm`);
     drawLegend(fd, hmm);
   } else {
@@ -787,22 +791,34 @@ async function goTo(index, t0 = performance.now()) {
   if (!state.frames.some((f) => f.index === index)) return;
   const my = ++navToken;
   state.target = index;
-  if (state.cur && state.cur.index !== index) saveNow(state.cur);
+  if (state.cur && state.cur.index !== index) {  // saved once the next frame is on screen
+    const left = state.cur;
+    requestAnimationFrame(() => setTimeout(() => saveNow(left), 0));
+  }
   if (!state.cur || state.cur.index !== index) $('frameinfo').textContent = `→ frame ${index} …`;
   let fd;
   try { fd = await loadFrame(index); } catch (e) { showError(String(e)); return; }
   if (my !== navToken) return;
+  const t1 = performance.now();
   state.cur = fd;
   state.sel = -1; state.profile = null; state.conflictView = 'mine';
-  showConflict(fd);
-  refreshList(fd, false);
+  // the canvas first (its size read before the page's text changes: one layout, not two), then the rest
   if (!sameFlags(fd.ovFlags, flags())) renderOverlay();
-  fit();  // a new frame starts at the overview, its candidates marked
+  fit(false);  // a new frame starts at the overview
+  refreshList(fd, false, false);  // the candidates (for the markers), their rows below
   draw();
+  const t2 = performance.now();
+  if (view3d) view3d.clear();
+  $('v3info').textContent = 'Tab: the next candidate, its profile and 3D view';
+  showConflict(fd);
+  renderList();
+  $('candlist').scrollTop = 0;
   drawProfile();
   updateInfo();
+  const t3 = performance.now();
   requestAnimationFrame(() => {
     window.zcut.switchTimes.push(performance.now() - t0);
+    window.zcut.switchParts.push({ index, wait: t1 - t0, canvas: t2 - t1, page: t3 - t2, paint: performance.now() - t3 });
     window.zcut.shown = index;
   });
   history.replaceState(null, '', `/#${index}`);
@@ -890,7 +906,13 @@ async function refreshFrames({ again = false } = {}) {  // again: poll while fra
 
 async function refreshSession() {
   try {
-    const s = await (await fetchOk('/api/session')).json();
+    const r = await fetchRetry('/api/session');
+    if (r.status === 403) {
+      $('banner').textContent = 'This page\'s session ended (was the server restarted?): open the URL zcut annotate printed.';
+      $('banner').hidden = false;
+      throw new Error('the page session ended');
+    }
+    const s = await r.json();
     const b = $('banner');
     if (s.other_servers.length) {
       b.textContent = `Another server uses this label store: ${s.other_servers.join('; ')}. ` +
@@ -915,28 +937,22 @@ function touch(x0, y0, x1, y1) {
   action.x0 = Math.min(action.x0, x0); action.y0 = Math.min(action.y0, y0);
   action.x1 = Math.max(action.x1, x1); action.y1 = Math.max(action.y1, y1);
 }
-function endAction(fd, full = null) {
+function endAction(fd) {  // one undo step: the pixels the edit changed, with their old and new values
   const a = action; action = null;
-  if (!a) return;
+  if (!a || a.x1 < a.x0) return;
   const W = fd.W;
-  let rec;
-  if (full) {
-    rec = full;
-  } else {
-    if (a.x1 < a.x0) return;
-    const x0 = Math.max(0, Math.floor(a.x0)), y0 = Math.max(0, Math.floor(a.y0));
-    const x1 = Math.min(fd.W, Math.ceil(a.x1)), y1 = Math.min(fd.H, Math.ceil(a.y1));
-    const idx = [], oL = [], oR = [];
-    for (let y = y0; y < y1; y++) for (let i = y * W + x0, e = y * W + x1; i < e; i++) {
-      if (fd.L[i] !== fd.committedL[i] || fd.R[i] !== fd.committedR[i]) {
-        idx.push(i); oL.push(fd.committedL[i]); oR.push(fd.committedR[i]);
-        fd.committedL[i] = fd.L[i]; fd.committedR[i] = fd.R[i];
-      }
+  const x0 = Math.max(0, Math.floor(a.x0)), y0 = Math.max(0, Math.floor(a.y0));
+  const x1 = Math.min(fd.W, Math.ceil(a.x1)), y1 = Math.min(fd.H, Math.ceil(a.y1));
+  const idx = [], oL = [], oR = [];
+  for (let y = y0; y < y1; y++) for (let i = y * W + x0, e = y * W + x1; i < e; i++) {
+    if (fd.L[i] !== fd.committedL[i] || fd.R[i] !== fd.committedR[i]) {
+      idx.push(i); oL.push(fd.committedL[i]); oR.push(fd.committedR[i]);
+      fd.committedL[i] = fd.L[i]; fd.committedR[i] = fd.R[i];
     }
-    if (!idx.length) return;
-    rec = { idx: Int32Array.from(idx), oL: Uint8Array.from(oL), oR: Uint8Array.from(oR), box: [x0, y0, x1, y1] };
-    rec.nL = Uint8Array.from(rec.idx, (i) => fd.L[i]); rec.nR = Uint8Array.from(rec.idx, (i) => fd.R[i]);
   }
+  if (!idx.length) return;
+  const rec = { idx: Int32Array.from(idx), oL: Uint8Array.from(oL), oR: Uint8Array.from(oR), box: [x0, y0, x1, y1] };
+  rec.nL = Uint8Array.from(rec.idx, (i) => fd.L[i]); rec.nR = Uint8Array.from(rec.idx, (i) => fd.R[i]);
   fd.undo.push(rec); if (fd.undo.length > 200) fd.undo.shift();
   fd.redo = [];
   afterEdit(fd, rec.box);
@@ -954,8 +970,9 @@ function afterEdit(fd, box) {
 
 function applyRecord(fd, rec, forward) {
   const vL = forward ? rec.nL : rec.oL, vR = forward ? rec.nR : rec.oR;
-  if (rec.full) {
-    fd.L.set(vL); fd.R.set(vR); fd.committedL.set(vL); fd.committedR.set(vR);
+  if (rec.full) {  // the "reviewed" mark: R only
+    if (forward) fd.R.set(fd.valid); else fd.R.set(rec.oR);
+    fd.committedR.set(fd.R);
   } else for (let k = 0; k < rec.idx.length; k++) {
     const i = rec.idx[k];
     fd.L[i] = fd.committedL[i] = vL[k]; fd.R[i] = fd.committedR[i] = vR[k];
@@ -1043,17 +1060,20 @@ function fillPolygon(fd, pts, mode) {
 
 function markReviewed(fd) {  // the explicit "reviewed": every valid pixel reviewed, L kept
   if (fd.nR >= fd.nValid) return;
-  const oL = fd.L.slice(), oR = fd.R.slice();
-  fd.R.set(fd.valid);
-  const rec = { full: true, oL, oR, nL: fd.L.slice(), nR: fd.R.slice() };
-  fd.committedR.set(fd.R);
-  beginAction(); endAction(fd, rec);
+  const rec = { full: true, oR: fd.R.slice() };  // undo: R back (L does not change)
+  fd.R.set(fd.valid); fd.committedR.set(fd.R); fd.nR = fd.nValid;
+  fd.undo.push(rec); if (fd.undo.length > 200) fd.undo.shift();
+  fd.redo = [];
+  // with every pixel reviewed nothing is shaded: the overlay shows what it showed (unless it shaded)
+  if (fd.ovShade) renderOverlay(); else fd.ovShade = true;
+  refreshList(fd, true);
+  requestDraw();
+  scheduleSave(fd);
 }
 function markReviewedAndNext(t0) {
   const fd = state.cur; if (!fd) return;
   markReviewed(fd);
-  saveNow(fd);
-  step(1, t0);
+  step(1, t0);  // (the frame left is saved right after the next one is drawn)
 }
 
 // ------------------------------------------------------------------ saving
@@ -1156,7 +1176,20 @@ function showConflict(fd) {
     `${mineR} reviewed px. Theirs: ${theirs} outlier px, ${theirsR} reviewed px. They differ at ${differ} px.`;
   for (const b of document.querySelectorAll('#conflict [data-view]')) b.classList.toggle('active', b.dataset.view === state.conflictView);
 }
-function setConflictView(v) { state.conflictView = v; showConflict(state.cur); renderOverlay(); requestDraw(); }
+function setConflictView(v) {
+  state.conflictView = v; showConflict(state.cur); renderOverlay();
+  const fd = state.cur;
+  if (v !== 'mine' && fd && fd.conflict) {  // look at where the versions differ
+    const t = fd.conflict.theirs.L;
+    let x0 = fd.W, y0 = fd.H, x1 = -1, y1 = -1;
+    for (let i = 0; i < t.length; i++) if (t[i] !== fd.L[i]) {
+      const x = i % fd.W, y = (i / fd.W) | 0;
+      x0 = Math.min(x0, x); x1 = Math.max(x1, x); y0 = Math.min(y0, y); y1 = Math.max(y1, y);
+    }
+    if (x1 >= 0) zoomToBox(x0, y0, x1 + 1, y1 + 1);
+  }
+  requestDraw();
+}
 function resolveConflict(how) {
   const fd = state.cur; if (!fd || !fd.conflict) return;
   const t = fd.conflict.theirs;
@@ -1208,6 +1241,7 @@ window.zcut.entries = () => {
                                      state: (fd.states || [])[k] }));
 };
 window.zcut.readout = () => $('readout').textContent;
+window.zcut.unsaved = () => [...loaded.values()].filter((fd) => fd.dirty || fd.saving || fd.conflict).map((fd) => fd.index);
 window.zcut.profileInfo = () => $('profinfo').textContent;
 
 canvas.addEventListener('contextmenu', (e) => e.preventDefault());

@@ -78,6 +78,12 @@ export class PointView {
     this.draw();
   }
 
+  clear() {  // nothing shown (another frame)
+    this.n = 0;
+    if (this.gl) { const gl = this.gl; gl.clearColor(0.07, 0.07, 0.08, 1); gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT); }
+    else if (this.ctx) { this.ctx.fillStyle = '#121214'; this.ctx.fillRect(0, 0, this.canvas.width, this.canvas.height); }
+  }
+
   matrix() {
     const dpr = window.devicePixelRatio || 1;
     const w = Math.round(this.canvas.clientWidth * dpr), h = Math.round(this.canvas.clientHeight * dpr);

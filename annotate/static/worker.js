@@ -153,10 +153,13 @@ async function handle(m) {
     if (arrays.zone) transfer.push(arrays.zone.buffer);
     return [res, [...new Set(transfer)]];
   }
-  if (m.type === 'image') {
+  if (m.type === 'image') {  // the picture, and a small copy for the minimap
     const t0 = performance.now();
-    const bmp = await createImageBitmap(await (await fetchOk(`/api/frames/${m.index}/image/${m.kind}`)).blob());
-    return [{ bitmap: bmp, decoded: performance.now() - t0 }, [bmp]];
+    const blob = await (await fetchOk(`/api/frames/${m.index}/image/${m.kind}`)).blob();
+    const bmp = await createImageBitmap(blob);
+    const w = 440, h = Math.max(1, Math.round(440 * bmp.height / bmp.width));
+    const small = await createImageBitmap(bmp, { resizeWidth: w, resizeHeight: h, resizeQuality: 'medium' });
+    return [{ bitmap: bmp, small, decoded: performance.now() - t0 }, [bmp, small]];
   }
   if (m.type === 'label') {
     const r = await fetchOk(`/api/frames/${m.index}/label`);

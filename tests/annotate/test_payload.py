@@ -109,6 +109,14 @@ def test_height_colormap_marks_invalid_grey():
     assert (height_colormap(nothing, np.zeros((4, 5), bool)) == INVALID_GRAY).all()
 
 
+@pytest.mark.parametrize("rows", [0, 1, 5])
+def test_table_roundtrip(rng, rows):
+    t = rng.normal(size=(rows, len(CANDIDATE_COLUMNS))).astype(np.float32)
+    for compress in (True, False):
+        back = parse_bundle(make_bundle({"height": 2, "width": 2}, [("candidates", "table", t)], compress=compress))
+        assert back[1]["candidates"].shape == t.shape and np.array_equal(back[1]["candidates"], t)
+
+
 def test_runs_to_mask_refuses_what_does_not_fit():
     assert np.array_equal(runs_to_mask(np.array([2, 3, 1]), (2, 3)), [[False, False, True], [True, True, False]])
     with pytest.raises(ValueError, match="cover 5 pixels, the frame has 6"):

@@ -148,19 +148,21 @@ def test_each_page_session_chooses_its_name_once(tmp_path):
         srv.stop()
 
 
-def _gated_session(tmp_path, gate: threading.Event) -> Session:
-    """A session whose frames after the first are prepared only once ``gate`` is set."""
+def _gated_session(tmp_path, gate: threading.Event, *, lose: int | None = None) -> Session:
+    """A session whose frames after the first are prepared only once ``gate`` is set (or, with
+    ``lose``, that loses that frame, as a damaged log does, and stops before its end until ``gate``)."""
     log = tmp_path / "scan.mcap"
-    write_spike_log(log, frames=3)
+    write_spike_log(log, frames=4)
     reader = LogReader(log)
     store = LabelStore(tmp_path / "labels.sqlite")
     lg = store.add_log(log)
 
     def frames():
         for fr in reader.frames():
-            if fr.index >= 1:
+            if lose is None and fr.index >= 1 or fr.index == 3:
                 gate.wait(120)
-            yield fr
+            if fr.index != lose:
+                yield fr
 
     catalog = Catalog(frames_iter=frames, prepare=lambda fr: prepare_frame(fr, pipeline_result(fr)), store=store,
                       log=lg, geometry=GeometrySpill(), total_hint=reader.n_frames)
@@ -186,7 +188,7 @@ def test_frames_not_prepared_yet_answer_at_once_with_503(tmp_path):
                 assert r.status_code == 503 and 1 <= int(r.headers["retry-after"]) <= 30, r.text
             r = c.put("/api/frames/1/label", json=_body(valid))
             assert r.status_code == 503 and "retry-after" in r.headers
-            assert c.get("/api/frames/3/bundle").status_code == 404  # the log has 3 frames
+            assert c.get("/api/frames/4/bundle").status_code == 404  # the log has 4 frames
             assert c.get("/api/frames/0/view").status_code == 200
             assert [f["index"] for f in c.get("/api/frames").json()["frames"]] == [0]
             gate.set()
@@ -195,6 +197,25 @@ def test_frames_not_prepared_yet_answer_at_once_with_503(tmp_path):
                 time.sleep(0.05)
             valid1 = parse_bundle(c.get("/api/frames/1/bundle").content)[1]["valid"]
             assert c.put("/api/frames/1/label", json=_body(valid1)).status_code == 200
+    finally:
+        gate.set()
+        srv.stop()
+
+
+def test_a_frame_lost_to_damage_is_404_while_the_rest_is_prepared(tmp_path):
+    gate = threading.Event()
+    srv = LiveServer(_gated_session(tmp_path, gate, lose=1))
+    try:
+        with httpx.Client(base_url=srv.base, headers=srv.headers(), timeout=10) as c:
+            deadline = time.monotonic() + 60
+            while c.get("/api/session").json()["prepared"] < 2:
+                assert time.monotonic() < deadline
+                time.sleep(0.05)
+            assert not c.get("/api/session").json()["done"]
+            assert c.get("/api/frames/1/view").status_code == 404  # frame 2 came: 1 is lost, not coming
+            assert c.get("/api/frames/2/view").status_code == 200
+            assert c.get("/api/frames/3/view").status_code == 503
+            assert [f["index"] for f in c.get("/api/frames").json()["frames"]] == [0, 2]
     finally:
         gate.set()
         srv.stop()
