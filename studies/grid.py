@@ -23,28 +23,32 @@ def parse_list(text: str | None, *, name: str, integer: bool = False) -> tuple[f
     if text is None:
         return None
     t = text.strip()
-    try:
-        if ":" in t:
-            parts = t.split(":")
-            if len(parts) != 3:
-                raise ValueError
+    bad = ConfigError(f"{name} must be a,b,c or start:stop:count, got {text!r}")
+    if ":" in t:
+        parts = t.split(":")
+        if len(parts) != 3:
+            raise bad
+        try:
             start, stop, count = float(parts[0]), float(parts[1]), int(parts[2])
-            if not (math.isfinite(start) and math.isfinite(stop)):
-                raise ConfigError(f"{name} {text!r}: start and stop must be finite numbers")
-            if count < 1:
-                raise ConfigError(f"{name} {text!r}: the count must be >= 1, got {count}")
-            if stop < start:
-                raise ConfigError(f"{name} {text!r}: an inverted range (stop {stop:g} < start {start:g})")
-            if count == 1 and stop != start:
-                raise ConfigError(f"{name} {text!r}: one value cannot span {start:g}..{stop:g} (count >= 2)")
-            values = [start + (stop - start) * i / (count - 1) for i in range(count)] if count > 1 else [start]
-        else:
-            items = [x for x in t.split(",") if x.strip()]
-            if not items:
-                raise ConfigError(f"{name}: an empty list")
+        except ValueError:
+            raise bad from None
+        if not (math.isfinite(start) and math.isfinite(stop)):
+            raise ConfigError(f"{name} {text!r}: start and stop must be finite numbers")
+        if count < 1:
+            raise ConfigError(f"{name} {text!r}: the count must be >= 1, got {count}")
+        if stop < start:
+            raise ConfigError(f"{name} {text!r}: an inverted range (stop {stop:g} < start {start:g})")
+        if count == 1 and stop != start:
+            raise ConfigError(f"{name} {text!r}: one value cannot span {start:g}..{stop:g} (count >= 2)")
+        values = [start + (stop - start) * i / (count - 1) for i in range(count)] if count > 1 else [start]
+    else:
+        items = [x for x in t.split(",") if x.strip()]
+        if not items:
+            raise ConfigError(f"{name}: an empty list")
+        try:
             values = [float(x) for x in items]
-    except ValueError:
-        raise ConfigError(f"{name} must be a,b,c or start:stop:count, got {text!r}") from None
+        except ValueError:
+            raise bad from None
     if integer:
         if any(v != int(v) for v in values):
             raise ConfigError(f"{name} must be integers, got {text!r}")

@@ -79,7 +79,7 @@ def test_the_console_script_is_the_one_composition_root():
     tree = ast.parse((root / "replay" / "cli.py").read_text())
     imported = {f"{n.module}.{a.name}" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module
                 for a in n.names}
-    commands = {f"{pkg}.commands.{p.stem}" for pkg in ("replay", "annotate")
+    commands = {f"{pkg}.commands.{p.stem}" for pkg in ("replay", "annotate", "studies")
                 for p in (root / pkg / "commands").glob("*.py") if p.stem not in ("__init__", "common")}
     assert commands <= imported, f"not in the command table: {sorted(commands - imported)}"
     assert "import_module" not in (root / "replay" / "cli.py").read_text()

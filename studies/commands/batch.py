@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
         err = sys.stderr
 
         def planning(i, n, path) -> None:
-            if n > 1 and (i % 20 == 0 or i == n - 1):
+            if n > 5 and (i % 20 == 0 or i == n - 1):
                 print(f"zcut: reading {n} logs: {i + 1}/{n} {path.name}", file=err, flush=True)
 
         plans = plan_logs(args.inputs, config_file=args.config, overrides=overrides, topic=args.topic,
