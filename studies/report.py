@@ -246,7 +246,7 @@ def _png(fig) -> bytes:
 
 
 def _plot(name: str, title: str, caption: str, fig) -> Plot:
-    return Plot(name, title, caption, _png(fig), int(round(fig.get_figwidth() * _CSS_PX_PER_INCH)))
+    return Plot(name, title, caption, _png(fig), round(fig.get_figwidth() * _CSS_PX_PER_INCH))
 
 
 def _count_scale(ax, values) -> None:
@@ -376,6 +376,7 @@ def _metric_panel(ax, pts: list[tuple[float, dict]], *, legend: bool) -> None:
 def _accuracy_plot(sw: _Sweep, method: str) -> Plot | None:
     """P/R/F1 with 95 % bands vs each of the method's parameters, the others at the chosen point."""
     from matplotlib.patches import Patch
+    from matplotlib.ticker import MaxNLocator
 
     axes_keys = [k for k in (sw.zparams if method == "zcut" else ("sor_k", "sor_std_ratio"))
                  if len(sw.values(method, k)) >= 2]
@@ -398,14 +399,13 @@ def _accuracy_plot(sw: _Sweep, method: str) -> Plot | None:
                 shaded = True
         _metric_panel(ax, pts, legend=i == 0)
         ax.set_xlim(x0 - 0.04 * (x1 - x0), x1 + 0.04 * (x1 - x0))
+        ax.xaxis.set_major_locator(MaxNLocator(nbins=5, integer=k == "sor_k"))
         _mark_chosen(ax, sw.chosen.get(k))
         ax.set_xlabel(_LABELS[k])
-        if k == "sor_k":
-            ax.xaxis.get_major_locator().set_params(integer=True)
         if i:
             ax.tick_params(labelleft=False)
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    handles.append(Patch(color=_METRIC_COLOURS["f1"], alpha=0.16))
+    handles.append(Patch(color="0.5", alpha=0.25))
     labels.append("95 % interval")
     if shaded:
         handles.append(Patch(color="0.85", alpha=0.6))
@@ -440,7 +440,8 @@ def _f1_map(sw: _Sweep) -> Plot | None:
     ax = axes[0, 0]
     ax.grid(False)
     cmap = colormaps["viridis"].with_extremes(bad="0.85")
-    im = ax.imshow(np.ma.masked_invalid(grid), cmap=cmap, vmin=0, vmax=max(1e-9, float(np.nanmax(grid))),
+    top = float(np.nanmax(grid))
+    im = ax.imshow(np.ma.masked_invalid(grid), cmap=cmap, vmin=0, vmax=top if top > 0 else 1.0,
                    origin="lower", aspect="auto")
     fig.colorbar(im, ax=ax, label="F1", shrink=0.9)
     ax.set_xticks(range(len(areas)), [f"{a:.4g}" for a in areas], rotation=45 if len(areas) > 6 else 0)
@@ -448,16 +449,15 @@ def _f1_map(sw: _Sweep) -> Plot | None:
     ax.set_xlabel(_LABELS[sw.area])
     ax.set_ylabel(_LABELS["max_depth_mm"])
     if len(depths) * len(areas) <= 160:
-        top = float(np.nanmax(grid))
-        digits = 2 if top >= 0.1 else (3 if top >= 0.01 else 4)
+        digits = 2 if top >= 0.1 or top == 0 else (3 if top >= 0.01 else 4)
         for i in range(len(depths)):
             for j in range(len(areas)):
                 v = grid[i, j]
                 ax.text(j, i, "—" if not np.isfinite(v) else f"{v:.{digits}f}", ha="center", va="center", fontsize=7.5,
                         color="black" if not np.isfinite(v) or v > 0.6 * top else "white")
     marks = []
-    for what, e, style in (("chosen", (sw.summary.get("chosen") or {}).get("zcut"), dict(ec="white", ls="-")),
-                           ("tuned", (sw.summary.get("tuned") or {}).get("zcut"), dict(ec="#D55E00", ls="--"))):
+    for what, e, style in (("chosen", (sw.summary.get("chosen") or {}).get("zcut"), {"ec": "white", "ls": "-"}),
+                           ("tuned", (sw.summary.get("tuned") or {}).get("zcut"), {"ec": "#D55E00", "ls": "--"})):
         if e is None or _key(e.get("step_mm")) != _key(step):
             continue
         try:
@@ -505,17 +505,17 @@ def _pr_plot(sw: _Sweep) -> Plot | None:
     summ = sw.summary
     chosen_z, nominal, tuned_z = (summ.get("chosen") or {}).get("zcut"), summ.get("nominal"), (summ.get("tuned") or {}).get("zcut")
     chosen_s, tuned_s = (summ.get("chosen") or {}).get("sor"), (summ.get("tuned") or {}).get("sor")
-    marked = [("paper's nominal (0.2 mm, 30 mm, 0.07)" + (" = chosen" if _same(chosen_z, nominal) else ""), nominal, dict(marker="*", s=260, fc="#F0E442", ec="black", lw=1.0, zorder=6)),
+    marked = [("paper's nominal" + (" = chosen" if _same(chosen_z, nominal) else ""), nominal, {"marker": "*", "s": 260, "fc": "#F0E442", "ec": "black", "lw": 1.0, "zorder": 6}),
               ("chosen", None if _same(chosen_z, nominal) else chosen_z,
-               dict(marker="s", s=80, fc="white", ec="black", lw=1.4, zorder=6)),
-              ("tuned z-cut", tuned_z, dict(marker="D", s=90, fc="#D55E00", ec="black", lw=1.0, zorder=7)),
-              ("SOR chosen", chosen_s, dict(marker="P", s=120, fc=_SOR_COLOUR, ec="black", lw=1.0, zorder=6)),
-              ("SOR tuned", tuned_s, dict(marker="X", s=120, fc="#CC79A7", ec="black", lw=1.0, zorder=7))]
+               {"marker": "s", "s": 80, "fc": "white", "ec": "black", "lw": 1.4, "zorder": 6}),
+              ("tuned z-cut", tuned_z, {"marker": "D", "s": 90, "fc": "#D55E00", "ec": "black", "lw": 1.0, "zorder": 7}),
+              ("SOR chosen", chosen_s, {"marker": "P", "s": 120, "fc": _SOR_COLOUR, "ec": "black", "lw": 1.0, "zorder": 6}),
+              ("SOR tuned", tuned_s, {"marker": "X", "s": 120, "fc": "#CC79A7", "ec": "black", "lw": 1.0, "zorder": 7})]
     rs = np.array([p[0] for p in pts])
     ps = np.array([p[1] for p in pts])
     span_r, span_p = rs.max() - rs.min(), ps.max() - ps.min()
     zoom = span_r < 0.45 or span_p < 0.45
-    fig, axes = _figure(1, 2 if zoom else 1, width_in=11.0 if zoom else 7.2, height_in=4.6)
+    fig, axes = _figure(1, 2 if zoom else 1, width_in=11.0 if zoom else 7.6, height_in=4.8)
     depths = [_f(e.get("max_depth_mm")) for _, e in zs]
     finite_depths = [d for d in depths if math.isfinite(d)]
     sc = None
@@ -560,9 +560,12 @@ def _pr_plot(sw: _Sweep) -> Plot | None:
                                   ms=math.sqrt(style["s"]) * 0.8, label=label))
     if sc is not None and len(set(finite_depths)) > 1:
         fig.colorbar(sc, ax=axes[0, -1], label="$d_{max}$ (mm)", shrink=0.85)
-    fig.legend(handles=handles, loc="outside lower center", ncols=min(4, len(handles)), frameon=False)
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(4 if zoom else 3, len(handles)),
+               frameon=False)
     undefined = sum(1 for p, _ in zs + ss if not all(math.isfinite(v) for v in p))
     caption = ("Every parameter set on the precision–recall plane (pooled over the frames); grey curves: equal F1. "
+               + ("The paper's nominal point: Δd 0.2 mm, d_max 30 mm, ρ_thr 0.07. " if nominal is not None
+                  else "The paper's nominal point is not in the grid. ")
                + ("(b) shows the same sets zoomed, with the 95 % intervals of the marked points. " if zoom else
                   "Bars: the 95 % intervals of the marked points. ")
                + (f"{undefined} set(s) flag nothing in the region (precision undefined) and are not shown." if undefined
@@ -883,20 +886,20 @@ def _findings_section(summary: dict) -> str:
               None: "undefined"}.get(f["f1"], _e(f["f1"]))
         rows.append(
             f"<tr><td>{_e(f['claim'])}<br><span class=ci>{_e(f['figure'])}</span></td>"
-            f"<td class=num>{_e(_fmt_param(b.get(k), k))} → {_e(_fmt_param(c.get(k), k))}</td>"
-            f"<td class=num>{_int(b['n_pred'])} → {_int(c['n_pred'])}</td><td class=c>{verdict}</td>"
+            f"<td class=num>{_e(_fmt_param(b.get(k), k))} →<br>{_e(_fmt_param(c.get(k), k))}</td>"
+            f"<td class=num>{_int(b['n_pred'])} →<br>{_int(c['n_pred'])}</td><td class=c>{verdict}</td>"
             f"<td class=num>{f['d_tp']:+d}</td><td class=num>{f['d_fp']:+d}</td>"
-            f"<td class=num>{_num(b.get('recall'))} → {_num(c.get('recall'))}</td>"
-            f"<td class=num>{_num(b.get('precision'))} → {_num(c.get('precision'))}</td>"
-            f"<td class=num>{_num(b.get('f1'))} <span class=ci>{_ci_text(b)}</span> → {_num(c.get('f1'))} "
+            f"<td class=num>{_num(b.get('precision'))} →<br>{_num(c.get('precision'))}</td>"
+            f"<td class=num>{_num(b.get('recall'))} →<br>{_num(c.get('recall'))}</td>"
+            f"<td class=num>{_num(b.get('f1'))} <span class=ci>{_ci_text(b)}</span> →<br>{_num(c.get('f1'))} "
             f"<span class=ci>{_ci_text(c)}</span></td><td class=c>{f1}</td></tr>")
     return ("<p>The paper judged its parameters by the number of outliers flagged (it had no truth). Here each of "
             "its findings is checked at the chosen point with the truth: did the count move as the paper says, were "
             "the pixels gained (or lost) true outliers (ΔTP) or not (ΔFP), and did F1 move beyond its 95 % "
             "intervals?</p>"
             "<div class=scroll><table class=findings><thead><tr><th>paper's finding</th><th>change</th><th>flagged px</th>"
-            "<th>as the paper says?</th><th>ΔTP</th><th>ΔFP</th><th>recall</th><th>precision</th><th>F1 (95 %)</th>"
-            f"<th>F1 changed?</th></tr></thead><tbody>{''.join(rows)}</tbody></table></div>")
+            "<th>count as<br>the paper?</th><th>ΔTP</th><th>ΔFP</th><th>precision</th><th>recall</th>"
+            f"<th>F1 <span class=ci>[95 %]</span></th><th>F1 beyond<br>the intervals?</th></tr></thead><tbody>{''.join(rows)}</tbody></table></div>")
 
 
 def _ci_text(e: dict) -> str:
@@ -942,6 +945,10 @@ def _sensitivity_section(sw: _Sweep) -> str:
                             f"<td class=num>{' / '.join(_int(x) for x in ns)}</td>"
                             f"<td class=num>{_ratio_text(v.get('lo'), ns[0], ns[1])}</td>"
                             f"<td class=num>{_ratio_text(v.get('hi'), ns[2], ns[1])}</td></tr>")
+        missing = [f"{r} (the grid lacks 0.5× or 1.5× its {p})" for r, p, k in
+                   (("θ", "ρ<sub>thr</sub>", "theta_2"), ("ω", "d<sub>max</sub>", "omega_2")) if k not in s]
+        if missing:
+            rows.append(f"<tr><td colspan=6 class=small>No {' and no '.join(missing)}.</td></tr>")
         blocks.append(head + "<table><thead><tr><th>ratio</th><th>varied</th><th>count</th>"
                              "<th>N at 0.5× / 1× / 1.5×</th><th>Lo (0.5×)</th><th>Hi (1.5×)</th></tr></thead>"
                              f"<tbody>{''.join(rows)}</tbody></table>")
@@ -985,8 +992,9 @@ def _config_section(summary: dict, tuned_toml: str | None) -> str:
             lines.append(f"<mark>{_e(line)}</mark>" if changed else _e(line))
         return "\n".join(lines)
 
+    why = "" if (summary.get("tuned") or {}).get("zcut") else " (no z-cut set met the objective)"
     left = (f"<pre>{marked(tuned_toml)}</pre>" if tuned_toml is not None
-            else "<p>No tuned.toml was written (no z-cut set met the objective).</p>")
+            else f"<p>No tuned.toml beside this report{why}.</p>")
     return ("<p>Left: <code>tuned.toml</code>, a config <code>zcut replay --config</code> accepts (lines that differ "
             "from the sweep's config are marked). Right: the config resolved for the (first) log, which the sweep "
             "varied.</p><div class=two><div><h3>tuned.toml</h3>" + left + "</div><div><h3>Resolved config used</h3>"
