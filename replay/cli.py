@@ -93,6 +93,32 @@ def configure_process() -> None:
             import numba
 
             numba.config.THREADING_LAYER_PRIORITY = ["workqueue", "omp", "tbb"]
+    # `--spawn` runs `rerun` from PATH: a venv that is not activated has it only beside its python
+    here = os.path.dirname(sys.executable)
+    if os.path.isfile(os.path.join(here, "rerun")) and here not in os.environ.get("PATH", "").split(os.pathsep):
+        os.environ["PATH"] = here + os.pathsep + os.environ.get("PATH", "")
+
+
+#: commands that run numba kernels (the others never wait for a compilation)
+_KERNEL_COMMANDS = {"demo", "replay", "accuracy", "annotate", "sweep", "batch", "synth", "bin-model", "record"}
+
+
+def announce_compilation(args: argparse.Namespace) -> None:
+    """Say so when the numba kernels have never been compiled here (a first run waits ~1 min).
+
+    ``scripts/install.sh`` compiles them (``python -m replay.warmup``); the cache lives beside the
+    modules (``__pycache__/*.nbi``).
+    """
+    if args.command not in _KERNEL_COMMANDS:
+        return
+    from pathlib import Path
+
+    import zcut
+
+    cache = Path(zcut.__file__).parent / "__pycache__"
+    if not any(cache.glob("cut_tree*.nbi")):
+        print("zcut: compiling the numba kernels (first run only; `bash scripts/install.sh` does it ahead)…",
+              file=sys.stderr, flush=True)
 
 
 def _os_error_message(e: OSError) -> str:
@@ -112,8 +138,11 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "_module", None) is None:
         parser.print_help()
         return EXIT_USER_ERROR if argv is None and len(sys.argv) <= 1 else EXIT_OK
+    announce_compilation(args)
     try:
-        return int(args._module.run(args) or 0)
+        status = int(args._module.run(args) or 0)
+        sys.stdout.flush()  # a closed pipe shows here, not at exit
+        return status
     except ZcutError as e:
         print(f"error: {e}", file=sys.stderr)
         return EXIT_USER_ERROR

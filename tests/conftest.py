@@ -24,6 +24,14 @@ def rng() -> np.random.Generator:
 
 @pytest.fixture(scope="session")
 def real_data() -> Path:
+    """The real organized clouds (../shared/data/real beside the checkout, or $ZCUT_REAL_DATA).
+
+    Missing data skips the tests on a developer's machine and fails them under CI (CI set).
+    """
     if not REAL_DATA.is_dir():
-        pytest.skip(f"real data folder not found: {REAL_DATA} (set ZCUT_REAL_DATA)")
+        why = (f"real data folder not found: {REAL_DATA}; put the real PCD/MCAP files there "
+               "(../shared/data/real beside the checkout) or set ZCUT_REAL_DATA=/path/to/them")
+        if os.environ.get("CI"):
+            pytest.fail(why)
+        pytest.skip(why)
     return REAL_DATA

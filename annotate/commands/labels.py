@@ -15,11 +15,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     ex.add_argument("log", type=Path, metavar="LOG.mcap")
     ex.add_argument("--db", type=Path, required=True, metavar="LABELS.sqlite")
     ex.add_argument("-o", "--out", type=Path, required=True, metavar="LABELS.mcap")
+    ex.add_argument("--force", action="store_true", help="replace the output if it exists")
     ex.add_argument("--annotator", default=None, help="needed when the log has labels by several annotators")
     im = sub.add_parser("import", help="append the labels of an exported MCAP as new revisions")
     im.add_argument("labels", type=Path, metavar="LABELS.mcap")
     im.add_argument("--db", type=Path, required=True, metavar="LABELS.sqlite")
     im.add_argument("--annotator", default=None, help="store them under this name (default: the exporter's)")
+    im.add_argument("--log", type=Path, default=None, metavar="LOG.mcap",
+                    help="the labelled log: registered in the store (created if missing) before the import")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -27,11 +30,19 @@ def run(args: argparse.Namespace) -> int:
     from annotate.store import LabelStore, StoreError, file_sha256
     from zcut.errors import ParameterError
 
-    for path in (getattr(args, "log", None), getattr(args, "labels", None), args.db):
+    creating = args.action == "import" and args.log is not None
+    for path in (getattr(args, "log", None), getattr(args, "labels", None), None if creating else args.db):
         if path is not None and not path.is_file():
             raise FileNotFoundError(2, "no such file", str(path))
+    if args.action == "export":
+        from replay.outputs import OutputPlan
+
+        OutputPlan([args.log, args.db], force=args.force).add(args.out, "the label export")
     with LabelStore(args.db) as store:
         if args.action == "import":
+            if args.log is not None:
+                n_frames = register_log(store, args.log)
+                print(f"registered {args.log} ({n_frames} frame(s)) in {args.db}")
             n = import_labels(store, args.labels, annotator=args.annotator)
             print(f"imported {n} label(s) from {args.labels} into {args.db}")
             return 0
@@ -56,6 +67,24 @@ def run(args: argparse.Namespace) -> int:
             raise ParameterError(f"--annotator {args.annotator!r}: no labels by them for {args.log}")
         else:
             who = args.annotator
-        n = export_labels(store, log, args.out, annotator=who)
+        from replay.outputs import AtomicOutput
+
+        with AtomicOutput(args.out) as out:
+            n = export_labels(store, log, out.temp, annotator=who)
         print(f"wrote {n} labelled frame(s) by {who} to {args.out}")
         return 0
+
+
+def register_log(store, log: Path) -> int:
+    """Register a log and its frames in a store (as ``zcut annotate`` does when it opens it)."""
+    import numpy as np
+
+    from replay.logs.reader import LogReader
+
+    rec = store.add_log(log)
+    n = 0
+    for f in LogReader(log).frames():
+        store.add_frame(rec, topic=f.topic, stamp_ns=f.stamp_ns, index=f.index, shape=f.shape,
+                        frame_id=f.frame_id, valid=np.isfinite(f.xyz).all(axis=2))
+        n += 1
+    return n

@@ -20,10 +20,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--voxel", type=float, default=1.0, metavar="MM", help="downsampling voxel (default 1 mm)")
     p.add_argument("--frames", metavar="A:B", help="frame index range of the empty scans")
     p.add_argument("--topic", metavar="T", help="cloud topic (when the log has several)")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing output; build from a log that is not marked as an empty bin, or "
+                        "whose scans do not agree (low registration fitness)")
+
+#: scans registered to the first with less fitness than this do not show the same empty bin
+MIN_SCAN_FITNESS = 0.6
 
 
 def run(args: argparse.Namespace) -> int:
     from replay.errors import ConfigError
+    from replay.logs import layout
+    from replay.outputs import AtomicOutput, OutputPlan
     from replay.pipeline import config as cfg
     from replay.pipeline.bin_model import (
         build_bin_model,
@@ -36,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--voxel must be > 0 mm, got {args.voxel!r}")
     if (args.log is None) == (args.model is None):
         raise ConfigError("give either EMPTY.mcap or --model PLY (not both)")
+    OutputPlan([p for p in (args.log, args.model, args.config) if p], force=args.force).add(args.output, "the bin model")
     if args.model is not None:
         import numpy as np
 
@@ -47,7 +56,8 @@ def run(args: argparse.Namespace) -> int:
         flip = np.array([1.0, -1.0, -1.0]) if args.z_up else np.ones(3)  # 180 degrees about x
         model = BinModel(model.points * (flip * args.scale), None if model.normals is None else model.normals * flip,
                          model.spacing_m * args.scale)
-        save_bin_model(model, args.output)
+        with AtomicOutput(args.output) as out:
+            save_bin_model(model, out.temp)
         print(f"zcut: wrote {args.output}: {len(model.points)} points from {args.model}", file=sys.stderr)
         return 0
     from replay.logs.reader import LogReader
@@ -56,6 +66,12 @@ def run(args: argparse.Namespace) -> int:
 
     layer = cfg.load_toml(args.config) if args.config else {}
     reader = LogReader(args.log, cloud_topic=args.topic)
+    kind = reader.metadata.get(layout.SYNTH_METADATA, {}).get("part_kind")
+    if kind not in (None, "empty") and not args.force:
+        raise ConfigError(f"{args.log} is a log of a bin filled with {kind}, not of the empty bin "
+                          "(its zcut.synth metadata): a model built from it would hold the parts (--force to build anyway)")
+    if layout.RESULTS_METADATA in reader.metadata and not args.force:
+        raise ConfigError(f"{args.log} is a results file of zcut replay, not empty-bin scans")
     start, stop = parse_frames(args.frames)
     model, reports = build_bin_model(reader.frames(start=start, stop=stop),
                                      bin_mask_params=BinMaskParams(**layer.get("bin_mask", {})),
@@ -69,7 +85,13 @@ def run(args: argparse.Namespace) -> int:
         else:
             print(f"scan {r.index}: {r.n_points} bin points, fitness {r.registration.fitness:.3f}, "
                   f"RMSE {r.registration.inlier_rmse * 1000:.2f} mm")
-    save_bin_model(model, args.output)
+    weak = [r for r in reports if r.registration is not None and r.registration.fitness < MIN_SCAN_FITNESS]
+    if weak and not args.force:
+        raise ConfigError(f"scan(s) {', '.join(str(r.index) for r in weak)} fit the first scan poorly (fitness "
+                          f"{min(r.registration.fitness for r in weak):.2f} < {MIN_SCAN_FITNESS}): is the bin empty "
+                          "and the same in every scan? (--force to build anyway)")
+    with AtomicOutput(args.output) as out:
+        save_bin_model(model, out.temp)
     used = sum(1 for r in reports if not r.skipped)
     print(f"zcut: wrote {args.output}: {len(model.points)} points from {used} scan(s)", file=sys.stderr)
     if reader.damage:

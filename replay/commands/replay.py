@@ -149,6 +149,12 @@ def run(args: argparse.Namespace) -> int:
     sinks = plan_outputs(args, inputs=[args.log, *inputs_of(args)])
     model = load_model(args)
     session = open_session(args.log, args, bin_model=model, overrides=overrides)
+    from replay.logs import layout
+
+    if layout.RESULTS_METADATA in session.reader.metadata:
+        src = session.reader.metadata[layout.RESULTS_METADATA].get("source", "?")
+        print(f"warning: {args.log} is a results file of zcut replay (of {src}): its cloud is "
+              f"{session.reader.cloud_topic}, with the outliers already removed", file=sys.stderr)
     total = None if frames[1] is None else frames[1] - frames[0]
     on_start, on_frame = print_table_callbacks(json_mode=args.json, total=total)
     planned = _planned(session, frames)

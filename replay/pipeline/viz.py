@@ -126,6 +126,8 @@ def default_blueprint() -> rrb.Blueprint:
             ),
             column_shares=[2, 3, 2],
         ),
+        # the viewer opens on the depth timeline: scrubbing it descends the z-cuts of the frame shown
+        rrb.TimePanel(timeline="depth_um", expanded=True),
         collapse_panels=False,
     )
 

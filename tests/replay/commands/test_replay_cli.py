@@ -193,7 +193,7 @@ def test_bin_model_from_a_given_ply(tmp_path, capsys, bin_ply):
     assert rc == 1 and "give either EMPTY.mcap or --model PLY" in err
     notply = tmp_path / "x.ply"
     notply.write_text("hello")
-    rc, _, err = run_cli(capsys, "bin-model", "--model", notply, "-o", out)
+    rc, _, err = run_cli(capsys, "bin-model", "--model", notply, "-o", out, "--force")
     assert rc == 1 and "not a PLY file" in err
 
 

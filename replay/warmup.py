@@ -1,0 +1,55 @@
+"""Compile zcut's numba kernels ahead (``python -m replay.warmup``; ``scripts/install.sh`` runs it).
+
+The kernels are compiled on first use and cached beside their modules; a first ``zcut demo`` would
+otherwise wait about a minute in silence. This runs every kernel once on tiny inputs: a small
+synthetic log with its bin model through the whole pipeline, the z-cut's kernels (flooding,
+union-find, the grid), SOR in both conventions, and the PCD/PLY readers.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def main() -> int:
+    import numpy as np
+
+    from replay.logs.reader import LogReader
+    from replay.pipeline.bin_model import build_bin_model
+    from replay.pipeline.session import ReplaySession
+    from replay.synth.log import write_synthetic_log
+    from zcut import find_clusters, sor_outliers, zcut_outliers, zcut_tree
+    from zcut.params import ZCutParams
+
+    t0 = time.perf_counter()
+    print("zcut: compiling the numba kernels (once; cached beside the modules)…", file=sys.stderr, flush=True)
+    rng = np.random.default_rng(0)
+    h = rng.normal(size=(40, 50)).cumsum(axis=0)
+    zcut_outliers(h, step=0.2, max_depth=3.0, max_area=20)
+    for kernel in ("flood", "union-find"):
+        find_clusters(h, params=ZCutParams(step=0.2, max_depth=3.0, max_area=20.0), kernel=kernel)
+    tree = zcut_tree(h, step=0.2, max_depth=3.0)
+    tree.counts([1.0, 3.0], [5.0, 20.0], truth=h > 1, scored=np.ones(h.shape, bool))
+    xyz = np.dstack([*np.meshgrid(np.arange(50.0), np.arange(40.0)), 500 + h]).astype(np.float32)
+    for convention in ("pcl", "open3d"):
+        sor_outliers(xyz, k=4, convention=convention)
+        sor_outliers(xyz.astype(np.float64) * [1, 1, -1], k=4, convention=convention)
+    with tempfile.TemporaryDirectory() as d:
+        log, empty = Path(d) / "w.mcap", Path(d) / "e.mcap"
+        write_synthetic_log(log, kind="rods", frames=1, seed=1, size=(60, 96))
+        write_synthetic_log(empty, empty=True, frames=2, seed=1, size=(60, 96))
+        model, _ = build_bin_model(LogReader(empty).frames())
+        for bm in (model, None):
+            ReplaySession.open(log, bin_model=bm).run()
+    print(f"zcut: kernels compiled in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    from replay.cli import configure_process
+
+    configure_process()
+    sys.exit(main())
