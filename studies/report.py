@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["PLOT_NAMES", "Plot", "make_plots", "paper_findings", "render_html", "write_report"]
+__all__ = ["PLOT_NAMES", "Plot", "findings_table", "make_plots", "paper_findings", "render_html", "write_report"]
 
 #: Every plot file a report may write, in page order (those a grid cannot draw are not written,
 #: and a stale one from an earlier run of the same folder is removed).
@@ -104,6 +104,7 @@ class _Sweep:
     a_max: float | None          # px, when one log (one a_max) was swept
     sor_enabled: bool
     config: dict
+    index: dict[tuple, dict]     # (method, *its parameters as keys) -> the set
 
     @classmethod
     def of(cls, summary: dict) -> _Sweep:
@@ -127,9 +128,14 @@ class _Sweep:
         if len(summary.get("logs") or []) != 1 or not isinstance(a_max, (int, float)):
             a_max = None
         sor_enabled = bool(ssets) and (config.get("sor") or {}).get("enabled", True) is not False
-        return cls(summary, zsets, ssets, area, ("step_mm", "max_depth_mm", area),
-                   ("sor_k", "sor_std_ratio") + (("step_mm", "max_depth_mm") if top else ()),
-                   chosen, float(a_max) if a_max is not None else None, sor_enabled, config)
+        zparams = ("step_mm", "max_depth_mm", area)
+        sparams = ("sor_k", "sor_std_ratio") + (("step_mm", "max_depth_mm") if top else ())
+        index: dict[tuple, dict] = {}
+        for method, group, params in (("zcut", zsets, zparams), ("sor", ssets, sparams)):
+            for e in group:
+                index.setdefault((method, *(_key(e.get(k)) for k in params)), e)
+        return cls(summary, zsets, ssets, area, zparams, sparams, chosen,
+                   float(a_max) if a_max is not None else None, sor_enabled, config, index)
 
     def params(self, method: str) -> tuple[str, ...]:
         return self.zparams if method == "zcut" else self.sparams
@@ -152,8 +158,11 @@ class _Sweep:
         return sorted(out.items())
 
     def find(self, method: str, **params) -> dict | None:
-        sets = self.zsets if method == "zcut" else self.ssets
+        """The set of ``method`` with these parameters (the first match when some are not given)."""
         want = {k: _key(v) for k, v in params.items() if k in self.params(method)}
+        if len(want) == len(self.params(method)):
+            return self.index.get((method, *(want[k] for k in self.params(method))))
+        sets = self.zsets if method == "zcut" else self.ssets
         for e in sets:
             if all(_key(e.get(k)) == v for k, v in want.items()):
                 return e
@@ -693,6 +702,61 @@ def paper_findings(summary: dict) -> list[dict[str, Any]]:
         if other is not None:
             out.append(_finding("smaller Δd flags more outliers", "Fig. 20", "step_mm", base, other, +1))
     return out
+
+
+_FINDING_COLUMNS = (("max_depth_mm", 1.5, "larger d_max"), ("max_depth_mm", 0.5, "smaller d_max"),
+                    ("step_mm", None, "smaller Δd"), ("rho_thr", 0.5, "smaller ρ_thr"), ("rho_thr", 1.5, "larger ρ_thr"))
+
+
+def findings_table(summaries: dict[str, dict]) -> str:
+    """A Markdown table over several sweeps (e.g. one per part kind): the paper's nominal set against
+    the tuned one (F1 with 95 % intervals) and whether each of the paper's findings holds.
+
+    Parameters
+    ----------
+    summaries : dict of str to dict
+        A row name (e.g. the part kind) -> that sweep's summary.
+
+    Returns
+    -------
+    str
+        The table and a line explaining its cells: ``✓``/``✗`` the count moved as the paper says or
+        not (``=`` unchanged), then F1 ``↑``/``↓`` beyond the 95 % intervals or ``≈`` within them.
+    """
+    def f1(e):
+        if not e or e.get("f1") is None:
+            return "—"
+        lo, hi = (e.get("ci95") or {}).get("f1") or (None, None)
+        return f"{e['f1']:.3f} [{_num(lo)}, {_num(hi)}]"
+
+    head = ["", "nominal F1", "tuned Δd / d_max / ρ_thr", "tuned F1", "SOR tuned F1"] + [c for *_, c in _FINDING_COLUMNS]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for name, summ in summaries.items():
+        tz = (summ.get("tuned") or {}).get("zcut")
+        params = (f"{_fmt_param(tz.get('step_mm'))} / {_fmt_param(tz.get('max_depth_mm'))} / "
+                  f"{_fmt_param(tz.get('rho_thr') if tz.get('rho_thr') is not None else tz.get('max_area_px'))}"
+                  if tz else "—")
+        cells = [name, f1(summ.get("nominal")), params, f1(tz), f1((summ.get("tuned") or {}).get("sor"))]
+        found = paper_findings(summ)
+        for key, factor, _ in _FINDING_COLUMNS:
+            hit = None
+            for f in found:
+                if f["parameter"] != key and not (key == "rho_thr" and f["parameter"] == "max_area_px"):
+                    continue
+                b, c = _key(f["base"].get(f["parameter"])), _key(f["changed"].get(f["parameter"]))
+                if factor is None or (b and c is not None and abs(c / b - factor) < 1e-6):
+                    hit = f
+                    break
+            if hit is None:
+                cells.append("—")
+                continue
+            count = {True: "✓", False: "✗", None: "="}[hit["count_as_paper"]]
+            cells.append(count + " " + {"higher": "F1↑", "lower": "F1↓", "within the intervals": "F1≈"}.get(hit["f1"], ""))
+        lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
+    lines.append("")
+    lines.append("Findings at each sweep's chosen point: ✓/✗ the number flagged moved as the paper says or not "
+                 "(= unchanged); F1↑/F1↓ beyond the 95 % intervals, F1≈ within them; — not in the grid.")
+    return "\n".join(lines) + "\n"
 
 
 def _finding(claim, fig, key, base, other, sign) -> dict[str, Any]:

@@ -257,6 +257,20 @@ def test_findings_follow_the_counts(tmp_path):
     assert ("step_mm", 30.0, 0.07, 0.1) in found
 
 
+def test_findings_table_over_part_kinds(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    table = report.findings_table({"zinc_nuts": model_summary(tmp_path / "a"),
+                                   "one point": model_summary(tmp_path / "b", steps=(0.2,), depths=(30.0,),
+                                                              rhos=(0.07,), sor_ks=(4,), sor_stds=(1.0,))})
+    lines = table.splitlines()
+    assert lines[0].startswith("|  | nominal F1 |") and len(lines) == 6
+    rich, poor = lines[2].split(" | "), lines[3].split(" | ")
+    assert all(c.strip()[0] in "✓✗=" for c in rich[5:]), rich
+    # a grid without the neighbours: only the chosen point (which is nominal and tuned)
+    assert poor[5:] == ["—"] * 4 + ["— |"] and poor[1] == poor[3]
+
+
 @pytest.mark.parametrize("case, kw, expected", [
     ("one value per axis", {"steps": (0.2,), "depths": (30.0,), "rhos": (0.07,), "sor_ks": (4,), "sor_stds": (1.0,)},
      {"precision_recall.png"}),
