@@ -1081,7 +1081,10 @@ def _notes_section(summary: dict) -> str:
     out = []
     if summary.get("notes"):
         out.append("<h3>How the parameters were resolved</h3>" + items(summary["notes"]))
-    bad = [("Damage (frames lost: exit status 3)", summary.get("damage"), str),
+    def damage(d):
+        return f"{d['log']}: {d.get('note')}" if isinstance(d, dict) and d.get("log") else str(d)
+
+    bad = [("Damage (frames lost: exit status 3)", summary.get("damage"), damage),
            ("Errors (logs or units that failed)", summary.get("errors"), str),
            ("Unscored frames (no truth for them)", summary.get("unscored"), unscored)]
     for title, xs, fmt in bad:

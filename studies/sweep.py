@@ -306,11 +306,13 @@ def sensitivity_at(sets: list[dict], point: tuple[float, float, float]) -> dict[
 
     step, depth, rho = point
     mid = find(step, depth, rho)
-    if mid is None or rho is None:
+    if mid is None:
         return None
     out: dict[str, Any] = {}
-    for name, lo, hi in (("theta", find(step, depth, 0.5 * rho), find(step, depth, 1.5 * rho)),
-                         ("omega", find(step, 0.5 * depth, rho), find(step, 1.5 * depth, rho))):
+    pairs = [("omega", find(step, 0.5 * depth, rho), find(step, 1.5 * depth, rho))]
+    if rho is not None:  # θ needs ρ_thr (a_max known); ω does not
+        pairs.insert(0, ("theta", find(step, depth, 0.5 * rho), find(step, depth, 1.5 * rho)))
+    for name, lo, hi in pairs:
         if lo is None or hi is None:
             continue
         for n, key in ((1, "n1"), (2, "n2")):
@@ -320,4 +322,6 @@ def sensitivity_at(sets: list[dict], point: tuple[float, float, float]) -> dict[
 
 
 def _close(a, b) -> bool:
-    return a is not None and b is not None and abs(a - b) <= 1e-9 * max(1.0, abs(a), abs(b))
+    if a is None or b is None:
+        return a is None and b is None
+    return abs(a - b) <= 1e-9 * max(1.0, abs(a), abs(b))

@@ -25,6 +25,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from replay.errors import ConfigError, LogDamageError
 from replay.logs.frame import Frame
 from replay.pipeline import config as cfg
@@ -53,11 +55,18 @@ class FrameRow:
     rmse_mm: float
     time_s: float
     warnings: tuple[str, ...]
+    pose_error_mm: float = math.nan
+    pose_error_deg: float = math.nan
 
     @classmethod
-    def of(cls, result: FrameResult) -> FrameRow:
+    def of(cls, result: FrameResult, *, true_pose: np.ndarray | None = None) -> FrameRow:
+        """The row of a result; ``true_pose``: the frame's true ``T_cam_bin`` (a synthetic log's), for
+        the registration's pose error."""
         reg = result.registration
         m = result.metrics
+        err_mm = err_deg = math.nan
+        if true_pose is not None and reg is not None:
+            err_mm, err_deg = pose_error(reg.T_cam_bin, true_pose)
         return cls(
             index=result.index, stamp_ns=result.stamp_ns, valid_px=int(result.valid.sum()),
             zcut=int(result.zcut_outliers.sum()), sor=int(result.sor_outliers.sum()),
@@ -66,13 +75,33 @@ class FrameRow:
             beta_zcut=float(m.beta2),
             fitness=float(reg.fitness) if reg is not None else math.nan,
             rmse_mm=float(reg.inlier_rmse) * 1000.0 if reg is not None else math.nan,
-            time_s=float(result.timings["total"]), warnings=result.warnings,
+            time_s=float(result.timings["total"]), warnings=result.warnings, pose_error_mm=err_mm,
+            pose_error_deg=err_deg,
         )
 
     def as_dict(self) -> dict[str, Any]:
         d = {k: getattr(self, k) for k in self.__slots__}
         d["warnings"] = list(self.warnings)
         return {k: _json_number(v) for k, v in d.items()}
+
+
+def pose_error(T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
+    """(translation error in mm, rotation error in degrees) of a pose against the true one."""
+    dt = 1000.0 * float(np.linalg.norm(T[:3, 3] - T_true[:3, 3]))
+    c = (np.trace(T[:3, :3].T @ T_true[:3, :3]) - 1.0) / 2.0
+    return dt, float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def true_poses_of(metadata: dict) -> dict[int, np.ndarray]:
+    """A synthetic log's true bin poses by stamp (empty for other logs; the scene generator is only
+    imported for a log that carries poses)."""
+    from replay.logs import layout
+
+    if layout.SYNTH_POSES_METADATA not in metadata:
+        return {}
+    from replay.synth.log import true_poses
+
+    return true_poses(metadata)
 
 
 def _json_number(v: Any) -> Any:
@@ -357,13 +386,14 @@ class ReplaySession:
             end = reader.n_frames if frames[1] is None else min(frames[1], reader.n_frames)
             summary.n_planned = max(end - frames[0], 0)
         completed = False
+        poses = true_poses_of(reader.metadata)
         sink.start(self.start_info())
         try:
             results = self.results(frames=frames)
             try:
                 for frame, result in results:
                     sink.write(frame, result)
-                    row = FrameRow.of(result)
+                    row = FrameRow.of(result, true_pose=poses.get(frame.stamp_ns))
                     summary.rows.append(row)
                     if on_frame is not None:
                         on_frame(frame, result, row)

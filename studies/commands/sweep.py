@@ -158,9 +158,9 @@ def run(args: argparse.Namespace) -> int:
         "sensitivity": {"chosen": sweep.sensitivity_at(sets, chosen[:3]),
                         "tuned": sweep.sensitivity_at(sets, (tuned["zcut"]["step_mm"], tuned["zcut"]["max_depth_mm"],
                                                              tuned["zcut"]["rho_thr"])) if tuned["zcut"] else None},
-        "damage": [d for m in store.metas().values() for d in m["damage"]],
+        "damage": [{"log": Path(m["log"]).name, "note": d} for m in store.metas().values() for d in m["damage"]],
         "errors": [f"{r.unit.log}: {r.error}" for r in results if r.error],
-        "unscored": [u for m in store.metas().values() for u in m["unscored"]],
+        "unscored": [{"log": Path(m["log"]).name, **u} for m in store.metas().values() for u in m["unscored"]],
         "reproduce": _reproduce(args),
         "seconds": time.perf_counter() - t0,
     }
