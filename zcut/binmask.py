@@ -23,7 +23,11 @@ import numpy as np
 from .errors import InputShapeError, ParameterError, describe_array
 from .types import RGB, XYZ, Mask
 
-__all__ = ["BinMaskResult", "bin_mask", "bin_pixels", "fill_holes"]
+__all__ = ["MIN_RING_PX", "BinMaskResult", "bin_mask", "bin_pixels", "fill_holes"]
+
+#: The narrowest ring of bin pixels (:func:`bin_pixels`), in pixels: in a small image (a bin 100 px
+#: across) a fifth of the inradius is the rim and little else, too little for the ICP to hold on to.
+MIN_RING_PX = 10.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -190,12 +194,12 @@ def bin_mask(
     )
 
 
-def bin_pixels(result: BinMaskResult, xyz: XYZ, *, ring_frac: float = 0.2) -> Mask:
+def bin_pixels(result: BinMaskResult, xyz: XYZ, *, ring_frac: float = 0.2, min_ring_px: float = MIN_RING_PX) -> Mask:
     """The pixels of the bin itself: its rim and upper walls, never the parts inside it.
 
     The bright pixels of the component (``result.walls``) with a finite point that lie no farther
     from the footprint's border than ``ring_frac`` times the footprint's inradius (the largest
-    distance of a footprint pixel to the border). The rim is the outermost band of the footprint,
+    distance of a footprint pixel to the border), or ``min_ring_px`` when that is wider. The rim is the outermost band of the footprint,
     the walls come next, and the pile lies below the rim, in from the walls: a shiny part, as
     bright as the plastic, joins the component but not the ring. Distances are Euclidean, in
     pixels, to the nearest pixel outside the footprint; the image's own edge is no border (a bin
@@ -214,6 +218,8 @@ def bin_pixels(result: BinMaskResult, xyz: XYZ, *, ring_frac: float = 0.2) -> Ma
         The frame's organized cloud (NaN = invalid), the image's size.
     ring_frac : float
         Width of the ring as a fraction of the footprint's inradius, in (0, 1].
+    min_ring_px : float
+        The narrowest ring, in pixels (>= 0).
 
     Returns
     -------
@@ -228,6 +234,9 @@ def bin_pixels(result: BinMaskResult, xyz: XYZ, *, ring_frac: float = 0.2) -> Ma
     if isinstance(ring_frac, bool) or not isinstance(ring_frac, (int, float, np.integer, np.floating)) \
             or not 0.0 < float(ring_frac) <= 1.0:
         raise ParameterError(f"ring_frac must be a number in (0, 1], got {ring_frac!r}")
+    if isinstance(min_ring_px, bool) or not isinstance(min_ring_px, (int, float, np.integer, np.floating)) \
+            or not min_ring_px >= 0:
+        raise ParameterError(f"min_ring_px must be a number >= 0, got {min_ring_px!r}")
     out = np.zeros(shape, bool)
     if not result.found:
         return out
@@ -241,7 +250,7 @@ def bin_pixels(result: BinMaskResult, xyz: XYZ, *, ring_frac: float = 0.2) -> Ma
         ring = np.ones(fp.shape, bool)  # the footprint fills the whole image: no border to measure from
     else:
         dist = cv2.distanceTransform(fp, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-        ring = dist <= float(ring_frac) * float(dist.max())
+        ring = dist <= max(float(ring_frac) * float(dist.max()), float(min_ring_px))
     sub = result.walls[r0:r1, c0:c1] & ring
     sub &= np.isfinite(a[r0:r1, c0:c1]).all(axis=2)
     out[r0:r1, c0:c1] = sub

@@ -110,6 +110,10 @@ def test_bin_pixels_is_a_ring_of_the_footprint_measured_from_its_border():
     assert differ.sum() <= 4
     assert got[12, 75] and got[88, 75] and got[50, 148]          # top, bottom and right borders
     assert not got[50, 0] and not got[50, 75] and not got[50, 140]  # image edge, middle, invalid point
+    # a ring narrower than min_ring_px is widened to it
+    narrow = bin_pixels(r, xyz, ring_frac=0.01, min_ring_px=12.0)
+    assert np.array_equal(narrow, mask & (dist <= 12.0) & np.isfinite(xyz).all(axis=2))
+    assert np.array_equal(bin_pixels(r, xyz, ring_frac=frac, min_ring_px=0.0), got)
     # only the bright pixels of the component: a dark pixel of the ring is not bin plastic
     walls = mask.copy()
     walls[12, 75] = False
@@ -157,6 +161,9 @@ def test_bin_pixels_are_bin_and_not_parts_on_a_synthetic_shiny_pile():
     (np.zeros((240, 320, 3), np.float32), {"ring_frac": 1.5}, ParameterError, "ring_frac"),
     (np.zeros((240, 320, 3), np.float32), {"ring_frac": True}, ParameterError, "ring_frac"),
     (np.zeros((240, 320, 3), np.float32), {"ring_frac": "0.2"}, ParameterError, "ring_frac"),
+    (np.zeros((240, 320, 3), np.float32), {"min_ring_px": -1.0}, ParameterError, "min_ring_px"),
+    (np.zeros((240, 320, 3), np.float32), {"min_ring_px": np.nan}, ParameterError, "min_ring_px"),
+    (np.zeros((240, 320, 3), np.float32), {"min_ring_px": True}, ParameterError, "min_ring_px"),
 ])
 def test_bin_pixels_bad_input(filled, xyz, kw, exc, match):
     frame, _ = filled

@@ -14,6 +14,7 @@ from zcut.cloud import Intrinsics
 from zcut.errors import InputShapeError, ParameterError
 from zcut.params import RegistrationParams
 from zcut.registration import (
+    PIXEL_REACH,
     initial_guess,
     pose_fitness,
     prepare_icp_model,
@@ -146,8 +147,9 @@ def _brute_force_fitness(rim: np.ndarray, T: np.ndarray, cloud: np.ndarray, dist
         return 0.0, 0
     from scipy.spatial.distance import cdist
 
+    reach = np.full(len(p), dist) if K is None else np.maximum(dist, PIXEL_REACH * p[:, 2] / min(K.fx, K.fy))
     d = cdist(p, cloud).min(axis=1)
-    return float(np.count_nonzero(d <= dist)) / len(p), len(p)
+    return float(np.count_nonzero(d <= reach)) / len(p), len(p)
 
 
 def test_pose_fitness_equals_a_brute_force_count(filled, model):
@@ -158,7 +160,8 @@ def test_pose_fitness_equals_a_brute_force_count(filled, model):
     r = register_bin(icp, prepare_target(target, voxel_m=p.voxel_m))
     K = frame.intrinsics
     half = Intrinsics(fx=K.fx, fy=K.fy, cx=K.cx, cy=K.cy, width=K.width // 2, height=K.height)  # the left half
-    for intrinsics in (None, K, half):
+    fine = Intrinsics(fx=4 * K.fx, fy=4 * K.fy, cx=4 * K.cx, cy=4 * K.cy, width=4 * K.width, height=4 * K.height)
+    for intrinsics in (None, K, half, fine):
         tgt = prepare_target(target, voxel_m=p.voxel_m, intrinsics=intrinsics)
         cloud = np.asarray(tgt.cloud.points)
         for shift_mm, dist in [(0.0, 0.01 / 3), (1.0, 0.01 / 3), (3.0, 0.002), (0.5, 0.01), (6.0, 0.004)]:
@@ -173,6 +176,29 @@ def test_pose_fitness_equals_a_brute_force_count(filled, model):
     behind[2, 3] -= 2.0  # the whole bin behind the camera: nothing in view
     assert pose_fitness(icp, prepare_target(target, voxel_m=p.voxel_m, intrinsics=K), behind,
                         max_correspondence_m=0.01) == 0.0
+
+
+def test_a_coarse_camera_confirms_the_rim_within_its_pixel_footprint():
+    from replay.pipeline.bin_model import build_bin_model
+
+    # 160 px wide: a pixel is 3.5 mm on the rim, more than the fine distance (3.3 mm), and the rim
+    # (8 mm) is two pixels wide; at the true pose, knowing the camera, the whole rim is confirmed
+    h, w = 120, 160
+    empty = [dataclasses.replace(ps.scene(h=h, w=w, shift=s, parts=False)[0], index=i)
+             for i, s in enumerate([(0, 0, 0), (0.02, 0, 0), (-0.02, 0, 0)])]
+    model = build_bin_model(empty, registration=RegistrationParams(voxel_mm=2.0), voxel_mm=2.0)[0]
+    frame, _ = ps.scene(h=h, w=w, shift=SHIFT)
+    T = np.eye(4)
+    T[:3, 3] = SHIFT
+    p = RegistrationParams(voxel_mm=2.0)
+    icp = prepare_icp_model(model, p)
+    pts = frame.xyz[bin_mask(frame.rgb).walls].astype(np.float64)
+    dist = p.fine_correspondence_m
+    with_camera = pose_fitness(icp, prepare_target(pts, voxel_m=p.voxel_m, intrinsics=frame.intrinsics), T,
+                               max_correspondence_m=dist)
+    blind = pose_fitness(icp, prepare_target(pts, voxel_m=p.voxel_m), T, max_correspondence_m=dist)
+    assert with_camera >= 0.95 > blind
+    assert (ps.RIM_Z + SHIFT[2]) / frame.intrinsics.fx > dist  # a pixel on the rim: indeed more than the distance
 
 
 def test_icp_fitness_is_open3ds_at_the_final_pose(filled, model):
