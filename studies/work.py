@@ -165,6 +165,8 @@ def batch_row(unit, frame, result, row, truth, region) -> dict:
         out[c] = int(getattr(row, c))
     out["fitness"] = _finite(row.fitness)
     out["rmse_mm"] = _finite(row.rmse_mm)
+    out["pose_error_mm"] = _finite(row.pose_error_mm)
+    out["pose_error_deg"] = _finite(row.pose_error_deg)
     for s in STAGE_COLUMNS:
         out[f"t_{s}_s"] = _finite(float(result.timings[s])) if s in result.timings else None
     out["warnings"] = "; ".join(result.warnings)
@@ -181,7 +183,7 @@ def batch_row(unit, frame, result, row, truth, region) -> dict:
 def run_batch_unit(unit, job: Job) -> UnitResult:
     """Replay the unit's frames; one row per frame (see :func:`batch_row`)."""
     from annotate.truth import scored_region
-    from replay.pipeline.session import FrameRow
+    from replay.pipeline.session import FrameRow, true_poses_of
 
     t0, c0 = time.perf_counter(), time.process_time()
     res = UnitResult(unit)
@@ -190,10 +192,11 @@ def run_batch_unit(unit, job: Job) -> UnitResult:
         session = open_unit_session(unit, job)
         truth_src = truth_source(unit, job)
         sinks = _per_log_sinks(unit, job)
+        poses = true_poses_of(session.reader.metadata)
         results = session.results(frames=(unit.start, unit.stop))
         try:
             for frame, result in results:
-                row = FrameRow.of(result)
+                row = FrameRow.of(result, true_pose=poses.get(frame.stamp_ns))
                 for s in sinks:
                     s.write(frame, result)
                 t = truth_src.truth(frame, result.valid)
