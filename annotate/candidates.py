@@ -45,7 +45,7 @@ class PipelineRunner:
 
     def _resolve(self, frame) -> None:
         from replay.pipeline import config as cfg
-        from zcut.bin_model import prepare_bin_model
+        from zcut.prepared_model import prepare_bin_model
 
         resolved = cfg.resolve_config(self.metadata, frame, config_file=self.config_path,
                                       overrides=self.overrides, intrinsics=self.intrinsics)

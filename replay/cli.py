@@ -18,18 +18,15 @@ from annotate.commands import accuracy as accuracy_cmd
 from annotate.commands import annotate as annotate_cmd
 from annotate.commands import labels as labels_cmd
 from replay.commands import bin_model as bin_model_cmd
-from replay.commands import demo as demo_cmd
 from replay.commands import record as record_cmd
 from replay.commands import replay as replay_cmd
 from replay.commands import synth as synth_cmd
 from replay.commands import topics as topics_cmd
+from replay.process import EXIT_DATA_LOSS, EXIT_OK, EXIT_USER_ERROR, configure_process  # noqa: F401
 from studies.commands import batch as batch_cmd
+from studies.commands import demo as demo_cmd
 from studies.commands import sweep as sweep_cmd
 from zcut.errors import ZcutError
-
-EXIT_OK = 0
-EXIT_USER_ERROR = 1
-EXIT_DATA_LOSS = 3
 
 # name -> (module, one-line help). Order is the order shown by --help.
 COMMANDS = {
@@ -78,25 +75,6 @@ def build_parser() -> argparse.ArgumentParser:
         module.add_arguments(p)
         p.set_defaults(_module=module)
     return parser
-
-
-def configure_process() -> None:
-    """Process-wide settings that belong to the command line, not to the library.
-
-    numba's own workqueue threads unless the user chose a layer: OpenMP workers spin after each
-    parallel region and steal the CPU on a busy machine (measured 2-3x slower here), and an old TBB
-    shipped by other wheels makes numba warn when it probes the "tbb" layer.
-    """
-    if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
-        os.environ["NUMBA_THREADING_LAYER_PRIORITY"] = "workqueue omp tbb"
-        if "numba" in sys.modules:  # numba read its config at import: set it there too
-            import numba
-
-            numba.config.THREADING_LAYER_PRIORITY = ["workqueue", "omp", "tbb"]
-    # `--spawn` runs `rerun` from PATH: a venv that is not activated has it only beside its python
-    here = os.path.dirname(sys.executable)
-    if os.path.isfile(os.path.join(here, "rerun")) and here not in os.environ.get("PATH", "").split(os.pathsep):
-        os.environ["PATH"] = here + os.pathsep + os.environ.get("PATH", "")
 
 
 #: commands that run numba kernels (the others never wait for a compilation)

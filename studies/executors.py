@@ -41,7 +41,7 @@ def default_workers() -> int:
 
 def _worker_init() -> None:
     # the command line's process settings, in every worker (they start fresh: spawn)
-    from replay.cli import configure_process
+    from replay.process import configure_process
 
     configure_process()
 

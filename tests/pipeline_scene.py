@@ -112,6 +112,6 @@ def resolved_config(layer: dict, shape: tuple[int, int] = (240, 320)):
 
 def prepared(model, config):
     """The bin model prepared for ``config`` (what a replay session builds once)."""
-    from zcut.bin_model import prepare_bin_model
+    from zcut.prepared_model import prepare_bin_model
 
     return prepare_bin_model(model, registration=config.registration, removal=config.removal)

@@ -3,7 +3,8 @@
 No file I/O, no viewer, no database here: see ``replay`` and ``annotate`` for those.
 """
 
-from .bin_model import BinModel, PreparedBinModel, prepare_bin_model
+from .bin_model import BinModel
+from .prepared_model import PreparedBinModel, prepare_bin_model
 from .cloud import Intrinsics, height_mm, valid_mask
 from .cut_grid import ZCutTree, zcut_tree
 from .cuts import CutResult, find_clusters, zcut_outliers, zcut_outliers_reference

@@ -1,29 +1,15 @@
-"""The empty-bin model, and the model prepared once for a replay's registration and removal.
-
-A :class:`BinModel` is a point set in the bin's own frame. The stages that use it every frame need
-search structures built from it (downsampled copies with normals for ICP, a KD-tree for the pose
-check, a grid of cells for the bin-point test). :func:`prepare_bin_model` builds all of them once,
-for one set of stage parameters, into a frozen :class:`PreparedBinModel` that the caller passes to
-:func:`zcut.registration.register_bin`, :func:`zcut.registration.pose_fitness` and
-:func:`zcut.removal.remove_table_and_bin`: no module-level cache, nothing shared between threads
-but read-only arrays.
-"""
+"""The empty-bin model: a point set in the bin's own frame (see :mod:`zcut.prepared_model` for the
+search structures built from it once per replay)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .errors import InputShapeError, ParameterError, describe_array
 
-if TYPE_CHECKING:
-    from .params import RegistrationParams, RemovalParams
-    from .registration import IcpModel
-    from .removal import RemovalIndex
-
-__all__ = ["BinModel", "PreparedBinModel", "prepare_bin_model"]
+__all__ = ["BinModel"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -56,44 +42,3 @@ class BinModel:
             )
         if not (np.isfinite(self.spacing_m) and self.spacing_m > 0):
             raise ParameterError(f"BinModel.spacing_m must be > 0, got {self.spacing_m!r}")
-
-
-@dataclass(frozen=True, slots=True)
-class PreparedBinModel:
-    """A bin model with the search structures of registration and removal, built once.
-
-    Attributes
-    ----------
-    model : BinModel
-    icp : zcut.registration.IcpModel
-        Downsampled model clouds with normals, the KD-tree and the model's top and centre, for
-        the parameters it was prepared with.
-    removal : zcut.removal.RemovalIndex
-        Cell grids of the model for the bin-point tests, for the parameters it was prepared with.
-    """
-
-    model: BinModel
-    icp: IcpModel
-    removal: RemovalIndex
-
-
-def prepare_bin_model(model: BinModel, *, registration: RegistrationParams,
-                      removal: RemovalParams) -> PreparedBinModel:
-    """Build every per-model structure the registration and removal stages need.
-
-    Parameters
-    ----------
-    model : BinModel
-    registration : RegistrationParams
-    removal : RemovalParams
-        The parameters the prepared model will be used with (voxel sizes, search radii).
-
-    Returns
-    -------
-    PreparedBinModel
-    """
-    from .registration import prepare_icp_model
-    from .removal import prepare_removal_index
-
-    return PreparedBinModel(model, prepare_icp_model(model, registration),
-                            prepare_removal_index(model, removal))

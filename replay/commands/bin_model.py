@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     if reader.damage:
         for d in reader.damage:
             print(f"warning: data loss: {d}", file=sys.stderr)
-        from replay.cli import EXIT_DATA_LOSS
+        from replay.process import EXIT_DATA_LOSS
 
         return EXIT_DATA_LOSS
     return 0

@@ -138,7 +138,7 @@ def check_viewer_url(url: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from replay.cli import EXIT_DATA_LOSS
+    from replay.process import EXIT_DATA_LOSS
     from replay.commands.common import inputs_of, load_model, open_session, overrides_of
     from replay.errors import ConfigError
     from replay.pipeline.session import parse_frames

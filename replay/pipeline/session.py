@@ -32,7 +32,8 @@ from replay.logs.frame import Frame
 from replay.pipeline import config as cfg
 from replay.pipeline.sinks import FrameSink, NullSink, ReplayStart
 from replay.pipeline.stages import FrameResult, Zone, bin_zone, locate_bin, run_frame
-from zcut.bin_model import BinModel, PreparedBinModel, prepare_bin_model
+from zcut.bin_model import BinModel
+from zcut.prepared_model import PreparedBinModel, prepare_bin_model
 from zcut.registration import RegistrationResult
 
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from replay.logs.frame import Frame
 from replay.pipeline.config import PipelineConfig
-from zcut.bin_model import PreparedBinModel
+from zcut.prepared_model import PreparedBinModel
 from zcut.binmask import BinMaskResult, bin_mask
 from zcut.cuts import CutResult, find_clusters
 from zcut.errors import ParameterError

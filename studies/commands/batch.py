@@ -35,7 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from annotate.truth import check_region
-    from replay.cli import EXIT_DATA_LOSS
+    from replay.process import EXIT_DATA_LOSS
     from replay.commands.common import overrides_of
     from replay.errors import ConfigError
     from studies import batch

@@ -57,7 +57,7 @@ def _source_of_results(path: Path) -> Path | None:
 
 def run(args: argparse.Namespace) -> int:
     from annotate.truth import check_region
-    from replay.cli import EXIT_DATA_LOSS
+    from replay.process import EXIT_DATA_LOSS
     from replay.commands.common import overrides_of
     from replay.errors import ConfigError
     from replay.logs import layout

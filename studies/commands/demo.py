@@ -28,7 +28,7 @@ def run(args: argparse.Namespace) -> int:
         jsonable,
     )
     from annotate.truth import SyntheticTruth, scored_region
-    from replay.cli import EXIT_DATA_LOSS
+    from replay.process import EXIT_DATA_LOSS
     from replay.commands.replay import print_table_callbacks, viewer_command
     from replay.outputs import OutputPlan, config_path_for
     from replay.pipeline.bin_model import ensure_sample_bin_model, load_bin_model
