@@ -313,10 +313,13 @@ class RegistrationParams:
     max_iterations : int
         ICP iterations per pass.
     min_fitness : float
-        A registration whose bin fitness (the fraction of the bin's visible rim the frame confirms)
-        is lower failed.
+        A registration whose bin fitness (the share of the bin's rim, in the camera's view, that the
+        frame confirms within the fine correspondence distance) is lower failed.
     max_rmse_mm : float
         A registration whose RMSE is higher failed.
+    ring_frac : float
+        Width of the ring of bin pixels registered to (:func:`zcut.binmask.bin_pixels`), as a
+        fraction of the footprint's inradius; 1 = every bright pixel of the bin component.
     seed_from_first_frame : bool
         Seed every frame's registration with the converged pose of the log's first frame (a static
         bin: a fine pass only, when that pose still fits the frame). Every frame is then
@@ -328,8 +331,9 @@ class RegistrationParams:
     voxel_mm: float = 3.0
     max_correspondence_mm: float = 10.0
     max_iterations: int = 30
-    min_fitness: float = 0.3
+    min_fitness: float = 0.9
     max_rmse_mm: float = 5.0
+    ring_frac: float = 0.2
     seed_from_first_frame: bool = True
 
     def __post_init__(self) -> None:
@@ -339,6 +343,7 @@ class RegistrationParams:
         _number(self, "max_iterations", ge=1, integer=True)
         _number(self, "min_fitness", ge=0, le=1)
         _number(self, "max_rmse_mm", gt=0)
+        _number(self, "ring_frac", gt=0, le=1)
         _boolean(self, "seed_from_first_frame")
 
     @property

@@ -91,7 +91,7 @@ def build_bin_model(
             reports.append(ScanReport(frame.index, 0, None, "no bin found in the RGB image"))
             continue
         if reference is None:
-            reference = prepare_target(pts, voxel_m=r.voxel_m)
+            reference = prepare_target(pts, voxel_m=r.voxel_m, intrinsics=frame.intrinsics)
             parts.append(pts)
             reports.append(ScanReport(frame.index, len(pts), None, ""))
             continue

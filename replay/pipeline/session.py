@@ -58,6 +58,7 @@ class FrameRow:
     warnings: tuple[str, ...]
     pose_error_mm: float = math.nan
     pose_error_deg: float = math.nan
+    icp_fitness: float = math.nan
 
     @classmethod
     def of(cls, result: FrameResult, *, true_pose: np.ndarray | None = None) -> FrameRow:
@@ -77,7 +78,7 @@ class FrameRow:
             fitness=float(reg.fitness) if reg is not None else math.nan,
             rmse_mm=float(reg.inlier_rmse) * 1000.0 if reg is not None else math.nan,
             time_s=float(result.timings["total"]), warnings=result.warnings, pose_error_mm=err_mm,
-            pose_error_deg=err_deg,
+            pose_error_deg=err_deg, icp_fitness=float(reg.icp_fitness) if reg is not None else math.nan,
         )
 
     def as_dict(self) -> dict[str, Any]:

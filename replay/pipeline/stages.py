@@ -18,7 +18,7 @@ import numpy as np
 from replay.logs.frame import Frame
 from replay.pipeline.config import PipelineConfig
 from zcut.prepared_model import PreparedBinModel
-from zcut.binmask import BinMaskResult, bin_mask
+from zcut.binmask import BinMaskResult, bin_mask, bin_pixels
 from zcut.cuts import CutResult, find_clusters
 from zcut.errors import ParameterError
 from zcut.metrics import RelativeMetrics, relative_metrics
@@ -185,10 +185,12 @@ def locate_bin(
         c = config.registration
         use = seed is not None and seed.converged and c.seed_from_first_frame
         init = seed.T_cam_bin if use else None
-        walls = bm.walls & valid
+        # the bin itself (rim and upper walls), not the shiny parts as bright as its plastic
+        pixels = bin_pixels(bm, xyz, ring_frac=c.ring_frac)
         # the ICP downsamples to voxel_mm anyway: a regular subgrid of at most ~150k pixels is enough
-        s = max(1, int(np.ceil(np.sqrt(walls.sum() / REGISTRATION_MAX_POINTS))))
-        target = prepare_target(xyz[::s, ::s][walls[::s, ::s]].astype(np.float64), voxel_m=c.voxel_m)
+        s = max(1, int(np.ceil(np.sqrt(pixels.sum() / REGISTRATION_MAX_POINTS))))
+        target = prepare_target(xyz[::s, ::s][pixels[::s, ::s]].astype(np.float64), voxel_m=c.voxel_m,
+                                intrinsics=frame.intrinsics)
         reg = None
         if init is not None:
             # a static bin: the seed pose needs only the fine pass (a moved bin: the full one)

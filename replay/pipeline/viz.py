@@ -247,6 +247,7 @@ def log_bin_stages(rec: rr.RecordingStream, frame: Frame, result: FrameResult) -
     rec.log("world/bin_model/status", rr.Points3D([[0.0, 0.0, 0.0]], labels=[status], colors=[colour],
                                                   show_labels=True))
     rec.log("registration/fitness", rr.Scalars(reg.fitness))
+    rec.log("registration/icp_fitness", rr.Scalars(reg.icp_fitness))
     rec.log("registration/rmse_mm", rr.Scalars(reg.inlier_rmse * 1000.0))
 
 
