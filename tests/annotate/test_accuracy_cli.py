@@ -189,6 +189,8 @@ def test_labels_list_export_import(spike_log, tmp_path, capsys):
     d = _json(capsys, ["accuracy", str(log), "--labels", str(db), "--annotator", "dan", "--json"])
     assert a == d
     assert main(["labels", "export", str(log), "--db", str(db), "-o", str(out)]) == 1
+    assert "exists (use --force" in capsys.readouterr().err  # outputs are checked before anything else
+    assert main(["labels", "export", str(log), "--db", str(db), "-o", str(out.with_name("two.mcap"))]) == 1
     assert "2 annotators" in capsys.readouterr().err
     other = tmp_path / "other.mcap"
     write_spike_log(other, frames=1, seed=5)
