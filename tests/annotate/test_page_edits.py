@@ -134,11 +134,18 @@ def test_a_conflict_shows_both_versions_and_merges(srv, nine, browser):
         assert r.status_code == 200, r.text
         return L
 
+    def paint(x, y):  # a brush stroke of radius 2 (on the whole frame): a change that is sure to be saved
+        page.keyboard.press("f")
+        pt = page.evaluate(f"window.zcut.imageToClient({x}, {y})")
+        page.mouse.click(pt["x"], pt["y"])
+
     page, errors, blocked = open_page(browser, srv.url)
     try:
-        page.keyboard.press("Tab")
+        page.keyboard.press("b")
+        for _ in range(6):
+            page.keyboard.press("[")
         t1 = theirs(0, (40, 40))  # another tab of erin saves first
-        page.keyboard.press("a")
+        paint(10, 10)
         wait_until(page, "window.zcut.state().conflict === 1")
         assert page.is_visible("#conflict")
         info = page.text_content("#conflictinfo")
@@ -155,15 +162,14 @@ def test_a_conflict_shows_both_versions_and_merges(srv, nine, browser):
         assert (lab.outliers & t1).sum() == t1.sum()
         # theirs: nothing of mine is kept, nothing new is stored
         t3 = theirs(2, (60, 90))
-        page.keyboard.press("r")
+        paint(20, 100)
         wait_until(page, "window.zcut.state().conflict === 3")
         page.click("#conflict [data-merge=theirs]")
         st = page.evaluate("window.zcut.state()")
         assert (st["rev"], st["conflict"], st["nL"], st["dirty"]) == (3, 0, int(t3.sum()), False)
         # mine: saved on top
         theirs(3, (20, 20))
-        page.keyboard.press("Tab")
-        page.keyboard.press("a")
+        paint(100, 30)
         wait_until(page, "window.zcut.state().conflict === 4")
         page.click("#conflict [data-merge=mine]")
         wait_until(page, "window.zcut.unsaved().length === 0")
