@@ -22,7 +22,13 @@ from replay.commands import record as record_cmd
 from replay.commands import replay as replay_cmd
 from replay.commands import synth as synth_cmd
 from replay.commands import topics as topics_cmd
-from replay.process import EXIT_DATA_LOSS, EXIT_OK, EXIT_USER_ERROR, configure_process  # noqa: F401
+from replay.process import (  # noqa: F401
+    EXIT_DATA_LOSS,
+    EXIT_OK,
+    EXIT_USER_ERROR,
+    check_environment,
+    configure_process,
+)
 from studies.commands import batch as batch_cmd
 from studies.commands import demo as demo_cmd
 from studies.commands import sweep as sweep_cmd
@@ -117,6 +123,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return EXIT_USER_ERROR if argv is None and len(sys.argv) <= 1 else EXIT_OK
     announce_compilation(args)
+    problem = check_environment()
+    if problem is not None:
+        print(f"error: {problem}", file=sys.stderr)
+        return EXIT_USER_ERROR
     try:
         status = int(args._module.run(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, not at exit

@@ -30,3 +30,11 @@ def configure_process() -> None:
         os.environ["PATH"] = here + os.pathsep + os.environ.get("PATH", "")
 
 
+def check_environment() -> str | None:
+    """A one-line complaint about a zcut environment variable that is set wrong, or None."""
+    from replay.logs.files import CAP_VARIABLES, env_cap
+
+    for name in CAP_VARIABLES:
+        if env_cap(name, 1) is None:
+            return f"{name} must be a positive integer (a size cap), got {os.environ[name]!r}"
+    return None

@@ -19,12 +19,37 @@ from typing import BinaryIO
 
 from replay.errors import LogFormatError
 
+#: The environment variables that set the caps (the command line checks them: ``replay.process``).
+CAP_VARIABLES = ("ZCUT_MAX_PIXELS", "ZCUT_MAX_MESSAGE_BYTES")
+
+
+def env_cap(name: str, default: int) -> int | None:
+    """A cap from the environment: ``default`` when unset, None when not a positive integer.
+
+    Read once, at import: every command and every worker process of a study sees the same caps.
+    """
+    raw = os.environ.get(name)
+    if raw is None:
+        return default
+    try:
+        v = int(raw)
+    except ValueError:
+        return None
+    return v if v >= 1 else None
+
+
+def _env_cap(name: str, default: int) -> int:
+    v = env_cap(name, default)
+    return default if v is None else v
+
+
 #: Default largest grid (H x W) of a cloud, image or PCD/PLY file: 2**24 = 16.8 Mpx (4096 x 4096;
-#: a 1920 x 1200 Zivid frame is 2.3 Mpx, a 2448 x 2048 Zivid 2+ frame 5 Mpx).
-DEFAULT_MAX_PIXELS = 1 << 24
+#: a 1920 x 1200 Zivid frame is 2.3 Mpx, a 2448 x 2048 Zivid 2+ frame 5 Mpx). Environment:
+#: ``ZCUT_MAX_PIXELS``.
+DEFAULT_MAX_PIXELS = _env_cap("ZCUT_MAX_PIXELS", 1 << 24)
 #: Default largest single message (or PCD/PLY data section): 256 MiB (a 1920 x 1200 xyz+rgba
-#: PointCloud2 is 37 MB; 5 Mpx at 32 bytes a point is 160 MB).
-DEFAULT_MAX_MESSAGE_BYTES = 256 << 20
+#: PointCloud2 is 37 MB; 5 Mpx at 32 bytes a point is 160 MB). Environment: ``ZCUT_MAX_MESSAGE_BYTES``.
+DEFAULT_MAX_MESSAGE_BYTES = _env_cap("ZCUT_MAX_MESSAGE_BYTES", 256 << 20)
 #: A chunk may hold one message of the largest size plus this much of smaller ones.
 CHUNK_SLACK_BYTES = 64 << 20
 

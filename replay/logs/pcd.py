@@ -167,14 +167,14 @@ def read_pcd(
         if points > max_pixels:
             raise LogFormatError(
                 f"{name}: PCD grid {height}x{width} = {points} points is more than the cap of {max_pixels} "
-                "(max_pixels)"
+                "(max_pixels; raise it with ZCUT_MAX_PIXELS)"
             )
         need = points * sum(s * c for s, c in zip(meta.size, meta.count, strict=True))
         body = size - data_at
         if need > max_message_bytes or (data_kind == "ascii" and body > 64 * max_message_bytes):
             raise LogFormatError(
                 f"{name}: PCD data of {max(need, body)} bytes is more than the cap of {max_message_bytes} "
-                "(max_message_bytes)"
+                "(max_message_bytes; raise it with ZCUT_MAX_MESSAGE_BYTES)"
             )
         if data_kind == "binary" and body < need:
             raise LogFormatError(f"{name}: PCD binary data has {body} bytes, needs {need} (truncated)")

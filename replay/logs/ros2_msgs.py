@@ -454,7 +454,7 @@ def check_grid(h: int, w: int, max_pixels: int | None, *, what: str, where: str)
     """Raise :class:`LogFormatError` if an ``h`` x ``w`` grid exceeds ``max_pixels`` (None: no cap)."""
     if max_pixels is not None and h * w > max_pixels:
         raise LogFormatError(
-            f"{where}: {what} of {h}x{w} = {h * w} pixels is more than the cap of {max_pixels} (max_pixels)"
+            f"{where}: {what} of {h}x{w} = {h * w} pixels is more than the cap of {max_pixels} (max_pixels; raise it with ZCUT_MAX_PIXELS)"
         )
 
 
