@@ -110,7 +110,7 @@ def test_zstd_bomb_is_skipped_before_allocation(tmp_path):
     assert [f.index for f in r.frames()] == [0, 2]
     assert r.damage == [
         "frame 1 (stamp 0.000000002) skipped: bomb.mcap: topic /p, message 1: PointCloud2 of 2048x2048 = "
-        "4194304 pixels is more than the cap of 1048576 (max_pixels)"
+        "4194304 pixels is more than the cap of 1048576 (max_pixels; raise it with ZCUT_MAX_PIXELS)"
     ]
     r = LogReader(p, max_message_bytes=1 << 20)  # the message itself is over the byte cap
     assert [f.index for f in r.frames()] == [0, 2]
