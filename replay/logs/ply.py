@@ -166,11 +166,13 @@ def _read(f, size, ply, body_at, name, shape, max_pixels, max_message_bytes) -> 
             info.setdefault(m.group(1), int(m.group(2)))
     rows, cols = info.get("num_rows"), info.get("num_cols")
     if nv > max_pixels:
-        raise LogFormatError(f"{name}: PLY has {nv} vertices, more than the cap of {max_pixels} (max_pixels; raise it with ZCUT_MAX_PIXELS)")
+        raise LogFormatError(f"{name}: PLY has {nv} vertices, more than the cap of {max_pixels} "
+                             "(max_pixels; raise it with ZCUT_MAX_PIXELS)")
     rest = size - body_at
     if rest > max_message_bytes and ply.text:
         raise LogFormatError(
-            f"{name}: PLY ascii data of {rest} bytes is more than the cap of {max_message_bytes} (max_message_bytes; raise it with ZCUT_MAX_MESSAGE_BYTES)"
+            f"{name}: PLY ascii data of {rest} bytes is more than the cap of {max_message_bytes} "
+            "(max_message_bytes; raise it with ZCUT_MAX_MESSAGE_BYTES)"
         )
     later = []  # the scalar elements after the vertices, then an optional range_grid
     for el in elements[vi + 1 :]:

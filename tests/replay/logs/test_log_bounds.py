@@ -145,7 +145,7 @@ def _ply(tmp_path, header: str, body: bytes = b"") -> object:
 @pytest.mark.parametrize("header,match", [
     ("ply\nformat binary_little_endian 1.0\nobj_info num_rows 200000\nobj_info num_cols 123000\n"
      "element vertex 24600000000\nproperty float x\nproperty float y\nproperty float z\nend_header\n",
-     "PLY has 24600000000 vertices, more than the cap of 16777216 \\(max_pixels\\)"),
+     "PLY has 24600000000 vertices, more than the cap of 16777216 \\(max_pixels"),
     ("ply\nformat binary_little_endian 1.0\nobj_info num_rows 4000\nobj_info num_cols 4000\n"
      "element vertex 16000000\nproperty float x\nproperty float y\nproperty float z\nend_header\n",
      "PLY vertex data has 48 bytes after the header, needs 192000000 \\(truncated\\)"),
