@@ -318,12 +318,12 @@ def normalize_annotator(name: object) -> str:
     s = " ".join(unicodedata.normalize("NFKC", name).split())
     if not 1 <= len(s) <= MAX_ANNOTATOR_LEN:
         raise LabelValidationError(f"annotator must be 1..{MAX_ANNOTATOR_LEN} characters, got {len(s)}: {name!r:.80}")
-    scripts: set[str] = set()
+    scripts: dict[str, list[str]] = {}
     prev_letter = False
     for ch in s:
         cat = unicodedata.category(ch)
         if cat.startswith("L"):
-            scripts.add(_script(ch))
+            scripts.setdefault(_script(ch), []).append(ch)
             prev_letter = True
         elif cat.startswith("M") and prev_letter:
             pass
@@ -334,10 +334,11 @@ def normalize_annotator(name: object) -> str:
             raise LabelValidationError(
                 f"annotator {name!r:.80}: character U+{ord(ch):04X} ({label}) is not allowed "
                 "(letters, digits, space . - _ ' only)")
-    if len(scripts) > 1 and not any(scripts <= allowed for allowed in _SCRIPT_SETS):
+    if len(scripts) > 1 and not any(set(scripts) <= allowed for allowed in _SCRIPT_SETS):
+        odd = min(scripts.values(), key=len)[0]  # a letter of the rarest script
         raise LabelValidationError(
             f"annotator {name!r:.80} mixes scripts ({', '.join(sorted(scripts)).lower()}): "
-            "look-alike letters are refused")
+            f"U+{ord(odd):04X} is {unicodedata.name(odd, '?')}; look-alike letters are refused")
     return s
 
 

@@ -217,9 +217,9 @@ def main() -> int:
                     page.screenshot(path=str(args.shots / "01_overview_markers_minimap.png"))
                 per_frame = [review_frame(page, dwell_ms=args.dwell, shots=args.shots, k_frame=k)
                              for k in range(args.frames)]
+                errors = page.evaluate("window.zcut.errors")
                 if args.shots is not None:
                     take_shots(page, base, token, args.shots)
-                errors = page.evaluate("window.zcut.errors")
                 browser.close()
         finally:
             proc.terminate()

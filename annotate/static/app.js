@@ -544,7 +544,7 @@ function draw3d(fd, e, nb) {
     const q = [1000 * (p[0] - ox), -1000 * (p[1] - oy), -1000 * (p[2] - oz)];
     if (inSel.has(i)) { big.push(...q); bigCol.push(...(cls ? RGB[cls] : [255, 255, 255])); } else { pos.push(...q); col.push(...rgb); }
   }
-  const radius = 500 * Math.max(x1 - x0, y1 - y0, z1 - z0) || 20;
+  const radius = 500 * Math.hypot(x1 - x0, y1 - y0, z1 - z0) || 20;  // of the points' bounding sphere, mm
   view3d.setPoints(new Float32Array([...big, ...pos]), new Uint8Array([...bigCol, ...col]), big.length / 3, Math.max(radius, 5));
   $('v3info').textContent = `${(big.length + pos.length) / 3} points · ${view3d.kind} · drag to turn`;
 }
