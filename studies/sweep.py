@@ -17,16 +17,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
-import traceback
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from studies.grid import Grid
-from studies.work import Job, UnitResult, _peak_rss_mb, open_unit_session, truth_source
-from zcut.errors import ZcutError
+from studies.work import Job, UnitResult, run_unit
 
 ZCUT_COLUMNS = ("step_mm", "max_depth_mm", "rho_thr", "max_area_px")
 SOR_COLUMNS = ("sor_k", "sor_std_ratio")
@@ -117,13 +114,9 @@ def sweep_frame(unit, frame, zone, config, grid: Grid, truth, region) -> list[di
 
 def run_sweep_unit(unit, job: Job) -> UnitResult:
     """The grid over the unit's frames (``job.extra["grid"]``)."""
-    t0, c0 = time.perf_counter(), time.process_time()
-    res = UnitResult(unit)
-    truth_src = None
     grid = grid_of(job)
-    try:
-        session = open_unit_session(unit, job)
-        truth_src = truth_source(unit, job)
+
+    def body(res: UnitResult, session, truth_src) -> None:
         zones = session.zones(frames=(unit.start, unit.stop))
         try:
             for frame, zone in zones:
@@ -132,25 +125,12 @@ def run_sweep_unit(unit, job: Job) -> UnitResult:
                 if isinstance(t, str):
                     res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": t})
                     continue
-                # the region of the replay's result: zone ∪ easy (or every valid pixel)
-                region = _region(zone, job.region)
-                res.rows += sweep_frame(unit, frame, zone, session.config, grid, t, region)
+                res.rows += sweep_frame(unit, frame, zone, session.config, grid, t, _region(zone, job.region))
         finally:
             zones.close()
             res.damage = list(session.reader.damage)
-    except ZcutError as e:
-        res.error = str(e)
-    except OSError as e:
-        res.error = f"{e.strerror or e}: {e.filename or unit.log}"
-    except Exception as e:  # a bug must not stop the other units
-        res.error = f"{type(e).__name__}: {e} ({traceback.format_exc(limit=3).splitlines()[-1]})"
-    finally:
-        if truth_src is not None and hasattr(truth_src, "close"):
-            truth_src.close()
-    res.seconds = time.perf_counter() - t0
-    res.cpu_seconds = time.process_time() - c0
-    res.peak_rss_mb = _peak_rss_mb()
-    return res
+
+    return run_unit(unit, job, body)
 
 
 def _region(zone, name: str) -> np.ndarray:

@@ -180,36 +180,17 @@ def batch_row(unit, frame, result, row, truth, region) -> dict:
     return out
 
 
-def run_batch_unit(unit, job: Job) -> UnitResult:
-    """Replay the unit's frames; one row per frame (see :func:`batch_row`)."""
-    from annotate.truth import scored_region
-    from replay.pipeline.session import FrameRow, true_poses_of
-
+def run_unit(unit, job: Job, body) -> UnitResult:
+    """Open the unit's session and truth, run ``body(result, session, truth)`` on them, and return the
+    result with the time and memory spent; any error of the unit (a damaged log, a bug) is caught
+    into ``result.error``, never raised: one bad unit does not stop the others."""
     t0, c0 = time.perf_counter(), time.process_time()
     res = UnitResult(unit)
     truth_src = None
     try:
         session = open_unit_session(unit, job)
         truth_src = truth_source(unit, job)
-        sinks = _per_log_sinks(unit, job)
-        poses = true_poses_of(session.reader.metadata)
-        results = session.results(frames=(unit.start, unit.stop))
-        try:
-            for frame, result in results:
-                row = FrameRow.of(result, true_pose=poses.get(frame.stamp_ns))
-                for s in sinks:
-                    s.write(frame, result)
-                t = truth_src.truth(frame, result.valid)
-                if isinstance(t, str):
-                    res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": t})
-                    t = None
-                res.rows.append(batch_row(unit, frame, result, row, t, scored_region(result, job.region)))
-                res.frames += 1
-        finally:
-            results.close()
-            res.damage = list(session.reader.damage)
-            for s in sinks:
-                s.close(completed=res.error is None)
+        body(res, session, truth_src)
     except ZcutError as e:
         res.error = str(e)
     except OSError as e:
@@ -225,7 +206,39 @@ def run_batch_unit(unit, job: Job) -> UnitResult:
     return res
 
 
-def _per_log_sinks(unit, job: Job) -> list:
+def run_batch_unit(unit, job: Job) -> UnitResult:
+    """Replay the unit's frames; one row per frame (see :func:`batch_row`)."""
+    return run_unit(unit, job, functools.partial(_batch_frames, unit, job))
+
+
+def _batch_frames(unit, job: Job, res: UnitResult, session, truth_src) -> None:
+    from annotate.truth import scored_region
+    from replay.pipeline.session import FrameRow, true_poses_of
+
+    sinks = _per_log_sinks(unit, job, session)
+    poses = true_poses_of(session.reader.metadata)
+    results = session.results(frames=(unit.start, unit.stop))
+    completed = False
+    try:
+        for frame, result in results:
+            row = FrameRow.of(result, true_pose=poses.get(frame.stamp_ns))
+            for s in sinks:
+                s.write(frame, result)
+            t = truth_src.truth(frame, result.valid)
+            if isinstance(t, str):
+                res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": t})
+                t = None
+            res.rows.append(batch_row(unit, frame, result, row, t, scored_region(result, job.region)))
+            res.frames += 1
+        completed = True
+    finally:
+        results.close()
+        res.damage = list(session.reader.damage)
+        for s in sinks:
+            s.close(completed=completed)
+
+
+def _per_log_sinks(unit, job: Job, session) -> list:
     """``--results`` / ``--rrd``: one results MCAP and one .rrd per log (a log is then one unit)."""
     out_dir = job.extra.get("out_dir")
     sinks = []
@@ -233,8 +246,6 @@ def _per_log_sinks(unit, job: Job) -> list:
         return sinks
     from replay.pipeline.sinks import ReplayStart, RerunSink, ResultsSink
 
-    session = _session_cached(unit.log, job.config_file, __import__("json").dumps(job.overrides, sort_keys=True),
-                              job.bin_model, job.topic)
     stem = f"{Path(unit.log).stem}-{unit.sha256[:8]}"
     if job.extra.get("results"):
         (Path(out_dir) / "results").mkdir(exist_ok=True)

@@ -35,9 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from annotate.truth import check_region
-    from replay.process import EXIT_DATA_LOSS
     from replay.commands.common import overrides_of
     from replay.errors import ConfigError
+    from replay.process import EXIT_DATA_LOSS
     from studies import batch
     from studies.driver import Progress, execute, file_identity, identity, plan_logs
     from studies.executors import make_executor

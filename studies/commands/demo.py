@@ -28,12 +28,12 @@ def run(args: argparse.Namespace) -> int:
         jsonable,
     )
     from annotate.truth import SyntheticTruth, scored_region
-    from replay.process import EXIT_DATA_LOSS
     from replay.commands.replay import print_table_callbacks, viewer_command
     from replay.outputs import OutputPlan, config_path_for
     from replay.pipeline.bin_model import ensure_sample_bin_model, load_bin_model
     from replay.pipeline.session import ReplaySession
     from replay.pipeline.sinks import BackgroundSinks, ConfigBeside, RerunSink, ResultsSink
+    from replay.process import EXIT_DATA_LOSS
     from replay.synth.log import ensure_sample_log, sample_log_path
 
     err = sys.stderr

@@ -57,12 +57,12 @@ def _source_of_results(path: Path) -> Path | None:
 
 def run(args: argparse.Namespace) -> int:
     from annotate.truth import check_region
-    from replay.process import EXIT_DATA_LOSS
     from replay.commands.common import overrides_of
     from replay.errors import ConfigError
     from replay.logs import layout
     from replay.logs.reader import LogReader
     from replay.pipeline import config as cfg
+    from replay.process import EXIT_DATA_LOSS
     from studies import batch, sweep
     from studies.driver import Progress, execute, file_identity, identity, plan_logs
     from studies.executors import make_executor
