@@ -86,6 +86,40 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict, to
     return plans
 
 
+def check_study_options(args) -> None:
+    """The options ``zcut batch`` and ``zcut sweep`` share, checked before any work."""
+    from annotate.truth import check_region
+
+    check_region(args.region)
+    if args.frames_per_unit < 1:
+        raise ConfigError(f"--frames-per-unit must be >= 1, got {args.frames_per_unit}")
+    for path in (args.config, args.bin_model, args.labels):
+        if path is not None and not Path(path).is_file():
+            raise FileNotFoundError(2, "no such file", str(path))
+
+
+def study_options(args, overrides: dict) -> dict[str, Any]:
+    """The options that identify a study in its folder (with the inputs' content hashes)."""
+    return {"config_sha256": file_identity(args.config), "overrides": overrides,
+            "bin_model_sha256": file_identity(args.bin_model), "topic": args.topic, "labels": args.labels,
+            "annotator": args.annotator, "region": args.region, "frames_per_unit": args.frames_per_unit}
+
+
+def start_units(plans: list[LogPlan], store, *, what: str, executor, stream=None) -> tuple[list, list]:
+    """Warn about the logs left out; the units and those not done yet; say what will run."""
+    err = sys.stderr if stream is None else stream
+    for p in plans:
+        if p.error:
+            print(f"warning: {p.path}: {p.error} (left out; exit 3 at the end)", file=err)
+    units = [u for p in plans for u in p.units]
+    todo = [u for u in units if not store.done(u.key)]
+    done = len(units) - len(todo)
+    print(f"zcut: {len(plans)} log(s), {what}{len(units)} unit(s) of work"
+          + (f", {done} already done in {store.root}" if done else "")
+          + f"; {executor.name}: {executor.workers} worker(s)", file=err, flush=True)
+    return units, todo
+
+
 def identity(kind: str, options: dict[str, Any], plans: list[LogPlan]) -> dict[str, Any]:
     """What identifies a study in its output folder (``run.json``)."""
     return {"kind": kind, "options": options,

@@ -34,27 +34,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from annotate.truth import check_region
     from replay.commands.common import overrides_of
-    from replay.errors import ConfigError
     from replay.process import EXIT_DATA_LOSS
     from studies import batch
-    from studies.driver import Progress, execute, file_identity, identity, plan_logs
+    from studies.driver import (
+        Progress,
+        check_study_options,
+        execute,
+        identity,
+        plan_logs,
+        start_units,
+        study_options,
+    )
     from studies.executors import make_executor
     from studies.parts import PartStore
     from studies.work import Job, run_batch_unit
 
     t0 = time.perf_counter()
-    check_region(args.region)
-    if args.frames_per_unit < 1:
-        raise ConfigError(f"--frames-per-unit must be >= 1, got {args.frames_per_unit}")
+    check_study_options(args)
     overrides = overrides_of(args)
-    for path, what in ((args.config, "--config"), (args.bin_model, "--bin-model"), (args.labels, "--labels")):
-        if path is not None:
-            from pathlib import Path
-
-            if not Path(path).is_file():
-                raise FileNotFoundError(2, "no such file", str(path))
     executor = make_executor(workers=args.workers, ray=args.ray)  # an unreachable cluster fails here
     try:
         err = sys.stderr
@@ -65,26 +63,15 @@ def run(args: argparse.Namespace) -> int:
 
         plans = plan_logs(args.inputs, config_file=args.config, overrides=overrides, topic=args.topic,
                           frames_per_unit=args.frames_per_unit, whole=args.results or args.rrd, progress=planning)
-        options = {"config_sha256": file_identity(args.config), "overrides": overrides,
-                   "bin_model_sha256": file_identity(args.bin_model), "topic": args.topic, "labels": args.labels,
-                   "annotator": args.annotator, "region": args.region, "frames_per_unit": args.frames_per_unit,
-                   "results": args.results, "rrd": args.rrd}
+        options = study_options(args, overrides) | {"results": args.results, "rrd": args.rrd}
         store = PartStore(args.out, identity("batch", options, plans))
-        for p in plans:
-            if p.error:
-                print(f"warning: {p.path}: {p.error} (left out; exit 3 at the end)", file=err)
-        units = [u for p in plans for u in p.units]
+        units, todo = start_units(plans, store, what="", executor=executor)
         job = Job(config_file=args.config, overrides=overrides, bin_model=args.bin_model, topic=args.topic,
                   labels=args.labels, annotator=args.annotator, region=args.region,
                   configs={p.sha256: p.config_toml for p in plans if p.units},
                   extra={"out_dir": str(store.root) if (args.results or args.rrd) else None,
                          "results": args.results, "rrd": args.rrd})
-        todo = [u for u in units if not store.done(u.key)]
         total = sum(u.n_frames or 0 for u in todo) or None
-        skipped = len(units) - len(todo)
-        print(f"zcut: {len(plans)} log(s), {len(units)} unit(s) of work"
-              + (f", {skipped} already done in {store.root}" if skipped else "")
-              + f"; {executor.name}: {executor.workers} worker(s)", file=err, flush=True)
         progress = Progress(total)
         results = execute(units, job, run_batch_unit, executor, store, progress=progress)
         progress.finish()

@@ -56,7 +56,6 @@ def _source_of_results(path: Path) -> Path | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from annotate.truth import check_region
     from replay.commands.common import overrides_of
     from replay.errors import ConfigError
     from replay.logs import layout
@@ -64,7 +63,15 @@ def run(args: argparse.Namespace) -> int:
     from replay.pipeline import config as cfg
     from replay.process import EXIT_DATA_LOSS
     from studies import batch, sweep
-    from studies.driver import Progress, execute, file_identity, identity, plan_logs
+    from studies.driver import (
+        Progress,
+        check_study_options,
+        execute,
+        identity,
+        plan_logs,
+        start_units,
+        study_options,
+    )
     from studies.executors import make_executor
     from studies.grid import make_grid, parse_list
     from studies.parts import PartStore
@@ -73,16 +80,11 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     err = sys.stderr
-    check_region(args.region)
+    check_study_options(args)
     objective = sweep.parse_objective(args.objective)
     axes = dict(steps=parse_list(args.step, name="--step"), depths=parse_list(args.max_depth, name="--max-depth"),
                 rhos=parse_list(args.rho, name="--rho"), sor_ks=parse_list(args.sor_k, name="--sor-k", integer=True),
                 sor_stds=parse_list(args.sor_std, name="--sor-std"))
-    if args.frames_per_unit < 1:
-        raise ConfigError(f"--frames-per-unit must be >= 1, got {args.frames_per_unit}")
-    for path in (args.config, args.bin_model, args.labels):
-        if path is not None and not Path(path).is_file():
-            raise FileNotFoundError(2, "no such file", str(path))
     overrides = overrides_of(args)
     # results files: their source log (the filtered cloud has its outliers removed)
     logs = []
@@ -107,27 +109,17 @@ def run(args: argparse.Namespace) -> int:
         first = next(p for p in plans if p.units)
         base = cfg.from_dict(__import__("tomllib").loads(first.config_toml), source=str(first.path))
         grid = make_grid(**axes, config=base, max_points=args.max_points, force=args.force)
-        options = {"config_sha256": file_identity(args.config), "overrides": overrides,
-                   "bin_model_sha256": file_identity(args.bin_model), "topic": args.topic, "labels": args.labels,
-                   "annotator": args.annotator, "region": args.region, "frames_per_unit": args.frames_per_unit,
-                   "grid": grid.as_dict()}
+        options = study_options(args, overrides) | {"grid": grid.as_dict()}
         store = PartStore(args.out, identity("sweep", options, plans))
-        for p in plans:
-            if p.error:
-                print(f"warning: {p.path}: {p.error} (left out; exit 3 at the end)", file=err)
-        units = [u for p in plans for u in p.units]
+        n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if base.sor.enabled else 0)
+        units, todo = start_units(plans, store, executor=executor,
+                                  what=f"{n_sets} parameter sets ({grid.n_zcut} z-cut, {n_sets - grid.n_zcut} SOR), ")
         job = Job(config_file=args.config, overrides=overrides, bin_model=args.bin_model, topic=args.topic,
                   labels=args.labels, annotator=args.annotator, region=args.region,
                   configs={p.sha256: p.config_toml for p in plans if p.units},
                   extra={"grid": sweep.grid_dict(grid)})
-        todo = [u for u in units if not store.done(u.key)]
         per_frame = len(grid.steps)
         total = sum((u.n_frames or 0) for u in todo) * per_frame or None
-        n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if base.sor.enabled else 0)
-        print(f"zcut: {len(plans)} log(s), {n_sets} parameter sets ({grid.n_zcut} z-cut, "
-              f"{n_sets - grid.n_zcut} SOR), {len(units)} unit(s)"
-              + (f", {len(units) - len(todo)} already done" if len(units) > len(todo) else "")
-              + f"; {executor.name}: {executor.workers} worker(s)", file=err, flush=True)
         progress = Progress(total, what="frames × Δd")
         progress_scale = _Scaled(progress, per_frame)
         results = execute(units, job, sweep.run_sweep_unit, executor, store, progress=progress_scale)
