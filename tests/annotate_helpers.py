@@ -193,7 +193,7 @@ class ServerProcess:
             raise RuntimeError(f"server did not start: {''.join(lines)} {''.join(self.stderr_lines)}")
         self._wait_ready()
 
-    def _wait_ready(self, timeout=120.0) -> None:
+    def _wait_ready(self, timeout=300.0) -> None:  # generous: a loaded machine prepares slowly
         import httpx
 
         deadline = time.monotonic() + timeout
