@@ -939,6 +939,8 @@ def open_session(
     config_path: str | Path | None = None,
     bin_model=None,
     token: str | None = None,
+    overrides: dict | None = None,
+    topic: str | None = None,
 ) -> Session:
     """Open the log and the store, resolve the pipeline config and start preparing frames.
 
@@ -951,6 +953,10 @@ def open_session(
     bin_model : replay.pipeline.bin_model.BinModel, optional
     token : str, optional
         Default: a fresh :func:`new_token`.
+    overrides : dict, optional
+        The command line's config layer (:func:`replay.pipeline.config.cli_layer`).
+    topic : str, optional
+        The cloud topic.
 
     Candidates come from ``replay.pipeline.stages.run_frame`` with the config resolved as ``zcut replay``
     does it, through :class:`annotate.candidates.PipelineRunner`.
@@ -959,7 +965,7 @@ def open_session(
     from zcut.errors import ParameterError
 
     log_path = Path(log_path)
-    reader = LogReader(log_path)  # validates the log before anything is registered
+    reader = LogReader(log_path, cloud_topic=topic)  # validates the log before anything is registered
     store = LabelStore(db_path)
     geometry = None
     try:
@@ -969,7 +975,8 @@ def open_session(
             except LabelValidationError as e:
                 raise ParameterError(f"--annotator: {e}") from None
         log = store.add_log(log_path)
-        runner = PipelineRunner(reader.metadata, config_path=config_path, bin_model=bin_model)
+        runner = PipelineRunner(reader.metadata, config_path=config_path, bin_model=bin_model, overrides=overrides,
+                                intrinsics=reader.intrinsics)
         geometry = GeometrySpill()
         catalog = Catalog(frames_iter=lambda: reader.frames(), prepare=lambda frame: prepare_frame(frame, runner.run(frame)),
                           store=store, log=log, geometry=geometry, total_hint=reader.n_frames)

@@ -19,8 +19,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      help="the name every page labels as (default: the login name)")
     who.add_argument("--ask-annotator", action="store_true",
                      help="each page session chooses its annotator name once (several people, one server)")
-    p.add_argument("--config", type=Path, default=None, help="pipeline config (TOML) for the candidates")
-    p.add_argument("--bin-model", type=Path, default=None, help="bin model (PLY) for the bin stages of the pipeline")
+    from replay.commands.common import add_pipeline_options
+
+    add_pipeline_options(p)
 
 
 def _default_annotator() -> str:
@@ -35,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
     import webbrowser
 
     from annotate.server import make_server, open_session
+    from replay.commands.common import load_model, overrides_of
     from zcut.errors import ParameterError
 
     if not (0 <= args.port <= 65535):
@@ -43,9 +45,10 @@ def run(args: argparse.Namespace) -> int:
         raise FileNotFoundError(2, "no such file", str(args.log))
     db = args.db or args.log.with_suffix(".labels.sqlite")
     annotator = None if args.ask_annotator else _default_annotator() if args.annotator is None else args.annotator
-    from replay.pipeline.bin_model import load_bin_model
-
-    model = load_bin_model(args.bin_model) if args.bin_model else None
+    overrides = overrides_of(args)  # bad values fail before the log is read
+    if args.config is not None and not Path(args.config).is_file():
+        raise FileNotFoundError(2, "no such file", str(args.config))
+    model = load_model(args)
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # restart at once on the same port
     # small responses (a label, the session) otherwise wait ~40 ms for the client's delayed ACK
@@ -57,13 +60,15 @@ def run(args: argparse.Namespace) -> int:
         except OSError as e:
             raise ParameterError(f"--port {args.port}: cannot listen on 127.0.0.1: {e.strerror}") from None
         port = sock.getsockname()[1]
-        session = open_session(args.log, db, annotator=annotator, config_path=args.config, bin_model=model)
+        session = open_session(args.log, db, annotator=annotator, config_path=args.config, bin_model=model,
+                               overrides=overrides, topic=args.topic)
         for other in session.announce(port):
             print(f"warning: {other} serves the same label store {db}: edits from both are kept, "
                   "but the same annotator on both will meet conflicts", file=sys.stderr, flush=True)
         print(f"labels: {db}", flush=True)
         print(f"annotator: {session.annotator or '(each page chooses its own)'}", flush=True)
         url = f"http://127.0.0.1:{port}/?token={session.token}"
+        sock.listen(128)  # the URL is printed once connections are accepted (uvicorn serves the backlog)
         print(url, flush=True)
         if not args.no_browser:
             webbrowser.open(url)
