@@ -33,12 +33,16 @@ from replay.logs.mcap_scan import (
     OP_STATISTICS,
     OP_SUMMARY_OFFSET,
 )
+from zcut.errors import ParameterError
 
 _U64_MAX = (1 << 64) - 1
 
 
 def _s(text: str) -> bytes:
-    b = text.encode("utf-8")
+    try:
+        b = text.encode("utf-8")
+    except UnicodeEncodeError:  # e.g. a file name with undecodable bytes (surrogates) in a metadata value
+        raise ParameterError(f"MCAP string {text!r} is not valid UTF-8 text") from None
     return struct.pack("<I", len(b)) + b
 
 

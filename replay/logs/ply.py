@@ -145,6 +145,9 @@ def _read(f, size, ply, body_at, name, shape, max_pixels, max_message_bytes) -> 
     from plyfile import PlyData, PlyListProperty, PlyParseError
 
     elements = list(ply.elements)
+    for e in elements:
+        if e.count < 0:
+            raise LogFormatError(f"{name}: PLY element '{e.name}' has a negative count ({e.count})")
     vi = next((i for i, e in enumerate(elements) if e.name == "vertex"), None)
     if vi is None:
         raise LogFormatError(f"{name}: PLY has no vertex element")

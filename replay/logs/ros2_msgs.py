@@ -25,7 +25,7 @@ import numpy as np
 
 from replay.errors import LogFormatError
 from zcut.cloud import Intrinsics
-from zcut.errors import ZcutError
+from zcut.errors import ParameterError, ZcutError
 
 # --------------------------------------------------------------------------------------------
 # Schema texts (ros2msg, dependencies appended the way rosbag2 / mcap_ros2 expect them)
@@ -304,9 +304,10 @@ MAX_STAMP_NS = (2**31 - 1) * 1_000_000_000 + 999_999_999
 
 
 def check_stamp(stamp_ns: int) -> None:
-    """Raise ValueError (one line) unless ``0 <= stamp_ns <= MAX_STAMP_NS``."""
+    """Raise :class:`~zcut.errors.ParameterError` (a ValueError; one line) unless
+    ``0 <= stamp_ns <= MAX_STAMP_NS``."""
     if not 0 <= int(stamp_ns) <= MAX_STAMP_NS:
-        raise ValueError(
+        raise ParameterError(
             f"stamp {stamp_ns} ns is outside the ROS 2 time range 0 .. {MAX_STAMP_NS} ns "
             "(int32 seconds: up to 2038-01-19 03:14:07 UTC)"
         )
@@ -347,8 +348,11 @@ class _CdrOut:
             self._pad(8)
             self.raw(struct.pack(f"<{len(vals)}d", *vals))
 
-    def string(self, s: str) -> None:
-        b = s.encode("utf-8") + b"\x00"
+    def string(self, s: str, what: str) -> None:
+        try:
+            b = s.encode("utf-8") + b"\x00"
+        except UnicodeEncodeError:  # e.g. undecodable bytes of a command-line argument (surrogates)
+            raise ParameterError(f"{what} {s!r} is not valid UTF-8 text (a ROS 2 string must be)") from None
         self.u32(len(b))
         self.raw(b)
 
@@ -361,7 +365,7 @@ class _CdrOut:
         sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
         self.i32(sec)
         self.u32(nsec)
-        self.string(frame_id)
+        self.string(frame_id, "frame_id")
 
     def bytes(self) -> bytes:
         return b"".join(self.parts)
@@ -387,7 +391,7 @@ def encode_cloud(
     w.u32(width)
     w.u32(len(fields))
     for f in fields:
-        w.string(f.name)
+        w.string(f.name, "PointField name")
         w.u32(f.offset)
         w.u8(f.datatype)
         w.u32(f.count)
@@ -408,7 +412,7 @@ def encode_image(
     w.header(stamp_ns, frame_id)
     w.u32(height)
     w.u32(width)
-    w.string(encoding)
+    w.string(encoding, "Image encoding")
     w.u8(0)
     w.u32(step)
     w.blob(data)
@@ -422,7 +426,7 @@ def encode_camera_info(intrinsics: Intrinsics, *, stamp_ns: int, frame_id: str) 
     w.header(stamp_ns, frame_id)
     w.u32(intrinsics.height)
     w.u32(intrinsics.width)
-    w.string("plumb_bob")
+    w.string("plumb_bob", "distortion_model")
     w.u32(5)
     w.f64s([0.0] * 5)
     w.f64s([fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0])

@@ -86,11 +86,15 @@ class LogWriter:
         self.path = Path(path)
         self._meta = {str(k): {str(a): str(b) for a, b in v.items()} for k, v in (metadata or {}).items()}
         self._file = open(self.path, "wb")
-        self._writer = McapWriter(self._file, chunk_size=chunk_size, zstd_level=zstd_level)
-        self._writer.start(profile="ros2", library=LIBRARY)
-        # user metadata first, so that even a truncated log keeps it
-        for name, data in self._meta.items():
-            self._writer.add_metadata(name, data)
+        try:
+            self._writer = McapWriter(self._file, chunk_size=chunk_size, zstd_level=zstd_level)
+            self._writer.start(profile="ros2", library=LIBRARY)
+            # user metadata first, so that even a truncated log keeps it
+            for name, data in self._meta.items():
+                self._writer.add_metadata(name, data)
+        except BaseException:  # e.g. a metadata string that is not UTF-8: no open file left behind
+            self._file.close()
+            raise
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, tuple[int, str]] = {}
         self._counts: dict[str, int] = {}

@@ -25,6 +25,7 @@ from replay.logs.ply import read_ply
 from replay.logs.reader import LogReader, stamp_text
 from replay.logs.writer import LogWriter
 from zcut.cloud import Intrinsics
+from zcut.errors import ParameterError
 
 pytestmark = pytest.mark.timeout(60)  # a FIFO must never block a reader
 
@@ -295,10 +296,22 @@ def test_malformed_first_camera_info_is_passed_over(tmp_path):
 # ----------------------------------------------------------------------------- stamps
 @pytest.mark.parametrize("stamp", [-1, rm.MAX_STAMP_NS + 1, 10**30])
 def test_writer_refuses_stamps_outside_ros_time(tmp_path, stamp):
-    with LogWriter(tmp_path / "s.mcap") as w:
-        with pytest.raises(ValueError, match="ROS 2 time range 0 .. 2147483647999999999 .*2038"):
+    with LogWriter(tmp_path / "s.mcap") as w:  # a ZcutError: the command line makes it one line, exit 1
+        with pytest.raises(ParameterError, match="ROS 2 time range 0 .. 2147483647999999999 .*2038"):
             w.write_cloud("/p", np.ones((2, 2, 3), np.float32), stamp_ns=stamp, frame_id="f")
         w.write_cloud("/p", np.ones((2, 2, 3), np.float32), stamp_ns=rm.MAX_STAMP_NS, frame_id="f")
     (f,) = LogReader(tmp_path / "s.mcap").frames()
     assert f.stamp_ns == rm.MAX_STAMP_NS and stamp_text(f.stamp_ns) == "2147483647.999999999"
 
+
+
+# ----------------------------------------------------------------------------- strings (found by the fuzz suite)
+def test_writer_refuses_strings_that_are_not_utf8(tmp_path):
+    """A command-line argument with undecodable bytes (surrogates: ``--frame-id``, a file name in a
+    metadata value) is a one-line ParameterError, not a UnicodeEncodeError; no file is left open."""
+    bad = os.fsdecode(b"\xff\xfecam")
+    with LogWriter(tmp_path / "s.mcap") as w:
+        with pytest.raises(ParameterError, match=r"^frame_id '\\udcff\\udcfecam' is not valid UTF-8 text"):
+            w.write_cloud("/p", np.ones((2, 2, 3), np.float32), stamp_ns=1, frame_id=bad)
+    with pytest.raises(ParameterError, match=r"^MCAP string '\\udcff\\udcfecam' is not valid UTF-8 text"):
+        LogWriter(tmp_path / "m.mcap", metadata={"zcut.record": {"sources": bad}})

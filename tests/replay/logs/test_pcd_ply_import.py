@@ -310,6 +310,7 @@ def _PLY_GRID(rows: int, cols: int) -> bytes:  # noqa: N802 - reads like a const
         (_PLY_GRID(2, 2) + bytes(20), "needs 48 \\(truncated\\)"),
         (_PLY_GRID(1, 4) + bytes(48), "not organized"),
         (_PLY_XY + b"property float z\nproperty list uchar int idx\nend_header\n", "list property"),
+        (_PLY_GRID(2, 2).replace(b"vertex 4", b"vertex -1") + bytes(48), "element 'vertex' has a negative count \\(-1\\)"),
     ],
 )
 def test_bad_ply(tmp_path, text, match):
