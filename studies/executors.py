@@ -5,19 +5,35 @@ complete, so a slow log never holds back the others' results. A unit whose work 
 error in its result (the work functions catch what a damaged log can throw); a worker process that
 dies (a crash, the memory cap) is replaced and its unit retried once, then reported as failed.
 
+Every worker owns its share of the cores: its thread pools (numba, OpenMP, BLAS) get
+``cores // workers`` threads (1 on a Ray task of one CPU), so that workers do not oversubscribe the
+machine; a variable the user set is kept. Ray workers also get the driver's ``ZCUT_*`` variables
+and numba threading layer (they do not inherit the driver's environment), so a unit computes the
+same on both executors.
+
 Ray is an optional extra (``pip install 'zcut[ray]'``): imported only by :class:`RayExecutor`.
+An address is checked before Ray is asked to connect (Ray itself retries an unreachable cluster
+for minutes): nothing listening, or something that does not speak gRPC, is a one-line error.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
-from collections.abc import Callable, Iterator
+import socket
+from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
+from pathlib import Path
 from typing import Any, Protocol
 
 from replay.errors import ConfigError
+
+#: the thread pools a worker sizes to its share of the cores
+THREAD_VARIABLES = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+#: seconds to wait for a Ray address to answer
+CONNECT_TIMEOUT_S = 10.0
 
 
 class Executor(Protocol):
@@ -39,6 +55,30 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def worker_environment(threads: int) -> dict[str, str]:
+    """The variables a worker starts with: thread pools of ``threads`` threads (unless the user set
+    them), the readers' caps (``ZCUT_*``) and numba's threading layer, as the driver has them."""
+    env = {k: os.environ.get(k, str(threads)) for k in THREAD_VARIABLES}
+    env.update({k: v for k, v in os.environ.items()
+                if k.startswith("ZCUT_") or k in ("NUMBA_THREADING_LAYER", "NUMBA_THREADING_LAYER_PRIORITY")})
+    return env
+
+
+@contextmanager
+def _environ(values: Mapping[str, str]) -> Iterator[None]:
+    """``os.environ`` with ``values`` while worker processes are started (they copy it), then as before."""
+    old = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
 def _worker_init() -> None:
     # the command line's process settings, in every worker (they start fresh: spawn)
     from replay.process import configure_process
@@ -47,7 +87,8 @@ def _worker_init() -> None:
 
 
 class LocalExecutor:
-    """Units on ``workers`` local processes (started fresh: no inherited threads or files).
+    """Units on ``workers`` local processes (started fresh: no inherited threads or files), each
+    with ``cores // workers`` threads.
 
     Parameters
     ----------
@@ -61,6 +102,7 @@ class LocalExecutor:
         if workers is not None and (isinstance(workers, bool) or workers < 1):
             raise ConfigError(f"--workers must be >= 1, got {workers!r}")
         self.workers = workers or default_workers()
+        self.threads = max(1, default_workers() // self.workers)
         self._pool: ProcessPoolExecutor | None = None
 
     def _new_pool(self) -> ProcessPoolExecutor:
@@ -71,10 +113,11 @@ class LocalExecutor:
         pending = list(units)
         tries: dict[int, int] = {}
         while pending:
-            self._pool = self._new_pool()
             futures: dict[Future, tuple[int, Any]] = {}
-            for i, u in enumerate(pending):
-                futures[self._pool.submit(fn, u, job)] = (i, u)
+            with _environ(worker_environment(self.threads)):  # the workers start during the submits
+                self._pool = self._new_pool()
+                for i, u in enumerate(pending):
+                    futures[self._pool.submit(fn, u, job)] = (i, u)
             retry: list = []
             broken = False
             while futures:
@@ -107,29 +150,105 @@ def _failed(unit, why: str):
     return UnitResult.failure(unit, why)
 
 
+# --- Ray ---------------------------------------------------------------------------------------
+
+#: an HTTP/2 client preface and an empty SETTINGS frame: a gRPC server (Ray's GCS, its client
+#: server) answers with a SETTINGS frame (type 4)
+_H2_HELLO = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"
+_H2_SETTINGS = 0x04
+
+
+def _ray_current_cluster() -> Path:
+    """The file in which ``ray start`` leaves its cluster's address (Ray's default temp dir)."""
+    tmp = os.environ.get("RAY_TMPDIR") or os.environ.get("TMPDIR") or "/tmp"
+    return Path(tmp) / "ray" / "ray_current_cluster"
+
+
+def resolve_ray_address(address: str) -> str:
+    """``--ray``'s address: as given, or for ``auto`` ``RAY_ADDRESS`` / the local ``ray start``.
+
+    Raises :class:`ConfigError` when ``auto`` finds no cluster.
+    """
+    if address != "auto":
+        return address
+    env = os.environ.get("RAY_ADDRESS", "").strip()
+    if env and env != "auto":
+        return env
+    f = _ray_current_cluster()
+    try:
+        found = f.read_text().strip() if f.is_file() else ""
+    except OSError:
+        found = ""
+    if not found:
+        raise ConfigError("--ray auto: no cluster found (RAY_ADDRESS is not set and no `ray start` on this machine)")
+    return found
+
+
+def _host_port(address: str, target: str) -> tuple[str, int]:
+    rest = target.removeprefix("ray://")
+    host, sep, port = rest.rpartition(":")
+    host = host.strip("[]")
+    if "://" in rest or not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        shown = address if address == target else f"{address} ({target})"
+        raise ConfigError(f"--ray {shown}: not a Ray address (HOST:PORT, ray://HOST:PORT or auto)")
+    return host, int(port)
+
+
+def check_ray_address(address: str, target: str, *, timeout: float = CONNECT_TIMEOUT_S) -> None:
+    """Refuse, in seconds and in one line, an address where no Ray cluster answers: nothing listens,
+    the host is unknown or unreachable, or the server does not speak gRPC (HTTP/2)."""
+    host, port = _host_port(address, target)
+    where = f"{host}:{port}"
+    shown = address if address == target else f"{address} ({target})"
+    tls = os.environ.get("RAY_USE_TLS", "0").lower() in ("1", "true")
+    try:
+        with socket.create_connection((host, port), timeout=timeout) as s:
+            if tls:
+                return  # a TLS cluster does not answer cleartext HTTP/2: that it listens is all we check
+            s.settimeout(timeout)
+            s.sendall(_H2_HELLO)
+            head = b""
+            while len(head) < 9:
+                got = s.recv(9 - len(head))
+                if not got:
+                    break
+                head += got
+    except OSError as e:
+        why = "timed out" if isinstance(e, TimeoutError) else (e.strerror or str(e) or type(e).__name__)
+        raise ConfigError(f"--ray {shown}: cannot reach a Ray cluster at {where} ({why})") from None
+    if len(head) < 9 or head[3] != _H2_SETTINGS:
+        raise ConfigError(f"--ray {shown}: {where} answers, but not as a Ray cluster (no gRPC)")
+
+
 class RayExecutor:
-    """Units as Ray tasks on an existing cluster.
+    """Units as Ray tasks (one CPU each) on an existing cluster.
 
     Parameters
     ----------
     address : str
         The cluster (``ray://HOST:PORT``, ``HOST:PORT``), or ``auto`` for ``RAY_ADDRESS`` / the local
         cluster ``ray start`` made.
+    timeout : float
+        Seconds the address may take to answer.
     """
 
     name = "Ray"
 
-    def __init__(self, address: str) -> None:
+    def __init__(self, address: str, *, timeout: float = CONNECT_TIMEOUT_S) -> None:
         try:
             import ray
         except ImportError:
             raise ConfigError("--ray needs the ray package: pip install 'zcut[ray]'") from None
-        if address == "auto" and not os.environ.get("RAY_ADDRESS") and not _local_ray_running():
-            raise ConfigError("--ray auto: no cluster found (RAY_ADDRESS is not set and no local `ray start`)")
+        target = resolve_ray_address(address)
+        check_ray_address(address, target, timeout=timeout)
+        host, _ = _host_port(address, target)
+        # a cluster on loopback (`ray start --node-ip-address 127.0.0.1`): the driver's node is there too,
+        # not at the machine's interface address Ray would pick
+        local = {"_node_ip_address": "127.0.0.1"} if _is_loopback(host) and not target.startswith("ray://") else {}
         try:
-            ray.init(address=address, ignore_reinit_error=True, log_to_driver=False, include_dashboard=False,
-                     logging_level="ERROR")
-        except Exception as e:  # ray raises ConnectionError, RuntimeError, ValueError...
+            ray.init(address=target, ignore_reinit_error=True, log_to_driver=False, logging_level="ERROR",
+                     runtime_env={"env_vars": worker_environment(1)}, **local)
+        except Exception as e:  # noqa: BLE001 - ray raises ConnectionError, RuntimeError, ValueError...
             raise ConfigError(f"--ray {address}: cannot connect to the Ray cluster ({type(e).__name__}: "
                               f"{str(e).splitlines()[0] if str(e) else ''})") from None
         self._ray = ray
@@ -137,26 +256,54 @@ class RayExecutor:
 
     def run(self, fn, units, job):
         ray = self._ray
-        remote = ray.remote(num_cpus=1, max_retries=1)(fn)
+        remote = ray.remote(num_cpus=1, max_retries=1)(_in_folder)
         job_ref = ray.put(job)
-        refs = {remote.remote(u, job_ref): u for u in units}
-        while refs:
-            done, _ = ray.wait(list(refs), num_returns=1)
+        cwd = os.getcwd()
+        refs = {remote.remote(cwd, fn, u, job_ref): u for u in units}
+        pending = list(refs)
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            if pending:  # and whatever else finished meanwhile
+                more, pending = ray.wait(pending, num_returns=len(pending), timeout=0)
+                done += more
             for r in done:
                 u = refs.pop(r)
                 try:
                     yield u, ray.get(r)
-                except Exception as e:  # a task that died twice (ray.exceptions.*)
-                    yield u, _failed(u, f"the Ray task failed: {type(e).__name__}")
+                except Exception as e:  # noqa: BLE001 - a task that died twice or could not run (ray.exceptions.*)
+                    yield u, _failed(u, f"the Ray task failed: {_last_line(e)}")
 
     def close(self) -> None:
-        self._ray.shutdown()
+        if self._ray.is_initialized():
+            self._ray.shutdown()
 
 
-def _local_ray_running() -> bool:
-    from pathlib import Path
+def _is_loopback(host: str) -> bool:
+    import ipaddress
 
-    return Path("/tmp/ray/ray_current_cluster").is_file()
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _in_folder(cwd: str, fn, unit, job):
+    """A Ray task: ``fn(unit, job)`` in the driver's working folder, so that the paths the driver was
+    given (logs, bin model, config, labels; relative or not) name the same files on the node, which
+    must mount them at the same place."""
+    try:
+        os.chdir(cwd)
+    except OSError as e:
+        return _failed(unit, f"the driver's folder {cwd} is not on this Ray node ({e.strerror}): the logs must be "
+                             "on storage every node mounts at the same path")
+    return fn(unit, job)
+
+
+def _last_line(e: BaseException) -> str:
+    lines = [line.strip() for line in str(e).splitlines() if line.strip()]
+    return f"{type(e).__name__}: {lines[-1]}" if lines else type(e).__name__
 
 
 def make_executor(*, workers: int | None, ray: str | None) -> Executor:

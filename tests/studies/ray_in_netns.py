@@ -1,0 +1,164 @@
+"""Run commands against a real, private Ray cluster inside network, PID and mount namespaces of
+their own (for the Ray tests and ``bench/bench_batch.py``).
+
+Ray rewrites 127.0.0.1 to the machine's interface address, and test traffic must stay on loopback.
+So the cluster runs inside ``unshare --net --pid --fork --mount-proc``: loopback is the only
+network interface there (checked), the PID namespace confines ``ray stop`` (which otherwise stops
+every Ray process of the machine) and guarantees the cleanup: when the namespace's first process
+exits, or is killed with its ``unshare`` (``--kill-child``), the kernel kills every process left
+in it. The cluster's files go to a temporary folder of its own (not the shared ``/tmp/ray``),
+removed afterwards.
+
+Outside (the caller)::
+
+    from ray_in_netns import run_with_ray_cluster, netns_unavailable
+    why = netns_unavailable()                   # None, or why namespaces cannot be made here
+    out = run_with_ray_cluster([{"argv": [...], "env": {...}}, ...], cpus=2)
+    out["results"][0]["rc"], out["results"][0]["stderr"], out["results"][0]["wall_s"]
+
+Inside (``python ray_in_netns.py SPEC.json``, run by :func:`run_with_ray_cluster`): bring ``lo``
+up, check it is the only interface, ``ray start --head --node-ip-address 127.0.0.1``, run each
+command in turn with ``RAY_ADDRESS`` set, ``ray stop``, write the results as JSON.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import resource
+import shutil
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+RAY_PORT = 6379
+ADDRESS = f"127.0.0.1:{RAY_PORT}"
+UNSHARE = ("unshare", "--net", "--pid", "--fork", "--mount-proc", "--kill-child")
+
+
+def netns_unavailable() -> str | None:
+    """None when this process may create the namespaces, else why not (one line)."""
+    if shutil.which("unshare") is None:
+        return "the unshare command (util-linux) is missing"
+    try:
+        p = subprocess.run([*UNSHARE, "true"], check=False, capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        return f"unshare failed: {e}"
+    if p.returncode != 0:
+        why = (p.stderr.strip().splitlines() or [f"exit {p.returncode}"])[-1]
+        return f"cannot create network/PID namespaces here ({why})"
+    return None
+
+
+def run_with_ray_cluster(commands: list[dict], *, cpus: int = 2, timeout: float = 600.0) -> dict:
+    """Start a private Ray cluster of ``cpus`` CPUs in fresh namespaces, run ``commands`` there in
+    turn, stop the cluster.
+
+    Parameters
+    ----------
+    commands : list of dict
+        Each ``{"argv": [...], "env": {...} (optional, added to the environment),
+        "cwd": str (optional)}``. ``RAY_ADDRESS`` is set to the cluster for every command.
+    cpus : int
+        The cluster's CPUs (``ray start --num-cpus``).
+    timeout : float
+        Seconds for the whole run; the namespace (cluster included) is killed after that.
+
+    Returns
+    -------
+    dict
+        ``{"ray_start_s": float, "interfaces": [...], "results": [{"argv", "rc", "stdout",
+        "stderr", "wall_s", "children_cpu_s"}, ...]}``.
+
+    Raises
+    ------
+    RuntimeError
+        The namespace or the cluster could not be set up (its stderr in the message).
+    """
+    with tempfile.TemporaryDirectory(prefix="zcr", dir="/tmp") as tmp:  # short: Ray's socket paths
+        spec = Path(tmp) / "spec.json"
+        out = Path(tmp) / "out.json"
+        spec.write_text(json.dumps({"commands": commands, "cpus": cpus, "temp_dir": str(Path(tmp) / "ray"),
+                                    "out": str(out)}))
+        log = Path(tmp) / "stderr.txt"
+        try:
+            with open(log, "w") as err:
+                p = subprocess.run([*UNSHARE, sys.executable, __file__, str(spec)], check=False, stdout=err, stderr=err,
+                                   timeout=timeout)
+        except subprocess.TimeoutExpired:  # unshare killed: --kill-child takes the namespace down
+            raise RuntimeError(f"the Ray namespace run took more than {timeout:.0f} s: {_tail(log.read_text())}") from None
+        if p.returncode != 0 or not out.is_file():
+            raise RuntimeError(f"the Ray namespace run failed (exit {p.returncode}): {_tail(log.read_text())}")
+        return json.loads(out.read_text())
+
+
+def _tail(text: str, n: int = 3000) -> str:
+    return text[-n:]
+
+
+# --- inside the namespaces --------------------------------------------------------------------
+
+SIOCGIFFLAGS, SIOCSIFFLAGS, IFF_UP = 0x8913, 0x8914, 0x1
+
+
+def _loopback_up() -> list[str]:
+    """Bring ``lo`` up (no ``ip`` command needed); return the interfaces, which must be ``lo`` only."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        req = struct.pack("16sh", b"lo", 0)
+        flags = struct.unpack("16sh", fcntl.ioctl(s, SIOCGIFFLAGS, req))[1]
+        fcntl.ioctl(s, SIOCSIFFLAGS, struct.pack("16sh", b"lo", flags | IFF_UP))
+    names = [name for _, name in socket.if_nameindex()]
+    if names != ["lo"]:
+        raise SystemExit(f"ray_in_netns: interfaces other than lo in the namespace: {names}")
+    return names
+
+
+def _inside(spec_path: str) -> int:
+    spec = json.loads(Path(spec_path).read_text())
+    interfaces = _loopback_up()
+    ray_bin = str(Path(sys.executable).with_name("ray"))
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    env["RAY_USAGE_STATS_ENABLED"] = "0"
+    t0 = time.perf_counter()
+    start = subprocess.run([ray_bin, "start", "--head", "--node-ip-address", "127.0.0.1", "--port", str(RAY_PORT),
+                            "--num-cpus", str(spec["cpus"]), "--disable-usage-stats", "--include-dashboard",
+                            "false", "--temp-dir", spec["temp_dir"]], check=False, capture_output=True, text=True, env=env, timeout=300)
+    ray_start_s = time.perf_counter() - t0
+    if start.returncode != 0:
+        print(f"ray start failed (exit {start.returncode}):\n{start.stdout}\n{start.stderr}", file=sys.stderr)
+        return 2
+    env["RAY_ADDRESS"] = ADDRESS
+    print(f"ray_in_netns: cluster up in {ray_start_s:.1f} s", file=sys.stderr, flush=True)
+    results = []
+    try:
+        for c in spec["commands"]:
+            r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t = time.perf_counter()
+            p = subprocess.run(c["argv"], check=False, capture_output=True, text=True, cwd=c.get("cwd"),
+                               env={**env, **c.get("env", {})})
+            wall = time.perf_counter() - t
+            print(f"ray_in_netns: exit {p.returncode} after {wall:.1f} s: {' '.join(c['argv'][:3])}", file=sys.stderr,
+                  flush=True)
+            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            results.append({"argv": c["argv"], "rc": p.returncode, "stdout": p.stdout, "stderr": p.stderr,
+                            "wall_s": wall, "children_cpu_s": (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)})
+    finally:
+        # confined to this PID namespace (--mount-proc); whatever survives dies with it
+        t = time.perf_counter()
+        subprocess.run([ray_bin, "stop", "--force"], check=False, capture_output=True, env=env, timeout=120)
+        ray_stop_s = time.perf_counter() - t
+    Path(spec["out"]).write_text(json.dumps({"ray_start_s": ray_start_s, "ray_stop_s": ray_stop_s,
+                                             "interfaces": interfaces,
+                                             "results": results}))
+    return 0
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 2:
+        raise SystemExit("usage: ray_in_netns.py SPEC.json   (run by run_with_ray_cluster, inside unshare)")
+    sys.exit(_inside(sys.argv[1]))
