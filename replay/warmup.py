@@ -49,7 +49,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    from replay.cli import configure_process
+    from replay.process import configure_process
 
     configure_process()
     sys.exit(main())
