@@ -10,7 +10,10 @@ frames in all) and five empty-bin scans, builds the bin model, then runs the rea
 - ``local 1``: ``--workers 1``; ``local 2``: ``--workers 2``;
 - ``ray 2``: ``--ray auto`` on a private 2-CPU Ray cluster (``ray start --head``) in network, PID and
   mount namespaces of its own (``tests/studies/ray_in_netns.py``: loopback only, stopped after).
-  All three ways run inside that namespace, so they see the same machine.
+  All ways run inside that namespace, so they see the same machine;
+- with ``--threads-ab``, also ``local 2 x2t`` and ``ray 2 x2t``: the same with every worker's thread
+  pools at the machine's core count (``NUMBA_NUM_THREADS`` / ``OMP_NUM_THREADS`` set: the behaviour
+  before the executors sized them to a worker's share of the cores).
 
 Each run is the whole command (start-up, planning, workers, tables); frames/s = frames / wall time
 of the command. Printed: the median frames/s of each way, the ratios local 2 / local 1 (target ≥
@@ -110,11 +113,14 @@ def import_cost() -> float:
     return (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
 
 
-def batch_argv(logs, ply, out: Path, how: str, extra=()) -> list[str]:
+def batch_command(logs, ply, out: Path, how: str, extra=()) -> dict:
     argv = [ZCUT, "batch", *map(str, logs), "-o", str(out), "--bin-model", str(ply), *extra]
-    if how == "ray 2":
-        return [*argv, "--ray", "auto"]
-    return [*argv, "--workers", how.split()[1]]
+    argv += ["--ray", "auto"] if how.startswith("ray") else ["--workers", how.split()[1]]
+    env = {}
+    if how.endswith("x2t"):  # every worker's thread pools at the core count: oversubscribed
+        n = str(os.cpu_count() or 2)
+        env = {k: n for k in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    return {"argv": argv, "env": env}
 
 
 def run_all(commands: list[dict], use_ray: bool) -> list[dict]:
@@ -123,7 +129,7 @@ def run_all(commands: list[dict], use_ray: bool) -> list[dict]:
     out = []
     for c in commands:
         t = time.perf_counter()
-        p = subprocess.run(c["argv"], check=False, capture_output=True, text=True)
+        p = subprocess.run(c["argv"], check=False, capture_output=True, text=True, env={**os.environ, **c["env"]})
         out.append({"argv": c["argv"], "rc": p.returncode, "stdout": p.stdout, "stderr": p.stderr,
                     "wall_s": time.perf_counter() - t})
     return out
@@ -141,6 +147,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3, help="alternating runs of each way; medians compared")
     ap.add_argument("--dir", default=str(Path(tempfile.gettempdir()) / "zcut_bench_batch"))
     ap.add_argument("--no-ray", action="store_true", help="local processes only")
+    ap.add_argument("--threads-ab", action="store_true",
+                    help="also run 2 workers with oversubscribed thread pools (the behaviour before)")
     args = ap.parse_args()
     if args.logs * args.frames < 8:
         ap.error("need >= 8 frames in all (--logs x --frames)")
@@ -159,6 +167,8 @@ def main() -> None:
         print(f"Ray left out: {why}")
         use_ray = False
     ways = ["local 1", "local 2"] + (["ray 2"] if use_ray else [])
+    if args.threads_ab:
+        ways += ["local 2 x2t"] + (["ray 2 x2t"] if use_ray else [])
 
     runs = d / "runs"
     runs.mkdir(exist_ok=True)
@@ -168,11 +178,11 @@ def main() -> None:
     for r in range(args.repeats + 1):
         for w in ways:
             out = runs / f"{stamp}-{r}-{w.replace(' ', '')}"
-            commands.append({"argv": batch_argv(logs, ply, out, w)})
+            commands.append(batch_command(logs, ply, out, w))
             labels.append((r, w, out))
     # steady-state per-frame cost: one worker, units of one frame
     fpu1 = runs / f"{stamp}-fpu1"
-    commands.append({"argv": batch_argv(logs, ply, fpu1, "local 1", ("--frames-per-unit", "1"))})
+    commands.append(batch_command(logs, ply, fpu1, "local 1", ("--frames-per-unit", "1")))
     labels.append((-1, "fpu1", fpu1))
 
     load0 = os.getloadavg()
@@ -191,7 +201,7 @@ def main() -> None:
         summ = json.loads((out / "summary.json").read_text())["this_run"]
         per_way[w].append({"wall_s": res["wall_s"], "fps": frames / res["wall_s"], **summ})
 
-    print(f"\n{'way':8s} {'frames/s':>9s} {'runs (frames/s)':>24s} {'CPU-s/frame':>12s} {'peak MB/worker':>15s}")
+    print(f"\n{'way':12s} {'frames/s':>9s} {'runs (frames/s)':>24s} {'CPU-s/frame':>12s} {'peak MB/worker':>15s}")
     med = {}
     for w in ways:
         rs = per_way[w]
@@ -199,11 +209,14 @@ def main() -> None:
         cpu = statistics.median(x["cpu_seconds_per_frame"] for x in rs)
         rss = max(x["peak_rss_mb_per_worker"] for x in rs)
         each = " ".join(f"{x['fps']:.3f}" for x in rs)
-        print(f"{w:8s} {med[w]:9.3f} {each:>24s} {cpu:12.2f} {rss:15.0f}")
+        print(f"{w:12s} {med[w]:9.3f} {each:>24s} {cpu:12.2f} {rss:15.0f}")
     print(f"local 2 / local 1: {med['local 2'] / med['local 1']:.2f}x (target >= 1.7)")
     if "ray 2" in med:
         slower = 1 - med["ray 2"] / med["local 2"]
         print(f"ray 2 / local 2: {med['ray 2'] / med['local 2']:.2f} ({100 * slower:+.0f} % slower; target <= 15 %)")
+    for w in ("local 2", "ray 2"):
+        if f"{w} x2t" in med:
+            print(f"{w} / {w} x2t (thread pools sized vs oversubscribed): {med[w] / med[w + ' x2t']:.2f}x")
     print(f"load average: {load0[0]:.2f} before, {load1[0]:.2f} after (2 cores)")
 
     # scaling-model inputs

@@ -216,3 +216,35 @@ def test_bad_ray_options_are_one_line_errors(tiny_log, tmp_path, args, env, mess
               env={**base, "RAY_TMPDIR": str(tmp_path / "raytmp"), **env})
     assert (p.returncode, p.stderr) == (1, f"error: {message}\n")
     assert not (tmp_path / "out").exists()
+
+
+@pytest.fixture
+def http1_server():
+    """A loopback server that answers HTTP/1.1, as a web server on the port would: not gRPC."""
+    import socket
+    import threading
+
+    srv = socket.create_server(("127.0.0.1", 0))
+
+    def serve() -> None:
+        try:
+            conn, _ = srv.accept()
+        except OSError:
+            return
+        with conn:
+            conn.recv(1024)
+            conn.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n")
+
+    t = threading.Thread(target=serve, daemon=True)
+    t.start()
+    yield srv.getsockname()[1]
+    srv.close()
+    t.join(timeout=10)
+
+
+def test_an_address_that_is_not_a_ray_cluster_is_refused(tiny_log, tmp_path, http1_server):
+    _require(_ray_missing())
+    p = _zcut("batch", str(tiny_log), "-o", "out", "--ray", f"127.0.0.1:{http1_server}", cwd=tmp_path)
+    want = f"--ray 127.0.0.1:{http1_server}: 127.0.0.1:{http1_server} answers, but not as a Ray cluster (no gRPC)"
+    assert (p.returncode, p.stderr) == (1, f"error: {want}\n")
+    assert not (tmp_path / "out").exists()
