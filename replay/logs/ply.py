@@ -38,6 +38,7 @@ import io
 import os
 import re
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numba
@@ -306,3 +307,134 @@ def _grid_shape(name: str, nv: int, rows: int | None, cols: int | None, shape, c
     if gshape[0] <= 1 or gshape[1] < 1:
         raise LogFormatError(f"{name}: PLY grid {gshape[0]}x{gshape[1]} is not organized (need height > 1)")
     return gshape
+
+
+# ------------------------------------------------------------------------------------------ models
+@dataclass(frozen=True, slots=True)
+class PlyModel:
+    """A PLY point cloud or triangle mesh, e.g. a bin model (unorganized; metres as stored).
+
+    Attributes
+    ----------
+    points : (N, 3) float64 ndarray
+        The vertices, all finite.
+    normals : (N, 3) float64 ndarray or None
+        From ``nx ny nz`` vertex properties.
+    faces : (M, 3) int64 ndarray or None
+        Triangles (polygons fan-triangulated), indices into ``points``; None without a face element.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray | None
+    faces: np.ndarray | None
+
+
+_FACE_LISTS = ("vertex_indices", "vertex_index")
+
+
+def read_ply_model(
+    path: str | os.PathLike, *, max_points: int = DEFAULT_MAX_PIXELS,
+    max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
+) -> PlyModel:
+    """Read a PLY point cloud or mesh (a bin model, a CAD part) with the size checks of :func:`read_ply`.
+
+    Every element's count is checked against the bytes in the file and the caps before plyfile reads
+    it (a header asking for 74 GB is a one-line error, not an allocation), the data is parsed by
+    plyfile (never by a C reader that trusts the header), face indices must lie within the vertices
+    and coordinates must be finite.
+
+    Parameters
+    ----------
+    path : str or Path
+    max_points : int
+        Largest vertex count (and face count) accepted; default 2**24.
+    max_message_bytes : int
+        Largest file accepted; default 256 MiB.
+
+    Returns
+    -------
+    PlyModel
+
+    Raises
+    ------
+    LogFormatError
+        Not a regular file, not a PLY, no x/y/z, a count over a cap or past the end of the file,
+        malformed data, face indices out of range, non-finite coordinates; the message names the file.
+    """
+    from plyfile import PlyData, PlyListProperty, PlyParseError
+
+    check_caps(max_points, max_message_bytes)
+    path = Path(path)
+    name = path.name
+    f, size = open_input(path, "a PLY file")
+    with f:
+        ply, body_at = _header(f, size, name)
+        rest = size - body_at
+        if size > max_message_bytes:
+            raise LogFormatError(f"{name}: PLY file of {size} bytes is more than the cap of {max_message_bytes} "
+                                 "(max_message_bytes)")
+        elements = {e.name: e for e in ply.elements}
+        vert = elements.get("vertex")
+        if vert is None:
+            raise LogFormatError(f"{name}: PLY has no vertex element")
+        need = 0
+        for el in ply.elements:
+            if el.count < 0:
+                raise LogFormatError(f"{name}: PLY element '{el.name}' has a negative count ({el.count})")
+            if el.count > max_points:
+                raise LogFormatError(
+                    f"{name}: PLY element '{el.name}' has {el.count} items, more than the cap of {max_points}")
+            if ply.text:  # at least one character and a separator a value
+                per = 2 * len(el.properties)
+            else:  # fixed-size properties, and at least the length field of a list
+                per = sum(np.dtype(p.len_dtype if isinstance(p, PlyListProperty) else p.val_dtype).itemsize
+                          for p in el.properties)
+            need += el.count * per
+            if need > rest:
+                raise LogFormatError(
+                    f"{name}: PLY {el.name} data has {rest} bytes after the header, needs at least {need} (truncated)")
+        pnames = [p.name for p in vert.properties]
+        for axis in "xyz":
+            if axis not in pnames:
+                raise LogFormatError(f"{name}: PLY vertex has no '{axis}' property (has {' '.join(pnames)})")
+        f.seek(0)
+        try:
+            with warnings.catch_warnings():  # plyfile reads an empty ascii list with np.loadtxt
+                warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
+                data = PlyData.read(io.BytesIO(f.read()))
+        except (PlyParseError, ValueError, ArithmeticError, UnicodeDecodeError, LookupError, StopIteration,
+                TypeError, MemoryError) as e:
+            raise LogFormatError(f"{name}: PLY data does not parse ({str(e)[:120]})") from None
+    v = data["vertex"].data
+    for axis in "xyz":
+        if v.dtype[axis].kind not in "fiu":
+            raise LogFormatError(f"{name}: PLY vertex property '{axis}' is not a number")
+    with np.errstate(invalid="ignore", over="ignore"):
+        points = np.stack([np.asarray(v[a], dtype=np.float64) for a in "xyz"], axis=-1)
+    bad = ~np.isfinite(points).all(axis=1)
+    if bad.any():
+        raise LogFormatError(f"{name}: PLY has {int(bad.sum())} vertices with a non-finite coordinate "
+                             f"(the first is vertex {int(np.argmax(bad))})")
+    normals = None
+    if all(n in pnames for n in ("nx", "ny", "nz")):
+        with np.errstate(invalid="ignore", over="ignore"):
+            normals = np.stack([np.asarray(v[n], dtype=np.float64) for n in ("nx", "ny", "nz")], axis=-1)
+        if not np.isfinite(normals).all():
+            normals = None  # unusable normals are estimated again by the caller
+    faces = None
+    if "face" in elements and elements["face"].count:
+        lists = next((p.name for p in elements["face"].properties
+                      if isinstance(p, PlyListProperty) and p.name in _FACE_LISTS), None)
+        if lists is None:
+            raise LogFormatError(f"{name}: PLY face element has no vertex_indices list")
+        tris = []
+        n = len(points)
+        for i, poly in enumerate(data["face"].data[lists]):
+            poly = np.asarray(poly, dtype=np.int64)
+            if len(poly) < 3:
+                raise LogFormatError(f"{name}: PLY face {i} has {len(poly)} vertices (a face needs at least 3)")
+            if poly.min() < 0 or poly.max() >= n:
+                raise LogFormatError(f"{name}: PLY face {i} refers to a vertex outside the {n} vertices")
+            tris.append(np.stack([np.full(len(poly) - 2, poly[0]), poly[1:-1], poly[2:]], axis=-1))
+        faces = np.concatenate(tris).astype(np.int64)
+    return PlyModel(points, normals, faces)

@@ -14,7 +14,7 @@ import pytest
 from replay.cli import main
 from replay.errors import LogFormatError
 from replay.logs.pcd import read_pcd
-from replay.logs.ply import read_ply
+from replay.logs.ply import read_ply, read_ply_model
 from replay.logs.reader import LogReader
 
 REAL_PCDS = [
@@ -431,3 +431,73 @@ def test_import_mutants_only_raise_logformaterror(tmp_path, crop, rng):
                 assert "\n" not in str(e)
                 outcomes["error"] += 1
     assert outcomes["ok"] > 20 and outcomes["error"] > 20, outcomes
+
+
+
+# ----------------------------------------------------------------------------- PLY models (bin models, CAD parts)
+def test_ply_model_round_trip_open3d(tmp_path):
+    """Open3D's own files (a cloud with normals, a box mesh; ascii and binary) read back exactly."""
+    rng = np.random.default_rng(3)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(rng.normal(size=(50, 3))))
+    pc.normals = o3d.utility.Vector3dVector(rng.normal(size=(50, 3)))
+    mesh = o3d.geometry.TriangleMesh.create_box(0.4, 0.3, 0.12)
+    for ascii_ in (True, False):
+        o3d.io.write_point_cloud(str(tmp_path / "pc.ply"), pc, write_ascii=ascii_)
+        m = read_ply_model(tmp_path / "pc.ply")
+        tol = 1e-5 if ascii_ else 0  # Open3D writes ascii with 6 digits
+        np.testing.assert_allclose(m.points, np.asarray(pc.points), rtol=tol, atol=tol)
+        np.testing.assert_allclose(m.normals, np.asarray(pc.normals), rtol=tol, atol=tol)
+        assert m.faces is None
+        o3d.io.write_triangle_mesh(str(tmp_path / "box.ply"), mesh, write_ascii=ascii_)
+        m = read_ply_model(tmp_path / "box.ply")
+        np.testing.assert_allclose(m.points, np.asarray(mesh.vertices))
+        np.testing.assert_array_equal(m.faces, np.asarray(mesh.triangles))
+
+
+_MODEL = b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+
+
+@pytest.mark.parametrize(
+    "text,match",
+    [
+        (_MODEL.replace(b"vertex 3", b"vertex 8589934592") + b"end_header\n0 0 0\n", "8589934592 items, more than the cap"),
+        (_MODEL.replace(b"vertex 3", b"vertex -1") + b"end_header\n", "negative count"),
+        (_MODEL + b"end_header\n0 0 0\n", "needs at least 18 \\(truncated\\)"),
+        (_MODEL + b"element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 3\n",
+         "face 0 refers to a vertex outside the 3 vertices"),
+        (_MODEL + b"element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n2 0 1\n",
+         "face 0 has 2 vertices"),
+        (_MODEL + b"end_header\n0 0 0\ninf 0 0\n0 nan 0\n", "2 vertices with a non-finite coordinate"),
+        (_MODEL + b"end_header\n0 0 0\n1 x 0\n0 1 0\n", "data does not parse"),
+        (b"ply\nformat ascii 1.0\nelement face 3\nproperty list uchar int vertex_indices\n" + _MODEL[19:]
+         + b"comment " + b"c" * 70000 + b"\nend_header\n", "no end_header in its first 65536 bytes"),
+    ],
+)
+def test_bad_ply_model(tmp_path, text, match):
+    """Inputs that crashed Open3D's PLY reader (a face element first, a 70 KB comment) or asked it for
+    74 GB are one-line errors here."""
+    p = tmp_path / "bad.ply"
+    p.write_bytes(text)
+    with pytest.raises(LogFormatError, match="^bad.ply: .*" + match):
+        read_ply_model(p)
+
+
+def test_ply_model_mutants_only_raise_logformaterror(tmp_path, rng):
+    from log_helpers import mutations
+
+    mesh = o3d.geometry.TriangleMesh.create_box(0.4, 0.3, 0.12)
+    mesh.compute_vertex_normals()
+    outcomes = {"ok": 0, "error": 0}
+    for ascii_ in (True, False):
+        o3d.io.write_triangle_mesh(str(tmp_path / "box.ply"), mesh, write_ascii=ascii_)
+        for _, data in mutations((tmp_path / "box.ply").read_bytes(), rng, 60):
+            q = tmp_path / "mutant.ply"
+            q.write_bytes(data)
+            try:
+                m = read_ply_model(q)
+                assert np.isfinite(m.points).all() and (m.faces is None or m.faces.max() < len(m.points))
+                outcomes["ok"] += 1
+            except LogFormatError as e:
+                assert "\n" not in str(e)
+                outcomes["error"] += 1
+    assert outcomes["ok"] > 5 and outcomes["error"] > 20, outcomes
