@@ -3,513 +3,285 @@
 For every valid pixel the mean distance d̄ to its k nearest neighbours among the valid points is
 computed exactly (no approximate search), then points far above the cloud's mean d̄ are outliers.
 
-Search strategy (all exact):
+Why the search is exact
+-----------------------
+Each valid pixel needs the m smallest distances to the valid points (m = k + 1 with the point
+itself for ``"pcl"``, m = k for ``"open3d"``). d̄ depends only on the *multiset* of these m
+values, so a candidate list is final as soon as no point outside the searched set can be strictly
+closer than the m-th smallest distance found: points at exactly that distance (ties, duplicates)
+would only replace one equal value by another. In particular m distances of 0 are final at once.
 
-1. *Image window.* The m nearest candidates (m = k + 1 with the point itself for ``"pcl"``,
-   m = k for ``"open3d"``) are taken from a small image window around the pixel. When every valid
-   z is positive, the window is *proven* sufficient without intrinsics: the points in the columns
-   right of the window all satisfy x/z >= t (t = suffix minimum of the per-column minima of x/z),
-   i.e. lie in the half-space x - t·z >= 0, whose distance from the query bounds their distance
-   from below; likewise left (prefix maximum), above and below (rows, y/z). If the m-th smallest
-   distance found is within the smallest of the four bounds (less a 1e-9·|P| safety margin for
-   rounding), no point outside the window can be closer. Otherwise the window grows (up to a cap).
-2. *Tile hierarchy.* Unproven points are searched over 8 × 8 pixel tiles and 8 × 8 tile
-   super-tiles of the image, each with the axis-aligned bounding box of its valid points, pruned
-   by the current m-th distance (works for any organized cloud, including z <= 0).
-3. *KD-tree.* Points whose tile search would visit too many pixels go to
-   :class:`scipy.spatial.cKDTree` over all valid points; its candidates within a slightly enlarged
-   radius are re-measured with the arithmetic below, so the result stays exact.
+1. *Camera model.* A 3 × 4 projective map P is fitted to the organized cloud itself (direct
+   linear transform from 3D points to their pixel coordinates); U = P0·p̃ / P2·p̃ and
+   V = P1·p̃ / P2·p̃ then grow with the column and the row. Nothing below needs P to be right,
+   only that the depth P2·p̃ is positive at every valid point (checked; else step 2 is skipped):
+   the points of any image region whose U values are >= t satisfy P0·p̃ - t·P2·p̃ >= 0, a
+   half-space, and the distance from the query to that half-space bounds their distance from
+   below. This holds in any frame: z < 0, mixed signs and rigidly moved clouds alike.
+2. *Image window.* The m nearest candidates are taken from a window of (2w + 1)² pixels around
+   the pixel, w = 1 at first. Outside the window lie: the rows of the pixel's 64-row band to the
+   right and to the left of the window, the columns of its 64-column band below and above it
+   (bands start every 32 pixels, so the window, w <= 16, is inside both), and four corner regions
+   outside both bands. Each region is bounded by the half-space of its extreme U or V (per band
+   and position, or per quadrant for the corners: lens distortion bends columns, so the bounds are
+   kept local). If the m-th distance found is within all of them, the window is proven. If not,
+   the window grows to the smallest w whose bound covers the current m-th distance, up to 16.
+3. *Tile quadtree.* Unproven pixels (flying pixels, isolated points, clouds without a camera) are
+   searched over a quadtree of 8 × 8 pixel tiles in parallel, nearest node first; a node's bound
+   is the larger of the distance to the box of its points and of the half-space bounds of its U
+   and V ranges. A search that measures more than a few thousand pixels stops.
+4. *KD-tree.* The pixels whose tile search stopped go to a KD-tree (balanced median splits, so
+   duplicates cannot unbalance it) built over the points of the tiles within their radius, or over
+   all valid points when the cloud turns out not to be organized at all.
 
-Distances are those of Open3D's nanoflann L2 metric: ``sqrt((dx*dx + dy*dy) + dz*dz)`` in float64,
-and d̄ sums the m smallest in ascending order, so d̄ is bit-identical to Open3D's. The statistics
-are accumulated sequentially over the valid pixels in row-major order (the order in which
-``xyz[valid]`` hands them to Open3D).
+All bounds are lower bounds on the *computed* distance: box distances are evaluated in the order of
+the distance itself (rounding is monotone), the camera bounds carry a relative margin far above
+their rounding error (see :mod:`zcut.sor_window`). Distances are those of Open3D's nanoflann L2
+metric: ``sqrt((dx*dx + dy*dy) + dz*dz)`` in float64, and d̄ sums the m smallest in ascending
+order, so d̄ is bit-identical to Open3D's. The statistics are accumulated sequentially over the
+valid pixels in row-major order (the order in which ``xyz[valid]`` hands them to Open3D).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
-import os
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 
 import numba as nb
 import numpy as np
 
+from . import sor_camera as _camera
+from . import sor_search as _search
+from . import sor_window as _window
 from .cloud import check_xyz
-from .errors import ParameterError
+from .errors import InputShapeError, ParameterError, describe_array
 from .types import XYZ, Mask
 
-__all__ = ["CONVENTIONS", "sor_outliers", "sor_mean_distances"]
+__all__ = ["CONVENTIONS", "sor_mean_distances", "sor_outliers", "sor_outliers_from_distances"]
 
 CONVENTIONS = ("pcl", "open3d")
 
-# Prefer numba's own workqueue threads unless the user chose a layer: OpenMP workers spin after
-# each parallel region and steal the CPU on a busy machine (measured 2-3x slower here), and an
-# old TBB shipped by other wheels makes numba warn when it probes the "tbb" layer.
-if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
-    nb.config.THREADING_LAYER_PRIORITY = ["workqueue", "omp", "tbb"]
+# search limits (read at call time, so that tests can force each path)
+_USE_CAMERA = True                 # fit a camera model and prove image windows with it
+_WINDOW_MAX = _window.WINDOW_MAX   # largest window half-width, 1..16
+_TILE_SCAN_CAP = 2048              # pixels one tile search may measure before the KD-tree takes over
+_MARK_MAX_TILES = 4096             # tiles one pixel may need before the KD-tree takes every point
+_SAMPLE = 256                      # unproven pixels tried first to tell an unorganized cloud
 
-_TILE = 8            # pixels per tile edge
-_SUPER = 8           # tiles per super-tile edge
-_TILE_SEARCH_CAP = 1 << 14   # pixels a tile search may measure before handing over to the KD-tree
-_KD_ALL_ABOVE = 4096  # more unproven points than this and than n / 8: KD-tree for all of them
-_MARGIN = 1e-9       # relative safety margin of the window bound (units of |P|)
-
-# status codes of the window phase
-_INVALID = 0
-_DONE = 1
-_UNPROVEN = 2
+Run = Callable[..., None]
 
 
 # --------------------------------------------------------------------------------------------
-# small numba helpers
+# input
 # --------------------------------------------------------------------------------------------
-@nb.njit(cache=True, inline="always")
-def _d2(xq, yq, zq, xp, yp, zp):
-    # nanoflann L2_Adaptor::evalMetric for dim 3: ((0 + dx²) + dy²) + dz², query minus point.
-    dx = xq - xp
-    dy = yq - yp
-    dz = zq - zp
-    return (dx * dx + dy * dy) + dz * dz
+def _check_ratio(std_ratio: object, name: str = "std_ratio") -> float:
+    if isinstance(std_ratio, (bool, np.bool_)) or not isinstance(std_ratio, (int, float, np.integer, np.floating)):
+        raise ParameterError(f"{name} must be a finite number > 0, got {std_ratio!r}")
+    ratio = float(std_ratio)
+    if not (math.isfinite(ratio) and ratio > 0.0):
+        raise ParameterError(f"{name} must be a finite number > 0, got {std_ratio!r}")
+    return ratio
 
 
-@nb.njit(cache=True, inline="always")
-def _insert(best, d2):
-    # keep best[] sorted ascending, drop the largest; returns the new last value
-    m = best.shape[0]
-    if d2 >= best[m - 1]:
-        return best[m - 1]
-    i = m - 1
-    while i > 0 and best[i - 1] > d2:
-        best[i] = best[i - 1]
-        i -= 1
-    best[i] = d2
-    return best[m - 1]
+def _check_params(k: object, std_ratio: object, convention: object) -> tuple[int, float]:
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+        raise ParameterError(f"k must be an integer >= 1, got {k!r}")
+    if k < 1:
+        raise ParameterError(f"k must be an integer >= 1, got {k!r}")
+    ratio = _check_ratio(std_ratio)
+    if convention not in CONVENTIONS:
+        raise ParameterError(f"convention must be one of {CONVENTIONS}, got {convention!r}")
+    return int(k), ratio
 
 
-@nb.njit(cache=True, inline="always")
-def _insert_minmax(best, d2):
-    # the same as _insert without branches (top down, each slot reads its old lower neighbour)
-    for i in range(best.shape[0] - 1, 0, -1):
-        best[i] = min(best[i], max(best[i - 1], d2))
-    best[0] = min(best[0], d2)
+@nb.njit(cache=True, nogil=True)
+def _split_rows(r0, r1, a, x, y, z, valid, rowmax):
+    # float64 x, y, z planes (+inf where invalid: infinitely far from every valid point), the
+    # valid mask, and per row the largest |x|, |y|, |z| of its valid points
+    for r in range(r0, r1):
+        mx = 0.0
+        my = 0.0
+        mz = 0.0
+        for c in range(a.shape[1]):
+            u = np.float64(a[r, c, 0])
+            v = np.float64(a[r, c, 1])
+            w = np.float64(a[r, c, 2])
+            ok = np.isfinite(u) & np.isfinite(v) & np.isfinite(w)
+            valid[r, c] = ok
+            x[r, c] = u if ok else np.inf
+            y[r, c] = v if ok else np.inf
+            z[r, c] = w if ok else np.inf
+            mx = max(mx, abs(u) if ok else 0.0)
+            my = max(my, abs(v) if ok else 0.0)
+            mz = max(mz, abs(w) if ok else 0.0)
+        rowmax[r, 0] = mx
+        rowmax[r, 1] = my
+        rowmax[r, 2] = mz
 
 
-@nb.njit(cache=True, inline="always")
-def _mean_of_sorted(best, divisor):
-    # std::accumulate(sqrt(dist)) / size, in ascending order from 0.0
-    s = 0.0
-    for i in range(best.shape[0]):
-        s += math.sqrt(best[i])
-    return s / divisor
+def _prepare(xyz: XYZ, run: Run) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """float64 x, y, z planes (+inf where invalid), the valid mask, max |coordinate| per axis."""
+    a = check_xyz(xyz)
+    if a.dtype != np.float32:  # one compiled variant per dtype: float32 or float64, C order
+        a = a.astype(np.float64, copy=False)
+    a = np.ascontiguousarray(a)
+    H, W = a.shape[:2]
+    x, y, z = np.empty((H, W)), np.empty((H, W)), np.empty((H, W))
+    valid = np.empty((H, W), dtype=bool)
+    rowmax = np.zeros((H, 3))
+    run(_split_rows, H, a, x, y, z, valid, rowmax)
+    return x, y, z, valid, rowmax.max(axis=0, initial=0.0)
 
 
-@nb.njit(cache=True)
-def _ratio_bounds(x, y, z, valid):
-    """Suffix/prefix extremes of x/z per column and y/z per row (for the window bound)."""
+# --------------------------------------------------------------------------------------------
+# threads
+# --------------------------------------------------------------------------------------------
+@contextmanager
+def _workers() -> Iterator[Run]:
+    """``run(kernel, n, *args)`` calls ``kernel(i0, i1, *args)`` over chunks of range(n), on
+    ``numba.config.NUMBA_NUM_THREADS`` threads (the cores, or the NUMBA_NUM_THREADS variable).
+
+    The kernels are serial numba functions that release the GIL: numba's own ``parallel=True``
+    compiled this module several times slower, and not starting numba's threading layer leaves
+    its choice (a process-wide setting) to the command line.
+    """
+    n_threads = int(nb.config.NUMBA_NUM_THREADS)
+    if n_threads <= 1:
+        yield lambda kernel, n, *args: kernel(0, n, *args) if n else None
+        return
+    with ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="zcut-sor") as pool:
+
+        def run(kernel, n, *args):
+            n_chunks = min(n, 8 * n_threads)
+            edges = [n * i // n_chunks for i in range(n_chunks + 1)] if n else []
+            jobs = [pool.submit(kernel, i0, i1, *args) for i0, i1 in itertools.pairwise(edges) if i1 > i0]
+            for job in jobs:
+                job.result()
+
+        yield run
+
+
+# --------------------------------------------------------------------------------------------
+# the search
+# --------------------------------------------------------------------------------------------
+def _mean_distances(x, y, z, valid, amax, m: int, divisor: float, run: Run) -> np.ndarray:
+    """(H, W) d̄ over the m smallest squared distances (self included); 0 or NaN where invalid."""
     H, W = valid.shape
-    cmin = np.full(W, np.inf)
-    cmax = np.full(W, -np.inf)
-    rmin = np.full(H, np.inf)
-    rmax = np.full(H, -np.inf)
-    for r in range(H):
-        for c in range(W):
-            if valid[r, c]:
-                tx = x[r, c] / z[r, c]
-                ty = y[r, c] / z[r, c]
-                if tx < cmin[c]:
-                    cmin[c] = tx
-                if tx > cmax[c]:
-                    cmax[c] = tx
-                if ty < rmin[r]:
-                    rmin[r] = ty
-                if ty > rmax[r]:
-                    rmax[r] = ty
-    csuf = cmin.copy()   # csuf[c] = min over columns >= c
-    for c in range(W - 2, -1, -1):
-        csuf[c] = min(csuf[c], csuf[c + 1])
-    cpre = cmax.copy()   # cpre[c] = max over columns <= c
-    for c in range(1, W):
-        cpre[c] = max(cpre[c], cpre[c - 1])
-    rsuf = rmin.copy()
-    for r in range(H - 2, -1, -1):
-        rsuf[r] = min(rsuf[r], rsuf[r + 1])
-    rpre = rmax.copy()
-    for r in range(1, H):
-        rpre[r] = max(rpre[r], rpre[r - 1])
-    return csuf, cpre, rsuf, rpre
-
-
-@nb.njit(cache=True)
-def _inv_norms(t):
-    # 1 / sqrt(1 + t²) for the plane u - t z = 0 (0 where t is infinite: no point on that side)
-    out = np.zeros(t.shape[0])
-    for i in range(t.shape[0]):
-        if np.isfinite(t[i]):
-            out[i] = 1.0 / math.sqrt(1.0 + t[i] * t[i])
-    return out
-
-
-@nb.njit(cache=True, inline="always")
-def _plane_bound(t, inv, a, zq, sign):
-    # distance from the query to the half-space sign*(u - t z) >= 0 (u = x or y), 0 if inside
-    if inv == 0.0:
-        return np.inf
-    num = sign * (t * zq - a)
-    if num <= 0.0:
-        return 0.0
-    return num * inv
-
-
-@nb.njit(cache=True, inline="always")
-def _window_bound(r, c, w, H, W, xq, yq, zq, csuf, cpre, rsuf, rpre, icsuf, icpre, irsuf, irpre):
-    # lower bound on the distance from the query to every valid point outside the window
-    b = np.inf
-    if c + w + 1 < W:
-        b = min(b, _plane_bound(csuf[c + w + 1], icsuf[c + w + 1], xq, zq, 1.0))
-    if c - w - 1 >= 0:
-        b = min(b, _plane_bound(cpre[c - w - 1], icpre[c - w - 1], xq, zq, -1.0))
-    if r + w + 1 < H:
-        b = min(b, _plane_bound(rsuf[r + w + 1], irsuf[r + w + 1], yq, zq, 1.0))
-    if r - w - 1 >= 0:
-        b = min(b, _plane_bound(rpre[r - w - 1], irpre[r - w - 1], yq, zq, -1.0))
-    return b
-
-
-@nb.njit(cache=True, inline="always")
-def _scan_ring(best, r, c, w_old, w_new, H, W, x, y, z, valid, xq, yq, zq):
-    # add the pixels of the (2 w_new + 1)² window that are outside the (2 w_old + 1)² one
-    n = 0
-    r0 = max(0, r - w_new)
-    r1 = min(H - 1, r + w_new)
-    c0 = max(0, c - w_new)
-    c1 = min(W - 1, c + w_new)
-    for rr in range(r0, r1 + 1):
-        inner_row = abs(rr - r) <= w_old
-        for cc in range(c0, c1 + 1):
-            if inner_row and abs(cc - c) <= w_old:
-                continue
-            if valid[rr, cc]:
-                _insert(best, _d2(xq, yq, zq, x[rr, cc], y[rr, cc], z[rr, cc]))
-                n += 1
-    return n
-
-
-# --------------------------------------------------------------------------------------------
-# phase 1: image window with the half-space bound
-# --------------------------------------------------------------------------------------------
-@nb.njit(cache=True, parallel=True)
-def _window_phase(x, y, z, valid, m, divisor, w_cap, use_bound,
-                  csuf, cpre, rsuf, rpre, icsuf, icpre, irsuf, irpre):
-    H, W = valid.shape
+    P = _camera.fit_camera(x, y, z, valid) if _USE_CAMERA else None
+    use_cam = P is not None
+    S = _camera.camera_scale(P, amax) if use_cam else 1.0
+    if not use_cam:
+        P = np.zeros((3, 4))
+    stats = _camera.new_stats(H, W)
+    run(_camera.block_rows, stats[0].shape[0], x, y, z, valid, P, S, use_cam, *stats)
+    rowU, colV, tcount, tbox, tuv, bad = stats
+    use_cam = use_cam and not bad.any()  # some depth not safely positive: no camera bounds
+    M = float(amax.max())
+    if use_cam:
+        R = _camera.band_tables(rowU, P, 0, M)
+        C = _camera.band_tables(colV, P, 1, M)
+        Q, floor = _camera.corner_tables(tuv, P, S, M)
+    else:  # placeholders of the right shapes (the row stage reads them, then ignores them)
+        R = np.zeros((rowU.shape[0] + 1, 8, W))
+        C = np.zeros((colV.shape[0] + 1, 8, H))
+        Q = np.zeros((rowU.shape[0] + 1, colV.shape[0] + 1, 4, 8))
+        floor = np.zeros(Q.shape[:2])
+    wmax = int(min(max(_WINDOW_MAX, 1), _window.WINDOW_MAX))
+    w0 = _window.first_window(m, wmax)
     dbar = np.zeros((H, W))
-    status = np.zeros((H, W), np.uint8)
-    radius2 = np.full((H, W), np.inf)
-    w0 = 1
-    while (2 * w0 + 1) * (2 * w0 + 1) < m:
-        w0 += 1
-    for r in nb.prange(H):
-        best = np.empty(m)
-        for c in range(W):
-            if not valid[r, c]:
-                continue
-            xq = x[r, c]
-            yq = y[r, c]
-            zq = z[r, c]
-            best[0] = 0.0  # the point itself
-            for i in range(1, m):
-                best[i] = np.inf
-            if w0 == 1 and 0 < r < H - 1 and 0 < c < W - 1:
-                # interior 3 x 3 window, branch-free: invalid pixels hold +inf coordinates,
-                # hence an infinite distance that never enters the m smallest
-                count = 1
-                for rr in range(r - 1, r + 2):
-                    for cc in (c - 1, c, c + 1):
-                        if rr != r or cc != c:
-                            _insert_minmax(best, _d2(xq, yq, zq, x[rr, cc], y[rr, cc], z[rr, cc]))
-                            count += valid[rr, cc]
-            else:
-                count = 1 + _scan_ring(best, r, c, 0, w0, H, W, x, y, z, valid, xq, yq, zq)
-            w = w0
-            while count < m and w < w_cap:
-                count += _scan_ring(best, r, c, w, w + 1, H, W, x, y, z, valid, xq, yq, zq)
-                w += 1
-            proven = False
-            if count >= m and use_bound:
-                dm2 = best[m - 1]
-                margin = _MARGIN * (abs(xq) + abs(yq) + abs(zq))  # >= 1e-9 |P|
-                for w_try in range(w, w_cap + 1):
-                    b = _window_bound(r, c, w_try, H, W, xq, yq, zq,
-                                      csuf, cpre, rsuf, rpre, icsuf, icpre, irsuf, irpre) - margin
-                    if b > 0.0 and dm2 <= b * b:
-                        if w_try > w:
-                            _scan_ring(best, r, c, w, w_try, H, W, x, y, z, valid, xq, yq, zq)
-                        proven = True
-                        break
-            if proven:
-                status[r, c] = _DONE
-                dbar[r, c] = _mean_of_sorted(best, divisor)
-            else:
-                status[r, c] = _UNPROVEN
-                radius2[r, c] = best[m - 1]
-    return dbar, status, radius2
+    run(_window.window_rows, H, x, y, z, valid, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar)
+    rows, cols = np.nonzero(dbar < 0.0)  # unproven: minus the window's m-th squared distance
+    if rows.size:
+        tree = _search.build_quadtree(tcount, tbox, tuv, P, M, use_cam)
+        _fallback(x, y, z, valid, rows, cols, -dbar[rows, cols], m, divisor, use_cam, tree, dbar, run)
+    return dbar
 
 
-# --------------------------------------------------------------------------------------------
-# phase 2: tile hierarchy
-# --------------------------------------------------------------------------------------------
-@nb.njit(cache=True, parallel=True)
-def _tile_boxes(x, y, z, valid, size):
-    # per tile: min and max of x, y, z over its valid pixels (empty tile: lo = inf > hi = -inf)
-    H, W = valid.shape
-    th = (H + size - 1) // size
-    tw = (W + size - 1) // size
-    lo = np.full((th, tw, 3), np.inf)
-    hi = np.full((th, tw, 3), -np.inf)
-    for tr in nb.prange(th):
-        for r in range(tr * size, min(H, (tr + 1) * size)):
-            for c in range(W):
-                if valid[r, c]:
-                    tc = c // size
-                    v0 = x[r, c]
-                    v1 = y[r, c]
-                    v2 = z[r, c]
-                    lo[tr, tc, 0] = min(lo[tr, tc, 0], v0)
-                    hi[tr, tc, 0] = max(hi[tr, tc, 0], v0)
-                    lo[tr, tc, 1] = min(lo[tr, tc, 1], v1)
-                    hi[tr, tc, 1] = max(hi[tr, tc, 1], v1)
-                    lo[tr, tc, 2] = min(lo[tr, tc, 2], v2)
-                    hi[tr, tc, 2] = max(hi[tr, tc, 2], v2)
-    return lo, hi
+def _fallback(x, y, z, valid, rows, cols, lim, m, divisor, use_cam, tree, dbar, run: Run) -> None:
+    """Tile search for the unproven pixels, then a KD-tree for those it could not finish."""
 
+    def tile_search(rows, cols, lim):
+        out, outcome, radius2 = np.zeros(rows.size), np.zeros(rows.size, np.uint8), np.full(rows.size, np.inf)
+        run(_search.tile_queries, rows.size, x, y, z, valid, rows, cols, lim, m, divisor, int(_TILE_SCAN_CAP),
+            use_cam, tree, out, outcome, radius2)
+        return out, outcome, radius2
 
-@nb.njit(cache=True)
-def _merge_boxes(lo, hi, f):
-    th, tw = lo.shape[0], lo.shape[1]
-    sh = (th + f - 1) // f
-    sw = (tw + f - 1) // f
-    slo = np.full((sh, sw, 3), np.inf)
-    shi = np.full((sh, sw, 3), -np.inf)
-    for i in range(th):
-        for j in range(tw):
-            for a in range(3):
-                slo[i // f, j // f, a] = min(slo[i // f, j // f, a], lo[i, j, a])
-                shi[i // f, j // f, a] = max(shi[i // f, j // f, a], hi[i, j, a])
-    return slo, shi
+    def kd_search(pts, rows, cols, lim):
+        kd = _search.kd_build(pts)
+        out = np.zeros(rows.size)
+        run(_search.kd_queries, rows.size, x, y, z, rows, cols, lim, m, divisor, kd, out)
+        dbar[rows, cols] = out
 
-
-@nb.njit(cache=True, inline="always")
-def _box_d2(lo, hi, i, j, xq, yq, zq):
-    # squared distance from the query to a box; empty boxes are infinitely far
-    if lo[i, j, 0] > hi[i, j, 0]:
-        return np.inf
-    g = max(lo[i, j, 0] - xq, 0.0, xq - hi[i, j, 0])
-    s = g * g
-    g = max(lo[i, j, 1] - yq, 0.0, yq - hi[i, j, 1])
-    s += g * g
-    g = max(lo[i, j, 2] - zq, 0.0, zq - hi[i, j, 2])
-    s += g * g
-    return s
-
-
-@nb.njit(cache=True, parallel=True)
-def _tile_phase(x, y, z, valid, rows, cols, radius2, m, divisor, tlo, thi, slo, shi, cap):
-    H, W = valid.shape
-    n = rows.shape[0]
-    out = np.zeros(n)
-    ok = np.zeros(n, np.bool_)
-    sh, sw = slo.shape[0], slo.shape[1]
-    th, tw = tlo.shape[0], tlo.shape[1]
-    slack = 1.0 + 1e-9
-    for q in nb.prange(n):
-        r = rows[q]
-        c = cols[q]
-        xq = x[r, c]
-        yq = y[r, c]
-        zq = z[r, c]
-        best = np.full(m, np.inf)
-        lim = radius2[q]            # upper bound on the m-th squared distance (inf if unknown)
-        # super-tiles within the bound, nearest first (an early small m-th distance prunes more)
-        sd = np.empty(sh * sw)
-        sid = np.empty(sh * sw, np.int64)
-        ns = 0
-        for i in range(sh):
-            for j in range(sw):
-                d = _box_d2(slo, shi, i, j, xq, yq, zq)
-                if d <= lim * slack:
-                    sd[ns] = d
-                    sid[ns] = i * sw + j
-                    ns += 1
-        order = np.argsort(sd[:ns])
-        measured = 0
-        aborted = False
-        for o in range(ns):
-            if sd[order[o]] > min(lim, best[m - 1]) * slack:
-                break
-            s = sid[order[o]]
-            si = s // sw
-            sj = s % sw
-            for ti in range(si * _SUPER, min(th, (si + 1) * _SUPER)):
-                for tj in range(sj * _SUPER, min(tw, (sj + 1) * _SUPER)):
-                    cur = min(lim, best[m - 1]) * slack
-                    if _box_d2(tlo, thi, ti, tj, xq, yq, zq) > cur:
-                        continue
-                    for rr in range(ti * _TILE, min(H, (ti + 1) * _TILE)):
-                        for cc in range(tj * _TILE, min(W, (tj + 1) * _TILE)):
-                            if valid[rr, cc]:
-                                _insert(best, _d2(xq, yq, zq, x[rr, cc], y[rr, cc], z[rr, cc]))
-                                measured += 1
-                    if measured > cap:
-                        aborted = True
-                        break
-                if aborted:
-                    break
-            if aborted:
-                break
-        if not aborted:
-            ok[q] = True
-            out[q] = _mean_of_sorted(best, divisor)
-    return out, ok
-
-
-# --------------------------------------------------------------------------------------------
-# phase 3: KD-tree, re-measured exactly
-# --------------------------------------------------------------------------------------------
-@nb.njit(cache=True)
-def _remeasure(pts, queries, flat_idx, offsets, m, divisor):
-    n = queries.shape[0]
-    out = np.zeros(n)
-    best = np.empty(m)
-    for q in range(n):
-        for i in range(m):
-            best[i] = np.inf
-        xq, yq, zq = pts[queries[q], 0], pts[queries[q], 1], pts[queries[q], 2]
-        for t in range(offsets[q], offsets[q + 1]):
-            p = flat_idx[t]
-            _insert(best, _d2(xq, yq, zq, pts[p, 0], pts[p, 1], pts[p, 2]))
-        out[q] = _mean_of_sorted(best, divisor)
-    return out
-
-
-def _kdtree_mean_distances(pts: np.ndarray, queries: np.ndarray, m: int, divisor: float) -> np.ndarray:
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(pts, balanced_tree=False, compact_nodes=False)
-    dist, _ = tree.query(pts[queries], k=[m])
-    # every point whose exactly computed distance could tie the m-th: radius slightly enlarged
-    radius = dist[:, 0] * (1.0 + 1e-9) + 1e-300
-    lists = tree.query_ball_point(pts[queries], radius, workers=-1)
-    lengths = np.fromiter((len(a) for a in lists), dtype=np.int64, count=len(lists))
-    offsets = np.zeros(len(lists) + 1, dtype=np.int64)
-    np.cumsum(lengths, out=offsets[1:])
-    flat = np.fromiter((i for a in lists for i in a), dtype=np.int64, count=int(offsets[-1]))
-    return _remeasure(pts, queries.astype(np.int64), flat, offsets, m, divisor)
+    if rows.size > 4 * _SAMPLE:  # not organized at all? then every tile search would hit the cap
+        pick = np.linspace(0, rows.size - 1, _SAMPLE).astype(np.int64)
+        _, outcome, _ = tile_search(rows[pick], cols[pick], lim[pick])
+        if 2 * np.count_nonzero(outcome != _search.FOUND) > pick.size:
+            kd_search(_search.gather_valid(x, y, z, valid), rows, cols, lim)
+            return
+    out, outcome, radius2 = tile_search(rows, cols, lim)
+    done = outcome == _search.FOUND
+    dbar[rows[done], cols[done]] = out[done]
+    if done.all():
+        return
+    rows, cols, radius2 = rows[~done], cols[~done], radius2[~done]
+    every = bool((outcome[~done] == _search.NEEDS_KD_ALL).any())
+    if not every:
+        level_off = tree[0]
+        mark, over = np.zeros(int(level_off[1]), dtype=bool), np.zeros(rows.size, dtype=bool)
+        run(_search.mark_queries, rows.size, x, y, z, rows, cols, radius2, int(_MARK_MAX_TILES), use_cam, tree,
+            mark, over)
+        every = bool(over.any())
+    if every:
+        pts = _search.gather_valid(x, y, z, valid)
+    else:
+        pts = _search.gather_tiles(x, y, z, valid, mark, int(tree[2][0]))
+    kd_search(pts, rows, cols, radius2)
 
 
 # --------------------------------------------------------------------------------------------
 # statistics
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True)
-def _outliers_open3d(dbar, valid, n, std_ratio):
-    # PointCloud::RemoveStatisticalOutliers: mean over d̄ > 0 divided by the count of ALL points,
-    # Bessel-corrected std over the same terms, inlier iff 0 < d̄ < threshold (strict)
+def _outlier_masks(dbar, valid, n, ratios, open3d):
+    # pcl: d̄ > mean + ratio * std, sample std (n - 1), sequential sums in row-major order.
+    # open3d (PointCloud::RemoveStatisticalOutliers): the sums run over d̄ > 0 only but divide by
+    # the count of ALL points; inlier iff 0 < d̄ < threshold (strict)
+    # (adding 0.0 for a skipped pixel leaves the sequential sums bit-identical: s + 0.0 == s)
     H, W = valid.shape
     s = 0.0
     for r in range(H):
         for c in range(W):
-            if valid[r, c] and dbar[r, c] > 0.0:
-                s = s + dbar[r, c]
+            d = dbar[r, c]
+            use = valid[r, c] & ((not open3d) | (d > 0.0))
+            s = s + (d if use else 0.0)
     mean = s / n
     sq = 0.0
     for r in range(H):
         for c in range(W):
-            if valid[r, c] and dbar[r, c] > 0.0:
-                sq = sq + (dbar[r, c] - mean) * (dbar[r, c] - mean)
+            d = dbar[r, c]
+            use = valid[r, c] & ((not open3d) | (d > 0.0))
+            e = d - mean
+            sq = sq + (e * e if use else 0.0)
     std = math.sqrt(sq / (n - 1))
-    thr = mean + std_ratio * std
-    out = np.zeros((H, W), np.bool_)
-    for r in range(H):
-        for c in range(W):
-            if valid[r, c]:
+    out = np.empty((ratios.shape[0], H, W), np.bool_)
+    for i in range(ratios.shape[0]):
+        thr = mean + ratios[i] * std
+        for r in range(H):
+            for c in range(W):
                 d = dbar[r, c]
-                out[r, c] = not (d > 0.0 and d < thr)
-    return out
-
-
-@nb.njit(cache=True)
-def _outliers_pcl(dbar, valid, n, std_ratio):
-    # d̄ > mean + std_ratio * std, sample std (n - 1), sequential sums in row-major order
-    H, W = valid.shape
-    s = 0.0
-    for r in range(H):
-        for c in range(W):
-            if valid[r, c]:
-                s = s + dbar[r, c]
-    mean = s / n
-    sq = 0.0
-    for r in range(H):
-        for c in range(W):
-            if valid[r, c]:
-                sq = sq + (dbar[r, c] - mean) * (dbar[r, c] - mean)
-    std = math.sqrt(sq / (n - 1))
-    thr = mean + std_ratio * std
-    out = np.zeros((H, W), np.bool_)
-    for r in range(H):
-        for c in range(W):
-            if valid[r, c]:
-                out[r, c] = dbar[r, c] > thr
+                if open3d:
+                    out[i, r, c] = valid[r, c] & ~((d > 0.0) & (d < thr))
+                else:
+                    out[i, r, c] = valid[r, c] & (d > thr)
     return out
 
 
 # --------------------------------------------------------------------------------------------
 # public API
 # --------------------------------------------------------------------------------------------
-def _check_params(k: object, std_ratio: object, convention: object) -> tuple[int, float]:
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
-        raise ParameterError(f"k must be an integer >= 1, got {k!r}")
-    if k < 1:
-        raise ParameterError(f"k must be an integer >= 1, got {k!r}")
-    if isinstance(std_ratio, (bool, np.bool_)) or not isinstance(std_ratio, (int, float, np.integer, np.floating)):
-        raise ParameterError(f"std_ratio must be a finite number > 0, got {std_ratio!r}")
-    ratio = float(std_ratio)
-    if not (math.isfinite(ratio) and ratio > 0.0):
-        raise ParameterError(f"std_ratio must be a finite number > 0, got {std_ratio!r}")
-    if convention not in CONVENTIONS:
-        raise ParameterError(f"convention must be one of {CONVENTIONS}, got {convention!r}")
-    return int(k), ratio
-
-
-@nb.njit(cache=True, parallel=True)
-def _split_planes(a):
-    H, W = a.shape[0], a.shape[1]
-    x = np.zeros((H, W))
-    y = np.zeros((H, W))
-    z = np.zeros((H, W))
-    valid = np.zeros((H, W), np.bool_)
-    for r in nb.prange(H):
-        for c in range(W):
-            u = np.float64(a[r, c, 0])
-            v = np.float64(a[r, c, 1])
-            w = np.float64(a[r, c, 2])
-            if np.isfinite(u) and np.isfinite(v) and np.isfinite(w):
-                valid[r, c] = True
-                x[r, c] = u
-                y[r, c] = v
-                z[r, c] = w
-            else:  # never a neighbour: infinitely far from every valid point
-                x[r, c] = np.inf
-                y[r, c] = np.inf
-                z[r, c] = np.inf
-    return x, y, z, valid
-
-
-def _prepare(xyz: XYZ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """float64 x, y, z planes (+inf where invalid) and the valid mask."""
-    a = check_xyz(xyz)
-    if a.dtype != np.float32:  # one compiled variant per dtype: float32 or float64, C order
-        a = a.astype(np.float64, copy=False)
-    return _split_planes(np.ascontiguousarray(a))
-
-
 def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl") -> np.ndarray:
     """Mean distance d̄ of every valid pixel to its k nearest neighbours, exactly.
 
@@ -529,52 +301,70 @@ def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl") -> np.n
         search needs, the mean is over all the valid points there are (Open3D's behaviour).
     """
     k, _ = _check_params(k, 1.0, convention)
-    x, y, z, valid = _prepare(xyz)
-    dbar = np.full(valid.shape, np.nan)
-    n = int(valid.sum())
-    if n == 0:
-        return dbar
-    m = k + 1 if convention == "pcl" else k
-    divisor = float(k)
-    if n < m:  # too few points for a full neighbourhood: average over what exists
-        m = n
-        divisor = float(n - 1 if convention == "pcl" else n)
-        if divisor == 0.0:
-            dbar[valid] = 0.0
+    with _workers() as run:
+        x, y, z, valid, amax = _prepare(xyz, run)
+        dbar = np.full(valid.shape, np.nan)
+        n = int(valid.sum())
+        if n == 0:
             return dbar
-    dbar[valid] = _mean_distances(x, y, z, valid, m, divisor)[valid]
+        m = k + 1 if convention == "pcl" else k
+        divisor = float(k)
+        if n < m:  # too few points for a full neighbourhood: average over what exists
+            m = n
+            divisor = float(n - 1 if convention == "pcl" else n)
+            if divisor == 0.0:
+                dbar[valid] = 0.0
+                return dbar
+        dbar[valid] = _mean_distances(x, y, z, valid, amax, m, divisor, run)[valid]
     return dbar
 
 
-def _mean_distances(x, y, z, valid, m: int, divisor: float) -> np.ndarray:
-    H, W = valid.shape
-    use_bound = bool(np.all(z[valid] > 0.0))
-    if use_bound:
-        ratios = _ratio_bounds(x, y, z, valid)
-    else:
-        ratios = (np.zeros(W), np.zeros(W), np.zeros(H), np.zeros(H))
-    bounds = ratios + tuple(_inv_norms(t) for t in ratios)
-    w0 = 1
-    while (2 * w0 + 1) ** 2 < m:
-        w0 += 1
-    w_cap = max(6, w0 + 4)
-    dbar, status, radius2 = _window_phase(x, y, z, valid, m, divisor, w_cap, use_bound, *bounds)
-    rows, cols = np.nonzero(status == _UNPROVEN)
-    n = int(np.count_nonzero(valid))
-    if rows.size and rows.size <= max(_KD_ALL_ABOVE, n // 8):  # else not organized enough: KD-tree for all
-        tlo, thi = _tile_boxes(x, y, z, valid, _TILE)
-        slo, shi = _merge_boxes(tlo, thi, _SUPER)
-        vals, ok = _tile_phase(
-            x, y, z, valid, rows, cols, radius2[rows, cols], m, divisor, tlo, thi, slo, shi, _TILE_SEARCH_CAP
-        )
-        dbar[rows[ok], cols[ok]] = vals[ok]
-        rows, cols = rows[~ok], cols[~ok]
-    if rows.size:
-        index = np.full(valid.shape, -1, dtype=np.int64)
-        index[valid] = np.arange(n)
-        pts = np.stack([x[valid], y[valid], z[valid]], axis=1)
-        dbar[rows, cols] = _kdtree_mean_distances(pts, index[rows, cols], m, divisor)
-    return dbar
+def sor_outliers_from_distances(
+    dbar: np.ndarray, *, k: int, std_ratios: Iterable[float], convention: str = "pcl"
+) -> np.ndarray:
+    """Outlier masks for several thresholds from one d̄ computation (for a sweep over std_ratio).
+
+    ``sor_outliers_from_distances(sor_mean_distances(xyz, k=k, convention=c), k=k,
+    std_ratios=ratios, convention=c)[i]`` equals ``sor_outliers(xyz, k=k, std_ratio=ratios[i],
+    convention=c)`` exactly.
+
+    Parameters
+    ----------
+    dbar : (H, W) float ndarray
+        d̄ as :func:`sor_mean_distances` returns it for the same ``k`` and ``convention``; NaN
+        marks invalid pixels.
+    k : int
+        The k that d̄ was computed with (fewer than k + 1 valid pixels: no outliers).
+    std_ratios : iterable of float
+        Thresholds in standard deviations, each finite and > 0.
+    convention : {"pcl", "open3d"}
+        See :func:`sor_outliers`.
+
+    Returns
+    -------
+    (n_ratios, H, W) bool ndarray
+        True at outliers, one mask per entry of ``std_ratios`` in order.
+
+    Raises
+    ------
+    InputShapeError
+        ``dbar`` is not an (H, W) float array.
+    ParameterError
+        ``k``, an entry of ``std_ratios`` or ``convention`` out of range.
+    """
+    d = np.asarray(dbar)
+    if d.ndim != 2 or not np.issubdtype(d.dtype, np.floating):
+        raise InputShapeError(f"dbar must be an (H, W) float array, got {describe_array(d)}")
+    if isinstance(std_ratios, (str, bytes)) or not isinstance(std_ratios, Iterable):
+        raise ParameterError(f"std_ratios must be an iterable of numbers, got {std_ratios!r}")
+    ratios = np.array([_check_ratio(s, "every std_ratio") for s in std_ratios], dtype=np.float64)
+    k, _ = _check_params(k, 1.0, convention)
+    d = np.ascontiguousarray(d, dtype=np.float64)
+    valid = ~np.isnan(d)
+    n = int(valid.sum())
+    if n < k + 1 or ratios.size == 0:
+        return np.zeros((ratios.size, *d.shape), dtype=bool)
+    return _outlier_masks(d, valid, float(n), ratios, convention == "open3d")
 
 
 def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: str = "pcl") -> Mask:
@@ -609,14 +399,17 @@ def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: st
         ``xyz`` is not an (H, W, 3) float array.
     ParameterError
         ``k``, ``std_ratio`` or ``convention`` out of range.
+
+    See Also
+    --------
+    sor_outliers_from_distances : every threshold of a sweep from one d̄ computation.
     """
     k, ratio = _check_params(k, std_ratio, convention)
-    x, y, z, valid = _prepare(xyz)
-    n = int(valid.sum())
-    if n < k + 1:
-        return np.zeros(valid.shape, dtype=bool)
-    m = k + 1 if convention == "pcl" else k
-    dbar = _mean_distances(x, y, z, valid, m, float(k))
-    if convention == "pcl":
-        return _outliers_pcl(dbar, valid, float(n), ratio)
-    return _outliers_open3d(dbar, valid, float(n), ratio)
+    with _workers() as run:
+        x, y, z, valid, amax = _prepare(xyz, run)
+        n = int(valid.sum())
+        if n < k + 1:
+            return np.zeros(valid.shape, dtype=bool)
+        m = k + 1 if convention == "pcl" else k
+        dbar = _mean_distances(x, y, z, valid, amax, m, float(k), run)
+    return _outlier_masks(dbar, valid, float(n), np.array([ratio]), convention == "open3d")[0]

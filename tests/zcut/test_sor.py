@@ -2,17 +2,24 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import open3d as o3d
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
-from reference.sor_reference import mean_distances_reference, sor_outliers_reference
+from reference.sor_reference import (
+    mean_distances_reference,
+    outliers_from_mean_distances_reference,
+    sor_outliers_reference,
+)
 
 import zcut.sor as sor_module
 from zcut import InputShapeError, ParameterError, sor_outliers
-from zcut.sor import sor_mean_distances
+from zcut.sor import sor_mean_distances, sor_outliers_from_distances
 
 
 def open3d_outliers(xyz: np.ndarray, *, k: int, std_ratio: float) -> np.ndarray:
@@ -137,14 +144,22 @@ def test_open3d_reference_is_open3d(kind: str, k: int) -> None:
     )
 
 
-@pytest.fixture(params=["auto", "tiles", "kdtree"])
+SEARCH_PATHS = {
+    "auto": {},
+    "window-1": {"_WINDOW_MAX": 1},  # no growing windows: more pixels for the tile search
+    "no-camera": {"_USE_CAMERA": False},  # only distances of 0 proven in the window
+    "tiles": {"_USE_CAMERA": False, "_TILE_SCAN_CAP": 1 << 40},  # every unproven pixel by tiles
+    "kdtree": {"_TILE_SCAN_CAP": 0},  # KD-tree over the tiles within each pixel's radius
+    "kdtree-all": {"_TILE_SCAN_CAP": 0, "_MARK_MAX_TILES": 0},  # KD-tree over all valid points
+    "unorganized": {"_TILE_SCAN_CAP": 0, "_SAMPLE": 2},  # the sample says "not organized"
+}
+
+
+@pytest.fixture(params=list(SEARCH_PATHS))
 def search_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
-    """Force the unproven points through the tile search or the KD-tree."""
-    if request.param == "tiles":
-        monkeypatch.setattr(sor_module, "_KD_ALL_ABOVE", 1 << 40)
-        monkeypatch.setattr(sor_module, "_TILE_SEARCH_CAP", 1 << 40)
-    elif request.param == "kdtree":
-        monkeypatch.setattr(sor_module, "_TILE_SEARCH_CAP", 0)
+    """Force the unproven points through one of the searches."""
+    for name, value in SEARCH_PATHS[request.param].items():
+        monkeypatch.setattr(sor_module, name, value)
     return request.param
 
 
@@ -271,6 +286,185 @@ def test_input_is_not_modified() -> None:
     before = xyz.copy()
     sor_outliers(xyz, convention="open3d")
     np.testing.assert_array_equal(xyz, before)
+
+
+# ------------------------------------------------------------------------------------------------
+# any camera frame: the window bound needs no z > 0
+# ------------------------------------------------------------------------------------------------
+def rigidly_moved(xyz: np.ndarray, frame: str) -> np.ndarray:
+    """The cloud in another frame: OpenGL camera (y up, z < 0), a tilted bin frame (z of both
+    signs), or an arbitrary rotation and translation."""
+    if frame == "negative-z":
+        return xyz * np.array([1.0, -1.0, -1.0])
+    a, b, c = {"mixed-z": (0.35, 0.5, 0.0), "rotated": (1.1, -0.7, 2.3)}[frame]
+    Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    Ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    Rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
+    out = xyz @ (Rz @ Ry @ Rx).T
+    return out - np.nanmedian(out, axis=(0, 1))
+
+
+@pytest.mark.parametrize("frame", ["negative-z", "mixed-z", "rotated"])
+def test_any_rigid_frame(frame: str) -> None:
+    rng = np.random.default_rng(17)
+    xyz = rigidly_moved(with_holes(rng, pinhole(rng, 60, 80, f=120.0, flying=0.02), 0.05), frame)
+    x, y, z = (np.where(np.isfinite(xyz[..., i]), xyz[..., i], np.inf) for i in range(3))
+    assert sor_module._camera.fit_camera(x, y, z, np.isfinite(xyz).all(axis=2)) is not None  # the fast path holds
+    for convention in ("pcl", "open3d"):
+        np.testing.assert_array_equal(
+            sor_mean_distances(xyz, k=4, convention=convention),
+            mean_distances_reference(xyz, k=4, convention=convention),
+        )
+    np.testing.assert_array_equal(sor_outliers(xyz, k=4, convention="open3d"), open3d_outliers(xyz, k=4, std_ratio=1.0))
+
+
+# ------------------------------------------------------------------------------------------------
+# one d̄ computation, every threshold of a sweep
+# ------------------------------------------------------------------------------------------------
+RATIOS = [0.3, 1.0, 1.7, 3.0, 0.05]
+
+
+@pytest.mark.parametrize(("seed", "kind"), CASES[::4])
+def test_outliers_from_distances_equals_sor_outliers(seed: int, kind: str) -> None:
+    xyz, k, _ = random_case(seed, kind)
+    for convention in ("pcl", "open3d"):
+        dbar = sor_mean_distances(xyz, k=k, convention=convention)
+        masks = sor_outliers_from_distances(dbar, k=k, std_ratios=RATIOS, convention=convention)
+        assert masks.shape == (len(RATIOS), *xyz.shape[:2]) and masks.dtype == bool
+        for ratio, mask in zip(RATIOS, masks):
+            np.testing.assert_array_equal(mask, sor_outliers(xyz, k=k, std_ratio=ratio, convention=convention))
+
+
+def test_outliers_from_distances_edges() -> None:
+    rng = np.random.default_rng(12)
+    xyz = pinhole(rng, 20, 30)
+    dbar = sor_mean_distances(xyz, k=4)
+    assert sor_outliers_from_distances(dbar, k=4, std_ratios=[]).shape == (0, 20, 30)
+    gen = sor_outliers_from_distances(dbar, k=4, std_ratios=(r for r in (1.0, np.float32(2.0), 3)))
+    np.testing.assert_array_equal(gen[1], sor_outliers(xyz, k=4, std_ratio=2.0))
+    few = np.full((4, 4), np.nan)
+    few[0, :3] = 0.5  # 3 valid pixels < k + 1
+    assert not sor_outliers_from_distances(few, k=3, std_ratios=[0.1]).any()
+    assert not sor_outliers_from_distances(np.full((0, 7), np.nan), k=1, std_ratios=[1.0]).any()
+
+
+@pytest.mark.parametrize(
+    ("dbar", "kwargs", "error", "match"),
+    [
+        (np.zeros((4, 4, 1)), {}, InputShapeError, r"dbar must be an \(H, W\) float array, got shape \(4, 4, 1\)"),
+        (np.zeros((4, 4), dtype=np.int64), {}, InputShapeError, r"int64"),
+        (np.zeros((4, 4)), {"std_ratios": [1.0, 0.0]}, ParameterError, r"every std_ratio must be a finite number > 0, got 0.0"),
+        (np.zeros((4, 4)), {"std_ratios": [float("nan")]}, ParameterError, r"got nan"),
+        (np.zeros((4, 4)), {"std_ratios": [True]}, ParameterError, r"got True"),
+        (np.zeros((4, 4)), {"std_ratios": "1"}, ParameterError, r"std_ratios must be an iterable of numbers, got '1'"),
+        (np.zeros((4, 4)), {"std_ratios": 1.0}, ParameterError, r"std_ratios must be an iterable of numbers, got 1.0"),
+        (np.zeros((4, 4)), {"k": 0}, ParameterError, r"k must be an integer >= 1, got 0"),
+        (np.zeros((4, 4)), {"convention": "matlab"}, ParameterError, r"convention must be one of"),
+    ],
+)
+def test_outliers_from_distances_bad_input(dbar: np.ndarray, kwargs: dict, error: type[Exception], match: str) -> None:
+    args = {"k": 4, "std_ratios": [1.0], "convention": "pcl"} | kwargs
+    with pytest.raises(error, match=match):
+        sor_outliers_from_distances(dbar, **args)
+
+
+# ------------------------------------------------------------------------------------------------
+# degenerate clouds at full size: exact, and O(n·k) time and O(n) memory by construction
+# ------------------------------------------------------------------------------------------------
+FULL = (1200, 1920)
+
+
+def full_camera_cloud(rng: np.random.Generator) -> np.ndarray:
+    """A 1920 x 1200 pinhole cloud of a wavy surface 0.5 m away, float32."""
+    u, v = np.meshgrid(np.arange(FULL[1], dtype=np.float64), np.arange(FULL[0], dtype=np.float64))
+    z = 0.5 + 0.02 * np.sin(u / 90.0) * np.cos(v / 70.0) + rng.normal(0.0, 1e-4, u.shape)
+    f = 1700.0
+    return np.stack([(u - FULL[1] / 2) / f * z, (v - FULL[0] / 2) / f * z, z], axis=-1).astype(np.float32)
+
+
+@pytest.mark.parametrize("layout", ["identical", "two-points", "one-odd-point"])
+def test_heaps_of_one_or_two_points_full_size(layout: str) -> None:
+    # the m nearest of every point are copies at distance 0 (or, for the odd one, ties at the same
+    # distance): the tie rule ends each search at once -- the KD-tree fallback this replaced took
+    # 5 GB for 10,000 identical points
+    rng = np.random.default_rng(21)
+    a, b = np.array([0.1, -0.2, 0.5]), np.array([0.3, 0.1, 0.7])
+    if layout == "identical":
+        xyz = np.broadcast_to(a, (*FULL, 3)).copy()
+    elif layout == "two-points":
+        xyz = np.where(rng.random(FULL)[..., None] < 0.5, a, b)
+    else:
+        xyz = np.broadcast_to(a, (*FULL, 3)).copy()
+        xyz[600, 960] = b
+    for k in (4, 9):
+        for convention in ("pcl", "open3d"):
+            dbar = sor_mean_distances(xyz, k=k, convention=convention)
+            if layout == "one-odd-point":
+                m = k + 1 if convention == "pcl" else k
+                want = 0.0
+                for _ in range(m - 1):
+                    want += float(np.linalg.norm(b - a))
+                assert dbar[600, 960] == want / k
+                dbar[600, 960] = 0.0
+            assert (dbar == 0.0).all()
+            got = sor_outliers(xyz, k=k, convention=convention)
+            want_mask = np.full(FULL, convention == "open3d")  # Open3D keeps only d̄ > 0
+            if layout == "one-odd-point":
+                want_mask[600, 960] = True  # the one d̄ > 0 is above μ + σ ≈ d̄ / sqrt(n)
+            np.testing.assert_array_equal(got, want_mask)
+    small = xyz[590:630, 940:1000]  # where Open3D finishes (it is quadratic on duplicates)
+    for k in (4, 9):
+        np.testing.assert_array_equal(sor_outliers(small, k=k, convention="open3d"), open3d_outliers(small, k=k, std_ratio=1.0))
+
+
+@pytest.mark.parametrize(("layout", "convention"), [("runs", "open3d"), ("scattered", "pcl")])
+def test_ninety_percent_duplicates_full_size(layout: str, convention: str) -> None:
+    # "runs": every row in runs of 10 pixels with the coordinates of the run's first pixel
+    # (organized); "scattered": 90 % of the pixels copy a random one of the other 10 %
+    # (no organization left at all: the KD-tree over all points)
+    rng = np.random.default_rng(22)
+    xyz = full_camera_cloud(rng)
+    if layout == "runs":
+        xyz = np.repeat(xyz[:, ::10], 10, axis=1)
+    else:
+        flat = xyz.reshape(-1, 3)
+        originals = rng.permutation(flat.shape[0])[: flat.shape[0] // 10]
+        copies = np.setdiff1d(np.arange(flat.shape[0]), originals)
+        flat[copies] = flat[rng.choice(originals, copies.size)]
+    xyz[rng.random(FULL) < 0.05] = np.nan
+    want = mean_distances_reference(xyz, k=4, convention=convention, method="kdtree")
+    got = sor_mean_distances(xyz, k=4, convention=convention)
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(  # (sor_outliers is sor_outliers_from_distances of the same d̄)
+        sor_outliers_from_distances(got, k=4, std_ratios=[1.0], convention=convention)[0],
+        outliers_from_mean_distances_reference(want, k=4, std_ratio=1.0, convention=convention),
+    )
+
+
+def test_single_valid_row_full_size() -> None:
+    rng = np.random.default_rng(23)
+    xyz = np.full((*FULL, 3), np.nan)
+    xyz[600] = full_camera_cloud(rng)[600]
+    for k in (1, 4, 9):
+        np.testing.assert_array_equal(sor_outliers(xyz, k=k, convention="open3d"), open3d_outliers(xyz, k=k, std_ratio=1.0))
+        np.testing.assert_array_equal(
+            sor_mean_distances(xyz, k=k, convention="pcl"), mean_distances_reference(xyz, k=k, convention="pcl")
+        )
+
+
+def test_no_global_numba_setting_changes() -> None:
+    # importing zcut and running sor_outliers leave numba's threading layer to the command line
+    code = (
+        "import numba, numpy as np\n"
+        "before = list(numba.config.THREADING_LAYER_PRIORITY)\n"
+        "import zcut\n"
+        "from zcut.sor import sor_outliers\n"
+        "sor_outliers(np.random.default_rng(0).normal(size=(50, 60, 3)))\n"
+        "import numba.np.ufunc.parallel as parallel\n"
+        "assert list(numba.config.THREADING_LAYER_PRIORITY) == before\n"
+        "assert not parallel._is_initialized, 'numba threading layer started'\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=600)
 
 
 # ------------------------------------------------------------------------------------------------

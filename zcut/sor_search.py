@@ -1,0 +1,485 @@
+"""Fallback searches of :mod:`zcut.sor` for the pixels the window phase could not prove.
+
+Two exact k-nearest searches with the same distance arithmetic as the window phase:
+
+* a quadtree over the image's 8 × 8 pixel tiles, each node bounded by the box of its valid
+  points and (with a camera model) the four half-spaces of its U and V ranges, searched nearest
+  node first, with a cap on the pixels one search may measure;
+* a KD-tree (median splits, balanced whatever the duplicates) over the points of the tiles that
+  can hold a neighbour of the pixels whose tile search hit the cap, or over all valid points when
+  the cloud is not organized at all.
+
+Both prune a node when its lower bound is >= the m-th smallest distance found once m candidates
+are known: points at exactly that distance cannot change the multiset of the m smallest
+distances, so heaps of duplicates are not searched. Box bounds are evaluated in the order of the
+distance itself and rounding is monotone, so they never exceed the computed distance to a point
+in the box.
+
+Every per-query kernel is serial and releases the GIL; :mod:`zcut.sor` runs them over query
+ranges on threads.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from .sor_camera import KEEP, TILE, node_planes, plane_bound
+from .sor_window import d2, insert, mean_of_sorted
+
+KD_LEAF = 16
+
+# outcome of the tile search of one pixel
+FOUND = 0
+NEEDS_KD = 1      # cap hit; a finite radius is known: KD-tree over the tiles within it
+NEEDS_KD_ALL = 2  # cap hit and no finite radius: KD-tree over every valid point
+
+
+# --------------------------------------------------------------------------------------------
+# quadtree over the tiles
+# --------------------------------------------------------------------------------------------
+def build_quadtree(tcount, tbox, tuv, P, M, use_cam):
+    """Flat quadtree: level 0 = tiles, each level merges 2 × 2 nodes, the last is one node.
+
+    Returns (level_off, level_h, level_w, count, box, planes) with ``planes`` (n, 16) the planes
+    of the U >= min, U <= max, V >= min, V <= max half-spaces of each node (placeholders without
+    a camera).
+    """
+    level_off, level_h, level_w, count, box, uv = _merge_levels(tcount, tbox, tuv)
+    planes = node_planes(uv, P, M) if use_cam else np.zeros((1, 16))
+    return level_off, level_h, level_w, count, box, planes
+
+
+@nb.njit(cache=True)
+def _merge_levels(tcount, tbox, tuv):
+    th, tw = tcount.shape
+    nlev = 1
+    h, w = th, tw
+    while h > 1 or w > 1:
+        h = (h + 1) // 2
+        w = (w + 1) // 2
+        nlev += 1
+    level_off = np.zeros(nlev + 1, np.int64)
+    level_h = np.zeros(nlev, np.int64)
+    level_w = np.zeros(nlev, np.int64)
+    h, w = th, tw
+    for lv in range(nlev):
+        level_h[lv] = h
+        level_w[lv] = w
+        level_off[lv + 1] = level_off[lv] + h * w
+        h = (h + 1) // 2
+        w = (w + 1) // 2
+    n = level_off[nlev]
+    count = np.zeros(n, np.int64)
+    box = np.empty((n, 6))
+    box[:, 0:3] = np.inf
+    box[:, 3:6] = -np.inf
+    uv = np.empty((n, 4))
+    uv[:, 0::2] = np.inf
+    uv[:, 1::2] = -np.inf
+    for i in range(th):
+        for j in range(tw):
+            k = i * tw + j
+            count[k] = tcount[i, j]
+            for a in range(6):
+                box[k, a] = tbox[i, j, a]
+            for a in range(4):
+                uv[k, a] = tuv[i, j, a]
+    for lv in range(1, nlev):
+        for i in range(level_h[lv - 1]):
+            for j in range(level_w[lv - 1]):
+                src = level_off[lv - 1] + i * level_w[lv - 1] + j
+                dst = level_off[lv] + (i // 2) * level_w[lv] + j // 2
+                count[dst] += count[src]
+                for a in range(3):
+                    box[dst, a] = min(box[dst, a], box[src, a])
+                    box[dst, 3 + a] = max(box[dst, 3 + a], box[src, 3 + a])
+                uv[dst, 0] = min(uv[dst, 0], uv[src, 0])
+                uv[dst, 1] = max(uv[dst, 1], uv[src, 1])
+                uv[dst, 2] = min(uv[dst, 2], uv[src, 2])
+                uv[dst, 3] = max(uv[dst, 3], uv[src, 3])
+    return level_off, level_h, level_w, count, box, uv
+
+
+@nb.njit(cache=True, inline="always")
+def _box_d2(box, k, xq, yq, zq):
+    # squared distance from the query to a box of actual point coordinates, in the order of d2()
+    g = max(box[k, 0] - xq, 0.0, xq - box[k, 3])
+    s = g * g
+    g = max(box[k, 1] - yq, 0.0, yq - box[k, 4])
+    s += g * g
+    g = max(box[k, 2] - zq, 0.0, zq - box[k, 5])
+    return s + g * g
+
+
+@nb.njit(cache=True, inline="always")
+def _node_bound2(k, count, box, planes, use_cam, xq, yq, zq):
+    if count[k] == 0:
+        return np.inf
+    s = _box_d2(box, k, xq, yq, zq)
+    if use_cam:
+        h = plane_bound(planes[k, 0:4], xq, yq, zq)
+        h = max(h, plane_bound(planes[k, 4:8], xq, yq, zq))
+        h = max(h, plane_bound(planes[k, 8:12], xq, yq, zq))
+        h = max(h, plane_bound(planes[k, 12:16], xq, yq, zq))
+        s = max(s, h * h * KEEP)
+    return s
+
+
+@nb.njit(cache=True, inline="always")
+def _prunable(bd, lim, best, found, m):
+    # beyond the known upper bound, an empty node (infinite bound), or no closer than the m-th
+    # distance found (ties are harmless)
+    return bd > lim or bd == np.inf or (found >= m and bd >= best[m - 1])
+
+
+@nb.njit(cache=True)
+def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree):
+    # nearest-first search of one pixel; returns (found, aborted): best[] holds the m smallest
+    # squared distances of the pixels measured
+    level_off, level_h, level_w, count, box, planes = tree
+    H, W = valid.shape
+    nlev = level_h.shape[0]
+    xq = x[r, c]
+    yq = y[r, c]
+    zq = z[r, c]
+    for i in range(m):
+        best[i] = np.inf
+    found = 0
+    stack_k = np.empty(4 * nlev + 4, np.int64)
+    stack_l = np.empty(4 * nlev + 4, np.int64)
+    stack_b = np.empty(4 * nlev + 4)
+    sp = 1
+    stack_k[0] = 0  # the root: (0, 0) on the last level
+    stack_l[0] = nlev - 1
+    stack_b[0] = 0.0
+    measured = 0
+    cb = np.empty(4)
+    ck = np.empty(4, np.int64)
+    while sp > 0:
+        sp -= 1
+        lv = stack_l[sp]
+        ij = stack_k[sp]
+        if _prunable(stack_b[sp], lim, best, found, m):
+            continue
+        i = ij // level_w[lv]
+        j = ij % level_w[lv]
+        if lv == 0:
+            if measured >= cap:
+                return found, True
+            for rr in range(i * TILE, min(H, (i + 1) * TILE)):
+                for cc in range(j * TILE, min(W, (j + 1) * TILE)):
+                    if valid[rr, cc]:
+                        insert(best, d2(xq, yq, zq, x[rr, cc], y[rr, cc], z[rr, cc]))
+                        found += 1
+                        measured += 1
+            continue
+        # children, pushed farthest first so that the nearest is searched first
+        nc = 0
+        cl = lv - 1
+        for di in range(2):
+            ci = 2 * i + di
+            if ci >= level_h[cl]:
+                continue
+            for dj in range(2):
+                cj = 2 * j + dj
+                if cj >= level_w[cl]:
+                    continue
+                cij = ci * level_w[cl] + cj
+                bd = _node_bound2(level_off[cl] + cij, count, box, planes, use_cam, xq, yq, zq)
+                if _prunable(bd, lim, best, found, m):
+                    continue
+                t = nc  # insertion sort, descending
+                while t > 0 and cb[t - 1] < bd:
+                    cb[t] = cb[t - 1]
+                    ck[t] = ck[t - 1]
+                    t -= 1
+                cb[t] = bd
+                ck[t] = cij
+                nc += 1
+        for t in range(nc):
+            stack_k[sp] = ck[t]
+            stack_l[sp] = cl
+            stack_b[sp] = cb[t]
+            sp += 1
+    return found, False
+
+
+@nb.njit(cache=True, nogil=True)
+def tile_queries(q0, q1, x, y, z, valid, qr, qc, qlim, m, divisor, cap, use_cam, tree, out, outcome, radius2):
+    """Exact d̄ of the query pixels q0..q1-1 by the quadtree, measuring at most ``cap`` pixels each.
+
+    ``qlim`` is an upper bound on each one's m-th smallest squared distance (inf if unknown).
+    Writes out (d̄) and outcome FOUND, or outcome NEEDS_KD / NEEDS_KD_ALL and radius2 (a possibly
+    smaller upper bound than qlim, inf if unknown).
+    """
+    best = np.empty(m)
+    for q in range(q0, q1):
+        lim = qlim[q]
+        found, aborted = _tile_query(qr[q], qc[q], lim, best, x, y, z, valid, m, cap, use_cam, tree)
+        if not aborted:
+            out[q] = mean_of_sorted(best, divisor)
+            outcome[q] = FOUND
+        else:
+            rad = lim
+            if found >= m and best[m - 1] < rad:
+                rad = best[m - 1]
+            radius2[q] = rad
+            outcome[q] = NEEDS_KD if rad < np.inf else NEEDS_KD_ALL
+
+
+@nb.njit(cache=True, nogil=True)
+def mark_queries(q0, q1, x, y, z, qr, qc, qrad2, max_tiles, use_cam, tree, mark, over):
+    """Mark every tile whose bound is <= the radius of query q0..q1-1 (it may hold one of its
+    neighbours); sets over[q] if a query reaches more than ``max_tiles`` tiles."""
+    level_off, level_h, level_w, count, box, planes = tree
+    nlev = level_h.shape[0]
+    stack_k = np.empty(4 * nlev + 4, np.int64)
+    stack_l = np.empty(4 * nlev + 4, np.int64)
+    for q in range(q0, q1):
+        r = qr[q]
+        c = qc[q]
+        xq = x[r, c]
+        yq = y[r, c]
+        zq = z[r, c]
+        rad = qrad2[q]
+        sp = 1
+        stack_k[0] = 0
+        stack_l[0] = nlev - 1
+        n = 0
+        while sp > 0:
+            sp -= 1
+            lv = stack_l[sp]
+            ij = stack_k[sp]
+            if lv == 0:
+                mark[ij] = True
+                n += 1
+                if n > max_tiles:
+                    over[q] = True
+                    break
+                continue
+            i = ij // level_w[lv]
+            j = ij % level_w[lv]
+            cl = lv - 1
+            for di in range(2):
+                ci = 2 * i + di
+                if ci >= level_h[cl]:
+                    continue
+                for dj in range(2):
+                    cj = 2 * j + dj
+                    if cj >= level_w[cl]:
+                        continue
+                    cij = ci * level_w[cl] + cj
+                    if _node_bound2(level_off[cl] + cij, count, box, planes, use_cam, xq, yq, zq) <= rad:
+                        stack_k[sp] = cij
+                        stack_l[sp] = cl
+                        sp += 1
+
+
+@nb.njit(cache=True)
+def gather_tiles(x, y, z, valid, mark, tw):
+    """(n, 3) float64 points of the valid pixels of the marked tiles."""
+    H, W = valid.shape
+    n = 0
+    for k in range(mark.shape[0]):
+        if mark[k]:
+            i = k // tw
+            j = k % tw
+            for rr in range(i * TILE, min(H, (i + 1) * TILE)):
+                for cc in range(j * TILE, min(W, (j + 1) * TILE)):
+                    n += valid[rr, cc]
+    pts = np.empty((n, 3))
+    n = 0
+    for k in range(mark.shape[0]):
+        if mark[k]:
+            i = k // tw
+            j = k % tw
+            for rr in range(i * TILE, min(H, (i + 1) * TILE)):
+                for cc in range(j * TILE, min(W, (j + 1) * TILE)):
+                    if valid[rr, cc]:
+                        pts[n, 0] = x[rr, cc]
+                        pts[n, 1] = y[rr, cc]
+                        pts[n, 2] = z[rr, cc]
+                        n += 1
+    return pts
+
+
+@nb.njit(cache=True)
+def gather_valid(x, y, z, valid):
+    """(n, 3) float64 points of all valid pixels, row-major."""
+    H, W = valid.shape
+    n = 0
+    for r in range(H):
+        for c in range(W):
+            n += valid[r, c]
+    pts = np.empty((n, 3))
+    n = 0
+    for r in range(H):
+        for c in range(W):
+            if valid[r, c]:
+                pts[n, 0] = x[r, c]
+                pts[n, 1] = y[r, c]
+                pts[n, 2] = z[r, c]
+                n += 1
+    return pts
+
+
+# --------------------------------------------------------------------------------------------
+# KD-tree
+# --------------------------------------------------------------------------------------------
+@nb.njit(cache=True, inline="always")
+def _key(pts, idx, i, dim):
+    return pts[idx[i], dim]
+
+
+@nb.njit(cache=True)
+def _select(pts, idx, lo, hi, kth, dim):
+    # Hoare quickselect on idx[lo:hi] by pts[:, dim]: afterwards keys left of kth are <= and keys
+    # right of it >= the kth one; runs of equal keys are split evenly, so duplicates cost O(n)
+    left = lo
+    right = hi - 1
+    while right > left:
+        mid = (left + right) // 2
+        a = _key(pts, idx, left, dim)
+        b = _key(pts, idx, mid, dim)
+        c = _key(pts, idx, right, dim)
+        pivot = max(min(a, b), min(max(a, b), c))  # median of three
+        i = left
+        j = right
+        while i <= j:
+            while _key(pts, idx, i, dim) < pivot:
+                i += 1
+            while _key(pts, idx, j, dim) > pivot:
+                j -= 1
+            if i <= j:
+                t = idx[i]
+                idx[i] = idx[j]
+                idx[j] = t
+                i += 1
+                j -= 1
+        if kth <= j:
+            right = j
+        elif kth >= i:
+            left = i
+        else:
+            break
+
+
+@nb.njit(cache=True, nogil=True)
+def kd_build(pts):
+    """Balanced KD-tree (median split on the widest axis of each node's box).
+
+    Returns (sorted_pts, lo, hi, start, end, child): the points reordered so that every node is a
+    contiguous range; ``child[k]`` is the left child (the right one is ``child[k] + 1``), -1 at
+    leaves; lo / hi are the boxes of the actual points. O(n log n) time, O(n) memory.
+    """
+    n = pts.shape[0]
+    idx = np.arange(n)
+    cap = 4 * (n // KD_LEAF + 1) + 1
+    lo = np.empty((cap, 3))
+    hi = np.empty((cap, 3))
+    start = np.empty(cap, np.int64)
+    end = np.empty(cap, np.int64)
+    child = np.full(cap, -1, np.int64)
+    stack = np.empty(128, np.int64)
+    start[0] = 0
+    end[0] = n
+    nodes = 1
+    sp = 1
+    stack[0] = 0
+    while sp > 0:
+        sp -= 1
+        k = stack[sp]
+        s = start[k]
+        e = end[k]
+        for a in range(3):
+            lo[k, a] = np.inf
+            hi[k, a] = -np.inf
+        for t in range(s, e):
+            p = idx[t]
+            for a in range(3):
+                v = pts[p, a]
+                lo[k, a] = min(lo[k, a], v)
+                hi[k, a] = max(hi[k, a], v)
+        if e - s <= KD_LEAF:
+            continue
+        dim = 0
+        ext = hi[k, 0] - lo[k, 0]
+        for a in range(1, 3):
+            if hi[k, a] - lo[k, a] > ext:
+                ext = hi[k, a] - lo[k, a]
+                dim = a
+        mid = (s + e) // 2
+        _select(pts, idx, s, e, mid, dim)
+        child[k] = nodes
+        start[nodes] = s
+        end[nodes] = mid
+        start[nodes + 1] = mid
+        end[nodes + 1] = e
+        stack[sp] = nodes
+        stack[sp + 1] = nodes + 1
+        sp += 2
+        nodes += 2
+    out = np.empty((n, 3))
+    for t in range(n):
+        for a in range(3):
+            out[t, a] = pts[idx[t], a]
+    return out, lo[:nodes].copy(), hi[:nodes].copy(), start[:nodes].copy(), end[:nodes].copy(), child[:nodes].copy()
+
+
+@nb.njit(cache=True, inline="always")
+def _kd_box_d2(lo, hi, k, xq, yq, zq):
+    g = max(lo[k, 0] - xq, 0.0, xq - hi[k, 0])
+    s = g * g
+    g = max(lo[k, 1] - yq, 0.0, yq - hi[k, 1])
+    s += g * g
+    g = max(lo[k, 2] - zq, 0.0, zq - hi[k, 2])
+    return s + g * g
+
+
+@nb.njit(cache=True, nogil=True)
+def kd_queries(q0, q1, x, y, z, qr, qc, qlim, m, divisor, kd, out):
+    """Exact d̄ of the query pixels q0..q1-1 over the KD-tree's points (which must hold their m
+    nearest); ``qlim`` as for :func:`tile_queries`."""
+    pts, lo, hi, start, end, child = kd
+    best = np.empty(m)
+    stack_k = np.empty(160, np.int64)
+    stack_b = np.empty(160)
+    for q in range(q0, q1):
+        r = qr[q]
+        c = qc[q]
+        xq = x[r, c]
+        yq = y[r, c]
+        zq = z[r, c]
+        for i in range(m):
+            best[i] = np.inf
+        found = 0
+        lim = qlim[q]
+        sp = 1
+        stack_k[0] = 0
+        stack_b[0] = 0.0
+        while sp > 0:
+            sp -= 1
+            k = stack_k[sp]
+            if _prunable(stack_b[sp], lim, best, found, m):
+                continue
+            ch = child[k]
+            if ch < 0:
+                for t in range(start[k], end[k]):
+                    insert(best, d2(xq, yq, zq, pts[t, 0], pts[t, 1], pts[t, 2]))
+                    found += 1
+                continue
+            b0 = _kd_box_d2(lo, hi, ch, xq, yq, zq)
+            b1 = _kd_box_d2(lo, hi, ch + 1, xq, yq, zq)
+            near, far, bn, bf = ch, ch + 1, b0, b1
+            if b1 < b0:
+                near, far, bn, bf = ch + 1, ch, b1, b0
+            if not _prunable(bf, lim, best, found, m):
+                stack_k[sp] = far
+                stack_b[sp] = bf
+                sp += 1
+            if not _prunable(bn, lim, best, found, m):
+                stack_k[sp] = near
+                stack_b[sp] = bn
+                sp += 1
+        out[q] = mean_of_sorted(best, divisor)
