@@ -93,6 +93,13 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(f"{len(outcomes)} cases, seed {args.seed}, mode {args.mode}, {args.jobs} jobs, {wall:.0f} s wall")
     print(fuzzlib.table(outcomes))
+    rcs: dict[str, dict[str, int]] = {}
+    for o in outcomes:
+        key = "signal" if o.rc is None else f"exit {o.rc}"
+        rcs.setdefault(o.case.generator, {}).setdefault(key, 0)
+        rcs[o.case.generator][key] += 1
+    print("\nexit statuses: " + "; ".join(f"{g} " + ", ".join(f"{k} {n}" for k, n in sorted(v.items()))
+                                          for g, v in sorted(rcs.items())))
     cpu = [o.cpu_s for o in outcomes]
     walls = [o.wall_s for o in outcomes]
     if outcomes:

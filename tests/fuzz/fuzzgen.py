@@ -63,7 +63,7 @@ import numpy as np
 from fuzzlib import PYTHON, REPO, Case
 
 # ----------------------------------------------------------------------------------------------- corpus
-CORPUS_VERSION = 1
+CORPUS_VERSION = 2
 H, W = 12, 16  # the hand-made logs' grid
 
 
@@ -81,7 +81,7 @@ class Corpus:
 
 
 #: The logs mutated by mcap_bytes / mcap_struct, with their number of frames (filled by build_corpus).
-MCAP_SEEDS = ("w3.mcap", "m3z.mcap", "m3n.mcap", "m3l.mcap", "m3u.mcap", "synth.mcap", "results.mcap")
+MCAP_SEEDS = ("w3.mcap", "m3z.mcap", "m3n.mcap", "m3l.mcap", "m3u.mcap", "synth.mcap", "results.mcap", "w20.mcap")
 
 
 def load_corpus(folder: Path) -> Corpus:
@@ -224,6 +224,13 @@ def build_corpus(folder: Path) -> None:  # runs in its own process (kernels)
                                 topic="/camera/points", index=i,
                                 masks={"/ground_truth/outliers": rng.random((H, W)) < 0.1}))
     frames["w3.mcap"] = 3
+    with LogWriter(folder / "w20.mcap", chunk_size=512) as w:  # many small chunks: resynchronisation
+        for i in range(20):
+            xyz, rgb = _scene(rng, 6, 8)
+            w.write_frame(Frame(xyz=xyz, rgb=rgb if i % 3 else None, stamp_ns=10**9 + i * 10**8, frame_id="cam",
+                                intrinsics=None, topic="/camera/points", index=i,
+                                masks={"/ground_truth/outliers": rng.random((6, 8)) < 0.1}))
+    frames["w20.mcap"] = 20
     for name, kw in (("m3z.mcap", dict(compression="zstd", chunk_size=2048)),
                      ("m3n.mcap", dict(compression="none", chunk_size=2048, crcs=False)),
                      ("m3l.mcap", dict(compression="lz4", chunk_size=2048)),

@@ -71,6 +71,11 @@ DEFAULT_TIMEOUT_S = 30.0
 DEFAULT_MEM_BYTES = 3 << 30
 DEFAULT_AS_BYTES = 8 << 30
 _POLL_S = 0.05
+#: Between the stack dump asked of a case at a cap (SIGUSR1) and its kill.
+_DUMP_S = 0.25
+#: What a subprocess case runs: the console script, with faulthandler dumping its stacks on SIGUSR1.
+_SUBPROCESS_MAIN = ("import faulthandler, runpy, signal, sys; faulthandler.register(signal.SIGUSR1, all_threads=True); "
+                    "sys.argv[0] = 'zcut'; runpy.run_module('replay.cli', run_name='__main__', alter_sys=True)")
 #: Largest file a case may write (RLIMIT_FSIZE): a small input must not fill the disk.
 DEFAULT_FSIZE_BYTES = 1 << 30
 #: What a case's stdout/stderr keep (the rest is cut).
@@ -259,12 +264,32 @@ def _exception_line(stderr: str) -> str:
     return (exc or lines or [""])[-1]
 
 
+def _short(path: str) -> str:
+    return path.replace(str(REPO) + "/", "")
+
+
+def _dump_frame(stderr: str) -> str:
+    """``file:line (function)`` of the innermost project frame of the main thread in a faulthandler
+    dump (what a case was doing when a cap was hit), or ""."""
+    blocks = re.split(r"^(?=(?:Current thread|Thread) 0x)", stderr, flags=re.MULTILINE)
+    for block in blocks:
+        if not re.match(r"(?:Current thread|Thread) 0x", block) or "replay/cli.py" not in block:
+            continue
+        for path, line, func in re.findall(r'File "([^"]+)", line (\d+) in (\S+)', block):
+            if "/site-packages/" not in path and "/lib/python" not in path and not path.startswith("<"):
+                return f"{_short(path)}:{line} ({func})"
+    return ""
+
+
 def signature_of(klass: str, case: Case, stderr: str, detail: str) -> str:
     """What makes two non-clean outcomes the same finding: the class, the command, and the
     innermost project frame and exception type of a traceback (or the error text without numbers)."""
     cmd = next((a for a in case.argv if not a.startswith("-")), "?")
     if case.argv[:1] == ["labels"] and len(case.argv) > 1:
         cmd = "labels " + case.argv[1]
+    dumped = _dump_frame(stderr)
+    if klass in ("hang", "memory") and dumped:
+        return f"{klass} | {cmd} | in {dumped}"
     if klass in ("traceback", "memory") and _TRACEBACK in stderr:
         frames = re.findall(r'File "([^"]+)", line (\d+), in (\S+)', stderr)
         own = [f for f in frames if "/site-packages/" not in f[0] and "/lib/python" not in f[0]]
@@ -286,10 +311,12 @@ def classify(case: Case, *, rc: int | None, sig: int | None, timed_out: bool, st
     last = stderr.strip().splitlines()[-1] if stderr.strip() else ""
     if modified:
         return "input-modified", "; ".join(modified)
+    where = _dump_frame(stderr)
+    where = f"in {where}" if where else f"last stderr line: {last[:120]}"
     if rss_killed:
-        return "memory", f"killed at {rss_killed / 2**20:.0f} MB resident (over the cap); last stderr line: {last[:120]}"
+        return "memory", f"killed at {rss_killed / 2**20:.0f} MB resident (over the cap); {where}"
     if timed_out:
-        return "hang", f"still running after the time cap; last stderr line: {last[:160]}"
+        return "hang", f"still running after the time cap; {where}"
     if _MEMORY.search(stderr):
         m = _MEMORY.search(stderr)
         line = next((ln for ln in stderr.splitlines() if m.group(0) in ln), m.group(0))
@@ -403,7 +430,7 @@ class SubprocessPool:
 
         out = open(cwd.parent / f"{cwd.name}.stdout", "wb")
         err = open(cwd.parent / f"{cwd.name}.stderr", "wb")
-        args = [PYTHON, "-m", "replay.cli", *[os.fsencode(a) for a in argv]]
+        args = [PYTHON, "-c", _SUBPROCESS_MAIN, *[os.fsencode(a) for a in argv]]
         proc = subprocess.Popen(args, cwd=cwd, stdin=subprocess.DEVNULL, stdout=out, stderr=err, env=env,
                                 preexec_fn=pre)
         out.close()
@@ -438,22 +465,32 @@ class _Running:
     rss_cap: int
     pidfd: int = -1
     proc: object = None
-    killed: str = ""  # "time" or "memory" once killed
+    killed: str = ""  # "time" or "memory" once a cap is hit
     peak_rss: int = 0
+    dumped_at: float = 0.0  # when the stack dump was asked for (the kill follows)
 
     def watch(self) -> None:
-        """Kill the case's process group at the time cap or above the RSS cap."""
+        """At the time cap or above the RSS cap: ask the case for a stack dump (SIGUSR1, faulthandler),
+        then kill its process group :data:`_DUMP_S` later."""
+        now = time.monotonic()
         if self.killed:
+            if self.dumped_at and now - self.dumped_at > _DUMP_S:
+                self.dumped_at = 0.0
+                _kill_group(self.pid)
             return
-        if time.monotonic() - self.start > self.timeout_s:
+        if now - self.start > self.timeout_s:
             self.killed = "time"
-            _kill_group(self.pid)
-            return
-        rss = _rss_bytes(self.pid)
-        self.peak_rss = max(self.peak_rss, rss)
-        if rss > self.rss_cap:
-            self.killed = "memory"
-            _kill_group(self.pid)
+        else:
+            rss = _rss_bytes(self.pid)
+            self.peak_rss = max(self.peak_rss, rss)
+            if rss > self.rss_cap:
+                self.killed = "memory"
+        if self.killed:
+            try:
+                os.kill(self.pid, signal.SIGUSR1)
+                self.dumped_at = now
+            except ProcessLookupError:
+                pass
 
 
 def _rss_bytes(pid: int) -> int:
@@ -585,6 +622,9 @@ def _child(req: dict) -> None:  # pragma: no cover - runs in a forked child
         for s in (signal.SIGTERM, signal.SIGALRM, signal.SIGCHLD):
             signal.signal(s, signal.SIG_DFL)
         signal.signal(signal.SIGINT, signal.default_int_handler)
+        import faulthandler
+
+        faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=True)  # the runner asks at a cap
         sys.argv = ["zcut", *req["argv"]]
         _limits(_vm_bytes() + int(req["vm"]), int(req["fsize"]))
         from replay.cli import main
