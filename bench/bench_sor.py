@@ -342,8 +342,8 @@ def main() -> int:
         sor_outliers(warm, k=args.k, convention=convention)
         sor_outliers(pile_cloud(0, height=60, width=90), k=args.k, convention=convention)
 
-    print(f"k={args.k} std_ratio={args.std_ratio} repeat={args.repeat} seed={args.seed}, "
-          f"{os.cpu_count()} cores, numba threading layer {numba.threading_layer()}; CPU s = all threads")
+    print(f"k={args.k} std_ratio={args.std_ratio} repeat={args.repeat} seed={args.seed}, {os.cpu_count()} cores, "
+          f"zcut on {numba.config.NUMBA_NUM_THREADS} threads; CPU s = process time of all threads, best of {args.repeat}")
     header = f"{'class':26s} {'conv':6s} {'H x W':>11s} {'n valid':>9s} {'zcut s':>8s} {'Open3D s':>9s} {'ratio':>7s}  identical"
     print(header)
     print("-" * len(header))

@@ -248,23 +248,24 @@ def _fallback(x, y, z, valid, rows, cols, lim, m, divisor, use_cam, tree, dbar, 
 def _outlier_masks(dbar, valid, n, ratios, open3d):
     # pcl: d̄ > mean + ratio * std, sample std (n - 1), sequential sums in row-major order.
     # open3d (PointCloud::RemoveStatisticalOutliers): the sums run over d̄ > 0 only but divide by
-    # the count of ALL points; inlier iff 0 < d̄ < threshold (strict)
-    # (adding 0.0 for a skipped pixel leaves the sequential sums bit-identical: s + 0.0 == s)
+    # the count of ALL points; inlier iff 0 < d̄ < threshold (strict).
+    # The summed values are first gathered in order without branches (valid pixels at random
+    # would make a branch mispredict), then summed: the same values in the same order.
     H, W = valid.shape
-    s = 0.0
+    terms = np.empty(int(n))
+    k = 0
     for r in range(H):
         for c in range(W):
             d = dbar[r, c]
-            use = valid[r, c] & ((not open3d) | (d > 0.0))
-            s = s + (d if use else 0.0)
+            terms[k] = d
+            k += valid[r, c] & ((not open3d) | (d > 0.0))
+    s = 0.0
+    for i in range(k):
+        s = s + terms[i]
     mean = s / n
     sq = 0.0
-    for r in range(H):
-        for c in range(W):
-            d = dbar[r, c]
-            use = valid[r, c] & ((not open3d) | (d > 0.0))
-            e = d - mean
-            sq = sq + (e * e if use else 0.0)
+    for i in range(k):
+        sq = sq + (terms[i] - mean) * (terms[i] - mean)
     std = math.sqrt(sq / (n - 1))
     out = np.empty((ratios.shape[0], H, W), np.bool_)
     for i in range(ratios.shape[0]):

@@ -206,52 +206,224 @@ def _corners(b, bc, xq, yq, zq, Q):
 
 
 # --------------------------------------------------------------------------------------------
-# stage 1: 3 x 3, a row at a time (vectorized)
+# stages 1 and 2 over whole rows: chunks of columns in a scratch buffer (vectorized)
 # --------------------------------------------------------------------------------------------
-@nb.njit(cache=True, error_model="numpy")
-def _row_3x3(r, c_lo, c_hi, x, y, z, m, divisor, use_cam, Rb, band, dbar):
-    """Pixels (r, c_lo..c_hi), 1 <= r < H - 1, 2 <= c_lo, c_hi < W - 2, with a 3 x 3 window and
-    the w = 1 bound. ``Rb`` (8, W) are the planes of the pixel's row band; ``band`` (9, W) holds
-    per column the planes of its column band for the rows r + 2 and r - 2 and its corner floor.
-    Writes d̄ where proven, NaN where not (or invalid).
+# The kernels below read and write one scratch buffer at offsets fixed at compile time: the
+# compiler can then prove that the stores do not alias the loads and vectorizes the loop (with
+# the planes and the cloud as separate arrays it would need a run-time check per input row, and
+# gives up). Layout for a chunk of CH query columns c0 .. c0 + CH - 1 and a window of half-width w:
+# x, y, z of the rows r - w .. r + w at columns c0 - w .. c0 + CH - 1 + w; then 17 fields per
+# query column (the right and left row-band planes at c ± (w + 1), the column band's planes for
+# the rows r ± (w + 1), the corner floor); then the output.
+CH = 256
 
-    Straight-line code without branches (selects): no branch on use_cam (without a camera the
-    planes are placeholders and the bound is ignored), no division check (error_model), no uint8
-    status store -- each of them kept the loop from being vectorized.
-    """
-    for c in range(c_lo, c_hi + 1):
-        xq = x[r, c]
-        yq = y[r, c]
-        zq = z[r, c]
-        s1, s2, s3, s4, s5, s6, s7, s8 = _inner8(xq, yq, zq, x, y, z, r, c)
-        count = 1 + _count8(x, r, c)
+
+def _layout(w: int) -> tuple[int, int, int, int, int, int]:
+    span = CH + 2 * w                 # columns of one input row
+    rows = 2 * w + 1
+    ox, oy, oz = 0, rows * span, 2 * rows * span
+    ot = 3 * rows * span              # 17 fields of CH
+    oo = ot + 17 * CH                 # output
+    return span, ox, oy, oz, ot, oo + CH
+
+
+_S1, _X1, _Y1, _Z1, _T1, _N1 = _layout(1)
+_S2, _X2, _Y2, _Z2, _T2, _N2 = _layout(2)
+_K2 = _N2                             # w = 2: 8 sorted slots and the count between the passes
+SCRATCH = max(_N1, _N2 + 9 * CH)
+
+
+@nb.njit(cache=True, inline="always")
+def _chunk_plane(buf, o, xq, yq, zq):
+    # plane_bound of the plane at offset o of the chunk's fields (the strip bound is the smallest
+    # of four, written out in the kernels: a loop or a helper for it there, keeps the column loop
+    # from being vectorized)
+    return max(buf[o] * xq + buf[o + CH] * yq + buf[o + 2 * CH] * zq + buf[o + 3 * CH], 0.0) * KEEP
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _chunk_3x3(buf, n, m, divisor, use_cam):
+    """Query columns 0..n-1 of the chunk with a 3 x 3 window: d̄ where proven, else NaN."""
+    for i in range(n):
+        j = i + 1
+        a0, a1, a2 = _X1 + j, _X1 + _S1 + j, _X1 + 2 * _S1 + j
+        b0, b1, b2 = _Y1 + j, _Y1 + _S1 + j, _Y1 + 2 * _S1 + j
+        e0, e1, e2 = _Z1 + j, _Z1 + _S1 + j, _Z1 + 2 * _S1 + j
+        xq = buf[a1]
+        yq = buf[b1]
+        zq = buf[e1]
+        s1, s2, s3, s4, s5, s6, s7, s8 = _sort8(
+            d2(xq, yq, zq, buf[a0 - 1], buf[b0 - 1], buf[e0 - 1]),
+            d2(xq, yq, zq, buf[a0], buf[b0], buf[e0]),
+            d2(xq, yq, zq, buf[a0 + 1], buf[b0 + 1], buf[e0 + 1]),
+            d2(xq, yq, zq, buf[a1 - 1], buf[b1 - 1], buf[e1 - 1]),
+            d2(xq, yq, zq, buf[a1 + 1], buf[b1 + 1], buf[e1 + 1]),
+            d2(xq, yq, zq, buf[a2 - 1], buf[b2 - 1], buf[e2 - 1]),
+            d2(xq, yq, zq, buf[a2], buf[b2], buf[e2]),
+            d2(xq, yq, zq, buf[a2 + 1], buf[b2 + 1], buf[e2 + 1]),
+        )
+        count = (1 + np.int64(buf[a0 - 1] < np.inf) + np.int64(buf[a0] < np.inf) + np.int64(buf[a0 + 1] < np.inf)
+                 + np.int64(buf[a1 - 1] < np.inf) + np.int64(buf[a1 + 1] < np.inf)
+                 + np.int64(buf[a2 - 1] < np.inf) + np.int64(buf[a2] < np.inf) + np.int64(buf[a2 + 1] < np.inf))
         dm2, mean = _pick(m, divisor, s1, s2, s3, s4, s5, s6, s7, s8)
-        sb = min(plane_bound_at(Rb, 0, c + 2, xq, yq, zq), plane_bound_at(Rb, 4, c - 2, xq, yq, zq))
-        sb = min(sb, min(plane_bound_at(band, 0, c, xq, yq, zq), plane_bound_at(band, 4, c, xq, yq, zq)))
-        fl = band[8, c]
+        sb = min(min(_chunk_plane(buf, _T1 + i, xq, yq, zq), _chunk_plane(buf, _T1 + 4 * CH + i, xq, yq, zq)),
+                 min(_chunk_plane(buf, _T1 + 8 * CH + i, xq, yq, zq), _chunk_plane(buf, _T1 + 12 * CH + i, xq, yq, zq)))
+        fl = buf[_T1 + 16 * CH + i]
         proven = (dm2 == 0.0) | (use_cam & (dm2 <= sb * sb * KEEP) & (dm2 <= fl * fl * KEEP))
         ok = (xq < np.inf) & (count >= m) & proven
-        dbar[r, c] = mean if ok else np.nan
+        buf[_T1 + 17 * CH + i] = mean if ok else np.nan
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _chunk_5x5(buf, n, m, divisor, use_cam):
+    """Query columns 0..n-1 of the chunk with a 5 x 5 window: d̄ where proven, else NaN.
+
+    Three loops (the inner ring sorted, then ring 2 in two halves, with the 8 smallest and the
+    count kept in the buffer between them): in one loop the compiler's dependence analysis would
+    have more memory accesses than it examines, and would not vectorize it.
+    """
+    dy = _Y2 - _X2
+    dz = _Z2 - _X2
+    for i in range(n):
+        j = i + 2
+        r0, r1, r2, r3, r4 = _X2 + j, _X2 + _S2 + j, _X2 + 2 * _S2 + j, _X2 + 3 * _S2 + j, _X2 + 4 * _S2 + j
+        xq = buf[r2]
+        yq = buf[r2 + dy]
+        zq = buf[r2 + dz]
+        s1, s2, s3, s4, s5, s6, s7, s8 = _sort8(
+            d2(xq, yq, zq, buf[r1 - 1], buf[r1 - 1 + dy], buf[r1 - 1 + dz]),
+            d2(xq, yq, zq, buf[r1], buf[r1 + dy], buf[r1 + dz]),
+            d2(xq, yq, zq, buf[r1 + 1], buf[r1 + 1 + dy], buf[r1 + 1 + dz]),
+            d2(xq, yq, zq, buf[r2 - 1], buf[r2 - 1 + dy], buf[r2 - 1 + dz]),
+            d2(xq, yq, zq, buf[r2 + 1], buf[r2 + 1 + dy], buf[r2 + 1 + dz]),
+            d2(xq, yq, zq, buf[r3 - 1], buf[r3 - 1 + dy], buf[r3 - 1 + dz]),
+            d2(xq, yq, zq, buf[r3], buf[r3 + dy], buf[r3 + dz]),
+            d2(xq, yq, zq, buf[r3 + 1], buf[r3 + 1 + dy], buf[r3 + 1 + dz]),
+        )
+        count = (1 + np.int64(buf[r1 - 1] < np.inf) + np.int64(buf[r1] < np.inf) + np.int64(buf[r1 + 1] < np.inf)
+                 + np.int64(buf[r2 - 1] < np.inf) + np.int64(buf[r2 + 1] < np.inf)
+                 + np.int64(buf[r3 - 1] < np.inf) + np.int64(buf[r3] < np.inf) + np.int64(buf[r3 + 1] < np.inf))
+        buf[_K2 + i], buf[_K2 + CH + i], buf[_K2 + 2 * CH + i], buf[_K2 + 3 * CH + i] = s1, s2, s3, s4
+        buf[_K2 + 4 * CH + i], buf[_K2 + 5 * CH + i], buf[_K2 + 6 * CH + i], buf[_K2 + 7 * CH + i] = s5, s6, s7, s8
+        buf[_K2 + 8 * CH + i] = np.float64(count)
+    for i in range(n):
+        j = i + 2
+        r0, r1, r2, r3, r4 = _X2 + j, _X2 + _S2 + j, _X2 + 2 * _S2 + j, _X2 + 3 * _S2 + j, _X2 + 4 * _S2 + j
+        xq = buf[r2]
+        yq = buf[r2 + dy]
+        zq = buf[r2 + dz]
+        s1, s2, s3, s4 = buf[_K2 + i], buf[_K2 + CH + i], buf[_K2 + 2 * CH + i], buf[_K2 + 3 * CH + i]
+        s5, s6, s7, s8 = buf[_K2 + 4 * CH + i], buf[_K2 + 5 * CH + i], buf[_K2 + 6 * CH + i], buf[_K2 + 7 * CH + i]
+        count = np.int64(buf[_K2 + 8 * CH + i])
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r0 - 2], buf[r0 - 2 + dy], buf[r0 - 2 + dz]))
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r0 - 1], buf[r0 - 1 + dy], buf[r0 - 1 + dz]))
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r0], buf[r0 + dy], buf[r0 + dz]))
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r0 + 1], buf[r0 + 1 + dy], buf[r0 + 1 + dz]))
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r0 + 2], buf[r0 + 2 + dy], buf[r0 + 2 + dz]))
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r4 - 2], buf[r4 - 2 + dy], buf[r4 - 2 + dz]))
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r4 - 1], buf[r4 - 1 + dy], buf[r4 - 1 + dz]))
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r4], buf[r4 + dy], buf[r4 + dz]))
+        count += (np.int64(buf[r0 - 2] < np.inf) + np.int64(buf[r0 - 1] < np.inf) + np.int64(buf[r0] < np.inf) + np.int64(buf[r0 + 1] < np.inf)
+                  + np.int64(buf[r0 + 2] < np.inf) + np.int64(buf[r4 - 2] < np.inf) + np.int64(buf[r4 - 1] < np.inf) + np.int64(buf[r4] < np.inf))
+        buf[_K2 + i], buf[_K2 + CH + i], buf[_K2 + 2 * CH + i], buf[_K2 + 3 * CH + i] = s1, s2, s3, s4
+        buf[_K2 + 4 * CH + i], buf[_K2 + 5 * CH + i], buf[_K2 + 6 * CH + i], buf[_K2 + 7 * CH + i] = s5, s6, s7, s8
+        buf[_K2 + 8 * CH + i] = np.float64(count)
+    for i in range(n):
+        j = i + 2
+        r0, r1, r2, r3, r4 = _X2 + j, _X2 + _S2 + j, _X2 + 2 * _S2 + j, _X2 + 3 * _S2 + j, _X2 + 4 * _S2 + j
+        xq = buf[r2]
+        yq = buf[r2 + dy]
+        zq = buf[r2 + dz]
+        s1, s2, s3, s4 = buf[_K2 + i], buf[_K2 + CH + i], buf[_K2 + 2 * CH + i], buf[_K2 + 3 * CH + i]
+        s5, s6, s7, s8 = buf[_K2 + 4 * CH + i], buf[_K2 + 5 * CH + i], buf[_K2 + 6 * CH + i], buf[_K2 + 7 * CH + i]
+        count = np.int64(buf[_K2 + 8 * CH + i])
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r4 + 1], buf[r4 + 1 + dy], buf[r4 + 1 + dz]))
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r4 + 2], buf[r4 + 2 + dy], buf[r4 + 2 + dz]))
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r1 - 2], buf[r1 - 2 + dy], buf[r1 - 2 + dz]))
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r1 + 2], buf[r1 + 2 + dy], buf[r1 + 2 + dz]))
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r2 - 2], buf[r2 - 2 + dy], buf[r2 - 2 + dz]))
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r2 + 2], buf[r2 + 2 + dy], buf[r2 + 2 + dz]))
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r3 - 2], buf[r3 - 2 + dy], buf[r3 - 2 + dz]))
+        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r3 + 2], buf[r3 + 2 + dy], buf[r3 + 2 + dz]))
+        count += (np.int64(buf[r4 + 1] < np.inf) + np.int64(buf[r4 + 2] < np.inf) + np.int64(buf[r1 - 2] < np.inf) + np.int64(buf[r1 + 2] < np.inf)
+                  + np.int64(buf[r2 - 2] < np.inf) + np.int64(buf[r2 + 2] < np.inf) + np.int64(buf[r3 - 2] < np.inf) + np.int64(buf[r3 + 2] < np.inf))
+        dm2, mean = _pick(m, divisor, s1, s2, s3, s4, s5, s6, s7, s8)
+        sb = min(min(_chunk_plane(buf, _T2 + i, xq, yq, zq), _chunk_plane(buf, _T2 + 4 * CH + i, xq, yq, zq)),
+                 min(_chunk_plane(buf, _T2 + 8 * CH + i, xq, yq, zq), _chunk_plane(buf, _T2 + 12 * CH + i, xq, yq, zq)))
+        fl = buf[_T2 + 16 * CH + i]
+        proven = (dm2 == 0.0) | (use_cam & (dm2 <= sb * sb * KEEP) & (dm2 <= fl * fl * KEEP))
+        ok = (xq < np.inf) & (count >= m) & proven
+        buf[_T2 + 17 * CH + i] = mean if ok else np.nan
 
 
 @nb.njit(cache=True)
-def _band_row(band, C, floor, r, b, use_cam):
-    # per column: the planes of its column band for the rows r + 2 and r - 2, and its floor
-    H = C.shape[2]
-    W = band.shape[1]
-    band[:] = 0.0
+def _fill_chunk(buf, w, r, c0, n, x, y, z, Rb, C, floor, b, use_cam):
+    # the scratch buffer of a chunk (see the layout above)
+    H = x.shape[0]
+    span = CH + 2 * w
+    rows = 2 * w + 1
+    for k in range(rows):
+        xr = x[r - w + k, c0 - w:c0 + n + w]
+        yr = y[r - w + k, c0 - w:c0 + n + w]
+        zr = z[r - w + k, c0 - w:c0 + n + w]
+        o = k * span
+        for j in range(n + 2 * w):
+            buf[o + j] = xr[j]
+        o += rows * span
+        for j in range(n + 2 * w):
+            buf[o + j] = yr[j]
+        o += rows * span
+        for j in range(n + 2 * w):
+            buf[o + j] = zr[j]
+    ot = 3 * rows * span
     if not use_cam:
+        buf[ot:ot + 17 * CH] = 0.0
         return
-    for bc in range(C.shape[0]):
-        for c in range(max(0, BLOCK * bc - BLOCK // 2), min(W, BLOCK * bc + BLOCK // 2)):
-            for f in range(4):
-                band[f, c] = C[bc, f, r + 2] if r + 2 < H else 0.0
-                band[4 + f, c] = C[bc, 4 + f, r - 2] if r >= 2 else 0.0
-            if r + 2 >= H:
-                band[3, c] = np.inf  # no rows below: an empty region
-            if r < 2:
-                band[7, c] = np.inf
-            band[8, c] = floor[b, bc]
+    for f in range(4):  # row band: columns right of the window, then left of it
+        right = Rb[f, c0 + w + 1:c0 + w + 1 + n]
+        left = Rb[4 + f, c0 - w - 1:c0 - w - 1 + n]
+        o = ot + f * CH
+        for i in range(n):
+            buf[o + i] = right[i]
+        o = ot + (4 + f) * CH
+        for i in range(n):
+            buf[o + i] = left[i]
+    below = r + w + 1 < H  # column bands: rows below / above the window (a constant per band)
+    above = r - w - 1 >= 0
+    bc = (c0 + BLOCK // 2) // BLOCK
+    i0 = 0
+    while i0 < n:
+        i1 = min(n, BLOCK * bc + BLOCK // 2 - c0)  # the chunk columns of band bc
+        for f in range(4):
+            v = C[bc, f, r + w + 1] if below else (np.inf if f == 3 else 0.0)
+            buf[ot + (8 + f) * CH + i0:ot + (8 + f) * CH + i1] = v
+            v = C[bc, 4 + f, r - w - 1] if above else (np.inf if f == 3 else 0.0)
+            buf[ot + (12 + f) * CH + i0:ot + (12 + f) * CH + i1] = v
+        buf[ot + 16 * CH + i0:ot + 16 * CH + i1] = floor[b, bc]
+        i0 = i1
+        bc += 1
+
+
+@nb.njit(cache=True)
+def _row_stage(buf, w, r, x, y, z, m, divisor, use_cam, Rb, C, floor, b, dbar):
+    # stage 1 (w = 1: every column 2 .. W - 3) or stage 2 (w = 2: columns 3 .. W - 4, only where
+    # stage 1 left NaN) of row r
+    W = x.shape[1]
+    c_lo = w + 1
+    c_hi = W - w - 2
+    oo = 3 * (2 * w + 1) * (CH + 2 * w) + 17 * CH
+    for c0 in range(c_lo, c_hi + 1, CH):
+        n = min(CH, c_hi + 1 - c0)
+        _fill_chunk(buf, w, r, c0, n, x, y, z, Rb, C, floor, b, use_cam)
+        if w == 1:
+            _chunk_3x3(buf, n, m, divisor, use_cam)
+            for i in range(n):
+                dbar[r, c0 + i] = buf[oo + i]
+        else:
+            _chunk_5x5(buf, n, m, divisor, use_cam)
+            for i in range(n):
+                old = dbar[r, c0 + i]
+                dbar[r, c0 + i] = buf[oo + i] if np.isnan(old) else old
 
 
 # --------------------------------------------------------------------------------------------
@@ -386,21 +558,22 @@ def window_rows(r0, r1, x, y, z, valid, m, divisor, w0, wmax, use_cam, R, C, Q, 
     negative; -inf if the window held fewer than m valid pixels). Invalid pixels are left alone.
     """
     H, W = valid.shape
-    band = np.zeros((9, W))
+    buf = np.empty(SCRATCH)
     cols = np.empty(W, np.int64)
     best = np.empty(m)
     for r in range(r0, r1):
         b = (r + BLOCK // 2) // BLOCK
         fast = w0 == 1 and 0 < r < H - 1 and W >= 5
         if fast:
-            _band_row(band, C, floor, r, b, use_cam)
-            _row_3x3(r, 2, W - 3, x, y, z, m, divisor, use_cam, R[b], band, dbar)
+            _row_stage(buf, 1, r, x, y, z, m, divisor, use_cam, R[b], C, floor, b, dbar)
             if 2 <= r < H - 2 and wmax >= 2 and W >= 7:  # what it left, with a 5 x 5 window
                 n = 0
                 for c in range(3, W - 3):
                     cols[n] = c
                     n += valid[r, c] & np.isnan(dbar[r, c])
-                if n:
+                if 8 * n > W:  # many (a sparse row): the whole row, vectorized
+                    _row_stage(buf, 2, r, x, y, z, m, divisor, use_cam, R[b], C, floor, b, dbar)
+                elif n:
                     _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, floor, b, dbar)
         for c in range(W):
             if valid[r, c] and not (fast and 2 <= c <= W - 3 and not np.isnan(dbar[r, c])):
