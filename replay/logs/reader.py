@@ -852,11 +852,19 @@ class _Sequences:
             self.expected[cid] = exp + n
 
 
-def read_mask_topics(path: str | os.PathLike, wanted: tuple[str, ...]):
+#: Largest total of mask pixels :func:`read_mask_topics` returns from one file (2**30: 1 GiB of bool masks).
+MAX_MASK_FILE_PIXELS = 1 << 30
+
+
+def read_mask_topics(path: str | os.PathLike, wanted: tuple[str, ...], *, max_pixels: int = DEFAULT_MAX_PIXELS,
+                     max_total_pixels: int = MAX_MASK_FILE_PIXELS):
     """Every mono8 mask of the ``wanted`` topics in a small MCAP file (e.g. a label export).
 
     The file is read whole with the same defensive scanner and Image codec as :class:`LogReader`;
-    any damage is a :class:`LogFormatError` (such files are taken whole or not at all).
+    any damage is a :class:`LogFormatError` (such files are taken whole or not at all). A mask is
+    at most ``max_pixels``, and all of them together at most ``max_total_pixels``: zstd chunks of
+    zeros make a file of a few KB decode to gigabytes of masks. The masks are held bit-packed
+    while the file is read, so such a file is refused having held an eighth of the cap at most.
 
     Returns
     -------
@@ -864,8 +872,12 @@ def read_mask_topics(path: str | os.PathLike, wanted: tuple[str, ...]):
         ``metadata``: the MCAP metadata records, name -> key/value strings; ``masks``:
         stamp_ns -> {topic: (H, W) bool ndarray}.
     """
-    masks: dict[int, dict[str, object]] = {}
+    import numpy as np
+
+    check_caps(max_pixels, max_total_pixels)
+    packed: dict[int, dict[str, tuple[tuple[int, int], np.ndarray]]] = {}
     damage: list[str] = []
+    total = 0
     with McapFile(path) as f:
         metadata, notes = f.read_metadata()
         damage += notes
@@ -874,11 +886,20 @@ def read_mask_topics(path: str | os.PathLike, wanted: tuple[str, ...]):
             if op == OP_CHANNEL and rec.topic in wanted:
                 chosen[rec.id] = rec.topic
             elif op == OP_MESSAGE and rec.channel_id in chosen:
-                where = f"{path}: {chosen[rec.channel_id]}"
+                topic = chosen[rec.channel_id]
+                where = f"{path}: {topic}"
                 msg = rm.decode_image(rec.data, where=where)
-                masks.setdefault(msg.stamp_ns, {})[chosen[rec.channel_id]] = rm.image_to_mask(msg, where=where)
+                mask = rm.image_to_mask(msg, where=where, max_pixels=max_pixels)
+                old = packed.get(msg.stamp_ns, {}).get(topic)
+                total += mask.size - (0 if old is None else old[0][0] * old[0][1])
+                if total > max_total_pixels:
+                    raise LogFormatError(f"{path}: its masks hold more than {max_total_pixels} pixels in all "
+                                         "(the cap of one label file); split it")
+                packed.setdefault(msg.stamp_ns, {})[topic] = (mask.shape, np.packbits(mask))
             elif op == OP_LOST:
                 damage.append(f"messages were lost with the chunk at byte {rec.offset}")
     if damage:
         raise LogFormatError(f"{path}: damaged file: {damage[0]}")
+    masks = {stamp: {topic: np.unpackbits(bits, count=shape[0] * shape[1]).view(np.bool_).reshape(shape)
+                     for topic, (shape, bits) in pair.items()} for stamp, pair in packed.items()}
     return metadata, masks

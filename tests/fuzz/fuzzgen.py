@@ -1770,6 +1770,19 @@ def gen_config(rng: np.random.Generator, corpus: Corpus, cid: str) -> Case:
 
 
 # ----------------------------------------------------------------------------------------------- labels
+def label_bomb(sha: str, *, n: int = 80, h: int = 4096, w: int = 4096) -> bytes:
+    """A label export of ``n`` stamps whose masks are h x w zeros: a few hundred KB that decode to
+    n x 2 x h x w mask pixels."""
+    from replay.logs import layout
+
+    meta = {"log_sha256": sha, "log_name": "synth.mcap", "annotator": "alice", "cloud_topics": "/camera/points",
+            "schema_version": "2"}
+    zeros = bytes(h * w)
+    msgs = ((topic, "sensor_msgs/msg/Image", image_msg(h=h, w=w, data=zeros, encoding=b"mono8", step=w, sec=1 + i), 0)
+            for i in range(n) for topic in (layout.LABEL_OUTLIERS, layout.LABEL_REVIEWED))
+    return _mcap(msgs, metadata={layout.LABELS_METADATA: meta}, chunk_size=1 << 20)
+
+
 def _label_mcap(rng: np.random.Generator, corpus: Corpus) -> tuple[bytes, str]:
     """A hostile label export of synth.mcap."""
     import hashlib
@@ -1777,6 +1790,10 @@ def _label_mcap(rng: np.random.Generator, corpus: Corpus) -> tuple[bytes, str]:
     from replay.logs import layout
 
     sha = hashlib.sha256(corpus["synth.mcap"]).hexdigest()
+    if rng.random() < 0.05:
+        if "label_bomb" not in corpus.cache:
+            corpus.cache["label_bomb"] = label_bomb(sha)
+        return corpus.cache["label_bomb"], "80 x 2 masks of 4096x4096 zeros"
     h, w = 24, 32
     stamps = [1706140800000000000, 1706140800500000000]
     meta = {"log_sha256": sha, "log_name": "synth.mcap", "annotator": "alice", "cloud_topics": "/camera/points",

@@ -22,7 +22,7 @@ from replay.logs.frame import Frame
 from replay.logs.mcap_scan import McapFile
 from replay.logs.pcd import read_pcd
 from replay.logs.ply import read_ply
-from replay.logs.reader import LogReader, stamp_text
+from replay.logs.reader import LogReader, read_mask_topics, stamp_text
 from replay.logs.writer import LogWriter
 from zcut.cloud import Intrinsics
 from zcut.errors import ParameterError
@@ -315,3 +315,23 @@ def test_writer_refuses_strings_that_are_not_utf8(tmp_path):
             w.write_cloud("/p", np.ones((2, 2, 3), np.float32), stamp_ns=1, frame_id=bad)
     with pytest.raises(ParameterError, match=r"^MCAP string '\\udcff\\udcfecam' is not valid UTF-8 text"):
         LogWriter(tmp_path / "m.mcap", metadata={"zcut.record": {"sources": bad}})
+
+
+def test_mask_files_are_bounded(tmp_path):
+    """A label file's masks are capped one by one and in all (a few KB of zstd zeros would otherwise
+    decode to gigabytes); within the caps they read back exactly."""
+    rng = np.random.default_rng(5)
+    masks = {10**9 + i: rng.random((64, 80)) < 0.3 for i in range(10)}
+    with LogWriter(tmp_path / "l.mcap") as w:
+        for stamp, m in masks.items():
+            w.write_mask("/labels/outliers", m, stamp_ns=stamp, frame_id="c")
+            w.write_mask("/labels/reviewed", ~m, stamp_ns=stamp, frame_id="c")
+    _, got = read_mask_topics(tmp_path / "l.mcap", ("/labels/outliers", "/labels/reviewed"))
+    assert sorted(got) == sorted(masks)
+    for stamp, m in masks.items():
+        np.testing.assert_array_equal(got[stamp]["/labels/outliers"], m)
+        np.testing.assert_array_equal(got[stamp]["/labels/reviewed"], ~m)
+    with pytest.raises(LogFormatError, match=r"l.mcap: its masks hold more than 100000 pixels in all"):
+        read_mask_topics(tmp_path / "l.mcap", ("/labels/outliers", "/labels/reviewed"), max_total_pixels=100_000)
+    with pytest.raises(LogFormatError, match=r"Image of 64x80 = 5120 pixels is more than the cap of 5000"):
+        read_mask_topics(tmp_path / "l.mcap", ("/labels/outliers",), max_pixels=5000)
