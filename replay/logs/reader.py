@@ -556,16 +556,19 @@ class LogReader:
             return idx >= start and (stop is None or idx < stop)
 
         def lost(first: int, n: int, why: str, times: list[int] | None = None) -> None:
-            ks = [k for k in range(first, first + n) if in_range(k)]
-            if not ks:
+            # the lost indices in range, as bounds: n comes from the file (a summary count, a sequence
+            # number) and may be absurd; it is never iterated
+            lo = max(first, start)
+            hi = first + n if stop is None else min(first + n, stop)
+            if lo >= hi:
                 return
             when = ""
             if times:
-                t = [times[k - first] for k in ks if k - first < len(times)]
-                if t:
-                    when = f" (log time {stamp_text(t[0])})" if len(t) == 1 else (
-                        f" (log times {stamp_text(t[0])} .. {stamp_text(t[-1])})")
-            what = f"frame {ks[0]}" if len(ks) == 1 else f"frames {ks[0]}-{ks[-1]}"
+                a, b = lo - first, min(hi - first, len(times))  # their log times
+                if a < b:
+                    when = f" (log time {stamp_text(times[a])})" if b - a == 1 else (
+                        f" (log times {stamp_text(times[a])} .. {stamp_text(times[b - 1])})")
+            what = f"frame {lo}" if hi - lo == 1 else f"frames {lo}-{hi - 1}"
             self.damage.append(f"{what}{when} {why}")
 
         def emit_ready(final: bool) -> Iterator[Frame]:

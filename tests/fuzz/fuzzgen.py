@@ -532,8 +532,11 @@ def _u64_fields(raw: bytes, rec: Rec) -> dict[str, int]:
                 "records_length": b + 32 + clen}
     if rec.op == 0x08:  # ChunkIndex
         return {"chunk_start_offset": b + 16, "chunk_length": b + 24}
-    if rec.op == 0x0B:  # Statistics
-        return {"message_count": b}
+    if rec.op == 0x0B:  # Statistics: then u16, 4 x u32, 2 x u64 times, the per-channel counts map
+        m = b + 8 + 2 + 16 + 16
+        end = m + 4 + struct.unpack_from("<I", raw, m)[0]
+        counts = {f"channel_count[{i}]": at + 2 for i, at in enumerate(range(m + 4, end, 10))}
+        return {"message_count": b, "message_start_time": b + 30, "message_end_time": b + 38, **counts}
     if rec.op == 0x02:  # Footer
         return {"summary_start": b, "summary_offset_start": b + 8}
     if rec.op == 0x0E:  # SummaryOffset
@@ -677,7 +680,7 @@ def mutate_structure(rng: np.random.Generator, raw: bytes) -> tuple[bytes, str]:
             fields = _u64_fields(raw, r)
             if fields:
                 fname = _pick(rng, sorted(fields))
-                v = _pick(rng, (0, 1, 8, 2**31, 2**63, 2**64 - 1, len(raw), len(raw) - 8, s_start or 9,
+                v = _pick(rng, (0, 1, 2, 4, 8, 2**31, 2**62, 2**63, 2**64 - 1, len(raw), len(raw) - 8, s_start or 9,
                                 int(rng.integers(0, len(raw)))))
                 b[fields[fname]:fields[fname] + 8] = struct.pack("<Q", v)
                 return bytes(b), f"{name} at {r.offset}: {fname} -> {v}"

@@ -424,3 +424,36 @@ def test_rosbag2_per_message_zstd_compression(tmp_path):
     assert [f.index for f in r.frames()] == [0]  # SPEC §6: skipped and named, not the end of the run
     assert re.match(r"^frame 1 \(log time 0\.000000001\) skipped: msgz.mcap: topic /p, message 1: "
                     "zstd-compressed message", r.damage[0]), r.damage
+
+
+def _statistics_counts_at(raw: bytes) -> list[int]:
+    """Byte offsets of the per-channel message counts in the Statistics record."""
+    with_counts = []
+    pos = 8
+    while pos + 9 <= len(raw):
+        op, length = struct.unpack_from("<BQ", raw, pos)
+        if op == 0x0B:  # Statistics: u64 message_count, u16, 4 x u32, 2 x u64 times, then the map
+            m = pos + 9 + 8 + 2 + 4 * 4 + 8 + 8
+            end = m + 4 + struct.unpack_from("<I", raw, m)[0]
+            with_counts += list(range(m + 4 + 2, end, 10))
+        pos += 9 + length
+    return with_counts
+
+
+@pytest.mark.parametrize("count", [2**62, 2**64 - 1])
+def test_absurd_summary_count_is_damage_not_a_hang(small_log, tmp_path, count):
+    """A summary claiming 2**62 clouds (a flipped or lying Statistics record) is a damage note naming
+    the missing frames as a range, found at once (found by the fuzz suite: it was iterated)."""
+    path, frames = small_log[0], small_log[1]
+    raw = bytearray(path.read_bytes())
+    for at in _statistics_counts_at(bytes(raw)):
+        raw[at:at + 8] = struct.pack("<Q", count)
+    p = tmp_path / "lie.mcap"
+    p.write_bytes(bytes(raw))
+    r, got = _read_all(p)
+    assert [g.index for g in got] == list(range(N))
+    _check_prefix(got, frames)
+    assert r.damage == [f"frames {N}-{count - 1} lost: the summary lists {count} messages on /camera/points, "
+                        f"the file holds {N}"]
+    r = LogReader(p)
+    assert [g.index for g in r.frames(start=1, stop=3)] == [1, 2] and r.damage == []  # a range stops early
