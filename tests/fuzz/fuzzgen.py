@@ -635,8 +635,14 @@ def mutate_structure(rng: np.random.Generator, raw: bytes) -> tuple[bytes, str]:
     s_start = struct.unpack_from("<Q", raw, footer.offset + 9)[0] if footer else 0
     for _ in range(20):
         kind = _pick(rng, ("trunc", "len", "op", "zero", "dup", "del", "swap", "drop-summary", "dup-summary",
-                           "field", "field", "chunk-header", "chunk-inside", "chunk-inside"))
+                           "field", "field", "summary-field", "summary-field", "chunk-header", "chunk-inside",
+                           "chunk-inside"))
         r = _pick(rng, recs)
+        if kind == "summary-field":  # the records whose numbers the reader trusts: the summary's
+            summary = [x for x in recs if x.op in (0x02, 0x08, 0x0B, 0x0D, 0x0E)]
+            if not summary:
+                continue
+            r, kind = _pick(rng, summary), "field"
         name = _OPS.get(r.op, hex(r.op))
         b = bytearray(raw)
         if kind == "trunc":
