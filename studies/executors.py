@@ -241,13 +241,9 @@ class RayExecutor:
             raise ConfigError("--ray needs the ray package: pip install 'zcut[ray]'") from None
         target = resolve_ray_address(address)
         check_ray_address(address, target, timeout=timeout)
-        host, _ = _host_port(address, target)
-        # a cluster on loopback (`ray start --node-ip-address 127.0.0.1`): the driver's node is there too,
-        # not at the machine's interface address Ray would pick
-        local = {"_node_ip_address": "127.0.0.1"} if _is_loopback(host) and not target.startswith("ray://") else {}
         try:
             ray.init(address=target, ignore_reinit_error=True, log_to_driver=False, logging_level="ERROR",
-                     runtime_env={"env_vars": worker_environment(1)}, **local)
+                     runtime_env={"env_vars": worker_environment(1)})
         except Exception as e:  # noqa: BLE001 - ray raises ConnectionError, RuntimeError, ValueError...
             raise ConfigError(f"--ray {address}: cannot connect to the Ray cluster ({type(e).__name__}: "
                               f"{str(e).splitlines()[0] if str(e) else ''})") from None
@@ -278,26 +274,18 @@ class RayExecutor:
             self._ray.shutdown()
 
 
-def _is_loopback(host: str) -> bool:
-    import ipaddress
-
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
 def _in_folder(cwd: str, fn, unit, job):
     """A Ray task: ``fn(unit, job)`` in the driver's working folder, so that the paths the driver was
-    given (logs, bin model, config, labels; relative or not) name the same files on the node, which
-    must mount them at the same place."""
+    given (logs, bin model, config, labels), relative or not, name the same files on the node (which
+    must mount them at the same place)."""
     try:
         os.chdir(cwd)
-    except OSError as e:
-        return _failed(unit, f"the driver's folder {cwd} is not on this Ray node ({e.strerror}): the logs must be "
-                             "on storage every node mounts at the same path")
+    except OSError:  # absolute paths may still name the files
+        res = fn(unit, job)
+        if getattr(res, "error", None):
+            res.error += (f" (the driver's folder {cwd} is not on this Ray node: the logs must be on storage every "
+                          "node mounts at the same place)")
+        return res
     return fn(unit, job)
 
 

@@ -15,6 +15,7 @@ Outside (the caller)::
     why = netns_unavailable()                   # None, or why namespaces cannot be made here
     out = run_with_ray_cluster([{"argv": [...], "env": {...}}, ...], cpus=2)
     out["results"][0]["rc"], out["results"][0]["stderr"], out["results"][0]["wall_s"]
+    out["results"][0]["procs"]                  # CPU seconds per process of the namespace (run_measured)
 
 Inside (``python ray_in_netns.py SPEC.json``, run by :func:`run_with_ray_cluster`): bring ``lo``
 up, check it is the only interface, ``ray start --head --node-ip-address 127.0.0.1``, run each
@@ -33,6 +34,7 @@ import struct
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -72,8 +74,9 @@ def run_with_ray_cluster(commands: list[dict], *, cpus: int = 2, timeout: float 
     Returns
     -------
     dict
-        ``{"ray_start_s": float, "interfaces": [...], "results": [{"argv", "rc", "stdout",
-        "stderr", "wall_s", "children_cpu_s"}, ...]}``.
+        ``{"ray_start_s": float, "ray_stop_s": float, "interfaces": [...], "results": [{"argv", "rc",
+        "stdout", "stderr", "wall_s", "pid", "procs", "children_cpu_s"}, ...]}`` (see
+        :func:`run_measured`).
 
     Raises
     ------
@@ -118,6 +121,94 @@ def _loopback_up() -> list[str]:
     return names
 
 
+_TICK = os.sysconf("SC_CLK_TCK")
+
+
+def _proc_table() -> dict[tuple[int, int], tuple[int, float]]:
+    """``(pid, start time) -> (ppid, CPU seconds)`` of every process in view."""
+    out = {}
+    for name in os.listdir("/proc"):
+        if not name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{name}/stat", "rb") as f:
+                raw = f.read()
+        except OSError:
+            continue
+        rest = raw[raw.rindex(b")") + 2:].split()
+        out[(int(name), int(rest[19]))] = (int(rest[1]), (int(rest[11]) + int(rest[12])) / _TICK)
+    return out
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read().replace(b"\0", b" ").decode(errors="replace").strip()[:200]
+    except OSError:
+        return ""
+
+
+def run_measured(argv: list[str], *, env: dict | None = None, cwd: str | None = None, scope: str = "tree",
+                 interval: float = 0.25) -> dict:
+    """Run a command and measure the CPU time of the processes it keeps busy, from ``/proc``.
+
+    Parameters
+    ----------
+    argv, env, cwd
+        The command.
+    scope : {"tree", "all"}
+        The command and its descendants, or every process in view but this one (inside a PID
+        namespace: the command and the Ray cluster it uses).
+    interval : float
+        Seconds between samples; a process that exits loses at most this much of its CPU time.
+
+    Returns
+    -------
+    dict
+        ``{"argv", "rc", "stdout", "stderr", "wall_s", "pid", "procs": [{"pid", "ppid", "cmd",
+        "cpu_s"}, ...]}``: ``procs`` are the processes that used >= 0.05 CPU s during the command.
+    """
+    before = _proc_table()
+    last: dict[tuple[int, int], tuple[int, float]] = {}
+    names: dict[tuple[int, int], str] = {}
+    stop = threading.Event()
+
+    def sample() -> None:
+        while True:
+            for k, v in _proc_table().items():
+                last[k] = v
+                if k not in names:
+                    names[k] = _cmdline(k[0])
+            if stop.wait(interval):
+                return
+
+    t = time.perf_counter()
+    p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=cwd)
+    sampler = threading.Thread(target=sample, daemon=True)
+    sampler.start()
+    out, err = p.communicate()
+    wall = time.perf_counter() - t
+    stop.set()
+    sampler.join()
+    last.update(_proc_table())
+    keep = set(last)
+    if scope == "tree":
+        keep, grow = set(), {p.pid}
+        while grow:
+            keep |= {k for k, (ppid, _) in last.items() if k[0] in grow}
+            grow = {k[0] for k, (ppid, _) in last.items() if ppid in grow} - {k[0] for k in keep}
+    procs = []
+    for k in keep:
+        if k[0] == os.getpid():
+            continue
+        ppid, cpu = last[k]
+        used = cpu - before.get(k, (0, 0.0))[1]
+        if used >= 0.05:
+            procs.append({"pid": k[0], "ppid": ppid, "cmd": names.get(k, ""), "cpu_s": round(used, 3)})
+    return {"argv": argv, "rc": p.returncode, "stdout": out, "stderr": err, "wall_s": wall, "pid": p.pid,
+            "procs": procs}
+
+
 def _inside(spec_path: str) -> int:
     spec = json.loads(Path(spec_path).read_text())
     interfaces = _loopback_up()
@@ -138,15 +229,12 @@ def _inside(spec_path: str) -> int:
     try:
         for c in spec["commands"]:
             r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-            t = time.perf_counter()
-            p = subprocess.run(c["argv"], check=False, capture_output=True, text=True, cwd=c.get("cwd"),
-                               env={**env, **c.get("env", {})})
-            wall = time.perf_counter() - t
-            print(f"ray_in_netns: exit {p.returncode} after {wall:.1f} s: {' '.join(c['argv'][:3])}", file=sys.stderr,
-                  flush=True)
+            res = run_measured(c["argv"], env={**env, **c.get("env", {})}, cwd=c.get("cwd"), scope="all")
+            print(f"ray_in_netns: exit {res['rc']} after {res['wall_s']:.1f} s: {' '.join(c['argv'][:3])}",
+                  file=sys.stderr, flush=True)
             r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-            results.append({"argv": c["argv"], "rc": p.returncode, "stdout": p.stdout, "stderr": p.stderr,
-                            "wall_s": wall, "children_cpu_s": (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)})
+            res["children_cpu_s"] = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
+            results.append(res)
     finally:
         # confined to this PID namespace (--mount-proc); whatever survives dies with it
         t = time.perf_counter()
