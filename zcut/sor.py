@@ -168,7 +168,7 @@ def _workers() -> Iterator[Run]:
 # the search
 # --------------------------------------------------------------------------------------------
 def _mean_distances(x, y, z, valid, amax, m: int, divisor: float, run: Run) -> np.ndarray:
-    """(H, W) d̄ over the m smallest squared distances (self included); 0 or NaN where invalid."""
+    """(H, W) d̄ over the m smallest squared distances (self included); anything where invalid."""
     H, W = valid.shape
     P = _camera.fit_camera(x, y, z, valid) if _USE_CAMERA else None
     use_cam = P is not None
@@ -191,9 +191,10 @@ def _mean_distances(x, y, z, valid, amax, m: int, divisor: float, run: Run) -> n
         floor = np.zeros(Q.shape[:2])
     wmax = int(min(max(_WINDOW_MAX, 1), _window.WINDOW_MAX))
     w0 = _window.first_window(m, wmax)
-    dbar = np.zeros((H, W))
-    run(_window.window_rows, H, x, y, z, valid, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar)
-    rows, cols = np.nonzero(dbar < 0.0)  # unproven: minus the window's m-th squared distance
+    dbar = np.empty((H, W))
+    unproven = np.zeros(H, dtype=np.int64)
+    run(_window.window_rows, H, x, y, z, valid, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven)
+    rows, cols = _window.unproven_pixels(valid, dbar, unproven)  # their dbar: minus the m-th squared distance
     if rows.size:
         tree = _search.build_quadtree(tcount, tbox, tuv, P, M, use_cam)
         _fallback(x, y, z, valid, rows, cols, -dbar[rows, cols], m, divisor, use_cam, tree, dbar, run)
@@ -215,7 +216,7 @@ def _fallback(x, y, z, valid, rows, cols, lim, m, divisor, use_cam, tree, dbar, 
         run(_search.kd_queries, rows.size, x, y, z, rows, cols, lim, m, divisor, kd, out)
         dbar[rows, cols] = out
 
-    if rows.size > 4 * _SAMPLE:  # not organized at all? then every tile search would hit the cap
+    if rows.size > max(4 * _SAMPLE, valid.size // 8):  # not organized at all? then every tile search would hit the cap
         pick = np.linspace(0, rows.size - 1, _SAMPLE).astype(np.int64)
         _, outcome, _ = tile_search(rows[pick], cols[pick], lim[pick])
         if 2 * np.count_nonzero(outcome != _search.FOUND) > pick.size:

@@ -227,57 +227,101 @@ def new_stats(H: int, W: int) -> tuple[np.ndarray, ...]:
     return rowU, colV, tcount, tbox, tuv, bad
 
 
-@nb.njit(cache=True, nogil=True, error_model="numpy")
+_CH = 256  # columns per chunk of the vectorized pass (a multiple of TILE)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _uv_chunk(x, y, z, valid, r, c0, n, P, S, tau, buf):
+    """U_lo, U_hi, V_lo, V_hi and the depth of pixels (r, c0..c0+n-1) into buf[k·_CH + i] (±inf
+    where invalid); returns the number of valid pixels whose depth is not safely positive.
+
+    Straight-line code into one buffer at fixed offsets: the compiler vectorizes it. U = a · (1/d)
+    is a few ulp of |U| plus those of a and d (a few ulp of S) from the true a/d, well within
+    EPS·(1 + |U|)·(S/d + 1).
+    """
+    bad = 0
+    for i in range(n):
+        c = c0 + i
+        ok = valid[r, c]
+        xq = x[r, c] if ok else 0.0
+        yq = y[r, c] if ok else 0.0
+        zq = z[r, c] if ok else 0.0
+        a = P[0, 0] * xq + P[0, 1] * yq + P[0, 2] * zq + P[0, 3]
+        b = P[1, 0] * xq + P[1, 1] * yq + P[1, 2] * zq + P[1, 3]
+        d = P[2, 0] * xq + P[2, 1] * yq + P[2, 2] * zq + P[2, 3]
+        bad += np.int64(ok & (d <= tau))
+        d = max(d, tau)
+        inv = 1.0 / d
+        u = a * inv
+        v = b * inv
+        g = EPS * (S * inv + 1.0)
+        eu = (1.0 + abs(u)) * g
+        ev = (1.0 + abs(v)) * g
+        buf[i] = u - eu if ok else np.inf
+        buf[_CH + i] = u + eu if ok else -np.inf
+        buf[2 * _CH + i] = v - ev if ok else np.inf
+        buf[3 * _CH + i] = v + ev if ok else -np.inf
+        buf[4 * _CH + i] = d if ok else np.inf
+    return bad
+
+
+@nb.njit(cache=True, nogil=True)
 def block_rows(b0, b1, x, y, z, valid, P, S, use_cam, rowU, colV, tcount, tbox, tuv, bad):
-    """Row blocks b0..b1-1 of the statistics of :func:`new_stats`. U_lo <= U_true <= U_hi (likewise
-    V) bracket the rounding of the computed ratio; invalid pixels (+inf) change nothing."""
+    """Row blocks b0..b1-1 of the statistics of :func:`new_stats` (invalid pixels, +inf, change
+    nothing)."""
     H, W = valid.shape
     tau = 1e-6 * S
+    buf = np.empty(5 * _CH)
     for blk in range(b0, b1):
         for r in range(blk * BLOCK, min(H, (blk + 1) * BLOCK)):
             ti = r // TILE
-            for c in range(W):
-                ok = valid[r, c]
-                xlo = x[r, c]
-                ylo = y[r, c]
-                zlo = z[r, c]
-                tj = c // TILE
-                tcount[ti, tj] += ok
-                tbox[ti, tj, 0] = min(tbox[ti, tj, 0], xlo)
-                tbox[ti, tj, 1] = min(tbox[ti, tj, 1], ylo)
-                tbox[ti, tj, 2] = min(tbox[ti, tj, 2], zlo)
-                tbox[ti, tj, 3] = max(tbox[ti, tj, 3], xlo if ok else -np.inf)
-                tbox[ti, tj, 4] = max(tbox[ti, tj, 4], ylo if ok else -np.inf)
-                tbox[ti, tj, 5] = max(tbox[ti, tj, 5], zlo if ok else -np.inf)
-                if not use_cam:
-                    continue
-                xq = xlo if ok else 0.0
-                yq = ylo if ok else 0.0
-                zq = zlo if ok else 0.0
-                a = P[0, 0] * xq + P[0, 1] * yq + P[0, 2] * zq + P[0, 3]
-                b = P[1, 0] * xq + P[1, 1] * yq + P[1, 2] * zq + P[1, 3]
-                d = P[2, 0] * xq + P[2, 1] * yq + P[2, 2] * zq + P[2, 3]
-                if ok and not d > tau:
+            for tj in range(-(-W // TILE)):  # boxes and counts
+                n = 0
+                x0 = y0 = z0 = np.inf
+                x1 = y1 = z1 = -np.inf
+                for c in range(tj * TILE, min(W, (tj + 1) * TILE)):
+                    ok = valid[r, c]
+                    n += ok
+                    x0 = min(x0, x[r, c])
+                    y0 = min(y0, y[r, c])
+                    z0 = min(z0, z[r, c])
+                    x1 = max(x1, x[r, c] if ok else -np.inf)
+                    y1 = max(y1, y[r, c] if ok else -np.inf)
+                    z1 = max(z1, z[r, c] if ok else -np.inf)
+                tcount[ti, tj] += n
+                tbox[ti, tj, 0] = min(tbox[ti, tj, 0], x0)
+                tbox[ti, tj, 1] = min(tbox[ti, tj, 1], y0)
+                tbox[ti, tj, 2] = min(tbox[ti, tj, 2], z0)
+                tbox[ti, tj, 3] = max(tbox[ti, tj, 3], x1)
+                tbox[ti, tj, 4] = max(tbox[ti, tj, 4], y1)
+                tbox[ti, tj, 5] = max(tbox[ti, tj, 5], z1)
+            if not use_cam:
+                continue
+            for c0 in range(0, W, _CH):  # U and V
+                n = min(_CH, W - c0)
+                if _uv_chunk(x, y, z, valid, r, c0, n, P, S, tau, buf):
                     bad[blk] = True
-                d = max(d, tau)
-                u = a / d
-                v = b / d
-                eu = EPS * (1.0 + abs(u)) * (S / d + 1.0)
-                ev = EPS * (1.0 + abs(v)) * (S / d + 1.0)
-                ulo = u - eu if ok else np.inf
-                vlo = v - ev if ok else np.inf
-                uhi = u + eu if ok else -np.inf
-                vhi = v + ev if ok else -np.inf
-                rowU[blk, c, 0] = min(rowU[blk, c, 0], ulo)
-                rowU[blk, c, 1] = max(rowU[blk, c, 1], uhi)
-                cb = c // BLOCK
-                colV[cb, r, 0] = min(colV[cb, r, 0], vlo)
-                colV[cb, r, 1] = max(colV[cb, r, 1], vhi)
-                tuv[ti, tj, 0] = min(tuv[ti, tj, 0], ulo)
-                tuv[ti, tj, 1] = max(tuv[ti, tj, 1], uhi)
-                tuv[ti, tj, 2] = min(tuv[ti, tj, 2], vlo)
-                tuv[ti, tj, 3] = max(tuv[ti, tj, 3], vhi)
-                tuv[ti, tj, 4] = min(tuv[ti, tj, 4], d if ok else np.inf)
+                for i in range(n):
+                    rowU[blk, c0 + i, 0] = min(rowU[blk, c0 + i, 0], buf[i])
+                    rowU[blk, c0 + i, 1] = max(rowU[blk, c0 + i, 1], buf[_CH + i])
+                for t0 in range(0, n, TILE):
+                    tj = (c0 + t0) // TILE
+                    u0 = d0 = v0 = np.inf
+                    u1 = v1 = -np.inf
+                    for i in range(t0, min(n, t0 + TILE)):
+                        u0 = min(u0, buf[i])
+                        u1 = max(u1, buf[_CH + i])
+                        v0 = min(v0, buf[2 * _CH + i])
+                        v1 = max(v1, buf[3 * _CH + i])
+                        d0 = min(d0, buf[4 * _CH + i])
+                    tuv[ti, tj, 0] = min(tuv[ti, tj, 0], u0)
+                    tuv[ti, tj, 1] = max(tuv[ti, tj, 1], u1)
+                    tuv[ti, tj, 2] = min(tuv[ti, tj, 2], v0)
+                    tuv[ti, tj, 3] = max(tuv[ti, tj, 3], v1)
+                    tuv[ti, tj, 4] = min(tuv[ti, tj, 4], d0)
+                    cb = (c0 + t0) // BLOCK
+                    colV[cb, r, 0] = min(colV[cb, r, 0], v0)
+                    colV[cb, r, 1] = max(colV[cb, r, 1], v1)
 
 
 # --------------------------------------------------------------------------------------------

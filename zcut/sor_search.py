@@ -42,11 +42,13 @@ def build_quadtree(tcount, tbox, tuv, P, M, use_cam):
     """Flat quadtree: level 0 = tiles, each level merges 2 × 2 nodes, the last is one node.
 
     Returns (level_off, level_h, level_w, count, box, planes) with ``planes`` (n, 16) the planes
-    of the U >= min, U <= max, V >= min, V <= max half-spaces of each node (placeholders without
-    a camera).
+    of the U >= min, U <= max, V >= min, V <= max half-spaces of each node above the tiles (at the
+    tiles, boxes prune as well and the planes cost more than they save), zeros elsewhere.
     """
     level_off, level_h, level_w, count, box, uv = _merge_levels(tcount, tbox, tuv)
-    planes = node_planes(uv, P, M) if use_cam else np.zeros((1, 16))
+    planes = np.zeros((count.shape[0], 16))
+    if use_cam:
+        planes[level_off[1]:] = node_planes(uv[level_off[1]:], P, M)
     return level_off, level_h, level_w, count, box, planes
 
 

@@ -405,9 +405,9 @@ def _fill_chunk(buf, w, r, c0, n, x, y, z, Rb, C, floor, b, use_cam):
 
 
 @nb.njit(cache=True)
-def _row_stage(buf, w, r, x, y, z, m, divisor, use_cam, Rb, C, floor, b, dbar):
+def _row_stage(buf, w, r, x, y, z, m, divisor, use_cam, Rb, C, floor, b, dbar, merge=True):
     # stage 1 (w = 1: every column 2 .. W - 3) or stage 2 (w = 2: columns 3 .. W - 4, only where
-    # stage 1 left NaN) of row r
+    # stage 1 left NaN if merge, else all) of row r
     W = x.shape[1]
     c_lo = w + 1
     c_hi = W - w - 2
@@ -421,9 +421,13 @@ def _row_stage(buf, w, r, x, y, z, m, divisor, use_cam, Rb, C, floor, b, dbar):
                 dbar[r, c0 + i] = buf[oo + i]
         else:
             _chunk_5x5(buf, n, m, divisor, use_cam)
-            for i in range(n):
-                old = dbar[r, c0 + i]
-                dbar[r, c0 + i] = buf[oo + i] if np.isnan(old) else old
+            if merge:
+                for i in range(n):
+                    old = dbar[r, c0 + i]
+                    dbar[r, c0 + i] = buf[oo + i] if np.isnan(old) else old
+            else:
+                for i in range(n):
+                    dbar[r, c0 + i] = buf[oo + i]
 
 
 # --------------------------------------------------------------------------------------------
@@ -550,31 +554,61 @@ def first_window(m: int, wmax: int) -> int:
 
 
 @nb.njit(cache=True, nogil=True)
-def window_rows(r0, r1, x, y, z, valid, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar):
+def window_rows(r0, r1, x, y, z, valid, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven):
     """Rows r0..r1-1 of the window phase.
 
     Writes into dbar (H, W): d̄ >= 0 where proven; at the other valid pixels minus the m-th
     smallest squared distance found in the window (an upper bound on the true one is its
-    negative; -inf if the window held fewer than m valid pixels). Invalid pixels are left alone.
+    negative; -inf if the window held fewer than m valid pixels); anything at invalid pixels.
+    unproven[r] = the number of the row's unproven pixels.
     """
     H, W = valid.shape
     buf = np.empty(SCRATCH)
     cols = np.empty(W, np.int64)
     best = np.empty(m)
+    sparse = False  # the last row with a 3 x 3 stage left many pixels to the 5 x 5 one
     for r in range(r0, r1):
         b = (r + BLOCK // 2) // BLOCK
-        fast = w0 == 1 and 0 < r < H - 1 and W >= 5
-        if fast:
-            _row_stage(buf, 1, r, x, y, z, m, divisor, use_cam, R[b], C, floor, b, dbar)
-            if 2 <= r < H - 2 and wmax >= 2 and W >= 7:  # what it left, with a 5 x 5 window
-                n = 0
-                for c in range(3, W - 3):
-                    cols[n] = c
-                    n += valid[r, c] & np.isnan(dbar[r, c])
-                if 8 * n > W:  # many (a sparse row): the whole row, vectorized
-                    _row_stage(buf, 2, r, x, y, z, m, divisor, use_cam, R[b], C, floor, b, dbar)
-                elif n:
-                    _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, floor, b, dbar)
+        lo, hi = 0, -1  # the columns the row stages decided (d̄ or NaN)
+        if w0 == 1 and 0 < r < H - 1 and W >= 5:
+            five = 2 <= r < H - 2 and wmax >= 2 and W >= 7
+            if five and sparse and r % 8:  # straight to 5 x 5 (the same d̄ where both prove it)
+                _row_stage(buf, 2, r, x, y, z, m, divisor, use_cam, R[b], C, floor, b, dbar, False)
+                lo, hi = 3, W - 4
+            else:
+                _row_stage(buf, 1, r, x, y, z, m, divisor, use_cam, R[b], C, floor, b, dbar)
+                lo, hi = 2, W - 3
+                if five:  # what it left, with a 5 x 5 window
+                    n = 0
+                    for c in range(3, W - 3):
+                        cols[n] = c
+                        n += valid[r, c] & np.isnan(dbar[r, c])
+                    sparse = 8 * n > W
+                    if sparse:  # many: the whole row, vectorized
+                        _row_stage(buf, 2, r, x, y, z, m, divisor, use_cam, R[b], C, floor, b, dbar)
+                    elif n:
+                        _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, floor, b, dbar)
+        n = 0
         for c in range(W):
-            if valid[r, c] and not (fast and 2 <= c <= W - 3 and not np.isnan(dbar[r, c])):
+            if valid[r, c] and not (lo <= c <= hi and not np.isnan(dbar[r, c])):
                 dbar[r, c] = _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor)
+                n += dbar[r, c] < 0.0
+        unproven[r] = n
+
+
+@nb.njit(cache=True)
+def unproven_pixels(valid, dbar, unproven):
+    """(rows, cols) of the pixels window_rows left unproven, row-major."""
+    total = 0
+    for r in range(unproven.shape[0]):
+        total += unproven[r]
+    rows = np.empty(total + 1, np.int64)
+    cols = np.empty(total + 1, np.int64)
+    k = 0
+    for r in range(unproven.shape[0]):
+        if unproven[r]:
+            for c in range(valid.shape[1]):  # without a branch (valid pixels at random in sparse clouds)
+                rows[k] = r
+                cols[k] = c
+                k += valid[r, c] & (dbar[r, c] < 0.0)
+    return rows[:total], cols[:total]

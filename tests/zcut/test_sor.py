@@ -188,6 +188,21 @@ def test_camera_cloud_with_flying_pixels(convention: str) -> None:
         np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.parametrize("invalid", [0.3, 0.5, 0.7])
+def test_sparse_camera_cloud(invalid: float) -> None:
+    # scattered invalid pixels: rows where the 3 x 3 stage leaves many pixels go through the 5 x 5
+    # one (as a list, a whole row, or straight away), the rest through growing windows
+    rng = np.random.default_rng(int(invalid * 10))
+    xyz = with_holes(rng, pinhole(rng, 120, 160, f=200.0, flying=0.01), invalid)
+    for k in (4, 8):
+        for convention in ("pcl", "open3d"):
+            np.testing.assert_array_equal(
+                sor_mean_distances(xyz, k=k, convention=convention),
+                mean_distances_reference(xyz, k=k, convention=convention),
+            )
+        np.testing.assert_array_equal(sor_outliers(xyz, k=k, convention="open3d"), open3d_outliers(xyz, k=k, std_ratio=1.0))
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     xyz=arrays(
