@@ -10,6 +10,8 @@ Classes (1920 x 1200, or the sensor's own size), all seeded:
   sparse       the blobs scene with 50 % of the pixels invalid, scattered
   negative-z   the pile in the OpenGL camera convention (y up, z < 0 everywhere)
   mixed-z      the pile in a tilted bin frame: z = height above the bin floor, of both signs
+  distorted    the pile seen through a lens with strong radial distortion (k1 = 0.05: rows and
+               columns bent by up to 25 px at the corners), as real sensors' clouds are bent
   synth        the project's own synthetic structured-light scan (replay.synth), if importable
   kinect/NAME  the real Kinect clouds of ../shared/data/real (640 x 480, quantized depth)
 
@@ -79,12 +81,17 @@ def _blob_mask(rng: np.random.Generator, shape: tuple[int, int], frac: float) ->
     return field > np.quantile(field, 1.0 - frac)
 
 
-def pile_cloud(seed: int = 0, *, height: int = FULL[0], width: int = FULL[1]) -> np.ndarray:
-    """(H, W, 3) float32 bin scene in metres, camera optical frame, NaN = invalid."""
+def pile_cloud(seed: int = 0, *, height: int = FULL[0], width: int = FULL[1], k1: float = 0.0) -> np.ndarray:
+    """(H, W, 3) float32 bin scene in metres, camera optical frame, NaN = invalid; ``k1``: radial
+    lens distortion of the pixel grid (the ray of a pixel at normalized radius r is scaled by
+    1 + k1·r², so columns and rows of points are no longer planes through the camera)."""
     rng = np.random.default_rng(seed)
     fx = fy = 1700.0
     cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
     dx, dy = _rays(height, width, fx)
+    if k1:
+        scale = 1.0 + k1 * (dx * dx + dy * dy)
+        dx, dy = dx * scale, dy * scale
 
     floor_z, rim_z, table_z = 0.50, 0.35, 0.505
     half_x, half_y, slope, rim_w = 0.22, 0.13, 0.25, 0.02
@@ -282,6 +289,7 @@ def cloud_classes(seed: int) -> dict[str, object]:
         "sparse": lambda: sparse_cloud(seed),
         "negative-z": lambda: negative_z_cloud(seed),
         "mixed-z": lambda: mixed_z_cloud(seed),
+        "distorted": lambda: pile_cloud(seed, k1=0.05),
         "synth": lambda: synth_cloud(seed),
     }
     for path in sorted(REAL_DATA.glob("*.pcd")):

@@ -9,37 +9,49 @@ Each valid pixel needs the m smallest distances to the valid points (m = k + 1 w
 itself for ``"pcl"``, m = k for ``"open3d"``). d̄ depends only on the *multiset* of these m
 values, so a candidate list is final as soon as no point outside the searched set can be strictly
 closer than the m-th smallest distance found: points at exactly that distance (ties, duplicates)
-would only replace one equal value by another. In particular m distances of 0 are final at once.
+would only replace one equal value by another. In particular m distances of 0 are final at once,
+and a search never has to look at more than m copies of a duplicated point.
 
-1. *Camera model.* A 3 × 4 projective map P is fitted to the organized cloud itself (direct
-   linear transform from 3D points to their pixel coordinates); U = P0·p̃ / P2·p̃ and
-   V = P1·p̃ / P2·p̃ then grow with the column and the row. Nothing below needs P to be right,
-   only that the depth P2·p̃ is positive at every valid point (checked; else step 2 is skipped):
-   the points of any image region whose U values are >= t satisfy P0·p̃ - t·P2·p̃ >= 0, a
-   half-space, and the distance from the query to that half-space bounds their distance from
-   below. This holds in any frame: z < 0, mixed signs and rigidly moved clouds alike.
-2. *Image window.* The m nearest candidates are taken from a window of (2w + 1)² pixels around
-   the pixel, w = 1 at first. Outside the window lie: the rows of the pixel's 64-row band to the
-   right and to the left of the window, the columns of its 64-column band below and above it
-   (bands start every 32 pixels, so the window, w <= 16, is inside both), and four corner regions
-   outside both bands. Each region is bounded by the half-space of its extreme U or V (per band
-   and position, or per quadrant for the corners: lens distortion bends columns, so the bounds are
-   kept local). If the m-th distance found is within all of them, the window is proven. If not,
-   the window grows to the smallest w whose bound covers the current m-th distance, up to 16.
-3. *Tile quadtree.* Unproven pixels (flying pixels, isolated points, clouds without a camera) are
-   searched over a quadtree of 8 × 8 pixel tiles in parallel, nearest node first; a node's bound
-   is the larger of the distance to the box of its points and of the half-space bounds of its U
-   and V ranges. A search that measures more than a few thousand pixels stops.
+1. *Camera model* (:mod:`zcut.sor_camera`). A 3 × 4 projective map P is fitted to the organized
+   cloud itself (direct linear transform from the 3D points to their pixel coordinates);
+   U = P0·p̃ / P2·p̃ and V = P1·p̃ / P2·p̃ then grow with the column and the row. Nothing below
+   needs P to be right, only that the depth P2·p̃ is positive at every valid point (checked, else
+   no camera bounds): the points of any image region whose U values are all >= t satisfy
+   P0·p̃ - t·P2·p̃ >= 0, a half-space, and the distance from a pixel to that half-space bounds its
+   distance to each of them from below. This holds in any frame: z < 0, mixed signs and rigidly
+   moved clouds alike.
+2. *Image window* (:mod:`zcut.sor_window`). The m nearest candidates are taken from a window of
+   (2w + 1)² pixels around the pixel. Outside the window lie: the rows of the pixel's 64-row band
+   right and left of it, the columns of its 64-column band below and above it (bands start every
+   32 pixels, so a window with w <= 16 is inside both), and four corner regions outside both
+   bands. Each region is bounded by the half-space of its extreme U or V -- per band and position
+   (local, so that lens distortion, which bends columns and rows, costs little), per quadrant for
+   the corners (at least 17 pixels away in both directions; each lies in two half-spaces, and a
+   per-cell floor of their bound usually spares evaluating them). If the m-th distance found is
+   within all of them, the window is proven. Stages, cheapest first: a 3 × 3 window for whole
+   rows at once (vectorized: the 8 neighbour distances sorted by a network, so any m <= 9 is a
+   selection), a 5 × 5 window for what it leaves (the whole row, vectorized, when that is much),
+   then one pixel at a time, growing the window to the smallest w whose bound covers the current
+   m-th distance, up to 16.
+3. *Tile quadtree* (:mod:`zcut.sor_search`). Unproven pixels (flying pixels, isolated points,
+   clouds without a camera) are searched over a quadtree of 8 × 8 pixel tiles, nearest node
+   first; a node's bound is the larger of the distance to the box of its points and of the
+   half-space bounds of its U and V ranges. A search that measures more than a few thousand pixels
+   stops.
 4. *KD-tree.* The pixels whose tile search stopped go to a KD-tree (balanced median splits, so
-   duplicates cannot unbalance it) built over the points of the tiles within their radius, or over
-   all valid points when the cloud turns out not to be organized at all.
+   duplicates cannot unbalance it; O(n) memory) built over the points of the tiles within their
+   radius, or over all valid points when the cloud turns out not to be organized at all.
 
 All bounds are lower bounds on the *computed* distance: box distances are evaluated in the order of
 the distance itself (rounding is monotone), the camera bounds carry a relative margin far above
-their rounding error (see :mod:`zcut.sor_window`). Distances are those of Open3D's nanoflann L2
-metric: ``sqrt((dx*dx + dy*dy) + dz*dz)`` in float64, and d̄ sums the m smallest in ascending
-order, so d̄ is bit-identical to Open3D's. The statistics are accumulated sequentially over the
-valid pixels in row-major order (the order in which ``xyz[valid]`` hands them to Open3D).
+their rounding error (see :func:`zcut.sor_camera._plane`). Distances are those of Open3D's
+nanoflann L2 metric: ``sqrt((dx*dx + dy*dy) + dz*dz)`` in float64, and d̄ sums the m smallest in
+ascending order, so d̄ is bit-identical to Open3D's. The statistics are accumulated sequentially
+over the valid pixels in row-major order (the order in which ``xyz[valid]`` hands them to Open3D).
+
+The kernels are serial numba functions that release the GIL, run over ranges of rows or pixels on
+a thread pool that lives for one call (see :func:`_workers`); importing or calling this module
+changes no process-wide setting.
 """
 
 from __future__ import annotations

@@ -4,11 +4,12 @@ can be closer.
 
 The argument is in the module docstring of :mod:`zcut.sor`. Three stages, cheapest first:
 
-1. a 3 × 3 window for a whole row at once, written as straight-line code over the columns (the
-   compiler vectorizes it): the 8 neighbour distances are sorted by a network, so any m <= 9 is
-   a selection, and the w = 1 bound is four plane evaluations;
-2. a 5 × 5 window for the pixels of the row stage 1 left (the inner ring sorted, the outer ring
-   merged into the 8 smallest);
+1. a 3 × 3 window for a whole row: the 8 neighbour distances sorted by a network, so any m <= 9
+   is a selection, and the w = 1 bound is four plane evaluations -- straight-line code over
+   chunks of columns copied into a scratch buffer, which the compiler vectorizes;
+2. a 5 × 5 window for the pixels stage 1 left: the inner ring sorted, ring 2 merged into the 8
+   smallest; for the whole row (vectorized like stage 1) when they are many, and for the rows
+   after such a row straight away (re-checked every 8 rows), else for a list of pixels;
 3. one pixel at a time, the window growing to the smallest w whose bound covers the current m-th
    distance, up to ``WINDOW_MAX``.
 
