@@ -11,6 +11,11 @@ machine; a variable the user set is kept. Ray workers also get the driver's ``ZC
 and numba threading layer (they do not inherit the driver's environment), so a unit computes the
 same on both executors.
 
+Memory: a worker replaying the sensor's frames needs about 1.5 GB (:data:`WORKER_MEMORY_MB`). The
+default number of local workers is what the free memory holds (at most the cores), and a Ray task
+asks for that much of Ray's ``memory`` resource, so that Ray places no more tasks on a node than
+its memory holds.
+
 Ray is an optional extra (``pip install 'zcut[ray]'``): imported only by :class:`RayExecutor`.
 An address is checked before Ray is asked to connect (Ray itself retries an unreachable cluster
 for minutes): nothing listening, or something that does not speak gRPC, is a one-line error.
@@ -34,6 +39,9 @@ from replay.errors import ConfigError
 THREAD_VARIABLES = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 #: seconds to wait for a Ray address to answer
 CONNECT_TIMEOUT_S = 10.0
+#: memory a worker may need: the measured peak of a worker replaying the sensor's 1920 x 1200 frames
+#: with a bin model is 1.1-1.5 GB (1.9 GB as a Ray worker; bench/bench_batch.py)
+WORKER_MEMORY_MB = 1600
 
 
 class Executor(Protocol):
@@ -53,6 +61,18 @@ def default_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not Linux
         return max(1, os.cpu_count() or 1)
+
+
+def available_memory_mb() -> float | None:
+    """The memory the machine can still give (``MemAvailable``), or None where unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
 
 
 def worker_environment(threads: int) -> dict[str, str]:
@@ -93,7 +113,9 @@ class LocalExecutor:
     Parameters
     ----------
     workers : int
-        Processes (default: the cores).
+        Processes (default: the cores, as many as the available memory holds at
+        :data:`WORKER_MEMORY_MB` each: a many-core machine with little memory would otherwise have its
+        workers killed for memory, over and over).
     """
 
     name = "local processes"
@@ -101,7 +123,13 @@ class LocalExecutor:
     def __init__(self, workers: int | None = None) -> None:
         if workers is not None and (isinstance(workers, bool) or workers < 1):
             raise ConfigError(f"--workers must be >= 1, got {workers!r}")
-        self.workers = workers or default_workers()
+        if workers is None:
+            workers = default_workers()
+            mem = available_memory_mb()
+            if mem is not None and workers > max(1, int(mem // WORKER_MEMORY_MB)):
+                workers = max(1, int(mem // WORKER_MEMORY_MB))
+                self.name = f"local processes (as many as {mem / 1024:.0f} GB of free memory hold)"
+        self.workers = workers
         self.threads = max(1, default_workers() // self.workers)
         self._pool: ProcessPoolExecutor | None = None
 
@@ -250,9 +278,16 @@ class RayExecutor:
         self._ray = ray
         self.workers = int(ray.cluster_resources().get("CPU", 1))
 
+    def _task_memory(self) -> int | None:
+        """Bytes of Ray's ``memory`` resource a task asks for: a worker's need, or what the largest
+        node has (asking more than any node has would leave the tasks waiting for ever)."""
+        nodes = [n.get("Resources", {}).get("memory", 0) for n in self._ray.nodes() if n.get("Alive")]
+        largest = max(nodes, default=0)
+        return int(min(WORKER_MEMORY_MB * 2**20, largest)) or None
+
     def run(self, fn, units, job):
         ray = self._ray
-        remote = ray.remote(num_cpus=1, max_retries=1)(_in_folder)
+        remote = ray.remote(num_cpus=1, memory=self._task_memory(), max_retries=1)(_in_folder)
         job_ref = ray.put(job)
         cwd = os.getcwd()
         refs = {remote.remote(cwd, fn, u, job_ref): u for u in units}
