@@ -5,8 +5,8 @@ Ray rewrites 127.0.0.1 to the machine's interface address, and test traffic must
 So the cluster runs inside ``unshare --net --pid --fork --mount-proc``: loopback is the only
 network interface there (checked), the PID namespace confines ``ray stop`` (which otherwise stops
 every Ray process of the machine) and guarantees the cleanup: when the namespace's first process
-exits, or is killed with its ``unshare`` (``--kill-child``), the kernel kills every process left
-in it. The cluster's files go to a temporary folder of its own (not the shared ``/tmp/ray``),
+exits, or is killed with its ``unshare`` (``--kill-child``; ``unshare`` itself is killed when its
+caller dies or times out), the kernel kills every process left in it. The cluster's files go to a temporary folder of its own (not the shared ``/tmp/ray``),
 removed afterwards.
 
 Outside (the caller)::
@@ -92,12 +92,22 @@ def run_with_ray_cluster(commands: list[dict], *, cpus: int = 2, timeout: float 
         try:
             with open(log, "w") as err:
                 p = subprocess.run([*UNSHARE, sys.executable, __file__, str(spec)], check=False, stdout=err, stderr=err,
-                                   timeout=timeout)
+                                   timeout=timeout, preexec_fn=_die_with_parent)
         except subprocess.TimeoutExpired:  # unshare killed: --kill-child takes the namespace down
             raise RuntimeError(f"the Ray namespace run took more than {timeout:.0f} s: {_tail(log.read_text())}") from None
         if p.returncode != 0 or not out.is_file():
             raise RuntimeError(f"the Ray namespace run failed (exit {p.returncode}): {_tail(log.read_text())}")
         return json.loads(out.read_text())
+
+
+def _die_with_parent() -> None:
+    """In the child before ``unshare`` runs: killed when the caller dies (even by SIGKILL), which takes
+    the namespace and its cluster down (``--kill-child``)."""
+    import ctypes
+    import signal
+
+    PR_SET_PDEATHSIG = 1
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
 
 
 def _tail(text: str, n: int = 3000) -> str:
