@@ -51,6 +51,16 @@ OFFERED_QOS_PROFILES = (
 LIBRARY = "zcut replay.logs.writer"
 
 
+def _text(value: object) -> str:
+    """``str(value)``, with what UTF-8 cannot encode (lone surrogates) backslash-escaped."""
+    s = str(value)
+    try:
+        s.encode("utf-8")
+    except UnicodeEncodeError:
+        s = s.encode("utf-8", "backslashreplace").decode("utf-8")
+    return s
+
+
 def _yaml_str(s: str) -> str:
     return '"' + s.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
 
@@ -64,6 +74,8 @@ class LogWriter:
         Output ``.mcap``; an existing file is replaced.
     metadata : dict[str, dict[str, str]] or None
         Extra MCAP metadata records, name -> key/value strings (e.g. ``{"zcut.synth": {...}}``).
+        Text that UTF-8 cannot hold (a file name with undecodable bytes, kept by Python as lone
+        surrogates) is written backslash-escaped (``\\udcff``): metadata describes, it is not data.
     chunk_size : int
         Target uncompressed chunk size in bytes (each big cloud gets a chunk of its own).
     zstd_level : int
@@ -84,7 +96,7 @@ class LogWriter:
         zstd_level: int = 1,
     ) -> None:
         self.path = Path(path)
-        self._meta = {str(k): {str(a): str(b) for a, b in v.items()} for k, v in (metadata or {}).items()}
+        self._meta = {_text(k): {_text(a): _text(b) for a, b in v.items()} for k, v in (metadata or {}).items()}
         self._file = open(self.path, "wb")
         try:
             self._writer = McapWriter(self._file, chunk_size=chunk_size, zstd_level=zstd_level)
@@ -277,9 +289,9 @@ class LogWriter:
             '  compression_format: ""',
             '  compression_mode: ""',
             "  relative_file_paths:",
-            f"    - {self.path.name}",
+            f"    - {_text(self.path.name)}",
             "  files:",
-            f"    - path: {self.path.name}",
+            f"    - path: {_text(self.path.name)}",
             "      starting_time:",
             f"        nanoseconds_since_epoch: {start}",
             "      duration:",

@@ -1685,8 +1685,8 @@ def gen_paths(rng: np.random.Generator, corpus: Corpus, cid: str) -> Case:
         what += "; --rrd beside --out (one config file for both)"
     if force and template[0] in ("replay", "record", "bin-model", "synth") or (force and template[:2] == ["labels", "export"]):
         argv.append("--force")
-    if template[:2] == ["labels", "import"]:
-        mutable.add("labels.sqlite")
+    if template[:2] == ["labels", "import"]:  # the store is what import writes to, under its name of the case
+        mutable.add(values["db"])
     return Case(cid, "paths", what or "plain", argv, files=files, special=special, mutable=mutable, timeout_s=60.0)
 
 

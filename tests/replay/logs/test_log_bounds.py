@@ -306,15 +306,21 @@ def test_writer_refuses_stamps_outside_ros_time(tmp_path, stamp):
 
 
 # ----------------------------------------------------------------------------- strings (found by the fuzz suite)
-def test_writer_refuses_strings_that_are_not_utf8(tmp_path):
-    """A command-line argument with undecodable bytes (surrogates: ``--frame-id``, a file name in a
-    metadata value) is a one-line ParameterError, not a UnicodeEncodeError; no file is left open."""
+def test_writer_strings_that_are_not_utf8(tmp_path):
+    """Undecodable bytes of a command-line argument (lone surrogates): a ``--frame-id`` (data) is a
+    one-line ParameterError, not a UnicodeEncodeError; a file name in a metadata value or the log's own
+    name (descriptions) are written backslash-escaped."""
     bad = os.fsdecode(b"\xff\xfecam")
     with LogWriter(tmp_path / "s.mcap") as w:
         with pytest.raises(ParameterError, match=r"^frame_id '\\udcff\\udcfecam' is not valid UTF-8 text"):
             w.write_cloud("/p", np.ones((2, 2, 3), np.float32), stamp_ns=1, frame_id=bad)
-    with pytest.raises(ParameterError, match=r"^MCAP string '\\udcff\\udcfecam' is not valid UTF-8 text"):
-        LogWriter(tmp_path / "m.mcap", metadata={"zcut.record": {"sources": bad}})
+    path = tmp_path / (bad + ".mcap")
+    with LogWriter(path, metadata={"zcut.record": {"sources": bad}}) as w:
+        w.write_cloud("/p", np.ones((2, 2, 3), np.float32), stamp_ns=1, frame_id="c")
+    r = LogReader(path)
+    assert r.metadata["zcut.record"] == {"sources": "\\udcff\\udcfecam"}
+    assert "\\udcff\\udcfecam.mcap" in r.metadata["rosbag2"]["serialized_metadata"]
+    assert len(list(r.frames())) == 1
 
 
 def test_mask_files_are_bounded(tmp_path):
