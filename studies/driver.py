@@ -51,7 +51,7 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict, to
     from replay.logs.reader import LogReader
     from replay.pipeline import config as cfg
 
-    paths = expand_logs(inputs)
+    paths = [p.resolve() for p in expand_logs(inputs)]  # absolute: units run in other folders and nodes
     file_layer = cfg.load_toml(config_file) if config_file is not None else None
     plans: list[LogPlan] = []
     for i, path in enumerate(paths):
@@ -84,6 +84,11 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict, to
         first_error = next((p.error for p in plans if p.error), "no frames")
         raise ZcutError(f"no usable log among {len(plans)} input(s): {first_error}")
     return plans
+
+
+def absolute(path: str | None) -> str | None:
+    """An absolute path for the workers (they may run in another folder, on another node)."""
+    return None if path is None else str(Path(path).resolve())
 
 
 def check_study_options(args) -> None:

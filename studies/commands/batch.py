@@ -39,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
     from studies import batch
     from studies.driver import (
         Progress,
+        absolute,
         check_study_options,
         execute,
         identity,
@@ -66,8 +67,8 @@ def run(args: argparse.Namespace) -> int:
         options = study_options(args, overrides) | {"results": args.results, "rrd": args.rrd}
         store = PartStore(args.out, identity("batch", options, plans))
         units, todo = start_units(plans, store, what="", executor=executor)
-        job = Job(config_file=args.config, overrides=overrides, bin_model=args.bin_model, topic=args.topic,
-                  labels=args.labels, annotator=args.annotator, region=args.region,
+        job = Job(config_file=absolute(args.config), overrides=overrides, bin_model=absolute(args.bin_model), topic=args.topic,
+                  labels=absolute(args.labels), annotator=args.annotator, region=args.region,
                   configs={p.sha256: p.config_toml for p in plans if p.units},
                   extra={"out_dir": str(store.root) if (args.results or args.rrd) else None,
                          "results": args.results, "rrd": args.rrd})

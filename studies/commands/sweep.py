@@ -65,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
     from studies import batch, sweep
     from studies.driver import (
         Progress,
+        absolute,
         check_study_options,
         execute,
         identity,
@@ -114,8 +115,8 @@ def run(args: argparse.Namespace) -> int:
         n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if base.sor.enabled else 0)
         units, todo = start_units(plans, store, executor=executor,
                                   what=f"{n_sets} parameter sets ({grid.n_zcut} z-cut, {n_sets - grid.n_zcut} SOR), ")
-        job = Job(config_file=args.config, overrides=overrides, bin_model=args.bin_model, topic=args.topic,
-                  labels=args.labels, annotator=args.annotator, region=args.region,
+        job = Job(config_file=absolute(args.config), overrides=overrides, bin_model=absolute(args.bin_model), topic=args.topic,
+                  labels=absolute(args.labels), annotator=args.annotator, region=args.region,
                   configs={p.sha256: p.config_toml for p in plans if p.units},
                   extra={"grid": sweep.grid_dict(grid)})
         per_frame = len(grid.steps)
