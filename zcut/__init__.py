@@ -22,7 +22,7 @@ from .metrics import (
     sensitivity_of,
 )
 from .params import BinMaskParams, RegistrationParams, RemovalParams, SorParams, ZCutParams
-from .sor import sor_outliers
+from .sor import sor_mean_distances, sor_outliers, sor_outliers_from_distances
 
 __all__ = [
     "BinMaskParams",
@@ -53,7 +53,9 @@ __all__ = [
     "relative_metrics",
     "sensitivity",
     "sensitivity_of",
+    "sor_mean_distances",
     "sor_outliers",
+    "sor_outliers_from_distances",
     "height_mm",
     "valid_mask",
 ]
