@@ -30,6 +30,7 @@ from .sor_camera import BLOCK, KEEP, plane_bound, plane_bound_at
 WINDOW_MAX = BLOCK // 2  # the window of a pixel stays inside its row and column band
 _RING2 = np.array([(dr, dc) for dr in (-2, 2) for dc in range(-2, 3)]
                   + [(dr, dc) for dr in (-1, 0, 1) for dc in (-2, 2)], dtype=np.int64)  # Chebyshev ring 2
+_RING2.setflags(write=False)
 
 
 # --------------------------------------------------------------------------------------------
