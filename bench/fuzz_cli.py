@@ -18,6 +18,7 @@ previous run listed). The per-case cost (wall, CPU of the child, peak RSS) is pr
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import statistics
 import sys
@@ -54,6 +55,13 @@ def main(argv: list[str] | None = None) -> int:
 
     work = args.work or Path(tempfile.mkdtemp(prefix="zcut_fuzz_"))
     t0 = time.perf_counter()
+    if args.corpus is not None and (args.corpus / "corpus.json").is_file():
+        # a kept corpus: compile the kernels anyway (a changed source would otherwise compile in the cases)
+        import subprocess
+
+        env = dict(os.environ, PYTHONPATH=str(fuzzlib.REPO))
+        subprocess.run([fuzzlib.PYTHON, "-m", "replay.warmup"], env=env, cwd=str(fuzzlib.REPO), check=True,
+                       capture_output=True)
     corpus = fuzzgen.ensure_corpus(args.corpus or work / "corpus")
     print(f"corpus: {corpus.dir} ({len(corpus.files)} files, {time.perf_counter() - t0:.1f} s)", flush=True)
     if args.ids:

@@ -745,8 +745,9 @@ def _finish(job: _Job, rep: dict, keep: Path | None) -> Outcome:
         outcome.signature = signature_of(klass, job.case, stderr, detail)
     if klass != "clean" and keep is not None:
         dest = keep / job.case.id
-        if dest.exists():
-            shutil.rmtree(dest)
+        for old in (dest, dest.with_name(dest.name + ".after")):  # a previous run's reproducer
+            if old.exists():
+                shutil.rmtree(old)
         dest.parent.mkdir(parents=True, exist_ok=True)
         # the inputs as they were (the run may have changed them): recreate, then keep the outputs aside
         shutil.move(str(folder), str(dest.with_name(dest.name + ".after")))
