@@ -29,15 +29,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def viewer_command() -> str:
-    """How to start the Rerun viewer: the ``rerun`` binary beside this Python (a venv install
-    does not put it on PATH), else plain ``rerun``."""
-    import shutil
+    """How to start the Rerun viewer: the ``rerun`` binary beside this Python (a venv that is not
+    activated does not have it on the shell's PATH), else plain ``rerun``."""
     from pathlib import Path
 
     beside = Path(sys.executable).with_name("rerun")
-    if beside.is_file() and shutil.which("rerun") != str(beside):
-        return str(beside)
-    return "rerun"
+    return str(beside) if beside.is_file() else "rerun"
 
 
 def _fmt(v: float, spec: str) -> str:

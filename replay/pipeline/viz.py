@@ -127,7 +127,7 @@ def default_blueprint() -> rrb.Blueprint:
             column_shares=[2, 3, 2],
         ),
         # the viewer opens on the depth timeline: scrubbing it descends the z-cuts of the frame shown
-        rrb.TimePanel(timeline="depth_um", expanded=True),
+        rrb.TimePanel(timeline="depth_um", expanded=True, play_state="paused"),
         collapse_panels=False,
     )
 
@@ -170,9 +170,12 @@ def log_static(rec: rr.RecordingStream, *, config_toml: str, notes: tuple[str, .
 
 
 def set_frame_time(rec: rr.RecordingStream, frame: Frame) -> None:
-    """The frame's timelines: ``frame`` (index) and ``stamp`` (the cloud's header stamp)."""
+    """The frame's timelines: ``frame`` (index), ``stamp`` (the cloud's header stamp), and
+    ``depth_um`` = 0, so that on the depth timeline (which the viewer opens on, to scrub the z-cuts)
+    every stage of the last frame replayed shows too."""
     rec.set_time("frame", sequence=int(frame.index))
     rec.set_time("stamp", timestamp=np.datetime64(int(frame.stamp_ns), "ns"))
+    rec.set_time("depth_um", sequence=0)
 
 
 def _image(rgb: np.ndarray, opts: VizOptions):
@@ -332,9 +335,7 @@ def log_cuts(rec: rr.RecordingStream, frame: Frame, result: FrameResult, opts: V
     m, levels = scrub_levels(cut.n_levels, opts)
     lvl = cut.pixel_level[::s, ::s].astype(np.int32)
     seg = np.where(lvl >= 0, (lvl + m - 1) // m + 1, 0).astype(np.uint16)
-    rec.set_time("depth_um", sequence=0)
-    rec.log("zcut/cuts", rr.SegmentationImage(seg))
-    rec.disable_timeline("depth_um")
+    rec.log("zcut/cuts", rr.SegmentationImage(seg))  # at depth_um 0 (set_frame_time)
     depths = np.array([round(k * step_mm * 1000.0) for k in levels], np.int64)
     n = len(levels)
     rec.send_columns("zcut/cuts", indexes=[
