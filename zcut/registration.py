@@ -166,12 +166,29 @@ def _guess(model_top_centre: tuple[np.ndarray, float] | None, t: np.ndarray) -> 
     return T
 
 
-def _cloud(points: np.ndarray, voxel_m: float):
+#: Open3D indexes voxels with 32-bit integers: an extent of more voxels than this along an axis
+#: makes ``voxel_down_sample`` throw (``voxel_size is too small``).
+_MAX_VOXELS_PER_AXIS = 2**30
+
+
+def voxel_down(pc, voxel_m: float, what: str):
+    """``pc.voxel_down_sample(voxel_m)``, after checking that the cloud's extent fits Open3D's voxel
+    index: a cloud spanning ~1e38 m (garbage coordinates) is an :class:`InputShapeError`, not a
+    RuntimeError from C++."""
+    if len(pc.points):
+        extent = np.asarray(pc.get_max_bound()) - np.asarray(pc.get_min_bound())
+        if not np.all(np.isfinite(extent)) or float(extent.max()) / voxel_m > _MAX_VOXELS_PER_AXIS:
+            raise InputShapeError(f"{what} spans {float(extent.max()):.3g} m, too large for a {voxel_m * 1000:g} mm "
+                                  "voxel grid: its coordinates are not those of a bin seen by a camera")
+    return pc.voxel_down_sample(voxel_m)
+
+
+def _cloud(points: np.ndarray, voxel_m: float, what: str = "the target"):
     import open3d as o3d
 
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     if voxel_m > 0:
-        pc = pc.voxel_down_sample(voxel_m)
+        pc = voxel_down(pc, voxel_m, what)
     return pc
 
 
@@ -183,7 +200,7 @@ def _model_cloud(model: np.ndarray, normals: np.ndarray | None, voxel_m: float, 
     if normals is not None:
         pc.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals, np.float64))
     if voxel_m > 0:
-        pc = pc.voxel_down_sample(voxel_m)
+        pc = voxel_down(pc, voxel_m, "the bin model")
     if normals is None or not pc.has_normals():
         pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normal_radius, max_nn=30))
     else:
@@ -419,7 +436,7 @@ def register_bin(
     reg = None
     passes = [(src, dst, params.fine_correspondence_m)]
     if coarse:
-        src_c = src.voxel_down_sample(2.0 * params.voxel_m) if params.voxel_m > 0 else src
+        src_c = voxel_down(src, 2.0 * params.voxel_m, "the target") if params.voxel_m > 0 else src
         passes.insert(0, (src_c, model.coarse, params.max_correspondence_m))
     for s_pc, d_pc, dist in passes:
         reg = o3d.pipelines.registration.registration_icp(s_pc, d_pc, dist, T, est, crit)

@@ -20,7 +20,7 @@ from replay.logs.frame import Frame
 from zcut.bin_model import BinModel
 from zcut.binmask import bin_mask
 from zcut.params import BinMaskParams, RegistrationParams
-from zcut.registration import RegistrationResult, prepare_icp_model, prepare_target, register_bin
+from zcut.registration import RegistrationResult, prepare_icp_model, prepare_target, register_bin, voxel_down
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,7 +38,7 @@ def _with_normals(points: np.ndarray, voxel_m: float):
 
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, np.float64)))
     if voxel_m > 0:
-        pc = pc.voxel_down_sample(voxel_m)
+        pc = voxel_down(pc, voxel_m, "the empty scans")
     radius = max(3.0 * voxel_m, 0.003)
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=30))
     pc.orient_normals_towards_camera_location(np.zeros(3))

@@ -20,7 +20,7 @@ from replay.pipeline.config import PipelineConfig
 from zcut.prepared_model import PreparedBinModel
 from zcut.binmask import BinMaskResult, bin_mask, bin_pixels
 from zcut.cuts import CutResult, find_clusters
-from zcut.errors import ParameterError
+from zcut.errors import InputShapeError, ParameterError
 from zcut.metrics import RelativeMetrics, relative_metrics
 from zcut.params import ZCutParams
 from zcut.registration import RegistrationResult, pose_fitness, prepare_target, register_bin
@@ -189,8 +189,12 @@ def locate_bin(
         pixels = bin_pixels(bm, xyz, ring_frac=c.ring_frac)
         # the ICP downsamples to voxel_mm anyway: a regular subgrid of at most ~150k pixels is enough
         s = max(1, int(np.ceil(np.sqrt(pixels.sum() / REGISTRATION_MAX_POINTS))))
-        target = prepare_target(xyz[::s, ::s][pixels[::s, ::s]].astype(np.float64), voxel_m=c.voxel_m,
-                                intrinsics=frame.intrinsics)
+        try:
+            target = prepare_target(xyz[::s, ::s][pixels[::s, ::s]].astype(np.float64), voxel_m=c.voxel_m,
+                                    intrinsics=frame.intrinsics)
+        except InputShapeError as e:  # e.g. garbage coordinates no voxel grid can hold
+            warnings.append(f"bin registration impossible ({e}): bin stages skipped, z-cut on the whole frame")
+            return BinLocation(valid, None, None, timings, time.perf_counter() - t_start, tuple(warnings))
         reg = None
         if init is not None:
             # a static bin: the seed pose needs only the fine pass (a moved bin: the full one)

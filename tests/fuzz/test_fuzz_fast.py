@@ -26,10 +26,7 @@ TIMEOUT_S = 20.0
 #: Findings that need a change outside the log readers (the pipeline, the command line): case id ->
 #: the finding. They are reported (xfail) instead of failing the suite; one that becomes clean
 #: fails ``test_pending_findings_are_still_open``: remove it from here.
-PENDING: dict[str, str] = {
-    "cloud-20250611-00017": "bin-model on a cloud with coordinates near 3.4e38: Open3D 'voxel_size is too small' "
-                            "RuntimeError traceback (zcut/registration.py _model_cloud)",
-}
+PENDING: dict[str, str] = {}
 
 pytestmark = pytest.mark.timeout(900)
 

@@ -119,6 +119,20 @@ def test_registration_bad_points():
         prepare_target(np.zeros((4, 2)), voxel_m=0.001)
 
 
+def test_coordinates_no_voxel_grid_can_hold_are_an_input_error():
+    """Open3D throws a RuntimeError from C++ when the extent / voxel overflows its 32-bit voxel index
+    (found by the fuzz suite: a cloud with coordinates near 3.4e38)."""
+    from zcut.bin_model import BinModel
+
+    huge = np.array([[0.0, 0.0, 1.0], [3.4e38, -3.4e38, 1.0], [1.0, 1.0, 1.0]])
+    with pytest.raises(InputShapeError, match="the target spans 3.4e"):
+        prepare_target(huge, voxel_m=0.003)
+    with pytest.raises(InputShapeError, match="the bin model spans"):
+        prepare_icp_model(BinModel(huge, None, 0.003), RegistrationParams())
+    ok = prepare_target(np.random.default_rng(0).uniform(-0.3, 0.3, (500, 3)), voxel_m=0.003)
+    assert 0 < len(ok.cloud.points) <= 500
+
+
 def test_pose_fitness_scores_a_pose_without_icp(filled, model):
     frame, _ = filled
     target = frame.xyz[bin_mask(frame.rgb).walls].astype(np.float64)
