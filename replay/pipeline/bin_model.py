@@ -19,6 +19,7 @@ from replay.errors import LogFormatError
 from replay.logs.frame import Frame
 from zcut.bin_model import BinModel
 from zcut.binmask import bin_mask
+from zcut.errors import InputShapeError
 from zcut.params import BinMaskParams, RegistrationParams
 from zcut.registration import RegistrationResult, prepare_icp_model, prepare_target, register_bin, voxel_down
 
@@ -33,21 +34,21 @@ class ScanReport:
     skipped: str  # why the scan was left out, else ""
 
 
-def _with_normals(points: np.ndarray, voxel_m: float):
+def _with_normals(points: np.ndarray, voxel_m: float, what: str):
     import open3d as o3d
 
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, np.float64)))
     if voxel_m > 0:
-        pc = voxel_down(pc, voxel_m, "the empty scans")
+        pc = voxel_down(pc, voxel_m, what)
     radius = max(3.0 * voxel_m, 0.003)
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=30))
     pc.orient_normals_towards_camera_location(np.zeros(3))
     return pc
 
 
-def model_from_points(points: np.ndarray, *, voxel_mm: float = 1.0) -> BinModel:
+def model_from_points(points: np.ndarray, *, voxel_mm: float = 1.0, what: str = "the bin model") -> BinModel:
     """Downsample (N, 3) metre points and estimate normals: a :class:`BinModel`."""
-    pc = _with_normals(points, voxel_mm / 1000.0)
+    pc = _with_normals(points, voxel_mm / 1000.0, what)
     return BinModel(np.asarray(pc.points, dtype=np.float64).copy(),
                     np.asarray(pc.normals, dtype=np.float64).copy(), max(voxel_mm / 1000.0, 1e-4))
 
@@ -105,7 +106,7 @@ def build_bin_model(
         reports.append(ScanReport(frame.index, len(pts), reg, ""))
     if not parts:
         raise LogFormatError("no empty-bin scan gave bin points (need RGB images showing the bin)")
-    return model_from_points(np.concatenate(parts), voxel_mm=voxel_mm), reports
+    return model_from_points(np.concatenate(parts), voxel_mm=voxel_mm, what="the bin points of the empty scans"), reports
 
 
 def save_bin_model(model: BinModel, path: str | Path) -> None:
@@ -117,19 +118,6 @@ def save_bin_model(model: BinModel, path: str | Path) -> None:
         pc.normals = o3d.utility.Vector3dVector(model.normals)
     if not o3d.io.write_point_cloud(str(path), pc, write_ascii=False):
         raise LogFormatError(f"{path}: could not write the bin model")
-
-
-def _ply_has_faces(path: Path) -> bool:
-    """True when a PLY header declares a non-empty ``face`` element (a mesh, not a point cloud)."""
-    with open(path, "rb") as f:
-        head = f.read(4096)
-    if not head.startswith(b"ply"):
-        raise LogFormatError(f"{path}: not a PLY file (expected a PLY point cloud or mesh)")
-    for line in head.split(b"end_header")[0].splitlines():
-        parts = line.split()
-        if len(parts) == 3 and parts[0] == b"element" and parts[1] == b"face":
-            return int(parts[2]) > 0
-    return False
 
 
 def _median_spacing(pts: np.ndarray, *, sample: int = 4096) -> float:
@@ -146,26 +134,39 @@ def load_bin_model(path: str | Path, *, voxel_mm: float = 1.0) -> BinModel:
     """Read a bin model PLY: a point cloud (as saved here) or a mesh (a CAD model, sampled).
 
     Points are metres in a frame whose up is -z. Normals are estimated when the file has none.
+    The file is read by :func:`replay.logs.ply.read_ply_model` (counts checked against the bytes
+    present and the caps, coordinates finite).
     """
-    import open3d as o3d
+    from replay.logs.ply import read_ply_model
 
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(2, "No such file", str(p))
+    ply = read_ply_model(p)
+    pts = ply.points
+    if len(pts) == 0:
+        raise LogFormatError(f"{p}: no points in the bin model (expected a PLY point cloud or mesh)")
+    try:
+        return _model_of(ply, voxel_mm)
+    except InputShapeError as e:  # coordinates no voxel grid can hold
+        raise LogFormatError(f"{p}: {e}") from None
+
+
+def _model_of(ply, voxel_mm: float) -> BinModel:
+    import open3d as o3d
+
+    pts = ply.points
     voxel_m = voxel_mm / 1000.0
-    if _ply_has_faces(p):
-        mesh = o3d.io.read_triangle_mesh(str(p))
+    if ply.faces is not None and len(ply.faces):
+        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(pts),
+                                         o3d.utility.Vector3iVector(np.ascontiguousarray(ply.faces, np.int32)))
         area = mesh.get_surface_area()
         n = int(min(max(area / (voxel_m * voxel_m), 1000), 2_000_000))
         pc = mesh.sample_points_uniformly(number_of_points=n)
         return model_from_points(np.asarray(pc.points), voxel_mm=voxel_mm)
-    pc = o3d.io.read_point_cloud(str(p))
-    pts = np.asarray(pc.points, dtype=np.float64)
-    if len(pts) == 0:
-        raise LogFormatError(f"{p}: no points in the bin model (expected a PLY point cloud or mesh)")
-    if pc.has_normals():
+    if ply.normals is not None:
         spacing = _median_spacing(pts) if len(pts) > 1 else voxel_m
-        return BinModel(pts.copy(), np.asarray(pc.normals, dtype=np.float64).copy(), max(spacing, 1e-4))
+        return BinModel(pts.copy(), ply.normals.copy(), max(spacing, 1e-4))
     return model_from_points(pts, voxel_mm=voxel_mm)
 
 
