@@ -116,7 +116,16 @@ def run(args: argparse.Namespace) -> int:
                 png = f.with_suffix(".png")
                 src = "cloud colours" if rgb is not None else "no colour"
                 if png.is_file():
-                    bgr = cv2.imread(str(png), cv2.IMREAD_COLOR)
+                    size = _png_size(png)
+                    if size != xyz.shape[:2]:
+                        raise LogFormatError(
+                            f"{png}: image is {size[0]}x{size[1]} but its cloud {f.name} is "
+                            f"{xyz.shape[0]}x{xyz.shape[1]}"
+                        )
+                    try:
+                        bgr = cv2.imread(str(png), cv2.IMREAD_COLOR)
+                    except cv2.error:
+                        bgr = None
                     if bgr is None:
                         raise LogFormatError(f"{png}: not a readable image")
                     if bgr.shape[:2] != xyz.shape[:2]:
@@ -137,3 +146,15 @@ def run(args: argparse.Namespace) -> int:
                 )
     print(f"wrote {len(files)} frames to {out}")
     return 0
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    """(height, width) from a PNG's IHDR, read before anything is decoded (a 100-byte file can claim
+    2**31 x 2**31 pixels)."""
+    from replay.errors import LogFormatError
+
+    with open(path, "rb") as f:
+        head = f.read(24)
+    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        raise LogFormatError(f"{path}: not a PNG image")
+    return int.from_bytes(head[20:24], "big"), int.from_bytes(head[16:20], "big")

@@ -386,6 +386,25 @@ def test_record_png_size_mismatch(tmp_path, crop, capsys):
     assert "a.png: image is 10x10 but its cloud a.ply is 30x45" in capsys.readouterr().err
 
 
+def test_record_png_sidecar_is_sized_from_its_header_before_decoding(tmp_path, crop, capsys):
+    """A PNG whose IHDR claims 100000 x 100000 pixels (fuzz: OpenCV asserted CV_IO_MAX_IMAGE_PIXELS
+    with a traceback) and a .png that is no PNG are one-line errors."""
+    import struct
+    import zlib
+
+    xyz, rgb = crop
+    write_ply(tmp_path / "a.ply", xyz, rgb)
+    ihdr = struct.pack(">IIBBBBB", 100000, 100000, 8, 2, 0, 0, 0)
+    chunk = struct.pack(">I", len(ihdr)) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
+    (tmp_path / "a.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk)
+    assert main(["record", str(tmp_path / "a.ply"), "-o", str(tmp_path / "o.mcap")]) == 1
+    assert "a.png: image is 100000x100000 but its cloud a.ply is 30x45" in capsys.readouterr().err
+    (tmp_path / "a.png").write_bytes(b"GIF89a" + bytes(100))
+    assert main(["record", str(tmp_path / "a.ply"), "-o", str(tmp_path / "o.mcap")]) == 1
+    assert "a.png: not a PNG image" in capsys.readouterr().err
+    assert not (tmp_path / "o.mcap").exists()
+
+
 def test_topics_command(real_data, tmp_path):
     run = [sys.executable, "-m", "replay.cli", "topics"]
     ok = subprocess.run([*run, str(real_data / "ouster_os1_64_ros2_reencoded.mcap")], capture_output=True, text=True)
