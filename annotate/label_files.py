@@ -17,6 +17,7 @@ from annotate.store import (
     LogRecord,
     StoreError,
     iter_current_labels,
+    normalize_annotator,
 )
 from replay.logs import layout
 
@@ -84,7 +85,7 @@ def import_labels(store: LabelStore, path: str | os.PathLike, *, annotator: str 
             f"{path}: labels are for log {meta.get('log_name', '?')} (sha256 {meta.get('log_sha256', '?')[:12]}…), "
             f"which is not registered in {store.path}"
         )
-    who = annotator or meta.get("annotator", "")
+    who = normalize_annotator(annotator or meta.get("annotator", ""))  # before any query uses it
     cloud_topics = [t for t in meta.get("cloud_topics", "").split(",") if t]
     n = 0
     for stamp, pair in sorted(masks.items()):

@@ -148,6 +148,10 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as e:
         print(f"error: {_os_error_message(e)}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except UnicodeEncodeError as e:  # undecodable bytes of a file name or argument, where text is needed
+        print(f"error: {e.object[:80]!r} is not valid UTF-8 text, which is needed here "
+              "(a file name or an argument with undecodable bytes?)", file=sys.stderr)
+        return EXIT_USER_ERROR
     except (OverflowError, RecursionError, MemoryError) as e:
         kind = {OverflowError: "a number is out of range", RecursionError: "input nested too deeply",
                 MemoryError: "not enough memory"}[type(e)]

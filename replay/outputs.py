@@ -136,6 +136,14 @@ def _umask() -> int:
     return 0o022
 
 
+def _utf8(name: str) -> bool:
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:  # undecodable bytes of a file name (surrogate escapes)
+        return False
+    return True
+
+
 class AtomicOutput:
     """Write a file beside its final path and rename it into place when complete.
 
@@ -151,7 +159,10 @@ class AtomicOutput:
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = Path(path)
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=f".partial{self.path.suffix}",
+        # the temporary name is valid UTF-8 even when the final one is not (writers in Rust, e.g.
+        # Rerun's, take only UTF-8 paths); the rename to the final name takes any bytes
+        stem, suffix = (n if _utf8(n) else "output" for n in (self.path.stem, self.path.suffix))
+        fd, tmp = tempfile.mkstemp(prefix=f".{stem}.", suffix=f".partial{suffix if _utf8(suffix) else ''}",
                                    dir=self.path.parent if str(self.path.parent) else ".")
         os.close(fd)
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes it 0600; a finished output is like any new file

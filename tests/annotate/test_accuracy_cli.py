@@ -183,6 +183,9 @@ def test_labels_list_export_import(spike_log, tmp_path, capsys):
     assert stamps == [fr.stamp_ns for fr in LogReader(log).frames()][:2]
     assert np.array_equal(masks[stamps[1]]["/labels/outliers"], truths[1] & valid[1])
     # import as another annotator: accuracy by them equals accuracy by ann
+    # an annotator name from undecodable command-line bytes is refused before the store is queried
+    assert main(["labels", "import", str(out), "--db", str(db), "--annotator", "\udcff\udcfe"]) == 1
+    assert "character U+DCFF (unnamed) is not allowed" in capsys.readouterr().err
     assert main(["labels", "import", str(out), "--db", str(db), "--annotator", "dan"]) == 0
     assert "imported 2 label(s)" in capsys.readouterr().out
     a = _json(capsys, ["accuracy", str(log), "--labels", str(db), "--annotator", "ann", "--json"])

@@ -43,6 +43,19 @@ def log(tmp_path_factory):
 # ------------------------------------------------------------------ the OutputPlan and AtomicOutput
 
 
+def test_outputs_with_undecodable_names_are_written(tmp_path, log, capsys):
+    """A file name with bytes that are not UTF-8 (fuzz: Rerun's writer, in Rust, took only UTF-8
+    paths and the run ended in a UnicodeEncodeError): the temporary file has a UTF-8 name and the
+    rename gives the output the user's name."""
+    name = os.fsdecode(b"\xff\xfeout.rrd")
+    run = subprocess.run([sys.executable, "-m", "replay.cli", "replay", str(log), "--frames", "0:1",
+                          "--rrd", str(tmp_path / name)], capture_output=True)
+    assert run.returncode == 0, run.stderr.decode(errors="replace")
+    assert b"wrote rrd" in run.stderr
+    assert os.fsencode(tmp_path / name) in [os.fsencode(p) for p in tmp_path.iterdir()]
+    assert not [p for p in tmp_path.iterdir() if ".partial" in p.name]
+
+
 def test_output_plan_refuses_every_alias_of_an_input(tmp_path):
     src = tmp_path / "in.mcap"
     src.write_bytes(b"data")
