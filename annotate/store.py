@@ -47,6 +47,7 @@ import sqlite3
 import threading
 import time
 import unicodedata
+import urllib.parse
 import zlib
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -368,28 +369,61 @@ class LabelStore:
     ----------
     path : path-like
         The SQLite file; created (with the current schema) if absent.
+    read_only : bool
+        Open for reading only (``labels list``/``export``, ``accuracy``, ``sweep``, ``batch``): the
+        file must exist at the current schema version and is never written.
 
     Use as a context manager or call :meth:`close`.
     """
 
-    def __init__(self, path: str | os.PathLike) -> None:
+    def __init__(self, path: str | os.PathLike, *, read_only: bool = False) -> None:
         self.path = Path(path)
+        self.read_only = read_only
         self._lock = threading.RLock()
         try:
-            self._db = sqlite3.connect(
-                self.path, timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None, check_same_thread=False
-            )
+            if read_only:  # the file is never written, not even to switch its journal or migrate it
+                if not self.path.is_file():
+                    raise FileNotFoundError(2, "no such file", str(self.path))
+                uri = "file:" + urllib.parse.quote(os.path.abspath(self.path)) + "?mode=ro"
+                self._db = sqlite3.connect(uri, uri=True, timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None,
+                                           check_same_thread=False)
+            else:
+                self._db = sqlite3.connect(
+                    self.path, timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None, check_same_thread=False
+                )
         except sqlite3.Error as e:
             raise StoreError(f"cannot open label store {self.path}: {e}") from e
         try:
-            self._configure()
-            self._migrate()
+            self._refuse_foreign()
+            if read_only:
+                self._db.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
+                version = self.schema_version
+                if version == 0:
+                    raise StoreError(f"{self.path} holds no label store yet (label a log with zcut annotate "
+                                     "or zcut labels import first)")
+                if version != SCHEMA_VERSION:
+                    raise StoreError(
+                        f"label store {self.path} has schema version {version}, this zcut reads {SCHEMA_VERSION}"
+                        + (" (open it once with zcut annotate or zcut labels import to upgrade it)"
+                           if version < SCHEMA_VERSION else ""))
+            else:
+                self._configure()
+                self._migrate()
         except sqlite3.DatabaseError as e:
             self._db.close()
             raise StoreError(f"cannot use {self.path} as a label store: {e}") from e
         except BaseException:
             self._db.close()
             raise
+
+    def _refuse_foreign(self) -> None:
+        """An SQLite file of another application (tables but no zcut schema version) is never touched."""
+        if self.schema_version == 0:
+            tables = [r[0] for r in self._db.execute(
+                "SELECT name FROM sqlite_master WHERE type = 'table' ORDER BY name LIMIT 4").fetchall()]
+            if tables:
+                raise StoreError(f"{self.path} is an SQLite database of something else (tables "
+                                 f"{', '.join(tables)}), not a zcut label store; it was left unchanged")
 
     # ------------------------------------------------------------------ setup
     def _configure(self) -> None:

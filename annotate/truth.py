@@ -127,7 +127,7 @@ class LabelTruth:
         self.db = Path(db)
         if not self.db.is_file():
             raise FileNotFoundError(2, "no such file", str(db))
-        self.store = LabelStore(self.db)
+        self.store = LabelStore(self.db, read_only=True)
         self.log = self.store.log_by_sha(file_sha256(log))
         known = self.store.annotators(self.log) if self.log is not None else self.store.annotators()
         if annotator is not None:

@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
         from replay.outputs import OutputPlan
 
         OutputPlan([args.log, args.db], force=args.force).add(args.out, "the label export")
-    with LabelStore(args.db) as store:
+    with LabelStore(args.db, read_only=args.action != "import") as store:
         if args.action == "import":
             if args.log is not None:
                 n_frames = register_log(store, args.log)

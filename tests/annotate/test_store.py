@@ -183,6 +183,46 @@ def test_not_a_database_is_a_store_error(tmp_path):
         LabelStore(path)
 
 
+def test_a_database_of_another_application_is_never_touched(tmp_path):
+    """Fuzz: ``labels list`` on another program's SQLite file created zcut's tables in it."""
+    path = tmp_path / "other.sqlite"
+    db = sqlite3.connect(path)
+    db.execute("CREATE TABLE inventory (id INTEGER PRIMARY KEY, name TEXT)")
+    db.execute("INSERT INTO inventory (name) VALUES ('bolt')")
+    db.commit()
+    db.close()
+    before = path.read_bytes()
+    for read_only in (False, True):
+        with pytest.raises(StoreError, match="SQLite database of something else .tables inventory."):
+            LabelStore(path, read_only=read_only)
+    assert path.read_bytes() == before
+
+
+def test_read_only_stores_are_never_written(tmp_path, log_file, rng, valid):
+    path = tmp_path / "p.sqlite"
+    with LabelStore(path) as store:
+        log = store.add_log(log_file)
+        fr = store.add_frame(log, topic="/c", stamp_ns=5, index=0, shape=SHAPE, valid=valid)
+        l1, r1 = _label(rng, valid)
+        store.save_label(fr, annotator="ann", outliers=l1, reviewed=r1, base_revision=0)
+    files = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.name.startswith("p.sqlite")}
+    with LabelStore(path, read_only=True) as store:
+        fr = store.frame(store.log_by_sha(file_sha256(log_file)), topic="/c", stamp_ns=5)
+        assert np.array_equal(store.label(fr, annotator="ann").outliers, l1)
+        with pytest.raises(sqlite3.OperationalError, match="readonly"):
+            store.add_log(tmp_path / "p.sqlite")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.name.startswith("p.sqlite")
+            and p.name in files} == files
+    empty = tmp_path / "empty.sqlite"
+    empty.touch()
+    with pytest.raises(StoreError, match="holds no label store yet"):
+        LabelStore(empty, read_only=True)
+    assert empty.stat().st_size == 0
+    with pytest.raises(FileNotFoundError):
+        LabelStore(tmp_path / "nope.sqlite", read_only=True)
+    assert not (tmp_path / "nope.sqlite").exists()
+
+
 def test_export_import_roundtrip(store_frame, rng, valid, tmp_path):
     store, log, fr0 = store_frame
     fr1 = store.add_frame(log, topic="/camera/points", stamp_ns=2_000, index=1, shape=SHAPE, valid=valid)
