@@ -222,13 +222,19 @@ def load_toml(path: str | Path) -> dict[str, Any]:
     Raises :class:`ConfigError` naming the file for anything wrong in it: not UTF-8 text, not TOML,
     nested too deeply, unknown keys, bad values.
     """
+    import os
+    import stat
+
     p = Path(path)
-    try:
-        raw = p.read_bytes()
-    except IsADirectoryError:
-        raise ConfigError(f"{p}: is a directory, not a config file") from None
+    if p.is_dir():
+        raise ConfigError(f"{p}: is a directory, not a config file")
+    if p.exists() and not stat.S_ISREG(os.stat(p).st_mode):
+        # /dev/zero, a FIFO, a terminal: never read without end
+        raise ConfigError(f"{p}: not a regular file, not a config file")
+    with open(p, "rb") as f:
+        raw = f.read((1 << 20) + 1)
     if len(raw) > 1 << 20:
-        raise ConfigError(f"{p}: {len(raw)} bytes is too large for a config file (at most 1 MiB)")
+        raise ConfigError(f"{p}: too large for a config file (more than 1 MiB)")
     try:
         text = raw.decode("utf-8")
         data = tomllib.loads(text)

@@ -84,6 +84,24 @@ def test_toml_errors_of_a_binary_or_deep_file(tmp_path):
         cfg.load_toml(d)
 
 
+def test_toml_of_a_special_or_huge_file_is_refused_without_reading_it_all(tmp_path):
+    """Fuzz: ``bin-model --config /dev/zero`` read without end (killed at 3 GB)."""
+    import os
+
+    with pytest.raises(ConfigError, match="/dev/zero: not a regular file"):
+        cfg.load_toml("/dev/zero")
+    fifo = tmp_path / "pipe.toml"
+    os.mkfifo(fifo)
+    with pytest.raises(ConfigError, match=r"pipe\.toml: not a regular file"):
+        cfg.load_toml(fifo)  # no writer: reading would block forever
+    with pytest.raises(ConfigError, match="is a directory"):
+        cfg.load_toml(tmp_path)
+    big = tmp_path / "big.toml"
+    big.write_text("# " + "x" * (1 << 21) + "\n")
+    with pytest.raises(ConfigError, match=r"big\.toml: too large for a config file"):
+        cfg.load_toml(big)
+
+
 def test_toml_round_trip(tmp_path):
     c = cfg.from_dict({"zcut": {"step_mm": 0.3, "max_area_px": 123.5}, "sor": {"convention": "open3d"},
                        "removal": {"search_radius_mm": 2.0}, "bin_mask": {"enabled": False}})
