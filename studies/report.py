@@ -1245,5 +1245,5 @@ def write_report(out_dir: Path, summary: dict) -> Path:
     tuned_toml = tuned_path.read_text(encoding="utf-8") if tuned_path.is_file() else None
     page = render_html(summary, plots, tuned_toml=tuned_toml, out_dir=out_dir)
     path = out_dir / REPORT_NAME
-    _write_bytes(path, page.encode("utf-8"))
+    _write_bytes(path, page.encode("utf-8", errors="backslashreplace"))
     return path

@@ -89,7 +89,7 @@ class NullSink:
 def _write_config_beside(path: Path, info: ReplayStart) -> Path:
     cp = config_path_for(path)
     with AtomicOutput(cp) as out:
-        out.temp.write_text(info.config_toml)
+        out.temp.write_text(info.config_toml, encoding="utf-8", errors="backslashreplace")  # undecodable log names
     return cp
 
 

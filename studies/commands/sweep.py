@@ -231,7 +231,7 @@ def _write_tuned(store, base, tuned: dict, args) -> Path | None:
     from replay.outputs import AtomicOutput
 
     with AtomicOutput(path) as out:
-        out.temp.write_text(cfg.to_toml(tuned_cfg, header=header))
+        out.temp.write_text(cfg.to_toml(tuned_cfg, header=header), encoding="utf-8", errors="backslashreplace")
     return path
 
 
