@@ -1358,7 +1358,8 @@ def mutate_ply(rng: np.random.Generator, raw: bytes) -> tuple[bytes, str]:
         if fmt == b"ascii":
             extra = (" ".join(repr(x) for x in vals) + "\n").encode()
         else:
-            extra = np.array(vals, dtype=("<" if fmt == b"binary_little_endian" else ">") + "f4").tobytes()
+            with np.errstate(over="ignore"):  # 1e300 as float32 is inf, on purpose
+                extra = np.array(vals, dtype=("<" if fmt == b"binary_little_endian" else ">") + "f4").tobytes()
         if at is None and "range_grid" not in idx:
             body = body + extra
         elif at is not None and fmt != b"ascii":
