@@ -487,15 +487,28 @@ class LabelStore:
                     self.store._db.execute("COMMIT")
                 else:
                     self.store._db.execute("ROLLBACK")
+            except sqlite3.DatabaseError as e:
+                raise self.store._damaged(e) from e
             finally:
                 self.store._lock.release()
+            if exc_type is sqlite3.DatabaseError:  # not its subclasses (conflicts, a busy file)
+                raise self.store._damaged(exc) from exc
+
+    def _damaged(self, e: BaseException) -> StoreError:
+        """A damaged file (a malformed schema, a corrupt page) found by a query: one line naming it."""
+        return StoreError(f"label store {self.path} is damaged: {e}")
 
     def _write(self) -> LabelStore._Tx:
         return LabelStore._Tx(self)
 
     def _query(self, sql: str, params: Sequence = ()) -> list[tuple]:
         with self._lock:
-            return self._db.execute(sql, params).fetchall()
+            try:
+                return self._db.execute(sql, params).fetchall()
+            except sqlite3.DatabaseError as e:
+                if type(e) is sqlite3.DatabaseError:
+                    raise self._damaged(e) from e
+                raise
 
     # ------------------------------------------------------------------- logs
     def add_log(self, path: str | os.PathLike, *, sha256: str | None = None) -> LogRecord:

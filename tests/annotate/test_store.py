@@ -198,6 +198,26 @@ def test_a_database_of_another_application_is_never_touched(tmp_path):
     assert path.read_bytes() == before
 
 
+def test_a_damaged_store_found_by_a_query_is_a_store_error(tmp_path, log_file, rng, valid):
+    """Fuzz: one flipped byte in the schema (an orphan index) opened fine and failed at the first
+    query with a bare sqlite3.DatabaseError traceback."""
+    path = tmp_path / "d.sqlite"
+    with LabelStore(path) as store:
+        log = store.add_log(log_file)
+        store.add_frame(log, topic="/c", stamp_ns=5, index=0, shape=SHAPE, valid=valid)
+    data = path.read_bytes()
+    assert b"sqlite_autoindex_labels_1" in data
+    path.write_bytes(data.replace(b"sqlite_autoindex_labels_1", b"sqlite_autoindex_labe4s_1"))
+    for read_only in (True, False):
+        try:
+            store = LabelStore(path, read_only=read_only)
+        except StoreError as e:  # found at open: fine too
+            assert "d.sqlite" in str(e)
+            continue
+        with store, pytest.raises(StoreError, match=r"d\.sqlite is damaged: malformed database schema"):
+            store.log_by_sha(file_sha256(log_file))
+
+
 def test_read_only_stores_are_never_written(tmp_path, log_file, rng, valid):
     path = tmp_path / "p.sqlite"
     with LabelStore(path) as store:
