@@ -238,10 +238,7 @@ class ServerProcess:
 
 
 # --------------------------------------------------------------------------- the browser
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-                 "--disable-sync", "--no-first-run", "--disable-quic", "--disable-extensions",
-                 "--disable-default-apps", "--no-default-browser-check", "--metrics-recording-only"]
+from browser_helpers import CHROMIUM, CHROMIUM_ARGS  # noqa: E402,F401 (re-exported)
 
 
 def wait_until(page, expr: str, *, timeout_s: float = 60.0) -> None:

@@ -35,3 +35,22 @@ def real_data() -> Path:
             pytest.fail(why)
         pytest.skip(why)
     return REAL_DATA
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Debian's chromium, headless, through Playwright (one per test module).
+
+    CI installs chromium (scripts/install.sh --test): there a missing browser is a failure, not a
+    reason to pass without the browser tests."""
+    from browser_helpers import CHROMIUM, CHROMIUM_ARGS
+
+    sync_api = pytest.importorskip("playwright.sync_api")
+    if not os.path.exists(CHROMIUM):
+        if os.environ.get("CI"):
+            pytest.fail(f"{CHROMIUM} not installed (run: bash scripts/install.sh --test)")
+        pytest.skip(f"{CHROMIUM} not installed (run: bash scripts/install.sh --test)")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        yield b
+        b.close()

@@ -17,27 +17,6 @@ from annotate.store import LabelStore, file_sha256
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-                 "--disable-sync", "--no-first-run", "--disable-quic"]
-
-
-@pytest.fixture(scope="module")
-def browser():
-    sync_api = pytest.importorskip("playwright.sync_api")
-    import os
-
-    if not os.path.exists(CHROMIUM):
-        # CI installs chromium (scripts/install.sh --test): there a missing browser is a failure,
-        # not a reason to pass without the browser tests.
-        if os.environ.get("CI"):
-            pytest.fail(f"{CHROMIUM} not installed (run: bash scripts/install.sh --test)")
-        pytest.skip(f"{CHROMIUM} not installed (run: bash scripts/install.sh --test)")
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        yield b
-        b.close()
-
 
 def wait_until(page, expr: str, *, timeout_s: float = 60.0) -> None:
     """Poll a JS expression with page.evaluate: the page's CSP forbids the eval that Playwright's

@@ -8,8 +8,6 @@ import httpx
 import numpy as np
 import pytest
 from annotate_helpers import (
-    CHROMIUM,
-    CHROMIUM_ARGS,
     REVIEW_CLUSTERS,
     ServerProcess,
     close_page,
@@ -23,21 +21,6 @@ from annotate.store import LabelStore, file_sha256
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 MAX_INPUTS = 20
-
-
-@pytest.fixture(scope="module")
-def browser():
-    import os
-
-    sync_api = pytest.importorskip("playwright.sync_api")
-    if not os.path.exists(CHROMIUM):
-        if os.environ.get("CI"):
-            pytest.fail(f"{CHROMIUM} not installed (run: bash scripts/install.sh --test)")
-        pytest.skip(f"{CHROMIUM} not installed (run: bash scripts/install.sh --test)")
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        yield b
-        b.close()
 
 
 def test_a_person_reviews_a_1920x1200_frame_in_15_inputs(tmp_path, browser):

@@ -11,8 +11,6 @@ import httpx
 import numpy as np
 import pytest
 from annotate_helpers import (
-    CHROMIUM,
-    CHROMIUM_ARGS,
     ServerProcess,
     close_page,
     open_page,
@@ -24,21 +22,6 @@ from annotate.payload import COLUMN, SOURCE_ZCUT, parse_bundle
 from replay.logs.reader import LogReader
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
-
-
-@pytest.fixture(scope="module")
-def browser():
-    import os
-
-    sync_api = pytest.importorskip("playwright.sync_api")
-    if not os.path.exists(CHROMIUM):
-        if os.environ.get("CI"):
-            pytest.fail(f"{CHROMIUM} not installed (run: bash scripts/install.sh --test)")
-        pytest.skip(f"{CHROMIUM} not installed (run: bash scripts/install.sh --test)")
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        yield b
-        b.close()
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,6 @@ import dataclasses
 import html
 import json
 import math
-import os
 import tomllib
 from html.parser import HTMLParser
 from pathlib import Path
@@ -28,9 +27,6 @@ from studies.batch import jsonable
 from studies.grid import Grid
 from studies.sweep import parse_objective, pooled_sets, sensitivity_at, tune
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-                 "--disable-sync", "--no-first-run", "--disable-quic"]
 A_MAX = 171.4
 NOMINAL = (0.2, 30.0, 0.07)
 
@@ -328,19 +324,6 @@ def test_plotting_leaves_no_pyplot_state(tmp_path):
 
 
 # ------------------------------------------------------------------------------------- the browser
-
-
-@pytest.fixture(scope="module")
-def browser():
-    sync_api = pytest.importorskip("playwright.sync_api")
-    if not os.path.exists(CHROMIUM):
-        if os.environ.get("CI"):
-            pytest.fail(f"{CHROMIUM} not installed (run: bash scripts/install.sh --test)")
-        pytest.skip(f"{CHROMIUM} not installed (run: bash scripts/install.sh --test)")
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        yield b
-        b.close()
 
 
 @pytest.mark.browser
