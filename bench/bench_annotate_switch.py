@@ -32,7 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+# the repository before tests/, whose replay/ and annotate/ folders mirror the packages
+sys.path[:0] = [str(Path(__file__).resolve().parents[1]), str(Path(__file__).resolve().parents[1] / "tests")]
 from annotate_helpers import CHROMIUM, CHROMIUM_ARGS, local_only
 
 TARGET_MS = 150.0

@@ -38,7 +38,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+# the repository before tests/, whose replay/ and annotate/ folders mirror the packages
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 # the scene the tests review, built the same way, and the browser the tests use
 from annotate_helpers import (
     CHROMIUM,

@@ -19,9 +19,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests" / "replay" / "logs"))
-sys.path.insert(0, str(ROOT / "tests"))
+# the repository before tests/, whose replay/ and annotate/ folders mirror the packages
+sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "replay" / "logs"), str(ROOT / "tests")]
 
 from replay.logs.pcd import read_pcd  # noqa: E402
 from replay.logs.ply import read_ply  # noqa: E402
