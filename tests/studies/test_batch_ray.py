@@ -120,6 +120,9 @@ def runs(tmp_path_factory):
     replay = {name: json.loads(_ok(_zcut("replay", name, "--bin-model", "bin.ply", "--json", cwd=d)).stdout)
               for name in logs}
     local = _zcut("batch", *logs, "-o", "local", "--bin-model", "bin.ply", cwd=d)
+    grid = ["--step", "0.2,0.4", "--max-depth", "15,30", "--rho", "0.05,0.07", "--sor-k", "4", "--sor-std", "1,2",
+            "--no-report", "--bin-model", "bin.ply"]
+    sweep_local = _zcut("sweep", *logs, "-o", "sweep_local", *grid, cwd=d)
     z = {"cwd": str(d)}
     cluster = run_with_ray_cluster([
         {"argv": [ZCUT, "batch", *logs, "-o", "ray", "--bin-model", "bin.ply", "--ray", ADDRESS], **z},
@@ -128,10 +131,12 @@ def runs(tmp_path_factory):
         {"argv": [ZCUT, "batch", *logs, "-o", "nowhere", "--ray", "127.0.0.1:1"], **z},
         {"argv": [ZCUT, "batch", *logs, "-o", "nowhere_auto", "--ray", "auto"], "env": {"RAY_ADDRESS": "127.0.0.1:2"},
          **z},
+        {"argv": [ZCUT, "sweep", *logs, "-o", "sweep_ray", *grid, "--ray", ADDRESS], **z},
     ], cpus=2, timeout=900)
-    ray, split, nowhere, nowhere_auto = cluster["results"]
+    ray, split, nowhere, nowhere_auto, sweep_ray = cluster["results"]
     return {"dir": d, "logs": logs, "replay": replay, "local": local, "ray": ray, "split": split,
-            "nowhere": [nowhere, nowhere_auto], "interfaces": cluster["interfaces"]}
+            "nowhere": [nowhere, nowhere_auto], "interfaces": cluster["interfaces"],
+            "sweep_local": sweep_local, "sweep_ray": sweep_ray}
 
 
 def test_the_cluster_saw_loopback_only(runs):
@@ -176,6 +181,34 @@ def test_a_log_split_over_ray_tasks_gives_the_same_rows(runs):
     want = local.filter(pc.equal(local.column("log"), "a.mcap"))
     assert table_differences(got, want.drop_columns(["log", "log_sha256"])) == [], \
         "units of one frame on Ray differ from one unit on local processes (and so from the replay)"
+
+
+def test_sweep_on_ray_equals_the_sweep_on_local_processes(runs):
+    """``zcut sweep --ray``: the same units on the same executor as batch; every count of every
+    parameter set, frame and method equals the local run's, and so do the pooled figures."""
+    _ok(runs["sweep_local"])
+    assert runs["sweep_ray"]["rc"] == 0, runs["sweep_ray"]["stderr"][-3000:]
+    import pyarrow as pa
+
+    d = runs["dir"]
+
+    def table(name):
+        t = pq.read_table(d / name / "sweep.parquet")
+        t = t.drop_columns([c for c in t.column_names if c.startswith("t_") and c.endswith("_s")])
+        keys = [c for c in t.column_names if t.schema.field(c).type in (pa.string(), pa.large_string())
+                or pa.types.is_integer(t.schema.field(c).type) or pa.types.is_floating(t.schema.field(c).type)]
+        return t.sort_by([(k, "ascending") for k in keys])
+
+    local, ray = table("sweep_local"), table("sweep_ray")
+    assert local.num_rows == ray.num_rows > 0
+    assert sorted(set(ray.column("frame").to_pylist())) == [0, 1, 2, 3]
+    assert table_differences(ray, local) == [], "the Ray sweep differs from the local processes' sweep"
+    pooled = [json.loads((d / n / "summary.json").read_text())["sets"] for n in ("sweep_local", "sweep_ray")]
+    assert pooled[0] == pooled[1]
+    import tomllib
+
+    assert tomllib.loads((d / "sweep_ray" / "tuned.toml").read_text()) == \
+        tomllib.loads((d / "sweep_local" / "tuned.toml").read_text())
 
 
 @pytest.mark.parametrize("case, pattern", [
