@@ -8,19 +8,12 @@ import shutil
 
 import pyarrow.parquet as pq
 import pytest
+from cli_helpers import run_cli
 
 from replay.cli import main
 
 SIZE = "120x180"
 
-
-def _cli(capsys, *argv):
-    try:
-        rc = main([str(a) for a in argv])
-    except SystemExit as e:
-        rc = e.code
-    cap = capsys.readouterr()
-    return rc, cap.out, cap.err
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +27,7 @@ def logs(tmp_path_factory):
 
 def test_batch_table_resume_and_summary(logs, tmp_path, capsys):
     out = tmp_path / "out"
-    rc, _, err = _cli(capsys, "batch", logs, "-o", out, "--workers", "2", "--frames-per-unit", "1", "--json")
+    rc, _, err = run_cli(capsys, "batch", logs, "-o", out, "--workers", "2", "--frames-per-unit", "1", "--json")
     assert rc == 0, err
     t = pq.read_table(out / "frames.parquet")
     rows = t.to_pylist()
@@ -51,12 +44,12 @@ def test_batch_table_resume_and_summary(logs, tmp_path, capsys):
     assert ci[0] <= s["accuracy"]["pooled"]["zcut"]["recall"] <= ci[1]
     # the same counts as a sequential replay of each log
     for name in ("a", "b"):
-        rc, outp, _ = _cli(capsys, "replay", logs / f"{name}.mcap", "--json")
+        rc, outp, _ = run_cli(capsys, "replay", logs / f"{name}.mcap", "--json")
         for fr in json.loads(outp)["frames"]:
             r = next(r for r in rows if r["log"] == f"{name}.mcap" and r["frame"] == fr["index"])
             assert (r["zcut"], r["sor"], r["both"]) == (fr["zcut"], fr["sor"], fr["both"])
     # a rerun skips everything already done and gives the same table
-    rc, _, err = _cli(capsys, "batch", logs, "-o", out, "--workers", "1", "--frames-per-unit", "1")
+    rc, _, err = run_cli(capsys, "batch", logs, "-o", out, "--workers", "1", "--frames-per-unit", "1")
     n = int(re.search(r"(\d+) unit\(s\) of work", err).group(1))  # whole chunks: small logs have one
     assert rc == 0 and f"{n} unit(s) of work, {n} already done" in err
     t2 = pq.read_table(out / "frames.parquet").drop_columns([c for c in t.column_names if c.startswith("t_")])
@@ -64,10 +57,10 @@ def test_batch_table_resume_and_summary(logs, tmp_path, capsys):
     # an interrupted run (a unit's part lost) redoes only that unit
     part = sorted((out / "parts").glob("*.json"))[0]
     part.unlink()
-    rc, _, err = _cli(capsys, "batch", logs, "-o", out, "--workers", "1", "--frames-per-unit", "1")
+    rc, _, err = run_cli(capsys, "batch", logs, "-o", out, "--workers", "1", "--frames-per-unit", "1")
     assert rc == 0 and f"{n - 1} already done" in err and pq.read_table(out / "frames.parquet").num_rows == 5
     # another config is a new run, not a mix
-    rc, _, err = _cli(capsys, "batch", logs, "-o", out, "--step", "0.3", "--frames-per-unit", "1")
+    rc, _, err = run_cli(capsys, "batch", logs, "-o", out, "--step", "0.3", "--frames-per-unit", "1")
     assert rc == 1 and "other options" in err and len(err.strip().splitlines()) == 1
 
 
@@ -78,7 +71,7 @@ def test_a_damaged_log_does_not_stop_the_others(logs, tmp_path, capsys):
     data = (logs / "b.mcap").read_bytes()
     (d / "b.mcap").write_bytes(data[: len(data) * 2 // 3])  # truncated: its last frame is lost
     (d / "c.mcap").write_bytes(b"not an mcap file at all")
-    rc, out, err = _cli(capsys, "batch", d, "-o", tmp_path / "out", "--workers", "2", "--json")
+    rc, out, err = run_cli(capsys, "batch", d, "-o", tmp_path / "out", "--workers", "2", "--json")
     assert rc == 3, err
     s = json.loads(out)
     by = {e["log"].rsplit("/", 1)[-1]: e for e in s["logs"]}
@@ -101,6 +94,6 @@ def test_bad_input_is_a_one_line_error_before_any_work(logs, tmp_path, capsys, a
     subst = {"{empty}": tmp_path / "empty", "{nothing}": tmp_path / "nope", "{text}": tmp_path / "notes.txt",
              "{a}": logs / "a.mcap"}
     args = [str(subst.get(a, a)) for a in argv]
-    rc, _, err = _cli(capsys, "batch", *args, "-o", tmp_path / "out")
+    rc, _, err = run_cli(capsys, "batch", *args, "-o", tmp_path / "out")
     assert rc == 1 and msg in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "out" / "frames.parquet").exists()

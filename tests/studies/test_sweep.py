@@ -8,20 +8,12 @@ import tomllib
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from cli_helpers import run_cli
 
 from replay.cli import main
 from replay.logs import layout
 from replay.logs.reader import LogReader
 from studies.grid import parse_list
-
-
-def _cli(capsys, *argv):
-    try:
-        rc = main([str(a) for a in argv])
-    except SystemExit as e:
-        rc = e.code
-    cap = capsys.readouterr()
-    return rc, cap.out, cap.err
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +36,7 @@ def test_counts_equal_replay_at_grid_points(log, swept, capsys):
     t = pq.read_table(swept / "sweep.parquet").to_pylist()
     truth = {f.index: f.masks[layout.TRUTH_OUTLIERS] for f in LogReader(log).frames()}
     for step, depth, rho in [(0.2, 20.0, 0.07), (0.5, 40.0, 0.03), (0.5, 10.0, 0.07)]:
-        rc, out, err = _cli(capsys, "replay", log, "--step", step, "--max-depth", depth, "--rho", rho, "--out",
+        rc, out, err = run_cli(capsys, "replay", log, "--step", step, "--max-depth", depth, "--rho", rho, "--out",
                             swept.parent / f"r{step}_{depth}_{rho}.mcap", "--json")
         assert rc == 0, err
         res = {f.index: f for f in LogReader(swept.parent / f"r{step}_{depth}_{rho}.mcap").frames()}
@@ -77,12 +69,12 @@ def test_summary_tuned_config_and_resume(log, swept, capsys):
     # tuned.toml is a config zcut replay accepts, with the tuned values
     cfg = tomllib.loads((swept / "tuned.toml").read_text())
     assert cfg["zcut"]["step_mm"] == tuned["step_mm"] and cfg["zcut"]["max_depth_mm"] == tuned["max_depth_mm"]
-    rc, out, err = _cli(capsys, "replay", log, "--config", swept / "tuned.toml", "--json")
+    rc, out, err = run_cli(capsys, "replay", log, "--config", swept / "tuned.toml", "--json")
     assert rc == 0, err
     assert sum(f["zcut"] for f in json.loads(out)["frames"]) == tuned["n_pred"]
     # rerunning continues (nothing left to do) and gives the same table
     before = pq.read_table(swept / "sweep.parquet")
-    rc, _, err = _cli(capsys, "sweep", log, "-o", swept, "--step", "0.2,0.5", "--max-depth", "10:40:4",
+    rc, _, err = run_cli(capsys, "sweep", log, "-o", swept, "--step", "0.2,0.5", "--max-depth", "10:40:4",
                       "--rho", "0.03,0.07", "--sor-k", "4,6", "--sor-std", "0.5,1", "--no-report")
     assert rc == 0 and "already done" in err
     assert pq.read_table(swept / "sweep.parquet").equals(before)
@@ -106,7 +98,7 @@ def _inside(e, ranges) -> bool:
     (["--step", "a,b"], "--step must be a,b,c or start:stop:count"),
 ])
 def test_bad_grids_are_one_line_errors_before_any_work(log, tmp_path, capsys, argv, msg):
-    rc, _, err = _cli(capsys, "sweep", log, "-o", tmp_path / "out", *argv)
+    rc, _, err = run_cli(capsys, "sweep", log, "-o", tmp_path / "out", *argv)
     assert rc == 1 and msg in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "out").exists()
 
@@ -115,7 +107,7 @@ def test_a_log_without_truth_is_refused(tmp_path, capsys, real_data):
     real = tmp_path / "real.mcap"
     assert main(["record", str(real_data / "mosd_test16.pcd"), "-o", str(real)]) == 0
     capsys.readouterr()
-    rc, _, err = _cli(capsys, "sweep", real, "-o", tmp_path / "out")
+    rc, _, err = run_cli(capsys, "sweep", real, "-o", tmp_path / "out")
     assert rc == 1 and "no /ground_truth/outliers" in err and "--labels" in err
 
 

@@ -10,20 +10,13 @@ import subprocess
 import sys
 
 import pytest
+from cli_helpers import run_cli
 
 from replay.cli import main
 from replay.outputs import AtomicOutput, OutputError, OutputPlan
 
 SIZE = "90x120"
 
-
-def _cli(capsys, *argv):
-    try:
-        rc = main([str(a) for a in argv])
-    except SystemExit as e:
-        rc = e.code
-    cap = capsys.readouterr()
-    return rc, cap.out, cap.err
 
 
 def _sha(p) -> str:
@@ -123,7 +116,7 @@ def test_replay_refuses_an_output_that_is_the_input_before_any_work(log, tmp_pat
     link = tmp_path / "link.mcap"
     link.symlink_to(log)
     for target in (log, link):
-        rc, out, err = _cli(capsys, "replay", log, opt, target)
+        rc, out, err = run_cli(capsys, "replay", log, opt, target)
         assert rc == 1 and "input" in err and len(err.strip().splitlines()) == 1 and out == ""
     assert _sha(log) == before
 
@@ -131,16 +124,16 @@ def test_replay_refuses_an_output_that_is_the_input_before_any_work(log, tmp_pat
 def test_replay_needs_force_to_replace_and_names_the_wrong_path(log, tmp_path, capsys):
     res = tmp_path / "res.mcap"
     res.write_text("old results")
-    rc, _, err = _cli(capsys, "replay", log, "--out", res)
+    rc, _, err = run_cli(capsys, "replay", log, "--out", res)
     assert rc == 1 and "use --force" in err and res.read_text() == "old results"
-    rc, _, err = _cli(capsys, "replay", log, "--out", res, "--force")
+    rc, _, err = run_cli(capsys, "replay", log, "--out", res, "--force")
     assert rc == 0 and res.read_bytes()[:8] == b"\x89MCAP0\r\n"
-    rc, _, err = _cli(capsys, "replay", log, "--rrd", "/nonexistent/x.rrd")
+    rc, _, err = run_cli(capsys, "replay", log, "--rrd", "/nonexistent/x.rrd")
     assert rc == 1 and "/nonexistent" in err and "config.toml" not in err
     # the config written beside an output is an output too
     cfg = tmp_path / "r.config.toml"
     cfg.write_text("[zcut]\nmax_area_px = 5.0\n")
-    rc, _, err = _cli(capsys, "replay", log, "--config", cfg, "--rrd", tmp_path / "r.rrd")
+    rc, _, err = run_cli(capsys, "replay", log, "--config", cfg, "--rrd", tmp_path / "r.rrd")
     assert rc == 1 and "input" in err and cfg.read_text() == "[zcut]\nmax_area_px = 5.0\n"
 
 
@@ -148,27 +141,27 @@ def test_record_and_synth_refuse_to_clobber(log, tmp_path, capsys, real_data):
     out = tmp_path / "x.mcap"
     out.write_text("keep me")
     for argv in (["record", real_data / "mosd_test16.pcd", "-o", out], ["synth", "-o", out, "--size", "8x8"]):
-        rc, _, err = _cli(capsys, *argv)
+        rc, _, err = run_cli(capsys, *argv)
         assert rc == 1 and "use --force" in err and out.read_text() == "keep me"
-    rc, _, err = _cli(capsys, "record", real_data / "mosd_test16.pcd", "-o", "/dev/null", "--force")
+    rc, _, err = run_cli(capsys, "record", real_data / "mosd_test16.pcd", "-o", "/dev/null", "--force")
     assert rc == 1 and "not a regular file" in err
     for argv, msg in ((["--period", "1e308"], "--period must be > 0"),
                       (["--stamp-start", "3e9"], "the ROS 2 time range"),
                       (["--stamp-start", "2147483640", "--period", "10"], "goes past the ROS 2 time range")):
-        rc, _, err = _cli(capsys, "record", real_data / "mosd_test16.pcd", real_data / "mosd_test20.pcd",
+        rc, _, err = run_cli(capsys, "record", real_data / "mosd_test16.pcd", real_data / "mosd_test20.pcd",
                           "-o", tmp_path / "y.mcap", *argv)
         assert rc == 1 and msg in err and "Traceback" not in err
 
 
 def test_bin_model_refuses_a_filled_bin_unless_forced(log, tmp_path, capsys):
-    rc, _, err = _cli(capsys, "bin-model", log, "-o", tmp_path / "b.ply")
+    rc, _, err = run_cli(capsys, "bin-model", log, "-o", tmp_path / "b.ply")
     assert rc == 1 and "not of the empty bin" in err and not (tmp_path / "b.ply").exists()
 
 
 def test_replaying_a_results_file_says_so(log, tmp_path, capsys):
     res = tmp_path / "res.mcap"
-    assert _cli(capsys, "replay", log, "--out", res)[0] == 0
-    rc, _, err = _cli(capsys, "replay", res, "--frames", "0")
+    assert run_cli(capsys, "replay", log, "--out", res)[0] == 0
+    rc, _, err = run_cli(capsys, "replay", res, "--frames", "0")
     assert rc == 0 and "is a results file of zcut replay" in err
 
 
@@ -190,10 +183,10 @@ def test_labels_import_creates_the_store_and_registers_the_log(log, tmp_path, ca
                              reviewed=valid, base_revision=0)
         export_labels(store, rec, tmp_path / "l.mcap", annotator="ann")
     fresh = tmp_path / "new.sqlite"
-    rc, out, err = _cli(capsys, "labels", "import", tmp_path / "l.mcap", "--db", fresh, "--log", log)
+    rc, out, err = run_cli(capsys, "labels", "import", tmp_path / "l.mcap", "--db", fresh, "--log", log)
     assert rc == 0, err
     assert "registered" in out and "imported 2 label(s)" in out
-    rc, out, _ = _cli(capsys, "labels", "list", log, "--db", fresh)
+    rc, out, _ = run_cli(capsys, "labels", "list", log, "--db", fresh)
     assert rc == 0 and "ann: 2 frame(s) labelled" in out
 
 
@@ -207,9 +200,9 @@ def test_version_and_a_closed_stdout():
 
 
 def test_connect_to_not_a_url_and_a_binary_config(log, tmp_path, capsys):
-    rc, _, err = _cli(capsys, "replay", log, "--connect", "not a url")
+    rc, _, err = run_cli(capsys, "replay", log, "--connect", "not a url")
     assert rc == 1 and "expected a viewer URL" in err
     b = tmp_path / "b.toml"
     b.write_bytes(os.urandom(256))
-    rc, _, err = _cli(capsys, "replay", log, "--config", b)
+    rc, _, err = run_cli(capsys, "replay", log, "--config", b)
     assert rc == 1 and "b.toml" in err and len(err.strip().splitlines()) == 1

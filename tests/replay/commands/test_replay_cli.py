@@ -8,6 +8,7 @@ import tomllib
 import numpy as np
 import pytest
 import rerun as rr
+from cli_helpers import run_cli
 
 from replay.cli import main
 from replay.logs.reader import LogReader
@@ -33,14 +34,6 @@ def bin_ply(logs):
     assert main(["bin-model", str(empty), "-o", str(out)]) == 0
     return out
 
-
-def run_cli(capsys, *argv):
-    try:
-        rc = main([str(a) for a in argv])
-    except SystemExit as e:  # a usage error: argparse exits with the user-error status
-        rc = e.code
-    cap = capsys.readouterr()
-    return rc, cap.out, cap.err
 
 
 def test_bin_model_from_empty_scans(bin_ply, logs):
