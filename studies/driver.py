@@ -48,8 +48,8 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict, to
               frames_per_unit: int, whole: bool, progress=None) -> list[LogPlan]:
     """Every input log with its resolved config and units; a log that cannot be opened keeps its
     error (a warning and exit 3 at the end) unless no log at all can be used (an error)."""
-    from replay.logs.reader import LogReader
     from replay.pipeline import config as cfg
+    from replay.pipeline.session import open_log
 
     paths = [p.resolve() for p in expand_logs(inputs)]  # absolute: units run in other folders and nodes
     file_layer = cfg.load_toml(config_file) if config_file is not None else None
@@ -62,16 +62,7 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict, to
             plan.sha256 = file_sha256(path)
             plan.units, plan.n_frames = plan_log(path, sha256=plan.sha256, frames_per_unit=frames_per_unit,
                                                  whole=whole, topic=topic)
-            reader = LogReader(path, cloud_topic=topic)
-            it = reader.frames(start=0)
-            try:
-                first = next(it, None)
-            finally:
-                it.close()
-            if first is None:
-                raise ZcutError(f"{path.name}: no readable frame")
-            resolved = cfg.resolve(cfg.log_facts(reader.metadata, first, intrinsics=getattr(reader, "intrinsics", None)),
-                                   file_layer=file_layer, cli=overrides)
+            _, _, resolved = open_log(path, file_layer=file_layer, overrides=overrides, topic=topic)
             plan.config_toml = cfg.to_toml(resolved.config, header=f"zcut resolved config for {path.name}")
             plan.notes = resolved.notes
         except ConfigError:

@@ -218,6 +218,35 @@ def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Iterator[Frame]:
 
 
 
+def open_log(path: Path, *, file_layer: dict[str, Any] | None = None, overrides: dict[str, Any] | None = None,
+             topic: str | None = None, reader_options: dict[str, Any] | None = None):
+    """Open a log, read its first readable frame and resolve its config (SPEC §4: the one place a
+    log's parameters come from; :meth:`ReplaySession.open` and the batch planner both call it).
+
+    Returns
+    -------
+    (LogReader, Frame, Resolved)
+        The reader, the first readable frame, the resolved config with its notes.
+
+    Raises
+    ------
+    LogFormatError, LogDamageError (no readable frame), ConfigError
+    """
+    from replay.logs.reader import LogReader
+
+    reader = LogReader(path, cloud_topic=topic, **(reader_options or {}))
+    it = reader.frames(start=0)
+    try:
+        first = next(it, None)
+    finally:
+        it.close()
+    if first is None:
+        raise LogDamageError(f"{path.name}: no readable frame on {reader.cloud_topic}"
+                             + (f" ({reader.damage[0]})" if reader.damage else ""))
+    facts = cfg.log_facts(reader.metadata, first, intrinsics=getattr(reader, "intrinsics", None))
+    return reader, first, cfg.resolve(facts, file_layer=file_layer, cli=overrides)
+
+
 class ReplaySession:
     """A log opened for replay, with its config resolved once and its bin model prepared once.
 
@@ -267,21 +296,10 @@ class ReplaySession:
         ------
         LogFormatError, LogDamageError, ConfigError
         """
-        from replay.logs.reader import LogReader
-
         path = Path(path)
         file_layer = cfg.load_toml(config_file) if config_file is not None else None
-        reader = LogReader(path, cloud_topic=topic, **(reader_options or {}))
-        it = reader.frames(start=0)
-        try:
-            first = next(it, None)
-        finally:
-            it.close()
-        if first is None:
-            raise LogDamageError(f"{path.name}: no readable frame on {reader.cloud_topic}"
-                                 + (f" ({reader.damage[0]})" if reader.damage else ""))
-        facts = cfg.log_facts(reader.metadata, first, intrinsics=getattr(reader, "intrinsics", None))
-        resolved = cfg.resolve(facts, file_layer=file_layer, cli=overrides)
+        reader, first, resolved = open_log(path, file_layer=file_layer, overrides=overrides, topic=topic,
+                                           reader_options=reader_options)
         return cls(path, reader, resolved, bin_model, first)
 
     @property
