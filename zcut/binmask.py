@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from .errors import InputShapeError, ParameterError, describe_array
+from .params import BinMaskParams
 from .types import RGB, XYZ, Mask
 
 __all__ = ["MIN_RING_PX", "BinMaskResult", "bin_mask", "bin_pixels", "fill_holes"]
@@ -94,40 +95,30 @@ def fill_holes(mask: Mask) -> Mask:
     return (padded[1:-1, 1:-1] != 2)
 
 
-def bin_mask(
-    rgb: RGB,
-    *,
-    threshold: float = 150.0,
-    dilate_px: int = 3,
-    min_area_frac: float = 0.01,
-    prefer_centre: bool = True,
-) -> BinMaskResult:
-    """Segment the bin footprint from an RGB image.
+def bin_mask(rgb: RGB, *, params: BinMaskParams = BinMaskParams()) -> BinMaskResult:
+    """Segment the bin footprint from an RGB image (paper §5.1; the stage's parameters are
+    :class:`~zcut.params.BinMaskParams`).
 
     Parameters
     ----------
     rgb : (H, W, 3) uint8 ndarray
-    threshold : float
-        Gray level (0-255); pixels brighter than this are bin-plastic candidates.
-    dilate_px : int
-        Radius of the elliptic dilation closing small gaps in the walls (0: none).
-    min_area_frac : float
-        Smallest accepted component, as a fraction of the image.
-    prefer_centre : bool
-        Take the component covering the image centre after filling when there is one (a bin is
-        usually centred); otherwise, or when none covers it, the largest.
+    params : BinMaskParams
+        ``threshold``: gray level (0-255); pixels brighter than this are bin-plastic candidates.
+        ``dilate_px``: radius of the elliptic dilation closing small gaps in the walls (0: none).
+        ``min_area_frac``: smallest accepted component, as a fraction of the image.
+        ``prefer_centre``: take the component covering the image centre after filling when there
+        is one (a bin is usually centred); otherwise, or when none covers it, the largest.
+        (``enabled`` is the pipeline's switch; this function ignores it.)
 
     Returns
     -------
     BinMaskResult
     """
     a = _check_rgb(rgb)
-    if not 0.0 <= threshold <= 255.0:
-        raise ParameterError(f"threshold must be in [0, 255], got {threshold!r}")
-    if int(dilate_px) != dilate_px or dilate_px < 0:
-        raise ParameterError(f"dilate_px must be a non-negative integer, got {dilate_px!r}")
-    if not 0.0 <= min_area_frac <= 1.0:
-        raise ParameterError(f"min_area_frac must be in [0, 1], got {min_area_frac!r}")
+    if not isinstance(params, BinMaskParams):
+        raise ParameterError(f"params must be a BinMaskParams, got {type(params).__name__}")
+    threshold, dilate_px, min_area_frac = params.threshold, params.dilate_px, params.min_area_frac
+    prefer_centre = params.prefer_centre
     h, w = a.shape[:2]
     empty = np.zeros((h, w), bool)
     if h == 0 or w == 0:

@@ -363,9 +363,7 @@ class CutResult:
         return int(self.areas.size)
 
 
-def find_clusters(
-    height: FloatImage, *, params: ZCutParams, connectivity: int = 8, kernel: str = "auto"
-) -> CutResult:
+def find_clusters(height: FloatImage, *, params: ZCutParams, kernel: str = "auto") -> CutResult:
     """Run the z-cut and return the stage view (clusters, areas, levels, per-level counts).
 
     Parameters
@@ -373,9 +371,8 @@ def find_clusters(
     height : (H, W) float ndarray
         Larger = higher; NaN = invalid.
     params : ZCutParams
-        step, max_depth, max_area and optionally a_max (for ``rho``).
-    connectivity : {8, 4}
-        Pixel adjacency of the components.
+        step, max_depth, max_area, connectivity and optionally a_max (for ``rho``): every parameter
+        of the filter comes from here (no keyword overrides one of them).
     kernel : {"auto", "flood", "union-find"}
         The component-tree kernel (:data:`KERNELS`); every choice gives the same result.
 
@@ -388,7 +385,7 @@ def find_clusters(
         raise ParameterError(f"params must be a ZCutParams, got {type(params).__name__}")
     z = _check_height(height)
     step, max_depth, max_area, connectivity = _check_params(
-        params.step, params.max_depth, params.max_area, connectivity
+        params.step, params.max_depth, params.max_area, params.connectivity
     )
     kernel = _check_kernel(kernel)
     K = n_levels(step, max_depth)

@@ -285,18 +285,23 @@ class BinMaskParams:
         Radius of the closing of the walls.
     min_area_frac : float
         Smallest bin component, as a fraction of the image.
+    prefer_centre : bool
+        Take the component covering the image centre after filling when there is one (a bin is
+        usually centred); otherwise, or when none covers it, the largest.
     """
 
     enabled: bool = True
     threshold: float = 150.0
     dilate_px: int = 3
     min_area_frac: float = 0.01
+    prefer_centre: bool = True
 
     def __post_init__(self) -> None:
         _boolean(self, "enabled")
         _number(self, "threshold", ge=0, le=255)
         _number(self, "dilate_px", ge=0, integer=True)
         _number(self, "min_area_frac", ge=0, le=1)
+        _boolean(self, "prefer_centre")
 
 
 @dataclass(frozen=True, slots=True)

@@ -85,7 +85,7 @@ def build_bin_model(
         if frame.rgb is None:
             reports.append(ScanReport(frame.index, 0, None, "no RGB image"))
             continue
-        bm = bin_mask(frame.rgb, threshold=c.threshold, dilate_px=c.dilate_px, min_area_frac=c.min_area_frac)
+        bm = bin_mask(frame.rgb, params=c)
         valid = np.isfinite(frame.xyz).all(axis=2)
         pts = frame.xyz[bm.mask & valid].astype(np.float64)
         if not bm.found or len(pts) == 0:

@@ -173,8 +173,7 @@ def locate_bin(
         warnings.append("no bin model (--bin-model): bin stages skipped, z-cut on the whole frame")
     else:
         t = time.perf_counter()
-        c = config.bin_mask
-        bm = bin_mask(frame.rgb, threshold=c.threshold, dilate_px=c.dilate_px, min_area_frac=c.min_area_frac)
+        bm = bin_mask(frame.rgb, params=config.bin_mask)
         timings["bin_mask"] = time.perf_counter() - t
         if not bm.found:
             warnings.append("no bin found in the RGB image: bin stages skipped, z-cut on the whole frame")

@@ -9,6 +9,7 @@ import pytest
 
 from zcut.binmask import BinMaskResult, bin_mask, bin_pixels, fill_holes
 from zcut.errors import InputShapeError, ParameterError
+from zcut.params import BinMaskParams
 
 H, W = 240, 320
 SHIFT = (0.006, -0.004, 0.003)
@@ -43,10 +44,10 @@ def test_bin_mask_prefers_the_centre_over_a_larger_component():
     rgb[:, :60] = 230          # a large bright thing at the left edge (6000 px)
     rgb[30:70, 80:120] = 230   # a bin ring around the centre (1600 px outer) ...
     rgb[35:65, 85:115] = 10    # ... with a dark inside
-    r = bin_mask(rgb, dilate_px=0)
+    r = bin_mask(rgb, params=BinMaskParams(dilate_px=0))
     assert r.covers_centre and r.mask[50, 100] and not r.mask[:, :60].any()
     assert r.area_px == 40 * 40
-    r2 = bin_mask(rgb, dilate_px=0, prefer_centre=False)
+    r2 = bin_mask(rgb, params=BinMaskParams(dilate_px=0, prefer_centre=False))
     assert r2.mask[:, :60].all() and not r2.mask[50, 100]
 
 
@@ -66,13 +67,21 @@ def test_fill_holes_fills_only_enclosed_background():
 
 
 @pytest.mark.parametrize("kw, match", [
-    ({"threshold": 300}, "threshold"),
-    ({"dilate_px": -1}, "dilate_px"),
-    ({"min_area_frac": 2.0}, "min_area_frac"),
+    ({"threshold": 300}, "BinMaskParams.threshold"),
+    ({"dilate_px": -1}, "BinMaskParams.dilate_px"),
+    ({"min_area_frac": 2.0}, "BinMaskParams.min_area_frac"),
+    ({"prefer_centre": 1}, "BinMaskParams.prefer_centre"),
 ])
 def test_bin_mask_bad_parameters(kw, match):
     with pytest.raises(ParameterError, match=match):
-        bin_mask(np.zeros((4, 4, 3), np.uint8), **kw)
+        bin_mask(np.zeros((4, 4, 3), np.uint8), params=BinMaskParams(**kw))
+
+
+def test_bin_mask_takes_its_parameters_as_one_object():
+    with pytest.raises(ParameterError, match="params must be a BinMaskParams, got dict"):
+        bin_mask(np.zeros((4, 4, 3), np.uint8), params={"threshold": 100})  # type: ignore[arg-type]
+    with pytest.raises(TypeError):
+        bin_mask(np.zeros((4, 4, 3), np.uint8), threshold=100)  # type: ignore[call-arg]
 
 
 @pytest.mark.parametrize("rgb", [np.zeros((4, 4), np.uint8), np.zeros((4, 4, 3), np.float32)])

@@ -52,7 +52,7 @@ def check_tree(z, tree: ZCutTree, depths, areas, *, clusters: bool = True) -> li
                 pytest.fail(f"tree.outliers({d!r}, {a!r}) differs from zcut_outliers on "
                             f"{np.count_nonzero(got != m)} pixels: {(z.tolist(), tree.step)!r}")
             if clusters:
-                res = find_clusters(z, params=ZCutParams(tree.step, d, a), connectivity=tree.connectivity)
+                res = find_clusters(z, params=ZCutParams(tree.step, d, a, connectivity=tree.connectivity))
                 assert tree.n_clusters(d, a) == res.n_clusters
             row.append(m)
         masks.append(row)

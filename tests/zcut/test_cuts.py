@@ -96,8 +96,8 @@ def test_fast_equals_reference_on_random_frames(seed: int, kernel: str) -> None:
         assert fast.shape == z.shape and fast.dtype == bool
         np.testing.assert_array_equal(fast, ref, err_msg=repr((z.tolist(), params)))
         np.testing.assert_array_equal(kernel_outliers(z, kernel, **params), ref)
-        res = find_clusters(z, params=ZCutParams(params["step"], params["max_depth"], params["max_area"]),
-                            connectivity=params["connectivity"], kernel=kernel)
+        res = find_clusters(z, params=ZCutParams(params["step"], params["max_depth"], params["max_area"],
+                                                      connectivity=params["connectivity"]), kernel=kernel)
         np.testing.assert_array_equal(res.outliers, ref)
         n_outliers += int(ref.sum())
     assert n_outliers > 0  # the frames do exercise the tagging
@@ -125,8 +125,8 @@ def test_fast_equals_reference_with_many_levels(seed: int, kernel: str) -> None:
         ref = zcut_outliers_reference(z, **params)
         np.testing.assert_array_equal(zcut_outliers(z, **params), ref)
         np.testing.assert_array_equal(kernel_outliers(z, kernel, **params), ref)
-        res = find_clusters(z, params=ZCutParams(params["step"], params["max_depth"], params["max_area"]),
-                            connectivity=params["connectivity"], kernel=kernel)
+        res = find_clusters(z, params=ZCutParams(params["step"], params["max_depth"], params["max_area"],
+                                                      connectivity=params["connectivity"]), kernel=kernel)
         np.testing.assert_array_equal(res.outliers, ref)
         n_outliers += int(ref.sum())
     assert n_outliers > 0
@@ -197,8 +197,8 @@ def test_nasty_cases(name: str, conn: int, kernel: str) -> None:
     np.testing.assert_array_equal(fast, ref)
     if expected is not None and conn == case.get("connectivity", 8):
         np.testing.assert_array_equal(fast, expected)
-    res = find_clusters(z, params=ZCutParams(params["step"], params["max_depth"], params["max_area"]),
-                        connectivity=params["connectivity"], kernel=kernel)
+    res = find_clusters(z, params=ZCutParams(params["step"], params["max_depth"], params["max_area"],
+                                                  connectivity=params["connectivity"]), kernel=kernel)
     np.testing.assert_array_equal(res.outliers, fast)
     np.testing.assert_array_equal(kernel_outliers(z, kernel, **params), fast)
 
@@ -241,11 +241,9 @@ def test_kernels_meet_at_the_level_limit(n_levels_above: int) -> None:
         for kernel in KERNELS:
             if kernel == "flood" and n_levels_above > 0:  # levels 0 .. 4096: too many to flood
                 with pytest.raises(ParameterError, match=r"kernel 'flood' .*fewer than 4096 levels"):
-                    find_clusters(z, params=ZCutParams(step, K * step, 3), connectivity=conn,
-                                  kernel=kernel)
+                    find_clusters(z, params=ZCutParams(step, K * step, 3, connectivity=conn), kernel=kernel)
                 continue
-            res = find_clusters(z, params=ZCutParams(step, K * step, 3), connectivity=conn,
-                                kernel=kernel)
+            res = find_clusters(z, params=ZCutParams(step, K * step, 3, connectivity=conn), kernel=kernel)
             np.testing.assert_array_equal(res.outliers, ref)
             np.testing.assert_array_equal(kernel_outliers(z, kernel, **params), ref)
 
@@ -357,9 +355,9 @@ def test_find_clusters_consistency(seed: int, kernel: str) -> None:
         if not np.isfinite(z).any():
             continue
         a_max = float(rng.choice([50.0, 123.0]))
-        params = ZCutParams(p["step"], p["max_depth"], p["max_area"], a_max=a_max)
         conn = p["connectivity"]
-        res = find_clusters(z, params=params, connectivity=conn)
+        params = ZCutParams(p["step"], p["max_depth"], p["max_area"], a_max=a_max, connectivity=conn)
+        res = find_clusters(z, params=params)
         assert isinstance(res, CutResult)
         K = n_levels(p["step"], p["max_depth"])
         assert res.n_levels == K
@@ -517,8 +515,8 @@ def test_bad_input(fn, height, override, error, match) -> None:
 def test_find_clusters_bad_input() -> None:
     with pytest.raises(ParameterError, match="params must be a ZCutParams, got dict"):
         find_clusters(np.zeros((2, 2)), params=GOOD)  # type: ignore[arg-type]
-    with pytest.raises(ParameterError, match="connectivity .*got 5"):
-        find_clusters(np.zeros((2, 2)), params=ZCutParams(**GOOD), connectivity=5)
+    with pytest.raises(ParameterError, match="ZCutParams.connectivity must be 4 or 8, got 5"):
+        find_clusters(np.zeros((2, 2)), params=ZCutParams(**GOOD, connectivity=5))
     with pytest.raises(InputShapeError, match=r"height .*shape \(4,\)"):
         find_clusters(np.zeros(4), params=ZCutParams(**GOOD))
     with pytest.raises(ParameterError, match="kernel must be one of 'auto', 'flood', 'union-find', got 'fast'"):

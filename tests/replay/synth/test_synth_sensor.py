@@ -26,6 +26,7 @@ from replay.synth.sensor import (
     view_half_extent_mm,
 )
 from zcut.binmask import bin_mask
+from zcut.params import BinMaskParams
 
 SIZE = (240, 320)
 
@@ -145,7 +146,7 @@ def test_projector_shadow_falls_away_from_the_projector():
 
 def test_rgb_bin_mask_gives_the_bin_footprint(spheres):
     """Paper §5.1: gray > threshold, dilate, component, fill holes -> exactly the bin's footprint."""
-    res = bin_mask(spheres.frame.rgb, threshold=150.0, dilate_px=3)
+    res = bin_mask(spheres.frame.rgb, params=BinMaskParams(threshold=150.0, dilate_px=3))
     truth = (spheres.surface != LABEL_TABLE) & (spheres.surface != 0)
     iou = (res.mask & truth).sum() / (res.mask | truth).sum()
     assert iou > 0.98
