@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from replay.logs.layout import OUTLIER_KINDS
+from replay.pipeline.methods import method_masks as method_masks_of
+from replay.pipeline.methods import reported_methods
 from zcut.cloud import check_mask
 from zcut.errors import ParameterError
 from zcut.metrics import (
@@ -45,10 +47,9 @@ from zcut.metrics import (
 )
 from zcut.types import Mask
 
-#: Methods of the report, in the order shown.
+#: Methods of the default report (the config's default methods and the derived pair), in the order
+#: shown; a report lists the methods its predictions hold (``--methods``).
 METHODS: tuple[str, ...] = ("zcut", "sor", "union", "intersection")
-#: Methods a caller predicts; the other two are derived from them.
-BASE_METHODS: tuple[str, ...] = ("zcut", "sor")
 #: Keys of one method's entry (SPEC §4), in the order shown; then ``ci95`` (pooled) and ``by_kind``.
 COUNT_KEYS: tuple[str, ...] = ("tp", "fp", "fn")
 RATE_KEYS: tuple[str, ...] = ACCURACY_KEYS[3:]
@@ -80,7 +81,8 @@ class FrameAccuracy:
     stamp_ns : int
         Header stamp of the frame's cloud.
     counts : dict[str, AccuracyCounts]
-        One entry per name in :data:`METHODS`; with ``kinds`` when the frame has kind truth.
+        One entry per reported method, in the order shown; with ``kinds`` when the frame has kind
+        truth.
     """
 
     index: int
@@ -88,8 +90,12 @@ class FrameAccuracy:
     counts: dict[str, AccuracyCounts]
 
     @property
+    def methods(self) -> tuple[str, ...]:
+        return tuple(self.counts)
+
+    @property
     def has_kinds(self) -> bool:
-        return self.counts[METHODS[0]].kinds is not None
+        return next(iter(self.counts.values())).kinds is not None
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,7 +130,7 @@ class UnscoredFrame:
 
 
 def method_masks(zcut: Mask, sor: Mask) -> dict[str, Mask]:
-    """The four predictions of the report from the two filters' masks.
+    """The four predictions of the default report from the two filters' masks.
 
     Parameters
     ----------
@@ -139,6 +145,22 @@ def method_masks(zcut: Mask, sor: Mask) -> dict[str, Mask]:
     z = check_mask(zcut, name="zcut", shape=None)
     s = check_mask(sor, name="sor", shape=z.shape)
     return {"zcut": z, "sor": s, "union": z | s, "intersection": z & s}
+
+
+def reported_masks(predictions: Mapping[str, Mask]) -> dict[str, Mask]:
+    """Every method a report lists from the predictions given: the given ones in their order, a
+    union ``a+b`` from its members' masks when only those are given, and ``union`` and
+    ``intersection`` after them when ``zcut`` and ``sor`` are both given (docs/accuracy.md)."""
+    if not predictions:
+        raise ParameterError("predictions must hold at least one method's mask")
+    first = next(iter(predictions.values()))
+    shape = check_mask(first, name=f"predictions[{next(iter(predictions))!r}]", shape=None).shape
+    base = {m: check_mask(p, name=f"predictions[{m!r}]", shape=shape) for m, p in predictions.items()}
+    names = reported_methods(list(base))
+    try:
+        return method_masks_of(base, names)
+    except KeyError as e:
+        raise ParameterError(f"predictions lack {e.args[0]!r}, a member of a union they name") from None
 
 
 def frame_accuracy(
@@ -161,7 +183,8 @@ def frame_accuracy(
     stamp_ns : int
         Header stamp of the frame.
     predictions : mapping str -> (H, W) bool ndarray
-        At least ``"zcut"`` and ``"sor"``; ``union`` and ``intersection`` are derived.
+        Every method to score (base methods, unions ``a+b``); ``union`` and ``intersection`` are
+        derived when ``"zcut"`` and ``"sor"`` are both given (:func:`reported_masks`).
     outliers : (H, W) bool ndarray
         True outliers L (labels or synthetic ground truth); L ⊆ R.
     reviewed : (H, W) bool ndarray, optional
@@ -183,32 +206,29 @@ def frame_accuracy(
     Raises
     ------
     ParameterError
-        A base prediction is missing; L ⊄ R or R ⊄ valid; a kind code outside 0..5, or a kind
+        No prediction, or a union's member missing; L ⊄ R or R ⊄ valid; a kind code outside 0..5, or a kind
         where L is not set (or none where it is).
     InputShapeError
         A mask (or the kind image) is not 2-D bool (uint8) of the truth's shape.
     """
-    missing = [m for m in BASE_METHODS if m not in predictions]
-    if missing:
-        raise ParameterError(f"predictions must hold {list(BASE_METHODS)}, missing {missing}")
     truth = check_mask(outliers, name="outliers", shape=None)
-    preds = method_masks(
-        check_mask(predictions["zcut"], name="predictions['zcut']", shape=truth.shape),
-        check_mask(predictions["sor"], name="predictions['sor']", shape=truth.shape),
-    )
+    preds = reported_masks(predictions)
+    for m, p in preds.items():
+        check_mask(p, name=f"predictions[{m!r}]", shape=truth.shape)
     scored = scored_truth(truth, reviewed=reviewed, valid=valid, region=region, kinds=kinds,
                           n_kinds=N_KINDS)
-    counts = {m: scored.counts(preds[m]) for m in METHODS}
+    counts = {m: scored.counts(p) for m, p in preds.items()}
     return FrameAccuracy(index=int(index), stamp_ns=int(stamp_ns), counts=counts)
 
 
 def pooled_counts(frames: Iterable[FrameAccuracy]) -> dict[str, AccuracyCounts]:
-    """Sum the counts of every method over the frames (micro average); zero counts if none.
+    """Sum the counts of every method over the frames (micro average); zero counts of
+    :data:`METHODS` if there is no frame.
 
     Raises
     ------
     ParameterError
-        Some frames have kind truth and others not.
+        Some frames have kind truth and others not; the frames score different methods.
     """
     frames = list(frames)
     with_kinds = sum(f.has_kinds for f in frames)
@@ -217,7 +237,12 @@ def pooled_counts(frames: Iterable[FrameAccuracy]) -> dict[str, AccuracyCounts]:
                              f"scored frame or for none (list the others as unscored)")
     if not frames:
         return {m: AccuracyCounts.zero() for m in METHODS}
-    return {m: sum((f.counts[m] for f in frames[1:]), frames[0].counts[m]) for m in METHODS}
+    methods = frames[0].methods
+    for f in frames[1:]:
+        if f.methods != methods:
+            raise ParameterError(f"frame {f.index} scores {list(f.methods)}, frame {frames[0].index} "
+                                 f"{list(methods)}: every frame must score the same methods")
+    return {m: sum((f.counts[m] for f in frames[1:]), frames[0].counts[m]) for m in methods}
 
 
 def by_kind(kinds: KindCounts) -> dict[str, dict[str, int | float]]:
@@ -283,7 +308,7 @@ def accuracy_report(
         cluster_precision, cluster_recall, singletons_precision, singletons_recall,
         "ci95": {"precision": [lo, hi], "recall": [lo, hi], "f1": [lo, hi]}, "by_kind": {...}}},
         "frames": [{"index", "stamp_ns", METHOD: {... the same keys but ci95}}],
-        "unscored": [{"index", "stamp_ns", "reason"}]}`` with METHOD in :data:`METHODS`;
+        "unscored": [{"index", "stamp_ns", "reason"}]}`` with METHOD the frames' methods;
         ``by_kind`` only with kind truth. Counts are ``int``; rates are ``float`` and may be NaN
         (0/0) — :func:`report_json` writes them as ``null``. With no frame the intervals are NaN;
         with one they are degenerate (lo = hi = the pooled figure).
@@ -307,14 +332,15 @@ def accuracy_report(
     if both:
         raise ParameterError(f"frame(s) {both} are listed both as scored and as unscored")
     pooled = pooled_counts(frames)
-    per_frame = {k: np.array([[getattr(f.counts[m], k) for f in frames] for m in METHODS], dtype=np.int64)
-                 .reshape(len(METHODS), len(frames)) for k in COUNT_KEYS}
+    methods = tuple(pooled)
+    per_frame = {k: np.array([[getattr(f.counts[m], k) for f in frames] for m in methods], dtype=np.int64)
+                 .reshape(len(methods), len(frames)) for k in COUNT_KEYS}
     ci = bootstrap_ci_many(per_frame["tp"], per_frame["fp"], per_frame["fn"], n_boot=int(n_boot), seed=seed)
     return {
         "region": region,
-        "pooled": {m: _entry(pooled[m], {k: ci[k][i].tolist() for k in CI_KEYS}) for i, m in enumerate(METHODS)},
+        "pooled": {m: _entry(pooled[m], {k: ci[k][i].tolist() for k in CI_KEYS}) for i, m in enumerate(methods)},
         "frames": [
-            {"index": f.index, "stamp_ns": f.stamp_ns, **{m: _entry(f.counts[m]) for m in METHODS}}
+            {"index": f.index, "stamp_ns": f.stamp_ns, **{m: _entry(f.counts[m]) for m in methods}}
             for f in frames
         ],
         "unscored": [u.as_dict() for u in unscored],
@@ -397,6 +423,7 @@ def format_accuracy_table(report: dict, *, per_frame: bool = True) -> str:
     region = report["region"]
     parts = [f"region: {region} ({REGIONS.get(region, 'unknown region')})"]
     frames = report["frames"]
+    METHODS = tuple(report["pooled"])  # noqa: N806 - the report's own methods
     if per_frame and frames:
         rows = [_frame_row([str(f["index"]), str(f["stamp_ns"]), m], f[m]) for f in frames for m in METHODS]
         table = _render(["frame", "stamp_ns", "method", *_FRAME_HEADER], rows, left=3, tight=6)

@@ -26,7 +26,6 @@ from replay.logs import layout
 from zcut.errors import ParameterError
 
 REGIONS = ("zone", "valid")
-METHODS = ("zcut", "sor", "union", "intersection")
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,7 +73,8 @@ def region_of_results_frame(frame, name: str) -> np.ndarray:
     """The scored region of a frame of a results file: ``/zcut/zone`` when the replay wrote one (the
     bin stages ran), else every valid pixel of the source (the filtered cloud plus the outliers)."""
     check_region(name)
-    valid = np.isfinite(frame.xyz).all(axis=2) | frame.masks[layout.ZCUT_OUTLIERS] | frame.masks[layout.SOR_OUTLIERS]
+    # /zcut/filtered has the z-cut's outliers set to NaN: they were valid in the source
+    valid = np.isfinite(frame.xyz).all(axis=2) | frame.masks[layout.ZCUT_OUTLIERS]
     if name == "zone" and layout.ZONE in frame.masks:
         return frame.masks[layout.ZONE] & valid
     return valid
@@ -169,9 +169,12 @@ class LabelTruth:
         self.store.close()
 
 
-def method_predictions(zcut: np.ndarray, sor: np.ndarray) -> dict[str, np.ndarray]:
-    """The four predictions of SPEC §4 from the two filters' masks."""
-    return {"zcut": zcut, "sor": sor, "union": zcut | sor, "intersection": zcut & sor}
+def method_predictions(result, methods) -> dict[str, np.ndarray]:
+    """The masks of the reported ``methods`` (``config.reported_methods``) of a
+    :class:`~replay.pipeline.stages.FrameResult` (docs/accuracy.md)."""
+    from replay.pipeline.methods import method_masks
+
+    return method_masks(result.outliers, methods)
 
 
 def pixel_counts(predicted: np.ndarray, truth: FrameTruth, region: np.ndarray) -> tuple[int, int, int]:

@@ -12,7 +12,6 @@ import platform
 from pathlib import Path
 from typing import Any
 
-from annotate.truth import METHODS
 from studies.driver import LogPlan
 from studies.work import UnitResult
 
@@ -35,7 +34,8 @@ def pooled(table) -> dict[str, Any]:
     if not rows:
         return {}
     out: dict[str, Any] = {}
-    for m in METHODS:
+    methods = [c[:-3] for c in table.column_names if c.endswith("_tp")]
+    for m in methods:
         tp = [r[f"{m}_tp"] for r in rows]
         fp = [r[f"{m}_fp"] for r in rows]
         fn = [r[f"{m}_fn"] for r in rows]

@@ -19,7 +19,8 @@ from typing import Any
 
 from replay.errors import ConfigError
 from studies.units import WorkUnit, expand_logs, plan_log
-from studies.work import Job, UnitResult, toml_sha
+from replay.pipeline.config import Resolved, config_sha256
+from studies.work import Job, UnitResult
 from zcut.errors import ZcutError
 
 
@@ -30,10 +31,22 @@ class LogPlan:
     path: Path
     sha256: str = ""
     n_frames: int | None = None
-    config_toml: str = ""
-    notes: tuple[str, ...] = ()
+    resolved: Resolved | None = None
     units: list[WorkUnit] = field(default_factory=list)
     error: str | None = None
+
+    @property
+    def notes(self) -> tuple[str, ...]:
+        return self.resolved.notes if self.resolved is not None else ()
+
+    @property
+    def config_toml(self) -> str:
+        """The resolved config as TOML (for the study's outputs)."""
+        if self.resolved is None:
+            return ""
+        from replay.pipeline import config as cfg
+
+        return cfg.to_toml(self.resolved.config, header=f"zcut resolved config for {self.path.name}")
 
 
 def file_sha256(path: Path) -> str:
@@ -62,9 +75,7 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict, to
             plan.sha256 = file_sha256(path)
             plan.units, plan.n_frames = plan_log(path, sha256=plan.sha256, frames_per_unit=frames_per_unit,
                                                  whole=whole, topic=topic)
-            _, _, resolved = open_log(path, file_layer=file_layer, overrides=overrides, topic=topic)
-            plan.config_toml = cfg.to_toml(resolved.config, header=f"zcut resolved config for {path.name}")
-            plan.notes = resolved.notes
+            _, _, plan.resolved = open_log(path, file_layer=file_layer, overrides=overrides, topic=topic)
         except ConfigError:
             raise  # the options are wrong for every log: an error before any work
         except (ZcutError, OSError) as e:
@@ -119,7 +130,7 @@ def start_units(plans: list[LogPlan], store, *, what: str, executor, stream=None
 def identity(kind: str, options: dict[str, Any], plans: list[LogPlan]) -> dict[str, Any]:
     """What identifies a study in its output folder (``run.json``)."""
     return {"kind": kind, "options": options,
-            "logs": {p.sha256: toml_sha(p.config_toml) for p in plans if p.units}}
+            "logs": {p.sha256: config_sha256(p.resolved.config) for p in plans if p.units and p.resolved}}
 
 
 def file_identity(path: str | None) -> str | None:

@@ -12,7 +12,6 @@ Any error of a damaged log is caught and returned in the result: one bad log nev
 from __future__ import annotations
 
 import functools
-import hashlib
 import math
 import resource
 import time
@@ -20,6 +19,8 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from zcut.errors import ZcutError
 
@@ -44,9 +45,9 @@ class Job:
         Label store (truth from an annotator's labels instead of the synthetic truth).
     annotator : str or None
     region : {"zone", "valid"}
-    configs : dict[str, str]
-        Log sha256 -> the resolved config (TOML) the driver found; a worker that resolves another
-        reports an error instead of computing a different filter.
+    configs : dict[str, Resolved]
+        Log sha256 -> the config the driver resolved for it: the worker runs exactly that config
+        (it never resolves one again).
     extra : dict
         Study-specific options (the sweep's grid, per-log outputs).
     """
@@ -58,7 +59,7 @@ class Job:
     labels: str | None
     annotator: str | None
     region: str
-    configs: dict[str, str]
+    configs: dict[str, Any]
     extra: dict = field(default_factory=dict)
 
 
@@ -99,12 +100,6 @@ class UnitResult:
         return cls(unit, error=why)
 
 
-def toml_sha(text: str) -> str:
-    """The identity of a resolved config: the sha256 of its TOML body (comments and header aside)."""
-    body = "\n".join(line.split("#", 1)[0].rstrip() for line in text.splitlines() if not line.startswith("#"))
-    return hashlib.sha256(body.encode()).hexdigest()
-
-
 @functools.lru_cache(maxsize=2)
 def _bin_model(path: str | None):
     if path is None:
@@ -114,26 +109,28 @@ def _bin_model(path: str | None):
     return load_bin_model(path)
 
 
-@functools.lru_cache(maxsize=2)
-def _session_cached(log: str, config_file: str | None, overrides_key: str, bin_model: str | None, topic: str | None):
-    import json
-
-    from replay.pipeline.session import ReplaySession
-
-    return ReplaySession.open(log, config_file=config_file, overrides=json.loads(overrides_key),
-                              topic=topic, bin_model=_bin_model(bin_model))
+#: the sessions this worker process opened (a log's units usually come one after another)
+_SESSIONS: dict[tuple, Any] = {}
+_MAX_SESSIONS = 2
 
 
 def open_unit_session(unit, job: Job):
-    """The unit's log as a replay session (one per log and worker), its config checked against the
-    driver's."""
-    import json
+    """The unit's log as a replay session running the config the driver resolved for it (never
+    resolved again here); the worker keeps the last two sessions it opened."""
+    from replay.pipeline.config import config_sha256
+    from replay.pipeline.session import ReplaySession
 
-    session = _session_cached(unit.log, job.config_file, json.dumps(job.overrides, sort_keys=True), job.bin_model,
-                              job.topic)
-    want = job.configs.get(unit.sha256)
-    if want is not None and toml_sha(session.config_toml()) != toml_sha(want):
-        raise ZcutError(f"{Path(unit.log).name}: the worker resolved another config than the driver")
+    resolved = job.configs.get(unit.sha256)
+    if resolved is None:
+        raise ZcutError(f"{Path(unit.log).name}: the driver resolved no config for this log")
+    key = (unit.log, unit.sha256, config_sha256(resolved.config), job.bin_model, job.topic)
+    session = _SESSIONS.get(key)
+    if session is None:
+        session = ReplaySession.open(unit.log, resolved=resolved, topic=job.topic,
+                                     bin_model=_bin_model(job.bin_model))
+        while len(_SESSIONS) >= _MAX_SESSIONS:
+            _SESSIONS.pop(next(iter(_SESSIONS)))
+        _SESSIONS[key] = session
     return session
 
 
@@ -154,10 +151,10 @@ def _finite(v: float) -> float | None:
     return v if isinstance(v, float) and math.isfinite(v) else None
 
 
-def batch_row(unit, frame, result, row, truth, region) -> dict:
+def batch_row(unit, frame, result, row, truth, region, methods) -> dict:
     """One row of ``frames.parquet``: the replay table's counts, fitness, stage timings and, where
-    there is truth, TP/FP/FN per method over S = R ∩ region."""
-    from annotate.truth import METHODS, method_predictions, pixel_counts
+    there is truth, TP/FP/FN per reported method (``methods``) over S = R ∩ region."""
+    from annotate.truth import method_predictions, pixel_counts
 
     out: dict = {"log": Path(unit.log).name, "log_sha256": unit.sha256, "frame": frame.index,
                  "stamp_ns": frame.stamp_ns}
@@ -167,12 +164,15 @@ def batch_row(unit, frame, result, row, truth, region) -> dict:
     out["rmse_mm"] = _finite(row.rmse_mm)
     out["pose_error_mm"] = _finite(row.pose_error_mm)
     out["pose_error_deg"] = _finite(row.pose_error_deg)
-    for s in STAGE_COLUMNS:
+    others = [m for m in result.outliers if m not in ("zcut", "sor")]
+    for m in others:  # the other filter methods' outlier counts, named like the zcut and sor columns
+        out[m] = int(np.count_nonzero(result.outliers[m]))
+    for s in (*STAGE_COLUMNS, *others):
         out[f"t_{s}_s"] = _finite(float(result.timings[s])) if s in result.timings else None
     out["warnings"] = "; ".join(result.warnings)
     out["scored"] = truth is not None
-    preds = method_predictions(result.zcut_outliers, result.sor_outliers)
-    for m in METHODS:
+    preds = method_predictions(result, methods)
+    for m in methods:
         tp = fp = fn = None
         if truth is not None:
             tp, fp, fn = pixel_counts(preds[m], truth, region)
@@ -228,7 +228,8 @@ def _batch_frames(unit, job: Job, res: UnitResult, session, truth_src) -> None:
             if isinstance(t, str):
                 res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": t})
                 t = None
-            res.rows.append(batch_row(unit, frame, result, row, t, scored_region(result, job.region)))
+            res.rows.append(batch_row(unit, frame, result, row, t, scored_region(result, job.region),
+                                      session.config.reported_methods))
             res.frames += 1
         completed = True
     finally:

@@ -41,8 +41,16 @@ def run(args: argparse.Namespace) -> int:
         frame_accuracy,
         report_json,
     )
-    from annotate.truth import LabelTruth, SyntheticTruth, check_region, region_of_results_frame, scored_region
+    from annotate.truth import (
+        LabelTruth,
+        SyntheticTruth,
+        check_region,
+        method_predictions,
+        region_of_results_frame,
+        scored_region,
+    )
     from replay.commands.common import load_model, open_session, overrides_of
+    from replay.pipeline.methods import base_methods, method_masks
     from replay.logs.reader import LogReader
     from zcut.errors import ParameterError, ZcutError
 
@@ -61,7 +69,8 @@ def run(args: argparse.Namespace) -> int:
     truth_src = (LabelTruth(args.labels, args.log, annotator=args.annotator) if args.labels
                  else SyntheticTruth(with_kinds=layout.TRUTH_OUTLIER_KIND in reader.mask_topics))
     try:
-        is_results = layout.ZCUT_OUTLIERS in reader.mask_topics and layout.SOR_OUTLIERS in reader.mask_topics
+        is_results = layout.ZCUT_OUTLIERS in reader.mask_topics
+        methods = _results_methods(reader, args) if is_results else None
         if args.labels is None and layout.TRUTH_OUTLIERS not in reader.mask_topics:
             raise ZcutError(f"{args.log} has no {layout.TRUTH_OUTLIERS}: give human labels with --labels DB")
         session = None
@@ -74,13 +83,14 @@ def run(args: argparse.Namespace) -> int:
         results, unscored = [], []
         for frame, r in frames:
             if r is None:
-                preds = {"zcut": frame.masks[layout.ZCUT_OUTLIERS], "sor": frame.masks[layout.SOR_OUTLIERS]}
+                preds = method_masks({b: frame.masks[layout.method_topic(b)] for b in base_methods(methods)
+                                      if layout.method_topic(b) in frame.masks}, methods)
                 # a results file's /zcut/filtered has the outliers set to NaN: its valid pixels plus the
                 # predictions are the source's valid pixels
                 region = region_of_results_frame(frame, args.region)
                 valid = region_of_results_frame(frame, "valid")
             else:
-                preds = {"zcut": r.zcut_outliers, "sor": r.sor_outliers}
+                preds = method_predictions(r, session.config.methods)
                 region, valid = scored_region(r, args.region), r.valid
             t = truth_src.truth(frame, valid)
             if isinstance(t, str):
@@ -97,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
             print(report_json(report))
         else:
             pred = "computed by the pipeline" if session is not None else \
-                f"from {layout.ZCUT_OUTLIERS}, {layout.SOR_OUTLIERS}"
+                f"from the results file's masks ({', '.join(layout.method_topic(b) for b in base_methods(methods))})"
             print(f"truth: {truth_src.name}; predictions: {pred}")
             if session is not None:
                 for note in session.notes:
@@ -110,6 +120,24 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if hasattr(truth_src, "close"):
             truth_src.close()
+
+
+def _results_methods(reader, args) -> list[str]:
+    """The base methods a results file holds masks of (``/zcut/outliers``, ``/zcut/sor_outliers``,
+    ``/zcut/methods/NAME``), restricted to ``--methods`` when given (each must be there)."""
+    from replay.logs import layout
+    from replay.pipeline.methods import members, parse_methods, registry
+    from zcut.errors import ZcutError
+
+    held = [m for m in registry() if layout.method_topic(m) in reader.mask_topics]
+    if getattr(args, "methods", None) is None:
+        return held
+    want = parse_methods(args.methods, source="--methods")
+    missing = sorted({b for m in want for b in members(m)} - set(held))
+    if missing:
+        raise ZcutError(f"{args.log} is a results file without the masks of {', '.join(missing)} "
+                        f"(it holds {', '.join(held)}): replay the log with --methods, or score the log itself")
+    return list(want)
 
 
 def _agreement(args) -> int:

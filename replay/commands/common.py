@@ -31,6 +31,9 @@ def add_pipeline_options(p: argparse.ArgumentParser, *, bin_model: bool = True, 
                    help="z-cut Δd and d_max: the paper's nominal 0.2/30 mm (default) or its §5.4 ranges for the part")
     g.add_argument("--preset", metavar="KIND", choices=list(PART_KINDS),
                    help="shorthand for --part KIND --parameters geometry")
+    g.add_argument("--methods", metavar="LIST",
+                   help="the filter methods to run, report and score, comma-separated (default: the config's, "
+                   "else zcut,sor): " + ", ".join(_method_names()) + "; unions as a+b (e.g. zcut+sor)")
     g.add_argument("--topic", metavar="T", help="cloud topic (when the log has several)")
     p.set_defaults(zcut_overrides=zcut)
     if bin_model:
@@ -43,7 +46,14 @@ def overrides_of(args: argparse.Namespace) -> dict[str, Any]:
     from replay.pipeline import config as cfg
 
     z = {k: getattr(args, k, None) for k in ("step", "max_depth", "max_area", "rho")} if args.zcut_overrides else {}
-    return cfg.cli_layer(**z, part=args.part, parameters=args.parameters, preset=args.preset)
+    return cfg.cli_layer(**z, part=args.part, parameters=args.parameters, preset=args.preset,
+                         methods=getattr(args, "methods", None))
+
+
+def _method_names() -> list[str]:
+    from replay.pipeline.methods import registry
+
+    return list(registry())
 
 
 def inputs_of(args: argparse.Namespace) -> list[str]:

@@ -49,10 +49,16 @@ HEADER = (f"{'frame':>5} {'stamp_ns':>19} {'valid px':>9} {'z-cut':>7} {'SOR':>7
           f"{'α':>6} {'β_SOR':>6} {'β_zcut':>6} {'fitness':>7} {'RMSE mm':>7} {'time s':>6}")
 
 
+def header(others: tuple[str, ...] = ()) -> str:
+    """The table's header; ``others``: the other filter methods' columns (``--methods``)."""
+    return HEADER + "".join(f" {m:>{max(len(m), 7)}}" for m in others)
+
+
 def format_row(row) -> str:
     return (f"{row.index:>5} {row.stamp_ns:>19} {row.valid_px:>9} {row.zcut:>7} {row.sor:>7} {row.both:>6} "
             f"{_fmt(row.alpha, '6.3f'):>6} {_fmt(row.beta_sor, '6.3f'):>6} {_fmt(row.beta_zcut, '6.3f'):>6} "
-            f"{_fmt(row.fitness, '7.3f'):>7} {_fmt(row.rmse_mm, '7.2f'):>7} {row.time_s:>6.2f}")
+            f"{_fmt(row.fitness, '7.3f'):>7} {_fmt(row.rmse_mm, '7.2f'):>7} {row.time_s:>6.2f}"
+            + "".join(f" {n:>{max(len(m), 7)}}" for m, n in row.others.items()))
 
 
 def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=None):
@@ -69,7 +75,8 @@ def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=N
         for note in session.notes:
             print(f"zcut: {note}", file=err)
         if not json_mode:
-            print(HEADER, file=out, flush=True)
+            others = tuple(m for m in session.config.base_methods if m not in ("zcut", "sor"))
+            print(header(others), file=out, flush=True)
 
     def on_frame(frame, result, row) -> None:
         for w in result.warnings:

@@ -18,6 +18,14 @@ FILTERED = "/zcut/filtered"
 #: the pixels the filters judged (valid minus table and bin, plus the above-the-rim points)
 ZONE = "/zcut/zone"
 RESULTS_PREFIX = "/zcut/"
+#: the outliers of a filter method other than the z-cut and SOR (``zcut replay --methods``): mono8
+METHODS_PREFIX = "/zcut/methods/"
+
+
+def method_topic(name: str) -> str:
+    """The results topic of a base method's outliers: ``/zcut/outliers`` for the z-cut,
+    ``/zcut/sor_outliers`` for SOR, ``/zcut/methods/NAME`` for the others."""
+    return {"zcut": ZCUT_OUTLIERS, "sor": SOR_OUTLIERS}.get(name, METHODS_PREFIX + name)
 
 # synthetic truth: mono8, 255 = true outlier; the kind image holds the codes of OUTLIER_KINDS
 TRUTH_OUTLIERS = "/ground_truth/outliers"

@@ -30,6 +30,7 @@ import numpy as np
 
 from replay.errors import ConfigError
 from replay.logs import layout
+from replay.pipeline.methods import DEFAULT_METHODS, base_methods, parse_methods, reported_methods
 from zcut.cloud import Intrinsics
 from zcut.errors import ParameterError
 from zcut.params import (
@@ -54,7 +55,7 @@ DEFAULT_FACE_FRACTION = 0.01
 ZCUT_KEYS = {"step_mm": "step", "max_depth_mm": "max_depth", "max_area_px": "max_area", "a_max_px": "a_max",
              "connectivity": "connectivity"}
 ZCUT_INPUTS = (*ZCUT_KEYS, "rho_thr")
-TOP_KEYS = ("part", "parameters", "preset")
+TOP_KEYS = ("part", "parameters", "preset", "methods")
 
 #: The other sections: the stage types of zcut.params, whose fields are the file's keys.
 STAGE_SECTIONS: dict[str, type] = {
@@ -135,6 +136,9 @@ class PipelineConfig:
         d_max with ``parameters = "geometry"``).
     parameters : {"nominal", "geometry"}
         How Δd and d_max were chosen (before any explicit value in the file or on the command line).
+    methods : tuple of str
+        The filter methods every command runs, reports and scores (:mod:`replay.pipeline.methods`:
+        base names and unions ``a+b``); default ``("zcut", "sor")``.
     """
 
     zcut: ZCutParams
@@ -144,6 +148,7 @@ class PipelineConfig:
     removal: RemovalParams = field(default_factory=RemovalParams)
     part: str | None = None
     parameters: str = "nominal"
+    methods: tuple[str, ...] = DEFAULT_METHODS
 
     def __post_init__(self) -> None:
         types = {"zcut": ZCutParams, **STAGE_SECTIONS}
@@ -152,6 +157,18 @@ class PipelineConfig:
                 raise ConfigError(f"PipelineConfig.{name} must be a {cls.__name__}, got {getattr(self, name)!r}")
         if self.parameters not in PARAMETER_MODES:
             raise ConfigError(f"parameters must be one of {', '.join(PARAMETER_MODES)}, got {self.parameters!r}")
+        object.__setattr__(self, "methods", parse_methods(self.methods, source="PipelineConfig.methods"))
+
+    @property
+    def base_methods(self) -> tuple[str, ...]:
+        """The base methods a replay runs for :attr:`methods` (the z-cut always)."""
+        return base_methods(self.methods)
+
+    @property
+    def reported_methods(self) -> tuple[str, ...]:
+        """The methods a report lists: :attr:`methods`, then ``union`` and ``intersection`` of zcut
+        and sor when both are there."""
+        return reported_methods(self.methods)
 
     def replace(self, **changes: Any) -> PipelineConfig:
         """A copy with some stage parameters replaced (e.g. one grid point of a sweep)."""
@@ -166,6 +183,7 @@ def to_dict(config: PipelineConfig) -> dict[str, Any]:
     out: dict[str, Any] = {"parameters": config.parameters}
     if config.part is not None:
         out["part"] = config.part
+    out["methods"] = list(config.methods)
     for name in SECTION_NAMES:
         sec = getattr(config, name)
         if name == "zcut":
@@ -174,6 +192,18 @@ def to_dict(config: PipelineConfig) -> dict[str, Any]:
             out[name] = {f.name: getattr(sec, f.name) for f in dataclasses.fields(sec)
                          if getattr(sec, f.name) is not None}
     return out
+
+
+def config_sha256(config: PipelineConfig) -> str:
+    """The identity of a resolved config: the sha256 of its values (:func:`to_dict`, keys sorted).
+
+    Two configs have the same identity iff they run the same filter; a study's folder records it
+    to refuse mixing runs of different configs.
+    """
+    import hashlib
+
+    text = json.dumps(to_dict(config), sort_keys=True, allow_nan=True)
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def check_layer(layer: dict[str, Any], *, source: str) -> dict[str, Any]:
@@ -193,6 +223,9 @@ def check_layer(layer: dict[str, Any], *, source: str) -> dict[str, Any]:
         if key == "parameters":
             if value not in PARAMETER_MODES:
                 raise ConfigError(f"{source}: parameters must be one of {', '.join(PARAMETER_MODES)}, got {value!r}")
+            continue
+        if key == "methods":
+            parse_methods(value, source=f"{source}: methods")
             continue
         if key not in SECTIONS:
             raise ConfigError(f"{source}: unknown section [{key}] (known: {', '.join(SECTION_NAMES)}, "
@@ -249,10 +282,12 @@ def load_toml(path: str | Path) -> dict[str, Any]:
 
 def cli_layer(*, step: float | None = None, max_depth: float | None = None, max_area: float | None = None,
               rho: float | None = None, part: str | None = None, parameters: str | None = None,
-              preset: str | None = None) -> dict[str, Any]:
+              preset: str | None = None, methods: str | None = None) -> dict[str, Any]:
     """The command-line overrides (``--step/--max-depth/--max-area/--rho/--part/--parameters/
-    --preset``) as a validated layer."""
+    --preset/--methods``) as a validated layer."""
     out: dict[str, Any] = {}
+    if methods is not None:
+        out["methods"] = list(parse_methods(methods, source="--methods"))
     for key, value in (("preset", preset), ("part", part), ("parameters", parameters)):
         if value is not None:
             out[key] = value
@@ -288,6 +323,7 @@ def to_toml(config: PipelineConfig, *, header: str = "") -> str:
     lines.append(f"parameters = {_toml_value(d['parameters'])}")
     if "part" in d:
         lines.append(f"part = {_toml_value(d['part'])}")
+    lines.append("methods = [" + ", ".join(_toml_value(m) for m in d["methods"]) + "]")
     for name in SECTION_NAMES:
         lines.append("")
         lines.append(f"[{name}]")
@@ -316,7 +352,8 @@ def from_dict(d: dict[str, Any], *, source: str = "config") -> PipelineConfig:
         raise _config_error(e, source) from None
     part = d.get("part") if d.get("part") is not None else d.get("preset")
     mode = d.get("parameters") or ("geometry" if d.get("preset") else "nominal")
-    return PipelineConfig(zcut=zc, **stages, part=part, parameters=mode)
+    return PipelineConfig(zcut=zc, **stages, part=part, parameters=mode,
+                          methods=tuple(d.get("methods", DEFAULT_METHODS)))
 
 
 # ----------------------------------------------------------------------------------- resolution
@@ -446,7 +483,7 @@ def _merge(*layers: dict[str, Any]) -> tuple[dict[str, Any], str | None]:
                 if value is not None:
                     out["part"], out["parameters"] = value, "geometry"
                 continue
-            if key in ("part", "parameters"):
+            if key in ("part", "parameters", "methods"):
                 out[key] = value
                 continue
             out.setdefault(key, {}).update(value)
@@ -528,7 +565,10 @@ def resolve(facts: LogFacts, *, file_layer: dict[str, Any] | None = None,
         stages = {name: cls(**d.get(name, {})) for name, cls in STAGE_SECTIONS.items()}
     except ParameterError as e:
         raise _config_error(e, "resolved config") from None
-    config = PipelineConfig(zcut=zc, **stages, part=part, parameters=mode)
+    config = PipelineConfig(zcut=zc, **stages, part=part, parameters=mode,
+                            methods=tuple(d.get("methods", DEFAULT_METHODS)))
+    if config.methods != DEFAULT_METHODS:
+        notes.append(f"methods: {', '.join(config.methods)}")
     notes.append(f"z-cut: step {zc.step:g} mm, max depth {zc.max_depth:g} mm, max area {zc.max_area:.2f} px; "
                  f"SOR: k {config.sor.k}, std_ratio {config.sor.std_ratio:g} on the "
                  f"{'top of the pile (within d_max of the highest point)' if config.sor.region == 'top' else 'whole zone'}")

@@ -59,6 +59,7 @@ class FrameRow:
     pose_error_mm: float = math.nan
     pose_error_deg: float = math.nan
     icp_fitness: float = math.nan
+    others: dict[str, int] = field(default_factory=dict)  # outliers of every other base method, by name
 
     @classmethod
     def of(cls, result: FrameResult, *, true_pose: np.ndarray | None = None) -> FrameRow:
@@ -79,11 +80,14 @@ class FrameRow:
             rmse_mm=float(reg.inlier_rmse) * 1000.0 if reg is not None else math.nan,
             time_s=float(result.timings["total"]), warnings=result.warnings, pose_error_mm=err_mm,
             pose_error_deg=err_deg, icp_fitness=float(reg.icp_fitness) if reg is not None else math.nan,
+            others={m: int(np.count_nonzero(o)) for m, o in result.outliers.items() if m not in ("zcut", "sor")},
         )
 
     def as_dict(self) -> dict[str, Any]:
-        d = {k: getattr(self, k) for k in self.__slots__}
+        """The row as replay --json writes it: the other methods' counts under their own names."""
+        d = {k: getattr(self, k) for k in self.__slots__ if k != "others"}
         d["warnings"] = list(self.warnings)
+        d.update(self.others)
         return {k: _json_number(v) for k, v in d.items()}
 
 
@@ -129,6 +133,9 @@ class ReplaySummary:
     def as_dict(self) -> dict[str, Any]:
         total = {k: sum(getattr(r, k) for r in self.rows)
                  for k in ("valid_px", "zcut", "sor", "both", "above_rim", "clusters")}
+        for r in self.rows:
+            for m, n in r.others.items():
+                total[m] = total.get(m, 0) + n
         t = sum(r.time_s for r in self.rows)
         return {
             "log": self.log,
@@ -219,9 +226,13 @@ def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Iterator[Frame]:
 
 
 def open_log(path: Path, *, file_layer: dict[str, Any] | None = None, overrides: dict[str, Any] | None = None,
-             topic: str | None = None, reader_options: dict[str, Any] | None = None):
+             topic: str | None = None, reader_options: dict[str, Any] | None = None,
+             resolved: cfg.Resolved | None = None):
     """Open a log, read its first readable frame and resolve its config (SPEC §4: the one place a
-    log's parameters come from; :meth:`ReplaySession.open` and the batch planner both call it).
+    log's parameters come from; :meth:`ReplaySession.open` and the study planner both call it).
+
+    ``resolved``: the config already resolved for this log (a study's worker gets the driver's):
+    it is used as it is, nothing is resolved again.
 
     Returns
     -------
@@ -243,8 +254,10 @@ def open_log(path: Path, *, file_layer: dict[str, Any] | None = None, overrides:
     if first is None:
         raise LogDamageError(f"{path.name}: no readable frame on {reader.cloud_topic}"
                              + (f" ({reader.damage[0]})" if reader.damage else ""))
-    facts = cfg.log_facts(reader.metadata, first, intrinsics=getattr(reader, "intrinsics", None))
-    return reader, first, cfg.resolve(facts, file_layer=file_layer, cli=overrides)
+    if resolved is None:
+        facts = cfg.log_facts(reader.metadata, first, intrinsics=getattr(reader, "intrinsics", None))
+        resolved = cfg.resolve(facts, file_layer=file_layer, cli=overrides)
+    return reader, first, resolved
 
 
 class ReplaySession:
@@ -274,7 +287,8 @@ class ReplaySession:
     @classmethod
     def open(cls, path: str | Path, *, config_file: str | Path | None = None,
              overrides: dict[str, Any] | None = None, topic: str | None = None,
-             bin_model: BinModel | None = None, reader_options: dict[str, Any] | None = None) -> ReplaySession:
+             bin_model: BinModel | None = None, reader_options: dict[str, Any] | None = None,
+             resolved: cfg.Resolved | None = None) -> ReplaySession:
         """Open a log and resolve its config from its metadata and first readable frame.
 
         Parameters
@@ -291,15 +305,18 @@ class ReplaySession:
             Without it the bin stages are skipped (each result carries the warning).
         reader_options : dict, optional
             Keyword arguments of :class:`~replay.logs.reader.LogReader` (e.g. resource caps).
+        resolved : Resolved, optional
+            The config already resolved for this log (a study's worker gets the driver's); then
+            ``config_file`` and ``overrides`` are not read.
 
         Raises
         ------
         LogFormatError, LogDamageError, ConfigError
         """
         path = Path(path)
-        file_layer = cfg.load_toml(config_file) if config_file is not None else None
+        file_layer = cfg.load_toml(config_file) if config_file is not None and resolved is None else None
         reader, first, resolved = open_log(path, file_layer=file_layer, overrides=overrides, topic=topic,
-                                           reader_options=reader_options)
+                                           reader_options=reader_options, resolved=resolved)
         return cls(path, reader, resolved, bin_model, first)
 
     @property
@@ -310,12 +327,8 @@ class ReplaySession:
     def notes(self) -> tuple[str, ...]:
         return self.resolved.notes
 
-    def config_toml(self) -> str:
-        """The resolved config as TOML, headed with the log's name."""
-        return cfg.to_toml(self.config, header=f"zcut resolved config for {self.path.name}")
-
     def start_info(self) -> ReplayStart:
-        return ReplayStart(self.path.name, self.config_toml(), self.notes, self.reader.metadata, self.bin_model)
+        return ReplayStart(self.path.name, self.resolved, self.reader.metadata, self.bin_model)
 
     def located(self, *, frames: tuple[int, int | None] = (0, None),
                 config: cfg.PipelineConfig | None = None) -> Iterator[tuple[Frame, Future]]:

@@ -26,6 +26,7 @@ import numpy as np
 from replay.logs import layout
 from replay.logs.frame import Frame
 from replay.outputs import AtomicOutput, config_path_for
+from replay.pipeline.config import PipelineConfig, Resolved, to_toml
 from replay.pipeline.stages import FrameResult
 from zcut.bin_model import BinModel
 
@@ -40,20 +41,30 @@ class ReplayStart:
     ----------
     log : str
         The log's file name.
-    config_toml : str
-        The resolved config as TOML (:func:`replay.pipeline.config.to_toml`).
-    notes : tuple of str
-        How the config was resolved.
+    resolved : Resolved
+        The resolved config and the notes on how it was resolved.
     metadata : dict
         The log's MCAP metadata records.
     bin_model : BinModel or None
     """
 
     log: str
-    config_toml: str
-    notes: tuple[str, ...]
+    resolved: Resolved
     metadata: dict[str, dict[str, str]]
     bin_model: BinModel | None
+
+    @property
+    def config(self) -> PipelineConfig:
+        return self.resolved.config
+
+    @property
+    def notes(self) -> tuple[str, ...]:
+        return self.resolved.notes
+
+    def config_toml(self) -> str:
+        """The resolved config as TOML (written beside outputs and logged to Rerun), headed with
+        the log's name."""
+        return to_toml(self.resolved.config, header=f"zcut resolved config for {self.log}")
 
 
 class FrameSink(Protocol):
@@ -89,7 +100,7 @@ class NullSink:
 def _write_config_beside(path: Path, info: ReplayStart) -> Path:
     cp = config_path_for(path)
     with AtomicOutput(cp) as out:
-        out.temp.write_text(info.config_toml, encoding="utf-8", errors="backslashreplace")  # undecodable log names
+        out.temp.write_text(info.config_toml(), encoding="utf-8", errors="backslashreplace")  # undecodable log names
     return cp
 
 
@@ -120,17 +131,16 @@ class RerunSink:
         self.viewer_error: str | None = None
 
     def start(self, info: ReplayStart) -> None:
-        from replay.pipeline import config as cfg
         from replay.pipeline import viz
 
         self._opts = viz.VizOptions.full() if self.full_detail else viz.VizOptions()
-        self._step = cfg.from_dict(_toml_dict(info.config_toml)).zcut.step
+        self._step = info.config.zcut.step
         self._rec = viz.new_recording()
         if self.rrd is not None:
             self._file = AtomicOutput(self.rrd)
         viz.open_sink(self._rec, rrd=None if self._file is None else str(self._file.temp), spawn=self.spawn,
-                      connect=self.connect)
-        viz.log_static(self._rec, config_toml=info.config_toml, notes=info.notes, bin_model=info.bin_model,
+                      connect=self.connect, methods=info.config.base_methods)
+        viz.log_static(self._rec, config_toml=info.config_toml(), notes=info.notes, bin_model=info.bin_model,
                        source=f"log: {info.log}")
 
     def write(self, frame: Frame, result: FrameResult) -> None:
@@ -163,15 +173,10 @@ class RerunSink:
         return dict(self._outputs)
 
 
-def _toml_dict(text: str) -> dict:
-    import tomllib
-
-    return tomllib.loads(text)
-
-
 class ResultsSink:
-    """The results MCAP (SPEC §5): ``/zcut/outliers``, ``/zcut/sor_outliers``, ``/zcut/bin_mask``,
-    ``/zcut/filtered``, with the source's image, camera info and masks (ground truth) passed through.
+    """The results MCAP (SPEC §5): ``/zcut/outliers``, ``/zcut/sor_outliers``, ``/zcut/methods/NAME``
+    (every other base method the config runs), ``/zcut/bin_mask``, ``/zcut/filtered``, with the
+    source's image, camera info and masks (ground truth) passed through.
 
     Parameters
     ----------
@@ -187,7 +192,7 @@ class ResultsSink:
     def start(self, info: ReplayStart) -> None:
         from replay.logs.writer import LogWriter
 
-        meta = {layout.RESULTS_METADATA: {"source": info.log, "config_toml": info.config_toml}}
+        meta = {layout.RESULTS_METADATA: {"source": info.log, "config_toml": info.config_toml()}}
         for name, record in info.metadata.items():  # the synthetic truth's records travel along
             if name.startswith(layout.SYNTH_METADATA):
                 meta[name] = dict(record)
@@ -197,8 +202,8 @@ class ResultsSink:
     def write(self, frame: Frame, result: FrameResult) -> None:
         w = self._writer
         kw = {"stamp_ns": frame.stamp_ns, "frame_id": frame.frame_id}
-        w.write_mask(layout.ZCUT_OUTLIERS, result.zcut_outliers, **kw)
-        w.write_mask(layout.SOR_OUTLIERS, result.sor_outliers, **kw)
+        for name, mask in result.outliers.items():  # the z-cut first, then SOR and the others that ran
+            w.write_mask(layout.method_topic(name), mask, **kw)
         if result.bin_mask is not None:
             w.write_mask(layout.BIN_MASK, result.bin_mask.mask, **kw)
         filtered = frame.xyz.copy()

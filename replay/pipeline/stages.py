@@ -17,9 +17,10 @@ import numpy as np
 
 from replay.logs.frame import Frame
 from replay.pipeline.config import PipelineConfig
+from replay.pipeline.methods import MethodOutput, registry
 from zcut.prepared_model import PreparedBinModel
 from zcut.binmask import BinMaskResult, bin_mask, bin_pixels
-from zcut.cuts import CutResult, find_clusters
+from zcut.cuts import CutResult
 from zcut.errors import InputShapeError, ParameterError
 from zcut.metrics import RelativeMetrics, relative_metrics
 from zcut.params import ZCutParams
@@ -51,19 +52,21 @@ class FrameResult:
     removal : RemovalResult or None
         None when the bin stages were skipped.
     zone : (H, W) bool ndarray
-        Pixels the z-cut and SOR judge (valid minus table, easy outliers and bin).
+        Pixels the filters judge (valid minus table, easy outliers and bin).
     height_mm : (H, W) float64 ndarray
         The height image given to the z-cut.
     cut : CutResult
         Clusters and levels of the z-cut.
-    zcut_outliers : (H, W) bool ndarray
-        z-cut outliers in the zone, plus the easy outliers above the rim.
-    sor_outliers : (H, W) bool ndarray
-        SOR outliers in the zone, plus the easy outliers (all False when SOR is disabled).
+    outliers : dict[str, (H, W) bool ndarray]
+        Every base method's outliers (``config.base_methods``: the z-cut always, SOR and the other
+        filters when the config's methods name them), each in the zone plus the easy outliers above
+        the rim; unions and the report's derived methods come from
+        :func:`replay.pipeline.methods.method_mask`.
     metrics : RelativeMetrics
-        α, β of the zone-only masks (paper eqs. 3-4): the easy outliers are common to both and left out.
+        α, β of the zone-only z-cut and SOR masks (paper eqs. 3-4): the easy outliers are common to
+        both and left out.
     timings : dict[str, float]
-        Seconds per stage (keys from :data:`STAGES` that ran) and ``"total"``.
+        Seconds per stage (keys from :data:`STAGES` and the method names that ran) and ``"total"``.
     warnings : tuple of str
         Stages skipped or failed, for the user to see.
     """
@@ -77,11 +80,22 @@ class FrameResult:
     zone: np.ndarray
     height_mm: np.ndarray
     cut: CutResult
-    zcut_outliers: np.ndarray
-    sor_outliers: np.ndarray
+    outliers: dict[str, np.ndarray]
     metrics: RelativeMetrics
     timings: dict[str, float]
     warnings: tuple[str, ...]
+
+    @property
+    def zcut_outliers(self) -> np.ndarray:
+        """(H, W) bool: z-cut outliers in the zone, plus the easy outliers above the rim."""
+        return self.outliers["zcut"]
+
+    @property
+    def sor_outliers(self) -> np.ndarray:
+        """(H, W) bool: SOR outliers in the zone, plus the easy outliers (all False when SOR did not
+        run: disabled, or not among the config's methods)."""
+        s = self.outliers.get("sor")
+        return s if s is not None else np.zeros_like(self.valid)
 
     @property
     def easy_outliers(self) -> np.ndarray:
@@ -382,23 +396,15 @@ def run_frame(
     located = z.located
     timings = dict(z.timings)
     warnings = list(z.warnings)
-    valid, zone, height, easy = located.valid, z.zone, z.height_mm, z.easy
+    valid, zone, easy = located.valid, z.zone, z.easy
+
+    found = run_methods(frame, z, config, timings=timings, warnings=warnings)
+    cut = found["zcut"].detail
+    zone_only = {name: out.outliers for name, out in found.items()}
 
     t = time.perf_counter()
-    cut = find_clusters(height, params=config.zcut)
-    z_zone = cut.outliers & zone
-    timings["zcut"] = time.perf_counter() - t
-
-    t = time.perf_counter()
-    if config.sor.enabled:
-        s_zone = sor_on_zone(frame, z, config)
-    else:
-        s_zone = np.zeros_like(valid)
-        warnings.append("SOR disabled (sor.enabled = false)")
-    timings["sor"] = time.perf_counter() - t
-
-    t = time.perf_counter()
-    metrics = relative_metrics(s_zone, z_zone)
+    sor_zone = zone_only.get("sor")
+    metrics = relative_metrics(sor_zone if sor_zone is not None else np.zeros_like(valid), zone_only["zcut"])
     timings["metrics"] = time.perf_counter() - t
     timings["total"] = located.seconds + time.perf_counter() - t_start
     return FrameResult(
@@ -409,11 +415,36 @@ def run_frame(
         registration=located.registration,
         removal=z.removal,
         zone=zone,
-        height_mm=height,
+        height_mm=z.height_mm,
         cut=cut,
-        zcut_outliers=z_zone | easy,
-        sor_outliers=s_zone | easy,
+        outliers={name: m | easy for name, m in zone_only.items()},
         metrics=metrics,
         timings=timings,
         warnings=tuple(warnings),
     )
+
+
+def run_methods(frame: Frame, zone: Zone, config: PipelineConfig, *, timings: dict[str, float],
+                warnings: list[str]) -> dict[str, MethodOutput]:
+    """Every base method of ``config`` on a zone (:mod:`replay.pipeline.methods`), timed.
+
+    Adds each method's seconds to ``timings`` under its name and its warning, if any, to
+    ``warnings``; a method that needs the camera model on a frame without one returns no outliers
+    and says so.
+    """
+    known = registry()
+    out: dict[str, MethodOutput] = {}
+    for name in config.base_methods:
+        method = known[name]
+        t = time.perf_counter()
+        if method.needs_intrinsics and frame.intrinsics is None:
+            res = MethodOutput(np.zeros_like(zone.zone),
+                               warning=f"{name}: needs the camera model and the log has none (no CameraInfo): "
+                                       f"no outliers")
+        else:
+            res = method.run(frame, zone, config)
+        timings[name] = time.perf_counter() - t
+        if res.warning:
+            warnings.append(res.warning)
+        out[name] = res
+    return out

@@ -9,6 +9,8 @@ An explicit :class:`rerun.RecordingStream` is passed in (no global recording). E
 ``image/removal``                     table (1), bin (2), easy outliers (3), zone (4)
 ``image/clusters``                    tagged z-cut clusters; each class labelled with area, level, ρ
 ``image/outliers``                    z-cut only (1), SOR only (2), both (3), above the rim (4)
+``image/methods/NAME``                the outliers of every other filter method the config runs
+                                      (``--methods``): one view each, with its count and time
 ``zcut/cuts``                         the z-cuts: scrub the ``depth_um`` timeline (see below)
 ``world/cloud``                       the cloud (every 4th pixel at default detail)
 ``world/outliers``                    the outliers in 3D, coloured as in ``image/outliers``
@@ -54,6 +56,10 @@ REMOVAL_CLASSES = (
     (3, "above the rim", (255, 0, 0)),
     (4, "zone", (80, 200, 80)),
 )
+METHOD_CLASSES = (
+    (1, "outlier", (255, 60, 160)),
+    (2, "above the rim", (255, 0, 0)),
+)
 BIN_MASK_CLASSES = (
     (1, "bin footprint", (0, 160, 255)),
     (2, "bin walls", (255, 255, 0)),
@@ -98,17 +104,23 @@ def new_recording(*, application_id: str = "zcut", recording_id: str | None = No
                               make_thread_default=False)
 
 
-def default_blueprint() -> rrb.Blueprint:
-    """Image stages on the left, 3D and the z-cuts in the middle, scalars and config on the right."""
+def default_blueprint(methods: tuple[str, ...] = ("zcut", "sor")) -> rrb.Blueprint:
+    """Image stages on the left, 3D and the z-cuts in the middle, scalars and config on the right;
+    ``methods``: the base methods the replay runs (a view for each other than the z-cut and SOR)."""
+    others = [m for m in methods if m not in ("zcut", "sor")]
+    image_views = [
+        rrb.Spatial2DView(name="RGB + bin mask", origin="image", contents=["image/rgb", "image/bin_mask"]),
+        rrb.Spatial2DView(name="Removal", origin="image", contents=["image/rgb", "image/removal"]),
+        rrb.Spatial2DView(name="Outliers (z-cut / SOR / both)", origin="image",
+                          contents=["image/rgb", "image/outliers"]),
+    ]
+    if others:
+        image_views.append(rrb.Tabs(*[rrb.Spatial2DView(name=f"Outliers: {m}", origin="image",
+                                                        contents=["image/rgb", f"image/methods/{m}"])
+                                      for m in others]))
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Vertical(
-                rrb.Spatial2DView(name="RGB + bin mask", origin="image",
-                                  contents=["image/rgb", "image/bin_mask"]),
-                rrb.Spatial2DView(name="Removal", origin="image", contents=["image/rgb", "image/removal"]),
-                rrb.Spatial2DView(name="Outliers (z-cut / SOR / both)", origin="image",
-                                  contents=["image/rgb", "image/outliers"]),
-            ),
+            rrb.Vertical(*image_views),
             rrb.Vertical(
                 rrb.Spatial3DView(name="3D: cloud, outliers, bin model", origin="world"),
                 rrb.Horizontal(
@@ -133,9 +145,10 @@ def default_blueprint() -> rrb.Blueprint:
 
 
 def open_sink(rec: rr.RecordingStream, *, rrd: str | None = None, spawn: bool = False,
-              connect: str | None = None) -> None:
-    """Send ``rec`` to a file, a spawned viewer or a running viewer, with the default blueprint."""
-    bp = default_blueprint()
+              connect: str | None = None, methods: tuple[str, ...] = ("zcut", "sor")) -> None:
+    """Send ``rec`` to a file, a spawned viewer or a running viewer, with the default blueprint for
+    the base ``methods`` the replay runs."""
+    bp = default_blueprint(methods)
     if rrd is not None:
         rec.save(rrd, default_blueprint=bp)
     elif spawn:
@@ -156,6 +169,7 @@ def log_static(rec: rr.RecordingStream, *, config_toml: str, notes: tuple[str, .
     rec.log("image/removal", _ctx(REMOVAL_CLASSES), static=True)
     rec.log("image/bin_mask", _ctx(BIN_MASK_CLASSES), static=True)
     rec.log("world/outliers", _ctx(OUTLIER_CLASSES), static=True)
+    rec.log("image/methods", _ctx(METHOD_CLASSES), static=True)
     rec.log("world", rr.ViewCoordinates.RDF, static=True)
     head = f"# zcut replay\n\n{source}\n\n" if source else "# zcut replay\n\n"
     body = "".join(f"- {n}\n" for n in notes)
@@ -398,6 +412,17 @@ def log_outliers(rec: rr.RecordingStream, frame: Frame, result: FrameResult, cla
                                           radii=rr.Radius.ui_points(3.0)))
 
 
+def log_methods(rec: rr.RecordingStream, result: FrameResult) -> None:
+    """The outliers of every base method other than the z-cut and SOR (one segmentation image each:
+    its outliers 1, the above-the-rim points 2) and their counts."""
+    easy = _u8(result.easy_outliers) * np.uint8(2)
+    for name, mask in result.outliers.items():
+        if name in ("zcut", "sor"):
+            continue
+        rec.log(f"image/methods/{name}", rr.SegmentationImage(np.maximum(_u8(mask), easy), opacity=0.8))
+        rec.log(f"counts/{name}", rr.Scalars(float(np.count_nonzero(mask))))
+
+
 def log_cloud(rec: rr.RecordingStream, frame: Frame, opts: VizOptions) -> None:
     """The cloud in 3D (strided at default detail), in its RGB colours when there are some."""
     s = 1 if opts.full_detail else max(int(opts.cloud_stride), 1)
@@ -440,6 +465,7 @@ def log_frame(rec: rr.RecordingStream, frame: Frame, result: FrameResult, *,
     log_clusters(rec, result, opts)
     classes = _outlier_classes(result)
     log_outliers(rec, frame, result, classes)
+    log_methods(rec, result)
     log_cloud(rec, frame, opts)
     log_scalars(rec, result, classes)
     for w in result.warnings:

@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         units, todo = start_units(plans, store, what="", executor=executor)
         job = Job(config_file=absolute(args.config), overrides=overrides, bin_model=absolute(args.bin_model), topic=args.topic,
                   labels=absolute(args.labels), annotator=args.annotator, region=args.region,
-                  configs={p.sha256: p.config_toml for p in plans if p.units},
+                  configs={p.sha256: p.resolved for p in plans if p.units},
                   extra={"out_dir": str(store.root) if (args.results or args.rrd) else None,
                          "results": args.results, "rrd": args.rrd})
         total = sum(u.n_frames or 0 for u in todo) or None

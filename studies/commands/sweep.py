@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         plans = plan_logs(logs, config_file=args.config, overrides=overrides, topic=args.topic,
                           frames_per_unit=args.frames_per_unit, whole=False)
         first = next(p for p in plans if p.units)
-        base = cfg.from_dict(__import__("tomllib").loads(first.config_toml), source=str(first.path))
+        base = first.resolved.config
         grid = make_grid(**axes, config=base, max_points=args.max_points, force=args.force)
         options = study_options(args, overrides) | {"grid": grid.as_dict()}
         store = PartStore(args.out, identity("sweep", options, plans))
@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
                                   what=f"{n_sets} parameter sets ({grid.n_zcut} z-cut, {n_sets - grid.n_zcut} SOR), ")
         job = Job(config_file=absolute(args.config), overrides=overrides, bin_model=absolute(args.bin_model), topic=args.topic,
                   labels=absolute(args.labels), annotator=args.annotator, region=args.region,
-                  configs={p.sha256: p.config_toml for p in plans if p.units},
+                  configs={p.sha256: p.resolved for p in plans if p.units},
                   extra={"grid": sweep.grid_dict(grid)})
         per_frame = len(grid.steps)
         total = sum((u.n_frames or 0) for u in todo) * per_frame or None

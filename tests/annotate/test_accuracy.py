@@ -138,7 +138,7 @@ def test_method_masks_union_intersection():
 @pytest.mark.parametrize(
     ("preds", "truth", "exc", "match"),
     [
-        ({"zcut": ZCUT}, TRUTH, ParameterError, "missing"),
+        ({}, TRUTH, ParameterError, "at least one method"),
         ({"zcut": ZCUT, "sor": SOR[:2]}, TRUTH, InputShapeError, "sor"),
         ({"zcut": ZCUT.astype(np.uint8), "sor": SOR}, TRUTH, InputShapeError, "zcut"),
         ({"zcut": ZCUT, "sor": SOR}, TRUTH[None], InputShapeError, "outliers"),

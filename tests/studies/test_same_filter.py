@@ -19,7 +19,6 @@ from replay.cli import main
 from replay.logs import layout
 from replay.logs.reader import LogReader
 from replay.logs.writer import LogWriter
-from studies.work import toml_sha
 
 CONFIG = "[zcut]\nmax_depth_mm = 25.0\n[sor]\nk = 6\n"
 OVERRIDES = ["--rho", "0.05", "--step", "0.25"]
@@ -77,14 +76,15 @@ def test_every_command_resolves_the_same_config_and_masks(logs, kind, tmp_path, 
         r = runner.run(f)
         assert np.array_equal(r.zcut_outliers, masks[f.index][0]), f"annotate, frame {f.index}"
         assert np.array_equal(r.sor_outliers, masks[f.index][1]), f"annotate, frame {f.index}"
-    assert toml_sha(cfg.to_toml(runner.config)) == toml_sha(replay_toml)
+    replay_config = cfg.from_dict(tomllib.loads(replay_toml))
+    assert runner.config == replay_config
 
     # batch: the per-log config it resolved, and every frame's counts
     out = tmp_path / "batch"
     assert _cli("batch", log, "-o", out, "--config", config, *OVERRIDES, "--workers", "2",
                 "--frames-per-unit", "1") == 0
     run = json.loads((out / "run.json").read_text())
-    assert list(run["logs"].values()) == [toml_sha(replay_toml)]
+    assert list(run["logs"].values()) == [cfg.config_sha256(replay_config)]
     rows = {r["frame"]: r for r in pq.read_table(out / "frames.parquet").to_pylist()}
     for row in replay_summary["frames"]:
         b = rows[row["index"]]
