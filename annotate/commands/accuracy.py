@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
             print(report_json(report))
         else:
             pred = "computed by the pipeline" if session is not None else \
-                f"from the results file's masks ({', '.join(layout.method_topic(b) for b in base_methods(methods))})"
+                f"from {', '.join(layout.method_topic(b) for b in base_methods(methods))}"
             print(f"truth: {truth_src.name}; predictions: {pred}")
             if session is not None:
                 for note in session.notes:
