@@ -329,10 +329,30 @@ def _last_line(e: BaseException) -> str:
     return f"{type(e).__name__}: {lines[-1]}" if lines else type(e).__name__
 
 
+class InlineExecutor:
+    """Units run one after another in this process (``--workers 0``): no worker to start, the same
+    results; for debugging a unit and for small runs where starting workers costs more than the work."""
+
+    name = "this process"
+    workers = 0
+
+    def run(self, fn, units, job):
+        for u in units:
+            yield u, fn(u, job)
+
+    def close(self) -> None:
+        pass
+
+
 def make_executor(*, workers: int | None, ray: str | None) -> Executor:
-    """The executor the options choose: ``--ray ADDRESS`` or local processes."""
+    """The executor the options choose: ``--ray ADDRESS``, ``--workers 0`` (this process) or local
+    processes."""
     if ray is not None:
         if workers is not None:
             raise ConfigError("--workers is for local processes; a Ray cluster has its own CPUs")
         return RayExecutor(ray)
+    if workers is not None and (isinstance(workers, bool) or workers < 0):
+        raise ConfigError(f"--workers must be >= 0 (0: run in this process), got {workers!r}")
+    if workers == 0:
+        return InlineExecutor()
     return LocalExecutor(workers)

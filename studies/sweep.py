@@ -79,6 +79,7 @@ def sweep_frame(unit, frame, zone, config, grid: Grid, truth, region) -> list[di
                 "n_pred": int(np.count_nonzero(pred))}
 
     k0, std0 = config.sor.k, config.sor.std_ratio
+    with_sor = config.sor.enabled and "sor" in config.base_methods  # SOR as the replay runs it, or not at all
     for step in grid.steps:
         tree = zcut_tree(zone.height_mm, step=step, max_depth=max(grid.depths), connectivity=z.connectivity)
         c = tree.counts(grid.depths, areas, truth=L, scored=S, within=zone.zone, plus=easy)
@@ -87,7 +88,7 @@ def sweep_frame(unit, frame, zone, config, grid: Grid, truth, region) -> list[di
             judged = sor_region(zone.height_mm, zone.zone, params) if top else zone.zone
             # SOR at the config's own k and std_ratio, for the relative figures (zone-only masks,
             # as the replay computes α and β)
-            if not config.sor.enabled:
+            if not with_sor:
                 s_ref = np.zeros_like(zone.zone)
             elif std0 in grid.sor_stds and k0 in grid.sor_ks:
                 s_ref = sor_masks(k0, judged)[grid.sor_stds.index(std0)]
@@ -102,7 +103,7 @@ def sweep_frame(unit, frame, zone, config, grid: Grid, truth, region) -> list[di
                                  tp=int(c["tp"][i, j]), fp=int(c["fp"][i, j]), fn=int(c["fn"][i, j]),
                                  n_pred=int(c["n_pred"][i, j]), n_both=both, n_sor_only=n_sor - both,
                                  n_zcut_only=int(ov["fp"][0, j])))
-            if config.sor.enabled and (top or (step == grid.steps[0] and i == 0)):
+            if with_sor and (top or (step == grid.steps[0] and i == 0)):
                 for k in grid.sor_ks:
                     masks = sor_masks(k, judged)
                     for std, m in zip(grid.sor_stds, masks):

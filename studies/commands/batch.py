@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="MCAP logs or folders of them")
     p.add_argument("-o", "--out", required=True, metavar="DIR", help="output folder (created; rerun to resume)")
-    p.add_argument("--workers", type=int, default=None, metavar="N", help="local processes (default: the cores)")
+    p.add_argument("--workers", type=int, default=None, metavar="N", help="local processes (default: the cores; 0: run in this process, one unit after another)")
     p.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster: its address, or `auto` (RAY_ADDRESS)")
     p.add_argument("--labels", metavar="DB", help="score against an annotator's labels (default: synthetic truth)")
     p.add_argument("--annotator", help="whose labels (when the store has several)")

@@ -36,7 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--labels", metavar="DB", help="score against an annotator's labels (default: synthetic truth)")
     p.add_argument("--annotator", help="whose labels (when the store has several)")
     p.add_argument("--region", default="zone", help="scored region: zone (default) or valid")
-    p.add_argument("--workers", type=int, default=None, metavar="N", help="local processes (default: the cores)")
+    p.add_argument("--workers", type=int, default=None, metavar="N", help="local processes (default: the cores; 0: run in this process, one unit after another)")
     p.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster: its address, or `auto`")
     p.add_argument("--frames-per-unit", type=int, default=4, metavar="N", help="frames per unit of work (default 4)")
     p.add_argument("--no-report", action="store_true", help="skip the plots and report.html")
@@ -112,7 +112,8 @@ def run(args: argparse.Namespace) -> int:
         grid = make_grid(**axes, config=base, max_points=args.max_points, force=args.force)
         options = study_options(args, overrides) | {"grid": grid.as_dict()}
         store = PartStore(args.out, identity("sweep", options, plans))
-        n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if base.sor.enabled else 0)
+        with_sor = base.sor.enabled and "sor" in base.base_methods
+        n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if with_sor else 0)
         units, todo = start_units(plans, store, executor=executor,
                                   what=f"{n_sets} parameter sets ({grid.n_zcut} z-cut, {n_sets - grid.n_zcut} SOR), ")
         job = Job(config_file=absolute(args.config), overrides=overrides, bin_model=absolute(args.bin_model), topic=args.topic,

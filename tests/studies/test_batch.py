@@ -84,7 +84,7 @@ def test_a_damaged_log_does_not_stop_the_others(logs, tmp_path, capsys):
     (["{empty}"], "holds no .mcap log"),
     (["{nothing}"], "no such file or folder"),
     (["{text}"], "not an MCAP log"),
-    (["{a}", "--workers", "0"], "--workers must be >= 1"),
+    (["{a}", "--workers", "-1"], "--workers must be >= 0 (0: run in this process), got -1"),
     (["{a}", "--region", "table"], "--region must be one of zone, valid"),
     (["{a}", "--ray", "127.0.0.1:1", "--workers", "2"], "--workers is for local processes"),
 ])
