@@ -109,12 +109,24 @@ def write_spike_log(path: Path, *, frames=3, shape=(120, 160), seed=0) -> list[n
     return truths
 
 
-def pipeline_result(frame: Frame, *, metadata=None):
-    """The pipeline's result for one frame, with the config resolved as ``zcut annotate`` resolves it
-    (no config file, no bin model): what :func:`annotate.payload.prepare_frame` takes."""
-    from annotate.candidates import PipelineRunner
+def pipeline_result(frame: Frame):
+    """The pipeline's result for one frame, as ``zcut annotate`` computes it (no config file, no bin
+    model): the frame written alone to a log, opened with ``ReplaySession.open`` and run; what
+    :func:`annotate.payload.prepare_frame` takes."""
+    import tempfile
 
-    return PipelineRunner(metadata or {}).run(frame)
+    from replay.pipeline.session import ReplaySession
+
+    with tempfile.TemporaryDirectory(prefix="zcut-frame-") as d:
+        log = Path(d) / "frame.mcap"
+        with LogWriter(log) as w:
+            w.write_frame(frame)
+        results = ReplaySession.open(log).results()
+        try:
+            (_, result), = list(results)
+        finally:
+            results.close()
+    return result
 
 
 @contextlib.contextmanager
@@ -129,22 +141,22 @@ def page_client(base: str, token: str, **kw):
 
 
 class LiveServer:
-    """``annotate.server.make_server`` for a session, in a thread of this process, on a free port of
-    127.0.0.1 (``base``): for a gated catalog or short timeouts. :meth:`stop` also closes the session."""
+    """``annotate.server.make_server`` for a page, in a thread of this process, on a free port of
+    127.0.0.1 (``base``): for a gated catalogue or short timeouts. :meth:`stop` also closes the page."""
 
-    def __init__(self, session, **server_kw) -> None:
+    def __init__(self, page, **server_kw) -> None:
         import socket
         import threading
 
         from annotate.server import make_server
 
-        self.session = session
+        self.page = page
         self.sock = socket.socket()
         self.sock.bind(("127.0.0.1", 0))
         self.port = self.sock.getsockname()[1]
         self.base = f"http://127.0.0.1:{self.port}"
-        self.token = session.token
-        self.server = make_server(session, **server_kw)
+        self.token = page.token
+        self.server = make_server(page, **server_kw)
         self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]}, daemon=True)
         self.thread.start()
         deadline = time.monotonic() + 30
@@ -160,7 +172,7 @@ class LiveServer:
         self.server.should_exit = True
         self.thread.join(timeout=30)
         self.sock.close()
-        self.session.close()
+        self.page.close()
 
 
 class ServerProcess:

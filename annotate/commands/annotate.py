@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     import socket
     import webbrowser
 
-    from annotate.server import make_server, open_session
+    from annotate.server import make_server, open_page
     from replay.commands.common import load_model, overrides_of
     from zcut.errors import ParameterError
 
@@ -53,28 +53,28 @@ def run(args: argparse.Namespace) -> int:
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # restart at once on the same port
     # small responses (a label, the session) otherwise wait ~40 ms for the client's delayed ACK
     sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-    session = None
+    page = None
     try:
         try:
             sock.bind(("127.0.0.1", args.port))
         except OSError as e:
             raise ParameterError(f"--port {args.port}: cannot listen on 127.0.0.1: {e.strerror}") from None
         port = sock.getsockname()[1]
-        session = open_session(args.log, db, annotator=annotator, config_path=args.config, bin_model=model,
-                               overrides=overrides, topic=args.topic)
-        for other in session.announce(port):
+        page = open_page(args.log, db, annotator=annotator, config_path=args.config, bin_model=model,
+                         overrides=overrides, topic=args.topic)
+        for other in page.announce(port):
             print(f"warning: {other} serves the same label store {db}: edits from both are kept, "
                   "but the same annotator on both will meet conflicts", file=sys.stderr, flush=True)
         print(f"labels: {db}", flush=True)
-        print(f"annotator: {session.annotator or '(each page chooses its own)'}", flush=True)
-        url = f"http://127.0.0.1:{port}/?token={session.token}"
+        print(f"annotator: {page.annotator or '(each page chooses its own)'}", flush=True)
+        url = f"http://127.0.0.1:{port}/?token={page.token}"
         sock.listen(128)  # the URL is printed once connections are accepted (uvicorn serves the backlog)
         print(url, flush=True)
         if not args.no_browser:
             webbrowser.open(url)
-        make_server(session).run(sockets=[sock])
+        make_server(page).run(sockets=[sock])
     finally:
-        if session is not None:
-            session.close()
+        if page is not None:
+            page.close()
         sock.close()
     return 0

@@ -18,7 +18,7 @@ from annotate_helpers import (
 )
 
 from annotate.payload import parse_bundle
-from annotate.server import cookie_name
+from annotate.guard import cookie_name
 from annotate.store import LabelStore, file_sha256, pack_mask
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]

@@ -15,7 +15,7 @@ import pytest
 from annotate_helpers import ServerProcess, write_spike_log
 
 from annotate.payload import mask_runs, parse_bundle, parse_view
-from annotate.server import MAX_BODY_BYTES
+from annotate.guard import MAX_BODY_BYTES
 from annotate.store import LabelStore, file_sha256, pack_mask
 from replay.logs.reader import LogReader
 

@@ -11,12 +11,15 @@ import time
 
 import httpx
 import pytest
-from annotate_helpers import LiveServer, ServerProcess, page_client, pipeline_result, write_spike_log
+from annotate_helpers import LiveServer, ServerProcess, page_client, write_spike_log
 
-from annotate.payload import parse_bundle, prepare_frame
-from annotate.server import Catalog, GeometrySpill, Session, cookie_name, new_token, open_session
+from annotate.catalogue import Catalogue, GeometrySpill
+from annotate.guard import cookie_name, new_token
+from annotate.payload import parse_bundle
+from annotate.routes import Page
+from annotate.server import open_page
 from annotate.store import LabelStore, file_sha256, pack_mask
-from replay.logs.reader import LogReader
+from replay.pipeline.session import ReplaySession
 
 pytestmark = pytest.mark.slow
 
@@ -148,32 +151,33 @@ def test_each_page_session_chooses_its_name_once(tmp_path):
         srv.stop()
 
 
-def _gated_session(tmp_path, gate: threading.Event, *, lose: int | None = None) -> Session:
-    """A session whose frames after the first are prepared only once ``gate`` is set (or, with
+def _gated_page(tmp_path, gate: threading.Event, *, lose: int | None = None) -> Page:
+    """A page whose frames after the first are prepared only once ``gate`` is set (or, with
     ``lose``, that loses that frame, as a damaged log does, and stops before its end until ``gate``)."""
     log = tmp_path / "scan.mcap"
     write_spike_log(log, frames=4)
-    reader = LogReader(log)
+    replay = ReplaySession.open(log)
     store = LabelStore(tmp_path / "labels.sqlite")
     lg = store.add_log(log)
 
-    def frames():
-        for fr in reader.frames():
+    def results():
+        for fr, res in replay.results():
             if lose is None and fr.index >= 1 or fr.index == 3:
                 gate.wait(120)
             if fr.index != lose:
-                yield fr
+                yield fr, res
 
-    catalog = Catalog(frames_iter=frames, prepare=lambda fr: prepare_frame(fr, pipeline_result(fr)), store=store,
-                      log=lg, geometry=GeometrySpill(), total_hint=reader.n_frames)
-    session = Session(log_path=log, store=store, log=lg, catalog=catalog, token=new_token(), annotator="alice")
-    catalog.start()
-    return session
+    catalogue = Catalogue(results=results, store=store, log=lg, geometry=GeometrySpill(),
+                          total_hint=replay.reader.n_frames)
+    page = Page(log_path=log, store=store, log=lg, catalogue=catalogue, token=new_token(), annotator="alice",
+                replay=replay)
+    catalogue.start()
+    return page
 
 
 def test_frames_not_prepared_yet_answer_at_once_with_503(tmp_path):
     gate = threading.Event()
-    srv = LiveServer(_gated_session(tmp_path, gate))
+    srv = LiveServer(_gated_page(tmp_path, gate))
     try:
         with httpx.Client(base_url=srv.base, headers=srv.headers(), timeout=10) as c:
             deadline = time.monotonic() + 60
@@ -204,7 +208,7 @@ def test_frames_not_prepared_yet_answer_at_once_with_503(tmp_path):
 
 def test_a_frame_lost_to_damage_is_404_while_the_rest_is_prepared(tmp_path):
     gate = threading.Event()
-    srv = LiveServer(_gated_session(tmp_path, gate, lose=1))
+    srv = LiveServer(_gated_page(tmp_path, gate, lose=1))
     try:
         with httpx.Client(base_url=srv.base, headers=srv.headers(), timeout=10) as c:
             deadline = time.monotonic() + 60
@@ -243,11 +247,11 @@ def _closed(sock: socket.socket) -> bool:
 def test_slow_headers_and_bodies_are_timed_out(tmp_path):
     log = tmp_path / "scan.mcap"
     write_spike_log(log, frames=1)
-    srv = LiveServer(open_session(log, tmp_path / "labels.sqlite", annotator="alice"),
+    srv = LiveServer(open_page(log, tmp_path / "labels.sqlite", annotator="alice"),
                      header_timeout_s=0.5, body_timeout_s=0.5)
     head = f"PUT /api/frames/0/label HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Zcut-Token: {srv.token}\r\n"
     try:
-        srv.session.catalog.wait_until_done(60)
+        srv.page.catalogue.wait_until_done(60)
         cases = {
             "nothing sent": b"",
             "headers never finished": f"GET /api/session HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Zcut-Token: {srv.token}\r\n".encode(),

@@ -122,15 +122,13 @@ def _signatures(log, model, config, out_dir) -> dict:
     rep = _json_of("accuracy", log, "--bin-model", model, "--config", config, "--json")
     sig["accuracy"] = json.dumps(rep["frames"], sort_keys=True)
 
-    from annotate.candidates import PipelineRunner
     from replay.pipeline.bin_model import load_bin_model
+    from replay.pipeline.session import ReplaySession
 
-    reader = LogReader(log)
-    runner = PipelineRunner(reader.metadata, config_path=config, intrinsics=reader.intrinsics,
-                            bin_model=load_bin_model(model))
+    # the page's frames: the log opened as annotate.server.open_page opens it, its catalogue's results
+    replay = ReplaySession.open(log, config_file=config, bin_model=load_bin_model(model))
     page = {}
-    for f in reader.frames():
-        r = runner.run(f)
+    for f, r in replay.results():
         page[f.index] = (r.zcut_outliers.tobytes(), r.sor_outliers.tobytes())
     sig["annotate"] = page
     for i, (z, s) in page.items():  # the page shows the replay's masks

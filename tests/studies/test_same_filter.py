@@ -3,7 +3,7 @@
 
 Three kinds of log: a synthetic one (metadata and CameraInfo), real recorded PCDs (no metadata, no
 CameraInfo), and a log with CameraInfo but no metadata. Each command runs for real (the console
-script's `main`, the annotate server's candidate runner) and what it resolved and counted is compared.
+script's `main`; for annotate, the replay session its frame catalogue runs) and what it resolved and counted is compared.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def logs(tmp_path_factory, real_data):
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["synth", "real", "plain"])
 def test_every_command_resolves_the_same_config_and_masks(logs, kind, tmp_path, capsys):
-    from annotate.candidates import PipelineRunner
+    from replay.pipeline.session import ReplaySession
 
     d, paths, config = logs
     log = paths[kind]
@@ -66,18 +66,16 @@ def test_every_command_resolves_the_same_config_and_masks(logs, kind, tmp_path, 
     masks = {f.index: (f.masks[layout.ZCUT_OUTLIERS], f.masks[layout.SOR_OUTLIERS]) for f in LogReader(res).frames()}
     assert len(masks) >= 2
 
-    # annotate: the page's candidate runner, frames in log order as the server prepares them
+    # annotate: the log opened as `zcut annotate` opens it (annotate.server.open_page), frames in log
+    # order as its catalogue prepares them (Catalogue.of_replay: the session's results)
     from replay.pipeline import config as cfg
 
-    reader = LogReader(log)
-    runner = PipelineRunner(reader.metadata, config_path=config,
-                            overrides=cfg.cli_layer(rho=0.05, step=0.25), intrinsics=reader.intrinsics)
-    for f in reader.frames():
-        r = runner.run(f)
+    replay = ReplaySession.open(log, config_file=config, overrides=cfg.cli_layer(rho=0.05, step=0.25))
+    for f, r in replay.results():
         assert np.array_equal(r.zcut_outliers, masks[f.index][0]), f"annotate, frame {f.index}"
         assert np.array_equal(r.sor_outliers, masks[f.index][1]), f"annotate, frame {f.index}"
     replay_config = cfg.from_dict(tomllib.loads(replay_toml))
-    assert runner.config == replay_config
+    assert replay.config == replay_config
 
     # batch: the per-log config it resolved, and every frame's counts
     out = tmp_path / "batch"
