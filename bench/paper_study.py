@@ -153,14 +153,14 @@ def findings(acc: dict, batch: dict, sweeps: dict) -> list[str]:
 
 
 def _paper_findings(summary: dict) -> list[dict]:
-    from studies.report import paper_findings
+    from studies.findings import paper_findings
 
     return paper_findings(summary)
 
 
 def render(acc: dict, batch: dict, sweeps: dict, args, seconds: float) -> str:
     sys.path.insert(0, str(ROOT))
-    from studies.report import findings_table
+    from studies.findings import findings_table
 
     lines = [
         "# The paper's findings, measured by true accuracy",

@@ -222,7 +222,7 @@ def parse_objective(text: str) -> tuple[str, float | None]:
 def score(e: dict, objective: tuple[str, float | None]) -> float:
     """The objective's value of a set (-inf when it misses the floor or is undefined)."""
     kind, floor = objective
-    p, r, f = e["precision"], e["recall"], e["f1"]
+    p, r, f = (e.precision, e.recall, e.f1) if not isinstance(e, dict) else (e["precision"], e["recall"], e["f1"])
     if kind == "f1":
         return f if f is not None else -math.inf
     if kind == "recall@precision":

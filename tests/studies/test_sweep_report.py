@@ -1,4 +1,4 @@
-"""The sweep's plots and report page (studies.report): real PNG files, one self-contained HTML page,
+"""The sweep's plots (studies.plots), findings (studies.findings) and report page (studies.report): real PNG files, one self-contained HTML page,
 checked in Debian's chromium (headless, Playwright) with every request off this machine refused.
 
 The summaries are made the way ``zcut sweep`` makes them: per-frame rows written to a real Parquet
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from studies import report
+from studies import findings, plots, report
 from studies.batch import jsonable
 from studies.grid import Grid
 from studies.sweep import parse_objective, pooled_sets, sensitivity_at, tune
@@ -244,7 +244,7 @@ def test_best_table_ranks_by_the_objective_and_marks_the_roles(tmp_path):
 def test_findings_follow_the_counts(tmp_path):
     summary = model_summary(tmp_path)
     found = {(f["parameter"], f["changed"]["max_depth_mm"], f["changed"]["rho_thr"], f["changed"]["step_mm"]): f
-             for f in report.paper_findings(summary)}
+             for f in findings.paper_findings(summary)}
     assert len(found) == 5
     f = found[("max_depth_mm", 45.0, 0.07, 0.2)]
     assert f["count_as_paper"] == (f["changed"]["n_pred"] > f["base"]["n_pred"])
@@ -256,7 +256,7 @@ def test_findings_follow_the_counts(tmp_path):
 def test_findings_table_over_part_kinds(tmp_path):
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
-    table = report.findings_table({"zinc_nuts": model_summary(tmp_path / "a"),
+    table = findings.findings_table({"zinc_nuts": model_summary(tmp_path / "a"),
                                    "one point": model_summary(tmp_path / "b", steps=(0.2,), depths=(30.0,),
                                                               rhos=(0.07,), sor_ks=(4,), sor_stds=(1.0,))})
     lines = table.splitlines()
@@ -317,7 +317,7 @@ def test_plotting_leaves_no_pyplot_state(tmp_path):
     import matplotlib
 
     before = dict(matplotlib.rcParams)
-    report.make_plots(model_summary(tmp_path))
+    plots.make_plots(model_summary(tmp_path))
     assert dict(matplotlib.rcParams) == before
     if "matplotlib.pyplot" in sys.modules:  # imported by someone else: no figure of ours in it
         assert not sys.modules["matplotlib.pyplot"].get_fignums()
@@ -365,3 +365,26 @@ def test_report_in_chromium_loads_offline_and_every_image_decodes(tmp_path, brow
     assert shot.stat().st_size > 10_000
     page.close()
 
+
+def test_hostile_names_and_texts_are_escaped_everywhere(tmp_path):
+    """A log name, a note, a damage or error line, the command line, the config and the tuned note
+    carrying markup and ampersands: the page shows them as text and runs nothing."""
+    hostile = "<script>alert('x')</script> & <img src=x onerror=alert(1)>"
+    summary = model_summary(tmp_path)
+    summary.update(
+        logs=[{"log": f"/data/{hostile}.mcap", "sha256": "<b>" * 8, "error": hostile}],
+        notes=[hostile], damage=[{"log": f"{hostile}.mcap", "note": hostile}], errors=[hostile],
+        unscored=[{"log": f"{hostile}.mcap", "index": 1, "stamp_ns": 2, "reason": hostile}],
+        reproduce=f"zcut sweep '{hostile}.mcap' -o out", truth=hostile, region=hostile,
+        config=summary["config"] + f"\n# {hostile}\n",
+        tuned={**summary["tuned"], "note": hostile})
+    path = report.write_report(tmp_path, summary)
+    page = path.read_text(encoding="utf-8")
+    p = _parse(page)
+    assert not [t for t, _ in p.tags if t == "script"]
+    assert all(a["src"].startswith("data:image/png;base64,") for t, a in p.tags if t == "img")
+    assert not [a for _, a in p.tags if any(k.startswith("on") for k in a)]
+    assert "<script" not in page.lower() and "onerror=alert(1)>" not in page
+    text = html.unescape("".join(p.text))
+    assert text.count(hostile) >= 9  # every one of them shown as text
+    assert "&lt;script&gt;" in page and "&amp; &lt;img" in page

@@ -1,0 +1,530 @@
+"""The plots of ``zcut sweep``'s report (PNG, matplotlib on its Agg canvas).
+
+:func:`make_plots` turns a sweep's summary into :class:`Plot` records, in page order; each plot is
+left out when the grid cannot draw it (one value on its axis, no SOR sets, no defined value):
+
+- ``counts_max_depth.png``, ``counts_rho.png``, ``counts_step.png`` — what the paper plots (Figs.
+  16–20): the pixels each filter flags, summed over the frames, against d_max, ρ_thr and Δd (one
+  z-cut line per value of the other parameter, SOR at its chosen k and std_ratio for reference), and
+  the paper's N1 (SOR only), N2 (z-cut only), N_both whose ratios are θ and ω (``docs/accuracy.md``).
+- ``accuracy_zcut.png``, ``accuracy_sor.png`` — what the paper could not plot: precision, recall
+  and F1 against each parameter with their 95 % bootstrap bands, the other parameters held at the
+  chosen point (the config's own), the paper's §5.4 range shaded.
+- ``f1_map.png`` — F1 over every (d_max, ρ_thr) pair at the chosen Δd, chosen and tuned marked.
+- ``precision_recall.png`` — every set on the precision–recall plane, the paper's nominal point, the
+  chosen and tuned points and SOR's sets marked, iso-F1 curves; a zoomed panel when the sets crowd.
+- ``ratios.png`` — the paper's α = N1/N2 and β_n = N_both/N_n (Fig. 15) against d_max and ρ_thr.
+
+Explicit :class:`matplotlib.figure.Figure` objects (no pyplot, no global figure state); the style is
+set in an ``rc_context`` that is restored after.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from studies.findings import SHORT, param_text
+from studies.setgrid import SetGrid, same_set
+from studies.setgrid import key as _key
+from studies.summary import ParamSet, SweepSummary
+
+#: Every plot file a report may write, in page order (those a grid cannot draw are not written,
+#: and a stale one from an earlier run of the same folder is removed).
+PLOT_NAMES = ("counts_max_depth.png", "counts_rho.png", "counts_step.png", "accuracy_zcut.png",
+              "accuracy_sor.png", "f1_map.png", "precision_recall.png", "ratios.png")
+
+_DPI = 150            # PNG pixels per inch; the page shows 100 CSS px per inch (sharp on HiDPI screens)
+_CSS_PX_PER_INCH = 100
+
+# Okabe–Ito colours (readable with colour-blindness)
+_METRIC_COLOURS = {"precision": "#0072B2", "recall": "#009E73", "f1": "#D55E00"}
+_METRIC_NAMES = {"precision": "precision", "recall": "recall", "f1": "F1"}
+_SOR_COLOUR = "#E69F00"
+_ZCUT_COLOUR = "#0072B2"
+_RC = {"font.size": 10, "axes.titlesize": 11, "axes.labelsize": 10, "xtick.labelsize": 9, "ytick.labelsize": 9,
+       "legend.fontsize": 9, "axes.grid": True, "grid.alpha": 0.3, "grid.linewidth": 0.6,
+       "axes.spines.top": False, "axes.spines.right": False, "figure.facecolor": "white",
+       "savefig.facecolor": "white"}
+
+_LABELS = {"step_mm": "Δd (mm)", "max_depth_mm": "$d_{max}$ (mm)", "rho_thr": r"$\rho_{thr}$ (= $\mu_{thr}$ / $a_{max}$)",
+           "max_area_px": r"$\mu_{thr}$ (px)", "sor_k": "SOR k (neighbours)",
+           "sor_std_ratio": "SOR std_ratio (multiples of σ)"}
+
+
+def _f(v: float | int | None) -> float:
+    """A figure as float (None -> NaN)."""
+    return math.nan if v is None else float(v)
+
+
+def _ci(e: ParamSet, metric: str) -> tuple[float, float]:
+    lo, hi = e.ci(metric)
+    return _f(lo), _f(hi)
+
+
+
+# ----------------------------------------------------------------------------------------- plotting
+
+
+@dataclass(frozen=True, slots=True)
+class Plot:
+    """One PNG plot of the report.
+
+    Attributes
+    ----------
+    name : str
+        File name under ``DIR/plots`` (one of :data:`PLOT_NAMES`).
+    title, caption : str
+        Shown above and below it on the page (plain text).
+    png : bytes
+        The PNG file.
+    width_px : int
+        Its width on the page at 100 % zoom (CSS px; the PNG holds 1.5× as many pixels).
+    """
+
+    name: str
+    title: str
+    caption: str
+    png: bytes
+    width_px: int
+
+
+def _figure(nrows: int, ncols: int, *, width_in: float, height_in: float):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width_in, height_in), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(nrows, ncols, squeeze=False)
+    return fig, axes
+
+
+def _subfigures(n: int, *, width_in: float, height_in: float):
+    """A figure of ``n`` side-by-side subfigures (each with its own legend below it)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width_in, height_in), layout="constrained")
+    FigureCanvasAgg(fig)
+    subs = fig.subfigures(1, n, wspace=0.03, squeeze=False)[0]
+    return fig, list(subs)
+
+
+def _legend_below(sub, ax) -> None:
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        sub.legend(handles, labels, loc="outside lower center", ncols=2 if len(labels) > 3 else len(labels),
+                   frameon=False)
+
+
+def _png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=_DPI, metadata={"Software": None})
+    return buf.getvalue()
+
+
+def _plot(name: str, title: str, caption: str, fig) -> Plot:
+    return Plot(name, title, caption, _png(fig), round(fig.get_figwidth() * _CSS_PX_PER_INCH))
+
+
+def _count_scale(ax, values) -> None:
+    """Counts spanning more than ~2 decades on a symmetric log axis (zeros stay visible)."""
+    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=float)
+    pos = v[v > 0]
+    if pos.size and pos.max() / max(pos.min(), 1.0) > 100:
+        ax.set_yscale("symlog", linthresh=1.0)
+        ax.set_ylim(bottom=0)
+    else:
+        ax.set_ylim(bottom=0, top=max(1.0, float(v.max()) * 1.08 if v.size else 1.0))
+
+
+def _pick(values: list, chosen: Any, n: int = 8) -> list:
+    """At most ``n`` values for one line each: evenly spread, always with the chosen one."""
+    if len(values) <= n:
+        return list(values)
+    idx = set(np.round(np.linspace(0, len(values) - 1, n - 1)).astype(int).tolist())
+    picked = [values[i] for i in sorted(idx)]
+    c = _key(chosen)
+    if c in values and c not in picked:
+        picked.append(c)
+    return sorted(picked)
+
+
+def _line_colours(n: int):
+    from matplotlib import colormaps
+
+    cmap = colormaps["viridis"]
+    return [cmap(0.05 + 0.8 * i / max(1, n - 1)) for i in range(n)]
+
+
+def _mark_chosen(ax, x: Any) -> None:
+    if x is not None:
+        ax.axvline(float(x), color="0.35", linestyle=":", linewidth=1.2, zorder=1)
+
+
+def _legend_right(ax, **kw) -> None:
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, frameon=False, **kw)
+
+
+def _counts_plot(sw: SetGrid, vary: str, lines_by: str, *, name: str, paper: str) -> Plot | None:
+    """Flagged pixels vs one z-cut parameter (one line per value of another) and, with SOR, the
+    paper's N1, N2, N_both at the chosen point."""
+    xs_all = sw.values("zcut", vary)
+    if len(xs_all) < 2:
+        return None
+    ch = sw.chosen
+    line_vals = _pick(sw.values("zcut", lines_by), ch.get(lines_by))
+    with_overlap = sw.sor_enabled
+    fig, subs = _subfigures(2 if with_overlap else 1, width_in=11.0 if with_overlap else 6.0, height_in=4.4)
+    ax = subs[0].subplots()
+    colours = _line_colours(len(line_vals))
+    counts: list[float] = []
+    for colour, lv in zip(colours, line_vals):
+        fixed = {**{k: ch.get(k) for k in sw.zparams}, lines_by: lv}
+        pts = sw.series("zcut", vary, fixed)
+        if not pts:
+            continue
+        xs, ys = [p[0] for p in pts], [p[1].n_pred for p in pts]
+        counts += ys
+        is_chosen = _key(ch.get(lines_by)) == lv
+        ax.plot(xs, ys, marker="o", ms=3.5, lw=2.4 if is_chosen else 1.3, color=colour, zorder=3 if is_chosen else 2,
+                label=f"{SHORT[lines_by]} = {param_text(lv, lines_by)}" + (" (chosen)" if is_chosen else ""))
+    s0 = sw.find("sor", **sw.chosen_at("sor"))
+    if sw.ssets and s0 is not None:
+        sor_label = f"SOR, k = {s0.sor_k}, std_ratio = {param_text(s0.sor_std_ratio)}"
+        pts = sw.series("sor", vary, sw.chosen_at("sor")) if vary in sw.sparams else []
+        if len(pts) >= 2:
+            ys = [p[1].n_pred for p in pts]
+            ax.plot([p[0] for p in pts], ys, color=_SOR_COLOUR, lw=1.8, ls="--", marker="s", ms=3.5, label=sor_label)
+        else:
+            ys = [s0.n_pred]
+            ax.axhline(s0.n_pred, color=_SOR_COLOUR, lw=1.8, ls="--", label=sor_label + " (does not vary)")
+        counts += ys
+    _mark_chosen(ax, ch.get(vary))
+    _count_scale(ax, counts)
+    ax.set_xlabel(_LABELS[vary])
+    ax.set_ylabel("flagged pixels (all frames)")
+    ax.set_title(f"(a) outliers flagged vs {SHORT[vary]}")
+    _legend_below(subs[0], ax)
+    if with_overlap:
+        ax2 = subs[1].subplots()
+        fixed = {k: ch.get(k) for k in sw.zparams}
+        pts = sw.series("zcut", vary, fixed)
+        vals: list[float] = []
+        for key, label, colour, style in (("n2", "$N_2$: z-cut only", _ZCUT_COLOUR, "-"),
+                                          ("n1", "$N_1$: SOR only", _SOR_COLOUR, "--"),
+                                          ("n_both", "$N_{both}$: both", "0.3", ":")):
+            ys = [p[1].figure(key) for p in pts]
+            vals += [y for y in ys if y is not None]
+            ax2.plot([p[0] for p in pts], [_f(y) for y in ys], marker="o", ms=3.5, lw=1.6, color=colour, ls=style,
+                     label=label)
+        _mark_chosen(ax2, ch.get(vary))
+        _count_scale(ax2, vals)
+        ax2.set_xlabel(_LABELS[vary])
+        ax2.set_ylabel("pixels (all frames)")
+        ax2.set_title("(b) found by one filter only (paper's $N_1$, $N_2$)")
+        _legend_below(subs[1], ax2)
+    held = ", ".join(f"{SHORT[k]} = {param_text(ch.get(k), k)}" for k in sw.zparams if k not in (vary, lines_by))
+    caption = (f"The paper's {paper}, redone: pixels flagged as outliers, summed over the frames, against "
+               f"{SHORT[vary]} ({held}; dotted line: the chosen {SHORT[vary]}). "
+               + ("SOR at its chosen k and std_ratio for reference. " if s0 is not None and sw.ssets else "")
+               + ("(b) The paper's N1 (flagged by SOR only, SOR at the config's own k and std_ratio) and N2 (by the "
+                  f"z-cut only) at the chosen {SHORT[lines_by]}; θ and ω are their ratios at 0.5× and 1.5×."
+                  if with_overlap else ""))
+    title = f"Outliers flagged vs {SHORT[vary]}"
+    return _plot(name, title, caption, fig)
+
+
+def _metric_panel(ax, pts: list[tuple[float, ParamSet]], *, legend: bool) -> None:
+    xs = np.array([p[0] for p in pts], dtype=float)
+    for m in ("precision", "recall", "f1"):
+        y = np.array([_f(p[1].figure(m)) for p in pts])
+        lo, hi = np.array([_ci(p[1], m) for p in pts]).reshape(-1, 2).T
+        c = _METRIC_COLOURS[m]
+        if len(xs) > 1:
+            ax.fill_between(xs, lo, hi, color=c, alpha=0.16, linewidth=0)
+        else:
+            ax.errorbar(xs, y, yerr=[np.abs(y - lo), np.abs(hi - y)], color=c, capsize=3, ls="none")
+        ax.plot(xs, y, color=c, marker="o", ms=3.5, lw=1.8, label=_METRIC_NAMES[m])
+    ax.set_ylim(-0.02, 1.02)
+    if legend:
+        ax.set_ylabel("precision, recall, F1")
+
+
+def _accuracy_plot(sw: SetGrid, method: str) -> Plot | None:
+    """P/R/F1 with 95 % bands vs each of the method's parameters, the others at the chosen point."""
+    from matplotlib.patches import Patch
+    from matplotlib.ticker import MaxNLocator
+
+    axes_keys = [k for k in (sw.zparams if method == "zcut" else ("sor_k", "sor_std_ratio"))
+                 if len(sw.values(method, k)) >= 2]
+    fixed = {k: sw.chosen.get(k) for k in sw.params(method)}
+    panels = [(k, sw.series(method, k, fixed)) for k in axes_keys]
+    panels = [(k, pts) for k, pts in panels if len(pts) >= 2]
+    if not panels:
+        return None
+    n = len(panels)
+    fig, axes = _figure(1, n, width_in=min(11.0, 1.6 + 3.3 * n), height_in=3.7)
+    ranges = sw.ranges if method == "zcut" else None
+    shaded = False
+    for i, (k, pts) in enumerate(panels):
+        ax = axes[0, i]
+        x0, x1 = pts[0][0], pts[-1][0]
+        if ranges and k in ranges and ranges[k] is not None:
+            lo, hi = ranges[k]
+            if lo <= x1 and hi >= x0:
+                ax.axvspan(max(lo, x0), min(hi, x1), color="0.85", alpha=0.6, lw=0, zorder=0)
+                shaded = True
+        _metric_panel(ax, pts, legend=i == 0)
+        ax.set_xlim(x0 - 0.04 * (x1 - x0), x1 + 0.04 * (x1 - x0))
+        ax.xaxis.set_major_locator(MaxNLocator(nbins=5, integer=k == "sor_k"))
+        _mark_chosen(ax, sw.chosen.get(k))
+        ax.set_xlabel(_LABELS[k])
+        if i:
+            ax.tick_params(labelleft=False)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    handles.append(Patch(color="0.5", alpha=0.25))
+    labels.append("95 % interval")
+    if shaded:
+        handles.append(Patch(color="0.85", alpha=0.6))
+        labels.append("paper's §5.4 range")
+    fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), frameon=False)
+    who = "z-cut" if method == "zcut" else "SOR"
+    held = ", ".join(f"{SHORT[k]} = {param_text(sw.chosen.get(k), k)}" for k in sw.params(method))
+    caption = (f"True accuracy of the {who} (SPEC §4, pixels of the {sw.summary.region} region, pooled "
+               f"over the frames) against each parameter with the others at the chosen point ({held}; dotted line). "
+               "Bands: 95 % bootstrap intervals over frames. A gap means undefined (nothing flagged, or no true "
+               "outlier).")
+    name = "accuracy_zcut.png" if method == "zcut" else "accuracy_sor.png"
+    return _plot(name, f"Precision, recall and F1 of the {who} vs its parameters", caption, fig)
+
+
+def _f1_map(sw: SetGrid) -> Plot | None:
+    depths, areas = sw.values("zcut", "max_depth_mm"), sw.values("zcut", sw.area)
+    if len(depths) < 2 or len(areas) < 2:
+        return None
+    step = sw.chosen.get("step_mm")
+    grid = np.full((len(depths), len(areas)), np.nan)
+    for i, d in enumerate(depths):
+        for j, a in enumerate(areas):
+            e = sw.find("zcut", step_mm=step, max_depth_mm=d, **{sw.area: a})
+            if e is not None:
+                grid[i, j] = _f(e.f1)
+    if not np.isfinite(grid).any():
+        return None
+    from matplotlib import colormaps
+
+    fig, axes = _figure(1, 1, width_in=min(11.0, 3.2 + 0.62 * len(areas)), height_in=min(7.5, 1.6 + 0.42 * len(depths)))
+    ax = axes[0, 0]
+    ax.grid(False)
+    cmap = colormaps["viridis"].with_extremes(bad="0.85")
+    top = float(np.nanmax(grid))
+    im = ax.imshow(np.ma.masked_invalid(grid), cmap=cmap, vmin=0, vmax=top if top > 0 else 1.0,
+                   origin="lower", aspect="auto")
+    fig.colorbar(im, ax=ax, label="F1", shrink=0.9)
+    ax.set_xticks(range(len(areas)), [f"{a:.4g}" for a in areas], rotation=45 if len(areas) > 6 else 0)
+    ax.set_yticks(range(len(depths)), [f"{d:.4g}" for d in depths])
+    ax.set_xlabel(_LABELS[sw.area])
+    ax.set_ylabel(_LABELS["max_depth_mm"])
+    if len(depths) * len(areas) <= 160:
+        digits = 2 if top >= 0.1 or top == 0 else (3 if top >= 0.01 else 4)
+        for i in range(len(depths)):
+            for j in range(len(areas)):
+                v = grid[i, j]
+                ax.text(j, i, "—" if not np.isfinite(v) else f"{v:.{digits}f}", ha="center", va="center", fontsize=7.5,
+                        color="black" if not np.isfinite(v) or v > 0.6 * top else "white")
+    marks = []
+    for what, e, style in (("chosen", sw.summary.chosen_zcut, {"ec": "white", "ls": "-"}),
+                           ("tuned", sw.summary.tuned.zcut, {"ec": "#D55E00", "ls": "--"})):
+        if e is None or _key(e.step_mm) != _key(step):
+            continue
+        try:
+            i, j = depths.index(_key(e.max_depth_mm)), areas.index(_key(e.param(sw.area)))
+        except ValueError:
+            continue
+        from matplotlib.patches import Rectangle
+
+        ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, lw=2.2, **style))
+        marks.append(f"{what}: {'white' if what == 'chosen' else 'orange dashed'} frame")
+    caption = (f"F1 of the z-cut for every ({SHORT['max_depth_mm']}, {SHORT[sw.area]}) pair at Δd = "
+               f"{param_text(step, 'step_mm')}; colours from 0 to the best F1; grey: undefined." + (f" Marked: {'; '.join(marks)}." if marks else ""))
+    return _plot("f1_map.png", f"F1 over d_max × {SHORT[sw.area]}", caption, fig)
+
+
+def _iso_f1(ax) -> None:
+    for f in (0.2, 0.4, 0.6, 0.8):
+        r = np.linspace(f / (2 - f) + 1e-6, 1, 200)
+        p = f * r / (2 * r - f)
+        ax.plot(r, p, color="0.75", lw=0.8, zorder=0)
+        ax.annotate(f"F1 = {f:.1f}", (1.0, f / (2 - f)), xytext=(2, 0), textcoords="offset points", fontsize=7.5,
+                    color="0.45", va="center", annotation_clip=False)
+
+
+def _zoom_limits(v: np.ndarray) -> tuple[float, float]:
+    """Axis limits around values in [0, 1], padded, never far outside [0, 1]."""
+    span = float(v.max() - v.min())
+    pad = max(0.15 * span, 0.02)
+    lo, hi = max(0.0, float(v.min()) - pad), min(1.0, float(v.max()) + pad)
+    margin = 0.06 * (hi - lo)
+    return lo - margin, hi + margin
+
+
+def _pr_plot(sw: SetGrid) -> Plot | None:
+    from matplotlib.lines import Line2D
+
+    def pr(e):
+        return (_f(e.recall), _f(e.precision)) if e else (math.nan, math.nan)
+
+    zs = [(pr(e), e) for e in sw.zsets]
+    ss = [(pr(e), e) for e in sw.ssets]
+    pts = [p for p, _ in zs + ss if all(math.isfinite(v) for v in p)]
+    if not pts:
+        return None
+    summ = sw.summary
+    chosen_z, nominal, tuned_z = summ.chosen_zcut, summ.nominal, summ.tuned.zcut
+    chosen_s, tuned_s = summ.chosen_sor, summ.tuned.sor
+    marked = [("paper's nominal" + (" = chosen" if same_set(chosen_z, nominal) else ""), nominal, {"marker": "*", "s": 260, "fc": "#F0E442", "ec": "black", "lw": 1.0, "zorder": 6}),
+              ("chosen", None if same_set(chosen_z, nominal) else chosen_z,
+               {"marker": "s", "s": 80, "fc": "white", "ec": "black", "lw": 1.4, "zorder": 6}),
+              ("tuned z-cut", tuned_z, {"marker": "D", "s": 90, "fc": "#D55E00", "ec": "black", "lw": 1.0, "zorder": 7}),
+              ("SOR chosen", chosen_s, {"marker": "P", "s": 120, "fc": _SOR_COLOUR, "ec": "black", "lw": 1.0, "zorder": 6}),
+              ("SOR tuned", tuned_s, {"marker": "X", "s": 120, "fc": "#CC79A7", "ec": "black", "lw": 1.0, "zorder": 7})]
+    rs = np.array([p[0] for p in pts])
+    ps = np.array([p[1] for p in pts])
+    span_r, span_p = rs.max() - rs.min(), ps.max() - ps.min()
+    zoom = span_r < 0.45 or span_p < 0.45
+    fig, axes = _figure(1, 2 if zoom else 1, width_in=11.0 if zoom else 7.6, height_in=4.8)
+    depths = [_f(e.max_depth_mm) for _, e in zs]
+    finite_depths = [d for d in depths if math.isfinite(d)]
+    sc = None
+    for n, ax in enumerate(axes[0]):
+        if n == 0:
+            _iso_f1(ax)
+            ax.set_xlim(-0.02, 1.02)
+            ax.set_ylim(-0.02, 1.04)
+            ax.set_title("(a) every set" if zoom else "every parameter set")
+        else:
+            ax.set_xlim(*_zoom_limits(rs))
+            ax.set_ylim(*_zoom_limits(ps))
+            ax.set_title("(b) zoomed to the sets")
+        zr = [p for p, _ in zs]
+        if zr:
+            cmin, cmax = (min(finite_depths), max(finite_depths)) if finite_depths else (0, 1)
+            sc = ax.scatter([p[0] for p in zr], [p[1] for p in zr], c=depths, cmap="viridis", vmin=cmin,
+                            vmax=cmax if cmax > cmin else cmin + 1, s=22, alpha=0.8, lw=0, zorder=3)
+        if ss:
+            ax.scatter([p[0] for p, _ in ss], [p[1] for p, _ in ss], marker="x", s=26, color=_SOR_COLOUR, lw=1.2,
+                       zorder=3)
+        for label, e, style in marked:
+            if e is None:
+                continue
+            r, p = pr(e)
+            if not (math.isfinite(r) and math.isfinite(p)):
+                continue
+            if n == len(axes[0]) - 1:
+                (rlo, rhi), (plo, phi) = _ci(e, "recall"), _ci(e, "precision")
+                ax.errorbar([r], [p], xerr=[[max(0, r - rlo)], [max(0, rhi - r)]] if math.isfinite(rlo) else None,
+                            yerr=[[max(0, p - plo)], [max(0, phi - p)]] if math.isfinite(plo) else None,
+                            color="0.25", lw=0.9, capsize=2, ls="none", zorder=5)
+            ax.scatter([r], [p], **style)
+        ax.set_xlabel("recall (true outlier pixels found)")
+        ax.set_ylabel("precision (flagged pixels that are outliers)")
+    handles = [Line2D([], [], marker="o", ls="none", color="#21918c", ms=5, label="z-cut sets (colour: $d_{max}$)")] if zs else []
+    if ss:
+        handles.append(Line2D([], [], marker="x", ls="none", color=_SOR_COLOUR, ms=6, mew=1.2, label="SOR sets"))
+    for label, e, style in marked:
+        if e is not None and all(math.isfinite(v) for v in pr(e)):
+            handles.append(Line2D([], [], marker=style["marker"], ls="none", mfc=style["fc"], mec="black",
+                                  ms=math.sqrt(style["s"]) * 0.8, label=label))
+    if sc is not None and len(set(finite_depths)) > 1:
+        fig.colorbar(sc, ax=axes[0, -1], label="$d_{max}$ (mm)", shrink=0.85)
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(4 if zoom else 3, len(handles)),
+               frameon=False)
+    undefined = sum(1 for p, _ in zs + ss if not all(math.isfinite(v) for v in p))
+    caption = ("Every parameter set on the precision–recall plane (pooled over the frames); grey curves: equal F1. "
+               + ("The paper's nominal point: Δd 0.2 mm, d_max 30 mm, ρ_thr 0.07. " if nominal is not None
+                  else "The paper's nominal point is not in the grid. ")
+               + ("(b) shows the same sets zoomed, with the 95 % intervals of the marked points. " if zoom else
+                  "Bars: the 95 % intervals of the marked points. ")
+               + (f"{undefined} set(s) flag nothing in the region (precision undefined) and are not shown." if undefined
+                  else ""))
+    return _plot("precision_recall.png", "Precision–recall: every set, nominal, chosen, tuned and SOR", caption, fig)
+
+
+def _ratios_plot(sw: SetGrid) -> Plot | None:
+    if not sw.sor_enabled:
+        return None
+    cols = [k for k in ("max_depth_mm", sw.area) if len(sw.values("zcut", k)) >= 2]
+    fixed = {k: sw.chosen.get(k) for k in sw.zparams}
+    panels = [(k, sw.series("zcut", k, fixed)) for k in cols]
+    panels = [(k, pts) for k, pts in panels if len(pts) >= 2]
+    rows = (("alpha", r"$\alpha = N_1 / N_2$", ((("alpha", r"$\alpha$", "0.2", "-"),))),
+            ("beta", r"$\beta_n = N_{both} / N_n$", (("beta_sor", r"$\beta_1$ (SOR)", _SOR_COLOUR, "--"),
+                                                     ("beta_zcut", r"$\beta_2$ (z-cut)", _ZCUT_COLOUR, "-"))))
+    if not panels or not any(math.isfinite(_f(p[1].figure(key))) for _, pts in panels for p in pts
+                             for _, _, lines in rows for key, *_ in lines):
+        return None
+    fig, axes = _figure(2, len(panels), width_in=min(11.0, 1.8 + 4.2 * len(panels)), height_in=5.6)
+    for j, (k, pts) in enumerate(panels):
+        xs = [p[0] for p in pts]
+        for i, (_, ylabel, lines) in enumerate(rows):
+            ax = axes[i, j]
+            undefined = 0
+            for key, label, colour, style in lines:
+                ys = [_f(p[1].figure(key)) for p in pts]
+                undefined += sum(1 for y in ys if not math.isfinite(y))
+                ax.plot(xs, ys, marker="o", ms=3.5, lw=1.6, color=colour, ls=style, label=label)
+            if undefined:
+                ax.text(0.98, 0.95, f"{undefined} point(s) undefined (÷ 0)", transform=ax.transAxes, ha="right",
+                        va="top", fontsize=8, color="0.4")
+            _mark_chosen(ax, sw.chosen.get(k))
+            ax.set_ylim(bottom=0)
+            if j == 0:
+                ax.set_ylabel(ylabel)
+            if i == 1:
+                ax.set_xlabel(_LABELS[k])
+            else:
+                ax.set_title(f"vs {SHORT[k]}")
+            if j == len(panels) - 1:
+                _legend_right(ax)
+    held = ", ".join(f"{SHORT[k]} = {param_text(sw.chosen.get(k), k)}" for k in sw.zparams)
+    caption = ("The paper's relative figures (Fig. 15, SPEC §3) against the z-cut's parameters, the others at the "
+               f"chosen point ({held}); SOR at the config's own k and std_ratio. Small α and β₂: most outliers are "
+               "found by the z-cut alone — which, without truth, the paper could not tell apart from false positives "
+               "(see the precision plots).")
+    return _plot("ratios.png", "α and β vs the z-cut's parameters", caption, fig)
+
+
+def make_plots(summary: SweepSummary | Mapping[str, Any]) -> list[Plot]:
+    """Every plot the sweep's grid can draw, in page order (see the module docstring).
+
+    Parameters
+    ----------
+    summary : SweepSummary or dict
+        The sweep's summary (a dict: ``DIR/summary.json``'s object).
+
+    Returns
+    -------
+    list of Plot
+        Plots whose grid lacks an axis or a defined value are left out (never an error).
+    """
+    import matplotlib
+
+    sw = SetGrid.of(summary)
+    makers: list[Callable[[], Plot | None]] = [lambda: _counts_plot(sw, "max_depth_mm", sw.area, name="counts_max_depth.png", paper="Figs. 16–17"),
+              lambda: _counts_plot(sw, sw.area, "max_depth_mm", name="counts_rho.png", paper="Figs. 18–19"),
+              lambda: _counts_plot(sw, "step_mm", "max_depth_mm", name="counts_step.png", paper="Fig. 20"),
+              lambda: _accuracy_plot(sw, "zcut"), lambda: _accuracy_plot(sw, "sor"), lambda: _f1_map(sw),
+              lambda: _pr_plot(sw), lambda: _ratios_plot(sw)]
+    out: list[Plot] = []
+    with matplotlib.rc_context(_RC):
+        for make in makers:
+            p = make()
+            if p is not None:
+                out.append(p)
+    return out
