@@ -15,13 +15,22 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import IO, TYPE_CHECKING, Any, Protocol
 
 from replay.errors import ConfigError
 from studies.units import WorkUnit, expand_logs, plan_log
 from replay.pipeline.config import Resolved, config_sha256
 from studies.work import Job, UnitResult
 from zcut.errors import ZcutError
+
+if TYPE_CHECKING:
+    import argparse
+    from collections.abc import Callable
+
+    import pyarrow as pa
+
+    from studies.executors import Executor, UnitFn
+    from studies.parts import PartStore
 
 
 @dataclass(slots=True)
@@ -57,8 +66,9 @@ def file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict, topic: str | None,
-              frames_per_unit: int, whole: bool, progress=None) -> list[LogPlan]:
+def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str, Any], topic: str | None,
+              frames_per_unit: int, whole: bool,
+              progress: Callable[[int, int, Path], None] | None = None) -> list[LogPlan]:
     """Every input log with its resolved config and units; a log that cannot be opened keeps its
     error (a warning and exit 3 at the end) unless no log at all can be used (an error)."""
     from replay.pipeline import config as cfg
@@ -93,7 +103,7 @@ def absolute(path: str | None) -> str | None:
     return None if path is None else str(Path(path).resolve())
 
 
-def check_study_options(args) -> None:
+def check_study_options(args: argparse.Namespace) -> None:
     """The options ``zcut batch`` and ``zcut sweep`` share, checked before any work."""
     from annotate.truth import check_region
 
@@ -105,14 +115,15 @@ def check_study_options(args) -> None:
             raise FileNotFoundError(2, "no such file", str(path))
 
 
-def study_options(args, overrides: dict) -> dict[str, Any]:
+def study_options(args: argparse.Namespace, overrides: dict[str, Any]) -> dict[str, Any]:
     """The options that identify a study in its folder (with the inputs' content hashes)."""
     return {"config_sha256": file_identity(args.config), "overrides": overrides,
             "bin_model_sha256": file_identity(args.bin_model), "topic": args.topic, "labels": args.labels,
             "annotator": args.annotator, "region": args.region, "frames_per_unit": args.frames_per_unit}
 
 
-def start_units(plans: list[LogPlan], store, *, what: str, executor, stream=None) -> tuple[list, list]:
+def start_units(plans: list[LogPlan], store: PartStore, *, what: str, executor: Executor,
+                stream: IO[str] | None = None) -> tuple[list[WorkUnit], list[WorkUnit]]:
     """Warn about the logs left out; the units and those not done yet; say what will run."""
     err = sys.stderr if stream is None else stream
     for p in plans:
@@ -142,7 +153,7 @@ class Progress:
     """A one-line progress bar on stderr: frames done, rate, time left (a line per update when
     stderr is not a terminal, at most every few seconds)."""
 
-    def __init__(self, total: int | None, *, what: str = "frames", stream=None) -> None:
+    def __init__(self, total: int | None, *, what: str = "frames", stream: IO[str] | None = None) -> None:
         self.total, self.what = total, what
         self.stream = sys.stderr if stream is None else stream
         self.done = 0
@@ -185,8 +196,14 @@ def _hms(s: float) -> str:
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
 
 
-def execute(units: list[WorkUnit], job: Job, fn, executor, store, *, progress: Progress | None = None,
-            schema=None) -> list[UnitResult]:
+class ProgressSink(Protocol):
+    """What :func:`execute` reports each finished unit's frames to (a :class:`Progress`, or a scaled one)."""
+
+    def update(self, n: int, *, note: str = "", force: bool = False) -> None: ...
+
+
+def execute(units: list[WorkUnit], job: Job, fn: UnitFn, executor: Executor, store: PartStore, *,
+            progress: ProgressSink | None = None, schema: pa.Schema | None = None) -> list[UnitResult]:
     """Run the units not done yet; write each finished unit's part at once; return this run's
     results (failed units are not marked done: a rerun tries them again)."""
     todo = [u for u in units if not store.done(u.key)]

@@ -23,6 +23,7 @@ for minutes): nothing listening, or something that does not speak gRPC, is a one
 
 from __future__ import annotations
 
+import logging
 import multiprocessing
 import os
 import socket
@@ -31,9 +32,16 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from replay.errors import ConfigError
+
+if TYPE_CHECKING:
+    from studies.units import WorkUnit
+    from studies.work import Job, UnitResult
+
+#: What an executor runs for every unit (:func:`studies.work.run_batch_unit`, :func:`studies.sweep.run_sweep_unit`).
+UnitFn = Callable[["WorkUnit", "Job"], "UnitResult"]
 
 #: the thread pools a worker sizes to its share of the cores
 THREAD_VARIABLES = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -50,7 +58,7 @@ class Executor(Protocol):
     name: str
     workers: int
 
-    def run(self, fn: Callable[[Any, Any], Any], units: list, job: Any) -> Iterator[tuple[Any, Any]]: ...
+    def run(self, fn: UnitFn, units: list[WorkUnit], job: Job) -> Iterator[tuple[WorkUnit, UnitResult]]: ...
 
     def close(self) -> None: ...
 
@@ -137,16 +145,16 @@ class LocalExecutor:
         return ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
                                    initializer=_worker_init)
 
-    def run(self, fn, units, job):
+    def run(self, fn: UnitFn, units: list[WorkUnit], job: Job) -> Iterator[tuple[WorkUnit, UnitResult]]:
         pending = list(units)
         tries: dict[int, int] = {}
         while pending:
-            futures: dict[Future, tuple[int, Any]] = {}
+            futures: dict[Future[UnitResult], tuple[int, WorkUnit]] = {}
             with _environ(worker_environment(self.threads)):  # the workers start during the submits
                 self._pool = self._new_pool()
                 for i, u in enumerate(pending):
                     futures[self._pool.submit(fn, u, job)] = (i, u)
-            retry: list = []
+            retry: list[WorkUnit] = []
             broken = False
             while futures:
                 done, _ = wait(futures, return_when=FIRST_COMPLETED)
@@ -172,7 +180,7 @@ class LocalExecutor:
             self._pool = None
 
 
-def _failed(unit, why: str):
+def _failed(unit: WorkUnit, why: str) -> UnitResult:
     from studies.work import UnitResult
 
     return UnitResult.failure(unit, why)
@@ -270,13 +278,13 @@ class RayExecutor:
         target = resolve_ray_address(address)
         check_ray_address(address, target, timeout=timeout)
         try:
-            ray.init(address=target, ignore_reinit_error=True, log_to_driver=False, logging_level="ERROR",
+            ray.init(address=target, ignore_reinit_error=True, log_to_driver=False, logging_level=logging.ERROR,
                      runtime_env={"env_vars": worker_environment(1)})
         except Exception as e:  # noqa: BLE001 - ray raises ConnectionError, RuntimeError, ValueError...
             raise ConfigError(f"--ray {address}: cannot connect to the Ray cluster ({type(e).__name__}: "
                               f"{str(e).splitlines()[0] if str(e) else ''})") from None
-        self._ray = ray
-        self.workers = int(ray.cluster_resources().get("CPU", 1))
+        self._ray: Any = ray  # the ray module (untyped)
+        self.workers = int(self._ray.cluster_resources().get("CPU", 1))
 
     def _task_memory(self) -> int | None:
         """Bytes of Ray's ``memory`` resource a task asks for: a worker's need, or what the largest
@@ -285,7 +293,7 @@ class RayExecutor:
         largest = max(nodes, default=0)
         return int(min(WORKER_MEMORY_MB * 2**20, largest)) or None
 
-    def run(self, fn, units, job):
+    def run(self, fn: UnitFn, units: list[WorkUnit], job: Job) -> Iterator[tuple[WorkUnit, UnitResult]]:
         ray = self._ray
         remote = ray.remote(num_cpus=1, memory=self._task_memory(), max_retries=1)(_in_folder)
         job_ref = ray.put(job)
@@ -309,7 +317,7 @@ class RayExecutor:
             self._ray.shutdown()
 
 
-def _in_folder(cwd: str, fn, unit, job):
+def _in_folder(cwd: str, fn: UnitFn, unit: WorkUnit, job: Job) -> UnitResult:
     """A Ray task: ``fn(unit, job)`` in the driver's working folder, so that the paths the driver was
     given (logs, bin model, config, labels), relative or not, name the same files on the node (which
     must mount them at the same place)."""
@@ -317,7 +325,7 @@ def _in_folder(cwd: str, fn, unit, job):
         os.chdir(cwd)
     except OSError:  # absolute paths may still name the files
         res = fn(unit, job)
-        if getattr(res, "error", None):
+        if res.error is not None:
             res.error += (f" (the driver's folder {cwd} is not on this Ray node: the logs must be on storage every "
                           "node mounts at the same place)")
         return res

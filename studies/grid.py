@@ -11,8 +11,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 from replay.errors import ConfigError
+
+if TYPE_CHECKING:
+    from replay.pipeline.config import PipelineConfig
 
 #: Grid points a sweep runs without --force.
 DEFAULT_MAX_POINTS = 5000
@@ -71,7 +75,7 @@ class Grid:
     sor_ks : tuple of int
     sor_stds : tuple of float
     chosen : (step, depth, rho, k, std)
-        The config's own point.
+        The config's own point (rho None when a_max is unknown: μ_thr is then the config's own).
     """
 
     steps: tuple[float, ...]
@@ -79,7 +83,7 @@ class Grid:
     rhos: tuple[float, ...]
     sor_ks: tuple[int, ...]
     sor_stds: tuple[float, ...]
-    chosen: tuple[float, float, float, int, float]
+    chosen: tuple[float, float, float | None, int, float]
 
     @property
     def n_zcut(self) -> int:
@@ -89,14 +93,15 @@ class Grid:
         scale = len(self.steps) * len(self.depths) if per_depth else 1
         return scale * len(self.sor_ks) * len(self.sor_stds)
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {"step_mm": list(self.steps), "max_depth_mm": list(self.depths), "rho_thr": list(self.rhos),
                 "sor_k": list(self.sor_ks), "sor_std_ratio": list(self.sor_stds),
                 "chosen": dict(zip(("step_mm", "max_depth_mm", "rho_thr", "sor_k", "sor_std_ratio"), self.chosen))}
 
 
-def make_grid(*, steps, depths, rhos, sor_ks, sor_stds, config, max_points: int = DEFAULT_MAX_POINTS,
-              force: bool = False) -> Grid:
+def make_grid(*, steps: tuple[float, ...] | None, depths: tuple[float, ...] | None, rhos: tuple[float, ...] | None,
+              sor_ks: tuple[float, ...] | None, sor_stds: tuple[float, ...] | None, config: PipelineConfig,
+              max_points: int = DEFAULT_MAX_POINTS, force: bool = False) -> Grid:
     """Check the axes against the stage types' rules and add the chosen point and its neighbours.
 
     Raises

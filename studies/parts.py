@@ -14,10 +14,13 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from replay.errors import ConfigError
 from replay.outputs import AtomicOutput
+
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 RUN_FILE = "run.json"
 PARTS = "parts"
@@ -34,7 +37,7 @@ class PartStore:
         What the study is: ``{"kind": ..., "options": {...}, "logs": {sha256: config_sha}}``.
     """
 
-    def __init__(self, root: str | os.PathLike, identity: dict[str, Any]) -> None:
+    def __init__(self, root: str | os.PathLike[str], identity: dict[str, Any]) -> None:
         self.root = Path(root)
         if self.root.exists() and not self.root.is_dir():
             raise ConfigError(f"-o {self.root}: exists and is not a folder")
@@ -58,7 +61,7 @@ class PartStore:
         (self.root / PARTS).mkdir(exist_ok=True)
         self._write_json(run, self.identity)
 
-    def _check_compatible(self, old: dict) -> None:
+    def _check_compatible(self, old: dict[str, Any]) -> None:
         new = self.identity
         if old.get("kind") != new.get("kind"):
             raise ConfigError(f"-o {self.root}: holds a {old.get('kind')} run, not a {new.get('kind')}: "
@@ -82,7 +85,7 @@ class PartStore:
         """True when the unit ``key`` finished in an earlier (or this) run."""
         return (self.root / PARTS / f"{key}.json").is_file()
 
-    def write(self, key: str, rows: list[dict], meta: dict, *, schema=None) -> None:
+    def write(self, key: str, rows: list[dict[str, Any]], meta: dict[str, Any], *, schema: pa.Schema | None = None) -> None:
         """Write a finished unit: its rows (parquet), then its meta (the marker of a finished unit)."""
         import pyarrow as pa
         import pyarrow.parquet as pq
@@ -92,7 +95,7 @@ class PartStore:
             pq.write_table(table, out.temp)
         self._write_json(self.root / PARTS / f"{key}.json", meta)
 
-    def metas(self) -> dict[str, dict]:
+    def metas(self) -> dict[str, dict[str, Any]]:
         out = {}
         for p in sorted((self.root / PARTS).glob("*.json")):
             try:
@@ -101,7 +104,7 @@ class PartStore:
                 continue  # an unreadable marker: the unit runs again
         return out
 
-    def table(self, keys: list[str] | None = None, *, schema=None):
+    def table(self, keys: list[str] | None = None, *, schema: pa.Schema | None = None) -> pa.Table:
         """The rows of the finished units (of ``keys``, default all) as one pyarrow Table."""
         import pyarrow as pa
         import pyarrow.parquet as pq
@@ -115,7 +118,7 @@ class PartStore:
             return pa.Table.from_pylist([], schema=schema)
         return pa.concat_tables(tables, promote_options="default")
 
-    def write_table(self, name: str, table) -> Path:
+    def write_table(self, name: str, table: pa.Table) -> Path:
         import pyarrow.parquet as pq
 
         path = self.root / name

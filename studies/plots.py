@@ -25,7 +25,7 @@ import io
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -33,6 +33,10 @@ from studies.findings import SHORT, param_text
 from studies.setgrid import SetGrid, same_set
 from studies.setgrid import key as _key
 from studies.summary import ParamSet, SweepSummary
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure, SubFigure
 
 #: Every plot file a report may write, in page order (those a grid cannot draw are not written,
 #: and a stale one from an earlier run of the same folder is removed).
@@ -47,7 +51,7 @@ _METRIC_COLOURS = {"precision": "#0072B2", "recall": "#009E73", "f1": "#D55E00"}
 _METRIC_NAMES = {"precision": "precision", "recall": "recall", "f1": "F1"}
 _SOR_COLOUR = "#E69F00"
 _ZCUT_COLOUR = "#0072B2"
-_RC = {"font.size": 10, "axes.titlesize": 11, "axes.labelsize": 10, "xtick.labelsize": 9, "ytick.labelsize": 9,
+_RC: dict[Any, Any] = {"font.size": 10, "axes.titlesize": 11, "axes.labelsize": 10, "xtick.labelsize": 9, "ytick.labelsize": 9,
        "legend.fontsize": 9, "axes.grid": True, "grid.alpha": 0.3, "grid.linewidth": 0.6,
        "axes.spines.top": False, "axes.spines.right": False, "figure.facecolor": "white",
        "savefig.facecolor": "white"}
@@ -57,7 +61,7 @@ _LABELS = {"step_mm": "Δd (mm)", "max_depth_mm": "$d_{max}$ (mm)", "rho_thr": r
            "sor_std_ratio": "SOR std_ratio (multiples of σ)"}
 
 
-def _f(v: float | int | None) -> float:
+def _f(v: float | None) -> float:
     """A figure as float (None -> NaN)."""
     return math.nan if v is None else float(v)
 
@@ -94,7 +98,7 @@ class Plot:
     width_px: int
 
 
-def _figure(nrows: int, ncols: int, *, width_in: float, height_in: float):
+def _figure(nrows: int, ncols: int, *, width_in: float, height_in: float) -> tuple[Figure, Any]:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -104,7 +108,7 @@ def _figure(nrows: int, ncols: int, *, width_in: float, height_in: float):
     return fig, axes
 
 
-def _subfigures(n: int, *, width_in: float, height_in: float):
+def _subfigures(n: int, *, width_in: float, height_in: float) -> tuple[Figure, list[SubFigure]]:
     """A figure of ``n`` side-by-side subfigures (each with its own legend below it)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -115,24 +119,24 @@ def _subfigures(n: int, *, width_in: float, height_in: float):
     return fig, list(subs)
 
 
-def _legend_below(sub, ax) -> None:
+def _legend_below(sub: SubFigure, ax: Axes) -> None:
     handles, labels = ax.get_legend_handles_labels()
     if handles:
         sub.legend(handles, labels, loc="outside lower center", ncols=2 if len(labels) > 3 else len(labels),
                    frameon=False)
 
 
-def _png(fig) -> bytes:
+def _png(fig: Figure) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=_DPI, metadata={"Software": None})
     return buf.getvalue()
 
 
-def _plot(name: str, title: str, caption: str, fig) -> Plot:
+def _plot(name: str, title: str, caption: str, fig: Figure) -> Plot:
     return Plot(name, title, caption, _png(fig), round(fig.get_figwidth() * _CSS_PX_PER_INCH))
 
 
-def _count_scale(ax, values) -> None:
+def _count_scale(ax: Axes, values: list[float]) -> None:
     """Counts spanning more than ~2 decades on a symmetric log axis (zeros stay visible)."""
     v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=float)
     pos = v[v > 0]
@@ -143,7 +147,7 @@ def _count_scale(ax, values) -> None:
         ax.set_ylim(bottom=0, top=max(1.0, float(v.max()) * 1.08 if v.size else 1.0))
 
 
-def _pick(values: list, chosen: Any, n: int = 8) -> list:
+def _pick(values: list[float], chosen: Any, n: int = 8) -> list[float]:
     """At most ``n`` values for one line each: evenly spread, always with the chosen one."""
     if len(values) <= n:
         return list(values)
@@ -155,19 +159,19 @@ def _pick(values: list, chosen: Any, n: int = 8) -> list:
     return sorted(picked)
 
 
-def _line_colours(n: int):
+def _line_colours(n: int) -> list[tuple[float, float, float, float]]:
     from matplotlib import colormaps
 
     cmap = colormaps["viridis"]
     return [cmap(0.05 + 0.8 * i / max(1, n - 1)) for i in range(n)]
 
 
-def _mark_chosen(ax, x: Any) -> None:
+def _mark_chosen(ax: Axes, x: Any) -> None:
     if x is not None:
         ax.axvline(float(x), color="0.35", linestyle=":", linewidth=1.2, zorder=1)
 
 
-def _legend_right(ax, **kw) -> None:
+def _legend_right(ax: Axes, **kw: Any) -> None:
     ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, frameon=False, **kw)
 
 
@@ -216,12 +220,12 @@ def _counts_plot(sw: SetGrid, vary: str, lines_by: str, *, name: str, paper: str
         fixed = {k: ch.get(k) for k in sw.zparams}
         pts = sw.series("zcut", vary, fixed)
         vals: list[float] = []
-        for key, label, colour, style in (("n2", "$N_2$: z-cut only", _ZCUT_COLOUR, "-"),
-                                          ("n1", "$N_1$: SOR only", _SOR_COLOUR, "--"),
-                                          ("n_both", "$N_{both}$: both", "0.3", ":")):
-            ys = [p[1].figure(key) for p in pts]
-            vals += [y for y in ys if y is not None]
-            ax2.plot([p[0] for p in pts], [_f(y) for y in ys], marker="o", ms=3.5, lw=1.6, color=colour, ls=style,
+        for key, label, line_colour, style in (("n2", "$N_2$: z-cut only", _ZCUT_COLOUR, "-"),
+                                               ("n1", "$N_1$: SOR only", _SOR_COLOUR, "--"),
+                                               ("n_both", "$N_{both}$: both", "0.3", ":")):
+            ns = [p[1].figure(key) for p in pts]
+            vals += [float(y) for y in ns if y is not None]
+            ax2.plot([p[0] for p in pts], [_f(y) for y in ns], marker="o", ms=3.5, lw=1.6, color=line_colour, ls=style,
                      label=label)
         _mark_chosen(ax2, ch.get(vary))
         _count_scale(ax2, vals)
@@ -240,7 +244,7 @@ def _counts_plot(sw: SetGrid, vary: str, lines_by: str, *, name: str, paper: str
     return _plot(name, title, caption, fig)
 
 
-def _metric_panel(ax, pts: list[tuple[float, ParamSet]], *, legend: bool) -> None:
+def _metric_panel(ax: Axes, pts: list[tuple[float, ParamSet]], *, legend: bool) -> None:
     xs = np.array([p[0] for p in pts], dtype=float)
     for m in ("precision", "recall", "f1"):
         y = np.array([_f(p[1].figure(m)) for p in pts])
@@ -343,20 +347,20 @@ def _f1_map(sw: SetGrid) -> Plot | None:
                            ("tuned", sw.summary.tuned.zcut, {"ec": "#D55E00", "ls": "--"})):
         if e is None or _key(e.step_mm) != _key(step):
             continue
-        try:
-            i, j = depths.index(_key(e.max_depth_mm)), areas.index(_key(e.param(sw.area)))
-        except ValueError:
+        depth, area = _key(e.max_depth_mm), _key(e.param(sw.area))
+        if depth not in depths or area not in areas or depth is None or area is None:
             continue
+        i, j = depths.index(depth), areas.index(area)
         from matplotlib.patches import Rectangle
 
-        ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, lw=2.2, **style))
+        ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, lw=2.2, edgecolor=style["ec"], linestyle=style["ls"]))
         marks.append(f"{what}: {'white' if what == 'chosen' else 'orange dashed'} frame")
     caption = (f"F1 of the z-cut for every ({SHORT['max_depth_mm']}, {SHORT[sw.area]}) pair at Δd = "
                f"{param_text(step, 'step_mm')}; colours from 0 to the best F1; grey: undefined." + (f" Marked: {'; '.join(marks)}." if marks else ""))
     return _plot("f1_map.png", f"F1 over d_max × {SHORT[sw.area]}", caption, fig)
 
 
-def _iso_f1(ax) -> None:
+def _iso_f1(ax: Axes) -> None:
     for f in (0.2, 0.4, 0.6, 0.8):
         r = np.linspace(f / (2 - f) + 1e-6, 1, 200)
         p = f * r / (2 * r - f)
@@ -377,7 +381,7 @@ def _zoom_limits(v: np.ndarray) -> tuple[float, float]:
 def _pr_plot(sw: SetGrid) -> Plot | None:
     from matplotlib.lines import Line2D
 
-    def pr(e):
+    def pr(e: ParamSet | None) -> tuple[float, float]:
         return (_f(e.recall), _f(e.precision)) if e else (math.nan, math.nan)
 
     zs = [(pr(e), e) for e in sw.zsets]
@@ -388,7 +392,7 @@ def _pr_plot(sw: SetGrid) -> Plot | None:
     summ = sw.summary
     chosen_z, nominal, tuned_z = summ.chosen_zcut, summ.nominal, summ.tuned.zcut
     chosen_s, tuned_s = summ.chosen_sor, summ.tuned.sor
-    marked = [("paper's nominal" + (" = chosen" if same_set(chosen_z, nominal) else ""), nominal, {"marker": "*", "s": 260, "fc": "#F0E442", "ec": "black", "lw": 1.0, "zorder": 6}),
+    marked: list[tuple[str, ParamSet | None, dict[str, Any]]] = [("paper's nominal" + (" = chosen" if same_set(chosen_z, nominal) else ""), nominal, {"marker": "*", "s": 260, "fc": "#F0E442", "ec": "black", "lw": 1.0, "zorder": 6}),
               ("chosen", None if same_set(chosen_z, nominal) else chosen_z,
                {"marker": "s", "s": 80, "fc": "white", "ec": "black", "lw": 1.4, "zorder": 6}),
               ("tuned z-cut", tuned_z, {"marker": "D", "s": 90, "fc": "#D55E00", "ec": "black", "lw": 1.0, "zorder": 7}),

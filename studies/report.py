@@ -44,7 +44,7 @@ _AXES = ("step_mm", "max_depth_mm", "rho_thr", "sor_k", "sor_std_ratio")
 
 
 # ------------------------------------------------------------------------------------------ numbers
-def _int(v: int | None) -> str:
+def _int(v: float | None) -> str:
     return "—" if v is None else f"{int(v):,}".replace(",", "\u2009")
 
 
@@ -70,7 +70,7 @@ def _set_params(e: ParamSet) -> str:
     return s
 
 
-def _ratio_text(v: float | None, n_lo: int | None, n_mid: int | None) -> str:
+def _ratio_text(v: float | None, n_lo: float | None, n_mid: float | None) -> str:
     if v is not None:
         return f"{float(v):.3f}"
     if n_mid == 0 and n_lo is not None:

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from studies.grid import Grid
+from studies.summary import Overlap, ParamSet, RatioPair, Sensitivities, Tuned, finite_or_none, intervals
 from studies.work import Job, UnitResult, run_unit
 
 ZCUT_COLUMNS = ("step_mm", "max_depth_mm", "rho_thr", "max_area_px")
@@ -35,7 +36,7 @@ def grid_of(job: Job) -> Grid:
                 tuple(g["chosen"]))
 
 
-def grid_dict(grid: Grid) -> dict:
+def grid_dict(grid: Grid) -> dict[str, Any]:
     return dataclasses.asdict(grid)
 
 
@@ -144,7 +145,7 @@ def _region(zone, name: str) -> np.ndarray:
 # ----------------------------------------------------------------------------------- the summary
 
 
-def _set_key(cols: dict, i: int) -> tuple:
+def _set_key(cols: dict[str, list[Any]], i: int) -> tuple[Any, ...]:
     """A parameter set: the method and its parameters (μ_thr only when ρ_thr is not known: across logs
     of other parts, one ρ_thr is one set whatever a_max each log has)."""
     key = [cols["method"][i]] + [cols[c][i] for c in ZCUT_COLUMNS + SOR_COLUMNS]
@@ -153,19 +154,19 @@ def _set_key(cols: dict, i: int) -> tuple:
     return tuple(key)
 
 
-def pooled_sets(table) -> list[dict]:
+def pooled_sets(table: Any) -> list[ParamSet]:
     """Per parameter set and method: pooled counts, precision/recall/F1 with 95 % intervals (a
     bootstrap over frames, the same resamples for every set), and for the z-cut the relative figures
-    N_both, N1, N2, α, β (SPEC §3)."""
+    N_both, N1, N2, α, β (SPEC §3); sorted by method and parameters."""
     from zcut.metrics import bootstrap_ci_many, ratio
 
     cols = table.to_pydict()
     n = table.num_rows
-    groups: dict[tuple, list[int]] = {}
+    groups: dict[tuple[Any, ...], list[int]] = {}
     for i in range(n):
         groups.setdefault(_set_key(cols, i), []).append(i)
     out = []
-    by_frames: dict[int, list[tuple[tuple, list[int]]]] = {}
+    by_frames: dict[int, list[tuple[tuple[Any, ...], list[int]]]] = {}
     for key, idx in groups.items():
         by_frames.setdefault(len(idx), []).append((key, idx))
     for n_frames, items in by_frames.items():
@@ -174,23 +175,20 @@ def pooled_sets(table) -> list[dict]:
         cis = bootstrap_ci_many(arr["tp"], arr["fp"], arr["fn"])
         for j, (key, idx) in enumerate(items):
             T, F, N = (int(arr[c][j].sum()) for c in ("tp", "fp", "fn"))
-            e = {"method": key[0], **dict(zip(ZCUT_COLUMNS + SOR_COLUMNS, key[1:])), "frames": n_frames,
-                 "tp": T, "fp": F, "fn": N, "n_pred": sum(cols["n_pred"][i] for i in idx),
-                 "precision": _r(T, T + F), "recall": _r(T, T + N), "f1": _r(2 * T, 2 * T + F + N),
-                 "ci95": {k: (_nan_none(v[j, 0]), _nan_none(v[j, 1])) for k, v in cis.items()}}
+            overlap = None
             if key[0] == "zcut":
                 both = sum(cols["n_both"][i] for i in idx)
                 n1 = sum(cols["n_sor_only"][i] for i in idx)
                 n2 = sum(cols["n_zcut_only"][i] for i in idx)
-                e.update(n_both=both, n1=n1, n2=n2, alpha=ratio(n1, n2), beta_sor=ratio(both, n1),
-                         beta_zcut=ratio(both, n2))
-            out.append(e)
-    out.sort(key=lambda e: (e["method"], *[(-1 if e[c] is None else e[c]) for c in ZCUT_COLUMNS + SOR_COLUMNS]))
+                overlap = Overlap(both, n1, n2, finite_or_none(ratio(n1, n2)), finite_or_none(ratio(both, n1)),
+                                  finite_or_none(ratio(both, n2)))
+            params = dict(zip(ZCUT_COLUMNS + SOR_COLUMNS, key[1:]))
+            out.append(ParamSet(
+                method=key[0], **params, frames=n_frames, tp=T, fp=F, fn=N,
+                n_pred=sum(cols["n_pred"][i] for i in idx), precision=_r(T, T + F), recall=_r(T, T + N),
+                f1=_r(2 * T, 2 * T + F + N), ci95=intervals({k: v[j] for k, v in cis.items()}), overlap=overlap))
+    out.sort(key=lambda e: (e.method, *[(-1 if e.param(c) is None else e.param(c)) for c in ZCUT_COLUMNS + SOR_COLUMNS]))
     return out
-
-
-def _nan_none(v: float) -> float | None:
-    return None if v != v else float(v)
 
 
 def _r(a: int, b: int) -> float | None:
@@ -219,15 +217,15 @@ def parse_objective(text: str) -> tuple[str, float | None]:
     raise ConfigError(f"--objective must be f1, recall@precision=P or precision@recall=R, got {text!r}")
 
 
-def score(e: dict, objective: tuple[str, float | None]) -> float:
+def score(e: ParamSet, objective: tuple[str, float | None]) -> float:
     """The objective's value of a set (-inf when it misses the floor or is undefined)."""
     kind, floor = objective
-    p, r, f = (e.precision, e.recall, e.f1) if not isinstance(e, dict) else (e["precision"], e["recall"], e["f1"])
+    p, r, f = e.precision, e.recall, e.f1
     if kind == "f1":
         return f if f is not None else -math.inf
     if kind == "recall@precision":
-        return r if (p is not None and r is not None and p >= floor) else -math.inf
-    return p if (p is not None and r is not None and r >= floor) else -math.inf
+        return r if (p is not None and r is not None and floor is not None and p >= floor) else -math.inf
+    return p if (p is not None and r is not None and floor is not None and r >= floor) else -math.inf
 
 
 def section_5_4_ranges(part: str | None) -> dict[str, tuple[float, float]] | None:
@@ -243,18 +241,19 @@ def section_5_4_ranges(part: str | None) -> dict[str, tuple[float, float]] | Non
             "rho_thr": RHO_THR_RANGE}
 
 
-def _inside(e: dict, ranges) -> bool:
+def _inside(e: ParamSet, ranges: dict[str, tuple[float, float]] | None) -> bool:
     if ranges is None:
         return True
     eps = 1e-9
-    return all(e[c] is not None and lo * (1 - eps) <= e[c] <= hi * (1 + eps) for c, (lo, hi) in ranges.items())
+    return all((v := e.param(c)) is not None and lo * (1 - eps) <= v <= hi * (1 + eps)
+               for c, (lo, hi) in ranges.items())
 
 
-def tune(sets: list[dict], objective, *, part: str | None) -> dict[str, Any]:
+def tune(sets: list[ParamSet], objective: tuple[str, float | None], *, part: str | None) -> Tuned:
     """The best z-cut set within the §5.4 ranges (all sets when none lies inside, said so) and the best
     SOR set, by the objective."""
     ranges = section_5_4_ranges(part)
-    zc = [e for e in sets if e["method"] == "zcut"]
+    zc = [e for e in sets if e.method == "zcut"]
     inside = [e for e in zc if _inside(e, ranges)]
     note = None
     if ranges is None:
@@ -266,43 +265,56 @@ def tune(sets: list[dict], objective, *, part: str | None) -> dict[str, Any]:
     else:
         pool = inside
     best_z = max(pool, key=lambda e: score(e, objective), default=None)
-    best_s = max((e for e in sets if e["method"] == "sor"), key=lambda e: score(e, objective), default=None)
+    best_s = max((e for e in sets if e.method == "sor"), key=lambda e: score(e, objective), default=None)
     if best_z is not None and score(best_z, objective) == -math.inf:
         note = (note + "; " if note else "") + "no z-cut set meets the objective's floor"
         best_z = None
-    return {"zcut": best_z, "sor": best_s, "ranges": ranges, "note": note}
+    return Tuned(best_z, best_s, ranges, note)
 
 
-def sensitivity_at(sets: list[dict], point: tuple[float, float, float]) -> dict[str, Any] | None:
+def sensitivity_at(sets: list[ParamSet], point: tuple[float | None, float | None, float | None]) -> Sensitivities | None:
     """θ (ρ_thr) and ω (d_max) of SPEC §3 around a z-cut point (step, depth, rho), for both methods,
     from the grid's sets at 0.5× and 1.5× (None when the grid lacks them)."""
     from zcut.metrics import sensitivity
 
-    def find(step, depth, rho):
-        for e in sets:
-            if e["method"] == "zcut" and _close(e["step_mm"], step) and _close(e["max_depth_mm"], depth) \
-                    and _close(e["rho_thr"], rho):
-                return e
-        return None
-
     step, depth, rho = point
-    mid = find(step, depth, rho)
-    if mid is None:
+    mid = find_set(sets, "zcut", step, depth, rho)
+    if mid is None or mid.overlap is None or depth is None:
         return None
-    out: dict[str, Any] = {}
-    pairs = [("omega", find(step, 0.5 * depth, rho), find(step, 1.5 * depth, rho))]
+    out: Sensitivities = {}
+    pairs = [("omega", find_set(sets, "zcut", step, 0.5 * depth, rho), find_set(sets, "zcut", step, 1.5 * depth, rho))]
     if rho is not None:  # θ needs ρ_thr (a_max known); ω does not
-        pairs.insert(0, ("theta", find(step, depth, 0.5 * rho), find(step, depth, 1.5 * rho)))
+        pairs.insert(0, ("theta", find_set(sets, "zcut", step, depth, 0.5 * rho),
+                         find_set(sets, "zcut", step, depth, 1.5 * rho)))
     for name, lo, hi in pairs:
-        if lo is None or hi is None:
+        if lo is None or hi is None or lo.overlap is None or hi.overlap is None:
             continue
         for n, key in ((1, "n1"), (2, "n2")):
-            s = sensitivity(lo[key], mid[key], hi[key])
-            out[f"{name}_{n}"] = {"lo": s.lo, "hi": s.hi}
+            s = sensitivity(getattr(lo.overlap, key), getattr(mid.overlap, key), getattr(hi.overlap, key))
+            out[f"{name}_{n}"] = RatioPair(finite_or_none(s.lo), finite_or_none(s.hi))
     return out or None
 
 
-def _close(a, b) -> bool:
+def find_set(sets: list[ParamSet] | tuple[ParamSet, ...], method: str, step: float | None, depth: float | None,
+             rho: float | None) -> ParamSet | None:
+    """The ``method`` set at (Δd, d_max, ρ_thr) (the first one: a SOR set judging the whole zone has none)."""
+    for e in sets:
+        if e.method == method and _close(e.step_mm, step) and _close(e.max_depth_mm, depth) and _close(e.rho_thr, rho):
+            return e
+    return None
+
+
+def find_sor_set(sets: list[ParamSet] | tuple[ParamSet, ...], k: int, std: float, step: float | None,
+                 depth: float | None) -> ParamSet | None:
+    """The SOR set (k, std_ratio), at (Δd, d_max) when SOR judges the top of the pile."""
+    for e in sets:
+        if e.method == "sor" and e.sor_k == k and _close(e.sor_std_ratio, std) \
+                and (e.step_mm is None or (_close(e.step_mm, step) and _close(e.max_depth_mm, depth))):
+            return e
+    return None
+
+
+def _close(a: float | None, b: float | None) -> bool:
     if a is None or b is None:
         return a is None and b is None
     return abs(a - b) <= 1e-9 * max(1.0, abs(a), abs(b))

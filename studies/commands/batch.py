@@ -11,6 +11,11 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from studies.summary import BatchSummary
 
 FRAMES_PER_UNIT = 8
 
@@ -58,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         err = sys.stderr
 
-        def planning(i, n, path) -> None:
+        def planning(i: int, n: int, path: Path) -> None:
             if n > 5 and (i % 20 == 0 or i == n - 1):
                 print(f"zcut: reading {n} logs: {i + 1}/{n} {path.name}", file=err, flush=True)
 
@@ -84,42 +89,40 @@ def run(args: argparse.Namespace) -> int:
 
     with threadpool_limits(limits=1, user_api="blas"):  # the bootstrap's product: OpenBLAS threads spin
         summ = batch.summary(plans, store, table, results, executor_name=executor.name, workers=executor.workers,
-                             seconds=time.perf_counter() - t0)
-    summ["accuracy"]["region"] = args.region
-    summ_path = store.write_json("summary.json", batch.jsonable(summ))
-    for e in summ["logs"]:
-        for d in e["damage"]:
+                             seconds=time.perf_counter() - t0, region=args.region)
+    summ_path = store.write_json("summary.json", summ.to_json())
+    for lg in summ.logs:
+        for d in lg.damage:
             print(f"warning: data loss: {d}", file=err)
-        for x in e["errors"]:
-            print(f"warning: {e['log']}: {x}", file=err)
+        for x in lg.errors:
+            print(f"warning: {lg.log}: {x}", file=err)
     print(f"zcut: wrote {frames_path} ({table.num_rows} frames) and {summ_path}", file=err)
     if args.json:
-        print(json.dumps(batch.jsonable(summ), indent=1))
+        print(json.dumps(summ.to_json(), indent=1))
     else:
         _print_table(summ)
-    return EXIT_DATA_LOSS if summ["data_loss"] else 0
+    return EXIT_DATA_LOSS if summ.data_loss else 0
 
 
-def _print_table(summ: dict) -> None:
-    t = summ["totals"]
-    print(f"{t['frames']} frames of {t['logs']} log(s): z-cut {t['zcut']} px, SOR {t['sor']} px, "
-          f"both {t['both']} px, above the rim {t['above_rim']} px")
-    pooled = summ["accuracy"]["pooled"]
-    if pooled:
-        print(f"true accuracy over the scored region ({summ['accuracy']['region']}), pooled:")
+def _print_table(summ: BatchSummary) -> None:
+    t = summ.totals
+    print(f"{t.frames} frames of {t.logs} log(s): z-cut {t.zcut} px, SOR {t.sor} px, "
+          f"both {t.both} px, above the rim {t.above_rim} px")
+    if summ.pooled:
+        print(f"true accuracy over the scored region ({summ.region}), pooled:")
         print(f"  {'method':13s} {'precision':>22s} {'recall':>22s} {'F1':>22s}")
-        for m, e in pooled.items():
+        for m, e in summ.pooled.items():
             cells = []
             for k in ("precision", "recall", "f1"):
-                v, ci = e[k], e["ci95"][k]
+                v, ci = getattr(e, k), e.ci95[k]
                 cells.append("-" if v is None else f"{v:.3f} [{_f(ci[0])}, {_f(ci[1])}]")
             print(f"  {m:13s} " + " ".join(f"{c:>22s}" for c in cells))
-    r = summ["this_run"]
-    if r["frames"]:
-        print(f"this run: {r['frames']} frames in {r['seconds']:.1f} s ({r['frames_per_s']:.2f} frames/s, "
-              f"{r['cpu_seconds_per_frame']:.2f} CPU-s/frame) on {r['workers']} worker(s) ({r['executor']}), "
-              f"peak {r['peak_rss_mb_per_worker']:.0f} MB per worker")
+    r = summ.this_run
+    if r.frames:
+        print(f"this run: {r.frames} frames in {r.seconds:.1f} s ({r.frames_per_s:.2f} frames/s, "
+              f"{r.cpu_seconds_per_frame:.2f} CPU-s/frame) on {r.workers} worker(s) ({r.executor}), "
+              f"peak {r.peak_rss_mb_per_worker:.0f} MB per worker")
 
 
-def _f(v) -> str:
+def _f(v: float | None) -> str:
     return "-" if v is None or v != v else f"{v:.2f}"

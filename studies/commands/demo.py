@@ -11,6 +11,13 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from replay.logs.frame import Frame
+    from replay.pipeline.session import FrameRow
+    from replay.pipeline.sinks import FrameSink
+    from replay.pipeline.stages import FrameResult
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -38,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
 
     err = sys.stderr
 
-    def progress(i, n, sf, seconds) -> None:
+    def progress(i: int, n: int, sf: object, seconds: float) -> None:
         print(f"  synthesising scan {i + 1}/{n} ({seconds:.1f} s)", file=err, flush=True)
 
     if not sample_log_path().is_file():
@@ -57,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
 
     truth_src = SyntheticTruth(with_kinds=True)
 
-    def on_frame(frame, result, row) -> None:
+    def on_frame(frame: Frame, result: FrameResult, row: FrameRow) -> None:
         on_frame_print(frame, result, row)
         t = truth_src.truth(frame, result.valid)
         if not isinstance(t, str):
@@ -73,8 +80,8 @@ def run(args: argparse.Namespace) -> int:
         plan.add(config_path_for(path), f"the config beside {what}")
     session = ReplaySession.open(sample, bin_model=model)
     on_start(session, planned=session.reader.n_frames)
-    sinks = [RerunSink(rrd=rrd, full_detail=args.full_detail), ConfigBeside(rrd), ResultsSink(results),
-             ConfigBeside(results)]
+    sinks: list[FrameSink] = [RerunSink(rrd=rrd, full_detail=args.full_detail), ConfigBeside(rrd), ResultsSink(results),
+                              ConfigBeside(results)]
     summary = session.run(BackgroundSinks(sinks), on_frame=on_frame)
     report = accuracy_report(frames_acc, region="zone") if frames_acc else None
     if args.json:
@@ -88,8 +95,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"\nz-cut found {pz['tp']} of {pz['tp'] + pz['fn']} true outliers "
               f"(recall {_pct(pz['recall'])}, precision {_pct(pz['precision'])}); "
               f"SOR found {ps['tp']} (recall {_pct(ps['recall'])}, precision {_pct(ps['precision'])}).")
-    for name, path in summary.outputs.items():
-        print(f"zcut: wrote {name}: {path}", file=err)
+    for name, written in summary.outputs.items():
+        print(f"zcut: wrote {name}: {written}", file=err)
     print(f"\nOpen the recording with:  {viewer_command()} {rrd}", file=sys.stdout if not args.json else err)
     if summary.damage:
         for d in summary.damage:
@@ -98,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _pct(v) -> str:
+def _pct(v: float | None) -> str:
     if v is None or v != v:
         return "-"
     return f"{100 * v:.1f} %"

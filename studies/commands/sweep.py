@@ -13,6 +13,14 @@ import shlex
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+from studies.summary import DamageNote, ParamSet, SweepLog, SweepSummary, Tuned, UnscoredFrame
+
+if TYPE_CHECKING:
+    from replay.pipeline.config import PipelineConfig
+    from studies.driver import ProgressSink
+    from studies.parts import PartStore
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -62,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from replay.logs.reader import LogReader
     from replay.pipeline import config as cfg
     from replay.process import EXIT_DATA_LOSS
-    from studies import batch, sweep
+    from studies import sweep
     from studies.driver import (
         Progress,
         absolute,
@@ -99,9 +107,9 @@ def run(args: argparse.Namespace) -> int:
         logs.append(str(src))
     # the truth must exist before any work
     if args.labels is None:
-        for p in logs:
-            if layout.TRUTH_OUTLIERS not in LogReader(p, cloud_topic=args.topic).mask_topics:
-                raise ConfigError(f"{p} has no {layout.TRUTH_OUTLIERS} (not a synthetic log): label it "
+        for log in logs:
+            if layout.TRUTH_OUTLIERS not in LogReader(log, cloud_topic=args.topic).mask_topics:
+                raise ConfigError(f"{log} has no {layout.TRUTH_OUTLIERS} (not a synthetic log): label it "
                                   "(zcut annotate) and give --labels DB")
     executor = make_executor(workers=args.workers, ray=args.ray)
     try:
@@ -140,36 +148,35 @@ def run(args: argparse.Namespace) -> int:
         sets = sweep.pooled_sets(table)
     tuned = sweep.tune(sets, objective, part=base.part)
     chosen = grid.chosen
-    summary = {
-        "logs": [{"log": str(p.path), "sha256": p.sha256, "error": p.error} for p in plans],
-        "frames": len({(r, f) for r, f in zip(table.column("log_sha256").to_pylist(), table.column("frame").to_pylist())}),
-        "region": args.region, "objective": args.objective, "truth": "labels" if args.labels else "synthetic",
-        "grid": grid.as_dict(), "config": first.config_toml, "notes": list(first.notes),
-        "sets": sets, "tuned": tuned,
-        "chosen": {"zcut": _find(sets, "zcut", chosen[0], chosen[1], chosen[2]),
-                   "sor": _find_sor(sets, chosen[3], chosen[4], chosen[0], chosen[1])},
-        "nominal": _find(sets, "zcut", 0.2, 30.0, 0.07),
-        "sensitivity": {"chosen": sweep.sensitivity_at(sets, chosen[:3]),
-                        "tuned": sweep.sensitivity_at(sets, (tuned["zcut"]["step_mm"], tuned["zcut"]["max_depth_mm"],
-                                                             tuned["zcut"]["rho_thr"])) if tuned["zcut"] else None},
-        "damage": [{"log": Path(m["log"]).name, "note": d} for m in store.metas().values() for d in m["damage"]],
-        "errors": [f"{r.unit.log}: {r.error}" for r in results if r.error],
-        "unscored": [{"log": Path(m["log"]).name, **u} for m in store.metas().values() for u in m["unscored"]],
-        "reproduce": _reproduce(args),
-        "seconds": time.perf_counter() - t0,
-    }
-    store.write_json("summary.json", batch.jsonable(summary))
+    metas = store.metas().values()
+    summary = SweepSummary(
+        logs=tuple(SweepLog(str(p.path), p.sha256, p.error) for p in plans),
+        frames=len(set(zip(table.column("log_sha256").to_pylist(), table.column("frame").to_pylist()))),
+        region=args.region, objective=args.objective, truth="labels" if args.labels else "synthetic",
+        grid=grid, config=first.config_toml, notes=tuple(first.notes), sets=tuple(sets), tuned=tuned,
+        chosen_zcut=sweep.find_set(sets, "zcut", chosen[0], chosen[1], chosen[2]),
+        chosen_sor=sweep.find_sor_set(sets, chosen[3], chosen[4], chosen[0], chosen[1]),
+        nominal=sweep.find_set(sets, "zcut", 0.2, 30.0, 0.07),
+        sensitivity_chosen=sweep.sensitivity_at(sets, chosen[:3]),
+        sensitivity_tuned=(sweep.sensitivity_at(sets, (tuned.zcut.step_mm, tuned.zcut.max_depth_mm, tuned.zcut.rho_thr))
+                           if tuned.zcut else None),
+        damage=tuple(DamageNote(Path(m["log"]).name, d) for m in metas for d in m["damage"]),
+        errors=tuple(f"{r.unit.log}: {r.error}" for r in results if r.error),
+        unscored=tuple(UnscoredFrame(Path(m["log"]).name, u.get("index"), u.get("stamp_ns"), u.get("reason"))
+                       for m in metas for u in m["unscored"]),
+        reproduce=_reproduce(args), seconds=time.perf_counter() - t0,
+    )
+    store.write_json("summary.json", summary.to_json())
     tuned_path = _write_tuned(store, base, tuned, args)
     if not args.no_report:
         from studies.report import write_report
 
         write_report(store.root, summary)
     _print(summary, tuned_path)
-    loss = bool(summary["damage"] or summary["errors"] or any(p.error for p in plans))
-    return EXIT_DATA_LOSS if loss else 0
+    return EXIT_DATA_LOSS if summary.data_loss else 0
 
 
-def _reproduce(args) -> str:
+def _reproduce(args: argparse.Namespace) -> str:
     """The command line that reruns this sweep."""
     parts = ["zcut", "sweep", *args.inputs, "-o", args.out]
     for opt in ("step", "max_depth", "rho", "sor_k", "sor_std", "objective", "labels", "annotator", "region",
@@ -183,51 +190,44 @@ def _reproduce(args) -> str:
 class _Scaled:
     """Progress in frames × Δd from units' frames."""
 
-    def __init__(self, progress, scale: int) -> None:
+    def __init__(self, progress: ProgressSink, scale: int) -> None:
         self.progress, self.scale = progress, scale
 
     def update(self, n: int, *, note: str = "", force: bool = False) -> None:
         self.progress.update(n * self.scale, note=note, force=force)
 
 
-def _find(sets, method, step, depth, rho):
-    from studies.sweep import _close
-
-    for e in sets:
-        if e["method"] == method and _close(e["step_mm"], step) and _close(e["max_depth_mm"], depth) \
-                and _close(e["rho_thr"], rho):
-            return e
-    return None
-
-
-def _find_sor(sets, k, std, step, depth):
-    from studies.sweep import _close
-
-    for e in sets:
-        if e["method"] == "sor" and e["sor_k"] == k and _close(e["sor_std_ratio"], std) \
-                and (e["step_mm"] is None or (_close(e["step_mm"], step) and _close(e["max_depth_mm"], depth))):
-            return e
-    return None
-
-
-def _write_tuned(store, base, tuned: dict, args) -> Path | None:
+def _write_tuned(store: PartStore, base: PipelineConfig, tuned: Tuned, args: argparse.Namespace) -> Path | None:
     """``tuned.toml``: the base config with the tuned z-cut and SOR parameters."""
     import dataclasses
 
     from replay.pipeline import config as cfg
 
-    z, s = tuned["zcut"], tuned["sor"]
+    z, s = tuned.zcut, tuned.sor
     if z is None:
         return None
-    zc = dataclasses.replace(base.zcut, step=z["step_mm"], max_depth=z["max_depth_mm"],
-                             max_area=z["rho_thr"] * base.zcut.a_max if z["rho_thr"] is not None else z["max_area_px"])
-    sor = dataclasses.replace(base.sor, k=s["sor_k"], std_ratio=s["sor_std_ratio"]) if s else base.sor
+    # a z-cut set has Δd, d_max and ρ_thr (a_max known) or μ_thr; a SOR set has k and std_ratio
+    assert z.step_mm is not None and z.max_depth_mm is not None
+    if z.rho_thr is not None and base.zcut.a_max is not None:
+        max_area = z.rho_thr * base.zcut.a_max
+    else:
+        assert z.max_area_px is not None
+        max_area = z.max_area_px
+    zc = dataclasses.replace(base.zcut, step=z.step_mm, max_depth=z.max_depth_mm, max_area=max_area)
+    if s is not None:
+        assert s.sor_k is not None and s.sor_std_ratio is not None
+        sor = dataclasses.replace(base.sor, k=s.sor_k, std_ratio=s.sor_std_ratio)
+    else:
+        sor = base.sor
     tuned_cfg = base.replace(zcut=zc, sor=sor)
-    f = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
+
+    def f(v: float | None) -> str:
+        return "-" if v is None else f"{v:.3f}"
+
     header = (f"zcut sweep: tuned by {args.objective} over {store.root}\n"
-              f"z-cut: precision {f(z['precision'])}, recall {f(z['recall'])}, F1 {f(z['f1'])}"
-              + (f"\nSOR: precision {f(s['precision'])}, recall {f(s['recall'])}, F1 {f(s['f1'])}" if s else "")
-              + (f"\nnote: {tuned['note']}" if tuned["note"] else ""))
+              f"z-cut: precision {f(z.precision)}, recall {f(z.recall)}, F1 {f(z.f1)}"
+              + (f"\nSOR: precision {f(s.precision)}, recall {f(s.recall)}, F1 {f(s.f1)}" if s else "")
+              + (f"\nnote: {tuned.note}" if tuned.note else ""))
     path = store.root / "tuned.toml"
     from replay.outputs import AtomicOutput
 
@@ -236,25 +236,27 @@ def _write_tuned(store, base, tuned: dict, args) -> Path | None:
     return path
 
 
-def _print(summary: dict, tuned_path) -> None:
-    def row(name, e):
+def _print(summary: SweepSummary, tuned_path: Path | None) -> None:
+    def row(name: str, e: ParamSet | None) -> str:
         if e is None:
             return f"  {name:10s} -"
-        ci = e["ci95"]
-        cells = [f"{e[k]:.3f} [{ci[k][0]:.3f}, {ci[k][1]:.3f}]" if e[k] is not None and ci[k][0] is not None
-                 else ("-" if e[k] is None else f"{e[k]:.3f}") for k in ("precision", "recall", "f1")]
-        params = (f"Δd {e['step_mm']:g} d_max {e['max_depth_mm']:g} ρ {e['rho_thr']:g}" if e["method"] == "zcut"
-                  else f"k {e['sor_k']} std {e['sor_std_ratio']:g}")
+        cells = []
+        for k in ("precision", "recall", "f1"):
+            v, (lo, hi) = e.figure(k), e.ci(k)
+            cells.append("-" if v is None else f"{v:.3f} [{lo:.3f}, {hi:.3f}]" if lo is not None and hi is not None
+                         else f"{v:.3f}")
+        params = (f"Δd {e.step_mm:g} d_max {e.max_depth_mm:g} ρ {e.rho_thr:g}" if e.method == "zcut"
+                  else f"k {e.sor_k} std {e.sor_std_ratio:g}")
         return f"  {name:10s} {params:32s} " + "  ".join(f"{c:>22s}" for c in cells)
 
-    print(f"{summary['frames']} frame(s) scored over the {summary['region']} region; objective {summary['objective']}")
+    print(f"{summary.frames} frame(s) scored over the {summary.region} region; objective {summary.objective}")
     print(f"  {'':10s} {'parameters':32s} " + "  ".join(f"{h:>22s}" for h in ("precision", "recall", "F1")))
-    print(row("chosen", summary["chosen"]["zcut"]))
-    print(row("nominal", summary["nominal"]))
-    print(row("tuned", summary["tuned"]["zcut"]))
-    print(row("SOR chosen", summary["chosen"]["sor"]))
-    print(row("SOR tuned", summary["tuned"]["sor"]))
-    if summary["tuned"]["note"]:
-        print(f"note: {summary['tuned']['note']}")
+    print(row("chosen", summary.chosen_zcut))
+    print(row("nominal", summary.nominal))
+    print(row("tuned", summary.tuned.zcut))
+    print(row("SOR chosen", summary.chosen_sor))
+    print(row("SOR tuned", summary.tuned.sor))
+    if summary.tuned.note:
+        print(f"note: {summary.tuned.note}")
     if tuned_path is not None:
         print(f"tuned config: {tuned_path}")

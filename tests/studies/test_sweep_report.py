@@ -3,8 +3,8 @@ checked in Debian's chromium (headless, Playwright) with every request off this 
 
 The summaries are made the way ``zcut sweep`` makes them: per-frame rows written to a real Parquet
 file and read back, pooled by ``studies.sweep.pooled_sets`` (bootstrap intervals), tuned by
-``studies.sweep.tune``, the sensitivity by ``sensitivity_at``, round-tripped through JSON (NaN and
-±inf as null). The counts come from a seeded model of a filter (recall rising with d_max and ρ_thr,
+``studies.sweep.tune``, the sensitivity by ``sensitivity_at``, as a ``studies.summary.SweepSummary``
+round-tripped through JSON (NaN and ±inf as null). The counts come from a seeded model of a filter (recall rising with d_max and ρ_thr,
 false positives rising with ρ_thr), so that the plots have something to show; the degenerate grids
 (one value per axis, no SOR, a_max unknown, nothing flagged, no sets) must give a page, never an error.
 """
@@ -23,9 +23,9 @@ import numpy as np
 import pytest
 
 from studies import findings, plots, report
-from studies.batch import jsonable
 from studies.grid import Grid
-from studies.sweep import parse_objective, pooled_sets, sensitivity_at, tune
+from studies.summary import SweepLog, SweepSummary
+from studies.sweep import find_set, find_sor_set, parse_objective, pooled_sets, sensitivity_at, tune
 
 A_MAX = 171.4
 NOMINAL = (0.2, 30.0, 0.07)
@@ -91,14 +91,6 @@ def _rows(grid: Grid, *, n_frames: int, sor: bool, a_max: float | None, flag_not
     return rows
 
 
-def _find(sets, method, **params):
-    for e in sets:
-        if e["method"] == method and all(e[k] is not None and abs(e[k] - v) <= 1e-9 * max(1, abs(v))
-                                         for k, v in params.items()):
-            return e
-    return None
-
-
 def model_summary(tmp: Path, *, steps=(0.1, 0.2, 0.3), depths=(10.0, 15.0, 20.0, 30.0, 40.0, 45.0, 60.0),
                   rhos=(0.02, 0.035, 0.05, 0.07, 0.09, 0.105, 0.15), sor_ks=(4, 8), sor_stds=(0.5, 1.0, 1.5, 2.0),
                   n_frames=6, sor=True, a_max: float | None = A_MAX, flag_nothing=False, seed=5,
@@ -115,32 +107,28 @@ def model_summary(tmp: Path, *, steps=(0.1, 0.2, 0.3), depths=(10.0, 15.0, 20.0,
     pq.write_table(pa.Table.from_pylist(rows), path)
     sets = pooled_sets(pq.read_table(path))
     tuned = tune(sets, parse_objective(objective), part="zinc_nuts" if a_max is not None else None)
-    area = {"rho_thr": 0.07} if a_max is not None else {"max_area_px": 12.0}
-    chosen_z = _find(sets, "zcut", step_mm=0.2, max_depth_mm=30.0, **area)
-    tz = tuned["zcut"]
-    summary = {
-        "logs": [{"log": "/data/<scan & co>.mcap", "sha256": "ab" * 32, "error": None}],
-        "frames": n_frames, "region": "zone", "objective": objective, "truth": "synthetic",
-        "grid": grid.as_dict(), "config": _config_toml(sor=sor, a_max=a_max),
-        "notes": ["part: zinc_nuts (from the log's zcut.synth metadata)", "μ_thr = ρ_thr · a_max <b>not bold</b>"],
-        "sets": sets, "tuned": tuned,
-        "chosen": {"zcut": chosen_z, "sor": _find(sets, "sor", sor_k=4, sor_std_ratio=1.0)},
-        "nominal": _find(sets, "zcut", step_mm=0.2, max_depth_mm=30.0, rho_thr=0.07) if a_max is not None else None,
-        "sensitivity": {"chosen": sensitivity_at(sets, grid.chosen[:3]) if a_max is not None else None,
-                        "tuned": sensitivity_at(sets, (tz["step_mm"], tz["max_depth_mm"], tz["rho_thr"]))
-                        if tz else None},
-        "damage": [], "errors": [], "unscored": [],
-        "reproduce": "zcut sweep '/data/<scan & co>.mcap' -o out --rho 0.02:0.15:5",
-        "seconds": 12.5,
-    }
+    rho = 0.07 if a_max is not None else None
+    tz = tuned.zcut
+    summary = SweepSummary(
+        logs=(SweepLog("/data/<scan & co>.mcap", "ab" * 32, None),),
+        frames=n_frames, region="zone", objective=objective, truth="synthetic",
+        grid=grid, config=_config_toml(sor=sor, a_max=a_max),
+        notes=("part: zinc_nuts (from the log's zcut.synth metadata)", "μ_thr = ρ_thr · a_max <b>not bold</b>"),
+        sets=tuple(sets), tuned=tuned,
+        chosen_zcut=find_set(sets, "zcut", 0.2, 30.0, rho), chosen_sor=find_sor_set(sets, 4, 1.0, 0.2, 30.0),
+        nominal=find_set(sets, "zcut", 0.2, 30.0, 0.07) if a_max is not None else None,
+        sensitivity_chosen=sensitivity_at(sets, grid.chosen[:3]) if a_max is not None else None,
+        sensitivity_tuned=sensitivity_at(sets, (tz.step_mm, tz.max_depth_mm, tz.rho_thr)) if tz else None,
+        reproduce="zcut sweep '/data/<scan & co>.mcap' -o out --rho 0.02:0.15:5", seconds=12.5,
+    )
     if tz is not None:  # tuned.toml as `zcut sweep` writes it: the config with the tuned parameters
         from replay.pipeline import config as cfg
 
-        base = cfg.from_dict(tomllib.loads(summary["config"]))
-        z = dataclasses.replace(base.zcut, step=tz["step_mm"], max_depth=tz["max_depth_mm"],
-                                max_area=(tz["rho_thr"] * A_MAX) if tz["rho_thr"] is not None else tz["max_area_px"])
+        base = cfg.from_dict(tomllib.loads(summary.config))
+        z = dataclasses.replace(base.zcut, step=tz.step_mm, max_depth=tz.max_depth_mm,
+                                max_area=(tz.rho_thr * A_MAX) if tz.rho_thr is not None else tz.max_area_px)
         (tmp / "tuned.toml").write_text(cfg.to_toml(base.replace(zcut=z), header=f"tuned by {objective}"))
-    (tmp / "summary.json").write_text(json.dumps(jsonable(summary)))
+    (tmp / "summary.json").write_text(json.dumps(summary.to_json(), allow_nan=False))
     return json.loads((tmp / "summary.json").read_text())
 
 
@@ -364,6 +352,7 @@ def test_report_in_chromium_loads_offline_and_every_image_decodes(tmp_path, brow
     page.screenshot(path=str(shot), full_page=True)
     assert shot.stat().st_size > 10_000
     page.close()
+
 
 
 def test_hostile_names_and_texts_are_escaped_everywhere(tmp_path):
