@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Protocol
 
 from replay.errors import ConfigError
-from studies.units import WorkUnit, expand_logs, plan_log
 from replay.pipeline.config import Resolved, config_sha256
+from studies.units import WorkUnit, expand_logs, plan_log
 from studies.work import Job, UnitResult
 from zcut.errors import ZcutError
 

@@ -344,7 +344,7 @@ class InlineExecutor:
     name = "this process"
     workers = 0
 
-    def run(self, fn, units, job):
+    def run(self, fn: UnitFn, units: list[WorkUnit], job: Job) -> Iterator[tuple[WorkUnit, UnitResult]]:
         for u in units:
             yield u, fn(u, job)
 

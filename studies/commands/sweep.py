@@ -68,7 +68,6 @@ def run(args: argparse.Namespace) -> int:
     from replay.errors import ConfigError
     from replay.logs import layout
     from replay.logs.reader import LogReader
-    from replay.pipeline import config as cfg
     from replay.process import EXIT_DATA_LOSS
     from studies import sweep
     from studies.driver import (
@@ -116,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
         plans = plan_logs(logs, config_file=args.config, overrides=overrides, topic=args.topic,
                           frames_per_unit=args.frames_per_unit, whole=False)
         first = next(p for p in plans if p.units)
+        assert first.resolved is not None  # a log with units was resolved
         base = first.resolved.config
         grid = make_grid(**axes, config=base, max_points=args.max_points, force=args.force)
         options = study_options(args, overrides) | {"grid": grid.as_dict()}
