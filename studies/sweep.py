@@ -18,13 +18,22 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from studies.grid import Grid
 from studies.summary import Overlap, ParamSet, RatioPair, Sensitivities, Tuned, finite_or_none, intervals
 from studies.work import Job, UnitResult, run_unit
+
+if TYPE_CHECKING:
+    from annotate.truth import FrameTruth
+    from replay.logs.frame import Frame
+    from replay.pipeline.config import PipelineConfig
+    from replay.pipeline.session import ReplaySession
+    from replay.pipeline.stages import Zone
+    from studies.units import WorkUnit
+    from studies.work import TruthSource
 
 ZCUT_COLUMNS = ("step_mm", "max_depth_mm", "rho_thr", "max_area_px")
 SOR_COLUMNS = ("sor_k", "sor_std_ratio")
@@ -40,20 +49,21 @@ def grid_dict(grid: Grid) -> dict[str, Any]:
     return dataclasses.asdict(grid)
 
 
-def _row(unit, frame, method: str, **kw) -> dict:
-    out = {"log": Path(unit.log).name, "log_sha256": unit.sha256, "frame": frame.index,
+def _row(unit: WorkUnit, frame: Frame, method: str, **kw: Any) -> dict[str, Any]:
+    out: dict[str, Any] = {"log": Path(unit.log).name, "log_sha256": unit.sha256, "frame": frame.index,
            "stamp_ns": frame.stamp_ns, "method": method}
     for c in ZCUT_COLUMNS + SOR_COLUMNS + ("tp", "fp", "fn", "n_pred", "n_both", "n_sor_only", "n_zcut_only"):
         out[c] = kw.get(c)
     return out
 
 
-def sweep_frame(unit, frame, zone, config, grid: Grid, truth, region) -> list[dict]:
+def sweep_frame(unit: WorkUnit, frame: Frame, zone: Zone, config: PipelineConfig, grid: Grid, truth: FrameTruth,
+                region: np.ndarray) -> list[dict[str, Any]]:
     """Every grid point of one frame (see the module docstring)."""
     from replay.pipeline.stages import sor_masks_on_zone, sor_region
     from zcut import zcut_tree
 
-    rows: list[dict] = []
+    rows: list[dict[str, Any]] = []
     z = config.zcut
     L = truth.outliers
     S = truth.reviewed & region
@@ -72,7 +82,7 @@ def sweep_frame(unit, frame, zone, config, grid: Grid, truth, region) -> list[di
                                                convention=config.sor.convention, std_ratios=grid.sor_stds)
         return sor_cache[key]
 
-    def counts(pred: np.ndarray) -> dict:
+    def counts(pred: np.ndarray) -> dict[str, int]:
         p = pred & S
         lab = L & S
         tp = int(np.count_nonzero(p & lab))
@@ -114,11 +124,11 @@ def sweep_frame(unit, frame, zone, config, grid: Grid, truth, region) -> list[di
     return rows
 
 
-def run_sweep_unit(unit, job: Job) -> UnitResult:
+def run_sweep_unit(unit: WorkUnit, job: Job) -> UnitResult:
     """The grid over the unit's frames (``job.extra["grid"]``)."""
     grid = grid_of(job)
 
-    def body(res: UnitResult, session, truth_src) -> None:
+    def body(res: UnitResult, session: ReplaySession, truth_src: TruthSource) -> None:
         zones = session.zones(frames=(unit.start, unit.stop))
         try:
             for frame, zone in zones:
@@ -129,17 +139,19 @@ def run_sweep_unit(unit, job: Job) -> UnitResult:
                     continue
                 res.rows += sweep_frame(unit, frame, zone, session.config, grid, t, _region(zone, job.region))
         finally:
-            zones.close()
+            zones.close()  # type: ignore[attr-defined]  # a generator (ReplaySession.zones is typed Iterator)
             res.damage = list(session.reader.damage)
 
     return run_unit(unit, job, body)
 
 
-def _region(zone, name: str) -> np.ndarray:
+def _region(zone: Zone, name: str) -> np.ndarray:
     """The scored region of :func:`annotate.truth.scored_region`, from the zone (before the filters)."""
+    valid: np.ndarray = zone.located.valid
     if name == "valid":
-        return zone.located.valid
-    return zone.zone | zone.easy
+        return valid
+    judged: np.ndarray = zone.zone | zone.easy
+    return judged
 
 
 # ----------------------------------------------------------------------------------- the summary

@@ -18,11 +18,25 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from zcut.errors import ZcutError
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
+    from annotate.truth import FrameTruth, LabelTruth, SyntheticTruth
+    from replay.logs.frame import Frame
+    from replay.pipeline.session import FrameRow, ReplaySession
+    from replay.pipeline.sinks import FrameSink
+    from replay.pipeline.stages import FrameResult
+    from studies.units import WorkUnit
+    from zcut.bin_model import BinModel
+
+    #: Where a unit's truth comes from: an annotator's labels or the synthetic ground truth.
+    TruthSource = LabelTruth | SyntheticTruth
 
 #: replay --json's per-frame counts, the columns every study table shares
 COUNT_COLUMNS = ("valid_px", "zcut", "sor", "both", "above_rim", "clusters")
@@ -53,14 +67,14 @@ class Job:
     """
 
     config_file: str | None
-    overrides: dict
+    overrides: dict[str, Any]
     bin_model: str | None
     topic: str | None
     labels: str | None
     annotator: str | None
     region: str
     configs: dict[str, Any]
-    extra: dict = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(slots=True)
@@ -85,23 +99,23 @@ class UnitResult:
         Frames without truth: index, stamp_ns, reason.
     """
 
-    unit: Any
-    rows: list[dict] = field(default_factory=list)
+    unit: WorkUnit
+    rows: list[dict[str, Any]] = field(default_factory=list)
     damage: list[str] = field(default_factory=list)
     error: str | None = None
     frames: int = 0
     seconds: float = 0.0
     cpu_seconds: float = 0.0
     peak_rss_mb: float = 0.0
-    unscored: list[dict] = field(default_factory=list)
+    unscored: list[dict[str, Any]] = field(default_factory=list)
 
     @classmethod
-    def failure(cls, unit, why: str) -> UnitResult:
+    def failure(cls, unit: WorkUnit, why: str) -> UnitResult:
         return cls(unit, error=why)
 
 
 @functools.lru_cache(maxsize=2)
-def _bin_model(path: str | None):
+def _bin_model(path: str | None) -> BinModel | None:
     if path is None:
         return None
     from replay.pipeline.bin_model import load_bin_model
@@ -110,11 +124,11 @@ def _bin_model(path: str | None):
 
 
 #: the sessions this worker process opened (a log's units usually come one after another)
-_SESSIONS: dict[tuple, Any] = {}
+_SESSIONS: dict[tuple[Any, ...], ReplaySession] = {}
 _MAX_SESSIONS = 2
 
 
-def open_unit_session(unit, job: Job):
+def open_unit_session(unit: WorkUnit, job: Job) -> ReplaySession:
     """The unit's log as a replay session running the config the driver resolved for it (never
     resolved again here); the worker keeps the last two sessions it opened."""
     from replay.pipeline.config import config_sha256
@@ -134,7 +148,7 @@ def open_unit_session(unit, job: Job):
     return session
 
 
-def truth_source(unit, job: Job):
+def truth_source(unit: WorkUnit, job: Job) -> TruthSource:
     """The unit's truth: the annotator's labels (``--labels``) or the synthetic ground truth."""
     from annotate.truth import LabelTruth, SyntheticTruth
 
@@ -151,12 +165,13 @@ def _finite(v: float) -> float | None:
     return v if isinstance(v, float) and math.isfinite(v) else None
 
 
-def batch_row(unit, frame, result, row, truth, region, methods) -> dict:
+def batch_row(unit: WorkUnit, frame: Frame, result: FrameResult, row: FrameRow, truth: FrameTruth | None,
+              region: np.ndarray, methods: Sequence[str]) -> dict[str, Any]:
     """One row of ``frames.parquet``: the replay table's counts, fitness, stage timings and, where
     there is truth, TP/FP/FN per reported method (``methods``) over S = R ∩ region."""
     from annotate.truth import method_predictions, pixel_counts
 
-    out: dict = {"log": Path(unit.log).name, "log_sha256": unit.sha256, "frame": frame.index,
+    out: dict[str, Any] = {"log": Path(unit.log).name, "log_sha256": unit.sha256, "frame": frame.index,
                  "stamp_ns": frame.stamp_ns}
     for c in COUNT_COLUMNS:
         out[c] = int(getattr(row, c))
@@ -180,7 +195,7 @@ def batch_row(unit, frame, result, row, truth, region, methods) -> dict:
     return out
 
 
-def run_unit(unit, job: Job, body) -> UnitResult:
+def run_unit(unit: WorkUnit, job: Job, body: Callable[[UnitResult, ReplaySession, TruthSource], None]) -> UnitResult:
     """Open the unit's session and truth, run ``body(result, session, truth)`` on them, and return the
     result with the time and memory spent; any error of the unit (a damaged log, a bug) is caught
     into ``result.error``, never raised: one bad unit does not stop the others."""
@@ -206,12 +221,12 @@ def run_unit(unit, job: Job, body) -> UnitResult:
     return res
 
 
-def run_batch_unit(unit, job: Job) -> UnitResult:
+def run_batch_unit(unit: WorkUnit, job: Job) -> UnitResult:
     """Replay the unit's frames; one row per frame (see :func:`batch_row`)."""
     return run_unit(unit, job, functools.partial(_batch_frames, unit, job))
 
 
-def _batch_frames(unit, job: Job, res: UnitResult, session, truth_src) -> None:
+def _batch_frames(unit: WorkUnit, job: Job, res: UnitResult, session: ReplaySession, truth_src: TruthSource) -> None:
     from annotate.truth import scored_region
     from replay.pipeline.session import FrameRow, true_poses_of
 
@@ -224,25 +239,27 @@ def _batch_frames(unit, job: Job, res: UnitResult, session, truth_src) -> None:
             row = FrameRow.of(result, true_pose=poses.get(frame.stamp_ns))
             for s in sinks:
                 s.write(frame, result)
-            t = truth_src.truth(frame, result.valid)
-            if isinstance(t, str):
-                res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": t})
-                t = None
-            res.rows.append(batch_row(unit, frame, result, row, t, scored_region(result, job.region),
+            got = truth_src.truth(frame, result.valid)
+            truth = None
+            if isinstance(got, str):
+                res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": got})
+            else:
+                truth = got
+            res.rows.append(batch_row(unit, frame, result, row, truth, scored_region(result, job.region),
                                       session.config.reported_methods))
             res.frames += 1
         completed = True
     finally:
-        results.close()
+        results.close()  # type: ignore[attr-defined]  # a generator (ReplaySession.results is typed Iterator)
         res.damage = list(session.reader.damage)
         for s in sinks:
             s.close(completed=completed)
 
 
-def _per_log_sinks(unit, job: Job, session) -> list:
+def _per_log_sinks(unit: WorkUnit, job: Job, session: ReplaySession) -> list[FrameSink]:
     """``--results`` / ``--rrd``: one results MCAP and one .rrd per log (a log is then one unit)."""
     out_dir = job.extra.get("out_dir")
-    sinks = []
+    sinks: list[FrameSink] = []
     if out_dir is None:
         return sinks
     from replay.pipeline.sinks import ReplayStart, RerunSink, ResultsSink
