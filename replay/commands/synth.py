@@ -37,6 +37,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="scan the empty bin instead (the 5-position series of paper §4, repeating)")
     p.add_argument("--quantize-mm", type=float, default=0.0, metavar="MM",
                    help="quantize depth to steps of MM (a consumer stereo or ToF camera, e.g. 1); default 0: off")
+    p.add_argument("--sensor", choices=("handmade", "raytraced"), default="handmade",
+                   help="handmade (default, fast): outliers placed by hand; raytraced: a structured-light "
+                        "sensor simulated by ray tracing over a physics-dropped pile (docs/raytraced.md)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -59,8 +62,36 @@ def run(args: argparse.Namespace) -> int:
     from replay.outputs import AtomicOutput, OutputPlan
 
     OutputPlan([], force=args.force).add(args.output, "the log")
+    if args.sensor == "raytraced":
+        return _run_raytraced(args, what, progress)
     with AtomicOutput(args.output) as out:
         write_synthetic_log(out.temp, kind=args.parts, frames=args.frames, seed=args.seed, size=(h, w),
                             empty=args.empty, shiny=args.shiny, quantize_mm=args.quantize_mm, progress=progress)
     print(f"zcut: wrote {args.output} ({args.frames} frame(s), seed {args.seed})", file=sys.stderr)
+    return 0
+
+
+def _run_raytraced(args: argparse.Namespace, what: str, progress) -> int:
+    """``--sensor raytraced``: the same log layout from the ray-traced sensor."""
+    from replay.outputs import AtomicOutput
+    from replay.synth.raytrace import write_raytraced_log
+    from zcut.errors import ParameterError
+
+    if args.shiny is not None or args.quantize_mm != 0.0:
+        raise ParameterError("--shiny, --matte and --quantize-mm belong to the hand-made sensor; the ray-traced "
+                             "one takes the finish from the part's material")
+
+    def rt_progress(i: int, n: int, rf, seconds: float) -> None:
+        h, w = args.size
+        n_parts = len(rf.pile) if rf.pile is not None else 0
+        n_valid = int(np.isfinite(rf.frame.xyz[..., 2]).sum())
+        print(f"frame {i + 1}/{n}: {what} {w}x{h} (ray-traced), {n_parts} parts, {n_valid} valid points, "
+              f"{int(rf.truth.sum())} true outliers, {seconds:.1f} s", file=sys.stderr, flush=True)
+
+    import numpy as np
+
+    with AtomicOutput(args.output) as out:
+        write_raytraced_log(out.temp, kind=args.parts, frames=args.frames, seed=args.seed, size=args.size,
+                            empty=args.empty, progress=rt_progress)
+    print(f"zcut: wrote {args.output} ({args.frames} frame(s), seed {args.seed}, ray-traced)", file=sys.stderr)
     return 0

@@ -31,14 +31,28 @@ def method_topic(name: str) -> str:
 TRUTH_OUTLIERS = "/ground_truth/outliers"
 TRUTH_OUTLIER_KIND = "/ground_truth/outlier_kind"
 
-#: ``/ground_truth/outlier_kind`` codes (SPEC §5); 0 = not an outlier.
-OUTLIER_KINDS: dict[int, str] = {
+#: synthetic truth: sensor_msgs/Image ``32FC1``, the camera-frame z (metres) of the first surface each
+#: pixel's centre ray hits, NaN where it hits nothing (``docs/formats.md``, ground-truth topics)
+TRUTH_DEPTH = "/ground_truth/depth"
+TRUTH_DEPTH_ENCODING = "32FC1"
+
+#: ``/ground_truth/outlier_kind`` codes of the hand-made generator (SPEC §5); 0 = not an outlier.
+HANDMADE_OUTLIER_KINDS: dict[int, str] = {
     1: "floating",   # a specular ghost separated from the surface below
     2: "spike_up",   # spike toward the camera
     3: "spike_down",  # spike away from the camera
     4: "flying",     # flying pixel between two surfaces at a depth edge
     5: "above_rim",  # above the bin's rim
 }
+#: codes >= 6: what made an outlier of the ray-traced sensor (``zcut synth --sensor raytraced``,
+#: ``docs/formats.md``); it also writes 5 for any outlier above the rim, whatever made it
+RAYTRACED_OUTLIER_KINDS: dict[int, str] = {
+    6: "interreflection",  # light that reached the pixel by a specular bounce decided its code
+    7: "mixed_pixel",      # the pixel's footprint straddles surfaces whose codes blended
+    8: "saturation_edge",  # light spilled from a highlight (lens glare) decided its code
+}
+#: every ``/ground_truth/outlier_kind`` code and its name; 0 = not an outlier.
+OUTLIER_KINDS: dict[int, str] = {**HANDMADE_OUTLIER_KINDS, **RAYTRACED_OUTLIER_KINDS}
 
 #: mono8 topics whose values are codes, not a mask: a Frame holds them in ``Frame.codes`` (uint8)
 CODE_TOPICS = (TRUTH_OUTLIER_KIND,)

@@ -238,6 +238,19 @@ class LogWriter:
         )
         self._add(topic, rm.IMAGE, msg, stamp_ns)
 
+    def write_depth(self, topic: str, depth_m: np.ndarray, *, stamp_ns: int, frame_id: str) -> None:
+        """Write an (H, W) float32 depth image (metres, NaN = none) as a ``32FC1`` Image, little-endian
+        (e.g. ``/ground_truth/depth``)."""
+        depth_m = np.asarray(depth_m)
+        if depth_m.ndim != 2 or depth_m.dtype != np.float32 or depth_m.size == 0:
+            raise InputShapeError(f"depth must be an (H, W) float32 array, got {describe_array(depth_m)}")
+        h, w = depth_m.shape
+        msg = rm.encode_image(
+            stamp_ns=stamp_ns, frame_id=frame_id, height=h, width=w, encoding=layout.TRUTH_DEPTH_ENCODING,
+            step=4 * w, data=np.ascontiguousarray(depth_m, dtype="<f4").tobytes(),
+        )
+        self._add(topic, rm.IMAGE, msg, stamp_ns)
+
     def write_camera_info(
         self, topic: str, intrinsics: Intrinsics, *, stamp_ns: int, frame_id: str
     ) -> None:

@@ -93,7 +93,7 @@ def synth_metadata(
         "figure11_patches_per_frame": f"{rates.figure11:g}",
         "truth_topic": layout.TRUTH_OUTLIERS,
         "outlier_kind_topic": layout.TRUTH_OUTLIER_KIND,
-        "outlier_kinds": ",".join(f"{code}={name}" for code, name in sorted(layout.OUTLIER_KINDS.items())),
+        "outlier_kinds": ",".join(f"{code}={name}" for code, name in sorted(layout.HANDMADE_OUTLIER_KINDS.items())),
         "poses_metadata": layout.SYNTH_POSES_METADATA,
         "bin_frame": "camera optical frame with the bin at its nominal pose (centred below the camera, yaw 0)",
         **BIN.as_metadata(),
@@ -152,11 +152,15 @@ def true_poses(metadata: Mapping[str, Mapping[str, str]]) -> dict[int, np.ndarra
 
 def _write_frame(writer: LogWriter, sf: SynthFrame) -> None:
     """The frame's cloud, image, camera info and truth mask, then its code images
-    (``/ground_truth/outlier_kind``), all stamped like the cloud."""
+    (``/ground_truth/outlier_kind``) and its true depth (``/ground_truth/depth``: the real surface's
+    camera z before noise and outliers, metres, NaN where the ray hits nothing), all stamped like
+    the cloud."""
     f = sf.frame
     writer.write_frame(f)
     for topic, codes in f.codes.items():
         writer.write_codes(topic, codes, stamp_ns=f.stamp_ns, frame_id=f.frame_id)
+    depth_m = np.where(np.isfinite(sf.surface_depth_mm), sf.surface_depth_mm / np.float32(1000.0), np.float32(np.nan))
+    writer.write_depth(layout.TRUTH_DEPTH, depth_m.astype(np.float32), stamp_ns=f.stamp_ns, frame_id=f.frame_id)
 
 
 def write_synthetic_log(

@@ -46,7 +46,7 @@ def frame(request):
 
 def test_kind_codes_are_the_specs():
     assert {OUTLIER_FLOATING: "floating", OUTLIER_SPIKE_UP: "spike_up", OUTLIER_SPIKE_DOWN: "spike_down",
-            OUTLIER_FLYING: "flying", OUTLIER_ABOVE_RIM: "above_rim"} == layout.OUTLIER_KINDS
+            OUTLIER_FLYING: "flying", OUTLIER_ABOVE_RIM: "above_rim"} == layout.HANDMADE_OUTLIER_KINDS
 
 
 def test_every_true_outlier_is_a_valid_point(frame):
@@ -56,7 +56,7 @@ def test_every_true_outlier_is_a_valid_point(frame):
     assert frame.frame.codes[layout.TRUTH_OUTLIER_KIND] is frame.outlier_kind
     assert frame.outlier_kind.dtype == np.uint8
     assert ((frame.outlier_kind > 0) == frame.truth).all()
-    assert set(np.unique(frame.outlier_kind)) <= {0, *layout.OUTLIER_KINDS}
+    assert set(np.unique(frame.outlier_kind)) <= {0, *layout.HANDMADE_OUTLIER_KINDS}
     assert ((frame.cluster_id > 0) == (frame.outlier_kind == OUTLIER_FLOATING)).all()
 
 

@@ -1,0 +1,88 @@
+"""Ray-traced synthetic logs: the hand-made generator's layout, made by :mod:`.synthesize`.
+
+The same topics as ``replay.synth.log`` (cloud, colour image, camera info, truth mask, kind codes,
+true depth), the same ``zcut.synth`` and ``zcut.synth.poses`` metadata records (the bin poses are
+the hand-made generator's for the same seed), and kind codes 5-8. Same arguments, same bytes.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from replay.logs import layout
+from replay.logs.writer import LogWriter
+from replay.presets import PART_KINDS
+from replay.synth.log import pose_metadata, synth_metadata
+from replay.synth.raytrace.optics import SensorModel
+from replay.synth.raytrace.synthesize import FILL_RANGE_MM, MAX_PARTS, RaytracedFrame, synthesize_raytraced_frame
+from replay.synth.sensor import FULL_SIZE
+from zcut.errors import ParameterError
+
+RAYTRACE_VERSION = "1"
+ProgressFn = Callable[[int, int, RaytracedFrame, float], None]
+#: entries of the hand-made generator's metadata that describe its hand-placed outliers
+_HANDMADE_ONLY = ("ghost_clusters_per_frame", "ghost_rho_range", "above_rim_groups_per_frame",
+                  "figure11_patches_per_frame", "max_obliquity_deg", "shiny_noise_factor", "quantize_mm")
+
+
+def raytraced_metadata(*, kind: str, seed: int, frames: int, size: tuple[int, int], empty: bool,
+                       model: SensorModel) -> dict[str, str]:
+    """The ``zcut.synth`` record of a ray-traced log (all values strings)."""
+    shiny = False if empty else PART_KINDS[kind].shiny
+    meta = synth_metadata(kind=kind, seed=seed, frames=frames, size=size, shiny=shiny, empty=empty)
+    for key in _HANDMADE_ONLY:
+        meta.pop(key, None)
+    meta.update({
+        "generator": "zcut replay.synth.raytrace",
+        "generator_version": RAYTRACE_VERSION,
+        "sensor": "raytraced",
+        "outlier_kinds": ",".join(f"{c}={n}" for c, n in sorted(layout.OUTLIER_KINDS.items()) if c >= 5),
+        "depth_topic": layout.TRUTH_DEPTH,
+        "truth_rule": f"noise-free decoded depth farther than {model.outlier_sigmas:g} noise sigmas from every "
+                      "surface the pixel's footprint sees",
+        "pile": "MuJoCo rigid-body drop",
+        "fill_range_mm": f"{FILL_RANGE_MM[0]:g}-{FILL_RANGE_MM[1]:g}",
+        "max_parts": str(MAX_PARTS),
+        **{f"sensor_{k}": repr(getattr(model, k)) for k in model.__dataclass_fields__},
+    })
+    return meta
+
+
+def write_raytraced_log(
+    path: str | os.PathLike,
+    *,
+    kind: str = "spheres",
+    frames: int = 1,
+    seed: int = 0,
+    size: tuple[int, int] = FULL_SIZE,
+    empty: bool = False,
+    model: SensorModel | None = None,
+    progress: ProgressFn | None = None,
+) -> Path:
+    """Ray-trace ``frames`` scans and write them as a ROS 2 MCAP log (see ``replay.synth.write_synthetic_log``)."""
+    if not empty and kind not in PART_KINDS:
+        raise ParameterError(f"kind must be one of {', '.join(PART_KINDS)}, got {kind!r}")
+    if int(frames) != frames or frames < 1:
+        raise ParameterError(f"frames must be a positive integer, got {frames!r}")
+    model = SensorModel() if model is None else model
+    meta = raytraced_metadata(kind=kind, seed=seed, frames=int(frames), size=size, empty=empty, model=model)
+    poses = pose_metadata(seed=seed, frames=int(frames), empty=empty)
+    path = Path(path)
+    with LogWriter(path, metadata={layout.SYNTH_METADATA: meta, layout.SYNTH_POSES_METADATA: poses}) as writer:
+        for i in range(int(frames)):
+            t0 = time.perf_counter()
+            rf = synthesize_raytraced_frame(kind=kind, seed=seed, index=i, size=size, empty=empty, model=model)
+            f = rf.frame
+            writer.write_frame(f)
+            for topic, codes in f.codes.items():
+                writer.write_codes(topic, codes, stamp_ns=f.stamp_ns, frame_id=f.frame_id)
+            writer.write_depth(layout.TRUTH_DEPTH, rf.depth_true_m.astype(np.float32), stamp_ns=f.stamp_ns,
+                               frame_id=f.frame_id)
+            if progress is not None:
+                progress(i, int(frames), rf, time.perf_counter() - t0)
+    return path

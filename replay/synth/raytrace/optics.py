@@ -1,0 +1,573 @@
+"""A structured-light sensor by ray tracing: what each camera pixel receives, decodes and measures.
+
+The sensor is a pinhole camera and a pinhole projector beside it (``baseline_mm`` along the camera
+x axis, parallel optical axes, the projector's principal point off-centre so that it covers the
+camera's view). The projector throws phase-shifted fringes along its columns at a few periods; a
+camera pixel integrates every path by which projector light reaches it, and decodes the projector
+column ``u`` that lit "its" point; the point is triangulated from ``u`` and the pixel's ray.
+
+Per camera pixel, its centre ray, and ``samples x samples`` sub-pixel rays where its footprint may
+straddle an edge (:func:`edge_pixels`):
+
+1. **First hit** P0 of each sub-pixel ray. The centre ray's hit is the truth (its camera z is
+   ``/ground_truth/depth``).
+2. **Direct light.** P0 is lit when the projector sees it (a ray from the projector reaches P0
+   first; else P0 is in the projector's shadow and gets no direct light). Its radiance toward the
+   camera follows the material (:mod:`.materials`, diffuse + specular lobe); it carries code u(P0).
+3. **Specular bounces, camera side.** On a shiny P0 the sub-pixel ray is reflected (about a normal
+   perturbed by the roughness) to P1; the projector light P1 sends toward P0 reaches the pixel
+   weighted by P0's specular share, carrying code u(P1); up to ``bounces`` reflections.
+4. **Specular bounces, projector side.** Projector rays that hit a shiny surface Q are reflected to
+   the surface P they light; P's diffuse reflection of that light reaches the pixel that sees P,
+   carrying code u(Q) (photons splatted over the pixel they land in, smoothed over ~1 px).
+5. **Glare.** A share of every pixel's light spreads over its neighbours (the lens's point-spread
+   tail); beside a highlight a hundred times brighter than the surface, the spilled light carries
+   the highlight's code.
+6. **Decoding.** Every path adds a phasor ``I * exp(2πi u / T)`` per fringe period T; the pixel's
+   phase at each period is that of the sum (the strongest code wins; close codes blend, as
+   sub-pixels at an edge do), unwrapped from the coarsest period to the finest. The pixel is
+   rejected (NaN) when its signal is too weak, its fringes lost their contrast (paths that cancel),
+   or it saturates the shortest exposure of the HDR capture.
+7. **Triangulation and noise.** ``z = b / (x_cam - x_proj)`` in normalized coordinates, with the
+   decoded column perturbed by spatially correlated noise whose sigma grows as the signal drops.
+
+Not modelled (stated in ``docs/raytraced.md``): diffuse-to-diffuse interreflection (it lowers the
+fringe contrast but hardly shifts the phase at high frequencies), projector defocus, lens
+distortion, the sensor's own smoothing of the point cloud.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from replay.synth.raytrace.materials import MIRROR_MIN
+from replay.synth.raytrace.scene import Hits, TracedScene
+from replay.synth.sensor import FULL_SIZE, PROJECTOR_BASELINE_MM, correlated_noise
+from zcut.cloud import Intrinsics
+from zcut.errors import ParameterError
+
+#: camera intensity per unit radiance: a white diffuse surface facing the projector at 0.5 m reads 0.5
+EXPOSURE = np.pi / 2
+#: reference distance (mm) at which the projector's irradiance on a facing surface is 1
+REFERENCE_MM = 500.0
+#: width (pixels at 1920 across) of the kernel that turns projector-side photons into irradiance
+PHOTON_SIGMA_PX = 3.0
+
+
+@dataclass(frozen=True, slots=True)
+class SensorModel:
+    """The ray-traced sensor's knobs (assumptions; ``docs/raytraced.md`` gives their sources).
+
+    Attributes
+    ----------
+    baseline_mm : float
+        Projector centre on the camera x axis.
+    projector_size : (width, height)
+        Projector pixels.
+    projector_f_px : float
+        Projector focal length (pixels).
+    projector_c_px : (cx, cy)
+        Projector principal point (pixels).
+    periods_px : tuple of float
+        Fringe periods, coarsest first (the coarsest spans the projector: no ambiguity).
+    samples : int
+        Sub-pixel rays per pixel along each axis.
+    bounces : int
+        Specular bounces traced on the camera side (0: none).
+    photon_stride : int
+        Projector-side photons every ``photon_stride`` projector pixels (0: none traced).
+    hdr_gains : tuple of float
+        Exposures of the HDR capture relative to the base one; a pixel reads the longest that
+        does not saturate, and is lost if even the shortest saturates.
+    sigma_code_px : float
+        Noise (projector pixels) of the decoded column at signal ``sigma_signal``.
+    sigma_signal : float
+        Reference signal for ``sigma_code_px`` (0..1 of full scale).
+    min_signal : float
+        Weakest readable modulation (full scale).
+    min_contrast : float
+        Smallest ratio of fringe amplitude to the light received at the finest period.
+    glare_share : float
+        Share of a pixel's light the lens spreads over its neighbours.
+    glare_sigma_px : float
+        Width of the spread at 1920 pixels across (scales with the image width).
+    outlier_sigmas : float
+        The truth rule's threshold in noise sigmas.
+    """
+
+    baseline_mm: float = PROJECTOR_BASELINE_MM
+    projector_size: tuple[int, int] = (1280, 800)
+    projector_f_px: float = 985.0
+    projector_c_px: tuple[float, float] = (886.0, 399.5)
+    periods_px: tuple[float, ...] = (1280.0, 64.0, 8.0)
+    samples: int = 2
+    bounces: int = 1
+    photon_stride: int = 2
+    hdr_gains: tuple[float, ...] = (4.0, 1.0, 0.125)
+    sigma_code_px: float = 0.059
+    sigma_signal: float = 0.375
+    min_signal: float = 0.004
+    min_contrast: float = 0.35
+    glare_share: float = 0.02
+    glare_sigma_px: float = 2.0
+    outlier_sigmas: float = 4.0
+
+    def __post_init__(self) -> None:
+        def bad(field: str, value: object, need: str) -> ParameterError:
+            return ParameterError(f"SensorModel.{field} must be {need}, got {value!r}")
+
+        if not (np.isfinite(self.baseline_mm) and abs(self.baseline_mm) > 1.0):
+            raise bad("baseline_mm", self.baseline_mm, "a finite distance of more than 1 mm")
+        w, h = self.projector_size
+        if not (w >= 8 and h >= 8):
+            raise bad("projector_size", self.projector_size, "at least 8 x 8 pixels")
+        if not self.projector_f_px > 0:
+            raise bad("projector_f_px", self.projector_f_px, "positive")
+        if not (len(self.periods_px) >= 1 and all(p > 0 for p in self.periods_px)):
+            raise bad("periods_px", self.periods_px, "positive periods, coarsest first")
+        if int(self.samples) != self.samples or not 1 <= self.samples <= 4:
+            raise bad("samples", self.samples, "an integer 1..4")
+        if int(self.bounces) != self.bounces or not 0 <= self.bounces <= 4:
+            raise bad("bounces", self.bounces, "an integer 0..4")
+        if int(self.photon_stride) != self.photon_stride or self.photon_stride < 0:
+            raise bad("photon_stride", self.photon_stride, "a non-negative integer")
+        if not (len(self.hdr_gains) >= 1 and all(g > 0 for g in self.hdr_gains)):
+            raise bad("hdr_gains", self.hdr_gains, "positive exposures")
+        for f in ("sigma_code_px", "sigma_signal", "min_signal", "outlier_sigmas"):
+            if not getattr(self, f) > 0:
+                raise bad(f, getattr(self, f), "positive")
+        if not 0 <= self.min_contrast < 1:
+            raise bad("min_contrast", self.min_contrast, "in [0, 1)")
+        if not (0 <= self.glare_share < 1 and self.glare_sigma_px > 0):
+            raise bad("glare_share", self.glare_share, "in [0, 1) with a positive glare_sigma_px")
+
+    @property
+    def projector_origin(self) -> np.ndarray:
+        return np.array([self.baseline_mm, 0.0, 0.0])
+
+    def code(self, point: np.ndarray) -> np.ndarray:
+        """Projector column (pixels) lighting camera-frame ``point`` (..., 3) mm."""
+        return self.projector_f_px * (point[..., 0] - self.baseline_mm) / point[..., 2] + self.projector_c_px[0]
+
+    def in_projector(self, point: np.ndarray) -> np.ndarray:
+        """Whether the projector's image covers camera-frame ``point`` (..., 3)."""
+        w, h = self.projector_size
+        z = point[..., 2]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            u = self.code(point)
+            v = self.projector_f_px * point[..., 1] / z + self.projector_c_px[1]
+            return (z > 0) & (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5)
+
+    def sigma_code(self, signal: np.ndarray) -> np.ndarray:
+        """Noise sigma (projector pixels) of the decoded column at ``signal`` (full scale of the exposure read)."""
+        return self.sigma_code_px * np.sqrt(self.sigma_signal / np.maximum(signal, self.min_signal))
+
+    def depth_per_code_mm(self, z_mm: np.ndarray) -> np.ndarray:
+        """Depth change (mm) per projector pixel of code at camera depth ``z_mm``."""
+        return z_mm**2 / (self.projector_f_px * abs(self.baseline_mm))
+
+
+@dataclass(frozen=True, slots=True)
+class Phasors:
+    """Light received per pixel: one complex fringe sum per period and the total intensity.
+
+    Attributes
+    ----------
+    z : (P, H, W) complex128 ndarray
+        Sum of ``I * exp(2πi u / T)`` for each period T.
+    intensity : (H, W) float64 ndarray
+        Sum of ``I`` (full scale of the base exposure).
+    """
+
+    z: np.ndarray
+    intensity: np.ndarray
+
+    @staticmethod
+    def zeros(n_periods: int, shape: tuple[int, int]) -> Phasors:
+        return Phasors(np.zeros((n_periods,) + shape, np.complex128), np.zeros(shape))
+
+    def add(self, flat_index: np.ndarray, intensity: np.ndarray, code: np.ndarray, periods: tuple[float, ...]) -> None:
+        """Add the paths ``(intensity, code)`` to the pixels ``flat_index`` (repeats allowed)."""
+        n = self.intensity.size
+        self.intensity.reshape(-1)[:] += np.bincount(flat_index, weights=intensity, minlength=n)
+        for k, T in enumerate(periods):
+            ph = 2 * np.pi * code / T
+            zk = self.z[k].reshape(-1)
+            zk.real += np.bincount(flat_index, weights=intensity * np.cos(ph), minlength=n)
+            zk.imag += np.bincount(flat_index, weights=intensity * np.sin(ph), minlength=n)
+
+    def plus(self, other: Phasors) -> Phasors:
+        return Phasors(self.z + other.z, self.intensity + other.intensity)
+
+
+def brdf(mat: dict[str, np.ndarray], mid: np.ndarray, n: np.ndarray, wi: np.ndarray, wo: np.ndarray, *,
+         diffuse_only: bool = False) -> np.ndarray:
+    """Reflectance (1/sr) for light arriving from ``wi`` and leaving toward ``wo`` (unit vectors, (k, 3))."""
+    albedo = mat["albedo"][mid]
+    f = albedo / np.pi
+    if diffuse_only:
+        return f
+    spec = mat["specular"][mid]
+    a = mat["roughness"][mid]
+    cos_i = np.clip(np.einsum("kj,kj->k", n, wi), 1e-3, 1.0)
+    cos_o = np.clip(np.einsum("kj,kj->k", n, wo), 0.05, 1.0)
+    h = wi + wo
+    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
+    ch = np.clip(np.einsum("kj,kj->k", n, h), 1e-3, 1.0)
+    tan2 = (1.0 - ch * ch) / (ch * ch)
+    D = np.exp(-tan2 / (a * a)) / (np.pi * a * a * ch**4)
+    return f + spec * D / (4.0 * cos_i * cos_o)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+
+
+def direct_light(scene: TracedScene, model: SensorModel, hits: Hits, idx: np.ndarray, wo: np.ndarray, *,
+                 diffuse_only: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Projector light that the points ``hits[idx]`` send toward ``wo`` (unit, (k, 3)).
+
+    Returns
+    -------
+    keep : (k,) bool ndarray
+        The projector lights the point (not in its shadow, inside its image, facing it).
+    radiance : (k,) float64 ndarray
+        Camera intensity per unit of path weight (0 where not ``keep``).
+    code : (k,) float64 ndarray
+        Projector column of the point.
+    """
+    p = hits.point[idx]
+    n = hits.normal[idx]
+    ng = hits.geo_normal[idx]
+    proj = model.projector_origin
+    to_p = proj - p
+    d = np.linalg.norm(to_p, axis=1)
+    wi = to_p / d[:, None]
+    ok = model.in_projector(p) & (np.einsum("kj,kj->k", ng, wi) > 0) & (np.einsum("kj,kj->k", n, wi) > 0)
+    radiance = np.zeros(len(idx))
+    code = np.full(len(idx), np.nan)
+    if not ok.any():
+        return ok, radiance, code
+    sel = np.flatnonzero(ok)
+    # shadow: the projector's ray toward the point must reach it first
+    back = -wi[sel]
+    seen = scene.cast(np.broadcast_to(proj, back.shape), back)
+    lit = seen.t >= d[sel] - 0.05
+    sel = sel[lit]
+    ok[:] = False
+    ok[sel] = True
+    cos_i = np.einsum("kj,kj->k", n[sel], wi[sel])
+    E = cos_i * (REFERENCE_MM / d[sel]) ** 2
+    f = brdf(scene.mat, hits.material[idx][sel], n[sel], wi[sel], wo[sel], diffuse_only=diffuse_only)
+    radiance[sel] = EXPOSURE * E * f
+    code[sel] = model.code(p[sel])
+    return ok, radiance, code
+
+
+def _perturbed_reflection(d: np.ndarray, n: np.ndarray, roughness: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Reflect directions ``d`` about normals ``n`` tilted at random by the roughness (Beckmann-like)."""
+    a = np.where(np.abs(n[:, 0]) < 0.9, 1.0, 0.0)
+    helper = np.stack([a, 1.0 - a, np.zeros_like(a)], axis=1)
+    t1 = _unit(np.cross(n, helper))
+    t2 = np.cross(n, t1)
+    g = rng.standard_normal((len(n), 2)) * (roughness / np.sqrt(2.0))[:, None]
+    m = _unit(n + g[:, :1] * t1 + g[:, 1:] * t2)
+    return _unit(d - 2.0 * np.einsum("kj,kj->k", d, m)[:, None] * m)
+
+
+@dataclass(frozen=True, slots=True)
+class Received:
+    """Everything a frame's pixels received, by path.
+
+    Attributes
+    ----------
+    direct, camera_bounce, projector_bounce, glare : Phasors
+        Light by path (glare is the spread of the other three).
+    sub_depth_mm : (S, H, W) float32 ndarray
+        Camera z of each sub-pixel ray's first hit (inf where it hit nothing).
+    centre : Hits
+        The centre rays' hits (the truth), flattened (H*W).
+    specular_light : (H, W) float64 ndarray
+        Intensity of the specular part of the light (for the 2-D image's highlights).
+    """
+
+    direct: Phasors
+    camera_bounce: Phasors
+    projector_bounce: Phasors
+    glare: Phasors
+    sub_depth_mm: np.ndarray
+    centre: Hits
+    specular_light: np.ndarray
+
+
+def pixel_directions(K: Intrinsics, du: float = 0.0, dv: float = 0.0) -> np.ndarray:
+    """(H*W, 3) unit ray directions through pixel centres shifted by (du, dv) pixels."""
+    u = (np.arange(K.width) + du - K.cx) / K.fx
+    v = (np.arange(K.height) + dv - K.cy) / K.fy
+    d = np.empty((K.height, K.width, 3))
+    d[..., 0] = u[None, :]
+    d[..., 1] = v[:, None]
+    d[..., 2] = 1.0
+    return _unit(d.reshape(-1, 3))
+
+
+def edge_pixels(depth_mm: np.ndarray, part: np.ndarray, label: np.ndarray, *, jump_mm: float = 1.5) -> np.ndarray:
+    """(H, W) bool: pixels whose 8-neighbourhood sees another part, another surface or a depth jump.
+
+    Only these can straddle two surfaces; the others are traced with their centre ray alone.
+    """
+    z = np.where(np.isfinite(depth_mm), depth_mm, 1e9)
+    hi = ndimage.maximum_filter(z, size=3, mode="nearest")
+    lo = ndimage.minimum_filter(z, size=3, mode="nearest")
+    key = part.astype(np.int64) * 16 + label
+    khi = ndimage.maximum_filter(key, size=3, mode="nearest")
+    klo = ndimage.minimum_filter(key, size=3, mode="nearest")
+    return (hi - lo > jump_mm) | (khi != klo)
+
+
+def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.Generator) -> Received:
+    """Trace the light every camera pixel receives (steps 1-5 of the module docstring).
+
+    Pixels at edges (:func:`edge_pixels`) get ``samples x samples`` sub-pixel rays, the others their
+    centre ray (they see one smooth surface: more rays would only average the same code).
+    """
+    H, W = K.height, K.width
+    P = len(model.periods_px)
+    direct = Phasors.zeros(P, (H, W))
+    bounce = Phasors.zeros(P, (H, W))
+    spec_light = np.zeros(H * W)
+    S = int(model.samples)
+    origin = np.zeros(3)
+    d_centre = pixel_directions(K)
+    centre = scene.cast(origin, d_centre)
+    z_centre = np.where(centre.hit, centre.point[:, 2], np.inf).reshape(H, W)
+    sub_depth = np.broadcast_to(z_centre.astype(np.float32), (S * S, H, W)).copy()
+    pix_list, dir_list, hit_list, w_list = [], [], [], []
+    if S > 1:
+        edge = edge_pixels(z_centre, centre.part.reshape(H, W), centre.label.reshape(H, W)).ravel()
+        plain = np.flatnonzero(~edge)
+        pix_list.append(plain)
+        dir_list.append(d_centre[plain])
+        hit_list.append(centre.take(plain))
+        w_list.append(np.ones(plain.size))
+        e = np.flatnonzero(edge)
+        offsets = [((i + 0.5) / S - 0.5, (j + 0.5) / S - 0.5) for j in range(S) for i in range(S)]
+        for s, (du, dv) in enumerate(offsets):
+            d = pixel_directions(K, du, dv)[e]
+            hs = scene.cast(origin, d)
+            sub_depth[s].reshape(-1)[e] = np.where(hs.hit, hs.point[:, 2], np.inf)
+            pix_list.append(e)
+            dir_list.append(d)
+            hit_list.append(hs)
+            w_list.append(np.full(e.size, 1.0 / (S * S)))
+    else:
+        pix_list.append(np.arange(H * W))
+        dir_list.append(d_centre)
+        hit_list.append(centre)
+        w_list.append(np.ones(H * W))
+    pix = np.concatenate(pix_list)
+    d = np.concatenate(dir_list)
+    h0 = Hits.concat(hit_list)
+    w_s = np.concatenate(w_list)
+    del pix_list, dir_list, hit_list, w_list
+
+    idx = np.flatnonzero(h0.hit)
+    ok, rad, code = direct_light(scene, model, h0, idx, -d[idx])
+    sel = idx[ok]
+    direct.add(pix[sel], w_s[sel] * rad[ok], code[ok], model.periods_px)
+    if sel.size:
+        # the specular share of the direct light, for the 2-D image's highlights
+        wi = _unit(model.projector_origin - h0.point[sel])
+        lam = brdf(scene.mat, h0.material[sel], h0.normal[sel], wi, -d[sel], diffuse_only=True)
+        full = brdf(scene.mat, h0.material[sel], h0.normal[sel], wi, -d[sel])
+        np.add.at(spec_light, pix[sel], w_s[sel] * rad[ok] * (1.0 - lam / full))
+    # camera-side specular bounces
+    cur_hits, cur_idx, cur_dir, cur_pix, weight = h0, idx, d[idx], pix[idx], w_s[idx]
+    for _ in range(int(model.bounces)):
+        mids = cur_hits.material[cur_idx]
+        spec = scene.mat["specular"][mids]
+        k = np.flatnonzero(spec >= MIRROR_MIN)
+        if k.size == 0:
+            break
+        n = cur_hits.normal[cur_idx[k]]
+        ng = cur_hits.geo_normal[cur_idx[k]]
+        r = _perturbed_reflection(cur_dir[k], n, scene.mat["roughness"][mids[k]], rng)
+        up = np.einsum("kj,kj->k", ng, r) > 0
+        k, r, ng = k[up], r[up], ng[up]
+        h1 = scene.cast(cur_hits.point[cur_idx[k]] + 0.01 * ng, r)
+        got = h1.hit
+        if not got.any():
+            break
+        k, r = k[got], r[got]
+        weight_k = (weight * spec)[k]
+        hit_idx = np.flatnonzero(got)
+        ok1, rad1, code1 = direct_light(scene, model, h1, hit_idx, -r)
+        px = cur_pix[k]
+        bounce.add(px[ok1], weight_k[ok1] * rad1[ok1], code1[ok1], model.periods_px)
+        np.add.at(spec_light, px[ok1], weight_k[ok1] * rad1[ok1])
+        cur_hits, cur_idx, cur_dir, cur_pix, weight = h1, hit_idx, r, px, weight_k
+    photons = _projector_bounces(scene, K, model, centre, rng)
+    glare = _glare(direct.plus(bounce).plus(photons), K, model)
+    return Received(direct, bounce, photons, glare, sub_depth, centre, spec_light.reshape(H, W))
+
+
+def _projector_bounces(scene: TracedScene, K: Intrinsics, model: SensorModel, centre: Hits,
+                       rng: np.random.Generator) -> Phasors:
+    """Step 4: projector light mirrored by shiny surfaces onto what the camera sees (photon splats)."""
+    H, W = K.height, K.width
+    out = Phasors.zeros(len(model.periods_px), (H, W))
+    st = int(model.photon_stride)
+    if st == 0:
+        return out
+    wp, hp = model.projector_size
+    u = np.arange(0, wp, st, dtype=np.float64)
+    v = np.arange(0, hp, st, dtype=np.float64)
+    uu, vv = np.meshgrid(u, v)
+    uu, vv = uu.ravel(), vv.ravel()
+    f = model.projector_f_px
+    d = np.stack([(uu - model.projector_c_px[0]) / f, (vv - model.projector_c_px[1]) / f, np.ones_like(uu)], axis=1)
+    cos3 = 1.0 / np.linalg.norm(d, axis=1) ** 3
+    d = _unit(d)
+    proj = model.projector_origin
+    q = scene.cast(np.broadcast_to(proj, d.shape), d)
+    spec = np.where(q.hit, scene.mat["specular"][np.maximum(q.material, 0)], 0.0)
+    k = np.flatnonzero(q.hit & (spec >= MIRROR_MIN))
+    if k.size == 0:
+        return out
+    r = _perturbed_reflection(d[k], q.normal[k], scene.mat["roughness"][q.material[k]], rng)
+    up = np.einsum("kj,kj->k", q.geo_normal[k], r) > 0
+    k, r = k[up], r[up]
+    p = scene.cast(q.point[k] + 0.01 * q.geo_normal[k], r)
+    got = p.hit & (p.point[:, 2] > 1.0)
+    k, r = k[got], r[got]
+    pt = p.point[got]
+    n = p.normal[got]
+    mid = p.material[got]
+    # the pixel that sees P, and whether P is what it sees
+    col = np.rint(K.fx * pt[:, 0] / pt[:, 2] + K.cx).astype(np.int64)
+    row = np.rint(K.fy * pt[:, 1] / pt[:, 2] + K.cy).astype(np.int64)
+    inside = (col >= 0) & (col < W) & (row >= 0) & (row < H)
+    flat = np.where(inside, row * W + col, 0)
+    z_seen = np.where(centre.hit, centre.point[:, 2], np.inf)[flat]
+    view = -_unit(pt)
+    cos_c = np.einsum("kj,kj->k", n, view)
+    vis = inside & (np.abs(pt[:, 2] - z_seen) < 1.0 + 0.02 * pt[:, 2] / K.fx / np.maximum(cos_c, 0.05)) & (cos_c > 0.05)
+    if not vis.any():
+        return out
+    # flux of one projector pixel (irradiance 1 at REFERENCE_MM on a facing surface), mirrored,
+    # spread over the camera pixel's footprint on P, reflected diffusely toward the camera
+    phi = REFERENCE_MM**2 * cos3[k] * st * st / f**2 * scene.mat["specular"][q.material[k]]
+    cos_ray = 1.0 / np.linalg.norm(pt / pt[:, 2:3], axis=1)
+    area = cos_ray * pt[:, 2] ** 2 / (K.fx * K.fy * np.maximum(cos_c, 0.05))
+    radiance = scene.mat["albedo"][mid] / np.pi * phi / area
+    code = uu[k]
+    out.add(flat[vis], (EXPOSURE * radiance)[vis], code[vis], model.periods_px)
+    # density estimate: photons are sparse (a projector pixel covers ~3 camera pixels, and convex
+    # mirrors spread them further); a kernel of PHOTON_SIGMA_PX (at 1920 across) turns them into
+    # the smooth irradiance a rough mirror throws, instead of one-photon speckle
+    return _blurred(out, PHOTON_SIGMA_PX * K.width / FULL_SIZE[1] + 0.5)
+
+
+def _blurred(ph: Phasors, sigma: float) -> Phasors:
+    z = np.empty_like(ph.z)
+    for k in range(ph.z.shape[0]):
+        z[k].real = ndimage.gaussian_filter(ph.z[k].real, sigma, mode="constant")
+        z[k].imag = ndimage.gaussian_filter(ph.z[k].imag, sigma, mode="constant")
+    return Phasors(z, ndimage.gaussian_filter(ph.intensity, sigma, mode="constant"))
+
+
+def _glare(ph: Phasors, K: Intrinsics, model: SensorModel) -> Phasors:
+    """Step 5: the share of each pixel's light the lens spreads over its neighbours."""
+    if model.glare_share == 0:
+        return Phasors.zeros(ph.z.shape[0], ph.intensity.shape)
+    sigma = model.glare_sigma_px * K.width / FULL_SIZE[1]
+    spread = _blurred(ph, sigma)
+    g = model.glare_share
+    return Phasors(g * (spread.z - ph.z), g * (spread.intensity - ph.intensity))
+
+
+@dataclass(frozen=True, slots=True)
+class Decoded:
+    """A decoded pixel image.
+
+    Attributes
+    ----------
+    code : (H, W) float64 ndarray
+        Decoded projector column (NaN where rejected).
+    signal : (H, W) float64 ndarray
+        Fringe amplitude at the finest period in the exposure read (full scale).
+    saturated : (H, W) bool ndarray
+        Saturates even the shortest exposure.
+    """
+
+    code: np.ndarray
+    signal: np.ndarray
+    saturated: np.ndarray
+
+
+def decode(ph: Phasors, model: SensorModel) -> Decoded:
+    """Step 6: the projector column each pixel decodes, or NaN where the sensor rejects it.
+
+    Unwrapping goes from the coarsest period to the finest; a pixel is rejected when a finer
+    period's phase disagrees with the coarser estimate by more than a quarter of its period
+    (the consistency check of multi-frequency phase shifting), when the fringe contrast at any
+    period is below ``min_contrast``, when its fringe signal is below ``min_signal`` in the longest
+    exposure that does not saturate, or when even the shortest exposure saturates.
+    """
+    T = model.periods_px
+    I = ph.intensity
+    with np.errstate(invalid="ignore", divide="ignore"):
+        contrast = np.abs(ph.z[0]) / I
+        u = (np.angle(ph.z[0]) / (2 * np.pi)) % 1.0 * T[0]
+        consistent = np.ones(I.shape, bool)
+        for k in range(1, len(T)):
+            contrast = np.minimum(contrast, np.abs(ph.z[k]) / I)
+            frac = (np.angle(ph.z[k]) / (2 * np.pi)) % 1.0 * T[k]
+            nxt = np.round((u - frac) / T[k]) * T[k] + frac
+            consistent &= np.abs(nxt - u) <= T[k] / 4
+            u = nxt
+    gains = sorted(model.hdr_gains, reverse=True)
+    gain = np.full(I.shape, gains[-1])
+    for g in gains[::-1]:
+        gain = np.where(I * g <= 1.0, g, gain)
+    saturated = I * gains[-1] > 1.0
+    amp = np.abs(ph.z[-1])
+    signal = amp * gain
+    ok = (signal >= model.min_signal) & (contrast >= model.min_contrast) & consistent & ~saturated
+    return Decoded(np.where(ok, u, np.nan), signal, saturated)
+
+
+def triangulate(code: np.ndarray, K: Intrinsics, model: SensorModel) -> np.ndarray:
+    """Step 7: camera z (mm) where each pixel's centre ray meets the projector column ``code``.
+
+    NaN where ``code`` is NaN or the two do not meet in front of the camera.
+    """
+    rx = (np.arange(K.width) - K.cx) / K.fx
+    xp = (code - model.projector_c_px[0]) / model.projector_f_px
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = model.baseline_mm / (rx[None, :] - xp)
+    return np.where(z > 0, z, np.nan)
+
+
+def measure(rec: Received, K: Intrinsics, model: SensorModel, rng: np.random.Generator):
+    """Decode and triangulate: (measured z, noise-free z, sigma_z, staged noise-free z, saturated).
+
+    The staged depths decode the light of successively more paths: direct only (differences are
+    then sub-pixel mixing), plus the specular bounces, plus the glare; they attribute an error to
+    the physics that made it.
+    """
+    stages = [rec.direct, rec.direct.plus(rec.camera_bounce).plus(rec.projector_bounce)]
+    stages.append(stages[1].plus(rec.glare))
+    decoded = [decode(s, model) for s in stages]
+    final = decoded[-1]
+    sigma_u = model.sigma_code(final.signal)
+    noise = correlated_noise(final.code.shape, rng).astype(np.float64) * sigma_u
+    z_clean = triangulate(final.code, K, model)
+    z_meas = triangulate(final.code + noise, K, model)
+    z_meas[~np.isfinite(z_clean)] = np.nan
+    sigma_z = model.depth_per_code_mm(np.where(np.isfinite(z_clean), z_clean, 1.0)) * sigma_u
+    staged = [triangulate(dc.code, K, model) for dc in decoded[:-1]]
+    return z_meas, z_clean, sigma_z, staged, final.saturated
