@@ -61,10 +61,14 @@ def write_raytraced_log(
     seed: int = 0,
     size: tuple[int, int] = FULL_SIZE,
     empty: bool = False,
+    fill_mm: float | None = None,
     model: SensorModel | None = None,
     progress: ProgressFn | None = None,
 ) -> Path:
-    """Ray-trace ``frames`` scans and write them as a ROS 2 MCAP log (see ``replay.synth.write_synthetic_log``)."""
+    """Ray-trace ``frames`` scans and write them as a ROS 2 MCAP log (see ``replay.synth.write_synthetic_log``).
+
+    ``fill_mm``: mean pile height (default: drawn per frame from ``FILL_RANGE_MM``).
+    """
     if not empty and kind not in PART_KINDS:
         raise ParameterError(f"kind must be one of {', '.join(PART_KINDS)}, got {kind!r}")
     if int(frames) != frames or frames < 1:
@@ -76,7 +80,8 @@ def write_raytraced_log(
     with LogWriter(path, metadata={layout.SYNTH_METADATA: meta, layout.SYNTH_POSES_METADATA: poses}) as writer:
         for i in range(int(frames)):
             t0 = time.perf_counter()
-            rf = synthesize_raytraced_frame(kind=kind, seed=seed, index=i, size=size, empty=empty, model=model)
+            rf = synthesize_raytraced_frame(kind=kind, seed=seed, index=i, size=size, empty=empty,
+                                            fill_mm=fill_mm, model=model)
             f = rf.frame
             writer.write_frame(f)
             for topic, codes in f.codes.items():

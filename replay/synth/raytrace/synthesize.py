@@ -98,6 +98,14 @@ def raytrace_rng(seed: int, index: int, *, empty: bool) -> np.random.Generator:
     return np.random.default_rng([int(seed) % (2**63), int(index), int(empty), 0x52415954])
 
 
+def check_pile(pile: Pile, *, seed: int, index: int) -> Pile:
+    """``pile`` if it holds a part, else :class:`ParameterError`: an empty pile is no scan of parts."""
+    if len(pile) == 0:
+        raise ParameterError(f"seed {seed}, frame {index}: the simulation left no part in the bin "
+                             f"({pile.escaped} fell out); try another seed")
+    return pile
+
+
 def _distance_to_surfaces(z_mm: np.ndarray, centre_mm: np.ndarray, sub_mm: np.ndarray) -> np.ndarray:
     """|z - the nearest of the pixel's surfaces| along z (NaN where z is NaN)."""
     d = np.abs(z_mm - centre_mm)
@@ -142,10 +150,7 @@ def synthesize_raytraced_frame(
         if fill_mm is None:
             fill_mm = float(rng.uniform(*FILL_RANGE_MM))
         count = min(part_count(kind, fill_mm), MAX_PARTS)
-        pile = drop_parts(kind, pose, rng, count=count)
-        if len(pile) == 0:
-            raise ParameterError(f"seed {seed}, frame {index}: the simulation left no part in the bin "
-                                 f"(all {pile.escaped} fell out); try another seed")
+        pile = check_pile(drop_parts(kind, pose, rng, count=count), seed=seed, index=index)
     cpu["pile"] = time.process_time() - t0
 
     # the scene and its light
