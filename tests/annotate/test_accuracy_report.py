@@ -245,7 +245,7 @@ def test_table_fits_120_columns_with_realistic_numbers(report):
 
 
 def test_by_kind_needs_the_truth_kinds():
-    with pytest.raises(ParameterError, match=r"kinds must count the 5 kind codes of the truth, got 2"):
+    with pytest.raises(ParameterError, match=r"kinds must count the 8 kind codes of the truth, got 2"):
         by_kind(KindCounts((1, 0), (1, 0), (0, 0)))
 
 
