@@ -6,7 +6,8 @@ For each log (hand-made or ray-traced; ``zcut synth [--sensor raytraced]``), per
 the true outliers per kind code (pixels / 8-connected components), the share of outlier pixels
 whose measured point lies toward the camera from the true surface (``toward%``: Figure 1's
 "bright pixels ... unusually small depth"), the median component size relative to the part's
-a_max (``size/a_max``), the median |measured - true depth| of the outliers (``|dz| mm``), the share
+a_max (``size/a_max``), the share of outlier pixels in components of at least mu_thr = 0.07 a_max
+pixels (``>=mu%``: out of the nominal z-cut's reach), the median |measured - true depth| of the outliers (``|dz| mm``), the share
 of valid pixels that are outliers (``rate%``) and of pixels with no measurement (``nan%``). The
 true depth is the log's ``/ground_truth/depth``; a_max is the log's ``zcut.synth`` metadata.
 """
@@ -34,6 +35,7 @@ def log_stats(path: Path) -> dict:
     px: dict[int, float] = {}
     comp: dict[int, float] = {}
     sizes: list[float] = []
+    big_px = 0
     toward = n_out = 0
     dz: list[np.ndarray] = []
     valid_n = nan_n = total = 0
@@ -52,7 +54,9 @@ def log_stats(path: Path) -> dict:
             lab, n = ndimage.label(m, structure=EIGHT)
             px[int(c)] = px.get(int(c), 0) + int(m.sum())
             comp[int(c)] = comp.get(int(c), 0) + n
-            sizes.extend(np.bincount(lab.ravel())[1:].tolist())
+            area = np.bincount(lab.ravel())[1:]
+            sizes.extend(area.tolist())
+            big_px += int(area[area >= 0.07 * a_max].sum())
         out = kinds > 0
         n_out += int(out.sum())
         toward += int((z[out] < zt[out]).sum())
@@ -62,6 +66,7 @@ def log_stats(path: Path) -> dict:
         "kind": meta.get("part_kind", "?"), "sensor": meta.get("sensor", "handmade"), "frames": frames,
         "px": {c: v / frames for c, v in px.items()}, "comp": {c: v / frames for c, v in comp.items()},
         "toward": 100.0 * toward / n_out if n_out else float("nan"),
+        "big": 100.0 * big_px / n_out if n_out else float("nan"),
         "size": float(np.median(sizes)) / a_max if sizes else float("nan"),
         "dz": float(np.median(dzs)) if dzs.size else float("nan"),
         "rate": 100.0 * n_out / valid_n if valid_n else float("nan"),
@@ -75,12 +80,12 @@ def main() -> None:
     args = ap.parse_args()
     codes = sorted(layout.OUTLIER_KINDS)
     print("| log | sensor | kind | " + " | ".join(layout.OUTLIER_KINDS[c] for c in codes)
-          + " | toward% | size/a_max | abs dz mm | rate% | nan% |")
-    print("|---" * (len(codes) + 8) + "|")
+          + " | toward% | size/a_max | >=mu% | abs dz mm | rate% | nan% |")
+    print("|---" * (len(codes) + 9) + "|")
     for p in args.logs:
         s = log_stats(p)
         cells = " | ".join(f"{s['px'][c]:.0f} / {s['comp'][c]:.0f}" if c in s["px"] else "-" for c in codes)
-        print(f"| {p.name} | {s['sensor']} | {s['kind']} | {cells} | {s['toward']:.0f} | {s['size']:.4f} | "
+        print(f"| {p.name} | {s['sensor']} | {s['kind']} | {cells} | {s['toward']:.0f} | {s['size']:.4f} | {s['big']:.0f} | "
               f"{s['dz']:.2f} | {s['rate']:.2f} | {s['nan']:.1f} |")
 
 
