@@ -7,7 +7,7 @@ the true outliers per kind code (pixels / 8-connected components), the share of 
 whose measured point lies toward the camera from the true surface (``toward%``: Figure 1's
 "bright pixels ... unusually small depth"), the median component size relative to the part's
 a_max (``size/a_max``), the share of outlier pixels in components of at least mu_thr = 0.07 a_max
-pixels (``>=mu%``: out of the nominal z-cut's reach), the median |measured - true depth| of the outliers (``|dz| mm``), the share
+pixels (``>=mu%``: out of the nominal z-cut's reach), the median |measured - true depth| of the outliers (``|dz| mm``) and the share of them within 1 mm of it (``<1mm%``), the share
 of valid pixels that are outliers (``rate%``) and of pixels with no measurement (``nan%``). The
 true depth is the log's ``/ground_truth/depth``; a_max is the log's ``zcut.synth`` metadata.
 """
@@ -69,6 +69,7 @@ def log_stats(path: Path) -> dict:
         "big": 100.0 * big_px / n_out if n_out else float("nan"),
         "size": float(np.median(sizes)) / a_max if sizes else float("nan"),
         "dz": float(np.median(dzs)) if dzs.size else float("nan"),
+        "small": 100.0 * float((dzs < 1.0).mean()) if dzs.size else float("nan"),
         "rate": 100.0 * n_out / valid_n if valid_n else float("nan"),
         "nan": 100.0 * nan_n / total,
     }
@@ -80,13 +81,13 @@ def main() -> None:
     args = ap.parse_args()
     codes = sorted(layout.OUTLIER_KINDS)
     print("| log | sensor | kind | " + " | ".join(layout.OUTLIER_KINDS[c] for c in codes)
-          + " | toward% | size/a_max | >=mu% | abs dz mm | rate% | nan% |")
-    print("|---" * (len(codes) + 9) + "|")
+          + " | toward% | size/a_max | >=mu% | abs dz mm | <1mm% | rate% | nan% |")
+    print("|---" * (len(codes) + 10) + "|")
     for p in args.logs:
         s = log_stats(p)
         cells = " | ".join(f"{s['px'][c]:.0f} / {s['comp'][c]:.0f}" if c in s["px"] else "-" for c in codes)
         print(f"| {p.name} | {s['sensor']} | {s['kind']} | {cells} | {s['toward']:.0f} | {s['size']:.4f} | {s['big']:.0f} | "
-              f"{s['dz']:.2f} | {s['rate']:.2f} | {s['nan']:.1f} |")
+              f"{s['dz']:.2f} | {s['small']:.0f} | {s['rate']:.2f} | {s['nan']:.1f} |")
 
 
 if __name__ == "__main__":
