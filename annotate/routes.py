@@ -85,8 +85,8 @@ class Page:
         The name every page labels as, or None when each page session chooses its own
         (``POST /api/annotator``).
     replay : ReplaySession or None
-        The log opened for replay: ``notes`` (what the config resolution decided) and
-        ``reader.damage`` (what a damaged log lost) are shown on the page.
+        The log opened for replay: its ``notes`` (what the config resolution decided) are shown on the
+        page, with the catalogue's ``damage`` (what a damaged log lost).
     clients : Clients
         The page sessions (cookies).
     presence : Presence or None
@@ -208,7 +208,7 @@ def api_session(page: Page, request: Request) -> Response:
         "annotator": page.annotator or (client.annotator if client else None),
         "total": c.total, "prepared": c.prepared, "done": c.done, "error": c.error,
         "notes": list(replay.notes) if replay is not None else [],
-        "damage": list(replay.reader.damage) if replay is not None else [],
+        "damage": [d.text for d in c.damage],
         "annotators": page.store.annotators(page.log),
         "other_servers": [describe_server(s) for s in others], "turbo": page.turbo,
     })

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from replay.logs.damage import Damage
 from zcut.errors import ZcutError
 
 if TYPE_CHECKING:
@@ -86,8 +87,8 @@ class UnitResult:
     unit : WorkUnit
     rows : list of dict
         The table rows (one per frame for a batch; per frame × parameter set × method for a sweep).
-    damage : list of str
-        Frames of the unit's range that could not be read, one note each.
+    damage : list of replay.logs.damage.Damage
+        What the pass over the unit's range lost (every frame that could not be read is named).
     error : str or None
         Why the unit failed as a whole (its frames are then not in ``rows``).
     frames : int
@@ -101,7 +102,7 @@ class UnitResult:
 
     unit: WorkUnit
     rows: list[dict[str, Any]] = field(default_factory=list)
-    damage: list[str] = field(default_factory=list)
+    damage: list[Damage] = field(default_factory=list)
     error: str | None = None
     frames: int = 0
     seconds: float = 0.0
@@ -250,8 +251,8 @@ def _batch_frames(unit: WorkUnit, job: Job, res: UnitResult, session: ReplaySess
             res.frames += 1
         completed = True
     finally:
-        results.close()  # type: ignore[attr-defined]  # a generator (ReplaySession.results is typed Iterator)
-        res.damage = list(session.reader.damage)
+        results.close()
+        res.damage = list(results.damage)
         for s in sinks:
             s.close(completed=completed)
 

@@ -73,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
     if layout.RESULTS_METADATA in reader.metadata and not args.force:
         raise ConfigError(f"{args.log} is a results file of zcut replay, not empty-bin scans")
     start, stop = parse_frames(args.frames)
-    model, reports = build_bin_model(reader.frames(start=start, stop=stop),
+    scans = reader.frames(start=start, stop=stop)
+    model, reports = build_bin_model(scans,
                                      bin_mask_params=BinMaskParams(**layer.get("bin_mask", {})),
                                      registration=RegistrationParams(**layer.get("registration", {})),
                                      voxel_mm=args.voxel)
@@ -94,9 +95,9 @@ def run(args: argparse.Namespace) -> int:
         save_bin_model(model, out.temp)
     used = sum(1 for r in reports if not r.skipped)
     print(f"zcut: wrote {args.output}: {len(model.points)} points from {used} scan(s)", file=sys.stderr)
-    if reader.damage:
-        for d in reader.damage:
-            print(f"warning: data loss: {d}", file=sys.stderr)
+    if scans.damage:
+        for d in scans.damage:
+            print(f"warning: data loss: {d.text}", file=sys.stderr)
         from replay.process import EXIT_DATA_LOSS
 
         return EXIT_DATA_LOSS

@@ -181,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
         return 1
     if summary.damage:
         for d in summary.damage:
-            print(f"warning: data loss: {d}", file=sys.stderr)
+            print(f"warning: data loss: {d.text}", file=sys.stderr)
         print(f"zcut: {len(summary.rows)} intact frame(s) processed; the log is damaged", file=sys.stderr)
         return EXIT_DATA_LOSS
     return 0

@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
             first = v.splitlines()[0] if v else ""
             more = f" … ({len(v.splitlines())} lines)" if "\n" in v.strip() else ""
             print(f"  {k}: {first}{more}")
-    for note in info.notes + info.peek_damage:
+    for note in info.notes + [d.text for d in info.peek_damage]:
         print(f"warning: {note}")
     try:
         r = LogReader(args.log, cloud_topic=args.topic, image_topic=args.image_topic)
@@ -68,13 +68,14 @@ def run(args: argparse.Namespace) -> int:
         return 0
     n_ok = 0
     with_image = 0
-    for frame in r.frames():
+    stream = r.frames()
+    for frame in stream:
         n_ok += 1
         with_image += frame.rgb is not None
     print(f"check: {n_ok} frames decoded ({with_image} with colour)")
-    if r.damage:
-        for note in r.damage:
-            print(f"warning: {note}", file=sys.stderr)
+    if stream.damage:
+        for d in stream.damage:
+            print(f"warning: {d.text}", file=sys.stderr)
         print(f"warning: {args.log} is damaged; {n_ok} intact frames were read", file=sys.stderr)
         return 3
     return 0

@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"\nOpen the recording with:  {viewer_command()} {rrd}", file=sys.stdout if not args.json else err)
     if summary.damage:
         for d in summary.damage:
-            print(f"warning: data loss: {d}", file=err)
+            print(f"warning: data loss: {d.text}", file=err)
         return EXIT_DATA_LOSS
     return 0
 
