@@ -42,11 +42,13 @@ class DamageKind(enum.Enum):
     LOST_COMPANION = "lost_companion"
     #: a cloud of height 1 (zcut needs organized clouds)
     UNORGANIZED = "unorganized"
+    #: two clouds share a header stamp: their images, camera info and masks cannot be told apart
+    DUPLICATE_STAMP = "duplicate_stamp"
 
 
 #: the kinds whose frame was read but skipped (rendered "frame N (stamp S) skipped: ...")
 SKIPPED_KINDS = frozenset({DamageKind.MALFORMED_MESSAGE, DamageKind.OVER_CAP, DamageKind.WRONG_SIZE,
-                           DamageKind.LOST_COMPANION, DamageKind.UNORGANIZED})
+                           DamageKind.LOST_COMPANION, DamageKind.UNORGANIZED, DamageKind.DUPLICATE_STAMP})
 
 
 def stamp_text(ns: int) -> str:

@@ -15,12 +15,19 @@ The pass is a few named steps, one per kind of record the scan yields::
     _emit      deliver the waiting frames that are complete (_build: decode the arrays, check sizes)
     _finish    the frames the summary lists but the file does not hold; no frame at all -> error
 
-Pairing: a companion belongs to the cloud of its header stamp. A
-frame waits for its companions until :data:`PAIRING_WINDOW` later clouds have been read.
+Pairing (``docs/formats.md``, "Pairing"): a companion belongs to the cloud of its header stamp. A
+frame waits for its companions until :data:`PAIRING_WINDOW` later clouds have been read; a complete
+frame is delivered once the next cloud has been read (or the log ends), so that a cloud sharing its
+stamp is seen while it still waits. Two clouds within :data:`PAIRING_WINDOW` of each other with the
+same header stamp cannot be told apart by their companions: when the log has companion topics, both
+frames are skipped (:attr:`~replay.logs.damage.DamageKind.DUPLICATE_STAMP`; the later one alone when
+the earlier one was already delivered, two clouds back). Clouds before the range and just past it
+are read for their stamps, so a frame is paired (or skipped) the same whatever range is read.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, TypeVar
@@ -98,6 +105,7 @@ class _Pending:
     cloud: rm.CloudMsg | None
     log_time: int
     parts: dict[str, object] = field(default_factory=dict)
+    shares_stamp_with: int | None = None  # another cloud within the window with this header stamp
 
     def complete(self, companions: list[str]) -> bool:
         return all(t in self.parts for t in companions)
@@ -155,6 +163,7 @@ class FrameStream(Iterator[Frame]):
         self._pending: list[_Pending] = []
         self._orphans: list[tuple[int, str, object]] = []  # (stamp, topic, decoded)
         self._lost_parts: dict[str, set[int]] = {}  # companion topic -> log times of its lost messages
+        self._recent: deque[tuple[int, int]] = deque(maxlen=PAIRING_WINDOW)  # (index, stamp) of the last clouds
         self._schemas = dict(reader._schemas)
         self._channels = dict(reader._channels)
         self.delivered = 0
@@ -235,7 +244,7 @@ class FrameStream(Iterator[Frame]):
                 self._damage[:] = [d for d in self._damage if d is not note]
         idx = self._next_index
         self._next_index += 1
-        if idx < self.start:
+        if idx < self.start - PAIRING_WINDOW:
             return
         where = f"{self._r.path.name}: topic {topic}, message {idx}"
         try:
@@ -247,6 +256,9 @@ class FrameStream(Iterator[Frame]):
                                            log_time_ns=rec.log_time, topic=topic))
                 return
         stamp = None if cloud is None else cloud.stamp_ns
+        shares = None if cloud is None else self._note_stamp(idx, stamp)
+        if idx < self.start:
+            return  # read for its stamp only
         if self.stop is not None and idx >= self.stop:
             # past the range: only counts towards the pairing window
             self._pending.append(_Pending(idx, stamp, None, rec.log_time))
@@ -254,7 +266,7 @@ class FrameStream(Iterator[Frame]):
             if self._pending[0].cloud is None:
                 self._stopped = True
             return
-        p = _Pending(idx, cloud.stamp_ns, cloud, rec.log_time)
+        p = _Pending(idx, cloud.stamp_ns, cloud, rec.log_time, shares_stamp_with=shares)
         keep = []
         for o in self._orphans:
             if o[0] == cloud.stamp_ns and o[1] not in p.parts:
@@ -264,6 +276,22 @@ class FrameStream(Iterator[Frame]):
         self._orphans[:] = keep
         self._pending.append(p)
         yield from self._emit(final=False)
+
+    def _note_stamp(self, idx: int, stamp: int) -> int | None:
+        """Remember the cloud's stamp; the index of an earlier cloud within the window with the same
+        stamp (the waiting one, if any, is marked as sharing it too), else None. Only a log with
+        companion topics pairs by stamp: without them a shared stamp harms nothing."""
+        other = None
+        if self._companions:
+            for i, s in self._recent:
+                if s == stamp:
+                    other = i
+            if other is not None:
+                for p in self._pending:
+                    if p.stamp == stamp and p.shares_stamp_with is None:
+                        p.shares_stamp_with = idx
+        self._recent.append((idx, stamp))
+        return other
 
     def _companion(self, rec, ch) -> None:
         """Decode an image, camera info or mask and give it to the waiting cloud of its stamp, or keep
@@ -337,9 +365,14 @@ class FrameStream(Iterator[Frame]):
         return idx >= self.start and (self.stop is None or idx < self.stop)
 
     def _ready(self, final: bool) -> bool:
-        """Whether the first waiting frame is due: the log ended, its window is full, or it is complete."""
+        """Whether the first waiting frame is due: the log ended, its window is full, or it is complete
+        and the next cloud has been read (so that a cloud sharing its stamp is seen first)."""
         pending = self._pending
-        return final or len(pending) > PAIRING_WINDOW or pending[0].complete(self._companions)
+        if final or len(pending) > PAIRING_WINDOW:
+            return True
+        if not self._companions:
+            return True
+        return len(pending) > 1 and pending[0].complete(self._companions)
 
     def _emit(self, final: bool) -> Iterator[Frame]:
         """Deliver the waiting frames that are due (or name why one cannot be)."""
@@ -375,6 +408,10 @@ class FrameStream(Iterator[Frame]):
         cloud = p.cloud
         ctopic = r.cloud_topic
         where = f"{r.path.name}: topic {ctopic}, message {idx}"
+        if p.shares_stamp_with is not None:
+            raise _Skip(DamageKind.DUPLICATE_STAMP,
+                        f"its header stamp is also frame {p.shares_stamp_with}'s: images, camera info and masks are "
+                        "paired by stamp, so the two frames' cannot be told apart", ctopic)
         if cloud.height <= 1:
             raise _Skip(DamageKind.UNORGANIZED,
                         f"{where}: unorganized cloud (height {cloud.height}, width {cloud.width}); "
