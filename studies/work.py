@@ -116,9 +116,7 @@ class UnitResult:
 
 
 @functools.lru_cache(maxsize=2)
-def _bin_model(path: str | None) -> BinModel | None:
-    if path is None:
-        return None
+def _bin_model(path: str | Path) -> BinModel:
     from replay.pipeline.bin_model import load_bin_model
 
     return load_bin_model(path)
@@ -131,7 +129,10 @@ _MAX_SESSIONS = 2
 
 def open_unit_session(unit: WorkUnit, job: Job) -> ReplaySession:
     """The unit's log as a replay session running the config the driver resolved for it (never
-    resolved again here); the worker keeps the last two sessions it opened."""
+    resolved again here), with the bin model :func:`replay.pipeline.bin_model.bin_model_for` chooses
+    for it (``--bin-model``, else the log's own attachment: each log of a study its own); the worker
+    keeps the last two sessions it opened."""
+    from replay.pipeline.bin_model import bin_model_for
     from replay.pipeline.config import config_sha256
     from replay.pipeline.session import ReplaySession
 
@@ -142,7 +143,7 @@ def open_unit_session(unit: WorkUnit, job: Job) -> ReplaySession:
     session = _SESSIONS.get(key)
     if session is None:
         session = ReplaySession.open(unit.log, resolved=resolved, topic=job.topic,
-                                     bin_model=_bin_model(job.bin_model))
+                                     choose_bin_model=lambda reader: bin_model_for(reader, job.bin_model, load=_bin_model))
         while len(_SESSIONS) >= _MAX_SESSIONS:
             _SESSIONS.pop(next(iter(_SESSIONS)))
         _SESSIONS[key] = session

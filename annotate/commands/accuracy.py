@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         region_of_results_frame,
         scored_region,
     )
-    from replay.commands.common import load_model, open_session, overrides_of
+    from replay.commands.common import open_session, overrides_of
     from replay.pipeline.methods import base_methods, method_masks
     from replay.logs.reader import LogReader
     from zcut.errors import ParameterError, ZcutError
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
             stream = reader.frames()
             frames = ((f, None) for f in stream)
         else:  # predictions computed as `zcut replay` computes them (the same resolved config)
-            session = open_session(args.log, args, bin_model=load_model(args), overrides=overrides)
+            session = open_session(args.log, args, overrides=overrides)
             frames = stream = session.results()
         results, unscored = [], []
         for frame, r in frames:

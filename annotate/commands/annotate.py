@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     overrides = overrides_of(args)  # bad values fail before the log is read
     if args.config is not None and not Path(args.config).is_file():
         raise FileNotFoundError(2, "no such file", str(args.config))
-    model = load_model(args)
+    model = load_model(args, args.log)
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # restart at once on the same port
     # small responses (a label, the session) otherwise wait ~40 ms for the client's delayed ACK

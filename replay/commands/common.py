@@ -2,12 +2,15 @@
 
 Every command that runs the pipeline on a log (``replay``, ``demo``, ``accuracy``, ``annotate``,
 ``sweep``, ``batch``) takes the same options from :func:`add_pipeline_options` and opens its log
-with :func:`open_session`, so that it resolves the same config (SPEC §4, "Same filter everywhere").
+with :func:`open_session`, so that it resolves the same config (SPEC §4, "Same filter everywhere"),
+and replays it with the bin model :func:`replay.pipeline.bin_model.bin_model_for` chooses: the
+``--bin-model`` given, else the log's own attachment, else none, with one warning line.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +41,8 @@ def add_pipeline_options(p: argparse.ArgumentParser, *, bin_model: bool = True, 
     p.set_defaults(zcut_overrides=zcut)
     if bin_model:
         g.add_argument("--bin-model", metavar="PLY", help="bin model (from `zcut bin-model` or a CAD PLY); "
-                       "without it the bin stages are skipped")
+                       "without it the log's own bin model attachment is used, and without that the bin stages "
+                       "are skipped")
 
 
 def overrides_of(args: argparse.Namespace) -> dict[str, Any]:
@@ -61,23 +65,49 @@ def inputs_of(args: argparse.Namespace) -> list[str]:
     return [p for p in (getattr(args, "config", None), getattr(args, "bin_model", None)) if p]
 
 
-def load_model(args: argparse.Namespace):
-    """The ``--bin-model`` (None without one)."""
-    from replay.pipeline.bin_model import load_bin_model
-
-    path = getattr(args, "bin_model", None)
-    return load_bin_model(path) if path else None
+def _check_inputs(args: argparse.Namespace) -> None:
+    for path in (getattr(args, "config", None), getattr(args, "bin_model", None)):
+        if path and not Path(path).is_file():
+            raise FileNotFoundError(2, "no such file", str(path))
 
 
-def open_session(log: str | Path, args: argparse.Namespace, *, bin_model=None, overrides=None):
-    """Open ``log`` as a :class:`~replay.pipeline.session.ReplaySession` with the pipeline options."""
+def choose_model(args: argparse.Namespace, reader, *, stream=None):
+    """The bin model for ``reader``'s log (:func:`replay.pipeline.bin_model.bin_model_for`: ``--bin-model``,
+    else the log's own attachment, else None), printing its one warning line when there is none."""
+    from replay.pipeline.bin_model import bin_model_for
+
+    choice = bin_model_for(reader, getattr(args, "bin_model", None))
+    _warn(choice, stream)
+    return choice.model
+
+
+def _warn(choice, stream) -> None:
+    if choice is not None and choice.warning:
+        print(f"warning: {choice.warning}", file=sys.stderr if stream is None else stream, flush=True)
+
+
+def load_model(args: argparse.Namespace, log: str | Path, *, stream=None):
+    """:func:`choose_model` for a command that opens ``log`` another way (``annotate``)."""
+    from replay.logs.reader import LogReader
+
+    _check_inputs(args)
+    return choose_model(args, LogReader(log, cloud_topic=getattr(args, "topic", None)), stream=stream)
+
+
+def open_session(log: str | Path, args: argparse.Namespace, *, overrides=None, stream=None):
+    """Open ``log`` as a :class:`~replay.pipeline.session.ReplaySession` with the pipeline options and the
+    bin model :func:`choose_model` chooses (its warning printed when there is none)."""
+    from replay.pipeline.bin_model import bin_model_for
     from replay.pipeline.session import ReplaySession
 
-    if config := getattr(args, "config", None):
-        if not Path(config).is_file():
-            raise FileNotFoundError(2, "no such file", str(config))
-    return ReplaySession.open(log, config_file=args.config, overrides=overrides_of(args) if overrides is None else overrides,
-                              topic=getattr(args, "topic", None), bin_model=bin_model)
+    _check_inputs(args)
+    explicit = getattr(args, "bin_model", None)
+    session = ReplaySession.open(log, config_file=args.config,
+                                 overrides=overrides_of(args) if overrides is None else overrides,
+                                 topic=getattr(args, "topic", None),
+                                 choose_bin_model=lambda reader: bin_model_for(reader, explicit))
+    _warn(session.bin_model_choice, stream)
+    return session
 
 
 def add_force_option(p: argparse.ArgumentParser) -> None:

@@ -24,6 +24,7 @@ def _stamp(ns: int) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from replay.errors import LogFormatError
+    from replay.logs import layout
     from replay.logs.reader import LogReader, inspect_log
 
     info = inspect_log(args.log)
@@ -58,12 +59,21 @@ def run(args: argparse.Namespace) -> int:
     for note in r.notes:
         if note not in info.notes:
             print(f"note: {note}")
+    for name, media_type, size in r.attachments():
+        print(f"attachment '{name}': {media_type}" + (f", {size} bytes" if size is not None else ""))
     print("zcut would use:")
     n = "?" if r.n_frames is None else r.n_frames
     print(f"  cloud:       {r.cloud_topic}  ({n} frames)")
     print(f"  image:       {r.image_topic or '- (colours from the cloud, if any)'}")
     print(f"  camera info: {r.info_topic or '-'}")
     print(f"  masks:       {', '.join(r.mask_topics) or '-'}")
+    if r.attached_bin_model is not None:
+        print(f"  bin model:   its {layout.BIN_MODEL_ATTACHMENT} attachment ({len(r.attached_bin_model.points)} points)")
+    elif r.bin_model_problem:
+        print(f"  bin model:   - ({r.bin_model_problem})")
+    else:
+        print(f"  bin model:   - (no {layout.BIN_MODEL_ATTACHMENT} attachment: give --bin-model PLY, or attach one "
+              "with zcut bin-model --into)")
     if not args.check:
         return 0
     n_ok = 0

@@ -49,6 +49,8 @@ from isal.isal_zlib import crc32
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.records import (
+    Attachment,
+    AttachmentIndex,
     Channel,
     Chunk,
     ChunkIndex,
@@ -172,6 +174,7 @@ _PARSERS = {
     OP_HEADER: Header.read, OP_FOOTER: Footer.read, OP_SCHEMA: Schema.read, OP_CHANNEL: Channel.read,
     OP_MESSAGE_INDEX: MessageIndex.read, OP_CHUNK_INDEX: ChunkIndex.read, OP_STATISTICS: Statistics.read,
     OP_METADATA: Metadata.read, OP_METADATA_INDEX: MetadataIndex.read, OP_CHUNK: Chunk.read,
+    OP_ATTACHMENT: Attachment.read, OP_ATTACHMENT_INDEX: AttachmentIndex.read,
 }
 
 
@@ -227,9 +230,12 @@ class Summary:
     channels: dict[int, Channel] = field(default_factory=dict)
     chunk_indexes: list[ChunkIndex] = field(default_factory=list)
     metadata_offsets: list[tuple[str, int, int]] = field(default_factory=list)
+    attachment_indexes: list[AttachmentIndex] = field(default_factory=list)
     channel_message_counts: dict[int, int] | None = None
     message_start_time: int | None = None
     message_end_time: int | None = None
+    #: False when the footer says the file has no summary section (nothing above is then known)
+    indexed: bool = True
 
 
 def decompress(
@@ -398,6 +404,7 @@ class McapFile:
         s = Summary()
         if summary_start == 0:
             self.data_end = footer_at
+            s.indexed = False
             return s
         if not (self.data_start <= summary_start <= footer_at):
             raise _Bad(f"the footer points at offset {summary_start}, outside the file")
@@ -412,7 +419,7 @@ class McapFile:
             op, length = struct.unpack_from("<BQ", mv, pos)
             if pos + 9 + length > n:
                 raise _Bad(f"summary record at {summary_start + pos} runs past the footer")
-            if op in (OP_SCHEMA, OP_CHANNEL, OP_CHUNK_INDEX, OP_METADATA_INDEX, OP_STATISTICS):
+            if op in (OP_SCHEMA, OP_CHANNEL, OP_CHUNK_INDEX, OP_METADATA_INDEX, OP_STATISTICS, OP_ATTACHMENT_INDEX):
                 rec = parse_record(op, mv, pos + 9, pos + 9 + length)
                 if op == OP_SCHEMA:
                     s.schemas[rec.id] = rec
@@ -422,6 +429,8 @@ class McapFile:
                     s.chunk_indexes.append(rec)
                 elif op == OP_METADATA_INDEX:
                     s.metadata_offsets.append((rec.name, rec.offset, rec.length))
+                elif op == OP_ATTACHMENT_INDEX:
+                    s.attachment_indexes.append(rec)
                 else:
                     s.message_start_time, s.message_end_time = rec.message_start_time, rec.message_end_time
                     s.channel_message_counts = dict(rec.channel_message_counts)
@@ -444,6 +453,61 @@ class McapFile:
                 notes.append(Damage(DamageKind.DAMAGED_METADATA, f"metadata record '{name}' is damaged ({e})",
                                     byte=off))
         return out, notes
+
+    def attachment_indexes(self, *, max_records: int = 1 << 20) -> list[AttachmentIndex]:
+        """Where the file's attachments are, in file order: the summary's attachment indexes, or, for
+        a file without a summary, what a walk over the data section's record headers finds (chunk
+        bodies are skipped, not read; the walk stops at the first damaged record or after
+        ``max_records`` records). Never raises for damage: a damaged part simply lists nothing."""
+        if self.summary is not None and self.summary.indexed:
+            return sorted(self.summary.attachment_indexes, key=lambda a: a.offset)
+        out: list[AttachmentIndex] = []
+        pos = self.data_start
+        limit = self.size if self.data_end is None else self.data_end
+        for _ in range(max_records):
+            if pos + 9 > limit:
+                break
+            self._f.seek(pos)
+            head = self._f.read(9)
+            op, length = struct.unpack("<BQ", head)
+            if op in (OP_DATA_END, OP_FOOTER) or op == 0 or 0x10 <= op < 0x80 or pos + 9 + length > limit:
+                break
+            if op == OP_ATTACHMENT and length >= 8 + 8 + 4:
+                head = self._f.read(min(length, 8 + 8 + 4 + 1024 + 4 + 1024))
+                try:
+                    lt, ct = struct.unpack_from("<QQ", head)
+                    n = struct.unpack_from("<I", head, 16)[0]
+                    name = bytes(head[20:20 + n]).decode("utf-8") if 20 + n <= len(head) else ""
+                    m = struct.unpack_from("<I", head, 20 + n)[0]
+                    media = bytes(head[24 + n:24 + n + m]).decode("utf-8") if 24 + n + m <= len(head) else ""
+                except (struct.error, UnicodeDecodeError):
+                    name = media = ""
+                    lt = ct = 0
+                if name:
+                    out.append(AttachmentIndex(offset=pos, length=9 + length, log_time=lt, create_time=ct,
+                                               data_size=-1, name=name, media_type=media))
+            pos += 9 + length
+        return out
+
+    def read_attachment(self, index: AttachmentIndex, *, max_bytes: int) -> Attachment:
+        """The attachment record ``index`` points at, its CRC checked, or :class:`_Bad` saying why not
+        (runs past the file, over ``max_bytes``, does not parse, fails its CRC check)."""
+        if index.length > max_bytes + (1 << 16):  # the data, plus its name, media type and times
+            raise _Bad(f"is a record of {index.length} bytes, more than the cap of {max_bytes}")
+        rec = self._read_record_at(index.offset, expect_len=index.length)
+        if rec is None:
+            raise _Bad("runs past the end of the file")
+        op, body = rec
+        if op != OP_ATTACHMENT:
+            raise _Bad(f"no attachment record at byte {index.offset} (opcode 0x{op:02x})")
+        att = parse_record(OP_ATTACHMENT, body)
+        if len(att.data) > max_bytes:
+            raise _Bad(f"holds {len(att.data)} bytes, more than the cap of {max_bytes}")
+        crc = struct.unpack_from("<I", body, len(body) - 4)[0]
+        if crc != 0 and crc32(body[: len(body) - 4]) != crc:
+            raise _Bad("fails its CRC check")
+        att.data = bytes(att.data)  # not a view of the pooled buffer
+        return att
 
     def _chunk_at(self, ref: _ChunkRef) -> list[tuple[int, object]]:
         """Read (``os.pread``: safe from any thread), decompress, CRC-check and parse a chunk."""

@@ -37,6 +37,7 @@ a cloud's or image's grid before any array is allocated.
 
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,6 +59,7 @@ from replay.logs.mcap_scan import (
     Schema,
     _Bad,
 )
+from replay.logs.ply import PlyModel, read_ply_model_bytes
 from replay.logs.stream import PAIRING_WINDOW, FrameStream, message_payload
 from zcut.cloud import Intrinsics
 
@@ -492,6 +494,49 @@ class LogReader:
             if t.msg_type == rm.IMAGE and t.message_encoding == "cdr" and t.encoding == "mono8"
             and (t.height, t.width) == shape
         )
+
+    # ------------------------------------------------------------------ attachments
+    def attachments(self) -> list[tuple[str, str, int | None]]:
+        """(name, media type, bytes or None when unknown) of every attachment, in file order (from
+        the summary; for a log without one, from a walk over its record headers)."""
+        with self._mcap() as mf:
+            return [(a.name, a.media_type, a.data_size if a.data_size >= 0 else None) for a in mf.attachment_indexes()]
+
+    @functools.cached_property
+    def _bin_model_attachment(self) -> tuple[bytes | None, PlyModel | None, str | None]:
+        name = layout.BIN_MODEL_ATTACHMENT
+        try:
+            with self._mcap() as mf:
+                found = [a for a in mf.attachment_indexes() if a.name == name]
+                if not found:
+                    return None, None, None
+                att = mf.read_attachment(found[-1], max_bytes=self.max_message_bytes)  # the last one wins
+        except _Bad as e:
+            return None, None, f"its {name} attachment is damaged ({e})"
+        try:
+            model = read_ply_model_bytes(att.data, name=f"{self.path.name}: attachment {name}",
+                                         max_points=self.max_pixels, max_message_bytes=self.max_message_bytes)
+        except LogFormatError as e:
+            return None, None, f"its {name} attachment is not a usable bin model ({e})"
+        return att.data, model, None
+
+    @property
+    def bin_model_ply(self) -> bytes | None:
+        """The bin model the log carries: the bytes of its ``bin_model.ply`` attachment (the last one when
+        there are several), None when it has none or it cannot be used (see :attr:`bin_model_problem`).
+        Read once, on first use: CRC-checked, bounded by ``max_message_bytes`` and parsed by
+        :func:`~replay.logs.ply.read_ply_model_bytes` (``docs/formats.md``, "Bin model attachment")."""
+        return self._bin_model_attachment[0]
+
+    @property
+    def attached_bin_model(self) -> PlyModel | None:
+        """:attr:`bin_model_ply` as read by :func:`~replay.logs.ply.read_ply_model_bytes` (points, normals, faces)."""
+        return self._bin_model_attachment[1]
+
+    @property
+    def bin_model_problem(self) -> str | None:
+        """Why the log's ``bin_model.ply`` attachment cannot be used (damaged, not a PLY), else None."""
+        return self._bin_model_attachment[2]
 
     # ------------------------------------------------------------------ streaming
     def frames(self, *, start: int = 0, stop: int | None = None) -> FrameStream:

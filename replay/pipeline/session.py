@@ -276,6 +276,7 @@ class ReplaySession:
         self.reader = reader
         self.resolved = resolved
         self.bin_model = bin_model
+        self.bin_model_choice = None  # how the model was chosen (ReplaySession.open's choose_bin_model)
         c = resolved.config
         self.prepared: PreparedBinModel | None = None
         self.seed: RegistrationResult | None = None
@@ -290,7 +291,8 @@ class ReplaySession:
     def open(cls, path: str | Path, *, config_file: str | Path | None = None,
              overrides: dict[str, Any] | None = None, topic: str | None = None,
              bin_model: BinModel | None = None, reader_options: dict[str, Any] | None = None,
-             resolved: cfg.Resolved | None = None) -> ReplaySession:
+             resolved: cfg.Resolved | None = None,
+             choose_bin_model: Callable[[Any], Any] | None = None) -> ReplaySession:
         """Open a log and resolve its config from its metadata and first readable frame.
 
         Parameters
@@ -310,6 +312,10 @@ class ReplaySession:
         resolved : Resolved, optional
             The config already resolved for this log (a study's worker gets the driver's); then
             ``config_file`` and ``overrides`` are not read.
+        choose_bin_model : callable, optional
+            Called with the opened reader when ``bin_model`` is None; returns a
+            :class:`~replay.pipeline.bin_model.BinModelChoice` (e.g. ``partial(bin_model_for,
+            explicit_path=...)``), kept as :attr:`bin_model_choice`.
 
         Raises
         ------
@@ -319,7 +325,13 @@ class ReplaySession:
         file_layer = cfg.load_toml(config_file) if config_file is not None and resolved is None else None
         reader, first, resolved = open_log(path, file_layer=file_layer, overrides=overrides, topic=topic,
                                            reader_options=reader_options, resolved=resolved)
-        return cls(path, reader, resolved, bin_model, first)
+        choice = None
+        if bin_model is None and choose_bin_model is not None:
+            choice = choose_bin_model(reader)
+            bin_model = choice.model
+        session = cls(path, reader, resolved, bin_model, first)
+        session.bin_model_choice = choice
+        return session
 
     @property
     def config(self) -> cfg.PipelineConfig:
