@@ -3,10 +3,15 @@
 ``mcap.writer.Writer`` compresses every chunk with zstd level 3 and copies each record through a
 BytesIO; for 1920 × 1200 clouds (37 MB a message) that made writing ~0.9 s a frame. This writer
 produces the same layout (records per https://mcap.dev/spec: chunks holding Schema, Channel and
-Message records with per-chunk CRC, MessageIndex records after each chunk, then DataEnd and a
-summary with Schema, Channel, Statistics, ChunkIndex and MetadataIndex groups, SummaryOffsets and
-the Footer) at zstd level 1 (about 2.5× faster, files ~15 % larger). Every test reads its output
-with ``mcap.reader`` (CRCs validated) and with Rerun's MCAP importer.
+Message records with per-chunk CRC, MessageIndex records after each chunk, Attachment records
+outside the chunks, then DataEnd and a summary with Schema, Channel, Statistics, ChunkIndex,
+MetadataIndex and AttachmentIndex groups, SummaryOffsets and the Footer) at zstd level 1 (about
+2.5× faster, files ~15 % larger). Every test reads its output with ``mcap.reader`` (CRCs validated)
+and with Rerun's MCAP importer.
+
+:func:`copy_with_attachment` copies a log with one more attachment (``zcut bin-model --into``)
+without decoding it: the data section byte for byte, the attachment at its end, the summary
+re-indexed.
 """
 
 from __future__ import annotations
