@@ -231,5 +231,6 @@ def execute(units: list[WorkUnit], job: Job, fn: UnitFn, executor: Executor, sto
 def meta_of(res: UnitResult) -> dict[str, Any]:
     u = res.unit
     return {"log": u.log, "sha256": u.sha256, "start": u.start, "stop": u.stop, "frames": res.frames,
-            "damage": [d.text for d in res.damage], "unscored": res.unscored, "seconds": res.seconds, "cpu_seconds": res.cpu_seconds,
+            "damage": [d.text for d in res.damage], "unscored": res.unscored, "seconds": res.seconds,
+            "cpu_seconds": res.cpu_seconds,
             "peak_rss_mb": res.peak_rss_mb}

@@ -143,7 +143,7 @@ def open_unit_session(unit: WorkUnit, job: Job) -> ReplaySession:
     session = _SESSIONS.get(key)
     if session is None:
         session = ReplaySession.open(unit.log, resolved=resolved, topic=job.topic,
-                                     choose_bin_model=lambda reader: bin_model_for(reader, job.bin_model, load=_bin_model))
+                                     choose_bin_model=lambda r: bin_model_for(r, job.bin_model, load=_bin_model))
         while len(_SESSIONS) >= _MAX_SESSIONS:
             _SESSIONS.pop(next(iter(_SESSIONS)))
         _SESSIONS[key] = session

@@ -106,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--stamp-start {args.stamp_start:g} + {len(files) - 1} × --period {args.period:g} s "
                           "goes past the ROS 2 time range (2038-01-19)")
     out = Path(args.output)
-    OutputPlan([str(f) for f in files] + ([args.bin_model] if args.bin_model else []), force=args.force).add(out, "the log")
+    inputs = [str(f) for f in files] + ([args.bin_model] if args.bin_model else [])
+    OutputPlan(inputs, force=args.force).add(out, "the log")
     attachments = {}
     if args.bin_model is not None:
         attachments[layout.BIN_MODEL_ATTACHMENT] = (layout.BIN_MODEL_MEDIA_TYPE, _bin_model_bytes(args.bin_model))
@@ -167,7 +168,8 @@ def _bin_model_bytes(path: str) -> bytes:
     f, size = open_input(path, "a PLY file")
     with f:
         if size > DEFAULT_MAX_MESSAGE_BYTES:
-            raise LogFormatError(f"{path}: PLY file of {size} bytes is more than the cap of {DEFAULT_MAX_MESSAGE_BYTES}")
+            raise LogFormatError(f"{path}: PLY file of {size} bytes is more than the cap of "
+                                 f"{DEFAULT_MAX_MESSAGE_BYTES}")
         data = f.read()
     if len(read_ply_model_bytes(data, name=str(path)).points) == 0:
         raise LogFormatError(f"{path}: no points in the bin model (expected a PLY point cloud or mesh)")

@@ -68,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"  camera info: {r.info_topic or '-'}")
     print(f"  masks:       {', '.join(r.mask_topics) or '-'}")
     if r.attached_bin_model is not None:
-        print(f"  bin model:   its {layout.BIN_MODEL_ATTACHMENT} attachment ({len(r.attached_bin_model.points)} points)")
+        n = len(r.attached_bin_model.points)
+        print(f"  bin model:   its {layout.BIN_MODEL_ATTACHMENT} attachment ({n} points)")
     elif r.bin_model_problem:
         print(f"  bin model:   - ({r.bin_model_problem})")
     else:

@@ -554,12 +554,12 @@ class McapFile:
 
         Damage is appended to ``damage`` as :class:`~replay.logs.damage.Damage` records; the scan
         then resumes at the next chunk the summary knows about, or stops. ``start_offset`` starts
-        the scan at a record (a chunk found through the summary) instead of the beginning. Up to ``prefetch`` chunks (and at most
-        :data:`PREFETCH_BYTES` uncompressed bytes beyond the first) are read, decompressed and
-        CRC-checked ahead in worker threads, overlapping with the caller's work; 0 does all of it
-        in the calling thread. ``cached`` maps (offset, record length) of chunks already parsed by
-        :meth:`chunk_records_at` to their records (used instead of reading them again; entries
-        are removed as they are used).
+        the scan at a record (a chunk found through the summary) instead of the beginning. Up to
+        ``prefetch`` chunks (and at most :data:`PREFETCH_BYTES` uncompressed bytes beyond the first)
+        are read, decompressed and CRC-checked ahead in worker threads, overlapping with the
+        caller's work; 0 does all of it in the calling thread. ``cached`` maps (offset, record
+        length) of chunks already parsed by :meth:`chunk_records_at` to their records (used instead
+        of reading them again; entries are removed as they are used).
         """
         queue: deque[tuple[int, int, object, int]] = deque()
         workers = max(1, min(prefetch, os.cpu_count() or 1))
@@ -624,8 +624,8 @@ class McapFile:
                 recs = [(op, parse_record(op, job))] if op in _INNER else []
         except _Bad as e:
             what = "chunk" if op == OP_CHUNK else "record"
-            damage.append(Damage(DamageKind.DAMAGED_CHUNK, f"{what} at byte {pos} is corrupt ({e}); its messages are lost",
-                                 byte=pos))
+            damage.append(Damage(DamageKind.DAMAGED_CHUNK,
+                                 f"{what} at byte {pos} is corrupt ({e}); its messages are lost", byte=pos))
             if op == OP_CHUNK:
                 yield OP_LOST, Lost(pos, self.lost_messages(pos))
             return

@@ -150,8 +150,8 @@ def _peek(
                     keep[(ci.chunk_start_offset, ci.chunk_length - 9)] = recs
                     kept += size
             except _Bad as e:
-                damage.append(Damage(DamageKind.DAMAGED_CHUNK, f"chunk at byte {ci.chunk_start_offset} is corrupt ({e})",
-                                     byte=ci.chunk_start_offset))
+                at = ci.chunk_start_offset
+                damage.append(Damage(DamageKind.DAMAGED_CHUNK, f"chunk at byte {at} is corrupt ({e})", byte=at))
                 continue
             todo -= set(firsts)
             if not todo:
@@ -649,8 +649,8 @@ def read_mask_topics(path: str | os.PathLike, wanted: tuple[str, ...], *, max_pi
                                          "(the cap of one label file); split it")
                 packed.setdefault(msg.stamp_ns, {})[topic] = (mask.shape, np.packbits(mask))
             elif op == OP_LOST:
-                damage.append(Damage(DamageKind.DAMAGED_CHUNK, f"messages were lost with the chunk at byte {rec.offset}",
-                                     byte=rec.offset))
+                damage.append(Damage(DamageKind.DAMAGED_CHUNK,
+                                     f"messages were lost with the chunk at byte {rec.offset}", byte=rec.offset))
     if damage:
         raise LogFormatError(f"{path}: damaged file: {damage[0].text}")
     masks = {stamp: {topic: np.unpackbits(bits, count=shape[0] * shape[1]).view(np.bool_).reshape(shape)

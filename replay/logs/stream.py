@@ -396,7 +396,8 @@ class FrameStream(Iterator[Frame]):
         expected = r.n_frames
         if not self._stopped and self._begin is None and expected is not None and self._next_index < expected:
             self._lose(self._next_index, expected - self._next_index,
-                       f"lost: the summary lists {expected} messages on {r.cloud_topic}, the file holds {self._next_index}")
+                       f"lost: the summary lists {expected} messages on {r.cloud_topic}, "
+                       f"the file holds {self._next_index}")
         if self.delivered == 0 and self._damage and (self.stop is None or self.stop > self.start):
             raise LogDamageError(f"{r.path.name}: no frame could be read: "
                                  + "; ".join(d.text for d in self._damage))

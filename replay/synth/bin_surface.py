@@ -27,7 +27,8 @@ def _axis(lo: float, hi: float, step: float) -> np.ndarray:
     return lo + step * np.arange(n)
 
 
-def bin_model_points(geometry: BinGeometry = BIN, *, spacing_mm: float = MODEL_SPACING_MM) -> tuple[np.ndarray, np.ndarray]:
+def bin_model_points(geometry: BinGeometry = BIN, *,
+                     spacing_mm: float = MODEL_SPACING_MM) -> tuple[np.ndarray, np.ndarray]:
     """Points and normals of the bin surfaces a camera above it sees (rim top, inner walls, floor).
 
     Returns

@@ -165,7 +165,8 @@ def test_record_attaches_a_bin_model(logs, tmp_path, capsys, real_data):
     ply = tmp_path / "bin.ply"
     assert run_cli(capsys, "bin-model", empty, "-o", ply)[0] == 0
     out = tmp_path / "rec.mcap"
-    rc, printed, err = run_cli(capsys, "record", real_data / "mosd_test16.pcd", real_data / "mosd_test20.pcd", "-o", out, "--bin-model", ply)
+    pcds = [real_data / "mosd_test16.pcd", real_data / "mosd_test20.pcd"]
+    rc, printed, err = run_cli(capsys, "record", *pcds, "-o", out, "--bin-model", ply)
     assert rc == 0, err
     assert f"with the bin model {ply}" in printed
     reader = LogReader(out)
@@ -173,11 +174,11 @@ def test_record_attaches_a_bin_model(logs, tmp_path, capsys, real_data):
     rc, printed, err = run_cli(capsys, "topics", out)
     assert "bin model:   its bin_model.ply attachment" in printed
     plain = tmp_path / "plain.mcap"
-    assert run_cli(capsys, "record", real_data / "mosd_test16.pcd", real_data / "mosd_test20.pcd", "-o", plain)[0] == 0
+    assert run_cli(capsys, "record", *pcds, "-o", plain)[0] == 0
     assert LogReader(plain).bin_model_ply is None
     bad = tmp_path / "bad.ply"
     bad.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n2\n3\n")
-    rc, _, err = run_cli(capsys, "record", real_data / "mosd_test16.pcd", real_data / "mosd_test20.pcd", "-o", tmp_path / "r2.mcap", "--bin-model", bad)
+    rc, _, err = run_cli(capsys, "record", *pcds, "-o", tmp_path / "r2.mcap", "--bin-model", bad)
     assert rc == 1 and "has no 'y' property" in err and not (tmp_path / "r2.mcap").exists()
 
 

@@ -161,7 +161,8 @@ def test_truncation_is_a_truncated_record(tmp_path):
 
 @pytest.mark.parametrize("record,text", [
     (Damage(DamageKind.LOST_FRAMES, "lost with the chunk at byte 9", frame_index=3, n_frames=3, log_time_ns=4 * 10**9,
-            last_log_time_ns=6 * 10**9 + 5), "frames 3-5 (log times 4.000000000 .. 6.000000005) lost with the chunk at byte 9"),
+            last_log_time_ns=6 * 10**9 + 5),
+     "frames 3-5 (log times 4.000000000 .. 6.000000005) lost with the chunk at byte 9"),
     (Damage(DamageKind.LOST_FRAMES, "lost: x", frame_index=1, n_frames=1), "frame 1 lost: x"),
     (Damage(DamageKind.WRONG_SIZE, "m.mcap: mask is 2x2", frame_index=7, n_frames=1, stamp_ns=-1_500_000_000),
      "frame 7 (stamp -1.500000000) skipped: m.mcap: mask is 2x2"),

@@ -97,8 +97,9 @@ def test_two_frames_sharing_a_stamp_are_skipped_not_mispaired(tmp_path, order):
         np.testing.assert_array_equal(f.masks[layout.TRUTH_OUTLIERS], _truth(f.index))
     assert [(d.kind, d.frame_index, d.stamp_ns) for d in stream.damage] == [
         (DamageKind.DUPLICATE_STAMP, 7, 8 * 10**9), (DamageKind.DUPLICATE_STAMP, 8, 8 * 10**9)]
-    assert stream.damage[0].text == ("frame 7 (stamp 8.000000000) skipped: its header stamp is also frame 8's: images, "
-                                     "camera info and masks are paired by stamp, so the two frames' cannot be told apart")
+    assert stream.damage[0].text == (
+        "frame 7 (stamp 8.000000000) skipped: its header stamp is also frame 8's: images, "
+        "camera info and masks are paired by stamp, so the two frames' cannot be told apart")
     assert stream.damage[1].text.startswith("frame 8 (stamp 8.000000000) skipped: its header stamp is also frame 7's")
     for start, stop in ((0, 8), (7, 10), (8, None), (6, 8), (9, None), (3, 7)):  # any range reads the same
         part = r.frames(start=start, stop=stop)
