@@ -71,42 +71,34 @@ def _check_inputs(args: argparse.Namespace) -> None:
             raise FileNotFoundError(2, "no such file", str(path))
 
 
-def choose_model(args: argparse.Namespace, reader, *, stream=None):
-    """The bin model for ``reader``'s log (:func:`replay.pipeline.bin_model.bin_model_for`: ``--bin-model``,
-    else the log's own attachment, else None), printing its one warning line when there is none."""
+def model_chooser(args: argparse.Namespace):
+    """What :meth:`ReplaySession.open <replay.pipeline.session.ReplaySession.open>` calls with the opened
+    reader to choose the bin model: :func:`replay.pipeline.bin_model.bin_model_for` with ``--bin-model``
+    (given: that model; else the log's own attachment; else none, with a warning)."""
     from replay.pipeline.bin_model import bin_model_for
 
-    choice = bin_model_for(reader, getattr(args, "bin_model", None))
-    _warn(choice, stream)
-    return choice.model
+    _check_inputs(args)
+    explicit = getattr(args, "bin_model", None)
+    return lambda reader: bin_model_for(reader, explicit)
 
 
-def _warn(choice, stream) -> None:
+def warn_bin_model(session, *, stream=None) -> None:
+    """Print the one warning line of a session opened without a bin model (names the log, says what to do)."""
+    choice = session.bin_model_choice
     if choice is not None and choice.warning:
         print(f"warning: {choice.warning}", file=sys.stderr if stream is None else stream, flush=True)
 
 
-def load_model(args: argparse.Namespace, log: str | Path, *, stream=None):
-    """:func:`choose_model` for a command that opens ``log`` another way (``annotate``)."""
-    from replay.logs.reader import LogReader
-
-    _check_inputs(args)
-    return choose_model(args, LogReader(log, cloud_topic=getattr(args, "topic", None)), stream=stream)
-
-
 def open_session(log: str | Path, args: argparse.Namespace, *, overrides=None, stream=None):
     """Open ``log`` as a :class:`~replay.pipeline.session.ReplaySession` with the pipeline options and the
-    bin model :func:`choose_model` chooses (its warning printed when there is none)."""
-    from replay.pipeline.bin_model import bin_model_for
+    bin model :func:`model_chooser` chooses (its warning printed when there is none)."""
     from replay.pipeline.session import ReplaySession
 
-    _check_inputs(args)
-    explicit = getattr(args, "bin_model", None)
+    choose = model_chooser(args)
     session = ReplaySession.open(log, config_file=args.config,
                                  overrides=overrides_of(args) if overrides is None else overrides,
-                                 topic=getattr(args, "topic", None),
-                                 choose_bin_model=lambda reader: bin_model_for(reader, explicit))
-    _warn(session.bin_model_choice, stream)
+                                 topic=getattr(args, "topic", None), choose_bin_model=choose)
+    warn_bin_model(session, stream=stream)
     return session
 
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Self, TypeVar
 
 from replay.errors import LogDamageError, LogFormatError, OverCapError
 from replay.logs import layout
@@ -182,7 +182,7 @@ class FrameStream(Iterator[Frame]):
         """What this pass lost so far, in the order met (final once it has ended)."""
         return tuple(self._damage)
 
-    def __iter__(self) -> FrameStream:
+    def __iter__(self) -> Self:
         return self
 
     def __next__(self) -> Frame:
@@ -192,7 +192,7 @@ class FrameStream(Iterator[Frame]):
         """Stop reading (the file is closed); :attr:`damage` is then final."""
         self._gen.close()
 
-    def __enter__(self) -> FrameStream:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:

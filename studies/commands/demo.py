@@ -38,6 +38,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from annotate.truth import SyntheticTruth, scored_region
     from replay.commands.replay import print_table_callbacks, viewer_command
+    from replay.logs.reader import LogReader
     from replay.outputs import OutputPlan, config_path_for
     from replay.pipeline.bin_model import BinModelChoice, bin_model_for, ensure_sample_bin_model, load_bin_model
     from replay.pipeline.session import ReplaySession
@@ -54,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"zcut: synthesising the sample log (once): {sample_log_path()}", file=err, flush=True)
     sample = ensure_sample_log(progress=progress)
 
-    def sample_model(reader) -> BinModelChoice:
+    def sample_model(reader: LogReader) -> BinModelChoice:
         choice = bin_model_for(reader, None)
         if choice.model is not None:
             print("zcut: bin model: the sample's own (its bin_model.ply attachment)", file=err, flush=True)

@@ -91,32 +91,41 @@ def test_replay_uses_the_logs_own_model(logs, capsys):
 
 
 def test_a_log_without_a_model_warns_once_in_each_command(logs, capsys, tmp_path):
-    d, synth, _, bare = logs
+    _, _, _, bare = logs
     assert LogReader(bare).bin_model_ply is None and LogReader(bare).bin_model_problem is None
     for argv in (("replay", bare), ("accuracy", bare), ("batch", bare, "-o", tmp_path / "b"),
                  ("sweep", bare, "--step", "0.2", "--max-depth", "30", "--rho", "0.07", "-o", tmp_path / "s",
                   "--no-report")):
-        rc, out, err = run_cli(capsys, *argv)
+        rc, _, err = run_cli(capsys, *argv)
         assert rc == 0, (argv, err)
         lines = [line for line in err.splitlines() if NO_MODEL in line]
         assert len(lines) == 1, (argv[0], err)
         assert lines[0].startswith(f"warning: {bare} carries no bin model (no bin_model.ply attachment)")
         assert f"zcut bin-model EMPTY.mcap --into {bare} -o NEW.mcap" in lines[0] and "--bin-model PLY" in lines[0]
-    rc, out, err = run_cli(capsys, "replay", bare, "--bin-model", tmp_path / "none.ply")
+    rc, _, err = run_cli(capsys, "replay", bare, "--bin-model", tmp_path / "none.ply")
     assert rc == 1 and err.startswith("error: no such file")
 
 
-def test_annotate_chooses_the_same_model(logs, capsys):
-    """``zcut annotate`` opens its log through the same choice (its warning, its model)."""
-    import argparse
-
-    from replay.commands.common import load_model
+@pytest.mark.slow
+def test_annotate_uses_the_logs_model_and_says_so_on_the_page(logs, tmp_path):
+    """``zcut annotate`` (a real server process) replays with the log's own model; without one it prints
+    the one warning line and the page lists it among its notes (it shows little to label: now it says why)."""
+    import httpx
+    from annotate_helpers import ServerProcess
 
     _, synth, _, bare = logs
-    args = argparse.Namespace(bin_model=None, topic=None, config=None)
-    assert load_model(args, synth) is not None and NO_MODEL not in capsys.readouterr().err
-    assert load_model(args, bare) is None
-    assert capsys.readouterr().err.count(NO_MODEL) == 1
+    for log, has in ((synth, True), (bare, False)):
+        srv = ServerProcess(log, tmp_path / f"{log.stem}.sqlite", annotator="alice")
+        try:
+            notes = httpx.get(f"{srv.base}/api/session", headers=srv.headers()).json()["notes"]
+        finally:
+            srv.stop()
+        warned = [x for x in srv.stderr_lines if NO_MODEL in x]
+        if has:
+            assert not warned and not any(NO_MODEL in n for n in notes), (srv.stderr_lines, notes)
+        else:
+            assert len(warned) == 1 and warned[0].startswith(f"warning: {bare} carries no bin model")
+            assert any(n.startswith(f"{bare} carries no bin model") for n in notes), notes
 
 
 def test_bin_model_into_writes_a_copy_and_never_the_input(logs, tmp_path, capsys):
@@ -161,7 +170,7 @@ def test_bin_model_into_writes_a_copy_and_never_the_input(logs, tmp_path, capsys
 
 
 def test_record_attaches_a_bin_model(logs, tmp_path, capsys, real_data):
-    d, _, empty, _ = logs
+    _, _, empty, _ = logs
     ply = tmp_path / "bin.ply"
     assert run_cli(capsys, "bin-model", empty, "-o", ply)[0] == 0
     out = tmp_path / "rec.mcap"
@@ -192,12 +201,12 @@ def test_a_damaged_attachment_is_a_named_warning(logs, tmp_path, capsys):
     bad.write_bytes(bytes(raw))
     reader = LogReader(bad)
     assert reader.bin_model_ply is None and "attachment is damaged (fails its CRC check)" in reader.bin_model_problem
-    rc, out, err = run_cli(capsys, "replay", bad)
+    rc, _, err = run_cli(capsys, "replay", bad)
     assert rc == 0 and "Traceback" not in err, err
     (line,) = [x for x in err.splitlines() if "bin_model.ply" in x]
     assert line.startswith(f"warning: {bad}: its bin_model.ply attachment is damaged (fails its CRC check) and no "
                            "--bin-model was given")
-    rc, out, err = run_cli(capsys, "replay", bad, "--bin-model", tmp_path / "none.ply")
+    rc, _, err = run_cli(capsys, "replay", bad, "--bin-model", tmp_path / "none.ply")
     assert rc == 1
 
 
@@ -207,7 +216,7 @@ def test_an_explicit_model_wins_and_each_log_of_a_batch_gets_its_own(logs, tmp_p
     assert run_cli(capsys, "bin-model", empty, "-o", ply)[0] == 0
     choice = bin_model_for(LogReader(synth), ply)
     assert choice.source == "explicit" and len(choice.model.points) != len(bin_model_points()[0])
-    rc, out, err = run_cli(capsys, "batch", synth, bare, "-o", tmp_path / "b", "--json")
+    rc, _, err = run_cli(capsys, "batch", synth, bare, "-o", tmp_path / "b", "--json")
     assert rc == 0, err
     assert err.count(NO_MODEL) == 1 and f"warning: {bare} carries no bin model" in err
     import pyarrow.parquet as pq
