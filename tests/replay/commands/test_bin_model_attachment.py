@@ -227,3 +227,12 @@ def test_an_explicit_model_wins_and_each_log_of_a_batch_gets_its_own(logs, tmp_p
         by_log.setdefault(r["log"].rsplit("/", 1)[-1], []).append(r["warnings"])
     assert all("no bin model" not in w for w in by_log["rods.mcap"])
     assert all("no bin model" in w for w in by_log["bare.mcap"])
+
+
+def test_the_raytraced_sensor_attaches_the_same_bin(tmp_path):
+    """Both generators draw the same bin (replay.presets.BIN) at the same poses: the same model."""
+    from replay.synth.bin_surface import bin_model_ply
+    from replay.synth.raytrace import write_raytraced_log
+
+    rt = write_raytraced_log(tmp_path / "rt.mcap", kind="spheres", frames=1, seed=3, size=(40, 64), fill_mm=20.0)
+    assert LogReader(rt).bin_model_ply == bin_model_ply()
