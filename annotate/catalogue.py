@@ -111,6 +111,7 @@ class Catalogue:
     _cond: threading.Condition = field(default_factory=threading.Condition)
     _thread: threading.Thread | None = None
     _stop: threading.Event = field(default_factory=threading.Event)
+    _results: object | None = None  # the pass over the log: its ``damage`` names what a damaged log lost
 
     @classmethod
     def of_replay(cls, replay: ReplaySession, store: LabelStore, log: LogRecord) -> Catalogue:
@@ -132,7 +133,7 @@ class Catalogue:
         results = None
         try:
             t = time.monotonic()
-            results = self.results()
+            results = self._results = self.results()
             for frame, result in results:
                 if self._stop.is_set():
                     return
@@ -194,6 +195,11 @@ class Catalogue:
         """The prepared frames so far, in index order."""
         with self._cond:
             return [(self.frames[i], self.records[i]) for i in sorted(self.frames)]
+
+    @property
+    def damage(self) -> tuple:
+        """The damage records (:class:`replay.logs.damage.Damage`) of the pass over the log so far."""
+        return tuple(getattr(self._results, "damage", ()))
 
     @property
     def prepared(self) -> int:

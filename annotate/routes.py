@@ -85,8 +85,8 @@ class Page:
         The name every page labels as, or None when each page session chooses its own
         (``POST /api/annotator``).
     replay : ReplaySession or None
-        The log opened for replay: ``notes`` (what the config resolution decided) and
-        ``reader.damage`` (what a damaged log lost) are shown on the page.
+        The log opened for replay: its ``notes`` (what the config resolution decided) are shown on the
+        page, with the catalogue's ``damage`` (what a damaged log lost).
     clients : Clients
         The page sessions (cookies).
     presence : Presence or None
@@ -197,6 +197,14 @@ def static_file(page: Page, request: Request) -> Response:
 
 
 # --------------------------------------------------------------------------- the session and the annotator
+def _notes(replay: Any) -> list[str]:
+    """What the config resolution decided, and the warning of a log replayed without a bin model."""
+    if replay is None:
+        return []
+    choice = getattr(replay, "bin_model_choice", None)
+    return list(replay.notes) + ([choice.warning] if choice is not None and choice.warning else [])
+
+
 def api_session(page: Page, request: Request) -> Response:
     """``GET /api/session``: the log, the annotator, preparation progress, notes, damage, other servers."""
     c = page.catalogue
@@ -207,8 +215,8 @@ def api_session(page: Page, request: Request) -> Response:
         "log": page.log.name, "sha256": page.log.sha256, "mode": _mode(page),
         "annotator": page.annotator or (client.annotator if client else None),
         "total": c.total, "prepared": c.prepared, "done": c.done, "error": c.error,
-        "notes": list(replay.notes) if replay is not None else [],
-        "damage": list(replay.reader.damage) if replay is not None else [],
+        "notes": _notes(replay),
+        "damage": [d.text for d in c.damage],
         "annotators": page.store.annotators(page.log),
         "other_servers": [describe_server(s) for s in others], "turbo": page.turbo,
     })

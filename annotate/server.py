@@ -48,6 +48,8 @@ from annotate.routes import ROUTES, Page
 from annotate.store import LabelStore, LabelValidationError, StoreError
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     import uvicorn
 
     from zcut.bin_model import BinModel
@@ -98,6 +100,7 @@ def open_page(
     token: str | None = None,
     overrides: dict[str, Any] | None = None,
     topic: str | None = None,
+    choose_bin_model: Callable[[Any], Any] | None = None,
 ) -> Page:
     """Open the log for replay and the store, and start preparing frames.
 
@@ -114,6 +117,9 @@ def open_page(
         The command line's config layer (:func:`replay.pipeline.config.cli_layer`).
     topic : str, optional
         The cloud topic.
+    choose_bin_model : callable, optional
+        Chooses the bin model from the opened reader when ``bin_model`` is None
+        (:meth:`replay.pipeline.session.ReplaySession.open`); its warning is among the page's notes.
 
     Candidates come from :meth:`replay.pipeline.session.ReplaySession.results` with the config
     resolved as ``zcut replay`` resolves it. The log is read and its config resolved before the
@@ -128,7 +134,7 @@ def open_page(
 
     log_path = Path(log_path)
     replay = ReplaySession.open(log_path, config_file=config_path, overrides=overrides, topic=topic,
-                                bin_model=bin_model)
+                                bin_model=bin_model, choose_bin_model=choose_bin_model)
     store = LabelStore(db_path)
     catalogue = None
     try:

@@ -41,6 +41,7 @@ class LogPlan:
     sha256: str = ""
     n_frames: int | None = None
     resolved: Resolved | None = None
+    bin_model_warning: str | None = None  # no bin model for this log (bin_model_source's warning)
     units: list[WorkUnit] = field(default_factory=list)
     error: str | None = None
 
@@ -68,10 +69,13 @@ def file_sha256(path: Path) -> str:
 
 def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str, Any], topic: str | None,
               frames_per_unit: int, whole: bool,
-              progress: Callable[[int, int, Path], None] | None = None) -> list[LogPlan]:
+              progress: Callable[[int, int, Path], None] | None = None,
+              bin_model: str | None = None) -> list[LogPlan]:
     """Every input log with its resolved config and units; a log that cannot be opened keeps its
-    error (a warning and exit 3 at the end) unless no log at all can be used (an error)."""
+    error (a warning and exit 3 at the end) unless no log at all can be used (an error). A log that
+    gets no bin model (no ``bin_model``, no attachment of its own) keeps the warning that says so."""
     from replay.pipeline import config as cfg
+    from replay.pipeline.bin_model import bin_model_source
     from replay.pipeline.session import open_log
 
     paths = [p.resolve() for p in expand_logs(inputs)]  # absolute: units run in other folders and nodes
@@ -85,7 +89,8 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str
             plan.sha256 = file_sha256(path)
             plan.units, plan.n_frames = plan_log(path, sha256=plan.sha256, frames_per_unit=frames_per_unit,
                                                  whole=whole, topic=topic)
-            _, _, plan.resolved = open_log(path, file_layer=file_layer, overrides=overrides, topic=topic)
+            reader, _, plan.resolved = open_log(path, file_layer=file_layer, overrides=overrides, topic=topic)
+            plan.bin_model_warning = bin_model_source(reader, bin_model)[1]
         except ConfigError:
             raise  # the options are wrong for every log: an error before any work
         except (ZcutError, OSError) as e:
@@ -129,6 +134,8 @@ def start_units(plans: list[LogPlan], store: PartStore, *, what: str, executor: 
     for p in plans:
         if p.error:
             print(f"warning: {p.path}: {p.error} (left out; exit 3 at the end)", file=err)
+        elif p.bin_model_warning:
+            print(f"warning: {p.bin_model_warning}", file=err)
     units = [u for p in plans for u in p.units]
     todo = [u for u in units if not store.done(u.key)]
     done = len(units) - len(todo)
@@ -224,5 +231,6 @@ def execute(units: list[WorkUnit], job: Job, fn: UnitFn, executor: Executor, sto
 def meta_of(res: UnitResult) -> dict[str, Any]:
     u = res.unit
     return {"log": u.log, "sha256": u.sha256, "start": u.start, "stop": u.stop, "frames": res.frames,
-            "damage": res.damage, "unscored": res.unscored, "seconds": res.seconds, "cpu_seconds": res.cpu_seconds,
+            "damage": [d.text for d in res.damage], "unscored": res.unscored, "seconds": res.seconds,
+            "cpu_seconds": res.cpu_seconds,
             "peak_rss_mb": res.peak_rss_mb}

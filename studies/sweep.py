@@ -139,8 +139,8 @@ def run_sweep_unit(unit: WorkUnit, job: Job) -> UnitResult:
                     continue
                 res.rows += sweep_frame(unit, frame, zone, session.config, grid, t, _region(zone, job.region))
         finally:
-            zones.close()  # type: ignore[attr-defined]  # a generator (ReplaySession.zones is typed Iterator)
-            res.damage = list(session.reader.damage)
+            zones.close()
+            res.damage = list(zones.damage)
 
     return run_unit(unit, job, body)
 

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from replay.logs.damage import Damage
 from zcut.errors import ZcutError
 
 if TYPE_CHECKING:
@@ -86,8 +87,8 @@ class UnitResult:
     unit : WorkUnit
     rows : list of dict
         The table rows (one per frame for a batch; per frame × parameter set × method for a sweep).
-    damage : list of str
-        Frames of the unit's range that could not be read, one note each.
+    damage : list of replay.logs.damage.Damage
+        What the pass over the unit's range lost (every frame that could not be read is named).
     error : str or None
         Why the unit failed as a whole (its frames are then not in ``rows``).
     frames : int
@@ -101,7 +102,7 @@ class UnitResult:
 
     unit: WorkUnit
     rows: list[dict[str, Any]] = field(default_factory=list)
-    damage: list[str] = field(default_factory=list)
+    damage: list[Damage] = field(default_factory=list)
     error: str | None = None
     frames: int = 0
     seconds: float = 0.0
@@ -115,9 +116,7 @@ class UnitResult:
 
 
 @functools.lru_cache(maxsize=2)
-def _bin_model(path: str | None) -> BinModel | None:
-    if path is None:
-        return None
+def _bin_model(path: str | Path) -> BinModel:
     from replay.pipeline.bin_model import load_bin_model
 
     return load_bin_model(path)
@@ -130,7 +129,10 @@ _MAX_SESSIONS = 2
 
 def open_unit_session(unit: WorkUnit, job: Job) -> ReplaySession:
     """The unit's log as a replay session running the config the driver resolved for it (never
-    resolved again here); the worker keeps the last two sessions it opened."""
+    resolved again here), with the bin model :func:`replay.pipeline.bin_model.bin_model_for` chooses
+    for it (``--bin-model``, else the log's own attachment: each log of a study its own); the worker
+    keeps the last two sessions it opened."""
+    from replay.pipeline.bin_model import bin_model_for
     from replay.pipeline.config import config_sha256
     from replay.pipeline.session import ReplaySession
 
@@ -141,7 +143,7 @@ def open_unit_session(unit: WorkUnit, job: Job) -> ReplaySession:
     session = _SESSIONS.get(key)
     if session is None:
         session = ReplaySession.open(unit.log, resolved=resolved, topic=job.topic,
-                                     bin_model=_bin_model(job.bin_model))
+                                     choose_bin_model=lambda r: bin_model_for(r, job.bin_model, load=_bin_model))
         while len(_SESSIONS) >= _MAX_SESSIONS:
             _SESSIONS.pop(next(iter(_SESSIONS)))
         _SESSIONS[key] = session
@@ -250,8 +252,8 @@ def _batch_frames(unit: WorkUnit, job: Job, res: UnitResult, session: ReplaySess
             res.frames += 1
         completed = True
     finally:
-        results.close()  # type: ignore[attr-defined]  # a generator (ReplaySession.results is typed Iterator)
-        res.damage = list(session.reader.damage)
+        results.close()
+        res.damage = list(results.damage)
         for s in sinks:
             s.close(completed=completed)
 

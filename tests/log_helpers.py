@@ -35,3 +35,13 @@ def mutations(raw: bytes, rng: np.random.Generator, n: int) -> Iterator[tuple[in
             pos = int(rng.integers(0, len(b)))
             b[pos : pos + int(rng.integers(1, 512))] = bytes(min(len(b) - pos, 512))[: len(b[pos : pos + 512])]
         yield kind, bytes(b)
+
+
+def read_frames(path, *, start: int = 0, stop: int | None = None, **reader_options) -> tuple[list, list[str]]:
+    """One pass over a log: (its frames, the texts of the pass's damage records, as a user reads them)."""
+    from replay.logs.damage import damage_lines
+    from replay.logs.reader import LogReader
+
+    stream = LogReader(path, **reader_options).frames(start=start, stop=stop)
+    got = list(stream)
+    return got, damage_lines(stream.damage)

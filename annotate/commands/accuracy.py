@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         region_of_results_frame,
         scored_region,
     )
-    from replay.commands.common import load_model, open_session, overrides_of
+    from replay.commands.common import open_session, overrides_of
     from replay.pipeline.methods import base_methods, method_masks
     from replay.logs.reader import LogReader
     from zcut.errors import ParameterError, ZcutError
@@ -75,11 +75,11 @@ def run(args: argparse.Namespace) -> int:
             raise ZcutError(f"{args.log} has no {layout.TRUTH_OUTLIERS}: give human labels with --labels DB")
         session = None
         if is_results:
-            frames = ((f, None) for f in reader.frames())
+            stream = reader.frames()
+            frames = ((f, None) for f in stream)
         else:  # predictions computed as `zcut replay` computes them (the same resolved config)
-            session = open_session(args.log, args, bin_model=load_model(args), overrides=overrides)
-            reader = session.reader
-            frames = session.results()
+            session = open_session(args.log, args, overrides=overrides)
+            frames = stream = session.results()
         results, unscored = [], []
         for frame, r in frames:
             if r is None:
@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"{len(unscored)} frame(s) unscored: " + "; ".join(
                     f"frame {u.index}: {u.reason}" for u in unscored[:5]) + (" …" if len(unscored) > 5 else ""))
             print(format_accuracy_table(report, per_frame=args.per_frame))
-        return _status(reader)
+        return _status(stream.damage)
     finally:
         if hasattr(truth_src, "close"):
             truth_src.close()
@@ -152,7 +152,8 @@ def _agreement(args) -> int:
     reader = LogReader(args.log, cloud_topic=args.topic)
     try:
         rows = []
-        for frame in reader.frames():
+        stream = reader.frames()
+        for frame in stream:
             la = ta.store.label(r, annotator=a) if (r := ta.record(frame)) is not None else None
             lb = tb.store.label(r, annotator=b) if (r := tb.record(frame)) is not None else None
             if la is not None and lb is not None:
@@ -162,15 +163,16 @@ def _agreement(args) -> int:
             raise ZcutError(f"no frame of {args.log} is labelled by both {a!r} and {b!r} in {args.labels}")
         rep = agreement_report(a, b, rows)
         print(report_json(rep, indent=None) if args.json else format_agreement_table(rep))
-        return _status(reader)
+        return _status(stream.damage)
     finally:
         ta.close()
         tb.close()
 
 
-def _status(reader) -> int:
-    if reader.damage:
-        for d in reader.damage:
-            print(f"warning: {d}", file=sys.stderr)
+def _status(damage) -> int:
+    """Exit status 3 when the pass over the log lost frames (each loss printed as a warning)."""
+    if damage:
+        for d in damage:
+            print(f"warning: {d.text}", file=sys.stderr)
         return 3
     return 0

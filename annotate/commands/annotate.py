@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     import webbrowser
 
     from annotate.server import make_server, open_page
-    from replay.commands.common import load_model, overrides_of
+    from replay.commands.common import model_chooser, overrides_of, warn_bin_model
     from zcut.errors import ParameterError
 
     if not (0 <= args.port <= 65535):
@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     overrides = overrides_of(args)  # bad values fail before the log is read
     if args.config is not None and not Path(args.config).is_file():
         raise FileNotFoundError(2, "no such file", str(args.config))
-    model = load_model(args)
+    choose = model_chooser(args)  # --bin-model, else the log's own (checked before the log is read)
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # restart at once on the same port
     # small responses (a label, the session) otherwise wait ~40 ms for the client's delayed ACK
@@ -60,8 +60,9 @@ def run(args: argparse.Namespace) -> int:
         except OSError as e:
             raise ParameterError(f"--port {args.port}: cannot listen on 127.0.0.1: {e.strerror}") from None
         port = sock.getsockname()[1]
-        page = open_page(args.log, db, annotator=annotator, config_path=args.config, bin_model=model,
+        page = open_page(args.log, db, annotator=annotator, config_path=args.config, choose_bin_model=choose,
                          overrides=overrides, topic=args.topic)
+        warn_bin_model(page.replay)
         for other in page.announce(port):
             print(f"warning: {other} serves the same label store {db}: edits from both are kept, "
                   "but the same annotator on both will meet conflicts", file=sys.stderr, flush=True)

@@ -1,15 +1,24 @@
-"""``zcut bin-model EMPTY.mcap -o bin.ply``: the bin model from empty-bin scans (paper §5.1)."""
+"""``zcut bin-model EMPTY.mcap -o bin.ply``: the bin model from empty-bin scans (paper §5.1).
+
+With ``--into LOG.mcap -o NEW.mcap`` the model goes into a copy of a log instead, as its
+``bin_model.ply`` attachment (``docs/formats.md``, "Bin model attachment"): every command then replays
+NEW.mcap with it, without ``--bin-model``. LOG.mcap is only read.
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", metavar="EMPTY.mcap", nargs="?",
                    help="log of the empty bin (RGB + organized cloud), e.g. several positions on the table")
-    p.add_argument("-o", "--output", metavar="bin.ply", required=True, help="where to write the model (PLY)")
+    p.add_argument("-o", "--output", metavar="bin.ply", required=True,
+                   help="where to write the model (PLY), or with --into the new log (NEW.mcap)")
+    p.add_argument("--into", metavar="LOG.mcap", help="write the model into a copy of LOG.mcap (its bin_model.ply "
+                   "attachment) at -o NEW.mcap, which every command then replays with it; LOG.mcap is not modified")
     p.add_argument("--model", metavar="PLY", help="use this CAD/PLY model instead of building one "
                    "(metres, up = -z); it is sampled, given normals and written to -o")
     p.add_argument("--z-up", action="store_true", help="the --model has +z up (CAD convention): turn it over "
@@ -31,20 +40,19 @@ MIN_SCAN_FITNESS = 0.6
 def run(args: argparse.Namespace) -> int:
     from replay.errors import ConfigError
     from replay.logs import layout
-    from replay.outputs import AtomicOutput, OutputPlan
+    from replay.outputs import OutputPlan
     from replay.pipeline import config as cfg
-    from replay.pipeline.bin_model import (
-        build_bin_model,
-        load_bin_model,
-        save_bin_model,
-    )
+    from replay.pipeline.bin_model import build_bin_model, load_bin_model
     from replay.pipeline.session import parse_frames
 
     if not args.voxel > 0:
         raise ConfigError(f"--voxel must be > 0 mm, got {args.voxel!r}")
     if (args.log is None) == (args.model is None):
         raise ConfigError("give either EMPTY.mcap or --model PLY (not both)")
-    OutputPlan([p for p in (args.log, args.model, args.config) if p], force=args.force).add(args.output, "the bin model")
+    if args.into is not None and not Path(args.into).is_file():
+        raise FileNotFoundError(2, "no such file", str(args.into))
+    OutputPlan([p for p in (args.log, args.model, args.config, args.into) if p], force=args.force).add(
+        args.output, "the log with the bin model" if args.into else "the bin model")
     if args.model is not None:
         import numpy as np
 
@@ -56,9 +64,7 @@ def run(args: argparse.Namespace) -> int:
         flip = np.array([1.0, -1.0, -1.0]) if args.z_up else np.ones(3)  # 180 degrees about x
         model = BinModel(model.points * (flip * args.scale), None if model.normals is None else model.normals * flip,
                          model.spacing_m * args.scale)
-        with AtomicOutput(args.output) as out:
-            save_bin_model(model, out.temp)
-        print(f"zcut: wrote {args.output}: {len(model.points)} points from {args.model}", file=sys.stderr)
+        _write(args, model, f"{len(model.points)} points from {args.model}")
         return 0
     from replay.logs.reader import LogReader
 
@@ -73,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
     if layout.RESULTS_METADATA in reader.metadata and not args.force:
         raise ConfigError(f"{args.log} is a results file of zcut replay, not empty-bin scans")
     start, stop = parse_frames(args.frames)
-    model, reports = build_bin_model(reader.frames(start=start, stop=stop),
+    scans = reader.frames(start=start, stop=stop)
+    model, reports = build_bin_model(scans,
                                      bin_mask_params=BinMaskParams(**layer.get("bin_mask", {})),
                                      registration=RegistrationParams(**layer.get("registration", {})),
                                      voxel_mm=args.voxel)
@@ -90,14 +97,35 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"scan(s) {', '.join(str(r.index) for r in weak)} fit the first scan poorly (fitness "
                           f"{min(r.registration.fitness for r in weak):.2f} < {MIN_SCAN_FITNESS}): is the bin empty "
                           "and the same in every scan? (--force to build anyway)")
-    with AtomicOutput(args.output) as out:
-        save_bin_model(model, out.temp)
     used = sum(1 for r in reports if not r.skipped)
-    print(f"zcut: wrote {args.output}: {len(model.points)} points from {used} scan(s)", file=sys.stderr)
-    if reader.damage:
-        for d in reader.damage:
-            print(f"warning: data loss: {d}", file=sys.stderr)
+    _write(args, model, f"{len(model.points)} points from {used} scan(s)")
+    if scans.damage:
+        for d in scans.damage:
+            print(f"warning: data loss: {d.text}", file=sys.stderr)
         from replay.process import EXIT_DATA_LOSS
 
         return EXIT_DATA_LOSS
     return 0
+
+
+def _write(args: argparse.Namespace, model, what: str) -> None:
+    """The model as a PLY at ``-o``, or with ``--into`` a copy of that log carrying it at ``-o``."""
+    from replay.logs import layout
+    from replay.logs.mcap_write import copy_with_attachment
+    from replay.outputs import AtomicOutput
+    from replay.pipeline.bin_model import bin_model_ply_bytes, save_bin_model
+
+    with AtomicOutput(args.output) as out:
+        if args.into is None:
+            save_bin_model(model, out.temp)
+        else:
+            with open(out.temp, "wb") as f:
+                replaced = copy_with_attachment(args.into, f, name=layout.BIN_MODEL_ATTACHMENT,
+                                                media_type=layout.BIN_MODEL_MEDIA_TYPE, data=bin_model_ply_bytes(model))
+    if args.into is None:
+        print(f"zcut: wrote {args.output}: {what}", file=sys.stderr)
+        return
+    if replaced:
+        print(f"zcut: the bin model {args.into} carried is replaced in the copy", file=sys.stderr)
+    print(f"zcut: wrote {args.output}: a copy of {args.into} carrying its bin model ({layout.BIN_MODEL_ATTACHMENT}: "
+          f"{what}); commands replay it with that model without --bin-model", file=sys.stderr)

@@ -2,12 +2,15 @@
 
 Every command that runs the pipeline on a log (``replay``, ``demo``, ``accuracy``, ``annotate``,
 ``sweep``, ``batch``) takes the same options from :func:`add_pipeline_options` and opens its log
-with :func:`open_session`, so that it resolves the same config (SPEC §4, "Same filter everywhere").
+with :func:`open_session`, so that it resolves the same config (SPEC §4, "Same filter everywhere"),
+and replays it with the bin model :func:`replay.pipeline.bin_model.bin_model_for` chooses: the
+``--bin-model`` given, else the log's own attachment, else none, with one warning line.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +41,8 @@ def add_pipeline_options(p: argparse.ArgumentParser, *, bin_model: bool = True, 
     p.set_defaults(zcut_overrides=zcut)
     if bin_model:
         g.add_argument("--bin-model", metavar="PLY", help="bin model (from `zcut bin-model` or a CAD PLY); "
-                       "without it the bin stages are skipped")
+                       "without it the log's own bin model attachment is used, and without that the bin stages "
+                       "are skipped")
 
 
 def overrides_of(args: argparse.Namespace) -> dict[str, Any]:
@@ -61,23 +65,41 @@ def inputs_of(args: argparse.Namespace) -> list[str]:
     return [p for p in (getattr(args, "config", None), getattr(args, "bin_model", None)) if p]
 
 
-def load_model(args: argparse.Namespace):
-    """The ``--bin-model`` (None without one)."""
-    from replay.pipeline.bin_model import load_bin_model
-
-    path = getattr(args, "bin_model", None)
-    return load_bin_model(path) if path else None
+def _check_inputs(args: argparse.Namespace) -> None:
+    for path in (getattr(args, "config", None), getattr(args, "bin_model", None)):
+        if path and not Path(path).is_file():
+            raise FileNotFoundError(2, "no such file", str(path))
 
 
-def open_session(log: str | Path, args: argparse.Namespace, *, bin_model=None, overrides=None):
-    """Open ``log`` as a :class:`~replay.pipeline.session.ReplaySession` with the pipeline options."""
+def model_chooser(args: argparse.Namespace):
+    """What :meth:`ReplaySession.open <replay.pipeline.session.ReplaySession.open>` calls with the opened
+    reader to choose the bin model: :func:`replay.pipeline.bin_model.bin_model_for` with ``--bin-model``
+    (given: that model; else the log's own attachment; else none, with a warning)."""
+    from replay.pipeline.bin_model import bin_model_for
+
+    _check_inputs(args)
+    explicit = getattr(args, "bin_model", None)
+    return lambda reader: bin_model_for(reader, explicit)
+
+
+def warn_bin_model(session, *, stream=None) -> None:
+    """Print the one warning line of a session opened without a bin model (names the log, says what to do)."""
+    choice = session.bin_model_choice
+    if choice is not None and choice.warning:
+        print(f"warning: {choice.warning}", file=sys.stderr if stream is None else stream, flush=True)
+
+
+def open_session(log: str | Path, args: argparse.Namespace, *, overrides=None, stream=None):
+    """Open ``log`` as a :class:`~replay.pipeline.session.ReplaySession` with the pipeline options and the
+    bin model :func:`model_chooser` chooses (its warning printed when there is none)."""
     from replay.pipeline.session import ReplaySession
 
-    if config := getattr(args, "config", None):
-        if not Path(config).is_file():
-            raise FileNotFoundError(2, "no such file", str(config))
-    return ReplaySession.open(log, config_file=args.config, overrides=overrides_of(args) if overrides is None else overrides,
-                              topic=getattr(args, "topic", None), bin_model=bin_model)
+    choose = model_chooser(args)
+    session = ReplaySession.open(log, config_file=args.config,
+                                 overrides=overrides_of(args) if overrides is None else overrides,
+                                 topic=getattr(args, "topic", None), choose_bin_model=choose)
+    warn_bin_model(session, stream=stream)
+    return session
 
 
 def add_force_option(p: argparse.ArgumentParser) -> None:

@@ -2,7 +2,9 @@
 
 Each cloud goes to ``/camera/points`` (PointCloud2, metres) and, when there is colour, an RGB image
 to ``/camera/image``: a same-named ``.png`` next to the cloud file when present, else the cloud's
-own colours. Frames are stamped ``--stamp-start + i * --period``.
+own colours. Frames are stamped ``--stamp-start + i * --period``. ``--bin-model PLY`` attaches a bin
+model (from ``zcut bin-model``, or a CAD PLY in zcut's bin frame) to the log as its ``bin_model.ply``
+attachment (``docs/formats.md``, "Bin model attachment"): every command then replays the log with it.
 """
 
 from __future__ import annotations
@@ -34,6 +36,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--unit", choices=("auto", "m", "mm"), default="auto",
         help="unit of the input coordinates; auto = mm when the median |z| exceeds 20 (default auto)",
+    )
+    parser.add_argument(
+        "--bin-model", metavar="PLY",
+        help="attach this bin model (from `zcut bin-model`; metres, bin frame, up = -z) to the log: commands "
+             "replay it with that model without --bin-model",
     )
 
 
@@ -99,10 +106,14 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--stamp-start {args.stamp_start:g} + {len(files) - 1} × --period {args.period:g} s "
                           "goes past the ROS 2 time range (2038-01-19)")
     out = Path(args.output)
-    OutputPlan([str(f) for f in files], force=args.force).add(out, "the log")
+    inputs = [str(f) for f in files] + ([args.bin_model] if args.bin_model else [])
+    OutputPlan(inputs, force=args.force).add(out, "the log")
+    attachments = {}
+    if args.bin_model is not None:
+        attachments[layout.BIN_MODEL_ATTACHMENT] = (layout.BIN_MODEL_MEDIA_TYPE, _bin_model_bytes(args.bin_model))
     meta = {"zcut.record": {"sources": "\n".join(str(f) for f in files), "unit": args.unit}}
     with AtomicOutput(out) as target:
-        with LogWriter(target.temp, metadata=meta) as w:
+        with LogWriter(target.temp, metadata=meta, attachments=attachments) as w:
             for i, f in enumerate(files):
                 cloud = read_pcd(f) if f.suffix.lower() == ".pcd" else read_ply(f, shape=shape)
                 xyz = cloud.xyz
@@ -144,8 +155,25 @@ def run(args: argparse.Namespace) -> int:
                     f"{i:4d} {f.name}: {xyz.shape[0]}x{xyz.shape[1]}, {n_valid} valid points, "
                     f"unit {unit}, image from {src}"
                 )
-    print(f"wrote {len(files)} frames to {out}")
+    print(f"wrote {len(files)} frames to {out}" + (f" with the bin model {args.bin_model}" if args.bin_model else ""))
     return 0
+
+
+def _bin_model_bytes(path: str) -> bytes:
+    """The PLY's bytes, once it has read as a bin model (bounded PLY reader, at least one point)."""
+    from replay.errors import LogFormatError
+    from replay.logs.files import DEFAULT_MAX_MESSAGE_BYTES, open_input
+    from replay.logs.ply import read_ply_model_bytes
+
+    f, size = open_input(path, "a PLY file")
+    with f:
+        if size > DEFAULT_MAX_MESSAGE_BYTES:
+            raise LogFormatError(f"{path}: PLY file of {size} bytes is more than the cap of "
+                                 f"{DEFAULT_MAX_MESSAGE_BYTES}")
+        data = f.read()
+    if len(read_ply_model_bytes(data, name=str(path)).points) == 0:
+        raise LogFormatError(f"{path}: no points in the bin model (expected a PLY point cloud or mesh)")
+    return data
 
 
 def _png_size(path: Path) -> tuple[int, int]:

@@ -143,7 +143,7 @@ def check_viewer_url(url: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from replay.process import EXIT_DATA_LOSS
-    from replay.commands.common import inputs_of, load_model, open_session, overrides_of
+    from replay.commands.common import inputs_of, open_session, overrides_of
     from replay.errors import ConfigError
     from replay.pipeline.session import parse_frames
     from replay.pipeline.sinks import BackgroundSinks
@@ -151,8 +151,7 @@ def run(args: argparse.Namespace) -> int:
     frames = parse_frames(args.frames)
     overrides = overrides_of(args)  # bad values fail before the log is read
     sinks = plan_outputs(args, inputs=[args.log, *inputs_of(args)])
-    model = load_model(args)
-    session = open_session(args.log, args, bin_model=model, overrides=overrides)
+    session = open_session(args.log, args, overrides=overrides)
     from replay.logs import layout
 
     if layout.RESULTS_METADATA in session.reader.metadata:
@@ -181,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
         return 1
     if summary.damage:
         for d in summary.damage:
-            print(f"warning: data loss: {d}", file=sys.stderr)
+            print(f"warning: data loss: {d.text}", file=sys.stderr)
         print(f"zcut: {len(summary.rows)} intact frame(s) processed; the log is damaged", file=sys.stderr)
         return EXIT_DATA_LOSS
     return 0

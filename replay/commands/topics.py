@@ -24,6 +24,7 @@ def _stamp(ns: int) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from replay.errors import LogFormatError
+    from replay.logs import layout
     from replay.logs.reader import LogReader, inspect_log
 
     info = inspect_log(args.log)
@@ -48,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
             first = v.splitlines()[0] if v else ""
             more = f" … ({len(v.splitlines())} lines)" if "\n" in v.strip() else ""
             print(f"  {k}: {first}{more}")
-    for note in info.notes + info.peek_damage:
+    for note in info.notes + [d.text for d in info.peek_damage]:
         print(f"warning: {note}")
     try:
         r = LogReader(args.log, cloud_topic=args.topic, image_topic=args.image_topic)
@@ -58,23 +59,34 @@ def run(args: argparse.Namespace) -> int:
     for note in r.notes:
         if note not in info.notes:
             print(f"note: {note}")
+    for name, media_type, size in r.attachments():
+        print(f"attachment '{name}': {media_type}" + (f", {size} bytes" if size is not None else ""))
     print("zcut would use:")
     n = "?" if r.n_frames is None else r.n_frames
     print(f"  cloud:       {r.cloud_topic}  ({n} frames)")
     print(f"  image:       {r.image_topic or '- (colours from the cloud, if any)'}")
     print(f"  camera info: {r.info_topic or '-'}")
     print(f"  masks:       {', '.join(r.mask_topics) or '-'}")
+    if r.attached_bin_model is not None:
+        n = len(r.attached_bin_model.points)
+        print(f"  bin model:   its {layout.BIN_MODEL_ATTACHMENT} attachment ({n} points)")
+    elif r.bin_model_problem:
+        print(f"  bin model:   - ({r.bin_model_problem})")
+    else:
+        print(f"  bin model:   - (no {layout.BIN_MODEL_ATTACHMENT} attachment: give --bin-model PLY, or attach one "
+              "with zcut bin-model --into)")
     if not args.check:
         return 0
     n_ok = 0
     with_image = 0
-    for frame in r.frames():
+    stream = r.frames()
+    for frame in stream:
         n_ok += 1
         with_image += frame.rgb is not None
     print(f"check: {n_ok} frames decoded ({with_image} with colour)")
-    if r.damage:
-        for note in r.damage:
-            print(f"warning: {note}", file=sys.stderr)
+    if stream.damage:
+        for d in stream.damage:
+            print(f"warning: {d.text}", file=sys.stderr)
         print(f"warning: {args.log} is damaged; {n_ok} intact frames were read", file=sys.stderr)
         return 3
     return 0

@@ -61,6 +61,11 @@ CODE_TOPICS = (TRUTH_OUTLIER_KIND,)
 LABEL_OUTLIERS = "/labels/outliers"
 LABEL_REVIEWED = "/labels/reviewed"
 
+# MCAP attachments: the bin model a log carries (docs/formats.md, "Bin model attachment"); a PLY point
+# cloud with normals or a mesh, metres, in the bin frame (up = -z), as `zcut bin-model` writes it
+BIN_MODEL_ATTACHMENT = "bin_model.ply"
+BIN_MODEL_MEDIA_TYPE = "application/x-ply"
+
 # MCAP metadata record names
 SYNTH_METADATA = "zcut.synth"
 #: true bin pose of every synthetic frame: key = str(stamp_ns), value = the 16 row-major floats of

@@ -16,11 +16,12 @@ bound):
   CRC-checked with ISA-L's CRC-32 (the zlib polynomial, about 4x faster than ``zlib.crc32``);
 - the next chunks are read, decompressed and checked in worker threads while the caller decodes
   the current one (zstd and the CRC release the GIL), into reused buffers (:class:`BufferPool`);
-- on a corrupt chunk a damage note, then the scan goes on at the next chunk, using the summary's
-  chunk index when the file has one (so a corrupt record length does not lose the rest, nor
-  swallow the chunks it claims to cover), and says which messages were lost (per channel, their
-  log times, from the chunk's message indexes: a :class:`Lost`);
-- on a truncated file every complete record before the cut, then a damage note.
+- on a corrupt chunk a damage record (:class:`~replay.logs.damage.Damage`), then the scan goes on
+  at the next chunk, using the summary's chunk index when the file has one (so a corrupt record
+  length does not lose the rest, nor swallow the chunks it claims to cover), and says which
+  messages were lost (per channel, their log times, from the chunk's message indexes: a
+  :class:`Lost`);
+- on a truncated file every complete record before the cut, then a damage record.
 
 ``bench/bench_logread.py`` (3) credits this scanner and the PointCloud2 codec separately: the
 scanner alone costs about what ``mcap``'s own reader with CRC checks costs (it is kept for the
@@ -48,6 +49,8 @@ from isal.isal_zlib import crc32
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.records import (
+    Attachment,
+    AttachmentIndex,
     Channel,
     Chunk,
     ChunkIndex,
@@ -62,6 +65,7 @@ from mcap.records import (
 )
 
 from replay.errors import LogFormatError
+from replay.logs.damage import Damage, DamageKind
 from replay.logs.files import CHUNK_SLACK_BYTES, DEFAULT_MAX_MESSAGE_BYTES, open_input
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -82,11 +86,11 @@ OP_LOST = 0x100
 #: the number of CPUs), and the most uncompressed bytes they may hold beyond the first.
 PREFETCH = 2
 PREFETCH_BYTES = 256 << 20
-_OP_NOTE = -1  # internal: a damage note queued among the records
+_OP_NOTE = -1  # internal: a damage record queued among the records
 
 
 class _Bad(Exception):
-    """Internal: a record does not parse (turned into LogFormatError or a damage note)."""
+    """Internal: a record does not parse (turned into LogFormatError or a damage record)."""
 
 
 class BufferPool:
@@ -170,6 +174,7 @@ _PARSERS = {
     OP_HEADER: Header.read, OP_FOOTER: Footer.read, OP_SCHEMA: Schema.read, OP_CHANNEL: Channel.read,
     OP_MESSAGE_INDEX: MessageIndex.read, OP_CHUNK_INDEX: ChunkIndex.read, OP_STATISTICS: Statistics.read,
     OP_METADATA: Metadata.read, OP_METADATA_INDEX: MetadataIndex.read, OP_CHUNK: Chunk.read,
+    OP_ATTACHMENT: Attachment.read, OP_ATTACHMENT_INDEX: AttachmentIndex.read,
 }
 
 
@@ -225,9 +230,12 @@ class Summary:
     channels: dict[int, Channel] = field(default_factory=dict)
     chunk_indexes: list[ChunkIndex] = field(default_factory=list)
     metadata_offsets: list[tuple[str, int, int]] = field(default_factory=list)
+    attachment_indexes: list[AttachmentIndex] = field(default_factory=list)
     channel_message_counts: dict[int, int] | None = None
     message_start_time: int | None = None
     message_end_time: int | None = None
+    #: False when the footer says the file has no summary section (nothing above is then known)
+    indexed: bool = True
 
 
 def decompress(
@@ -342,12 +350,13 @@ class McapFile:
             raise LogFormatError(f"{self.path}: damaged MCAP header record ({e})") from e
         self.data_start = 8 + 9 + len(rec[1])
         self.data_end: int | None = None  # known when the footer is intact
-        self.summary_damage: str | None = None
+        self.summary_damage: Damage | None = None
         self.summary: Summary | None = None
         try:
             self.summary = self._read_summary()
         except _Bad as e:
-            self.summary_damage = f"the summary section is damaged ({e}); read sequentially"
+            self.summary_damage = Damage(DamageKind.DAMAGED_SUMMARY,
+                                         f"the summary section is damaged ({e}); read sequentially")
             self.summary = None
 
     def close(self) -> None:
@@ -395,6 +404,7 @@ class McapFile:
         s = Summary()
         if summary_start == 0:
             self.data_end = footer_at
+            s.indexed = False
             return s
         if not (self.data_start <= summary_start <= footer_at):
             raise _Bad(f"the footer points at offset {summary_start}, outside the file")
@@ -409,7 +419,7 @@ class McapFile:
             op, length = struct.unpack_from("<BQ", mv, pos)
             if pos + 9 + length > n:
                 raise _Bad(f"summary record at {summary_start + pos} runs past the footer")
-            if op in (OP_SCHEMA, OP_CHANNEL, OP_CHUNK_INDEX, OP_METADATA_INDEX, OP_STATISTICS):
+            if op in (OP_SCHEMA, OP_CHANNEL, OP_CHUNK_INDEX, OP_METADATA_INDEX, OP_STATISTICS, OP_ATTACHMENT_INDEX):
                 rec = parse_record(op, mv, pos + 9, pos + 9 + length)
                 if op == OP_SCHEMA:
                     s.schemas[rec.id] = rec
@@ -419,6 +429,8 @@ class McapFile:
                     s.chunk_indexes.append(rec)
                 elif op == OP_METADATA_INDEX:
                     s.metadata_offsets.append((rec.name, rec.offset, rec.length))
+                elif op == OP_ATTACHMENT_INDEX:
+                    s.attachment_indexes.append(rec)
                 else:
                     s.message_start_time, s.message_end_time = rec.message_start_time, rec.message_end_time
                     s.channel_message_counts = dict(rec.channel_message_counts)
@@ -426,10 +438,10 @@ class McapFile:
         s.chunk_indexes.sort(key=lambda c: c.chunk_start_offset)
         return s
 
-    def read_metadata(self) -> tuple[dict[str, dict[str, str]], list[str]]:
-        """Metadata records listed in the summary: (name -> key/values, damage notes)."""
+    def read_metadata(self) -> tuple[dict[str, dict[str, str]], list[Damage]]:
+        """Metadata records listed in the summary: (name -> key/values, damage records)."""
         out: dict[str, dict[str, str]] = {}
-        notes: list[str] = []
+        notes: list[Damage] = []
         for name, off, ln in self.summary.metadata_offsets if self.summary else []:
             try:
                 rec = self._read_record_at(off, expect_len=ln)
@@ -438,8 +450,64 @@ class McapFile:
                 meta = parse_record(OP_METADATA, rec[1])
                 out[meta.name] = meta.metadata
             except _Bad as e:
-                notes.append(f"metadata record '{name}' is damaged ({e})")
+                notes.append(Damage(DamageKind.DAMAGED_METADATA, f"metadata record '{name}' is damaged ({e})",
+                                    byte=off))
         return out, notes
+
+    def attachment_indexes(self, *, max_records: int = 1 << 20) -> list[AttachmentIndex]:
+        """Where the file's attachments are, in file order: the summary's attachment indexes, or, for
+        a file without a summary, what a walk over the data section's record headers finds (chunk
+        bodies are skipped, not read; the walk stops at the first damaged record or after
+        ``max_records`` records). Never raises for damage: a damaged part simply lists nothing."""
+        if self.summary is not None and self.summary.indexed:
+            return sorted(self.summary.attachment_indexes, key=lambda a: a.offset)
+        out: list[AttachmentIndex] = []
+        pos = self.data_start
+        limit = self.size if self.data_end is None else self.data_end
+        for _ in range(max_records):
+            if pos + 9 > limit:
+                break
+            self._f.seek(pos)
+            head = self._f.read(9)
+            op, length = struct.unpack("<BQ", head)
+            if op in (OP_DATA_END, OP_FOOTER) or op == 0 or 0x10 <= op < 0x80 or pos + 9 + length > limit:
+                break
+            if op == OP_ATTACHMENT and length >= 8 + 8 + 4:
+                head = self._f.read(min(length, 8 + 8 + 4 + 1024 + 4 + 1024))
+                try:
+                    lt, ct = struct.unpack_from("<QQ", head)
+                    n = struct.unpack_from("<I", head, 16)[0]
+                    name = bytes(head[20:20 + n]).decode("utf-8") if 20 + n <= len(head) else ""
+                    m = struct.unpack_from("<I", head, 20 + n)[0]
+                    media = bytes(head[24 + n:24 + n + m]).decode("utf-8") if 24 + n + m <= len(head) else ""
+                except (struct.error, UnicodeDecodeError):
+                    name = media = ""
+                    lt = ct = 0
+                if name:
+                    out.append(AttachmentIndex(offset=pos, length=9 + length, log_time=lt, create_time=ct,
+                                               data_size=-1, name=name, media_type=media))
+            pos += 9 + length
+        return out
+
+    def read_attachment(self, index: AttachmentIndex, *, max_bytes: int) -> Attachment:
+        """The attachment record ``index`` points at, its CRC checked, or :class:`_Bad` saying why not
+        (runs past the file, over ``max_bytes``, does not parse, fails its CRC check)."""
+        if index.length > max_bytes + (1 << 16):  # the data, plus its name, media type and times
+            raise _Bad(f"is a record of {index.length} bytes, more than the cap of {max_bytes}")
+        rec = self._read_record_at(index.offset, expect_len=index.length)
+        if rec is None:
+            raise _Bad("runs past the end of the file")
+        op, body = rec
+        if op != OP_ATTACHMENT:
+            raise _Bad(f"no attachment record at byte {index.offset} (opcode 0x{op:02x})")
+        att = parse_record(OP_ATTACHMENT, body)
+        if len(att.data) > max_bytes:
+            raise _Bad(f"holds {len(att.data)} bytes, more than the cap of {max_bytes}")
+        crc = struct.unpack_from("<I", body, len(body) - 4)[0]
+        if crc != 0 and crc32(body[: len(body) - 4]) != crc:
+            raise _Bad("fails its CRC check")
+        att.data = bytes(att.data)  # not a view of the pooled buffer
+        return att
 
     def _chunk_at(self, ref: _ChunkRef) -> list[tuple[int, object]]:
         """Read (``os.pread``: safe from any thread), decompress, CRC-check and parse a chunk."""
@@ -478,26 +546,26 @@ class McapFile:
 
     # ------------------------------------------------------------------ scanning
     def records(
-        self, damage: list[str], *, prefetch: int = PREFETCH, start_offset: int | None = None,
+        self, damage: list[Damage], *, prefetch: int = PREFETCH, start_offset: int | None = None,
         cached: dict[tuple[int, int], list[tuple[int, object]]] | None = None,
     ) -> Iterator[tuple[int, object]]:
         """Yield (opcode, parsed record) for Schema, Channel, Message and Metadata records in file
         order, chunk contents included.
 
-        Damage is appended to ``damage`` as one-line notes; the scan then resumes at the next chunk
-        the summary knows about, or stops. ``start_offset`` starts the scan at a record (a chunk
-        found through the summary) instead of the beginning. Up to ``prefetch`` chunks (and at most
-        :data:`PREFETCH_BYTES` uncompressed bytes beyond the first) are read, decompressed and
-        CRC-checked ahead in worker threads, overlapping with the caller's work; 0 does all of it
-        in the calling thread. ``cached`` maps (offset, record length) of chunks already parsed by
-        :meth:`chunk_records_at` to their records (used instead of reading them again; entries
-        are removed as they are used).
+        Damage is appended to ``damage`` as :class:`~replay.logs.damage.Damage` records; the scan
+        then resumes at the next chunk the summary knows about, or stops. ``start_offset`` starts
+        the scan at a record (a chunk found through the summary) instead of the beginning. Up to
+        ``prefetch`` chunks (and at most :data:`PREFETCH_BYTES` uncompressed bytes beyond the first)
+        are read, decompressed and CRC-checked ahead in worker threads, overlapping with the
+        caller's work; 0 does all of it in the calling thread. ``cached`` maps (offset, record
+        length) of chunks already parsed by :meth:`chunk_records_at` to their records (used instead
+        of reading them again; entries are removed as they are used).
         """
         queue: deque[tuple[int, int, object, int]] = deque()
         workers = max(1, min(prefetch, os.cpu_count() or 1))
         pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="mcap-chunks") if prefetch > 0 else None
         ahead = 0  # uncompressed bytes of the queued chunks
-        notes: list[str] = []  # the scan's damage notes, queued so they keep their place in file order
+        notes: list[Damage] = []  # the scan's damage records, queued so they keep their place in file order
         try:
             for pos, op, body in self._outer(notes, start_offset, lazy=pool is not None):
                 queue.extend((pos, _OP_NOTE, note, 0) for note in notes)
@@ -537,7 +605,7 @@ class McapFile:
             raise _Bad(f"no chunk record at offset {offset} (opcode 0x{rec[0]:02x})")
         return self._chunk_records(rec[1])
 
-    def _finish(self, pos: int, op: int, job: object, damage: list[str]) -> Iterator[tuple[int, object]]:
+    def _finish(self, pos: int, op: int, job: object, damage: list[Damage]) -> Iterator[tuple[int, object]]:
         if op == _OP_NOTE:
             damage.append(job)
             return
@@ -556,7 +624,8 @@ class McapFile:
                 recs = [(op, parse_record(op, job))] if op in _INNER else []
         except _Bad as e:
             what = "chunk" if op == OP_CHUNK else "record"
-            damage.append(f"{what} at byte {pos} is corrupt ({e}); its messages are lost")
+            damage.append(Damage(DamageKind.DAMAGED_CHUNK,
+                                 f"{what} at byte {pos} is corrupt ({e}); its messages are lost", byte=pos))
             if op == OP_CHUNK:
                 yield OP_LOST, Lost(pos, self.lost_messages(pos))
             return
@@ -613,7 +682,7 @@ class McapFile:
         return out
 
     def _outer(
-        self, damage: list[str], start_offset: int | None = None, *, lazy: bool = False,
+        self, damage: list[Damage], start_offset: int | None = None, *, lazy: bool = False,
     ) -> Iterator[tuple[int, int, memoryview | _ChunkRef]]:
         """(offset, opcode, body) of the data-section records zcut needs, with damage handling.
         With ``lazy``, a chunk's body is not read: a :class:`_ChunkRef` says where it is."""
@@ -621,13 +690,15 @@ class McapFile:
         resume_set = set(resume)
         pos = self.data_start if start_offset is None else start_offset
         limit = self.size if self.data_end is None else self.data_end
+
+        def bad(at: int, message: str, kind: DamageKind = DamageKind.DAMAGED_CHUNK) -> None:
+            damage.append(Damage(kind, message, byte=at))
+
         while True:
             if pos + 9 > limit:
                 if self.data_end is None:
-                    damage.append(
-                        f"{self.path.name} is truncated: it ends at byte {self.size} inside the "
-                        "data section (no DataEnd/Footer record)"
-                    )
+                    bad(pos, f"{self.path.name} is truncated: it ends at byte {self.size} inside the "
+                        "data section (no DataEnd/Footer record)", DamageKind.TRUNCATED)
                 return
             self._f.seek(pos)
             head = self._f.read(33)  # opcode, length and (for a chunk) the uncompressed size
@@ -638,8 +709,8 @@ class McapFile:
             if op in (OP_DATA_END, OP_FOOTER):
                 if self.data_end is None or nxt >= self.data_end:
                     return
-                damage.append(
-                    f"unexpected end-of-data record at byte {pos}"
+                bad(
+                    pos, f"unexpected end-of-data record at byte {pos}"
                     + (f"; skipped to the next chunk at byte {later[0]}" if later else "")
                 )
                 if not later:
@@ -649,8 +720,8 @@ class McapFile:
                 pos = later[0]
                 continue
             if op == 0 or 0x10 <= op < 0x80:  # reserved opcodes: not MCAP, the bytes are damaged
-                damage.append(
-                    f"invalid record opcode 0x{op:02x} at byte {pos}"
+                bad(
+                    pos, f"invalid record opcode 0x{op:02x} at byte {pos}"
                     + (f"; skipped to the next chunk at byte {later[0]}" if later else "; the rest is lost")
                 )
                 if not later:
@@ -663,8 +734,8 @@ class McapFile:
             if nxt <= limit and length > self.max_chunk_bytes and wanted and not (later and nxt > later[0]):
                 # an intact-looking record too large to hold: skip it whole (the next one follows)
                 what = "chunk" if op == OP_CHUNK else "record"
-                damage.append(
-                    f"{what} at byte {pos} holds {length} bytes, more than the cap of "
+                bad(
+                    pos, f"{what} at byte {pos} holds {length} bytes, more than the cap of "
                     f"{self.max_chunk_bytes}; skipped"
                 )
                 if op == OP_CHUNK:
@@ -673,8 +744,8 @@ class McapFile:
                 continue
             if later and nxt > later[0] and nxt <= limit:
                 # a (corrupt) length that would swallow a chunk the summary knows about
-                damage.append(
-                    f"record at byte {pos} claims {length} bytes, over the chunk at byte {later[0]}; "
+                bad(
+                    pos, f"record at byte {pos} claims {length} bytes, over the chunk at byte {later[0]}; "
                     f"skipped to the next chunk at byte {later[0]}"
                 )
                 if pos in resume_set:
@@ -683,8 +754,8 @@ class McapFile:
                 continue
             if nxt > limit:
                 if later:
-                    damage.append(
-                        f"record at byte {pos} claims {length} bytes, past the end of the data; "
+                    bad(
+                        pos, f"record at byte {pos} claims {length} bytes, past the end of the data; "
                         f"skipped to the next chunk at byte {later[0]}"
                     )
                     if pos in resume_set:  # a chunk the summary knows: count what it held
@@ -692,13 +763,11 @@ class McapFile:
                     pos = later[0]
                     continue
                 if self.data_end is None:
-                    damage.append(
-                        f"{self.path.name} is truncated: the record at byte {pos} needs {length} "
-                        f"bytes but only {max(self.size - pos - 9, 0)} remain"
-                    )
+                    bad(pos, f"{self.path.name} is truncated: the record at byte {pos} needs {length} "
+                        f"bytes but only {max(self.size - pos - 9, 0)} remain", DamageKind.TRUNCATED)
                 else:
-                    damage.append(
-                        f"record at byte {pos} claims {length} bytes, past the end of the data "
+                    bad(
+                        pos, f"record at byte {pos} claims {length} bytes, past the end of the data "
                         "section; the rest of the data section is lost"
                     )
                 return

@@ -361,50 +361,79 @@ def read_ply_model(
         Not a regular file, not a PLY, no x/y/z, a count over a cap or past the end of the file,
         malformed data, face indices out of range, non-finite coordinates; the message names the file.
     """
-    from plyfile import PlyData, PlyListProperty, PlyParseError
-
     check_caps(max_points, max_message_bytes)
     path = Path(path)
-    name = path.name
     f, size = open_input(path, "a PLY file")
     with f:
-        ply, body_at = _header(f, size, name)
-        rest = size - body_at
-        if size > max_message_bytes:
-            raise LogFormatError(f"{name}: PLY file of {size} bytes is more than the cap of {max_message_bytes} "
-                                 "(max_message_bytes)")
-        elements = {e.name: e for e in ply.elements}
-        vert = elements.get("vertex")
-        if vert is None:
-            raise LogFormatError(f"{name}: PLY has no vertex element")
-        need = 0
-        for el in ply.elements:
-            if el.count < 0:
-                raise LogFormatError(f"{name}: PLY element '{el.name}' has a negative count ({el.count})")
-            if el.count > max_points:
-                raise LogFormatError(
-                    f"{name}: PLY element '{el.name}' has {el.count} items, more than the cap of {max_points}")
-            if ply.text:  # at least one character and a separator a value
-                per = 2 * len(el.properties)
-            else:  # fixed-size properties, and at least the length field of a list
-                per = sum(np.dtype(p.len_dtype if isinstance(p, PlyListProperty) else p.val_dtype).itemsize
-                          for p in el.properties)
-            need += el.count * per
-            if need > rest:
-                raise LogFormatError(
-                    f"{name}: PLY {el.name} data has {rest} bytes after the header, needs at least {need} (truncated)")
-        pnames = [p.name for p in vert.properties]
-        for axis in "xyz":
-            if axis not in pnames:
-                raise LogFormatError(f"{name}: PLY vertex has no '{axis}' property (has {' '.join(pnames)})")
-        f.seek(0)
-        try:
-            with warnings.catch_warnings():  # plyfile reads an empty ascii list with np.loadtxt
-                warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
-                data = PlyData.read(io.BytesIO(f.read()))
-        except (PlyParseError, ValueError, ArithmeticError, UnicodeDecodeError, LookupError, StopIteration,
-                TypeError, MemoryError) as e:
-            raise LogFormatError(f"{name}: PLY data does not parse ({str(e)[:120]})") from None
+        return _read_model(f, size, path.name, max_points, max_message_bytes)
+
+
+def ply_model_bytes(points: np.ndarray, normals: np.ndarray | None = None) -> bytes:
+    """A binary little-endian PLY point cloud of ``points`` (N, 3) and ``normals`` (N, 3), float32 (the
+    form of a log's bin model attachment; :func:`read_ply_model_bytes` reads it back)."""
+    from plyfile import PlyData, PlyElement
+
+    pts = np.asarray(points, dtype=np.float32)
+    names = ["x", "y", "z"] + (["nx", "ny", "nz"] if normals is not None else [])
+    v = np.empty(len(pts), dtype=[(n, "<f4") for n in names])
+    v["x"], v["y"], v["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
+    if normals is not None:
+        nrm = np.asarray(normals, dtype=np.float32)
+        v["nx"], v["ny"], v["nz"] = nrm[:, 0], nrm[:, 1], nrm[:, 2]
+    buf = io.BytesIO()
+    PlyData([PlyElement.describe(v, "vertex")], text=False, byte_order="<").write(buf)
+    return buf.getvalue()
+
+
+def read_ply_model_bytes(
+    data: bytes, *, name: str, max_points: int = DEFAULT_MAX_PIXELS, max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
+) -> PlyModel:
+    """:func:`read_ply_model` of a PLY held in memory (e.g. a log's ``bin_model.ply`` attachment), with the
+    same checks; ``name`` names it in the messages."""
+    check_caps(max_points, max_message_bytes)
+    return _read_model(io.BytesIO(data), len(data), name, max_points, max_message_bytes)
+
+
+def _read_model(f, size: int, name: str, max_points: int, max_message_bytes: int) -> PlyModel:
+    from plyfile import PlyData, PlyListProperty, PlyParseError
+
+    ply, body_at = _header(f, size, name)
+    rest = size - body_at
+    if size > max_message_bytes:
+        raise LogFormatError(f"{name}: PLY file of {size} bytes is more than the cap of {max_message_bytes} "
+                             "(max_message_bytes)")
+    elements = {e.name: e for e in ply.elements}
+    vert = elements.get("vertex")
+    if vert is None:
+        raise LogFormatError(f"{name}: PLY has no vertex element")
+    need = 0
+    for el in ply.elements:
+        if el.count < 0:
+            raise LogFormatError(f"{name}: PLY element '{el.name}' has a negative count ({el.count})")
+        if el.count > max_points:
+            raise LogFormatError(
+                f"{name}: PLY element '{el.name}' has {el.count} items, more than the cap of {max_points}")
+        if ply.text:  # at least one character and a separator a value
+            per = 2 * len(el.properties)
+        else:  # fixed-size properties, and at least the length field of a list
+            per = sum(np.dtype(p.len_dtype if isinstance(p, PlyListProperty) else p.val_dtype).itemsize
+                      for p in el.properties)
+        need += el.count * per
+        if need > rest:
+            raise LogFormatError(
+                f"{name}: PLY {el.name} data has {rest} bytes after the header, needs at least {need} (truncated)")
+    pnames = [p.name for p in vert.properties]
+    for axis in "xyz":
+        if axis not in pnames:
+            raise LogFormatError(f"{name}: PLY vertex has no '{axis}' property (has {' '.join(pnames)})")
+    f.seek(0)
+    try:
+        with warnings.catch_warnings():  # plyfile reads an empty ascii list with np.loadtxt
+            warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
+            data = PlyData.read(io.BytesIO(f.read()))
+    except (PlyParseError, ValueError, ArithmeticError, UnicodeDecodeError, LookupError, StopIteration,
+            TypeError, MemoryError) as e:
+        raise LogFormatError(f"{name}: PLY data does not parse ({str(e)[:120]})") from None
     v = data["vertex"].data
     for axis in "xyz":
         if v.dtype[axis].kind not in "fiu":

@@ -2,15 +2,17 @@
 
 :class:`LogReader` opens a log, finds the topics zcut uses (the organized ``PointCloud2``, a colour
 ``Image`` and a ``CameraInfo`` of the same size, and every ``mono8`` Image of that size as a mask)
-and then streams :class:`~replay.logs.frame.Frame` objects, pairing each cloud with the other topics by
-header stamp. The file is never loaded whole: it is scanned chunk by chunk (see
-:mod:`replay.logs.mcap_scan`), and only a bounded window of messages is buffered for the pairing.
+and then streams :class:`~replay.logs.frame.Frame` objects (:meth:`LogReader.frames` returns a
+:class:`~replay.logs.stream.FrameStream`), pairing each cloud with the other topics by header stamp.
+The file is never loaded whole: it is scanned chunk by chunk (see :mod:`replay.logs.mcap_scan`), and
+only a bounded window of messages is buffered for the pairing.
 
-The exit-status contract of SPEC §6 is kept here: damage (a truncated file, a corrupt or missing
-chunk, a malformed message, a mask of the wrong size, a cloud over the size caps) does not stop
-the stream. A frame that cannot be read is skipped, every intact frame is delivered with the
-log's own index (a lost frame leaves a gap), and :attr:`LogReader.damage` holds one-line notes,
-one per loss, naming the frame (index, and its stamp or log time when known), e.g.::
+The exit-status contract of ``docs/cli.md`` is kept here: damage (a truncated file, a corrupt or
+missing chunk, a malformed message, a mask of the wrong size, a cloud over the size caps) does not
+stop the stream. A frame that cannot be read is skipped, every intact frame is delivered with the
+log's own index (a lost frame leaves a gap), and the stream's ``damage`` holds one
+:class:`~replay.logs.damage.Damage` record per loss, naming the frame (index, and its stamp or log
+time when known); their texts read, e.g.::
 
     chunk at byte 5120 is corrupt (fails its CRC check); its messages are lost
     frame 2 (log time 3.000000000) lost with the chunk at byte 5120
@@ -35,16 +37,16 @@ a cloud's or image's grid before any array is allocated.
 
 from __future__ import annotations
 
+import functools
 import os
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from replay.errors import LogDamageError, LogFormatError
 from replay.logs import layout
 from replay.logs import ros2_msgs as rm
+from replay.logs.damage import Damage, DamageKind, stamp_text
 from replay.logs.files import CHUNK_SLACK_BYTES, DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_MAX_PIXELS, check_caps
-from replay.logs.frame import Frame
 from replay.logs.mcap_scan import (
     OP_CHANNEL,
     OP_LOST,
@@ -52,18 +54,17 @@ from replay.logs.mcap_scan import (
     OP_METADATA,
     OP_SCHEMA,
     Channel,
-    Lost,
     McapFile,
     Message,
     Schema,
     _Bad,
-    decompress,
 )
+from replay.logs.ply import PlyModel, read_ply_model_bytes
+from replay.logs.stream import PAIRING_WINDOW, FrameStream, message_payload
 from zcut.cloud import Intrinsics
-from zcut.errors import ParameterError
 
-#: A frame waits for its image, camera info and masks until this many later clouds have arrived.
-PAIRING_WINDOW = 2
+__all__ = ["PAIRING_WINDOW", "FrameStream", "LogInfo", "LogReader", "TopicInfo", "inspect_log", "read_mask_topics",
+           "stamp_text"]
 _PEEK_AFTER_FIRST_CLOUD = 64  # messages scanned past the first cloud when the file has no summary
 #: Chunks parsed while opening a log are kept (up to this many uncompressed bytes) for the first
 #: :meth:`LogReader.frames` iteration, so that opening and reading the first frame decompress them once.
@@ -88,38 +89,6 @@ class TopicInfo:
     first: object | None = None  # the first decodable message (CloudMsg, ImageMsg, CameraInfoMsg)
 
 
-_ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
-
-
-def _payload(data: memoryview, where: str, max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> memoryview:
-    """The CDR bytes of a message; rosbag2's per-message compression (``--compression-mode
-    message``, zstd) is undone here. The message and its content size are checked against
-    ``max_bytes`` first."""
-    if len(data) > max_bytes:
-        raise LogFormatError(f"{where}: message of {len(data)} bytes, more than the cap of {max_bytes}")
-    if bytes(data[:4]) != _ZSTD_MAGIC:
-        return data
-    import zstandard
-
-    try:
-        size = zstandard.frame_content_size(data)
-    except zstandard.ZstdError as e:
-        raise LogFormatError(f"{where}: damaged zstd-compressed message ({e})") from e
-    if size < 0:
-        raise LogFormatError(f"{where}: zstd-compressed message without a content size")
-    try:
-        return decompress("zstd", data, size, max_size=max_bytes)
-    except _Bad as e:
-        raise LogFormatError(f"{where}: zstd-compressed message {e}") from e
-
-
-def stamp_text(ns: int) -> str:
-    """Nanoseconds as exact seconds, ``1700000000.100000000``."""
-    sign = "-" if ns < 0 else ""
-    q, r = divmod(abs(int(ns)), 1_000_000_000)
-    return f"{sign}{q}.{r:09d}"
-
-
 def _ns(topic: str) -> str:
     return topic.rsplit("/", 1)[0]
 
@@ -128,7 +97,7 @@ def _peek(
     mf: McapFile, schemas: dict[int, Schema], channels: dict[int, Channel],
     metadata: dict[str, dict[str, str]], keep: dict[tuple[int, int], list] | None = None,
     *, max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
-) -> tuple[dict[int, object], list[str]]:
+) -> tuple[dict[int, object], list[Damage]]:
     """First decodable message (header only) of every PointCloud2/Image/CameraInfo channel, or
     the first error when none decodes (channel id -> message or LogFormatError).
 
@@ -139,7 +108,7 @@ def _peek(
     """
     firsts: dict[int, object] = {}
     errors: dict[int, LogFormatError] = {}
-    damage: list[str] = []
+    damage: list[Damage] = []
 
     def wanted(cid: int) -> bool:
         ch = channels.get(cid)
@@ -153,7 +122,7 @@ def _peek(
         name = schemas[ch.schema_id].name
         where = f"{mf.path.name}: topic {ch.topic}, message at log time {stamp_text(msg.log_time)}"
         try:
-            data = _payload(msg.data, where, max_bytes)
+            data = message_payload(msg.data, where, max_bytes)
             if name == rm.POINTCLOUD2:
                 firsts[msg.channel_id] = rm.decode_cloud(data, where=where)
             elif name == rm.IMAGE:
@@ -181,7 +150,8 @@ def _peek(
                     keep[(ci.chunk_start_offset, ci.chunk_length - 9)] = recs
                     kept += size
             except _Bad as e:
-                damage.append(f"chunk at byte {ci.chunk_start_offset} is corrupt ({e})")
+                at = ci.chunk_start_offset
+                damage.append(Damage(DamageKind.DAMAGED_CHUNK, f"chunk at byte {at} is corrupt ({e})", byte=at))
                 continue
             todo -= set(firsts)
             if not todo:
@@ -226,12 +196,14 @@ class LogInfo:
     start_ns: int | None
     end_ns: int | None
     has_summary: bool
+    #: what a user is told about the log (the texts of ``damage`` among them)
     notes: list[str]
-    peek_damage: list[str]
+    #: damage met while finding the first messages
+    peek_damage: list[Damage]
     schemas: dict[int, Schema]
     channels: dict[int, Channel]
-    #: the damage notes among ``notes`` (a damaged summary or metadata record)
-    damage: list[str] = field(default_factory=list)
+    #: a damaged summary or metadata record
+    damage: list[Damage] = field(default_factory=list)
     #: chunks parsed while peeking, by (offset, record length) (only with ``keep_chunks``)
     chunks: dict[tuple[int, int], list] = field(default_factory=dict)
 
@@ -252,11 +224,11 @@ def inspect_log(
     path = Path(path)
     metadata: dict[str, dict[str, str]] = {}
     notes: list[str] = []
-    damage: list[str] = []
+    damage: list[Damage] = []
     start_ns = end_ns = None
     with McapFile(path, max_chunk_bytes=max_message_bytes + CHUNK_SLACK_BYTES) as mf:
         if mf.summary_damage:
-            notes.append(mf.summary_damage)
+            notes.append(mf.summary_damage.text)
             damage.append(mf.summary_damage)
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
@@ -265,7 +237,7 @@ def inspect_log(
             schemas.update(summary.schemas)
             channels.update(summary.channels)
             metadata, more = mf.read_metadata()
-            notes += more
+            notes += [d.text for d in more]
             damage += more
             start_ns, end_ns = summary.message_start_time, summary.message_end_time
         firsts, peek_damage = _peek(
@@ -332,9 +304,9 @@ class LogReader:
         MCAP metadata records (from the summary; for a file without one, filled while iterating).
     n_frames : int or None
         Number of clouds on ``cloud_topic`` according to the summary.
-    damage : list[str]
-        One-line notes about damage met by the last :meth:`frames` iteration (empty = intact):
-        every lost or skipped frame is named in one of them.
+    open_damage : tuple[Damage, ...]
+        Damage found at open (a damaged summary or metadata record); each :meth:`frames` pass
+        starts its own ``damage`` with it.
     intrinsics : Intrinsics or None
         From the first decodable CameraInfo of ``info_topic`` (anywhere in the log), when it is
         calibrated (K not all zero) and of the cloud's size; the same whatever frames survive.
@@ -360,7 +332,8 @@ class LogReader:
         self.max_pixels, self.max_message_bytes = max_pixels, max_message_bytes
         info = inspect_log(path, keep_chunks=True, max_message_bytes=max_message_bytes)
         self._chunks = info.chunks  # for the first frames() scan
-        self._open_damage = list(info.damage)  # a damaged summary or metadata record
+        #: damage found at open (a damaged summary or metadata record): every pass starts with it
+        self.open_damage: tuple[Damage, ...] = tuple(info.damage)
         self._has_summary = info.has_summary
         self.path = info.path
         self.profile, self.library = info.profile, info.library
@@ -368,7 +341,6 @@ class LogReader:
         self.metadata = info.metadata
         self.notes = info.notes
         self.start_ns, self.end_ns = info.start_ns, info.end_ns
-        self.damage: list[str] = []
         self._schemas, self._channels = info.schemas, info.channels
         self._choose_topics(cloud_topic, image_topic, info_topic, info.peek_damage)
         self.n_frames: int | None = self.topics[self.cloud_topic].count if info.has_summary else None
@@ -401,7 +373,7 @@ class LogReader:
     # ------------------------------------------------------------------ opening
     def _choose_topics(
         self, cloud_topic: str | None, image_topic: str | None, info_topic: str | None,
-        peek_damage: list[str],
+        peek_damage: list[Damage],
     ) -> None:
         name = self.path.name
         topics = self.topics
@@ -444,7 +416,7 @@ class LogReader:
             )
         else:
             if not topics and peek_damage:
-                raise LogDamageError(f"{name} is damaged before its first message: {peek_damage[0]}")
+                raise LogDamageError(f"{name} is damaged before its first message: {peek_damage[0].text}")
             if clouds:
                 raise LogFormatError(
                     f"{name} has no organized PointCloud2: "
@@ -456,7 +428,7 @@ class LogReader:
                     + "; zcut needs organized clouds (height > 1)"
                 )
             if peek_damage and not any(t.msg_type == rm.POINTCLOUD2 for t in topics.values()):
-                raise LogDamageError(f"{name} is damaged before its first cloud: {peek_damage[0]}")
+                raise LogDamageError(f"{name} is damaged before its first cloud: {peek_damage[0].text}")
             have = ", ".join(f"{t.topic} [{t.msg_type}]" for t in topics.values()) or "none"
             raise LogFormatError(f"{name} has no sensor_msgs/msg/PointCloud2 topic (topics: {have})")
         self.cloud_topic = chosen.topic
@@ -523,179 +495,63 @@ class LogReader:
             and (t.height, t.width) == shape
         )
 
+    # ------------------------------------------------------------------ attachments
+    def attachments(self) -> list[tuple[str, str, int | None]]:
+        """(name, media type, bytes or None when unknown) of every attachment, in file order (from
+        the summary; for a log without one, from a walk over its record headers)."""
+        with self._mcap() as mf:
+            return [(a.name, a.media_type, a.data_size if a.data_size >= 0 else None) for a in mf.attachment_indexes()]
+
+    @functools.cached_property
+    def _bin_model_attachment(self) -> tuple[bytes | None, PlyModel | None, str | None]:
+        name = layout.BIN_MODEL_ATTACHMENT
+        try:
+            with self._mcap() as mf:
+                found = [a for a in mf.attachment_indexes() if a.name == name]
+                if not found:
+                    return None, None, None
+                att = mf.read_attachment(found[-1], max_bytes=self.max_message_bytes)  # the last one wins
+        except _Bad as e:
+            return None, None, f"its {name} attachment is damaged ({e})"
+        try:
+            model = read_ply_model_bytes(att.data, name=f"{self.path.name}: attachment {name}",
+                                         max_points=self.max_pixels, max_message_bytes=self.max_message_bytes)
+        except LogFormatError as e:
+            return None, None, f"its {name} attachment is not a usable bin model ({e})"
+        return att.data, model, None
+
+    @property
+    def bin_model_ply(self) -> bytes | None:
+        """The bin model the log carries: the bytes of its ``bin_model.ply`` attachment (the last one when
+        there are several), None when it has none or it cannot be used (see :attr:`bin_model_problem`).
+        Read once, on first use: CRC-checked, bounded by ``max_message_bytes`` and parsed by
+        :func:`~replay.logs.ply.read_ply_model_bytes` (``docs/formats.md``, "Bin model attachment")."""
+        return self._bin_model_attachment[0]
+
+    @property
+    def attached_bin_model(self) -> PlyModel | None:
+        """:attr:`bin_model_ply` as read by :func:`~replay.logs.ply.read_ply_model_bytes` (points, normals, faces)."""
+        return self._bin_model_attachment[1]
+
+    @property
+    def bin_model_problem(self) -> str | None:
+        """Why the log's ``bin_model.ply`` attachment cannot be used (damaged, not a PLY), else None."""
+        return self._bin_model_attachment[2]
+
     # ------------------------------------------------------------------ streaming
-    def frames(self, *, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
-        """Yield the intact frames with ``start <= index < stop`` in log order.
+    def frames(self, *, start: int = 0, stop: int | None = None) -> FrameStream:
+        """The intact frames with ``start <= index < stop`` in log order, as a :class:`FrameStream`.
 
         Each cloud is paired with the image, camera info and masks of the same header stamp that
         arrive within :data:`PAIRING_WINDOW` clouds of it. A frame that cannot be read (its chunk
         lost, a malformed cloud or companion message, a mask of the wrong size, a grid over
-        ``max_pixels``) is skipped with a note in :attr:`damage` that names it; indices stay the
-        log's own. :attr:`damage` is reset at the start of each iteration (a damaged summary or
-        metadata record is noted again each time). Raises :class:`LogDamageError` if the log is
-        damaged so that not one frame of the range could be delivered.
+        ``max_pixels``, a header stamp another cloud shares) is skipped with a
+        :class:`~replay.logs.damage.Damage` record in the stream's ``damage`` that names it; indices
+        stay the log's own. Each call is a pass of its own, with its own records (starting with
+        :attr:`open_damage`). The stream raises :class:`LogDamageError` if the log is damaged so
+        that not one frame of the range could be delivered.
         """
-        if start < 0 or (stop is not None and stop < start):
-            raise ParameterError(f"frames: need 0 <= start <= stop, got start={start}, stop={stop}")
-        self.damage = list(self._open_damage)
-        companions = [t for t in (self.image_topic, self.info_topic) if t] + list(self.mask_topics)
-        orphan_limit = 4 * len(companions) + 4
-        pending: list[_Pending] = []
-        orphans: list[tuple[int, str, object]] = []  # (stamp, topic, decoded)
-        lost_parts: dict[str, set[int]] = {}  # companion topic -> log times of its lost messages
-        delivered = 0
-        stopped = False  # left the scan before the end of the log
-        want_topics = {self.cloud_topic, *companions}
-        # seek: begin at the chunk holding cloud start - PAIRING_WINDOW (companions may precede)
-        begin, next_index = self._seek(max(0, start - PAIRING_WINDOW)) if start > 0 else (None, 0)
-        # sequence numbers find clouds lost without a trace when there is no intact summary
-        seq = _Sequences(enabled=not self._has_summary and begin is None)
-        unknown_loss: list[int] = []  # frame index after which a chunk of unknown content was lost
-
-        def in_range(idx: int) -> bool:
-            return idx >= start and (stop is None or idx < stop)
-
-        def lost(first: int, n: int, why: str, times: list[int] | None = None) -> None:
-            # the lost indices in range, as bounds: n comes from the file (a summary count, a sequence
-            # number) and may be absurd; it is never iterated
-            lo = max(first, start)
-            hi = first + n if stop is None else min(first + n, stop)
-            if lo >= hi:
-                return
-            when = ""
-            if times:
-                a, b = lo - first, min(hi - first, len(times))  # their log times
-                if a < b:
-                    when = f" (log time {stamp_text(times[a])})" if b - a == 1 else (
-                        f" (log times {stamp_text(times[a])} .. {stamp_text(times[b - 1])})")
-            what = f"frame {lo}" if hi - lo == 1 else f"frames {lo}-{hi - 1}"
-            self.damage.append(f"{what}{when} {why}")
-
-        def emit_ready(final: bool) -> Iterator[Frame]:
-            nonlocal delivered
-            while pending and (final or pending[0].complete(companions) or len(pending) > PAIRING_WINDOW):
-                if pending[0].cloud is None:
-                    return
-                p = pending.pop(0)
-                if not in_range(p.index):
-                    continue
-                try:
-                    frame = self._build(p, lost_parts)
-                except LogFormatError as e:
-                    self.damage.append(f"frame {p.index} (stamp {stamp_text(p.stamp)}) skipped: {e}")
-                    continue
-                delivered += 1
-                yield frame
-
-        schemas = dict(self._schemas)
-        channels = dict(self._channels)
-        with self._mcap() as mf:
-            cached, self._chunks = self._chunks, {}
-            if begin is not None:  # chunks before the seek target are never reached
-                cached = {k: v for k, v in cached.items() if k[0] >= begin}
-            for op, rec in mf.records(self.damage, start_offset=begin, cached=cached):
-                if op == OP_MESSAGE:
-                    ch = channels.get(rec.channel_id)
-                    if ch is None or ch.topic not in want_topics:
-                        continue
-                    topic = ch.topic
-                    if topic == self.cloud_topic:
-                        gap = seq.gap(rec.channel_id, rec.sequence)
-                        if gap:
-                            lost(next_index, gap, f"lost: {topic} message sequence jumps from "
-                                 f"{rec.sequence - gap - 1} to {rec.sequence} (a chunk is missing)")
-                            next_index += gap
-                            if unknown_loss:  # the gap says how many the unknown chunk held
-                                self.damage.remove(_unknown_note(unknown_loss.pop()))
-                        idx = next_index
-                        next_index += 1
-                        if idx < start:
-                            continue
-                        if stop is not None and idx >= stop:
-                            # past the range: only counts towards the pairing window
-                            pending.append(_Pending(idx, None, None, rec.log_time))
-                            yield from emit_ready(False)
-                            if pending[0].cloud is None:
-                                stopped = True
-                                break
-                            continue
-                        where = f"{self.path.name}: topic {topic}, message {idx}"
-                        try:
-                            cloud = rm.decode_cloud(_payload(rec.data, where, self.max_message_bytes), where=where)
-                        except LogFormatError as e:
-                            self.damage.append(f"frame {idx} (log time {stamp_text(rec.log_time)}) skipped: {e}")
-                            continue
-                        p = _Pending(idx, cloud.stamp_ns, cloud, rec.log_time)
-                        keep = []
-                        for o in orphans:
-                            if o[0] == cloud.stamp_ns and o[1] not in p.parts:
-                                p.parts[o[1]] = o[2]
-                            else:
-                                keep.append(o)
-                        orphans[:] = keep
-                        pending.append(p)
-                    else:
-                        where = f"{self.path.name}: topic {topic}, message at log time {stamp_text(rec.log_time)}"
-                        sc = schemas.get(ch.schema_id)
-                        try:
-                            data = _payload(rec.data, where, self.max_message_bytes)
-                            if sc is not None and sc.name == rm.CAMERAINFO:
-                                msg = rm.decode_camera_info(data, where=where)
-                            else:
-                                msg = rm.decode_image(data, where=where)
-                        except LogFormatError as e:
-                            self.damage.append(f"{e}; its frame cannot be told (not paired)")
-                            lost_parts.setdefault(topic, set()).add(rec.log_time)
-                            continue
-                        for p in pending:
-                            if p.stamp == msg.stamp_ns and topic not in p.parts:
-                                p.parts[topic] = msg
-                                break
-                        else:
-                            orphans.append((msg.stamp_ns, topic, msg))
-                            if len(orphans) > orphan_limit:
-                                orphans.pop(0)
-                    yield from emit_ready(False)
-                elif op == OP_LOST:
-                    self._account_lost(rec, channels, lost_parts, seq, lost, next_index, unknown_loss)
-                    cloud_ids = {cid for cid, ch in channels.items() if ch.topic == self.cloud_topic}
-                    if rec.log_times is not None:
-                        next_index += sum(len(v) for cid, v in rec.log_times.items() if cid in cloud_ids)
-                elif op == OP_CHANNEL:
-                    channels[rec.id] = rec
-                elif op == OP_SCHEMA:
-                    schemas[rec.id] = rec
-                elif op == OP_METADATA:
-                    self.metadata.setdefault(rec.name, rec.metadata)
-            yield from emit_ready(True)
-        expected = self.n_frames
-        if not stopped and begin is None and expected is not None and next_index < expected:
-            lost(next_index, expected - next_index,
-                 f"lost: the summary lists {expected} messages on {self.cloud_topic}, the file holds {next_index}")
-        if delivered == 0 and self.damage and (stop is None or stop > start):
-            raise LogDamageError(f"{self.path.name}: no frame could be read: {'; '.join(self.damage)}")
-
-    def _account_lost(self, rec: Lost, channels: dict[int, Channel], lost_parts: dict[str, set[int]],
-                      seq: _Sequences, lost, next_index: int, unknown_loss: list[int]) -> None:
-        """Name the frames (and companion messages) of a lost chunk."""
-        if rec.log_times is None:
-            unknown_loss.append(next_index - 1)
-            self.damage.append(_unknown_note(next_index - 1))
-            return
-        n = 0
-        times: list[int] = []
-        for cid, ts in rec.log_times.items():
-            ch = channels.get(cid)
-            if ch is None:
-                continue
-            seq.skip(cid, len(ts))
-            if ch.topic == self.cloud_topic:
-                n += len(ts)
-                times += ts
-            else:
-                lost_parts.setdefault(ch.topic, set()).update(ts)
-        if n:
-            lost(next_index, n, f"lost with the chunk at byte {rec.offset}", sorted(times))
+        return FrameStream(self, start=start, stop=stop)
 
     def chunk_frame_ranges(self) -> list[tuple[int, int]] | None:
         """The cloud index range ``(start, stop)`` of every chunk that holds clouds, in file order,
@@ -748,113 +604,6 @@ class LogReader:
             pass
         return None, 0
 
-    def _build(self, p: _Pending, lost_parts: dict[str, set[int]]) -> Frame:
-        """The frame of a pending cloud, or LogFormatError naming why it cannot be read."""
-        idx = p.index
-        cloud = p.cloud
-        where = f"{self.path.name}: topic {self.cloud_topic}, message {idx}"
-        if cloud.height <= 1:
-            raise LogFormatError(
-                f"{where}: unorganized cloud (height {cloud.height}, width {cloud.width}); "
-                "zcut needs organized clouds (height > 1)"
-            )
-        shape = (cloud.height, cloud.width)
-        parts = p.parts
-        for topic in p.missing(self.image_topic, self.info_topic, self.mask_topics):
-            gone = lost_parts.get(topic, ())
-            if p.stamp in gone or p.log_time in gone:
-                raise LogFormatError(f"{where}: its {topic} message was lost")
-        xyz, rgb = rm.cloud_to_arrays(cloud, where=where, max_pixels=self.max_pixels)
-        img = parts.get(self.image_topic) if self.image_topic else None
-        if img is not None:
-            iwhere = f"{self.path.name}: topic {self.image_topic}, stamp {stamp_text(img.stamp_ns)}"
-            if (img.height, img.width) != shape:
-                raise LogFormatError(
-                    f"{iwhere}: image is {img.height}x{img.width} but its cloud ({self.cloud_topic}, "
-                    f"message {idx}) is {shape[0]}x{shape[1]}"
-                )
-            rgb = rm.image_to_rgb(img, where=iwhere, max_pixels=self.max_pixels)
-        intrinsics: Intrinsics | None = None
-        info = parts.get(self.info_topic) if self.info_topic else None
-        if info is not None and any(info.k):
-            iwhere = f"{self.path.name}: topic {self.info_topic}, stamp {stamp_text(info.stamp_ns)}"
-            if (info.height, info.width) != shape:
-                raise LogFormatError(
-                    f"{iwhere}: camera info is for {info.height}x{info.width} but its cloud "
-                    f"({self.cloud_topic}, message {idx}) is {shape[0]}x{shape[1]}"
-                )
-            intrinsics = rm.camera_info_to_intrinsics(info, where=iwhere)
-        masks, codes = {}, {}
-        for topic in self.mask_topics:
-            m = parts.get(topic)
-            if m is None:
-                continue
-            mwhere = f"{self.path.name}: topic {topic}, stamp {stamp_text(m.stamp_ns)}"
-            if (m.height, m.width) != shape:
-                raise LogFormatError(
-                    f"{mwhere}: mask is {m.height}x{m.width} but its cloud is {shape[0]}x{shape[1]}"
-                )
-            if topic in layout.CODE_TOPICS:
-                codes[topic] = rm.image_to_codes(m, where=mwhere, max_pixels=self.max_pixels)
-            else:
-                masks[topic] = rm.image_to_mask(m, where=mwhere, max_pixels=self.max_pixels)
-        return Frame(
-            xyz=xyz, rgb=rgb, stamp_ns=cloud.stamp_ns, frame_id=cloud.frame_id,
-            intrinsics=intrinsics, topic=self.cloud_topic, index=idx, masks=masks, codes=codes,
-        )
-
-
-def _unknown_note(after: int) -> str:
-    return (f"the number of clouds in the lost chunk is unknown: frame indices after frame {after} "
-            "may be shifted")
-
-
-@dataclass
-class _Pending:
-    """A cloud waiting for its companions (``cloud`` None: a placeholder past the range)."""
-
-    index: int
-    stamp: int | None
-    cloud: rm.CloudMsg | None
-    log_time: int
-    parts: dict[str, object] = field(default_factory=dict)
-
-    def complete(self, companions: list[str]) -> bool:
-        return all(t in self.parts for t in companions)
-
-    def missing(self, image: str | None, info: str | None, masks: list[str]) -> list[str]:
-        return [t for t in (image, info, *masks) if t and t not in self.parts]
-
-
-class _Sequences:
-    """Per-channel message sequence numbers, trusted to find lost messages only while they count
-    0, 1, 2, … from the first message of the log (zcut's writer; rosbag2 writes all zeros, which
-    turns the check off at the second message)."""
-
-    def __init__(self, *, enabled: bool) -> None:
-        self.enabled = enabled
-        self.expected: dict[int, int | None] = {}  # None: not trusted
-
-    def gap(self, cid: int, s: int) -> int:
-        """Messages missing on channel ``cid`` before one with sequence ``s``."""
-        if not self.enabled:
-            return 0
-        exp = self.expected.get(cid, 0)
-        if exp is None:
-            return 0
-        if s < exp or (cid not in self.expected and s != 0):
-            self.expected[cid] = None
-            return 0
-        self.expected[cid] = s + 1
-        return s - exp
-
-    def skip(self, cid: int, n: int) -> None:
-        """``n`` messages of ``cid`` were accounted for (a lost chunk's message index)."""
-        exp = self.expected.get(cid, 0)
-        if exp is not None:
-            self.expected[cid] = exp + n
-
-
 #: Largest total of mask pixels :func:`read_mask_topics` returns from one file (2**30: 1 GiB of bool masks).
 MAX_MASK_FILE_PIXELS = 1 << 30
 
@@ -879,7 +628,7 @@ def read_mask_topics(path: str | os.PathLike, wanted: tuple[str, ...], *, max_pi
 
     check_caps(max_pixels, max_total_pixels)
     packed: dict[int, dict[str, tuple[tuple[int, int], np.ndarray]]] = {}
-    damage: list[str] = []
+    damage: list[Damage] = []
     total = 0
     with McapFile(path) as f:
         metadata, notes = f.read_metadata()
@@ -900,9 +649,10 @@ def read_mask_topics(path: str | os.PathLike, wanted: tuple[str, ...], *, max_pi
                                          "(the cap of one label file); split it")
                 packed.setdefault(msg.stamp_ns, {})[topic] = (mask.shape, np.packbits(mask))
             elif op == OP_LOST:
-                damage.append(f"messages were lost with the chunk at byte {rec.offset}")
+                damage.append(Damage(DamageKind.DAMAGED_CHUNK,
+                                     f"messages were lost with the chunk at byte {rec.offset}", byte=rec.offset))
     if damage:
-        raise LogFormatError(f"{path}: damaged file: {damage[0]}")
+        raise LogFormatError(f"{path}: damaged file: {damage[0].text}")
     masks = {stamp: {topic: np.unpackbits(bits, count=shape[0] * shape[1]).view(np.bool_).reshape(shape)
                      for topic, (shape, bits) in pair.items()} for stamp, pair in packed.items()}
     return metadata, masks

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from replay.errors import LogFormatError
+from replay.errors import LogFormatError, OverCapError
 from zcut.cloud import Intrinsics
 from zcut.errors import ParameterError, ZcutError
 
@@ -455,9 +455,10 @@ XYZ_FIELDS = XYZRGBA_FIELDS[:3]
 
 
 def check_grid(h: int, w: int, max_pixels: int | None, *, what: str, where: str) -> None:
-    """Raise :class:`LogFormatError` if an ``h`` x ``w`` grid exceeds ``max_pixels`` (None: no cap)."""
+    """Raise :class:`~replay.errors.OverCapError` (a :class:`LogFormatError`) if an ``h`` x ``w`` grid
+    exceeds ``max_pixels`` (None: no cap)."""
     if max_pixels is not None and h * w > max_pixels:
-        raise LogFormatError(
+        raise OverCapError(
             f"{where}: {what} of {h}x{w} = {h * w} pixels is more than the cap of {max_pixels} (max_pixels; raise it with ZCUT_MAX_PIXELS)"
         )
 

@@ -76,6 +76,10 @@ class LogWriter:
         Extra MCAP metadata records, name -> key/value strings (e.g. ``{"zcut.synth": {...}}``).
         Text that UTF-8 cannot hold (a file name with undecodable bytes, kept by Python as lone
         surrogates) is written backslash-escaped (``\\udcff``): metadata describes, it is not data.
+    attachments : dict[str, tuple[str, bytes]] or None
+        MCAP attachments, name -> (media type, bytes), e.g. the bin model
+        (``{layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, ply_bytes)}``); written right
+        after the metadata, before any message, so that even a truncated log keeps them.
     chunk_size : int
         Target uncompressed chunk size in bytes (each big cloud gets a chunk of its own).
     zstd_level : int
@@ -92,6 +96,7 @@ class LogWriter:
         path: str | os.PathLike,
         *,
         metadata: dict[str, dict[str, str]] | None = None,
+        attachments: dict[str, tuple[str, bytes]] | None = None,
         chunk_size: int = 4 * 1024 * 1024,
         zstd_level: int = 1,
     ) -> None:
@@ -104,6 +109,8 @@ class LogWriter:
             # user metadata first, so that even a truncated log keeps it
             for name, data in self._meta.items():
                 self._writer.add_metadata(name, data)
+            for name, (media_type, blob) in (attachments or {}).items():
+                self._writer.add_attachment(name, media_type, bytes(blob))
         except BaseException:  # e.g. a metadata string that is not UTF-8: no open file left behind
             self._file.close()
             raise

@@ -1,15 +1,20 @@
-"""Build, save and load the bin model (paper §5.1).
+"""Build, save and load the bin model (paper §5.1), and choose the one a log is replayed with.
 
 Each empty-bin scan is masked from its RGB image (:func:`zcut.binmask.bin_mask`); the valid 3D
 points of the mask are ICP-registered into the first scan's frame; the union is voxel-downsampled,
 given normals (oriented towards the camera) and saved as a PLY point cloud. A CAD model given as a
 PLY mesh or cloud may be used instead (:func:`load_bin_model`); its frame must be camera-like: up is
 -z (what a top-down camera's optical frame gives), metres.
+
+A log may carry its bin model as an MCAP attachment (``docs/formats.md``, "Bin model attachment").
+:func:`bin_model_for` is the one place that decides which model a command replays a log with: the
+``--bin-model`` given, else the log's own attachment, else none (with one warning that names the log
+and says what to do).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -142,14 +147,94 @@ def load_bin_model(path: str | Path, *, voxel_mm: float = 1.0) -> BinModel:
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(2, "No such file", str(p))
-    ply = read_ply_model(p)
-    pts = ply.points
-    if len(pts) == 0:
-        raise LogFormatError(f"{p}: no points in the bin model (expected a PLY point cloud or mesh)")
+    return bin_model_from_ply(read_ply_model(p), what=str(p), voxel_mm=voxel_mm)
+
+
+def bin_model_from_ply(ply, *, what: str, voxel_mm: float = 1.0) -> BinModel:
+    """The :class:`BinModel` of a PLY read by :func:`replay.logs.ply.read_ply_model` (a cloud with or
+    without normals, or a mesh, sampled); ``what`` names it in errors (:class:`LogFormatError`)."""
+    if len(ply.points) == 0:
+        raise LogFormatError(f"{what}: no points in the bin model (expected a PLY point cloud or mesh)")
     try:
         return _model_of(ply, voxel_mm)
     except InputShapeError as e:  # coordinates no voxel grid can hold
-        raise LogFormatError(f"{p}: {e}") from None
+        raise LogFormatError(f"{what}: {e}") from None
+
+
+def bin_model_ply_bytes(model: BinModel) -> bytes:
+    """The model as the PLY bytes of a log's ``bin_model.ply`` attachment (float32 points and normals)."""
+    from replay.logs.ply import ply_model_bytes
+
+    return ply_model_bytes(model.points, model.normals)
+
+
+@dataclass(frozen=True, slots=True)
+class BinModelChoice:
+    """Which bin model a log is replayed with (:func:`bin_model_for`).
+
+    Attributes
+    ----------
+    model : BinModel or None
+        None: the bin stages are skipped.
+    source : str
+        ``"explicit"`` (``--bin-model``), ``"log"`` (the log's attachment) or ``"none"``.
+    warning : str or None
+        The one line to show when there is no model (names the log and what to do), else None.
+    """
+
+    model: BinModel | None
+    source: str
+    warning: str | None = None
+
+
+def bin_model_source(reader, explicit_path: str | Path | None) -> tuple[str, str | None]:
+    """Which bin model ``reader``'s log gets, without loading it: (``"explicit"`` | ``"log"`` |
+    ``"none"``, the warning when ``"none"``). The log's attachment is read and checked here."""
+    if explicit_path is not None:
+        return "explicit", None
+    if reader.attached_bin_model is not None:
+        return "log", None
+    from replay.logs import layout
+
+    log = reader.path
+    why = (f"{log}: {reader.bin_model_problem}" if reader.bin_model_problem else
+           f"{log} carries no bin model (no {layout.BIN_MODEL_ATTACHMENT} attachment)")
+    return "none", (f"{why} and no --bin-model was given: the bin stages are skipped and the z-cut runs on the "
+                    f"whole frame; attach one with `zcut bin-model EMPTY.mcap --into {log} -o NEW.mcap` "
+                    "or give --bin-model PLY")
+
+
+def bin_model_for(reader, explicit_path: str | Path | None, *,
+                  load: Callable[[str | Path], BinModel] | None = None) -> BinModelChoice:
+    """The bin model to replay ``reader``'s log with: ``explicit_path`` (``--bin-model``) when given,
+    else the log's own ``bin_model.ply`` attachment, else none with a warning.
+
+    Parameters
+    ----------
+    reader : replay.logs.reader.LogReader
+    explicit_path : path or None
+    load : callable, optional
+        Loads ``explicit_path`` (default :func:`load_bin_model`; a study's worker passes its cached one).
+
+    Raises
+    ------
+    FileNotFoundError, LogFormatError
+        ``explicit_path`` cannot be read as a bin model (a damaged attachment is a warning instead).
+    """
+    source, warning = bin_model_source(reader, explicit_path)
+    if source == "explicit":
+        return BinModelChoice((load or load_bin_model)(explicit_path), source)
+    if source == "log":
+        from replay.logs import layout
+
+        try:
+            model = bin_model_from_ply(reader.attached_bin_model,
+                                       what=f"{reader.path.name}: attachment {layout.BIN_MODEL_ATTACHMENT}")
+        except LogFormatError as e:
+            return BinModelChoice(None, "none", f"{reader.path}: its bin model attachment is not usable ({e}); the "
+                                  "bin stages are skipped: give --bin-model PLY")
+        return BinModelChoice(model, source)
+    return BinModelChoice(None, source, warning)
 
 
 def _model_of(ply, voxel_mm: float) -> BinModel:

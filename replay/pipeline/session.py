@@ -28,7 +28,9 @@ from typing import Any
 import numpy as np
 
 from replay.errors import ConfigError, LogDamageError
+from replay.logs.damage import Damage
 from replay.logs.frame import Frame
+from replay.logs.stream import DerivedStream
 from replay.pipeline import config as cfg
 from replay.pipeline.sinks import FrameSink, NullSink, ReplayStart
 from replay.pipeline.stages import FrameResult, Zone, bin_zone, locate_bin, run_frame
@@ -123,7 +125,7 @@ class ReplaySummary:
     log: str
     resolved: cfg.Resolved | None = None
     rows: list[FrameRow] = field(default_factory=list)
-    damage: list[str] = field(default_factory=list)
+    damage: list[Damage] = field(default_factory=list)  # what the pass over the log lost
     outputs: dict[str, str] = field(default_factory=dict)
     part_kind: str | None = None
     n_planned: int | None = None  # frames in the requested range, when the log's summary says
@@ -145,7 +147,7 @@ class ReplaySummary:
             "frames": [r.as_dict() for r in self.rows],
             "totals": {**total, "frames": len(self.rows), "time_s": t,
                        "frames_per_s": _json_number(len(self.rows) / t if t > 0 else math.nan)},
-            "damage": list(self.damage),
+            "damage": [d.text for d in self.damage],
             "outputs": dict(self.outputs),
         }
 
@@ -253,7 +255,7 @@ def open_log(path: Path, *, file_layer: dict[str, Any] | None = None, overrides:
         it.close()
     if first is None:
         raise LogDamageError(f"{path.name}: no readable frame on {reader.cloud_topic}"
-                             + (f" ({reader.damage[0]})" if reader.damage else ""))
+                             + (f" ({it.damage[0].text})" if it.damage else ""))
     if resolved is None:
         facts = cfg.log_facts(reader.metadata, first, intrinsics=getattr(reader, "intrinsics", None))
         resolved = cfg.resolve(facts, file_layer=file_layer, cli=overrides)
@@ -274,6 +276,7 @@ class ReplaySession:
         self.reader = reader
         self.resolved = resolved
         self.bin_model = bin_model
+        self.bin_model_choice = None  # how the model was chosen (ReplaySession.open's choose_bin_model)
         c = resolved.config
         self.prepared: PreparedBinModel | None = None
         self.seed: RegistrationResult | None = None
@@ -288,7 +291,8 @@ class ReplaySession:
     def open(cls, path: str | Path, *, config_file: str | Path | None = None,
              overrides: dict[str, Any] | None = None, topic: str | None = None,
              bin_model: BinModel | None = None, reader_options: dict[str, Any] | None = None,
-             resolved: cfg.Resolved | None = None) -> ReplaySession:
+             resolved: cfg.Resolved | None = None,
+             choose_bin_model: Callable[[Any], Any] | None = None) -> ReplaySession:
         """Open a log and resolve its config from its metadata and first readable frame.
 
         Parameters
@@ -308,6 +312,10 @@ class ReplaySession:
         resolved : Resolved, optional
             The config already resolved for this log (a study's worker gets the driver's); then
             ``config_file`` and ``overrides`` are not read.
+        choose_bin_model : callable, optional
+            Called with the opened reader when ``bin_model`` is None; returns a
+            :class:`~replay.pipeline.bin_model.BinModelChoice` (e.g. ``partial(bin_model_for,
+            explicit_path=...)``), kept as :attr:`bin_model_choice`.
 
         Raises
         ------
@@ -317,7 +325,13 @@ class ReplaySession:
         file_layer = cfg.load_toml(config_file) if config_file is not None and resolved is None else None
         reader, first, resolved = open_log(path, file_layer=file_layer, overrides=overrides, topic=topic,
                                            reader_options=reader_options, resolved=resolved)
-        return cls(path, reader, resolved, bin_model, first)
+        choice = None
+        if bin_model is None and choose_bin_model is not None:
+            choice = choose_bin_model(reader)
+            bin_model = choice.model
+        session = cls(path, reader, resolved, bin_model, first)
+        session.bin_model_choice = choice
+        return session
 
     @property
     def config(self) -> cfg.PipelineConfig:
@@ -331,7 +345,7 @@ class ReplaySession:
         return ReplayStart(self.path.name, self.resolved, self.reader.metadata, self.bin_model)
 
     def located(self, *, frames: tuple[int, int | None] = (0, None),
-                config: cfg.PipelineConfig | None = None) -> Iterator[tuple[Frame, Future]]:
+                config: cfg.PipelineConfig | None = None) -> DerivedStream[tuple[Frame, Future]]:
         """``(frame, future of its BinLocation)`` for every readable frame in ``frames``.
 
         The next frame is read in a background thread while this one runs; the bin mask and
@@ -340,14 +354,18 @@ class ReplaySession:
         frame's registration starts from the log's first frame's pose (:attr:`seed`), so a frame's
         result does not depend on which frames ran before it. BLAS is limited to one thread meanwhile
         (its spinning workers otherwise steal the cores from those threads). Closing the generator
-        stops and joins both threads.
+        stops and joins both threads. Its ``damage`` is the frame stream's (final once it has ended).
         """
+        config = self._check(config)
+        start, stop = frames
+        stream = self.reader.frames(start=start, stop=stop)
+        return DerivedStream(self._located(stream, config), stream)
+
+    def _located(self, stream, config: cfg.PipelineConfig) -> Iterator[tuple[Frame, Future]]:
         from threadpoolctl import threadpool_limits
 
-        config = self._check(config)
         bin_model, seed = self.prepared, self.seed
-        start, stop = frames
-        frame_iter = prefetched(self.reader.frames(start=start, stop=stop))
+        frame_iter = prefetched(stream)
         locator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="zcut-locate")
         blas = threadpool_limits(limits=1, user_api="blas")
         pending: tuple[Frame, Future] | None = None
@@ -372,7 +390,7 @@ class ReplaySession:
         finally:
             locator.shutdown(wait=True, cancel_futures=True)
             blas.restore_original_limits()
-            frame_iter.close()  # joins the reader thread: reader.damage is final
+            frame_iter.close()  # joins the reader thread: the stream's damage is final
 
     def _check(self, config: cfg.PipelineConfig | None) -> cfg.PipelineConfig:
         config = self.config if config is None else config
@@ -383,22 +401,29 @@ class ReplaySession:
         return config
 
     def results(self, *, frames: tuple[int, int | None] = (0, None),
-                config: cfg.PipelineConfig | None = None) -> Iterator[tuple[Frame, FrameResult]]:
+                config: cfg.PipelineConfig | None = None) -> DerivedStream[tuple[Frame, FrameResult]]:
         """``(frame, result)`` of every readable frame in ``frames`` (start, stop exclusive or None),
-        computed as :meth:`located` describes. ``config``: run another config than the resolved one
-        (it must keep the resolved registration and removal parameters, which the bin model was
-        prepared with)."""
+        computed as :meth:`located` describes; its ``damage`` names the frames lost. ``config``: run
+        another config than the resolved one (it must keep the resolved registration and removal
+        parameters, which the bin model was prepared with)."""
         config = self._check(config)
         located = self.located(frames=frames, config=config)
+        return DerivedStream(self._results(located, config), located)
+
+    def _results(self, located, config: cfg.PipelineConfig) -> Iterator[tuple[Frame, FrameResult]]:
         try:
             for frame, future in located:
                 yield frame, run_frame(frame, config, bin_model=self.prepared, located=future.result())
         finally:
             located.close()
 
-    def zones(self, *, frames: tuple[int, int | None] = (0, None)) -> Iterator[tuple[Frame, Zone]]:
-        """``(frame, zone)``: the bin stages only, for callers that filter a zone many ways (a sweep)."""
+    def zones(self, *, frames: tuple[int, int | None] = (0, None)) -> DerivedStream[tuple[Frame, Zone]]:
+        """``(frame, zone)``: the bin stages only, for callers that filter a zone many ways (a sweep);
+        its ``damage`` names the frames lost."""
         located = self.located(frames=frames)
+        return DerivedStream(self._zones(located), located)
+
+    def _zones(self, located) -> Iterator[tuple[Frame, Zone]]:
         try:
             for frame, future in located:
                 yield frame, bin_zone(frame, self.config, bin_model=self.prepared, located=future.result())
@@ -421,6 +446,7 @@ class ReplaySession:
         completed = False
         poses = true_poses_of(reader.metadata)
         sink.start(self.start_info())
+        results = None
         try:
             results = self.results(frames=frames)
             try:
@@ -434,7 +460,7 @@ class ReplaySession:
                 results.close()
             completed = True
         finally:
-            summary.damage = list(reader.damage)
+            summary.damage = list(results.damage) if results is not None else []
             sink.close(completed=completed)
             summary.outputs = sink.outputs()
             summary.viewer_error = getattr(sink, "viewer_error", None)

@@ -5,8 +5,10 @@ A synthetic log holds, per frame and all with the same header stamp: the organiz
 exact outliers on ``/ground_truth/outliers`` (mono8, 255 = outlier) and their kinds on
 ``/ground_truth/outlier_kind`` (mono8, SPEC §5 codes). The MCAP metadata record ``zcut.synth``
 describes how it was made (part kind, seed, finish, camera distance, bin geometry, size, ...), and
-``zcut.synth.poses`` holds every frame's true bin pose (:func:`true_poses` reads it back). The same
-arguments give the same bytes.
+``zcut.synth.poses`` holds every frame's true bin pose (:func:`true_poses` reads it back). The log
+carries the generator's exact bin model as its ``bin_model.ply`` attachment
+(:mod:`replay.synth.bin_surface`; ``docs/formats.md``, "Bin model attachment"). The same arguments
+give the same bytes.
 """
 
 from __future__ import annotations
@@ -212,7 +214,12 @@ def write_synthetic_log(
                           quantize_mm=q)
     poses = pose_metadata(seed=seed, frames=int(frames), empty=empty)
     path = Path(path)
-    with LogWriter(path, metadata={layout.SYNTH_METADATA: meta, layout.SYNTH_POSES_METADATA: poses}) as writer:
+    from replay.synth.bin_surface import bin_model_ply
+
+    # the exact bin model travels with the log: replayed without --bin-model, it runs the bin stages
+    model = {layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, bin_model_ply())}
+    with LogWriter(path, metadata={layout.SYNTH_METADATA: meta, layout.SYNTH_POSES_METADATA: poses},
+                   attachments=model) as writer:
         for i in range(int(frames)):
             t0 = time.perf_counter()
             sf = synthesize_frame(kind=kind, seed=seed, index=i, size=size, shiny=shiny, empty=empty, quantize_mm=q)

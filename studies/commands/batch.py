@@ -68,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
                 print(f"zcut: reading {n} logs: {i + 1}/{n} {path.name}", file=err, flush=True)
 
         plans = plan_logs(args.inputs, config_file=args.config, overrides=overrides, topic=args.topic,
-                          frames_per_unit=args.frames_per_unit, whole=args.results or args.rrd, progress=planning)
+                          frames_per_unit=args.frames_per_unit, whole=args.results or args.rrd, progress=planning,
+                          bin_model=args.bin_model)
         options = study_options(args, overrides) | {"results": args.results, "rrd": args.rrd}
         store = PartStore(args.out, identity("batch", options, plans))
         units, todo = start_units(plans, store, what="", executor=executor)

@@ -1,8 +1,10 @@
 """``zcut demo``: the whole job on the bundled synthetic sample, with its true accuracy.
 
-Synthesises the sample log and the bin model on first use (cached), replays the sample with its
-part-kind preset, writes an .rrd and a results MCAP, prints the per-frame table and the true
-accuracy of the z-cut and SOR against the sample's exact ground truth.
+Synthesises the sample log on first use (cached), replays the sample with its part-kind preset and
+its own bin model (the ``bin_model.ply`` attachment every synthetic log carries; a sample cached
+before logs carried one gets a model built once from 5 synthetic empty-bin scans), writes an .rrd
+and a results MCAP, prints the per-frame table and the true accuracy of the z-cut and SOR against
+the sample's exact ground truth.
 """
 
 from __future__ import annotations
@@ -36,8 +38,9 @@ def run(args: argparse.Namespace) -> int:
     )
     from annotate.truth import SyntheticTruth, scored_region
     from replay.commands.replay import print_table_callbacks, viewer_command
+    from replay.logs.reader import LogReader
     from replay.outputs import OutputPlan, config_path_for
-    from replay.pipeline.bin_model import ensure_sample_bin_model, load_bin_model
+    from replay.pipeline.bin_model import BinModelChoice, bin_model_for, ensure_sample_bin_model, load_bin_model
     from replay.pipeline.session import ReplaySession
     from replay.pipeline.sinks import BackgroundSinks, ConfigBeside, RerunSink, ResultsSink
     from replay.process import EXIT_DATA_LOSS
@@ -51,10 +54,15 @@ def run(args: argparse.Namespace) -> int:
     if not sample_log_path().is_file():
         print(f"zcut: synthesising the sample log (once): {sample_log_path()}", file=err, flush=True)
     sample = ensure_sample_log(progress=progress)
-    model = None
-    if not args.no_bin:
+
+    def sample_model(reader: LogReader) -> BinModelChoice:
+        choice = bin_model_for(reader, None)
+        if choice.model is not None:
+            print("zcut: bin model: the sample's own (its bin_model.ply attachment)", file=err, flush=True)
+            return choice
         print("zcut: bin model of the sample (built once from 5 synthetic empty-bin scans)", file=err, flush=True)
-        model = load_bin_model(ensure_sample_bin_model(progress=progress))
+        return BinModelChoice(load_bin_model(ensure_sample_bin_model(progress=progress)), "explicit")
+
     out_dir = Path(args.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rrd = out_dir / "zcut_demo.rrd"
@@ -78,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     for path, what in ((rrd, "the .rrd"), (results, "the results file")):
         plan.add(path, what)
         plan.add(config_path_for(path), f"the config beside {what}")
-    session = ReplaySession.open(sample, bin_model=model)
+    session = ReplaySession.open(sample, choose_bin_model=None if args.no_bin else sample_model)
     on_start(session, planned=session.reader.n_frames)
     sinks: list[FrameSink] = [RerunSink(rrd=rrd, full_detail=args.full_detail), ConfigBeside(rrd), ResultsSink(results),
                               ConfigBeside(results)]
@@ -100,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"\nOpen the recording with:  {viewer_command()} {rrd}", file=sys.stdout if not args.json else err)
     if summary.damage:
         for d in summary.damage:
-            print(f"warning: data loss: {d}", file=err)
+            print(f"warning: data loss: {d.text}", file=err)
         return EXIT_DATA_LOSS
     return 0
 

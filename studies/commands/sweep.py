@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     executor = make_executor(workers=args.workers, ray=args.ray)
     try:
         plans = plan_logs(logs, config_file=args.config, overrides=overrides, topic=args.topic,
-                          frames_per_unit=args.frames_per_unit, whole=False)
+                          frames_per_unit=args.frames_per_unit, whole=False, bin_model=args.bin_model)
         first = next(p for p in plans if p.units)
         assert first.resolved is not None  # a log with units was resolved
         base = first.resolved.config

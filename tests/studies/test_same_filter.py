@@ -69,8 +69,10 @@ def test_every_command_resolves_the_same_config_and_masks(logs, kind, tmp_path, 
     # annotate: the log opened as `zcut annotate` opens it (annotate.server.open_page), frames in log
     # order as its catalogue prepares them (Catalogue.of_replay: the session's results)
     from replay.pipeline import config as cfg
+    from replay.pipeline.bin_model import bin_model_for
 
-    replay = ReplaySession.open(log, config_file=config, overrides=cfg.cli_layer(rho=0.05, step=0.25))
+    replay = ReplaySession.open(log, config_file=config, overrides=cfg.cli_layer(rho=0.05, step=0.25),
+                                choose_bin_model=lambda reader: bin_model_for(reader, None))  # as every command
     for f, r in replay.results():
         assert np.array_equal(r.zcut_outliers, masks[f.index][0]), f"annotate, frame {f.index}"
         assert np.array_equal(r.sor_outliers, masks[f.index][1]), f"annotate, frame {f.index}"

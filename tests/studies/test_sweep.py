@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import tomllib
 
-import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from cli_helpers import run_cli
@@ -47,9 +46,9 @@ def test_counts_equal_replay_at_grid_points(log, swept, capsys):
             row = row[0]
             assert row["n_pred"] == fr["zcut"]
             f = res[fr["index"]]
-            # S = valid ∩ zone; without a bin model the zone is every valid pixel
-            valid = np.isfinite(f.xyz).all(axis=2) | f.masks[layout.ZCUT_OUTLIERS] | f.masks[layout.SOR_OUTLIERS]
-            L = truth[fr["index"]] & valid
+            # S = valid ∩ zone: the pixels the filters judged (the log's own bin model removed table and bin)
+            zone = f.masks[layout.ZONE]
+            L = truth[fr["index"]] & zone
             P = f.masks[layout.ZCUT_OUTLIERS]
             assert (row["tp"], row["fp"], row["fn"]) == (int((P & L).sum()), int((P & ~L).sum()), int((L & ~P).sum()))
             sor = [r for r in t if r["method"] == "sor" and r["frame"] == fr["index"] and r["sor_k"] == 4

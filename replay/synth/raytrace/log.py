@@ -2,7 +2,8 @@
 
 The same topics as ``replay.synth.log`` (cloud, colour image, camera info, truth mask, kind codes,
 true depth), the same ``zcut.synth`` and ``zcut.synth.poses`` metadata records (the bin poses are
-the hand-made generator's for the same seed), and kind codes 5-8. Same arguments, same bytes.
+the hand-made generator's for the same seed), the same ``bin_model.ply`` attachment (the bin both
+generators draw), and kind codes 5-8. Same arguments, same bytes.
 """
 
 from __future__ import annotations
@@ -77,7 +78,12 @@ def write_raytraced_log(
     meta = raytraced_metadata(kind=kind, seed=seed, frames=int(frames), size=size, empty=empty, model=model)
     poses = pose_metadata(seed=seed, frames=int(frames), empty=empty)
     path = Path(path)
-    with LogWriter(path, metadata={layout.SYNTH_METADATA: meta, layout.SYNTH_POSES_METADATA: poses}) as writer:
+    from replay.synth.bin_surface import bin_model_ply
+
+    # the exact bin model travels with the log (docs/formats.md, "Bin model attachment")
+    attached = {layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, bin_model_ply())}
+    with LogWriter(path, metadata={layout.SYNTH_METADATA: meta, layout.SYNTH_POSES_METADATA: poses},
+                   attachments=attached) as writer:
         for i in range(int(frames)):
             t0 = time.perf_counter()
             rf = synthesize_raytraced_frame(kind=kind, seed=seed, index=i, size=size, empty=empty,

@@ -1,6 +1,6 @@
 """Bounded resources and the exit-status contract (SPEC §6, issue 11): special files are refused
 without blocking, decoded sizes are checked against the bytes present and the caps before any
-allocation, every lost frame is named in ``reader.damage`` with the log's own index, and the
+allocation, every lost frame is named in the stream's ``damage`` with the log's own index, and the
 log-level facts (intrinsics, first shape) do not depend on which frames survived."""
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import struct
 
 import numpy as np
 import pytest
+from log_helpers import read_frames
 from mcap.writer import CompressionType, Writer
 
 from replay.errors import LogFormatError
@@ -107,16 +108,16 @@ def test_zstd_bomb_is_skipped_before_allocation(tmp_path):
     _bomb_log(p, (2048, 2048))  # 64 MiB of zeros in a few kB
     assert p.stat().st_size < 100_000
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    r = LogReader(p, max_pixels=1 << 20)
-    assert [f.index for f in r.frames()] == [0, 2]
-    assert r.damage == [
+    got, damage = read_frames(p, max_pixels=1 << 20)
+    assert [f.index for f in got] == [0, 2]
+    assert damage == [
         "frame 1 (stamp 0.000000002) skipped: bomb.mcap: topic /p, message 1: PointCloud2 of 2048x2048 = "
         "4194304 pixels is more than the cap of 1048576 (max_pixels; raise it with ZCUT_MAX_PIXELS)"
     ]
-    r = LogReader(p, max_message_bytes=1 << 20)  # the message itself is over the byte cap
-    assert [f.index for f in r.frames()] == [0, 2]
+    got, damage = read_frames(p, max_message_bytes=1 << 20)  # the message itself is over the byte cap
+    assert [f.index for f in got] == [0, 2]
     assert re.match(r"^frame 1 \(log time 0\.000000002\) skipped: .*message of \d+ bytes, more than the cap "
-                    r"of 1048576", r.damage[0]), r.damage
+                    r"of 1048576", damage[0]), damage
     grown = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before
     assert grown < 400 * 1024, f"peak RSS grew by {grown // 1024} MB"  # never the 4M-point arrays
 
@@ -130,11 +131,11 @@ def test_chunk_claiming_a_huge_size_is_refused_before_decompressing(tmp_path):
     raw = bytearray(p.read_bytes())
     struct.pack_into("<Q", raw, victim.chunk_start_offset + 9 + 16, 1 << 40)  # uncompressed_size
     p.write_bytes(bytes(raw))
-    r = LogReader(p)
-    got = [f.index for f in r.frames()]
+    frames, damage = read_frames(p)
+    got = [f.index for f in frames]
     assert 1 not in got and got == [0, 2]
-    assert f"claims {1 << 40} uncompressed bytes, more than the cap" in r.damage[0]
-    assert r.damage[1] == f"frame 1 (log time 2.000000000) lost with the chunk at byte {victim.chunk_start_offset}"
+    assert f"claims {1 << 40} uncompressed bytes, more than the cap" in damage[0]
+    assert damage[1] == f"frame 1 (log time 2.000000000) lost with the chunk at byte {victim.chunk_start_offset}"
 
 
 def _ply(tmp_path, header: str, body: bytes = b"") -> object:
@@ -222,12 +223,11 @@ def test_missing_chunk_and_damaged_summary_keep_indices(tmp_path, writer):
     assert len(chunks) == 3
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(_cut_chunk(p.read_bytes(), chunks[1]))
-    r = LogReader(cut)
-    got = list(r.frames())
+    got, damage = read_frames(cut)
     assert [f.index for f in got] == [0, 2]
     assert [f.stamp_ns for f in got] == [10**9, 3 * 10**9]
-    assert any("summary section is damaged" in d for d in r.damage), r.damage
-    assert "frame 1 lost: /camera/points message sequence jumps from 0 to 2 (a chunk is missing)" in r.damage
+    assert any("summary section is damaged" in d for d in damage), damage
+    assert "frame 1 lost: /camera/points message sequence jumps from 0 to 2 (a chunk is missing)" in damage
 
 
 def test_summary_counts_name_frames_a_scan_cannot_reach(tmp_path):
@@ -240,9 +240,9 @@ def test_summary_counts_name_frames_a_scan_cannot_reach(tmp_path):
     # an early DataEnd in place of the last chunk's record: the scan stops there
     raw[last.chunk_start_offset] = 0x0F
     p.write_bytes(bytes(raw))
-    r = LogReader(p)
-    assert [f.index for f in r.frames()] == [0, 1]
-    assert any(d.startswith("frame 2 ") for d in r.damage), r.damage
+    got, damage = read_frames(p)
+    assert [f.index for f in got] == [0, 1]
+    assert any(d.startswith("frame 2 ") for d in damage), damage
 
 
 # ----------------------------------------------------------------------------- log-level facts
@@ -263,7 +263,8 @@ def test_intrinsics_and_shape_do_not_depend_on_surviving_frames(tmp_path):
     bad.write_bytes(bytes(raw))
     r = LogReader(bad)
     assert (r.intrinsics, r.first_shape) == (K, (H, W))  # from frame 1's messages
-    assert [f.index for f in r.frames()] == [1, 2] and r.damage
+    got, damage = read_frames(bad)
+    assert [f.index for f in got] == [1, 2] and damage
     no_info = tmp_path / "noinfo.mcap"
     _write(no_info, 1, info=False)
     assert LogReader(no_info).intrinsics is None
@@ -288,9 +289,10 @@ def test_malformed_first_camera_info_is_passed_over(tmp_path):
         w.finish()
     r = LogReader(p)
     assert r.intrinsics == K and r.info_topic == layout.CAMERA_INFO
-    assert [f.intrinsics for f in r.frames()] == [K]
-    assert len(r.damage) == 1 and r.damage[0].startswith("m.mcap: topic /camera/camera_info, message at log "
-                                                         "time 0.000000001: ")
+    got, damage = read_frames(p)
+    assert [f.intrinsics for f in got] == [K]
+    assert len(damage) == 1 and damage[0].startswith("m.mcap: topic /camera/camera_info, message at log "
+                                                     "time 0.000000001: ")
 
 
 # ----------------------------------------------------------------------------- stamps

@@ -18,6 +18,7 @@ from mcap.writer import CompressionType, Writer
 from replay.cli import main
 from replay.errors import LogDamageError, LogFormatError
 from replay.logs import ros2_msgs as rm
+from replay.logs.damage import damage_lines
 from replay.logs.frame import Frame
 from replay.logs.mcap_scan import McapFile
 from replay.logs.reader import LogReader
@@ -61,8 +62,10 @@ def small_log(tmp_path_factory):
 
 
 def _read_all(path, **kw):
-    r = LogReader(path, **kw)
-    return r, list(r.frames())
+    """(the texts of one pass's damage records, its frames)."""
+    stream = LogReader(path, **kw).frames()
+    got = list(stream)
+    return damage_lines(stream.damage), got
 
 
 def _check_prefix(got, frames):
@@ -84,7 +87,7 @@ def test_truncation_at_many_offsets(small_log, tmp_path):
         p.write_bytes(raw[:t])
         expect = [k for k in range(N) if cloud_end[k] <= t]
         try:
-            r, got = _read_all(p)
+            damage, got = _read_all(p)
         except LogDamageError:
             assert not expect, f"cut at {t}: raised although frames {expect} are intact"
             continue
@@ -94,10 +97,10 @@ def test_truncation_at_many_offsets(small_log, tmp_path):
         assert [g.index for g in got] == expect, f"cut at {t}"
         _check_prefix(got, frames)
         if t < data_end:
-            assert r.damage and "truncated" in r.damage[-1], f"cut at {t}: no damage note"
+            assert damage and "truncated" in damage[-1], f"cut at {t}: no damage note"
             seen_partial |= 0 < len(got) < N
         else:  # only the summary is lost: every frame is there, nothing to report
-            assert len(got) == N and r.damage == []
+            assert len(got) == N and damage == []
     assert seen_partial
 
 
@@ -119,15 +122,15 @@ def test_corrupt_chunk_keeps_the_others_and_indices(small_log, tmp_path, with_su
         bad = bad[:data_end - 20]  # also lose the end: sequential scan, counts from MessageIndex records
     p = tmp_path / "flip.mcap"
     p.write_bytes(bad)
-    r, got = _read_all(p)
+    damage, got = _read_all(p)
     # the chunk held frame 1's image and mask and frame 2's cloud: frame 1 cannot be read whole
     # (skipped, named), frame 2 is lost (named), the others keep their true indices
     assert [g.index for g in got] == [0, 3, 4, 5]
     _check_prefix(got, frames)
-    assert any(f"chunk at byte {victim.chunk_start_offset} is corrupt" in d for d in r.damage)
+    assert any(f"chunk at byte {victim.chunk_start_offset} is corrupt" in d for d in damage)
     assert any(d.startswith("frame 1 (stamp 2.000000000) skipped: ") and "/camera/image message was lost" in d
-               for d in r.damage), r.damage
-    assert f"frame 2 (log time 3.000000000) lost with the chunk at byte {victim.chunk_start_offset}" in r.damage
+               for d in damage), damage
+    assert f"frame 2 (log time 3.000000000) lost with the chunk at byte {victim.chunk_start_offset}" in damage
 
 
 def test_bad_record_length_resumes_at_next_chunk(small_log, tmp_path):
@@ -137,10 +140,10 @@ def test_bad_record_length_resumes_at_next_chunk(small_log, tmp_path):
     raw[victim.chunk_start_offset + 1 : victim.chunk_start_offset + 9] = struct.pack("<Q", 2**62)
     p = tmp_path / "len.mcap"
     p.write_bytes(bytes(raw))
-    r, got = _read_all(p)
+    damage, got = _read_all(p)
     assert [g.index for g in got] == [0, 2, 3, 4, 5]
     _check_prefix(got, frames)
-    assert "skipped to the next chunk" in r.damage[0]
+    assert "skipped to the next chunk" in damage[0]
 
 
 def test_real_log_truncations_and_flips(real_data, tmp_path):
@@ -152,18 +155,16 @@ def test_real_log_truncations_and_flips(real_data, tmp_path):
     for t in (c0.chunk_start_offset + c0.chunk_length + 100, c1.chunk_start_offset + c1.chunk_length // 2):
         p = tmp_path / "cut.mcap"
         p.write_bytes(raw[:t])
-        r = LogReader(p)
-        got = list(r.frames())
+        damage, got = _read_all(p)
         assert [g.index for g in got] == [0]
         np.testing.assert_array_equal(got[0].xyz, full[0].xyz)
-        assert r.damage and "truncated" in r.damage[0]
+        assert damage and "truncated" in damage[0]
     p = tmp_path / "flip.mcap"
     p.write_bytes(_flip_chunk(raw, c0, 0.3))
-    r = LogReader(p)
-    got = list(r.frames())
+    damage, got = _read_all(p)
     assert [g.index for g in got] == [1]
     np.testing.assert_array_equal(got[0].xyz, full[1].xyz)
-    assert "is corrupt" in r.damage[0]
+    assert "is corrupt" in damage[0]
     p.write_bytes(raw[: c0.chunk_start_offset + 1000])
     with pytest.raises(LogDamageError, match="mosd|flip|is damaged|no frame"):
         list(LogReader(p).frames())
@@ -230,10 +231,10 @@ def test_hostile_messages(tmp_path, messages, where, match):
             LogReader(p)
     else:  # SPEC §6: the unreadable frame 1 is skipped and named, the stream goes on
         _raw_log(p, [*messages, ("/p", rm.POINTCLOUD2, _cloud(4, 5, stamp_ns=11))])
-        r = LogReader(p)
-        assert [f.index for f in r.frames()] == [0, 2]
-        assert len(r.damage) == 1, r.damage
-        assert re.match(r"^frame 1 \((stamp|log time) [0-9.]+\) skipped: h.mcap: " + match, r.damage[0]), r.damage
+        damage, got = _read_all(p)
+        assert [f.index for f in got] == [0, 2]
+        assert len(damage) == 1, damage
+        assert re.match(r"^frame 1 \((stamp|log time) [0-9.]+\) skipped: h.mcap: " + match, damage[0]), damage
 
 
 def test_choose_topic_explicitly(tmp_path):
@@ -331,9 +332,8 @@ def test_seeded_mutator(small_log, real_data, tmp_path):
         for kind, data in mutations(raw, rng, n):
             p.write_bytes(data)
             try:
-                r = LogReader(p)
-                got = list(r.frames())
-                key = "damaged" if r.damage else "ok"
+                damage, got = _read_all(p)
+                key = "damaged" if damage else "ok"
                 for g in got:
                     assert g.xyz.dtype == np.float32 and g.xyz.ndim == 3
             except LogFormatError as e:
@@ -377,11 +377,11 @@ def test_chunk_crc_is_checked(small_log, tmp_path):
     raw[crc_at : crc_at + 4] = struct.pack("<I", zlib.crc32(b"other") or 1)
     p = tmp_path / "crc.mcap"
     p.write_bytes(bytes(raw))
-    r = LogReader(p)
+    damage, got = _read_all(p)
     # the chunk held frame 3's image and mask and frame 4's cloud (contract: both named, skipped)
-    assert [g.index for g in r.frames()] == [0, 1, 2, 5]
-    assert "fails its CRC check" in r.damage[0]
-    assert sorted(d.split(" (")[0] for d in r.damage[1:]) == ["frame 3", "frame 4"], r.damage
+    assert [g.index for g in got] == [0, 1, 2, 5]
+    assert "fails its CRC check" in damage[0]
+    assert sorted(d.split(" (")[0] for d in damage[1:]) == ["frame 3", "frame 4"], damage
 
 
 def test_zeroed_region_is_damage_not_a_slow_scan(small_log, tmp_path):
@@ -393,14 +393,14 @@ def test_zeroed_region_is_damage_not_a_slow_scan(small_log, tmp_path):
     raw[victim.chunk_start_offset : victim.chunk_start_offset + 64] = bytes(64)
     p = tmp_path / "zeros.mcap"
     p.write_bytes(bytes(raw))
-    r = LogReader(p)
-    assert [g.index for g in r.frames()] == [0, 1, 4, 5]  # frame 2's image and frame 3 were in it
-    assert r.damage[0].startswith(f"invalid record opcode 0x00 at byte {victim.chunk_start_offset}")
+    damage, got = _read_all(p)
+    assert [g.index for g in got] == [0, 1, 4, 5]  # frame 2's image and frame 3 were in it
+    assert damage[0].startswith(f"invalid record opcode 0x00 at byte {victim.chunk_start_offset}")
     cut = tmp_path / "zeros_tail.mcap"
     cut.write_bytes(bytes(raw[: victim.chunk_start_offset]) + bytes(50_000_000))  # no summary left
-    r = LogReader(cut)
-    assert [g.index for g in r.frames()] == [0, 1, 2]
-    assert "invalid record opcode 0x00" in r.damage[0] and "the rest is lost" in r.damage[0]
+    damage, got = _read_all(cut)
+    assert [g.index for g in got] == [0, 1, 2]
+    assert "invalid record opcode 0x00" in damage[0] and "the rest is lost" in damage[0]
 
 
 def test_rosbag2_per_message_zstd_compression(tmp_path):
@@ -420,10 +420,10 @@ def test_rosbag2_per_message_zstd_compression(tmp_path):
     bad = bytearray(zstandard.compress(cloud))
     bad[-6] ^= 0xFF
     _raw_log(p, [("/p", rm.POINTCLOUD2, _cloud(4, 5)), ("/p", rm.POINTCLOUD2, bytes(bad))])
-    r = LogReader(p)
-    assert [f.index for f in r.frames()] == [0]  # SPEC §6: skipped and named, not the end of the run
+    damage, got = _read_all(p)
+    assert [f.index for f in got] == [0]  # SPEC §6: skipped and named, not the end of the run
     assert re.match(r"^frame 1 \(log time 0\.000000001\) skipped: msgz.mcap: topic /p, message 1: "
-                    "zstd-compressed message", r.damage[0]), r.damage
+                    "zstd-compressed message", damage[0]), damage
 
 
 def _statistics_counts_at(raw: bytes) -> list[int]:
@@ -450,10 +450,10 @@ def test_absurd_summary_count_is_damage_not_a_hang(small_log, tmp_path, count):
         raw[at:at + 8] = struct.pack("<Q", count)
     p = tmp_path / "lie.mcap"
     p.write_bytes(bytes(raw))
-    r, got = _read_all(p)
+    damage, got = _read_all(p)
     assert [g.index for g in got] == list(range(N))
     _check_prefix(got, frames)
-    assert r.damage == [f"frames {N}-{count - 1} lost: the summary lists {count} messages on /camera/points, "
-                        f"the file holds {N}"]
-    r = LogReader(p)
-    assert [g.index for g in r.frames(start=1, stop=3)] == [1, 2] and r.damage == []  # a range stops early
+    assert damage == [f"frames {N}-{count - 1} lost: the summary lists {count} messages on /camera/points, "
+                      f"the file holds {N}"]
+    part = LogReader(p).frames(start=1, stop=3)
+    assert [g.index for g in part] == [1, 2] and part.damage == ()  # a range stops early

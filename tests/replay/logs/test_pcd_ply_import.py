@@ -329,8 +329,9 @@ def test_record_real_pcds_round_trip(real_data, tmp_path, capsys):
     r = LogReader(out)
     assert (r.cloud_topic, r.image_topic, r.n_frames) == ("/camera/points", "/camera/image", 9)
     assert r.metadata["zcut.record"]["sources"].splitlines()[0].endswith(REAL_PCDS[0])
-    frames = list(r.frames())
-    assert r.damage == []
+    stream = r.frames()
+    frames = list(stream)
+    assert stream.damage == ()
     for f, name in zip(frames, REAL_PCDS, strict=True):  # folder expanded in sorted order
         src = read_pcd(real_data / name)
         np.testing.assert_array_equal(f.xyz, src.xyz)

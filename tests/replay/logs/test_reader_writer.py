@@ -52,9 +52,10 @@ def test_round_trip_is_exact(log3):
     assert r.mask_topics == ["/ground_truth/outliers", "/zcut/outliers"]
     assert r.n_frames == 3
     assert r.metadata["zcut.synth"] == {"part_kind": "spheres", "seed": "7"}
-    got = list(r.frames())
+    stream = r.frames()
+    got = list(stream)
     assert [g.index for g in got] == [0, 1, 2]
-    assert r.damage == []
+    assert stream.damage == ()
     for g, f in zip(got, frames, strict=True):
         assert g.xyz.dtype == np.float32 and g.xyz.shape == (H, W, 3)
         np.testing.assert_array_equal(g.xyz, f.xyz)  # NaN positions equal too
@@ -223,8 +224,9 @@ def test_real_ros2_ouster_log(real_data):
     r = LogReader(real_data / "ouster_os1_64_ros2_reencoded.mcap")
     assert r.cloud_topic == "/os1_cloud_node/points" and r.image_topic is None
     assert r.mask_topics == ["/img_node/intensity_image", "/img_node/noise_image", "/img_node/range_image"]
-    frames = list(r.frames())
-    assert len(frames) == 2 and r.damage == []
+    stream = r.frames()
+    frames = list(stream)
+    assert len(frames) == 2 and stream.damage == ()
     with open(real_data / "ouster_os1_64_ros2_reencoded.mcap", "rb") as fh:
         reader = make_reader(fh, decoder_factories=[DecoderFactory()])
         raw = [m for _, _, _, m in reader.iter_decoded_messages(topics=["/os1_cloud_node/points"])]

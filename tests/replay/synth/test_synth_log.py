@@ -49,8 +49,9 @@ def test_log_holds_the_frames_and_their_truth(tmp_path):
     assert float(meta["bin_height_mm"]) == BIN.height_mm
     assert meta["size"] == "160x120" and meta["frames"] == "2"
     assert float(meta["p_min_mm"]) == 16.0 and float(meta["a_max_px"]) > 0
-    frames = list(reader.frames())
-    assert reader.damage == []
+    stream = reader.frames()
+    frames = list(stream)
+    assert stream.damage == ()
     assert len(frames) == 2
     for i, f in enumerate(frames):
         sf = synthesize_frame(kind="rods", seed=9, index=i, size=SIZE)
