@@ -30,8 +30,21 @@ MIN_SCAN_FITNESS = 0.6
 
 def run(args: argparse.Namespace) -> int:
     from replay.errors import ConfigError
+    from replay.outputs import OutputPlan
+
+    if not args.voxel > 0:
+        raise ConfigError(f"--voxel must be > 0 mm, got {args.voxel!r}")
+    if (args.log is None) == (args.model is None):
+        raise ConfigError("give either EMPTY.mcap or --model PLY (not both)")
+    with OutputPlan([p for p in (args.log, args.model, args.config) if p], force=args.force) as plan:
+        plan.add(args.output, "the bin model")  # locked until the model is written
+        return _build(args)
+
+
+def _build(args: argparse.Namespace) -> int:
+    from replay.errors import ConfigError
     from replay.logs import layout
-    from replay.outputs import AtomicOutput, OutputPlan
+    from replay.outputs import AtomicOutput
     from replay.pipeline import config as cfg
     from replay.pipeline.bin_model import (
         build_bin_model,
@@ -40,11 +53,6 @@ def run(args: argparse.Namespace) -> int:
     )
     from replay.pipeline.session import parse_frames
 
-    if not args.voxel > 0:
-        raise ConfigError(f"--voxel must be > 0 mm, got {args.voxel!r}")
-    if (args.log is None) == (args.model is None):
-        raise ConfigError("give either EMPTY.mcap or --model PLY (not both)")
-    OutputPlan([p for p in (args.log, args.model, args.config) if p], force=args.force).add(args.output, "the bin model")
     if args.model is not None:
         import numpy as np
 

@@ -99,9 +99,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--stamp-start {args.stamp_start:g} + {len(files) - 1} × --period {args.period:g} s "
                           "goes past the ROS 2 time range (2038-01-19)")
     out = Path(args.output)
-    OutputPlan([str(f) for f in files], force=args.force).add(out, "the log")
     meta = {"zcut.record": {"sources": "\n".join(str(f) for f in files), "unit": args.unit}}
-    with AtomicOutput(out) as target:
+    with OutputPlan([str(f) for f in files], force=args.force) as plan, \
+            AtomicOutput(plan.add(out, "the log")) as target:
         with LogWriter(target.temp, metadata=meta) as w:
             for i, f in enumerate(files):
                 cloud = read_pcd(f) if f.suffix.lower() == ".pcd" else read_ply(f, shape=shape)

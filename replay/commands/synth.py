@@ -58,8 +58,7 @@ def run(args: argparse.Namespace) -> int:
 
     from replay.outputs import AtomicOutput, OutputPlan
 
-    OutputPlan([], force=args.force).add(args.output, "the log")
-    with AtomicOutput(args.output) as out:
+    with OutputPlan([], force=args.force) as plan, AtomicOutput(plan.add(args.output, "the log")) as out:
         write_synthetic_log(out.temp, kind=args.parts, frames=args.frames, seed=args.seed, size=(h, w),
                             empty=args.empty, shiny=args.shiny, quantize_mm=args.quantize_mm, progress=progress)
     print(f"zcut: wrote {args.output} ({args.frames} frame(s), seed {args.seed})", file=sys.stderr)

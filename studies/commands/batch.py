@@ -39,6 +39,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from contextlib import ExitStack
+
+    with ExitStack() as stack:  # the output folder stays locked until the tables are written
+        return _run(args, stack)
+
+
+def _run(args: argparse.Namespace, stack) -> int:
     from replay.commands.common import overrides_of
     from replay.process import EXIT_DATA_LOSS
     from studies import batch
@@ -70,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
         plans = plan_logs(args.inputs, config_file=args.config, overrides=overrides, topic=args.topic,
                           frames_per_unit=args.frames_per_unit, whole=args.results or args.rrd, progress=planning)
         options = study_options(args, overrides) | {"results": args.results, "rrd": args.rrd}
-        store = PartStore(args.out, identity("batch", options, plans))
+        store = stack.enter_context(PartStore(args.out, identity("batch", options, plans)))
         units, todo = start_units(plans, store, what="", executor=executor)
         job = Job(config_file=absolute(args.config), overrides=overrides, bin_model=absolute(args.bin_model), topic=args.topic,
                   labels=absolute(args.labels), annotator=args.annotator, region=args.region,

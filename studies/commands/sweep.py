@@ -64,6 +64,13 @@ def _source_of_results(path: Path) -> Path | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from contextlib import ExitStack
+
+    with ExitStack() as stack:  # the output folder stays locked until the tables are written
+        return _run(args, stack)
+
+
+def _run(args: argparse.Namespace, stack) -> int:
     from replay.commands.common import overrides_of
     from replay.errors import ConfigError
     from replay.logs import layout
@@ -119,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         base = first.resolved.config
         grid = make_grid(**axes, config=base, max_points=args.max_points, force=args.force)
         options = study_options(args, overrides) | {"grid": grid.as_dict()}
-        store = PartStore(args.out, identity("sweep", options, plans))
+        store = stack.enter_context(PartStore(args.out, identity("sweep", options, plans)))
         with_sor = base.sor.enabled and "sor" in base.base_methods
         n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if with_sor else 0)
         units, todo = start_units(plans, store, executor=executor,
