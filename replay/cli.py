@@ -30,6 +30,7 @@ from replay.process import (  # noqa: F401
     EXIT_DATA_LOSS,
     EXIT_OK,
     EXIT_USER_ERROR,
+    Interrupted,
     check_environment,
     configure_process,
     interrupted_by,
@@ -123,7 +124,10 @@ def _os_error_message(e: OSError) -> str:
 def main(argv: list[str] | None = None) -> int:
     with interrupts_unwind() as interrupts:
         try:
-            return _main(argv, interrupts)
+            status = _main(argv, interrupts)
+            if interrupts.exit_status is None:
+                return status
+            raise Interrupted(interrupts.signum)  # a library swallowed the interruption: it still ends the command
         except BaseException as e:  # noqa: BLE001 - an interruption, whatever a library made of it
             status = interrupted_by(e, interrupts)
             if status is None:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -207,11 +208,33 @@ class RerunSink:
     def _check_writer(self) -> None:
         """Stop at the first frame after Rerun's file writer failed (a full disk): it only logs the
         error, and the frames logged after it would pile up in memory."""
-        try:
-            self._rec.flush(timeout_sec=RRD_FRAME_FLUSH_S)
-        except Exception as e:  # noqa: BLE001 - rerun raises RuntimeError
-            if "timed out" not in str(e):  # a slow disk is not a failure; a writer that stopped is
-                raise self._failure(_first_line(e)) from None
+        problem = self._flush(self._rec, RRD_FRAME_FLUSH_S, slow_ok=True)
+        if problem is not None:
+            raise self._failure(problem)
+
+    def _flush(self, rec, timeout_s: float, *, slow_ok: bool = False) -> str | None:
+        """Flush the recording to its file within ``timeout_s``; what went wrong, or None.
+
+        Rerun's flush says "timed out" both for a slow disk and for a writer that died on a full
+        one (it then waits for ever), so a full disk is checked while it waits. ``slow_ok``: a
+        flush still running after ``timeout_s`` on a disk with space is not a problem (the next
+        frame goes on; the last flush has the longer bound).
+        """
+        from replay.pipeline import viz
+
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                rec.flush(timeout_sec=max(0.0, min(1.0, deadline - time.monotonic())))
+                return None
+            except Exception as e:  # noqa: BLE001 - rerun raises RuntimeError
+                slow = "timed out" in str(e)
+                if slow and not _disk_full(self._file.temp) and time.monotonic() < deadline:
+                    continue
+                if slow and slow_ok and not _disk_full(self._file.temp):
+                    return None
+                viz.abandon(rec)  # never flushed again, not even at exit
+                return _first_line(e)
 
     def _failure(self, why: str) -> OutputError:
         if _disk_full(self._file.temp):
@@ -248,14 +271,13 @@ class RerunSink:
         """Flush and close the recording (bounded), check it complete, then give it its name."""
         from replay.pipeline import viz
 
-        problem = None
-        try:
-            rec.flush(timeout_sec=RRD_FLUSH_TIMEOUT_S)
-        except Exception as e:  # noqa: BLE001 - the writer stopped (a write error) or stalled
-            problem = _first_line(e)  # not disconnected: it would wait for ever on that writer
-        else:
+        # a writer that failed is not disconnected (that would wait for it for ever); an interrupted
+        # replay does not wait long for a recording it throws away
+        problem = self._flush(rec, RRD_FLUSH_TIMEOUT_S if completed else RRD_FRAME_FLUSH_S)
+        if problem is None:
             if not _within(rec.disconnect, RRD_CLOSE_TIMEOUT_S):  # writes the footer
                 problem = f"closing the file took more than {RRD_CLOSE_TIMEOUT_S:g} s"
+                viz.abandon(rec)
         if not completed:
             file.abort()
             return

@@ -222,6 +222,23 @@ def open_sink(rec: rr.RecordingStream, *, rrd: str | None = None, spawn: bool = 
         rec.connect_grpc(connect, default_blueprint=bp)
 
 
+def abandon(rec: rr.RecordingStream) -> None:
+    """Give up a recording whose file writer failed (a full disk) without ever waiting for it.
+
+    Rerun 0.41 waits for ever on such a writer wherever it flushes the recording: at
+    ``disconnect()``, in the recording's ``__del__`` (which also sweeps every orphaned recording),
+    and in its shutdown at exit. So the recording object is kept alive for the rest of the process
+    (one reference that is never released: its ``__del__`` never runs, and no other recording's
+    sweep finds it orphaned), and Rerun's shutdown at exit is not run (zcut's sinks flush and close
+    every recording they keep themselves). The process then exits normally; the failed writer's
+    threads end with it.
+    """
+    import ctypes
+
+    ctypes.pythonapi.Py_IncRef(ctypes.py_object(rec))
+    rr.unregister_shutdown()
+
+
 def rrd_problem(path: str) -> str | None:
     """Why the .rrd at ``path`` is not a complete recording (read back with Rerun's own reader:
     its footer, the manifest of its recording), or None when it is complete.
