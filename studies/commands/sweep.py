@@ -92,6 +92,7 @@ def _run(args: argparse.Namespace, stack) -> int:
     from studies.parts import PartStore
     from studies.units import expand_logs
     from studies.work import Job
+    from zcut.errors import ZcutError
 
     t0 = time.perf_counter()
     err = sys.stderr
@@ -104,7 +105,13 @@ def _run(args: argparse.Namespace, stack) -> int:
     # results files: their source log (the filtered cloud has its outliers removed)
     logs = []
     for p in expand_logs(args.inputs):
-        src = _source_of_results(p)
+        try:
+            src = _source_of_results(p)
+        except ConfigError:
+            raise
+        except (ZcutError, OSError):  # unreadable: planning reports it and the others go on (exit 3), as in batch
+            logs.append(str(p))
+            continue
         if src is None:
             raise ConfigError(f"{p} is a results file whose source log (named in it) is not beside it: "
                               "sweep the source log")
@@ -114,7 +121,13 @@ def _run(args: argparse.Namespace, stack) -> int:
     # the truth must exist before any work
     if args.labels is None:
         for log in logs:
-            if layout.TRUTH_OUTLIERS not in LogReader(log, cloud_topic=args.topic).mask_topics:
+            try:
+                topics = LogReader(log, cloud_topic=args.topic).mask_topics
+            except ConfigError:
+                raise
+            except (ZcutError, OSError):
+                continue  # unreadable: left out by the planning, with a warning
+            if layout.TRUTH_OUTLIERS not in topics:
                 raise ConfigError(f"{log} has no {layout.TRUTH_OUTLIERS} (not a synthetic log): label it "
                                   "(zcut annotate) and give --labels DB")
     executor = make_executor(workers=args.workers, ray=args.ray)
