@@ -189,7 +189,10 @@ def spawn_viewer(*, port: int = VIEWER_PORT, executable: str = "rerun", timeout_
 
     if _listening(port):
         return None
-    exe = shutil.which(executable)
+    import sys
+
+    beside = os.path.join(os.path.dirname(sys.executable), executable)  # a venv that is not activated
+    exe = beside if os.path.isfile(beside) else shutil.which(executable)
     if exe is None:
         raise ConfigError(f"--spawn: no {executable!r} on PATH (the viewer ships with rerun-sdk)")
     proc = subprocess.Popen([exe, *viewer_args(port)], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
