@@ -273,7 +273,8 @@ def test_a_spawned_viewer_listens_on_this_machine_only():
     from replay.errors import ConfigError
 
     seen: list[str] = []
-    for _ in range(3):  # a loaded machine may not let the watcher look while the viewer listens
+    exits: list[str] = []
+    for _ in range(6):  # a loaded machine may not let the watcher look while the viewer listens
         with socket.socket() as s:
             s.bind(("127.0.0.1", 0))
             port = s.getsockname()[1]
@@ -283,7 +284,7 @@ def test_a_spawned_viewer_listens_on_this_machine_only():
         try:
             proc = viz.spawn_viewer(port=port, timeout_s=60)
         except ConfigError as e:  # it exited (no display) after it listened
-            assert "exited as it started" in str(e)
+            exits.append(str(e))
         finally:
             time.sleep(0.5)
             if proc is not None:
@@ -293,5 +294,6 @@ def test_a_spawned_viewer_listens_on_this_machine_only():
             seen += watcher.communicate()[0].split()
         if seen:
             break
-    assert seen and set(seen) == {"0100007F"}, seen  # 127.0.0.1, and nothing on 0.0.0.0 or ::
+    assert seen and set(seen) == {"0100007F"}, (seen, exits)  # 127.0.0.1, and nothing on 0.0.0.0 or ::
+    assert all("exited as it started" in e for e in exits), exits
     assert viz.viewer_args(port)[:2] == ["--bind", "127.0.0.1"]
