@@ -246,15 +246,15 @@ class LocalExecutor:
                     self._give(idle.pop(), queue)
                 while queue and len(workers) < self.workers:
                     self._give(self._start_worker(fn, job), queue)
-                waiting = {w.conn: w for w in workers if w.running is not None}
+                waiting: dict[object, _Worker] = {w.conn: w for w in workers if w.running is not None}
                 waiting.update({w.process.sentinel: w for w in workers})
-                for ready in wait_ready(list(waiting)):
+                for ready in wait_ready(list(waiting)):  # type: ignore[arg-type]  # connections and sentinels
                     w = waiting[ready]
                     if w not in workers:
                         continue  # its connection and its sentinel both fired: handled
-                    if ready is w.conn:
+                    if ready is w.conn and w.running is not None:
                         try:
-                            key, res = w.conn.recv()
+                            _, res = w.conn.recv()
                         except Exception:  # noqa: BLE001 - a worker that died while answering
                             w.process.join(timeout=WORKER_STOP_S)
                         else:

@@ -11,6 +11,7 @@ import argparse
 import json
 import sys
 import time
+from contextlib import ExitStack
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -39,13 +40,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from contextlib import ExitStack
-
     with ExitStack() as stack:  # the output folder stays locked until the tables are written
         return _run(args, stack)
 
 
-def _run(args: argparse.Namespace, stack) -> int:
+def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     from replay.commands.common import overrides_of
     from replay.process import EXIT_DATA_LOSS
     from studies import batch

@@ -12,6 +12,7 @@ import argparse
 import shlex
 import sys
 import time
+from contextlib import ExitStack
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -64,13 +65,11 @@ def _source_of_results(path: Path) -> Path | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from contextlib import ExitStack
-
     with ExitStack() as stack:  # the output folder stays locked until the tables are written
         return _run(args, stack)
 
 
-def _run(args: argparse.Namespace, stack) -> int:
+def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     from replay.commands.common import overrides_of
     from replay.errors import ConfigError
     from replay.logs import layout
