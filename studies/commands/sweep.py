@@ -16,12 +16,11 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from studies.summary import DamageNote, ParamSet, SweepLog, SweepSummary, Tuned, UnscoredFrame
-
 if TYPE_CHECKING:
     from replay.pipeline.config import PipelineConfig
     from studies.driver import ProgressSink
     from studies.parts import PartStore
+    from studies.summary import ParamSet, SweepSummary, Tuned
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -90,6 +89,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     from studies.grid import make_grid, parse_list
     from studies.parts import PartStore
     from studies.units import expand_logs
+    from studies.summary import DamageNote, SweepLog, SweepSummary, UnscoredFrame
     from studies.work import Job
     from zcut.errors import ZcutError
 

@@ -43,8 +43,11 @@ def test_a_signal_ends_replay_in_one_line_with_no_leftovers(log, tmp_path, sig, 
     p = _start(log, tmp_path)
     seen = bytearray()
     try:
-        if moment == "start-up":
-            time.sleep(0.3)  # importing numba and the kernels
+        if moment == "start-up":  # loading numba and the kernels (seconds; after the handlers are in place)
+            deadline = time.monotonic() + 300
+            while "numba" not in Path(f"/proc/{p.pid}/maps").read_text():
+                assert p.poll() is None and time.monotonic() < deadline
+                time.sleep(0.01)
         else:
             _wait_for(p, {"first note": b"zcut:", "first frame": b"] frame 0:", "second frame": b"] frame 1:"}[moment],
                       seen)
@@ -60,6 +63,14 @@ def test_a_signal_ends_replay_in_one_line_with_no_leftovers(log, tmp_path, sig, 
     assert err.rstrip().endswith(f"interrupted ({signal.Signals(sig).name})") and err.count("interrupted") == 1, err
     assert "Traceback" not in err and "Error" not in err, err
     assert sorted(q.name for q in tmp_path.iterdir()) == []  # no temporary, no lock, no half output
+
+
+def test_the_command_line_handles_signals_before_it_loads_the_kernels():
+    """Importing the console script loads no numba (nor zcut): the handlers are in place before
+    the seconds of loading the kernels, so a Ctrl-C then is one line too (and ``--help`` is fast)."""
+    code = "import sys, replay.cli; print(sorted(m for m in ('numba', 'zcut', 'numpy') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
 
 
 def test_an_error_the_interruption_caused_is_the_interruption():
