@@ -45,7 +45,7 @@ from annotate.guard import (
 )
 from annotate.inputs import BadRequest
 from annotate.routes import ROUTES, Page
-from annotate.store import LabelStore, LabelValidationError, StoreError
+from annotate.store import LabelStore, LabelValidationError, StoreError, StoreFullError
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -64,6 +64,11 @@ async def _store_error(request: Request, exc: Exception) -> Response:
     return JSONResponse({"error": str(exc)}, status_code=500)
 
 
+async def _store_full(request: Request, exc: Exception) -> Response:
+    # 507 Insufficient Storage: nothing was written; the page keeps the edit and sends it again
+    return JSONResponse({"error": str(exc), "disk_full": True}, status_code=507, headers={"Retry-After": "5"})
+
+
 def create_app(page: Page, *, max_body_bytes: int = MAX_BODY_BYTES, body_timeout_s: float = BODY_TIMEOUT_S,
                allowed_hosts: tuple[str, ...] = ALLOWED_HOSTS) -> ASGIApp:
     """The ASGI app of a page: the access gate outermost, then the body guard, then the host check and
@@ -72,7 +77,7 @@ def create_app(page: Page, *, max_body_bytes: int = MAX_BODY_BYTES, body_timeout
     app = Starlette(
         routes=routes,
         middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=list(allowed_hosts))],
-        exception_handlers={BadRequest: _bad_request, StoreError: _store_error},
+        exception_handlers={BadRequest: _bad_request, StoreError: _store_error, StoreFullError: _store_full},
     )
     guarded = BodyGuard(app, limit=max_body_bytes, timeout_s=body_timeout_s)
     return AccessGate(guarded, token=page.token, clients=page.clients, fixed_annotator=page.annotator,

@@ -31,6 +31,12 @@ Design
   :func:`normalize_annotator` refuses anything else, so a Cyrillic ``а`` cannot hide in ``alice``.
   :meth:`LabelStore.check_new_annotator` also refuses a name whose :func:`annotator_skeleton`
   (look-alike letters, case and separators folded) equals an existing annotator's.
+- **Full disk, read-only folders.** A write that finds no space is refused with
+  :class:`StoreFullError` ("no space left"), nothing written (the transaction rolls back; the file
+  is not damaged), so the page keeps the edit and saves it again. A store in a folder this user
+  cannot write (a read-only mount, another user's folder) is still read: SQLite cannot make the
+  WAL's index file (``-shm``) there, so it is opened ``immutable`` — safe, as no writer can be at
+  work where no ``-wal`` file exists.
 - **Servers.** Each ``zcut annotate`` registers itself in the ``servers`` table and updates its
   heartbeat every few seconds (this table is the only one with updates); :meth:`LabelStore.live_servers`
   tells a server (and through it the page) that another one serves the same store. Both may run:
@@ -128,6 +134,10 @@ MIGRATIONS: list[list[str]] = [
 
 class StoreError(ZcutError):
     """The label store cannot be opened or used; the message names the file and the problem."""
+
+
+class StoreFullError(StoreError):
+    """No space left on the store's device: nothing was written (free some space, then save again)."""
 
 
 class LabelConflictError(StoreError):
@@ -384,9 +394,7 @@ class LabelStore:
             if read_only:  # the file is never written, not even to switch its journal or migrate it
                 if not self.path.is_file():
                     raise FileNotFoundError(2, "no such file", str(self.path))
-                uri = "file:" + urllib.parse.quote(os.path.abspath(self.path)) + "?mode=ro"
-                self._db = sqlite3.connect(uri, uri=True, timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None,
-                                           check_same_thread=False)
+                self._db = self._open_read_only()
             else:
                 self._db = sqlite3.connect(
                     self.path, timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None, check_same_thread=False
@@ -415,6 +423,27 @@ class LabelStore:
         except BaseException:
             self._db.close()
             raise
+
+    def _open_read_only(self) -> sqlite3.Connection:
+        """A read-only connection; ``immutable`` in a folder where SQLite cannot make the WAL's index
+        (``-shm``) and no ``-wal`` file shows a writer (see the module docstring)."""
+        base = "file:" + urllib.parse.quote(os.path.abspath(self.path))
+        db = sqlite3.connect(base + "?mode=ro", uri=True, timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None,
+                             check_same_thread=False)
+        try:
+            db.execute("PRAGMA user_version").fetchone()
+            return db
+        except sqlite3.OperationalError as e:
+            db.close()
+            if getattr(e, "sqlite_errorcode", None) not in (sqlite3.SQLITE_CANTOPEN, sqlite3.SQLITE_READONLY) \
+                    and "unable to open" not in str(e):
+                raise
+            if os.path.exists(f"{self.path}-wal"):
+                raise StoreError(f"cannot read label store {self.path}: its folder cannot be written here and "
+                                 f"{self.path.name}-wal holds commits not yet in the file; open it once where it "
+                                 "can be written (or copy both files to such a folder)") from None
+        return sqlite3.connect(base + "?mode=ro&immutable=1", uri=True, isolation_level=None,
+                               check_same_thread=False)
 
     def _refuse_foreign(self) -> None:
         """An SQLite file of another application (tables but no zcut schema version) is never touched."""
@@ -488,15 +517,24 @@ class LabelStore:
                 else:
                     self.store._db.execute("ROLLBACK")
             except sqlite3.DatabaseError as e:
-                raise self.store._damaged(e) from e
+                raise (self.store._full(e) or self.store._damaged(e)) from e
             finally:
                 self.store._lock.release()
+            if exc_type is not None and issubclass(exc_type, sqlite3.DatabaseError) and self.store._full(exc):
+                raise self.store._full(exc) from exc
             if exc_type is sqlite3.DatabaseError:  # not its subclasses (conflicts, a busy file)
                 raise self.store._damaged(exc) from exc
 
     def _damaged(self, e: BaseException) -> StoreError:
         """A damaged file (a malformed schema, a corrupt page) found by a query: one line naming it."""
         return StoreError(f"label store {self.path} is damaged: {e}")
+
+    def _full(self, e: BaseException) -> StoreFullError | None:
+        """The error of a write that found no space (SQLITE_FULL), else None: the file is not damaged."""
+        if getattr(e, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL:
+            return StoreFullError(f"label store {self.path}: no space left on the device; nothing was saved "
+                                  "(free some space, then save again)")
+        return None
 
     def _write(self) -> LabelStore._Tx:
         return LabelStore._Tx(self)
@@ -506,6 +544,8 @@ class LabelStore:
             try:
                 return self._db.execute(sql, params).fetchall()
             except sqlite3.DatabaseError as e:
+                if self._full(e):
+                    raise self._full(e) from e
                 if type(e) is sqlite3.DatabaseError:
                     raise self._damaged(e) from e
                 raise

@@ -4,7 +4,10 @@ It imports every package's commands explicitly (each a module with ``add_argumen
 ``run(args) -> int``, importing its heavy dependencies inside ``run`` so that ``zcut --help`` stays
 fast), sets the process-wide settings a command line owns (the numba threading layer), and is the
 only place that turns errors into messages and exit codes (SPEC §6): 0 success, 1 user error (one
-line on stderr, no traceback), 3 finished with data loss.
+line on stderr, no traceback), 3 finished with data loss, 130 / 143 interrupted by SIGINT / SIGTERM
+(one line; see :mod:`replay.process`). ``zcut.errors`` is imported inside :func:`main`, after the
+signal handlers are in place: importing it loads numba and the kernels (seconds), and a Ctrl-C
+then is an interruption like any other.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import argparse
 import errno
 import os
+import signal
 import sys
 
 from annotate.commands import accuracy as accuracy_cmd
@@ -26,13 +30,15 @@ from replay.process import (  # noqa: F401
     EXIT_DATA_LOSS,
     EXIT_OK,
     EXIT_USER_ERROR,
+    Interrupted,
     check_environment,
     configure_process,
+    interrupted_by,
+    interrupts_unwind,
 )
 from studies.commands import batch as batch_cmd
 from studies.commands import demo as demo_cmd
 from studies.commands import sweep as sweep_cmd
-from zcut.errors import ZcutError
 
 # name -> (module, one-line help). Order is the order shown by --help.
 COMMANDS = {
@@ -116,6 +122,21 @@ def _os_error_message(e: OSError) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    with interrupts_unwind() as interrupts:
+        try:
+            status = _main(argv, interrupts)
+            if interrupts.exit_status is None:
+                return status
+            raise Interrupted(interrupts.signum)  # a library swallowed the interruption: it still ends the command
+        except BaseException as e:  # noqa: BLE001 - an interruption, whatever a library made of it
+            status = interrupted_by(e, interrupts)
+            if status is None:
+                raise
+            print(f"interrupted ({signal.Signals(status - 128).name})", file=sys.stderr)
+            return status
+
+
+def _main(argv: list[str] | None, interrupts) -> int:
     configure_process()
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -131,10 +152,20 @@ def main(argv: list[str] | None = None) -> int:
         status = int(args._module.run(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, not at exit
         return status
-    except ZcutError as e:
+    except Exception as e:
+        if interrupted_by(e, interrupts) is not None:
+            raise  # an error the interruption caused: main reports the interruption
+        return _report(e)
+
+
+def _report(e: Exception) -> int:
+    """Print the one line of an error a command raised and return its exit status; re-raise an
+    error that is not the user's (a bug: its traceback is wanted)."""
+    from zcut.errors import ZcutError
+
+    if isinstance(e, ZcutError):
         print(f"error: {e}", file=sys.stderr)
-        return EXIT_USER_ERROR
-    except BrokenPipeError:
+    elif isinstance(e, BrokenPipeError):
         # the reader of stdout went away (`zcut topics LOG | head`): nothing more to say to anyone
         try:
             devnull = os.open(os.devnull, os.O_WRONLY)
@@ -142,24 +173,21 @@ def main(argv: list[str] | None = None) -> int:
         except OSError:
             pass
         return EXIT_OK
-    except FileNotFoundError as e:
+    elif isinstance(e, FileNotFoundError):
         print(f"error: no such file: {e.filename}", file=sys.stderr)
-        return EXIT_USER_ERROR
-    except OSError as e:
+    elif isinstance(e, OSError):
         print(f"error: {_os_error_message(e)}", file=sys.stderr)
-        return EXIT_USER_ERROR
-    except UnicodeEncodeError as e:  # undecodable bytes of a file name or argument, where text is needed
+    elif isinstance(e, UnicodeEncodeError):  # undecodable bytes of a file name or argument, where text is needed
         print(f"error: {e.object[:80]!r} is not valid UTF-8 text, which is needed here "
               "(a file name or an argument with undecodable bytes?)", file=sys.stderr)
-        return EXIT_USER_ERROR
-    except (OverflowError, RecursionError, MemoryError) as e:
-        kind = {OverflowError: "a number is out of range", RecursionError: "input nested too deeply",
-                MemoryError: "not enough memory"}[type(e)]
+    elif isinstance(e, (OverflowError, RecursionError, MemoryError)):
+        kind = next(k for t, k in ((OverflowError, "a number is out of range"),
+                                   (RecursionError, "input nested too deeply"),
+                                   (MemoryError, "not enough memory")) if isinstance(e, t))
         print(f"error: {kind} ({e})" if str(e) else f"error: {kind}", file=sys.stderr)
-        return EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    else:
+        raise e
+    return EXIT_USER_ERROR
 
 
 if __name__ == "__main__":  # pragma: no cover

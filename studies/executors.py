@@ -3,7 +3,14 @@
 Both executors take the same picklable work function and units and yield ``(unit, result)`` as units
 complete, so a slow log never holds back the others' results. A unit whose work raised returns the
 error in its result (the work functions catch what a damaged log can throw); a worker process that
-dies (a crash, the memory cap) is replaced and its unit retried once, then reported as failed.
+dies (a crash, the memory cap) is replaced and the one unit it was running is retried once, then
+reported as failed — the units the other workers run, and those still queued, are not touched.
+
+Local workers die with their driver: each asks the kernel for SIGKILL when its parent dies
+(``prctl(PR_SET_PDEATHSIG)``, Linux) and watches its parent's pid besides; they ignore SIGINT (a
+Ctrl-C in a terminal reaches the whole process group: the driver decides, and stops them). When the
+driver stops early (an interruption, an error), it kills its workers and waits for them before it
+returns, so nothing of the study keeps running and the study folder's leftovers can be removed.
 
 Every worker owns its share of the cores: its thread pools (numba, OpenMP, BLAS) get
 ``cores // workers`` threads (1 on a Ray task of one CPU), so that workers do not oversubscribe the
@@ -16,7 +23,8 @@ default number of local workers is what the free memory holds (at most the cores
 asks for that much of Ray's ``memory`` resource, so that Ray places no more tasks on a node than
 its memory holds.
 
-Ray is an optional extra (``pip install 'zcut[ray]'``): imported only by :class:`RayExecutor`.
+Ray is an optional extra (``.venv/bin/pip install -e '.[ray]'`` in a checkout): imported only by
+:class:`RayExecutor`.
 An address is checked before Ray is asked to connect (Ray itself retries an unreachable cluster
 for minutes): nothing listening, or something that does not speak gRPC, is a one-line error.
 """
@@ -26,11 +34,16 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import signal
 import socket
+import threading
+import time
+from collections import deque
 from collections.abc import Callable, Iterator, Mapping
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from multiprocessing.connection import wait as wait_ready
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -107,16 +120,82 @@ def _environ(values: Mapping[str, str]) -> Iterator[None]:
                 os.environ[k] = v
 
 
-def _worker_init() -> None:
-    # the command line's process settings, in every worker (they start fresh: spawn)
-    from replay.process import configure_process
+#: seconds between two looks of a worker at its parent's pid (the kernel's PDEATHSIG is immediate)
+PARENT_WATCH_S = 1.0
+#: seconds a worker may take to finish after it was told to stop, before it is killed
+WORKER_STOP_S = 10.0
+_PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(parent_pid: int, *, interval_s: float = PARENT_WATCH_S) -> None:
+    """Make this process die when the process ``parent_pid`` (its parent) dies, even by SIGKILL.
+
+    The kernel sends SIGKILL on the parent's death (``PR_SET_PDEATHSIG``; Linux), and a daemon
+    thread checks the parent's pid every ``interval_s`` seconds (the parent may have died before the
+    request, or the kernel may not offer it).
+    """
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+    except (OSError, AttributeError):  # pragma: no cover - not Linux: the watcher alone
+        pass
+    if os.getppid() != parent_pid:  # the parent died before the request took effect
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    def watch() -> None:
+        while True:
+            time.sleep(interval_s)
+            if os.getppid() != parent_pid:
+                os.kill(os.getpid(), signal.SIGKILL)
+
+    threading.Thread(target=watch, name="zcut-parent-watch", daemon=True).start()
+
+
+def _worker_main(conn: Connection, parent_pid: int, fn: UnitFn, job: Job) -> None:
+    """A local worker: run the units the driver sends (``(key, unit)``) until it sends None or is
+    gone; answer ``(key, result)`` for each."""
+    die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the driver stops its workers itself
+    from replay.process import configure_process  # the command line's process settings (workers start fresh)
 
     configure_process()
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):  # the driver is gone
+            return
+        if msg is None:
+            return
+        key, unit = msg
+        try:
+            res = fn(unit, job)
+        except Exception as e:  # noqa: BLE001 - the work functions catch their own; this is a last guard
+            res = _failed(unit, f"{type(e).__name__}: {e}")
+        conn.send((key, res))
+
+
+@dataclass(eq=False)
+class _Worker:
+    process: Any  # multiprocessing's SpawnProcess
+    conn: Connection
+    running: tuple[int, WorkUnit] | None = None  # (key, unit) it runs
+
+
+def _death(process: Any) -> str:
+    code = process.exitcode
+    if code is not None and code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit status {code}"
 
 
 class LocalExecutor:
     """Units on ``workers`` local processes (started fresh: no inherited threads or files), each
-    with ``cores // workers`` threads.
+    with ``cores // workers`` threads, one unit at a time per worker.
 
     Parameters
     ----------
@@ -139,45 +218,104 @@ class LocalExecutor:
                 self.name = f"local processes (as many as {mem / 1024:.0f} GB of free memory hold)"
         self.workers = workers
         self.threads = max(1, default_workers() // self.workers)
-        self._pool: ProcessPoolExecutor | None = None
+        self._live: list[_Worker] = []
 
-    def _new_pool(self) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_worker_init)
+    def _start_worker(self, fn: UnitFn, job: Job) -> _Worker:
+        ctx = multiprocessing.get_context("spawn")
+        mine, theirs = ctx.Pipe(duplex=True)
+        p = ctx.Process(target=_worker_main, args=(theirs, os.getpid(), fn, job), daemon=True,
+                        name="zcut-worker")
+        with _environ(worker_environment(self.threads)):  # the worker copies the environment at its start
+            p.start()
+        theirs.close()
+        w = _Worker(p, mine)
+        self._live.append(w)
+        return w
 
     def run(self, fn: UnitFn, units: list[WorkUnit], job: Job) -> Iterator[tuple[WorkUnit, UnitResult]]:
-        pending = list(units)
-        tries: dict[int, int] = {}
-        while pending:
-            futures: dict[Future[UnitResult], tuple[int, WorkUnit]] = {}
-            with _environ(worker_environment(self.threads)):  # the workers start during the submits
-                self._pool = self._new_pool()
-                for i, u in enumerate(pending):
-                    futures[self._pool.submit(fn, u, job)] = (i, u)
-            retry: list[WorkUnit] = []
-            broken = False
-            while futures:
-                done, _ = wait(futures, return_when=FIRST_COMPLETED)
-                for f in done:
-                    i, u = futures.pop(f)
-                    try:
-                        yield u, f.result()
-                    except BrokenProcessPool:
-                        broken = True
-                        key = id(u)
-                        tries[key] = tries.get(key, 0) + 1
-                        if tries[key] >= 2:
-                            yield u, _failed(u, "the worker process died twice on this unit (a crash or out of memory)")
+        """Yield ``(unit, result)`` as units finish. A worker that dies costs only the unit it ran
+        (retried once in a new worker, then failed)."""
+        queue: deque[tuple[int, WorkUnit]] = deque(enumerate(units))
+        deaths: dict[int, int] = {}
+        workers = self._live
+        finished = False
+        try:
+            while queue or any(w.running for w in workers):
+                idle = [w for w in workers if w.running is None]
+                while queue and idle:
+                    self._give(idle.pop(), queue)
+                while queue and len(workers) < self.workers:
+                    self._give(self._start_worker(fn, job), queue)
+                waiting: dict[object, _Worker] = {w.conn: w for w in workers if w.running is not None}
+                waiting.update({w.process.sentinel: w for w in workers})
+                for ready in wait_ready(list(waiting)):  # type: ignore[arg-type]  # connections and sentinels
+                    w = waiting[ready]
+                    if w not in workers:
+                        continue  # its connection and its sentinel both fired: handled
+                    if ready is w.conn and w.running is not None:
+                        try:
+                            _, res = w.conn.recv()
+                        except Exception:  # noqa: BLE001 - a worker that died while answering
+                            w.process.join(timeout=WORKER_STOP_S)
                         else:
-                            retry.append(u)
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
-            pending = retry if broken else []
+                            u = w.running[1]
+                            w.running = None
+                            yield u, res
+                            continue
+                    # the worker died: the unit it ran (if any) is charged, once
+                    self._forget(w)
+                    if w.running is not None:
+                        key, u = w.running
+                        deaths[key] = deaths.get(key, 0) + 1
+                        if deaths[key] >= 2:
+                            yield u, _failed(u, "the worker process died twice on this unit "
+                                                f"({_death(w.process)}: a crash or out of memory)")
+                        else:
+                            queue.appendleft((key, u))
+            finished = True
+        finally:
+            self._stop(graceful=finished)
+
+    @staticmethod
+    def _give(w: _Worker, queue: deque[tuple[int, WorkUnit]]) -> None:
+        item = queue.popleft()
+        try:
+            w.conn.send(item)
+        except OSError:  # the worker is gone (its sentinel tells): the unit never reached it
+            queue.appendleft(item)
+            return
+        w.running = item
+
+    def _forget(self, w: _Worker) -> None:
+        w.process.join(timeout=WORKER_STOP_S)
+        if w.process.is_alive():
+            w.process.kill()
+            w.process.join()
+        w.conn.close()
+        self._live.remove(w)
+
+    def _stop(self, *, graceful: bool) -> None:
+        """Stop every worker: told to stop after a finished run, killed otherwise; waited for."""
+        workers, self._live = list(self._live), []
+        for w in workers:
+            if graceful:
+                try:
+                    w.conn.send(None)
+                except OSError:
+                    pass
+            else:
+                w.process.kill()
+        deadline = time.monotonic() + WORKER_STOP_S
+        for w in workers:
+            w.process.join(timeout=max(0.0, deadline - time.monotonic()))
+            if w.process.is_alive():
+                w.process.kill()
+                w.process.join()
+            w.conn.close()
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = None
+        """Kill the workers still running (an interrupted study) and wait for them."""
+        self._stop(graceful=False)
 
 
 def _failed(unit: WorkUnit, why: str) -> UnitResult:
@@ -274,7 +412,9 @@ class RayExecutor:
         try:
             import ray
         except ImportError:
-            raise ConfigError("--ray needs the ray package: pip install 'zcut[ray]'") from None
+            raise ConfigError("--ray needs the ray package: in a checkout, `bash scripts/install.sh --test` installs "
+                              "it, or `.venv/bin/pip install -e '.[ray]'` (an installed zcut: pip install 'zcut[ray]')"
+                              ) from None
         target = resolve_ray_address(address)
         check_ray_address(address, target, timeout=timeout)
         try:

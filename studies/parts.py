@@ -7,6 +7,11 @@ same folder skips the units whose parts exist, so an interrupted run (even ``kil
 loses at most the units in flight. ``run.json`` holds what identifies the study: the kind of study,
 its options, and per log (by content hash) the resolved config; a folder holding another config's
 run is refused before any work, never mixed.
+
+One process at a time writes a study's folder: the store locks it (:class:`replay.outputs.OutputLock`
+on ``DIR/.zcut.lock``) from its opening to :meth:`PartStore.close`, and a second ``zcut batch`` or
+``zcut sweep`` on the same folder meanwhile is refused. Opening and closing the store remove the
+temporaries that no live process holds (what a killed driver or worker left).
 """
 
 from __future__ import annotations
@@ -17,13 +22,17 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from replay.errors import ConfigError
-from replay.outputs import AtomicOutput
+from replay.outputs import AtomicOutput, OutputLock, remove_stale_temporaries_in
 
 if TYPE_CHECKING:
     import pyarrow as pa
 
 RUN_FILE = "run.json"
 PARTS = "parts"
+#: the study folder's lock file (inside it)
+LOCK_FILE = ".zcut.lock"
+#: the folders of a study where units write (per-log outputs of ``zcut batch --results/--rrd`` too)
+WRITTEN_FOLDERS = (".", PARTS, "results", "rrd")
 
 
 class PartStore:
@@ -44,6 +53,28 @@ class PartStore:
         if not self.root.parent.is_dir():
             raise ConfigError(f"-o {self.root}: the folder {self.root.parent} does not exist")
         self.identity = identity
+        self._lock = self._lock_folder()
+        try:
+            self._open()
+        except BaseException:
+            self.close()
+            raise
+
+    def _lock_folder(self) -> OutputLock:
+        try:
+            self.root.mkdir(exist_ok=True)
+        except OSError as e:
+            raise ConfigError(f"-o {self.root}: cannot create the folder: {e.strerror or e}") from None
+        lock = OutputLock(self.root, what="this study folder", lock_file=self.root / LOCK_FILE)
+        return lock.acquire()
+
+    def remove_stale_temporaries(self) -> list[Path]:
+        """Remove the temporaries in the study's folders that no live process holds."""
+        return [p for sub in WRITTEN_FOLDERS for p in remove_stale_temporaries_in(self.root / sub)]
+
+    def _open(self) -> None:
+        self.remove_stale_temporaries()
+        identity = self.identity
         run = self.root / RUN_FILE
         if run.is_file():
             try:
@@ -54,12 +85,26 @@ class PartStore:
             merged = dict(old)
             merged["logs"] = {**old.get("logs", {}), **identity.get("logs", {})}
             self.identity = merged
-        elif self.root.is_dir() and any(self.root.iterdir()):
+        elif any(p.name != LOCK_FILE for p in self.root.iterdir()):
             raise ConfigError(f"-o {self.root}: the folder holds other files and no {RUN_FILE}: "
                               "choose an empty or new folder")
-        self.root.mkdir(exist_ok=True)
         (self.root / PARTS).mkdir(exist_ok=True)
         self._write_json(run, self.identity)
+
+    def close(self) -> None:
+        """Remove what no live process holds of the temporaries and release the folder's lock
+        (idempotent). The executor must have stopped its workers before."""
+        if self._lock.held:
+            try:
+                self.remove_stale_temporaries()
+            finally:
+                self._lock.release()
+
+    def __enter__(self) -> PartStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def _check_compatible(self, old: dict[str, Any]) -> None:
         new = self.identity

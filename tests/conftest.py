@@ -29,8 +29,9 @@ def real_data() -> Path:
     Missing data skips the tests on a developer's machine and fails them under CI (CI set).
     """
     if not REAL_DATA.is_dir():
-        why = (f"real data folder not found: {REAL_DATA}; put the real PCD/MCAP files there "
-               "(../shared/data/real beside the checkout) or set ZCUT_REAL_DATA=/path/to/them")
+        why = (f"real data folder not found: {REAL_DATA}; docs/real_data.md lists the files (names, sizes, "
+               "SHA-256, where they come from): put them there (../shared/data/real beside the checkout) "
+               "or set ZCUT_REAL_DATA=/path/to/them")
         if os.environ.get("CI"):
             pytest.fail(why)
         pytest.skip(why)

@@ -26,18 +26,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from annotate.label_files import export_labels, import_labels
-    from annotate.store import LabelStore, StoreError, file_sha256
-    from zcut.errors import ParameterError
-
     creating = args.action == "import" and args.log is not None
     for path in (getattr(args, "log", None), getattr(args, "labels", None), None if creating else args.db):
         if path is not None and not path.is_file():
             raise FileNotFoundError(2, "no such file", str(path))
-    if args.action == "export":
-        from replay.outputs import OutputPlan
+    from replay.outputs import OutputPlan
 
-        OutputPlan([args.log, args.db], force=args.force).add(args.out, "the label export")
+    with OutputPlan([args.log, args.db] if args.action == "export" else [], force=getattr(args, "force", False)) as plan:
+        if args.action == "export":
+            plan.add(args.out, "the label export")  # locked until it is written
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from annotate.label_files import export_labels, import_labels
+    from annotate.store import LabelStore, StoreError, file_sha256
+    from zcut.errors import ParameterError
+
     with LabelStore(args.db, read_only=args.action != "import") as store:
         if args.action == "import":
             if args.log is not None:

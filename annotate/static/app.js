@@ -1135,7 +1135,11 @@ async function saveNow(fd, { keepalive = false } = {}) {
     } else {
       const t = await resp.text();
       fd.dirty = true;
-      showError(`save failed (HTTP ${resp.status}): ${t.slice(0, 200)}`);
+      if (resp.status === 507) {  // the store's disk is full: nothing was written; the edit stays here
+        showError(`frame ${fd.index} not saved: the label store's disk is full. Your edits stay on this page ` +
+                  'and are sent again every few seconds; free some space.');
+        setSaveState('not saved: disk full (retrying)', 'saving');
+      } else showError(`save failed (HTTP ${resp.status}): ${t.slice(0, 200)}`);
       retry = resp.status >= 500;
     }
   } catch (e) {

@@ -39,11 +39,7 @@ MIN_SCAN_FITNESS = 0.6
 
 def run(args: argparse.Namespace) -> int:
     from replay.errors import ConfigError
-    from replay.logs import layout
     from replay.outputs import OutputPlan
-    from replay.pipeline import config as cfg
-    from replay.pipeline.bin_model import build_bin_model, load_bin_model
-    from replay.pipeline.session import parse_frames
 
     if not args.voxel > 0:
         raise ConfigError(f"--voxel must be > 0 mm, got {args.voxel!r}")
@@ -51,8 +47,19 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("give either EMPTY.mcap or --model PLY (not both)")
     if args.into is not None and not Path(args.into).is_file():
         raise FileNotFoundError(2, "no such file", str(args.into))
-    OutputPlan([p for p in (args.log, args.model, args.config, args.into) if p], force=args.force).add(
-        args.output, "the log with the bin model" if args.into else "the bin model")
+    inputs = [p for p in (args.log, args.model, args.config, args.into) if p]
+    with OutputPlan(inputs, force=args.force) as plan:  # locked until the output is written
+        plan.add(args.output, "the log with the bin model" if args.into else "the bin model")
+        return _build(args)
+
+
+def _build(args: argparse.Namespace) -> int:
+    from replay.errors import ConfigError
+    from replay.logs import layout
+    from replay.pipeline import config as cfg
+    from replay.pipeline.bin_model import build_bin_model, load_bin_model
+    from replay.pipeline.session import parse_frames
+
     if args.model is not None:
         import numpy as np
 

@@ -107,12 +107,11 @@ def run(args: argparse.Namespace) -> int:
                           "goes past the ROS 2 time range (2038-01-19)")
     out = Path(args.output)
     inputs = [str(f) for f in files] + ([args.bin_model] if args.bin_model else [])
-    OutputPlan(inputs, force=args.force).add(out, "the log")
     attachments = {}
     if args.bin_model is not None:
         attachments[layout.BIN_MODEL_ATTACHMENT] = (layout.BIN_MODEL_MEDIA_TYPE, _bin_model_bytes(args.bin_model))
     meta = {"zcut.record": {"sources": "\n".join(str(f) for f in files), "unit": args.unit}}
-    with AtomicOutput(out) as target:
+    with OutputPlan(inputs, force=args.force) as plan, AtomicOutput(plan.add(out, "the log")) as target:
         with LogWriter(target.temp, metadata=meta, attachments=attachments) as w:
             for i, f in enumerate(files):
                 cloud = read_pcd(f) if f.suffix.lower() == ".pcd" else read_ply(f, shape=shape)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 
 
@@ -30,11 +31,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def viewer_command() -> str:
     """How to start the Rerun viewer: the ``rerun`` binary beside this Python (a venv that is not
-    activated does not have it on the shell's PATH), else plain ``rerun``."""
+    activated does not have it on the shell's PATH), else plain ``rerun``, with its server bound to
+    127.0.0.1 (Rerun listens on every interface by default)."""
     from pathlib import Path
 
+    from replay.pipeline.viz import VIEWER_BIND
+
     beside = Path(sys.executable).with_name("rerun")
-    return str(beside) if beside.is_file() else "rerun"
+    return f"{beside if beside.is_file() else 'rerun'} --bind {VIEWER_BIND}"
 
 
 def _fmt(v: float, spec: str) -> str:
@@ -95,25 +99,38 @@ def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=N
     return on_start, on_frame
 
 
-def plan_outputs(args: argparse.Namespace, *, inputs: list) -> list:
-    """Check ``--rrd``/``--out`` (and the configs written beside them) before any work; the sinks."""
-    from replay.outputs import OutputPlan, config_path_for
+def plan_outputs(args: argparse.Namespace, plan) -> list:
+    """Check ``--rrd``/``--out`` (and the configs written beside them) with ``plan`` (an
+    :class:`replay.outputs.OutputPlan`, which locks them) before any work; the sinks.
+
+    ``--rrd r.rrd --out r.mcap`` share one config beside them (``r.config.toml``): the same
+    resolved config, written once."""
+    from replay.outputs import config_path_for
     from replay.pipeline.sinks import ConfigBeside, RerunSink, ResultsSink
 
-    plan = OutputPlan(inputs, force=args.force)
     sinks = []
+    configs: set = set()
+
+    def config_beside(output, what) -> None:
+        path = config_path_for(output)
+        key = os.path.abspath(path)
+        if key not in configs:  # one file for two outputs of one stem
+            configs.add(key)
+            plan.add(path, f"the config beside {what}")
+            sinks.append(ConfigBeside(output))
+
     if args.rrd is not None:
         plan.add(args.rrd, "the .rrd")
-        plan.add(config_path_for(args.rrd), "the config beside the .rrd")
-        sinks += [RerunSink(rrd=args.rrd, full_detail=args.full_detail), ConfigBeside(args.rrd)]
+        sinks.append(RerunSink(rrd=args.rrd, full_detail=args.full_detail))
+        config_beside(args.rrd, "the .rrd")
     elif args.spawn or args.connect is not None:
         if args.connect is not None:
             check_viewer_url(args.connect)
         sinks.append(RerunSink(spawn=args.spawn, connect=args.connect, full_detail=args.full_detail))
     if args.out is not None:
         plan.add(args.out, "the results file")
-        plan.add(config_path_for(args.out), "the config beside the results file")
-        sinks += [ResultsSink(args.out), ConfigBeside(args.out)]
+        sinks.append(ResultsSink(args.out))
+        config_beside(args.out, "the results file")
     return sinks
 
 
@@ -142,15 +159,22 @@ def check_viewer_url(url: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from replay.process import EXIT_DATA_LOSS
-    from replay.commands.common import inputs_of, open_session, overrides_of
-    from replay.errors import ConfigError
+    from replay.commands.common import inputs_of, overrides_of
+    from replay.outputs import OutputPlan
     from replay.pipeline.session import parse_frames
-    from replay.pipeline.sinks import BackgroundSinks
 
     frames = parse_frames(args.frames)
     overrides = overrides_of(args)  # bad values fail before the log is read
-    sinks = plan_outputs(args, inputs=[args.log, *inputs_of(args)])
+    with OutputPlan([args.log, *inputs_of(args)], force=args.force) as plan:  # locked until the end
+        return _replay(args, plan_outputs(args, plan), frames=frames, overrides=overrides)
+
+
+def _replay(args: argparse.Namespace, sinks: list, *, frames, overrides) -> int:
+    from replay.commands.common import open_session
+    from replay.errors import ConfigError
+    from replay.pipeline.sinks import BackgroundSinks
+    from replay.process import EXIT_DATA_LOSS
+
     session = open_session(args.log, args, overrides=overrides)
     from replay.logs import layout
 

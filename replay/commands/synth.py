@@ -61,12 +61,13 @@ def run(args: argparse.Namespace) -> int:
 
     from replay.outputs import AtomicOutput, OutputPlan
 
-    OutputPlan([], force=args.force).add(args.output, "the log")
-    if args.sensor == "raytraced":
-        return _run_raytraced(args, what, progress)
-    with AtomicOutput(args.output) as out:
-        write_synthetic_log(out.temp, kind=args.parts, frames=args.frames, seed=args.seed, size=(h, w),
-                            empty=args.empty, shiny=args.shiny, quantize_mm=args.quantize_mm, progress=progress)
+    with OutputPlan([], force=args.force) as plan:  # locked until the log is written
+        plan.add(args.output, "the log")
+        if args.sensor == "raytraced":
+            return _run_raytraced(args, what, progress)
+        with AtomicOutput(args.output) as out:
+            write_synthetic_log(out.temp, kind=args.parts, frames=args.frames, seed=args.seed, size=(h, w),
+                                empty=args.empty, shiny=args.shiny, quantize_mm=args.quantize_mm, progress=progress)
     print(f"zcut: wrote {args.output} ({args.frames} frame(s), seed {args.seed})", file=sys.stderr)
     return 0
 

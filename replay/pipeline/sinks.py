@@ -12,10 +12,17 @@ session's frame prefetcher, nowhere else).
 File sinks write through :class:`replay.outputs.AtomicOutput` (a unique temporary name, renamed
 into place when complete) and write the resolved config beside their output
 (``OUT.config.toml``); the paths must have been checked with an :class:`replay.outputs.OutputPlan`.
+Whatever ends a replay early — an error, a full disk, an interruption (SIGINT, SIGTERM) — the close
+paths remove the temporaries; an error while writing names the output, not the log. A recording
+(.rrd) takes its final name only once Rerun's own reader reads it back complete (its writer only
+logs a write error and goes on), and closing it never waits without bound.
 """
 
 from __future__ import annotations
 
+import os
+import threading
+import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,12 +32,21 @@ import numpy as np
 
 from replay.logs import layout
 from replay.logs.frame import Frame
-from replay.outputs import AtomicOutput, config_path_for
+from replay.outputs import AtomicOutput, OutputError, config_path_for, naming
 from replay.pipeline.config import PipelineConfig, Resolved, to_toml
 from replay.pipeline.stages import FrameResult
 from zcut.bin_model import BinModel
 
 VIEWER_FLUSH_TIMEOUT_S = 10.0
+#: seconds Rerun's file writer may take to write the last frames of a recording (a writer that
+#: stalls longer has failed: the recording is not complete)
+RRD_FLUSH_TIMEOUT_S = 120.0
+#: seconds closing a recording (its footer) may take (Rerun waits for ever on a writer that failed)
+RRD_CLOSE_TIMEOUT_S = 30.0
+#: seconds a frame's data may take to reach the file before the next frame goes on regardless
+RRD_FRAME_FLUSH_S = 0.5
+#: free bytes under which a failed write is said to have met a full disk
+FULL_DISK_BYTES = 1 << 20
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,9 +115,44 @@ class NullSink:
 
 def _write_config_beside(path: Path, info: ReplayStart) -> Path:
     cp = config_path_for(path)
-    with AtomicOutput(cp) as out:
+    with AtomicOutput(cp) as out, naming(cp, out.temp):
         out.temp.write_text(info.config_toml(), encoding="utf-8", errors="backslashreplace")  # undecodable log names
     return cp
+
+
+def _disk_full(path: Path) -> bool:
+    """True when the file system of ``path`` has (almost) no space left."""
+    try:
+        st = os.statvfs(path.parent if str(path.parent) else ".")
+    except OSError:
+        return False
+    return st.f_bavail * st.f_frsize < FULL_DISK_BYTES
+
+
+def _within(fn, timeout_s: float) -> bool:
+    """Run ``fn()`` in a daemon thread; True when it returned within ``timeout_s`` (its error is
+    raised here), False when it still runs (it is left behind)."""
+    error: list[BaseException] = []
+
+    def target() -> None:
+        try:
+            fn()
+        except BaseException as e:  # noqa: BLE001 - handed to the caller
+            error.append(e)
+
+    t = threading.Thread(target=target, name="zcut-rrd-close", daemon=True)
+    t.start()
+    t.join(timeout_s)
+    if t.is_alive():
+        return False
+    if error:
+        raise error[0]
+    return True
+
+
+def _first_line(e: BaseException) -> str:
+    lines = [line.strip() for line in str(e).splitlines() if line.strip()]
+    return lines[0] if lines else type(e).__name__
 
 
 class RerunSink:
@@ -138,36 +189,103 @@ class RerunSink:
         self._rec = viz.new_recording()
         if self.rrd is not None:
             self._file = AtomicOutput(self.rrd)
-        viz.open_sink(self._rec, rrd=None if self._file is None else str(self._file.temp), spawn=self.spawn,
-                      connect=self.connect, methods=info.config.base_methods)
-        viz.log_static(self._rec, config_toml=info.config_toml(), notes=info.notes, bin_model=info.bin_model,
-                       source=f"log: {info.log}")
+        try:
+            viz.open_sink(self._rec, rrd=None if self._file is None else str(self._file.temp), spawn=self.spawn,
+                          connect=self.connect, methods=info.config.base_methods)
+            viz.log_static(self._rec, config_toml=info.config_toml(), notes=info.notes, bin_model=info.bin_model,
+                           source=f"log: {info.log}")
+        except BaseException:
+            self.close(completed=False)
+            raise
 
     def write(self, frame: Frame, result: FrameResult) -> None:
         from replay.pipeline import viz
 
         viz.log_frame(self._rec, frame, result, step_mm=self._step, opts=self._opts)
+        if self._file is not None:
+            self._check_writer()
+
+    def _check_writer(self) -> None:
+        """Stop at the first frame after Rerun's file writer failed (a full disk): it only logs the
+        error, and the frames logged after it would pile up in memory."""
+        problem = self._flush(self._rec, RRD_FRAME_FLUSH_S, slow_ok=True)
+        if problem is not None:
+            raise self._failure(problem)
+
+    def _flush(self, rec, timeout_s: float, *, slow_ok: bool = False) -> str | None:
+        """Flush the recording to its file within ``timeout_s``; what went wrong, or None.
+
+        Rerun's flush says "timed out" both for a slow disk and for a writer that died on a full
+        one (it then waits for ever), so a full disk is checked while it waits. ``slow_ok``: a
+        flush still running after ``timeout_s`` on a disk with space is not a problem (the next
+        frame goes on; the last flush has the longer bound).
+        """
+        from replay.pipeline import viz
+
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                rec.flush(timeout_sec=max(0.0, min(1.0, deadline - time.monotonic())))
+                return None
+            except Exception as e:  # noqa: BLE001 - rerun raises RuntimeError
+                slow = "timed out" in str(e)
+                if slow and not _disk_full(self._file.temp) and time.monotonic() < deadline:
+                    continue
+                if slow and slow_ok and not _disk_full(self._file.temp):
+                    return None
+                viz.abandon(rec)  # never flushed again, not even at exit
+                return _first_line(e)
+
+    def _failure(self, why: str) -> OutputError:
+        if _disk_full(self._file.temp):
+            return OutputError(f"{self.rrd}: no space left on the device; the .rrd was not written (Rerun: {why})")
+        return OutputError(f"{self.rrd}: the .rrd could not be written completely (Rerun: {why}); nothing was "
+                           "left under its name")
 
     def close(self, *, completed: bool) -> None:
         rec, self._rec = self._rec, None
-        if rec is None:
-            return
+        file = self._file
         try:
-            if self._file is not None:
-                rec.flush()
-            else:  # a viewer that is gone must not hang the replay
-                try:
-                    rec.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)
-                except Exception as e:  # rerun raises a plain exception on timeout
-                    self.viewer_error = (f"the viewer did not take the data within {VIEWER_FLUSH_TIMEOUT_S:g} s "
-                                         f"({e})")
-        finally:
-            rec.disconnect()
-        if self._file is not None:
-            if completed:
-                self._outputs["rrd"] = str(self._file.commit())
+            if rec is None:
+                return
+            if file is None:
+                self._close_viewer(rec)
             else:
-                self._file.abort()
+                self._close_file(rec, file, completed=completed)
+        finally:
+            if file is not None and not file.done:
+                file.abort()  # an error, an interruption: no temporary left
+
+    def _close_viewer(self, rec) -> None:
+        # a viewer that is gone must not hang the replay
+        try:
+            rec.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)
+        except Exception as e:  # rerun raises a plain exception on timeout
+            self.viewer_error = (f"the viewer did not take the data within {VIEWER_FLUSH_TIMEOUT_S:g} s "
+                                 f"({e})")
+            return  # disconnecting would wait for it
+        if not _within(rec.disconnect, RRD_CLOSE_TIMEOUT_S):
+            self.viewer_error = f"the viewer did not close the stream within {RRD_CLOSE_TIMEOUT_S:g} s"
+
+    def _close_file(self, rec, file: AtomicOutput, *, completed: bool) -> None:
+        """Flush and close the recording (bounded), check it complete, then give it its name."""
+        from replay.pipeline import viz
+
+        # a writer that failed is not disconnected (that would wait for it for ever); an interrupted
+        # replay does not wait long for a recording it throws away
+        problem = self._flush(rec, RRD_FLUSH_TIMEOUT_S if completed else RRD_FRAME_FLUSH_S)
+        if problem is None:
+            if not _within(rec.disconnect, RRD_CLOSE_TIMEOUT_S):  # writes the footer
+                problem = f"closing the file took more than {RRD_CLOSE_TIMEOUT_S:g} s"
+                viz.abandon(rec)
+        if not completed:
+            file.abort()
+            return
+        if problem is None:
+            problem = viz.rrd_problem(str(file.temp))
+        if problem is not None:
+            raise self._failure(problem)
+        self._outputs["rrd"] = str(file.commit())
 
     def outputs(self) -> dict[str, str]:
         return dict(self._outputs)
@@ -197,9 +315,18 @@ class ResultsSink:
             if name.startswith(layout.SYNTH_METADATA):
                 meta[name] = dict(record)
         self._file = AtomicOutput(self.path)
-        self._writer = LogWriter(self._file.temp, metadata=meta)
+        try:
+            with naming(self.path, self._file.temp):
+                self._writer = LogWriter(self._file.temp, metadata=meta)
+        except BaseException:
+            self._file.abort()
+            raise
 
     def write(self, frame: Frame, result: FrameResult) -> None:
+        with naming(self.path, self._file.temp):
+            self._write(frame, result)
+
+    def _write(self, frame: Frame, result: FrameResult) -> None:
         w = self._writer
         kw = {"stamp_ns": frame.stamp_ns, "frame_id": frame.frame_id}
         for name, mask in result.outliers.items():  # the z-cut first, then SOR and the others that ran
@@ -226,12 +353,13 @@ class ResultsSink:
         if writer is None:
             return
         try:
-            writer.close()
-        finally:
+            with naming(self.path, self._file.temp):
+                writer.close()
             if completed:
                 self._outputs["results"] = str(self._file.commit())
-            else:
-                self._file.abort()
+        finally:
+            if not self._file.done:
+                self._file.abort()  # an error, an interruption: no temporary left
 
     def outputs(self) -> dict[str, str]:
         return dict(self._outputs)
@@ -272,8 +400,20 @@ class BackgroundSinks:
         self._pending: Future | None = None
 
     def start(self, info: ReplayStart) -> None:
-        for s in self.sinks:
-            s.start(info)
+        """Start every sink; if one fails (or an interruption arrives), close those started with
+        ``completed=False`` (nothing left behind) and raise."""
+        started = []
+        try:
+            for s in self.sinks:
+                s.start(info)
+                started.append(s)
+        except BaseException:
+            for s in started:
+                try:
+                    s.close(completed=False)
+                except Exception:  # noqa: BLE001 - the first error is the one reported
+                    pass
+            raise
 
     def _wait(self) -> None:
         if self._pending is not None:
@@ -294,12 +434,14 @@ class BackgroundSinks:
 
     def close(self, *, completed: bool) -> None:
         """Wait for the last frame, then close every sink (``completed=False`` when another error is
-        already on its way: that one is reported, and the file sinks leave nothing behind)."""
+        already on its way: that one is reported, and the file sinks leave nothing behind).
+
+        Every sink is closed whatever happens meanwhile, an interruption included."""
         error: BaseException | None = None
         try:
             self._wait()
-        except Exception as e:
-            if completed:
+        except BaseException as e:  # noqa: BLE001 - raised after every sink is closed
+            if completed or not isinstance(e, Exception):
                 error = e
             completed = False
         finally:
@@ -309,8 +451,8 @@ class BackgroundSinks:
         for s in self.sinks:
             try:
                 s.close(completed=completed)
-            except Exception as e:
-                if error is None and completed:
+            except BaseException as e:  # noqa: BLE001 - the others are still closed
+                if error is None and (completed or not isinstance(e, Exception)):
                     error = e
                 completed = False
         if error is not None:

@@ -144,17 +144,126 @@ def default_blueprint(methods: tuple[str, ...] = ("zcut", "sor")) -> rrb.Bluepri
     )
 
 
+#: the address of the viewers zcut starts and of the ``rerun`` commands it prints: this machine only
+#: (Rerun's own default, and ``rr.spawn``'s, is every interface, 0.0.0.0)
+VIEWER_BIND = "127.0.0.1"
+#: Rerun's default viewer port
+VIEWER_PORT = 9876
+#: seconds a spawned viewer may take to listen
+VIEWER_START_S = 20.0
+
+
+def _listening(port: int) -> bool:
+    import socket
+
+    try:
+        with socket.create_connection((VIEWER_BIND, port), timeout=1.0):
+            return True
+    except OSError:
+        return False
+
+
+def viewer_args(port: int = VIEWER_PORT) -> list[str]:
+    """The arguments of a viewer that listens on 127.0.0.1:``port`` only (after the executable)."""
+    return ["--bind", VIEWER_BIND, "--port", str(port), "--memory-limit", "75%"]
+
+
+def spawn_viewer(*, port: int = VIEWER_PORT, executable: str = "rerun", timeout_s: float = VIEWER_START_S):
+    """Start a Rerun viewer listening on 127.0.0.1:``port`` only, detached from this process (it
+    stays open after the replay, as ``rr.spawn``'s does; ``rr.spawn`` cannot bind an address).
+
+    Returns the viewer's ``subprocess.Popen``, or None when something listens on the port already (a
+    viewer started before: the replay streams to it, as ``rr.spawn`` does).
+
+    Raises
+    ------
+    ConfigError
+        No ``rerun`` executable, or the viewer exited or did not listen within ``timeout_s``.
+    """
+    import os
+    import shutil
+    import subprocess
+    import time
+
+    from replay.errors import ConfigError
+
+    if _listening(port):
+        return None
+    import sys
+
+    beside = os.path.join(os.path.dirname(sys.executable), executable)  # a venv that is not activated
+    exe = beside if os.path.isfile(beside) else shutil.which(executable)
+    if exe is None:
+        raise ConfigError(f"--spawn: no {executable!r} on PATH (the viewer ships with rerun-sdk)")
+    proc = subprocess.Popen([exe, *viewer_args(port)], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True,
+                            env={**os.environ, "RERUN_APP_ONLY": "true"})
+    deadline = time.monotonic() + timeout_s
+    while not _listening(port):
+        if proc.poll() is not None:
+            raise ConfigError(f"--spawn: the Rerun viewer exited as it started (status {proc.returncode}); "
+                              "a machine without a display can write --rrd OUT.rrd and open it with "
+                              f"`rerun --bind {VIEWER_BIND} --web-viewer OUT.rrd`")
+        if time.monotonic() > deadline:
+            proc.kill()
+            raise ConfigError(f"--spawn: the Rerun viewer did not listen on {VIEWER_BIND}:{port} within {timeout_s:g} s")
+        time.sleep(0.05)
+    return proc
+
+
 def open_sink(rec: rr.RecordingStream, *, rrd: str | None = None, spawn: bool = False,
               connect: str | None = None, methods: tuple[str, ...] = ("zcut", "sor")) -> None:
-    """Send ``rec`` to a file, a spawned viewer or a running viewer, with the default blueprint for
-    the base ``methods`` the replay runs."""
+    """Send ``rec`` to a file, a spawned viewer (listening on 127.0.0.1 only, :func:`spawn_viewer`)
+    or a running viewer, with the default blueprint for the base ``methods`` the replay runs."""
     bp = default_blueprint(methods)
     if rrd is not None:
         rec.save(rrd, default_blueprint=bp)
     elif spawn:
-        rec.spawn(default_blueprint=bp)
+        spawn_viewer()
+        rec.connect_grpc(f"rerun+http://{VIEWER_BIND}:{VIEWER_PORT}/proxy", default_blueprint=bp)
     elif connect is not None:
         rec.connect_grpc(connect, default_blueprint=bp)
+
+
+def abandon(rec: rr.RecordingStream) -> None:
+    """Give up a recording whose file writer failed (a full disk) without ever waiting for it.
+
+    Rerun 0.41 waits for ever on such a writer wherever it flushes the recording: at
+    ``disconnect()``, in the recording's ``__del__`` (which also sweeps every orphaned recording),
+    and in its shutdown at exit. So the recording object is kept alive for the rest of the process
+    (one reference that is never released: its ``__del__`` never runs, and no other recording's
+    sweep finds it orphaned), and Rerun's shutdown at exit is not run (zcut's sinks flush and close
+    every recording they keep themselves). The process then exits normally; the failed writer's
+    threads end with it.
+    """
+    import ctypes
+
+    ctypes.pythonapi.Py_IncRef(ctypes.py_object(rec))
+    rr.unregister_shutdown()
+
+
+def rrd_problem(path: str) -> str | None:
+    """Why the .rrd at ``path`` is not a complete recording (read back with Rerun's own reader:
+    its footer, the manifest of its recording), or None when it is complete.
+
+    A writer that met a full disk may leave a file without footer (Rerun logs the write error and
+    goes on), so a recording is checked before it takes its final name.
+    """
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # "RRD file has no footer/manifest": a truncated file
+            reader = rr.chunk.RrdReader(path)
+            if not reader.recordings():
+                return "no recording in it"
+            reader.store()  # the manifest, checked against the file
+    except Warning as w:
+        return str(w).split(":")[0]
+    except Exception as e:  # noqa: BLE001 - rerun raises RuntimeError/ValueError with the reason
+        lines = [line for line in str(e).splitlines() if line.strip()]
+        return lines[0] if lines else type(e).__name__
+    return None
 
 
 def _ctx(classes) -> rr.AnnotationContext:

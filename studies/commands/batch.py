@@ -11,6 +11,7 @@ import argparse
 import json
 import sys
 import time
+from contextlib import ExitStack
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -39,6 +40,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    with ExitStack() as stack:  # the output folder stays locked until the tables are written
+        return _run(args, stack)
+
+
+def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     from replay.commands.common import overrides_of
     from replay.process import EXIT_DATA_LOSS
     from studies import batch
@@ -71,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
                           frames_per_unit=args.frames_per_unit, whole=args.results or args.rrd, progress=planning,
                           bin_model=args.bin_model)
         options = study_options(args, overrides) | {"results": args.results, "rrd": args.rrd}
-        store = PartStore(args.out, identity("batch", options, plans))
+        store = stack.enter_context(PartStore(args.out, identity("batch", options, plans)))
         units, todo = start_units(plans, store, what="", executor=executor)
         job = Job(config_file=absolute(args.config), overrides=overrides, bin_model=absolute(args.bin_model), topic=args.topic,
                   labels=absolute(args.labels), annotator=args.annotator, region=args.region,

@@ -30,6 +30,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from replay.outputs import OutputPlan, config_path_for
+    from replay.synth.log import sample_log_path
+
+    out_dir = Path(args.out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rrd = out_dir / "zcut_demo.rrd"
+    results = out_dir / "zcut_demo_results.mcap"
+    # the demo replaces its own outputs in its own folder (never the sample it reads); a second demo
+    # writing into the same folder meanwhile is refused before any work (the plan locks them until
+    # they are written)
+    with OutputPlan([sample_log_path()], force=True) as plan:
+        for path, what in ((rrd, "the .rrd"), (results, "the results file")):
+            plan.add(path, what)
+            plan.add(config_path_for(path), f"the config beside {what}")
+        return _demo(args, out_dir=out_dir, rrd=rrd, results=results)
+
+
+def _demo(args: argparse.Namespace, *, out_dir: Path, rrd: Path, results: Path) -> int:
     from annotate.accuracy import (
         accuracy_report,
         format_accuracy_table,
@@ -37,9 +55,8 @@ def run(args: argparse.Namespace) -> int:
         jsonable,
     )
     from annotate.truth import SyntheticTruth, scored_region
-    from replay.commands.replay import print_table_callbacks, viewer_command
+    from replay.commands.replay import print_table_callbacks
     from replay.logs.reader import LogReader
-    from replay.outputs import OutputPlan, config_path_for
     from replay.pipeline.bin_model import BinModelChoice, bin_model_for, ensure_sample_bin_model, load_bin_model
     from replay.pipeline.session import ReplaySession
     from replay.pipeline.sinks import BackgroundSinks, ConfigBeside, RerunSink, ResultsSink
@@ -54,19 +71,18 @@ def run(args: argparse.Namespace) -> int:
     if not sample_log_path().is_file():
         print(f"zcut: synthesising the sample log (once): {sample_log_path()}", file=err, flush=True)
     sample = ensure_sample_log(progress=progress)
+    model_path: Path | None = None
 
     def sample_model(reader: LogReader) -> BinModelChoice:
+        nonlocal model_path
         choice = bin_model_for(reader, None)
         if choice.model is not None:
             print("zcut: bin model: the sample's own (its bin_model.ply attachment)", file=err, flush=True)
             return choice
         print("zcut: bin model of the sample (built once from 5 synthetic empty-bin scans)", file=err, flush=True)
-        return BinModelChoice(load_bin_model(ensure_sample_bin_model(progress=progress)), "explicit")
+        model_path = ensure_sample_bin_model(progress=progress)
+        return BinModelChoice(load_bin_model(model_path), "explicit")
 
-    out_dir = Path(args.out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    rrd = out_dir / "zcut_demo.rrd"
-    results = out_dir / "zcut_demo_results.mcap"
     frames_acc = []
     on_start, on_frame_print = print_table_callbacks(json_mode=args.json, total=None)
 
@@ -81,11 +97,6 @@ def run(args: argparse.Namespace) -> int:
                                              t.outliers, reviewed=t.reviewed, valid=result.valid,
                                              region=scored_region(result, "zone"), kinds=t.kind))
 
-    # the demo replaces its own outputs in its own folder (never the sample it reads)
-    plan = OutputPlan([sample], force=True)
-    for path, what in ((rrd, "the .rrd"), (results, "the results file")):
-        plan.add(path, what)
-        plan.add(config_path_for(path), f"the config beside {what}")
     session = ReplaySession.open(sample, choose_bin_model=None if args.no_bin else sample_model)
     on_start(session, planned=session.reader.n_frames)
     sinks: list[FrameSink] = [RerunSink(rrd=rrd, full_detail=args.full_detail), ConfigBeside(rrd), ResultsSink(results),
@@ -105,12 +116,39 @@ def run(args: argparse.Namespace) -> int:
               f"SOR found {ps['tp']} (recall {_pct(ps['recall'])}, precision {_pct(ps['precision'])}).")
     for name, written in summary.outputs.items():
         print(f"zcut: wrote {name}: {written}", file=err)
-    print(f"\nOpen the recording with:  {viewer_command()} {rrd}", file=sys.stdout if not args.json else err)
+    print(next_steps(sample=sample, bin_model=model_path, rrd=rrd, results=results, out_dir=out_dir),
+          file=sys.stdout if not args.json else err)
     if summary.damage:
         for d in summary.damage:
             print(f"warning: data loss: {d.text}", file=err)
         return EXIT_DATA_LOSS
     return 0
+
+
+def next_steps(*, sample: Path, bin_model: Path | None, rrd: Path, results: Path, out_dir: Path) -> str:
+    """The demo's last lines: the exact commands that go on from its own outputs (the viewer,
+    labelling, true accuracy, a sweep, a batch)."""
+    import shlex
+
+    from replay.commands.replay import viewer_command
+
+    here = Path(sys.executable).with_name("zcut")
+    zcut = shlex.quote(str(here)) if here.is_file() else "zcut"
+
+    def q(p: Path) -> str:
+        return shlex.quote(str(p))
+
+    model = f" --bin-model {q(bin_model)}" if bin_model is not None else ""
+    steps = [
+        ("every stage in the viewer (a browser: add --web-viewer)", f"{viewer_command()} {q(rrd)}"),
+        ("label true outliers in a local page", f"{zcut} annotate {q(sample)}{model} --db "
+         f"{q(out_dir / 'zcut_demo.labels.sqlite')} --annotator \"$USER\""),
+        ("true accuracy of the results file", f"{zcut} accuracy {q(results)}"),
+        ("tune the z-cut and SOR parameters", f"{zcut} sweep {q(sample)}{model} -o {q(out_dir / 'sweep')} "
+         "--step 0.1,0.2,0.4 --rho 0.035:0.105:3"),
+        ("replay many logs (here one) on every core", f"{zcut} batch {q(sample)}{model} -o {q(out_dir / 'batch')}"),
+    ]
+    return "\nNext steps on the demo's own outputs:\n" + "\n".join(f"  # {what}\n  {cmd}" for what, cmd in steps)
 
 
 def _pct(v: float | None) -> str:

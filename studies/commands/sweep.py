@@ -12,15 +12,15 @@ import argparse
 import shlex
 import sys
 import time
+from contextlib import ExitStack
 from pathlib import Path
 from typing import TYPE_CHECKING
-
-from studies.summary import DamageNote, ParamSet, SweepLog, SweepSummary, Tuned, UnscoredFrame
 
 if TYPE_CHECKING:
     from replay.pipeline.config import PipelineConfig
     from studies.driver import ProgressSink
     from studies.parts import PartStore
+    from studies.summary import ParamSet, SweepSummary, Tuned
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -64,6 +64,11 @@ def _source_of_results(path: Path) -> Path | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    with ExitStack() as stack:  # the output folder stays locked until the tables are written
+        return _run(args, stack)
+
+
+def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     from replay.commands.common import overrides_of
     from replay.errors import ConfigError
     from replay.logs import layout
@@ -84,7 +89,9 @@ def run(args: argparse.Namespace) -> int:
     from studies.grid import make_grid, parse_list
     from studies.parts import PartStore
     from studies.units import expand_logs
+    from studies.summary import DamageNote, SweepLog, SweepSummary, UnscoredFrame
     from studies.work import Job
+    from zcut.errors import ZcutError
 
     t0 = time.perf_counter()
     err = sys.stderr
@@ -97,7 +104,13 @@ def run(args: argparse.Namespace) -> int:
     # results files: their source log (the filtered cloud has its outliers removed)
     logs = []
     for p in expand_logs(args.inputs):
-        src = _source_of_results(p)
+        try:
+            src = _source_of_results(p)
+        except ConfigError:
+            raise
+        except (ZcutError, OSError):  # unreadable: planning reports it and the others go on (exit 3), as in batch
+            logs.append(str(p))
+            continue
         if src is None:
             raise ConfigError(f"{p} is a results file whose source log (named in it) is not beside it: "
                               "sweep the source log")
@@ -107,7 +120,13 @@ def run(args: argparse.Namespace) -> int:
     # the truth must exist before any work
     if args.labels is None:
         for log in logs:
-            if layout.TRUTH_OUTLIERS not in LogReader(log, cloud_topic=args.topic).mask_topics:
+            try:
+                topics = LogReader(log, cloud_topic=args.topic).mask_topics
+            except ConfigError:
+                raise
+            except (ZcutError, OSError):
+                continue  # unreadable: left out by the planning, with a warning
+            if layout.TRUTH_OUTLIERS not in topics:
                 raise ConfigError(f"{log} has no {layout.TRUTH_OUTLIERS} (not a synthetic log): label it "
                                   "(zcut annotate) and give --labels DB")
     executor = make_executor(workers=args.workers, ray=args.ray)
@@ -119,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
         base = first.resolved.config
         grid = make_grid(**axes, config=base, max_points=args.max_points, force=args.force)
         options = study_options(args, overrides) | {"grid": grid.as_dict()}
-        store = PartStore(args.out, identity("sweep", options, plans))
+        store = stack.enter_context(PartStore(args.out, identity("sweep", options, plans)))
         with_sor = base.sor.enabled and "sor" in base.base_methods
         n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if with_sor else 0)
         units, todo = start_units(plans, store, executor=executor,

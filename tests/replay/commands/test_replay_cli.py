@@ -98,7 +98,7 @@ def test_table_and_overrides_and_one_frame(tmp_path, capsys, logs):
     assert "no bin model" not in err  # the synthetic log carries its own (test_bin_model_attachment: the warning)
     z = tomllib.loads((tmp_path / "one.config.toml").read_text())["zcut"]
     assert (z["step_mm"], z["max_depth_mm"], z["max_area_px"]) == (0.5, 20.0, 77.0)
-    assert f"rerun {rrd}" in err
+    assert f"rerun --bind 127.0.0.1 {rrd}" in err  # the viewer it names listens on this machine only
 
 
 def test_config_file_and_its_errors(tmp_path, capsys, logs):
@@ -196,7 +196,25 @@ def test_demo_end_to_end(tmp_path, capsys, monkeypatch):
     rc, out, err = run_cli(capsys, "demo", "--out-dir", tmp_path / "out")
     assert rc == 0, err
     assert "True accuracy against the sample's exact ground truth" in out
-    assert "rerun " + str(tmp_path / "out" / "zcut_demo.rrd") in out
+    assert "rerun --bind 127.0.0.1 " + str(tmp_path / "out" / "zcut_demo.rrd") in out
+    # the next steps are exact commands on the demo's own outputs: each parses, and one runs
+    import shlex
+
+    from replay.cli import build_parser
+
+    steps = {}
+    for line in out[out.index("Next steps on the demo's own outputs:"):].splitlines()[1:]:
+        if line.lstrip().startswith("#"):
+            continue
+        words = shlex.split(line.replace('"$USER"', "someone"))
+        if len(words) > 1 and words[0].endswith("zcut"):
+            steps[words[1]] = words[1:]
+    assert set(steps) == {"annotate", "accuracy", "sweep", "batch"}
+    for argv in steps.values():
+        build_parser().parse_args(argv)
+    assert str(tmp_path / "out" / "zcut_demo_results.mcap") in steps["accuracy"]
+    rc, acc, acc_err = run_cli(capsys, *steps["accuracy"])
+    assert rc == 0 and "recall" in acc, acc_err
     assert "part: rods (from the log's zcut.synth metadata)" in err
     rows = [ln for ln in out.splitlines() if ln.split() and ln.split()[0] in ("zcut", "sor")]
     assert len(rows) == 2

@@ -239,3 +239,61 @@ def test_the_default_blueprint_is_in_the_file(recording):
     views = {ch.entity_path for ch in reader.stream(store=bp) if ch.entity_path.startswith("/view/")
              and not ch.entity_path.endswith("ViewContents")}
     assert len(views) == 12  # 5 image views, 3D, 4 time series, config and warnings (default_blueprint)
+
+
+
+#: a process that prints the local address (hex, as /proc/net shows it) of every socket it sees
+#: listening on the port argv[1], until it is stopped: a separate process, so that it looks often
+#: enough to see a viewer that listens only for a moment
+WATCH = """
+import sys
+port = int(sys.argv[1])
+seen = set()
+while True:
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        with open(table) as f:
+            for row in f.read().splitlines()[1:]:
+                fields = row.split()
+                address, hex_port = fields[1].split(":")
+                if fields[3] == "0A" and int(hex_port, 16) == port and address not in seen:
+                    seen.add(address)
+                    print(address, flush=True)
+"""
+
+
+def test_a_spawned_viewer_listens_on_this_machine_only():
+    """``--spawn`` starts Rerun's viewer with its server bound to 127.0.0.1 (Rerun's own default and
+    ``rr.spawn``'s is 0.0.0.0). The native viewer cannot open a window on a machine without a
+    display and exits soon after it starts listening: its listening socket is watched meanwhile."""
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    from replay.errors import ConfigError
+
+    seen: list[str] = []
+    exits: list[str] = []
+    for _ in range(6):  # a loaded machine may not let the watcher look while the viewer listens
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        watcher = subprocess.Popen([sys.executable, "-c", WATCH, str(port)], stdout=subprocess.PIPE, text=True)
+        time.sleep(0.5)
+        proc = None
+        try:
+            proc = viz.spawn_viewer(port=port, timeout_s=60)
+        except ConfigError as e:  # it exited (no display) after it listened
+            exits.append(str(e))
+        finally:
+            time.sleep(0.5)
+            if proc is not None:
+                proc.kill()
+                proc.wait()
+            watcher.kill()
+            seen += watcher.communicate()[0].split()
+        if seen:
+            break
+    assert seen and set(seen) == {"0100007F"}, (seen, exits)  # 127.0.0.1, and nothing on 0.0.0.0 or ::
+    assert all("exited as it started" in e for e in exits), exits
+    assert viz.viewer_args(port)[:2] == ["--bind", "127.0.0.1"]

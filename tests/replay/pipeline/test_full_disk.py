@@ -1,0 +1,59 @@
+"""A full disk under ``zcut replay``'s outputs (docs/cli.md, outputs): never a hang, never a
+traceback, never a truncated output under its final name; one line naming the output that had no
+space, and nothing left behind. The disks are real small tmpfs mounts."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import time
+
+import pytest
+from disk_helpers import small_disk
+
+from replay.cli import main
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory):
+    p = tmp_path_factory.mktemp("full_logs") / "log.mcap"
+    assert main(["synth", "-o", str(p), "--parts", "zinc_nuts", "--frames", "4", "--seed", "3",
+                 "--size", "480x640"]) == 0  # a 1.5 MB .rrd and a 17 MB results file
+    return p
+
+
+@pytest.mark.parametrize(("outputs", "size", "short"), [
+    (("rrd",), "64k", "o.rrd"), (("rrd",), "700k", "o.rrd"), (("rrd",), "1400k", "o.rrd"),
+    (("out",), "2m", "r.mcap"), (("out",), "12m", "r.mcap"), (("rrd", "out"), "8m", "r.mcap"),
+])
+def test_replay_on_a_full_disk_is_one_line_and_leaves_nothing(log, tmp_path, outputs, size, short):
+    with small_disk(tmp_path / "disk", size) as disk:
+        argv = [sys.executable, "-m", "replay.cli", "replay", str(log)]
+        if "rrd" in outputs:
+            argv += ["--rrd", str(disk / "o.rrd")]
+        if "out" in outputs:
+            argv += ["--out", str(disk / "r.mcap")]
+        t0 = time.monotonic()
+        run = subprocess.run(argv, capture_output=True, text=True, timeout=600)  # a hang fails here
+        errors = [ln for ln in run.stderr.splitlines() if ln.startswith("error:")]
+        assert run.returncode == 1, run.stderr
+        assert len(errors) == 1 and "Traceback" not in run.stderr, run.stderr
+        assert "no space left on the device" in errors[0] and str(disk / short) in errors[0], errors
+        assert sorted(p.name for p in disk.iterdir()) == []  # no truncated output, no temporary, no lock
+        assert time.monotonic() - t0 < 600
+
+
+def test_a_recording_is_checked_complete_before_it_takes_its_name(log, tmp_path, capsys):
+    """``viz.rrd_problem`` reads a recording back with Rerun's own reader: a complete one passes,
+    every truncation of it is named as incomplete (what a writer that met a full disk leaves)."""
+    from replay.pipeline.viz import rrd_problem
+
+    assert main(["replay", str(log), "--frames", "0:2", "--rrd", str(tmp_path / "o.rrd")]) == 0
+    data = (tmp_path / "o.rrd").read_bytes()
+    assert rrd_problem(str(tmp_path / "o.rrd")) is None
+    for cut in (len(data) // 3, len(data) - 100, len(data) - 1):
+        (tmp_path / "t.rrd").write_bytes(data[:cut])
+        assert rrd_problem(str(tmp_path / "t.rrd")) is not None, cut
+    shutil.copy(tmp_path / "o.rrd", tmp_path / "c.rrd")
+    assert rrd_problem(str(tmp_path / "c.rrd")) is None

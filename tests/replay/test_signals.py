@@ -1,0 +1,108 @@
+"""SIGINT and SIGTERM (docs/cli.md, exit status): one line, exit 130 or 143, no temporary file and no
+lock left, whenever the signal lands — during start-up, while frames run, while outputs close."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from replay.cli import main
+from replay.process import Interrupted, InterruptState, interrupted_by
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory):
+    p = tmp_path_factory.mktemp("sig_logs") / "log.mcap"
+    assert main(["synth", "-o", str(p), "--parts", "zinc_nuts", "--frames", "4", "--seed", "3",
+                 "--size", "480x640"]) == 0
+    return p
+
+
+def _start(log: Path, out: Path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "replay.cli", "replay", str(log), "--rrd", str(out / "o.rrd"),
+                             "--out", str(out / "r.mcap")], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+
+def _wait_for(p: subprocess.Popen, needle: bytes, seen: bytearray) -> None:
+    """Read stderr until ``needle`` appears."""
+    deadline = time.monotonic() + 300
+    while needle not in seen:
+        chunk = p.stderr.read1(4096)
+        assert chunk and time.monotonic() < deadline, seen.decode(errors="replace")
+        seen += chunk
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("moment", ["start-up", "first note", "first frame", "second frame"])
+def test_a_signal_ends_replay_in_one_line_with_no_leftovers(log, tmp_path, sig, moment):
+    p = _start(log, tmp_path)
+    seen = bytearray()
+    try:
+        if moment == "start-up":  # loading numba and the kernels (seconds; after the handlers are in place)
+            deadline = time.monotonic() + 300
+            while "numba" not in Path(f"/proc/{p.pid}/maps").read_text():
+                assert p.poll() is None and time.monotonic() < deadline
+                time.sleep(0.01)
+        else:
+            _wait_for(p, {"first note": b"zcut:", "first frame": b"] frame 0:", "second frame": b"] frame 1:"}[moment],
+                      seen)
+        p.send_signal(sig)
+        seen += p.stderr.read()
+        p.wait(timeout=300)
+    finally:
+        p.kill()
+        p.stderr.close()
+    err = seen.decode(errors="replace")
+    assert p.returncode == 128 + sig, err
+    # (the signal may land between a progress line and its newline)
+    assert err.rstrip().endswith(f"interrupted ({signal.Signals(sig).name})") and err.count("interrupted") == 1, err
+    assert "Traceback" not in err and "Error" not in err, err
+    assert sorted(q.name for q in tmp_path.iterdir()) == []  # no temporary, no lock, no half output
+
+
+def test_the_command_line_handles_signals_before_it_loads_the_kernels():
+    """Importing the console script loads no numba (nor zcut): the handlers are in place before
+    the seconds of loading the kernels, so a Ctrl-C then is one line too (and ``--help`` is fast)."""
+    code = "import sys, replay.cli; print(sorted(m for m in ('numba', 'zcut', 'numpy') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_an_error_the_interruption_caused_is_the_interruption():
+    """A library may turn the interruption into an error of its own (numba: ``SystemError: ...
+    returned a result with an exception set``, from the KeyboardInterrupt): still 130/143, and any
+    error after a signal arrived is one too."""
+    try:
+        try:
+            raise Interrupted(signal.SIGTERM)
+        except KeyboardInterrupt as e:
+            raise SystemError("<built-in function x> returned a result with an exception set") from e
+    except SystemError as e:
+        assert interrupted_by(e) == 143
+    assert interrupted_by(RuntimeError("plain")) is None
+    state = InterruptState()
+    state.signals.append(signal.SIGINT)
+    assert interrupted_by(RuntimeError("after the signal"), state) == 130
+    assert interrupted_by(KeyboardInterrupt()) == 130
+
+
+def test_sinks_interrupted_while_starting_leave_nothing(log, tmp_path):
+    """An interruption while the sinks start (the recording's temporary made, the viewer stream being
+    set up): the sinks already started are closed, their temporaries removed."""
+    from replay.pipeline.session import ReplaySession
+    from replay.pipeline.sinks import BackgroundSinks, NullSink, RerunSink, ResultsSink
+
+    class Interrupting(NullSink):
+        def start(self, info):
+            raise Interrupted(signal.SIGINT)
+
+    info = ReplaySession.open(log).start_info()
+    sinks = BackgroundSinks([RerunSink(rrd=tmp_path / "o.rrd"), ResultsSink(tmp_path / "r.mcap"), Interrupting()])
+    with pytest.raises(Interrupted):
+        sinks.start(info)
+    assert list(tmp_path.iterdir()) == []
