@@ -51,7 +51,7 @@ def _pose(angle_deg: float, shift=(0.004, -0.003, 0.002)) -> np.ndarray:
 def _params(kw: dict) -> RemovalParams:
     """RemovalParams from the reference's metre keywords (the old function's defaults otherwise)."""
     mm = {k.replace("_m", "_mm"): v * 1000.0 for k, v in kw.items() if k.endswith("_m")}
-    return RemovalParams(**{"straggler_mm": 0.0, "straggler_neighbours": 5, **mm,
+    return RemovalParams(**{"mode": "paper", "straggler_mm": 0.0, "straggler_neighbours": 5, **mm,
                             **{k: v for k, v in kw.items() if not k.endswith("_m")}})
 
 
