@@ -39,6 +39,8 @@ __all__ = ["BinCheck", "check_bin_removal", "failed_bin_check"]
 ADVICE_LEAK = ("the bin model does not fit this frame's bin: look at image/bin_check in Rerun (zcut replay "
                "--rrd); if the model is of another bin or the bin changed, rebuild it from empty scans of this bin "
                "(zcut bin-model); if the registration is only a little off, raise removal.max_tolerance_mm")
+ADVICE_PAPER = ("the paper's removal (removal.mode = \"paper\", δ = {delta:g} mm) needs a registration right to a "
+                "tenth of a millimetre: use removal.mode = \"robust\" (the default) unless reproducing the paper")
 ADVICE_HIDDEN = ("the bin is mostly hidden or out of view: this frame's figures rest on an unchecked removal; "
                  "leave it out or check it in Rerun")
 
@@ -59,6 +61,8 @@ class BinCheck:
         Why the frame is flagged and what to do ("" when not flagged).
     offending : (H, W) bool ndarray or None
         The pixels counted in ``value``; None when the bin stages failed.
+    ring : (H, W) bool ndarray or None
+        The certain bin pixels the check looked at; None when the bin stages failed.
     """
 
     value: float
@@ -66,6 +70,7 @@ class BinCheck:
     flagged: bool
     reason: str
     offending: Mask | None = None
+    ring: Mask | None = None
 
 
 def failed_bin_check(reason: str, *, params: RemovalParams) -> BinCheck:
@@ -124,9 +129,10 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         tol = f"tolerance {removal.tolerance_mm:.2f} mm"
         if np.isfinite(removal.residual_mm) or removal.residual_mm == np.inf:
             tol += f", residuals {removal.residual_mm:.2f} mm"
+        advice = ADVICE_LEAK if params.robust else ADVICE_PAPER.format(delta=params.delta_mm)
         reasons.append(f"{n} of the bin's {n_ring} rim and upper-wall pixels not removed ({', '.join(where)}; {tol}): "
-                       f"{ADVICE_LEAK}")
+                       f"{advice}")
     if n_ring < params.check_min_ring_px:
         reasons.append(f"only {n_ring} of the bin's rim and upper-wall pixels in view (< {params.check_min_ring_px}): "
                        f"{ADVICE_HIDDEN}")
-    return BinCheck(float(n), threshold, bool(reasons), "; ".join(reasons), offending)
+    return BinCheck(float(n), threshold, bool(reasons), "; ".join(reasons), offending, ring)
