@@ -18,8 +18,10 @@ below the rim and in from the walls, never reaches them) — that the removal le
 A frame is flagged when the count exceeds ``RemovalParams.check_threshold_px`` (0 by default:
 measured on synthetic piles, a single such pixel at the zone's top cost the frame its whole z-cut
 F1, and frames whose removal held had none; see ``docs/bin_robustness.md``), when fewer than
-``check_min_ring_px`` certain bin pixels are in view (too little of the bin to say), or when the bin
-stages failed (:func:`failed_bin_check`).
+``check_min_ring_px`` certain bin pixels are in view or less than ``check_min_rim_in_view`` of the
+model's rim lies in the camera's view (too little of the bin to say), or when the bin stages failed
+(:func:`failed_bin_check`: no bin in the image, a registration that did not converge — an
+occluded bin, a model of another bin, an empty model).
 """
 
 from __future__ import annotations
@@ -85,7 +87,8 @@ def failed_bin_check(reason: str, *, params: RemovalParams) -> BinCheck:
     return BinCheck(float("nan"), float(params.check_threshold_px), True, reason, None)
 
 
-def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalParams, band_mm: float) -> BinCheck:
+def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalParams, band_mm: float,
+                      rim_in_view: float = 1.0) -> BinCheck:
     """Count the certain bin pixels the removal left where they matter; flag the frame.
 
     Parameters
@@ -98,6 +101,10 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         ``check_threshold_px``, ``check_min_ring_px``.
     band_mm : float
         How far below the zone's top the filters look (the z-cut's ``d_max``, mm, >= 0).
+    rim_in_view : float
+        The share of the registered model's rim in the camera's view (``n_rim`` of the
+        registration over the model's rim points); below ``check_min_rim_in_view`` the frame is
+        flagged.
 
     Returns
     -------
@@ -108,6 +115,8 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         raise InputShapeError(f"ring must be an {removal.zone.shape} bool array, got {describe_array(ring)}")
     if not (np.isfinite(band_mm) and band_mm >= 0):
         raise ParameterError(f"band_mm must be a number >= 0, got {band_mm!r}")
+    if not 0.0 <= rim_in_view <= 1.0:
+        raise ParameterError(f"rim_in_view must be a number in [0, 1], got {rim_in_view!r}")
     zone = removal.zone
     h = removal.height_mm
     offending = ring & removal.easy_outliers
@@ -135,4 +144,7 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
     if n_ring < params.check_min_ring_px:
         reasons.append(f"only {n_ring} of the bin's rim and upper-wall pixels in view (< {params.check_min_ring_px}): "
                        f"{ADVICE_HIDDEN}")
+    if rim_in_view < params.check_min_rim_in_view:
+        reasons.append(f"only {100 * rim_in_view:.0f} % of the bin's rim in the camera's view "
+                       f"(< {100 * params.check_min_rim_in_view:.0f} %): {ADVICE_HIDDEN}")
     return BinCheck(float(n), threshold, bool(reasons), "; ".join(reasons), offending, ring)

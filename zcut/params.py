@@ -416,6 +416,9 @@ class RemovalParams:
     check_min_ring_px : int
         The bin check flags a frame whose certain bin pixels are fewer than this (too little of the
         bin in view to check the removal).
+    check_min_rim_in_view : float
+        The bin check flags a frame where a smaller share of the registered model's rim lies in the
+        camera's view (most of the bin out of view: the registration held on to a corner of it).
     """
 
     delta_mm: float = 0.1
@@ -431,6 +434,7 @@ class RemovalParams:
     max_tolerance_mm: float = 8.0
     check_threshold_px: float = 0.0
     check_min_ring_px: int = 200
+    check_min_rim_in_view: float = 0.5
 
     def __post_init__(self) -> None:
         _number(self, "delta_mm", ge=0)
@@ -449,6 +453,7 @@ class RemovalParams:
                                  f"({self.max_tolerance_mm!r}), got {self.min_tolerance_mm!r}")
         _number(self, "check_threshold_px", ge=0)
         _number(self, "check_min_ring_px", ge=0, integer=True)
+        _number(self, "check_min_rim_in_view", ge=0, le=1)
 
     @property
     def delta_m(self) -> float:

@@ -221,3 +221,14 @@ def test_residuals_need_an_index_prepared_in_the_robust_mode(model, filled):
 def test_bad_removal_parameters(kw, match):
     with pytest.raises(ParameterError, match=match):
         RemovalParams(**kw)
+
+
+def test_a_bin_mostly_out_of_view_is_flagged(model, filled):
+    _, _, ring = filled
+    r, _ = run(model, filled, pose())
+    check = check_bin_removal(r, ring, params=RemovalParams(), band_mm=BAND_MM, rim_in_view=0.3)
+    assert check.flagged and check.value == 0 and "only 30 % of the bin's rim in the camera's view" in check.reason
+    assert not check_bin_removal(r, ring, params=RemovalParams(check_min_rim_in_view=0.25), band_mm=BAND_MM,
+                                 rim_in_view=0.3).flagged
+    with pytest.raises(ParameterError, match="rim_in_view"):
+        check_bin_removal(r, ring, params=RemovalParams(), band_mm=BAND_MM, rim_in_view=1.5)
