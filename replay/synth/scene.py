@@ -372,8 +372,11 @@ def drop_pile(
 ) -> Scene:
     """Drop parts of ``kind`` into the bin until the mean pile height above the floor reaches ``fill_mm``.
 
-    ``deformation`` changes the bin the parts fall into, not where they are dropped (the nominal
-    ``geometry`` places them): the same seed drops the same pile into a scaled or bulging bin.
+    ``deformation`` changes the bin, not the pile: the parts settle in the nominal bin (the same
+    seed drops the very same pile), which is then replaced by the deformed one under them. The
+    parts lie over the flat floor, which a scale moves by thousandths of a millimetre and a bulge
+    not at all; a twist tilts it by up to 0.7 × ``twist_mm`` at the floor's corners, where a part
+    then floats or sinks by as much.
 
     Each part gets a random resting orientation and a position (snapped to the grid) whose footprint
     stays over the flat floor; it falls straight down until it touches the height field. Of
@@ -381,7 +384,7 @@ def drop_pile(
     then moves downhill in steps of half its radius while that lowers it (a crude stand-in for
     rolling and sliding into gaps, which packs the pile densely and keeps its top nearly level).
     """
-    height, label = bin_height_field(grid, pose, geometry, deformation)
+    height, label = bin_height_field(grid, pose, geometry)
     bin_height = height.copy()
     part_id = np.zeros(height.shape, np.int32)
     fxh, fyh = geometry.floor_half
@@ -436,6 +439,16 @@ def drop_pile(
         parts.append(
             PlacedPart(rows, cols, bottom.astype(np.float32), top.astype(np.float32), R, centre)
         )
+    if deformation != NOMINAL_DEFORMATION:  # the same pile in the deformed bin
+        height, label = bin_height_field(grid, pose, geometry, deformation)
+        bin_height = height.copy()
+        part_id = np.zeros(height.shape, np.int32)
+        for i, p in enumerate(parts):
+            win = height[p.rows, p.cols]
+            raise_ = np.isfinite(p.top) & (p.top > win)
+            win[raise_] = p.top[raise_]
+            label[p.rows, p.cols][raise_] = LABEL_PART
+            part_id[p.rows, p.cols][raise_] = i + 1
     return Scene(grid, height, label, part_id, bin_height, tuple(parts), kind, pose, deformation)
 
 

@@ -9,7 +9,7 @@ from replay.cli import main
 from replay.logs import layout
 from replay.logs.reader import LogReader
 from replay.pipeline.bin_model import load_bin_model
-from replay.synth import BIN, LABEL_RIM, LABEL_WALL, BinPose, BinShape, write_bin_cad
+from replay.synth import BIN, LABEL_PART, LABEL_RIM, LABEL_WALL, BinPose, BinShape
 from replay.synth.scene import bin_height_field, bin_mesh_mm, make_grid
 from replay.synth.synthesize import synthesize_frame
 from zcut.errors import ParameterError
@@ -71,10 +71,22 @@ def test_a_deformation_is_drawn_anew_for_every_scan_and_the_same_for_the_same_se
     d = a.scene.deformation
     assert all(abs(x) <= 1.0 for x in d.bulges_mm) and 0 < abs(d.twist_mm) <= 1.0
     nominal = synthesize_frame(kind="rods", seed=5, index=0, size=SIZE)
-    # the same pile (parts dropped where the nominal bin has them), a different bin
+    # the same pile (settled in the nominal bin), a different bin
     assert len(a.scene.parts) == len(nominal.scene.parts)
+    for p, q in zip(a.scene.parts, nominal.scene.parts):
+        np.testing.assert_array_equal(p.top, q.top)
     assert not np.array_equal(a.scene.bin_height, nominal.scene.bin_height)
     np.testing.assert_array_equal(a.T_cam_bin, nominal.T_cam_bin)
+
+
+@pytest.mark.parametrize("shape", [BinShape(scale=1.002), BinShape(bulge_mm=1.0)])
+def test_a_scaled_or_bulging_bin_holds_the_very_same_pile(shape):
+    a = synthesize_frame(kind="spheres", seed=6, size=SIZE, bin_shape=shape)
+    b = synthesize_frame(kind="spheres", seed=6, size=SIZE)
+    assert np.array_equal(a.scene.part_id, b.scene.part_id)
+    on = a.scene.label == LABEL_PART
+    assert np.array_equal(on, b.scene.label == LABEL_PART)
+    np.testing.assert_allclose(a.scene.height[on], b.scene.height[on], atol=1e-4)  # float32 part tops
 
 
 @pytest.mark.parametrize("kw, match", [
