@@ -83,11 +83,19 @@ class FrameAccuracy:
     counts : dict[str, AccuracyCounts]
         One entry per reported method, in the order shown; with ``kinds`` when the frame has kind
         truth.
+    bin_check : float or None
+        The bin check's figure of the frame (``docs/pipeline.md``, "Bin removal"; NaN when the bin
+        stages failed); None when unknown (a results file) or the bin stages did not run.
+    bin_flagged : bool or None
+        Whether the bin check flagged the frame: its scores rest on a bin removal that did not
+        work; None when unknown.
     """
 
     index: int
     stamp_ns: int
     counts: dict[str, AccuracyCounts]
+    bin_check: float | None = None
+    bin_flagged: bool | None = None
 
     @property
     def methods(self) -> tuple[str, ...]:
@@ -308,7 +316,10 @@ def accuracy_report(
         cluster_precision, cluster_recall, singletons_precision, singletons_recall,
         "ci95": {"precision": [lo, hi], "recall": [lo, hi], "f1": [lo, hi]}, "by_kind": {...}}},
         "frames": [{"index", "stamp_ns", METHOD: {... the same keys but ci95}}],
-        "unscored": [{"index", "stamp_ns", "reason"}]}`` with METHOD the frames' methods;
+        "unscored": [{"index", "stamp_ns", "reason"}], "bin_flagged"}`` with METHOD the frames'
+        methods; each frame also has ``bin_check`` and ``bin_flagged`` (the bin check, None when
+        unknown) and ``bin_flagged`` counts the scored frames it flagged (None when not known for
+        every frame);
         ``by_kind`` only with kind truth. Counts are ``int``; rates are ``float`` and may be NaN
         (0/0) — :func:`report_json` writes them as ``null``. With no frame the intervals are NaN;
         with one they are degenerate (lo = hi = the pooled figure).
@@ -340,10 +351,14 @@ def accuracy_report(
         "region": region,
         "pooled": {m: _entry(pooled[m], {k: ci[k][i].tolist() for k in CI_KEYS}) for i, m in enumerate(methods)},
         "frames": [
-            {"index": f.index, "stamp_ns": f.stamp_ns, **{m: _entry(f.counts[m]) for m in methods}}
+            {"index": f.index, "stamp_ns": f.stamp_ns, **{m: _entry(f.counts[m]) for m in methods},
+             "bin_check": f.bin_check, "bin_flagged": f.bin_flagged}
             for f in frames
         ],
         "unscored": [u.as_dict() for u in unscored],
+        # scored frames the bin check flagged (None: not known for every frame, e.g. a results file)
+        "bin_flagged": (sum(bool(f.bin_flagged) for f in frames)
+                        if frames and all(f.bin_flagged is not None for f in frames) else None),
     }
 
 
@@ -452,6 +467,10 @@ def format_accuracy_table(report: dict, *, per_frame: bool = True) -> str:
     if unscored:
         lines = [f"  frame {u['index']} (stamp_ns {u['stamp_ns']}): {u['reason']}" for u in unscored]
         parts.append(f"unscored: {len(unscored)} frame{'s' if len(unscored) != 1 else ''}\n" + "\n".join(lines))
+    flagged = [f["index"] for f in report.get("frames", []) if f.get("bin_flagged")]
+    if flagged:
+        parts.append(f"bin check: {len(flagged)} of the {len(report['frames'])} scored frames flagged (their scores "
+                     "rest on a bin removal that did not work): frames " + ", ".join(map(str, flagged)))
     return "\n\n".join(parts)
 
 

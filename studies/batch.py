@@ -77,6 +77,11 @@ def summary(plans: list[LogPlan], store: PartStore, table: Any, results: list[Un
                  for e in sorted(by_log.values(), key=lambda e: e["log"]))
     sums = {c: int(sum(table.column(c).to_pylist())) if table.num_rows else 0
             for c in ("valid_px", "zcut", "sor", "both", "above_rim", "clusters")}
+    # frames whose bin removal did not work (their counts rest on it: docs/pipeline.md, "Bin removal")
+    flagged = table.column("bin_flagged").to_pylist() if "bin_flagged" in table.column_names else []
+    scored = table.column("scored").to_pylist() if "scored" in table.column_names else [False] * len(flagged)
+    sums["bin_flagged"] = sum(bool(f) for f in flagged)
+    sums["bin_flagged_scored"] = sum(bool(f) and bool(sc) for f, sc in zip(flagged, scored))
     this_run = [r for r in results if r.error is None]
     frames_now = sum(r.frames for r in this_run)
     cpu = sum(r.cpu_seconds for r in this_run)

@@ -233,7 +233,9 @@ def _config(s: SweepSummary, tuned_toml: str | None) -> dict[str, Any]:
 def _notes(s: SweepSummary, limit: int = 50) -> dict[str, Any]:
     bad = [("Damage (frames lost: exit status 3)", [str(d) for d in s.damage]),
            ("Errors (logs or units that failed)", list(s.errors)),
-           ("Unscored frames (no truth for them)", [str(u) for u in s.unscored])]
+           ("Unscored frames (no truth for them)", [str(u) for u in s.unscored]),
+           ("Frames flagged by the bin check (their scores rest on a bin removal that did not work)",
+            [str(f) for f in s.bin_flagged])]
     return {"resolved": list(s.notes),
             "bad": [(title, xs[:limit], max(0, len(xs) - limit)) for title, xs in bad if xs]}
 

@@ -264,6 +264,18 @@ class UnscoredFrame:
 
 
 @dataclass(frozen=True, slots=True)
+class FlaggedFrame:
+    """A scored frame the bin check flagged (``docs/pipeline.md``, "Bin removal"): every parameter
+    set's scores on it rest on a bin removal that did not work."""
+
+    log: str
+    frame: int
+
+    def __str__(self) -> str:
+        return f"{self.log}: frame {self.frame}"
+
+
+@dataclass(frozen=True, slots=True)
 class SweepSummary:
     """What ``zcut sweep`` found (``DIR/summary.json``).
 
@@ -292,6 +304,8 @@ class SweepSummary:
     errors : tuple of str
         Logs or units that failed.
     unscored : tuple of UnscoredFrame
+    bin_flagged : tuple of FlaggedFrame
+        The scored frames the bin check flagged.
     reproduce : str
         The command line that reruns the sweep.
     seconds : float or None
@@ -318,6 +332,7 @@ class SweepSummary:
     unscored: tuple[UnscoredFrame, ...] = ()
     reproduce: str = ""
     seconds: float | None = None
+    bin_flagged: tuple[FlaggedFrame, ...] = ()
 
     @property
     def data_loss(self) -> bool:
@@ -340,6 +355,7 @@ class SweepSummary:
             "unscored": [({"log": u.log} if u.log is not None else {}) | {"index": u.index, "stamp_ns": u.stamp_ns,
                                                                "reason": u.reason} for u in self.unscored],
             "reproduce": self.reproduce, "seconds": _number(self.seconds),
+            "bin_flagged": [{"log": f.log, "frame": f.frame} for f in self.bin_flagged],
         }
 
     @classmethod
@@ -365,6 +381,8 @@ class SweepSummary:
             unscored=tuple(_unscored(u) for u in d.get("unscored") or []),
             reproduce=str(d.get("reproduce") or ""),
             seconds=float(seconds) if isinstance(seconds, (int, float)) else None,
+            bin_flagged=tuple(FlaggedFrame(str(f.get("log")), int(f.get("frame") or 0))
+                              for f in d.get("bin_flagged") or [] if isinstance(f, dict)),
         )
 
 
@@ -389,7 +407,9 @@ def _grid(d: Any) -> Grid | None:
 # ------------------------------------------------------------------------------------ a batch's summary
 @dataclass(frozen=True, slots=True)
 class Totals:
-    """Sums over every frame of a batch's table (pixels; ``logs`` and ``frames`` counted)."""
+    """Sums over every frame of a batch's table (pixels; ``logs`` and ``frames`` counted;
+    ``bin_flagged``: frames the bin check flagged, ``bin_flagged_scored`` those of them scored —
+    ``docs/pipeline.md``, "Bin removal")."""
 
     logs: int
     frames: int
@@ -399,6 +419,8 @@ class Totals:
     both: int
     above_rim: int
     clusters: int
+    bin_flagged: int = 0
+    bin_flagged_scored: int = 0
 
     def to_json(self) -> Json:
         return {k: getattr(self, k) for k in self.__slots__}

@@ -121,6 +121,12 @@ def sweep_frame(unit: WorkUnit, frame: Frame, zone: Zone, config: PipelineConfig
                         extra = {"step_mm": step, "max_depth_mm": depth} if top else {}
                         rows.append(_row(unit, frame, "sor", sor_k=k, sor_std_ratio=std, **extra,
                                          **counts(m | easy)))
+    # the bin check of the frame, on each of its rows (the bin stages run once per frame: every
+    # parameter set rests on the same removal)
+    check = zone.bin_check
+    for r in rows:
+        r["bin_check"] = None if check is None or not np.isfinite(check.value) else float(check.value)
+        r["bin_flagged"] = check is not None and check.flagged
     return rows
 
 

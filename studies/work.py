@@ -181,12 +181,15 @@ def batch_row(unit: WorkUnit, frame: Frame, result: FrameResult, row: FrameRow, 
     out["rmse_mm"] = _finite(row.rmse_mm)
     out["pose_error_mm"] = _finite(row.pose_error_mm)
     out["pose_error_deg"] = _finite(row.pose_error_deg)
+    out["bin_check"] = _finite(row.bin_check)  # the bin check's figure (docs/pipeline.md, "Bin removal")
+    out["bin_flagged"] = bool(row.bin_flagged)
     others = [m for m in result.outliers if m not in ("zcut", "sor")]
     for m in others:  # the other filter methods' outlier counts, named like the zcut and sor columns
         out[m] = int(np.count_nonzero(result.outliers[m]))
     for s in (*STAGE_COLUMNS, *others):
         out[f"t_{s}_s"] = _finite(float(result.timings[s])) if s in result.timings else None
-    out["warnings"] = "; ".join(result.warnings)
+    out["warnings"] = "; ".join(result.warnings + ((f"bin check: {result.bin_check.reason}",)
+                                                   if result.bin_flagged else ()))
     out["scored"] = truth is not None
     preds = method_predictions(result, methods)
     for m in methods:

@@ -269,6 +269,8 @@ def a_max_from_camera(face_area_mm2: float, *, distance_mm: float, fx_px: float,
 SOR_CONVENTIONS = ("pcl", "open3d")
 SOR_REGIONS = ("top", "zone")
 REGISTRATION_METHODS = ("point_to_plane", "point_to_point")
+#: The bin removal's modes: the paper's rule as written, or the one that tolerates a real registration.
+REMOVAL_MODES = ("robust", "paper")
 
 
 @dataclass(frozen=True, slots=True)
@@ -374,19 +376,49 @@ class RegistrationParams:
 class RemovalParams:
     """Table, easy outliers and bin points (:func:`zcut.removal.remove_table_and_bin`, paper §5.2).
 
+    The removal modes and the bin check are described in ``docs/pipeline.md`` ("Bin removal").
+
     Attributes
     ----------
     delta_mm : float
-        δ: a point this close to the registered model is bin (paper: 0.1 mm).
+        δ: a point this close to the registered model is bin (paper: 0.1 mm). In the robust mode
+        the tolerance is never smaller.
     rim_offset_mm : float
         A point higher than the rim by more than this is an easy outlier (paper Fig. 3a).
     search_radius_mm : float or None
         Nearest-model-point search radius of the point-to-plane test (None: 1.5 × the model's
-        point spacing).
+        point spacing; in the robust mode never less than the tolerance).
     straggler_mm : float
-        The looser second test for the bin surface's noise tail (0: off).
+        The looser second test for the bin surface's noise tail (0: off). In the robust mode it is
+        added to the tolerance.
     straggler_neighbours : int
         Labelled neighbours (of 8) a straggler needs.
+    mode : {"robust", "paper"}
+        ``"paper"``: the paper's §5.2 rule as written, δ = ``delta_mm`` (0.1 mm), which removes the
+        bin only when the registration is right to about a tenth of a millimetre. ``"robust"``
+        (default): the tolerance τ comes from the frame itself, from how far the frame's rim and
+        upper walls lie from the registered model (their residuals), and a point within τ of the
+        model is bin before it can be an easy outlier.
+    tolerance_mm : float or None
+        Robust mode: a fixed τ instead of the one derived from the residuals (None: derived).
+    residual_quantile : float
+        Robust mode: τ = this percentile of the residuals (percent) + ``residual_margin_mm``.
+    residual_margin_mm : float
+        Robust mode: added to the residuals' percentile (the noise of the wall pixels the
+        percentile leaves out, and the model's own thickness).
+    min_tolerance_mm, max_tolerance_mm : float
+        Robust mode: bounds of the derived τ. A frame whose residuals ask for more than the
+        maximum is removed at the maximum and the bin check says so.
+    check_threshold_px : float
+        The bin check (:func:`zcut.bin_check.check_bin_removal`) flags a frame when more of the
+        frame's certain bin pixels (rim and upper walls) than this are left where the filters
+        judge (the z-cut's depth below the zone's top) or called above-the-rim outliers.
+    check_min_ring_px : int
+        The bin check flags a frame whose certain bin pixels are fewer than this (too little of the
+        bin in view to check the removal).
+    check_min_rim_in_view : float
+        The bin check flags a frame where a smaller share of the registered model's rim lies in the
+        camera's view (most of the bin out of view: the registration held on to a corner of it).
     """
 
     delta_mm: float = 0.1
@@ -394,6 +426,15 @@ class RemovalParams:
     search_radius_mm: float | None = None
     straggler_mm: float = 2.0
     straggler_neighbours: int = 3
+    mode: str = "robust"
+    tolerance_mm: float | None = None
+    residual_quantile: float = 99.0
+    residual_margin_mm: float = 1.0
+    min_tolerance_mm: float = 1.0
+    max_tolerance_mm: float = 8.0
+    check_threshold_px: float = 0.0
+    check_min_ring_px: int = 200
+    check_min_rim_in_view: float = 0.5
 
     def __post_init__(self) -> None:
         _number(self, "delta_mm", ge=0)
@@ -401,6 +442,18 @@ class RemovalParams:
         _number(self, "search_radius_mm", gt=0, optional=True)
         _number(self, "straggler_mm", ge=0)
         _number(self, "straggler_neighbours", ge=0, le=8, integer=True)
+        _choice(self, "mode", REMOVAL_MODES)
+        _number(self, "tolerance_mm", ge=0, optional=True)
+        _number(self, "residual_quantile", gt=0, le=100)
+        _number(self, "residual_margin_mm", ge=0)
+        _number(self, "min_tolerance_mm", ge=0)
+        _number(self, "max_tolerance_mm", gt=0)
+        if self.min_tolerance_mm > self.max_tolerance_mm:
+            raise ParameterError(f"RemovalParams.min_tolerance_mm must be <= max_tolerance_mm "
+                                 f"({self.max_tolerance_mm!r}), got {self.min_tolerance_mm!r}")
+        _number(self, "check_threshold_px", ge=0)
+        _number(self, "check_min_ring_px", ge=0, integer=True)
+        _number(self, "check_min_rim_in_view", ge=0, le=1)
 
     @property
     def delta_m(self) -> float:
@@ -417,6 +470,11 @@ class RemovalParams:
     @property
     def straggler_m(self) -> float:
         return self.straggler_mm / 1000.0
+
+    @property
+    def robust(self) -> bool:
+        """The robust mode (the tolerance from the frame's residuals)."""
+        return self.mode == "robust"
 
 
 @dataclass(frozen=True, slots=True)

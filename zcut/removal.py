@@ -9,6 +9,20 @@ Classes of valid pixels, in this order of precedence:
 
 Labelled points (table, easy, bin) keep their pixel, with z moved to the registered bin's floor, so
 the grid stays organized and the z-cut sees them as the lowest level.
+
+Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin removal"):
+
+- ``"paper"``: the order above with δ = ``delta_mm`` (the paper's 0.1 mm). A pose 0.2 mm off
+  leaves the bin's rim in the zone, where it becomes the zone's highest surface and the z-cut,
+  which judges only the top ``d_max`` of the zone, never reaches the pile.
+- ``"robust"`` (default): δ is replaced by a tolerance τ measured on the frame
+  (:func:`frame_tolerance`): the distances of the frame's certain bin pixels (the rim and upper
+  walls the registration used) to the registered model, their ``residual_quantile`` percentile
+  plus ``residual_margin_mm``, within ``[min_tolerance_mm, max_tolerance_mm]``. A point within τ of
+  the model is bin before it can be an easy outlier (a tilted pose lifts one end of the real rim
+  above the model's rim plus the offset), and the straggler test reaches τ + ``straggler_mm``.
+  With a right pose τ stays near 1 mm (the sensor's noise); a pose 2 mm off raises it to about
+  3 mm, and the removal follows the registration instead of failing on it.
 """
 
 from __future__ import annotations
@@ -52,6 +66,13 @@ class RemovalResult:
         model was registered (then the floor is the farthest valid point).
     up_cam : (3,) float64 ndarray
         The bin's up direction in the camera frame.
+    tolerance_mm : float
+        The distance to the model within which a point was bin: δ in the paper mode, τ in the
+        robust mode; NaN when no model was registered.
+    residual_mm : float
+        Robust mode: the percentile of the certain bin pixels' residuals τ was derived from (before
+        the margin and the bounds; +inf when more of them than the percentile leaves out have no
+        model point within ``max_tolerance_mm``); NaN otherwise.
     """
 
     table: Mask
@@ -63,6 +84,8 @@ class RemovalResult:
     rim_m: float
     floor_m: float
     up_cam: np.ndarray
+    tolerance_mm: float = float("nan")
+    residual_mm: float = float("nan")
 
     @property
     def labelled(self) -> Mask:
@@ -95,6 +118,10 @@ GRID_CELL_M = 0.002
 def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) -> _ModelIndex:
     """Search structures of a model array, valid for search radii up to ``radius``."""
     cell = max(GRID_CELL_M, float(radius))
+    if len(points) == 0:  # an empty model: one empty cell, no point is ever near it
+        empty = np.zeros((0, 3))
+        return _ModelIndex(cell, np.zeros(3), np.full(3, 3, np.int64), np.zeros(28, np.int64), empty, empty.copy(),
+                           np.zeros(0), float("nan"), float("nan"))
     origin = points.min(axis=0) - 2 * cell
     ijk = np.floor((points - origin) / cell).astype(np.int64)
     dims = ijk.max(axis=0) + 3
@@ -123,9 +150,12 @@ class RemovalIndex:
     radius_m : float
         The resolved nearest-model-point search radius.
     bin : _ModelIndex
-        Cell grid for the bin-point test (radius ``radius_m`` with normals, else ``delta``).
+        Cell grid for the bin-point test (radius ``radius_m`` with normals, else ``delta``; in the
+        robust mode the largest tolerance's).
     straggler : _ModelIndex or None
         Cell grid for the straggler test (None when ``params.straggler_mm`` is 0).
+    tree : scipy.spatial.cKDTree or None
+        Robust mode: over the model's points, for the residuals of :func:`frame_tolerance`.
     """
 
     model: BinModel
@@ -135,22 +165,40 @@ class RemovalIndex:
     radius_m: float
     bin: _ModelIndex
     straggler: _ModelIndex | None
+    tree: object = None
+
+
+def _radius(params: RemovalParams, spacing_m: float, delta_m: float) -> float:
+    """The nearest-model-point search radius of the bin test at tolerance ``delta_m``."""
+    radius = params.search_radius_m if params.search_radius_m is not None else max(delta_m, 1.5 * spacing_m)
+    return max(radius, delta_m, 1e-9)
 
 
 def prepare_removal_index(model: BinModel, params: RemovalParams) -> RemovalIndex:
-    """Build the cell grids of ``model`` the removal needs with ``params`` (once per replay)."""
+    """Build the cell grids of ``model`` the removal needs with ``params`` (once per replay).
+
+    An empty model (no points) gives an index that labels nothing bin: the frame's certain bin
+    pixels then stay in the zone, and the bin check says so.
+    """
     h = -model.points[:, 2]
     planes = model.normals is not None
-    delta = params.delta_m
-    radius = params.search_radius_m if params.search_radius_m is not None else max(delta, 1.5 * model.spacing_m)
-    radius = max(radius, delta, 1e-9)
+    # the robust mode's tolerance varies per frame, up to max_tolerance_mm: the grids are built for it
+    delta = max(params.delta_m, params.max_tolerance_mm / 1000.0) if params.robust else params.delta_m
+    radius = _radius(params, model.spacing_m, delta)
     r_bin = radius if planes else delta
     straggler = None
     if params.straggler_m > 0:
-        r_str = max(radius, params.straggler_m) if planes else params.straggler_m
+        s = params.straggler_m + (delta if params.robust else 0.0)
+        r_str = max(radius, s) if planes else s
         straggler = _model_index(model.points, model.normals, r_str)
-    return RemovalIndex(model, params, float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5)), radius,
-                        _model_index(model.points, model.normals, r_bin), straggler)
+    tree = None
+    if params.robust:
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(model.points)
+    rim_b, floor_b = (float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5))) if len(h) else (np.nan, np.nan)
+    return RemovalIndex(model, params, rim_b, floor_b, _radius(params, model.spacing_m, params.delta_m),
+                        _model_index(model.points, model.normals, r_bin), straggler, tree)
 
 
 @numba.njit(cache=True, inline="always")
@@ -209,9 +257,12 @@ def _to_bin(a, r, c, R, t):  # pragma: no cover - numba
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _classify(a, fp, R, t, easy_above, test_bin, origin, cell, dims, start, pts, nrm, off, delta,
+def _classify(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm, off, delta,
               radius, planes, valid, table, easy, binp):  # pragma: no cover - numba
-    """Fill the (H, W) bool masks valid, table, easy, binp (zeroed) in one pass over the frame."""
+    """Fill the (H, W) bool masks valid, table, easy, binp (zeroed) in one pass over the frame.
+
+    ``bin_first`` (the robust mode): a point near the model is bin even above the rim's offset.
+    """
     H, W = fp.shape
     for r in numba.prange(H):
         for c in range(W):
@@ -222,7 +273,13 @@ def _classify(a, fp, R, t, easy_above, test_bin, origin, cell, dims, start, pts,
                 table[r, c] = True
                 continue
             px, py, pz = _to_bin(a, r, c, R, t)
-            if -pz > easy_above:
+            if bin_first:
+                if test_bin and _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radius,
+                                          planes):
+                    binp[r, c] = True
+                elif -pz > easy_above:
+                    easy[r, c] = True
+            elif -pz > easy_above:
                 easy[r, c] = True
             elif test_bin:
                 binp[r, c] = _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta,
@@ -358,6 +415,96 @@ def _straggler_passes(a: np.ndarray, binp: Mask, lab: np.ndarray, open_: Mask, R
         cand = _next_candidates(new, lab, open_, seen, neighbours)
 
 
+#: The residuals of :func:`frame_tolerance` are measured on at most this many certain bin pixels (a
+#: regular subsample): their percentile moves by less than 0.05 mm from 20,000 to all 120,000 of a
+#: 1920 x 1200 frame.
+MAX_RESIDUAL_PX = 20_000
+
+
+@dataclass(frozen=True, slots=True)
+class Tolerance:
+    """The robust mode's tolerance of one frame (:func:`frame_tolerance`).
+
+    Attributes
+    ----------
+    tolerance_mm : float
+        τ: the residuals' percentile plus the margin, within the bounds.
+    residual_mm : float
+        The residuals' percentile (mm); +inf when more pixels than the percentile leaves out have no
+        model point within ``max_tolerance_mm``; NaN when there was no pixel to measure.
+    n_pixels : int
+        Certain bin pixels measured.
+    """
+
+    tolerance_mm: float
+    residual_mm: float
+    n_pixels: int
+
+
+def bin_residuals_mm(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray) -> np.ndarray:
+    """(M,) float64: distances (mm) of the frame's certain bin pixels to the model at ``T_cam_bin``.
+
+    For a regular subsample of at most :data:`MAX_RESIDUAL_PX` of the ``ring`` pixels with a finite
+    point: the distance to the tangent plane of the nearest model point (to the point itself when the
+    model has no normals); +inf where no model point lies within ``max_tolerance_mm``.
+
+    Parameters
+    ----------
+    xyz : (H, W, 3) float ndarray
+        Metres, camera optical frame.
+    ring : (H, W) bool ndarray
+        Pixels that are bin for certain (:func:`zcut.binmask.bin_pixels`).
+    index : RemovalIndex
+        Prepared in the robust mode (it holds the model's KD-tree).
+    T_cam_bin : (4, 4) float ndarray
+    """
+    if index.tree is None:
+        raise ParameterError("bin_residuals_mm: the index was not prepared in the robust mode")
+    a = np.asarray(xyz)
+    ring = np.asarray(ring, dtype=bool)
+    if ring.shape != a.shape[:2]:
+        raise InputShapeError(f"ring must be an {a.shape[:2]} bool array, got {describe_array(ring)}")
+    flat = np.flatnonzero(ring)
+    pts = a.reshape(-1, 3)[flat[:: max(1, -(-len(flat) // MAX_RESIDUAL_PX))]].astype(np.float64)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    model = index.model
+    if len(pts) == 0 or len(model.points) == 0:
+        return np.full(len(pts), np.inf)
+    T = np.asarray(T_cam_bin, dtype=np.float64)
+    p_bin = (pts - T[:3, 3]) @ T[:3, :3]
+    reach = index.params.max_tolerance_mm / 1000.0
+    d, j = index.tree.query(p_bin, k=1, distance_upper_bound=reach)
+    out = np.full(len(p_bin), np.inf)
+    ok = np.isfinite(d)
+    if model.normals is None:
+        out[ok] = d[ok]
+    else:
+        jj = j[ok]
+        out[ok] = np.abs(np.einsum("ij,ij->i", p_bin[ok] - model.points[jj], model.normals[jj]))
+    return out * 1000.0
+
+
+def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray) -> Tolerance:
+    """The robust mode's tolerance τ of one frame, from its certain bin pixels' residuals.
+
+    τ = the ``residual_quantile`` percentile of :func:`bin_residuals_mm` + ``residual_margin_mm``,
+    clipped to ``[max(min_tolerance_mm, delta_mm), max_tolerance_mm]``; ``tolerance_mm`` when the
+    parameters fix it. The residuals hold the pose's error where it shows (a wall moved sideways, a
+    rim tilted) and the sensor's noise; with no pixel to measure τ is the maximum.
+    """
+    p = index.params
+    lo = max(p.min_tolerance_mm, p.delta_mm)
+    if p.tolerance_mm is not None:
+        return Tolerance(max(float(p.tolerance_mm), p.delta_mm), float("nan"), 0)
+    res = bin_residuals_mm(xyz, ring, index, T_cam_bin)
+    if len(res) == 0:
+        return Tolerance(max(p.max_tolerance_mm, lo), float("nan"), 0)
+    q = float(np.percentile(res, p.residual_quantile, method="higher"))
+    tau = min(max(q + p.residual_margin_mm, lo), max(p.max_tolerance_mm, lo)) if np.isfinite(q) \
+        else max(p.max_tolerance_mm, lo)
+    return Tolerance(float(tau), q, len(res))
+
+
 def check_removal_args(
     xyz: XYZ,
     footprint: Mask,
@@ -390,6 +537,7 @@ def remove_table_and_bin(
     *,
     index: RemovalIndex | None = None,
     T_cam_bin: np.ndarray | None = None,
+    ring: Mask | None = None,
 ) -> RemovalResult:
     """Label table, easy outliers and bin points; return the classes and the zone's height image.
 
@@ -412,9 +560,16 @@ def remove_table_and_bin(
         neighbours labelled table, bin or invalid, and within ``straggler_mm`` of the model, is bin
         too; repeated up to :data:`STRAGGLER_PASSES` times so that it grows along clumps of such
         pixels; without it a few noisy rim pixels stay in the zone, become its highest points and
-        move the z-cut's z_max up to the rim; 0: off).
+        move the z-cut's z_max up to the rim; 0: off). ``mode``: ``"paper"`` uses δ as given;
+        ``"robust"`` replaces it by the frame's tolerance (:func:`frame_tolerance`), tests it before
+        the rim (a point within τ of the model is bin, not an easy outlier) and lets the
+        stragglers reach τ + ``straggler_mm``.
     T_cam_bin : (4, 4) float ndarray, optional
         The registered pose of the model.
+    ring : (H, W) bool ndarray, optional
+        Robust mode: the frame's certain bin pixels (:func:`zcut.binmask.bin_pixels`, the rim and
+        upper walls), whose residuals give τ. Without them τ is ``tolerance_mm`` if set, else
+        ``max_tolerance_mm``.
 
     Returns
     -------
@@ -439,18 +594,29 @@ def remove_table_and_bin(
     shift = float(t @ up)  # height of the bin origin along up, camera frame
     rim, floor = index.rim_b + shift, index.floor_b + shift
     planes = index.model.normals is not None
-    delta_m = p.delta_m
-    r_bin = index.radius_m if planes else delta_m
+    residual_mm = float("nan")
+    if p.robust:
+        if ring is not None:
+            tol = frame_tolerance(a, ring, index, T)
+        else:
+            tol = Tolerance(max(p.tolerance_mm if p.tolerance_mm is not None else p.max_tolerance_mm, p.delta_mm),
+                            float("nan"), 0)
+        delta_m, residual_mm = tol.tolerance_mm / 1000.0, tol.residual_mm
+        radius_m = _radius(p, index.model.spacing_m, delta_m)
+        straggler_m = p.straggler_m + delta_m if p.straggler_m > 0 else 0.0
+    else:
+        delta_m, radius_m, straggler_m = p.delta_m, index.radius_m, p.straggler_m
+    r_bin = radius_m if planes else delta_m
     shape = fp.shape
     valid, table, easy, binp = (np.zeros(shape, bool) for _ in range(4))
-    _classify(a, fp, R, t, index.rim_b + p.rim_offset_m, delta_m > 0, *_grid_args(index.bin), float(delta_m),
-              float(r_bin), planes, valid, table, easy, binp)
+    _classify(a, fp, R, t, index.rim_b + p.rim_offset_m, delta_m > 0, p.robust, *_grid_args(index.bin),
+              float(delta_m), float(r_bin), planes, valid, table, easy, binp)
     if index.straggler is not None:
-        r_str = max(index.radius_m, p.straggler_m) if planes else p.straggler_m
+        r_str = max(radius_m, straggler_m) if planes else straggler_m
         lab = (table | binp | ~valid).view(np.uint8)  # invalid neighbours count as not zone
         open_ = valid & fp & ~easy & ~binp
         _straggler_passes(a, binp, lab, open_, R, t, index.straggler,
-                          straggler_m=p.straggler_m, radius_m=r_str, planes=planes,
+                          straggler_m=straggler_m, radius_m=r_str, planes=planes,
                           neighbours=int(p.straggler_neighbours))
     labelled = table | easy | binp
     zone = valid & ~labelled
@@ -461,7 +627,7 @@ def remove_table_and_bin(
     height = np.empty(shape, np.float64)
     xyz_out = np.empty(a.shape, np.float32)
     _finish(a, valid, labelled, plane, float(floor), up, float(z_far), height, xyz_out)
-    return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up)
+    return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up, delta_m * 1000.0, residual_mm)
 
 
 def _remove_table(a: np.ndarray, fp: Mask) -> RemovalResult:

@@ -10,6 +10,7 @@ the pixels the filters judge, by default; ``valid``: every valid pixel).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -96,8 +97,15 @@ def run(args: argparse.Namespace) -> int:
             if isinstance(t, str):
                 unscored.append(UnscoredFrame(frame.index, frame.stamp_ns, t))
                 continue
-            results.append(frame_accuracy(frame.index, frame.stamp_ns, preds, t.outliers, reviewed=t.reviewed,
-                                          valid=valid, region=region, kinds=t.kind))
+            fa = frame_accuracy(frame.index, frame.stamp_ns, preds, t.outliers, reviewed=t.reviewed,
+                                valid=valid, region=region, kinds=t.kind)
+            if r is not None:  # the bin check of the frame (a results file does not carry it)
+                check = r.bin_check
+                fa = dataclasses.replace(fa, bin_check=None if check is None else float(check.value),
+                                         bin_flagged=r.bin_flagged)
+                if r.bin_flagged:
+                    print(f"warning: frame {frame.index}: bin check: {check.reason}", file=sys.stderr)
+            results.append(fa)
         if not results:
             what = (f"no frame of {args.log} is labelled by {truth_src.annotator!r} in {args.labels}"
                     if args.labels else f"no frame of {args.log} has {layout.TRUTH_OUTLIERS}")
@@ -116,6 +124,9 @@ def run(args: argparse.Namespace) -> int:
                 print(f"{len(unscored)} frame(s) unscored: " + "; ".join(
                     f"frame {u.index}: {u.reason}" for u in unscored[:5]) + (" …" if len(unscored) > 5 else ""))
             print(format_accuracy_table(report, per_frame=args.per_frame))
+            if session is None:
+                print("bin check: not known (a results file does not carry it; score the log itself to see "
+                      "which frames' removal did not work)")
         return _status(stream.damage)
     finally:
         if hasattr(truth_src, "close"):

@@ -50,7 +50,15 @@ def _fmt(v: float, spec: str) -> str:
 
 
 HEADER = (f"{'frame':>5} {'stamp_ns':>19} {'valid px':>9} {'z-cut':>7} {'SOR':>7} {'both':>6} "
-          f"{'α':>6} {'β_SOR':>6} {'β_zcut':>6} {'fitness':>7} {'RMSE mm':>7} {'time s':>6}")
+          f"{'α':>6} {'β_SOR':>6} {'β_zcut':>6} {'fitness':>7} {'RMSE mm':>7} {'bin chk':>7} {'time s':>6}")
+
+
+def _bin_check(row) -> str:
+    """The bin check's column: its figure (pixels), ``!`` when it flagged the frame, ``failed`` when
+    the bin stages failed, ``-`` when they did not run."""
+    if math.isnan(row.bin_check):
+        return "failed" if row.bin_flagged else "-"
+    return f"{row.bin_check:.0f}" + ("!" if row.bin_flagged else "")
 
 
 def header(others: tuple[str, ...] = ()) -> str:
@@ -61,7 +69,7 @@ def header(others: tuple[str, ...] = ()) -> str:
 def format_row(row) -> str:
     return (f"{row.index:>5} {row.stamp_ns:>19} {row.valid_px:>9} {row.zcut:>7} {row.sor:>7} {row.both:>6} "
             f"{_fmt(row.alpha, '6.3f'):>6} {_fmt(row.beta_sor, '6.3f'):>6} {_fmt(row.beta_zcut, '6.3f'):>6} "
-            f"{_fmt(row.fitness, '7.3f'):>7} {_fmt(row.rmse_mm, '7.2f'):>7} {row.time_s:>6.2f}"
+            f"{_fmt(row.fitness, '7.3f'):>7} {_fmt(row.rmse_mm, '7.2f'):>7} {_bin_check(row):>7} {row.time_s:>6.2f}"
             + "".join(f" {n:>{max(len(m), 7)}}" for m, n in row.others.items()))
 
 
@@ -89,6 +97,8 @@ def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=N
                 print(f"warning: {w}", file=err)
         if result.registration is not None and not result.registration.converged:
             print(f"warning: frame {frame.index}: registration failed: {result.registration.reason}", file=err)
+        if result.bin_flagged:
+            print(f"warning: frame {frame.index}: bin check: {result.bin_check.reason}", file=err)
         n = f"/{planned_[0]}" if planned_[0] else ""
         print(f"[{len(seen_rows) + 1}{n}] frame {frame.index}: {row.time_s:.2f} s", file=err, flush=True)
         seen_rows.append(row.index)
@@ -195,6 +205,11 @@ def _replay(args: argparse.Namespace, sinks: list, *, frames, overrides) -> int:
     if not summary.rows and not summary.damage:
         have = f" (it has {summary.n_log_frames} frames)" if summary.n_log_frames is not None else ""
         raise ConfigError(f"no frame of {args.log} in --frames {args.frames or '0:'}{have}")
+    flagged = [r.index for r in summary.rows if r.bin_flagged]
+    if flagged:
+        shown = ", ".join(str(i) for i in flagged[:20]) + (" …" if len(flagged) > 20 else "")
+        print(f"warning: {len(flagged)} of {len(summary.rows)} frame(s) flagged by the bin check (their counts rest "
+              f"on a bin removal that did not work): {shown}", file=sys.stderr)
     for name, path in summary.outputs.items():
         print(f"zcut: wrote {name}: {path}", file=sys.stderr)
     if "rrd" in summary.outputs:

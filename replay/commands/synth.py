@@ -40,16 +40,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sensor", choices=("handmade", "raytraced"), default="handmade",
                    help="handmade (default, fast): outliers placed by hand; raytraced: a structured-light "
                         "sensor simulated by ray tracing over a physics-dropped pile (docs/raytraced.md)")
+    shape = p.add_argument_group("a bin that is not the nominal (CAD) bin (the hand-made sensor)")
+    shape.add_argument("--bin-scale", type=float, default=1.0, metavar="S",
+                       help="scale the whole bin by S (e.g. 1.002: 0.8 mm longer); default 1")
+    shape.add_argument("--bin-bulge-mm", type=float, default=0.0, metavar="MM",
+                       help="bulge every inner wall outward by MM at its middle (negative: inward); default 0")
+    shape.add_argument("--bin-deform-mm", type=float, default=0.0, metavar="MM",
+                       help="deform the bin anew in every scan: wall bulges and a twist of up to MM; default 0")
+    shape.add_argument("--bin-cad", metavar="PLY",
+                       help="also write the nominal bin as a CAD mesh (bin frame, metres, up = -z) for "
+                            "`zcut bin-model --model PLY`")
 
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from replay.synth import write_synthetic_log
+    from replay.synth import BinShape, write_bin_cad, write_synthetic_log
     from zcut.errors import ParameterError
 
     if args.frames < 1:
         raise ParameterError(f"--frames must be at least 1, got {args.frames}")
+    try:
+        shape = BinShape(scale=args.bin_scale, bulge_mm=args.bin_bulge_mm, deform_mm=args.bin_deform_mm)
+    except ParameterError as e:  # the option's name, not the class's field
+        flag = {"scale": "--bin-scale", "bulge_mm": "--bin-bulge-mm", "deform_mm": "--bin-deform-mm"}
+        name = str(e).split(" ", 1)[0].partition(".")[2]
+        raise ParameterError(f"{flag.get(name, name)} {str(e).split(' ', 1)[1]}") from None
     h, w = args.size
     what = "empty bin" if args.empty else args.parts
 
@@ -64,11 +80,22 @@ def run(args: argparse.Namespace) -> int:
     with OutputPlan([], force=args.force) as plan:  # locked until the log is written
         plan.add(args.output, "the log")
         if args.sensor == "raytraced":
+            if not shape.nominal or args.bin_cad is not None:
+                raise ParameterError("--bin-scale, --bin-bulge-mm, --bin-deform-mm and --bin-cad belong to the "
+                                     "hand-made sensor's bin")
             return _run_raytraced(args, what, progress)
+        if args.bin_cad is not None:
+            plan.add(args.bin_cad, "the CAD bin")
         with AtomicOutput(args.output) as out:
             write_synthetic_log(out.temp, kind=args.parts, frames=args.frames, seed=args.seed, size=(h, w),
-                                empty=args.empty, shiny=args.shiny, quantize_mm=args.quantize_mm, progress=progress)
-    print(f"zcut: wrote {args.output} ({args.frames} frame(s), seed {args.seed})", file=sys.stderr)
+                                empty=args.empty, shiny=args.shiny, quantize_mm=args.quantize_mm, progress=progress,
+                                bin_shape=shape)
+        print(f"zcut: wrote {args.output} ({args.frames} frame(s), seed {args.seed})", file=sys.stderr)
+        if args.bin_cad is not None:
+            with AtomicOutput(args.bin_cad) as out:
+                write_bin_cad(out.temp)
+            print(f"zcut: wrote {args.bin_cad} (the nominal bin as a CAD mesh; zcut bin-model --model {args.bin_cad} "
+                  "-o bin.ply makes a bin model of it)", file=sys.stderr)
     return 0
 
 

@@ -41,7 +41,13 @@ from zcut.registration import RegistrationResult
 
 @dataclass(frozen=True, slots=True)
 class FrameRow:
-    """One line of the per-frame table (and of the JSON summary)."""
+    """One line of the per-frame table (and of the JSON summary).
+
+    ``bin_check`` is the bin check's figure (:class:`zcut.bin_check.BinCheck`: certain bin pixels
+    the removal left where the filters judge, NaN when the bin stages failed or did not run) and
+    ``bin_flagged`` whether it flagged the frame (also when the bin stages failed): its counts
+    then rest on a removal that did not work.
+    """
 
     index: int
     stamp_ns: int
@@ -62,6 +68,8 @@ class FrameRow:
     pose_error_deg: float = math.nan
     icp_fitness: float = math.nan
     others: dict[str, int] = field(default_factory=dict)  # outliers of every other base method, by name
+    bin_check: float = math.nan
+    bin_flagged: bool = False
 
     @classmethod
     def of(cls, result: FrameResult, *, true_pose: np.ndarray | None = None) -> FrameRow:
@@ -83,6 +91,8 @@ class FrameRow:
             time_s=float(result.timings["total"]), warnings=result.warnings, pose_error_mm=err_mm,
             pose_error_deg=err_deg, icp_fitness=float(reg.icp_fitness) if reg is not None else math.nan,
             others={m: int(np.count_nonzero(o)) for m, o in result.outliers.items() if m not in ("zcut", "sor")},
+            bin_check=float(result.bin_check.value) if result.bin_check is not None else math.nan,
+            bin_flagged=result.bin_flagged,
         )
 
     def as_dict(self) -> dict[str, Any]:
@@ -145,7 +155,8 @@ class ReplaySummary:
             "notes": list(self.resolved.notes) if self.resolved else [],
             "config": cfg.to_dict(self.resolved.config) if self.resolved else None,
             "frames": [r.as_dict() for r in self.rows],
-            "totals": {**total, "frames": len(self.rows), "time_s": t,
+            "totals": {**total, "frames": len(self.rows), "bin_flagged": sum(r.bin_flagged for r in self.rows),
+                       "time_s": t,
                        "frames_per_s": _json_number(len(self.rows) / t if t > 0 else math.nan)},
             "damage": [d.text for d in self.damage],
             "outputs": dict(self.outputs),

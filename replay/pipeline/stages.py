@@ -18,6 +18,7 @@ import numpy as np
 from replay.logs.frame import Frame
 from replay.pipeline.config import PipelineConfig
 from replay.pipeline.methods import MethodOutput, registry
+from zcut.bin_check import BinCheck, check_bin_removal, failed_bin_check
 from zcut.prepared_model import PreparedBinModel
 from zcut.binmask import BinMaskResult, bin_mask, bin_pixels
 from zcut.cuts import CutResult
@@ -69,6 +70,10 @@ class FrameResult:
         Seconds per stage (keys from :data:`STAGES` and the method names that ran) and ``"total"``.
     warnings : tuple of str
         Stages skipped or failed, for the user to see.
+    bin_check : BinCheck or None
+        Whether the bin removal worked (:func:`zcut.bin_check.check_bin_removal`); flagged when it
+        did not or when the bin stages failed; None when they did not run (no RGB image, no bin
+        model, disabled).
     """
 
     index: int
@@ -84,6 +89,12 @@ class FrameResult:
     metrics: RelativeMetrics
     timings: dict[str, float]
     warnings: tuple[str, ...]
+    bin_check: BinCheck | None = None
+
+    @property
+    def bin_flagged(self) -> bool:
+        """The bin check flagged this frame (its figures rest on a removal that did not work)."""
+        return self.bin_check is not None and self.bin_check.flagged
 
     @property
     def zcut_outliers(self) -> np.ndarray:
@@ -133,6 +144,12 @@ class BinLocation:
     seconds : float
         Their total, with the glue.
     warnings : tuple of str
+    ring : (H, W) bool ndarray or None
+        The frame's certain bin pixels, the rim and upper walls the model was registered to
+        (:func:`zcut.binmask.bin_pixels`); None when no bin was found.
+    failure : str
+        Why the bin stages failed although a bin model and an RGB image were given (no bin in the
+        image, coordinates no registration can take); "" otherwise.
     """
 
     valid: np.ndarray
@@ -141,6 +158,8 @@ class BinLocation:
     timings: dict[str, float]
     seconds: float
     warnings: tuple[str, ...]
+    ring: np.ndarray | None = None
+    failure: str = ""
 
 
 def locate_bin(
@@ -190,8 +209,10 @@ def locate_bin(
         bm = bin_mask(frame.rgb, params=config.bin_mask)
         timings["bin_mask"] = time.perf_counter() - t
         if not bm.found:
-            warnings.append("no bin found in the RGB image: bin stages skipped, z-cut on the whole frame")
-            bm = None
+            failure = "no bin found in the RGB image: bin stages skipped, z-cut on the whole frame"
+            warnings.append(failure)
+            return BinLocation(valid, None, None, timings, time.perf_counter() - t_start, tuple(warnings),
+                               failure=failure)
     if bm is not None:
         assert bin_model is not None
         t = time.perf_counter()
@@ -206,8 +227,10 @@ def locate_bin(
             target = prepare_target(xyz[::s, ::s][pixels[::s, ::s]].astype(np.float64), voxel_m=c.voxel_m,
                                     intrinsics=frame.intrinsics)
         except InputShapeError as e:  # e.g. garbage coordinates no voxel grid can hold
-            warnings.append(f"bin registration impossible ({e}): bin stages skipped, z-cut on the whole frame")
-            return BinLocation(valid, None, None, timings, time.perf_counter() - t_start, tuple(warnings))
+            failure = f"bin registration impossible ({e}): bin stages skipped, z-cut on the whole frame"
+            warnings.append(failure)
+            return BinLocation(valid, None, None, timings, time.perf_counter() - t_start, tuple(warnings),
+                               failure=failure)
         reg = None
         if init is not None:
             # a static bin: the seed pose needs only the fine pass (a moved bin: the full one)
@@ -219,6 +242,7 @@ def locate_bin(
         if reg is None:
             reg = register_bin(bin_model.icp, target, params=c)
         timings["registration"] = time.perf_counter() - t
+        return BinLocation(valid, bm, reg, timings, time.perf_counter() - t_start, tuple(warnings), pixels)
     return BinLocation(valid, bm, reg, timings, time.perf_counter() - t_start, tuple(warnings))
 
 
@@ -305,6 +329,8 @@ class Zone:
     timings : dict[str, float]
         Seconds of the bin stages that ran.
     warnings : tuple of str
+    bin_check : BinCheck or None
+        As :attr:`FrameResult.bin_check`.
     """
 
     located: BinLocation
@@ -314,6 +340,7 @@ class Zone:
     easy: np.ndarray
     timings: dict[str, float]
     warnings: tuple[str, ...]
+    bin_check: BinCheck | None = None
 
 
 def bin_zone(frame: Frame, config: PipelineConfig, *, bin_model: PreparedBinModel | None = None,
@@ -329,6 +356,11 @@ def bin_zone(frame: Frame, config: PipelineConfig, *, bin_model: PreparedBinMode
     bm = located.bin_mask
     reg = located.registration
     rem: RemovalResult | None = None
+    check: BinCheck | None = None
+    if located.failure:
+        check = failed_bin_check(f"the bin stages failed ({located.failure}): this frame's figures judge the "
+                                 "bin and the table as parts; check the RGB image, the bin_mask parameters and "
+                                 "the bin model", params=config.removal)
     if bm is not None:
         assert bin_model is not None and reg is not None
         t = time.perf_counter()
@@ -336,15 +368,23 @@ def bin_zone(frame: Frame, config: PipelineConfig, *, bin_model: PreparedBinMode
             raise ParameterError("run_frame: the bin model was prepared with other removal parameters than "
                                  "the config's (prepare it with zcut.bin_model.prepare_bin_model)")
         if reg.converged:
-            rem = remove_table_and_bin(xyz, bm.mask, index=bin_model.removal, T_cam_bin=reg.T_cam_bin)
+            rem = remove_table_and_bin(xyz, bm.mask, index=bin_model.removal, T_cam_bin=reg.T_cam_bin,
+                                       ring=located.ring)
+            rim_in_view = min(reg.n_rim / len(bin_model.icp.rim), 1.0) if len(bin_model.icp.rim) else 0.0
+            check = check_bin_removal(rem, located.ring if located.ring is not None else np.zeros_like(valid),
+                                      params=config.removal, band_mm=config.zcut.max_depth, rim_in_view=rim_in_view)
         else:
             warnings.append(f"bin registration failed ({reg.reason}): only the table removed")
             rem = remove_table_and_bin(xyz, bm.mask)
+            check = failed_bin_check(f"the bin registration failed ({reg.reason}): only the table was removed, "
+                                     "the filters judged the bin as parts; is the bin model of this bin "
+                                     "(zcut bin-model from empty scans of it) and is the bin in view?",
+                                     params=config.removal)
         timings["removal"] = time.perf_counter() - t
     if rem is None:
         return Zone(located, None, valid, -1000.0 * xyz[..., 2].astype(np.float64), np.zeros_like(valid),
-                    timings, tuple(warnings))
-    return Zone(located, rem, rem.zone, rem.height_mm, rem.easy_outliers, timings, tuple(warnings))
+                    timings, tuple(warnings), check)
+    return Zone(located, rem, rem.zone, rem.height_mm, rem.easy_outliers, timings, tuple(warnings), check)
 
 
 def sor_judged(zone: Zone, config: PipelineConfig) -> np.ndarray:
@@ -421,6 +461,7 @@ def run_frame(
         metrics=metrics,
         timings=timings,
         warnings=tuple(warnings),
+        bin_check=z.bin_check,
     )
 
 

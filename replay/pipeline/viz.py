@@ -7,6 +7,8 @@ An explicit :class:`rerun.RecordingStream` is passed in (no global recording). E
                                       image when the frame has no RGB
 ``image/bin_mask``                    bin footprint (1) and its bright walls (2), over the image
 ``image/removal``                     table (1), bin (2), easy outliers (3), zone (4)
+``image/bin_check``                   the certain bin pixels (rim, upper walls) (1) and those the
+                                      removal left where the filters judge (2): the bin check
 ``image/clusters``                    tagged z-cut clusters; each class labelled with area, level, ρ
 ``image/outliers``                    z-cut only (1), SOR only (2), both (3), above the rim (4)
 ``image/methods/NAME``                the outliers of every other filter method the config runs
@@ -17,6 +19,8 @@ An explicit :class:`rerun.RecordingStream` is passed in (no global recording). E
 ``world/bin_model``                   the registered bin model (pose per frame) + fitness/RMSE
 ``counts/*``, ``metrics/*``,          per-frame scalars: outlier counts, α, β, stage times (ms),
 ``timings_ms/*``, ``registration/*``  registration fitness and RMSE (mm)
+``bin_check/*``                       the bin check's figure (pixels) and threshold, the removal's
+                                      tolerance (mm)
 ``config``                            the resolved config (TOML), static
 ``log``                               per-frame warnings (skipped or failed stages)
 ====================================  ==========================================================
@@ -64,6 +68,10 @@ BIN_MASK_CLASSES = (
     (1, "bin footprint", (0, 160, 255)),
     (2, "bin walls", (255, 255, 0)),
 )
+BIN_CHECK_CLASSES = (
+    (1, "certain bin pixels (rim, upper walls)", (0, 90, 160)),
+    (2, "bin left where the filters judge", (255, 0, 255)),
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -110,7 +118,7 @@ def default_blueprint(methods: tuple[str, ...] = ("zcut", "sor")) -> rrb.Bluepri
     others = [m for m in methods if m not in ("zcut", "sor")]
     image_views = [
         rrb.Spatial2DView(name="RGB + bin mask", origin="image", contents=["image/rgb", "image/bin_mask"]),
-        rrb.Spatial2DView(name="Removal", origin="image", contents=["image/rgb", "image/removal"]),
+        rrb.Spatial2DView(name="Removal", origin="image", contents=["image/rgb", "image/removal", "image/bin_check"]),
         rrb.Spatial2DView(name="Outliers (z-cut / SOR / both)", origin="image",
                           contents=["image/rgb", "image/outliers"]),
     ]
@@ -133,6 +141,7 @@ def default_blueprint(methods: tuple[str, ...] = ("zcut", "sor")) -> rrb.Bluepri
                 rrb.TimeSeriesView(name="α, β", origin="metrics"),
                 rrb.TimeSeriesView(name="Stage times (ms)", origin="timings_ms"),
                 rrb.TimeSeriesView(name="Registration", origin="registration"),
+                rrb.TimeSeriesView(name="Bin check", origin="bin_check"),
                 rrb.Tabs(rrb.TextDocumentView(name="Config", origin="config"),
                          rrb.TextLogView(name="Warnings", origin="log")),
             ),
@@ -277,6 +286,7 @@ def log_static(rec: rr.RecordingStream, *, config_toml: str, notes: tuple[str, .
     rec.log("image/outliers", _ctx(OUTLIER_CLASSES), static=True)
     rec.log("image/removal", _ctx(REMOVAL_CLASSES), static=True)
     rec.log("image/bin_mask", _ctx(BIN_MASK_CLASSES), static=True)
+    rec.log("image/bin_check", _ctx(BIN_CHECK_CLASSES), static=True)
     rec.log("world/outliers", _ctx(OUTLIER_CLASSES), static=True)
     rec.log("image/methods", _ctx(METHOD_CLASSES), static=True)
     rec.log("world", rr.ViewCoordinates.RDF, static=True)
@@ -375,6 +385,28 @@ def log_bin_stages(rec: rr.RecordingStream, frame: Frame, result: FrameResult) -
     rec.log("registration/fitness", rr.Scalars(reg.fitness))
     rec.log("registration/icp_fitness", rr.Scalars(reg.icp_fitness))
     rec.log("registration/rmse_mm", rr.Scalars(reg.inlier_rmse * 1000.0))
+
+
+def log_bin_check(rec: rr.RecordingStream, result: FrameResult) -> None:
+    """The bin check: its figure, threshold and the removal's tolerance as scalars, the certain bin
+    pixels and the offending ones as an image, the reason as a warning (a Clear when not checked)."""
+    check = result.bin_check
+    if check is None or check.offending is None:
+        rec.log("image/bin_check", rr.Clear(recursive=False))
+    else:
+        c = _u8(check.offending) * np.uint8(2)
+        if check.ring is not None:
+            np.maximum(c, _u8(check.ring), out=c)
+        rec.log("image/bin_check", rr.SegmentationImage(c, opacity=0.6))
+    if check is not None:
+        if np.isfinite(check.value):
+            rec.log("bin_check/pixels", rr.Scalars(float(check.value)))
+        rec.log("bin_check/threshold", rr.Scalars(float(check.threshold)))
+        rec.log("bin_check/flagged", rr.Scalars(1.0 if check.flagged else 0.0))
+        if check.flagged:
+            rec.log("log", rr.TextLog(f"frame {result.index}: bin check: {check.reason}", level=rr.TextLogLevel.WARN))
+    if result.removal is not None and np.isfinite(result.removal.tolerance_mm):
+        rec.log("bin_check/tolerance_mm", rr.Scalars(float(result.removal.tolerance_mm)))
 
 
 def _level_colours(n: int) -> np.ndarray:
@@ -570,6 +602,7 @@ def log_frame(rec: rr.RecordingStream, frame: Frame, result: FrameResult, *,
     set_frame_time(rec, frame)
     log_image(rec, frame, result, opts)
     log_bin_stages(rec, frame, result)
+    log_bin_check(rec, result)
     log_cuts(rec, frame, result, opts, step_mm=step_mm)
     log_clusters(rec, result, opts)
     classes = _outlier_classes(result)

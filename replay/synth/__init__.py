@@ -18,6 +18,7 @@ from replay.synth.log import (
     sample_log_path,
     synth_metadata,
     true_poses,
+    write_bin_cad,
     write_synthetic_log,
 )
 from replay.synth.outliers import (
@@ -37,6 +38,7 @@ from replay.synth.scene import (
     LABEL_TABLE,
     LABEL_WALL,
     BinPose,
+    BinShape,
 )
 from replay.synth.sensor import (
     CAMERA_HEIGHT_MM,
@@ -81,6 +83,7 @@ __all__ = [
     "SAMPLE_SIZE",
     "BinGeometry",
     "BinPose",
+    "BinShape",
     "PartKind",
     "SynthFrame",
     "T_cam_bin",
@@ -95,5 +98,6 @@ __all__ = [
     "synth_metadata",
     "synthesize_frame",
     "true_poses",
+    "write_bin_cad",
     "write_synthetic_log",
 ]

@@ -26,6 +26,7 @@ from replay.logs.writer import LogWriter
 from replay.presets import BIN, PART_KINDS
 from replay.synth import outliers as out
 from replay.synth.parts import face_area_px
+from replay.synth.scene import BinShape, bin_mesh_mm
 from replay.synth.sensor import (
     CAMERA_HEIGHT_MM,
     FULL_SIZE,
@@ -60,9 +61,11 @@ ProgressFn = Callable[[int, int, SynthFrame, float], None]
 
 
 def synth_metadata(
-    *, kind: str, seed: int, frames: int, size: tuple[int, int], shiny: bool, empty: bool, quantize_mm: float = 0.0
+    *, kind: str, seed: int, frames: int, size: tuple[int, int], shiny: bool, empty: bool, quantize_mm: float = 0.0,
+    bin_shape: BinShape = BinShape(),
 ) -> dict[str, str]:
-    """The ``zcut.synth`` metadata record (all values strings)."""
+    """The ``zcut.synth`` metadata record (all values strings); a bin that is not the nominal one adds
+    ``bin_scale``, ``bin_bulge_mm`` and ``bin_deform_mm``."""
     K = default_intrinsics(size)
     rates = out.SHINY_RATES if shiny else out.MATTE_RATES
     meta = {
@@ -100,6 +103,9 @@ def synth_metadata(
         "bin_frame": "camera optical frame with the bin at its nominal pose (centred below the camera, yaw 0)",
         **BIN.as_metadata(),
     }
+    if not bin_shape.nominal:
+        meta.update({"bin_scale": f"{bin_shape.scale:g}", "bin_bulge_mm": f"{bin_shape.bulge_mm:g}",
+                     "bin_deform_mm": f"{bin_shape.deform_mm:g}"})
     if not empty:
         part = PART_KINDS[kind]
         meta.update(
@@ -176,6 +182,7 @@ def write_synthetic_log(
     shiny: bool | None = None,
     quantize_mm: float = 0.0,
     progress: ProgressFn | None = None,
+    bin_shape: BinShape = BinShape(),
 ) -> Path:
     """Synthesise ``frames`` scans and write them as a ROS 2 MCAP log.
 
@@ -199,6 +206,10 @@ def write_synthetic_log(
         give); 0 (default) = continuous depth.
     progress : callable or None
         Called as ``progress(index, frames, synth_frame, seconds)`` after each frame is written.
+    bin_shape : BinShape
+        A bin that is not the nominal one (scaled, bulging, deforming from scan to scan), see
+        :func:`replay.synth.synthesize.synthesize_frame`; the nominal bin is what
+        :func:`write_bin_cad` writes.
 
     Returns
     -------
@@ -211,7 +222,7 @@ def write_synthetic_log(
     q = check_quantize(quantize_mm)
     is_shiny = (False if empty else PART_KINDS[kind].shiny) if shiny is None else bool(shiny)
     meta = synth_metadata(kind=kind, seed=seed, frames=int(frames), size=size, shiny=is_shiny, empty=empty,
-                          quantize_mm=q)
+                          quantize_mm=q, bin_shape=bin_shape)
     poses = pose_metadata(seed=seed, frames=int(frames), empty=empty)
     path = Path(path)
     from replay.synth.bin_surface import bin_model_ply
@@ -222,10 +233,33 @@ def write_synthetic_log(
                    attachments=model) as writer:
         for i in range(int(frames)):
             t0 = time.perf_counter()
-            sf = synthesize_frame(kind=kind, seed=seed, index=i, size=size, shiny=shiny, empty=empty, quantize_mm=q)
+            sf = synthesize_frame(kind=kind, seed=seed, index=i, size=size, shiny=shiny, empty=empty, quantize_mm=q,
+                                  bin_shape=bin_shape)
             _write_frame(writer, sf)
             if progress is not None:
                 progress(i, int(frames), sf, time.perf_counter() - t0)
+    return path
+
+
+def write_bin_cad(path: str | os.PathLike) -> Path:
+    """Write the nominal synthetic bin as a CAD mesh PLY, in the bin frame of the synthetic logs.
+
+    The bin frame is the camera optical frame with the bin at its nominal pose (metres, up = -z, see
+    :func:`replay.synth.synthesize.T_cam_bin`), which is what ``zcut bin-model --model PLY`` takes:
+    a model made from it registers to the true poses a synthetic log carries. It has no noise and
+    the nominal size, as a bin's CAD file has; a log made with a :class:`BinShape` differs from it.
+    """
+    from plyfile import PlyData, PlyElement
+
+    v_mm, faces = bin_mesh_mm(BIN)
+    xyz = np.column_stack([v_mm[:, 0], -v_mm[:, 1], CAMERA_HEIGHT_MM - v_mm[:, 2]]) / 1000.0
+    vertex = np.empty(len(xyz), dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")])
+    vertex["x"], vertex["y"], vertex["z"] = xyz.T
+    face = np.empty(len(faces), dtype=[("vertex_indices", "i4", (3,))])
+    face["vertex_indices"] = faces
+    path = Path(path)
+    PlyData([PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face")],
+            comments=["zcut synthetic bin, nominal (CAD): bin frame, metres, up = -z"]).write(str(path))
     return path
 
 

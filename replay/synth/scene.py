@@ -10,12 +10,14 @@ already there).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
 
 from replay.presets import BIN, PART_KINDS, BinGeometry
+from zcut.errors import ParameterError
 from replay.synth.parts import (
     height_profile,
     part_solid,
@@ -50,6 +52,100 @@ class BinPose:
         """(2, 2) rotation bin -> world."""
         c, s = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
         return np.array([[c, -s], [s, c]])
+
+
+#: Largest bulge or deformation amplitude (mm) and scale deviation the generator accepts: beyond
+#: them the height-field bin stops being a plastic tub (walls through the rim, a folded floor).
+MAX_BIN_SHAPE_MM = 20.0
+MAX_BIN_SCALE_DEVIATION = 0.05
+
+
+@dataclass(frozen=True, slots=True)
+class BinShape:
+    """How the scanned bin differs from the nominal one (:data:`replay.presets.BIN`, the CAD bin).
+
+    A bin model made from a CAD file is the nominal bin; the real one is a little larger or smaller,
+    its walls bulge under the load of the pile, and a plastic tub flexes between scans. These knobs
+    make such bins, so that the bin stages can be measured against a model that is not the bin.
+
+    Attributes
+    ----------
+    scale : float
+        The whole bin scaled about its centre on the table (1: nominal; 1.002 adds 0.8 mm to its
+        length, 0.24 mm to its height).
+    bulge_mm : float
+        Outward bulge of every inner wall (negative: inward): largest halfway along the wall and
+        halfway down it, none at the corners, at the rim and at the floor.
+    deform_mm : float
+        Amplitude of a deformation drawn anew for every scan: each wall's bulge changes by up to
+        ±``deform_mm`` and the bin twists (two opposite corners rise, the other two sink, by up to
+        ``deform_mm``).
+    """
+
+    scale: float = 1.0
+    bulge_mm: float = 0.0
+    deform_mm: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name, v, ok in (("scale", self.scale, lambda x: abs(x - 1.0) <= MAX_BIN_SCALE_DEVIATION),
+                            ("bulge_mm", self.bulge_mm, lambda x: abs(x) <= MAX_BIN_SHAPE_MM),
+                            ("deform_mm", self.deform_mm, lambda x: 0.0 <= x <= MAX_BIN_SHAPE_MM)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not ok(float(v)):
+                limits = {"scale": f"within {MAX_BIN_SCALE_DEVIATION:g} of 1",
+                          "bulge_mm": f"within ±{MAX_BIN_SHAPE_MM:g} mm",
+                          "deform_mm": f"in [0, {MAX_BIN_SHAPE_MM:g}] mm"}[name]
+                raise ParameterError(f"BinShape.{name} must be a number {limits}, got {v!r}")
+            object.__setattr__(self, name, float(v))
+
+    @property
+    def nominal(self) -> bool:
+        """The nominal bin (no scale, bulge or deformation)."""
+        return self.scale == 1.0 and self.bulge_mm == 0.0 and self.deform_mm == 0.0
+
+    def realise(self, rng: np.random.Generator | None) -> BinDeformation:
+        """This scan's bin: the fixed scale and bulge plus a deformation drawn from ``rng`` (needed
+        only when ``deform_mm`` > 0)."""
+        bulges = np.full(4, self.bulge_mm)
+        twist = 0.0
+        if self.deform_mm > 0:
+            if rng is None:
+                raise ParameterError("BinShape.realise: deform_mm > 0 needs a random generator")
+            bulges = bulges + rng.uniform(-self.deform_mm, self.deform_mm, 4)
+            twist = float(rng.uniform(-self.deform_mm, self.deform_mm))
+        return BinDeformation(self.scale, tuple(float(b) for b in bulges), twist)
+
+
+@dataclass(frozen=True, slots=True)
+class BinDeformation:
+    """One scan's bin shape (:meth:`BinShape.realise`).
+
+    Attributes
+    ----------
+    scale : float
+    bulges_mm : tuple of 4 floats
+        Outward bulge of the walls at bin-frame +x, -x, +y, -y.
+    twist_mm : float
+        Height added at the (+x, +y) and (-x, -y) corners, taken from the other two.
+    """
+
+    scale: float = 1.0
+    bulges_mm: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    twist_mm: float = 0.0
+
+    def geometry(self, nominal: BinGeometry = BIN) -> BinGeometry:
+        """The nominal geometry scaled (the draft angle kept)."""
+        if self.scale == 1.0:
+            return nominal
+        k = self.scale
+        return replace(nominal, outer_length_mm=nominal.outer_length_mm * k, outer_width_mm=nominal.outer_width_mm * k,
+                       height_mm=nominal.height_mm * k, rim_mm=nominal.rim_mm * k, floor_mm=nominal.floor_mm * k)
+
+    def rim_top_mm(self, nominal: BinGeometry = BIN) -> float:
+        """The highest point of the rim above the table (mm)."""
+        return self.geometry(nominal).height_mm + abs(self.twist_mm)
+
+
+NOMINAL_DEFORMATION = BinDeformation()
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,6 +210,8 @@ class Scene:
     kind : str or None
         Part kind, None for an empty bin.
     bin_pose : BinPose
+    deformation : BinDeformation
+        How the bin differs from the nominal one.
     """
 
     grid: Grid
@@ -124,6 +222,7 @@ class Scene:
     parts: tuple[PlacedPart, ...]
     kind: str | None
     bin_pose: BinPose
+    deformation: BinDeformation = NOMINAL_DEFORMATION
 
 
 def make_grid(*, half_x_mm: float, half_y_mm: float, step_mm: float) -> Grid:
@@ -133,18 +232,26 @@ def make_grid(*, half_x_mm: float, half_y_mm: float, step_mm: float) -> Grid:
     return Grid(-step_mm * (nx - 1) / 2, -step_mm * (ny - 1) / 2, step_mm, nx, ny)
 
 
-def bin_height_field(grid: Grid, pose: BinPose, geometry: BinGeometry = BIN) -> tuple[np.ndarray, np.ndarray]:
+def bin_height_field(grid: Grid, pose: BinPose, geometry: BinGeometry = BIN,
+                     deformation: BinDeformation = NOMINAL_DEFORMATION) -> tuple[np.ndarray, np.ndarray]:
     """Height (mm) and LABEL_* of the table plus the empty bin at every grid node.
+
+    ``deformation`` scales ``geometry``, moves each inner wall outward by its bulge times
+    cos(π/2 · position along the wall) · sin(π · height up the wall) (zero at the corners, the floor
+    and the rim), and adds the twist times (u / half length)(v / half width) to the whole bin.
 
     Returns
     -------
     height : (ny, nx) float64 ndarray
     label : (ny, nx) uint8 ndarray
     """
+    geometry = deformation.geometry(geometry)
     X, Y = np.meshgrid(grid.xs - pose.x_mm, grid.ys - pose.y_mm)
     c, s = np.cos(pose.yaw_rad), np.sin(pose.yaw_rad)
-    a = np.abs(c * X + s * Y)  # bin-frame |u|
-    b = np.abs(-s * X + c * Y)  # bin-frame |v|
+    u = c * X + s * Y  # bin frame
+    v = -s * X + c * Y
+    a = np.abs(u)
+    b = np.abs(v)
     ox, oy = geometry.outer_length_mm / 2, geometry.outer_width_mm / 2
     ix, iy = geometry.inner_top_half
     fx, fy = geometry.floor_half
@@ -159,9 +266,52 @@ def bin_height_field(grid: Grid, pose: BinPose, geometry: BinGeometry = BIN) -> 
     beyond = np.maximum(a - fx, b - fy)
     wall_z = geometry.floor_mm + np.maximum(beyond, 0.0) / tan_d
     wall_z = np.minimum(wall_z, geometry.height_mm)
+    if any(deformation.bulges_mm):
+        # how far up the wall each node is (0 floor, 1 rim): no bulge at either end
+        up_wall = np.clip((wall_z - geometry.floor_mm) / (geometry.height_mm - geometry.floor_mm), 0.0, 1.0)
+        depth = np.sin(np.pi * up_wall)
+        bx = np.where(u >= 0, deformation.bulges_mm[0], deformation.bulges_mm[1])
+        by = np.where(v >= 0, deformation.bulges_mm[2], deformation.bulges_mm[3])
+        ex = bx * np.cos(0.5 * np.pi * np.clip(v / iy, -1.0, 1.0)) * depth
+        ey = by * np.cos(0.5 * np.pi * np.clip(u / ix, -1.0, 1.0)) * depth
+        beyond = np.maximum(a - fx - ex, b - fy - ey)
+        wall_z = np.minimum(geometry.floor_mm + np.maximum(beyond, 0.0) / tan_d, geometry.height_mm)
     height[inside_inner] = wall_z[inside_inner]
     label[inside_inner] = np.where(beyond[inside_inner] > 0, LABEL_WALL, LABEL_FLOOR)
+    if deformation.twist_mm:
+        height[inside_outer] += deformation.twist_mm * (u[inside_outer] / ox) * (v[inside_outer] / oy)
     return height, label
+
+
+def bin_mesh_mm(geometry: BinGeometry = BIN) -> tuple[np.ndarray, np.ndarray]:
+    """The nominal bin as a CAD mesh: the rim, the drafted inner walls, the floor, the outer walls.
+
+    World frame of the scene (z up, the table at z = 0, the bin centred on the origin, yaw 0),
+    millimetres.
+
+    Returns
+    -------
+    vertices : (16, 3) float64 ndarray
+    faces : (M, 3) int64 ndarray
+        Triangles.
+    """
+    ox, oy = geometry.outer_length_mm / 2, geometry.outer_width_mm / 2
+    ix, iy = geometry.inner_top_half
+    fx, fy = geometry.floor_half
+    h, f = geometry.height_mm, geometry.floor_mm
+
+    def rect(hx, hy, z):  # corners counter-clockwise from (+x, +y)
+        return [(hx, hy, z), (-hx, hy, z), (-hx, -hy, z), (hx, -hy, z)]
+
+    vertices = np.array(rect(ox, oy, h) + rect(ix, iy, h) + rect(fx, fy, f) + rect(ox, oy, 0.0), np.float64)
+    outer_top, inner_top, floor, outer_bottom = 0, 4, 8, 12
+    faces = []
+    for i in range(4):  # a band of quads between two rectangles
+        j = (i + 1) % 4
+        for a, b in ((outer_top, inner_top), (inner_top, floor), (outer_bottom, outer_top)):
+            faces += [(a + i, a + j, b + j), (a + i, b + j, b + i)]
+    faces += [(floor, floor + 1, floor + 2), (floor, floor + 2, floor + 3)]
+    return vertices, np.array(faces, np.int64)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -218,8 +368,15 @@ def drop_pile(
     fill_mm: float = 45.0,
     max_parts: int = 4000,
     settle_tries: int = 16,
+    deformation: BinDeformation = NOMINAL_DEFORMATION,
 ) -> Scene:
     """Drop parts of ``kind`` into the bin until the mean pile height above the floor reaches ``fill_mm``.
+
+    ``deformation`` changes the bin, not the pile: the parts settle in the nominal bin (the same
+    seed drops the very same pile), which is then replaced by the deformed one under them. The
+    parts lie over the flat floor, which a scale moves by thousandths of a millimetre and a bulge
+    not at all; a twist tilts it by up to 0.7 × ``twist_mm`` at the floor's corners, where a part
+    then floats or sinks by as much.
 
     Each part gets a random resting orientation and a position (snapped to the grid) whose footprint
     stays over the flat floor; it falls straight down until it touches the height field. Of
@@ -282,10 +439,21 @@ def drop_pile(
         parts.append(
             PlacedPart(rows, cols, bottom.astype(np.float32), top.astype(np.float32), R, centre)
         )
-    return Scene(grid, height, label, part_id, bin_height, tuple(parts), kind, pose)
+    if deformation != NOMINAL_DEFORMATION:  # the same pile in the deformed bin
+        height, label = bin_height_field(grid, pose, geometry, deformation)
+        bin_height = height.copy()
+        part_id = np.zeros(height.shape, np.int32)
+        for i, p in enumerate(parts):
+            win = height[p.rows, p.cols]
+            raise_ = np.isfinite(p.top) & (p.top > win)
+            win[raise_] = p.top[raise_]
+            label[p.rows, p.cols][raise_] = LABEL_PART
+            part_id[p.rows, p.cols][raise_] = i + 1
+    return Scene(grid, height, label, part_id, bin_height, tuple(parts), kind, pose, deformation)
 
 
-def empty_scene(grid: Grid, pose: BinPose, *, geometry: BinGeometry = BIN) -> Scene:
+def empty_scene(grid: Grid, pose: BinPose, *, geometry: BinGeometry = BIN,
+                deformation: BinDeformation = NOMINAL_DEFORMATION) -> Scene:
     """The table and the empty bin."""
-    height, label = bin_height_field(grid, pose, geometry)
-    return Scene(grid, height, label, np.zeros(height.shape, np.int32), height.copy(), (), None, pose)
+    height, label = bin_height_field(grid, pose, geometry, deformation)
+    return Scene(grid, height, label, np.zeros(height.shape, np.int32), height.copy(), (), None, pose, deformation)

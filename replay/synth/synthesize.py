@@ -26,6 +26,7 @@ from replay.synth.scene import (
     LABEL_WALL,
     TABLE_COLOUR,
     BinPose,
+    BinShape,
     Scene,
     drop_pile,
     empty_scene,
@@ -167,6 +168,12 @@ def bin_pose_for(rng: np.random.Generator, *, empty: bool, index: int) -> BinPos
     return BinPose(np.radians(rng.uniform(-3.0, 3.0)), rng.uniform(-10, 10), rng.uniform(-10, 10))
 
 
+def shape_rng(seed: int, index: int, *, empty: bool) -> np.random.Generator:
+    """The generator of a frame's bin deformation (:class:`BinShape`), apart from :func:`frame_rng`
+    so that a deformed bin holds the same pile, noise and outliers as the nominal one."""
+    return np.random.default_rng([int(seed) % (2**63), int(index), int(empty), 0xB15])
+
+
 def frame_pose(seed: int, index: int, *, empty: bool = False) -> np.ndarray:
     """True ``T_cam_bin`` (4, 4) of frame ``index`` of the log synthesised with ``seed`` (cheap)."""
     return T_cam_bin(bin_pose_for(frame_rng(seed, index, empty=empty), empty=empty, index=index))
@@ -208,6 +215,7 @@ def synthesize_frame(
     empty: bool = False,
     fill_mm: float | None = None,
     quantize_mm: float = 0.0,
+    bin_shape: BinShape = BinShape(),
 ) -> SynthFrame:
     """Synthesise frame ``index`` of a log with ``seed``: a bin of ``kind`` parts (or an empty bin).
 
@@ -228,6 +236,10 @@ def synthesize_frame(
         Depth step of a quantizing sensor (consumer stereo / ToF: 1-2 mm); 0 = continuous depth.
         A true outlier that the rounding brings within one step of its real surface is no longer
         one (its pixel shows the surface).
+    bin_shape : BinShape
+        How the bin differs from the nominal one (scale, wall bulge, a deformation drawn per scan
+        from :func:`shape_rng`); the pile, the noise and the outliers are those of the nominal bin's
+        frame with the same seed and index. The true pose stays that of the bin's frame.
     """
     if not empty and kind not in PART_KINDS:
         raise ParameterError(f"kind must be one of {', '.join(PART_KINDS)}, got {kind!r}")
@@ -242,14 +254,18 @@ def synthesize_frame(
     grid_step = float(np.clip(0.8 * fp_floor, 0.5, 1.0))
     grid = make_grid(half_x_mm=half_x + 5 * grid_step, half_y_mm=half_y + 5 * grid_step, step_mm=grid_step)
     pose = bin_pose_for(rng, empty=empty, index=index)
+    if not isinstance(bin_shape, BinShape):
+        raise ParameterError(f"bin_shape must be a BinShape, got {bin_shape!r}")
+    deformation = bin_shape.realise(shape_rng(seed, index, empty=empty) if bin_shape.deform_mm > 0 else None)
+    rim_depth_mm = CAMERA_HEIGHT_MM - deformation.rim_top_mm(BIN)
     if fill_mm is None:
         fill_mm = float(rng.uniform(*FILL_RANGE_MM))
     if empty:
-        scene = empty_scene(grid, pose)
+        scene = empty_scene(grid, pose, deformation=deformation)
         part = None
         is_shiny = False if shiny is None else bool(shiny)
     else:
-        scene = drop_pile(grid, pose, kind, rng, fill_mm=fill_mm)
+        scene = drop_pile(grid, pose, kind, rng, fill_mm=fill_mm, deformation=deformation)
         part = PART_KINDS[kind]
         is_shiny = part.shiny if shiny is None else bool(shiny)
     rates = out.SHINY_RATES if is_shiny else out.MATTE_RATES
@@ -305,7 +321,7 @@ def synthesize_frame(
         above = out.above_rim_groups(
             depth, valid, on_part | (surface == LABEL_FLOOR), allowed, sigma,
             count=int(rng.poisson(rates.above_rim)), rates=rates, a_max_px=a_max,
-            rim_depth_mm=CAMERA_HEIGHT_MM - BIN.height_mm, rng=rng,
+            rim_depth_mm=rim_depth_mm, rng=rng,
         )
     else:
         cluster_id = np.zeros((h, w), np.int32)
@@ -330,7 +346,7 @@ def synthesize_frame(
     kind_img[~valid] = out.OUTLIER_NONE
     # anything higher than the rim is an easy outlier (paper Figure 3a), whatever made it
     with np.errstate(invalid="ignore"):
-        kind_img[(kind_img > 0) & (depth < CAMERA_HEIGHT_MM - BIN.height_mm)] = out.OUTLIER_ABOVE_RIM
+        kind_img[(kind_img > 0) & (depth < rim_depth_mm)] = out.OUTLIER_ABOVE_RIM
     cluster_id[kind_img != out.OUTLIER_FLOATING] = 0
     truth = kind_img > 0
 

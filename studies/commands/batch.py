@@ -115,6 +115,10 @@ def _print_table(summ: BatchSummary) -> None:
     t = summ.totals
     print(f"{t.frames} frames of {t.logs} log(s): z-cut {t.zcut} px, SOR {t.sor} px, "
           f"both {t.both} px, above the rim {t.above_rim} px")
+    if t.bin_flagged:
+        print(f"warning: {t.bin_flagged} frame(s) flagged by the bin check ({t.bin_flagged_scored} of them scored): "
+              "their counts rest on a bin removal that did not work (frames.parquet: bin_flagged, warnings)",
+              file=sys.stderr)
     if summ.pooled:
         print(f"true accuracy over the scored region ({summ.region}), pooled:")
         print(f"  {'method':13s} {'precision':>22s} {'recall':>22s} {'F1':>22s}")

@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from replay.pipeline.config import PipelineConfig
     from studies.driver import ProgressSink
     from studies.parts import PartStore
-    from studies.summary import ParamSet, SweepSummary, Tuned
+    from studies.summary import FlaggedFrame, ParamSet, SweepSummary, Tuned
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -183,7 +183,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
         errors=tuple(f"{r.unit.log}: {r.error}" for r in results if r.error),
         unscored=tuple(UnscoredFrame(Path(m["log"]).name, u.get("index"), u.get("stamp_ns"), u.get("reason"))
                        for m in metas for u in m["unscored"]),
-        reproduce=_reproduce(args), seconds=time.perf_counter() - t0,
+        reproduce=_reproduce(args), seconds=time.perf_counter() - t0, bin_flagged=_flagged_frames(table),
     )
     store.write_json("summary.json", summary.to_json())
     tuned_path = _write_tuned(store, base, tuned, args)
@@ -193,6 +193,21 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
         write_report(store.root, summary)
     _print(summary, tuned_path)
     return EXIT_DATA_LOSS if summary.data_loss else 0
+
+
+def _flagged_frames(table) -> tuple[FlaggedFrame, ...]:
+    """The scored frames the bin check flagged (docs/pipeline.md, "Bin removal"): every parameter set's
+    scores on them rest on a bin removal that did not work."""
+    from studies.summary import FlaggedFrame
+
+    if "bin_flagged" not in table.column_names:
+        return ()
+    seen: dict[tuple[str, int], FlaggedFrame] = {}
+    for log, frame, flagged in zip(table.column("log").to_pylist(), table.column("frame").to_pylist(),
+                                   table.column("bin_flagged").to_pylist()):
+        if flagged:
+            seen.setdefault((log, frame), FlaggedFrame(log, int(frame)))
+    return tuple(seen.values())
 
 
 def _reproduce(args: argparse.Namespace) -> str:
@@ -269,6 +284,11 @@ def _print(summary: SweepSummary, tuned_path: Path | None) -> None:
         return f"  {name:10s} {params:32s} " + "  ".join(f"{c:>22s}" for c in cells)
 
     print(f"{summary.frames} frame(s) scored over the {summary.region} region; objective {summary.objective}")
+    if summary.bin_flagged:
+        shown = ", ".join(str(f) for f in summary.bin_flagged[:10])
+        print(f"warning: {len(summary.bin_flagged)} scored frame(s) flagged by the bin check (their scores rest on "
+              f"a bin removal that did not work): {shown}" + (" …" if len(summary.bin_flagged) > 10 else ""),
+              file=sys.stderr)
     print(f"  {'':10s} {'parameters':32s} " + "  ".join(f"{h:>22s}" for h in ("precision", "recall", "F1")))
     print(row("chosen", summary.chosen_zcut))
     print(row("nominal", summary.nominal))

@@ -60,11 +60,13 @@ def _close(a, b):
 def test_report_matches_hand_count():
     f = frame_accuracy(7, 123_000, {"zcut": ZCUT, "sor": SOR}, TRUTH)
     report = accuracy_report([f])
-    assert list(report) == ["region", "pooled", "frames", "unscored"]
+    assert list(report) == ["region", "pooled", "frames", "unscored", "bin_flagged"]
     assert report["region"] == "valid" and report["unscored"] == []
+    assert report["bin_flagged"] is None  # the bin check is not known for this frame
     assert set(report["pooled"]) == set(METHODS)
     (fr,) = report["frames"]
     assert fr["index"] == 7 and fr["stamp_ns"] == 123_000
+    assert fr["bin_check"] is None and fr["bin_flagged"] is None
     for m, (tp, fp, fn, p, r, iou, cp, cr, sp, sr) in HAND.items():
         e = fr[m]
         assert list(e) == list(METRIC_KEYS)

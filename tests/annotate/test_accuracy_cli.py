@@ -53,6 +53,11 @@ def test_ground_truth_from_log_and_from_results_agree_and_match_hand_counts(spik
     results, preds = predictions
     from_log = _json(capsys, ["accuracy", str(log), "--json"])
     from_results = _json(capsys, ["accuracy", str(results), "--json"])
+    # the bin check: known on the log (no bin model: nothing flagged), not carried by a results file
+    assert from_log.pop("bin_flagged") == 0 and from_results.pop("bin_flagged") is None
+    for a, b in zip(from_log["frames"], from_results["frames"]):
+        assert (a.pop("bin_check"), a.pop("bin_flagged")) == (None, False)
+        assert (b.pop("bin_check"), b.pop("bin_flagged")) == (None, None)
     assert from_log == from_results
     assert [f["index"] for f in from_log["frames"]] == [0, 1, 2]
     pooled = {m: {"tp": 0, "fp": 0, "fn": 0} for m in ("zcut", "sor", "union", "intersection")}
@@ -117,8 +122,13 @@ def test_human_labels_and_agreement(spike_log, predictions, tmp_path, capsys):
         z, s = preds[f["index"]]
         assert {k: f["zcut"][k] for k in ("tp", "fp", "fn")} == _hand(z, L, R)
         assert {k: f["sor"][k] for k in ("tp", "fp", "fn")} == _hand(s, L, R)
-    # the results file finds the same labels by stamp (its cloud topic is /zcut/filtered)
-    assert _json(capsys, ["accuracy", str(results), "--labels", str(db), "--annotator", "ann", "--json"]) == rep
+    # the results file finds the same labels by stamp (its cloud topic is /zcut/filtered); it does not
+    # carry the bin check
+    from_results = _json(capsys, ["accuracy", str(results), "--labels", str(db), "--annotator", "ann", "--json"])
+    assert from_results.pop("bin_flagged") is None and rep.pop("bin_flagged") == 0
+    for f in (*rep["frames"], *from_results["frames"]):
+        del f["bin_check"], f["bin_flagged"]
+    assert from_results == rep
 
     agree = _json(capsys, ["accuracy", str(log), "--labels", str(db), "--agreement", "ann", "bob", "--json"])
     assert agree["annotators"] == ["ann", "bob"] and [f["index"] for f in agree["frames"]] == [2]

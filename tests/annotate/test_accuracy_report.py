@@ -187,13 +187,13 @@ def test_json_follows_spec_section_4(report):
     text = report_json(report)
     assert "NaN" not in text and "Infinity" not in text
     back = json.loads(text)
-    assert list(back) == ["region", "pooled", "frames", "unscored"]
+    assert list(back) == ["region", "pooled", "frames", "unscored", "bin_flagged"]
     assert back["region"] == "zone"
     assert list(back["pooled"]) == list(METHODS)
     for m in METHODS:
         _check_entry(back["pooled"][m], pooled=True)
     for f in back["frames"]:
-        assert list(f) == ["index", "stamp_ns", *METHODS]
+        assert list(f) == ["index", "stamp_ns", *METHODS, "bin_check", "bin_flagged"]
         for m in METHODS:
             _check_entry(f[m], pooled=False)
     assert back["unscored"] == [{"index": 2, "stamp_ns": 300, "reason": "no /ground_truth/outliers"}]

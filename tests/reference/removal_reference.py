@@ -1,7 +1,9 @@
 """The previous removal (numpy + a numba grid search per point list), kept as the reference.
 
 A verbatim copy of ``zcut.removal.remove_table_and_bin`` before it became fused numba kernels
-(commit 9af0131): the fast version must give the same classes, height image and cloud.
+(commit 9af0131): the fast version must give the same classes, height image and cloud. One
+addition since: ``bin_first`` (the robust mode's order: a point near the model is bin before it
+can be an easy outlier), written as literally as the rest.
 """
 
 from __future__ import annotations
@@ -188,6 +190,7 @@ def remove_table_and_bin_reference(
     search_radius_m: float | None = None,
     straggler_m: float = 0.0,
     straggler_neighbours: int = 5,
+    bin_first: bool = False,
 ) -> RemovalResult:
     """The removal as it was before the fused numba kernels (:func:`zcut.removal.remove_table_and_bin`
     has the same contract and parameters); kept to prove the fast path bit for bit."""
@@ -218,14 +221,22 @@ def remove_table_and_bin_reference(
         rows, cols = np.nonzero(inside)
         p_bin = (a[rows, cols].astype(np.float64) - t) @ R
         h = -p_bin[:, 2]
-        is_easy = h > rim_b + rim_offset_m
-        easy[rows[is_easy], cols[is_easy]] = True
-        rest = np.flatnonzero(~is_easy)
         radius = search_radius_m if search_radius_m is not None else max(delta_m, 1.5 * model.spacing_m)
         radius = max(radius, delta_m, 1e-9)
-        if delta_m > 0:
-            near = _near_model(p_bin[rest], model.points, model.normals, delta_m=delta_m, radius_m=radius)
-            binp[rows[rest[near]], cols[rest[near]]] = True
+        if bin_first:
+            near = np.zeros(len(p_bin), bool)
+            if delta_m > 0:
+                near = _near_model(p_bin, model.points, model.normals, delta_m=delta_m, radius_m=radius)
+            binp[rows[near], cols[near]] = True
+            is_easy = ~near & (h > rim_b + rim_offset_m)
+            easy[rows[is_easy], cols[is_easy]] = True
+        else:
+            is_easy = h > rim_b + rim_offset_m
+            easy[rows[is_easy], cols[is_easy]] = True
+            rest = np.flatnonzero(~is_easy)
+            if delta_m > 0:
+                near = _near_model(p_bin[rest], model.points, model.normals, delta_m=delta_m, radius_m=radius)
+                binp[rows[rest[near]], cols[rest[near]]] = True
         if straggler_m > 0:
             _straggler_passes(binp, table, valid, inside & ~easy, rows, cols, p_bin, model,
                               straggler_m=straggler_m, radius_m=max(radius, straggler_m),
@@ -244,4 +255,5 @@ def remove_table_and_bin_reference(
     height[~valid] = np.nan
     xyz_out = a.astype(np.float32, copy=True)
     xyz_out[..., 2] = np.where(labelled, zfloor, xyz_out[..., 2]).astype(np.float32)
-    return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up)
+    tol = float("nan") if model is None else delta_m * 1000.0
+    return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up, tol)

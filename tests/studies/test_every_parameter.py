@@ -34,8 +34,10 @@ VALUES: dict[str, dict[str, str]] = {
     "registration": {"method": '"point_to_point"', "voxel_mm": "8.0", "max_correspondence_mm": "30.0",
                      "max_iterations": "1", "min_fitness": "1.0", "max_rmse_mm": "0.0001", "ring_frac": "1.0",
                      "seed_from_first_frame": "false"},
-    "removal": {"delta_mm": "3.0", "rim_offset_mm": "60.0", "search_radius_mm": "0.05", "straggler_mm": "0.0",
-                "straggler_neighbours": "8"},
+    "removal": {"delta_mm": "10.0", "rim_offset_mm": "60.0", "search_radius_mm": "10.0", "straggler_mm": "0.0",
+                "straggler_neighbours": "8", "mode": '"paper"', "tolerance_mm": "6.0", "residual_quantile": "50.0",
+                "residual_margin_mm": "4.0", "min_tolerance_mm": "5.0", "max_tolerance_mm": "1.0",
+                "check_threshold_px": "1000000.0", "check_min_ring_px": "1000000", "check_min_rim_in_view": "1.0"},
 }
 
 #: fields that cannot change the result on this log, and why (a reason, never a silence)
@@ -46,6 +48,10 @@ UNCHANGED: dict[str, str] = {
                           "gives the same footprint at any radius",
     "registration.min_fitness": "the synthetic bin's rim is confirmed everywhere (fitness 1.000): no threshold "
                                 "fails it",
+    "removal.check_threshold_px": "the removal leaves no certain bin pixel where the filters judge on this log (the "
+                                  "bin check's figure is 0 on both frames): no threshold >= 0 changes a flag",
+    "removal.check_min_rim_in_view": "the whole of the bin's rim is in the camera's view on this log (share 1.0): no "
+                                     "threshold <= 1 flags a frame",
 }
 #: fields that change only the registration's figures (fitness, RMSE) on this log, not a mask: only the
 #: commands that report those figures (replay's table, batch's frames.parquet) show them
@@ -55,7 +61,10 @@ REGISTRATION_ONLY: dict[str, str] = {
                                           "pose to far below a pixel; only its RMSE moves",
 }
 #: fields a command does not read, by design (documented in docs/pipeline.md)
-NOT_READ: dict[tuple[str, str], str] = {}
+NOT_READ: dict[tuple[str, str], str] = {
+    (f"removal.{f}", "annotate"): "the bin check flags a frame and changes no mask: the labelling page shows masks"
+    for f in ("check_threshold_px", "check_min_ring_px", "check_min_rim_in_view")
+}
 #: the registration's float figures are compared to this many significant digits (Open3D's ICP sums in
 #: parallel: the last digit of its RMSE varies from run to run, docs/studies.md)
 DIGITS = 9
@@ -116,7 +125,8 @@ def _signatures(log, model, config, out_dir) -> dict:
     masks = {f.index: {t: m.tobytes() for t, m in sorted(f.masks.items()) if t.startswith("/zcut/")}
              for f in LogReader(res).frames()}
     sig["replay"] = ([(r["index"], r["valid_px"], r["zcut"], r["sor"], r["both"], r["above_rim"], r["clusters"],
-                       _rounded(r["fitness"]), _rounded(r["rmse_mm"])) for r in frames], masks)
+                       _rounded(r["fitness"]), _rounded(r["rmse_mm"]), r["bin_check"], r["bin_flagged"])
+                      for r in frames], masks)
     counts = {r["index"]: (r["zcut"], r["sor"]) for r in frames}
 
     rep = _json_of("accuracy", log, "--bin-model", model, "--config", config, "--json")
@@ -152,7 +162,7 @@ def _signatures(log, model, config, out_dir) -> dict:
                     and (r["rho_thr"] is None or abs(r["rho_thr"] - c["rho_thr"]) < 1e-12))
                 or (r["method"] == "sor" and r["sor_k"] == c["sor_k"] and r["sor_std_ratio"] == c["sor_std_ratio"]
                     and r["step_mm"] in (None, c["step_mm"]) and r["max_depth_mm"] in (None, c["max_depth_mm"])))
-    sig["sweep"] = at
+    sig["sweep"] = (at, summary["bin_flagged"])
     for frame, method, n_pred, *_ in at:
         assert n_pred == counts[frame][0 if method == "zcut" else 1], f"sweep disagrees with replay ({method})"
     return sig

@@ -43,7 +43,8 @@ def _bin_pixels(frame) -> np.ndarray:
 
 
 def _index(model, **mm):
-    return prepare_removal_index(model, RemovalParams(**{"straggler_mm": 0.0, "straggler_neighbours": 5, **mm}))
+    return prepare_removal_index(model, RemovalParams(**{"mode": "paper", "straggler_mm": 0.0,
+                                                         "straggler_neighbours": 5, **mm}))
 
 
 def test_removal_classes(filled, model):

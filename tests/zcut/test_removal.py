@@ -51,7 +51,7 @@ def _pose(angle_deg: float, shift=(0.004, -0.003, 0.002)) -> np.ndarray:
 def _params(kw: dict) -> RemovalParams:
     """RemovalParams from the reference's metre keywords (the old function's defaults otherwise)."""
     mm = {k.replace("_m", "_mm"): v * 1000.0 for k, v in kw.items() if k.endswith("_m")}
-    return RemovalParams(**{"straggler_mm": 0.0, "straggler_neighbours": 5, **mm,
+    return RemovalParams(**{"mode": "paper", "straggler_mm": 0.0, "straggler_neighbours": 5, **mm,
                             **{k: v for k, v in kw.items() if not k.endswith("_m")}})
 
 
@@ -125,3 +125,45 @@ def test_fast_removal_equals_the_reference_on_odd_inputs(noisy, model, case):
     fast = _fast(xyz, fp, T_cam_bin=T, **kw)
     ref = _reference(xyz, fp, T_cam_bin=T, **kw)
     _assert_same(fast, ref)
+
+
+def _ring(xyz):
+    """The certain bin pixels of the noisy scene (bin_pixels of its bin mask)."""
+    from zcut.binmask import bin_pixels
+
+    frame, _ = ps.scene(h=H, w=W, shift=(0.004, -0.003, 0.002), specks=10, seed=5)
+    return bin_pixels(bin_mask(frame.rgb), xyz)
+
+
+@pytest.mark.parametrize("kw", [
+    {},
+    {"straggler_mm": 0.0},
+    {"tolerance_mm": 3.0},
+    {"residual_quantile": 50.0, "residual_margin_mm": 0.0, "min_tolerance_mm": 0.0},
+    {"max_tolerance_mm": 1.5, "straggler_neighbours": 5},
+    {"search_radius_mm": 6.0, "rim_offset_mm": 0.0},
+])
+@pytest.mark.parametrize("angle", [0.0, 2.0])
+@pytest.mark.parametrize("normals", [True, False])
+def test_robust_removal_equals_the_reference_with_its_tolerance(noisy, model, kw, angle, normals):
+    """The robust mode is the literal rule with δ = the frame's τ, the bin test first and the
+    stragglers at τ + straggler_mm."""
+    from zcut.removal import _radius, frame_tolerance
+
+    xyz, fp = noisy
+    m = model if normals else BinModel(model.points, None, model.spacing_m)
+    p = RemovalParams(**kw)
+    index = prepare_removal_index(m, p)
+    T = _pose(angle)
+    ring = _ring(xyz)
+    fast = remove_table_and_bin(xyz, fp, index=index, T_cam_bin=T, ring=ring)
+    tau = frame_tolerance(xyz, ring, index, T).tolerance_mm
+    assert fast.tolerance_mm == pytest.approx(tau)
+    d = tau / 1000.0
+    with np.errstate(invalid="ignore"):
+        ref = remove_table_and_bin_reference(
+            xyz, fp, model=m, T_cam_bin=T, delta_m=d, rim_offset_m=p.rim_offset_m,
+            search_radius_m=_radius(p, m.spacing_m, d), straggler_m=p.straggler_m + d if p.straggler_m else 0.0,
+            straggler_neighbours=p.straggler_neighbours, bin_first=True)
+    _assert_same(fast, ref)
+    assert fast.bin_points.sum() > 0.05 * fp.sum()

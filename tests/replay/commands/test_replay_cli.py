@@ -14,6 +14,7 @@ from replay.cli import main
 from replay.logs.reader import LogReader
 from replay.logs.writer import LogWriter
 from replay.synth.log import write_synthetic_log
+from replay.synth.scene import BinShape
 from zcut.cuts import zcut_outliers
 
 SIZE = (300, 480)  # at 240 x 150 a pixel spans ~3.7 mm: the nominal 0.2 mm step cuts the noise into slivers
@@ -84,6 +85,41 @@ def test_replay_with_bin_model_writes_rrd_results_and_config(tmp_path, capsys, l
         if ch.entity_path == "/counts/zcut":
             counts += [v[0] for v in ch.to_record_batch().column("Scalars:scalars").to_pylist()]
     assert counts == [float(f["zcut"]) for f in summary["frames"]]
+
+
+def test_the_bin_check_in_the_table_the_json_the_rrd_and_a_warning_naming_the_frame(tmp_path, capsys, logs,
+                                                                                    bin_ply):
+    """The paper's removal on a bin 1 mm bigger than its model: every frame flagged, with what to do; the
+    default removal: none."""
+    d, _, _ = logs
+    big = write_synthetic_log(d / "big.mcap", kind="rods", frames=2, seed=7, size=SIZE,
+                              bin_shape=BinShape(scale=1.005))
+    paper = tmp_path / "paper.toml"
+    paper.write_text('[removal]\nmode = "paper"\n')
+    rrd = tmp_path / "p.rrd"
+    rc, out, err = run_cli(capsys, "replay", big, "--bin-model", bin_ply, "--config", paper, "--rrd", rrd)
+    assert rc == 0, err
+    head, *rows = out.strip().splitlines()
+    col = head.index("bin chk")
+    assert all(r[col - 1:col + 7].strip().endswith("!") for r in rows)
+    for i in (0, 1):
+        assert f"warning: frame {i}: bin check: " in err
+    assert 'use removal.mode = "robust"' in err
+    assert "warning: 2 of 2 frame(s) flagged by the bin check" in err
+    flagged, pixels = [], []
+    for ch in rr.chunk.RrdReader(str(rrd)).stream():
+        cols = ch.to_record_batch()
+        if ch.entity_path == "/bin_check/flagged":
+            flagged += [v[0] for v in cols.column("Scalars:scalars").to_pylist()]
+        if ch.entity_path == "/bin_check/pixels":
+            pixels += [v[0] for v in cols.column("Scalars:scalars").to_pylist()]
+    assert flagged == [1.0, 1.0] and all(p > 0 for p in pixels)
+    rc, out, err = run_cli(capsys, "replay", big, "--bin-model", bin_ply, "--json")
+    assert rc == 0, err
+    summary = json.loads(out)
+    assert [(f["bin_check"], f["bin_flagged"]) for f in summary["frames"]] == [(0.0, False), (0.0, False)]
+    assert summary["totals"]["bin_flagged"] == 0 and "bin check" not in err
+    assert summary["config"]["removal"]["mode"] == "robust"
 
 
 def test_table_and_overrides_and_one_frame(tmp_path, capsys, logs):

@@ -125,6 +125,10 @@ def test_replay_and_accuracy_score_the_methods_asked_for(small_log, tmp_path, ca
     rc, out2, err = run_cli(capsys, "accuracy", res, "--methods", "sor,zcut+sor", "--json", "--region", "valid")
     assert rc == 0, err
     rep2 = json.loads(out2)
+    for f in rep2["frames"]:  # a results file does not carry the bin check (docs/pipeline.md, "Bin removal")
+        assert (f.pop("bin_check"), f.pop("bin_flagged")) == (None, None)
+    for f in rep["frames"]:
+        assert (f.pop("bin_check"), f.pop("bin_flagged")) == (None, False)  # no bin model: not checked
     assert rep2["pooled"] == rep["pooled"] and rep2["frames"] == rep["frames"]
     # the union's counts are those of the replay's two masks
     masks = {f.index: f for f in LogReader(res).frames()}

@@ -85,8 +85,21 @@ def test_every_stage_has_its_entity(recording):
               "/zcut/cuts", "/world/cloud", "/world/outliers", "/world/bin_model", "/world/bin_model/points",
               "/world/bin_model/status", "/counts/zcut", "/counts/sor", "/counts/both", "/metrics/alpha",
               "/metrics/beta_sor", "/metrics/beta_zcut", "/timings_ms/zcut", "/timings_ms/registration",
-              "/registration/fitness", "/registration/rmse_mm", "/config", "/log"):
+              "/registration/fitness", "/registration/rmse_mm", "/config", "/log", "/image/bin_check",
+              "/bin_check/pixels", "/bin_check/threshold", "/bin_check/flagged", "/bin_check/tolerance_mm"):
         assert e in data, e
+
+
+def test_the_bin_check_is_a_scalar_and_an_image(recording):
+    _, data, results, _ = recording
+    check = results[0][1].bin_check
+    assert [v[0] for v in column(data["/bin_check/pixels"], "Scalars:scalars")] == [check.value]
+    assert [v[0] for v in column(data["/bin_check/flagged"], "Scalars:scalars")] == [float(check.flagged)]
+    images = [v for v in column(data["/image/bin_check"], "SegmentationImage:buffer") if v is not None]
+    assert len(images) == 1  # the second frame (no RGB) clears it
+    classes = np.asarray(images[0], np.uint8).reshape(H, W)
+    assert np.array_equal(classes == 1, check.ring & ~check.offending)
+    assert np.array_equal(classes == 2, check.offending)
 
 
 def test_counts_match_the_masks(recording):
@@ -238,8 +251,7 @@ def test_the_default_blueprint_is_in_the_file(recording):
     (bp,) = reader.blueprints()
     views = {ch.entity_path for ch in reader.stream(store=bp) if ch.entity_path.startswith("/view/")
              and not ch.entity_path.endswith("ViewContents")}
-    assert len(views) == 12  # 5 image views, 3D, 4 time series, config and warnings (default_blueprint)
-
+    assert len(views) == 13  # 5 image views, 3D, 5 time series, config and warnings (default_blueprint)
 
 
 #: a process that prints the local address (hex, as /proc/net shows it) of every socket it sees

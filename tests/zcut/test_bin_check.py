@@ -1,0 +1,234 @@
+"""The robust removal and the bin check on a ray-cast bin scene whose true pose is known."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pipeline_scene as ps
+import pytest
+
+from zcut.bin_check import BinCheck, check_bin_removal, failed_bin_check
+from zcut.bin_model import BinModel
+from zcut.binmask import bin_mask, bin_pixels
+from zcut.errors import InputShapeError, ParameterError
+from zcut.params import RemovalParams
+from zcut.removal import bin_residuals_mm, frame_tolerance, prepare_removal_index, remove_table_and_bin
+
+H, W = 240, 320
+SHIFT = (0.006, -0.004, 0.003)
+BAND_MM = 40.0
+
+
+def _face(origin, u, v, normal, spacing=0.001):
+    """Points every ``spacing`` on the rectangle origin + [0, 1]·u + [0, 1]·v, with their normal."""
+    nu = max(int(np.linalg.norm(u) / spacing), 1) + 1
+    nv = max(int(np.linalg.norm(v) / spacing), 1) + 1
+    a, b = np.meshgrid(np.linspace(0, 1, nu), np.linspace(0, 1, nv))
+    pts = np.asarray(origin) + a.reshape(-1, 1) * np.asarray(u) + b.reshape(-1, 1) * np.asarray(v)
+    return pts, np.tile(normal, (len(pts), 1))
+
+
+@pytest.fixture(scope="module")
+def model() -> BinModel:
+    """The scene's bin as a CAD model: its surfaces sampled every millimetre, exact normals (at the
+    scene's coarse resolution, a model built from empty scans samples the steep inner walls only every
+    ~10 mm, too sparse for a point-to-plane test)."""
+    hx, hy, w = *ps.HALF, ps.WALL
+    top, floor, table = ps.RIM_Z, ps.FLOOR_Z, ps.TABLE_Z
+    faces = [_face((-hx + w, -hy + w, floor), (2 * (hx - w), 0, 0), (0, 2 * (hy - w), 0), (0, 0, -1))]
+    for sx in (-1, 1):  # the walls along y: top, inner face, outer face
+        x_in, x_out = sx * (hx - w), sx * hx
+        faces += [_face((min(x_in, x_out), -hy, top), (w, 0, 0), (0, 2 * hy, 0), (0, 0, -1)),
+                  _face((x_in, -hy + w, top), (0, 2 * (hy - w), 0), (0, 0, floor - top), (-sx, 0, 0)),
+                  _face((x_out, -hy, top), (0, 2 * hy, 0), (0, 0, table - top), (sx, 0, 0))]
+    for sy in (-1, 1):  # the walls along x
+        y_in, y_out = sy * (hy - w), sy * hy
+        faces += [_face((-hx, min(y_in, y_out), top), (2 * hx, 0, 0), (0, w, 0), (0, 0, -1)),
+                  _face((-hx + w, y_in, top), (2 * (hx - w), 0, 0), (0, 0, floor - top), (0, -sy, 0)),
+                  _face((-hx, y_out, top), (2 * hx, 0, 0), (0, 0, table - top), (0, sy, 0))]
+    pts = np.concatenate([f[0] for f in faces])
+    nrm = np.concatenate([f[1] for f in faces]).astype(np.float64)
+    return BinModel(pts.astype(np.float64), nrm, 0.001)
+
+
+@pytest.fixture(scope="module")
+def filled():
+    """The filled bin with 0.3 mm of depth noise, its footprint and its certain bin pixels."""
+    frame, _ = ps.scene(h=H, w=W, shift=SHIFT, specks=8, seed=3)
+    rng = np.random.default_rng(8)
+    xyz = frame.xyz * (1.0 + rng.normal(0.0, 0.0003, (H, W, 1)) / frame.xyz[..., 2:]).astype(np.float32)
+    bm = bin_mask(frame.rgb)
+    return xyz, bm.mask, bin_pixels(bm, xyz)
+
+
+def pose(dx_mm=0.0, dz_mm=0.0, tilt_deg=0.0) -> np.ndarray:
+    """The true pose (the scene's shift), moved in x and z and tilted about y through the bin's centre."""
+    a = np.radians(tilt_deg)
+    R = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+    centre = np.array([0.0, 0.0, ps.RIM_Z])
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = centre - R @ centre + np.asarray(SHIFT) + np.array([dx_mm, 0.0, dz_mm]) / 1000.0
+    return T
+
+
+def run(model, filled, T, **params):
+    xyz, fp, ring = filled
+    p = RemovalParams(**params)
+    r = remove_table_and_bin(xyz, fp, index=prepare_removal_index(model, p), T_cam_bin=T, ring=ring)
+    return r, check_bin_removal(r, ring, params=p, band_mm=BAND_MM)
+
+
+def test_at_the_true_pose_both_modes_remove_the_bin(model, filled):
+    _, _, ring = filled
+    for mode in ("paper", "robust"):  # the paper mode's straggler pass takes the noise's tail
+        r, check = run(model, filled, pose(), mode=mode)
+        assert not check.flagged and check.value == 0 and check.reason == ""
+        assert not (ring & r.zone).any()
+    r, _ = run(model, filled, pose())
+    assert 1.0 <= r.tolerance_mm < 2.0  # the noise's percentile plus the 1 mm margin
+
+
+@pytest.mark.parametrize("dx_mm, dz_mm", [(0.5, 0.0), (0.0, 3.0), (2.0, 1.0)])
+def test_a_pose_off_by_millimetres_breaks_the_paper_removal_not_the_robust_one(model, filled, dx_mm, dz_mm):
+    _, _, ring = filled
+    r, check = run(model, filled, pose(dx_mm, dz_mm), mode="paper")
+    assert check.flagged and check.value > 0 and "removal.mode" in check.reason
+    assert np.array_equal(check.offending, check.offending & ring)
+    # the rim is left in the zone, as its top
+    top = np.max(r.height_mm[r.zone])
+    assert (ring & r.zone & (r.height_mm == top)).any()
+    r, check = run(model, filled, pose(dx_mm, dz_mm))
+    assert not check.flagged and check.value == 0
+    assert max(dx_mm, dz_mm) < r.tolerance_mm < max(dx_mm, dz_mm) + 2.0
+
+
+def test_a_tilted_pose_makes_the_paper_rim_easy_outliers_the_robust_one_bin(model, filled):
+    _, _, ring = filled
+    T = pose(tilt_deg=5.0)  # 0.1 m from the centre the rim rises 8.7 mm: above the model's rim + 5 mm
+    r, check = run(model, filled, T, mode="paper")
+    assert (ring & r.easy_outliers).sum() > 50 and check.flagged and "called above the rim" in check.reason
+    r, check = run(model, filled, T, max_tolerance_mm=12.0)
+    assert not (ring & r.easy_outliers).any() and not check.flagged
+
+
+def test_the_tolerance_follows_the_residuals(model, filled):
+    xyz, _, ring = filled
+    index = prepare_removal_index(model, RemovalParams())
+    at = {dx: frame_tolerance(xyz, ring, index, pose(dx)) for dx in (0.0, 1.0, 3.0, 30.0)}
+    assert at[0.0].residual_mm < 1.0 and at[0.0].n_pixels == np.count_nonzero(ring)  # 2.6 σ of the noise
+    assert at[1.0].residual_mm == pytest.approx(1.0, abs=0.4)
+    assert at[3.0].residual_mm == pytest.approx(3.0, abs=0.6)
+    assert at[3.0].tolerance_mm == pytest.approx(at[3.0].residual_mm + 1.0)
+    assert at[30.0].residual_mm > 8.0 and at[30.0].tolerance_mm == 8.0  # the maximum
+    fixed = prepare_removal_index(model, RemovalParams(tolerance_mm=2.5))
+    assert frame_tolerance(xyz, ring, fixed, pose(3.0)).tolerance_mm == 2.5
+    nothing = frame_tolerance(xyz, np.zeros_like(ring), index, pose())
+    assert nothing.tolerance_mm == 8.0 and nothing.n_pixels == 0 and np.isnan(nothing.residual_mm)
+    # without normals the residual is the distance to the nearest model point
+    bare = prepare_removal_index(BinModel(model.points, None, model.spacing_m), RemovalParams())
+    res = bin_residuals_mm(xyz, ring, bare, pose())
+    assert np.all(res >= 0) and np.percentile(res, 50) < 1.5
+
+
+def test_without_certain_bin_pixels_the_robust_removal_takes_the_largest_tolerance(model, filled):
+    xyz, fp, _ = filled
+    p = RemovalParams()
+    r = remove_table_and_bin(xyz, fp, index=prepare_removal_index(model, p), T_cam_bin=pose())
+    assert r.tolerance_mm == p.max_tolerance_mm and np.isnan(r.residual_mm)
+
+
+def test_the_check_counts_certain_bin_pixels_in_the_band_and_above_the_rim(model, filled):
+    _, _, ring = filled
+    r, _ = run(model, filled, pose())
+    rows, cols = np.nonzero(ring)
+    top = float(np.max(r.height_mm[r.zone]))
+    zone, easy, height = r.zone.copy(), r.easy_outliers.copy(), r.height_mm.copy()
+    # three ring pixels left in the zone at its top, one in the zone far below the band, two called easy
+    for i in range(3):
+        zone[rows[i], cols[i]] = True
+        height[rows[i], cols[i]] = top
+    zone[rows[10], cols[10]] = True
+    height[rows[10], cols[10]] = top - BAND_MM - 1.0
+    easy[rows[20], cols[20]] = easy[rows[21], cols[21]] = True
+    bad = dataclasses.replace(r, zone=zone, easy_outliers=easy, height_mm=height)
+    check = check_bin_removal(bad, ring, params=RemovalParams(), band_mm=BAND_MM)
+    assert check.value == 5 and check.flagged and check.threshold == 0
+    assert check.offending.sum() == 5 and not check.offending[rows[10], cols[10]]
+    assert "3 in the zone's top 40 mm, 2 called above the rim" in check.reason
+    assert not check_bin_removal(bad, ring, params=RemovalParams(check_threshold_px=5), band_mm=BAND_MM).flagged
+    assert check_bin_removal(bad, ring, params=RemovalParams(check_threshold_px=4), band_mm=BAND_MM).flagged
+
+
+def test_too_few_certain_bin_pixels_are_flagged(model, filled):
+    _, _, ring = filled
+    r, _ = run(model, filled, pose())
+    few = np.zeros_like(ring)
+    few[np.nonzero(ring)[0][:50], np.nonzero(ring)[1][:50]] = True
+    check = check_bin_removal(r, few, params=RemovalParams(), band_mm=BAND_MM)
+    assert check.flagged and check.value == 0 and "only 50 of the bin's rim" in check.reason
+
+
+def test_an_empty_model_removes_no_bin_and_the_check_says_so(filled):
+    xyz, fp, ring = filled
+    p = RemovalParams()
+    empty = BinModel(np.zeros((0, 3)), None, 0.001)
+    r = remove_table_and_bin(xyz, fp, index=prepare_removal_index(empty, p), T_cam_bin=np.eye(4), ring=ring)
+    assert not r.bin_points.any() and r.table.any()
+    check = check_bin_removal(r, ring, params=p, band_mm=BAND_MM)
+    assert check.flagged and check.value > 0
+
+
+def test_a_failed_check_is_flagged_with_its_reason():
+    c = failed_bin_check("the bin registration failed", params=RemovalParams(check_threshold_px=3))
+    assert c == BinCheck(c.value, 3.0, True, "the bin registration failed", None, None) and np.isnan(c.value)
+
+
+@pytest.mark.parametrize("call, exc, match", [
+    (lambda r, ring: check_bin_removal(r, ring[:, :-1], params=RemovalParams(), band_mm=1.0), InputShapeError,
+     "ring must be"),
+    (lambda r, ring: check_bin_removal(r, ring.astype(np.uint8), params=RemovalParams(), band_mm=1.0),
+     InputShapeError, "ring must be"),
+    (lambda r, ring: check_bin_removal(r, ring, params=RemovalParams(), band_mm=-1.0), ParameterError, "band_mm"),
+    (lambda r, ring: check_bin_removal(r, ring, params=RemovalParams(), band_mm=float("nan")), ParameterError,
+     "band_mm"),
+])
+def test_bad_check_arguments(model, filled, call, exc, match):
+    _, _, ring = filled
+    r, _ = run(model, filled, pose())
+    with pytest.raises(exc, match=match):
+        call(r, ring)
+
+
+def test_residuals_need_an_index_prepared_in_the_robust_mode(model, filled):
+    xyz, _, ring = filled
+    with pytest.raises(ParameterError, match="robust mode"):
+        bin_residuals_mm(xyz, ring, prepare_removal_index(model, RemovalParams(mode="paper")), pose())
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"mode": "loose"}, r"RemovalParams\.mode must be one of robust, paper, got 'loose'"),
+    ({"tolerance_mm": -1.0}, r"RemovalParams\.tolerance_mm must be a number >= 0"),
+    ({"residual_quantile": 0.0}, r"RemovalParams\.residual_quantile must be a number > 0 and <= 100"),
+    ({"residual_quantile": 101.0}, r"RemovalParams\.residual_quantile"),
+    ({"residual_margin_mm": float("inf")}, r"RemovalParams\.residual_margin_mm"),
+    ({"min_tolerance_mm": 9.0}, r"RemovalParams\.min_tolerance_mm must be <= max_tolerance_mm \(8\.0\), got 9\.0"),
+    ({"max_tolerance_mm": 0.0}, r"RemovalParams\.max_tolerance_mm must be a number > 0"),
+    ({"check_threshold_px": -1}, r"RemovalParams\.check_threshold_px"),
+    ({"check_min_ring_px": 2.5}, r"RemovalParams\.check_min_ring_px must be an integer"),
+])
+def test_bad_removal_parameters(kw, match):
+    with pytest.raises(ParameterError, match=match):
+        RemovalParams(**kw)
+
+
+def test_a_bin_mostly_out_of_view_is_flagged(model, filled):
+    _, _, ring = filled
+    r, _ = run(model, filled, pose())
+    check = check_bin_removal(r, ring, params=RemovalParams(), band_mm=BAND_MM, rim_in_view=0.3)
+    assert check.flagged and check.value == 0 and "only 30 % of the bin's rim in the camera's view" in check.reason
+    assert not check_bin_removal(r, ring, params=RemovalParams(check_min_rim_in_view=0.25), band_mm=BAND_MM,
+                                 rim_in_view=0.3).flagged
+    with pytest.raises(ParameterError, match="rim_in_view"):
+        check_bin_removal(r, ring, params=RemovalParams(), band_mm=BAND_MM, rim_in_view=1.5)
