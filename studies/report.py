@@ -933,8 +933,10 @@ def _swept_section(sw: _Sweep) -> str:
             "<h3>Grid</h3><div class=scroll><table><thead><tr><th>axis</th><th>n</th><th>values (chosen in bold)</th>"
             "<th>chosen</th><th>paper's §5.4 range</th></tr></thead>"
             f"<tbody>{''.join(axis_rows)}</tbody></table></div>"
-            "<p class=small>The chosen point is the resolved config's own; the grid always holds 0.5× and 1.5× its "
-            "d<sub>max</sub> and ρ<sub>thr</sub> for the paper's ratios θ and ω.</p>")
+            "<p class=small>The chosen point is the resolved config's own; "
+            + ("the grid holds 0.5× and 1.5× its d<sub>max</sub> and ρ<sub>thr</sub> for the paper's ratios θ and ω "
+               "(study points).</p>" if (summ.get("grid") or {}).get("study_points", True) else
+               "the sweep ran with --no-study-points: the grid is the values given.</p>"))
 
 
 def _findings_section(summary: dict) -> str:

@@ -22,12 +22,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="+", metavar="LOG_OR_RESULTS.mcap", help="logs (or folders of them) with "
                    "synthetic truth, logs labelled in --labels, or results files of `zcut replay --out`")
     p.add_argument("-o", "--out", required=True, metavar="DIR", help="output folder (created; rerun to continue)")
-    g = p.add_argument_group("the grid (LIST: a,b,c or start:stop:count; an axis not given keeps the config's value)")
+    g = p.add_argument_group(
+        "the grid", "LIST: a,b,c or start:stop:count (inclusive, evenly spaced); values that agree to 1e-9 "
+        "(relative, after rounding to 12 significant digits) are one value. An axis not given holds the "
+        "config's value. Study points: unless --no-study-points, the d_max and ρ_thr axes also hold the "
+        "config's own value and 0.5× and 1.5× it (ρ_thr ≤ 1), for the paper's sensitivity ratios ω and θ; so "
+        "these two axes have three values when not given.")
     g.add_argument("--step", metavar="LIST", help="z-cut Δd values, mm")
     g.add_argument("--max-depth", metavar="LIST", help="z-cut d_max values, mm")
     g.add_argument("--rho", metavar="LIST", help="z-cut ρ_thr values (μ_thr = ρ_thr·a_max)")
     g.add_argument("--sor-k", metavar="LIST", help="SOR k values")
     g.add_argument("--sor-std", metavar="LIST", help="SOR std_ratio values")
+    g.add_argument("--no-study-points", dest="study_points", action="store_false",
+                   help="the grid is exactly the values given (and the config's value on the axes not given): "
+                   "no 0.5×/1.5× points (θ, ω and the paper's findings need them)")
     g.add_argument("--max-points", type=int, default=DEFAULT_MAX_POINTS, metavar="N",
                    help=f"refuse grids larger than this without --force (default {DEFAULT_MAX_POINTS})")
     g.add_argument("--force", action="store_true", help="run a grid larger than --max-points")
@@ -109,7 +117,8 @@ def run(args: argparse.Namespace) -> int:
                           frames_per_unit=args.frames_per_unit, whole=False)
         first = next(p for p in plans if p.units)
         base = cfg.from_dict(__import__("tomllib").loads(first.config_toml), source=str(first.path))
-        grid = make_grid(**axes, config=base, max_points=args.max_points, force=args.force)
+        grid = make_grid(**axes, config=base, max_points=args.max_points, force=args.force,
+                         study_points=args.study_points)
         options = study_options(args, overrides) | {"grid": grid.as_dict()}
         store = PartStore(args.out, identity("sweep", options, plans))
         n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if base.sor.enabled else 0)
@@ -176,6 +185,8 @@ def _reproduce(args) -> str:
         v = getattr(args, opt, None)
         if v is not None and not (opt == "objective" and v == "f1") and not (opt == "region" and v == "zone"):
             parts += ["--" + opt.replace("_", "-"), str(v)]
+    if not getattr(args, "study_points", True):
+        parts.append("--no-study-points")
     return " ".join(shlex.quote(str(p)) for p in parts)
 
 
