@@ -26,8 +26,11 @@ def frames_table(store):
 
 
 def pooled(table) -> dict[str, Any]:
-    """Pooled accuracy per method over the scored frames (micro average) with bootstrap intervals."""
-    from zcut.metrics import bootstrap_ci
+    """Pooled accuracy per method over the scored frames (micro average) with 95 % intervals over
+    frames (:func:`zcut.metrics.pooled_interval`; NaN where too few frames)."""
+    import numpy as np
+
+    from zcut.metrics import pooled_interval
 
     if not table.num_rows or "scored" not in table.column_names:
         return {}
@@ -41,7 +44,8 @@ def pooled(table) -> dict[str, Any]:
         fn = [r[f"{m}_fn"] for r in rows]
         T, F, N = sum(tp), sum(fp), sum(fn)
         out[m] = {"tp": T, "fp": F, "fn": N, "precision": _ratio(T, T + F), "recall": _ratio(T, T + N),
-                  "f1": _ratio(2 * T, 2 * T + F + N), "ci95": bootstrap_ci(tp, fp, fn)}
+                  "f1": _ratio(2 * T, 2 * T + F + N), "ci95": pooled_interval(np.array(tp, dtype=np.int64), np.array(fp, dtype=np.int64),
+                                                                   np.array(fn, dtype=np.int64))}
     return out
 
 

@@ -153,10 +153,10 @@ def _set_key(cols: dict, i: int) -> tuple:
 
 
 def pooled_sets(table) -> list[dict]:
-    """Per parameter set and method: pooled counts, precision/recall/F1 with 95 % intervals (a
-    bootstrap over frames, the same resamples for every set), and for the z-cut the relative figures
-    N_both, N1, N2, α, β (SPEC §3)."""
-    from zcut.metrics import bootstrap_ci_many, ratio
+    """Per parameter set and method: pooled counts, precision/recall/F1 with 95 % intervals over frames
+    (:func:`zcut.metrics.pooled_interval_many`; None where too few frames), and for the z-cut the
+    relative figures N_both, N1, N2, α, β (SPEC §3)."""
+    from zcut.metrics import pooled_interval_many, ratio
 
     cols = table.to_pydict()
     n = table.num_rows
@@ -170,7 +170,7 @@ def pooled_sets(table) -> list[dict]:
     for n_frames, items in by_frames.items():
         arr = {c: np.array([[cols[c][i] for i in idx] for _, idx in items], dtype=np.int64)
                for c in ("tp", "fp", "fn")}
-        cis = bootstrap_ci_many(arr["tp"], arr["fp"], arr["fn"])
+        cis = pooled_interval_many(arr["tp"], arr["fp"], arr["fn"])
         for j, (key, idx) in enumerate(items):
             T, F, N = (int(arr[c][j].sum()) for c in ("tp", "fp", "fn"))
             e = {"method": key[0], **dict(zip(ZCUT_COLUMNS + SOR_COLUMNS, key[1:])), "frames": n_frames,

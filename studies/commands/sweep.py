@@ -252,7 +252,7 @@ def _print(summary: dict, tuned_path) -> None:
             return f"  {name:10s} -"
         ci = e["ci95"]
         cells = [f"{e[k]:.3f} [{ci[k][0]:.3f}, {ci[k][1]:.3f}]" if e[k] is not None and ci[k][0] is not None
-                 else ("-" if e[k] is None else f"{e[k]:.3f}") for k in ("precision", "recall", "f1")]
+                 else ("-" if e[k] is None else f"{e[k]:.3f} [too few frames]") for k in ("precision", "recall", "f1")]
         params = (f"Δd {e['step_mm']:g} d_max {e['max_depth_mm']:g} ρ {e['rho_thr']:g}" if e["method"] == "zcut"
                   else f"k {e['sor_k']} std {e['sor_std_ratio']:g}")
         return f"  {name:10s} {params:32s} " + "  ".join(f"{c:>22s}" for c in cells)
