@@ -212,11 +212,13 @@ def _bm_df_matrix(den, power: int = 1):
     return np.trace(A, axis1=-2, axis2=-1) ** 2 / (A * A).sum((-1, -2))
 
 
-def bell_mccaffrey(num, den, *, level, scale="ratio", hc="hc2", df_rule="bm"):
+def bell_mccaffrey(num, den, *, level, scale="ratio", hc="hc2", df_rule="bm", df_scale=1.0):
     """:func:`linearised` with the hc2 (or hc3) variance and a t quantile of :func:`bm_df` degrees of
     freedom (``df_rule = "bm"``), or of the smaller of that and the effective number of frames of the
     variance terms, (Σ v_i)² / Σ v_i² with v_i = c_i z_i² (``"min"``: few frames holding most of the
-    variance give few degrees of freedom)."""
+    variance give few degrees of freedom; ``"min1"``: that effective number times (m − 1) / m, m the
+    frames that define the ratio, so that equal frames give m − 1 as Bell–McCaffrey does);
+    ``df_scale`` multiplies the result."""
     from scipy import stats
 
     n = num.shape[-1]
@@ -228,11 +230,15 @@ def bell_mccaffrey(num, den, *, level, scale="ratio", hc="hc2", df_rule="bm"):
         w = np.where(z == 0, 0.0, 1.0 / (1.0 - h) ** (2 if hc == "hc3" else 1))
         se = np.sqrt((w * z * z).sum(-1)) / sd
     df = bm_df(den, 2 if hc == "hc3" else 1)
-    if df_rule == "min":
+    if df_rule in ("min", "min1"):
         v = w * z * z
         with np.errstate(divide="ignore", invalid="ignore"):
             emp = v.sum(-1) ** 2 / (v * v).sum(-1)
+            if df_rule == "min1":
+                m = (den > 0).sum(-1)
+                emp = emp * (m - 1) / m
         df = np.where(np.isfinite(emp), np.fmin(df, emp), df)
+    df = df * df_scale
     q = np.where(np.isnan(df), np.nan, stats.t.ppf((1 + level) / 2, np.where(np.isnan(df), 1, df)))
     del n
     if scale == "logit":
@@ -400,6 +406,10 @@ def candidates(level: float) -> dict:
         for scale in ("ratio", "logit"):
             out[f"BM {hc} {scale}"] = partial(bell_mccaffrey, level=level, hc=hc, scale=scale)
             out[f"BM-min {hc} {scale}"] = partial(bell_mccaffrey, level=level, hc=hc, scale=scale, df_rule="min")
+    out["BM-min1 hc3 logit"] = partial(bell_mccaffrey, level=level, hc="hc3", scale="logit", df_rule="min1")
+    for f in (0.75, 0.5):
+        out[f"BM-min hc3 logit df×{f}"] = partial(bell_mccaffrey, level=level, hc="hc3", scale="logit",
+                                                 df_rule="min", df_scale=f)
     out["linearised hc1 ratio z"] = partial(linearised, level=level, hc="hc1", scale="ratio", quantile="z")
     return out
 
@@ -578,6 +588,33 @@ def markdown(rows, args, work: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+# ------------------------------------------------------------------------------ 4. a parametric model
+def fit_model(t: np.ndarray, f: np.ndarray, fn: np.ndarray) -> dict[str, float]:
+    """A small parametric model of one filter's per-frame counts (the test suite's population):
+    true outlier pixels L = TP + FN lognormal; recall per frame Beta (moments); FP zero with
+    probability ``p0``, else lognormal with the median and the 90th percentile of the non-zero FP
+    (the upper tail, which moves a pooled ratio, matched rather than the mean of log FP)."""
+    L = (t + fn).astype(np.float64)
+    rec = t / np.maximum(L, 1)
+    m, v = rec.mean(), rec.var()
+    k = max(m * (1 - m) / max(v, 1e-12) - 1, 1e-3)
+    nz = f[f > 0].astype(np.float64)
+    return {"L_mu": float(np.log(L).mean()), "L_sigma": float(np.log(L).std()), "recall_a": float(m * k),
+            "recall_b": float((1 - m) * k), "fp_p0": float(np.mean(f == 0)),
+            "fp_mu": float(np.log(np.median(nz))),
+            "fp_sigma": float((np.log(np.percentile(nz, 90)) - np.log(np.median(nz))) / 1.2815515655446004)}
+
+
+def fit(args) -> int:
+    work = Path(args.work)
+    for kind in args.kinds.split(","):
+        pop = load_counts(work, kind, args.set, args.size)
+        for m in METHODS:
+            p = fit_model(*pop[m])
+            print(f'("{kind}", "{m}"): ' + "{" + ", ".join(f'"{k}": {v:.3g}' for k, v in p.items()) + "},")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -599,8 +636,13 @@ def main() -> int:
     s.add_argument("--candidates", default="", help="names separated by ; (default: every one)")
     s.add_argument("--markdown", help="write the Markdown tables here (docs/coverage.md)")
     s.add_argument("--work", default="/tmp/zcut_interval_coverage")
+    f = sub.add_parser("fit", help="print the parametric model of each population (the tests' populations)")
+    f.add_argument("--kinds", default="zinc_nuts,black_nuts")
+    f.add_argument("--set", default="tune")
+    f.add_argument("--size", default="1920x1200")
+    f.add_argument("--work", default="/tmp/zcut_interval_coverage")
     args = ap.parse_args()
-    return {"generate": generate, "simulate": simulate}[args.cmd](args)
+    return {"generate": generate, "simulate": simulate, "fit": fit}[args.cmd](args)
 
 
 if __name__ == "__main__":

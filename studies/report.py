@@ -12,7 +12,7 @@ sets, no defined value):
   z-cut line per value of the other parameter, SOR at its chosen k and std_ratio for reference), and
   the paper's N1 (SOR only), N2 (z-cut only), N_both whose ratios are θ and ω (SPEC §3).
 - ``accuracy_zcut.png``, ``accuracy_sor.png`` — what the paper could not plot: precision, recall
-  and F1 (SPEC §4) against each parameter with their 95 % bootstrap bands, the other parameters held
+  and F1 (SPEC §4) against each parameter with their 95 % interval bands, the other parameters held
   at the chosen point (the config's own), the paper's §5.4 range shaded.
 - ``f1_map.png`` — F1 over every (d_max, ρ_thr) pair at the chosen Δd, chosen and tuned marked.
 - ``precision_recall.png`` — every set on the precision–recall plane, the paper's nominal point, the
@@ -424,8 +424,8 @@ def _accuracy_plot(sw: _Sweep, method: str) -> Plot | None:
     held = ", ".join(f"{_SHORT[k]} = {_fmt_param(sw.chosen.get(k), k)}" for k in sw.params(method))
     caption = (f"True accuracy of the {who} (SPEC §4, pixels of the {sw.summary.get('region', 'zone')} region, pooled "
                f"over the frames) against each parameter with the others at the chosen point ({held}; dotted line). "
-               "Bands: 95 % bootstrap intervals over frames. A gap means undefined (nothing flagged, or no true "
-               "outlier).")
+               "Bands: 95 % intervals over frames (docs/accuracy.md, Uncertainty). A gap means undefined (nothing "
+               "flagged, or no true outlier) or too few frames for an interval.")
     name = "accuracy_zcut.png" if method == "zcut" else "accuracy_sor.png"
     return _plot(name, f"Precision, recall and F1 of the {who} vs its parameters", caption, fig)
 
@@ -889,7 +889,7 @@ def _best_table(sw: _Sweep) -> str:
     return (f"<p>The {TOP_N} best of {len(sets)} sets ({len(sets) - n_sor} z-cut, {n_sor} SOR) by the objective "
             f"<code>{_e(summ.get('objective') or 'f1')}</code>, the best SOR sets, and the marked sets wherever they "
             "rank. TP, FP, FN: pixels of the scored region; flagged: every pixel the filter flagged. "
-            "Intervals: 95 % bootstrap over frames. §5.4: inside the paper's suggested ranges (the tuned z-cut set "
+            "Intervals: 95 % over frames, coverage measured (docs/accuracy.md, Uncertainty). §5.4: inside the paper's suggested ranges (the tuned z-cut set "
             "is chosen among those).</p>"
             f"<div class=scroll><table class=sets><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table></div>")
 

@@ -20,7 +20,7 @@ import math
 from dataclasses import dataclass, fields
 
 import numpy as np
-from scipy import ndimage, stats
+from scipy import ndimage, special, stats
 
 from .cloud import check_mask
 from .errors import InputShapeError, ParameterError, describe_array
@@ -823,13 +823,9 @@ def _logit_t_rows(num: np.ndarray, den: np.ndarray, level: float) -> tuple[np.nd
         q = stats.t.ppf(0.5 + 0.5 * level, df[ok])
         g = np.log(ro) - np.log1p(-ro)
         sg = so / (ro * (1.0 - ro))
-        lo[ok] = _expit(g - q * sg)
-        hi[ok] = _expit(g + q * sg)
+        lo[ok] = special.expit(g - q * sg)
+        hi[ok] = special.expit(g + q * sg)
     return lo, hi
-
-
-def _expit(x: np.ndarray) -> np.ndarray:
-    return 0.5 * (1.0 + np.tanh(0.5 * x))
 
 
 def pooled_interval_many(
@@ -869,8 +865,8 @@ def pooled_interval_many(
     Returns
     -------
     dict of str to (..., 2) float64 ndarray
-        Keys :data:`INTERVAL_STATS`; ``[..., 0]`` = lo, ``[..., 1]`` = hi, 0 < lo <= R <= hi < 1;
-        NaN where there is no interval.
+        Keys :data:`INTERVAL_STATS`; ``[..., 0]`` = lo, ``[..., 1]`` = hi, 0 <= lo <= R <= hi <= 1
+        (inside (0, 1) but for rounding); NaN where there is no interval.
 
     Raises
     ------
