@@ -422,7 +422,7 @@ def draw_indices(n_pop: int, n: int, draws: int, rng, replace: bool) -> np.ndarr
 
 
 #: The interval zcut computes (zcut.metrics.pooled_interval_many, with its no-interval rule).
-CHOSEN = "zcut: logit t, hc3, min(BM, effective) df"
+CHOSEN = "zcut: logit t, hc3, df min(BM, effective frames)"
 BASELINE = "percentile bootstrap"
 
 

@@ -811,10 +811,12 @@ def _logit_t_rows(num: np.ndarray, den: np.ndarray, level: float) -> tuple[np.nd
            - (h * h * (s[:, None] - 2.0 * hc) ** 2).sum(axis=-1))
     ok_bm = tr2 > 0
     df = np.where(ok_bm, tr * tr / np.where(ok_bm, tr2, 1.0), np.nan)
-    # ... and no more than the frames that hold the variance: (Σ v)² / Σ v²
-    vv = (v * v).sum(axis=-1)
-    df = np.where(vv > 0, np.fmin(df, var_sum * var_sum / np.where(vv > 0, vv, 1.0)), df)
+    # ... and no more than the frames that hold the variance: (Σ v)² / Σ v² · (m − 1) / m, m the frames
+    # that define the ratio (m − 1, as Bell–McCaffrey's, when every frame holds an equal share)
     n_defined = np.count_nonzero(den > 0, axis=-1)
+    vv = (v * v).sum(axis=-1)
+    held = var_sum * var_sum / np.where(vv > 0, vv, 1.0) * (n_defined - 1) / np.maximum(n_defined, 1)
+    df = np.where(vv > 0, np.fmin(df, held), df)
     ok = defined & ~lone & (n_defined >= INTERVAL_MIN_FRAMES) & (se > 0) & (r > 0) & (r < 1) & (df > 0)
     lo = np.full(n_rows, np.nan)
     hi = np.full(n_rows, np.nan)
@@ -843,9 +845,11 @@ def pooled_interval_many(
       leverage h_i = den_i / Σ den, the share of the denominator it holds);
     - built on the logit scale, logit(R) ± q · se / (R (1 − R)), and mapped back (inside (0, 1));
     - q the t quantile of df degrees of freedom: the smaller of Bell and McCaffrey's
-      (Satterthwaite's approximation for that variance under equal, independent frame errors: n − 1
-      for frames of equal weight, fewer when a few frames hold most of Σ den) and the number of
-      frames that hold the variance, (Σ v_i)² / Σ v_i² with v_i = c_i z_i².
+      (Satterthwaite's approximation for that variance under equal, independent frame errors: m − 1
+      for m frames of equal weight, fewer when a few frames hold most of Σ den) and the number of
+      frames that hold the variance, (Σ v_i)² / Σ v_i² · (m − 1) / m with v_i = c_i z_i² (fewer when
+      a few frames hold most of the variance; m − 1 when all hold an equal share), m the frames
+      that define the figure.
 
     No interval (NaN, NaN) when the figure is 0/0, when fewer than :data:`INTERVAL_MIN_FRAMES`
     frames define it (den_i > 0), or when every frame that defines it has the same value (e.g.

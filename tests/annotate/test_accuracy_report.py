@@ -160,7 +160,7 @@ def test_intervals_are_the_pooled_interval_over_frames():
             assert jsonable(got[k]) == jsonable([lo, hi]), (m, k)
             if not math.isnan(lo):
                 held += 1
-                assert 0 < lo <= four["pooled"][m][k] <= hi < 1
+                assert 0 <= lo <= four["pooled"][m][k] <= hi <= 1
     assert held >= 6  # most figures vary over the four frames and get an interval
     assert report_json(accuracy_report(_four_frames(), region="zone")) == report_json(four)  # no randomness
     table = format_accuracy_table(four)

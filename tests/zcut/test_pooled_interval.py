@@ -3,7 +3,9 @@
 A literal reference (one row at a time, the Bell–McCaffrey matrix written out), the laws (frame
 order, scaling every count, the level), the no-interval rule, bad input, and a small version of
 the coverage simulation of ``bench/interval_coverage.py``: parametric populations of per-frame
-counts fitted to the synthetic zinc-nut and black-nut populations, 400 samples of 6 frames each.
+counts fitted to the synthetic zinc-nut and black-nut populations, 1000 samples of 6 frames each.
+The lognormal FP tail of these models is heavier than the populations' own (the z-cut's precision on
+zinc nuts covers ~0.92 here, 0.95 on the population itself), so the bar is 0.9.
 """
 
 from __future__ import annotations
@@ -55,7 +57,8 @@ def _reference(tp, fp, fn, level=0.95) -> dict[str, tuple[float, float]]:
         M = np.eye(len(den)) - np.outer(u, u)
         A = M @ np.diag(h * c) @ M
         df = np.trace(A) ** 2 / (A * A).sum()
-        df = min(df, v.sum() ** 2 / (v * v).sum())
+        m = len(defined)
+        df = min(df, v.sum() ** 2 / (v * v).sum() * (m - 1) / m)
         q = stats.t.ppf(0.5 + level / 2, df)
         g = math.log(r / (1 - r))
         sg = se / (r * (1 - r))
@@ -201,6 +204,12 @@ MODELS = {
                            "fp_mu": 8.04, "fp_sigma": 1.03},
     ("zinc_nuts", "intersection"): {"L_mu": 8.2, "L_sigma": 0.156, "recall_a": 2.47, "recall_b": 21,
                                     "fp_p0": 0.225, "fp_mu": 1.61, "fp_sigma": 0.841},
+    ("black_nuts", "zcut"): {"L_mu": 5.54, "L_sigma": 0.339, "recall_a": 1.54, "recall_b": 4.2, "fp_p0": 0.163,
+                             "fp_mu": 2.77, "fp_sigma": 1.6},
+    ("black_nuts", "sor"): {"L_mu": 5.54, "L_sigma": 0.339, "recall_a": 3.96, "recall_b": 6.2, "fp_p0": 0,
+                            "fp_mu": 10.1, "fp_sigma": 0.211},
+    ("black_nuts", "intersection"): {"L_mu": 5.54, "L_sigma": 0.339, "recall_a": 2.17, "recall_b": 17.2,
+                                     "fp_p0": 0.169, "fp_mu": 1.79, "fp_sigma": 1.11},
 }
 
 def _population(p: dict, rng: np.random.Generator, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -214,7 +223,7 @@ def _population(p: dict, rng: np.random.Generator, size: int) -> tuple[np.ndarra
 def test_coverage_of_six_frames_on_fitted_populations(model) -> None:
     rng = np.random.default_rng(20)
     tp, fp, fn = _population(MODELS[model], rng, 4000)
-    idx = rng.integers(0, tp.size, (400, 6))  # 400 samples of 6 independent frames
+    idx = rng.integers(0, tp.size, (1000, 6))  # 1000 samples of 6 independent frames
     ours = pooled_interval_many(tp[idx], fp[idx], fn[idx])
     boot = bootstrap_ci_many(tp[idx], fp[idx], fn[idx], n_boot=1000)
     worst_boot = 1.0
