@@ -462,6 +462,36 @@ def coverage_rows(pop: dict, *, kind, ns, draws, seed, replace, level, which=Non
     return rows
 
 
+def rule_rows(pop: dict, *, kind, ns, draws, seed, replace, level):
+    """What the no-interval rule removes: per (method, statistic, n), the share of samples it withholds
+    and how often the same formula without the rule (:func:`bell_mccaffrey`, ``df_rule = "min1"``; a
+    zero-width interval where every frame has the same figure) would have held the population's figure
+    in those samples, and over all samples."""
+    from zcut.metrics import pooled_interval_many
+
+    out = []
+    rng = np.random.default_rng(seed + 1)
+    for n in ns:
+        for m in METHODS:
+            t, f, fn = pop[m]
+            idx = draw_indices(t.size, n, draws, rng, replace)
+            got = pooled_interval_many(t[idx], f[idx], fn[idx], level=level)
+            for stat in STATS:
+                pnum, pden = RATIOS[stat](*(a.astype(np.float64) for a in (t, f, fn)))
+                truth = pnum.sum() / pden.sum()
+                num, den = RATIOS[stat](*(a[idx].astype(np.float64) for a in (t, f, fn)))
+                lo, hi = bell_mccaffrey(num, den, level=level, scale="logit", hc="hc3", df_rule="min1")
+                defined = den.sum(-1) > 0
+                withheld = np.isnan(got[stat][:, 0]) & defined
+                held = (lo <= truth) & (truth <= hi)
+                ok = defined & ~np.isnan(lo)
+                out.append({"kind": kind, "method": m, "stat": stat, "n": n, "withheld": float(withheld.mean()),
+                            "withheld_coverage": float(held[withheld].mean()) if withheld.any() else math.nan,
+                            "coverage_without_rule": float(held[ok].mean()) if ok.any() else math.nan,
+                            "width_without_rule": float(np.mean(hi[ok] - lo[ok])) if ok.any() else math.nan})
+    return out
+
+
 def simulate(args) -> int:
     import json
 
@@ -474,8 +504,18 @@ def simulate(args) -> int:
                               replace=not args.without_replacement, level=0.95,
                               which=args.candidates.split(";") if args.candidates else None)
     summarise(rows)
+    rules = []
+    if not args.candidates:
+        for kind in args.kinds.split(","):
+            rules += rule_rows(load_counts(work, kind, args.set, args.size), kind=kind, ns=(2, *NS), draws=args.draws,
+                               seed=args.seed, replace=not args.without_replacement, level=0.95)
+        for r in rules:
+            if r["withheld"] > 0:
+                print(f"rule: {r['kind']} {r['method']} {r['stat']} n={r['n']}: withheld {r['withheld']:.3f}, "
+                      f"their coverage without the rule {r['withheld_coverage']:.3f}", file=sys.stderr)
     out = work / f"coverage_{args.set}{'_worep' if args.without_replacement else ''}.json"
-    out.write_text(json.dumps(rows))
+    out.write_text(json.dumps({"rows": rows, "rules": rules}))
+    args.rules = rules
     print(f"{len(rows)} cells, {time.process_time() - t0:.0f} CPU-s; rows in {out}", file=sys.stderr)
     if args.markdown:
         Path(args.markdown).write_text(markdown(rows, args, work))
@@ -573,6 +613,31 @@ def markdown(rows, args, work: Path) -> str:
         "",
         *summarise([r for r in rows]),
         "",
+    ]
+    rules = getattr(args, "rules", None) or []
+    if rules:
+        two = [r for r in rules if r["n"] == 2]
+        some = [r for r in rules if r["n"] > 2 and r["withheld"] > 0]
+        lines += [
+            "## The no-interval rule, measured",
+            "",
+            "Below 3 frames: the same formula without the rule, at n = 2, over the filters, figures and kinds: "
+            + (f"worst coverage {min(r['coverage_without_rule'] for r in two):.3f} "
+               f"({sum(r['coverage_without_rule'] < 0.93 for r in two)} of {len(two)} cells below 0.93), mean width "
+               f"{np.nanmean([r['width_without_rule'] for r in two]):.3f}" if two else "—")
+            + " — it fails or says nothing, so zcut prints none.",
+            "",
+            "At 3 frames and more the rule withholds an interval only where every frame that defines the figure "
+            "has the same value (e.g. no false positive in any of the frames: precision 1). There the formula "
+            "would print a zero-width interval; how often that would have held the population's figure:",
+            "",
+            "| kind | filter | figure | n | samples withheld | their coverage without the rule |",
+            "|---|---|---|---|---|---|",
+            *(f"| {r['kind']} | {r['method']} | {r['stat']} | {r['n']} | {r['withheld']:.3f} "
+              f"| {r['withheld_coverage']:.3f} |" for r in some),
+            "",
+        ]
+    lines += [
         f"## zcut's interval ({CHOSEN}) against the former percentile bootstrap, every cell",
         "",
         "| kind | filter | figure | n | population figure | coverage | no interval | mean width "
