@@ -30,8 +30,9 @@ def frames_table(store: PartStore) -> Any:
 
 
 def pooled(table: Any) -> dict[str, Scores]:
-    """Pooled accuracy per method over the scored frames (micro average) with bootstrap intervals."""
-    from zcut.metrics import bootstrap_ci
+    """Pooled accuracy per method over the scored frames (micro average) with 95 % intervals over
+    frames (:func:`zcut.metrics.pooled_interval`; None where too few frames)."""
+    from zcut.metrics import pooled_interval
 
     if not table.num_rows or "scored" not in table.column_names:
         return {}
@@ -46,7 +47,8 @@ def pooled(table: Any) -> dict[str, Scores]:
         fn = [r[f"{m}_fn"] for r in rows]
         T, F, N = sum(tp), sum(fp), sum(fn)
         out[m] = Scores(T, F, N, _ratio(T, T + F), _ratio(T, T + N), _ratio(2 * T, 2 * T + F + N),
-                        intervals(bootstrap_ci(np.asarray(tp), np.asarray(fp), np.asarray(fn))))
+                        intervals(pooled_interval(np.asarray(tp, dtype=np.int64), np.asarray(fp, dtype=np.int64),
+                                                  np.asarray(fn, dtype=np.int64))))
     return out
 
 

@@ -1,10 +1,17 @@
 """The parameter grid of a sweep (SPEC §6): LIST options and the grid they make.
 
-A LIST is ``a,b,c`` or ``start:stop:count`` (inclusive, evenly spaced). Axes not given take the
-resolved config's value. The z-cut axes are Δd (``--step``), d_max (``--max-depth``) and ρ_thr
-(``--rho``, μ_thr = ρ_thr · a_max); the SOR axes are k (``--sor-k``) and std_ratio (``--sor-std``).
-Around the config's own point (the "chosen point") the grid always holds 0.5× and 1.5× its d_max
-and ρ_thr, for the paper's sensitivity ratios ω and θ (SPEC §3).
+A LIST is ``a,b,c`` or ``start:stop:count`` (inclusive, evenly spaced). The z-cut axes are Δd
+(``--step``), d_max (``--max-depth``) and ρ_thr (``--rho``, μ_thr = ρ_thr · a_max); the SOR axes are k
+(``--sor-k``) and std_ratio (``--sor-std``). An axis not given holds the resolved config's value.
+
+*Study points* (on by default, off with ``study_points=False`` / ``zcut sweep --no-study-points``):
+the config's own d_max and ρ_thr (of the "chosen point", the config's own parameters) and 0.5× and
+1.5× each (ρ_thr ≤ 1) are added to those axes, for the paper's sensitivity ratios ω and θ (eqs. 6,
+7). Off, the grid is exactly the values given, and the config's value on the axes not given.
+
+Values are one value when they agree to :data:`REL_TOL` (relative): every value is first rounded to
+12 significant digits (``0.035 + 2 · 0.035`` and ``1.5 · 0.07`` both become 0.105), then values that
+still agree to the tolerance are merged, keeping the one given on the command line.
 """
 
 from __future__ import annotations
@@ -20,10 +27,33 @@ if TYPE_CHECKING:
 
 #: Grid points a sweep runs without --force.
 DEFAULT_MAX_POINTS = 5000
+#: Relative tolerance under which two values of an axis are one value (as ``studies.sweep`` finds sets).
+REL_TOL = 1e-9
+
+
+def _tidy(v: float) -> float:
+    """``v`` rounded to 12 significant digits (removes the last-bit noise of ``start + step · i``)."""
+    return float(f"{v:.12g}")
+
+
+def merge_values(*groups) -> tuple[float, ...]:
+    """The values of ``groups`` (iterables, first group first), sorted, each kept once: a value within
+    :data:`REL_TOL` (relative) of one kept before it is dropped, so an earlier group's spelling wins.
+
+    >>> merge_values([0.105], [0.035, 0.10500000000000001])
+    (0.035, 0.105)
+    """
+    kept: list[float] = []
+    for group in groups:
+        for v in group:
+            if not any(abs(v - k) <= REL_TOL * max(1.0, abs(v), abs(k)) for k in kept):
+                kept.append(v)
+    return tuple(sorted(kept))
 
 
 def parse_list(text: str | None, *, name: str, integer: bool = False) -> tuple[float, ...] | None:
-    """``a,b,c`` or ``start:stop:count`` -> sorted unique values; None when not given."""
+    """``a,b,c`` or ``start:stop:count`` -> sorted values, each once (:func:`merge_values`, after rounding
+    to 12 significant digits); None when not given."""
     if text is None:
         return None
     t = text.strip()
@@ -56,11 +86,11 @@ def parse_list(text: str | None, *, name: str, integer: bool = False) -> tuple[f
     if integer:
         if any(v != int(v) for v in values):
             raise ConfigError(f"{name} must be integers, got {text!r}")
-        values = [int(v) for v in values]
+        return tuple(sorted({int(v) for v in values}))
     for v in values:
         if not math.isfinite(v):
             raise ConfigError(f"{name}: {v!r} is not a finite number")
-    return tuple(sorted(set(values)))
+    return merge_values(_tidy(v) for v in values)
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,6 +106,8 @@ class Grid:
     sor_stds : tuple of float
     chosen : (step, depth, rho, k, std)
         The config's own point (rho None when a_max is unknown: μ_thr is then the config's own).
+    study_points : bool
+        Whether the chosen point and 0.5×, 1.5× its d_max and ρ_thr were added.
     """
 
     steps: tuple[float, ...]
@@ -84,6 +116,7 @@ class Grid:
     sor_ks: tuple[int, ...]
     sor_stds: tuple[float, ...]
     chosen: tuple[float, float, float | None, int, float]
+    study_points: bool = True
 
     @property
     def n_zcut(self) -> int:
@@ -96,13 +129,16 @@ class Grid:
     def as_dict(self) -> dict[str, Any]:
         return {"step_mm": list(self.steps), "max_depth_mm": list(self.depths), "rho_thr": list(self.rhos),
                 "sor_k": list(self.sor_ks), "sor_std_ratio": list(self.sor_stds),
-                "chosen": dict(zip(("step_mm", "max_depth_mm", "rho_thr", "sor_k", "sor_std_ratio"), self.chosen))}
+                "chosen": dict(zip(("step_mm", "max_depth_mm", "rho_thr", "sor_k", "sor_std_ratio"), self.chosen)),
+                "study_points": self.study_points}
 
 
 def make_grid(*, steps: tuple[float, ...] | None, depths: tuple[float, ...] | None, rhos: tuple[float, ...] | None,
               sor_ks: tuple[float, ...] | None, sor_stds: tuple[float, ...] | None, config: PipelineConfig,
-              max_points: int = DEFAULT_MAX_POINTS, force: bool = False) -> Grid:
-    """Check the axes against the stage types' rules and add the chosen point and its neighbours.
+              max_points: int = DEFAULT_MAX_POINTS, force: bool = False, study_points: bool = True) -> Grid:
+    """Check the axes against the stage types' rules; with ``study_points``, add the chosen point and
+    0.5×, 1.5× its d_max and ρ_thr (see the module docstring). The values given win over an added
+    value they equal to :data:`REL_TOL`.
 
     Raises
     ------
@@ -115,12 +151,11 @@ def make_grid(*, steps: tuple[float, ...] | None, depths: tuple[float, ...] | No
         raise ConfigError("--rho needs a_max (the part's face in pixels): give part = KIND, --part or zcut.a_max_px")
     rho0 = z.rho_thr if z.rho_thr is not None else None
     chosen = (z.step, z.max_depth, rho0, config.sor.k, config.sor.std_ratio)
+    d0 = z.max_depth
     steps = steps or (z.step,)
-    depths = tuple(sorted(set(depths or (z.max_depth,)) | ({0.5 * z.max_depth, z.max_depth, 1.5 * z.max_depth})))
-    if rho0 is None:
-        rhos = ()
-    else:
-        rhos = tuple(sorted(set(rhos or (rho0,)) | {r for r in (0.5 * rho0, rho0, 1.5 * rho0) if r <= 1}))
+    around = (lambda v: [_tidy(f * v) for f in (1.0, 0.5, 1.5)]) if study_points else (lambda v: [])
+    depths = merge_values(depths or (d0,), around(d0))
+    rhos = () if rho0 is None else merge_values(rhos or (rho0,), [r for r in around(rho0) if r <= 1])
     sor_ks = sor_ks or (config.sor.k,)
     sor_stds = sor_stds or (config.sor.std_ratio,)
     for v in steps:
@@ -138,7 +173,7 @@ def make_grid(*, steps: tuple[float, ...] | None, depths: tuple[float, ...] | No
     for v in sor_stds:
         if not v > 0:
             raise ConfigError(f"--sor-std values must be > 0, got {v:g}")
-    grid = Grid(tuple(steps), depths, rhos, tuple(int(k) for k in sor_ks), tuple(sor_stds), chosen)
+    grid = Grid(tuple(steps), depths, rhos, tuple(int(k) for k in sor_ks), tuple(sor_stds), chosen, study_points)
     n = grid.n_zcut + grid.n_sor(per_depth=config.sor.region == "top")
     if n > max_points and not force:
         raise ConfigError(f"the grid has {n} parameter sets (more than {max_points}): narrow it, or use --force")

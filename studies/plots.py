@@ -8,7 +8,7 @@ left out when the grid cannot draw it (one value on its axis, no SOR sets, no de
   z-cut line per value of the other parameter, SOR at its chosen k and std_ratio for reference), and
   the paper's N1 (SOR only), N2 (z-cut only), N_both whose ratios are θ and ω (``docs/accuracy.md``).
 - ``accuracy_zcut.png``, ``accuracy_sor.png`` — what the paper could not plot: precision, recall
-  and F1 against each parameter with their 95 % bootstrap bands, the other parameters held at the
+  and F1 against each parameter with their 95 % interval bands, the other parameters held at the
   chosen point (the config's own), the paper's §5.4 range shaded.
 - ``f1_map.png`` — F1 over every (d_max, ρ_thr) pair at the chosen Δd, chosen and tuned marked.
 - ``precision_recall.png`` — every set on the precision–recall plane, the paper's nominal point, the
@@ -302,8 +302,8 @@ def _accuracy_plot(sw: SetGrid, method: str) -> Plot | None:
     held = ", ".join(f"{SHORT[k]} = {param_text(sw.chosen.get(k), k)}" for k in sw.params(method))
     caption = (f"True accuracy of the {who} (SPEC §4, pixels of the {sw.summary.region} region, pooled "
                f"over the frames) against each parameter with the others at the chosen point ({held}; dotted line). "
-               "Bands: 95 % bootstrap intervals over frames. A gap means undefined (nothing flagged, or no true "
-               "outlier).")
+               "Bands: 95 % intervals over frames (docs/accuracy.md, Uncertainty). A gap means undefined (nothing "
+               "flagged, or no true outlier) or too few frames for an interval.")
     name = "accuracy_zcut.png" if method == "zcut" else "accuracy_sor.png"
     return _plot(name, f"Precision, recall and F1 of the {who} vs its parameters", caption, fig)
 

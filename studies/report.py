@@ -118,7 +118,7 @@ def _swept(g: SetGrid) -> dict[str, Any]:
             "seconds": round(float(s.seconds), 1) if s.seconds is not None else None,
             "a_max": f"{g.a_max:.1f}" if g.a_max is not None else None,
             "logs": [{"log": lg.log, "sha256": str(lg.sha256 or "")[:12], "status": lg.error or "ok"} for lg in s.logs],
-            "axes": axes}
+            "axes": axes, "study_points": bool(grid.get("study_points", True))}
 
 
 def _objective(s: SweepSummary) -> tuple[str, float | None]:

@@ -45,7 +45,7 @@ def _number(v: Any) -> Any:
 
 
 def intervals(ci: Mapping[str, Sequence[Any]] | None) -> dict[str, Interval]:
-    """``{figure: (lo, hi)}`` with undefined bounds as None (from a bootstrap or from JSON)."""
+    """``{figure: (lo, hi)}`` with undefined bounds as None (from an interval or from JSON)."""
     out: dict[str, Interval] = {}
     for k, v in (ci or {}).items():
         lo, hi = (tuple(v) + (None, None))[:2] if v is not None else (None, None)
@@ -101,7 +101,7 @@ class ParamSet:
         Pixels of the scored region; ``n_pred``: every pixel flagged.
     precision, recall, f1 : float or None
     ci95 : dict of str to (lo, hi)
-        95 % bootstrap intervals over frames of :data:`METRICS`.
+        95 % intervals over frames (docs/accuracy.md, Uncertainty) of :data:`METRICS`.
     overlap : Overlap or None
         Z-cut sets only.
     """
@@ -401,7 +401,8 @@ def _grid(d: Any) -> Grid | None:
     chosen = _dict(d.get("chosen"))
     axes = [tuple(d.get(k) or ()) for k in _GRID_AXES]
     return Grid(axes[0], axes[1], axes[2], axes[3], axes[4],
-                tuple(chosen.get(k) for k in _GRID_AXES))  # type: ignore[arg-type]
+                tuple(chosen.get(k) for k in _GRID_AXES),  # type: ignore[arg-type]
+                study_points=bool(d.get("study_points", True)))
 
 
 # ------------------------------------------------------------------------------------ a batch's summary

@@ -173,10 +173,11 @@ def _set_key(cols: dict[str, list[Any]], i: int) -> tuple[Any, ...]:
 
 
 def pooled_sets(table: Any) -> list[ParamSet]:
-    """Per parameter set and method: pooled counts, precision/recall/F1 with 95 % intervals (a
-    bootstrap over frames, the same resamples for every set), and for the z-cut the relative figures
-    N_both, N1, N2, α, β (SPEC §3); sorted by method and parameters."""
-    from zcut.metrics import bootstrap_ci_many, ratio
+    """Per parameter set and method: pooled counts, precision/recall/F1 with 95 % intervals over frames
+    (:func:`zcut.metrics.pooled_interval_many`; None where too few frames, the same rule for every
+    set), and for the z-cut the relative figures N_both, N1, N2, α, β (SPEC §3); sorted by method and
+    parameters."""
+    from zcut.metrics import pooled_interval_many, ratio
 
     cols = table.to_pydict()
     n = table.num_rows
@@ -190,7 +191,7 @@ def pooled_sets(table: Any) -> list[ParamSet]:
     for n_frames, items in by_frames.items():
         arr = {c: np.array([[cols[c][i] for i in idx] for _, idx in items], dtype=np.int64)
                for c in ("tp", "fp", "fn")}
-        cis = bootstrap_ci_many(arr["tp"], arr["fp"], arr["fn"])
+        cis = pooled_interval_many(arr["tp"], arr["fp"], arr["fn"])
         for j, (key, idx) in enumerate(items):
             T, F, N = (int(arr[c][j].sum()) for c in ("tp", "fp", "fn"))
             overlap = None

@@ -3,9 +3,12 @@
 True accuracy: :func:`scored_truth` checks one frame's truth (L ⊆ R ⊆ valid, the scored region,
 the kind image) once and labels its components; :meth:`ScoredTruth.counts` scores a predicted
 mask against it (pixels, clusters of >= 2 pixels, singletons, kinds) as :class:`AccuracyCounts`,
-which add up over frames (micro average). :func:`bootstrap_ci` / :func:`bootstrap_ci_many` give
-the 95 % percentile-bootstrap intervals over frames of the pooled precision, recall and F1 from
-per-frame counts (vectorised: one matrix product per batch of methods or parameter sets).
+which add up over frames (micro average). :func:`pooled_interval` / :func:`pooled_interval_many`
+give the 95 % intervals over frames of the pooled precision, recall and F1 from per-frame counts —
+a t interval on the logit scale whose coverage was measured by simulation (``docs/accuracy.md``,
+"Uncertainty"; ``docs/coverage.md``), NaN where too few frames make any interval meaningless.
+:func:`bootstrap_ci` / :func:`bootstrap_ci_many` are the former percentile bootstrap (it covers
+0.6–0.8 at 3 frames), kept as the baseline of ``bench/interval_coverage.py``.
 
 All functions are pure. Ratios follow one rule: x / 0 is +inf for x > 0 (-inf for x < 0) and NaN
 for 0 / 0 (JSON writers turn both into ``null``).
@@ -17,7 +20,7 @@ import math
 from dataclasses import dataclass, fields
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, special, stats
 
 from .cloud import check_mask
 from .errors import InputShapeError, ParameterError, describe_array
@@ -26,6 +29,8 @@ from .types import Mask
 __all__ = [
     "ACCURACY_KEYS",
     "BOOTSTRAP_STATS",
+    "INTERVAL_MIN_FRAMES",
+    "INTERVAL_STATS",
     "AccuracyCounts",
     "KindCounts",
     "RelativeMetrics",
@@ -37,6 +42,8 @@ __all__ = [
     "bootstrap_weights",
     "cohen_kappa",
     "mask_iou",
+    "pooled_interval",
+    "pooled_interval_many",
     "ratio",
     "relative_metrics",
     "scored_truth",
@@ -755,6 +762,170 @@ def bootstrap_ci(
         if arr.ndim != 1:
             raise InputShapeError(f"{name} must be a 1-D array of per-frame counts, got {describe_array(arr)}")
     got = bootstrap_ci_many(tp, fp, fn, n_boot=n_boot, seed=seed, level=level)
+    return {k: (float(v[0]), float(v[1])) for k, v in got.items()}
+
+
+# ------------------------------------------------------------------------------------------------
+# intervals over frames whose coverage is measured (docs/accuracy.md, "Uncertainty")
+# ------------------------------------------------------------------------------------------------
+#: The pooled figures that carry an interval, in report order.
+INTERVAL_STATS: tuple[str, ...] = BOOTSTRAP_STATS
+#: The fewest frames that must define a figure (a non-zero denominator) for it to get an interval.
+INTERVAL_MIN_FRAMES = 3
+
+
+def _figure_parts(key: str, t: np.ndarray, f_p: np.ndarray, f_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame numerator and denominator of a pooled figure: precision TP / (TP + FP), recall
+    TP / (TP + FN), F1 2TP / (2TP + FP + FN)."""
+    if key == "precision":
+        return t, t + f_p
+    if key == "recall":
+        return t, t + f_n
+    return 2.0 * t, 2.0 * t + f_p + f_n
+
+
+def _logit_t_rows(num: np.ndarray, den: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
+    """The interval of :func:`pooled_interval_many` for each row of ``num / den`` ((rows, n) float64)."""
+    n_rows = num.shape[0]
+    sd = den.sum(axis=-1)
+    sn = num.sum(axis=-1)
+    defined = sd > 0
+    safe_sd = np.where(defined, sd, 1.0)
+    r = np.where(defined, sn / safe_sd, np.nan)
+    h = den / safe_sd[:, None]  # each frame's leverage; 0 for frames that do not define the ratio
+    z = num - np.where(defined, r, 0.0)[:, None] * den  # residuals of the linearised ratio; Σ z = 0
+    lone = (h >= 1.0).any(axis=-1)  # one frame holds the whole denominator
+    one_minus = np.where(h < 1.0, 1.0 - h, 1.0)
+    c = 1.0 / (one_minus * one_minus)  # hc3 weights
+    v = c * z * z
+    var_sum = v.sum(axis=-1)
+    se = np.sqrt(var_sum) / safe_sd
+    # Bell–McCaffrey degrees of freedom of that variance: tr(A)² / tr(A²) for A = M diag(h c) M,
+    # M = I − √h √h'; both traces are sums over frames (bench/interval_coverage.py checks them
+    # against the matrix)
+    hc = h * c  # the diagonal of C
+    s = (h * hc).sum(axis=-1)
+    tr = hc.sum(axis=-1) - s
+    diag = hc + h * (s[:, None] - 2.0 * hc)
+    tr2 = ((diag * diag).sum(axis=-1) + 2.0 * (h * hc * hc).sum(axis=-1) - s * s
+           - (h * h * (s[:, None] - 2.0 * hc) ** 2).sum(axis=-1))
+    ok_bm = tr2 > 0
+    df = np.where(ok_bm, tr * tr / np.where(ok_bm, tr2, 1.0), np.nan)
+    # ... and no more than the frames that hold the variance: (Σ v)² / Σ v² · (m − 1) / m, m the frames
+    # that define the ratio (m − 1, as Bell–McCaffrey's, when every frame holds an equal share)
+    n_defined = np.count_nonzero(den > 0, axis=-1)
+    vv = (v * v).sum(axis=-1)
+    held = var_sum * var_sum / np.where(vv > 0, vv, 1.0) * (n_defined - 1) / np.maximum(n_defined, 1)
+    df = np.where(vv > 0, np.fmin(df, held), df)
+    ok = defined & ~lone & (n_defined >= INTERVAL_MIN_FRAMES) & (se > 0) & (r > 0) & (r < 1) & (df > 0)
+    lo = np.full(n_rows, np.nan)
+    hi = np.full(n_rows, np.nan)
+    if ok.any():
+        ro, so = r[ok], se[ok]
+        q = stats.t.ppf(0.5 + 0.5 * level, df[ok])
+        g = np.log(ro) - np.log1p(-ro)
+        sg = so / (ro * (1.0 - ro))
+        lo[ok] = special.expit(g - q * sg)
+        hi[ok] = special.expit(g + q * sg)
+    return lo, hi
+
+
+def pooled_interval_many(
+    tp: np.ndarray, fp: np.ndarray, fn: np.ndarray, *, level: float = 0.95
+) -> dict[str, np.ndarray]:
+    """Intervals over frames of the pooled precision, recall and F1, for a batch; coverage measured.
+
+    A pooled figure is a ratio of summed counts R = Σ num_i / Σ den_i over the frames (precision:
+    num = TP, den = TP + FP; recall: TP, TP + FN; F1: 2TP, 2TP + FP + FN). The frames are a sample
+    of a population of frames (one part kind, camera and config); the interval is for the figure
+    pooled over that population:
+
+    - the ratio linearised over frames: residuals z_i = num_i − R·den_i, variance
+      Σ c_i z_i² / (Σ den)² with c_i = 1 / (1 − h_i)² (hc3: a frame's weight grows with its
+      leverage h_i = den_i / Σ den, the share of the denominator it holds);
+    - built on the logit scale, logit(R) ± q · se / (R (1 − R)), and mapped back (inside (0, 1));
+    - q the t quantile of df degrees of freedom: the smaller of Bell and McCaffrey's
+      (Satterthwaite's approximation for that variance under equal, independent frame errors: m − 1
+      for m frames of equal weight, fewer when a few frames hold most of Σ den) and the number of
+      frames that hold the variance, (Σ v_i)² / Σ v_i² · (m − 1) / m with v_i = c_i z_i² (fewer when
+      a few frames hold most of the variance; m − 1 when all hold an equal share), m the frames
+      that define the figure.
+
+    No interval (NaN, NaN) when the figure is 0/0, when fewer than :data:`INTERVAL_MIN_FRAMES`
+    frames define it (den_i > 0), or when every frame that defines it has the same value (e.g.
+    precision 1 in every frame): the caller says "too few frames". Measured coverage of the 95 %
+    interval by simulation over independent synthetic frames (``bench/interval_coverage.py``,
+    held-out seeds): ``docs/coverage.md``. No randomness: the same input gives the same interval,
+    and a row of a batch the same interval as alone.
+
+    Parameters
+    ----------
+    tp, fp, fn : (..., n_frames) int ndarray
+        Per-frame TP, FP, FN counts, frames on the last axis, the same shape each; the leading
+        axes are a batch (methods, parameter sets...).
+    level : float
+        Confidence level, in (0, 1).
+
+    Returns
+    -------
+    dict of str to (..., 2) float64 ndarray
+        Keys :data:`INTERVAL_STATS`; ``[..., 0]`` = lo, ``[..., 1]`` = hi, 0 <= lo <= R <= hi <= 1
+        (inside (0, 1) but for rounding); NaN where there is no interval.
+
+    Raises
+    ------
+    InputShapeError
+        Counts not integer arrays of one shape with a frame axis.
+    ParameterError
+        Negative counts; ``level`` outside (0, 1).
+    """
+    t = _frame_counts(tp, "tp", None)
+    f_p = _frame_counts(fp, "fp", t.shape)
+    f_n = _frame_counts(fn, "fn", t.shape)
+    lvl = float(level) if isinstance(level, (int, float, np.floating)) and not isinstance(level, bool) else math.nan
+    if not 0.0 < lvl < 1.0:
+        raise ParameterError(f"level must be a number in (0, 1), got {level!r}")
+    batch, n = t.shape[:-1], t.shape[-1]
+    out = {k: np.full((*batch, 2), np.nan) for k in INTERVAL_STATS}
+    if n == 0:
+        return out
+    rows = int(np.prod(batch, dtype=np.int64))
+    T, F, N = (a.reshape(rows, n).astype(np.float64) for a in (t, f_p, f_n))
+    flat = {k: v.reshape(rows, 2) for k, v in out.items()}
+    step = max(1, _CHUNK_ELEMENTS // (8 * n))
+    for start in range(0, rows, step):
+        sl = slice(start, start + step)
+        for key in INTERVAL_STATS:
+            num, den = _figure_parts(key, T[sl], F[sl], N[sl])
+            lo, hi = _logit_t_rows(num, den, lvl)
+            flat[key][sl, 0] = lo
+            flat[key][sl, 1] = hi
+    return out
+
+
+def pooled_interval(
+    tp: np.ndarray, fp: np.ndarray, fn: np.ndarray, *, level: float = 0.95
+) -> dict[str, tuple[float, float]]:
+    """The interval of :func:`pooled_interval_many` for one set of per-frame counts; read its notes.
+
+    Parameters
+    ----------
+    tp, fp, fn : (n_frames,) int ndarray
+        Per-frame TP, FP, FN counts.
+    level : float
+        Confidence level, in (0, 1).
+
+    Returns
+    -------
+    dict of str to (float, float)
+        ``{"precision": (lo, hi), "recall": (lo, hi), "f1": (lo, hi)}``; (NaN, NaN) where there is
+        no interval (too few frames, or no variation between them).
+    """
+    for name, a in (("tp", tp), ("fp", fp), ("fn", fn)):
+        arr = np.asarray(a)
+        if arr.ndim != 1:
+            raise InputShapeError(f"{name} must be a 1-D array of per-frame counts, got {describe_array(arr)}")
+    got = pooled_interval_many(tp, fp, fn, level=level)
     return {k: (float(v[0]), float(v[1])) for k, v in got.items()}
 
 

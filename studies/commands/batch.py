@@ -126,7 +126,8 @@ def _print_table(summ: BatchSummary) -> None:
             cells = []
             for k in ("precision", "recall", "f1"):
                 v, ci = getattr(e, k), e.ci95[k]
-                cells.append("-" if v is None else f"{v:.3f} [{_f(ci[0])}, {_f(ci[1])}]")
+                cells.append("-" if v is None else f"{v:.3f} [{_f(ci[0])}, {_f(ci[1])}]" if _f(ci[0]) != "-"
+                             else f"{v:.3f} [too few frames]")
             print(f"  {m:13s} " + " ".join(f"{c:>22s}" for c in cells))
     r = summ.this_run
     if r.frames:

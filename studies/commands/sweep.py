@@ -30,12 +30,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="+", metavar="LOG_OR_RESULTS.mcap", help="logs (or folders of them) with "
                    "synthetic truth, logs labelled in --labels, or results files of `zcut replay --out`")
     p.add_argument("-o", "--out", required=True, metavar="DIR", help="output folder (created; rerun to continue)")
-    g = p.add_argument_group("the grid (LIST: a,b,c or start:stop:count; an axis not given keeps the config's value)")
+    g = p.add_argument_group(
+        "the grid", "LIST: a,b,c or start:stop:count (inclusive, evenly spaced); values that agree to 1e-9 "
+        "(relative, after rounding to 12 significant digits) are one value. An axis not given holds the "
+        "config's value. Study points: unless --no-study-points, the d_max and ρ_thr axes also hold the "
+        "config's own value and 0.5× and 1.5× it (ρ_thr ≤ 1), for the paper's sensitivity ratios ω and θ; so "
+        "these two axes have three values when not given.")
     g.add_argument("--step", metavar="LIST", help="z-cut Δd values, mm")
     g.add_argument("--max-depth", metavar="LIST", help="z-cut d_max values, mm")
     g.add_argument("--rho", metavar="LIST", help="z-cut ρ_thr values (μ_thr = ρ_thr·a_max)")
     g.add_argument("--sor-k", metavar="LIST", help="SOR k values")
     g.add_argument("--sor-std", metavar="LIST", help="SOR std_ratio values")
+    g.add_argument("--no-study-points", dest="study_points", action="store_false",
+                   help="the grid is exactly the values given (and the config's value on the axes not given): "
+                   "no 0.5×/1.5× points (θ, ω and the paper's findings need them)")
     g.add_argument("--max-points", type=int, default=DEFAULT_MAX_POINTS, metavar="N",
                    help=f"refuse grids larger than this without --force (default {DEFAULT_MAX_POINTS})")
     g.add_argument("--force", action="store_true", help="run a grid larger than --max-points")
@@ -136,7 +144,8 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
         first = next(p for p in plans if p.units)
         assert first.resolved is not None  # a log with units was resolved
         base = first.resolved.config
-        grid = make_grid(**axes, config=base, max_points=args.max_points, force=args.force)
+        grid = make_grid(**axes, config=base, max_points=args.max_points, force=args.force,
+                         study_points=args.study_points)
         options = study_options(args, overrides) | {"grid": grid.as_dict()}
         store = stack.enter_context(PartStore(args.out, identity("sweep", options, plans)))
         with_sor = base.sor.enabled and "sor" in base.base_methods
@@ -218,6 +227,8 @@ def _reproduce(args: argparse.Namespace) -> str:
         v = getattr(args, opt, None)
         if v is not None and not (opt == "objective" and v == "f1") and not (opt == "region" and v == "zone"):
             parts += ["--" + opt.replace("_", "-"), str(v)]
+    if not getattr(args, "study_points", True):
+        parts.append("--no-study-points")
     return " ".join(shlex.quote(str(p)) for p in parts)
 
 
@@ -278,7 +289,7 @@ def _print(summary: SweepSummary, tuned_path: Path | None) -> None:
         for k in ("precision", "recall", "f1"):
             v, (lo, hi) = e.figure(k), e.ci(k)
             cells.append("-" if v is None else f"{v:.3f} [{lo:.3f}, {hi:.3f}]" if lo is not None and hi is not None
-                         else f"{v:.3f}")
+                         else f"{v:.3f} [too few frames]")
         params = (f"Δd {e.step_mm:g} d_max {e.max_depth_mm:g} ρ {e.rho_thr:g}" if e.method == "zcut"
                   else f"k {e.sor_k} std {e.sor_std_ratio:g}")
         return f"  {name:10s} {params:32s} " + "  ".join(f"{c:>22s}" for c in cells)

@@ -14,8 +14,8 @@ import pytest
 
 from annotate.accuracy import (
     METHODS,
+    INTERVAL_NOTE,
     METRIC_KEYS,
-    N_BOOT,
     UnscoredFrame,
     accuracy_report,
     by_kind,
@@ -26,7 +26,7 @@ from annotate.accuracy import (
 )
 from replay.logs.layout import OUTLIER_KINDS
 from zcut.errors import InputShapeError, ParameterError
-from zcut.metrics import KindCounts, bootstrap_ci
+from zcut.metrics import KindCounts, pooled_interval
 
 CODE = {name: code for code, name in OUTLIER_KINDS.items()}
 SHAPE = (4, 6)
@@ -141,27 +141,45 @@ def test_no_by_kind_without_kind_truth():
     assert "recall by kind" not in format_accuracy_table(rep)
 
 
-def test_intervals_are_the_frame_bootstrap(report):
+def _four_frames():
+    """The two hand-counted frames and two more made of their parts (other counts per frame)."""
+    return [*_frames(),
+            frame_accuracy(2, 300, {"zcut": Z0, "sor": S1}, T1, region=R1, kinds=K1),
+            frame_accuracy(3, 400, {"zcut": Z1 | Z0, "sor": S0}, T0, region=R0, kinds=K0)]
+
+
+def test_intervals_are_the_pooled_interval_over_frames():
+    four = accuracy_report(_four_frames(), region="zone")
+    held = 0
     for m in METHODS:
-        tp, fp, fn = (np.array([PIXELS[i][m][j] for i in (0, 1)]) for j in range(3))
-        want = bootstrap_ci(tp, fp, fn, n_boot=N_BOOT, seed=0)
-        got = report["pooled"][m]["ci95"]
+        tp, fp, fn = (np.array([f[m][k] for f in four["frames"]]) for k in ("tp", "fp", "fn"))
+        want = pooled_interval(tp, fp, fn)
+        got = four["pooled"][m]["ci95"]
         assert list(got) == ["precision", "recall", "f1"]
         for k, (lo, hi) in want.items():
             assert jsonable(got[k]) == jsonable([lo, hi]), (m, k)
-    again = accuracy_report(_frames(), region="zone", unscored=[UnscoredFrame(2, 300, "no /ground_truth/outliers")])
-    assert report_json(again) == report_json(report)  # seeded: the same input, the same intervals
-    other = accuracy_report(_frames(), region="zone", seed=1)
-    assert other["pooled"]["zcut"]["tp"] == report["pooled"]["zcut"]["tp"]
+            if not math.isnan(lo):
+                held += 1
+                assert 0 <= lo <= four["pooled"][m][k] <= hi <= 1
+    assert held >= 6  # most figures vary over the four frames and get an interval
+    assert report_json(accuracy_report(_four_frames(), region="zone")) == report_json(four)  # no randomness
+    table = format_accuracy_table(four)
+    assert f"pooled over 4 frames ({INTERVAL_NOTE})" in table
+    lo, hi = four["pooled"]["zcut"]["ci95"]["recall"]
+    assert f"[{lo:.3f}, {hi:.3f}]" in [ln for ln in table.splitlines() if ln.startswith("zcut ")][-1]
 
 
-def test_one_frame_gives_degenerate_intervals_and_no_frame_none():
-    rep = accuracy_report(_frames()[:1], region="valid")
-    for m in METHODS:
-        p = rep["pooled"][m]
-        for k in ("precision", "recall", "f1"):
-            assert jsonable(p["ci95"][k]) == jsonable([p[k], p[k]])
-    assert "one frame: the intervals are degenerate" in format_accuracy_table(rep)
+def test_too_few_frames_give_no_interval():
+    for frames in (_frames()[:1], _frames()):
+        rep = accuracy_report(frames, region="valid")
+        for m in METHODS:
+            p = rep["pooled"][m]
+            for k in ("precision", "recall", "f1"):
+                assert jsonable(p["ci95"][k]) == [None, None]
+        table = format_accuracy_table(rep)
+        assert "no intervals: too few frames (an interval needs 3)" in table
+        pooled_zcut = [ln for ln in table.splitlines() if ln.startswith("zcut ")][-1]
+        assert pooled_zcut.count("[too few frames]") == 3, pooled_zcut
     empty = json.loads(report_json(accuracy_report([], region="zone")))
     assert empty["frames"] == [] and empty["pooled"]["zcut"]["ci95"]["recall"] == [None, None]
     assert empty["pooled"]["zcut"]["tp"] == 0 and "by_kind" not in empty["pooled"]["zcut"]
@@ -206,12 +224,10 @@ def test_table(report):
     table = format_accuracy_table(report)
     lines = table.splitlines()
     assert lines[0].startswith("region: zone (the pixels the filters judge")
-    assert "pooled over 2 frames (95 % percentile bootstrap intervals over the frames)" in table
-    z = report["pooled"]["zcut"]
-    lo, hi = z["ci95"]["precision"]
+    assert "pooled over 2 frames (no intervals: too few frames (an interval needs 3))" in table
     pooled_zcut = [ln for ln in lines if ln.startswith("zcut ")][-1]
     assert pooled_zcut.split()[1:4] == ["3", "2", "3"]
-    assert f"0.600 [{lo:.3f}, {hi:.3f}]" in pooled_zcut
+    assert "0.600 [too few frames]" in pooled_zcut
     assert [ln.split()[0] for ln in lines if ln.startswith(("0 ", "1 "))] == ["0"] * 4 + ["1"] * 4  # per frame
     singles = next(ln for ln in lines if ln.startswith("singleton precision"))
     assert singles.split()[-4:] == ["0.000", "0.667", "0.333", "-"]  # z-cut, SOR, union, intersection
@@ -238,6 +254,8 @@ def test_table_fits_120_columns_with_realistic_numbers(report):
             v.update(n=2_304_000, found=1_234_567)
     for f in big["frames"]:
         f["stamp_ns"] = 1_712_345_678_901_234_567
+    table = format_accuracy_table(big)  # two frames: "too few frames" in place of every interval
+    assert "[too few frames]" in table and max(len(ln) for ln in table.splitlines()) <= 120, table
     for m in METHODS:
         big["pooled"][m]["ci95"] = {k: [0.123, 0.987] for k in ("precision", "recall", "f1")}
     table = format_accuracy_table(big)
@@ -258,8 +276,6 @@ ONE = [frame_accuracy(0, 0, {"zcut": Z0, "sor": S0}, T0)]
         (lambda: accuracy_report(ONE, region="table"), ParameterError,
          r"region must be one of zone, valid, got 'table'"),
         (lambda: accuracy_report(ONE, region=None), ParameterError, r"region must be one of zone, valid, got None"),
-        (lambda: accuracy_report(ONE, n_boot=999), ParameterError,
-         r"n_boot must be an integer >= 1000 \(SPEC §4\), got 999"),
         (lambda: accuracy_report(ONE, unscored=[(1, 2, "x")]), ParameterError,
          r"unscored must hold UnscoredFrame entries, got tuple"),
         (lambda: accuracy_report(ONE, unscored=[UnscoredFrame(0, 0, "no truth")]), ParameterError,
