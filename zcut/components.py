@@ -10,10 +10,13 @@ regions:
   points are at most ``max_neighbour_mm`` apart in 3D; clusters whose area, summed from each
   pixel's footprint at its depth, is below ``min_area_mm2`` are removed.
 
-The fast path is one union-find pass over the pixels in raster order (numba): each pixel is joined
-to its already-visited neighbours that pass the test, a root always being the component's first
-pixel in raster order, so one forward pass then resolves every pixel's root (a pixel's parent never
-follows it). The sizes (areas) are summed per root in raster order. The reference builds the graph
+The fast path is one pass over the pixels in raster order (numba) with provisional labels: a valid
+pixel takes the label of a visited neighbour (left, then the row above) that passes the test, a new
+label if none does, and two different labels that meet are merged in a union-find over the labels
+(the later root linked to the earlier one, so a label's parent never follows it and one forward
+pass resolves every root). A neighbour that already carries the pixel's label needs no test: on a
+smooth surface almost every pixel costs one test and no union. The sizes (areas) are then summed
+per root in raster order. The reference builds the graph
 of every joined pair with numpy and labels it with ``scipy.sparse.csgraph.connected_components``;
 its areas are ``np.bincount`` sums, also in raster order, so both agree bit for bit (tests).
 
@@ -31,8 +34,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .cloud import Intrinsics
-from .errors import ParameterError
-from .grid_input import as_cloud, depth_plane, depth_plane_reference, is_valid, plain_number
+from .errors import InputShapeError, ParameterError, describe_array
+from .grid_input import as_cloud, depth_plane_reference, plain_number, valid_at
 from .params import ClusterParams, SpeckleParams
 from .types import XYZ, Mask
 
@@ -47,7 +50,7 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------------------------
-# union-find in raster order
+# union-find over provisional labels, in raster order
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True, nogil=True, inline="always")
 def _find(parent, i):
@@ -63,7 +66,7 @@ def _find(parent, i):
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _union(parent, i, j):
-    # link the later root to the earlier one: a root stays the first pixel of its component
+    # link the later root to the earlier one: parent[l] <= l for every label l
     a = _find(parent, i)
     b = _find(parent, j)
     if a < b:
@@ -73,9 +76,9 @@ def _union(parent, i, j):
 
 
 @nb.njit(cache=True, nogil=True)
-def _resolve(parent):
-    # every pixel's root: its parent precedes it and is resolved already
-    for i in range(parent.shape[0]):
+def _resolve(parent, n):
+    # every label's root: its parent precedes it and is resolved already
+    for i in range(1, n + 1):
         parent[i] = parent[parent[i]]
 
 
@@ -87,29 +90,50 @@ def _speckle_params(max_diff_mm: object, max_size_px: object) -> SpeckleParams:
 
 
 @nb.njit(cache=True, nogil=True)
-def _speckle_kernel(d, max_diff, max_size, out):
-    H, W = d.shape
-    n = H * W
-    parent = np.empty(n, np.int32)
+def _speckle_kernel(a, max_diff, max_size, out):
+    # lab: the pixel's provisional label (0: invalid); a new label where no visited 4-neighbour
+    # joins; the depth test is skipped for a neighbour that already carries the same label. The
+    # depths of the current and the previous row (mm, NaN where invalid) are kept in two buffers.
+    H, W = a.shape[0], a.shape[1]
+    lab = np.zeros((H, W), np.int32)
+    parent = np.empty(H * W + 1, np.int32)
+    parent[0] = 0  # the label of invalid pixels
+    n = 0
+    dprev = np.full(W, np.nan)
+    dcur = np.empty(W)
     for r in range(H):
+        row, lr, lp = a[r], lab[r], lab[max(r - 1, 0)]
         for c in range(W):
-            i = r * W + c
-            parent[i] = i
-            v = d[r, c]
+            dcur[c] = 1000.0 * np.float64(row[c, 2]) if valid_at(row, c) else np.nan
+        for c in range(W):
+            v = dcur[c]
             if np.isnan(v):
                 continue
-            if c > 0 and abs(v - d[r, c - 1]) <= max_diff:  # False for a NaN neighbour
-                parent[i] = _find(parent, i - 1)
-            if r > 0 and abs(v - d[r - 1, c]) <= max_diff:
-                _union(parent, i, i - W)
-    _resolve(parent)
-    size = np.zeros(n, np.int64)
+            cur = 0
+            if c > 0 and abs(v - dcur[c - 1]) <= max_diff:  # False for a NaN (invalid) neighbour
+                cur = lr[c - 1]
+            lq = lp[c]
+            if lq != cur and abs(v - dprev[c]) <= max_diff:
+                if cur:
+                    _union(parent, cur, lq)
+                else:
+                    cur = lq
+            if not cur:
+                n += 1
+                parent[n] = n
+                cur = n
+            lr[c] = cur
+        dprev, dcur = dcur, dprev
+    _resolve(parent, n)
+    size = np.zeros(n + 1, np.int64)
     for r in range(H):
+        lr = lab[r]
         for c in range(W):
-            size[parent[r * W + c]] += 1
+            size[parent[lr[c]]] += 1
     for r in range(H):
+        lr, o = lab[r], out[r]
         for c in range(W):
-            out[r, c] = (not np.isnan(d[r, c])) and size[parent[r * W + c]] <= max_size
+            o[c] = lr[c] > 0 and size[parent[lr[c]]] <= max_size
 
 
 def speckle_outliers(xyz: XYZ, *, max_diff_mm: float, max_size_px: int) -> Mask:
@@ -142,11 +166,19 @@ def speckle_outliers(xyz: XYZ, *, max_diff_mm: float, max_size_px: int) -> Mask:
         True at the pixels of the small regions.
     """
     p = _speckle_params(max_diff_mm, max_size_px)
-    a = as_cloud(xyz)
-    d, _ = depth_plane(a, 1000.0)
-    out = np.empty(d.shape, dtype=bool)
-    _speckle_kernel(d, p.max_diff_mm, p.max_size_px, out)
+    a = _as_grid(xyz)
+    out = np.empty(a.shape[:2], dtype=bool)
+    _speckle_kernel(a, p.max_diff_mm, p.max_size_px, out)
     return out
+
+
+def _as_grid(xyz: XYZ) -> np.ndarray:
+    """as_cloud, with at most 2**31 - 2 pixels (int32 labels)."""
+    a = as_cloud(xyz)
+    if a.shape[0] * a.shape[1] > 2**31 - 2:
+        raise InputShapeError(f"xyz has too many pixels for the component filters (int32 labels), got "
+                              f"{describe_array(a)}")
+    return a
 
 
 def _labels(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
@@ -210,6 +242,11 @@ def _cluster_params(max_neighbour_mm: object, min_area_mm2: object, connectivity
                          connectivity=plain_number(connectivity))
 
 
+def _pixel_area(K: Intrinsics) -> float:
+    """1 / (fx · fy): a pixel's footprint at depth z mm is (z · z) · this, in mm²."""
+    return 1.0 / (float(K.fx) * float(K.fy))
+
+
 def _check_intrinsics(intrinsics: object) -> Intrinsics:
     if intrinsics is None:
         raise ParameterError(
@@ -222,50 +259,62 @@ def _check_intrinsics(intrinsics: object) -> Intrinsics:
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _close(a, r, c, rr, cc, px, py, pz, thr2):
-    # the neighbour is valid and its point within the distance: (dx² + dy²) + dz² <= thr², metres
-    if not is_valid(a, rr, cc):
-        return False
-    dx = np.float64(a[rr, cc, 0]) - px
-    dy = np.float64(a[rr, cc, 1]) - py
-    dz = np.float64(a[rr, cc, 2]) - pz
+def _close(row, j, px, py, pz, thr2):
+    # the point of pixel j of the row within the distance: (dx² + dy²) + dz² <= thr², metres
+    dx = np.float64(row[j, 0]) - px
+    dy = np.float64(row[j, 1]) - py
+    dz = np.float64(row[j, 2]) - pz
     return (dx * dx + dy * dy) + dz * dz <= thr2
 
 
 @nb.njit(cache=True, nogil=True)
-def _cluster_kernel(a, thr2, eight, min_area, fx, fy, out):
+def _cluster_kernel(a, thr2, reach, min_area, k_area, out):
+    # as _speckle_kernel, with the 3D distance test and, for 8-connectivity (reach 1), the up-left
+    # and up-right neighbours
     H, W = a.shape[0], a.shape[1]
-    n = H * W
-    parent = np.empty(n, np.int32)
+    lab = np.zeros((H, W), np.int32)
+    parent = np.empty(H * W + 1, np.int32)
+    parent[0] = 0  # the label of invalid pixels
+    n = 0
     for r in range(H):
+        row, lr = a[r], lab[r]
+        prev, lp = a[max(r - 1, 0)], lab[max(r - 1, 0)]
         for c in range(W):
-            i = r * W + c
-            parent[i] = i
-            if not is_valid(a, r, c):
+            px = np.float64(row[c, 0])
+            py = np.float64(row[c, 1])
+            pz = np.float64(row[c, 2])
+            if not px * 0.0 + py * 0.0 + pz * 0.0 == 0.0:  # invalid
                 continue
-            px = np.float64(a[r, c, 0])
-            py = np.float64(a[r, c, 1])
-            pz = np.float64(a[r, c, 2])
-            if c > 0 and _close(a, r, c, r, c - 1, px, py, pz, thr2):
-                parent[i] = _find(parent, i - 1)
+            cur = 0
+            if c > 0:
+                lq = lr[c - 1]
+                if lq and _close(row, c - 1, px, py, pz, thr2):
+                    cur = lq
             if r > 0:
-                if _close(a, r, c, r - 1, c, px, py, pz, thr2):
-                    _union(parent, i, i - W)
-                if eight:
-                    if c > 0 and _close(a, r, c, r - 1, c - 1, px, py, pz, thr2):
-                        _union(parent, i, i - W - 1)
-                    if c < W - 1 and _close(a, r, c, r - 1, c + 1, px, py, pz, thr2):
-                        _union(parent, i, i - W + 1)
-    _resolve(parent)
-    area = np.zeros(n)
+                for cc in range(max(c - reach, 0), min(c + reach + 1, W)):
+                    lq = lp[cc]
+                    if lq and lq != cur and _close(prev, cc, px, py, pz, thr2):
+                        if cur:
+                            _union(parent, cur, lq)
+                        else:
+                            cur = lq
+            if not cur:
+                n += 1
+                parent[n] = n
+                cur = n
+            lr[c] = cur
+    _resolve(parent, n)
+    area = np.zeros(n + 1)
     for r in range(H):
+        row, lr = a[r], lab[r]
         for c in range(W):
-            if is_valid(a, r, c):
-                zmm = 1000.0 * np.float64(a[r, c, 2])
-                area[parent[r * W + c]] += (zmm / fx) * (zmm / fy)
+            if lr[c]:
+                zmm = 1000.0 * np.float64(row[c, 2])
+                area[parent[lr[c]]] += (zmm * zmm) * k_area
     for r in range(H):
+        lr, o = lab[r], out[r]
         for c in range(W):
-            out[r, c] = is_valid(a, r, c) and area[parent[r * W + c]] < min_area
+            o[c] = lr[c] > 0 and area[parent[lr[c]]] < min_area
 
 
 def cluster_outliers(xyz: XYZ, *, max_neighbour_mm: float, min_area_mm2: float,
@@ -278,8 +327,9 @@ def cluster_outliers(xyz: XYZ, *, max_neighbour_mm: float, min_area_mm2: float,
     it is a 3D distance in millimetres, ``max_neighbour_mm``: two 8- (or 4-) neighbouring valid
     pixels join iff ``(dx² + dy²) + dz² <= (max_neighbour_mm / 1000)²`` (float64, metres). A
     cluster's area is the sum over its pixels of the pixel's footprint at its depth,
-    ``(1000 z / fx) · (1000 z / fy)`` mm² (a fronto-parallel patch; a tilted surface covers more
-    than it counts), summed in raster order; clusters with an area ``< min_area_mm2`` are outliers.
+    ``(z / fx) · (z / fy)`` mm² with z in mm (a fronto-parallel patch; a tilted surface covers more
+    than it counts), computed as ``(z · z) · (1 / (fx · fy))`` and summed in raster order;
+    clusters with an area ``< min_area_mm2`` are outliers.
 
     Parameters
     ----------
@@ -306,10 +356,10 @@ def cluster_outliers(xyz: XYZ, *, max_neighbour_mm: float, min_area_mm2: float,
     """
     p = _cluster_params(max_neighbour_mm, min_area_mm2, connectivity)
     K = _check_intrinsics(intrinsics)
-    a = as_cloud(xyz)
+    a = _as_grid(xyz)
     out = np.empty(a.shape[:2], dtype=bool)
     thr = p.max_neighbour_m
-    _cluster_kernel(a, thr * thr, p.connectivity == 8, p.min_area_mm2, float(K.fx), float(K.fy), out)
+    _cluster_kernel(a, thr * thr, int(p.connectivity == 8), p.min_area_mm2, _pixel_area(K), out)
     return out
 
 
@@ -336,7 +386,7 @@ def cluster_outliers_reference(xyz: XYZ, *, max_neighbour_mm: float, min_area_mm
     labels = _labels(H * W, i, j)
     with np.errstate(over="ignore", invalid="ignore"):
         zmm = 1000.0 * P[..., 2]
-        footprint = np.where(valid, (zmm / float(K.fx)) * (zmm / float(K.fy)), 0.0).ravel()
+        footprint = np.where(valid, (zmm * zmm) * _pixel_area(K), 0.0).ravel()
         area = np.bincount(labels, weights=footprint)
     return valid & (area[labels] < p.min_area_mm2).reshape(H, W)
 

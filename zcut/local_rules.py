@@ -21,7 +21,7 @@ import numba as nb
 import numpy as np
 
 from .errors import ParameterError
-from .grid_input import as_cloud, depth_plane, depth_plane_reference, is_valid, plain_number
+from .grid_input import as_cloud, depth_plane, depth_plane_reference, plain_number, valid_at
 from .params import MixedPixelParams, WindowParams
 from .types import XYZ, Mask
 
@@ -139,13 +139,13 @@ def grazing_cos2(min_angle_deg: float) -> float:
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _grazing(a, r, c, rr, cc, px, py, pz, pp, cos2):
-    # (valid, grazing) of the segment from pixel (r, c) to pixel (rr, cc)
-    if not is_valid(a, rr, cc):
+def _grazing(row, j, px, py, pz, pp, cos2):
+    # (valid, grazing) of the segment from p to pixel j of the row
+    if not valid_at(row, j):
         return False, False
-    dx = np.float64(a[rr, cc, 0]) - px
-    dy = np.float64(a[rr, cc, 1]) - py
-    dz = np.float64(a[rr, cc, 2]) - pz
+    dx = np.float64(row[j, 0]) - px
+    dy = np.float64(row[j, 1]) - py
+    dz = np.float64(row[j, 2]) - pz
     dot = (px * dx + py * dy) + pz * dz
     dd = (dx * dx + dy * dy) + dz * dz
     return True, dot * dot > cos2 * (pp * dd)
@@ -155,29 +155,40 @@ def _grazing(a, r, c, rr, cc, px, py, pz, pp, cos2):
 def _mixed_kernel(a, cos2, out):
     H, W = a.shape[0], a.shape[1]
     for r in range(H):
+        row, o = a[r], out[r]
+        up, down = a[max(r - 1, 0)], a[min(r + 1, H - 1)]
         for c in range(W):
-            if not is_valid(a, r, c):
-                out[r, c] = False
+            px = np.float64(row[c, 0])
+            py = np.float64(row[c, 1])
+            pz = np.float64(row[c, 2])
+            if not px * 0.0 + py * 0.0 + pz * 0.0 == 0.0:  # invalid
+                o[c] = False
                 continue
-            px = np.float64(a[r, c, 0])
-            py = np.float64(a[r, c, 1])
-            pz = np.float64(a[r, c, 2])
             pp = (px * px + py * py) + pz * pz
-            flagged = False
-            for axis in range(2):
-                seen = False
-                all_grazing = True
-                for s in range(-1, 2, 2):
-                    rr = r + s * (axis == 1)
-                    cc = c + s * (axis == 0)
-                    if rr < 0 or rr >= H or cc < 0 or cc >= W:
-                        continue
-                    ok, g = _grazing(a, r, c, rr, cc, px, py, pz, pp, cos2)
-                    if ok:
-                        seen = True
-                        all_grazing = all_grazing and g
-                flagged = flagged or (seen and all_grazing)
-            out[r, c] = flagged
+            # along the row
+            seen = False
+            grazing = True
+            if c > 0:
+                ok, g = _grazing(row, c - 1, px, py, pz, pp, cos2)
+                seen = seen or ok
+                grazing = grazing and (g or not ok)
+            if c < W - 1:
+                ok, g = _grazing(row, c + 1, px, py, pz, pp, cos2)
+                seen = seen or ok
+                grazing = grazing and (g or not ok)
+            flagged = seen and grazing
+            # along the column
+            seen = False
+            grazing = True
+            if r > 0:
+                ok, g = _grazing(up, c, px, py, pz, pp, cos2)
+                seen = seen or ok
+                grazing = grazing and (g or not ok)
+            if r < H - 1:
+                ok, g = _grazing(down, c, px, py, pz, pp, cos2)
+                seen = seen or ok
+                grazing = grazing and (g or not ok)
+            o[c] = flagged or (seen and grazing)
 
 
 def mixed_pixel_outliers(xyz: XYZ, *, min_angle_deg: float) -> Mask:

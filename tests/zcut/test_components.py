@@ -88,8 +88,10 @@ def test_degenerate_clouds(name: str) -> None:
     if name == "one-valid":  # its own region: 1 pixel, footprint (600 / 60) * (600 / 75) = 80 mm²
         assert speckle_outliers(xyz, max_diff_mm=5.0, max_size_px=1).sum() == 1
         kw = dict(max_neighbour_mm=1.0, intrinsics=camera())
-        assert cluster_outliers(xyz, min_area_mm2=80.0000001, **kw).sum() == 1
-        assert not cluster_outliers(xyz, min_area_mm2=80.0, **kw).any()
+        fp = (600.0 * 600.0) * (1.0 / (60.0 * 75.0))
+        assert fp == pytest.approx(80.0)
+        assert cluster_outliers(xyz, min_area_mm2=np.nextafter(fp, np.inf), **kw).sum() == 1
+        assert not cluster_outliers(xyz, min_area_mm2=fp, **kw).any()
 
 
 @settings(max_examples=80, deadline=None)
@@ -218,7 +220,7 @@ def test_cluster_connectivity() -> None:
     d = np.full((2, 2, 3), np.nan)
     d[0, 0] = (0.0, 0.0, 1.0)
     d[1, 1] = (0.0005, 0.0, 1.0)
-    fp = (1000 / K.fx) * (1000 / K.fy)
+    fp = (1000.0 * 1000.0) * (1.0 / (K.fx * K.fy))  # the footprint at 1 m, as documented
     assert not cluster_outliers(d, max_neighbour_mm=1.0, min_area_mm2=2 * fp, intrinsics=K, connectivity=8).any()
     assert cluster_outliers(d, max_neighbour_mm=1.0, min_area_mm2=2 * fp, intrinsics=K, connectivity=4).sum() == 2
 
