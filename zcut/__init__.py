@@ -42,6 +42,7 @@ from .local_rules import (
     window_stage,
 )
 from .params import ClusterParams, MixedPixelParams, RadiusParams, SpeckleParams, WindowParams
+from .radius import radius_outliers, radius_outliers_reference, radius_stage
 
 __all__ = [
     "BinMaskParams",
@@ -89,6 +90,9 @@ __all__ = [
     "mixed_pixel_outliers",
     "mixed_pixel_outliers_reference",
     "mixed_pixel_stage",
+    "radius_outliers",
+    "radius_outliers_reference",
+    "radius_stage",
     "speckle_outliers",
     "speckle_outliers_reference",
     "speckle_stage",
