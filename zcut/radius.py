@@ -45,6 +45,7 @@ import math
 import numba as nb
 import numpy as np
 
+from . import columns as _columns
 from . import sor_search as _kd
 from .errors import ParameterError
 from .grid_input import as_cloud, plain_number, valid_at
@@ -68,12 +69,7 @@ def _params(radius_mm: object, min_points: object) -> RadiusParams:
 # --------------------------------------------------------------------------------------------
 # distances and box bounds (the arithmetic of Open3D's nanoflann metric)
 # --------------------------------------------------------------------------------------------
-@nb.njit(cache=True, nogil=True, inline="always")
-def _d2(xq, yq, zq, xp, yp, zp):
-    dx = xq - xp
-    dy = yq - yp
-    dz = zq - zp
-    return (dx * dx + dy * dy) + dz * dz
+_d2 = _columns.d2
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -254,158 +250,30 @@ def _undecided_pixels(state, n):
 
 
 # --------------------------------------------------------------------------------------------
-# phase 2: columns sorted by depth
+# phase 2: columns sorted by depth (zcut.columns)
 # --------------------------------------------------------------------------------------------
-@nb.njit(cache=True, nogil=True, inline="always")
-def _cell(v, v0, inv):
-    # the grid cell of coordinate v: monotone in v (each rounding step is)
-    return np.int64(math.floor((v - v0) * inv))
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _reach(v, rad):
-    # R > |v - p| for every p with fl((v - p)²) <= the computed d² < fl(rad²): |fl(v - p)| < rad·(1 +
-    # 2 eps), |v - p| < rad·(1 + 3 eps), and v ∓ R rounds by less than the 4 eps |v| margin
-    return rad * (1.0 + 1e-12) + 4.0 * 2.220446049250313e-16 * abs(v) + 1e-300
+@nb.njit(cache=True, nogil=True)
+def _query_coords(a, qr, qc):
+    q = np.empty((3, qr.shape[0]))
+    for i in range(qr.shape[0]):
+        for d in range(3):
+            q[d, i] = a[qr[i], qc[i], d]
+    return q
 
 
 @nb.njit(cache=True, nogil=True)
-def _mark_columns(a, qr, qc, rad, x0, y0, inv, nx, ny, marked):
-    """Mark every column the ball of a query pixel can reach; returns how many are marked."""
-    n = 0
-    for q in range(qr.shape[0]):
-        row = a[qr[q]]
-        xq = np.float64(row[qc[q], 0])
-        yq = np.float64(row[qc[q], 1])
-        R = _reach(max(abs(xq), abs(yq)), rad)
-        for iy in range(max(_cell(yq - R, y0, inv), 0), min(_cell(yq + R, y0, inv), ny - 1) + 1):
-            for ix in range(max(_cell(xq - R, x0, inv), 0), min(_cell(xq + R, x0, inv), nx - 1) + 1):
-                k = iy * nx + ix
-                n += not marked[k]
-                marked[k] = True
-    return n
-
-
-@nb.njit(cache=True, nogil=True)
-def _sort_by_z(xs, ys, zs, s, e):
-    # sort points s..e-1 by z (stable); insertion sort for short columns, merge sort for long ones
-    if e - s <= 32:
-        for i in range(s + 1, e):
-            x, y, z = xs[i], ys[i], zs[i]
-            j = i - 1
-            while j >= s and zs[j] > z:
-                xs[j + 1], ys[j + 1], zs[j + 1] = xs[j], ys[j], zs[j]
-                j -= 1
-            xs[j + 1], ys[j + 1], zs[j + 1] = x, y, z
-        return
-    order = np.argsort(zs[s:e], kind="mergesort")
-    tx, ty, tz = xs[s:e][order], ys[s:e][order], zs[s:e][order]
-    xs[s:e], ys[s:e], zs[s:e] = tx, ty, tz
-
-
-@nb.njit(cache=True, nogil=True)
-def _build_columns(a, x0, y0, inv, nx, marked):
-    """The valid points in marked columns, column by column, each column sorted by z and runs of
-    identical points merged: returns (start (nx·ny + 1), xs, ys, zs, mult)."""
-    H, W = a.shape[0], a.shape[1]
-    ncol = marked.shape[0]
-    start = np.zeros(ncol + 1, np.int64)
-    for r in range(H):
-        row = a[r]
-        for c in range(W):
-            if valid_at(row, c):
-                k = _cell(np.float64(row[c, 1]), y0, inv) * nx + _cell(np.float64(row[c, 0]), x0, inv)
-                if marked[k]:
-                    start[k + 1] += 1
-    for k in range(ncol):
-        start[k + 1] += start[k]
-    fill = start[:ncol].copy()
-    n = start[ncol]
-    xs, ys, zs = np.empty(n), np.empty(n), np.empty(n)
-    for r in range(H):
-        row = a[r]
-        for c in range(W):
-            if valid_at(row, c):
-                x = np.float64(row[c, 0])
-                y = np.float64(row[c, 1])
-                k = _cell(y, y0, inv) * nx + _cell(x, x0, inv)
-                if marked[k]:
-                    j = fill[k]
-                    fill[k] += 1
-                    xs[j], ys[j], zs[j] = x, y, np.float64(row[c, 2])
-    # sort each column by z and merge runs of identical points (packed in place)
-    mult = np.ones(n, np.int64)
-    out = 0
-    for k in range(ncol):
-        s, e = start[k], start[k + 1]
-        start[k] = out
-        if e - s > 1:
-            _sort_by_z(xs, ys, zs, s, e)
-        j = s
-        while j < e:
-            x, y, z = xs[j], ys[j], zs[j]
-            m = 1
-            j += 1
-            while j < e and zs[j] == z and xs[j] == x and ys[j] == y:
-                m += 1
-                j += 1
-            xs[out], ys[out], zs[out], mult[out] = x, y, z, m
-            out += 1
-    start[ncol] = out
-    return start, xs[:out], ys[:out], zs[:out], mult[:out]
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _scan_column(cols, k, xq, yq, zq, z_lo, z_hi, r2, n, need):
-    # count the points of column k with z in [z_lo, z_hi] within the radius (binary search for
-    # z_lo, then a scan that stops at z_hi or when `need` is reached); returns (n, entries scanned)
-    start, xs, ys, zs, mult = cols
-    lo = start[k]
-    hi = start[k + 1]
-    while lo < hi:  # the first point with z >= z_lo
-        mid = (lo + hi) // 2
-        if zs[mid] < z_lo:
-            lo = mid + 1
-        else:
-            hi = mid
-    j = lo
-    end = start[k + 1]
-    while j < end and zs[j] <= z_hi and n < need:
-        if _d2(xq, yq, zq, xs[j], ys[j], zs[j]) < r2:
-            n += mult[j]
-        j += 1
-    return n, j - lo
-
-
-@nb.njit(cache=True, nogil=True)
-def _column_queries(q0, q1, a, qr, qc, r2, rad, need, budget, x0, y0, inv, nx, ny, cols, counts, left):
-    """Neighbour counts (up to ``need``) of the query pixels q0..q1-1 over the columns, the
-    query's own column first. Once ``budget`` points have been measured in all, the remaining
-    queries are left to the KD-tree (left[q] = True)."""
+def _column_queries(q0, q1, q, r2, rad, need, budget, x0, y0, z0, inv, nx, ny, cols, counts, left):
+    """Neighbour counts (up to ``need``) of the queries q0..q1-1 (coordinates q[:, i]) over the
+    columns. Once ``budget`` entries have been scanned in all, the remaining queries are left to
+    the KD-tree (left[i] = True)."""
     spent = 0
-    for q in range(q0, q1):
+    for i in range(q0, q1):
         if spent > budget:
-            left[q] = True
+            left[i] = True
             continue
-        row = a[qr[q]]
-        c = qc[q]
-        xq = np.float64(row[c, 0])
-        yq = np.float64(row[c, 1])
-        zq = np.float64(row[c, 2])
-        R = _reach(max(abs(xq), abs(yq)), rad)
-        Rz = _reach(zq, rad)
-        z_lo = zq - Rz
-        z_hi = zq + Rz
-        own_x = _cell(xq, x0, inv)
-        own_y = _cell(yq, y0, inv)
-        n, used = _scan_column(cols, own_y * nx + own_x, xq, yq, zq, z_lo, z_hi, r2, 0, need)
+        n, used = _columns.count_query(cols, x0, y0, z0, inv, nx, ny, q[0, i], q[1, i], q[2, i], rad, r2, need, 0)
         spent += used
-        for iy in range(max(_cell(yq - R, y0, inv), 0), min(_cell(yq + R, y0, inv), ny - 1) + 1):
-            for ix in range(max(_cell(xq - R, x0, inv), 0), min(_cell(xq + R, x0, inv), nx - 1) + 1):
-                if n < need and (ix != own_x or iy != own_y):
-                    n, used = _scan_column(cols, iy * nx + ix, xq, yq, zq, z_lo, z_hi, r2, n, need)
-                    spent += used
-        counts[q] = min(n, need)
+        counts[i] = min(n, need)
 
 
 # --------------------------------------------------------------------------------------------
@@ -502,16 +370,18 @@ def _counts(a: np.ndarray, radius_m: float, need: int) -> np.ndarray:
     left = np.ones(rows.size, dtype=bool)
     inv = 1.0 / radius_m
     with np.errstate(over="ignore", invalid="ignore"):
-        nx, ny = (float(np.floor((hi[i] - lo[i]) * inv)) + 1.0 for i in range(2))
-    if _USE_COLUMNS and math.isfinite(inv) and nx * ny <= _COLUMNS_PER_POINT * n_valid + 4096:
+        nx, ny, nz = (float(np.floor((hi[i] - lo[i]) * inv)) + 1.0 for i in range(3))
+    if (_USE_COLUMNS and math.isfinite(inv) and nx * ny <= _COLUMNS_PER_POINT * n_valid + 4096
+            and nz < 2.0**53):  # the cells' integer coordinates stay exact
         nx, ny = int(nx), int(ny)
+        q = _query_coords(a, rows, cols)
         marked = np.zeros(nx * ny, dtype=bool)
-        _mark_columns(a, rows, cols, radius_m, lo[0], lo[1], inv, nx, ny, marked)
-        columns = _build_columns(a, lo[0], lo[1], inv, nx, marked)
+        _columns.mark_columns(q[0], q[1], np.full(rows.size, radius_m), lo[0], lo[1], inv, nx, ny, marked)
+        columns = _columns.build_columns(a[:, :, 0], a[:, :, 1], a[:, :, 2], lo[0], lo[1], lo[2], inv, nx, marked)
         left[:] = False
         budget = int(_BUDGET_PER_POINT * n_valid + _BUDGET_FLOOR)
-        _column_queries(0, rows.size, a, rows, cols, r2, radius_m, need, budget, lo[0], lo[1], inv, nx, ny,
-                        columns, got, left)
+        _column_queries(0, rows.size, q, r2, radius_m, need, budget, lo[0], lo[1], lo[2], inv, nx, ny, columns, got,
+                        left)
     if left.any():
         kd = _kd.kd_build(_gather_valid(a, n_valid))
         sub = np.flatnonzero(left)
