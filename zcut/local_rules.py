@@ -152,43 +152,82 @@ def _grazing(row, j, px, py, pz, pp, cos2):
 
 
 @nb.njit(cache=True, nogil=True)
-def _mixed_kernel(a, cos2, out):
+def _mixed_kernel_scalar(a, cos2, r, c):
+    # the rule for one pixel (image border: fewer neighbours)
     H, W = a.shape[0], a.shape[1]
+    row = a[r]
+    px = np.float64(row[c, 0])
+    py = np.float64(row[c, 1])
+    pz = np.float64(row[c, 2])
+    if not px * 0.0 + py * 0.0 + pz * 0.0 == 0.0:  # invalid
+        return False
+    pp = (px * px + py * py) + pz * pz
+    flagged = False
+    for axis in range(2):
+        seen = False
+        grazing = True
+        for s in range(-1, 2, 2):
+            rr = r + s * (axis == 1)
+            cc = c + s * (axis == 0)
+            if 0 <= rr < H and 0 <= cc < W:
+                ok, g = _grazing(a[rr], cc, px, py, pz, pp, cos2)
+                seen = seen or ok
+                grazing = grazing and (g or not ok)
+        flagged = flagged or (seen and grazing)
+    return flagged
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _graze(xq, yq, zq, vq, px, py, pz, pp, cos2):
+    # (valid, grazing or invalid) of the segment from p to q, without a branch
+    dx = xq - px
+    dy = yq - py
+    dz = zq - pz
+    dot = (px * dx + py * dy) + pz * dz
+    dd = (dx * dx + dy * dy) + dz * dz
+    return vq, (dot * dot > cos2 * (pp * dd)) | (not vq)
+
+
+@nb.njit(cache=True, nogil=True)
+def _mixed_kernel(a, cos2, out):
+    # inner pixels from float64 row buffers (three rows in a ring), straight-line code the compiler
+    # vectorizes; the image border one pixel at a time
+    H, W = a.shape[0], a.shape[1]
+    X = np.empty((3, W))
+    Y = np.empty((3, W))
+    Z = np.empty((3, W))
+    V = np.empty((3, W), np.bool_)
     for r in range(H):
-        row, o = a[r], out[r]
-        up, down = a[max(r - 1, 0)], a[min(r + 1, H - 1)]
-        for c in range(W):
-            px = np.float64(row[c, 0])
-            py = np.float64(row[c, 1])
-            pz = np.float64(row[c, 2])
-            if not px * 0.0 + py * 0.0 + pz * 0.0 == 0.0:  # invalid
-                o[c] = False
-                continue
+        if r == 0:
+            for k in range(min(2, H)):
+                row = a[k]
+                for c in range(W):
+                    X[k, c], Y[k, c], Z[k, c] = row[c, 0], row[c, 1], row[c, 2]
+                    V[k, c] = X[k, c] * 0.0 + Y[k, c] * 0.0 + Z[k, c] * 0.0 == 0.0
+        elif r + 1 < H:
+            k = (r + 1) % 3
+            row = a[r + 1]
+            for c in range(W):
+                X[k, c], Y[k, c], Z[k, c] = row[c, 0], row[c, 1], row[c, 2]
+                V[k, c] = X[k, c] * 0.0 + Y[k, c] * 0.0 + Z[k, c] * 0.0 == 0.0
+        o = out[r]
+        if r == 0 or r == H - 1 or W < 3:
+            for c in range(W):
+                o[c] = _mixed_kernel_scalar(a, cos2, r, c)
+            continue
+        xu, yu, zu, vu = X[(r - 1) % 3], Y[(r - 1) % 3], Z[(r - 1) % 3], V[(r - 1) % 3]
+        xm, ym, zm, vm = X[r % 3], Y[r % 3], Z[r % 3], V[r % 3]
+        xd, yd, zd, vd = X[(r + 1) % 3], Y[(r + 1) % 3], Z[(r + 1) % 3], V[(r + 1) % 3]
+        for c in range(1, W - 1):
+            px, py, pz = xm[c], ym[c], zm[c]
             pp = (px * px + py * py) + pz * pz
-            # along the row
-            seen = False
-            grazing = True
-            if c > 0:
-                ok, g = _grazing(row, c - 1, px, py, pz, pp, cos2)
-                seen = seen or ok
-                grazing = grazing and (g or not ok)
-            if c < W - 1:
-                ok, g = _grazing(row, c + 1, px, py, pz, pp, cos2)
-                seen = seen or ok
-                grazing = grazing and (g or not ok)
-            flagged = seen and grazing
-            # along the column
-            seen = False
-            grazing = True
-            if r > 0:
-                ok, g = _grazing(up, c, px, py, pz, pp, cos2)
-                seen = seen or ok
-                grazing = grazing and (g or not ok)
-            if r < H - 1:
-                ok, g = _grazing(down, c, px, py, pz, pp, cos2)
-                seen = seen or ok
-                grazing = grazing and (g or not ok)
-            o[c] = flagged or (seen and grazing)
+            vl, gl = _graze(xm[c - 1], ym[c - 1], zm[c - 1], vm[c - 1], px, py, pz, pp, cos2)
+            vr, gr = _graze(xm[c + 1], ym[c + 1], zm[c + 1], vm[c + 1], px, py, pz, pp, cos2)
+            vt, gt = _graze(xu[c], yu[c], zu[c], vu[c], px, py, pz, pp, cos2)
+            vb, gb = _graze(xd[c], yd[c], zd[c], vd[c], px, py, pz, pp, cos2)
+            o[c] = vm[c] & (((vl | vr) & gl & gr) | ((vt | vb) & gt & gb))
+        o[0] = _mixed_kernel_scalar(a, cos2, r, 0)
+        o[W - 1] = _mixed_kernel_scalar(a, cos2, r, W - 1)
 
 
 def mixed_pixel_outliers(xyz: XYZ, *, min_angle_deg: float) -> Mask:
