@@ -130,10 +130,14 @@ def _speckle_kernel(a, max_diff, max_size, out):
         lr = lab[r]
         for c in range(W):
             size[parent[lr[c]]] += 1
+    small = np.empty(n + 1, np.bool_)  # per label: its region is small
+    small[0] = False
+    for i in range(1, n + 1):
+        small[i] = size[parent[i]] <= max_size
     for r in range(H):
         lr, o = lab[r], out[r]
         for c in range(W):
-            o[c] = lr[c] > 0 and size[parent[lr[c]]] <= max_size
+            o[c] = small[lr[c]]
 
 
 def speckle_outliers(xyz: XYZ, *, max_diff_mm: float, max_size_px: int) -> Mask:
@@ -311,10 +315,14 @@ def _cluster_kernel(a, thr2, reach, min_area, k_area, out):
             if lr[c]:
                 zmm = 1000.0 * np.float64(row[c, 2])
                 area[parent[lr[c]]] += (zmm * zmm) * k_area
+    small = np.empty(n + 1, np.bool_)  # per label: its cluster is small
+    small[0] = False
+    for i in range(1, n + 1):
+        small[i] = area[parent[i]] < min_area
     for r in range(H):
         lr, o = lab[r], out[r]
         for c in range(W):
-            o[c] = lr[c] > 0 and area[parent[lr[c]]] < min_area
+            o[c] = small[lr[c]]
 
 
 def cluster_outliers(xyz: XYZ, *, max_neighbour_mm: float, min_area_mm2: float,

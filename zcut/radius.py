@@ -10,28 +10,29 @@ computes exactly that on the valid pixels of an organized cloud (``radius = radi
 Only the count up to ``need = min_points + 1`` matters, so every search stops there; two phases:
 
 1. *Image window* (numba, one pass over the pixels): the pixel's (2w + 1)² window, ring by ring up to
-   a small w. A count that reaches ``need`` proves an inlier (counts only grow). On surfaces this
-   settles almost every pixel in the 3 x 3 or 5 x 5 window.
-2. *Voxel hash* for the rest (flying pixels, silhouettes, steep sides, clouds without a camera): the
-   valid points bucketed into cubes of side ``radius`` (cells keyed by their integer coordinates
-   in an open-addressing hash table, the points of each cell stored together with its bounding box
-   and count). A query visits the cells its ball can reach (2 to 3 per axis, its own cell first):
-   a cell whose box lies at or beyond the radius is skipped, a cell whose box lies entirely inside
-   the ball is counted whole, the others are scanned point by point. The cost of a query depends on
-   the points near it in 3D, not on where they are in the image: tall parts standing on end (whose
-   image neighbours are rarely 3D neighbours) cost no more than a flat bin floor.
+   a small w (the 3 x 3 or 5 x 5 window as straight-line code over float64 row buffers, which the
+   compiler vectorizes). A count that reaches ``need`` proves an inlier (counts only grow). On
+   surfaces this settles almost every pixel.
+2. *Columns* (:mod:`zcut.columns`) for the rest (flying pixels, silhouettes, steep sides, clouds
+   without a camera): the valid points in x-y columns one radius wide, ordered by depth slab, runs
+   of identical points merged; only the columns some undecided pixel's ball can reach are filled.
+   A query visits its own column, then the others its ball can reach, and binary-searches each for
+   the slabs of the ball's z range. Its cost depends on the points near it in 3D, not on where
+   they are in the image: tall parts standing on end (whose image neighbours are rarely 3D
+   neighbours) cost no more than a flat bin floor.
 
-The bounds are exact for the computed distances: the box bounds are evaluated in the order of the
-distance itself (rounding is monotone, so no point in a box is computed closer than its box's
-near bound nor farther than its far bound), and the cells a query visits cover every point whose
-computed squared distance can be below ``radius²`` (a margin of a few ulp, see :func:`_cell_range`).
-A heap of identical points is one cell whose degenerate box is inside or outside whole: no search
-touches its points one by one more than ``need`` times.
+The bounds are exact for the computed distances: the cells a query visits cover every point whose
+computed squared distance can be below ``radius²`` (a margin of a few ulp, see
+:func:`zcut.columns.reach`), and the KD-tree's box bounds are evaluated in the order of the distance
+itself (rounding is monotone, so no point in a box is computed closer than its box's near bound
+nor farther than its far bound). A heap of identical points is one column entry with a
+multiplicity, or a KD-tree node inside or outside the ball whole.
 
-Two fall-backs keep time and memory bounded whatever the cloud: coordinates too large for integer
-cell keys, and a query that would scan more than ``_SCAN_CAP`` points (dense clusters of distinct
-points right at the radius), go to a balanced KD-tree over all valid points (median splits, so
-duplicates cannot unbalance it) with the same inside/outside counting of whole nodes.
+A fall-back keeps time and memory bounded whatever the cloud: when the column grid would be too
+large (coordinates spread far beyond the radius) or the column queries have scanned
+``_BUDGET_PER_POINT`` entries per valid point (dense clusters of distinct points right at the
+radius), the remaining pixels go to a balanced KD-tree over all valid points (median splits, so
+duplicates cannot unbalance it) that counts whole nodes inside the ball and prunes those outside.
 
 :func:`radius_outliers_reference` counts by brute force (all pairwise distances), or with scipy's
 KD-tree and every candidate re-measured in the same arithmetic; the tests check both against the

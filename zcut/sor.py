@@ -33,12 +33,19 @@ and a search never has to look at more than m copies of a duplicated point.
    selection), a 5 × 5 window for what it leaves (the whole row, vectorized, when that is much),
    then one pixel at a time, growing the window to the smallest w whose bound covers the current
    m-th distance, up to 16.
-3. *Tile quadtree* (:mod:`zcut.sor_search`). Unproven pixels (flying pixels, isolated points,
+3. *Columns* (:mod:`zcut.columns`), when many pixels are unproven (one in ``_COLUMNS_MIN_SHARE``
+   or more: tall parts standing on end, whose image neighbours are rarely 3D neighbours, and the
+   flying pixels along their silhouettes). Each unproven pixel has an upper bound on its m-th
+   distance (the m-th found in its window): a k-nearest search visits x-y columns (square cells a
+   quarter of the median bound wide, points ordered by depth slab) ring by ring around its own,
+   the search radius shrinking to the m-th distance found. Its cost depends on the points near the
+   pixel in 3D, not on where they lie in the image. A search that scans too much is left to:
+4. *Tile quadtree* (:mod:`zcut.sor_search`). Unproven pixels (flying pixels, isolated points,
    clouds without a camera) are searched over a quadtree of 8 × 8 pixel tiles, nearest node
    first; a node's bound is the larger of the distance to the box of its points and of the
    half-space bounds of its U and V ranges. A search that measures more than a few thousand pixels
    stops.
-4. *KD-tree.* The pixels whose tile search stopped go to a KD-tree (balanced median splits, so
+5. *KD-tree.* The pixels whose tile search stopped go to a KD-tree (balanced median splits, so
    duplicates cannot unbalance it; O(n) memory) built over the points of the tiles within their
    radius, or over all valid points when the cloud turns out not to be organized at all.
 
