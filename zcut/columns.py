@@ -101,7 +101,8 @@ def build_columns(X, Y, Z, x0, y0, z0, inv, nx, marked):
     of the marked columns, column by column, ordered by slab (``cell(z, z0, inv)``: cubes of the
     column's width), consecutive identical points merged.
 
-    Returns ``(start, xs, ys, zs, mult)``: column k holds entries start[k] .. start[k + 1] - 1.
+    Returns ``(start, xs, ys, zs, mult, ks)``: column k holds entries start[k] .. start[k + 1] - 1,
+    ``ks`` their slabs.
     """
     H, W = X.shape
     ncol = marked.shape[0]
@@ -152,54 +153,58 @@ def build_columns(X, Y, Z, x0, y0, z0, inv, nx, marked):
             xs[out], ys[out], zs[out], mult[out] = x, y, z, m
             out += 1
     start[ncol] = out
-    return start, xs[:out], ys[:out], zs[:out], mult[:out]
+    ks = np.empty(out, np.int64)
+    for j in range(out):
+        ks[j] = cell(zs[j], z0, inv)
+    return start, xs[:out], ys[:out], zs[:out], mult[:out], ks
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _first_slab(zs, lo, hi, k_lo, z0, inv):
+def _first_slab(ks, lo, hi, k_lo):
     # the first entry of lo..hi-1 (ordered by slab) whose slab is >= k_lo
     while lo < hi:
         mid = (lo + hi) // 2
-        if cell(zs[mid], z0, inv) < k_lo:
+        if ks[mid] < k_lo:
             lo = mid + 1
         else:
             hi = mid
     return lo
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _count_column(cols, col, xq, yq, zq, k_lo, k_hi, r2, n, need):
+    # count the entries of column col in slabs k_lo..k_hi strictly within r2 of q; (n, scanned)
+    start, xs, ys, zs, mult, ks = cols
+    j = _first_slab(ks, start[col], start[col + 1], k_lo)
+    j0 = j
+    end = start[col + 1]
+    while j < end and n < need and ks[j] <= k_hi:
+        if d2(xq, yq, zq, xs[j], ys[j], zs[j]) < r2:
+            n += mult[j]
+        j += 1
+    return n, j - j0
+
+
 @nb.njit(cache=True, nogil=True)
 def count_query(cols, x0, y0, z0, inv, nx, ny, xq, yq, zq, rad, r2, need, n):
     """Points strictly within ``r2`` (= fl(rad²)) of q, added to ``n`` and stopping at ``need``:
     the query's own column first. Returns (n, entries scanned)."""
-    start, xs, ys, zs, mult = cols
     R = reach(max(abs(xq), abs(yq)), rad)
     Rz = reach(zq, rad)
     k_lo = cell(zq - Rz, z0, inv)
     k_hi = cell(zq + Rz, z0, inv)
     own_x = cell(xq, x0, inv)
     own_y = cell(yq, y0, inv)
-    scanned = 0
+    n, scanned = _count_column(cols, own_y * nx + own_x, xq, yq, zq, k_lo, k_hi, r2, n, need)
     iy0, iy1 = max(cell(yq - R, y0, inv), 0), min(cell(yq + R, y0, inv), ny - 1)
     ix0, ix1 = max(cell(xq - R, x0, inv), 0), min(cell(xq + R, x0, inv), nx - 1)
-    for t in range(-1, (iy1 - iy0 + 1) * (ix1 - ix0 + 1)):
-        if t < 0:
-            ix, iy = own_x, own_y
-        else:
-            iy = iy0 + t // (ix1 - ix0 + 1)
-            ix = ix0 + t % (ix1 - ix0 + 1)
-            if ix == own_x and iy == own_y:
-                continue
-        if n >= need:
-            break
-        k = iy * nx + ix
-        j = _first_slab(zs, start[k], start[k + 1], k_lo, z0, inv)
-        j0 = j
-        end = start[k + 1]
-        while j < end and n < need and cell(zs[j], z0, inv) <= k_hi:
-            if d2(xq, yq, zq, xs[j], ys[j], zs[j]) < r2:
-                n += mult[j]
-            j += 1
-        scanned += j - j0
+    for iy in range(iy0, iy1 + 1):
+        for ix in range(ix0, ix1 + 1):
+            if n >= need:
+                return n, scanned
+            if ix != own_x or iy != own_y:
+                n, used = _count_column(cols, iy * nx + ix, xq, yq, zq, k_lo, k_hi, r2, n, need)
+                scanned += used
     return n, scanned
 
 
@@ -240,7 +245,7 @@ def knn_query(cols, x0, y0, z0, inv, nx, ny, xq, yq, zq, lim, best, max_scan):
     is final). Returns the entries scanned, or -1 when more than ``max_scan`` would be needed
     (``best`` is then not final).
     """
-    start, xs, ys, zs, mult = cols
+    start, xs, ys, zs, mult, ks = cols
     m = best.shape[0]
     for i in range(m):
         best[i] = np.inf
@@ -261,11 +266,11 @@ def knn_query(cols, x0, y0, z0, inv, nx, ny, xq, yq, zq, lim, best, max_scan):
                     continue
                 Rz = reach(zq, rad)
                 col = iy * nx + ix
-                j = _first_slab(zs, start[col], start[col + 1], cell(zq - Rz, z0, inv), z0, inv)
+                j = _first_slab(ks, start[col], start[col + 1], cell(zq - Rz, z0, inv))
                 j0 = j
                 end = start[col + 1]
                 k_hi = cell(zq + Rz, z0, inv)
-                while j < end and cell(zs[j], z0, inv) <= k_hi:
+                while j < end and ks[j] <= k_hi:
                     v = d2(xq, yq, zq, xs[j], ys[j], zs[j])
                     if v < best[m - 1]:
                         found = _insert_copies(best, found, v, mult[j])

@@ -30,8 +30,8 @@ multiplicity, or a KD-tree node inside or outside the ball whole.
 
 A fall-back keeps time and memory bounded whatever the cloud: when the column grid would be too
 large (coordinates spread far beyond the radius) or the column queries have scanned
-``_BUDGET_PER_POINT`` entries per valid point (dense clusters of distinct points right at the
-radius), the remaining pixels go to a balanced KD-tree over all valid points (median splits, so
+``_BUDGET_PER_QUERY`` times ``min_points + 1`` entries per undecided pixel (dense clusters of
+distinct points right at the radius), the remaining pixels go to a balanced KD-tree over all valid points (median splits, so
 duplicates cannot unbalance it) that counts whole nodes inside the ball and prunes those outside.
 
 :func:`radius_outliers_reference` counts by brute force (all pairwise distances), or with scipy's
@@ -58,8 +58,9 @@ __all__ = ["radius_neighbour_counts", "radius_outliers", "radius_outliers_refere
 # search limits (read at call time, so that tests can force each path)
 _WINDOW_EXTRA = 1         # window rings beyond the smallest window that could hold `need` pixels
 _USE_COLUMNS = True       # False: every undecided pixel goes to the KD-tree
+_COLUMN_WIDTH = 2.0       # column width, in radii
 _COLUMNS_PER_POINT = 8    # largest grid (columns per valid point) before the KD-tree takes over
-_BUDGET_PER_POINT = 16    # points the column queries may measure, per valid point ...
+_BUDGET_PER_QUERY = 16    # entries the column queries may scan, times `need` per query ...
 _BUDGET_FLOOR = 1 << 20   # ... plus this, before the KD-tree takes the remaining queries
 
 
@@ -369,7 +370,7 @@ def _counts(a: np.ndarray, radius_m: float, need: int) -> np.ndarray:
     n_valid = int(np.count_nonzero(state))
     got = np.zeros(rows.size, np.int64)
     left = np.ones(rows.size, dtype=bool)
-    inv = 1.0 / radius_m
+    inv = 1.0 / (_COLUMN_WIDTH * radius_m)
     with np.errstate(over="ignore", invalid="ignore"):
         nx, ny, nz = (float(np.floor((hi[i] - lo[i]) * inv)) + 1.0 for i in range(3))
     if (_USE_COLUMNS and math.isfinite(inv) and nx * ny <= _COLUMNS_PER_POINT * n_valid + 4096
@@ -380,7 +381,7 @@ def _counts(a: np.ndarray, radius_m: float, need: int) -> np.ndarray:
         _columns.mark_columns(q[0], q[1], np.full(rows.size, radius_m), lo[0], lo[1], inv, nx, ny, marked)
         columns = _columns.build_columns(a[:, :, 0], a[:, :, 1], a[:, :, 2], lo[0], lo[1], lo[2], inv, nx, marked)
         left[:] = False
-        budget = int(_BUDGET_PER_POINT * n_valid + _BUDGET_FLOOR)
+        budget = int(_BUDGET_PER_QUERY * need * rows.size + _BUDGET_FLOOR)
         _column_queries(0, rows.size, q, r2, radius_m, need, budget, lo[0], lo[1], lo[2], inv, nx, ny, columns, got,
                         left)
     if left.any():

@@ -71,7 +71,7 @@ SEARCH_PATHS = {
     "wide-window": {"_WINDOW_EXTRA": 4},  # rings up to the generic loop's reach
     "kdtree": {"_USE_COLUMNS": False},  # every undecided pixel by the KD-tree
     "sparse-grid": {"_COLUMNS_PER_POINT": 0},  # the grid would be too large: KD-tree
-    "no-budget": {"_BUDGET_PER_POINT": 0, "_BUDGET_FLOOR": 0},  # one column query, then KD-tree
+    "no-budget": {"_BUDGET_PER_QUERY": 0, "_BUDGET_FLOOR": 0},  # one column query, then KD-tree
 }
 
 
