@@ -1,6 +1,7 @@
 """Seeded organized clouds for the tests of the filter bank (zcut.local_rules, zcut.components,
-zcut.radius, zcut.sor): camera clouds with flying pixels and holes, values on the filters' thresholds, heaps of
-identical points, clouds with no camera at all, tall parts on end, and the degenerate shapes."""
+zcut.radius) and of SOR's steep relief: camera clouds with flying pixels and holes, values on the
+filters' thresholds, heaps of identical points, clouds with no camera at all, tall parts on end,
+and the degenerate shapes."""
 
 from __future__ import annotations
 
