@@ -5,10 +5,11 @@ The x-y plane is cut into square cells of side ``1 / inv``; a column holds the v
 (x, y) fall in its cell, ordered by slab (z cut into cells of the same side: a column is a stack
 of cubes), consecutive identical points merged into one entry with a multiplicity. For a camera
 looking along z (the optical frame), a column is a thin tube along the rays: a query visits the
-few columns its ball can reach and, in each, binary-searches the slabs of the ball's z range, so its cost depends on the points near it in 3D, not on where they lie in the image;
-tall parts standing on end (whose image neighbours are rarely 3D neighbours) cost no more than a
-flat floor. The columns are dense arrays (no hashing): neighbouring columns are neighbours in
-memory. Only the columns some query can reach are filled (``marked``).
+few columns its ball can reach and, in each, binary-searches the slabs of the ball's z range, so
+its cost depends on the points near it in 3D, not on where they lie in the image; tall parts
+standing on end (whose image neighbours are rarely 3D neighbours) cost no more than a flat floor.
+The columns are dense arrays (no hashing): neighbouring columns are neighbours in memory. Only the
+columns some query can reach need to be filled (``marked``).
 
 Exactness: every function here is monotone in each coordinate (``cell``) or carries a margin
 (``reach``), so a query visits every point whose computed squared distance

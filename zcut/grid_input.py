@@ -36,15 +36,9 @@ def plain_number(value: object) -> object:
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def is_valid(a, r, c):
-    """All three coordinates of pixel (r, c) finite (``v * 0`` is 0 for a finite v and NaN for
-    inf and NaN: one comparison, no branch)."""
-    return a[r, c, 0] * 0.0 + a[r, c, 1] * 0.0 + a[r, c, 2] * 0.0 == 0.0
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
 def valid_at(row, c):
-    """:func:`is_valid` of pixel c of a row ``a[r]`` (kernels index rows: much faster in numba)."""
+    """All three coordinates of pixel c of a row ``a[r]`` finite (kernels index rows: much faster
+    in numba). ``v * 0`` is 0 for a finite v and NaN for inf and NaN: one comparison, no branch."""
     return row[c, 0] * 0.0 + row[c, 1] * 0.0 + row[c, 2] * 0.0 == 0.0
 
 

@@ -31,8 +31,9 @@ multiplicity, or a KD-tree node inside or outside the ball whole.
 A fall-back keeps time and memory bounded whatever the cloud: when the column grid would be too
 large (coordinates spread far beyond the radius) or the column queries have scanned
 ``_BUDGET_PER_QUERY`` times ``min_points + 1`` entries per undecided pixel (dense clusters of
-distinct points right at the radius), the remaining pixels go to a balanced KD-tree over all valid points (median splits, so
-duplicates cannot unbalance it) that counts whole nodes inside the ball and prunes those outside.
+distinct points right at the radius), the remaining pixels go to a balanced KD-tree over all valid
+points (median splits, so duplicates cannot unbalance it) that counts whole nodes inside the ball
+and prunes those outside.
 
 :func:`radius_outliers_reference` counts by brute force (all pairwise distances), or with scipy's
 KD-tree and every candidate re-measured in the same arithmetic; the tests check both against the

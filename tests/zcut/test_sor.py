@@ -214,7 +214,8 @@ def test_steep_relief_uses_the_columns(convention: str, monkeypatch: pytest.Monk
                                       mean_distances_reference(xyz, k=k, convention=convention, method="kdtree"))
     assert settled and min(settled) > 100
     if convention == "open3d":
-        np.testing.assert_array_equal(sor_outliers(xyz, k=4, convention="open3d"), open3d_outliers(xyz, k=4, std_ratio=1.0))
+        np.testing.assert_array_equal(sor_outliers(xyz, k=4, convention="open3d"),
+                                      open3d_outliers(xyz, k=4, std_ratio=1.0))
 
 
 @pytest.mark.parametrize("invalid", [0.3, 0.5, 0.7])
