@@ -12,6 +12,10 @@ Classes (1920 x 1200, or the sensor's own size), all seeded:
   mixed-z      the pile in a tilted bin frame: z = height above the bin floor, of both signs
   distorted    the pile seen through a lens with strong radial distortion (k1 = 0.05: rows and
                columns bent by up to 25 px at the corners), as real sensors' clouds are bent
+  steep        steep relief: some 400 tall narrow parts (rods 8-24 mm across, 40-220 mm tall)
+               standing on end on a floor 1 m away, seen by a camera tilted 35 deg: their sides
+               run along the rays, so image neighbours are rarely 3D neighbours (flying pixels at
+               the silhouettes, noise, dropouts)
   synth        the project's own synthetic structured-light scan (replay.synth), if importable
   kinect/NAME  the real Kinect clouds of ../shared/data/real (640 x 480, quantized depth)
 
@@ -226,6 +230,64 @@ def walls_cloud(seed: int = 0, *, height: int = FULL[0], width: int = FULL[1]) -
     return xyz
 
 
+def steep_cloud(seed: int = 0, *, height: int = FULL[0], width: int = FULL[1], tilt_deg: float = 5.0,
+                n_parts: int = 900) -> np.ndarray:
+    """Tall narrow parts standing on end (vertical cylinders with flat tops) on a floor, ray-cast
+    exactly from a camera 1 m above the floor and tilted by ``tilt_deg`` from the vertical: the
+    rods' sides are seen at steep angles, so the depth jumps by millimetres to centimetres between
+    image neighbours along them. Flying pixels at the silhouettes, noise along the rays, dropouts."""
+    rng = np.random.default_rng(seed)
+    f = 1700.0 * width / FULL[1]
+    dx, dy = _rays(height, width, f)
+    # world: z up, floor z = 0; camera at (0, -sin(t), cos(t)) * 1 m looking at the origin
+    t = np.deg2rad(tilt_deg)
+    C = np.array([0.0, -np.sin(t), np.cos(t)])
+    fwd = -C
+    right = np.array([1.0, 0.0, 0.0])
+    down = np.cross(fwd, right)
+    Rwc = np.stack([right, down, fwd], axis=1)  # camera axes (x right, y down, z forward) in the world
+    D = np.stack([dx, dy, np.ones_like(dx)], axis=-1) @ Rwc.T  # ray directions, camera z = 1
+    tz = np.where(D[..., 2] < 0, -C[2] / np.where(D[..., 2] < 0, D[..., 2], -1.0), np.inf)  # the floor
+    floor_hit = C + tz[..., None] * D
+    tz = np.where((np.abs(floor_hit[..., 0]) < 0.6) & (np.abs(floor_hit[..., 1]) < 0.5), tz, np.inf)
+    K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])
+    for _ in range(n_parts):
+        R, h = rng.uniform(0.004, 0.012), rng.uniform(0.04, 0.22)
+        cx, cy = rng.uniform(-0.35, 0.35), rng.uniform(-0.3, 0.3)
+        corners = np.array([[cx + sx * R, cy + sy * R, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (0.0, h)])
+        cam = (corners - C) @ Rwc  # world -> camera
+        if (cam[:, 2] <= 0.05).any():
+            continue
+        uv = cam @ K.T
+        us, vs = uv[:, 0] / uv[:, 2], uv[:, 1] / uv[:, 2]
+        c0, c1 = max(0, int(us.min()) - 1), min(width, int(us.max()) + 2)
+        r0, r1 = max(0, int(vs.min()) - 1), min(height, int(vs.max()) + 2)
+        if c0 >= c1 or r0 >= r1:
+            continue
+        d = D[r0:r1, c0:c1]
+        ox, oy = C[0] - cx, C[1] - cy
+        a = d[..., 0] ** 2 + d[..., 1] ** 2
+        b = 2 * (ox * d[..., 0] + oy * d[..., 1])
+        disc = b * b - 4 * a * (ox * ox + oy * oy - R * R)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ts = (-b - np.sqrt(np.maximum(disc, 0.0))) / (2 * a)  # the side, nearest hit
+            zs = C[2] + ts * d[..., 2]
+            side = (disc > 0) & (zs >= 0) & (zs <= h) & (ts > 0)
+            tt = (h - C[2]) / d[..., 2]  # the top disk
+            top = C + tt[..., None] * d
+            cap = ((top[..., 0] - cx) ** 2 + (top[..., 1] - cy) ** 2 <= R * R) & (tt > 0)
+        best = tz[r0:r1, c0:c1]
+        best = np.where(side, np.minimum(best, ts), best)
+        best = np.where(cap, np.minimum(best, tt), best)
+        tz[r0:r1, c0:c1] = best
+    z = np.where(np.isfinite(tz), tz, np.nan)  # camera z = t (the rays have camera z = 1)
+    z = _flying_pixels(np.where(np.isnan(z), 2.0, z), rng, jump=0.01, frac=0.25)
+    z = z * (1.0 + rng.normal(0.0, 2e-4, z.shape))
+    xyz = np.stack([dx * z, dy * z, z], axis=-1).astype(np.float32)
+    xyz[~np.isfinite(tz) | (rng.random((height, width)) < 0.01)] = np.nan
+    return xyz
+
+
 def sparse_cloud(seed: int = 0) -> np.ndarray:
     """The blobs scene (5 % blobs) with half of the pixels invalid, scattered."""
     xyz = blobs_cloud(seed, invalid_frac=0.05)
@@ -290,6 +352,7 @@ def cloud_classes(seed: int) -> dict[str, object]:
         "negative-z": lambda: negative_z_cloud(seed),
         "mixed-z": lambda: mixed_z_cloud(seed),
         "distorted": lambda: pile_cloud(seed, k1=0.05),
+        "steep": lambda: steep_cloud(seed),
         "synth": lambda: synth_cloud(seed),
     }
     for path in sorted(REAL_DATA.glob("*.pcd")):

@@ -3,7 +3,8 @@
 The kernels are compiled on first use and cached beside their modules; a first ``zcut demo`` would
 otherwise wait about a minute in silence. This runs every kernel once on tiny inputs: a small
 synthetic log with its bin model through the whole pipeline, the z-cut's kernels (flooding,
-union-find, the grid), SOR in both conventions, and the PCD/PLY readers.
+union-find, the grid), SOR in both conventions (its column search too), the filter bank, and the
+PCD/PLY readers.
 """
 
 from __future__ import annotations
@@ -21,7 +22,18 @@ def main() -> int:
     from replay.pipeline.bin_model import build_bin_model
     from replay.pipeline.session import ReplaySession
     from replay.synth.log import write_synthetic_log
-    from zcut import find_clusters, sor_outliers, zcut_outliers, zcut_tree
+    from zcut import (
+        Intrinsics,
+        cluster_outliers,
+        find_clusters,
+        mixed_pixel_outliers,
+        radius_outliers,
+        sor_outliers,
+        speckle_outliers,
+        window_outliers,
+        zcut_outliers,
+        zcut_tree,
+    )
     from zcut.params import ZCutParams
 
     t0 = time.perf_counter()
@@ -34,9 +46,19 @@ def main() -> int:
     tree = zcut_tree(h, step=0.2, max_depth=3.0)
     tree.counts([1.0, 3.0], [5.0, 20.0], truth=h > 1, scored=np.ones(h.shape, bool))
     xyz = np.dstack([*np.meshgrid(np.arange(50.0), np.arange(40.0)), 500 + h]).astype(np.float32)
+    scattered = rng.normal(size=(40, 50, 3)).astype(np.float32)  # no camera: SOR's column search
     for convention in ("pcl", "open3d"):
         sor_outliers(xyz, k=4, convention=convention)
         sor_outliers(xyz.astype(np.float64) * [1, 1, -1], k=4, convention=convention)
+        sor_outliers(scattered, k=4, convention=convention)
+    camera = Intrinsics(fx=300.0, fy=300.0, cx=25.0, cy=20.0, width=50, height=40)
+    for cloud in (xyz / 1000.0, scattered):  # the filter bank, float32 and float64
+        for a in (cloud.astype(np.float32), cloud.astype(np.float64)):
+            radius_outliers(a, 2.0, 8)
+            cluster_outliers(a, max_neighbour_mm=3.0, min_area_mm2=50.0, intrinsics=camera)
+            speckle_outliers(a, max_diff_mm=2.0, max_size_px=100)
+            window_outliers(a, min_inliers=3, rel_tolerance=0.005)
+            mixed_pixel_outliers(a, min_angle_deg=8.0)
     with tempfile.TemporaryDirectory() as d:
         log, empty = Path(d) / "w.mcap", Path(d) / "e.mcap"
         write_synthetic_log(log, kind="rods", frames=1, seed=1, size=(60, 96))

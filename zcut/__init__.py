@@ -24,6 +24,26 @@ from .metrics import (
 from .params import BinMaskParams, RegistrationParams, RemovalParams, SorParams, ZCutParams
 from .sor import sor_mean_distances, sor_outliers, sor_outliers_from_distances
 
+# the filter bank (docs/filters.md, "The filter bank")
+from .components import (
+    cluster_outliers,
+    cluster_outliers_reference,
+    cluster_stage,
+    speckle_outliers,
+    speckle_outliers_reference,
+    speckle_stage,
+)
+from .local_rules import (
+    mixed_pixel_outliers,
+    mixed_pixel_outliers_reference,
+    mixed_pixel_stage,
+    window_outliers,
+    window_outliers_reference,
+    window_stage,
+)
+from .params import ClusterParams, MixedPixelParams, RadiusParams, SpeckleParams, WindowParams
+from .radius import radius_outliers, radius_outliers_reference, radius_stage
+
 __all__ = [
     "BinMaskParams",
     "BinModel",
@@ -58,4 +78,25 @@ __all__ = [
     "sor_outliers_from_distances",
     "height_mm",
     "valid_mask",
+    # the filter bank
+    "ClusterParams",
+    "MixedPixelParams",
+    "RadiusParams",
+    "SpeckleParams",
+    "WindowParams",
+    "cluster_outliers",
+    "cluster_outliers_reference",
+    "cluster_stage",
+    "mixed_pixel_outliers",
+    "mixed_pixel_outliers_reference",
+    "mixed_pixel_stage",
+    "radius_outliers",
+    "radius_outliers_reference",
+    "radius_stage",
+    "speckle_outliers",
+    "speckle_outliers_reference",
+    "speckle_stage",
+    "window_outliers",
+    "window_outliers_reference",
+    "window_stage",
 ]

@@ -509,3 +509,160 @@ class SorParams:
         _number(self, "std_ratio", gt=0)
         _choice(self, "convention", SOR_CONVENTIONS)
         _choice(self, "region", SOR_REGIONS)
+
+
+# --------------------------------------------------------------------------------------------
+# The filter bank (docs/filters.md, "The filter bank"): RadiusParams, ClusterParams, SpeckleParams,
+# WindowParams, MixedPixelParams. Defaults are for a 1920 x 1200
+# structured-light camera about 1 m above the parts (fx ≈ fy ≈ 1700 px: one pixel covers about
+# 0.6 mm x 0.6 mm at 1 m, and neighbouring pixels on a surface tilted 60 deg differ by ~1 mm in depth).
+# --------------------------------------------------------------------------------------------
+__all__ += ["ClusterParams", "MixedPixelParams", "RadiusParams", "SpeckleParams", "WindowParams"]
+
+
+def _as_int(obj: object, name: str) -> None:
+    """Store a validated integral field as an ``int`` (``8.0`` -> ``8``)."""
+    object.__setattr__(obj, name, int(getattr(obj, name)))
+
+
+def _as_float(obj: object, name: str) -> None:
+    object.__setattr__(obj, name, float(getattr(obj, name)))
+
+
+@dataclass(frozen=True, slots=True)
+class RadiusParams:
+    """Radius outlier removal (:func:`zcut.radius.radius_outliers`), Open3D's
+    ``remove_radius_outlier(nb_points, radius)``.
+
+    Attributes
+    ----------
+    radius_mm : float
+        Radius of the ball around each point, > 0 (mm). Default 2 mm: about 3 pixel footprints at
+        1 m, so a point of a surface has some 15 to 35 other points within it.
+    min_points : int
+        A point is kept iff at least this many OTHER points lie strictly inside the ball (Open3D's
+        ``nb_points``), >= 1. Default 8.
+    """
+
+    radius_mm: float = 2.0
+    min_points: int = 8
+
+    def __post_init__(self) -> None:
+        _number(self, "radius_mm", gt=0)
+        _number(self, "min_points", ge=1, integer=True)
+        _as_float(self, "radius_mm")
+        _as_int(self, "min_points")
+
+    @property
+    def radius_m(self) -> float:
+        return self.radius_mm / 1000.0
+
+
+CLUSTER_CONNECTIVITIES = (4, 8)
+
+
+@dataclass(frozen=True, slots=True)
+class ClusterParams:
+    """Cluster removal in the style of Zivid's Cluster Filter (:func:`zcut.components.cluster_outliers`).
+
+    Attributes
+    ----------
+    max_neighbour_mm : float
+        Two neighbouring valid pixels belong to the same cluster when their points are at most this
+        far apart in 3D, > 0 (mm). Default 3 mm (five pixel footprints at 1 m: a surface tilted up to
+        ~80 deg stays one cluster).
+    min_area_mm2 : float
+        Clusters whose area, the sum of each pixel's footprint (z/fx)·(z/fy) at its depth, is
+        smaller are removed, >= 0 (mm²). Default 50 mm² (about 140 pixels at 1 m).
+    connectivity : {8, 4}
+        Pixel adjacency of the clusters. Default 8.
+    """
+
+    max_neighbour_mm: float = 3.0
+    min_area_mm2: float = 50.0
+    connectivity: int = 8
+
+    def __post_init__(self) -> None:
+        _number(self, "max_neighbour_mm", gt=0)
+        _number(self, "min_area_mm2", ge=0)
+        c = self.connectivity
+        if isinstance(c, bool) or c not in CLUSTER_CONNECTIVITIES:
+            raise ParameterError(f"ClusterParams.connectivity must be 4 or 8, got {c!r}")
+        _as_float(self, "max_neighbour_mm")
+        _as_float(self, "min_area_mm2")
+        _as_int(self, "connectivity")
+
+    @property
+    def max_neighbour_m(self) -> float:
+        return self.max_neighbour_mm / 1000.0
+
+
+@dataclass(frozen=True, slots=True)
+class SpeckleParams:
+    """Speckle removal in the style of OpenCV's ``filterSpeckles`` and Ensenso's SpeckleRemoval
+    (:func:`zcut.components.speckle_outliers`).
+
+    Attributes
+    ----------
+    max_diff_mm : float
+        4-neighbouring valid pixels whose depths differ by at most this belong to the same region,
+        >= 0 (mm; OpenCV's ``maxDiff``). Default 2 mm (twice the depth step between neighbours of a
+        surface tilted 60 deg at 1 m).
+    max_size_px : int
+        Regions of at most this many pixels are removed, >= 0 (OpenCV's ``maxSpeckleSize``;
+        Ensenso's RegionSize is this + 1; 0 removes nothing). Default 100 pixels (about 36 mm² at 1 m).
+    """
+
+    max_diff_mm: float = 2.0
+    max_size_px: int = 100
+
+    def __post_init__(self) -> None:
+        _number(self, "max_diff_mm", ge=0)
+        _number(self, "max_size_px", ge=0, integer=True)
+        _as_float(self, "max_diff_mm")
+        _as_int(self, "max_size_px")
+
+
+@dataclass(frozen=True, slots=True)
+class WindowParams:
+    """The 3 x 3 rule of Basler's OutlierRemoval (:func:`zcut.local_rules.window_outliers`).
+
+    Attributes
+    ----------
+    min_inliers : int
+        A valid pixel is kept iff at least this many of its 8 neighbours are inliers, 0..8
+        (Basler's OutlierRemovalThreshold; 0 removes nothing). Default 3: the pixel at a convex
+        right-angled corner of a surface keeps its 3 neighbours on the surface.
+    rel_tolerance : float
+        A neighbour is an inlier when its depth differs from the centre's by at most this fraction
+        of the centre's depth, >= 0 (Basler's OutlierRemovalTolerance). Default 0.005 (5 mm at 1 m).
+    """
+
+    min_inliers: int = 3
+    rel_tolerance: float = 0.005
+
+    def __post_init__(self) -> None:
+        _number(self, "min_inliers", ge=0, le=8, integer=True)
+        _number(self, "rel_tolerance", ge=0)
+        _as_int(self, "min_inliers")
+        _as_float(self, "rel_tolerance")
+
+
+@dataclass(frozen=True, slots=True)
+class MixedPixelParams:
+    """The mixed-pixel (jump-edge) test (:func:`zcut.local_rules.mixed_pixel_outliers`), ifm's
+    mixed-pixel filter.
+
+    Attributes
+    ----------
+    min_angle_deg : float
+        A pixel is a mixed pixel when, along one image axis, the segments to its valid neighbours
+        all make an angle smaller than this with its viewing ray, 0..90 (degrees; 0 removes
+        nothing). Default 8 deg (ifm gives the threshold in radians: 0.14 rad).
+    """
+
+    min_angle_deg: float = 8.0
+
+    def __post_init__(self) -> None:
+        _number(self, "min_angle_deg", ge=0, le=90)
+        _as_float(self, "min_angle_deg")

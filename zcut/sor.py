@@ -33,12 +33,19 @@ and a search never has to look at more than m copies of a duplicated point.
    selection), a 5 × 5 window for what it leaves (the whole row, vectorized, when that is much),
    then one pixel at a time, growing the window to the smallest w whose bound covers the current
    m-th distance, up to 16.
-3. *Tile quadtree* (:mod:`zcut.sor_search`). Unproven pixels (flying pixels, isolated points,
+3. *Columns* (:mod:`zcut.columns`), when many pixels are unproven (one in ``_COLUMNS_MIN_SHARE``
+   or more: tall parts standing on end, whose image neighbours are rarely 3D neighbours, and the
+   flying pixels along their silhouettes). Each unproven pixel has an upper bound on its m-th
+   distance (the m-th found in its window): a k-nearest search visits x-y columns (square cells a
+   quarter of the median bound wide, points ordered by depth slab) ring by ring around its own,
+   the search radius shrinking to the m-th distance found. Its cost depends on the points near the
+   pixel in 3D, not on where they lie in the image. A search that scans too much is left to:
+4. *Tile quadtree* (:mod:`zcut.sor_search`). Unproven pixels (flying pixels, isolated points,
    clouds without a camera) are searched over a quadtree of 8 × 8 pixel tiles, nearest node
    first; a node's bound is the larger of the distance to the box of its points and of the
    half-space bounds of its U and V ranges. A search that measures more than a few thousand pixels
    stops.
-4. *KD-tree.* The pixels whose tile search stopped go to a KD-tree (balanced median splits, so
+5. *KD-tree.* The pixels whose tile search stopped go to a KD-tree (balanced median splits, so
    duplicates cannot unbalance it; O(n) memory) built over the points of the tiles within their
    radius, or over all valid points when the cloud turns out not to be organized at all.
 
@@ -65,6 +72,7 @@ from contextlib import contextmanager
 import numba as nb
 import numpy as np
 
+from . import columns as _columns
 from . import sor_camera as _camera
 from . import sor_search as _search
 from . import sor_window as _window
@@ -82,6 +90,11 @@ _WINDOW_MAX = _window.WINDOW_MAX   # largest window half-width, 1..16
 _TILE_SCAN_CAP = 2048              # pixels one tile search may measure before the KD-tree takes over
 _MARK_MAX_TILES = 4096             # tiles one pixel may need before the KD-tree takes every point
 _SAMPLE = 256                      # unproven pixels tried first to tell an unorganized cloud
+_USE_COLUMNS = True                # search the unproven pixels with a known bound in columns first ...
+_COLUMNS_MIN_SHARE = 200           # ... when at least one valid pixel in this many is unproven
+_COLUMN_WIDTH = 0.25               # column width, times the median bound of the unproven pixels
+_COLUMNS_PER_POINT = 8             # largest column grid, per valid point
+_COLUMN_SCAN = 1024                # entries a column search may scan per query, on average
 
 Run = Callable[..., None]
 
@@ -213,8 +226,42 @@ def _mean_distances(x, y, z, valid, amax, m: int, divisor: float, run: Run) -> n
     return dbar
 
 
+def _column_stage(x, y, z, valid, rows, cols, lim, m, divisor, dbar, run: Run) -> np.ndarray:
+    """k-nearest search in columns (:mod:`zcut.columns`) for the unproven pixels with a finite
+    bound ``lim``, when they are many (tall parts on end, flying pixels everywhere: the tile search
+    would measure whole tiles for each). Writes their d̄ into dbar; returns which it settled."""
+    done = np.zeros(rows.size, dtype=bool)
+    n_valid = int(np.count_nonzero(valid))
+    rad = np.sqrt(lim)
+    eligible = np.isfinite(rad) & (rad > 0.0)
+    if rows.size * _COLUMNS_MIN_SHARE < n_valid or not eligible.any():
+        return done
+    width = float(np.median(rad[eligible])) * _COLUMN_WIDTH
+    x0, x1, y0, y1, z0, z1 = _search.valid_range(x, y, z, valid)
+    inv = 1.0 / width
+    with np.errstate(over="ignore", invalid="ignore"):
+        nx, ny = np.floor((x1 - x0) * inv) + 1.0, np.floor((y1 - y0) * inv) + 1.0
+        nz = np.floor((z1 - z0) * inv) + 1.0
+    if not (math.isfinite(inv) and nx * ny <= _COLUMNS_PER_POINT * n_valid + 4096 and nz < 2.0**53):
+        return done
+    nx, ny = int(nx), int(ny)
+    marked = np.ones(nx * ny, dtype=bool)
+    columns = _columns.build_columns(x, y, z, x0, y0, z0, inv, nx, marked)
+    out = np.zeros(rows.size)
+    run(_search.column_queries, rows.size, x, y, z, rows, cols, lim, eligible, m, divisor, int(_COLUMN_SCAN),
+        columns, x0, y0, z0, inv, nx, ny, out, done)
+    dbar[rows[done], cols[done]] = out[done]
+    return done
+
+
 def _fallback(x, y, z, valid, rows, cols, lim, m, divisor, use_cam, tree, dbar, run: Run) -> None:
-    """Tile search for the unproven pixels, then a KD-tree for those it could not finish."""
+    """Columns, then a tile search for the unproven pixels left, then a KD-tree for those it could
+    not finish."""
+    if _USE_COLUMNS:
+        done = _column_stage(x, y, z, valid, rows, cols, lim, m, divisor, dbar, run)
+        if done.all():
+            return
+        rows, cols, lim = rows[~done], cols[~done], lim[~done]
 
     def tile_search(rows, cols, lim):
         out, outcome, radius2 = np.zeros(rows.size), np.zeros(rows.size, np.uint8), np.full(rows.size, np.inf)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from . import columns as _columns
 from .sor_camera import KEEP, TILE, node_planes, plane_bound
 from .sor_window import d2, insert, mean_of_sorted
 
@@ -33,6 +34,51 @@ KD_LEAF = 16
 FOUND = 0
 NEEDS_KD = 1      # cap hit; a finite radius is known: KD-tree over the tiles within it
 NEEDS_KD_ALL = 2  # cap hit and no finite radius: KD-tree over every valid point
+
+
+# --------------------------------------------------------------------------------------------
+# columns (zcut.columns): the first fall-back, for pixels with a known bound
+# --------------------------------------------------------------------------------------------
+@nb.njit(cache=True, nogil=True)
+def column_queries(q0, q1, x, y, z, qr, qc, qlim, eligible, m, divisor, per_query, cols, x0, y0, z0, inv, nx,
+                   ny, out, done):
+    """Exact d̄ of the eligible query pixels q0..q1-1 by a k-nearest search in the columns, given
+    ``qlim``, an upper bound on each one's m-th smallest squared distance (finite). Once the
+    queries of this range have scanned ``per_query`` entries each on average, the rest are left
+    (done[q] stays False) to the tile search."""
+    best = np.empty(m)
+    budget = per_query * (q1 - q0)
+    spent = 0
+    for q in range(q0, q1):
+        if not eligible[q] or spent > budget:
+            continue
+        r = qr[q]
+        c = qc[q]
+        used = _columns.knn_query(cols, x0, y0, z0, inv, nx, ny, x[r, c], y[r, c], z[r, c], qlim[q], best,
+                                  budget - spent)
+        if used < 0:
+            break
+        spent += used
+        if best[m - 1] < np.inf:
+            out[q] = mean_of_sorted(best, divisor)
+            done[q] = True
+
+
+@nb.njit(cache=True)
+def valid_range(x, y, z, valid):
+    """Smallest and largest x, y and z of the valid pixels."""
+    x0 = y0 = z0 = np.inf
+    x1 = y1 = z1 = -np.inf
+    for r in range(valid.shape[0]):
+        for c in range(valid.shape[1]):
+            if valid[r, c]:
+                x0 = min(x0, x[r, c])
+                x1 = max(x1, x[r, c])
+                y0 = min(y0, y[r, c])
+                y1 = max(y1, y[r, c])
+                z0 = min(z0, z[r, c])
+                z1 = max(z1, z[r, c])
+    return x0, x1, y0, y1, z0, z1
 
 
 # --------------------------------------------------------------------------------------------

@@ -153,6 +153,10 @@ SEARCH_PATHS = {
     "kdtree": {"_TILE_SCAN_CAP": 0},  # KD-tree over the tiles within each pixel's radius
     "kdtree-all": {"_TILE_SCAN_CAP": 0, "_MARK_MAX_TILES": 0},  # KD-tree over all valid points
     "unorganized": {"_TILE_SCAN_CAP": 0, "_SAMPLE": 2},  # the sample says "not organized"
+    "columns": {"_COLUMNS_MIN_SHARE": 1 << 40},  # every unproven pixel with a bound by the columns
+    "columns-narrow": {"_COLUMNS_MIN_SHARE": 1 << 40, "_COLUMN_WIDTH": 0.01},  # many rings
+    "columns-then-tiles": {"_COLUMNS_MIN_SHARE": 1 << 40, "_COLUMN_SCAN": 3},  # the budget runs out
+    "columns-no-camera": {"_COLUMNS_MIN_SHARE": 1 << 40, "_USE_CAMERA": False, "_WINDOW_MAX": 2},
 }
 
 
@@ -187,6 +191,32 @@ def test_camera_cloud_with_flying_pixels(convention: str) -> None:
         else:
             want = sor_outliers_reference(xyz, k=k, std_ratio=std_ratio, convention="pcl")
         np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("convention", ["pcl", "open3d"])
+def test_steep_relief_uses_the_columns(convention: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    # tall narrow parts standing on end: many pixels stay unproven in their windows and the column
+    # stage (on by default from one unproven pixel in _COLUMNS_MIN_SHARE) settles them
+    from bank_clouds import steep
+
+    rng = np.random.default_rng(14)
+    xyz = with_holes(rng, steep(rng, 240, 320), 0.02).astype(np.float32)
+    settled = []
+    stage = sor_module._column_stage
+
+    def spy(*args, **kwargs):
+        done = stage(*args, **kwargs)
+        settled.append(int(done.sum()))
+        return done
+
+    monkeypatch.setattr(sor_module, "_column_stage", spy)
+    for k in (4, 8):
+        np.testing.assert_array_equal(sor_mean_distances(xyz, k=k, convention=convention),
+                                      mean_distances_reference(xyz, k=k, convention=convention, method="kdtree"))
+    assert settled and min(settled) > 100
+    if convention == "open3d":
+        np.testing.assert_array_equal(sor_outliers(xyz, k=4, convention="open3d"),
+                                      open3d_outliers(xyz, k=4, std_ratio=1.0))
 
 
 @pytest.mark.parametrize("invalid", [0.3, 0.5, 0.7])
