@@ -59,6 +59,8 @@ __all__ = [
     "floating_evidence",
     "floating_evidence_reference",
     "frame_noise_mm",
+    "NoiseProfile",
+    "noise_profile",
     "local_gaps",
     "local_gaps_reference",
     "surface_residuals",
@@ -89,6 +91,16 @@ MAX_NODES = 1500
 # the floating detector's step: max(floating_step_mm, FLOATING_STEP_SIGMAS * noise): a step below the
 # noise of neighbour differences would cut clean surfaces into floating terraces
 FLOATING_STEP_SIGMAS = 1.0
+# a floating component must clear everything around it by more than this many σ̂ at its height, and
+# by more than this many depth steps (on a sensor reporting depth in steps, the top of a dome is a
+# terrace one step above its surroundings: it floats, and it is the sensor's rounding)
+FLOATING_CLEARANCE_SIGMAS = 1.0
+FLOATING_CLEARANCE_STEPS = 1.5
+# the noise profile: bins of at least this many second differences, at most this many bins
+NOISE_MIN_SAMPLES = 2000
+NOISE_MAX_BINS = 32
+# a bin is quantized when at least this share of its neighbour differences are exactly 0
+QUANTIZED_ZERO_SHARE = 0.2
 # Gaussian quantiles of |x|: median = 0.6745 σ, 75th percentile = 1.1503 σ
 _MAD_SCALE = 1.482602218505602
 _Q75_SCALE = 1.150349380376008
@@ -114,6 +126,29 @@ def detector_names(bits: int) -> tuple[str, ...]:
 # --------------------------------------------------------------------------------------------
 
 
+def _second_differences(height: np.ndarray, judged: Mask) -> tuple[np.ndarray, np.ndarray]:
+    """|centred second differences| along rows and columns at judged pixels with both neighbours on
+    that axis measured, and the height of their centre pixel."""
+    h = np.asarray(height, dtype=np.float64)
+    vals, at = [np.zeros(0)], [np.zeros(0)]
+    if h.shape[1] >= 3:
+        e = h[:, :-2] - 2.0 * h[:, 1:-1] + h[:, 2:]
+        sel = judged[:, 1:-1] & np.isfinite(e)
+        vals.append(e[sel])
+        at.append(h[:, 1:-1][sel])
+    if h.shape[0] >= 3:
+        e = h[:-2, :] - 2.0 * h[1:-1, :] + h[2:, :]
+        sel = judged[1:-1, :] & np.isfinite(e)
+        vals.append(e[sel])
+        at.append(h[1:-1, :][sel])
+    return np.abs(np.concatenate(vals)), np.concatenate(at)
+
+
+def _robust_sigma(a: np.ndarray) -> float:
+    """max(1.4826 · median, 75th percentile / 1.1503) of |e| (equal for Gaussian noise)."""
+    return float(max(_MAD_SCALE * np.median(a), np.quantile(a, 0.75) / _Q75_SCALE))
+
+
 def frame_noise_mm(height: FloatImage, judged: Mask) -> float:
     """σ̂: the robust spread of the frame's second differences at the judged pixels (mm).
 
@@ -134,18 +169,84 @@ def frame_noise_mm(height: FloatImage, judged: Mask) -> float:
     -------
     float
     """
-    h = np.asarray(height, dtype=np.float64)
-    parts = []
-    if h.shape[1] >= 3:
-        e = h[:, :-2] - 2.0 * h[:, 1:-1] + h[:, 2:]
-        parts.append(e[judged[:, 1:-1] & np.isfinite(e)])
-    if h.shape[0] >= 3:
-        e = h[:-2, :] - 2.0 * h[1:-1, :] + h[2:, :]
-        parts.append(e[judged[1:-1, :] & np.isfinite(e)])
-    a = np.abs(np.concatenate(parts)) if parts else np.zeros(0)
+    a, _ = _second_differences(height, check_mask(judged, name="judged", shape=np.shape(height)))
+    return _robust_sigma(a) if a.size else 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class NoiseProfile:
+    """The frame's noise as a function of height (:func:`noise_profile`).
+
+    Attributes
+    ----------
+    heights_mm : (B,) float64 ndarray
+        Median height of each bin, increasing (empty: the frame had nothing to measure).
+    sigma_mm : (B,) float64 ndarray
+        Robust σ̂ of the second differences in each bin (:func:`frame_noise_mm`'s estimator).
+    step_mm : (B,) float64 ndarray
+        The depth step of each bin, 0 for continuous depth: a sensor reporting depth in steps (whole
+        millimetres, or disparity levels that grow with the square of the range) gives many
+        neighbours exactly equal depths; where at least 20 % of the neighbour differences in a bin
+        are exactly 0, its step is the median of the others.
+    """
+
+    heights_mm: np.ndarray
+    sigma_mm: np.ndarray
+    step_mm: np.ndarray
+
+    def _at(self, values: np.ndarray, height) -> np.ndarray:
+        h = np.asarray(height, dtype=np.float64)
+        if self.heights_mm.size == 0:
+            return np.zeros(h.shape)
+        return np.interp(np.nan_to_num(h, nan=float(self.heights_mm[0])), self.heights_mm, values)
+
+    def sigma_at(self, height) -> np.ndarray:
+        """σ̂ at each height (linear between bins, constant beyond; 0 without bins)."""
+        return self._at(self.sigma_mm, height)
+
+    def step_at(self, height) -> np.ndarray:
+        """The depth step at each height (as :meth:`sigma_at`)."""
+        return self._at(self.step_mm, height)
+
+
+def noise_profile(height: FloatImage, judged: Mask) -> NoiseProfile:
+    """σ̂ and the depth step as functions of height, measured on the frame itself.
+
+    A sensor's noise grows with range (a structured-light or stereo camera's depth step grows with
+    the square of the distance), so one frame-wide σ̂ is too small far away and too large near. The
+    second differences of :func:`frame_noise_mm` are sorted by the height of their centre pixel
+    and cut into ``min(32, n // 2000)`` bins (at least 1) of equal counts; each bin gives its median
+    height, its robust σ̂, and the depth step of the neighbour differences |h(p) - h(q)| (rows and
+    columns, judged p, measured q) whose height falls in the bin.
+    """
+    judged = check_mask(judged, name="judged", shape=np.shape(height))
+    a, at = _second_differences(height, judged)
     if a.size == 0:
-        return 0.0
-    return float(max(_MAD_SCALE * np.median(a), np.quantile(a, 0.75) / _Q75_SCALE))
+        return NoiseProfile(np.zeros(0), np.zeros(0), np.zeros(0))
+    order = np.argsort(at, kind="stable")
+    a, at = a[order], at[order]
+    bins = int(min(NOISE_MAX_BINS, max(1, a.size // NOISE_MIN_SAMPLES)))
+    edges = np.linspace(0, a.size, bins + 1).astype(np.int64)
+    heights = np.array([np.median(at[i:j]) for i, j in zip(edges[:-1], edges[1:])])
+    sigmas = np.array([_robust_sigma(a[i:j]) for i, j in zip(edges[:-1], edges[1:])])
+    h = np.asarray(height, dtype=np.float64)
+    d1, d1_at = [], []
+    for dh, at1, where in ((h[:, 1:] - h[:, :-1], h[:, :-1], judged[:, :-1]),
+                           (h[1:, :] - h[:-1, :], h[:-1, :], judged[:-1, :])):
+        sel = where & np.isfinite(dh)
+        d1.append(np.abs(dh[sel]))
+        d1_at.append(at1[sel])
+    d1, d1_at = np.concatenate(d1), np.concatenate(d1_at)
+    # a first difference belongs to the bin whose range of second-difference heights holds it
+    upper = np.array([at[j - 1] for j in edges[1:]])
+    which = np.minimum(np.searchsorted(upper, d1_at, side="left"), bins - 1)
+    steps = np.zeros(bins)
+    for k in range(bins):
+        v = d1[which == k]
+        nonzero = v[v > 0]
+        if v.size and nonzero.size and (v.size - nonzero.size) >= QUANTIZED_ZERO_SHARE * v.size:
+            steps[k] = np.median(nonzero)
+    return NoiseProfile(heights, sigmas, steps)
 
 
 # --------------------------------------------------------------------------------------------
@@ -154,7 +255,7 @@ def frame_noise_mm(height: FloatImage, judged: Mask) -> float:
 
 
 @numba.njit(cache=True)
-def _residual_kernel(h, judged, tau, jump, min_below, codes, best):
+def _residual_kernel(h, judged, taus, jumps, min_below, codes, best):
     H, W = h.shape
     e = np.empty(8)
     for i in range(H):
@@ -192,6 +293,8 @@ def _residual_kernel(h, judged, tau, jump, min_below, codes, best):
                 if ek > emax:
                     emax = ek
             best[i, j] = eb
+            tau = taus[i, j]
+            jump = jumps[i, j]
             if n == 0 or not rmin > tau:
                 continue
             if emin > tau:
@@ -229,16 +332,24 @@ def _check_residual_args(height, judged, tau, jump, min_below):
     if h.ndim != 2 or h.dtype.kind != "f":
         raise InputShapeError(f"height must be an (H, W) real float array, got {describe_array(h)}")
     judged = check_mask(judged, name="judged", shape=h.shape)
+    out = []
     for name, v in (("tau", tau), ("jump", jump)):
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not v >= 0:
-            raise ParameterError(f"{name} must be a number >= 0, got {v!r}")
+        if isinstance(v, (bool, np.bool_)):
+            raise ParameterError(f"{name} must be a number >= 0 or an (H, W) array of them, got {v!r}")
+        a = np.asarray(v, dtype=np.float64) if isinstance(v, (int, float, np.ndarray, np.floating, np.integer)) \
+            else None
+        if a is None or a.ndim not in (0, 2) or (a.ndim == 2 and a.shape != h.shape):
+            raise ParameterError(f"{name} must be a number >= 0 or an array of the height's shape {h.shape}, "
+                                 f"got {describe_array(v) if hasattr(v, 'shape') else repr(v)}")
+        if not np.all(a >= 0):
+            raise ParameterError(f"{name} must be >= 0 everywhere (not NaN)")
+        out.append(np.ascontiguousarray(np.broadcast_to(a, h.shape)))
     if isinstance(min_below, bool) or not isinstance(min_below, (int, np.integer)) or not 1 <= min_below <= 8:
         raise ParameterError(f"min_below must be an integer in 1..8, got {min_below!r}")
-    return np.ascontiguousarray(h, dtype=np.float64), np.ascontiguousarray(judged), float(tau), float(jump), \
-        int(min_below)
+    return np.ascontiguousarray(h, dtype=np.float64), np.ascontiguousarray(judged), out[0], out[1], int(min_below)
 
 
-def surface_residuals(height: FloatImage, judged: Mask, *, tau: float, jump: float,
+def surface_residuals(height: FloatImage, judged: Mask, *, tau, jump,
                       min_below: int) -> tuple[np.ndarray, np.ndarray]:
     """Residuals of the judged pixels against the one-sided continuations of the surface around them.
 
@@ -259,8 +370,8 @@ def surface_residuals(height: FloatImage, judged: Mask, *, tau: float, jump: flo
         unmeasured. float32 is upcast to float64.
     judged : (H, W) bool ndarray
         The pixels to judge (the zone).
-    tau, jump : float
-        Thresholds (mm), strict comparisons.
+    tau, jump : float or (H, W) float ndarray
+        Thresholds (mm, >= 0), one for the frame or one per pixel; strict comparisons.
     min_below : int
         1-8.
 
@@ -288,7 +399,7 @@ def _shifted(a: np.ndarray, dr: int, dc: int, fill) -> np.ndarray:
     return out
 
 
-def surface_residuals_reference(height: FloatImage, judged: Mask, *, tau: float, jump: float,
+def surface_residuals_reference(height: FloatImage, judged: Mask, *, tau, jump,
                                 min_below: int) -> tuple[np.ndarray, np.ndarray]:
     """:func:`surface_residuals` as whole-image numpy operations, one shifted image per direction."""
     h, judged, tau, jump, min_below = _check_residual_args(height, judged, tau, jump, min_below)
@@ -416,8 +527,10 @@ def fill_blobs_reference(seed: Mask, judged: Mask, valid: Mask, *, iterations: i
 
 
 @numba.njit(cache=True)
-def _evidence_kernel(labels, valid, rough, n):
+def _evidence_kernel(labels, valid, rough, height, n):
     H, W = labels.shape
+    lowest = np.full(n + 1, np.inf)
+    highest_out = np.full(n + 1, -np.inf)
     size = np.zeros(n + 1, np.int64)
     holes = np.zeros(n + 1, np.int64)
     edges = np.zeros(n + 1, np.int64)
@@ -431,6 +544,8 @@ def _evidence_kernel(labels, valid, rough, n):
                 size[c] += 1
                 if rough[i, j]:
                     n_rough[c] += 1
+                if height[i, j] < lowest[c]:
+                    lowest[c] = height[i, j]
                 for k in range(8):
                     i1 = i + _DR[k]
                     j1 = j + _DC[k]
@@ -439,6 +554,9 @@ def _evidence_kernel(labels, valid, rough, n):
                     edges[c] += 1
                     if valid[i1, j1]:
                         edges_valid[c] += 1
+                    hq = height[i1, j1]
+                    if np.isfinite(hq) and hq > highest_out[c]:
+                        highest_out[c] = hq
             elif not valid[i, j]:
                 # an unmeasured pixel is a hole of the component holding most of its neighbours
                 best = 0
@@ -461,31 +579,35 @@ def _evidence_kernel(labels, valid, rough, n):
                         cnt[labels[i1, j1]] = 0
                 if best >= HOLE_MIN_NEIGHBOURS:
                     holes[bc] += 1
-    return size, holes, edges, edges_valid, n_rough
+    return size, holes, edges, edges_valid, n_rough, lowest, highest_out
 
 
-def _check_evidence_args(labels, valid, rough):
+def _check_evidence_args(labels, valid, rough, height):
     lab = np.asarray(labels)
     if lab.ndim != 2 or lab.dtype.kind not in "iu":
         raise InputShapeError(f"labels must be an (H, W) integer array, got {describe_array(lab)}")
     valid = check_mask(valid, name="valid", shape=lab.shape)
     rough = check_mask(rough, name="rough", shape=lab.shape)
+    h = np.asarray(height)
+    if h.shape != lab.shape or h.dtype.kind != "f":
+        raise InputShapeError(f"height must be an (H, W) float array like labels {lab.shape}, got {describe_array(h)}")
     if lab.size and lab.min() < 0:
         raise InputShapeError("labels must be >= 0 (0 = no component)")
     n = int(lab.max()) if lab.size else 0
-    return np.ascontiguousarray(lab, dtype=np.int64), valid, rough, n
+    return np.ascontiguousarray(lab, dtype=np.int64), valid, rough, np.ascontiguousarray(h, dtype=np.float64), n
 
 
-def _fractions(size, holes, edges, edges_valid, n_rough):
+def _fractions(size, holes, edges, edges_valid, n_rough, lowest, highest_out):
     with np.errstate(invalid="ignore", divide="ignore"):
         hole_frac = holes / (size + holes)
         rough_frac = n_rough / size
         ring_valid = edges_valid / edges
-    return (np.nan_to_num(hole_frac[1:]), np.nan_to_num(rough_frac[1:]), np.nan_to_num(ring_valid[1:]))
+    return (np.nan_to_num(hole_frac[1:]), np.nan_to_num(rough_frac[1:]), np.nan_to_num(ring_valid[1:]),
+            (lowest - highest_out)[1:])
 
 
-def floating_evidence(labels: Labels, valid: Mask, rough: Mask) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per component: how patchy, how rough and how much over measured points it is.
+def floating_evidence(labels: Labels, valid: Mask, rough: Mask, height: FloatImage) -> tuple[np.ndarray, ...]:
+    """Per component: how patchy, how rough, how much over measured points it is, and its clearance.
 
     Parameters
     ----------
@@ -495,6 +617,8 @@ def floating_evidence(labels: Labels, valid: Mask, rough: Mask) -> tuple[np.ndar
         Measured pixels (every finite point of the frame, in the zone or not).
     rough : (H, W) bool ndarray
         Residual-inconsistent pixels (|residual| > τ).
+    height : (H, W) float ndarray
+        The heights the components were cut from (NaN = not part of the cut).
 
     Returns
     -------
@@ -506,16 +630,21 @@ def floating_evidence(labels: Labels, valid: Mask, rough: Mask) -> tuple[np.ndar
     ring_valid : (n,) float64
         Share of the 8-neighbour pairs (component pixel, pixel outside it, inside the image) whose
         outer pixel is measured.
+    clearance : (n,) float64
+        Lowest height in the component minus the highest finite height among those outer pixels
+        (+inf when none is finite): how far it floats over everything around it.
     """
-    lab, valid, rough, n = _check_evidence_args(labels, valid, rough)
-    return _fractions(*_evidence_kernel(lab, np.ascontiguousarray(valid), np.ascontiguousarray(rough), n))
+    lab, valid, rough, h, n = _check_evidence_args(labels, valid, rough, height)
+    return _fractions(*_evidence_kernel(lab, np.ascontiguousarray(valid), np.ascontiguousarray(rough), h, n))
 
 
-def floating_evidence_reference(labels: Labels, valid: Mask, rough: Mask) -> tuple[np.ndarray, np.ndarray,
-                                                                                    np.ndarray]:
+def floating_evidence_reference(labels: Labels, valid: Mask, rough: Mask, height: FloatImage) -> tuple[np.ndarray,
+                                                                                                       ...]:
     """:func:`floating_evidence` as a plain loop over the pixels (slow; the tests' oracle)."""
-    lab, valid, rough, n = _check_evidence_args(labels, valid, rough)
+    lab, valid, rough, h, n = _check_evidence_args(labels, valid, rough, height)
     H, W = lab.shape
+    lowest = np.full(n + 1, np.inf)
+    highest_out = np.full(n + 1, -np.inf)
     size = np.zeros(n + 1, np.int64)
     holes = np.zeros(n + 1, np.int64)
     edges = np.zeros(n + 1, np.int64)
@@ -528,10 +657,13 @@ def floating_evidence_reference(labels: Labels, valid: Mask, rough: Mask) -> tup
             if c > 0:
                 size[c] += 1
                 n_rough[c] += bool(rough[i, j])
+                lowest[c] = min(lowest[c], h[i, j]) if not np.isnan(h[i, j]) else lowest[c]
                 for q in nbrs:
                     if lab[q] != c:
                         edges[c] += 1
                         edges_valid[c] += bool(valid[q])
+                        if np.isfinite(h[q]):
+                            highest_out[c] = max(highest_out[c], h[q])
             elif not valid[i, j]:
                 counts: dict[int, int] = {}
                 for q in nbrs:
@@ -541,7 +673,7 @@ def floating_evidence_reference(labels: Labels, valid: Mask, rough: Mask) -> tup
                     bc = min(counts, key=lambda c1: (-counts[c1], c1))
                     if counts[bc] >= HOLE_MIN_NEIGHBOURS:
                         holes[bc] += 1
-    return _fractions(size, holes, edges, edges_valid, n_rough)
+    return _fractions(size, holes, edges, edges_valid, n_rough, lowest, highest_out)
 
 
 # --------------------------------------------------------------------------------------------
@@ -688,11 +820,11 @@ class SuspectResult:
     group_score : (n,) float64 ndarray
         sqrt(size_px) · |gap_mm| (0 when the gap is unknown): large groups far from the surface first.
     noise_mm : float
-        σ̂ (:func:`frame_noise_mm`).
+        The median over the zone of σ̂ at each pixel's height (:func:`noise_profile`).
     threshold_mm : float
-        τ = max(min_residual_mm, noise_k · σ̂).
-    jump_mm : float
-        The discontinuity used by the mixed-pixel test, max(jump_mm, noise_k · σ̂).
+        The median over the zone of τ = max(min_residual_mm, noise_k · σ̂(height)).
+    noise_profile : NoiseProfile
+        σ̂ and the depth step as functions of height (:func:`noise_profile`).
     floating_step_mm : float
         The floating detector's z-cut step.
     merge_radius_px : (5,) int64 ndarray
@@ -712,7 +844,7 @@ class SuspectResult:
     group_score: np.ndarray
     noise_mm: float
     threshold_mm: float
-    jump_mm: float
+    noise_profile: NoiseProfile
     floating_step_mm: float
     merge_radius_px: np.ndarray
 
@@ -737,22 +869,40 @@ class SuspectResult:
 
 
 def _floating(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: Mask, params: SuspectParams, a_max: float,
-              step: float) -> Mask:
-    """The floating detector: z-cut components over the zone's whole height range (see module notes)."""
+              step: float, profile) -> tuple[Mask, np.ndarray]:
+    """The floating detector: z-cut components over the zone's whole height range (see module notes).
+
+    Returns the mask and, on its pixels, their gap (mm) over the median height of the measured
+    pixels bordering their component (NaN elsewhere, or when none borders it).
+    """
     hz = np.where(zone, height_mm, np.nan)
     fin = np.isfinite(hz)
+    gap = np.full(zone.shape, np.nan)
     if not fin.any():
-        return np.zeros(zone.shape, bool)
+        return np.zeros(zone.shape, bool), gap
     span = float(hz[fin].max() - hz[fin].min())
     step = max(step, span / (MAX_STAGE_LEVELS - 2))  # every level of the range within find_clusters' cap
     depth = span + step
     cut = find_clusters(hz, params=ZCutParams(step=step, max_depth=depth, max_area=params.floating_rho * a_max))
     if cut.n_clusters == 0:
-        return np.zeros(zone.shape, bool)
-    holes, rough_frac, ring = floating_evidence(cut.clusters, valid, rough)
-    keep = (cut.areas < params.plain_rho * a_max) | (holes >= params.evidence_holes) \
-        | (rough_frac >= params.evidence_inconsistent) | (ring >= params.evidence_ring_valid)
-    return np.concatenate([[False], keep])[cut.clusters] & zone
+        return np.zeros(zone.shape, bool), gap
+    holes, rough_frac, ring, clearance = floating_evidence(cut.clusters, valid, rough, hz)
+    lowest = np.asarray(ndimage.minimum(hz, cut.clusters, np.arange(1, cut.n_clusters + 1)), np.float64)
+    clear = clearance > np.maximum(FLOATING_CLEARANCE_SIGMAS * profile.sigma_at(lowest),
+                                   FLOATING_CLEARANCE_STEPS * profile.step_at(lowest))
+    keep = clear & ((cut.areas < params.plain_rho * a_max) | (holes >= params.evidence_holes)
+                    | (rough_frac >= params.evidence_inconsistent) | (ring >= params.evidence_ring_valid))
+    mask = np.concatenate([[False], keep])[cut.clusters] & zone
+    if mask.any():
+        lab = np.where(mask, cut.clusters, 0)
+        border = ndimage.maximum_filter(lab, size=3, mode="constant")
+        border = np.where((lab == 0) & valid & np.isfinite(height_mm), border, 0)  # measured, outside
+        ids = np.arange(1, cut.n_clusters + 1)
+        ring = np.asarray(ndimage.median(height_mm, border, ids), np.float64) if border.any() \
+            else np.full(ids.size, np.nan)
+        ring = np.concatenate([[np.nan], np.where(keep, ring, np.nan)])
+        gap[mask] = hz[mask] - ring[lab[mask]]
+    return mask, gap
 
 
 def _components(m: np.ndarray, r: int) -> tuple[np.ndarray, int]:
@@ -923,9 +1073,11 @@ def suspects(
     context = np.where(valid & ~easy, -1000.0 * a[..., 2].astype(np.float64), np.nan)
     h_zcut = np.ascontiguousarray(h_img, dtype=np.float64)
 
-    sigma = frame_noise_mm(context, zone)
-    tau = max(params.min_residual_mm, params.noise_k * sigma)
-    jump = max(params.jump_mm, params.noise_k * sigma)
+    profile = noise_profile(context, zone)
+    sigma_px = profile.sigma_at(context)
+    sigma = float(np.median(sigma_px[zone])) if zone.any() else 0.0
+    tau = np.maximum(params.min_residual_mm, params.noise_k * sigma_px)
+    jump = np.maximum(params.jump_mm, params.noise_k * sigma_px)
     step = max(params.floating_step_mm, FLOATING_STEP_SIGMAS * sigma)
     a_max = params.a_max if params.a_max is not None else max(0.01 * H * W, 1.0)
 
@@ -934,16 +1086,20 @@ def suspects(
     if params.fill_iterations > 0:
         filled = fill_blobs(off, zone, valid & ~easy, iterations=params.fill_iterations)
         codes[filled & ~off] = RESIDUAL_UP
-    rough = zone & ~(np.abs(residual) <= tau)  # NaN-free in the zone: inf (no continuation) is rough
-    codes[_floating(h_zcut, zone, valid & ~easy, rough, params, a_max, step)] |= FLOATING
+    rough = zone & ~(np.abs(residual) <= tau)  # in the zone: inf (no continuation) is rough
+    floating, floating_gap = _floating(h_zcut, zone, valid & ~easy, rough, params, a_max, step, profile)
+    codes[floating] |= FLOATING
     codes[easy] |= ABOVE_RIM
     mask = codes > 0
 
-    # the gap of a pixel off the surface is its residual (to the nearest continuation); that of a
-    # blob's, a floating component's or an above-rim pixel is to the local surface around it
+    # gaps: a floating pixel's over the measured pixels bordering its component; a pixel off the
+    # surface, its residual (to the nearest continuation); a blob's or an above-rim pixel's, to the
+    # local surface around it
     gap = local_gaps(np.where(valid, -1000.0 * a[..., 2].astype(np.float64), np.nan), mask, valid & ~mask)
     by_residual = off & ((codes & (FLOATING | ABOVE_RIM)) == 0) & np.isfinite(residual)
     gap[by_residual] = residual[by_residual]
+    by_border = floating & ~easy
+    gap[by_border] = floating_gap[by_border]
     groups, primary, radii = _group(codes, params)
     n = int(primary.size)
     size = np.bincount(groups.ravel(), minlength=n + 1)[1:].astype(np.int64)
@@ -966,7 +1122,8 @@ def suspects(
         mask=mask, groups=groups, detectors=codes, gap_mm=gap, residual_mm=residual,
         group_detectors=bits[order], group_primary=primary[order], group_size=size[order],
         group_gap_mm=g_gap[order], group_bbox=bbox[order], group_score=score[order],
-        noise_mm=sigma, threshold_mm=tau, jump_mm=jump, floating_step_mm=step, merge_radius_px=radii,
+        noise_mm=sigma, threshold_mm=float(np.median(tau[zone])) if zone.any() else float(params.min_residual_mm),
+        noise_profile=profile, floating_step_mm=step, merge_radius_px=radii,
     )
 
 
