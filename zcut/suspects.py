@@ -59,6 +59,7 @@ __all__ = [
     "floating_evidence",
     "floating_evidence_reference",
     "frame_noise_mm",
+    "local_height",
     "NoiseProfile",
     "noise_profile",
     "local_gaps",
@@ -99,6 +100,8 @@ FLOATING_CLEARANCE_STEPS = 1.5
 # the noise profile: bins of at least this many second differences, at most this many bins
 NOISE_MIN_SAMPLES = 2000
 NOISE_MAX_BINS = 32
+# ... from at most this many samples (every k-th, in raster order)
+NOISE_MAX_SAMPLES = 200_000
 # a bin is quantized when at least this share of its neighbour differences are exactly 0
 QUANTIZED_ZERO_SHARE = 0.2
 # Gaussian quantiles of |x|: median = 0.6745 σ, 75th percentile = 1.1503 σ
@@ -126,22 +129,47 @@ def detector_names(bits: int) -> tuple[str, ...]:
 # --------------------------------------------------------------------------------------------
 
 
+def _median3(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    return np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), c))
+
+
 def _second_differences(height: np.ndarray, judged: Mask) -> tuple[np.ndarray, np.ndarray]:
     """|centred second differences| along rows and columns at judged pixels with both neighbours on
-    that axis measured, and the height of their centre pixel."""
+    that axis measured, and the median height of their three pixels (a spike is placed at the
+    height of the surface it sticks out of, not at its own)."""
     h = np.asarray(height, dtype=np.float64)
     vals, at = [np.zeros(0)], [np.zeros(0)]
     if h.shape[1] >= 3:
-        e = h[:, :-2] - 2.0 * h[:, 1:-1] + h[:, 2:]
+        a, b, c = h[:, :-2], h[:, 1:-1], h[:, 2:]
+        e = a - 2.0 * b + c
         sel = judged[:, 1:-1] & np.isfinite(e)
         vals.append(e[sel])
-        at.append(h[:, 1:-1][sel])
+        at.append(_median3(a[sel], b[sel], c[sel]))
     if h.shape[0] >= 3:
-        e = h[:-2, :] - 2.0 * h[1:-1, :] + h[2:, :]
+        a, b, c = h[:-2, :], h[1:-1, :], h[2:, :]
+        e = a - 2.0 * b + c
         sel = judged[1:-1, :] & np.isfinite(e)
         vals.append(e[sel])
-        at.append(h[1:-1, :][sel])
+        at.append(_median3(a[sel], b[sel], c[sel]))
     return np.abs(np.concatenate(vals)), np.concatenate(at)
+
+
+def local_height(height: FloatImage) -> np.ndarray:
+    """The median of each pixel's height and its 4 neighbours' (measured ones only; NaN where the
+    pixel is not measured): the height at which to look up the noise of a pixel, so that a spike
+    gets the noise of the surface it sticks out of."""
+    h = np.asarray(height, dtype=np.float64)
+    stack = np.stack([h] + [_shifted(h, dr, dc, np.nan) for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0))])
+    out = np.full(h.shape, np.nan)
+    fin = np.isfinite(h)
+    if fin.any():
+        sub = stack[:, fin]
+        sub = np.sort(np.where(np.isfinite(sub), sub, np.inf), axis=0)  # measured values first
+        n = np.isfinite(sub).sum(axis=0)
+        cols = np.arange(sub.shape[1])
+        lo, hi = sub[(n - 1) // 2, cols], sub[n // 2, cols]
+        out[fin] = np.where(n % 2 == 1, lo, 0.5 * (lo + hi))
+    return out
 
 
 def _robust_sigma(a: np.ndarray) -> float:
@@ -214,8 +242,9 @@ def noise_profile(height: FloatImage, judged: Mask) -> NoiseProfile:
 
     A sensor's noise grows with range (a structured-light or stereo camera's depth step grows with
     the square of the distance), so one frame-wide σ̂ is too small far away and too large near. The
-    second differences of :func:`frame_noise_mm` are sorted by the height of their centre pixel
-    and cut into ``min(32, n // 2000)`` bins (at least 1) of equal counts; each bin gives its median
+    second differences of :func:`frame_noise_mm` (every k-th of them, at most 200,000) are sorted by
+    the median height of their three pixels and cut into ``min(32, n // 2000)`` bins (at least 1) of equal
+    counts; each bin gives its median
     height, its robust σ̂, and the depth step of the neighbour differences |h(p) - h(q)| (rows and
     columns, judged p, measured q) whose height falls in the bin.
     """
@@ -223,6 +252,8 @@ def noise_profile(height: FloatImage, judged: Mask) -> NoiseProfile:
     a, at = _second_differences(height, judged)
     if a.size == 0:
         return NoiseProfile(np.zeros(0), np.zeros(0), np.zeros(0))
+    stride = -(-a.size // NOISE_MAX_SAMPLES)  # a regular subsample is plenty for 32 robust spreads
+    a, at = a[::stride], at[::stride]
     order = np.argsort(at, kind="stable")
     a, at = a[order], at[order]
     bins = int(min(NOISE_MAX_BINS, max(1, a.size // NOISE_MIN_SAMPLES)))
@@ -237,6 +268,8 @@ def noise_profile(height: FloatImage, judged: Mask) -> NoiseProfile:
         d1.append(np.abs(dh[sel]))
         d1_at.append(at1[sel])
     d1, d1_at = np.concatenate(d1), np.concatenate(d1_at)
+    stride = -(-d1.size // NOISE_MAX_SAMPLES)
+    d1, d1_at = d1[::stride], d1_at[::stride]
     # a first difference belongs to the bin whose range of second-difference heights holds it
     upper = np.array([at[j - 1] for j in edges[1:]])
     which = np.minimum(np.searchsorted(upper, d1_at, side="left"), bins - 1)
@@ -887,21 +920,23 @@ def _floating(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: Mask, param
     if cut.n_clusters == 0:
         return np.zeros(zone.shape, bool), gap
     holes, rough_frac, ring, clearance = floating_evidence(cut.clusters, valid, rough, hz)
-    lowest = np.asarray(ndimage.minimum(hz, cut.clusters, np.arange(1, cut.n_clusters + 1)), np.float64)
+    lab = cut.clusters
+    flat = lab.ravel()
+    inside = flat > 0
+    lowest = np.full(cut.n_clusters + 1, np.inf)
+    np.minimum.at(lowest, flat[inside], hz.ravel()[inside])
+    lowest = lowest[1:]
     clear = clearance > np.maximum(FLOATING_CLEARANCE_SIGMAS * profile.sigma_at(lowest),
                                    FLOATING_CLEARANCE_STEPS * profile.step_at(lowest))
     keep = clear & ((cut.areas < params.plain_rho * a_max) | (holes >= params.evidence_holes)
                     | (rough_frac >= params.evidence_inconsistent) | (ring >= params.evidence_ring_valid))
-    mask = np.concatenate([[False], keep])[cut.clusters] & zone
+    mask = np.concatenate([[False], keep])[lab] & zone
     if mask.any():
-        lab = np.where(mask, cut.clusters, 0)
-        border = ndimage.maximum_filter(lab, size=3, mode="constant")
-        border = np.where((lab == 0) & valid & np.isfinite(height_mm), border, 0)  # measured, outside
-        ids = np.arange(1, cut.n_clusters + 1)
-        ring = np.asarray(ndimage.median(height_mm, border, ids), np.float64) if border.any() \
-            else np.full(ids.size, np.nan)
-        ring = np.concatenate([[np.nan], np.where(keep, ring, np.nan)])
-        gap[mask] = hz[mask] - ring[lab[mask]]
+        kept = np.where(mask, lab, 0)
+        border = ndimage.maximum_filter(kept, size=3, mode="constant")
+        border = np.where((kept == 0) & valid & np.isfinite(height_mm), border, 0)  # measured, outside
+        ring_h = _label_medians(height_mm, border, cut.n_clusters)
+        gap[mask] = hz[mask] - np.concatenate([[np.nan], ring_h])[kept[mask]]
     return mask, gap
 
 
@@ -1074,7 +1109,7 @@ def suspects(
     h_zcut = np.ascontiguousarray(h_img, dtype=np.float64)
 
     profile = noise_profile(context, zone)
-    sigma_px = profile.sigma_at(context)
+    sigma_px = profile.sigma_at(local_height(context))
     sigma = float(np.median(sigma_px[zone])) if zone.any() else 0.0
     tau = np.maximum(params.min_residual_mm, params.noise_k * sigma_px)
     jump = np.maximum(params.jump_mm, params.noise_k * sigma_px)
@@ -1095,10 +1130,11 @@ def suspects(
     # gaps: a floating pixel's over the measured pixels bordering its component; a pixel off the
     # surface, its residual (to the nearest continuation); a blob's or an above-rim pixel's, to the
     # local surface around it
-    gap = local_gaps(np.where(valid, -1000.0 * a[..., 2].astype(np.float64), np.nan), mask, valid & ~mask)
     by_residual = off & ((codes & (FLOATING | ABOVE_RIM)) == 0) & np.isfinite(residual)
-    gap[by_residual] = residual[by_residual]
     by_border = floating & ~easy
+    gap = local_gaps(np.where(valid, -1000.0 * a[..., 2].astype(np.float64), np.nan),
+                     mask & ~by_residual & ~by_border, valid & ~mask)
+    gap[by_residual] = residual[by_residual]
     gap[by_border] = floating_gap[by_border]
     groups, primary, radii = _group(codes, params)
     n = int(primary.size)
@@ -1107,7 +1143,7 @@ def suspects(
     np.bitwise_or.at(bits, groups.ravel(), codes.ravel())
     bits = bits[1:]
     if n:
-        g_gap = _group_median(gap, groups, n)
+        g_gap = _label_medians(gap, groups, n)
         boxes = ndimage.find_objects(groups, max_label=n)
         bbox = np.array([[s[0].start, s[1].start, s[0].stop, s[1].stop] for s in boxes], np.int32)
     else:
@@ -1127,21 +1163,21 @@ def suspects(
     )
 
 
-def _group_median(gap: np.ndarray, groups: np.ndarray, n: int) -> np.ndarray:
-    """Median of the finite gaps of each group 1..n (NaN when it has none)."""
-    sel = (groups > 0) & np.isfinite(gap)
-    g = groups[sel]
-    v = gap[sel]
+def _label_medians(values: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
+    """Median of the finite ``values`` under each label 1..n (NaN for a label with none)."""
+    sel = (labels > 0) & np.isfinite(values)
+    g = labels[sel]
+    v = values[sel]
     out = np.full(n, np.nan)
     if g.size == 0:
         return out
     order = np.lexsort((v, g))
     g, v = g[order], v[order]
-    starts = np.searchsorted(g, np.arange(1, n + 1), side="left")
-    ends = np.searchsorted(g, np.arange(1, n + 1), side="right")
-    for k in range(n):
-        m = ends[k] - starts[k]
-        if m:
-            s = starts[k]
-            out[k] = v[s + m // 2] if m % 2 else 0.5 * (v[s + m // 2 - 1] + v[s + m // 2])
+    ids = np.arange(1, n + 1)
+    starts = np.searchsorted(g, ids, side="left")
+    counts = np.searchsorted(g, ids, side="right") - starts
+    has = counts > 0
+    lo = starts[has] + (counts[has] - 1) // 2
+    hi = starts[has] + counts[has] // 2
+    out[has] = np.where(lo == hi, v[lo], 0.5 * (v[lo] + v[hi]))
     return out
