@@ -287,7 +287,7 @@ def main() -> None:
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--frames", type=int, default=3)
     ap.add_argument("--tune-seeds", default="1")
-    ap.add_argument("--report-seeds", default="2,3")
+    ap.add_argument("--report-seeds", default="4,5")
     ap.add_argument("--tune", action="store_true", help="score the parameter variants on the tuning seeds")
     ap.add_argument("--real", type=Path, help="folder of organized PCD scans (no truth)")
     ap.add_argument("--png", type=Path, help="write overlays of the real scans' groups here")
