@@ -1,4 +1,4 @@
-"""zcut: pure algorithms on organized (H, W) point clouds — the paper's z-cut filter, SOR, metrics.
+"""zcut: pure algorithms on organized (H, W) point clouds — the paper's z-cut filter, SOR, suspects, metrics.
 
 No file I/O, no viewer, no database here: see ``replay`` and ``annotate`` for those.
 """
@@ -21,8 +21,9 @@ from .metrics import (
     sensitivity,
     sensitivity_of,
 )
-from .params import BinMaskParams, RegistrationParams, RemovalParams, SorParams, ZCutParams
+from .params import BinMaskParams, RegistrationParams, RemovalParams, SorParams, SuspectParams, ZCutParams
 from .sor import sor_mean_distances, sor_outliers, sor_outliers_from_distances
+from .suspects import DETECTORS, SuspectGroup, SuspectResult, suspects
 
 # the filter bank (docs/filters.md, "The filter bank")
 from .components import (
@@ -52,6 +53,7 @@ __all__ = [
     "RegistrationParams",
     "RemovalParams",
     "SorParams",
+    "SuspectParams",
     "ZCutParams",
     "ZCutTree",
     "prepare_bin_model",
@@ -76,6 +78,10 @@ __all__ = [
     "sor_mean_distances",
     "sor_outliers",
     "sor_outliers_from_distances",
+    "DETECTORS",
+    "SuspectGroup",
+    "SuspectResult",
+    "suspects",
     "height_mm",
     "valid_mask",
     # the filter bank

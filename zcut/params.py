@@ -31,6 +31,7 @@ __all__ = [
     "RegistrationParams",
     "RemovalParams",
     "SorParams",
+    "SuspectParams",
     "ZCutParams",
     "a_max_from_camera",
     "n_levels",
@@ -666,3 +667,106 @@ class MixedPixelParams:
     def __post_init__(self) -> None:
         _number(self, "min_angle_deg", ge=0, le=90)
         _as_float(self, "min_angle_deg")
+
+@dataclass(frozen=True, slots=True)
+class SuspectParams:
+    """The filter-independent suspect detectors (:func:`zcut.suspects.suspects`, ``docs/filters.md``,
+    section "Suspects"): what the labelling page proposes so that no outlier escapes a person.
+
+    The defaults were chosen on synthetic logs of seed 1 (six part kinds, 1920 × 1200) and are
+    reported on other seeds by ``bench/bench_suspects.py``; each is justified in ``docs/filters.md``.
+
+    Attributes
+    ----------
+    min_residual_mm : float
+        Floor of the residual threshold τ (mm): a pixel farther than τ from every one-sided
+        continuation of the surface around it is a suspect. 0.5 mm: 2.5 × the paper's nominal
+        Δd, the size of the smallest displacement worth a person's look on a sensor of
+        σ ≈ 0.1 mm.
+    noise_k : float
+        τ = max(min_residual_mm, noise_k · σ̂), σ̂ the frame's own noise (robust spread of its
+        second differences). 5: a pixel at 5 σ̂ is rare under any bell-shaped noise; only
+        frames noisier than σ̂ = 0.1 mm (e.g. Kinect-class sensors) raise τ above the floor.
+    jump_mm : float
+        Floor of the depth discontinuity (mm): a mixed (flying) pixel has a neighbour nearer and a
+        neighbour farther by more than max(jump_mm, noise_k · σ̂) each. 2 mm.
+    below_min_directions : int
+        A pixel below every continuation of the surface (a spike away from the camera) is flagged
+        only when at least this many of the 8 directions give a continuation (1-8): the last pixels
+        of a convex silhouette are also below every continuation they have. 5.
+    fill_iterations : int
+        Rounds of blob completion (0-64): a zone pixel whose valid neighbours are mostly suspects
+        (at least 3 of its 8) joins them, so that a rough blob is proposed whole. 5.
+    floating_step_mm : float
+        Floor of the z-cut step Δd of the floating detector (mm); the step used is
+        max(floating_step_mm, σ̂). 0.1 mm: the low end of the paper's range for a 10 mm part
+        (0.01 · p_min); half the nominal Δd finds tilted ghosts whose low end comes within 0.4 mm
+        of the surface's highest point around them (measured: 0.2 mm misses 7 % of the ghost
+        pixels of rods, 0.05 mm doubles the false floating pixels of matte kinds).
+    floating_rho : float
+        The floating detector tags z-cut components of any depth smaller than
+        ``floating_rho · a_max`` pixels (0 < ρ ≤ 1000; paper eq. 5). 0.15: twice the paper's
+        nominal ρ_thr. Without an area limit the whole top of the pile floats.
+    plain_rho : float
+        Floating components smaller than ``plain_rho · a_max`` are suspects as they are; larger
+        ones (up to ``floating_rho``) need one piece of evidence below. 0.07: the paper's nominal
+        ρ_thr. Must not exceed ``floating_rho``.
+    evidence_holes : float
+        Evidence: at least this share of the component's area is unmeasured pixels inside it
+        (a decoding ghost is patchy, a real face is dense). 0.04.
+    evidence_inconsistent : float
+        Evidence: at least this share of its pixels are residual-inconsistent (rough). 0.03.
+    evidence_ring_valid : float
+        Evidence: at least this share of its outer boundary touches measured points (it hovers over
+        a measured surface; a real part on top is bordered by its own shadow and grazing
+        silhouette, which are unmeasured). 0.35.
+    a_max : float or None
+        Pixel count of the part's largest face (``ZCutParams.a_max``); None: 1 % of the image.
+    merge_radius_px : int
+        Suspects of one detector closer than about 2 · merge_radius_px + 1 pixels form one group
+        (0-4096). 3: a run of flying pixels along an edge with gaps of a few pixels is one group.
+    max_groups : int
+        At most this many groups per frame (≥ 5, one per detector): the merge radius of the
+        detector with most groups doubles until the frame has no more. 40.
+    """
+
+    min_residual_mm: float = 0.5
+    noise_k: float = 5.0
+    jump_mm: float = 2.0
+    below_min_directions: int = 5
+    fill_iterations: int = 5
+    floating_step_mm: float = 0.1
+    floating_rho: float = 0.15
+    plain_rho: float = 0.07
+    evidence_holes: float = 0.04
+    evidence_inconsistent: float = 0.03
+    evidence_ring_valid: float = 0.35
+    a_max: float | None = None
+    merge_radius_px: int = 3
+    max_groups: int = 40
+
+    def __post_init__(self) -> None:
+        _number(self, "min_residual_mm", gt=0)
+        _number(self, "noise_k", ge=0)
+        _number(self, "jump_mm", gt=0)
+        _number(self, "below_min_directions", ge=1, le=8, integer=True)
+        _number(self, "fill_iterations", ge=0, le=64, integer=True)
+        _number(self, "floating_step_mm", gt=0)
+        _number(self, "floating_rho", gt=0, le=1000)
+        _number(self, "plain_rho", ge=0, le=1000)
+        if self.plain_rho > self.floating_rho:
+            raise ParameterError(f"SuspectParams.plain_rho must be <= floating_rho ({self.floating_rho!r}), "
+                                 f"got {self.plain_rho!r}")
+        _number(self, "evidence_holes", ge=0, le=1)
+        _number(self, "evidence_inconsistent", ge=0, le=1)
+        _number(self, "evidence_ring_valid", ge=0, le=1)
+        _number(self, "a_max", gt=0, optional=True)
+        _number(self, "merge_radius_px", ge=0, le=4096, integer=True)
+        _number(self, "max_groups", ge=5, integer=True)
+        for name in ("below_min_directions", "fill_iterations", "merge_radius_px", "max_groups"):
+            object.__setattr__(self, name, int(getattr(self, name)))
+        for name in ("min_residual_mm", "noise_k", "jump_mm", "floating_step_mm", "floating_rho", "plain_rho",
+                     "evidence_holes", "evidence_inconsistent", "evidence_ring_valid"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+        if self.a_max is not None:
+            object.__setattr__(self, "a_max", float(self.a_max))

@@ -1,0 +1,319 @@
+"""Benchmark: the suspects (``zcut.suspects``) against the synthetic truth, and what they propose on real scans.
+
+    .venv/bin/python bench/bench_suspects.py [--work DIR] [--kinds zinc_nuts,...] [--frames 3]
+        [--tune-seeds 1] [--report-seeds 2,3] [--tune] [--real DIR] [--png DIR]
+
+1. Synthetic logs (``zcut synth``, 1920 × 1200) of each part kind and seed, and a bin model built from
+   an empty-bin series (``zcut synth --empty``, ``zcut bin-model``), in ``--work`` (reused when
+   present; the zones the bin stages leave are cached there too). Every frame goes through the
+   pipeline's bin stages (``ReplaySession.zones``: bin mask, ICP registration, removal) and then
+   :func:`zcut.suspects.suspects` with ``SuspectParams(a_max=<the resolved config's a_max>)``.
+2. Scoring, in the default scored region of ``zcut accuracy`` (the zone plus the points above the
+   rim, ``annotate.truth.scored_region``): recall of the suspects mask against
+   ``/ground_truth/outliers``, the flagged ratio (suspect pixels / true pixels; target ≤ 5 with
+   recall ≥ 0.95), recall per outlier kind (``/ground_truth/outlier_kind``), groups per frame
+   (target ≤ ~40) and the CPU time of ``suspects`` per frame against the pipeline's nominal z-cut
+   on the same zone (``find_clusters``, measured in the same run).
+3. ``--tune``: a grid of parameter variants on the tuning seeds (the defaults were chosen this way,
+   on seed 1); the report seeds are held out. Per kind, totals over frames.
+4. ``--real DIR``: organized PCD scans (e.g. the Kinect scans of ``../shared/data/real``) recorded
+   into a log (``zcut record``) and replayed without bin stages (zone = every valid pixel): per frame,
+   σ̂, τ, the pixels each detector proposes and the groups. ``--png DIR`` writes overlays of the
+   groups (outside the repository) to look at.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+
+from zcut.cuts import find_clusters
+from zcut.params import SuspectParams, ZCutParams
+from zcut.suspects import DETECTORS, suspects
+
+KINDS = ("zinc_nuts", "spheres", "rods", "black_nuts", "black_screws", "sprockets")
+SIZE = (1200, 1920)
+OUTLIER_CODES = {1: "floating", 2: "spike_up", 3: "spike_down", 4: "flying", 5: "above_rim"}
+
+#: --tune: variants of the defaults (name, changes)
+VARIANTS = (
+    ("defaults", {}),
+    ("min_residual 0.4", {"min_residual_mm": 0.4}),
+    ("min_residual 0.7", {"min_residual_mm": 0.7}),
+    ("noise_k 8", {"noise_k": 8.0}),
+    ("jump 1", {"jump_mm": 1.0}),
+    ("jump 3", {"jump_mm": 3.0}),
+    ("below dirs 4", {"below_min_directions": 4}),
+    ("below dirs 6", {"below_min_directions": 6}),
+    ("no fill", {"fill_iterations": 0}),
+    ("floating rho 0.1", {"floating_rho": 0.1}),
+    ("floating rho 0.2", {"floating_rho": 0.2}),
+    ("no evidence (plain = floating rho)", {"plain_rho": 0.15}),
+    ("plain rho 0.05", {"plain_rho": 0.05}),
+    ("ring valid 0.25", {"evidence_ring_valid": 0.25}),
+    ("ring valid 0.5", {"evidence_ring_valid": 0.5}),
+    ("holes 0.08", {"evidence_holes": 0.08}),
+)
+
+
+# --------------------------------------------------------------------------------------------
+# Inputs
+# --------------------------------------------------------------------------------------------
+
+
+def prepare(work: Path, kinds, seeds, frames: int) -> tuple[dict, Path]:
+    """Synthetic logs {(kind, seed): path} and the bin model, made when missing."""
+    from replay.logs.reader import LogReader
+    from replay.pipeline.bin_model import build_bin_model, save_bin_model
+    from replay.synth.log import write_synthetic_log
+
+    work.mkdir(parents=True, exist_ok=True)
+    ply = work / "bin.ply"
+    if not ply.exists():
+        empty = work / "empty.mcap"
+        if not empty.exists():
+            print(f"making {empty}", flush=True)
+            write_synthetic_log(empty, empty=True, frames=5, seed=0, size=SIZE)
+        model, _ = build_bin_model(LogReader(empty).frames())
+        save_bin_model(model, ply)
+    logs = {}
+    for kind in kinds:
+        for seed in seeds:
+            p = work / f"{kind}_s{seed}_f{frames}.mcap"
+            if not p.exists():
+                print(f"making {p.name}", flush=True)
+                write_synthetic_log(p, kind=kind, frames=frames, seed=seed, size=SIZE)
+            logs[(kind, seed)] = p
+    return logs, ply
+
+
+def zones(log: Path, ply: Path, cache: Path):
+    """``(frame, zone, easy, height_mm, a_max)`` of every frame, the bin stages cached in ``cache``."""
+    from replay.logs.reader import LogReader
+    from replay.pipeline.bin_model import load_bin_model
+    from replay.pipeline.session import ReplaySession
+
+    files = sorted(cache.glob(f"{log.stem}.*.npz"))
+    if files:
+        frames = {f.index: f for f in LogReader(log).frames()}
+        for f in files:
+            d = np.load(f)
+            yield frames[int(d["index"])], d["zone"], d["easy"], d["height"], float(d["a_max"])
+        return
+    cache.mkdir(parents=True, exist_ok=True)
+    session = ReplaySession.open(log, bin_model=load_bin_model(ply))
+    a_max = session.config.zcut.a_max
+    for frame, z in session.zones():
+        if z.warnings:
+            print(f"  {log.name} frame {frame.index}: {'; '.join(z.warnings)}")
+        np.savez_compressed(cache / f"{log.stem}.{frame.index:04d}.npz", index=frame.index, zone=z.zone,
+                            easy=z.easy, height=z.height_mm, a_max=a_max)
+        yield frame, z.zone, z.easy, z.height_mm, a_max
+
+
+# --------------------------------------------------------------------------------------------
+# Scoring
+# --------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class Tally:
+    frames: int = 0
+    truth: int = 0
+    flagged: int = 0
+    found: int = 0
+    by_kind_truth: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(6, np.int64))
+    by_kind_found: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(6, np.int64))
+    groups: list = dataclasses.field(default_factory=list)
+    cpu: float = 0.0
+    cpu_zcut: float = 0.0
+    frame_recall: list = dataclasses.field(default_factory=list)
+    frame_ratio: list = dataclasses.field(default_factory=list)
+
+    def add(self, res, truth, kind, region) -> None:
+        t = truth & region
+        m = res.mask & region
+        self.frames += 1
+        self.truth += int(t.sum())
+        self.flagged += int(m.sum())
+        self.found += int((m & t).sum())
+        kc = np.where(t, kind, 0)
+        self.by_kind_truth += np.bincount(kc[t], minlength=6)[:6]
+        self.by_kind_found += np.bincount(kc[t & m], minlength=6)[:6]
+        self.groups.append(res.n_groups)
+        if t.sum():
+            self.frame_recall.append((m & t).sum() / t.sum())
+            self.frame_ratio.append(m.sum() / t.sum())
+
+    @property
+    def recall(self) -> float:
+        return self.found / self.truth if self.truth else float("nan")
+
+    @property
+    def ratio(self) -> float:
+        return self.flagged / self.truth if self.truth else float("nan")
+
+
+def score_logs(logs, ply: Path, cache: Path, variants) -> dict:
+    """{variant name: {kind: Tally}} over the given logs."""
+    from replay.logs import layout
+
+    out = {name: {} for name, _ in variants}
+    for (kind, seed), log in logs.items():
+        for frame, zone, easy, height, a_max in zones(log, ply, cache):
+            truth = frame.masks[layout.TRUTH_OUTLIERS]
+            kcode = frame.codes[layout.TRUTH_OUTLIER_KIND]
+            region = zone | easy
+            c0 = time.process_time()
+            find_clusters(np.where(zone, height, np.nan), params=ZCutParams.nominal(a_max=a_max))
+            t_zcut = time.process_time() - c0
+            for name, changes in variants:
+                params = dataclasses.replace(SuspectParams(a_max=a_max), **changes)
+                c0 = time.process_time()
+                res = suspects(frame.xyz, height, zone, easy, params=params, intrinsics=frame.intrinsics)
+                cpu = time.process_time() - c0
+                t = out[name].setdefault(kind, Tally())
+                t.add(res, truth & np.isfinite(frame.xyz).all(axis=2), kcode, region)
+                t.cpu += cpu
+                t.cpu_zcut += t_zcut
+            print(f"  {log.name} frame {frame.index} scored", flush=True)
+    return out
+
+
+def print_table(title: str, tallies: dict) -> None:
+    print(title)
+    print(f"{'kind':13s} {'frames':>6s} {'true/fr':>8s} {'flag/fr':>8s} {'ratio':>6s} {'recall':>6s} "
+          f"{'worst fr (rec/ratio)':>21s} " + " ".join(f"{n:>11s}" for n in OUTLIER_CODES.values())
+          + f" {'groups mean/max':>15s} {'cpu s/fr':>8s} {'x zcut':>6s}")
+    for kind, t in tallies.items():
+        cells = []
+        for c in OUTLIER_CODES:
+            n = t.by_kind_truth[c]
+            cells.append(f"{t.by_kind_found[c] / n:.3f}/{n / t.frames:5.0f}" if n else f"{'-':>11s}")
+        worst = f"{min(t.frame_recall):.3f}/{max(t.frame_ratio):5.2f}" if t.frame_recall else "-"
+        print(f"{kind:13s} {t.frames:6d} {t.truth / t.frames:8.0f} {t.flagged / t.frames:8.0f} {t.ratio:6.2f} "
+              f"{t.recall:6.3f} {worst:>21s} " + " ".join(f"{c:>11s}" for c in cells)
+              + f" {np.mean(t.groups):9.1f}/{max(t.groups):3d} {t.cpu / t.frames:8.2f} "
+                f"{t.cpu / max(t.cpu_zcut, 1e-9):6.1f}")
+    tot = Tally()
+    for t in tallies.values():
+        tot.truth += t.truth
+        tot.flagged += t.flagged
+        tot.found += t.found
+    ok = all(t.recall >= 0.95 and t.ratio <= 5 for t in tallies.values())
+    print(f"all kinds pooled: recall {tot.recall:.3f}, ratio {tot.ratio:.2f}; every kind recall >= 0.95 "
+          f"and ratio <= 5: {'yes' if ok else 'NO'}")
+    print("(per outlier kind: recall/true pixels per frame)")
+
+
+# --------------------------------------------------------------------------------------------
+# Real scans
+# --------------------------------------------------------------------------------------------
+
+
+def overlay(frame, res, path: Path) -> None:
+    """A PNG: the height image in grey, each group's pixels in a colour per detector, its box and label."""
+    import cv2
+
+    h = -1000.0 * frame.xyz[..., 2].astype(np.float64)
+    fin = np.isfinite(h)
+    img = np.zeros((*h.shape, 3), np.uint8)
+    if fin.any():
+        lo, hi = np.percentile(h[fin], [1, 99])
+        g = np.clip((h - lo) / max(hi - lo, 1e-9) * 200 + 40, 0, 255)
+        img[fin] = g[fin, None].astype(np.uint8)
+    colours = {"above_rim": (255, 0, 255), "floating": (0, 0, 255), "mixed": (0, 255, 255),
+               "residual_down": (255, 128, 0), "residual_up": (0, 200, 0)}  # BGR
+    scale = max(1, 1280 // h.shape[1])
+    big = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    for g in range(1, res.n_groups + 1):
+        grp = res.group(g)
+        sel = np.repeat(np.repeat(res.groups == g, scale, 0), scale, 1)
+        big[sel] = colours[grp.detectors[0]]
+        r0, c0, r1, c1 = grp.bbox
+        cv2.rectangle(big, (c0 * scale, r0 * scale), (c1 * scale, r1 * scale), colours[grp.detectors[0]], 1)
+        cv2.putText(big, str(g), (c0 * scale, max(r0 * scale - 2, 10)), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
+                    (255, 255, 255), 1)
+    cv2.imwrite(str(path), big)
+
+
+def record_real(src: Path, work: Path) -> Path:
+    """``zcut record`` of every PCD in ``src`` into one log in ``work``."""
+    import subprocess
+    import sys
+
+    out = work / "real_scans.mcap"
+    if not out.exists():
+        pcds = sorted(str(p) for p in src.glob("*.pcd"))
+        subprocess.run([sys.executable, "-m", "replay.cli", "record", *pcds, "-o", str(out)], check=True)
+    return out
+
+
+def run_real(src: Path, work: Path, png: Path | None) -> None:
+    from replay.logs.reader import LogReader
+
+    log = record_real(src, work)
+    print(f"real scans ({log.name}, from {src}): no truth; zone = every valid pixel (no bin stages)")
+    print(f"{'frame':>5s} {'size':>9s} {'valid':>7s} {'sigma mm':>8s} {'tau mm':>6s} "
+          + " ".join(f"{d:>13s}" for d in DETECTORS) + f" {'suspects':>8s} {'%valid':>6s} {'groups':>6s} {'cpu s':>6s}")
+    if png is not None:
+        png.mkdir(parents=True, exist_ok=True)
+    for frame in LogReader(log).frames():
+        xyz = frame.xyz
+        valid = np.isfinite(xyz).all(axis=2)
+        height = -1000.0 * xyz[..., 2].astype(np.float64)
+        c0 = time.process_time()
+        res = suspects(xyz, height, valid, params=SuspectParams(), intrinsics=frame.intrinsics)
+        cpu = time.process_time() - c0
+        counts = [int((res.detectors >> i & 1).astype(bool).sum()) for i in range(len(DETECTORS))]
+        n = int(res.mask.sum())
+        print(f"{frame.index:5d} {xyz.shape[1]:4d}x{xyz.shape[0]:<4d} {int(valid.sum()):7d} {res.noise_mm:8.2f} "
+              f"{res.threshold_mm:6.2f} " + " ".join(f"{c:13d}" for c in counts)
+              + f" {n:8d} {100 * n / max(valid.sum(), 1):6.2f} {res.n_groups:6d} {cpu:6.2f}")
+        if png is not None:
+            overlay(frame, res, png / f"real_{frame.index:02d}.png")
+            with open(png / f"real_{frame.index:02d}.txt", "w") as f:
+                for g in range(1, res.n_groups + 1):
+                    f.write(f"{res.group(g)}\n")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--work", type=Path, default=Path("/tmp/zcut_bench_suspects"))
+    ap.add_argument("--kinds", default=",".join(KINDS))
+    ap.add_argument("--frames", type=int, default=3)
+    ap.add_argument("--tune-seeds", default="1")
+    ap.add_argument("--report-seeds", default="4,5")
+    ap.add_argument("--tune", action="store_true", help="score the parameter variants on the tuning seeds")
+    ap.add_argument("--real", type=Path, help="folder of organized PCD scans (no truth)")
+    ap.add_argument("--png", type=Path, help="write overlays of the real scans' groups here")
+    ap.add_argument("--skip-synthetic", action="store_true")
+    args = ap.parse_args()
+    kinds = args.kinds.split(",")
+    cache = args.work / "zones"
+    print(f"defaults: {SuspectParams()}")
+    if not args.skip_synthetic:
+        if args.tune:
+            seeds = [int(s) for s in args.tune_seeds.split(",")]
+            logs, ply = prepare(args.work, kinds, seeds, args.frames)
+            res = score_logs(logs, ply, cache, VARIANTS)
+            for name, tallies in res.items():
+                print()
+                print_table(f"TUNING seeds {seeds}, variant: {name}", tallies)
+        seeds = [int(s) for s in args.report_seeds.split(",")]
+        logs, ply = prepare(args.work, kinds, seeds, args.frames)
+        res = score_logs(logs, ply, cache, VARIANTS[:1])
+        print()
+        print_table(f"HELD OUT seeds {seeds}, defaults, 1920x1200, scored region = zone + above-rim points",
+                    res["defaults"])
+    if args.real is not None:
+        print()
+        run_real(args.real, args.work, args.png)
+
+
+if __name__ == "__main__":
+    main()
