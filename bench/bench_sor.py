@@ -45,7 +45,7 @@ FULL = (1200, 1920)
 
 
 def configure_process() -> None:
-    """What the command line does (replay/cli.py): numba's workqueue threads unless chosen."""
+    """What the command line does (cli/main.py): numba's workqueue threads unless chosen."""
     if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
         os.environ["NUMBA_THREADING_LAYER_PRIORITY"] = "workqueue omp tbb"
         if "numba" in sys.modules:

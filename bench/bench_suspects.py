@@ -249,7 +249,7 @@ def record_real(src: Path, work: Path) -> Path:
     out = work / "real_scans.mcap"
     if not out.exists():
         pcds = sorted(str(p) for p in src.glob("*.pcd"))
-        subprocess.run([sys.executable, "-m", "replay.cli", "record", *pcds, "-o", str(out)], check=True)
+        subprocess.run([sys.executable, "-m", "cli", "record", *pcds, "-o", str(out)], check=True)
     return out
 
 

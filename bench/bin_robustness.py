@@ -60,7 +60,7 @@ from replay.synth.synthesize import synthesize_frame  # noqa: E402
 from zcut.params import RemovalParams  # noqa: E402
 from zcut.prepared_model import prepare_bin_model  # noqa: E402
 
-ZCUT = [sys.executable, "-m", "replay.cli"]
+ZCUT = [sys.executable, "-m", "cli"]
 #: shiny and matte kinds of the paper's Figure 8
 KINDS = ("rods", "spheres", "sprockets", "black_nuts", "black_screws")
 #: tuning seeds chose the robust mode's defaults; report seeds are seen once, for the report

@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-ZCUT = [sys.executable, "-m", "replay.cli"]
+ZCUT = [sys.executable, "-m", "cli"]
 SIZE = "480x640"
 
 

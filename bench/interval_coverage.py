@@ -44,7 +44,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-ZCUT = [sys.executable, "-m", "replay.cli"]
+ZCUT = [sys.executable, "-m", "cli"]
 METHODS = ("zcut", "sor", "union", "intersection")
 STATS = ("precision", "recall", "f1")
 #: Seed sets: the tune set chose the method's options, the held-out set reports them.

@@ -10,7 +10,7 @@ from pathlib import Path
 
 
 def start_server(log: Path, db: Path) -> tuple[subprocess.Popen, str, str]:
-    cmd = [sys.executable, "-m", "replay.cli", "annotate", str(log), "--db", str(db), "--port", "0", "--no-browser",
+    cmd = [sys.executable, "-m", "cli", "annotate", str(log), "--db", str(db), "--port", "0", "--no-browser",
            "--annotator", "bench"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
     for line in proc.stdout:

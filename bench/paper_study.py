@@ -28,7 +28,7 @@ from pathlib import Path
 
 KINDS = ("spheres", "zinc_nuts", "rods", "black_screws", "black_nuts", "sprockets")
 ROOT = Path(__file__).resolve().parents[1]
-ZCUT = [sys.executable, "-m", "replay.cli"]
+ZCUT = [sys.executable, "-m", "cli"]
 GRID = ["--step", "0.1,0.2,0.4", "--max-depth", "15:90:6", "--rho", "0.035,0.05,0.07,0.105",
         "--sor-k", "4,8", "--sor-std", "0.5,1,2"]
 

@@ -180,7 +180,7 @@ class ServerProcess:
 
     def __init__(self, log: Path, db: Path, *, annotator: str | None = "tester", extra=()) -> None:
         who = [] if annotator is None else ["--annotator", annotator]
-        cmd = [sys.executable, "-m", "replay.cli", "annotate", str(log), "--db", str(db), "--port", "0",
+        cmd = [sys.executable, "-m", "cli", "annotate", str(log), "--db", str(db), "--port", "0",
                "--no-browser", *who, *extra]
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from replay.cli import main
+from cli.main import main
 
 
 def run_cli(capsys, *argv) -> tuple[int, str, str]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-# the command line's process settings (replay.cli.configure_process) before numba is imported:
+# the command line's process settings (replay.process.configure_process) before numba is imported:
 # numba's own workqueue threads, not an old TBB that warns when probed
 os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")
 

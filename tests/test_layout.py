@@ -1,9 +1,38 @@
-"""The dependency direction of the packages (STYLE.md): zcut imports no I/O, viewer or database."""
+"""The layout of the packages and the rule it keeps (README, "Layout").
+
+Dependencies point down: zcut <- replay <- annotate <- studies <- cli. zcut imports no I/O, viewer or
+database and holds no mutable module state; the console script (``cli.main``) is the one composition
+root; ``replay/pipeline/viz.py`` is the only module that imports rerun.
+"""
 
 from __future__ import annotations
 
+import ast
 import subprocess
 import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+#: The packages from the bottom up: a package may import those below it, never one above.
+LAYERS = ("zcut", "replay", "annotate", "studies", "cli")
+
+
+def _imports(path: Path) -> list[tuple[int, str]]:
+    """(line, absolute module name) of every import in a file: at module level, inside functions,
+    under ``if TYPE_CHECKING`` alike (relative imports stay inside their package)."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.append((node.lineno, node.module))
+    return found
+
+
+def _package_files():
+    for pkg in LAYERS:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            yield pkg, path
 
 
 def test_importing_zcut_keeps_io_modules_out():
@@ -19,14 +48,14 @@ def test_importing_zcut_keeps_io_modules_out():
 
 
 def test_cli_help_works():
-    out = subprocess.run([sys.executable, "-m", "replay.cli", "--help"], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "cli", "--help"], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert "zcut" in out.stdout
 
 
 def test_cli_usage_error_exits_1_with_one_line():
     out = subprocess.run(
-        [sys.executable, "-m", "replay.cli", "synth", "-o", "never.mcap", "--no-such-flag"], capture_output=True, text=True
+        [sys.executable, "-m", "cli", "synth", "-o", "never.mcap", "--no-such-flag"], capture_output=True, text=True
     )
     assert out.returncode == 1
     assert out.stderr.strip().splitlines()[-1].startswith("error: unrecognized arguments")
@@ -71,18 +100,14 @@ def test_importing_zcut_changes_no_global_setting():
 
 
 def test_the_console_script_is_the_one_composition_root():
-    """replay.cli imports every command module explicitly; no command module imports another's."""
-    import ast
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    tree = ast.parse((root / "replay" / "cli.py").read_text())
+    """cli.main imports every command module explicitly; no command module imports another's."""
+    tree = ast.parse((ROOT / "cli" / "main.py").read_text())
     imported = {f"{n.module}.{a.name}" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module
                 for a in n.names}
     commands = {f"{pkg}.commands.{p.stem}" for pkg in ("replay", "annotate", "studies")
-                for p in (root / pkg / "commands").glob("*.py") if p.stem not in ("__init__", "common")}
+                for p in (ROOT / pkg / "commands").glob("*.py") if p.stem not in ("__init__", "common")}
     assert commands <= imported, f"not in the command table: {sorted(commands - imported)}"
-    assert "import_module" not in (root / "replay" / "cli.py").read_text()
+    assert "import_module" not in (ROOT / "cli" / "main.py").read_text()
 
 
 def test_replaying_a_real_log_does_not_import_the_scene_generator():
@@ -94,3 +119,31 @@ def test_replaying_a_real_log_does_not_import_the_scene_generator():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_no_package_imports_one_above_it():
+    """zcut < replay < annotate < studies < cli: an import that points up is a cycle waiting to
+    happen (and drags a higher layer's dependencies into a lower one's users)."""
+    rank = {pkg: i for i, pkg in enumerate(LAYERS)}
+    up = [f"{path.relative_to(ROOT)}:{line} imports {module}"
+          for pkg, path in _package_files() for line, module in _imports(path)
+          if rank.get(module.split(".")[0], -1) > rank[pkg]]
+    assert up == [], "imports that point up the layers:\n" + "\n".join(up)
+
+
+def test_the_layout_check_sees_imports_inside_functions(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text("import os\ndef f():\n    from studies.grid import x\n    import cli.main\n")
+    assert [m for _, m in _imports(f)] == ["os", "studies.grid", "cli.main"]
+
+
+def test_every_package_is_on_the_layer_list():
+    packages = {p.parent.name for p in ROOT.glob("*/__init__.py")}
+    assert packages == set(LAYERS), f"packages not on the layer list: {sorted(packages - set(LAYERS))}"
+
+
+def test_only_the_viewer_module_imports_rerun():
+    """Rerun (its SDK, its threads, its 4 GB of address space) stays behind replay/pipeline/viz.py."""
+    importers = sorted({str(path.relative_to(ROOT)) for _, path in _package_files()
+                        for _, module in _imports(path) if module.split(".")[0] == "rerun"})
+    assert importers == ["replay/pipeline/viz.py"]

@@ -1,1 +1,1 @@
-"""``zcut annotate`` and ``zcut accuracy`` (registered in ``replay.cli.COMMANDS``)."""
+"""``zcut annotate`` and ``zcut accuracy`` (registered in ``cli.main.COMMANDS``)."""

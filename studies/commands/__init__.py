@@ -1,1 +1,1 @@
-"""``zcut batch`` and ``zcut sweep`` (registered in ``replay.cli.COMMANDS``)."""
+"""``zcut batch`` and ``zcut sweep`` (registered in ``cli.main.COMMANDS``)."""

@@ -10,7 +10,7 @@ from annotate_helpers import spike_frame, write_spike_log
 
 from annotate.accuracy import agreement_counts
 from annotate.store import LabelStore
-from replay.cli import main
+from cli.main import main
 from replay.logs.reader import LogReader
 from replay.logs.writer import LogWriter
 from zcut.metrics import cohen_kappa, mask_iou

@@ -130,7 +130,7 @@ def test_label_by_clicking_and_painting_persists_and_counts(tmp_path, browser):
         srv.stop()
 
     # accuracy against these labels matches a count by hand (numpy on the stored masks)
-    out = subprocess.run([sys.executable, "-m", "replay.cli", "accuracy", str(log), "--labels", str(db), "--json"],
+    out = subprocess.run([sys.executable, "-m", "cli", "accuracy", str(log), "--labels", str(db), "--json"],
                          check=False, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)

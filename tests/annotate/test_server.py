@@ -351,7 +351,7 @@ def test_kill_9_during_a_burst_keeps_every_acknowledged_edit(tmp_path):
 
 
 def test_annotate_command_errors(tmp_path, capsys):
-    from replay.cli import main
+    from cli.main import main
 
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(b"this is not an mcap file" * 10)

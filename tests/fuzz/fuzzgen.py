@@ -201,7 +201,7 @@ def build_corpus(folder: Path) -> None:  # runs in its own process (kernels)
     """Write the corpus: hand-made logs (LogWriter and the mcap library, every compression), a
     synthetic log, its results file, an empty-bin log and its bin model, a label store and its
     export, PCD and PLY files."""
-    from replay.cli import main
+    from cli.main import main
     from replay.logs.frame import Frame
     from replay.logs.writer import LogWriter
     from zcut.cloud import Intrinsics

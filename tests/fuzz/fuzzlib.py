@@ -34,13 +34,13 @@ Two ways to run a case (``mode``):
     line and the libraries its commands import lazily — never running a numba kernel, so that no
     numba worker thread exists in it — then forks one child per case. The child sets its limits
     (``RLIMIT_AS`` = the server's address space + the budget, ``RLIMIT_FSIZE``, no core), points
-    fds 0/1/2 at /dev/null and two files, and runs ``replay.cli.main(argv)`` as the console script
+    fds 0/1/2 at /dev/null and two files, and runs ``cli.main.main(argv)`` as the console script
     would (an uncaught exception prints its traceback and exits 1; non-daemon threads are joined and
     ``atexit`` functions run before ``os._exit``). The server lives in its own process, not in the
     test process, because pytest's process may already hold numba or Rerun threads. The server
     also watches the time and the resident memory of its children.
 ``subprocess``
-    ``python -m replay.cli ARGV`` per case, the same limits set in ``preexec_fn``.
+    ``python -m cli ARGV`` per case, the same limits set in ``preexec_fn``.
 
 The caller's process never imports the project's kernels for a case: it writes the case folder,
 hashes the inputs, hands the command to the runner and classifies what came back.
@@ -75,7 +75,7 @@ _POLL_S = 0.05
 _DUMP_S = 0.25
 #: What a subprocess case runs: the console script, with faulthandler dumping its stacks on SIGUSR1.
 _SUBPROCESS_MAIN = ("import faulthandler, runpy, signal, sys; faulthandler.register(signal.SIGUSR1, all_threads=True); "
-                    "sys.argv[0] = 'zcut'; runpy.run_module('replay.cli', run_name='__main__', alter_sys=True)")
+                    "sys.argv[0] = 'zcut'; runpy.run_module('cli.main', run_name='__main__', alter_sys=True)")
 #: Largest file a case may write (RLIMIT_FSIZE): a small input must not fill the disk.
 DEFAULT_FSIZE_BYTES = 1 << 30
 #: What a case's stdout/stderr keep (the rest is cut).
@@ -88,7 +88,7 @@ PYTHON = sys.executable
 #: none of them starts a thread at import, nothing here runs a numba kernel. Rerun starts threads
 #: when imported: every child imports it for itself.
 WARM_IMPORTS = (
-    "replay.cli", "numpy", "scipy.spatial", "scipy.ndimage", "cv2", "open3d", "threadpoolctl", "tomllib",
+    "cli.main", "numpy", "scipy.spatial", "scipy.ndimage", "cv2", "open3d", "threadpoolctl", "tomllib",
     "mcap.writer", "mcap.reader", "mcap_ros2.decoder", "zstandard", "lz4.frame", "isal.isal_zlib", "pypcd4",
     "plyfile", "sqlite3", "replay.logs.reader", "replay.logs.writer", "replay.logs.pcd", "replay.logs.ply",
     "replay.outputs", "replay.pipeline.config", "replay.pipeline.stages", "replay.pipeline.session",
@@ -273,7 +273,7 @@ def _dump_frame(stderr: str) -> str:
     dump (what a case was doing when a cap was hit), or ""."""
     blocks = re.split(r"^(?=(?:Current thread|Thread) 0x)", stderr, flags=re.MULTILINE)
     for block in blocks:
-        if not re.match(r"(?:Current thread|Thread) 0x", block) or "replay/cli.py" not in block:
+        if not re.match(r"(?:Current thread|Thread) 0x", block) or "cli/main.py" not in block:
             continue
         for path, line, func in re.findall(r'File "([^"]+)", line (\d+) in (\S+)', block):
             if "/site-packages/" not in path and "/lib/python" not in path and not path.startswith("<"):
@@ -411,7 +411,7 @@ class ForkServer:
 
 
 class SubprocessPool:
-    """One ``python -m replay.cli`` process per case; same interface as :class:`ForkServer`."""
+    """One ``python -m cli`` process per case; same interface as :class:`ForkServer`."""
 
     def __init__(self, *, jobs: int) -> None:
         self.running: dict[int, _Running] = {}
@@ -507,7 +507,7 @@ _FRESH_VM: list[int] = []
 def _fresh_vm_bytes() -> int:
     """Address space of a fresh interpreter that imported the command line (measured once)."""
     if not _FRESH_VM:
-        code = ("import replay.cli\nfor l in open('/proc/self/status'):\n"
+        code = ("import cli.main\nfor l in open('/proc/self/status'):\n"
                 "    if l.startswith('VmSize'): print(int(l.split()[1]) * 1024)")
         env = dict(os.environ, PYTHONPATH=str(REPO))
         _FRESH_VM.append(int(subprocess.run([PYTHON, "-c", code], capture_output=True, text=True, env=env,
@@ -627,7 +627,7 @@ def _child(req: dict) -> None:  # pragma: no cover - runs in a forked child
         faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=True)  # the runner asks at a cap
         sys.argv = ["zcut", *req["argv"]]
         _limits(_vm_bytes() + int(req["vm"]), int(req["fsize"]))
-        from replay.cli import main
+        from cli.main import main
     except BaseException:
         os._exit(code)
     try:

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from cli_helpers import run_cli
 
-from replay.cli import main
+from cli.main import main
 from replay.outputs import (
     AtomicOutput,
     OutputBusyError,
@@ -187,7 +187,7 @@ def test_every_command_that_writes_refuses_an_output_another_process_writes(file
 def test_two_replays_of_one_output_at_once_one_is_refused(files, tmp_path):
     """Two real processes, the second started while the first writes: the second exits 1 in one line,
     the first completes its outputs."""
-    argv = [sys.executable, "-m", "replay.cli", "replay", str(files["log"]), "--out", str(tmp_path / "r.mcap"),
+    argv = [sys.executable, "-m", "cli", "replay", str(files["log"]), "--out", str(tmp_path / "r.mcap"),
             "--rrd", str(tmp_path / "o.rrd")]
     first = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from replay.cli import main
+from cli.main import main
 from replay.process import Interrupted, InterruptState, interrupted_by
 
 
@@ -24,7 +24,7 @@ def log(tmp_path_factory):
 
 
 def _start(log: Path, out: Path) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "replay.cli", "replay", str(log), "--rrd", str(out / "o.rrd"),
+    return subprocess.Popen([sys.executable, "-m", "cli", "replay", str(log), "--rrd", str(out / "o.rrd"),
                              "--out", str(out / "r.mcap")], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
 
 
@@ -68,7 +68,7 @@ def test_a_signal_ends_replay_in_one_line_with_no_leftovers(log, tmp_path, sig, 
 def test_the_command_line_handles_signals_before_it_loads_the_kernels():
     """Importing the console script loads no numba (nor zcut): the handlers are in place before
     the seconds of loading the kernels, so a Ctrl-C then is one line too (and ``--help`` is fast)."""
-    code = "import sys, replay.cli; print(sorted(m for m in ('numba', 'zcut', 'numpy') if m in sys.modules))"
+    code = "import sys, cli.main; print(sorted(m for m in ('numba', 'zcut', 'numpy') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
 

@@ -10,7 +10,7 @@ import pyarrow.parquet as pq
 import pytest
 from cli_helpers import run_cli
 
-from replay.cli import main
+from cli.main import main
 
 SIZE = "120x180"
 

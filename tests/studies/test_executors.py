@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from worker_helpers import die_on
 
-from replay.cli import main
+from cli.main import main
 from studies.executors import LocalExecutor
 
 
@@ -56,7 +56,7 @@ def _alive(pid: int) -> bool:
 
 def _start_batch(logs: Path, out: Path) -> tuple[subprocess.Popen, list[int]]:
     """A batch driver on two workers, once its workers and the resource tracker run; its children."""
-    p = subprocess.Popen([sys.executable, "-m", "replay.cli", "batch", str(logs), "-o", str(out), "--workers", "2",
+    p = subprocess.Popen([sys.executable, "-m", "cli", "batch", str(logs), "-o", str(out), "--workers", "2",
                           "--frames-per-unit", "1", "--results"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 300
     while len(_children(p.pid)) < 3:  # two workers and multiprocessing's resource tracker

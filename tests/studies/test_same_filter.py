@@ -15,7 +15,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from replay.cli import main
+from cli.main import main
 from replay.logs import layout
 from replay.logs.reader import LogReader
 from replay.logs.writer import LogWriter

@@ -9,7 +9,7 @@ import pytest
 from cli_helpers import run_cli
 from disk_helpers import small_disk
 
-from replay.cli import main
+from cli.main import main
 
 
 @pytest.fixture(scope="module")

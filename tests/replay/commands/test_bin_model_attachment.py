@@ -58,7 +58,7 @@ def logs(tmp_path_factory):
 
 
 def run_cli_plain(*argv) -> int:
-    from replay.cli import main
+    from cli.main import main
 
     return main([str(a) for a in argv])
 

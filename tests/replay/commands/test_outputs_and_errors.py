@@ -12,7 +12,7 @@ import sys
 import pytest
 from cli_helpers import run_cli
 
-from replay.cli import main
+from cli.main import main
 from replay.outputs import AtomicOutput, OutputError, OutputPlan
 
 SIZE = "90x120"
@@ -41,7 +41,7 @@ def test_outputs_with_undecodable_names_are_written(tmp_path, log, capsys):
     paths and the run ended in a UnicodeEncodeError): the temporary file has a UTF-8 name and the
     rename gives the output the user's name."""
     name = os.fsdecode(b"\xff\xfeout.rrd")
-    run = subprocess.run([sys.executable, "-m", "replay.cli", "replay", str(log), "--frames", "0:1",
+    run = subprocess.run([sys.executable, "-m", "cli", "replay", str(log), "--frames", "0:1",
                           "--rrd", str(tmp_path / name)], capture_output=True)
     assert run.returncode == 0, run.stderr.decode(errors="replace")
     assert b"wrote rrd" in run.stderr
@@ -191,10 +191,10 @@ def test_labels_import_creates_the_store_and_registers_the_log(log, tmp_path, ca
 
 
 def test_version_and_a_closed_stdout():
-    out = subprocess.run([sys.executable, "-m", "replay.cli", "--version"], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "cli", "--version"], capture_output=True, text=True)
     assert out.returncode == 0 and out.stdout.startswith("zcut ")
     # `zcut --help | head -1`: the reader goes away; no traceback
-    p = subprocess.run(f"{sys.executable} -m replay.cli --help | head -c 10", shell=True, capture_output=True,
+    p = subprocess.run(f"{sys.executable} -m cli --help | head -c 10", shell=True, capture_output=True,
                        text=True)
     assert "Traceback" not in p.stderr and "BrokenPipe" not in p.stderr
 

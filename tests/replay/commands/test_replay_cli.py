@@ -10,7 +10,7 @@ import pytest
 import rerun as rr
 from cli_helpers import run_cli
 
-from replay.cli import main
+from cli.main import main
 from replay.logs.reader import LogReader
 from replay.logs.writer import LogWriter
 from replay.synth.log import write_synthetic_log
@@ -236,7 +236,7 @@ def test_demo_end_to_end(tmp_path, capsys, monkeypatch):
     # the next steps are exact commands on the demo's own outputs: each parses, and one runs
     import shlex
 
-    from replay.cli import build_parser
+    from cli.main import build_parser
 
     steps = {}
     for line in out[out.index("Next steps on the demo's own outputs:"):].splitlines()[1:]:

@@ -15,7 +15,7 @@ import pytest
 from log_helpers import mutations
 from mcap.writer import CompressionType, Writer
 
-from replay.cli import main
+from cli.main import main
 from replay.errors import LogDamageError, LogFormatError
 from replay.logs import ros2_msgs as rm
 from replay.logs.damage import damage_lines
@@ -359,9 +359,9 @@ def test_cli_exit_codes(small_log, real_data, tmp_path, capsys):
     assert "warning: cut.mcap is truncated" in cap.err and "Traceback" not in cap.err
     notmcap = tmp_path / "x.mcap"
     notmcap.write_bytes(b"\x89MCAP0\r\n" + bytes(3))
-    proc = subprocess.run([sys.executable, "-m", "replay.cli", "topics", str(notmcap)], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "cli", "topics", str(notmcap)], capture_output=True, text=True)
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1 and proc.stderr.startswith("error: ")
-    proc = subprocess.run([sys.executable, "-m", "replay.cli", "topics", str(tmp_path / "none.mcap")],
+    proc = subprocess.run([sys.executable, "-m", "cli", "topics", str(tmp_path / "none.mcap")],
                           capture_output=True, text=True)
     assert proc.returncode == 1 and proc.stderr.startswith("error: no such file")
 

@@ -11,7 +11,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from replay.cli import main
+from cli.main import main
 from replay.errors import LogFormatError
 from replay.logs.pcd import read_pcd
 from replay.logs.ply import read_ply, read_ply_model
@@ -407,7 +407,7 @@ def test_record_png_sidecar_is_sized_from_its_header_before_decoding(tmp_path, c
 
 
 def test_topics_command(real_data, tmp_path):
-    run = [sys.executable, "-m", "replay.cli", "topics"]
+    run = [sys.executable, "-m", "cli", "topics"]
     ok = subprocess.run([*run, str(real_data / "ouster_os1_64_ros2_reencoded.mcap")], capture_output=True, text=True)
     assert ok.returncode == 0, ok.stderr
     assert "/os1_cloud_node/points" in ok.stdout and "64x2048" in ok.stdout and "mono8" in ok.stdout

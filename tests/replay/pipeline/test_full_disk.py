@@ -12,7 +12,7 @@ import time
 import pytest
 from disk_helpers import small_disk
 
-from replay.cli import main
+from cli.main import main
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +29,7 @@ def log(tmp_path_factory):
 ])
 def test_replay_on_a_full_disk_is_one_line_and_leaves_nothing(log, tmp_path, outputs, size, short):
     with small_disk(tmp_path / "disk", size) as disk:
-        argv = [sys.executable, "-m", "replay.cli", "replay", str(log)]
+        argv = [sys.executable, "-m", "cli", "replay", str(log)]
         if "rrd" in outputs:
             argv += ["--rrd", str(disk / "o.rrd")]
         if "out" in outputs:

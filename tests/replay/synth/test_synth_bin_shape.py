@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from replay.cli import main
+from cli.main import main
 from replay.logs import layout
 from replay.logs.reader import LogReader
 from replay.pipeline.bin_model import load_bin_model

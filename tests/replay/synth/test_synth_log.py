@@ -9,7 +9,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from scipy import ndimage
 
-from replay.cli import main
+from cli.main import main
 from replay.errors import LogFormatError
 from replay.logs import layout
 from replay.logs.reader import LogReader
