@@ -34,6 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_sor import (  # noqa: E402
+    REAL_DATA,
     blobs_cloud,
     configure_process,
     cpu_best,
@@ -42,7 +43,6 @@ from bench_sor import (  # noqa: E402
     sparse_cloud,
     steep_cloud,
     walls_cloud,
-    REAL_DATA,
 )
 
 A_MAX = 3000.0  # pixels of a part's largest face, for the z-cut's max_area
@@ -192,11 +192,11 @@ def main() -> int:
             continue
         xyz, K = made
         valid = np.isfinite(xyz).all(axis=2)
-        t_zcut, _ = cpu_best(lambda: zcut_frame(xyz), args.repeat)
+        t_zcut, _ = cpu_best(lambda xyz=xyz: zcut_frame(xyz), args.repeat)
         row = [name, f"{xyz.shape[0]}x{xyz.shape[1]}", f"{int(valid.sum())}", f"{1000 * t_zcut:.1f}"]
         masks = {}
         for f in FILTERS:
-            t, masks[f] = cpu_best(lambda f=f: stages[f](xyz, K), args.repeat)
+            t, masks[f] = cpu_best(lambda f=f, xyz=xyz, K=K: stages[f](xyz, K), args.repeat)
             row.append(f"{1000 * t:.1f} ({t / t_zcut:.2f})")
             worst[f] = max(worst[f], t / t_zcut)
             masks[f + "_t"] = t
@@ -207,10 +207,10 @@ def main() -> int:
             same = "yes" if np.array_equal(masks["radius"], want) else f"NO ({int((masks['radius'] != want).sum())} px)"
             row.append(f"{1000 * t_o3d:.0f} ({t_o3d / masks['radius_t']:.0f}x, {same})")
         xyz_mm, depth = millimetre_cloud(xyz)
-        t_cv, _ = cpu_best(lambda: cv2.filterSpeckles(depth.copy(), 0, sp.max_size_px, sp.max_diff_mm), args.repeat)
+        t_cv, _ = cpu_best(lambda depth=depth: cv2.filterSpeckles(depth.copy(), 0, sp.max_size_px, sp.max_diff_mm), args.repeat)
         img = depth.copy()
         cv2.filterSpeckles(img, 0, sp.max_size_px, sp.max_diff_mm)
-        t_sp, got = cpu_best(lambda: zcut.speckle_stage(xyz_mm, params=sp), args.repeat)
+        t_sp, got = cpu_best(lambda xyz_mm=xyz_mm: zcut.speckle_stage(xyz_mm, params=sp), args.repeat)
         same = "yes" if np.array_equal(got, (depth != 0) & (img == 0)) else "NO"
         row.append(f"{1000 * t_cv:.1f} ({t_cv / t_sp:.2f}x, {same})")
         rows.append(row)

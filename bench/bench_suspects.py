@@ -163,7 +163,7 @@ def score_logs(logs, ply: Path, cache: Path, variants) -> dict:
     from replay.logs import layout
 
     out = {name: {} for name, _ in variants}
-    for (kind, seed), log in logs.items():
+    for (kind, _seed), log in logs.items():
         for frame, zone, easy, height, a_max in zones(log, ply, cache):
             truth = frame.masks[layout.TRUTH_OUTLIERS]
             kcode = frame.codes[layout.TRUTH_OUTLIER_KIND]

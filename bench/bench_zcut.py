@@ -123,11 +123,11 @@ def main() -> int:
     for name, z in frames.items():
         valid = np.isfinite(z)
         in_range = valid & (z >= np.nanmax(z) - params["max_depth"] - params["step"])
-        w_fast, c_fast, m_fast = timed(lambda: zcut_outliers(z, **params), args.repeat_fast)
-        w_ref, c_ref, m_ref = timed(lambda: zcut_outliers_reference(z, **params), args.repeat_ref)
+        w_fast, c_fast, m_fast = timed(lambda z=z: zcut_outliers(z, **params), args.repeat_fast)
+        w_ref, c_ref, m_ref = timed(lambda z=z: zcut_outliers_reference(z, **params), args.repeat_ref)
         zp = ZCutParams(params["step"], params["max_depth"], params["max_area"])
         stage = {
-            kernel: timed(lambda k=kernel: find_clusters(z, params=zp, kernel=k), args.repeat_fast)
+            kernel: timed(lambda k=kernel, z=z, zp=zp: find_clusters(z, params=zp, kernel=k), args.repeat_fast)
             for kernel in ("flood", "union-find")
         }
         same = np.array_equal(m_fast, m_ref) and all(

@@ -331,7 +331,10 @@ def flag_table(rows) -> list[str]:
         sel = [r for r in rows if r["mode"] == mode and r["condition"] != "true pose" and r["judged"]]
         d = [r for r in sel if r["dropped"]]
         n = [r for r in sel if not r["dropped"]]
-        rate = lambda xs: f"{sum(r['flagged'] for r in xs)} ({100 * sum(r['flagged'] for r in xs) / max(len(xs), 1):.1f} %)"
+
+        def rate(xs):
+            return f"{sum(r['flagged'] for r in xs)} ({100 * sum(r['flagged'] for r in xs) / max(len(xs), 1):.1f} %)"
+
         out.append(f"| {mode} | {len(sel)} | {len(d)} | {rate(d)} | {len(n)} | {rate(n)} |")
     return out
 

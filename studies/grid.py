@@ -23,6 +23,8 @@ from typing import TYPE_CHECKING, Any
 from replay.errors import ConfigError
 
 if TYPE_CHECKING:
+    from collections.abc import Iterable
+
     from replay.pipeline.config import PipelineConfig
 
 #: Grid points a sweep runs without --force.
@@ -36,7 +38,7 @@ def _tidy(v: float) -> float:
     return float(f"{v:.12g}")
 
 
-def merge_values(*groups) -> tuple[float, ...]:
+def merge_values(*groups: Iterable[float]) -> tuple[float, ...]:
     """The values of ``groups`` (iterables, first group first), sorted, each kept once: a value within
     :data:`REL_TOL` (relative) of one kept before it is dropped, so an earlier group's spelling wins.
 
@@ -153,7 +155,10 @@ def make_grid(*, steps: tuple[float, ...] | None, depths: tuple[float, ...] | No
     chosen = (z.step, z.max_depth, rho0, config.sor.k, config.sor.std_ratio)
     d0 = z.max_depth
     steps = steps or (z.step,)
-    around = (lambda v: [_tidy(f * v) for f in (1.0, 0.5, 1.5)]) if study_points else (lambda v: [])
+
+    def around(v: float) -> list[float]:
+        return [_tidy(f * v) for f in (1.0, 0.5, 1.5)] if study_points else []
+
     depths = merge_values(depths or (d0,), around(d0))
     rhos = () if rho0 is None else merge_values(rhos or (rho0,), [r for r in around(rho0) if r <= 1])
     sor_ks = sor_ks or (config.sor.k,)

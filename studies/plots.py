@@ -424,7 +424,7 @@ def _pr_plot(sw: SetGrid) -> Plot | None:
         if ss:
             ax.scatter([p[0] for p, _ in ss], [p[1] for p, _ in ss], marker="x", s=26, color=_SOR_COLOUR, lw=1.2,
                        zorder=3)
-        for label, e, style in marked:
+        for _label, e, style in marked:
             if e is None:
                 continue
             r, p = pr(e)

@@ -188,8 +188,9 @@ def batch_row(unit: WorkUnit, frame: Frame, result: FrameResult, row: FrameRow, 
         out[m] = int(np.count_nonzero(result.outliers[m]))
     for s in (*STAGE_COLUMNS, *others):
         out[f"t_{s}_s"] = _finite(float(result.timings[s])) if s in result.timings else None
-    out["warnings"] = "; ".join(result.warnings + ((f"bin check: {result.bin_check.reason}",)
-                                                   if result.bin_flagged else ()))
+    check = result.bin_check
+    out["warnings"] = "; ".join(result.warnings + ((f"bin check: {check.reason}",)
+                                                   if result.bin_flagged and check is not None else ()))
     out["scored"] = truth is not None
     preds = method_predictions(result, methods)
     for m in methods:
@@ -215,7 +216,7 @@ def run_unit(unit: WorkUnit, job: Job, body: Callable[[UnitResult, ReplaySession
         res.error = str(e)
     except OSError as e:
         res.error = f"{e.strerror or e}: {e.filename or unit.log}"
-    except Exception as e:  # a bug must not stop the other units; its trace goes to the summary
+    except Exception as e:  # noqa: BLE001 - a bug must not stop the other units; its trace goes to the summary
         res.error = f"{type(e).__name__}: {e} ({traceback.format_exc(limit=3).splitlines()[-1]})"
     finally:
         if truth_src is not None and hasattr(truth_src, "close"):

@@ -4,11 +4,28 @@ No file I/O, no viewer, no database here: see ``replay`` and ``annotate`` for th
 """
 
 from .bin_model import BinModel
-from .prepared_model import PreparedBinModel, prepare_bin_model
 from .cloud import Intrinsics, height_mm, valid_mask
+
+# the filter bank (docs/filters.md, "The filter bank")
+from .components import (
+    cluster_outliers,
+    cluster_outliers_reference,
+    cluster_stage,
+    speckle_outliers,
+    speckle_outliers_reference,
+    speckle_stage,
+)
 from .cut_grid import ZCutTree, zcut_tree
 from .cuts import CutResult, find_clusters, zcut_outliers, zcut_outliers_reference
 from .errors import InputShapeError, ParameterError, ZcutError
+from .local_rules import (
+    mixed_pixel_outliers,
+    mixed_pixel_outliers_reference,
+    mixed_pixel_stage,
+    window_outliers,
+    window_outliers_reference,
+    window_stage,
+)
 from .metrics import (
     AccuracyCounts,
     RelativeMetrics,
@@ -21,29 +38,23 @@ from .metrics import (
     sensitivity,
     sensitivity_of,
 )
-from .params import BinMaskParams, RegistrationParams, RemovalParams, SorParams, SuspectParams, ZCutParams
+from .params import (
+    BinMaskParams,
+    ClusterParams,
+    MixedPixelParams,
+    RadiusParams,
+    RegistrationParams,
+    RemovalParams,
+    SorParams,
+    SpeckleParams,
+    SuspectParams,
+    WindowParams,
+    ZCutParams,
+)
+from .prepared_model import PreparedBinModel, prepare_bin_model
+from .radius import radius_outliers, radius_outliers_reference, radius_stage
 from .sor import sor_mean_distances, sor_outliers, sor_outliers_from_distances
 from .suspects import DETECTORS, SuspectGroup, SuspectResult, suspects
-
-# the filter bank (docs/filters.md, "The filter bank")
-from .components import (
-    cluster_outliers,
-    cluster_outliers_reference,
-    cluster_stage,
-    speckle_outliers,
-    speckle_outliers_reference,
-    speckle_stage,
-)
-from .local_rules import (
-    mixed_pixel_outliers,
-    mixed_pixel_outliers_reference,
-    mixed_pixel_stage,
-    window_outliers,
-    window_outliers_reference,
-    window_stage,
-)
-from .params import ClusterParams, MixedPixelParams, RadiusParams, SpeckleParams, WindowParams
-from .radius import radius_outliers, radius_outliers_reference, radius_stage
 
 __all__ = [
     "BinMaskParams",

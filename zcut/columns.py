@@ -27,7 +27,7 @@ _EPS = 2.220446049250313e-16
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def d2(xq, yq, zq, xp, yp, zp):
+def d2(xq, yq, zq, xp, yp, zp):  # type: ignore[no-untyped-def]  # numba kernel
     """Open3D's (nanoflann's) squared distance: ((0 + dx²) + dy²) + dz², query minus point."""
     dx = xq - xp
     dy = yq - yp
@@ -36,13 +36,13 @@ def d2(xq, yq, zq, xp, yp, zp):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def cell(v, v0, inv):
+def cell(v, v0, inv):  # type: ignore[no-untyped-def]  # numba kernel
     """The cell of coordinate v (monotone in v: every rounding step is)."""
     return np.int64(math.floor((v - v0) * inv))
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def reach(v, rad):
+def reach(v, rad):  # type: ignore[no-untyped-def]  # numba kernel
     """R with |v - p| < R for every p whose computed (v - p)² is at most fl(rad²) (1 + 2 eps):
     then |fl(v - p)| < rad (1 + 2 eps) and |v - p| < rad (1 + 3 eps); the margin also covers the
     rounding of v ∓ R (4 eps |v|), so [fl(v - R), fl(v + R)] holds every such p."""
@@ -50,7 +50,7 @@ def reach(v, rad):
 
 
 @nb.njit(cache=True, nogil=True)
-def mark_columns(qx, qy, qrad, x0, y0, inv, nx, ny, marked):
+def mark_columns(qx, qy, qrad, x0, y0, inv, nx, ny, marked):  # type: ignore[no-untyped-def]  # numba kernel
     """Mark every column the ball (qx[i], qy[i], radius qrad[i]) can reach (qrad < 0: none)."""
     for i in range(qx.shape[0]):
         if not qrad[i] >= 0.0:
@@ -62,7 +62,7 @@ def mark_columns(qx, qy, qrad, x0, y0, inv, nx, ny, marked):
 
 
 @nb.njit(cache=True, nogil=True)
-def _sort_by_slab(xs, ys, zs, s, e, z0, inv, tx, ty, tz, counts):
+def _sort_by_slab(xs, ys, zs, s, e, z0, inv, tx, ty, tz, counts):  # type: ignore[no-untyped-def]  # numba kernel
     # order entries s..e-1 by their slab cell(z, z0, inv) (a counting sort, stable: raster order
     # inside a slab); counts is scratch of at least e - s + 1 entries. A column whose slabs span
     # more than e - s values is sorted by z itself (numba's introsort).
@@ -97,7 +97,7 @@ def _sort_by_slab(xs, ys, zs, s, e, z0, inv, tx, ty, tz, counts):
 
 
 @nb.njit(cache=True, nogil=True)
-def build_columns(X, Y, Z, x0, y0, z0, inv, nx, marked):
+def build_columns(X, Y, Z, x0, y0, z0, inv, nx, marked):  # type: ignore[no-untyped-def]  # numba kernel
     """The valid points (all three of X, Y, Z finite; (H, W) planes of any float type and layout)
     of the marked columns, column by column, ordered by slab (``cell(z, z0, inv)``: cubes of the
     column's width), consecutive identical points merged.
@@ -161,7 +161,7 @@ def build_columns(X, Y, Z, x0, y0, z0, inv, nx, marked):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _first_slab(ks, lo, hi, k_lo):
+def _first_slab(ks, lo, hi, k_lo):  # type: ignore[no-untyped-def]  # numba kernel
     # the first entry of lo..hi-1 (ordered by slab) whose slab is >= k_lo
     while lo < hi:
         mid = (lo + hi) // 2
@@ -173,7 +173,7 @@ def _first_slab(ks, lo, hi, k_lo):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _count_column(cols, col, xq, yq, zq, k_lo, k_hi, r2, n, need):
+def _count_column(cols, col, xq, yq, zq, k_lo, k_hi, r2, n, need):  # type: ignore[no-untyped-def]  # numba kernel
     # count the entries of column col in slabs k_lo..k_hi strictly within r2 of q; (n, scanned)
     start, xs, ys, zs, mult, ks = cols
     j = _first_slab(ks, start[col], start[col + 1], k_lo)
@@ -187,7 +187,7 @@ def _count_column(cols, col, xq, yq, zq, k_lo, k_hi, r2, n, need):
 
 
 @nb.njit(cache=True, nogil=True)
-def count_query(cols, x0, y0, z0, inv, nx, ny, xq, yq, zq, rad, r2, need, n):
+def count_query(cols, x0, y0, z0, inv, nx, ny, xq, yq, zq, rad, r2, need, n):  # type: ignore[no-untyped-def]  # numba kernel
     """Points strictly within ``r2`` (= fl(rad²)) of q, added to ``n`` and stopping at ``need``:
     the query's own column first. Returns (n, entries scanned)."""
     R = reach(max(abs(xq), abs(yq)), rad)
@@ -210,7 +210,7 @@ def count_query(cols, x0, y0, z0, inv, nx, ny, xq, yq, zq, rad, r2, need, n):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _insert_copies(best, found, v, copies):
+def _insert_copies(best, found, v, copies):  # type: ignore[no-untyped-def]  # numba kernel
     # insert `copies` copies of v into the ascending best (its m smallest), like sor_window.insert
     m = best.shape[0]
     for _ in range(min(copies, m)):
@@ -225,7 +225,7 @@ def _insert_copies(best, found, v, copies):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _ring_reach(xq, yq, rad, x0, y0, inv, own_x, own_y):
+def _ring_reach(xq, yq, rad, x0, y0, inv, own_x, own_y):  # type: ignore[no-untyped-def]  # numba kernel
     # the largest Chebyshev distance (in columns) from the query's column of a column that can
     # hold a point within rad of q in x and y
     R = reach(max(abs(xq), abs(yq)), rad)
@@ -234,7 +234,7 @@ def _ring_reach(xq, yq, rad, x0, y0, inv, own_x, own_y):
 
 
 @nb.njit(cache=True, nogil=True)
-def knn_query(cols, x0, y0, z0, inv, nx, ny, xq, yq, zq, lim, best, max_scan):
+def knn_query(cols, x0, y0, z0, inv, nx, ny, xq, yq, zq, lim, best, max_scan):  # type: ignore[no-untyped-def]  # numba kernel
     """The m = len(best) smallest squared distances from q into ``best`` (ascending), given
     ``lim``, an upper bound on the m-th smallest (finite: at least m points lie within it).
 

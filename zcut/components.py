@@ -53,7 +53,7 @@ __all__ = [
 # union-find over provisional labels, in raster order
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True, nogil=True, inline="always")
-def _find(parent, i):
+def _find(parent, i):  # type: ignore[no-untyped-def]  # numba kernel
     root = i
     while parent[root] != root:
         root = parent[root]
@@ -65,7 +65,7 @@ def _find(parent, i):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _union(parent, i, j):
+def _union(parent, i, j):  # type: ignore[no-untyped-def]  # numba kernel
     # link the later root to the earlier one: parent[l] <= l for every label l
     a = _find(parent, i)
     b = _find(parent, j)
@@ -76,7 +76,7 @@ def _union(parent, i, j):
 
 
 @nb.njit(cache=True, nogil=True)
-def _resolve(parent, n):
+def _resolve(parent, n):  # type: ignore[no-untyped-def]  # numba kernel
     # every label's root: its parent precedes it and is resolved already
     for i in range(1, n + 1):
         parent[i] = parent[parent[i]]
@@ -90,7 +90,7 @@ def _speckle_params(max_diff_mm: object, max_size_px: object) -> SpeckleParams:
 
 
 @nb.njit(cache=True, nogil=True)
-def _speckle_kernel(a, max_diff, max_size, out):
+def _speckle_kernel(a, max_diff, max_size, out):  # type: ignore[no-untyped-def]  # numba kernel
     # lab: the pixel's provisional label (0: invalid); a new label where no visited 4-neighbour
     # joins; the depth test is skipped for a neighbour that already carries the same label. The
     # depths of the current and the previous row (mm, NaN where invalid) are kept in two buffers.
@@ -263,7 +263,7 @@ def _check_intrinsics(intrinsics: object) -> Intrinsics:
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _close(row, j, px, py, pz, thr2):
+def _close(row, j, px, py, pz, thr2):  # type: ignore[no-untyped-def]  # numba kernel
     # the point of pixel j of the row within the distance: (dx² + dy²) + dz² <= thr², metres
     dx = np.float64(row[j, 0]) - px
     dy = np.float64(row[j, 1]) - py
@@ -272,7 +272,7 @@ def _close(row, j, px, py, pz, thr2):
 
 
 @nb.njit(cache=True, nogil=True)
-def _cluster_kernel(a, thr2, reach, min_area, k_area, out):
+def _cluster_kernel(a, thr2, reach, min_area, k_area, out):  # type: ignore[no-untyped-def]  # numba kernel
     # as _speckle_kernel, with the 3D distance test and, for 8-connectivity (reach 1), the up-left
     # and up-right neighbours
     H, W = a.shape[0], a.shape[1]

@@ -112,7 +112,7 @@ def qlevel(zt: float, z_max: float, step: float, hi: np.int64) -> np.int64:
 
 
 @numba.njit(cache=True, inline="always")
-def _qlevel_guess(zt, z_max, step, inv_step, hi):
+def _qlevel_guess(zt, z_max, step, inv_step, hi):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`qlevel`, fast when the guess ``floor((z_max - zt) * inv_step)`` or the next level is
     right (checked with the exact comparisons); else :func:`qlevel` itself."""
     g = (z_max - zt) * inv_step
@@ -129,7 +129,7 @@ def _qlevel_guess(zt, z_max, step, inv_step, hi):
 
 
 @numba.njit(cache=True)
-def pixel_levels(z, valid, z_min, z_max, step, hi, sentinel, q):
+def pixel_levels(z, valid, z_min, z_max, step, hi, sentinel, q):  # type: ignore[no-untyped-def]  # numba kernel
     """Fill q, the (H + 2) * (W + 2) padded level image: interior = level, border = sentinel."""
     H, W = z.shape
     Wp = W + 2
@@ -147,7 +147,7 @@ def pixel_levels(z, valid, z_min, z_max, step, hi, sentinel, q):
 
 
 @numba.njit(cache=True, inline="always")
-def _find(par, x):
+def _find(par, x):  # type: ignore[no-untyped-def]  # numba kernel
     """Root of x, with path halving (writes only where a path gets shorter)."""
     px = par[x]
     while px != x:
@@ -161,7 +161,7 @@ def _find(par, x):
 
 
 @numba.njit(cache=True, inline="always")
-def _join(par, rec, p, rp, nb, rank, pend_node, pend_root, n_pend):
+def _join(par, rec, p, rp, nb, rank, pend_node, pend_root, n_pend):  # type: ignore[no-untyped-def]  # numba kernel
     """Merge the set of neighbour nb with p's set (root rp, or -1 if p is not in a set yet).
 
     rec[r] = (size, node, stamp) of a root r; stamp = rank of the level at which r last changed.
@@ -226,7 +226,7 @@ _RING4 = _ring_table([(-1, 0), (0, -1), (0, 1), (1, 0)], False)
 
 
 @numba.njit(cache=True)
-def union_find_tree(q, W, K, top, conn8, max_area):
+def union_find_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-def]  # numba kernel
     """Union-find over the pixels in level order; one node per (component, last change).
 
     q : padded level image from :func:`pixel_levels`; pixels with q <= top (= K + 1) take part.
@@ -372,14 +372,14 @@ _U1 = np.uint64(1)
 
 
 @numba.njit(cache=True, inline="always")
-def _bit_set(occ, summ, lv):
+def _bit_set(occ, summ, lv):  # type: ignore[no-untyped-def]  # numba kernel
     w = lv >> 6
     occ[w] |= _U1 << np.uint64(lv & 63)
     return summ | (_U1 << np.uint64(w))
 
 
 @numba.njit(cache=True, inline="always")
-def _bit_clear(occ, summ, lv):
+def _bit_clear(occ, summ, lv):  # type: ignore[no-untyped-def]  # numba kernel
     w = lv >> 6
     occ[w] &= ~(_U1 << np.uint64(lv & 63))
     if occ[w] == 0:
@@ -388,7 +388,7 @@ def _bit_clear(occ, summ, lv):
 
 
 @numba.njit(cache=True, inline="always")
-def _bit_next(occ, summ, lv):
+def _bit_next(occ, summ, lv):  # type: ignore[no-untyped-def]  # numba kernel
     """Lowest set level >= lv, or -1."""
     w = lv >> 6
     x = occ[w] >> np.uint64(lv & 63)
@@ -404,7 +404,7 @@ def _bit_next(occ, summ, lv):
 
 
 @numba.njit(cache=True, inline="always")
-def _close(a, size, parent, e, K, max_area, node_b, node_size, node_parent, tagged, fin, n_fin):
+def _close(a, size, parent, e, K, max_area, node_b, node_size, node_parent, tagged, fin, n_fin):  # type: ignore[no-untyped-def]  # numba kernel
     """Node a (a component of the cut at its level node_b[a]) ends: it next changes at level e
     (K + 2: never); parent is the node it becomes part of (-1: none). Returns n_fin + 1."""
     node_size[a] = size
@@ -415,7 +415,7 @@ def _close(a, size, parent, e, K, max_area, node_b, node_size, node_parent, tagg
 
 
 @numba.njit(cache=True)
-def flood_tree(q, W, K, top, conn8, max_area):
+def flood_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-def]  # numba kernel
     """Component tree of the cuts by flooding, with a bucket queue over the levels.
 
     q : padded level image from :func:`pixel_levels`; pixels with q <= top (= K + 1 < 4096)
@@ -602,7 +602,7 @@ def flood_tree(q, W, K, top, conn8, max_area):
 
 
 @numba.njit(cache=True)
-def node_image(order, first, n):
+def node_image(order, first, n):  # type: ignore[no-untyped-def]  # numba kernel
     """Node image of the union-find kernel: first[t] is the node holding pixel order[t]."""
     lab = np.full(n, -1, np.int32)
     for t in range(order.size):
@@ -611,7 +611,7 @@ def node_image(order, first, n):
 
 
 @numba.njit(cache=True)
-def outlier_mask(lab, fin, node_parent, tagged, valid, out):
+def outlier_mask(lab, fin, node_parent, tagged, valid, out):  # type: ignore[no-untyped-def]  # numba kernel
     """out (H, W): True on the valid pixels held by a tagged node or by a node inside one."""
     flag = tagged.copy()
     for t in range(fin.size - 1, -1, -1):  # parents are closed after their children
@@ -629,7 +629,7 @@ def outlier_mask(lab, fin, node_parent, tagged, valid, out):
 
 
 @numba.njit(cache=True)
-def cluster_labels(lab, fin, node_parent, tagged, valid, labels):
+def cluster_labels(lab, fin, node_parent, tagged, valid, labels):  # type: ignore[no-untyped-def]  # numba kernel
     """Label of the outermost tagged node over each valid pixel, numbered in raster order."""
     n_nodes = tagged.size
     outer = np.full(n_nodes, -1, np.int64)  # outermost tagged ancestor (or self), -1 none
@@ -664,7 +664,7 @@ def cluster_labels(lab, fin, node_parent, tagged, valid, labels):
 
 
 @numba.njit(cache=True)
-def level_counts(node_b, node_parent, counts):
+def level_counts(node_b, node_parent, counts):  # type: ignore[no-untyped-def]  # numba kernel
     """counts[k - 1] = number of components of the cut at level k = 1 .. K + 1 (counts (K + 1,)):
     the nodes with b <= k < e (e = the birth of the parent; never for a root)."""
     n_k = counts.size  # K + 1
@@ -687,7 +687,7 @@ def level_counts(node_b, node_parent, counts):
 
 
 @numba.njit(cache=True)
-def taggable_forest(lab, fin, node_b, node_size, node_parent, taggable, valid, node_of_pixel):
+def taggable_forest(lab, fin, node_b, node_size, node_parent, taggable, valid, node_of_pixel):  # type: ignore[no-untyped-def]  # numba kernel
     """The nodes some ``(K, max_area)`` can tag, linked to their nearest taggable ancestor.
 
     Parameters
@@ -762,7 +762,7 @@ def taggable_forest(lab, fin, node_b, node_size, node_parent, taggable, valid, n
 
 
 @numba.njit(cache=True)
-def forest_mask(node_of_pixel, tagged, out):
+def forest_mask(node_of_pixel, tagged, out):  # type: ignore[no-untyped-def]  # numba kernel
     """out (H, W) = the pixel's lowest taggable node is tagged (``tagged`` per forest node)."""
     H, W = out.shape
     for r in range(H):
@@ -772,7 +772,7 @@ def forest_mask(node_of_pixel, tagged, out):
 
 
 @numba.njit(cache=True)
-def grid_counts(node_of_pixel, kmin, size, ks, areas, truth, scored, within, has_within, plus,
+def grid_counts(node_of_pixel, kmin, size, ks, areas, truth, scored, within, has_within, plus,  # type: ignore[no-untyped-def]  # numba kernel
                 has_plus, tp, fp, n_pred):
     """Pixel counts of P = (outliers(K, A) ∩ within) ∪ plus against L = truth over S = scored, for
     every K in ``ks`` and A in ``areas`` at once.

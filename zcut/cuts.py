@@ -61,7 +61,6 @@ from .errors import InputShapeError, ParameterError, describe_array
 from .params import _K_CAP, ZCutParams, n_levels
 from .types import FloatImage, Labels, Mask
 
-
 __all__ = [
     "KERNELS",
     "CutResult",
@@ -154,7 +153,7 @@ def _valid_range(z: np.ndarray) -> tuple[np.ndarray, float, float] | None:
 
 
 @numba.njit(cache=True)
-def _finite_min_max(z):
+def _finite_min_max(z):  # type: ignore[no-untyped-def]  # numba kernel
     n = 0
     lo = np.inf
     hi = -np.inf

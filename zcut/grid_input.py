@@ -36,14 +36,14 @@ def plain_number(value: object) -> object:
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def valid_at(row, c):
+def valid_at(row, c):  # type: ignore[no-untyped-def]  # numba kernel
     """All three coordinates of pixel c of a row ``a[r]`` finite (kernels index rows: much faster
     in numba). ``v * 0`` is 0 for a finite v and NaN for inf and NaN: one comparison, no branch."""
     return row[c, 0] * 0.0 + row[c, 1] * 0.0 + row[c, 2] * 0.0 == 0.0
 
 
 @nb.njit(cache=True, nogil=True)
-def depth_plane(a, scale):
+def depth_plane(a, scale):  # type: ignore[no-untyped-def]  # numba kernel
     """(H, W) float64 ``scale * z`` at the valid pixels, NaN elsewhere, and the valid mask."""
     H, W = a.shape[0], a.shape[1]
     z = np.empty((H, W))

@@ -45,7 +45,7 @@ def _window_params(min_inliers: object, rel_tolerance: object) -> WindowParams:
 
 
 @nb.njit(cache=True, nogil=True)
-def _window_kernel(z, min_inliers, tol, out):
+def _window_kernel(z, min_inliers, tol, out):  # type: ignore[no-untyped-def]  # numba kernel
     H, W = z.shape
     for r in range(H):
         for c in range(W):
@@ -139,7 +139,7 @@ def grazing_cos2(min_angle_deg: float) -> float:
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _grazing(row, j, px, py, pz, pp, cos2):
+def _grazing(row, j, px, py, pz, pp, cos2):  # type: ignore[no-untyped-def]  # numba kernel
     # (valid, grazing) of the segment from p to pixel j of the row
     if not valid_at(row, j):
         return False, False
@@ -152,7 +152,7 @@ def _grazing(row, j, px, py, pz, pp, cos2):
 
 
 @nb.njit(cache=True, nogil=True)
-def _mixed_kernel_scalar(a, cos2, r, c):
+def _mixed_kernel_scalar(a, cos2, r, c):  # type: ignore[no-untyped-def]  # numba kernel
     # the rule for one pixel (image border: fewer neighbours)
     H, W = a.shape[0], a.shape[1]
     row = a[r]
@@ -178,7 +178,7 @@ def _mixed_kernel_scalar(a, cos2, r, c):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _graze(xq, yq, zq, vq, px, py, pz, pp, cos2):
+def _graze(xq, yq, zq, vq, px, py, pz, pp, cos2):  # type: ignore[no-untyped-def]  # numba kernel
     # (valid, grazing or invalid) of the segment from p to q, without a branch
     dx = xq - px
     dy = yq - py
@@ -189,7 +189,7 @@ def _graze(xq, yq, zq, vq, px, py, pz, pp, cos2):
 
 
 @nb.njit(cache=True, nogil=True)
-def _mixed_kernel(a, cos2, out):
+def _mixed_kernel(a, cos2, out):  # type: ignore[no-untyped-def]  # numba kernel
     # inner pixels from float64 row buffers (three rows in a ring), straight-line code the compiler
     # vectorizes; the image border one pixel at a time
     H, W = a.shape[0], a.shape[1]

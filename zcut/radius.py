@@ -76,7 +76,7 @@ _d2 = _columns.d2
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _near2(lo, hi, k, xq, yq, zq):
+def _near2(lo, hi, k, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba kernel
     # a lower bound on the computed d² to any point of box k, in the order of _d2
     g = max(lo[k, 0] - xq, 0.0, xq - hi[k, 0])
     s = g * g
@@ -87,7 +87,7 @@ def _near2(lo, hi, k, xq, yq, zq):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _far2(lo, hi, k, xq, yq, zq):
+def _far2(lo, hi, k, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba kernel
     # an upper bound on the computed d² to any point of box k: |fl(q - p)| <= max(|fl(q - lo)|,
     # |fl(q - hi)|) for lo <= p <= hi (fl is monotone), then squares and sums are monotone
     g = max(abs(xq - lo[k, 0]), abs(xq - hi[k, 0]))
@@ -111,14 +111,14 @@ def _window_reach(need: int) -> int:
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _in(row, j, xq, yq, zq, r2):
+def _in(row, j, xq, yq, zq, r2):  # type: ignore[no-untyped-def]  # numba kernel
     # pixel j of the row is within the radius; an invalid pixel (a non-finite coordinate) never is:
     # its squared distance is NaN or inf
     return _d2(xq, yq, zq, np.float64(row[j, 0]), np.float64(row[j, 1]), np.float64(row[j, 2])) < r2
 
 
 @nb.njit(cache=True, nogil=True)
-def _ring(a, r, c, w, xq, yq, zq, r2):
+def _ring(a, r, c, w, xq, yq, zq, r2):  # type: ignore[no-untyped-def]  # numba kernel
     # points within the radius among the pixels at Chebyshev distance exactly w from (r, c)
     H, W = a.shape[0], a.shape[1]
     n = 0
@@ -136,13 +136,13 @@ def _ring(a, r, c, w, xq, yq, zq, r2):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _inb(xs, ys, zs, j, xq, yq, zq, r2):
+def _inb(xs, ys, zs, j, xq, yq, zq, r2):  # type: ignore[no-untyped-def]  # numba kernel
     # _in for a pixel of the float64 row buffers
     return np.int64(_d2(xq, yq, zq, xs[j], ys[j], zs[j]) < r2)
 
 
 @nb.njit(cache=True, nogil=True)
-def _window_phase(a, r2, need, wmax, state):
+def _window_phase(a, r2, need, wmax, state):  # type: ignore[no-untyped-def]  # numba kernel
     """state[r, c] = 0 invalid, 1 inlier (``need`` points found in a window of half-width at most
     ``wmax``), 2 undecided. Returns the number of undecided pixels and the smallest and largest
     x, y, z of the valid points.
@@ -239,7 +239,7 @@ def _window_phase(a, r2, need, wmax, state):
 
 
 @nb.njit(cache=True)
-def _undecided_pixels(state, n):
+def _undecided_pixels(state, n):  # type: ignore[no-untyped-def]  # numba kernel
     rows = np.empty(n, np.int64)
     cols = np.empty(n, np.int64)
     k = 0
@@ -256,7 +256,7 @@ def _undecided_pixels(state, n):
 # phase 2: columns sorted by depth (zcut.columns)
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True, nogil=True)
-def _query_coords(a, qr, qc):
+def _query_coords(a, qr, qc):  # type: ignore[no-untyped-def]  # numba kernel
     q = np.empty((3, qr.shape[0]))
     for i in range(qr.shape[0]):
         for d in range(3):
@@ -265,7 +265,7 @@ def _query_coords(a, qr, qc):
 
 
 @nb.njit(cache=True, nogil=True)
-def _column_queries(q0, q1, q, r2, rad, need, budget, x0, y0, z0, inv, nx, ny, cols, counts, left):
+def _column_queries(q0, q1, q, r2, rad, need, budget, x0, y0, z0, inv, nx, ny, cols, counts, left):  # type: ignore[no-untyped-def]  # numba kernel
     """Neighbour counts (up to ``need``) of the queries q0..q1-1 (coordinates q[:, i]) over the
     columns. Once ``budget`` entries have been scanned in all, the remaining queries are left to
     the KD-tree (left[i] = True)."""
@@ -283,7 +283,7 @@ def _column_queries(q0, q1, q, r2, rad, need, budget, x0, y0, z0, inv, nx, ny, c
 # the KD-tree fall-back
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True)
-def _gather_valid(a, n_valid):
+def _gather_valid(a, n_valid):  # type: ignore[no-untyped-def]  # numba kernel
     pts = np.empty((n_valid, 3))
     k = 0
     for r in range(a.shape[0]):
@@ -297,7 +297,7 @@ def _gather_valid(a, n_valid):
 
 
 @nb.njit(cache=True, nogil=True)
-def _kd_queries(q0, q1, a, qr, qc, r2, need, kd, counts):
+def _kd_queries(q0, q1, a, qr, qc, r2, need, kd, counts):  # type: ignore[no-untyped-def]  # numba kernel
     """Neighbour counts (up to ``need``) of the query pixels q0..q1-1 over the KD-tree: a node
     beyond the radius is pruned, a node inside it counted whole."""
     pts, lo, hi, start, end, child = kd

@@ -202,7 +202,7 @@ def prepare_removal_index(model: BinModel, params: RemovalParams) -> RemovalInde
 
 
 @numba.njit(cache=True, inline="always")
-def _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radius, planes):  # pragma: no cover - numba
+def _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radius, planes):  # pragma: no cover - numba  # type: ignore[no-untyped-def]  # numba kernel
     """Some model point within ``radius`` of (px, py, pz) passes (plane distance, or distance, <= delta).
 
     Only the neighbouring cells that the radius reaches are searched (a cell's points lie within
@@ -246,7 +246,7 @@ def _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radiu
 
 
 @numba.njit(cache=True, inline="always")
-def _to_bin(a, r, c, R, t):  # pragma: no cover - numba
+def _to_bin(a, r, c, R, t):  # pragma: no cover - numba  # type: ignore[no-untyped-def]  # numba kernel
     """Pixel (r, c) of ``a`` in the bin frame: ``(p - t) @ R`` in float64."""
     dx = np.float64(a[r, c, 0]) - t[0]
     dy = np.float64(a[r, c, 1]) - t[1]
@@ -257,7 +257,7 @@ def _to_bin(a, r, c, R, t):  # pragma: no cover - numba
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _classify(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm, off, delta,
+def _classify(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm, off, delta,  # type: ignore[no-untyped-def]  # numba kernel
               radius, planes, valid, table, easy, binp):  # pragma: no cover - numba
     """Fill the (H, W) bool masks valid, table, easy, binp (zeroed) in one pass over the frame.
 
@@ -287,7 +287,7 @@ def _classify(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, dims, 
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _first_candidates(lab, open_, neighbours):  # pragma: no cover - numba
+def _first_candidates(lab, open_, neighbours):  # pragma: no cover - numba  # type: ignore[no-untyped-def]  # numba kernel
     """(H, W) bool: ``open_`` pixels with at least ``neighbours`` of their 8 neighbours in ``lab``."""
     H, W = lab.shape
     out = np.zeros((H, W), np.bool_)
@@ -305,7 +305,7 @@ def _first_candidates(lab, open_, neighbours):  # pragma: no cover - numba
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _test_pixels(a, flat, R, t, origin, cell, dims, start, pts, nrm, off, delta, radius,
+def _test_pixels(a, flat, R, t, origin, cell, dims, start, pts, nrm, off, delta, radius,  # type: ignore[no-untyped-def]  # numba kernel
                  planes):  # pragma: no cover - numba
     """(M,) bool: the pixels ``flat`` (row-major indices) are within ``delta`` of the model."""
     W = a.shape[1]
@@ -319,7 +319,7 @@ def _test_pixels(a, flat, R, t, origin, cell, dims, start, pts, nrm, off, delta,
 
 
 @numba.njit(cache=True, nogil=True)
-def _next_candidates(new, lab, open_, seen, neighbours):  # pragma: no cover - numba
+def _next_candidates(new, lab, open_, seen, neighbours):  # pragma: no cover - numba  # type: ignore[no-untyped-def]  # numba kernel
     """Row-major indices of the ``open_`` neighbours of ``new`` with >= ``neighbours`` pixels in ``lab``.
 
     ``lab``, ``open_`` and ``seen`` are flat (H * W,) views of (H, W) arrays; ``seen`` is scratch,
@@ -359,7 +359,7 @@ def _next_candidates(new, lab, open_, seen, neighbours):  # pragma: no cover - n
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _finish(a, valid, labelled, plane, floor, up, z_far, height, xyz_out):  # pragma: no cover - numba
+def _finish(a, valid, labelled, plane, floor, up, z_far, height, xyz_out):  # pragma: no cover - numba  # type: ignore[no-untyped-def]  # numba kernel
     """Height image (mm, NaN invalid) and float32 cloud with the labelled pixels' z on the floor.
 
     ``plane``: the floor is the plane {q : q . up = floor} (z solves x*ux + y*uy + z*uz = floor);

@@ -123,7 +123,7 @@ def _check_params(k: object, std_ratio: object, convention: object) -> tuple[int
 
 
 @nb.njit(cache=True, nogil=True)
-def _split_rows(r0, r1, a, x, y, z, valid, rowmax):
+def _split_rows(r0, r1, a, x, y, z, valid, rowmax):  # type: ignore[no-untyped-def]  # numba kernel
     # float64 x, y, z planes (+inf where invalid: infinitely far from every valid point), the
     # valid mask, and per row the largest |x|, |y|, |z| of its valid points
     for r in range(r0, r1):
@@ -305,7 +305,7 @@ def _fallback(x, y, z, valid, rows, cols, lim, m, divisor, use_cam, tree, dbar, 
 # statistics
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True)
-def _outlier_masks(dbar, valid, n, ratios, open3d):
+def _outlier_masks(dbar, valid, n, ratios, open3d):  # type: ignore[no-untyped-def]  # numba kernel
     # pcl: d̄ > mean + ratio * std, sample std (n - 1), sequential sums in row-major order.
     # open3d (PointCloud::RemoveStatisticalOutliers): the sums run over d̄ > 0 only but divide by
     # the count of ALL points; inlier iff 0 < d̄ < threshold (strict).

@@ -67,7 +67,7 @@ def fit_camera(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray) -
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _dlt_normal_matrix(x, y, z, rr, cc):
+def _dlt_normal_matrix(x, y, z, rr, cc):  # type: ignore[no-untyped-def]  # numba kernel
     # Hartley-normalised DLT rows [p̃, 0, -u p̃] and [0, p̃, -v p̃]; returns MᵀM, the point
     # normalisation T (4 x 4), the pixel scale and the pixel mean
     n = rr.shape[0]
@@ -120,7 +120,7 @@ def _dlt_normal_matrix(x, y, z, rr, cc):
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _dlt_check(x, y, z, rr, cc, P, s_uv, muv):
+def _dlt_check(x, y, z, rr, cc, P, s_uv, muv):  # type: ignore[no-untyped-def]  # numba kernel
     # the depth sign that makes the sample's depths positive, whether they all are, and the
     # median reprojection error in pixels
     n = rr.shape[0]
@@ -154,7 +154,7 @@ def camera_scale(P: np.ndarray, amax: np.ndarray) -> float:
 # planes
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True)
-def _plane(P, i, t, ge, M, out):
+def _plane(P, i, t, ge, M, out):  # type: ignore[no-untyped-def]  # numba kernel
     """The plane of the region {U_i >= t} (``ge``) or {U_i <= t} (U_0 = U, U_1 = V) into out[:4].
 
     The region lies in {n*·p + o* <= 0} with n* = ±(t·D - N) / |t·D - N| exactly (N = P_i[:3],
@@ -193,13 +193,13 @@ def _plane(P, i, t, ge, M, out):
 
 
 @nb.njit(cache=True, inline="always")
-def plane_bound(tab, xq, yq, zq):
+def plane_bound(tab, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba kernel
     """Lower bound (>= 0, possibly inf) on the distance from q to the region of plane tab[:4]."""
     return max(tab[0] * xq + tab[1] * yq + tab[2] * zq + tab[3], 0.0) * KEEP
 
 
 @nb.njit(cache=True, inline="always")
-def plane_bound_at(tab, k, j, xq, yq, zq):
+def plane_bound_at(tab, k, j, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba kernel
     """plane_bound of the plane tab[k:k + 4, j] (tables laid out field-major)."""
     return max(tab[k, j] * xq + tab[k + 1, j] * yq + tab[k + 2, j] * zq + tab[k + 3, j], 0.0) * KEEP
 
@@ -231,7 +231,7 @@ _CH = 256  # columns per chunk of the vectorized pass (a multiple of TILE)
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _uv_chunk(x, y, z, valid, r, c0, n, P, S, tau, buf):
+def _uv_chunk(x, y, z, valid, r, c0, n, P, S, tau, buf):  # type: ignore[no-untyped-def]  # numba kernel
     """U_lo, U_hi, V_lo, V_hi and the depth of pixels (r, c0..c0+n-1) into buf[k·_CH + i] (±inf
     where invalid); returns the number of valid pixels whose depth is not safely positive.
 
@@ -266,7 +266,7 @@ def _uv_chunk(x, y, z, valid, r, c0, n, P, S, tau, buf):
 
 
 @nb.njit(cache=True, nogil=True)
-def block_rows(b0, b1, x, y, z, valid, P, S, use_cam, rowU, colV, tcount, tbox, tuv, bad):
+def block_rows(b0, b1, x, y, z, valid, P, S, use_cam, rowU, colV, tcount, tbox, tuv, bad):  # type: ignore[no-untyped-def]  # numba kernel
     """Row blocks b0..b1-1 of the statistics of :func:`new_stats` (invalid pixels, +inf, change
     nothing)."""
     H, W = valid.shape
@@ -328,7 +328,7 @@ def block_rows(b0, b1, x, y, z, valid, P, S, use_cam, rowU, colV, tcount, tbox, 
 # tables
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True)
-def band_tables(blocks, P, i, M):
+def band_tables(blocks, P, i, M):  # type: ignore[no-untyped-def]  # numba kernel
     """Band planes from per-block extremes (rowU with i = 0, or colV with i = 1).
 
     ``blocks`` is (n_blocks, L, 2); band b covers blocks b - 1 and b. Returns (n_blocks + 1, 8,
@@ -361,7 +361,7 @@ def band_tables(blocks, P, i, M):
 
 
 @nb.njit(cache=True)
-def corner_tables(tuv, P, S, M):
+def corner_tables(tuv, P, S, M):  # type: ignore[no-untyped-def]  # numba kernel
     """Quadrant planes over blocks, and the per-cell floor of the corner bounds.
 
     Q[i, j, corner] = [U plane (4), V plane (4)] of the region: corner 0 rows >= BLOCK·i and
@@ -461,7 +461,7 @@ def corner_tables(tuv, P, S, M):
 
 
 @nb.njit(cache=True)
-def _inv_norm(P, i, t):
+def _inv_norm(P, i, t):  # type: ignore[no-untyped-def]  # numba kernel
     # 1 / |t·D - N| (0 for a null normal)
     s = 0.0
     for a in range(3):
@@ -471,7 +471,7 @@ def _inv_norm(P, i, t):
 
 
 @nb.njit(cache=True)
-def node_planes(uv, P, M):
+def node_planes(uv, P, M):  # type: ignore[no-untyped-def]  # numba kernel
     """(n, 16) planes of the U >= min, U <= max, V >= min, V <= max half-spaces of each node."""
     n = uv.shape[0]
     out = np.empty((n, 16))

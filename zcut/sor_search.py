@@ -40,7 +40,7 @@ NEEDS_KD_ALL = 2  # cap hit and no finite radius: KD-tree over every valid point
 # columns (zcut.columns): the first fall-back, for pixels with a known bound
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True, nogil=True)
-def column_queries(q0, q1, x, y, z, qr, qc, qlim, eligible, m, divisor, per_query, cols, x0, y0, z0, inv, nx,
+def column_queries(q0, q1, x, y, z, qr, qc, qlim, eligible, m, divisor, per_query, cols, x0, y0, z0, inv, nx,  # type: ignore[no-untyped-def]  # numba kernel
                    ny, out, done):
     """Exact d̄ of the eligible query pixels q0..q1-1 by a k-nearest search in the columns, given
     ``qlim``, an upper bound on each one's m-th smallest squared distance (finite). Once the
@@ -65,7 +65,7 @@ def column_queries(q0, q1, x, y, z, qr, qc, qlim, eligible, m, divisor, per_quer
 
 
 @nb.njit(cache=True)
-def valid_range(x, y, z, valid):
+def valid_range(x, y, z, valid):  # type: ignore[no-untyped-def]  # numba kernel
     """Smallest and largest x, y and z of the valid pixels."""
     x0 = y0 = z0 = np.inf
     x1 = y1 = z1 = -np.inf
@@ -99,7 +99,7 @@ def build_quadtree(tcount, tbox, tuv, P, M, use_cam):
 
 
 @nb.njit(cache=True)
-def _merge_levels(tcount, tbox, tuv):
+def _merge_levels(tcount, tbox, tuv):  # type: ignore[no-untyped-def]  # numba kernel
     th, tw = tcount.shape
     nlev = 1
     h, w = th, tw
@@ -150,7 +150,7 @@ def _merge_levels(tcount, tbox, tuv):
 
 
 @nb.njit(cache=True, inline="always")
-def _box_d2(box, k, xq, yq, zq):
+def _box_d2(box, k, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba kernel
     # squared distance from the query to a box of actual point coordinates, in the order of d2()
     g = max(box[k, 0] - xq, 0.0, xq - box[k, 3])
     s = g * g
@@ -161,7 +161,7 @@ def _box_d2(box, k, xq, yq, zq):
 
 
 @nb.njit(cache=True, inline="always")
-def _node_bound2(k, count, box, planes, use_cam, xq, yq, zq):
+def _node_bound2(k, count, box, planes, use_cam, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba kernel
     if count[k] == 0:
         return np.inf
     s = _box_d2(box, k, xq, yq, zq)
@@ -175,14 +175,14 @@ def _node_bound2(k, count, box, planes, use_cam, xq, yq, zq):
 
 
 @nb.njit(cache=True, inline="always")
-def _prunable(bd, lim, best, found, m):
+def _prunable(bd, lim, best, found, m):  # type: ignore[no-untyped-def]  # numba kernel
     # beyond the known upper bound, an empty node (infinite bound), or no closer than the m-th
     # distance found (ties are harmless)
     return bd > lim or bd == np.inf or (found >= m and bd >= best[m - 1])
 
 
 @nb.njit(cache=True)
-def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree):
+def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree):  # type: ignore[no-untyped-def]  # numba kernel
     # nearest-first search of one pixel; returns (found, aborted): best[] holds the m smallest
     # squared distances of the pixels measured
     level_off, level_h, level_w, count, box, planes = tree
@@ -254,7 +254,7 @@ def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree):
 
 
 @nb.njit(cache=True, nogil=True)
-def tile_queries(q0, q1, x, y, z, valid, qr, qc, qlim, m, divisor, cap, use_cam, tree, out, outcome, radius2):
+def tile_queries(q0, q1, x, y, z, valid, qr, qc, qlim, m, divisor, cap, use_cam, tree, out, outcome, radius2):  # type: ignore[no-untyped-def]  # numba kernel
     """Exact d̄ of the query pixels q0..q1-1 by the quadtree, measuring at most ``cap`` pixels each.
 
     ``qlim`` is an upper bound on each one's m-th smallest squared distance (inf if unknown).
@@ -277,7 +277,7 @@ def tile_queries(q0, q1, x, y, z, valid, qr, qc, qlim, m, divisor, cap, use_cam,
 
 
 @nb.njit(cache=True, nogil=True)
-def mark_queries(q0, q1, x, y, z, qr, qc, qrad2, max_tiles, use_cam, tree, mark, over):
+def mark_queries(q0, q1, x, y, z, qr, qc, qrad2, max_tiles, use_cam, tree, mark, over):  # type: ignore[no-untyped-def]  # numba kernel
     """Mark every tile whose bound is <= the radius of query q0..q1-1 (it may hold one of its
     neighbours); sets over[q] if a query reaches more than ``max_tiles`` tiles."""
     level_off, level_h, level_w, count, box, planes = tree
@@ -325,7 +325,7 @@ def mark_queries(q0, q1, x, y, z, qr, qc, qrad2, max_tiles, use_cam, tree, mark,
 
 
 @nb.njit(cache=True)
-def gather_tiles(x, y, z, valid, mark, tw):
+def gather_tiles(x, y, z, valid, mark, tw):  # type: ignore[no-untyped-def]  # numba kernel
     """(n, 3) float64 points of the valid pixels of the marked tiles."""
     H, W = valid.shape
     n = 0
@@ -353,7 +353,7 @@ def gather_tiles(x, y, z, valid, mark, tw):
 
 
 @nb.njit(cache=True)
-def gather_valid(x, y, z, valid):
+def gather_valid(x, y, z, valid):  # type: ignore[no-untyped-def]  # numba kernel
     """(n, 3) float64 points of all valid pixels, row-major."""
     H, W = valid.shape
     n = 0
@@ -376,12 +376,12 @@ def gather_valid(x, y, z, valid):
 # KD-tree
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True, inline="always")
-def _key(pts, idx, i, dim):
+def _key(pts, idx, i, dim):  # type: ignore[no-untyped-def]  # numba kernel
     return pts[idx[i], dim]
 
 
 @nb.njit(cache=True)
-def _select(pts, idx, lo, hi, kth, dim):
+def _select(pts, idx, lo, hi, kth, dim):  # type: ignore[no-untyped-def]  # numba kernel
     # Hoare quickselect on idx[lo:hi] by pts[:, dim]: afterwards keys left of kth are <= and keys
     # right of it >= the kth one; runs of equal keys are split evenly, so duplicates cost O(n)
     left = lo
@@ -414,7 +414,7 @@ def _select(pts, idx, lo, hi, kth, dim):
 
 
 @nb.njit(cache=True, nogil=True)
-def kd_build(pts):
+def kd_build(pts):  # type: ignore[no-untyped-def]  # numba kernel
     """Balanced KD-tree (median split on the widest axis of each node's box).
 
     Returns (sorted_pts, lo, hi, start, end, child): the points reordered so that every node is a
@@ -476,7 +476,7 @@ def kd_build(pts):
 
 
 @nb.njit(cache=True, inline="always")
-def _kd_box_d2(lo, hi, k, xq, yq, zq):
+def _kd_box_d2(lo, hi, k, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba kernel
     g = max(lo[k, 0] - xq, 0.0, xq - hi[k, 0])
     s = g * g
     g = max(lo[k, 1] - yq, 0.0, yq - hi[k, 1])
@@ -486,7 +486,7 @@ def _kd_box_d2(lo, hi, k, xq, yq, zq):
 
 
 @nb.njit(cache=True, nogil=True)
-def kd_queries(q0, q1, x, y, z, qr, qc, qlim, m, divisor, kd, out):
+def kd_queries(q0, q1, x, y, z, qr, qc, qlim, m, divisor, kd, out):  # type: ignore[no-untyped-def]  # numba kernel
     """Exact d̄ of the query pixels q0..q1-1 over the KD-tree's points (which must hold their m
     nearest); ``qlim`` as for :func:`tile_queries`."""
     pts, lo, hi, start, end, child = kd

@@ -50,7 +50,7 @@ def _sqrt(typingctx, v):
 
 
 @nb.njit(cache=True, inline="always")
-def d2(xq, yq, zq, xp, yp, zp):
+def d2(xq, yq, zq, xp, yp, zp):  # type: ignore[no-untyped-def]  # numba kernel
     """nanoflann's L2 metric for dim 3: ((0 + dx²) + dy²) + dz², query minus point."""
     dx = xq - xp
     dy = yq - yp
@@ -59,7 +59,7 @@ def d2(xq, yq, zq, xp, yp, zp):
 
 
 @nb.njit(cache=True, inline="always")
-def insert(best, v):
+def insert(best, v):  # type: ignore[no-untyped-def]  # numba kernel
     """Keep ``best`` sorted ascending with its m smallest values; drop the largest."""
     m = best.shape[0]
     if v >= best[m - 1]:
@@ -72,7 +72,7 @@ def insert(best, v):
 
 
 @nb.njit(cache=True, inline="always")
-def mean_of_sorted(best, divisor):
+def mean_of_sorted(best, divisor):  # type: ignore[no-untyped-def]  # numba kernel
     """``std::accumulate(sqrt(dist)) / k`` in ascending order from 0.0 (Open3D's d̄)."""
     s = 0.0
     for i in range(best.shape[0]):
@@ -81,12 +81,12 @@ def mean_of_sorted(best, divisor):
 
 
 @nb.njit(cache=True, inline="always")
-def _ce(a, b):
+def _ce(a, b):  # type: ignore[no-untyped-def]  # numba kernel
     return min(a, b), max(a, b)
 
 
 @nb.njit(cache=True, inline="always")
-def _sort8(v0, v1, v2, v3, v4, v5, v6, v7):
+def _sort8(v0, v1, v2, v3, v4, v5, v6, v7):  # type: ignore[no-untyped-def]  # numba kernel
     # Batcher's odd-even merge sort of 8 values: 19 compare-exchanges, no branches
     v0, v1 = _ce(v0, v1)
     v2, v3 = _ce(v2, v3)
@@ -111,7 +111,7 @@ def _sort8(v0, v1, v2, v3, v4, v5, v6, v7):
 
 
 @nb.njit(cache=True, inline="always")
-def _keep8(s1, s2, s3, s4, s5, s6, s7, s8, v):
+def _keep8(s1, s2, s3, s4, s5, s6, s7, s8, v):  # type: ignore[no-untyped-def]  # numba kernel
     # insert v into the ascending s1..s8, dropping the largest, without branches
     s8 = min(s8, max(s7, v))
     s7 = min(s7, max(s6, v))
@@ -125,7 +125,7 @@ def _keep8(s1, s2, s3, s4, s5, s6, s7, s8, v):
 
 
 @nb.njit(cache=True, inline="always")
-def _pick(m, divisor, s1, s2, s3, s4, s5, s6, s7, s8):
+def _pick(m, divisor, s1, s2, s3, s4, s5, s6, s7, s8):  # type: ignore[no-untyped-def]  # numba kernel
     # the m-th smallest squared distance (the point itself, at 0, is the first) and d̄ = sum of
     # sqrt in ascending order from 0.0 (adding 0.0 for the unused slots changes nothing)
     dm2 = 0.0
@@ -150,7 +150,7 @@ def _pick(m, divisor, s1, s2, s3, s4, s5, s6, s7, s8):
 
 
 @nb.njit(cache=True, inline="always")
-def _inner8(xq, yq, zq, x, y, z, r, c):
+def _inner8(xq, yq, zq, x, y, z, r, c):  # type: ignore[no-untyped-def]  # numba kernel
     # the 8 distances of the 3 x 3 window, sorted (2D indexing: one base pointer per plane keeps
     # the vectorizer's run-time alias checks few)
     return _sort8(
@@ -166,7 +166,7 @@ def _inner8(xq, yq, zq, x, y, z, r, c):
 
 
 @nb.njit(cache=True, inline="always")
-def _count8(x, r, c):
+def _count8(x, r, c):  # type: ignore[no-untyped-def]  # numba kernel
     # valid pixels among the 8 neighbours (invalid ones hold +inf)
     return (np.int64(x[r - 1, c - 1] < np.inf) + np.int64(x[r - 1, c] < np.inf)
             + np.int64(x[r - 1, c + 1] < np.inf) + np.int64(x[r, c - 1] < np.inf)
@@ -178,7 +178,7 @@ def _count8(x, r, c):
 # bounds of the regions outside a window
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True, inline="always")
-def _strips(r, c, w, H, W, b, bc, xq, yq, zq, R, C):
+def _strips(r, c, w, H, W, b, bc, xq, yq, zq, R, C):  # type: ignore[no-untyped-def]  # numba kernel
     # the rows of the pixel's row band right and left of the window, the columns of its column
     # band below and above it
     s = np.inf
@@ -194,7 +194,7 @@ def _strips(r, c, w, H, W, b, bc, xq, yq, zq, R, C):
 
 
 @nb.njit(cache=True, inline="always")
-def _corners(b, bc, xq, yq, zq, Q):
+def _corners(b, bc, xq, yq, zq, Q):  # type: ignore[no-untyped-def]  # numba kernel
     # the four regions outside both bands of the pixel (at least 17 px away in rows and columns):
     # each lies in two half-spaces, so the larger bound holds
     nrb = Q.shape[0] - 1
@@ -236,7 +236,7 @@ SCRATCH = max(_N1, _N2 + 9 * CH)
 
 
 @nb.njit(cache=True, inline="always")
-def _chunk_plane(buf, o, xq, yq, zq):
+def _chunk_plane(buf, o, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba kernel
     # plane_bound of the plane at offset o of the chunk's fields (the strip bound is the smallest
     # of four, written out in the kernels: a loop or a helper for it there, keeps the column loop
     # from being vectorized)
@@ -244,7 +244,7 @@ def _chunk_plane(buf, o, xq, yq, zq):
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _chunk_3x3(buf, n, m, divisor, use_cam):
+def _chunk_3x3(buf, n, m, divisor, use_cam):  # type: ignore[no-untyped-def]  # numba kernel
     """Query columns 0..n-1 of the chunk with a 3 x 3 window: d̄ where proven, else NaN."""
     for i in range(n):
         j = i + 1
@@ -277,7 +277,7 @@ def _chunk_3x3(buf, n, m, divisor, use_cam):
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _chunk_5x5(buf, n, m, divisor, use_cam):
+def _chunk_5x5(buf, n, m, divisor, use_cam):  # type: ignore[no-untyped-def]  # numba kernel
     """Query columns 0..n-1 of the chunk with a 5 x 5 window: d̄ where proven, else NaN.
 
     Three loops (the inner ring sorted, then ring 2 in two halves, with the 8 smallest and the
@@ -359,7 +359,7 @@ def _chunk_5x5(buf, n, m, divisor, use_cam):
 
 
 @nb.njit(cache=True)
-def _fill_chunk(buf, w, r, c0, n, x, y, z, Rb, C, floor, b, use_cam):
+def _fill_chunk(buf, w, r, c0, n, x, y, z, Rb, C, floor, b, use_cam):  # type: ignore[no-untyped-def]  # numba kernel
     # the scratch buffer of a chunk (see the layout above)
     H = x.shape[0]
     span = CH + 2 * w
@@ -407,7 +407,7 @@ def _fill_chunk(buf, w, r, c0, n, x, y, z, Rb, C, floor, b, use_cam):
 
 
 @nb.njit(cache=True)
-def _row_stage(buf, w, r, x, y, z, m, divisor, use_cam, Rb, C, floor, b, dbar, merge=True):
+def _row_stage(buf, w, r, x, y, z, m, divisor, use_cam, Rb, C, floor, b, dbar, merge=True):  # type: ignore[no-untyped-def]  # numba kernel
     # stage 1 (w = 1: every column 2 .. W - 3) or stage 2 (w = 2: columns 3 .. W - 4, only where
     # stage 1 left NaN if merge, else all) of row r
     W = x.shape[1]
@@ -436,7 +436,7 @@ def _row_stage(buf, w, r, x, y, z, m, divisor, use_cam, Rb, C, floor, b, dbar, m
 # stage 2: 5 x 5 for a list of pixels of a row
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True, error_model="numpy")
-def _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, floor, b, dbar):
+def _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, floor, b, dbar):  # type: ignore[no-untyped-def]  # numba kernel
     """The pixels (r, cols[:n]), 2 <= r < H - 2, 3 <= c < W - 3, with a 5 x 5 window and the
     w = 2 bound (inner ring sorted by the network, ring 2 merged into the 8 smallest). Writes d̄
     where proven; the others are left as they are."""
@@ -471,7 +471,7 @@ def _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, floor, b, dbar):
 # stage 3: one pixel, growing window
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True, inline="always")
-def _scan_ring(best, r, c, w_old, w_new, H, W, x, y, z, xq, yq, zq):
+def _scan_ring(best, r, c, w_old, w_new, H, W, x, y, z, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba kernel
     # add the pixels of the (2 w_new + 1)² window outside the (2 w_old + 1)² one, without a
     # branch on validity (random in sparse clouds): invalid pixels hold +inf coordinates, hence
     # an infinite distance that insert() drops; returns the number of valid pixels added
@@ -493,7 +493,7 @@ def _scan_ring(best, r, c, w_old, w_new, H, W, x, y, z, xq, yq, zq):
 
 
 @nb.njit(cache=True)
-def _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor):
+def _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor):  # type: ignore[no-untyped-def]  # numba kernel
     """One pixel with a growing window: its d̄ if proven, else minus the m-th smallest squared
     distance found (-inf if the largest window held fewer than m valid pixels)."""
     H, W = x.shape
@@ -556,7 +556,7 @@ def first_window(m: int, wmax: int) -> int:
 
 
 @nb.njit(cache=True, nogil=True)
-def window_rows(r0, r1, x, y, z, valid, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven):
+def window_rows(r0, r1, x, y, z, valid, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven):  # type: ignore[no-untyped-def]  # numba kernel
     """Rows r0..r1-1 of the window phase.
 
     Writes into dbar (H, W): d̄ >= 0 where proven; at the other valid pixels minus the m-th
@@ -599,7 +599,7 @@ def window_rows(r0, r1, x, y, z, valid, m, divisor, w0, wmax, use_cam, R, C, Q, 
 
 
 @nb.njit(cache=True)
-def unproven_pixels(valid, dbar, unproven):
+def unproven_pixels(valid, dbar, unproven):  # type: ignore[no-untyped-def]  # numba kernel
     """(rows, cols) of the pixels window_rows left unproven, row-major."""
     total = 0
     for r in range(unproven.shape[0]):

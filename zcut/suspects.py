@@ -35,7 +35,6 @@ tests check they agree bit for bit (``tests/zcut/test_suspects.py``).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numba
@@ -288,7 +287,7 @@ def noise_profile(height: FloatImage, judged: Mask) -> NoiseProfile:
 
 
 @numba.njit(cache=True)
-def _residual_kernel(h, judged, taus, jumps, min_below, codes, best):
+def _residual_kernel(h, judged, taus, jumps, min_below, codes, best):  # type: ignore[no-untyped-def]  # numba kernel
     H, W = h.shape
     e = np.empty(8)
     for i in range(H):
@@ -477,7 +476,7 @@ def surface_residuals_reference(height: FloatImage, judged: Mask, *, tau, jump,
 
 
 @numba.njit(cache=True)
-def _fill_kernel(seed, judged, valid, iterations, min_nb):
+def _fill_kernel(seed, judged, valid, iterations, min_nb):  # type: ignore[no-untyped-def]  # numba kernel
     H, W = seed.shape
     cur = seed.copy()
     nxt = seed.copy()
@@ -560,7 +559,7 @@ def fill_blobs_reference(seed: Mask, judged: Mask, valid: Mask, *, iterations: i
 
 
 @numba.njit(cache=True)
-def _evidence_kernel(labels, valid, rough, height, n):
+def _evidence_kernel(labels, valid, rough, height, n):  # type: ignore[no-untyped-def]  # numba kernel
     H, W = labels.shape
     lowest = np.full(n + 1, np.inf)
     highest_out = np.full(n + 1, -np.inf)
@@ -715,7 +714,7 @@ def floating_evidence_reference(labels: Labels, valid: Mask, rough: Mask, height
 
 
 @numba.njit(cache=True)
-def _gap_kernel(h, suspect, surface, min_px, max_radius, out):
+def _gap_kernel(h, suspect, surface, min_px, max_radius, out):  # type: ignore[no-untyped-def]  # numba kernel
     H, W = h.shape
     buf = np.empty((2 * max_radius + 1) ** 2)
     for i in range(H):

@@ -51,8 +51,8 @@ def run(args: argparse.Namespace) -> int:
         scored_region,
     )
     from replay.commands.common import open_session, overrides_of
-    from replay.pipeline.methods import base_methods, method_masks
     from replay.logs.reader import LogReader
+    from replay.pipeline.methods import base_methods, method_masks
     from zcut.errors import ParameterError, ZcutError
 
     if not args.log.is_file():

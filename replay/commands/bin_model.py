@@ -74,7 +74,6 @@ def _build(args: argparse.Namespace) -> int:
         _write(args, model, f"{len(model.points)} points from {args.model}")
         return 0
     from replay.logs.reader import LogReader
-
     from zcut.params import BinMaskParams, RegistrationParams
 
     layer = cfg.load_toml(args.config) if args.config else {}

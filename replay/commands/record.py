@@ -86,9 +86,8 @@ def run(args: argparse.Namespace) -> int:
     from replay.errors import ConfigError, LogFormatError
     from replay.logs.pcd import read_pcd
     from replay.logs.ply import read_ply
-    from replay.logs.writer import LogWriter
-
     from replay.logs.ros2_msgs import MAX_STAMP_NS
+    from replay.logs.writer import LogWriter
     from replay.outputs import AtomicOutput, OutputPlan
 
     files = expand_inputs(args.inputs)

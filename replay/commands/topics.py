@@ -18,7 +18,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _stamp(ns: int) -> str:
-    t = _dt.datetime.fromtimestamp(ns / 1e9, tz=_dt.timezone.utc)
+    t = _dt.datetime.fromtimestamp(ns / 1e9, tz=_dt.UTC)
     return t.strftime("%Y-%m-%d %H:%M:%S.%f")[:-3] + " UTC"
 
 

@@ -45,7 +45,6 @@ from pathlib import Path
 
 import numpy as np
 from isal.isal_zlib import crc32
-
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.records import (

@@ -223,7 +223,7 @@ class _Cdr:
             return raw.decode("utf-8")
         except UnicodeDecodeError:
             self.fail(f"{what} is not valid UTF-8")
-            raise AssertionError  # unreachable
+            raise AssertionError from None  # unreachable
 
     def blob(self, what: str) -> memoryview:
         n = self.u32(what + " length")

@@ -260,7 +260,7 @@ class RerunSink:
         # a viewer that is gone must not hang the replay
         try:
             rec.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)
-        except Exception as e:  # rerun raises a plain exception on timeout
+        except Exception as e:  # noqa: BLE001 - rerun raises a plain exception on timeout
             self.viewer_error = (f"the viewer did not take the data within {VIEWER_FLUSH_TIMEOUT_S:g} s "
                                  f"({e})")
             return  # disconnecting would wait for it

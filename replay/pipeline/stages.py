@@ -19,12 +19,12 @@ from replay.logs.frame import Frame
 from replay.pipeline.config import PipelineConfig
 from replay.pipeline.methods import MethodOutput, registry
 from zcut.bin_check import BinCheck, check_bin_removal, failed_bin_check
-from zcut.prepared_model import PreparedBinModel
 from zcut.binmask import BinMaskResult, bin_mask, bin_pixels
 from zcut.cuts import CutResult
 from zcut.errors import InputShapeError, ParameterError
 from zcut.metrics import RelativeMetrics, relative_metrics
 from zcut.params import ZCutParams
+from zcut.prepared_model import PreparedBinModel
 from zcut.registration import RegistrationResult, pose_fitness, prepare_target, register_bin
 from zcut.removal import RemovalResult, finite_xyz, remove_table_and_bin
 from zcut.sor import sor_outliers

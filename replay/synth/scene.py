@@ -17,12 +17,12 @@ import numba
 import numpy as np
 
 from replay.presets import BIN, PART_KINDS, BinGeometry
-from zcut.errors import ParameterError
 from replay.synth.parts import (
     height_profile,
     part_solid,
     random_rest_rotation,
 )
+from zcut.errors import ParameterError
 
 # surface labels (per grid node, per pixel)
 LABEL_NONE = 0

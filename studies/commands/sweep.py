@@ -14,7 +14,7 @@ import sys
 import time
 from contextlib import ExitStack
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from replay.pipeline.config import PipelineConfig
@@ -96,8 +96,8 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     from studies.executors import make_executor
     from studies.grid import make_grid, parse_list
     from studies.parts import PartStore
-    from studies.units import expand_logs
     from studies.summary import DamageNote, SweepLog, SweepSummary, UnscoredFrame
+    from studies.units import expand_logs
     from studies.work import Job
     from zcut.errors import ZcutError
 
@@ -204,7 +204,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     return EXIT_DATA_LOSS if summary.data_loss else 0
 
 
-def _flagged_frames(table) -> tuple[FlaggedFrame, ...]:
+def _flagged_frames(table: Any) -> tuple[FlaggedFrame, ...]:
     """The scored frames the bin check flagged (docs/pipeline.md, "Bin removal"): every parameter set's
     scores on them rest on a bin removal that did not work."""
     from studies.summary import FlaggedFrame

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from annotate.accuracy import (
-    METHODS,
     INTERVAL_NOTE,
+    METHODS,
     METRIC_KEYS,
     UnscoredFrame,
     accuracy_report,

@@ -17,8 +17,8 @@ from annotate_helpers import (
     write_spike_log,
 )
 
-from annotate.payload import parse_bundle
 from annotate.guard import cookie_name
+from annotate.payload import parse_bundle
 from annotate.store import LabelStore, file_sha256, pack_mask
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from annotate_helpers import ServerProcess, write_spike_log
 
-from annotate.payload import mask_runs, parse_bundle, parse_view
 from annotate.guard import MAX_BODY_BYTES
+from annotate.payload import mask_runs, parse_bundle, parse_view
 from annotate.store import LabelStore, file_sha256, pack_mask
 from replay.logs.reader import LogReader
 

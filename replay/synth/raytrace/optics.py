@@ -518,22 +518,22 @@ def decode(ph: Phasors, model: SensorModel) -> Decoded:
     exposure that does not saturate, or when even the shortest exposure saturates.
     """
     T = model.periods_px
-    I = ph.intensity
+    intensity = ph.intensity
     with np.errstate(invalid="ignore", divide="ignore"):
-        contrast = np.abs(ph.z[0]) / I
+        contrast = np.abs(ph.z[0]) / intensity
         u = (np.angle(ph.z[0]) / (2 * np.pi)) % 1.0 * T[0]
-        consistent = np.ones(I.shape, bool)
+        consistent = np.ones(intensity.shape, bool)
         for k in range(1, len(T)):
-            contrast = np.minimum(contrast, np.abs(ph.z[k]) / I)
+            contrast = np.minimum(contrast, np.abs(ph.z[k]) / intensity)
             frac = (np.angle(ph.z[k]) / (2 * np.pi)) % 1.0 * T[k]
             nxt = np.round((u - frac) / T[k]) * T[k] + frac
             consistent &= np.abs(nxt - u) <= T[k] / 4
             u = nxt
     gains = sorted(model.hdr_gains, reverse=True)
-    gain = np.full(I.shape, gains[-1])
+    gain = np.full(intensity.shape, gains[-1])
     for g in gains[::-1]:
-        gain = np.where(I * g <= 1.0, g, gain)
-    saturated = I * gains[-1] > 1.0
+        gain = np.where(intensity * g <= 1.0, g, gain)
+    saturated = intensity * gains[-1] > 1.0
     amp = np.abs(ph.z[-1])
     signal = amp * gain
     ok = (signal >= model.min_signal) & (contrast >= model.min_contrast) & consistent & ~saturated

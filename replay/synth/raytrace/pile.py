@@ -102,7 +102,6 @@ def _bin_geoms(geometry: BinGeometry) -> str:
     """MJCF geoms of the bin in the bin frame (metres): floor and four drafted inner walls."""
     mm = 0.001
     fx, fy = geometry.floor_half
-    h = geometry.height_mm
     d = np.radians(geometry.draft_deg)
     t = 20.0  # wall thickness (mm)
     # the walls rise 1 m, a chute: parts dropped from high up cannot bounce out of the bin

@@ -32,7 +32,15 @@ from replay.synth.raytrace import optics
 from replay.synth.raytrace.pile import Pile, drop_parts, part_count
 from replay.synth.raytrace.scene import build_scene
 from replay.synth.scene import LABEL_FLOOR, LABEL_RIM, LABEL_WALL
-from replay.synth.sensor import CAMERA_HEIGHT_MM, FULL_SIZE, Render, check_size, default_intrinsics, pixel_rays, shade_rgb
+from replay.synth.sensor import (
+    CAMERA_HEIGHT_MM,
+    FULL_SIZE,
+    Render,
+    check_size,
+    default_intrinsics,
+    pixel_rays,
+    shade_rgb,
+)
 from replay.synth.synthesize import FRAME_ID, T_cam_bin, bin_pose_for, frame_rng, pile_distance_m, stamp_ns
 from zcut.errors import ParameterError
 

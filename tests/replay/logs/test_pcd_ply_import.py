@@ -62,7 +62,7 @@ def write_pcd(path, xyz, rgb, *, data, color="rgba", extra=True, height=None):
         flat = [c.reshape(-1) for c in cols]
         for i in range(h * w):
             vals = []
-            for (name, t, _), c in zip(fields, flat, strict=True):
+            for (_name, t, _), c in zip(fields, flat, strict=True):
                 v = c[i]
                 vals.append(repr(float(v)) if t == "F" else str(int(v)))
             lines.append(" ".join(vals).replace("nan", "nan"))
@@ -123,7 +123,7 @@ def write_ply(path, xyz, rgb, *, fmt="binary_little_endian", organized="obj_info
         if organized == "camera":
             out += (" ".join(str(float(v)) for v in cam) + "\n").encode()
         if grid:
-            out += ("\n".join("1 %d" % index_of[i] if index_of[i] >= 0 else "0" for i in range(h * w)) + "\n").encode()
+            out += ("\n".join(f"1 {index_of[i]}" if index_of[i] >= 0 else "0" for i in range(h * w)) + "\n").encode()
     else:
         out += rec.tobytes()
         if organized == "camera":

@@ -95,7 +95,7 @@ def test_written_file_is_rosbag2_shaped(log3):
         assert "message_count: 15" in info  # 3 x (cloud, image, info, two masks)
         # mcap_ros2's generic decoder agrees with ours
         seen = 0
-        for _, channel, _, msg in reader.iter_decoded_messages(topics=["/camera/points"]):
+        for _, _channel, _, msg in reader.iter_decoded_messages(topics=["/camera/points"]):
             assert (msg.height, msg.width, msg.point_step) == (H, W, 16)
             assert [f.name for f in msg.fields] == ["x", "y", "z", "rgba"]
             pts = np.frombuffer(bytes(msg.data), dtype="<f4").reshape(H, W, 4)

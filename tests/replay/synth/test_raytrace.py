@@ -10,10 +10,10 @@ from replay.logs.reader import LogReader
 from replay.presets import BinGeometry
 from replay.synth import write_synthetic_log
 from replay.synth.raytrace import SensorModel, synthesize_raytraced_frame, write_raytraced_log
+from replay.synth.raytrace.materials import TABLE
 from replay.synth.raytrace.meshes import Mesh, part_mesh
 from replay.synth.raytrace.pile import Pile, drop_parts
 from replay.synth.raytrace.scene import TracedScene
-from replay.synth.raytrace.materials import TABLE
 from replay.synth.raytrace.synthesize import check_pile
 from replay.synth.scene import BinPose
 from replay.synth.synthesize import synthesize_frame
