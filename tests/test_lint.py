@@ -28,7 +28,7 @@ def test_ruff_finds_nothing():
 
 
 @pytest.mark.slow
-def test_mypy_strict_finds_nothing(tmp_path_factory):
+def test_mypy_strict_finds_nothing():
     cache = ROOT / ".mypy_cache"  # kept between runs (git ignores it): a warm run takes seconds
     out = _run("mypy", "--cache-dir", str(cache), *STRICT)
     assert out.returncode == 0, f"mypy:\n{out.stdout}{out.stderr}"

@@ -126,7 +126,7 @@ def bin_mask(rgb: RGB, *, params: BinMaskParams = BinMaskParams()) -> BinMaskRes
     gray = cv2.cvtColor(np.ascontiguousarray(a), cv2.COLOR_RGB2GRAY)
     # gray is an integer: gray > threshold <=> gray > floor(threshold) (no float64 copy of the image)
     bright = gray > int(np.floor(threshold))
-    grown = bright.astype(np.uint8)
+    grown: np.ndarray = bright.astype(np.uint8)
     if dilate_px > 0:
         k = 2 * int(dilate_px) + 1
         grown = cv2.dilate(grown, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
@@ -161,7 +161,7 @@ def bin_mask(rgb: RGB, *, params: BinMaskParams = BinMaskParams()) -> BinMaskRes
         # erode back by the same radius (a closing): the dilation's fringe of table is not bin
         k = 2 * int(dilate_px) + 1
         pad = int(dilate_px) + 1
-        f = np.pad(filled.astype(np.uint8), pad)
+        f: np.ndarray = np.pad(filled.astype(np.uint8), pad)
         f = cv2.erode(f, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
         filled = f[pad:-pad, pad:-pad].astype(bool) | (comp & bright[y:y + bh, x:x + bw])
     mask[y:y + bh, x:x + bw] = filled

@@ -109,7 +109,7 @@ class ZCutTree:
     @property
     def shape(self) -> tuple[int, int]:
         """(H, W) of the height image."""
-        return self.node_of_pixel.shape  # type: ignore[return-value]
+        return self.node_of_pixel.shape
 
     def _levels(self, max_depth: object, name: str = "max_depth") -> int:
         d = _check_depth(max_depth, name)

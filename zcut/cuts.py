@@ -41,6 +41,7 @@ from __future__ import annotations
 import math
 import operator
 from dataclasses import dataclass
+from typing import Any
 
 import numba
 import numpy as np
@@ -229,7 +230,7 @@ def zcut_outliers_reference(
 
 
 def _tree(z: np.ndarray, valid: np.ndarray, z_min: float, z_max: float, step: float, K: int,
-          max_area: float, connectivity: int, kernel: str = "auto"):
+          max_area: float, connectivity: int, kernel: str = "auto") -> tuple[Any, ...]:
     """Padded pixel levels and the component tree of the cuts 0 .. min(K, Q + 1) + 1.
 
     Returns ``(q, k_eff, lab, node_b, node_size, node_parent, tagged, fin)``: ``lab`` (padded,
@@ -242,6 +243,7 @@ def _tree(z: np.ndarray, valid: np.ndarray, z_min: float, z_max: float, step: fl
     H, W = z.shape
     if (H + 2) * (W + 2) >= 2**31 - 1:
         raise InputShapeError(f"height is too large for zcut (int32 indices), got {describe_array(z)}")
+    dtype: type[np.signedinteger[Any]]
     if k_eff + 3 < 2**15 - 1:
         dtype = np.int16
     elif k_eff + 3 < 2**31 - 1:

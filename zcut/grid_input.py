@@ -7,6 +7,8 @@ float32 or float64 (one compiled variant each), and do every comparison in float
 
 from __future__ import annotations
 
+from typing import Any
+
 import numba as nb
 import numpy as np
 
@@ -23,9 +25,10 @@ def as_cloud(xyz: XYZ) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
-def plain_number(value: object) -> object:
+def plain_number(value: object) -> Any:
     """A numpy scalar as the Python number it holds (so that the parameter classes, which accept
-    ``int`` and ``float``, take ``np.int64(3)`` too); anything else unchanged."""
+    ``int`` and ``float``, take ``np.int64(3)`` too); anything else unchanged (typed Any: the
+    parameter class it goes to validates it and names it when it is not a number)."""
     if isinstance(value, np.bool_):
         return bool(value)
     if isinstance(value, np.integer):

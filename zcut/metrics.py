@@ -310,9 +310,9 @@ class AccuracyCounts:
             return NotImplemented
         if (self.kinds is None) != (other.kinds is None):
             raise ParameterError("cannot pool accuracy counts with and without kind truth")
-        kinds = None if self.kinds is None else self.kinds + other.kinds
-        return AccuracyCounts(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)
-                                if f.name != "kinds"), kinds=kinds)
+        kinds = None if self.kinds is None or other.kinds is None else self.kinds + other.kinds
+        summed = {f.name: getattr(self, f.name) + getattr(other, f.name) for f in fields(self) if f.name != "kinds"}
+        return AccuracyCounts(**summed, kinds=kinds)
 
     def __radd__(self, other: object) -> AccuracyCounts:
         if isinstance(other, int) and not isinstance(other, bool) and other == 0:  # sum() starts at 0
@@ -430,7 +430,7 @@ class ScoredTruth:
         p_correct = 2 * p_inside >= p_size
         p_single = p_size == 1
         kinds = None
-        if self.true_kind is not None:
+        if self.true_kind is not None and self.kind_labelled is not None:
             n_kinds = len(self.kind_labelled)
             n = np.bincount(self.true_kind, minlength=n_kinds + 1)[1:]
             found = np.bincount(self.true_kind[hit], minlength=n_kinds + 1)[1:]
@@ -544,6 +544,7 @@ def scored_truth(
     sizes = np.bincount(component, minlength=n + 1).astype(np.int64)
     true_kind = kind_labelled = None
     if k is not None:
+        assert n_kinds is not None  # _check_kinds refused kinds without n_kinds
         true_kind = _readonly(k.ravel()[index])
         kind_labelled = tuple(int(c) for c in np.bincount(k[lab], minlength=int(n_kinds) + 1)[1:])
     return ScoredTruth(

@@ -71,7 +71,7 @@ def n_levels(step: float, max_depth: float) -> int:
 def _positive(name: str, value: object, *, allow_inf: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) and not hasattr(value, "__float__"):
         raise ParameterError(f"{name} must be a number > 0, got {value!r}")
-    v = float(value)  # type: ignore[arg-type]
+    v = float(value)
     if not (v > 0 and (allow_inf or math.isfinite(v))):
         raise ParameterError(f"{name} must be a number > 0, got {value!r}")
     return v
