@@ -1,4 +1,4 @@
-"""True accuracy of the outlier filters against the truth (SPEC §4): the report and its table.
+"""True accuracy of the outlier filters against the truth (docs/accuracy.md): the report and its table.
 
 Pure functions on arrays: no file I/O, no printing. The callers (``zcut accuracy``, ``zcut demo``)
 gather per-frame predictions and truth, then::
@@ -6,7 +6,7 @@ gather per-frame predictions and truth, then::
     frames = [frame_accuracy(i, stamp_ns, {"zcut": z, "sor": s}, truth,
                              reviewed=r, valid=v, region=zone, kinds=kind_image) for ...]
     unscored = [UnscoredFrame(i, stamp_ns, "no /ground_truth/outliers"), ...]
-    report = accuracy_report(frames, region="zone", unscored=unscored)  # SPEC §4 dict (NaN kept)
+    report = accuracy_report(frames, region="zone", unscored=unscored)  # docs/accuracy.md dict (NaN kept)
     print(report_json(report))                # NaN / inf -> null, every count an int
     print(format_accuracy_table(report))
 
@@ -53,18 +53,18 @@ from zcut.types import Mask
 #: Methods of the default report (the config's default methods and the derived pair), in the order
 #: shown; a report lists the methods its predictions hold (``--methods``).
 METHODS: tuple[str, ...] = ("zcut", "sor", "union", "intersection")
-#: Keys of one method's entry (SPEC §4), in the order shown; then ``ci95`` (pooled) and ``by_kind``.
+#: Keys of one method's entry (docs/accuracy.md), in the order shown; then ``ci95`` (pooled) and ``by_kind``.
 COUNT_KEYS: tuple[str, ...] = ("tp", "fp", "fn")
 RATE_KEYS: tuple[str, ...] = ACCURACY_KEYS[3:]
 METRIC_KEYS: tuple[str, ...] = ACCURACY_KEYS
 #: Pooled figures with a 95 % interval (``ci95``).
 CI_KEYS: tuple[str, ...] = INTERVAL_STATS
-#: Names of the scored regions (SPEC §4) and what each scores.
+#: Names of the scored regions (docs/accuracy.md) and what each scores.
 REGIONS: dict[str, str] = {
     "zone": "the pixels the filters judge: valid minus table and bin, plus the above-the-rim points",
     "valid": "every valid pixel",
 }
-#: Kind codes of the truth's kind image and their names (SPEC §5).
+#: Kind codes of the truth's kind image and their names (docs/formats.md).
 KINDS: dict[int, str] = dict(OUTLIER_KINDS)
 N_KINDS: int = max(KINDS)
 #: What the report's intervals are, and their coverage measured on held-out synthetic frames
@@ -185,7 +185,7 @@ def frame_accuracy(
     region: Mask | None = None,
     kinds: np.ndarray | None = None,
 ) -> FrameAccuracy:
-    """Count pixels, clusters, singletons and kinds of every method on one frame (SPEC §4).
+    """Count pixels, clusters, singletons and kinds of every method on one frame (docs/accuracy.md).
 
     Parameters
     ----------
@@ -294,7 +294,7 @@ def accuracy_report(
     region: str = "valid",
     unscored: Iterable[UnscoredFrame] = (),
 ) -> dict:
-    """The SPEC §4 report object.
+    """The docs/accuracy.md report object.
 
     Parameters
     ----------

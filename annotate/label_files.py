@@ -1,4 +1,4 @@
-"""Human labels as MCAP files (SPEC §5): ``zcut labels export`` and ``zcut labels import``.
+"""Human labels as MCAP files (docs/formats.md): ``zcut labels export`` and ``zcut labels import``.
 
 An export holds, per labelled frame, two mono8 images stamped like the frame's cloud:
 ``/labels/outliers`` (L) and ``/labels/reviewed`` (R), plus a ``zcut.labels`` metadata record that

@@ -1,4 +1,4 @@
-"""What a frame is scored against (SPEC §4): the true outliers L, the reviewed pixels R, the scored
+"""What a frame is scored against (docs/accuracy.md): the true outliers L, the reviewed pixels R, the scored
 region, and the kind of every true outlier where the truth says it.
 
 Two sources of truth, one interface (:meth:`TruthSource.truth` -> :class:`FrameTruth`, or a string
@@ -178,7 +178,7 @@ def method_predictions(result, methods) -> dict[str, np.ndarray]:
 
 
 def pixel_counts(predicted: np.ndarray, truth: FrameTruth, region: np.ndarray) -> tuple[int, int, int]:
-    """(TP, FP, FN) over S = R ∩ region (SPEC §4): |P∩L∩S|, |P∩S∖L|, |L∩S∖P|."""
+    """(TP, FP, FN) over S = R ∩ region (docs/accuracy.md): |P∩L∩S|, |P∩S∖L|, |L∩S∖P|."""
     s = truth.reviewed & region
     p = predicted & s
     lab = truth.outliers & s

@@ -1,4 +1,4 @@
-"""Benchmark: the cost of SPEC §4 true accuracy — per-frame counting and the bootstrap intervals.
+"""Benchmark: the cost of docs/accuracy.md true accuracy — per-frame counting and the bootstrap intervals.
 
 Run: ``.venv/bin/python bench/bench_accuracy.py [--repeat N] [--kinds spheres,black_screws] [--size 1200x1920]``
 

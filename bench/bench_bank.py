@@ -2,7 +2,7 @@
 the same thing (Open3D's radius filter, OpenCV's filterSpeckles), per cloud class.
 
 For every class (bench_sor.py's clouds: 1920 x 1200 synthetic frames, the real Kinect PCDs of
-../shared/data/real at 640 x 480, and the steep-relief class of tall parts on end), in one run:
+the real data folder (docs/real_data.md) at 640 x 480, and the steep-relief class of tall parts on end), in one run:
 
   zcut      zcut.zcut_outliers(height_mm(xyz)) with the paper's nominal parameters (0.2 mm, 30 mm,
             rho 0.07 of a_max = 3000 px): the time per frame every filter is held to

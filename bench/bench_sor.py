@@ -17,7 +17,7 @@ Classes (1920 x 1200, or the sensor's own size), all seeded:
                run along the rays, so image neighbours are rarely 3D neighbours (flying pixels at
                the silhouettes, noise, dropouts)
   synth        the project's own synthetic structured-light scan (replay.synth), if importable
-  kinect/NAME  the real Kinect clouds of ../shared/data/real (640 x 480, quantized depth)
+  kinect/NAME  the real Kinect clouds of the real data folder, docs/real_data.md (640 x 480, quantized depth)
 
 For every class and convention: the CPU time of all threads (time.process_time, best of --repeat)
 of zcut and of Open3D's remove_statistical_outlier on the same valid points, the ratio, and

@@ -16,7 +16,7 @@
    on the same zone (``find_clusters``, measured in the same run).
 3. ``--tune``: a grid of parameter variants on the tuning seeds (the defaults were chosen this way,
    on seed 1); the report seeds are held out. Per kind, totals over frames.
-4. ``--real DIR``: organized PCD scans (e.g. the Kinect scans of ``../shared/data/real``) recorded
+4. ``--real DIR``: organized PCD scans (e.g. the Kinect scans of the real data folder, docs/real_data.md) recorded
    into a log (``zcut record``) and replayed without bin stages (zone = every valid pixel): per frame,
    σ̂, τ, the pixels each detector proposes and the groups. ``--png DIR`` writes overlays of the
    groups (outside the repository) to look at.

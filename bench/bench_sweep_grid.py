@@ -4,7 +4,7 @@ Run: ``.venv/bin/python bench/bench_sweep_grid.py [--repeat N] [--kinds spheres,
 
 For each frame the grid is d_max ∈ linspace(10, 50, 10) mm × μ_thr = ρ_thr · a_max with
 ρ_thr ∈ linspace(0.02, 0.2, 10), at Δd = 0.2 mm, scored against a truth mask over the valid
-pixels (SPEC §4 pixel counts; predicted = (z-cut ∩ within) ∪ plus, as in the pipeline). Three
+pixels (docs/accuracy.md pixel counts; predicted = (z-cut ∩ within) ∪ plus, as in the pipeline). Three
 costs, in CPU time (``process_time``; the machine is shared):
 
 - ``one call``: one ``zcut_outliers`` at the largest d_max (50 mm; median of ``--repeat``) and the
@@ -28,13 +28,14 @@ Frames, 1920 x 1200 unless said:
   walls, rim and the above-the-rim points NaN); a_max = the kind's ``a_max_px``, truth = the exact
   ground truth, scored over the zone (those pixels plus the above-the-rim points, which are the
   ``plus`` of the predicted mask);
-- ``real:<file>``: the real PCDs in /work/shared/data/real at their own size (480 x 640),
+- ``real:<file>``: the real PCDs of the real data folder (docs/real_data.md; $ZCUT_REAL_DATA) at their own size (480 x 640),
   a_max = 1 % of the image, truth = the z-cut at nominal parameters.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import time
@@ -50,7 +51,7 @@ from zcut.cut_grid import zcut_tree
 from zcut.cuts import zcut_outliers
 from zcut.params import NOMINAL_MAX_DEPTH_MM, NOMINAL_RHO_THR, NOMINAL_STEP_MM
 
-REAL_DIR = Path("/work/shared/data/real")
+REAL_DIR = Path(os.environ.get("ZCUT_REAL_DATA", Path(__file__).resolve().parents[2] / "shared" / "data" / "real"))
 STEP = 0.2
 MAX_DEPTHS = np.linspace(10.0, 50.0, 10)
 RHOS = np.linspace(0.02, 0.2, 10)
@@ -90,7 +91,7 @@ def cpu(fn, repeat: int):
 
 
 def score(mask, truth, scored, within, plus):
-    """SPEC §4 counts of one predicted mask, the way a per-point sweep would."""
+    """docs/accuracy.md counts of one predicted mask, the way a per-point sweep would."""
     p = (mask & within) | plus
     ps = p & scored
     return (int(np.count_nonzero(ps & truth)), int(np.count_nonzero(ps & ~truth)),

@@ -5,7 +5,7 @@ the bin model from synthetic empty-bin scans (the paper's five positions), and r
 
 - ``zcut accuracy LOG --bin-model BIN --json`` with the paper's nominal parameters (Δd 0.2 mm,
   d_max 30 mm, ρ_thr 0.07): per-kind recall of the z-cut and SOR, precision, F1, intervals;
-- ``zcut batch``: α and β (SPEC §3) and the registration's fitness and pose error per frame;
+- ``zcut batch``: α and β (docs/accuracy.md) and the registration's fitness and pose error per frame;
 - ``zcut sweep`` over Δd, d_max, ρ_thr and SOR's k, std_ratio: the tuned parameters against the
   nominal ones, and whether each of the paper's sensitivity findings (Figs. 16–20) holds.
 

@@ -5,11 +5,11 @@
 
 For each part kind, ``--frames`` frames of one seeded log (``synthesize_frame(kind, seed, index)``):
 
-- the true outliers per kind code (SPEC §5): pixels and 8-connected components, per frame;
+- the true outliers per kind code (docs/formats.md): pixels and 8-connected components, per frame;
 - the paper's nominal z-cut, ``zcut_outliers(-1000·z, step=0.2, max_depth=30, max_area=0.07·a_max)``,
   and SOR, ``sor_outliers(xyz, k=4, std_ratio=1.0)``: recall per kind (found / true pixels) and
   false-positive components per frame (8-connected components of the prediction with less than
-  half of their pixels true outliers, SPEC §4), on two regions:
+  half of their pixels true outliers, docs/accuracy.md), on two regions:
   ``whole`` = the whole frame (what ``zcut replay`` does without an RGB image or a bin model);
   ``zone`` = a stand-in for the paper's §5.2 with a perfect bin removal: only pixels whose real
   surface is a part or the bin floor, minus the points above the rim (the removal flags those);

@@ -3,7 +3,7 @@
 It imports every package's commands explicitly (each a module with ``add_arguments(parser)`` and
 ``run(args) -> int``, importing its heavy dependencies inside ``run`` so that ``zcut --help`` stays
 fast), sets the process-wide settings a command line owns (the numba threading layer), and is the
-only place that turns errors into messages and exit codes (SPEC §6): 0 success, 1 user error (one
+only place that turns errors into messages and exit codes (docs/cli.md): 0 success, 1 user error (one
 line on stderr, no traceback), 3 finished with data loss, 130 / 143 interrupted by SIGINT / SIGTERM
 (one line; see :mod:`replay.process`). ``zcut.errors`` is imported inside :func:`main`, after the
 signal handlers are in place: importing it loads numba and the kernels (seconds), and a Ctrl-C
@@ -67,7 +67,7 @@ def version() -> str:
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with SPEC §6 exit status: a usage error is a user error (1), not argparse's 2."""
+    """argparse with docs/cli.md exit status: a usage error is a user error (1), not argparse's 2."""
 
     def error(self, message: str):  # type: ignore[override]
         self.print_usage(sys.stderr)

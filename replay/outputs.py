@@ -1,4 +1,4 @@
-"""Outputs that never replace an input, and that one process writes at a time (SPEC §6).
+"""Outputs that never replace an input, and that one process writes at a time (docs/cli.md).
 
 Every command that writes files plans them first with an :class:`OutputPlan`: an output that is an
 input (the same path, a hard link, a symlink: compared by device and inode as well as by path), two

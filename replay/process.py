@@ -1,4 +1,4 @@
-"""What belongs to the command-line process, not to the library: the exit statuses (SPEC §6), the
+"""What belongs to the command-line process, not to the library: the exit statuses (docs/cli.md), the
 process-wide settings every command (and every worker process of a study) starts with, and what a
 signal does to a command.
 

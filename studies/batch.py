@@ -1,4 +1,4 @@
-"""``zcut batch``: every frame of many logs, counted and scored, in one table (SPEC §6).
+"""``zcut batch``: every frame of many logs, counted and scored, in one table (docs/studies.md).
 
 ``frames.parquet`` has one row per frame (:func:`studies.work.batch_row`: the replay table's counts,
 fitness, stage timings, and TP/FP/FN per method over the scored region where truth exists);

@@ -1,4 +1,4 @@
-"""The parameter grid of a sweep (SPEC §6): LIST options and the grid they make.
+"""The parameter grid of a sweep (docs/studies.md): LIST options and the grid they make.
 
 A LIST is ``a,b,c`` or ``start:stop:count`` (inclusive, evenly spaced). The z-cut axes are Δd
 (``--step``), d_max (``--max-depth``) and ρ_thr (``--rho``, μ_thr = ρ_thr · a_max); the SOR axes are k

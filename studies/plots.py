@@ -300,7 +300,7 @@ def _accuracy_plot(sw: SetGrid, method: str) -> Plot | None:
     fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), frameon=False)
     who = "z-cut" if method == "zcut" else "SOR"
     held = ", ".join(f"{SHORT[k]} = {param_text(sw.chosen.get(k), k)}" for k in sw.params(method))
-    caption = (f"True accuracy of the {who} (SPEC §4, pixels of the {sw.summary.region} region, pooled "
+    caption = (f"True accuracy of the {who} (docs/accuracy.md, pixels of the {sw.summary.region} region, pooled "
                f"over the frames) against each parameter with the others at the chosen point ({held}; dotted line). "
                "Bands: 95 % intervals over frames (docs/accuracy.md, Uncertainty). A gap means undefined (nothing "
                "flagged, or no true outlier) or too few frames for an interval.")
@@ -497,7 +497,7 @@ def _ratios_plot(sw: SetGrid) -> Plot | None:
             if j == len(panels) - 1:
                 _legend_right(ax)
     held = ", ".join(f"{SHORT[k]} = {param_text(sw.chosen.get(k), k)}" for k in sw.zparams)
-    caption = ("The paper's relative figures (Fig. 15, SPEC §3) against the z-cut's parameters, the others at the "
+    caption = ("The paper's relative figures (Fig. 15, docs/accuracy.md) against the z-cut's parameters, the others at the "
                f"chosen point ({held}); SOR at the config's own k and std_ratio. Small α and β₂: most outliers are "
                "found by the z-cut alone — which, without truth, the paper could not tell apart from false positives "
                "(see the precision plots).")

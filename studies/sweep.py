@@ -10,7 +10,7 @@ Rows (``sweep.parquet``): one per log × frame × parameter set × method. A z-c
 are Δd, d_max, ρ_thr (μ_thr = ρ_thr·a_max); a SOR row's are k and std_ratio, with Δd and d_max
 when SOR judges the top of the pile (``sor.region = "top"``: the points within the z-cut's depth).
 Besides TP/FP/FN over S = R ∩ region, a z-cut row holds its overlap with SOR at the config's own k
-and std_ratio (N_both, N1, N2 of SPEC §3), for the paper's relative figures.
+and std_ratio (N_both, N1, N2 of docs/accuracy.md), for the paper's relative figures.
 """
 
 from __future__ import annotations
@@ -175,7 +175,7 @@ def _set_key(cols: dict[str, list[Any]], i: int) -> tuple[Any, ...]:
 def pooled_sets(table: Any) -> list[ParamSet]:
     """Per parameter set and method: pooled counts, precision/recall/F1 with 95 % intervals over frames
     (:func:`zcut.metrics.pooled_interval_many`; None where too few frames, the same rule for every
-    set), and for the z-cut the relative figures N_both, N1, N2, α, β (SPEC §3); sorted by method and
+    set), and for the z-cut the relative figures N_both, N1, N2, α, β (docs/accuracy.md); sorted by method and
     parameters."""
     from zcut.metrics import pooled_interval_many, ratio
 
@@ -292,7 +292,7 @@ def tune(sets: list[ParamSet], objective: tuple[str, float | None], *, part: str
 
 
 def sensitivity_at(sets: list[ParamSet], point: tuple[float | None, float | None, float | None]) -> Sensitivities | None:
-    """θ (ρ_thr) and ω (d_max) of SPEC §3 around a z-cut point (step, depth, rho), for both methods,
+    """θ (ρ_thr) and ω (d_max) of docs/accuracy.md around a z-cut point (step, depth, rho), for both methods,
     from the grid's sets at 0.5× and 1.5× (None when the grid lacks them)."""
     from zcut.metrics import sensitivity
 

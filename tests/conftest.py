@@ -24,13 +24,13 @@ def rng() -> np.random.Generator:
 
 @pytest.fixture(scope="session")
 def real_data() -> Path:
-    """The real organized clouds (../shared/data/real beside the checkout, or $ZCUT_REAL_DATA).
+    """The real organized clouds (where docs/real_data.md says: beside the checkout, or $ZCUT_REAL_DATA).
 
     Missing data skips the tests on a developer's machine and fails them under CI (CI set).
     """
     if not REAL_DATA.is_dir():
         why = (f"real data folder not found: {REAL_DATA}; docs/real_data.md lists the files (names, sizes, "
-               "SHA-256, where they come from): put them there (../shared/data/real beside the checkout) "
+               "SHA-256, where they come from and where the tests look for them): put them there "
                "or set ZCUT_REAL_DATA=/path/to/them")
         if os.environ.get("CI"):
             pytest.fail(why)

@@ -43,3 +43,30 @@ def test_mypy_is_strict_where_the_test_says():
     strict = {m for o in overrides if o.get("strict") for m in o["module"]}
     for pkg in STRICT:
         assert pkg in strict and f"{pkg}.*" in strict
+
+
+#: What the repository must not cite: contracts and style live in docs/ (docs/README.md), and no
+#: file outside the checkout is a reference. Spelled in pieces so that this file does not match.
+FOREIGN = ("SPEC" + " §", "STYLE" + ".md", ".." + "/shared")
+#: The one place that may name the data folder beside the checkout: where the tests look for it.
+MAY_NAME_DATA_FOLDER = {"docs/real_data.md": ".." + "/shared"}
+
+
+def test_the_repository_cites_only_itself():
+    listed = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True)
+    if listed.returncode != 0:
+        pytest.skip("not a git checkout")
+    found = []
+    for name in listed.stdout.decode().split("\0"):
+        path = ROOT / name
+        if not name or not path.is_file():
+            continue
+        try:
+            text = path.read_text(encoding="utf-8")
+        except UnicodeDecodeError:
+            continue
+        for lineno, line in enumerate(text.splitlines(), 1):
+            for word in FOREIGN:
+                if word in line and MAY_NAME_DATA_FOLDER.get(name) != word:
+                    found.append(f"{name}:{lineno}: {line.strip()[:100]}")
+    assert found == [], "citations of files outside the repository (cite docs/ instead):\n" + "\n".join(found)

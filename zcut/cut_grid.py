@@ -5,7 +5,7 @@ once (for the largest d_max of the sweep) and returns a frozen :class:`ZCutTree`
 ``tree.outliers(max_depth, max_area)`` is then one look-up per pixel and equals
 ``zcut_outliers(height, step=step, max_depth=max_depth, max_area=max_area, ...)`` exactly, for
 every ``max_depth`` up to the tree's and every ``max_area``; ``tree.counts(...)`` scores a whole
-grid of them against labels (SPEC §4 pixel counts) without building any mask.
+grid of them against labels (docs/accuracy.md pixel counts) without building any mask.
 
 Why one tree answers everything (notation of :mod:`zcut.cuts`: a node ``a`` is born at level
 ``b``, has ``|a|`` pixels, next changes at level ``e``; the loop with K levels tags it iff
@@ -25,7 +25,7 @@ Why one tree answers everything (notation of :mod:`zcut.cuts`: a node ``a`` is b
    ``kmin_y > kmin_x``; and ``y`` holds every pixel of ``x`` and more, ``|y| > |x|``. So ``y``
    tagged at ``(K, A)`` implies ``x`` tagged at ``(K, A)``: a pixel is an outlier at ``(K, A)``
    iff the *lowest* taggable node holding it (``node_of_pixel``) has ``kmin <= K`` and
-   ``size < A`` and the pixel is valid (SPEC §1: the result is ANDed with the valid mask).
+   ``size < A`` and the pixel is valid (docs/filters.md: the result is ANDed with the valid mask).
 3. *Counting.* A grid count is therefore a sum over the forest nodes of the node's pixel
    weights times ``[kmin <= K] [size < A]``: each node's weights go to the grid cell of the
    smallest K and smallest A that tag it, and a 2-D cumulative sum gives every grid point
@@ -33,7 +33,7 @@ Why one tree answers everything (notation of :mod:`zcut.cuts`: a node ``a`` is b
 4. *Clusters.* A cluster (:class:`zcut.cuts.CutResult`) is an outermost tagged node with a valid
    pixel; by 2 a tagged node is outermost iff its nearest taggable ancestor is not tagged.
 
-K of a ``max_depth`` is ``floor(max_depth / step + 1e-9)`` (SPEC §1), computed for each value
+K of a ``max_depth`` is ``floor(max_depth / step + 1e-9)`` (docs/filters.md), computed for each value
 exactly as :func:`zcut.zcut_outliers` does.
 """
 
@@ -81,7 +81,7 @@ class ZCutTree:
     max_depth : float
         The largest d_max the tree answers.
     n_levels : int
-        K of ``max_depth`` (SPEC §1); every ``max_depth`` with at most this K is answered.
+        K of ``max_depth`` (docs/filters.md); every ``max_depth`` with at most this K is answered.
     connectivity : int
         8 or 4.
     node_of_pixel : (H, W) int32 ndarray
@@ -165,7 +165,7 @@ class ZCutTree:
         within: Mask | None = None,
         plus: Mask | None = None,
     ) -> dict[str, np.ndarray]:
-        """SPEC §4 pixel counts of every grid point ``(max_depths[i], max_areas[j])``.
+        """docs/accuracy.md pixel counts of every grid point ``(max_depths[i], max_areas[j])``.
 
         The predicted mask of a grid point is ``P = (outliers(d, a) & within) | plus`` (the
         pipeline's final mask: z-cut inside the zone, plus the easy outliers); it is scored

@@ -1,6 +1,6 @@
 """Numba kernels of the z-cut: pixel levels, the component tree of all the cuts, its read-outs.
 
-:mod:`zcut.cuts` explains the tree and why it equals the literal loop of SPEC §1;
+:mod:`zcut.cuts` explains the tree and why it equals the literal loop of docs/filters.md;
 :mod:`zcut.cut_grid` explains why one tree answers every (d_max, μ_thr) pair. The kernels work on
 the *padded* flat image of ``(H + 2) * (W + 2)`` pixels (a border of non-members saves the bounds
 checks); a node is a component of the cut at the level where it last changed.

@@ -1,4 +1,4 @@
-"""The z-cut outlier filter (paper Section 3, Figure 7; contract in SPEC §1).
+"""The z-cut outlier filter (paper Section 3, Figure 7; contract in docs/filters.md).
 
 Two implementations with the identical result for every input:
 
@@ -19,7 +19,7 @@ clusters, their areas and levels, and the component count of every cut. Its ``ke
 picks the tree kernel explicitly (the tests run every input through both). One tree answers every
 ``(max_depth, max_area)`` pair at once: :mod:`zcut.cut_grid`.
 
-Notation (SPEC §1): ``z~`` is the height with invalid pixels set to ``z_min``; the cut at level
+Notation (docs/filters.md): ``z~`` is the height with invalid pixels set to ``z_min``; the cut at level
 ``k`` is ``S_k = {z~ >= z_max - k * step}`` with the threshold computed in float64 with an integer
 ``k``; ``K = floor(max_depth / step + 1e-9)``. The thresholds never increase with ``k`` (float
 rounding is monotone), so the cuts are nested and a pixel is in ``S_k`` iff ``q <= k``.
@@ -27,7 +27,7 @@ rounding is monotone), so the cuts are nested and a pixel is in ``S_k`` iff ``q 
 The tree: a node is a component of the cut at the level ``b`` where it last changed (a pixel
 joined or two components merged); it lives unchanged until the level ``e`` where it next changes
 (``e = K + 2`` if never up to ``K + 1``) and becomes part of its parent node, born at ``e``.
-The loop of SPEC §1 tags it iff it is a component of both ``S_k`` and ``S_{k+1}`` for some
+The loop of docs/filters.md tags it iff it is a component of both ``S_k`` and ``S_{k+1}`` for some
 ``1 <= k <= K``, i.e. iff ``max(b, 1) <= min(K, e - 2)``, and it has fewer than ``max_area``
 pixels. A pixel is an outlier iff some node holding it is tagged (and it is valid). ``q`` is
 found from the guess ``floor((z_max - z~) * (1 / step))`` corrected with the exact comparisons.
@@ -181,7 +181,7 @@ def zcut_outliers_reference(
     max_area: float,
     connectivity: int = 8,
 ) -> Mask:
-    """The z-cut filter as the literal loop of SPEC §1 (slow, obviously correct).
+    """The z-cut filter as the literal loop of docs/filters.md (slow, obviously correct).
 
     Parameters
     ----------
@@ -278,7 +278,7 @@ def zcut_outliers(
     max_area: float,
     connectivity: int = 8,
 ) -> Mask:
-    """The z-cut filter (SPEC §1): pixels of small clusters floating at least ``step`` apart.
+    """The z-cut filter (docs/filters.md): pixels of small clusters floating at least ``step`` apart.
 
     Same result as :func:`zcut_outliers_reference` for every input, from one pass that builds the
     component tree of all the cuts (module notes).

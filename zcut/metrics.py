@@ -1,4 +1,4 @@
-"""Metrics: the paper's relative metrics (SPEC §3), true accuracy (SPEC §4), annotator agreement.
+"""Metrics: the paper's relative metrics (docs/accuracy.md), true accuracy (docs/accuracy.md), annotator agreement.
 
 True accuracy: :func:`scored_truth` checks one frame's truth (L ⊆ R ⊆ valid, the scored region,
 the kind image) once and labels its components; :meth:`ScoredTruth.counts` scores a predicted
@@ -51,7 +51,7 @@ __all__ = [
     "sensitivity_of",
 ]
 
-#: The keys of :meth:`AccuracyCounts.as_dict`, in SPEC §4 order.
+#: The keys of :meth:`AccuracyCounts.as_dict`, in docs/accuracy.md order.
 ACCURACY_KEYS = ("tp", "fp", "fn", "precision", "recall", "f1", "iou", "cluster_precision", "cluster_recall",
                  "singletons_precision", "singletons_recall")
 
@@ -72,7 +72,7 @@ def ratio(num: float, den: float) -> float:
 
 
 # ------------------------------------------------------------------------------------------------
-# SPEC §3: relative metrics (paper eqs. 3, 4, 6, 7)
+# docs/accuracy.md: relative metrics (paper eqs. 3, 4, 6, 7)
 # ------------------------------------------------------------------------------------------------
 @dataclass(frozen=True, slots=True)
 class RelativeMetrics:
@@ -108,7 +108,7 @@ class RelativeMetrics:
 
 
 def relative_metrics(sor_mask: Mask, zcut_mask: Mask) -> RelativeMetrics:
-    """N_both, N1, N2, α, β1, β2 of two outlier masks (SPEC §3).
+    """N_both, N1, N2, α, β1, β2 of two outlier masks (docs/accuracy.md).
 
     Parameters
     ----------
@@ -179,7 +179,7 @@ def sensitivity_of(
 
 
 # ------------------------------------------------------------------------------------------------
-# SPEC §4: true accuracy
+# docs/accuracy.md: true accuracy
 # ------------------------------------------------------------------------------------------------
 def _count(v: object, name: str) -> int:
     if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 0:
@@ -189,7 +189,7 @@ def _count(v: object, name: str) -> int:
 
 @dataclass(frozen=True, slots=True)
 class KindCounts:
-    """True outlier pixels of each kind and how many of them a prediction found (SPEC §4, Kinds).
+    """True outlier pixels of each kind and how many of them a prediction found (docs/accuracy.md, Kinds).
 
     Entry ``c - 1`` of each tuple belongs to kind code ``c`` (codes ``1 .. n_kinds``; the names are
     the caller's, e.g. ``replay.logs.layout.OUTLIER_KINDS``). ``+`` pools two frames.
@@ -257,7 +257,7 @@ class AccuracyCounts:
 
     ``+`` and ``sum()`` pool frames (micro average: the rates of a sum are the pooled rates).
     Components are 8-connected; a component of two or more pixels is a *cluster*, a one-pixel
-    component a *singleton*; the two are counted apart (SPEC §4).
+    component a *singleton*; the two are counted apart (docs/accuracy.md).
 
     Attributes
     ----------
@@ -356,7 +356,7 @@ class AccuracyCounts:
         return ratio(self.true_singletons_found, self.true_singletons)
 
     def as_dict(self) -> dict[str, int | float]:
-        """The numeric keys of a SPEC §4 entry (:data:`ACCURACY_KEYS`): counts as ``int``, rates as
+        """The numeric keys of a docs/accuracy.md entry (:data:`ACCURACY_KEYS`): counts as ``int``, rates as
         ``float`` (NaN for 0/0). ``ci95`` and ``by_kind`` are the report's (``annotate.accuracy``)."""
         return {k: getattr(self, k) for k in ACCURACY_KEYS}
 
@@ -396,7 +396,7 @@ class ScoredTruth:
         return self.scored.shape
 
     def counts(self, predicted: Mask) -> AccuracyCounts:
-        """Score one predicted outlier mask P (SPEC §4).
+        """Score one predicted outlier mask P (docs/accuracy.md).
 
         Parameters
         ----------
@@ -487,7 +487,7 @@ def scored_truth(
     kinds: np.ndarray | None = None,
     n_kinds: int | None = None,
 ) -> ScoredTruth:
-    """Check one frame's truth and prepare it for scoring (SPEC §4).
+    """Check one frame's truth and prepare it for scoring (docs/accuracy.md).
 
     The scored pixels are S = R ∩ region. Labels outside the region are not scored (no error);
     labels outside R are an error (L ⊆ R ⊆ valid).
@@ -563,7 +563,7 @@ def accuracy_counts(
     kinds: np.ndarray | None = None,
     n_kinds: int | None = None,
 ) -> AccuracyCounts:
-    """True accuracy counts of one predicted outlier mask (SPEC §4).
+    """True accuracy counts of one predicted outlier mask (docs/accuracy.md).
 
     ``scored_truth(outliers, ...).counts(predicted)``; to score several predictions against one
     truth, build the :class:`ScoredTruth` once.
@@ -595,9 +595,9 @@ def accuracy_counts(
 
 
 # ------------------------------------------------------------------------------------------------
-# SPEC §4: bootstrap intervals over frames
+# docs/accuracy.md: bootstrap intervals over frames
 # ------------------------------------------------------------------------------------------------
-#: The pooled figures that carry an interval, in SPEC §4 order.
+#: The pooled figures that carry an interval, in docs/accuracy.md order.
 BOOTSTRAP_STATS: tuple[str, ...] = ("precision", "recall", "f1")
 _CHUNK_ELEMENTS = 1 << 21  # rows x resamples handled at once (bounded memory for big sweeps)
 
@@ -696,7 +696,7 @@ def bootstrap_ci_many(
         Per-frame TP, FP, FN counts, frames on the last axis, the same shape each; the leading
         axes are a batch (methods, parameter sets...).
     n_boot : int
-        Number of resamples (>= 1; SPEC §4 asks for >= 1000).
+        Number of resamples (>= 1; docs/accuracy.md asks for >= 1000).
     seed : int
         Seed of the resampling (>= 0): the same input and seed give the same interval.
     level : float

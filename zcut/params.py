@@ -58,7 +58,7 @@ _K_CAP = 1 << 60
 
 
 def n_levels(step: float, max_depth: float) -> int:
-    """K = floor(max_depth / step + 1e-9), the number of level pairs the filter checks (SPEC §1).
+    """K = floor(max_depth / step + 1e-9), the number of level pairs the filter checks (docs/filters.md).
 
     Capped at 2**60 (beyond any level a float64 height range can reach).
     """
@@ -266,7 +266,7 @@ def a_max_from_camera(face_area_mm2: float, *, distance_mm: float, fx_px: float,
     return area * fx * fy / (d * d)
 
 
-#: The SOR conventions (SPEC §2) and the regions SOR may judge in the pipeline.
+#: The SOR conventions (docs/filters.md) and the regions SOR may judge in the pipeline.
 SOR_CONVENTIONS = ("pcl", "open3d")
 SOR_REGIONS = ("top", "zone")
 REGISTRATION_METHODS = ("point_to_plane", "point_to_point")
@@ -491,7 +491,7 @@ class SorParams:
     std_ratio : float
         Outlier iff d̄ > μ + std_ratio·σ.
     convention : {"pcl", "open3d"}
-        SPEC §2.
+        docs/filters.md.
     region : {"top", "zone"}
         Which points SOR judges in the pipeline: ``"top"`` the top part of the pile, the points
         within the z-cut's depth d_max of the zone's highest point, as the paper ran it (§5.3);

@@ -1,4 +1,4 @@
-"""Statistical outlier removal (SOR) on organized clouds, exact and fast (SPEC §2).
+"""Statistical outlier removal (SOR) on organized clouds, exact and fast (docs/filters.md).
 
 For every valid pixel the mean distance d̄ to its k nearest neighbours among the valid points is
 computed exactly (no approximate search), then points far above the cloud's mean d̄ are outliers.
@@ -429,7 +429,7 @@ def sor_outliers_from_distances(
 
 
 def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: str = "pcl") -> Mask:
-    """Statistical outlier removal on an organized cloud (SPEC §2).
+    """Statistical outlier removal on an organized cloud (docs/filters.md).
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""``zcut accuracy LOG_OR_RESULTS.mcap``: true accuracy of z-cut, SOR, union and intersection (SPEC §4).
+"""``zcut accuracy LOG_OR_RESULTS.mcap``: true accuracy of z-cut, SOR, union and intersection (docs/accuracy.md).
 
 Predictions come from the pipeline, resolved and run as ``zcut replay`` runs it (the same options
 resolve the same filter), or from a results file of ``zcut replay --out``; the truth from a
@@ -30,7 +30,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--region", default="zone",
                    help="the scored region: zone (default: what the filters judge) or valid (every valid pixel)")
     p.add_argument("--per-frame", action="store_true", help="also print the per-frame table")
-    p.add_argument("--json", action="store_true", help="print the SPEC §4 JSON object instead of tables")
+    p.add_argument("--json", action="store_true", help="print the docs/accuracy.md JSON object instead of tables")
     add_pipeline_options(p)
 
 

@@ -2,7 +2,7 @@
 
 Every command that runs the pipeline on a log (``replay``, ``demo``, ``accuracy``, ``annotate``,
 ``sweep``, ``batch``) takes the same options from :func:`add_pipeline_options` and opens its log
-with :func:`open_session`, so that it resolves the same config (SPEC §4, "Same filter everywhere"),
+with :func:`open_session`, so that it resolves the same config (docs/accuracy.md, "Same filter everywhere"),
 and replays it with the bin model :func:`replay.pipeline.bin_model.bin_model_for` chooses: the
 ``--bin-model`` given, else the log's own attachment, else none, with one warning line.
 """

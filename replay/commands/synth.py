@@ -1,4 +1,4 @@
-"""``zcut synth -o LOG.mcap``: a synthetic bin-picking log with exact ground truth (SPEC §6)."""
+"""``zcut synth -o LOG.mcap``: a synthetic bin-picking log with exact ground truth (docs/cli.md)."""
 
 from __future__ import annotations
 

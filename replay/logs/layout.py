@@ -1,4 +1,4 @@
-"""The log layout's names (SPEC §5): topics zcut reads and writes, and its MCAP metadata records.
+"""The log layout's names (docs/formats.md): topics zcut reads and writes, and its MCAP metadata records.
 
 The one place these strings live; every reader, writer and command imports them from here.
 """
@@ -36,7 +36,7 @@ TRUTH_OUTLIER_KIND = "/ground_truth/outlier_kind"
 TRUTH_DEPTH = "/ground_truth/depth"
 TRUTH_DEPTH_ENCODING = "32FC1"
 
-#: ``/ground_truth/outlier_kind`` codes of the hand-made generator (SPEC §5); 0 = not an outlier.
+#: ``/ground_truth/outlier_kind`` codes of the hand-made generator (docs/formats.md); 0 = not an outlier.
 HANDMADE_OUTLIER_KINDS: dict[int, str] = {
     1: "floating",   # a specular ghost separated from the surface below
     2: "spike_up",   # spike toward the camera

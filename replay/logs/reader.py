@@ -1,4 +1,4 @@
-"""Stream organized scans out of a ROS 2 MCAP log (SPEC §5).
+"""Stream organized scans out of a ROS 2 MCAP log (docs/formats.md).
 
 :class:`LogReader` opens a log, finds the topics zcut uses (the organized ``PointCloud2``, a colour
 ``Image`` and a ``CameraInfo`` of the same size, and every ``mono8`` Image of that size as a mask)

@@ -1,13 +1,13 @@
 """Pipeline configuration: the stage parameters of :mod:`zcut.params`, nested in one
 :class:`PipelineConfig`, and the one function that resolves them for a log.
 
-Layers, later ones win: built-in defaults (the paper's nominal z-cut parameters, SPEC §1) < the
+Layers, later ones win: built-in defaults (the paper's nominal z-cut parameters, docs/filters.md) < the
 TOML file (``--config``) < command-line overrides (``--step`` ...). Every layer is a nested dict
 with the TOML file's keys; unknown keys are errors. :func:`resolve_config` is the one place where
 derived values are filled in (the z-cut's area threshold μ_thr = ρ_thr · a_max, a_max from the
 part's geometry and the camera, the §5.4 geometry-derived Δd and d_max when asked for); every
 command calls it, so that ``zcut replay``, ``accuracy``, ``annotate``, ``sweep`` and ``batch`` run
-the same filter on a log (SPEC §4, "Same filter everywhere"). Its result is written next to every
+the same filter on a log (docs/accuracy.md, "Same filter everywhere"). Its result is written next to every
 output (:func:`to_toml`) and logged to Rerun as a document, with notes saying where each derived
 value came from.
 

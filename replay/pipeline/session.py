@@ -241,7 +241,7 @@ def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Iterator[Frame]:
 def open_log(path: Path, *, file_layer: dict[str, Any] | None = None, overrides: dict[str, Any] | None = None,
              topic: str | None = None, reader_options: dict[str, Any] | None = None,
              resolved: cfg.Resolved | None = None):
-    """Open a log, read its first readable frame and resolve its config (SPEC §4: the one place a
+    """Open a log, read its first readable frame and resolve its config (docs/accuracy.md: the one place a
     log's parameters come from; :meth:`ReplaySession.open` and the study planner both call it).
 
     ``resolved``: the config already resolved for this log (a study's worker gets the driver's):

@@ -4,7 +4,7 @@ A sink is told once that the replay starts (:meth:`FrameSink.start`, with the re
 its notes), then gets every frame with its result (:meth:`FrameSink.write`) in frame order, then
 :meth:`FrameSink.close` (``completed=False`` when the replay failed: a file sink then leaves no
 output behind). :class:`NullSink` does nothing; :class:`RerunSink` logs every stage to Rerun (a
-file, a spawned viewer or a running one); :class:`ResultsSink` writes the SPEC §5 results MCAP.
+file, a spawned viewer or a running one); :class:`ResultsSink` writes the docs/formats.md results MCAP.
 :class:`BackgroundSinks` runs a list of sinks in one worker thread, at most one frame behind the
 pipeline, so that writing frame k overlaps computing frame k + 1 (threading lives here and in the
 session's frame prefetcher, nowhere else).
@@ -292,7 +292,7 @@ class RerunSink:
 
 
 class ResultsSink:
-    """The results MCAP (SPEC §5): ``/zcut/outliers``, ``/zcut/sor_outliers``, ``/zcut/methods/NAME``
+    """The results MCAP (docs/formats.md): ``/zcut/outliers``, ``/zcut/sor_outliers``, ``/zcut/methods/NAME``
     (every other base method the config runs), ``/zcut/bin_mask``, ``/zcut/filtered``, with the
     source's image, camera info and masks (ground truth) passed through.
 
@@ -345,7 +345,7 @@ class ResultsSink:
                 w.write_mask(topic, mask, **kw)
         for topic, codes in frame.codes.items():
             w.write_codes(topic, codes, **kw)
-        if result.removal is not None:  # the scored region of `zcut accuracy` (SPEC §4 "zone")
+        if result.removal is not None:  # the scored region of `zcut accuracy` (docs/accuracy.md "zone")
             w.write_mask(layout.ZONE, result.zone | result.easy_outliers, **kw)
 
     def close(self, *, completed: bool) -> None:

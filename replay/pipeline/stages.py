@@ -5,7 +5,7 @@ z-cut clusters and outliers on the remaining zone -> SOR on the same zone -> α,
 
 With no RGB image, no bin model, or no bin found in the image, the bin stages are skipped (a
 warning is recorded in the result) and the z-cut runs on the whole frame: then
-``result.zcut_outliers == zcut.zcut_outliers(-1000 * z, ...)`` exactly (SPEC §5).
+``result.zcut_outliers == zcut.zcut_outliers(-1000 * z, ...)`` exactly (docs/formats.md).
 """
 
 from __future__ import annotations
@@ -251,7 +251,7 @@ def sor_region(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams) -> np.
 
     The zone's pixels at or above the z-cut's lowest cut: height ≥ z_max − K·Δd, with z_max the
     highest valid height and K = floor(d_max / Δd + 1e-9), computed as the z-cut computes its
-    thresholds (SPEC §1). SOR and the z-cut then judge the same top portion of the data.
+    thresholds (docs/filters.md). SOR and the z-cut then judge the same top portion of the data.
     """
     h = np.where(zone, height_mm, np.nan)
     finite = np.isfinite(height_mm)

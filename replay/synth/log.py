@@ -1,9 +1,9 @@
-"""Synthetic logs in the SPEC §5 layout, and the bundled sample the demo replays.
+"""Synthetic logs in the docs/formats.md layout, and the bundled sample the demo replays.
 
 A synthetic log holds, per frame and all with the same header stamp: the organized cloud with
 ``rgba`` on ``/camera/points``, the colour image on ``/camera/image``, ``/camera/camera_info``, the
 exact outliers on ``/ground_truth/outliers`` (mono8, 255 = outlier) and their kinds on
-``/ground_truth/outlier_kind`` (mono8, SPEC §5 codes). The MCAP metadata record ``zcut.synth``
+``/ground_truth/outlier_kind`` (mono8, docs/formats.md codes). The MCAP metadata record ``zcut.synth``
 describes how it was made (part kind, seed, finish, camera distance, bin geometry, size, ...), and
 ``zcut.synth.poses`` holds every frame's true bin pose (:func:`true_poses` reads it back). The log
 carries the generator's exact bin model as its ``bin_model.ply`` attachment

@@ -1,6 +1,6 @@
 """Sensor errors with exact ground truth, applied to a rendered depth image (camera z, millimetres).
 
-Kinds of true outliers, with the codes of ``/ground_truth/outlier_kind`` (SPEC §5,
+Kinds of true outliers, with the codes of ``/ground_truth/outlier_kind`` (docs/formats.md,
 :data:`replay.logs.layout.OUTLIER_KINDS`):
 
 - ``OUTLIER_FLOATING`` (1): multipath / specular ghosts, ragged patches of one to thousands of

@@ -110,7 +110,7 @@ class SynthFrame:
     truth : (H, W) bool ndarray
         Exact outliers (every one a finite point).
     outlier_kind : (H, W) uint8 ndarray
-        Code of each true outlier (``OUTLIER_*``, SPEC §5: 1 floating, 2 spike up, 3 spike down,
+        Code of each true outlier (``OUTLIER_*``, docs/formats.md: 1 floating, 2 spike up, 3 spike down,
         4 flying, 5 above the rim), 0 elsewhere; nonzero exactly where ``truth`` is set. Written
         to ``/ground_truth/outlier_kind``.
     cluster_id : (H, W) int32 ndarray

@@ -1,4 +1,4 @@
-"""``zcut sweep LOG… -o DIR``: a parameter study of the z-cut and SOR scored by true accuracy (SPEC §6).
+"""``zcut sweep LOG… -o DIR``: a parameter study of the z-cut and SOR scored by true accuracy (docs/studies.md).
 
 Writes ``DIR/sweep.parquet`` (one row per log × frame × parameter set × method), ``DIR/summary.json``
 (pooled figures per set with 95 % intervals, the paper's relative figures, the tuned and the chosen

@@ -1,4 +1,4 @@
-"""annotate.accuracy: the SPEC §4 report on a frame counted by hand."""
+"""annotate.accuracy: the docs/accuracy.md report on a frame counted by hand."""
 
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ SOR = _mask(SHAPE, [(0, 1), (3, 5)])
 
 # Hand counts: method -> (tp, fp, fn, precision, recall, iou, cluster_precision, cluster_recall,
 #                         singletons_precision, singletons_recall)
-# Clusters are components of >= 2 pixels, singletons the one-pixel ones (SPEC §4): true cluster A,
+# Clusters are components of >= 2 pixels, singletons the one-pixel ones (docs/accuracy.md): true cluster A,
 # true singleton B; z-cut: cluster {(0,0),(1,1)} (half in A: correct), singleton (2,3) (wrong);
 # SOR: singletons (0,1), (3,5) (both correct); union: cluster {(0,0),(0,1),(1,1)}, singletons (2,3), (3,5).
 HAND = {

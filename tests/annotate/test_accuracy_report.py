@@ -1,4 +1,4 @@
-"""annotate.accuracy: the SPEC §4 report with a scored region, kinds, intervals and unscored frames.
+"""annotate.accuracy: the docs/accuracy.md report with a scored region, kinds, intervals and unscored frames.
 
 Two small frames counted by hand (the z-cut, SOR, their union and intersection against the truth,
 over a region that leaves one true outlier out), the exact JSON object, the text table, bad input.

@@ -1,7 +1,7 @@
 """Obviously-correct SOR: all pairwise distances (O(n²), numpy only, small clouds) or, for the
 benchmark's full-size clouds, scipy's KD-tree with every candidate re-measured.
 
-The arithmetic is the one SPEC §2 and zcut.sor fix: squared distance ((dx² + dy²) + dz²) in
+The arithmetic is the one docs/filters.md and zcut.sor fix: squared distance ((dx² + dy²) + dz²) in
 float64 of query minus point, the m smallest summed in ascending order from 0.0, statistics summed
 sequentially (np.cumsum) over the valid pixels in row-major order.
 """
@@ -45,7 +45,7 @@ def mean_distances_kdtree(xyz: np.ndarray, *, k: int, convention: str) -> np.nda
 
     The valid points are deduplicated first (identical coordinates, identical distances). For
     every unique point, scipy finds the distance r of its m-th nearest unique point; every unique
-    point within r·(1 + 1e-9) (scipy's own rounding is far below that) is re-measured in the SPEC
+    point within r·(1 + 1e-9) (scipy's own rounding is far below that) is re-measured in the definition's
     arithmetic, repeated as often as it occurs, and the m smallest are summed.
     """
     from scipy.spatial import cKDTree
@@ -89,7 +89,7 @@ def _seq_sum(a: np.ndarray) -> float:
 def sor_outliers_reference(
     xyz: np.ndarray, *, k: int, std_ratio: float, convention: str, method: str = "brute"
 ) -> np.ndarray:
-    """(H, W) bool outlier mask of SPEC §2 by brute force (or ``method="kdtree"``)."""
+    """(H, W) bool outlier mask of docs/filters.md by brute force (or ``method="kdtree"``)."""
     valid = np.isfinite(xyz).all(axis=2)
     if int(valid.sum()) < k + 1:
         return np.zeros(valid.shape, dtype=bool)
@@ -98,7 +98,7 @@ def sor_outliers_reference(
 
 
 def outliers_from_mean_distances_reference(dbar: np.ndarray, *, k: int, std_ratio: float, convention: str) -> np.ndarray:
-    """(H, W) bool outlier mask of SPEC §2 from d̄ (NaN = invalid pixel)."""
+    """(H, W) bool outlier mask of docs/filters.md from d̄ (NaN = invalid pixel)."""
     valid = ~np.isnan(dbar)
     n = int(valid.sum())
     out = np.zeros(valid.shape, dtype=bool)

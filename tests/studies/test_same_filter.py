@@ -1,4 +1,4 @@
-"""SPEC §4 "Same filter everywhere": for one log, config file and overrides, `zcut replay`, `accuracy`,
+"""docs/accuracy.md "Same filter everywhere": for one log, config file and overrides, `zcut replay`, `accuracy`,
 `annotate`, `sweep` and `batch` resolve the same parameters and produce the same masks.
 
 Three kinds of log: a synthetic one (metadata and CameraInfo), real recorded PCDs (no metadata, no

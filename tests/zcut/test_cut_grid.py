@@ -22,7 +22,7 @@ AREAS = (0.5, 1.0, 1.5, 2.0, 3.0, 5.0, 12.0, 13.0, 40.0, math.inf)
 
 
 def explicit_counts(masks, truth, scored, within=None, plus=None) -> dict[str, np.ndarray]:
-    """SPEC §4 counts from the explicit masks: P = (mask & within) | plus, L = truth, S = scored."""
+    """docs/accuracy.md counts from the explicit masks: P = (mask & within) | plus, L = truth, S = scored."""
     n_d, n_a = len(masks), len(masks[0])
     out = {k: np.zeros((n_d, n_a), np.int64) for k in COUNT_KEYS}
     for i in range(n_d):

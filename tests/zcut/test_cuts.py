@@ -204,7 +204,7 @@ def test_nasty_cases(name: str, conn: int, kernel: str) -> None:
 
 
 def test_float32_is_upcast_before_the_comparison() -> None:
-    # SPEC §1: float32 heights are upcast, every threshold is computed and compared in float64
+    # docs/filters.md: float32 heights are upcast, every threshold is computed and compared in float64
     # (numpy 2 would compare a float32 array with a Python float in float32)
     z32 = np.array([[0.3, 0.1, 0.0]], np.float32)
     params = dict(step=0.1, max_depth=0.5, max_area=2)

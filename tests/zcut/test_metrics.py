@@ -1,4 +1,4 @@
-"""zcut.metrics: hand-computed relative metrics (SPEC §3), true accuracy and its intervals (SPEC §4), agreement."""
+"""zcut.metrics: hand-computed relative metrics (docs/accuracy.md), true accuracy and its intervals (docs/accuracy.md), agreement."""
 
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ def test_ratio(num: float, den: float, want: float) -> None:
 
 
 # ------------------------------------------------------------------------------------------------
-# SPEC §3
+# docs/accuracy.md
 # ------------------------------------------------------------------------------------------------
 def test_relative_metrics_by_hand() -> None:
     sor = draw(
@@ -119,7 +119,7 @@ def test_from_counts_matches_definitions() -> None:
 
 
 # ------------------------------------------------------------------------------------------------
-# SPEC §4
+# docs/accuracy.md
 # ------------------------------------------------------------------------------------------------
 LABELS = draw(
     ".XX.....",
@@ -423,7 +423,7 @@ def _components(mask: np.ndarray) -> list[list[tuple[int, int]]]:
 
 
 def _literal(p, lab, s, kind, n_kinds):
-    """SPEC §4 read literally, one pixel and one component at a time."""
+    """docs/accuracy.md read literally, one pixel and one component at a time."""
     h, w = p.shape
     px = [(r, c) for r in range(h) for c in range(w) if s[r, c]]
     tp = sum(1 for q in px if p[q] and lab[q])

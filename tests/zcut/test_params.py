@@ -20,7 +20,7 @@ def test_nominal_values_are_the_papers() -> None:
     p = ZCutParams.nominal(a_max=3000)
     assert (p.step, p.max_depth, p.a_max) == (0.2, 30.0, 3000.0)
     assert p.max_area == pytest.approx(210.0)
-    assert p.n_levels == 150  # 30 / 0.2 = 149.99999999999997: the 1e-9 of SPEC §1 makes it 150
+    assert p.n_levels == 150  # 30 / 0.2 = 149.99999999999997: the 1e-9 of docs/filters.md makes it 150
     assert p.rho_thr == pytest.approx(0.07)
 
 

@@ -1,4 +1,4 @@
-"""SPEC §6: outputs never replace inputs, --force, atomic writes; one-line errors for what a user can
+"""docs/cli.md: outputs never replace inputs, --force, atomic writes; one-line errors for what a user can
 cause; what a newcomer tripped over (issue 11)."""
 
 from __future__ import annotations

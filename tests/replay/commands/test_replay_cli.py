@@ -61,7 +61,7 @@ def test_replay_with_bin_model_writes_rrd_results_and_config(tmp_path, capsys, l
     # the resolved config is beside the outputs and reads back to the same values
     for p in (tmp_path / "r.config.toml", tmp_path / "res.config.toml"):
         assert tomllib.loads(p.read_text())["zcut"] == summary["config"]["zcut"]
-    # results: SPEC §5 topics, ground truth passed through, counts as in the summary
+    # results: docs/formats.md topics, ground truth passed through, counts as in the summary
     r = LogReader(res)
     assert {"/zcut/outliers", "/zcut/sor_outliers", "/zcut/bin_mask", "/ground_truth/outliers"} <= set(r.mask_topics)
     assert "/zcut/filtered" in r.topics

@@ -1,4 +1,4 @@
-"""Bounded resources and the exit-status contract (SPEC §6, issue 11): special files are refused
+"""Bounded resources and the exit-status contract (docs/cli.md, issue 11): special files are refused
 without blocking, decoded sizes are checked against the bytes present and the caps before any
 allocation, every lost frame is named in the stream's ``damage`` with the log's own index, and the
 log-level facts (intrinsics, first shape) do not depend on which frames survived."""

@@ -229,7 +229,7 @@ def test_hostile_messages(tmp_path, messages, where, match):
     if where == "open":
         with pytest.raises(LogFormatError, match="^h.mcap.*" + match):
             LogReader(p)
-    else:  # SPEC §6: the unreadable frame 1 is skipped and named, the stream goes on
+    else:  # docs/cli.md: the unreadable frame 1 is skipped and named, the stream goes on
         _raw_log(p, [*messages, ("/p", rm.POINTCLOUD2, _cloud(4, 5, stamp_ns=11))])
         damage, got = _read_all(p)
         assert [f.index for f in got] == [0, 2]
@@ -421,7 +421,7 @@ def test_rosbag2_per_message_zstd_compression(tmp_path):
     bad[-6] ^= 0xFF
     _raw_log(p, [("/p", rm.POINTCLOUD2, _cloud(4, 5)), ("/p", rm.POINTCLOUD2, bytes(bad))])
     damage, got = _read_all(p)
-    assert [f.index for f in got] == [0]  # SPEC §6: skipped and named, not the end of the run
+    assert [f.index for f in got] == [0]  # docs/cli.md: skipped and named, not the end of the run
     assert re.match(r"^frame 1 \(log time 0\.000000001\) skipped: msgz.mcap: topic /p, message 1: "
                     "zstd-compressed message", damage[0]), damage
 

@@ -177,7 +177,7 @@ def test_frame_without_colour_stays_without(tmp_path):
 
 
 def test_results_topics_of_spec(tmp_path, rng):
-    """The SPEC §5 result topics: masks as mono8 Images, /zcut/filtered as an organized cloud."""
+    """The docs/formats.md result topics: masks as mono8 Images, /zcut/filtered as an organized cloud."""
     xyz = rng.normal(size=(H, W, 3)).astype(np.float32)
     out = xyz.copy()
     out[rng.random((H, W)) < 0.3] = np.nan

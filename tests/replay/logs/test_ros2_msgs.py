@@ -1,4 +1,4 @@
-"""PointCloud2 / Image / CameraInfo codecs: every layout SPEC §5 allows, and malformed messages."""
+"""PointCloud2 / Image / CameraInfo codecs: every layout docs/formats.md allows, and malformed messages."""
 
 from __future__ import annotations
 

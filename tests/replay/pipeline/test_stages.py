@@ -1,4 +1,4 @@
-"""run_frame: every stage on one frame; the no-bin path equals the bare z-cut exactly (SPEC §5)."""
+"""run_frame: every stage on one frame; the no-bin path equals the bare z-cut exactly (docs/formats.md)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""replay.synth logs: SPEC §5 layout read back with LogReader and the mcap library, outlier kinds,
+"""replay.synth logs: docs/formats.md layout read back with LogReader and the mcap library, outlier kinds,
 true poses, same bytes per seed, CLI, demo sample."""
 
 from __future__ import annotations
