@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 PART_KIND_NAMES = ("spheres", "zinc_nuts", "rods", "black_screws", "black_nuts", "sprockets")
 
@@ -89,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
         with AtomicOutput(args.output) as out:
             write_synthetic_log(out.temp, kind=args.parts, frames=args.frames, seed=args.seed, size=(h, w),
                                 empty=args.empty, shiny=args.shiny, quantize_mm=args.quantize_mm, progress=progress,
-                                bin_shape=shape)
+                                bin_shape=shape, bag_name=Path(args.output).name)
         print(f"zcut: wrote {args.output} ({args.frames} frame(s), seed {args.seed})", file=sys.stderr)
         if args.bin_cad is not None:
             with AtomicOutput(args.bin_cad) as out:
@@ -120,6 +121,6 @@ def _run_raytraced(args: argparse.Namespace, what: str, progress) -> int:
 
     with AtomicOutput(args.output) as out:
         write_raytraced_log(out.temp, kind=args.parts, frames=args.frames, seed=args.seed, size=args.size,
-                            empty=args.empty, progress=rt_progress)
+                            empty=args.empty, progress=rt_progress, bag_name=Path(args.output).name)
     print(f"zcut: wrote {args.output} ({args.frames} frame(s), seed {args.seed}, ray-traced)", file=sys.stderr)
     return 0

@@ -84,6 +84,10 @@ class LogWriter:
         Target uncompressed chunk size in bytes (each big cloud gets a chunk of its own).
     zstd_level : int
         Chunk compression level (1: fast; rosbag2 uses a fast level too).
+    bag_name : str or None
+        The file name the ``rosbag2`` record names (``relative_file_paths``, ``files``); default the
+        name of ``path``. A caller writing into a temporary file that is renamed when complete passes
+        the final name, so that the log's bytes do not depend on the temporary one.
 
     Examples
     --------
@@ -99,8 +103,10 @@ class LogWriter:
         attachments: dict[str, tuple[str, bytes]] | None = None,
         chunk_size: int = 4 * 1024 * 1024,
         zstd_level: int = 1,
+        bag_name: str | None = None,
     ) -> None:
         self.path = Path(path)
+        self.bag_name = self.path.name if bag_name is None else str(bag_name)
         self._meta = {_text(k): {_text(a): _text(b) for a, b in v.items()} for k, v in (metadata or {}).items()}
         self._file = open(self.path, "wb")
         try:
@@ -309,9 +315,9 @@ class LogWriter:
             '  compression_format: ""',
             '  compression_mode: ""',
             "  relative_file_paths:",
-            f"    - {_text(self.path.name)}",
+            f"    - {_text(self.bag_name)}",
             "  files:",
-            f"    - path: {_text(self.path.name)}",
+            f"    - path: {_text(self.bag_name)}",
             "      starting_time:",
             f"        nanoseconds_since_epoch: {start}",
             "      duration:",

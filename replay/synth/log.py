@@ -3,7 +3,8 @@
 A synthetic log holds, per frame and all with the same header stamp: the organized cloud with
 ``rgba`` on ``/camera/points``, the colour image on ``/camera/image``, ``/camera/camera_info``, the
 exact outliers on ``/ground_truth/outliers`` (mono8, 255 = outlier) and their kinds on
-``/ground_truth/outlier_kind`` (mono8, docs/formats.md codes). The MCAP metadata record ``zcut.synth``
+``/ground_truth/outlier_kind`` (mono8, docs/formats.md codes), and the true depth on
+``/ground_truth/depth`` (32FC1, metres). The MCAP metadata record ``zcut.synth``
 describes how it was made (part kind, seed, finish, camera distance, bin geometry, size, ...), and
 ``zcut.synth.poses`` holds every frame's true bin pose (:func:`true_poses` reads it back). The log
 carries the generator's exact bin model as its ``bin_model.ply`` attachment
@@ -183,6 +184,7 @@ def write_synthetic_log(
     quantize_mm: float = 0.0,
     progress: ProgressFn | None = None,
     bin_shape: BinShape = BinShape(),
+    bag_name: str | None = None,
 ) -> Path:
     """Synthesise ``frames`` scans and write them as a ROS 2 MCAP log.
 
@@ -210,6 +212,10 @@ def write_synthetic_log(
         A bin that is not the nominal one (scaled, bulging, deforming from scan to scan), see
         :func:`replay.synth.synthesize.synthesize_frame`; the nominal bin is what
         :func:`write_bin_cad` writes.
+    bag_name : str or None
+        The file name the ``rosbag2`` record names (default: the name of ``path``); ``zcut synth``
+        passes the final name of the file it writes through a temporary one, so that the same
+        arguments give the same bytes.
 
     Returns
     -------
@@ -230,7 +236,7 @@ def write_synthetic_log(
     # the exact bin model travels with the log: replayed without --bin-model, it runs the bin stages
     model = {layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, bin_model_ply())}
     with LogWriter(path, metadata={layout.SYNTH_METADATA: meta, layout.SYNTH_POSES_METADATA: poses},
-                   attachments=model) as writer:
+                   attachments=model, bag_name=bag_name) as writer:
         for i in range(int(frames)):
             t0 = time.perf_counter()
             sf = synthesize_frame(kind=kind, seed=seed, index=i, size=size, shiny=shiny, empty=empty, quantize_mm=q,

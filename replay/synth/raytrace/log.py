@@ -65,10 +65,13 @@ def write_raytraced_log(
     fill_mm: float | None = None,
     model: SensorModel | None = None,
     progress: ProgressFn | None = None,
+    bag_name: str | None = None,
 ) -> Path:
     """Ray-trace ``frames`` scans and write them as a ROS 2 MCAP log (see ``replay.synth.write_synthetic_log``).
 
-    ``fill_mm``: mean pile height (default: drawn per frame from ``FILL_RANGE_MM``).
+    ``fill_mm``: mean pile height (default: drawn per frame from ``FILL_RANGE_MM``). ``bag_name``:
+    the file name the ``rosbag2`` record names (default: the name of ``path``; ``zcut synth``
+    passes the final name of the file it writes through a temporary one).
     """
     if not empty and kind not in PART_KINDS:
         raise ParameterError(f"kind must be one of {', '.join(PART_KINDS)}, got {kind!r}")
@@ -83,7 +86,7 @@ def write_raytraced_log(
     # the exact bin model travels with the log (docs/formats.md, "Bin model attachment")
     attached = {layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, bin_model_ply())}
     with LogWriter(path, metadata={layout.SYNTH_METADATA: meta, layout.SYNTH_POSES_METADATA: poses},
-                   attachments=attached) as writer:
+                   attachments=attached, bag_name=bag_name) as writer:
         for i in range(int(frames)):
             t0 = time.perf_counter()
             rf = synthesize_raytraced_frame(kind=kind, seed=seed, index=i, size=size, empty=empty,

@@ -212,6 +212,28 @@ def test_cli_synth(tmp_path, capsys):
     assert "--frames must be at least 1" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("sensor, extra", [("handmade", ()), ("raytraced", ("--empty",))])
+def test_cli_synth_same_seed_same_bytes(tmp_path, capsys, sensor, extra):
+    """Through the command (it writes a temporary file and renames it): two runs with the same
+    arguments give the same bytes, and the rosbag2 record names the final file, not the temporary."""
+    runs = []
+    for d in ("a", "b"):
+        (tmp_path / d).mkdir()
+        out = tmp_path / d / "scan.mcap"
+        argv = ["synth", "-o", str(out), "--sensor", sensor, "--size", "64x40", "--seed", "4", *extra]
+        assert main(argv) == 0
+        runs.append(out.read_bytes())
+    assert runs[0] == runs[1]
+    # a third run over the first output (--force) gives the same bytes again
+    assert main(["synth", "-o", str(tmp_path / "a" / "scan.mcap"), "--sensor", sensor, "--size", "64x40",
+                 "--seed", "4", "--force", *extra]) == 0
+    assert (tmp_path / "a" / "scan.mcap").read_bytes() == runs[0]
+    capsys.readouterr()
+    bag = LogReader(tmp_path / "a" / "scan.mcap").metadata["rosbag2"]["serialized_metadata"]
+    assert "partial" not in bag
+    assert "relative_file_paths:\n    - scan.mcap\n" in bag and "    - path: scan.mcap\n" in bag
+
+
 def test_sample_log_is_made_once(tmp_path, monkeypatch):
     monkeypatch.setenv("ZCUT_CACHE", str(tmp_path / "cache"))
     path = sample_log_path()
