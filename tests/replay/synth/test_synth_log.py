@@ -29,6 +29,7 @@ from replay.synth import (
     write_synthetic_log,
 )
 from replay.synth.sensor import pixel_rays
+from replay.synth.truth_depth import read_truth_depth
 from zcut.binmask import bin_mask
 from zcut.errors import ParameterError
 
@@ -249,3 +250,7 @@ def test_sample_log_is_made_once(tmp_path, monkeypatch):
     assert reader.n_frames >= 2
     frames = list(reader.frames())
     assert all(f.masks[layout.TRUTH_OUTLIERS].sum() > 100 for f in frames)
+    # the cache file's name carries the version that added /ground_truth/depth: an older sample
+    # (without it) is never taken for this one
+    assert path.name.endswith(f"_v{GENERATOR_VERSION}.mcap") and int(GENERATOR_VERSION) >= 3
+    assert sorted(read_truth_depth(path)) == [f.stamp_ns for f in frames]
