@@ -43,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from replay.synth.raytrace import kernels
 from replay.synth.raytrace.materials import MIRROR_MIN
 from replay.synth.raytrace.scene import Hits, TracedScene
 from replay.synth.sensor import FULL_SIZE, PROJECTOR_BASELINE_MM, correlated_noise
@@ -189,7 +190,18 @@ class Phasors:
     def zeros(n_periods: int, shape: tuple[int, int]) -> Phasors:
         return Phasors(np.zeros((n_periods,) + shape, np.complex128), np.zeros(shape))
 
-    def add(self, flat_index: np.ndarray, intensity: np.ndarray, code: np.ndarray, periods: tuple[float, ...]) -> None:
+    def add(self, flat_index: np.ndarray, weight: np.ndarray, value: np.ndarray, code: np.ndarray,
+            periods: tuple[float, ...]) -> None:
+        """Add the paths of intensity ``weight * value`` and projector column ``code`` to the pixels
+        ``flat_index`` (repeats allowed): :meth:`add_reference` in a numba kernel, the same bits."""
+        kernels.bincount_phasors(
+            np.ascontiguousarray(flat_index, np.int64), np.ascontiguousarray(weight, np.float64),
+            np.ascontiguousarray(value, np.float64), np.ascontiguousarray(code, np.float64),
+            np.asarray(periods, np.float64), self.intensity.reshape(-1),
+            self.z.view(np.float64).reshape(self.z.shape[0], self.intensity.size, 2))
+
+    def add_reference(self, flat_index: np.ndarray, intensity: np.ndarray, code: np.ndarray,
+                      periods: tuple[float, ...]) -> None:
         """Add the paths ``(intensity, code)`` to the pixels ``flat_index`` (repeats allowed)."""
         n = self.intensity.size
         self.intensity.reshape(-1)[:] += np.bincount(flat_index, weights=intensity, minlength=n)
@@ -203,31 +215,12 @@ class Phasors:
         return Phasors(self.z + other.z, self.intensity + other.intensity)
 
 
-def brdf(mat: dict[str, np.ndarray], mid: np.ndarray, n: np.ndarray, wi: np.ndarray, wo: np.ndarray, *,
-         diffuse_only: bool = False) -> np.ndarray:
-    """Reflectance (1/sr) for light arriving from ``wi`` and leaving toward ``wo`` (unit vectors, (k, 3))."""
-    albedo = mat["albedo"][mid]
-    f = albedo / np.pi
-    if diffuse_only:
-        return f
-    spec = mat["specular"][mid]
-    a = mat["roughness"][mid]
-    cos_i = np.clip(np.einsum("kj,kj->k", n, wi), 1e-3, 1.0)
-    cos_o = np.clip(np.einsum("kj,kj->k", n, wo), 0.05, 1.0)
-    h = wi + wo
-    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
-    ch = np.clip(np.einsum("kj,kj->k", n, h), 1e-3, 1.0)
-    tan2 = (1.0 - ch * ch) / (ch * ch)
-    D = np.exp(-tan2 / (a * a)) / (np.pi * a * a * ch**4)
-    return f + spec * D / (4.0 * cos_i * cos_o)
-
-
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
 
 
-def direct_light(scene: TracedScene, model: SensorModel, hits: Hits, idx: np.ndarray, wo: np.ndarray, *,
-                 diffuse_only: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def direct_light(scene: TracedScene, model: SensorModel, hits: Hits, idx: np.ndarray, wo: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Projector light that the points ``hits[idx]`` send toward ``wo`` (unit, (k, 3)).
 
     Returns
@@ -237,34 +230,48 @@ def direct_light(scene: TracedScene, model: SensorModel, hits: Hits, idx: np.nda
     radiance : (k,) float64 ndarray
         Camera intensity per unit of path weight (0 where not ``keep``).
     code : (k,) float64 ndarray
-        Projector column of the point.
+        Projector column of the point (NaN where not ``keep``).
+    reflectance : (k,) float64 ndarray
+        The BRDF (1/sr) from the projector toward ``wo`` (NaN where not ``keep``): a Lambert term
+        ``albedo / π`` plus a Beckmann-like lobe ``spec D / (4 cos_i cos_o)``.
     """
-    p = hits.point[idx]
-    n = hits.normal[idx]
-    ng = hits.geo_normal[idx]
+    idx = np.ascontiguousarray(idx, np.int64)
+    k = idx.size
     proj = model.projector_origin
-    to_p = proj - p
-    d = np.linalg.norm(to_p, axis=1)
-    wi = to_p / d[:, None]
-    ok = model.in_projector(p) & (np.einsum("kj,kj->k", ng, wi) > 0) & (np.einsum("kj,kj->k", n, wi) > 0)
-    radiance = np.zeros(len(idx))
-    code = np.full(len(idx), np.nan)
-    if not ok.any():
-        return ok, radiance, code
+    f_px, b = float(model.projector_f_px), float(model.baseline_mm)
+    cx, cy = (float(c) for c in model.projector_c_px)
+    wi = np.empty((k, 3))
+    dist = np.empty(k)
+    ok = np.empty(k, bool)
+    kernels.direct_prepare(hits.point, hits.normal, hits.geo_normal, idx, proj, f_px, b, cx, cy,
+                           int(model.projector_size[0]), int(model.projector_size[1]), wi, dist, ok)
+    radiance = np.zeros(k)
+    code = np.full(k, np.nan)
+    reflectance = np.full(k, np.nan)
     sel = np.flatnonzero(ok)
+    if sel.size == 0:
+        return ok, radiance, code, reflectance
     # shadow: the projector's ray toward the point must reach it first
-    back = -wi[sel]
-    seen = scene.cast(np.broadcast_to(proj, back.shape), back)
-    lit = seen.t >= d[sel] - 0.05
-    sel = sel[lit]
+    rays = np.empty((sel.size, 6), np.float32)
+    kernels.shadow_rays(proj, wi, sel, rays)
+    t = scene.cast_t(rays).astype(np.float64)
+    sel = sel[t >= dist[sel] - 0.05]
     ok[:] = False
     ok[sel] = True
-    cos_i = np.einsum("kj,kj->k", n[sel], wi[sel])
-    E = cos_i * (REFERENCE_MM / d[sel]) ** 2
-    f = brdf(scene.mat, hits.material[idx][sel], n[sel], wi[sel], wo[sel], diffuse_only=diffuse_only)
-    radiance[sel] = EXPOSURE * E * f
-    code[sel] = model.code(p[sel])
-    return ok, radiance, code
+    m = sel.size
+    cos_i, irradiance, cos_o, ch, exponent, pa2, code_s = (np.empty(m) for _ in range(7))
+    wo = np.ascontiguousarray(wo, np.float64)
+    kernels.brdf_lobe(hits.point, hits.normal, hits.material, idx, sel, wi, dist, wo, scene.mat["roughness"], f_px,
+                      b, cx, REFERENCE_MM, cos_i, irradiance, cos_o, ch, exponent, pa2, code_s)
+    # numpy's own exp and power (SIMD) differ from the C library's in the last bit: these stay numpy
+    lobe = np.exp(exponent) / (pa2 * ch**4)
+    rad_s, f_s = np.empty(m), np.empty(m)
+    kernels.brdf_finish(hits.material, idx, sel, scene.mat["albedo"], scene.mat["specular"], lobe, cos_i, cos_o,
+                        irradiance, EXPOSURE, rad_s, f_s)
+    radiance[sel] = rad_s
+    code[sel] = code_s
+    reflectance[sel] = f_s
+    return ok, radiance, code, reflectance
 
 
 def _perturbed_reflection(d: np.ndarray, n: np.ndarray, roughness: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -303,15 +310,20 @@ class Received:
     specular_light: np.ndarray
 
 
-def pixel_directions(K: Intrinsics, du: float = 0.0, dv: float = 0.0) -> np.ndarray:
-    """(H*W, 3) unit ray directions through pixel centres shifted by (du, dv) pixels."""
+def pixel_coordinates(K: Intrinsics, du: float = 0.0, dv: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Normalized coordinates of the pixel centres shifted by (du, dv) pixels: per column, per row."""
     u = (np.arange(K.width) + du - K.cx) / K.fx
     v = (np.arange(K.height) + dv - K.cy) / K.fy
-    d = np.empty((K.height, K.width, 3))
-    d[..., 0] = u[None, :]
-    d[..., 1] = v[:, None]
-    d[..., 2] = 1.0
-    return _unit(d.reshape(-1, 3))
+    return u, v
+
+
+def pixel_directions(K: Intrinsics, du: float = 0.0, dv: float = 0.0, flat: np.ndarray | None = None) -> np.ndarray:
+    """(k, 3) unit ray directions through the pixels ``flat`` (row-major; None: all H*W) shifted by (du, dv)."""
+    u, v = pixel_coordinates(K, du, dv)
+    flat = np.arange(K.height * K.width) if flat is None else np.ascontiguousarray(flat, np.int64)
+    out = np.empty((flat.size, 3))
+    kernels.pixel_directions(u, v, flat, out)
+    return out
 
 
 def edge_pixels(depth_mm: np.ndarray, part: np.ndarray, label: np.ndarray, *, jump_mm: float = 1.5) -> np.ndarray:
@@ -332,7 +344,9 @@ def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.
     """Trace the light every camera pixel receives (steps 1-5 of the module docstring).
 
     Pixels at edges (:func:`edge_pixels`) get ``samples x samples`` sub-pixel rays, the others their
-    centre ray (they see one smooth surface: more rays would only average the same code).
+    centre ray (they see one smooth surface: more rays would only average the same code). The
+    per-ray arithmetic runs in numba kernels (:mod:`.kernels`); ``reference.trace_reference`` is the
+    same in numpy, and the two agree bit for bit.
     """
     H, W = K.height, K.width
     P = len(model.periods_px)
@@ -345,45 +359,38 @@ def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.
     centre = scene.cast(origin, d_centre)
     z_centre = np.where(centre.hit, centre.point[:, 2], np.inf).reshape(H, W)
     sub_depth = np.broadcast_to(z_centre.astype(np.float32), (S * S, H, W)).copy()
-    pix_list, dir_list, hit_list, w_list = [], [], [], []
     if S > 1:
+        # the centre rays of plain pixels, then S x S sub-pixel rays of every edge pixel, offset by offset
         edge = edge_pixels(z_centre, centre.part.reshape(H, W), centre.label.reshape(H, W)).ravel()
         plain = np.flatnonzero(~edge)
-        pix_list.append(plain)
-        dir_list.append(d_centre[plain])
-        hit_list.append(centre.take(plain))
-        w_list.append(np.ones(plain.size))
         e = np.flatnonzero(edge)
+        n_plain, n_e = plain.size, e.size
+        h0 = Hits.empty(n_plain + S * S * n_e)
+        for f in Hits.__slots__:
+            np.take(getattr(centre, f), plain, axis=0, out=getattr(h0, f)[:n_plain])
+        d = np.empty((n_plain + S * S * n_e, 3))
+        np.take(d_centre, plain, axis=0, out=d[:n_plain])
+        pix = np.concatenate([plain] + [e] * (S * S))
+        w_s = np.concatenate([np.ones(n_plain), np.full(S * S * n_e, 1.0 / (S * S))])
         offsets = [((i + 0.5) / S - 0.5, (j + 0.5) / S - 0.5) for j in range(S) for i in range(S)]
         for s, (du, dv) in enumerate(offsets):
-            d = pixel_directions(K, du, dv)[e]
-            hs = scene.cast(origin, d)
-            sub_depth[s].reshape(-1)[e] = np.where(hs.hit, hs.point[:, 2], np.inf)
-            pix_list.append(e)
-            dir_list.append(d)
-            hit_list.append(hs)
-            w_list.append(np.full(e.size, 1.0 / (S * S)))
+            at = n_plain + s * n_e
+            u, v = pixel_coordinates(K, du, dv)
+            kernels.pixel_directions(u, v, e, d[at:at + n_e])
+            scene.cast(origin, d[at:at + n_e], out=h0, at=at)
+            sub_depth[s].reshape(-1)[e] = np.where(np.isfinite(h0.t[at:at + n_e]), h0.point[at:at + n_e, 2], np.inf)
     else:
-        pix_list.append(np.arange(H * W))
-        dir_list.append(d_centre)
-        hit_list.append(centre)
-        w_list.append(np.ones(H * W))
-    pix = np.concatenate(pix_list)
-    d = np.concatenate(dir_list)
-    h0 = Hits.concat(hit_list)
-    w_s = np.concatenate(w_list)
-    del pix_list, dir_list, hit_list, w_list
+        h0, d, pix, w_s = centre, d_centre, np.arange(H * W), np.ones(H * W)
 
     idx = np.flatnonzero(h0.hit)
-    ok, rad, code = direct_light(scene, model, h0, idx, -d[idx])
+    ok, rad, code, refl = direct_light(scene, model, h0, idx, -d[idx])
     sel = idx[ok]
-    direct.add(pix[sel], w_s[sel] * rad[ok], code[ok], model.periods_px)
+    direct.add(pix[sel], w_s[sel], rad[ok], code[ok], model.periods_px)
     if sel.size:
         # the specular share of the direct light, for the 2-D image's highlights
-        wi = _unit(model.projector_origin - h0.point[sel])
-        lam = brdf(scene.mat, h0.material[sel], h0.normal[sel], wi, -d[sel], diffuse_only=True)
-        full = brdf(scene.mat, h0.material[sel], h0.normal[sel], wi, -d[sel])
-        np.add.at(spec_light, pix[sel], w_s[sel] * rad[ok] * (1.0 - lam / full))
+        share = np.empty(sel.size)
+        kernels.specular_share(h0.material[sel], scene.mat["albedo"], refl[ok], share)
+        kernels.add_at(spec_light, pix[sel], w_s[sel], rad[ok], share)
     # camera-side specular bounces
     cur_hits, cur_idx, cur_dir, cur_pix, weight = h0, idx, d[idx], pix[idx], w_s[idx]
     for _ in range(int(model.bounces)):
@@ -404,10 +411,10 @@ def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.
         k, r = k[got], r[got]
         weight_k = (weight * spec)[k]
         hit_idx = np.flatnonzero(got)
-        ok1, rad1, code1 = direct_light(scene, model, h1, hit_idx, -r)
+        ok1, rad1, code1, _ = direct_light(scene, model, h1, hit_idx, -r)
         px = cur_pix[k]
-        bounce.add(px[ok1], weight_k[ok1] * rad1[ok1], code1[ok1], model.periods_px)
-        np.add.at(spec_light, px[ok1], weight_k[ok1] * rad1[ok1])
+        bounce.add(px[ok1], weight_k[ok1], rad1[ok1], code1[ok1], model.periods_px)
+        kernels.add_at(spec_light, px[ok1], weight_k[ok1], rad1[ok1], np.ones(int(ok1.sum())))
         cur_hits, cur_idx, cur_dir, cur_pix, weight = h1, hit_idx, r, px, weight_k
     photons = _projector_bounces(scene, K, model, centre, rng)
     glare = _glare(direct.plus(bounce).plus(photons), K, model)
@@ -432,7 +439,7 @@ def _projector_bounces(scene: TracedScene, K: Intrinsics, model: SensorModel, ce
     cos3 = 1.0 / np.linalg.norm(d, axis=1) ** 3
     d = _unit(d)
     proj = model.projector_origin
-    q = scene.cast(np.broadcast_to(proj, d.shape), d)
+    q = scene.cast(proj, d)
     spec = np.where(q.hit, scene.mat["specular"][np.maximum(q.material, 0)], 0.0)
     k = np.flatnonzero(q.hit & (spec >= MIRROR_MIN))
     if k.size == 0:
@@ -464,7 +471,7 @@ def _projector_bounces(scene: TracedScene, K: Intrinsics, model: SensorModel, ce
     area = cos_ray * pt[:, 2] ** 2 / (K.fx * K.fy * np.maximum(cos_c, 0.05))
     radiance = scene.mat["albedo"][mid] / np.pi * phi / area
     code = uu[k]
-    out.add(flat[vis], (EXPOSURE * radiance)[vis], code[vis], model.periods_px)
+    out.add(flat[vis], np.ones(int(vis.sum())), (EXPOSURE * radiance)[vis], code[vis], model.periods_px)
     # density estimate: photons are sparse (a projector pixel covers ~3 camera pixels, and convex
     # mirrors spread them further); a kernel of PHOTON_SIGMA_PX (at 1920 across) turns them into
     # the smooth irradiance a rough mirror throws, instead of one-photon speckle

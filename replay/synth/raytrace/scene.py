@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from replay.presets import BIN, BinGeometry
+from replay.synth.raytrace import kernels
 from replay.synth.raytrace.materials import BIN_PLASTIC, PART_MATERIALS, TABLE, Material, material_table
 from replay.synth.raytrace.meshes import Mesh, bin_mesh, check_mesh, concatenate, part_mesh, table_mesh
 from replay.synth.raytrace.pile import Pile
@@ -64,6 +65,12 @@ class Hits:
                     self.label[idx], self.part[idx])
 
     @staticmethod
+    def empty(n: int) -> Hits:
+        """Room for the hits of ``n`` rays (to be filled by :meth:`TracedScene.cast`)."""
+        return Hits(np.empty(n), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int64),
+                    np.empty(n, np.uint8), np.empty(n, np.int32))
+
+    @staticmethod
     def concat(parts: list[Hits]) -> Hits:
         """One batch of the hits of ``parts``, in order."""
         return Hits(*(np.concatenate([getattr(h, f) for h in parts])
@@ -112,8 +119,46 @@ class TracedScene:
             o3d.core.Tensor(self.triangles.astype(np.uint32)),
         )
 
-    def cast(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
+    def _raw(self, rays: np.ndarray) -> dict:
+        import open3d as o3d
+
+        return self._scene.cast_rays(o3d.core.Tensor(rays))
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray, *, out: Hits | None = None, at: int = 0) -> Hits:
         """First hits of rays ``origins + t * directions`` (camera frame, mm; directions unit length).
+
+        Parameters
+        ----------
+        origins : (n, 3) or (3,) float ndarray
+        directions : (n, 3) float ndarray
+        out : Hits or None
+            Write the hits into ``out``'s rows ``at .. at + n`` (and return ``out``) instead of new arrays.
+        at : int
+        """
+        origins = np.ascontiguousarray(np.asarray(origins, np.float64).reshape(-1, 3))
+        directions = np.ascontiguousarray(directions, np.float64)
+        n = directions.shape[0]
+        rays = np.empty((n, 6), np.float32)
+        kernels.ray_array(origins, directions, rays)
+        res = self._raw(rays)
+        if out is None:
+            out = Hits.empty(n)
+            at = 0
+        sl = slice(at, at + n)
+        kernels.finish_hits(
+            res["t_hit"].numpy(), res["primitive_ids"].numpy(), res["primitive_uvs"].numpy(),
+            res["primitive_normals"].numpy(), origins, directions, self.normals, self.material_id, self.label,
+            self.part_id, out.t[sl], out.point[sl], out.normal[sl], out.geo_normal[sl], out.material[sl],
+            out.label[sl], out.part[sl],
+        )
+        return out
+
+    def cast_t(self, rays: np.ndarray) -> np.ndarray:
+        """Ray parameter of the first hit (float32; inf for a miss) of float32 ``rays`` (n, 6): origin, direction."""
+        return self._raw(rays)["t_hit"].numpy()
+
+    def cast_reference(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
+        """:meth:`cast` in whole-array numpy (the reference the numba kernel must equal bit for bit).
 
         Parameters
         ----------

@@ -1,0 +1,245 @@
+"""The ray tracer's literal numpy implementation: the reference the fast path must equal bit for bit.
+
+:func:`trace_reference` is the first version of :func:`replay.synth.raytrace.optics.trace`, written
+with whole-array numpy operations (every step as the module docstring of ``optics`` says, readable
+line by line). ``optics.trace`` does the same arithmetic ray by ray in numba kernels
+(:mod:`.kernels`); ``tests/replay/synth/test_raytrace.py`` checks that both give the same bits
+over frames of every part kind and several sensor settings. Keep them in step: a change of the
+physics goes into both.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from replay.synth.raytrace.materials import MIRROR_MIN
+from replay.synth.raytrace.optics import (
+    EXPOSURE,
+    PHOTON_SIGMA_PX,
+    REFERENCE_MM,
+    Phasors,
+    Received,
+    SensorModel,
+    _blurred,
+    _glare,
+    _perturbed_reflection,
+    _unit,
+    edge_pixels,
+)
+from replay.synth.raytrace.scene import Hits, TracedScene
+from replay.synth.sensor import FULL_SIZE
+from zcut.cloud import Intrinsics
+
+
+def pixel_directions_reference(K: Intrinsics, du: float = 0.0, dv: float = 0.0) -> np.ndarray:
+    """(H*W, 3) unit ray directions through pixel centres shifted by (du, dv) pixels."""
+    u = (np.arange(K.width) + du - K.cx) / K.fx
+    v = (np.arange(K.height) + dv - K.cy) / K.fy
+    d = np.empty((K.height, K.width, 3))
+    d[..., 0] = u[None, :]
+    d[..., 1] = v[:, None]
+    d[..., 2] = 1.0
+    return _unit(d.reshape(-1, 3))
+
+
+def brdf_reference(mat: dict[str, np.ndarray], mid: np.ndarray, n: np.ndarray, wi: np.ndarray, wo: np.ndarray, *,
+                   diffuse_only: bool = False) -> np.ndarray:
+    """Reflectance (1/sr) for light arriving from ``wi`` and leaving toward ``wo`` (unit vectors, (k, 3))."""
+    albedo = mat["albedo"][mid]
+    f = albedo / np.pi
+    if diffuse_only:
+        return f
+    spec = mat["specular"][mid]
+    a = mat["roughness"][mid]
+    cos_i = np.clip(np.einsum("kj,kj->k", n, wi), 1e-3, 1.0)
+    cos_o = np.clip(np.einsum("kj,kj->k", n, wo), 0.05, 1.0)
+    h = wi + wo
+    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
+    ch = np.clip(np.einsum("kj,kj->k", n, h), 1e-3, 1.0)
+    tan2 = (1.0 - ch * ch) / (ch * ch)
+    D = np.exp(-tan2 / (a * a)) / (np.pi * a * a * ch**4)
+    return f + spec * D / (4.0 * cos_i * cos_o)
+
+
+def direct_light_reference(scene: TracedScene, model: SensorModel, hits: Hits, idx: np.ndarray, wo: np.ndarray, *,
+                           diffuse_only: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Projector light that the points ``hits[idx]`` send toward ``wo`` (unit, (k, 3)).
+
+    Returns
+    -------
+    keep : (k,) bool ndarray
+        The projector lights the point (not in its shadow, inside its image, facing it).
+    radiance : (k,) float64 ndarray
+        Camera intensity per unit of path weight (0 where not ``keep``).
+    code : (k,) float64 ndarray
+        Projector column of the point.
+    """
+    p = hits.point[idx]
+    n = hits.normal[idx]
+    ng = hits.geo_normal[idx]
+    proj = model.projector_origin
+    to_p = proj - p
+    d = np.linalg.norm(to_p, axis=1)
+    wi = to_p / d[:, None]
+    ok = model.in_projector(p) & (np.einsum("kj,kj->k", ng, wi) > 0) & (np.einsum("kj,kj->k", n, wi) > 0)
+    radiance = np.zeros(len(idx))
+    code = np.full(len(idx), np.nan)
+    if not ok.any():
+        return ok, radiance, code
+    sel = np.flatnonzero(ok)
+    # shadow: the projector's ray toward the point must reach it first
+    back = -wi[sel]
+    seen = scene.cast_reference(np.broadcast_to(proj, back.shape), back)
+    lit = seen.t >= d[sel] - 0.05
+    sel = sel[lit]
+    ok[:] = False
+    ok[sel] = True
+    cos_i = np.einsum("kj,kj->k", n[sel], wi[sel])
+    E = cos_i * (REFERENCE_MM / d[sel]) ** 2
+    f = brdf_reference(scene.mat, hits.material[idx][sel], n[sel], wi[sel], wo[sel], diffuse_only=diffuse_only)
+    radiance[sel] = EXPOSURE * E * f
+    code[sel] = model.code(p[sel])
+    return ok, radiance, code
+
+
+def trace_reference(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.Generator) -> Received:
+    """``optics.trace`` in whole-array numpy (the reference; see the module docstring).
+
+    Pixels at edges (:func:`edge_pixels`) get ``samples x samples`` sub-pixel rays, the others their
+    centre ray (they see one smooth surface: more rays would only average the same code).
+    """
+    H, W = K.height, K.width
+    P = len(model.periods_px)
+    direct = Phasors.zeros(P, (H, W))
+    bounce = Phasors.zeros(P, (H, W))
+    spec_light = np.zeros(H * W)
+    S = int(model.samples)
+    origin = np.zeros(3)
+    d_centre = pixel_directions_reference(K)
+    centre = scene.cast_reference(origin, d_centre)
+    z_centre = np.where(centre.hit, centre.point[:, 2], np.inf).reshape(H, W)
+    sub_depth = np.broadcast_to(z_centre.astype(np.float32), (S * S, H, W)).copy()
+    pix_list, dir_list, hit_list, w_list = [], [], [], []
+    if S > 1:
+        edge = edge_pixels(z_centre, centre.part.reshape(H, W), centre.label.reshape(H, W)).ravel()
+        plain = np.flatnonzero(~edge)
+        pix_list.append(plain)
+        dir_list.append(d_centre[plain])
+        hit_list.append(centre.take(plain))
+        w_list.append(np.ones(plain.size))
+        e = np.flatnonzero(edge)
+        offsets = [((i + 0.5) / S - 0.5, (j + 0.5) / S - 0.5) for j in range(S) for i in range(S)]
+        for s, (du, dv) in enumerate(offsets):
+            d = pixel_directions_reference(K, du, dv)[e]
+            hs = scene.cast_reference(origin, d)
+            sub_depth[s].reshape(-1)[e] = np.where(hs.hit, hs.point[:, 2], np.inf)
+            pix_list.append(e)
+            dir_list.append(d)
+            hit_list.append(hs)
+            w_list.append(np.full(e.size, 1.0 / (S * S)))
+    else:
+        pix_list.append(np.arange(H * W))
+        dir_list.append(d_centre)
+        hit_list.append(centre)
+        w_list.append(np.ones(H * W))
+    pix = np.concatenate(pix_list)
+    d = np.concatenate(dir_list)
+    h0 = Hits.concat(hit_list)
+    w_s = np.concatenate(w_list)
+    del pix_list, dir_list, hit_list, w_list
+
+    idx = np.flatnonzero(h0.hit)
+    ok, rad, code = direct_light_reference(scene, model, h0, idx, -d[idx])
+    sel = idx[ok]
+    direct.add_reference(pix[sel], w_s[sel] * rad[ok], code[ok], model.periods_px)
+    if sel.size:
+        # the specular share of the direct light, for the 2-D image's highlights
+        wi = _unit(model.projector_origin - h0.point[sel])
+        lam = brdf_reference(scene.mat, h0.material[sel], h0.normal[sel], wi, -d[sel], diffuse_only=True)
+        full = brdf_reference(scene.mat, h0.material[sel], h0.normal[sel], wi, -d[sel])
+        np.add.at(spec_light, pix[sel], w_s[sel] * rad[ok] * (1.0 - lam / full))
+    # camera-side specular bounces
+    cur_hits, cur_idx, cur_dir, cur_pix, weight = h0, idx, d[idx], pix[idx], w_s[idx]
+    for _ in range(int(model.bounces)):
+        mids = cur_hits.material[cur_idx]
+        spec = scene.mat["specular"][mids]
+        k = np.flatnonzero(spec >= MIRROR_MIN)
+        if k.size == 0:
+            break
+        n = cur_hits.normal[cur_idx[k]]
+        ng = cur_hits.geo_normal[cur_idx[k]]
+        r = _perturbed_reflection(cur_dir[k], n, scene.mat["roughness"][mids[k]], rng)
+        up = np.einsum("kj,kj->k", ng, r) > 0
+        k, r, ng = k[up], r[up], ng[up]
+        h1 = scene.cast_reference(cur_hits.point[cur_idx[k]] + 0.01 * ng, r)
+        got = h1.hit
+        if not got.any():
+            break
+        k, r = k[got], r[got]
+        weight_k = (weight * spec)[k]
+        hit_idx = np.flatnonzero(got)
+        ok1, rad1, code1 = direct_light_reference(scene, model, h1, hit_idx, -r)
+        px = cur_pix[k]
+        bounce.add_reference(px[ok1], weight_k[ok1] * rad1[ok1], code1[ok1], model.periods_px)
+        np.add.at(spec_light, px[ok1], weight_k[ok1] * rad1[ok1])
+        cur_hits, cur_idx, cur_dir, cur_pix, weight = h1, hit_idx, r, px, weight_k
+    photons = _projector_bounces_reference(scene, K, model, centre, rng)
+    glare = _glare(direct.plus(bounce).plus(photons), K, model)
+    return Received(direct, bounce, photons, glare, sub_depth, centre, spec_light.reshape(H, W))
+
+
+def _projector_bounces_reference(scene: TracedScene, K: Intrinsics, model: SensorModel, centre: Hits,
+                                 rng: np.random.Generator) -> Phasors:
+    """Step 4: projector light mirrored by shiny surfaces onto what the camera sees (photon splats)."""
+    H, W = K.height, K.width
+    out = Phasors.zeros(len(model.periods_px), (H, W))
+    st = int(model.photon_stride)
+    if st == 0:
+        return out
+    wp, hp = model.projector_size
+    u = np.arange(0, wp, st, dtype=np.float64)
+    v = np.arange(0, hp, st, dtype=np.float64)
+    uu, vv = np.meshgrid(u, v)
+    uu, vv = uu.ravel(), vv.ravel()
+    f = model.projector_f_px
+    d = np.stack([(uu - model.projector_c_px[0]) / f, (vv - model.projector_c_px[1]) / f, np.ones_like(uu)], axis=1)
+    cos3 = 1.0 / np.linalg.norm(d, axis=1) ** 3
+    d = _unit(d)
+    proj = model.projector_origin
+    q = scene.cast_reference(np.broadcast_to(proj, d.shape), d)
+    spec = np.where(q.hit, scene.mat["specular"][np.maximum(q.material, 0)], 0.0)
+    k = np.flatnonzero(q.hit & (spec >= MIRROR_MIN))
+    if k.size == 0:
+        return out
+    r = _perturbed_reflection(d[k], q.normal[k], scene.mat["roughness"][q.material[k]], rng)
+    up = np.einsum("kj,kj->k", q.geo_normal[k], r) > 0
+    k, r = k[up], r[up]
+    p = scene.cast_reference(q.point[k] + 0.01 * q.geo_normal[k], r)
+    got = p.hit & (p.point[:, 2] > 1.0)
+    k, r = k[got], r[got]
+    pt = p.point[got]
+    n = p.normal[got]
+    mid = p.material[got]
+    # the pixel that sees P, and whether P is what it sees
+    col = np.rint(K.fx * pt[:, 0] / pt[:, 2] + K.cx).astype(np.int64)
+    row = np.rint(K.fy * pt[:, 1] / pt[:, 2] + K.cy).astype(np.int64)
+    inside = (col >= 0) & (col < W) & (row >= 0) & (row < H)
+    flat = np.where(inside, row * W + col, 0)
+    z_seen = np.where(centre.hit, centre.point[:, 2], np.inf)[flat]
+    view = -_unit(pt)
+    cos_c = np.einsum("kj,kj->k", n, view)
+    vis = inside & (np.abs(pt[:, 2] - z_seen) < 1.0 + 0.02 * pt[:, 2] / K.fx / np.maximum(cos_c, 0.05)) & (cos_c > 0.05)
+    if not vis.any():
+        return out
+    # flux of one projector pixel (irradiance 1 at REFERENCE_MM on a facing surface), mirrored,
+    # spread over the camera pixel's footprint on P, reflected diffusely toward the camera
+    phi = REFERENCE_MM**2 * cos3[k] * st * st / f**2 * scene.mat["specular"][q.material[k]]
+    cos_ray = 1.0 / np.linalg.norm(pt / pt[:, 2:3], axis=1)
+    area = cos_ray * pt[:, 2] ** 2 / (K.fx * K.fy * np.maximum(cos_c, 0.05))
+    radiance = scene.mat["albedo"][mid] / np.pi * phi / area
+    code = uu[k]
+    out.add_reference(flat[vis], (EXPOSURE * radiance)[vis], code[vis], model.periods_px)
+    # density estimate: photons are sparse (a projector pixel covers ~3 camera pixels, and convex
+    # mirrors spread them further); a kernel of PHOTON_SIGMA_PX (at 1920 across) turns them into
+    # the smooth irradiance a rough mirror throws, instead of one-photon speckle
+    return _blurred(out, PHOTON_SIGMA_PX * K.width / FULL_SIZE[1] + 0.5)
