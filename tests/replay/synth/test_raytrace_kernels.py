@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from replay.synth.raytrace import kernels, optics, reference
+from replay.synth.raytrace.materials import PART_MATERIALS, TABLE
+from replay.synth.raytrace.meshes import part_mesh
 from replay.synth.raytrace.optics import Phasors, SensorModel
 from replay.synth.raytrace.pile import drop_parts, part_count
 from replay.synth.raytrace.scene import Hits, TracedScene, build_scene
 from replay.synth.raytrace.synthesize import raytrace_rng
-from replay.synth.raytrace.meshes import part_mesh
-from replay.synth.raytrace.materials import PART_MATERIALS, TABLE
 from replay.synth.sensor import default_intrinsics
 from replay.synth.synthesize import bin_pose_for, frame_rng
 from zcut.cloud import Intrinsics
@@ -232,7 +232,7 @@ def test_add_at_and_specular_share_are_the_reference():
     assert (share[f == albedo[mat] / np.pi] == 0.0).all()
 
 
-def test_a_made_up_part_scene_matches(scenes):
+def test_a_made_up_part_scene_matches():
     """A part alone on nothing (most rays miss), lit head-on: the shiny material's highlight path."""
     mesh = part_mesh("spheres").transformed(np.eye(3), np.array([0.0, 0.0, 200.0]))
     scene = TracedScene([(mesh, PART_MATERIALS["spheres"], 1)])
