@@ -142,9 +142,9 @@ def prepare(d: Path, seeds: str, frames: int, size: str) -> tuple[dict, dict]:
         zcut("bin-model", empty, "-o", path, "--force")
     if not models["cad"].is_file():
         zcut("bin-model", "--model", cad, "-o", models["cad"], "--force")
-    for name, frames in (("2 scans", "0:2"), ("1 scan", "0:1")):
+    for name, scans in (("2 scans", "0:2"), ("1 scan", "0:1")):
         if not models[name].is_file():
-            zcut("bin-model", d / f"empty_{slug('scans')}.mcap", "--frames", frames, "-o", models[name], "--force")
+            zcut("bin-model", d / f"empty_{slug('scans')}.mcap", "--frames", scans, "-o", models[name], "--force")
     logs = {}
     for k, kind in enumerate(KINDS):
         p = d / f"{kind}_{SEEDS[seeds] + k}.mcap"
