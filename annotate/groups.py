@@ -69,8 +69,9 @@ class ReviewGroups:
     methods : tuple of str
         The methods whose bits the ``methods`` column holds.
     rise_mm : (H, W) float32 ndarray
-        How far each judged pixel stands above the surface continued from around it (the positive
-        surface residual, mm; 0 elsewhere): what the height-gap wand and the residual brush select by.
+        How far each judged pixel stands above the surface around it (mm; 0 where it does not): a
+        group pixel's gap to the local surface, elsewhere its positive surface residual. What the
+        height-gap wand and the residual brush select by.
     noise_mm, threshold_mm : float
         The frame's noise σ̂ and the suspects' residual threshold τ (mm).
     n_suspect_px : int
@@ -209,7 +210,9 @@ def review_groups(xyz: np.ndarray, rgb: np.ndarray | None, *, height_mm: np.ndar
     table = np.zeros((n, len(GROUP_COLUMNS)))
     features = np.full((n, len(FEATURES)), np.nan, np.float32)
     resid = np.asarray(res.residual_mm, np.float64)
-    rise = np.where(judged & np.isfinite(resid) & (resid > 0), resid, 0.0).astype(np.float32)
+    rise = np.where(judged & np.isfinite(resid) & (resid > 0), resid, 0.0)
+    in_group = (ids > 0) & np.isfinite(gap)
+    rise = np.where(in_group, np.maximum(gap, 0.0), rise).astype(np.float32)
     if n == 0:
         return ReviewGroups(ids, table, features, sources, methods, rise, float(res.noise_mm),
                             float(res.threshold_mm), int(res.mask.sum()))
