@@ -514,3 +514,68 @@ class Trainer:
                         "summary": m.summary(), "part": m.part, "held_out": m.held_out.as_dict(),
                         "frames": len(m.frames), "backend": m.backend, "confident": CONFIDENT,
                         "why_not": m.applies_to(self.part)}}
+
+
+# --------------------------------------------------------------------------- offline: a log's labels
+def frame_groups(frame, result, *, config) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(features, pixels, starts, group ids) of one replayed frame's review groups, as the page builds them."""
+    from annotate.groups import review_groups
+    from zcut.params import SuspectParams
+
+    valid = np.asarray(result.valid, bool)
+    g = review_groups(frame.xyz, frame.rgb, height_mm=np.asarray(result.height_mm, np.float64), valid=valid,
+                      zone=np.asarray(result.zone, bool) & valid,
+                      above_rim=np.asarray(result.easy_outliers, bool) & valid,
+                      outliers={k: np.asarray(v, bool) & valid for k, v in result.outliers.items()},
+                      params=SuspectParams(a_max=config.zcut.a_max))
+    pix, starts = g.pixels()
+    return g.features, pix, starts, g.ids
+
+
+def training_set_of_log(session, store, log, *, annotators: Sequence[str] | None = None,
+                        progress=None) -> TrainingSet:
+    """The labelled groups of a log: every frame some annotator labelled, replayed as the page would.
+
+    Parameters
+    ----------
+    session : replay.pipeline.session.ReplaySession
+        The log opened with the page's config (the groups depend on it).
+    store : annotate.store.LabelStore
+    log : annotate.store.LogRecord
+    annotators : sequence of str, optional
+        Default: every annotator of the log.
+    progress : callable, optional
+        ``progress(frame_index, n_groups)`` after each labelled frame.
+    """
+    from annotate.groups import group_targets
+
+    who = list(annotators) if annotators else store.annotators(log)
+    b = TrainingSetBuilder()
+    results = session.results()
+    try:
+        for frame, result in results:
+            rec = store.frame(log, topic=frame.topic, stamp_ns=frame.stamp_ns)
+            if rec is None:
+                continue
+            labs = [(a, store.label(rec, annotator=a)) for a in who]
+            labs = [(a, lab) for a, lab in labs if lab is not None]
+            if not labs:
+                continue
+            feats, pix, starts, _ = frame_groups(frame, result, config=session.config)
+            b.add((frame.topic, frame.stamp_ns), feats,
+                  [(a, *group_targets(pix, starts, lab.outliers, lab.reviewed)) for a, lab in labs])
+            if progress is not None:
+                progress(frame.index, feats.shape[0])
+    finally:
+        results.close()
+    return b.build()
+
+
+def learned_mask(model: Model, frame, result, *, config) -> np.ndarray:
+    """(H, W) bool: the ``learned`` method's outliers on a frame — the pixels of the review groups the
+    model proposes as outliers (``p >= 0.5``)."""
+    feats, _, _, ids = frame_groups(frame, result, config=config)
+    if feats.shape[0] == 0:
+        return np.zeros(ids.shape, bool)
+    out = np.concatenate(([False], model.predict(feats) >= 0.5))
+    return out[ids]

@@ -254,7 +254,7 @@ function refreshList(fd, keepSel = true, render = true) {
 
 function gapText(gap) {  // a gap to the surface: above (toward the camera) or below it
   if (isNaN(gap)) return 'gap ?';
-  return gap >= 0 ? `${gap.toFixed(2)} mm above` : `${(-gap).toFixed(2)} mm below`;
+  return gap >= 0 ? `${gap.toFixed(1)} mm up` : `${(-gap).toFixed(1)} mm down`;
 }
 function renderList() {
   const fd = state.cur, box = $('candlist');
@@ -274,7 +274,7 @@ function renderList() {
     const prop = isNaN(p) ? '' : `${p >= 0.5 ? 'out' : 'in'} ${Math.round(100 * Math.max(p, 1 - p))} %`;
     const why = e.src === 'L' ? 'painted' : e.source + (e.also.length ? ` +${e.also.join(',')}` : '');
     row.title = e.src === 'L' ? 'labelled by hand, no group covers it' :
-      `${e.source}: ${e.n} px, median gap ${gapText(e.gap)} the local surface` + (e.also.length ? `; also flagged by ${e.also.join(', ')}` : '');
+      `${e.source}: ${e.n} px, median gap to the local surface ${isNaN(e.gap) ? 'unknown' : e.gap >= 0 ? e.gap.toFixed(2) + ' mm above it' : (-e.gap).toFixed(2) + ' mm below it'}` + (e.also.length ? `; also flagged by ${e.also.join(', ')}` : '');
     row.innerHTML = `<span class="src ${e.src}">${why}</span><span>${e.n} px</span><span>${gapText(e.gap)}</span>` +
       `<span class="agree${conf ? ' conf' : ''}">${prop}</span><span class="st">${
         states[k] === 'accepted' ? 'outlier' : states[k] === 'rejected' ? 'not outlier' : '·'}</span>`;
@@ -1475,7 +1475,14 @@ window.zcut.state = () => {
 window.zcut.entries = () => {
   const fd = state.cur; if (!fd) return [];
   return fd.entries.map((e, k) => ({ src: e.src, id: e.id, n: e.n, cx: e.cx, cy: e.cy, gap: e.gap, both: e.both,
+                                     source: e.source, also: e.also, p: propP(fd, e), confident: !!confident(fd, e),
                                      state: (fd.states || [])[k] }));
+};
+window.zcut.proposals = () => {
+  const fd = state.cur; if (!fd || !fd.prop) return null;
+  const { out, inl } = proposalPlan(fd);
+  return { version: fd.prop.version, prefill: fd.prop.prefill, why_not: fd.prop.why_not, message: fd.prop.message,
+           n: fd.prop.p.length, out: out.map((e) => e.id), inl: inl.map((e) => e.id), model: fd.prop.model };
 };
 window.zcut.readout = () => $('readout').textContent;
 window.zcut.unsaved = () => [...loaded.values()].filter((fd) => fd.dirty || fd.saving || fd.conflict).map((fd) => fd.index);
