@@ -104,12 +104,13 @@ function renderOverlaySparse(ov32, f, lab, valid, sIds, zIdx, sIdx, sSize, gIdx)
   // ov32 is a fresh (all 0) buffer
   const { L, R } = lab;
   if (lab.shade) for (let i = 0; i < ov32.length; i++) if (valid[i] && !R[i]) ov32[i] = COL_UNREV;
-  if (f.showG) for (let k = 0; k < gIdx.length; k++) { const i = gIdx[k]; ov32[i] = R[i] ? COL_GR : COL_G; }
   if (f.showS) for (let k = 0; k < sIdx.length; k++) { const i = sIdx[k]; if (sSize[sIds[i]] >= f.sorMin) ov32[i] = COL_S; }
   if (f.showZ) for (let k = 0; k < zIdx.length; k++) {
     const i = zIdx[k];
     ov32[i] = (f.showS && sIds[i] !== 0 && sSize[sIds[i]] >= f.sorMin) ? COL_ZS : COL_Z;
   }
+  // a review group's pixels show as the group over the z-cut and SOR colours (as renderOverlay draws them)
+  if (f.showG) for (let k = 0; k < gIdx.length; k++) { const i = gIdx[k]; ov32[i] = R[i] ? COL_GR : COL_G; }
   if (f.showL && lab.hasL) for (let i = 0; i < L.length; i++) if (L[i]) ov32[i] = COL_L;
 }
 
