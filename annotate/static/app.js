@@ -1262,6 +1262,11 @@ function restorePending(fd) {  // a frame's edits kept in the browser come back 
     const b = JSON.parse(raw), n = fd.W * fd.H;
     const L = decodeRuns(b.outliers_runs, n), U = decodeRuns(b.unreviewed_runs, n);
     if (!L || !U || b.width !== fd.W || b.height !== fd.H) return;
+    if (fd.rev > b.base_revision) {  // the store moved on: if it holds exactly the kept edit, that edit arrived
+      let same = true;  // (e.g. sent as the page went away, its acknowledgement lost with the page)
+      for (let i = 0; i < n && same; i++) same = fd.L[i] === L[i] && fd.R[i] === (fd.valid[i] && !U[i] ? 1 : 0);
+      if (same) { localStorage.removeItem(pendingKey(fd.index)); return; }
+    }
     fd.L.set(L); for (let i = 0; i < n; i++) fd.R[i] = fd.valid[i] && !U[i] ? 1 : 0;
     fd.committedL.set(fd.L); fd.committedR.set(fd.R);
     fd.rev = b.base_revision; fd.dirty = true; countR(fd);
