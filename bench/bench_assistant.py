@@ -10,7 +10,7 @@ trained with whole frames held out (leave one frame out) and scored on them; CPU
 measured in the same run, with the format each library stores its model in. XGBoost and scikit-learn
 are not zcut's dependencies: a library that is not installed is listed as such.
 
-    .venv/bin/python bench/bench_assistant.py [--work DIR] [--kinds zinc_nuts,black_nuts] [--seeds 41] [--frames 3]
+    .venv/bin/python bench/bench_assistant.py [--work DIR] [--kinds zinc_nuts,black_nuts] [--seeds 41,43] [--frames 3]
 """
 
 from __future__ import annotations
@@ -81,7 +81,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, default=Path("/tmp/zcut_bench_assistant"))
     ap.add_argument("--kinds", default="zinc_nuts,black_nuts")
-    ap.add_argument("--seeds", default="41")
+    ap.add_argument("--seeds", default="41,43")
     ap.add_argument("--frames", type=int, default=3)
     args = ap.parse_args()
     from annotate.assistant import fit_booster

@@ -733,11 +733,15 @@ function drawMarkers(fd) {
     const st = states[k] || 'undecided';
     ctx.strokeStyle = st === 'undecided' ? COL[e.src] : COL[st];
     ctx.lineWidth = k === state.sel ? 3 : 1.5;
+    // a merged group's pixels scattered over a wide box: its box faint unless selected (its pixels are drawn)
+    const sparse = big && k !== state.sel && e.n < 0.02 * Math.max(1, (e.x1 - e.x0) * (e.y1 - e.y0));
+    if (sparse) { ctx.globalAlpha = 0.3; ctx.lineWidth = 1; }
     if (st === 'rejected') ctx.setLineDash([3, 3]);
     ctx.beginPath();
     if (big) ctx.rect(p0.x - 3, p0.y - 3, p1.x - p0.x + 6, p1.y - p0.y + 6); else ctx.arc(c.x, c.y, r, 0, 2 * Math.PI);
     ctx.stroke();
     ctx.setLineDash([]);
+    ctx.globalAlpha = 1;
     if (e.src === 'z' && !big && st === 'undecided') {  // a z-cut candidate: a dot in its ring as well
       ctx.fillStyle = COL.z; ctx.beginPath(); ctx.arc(c.x, c.y, 2.5, 0, 2 * Math.PI); ctx.fill();
     }
