@@ -211,7 +211,9 @@ class HeldOut:
     confident_accuracy: float
 
     def as_dict(self) -> dict:
-        f = (lambda v: None if not np.isfinite(v) else round(float(v), 4))
+        def f(v: float) -> float | None:
+            return None if not np.isfinite(v) else round(float(v), 4)
+
         return {"frames": self.frames, "groups": self.groups, "accuracy": f(self.accuracy),
                 "confident": self.confident, "confident_accuracy": f(self.confident_accuracy)}
 

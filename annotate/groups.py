@@ -187,7 +187,6 @@ def review_groups(xyz: np.ndarray, rgb: np.ndarray | None, *, height_mm: np.ndar
     """
     H, W = valid.shape
     res = suspects(xyz, height_mm, zone, above_rim, params=params)
-    n_s = res.n_groups
     ids = res.groups.astype(np.int32).copy()
     methods = tuple(outliers)
     sources = tuple(DETECTORS) + methods

@@ -89,7 +89,7 @@ def main() -> int:
     data = frames_of(args.work, args.kinds.split(","), [int(s) for s in args.seeds.split(",")], args.frames)
     n_groups = sum(len(y) for *_, y in data)
     print(f"{len(data)} frames, {n_groups} groups, {sum(int(y.sum()) for *_, y in data)} outliers")
-    print(f"| library | held-out accuracy | log loss | fit CPU s | predict CPU ms per frame | stored as |")
+    print("| library | held-out accuracy | log loss | fit CPU s | predict CPU ms per frame | stored as |")
     print("|---|---|---|---|---|---|")
     for backend in BACKENDS:
         try:

@@ -65,7 +65,7 @@ def make_inputs(work: Path, frames: int) -> tuple[dict[str, Path], Path]:
 def start(log: Path, db: Path, ply: Path):
     import re
 
-    cmd = [sys.executable, "-m", "replay.cli", "annotate", str(log), "--db", str(db), "--port", "0", "--no-browser",
+    cmd = [sys.executable, "-m", "cli", "annotate", str(log), "--db", str(db), "--port", "0", "--no-browser",
            "--annotator", "bench", "--bin-model", str(ply)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     for line in proc.stdout:

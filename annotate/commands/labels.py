@@ -42,8 +42,8 @@ def train(args: argparse.Namespace) -> int:
     """``zcut labels train``: replay the labelled frames, fit the assistant, store it, print its figures."""
     import sys
 
-    from annotate.assistant import training_set_of_log
     from annotate.assistant import train as fit
+    from annotate.assistant import training_set_of_log
     from annotate.store import LabelStore, StoreError, file_sha256
     from replay.commands.common import open_session, overrides_of
 
