@@ -31,6 +31,7 @@ import numpy as np
 
 from annotate.payload import ServedFrame, prepare_frame
 from annotate.store import FrameRecord, LabelStore, LogRecord
+from zcut.params import SuspectParams
 
 if TYPE_CHECKING:
     from replay.logs.frame import Frame
@@ -96,6 +97,10 @@ class Catalogue:
         The prepared frames and their store records, by frame index.
     done, error : bool, str or None
         Preparation ended (and why, when it failed: the frames prepared so far stay usable).
+    suspect_params : SuspectParams
+        The review groups' suspect detectors (:mod:`annotate.groups`), with the config's a_max.
+    part : str or None
+        The part kind the config names.
     """
 
     results: Results
@@ -108,6 +113,8 @@ class Catalogue:
     done: bool = False
     error: str | None = None
     seconds_per_frame: float = 1.0
+    suspect_params: SuspectParams = field(default_factory=SuspectParams)
+    part: str | None = None
     _cond: threading.Condition = field(default_factory=threading.Condition)
     _thread: threading.Thread | None = None
     _stop: threading.Event = field(default_factory=threading.Event)
@@ -117,8 +124,10 @@ class Catalogue:
     def of_replay(cls, replay: ReplaySession, store: LabelStore, log: LogRecord) -> Catalogue:
         """The catalogue of a log opened for replay (not started; its points spill to a new temporary
         directory)."""
+        config = replay.config
         return cls(results=replay.results, store=store, log=log, geometry=GeometrySpill(),
-                   total_hint=replay.reader.n_frames)
+                   total_hint=replay.reader.n_frames, suspect_params=SuspectParams(a_max=config.zcut.a_max),
+                   part=config.part)
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="zcut-annotate-prepare", daemon=True)
@@ -159,7 +168,7 @@ class Catalogue:
 
     def _prepare(self, frame: Frame, result: FrameResult) -> tuple[ServedFrame, FrameRecord]:
         """The page's payloads of one frame, its points spilled, the frame registered in the store."""
-        pf = prepare_frame(frame, result)
+        pf = prepare_frame(frame, result, suspect_params=self.suspect_params, part=self.part)
         sf = pf.served
         self.geometry.put(sf.index, pf.geometry)
         rec = self.store.add_frame(

@@ -30,7 +30,13 @@ stages ran: the pixels the filters judge) and ``candidates``, the table of :data
 (named in the header's ``candidate_columns``; one row per z-cut cluster and per SOR cluster of at
 least :data:`SOR_LIST_MIN_PX` pixels, at most :data:`SOR_LIST_MAX` of them, the largest). Its
 header also carries ``height_lo_mm`` and ``height_hi_mm``, the heights that the colour map's first
-and last colours stand for.
+and last colours stand for. The review groups (:mod:`annotate.groups`: what the page lists, one
+decision each) are ``groups`` (sparse ids), ``group_table`` (:data:`annotate.groups.GROUP_COLUMNS`,
+named in ``group_columns``; ``group_sources``, ``methods`` and ``detectors`` name what its
+``source``, ``methods`` and ``detectors`` columns index) and ``rise`` (sparse uint8: how far a pixel
+stands above the surface around it, in :data:`RISE_STEP_MM` steps — what the wand and the residual
+brush select by). ``bin_stages`` says whether the bin stages ran (the frame's ``warnings`` say why
+not).
 
 A *view* (``GET /api/frames/{i}/view``) is everything the page needs to show a frame in one
 response: ``uint32 n`` | ``n`` bytes of JSON ``{"parts": [[name, offset, length], ...]}`` | parts
@@ -47,14 +53,17 @@ from __future__ import annotations
 import json
 import struct
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 from scipy import ndimage
 
+from annotate.groups import GROUP_COLUMNS, group_targets, review_groups
 from annotate.store import pack_mask
 from zcut.cloud import height_mm
+from zcut.params import SuspectParams
+from zcut.suspects import DETECTORS
 
 EIGHT = np.ones((3, 3), bool)
 JPEG_QUALITY = 90
@@ -75,6 +84,9 @@ SOR_LIST_MAX = 4000
 #: The page's default SOR size filter; also what a frame's disagreement count uses.
 SOR_DEFAULT_MIN_PX = 5
 GEOMETRY_CHANNELS = ("x_m", "y_m", "z_m")
+#: The ``rise`` section's unit: how far a pixel stands above the surface continued from around it,
+#: in steps of this many mm (uint8, 255 = 25.5 mm or more), for pixels above half the suspects' τ.
+RISE_STEP_MM = 0.1
 
 
 @dataclass(frozen=True, slots=True)
@@ -98,11 +110,20 @@ class ServedFrame:
     rgb_jpeg : bytes or None
     height_jpeg, bundle : bytes
     warnings : tuple of str
-    cand_pixels : (k,) int32 ndarray
-        Flat pixel indices of the candidates counted in ``disagreement`` (z-cut clusters and SOR
-        clusters of at least :data:`SOR_DEFAULT_MIN_PX` pixels), grouped by candidate.
-    cand_starts : (n_cand + 1,) int64 ndarray
-        Candidate ``j`` owns ``cand_pixels[cand_starts[j]:cand_starts[j + 1]]``.
+    cand_pixels : (k,) int64 ndarray
+        Flat pixel indices of the review groups (:mod:`annotate.groups`), grouped by group: what the
+        page lists and what "decided" counts, in the frame list as in the page's panel.
+    cand_starts : (n_groups + 1,) int64 ndarray
+        Group ``g`` (1-based) owns ``cand_pixels[cand_starts[g - 1]:cand_starts[g]]``.
+    n_groups : int
+        Review groups of the frame.
+    group_features : (n_groups, len(annotate.groups.FEATURES)) float32 ndarray
+        The assistant's features of each group.
+    part : str or None
+        The part kind the config names (the assistant's models are per part kind).
+    bin_stages : bool
+        Whether the bin stages ran (without them the zone is every valid pixel, and the frame's
+        ``warnings`` say why).
     """
 
     index: int
@@ -122,6 +143,15 @@ class ServedFrame:
     warnings: tuple[str, ...]
     cand_pixels: np.ndarray
     cand_starts: np.ndarray
+    n_groups: int = 0
+    group_features: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.float32))
+    part: str | None = None
+    bin_stages: bool = True
+
+    def group_targets(self, outliers: np.ndarray, reviewed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per group: (decided, share of its pixels labelled outliers) under a label
+        (:func:`annotate.groups.group_targets`)."""
+        return group_targets(self.cand_pixels, self.cand_starts, outliers, reviewed)
 
     def decisions(self, outliers: np.ndarray, reviewed: np.ndarray) -> tuple[int, int]:
         """(decided, accepted): candidates with at least half of their pixels reviewed / outliers.
@@ -505,15 +535,21 @@ def _listed_pixels(z_ids: np.ndarray, s_ids: np.ndarray, table: np.ndarray) -> t
     return pixels, np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
 
 
-def prepare_frame(frame, result) -> PreparedFrame:
+def prepare_frame(frame, result, *, suspect_params: SuspectParams | None = None, part: str | None = None
+                  ) -> PreparedFrame:
     """Build the page's view of a frame from the frame and the pipeline's result for it.
 
     Parameters
     ----------
     frame : replay.logs.frame.Frame
     result : replay.pipeline.stages.FrameResult
-        Uses ``valid``, ``zone``, ``cut`` (clusters and levels), ``zcut_outliers``, ``sor_outliers``
-        and ``warnings``.
+        Uses ``valid``, ``zone``, ``easy_outliers``, ``height_mm``, ``cut`` (clusters and levels),
+        ``outliers`` (every method's) and ``warnings``.
+    suspect_params : SuspectParams, optional
+        The suspect detectors' parameters (default: ``SuspectParams()``; the catalogue passes the
+        config's a_max).
+    part : str, optional
+        The part kind of the log's config (kept for the assistant).
 
     Returns
     -------
@@ -545,13 +581,30 @@ def prepare_frame(frame, result) -> PreparedFrame:
     zone = np.asarray(result.zone, bool)
     if not np.array_equal(zone, valid):
         sections.append(("zone", mask_kind(zone), zone))
+    easy = np.asarray(result.easy_outliers, bool) & valid
+    groups = review_groups(frame.xyz, frame.rgb, height_mm=np.asarray(result.height_mm, np.float64), valid=valid,
+                           zone=zone & valid, above_rim=easy,
+                           outliers={k: np.asarray(v, bool) & valid for k, v in result.outliers.items()},
+                           params=suspect_params if suspect_params is not None else SuspectParams())
+    bin_stages = result.removal is not None
+    header.update({
+        "n_groups": groups.n, "group_columns": list(GROUP_COLUMNS), "group_sources": list(groups.sources),
+        "methods": list(groups.methods), "detectors": list(DETECTORS), "noise_mm": groups.noise_mm,
+        "threshold_mm": groups.threshold_mm, "n_suspect_px": groups.n_suspect_px, "bin_stages": bin_stages,
+        "rise_step_mm": RISE_STEP_MM, "part": part,
+    })
+    rise_q = np.minimum(np.round(groups.rise_mm / RISE_STEP_MM), 255).astype(np.uint8)
+    rise_q[groups.rise_mm < 0.5 * max(groups.threshold_mm, 0.0)] = 0
+    sections += [("groups", "sparse", _small_uint(groups.ids, groups.n)), ("group_table", "table", groups.table),
+                 ("rise", "sparse", rise_q)]
     bundle = make_bundle(header, sections, compress=False)
-    pixels, starts = _listed_pixels(z_ids, s_ids, table)
+    pixels, starts = groups.pixels()
     served = ServedFrame(
         index=frame.index, stamp_ns=frame.stamp_ns, topic=frame.topic, frame_id=frame.frame_id, height=H, width=W,
         n_zcut=n_z, n_sor=n_s, n_sor_listed=n_sor_listed, n_valid=int(valid.sum()), disagreement=disagreement,
         rgb_jpeg=rgb_jpeg, height_jpeg=_jpeg(hbgr), bundle=bundle, warnings=warnings,
-        cand_pixels=pixels, cand_starts=starts,
+        cand_pixels=pixels, cand_starts=starts, n_groups=groups.n, group_features=groups.features, part=part,
+        bin_stages=bin_stages,
     )
     return PreparedFrame(served=served, valid=valid, zcut_clusters=z_ids, sor_clusters=s_ids, candidates=table,
                          geometry=np.asarray(frame.xyz, np.float32))

@@ -24,10 +24,12 @@ from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect, Request
 from starlette.responses import HTMLResponse, JSONResponse, Response
 
+from annotate.assistant import CONFIDENT, Trainer
 from annotate.catalogue import Catalogue, FrameNotReady
 from annotate.guard import Client, Clients
 from annotate.inputs import (
@@ -91,6 +93,9 @@ class Page:
         The page sessions (cookies).
     presence : Presence or None
         This server's row among the store's servers, once :meth:`announce` ran.
+    assistant : Trainer or None
+        The labelling assistant (:mod:`annotate.assistant`), retrained in the background when labels
+        change.
     """
 
     log_path: Path
@@ -102,6 +107,7 @@ class Page:
     replay: ReplaySession | None = None
     clients: Clients = field(default_factory=Clients)
     presence: Presence | None = None
+    assistant: Trainer | None = None
     turbo: list[list[int]] = field(default_factory=turbo_lut)
     #: (frame record id, revision) -> (candidates decided, accepted) of that label
     decided: dict[tuple[int, int], tuple[int, int]] = field(default_factory=dict)
@@ -114,6 +120,8 @@ class Page:
     def close(self) -> None:
         """Stop preparing, leave the store's servers table, remove the spilled points, close the store."""
         self.catalogue.stop()
+        if self.assistant is not None:
+            self.assistant.stop()
         if self.presence is not None:
             self.presence.stop()
         self.catalogue.geometry.close()
@@ -216,6 +224,7 @@ def api_session(page: Page, request: Request) -> Response:
         "annotator": page.annotator or (client.annotator if client else None),
         "total": c.total, "prepared": c.prepared, "done": c.done, "error": c.error,
         "notes": _notes(replay),
+        "part": page.catalogue.part,
         "damage": [d.text for d in c.damage],
         "annotators": page.store.annotators(page.log),
         "other_servers": [describe_server(s) for s in others], "turbo": page.turbo,
@@ -251,8 +260,11 @@ def api_frames(page: Page, request: Request) -> Response:
     for sf, rec in c.snapshot():
         lab = current.get(rec.id)
         decided, accepted = decisions(page, sf, rec, who, lab.revision) if lab else (0, 0)
+        p = page.assistant.predictions(sf) if page.assistant is not None else None
+        uncertain = None if p is None else int((np.maximum(p, 1 - p) < CONFIDENT).sum())
         rows.append({"index": sf.index, "stamp_ns": sf.stamp_ns, "n_zcut": sf.n_zcut, "n_sor": sf.n_sor,
-                     "n_sor_listed": sf.n_sor_listed, "n_candidates": sf.n_zcut + sf.n_sor_listed,
+                     "n_sor_listed": sf.n_sor_listed, "n_candidates": sf.n_groups, "n_groups": sf.n_groups,
+                     "uncertain": uncertain, "bin_stages": sf.bin_stages,
                      "disagreement": sf.disagreement, "n_valid": sf.n_valid,
                      "revision": lab.revision if lab else 0,
                      "n_outliers": lab.n_outliers if lab else 0, "n_reviewed": lab.n_reviewed if lab else 0,
@@ -329,6 +341,27 @@ def api_geometry(page: Page, request: Request) -> Response:
     return _bytes(make_geometry(page.catalogue.geometry.rect(sf.index, x0, y0, x1, y1), x0=x0, y0=y0))
 
 
+def api_proposals(page: Page, request: Request) -> Response:
+    """``GET /api/frames/{index}/proposals``: the assistant's outlier probability for each of the frame's
+    groups (in group order), whether the page may pre-fill the confident ones, and why not."""
+    sf, _ = requested_frame(page, request)
+    tr = page.assistant
+    st = tr.status() if tr is not None else {"version": 0, "message": "no assistant", "model": None}
+    p = tr.predictions(sf) if tr is not None else None
+    why = st["model"]["why_not"] if st["model"] else None
+    return JSONResponse({"index": sf.index, "version": st["version"], "message": st["message"],
+                         "model": st["model"], "p": [] if p is None else [round(float(v), 4) for v in p],
+                         "prefill": p is not None and why is None, "why_not": why, "confident": CONFIDENT},
+                        headers={"Cache-Control": "no-store"})
+
+
+def api_assistant(page: Page, request: Request) -> Response:
+    """``GET /api/assistant``: the assistant's state (its model, held-out accuracy, last message)."""
+    tr = page.assistant
+    return JSONResponse(tr.status() if tr is not None else {"version": 0, "training": False,
+                                                            "message": "no assistant", "model": None})
+
+
 # --------------------------------------------------------------------------- saving a label
 async def api_label_put(page: Page, request: Request) -> Response:
     """``PUT /api/frames/{index}/label`` (application/json): save a label (:func:`save_label`)."""
@@ -367,6 +400,8 @@ def save_label(page: Page, index: int, who: str, d: dict[str, Any]) -> Response:
         raise BadRequest(422, str(e)) from None
     if not superseded:
         page.decided[(rec.id, rev)] = sf.decisions(outliers, reviewed)
+        if page.assistant is not None:
+            page.assistant.poke()
     decided, accepted = decisions(page, sf, rec, who, rev)
     n_reviewed = int(reviewed.sum())
     return JSONResponse({"revision": rev, "index": sf.index, "annotator": who, "superseded": superseded,
@@ -390,4 +425,6 @@ ROUTES: tuple[tuple[str, str, Handler], ...] = (
     ("/api/frames/{index}/geometry", "GET", api_geometry),
     ("/api/frames/{index}/label", "GET", api_label_get),
     ("/api/frames/{index}/label", "PUT", api_label_put),
+    ("/api/frames/{index}/proposals", "GET", api_proposals),
+    ("/api/assistant", "GET", api_assistant),
 )

@@ -31,6 +31,7 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
 
+from annotate.assistant import Trainer
 from annotate.catalogue import Catalogue
 from annotate.guard import (
     ALLOWED_HOSTS,
@@ -151,11 +152,14 @@ def open_page(
         log = store.add_log(log_path)
         catalogue = Catalogue.of_replay(replay, store, log)
         page = Page(log_path=log_path, store=store, log=log, catalogue=catalogue, token=token or new_token(),
-                    annotator=annotator, replay=replay)
+                    annotator=annotator, replay=replay,
+                    assistant=Trainer(catalogue, store, log, part=catalogue.part))
     except BaseException:
         if catalogue is not None:
             catalogue.geometry.close()
         store.close()
         raise
     catalogue.start()
+    assert page.assistant is not None
+    page.assistant.start()
     return page

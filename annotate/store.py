@@ -64,7 +64,7 @@ import numpy as np
 
 from zcut.errors import InputShapeError, ZcutError, describe_array
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 BUSY_TIMEOUT_MS = 10_000
 #: Largest mask the store accepts (pixels), a guard against absurd shapes from a client.
 MAX_PIXELS = 64_000_000
@@ -127,6 +127,18 @@ MIGRATIONS: list[list[str]] = [
             started_ns INTEGER NOT NULL,
             heartbeat_ns INTEGER NOT NULL,
             stopped_ns INTEGER
+        )""",
+    ],
+    [
+        # the labelling assistant's models (annotate.assistant): append-only like the labels
+        """CREATE TABLE models (
+            id INTEGER PRIMARY KEY,
+            created_ns INTEGER NOT NULL,
+            log_sha256 TEXT NOT NULL,
+            part TEXT,
+            backend TEXT NOT NULL,
+            meta TEXT NOT NULL,
+            model BLOB NOT NULL
         )""",
     ],
 ]
@@ -829,6 +841,23 @@ class LabelStore:
         with self._write() as db:
             db.execute("UPDATE servers SET stopped_ns = ? WHERE id = ?", (time.time_ns(), int(server_id)))
 
+    def save_model(self, *, log_sha256: str, part: str | None, backend: str, meta: str, model: bytes) -> int:
+        """Append an assistant model; returns its id."""
+        with self._write() as db:
+            cur = db.execute("INSERT INTO models (created_ns, log_sha256, part, backend, meta, model)"
+                             " VALUES (?, ?, ?, ?, ?, ?)", (time.time_ns(), log_sha256, part, backend, meta, model))
+            return int(cur.lastrowid)
+
+    def latest_model(self, *, log_sha256: str | None = None) -> ModelRecord | None:
+        """The newest stored model (of one log's labels, or of any)."""
+        where, params = ("WHERE log_sha256 = ?", (log_sha256,)) if log_sha256 else ("", ())
+        rows = self._query("SELECT id, created_ns, log_sha256, part, backend, meta, model FROM models "
+                           f"{where} ORDER BY id DESC LIMIT 1", params)
+        if not rows:
+            return None
+        r = rows[0]
+        return ModelRecord(int(r[0]), int(r[1]), r[2], r[3], r[4], r[5], bytes(r[6]))
+
     def live_servers(self, *, stale_after_s: float = SERVER_STALE_S) -> list[ServerRecord]:
         """Servers of this store that have not stopped and beat within ``stale_after_s`` seconds (on
         this host: whose process still exists), oldest first."""
@@ -838,6 +867,34 @@ class LabelStore:
             " WHERE stopped_ns IS NULL AND heartbeat_ns >= ? ORDER BY id", (since,))
         here = socket.gethostname()
         return [ServerRecord(*r) for r in rows if r[2] != here or _pid_alive(r[1])]
+
+
+@dataclass(frozen=True, slots=True)
+class ModelRecord:
+    """A stored assistant model (:mod:`annotate.assistant`).
+
+    Attributes
+    ----------
+    id, created_ns : int
+    log_sha256 : str
+        The log whose labels trained it.
+    part : str or None
+        The part kind of that log's config.
+    backend : str
+        The library that trained it (its text format is ``model``).
+    meta : str
+        JSON: features, trained frames, annotators, held-out figures.
+    model : bytes
+        The model in its library's own text format (never a pickle).
+    """
+
+    id: int
+    created_ns: int
+    log_sha256: str
+    part: str | None
+    backend: str
+    meta: str
+    model: bytes
 
 
 def _pid_alive(pid: int) -> bool:

@@ -1,4 +1,6 @@
-"""``zcut accuracy LOG_OR_RESULTS.mcap``: true accuracy of z-cut, SOR, union and intersection (docs/accuracy.md).
+"""``zcut accuracy LOG_OR_RESULTS.mcap``: true accuracy of z-cut, SOR, union and intersection (docs/accuracy.md),
+and of ``learned``, the labelling assistant's model (``--learned DB`` or a ``--labels`` store holding one), only
+on the frames it was not trained on (docs/labelling.md).
 
 Predictions come from the pipeline, resolved and run as ``zcut replay`` runs it (the same options
 resolve the same filter), or from a results file of ``zcut replay --out``; the truth from a
@@ -30,6 +32,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--region", default="zone",
                    help="the scored region: zone (default: what the filters judge) or valid (every valid pixel)")
     p.add_argument("--per-frame", action="store_true", help="also print the per-frame table")
+    p.add_argument("--learned", type=Path, default=None, metavar="DB",
+                   help="also score `learned`, the labelling assistant's newest model in this label store "
+                        "(zcut labels train), on the frames it was not trained on (default: the --labels store, "
+                        "when it holds a model)")
     p.add_argument("--json", action="store_true", help="print the docs/accuracy.md JSON object instead of tables")
     add_pipeline_options(p)
 
@@ -81,6 +87,8 @@ def run(args: argparse.Namespace) -> int:
         else:  # predictions computed as `zcut replay` computes them (the same resolved config)
             session = open_session(args.log, args, overrides=overrides)
             frames = stream = session.results()
+        learned = _learned_model(args, session)
+        learned_seen: set[int] = set()
         results, unscored = [], []
         for frame, r in frames:
             if r is None:
@@ -105,6 +113,16 @@ def run(args: argparse.Namespace) -> int:
                                          bin_flagged=r.bin_flagged)
                 if r.bin_flagged:
                     print(f"warning: frame {frame.index}: bin check: {check.reason}", file=sys.stderr)
+            if learned is not None:
+                from annotate.assistant import learned_mask
+
+                seen = (frame.topic, frame.stamp_ns) in learned.frames  # trained on it: not scored
+                if seen:
+                    learned_seen.add(frame.index)
+                fb = frame_accuracy(frame.index, frame.stamp_ns, {"learned": learned_mask(learned, frame, r,
+                                    config=session.config)}, t.outliers, reviewed=t.reviewed, valid=valid,
+                                    region=region & (not seen), kinds=t.kind)
+                fa.counts.update(fb.counts)
             results.append(fa)
         if not results:
             what = (f"no frame of {args.log} is labelled by {truth_src.annotator!r} in {args.labels}"
@@ -120,6 +138,10 @@ def run(args: argparse.Namespace) -> int:
             if session is not None:
                 for note in session.notes:
                     print(f"zcut: {note}", file=sys.stderr)
+            if learned is not None:
+                n_seen = len(learned_seen)
+                print(f"learned: the assistant's model ({learned.summary()}), scored on the "
+                      f"{len(results) - n_seen} frame(s) it was not trained on ({n_seen} left out)")
             if unscored:
                 print(f"{len(unscored)} frame(s) unscored: " + "; ".join(
                     f"frame {u.index}: {u.reason}" for u in unscored[:5]) + (" …" if len(unscored) > 5 else ""))
@@ -131,6 +153,34 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if hasattr(truth_src, "close"):
             truth_src.close()
+
+
+def _learned_model(args, session):
+    """The assistant's model to score as ``learned`` (None when there is none to score)."""
+    from annotate.assistant import load_model
+    from annotate.store import LabelStore
+    from zcut.errors import ZcutError
+
+    db = args.learned or args.labels
+    if db is None:
+        return None
+    if session is None:
+        if args.learned is not None:
+            raise ZcutError("--learned scores the assistant on a log, not on a results file: give the log")
+        return None
+    if not Path(db).is_file():
+        raise FileNotFoundError(2, "no such file", str(db))
+    with LabelStore(db, read_only=True) as store:
+        rec = store.latest_model()
+    if rec is None:
+        if args.learned is not None:
+            raise ZcutError(f"{db} holds no assistant model: train one with zcut labels train")
+        return None
+    model = load_model(rec)
+    if model.part is not None and session.config.part is not None and model.part != session.config.part:
+        print(f"warning: learned: the model was trained on {model.part}, this log is {session.config.part}",
+              file=sys.stderr)
+    return model
 
 
 def _results_methods(reader, args) -> list[str]:

@@ -63,6 +63,9 @@ def run(args: argparse.Namespace) -> int:
         page = open_page(args.log, db, annotator=annotator, config_path=args.config, choose_bin_model=choose,
                          overrides=overrides, topic=args.topic)
         warn_bin_model(page.replay)
+        if page.replay is not None:  # what the config resolution decided, as every pipeline command says it
+            for note in page.replay.notes:
+                print(f"zcut: {note}", file=sys.stderr, flush=True)
         for other in page.announce(port):
             print(f"warning: {other} serves the same label store {db}: edits from both are kept, "
                   "but the same annotator on both will meet conflicts", file=sys.stderr, flush=True)

@@ -1,4 +1,5 @@
-"""``zcut labels``: list, export (MCAP ``/labels/outliers``, ``/labels/reviewed``) and import human labels."""
+"""``zcut labels``: list, export (MCAP ``/labels/outliers``, ``/labels/reviewed``) and import human labels, and
+train the labelling assistant on them (``zcut labels train``, :mod:`annotate.assistant`)."""
 
 from __future__ import annotations
 
@@ -23,9 +24,57 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     im.add_argument("--annotator", default=None, help="store them under this name (default: the exporter's)")
     im.add_argument("--log", type=Path, default=None, metavar="LOG.mcap",
                     help="the labelled log: registered in the store (created if missing) before the import")
+    _add_train(sub)
+
+
+def _add_train(sub) -> None:
+    tr = sub.add_parser("train", help="train the labelling assistant on a log's labels and store the model")
+    tr.add_argument("log", type=Path, metavar="LOG.mcap")
+    tr.add_argument("--db", type=Path, required=True, metavar="LABELS.sqlite")
+    tr.add_argument("--annotator", action="append", default=None,
+                    help="whose labels (repeat for several; default: every annotator of the log)")
+    from replay.commands.common import add_pipeline_options
+
+    add_pipeline_options(tr)
+
+
+def train(args: argparse.Namespace) -> int:
+    """``zcut labels train``: replay the labelled frames, fit the assistant, store it, print its figures."""
+    import sys
+
+    from annotate.assistant import train as fit
+    from annotate.assistant import training_set_of_log
+    from annotate.store import LabelStore, StoreError, file_sha256
+    from replay.commands.common import open_session, overrides_of
+
+    for path in (args.log, args.db):
+        if not path.is_file():
+            raise FileNotFoundError(2, "no such file", str(path))
+    overrides = overrides_of(args)
+    session = open_session(args.log, args, overrides=overrides)
+    with LabelStore(args.db) as store:
+        log = store.log_by_sha(file_sha256(args.log))
+        if log is None:
+            raise StoreError(f"{args.log} is not registered in {args.db} (label it with zcut annotate first)")
+        for note in session.notes:
+            print(f"zcut: {note}", file=sys.stderr)
+        ts = training_set_of_log(session, store, log, annotators=args.annotator,
+                                 progress=lambda i, n: print(f"frame {i}: {n} groups", file=sys.stderr, flush=True))
+        if ts.disagreements:
+            print(f"warning: {ts.disagreements} group(s) left out: the annotators label them differently",
+                  file=sys.stderr)
+        model = fit(ts, part=session.config.part, log_sha256=log.sha256)
+        import json
+
+        mid = store.save_model(log_sha256=log.sha256, part=model.part, backend=model.backend,
+                               meta=json.dumps(model.meta()), model=model.dumps())
+    print(f"model {mid} in {args.db}: {model.summary()}")
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.action == "train":
+        return train(args)
     creating = args.action == "import" and args.log is not None
     for path in (getattr(args, "log", None), getattr(args, "labels", None), None if creating else args.db):
         if path is not None and not path.is_file():

@@ -57,8 +57,8 @@ function expectReply() {  // a second reply to one message (the frame's overlay 
 const state = {
   annotator: BOOT.annotator, mode: BOOT.mode,
   frames: [], order: [], orderBy: 'index', total: 0, done: false, target: null,
-  cur: null, tool: 'select', brush: 8, sorMin: 5, sortKey: 'gap',
-  showZ: true, showS: true, showL: true, showH: false, showMini: true,
+  cur: null, tool: 'select', brush: 8, sorMin: 5, sortKey: 'auto',
+  showG: true, showZ: true, showS: false, showL: true, showH: false, showMini: true, riseMm: null, sessionLost: false,
   zoom: 1, px: 0, py: 0, fitted: false, sel: -1, profile: null, conflictView: 'mine', turbo: null,
 };
 const cache = new Map();  // index -> Promise<frame>
@@ -69,14 +69,16 @@ window.zcut = { switchTimes: [], switchParts: [], acks: [], errors: [], loads: [
 const COL_L = rgba(255, 30, 60, 200), COL_Z = rgba(255, 170, 0, 150), COL_S = rgba(40, 150, 255, 140);
 const COL_ZS = rgba(190, 90, 255, 160), COL_UNREV = rgba(0, 0, 0, 150), COL_DIFF = rgba(255, 0, 255, 220);
 function rgba(r, g, b, a) { return ((a << 24) | (b << 16) | (g << 8) | r) >>> 0; }
+const COL_G = rgba(0, 230, 230, 150), COL_GR = rgba(0, 120, 90, 110);  // review groups: undecided, reviewed
 const COL = {  // candidate colours by source and state (markers, list, profile, 3D)
-  z: '#ffaa00', s: '#2896ff', L: '#ff4da6', accepted: '#ff1e3c', rejected: '#5fd38d', sel: '#ffffff',
+  g: '#00e6e6', z: '#ffaa00', s: '#2896ff', L: '#ff4da6', accepted: '#ff1e3c', rejected: '#5fd38d', sel: '#ffffff',
 };
-const RGB = { accepted: [255, 30, 60], rejected: [95, 211, 141], z: [255, 170, 0], s: [40, 150, 255], L: [255, 77, 166] };
+const RGB = { accepted: [255, 30, 60], rejected: [95, 211, 141], g: [0, 230, 230], z: [255, 170, 0], s: [40, 150, 255],
+              L: [255, 77, 166] };
 
 // ------------------------------------------------------------------ loading frames
-function flags() { return { showL: state.showL, showZ: state.showZ, showS: state.showS, sorMin: state.sorMin }; }
-function sameFlags(a, b) { return a && a.showL === b.showL && a.showZ === b.showZ && a.showS === b.showS && a.sorMin === b.sorMin; }
+function flags() { return { showL: state.showL, showZ: state.showZ, showS: state.showS, showG: state.showG, sorMin: state.sorMin }; }
+function sameFlags(a, b) { return a && a.showL === b.showL && a.showZ === b.showZ && a.showS === b.showS && a.showG === b.showG && a.sorMin === b.sorMin; }
 function viewKind() { return state.showH ? 'height' : 'rgb'; }
 
 function setLabel(fd, lab) {
@@ -106,9 +108,11 @@ function loadFrame(index) {
       index, stamp: h.stamp_ns, W: h.width, H: h.height, header: h, nValid: h.n_valid,
       valid: m.valid, zone: m.zone, zIds: m.zIds, sIds: m.sIds, sSize: m.sSize, bmp: {}, small: {},
       zStart: m.zStart, zPix: m.zPix, sStart: m.sStart, sPix: m.sPix, cand: m.cand, cols: h.candidate_columns,
-      tiles: new Map(), saving: false, pendingSave: false, seq: 0,
+      gIds: m.gIds, gStart: m.gStart, gPix: m.gPix, gTable: m.gTable, rise: m.rise,
+      tiles: new Map(), saving: false, pendingSave: false, seq: 0, prop: null,
     };
     setLabel(fd, m);
+    restorePending(fd);
     buildEntries(fd);
     fd.ovCanvas = null; fd.octx = null;
     fd.ovImg = new ImageData(m.ov, fd.W, fd.H);
@@ -158,20 +162,24 @@ function evict(center) {
 }
 
 // ------------------------------------------------------------------ candidates
-// An entry: {src: 'z' | 's' | 'L', id, n, x0, y0, x1, y1, cx, cy, hmin, below, gap, both, level, pix}
+// An entry (a review group, annotate/groups.py): {src: 'g' | 'L', id, n, x0, y0, x1, y1, cx, cy, gap, hmin,
+// hmax, below, why, dets, methods, score, pix}; 'L': a component of the label no group covers (painted by hand)
 function buildEntries(fd) {
-  const c = fd.cols, nc = c.length, rows = fd.cand.length / nc, col = Object.fromEntries(c.map((n, i) => [n, i]));
+  const h = fd.header, c = h.group_columns || [], nc = c.length, rows = nc ? fd.gTable.length / nc : 0;
+  const col = Object.fromEntries(c.map((n, i) => [n, i]));
   const out = [];
   for (let r = 0; r < rows; r++) {
-    const v = (name) => fd.cand[r * nc + col[name]];
-    const src = v('source') === 0 ? 'z' : 's', id = v('id');
-    const start = src === 'z' ? fd.zStart : fd.sStart, pixAll = src === 'z' ? fd.zPix : fd.sPix;
-    out.push({ src, id, n: v('n'), x0: v('x0'), y0: v('y0'), x1: v('x1'), y1: v('y1'), cx: v('cx'), cy: v('cy'),
-               hmin: v('h_min_mm'), hmax: v('h_max_mm'), below: v('below_mm'), gap: v('gap_mm'), both: v('both'),
-               level: v('level'), pix: pixAll.subarray(start[id], start[id + 1]) });
+    const v = (name) => fd.gTable[r * nc + col[name]];
+    const id = v('id'), src = h.group_sources[v('source')], dets = v('detectors'), meth = v('methods');
+    const also = h.detectors.filter((d, i) => (dets >> i) & 1 && d !== src)
+      .concat(h.methods.filter((m, i) => (meth >> i) & 1 && m !== src));
+    const hmin = v('h_min_mm'), hmax = v('h_max_mm'), gap = v('gap_mm');
+    out.push({ src: 'g', id, k: r, n: v('n'), x0: v('x0'), y0: v('y0'), x1: v('x1'), y1: v('y1'), cx: v('cx'), cy: v('cy'),
+               gap, hmin, hmax, below: isNaN(gap) ? NaN : hmin - gap, source: src, also, score: v('score'), both: 0,
+               pix: fd.gPix.subarray(fd.gStart[id], fd.gStart[id + 1]) });
   }
   fd.base = out;
-  fd.covered = new Uint8Array(fd.W * fd.H);  // pixels of the candidates (z-cut, and SOR of >= 2 px)
+  fd.covered = new Uint8Array(fd.W * fd.H);  // pixels of the review groups
   for (const e of out) for (const i of e.pix) fd.covered[i] = 1;
   fd.labelEntries = labelComponents(fd);
   refreshList(fd, false);
@@ -211,7 +219,18 @@ function entryState(fd, e) {
   return 2 * inL >= e.n ? 'accepted' : 2 * inR >= e.n ? 'rejected' : 'undecided';
 }
 
+function propP(fd, e) {  // the assistant's outlier probability of a group (NaN without one)
+  return e.src === 'g' && fd.prop && fd.prop.p.length > e.k ? fd.prop.p[e.k] : NaN;
+}
+function confidence(fd, e) { const p = propP(fd, e); return isNaN(p) ? NaN : Math.max(p, 1 - p); }
+function confident(fd, e) { return fd.prop && confidence(fd, e) >= fd.prop.confident; }
 const SORTS = {
+  auto: (a, b) => (state.cur && state.cur.prop && state.cur.prop.p.length ? SORTS.uncertainty(a, b) : SORTS.score(a, b)),
+  uncertainty: (a, b) => {
+    const ca = confidence(state.cur, a), cb = confidence(state.cur, b);
+    return (isNaN(ca) ? 2 : ca) - (isNaN(cb) ? 2 : cb) || SORTS.score(a, b);
+  },
+  score: (a, b) => (b.score || 0) - (a.score || 0) || b.n - a.n,
   gap: (a, b) => (isNaN(b.gap) ? -Infinity : b.gap) - (isNaN(a.gap) ? -Infinity : a.gap),
   size: (a, b) => b.n - a.n,
   disagree: (a, b) => (a.both / a.n) - (b.both / b.n) || SORTS.gap(a, b),
@@ -222,8 +241,7 @@ const SORTS = {
 // mostly cover (those are decided with it), and the hand-painted components; sorted by sortKey.
 function refreshList(fd, keepSel = true, render = true) {
   const selE = keepSel && state.cur === fd && state.sel >= 0 ? fd.entries[state.sel] : null;
-  const list = fd.base.filter((e) => (e.src === 'z' && state.showZ) ||
-    (e.src === 's' && state.showS && e.n >= state.sorMin && 2 * e.both < e.n));
+  const list = fd.base.slice();
   list.push(...fd.labelEntries);
   list.sort((a, b) => SORTS[state.sortKey](a, b) || (a.cy - b.cy) || (a.cx - b.cx));
   fd.entries = list;
@@ -234,38 +252,68 @@ function refreshList(fd, keepSel = true, render = true) {
   }
 }
 
+function gapText(gap) {  // a gap to the surface: above (toward the camera) or below it
+  if (isNaN(gap)) return 'gap ?';
+  return gap >= 0 ? `${gap.toFixed(1)} mm up` : `${(-gap).toFixed(1)} mm down`;
+}
 function renderList() {
   const fd = state.cur, box = $('candlist');
   if (!fd) { box.innerHTML = ''; return; }
   const states = fd.states;
-  const nUnd = states.filter((s) => s === 'undecided').length;
-  $('candcount').textContent = `${fd.entries.length} · ${fd.entries.length - nUnd} decided`;
+  const groups = fd.entries.filter((e) => e.src === 'g');
+  const nUnd = states.filter((s, k) => s === 'undecided' && fd.entries[k].src === 'g').length;
+  const painted = fd.entries.length - groups.length;
+  $('candcount').textContent = `${groups.length} groups · ${groups.length - nUnd} decided` + (painted ? ` · ${painted} painted` : '');
   const frag = document.createDocumentFragment();
   const MAX_ROWS = 300;
   fd.entries.slice(0, MAX_ROWS).forEach((e, k) => {
     const row = document.createElement('div');
     row.className = `cand ${states[k]}${k === state.sel ? ' sel' : ''}`;
     row.dataset.k = k;
-    const agree = e.src === 'L' ? 'by hand' : `${Math.round(100 * e.both / e.n)} %`;
-    const gap = isNaN(e.gap) ? 'gap ?' : `gap ${e.gap.toFixed(2)} mm`;
-    row.innerHTML = `<span class="src ${e.src}">${e.src === 'z' ? 'z-cut' : e.src === 's' ? 'SOR' : 'label'}</span>` +
-      `<span>${e.n} px</span><span>${gap}</span><span class="agree">${agree}</span><span class="st">${
+    const p = propP(fd, e), conf = confident(fd, e);
+    const prop = isNaN(p) ? '' : `${p >= 0.5 ? 'out' : 'in'} ${Math.round(100 * Math.max(p, 1 - p))} %`;
+    const why = e.src === 'L' ? 'painted' : e.source + (e.also.length ? ` +${e.also.join(',')}` : '');
+    row.title = e.src === 'L' ? 'labelled by hand, no group covers it' :
+      `${e.source}: ${e.n} px, median gap to the local surface ${isNaN(e.gap) ? 'unknown' : e.gap >= 0 ? e.gap.toFixed(2) + ' mm above it' : (-e.gap).toFixed(2) + ' mm below it'}` + (e.also.length ? `; also flagged by ${e.also.join(', ')}` : '');
+    row.innerHTML = `<span class="src ${e.src}">${why}</span><span>${e.n} px</span><span>${gapText(e.gap)}</span>` +
+      `<span class="agree${conf ? ' conf' : ''}">${prop}</span><span class="st">${
         states[k] === 'accepted' ? 'outlier' : states[k] === 'rejected' ? 'not outlier' : '·'}</span>`;
     row.onclick = () => { window.zcut.inputs++; select(k, { zoom: true }); };
     frag.appendChild(row);
   });
-  if (fd.entries.length > MAX_ROWS) {
-    const more = document.createElement('div');
-    more.className = 'more'; more.textContent = `… ${fd.entries.length - MAX_ROWS} more (raise the SOR size filter)`;
-    frag.appendChild(more);
-  }
   const head = document.createElement('div');
   head.className = 'cand head';
-  head.innerHTML = '<span>filter</span><span>size</span><span>gap below</span><span title="pixels the other filter flags too">other</span><span>decision</span>';
+  head.innerHTML = '<span>why (detector)</span><span>size</span><span>gap to surface</span><span title="the assistant: outlier or inlier, confidence">assistant</span><span>decision</span>';
   box.replaceChildren(head, frag);
   const selRow = box.querySelector('.sel');
   if (selRow) selRow.scrollIntoView({ block: 'nearest' });
+  renderBulkHint(fd);
   updateStatus();
+}
+
+// What the bulk keys will do, said before they do it.
+function proposalPlan(fd) {
+  const out = [], inl = [];
+  if (!fd.prop || !fd.prop.p.length) return { out, inl };
+  fd.entries.forEach((e, k) => {
+    if (e.src !== 'g' || fd.states[k] !== 'undecided' || !confident(fd, e)) return;
+    (propP(fd, e) >= 0.5 ? out : inl).push(e);
+  });
+  return { out, inl };
+}
+function renderBulkHint(fd) {
+  const und = fd.entries.filter((e, k) => e.src === 'g' && fd.states[k] === 'undecided').length;
+  const px = fd.entries.filter((e, k) => e.src === 'g' && fd.states[k] === 'undecided').reduce((a, e) => a + e.n, 0);
+  const parts = [`Shift+A accepts the ${und} undecided groups of this list (${px} px; not the z-cut or SOR overlays), Shift+R rejects them.`];
+  const pr = fd.prop;
+  if (pr && pr.p.length) {
+    const { out, inl } = proposalPlan(fd);
+    if (pr.prefill) parts.push(`Y takes the assistant's ${out.length + inl.length} confident proposals (${out.length} outlier, ${inl.length} not).`);
+    else parts.push(`Y does nothing: ${pr.why_not || 'no confident proposals'}.`);
+  }
+  $('bulkhint').textContent = parts.join(' ');
+  const a = $('assistinfo');
+  if (a) a.textContent = pr ? pr.message + (pr.why_not && pr.model ? ` — ${pr.why_not}` : '') : 'assistant: …';
 }
 
 function select(k, { zoom = true, t0 = performance.now() } = {}) {
@@ -302,11 +350,27 @@ function decide(accept, t0) {
   else { state.sel = -1; renderList(); requestDraw(); setSaveState('every candidate decided: Enter marks the frame reviewed', 'saved'); }
 }
 
-function decideAll(accept) {  // every undecided listed candidate (one undo step)
+function acceptProposals() {  // Y: the assistant's confident proposals of the undecided groups (one undo step)
+  const fd = state.cur; if (!fd || !fd.prop) return;
+  if (!fd.prop.prefill) { setSaveState(`nothing taken: ${fd.prop.why_not || 'no model yet'}`, 'error'); return; }
+  const { out, inl } = proposalPlan(fd);
+  if (!out.length && !inl.length) { setSaveState('no confident proposal left on this frame', 'saved'); return; }
+  beginAction(fd);
+  for (const [list, mode] of [[out, 'add'], [inl, 'erase']]) for (const e of list) {
+    for (const i of e.pix) setPixel(fd, i, mode);
+    touch(e.x0, e.y0, e.x1, e.y1);
+  }
+  endAction(fd);
+  setSaveState(`took ${out.length + inl.length} proposals (${out.length} outlier, ${inl.length} not)`, 'saved');
+  const k = nextUndecided(fd, -1);
+  if (k >= 0) select(k, { zoom: true }); else { state.sel = -1; renderList(); requestDraw(); }
+}
+
+function decideAll(accept) {  // every undecided listed group (one undo step)
   const fd = state.cur; if (!fd) return;
   beginAction(fd);
   fd.entries.forEach((e) => {
-    if (entryState(fd, e) !== 'undecided') return;
+    if (e.src !== 'g' || entryState(fd, e) !== 'undecided') return;
     for (const i of e.pix) setPixel(fd, i, accept ? 'add' : 'erase');
     touch(e.x0, e.y0, e.x1, e.y1);
   });
@@ -386,6 +450,7 @@ function defaultProfile(fd, e) {  // a horizontal line through the cluster's cen
 
 function pixelClass(fd, i) {
   if (fd.L[i]) return 'accepted';
+  if (fd.gIds[i]) return fd.R[i] ? 'rejected' : 'g';
   if (fd.zIds[i]) return fd.R[i] ? 'rejected' : 'z';
   if (fd.sIds[i] && fd.sSize[fd.sIds[i]] >= state.sorMin) return fd.R[i] ? 'rejected' : 's';
   return null;
@@ -511,9 +576,9 @@ function drawProfile() {
       g.beginPath(); g.moveTo(xs - 4, Y(v) + 6 * d); g.lineTo(xs, Y(v)); g.lineTo(xs + 4, Y(v) + 6 * d); g.stroke();
     }
     g.fillStyle = COL.sel; g.font = 'bold 12px system-ui';
-    const label = `gap ${e.gap.toFixed(2)} mm`;
+    const label = e.gap >= 0 ? `gap ${e.gap.toFixed(2)} mm` : `${(-e.gap).toFixed(2)} mm below`;
     g.fillText(label, Math.min(xs + 8, w - R - g.measureText(label).width), (Y(e.hmin) + Y(e.below)) / 2 + 4);
-    info = `gap ${e.gap.toFixed(2)} mm above the surface · ${info}`;
+    info = (e.gap >= 0 ? `gap ${e.gap.toFixed(2)} mm above the surface` : `${(-e.gap).toFixed(2)} mm below the surface`) + ` · ${info}`;
   }
   $('profinfo').textContent = info;
 }
@@ -580,7 +645,7 @@ function renderOverlay(x0 = 0, y0 = 0, x1 = null, y1 = null) {
   const { R, valid, zIds, sIds, sSize } = fd;
   const c = fd.conflict, cv = c && c.theirs ? state.conflictView : 'mine';
   const L = cv === 'theirs' ? c.theirs.L : fd.L, other = cv === 'diff' ? c.theirs.L : null;
-  const sL = state.showL, sZ = state.showZ, sS = state.showS, sorMin = state.sorMin;
+  const sL = state.showL, sZ = state.showZ, sS = state.showS, sG = state.showG, sorMin = state.sorMin, gIds = fd.gIds;
   for (let y = y0; y < y1; y++) {
     let i = y * W + x0;
     for (let x = x0; x < x1; x++, i++) {
@@ -589,7 +654,8 @@ function renderOverlay(x0 = 0, y0 = 0, x1 = null, y1 = null) {
       else if (sL && L[i]) col = COL_L;
       else {
         const z = sZ && zIds[i] !== 0, s = sS && sIds[i] !== 0 && sSize[sIds[i]] >= sorMin;
-        if (z) col = s ? COL_ZS : COL_Z; else if (s) col = COL_S;
+        if (sG && gIds[i] !== 0) col = R[i] ? COL_GR : COL_G;
+        else if (z) col = s ? COL_ZS : COL_Z; else if (s) col = COL_S;
         else if (shade && valid[i] && !R[i]) col = COL_UNREV;
       }
       ov32[i] = col;
@@ -628,7 +694,7 @@ function draw() {
     for (const [x, y] of drag.pts) ctx.lineTo(x, y);
     ctx.stroke();
   }
-  if (hover && ['brush', 'eraser', 'unreviewed'].includes(state.tool)) {
+  if (hover && ['brush', 'eraser', 'unreviewed', 'rbrush'].includes(state.tool)) {
     ctx.beginPath(); ctx.arc(hover.x, hover.y, state.brush, 0, 2 * Math.PI); ctx.stroke();
   }
   // screen space: candidate markers (visible at any zoom), the profile line
@@ -667,11 +733,15 @@ function drawMarkers(fd) {
     const st = states[k] || 'undecided';
     ctx.strokeStyle = st === 'undecided' ? COL[e.src] : COL[st];
     ctx.lineWidth = k === state.sel ? 3 : 1.5;
+    // a merged group's pixels scattered over a wide box: its box faint unless selected (its pixels are drawn)
+    const sparse = big && k !== state.sel && e.n < 0.02 * Math.max(1, (e.x1 - e.x0) * (e.y1 - e.y0));
+    if (sparse) { ctx.globalAlpha = 0.3; ctx.lineWidth = 1; }
     if (st === 'rejected') ctx.setLineDash([3, 3]);
     ctx.beginPath();
     if (big) ctx.rect(p0.x - 3, p0.y - 3, p1.x - p0.x + 6, p1.y - p0.y + 6); else ctx.arc(c.x, c.y, r, 0, 2 * Math.PI);
     ctx.stroke();
     ctx.setLineDash([]);
+    ctx.globalAlpha = 1;
     if (e.src === 'z' && !big && st === 'undecided') {  // a z-cut candidate: a dot in its ring as well
       ctx.fillStyle = COL.z; ctx.beginPath(); ctx.arc(c.x, c.y, 2.5, 0, 2 * Math.PI); ctx.fill();
     }
@@ -784,6 +854,45 @@ function readout() {
   box.textContent = parts.join(' · ');
 }
 
+// ------------------------------------------------------------------ the assistant's proposals
+let assistantVersion = -1;
+async function loadProposals(fd) {
+  try {
+    const r = await fetch(`/api/frames/${fd.index}/proposals`);
+    if (!r.ok) return;
+    const j = await r.json();
+    fd.prop = { p: j.p, prefill: j.prefill, why_not: j.why_not, version: j.version, message: j.message,
+                confident: j.confident, model: j.model };
+    assistantVersion = Math.max(assistantVersion, j.version);
+    if (state.cur === fd) { refreshList(fd, true); requestDraw(); }
+    window.zcut.proposalsLoaded = (window.zcut.proposalsLoaded || 0) + 1;
+  } catch (e) { /* the next poll tries again */ }
+}
+async function pollAssistant() {
+  try {
+    const r = await fetch('/api/assistant');
+    if (r.ok) {
+      const j = await r.json();
+      window.zcut.assistant = j;
+      if (j.version !== assistantVersion && state.cur) { assistantVersion = j.version; await loadProposals(state.cur); }
+      else if (state.cur && !state.cur.prop) await loadProposals(state.cur);
+    }
+  } catch (e) { /* the server may be gone: the save path says so */ }
+  setTimeout(pollAssistant, 1500);
+}
+
+// A frame the bin stages skipped: say why at once (the zone is every valid pixel, table and bin included).
+function showFrameWarning(fd) {
+  const el = $('framewarn'), w = fd.header.warnings || [];
+  if (!fd.header.bin_stages) {
+    el.textContent = `Frame ${fd.index}: ${w.join('; ') || 'bin stages skipped'}. Without the bin stages the ` +
+      'filters judge every valid point, table and bin included, so they propose little; the review groups ' +
+      'still cover the whole frame. Give the bin model (zcut annotate --bin-model BIN.ply) to judge the bin only.';
+    el.hidden = false;
+  } else if (w.length) { el.textContent = `Frame ${fd.index}: ${w.join('; ')}`; el.hidden = false; }
+  else el.hidden = true;
+}
+
 // ------------------------------------------------------------------ navigation
 let navToken = 0;
 async function goTo(index, t0 = performance.now()) {
@@ -811,8 +920,11 @@ async function goTo(index, t0 = performance.now()) {
   if (view3d) view3d.clear();
   $('v3info').textContent = 'Tab: the next candidate, its profile and 3D view';
   showConflict(fd);
+  showFrameWarning(fd);
+  if (state.riseMm === null) { $('rise').value = riseThreshold(fd); $('riseval').textContent = riseThreshold(fd).toFixed(1); }
   renderList();
   $('candlist').scrollTop = 0;
+  loadProposals(fd);
   drawProfile();
   updateInfo();
   const t3 = performance.now();
@@ -850,15 +962,15 @@ function updateStatus() {
   if (fd.nR >= fd.nValid) { el.textContent = 'frame reviewed ✓'; el.className = 'reviewed'; }
   else if (fd.nR > 0) {
     el.textContent = shadeUnreviewed(fd) ? `reviewed except ${fd.nValid - fd.nR} px (shaded)`
-      : `not reviewed yet · ${st.length - und} / ${st.length} candidates decided (Enter: reviewed)`;
+      : `not reviewed yet · ${st.length - und} / ${st.length} groups decided (Enter: reviewed)`;
     el.className = 'partial';
-  } else { el.textContent = `not reviewed · ${st.length} candidates`; el.className = 'todo'; }
+  } else { el.textContent = `not reviewed · ${fd.header.n_groups} groups`; el.className = 'todo'; }
 }
 
 function updateInfo() {
   const fd = state.cur;
   if (fd) $('frameinfo').textContent = `frame ${fd.index} (${state.order.indexOf(fd.index) + 1} of ${state.order.length})  ` +
-    `z-cut ${fd.header.n_zcut} · SOR ${fd.header.n_sor} clusters  rev ${fd.rev}`;
+    `${fd.header.n_groups} groups · z-cut ${fd.header.n_zcut} · SOR ${fd.header.n_sor} clusters  rev ${fd.rev}`;
   const reviewed = state.frames.filter((f) => f.reviewed).length;
   $('progress').textContent = `reviewed ${reviewed} / ${state.total}` + (state.done ? '' : ' (preparing…)');
   updateStatus();
@@ -876,10 +988,10 @@ function updateInfo() {
     const f = frameRow(+li.dataset.index);
     if (!f) continue;
     const mark = f.reviewed ? '✓' : f.revision ? '◐' : '';
-    li.title = `frame ${f.index}: ${f.n_zcut} z-cut and ${f.n_sor_listed} SOR candidates, ${f.decided} decided, ` +
-      `${f.n_outliers} outlier px labelled, the filters disagree on ${f.disagreement}`;
-    li.innerHTML = `<b>${f.index}</b><span>${f.n_candidates} cand.</span><span>${f.decided} dec.</span>` +
-      `<span>${f.n_outliers} px</span><span class="dis">≠${f.disagreement}</span><span class="mk">${mark}</span>`;
+    li.title = `frame ${f.index}: ${f.n_groups} review groups, ${f.decided} decided, ${f.n_outliers} outlier px labelled` +
+      (f.uncertain === null ? '' : `, the assistant is unsure of ${f.uncertain}`) + (f.bin_stages ? '' : ' (no bin stages)');
+    li.innerHTML = `<b>${f.index}</b><span>${f.n_groups} groups</span><span>${f.decided} dec.</span>` +
+      `<span>${f.n_outliers} px</span><span class="dis">${f.uncertain === null ? '' : '?' + f.uncertain}</span><span class="mk">${mark}</span>`;
     li.classList.toggle('rev', !!f.reviewed);
     li.classList.toggle('cur', !!fd && f.index === fd.index);
   }
@@ -889,6 +1001,7 @@ function setOrder(by) {
   state.orderBy = by;
   const rows = state.frames.slice();
   if (by === 'disagreement') rows.sort((a, b) => b.disagreement - a.disagreement || a.index - b.index);
+  if (by === 'uncertainty') rows.sort((a, b) => (b.uncertain ?? -1) - (a.uncertain ?? -1) || a.index - b.index);
   state.order = rows.map((f) => f.index);
   updateInfo();
 }
@@ -907,11 +1020,7 @@ async function refreshFrames({ again = false } = {}) {  // again: poll while fra
 async function refreshSession() {
   try {
     const r = await fetchRetry('/api/session');
-    if (r.status === 403) {
-      $('banner').textContent = 'This page\'s session ended (was the server restarted?): open the URL zcut annotate printed.';
-      $('banner').hidden = false;
-      throw new Error('the page session ended');
-    }
+    if (r.status === 403) { sessionLost(); throw new Error('the page session ended'); }
     const s = await r.json();
     const b = $('banner');
     if (s.other_servers.length) {
@@ -995,8 +1104,14 @@ function paintDisc(fd, cx, cy, r, mode) {
   touch(x0, y0, x1 + 1, y1 + 1);
   renderOverlay(x0, y0, x1 + 1, y1 + 1);
 }
+function riseAt(fd, i) { return fd.rise[i] * (fd.header.rise_step_mm || 0.1); }
+function riseThreshold(fd) { return state.riseMm !== null ? state.riseMm : Math.max(0.1, fd.header.threshold_mm || 0.5); }
 function setPixel(fd, i, mode) {  // every decision reviews the pixel: L ⊆ R
   if (!fd.valid[i]) return;
+  if (mode === 'radd' || mode === 'rerase') {  // the residual brush: only pixels standing above the threshold
+    if (riseAt(fd, i) < riseThreshold(fd)) return;
+    mode = mode === 'radd' ? 'add' : 'erase';
+  }
   if (mode === 'add') { fd.L[i] = 1; fd.R[i] = 1; }
   else if (mode === 'erase') { fd.L[i] = 0; fd.R[i] = 1; }
   else if (mode === 'unreview') { fd.L[i] = 0; fd.R[i] = 0; }
@@ -1011,6 +1126,17 @@ function clickCluster(fd, x, y, preferSor) {  // toggle the cluster under the po
   x = Math.floor(x); y = Math.floor(y);
   if (x < 0 || y < 0 || x >= fd.W || y >= fd.H) return false;
   const i = y * fd.W + x;
+  if (fd.gIds[i]) {  // a review group: toggle it as a whole
+    const e = fd.base.find((b) => b.id === fd.gIds[i]);
+    const accept = entryState(fd, e) !== 'accepted';
+    beginAction(fd);
+    for (const j of e.pix) setPixel(fd, j, accept ? 'add' : 'erase');
+    touch(e.x0, e.y0, e.x1, e.y1);
+    endAction(fd);
+    const k = fd.entries.indexOf(e);
+    if (k >= 0) select(k, { zoom: false });
+    return true;
+  }
   const sOk = fd.sIds[i] !== 0 && state.showS;
   const order = preferSor ? [['s', sOk], ['z', fd.zIds[i] !== 0 && state.showZ]] : [['z', fd.zIds[i] !== 0 && state.showZ], ['s', sOk]];
   let src = null;
@@ -1038,7 +1164,7 @@ function clickCluster(fd, x, y, preferSor) {  // toggle the cluster under the po
   return true;
 }
 
-function fillPolygon(fd, pts, mode) {
+function fillPolygon(fd, pts, mode, only = null) {  // only(i): which pixels inside may change
   let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
   for (const [x, y] of pts) { x0 = Math.min(x0, x); y0 = Math.min(y0, y); x1 = Math.max(x1, x); y1 = Math.max(y1, y); }
   x0 = Math.max(0, Math.floor(x0)); y0 = Math.max(0, Math.floor(y0));
@@ -1053,9 +1179,45 @@ function fillPolygon(fd, pts, mode) {
   const a = g.getImageData(0, 0, w, h).data;
   for (let yy = 0; yy < h; yy++) for (let xx = 0; xx < w; xx++) {
     // pixel centres inside the polygon (alpha ≥ 50 %)
-    if (a[(yy * w + xx) * 4 + 3] >= 128) setPixel(fd, (yy + y0) * fd.W + xx + x0, mode);
+    const i = (yy + y0) * fd.W + xx + x0;
+    if (a[(yy * w + xx) * 4 + 3] >= 128 && (!only || only(i))) setPixel(fd, i, mode);
   }
   touch(x0, y0, x1, y1);
+}
+
+// The height-gap wand: from the clicked pixel (or the nearest one within 6 px standing above the
+// threshold) grow over the 8-connected pixels that stand above the surface around them by at least
+// the threshold (the 'rise' the server computed); at most 200,000 pixels.
+function wand(fd, x, y, mode) {
+  const W = fd.W, H = fd.H, thr = riseThreshold(fd);
+  x = Math.floor(x); y = Math.floor(y);
+  let seed = -1, best = Infinity;
+  for (let dy = -6; dy <= 6; dy++) for (let dx = -6; dx <= 6; dx++) {
+    const xx = x + dx, yy = y + dy;
+    if (xx < 0 || yy < 0 || xx >= W || yy >= H) continue;
+    const i = yy * W + xx, d = dx * dx + dy * dy;
+    if (riseAt(fd, i) >= thr && d < best) { best = d; seed = i; }
+  }
+  if (seed < 0) { setSaveState(`wand: nothing stands ${thr.toFixed(1)} mm above the surface here`, 'error'); return; }
+  const seen = new Uint8Array(W * H), stack = [seed], got = [];
+  seen[seed] = 1;
+  let x0 = W, y0 = H, x1 = 0, y1 = 0;
+  while (stack.length && got.length < 200000) {
+    const j = stack.pop(); got.push(j);
+    const jx = j % W, jy = (j / W) | 0;
+    x0 = Math.min(x0, jx); x1 = Math.max(x1, jx); y0 = Math.min(y0, jy); y1 = Math.max(y1, jy);
+    for (let dy = -1; dy <= 1; dy++) for (let dx = -1; dx <= 1; dx++) {
+      const xx = jx + dx, yy = jy + dy;
+      if (xx < 0 || yy < 0 || xx >= W || yy >= H) continue;
+      const k = yy * W + xx;
+      if (!seen[k] && riseAt(fd, k) >= thr) { seen[k] = 1; stack.push(k); }
+    }
+  }
+  beginAction(fd);
+  for (const j of got) setPixel(fd, j, mode);
+  touch(x0, y0, x1 + 1, y1 + 1);
+  endAction(fd);
+  setSaveState(`wand: ${got.length} px standing ≥ ${thr.toFixed(1)} mm above the surface ${mode === 'add' ? 'labelled' : 'cleared'}`, 'saved');
 }
 
 function markReviewed(fd) {  // the explicit "reviewed": every valid pixel reviewed, L kept
@@ -1080,8 +1242,84 @@ function markReviewedAndNext(t0) {
 function setSaveState(text, cls) { const s = $('savestate'); s.textContent = text; s.className = 'state ' + cls; }
 function showError(msg) { window.zcut.errors.push(msg); setSaveState(msg, 'error'); }
 
+// Unsaved edits survive the page and the server: each dirty frame's label body is kept in this
+// browser's localStorage (per log, annotator and frame) until the server acknowledges it.
+function pendingKey(index) { return `zcut:${state.sha256}:${state.annotator}:${index}`; }
+function keepPending(fd) {
+  if (!state.sha256) return;
+  try { localStorage.setItem(pendingKey(fd.index), labelBody(fd, fd.seq)); } catch (e) { /* quota: the server has it soon */ }
+}
+function dropPending(fd) { if (state.sha256 && !fd.dirty) localStorage.removeItem(pendingKey(fd.index)); }
+function decodeRuns(b64, n) {
+  const bin = atob(b64), bytes = new Uint8Array(bin.length);
+  for (let i = 0; i < bin.length; i++) bytes[i] = bin.charCodeAt(i);
+  const runs = new Uint32Array(bytes.buffer), out = new Uint8Array(n);
+  let p = 0;
+  for (let k = 0; k < runs.length; k++) { const e = p + runs[k]; if (k & 1) out.fill(1, p, e); p = e; }
+  return p === n ? out : null;
+}
+function restorePending(fd) {  // a frame's edits kept in the browser come back when it is loaded
+  if (!state.sha256) return;
+  const raw = localStorage.getItem(pendingKey(fd.index));
+  if (!raw) return;
+  try {
+    const b = JSON.parse(raw), n = fd.W * fd.H;
+    const L = decodeRuns(b.outliers_runs, n), U = decodeRuns(b.unreviewed_runs, n);
+    if (!L || !U || b.width !== fd.W || b.height !== fd.H) return;
+    if (fd.rev > b.base_revision) {  // the store moved on: if it holds exactly the kept edit, that edit arrived
+      let same = true;  // (e.g. sent as the page went away, its acknowledgement lost with the page)
+      for (let i = 0; i < n && same; i++) same = fd.L[i] === L[i] && fd.R[i] === (fd.valid[i] && !U[i] ? 1 : 0);
+      if (same) { localStorage.removeItem(pendingKey(fd.index)); return; }
+    }
+    fd.L.set(L); for (let i = 0; i < n; i++) fd.R[i] = fd.valid[i] && !U[i] ? 1 : 0;
+    fd.committedL.set(fd.L); fd.committedR.set(fd.R);
+    fd.rev = b.base_revision; fd.dirty = true; countR(fd);
+    window.zcut.restored = (window.zcut.restored || []).concat([fd.index]);
+    setTimeout(() => saveNow(fd), 0);
+  } catch (e) { /* a damaged entry: left alone */ }
+}
+function pendingIndices() {
+  const pre = `zcut:${state.sha256}:${state.annotator}:`, out = [];
+  for (let k = 0; k < localStorage.length; k++) { const key = localStorage.key(k); if (key.startsWith(pre)) out.push(+key.slice(pre.length)); }
+  return out.sort((a, b) => a - b);
+}
+function sessionLost() {  // the server answered 403 to a save: it does not know this page any more
+  if (state.sessionLost) return;
+  state.sessionLost = true;
+  const frames = [...new Set([...pendingIndices(), ...[...loaded.values()].filter((f) => f.dirty).map((f) => f.index)])];
+  $('lostmsg').textContent = `The server no longer knows this page (it was restarted, or this page's session ended). ` +
+    `Your unsaved edits of frame(s) ${frames.join(', ') || '—'} are kept in this browser. Start zcut annotate again ` +
+    `on the same port (--port ${location.port}) and paste the URL it prints here; the edits are sent once it answers.`;
+  $('lost').hidden = false;
+}
+async function reconnect(url) {
+  const m = /[?&]token=([^&#\s]+)/.exec(url.trim()), token = m ? m[1] : url.trim();
+  const r = await fetch(`/?token=${encodeURIComponent(token)}`, { credentials: 'same-origin' });
+  if (!r.ok) { $('lostmsg').textContent = `That token was refused (HTTP ${r.status}): paste the URL the new server printed.`; return; }
+  state.sessionLost = false; $('lost').hidden = true;
+  if (state.mode === 'choose' && state.annotator) {
+    await fetch('/api/annotator', { method: 'POST', headers: { 'Content-Type': 'application/json' },
+                                    body: JSON.stringify({ name: state.annotator }) });
+  }
+  await refreshFrames();
+  flushPending();
+}
+async function flushPending() {  // the edits kept in the browser: loaded frames save, the others are sent as kept
+  for (const fd of loaded.values()) if (fd.dirty && !fd.conflict) saveNow(fd);
+  for (const i of pendingIndices()) {
+    if (loaded.has(i)) continue;
+    const body = localStorage.getItem(pendingKey(i));
+    const r = await fetch(`/api/frames/${i}/label`, { method: 'PUT', headers: { 'Content-Type': 'application/json' }, body });
+    if (r.ok) { localStorage.removeItem(pendingKey(i)); window.zcut.acks.push({ index: i, flushed: true }); }
+    else if (r.status === 403) { sessionLost(); return; }
+    else if (r.status === 409) setSaveState(`frame ${i}: the edits kept in this browser meet a newer revision: open frame ${i} to merge`, 'error');
+  }
+  refreshFrames();
+}
+
 function scheduleSave(fd) {
   fd.dirty = true;
+  keepPending(fd);
   setSaveState('unsaved', 'saving');
   clearTimeout(fd.saveTimer);
   fd.saveTimer = setTimeout(() => saveNow(fd), 250);
@@ -1121,6 +1359,7 @@ async function saveNow(fd, { keepalive = false } = {}) {
     if (resp.ok) {
       const j = await resp.json();
       fd.rev = Math.max(fd.rev, j.revision);
+      dropPending(fd);
       window.zcut.acks.push({ index: fd.index, revision: j.revision, n_outliers: j.n_outliers, annotator: j.annotator,
                               superseded: j.superseded });
       const f = frameRow(fd.index);
@@ -1141,13 +1380,16 @@ async function saveNow(fd, { keepalive = false } = {}) {
         setSaveState('not saved: disk full (retrying)', 'saving');
       } else showError(`save failed (HTTP ${resp.status}): ${t.slice(0, 200)}`);
       retry = resp.status >= 500;
+      if (resp.status === 403) { keepPending(fd); sessionLost(); }
     }
   } catch (e) {
     fd.dirty = true; retry = true;
-    showError(`save failed: ${e}`);
+    keepPending(fd);
+    showError(`save failed (the server does not answer; the edit is kept in this browser): ${e}`);
   } finally {
     fd.saving = false;
   }
+  if (state.sessionLost) return;  // waits for reconnect()
   if (fd.pendingSave || (fd.dirty && retry)) {
     fd.pendingSave = false;
     if (retry) setTimeout(() => saveNow(fd), 2000); else saveNow(fd);
@@ -1242,7 +1484,14 @@ window.zcut.state = () => {
 window.zcut.entries = () => {
   const fd = state.cur; if (!fd) return [];
   return fd.entries.map((e, k) => ({ src: e.src, id: e.id, n: e.n, cx: e.cx, cy: e.cy, gap: e.gap, both: e.both,
+                                     source: e.source, also: e.also, p: propP(fd, e), confident: !!confident(fd, e),
                                      state: (fd.states || [])[k] }));
+};
+window.zcut.proposals = () => {
+  const fd = state.cur; if (!fd || !fd.prop) return null;
+  const { out, inl } = proposalPlan(fd);
+  return { version: fd.prop.version, prefill: fd.prop.prefill, why_not: fd.prop.why_not, message: fd.prop.message,
+           n: fd.prop.p.length, out: out.map((e) => e.id), inl: inl.map((e) => e.id), model: fd.prop.model };
 };
 window.zcut.readout = () => $('readout').textContent;
 window.zcut.unsaved = () => [...loaded.values()].filter((fd) => fd.dirty || fd.saving || fd.conflict).map((fd) => fd.index);
@@ -1262,8 +1511,9 @@ canvas.addEventListener('pointerdown', (e) => {
   if (e.button !== 0) return;
   const t = state.tool;
   if (t === 'select') { clickCluster(fd, p.x, p.y, e.altKey); return; }
-  if (t === 'brush' || t === 'eraser' || t === 'unreviewed') {
-    const mode = t === 'brush' ? 'add' : t === 'eraser' ? 'erase' : 'unreview';
+  if (t === 'wand') { wand(fd, p.x, p.y, e.shiftKey ? 'erase' : 'add'); return; }
+  if (t === 'brush' || t === 'eraser' || t === 'unreviewed' || t === 'rbrush') {
+    const mode = t === 'brush' ? 'add' : t === 'eraser' ? 'erase' : t === 'rbrush' ? (e.shiftKey ? 'rerase' : 'radd') : 'unreview';
     beginAction(fd);
     paintDisc(fd, p.x, p.y, state.brush, mode);
     drag = { kind: 'paint', mode, last: p };
@@ -1296,8 +1546,8 @@ canvas.addEventListener('pointerup', (e) => {
   else if (d.kind === 'box') {
     const pts = [[d.x0, d.y0], [d.x, d.y0], [d.x, d.y], [d.x0, d.y]];
     beginAction(fd); fillPolygon(fd, pts, d.erase || e.shiftKey ? 'erase' : 'add'); endAction(fd);
-  } else if (d.kind === 'lasso' && d.pts.length > 2) {
-    beginAction(fd); fillPolygon(fd, d.pts, d.erase || e.shiftKey ? 'erase' : 'add'); endAction(fd);
+  } else if (d.kind === 'lasso' && d.pts.length > 2) {  // only the suspects (review groups' pixels) inside
+    beginAction(fd); fillPolygon(fd, d.pts, d.erase || e.shiftKey ? 'erase' : 'add', (i) => fd.gIds[i] !== 0); endAction(fd);
   } else if (d.kind === 'profile') {
     const c = (v, hi) => Math.max(0, Math.min(hi - 1, Math.floor(v)));
     state.profile = { x0: c(d.x0, fd.W), y0: c(d.y0, fd.H), x1: c(d.x, fd.W), y1: c(d.y, fd.H),
@@ -1338,6 +1588,11 @@ function setBrush(v) {
   $('brushsize').value = state.brush; $('brushval').textContent = state.brush;
   requestDraw();
 }
+function setRise(v) {  // the wand's and the residual brush's threshold (mm)
+  state.riseMm = Math.max(0.1, Math.min(25, Math.round(10 * v) / 10));
+  $('rise').value = state.riseMm; $('riseval').textContent = state.riseMm.toFixed(1);
+  requestDraw();
+}
 function setSorMin(v) {
   state.sorMin = Math.max(1, Math.min(200, v | 0));
   $('sormin').value = state.sorMin; $('sorminval').textContent = state.sorMin;
@@ -1367,6 +1622,12 @@ window.addEventListener('keydown', (e) => {
     case 'a': decide(true, t0); break;
     case 'r': decide(false, t0); break;
     case 'A': decideAll(true); break;
+    case 'y': case 'Y': acceptProposals(); break;
+    case 'w': case 'W': setTool('wand'); break;
+    case 't': case 'T': setTool('rbrush'); break;
+    case ',': setRise(riseThreshold(fd || { header: {} }) - 0.1); break;
+    case '.': setRise(riseThreshold(fd || { header: {} }) + 0.1); break;
+    case 'g': case 'G': toggle('showG'); break;
     case 'R': decideAll(false); break;
     case 'Escape': if (fd) select(-1); break;
     case 'c': case 'C': if (fd && state.sel >= 0) zoomTo(fd.entries[state.sel]); break;
@@ -1409,8 +1670,9 @@ window.addEventListener('beforeunload', (e) => {  // only if the keepalive reque
 const buttonAction = (f) => () => { window.zcut.inputs++; f(); document.activeElement.blur(); };
 for (const b of document.querySelectorAll('#tools button')) b.onclick = buttonAction(() => setTool(b.dataset.tool));
 $('brushsize').oninput = (e) => setBrush(+e.target.value);
+$('rise').oninput = (e) => setRise(+e.target.value);
 $('sormin').oninput = (e) => setSorMin(+e.target.value);
-for (const key of ['showZ', 'showS', 'showL', 'showH']) $(key).onchange = () => { toggle(key); $(key).blur(); };
+for (const key of ['showG', 'showZ', 'showS', 'showL', 'showH']) $(key).onchange = () => { toggle(key); $(key).blur(); };
 $('sortkey').onchange = (e) => { state.sortKey = e.target.value; e.target.blur(); if (state.cur) refreshList(state.cur, true); requestDraw(); };
 $('orderby').onchange = (e) => { setOrder(e.target.value); e.target.blur(); };
 $('prev').onclick = buttonAction(() => step(-1));
@@ -1418,6 +1680,7 @@ $('next').onclick = buttonAction(() => step(1));
 $('done').onclick = buttonAction(() => markReviewedAndNext());
 $('undo').onclick = buttonAction(undo); $('redo').onclick = buttonAction(redo);
 $('accept').onclick = buttonAction(() => decide(true)); $('reject').onclick = buttonAction(() => decide(false));
+$('lostform').onsubmit = (ev) => { ev.preventDefault(); reconnect($('lostin').value).catch((e) => showError(String(e))); };
 for (const b of document.querySelectorAll('#conflict [data-merge]')) b.onclick = buttonAction(() => resolveConflict(b.dataset.merge));
 for (const b of document.querySelectorAll('#conflict [data-view]')) b.onclick = buttonAction(() => setConflictView(b.dataset.view));
 
@@ -1442,7 +1705,7 @@ function chooseAnnotator() {
   $('logname').textContent = BOOT.log;
   setTool('select'); setBrush(8); setSorMin(state.sorMin);
   const s = await refreshSession();
-  state.turbo = s.turbo;
+  state.turbo = s.turbo; state.sha256 = s.sha256;
   if (!state.annotator) state.annotator = await chooseAnnotator();
   $('who').textContent = `annotator: ${state.annotator}`;
   $('who').title = state.mode === 'fixed' ? 'set when the server started (zcut annotate --annotator)'
@@ -1454,5 +1717,7 @@ function chooseAnnotator() {
   if (!state.done) refreshFrames({ again: true });
   const want = parseInt(location.hash.slice(1), 10);
   await goTo(Number.isFinite(want) && frameRow(want) ? want : state.order[0]);
+  flushPending();
+  pollAssistant();
   window.zcut.ready = true;
 })().catch((e) => showError(String(e)));

@@ -69,7 +69,9 @@ export class PointView {
   // points are drawn larger; radius: the neighbourhood's half size (mm) for the camera distance.
   setPoints(pos, col, nBig, radius) {
     this.pos = pos; this.col = col; this.n = pos.length / 3; this.nBig = nBig;
-    if (radius !== this.radius) { this.radius = radius; this.dist = 0.8 * radius / Math.sin(0.3); }  // most of the sphere in view
+    // the whole bounding sphere in view (a cluster 60-85 mm above the surface sits at its top: a camera
+    // fitted to 80 % of it lost such clusters); every new neighbourhood starts from that distance
+    this.radius = radius; this.dist = 1.15 * radius / Math.sin(0.3);
     if (this.gl) {
       const gl = this.gl;
       gl.bindBuffer(gl.ARRAY_BUFFER, this.bPos); gl.bufferData(gl.ARRAY_BUFFER, pos, gl.STATIC_DRAW);

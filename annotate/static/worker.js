@@ -98,8 +98,9 @@ function groupById(idx, values, nIds) {
 function rgba(r, g, b, a) { return ((a << 24) | (b << 16) | (g << 8) | r) >>> 0; }
 const COL_L = rgba(255, 30, 60, 200), COL_Z = rgba(255, 170, 0, 150), COL_S = rgba(40, 150, 255, 140);
 const COL_ZS = rgba(190, 90, 255, 160), COL_UNREV = rgba(0, 0, 0, 150);
+const COL_G = rgba(0, 230, 230, 150), COL_GR = rgba(0, 120, 90, 110);  // review groups: undecided, reviewed
 // The overlay from the candidates' pixel lists: the dense loop only where R is shaded.
-function renderOverlaySparse(ov32, f, lab, valid, sIds, zIdx, sIdx, sSize) {
+function renderOverlaySparse(ov32, f, lab, valid, sIds, zIdx, sIdx, sSize, gIdx) {
   // ov32 is a fresh (all 0) buffer
   const { L, R } = lab;
   if (lab.shade) for (let i = 0; i < ov32.length; i++) if (valid[i] && !R[i]) ov32[i] = COL_UNREV;
@@ -108,6 +109,8 @@ function renderOverlaySparse(ov32, f, lab, valid, sIds, zIdx, sIdx, sSize) {
     const i = zIdx[k];
     ov32[i] = (f.showS && sIds[i] !== 0 && sSize[sIds[i]] >= f.sorMin) ? COL_ZS : COL_Z;
   }
+  // a review group's pixels show as the group over the z-cut and SOR colours (as renderOverlay draws them)
+  if (f.showG) for (let k = 0; k < gIdx.length; k++) { const i = gIdx[k]; ov32[i] = R[i] ? COL_GR : COL_G; }
   if (f.showL && lab.hasL) for (let i = 0; i < L.length; i++) if (L[i]) ov32[i] = COL_L;
 }
 
@@ -130,12 +133,13 @@ async function handle(m) {
     const lab = labelFrom(labelBundle, npx, header.n_valid);
     const z = groupById(arrays.zcutIdx, arrays.zcutVal, header.n_zcut);
     const s = groupById(arrays.sorIdx, arrays.sorVal, header.n_sor);
+    const g = groupById(arrays.groupsIdx, arrays.groupsVal, header.n_groups || 0);
     const sSize = new Uint32Array(header.n_sor + 1);
     for (let k = 1; k <= header.n_sor; k++) sSize[k] = s.start[k + 1] - s.start[k];
     const t3 = performance.now();
     const ov = new Uint8ClampedArray(npx * 4);
     renderOverlaySparse(new Uint32Array(ov.buffer), m.flags, lab, arrays.valid, arrays.sor, arrays.zcutIdx,
-                        arrays.sorIdx, sSize);
+                        arrays.sorIdx, sSize, arrays.groupsIdx);
     const t4 = performance.now();
     // the masks go out at once (the page uploads the overlay while the JPEG still decodes); the
     // overlay bitmap follows as its own reply, under m.imageId
@@ -147,10 +151,12 @@ async function handle(m) {
     const res = {
       timing, header, valid: arrays.valid, zone: arrays.zone || null, zIds: arrays.zcut, sIds: arrays.sor,
       cand: arrays.candidates, zStart: z.start, zPix: z.pix, sStart: s.start, sPix: s.pix, sSize, ...lab, ov,
+      gIds: arrays.groups, gStart: g.start, gPix: g.pix, gTable: arrays.group_table, rise: arrays.rise,
     };
     const transfer = [arrays.valid.buffer, arrays.zcut.buffer, arrays.sor.buffer, arrays.candidates.buffer, z.start.buffer,
                       z.pix.buffer, s.start.buffer, s.pix.buffer, sSize.buffer, lab.L.buffer, lab.R.buffer, ov.buffer];
     if (arrays.zone) transfer.push(arrays.zone.buffer);
+    transfer.push(arrays.groups.buffer, g.start.buffer, g.pix.buffer, arrays.group_table.buffer, arrays.rise.buffer);
     return [res, [...new Set(transfer)]];
   }
   if (m.type === 'image') {  // the picture, and a small copy for the minimap

@@ -182,16 +182,32 @@ def test_box_lasso_eraser_unreviewed_undo_redo_zoom(tmp_path, browser):
         _drag(page, [(15, 12), (25, 20)], shift=True)  # shift: box erase
         n_erased = state()["nL"]
         assert n_erased < n_box - 0.8 * int(valid[13:20, 16:25].sum())
-        page.keyboard.press("l")  # lasso: a triangle elsewhere
-        _drag(page, [(60, 50), (100, 50), (80, 80), (60, 50)])
+        # lasso: around a review group away from the box; it takes only the groups' pixels inside
+        gids = arrays["groups"].astype(np.int64)
+        boxes = ndimage.find_objects(gids)
+        H, W = gids.shape
+        far = [b for b in boxes if b is not None and min(b[0].start, b[1].start) >= 5 and b[0].stop + 5 <= H
+               and b[1].stop + 5 <= W and (b[0].start >= 37 or b[1].start >= 47 or b[0].stop <= 5)]
+        assert far, "the test log should give a review group away from the box"
+        ys, xs = max(far, key=lambda b: int((gids[b] != 0).sum()))
+        y0, y1, x0, x1 = ys.start - 2, ys.stop + 2, xs.start - 2, xs.stop + 2
+        page.keyboard.press("l")  # the polygon's corners on pixel corners (imageToClient gives centres)
+        _drag(page, [(x0 - 0.5, y0 - 0.5), (x1 - 0.5, y0 - 0.5), (x1 - 0.5, y1 - 0.5), (x0 - 0.5, y1 - 0.5),
+                     (x0 - 0.5, y0 - 0.5)])
         n_lasso = state()["nL"]
-        assert n_lasso > n_erased + 200
+
+        def suspects_in(m):  # group pixels in the box grown by m (the pointer lands to a fraction of a pixel)
+            return int((gids[y0 - m:y1 + m, x0 - m:x1 + m] != 0).sum())
+
+        assert 0 < suspects_in(-1) <= n_lasso - n_erased <= suspects_in(1)
+        assert int(valid[y0 + 1:y1 - 1, x0 + 1:x1 - 1].sum()) > suspects_in(1)  # no suspect: not taken
         page.keyboard.press("u")  # not reviewed: takes pixels out of R (and L)
         _drag(page, [(12, 12), (38, 12)])
         st = state()
         assert st["nR"] < int(valid.sum()) and st["nL"] < n_lasso
-        page.keyboard.press("e")  # eraser
-        _drag(page, [(80, 60), (80, 70)])
+        page.keyboard.press("e")  # eraser, across the lassoed group
+        cy, cx = (ys.start + ys.stop) // 2, (xs.start + xs.stop) // 2
+        _drag(page, [(xs.start, cy), (cx, cy), (xs.stop - 1, cy)])
         n_final = state()["nL"]
         assert n_final < st["nL"]
         for _ in range(5):
@@ -232,7 +248,7 @@ def test_box_lasso_eraser_unreviewed_undo_redo_zoom(tmp_path, browser):
     assert not (lab.outliers & ~lab.reviewed).any() and not (lab.reviewed & ~valid).any()
     # reviewed: the box, the lasso and the eraser's stroke, not the not-reviewed stroke along row 12
     assert 0 < lab.reviewed.sum() < valid.sum() and not lab.reviewed[12, 14:36].any()
-    assert lab.reviewed[60:70, 80].sum() == valid[60:70, 80].sum()
+    assert lab.reviewed[cy, xs.start:xs.stop].sum() == valid[cy, xs.start:xs.stop].sum()
 
 
 def test_conflicting_save_is_shown_and_resolved(tmp_path, browser):

@@ -82,15 +82,17 @@ def test_reviewed_only_when_asked_and_an_edit_just_before_a_reload_is_kept(srv, 
         assert st["nR"] == sel["n"] and st["nL"] == 0 and "not reviewed yet · 1 /" in st["status"]
         assert "reviewed 0 / 9" in st["progress"]
         lab = _label(srv, nine, 0)
-        ids = arrays["zcut"] if sel["src"] == "z" else arrays["sor"]
+        ids = {"g": arrays["groups"], "z": arrays["zcut"], "s": arrays["sor"]}[sel["src"]]  # the list's first: a group
         assert np.array_equal(lab.reviewed, ids == sel["id"]) and not lab.outliers.any()
         # the next candidate accepted, and the page reloaded at once (before the autosave's delay)
         sel2 = page.evaluate("window.zcut.state().selected")
         page.keyboard.press("a")
         page.reload()
         wait_until(page, "window.zcut && window.zcut.ready === true")
+        # sent as the page went away (keepalive), or kept in the browser and sent by the reloaded page
+        wait_until(page, "window.zcut.state().rev === 2 && window.zcut.unsaved().length === 0")
         st = page.evaluate("window.zcut.state()")
-        assert st["nL"] == sel2["n"] and st["rev"] == 2  # sent as the page went away (keepalive)
+        assert st["nL"] == sel2["n"] and st["rev"] == 2
         # Enter: the whole frame reviewed, visibly
         page.keyboard.press("Enter")
         wait_until(page, "window.zcut.unsaved().length === 0 && window.zcut.state().index === 1")

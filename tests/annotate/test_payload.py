@@ -198,11 +198,15 @@ def test_prepare_frame_review_scene():
     assert sf.n_sor_listed == int((sor[:, COLUMN["n"]] >= SOR_DEFAULT_MIN_PX).sum())
     counted = np.concatenate([z, sor[sor[:, COLUMN["n"]] >= SOR_DEFAULT_MIN_PX]])
     assert sf.disagreement == int((2 * counted[:, COLUMN["both"]] < counted[:, COLUMN["n"]]).sum())
-    # decisions: accepting every z-cut cluster decides those 13 (and the SOR ones they cover)
+    # decisions count the review groups (the list's rows): accepting the 13 clusters decides the groups
+    # whose pixels are at least half theirs; the whole frame reviewed decides every group
     L = truth.copy()
+    gids = arrays["groups"].astype(np.int64)
+    size = np.bincount(gids.ravel(), minlength=sf.n_groups + 1)[1:]
+    in_truth = np.bincount(gids.ravel(), weights=truth.ravel(), minlength=sf.n_groups + 1)[1:]
     decided, accepted = sf.decisions(L, L)
-    assert decided == accepted >= 13
-    assert sf.decisions(L & False, arrays["valid"]) == (13 + sf.n_sor_listed, 0)
+    assert decided == accepted == int((2 * in_truth >= size).sum()) >= 1
+    assert sf.decisions(L & False, arrays["valid"]) == (sf.n_groups, 0) and sf.n_groups == header["n_groups"]
 
 
 def test_prepare_frame():
