@@ -262,7 +262,8 @@ def api_frames(page: Page, request: Request) -> Response:
         decided, accepted = decisions(page, sf, rec, who, lab.revision) if lab else (0, 0)
         p = page.assistant.predictions(sf) if page.assistant is not None else None
         uncertain = None if p is None else int((np.maximum(p, 1 - p) < CONFIDENT).sum())
-        rows.append({"index": sf.index, "stamp_ns": sf.stamp_ns, "n_zcut": sf.n_zcut, "n_sor": sf.n_sor,
+        rows.append({"index": sf.index, "stamp_ns": sf.stamp_ns, "height": sf.height, "width": sf.width,
+                     "n_zcut": sf.n_zcut, "n_sor": sf.n_sor,
                      "n_sor_listed": sf.n_sor_listed, "n_candidates": sf.n_groups, "n_groups": sf.n_groups,
                      "uncertain": uncertain, "bin_stages": sf.bin_stages,
                      "disagreement": sf.disagreement, "n_valid": sf.n_valid,
