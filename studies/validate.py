@@ -335,8 +335,8 @@ class Validation:
     def from_json(cls, d: Any) -> Validation | None:
         if not isinstance(d, dict):
             return None
-        ci = d.get("ci95") if isinstance(d.get("ci95"), dict) else {}
-        oos = d.get("out_of_sample") if isinstance(d.get("out_of_sample"), dict) else {}
+        ci: Json = d["ci95"] if isinstance(d.get("ci95"), dict) else {}
+        oos: Json = d["out_of_sample"] if isinstance(d.get("out_of_sample"), dict) else {}
         note = d.get("note")
         ref = d.get("reference")
         return cls(
@@ -463,13 +463,13 @@ def grid_distance(params: Sequence[Params], point: Params) -> np.ndarray:
     counts from the nearest one)."""
     out = np.zeros(len(params), dtype=np.float64)
     for j in range(len(ZCUT_PARAMS)):
-        vals = sorted({p[j] for p in params if p[j] is not None})
+        vals = sorted({v for p in params if (v := p[j]) is not None})
         target = point[j] if j < len(point) else None
         if len(vals) < 2 or target is None:
             continue
         t = int(np.argmin([abs(v - target) for v in vals]))
         idx = {v: i for i, v in enumerate(vals)}
-        out += np.array([abs(idx[p[j]] - t) if p[j] is not None else 0 for p in params], dtype=np.float64)
+        out += np.array([abs(idx[v] - t) if (v := p[j]) is not None else 0 for p in params], dtype=np.float64)
     return out
 
 
@@ -518,8 +518,8 @@ def grid_edges(params: Sequence[Params], candidates: np.ndarray, tuned: int) -> 
         if v is None or (axis == "max_area_px" and p0[2] is not None):
             continue
         same = [p for p in params if all(p[i] == p0[i] for i in range(len(ZCUT_PARAMS)) if i != j)]
-        vals = sorted({p[j] for p in same if p[j] is not None})
-        cands = sorted({params[i][j] for i in np.flatnonzero(candidates) if params[i][j] is not None})
+        vals = sorted({x for p in same if (x := p[j]) is not None})
+        cands = sorted({x for i in np.flatnonzero(candidates) if (x := params[int(i)][j]) is not None})
         if len(vals) < 2:
             continue
         for side, end, cend in (("upper", vals[-1], cands[-1] if cands else None),
@@ -578,14 +578,13 @@ def cross_validate(counts: FrameCounts, *, objective: tuple[str, float | None], 
     edges = grid_edges(params, cand, tuned) if tuned is not None else ()
     two_best = _two_best(tp, fp, fn, params, objective, cand, dist, best)
     split, fold = folds_of(counts.logs, counts.frames, max_folds=max_folds)
-    base = dict(rule=rule, tuned=None if tuned is None else params[tuned],
-                best=None if best is None else params[best], f1_in_sample=f1_in, reference_name=reference_name,
-                two_best=two_best, edges=edges)
+    tuned_p = None if tuned is None else params[tuned]
+    best_p = None if best is None else params[best]
     if split == "none" or tuned is None:
         why = ("no z-cut set has a defined figure on these frames" if tuned is None
                else f"{m} frame(s) scored: cross-validation needs at least 2")
-        return Validation(split="none", folds=(), out_of_sample={}, ci95={}, optimism=None, vs_reference=None,
-                          note=why, **base)
+        return Validation(rule, "none", (), tuned_p, best_p, f1_in, {}, {}, None, reference_name, None, two_best,
+                          edges, why)
     held = np.zeros((3, m), dtype=np.int64)
     folds = []
     for k in range(int(fold.max()) + 1):
@@ -603,9 +602,10 @@ def cross_validate(counts: FrameCounts, *, objective: tuple[str, float | None], 
                           float(f) if math.isfinite(f) else None, note))
     T, F, N = held
     oos = {}
+    sums = np.array([T.sum(), F.sum(), N.sum()], dtype=np.float64)
     for metric in ("precision", "recall", "f1"):
-        r = _ratio(*_parts(metric, np.float64(T.sum()), np.float64(F.sum()), np.float64(N.sum())))
-        oos[metric] = float(r) if math.isfinite(r) else None
+        r = float(_ratio(*_parts(metric, sums[0:1], sums[1:2], sums[2:3]))[0])
+        oos[metric] = r if math.isfinite(r) else None
     ci = {k: (_num(lo), _num(hi)) for k, (lo, hi) in pooled_interval(T, F, N).items()}
     f1_out = oos["f1"]
     vs_ref = None
@@ -614,9 +614,9 @@ def cross_validate(counts: FrameCounts, *, objective: tuple[str, float | None], 
         num_b, den_b = _parts("f1", tp[reference], fp[reference], fn[reference])
         vs_ref = _difference(params[tuned], params[reference], num_a, den_a, num_b, den_b)
     notes = [f.note for f in folds if f.note]
-    return Validation(split=split, folds=tuple(folds), out_of_sample=oos, ci95=ci,
-                      optimism=None if f1_in is None or f1_out is None else f1_in - f1_out, vs_reference=vs_ref,
-                      note=f"{len(notes)} fold(s): {notes[0]}" if notes else None, **base)
+    return Validation(rule, split, tuple(folds), tuned_p, best_p, f1_in, oos, ci,
+                      None if f1_in is None or f1_out is None else f1_in - f1_out, reference_name, vs_ref, two_best,
+                      edges, f"{len(notes)} fold(s): {notes[0]}" if notes else None)
 
 
 def _two_best(tp: np.ndarray, fp: np.ndarray, fn: np.ndarray, params: Sequence[Params],
