@@ -23,7 +23,8 @@ without some of the frames and scoring the choice on them:
   when it holds 0, tuning is indistinguishable from the reference.
 - **The two best sets** (by the objective on every frame, the runner-up being the best set whose
   counts differ from the best's on some frame): their paired difference and its standard error; the
-  frames that would separate them are m·(1.96·se/d)² (the standard error shrinks as 1/√m).
+  frames that would separate them: the fewest n at which d lies outside its t interval when the
+  standard error shrinks as √(m/n) (about m·(1.96·se/d)²).
 - **Edges.** When the tuned set is on the end of a swept axis, the grid should be widened that way.
 
 Frames are treated as independent, as the intervals of ``docs/accuracy.md`` do: frames of one log
@@ -146,8 +147,8 @@ class Difference:
 
     ``value`` = a − b; ``se`` its standard error over frames; ``ci95`` its 95 % t interval (None when
     fewer than 3 frames or no variation); ``frames_needed``: total frames at which the 95 % interval
-    would exclude 0 at this difference and per-frame spread (None when it already does, or never
-    can: equal figures).
+    would exclude 0 at this difference and per-frame spread (:func:`frames_to_separate`; None when
+    it already does, or never can: equal figures, no spread).
     """
 
     a: Params
@@ -297,7 +298,8 @@ class Validation:
                 out.append(f"the tuned set is the {name} set")
             else:
                 dlo, dhi = d.ci95
-                dci = f" [{dlo:+.3f}, {dhi:+.3f}]" if dlo is not None and dhi is not None else ""
+                dci = (f" [{dlo:+.3f}, {dhi:+.3f}]" if dlo is not None and dhi is not None
+                       else " (too few frames for an interval)")
                 if d.separated:
                     verdict = "beats" if d.value > 0 else "loses to"
                     out.append(f"out of sample, tuning {verdict} the {name} set: F1 {d.value:+.3f}{dci}")
@@ -312,8 +314,10 @@ class Validation:
             elif t.frames_needed is not None:
                 out.append(pair + f" ± {t.se or 0:.3f}: about {max(t.frames_needed - t.frames, 1)} more frames "
                            f"({t.frames_needed} in all) would separate them")
-            else:
+            elif t.value == 0 or not t.se:
                 out.append(pair + ": no number of frames would separate them at this difference")
+            else:
+                out.append(pair + f" ± {t.se:.3f}: too few frames to tell")
         out += [str(e) for e in self.edges]
         if self.note:
             out.append(self.note)
@@ -433,9 +437,22 @@ def _difference(a: Params, b: Params, num_a: np.ndarray, den_a: np.ndarray, num_
         if m >= 3 and se > 0:
             q = float(stats.t.ppf(0.975, m - 1))
             ci = (d - q * se, d + q * se)
-        if d != 0 and se > 0 and abs(d) <= SEPARATE_Q * se:
-            need = math.ceil(m * (SEPARATE_Q * se / abs(d)) ** 2)
+        lo, hi = ci
+        if d != 0 and se > 0 and not ((lo is not None and lo > 0) or (hi is not None and hi < 0)):
+            need = frames_to_separate(abs(d), se, m)
     return Difference(a, b, d if math.isfinite(d) else None, se if math.isfinite(se) else None, ci, m, need)
+
+
+def frames_to_separate(d: float, se: float, m: int, *, level: float = 0.95) -> int:
+    """The fewest frames n >= 3 at which a difference ``d`` (> 0) whose standard error is ``se`` over
+    ``m`` frames would lie outside its t interval, the standard error shrinking as sqrt(m / n)."""
+    from scipy import stats
+
+    q = 0.5 + 0.5 * level
+    n = max(3, math.ceil(m * (SEPARATE_Q * se / d) ** 2))
+    while float(stats.t.ppf(q, n - 1)) * se * math.sqrt(m / n) >= d:
+        n += 1
+    return n
 
 
 # ------------------------------------------------------------------------------------------ folds

@@ -15,11 +15,13 @@ import pytest
 from cli_helpers import run_cli
 
 from replay.cli import main
+from scipy import stats
 from studies.validate import (
     FrameCounts,
     Validation,
     cross_validate,
     folds_of,
+    frames_to_separate,
     grid_distance,
     grid_edges,
     paired_difference,
@@ -229,8 +231,13 @@ def test_the_frames_needed_to_separate_the_two_best_sets():
     if t.separated:
         assert t.frames_needed is None
     else:
-        assert t.frames_needed == math.ceil(m * (1.959963984540054 * t.se / abs(t.value)) ** 2)
+        n = t.frames_needed
+        assert n > m and n >= math.ceil(m * (1.959963984540054 * t.se / abs(t.value)) ** 2)
+        q = stats.t.ppf(0.975, [n - 2, n - 1])  # n frames separate them, n - 1 do not
+        assert q[1] * t.se * math.sqrt(m / n) < abs(t.value) <= q[0] * t.se * math.sqrt(m / (n - 1))
         assert any("more frames" in s for s in v.messages())
+    n = frames_to_separate(0.01, 0.01, 10)
+    assert stats.t.ppf(0.975, n - 1) * 0.01 * math.sqrt(10 / n) < 0.01 <= stats.t.ppf(0.975, n - 2) * 0.01 * math.sqrt(10 / (n - 1))
 
 
 def test_too_few_frames_or_nothing_defined_is_said():
