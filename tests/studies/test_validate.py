@@ -314,6 +314,12 @@ def test_one_log_is_cross_validated_over_blocks_of_frames(logs, tmp_path, capsys
     assert "out of sample" in stdout and "optimism" in stdout
     assert v["reference"] == "nominal" and v["vs_reference"] is not None
     assert any("nominal" in m for m in v["messages"])
+    # the report shows both figures, the folds and the sentences
+    from studies.report import write_report
+
+    page = write_report(tmp_path / "one", s).read_text()
+    assert "Out of sample (the tuning cross-validated)" in page and f"{v['f1_out_of_sample']:.3f}" in page
+    assert page.count("<tr><td><code>nuts.mcap</code></td>") == 4  # a row per fold
     # tuned.toml carries the tuned set (the rule's pick)
     import tomllib
 
