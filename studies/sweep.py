@@ -28,12 +28,12 @@ from studies.work import Job, UnitResult, run_unit
 
 if TYPE_CHECKING:
     from annotate.truth import FrameTruth
-    from studies.validate import FrameCounts, Validation
     from replay.logs.frame import Frame
     from replay.pipeline.config import PipelineConfig
     from replay.pipeline.session import ReplaySession
     from replay.pipeline.stages import Zone
     from studies.units import WorkUnit
+    from studies.validate import FrameCounts, Validation
     from studies.work import TruthSource
 
 ZCUT_COLUMNS = ("step_mm", "max_depth_mm", "rho_thr", "max_area_px")

@@ -13,9 +13,9 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from cli_helpers import run_cli
+from scipy import stats
 
 from replay.cli import main
-from scipy import stats
 from studies.validate import (
     FrameCounts,
     Validation,
