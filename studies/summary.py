@@ -350,7 +350,7 @@ class SweepSummary:
             "logs": [{"log": lg.log, "sha256": lg.sha256, "error": lg.error} for lg in self.logs],
             "frames": self.frames, "region": self.region, "objective": self.objective, "truth": self.truth,
             "grid": self.grid.as_dict() if self.grid is not None else None, "config": self.config,
-            "notes": list(self.notes), "sets": [s.to_json() for s in self.sets], "tuned": self.tuned.to_json(),
+            "notes": list(self.notes), "sets": [s.to_json() for s in self.sets], "tuned": self._tuned_json(),
             "chosen": {"zcut": _set_json(self.chosen_zcut), "sor": _set_json(self.chosen_sor)},
             "nominal": _set_json(self.nominal),
             "sensitivity": {"chosen": _sensitivities_json(self.sensitivity_chosen),
@@ -362,7 +362,7 @@ class SweepSummary:
             "reproduce": self.reproduce, "seconds": _number(self.seconds),
             "bin_flagged": [{"log": f.log, "frame": f.frame} for f in self.bin_flagged],
             "validation": None if self.validation is None else self.validation.to_json(),
-        } | {"tuned": self._tuned_json()}
+        }
 
     def _tuned_json(self) -> Json:
         """``tuned`` with, on the tuned z-cut set, its out-of-sample figures beside the in-sample ones

@@ -15,7 +15,7 @@ import pytest
 from cli_helpers import run_cli
 from scipy import stats
 
-from replay.cli import main
+from cli.main import main
 from studies.validate import (
     FrameCounts,
     Validation,
