@@ -310,7 +310,8 @@ class Validation:
         if t is not None and t.value is not None:
             pair = f"the two best sets ({params_text(t.a)}; {params_text(t.b)}) differ by {t.value:.3f}"
             if t.separated:
-                out.append(pair + ": the frames separate them")
+                lo, hi = t.ci95
+                out.append(pair + f" [{lo:+.3f}, {hi:+.3f}]: the frames separate them")
             elif t.frames_needed is not None:
                 out.append(pair + f" ± {t.se or 0:.3f}: about {max(t.frames_needed - t.frames, 1)} more frames "
                            f"({t.frames_needed} in all) would separate them")
