@@ -185,6 +185,29 @@ def _best(g: SetGrid) -> dict[str, Any]:
             "note": s.tuned.note}
 
 
+def _validation(s: SweepSummary) -> dict[str, Any]:
+    """The tuning cross-validated (studies.validate): figures in and out of sample, the folds, the
+    sentences the command prints."""
+    from studies.validate import params_text
+
+    v, t = s.validation, s.tuned.zcut
+    if v is None:
+        return {"folds": [], "messages": [], "rule": "", "split": ""}
+    oos = {}
+    for m in ("precision", "recall", "f1"):
+        lo, hi = v.ci95.get(m, (None, None))
+        oos[m] = {"value": fmt_num(v.out_of_sample.get(m)),
+                  "ci": f"{fmt_num(lo)}–{fmt_num(hi)}" if lo is not None and hi is not None else ""}
+    split = {"logs": "one fold per log (or group of logs)", "frames": "blocks of consecutive frames of one log"}
+    return {"rule": v.rule, "split": split.get(v.split, v.split), "oos": oos,
+            "in_sample": {m: fmt_num(t.figure(m) if t is not None else None) for m in ("precision", "recall", "f1")},
+            "optimism": fmt_num(v.optimism),
+            "folds": [{"logs": ", ".join(f.logs), "frames": f.frames,
+                       "chosen": params_text(f.chosen) if f.chosen is not None else "—", "f1": fmt_num(f.f1)}
+                      for f in v.folds],
+            "messages": v.messages()}
+
+
 def _plots(plots: list[Plot]) -> list[dict[str, Any]]:
     return [{"id": p.name.removesuffix(".png"), "title": p.title, "caption": p.caption, "width_px": p.width_px,
              "base64": base64.b64encode(p.png).decode("ascii"), "path": f"{PLOTS_DIR}/{p.name}"} for p in plots]
@@ -257,7 +280,7 @@ def page_context(summary: SweepSummary | Mapping[str, Any], plots: list[Plot], *
     s = g.summary
     return {
         "sections": SECTIONS, "titles": dict(SECTIONS), "lead": _lead(g), "swept": _swept(g),
-        "best": _best(g), "plots": _plots(plots), "findings": [_finding_row(f) for f in findings(g)],
+        "best": _best(g), "validation": _validation(s), "plots": _plots(plots), "findings": [_finding_row(f) for f in findings(g)],
         "sensitivity": [_sensitivity_block(g, "chosen", s.chosen_zcut, s.sensitivity_chosen),
                         _sensitivity_block(g, "tuned", s.tuned.zcut, s.sensitivity_tuned)],
         "config": _config(s, tuned_toml), "notes": _notes(s), "reproduce": _reproduce(s, out_dir),

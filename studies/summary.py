@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from studies.grid import Grid
+from studies.validate import Validation
 
 #: The figures that carry an interval, in their JSON order.
 METRICS = ("precision", "recall", "f1")
@@ -310,6 +311,9 @@ class SweepSummary:
         The command line that reruns the sweep.
     seconds : float or None
         Wall-clock time of the run.
+    validation : Validation or None
+        The tuning cross-validated (:mod:`studies.validate`): out-of-sample figures, the tuned set
+        against the nominal one, the two best sets, the grid's edges.
     """
 
     logs: tuple[SweepLog, ...]
@@ -333,6 +337,7 @@ class SweepSummary:
     reproduce: str = ""
     seconds: float | None = None
     bin_flagged: tuple[FlaggedFrame, ...] = ()
+    validation: Validation | None = None
 
     @property
     def data_loss(self) -> bool:
@@ -345,7 +350,7 @@ class SweepSummary:
             "logs": [{"log": lg.log, "sha256": lg.sha256, "error": lg.error} for lg in self.logs],
             "frames": self.frames, "region": self.region, "objective": self.objective, "truth": self.truth,
             "grid": self.grid.as_dict() if self.grid is not None else None, "config": self.config,
-            "notes": list(self.notes), "sets": [s.to_json() for s in self.sets], "tuned": self.tuned.to_json(),
+            "notes": list(self.notes), "sets": [s.to_json() for s in self.sets], "tuned": self._tuned_json(),
             "chosen": {"zcut": _set_json(self.chosen_zcut), "sor": _set_json(self.chosen_sor)},
             "nominal": _set_json(self.nominal),
             "sensitivity": {"chosen": _sensitivities_json(self.sensitivity_chosen),
@@ -356,7 +361,22 @@ class SweepSummary:
                                                                "reason": u.reason} for u in self.unscored],
             "reproduce": self.reproduce, "seconds": _number(self.seconds),
             "bin_flagged": [{"log": f.log, "frame": f.frame} for f in self.bin_flagged],
+            "validation": None if self.validation is None else self.validation.to_json(),
         }
+
+    def _tuned_json(self) -> Json:
+        """``tuned`` with, on the tuned z-cut set, its out-of-sample figures beside the in-sample ones
+        (``f1_out_of_sample``, ``precision_out_of_sample``, ``recall_out_of_sample``, their
+        ``ci95_out_of_sample`` and the ``optimism``; ``docs/studies.md``)."""
+        d = self.tuned.to_json()
+        v = self.validation
+        if v is not None and isinstance(d.get("zcut"), dict):
+            oos = v.out_of_sample
+            d["zcut"] |= {"f1_out_of_sample": oos.get("f1"), "precision_out_of_sample": oos.get("precision"),
+                          "recall_out_of_sample": oos.get("recall"),
+                          "ci95_out_of_sample": {k: list(ci) for k, ci in v.ci95.items()},
+                          "optimism": v.optimism}
+        return d
 
     @classmethod
     def from_json(cls, d: Json) -> SweepSummary:
@@ -383,6 +403,7 @@ class SweepSummary:
             seconds=float(seconds) if isinstance(seconds, (int, float)) else None,
             bin_flagged=tuple(FlaggedFrame(str(f.get("log")), int(f.get("frame") or 0))
                               for f in d.get("bin_flagged") or [] if isinstance(f, dict)),
+            validation=Validation.from_json(d.get("validation")),
         )
 
 

@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from replay.pipeline.session import ReplaySession
     from replay.pipeline.stages import Zone
     from studies.units import WorkUnit
+    from studies.validate import FrameCounts, Validation
     from studies.work import TruthSource
 
 ZCUT_COLUMNS = ("step_mm", "max_depth_mm", "rho_thr", "max_area_px")
@@ -337,3 +338,65 @@ def _close(a: float | None, b: float | None) -> bool:
     if a is None or b is None:
         return a is None and b is None
     return abs(a - b) <= 1e-9 * max(1.0, abs(a), abs(b))
+
+
+# ------------------------------------------------------------------------- out of sample (validate.py)
+def frame_counts(table: Any, zsets: list[ParamSet] | tuple[ParamSet, ...]) -> FrameCounts:
+    """The z-cut sets' per-frame counts of the sweep's table, sets in the order of ``zsets`` (the
+    frames: every scored (log, frame), in log and frame order; a set without a row for a frame counts 0)."""
+    from studies.validate import FrameCounts
+
+    cols = table.to_pydict()
+    frame_ids = sorted({(cols["log_sha256"][i], cols["frame"][i]) for i in range(table.num_rows)})
+    col_of = {f: j for j, f in enumerate(frame_ids)}
+    row_of = {_set_key_of(e): i for i, e in enumerate(zsets)}
+    counts = np.zeros((3, len(zsets), len(frame_ids)), dtype=np.int64)
+    name = {}
+    for i in range(table.num_rows):
+        if cols["method"][i] != "zcut":
+            continue
+        r = row_of.get(_set_key(cols, i))
+        if r is None:
+            continue
+        j = col_of[(cols["log_sha256"][i], cols["frame"][i])]
+        counts[:, r, j] = cols["tp"][i], cols["fp"][i], cols["fn"][i]
+        name[cols["log_sha256"][i]] = cols["log"][i]
+    return FrameCounts(tuple(_zparams(zsets)), tuple(name.get(sha, sha) for sha, _ in frame_ids), tuple(int(f) for _, f in frame_ids),
+                       counts[0], counts[1], counts[2])
+
+
+def _set_key_of(e: ParamSet) -> tuple[Any, ...]:
+    """:func:`_set_key` of a pooled set."""
+    return (e.method, e.step_mm, e.max_depth_mm, e.rho_thr, e.max_area_px if e.rho_thr is None else None, e.sor_k,
+            e.sor_std_ratio)
+
+
+def validate_tuning(table: Any, sets: list[ParamSet], tuned: Tuned, objective: tuple[str, float | None], *,
+                    point: tuple[float | None, ...], rule: str | None = None) -> tuple[Tuned, Validation]:
+    """Cross-validate the z-cut's tuning over the table's frames (:mod:`studies.validate`) and pick the
+    tuned z-cut set by its rule (``tuned.zcut`` replaced; the SOR set as it was).
+
+    ``point``: the config's own (Δd, d_max, ρ_thr, μ_thr); the reference is the paper's nominal set
+    when the grid holds it, else the config's own."""
+    from studies.validate import RULE, cross_validate
+
+    zsets = [e for e in sets if e.method == "zcut"]
+    ranges = tuned.ranges
+    cand = np.array([_inside(e, ranges) for e in zsets], dtype=bool)
+    if not cand.any():  # as tune(): every set is a candidate when none lies inside the ranges
+        cand[:] = True
+    ref_set, ref_name = find_set(zsets, "zcut", 0.2, 30.0, 0.07), "nominal"
+    if ref_set is None:
+        ref_set, ref_name = find_set(zsets, "zcut", point[0], point[1], point[2]), "chosen"
+    ref = next((i for i, e in enumerate(zsets) if e is ref_set), None)
+    v = cross_validate(frame_counts(table, zsets), objective=objective, candidates=cand, point=point, reference=ref,
+                       reference_name=ref_name if ref is not None else None, rule=rule or RULE)
+    if v.tuned is None or tuned.zcut is None:
+        return tuned, v
+    pick = next(e for e, p in zip(zsets, _zparams(zsets)) if p == v.tuned)
+    return dataclasses.replace(tuned, zcut=pick), v
+
+
+def _zparams(zsets: list[ParamSet] | tuple[ParamSet, ...]) -> list[tuple[float | None, ...]]:
+    """(Δd, d_max, ρ_thr, μ_thr) of each z-cut set, as :class:`studies.validate.FrameCounts` holds them."""
+    return [(e.step_mm, e.max_depth_mm, e.rho_thr, e.max_area_px) for e in zsets]

@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from studies.driver import ProgressSink
     from studies.parts import PartStore
     from studies.summary import FlaggedFrame, ParamSet, SweepSummary, Tuned
+    from studies.validate import Validation
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -176,6 +177,8 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
         sets = sweep.pooled_sets(table)
     tuned = sweep.tune(sets, objective, part=base.part)
     chosen = grid.chosen
+    point = (chosen[0], chosen[1], chosen[2], base.zcut.max_area if chosen[2] is None else None)
+    tuned, validation = sweep.validate_tuning(table, sets, tuned, objective, point=point)
     metas = store.metas().values()
     summary = SweepSummary(
         logs=tuple(SweepLog(str(p.path), p.sha256, p.error) for p in plans),
@@ -193,9 +196,10 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
         unscored=tuple(UnscoredFrame(Path(m["log"]).name, u.get("index"), u.get("stamp_ns"), u.get("reason"))
                        for m in metas for u in m["unscored"]),
         reproduce=_reproduce(args), seconds=time.perf_counter() - t0, bin_flagged=_flagged_frames(table),
+        validation=validation,
     )
     store.write_json("summary.json", summary.to_json())
-    tuned_path = _write_tuned(store, base, tuned, args)
+    tuned_path = _write_tuned(store, base, tuned, args, validation)
     if not args.no_report:
         from studies.report import write_report
 
@@ -242,7 +246,8 @@ class _Scaled:
         self.progress.update(n * self.scale, note=note, force=force)
 
 
-def _write_tuned(store: PartStore, base: PipelineConfig, tuned: Tuned, args: argparse.Namespace) -> Path | None:
+def _write_tuned(store: PartStore, base: PipelineConfig, tuned: Tuned, args: argparse.Namespace,
+                 validation: Validation | None = None) -> Path | None:
     """``tuned.toml``: the base config with the tuned z-cut and SOR parameters."""
     import dataclasses
 
@@ -271,6 +276,8 @@ def _write_tuned(store: PartStore, base: PipelineConfig, tuned: Tuned, args: arg
 
     header = (f"zcut sweep: tuned by {args.objective} over {store.root}\n"
               f"z-cut: precision {f(z.precision)}, recall {f(z.recall)}, F1 {f(z.f1)}"
+              + (f"\nz-cut out of sample: F1 {f(validation.f1_out_of_sample)} (cross-validated; rule "
+                 f"{validation.rule})" if validation is not None and validation.f1_out_of_sample is not None else "")
               + (f"\nSOR: precision {f(s.precision)}, recall {f(s.recall)}, F1 {f(s.f1)}" if s else "")
               + (f"\nnote: {tuned.note}" if tuned.note else ""))
     path = store.root / "tuned.toml"
@@ -308,5 +315,7 @@ def _print(summary: SweepSummary, tuned_path: Path | None) -> None:
     print(row("SOR tuned", summary.tuned.sor))
     if summary.tuned.note:
         print(f"note: {summary.tuned.note}")
+    for line in summary.validation.messages() if summary.validation is not None else ():
+        print(f"tuning: {line}")
     if tuned_path is not None:
         print(f"tuned config: {tuned_path}")
