@@ -60,6 +60,14 @@ REGISTRATION_ONLY: dict[str, str] = {
                                           "scratch or from the first frame's pose, frame 1 lands on the same "
                                           "pose to far below a pixel; only its RMSE moves",
 }
+#: registration fields whose change moves the registered pose by a fraction of a millimetre on this log:
+#: the robust removal's tolerance absorbs it (docs/bin_robustness.md), so a mask changes at most by a
+#: pixel at the tolerance's edge, from run to run (Open3D's ICP sums in parallel); the registration's
+#: figures (fitness, RMSE), which replay's table and batch's frames.parquet report, always change
+ABSORBED_BY_REMOVAL: dict[str, str] = {
+    f"registration.{f}": "a pose that differs by far less than the robust tolerance removes the same bin pixels"
+    for f in ("method", "voxel_mm", "max_correspondence_mm", "max_iterations")
+}
 #: fields a command does not read, by design (documented in docs/pipeline.md)
 NOT_READ: dict[tuple[str, str], str] = {
     (f"removal.{f}", "annotate"): "the bin check flags a frame and changes no mask: the labelling page shows masks"
@@ -201,5 +209,8 @@ def test_every_parameter_changes_every_command(setup, baseline, field, tmp_path)
     expected = {cmd for cmd in got if (field, cmd) not in NOT_READ}
     if field in REGISTRATION_ONLY:
         expected = {"replay", "batch"}
+    if field in ABSORBED_BY_REMOVAL:
+        assert {"replay", "batch"} <= changed, f"{field}: changes {sorted(changed)}, not the registration's figures"
+        return
     assert changed == expected, (f"{field}: changes {sorted(changed)}, not {sorted(expected - changed)}"
                                  f"{''.join(f'; {c}: {NOT_READ[(field, c)]}' for c in got if (field, c) in NOT_READ)}")
