@@ -568,10 +568,76 @@ def describe_population(work: Path, kinds, set_name: str, size: str) -> list[str
     return lines
 
 
+def population_sizes(work: Path, kinds, set_name: str, size: str) -> dict[str, tuple[int, int]]:
+    """``{kind: (frames, logs)}`` of one seed set's populations."""
+    out = {}
+    for kind in kinds:
+        z = np.load(counts_path(work, kind, set_name, size))
+        out[kind] = (int(z["zcut_tp"].size), int(z["seeds"].size))
+    return out
+
+
+#: What a coverage cell says when the rule gave no interval in any sample.
+NO_INTERVAL = "too few frames"
+
+
+def _cell(r: dict | None) -> str:
+    """One coverage cell: the coverage (✗ below 0.93), the share of samples without an interval."""
+    if r is None:
+        return "—"
+    if not r["coverage"] == r["coverage"]:
+        return NO_INTERVAL
+    text = f"{r['coverage']:.3f}" + (" ✗" if r["coverage"] < 0.93 else "")
+    if r["none"] > 0:
+        text += f" (no interval in {100 * r['none']:.1f} %)"
+    return text
+
+
+def coverage_grid(rows, rules=()) -> list[str]:
+    """Markdown: zcut's interval, one row per part kind, filter and figure, coverage at every n (and
+    at n = 2, where the rule gives none, when ``rules`` measured it)."""
+    chosen = {(r["kind"], r["method"], r["stat"], r["n"]): r for r in rows if r["candidate"] == CHOSEN}
+    two = {(r["kind"], r["method"], r["stat"]) for r in rules if r["n"] == 2 and r["withheld"] == 1.0}
+    kinds = list(dict.fromkeys(k for k, *_ in chosen))
+    lines = ["| kind | filter | figure | population figure | "
+             + ("n = 2 | " if two else "") + " | ".join(f"n = {n}" for n in NS) + " |",
+             "|---|---|---|---|" + ("---|" if two else "") + "---|" * len(NS)]
+    for kind in kinds:
+        for m in METHODS:
+            for stat in STATS:
+                first = next((chosen[kind, m, stat, n] for n in NS if (kind, m, stat, n) in chosen), None)
+                truth = f"{first['truth']:.3f}" if first else "—"
+                lines.append(f"| {kind} | {m} | {stat} | {truth} | "
+                             + (f"{NO_INTERVAL} | " if two and (kind, m, stat) in two else ("— | " if two else ""))
+                             + " | ".join(_cell(chosen.get((kind, m, stat, n))) for n in NS) + " |")
+    return lines
+
+
+def chosen_by_n(rows) -> list[dict]:
+    """Per n, zcut's interval over every kind, filter and figure: the worst cell, the cells below
+    0.93, the mean width and the largest share of samples without an interval."""
+    out = []
+    for n in NS:
+        sel = [r for r in rows if r["candidate"] == CHOSEN and r["n"] == n]
+        ok = [r for r in sel if r["coverage"] == r["coverage"]]
+        worst = min(ok, key=lambda r: r["coverage"]) if ok else None
+        out.append({"n": n, "cells": len(sel), "worst": worst,
+                    "below": [r for r in ok if r["coverage"] < 0.93],
+                    "width": float(np.mean([r["width"] for r in ok])) if ok else math.nan,
+                    "none": max((r["none"] for r in sel), default=math.nan)})
+    return out
+
+
 def markdown(rows, args, work: Path) -> str:
     kinds = list(dict.fromkeys(r["kind"] for r in rows))
     by = {(r["candidate"], r["kind"], r["method"], r["stat"], r["n"]): r for r in rows}
     chosen = [r for r in rows if r["candidate"] == CHOSEN]
+    sizes = population_sizes(work, kinds, args.set, args.size)
+    other_sizes = population_sizes(work, [k for k in kinds if counts_path(work, k, "tune", args.size).is_file()],
+                                   "tune", args.size) if args.set != "tune" else {}
+    per_n = chosen_by_n(rows)
+    below = [r for s in per_n for r in s["below"]]
+    rules = getattr(args, "rules", None) or []
     lines = [
         "# Coverage of the pooled-accuracy intervals, measured",
         "",
@@ -584,13 +650,18 @@ def markdown(rows, args, work: Path) -> str:
         "- **Estimand**: the pooled (micro-averaged) precision, recall and F1 of a filter over the population of "
         "frames of one part kind (one camera, one config): ΣTP / (ΣTP + ΣFP), ΣTP / (ΣTP + ΣFN), "
         "2ΣTP / (2ΣTP + ΣFP + ΣFN) over every frame.",
-        f"- **Populations**: per part kind, {', '.join(kinds)}, independent synthetic frames at {args.size} (the "
+        "- **Populations**: per part kind, "
+        + ", ".join(f"{kind} {frames} frames ({logs} logs)" for kind, (frames, logs) in sizes.items())
+        + f", independent synthetic frames at {args.size} (the "
         "sensor's size) from `zcut synth` (every frame has its own generator state), replayed by `zcut batch` with a "
         "bin model built by `zcut bin-model` from five synthetic empty-bin scans, the default config (the paper's "
         "nominal Δd 0.2 mm, d_max 30 mm, ρ_thr 0.07; SOR on the top of the pile), TP/FP/FN per frame over the zone. "
-        f"Two seed sets: `tune` (seeds {SEED_SETS['tune']}+, where the interval's choices were made) and `heldout` "
-        f"(seeds {SEED_SETS['heldout']}+, this table). Frame seeds: `SEED_SET + 1000·kind index + log`, "
-        f"{args.frames_per_log if hasattr(args, 'frames_per_log') else 8} frames per log.",
+        f"Two seed sets: `tune` (seeds {SEED_SETS['tune']}+, where the interval's choices were made"
+        + "".join(f"; {k} {v[0]} frames" for k, v in other_sizes.items())
+        + f") and `heldout` (seeds {SEED_SETS['heldout']}+); this table is the `{args.set}` set. "
+        "Log seeds: `SEED_SET + 1000·kind index + log`, 8 frames per log; "
+        "every frame's generator is seeded by (log seed, frame index) (`replay.synth.frame_rng`), so the two sets share no "
+        "frame.",
         f"- **Samples**: {args.draws} samples of n = 3, 6, 12, 24 frames per kind, filter and n, drawn "
         + ("without replacement" if args.without_replacement else
            "with replacement from the population (independent frames of the population's distribution: its pooled "
@@ -601,6 +672,31 @@ def markdown(rows, args, work: Path) -> str:
         "- **No interval**: zcut prints \"too few frames\" instead of an interval when fewer than 3 frames define "
         "the figure, or every frame that defines it has the same value (`zcut.metrics.pooled_interval_many`); the "
         "column *no interval* is the share of samples where that happened.",
+        "",
+        "## Coverage of zcut's interval",
+        "",
+        f"Share of the {args.draws} samples whose 95 % interval holds the population's figure, per part kind, filter "
+        "(z-cut, SOR, their union, their intersection), figure and number of frames n; ✗ marks a cell below 0.93; "
+        f"\"{NO_INTERVAL}\" where the rule gives no interval in any sample; \"no interval in x %\" where it gave "
+        "none in some samples (the coverage is over the others).",
+        "",
+        *coverage_grid(rows, rules),
+        "",
+        "Over every kind, filter and figure:",
+        "",
+        "| n | cells | worst coverage (cell) | cells below 0.93 | mean width | most samples without an interval |",
+        "|---|---|---|---|---|---|",
+        *(f"| {s['n']} | {s['cells']} | "
+          + (f"{s['worst']['coverage']:.3f} ({s['worst']['kind']} {s['worst']['method']} {s['worst']['stat']})"
+             if s["worst"] else NO_INTERVAL)
+          + f" | {len(s['below'])} | {s['width']:.3f} | {100 * s['none']:.1f} % |" for s in per_n),
+        "",
+        (f"**Below 0.93 on this set**: {len(below)} of {len(chosen)} cells — "
+         + "; ".join(f"{r['kind']} {r['method']} {r['stat']} at n = {r['n']}: {r['coverage']:.3f}" for r in below)
+         + ". The interval was not re-tuned on this set (it is the held-out set: changing the method to fit it "
+           "would make it a second tuning set)."
+         if below else
+         f"**Every cell at or above 0.93 on this set** ({len(chosen)} cells)."),
         "",
         "## The populations",
         "",
@@ -614,7 +710,6 @@ def markdown(rows, args, work: Path) -> str:
         *summarise([r for r in rows]),
         "",
     ]
-    rules = getattr(args, "rules", None) or []
     if rules:
         two = [r for r in rules if r["n"] == 2]
         some = [r for r in rules if r["n"] > 2 and r["withheld"] > 0]
