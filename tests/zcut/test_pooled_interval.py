@@ -3,9 +3,11 @@
 A literal reference (one row at a time, the Bell–McCaffrey matrix written out), the laws (frame
 order, scaling every count, the level), the no-interval rule, bad input, and a small version of
 the coverage simulation of ``bench/interval_coverage.py``: parametric populations of per-frame
-counts fitted to the synthetic zinc-nut and black-nut populations, 1000 samples of 6 frames each.
-The lognormal FP tail of these models is heavier than the populations' own (the z-cut's precision on
-zinc nuts covers ~0.92 here, 0.95 on the population itself), so the bar is 0.9.
+counts fitted to the synthetic zinc-nut and black-nut populations (the tune set), 1000 samples of 6
+frames and 2000 of 3, 12 and 24 frames. The lognormal FP tail of these models is heavier than the
+populations' own (the z-cut's precision on zinc nuts covers ~0.93 here at 6 frames and ~0.91 at 12
+and 24, 0.96 or more on the populations themselves), so the bar is 0.9 at 6 frames and 0.88 at the
+others; the table over the held-out populations, bar 0.93, is docs/coverage.md.
 """
 
 from __future__ import annotations
@@ -237,3 +239,30 @@ def test_coverage_of_six_frames_on_fitted_populations(model) -> None:
         assert coverage >= 0.9, (model, k, coverage)
         worst_boot = min(worst_boot, np.mean((boot[k][:, 0] <= truth) & (truth <= boot[k][:, 1])))
     assert worst_boot < 0.9  # the former percentile bootstrap does not hold these populations
+
+
+#: The models' FP tail beyond their 90th percentile is lognormal, heavier than the synthetic
+#: populations' (the top 10 % of frames hold ~0.6 of ΣFP in the models, 0.40–0.47 in the
+#: populations): the z-cut's precision covers ~0.91 here at 12 and 24 frames (20 000 samples), 0.96
+#: or more on the held-out populations themselves (docs/coverage.md). The bar is below that, and
+#: above the former percentile bootstrap's 0.6–0.89 (docs/accuracy.md, "How well it holds").
+HEAVY_TAIL_BAR = 0.88
+
+
+@pytest.mark.parametrize("n", [3, 12, 24])
+@pytest.mark.parametrize("model", sorted(MODELS))
+def test_coverage_of_3_12_and_24_frames_on_fitted_populations(model, n) -> None:
+    rng = np.random.default_rng(20)
+    tp, fp, fn = _population(MODELS[model], rng, 4000)
+    idx = rng.integers(0, tp.size, (2000, n))  # 2000 samples of n independent frames
+    ours = pooled_interval_many(tp[idx], fp[idx], fn[idx])
+    for k in INTERVAL_STATS:
+        num, den = PARTS[k](tp, fp, fn)
+        truth = num.sum() / den.sum()
+        lo, hi = ours[k][:, 0], ours[k][:, 1]
+        has = ~np.isnan(lo)
+        assert has.mean() > (0.9 if n == 3 else 0.99), (model, k, n, has.mean())  # the rule rarely withholds
+        assert np.array_equal(np.isnan(lo), np.isnan(hi))
+        coverage = np.mean((lo[has] <= truth) & (truth <= hi[has]))
+        assert coverage >= HEAVY_TAIL_BAR, (model, k, n, coverage)
+        assert np.all(lo[has] <= hi[has])
