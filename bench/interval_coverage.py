@@ -11,7 +11,7 @@ population's figure.
    model from five synthetic empty-bin scans (``zcut bin-model``), ``zcut batch`` with the default
    config (the paper's nominal parameters): TP, FP, FN of every method per frame over the zone. The
    counts are cached in ``WORK/counts_KIND_SET.npz`` (the logs are deleted once counted), so reruns
-   are cheap.
+   are cheap, and a larger ``--frames`` adds logs to a population counted before.
 2. **Coverage** (``simulate``). From one population (``--set``), draw many samples of n = 3, 6, 12,
    24 frames (with replacement by default: independent frames of the population's distribution, so
    the population's pooled figure is exactly the estimand; ``--without-replacement`` draws subsets),
@@ -89,9 +89,18 @@ def generate(args) -> int:
     for set_name in args.sets.split(","):
         for kind in args.kinds.split(","):
             dest = counts_path(work, kind, set_name, args.size)
-            if dest.is_file():
-                continue
             part = work / f"part_{kind}_{set_name}_{args.size}"
+            if dest.is_file():
+                have = np.load(dest)["seeds"]
+                if have.size >= n_logs:
+                    continue
+                # a bigger population: its first logs are counted already (the per-log tables back)
+                part.mkdir(exist_ok=True)
+                full = pq.read_table(dest.with_suffix(".parquet"))
+                for s in have:
+                    pq.write_table(full.filter(pc.equal(full.column("log"), f"{kind}_{s}.mcap")),
+                                   part / f"{s}.parquet")
+                print(f"{kind} {set_name}: {have.size} logs counted, growing to {n_logs}", file=sys.stderr)
             part.mkdir(exist_ok=True)
             t0 = time.perf_counter()
             for g in range(0, n_logs, args.workers):
