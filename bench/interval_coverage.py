@@ -598,7 +598,8 @@ def _cell(r: dict | None) -> str:
         return NO_INTERVAL
     text = f"{r['coverage']:.3f}" + (" ✗" if r["coverage"] < 0.93 else "")
     if r["none"] > 0:
-        text += f" (no interval in {100 * r['none']:.1f} %)"
+        share = f"{100 * r['none']:.1f} %" if r["none"] >= 0.0005 else "< 0.1 %"
+        text += f" (no interval in {share})"
     return text
 
 
