@@ -679,6 +679,7 @@ def markdown(rows, args, work: Path) -> str:
         + f", generator seed {args.seed}; the same samples for every interval. Coverage = the share of samples whose "
         "95 % interval holds the population's figure, among the samples that get an interval; Monte Carlo standard "
         f"error ≈ {math.sqrt(0.95 * 0.05 / args.draws):.4f} at 0.95.",
+        *([f"- **Note**: {args.note}"] if getattr(args, "note", None) else []),
         "- **No interval**: zcut prints \"too few frames\" instead of an interval when fewer than 3 frames define "
         "the figure, or every frame that defines it has the same value (`zcut.metrics.pooled_interval_many`); the "
         "column *no interval* is the share of samples where that happened.",
@@ -805,6 +806,7 @@ def main() -> int:
     s.add_argument("--without-replacement", action="store_true")
     s.add_argument("--candidates", default="", help="names separated by ; (default: every one)")
     s.add_argument("--markdown", help="write the Markdown tables here (docs/coverage.md)")
+    s.add_argument("--note", help="a sentence for the Markdown's \"How it was measured\" (e.g. which zcut counted the sets)")
     s.add_argument("--work", default="/tmp/zcut_interval_coverage")
     f = sub.add_parser("fit", help="print the parametric model of each population (the tests' populations)")
     f.add_argument("--kinds", default="zinc_nuts,black_nuts")
