@@ -590,6 +590,11 @@ def population_sizes(work: Path, kinds, set_name: str, size: str) -> dict[str, t
 NO_INTERVAL = "too few frames"
 
 
+def _percent(share: float) -> str:
+    """A share as a percentage, "< 0.1 %" rather than 0.0 % when it is not zero."""
+    return "0 %" if share == 0 else f"{100 * share:.1f} %" if share >= 0.0005 else "< 0.1 %"
+
+
 def _cell(r: dict | None) -> str:
     """One coverage cell: the coverage (✗ below 0.93), the share of samples without an interval."""
     if r is None:
@@ -598,8 +603,7 @@ def _cell(r: dict | None) -> str:
         return NO_INTERVAL
     text = f"{r['coverage']:.3f}" + (" ✗" if r["coverage"] < 0.93 else "")
     if r["none"] > 0:
-        share = f"{100 * r['none']:.1f} %" if r["none"] >= 0.0005 else "< 0.1 %"
-        text += f" (no interval in {share})"
+        text += f" (no interval in {_percent(r['none'])})"
     return text
 
 
@@ -700,7 +704,7 @@ def markdown(rows, args, work: Path) -> str:
         *(f"| {s['n']} | {s['cells']} | "
           + (f"{s['worst']['coverage']:.3f} ({s['worst']['kind']} {s['worst']['method']} {s['worst']['stat']})"
              if s["worst"] else NO_INTERVAL)
-          + f" | {len(s['below'])} | {s['width']:.3f} | {100 * s['none']:.1f} % |" for s in per_n),
+          + f" | {len(s['below'])} | {s['width']:.3f} | {_percent(s['none'])} |" for s in per_n),
         "",
         (f"**Below 0.93 on this set**: {len(below)} of {len(chosen)} cells — "
          + "; ".join(f"{r['kind']} {r['method']} {r['stat']} at n = {r['n']}: {r['coverage']:.3f}" for r in below)
@@ -739,7 +743,7 @@ def markdown(rows, args, work: Path) -> str:
             "",
             "| kind | filter | figure | n | samples withheld | their coverage without the rule |",
             "|---|---|---|---|---|---|",
-            *(f"| {r['kind']} | {r['method']} | {r['stat']} | {r['n']} | {r['withheld']:.3f} "
+            *(f"| {r['kind']} | {r['method']} | {r['stat']} | {r['n']} | {_percent(r['withheld'])} "
               f"| {r['withheld_coverage']:.3f} |" for r in some),
             "",
         ]
