@@ -338,6 +338,8 @@ class SweepSummary:
     seconds: float | None = None
     bin_flagged: tuple[FlaggedFrame, ...] = ()
     validation: Validation | None = None
+    #: The filter bank's ranking per part kind (:func:`studies.bank.ranking`), None without a bank.
+    ranking: Json | None = None
 
     @property
     def data_loss(self) -> bool:
@@ -362,7 +364,7 @@ class SweepSummary:
             "reproduce": self.reproduce, "seconds": _number(self.seconds),
             "bin_flagged": [{"log": f.log, "frame": f.frame} for f in self.bin_flagged],
             "validation": None if self.validation is None else self.validation.to_json(),
-        }
+        } | ({"ranking": self.ranking} if self.ranking is not None else {})
 
     def _tuned_json(self) -> Json:
         """``tuned`` with, on the tuned z-cut set, its out-of-sample figures beside the in-sample ones
@@ -404,6 +406,7 @@ class SweepSummary:
             bin_flagged=tuple(FlaggedFrame(str(f.get("log")), int(f.get("frame") or 0))
                               for f in d.get("bin_flagged") or [] if isinstance(f, dict)),
             validation=Validation.from_json(d.get("validation")),
+            ranking=d["ranking"] if isinstance(d.get("ranking"), dict) else None,
         )
 
 
