@@ -1,5 +1,5 @@
 """The filter bank in a sweep: each filter's own parameter axes, its sets scored like the z-cut's and
-SOR's, and the ranking per part kind (docs/studies.md, "The filter bank in a sweep").
+SOR's, and the ranking per part kind (docs/filters.md, "The bank in a sweep").
 
 Axes are given as ``--grid SECTION.FIELD=LIST`` (``--grid radius.radius_mm=1,2,3 --grid
 radius.min_points=4,8``), or ``--grid SECTION=default`` for the filter's default axes

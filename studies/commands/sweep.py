@@ -45,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--grid", action="append", metavar="SECTION.FIELD=LIST", default=None,
                    help="an axis of a filter of the bank (repeatable): e.g. radius.radius_mm=1,2,3, "
                    "radius.min_points=4,8; SECTION=default for the filter's default axes. The filter must be among "
-                   "--methods; its other fields hold the config's values (docs/studies.md)")
+                   "--methods; its other fields hold the config's values (docs/filters.md, 'The bank in a sweep')")
     g.add_argument("--no-study-points", dest="study_points", action="store_false",
                    help="the grid is exactly the values given (and the config's value on the axes not given): "
                    "no 0.5×/1.5× points (θ, ω and the paper's findings need them)")

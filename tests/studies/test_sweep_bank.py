@@ -1,4 +1,4 @@
-"""`zcut sweep` over the filter bank (docs/studies.md, "The filter bank in a sweep"): each filter's own
+"""`zcut sweep` over the filter bank (docs/filters.md, "The bank in a sweep"): each filter's own
 axes, counts equal to replay's at every set, the ranking per part kind in summary.json, the report's
 section and chart, tuned.toml, and bad --grid values as one line."""
 
