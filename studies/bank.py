@@ -24,16 +24,19 @@ import itertools
 import json
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from replay.errors import ConfigError
 
 if TYPE_CHECKING:
+    from annotate.truth import FrameTruth
+    from replay.logs.frame import Frame
     from replay.pipeline.config import PipelineConfig
+    from replay.pipeline.stages import Zone
 
 #: Each filter's default axes (``--grid NAME=default``): a few values around the defaults of
 #: ``zcut.params``, from a light to a strong filter.
@@ -100,7 +103,7 @@ def parse_grid_options(items: Sequence[str] | None) -> dict[str, dict[str, tuple
     return out
 
 
-def make_bank_grid(axes: Mapping[str, Mapping[str, Sequence[float]]], config: PipelineConfig) -> dict[str, list[dict]]:
+def make_bank_grid(axes: Mapping[str, Mapping[str, Sequence[float]]], config: PipelineConfig) -> dict[str, list[dict[str, Any]]]:
     """``{method: [params dict, ...]}``: the product of each swept filter's axes (the config's value
     on the axes not given), for every filter of ``config.base_methods`` other than zcut and sor.
 
@@ -118,7 +121,7 @@ def make_bank_grid(axes: Mapping[str, Mapping[str, Sequence[float]]], config: Pi
         if section not in base:
             raise ConfigError(f"--grid {section}.*: {section} is not among the methods ({', '.join(config.methods)}): "
                               f"add it with --methods")
-    out: dict[str, list[dict]] = {}
+    out: dict[str, list[dict[str, Any]]] = {}
     for m in base:
         own = getattr(config, m)
         names = [f.name for f in dataclasses.fields(own)]
@@ -136,7 +139,7 @@ def make_bank_grid(axes: Mapping[str, Mapping[str, Sequence[float]]], config: Pi
     return out
 
 
-def n_bank_sets(grid: Mapping[str, Sequence[dict]]) -> int:
+def n_bank_sets(grid: Mapping[str, Sequence[dict[str, Any]]]) -> int:
     return sum(len(v) for v in grid.values())
 
 
@@ -157,7 +160,8 @@ def _kind_counts(pred: np.ndarray, truth_kind: np.ndarray | None, lab: np.ndarra
     return json.dumps({str(c): int(tp[c]) for c in codes}), json.dumps({str(c): int(n[c]) for c in codes})
 
 
-def bank_rows(row, frame, zone, config: PipelineConfig, grid: Mapping[str, Sequence[dict]], truth, scored: np.ndarray,
+def bank_rows(row: Callable[..., dict[str, Any]], frame: Frame, zone: Zone, config: PipelineConfig,
+              grid: Mapping[str, Sequence[dict[str, Any]]], truth: FrameTruth, scored: np.ndarray,
               base_seconds: dict[str, float]) -> list[dict[str, Any]]:
     """The rows of every bank set on one frame (``row(method, **columns)`` makes a row of the sweep's
     table). When there is a bank, the z-cut and SOR also run once at the config's own point: their
@@ -268,7 +272,7 @@ def _r(a: int, b: int) -> float | None:
     return a / b if b else None
 
 
-def _set_params(method: str, cols: Mapping[str, list], i: int) -> dict[str, Any]:
+def _set_params(method: str, cols: Mapping[str, list[Any]], i: int) -> dict[str, Any]:
     from studies.sweep import SOR_COLUMNS, ZCUT_COLUMNS
 
     p = cols.get("params", [None] * (i + 1))[i]
@@ -329,8 +333,6 @@ def pooled_bank_sets(table: Any, *, by_part: bool) -> list[BankSet]:
 def ranking(table: Any, objective: tuple[str, float | None]) -> dict[str, Any]:
     """The ranking per part kind (and over every log, ``"all"``): each method's best set by the
     objective, best first; ``summary.json``'s ``ranking``."""
-    from studies.sweep import score
-
     out: dict[str, Any] = {}
     for by_part in (False, True):
         sets = pooled_bank_sets(table, by_part=by_part)
@@ -338,14 +340,21 @@ def ranking(table: Any, objective: tuple[str, float | None]) -> dict[str, Any]:
         for part in parts:
             best: dict[str, BankSet] = {}
             for s in (s for s in sets if s.part == part):
-                if s.method not in best or score(s, objective) > score(best[s.method], objective):
+                if s.method not in best or _score(s, objective) > _score(best[s.method], objective):
                     best[s.method] = s
-            ranked = sorted(best.values(), key=lambda s: -_finite(score(s, objective)))
+            ranked = sorted(best.values(), key=lambda s: -_finite(_score(s, objective)))
             key = "all" if not by_part else (part if part is not None else "unknown")
             if by_part and len(parts) == 1 and part is None:
                 continue
             out[key] = [s.to_json() for s in ranked]
     return {"kinds": kind_names(), "by_part": out}
+
+
+def _score(s: BankSet, objective: tuple[str, float | None]) -> float:
+    """:func:`studies.sweep.score` of a bank's set (it reads precision, recall and F1 only)."""
+    from studies.sweep import score
+
+    return score(cast(Any, s), objective)
 
 
 def _finite(v: float) -> float:

@@ -288,7 +288,7 @@ def _ranking(s: SweepSummary) -> dict[str, Any]:
         for i, row in enumerate(rows, 1):
             ci = row.get("ci95") or {}
 
-            def cell(m: str, row: dict = row, ci: dict = ci) -> dict[str, str]:
+            def cell(m: str, row: dict[str, Any] = row, ci: dict[str, Any] = ci) -> dict[str, str]:
                 lo, hi = (list(ci.get(m) or []) + [None, None])[:2]
                 return {"value": _num(row.get(m)),
                         "ci": "" if lo is None or hi is None else f"[{lo:.3f}, {hi:.3f}]"}

@@ -348,7 +348,7 @@ class SweepSummary:
 
     def to_json(self) -> Json:
         """The ``summary.json`` object (keys and values as ``docs/studies.md`` describes them)."""
-        return {
+        d: Json = {
             "logs": [{"log": lg.log, "sha256": lg.sha256, "error": lg.error} for lg in self.logs],
             "frames": self.frames, "region": self.region, "objective": self.objective, "truth": self.truth,
             "grid": self.grid.as_dict() if self.grid is not None else None, "config": self.config,
@@ -364,7 +364,10 @@ class SweepSummary:
             "reproduce": self.reproduce, "seconds": _number(self.seconds),
             "bin_flagged": [{"log": f.log, "frame": f.frame} for f in self.bin_flagged],
             "validation": None if self.validation is None else self.validation.to_json(),
-        } | ({"ranking": self.ranking} if self.ranking is not None else {})
+        }
+        if self.ranking is not None:
+            d["ranking"] = self.ranking
+        return d
 
     def _tuned_json(self) -> Json:
         """``tuned`` with, on the tuned z-cut set, its out-of-sample figures beside the in-sample ones

@@ -88,6 +88,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     from replay.logs.reader import LogReader
     from replay.process import EXIT_DATA_LOSS
     from studies import sweep
+    from studies.bank import make_bank_grid, n_bank_sets, parse_grid_options, ranking
     from studies.driver import (
         Progress,
         absolute,
@@ -99,7 +100,6 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
         study_options,
     )
     from studies.executors import make_executor
-    from studies.bank import make_bank_grid, n_bank_sets, parse_grid_options, ranking
     from studies.grid import make_grid, parse_list
     from studies.parts import PartStore
     from studies.summary import DamageNote, SweepLog, SweepSummary, UnscoredFrame
@@ -262,7 +262,7 @@ class _Scaled:
 
 
 def _write_tuned(store: PartStore, base: PipelineConfig, tuned: Tuned, args: argparse.Namespace,
-                 validation: Validation | None = None, ranking: dict | None = None) -> Path | None:
+                 validation: Validation | None = None, ranking: dict[str, Any] | None = None) -> Path | None:
     """``tuned.toml``: the base config with the tuned z-cut and SOR parameters, and each swept filter of
     the bank at its tuned set; its header names the ranking's best method or combination."""
     import dataclasses

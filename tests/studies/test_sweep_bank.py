@@ -11,7 +11,7 @@ import pyarrow.parquet as pq
 import pytest
 from cli_helpers import run_cli
 
-from replay.cli import main
+from cli.main import main
 from replay.logs import layout
 from replay.logs.reader import LogReader
 
