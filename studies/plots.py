@@ -41,7 +41,9 @@ if TYPE_CHECKING:
 #: Every plot file a report may write, in page order (those a grid cannot draw are not written,
 #: and a stale one from an earlier run of the same folder is removed).
 PLOT_NAMES = ("counts_max_depth.png", "counts_rho.png", "counts_step.png", "accuracy_zcut.png",
-              "accuracy_sor.png", "f1_map.png", "precision_recall.png", "ratios.png", "ranking.png")
+              "accuracy_sor.png", "f1_map.png", "precision_recall.png", "ratios.png")
+#: The plots of a sweep with a filter bank (``summary.ranking``), after those of :data:`PLOT_NAMES`.
+BANK_PLOT_NAMES = ("ranking.png",)
 
 _DPI = 150            # PNG pixels per inch; the page shows 100 CSS px per inch (sharp on HiDPI screens)
 _CSS_PX_PER_INCH = 100
@@ -82,7 +84,7 @@ class Plot:
     Attributes
     ----------
     name : str
-        File name under ``DIR/plots`` (one of :data:`PLOT_NAMES`).
+        File name under ``DIR/plots`` (one of :data:`PLOT_NAMES` or :data:`BANK_PLOT_NAMES`).
     title, caption : str
         Shown above and below it on the page (plain text).
     png : bytes

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from studies.findings import Finding, findings, fmt_num, param_text
-from studies.plots import PLOT_NAMES, Plot, make_plots
+from studies.plots import BANK_PLOT_NAMES, PLOT_NAMES, Plot, make_plots
 from studies.setgrid import SetGrid, as_summary, same_set
 from studies.setgrid import key as _key
 from studies.summary import ParamSet, Sensitivities, SweepSummary
@@ -380,7 +380,7 @@ def write_report(out_dir: Path, summary: SweepSummary | Mapping[str, Any]) -> Pa
     for p in plots:
         _write_bytes(plot_dir / p.name, p.png)
     made = {p.name for p in plots}
-    for name in PLOT_NAMES:
+    for name in PLOT_NAMES + BANK_PLOT_NAMES:
         stale = plot_dir / name
         if name not in made and stale.is_file():
             stale.unlink()
