@@ -42,6 +42,8 @@ if TYPE_CHECKING:
 #: and a stale one from an earlier run of the same folder is removed).
 PLOT_NAMES = ("counts_max_depth.png", "counts_rho.png", "counts_step.png", "accuracy_zcut.png",
               "accuracy_sor.png", "f1_map.png", "precision_recall.png", "ratios.png")
+#: The plots of a sweep with a filter bank (``summary.ranking``), after those of :data:`PLOT_NAMES`.
+BANK_PLOT_NAMES = ("ranking.png",)
 
 _DPI = 150            # PNG pixels per inch; the page shows 100 CSS px per inch (sharp on HiDPI screens)
 _CSS_PX_PER_INCH = 100
@@ -82,7 +84,7 @@ class Plot:
     Attributes
     ----------
     name : str
-        File name under ``DIR/plots`` (one of :data:`PLOT_NAMES`).
+        File name under ``DIR/plots`` (one of :data:`PLOT_NAMES` or :data:`BANK_PLOT_NAMES`).
     title, caption : str
         Shown above and below it on the page (plain text).
     png : bytes
@@ -504,6 +506,37 @@ def _ratios_plot(sw: SetGrid) -> Plot | None:
     return _plot("ratios.png", "α and β vs the z-cut's parameters", caption, fig)
 
 
+def _ranking_plot(ranking: Mapping[str, Any] | None) -> Plot | None:
+    """Precision against recall of every method's tuned set (the filter bank's ranking over every log),
+    with 95 % intervals over frames; None without a ranking."""
+    rows = list(((ranking or {}).get("by_part") or {}).get("all") or [])
+    pts = [r for r in rows if r.get("precision") is not None and r.get("recall") is not None]
+    if not pts:
+        return None
+    fig, axes = _figure(1, 1, width_in=7.0, height_in=5.0)
+    ax = axes[0][0]
+    _iso_f1(ax)
+    colours = _line_colours(len(pts))
+    for c, r in zip(colours, pts):
+        ci = r.get("ci95") or {}
+        p, rc = float(r["precision"]), float(r["recall"])
+        plo, phi = (ci.get("precision") or [None, None])[:2]
+        rlo, rhi = (ci.get("recall") or [None, None])[:2]
+        yerr = [[p - plo], [phi - p]] if plo is not None and phi is not None else None
+        xerr = [[rc - rlo], [rhi - rc]] if rlo is not None and rhi is not None else None
+        marker = "D" if "+" in str(r["method"]) else "o"
+        ax.errorbar([rc], [p], xerr=xerr, yerr=yerr, fmt=marker, color=c, ms=6, capsize=2, lw=1,
+                    label=f"{r['method']}  F1 {r['f1']:.3f}" if r.get("f1") is not None else str(r["method"]))
+    ax.set_xlim(0, 1.02)
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("recall")
+    ax.set_ylabel("precision")
+    _legend_right(ax)
+    caption = ("Every filter at its tuned parameters (the best set of its own axes by the objective), pooled over "
+               "every log of the sweep, with 95 % intervals over frames; diamonds: unions. Grey: lines of equal F1.")
+    return _plot("ranking.png", "The filter bank: each filter's tuned point", caption, fig)
+
+
 def make_plots(summary: SweepSummary | Mapping[str, Any]) -> list[Plot]:
     """Every plot the sweep's grid can draw, in page order (see the module docstring).
 
@@ -524,7 +557,7 @@ def make_plots(summary: SweepSummary | Mapping[str, Any]) -> list[Plot]:
               lambda: _counts_plot(sw, sw.area, "max_depth_mm", name="counts_rho.png", paper="Figs. 18–19"),
               lambda: _counts_plot(sw, "step_mm", "max_depth_mm", name="counts_step.png", paper="Fig. 20"),
               lambda: _accuracy_plot(sw, "zcut"), lambda: _accuracy_plot(sw, "sor"), lambda: _f1_map(sw),
-              lambda: _pr_plot(sw), lambda: _ratios_plot(sw)]
+              lambda: _pr_plot(sw), lambda: _ratios_plot(sw), lambda: _ranking_plot(sw.summary.ranking)]
     out: list[Plot] = []
     with matplotlib.rc_context(_RC):
         for make in makers:

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from studies.findings import Finding, findings, fmt_num, param_text
-from studies.plots import PLOT_NAMES, Plot, make_plots
+from studies.plots import BANK_PLOT_NAMES, PLOT_NAMES, Plot, make_plots
 from studies.setgrid import SetGrid, as_summary, same_set
 from studies.setgrid import key as _key
 from studies.summary import ParamSet, Sensitivities, SweepSummary
@@ -33,7 +33,8 @@ PLOTS_DIR = "plots"
 REPORT_NAME = "report.html"
 TOP_N = 10
 
-SECTIONS = (("swept", "What was swept"), ("best", "Best parameter sets"), ("plots", "Plots"),
+SECTIONS = (("swept", "What was swept"), ("best", "Best parameter sets"),
+            ("ranking", "The filter bank: each filter tuned, ranked"), ("plots", "Plots"),
             ("findings", "The paper's findings, scored by true accuracy"),
             ("sensitivity", "Sensitivity ratios θ and ω"), ("config", "Tuned and resolved config"),
             ("notes", "Notes and warnings"), ("reproduce", "How to reproduce"))
@@ -272,6 +273,37 @@ def _reproduce(s: SweepSummary, out_dir: Path | None) -> dict[str, str]:
     return {"sweep": s.reproduce or "(unknown)", "replays": replays or f"zcut replay LOG.mcap --config {tuned}"}
 
 
+def _num(v: Any, fmt: str = ".3f") -> str:
+    return "—" if v is None else format(v, fmt)
+
+
+def _ranking(s: SweepSummary) -> dict[str, Any]:
+    """The filter bank's ranking per part kind (``summary.ranking``): one table per part."""
+    r = s.ranking or {}
+    kinds = r.get("kinds") or {}
+    tables = []
+    for part, rows in (r.get("by_part") or {}).items():
+        codes = sorted({k for row in rows for k in (row.get("kind_recall") or {})}, key=int)
+        out = []
+        for i, row in enumerate(rows, 1):
+            ci = row.get("ci95") or {}
+
+            def cell(m: str, row: dict[str, Any] = row, ci: dict[str, Any] = ci) -> dict[str, str]:
+                lo, hi = (list(ci.get(m) or []) + [None, None])[:2]
+                return {"value": _num(row.get(m)),
+                        "ci": "" if lo is None or hi is None else f"[{lo:.3f}, {hi:.3f}]"}
+
+            params = ", ".join(f"{k} {v:g}" if isinstance(v, (int, float)) else f"{k} {v}"
+                               for k, v in (row.get("params") or {}).items())
+            secs = row.get("seconds")
+            out.append({"rank": i, "method": row.get("method"), "params": params or "(the config's)",
+                        "precision": cell("precision"), "recall": cell("recall"), "f1": cell("f1"),
+                        "kinds": [_num((row.get("kind_recall") or {}).get(k)) for k in codes],
+                        "ms": "—" if secs is None else f"{1000 * secs:.1f}", "frames": row.get("frames")})
+        tables.append({"part": part, "kinds": [kinds.get(k, k) for k in codes], "rows": out})
+    return {"tables": tables}
+
+
 def page_context(summary: SweepSummary | Mapping[str, Any], plots: list[Plot], *, tuned_toml: str | None = None,
                  out_dir: Path | None = None) -> dict[str, Any]:
     """Everything the page shows, section by section, as plain values (strings, numbers, lists):
@@ -280,7 +312,8 @@ def page_context(summary: SweepSummary | Mapping[str, Any], plots: list[Plot], *
     s = g.summary
     return {
         "sections": SECTIONS, "titles": dict(SECTIONS), "lead": _lead(g), "swept": _swept(g),
-        "best": _best(g), "validation": _validation(s), "plots": _plots(plots), "findings": [_finding_row(f) for f in findings(g)],
+        "best": _best(g), "validation": _validation(s), "ranking": _ranking(s), "plots": _plots(plots),
+        "findings": [_finding_row(f) for f in findings(g)],
         "sensitivity": [_sensitivity_block(g, "chosen", s.chosen_zcut, s.sensitivity_chosen),
                         _sensitivity_block(g, "tuned", s.tuned.zcut, s.sensitivity_tuned)],
         "config": _config(s, tuned_toml), "notes": _notes(s), "reproduce": _reproduce(s, out_dir),
@@ -347,7 +380,7 @@ def write_report(out_dir: Path, summary: SweepSummary | Mapping[str, Any]) -> Pa
     for p in plots:
         _write_bytes(plot_dir / p.name, p.png)
     made = {p.name for p in plots}
-    for name in PLOT_NAMES:
+    for name in PLOT_NAMES + BANK_PLOT_NAMES:
         stale = plot_dir / name
         if name not in made and stale.is_file():
             stale.unlink()

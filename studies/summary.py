@@ -338,6 +338,8 @@ class SweepSummary:
     seconds: float | None = None
     bin_flagged: tuple[FlaggedFrame, ...] = ()
     validation: Validation | None = None
+    #: The filter bank's ranking per part kind (:func:`studies.bank.ranking`), None without a bank.
+    ranking: Json | None = None
 
     @property
     def data_loss(self) -> bool:
@@ -346,7 +348,7 @@ class SweepSummary:
 
     def to_json(self) -> Json:
         """The ``summary.json`` object (keys and values as ``docs/studies.md`` describes them)."""
-        return {
+        d: Json = {
             "logs": [{"log": lg.log, "sha256": lg.sha256, "error": lg.error} for lg in self.logs],
             "frames": self.frames, "region": self.region, "objective": self.objective, "truth": self.truth,
             "grid": self.grid.as_dict() if self.grid is not None else None, "config": self.config,
@@ -363,6 +365,9 @@ class SweepSummary:
             "bin_flagged": [{"log": f.log, "frame": f.frame} for f in self.bin_flagged],
             "validation": None if self.validation is None else self.validation.to_json(),
         }
+        if self.ranking is not None:
+            d["ranking"] = self.ranking
+        return d
 
     def _tuned_json(self) -> Json:
         """``tuned`` with, on the tuned z-cut set, its out-of-sample figures beside the in-sample ones
@@ -404,6 +409,7 @@ class SweepSummary:
             bin_flagged=tuple(FlaggedFrame(str(f.get("log")), int(f.get("frame") or 0))
                               for f in d.get("bin_flagged") or [] if isinstance(f, dict)),
             validation=Validation.from_json(d.get("validation")),
+            ranking=d["ranking"] if isinstance(d.get("ranking"), dict) else None,
         )
 
 

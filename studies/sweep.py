@@ -38,6 +38,9 @@ if TYPE_CHECKING:
 
 ZCUT_COLUMNS = ("step_mm", "max_depth_mm", "rho_thr", "max_area_px")
 SOR_COLUMNS = ("sor_k", "sor_std_ratio")
+#: Columns of the filter bank's rows (``studies.bank``), None on the z-cut's and SOR's except
+#: ``seconds`` and ``part`` when the sweep has a bank.
+BANK_COLUMNS = ("params", "seconds", "part", "kind_tp", "kind_n")
 
 
 def grid_of(job: Job) -> Grid:
@@ -55,12 +58,15 @@ def _row(unit: WorkUnit, frame: Frame, method: str, **kw: Any) -> dict[str, Any]
            "stamp_ns": frame.stamp_ns, "method": method}
     for c in ZCUT_COLUMNS + SOR_COLUMNS + ("tp", "fp", "fn", "n_pred", "n_both", "n_sor_only", "n_zcut_only"):
         out[c] = kw.get(c)
+    for c in BANK_COLUMNS:  # the filter bank's (studies.bank)
+        out[c] = kw.get(c)
     return out
 
 
 def sweep_frame(unit: WorkUnit, frame: Frame, zone: Zone, config: PipelineConfig, grid: Grid, truth: FrameTruth,
-                region: np.ndarray) -> list[dict[str, Any]]:
-    """Every grid point of one frame (see the module docstring)."""
+                region: np.ndarray, bank: dict[str, list[dict[str, Any]]] | None = None) -> list[dict[str, Any]]:
+    """Every grid point of one frame (see the module docstring); ``bank``: the filter bank's sets
+    (:func:`studies.bank.make_bank_grid`)."""
     from replay.pipeline.stages import sor_masks_on_zone, sor_region
     from zcut import zcut_tree
 
@@ -122,6 +128,17 @@ def sweep_frame(unit: WorkUnit, frame: Frame, zone: Zone, config: PipelineConfig
                         extra = {"step_mm": step, "max_depth_mm": depth} if top else {}
                         rows.append(_row(unit, frame, "sor", sor_k=k, sor_std_ratio=std, **extra,
                                          **counts(m | easy)))
+    bank = bank or {}
+    if bank or any("+" in m for m in config.methods):
+        from studies.bank import bank_rows
+
+        base_seconds: dict[str, float] = {}
+        rows += bank_rows(lambda m, **kw: _row(unit, frame, m, **kw), frame, zone, config, bank, truth, S,
+                          base_seconds)
+        for r in rows:
+            r["part"] = config.part
+            if r["method"] in base_seconds:
+                r["seconds"] = base_seconds[r["method"]]
     # the bin check of the frame, on each of its rows (the bin stages run once per frame: every
     # parameter set rests on the same removal)
     check = zone.bin_check
@@ -144,7 +161,8 @@ def run_sweep_unit(unit: WorkUnit, job: Job) -> UnitResult:
                 if isinstance(t, str):
                     res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": t})
                     continue
-                res.rows += sweep_frame(unit, frame, zone, session.config, grid, t, _region(zone, job.region))
+                res.rows += sweep_frame(unit, frame, zone, session.config, grid, t, _region(zone, job.region),
+                                        job.extra.get("bank"))
         finally:
             zones.close()
             res.damage = list(zones.damage)
@@ -184,6 +202,8 @@ def pooled_sets(table: Any) -> list[ParamSet]:
     n = table.num_rows
     groups: dict[tuple[Any, ...], list[int]] = {}
     for i in range(n):
+        if cols["method"][i] not in ("zcut", "sor"):  # the filter bank's sets: studies.bank
+            continue
         groups.setdefault(_set_key(cols, i), []).append(i)
     out = []
     by_frames: dict[int, list[tuple[tuple[Any, ...], list[int]]]] = {}

@@ -38,9 +38,15 @@ from zcut.params import (
     NOMINAL_RHO_THR,
     NOMINAL_STEP_MM,
     BinMaskParams,
+    ClusterParams,
+    MixedPixelParams,
+    RadiusParams,
     RegistrationParams,
     RemovalParams,
     SorParams,
+    SpeckleParams,
+    SuspectParams,
+    WindowParams,
     ZCutParams,
     a_max_from_camera,
 )
@@ -63,8 +69,16 @@ STAGE_SECTIONS: dict[str, type] = {
     "registration": RegistrationParams,
     "removal": RemovalParams,
     "sor": SorParams,
+    "radius": RadiusParams,
+    "cluster": ClusterParams,
+    "speckle": SpeckleParams,
+    "window": WindowParams,
+    "mixed_pixel": MixedPixelParams,
+    "suspects": SuspectParams,
 }
-SECTION_NAMES = ("bin_mask", "registration", "removal", "zcut", "sor")
+#: The sections of the filter bank and the suspects (one per method of replay.pipeline.methods).
+BANK_SECTIONS = ("radius", "cluster", "speckle", "window", "mixed_pixel", "suspects")
+SECTION_NAMES = ("bin_mask", "registration", "removal", "zcut", "sor", *BANK_SECTIONS)
 _CLASS_SECTION = {cls.__name__: name for name, cls in STAGE_SECTIONS.items()} | {"ZCutParams": "zcut"}
 
 
@@ -131,6 +145,8 @@ class PipelineConfig:
     zcut : ZCutParams
         Δd, d_max (mm), μ_thr (px), a_max (px, or None when unknown), connectivity.
     sor, bin_mask, registration, removal : the stage parameters of :mod:`zcut.params`
+    radius, cluster, speckle, window, mixed_pixel, suspects : the filter bank's and the suspects'
+        parameters (:mod:`zcut.params`), read only when :attr:`methods` names them.
     part : str or None
         The part kind (``replay.presets.PART_KINDS`` key) whose geometry gave a_max (and Δd,
         d_max with ``parameters = "geometry"``).
@@ -146,6 +162,12 @@ class PipelineConfig:
     bin_mask: BinMaskParams = field(default_factory=BinMaskParams)
     registration: RegistrationParams = field(default_factory=RegistrationParams)
     removal: RemovalParams = field(default_factory=RemovalParams)
+    radius: RadiusParams = field(default_factory=RadiusParams)
+    cluster: ClusterParams = field(default_factory=ClusterParams)
+    speckle: SpeckleParams = field(default_factory=SpeckleParams)
+    window: WindowParams = field(default_factory=WindowParams)
+    mixed_pixel: MixedPixelParams = field(default_factory=MixedPixelParams)
+    suspects: SuspectParams = field(default_factory=SuspectParams)
     part: str | None = None
     parameters: str = "nominal"
     methods: tuple[str, ...] = DEFAULT_METHODS
@@ -383,6 +405,9 @@ class LogFacts:
     image_shape : (H, W)
     sources : dict[str, str]
         Where each fact came from, for the notes.
+    intrinsics_fitted : bool
+        ``intrinsics`` were fitted to the cloud: the log has no camera model (no CameraInfo), which
+        the methods that need one (``cluster``) refuse.
     """
 
     part: str | None
@@ -390,6 +415,7 @@ class LogFacts:
     intrinsics: Intrinsics | None
     image_shape: tuple[int, int]
     sources: dict[str, str] = field(default_factory=dict)
+    intrinsics_fitted: bool = False
 
 
 def synth_info(metadata: dict[str, dict[str, str]]) -> tuple[str | None, float | None]:
@@ -464,13 +490,15 @@ def log_facts(metadata: dict[str, dict[str, str]], first_frame, *,
             distance = float(np.median(z)) * 1000.0
             sources["camera_distance_mm"] = f"the median depth of the first frame, {distance:.0f} mm"
     K = intrinsics if intrinsics is not None else first_frame.intrinsics
+    fitted = K is None
     if K is not None:
         sources["intrinsics"] = "the log's CameraInfo"
     else:
         K = intrinsics_from_cloud(first_frame.xyz)
         if K is not None:
             sources["intrinsics"] = f"fitted to the first frame's organized cloud: fx {K.fx:.1f}, fy {K.fy:.1f} px"
-    return LogFacts(part, distance if (distance is None or distance > 0) else None, K, first_frame.shape, sources)
+    return LogFacts(part, distance if (distance is None or distance > 0) else None, K, first_frame.shape, sources,
+                    intrinsics_fitted=fitted)
 
 
 def _merge(*layers: dict[str, Any]) -> tuple[dict[str, Any], str | None]:
@@ -567,12 +595,31 @@ def resolve(facts: LogFacts, *, file_layer: dict[str, Any] | None = None,
         raise _config_error(e, "resolved config") from None
     config = PipelineConfig(zcut=zc, **stages, part=part, parameters=mode,
                             methods=tuple(d.get("methods", DEFAULT_METHODS)))
+    check_camera_model(config, facts)
     if config.methods != DEFAULT_METHODS:
         notes.append(f"methods: {', '.join(config.methods)}")
     notes.append(f"z-cut: step {zc.step:g} mm, max depth {zc.max_depth:g} mm, max area {zc.max_area:.2f} px; "
                  f"SOR: k {config.sor.k}, std_ratio {config.sor.std_ratio:g} on the "
                  f"{'top of the pile (within d_max of the highest point)' if config.sor.region == 'top' else 'whole zone'}")
     return Resolved(config, tuple(notes))
+
+
+def check_camera_model(config: PipelineConfig, facts: LogFacts) -> None:
+    """Refuse methods that need the camera model (``cluster``: areas in mm²) on a log without one.
+
+    Raises
+    ------
+    ConfigError
+        One line naming the methods and what to do.
+    """
+    from replay.pipeline.methods import registry
+
+    if facts.intrinsics is not None and not facts.intrinsics_fitted:
+        return
+    need = [m.name for m in registry().values() if m.needs_intrinsics and m.name in config.base_methods]
+    if need:
+        raise ConfigError(f"{', '.join(need)} needs the camera model (fx, fy) and the log has none (no CameraInfo): "
+                          f"leave {', '.join(need)} out of methods, or record the log with its camera info")
 
 
 def resolve_config(metadata: dict[str, dict[str, str]], first_frame, *, config_file: str | Path | None = None,

@@ -13,6 +13,16 @@ report's two derived methods of ``zcut`` and ``sor`` (docs/accuracy.md), present
 
 Adding a filter is one :class:`Method` entry in :func:`registry` and one parameter section in the
 config (``replay.pipeline.config.STAGE_SECTIONS``).
+
+Which points each method sees (docs/filters.md, "In the pipeline"): every method judges the zone and
+returns outliers in the zone only (the pipeline adds the points above the rim to every method alike).
+The point-set filters, ``sor`` and ``radius``, see the zone's points only, as a library's filter sees
+the cloud the bin stages cropped (SOR, by default, only the top of the pile: ``sor.region``). The
+grid filters, ``cluster``, ``speckle``, ``window`` and ``mixed_pixel``, are the camera's own filters:
+they see every valid point of the frame, as the camera's firmware does before any bin removal, so
+that a part's pixels next to the removed bin floor keep their neighbours; only their verdicts inside
+the zone count. ``suspects`` sees every valid point as context and judges the zone (its own
+contract, docs/filters.md "Suspects").
 """
 
 from __future__ import annotations
@@ -95,6 +105,66 @@ def _run_sor(frame, zone, config) -> MethodOutput:
     return MethodOutput(sor_on_zone(frame, zone, config))
 
 
+def _in_zone(zone, mask: np.ndarray) -> MethodOutput:
+    return MethodOutput(mask & zone.zone)
+
+
+def _run_radius(frame, zone, config) -> MethodOutput:
+    from replay.pipeline.stages import zone_crop
+    from zcut.radius import radius_stage
+
+    out = np.zeros_like(zone.zone)
+    crop = zone_crop(frame.xyz, zone.zone, whole=zone.removal is None)
+    if crop is not None:
+        sl, sub = crop
+        out[sl] = radius_stage(sub, params=config.radius) & zone.zone[sl]
+    return MethodOutput(out)
+
+
+def _run_cluster(frame, zone, config) -> MethodOutput:
+    from zcut.components import cluster_stage
+
+    return _in_zone(zone, cluster_stage(frame.xyz, params=config.cluster, intrinsics=frame.intrinsics))
+
+
+def _run_speckle(frame, zone, config) -> MethodOutput:
+    from zcut.components import speckle_stage
+
+    return _in_zone(zone, speckle_stage(frame.xyz, params=config.speckle))
+
+
+def _run_window(frame, zone, config) -> MethodOutput:
+    from zcut.local_rules import window_stage
+
+    return _in_zone(zone, window_stage(frame.xyz, params=config.window))
+
+
+def _run_mixed_pixel(frame, zone, config) -> MethodOutput:
+    from zcut.local_rules import mixed_pixel_stage
+
+    return _in_zone(zone, mixed_pixel_stage(frame.xyz, params=config.mixed_pixel))
+
+
+def suspect_params(config) -> Any:
+    """The config's :class:`~zcut.params.SuspectParams`, with the z-cut's a_max when its own is not set."""
+    import dataclasses
+
+    p = config.suspects
+    if p.a_max is None and config.zcut.a_max is not None:
+        p = dataclasses.replace(p, a_max=config.zcut.a_max)
+    return p
+
+
+def _run_suspects(frame, zone, config) -> MethodOutput:
+    from zcut.suspects import suspects
+
+    K = frame.intrinsics
+    if K is not None and (K.height, K.width) != tuple(zone.zone.shape):
+        K = None  # the size check is the frame reader's; the detectors need nothing else from the camera
+    res = suspects(frame.xyz, zone.height_mm, zone.zone, zone.easy, params=suspect_params(config), intrinsics=K)
+    return MethodOutput(res.mask & zone.zone, res)
+
+
 def registry() -> Mapping[str, Method]:
     """Every method zcut knows, by name (a read-only mapping, built anew on each call)."""
     methods = (
@@ -102,6 +172,18 @@ def registry() -> Mapping[str, Method]:
                _run_zcut),
         Method("sor", "sor", "statistical outlier removal, the paper's comparison (PCL / MATLAB pcdenoise)",
                _run_sor),
+        Method("radius", "radius", "radius outlier removal: too few other points within a ball (Open3D, PCL)",
+               _run_radius),
+        Method("cluster", "cluster", "cluster removal: small 3D-connected groups of pixels, by area in mm² (Zivid)",
+               _run_cluster, needs_intrinsics=True),
+        Method("speckle", "speckle", "speckle removal: small regions cut off by depth jumps (OpenCV, Ensenso)",
+               _run_speckle),
+        Method("window", "window", "3 × 3 window rule: too few neighbours within a relative depth tolerance (Basler)",
+               _run_window),
+        Method("mixed_pixel", "mixed_pixel", "mixed pixels: the surface leaves the pixel along its ray (ifm)",
+               _run_mixed_pixel),
+        Method("suspects", "suspects", "the labelling page's suspects: every detector of zcut.suspects, united "
+               "(not a filter to ship)", _run_suspects),
     )
     return types.MappingProxyType({m.name: m for m in methods})
 

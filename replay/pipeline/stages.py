@@ -21,7 +21,7 @@ from replay.pipeline.methods import MethodOutput, registry
 from zcut.bin_check import BinCheck, check_bin_removal, failed_bin_check
 from zcut.binmask import BinMaskResult, bin_mask, bin_pixels
 from zcut.cuts import CutResult
-from zcut.errors import InputShapeError, ParameterError
+from zcut.errors import InputShapeError, ParameterError, ZcutError
 from zcut.metrics import RelativeMetrics, relative_metrics
 from zcut.params import ZCutParams
 from zcut.prepared_model import PreparedBinModel
@@ -263,7 +263,7 @@ def sor_region(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams) -> np.
         return zone & (h >= threshold)
 
 
-def _zone_crop(xyz: np.ndarray, zone: np.ndarray, *, whole: bool):
+def zone_crop(xyz: np.ndarray, zone: np.ndarray, *, whole: bool):
     """(crop slices, the zone's points with everything else NaN) on the zone's bounding box; None
     when the zone is empty. ``whole``: the zone is every valid pixel, ``xyz`` is used as it is.
 
@@ -285,7 +285,7 @@ def _zone_crop(xyz: np.ndarray, zone: np.ndarray, *, whole: bool):
 def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, **kw) -> np.ndarray:
     """(H, W) bool: SOR outliers among the zone's points only (the rest of the frame set to NaN)."""
     out = np.zeros_like(zone)
-    crop = _zone_crop(xyz, zone, whole=whole)
+    crop = zone_crop(xyz, zone, whole=whole)
     if crop is None:
         return out
     sl, sub = crop
@@ -301,7 +301,7 @@ def sor_masks_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, k: int,
 
     ratios = list(std_ratios)
     out = np.zeros((len(ratios), *zone.shape), dtype=bool)
-    crop = _zone_crop(xyz, zone, whole=whole)
+    crop = zone_crop(xyz, zone, whole=whole)
     if crop is None:
         return out
     sl, sub = crop
@@ -480,10 +480,13 @@ def run_methods(frame: Frame, zone: Zone, config: PipelineConfig, *, timings: di
         t = time.perf_counter()
         if method.needs_intrinsics and frame.intrinsics is None:
             res = MethodOutput(np.zeros_like(zone.zone),
-                               warning=f"{name}: needs the camera model and the log has none (no CameraInfo): "
+                               warning=f"{name}: needs the camera model and this frame has none (no CameraInfo): "
                                        f"no outliers")
         else:
-            res = method.run(frame, zone, config)
+            try:
+                res = method.run(frame, zone, config)
+            except ZcutError as e:  # e.g. a camera model of another size than this frame
+                res = MethodOutput(np.zeros_like(zone.zone), warning=f"{name}: {e}: no outliers")
         timings[name] = time.perf_counter() - t
         if res.warning:
             warnings.append(res.warning)

@@ -42,6 +42,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--rho", metavar="LIST", help="z-cut ρ_thr values (μ_thr = ρ_thr·a_max)")
     g.add_argument("--sor-k", metavar="LIST", help="SOR k values")
     g.add_argument("--sor-std", metavar="LIST", help="SOR std_ratio values")
+    g.add_argument("--grid", action="append", metavar="SECTION.FIELD=LIST", default=None,
+                   help="an axis of a filter of the bank (repeatable): e.g. radius.radius_mm=1,2,3, "
+                   "radius.min_points=4,8; SECTION=default for the filter's default axes. The filter must be among "
+                   "--methods; its other fields hold the config's values (docs/filters.md, 'The bank in a sweep')")
     g.add_argument("--no-study-points", dest="study_points", action="store_false",
                    help="the grid is exactly the values given (and the config's value on the axes not given): "
                    "no 0.5×/1.5× points (θ, ω and the paper's findings need them)")
@@ -84,6 +88,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     from replay.logs.reader import LogReader
     from replay.process import EXIT_DATA_LOSS
     from studies import sweep
+    from studies.bank import make_bank_grid, n_bank_sets, parse_grid_options, ranking
     from studies.driver import (
         Progress,
         absolute,
@@ -109,6 +114,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     axes = dict(steps=parse_list(args.step, name="--step"), depths=parse_list(args.max_depth, name="--max-depth"),
                 rhos=parse_list(args.rho, name="--rho"), sor_ks=parse_list(args.sor_k, name="--sor-k", integer=True),
                 sor_stds=parse_list(args.sor_std, name="--sor-std"))
+    bank_axes = parse_grid_options(args.grid)
     overrides = overrides_of(args)
     # results files: their source log (the filtered cloud has its outliers removed)
     logs = []
@@ -147,16 +153,22 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
         base = first.resolved.config
         grid = make_grid(**axes, config=base, max_points=args.max_points, force=args.force,
                          study_points=args.study_points)
-        options = study_options(args, overrides) | {"grid": grid.as_dict()}
+        bank = make_bank_grid(bank_axes, base)
+        options = study_options(args, overrides) | {"grid": grid.as_dict()} | ({"bank": bank} if bank else {})
         store = stack.enter_context(PartStore(args.out, identity("sweep", options, plans)))
         with_sor = base.sor.enabled and "sor" in base.base_methods
         n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if with_sor else 0)
+        n_bank = n_bank_sets(bank)
+        if n_sets + n_bank > args.max_points and not args.force:
+            raise ConfigError(f"the grid has {n_sets + n_bank} parameter sets (more than {args.max_points}): "
+                              "narrow it, or use --force")
         units, todo = start_units(plans, store, executor=executor,
-                                  what=f"{n_sets} parameter sets ({grid.n_zcut} z-cut, {n_sets - grid.n_zcut} SOR), ")
+                                  what=f"{n_sets + n_bank} parameter sets ({grid.n_zcut} z-cut, {n_sets - grid.n_zcut} "
+                                       f"SOR{f', {n_bank} of the filter bank' if n_bank else ''}), ")
         job = Job(config_file=absolute(args.config), overrides=overrides, bin_model=absolute(args.bin_model), topic=args.topic,
                   labels=absolute(args.labels), annotator=args.annotator, region=args.region,
                   configs={p.sha256: p.resolved for p in plans if p.units},
-                  extra={"grid": sweep.grid_dict(grid)})
+                  extra={"grid": sweep.grid_dict(grid), "bank": bank})
         per_frame = len(grid.steps)
         total = sum((u.n_frames or 0) for u in todo) * per_frame or None
         progress = Progress(total, what="frames × Δd")
@@ -197,9 +209,10 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
                        for m in metas for u in m["unscored"]),
         reproduce=_reproduce(args), seconds=time.perf_counter() - t0, bin_flagged=_flagged_frames(table),
         validation=validation,
+        ranking=ranking(table, objective) if (bank or any("+" in m for m in base.methods)) else None,
     )
     store.write_json("summary.json", summary.to_json())
-    tuned_path = _write_tuned(store, base, tuned, args, validation)
+    tuned_path = _write_tuned(store, base, tuned, args, validation, summary.ranking)
     if not args.no_report:
         from studies.report import write_report
 
@@ -227,10 +240,12 @@ def _reproduce(args: argparse.Namespace) -> str:
     """The command line that reruns this sweep."""
     parts = ["zcut", "sweep", *args.inputs, "-o", args.out]
     for opt in ("step", "max_depth", "rho", "sor_k", "sor_std", "objective", "labels", "annotator", "region",
-                "config", "bin_model", "part", "parameters", "preset", "topic"):
+                "config", "bin_model", "part", "parameters", "preset", "topic", "methods"):
         v = getattr(args, opt, None)
         if v is not None and not (opt == "objective" and v == "f1") and not (opt == "region" and v == "zone"):
             parts += ["--" + opt.replace("_", "-"), str(v)]
+    for g in getattr(args, "grid", None) or ():
+        parts += ["--grid", g]
     if not getattr(args, "study_points", True):
         parts.append("--no-study-points")
     return " ".join(shlex.quote(str(p)) for p in parts)
@@ -247,8 +262,9 @@ class _Scaled:
 
 
 def _write_tuned(store: PartStore, base: PipelineConfig, tuned: Tuned, args: argparse.Namespace,
-                 validation: Validation | None = None) -> Path | None:
-    """``tuned.toml``: the base config with the tuned z-cut and SOR parameters."""
+                 validation: Validation | None = None, ranking: dict[str, Any] | None = None) -> Path | None:
+    """``tuned.toml``: the base config with the tuned z-cut and SOR parameters, and each swept filter of
+    the bank at its tuned set; its header names the ranking's best method or combination."""
     import dataclasses
 
     from replay.pipeline import config as cfg
@@ -270,6 +286,11 @@ def _write_tuned(store: PartStore, base: PipelineConfig, tuned: Tuned, args: arg
     else:
         sor = base.sor
     tuned_cfg = base.replace(zcut=zc, sor=sor)
+    ranked = ((ranking or {}).get("by_part") or {}).get("all") or []
+    for row in ranked:
+        m = row.get("method")
+        if m in cfg.BANK_SECTIONS and row.get("params"):
+            tuned_cfg = tuned_cfg.replace(**{m: dataclasses.replace(getattr(base, m), **row["params"])})
 
     def f(v: float | None) -> str:
         return "-" if v is None else f"{v:.3f}"
@@ -279,7 +300,10 @@ def _write_tuned(store: PartStore, base: PipelineConfig, tuned: Tuned, args: arg
               + (f"\nz-cut out of sample: F1 {f(validation.f1_out_of_sample)} (cross-validated; rule "
                  f"{validation.rule})" if validation is not None and validation.f1_out_of_sample is not None else "")
               + (f"\nSOR: precision {f(s.precision)}, recall {f(s.recall)}, F1 {f(s.f1)}" if s else "")
-              + (f"\nnote: {tuned.note}" if tuned.note else ""))
+              + (f"\nnote: {tuned.note}" if tuned.note else "")
+              + (f"\nbest of the ranking by {args.objective}: {ranked[0]['method']} (precision {f(ranked[0].get('precision'))}, "
+                 f"recall {f(ranked[0].get('recall'))}, F1 {f(ranked[0].get('f1'))}); run it with --methods "
+                 f"{ranked[0]['method']}" if ranked else ""))
     path = store.root / "tuned.toml"
     from replay.outputs import AtomicOutput
 

@@ -38,10 +38,38 @@ VALUES: dict[str, dict[str, str]] = {
                 "straggler_neighbours": "8", "mode": '"paper"', "tolerance_mm": "6.0", "residual_quantile": "50.0",
                 "residual_margin_mm": "4.0", "min_tolerance_mm": "5.0", "max_tolerance_mm": "1.0",
                 "check_threshold_px": "1000000.0", "check_min_ring_px": "1000000", "check_min_rim_in_view": "1.0"},
+    "radius": {"radius_mm": "6.0", "min_points": "2"},
+    "cluster": {"max_neighbour_mm": "5.0", "min_area_mm2": "500.0", "connectivity": "4"},
+    "speckle": {"max_diff_mm": "5.0", "max_size_px": "1000"},
+    "window": {"min_inliers": "7", "rel_tolerance": "0.0005"},
+    "mixed_pixel": {"min_angle_deg": "30.0"},
+    "suspects": {"min_residual_mm": "5.0", "noise_k": "20.0", "jump_mm": "50.0", "below_min_directions": "1",
+                 "fill_iterations": "0", "floating_step_mm": "20.0", "floating_rho": "0.07", "plain_rho": "0.0",
+                 "evidence_holes": "0.0", "evidence_inconsistent": "1.0", "evidence_ring_valid": "0.0",
+                 "a_max": "20.0", "merge_radius_px": "0", "max_groups": "5"},
+}
+#: the sections of methods that run only when the methods list names them: their fields are set with
+#: every method named, and compared with the defaults of that same list
+BANK = ("radius", "cluster", "speckle", "window", "mixed_pixel", "suspects")
+BANK_METHODS = 'methods = ["zcut", "sor", ' + ", ".join(f'"{m}"' for m in BANK) + "]\n"
+#: the bank's base values on this log (its defaults are for 1920 × 1200 frames: at 180 × 240 a pixel
+#: covers ~2.5 mm and the default radius, cluster and speckle flag the whole zone, which no single
+#: field can change); each field is set over these, and compared with these
+BANK_BASE: dict[str, dict[str, str]] = {
+    "radius": {"radius_mm": "8.0", "min_points": "4"},
+    "cluster": {"max_neighbour_mm": "10.0"},
+    "speckle": {"max_diff_mm": "10.0"},
+    # a low noise factor lets the residual floors decide; with the holes and ring tests failing every
+    # component, the roughness test and the plain area decide which floating components are suspects
+    "suspects": {"noise_k": "1.0", "evidence_holes": "1.0", "evidence_ring_valid": "1.0"},
 }
 
 #: fields that cannot change the result on this log, and why (a reason, never a silence)
 UNCHANGED: dict[str, str] = {
+    "suspects.merge_radius_px": "it groups the suspects for review (docs/filters.md, Groups): the suspect mask, "
+                                "which the commands score, is the detectors' union whatever the grouping",
+    "suspects.max_groups": "it bounds the number of review groups (docs/filters.md, Groups): the suspect mask, "
+                           "which the commands score, is the detectors' union whatever the grouping",
     "bin_mask.prefer_centre": "the synthetic bin is both the largest bright component and the one covering the "
                               "image centre: preferring the centre chooses the same component",
     "bin_mask.dilate_px": "the synthetic bin's walls have no gap: the closing (dilate, fill the holes, erode back) "
@@ -72,6 +100,10 @@ ABSORBED_BY_REMOVAL: dict[str, str] = {
 NOT_READ: dict[tuple[str, str], str] = {
     (f"removal.{f}", "annotate"): "the bin check flags a frame and changes no mask: the labelling page shows masks"
     for f in ("check_threshold_px", "check_min_ring_px", "check_min_rim_in_view")
+} | {
+    (f"{section}.{f}", "annotate"): "the labelling page's candidates are the z-cut's and SOR's clusters "
+                                    "(docs/filters.md, \"In the pipeline\"): the bank's masks are not on the page"
+    for section in BANK for f in VALUES[section]
 }
 #: the registration's float figures are compared to this many significant digits (Open3D's ICP sums in
 #: parallel: the last digit of its RMSE varies from run to run, docs/studies.md)
@@ -97,14 +129,18 @@ def test_the_table_covers_every_field_of_every_stage():
     assert set(_fields()) == want
 
 
-def _config_text(field: str | None) -> str:
-    if field is None:
-        return "# the defaults\n"
-    section, _, name = field.rpartition(".")
-    value = VALUES[section][name]
-    if not section:
-        return f"{name} = {value}\n"
-    return f"[{section}]\n{name} = {value}\n"
+def _config_text(field: str | None, *, bank: bool = False) -> str:
+    section, _, name = field.rpartition(".") if field is not None else ("", "", "")
+    if not bank:
+        if field is None:
+            return "# the defaults\n"
+        value = VALUES[section][name]
+        return f"{name} = {value}\n" if not section else f"[{section}]\n{name} = {value}\n"
+    tables = {k: dict(v) for k, v in BANK_BASE.items()}
+    if field is not None:
+        tables.setdefault(section, {})[name] = VALUES[section][name]
+    return BANK_METHODS + "".join(f"[{sec}]\n" + "".join(f"{k} = {v}\n" for k, v in kv.items())
+                                  for sec, kv in tables.items())
 
 
 def _json_of(*argv) -> dict:
@@ -133,9 +169,10 @@ def _signatures(log, model, config, out_dir) -> dict:
     masks = {f.index: {t: m.tobytes() for t, m in sorted(f.masks.items()) if t.startswith("/zcut/")}
              for f in LogReader(res).frames()}
     sig["replay"] = ([(r["index"], r["valid_px"], r["zcut"], r["sor"], r["both"], r["above_rim"], r["clusters"],
-                       _rounded(r["fitness"]), _rounded(r["rmse_mm"]), r["bin_check"], r["bin_flagged"])
-                      for r in frames], masks)
+                       _rounded(r["fitness"]), _rounded(r["rmse_mm"]), r["bin_check"], r["bin_flagged"],
+                       *(r.get(m) for m in BANK)) for r in frames], masks)
     counts = {r["index"]: (r["zcut"], r["sor"]) for r in frames}
+    bank_counts = {(r["index"], m): r[m] for r in frames for m in BANK if m in r}
 
     rep = _json_of("accuracy", log, "--bin-model", model, "--config", config, "--json")
     sig["accuracy"] = json.dumps(rep["frames"], sort_keys=True)
@@ -159,6 +196,9 @@ def _signatures(log, model, config, out_dir) -> dict:
                     for r in rows]
     for r in rows:
         assert (r["zcut"], r["sor"]) == counts[r["frame"]], "batch disagrees with replay"
+        for m in BANK:
+            if (r["frame"], m) in bank_counts:
+                assert r[m] == bank_counts[(r["frame"], m)], f"batch disagrees with replay ({m})"
 
     s = out_dir / "sweep"
     _quiet("sweep", log, "--bin-model", model, "--config", config, "-o", s, "--workers", "0", "--no-report")
@@ -170,9 +210,11 @@ def _signatures(log, model, config, out_dir) -> dict:
                     and (r["rho_thr"] is None or abs(r["rho_thr"] - c["rho_thr"]) < 1e-12))
                 or (r["method"] == "sor" and r["sor_k"] == c["sor_k"] and r["sor_std_ratio"] == c["sor_std_ratio"]
                     and r["step_mm"] in (None, c["step_mm"]) and r["max_depth_mm"] in (None, c["max_depth_mm"])))
+    at += sorted((r["frame"], r["method"], r["n_pred"], r["tp"], r["fp"], r["fn"]) for r in t if r["method"] in BANK)
     sig["sweep"] = (at, summary["bin_flagged"])
     for frame, method, n_pred, *_ in at:
-        assert n_pred == counts[frame][0 if method == "zcut" else 1], f"sweep disagrees with replay ({method})"
+        want = bank_counts[(frame, method)] if method in BANK else counts[frame][0 if method == "zcut" else 1]
+        assert n_pred == want, f"sweep disagrees with replay ({method})"
     return sig
 
 
@@ -195,12 +237,22 @@ def baseline(setup):
     return _signatures(log, model, config, d / "base")
 
 
+@pytest.fixture(scope="module")
+def bank_baseline(setup):
+    d, log, model = setup
+    config = d / "bank.toml"
+    config.write_text(_config_text(None, bank=True))
+    return _signatures(log, model, config, d / "bank")
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("field", _fields())
-def test_every_parameter_changes_every_command(setup, baseline, field, tmp_path):
+def test_every_parameter_changes_every_command(setup, request, field, tmp_path):
     d, log, model = setup
+    bank = field.partition(".")[0] in BANK
+    baseline = request.getfixturevalue("bank_baseline" if bank else "baseline")
     config = tmp_path / "c.toml"
-    config.write_text(_config_text(field))
+    config.write_text(_config_text(field, bank=bank))
     got = _signatures(log, model, config, tmp_path / "field")
     changed = {cmd for cmd in got if got[cmd] != baseline[cmd]}
     if field in UNCHANGED:
