@@ -123,7 +123,10 @@ def _write(args: argparse.Namespace, model, what: str) -> None:
 
     with AtomicOutput(args.output) as out:
         if args.into is None:
-            save_bin_model(model, out.temp)
+            try:
+                save_bin_model(model, out.temp)
+            except OSError as e:  # name the output, not its temporary
+                raise OSError(e.errno, e.strerror, str(args.output)) from None
         else:
             with open(out.temp, "wb") as f:
                 replaced = copy_with_attachment(args.into, f, name=layout.BIN_MODEL_ATTACHMENT,

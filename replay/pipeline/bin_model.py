@@ -121,8 +121,46 @@ def save_bin_model(model: BinModel, path: str | Path) -> None:
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(model.points))
     if model.normals is not None:
         pc.normals = o3d.utility.Vector3dVector(model.normals)
+    import errno
+    import shutil
+
+    need = 1024 + len(model.points) * 8 * (6 if model.normals is not None else 3)  # float64 x y z (nx ny nz)
+    free = shutil.disk_usage(Path(path).resolve().parent).free
+    if free < need:  # Open3D's writer would print a line per failed block and report success
+        raise OSError(errno.ENOSPC, f"no space left on the device ({free} bytes free, the bin model needs "
+                                    f"about {need})", str(path))
     if not o3d.io.write_point_cloud(str(path), pc, write_ascii=False):
         raise LogFormatError(f"{path}: could not write the bin model")
+    _check_complete_ply(path)
+
+
+#: bytes of each PLY property type
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _check_complete_ply(path: str | Path) -> None:
+    """Raise OSError (ENOSPC) when the binary PLY Open3D wrote at ``path`` is shorter than its header
+    says: Open3D reports success on a full disk, leaving a truncated file."""
+    import errno
+    import os
+
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    end = head.find(b"end_header\n")
+    n = size = 0
+    if end >= 0:
+        for line in head[:end].decode("ascii", "replace").splitlines():
+            parts = line.split()
+            if parts[:2] == ["element", "vertex"]:
+                n = int(parts[2])
+            elif parts[:1] == ["property"] and len(parts) == 3:
+                size += _PLY_SIZES.get(parts[1], 0)
+    want = end + len(b"end_header\n") + n * size
+    got = os.path.getsize(path)
+    if end < 0 or got < want:
+        raise OSError(errno.ENOSPC, f"no space left on the device: the bin model was cut short ({got} of "
+                                    f"{want if end >= 0 else 'more'} bytes written)", str(path))
 
 
 def _median_spacing(pts: np.ndarray, *, sample: int = 4096) -> float:

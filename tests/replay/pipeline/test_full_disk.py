@@ -57,3 +57,29 @@ def test_a_recording_is_checked_complete_before_it_takes_its_name(log, tmp_path,
         assert rrd_problem(str(tmp_path / "t.rrd")) is not None, cut
     shutil.copy(tmp_path / "o.rrd", tmp_path / "c.rrd")
     assert rrd_problem(str(tmp_path / "c.rrd")) is None
+
+
+@pytest.mark.parametrize("size", ["64k", "1m"])
+def test_bin_model_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, size):
+    """Open3D's PLY writer reports success on a full disk and leaves a truncated file: ``zcut
+    bin-model`` checks the space before and the file after, and names the output."""
+    from replay.pipeline.bin_model import _check_complete_ply
+
+    empty = tmp_path / "e.mcap"
+    assert main(["synth", "-o", str(empty), "--empty", "--frames", "2", "--seed", "3", "--size", "240x320"]) == 0
+    with small_disk(tmp_path / "disk", size) as disk:
+        run = subprocess.run([sys.executable, "-m", "cli", "bin-model", str(empty), "-o", str(disk / "b.ply")],
+                             capture_output=True, text=True, timeout=600)
+        errors = [ln for ln in run.stderr.splitlines() if ln.startswith("error:")]
+        assert run.returncode == 1, run.stderr
+        assert len(errors) == 1 and "Traceback" not in run.stderr and "RPly" not in run.stderr, run.stderr
+        assert "no space left on the device" in errors[0] and str(disk / "b.ply") in errors[0], errors
+        assert sorted(p.name for p in disk.iterdir()) == []
+    ok = tmp_path / "b.ply"
+    assert main(["bin-model", str(empty), "-o", str(ok)]) == 0
+    _check_complete_ply(ok)  # a complete file passes
+    data = ok.read_bytes()
+    cut = tmp_path / "cut.ply"
+    cut.write_bytes(data[: len(data) - 8])
+    with pytest.raises(OSError, match="cut short"):
+        _check_complete_ply(cut)
