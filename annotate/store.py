@@ -447,7 +447,8 @@ class LabelStore:
             return db
         except sqlite3.OperationalError as e:
             db.close()
-            if getattr(e, "sqlite_errorcode", None) not in (sqlite3.SQLITE_CANTOPEN, sqlite3.SQLITE_READONLY) \
+            code = getattr(e, "sqlite_errorcode", None)  # extended codes (SQLITE_READONLY_DIRECTORY = 1544)
+            if (code is None or code & 0xFF not in (sqlite3.SQLITE_CANTOPEN, sqlite3.SQLITE_READONLY)) \
                     and "unable to open" not in str(e):
                 raise
             if os.path.exists(f"{self.path}-wal"):
