@@ -252,6 +252,19 @@ def _remove_if_unheld(path: Path) -> bool:
         os.close(fd)
 
 
+def _remove_unheld_matching(folder: str | os.PathLike, pattern: re.Pattern[str]) -> list[Path]:
+    """Remove the entries of ``folder`` whose names match ``pattern`` and that no live process holds."""
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for e in entries:
+        if pattern.fullmatch(e.name) and _remove_if_unheld(Path(e.path)):
+            removed.append(Path(e.path))
+    return removed
+
+
 def remove_stale_temporaries(output: str | os.PathLike) -> list[Path]:
     """Remove the temporaries of ``output`` (``.NAME.XXXXXXXX.partial.SUFFIX`` beside it) that no
     live process holds: what a killed writer left. Returns the paths removed.
@@ -261,30 +274,14 @@ def remove_stale_temporaries(output: str | os.PathLike) -> list[Path]:
     p = Path(output)
     folder = p.parent if str(p.parent) else Path(".")
     pattern = _temp_pattern(p)
-    removed = []
-    try:
-        entries = list(os.scandir(folder))
-    except OSError:
-        return removed
-    for e in entries:
-        if pattern.fullmatch(e.name) and _remove_if_unheld(Path(e.path)):
-            removed.append(Path(e.path))
-    return removed
+    return _remove_unheld_matching(folder, pattern)
 
 
 def remove_stale_temporaries_in(folder: str | os.PathLike) -> list[Path]:
     """Remove every zcut temporary (``.*.XXXXXXXX.partial*``) in ``folder`` that no live process
     holds: for a folder that one locked process owns (a study's output folder)."""
     pattern = re.compile(r"\..+\.[a-z0-9_]{8}\.partial(\.[^/]*)?")
-    removed = []
-    try:
-        entries = list(os.scandir(folder))
-    except OSError:
-        return removed
-    for e in entries:
-        if pattern.fullmatch(e.name) and _remove_if_unheld(Path(e.path)):
-            removed.append(Path(e.path))
-    return removed
+    return _remove_unheld_matching(folder, pattern)
 
 
 @dataclass
