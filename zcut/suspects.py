@@ -63,6 +63,7 @@ __all__ = [
     "noise_profile",
     "local_gaps",
     "local_gaps_reference",
+    "strength_classes",
     "surface_residuals",
     "surface_residuals_reference",
     "suspects",
@@ -88,6 +89,10 @@ GAP_MIN_PIXELS = 3
 GAP_MAX_RADIUS = 64
 # grouping: a detector with more components than this is pre-merged with a larger radius first
 MAX_NODES = 1500
+# grouping: the bounds of a suspect's strength classes, in |gap| / τ (the median over its component):
+# at the noise's edge (below 2 τ), clearly off the surface, far off it (8 τ and more). Suspects of
+# different classes are not grouped together while the frame's group budget allows it.
+STRENGTH_CLASSES = (2.0, 8.0)
 # the floating detector's step: max(floating_step_mm, FLOATING_STEP_SIGMAS * noise): a step below the
 # noise of neighbour differences would cut clean surfaces into floating terraces
 FLOATING_STEP_SIGMAS = 1.0
@@ -1008,28 +1013,66 @@ def _merge_compact(boxes: np.ndarray, kind: np.ndarray, max_groups: int) -> np.n
     return rep
 
 
-def _group(codes: np.ndarray, params: SuspectParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def strength_classes(primary: np.ndarray, strength: np.ndarray) -> np.ndarray:
+    """The strength class of each suspect pixel (0, 1, 2; -1 where ``primary`` is -1).
+
+    Per detector, the 8-connected components of its pixels take the median of their pixels'
+    ``strength`` (|gap| / τ); the class is the number of :data:`STRENGTH_CLASSES` bounds that median
+    reaches (NaN, no surface to measure against: the strongest class).
+
+    Parameters
+    ----------
+    primary : (H, W) int ndarray
+        Each pixel's grouping detector (index into :data:`DETECTORS`), -1 for no suspect.
+    strength : (H, W) float ndarray
+        |gap| / τ of each pixel.
+    """
+    out = np.full(primary.shape, -1, np.int8)
+    s = np.where(np.isfinite(strength), strength, np.inf)
+    for i in range(len(DETECTORS)):
+        m = primary == i
+        if not m.any():
+            continue
+        lab, n = ndimage.label(m, structure=np.ones((3, 3), bool))
+        med = _label_medians(s, lab, n)
+        cls = np.searchsorted(np.asarray(STRENGTH_CLASSES), med, side="right").astype(np.int8)
+        out[m] = cls[lab[m] - 1]
+    return out
+
+
+def _group(codes: np.ndarray, strength: np.ndarray, params: SuspectParams
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Group labels (unordered), each group's primary detector, and the merge radius of each detector.
 
-    Per detector (a pixel belongs to the first of its detectors in :data:`DETECTORS`), the suspects
-    within ``merge_radius_px`` form components (the radius doubles while a detector has more than
-    ``MAX_NODES``); then, while the frame has more than ``max_groups`` groups, the two groups of one
-    detector whose united bounding box is smallest merge (:func:`_merge_compact`): groups stay
-    compact regions a person can zoom to, a large blob stays alone, specks near each other join.
+    Per detector (a pixel belongs to the first of its detectors in :data:`DETECTORS`) and strength
+    class (:func:`strength_classes`: one decision must fit a group, and suspects at the noise's edge
+    are not judged like those far off the surface), the suspects within ``merge_radius_px`` form
+    components (the radius doubles while one has more than ``MAX_NODES``); then, while the frame has
+    more than ``max_groups`` groups, the two groups of one detector and class whose united bounding
+    box is smallest merge (:func:`_merge_compact`), and only when that is not enough, groups of one
+    detector across classes: groups stay compact regions a person can zoom to, a large blob stays
+    alone, specks near each other join.
     """
     primary = np.full(codes.shape, -1, np.int8)
     for i in reversed(range(len(DETECTORS))):  # the first detector in DETECTORS wins
         primary[(codes >> i) & 1 > 0] = i
+    cls = strength_classes(primary, strength)
+    n_cls = len(STRENGTH_CLASSES) + 1
     radii = np.full(len(DETECTORS), params.merge_radius_px, np.int64)
     limit = max(codes.shape)
     per = []
+    fine = []
     for i in range(len(DETECTORS)):
-        m = primary == i
-        lab, n = _components(m, int(radii[i]))
-        while n > MAX_NODES and radii[i] < limit:
-            radii[i] = min(2 * radii[i] + 1, limit)
-            lab, n = _components(m, int(radii[i]))
-        per.append((lab, n))
+        for c in range(n_cls):
+            m = (primary == i) & (cls == c)
+            r = int(params.merge_radius_px)
+            lab, n = _components(m, r)
+            while n > MAX_NODES and r < limit:
+                r = min(2 * r + 1, limit)
+                lab, n = _components(m, r)
+            radii[i] = max(radii[i], r)
+            per.append((lab, n))
+            fine.append(i * n_cls + c)
     offsets = np.cumsum([0] + [n for _, n in per])
     total = int(offsets[-1])
     boxes = np.zeros((total, 4), np.int64)
@@ -1038,8 +1081,15 @@ def _group(codes: np.ndarray, params: SuspectParams) -> tuple[np.ndarray, np.nda
         if n:
             boxes[offsets[i]:offsets[i + 1]] = [[s[0].start, s[1].start, s[0].stop, s[1].stop]
                                                 for s in ndimage.find_objects(lab, max_label=n)]
-            kind[offsets[i]:offsets[i + 1]] = i
+            kind[offsets[i]:offsets[i + 1]] = fine[i]
     rep = _merge_compact(boxes, kind, params.max_groups) if total > params.max_groups else np.arange(total)
+    if np.unique(rep).size > params.max_groups:  # more detector-and-class kinds than groups: join classes
+        heads = np.unique(rep)
+        hb = np.array([[boxes[rep == h, 0].min(), boxes[rep == h, 1].min(), boxes[rep == h, 2].max(),
+                        boxes[rep == h, 3].max()] for h in heads], np.int64)
+        rep2 = _merge_compact(hb, kind[heads] // n_cls, params.max_groups)
+        rep = heads[rep2[np.searchsorted(heads, rep)]]
+    kind //= n_cls
     _, dense = np.unique(rep, return_inverse=True)
     node_group = np.concatenate([[0], dense + 1]).astype(np.int32)
     groups = np.zeros(codes.shape, np.int32)
@@ -1135,7 +1185,8 @@ def suspects(
                      mask & ~by_residual & ~by_border, valid & ~mask)
     gap[by_residual] = residual[by_residual]
     gap[by_border] = floating_gap[by_border]
-    groups, primary, radii = _group(codes, params)
+    tau_px = np.where(np.isfinite(tau) & (tau > 0), tau, params.min_residual_mm)
+    groups, primary, radii = _group(codes, np.abs(gap) / tau_px, params)
     n = int(primary.size)
     size = np.bincount(groups.ravel(), minlength=n + 1)[1:].astype(np.int64)
     bits = np.zeros(n + 1, np.uint8)

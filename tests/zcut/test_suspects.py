@@ -526,3 +526,47 @@ def test_real_scans_propose_few_groups(real_data) -> None:
         check_result(res, xyz, valid, None, p)
         assert 0 < res.mask.sum() < 0.02 * valid.sum(), name
         assert res.noise_profile.step_mm.max() >= 1.0  # the sensor reports whole millimetres or coarser
+
+
+def test_strength_classes_take_each_component_median() -> None:
+    """A component's class is the number of STRENGTH_CLASSES bounds its median |gap| / τ reaches; NaN is strongest."""
+    from zcut.suspects import STRENGTH_CLASSES, strength_classes
+
+    primary = np.full((6, 12), -1, np.int8)
+    strength = np.zeros((6, 12))
+    primary[1, 1:4] = 2          # one mixed run: median 1.0 -> class 0
+    strength[1, 1:4] = [0.5, 1.0, 30.0]
+    primary[4, 1:3] = 2          # another: median exactly the first bound -> class 1
+    strength[4, 1:3] = [STRENGTH_CLASSES[0]] * 2
+    primary[1, 8:11] = 1         # a floating one: median 9 -> class 2
+    strength[1, 8:11] = [9.0, 9.0, 0.1]
+    primary[4, 9] = 4            # no surface around it: NaN -> the strongest class
+    strength[4, 9] = np.nan
+    cls = strength_classes(primary, strength)
+    assert (cls[1, 1:4] == 0).all() and (cls[4, 1:3] == 1).all() and (cls[1, 8:11] == 2).all()
+    assert cls[4, 9] == len(STRENGTH_CLASSES)
+    assert (cls[primary < 0] == -1).all()
+
+
+def test_weak_and_strong_suspects_of_one_detector_are_separate_groups() -> None:
+    """Flying pixels barely off the surface and ones far off it, interleaved along one edge, are two groups
+    while the budget allows; with a budget below the kinds, classes of one detector join again."""
+    H, W = 80, 80
+    h = np.full((H, W), 10.0)
+    h[:, 40:] = 30.0                      # an occlusion edge at column 40
+    rows = np.arange(4, 76, 2)
+    weak, strong = rows[::2], rows[1::2]
+    h[weak, 39] = 10.0 + 0.9              # just off the low surface (< 2 τ with τ = 0.5)
+    h[strong, 39] = 20.0                  # half-way up the edge: a mixed pixel
+    xyz = np.stack([np.zeros((H, W)), np.zeros((H, W)), -h / 1000.0 + 0.6], axis=2)
+    zone = np.ones((H, W), bool)
+    params = SuspectParams(min_residual_mm=0.5, noise_k=3.0, a_max=100.0)
+    res = suspects(xyz, h, zone, params=params)
+    g_strong = np.unique(res.groups[strong, 39])
+    g_weak = np.unique(res.groups[weak, 39])
+    assert (g_strong > 0).all() and g_strong.size == 1
+    assert (g_weak > 0).all() and g_weak.size == 1 and g_weak[0] != g_strong[0]
+    assert res.group(int(g_weak[0])).gap_mm == pytest.approx(0.9)
+    assert abs(res.group(int(g_strong[0])).gap_mm) > 9.0  # half-way up a 20 mm edge
+    tight = suspects(xyz, h, zone, params=dataclasses.replace(params, max_groups=5))
+    assert tight.n_groups <= 5
