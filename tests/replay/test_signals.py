@@ -73,6 +73,40 @@ def test_the_command_line_handles_signals_before_it_loads_the_kernels():
     assert out.stdout.strip() == "[]"
 
 
+def test_a_signal_while_the_command_line_loads_is_one_line_and_143(tmp_path):
+    """The program entry (cli/entry.py) handles SIGTERM before the command's modules are imported: a
+    signal landing while ``cli.main`` loads ends with 143 and one line, not killed by it (-15)."""
+    code = ("import builtins, os, signal, sys\n"
+            "real = builtins.__import__\n"
+            "def imp(name, *a, **k):\n"
+            "    if name == 'cli.main':\n"
+            "        os.kill(os.getpid(), signal.SIGTERM)\n"
+            "    return real(name, *a, **k)\n"
+            "builtins.__import__ = imp\n"
+            "sys.argv = ['zcut', '--help']\n"
+            "from cli.entry import run\n"
+            "sys.exit(run())\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 128 + signal.SIGTERM, out
+    assert out.stderr.strip() == "interrupted (SIGTERM)"
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_after_the_command_finished_keeps_its_status(log, sig):
+    """Once the command returned, its outputs are published: a signal during the interpreter's teardown
+    (where Python restores the default disposition) leaves the command's own exit status."""
+    code = ("import os, signal, sys, time\n"
+            f"sys.argv = ['zcut', 'topics', {str(log)!r}]\n"
+            "from cli.entry import run\n"
+            "status = run()\n"
+            f"os.kill(os.getpid(), {int(sig)})\n"
+            "time.sleep(0.2)\n"
+            "sys.exit(status)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out
+    assert "/camera/points" in out.stdout and "interrupted" not in out.stderr
+
+
 def test_an_error_the_interruption_caused_is_the_interruption():
     """A library may turn the interruption into an error of its own (numba: ``SystemError: ...
     returned a result with an exception set``, from the KeyboardInterrupt): still 130/143, and any

@@ -1,0 +1,41 @@
+"""The program entry of ``zcut`` (the console script and ``python -m cli``): signals before and after the command.
+
+:func:`cli.main.main` turns SIGINT / SIGTERM into exit status 130 / 143 while a command runs
+(docs/cli.md, "Exit status"). Around it there are two windows where Python's default disposition
+would let the signal kill the process (exit -2 / -15, which the documented statuses exclude): while
+the command's modules are imported, and while the interpreter tears down after the command returned
+(Python puts the default disposition back early in its teardown, which lasts ~0.5 s with numba and
+Open3D loaded). Before the command a signal ends it with 128 + the signal's number (nothing was
+written yet); after it, the command has finished and published its outputs, so the signal is
+ignored and the exit status is the command's own. The first ~20 ms of the interpreter's start,
+before this module runs, stay Python's.
+
+Nothing in the library imports this; tests call :func:`cli.main.main` in-process, where the test
+runner's own signal handling must stay as it is.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+
+_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _before(signum: int, frame: object) -> None:
+    sys.stderr.write(f"interrupted ({signal.Signals(signum).name})\n")
+    raise SystemExit(128 + signum)
+
+
+def run() -> int:
+    """Run the ``zcut`` command line on ``sys.argv``; returns its exit status."""
+    for s in _SIGNALS:
+        signal.signal(s, _before)
+    from cli.main import main
+
+    status = main()
+    for s in _SIGNALS:  # ignored (not a Python handler): Python's teardown leaves SIG_IGN in place
+        signal.signal(s, signal.SIG_IGN)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    return status
