@@ -68,6 +68,9 @@ from zcut.suspects import DETECTORS
 EIGHT = np.ones((3, 3), bool)
 JPEG_QUALITY = 90
 INVALID_GRAY = 48
+#: Unmeasured pixels that all share one colour, at least this many, are a cloud file's fill value,
+#: shown grey in the RGB picture (:func:`rgb_picture`).
+FILL_MIN_PX = 16
 #: Columns of the candidate table (float32). ``source``: 0 = z-cut, 1 = SOR; ``id``: the cluster's id
 #: in that source's id image; ``x0, y0, x1, y1``: bounding box (end exclusive); ``cx, cy``: centroid;
 #: ``h_min_mm, h_max_mm``: its heights; ``below_mm``: the highest valid pixel within
@@ -369,6 +372,36 @@ def turbo_lut() -> list[list[int]]:
     return bgr[:, ::-1].astype(int).tolist()
 
 
+def rgb_picture(rgb: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """The RGB picture the page shows of a frame: its colours, with the unmeasured pixels grey
+    (:data:`INVALID_GRAY`, as in the height colour map) when they all carry one and the same colour.
+
+    A cloud file stores a colour for every pixel; where its points are unmeasured that colour is
+    either the camera's (a real picture of what the depth sensor missed) or one fill value that
+    means nothing (a stereo cloud stores dark red for every unmatched pixel): shown as it is, a fill
+    of red reads as labelled outliers and a fill of any colour as a surface. At least
+    :data:`FILL_MIN_PX` unmeasured pixels of one colour are taken for a fill.
+
+    Parameters
+    ----------
+    rgb : (H, W, 3) uint8 ndarray
+    valid : (H, W) bool ndarray
+
+    Returns
+    -------
+    (H, W, 3) uint8 ndarray
+        ``rgb`` itself when nothing is a fill (or the image is not the cloud's size), else a copy.
+    """
+    if rgb.shape[:2] != valid.shape:  # an image of another size is no picture of the cloud's pixels
+        return rgb
+    unmeasured = rgb[~valid]
+    if unmeasured.shape[0] < FILL_MIN_PX or not (unmeasured == unmeasured[0]).all():
+        return rgb
+    out = rgb.copy()
+    out[~valid] = INVALID_GRAY
+    return out
+
+
 def _jpeg(bgr: np.ndarray) -> bytes:
     ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
     assert ok
@@ -568,7 +601,7 @@ def prepare_frame(frame, result, *, suspect_params: SuspectParams | None = None,
     disagreement = int((counted & (2 * both < n_px)).sum())
     n_sor_listed = int(((src == SOURCE_SOR) & (n_px >= SOR_DEFAULT_MIN_PX)).sum())
     hbgr = height_colormap(frame.xyz, valid, limits=(lo, hi))
-    rgb_jpeg = None if frame.rgb is None else _jpeg(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR))
+    rgb_jpeg = None if frame.rgb is None else _jpeg(cv2.cvtColor(rgb_picture(frame.rgb, valid), cv2.COLOR_RGB2BGR))
     H, W = valid.shape
     warnings = tuple(result.warnings)
     header = {"index": frame.index, "stamp_ns": frame.stamp_ns, "topic": frame.topic, "height": H, "width": W,

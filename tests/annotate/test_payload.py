@@ -10,6 +10,7 @@ from annotate_helpers import pipeline_result, review_frame, spike_frame
 from annotate.payload import (
     CANDIDATE_COLUMNS,
     COLUMN,
+    FILL_MIN_PX,
     INVALID_GRAY,
     SOR_DEFAULT_MIN_PX,
     SOURCE_SOR,
@@ -28,6 +29,7 @@ from annotate.payload import (
     parse_geometry,
     parse_view,
     prepare_frame,
+    rgb_picture,
     runs_to_mask,
     turbo_lut,
 )
@@ -107,6 +109,34 @@ def test_height_colormap_marks_invalid_grey():
     assert (bgr[~valid] == INVALID_GRAY).all()
     nothing = np.full((4, 5, 3), np.nan, np.float32)
     assert (height_colormap(nothing, np.zeros((4, 5), bool)) == INVALID_GRAY).all()
+
+
+def test_rgb_picture_greys_a_fill_colour_not_a_picture(rng):
+    """A cloud file's one fill colour on its unmeasured pixels (a stereo cloud's dark red) is no picture:
+    the page's RGB image shows them grey, as the height map does; the camera's colours stay."""
+    h, w = 40, 50
+    rgb = rng.integers(0, 256, (h, w, 3)).astype(np.uint8)
+    valid = rng.random((h, w)) > 0.3
+    same = rgb_picture(rgb, valid)  # the camera's colours where the depth sensor missed: kept as they are
+    assert same is rgb
+    filled = rgb.copy()
+    filled[~valid] = (192, 0, 0)
+    out = rgb_picture(filled, valid)
+    assert (out[~valid] == INVALID_GRAY).all() and np.array_equal(out[valid], rgb[valid])
+    assert (filled[~valid] == (192, 0, 0)).all()  # the frame's own image is left alone
+    few = np.ones((h, w), bool)
+    few.ravel()[:FILL_MIN_PX - 1] = False  # too few to call one colour a fill
+    assert rgb_picture(filled, few) is filled
+    assert rgb_picture(filled, np.ones((h, w), bool)) is filled  # nothing unmeasured
+    assert rgb_picture(filled, np.zeros((h + 1, w), bool)) is filled  # an image of another size
+    # through prepare_frame: the JPEG the page shows
+    fr, _ = spike_frame(0, shape=(60, 80))
+    fr.xyz[20:40, 20:60] = np.nan  # a region the sensor missed (JPEG blurs lone pixels into their neighbours)
+    fr.rgb[~np.isfinite(fr.xyz).all(axis=2)] = (192, 0, 0)
+    pf = prepare_frame(fr, pipeline_result(fr))
+    img = cv2.imdecode(np.frombuffer(pf.served.rgb_jpeg, np.uint8), cv2.IMREAD_COLOR)[..., ::-1].astype(int)
+    inner = img[24:36, 24:56]
+    assert np.abs(inner - INVALID_GRAY).max() < 12  # grey, not the fill's red
 
 
 @pytest.mark.parametrize("rows", [0, 1, 5])
