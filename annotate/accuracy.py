@@ -293,6 +293,7 @@ def accuracy_report(
     *,
     region: str = "valid",
     unscored: Iterable[UnscoredFrame] = (),
+    left_out: Mapping[str, tuple[Iterable[int], str]] | None = None,
 ) -> dict:
     """The docs/accuracy.md report object.
 
@@ -305,13 +306,18 @@ def accuracy_report(
         counted without a region mask over the valid pixels.
     unscored : iterable of UnscoredFrame
         Frames the caller could not score, listed with their reason.
+    left_out : mapping of str to (iterable of int, str), optional
+        Per method, scored frames (by index) that this method alone was not scored on, and why —
+        ``learned`` leaves out the frames its model was trained on. The caller counts nothing for
+        the method there (its counts on those frames are 0).
 
     Returns
     -------
     dict
         ``{"region", "pooled": {METHOD: {tp, fp, fn, precision, recall, f1, iou,
         cluster_precision, cluster_recall, singletons_precision, singletons_recall,
-        "ci95": {"precision": [lo, hi], "recall": [lo, hi], "f1": [lo, hi]}, "by_kind": {...}}},
+        "ci95": {"precision": [lo, hi], "recall": [lo, hi], "f1": [lo, hi]}, "by_kind": {...},
+        "frames_scored": n, "frames_left_out": [index, ...], "left_out_reason": str or None}},
         "frames": [{"index", "stamp_ns", METHOD: {... the same keys but ci95}}],
         "unscored": [{"index", "stamp_ns", "reason"}], "bin_flagged"}`` with METHOD the frames'
         methods; each frame also has ``bin_check`` and ``bin_flagged`` (the bin check, None when
@@ -325,7 +331,9 @@ def accuracy_report(
     Raises
     ------
     ParameterError
-        Unknown region name; a frame both scored and unscored; kind truth in some frames only.
+        Unknown region name; a frame both scored and unscored; kind truth in some frames only; a
+        ``left_out`` method the frames do not hold, or a left-out frame that is not scored, or that
+        the method has counts on.
     """
     if region not in REGIONS:
         raise ParameterError(f"region must be one of {', '.join(REGIONS)}, got {region!r}")
@@ -339,12 +347,17 @@ def accuracy_report(
         raise ParameterError(f"frame(s) {both} are listed both as scored and as unscored")
     pooled = pooled_counts(frames)
     methods = tuple(pooled)
+    out_of = _left_out(frames, methods, left_out or {})
     per_frame = {k: np.array([[getattr(f.counts[m], k) for f in frames] for m in methods], dtype=np.int64)
                  .reshape(len(methods), len(frames)) for k in COUNT_KEYS}
     ci = pooled_interval_many(per_frame["tp"], per_frame["fp"], per_frame["fn"])
     return {
         "region": region,
-        "pooled": {m: _entry(pooled[m], {k: ci[k][i].tolist() for k in CI_KEYS}) for i, m in enumerate(methods)},
+        "pooled": {m: {**_entry(pooled[m], {k: ci[k][i].tolist() for k in CI_KEYS}),
+                       "frames_scored": len(frames) - len(out_of.get(m, ((), None))[0]),
+                       "frames_left_out": list(out_of.get(m, ((), None))[0]),
+                       "left_out_reason": out_of.get(m, ((), None))[1]}
+                   for i, m in enumerate(methods)},
         "frames": [
             {"index": f.index, "stamp_ns": f.stamp_ns, **{m: _entry(f.counts[m]) for m in methods},
              "bin_check": f.bin_check, "bin_flagged": f.bin_flagged}
@@ -355,6 +368,29 @@ def accuracy_report(
         "bin_flagged": (sum(bool(f.bin_flagged) for f in frames)
                         if frames and all(f.bin_flagged is not None for f in frames) else None),
     }
+
+
+def _left_out(frames: list[FrameAccuracy], methods: tuple[str, ...],
+              left_out: Mapping[str, tuple[Iterable[int], str]]) -> dict[str, tuple[list[int], str]]:
+    """The checked ``left_out`` of :func:`accuracy_report`: method -> (sorted frame indices, reason)."""
+    by_index = {f.index: f for f in frames}
+    out = {}
+    for m, (indices, reason) in left_out.items():
+        if m not in methods:
+            raise ParameterError(f"left_out names {m!r}, which the frames do not score (they hold {', '.join(methods)})")
+        if not isinstance(reason, str) or not reason.strip() or "\n" in reason:
+            raise ParameterError(f"left_out[{m!r}]: the reason must be a non-empty line of text, got {reason!r}")
+        idx = sorted({int(i) for i in indices})
+        for i in idx:
+            f = by_index.get(i)
+            if f is None:
+                raise ParameterError(f"left_out[{m!r}]: frame {i} is not a scored frame")
+            c = f.counts[m]
+            if c.tp or c.fp or c.fn:
+                raise ParameterError(f"left_out[{m!r}]: frame {i} has counts for {m} (a left-out frame counts nothing)")
+        if idx:
+            out[m] = (idx, reason)
+    return out
 
 
 def jsonable(obj: object) -> object:

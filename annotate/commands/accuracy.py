@@ -128,7 +128,9 @@ def run(args: argparse.Namespace) -> int:
             what = (f"no frame of {args.log} is labelled by {truth_src.annotator!r} in {args.labels}"
                     if args.labels else f"no frame of {args.log} has {layout.TRUTH_OUTLIERS}")
             raise ZcutError(what)
-        report = accuracy_report(results, region=args.region, unscored=unscored)
+        left_out = ({"learned": (learned_seen, "the assistant's model was trained on these frames")}
+                    if learned is not None else None)
+        report = accuracy_report(results, region=args.region, unscored=unscored, left_out=left_out)
         if args.json:
             print(report_json(report))
         else:

@@ -78,6 +78,7 @@ def test_report_matches_hand_count():
             assert _close(e[k], v), (m, k, e[k], v)
         pooled = dict(report["pooled"][m])
         ci = pooled.pop("ci95")
+        assert (pooled.pop("frames_scored"), pooled.pop("frames_left_out"), pooled.pop("left_out_reason")) == (1, [], None)
         assert jsonable(e) == jsonable(pooled)  # one frame: pooled = per frame
         for k in ("precision", "recall", "f1"):  # and one frame gets no interval (too few frames)
             assert jsonable(ci[k]) == [None, None]

@@ -209,3 +209,47 @@ def test_labels_list_export_import(spike_log, tmp_path, capsys):
     write_spike_log(other, frames=1, seed=5)
     assert main(["labels", "list", str(other), "--db", str(db)]) == 1
     assert "not registered" in capsys.readouterr().err
+
+
+def test_json_says_which_frames_learned_left_out(tmp_path, capsys):
+    """``learned`` is scored only on frames its model was not trained on; the JSON says per method how many
+    frames it scored, which it left out and why (docs/accuracy.md), as the table's line does."""
+    from annotate.groups import GCOL
+    from annotate.payload import parse_bundle, prepare_frame
+    from replay.pipeline.session import ReplaySession
+
+    log, db = tmp_path / "spikes.mcap", tmp_path / "labels.sqlite"
+    truths = write_spike_log(log, frames=4, shape=(120, 160), seed=2)
+    results = ReplaySession.open(log).results()
+    with LabelStore(db) as store:
+        rec = store.add_log(log)
+        try:
+            for frame, r in results:
+                if frame.index == 3:  # frame 3 stays unlabelled: the model is not trained on it
+                    continue
+                header, a = parse_bundle(prepare_frame(frame, r).served.bundle)
+                gids, valid = a["groups"].astype(np.int64), a["valid"]
+                t = a["group_table"]
+                out = t[t[:, GCOL["n"]] >= 16, GCOL["id"]]  # a person who takes the groups of >= 16 px
+                assert 0 < out.size < header["n_groups"]
+                fr = store.add_frame(rec, topic=frame.topic, stamp_ns=frame.stamp_ns, index=frame.index,
+                                     shape=valid.shape, valid=valid)
+                store.save_label(fr, annotator="alice", outliers=np.isin(gids, out) & valid, reviewed=valid,
+                                 base_revision=None)
+        finally:
+            results.close()
+    assert main(["labels", "train", str(log), "--db", str(db)]) == 0
+    rep = _json(capsys, ["accuracy", str(log), "--learned", str(db), "--json"])
+    learned = rep["pooled"]["learned"]
+    assert learned["frames_scored"] == 1 and learned["frames_left_out"] == [0, 1, 2]
+    assert "trained on" in learned["left_out_reason"]
+    for m in ("zcut", "sor", "union", "intersection"):
+        assert rep["pooled"][m]["frames_scored"] == 4
+        assert rep["pooled"][m]["frames_left_out"] == [] and rep["pooled"][m]["left_out_reason"] is None
+    by_frame = {f["index"]: f["learned"] for f in rep["frames"]}
+    assert all(by_frame[i]["tp"] == by_frame[i]["fp"] == by_frame[i]["fn"] == 0 for i in (0, 1, 2))
+    assert by_frame[3]["tp"] + by_frame[3]["fn"] == int(truths[3].sum())  # frame 3 is scored for learned
+    assert learned["tp"] == by_frame[3]["tp"] and learned["fp"] == by_frame[3]["fp"]
+    capsys.readouterr()
+    assert main(["accuracy", str(log), "--learned", str(db)]) == 0
+    assert "scored on the 1 frame(s) it was not trained on (3 left out)" in capsys.readouterr().out

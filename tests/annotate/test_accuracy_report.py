@@ -186,8 +186,12 @@ def test_too_few_frames_give_no_interval():
 
 
 def _check_entry(e, *, pooled):
-    keys = [*METRIC_KEYS, *(["ci95"] if pooled else []), "by_kind"]
+    keys = [*METRIC_KEYS, *(["ci95"] if pooled else []), "by_kind",
+            *(["frames_scored", "frames_left_out", "left_out_reason"] if pooled else [])]
     assert list(e) == keys
+    if pooled:
+        assert type(e["frames_scored"]) is int and all(type(i) is int for i in e["frames_left_out"])
+        assert (e["left_out_reason"] is None) == (e["frames_left_out"] == [])
     for k in ("tp", "fp", "fn"):
         assert type(e[k]) is int
     for k in METRIC_KEYS[3:]:
@@ -306,3 +310,32 @@ ONE = [frame_accuracy(0, 0, {"zcut": Z0, "sor": S0}, T0)]
 def test_bad_input(call, exc, match):
     with pytest.raises(exc, match=match):
         call()
+
+
+def test_a_method_left_out_of_some_frames_says_how_many_and_which():
+    """``learned`` is not scored on the frames its model was trained on: its pooled entry says how many
+    frames it scored, which it left out and why; the other methods scored every frame."""
+    frames = [frame_accuracy(i, 100 * i, {"zcut": Z0, "sor": S0}, T0, region=R0) for i in range(4)]
+    for i, f in enumerate(frames):  # learned: counted on frames 2 and 3 only
+        f.counts.update(frame_accuracy(i, 100 * i, {"learned": Z0}, T0, region=R0 & (i >= 2)).counts)
+    reason = "the assistant's model was trained on these frames"
+    rep = json.loads(report_json(accuracy_report(frames, region="zone", left_out={"learned": ({1, 0}, reason)})))
+    lp = rep["pooled"]["learned"]
+    assert (lp["frames_scored"], lp["frames_left_out"], lp["left_out_reason"]) == (2, [0, 1], reason)
+    assert (lp["tp"], lp["fp"], lp["fn"]) == tuple(2 * v for v in PIXELS[0]["zcut"])
+    for m in METHODS:
+        assert (rep["pooled"][m]["frames_scored"], rep["pooled"][m]["frames_left_out"]) == (4, [])
+        assert rep["pooled"][m]["left_out_reason"] is None
+    assert [(f["learned"]["tp"], f["learned"]["fp"], f["learned"]["fn"]) for f in rep["frames"][:2]] == [(0, 0, 0)] * 2
+    assert all("frames_scored" not in f["learned"] for f in rep["frames"])  # the pooled entry says it
+    # nothing left out: the same report as without the argument
+    assert report_json(accuracy_report(frames, region="zone", left_out={"learned": ((), reason)})) == \
+        report_json(accuracy_report(frames, region="zone"))
+    with pytest.raises(ParameterError, match="'nope', which the frames do not score"):
+        accuracy_report(frames, region="zone", left_out={"nope": ([0], reason)})
+    with pytest.raises(ParameterError, match="frame 7 is not a scored frame"):
+        accuracy_report(frames, region="zone", left_out={"learned": ([7], reason)})
+    with pytest.raises(ParameterError, match="frame 2 has counts for learned"):
+        accuracy_report(frames, region="zone", left_out={"learned": ([2], reason)})
+    with pytest.raises(ParameterError, match="reason must be a non-empty line"):
+        accuracy_report(frames, region="zone", left_out={"learned": ([0], " ")})
