@@ -1,8 +1,8 @@
 """What the labelling page proposes on real Kinect scans, where no truth exists: per frame, the suspect
 pixels of each detector, the review groups a person reviews (by source, the largest), and screenshots.
 
-The organized PCDs of the real data folder (docs/real_data.md; ``$ZCUT_REAL_DATA``, default
-``/work/shared/data/real``) are recorded into one log with ``zcut record`` and served with ``zcut
+The organized PCDs of the real data folder (docs/real_data.md: ``$ZCUT_REAL_DATA``, default the
+folder ``shared/data/real`` beside the checkout) are recorded into one log with ``zcut record`` and served with ``zcut
 annotate --port 0 --no-browser`` — without a bin model, since these tabletop scans have no bin; the
 folder's ROS 2 log of two mOSD scenes (``mosd_clutter_kinect_ros2.mcap``) is served as it is. The page
 is opened in Debian's chromium (Playwright; every request not to 127.0.0.1 is blocked) and shown each
@@ -38,7 +38,7 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 from annotate_helpers import CHROMIUM, CHROMIUM_ARGS, local_only  # noqa: E402
 from page_helpers import start_server, wait_prepared, wait_until  # noqa: E402
 
-REAL = Path(os.environ.get("ZCUT_REAL_DATA", "/work/shared/data/real"))
+REAL = Path(os.environ.get("ZCUT_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
 #: The real organized scans, in the order they are recorded (frame i of the log is the i-th found).
 PCD_GLOBS = ("mosd_test*.pcd", "table_scene_mug_stereo_textured.pcd", "milk_cartoon_all_small_clorox.pcd",
              "frame_*.pcd")
@@ -76,7 +76,7 @@ def real_inputs(real: Path) -> tuple[list[Path], list[str]]:
 
 
 def record(pcds: list[Path], out: Path) -> None:
-    cmd = [sys.executable, "-m", "cli", "record", *map(str, pcds), "-o", str(out)]
+    cmd = [sys.executable, "-m", "cli", "record", *map(str, pcds), "-o", str(out), "--force"]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         raise SystemExit(f"error: zcut record failed ({r.returncode}): {r.stderr.strip()}")
@@ -136,6 +136,7 @@ def look(page, base: str, token: str, index: int, shots: Path | None, tag: str) 
     row = {"groups": len(entries), "n_groups": header["n_groups"], "by_source": dict(Counter(sources)),
            "budget": SuspectParams().max_groups + METHOD_GROUPS_MAX * len(header["methods"]),
            "largest": sorted((int(n) for n in table[:, GCOL["n"]]), reverse=True)[:5],
+           "singletons": int((table[:, GCOL["n"]] == 1).sum()),
            "n_valid": header["n_valid"], "size": (header["height"], header["width"]),
            "n_suspect_px": header["n_suspect_px"], "noise_mm": header["noise_mm"],
            "tau_mm": header["threshold_mm"], "bin_stages": header["bin_stages"], "warning": warn,
@@ -239,13 +240,14 @@ def main() -> int:
 
     print()
     print("| log | frame | scan | size | valid px | σ̂ / τ mm | " + " | ".join(DETECTORS)
-          + " | suspect px | groups | by source | largest groups (px) |")
-    print("|---|---|---|---|---|---|" + "---|" * len(DETECTORS) + "---|---|---|---|")
+          + " | suspect px | groups | 1-px groups | by source | largest groups (px) |")
+    print("|---|---|---|---|---|---|" + "---|" * len(DETECTORS) + "---|---|---|---|---|")
     for r in rows:
         src = ", ".join(f"{k} {v}" for k, v in sorted(r["by_source"].items(), key=lambda kv: -kv[1]))
         print(f"| {r['log']} | {r['frame']} | {r['name']} | {r['size'][0]} × {r['size'][1]} | {r['n_valid']} | "
               f"{r['noise_mm']:.2f} / {r['tau_mm']:.1f} | " + " | ".join(str(r["det"][d]) for d in DETECTORS)
-              + f" | {r['n_suspect_px']} | {r['groups']} | {src} | {', '.join(map(str, r['largest']))} |")
+              + f" | {r['n_suspect_px']} | {r['groups']} | {r['singletons']} | {src} | "
+              f"{', '.join(map(str, r['largest']))} |")
     no_bin = [r for r in rows if not r["bin_stages"]]
     said = [r for r in no_bin if "no bin model" in r["warning"]]
     over = [r for r in rows if r["groups"] > r["budget"]]
