@@ -2,7 +2,8 @@
 
 For each frame of the log the pipeline (``replay.pipeline.stages.run_frame``) proposes candidates;
 :func:`prepare_frame` turns the frame and its :class:`~replay.pipeline.stages.FrameResult` into a
-:class:`PreparedFrame`: JPEGs of the RGB image and of a height colour map, one compact binary
+:class:`PreparedFrame`: JPEGs of the RGB image (:func:`rgb_picture`: a fill colour of the unmeasured
+pixels shown grey) and of a height colour map, one compact binary
 *bundle* with the valid mask, the candidate clusters of the z-cut and of SOR and the *candidate
 table*, and the frame's points (``geometry``) that the server spills to disk and serves by
 rectangles (:func:`make_geometry`) for the exact views: height and xyz under the cursor, the
