@@ -442,10 +442,29 @@ function prefetchNeighbourhoods(fd, k) {
 }
 
 // ------------------------------------------------------------------ profile and 3D view
-function defaultProfile(fd, e) {  // a horizontal line through the cluster's centre
+function entryHas(fd, e, i) {  // is pixel i one of the entry's?
+  if (e.src === 'g') return fd.gIds[i] === e.id;
+  if (e.pix) return e.pix.includes(i);
+  return false;
+}
+function anchorPixel(fd, e) {  // the entry's pixel nearest its centre (a group of scattered specks has none there)
+  const cx = Math.min(fd.W - 1, Math.floor(e.cx)), cy = Math.min(fd.H - 1, Math.floor(e.cy));
+  if (entryHas(fd, e, cy * fd.W + cx)) return [cx, cy];
+  let best = null, bd = Infinity;
+  if (e.pix) {
+    for (const i of e.pix) { const x = i % fd.W, y = (i / fd.W) | 0, d = (x - cx) ** 2 + (y - cy) ** 2; if (d < bd) { bd = d; best = [x, y]; } }
+    return best || [cx, cy];
+  }
+  for (let y = e.y0; y < e.y1; y++) for (let x = e.x0; x < e.x1; x++) {
+    const d = (x - cx) ** 2 + (y - cy) ** 2;
+    if (d < bd && entryHas(fd, e, y * fd.W + x)) { bd = d; best = [x, y]; }
+  }
+  return best || [cx, cy];
+}
+function defaultProfile(fd, e) {  // a horizontal line through the entry's pixel nearest its centre
   const half = Math.max(32, 2 * (e.x1 - e.x0));
-  const y = Math.min(fd.H - 1, Math.floor(e.cy));
-  return { x0: Math.max(0, Math.floor(e.cx - half)), y0: y, x1: Math.min(fd.W - 1, Math.ceil(e.cx + half)), y1: y, entry: e };
+  const [ax, y] = anchorPixel(fd, e);
+  return { x0: Math.max(0, ax - half), y0: y, x1: Math.min(fd.W - 1, ax + half), y1: y, entry: e };
 }
 
 function pixelClass(fd, i) {
@@ -887,7 +906,8 @@ function showFrameWarning(fd) {
   if (!fd.header.bin_stages) {
     el.textContent = `Frame ${fd.index}: ${w.join('; ') || 'bin stages skipped'}. Without the bin stages the ` +
       'filters judge every valid point, table and bin included, so they propose little; the review groups ' +
-      'still cover the whole frame. Give the bin model (zcut annotate --bin-model BIN.ply) to judge the bin only.';
+      'still cover the whole frame. If the scan shows a bin, give its model (zcut annotate --bin-model BIN.ply) ' +
+      'so that only what lies inside the bin is judged.';
     el.hidden = false;
   } else if (w.length) { el.textContent = `Frame ${fd.index}: ${w.join('; ')}`; el.hidden = false; }
   else el.hidden = true;
@@ -1479,7 +1499,8 @@ window.zcut.state = () => {
            status: $('status').textContent, target: state.target, sel: state.sel, entries: fd.entries.length,
            states: fd.states ? fd.states.slice() : [], selected: e ? { src: e.src, id: e.id, n: e.n, cx: e.cx, cy: e.cy,
              gap: e.gap, x0: e.x0, y0: e.y0, x1: e.x1, y1: e.y1, screen: toScreen(e.cx, e.cy) } : null,
-           viewport: { x: r.left, y: r.top, width: r.width, height: r.height }, order: state.order.slice() };
+           viewport: { x: r.left, y: r.top, width: r.width, height: r.height }, order: state.order.slice(),
+           profile: state.profile ? { x0: state.profile.x0, y0: state.profile.y0, x1: state.profile.x1, y1: state.profile.y1 } : null };
 };
 window.zcut.entries = () => {
   const fd = state.cur; if (!fd) return [];

@@ -5,6 +5,7 @@ the 3D view, the config's notes printed, and unsaved edits surviving a server re
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import socket
 
@@ -68,6 +69,45 @@ def test_counts_agree_and_gaps_read_as_words(served, browser):
         assert not errors and not blocked
     finally:
         close_page(page)
+
+
+def test_the_profile_crosses_a_pixel_of_every_group(tmp_path, browser):
+    """A group of scattered specks has nothing at its centre: the default profile line goes through its
+    pixel nearest the centre, so the profile shows the group (it showed "gap 0.00 mm" beside an empty
+    mark on a real scan's speckle group)."""
+    from annotate_helpers import spike_frame
+
+    from replay.logs.writer import LogWriter
+
+    frame, _ = spike_frame(0, shape=(240, 320), seed=8)
+    rng = np.random.default_rng(8)
+    xyz = frame.xyz.copy()
+    for r, c in zip(rng.integers(10, 230, 300), rng.integers(10, 310, 300)):  # specks: more than 40 groups' worth
+        xyz[r, c] *= (1.0 - 0.006) / 1.0
+    log = tmp_path / "specks.mcap"
+    with LogWriter(log) as w:
+        w.write_frame(dataclasses.replace(frame, xyz=xyz))
+    srv = ServerProcess(log, tmp_path / "labels.sqlite", annotator="alice")
+    header, arrays = _bundle(srv)
+    ids = arrays["groups"]
+    table = arrays["group_table"]
+    scattered = [g for g in range(1, header["n_groups"] + 1)
+                 if ids[int(table[g - 1, GCOL["cy"]]), int(table[g - 1, GCOL["cx"]])] != g]
+    assert scattered  # the frame has groups whose centre is not theirs (what the test is about)
+    page, errors, blocked = open_page(browser, srv.url, viewport=(1400, 900))
+    try:
+        rows = page.evaluate("window.zcut.entries()")
+        for k, r in enumerate(rows):
+            page.click(f"#candlist .cand[data-k='{k}']")
+            wait_until(page, f"window.zcut.state().sel === {k} && window.zcut.state().profile !== null")
+            pr = page.evaluate("window.zcut.state().profile")
+            assert pr["y0"] == pr["y1"]
+            row = ids[pr["y0"], pr["x0"]:pr["x1"] + 1]
+            assert (row == r["id"]).any(), (r, pr)
+        assert not errors and not blocked
+    finally:
+        close_page(page)
+        srv.stop()
 
 
 def test_shift_a_says_what_it_will_accept_and_takes_only_the_listed_groups(served, browser):
