@@ -72,6 +72,10 @@ INVALID_GRAY = 48
 #: Unmeasured pixels that all share one colour, at least this many, are a cloud file's fill value,
 #: shown grey in the RGB picture (:func:`rgb_picture`).
 FILL_MIN_PX = 16
+#: The share of its own colour an unmeasured pixel keeps in the RGB picture when it shows the camera's
+#: picture (the rest is :data:`INVALID_GRAY`): what the depth sensor missed stays recognisable, and
+#: reads as not measured (:func:`rgb_picture`).
+UNMEASURED_SHADE = 0.4
 #: Columns of the candidate table (float32). ``source``: 0 = z-cut, 1 = SOR; ``id``: the cluster's id
 #: in that source's id image; ``x0, y0, x1, y1``: bounding box (end exclusive); ``cx, cy``: centroid;
 #: ``h_min_mm, h_max_mm``: its heights; ``below_mm``: the highest valid pixel within
@@ -375,13 +379,16 @@ def turbo_lut() -> list[list[int]]:
 
 def rgb_picture(rgb: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """The RGB picture the page shows of a frame: its colours, with the unmeasured pixels grey
-    (:data:`INVALID_GRAY`, as in the height colour map) when they all carry one and the same colour.
+    (:data:`INVALID_GRAY`, as in the height colour map) when they all carry one and the same colour,
+    and shaded toward that grey (:data:`UNMEASURED_SHADE` of their colour kept) when they carry the
+    camera's picture.
 
     A cloud file stores a colour for every pixel; where its points are unmeasured that colour is
     either the camera's (a real picture of what the depth sensor missed) or one fill value that
     means nothing (a stereo cloud stores dark red for every unmatched pixel): shown as it is, a fill
-    of red reads as labelled outliers and a fill of any colour as a surface. At least
-    :data:`FILL_MIN_PX` unmeasured pixels of one colour are taken for a fill.
+    of red reads as labelled outliers and a fill of any colour as a surface, and the camera's picture
+    of a chair the depth sensor missed reads as measured. At least :data:`FILL_MIN_PX` unmeasured
+    pixels of one colour are taken for a fill.
 
     Parameters
     ----------
@@ -391,15 +398,17 @@ def rgb_picture(rgb: np.ndarray, valid: np.ndarray) -> np.ndarray:
     Returns
     -------
     (H, W, 3) uint8 ndarray
-        ``rgb`` itself when nothing is a fill (or the image is not the cloud's size), else a copy.
+        ``rgb`` itself when every pixel is measured (or the image is not the cloud's size), else a copy.
     """
-    if rgb.shape[:2] != valid.shape:  # an image of another size is no picture of the cloud's pixels
+    if rgb.shape[:2] != valid.shape or valid.all():  # an image of another size is no picture of the cloud's pixels
         return rgb
     unmeasured = rgb[~valid]
-    if unmeasured.shape[0] < FILL_MIN_PX or not (unmeasured == unmeasured[0]).all():
-        return rgb
     out = rgb.copy()
-    out[~valid] = INVALID_GRAY
+    if unmeasured.shape[0] >= FILL_MIN_PX and (unmeasured == unmeasured[0]).all():
+        out[~valid] = INVALID_GRAY
+    else:
+        grey = np.asarray(INVALID_GRAY, np.float64)
+        out[~valid] = np.round(UNMEASURED_SHADE * unmeasured + (1.0 - UNMEASURED_SHADE) * grey).astype(np.uint8)
     return out
 
 

@@ -29,6 +29,7 @@ from annotate.payload import (
     parse_geometry,
     parse_view,
     prepare_frame,
+    UNMEASURED_SHADE,
     rgb_picture,
     runs_to_mask,
     turbo_lut,
@@ -113,12 +114,16 @@ def test_height_colormap_marks_invalid_grey():
 
 def test_rgb_picture_greys_a_fill_colour_not_a_picture(rng):
     """A cloud file's one fill colour on its unmeasured pixels (a stereo cloud's dark red) is no picture:
-    the page's RGB image shows them grey, as the height map does; the camera's colours stay."""
+    the page's RGB image shows them grey, as the height map does; the camera's colours there are shaded
+    toward that grey (recognisable, and not read as measured)."""
     h, w = 40, 50
     rgb = rng.integers(0, 256, (h, w, 3)).astype(np.uint8)
     valid = rng.random((h, w)) > 0.3
-    same = rgb_picture(rgb, valid)  # the camera's colours where the depth sensor missed: kept as they are
-    assert same is rgb
+    shaded = rgb_picture(rgb, valid)  # the camera's colours where the depth sensor missed: shaded toward grey
+    assert shaded is not rgb and np.array_equal(shaded[valid], rgb[valid])
+    want = np.round(UNMEASURED_SHADE * rgb[~valid].astype(np.float64) + (1 - UNMEASURED_SHADE) * INVALID_GRAY)
+    assert np.array_equal(shaded[~valid], want.astype(np.uint8))
+    assert rgb_picture(rgb, np.ones((h, w), bool)) is rgb  # all measured: the picture as it is
     filled = rgb.copy()
     filled[~valid] = (192, 0, 0)
     out = rgb_picture(filled, valid)
@@ -126,7 +131,9 @@ def test_rgb_picture_greys_a_fill_colour_not_a_picture(rng):
     assert (filled[~valid] == (192, 0, 0)).all()  # the frame's own image is left alone
     few = np.ones((h, w), bool)
     few.ravel()[:FILL_MIN_PX - 1] = False  # too few to call one colour a fill
-    assert rgb_picture(filled, few) is filled
+    few_out = rgb_picture(filled, few)  # too few to call one colour a fill: shaded like a picture
+    assert np.array_equal(few_out[~few], np.round(UNMEASURED_SHADE * filled[~few].astype(np.float64)
+                                                  + (1 - UNMEASURED_SHADE) * INVALID_GRAY).astype(np.uint8))
     assert rgb_picture(filled, np.ones((h, w), bool)) is filled  # nothing unmeasured
     assert rgb_picture(filled, np.zeros((h + 1, w), bool)) is filled  # an image of another size
     # through prepare_frame: the JPEG the page shows
