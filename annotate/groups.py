@@ -8,8 +8,10 @@ from the camera). The page therefore proposes *groups* (``docs/labelling.md``):
   residuals up and down, mixed pixels, floating components of any depth, points above the rim),
   grouped by detector and merged until a frame has at most ``SuspectParams.max_groups`` (40) of them;
 - for every filter method the replay ran (``zcut``, ``sor``, the bank), the pixels it flags that no
-  suspect group holds, grouped by proximity into at most :data:`METHOD_GROUPS_MAX` groups per method
-  (a filter's proposal is never hidden, but it never floods the list either).
+  suspect group holds, grouped by strength class (:func:`zcut.suspects.strength_classes`, with the
+  frame's τ) and proximity into at most :data:`METHOD_GROUPS_MAX` groups per method (a filter's
+  proposal is never hidden, but it never floods the list either, and the few pixels it flags far off
+  the surface are not decided with its thousands at the noise's edge).
 
 Every group carries why it is a suspect: the detector (or method) it was grouped by, every detector
 and method that flags any of its pixels, its size, its gap to the local surface in mm (positive:
@@ -27,7 +29,7 @@ import numpy as np
 from scipy import ndimage
 
 from zcut.params import SuspectParams
-from zcut.suspects import DETECTORS, local_gaps, suspects
+from zcut.suspects import DETECTORS, local_gaps, strength_classes, suspects
 
 EIGHT = np.ones((3, 3), bool)
 #: At most this many groups per method for the pixels a filter flags that no suspect group holds.
@@ -146,6 +148,18 @@ def _merged_components(mask: np.ndarray, budget: int) -> tuple[np.ndarray, int]:
     return lab.astype(np.int32), int(n)
 
 
+def _class_budgets(cls: np.ndarray, total: int) -> list[tuple[int, int]]:
+    """(class, groups it may have) for each strength class present in ``cls`` (-1 = none): one group
+    each, the rest of ``total`` handed out in turn, the class with most pixels first."""
+    counts = np.bincount(cls[cls >= 0].astype(np.int64))
+    present = [int(c) for c in np.flatnonzero(counts)]
+    budget = dict.fromkeys(present, 1)
+    by_size = sorted(present, key=lambda c: (-counts[c], c))
+    for k in range(max(total - len(present), 0)):
+        budget[by_size[k % len(by_size)]] += 1
+    return [(c, budget[c]) for c in present]
+
+
 def _per_group(values: np.ndarray, ids: np.ndarray, n: int, fn) -> np.ndarray:
     """``fn`` of the finite values of each group 1..n (NaN where a group has none)."""
     out = np.full(n, np.nan)
@@ -195,14 +209,17 @@ def review_groups(xyz: np.ndarray, rgb: np.ndarray | None, *, height_mm: np.ndar
     h_all = np.where(valid, -1000.0 * np.asarray(xyz[..., 2], np.float64), np.nan)
     gap = np.asarray(res.gap_mm, np.float64).copy()
     taken = ids > 0
+    tau_frame = float(res.threshold_mm) if np.isfinite(res.threshold_mm) and res.threshold_mm > 0 else 1.0
     for j, name in enumerate(methods):
         rest = np.asarray(outliers[name], bool) & judged & ~taken
         if not rest.any():
             continue
-        lab, n = _merged_components(rest, METHOD_GROUPS_MAX)
-        ids = np.where(lab > 0, lab + ids.max(), ids)
-        primary += [len(DETECTORS) + j] * n
         gap_m = local_gaps(h_all, rest, valid & ~rest & ~taken)
+        cls = strength_classes(np.where(rest, 0, -1).astype(np.int8), np.abs(gap_m) / tau_frame)
+        for c, budget in _class_budgets(cls, METHOD_GROUPS_MAX):
+            lab, n = _merged_components(rest & (cls == c), budget)
+            ids = np.where(lab > 0, lab + ids.max(), ids)
+            primary += [len(DETECTORS) + j] * n
         gap[rest] = gap_m[rest]
         taken |= rest
     n = int(ids.max())

@@ -111,3 +111,19 @@ def test_features_of_a_frame_with_invalid_regions_are_numbers_or_nan(bad):
     g = _groups(fr, pipeline_result(fr))
     assert g.n >= 1 and not np.isinf(g.features).any()
     assert (g.ids[:, :40] == 0).all()
+
+
+def test_a_methods_groups_are_shared_among_its_strength_classes():
+    """The pixels a filter flags that no suspect holds are grouped per strength class (one group each, the
+    rest of METHOD_GROUPS_MAX in turn, largest class first), so its few pixels far off the surface are
+    not decided with its thousands at the noise's edge."""
+    from annotate.groups import _class_budgets
+
+    cls = np.full((10, 10), -1, np.int8)
+    cls[0, :] = 0          # 10 px at the noise's edge
+    cls[1, :3] = 2         # 3 px far off the surface
+    assert _class_budgets(cls, 4) == [(0, 2), (2, 2)]  # the rest in turn, the class with most pixels first
+    cls[2, :5] = 1
+    assert _class_budgets(cls, 4) == [(0, 2), (1, 1), (2, 1)]
+    assert _class_budgets(cls, 2) == [(0, 1), (1, 1), (2, 1)]  # every class present keeps one group
+    assert _class_budgets(np.full((3, 3), -1, np.int8), 4) == []
