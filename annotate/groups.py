@@ -155,7 +155,7 @@ def _class_budgets(cls: np.ndarray, total: int) -> list[tuple[int, int]]:
     present = [int(c) for c in np.flatnonzero(counts)]
     budget = dict.fromkeys(present, 1)
     by_size = sorted(present, key=lambda c: (-counts[c], c))
-    for k in range(max(total - len(present), 0)):
+    for k in range(max(total - len(present), 0) if present else 0):
         budget[by_size[k % len(by_size)]] += 1
     return [(c, budget[c]) for c in present]
 
