@@ -182,6 +182,12 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
         table = table.sort_by([("log_sha256", "ascending"), ("frame", "ascending"), ("method", "ascending")])
     store.write_table("sweep.parquet", table)
     if not table.num_rows:
+        failed = [f"{Path(str(r.unit.log)).name}: {r.error}" for r in results if r.error]
+        failed += [f"{Path(str(p.path)).name}: {p.error}" for p in plans if p.error]
+        if failed:  # the frames were lost, not truthless: data loss (as batch), naming what failed
+            more = f" (and {len(failed) - 1} more)" if len(failed) > 1 else ""
+            print(f"error: no frame was scored, because a unit of work failed: {failed[0]}{more}", file=sys.stderr)
+            return EXIT_DATA_LOSS
         raise ConfigError("no frame was scored (no truth in any frame): nothing to sum up")
     from threadpoolctl import threadpool_limits
 

@@ -41,3 +41,23 @@ def test_sweep_leaves_an_unreadable_log_out_and_goes_on(log, tmp_path, capsys):
     summary = json.loads((tmp_path / "s" / "summary.json").read_text())
     assert summary["frames"] == 2 and (tmp_path / "s" / "tuned.toml").is_file()
     assert [e["log"] for e in summary["logs"] if e["error"]] == [str(bad / "c.mcap")]
+
+
+def test_a_sweep_whose_every_unit_failed_is_data_loss_naming_the_failure(log, tmp_path, capsys, monkeypatch):
+    """Workers that die on every unit (as an unprivileged user's did, unable to start) leave no frame to
+    score: the sweep says the units failed and exits 3 like batch, not "no truth in any frame" (exit 1)."""
+    from worker_helpers import kill_worker
+
+    import studies.executors as executors
+
+    class Dying(executors.LocalExecutor):
+        def run(self, fn, units, job):
+            return super().run(kill_worker, units, job)
+
+    monkeypatch.setattr(executors, "make_executor", lambda workers, ray=False: Dying(1))
+    rc, _, err = run_cli(capsys, "sweep", log, "-o", tmp_path / "s", "--workers", "1", "--step", "0.2",
+                         "--rho", "0.07", "--no-report")
+    assert rc == 3, err
+    errors = [ln for ln in err.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1 and "a unit of work failed" in errors[0] and "died twice" in errors[0], err
+    assert "no truth" not in err and "Traceback" not in err
