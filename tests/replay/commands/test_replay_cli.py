@@ -47,6 +47,16 @@ def test_bin_model_from_empty_scans(bin_ply, logs):
     assert 0.3 < ext[0] < 0.5 and 0.2 < ext[1] < 0.4
 
 
+def test_bin_model_from_one_scan_warns_and_from_two_does_not(tmp_path, capsys, logs):
+    _, _, empty = logs
+    rc, _, err = run_cli(capsys, "bin-model", empty, "--frames", "0:1", "-o", tmp_path / "one.ply")
+    assert rc == 0 and (tmp_path / "one.ply").is_file()
+    warnings = [ln for ln in err.splitlines() if ln.startswith("warning:")]
+    assert len(warnings) == 1 and "built from 1 scan" in warnings[0] and "2 or more" in warnings[0], err
+    rc, _, err = run_cli(capsys, "bin-model", empty, "--frames", "0:2", "-o", tmp_path / "two.ply")
+    assert rc == 0 and "warning:" not in err, err
+
+
 def test_replay_with_bin_model_writes_rrd_results_and_config(tmp_path, capsys, logs, bin_ply):
     _, filled, _ = logs
     rrd, res = tmp_path / "r.rrd", tmp_path / "res.mcap"
