@@ -3,8 +3,9 @@
 The kernels are compiled on first use and cached beside their modules; a first ``zcut demo`` would
 otherwise wait about a minute in silence. This runs every kernel once on tiny inputs: a small
 synthetic log with its bin model through the whole pipeline, the z-cut's kernels (flooding,
-union-find, the grid), SOR in both conventions (its column search too), the filter bank, and the
-PCD/PLY readers.
+union-find, the grid), SOR in both conventions (its column search too), the filter bank, the
+suspect detectors of the labelling page, the ray-traced sensor (``zcut synth --sensor raytraced``)
+and the PCD/PLY readers.
 """
 
 from __future__ import annotations
@@ -34,7 +35,8 @@ def main() -> int:
         zcut_outliers,
         zcut_tree,
     )
-    from zcut.params import ZCutParams
+    from zcut.params import SuspectParams, ZCutParams
+    from zcut.suspects import suspects
 
     t0 = time.perf_counter()
     print("zcut: compiling the numba kernels (once; cached beside the modules)…", file=sys.stderr, flush=True)
@@ -59,6 +61,7 @@ def main() -> int:
             speckle_outliers(a, max_diff_mm=2.0, max_size_px=100)
             window_outliers(a, min_inliers=3, rel_tolerance=0.005)
             mixed_pixel_outliers(a, min_angle_deg=8.0)
+    suspects(xyz / 1000.0, -np.asarray(xyz[..., 2], np.float64), np.ones(h.shape, bool), params=SuspectParams())
     with tempfile.TemporaryDirectory() as d:
         log, empty = Path(d) / "w.mcap", Path(d) / "e.mcap"
         write_synthetic_log(log, kind="rods", frames=1, seed=1, size=(60, 96))
@@ -66,6 +69,9 @@ def main() -> int:
         model, _ = build_bin_model(LogReader(empty).frames())
         for bm in (model, None):
             ReplaySession.open(log, bin_model=bm).run()
+        from replay.synth.raytrace import write_raytraced_log
+
+        write_raytraced_log(Path(d) / "r.mcap", kind="rods", frames=1, seed=1, size=(60, 96))
     print(f"zcut: kernels compiled in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return 0
 
