@@ -442,24 +442,14 @@ function prefetchNeighbourhoods(fd, k) {
 }
 
 // ------------------------------------------------------------------ profile and 3D view
-function entryHas(fd, e, i) {  // is pixel i one of the entry's?
-  if (e.src === 'g') return fd.gIds[i] === e.id;
-  if (e.pix) return e.pix.includes(i);
-  return false;
-}
 function anchorPixel(fd, e) {  // the entry's pixel nearest its centre (a group of scattered specks has none there)
-  const cx = Math.min(fd.W - 1, Math.floor(e.cx)), cy = Math.min(fd.H - 1, Math.floor(e.cy));
-  if (entryHas(fd, e, cy * fd.W + cx)) return [cx, cy];
-  let best = null, bd = Infinity;
-  if (e.pix) {
-    for (const i of e.pix) { const x = i % fd.W, y = (i / fd.W) | 0, d = (x - cx) ** 2 + (y - cy) ** 2; if (d < bd) { bd = d; best = [x, y]; } }
-    return best || [cx, cy];
+  const cx = Math.floor(e.cx), cy = Math.floor(e.cy);
+  let best = [Math.min(fd.W - 1, cx), Math.min(fd.H - 1, cy)], bd = Infinity;
+  for (const i of e.pix) {
+    const x = i % fd.W, y = (i / fd.W) | 0, d = (x - cx) ** 2 + (y - cy) ** 2;
+    if (d < bd) { bd = d; best = [x, y]; }
   }
-  for (let y = e.y0; y < e.y1; y++) for (let x = e.x0; x < e.x1; x++) {
-    const d = (x - cx) ** 2 + (y - cy) ** 2;
-    if (d < bd && entryHas(fd, e, y * fd.W + x)) { bd = d; best = [x, y]; }
-  }
-  return best || [cx, cy];
+  return best;
 }
 function defaultProfile(fd, e) {  // a horizontal line through the entry's pixel nearest its centre
   const half = Math.max(32, 2 * (e.x1 - e.x0));
@@ -1146,17 +1136,7 @@ function clickCluster(fd, x, y, preferSor) {  // toggle the cluster under the po
   x = Math.floor(x); y = Math.floor(y);
   if (x < 0 || y < 0 || x >= fd.W || y >= fd.H) return false;
   const i = y * fd.W + x;
-  if (fd.gIds[i]) {  // a review group: toggle it as a whole
-    const e = fd.base.find((b) => b.id === fd.gIds[i]);
-    const accept = entryState(fd, e) !== 'accepted';
-    beginAction(fd);
-    for (const j of e.pix) setPixel(fd, j, accept ? 'add' : 'erase');
-    touch(e.x0, e.y0, e.x1, e.y1);
-    endAction(fd);
-    const k = fd.entries.indexOf(e);
-    if (k >= 0) select(k, { zoom: false });
-    return true;
-  }
+  if (fd.gIds[i]) return toggleEntry(fd, fd.base.find((b) => b.id === fd.gIds[i]));  // a review group, as a whole
   const sOk = fd.sIds[i] !== 0 && state.showS;
   const order = preferSor ? [['s', sOk], ['z', fd.zIds[i] !== 0 && state.showZ]] : [['z', fd.zIds[i] !== 0 && state.showZ], ['s', sOk]];
   let src = null;
@@ -1174,6 +1154,10 @@ function clickCluster(fd, x, y, preferSor) {  // toggle the cluster under the po
     }
   } else e = fd.labelEntries.find((l) => l.pix.includes(i));
   if (!e) return false;
+  return toggleEntry(fd, e);
+}
+
+function toggleEntry(fd, e) {  // accept the entry's pixels, or take them back if accepted; select its row
   const accept = entryState(fd, e) !== 'accepted';
   beginAction(fd);
   for (const j of e.pix) setPixel(fd, j, accept ? 'add' : 'erase');
