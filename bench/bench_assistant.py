@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT)]
+sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
 
 BACKENDS = ("lightgbm", "xgboost", "hgb")
 STORED_AS = {"lightgbm": "LightGBM text model (model_to_string)", "xgboost": "XGBoost JSON (save_raw)",
@@ -32,31 +32,25 @@ STORED_AS = {"lightgbm": "LightGBM text model (model_to_string)", "xgboost": "XG
 
 def frames_of(work: Path, kinds, seeds, frames: int):
     """(kind, frame index, features, y) of every frame."""
+    from page_helpers import synthetic_bin_model, synthetic_log
+
     from annotate.assistant import frame_groups
     from annotate.groups import group_targets
     from replay.logs import layout
-    from replay.logs.reader import LogReader
-    from replay.pipeline.bin_model import build_bin_model, load_bin_model, save_bin_model
+    from replay.pipeline.bin_model import load_bin_model
     from replay.pipeline.session import ReplaySession
-    from replay.synth.log import write_synthetic_log
 
-    work.mkdir(parents=True, exist_ok=True)
-    ply = work / "bin.ply"
-    if not ply.exists():
-        empty = work / "empty.mcap"
-        if not empty.exists():
-            write_synthetic_log(empty, empty=True, frames=5, seed=0, size=(1200, 1920))
-        model, _ = build_bin_model(LogReader(empty).frames())
-        save_bin_model(model, ply)
-    cache = work / "assistant_features"
+    ply = synthetic_bin_model(work)
+    import hashlib
+
+    # the features depend on how groups are made: a change of those modules makes a new cache
+    code = hashlib.sha256(b"".join((ROOT / m).read_bytes() for m in ("annotate/groups.py", "zcut/suspects.py")))
+    cache = work / f"assistant_features_{code.hexdigest()[:12]}"
     cache.mkdir(exist_ok=True)
     out = []
     for kind in kinds:
         for seed in seeds:
-            log = work / f"{kind}_s{seed}_f{frames}.mcap"
-            if not log.exists():
-                print(f"synthesising {log.name}", flush=True)
-                write_synthetic_log(log, kind=kind, frames=frames, seed=seed, size=(1200, 1920))
+            log = synthetic_log(work, kind, seed, frames)
             done = sorted(cache.glob(f"{log.stem}.*.npz"))
             if len(done) < frames:
                 session = ReplaySession.open(log, bin_model=load_bin_model(ply))

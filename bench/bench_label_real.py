@@ -36,7 +36,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 from annotate_helpers import CHROMIUM, CHROMIUM_ARGS, local_only  # noqa: E402
-from page_helpers import start_server, wait_prepared, wait_until  # noqa: E402
+from page_helpers import get_bundle, start_server, wait_prepared, wait_until  # noqa: E402
 
 REAL = Path(os.environ.get("ZCUT_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
 #: The real organized scans, in the order they are recorded (frame i of the log is the i-th found).
@@ -108,21 +108,13 @@ def detector_pixels(log: Path) -> dict[int, dict]:
     return out
 
 
-def bundle(base: str, token: str, index: int) -> tuple[dict, dict]:
-    from annotate.payload import parse_bundle
-
-    r = httpx.get(f"{base}/api/frames/{index}/bundle", headers={"X-Zcut-Token": token}, timeout=60)
-    r.raise_for_status()
-    return parse_bundle(r.content)
-
-
 def look(page, base: str, token: str, index: int, shots: Path | None, tag: str) -> dict:
     """Show frame ``index`` on the page; what it lists and says (and screenshots)."""
     from annotate.groups import GCOL
 
     page.evaluate(f"window.zcut.goTo({index})")
     wait_until(page, f"window.zcut.state() && window.zcut.state().index === {index} && window.zcut.shown === {index}")
-    header, arrays = bundle(base, token, index)
+    header, arrays = get_bundle(base, token, index)
     table = arrays["group_table"]
     entries = [e for e in page.evaluate("window.zcut.entries()") if e["src"] == "g"]
     sources = [header["group_sources"][int(s)] for s in table[:, GCOL["source"]]]

@@ -23,56 +23,30 @@ on every frame, <= 60 inputs on the first frame, <= 20 per frame once the assist
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 import time
 from pathlib import Path
 
-import httpx
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 from annotate_helpers import CHROMIUM, CHROMIUM_ARGS, local_only  # noqa: E402
-from page_helpers import wait_prepared, wait_until  # noqa: E402
+from page_helpers import (  # noqa: E402
+    get_bundle,
+    start_server,
+    synthetic_bin_model,
+    synthetic_log,
+    wait_prepared,
+    wait_until,
+)
 
 KINDS = (("zinc_nuts", 71), ("black_nuts", 72))
 
 
 def make_inputs(work: Path, frames: int, kinds=KINDS) -> tuple[dict[str, Path], Path]:
-    from replay.logs.reader import LogReader
-    from replay.pipeline.bin_model import build_bin_model, save_bin_model
-    from replay.synth.log import write_synthetic_log
-
-    work.mkdir(parents=True, exist_ok=True)
-    ply = work / "bin.ply"
-    if not ply.exists():
-        empty = work / "empty.mcap"
-        if not empty.exists():
-            write_synthetic_log(empty, empty=True, frames=5, seed=0, size=(1200, 1920))
-        model, _ = build_bin_model(LogReader(empty).frames())
-        save_bin_model(model, ply)
-    logs = {}
-    for kind, seed in kinds:
-        p = work / f"{kind}_s{seed}_f{frames}.mcap"
-        if not p.exists():
-            print(f"synthesising {p.name}", flush=True)
-            write_synthetic_log(p, kind=kind, frames=frames, seed=seed, size=(1200, 1920))
-        logs[kind] = p
-    return logs, ply
-
-
-def start(log: Path, db: Path, ply: Path):
-    import re
-
-    cmd = [sys.executable, "-m", "cli", "annotate", str(log), "--db", str(db), "--port", "0", "--no-browser",
-           "--annotator", "bench", "--bin-model", str(ply)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-    for line in proc.stdout:
-        m = re.match(r"(http://127\.0\.0\.1:\d+)/\?token=(\S+)", line.strip())
-        if m:
-            return proc, m.group(1), m.group(2)
-    raise SystemExit(f"server did not start (exit {proc.wait()})")
+    ply = synthetic_bin_model(work)
+    return {kind: synthetic_log(work, kind, seed, frames) for kind, seed in kinds}, ply
 
 
 def frame_truth(log: Path) -> dict[int, np.ndarray]:
@@ -84,19 +58,13 @@ def frame_truth(log: Path) -> dict[int, np.ndarray]:
 
 def groups_of(base: str, token: str, index: int) -> tuple[dict, np.ndarray, np.ndarray]:
     """(header, group ids, scored region) of a frame, from the bundle the page reads."""
-    from annotate.payload import parse_bundle
-
-    header, arrays = parse_bundle(httpx.get(f"{base}/api/frames/{index}/bundle", headers={"X-Zcut-Token": token},
-                                            timeout=60).content)
+    header, arrays = get_bundle(base, token, index)
     region = arrays.get("zone", arrays["valid"])
     return header, arrays["groups"].astype(np.int64), region
 
 
 def label_of(base: str, token: str, index: int, shape) -> np.ndarray:
-    from annotate.payload import parse_bundle
-
-    _, arrays = parse_bundle(httpx.get(f"{base}/api/frames/{index}/label", headers={"X-Zcut-Token": token},
-                                       timeout=60).content)
+    _, arrays = get_bundle(base, token, index, "label")
     return arrays.get("outliers", np.zeros(shape, bool))
 
 
@@ -148,7 +116,7 @@ def person(page, *, truth_share: dict[int, float], shots: Path | None, tag: str)
 
 def run_kind(kind: str, log: Path, ply: Path, db: Path, browser, shots: Path | None, viewport) -> list[dict]:
     truths = frame_truth(log)
-    proc, base, token = start(log, db, ply)
+    proc, base, token = start_server(log, db, "--bin-model", ply, quiet=True)
     rows = []
     try:
         print(f"{kind}: server prepared {len(truths)} frames in {wait_prepared(base, token):.0f} s", flush=True)
