@@ -209,13 +209,13 @@ def review_groups(xyz: np.ndarray, rgb: np.ndarray | None, *, height_mm: np.ndar
     h_all = np.where(valid, -1000.0 * np.asarray(xyz[..., 2], np.float64), np.nan)
     gap = np.asarray(res.gap_mm, np.float64).copy()
     taken = ids > 0
-    tau_frame = float(res.threshold_mm) if np.isfinite(res.threshold_mm) and res.threshold_mm > 0 else 1.0
+    tau = float(res.threshold_mm) if np.isfinite(res.threshold_mm) and res.threshold_mm > 0 else 1.0
     for j, name in enumerate(methods):
         rest = np.asarray(outliers[name], bool) & judged & ~taken
         if not rest.any():
             continue
         gap_m = local_gaps(h_all, rest, valid & ~rest & ~taken)
-        cls = strength_classes(np.where(rest, 0, -1).astype(np.int8), np.abs(gap_m) / tau_frame)
+        cls = strength_classes(np.where(rest, 0, -1).astype(np.int8), np.abs(gap_m) / tau)
         for c, budget in _class_budgets(cls, METHOD_GROUPS_MAX):
             lab, n = _merged_components(rest & (cls == c), budget)
             ids = np.where(lab > 0, lab + ids.max(), ids)
@@ -272,7 +272,6 @@ def review_groups(xyz: np.ndarray, rgb: np.ndarray | None, *, height_mm: np.ndar
     table[:, GCOL["score"]] = score
 
     # ---- the assistant's features
-    tau = float(res.threshold_mm) if np.isfinite(res.threshold_mm) and res.threshold_mm > 0 else 1.0
     f = {name: np.full(n, np.nan) for name in FEATURES}
     f["log_size"] = np.log1p(cnt)
     f["gap_mm"] = g_gap
