@@ -103,9 +103,10 @@ def frame_rows(log: Path, ply: Path) -> list[dict]:
         h = np.asarray(result.height_mm, np.float64)
         g = review_groups(frame.xyz, frame.rgb, height_mm=h, valid=valid, zone=zone, above_rim=easy,
                           outliers={k: np.asarray(v, bool) & valid for k, v in result.outliers.items()}, params=params)
-        r = suspects(frame.xyz, h, zone, easy, params=params)
+        r = suspects(frame.xyz, h, zone, easy, params=params)  # again: its per-pixel gaps, residuals and detectors
         truth = frame.masks[layout.TRUTH_OUTLIERS] & valid & (zone | easy)
-        rows.append({"index": frame.index, "ids": g.ids.astype(np.int64), "rise": g.rise_mm, "gap": r.gap_mm,
+        ids = g.ids.astype(np.int64)
+        rows.append({"index": frame.index, "ids": ids, "pieces": pieces_of(ids), "rise": g.rise_mm, "gap": r.gap_mm,
                      "resid": r.residual_mm, "codes": r.detectors, "valid": valid, "tau": float(r.threshold_mm),
                      "truth": truth})
     return rows
@@ -139,8 +140,7 @@ def limits(row: dict) -> dict:
         LB[m] = rise[m] >= t
     out["brush"] = iou(LB, T)
     # splitting the most mixed groups into pieces
-    pc = pieces_of(ids)
-    row["pieces"] = pc
+    pc = row["pieces"]
     LS, extra, out["split_extra"] = L.copy(), 0, None
     for k in np.argsort(-loss)[:10]:
         if loss[k] == 0 or out["group"] >= 0.9:
