@@ -29,7 +29,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -44,6 +44,7 @@ from zcut.metrics import (
     INTERVAL_STATS,
     AccuracyCounts,
     KindCounts,
+    ScoredTruth,
     pooled_interval_many,
     ratio,
     scored_truth,
@@ -71,6 +72,18 @@ N_KINDS: int = max(KINDS)
 #: (``docs/coverage.md``: the worst cell over four filters, three figures and two part kinds).
 INTERVAL_NOTE: str = ("95 % logit-t intervals over the frames, measured coverage >= 0.93 at 3-24 frames "
                       "(docs/coverage.md)")
+#: Size classes of the truth's components (8-connected components of L ∩ S, in pixels): name -> the
+#: smallest size of the class (docs/accuracy.md, "Recall by size").
+SIZE_CLASSES: dict[str, int] = {"1": 1, "2-9": 2, "10-99": 10, ">=100": 100}
+#: Displacement classes of the true outliers, |Z − Z_GT| in mm where the log has ``/ground_truth/depth``:
+#: name -> the upper bound of the class (docs/accuracy.md, "Recall by displacement").
+DISPLACEMENT_CLASSES: dict[str, float] = {"<=1mm": 1.0, "1-5mm": 5.0, "5-30mm": 30.0, ">30mm": math.inf}
+#: The families of classes a report may hold per method, and their classes in the order shown.
+CLASS_FAMILIES: dict[str, tuple[str, ...]] = {
+    "by_size": tuple(SIZE_CLASSES),
+    "detectable": ("detectable",),
+    "by_displacement": tuple(DISPLACEMENT_CLASSES),
+}
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,6 +105,10 @@ class FrameAccuracy:
     bin_flagged : bool or None
         Whether the bin check flagged the frame: its scores rest on a bin removal that did not
         work; None when unknown.
+    classes : dict[str, dict[str, KindCounts]]
+        Per method, per family of :data:`CLASS_FAMILIES` the frame's truth has (``by_size``
+        always, ``detectable`` and ``by_displacement`` where the truth says), the true outlier
+        pixels of each class (``n``) and those found; entry ``i`` is the family's class ``i``.
     """
 
     index: int
@@ -99,6 +116,7 @@ class FrameAccuracy:
     counts: dict[str, AccuracyCounts]
     bin_check: float | None = None
     bin_flagged: bool | None = None
+    classes: dict[str, dict[str, KindCounts]] = field(default_factory=dict)
 
     @property
     def methods(self) -> tuple[str, ...]:
@@ -184,8 +202,10 @@ def frame_accuracy(
     valid: Mask | None = None,
     region: Mask | None = None,
     kinds: np.ndarray | None = None,
+    detectable: Mask | None = None,
+    displacement_mm: np.ndarray | None = None,
 ) -> FrameAccuracy:
-    """Count pixels, clusters, singletons and kinds of every method on one frame (docs/accuracy.md).
+    """Count pixels, clusters, singletons, kinds and classes of every method on one frame (docs/accuracy.md).
 
     Parameters
     ----------
@@ -209,6 +229,12 @@ def frame_accuracy(
     kinds : (H, W) uint8 ndarray, optional
         Kind codes of :data:`KINDS`, nonzero exactly where ``outliers`` is set (restrict it as
         ``outliers`` is restricted, e.g. ``np.where(truth, kind, 0)``). Adds per-kind counts.
+    detectable : (H, W) bool ndarray, optional
+        The true outliers geometry can tell (``/ground_truth/detectable``): adds the ``detectable``
+        class. Pixels outside ``outliers`` are ignored.
+    displacement_mm : (H, W) float ndarray, optional
+        |Z − Z_GT| (mm) of every pixel (NaN where unknown): adds the ``by_displacement`` classes
+        (a true outlier of unknown displacement is in none).
 
     Returns
     -------
@@ -229,7 +255,73 @@ def frame_accuracy(
     scored = scored_truth(truth, reviewed=reviewed, valid=valid, region=region, kinds=kinds,
                           n_kinds=N_KINDS)
     counts = {m: scored.counts(p) for m, p in preds.items()}
-    return FrameAccuracy(index=int(index), stamp_ns=int(stamp_ns), counts=counts)
+    codes = truth_classes(scored, detectable=detectable, displacement_mm=displacement_mm)
+    classes = {m: {fam: _class_counts(c, preds[m].ravel()[scored.true_index], len(CLASS_FAMILIES[fam]))
+                   for fam, c in codes.items()} for m in preds}
+    return FrameAccuracy(index=int(index), stamp_ns=int(stamp_ns), counts=counts, classes=classes)
+
+
+def truth_classes(scored: ScoredTruth, *, detectable: Mask | None = None,
+                  displacement_mm: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """The class of every scored true outlier, per family (docs/accuracy.md, "Recall by size").
+
+    Parameters
+    ----------
+    scored : ScoredTruth
+        The frame's truth as :func:`zcut.metrics.scored_truth` prepared it.
+    detectable, displacement_mm : (H, W) ndarray, optional
+        As :func:`frame_accuracy` takes them.
+
+    Returns
+    -------
+    dict[str, (n_true,) uint8 ndarray]
+        Family name -> for each pixel of L ∩ S (``scored.true_index`` order) its class code, 1-based
+        in the order of :data:`CLASS_FAMILIES`, 0 = in no class of the family.
+    """
+    sizes = scored.true_sizes[scored.true_component]
+    out = {"by_size": (np.searchsorted(np.array(list(SIZE_CLASSES.values())), sizes, side="right"))
+           .astype(np.uint8)}
+    if detectable is not None:
+        det = check_mask(detectable, name="detectable", shape=scored.shape)
+        out["detectable"] = det.ravel()[scored.true_index].astype(np.uint8)
+    if displacement_mm is not None:
+        d = np.asarray(displacement_mm, dtype=np.float64)
+        if d.shape != scored.shape:
+            raise ParameterError(f"displacement_mm is {d.shape}, the truth {scored.shape}")
+        v = d.ravel()[scored.true_index]
+        bounds = np.array(list(DISPLACEMENT_CLASSES.values())[:-1])
+        code = (np.searchsorted(bounds, v, side="left") + 1).astype(np.uint8)
+        code[~np.isfinite(v)] = 0
+        out["by_displacement"] = code
+    return out
+
+
+def _class_counts(codes: np.ndarray, hit: np.ndarray, n_classes: int) -> KindCounts:
+    n = np.bincount(codes, minlength=n_classes + 1)[1:n_classes + 1]
+    found = np.bincount(codes[hit], minlength=n_classes + 1)[1:n_classes + 1]
+    return KindCounts(tuple(int(v) for v in n), tuple(int(v) for v in n), tuple(int(v) for v in found))
+
+
+def pooled_classes(frames: Iterable[FrameAccuracy]) -> dict[str, dict[str, KindCounts]]:
+    """Per method, the class counts summed over the frames, for each family every frame has (a
+    family some frames lack is left out: its pooled ``n`` would not be the frames')."""
+    frames = list(frames)
+    if not frames:
+        return {}
+    out: dict[str, dict[str, KindCounts]] = {}
+    for m in frames[0].methods:
+        fams = [fam for fam in CLASS_FAMILIES if all(fam in f.classes.get(m, {}) for f in frames)]
+        out[m] = {fam: sum((f.classes[m][fam] for f in frames[1:]), frames[0].classes[m][fam]) for fam in fams}
+    return out
+
+
+def classes_entry(family: str, counts: KindCounts) -> dict:
+    """A family's report entry: ``{CLASS: {"n", "found", "recall"}}`` (``detectable``: the one class's
+    ``{"n", "found", "recall"}`` itself)."""
+    names = CLASS_FAMILIES[family]
+    e = {name: {"n": counts.n[i], "found": counts.found[i], "recall": ratio(counts.found[i], counts.n[i])}
+         for i, name in enumerate(names)}
+    return e[names[0]] if family == "detectable" else e
 
 
 def pooled_counts(frames: Iterable[FrameAccuracy]) -> dict[str, AccuracyCounts]:
@@ -277,7 +369,8 @@ def by_kind(kinds: KindCounts) -> dict[str, dict[str, int | float]]:
             for c in kinds.held}
 
 
-def _entry(c: AccuracyCounts, ci: Mapping[str, list[float]] | None = None) -> dict:
+def _entry(c: AccuracyCounts, ci: Mapping[str, list[float]] | None = None,
+           classes: Mapping[str, KindCounts] | None = None) -> dict:
     out: dict = {}
     for k, v in c.as_dict().items():
         out[k] = int(v) if k in COUNT_KEYS else float(v)
@@ -285,6 +378,8 @@ def _entry(c: AccuracyCounts, ci: Mapping[str, list[float]] | None = None) -> di
         out["ci95"] = {k: list(ci[k]) for k in CI_KEYS}
     if c.kinds is not None:
         out["by_kind"] = by_kind(c.kinds)
+    for fam, kc in (classes or {}).items():
+        out[fam] = classes_entry(fam, kc)
     return out
 
 
@@ -317,13 +412,16 @@ def accuracy_report(
         ``{"region", "pooled": {METHOD: {tp, fp, fn, precision, recall, f1, iou,
         cluster_precision, cluster_recall, singletons_precision, singletons_recall,
         "ci95": {"precision": [lo, hi], "recall": [lo, hi], "f1": [lo, hi]}, "by_kind": {...},
+        "by_size": {CLASS: {"n", "found", "recall"}}, "detectable": {"n", "found", "recall"},
+        "by_displacement": {CLASS: {"n", "found", "recall"}},
         "frames_scored": n, "frames_left_out": [index, ...], "left_out_reason": str or None}},
         "frames": [{"index", "stamp_ns", METHOD: {... the same keys but ci95}}],
         "unscored": [{"index", "stamp_ns", "reason"}], "bin_flagged"}`` with METHOD the frames'
         methods; each frame also has ``bin_check`` and ``bin_flagged`` (the bin check, None when
         unknown) and ``bin_flagged`` counts the scored frames it flagged (None when not known for
         every frame);
-        ``by_kind`` only with kind truth. Counts are ``int``; rates are ``float`` and may be NaN
+        ``by_kind`` only with kind truth; ``by_size`` always (:data:`SIZE_CLASSES`), ``detectable``
+        and ``by_displacement`` only when every frame's truth has them. Counts are ``int``; rates are ``float`` and may be NaN
         (0/0) — :func:`report_json` writes them as ``null``. An interval is NaN (no interval) where
         :func:`zcut.metrics.pooled_interval_many` gives none: fewer than 3 frames define the figure, or
         they all have the same value.
@@ -346,6 +444,7 @@ def accuracy_report(
     if both:
         raise ParameterError(f"frame(s) {both} are listed both as scored and as unscored")
     pooled = pooled_counts(frames)
+    pooled_cls = pooled_classes(frames)
     methods = tuple(pooled)
     out_of = _left_out(frames, methods, left_out or {})
     per_frame = {k: np.array([[getattr(f.counts[m], k) for f in frames] for m in methods], dtype=np.int64)
@@ -353,13 +452,14 @@ def accuracy_report(
     ci = pooled_interval_many(per_frame["tp"], per_frame["fp"], per_frame["fn"])
     return {
         "region": region,
-        "pooled": {m: {**_entry(pooled[m], {k: ci[k][i].tolist() for k in CI_KEYS}),
+        "pooled": {m: {**_entry(pooled[m], {k: ci[k][i].tolist() for k in CI_KEYS}, pooled_cls.get(m)),
                        "frames_scored": len(frames) - len(out_of.get(m, ((), None))[0]),
                        "frames_left_out": list(out_of.get(m, ((), None))[0]),
                        "left_out_reason": out_of.get(m, ((), None))[1]}
                    for i, m in enumerate(methods)},
         "frames": [
-            {"index": f.index, "stamp_ns": f.stamp_ns, **{m: _entry(f.counts[m]) for m in methods},
+            {"index": f.index, "stamp_ns": f.stamp_ns, **{m: _entry(f.counts[m], None, f.classes.get(m))
+                                                          for m in methods},
              "bin_check": f.bin_check, "bin_flagged": f.bin_flagged}
             for f in frames
         ],
@@ -496,6 +596,18 @@ def format_accuracy_table(report: dict, *, per_frame: bool = True) -> str:
                          *(f"{_fmt_rate(e[m]['recall'])} ({e[m]['found']})" for m in METHODS)])
         parts.append("recall by kind, pooled: recall (found) of the n true outlier pixels of each kind in the region\n"
                      + _render(["kind", "n", *METHODS], rows, left=1))
+    for fam, title in (("by_size", "recall by size of the truth's components (8-connected, px)"),
+                       ("by_displacement", "recall by displacement |Z - Z_GT|")):
+        if all(fam in pooled[m] for m in METHODS):
+            rows = [[name, str(pooled[METHODS[0]][fam][name]["n"]),
+                     *(f"{_fmt_rate(pooled[m][fam][name]['recall'])} ({pooled[m][fam][name]['found']})"
+                       for m in METHODS)] for name in CLASS_FAMILIES[fam]]
+            if fam == "by_size" and all("detectable" in pooled[m] for m in METHODS):
+                rows.append(["detectable", str(pooled[METHODS[0]]["detectable"]["n"]),
+                             *(f"{_fmt_rate(pooled[m]['detectable']['recall'])} ({pooled[m]['detectable']['found']})"
+                               for m in METHODS)])
+            parts.append(f"{title}, pooled: recall (found) of the n true outlier pixels of each class in the region\n"
+                         + _render(["class", "n", *METHODS], rows, left=1))
     unscored = report.get("unscored", [])
     if unscored:
         lines = [f"  frame {u['index']} (stamp_ns {u['stamp_ns']}): {u['reason']}" for u in unscored]

@@ -4,8 +4,9 @@ region, and the kind of every true outlier where the truth says it.
 Two sources of truth, one interface (:meth:`TruthSource.truth` -> :class:`FrameTruth`, or a string
 saying why the frame is unscored):
 
-- :class:`SyntheticTruth`: a synthetic log's exact ``/ground_truth/outliers`` (R = the valid pixels)
-  and ``/ground_truth/outlier_kind``;
+- :class:`SyntheticTruth`: a log's recorded ``/ground_truth/outliers`` (R = the valid pixels minus
+  ``/ground_truth/unknown``, the pixels whose truth cannot be judged), ``/ground_truth/outlier_kind``
+  and ``/ground_truth/detectable``;
 - :class:`LabelTruth`: an annotator's labels in a label store (``--labels DB``), matched to the frame
   by the log's content hash, the cloud topic and the stamp.
 
@@ -42,12 +43,15 @@ class FrameTruth:
         ``/ground_truth/outlier_kind`` codes where the truth has them.
     source : str
         What the truth is, for the tables ("ground truth /ground_truth/outliers", "labels by alice").
+    detectable : (H, W) bool ndarray or None
+        ``/ground_truth/detectable`` (inside ``outliers``) where the truth has it.
     """
 
     outliers: np.ndarray
     reviewed: np.ndarray
     kind: np.ndarray | None
     source: str
+    detectable: np.ndarray | None = None
 
 
 def check_region(name: str) -> str:
@@ -81,19 +85,25 @@ def region_of_results_frame(frame, name: str) -> np.ndarray:
 
 
 class SyntheticTruth:
-    """A synthetic log's exact truth: L = ``/ground_truth/outliers`` ∩ valid, R = valid.
+    """A log's recorded truth (synthetic, or ``zcut record-stereo``'s): R = valid minus
+    ``/ground_truth/unknown`` (when the log has it: pixels whose truth cannot be judged, docs/accuracy.md),
+    L = ``/ground_truth/outliers`` ∩ R.
 
     Parameters
     ----------
     with_kinds : bool
         The log has ``/ground_truth/outlier_kind``: a frame without its kind image is unscored (the
         report's per-kind recall needs every frame's kinds).
+    with_unknown : bool
+        The log has ``/ground_truth/unknown``: a frame without its unknown mask is unscored (its
+        unjudgeable pixels would be scored).
     """
 
     name = f"ground truth {layout.TRUTH_OUTLIERS}"
 
-    def __init__(self, *, with_kinds: bool = False) -> None:
+    def __init__(self, *, with_kinds: bool = False, with_unknown: bool = False) -> None:
         self.with_kinds = with_kinds
+        self.with_unknown = with_unknown
 
     def truth(self, frame, valid: np.ndarray) -> FrameTruth | str:
         gt = frame.masks.get(layout.TRUTH_OUTLIERS)
@@ -104,8 +114,14 @@ class SyntheticTruth:
             return f"no {layout.TRUTH_OUTLIER_KIND} message with this frame"
         if kind is not None and kind.shape != gt.shape:
             return f"{layout.TRUTH_OUTLIER_KIND} is {kind.shape}, the truth {gt.shape}"
-        return FrameTruth(gt & valid, valid, None if kind is None else np.where(valid, kind, 0).astype(np.uint8),
-                          self.name)
+        unknown = frame.masks.get(layout.TRUTH_UNKNOWN)
+        if unknown is None and self.with_unknown:
+            return f"no {layout.TRUTH_UNKNOWN} message with this frame"
+        reviewed = valid if unknown is None else valid & ~unknown
+        lab = gt & reviewed
+        det = frame.masks.get(layout.TRUTH_DETECTABLE)
+        return FrameTruth(lab, reviewed, None if kind is None else np.where(reviewed, kind, 0).astype(np.uint8),
+                          self.name, detectable=None if det is None else det & lab)
 
 
 class LabelTruth:

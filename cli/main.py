@@ -23,6 +23,7 @@ from annotate.commands import annotate as annotate_cmd
 from annotate.commands import labels as labels_cmd
 from replay.commands import bin_model as bin_model_cmd
 from replay.commands import record as record_cmd
+from replay.commands import record_stereo as record_stereo_cmd
 from replay.commands import replay as replay_cmd
 from replay.commands import synth as synth_cmd
 from replay.commands import topics as topics_cmd
@@ -44,6 +45,7 @@ from studies.commands import sweep as sweep_cmd
 COMMANDS = {
     "demo": (demo_cmd, "the whole job on the bundled synthetic sample: replay, .rrd, true accuracy"),
     "record": (record_cmd, "turn organized .ply/.pcd files (or folders of them) into a ROS 2 MCAP log"),
+    "record-stereo": (record_stereo_cmd, "turn rectified stereo pairs with ground truth (Middlebury layout) into a log"),
     "topics": (topics_cmd, "show what a log holds and which topics zcut would use"),
     "synth": (synth_cmd, "synthesise a bin-picking log (six part kinds, empty bin) with exact ground-truth outliers"),
     "replay": (replay_cmd, "run the pipeline (bin removal, z-cut, SOR) on a log; log every stage to Rerun"),

@@ -74,7 +74,8 @@ def run(args: argparse.Namespace) -> int:
         return _agreement(args)
     reader = LogReader(args.log, cloud_topic=args.topic)
     truth_src = (LabelTruth(args.labels, args.log, annotator=args.annotator) if args.labels
-                 else SyntheticTruth(with_kinds=layout.TRUTH_OUTLIER_KIND in reader.mask_topics))
+                 else SyntheticTruth(with_kinds=layout.TRUTH_OUTLIER_KIND in reader.mask_topics,
+                                     with_unknown=layout.TRUTH_UNKNOWN in reader.mask_topics))
     try:
         is_results = layout.ZCUT_OUTLIERS in reader.mask_topics
         methods = _results_methods(reader, args) if is_results else None
@@ -106,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
                 unscored.append(UnscoredFrame(frame.index, frame.stamp_ns, t))
                 continue
             fa = frame_accuracy(frame.index, frame.stamp_ns, preds, t.outliers, reviewed=t.reviewed,
-                                valid=valid, region=region, kinds=t.kind)
+                                valid=valid, region=region, kinds=t.kind, detectable=t.detectable)
             if r is not None:  # the bin check of the frame (a results file does not carry it)
                 check = r.bin_check
                 fa = dataclasses.replace(fa, bin_check=None if check is None else float(check.value),
@@ -121,8 +122,9 @@ def run(args: argparse.Namespace) -> int:
                     learned_seen.add(frame.index)
                 fb = frame_accuracy(frame.index, frame.stamp_ns, {"learned": learned_mask(learned, frame, r,
                                     config=session.config)}, t.outliers, reviewed=t.reviewed, valid=valid,
-                                    region=region & (not seen), kinds=t.kind)
+                                    region=region & (not seen), kinds=t.kind, detectable=t.detectable)
                 fa.counts.update(fb.counts)
+                fa.classes.update(fb.classes)
             results.append(fa)
         if not results:
             what = (f"no frame of {args.log} is labelled by {truth_src.annotator!r} in {args.labels}"

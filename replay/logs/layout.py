@@ -35,6 +35,12 @@ TRUTH_OUTLIER_KIND = "/ground_truth/outlier_kind"
 #: pixel's centre ray hits, NaN where it hits nothing (``docs/formats.md``, ground-truth topics)
 TRUTH_DEPTH = "/ground_truth/depth"
 TRUTH_DEPTH_ENCODING = "32FC1"
+#: mono8, 255 = the truth of this pixel is unknown (no ground truth, or occluded in it): the pixel is not
+#: scored by any command (``zcut record-stereo``; docs/accuracy.md, "Truth that cannot be judged")
+TRUTH_UNKNOWN = "/ground_truth/unknown"
+#: mono8, 255 = a true outlier that geometry alone can tell (``zcut record-stereo``; docs/accuracy.md,
+#: "Detectable outliers"); a subset of ``/ground_truth/outliers``
+TRUTH_DETECTABLE = "/ground_truth/detectable"
 
 #: ``/ground_truth/outlier_kind`` codes of the hand-made generator (docs/formats.md); 0 = not an outlier.
 HANDMADE_OUTLIER_KINDS: dict[int, str] = {
@@ -68,6 +74,8 @@ BIN_MODEL_MEDIA_TYPE = "application/x-ply"
 
 # MCAP metadata record names
 SYNTH_METADATA = "zcut.synth"
+#: ``zcut record-stereo``: the matcher, τ_d (``tau_px``) and every frame's scene and calibration
+STEREO_METADATA = "zcut.stereo"
 #: true bin pose of every synthetic frame: key = str(stamp_ns), value = the 16 row-major floats of
 #: ``T_cam_bin`` (metres, camera optical frame <- bin frame) joined by commas
 SYNTH_POSES_METADATA = "zcut.synth.poses"
