@@ -74,7 +74,7 @@ INTERVAL_NOTE: str = ("95 % logit-t intervals over the frames, measured coverage
                       "(docs/coverage.md)")
 #: Size classes of the truth's components (8-connected components of L ∩ S, in pixels): name -> the
 #: smallest size of the class (docs/accuracy.md, "Recall by size").
-SIZE_CLASSES: dict[str, int] = {"1": 1, "2-9": 2, "10-99": 10, ">=100": 100}
+SIZE_CLASSES: dict[str, int] = {"1px": 1, "2-9px": 2, "10-99px": 10, ">=100px": 100}
 #: Displacement classes of the true outliers, |Z − Z_GT| in mm where the log has ``/ground_truth/depth``:
 #: name -> the upper bound of the class (docs/accuracy.md, "Recall by displacement").
 DISPLACEMENT_CLASSES: dict[str, float] = {"<=1mm": 1.0, "1-5mm": 5.0, "5-30mm": 30.0, ">30mm": math.inf}
@@ -596,7 +596,7 @@ def format_accuracy_table(report: dict, *, per_frame: bool = True) -> str:
                          *(f"{_fmt_rate(e[m]['recall'])} ({e[m]['found']})" for m in METHODS)])
         parts.append("recall by kind, pooled: recall (found) of the n true outlier pixels of each kind in the region\n"
                      + _render(["kind", "n", *METHODS], rows, left=1))
-    for fam, title in (("by_size", "recall by size of the truth's components (8-connected, px)"),
+    for fam, title in (("by_size", "recall by size of the truth's 8-connected components"),
                        ("by_displacement", "recall by displacement |Z - Z_GT|")):
         if all(fam in pooled[m] for m in METHODS):
             rows = [[name, str(pooled[METHODS[0]][fam][name]["n"]),
@@ -606,7 +606,7 @@ def format_accuracy_table(report: dict, *, per_frame: bool = True) -> str:
                 rows.append(["detectable", str(pooled[METHODS[0]]["detectable"]["n"]),
                              *(f"{_fmt_rate(pooled[m]['detectable']['recall'])} ({pooled[m]['detectable']['found']})"
                                for m in METHODS)])
-            parts.append(f"{title}, pooled: recall (found) of the n true outlier pixels of each class in the region\n"
+            parts.append(f"{title}, pooled: recall (found) of the n true outlier pixels of each class\n"
                          + _render(["class", "n", *METHODS], rows, left=1))
     unscored = report.get("unscored", [])
     if unscored:

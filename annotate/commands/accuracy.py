@@ -146,9 +146,6 @@ def run(args: argparse.Namespace) -> int:
                 n_seen = len(learned_seen)
                 print(f"learned: the assistant's model ({learned.summary()}), scored on the "
                       f"{len(results) - n_seen} frame(s) it was not trained on ({n_seen} left out)")
-            if unscored:
-                print(f"{len(unscored)} frame(s) unscored: " + "; ".join(
-                    f"frame {u.index}: {u.reason}" for u in unscored[:5]) + (" …" if len(unscored) > 5 else ""))
             print(format_accuracy_table(report, per_frame=args.per_frame))
             if session is None:
                 print("bin check: not known (a results file does not carry it; score the log itself to see "

@@ -63,6 +63,11 @@ OUTLIER_KINDS: dict[int, str] = {**HANDMADE_OUTLIER_KINDS, **RAYTRACED_OUTLIER_K
 #: mono8 topics whose values are codes, not a mask: a Frame holds them in ``Frame.codes`` (uint8)
 CODE_TOPICS = (TRUTH_OUTLIER_KIND,)
 
+#: mono8 topics under these prefixes are zcut's own masks (truth, labels, results): a frame is paired with
+#: them whatever their size, so that one of the wrong size is reported as ``wrong_size`` damage (its frame
+#: skipped), never taken for a missing topic. Other mono8 topics are masks only when of the cloud's size.
+MASK_PREFIXES = ("/ground_truth/", "/labels/", RESULTS_PREFIX)
+
 # exported human labels (``zcut labels export``): mono8
 LABEL_OUTLIERS = "/labels/outliers"
 LABEL_REVIEWED = "/labels/reviewed"

@@ -492,7 +492,7 @@ class LogReader:
         self.mask_topics = sorted(
             t.topic for t in topics.values()
             if t.msg_type == rm.IMAGE and t.message_encoding == "cdr" and t.encoding == "mono8"
-            and (t.height, t.width) == shape
+            and ((t.height, t.width) == shape or t.topic.startswith(layout.MASK_PREFIXES))
         )
 
     # ------------------------------------------------------------------ attachments

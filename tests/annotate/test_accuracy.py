@@ -52,6 +52,9 @@ HAND = {
     "intersection": (0, 0, 3, math.nan, 0.0, 0.0, math.nan, 0.0, math.nan, 0.0),
 }
 
+#: method -> pixels found of the truth's components of 2-9 px (A) and of 1 px (B)
+HAND_BY_SIZE = {"zcut": (1, 0), "sor": (1, 1), "union": (2, 1), "intersection": (0, 0)}
+
 
 def _close(a, b):
     return (math.isnan(a) and math.isnan(b)) or a == pytest.approx(b)
@@ -69,7 +72,14 @@ def test_report_matches_hand_count():
     assert fr["bin_check"] is None and fr["bin_flagged"] is None
     for m, (tp, fp, fn, p, r, iou, cp, cr, sp, sr) in HAND.items():
         e = fr[m]
-        assert list(e) == list(METRIC_KEYS)
+        assert list(e) == [*METRIC_KEYS, "by_size"]
+        # by size of the truth's components: A (2 px) is in 2-9, B (1 px) in 1
+        found_2_9, found_1 = HAND_BY_SIZE[m]
+        assert e["by_size"] == {"1px": {"n": 1, "found": found_1, "recall": float(found_1)},
+                                "2-9px": {"n": 2, "found": found_2_9, "recall": found_2_9 / 2},
+                                "10-99px": {"n": 0, "found": 0, "recall": e["by_size"]["10-99px"]["recall"]},
+                                ">=100px": {"n": 0, "found": 0, "recall": e["by_size"][">=100px"]["recall"]}}
+        assert math.isnan(e["by_size"]["10-99px"]["recall"]) and math.isnan(e["by_size"][">=100px"]["recall"])
         assert (e["tp"], e["fp"], e["fn"]) == (tp, fp, fn), m
         assert all(type(e[k]) is int for k in ("tp", "fp", "fn"))
         keys = ("precision", "recall", "iou", "cluster_precision", "cluster_recall", "singletons_precision",

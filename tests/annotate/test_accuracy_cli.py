@@ -253,3 +253,17 @@ def test_json_says_which_frames_learned_left_out(tmp_path, capsys):
     capsys.readouterr()
     assert main(["accuracy", str(log), "--learned", str(db)]) == 0
     assert "scored on the 1 frame(s) it was not trained on (3 left out)" in capsys.readouterr().out
+
+
+def test_unscored_frames_are_listed_once(spike_log, tmp_path, capsys):
+    """Issue 35 item 19: `--labels` printed the unscored frames three times."""
+    log, truths = spike_log
+    valid = [np.isfinite(fr.xyz).all(axis=2) for fr in LogReader(log).frames()]
+    db = tmp_path / "labels.sqlite"
+    _label_store(db, log, {"ann": {0: (truths[0] & valid[0], valid[0]), 2: (truths[2] & valid[2], valid[2])}})
+    capsys.readouterr()
+    assert main(["accuracy", str(log), "--labels", str(db)]) == 0
+    cap = capsys.readouterr()
+    text = cap.out + cap.err
+    assert text.count("not labelled") == 1, text
+    assert "unscored: 1 frame\n  frame 1 (stamp_ns 1100000000): not labelled" in cap.out

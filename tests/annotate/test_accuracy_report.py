@@ -186,7 +186,7 @@ def test_too_few_frames_give_no_interval():
 
 
 def _check_entry(e, *, pooled):
-    keys = [*METRIC_KEYS, *(["ci95"] if pooled else []), "by_kind",
+    keys = [*METRIC_KEYS, *(["ci95"] if pooled else []), "by_kind", "by_size",
             *(["frames_scored", "frames_left_out", "left_out_reason"] if pooled else [])]
     assert list(e) == keys
     if pooled:
