@@ -89,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
             session = open_session(args.log, args, overrides=overrides)
             frames = stream = session.results()
         learned = _learned_model(args, session)
+        # |Z - Z_GT| of every pixel where the log has the true depth (recall by displacement)
+        with_depth = session is not None and layout.TRUTH_DEPTH in reader.topics
         learned_seen: set[int] = set()
         results, unscored = [], []
         for frame, r in frames:
@@ -106,8 +108,10 @@ def run(args: argparse.Namespace) -> int:
             if isinstance(t, str):
                 unscored.append(UnscoredFrame(frame.index, frame.stamp_ns, t))
                 continue
+            shift = _displacement_mm(args.log, frame) if with_depth else None
             fa = frame_accuracy(frame.index, frame.stamp_ns, preds, t.outliers, reviewed=t.reviewed,
-                                valid=valid, region=region, kinds=t.kind, detectable=t.detectable)
+                                valid=valid, region=region, kinds=t.kind, detectable=t.detectable,
+                                displacement_mm=shift)
             if r is not None:  # the bin check of the frame (a results file does not carry it)
                 check = r.bin_check
                 fa = dataclasses.replace(fa, bin_check=None if check is None else float(check.value),
@@ -122,7 +126,8 @@ def run(args: argparse.Namespace) -> int:
                     learned_seen.add(frame.index)
                 fb = frame_accuracy(frame.index, frame.stamp_ns, {"learned": learned_mask(learned, frame, r,
                                     config=session.config)}, t.outliers, reviewed=t.reviewed, valid=valid,
-                                    region=region & (not seen), kinds=t.kind, detectable=t.detectable)
+                                    region=region & (not seen), kinds=t.kind, detectable=t.detectable,
+                                    displacement_mm=shift)
                 fa.counts.update(fb.counts)
                 fa.classes.update(fb.classes)
             results.append(fa)
@@ -154,6 +159,32 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if hasattr(truth_src, "close"):
             truth_src.close()
+
+
+def _displacement_mm(log: Path, frame):
+    """|Z − Z_GT| (mm) of every pixel of a frame from the log's ``/ground_truth/depth`` message of its
+    stamp (NaN where either is unknown); None when that message cannot be read (the frame then has no
+    displacement classes, and the pooled report none)."""
+    import numpy as np
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    from replay.errors import LogFormatError
+    from replay.logs import ros2_msgs as rm
+
+    try:
+        with open(log, "rb") as f:
+            for _s, _c, message in make_reader(f).iter_messages(topics=[layout.TRUTH_DEPTH], starting_at=frame.stamp_ns,
+                                                                 ending_at=frame.stamp_ns):
+                msg = rm.decode_image(message.data, where=f"{layout.TRUTH_DEPTH} message")
+                if (msg.stamp_ns != frame.stamp_ns or msg.encoding != layout.TRUTH_DEPTH_ENCODING or msg.is_bigendian
+                        or (msg.height, msg.width) != frame.shape or len(msg.data) != 4 * msg.width * msg.height):
+                    continue
+                depth = np.frombuffer(bytes(msg.data), dtype="<f4").reshape(msg.height, msg.width)
+                return np.abs(frame.xyz[..., 2].astype(np.float64) - depth) * 1000.0
+    except (McapError, LogFormatError, ValueError, OSError, EOFError):
+        return None
+    return None
 
 
 def _learned_model(args, session):

@@ -17,6 +17,7 @@ from replay.logs import layout
 from replay.logs.frame import Frame
 from replay.logs.reader import LogReader
 from replay.logs.writer import LogWriter
+from replay.synth.truth_depth import read_truth_depth
 
 METHODS = ("zcut", "sor", "union", "intersection")
 
@@ -87,6 +88,19 @@ def test_accuracy_on_a_stereo_log_equals_an_independent_scorer(stereo_log, capsy
     for m in METHODS:
         assert {k: rep["pooled"][m][k] for k in ("tp", "fp", "fn")} == pooled[m]
         assert set(rep["pooled"][m]["by_size"]) == {"1px", "2-9px", "10-99px", ">=100px"}
+    # by displacement |Z - Z_GT| (mm) from the log's true depth
+    depth = read_truth_depth(log)
+    for fr, rf, p in zip(frames, rep["frames"], preds):
+        ind = independent_truth(fr.xyz[..., 2], sc["gt"], sc["mask"], sc["calib"])
+        lab = ind["outliers"] & np.isfinite(fr.xyz).all(axis=2) & ~ind["unknown"]
+        dz = np.abs(fr.xyz[..., 2].astype(np.float64) - depth[fr.stamp_ns]) * 1000.0
+        for m in METHODS:
+            want = {}
+            for name, lo, hi in (("<=1mm", -1.0, 1.0), ("1-5mm", 1.0, 5.0), ("5-30mm", 5.0, 30.0), (">30mm", 30.0, np.inf)):
+                cls = lab & (dz > lo) & (dz <= hi)
+                want[name] = (int(cls.sum()), int((cls & p[m]).sum()))
+            assert {c: (e["n"], e["found"]) for c, e in rf[m]["by_displacement"].items()} == want
+    assert sum(e["n"] for e in rep["pooled"]["zcut"]["by_displacement"].values()) == pooled["zcut"]["tp"] + pooled["zcut"]["fn"]
     rc, text, err = run_cli(capsys, "accuracy", log, "--region", "valid")
     assert rc == 0, err
     assert "recall by size of the truth's 8-connected components" in text and "\ndetectable " in text
