@@ -45,8 +45,9 @@ METHODS = ("zcut", "sor", "radius", "cluster", "speckle", "window", "mixed_pixel
 #: The grid of each method: wider than the bank's default axes (studies.bank.DEFAULT_AXES) — these scenes
 #: are 0.5-3 m deep with points 1-5 mm apart, where the bin-picking defaults sit at the grids' edges.
 AXES: dict[str, dict[str, tuple]] = {
-    "zcut": {"max_depth": (10.0, 30.0, 100.0, 300.0, 1000.0), "max_area": (50.0, 258.0, 1000.0, 4000.0, 16000.0, 64000.0)},
-    "sor": {"k": (4, 8, 16, 32), "std_ratio": (0.5, 1.0, 2.0), "region": ("top", "zone")},
+    "zcut": {"max_depth": (10.0, 30.0, 100.0, 300.0, 1000.0, 3000.0),
+             "max_area": (50.0, 258.0, 1000.0, 4000.0, 16000.0, 64000.0, 256000.0)},
+    "sor": {"k": (4, 8, 16, 32, 64), "std_ratio": (0.25, 0.5, 1.0, 2.0), "region": ("top", "zone")},
     "radius": {"radius_mm": (1.0, 2.0, 4.0, 8.0, 16.0), "min_points": (2, 4, 8, 16)},
     "cluster": {"max_neighbour_mm": (1.0, 3.0, 6.0, 12.0, 24.0), "min_area_mm2": (10.0, 50.0, 200.0, 800.0, 3200.0)},
     "speckle": {"max_diff_mm": (0.5, 2.0, 5.0, 10.0, 20.0), "max_size_px": (25, 100, 400, 1600, 6400)},

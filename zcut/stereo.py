@@ -178,21 +178,23 @@ def match(left: np.ndarray, right: np.ndarray, params: MatcherParams) -> np.ndar
     if lt.shape != rt.shape:
         raise InputShapeError(f"left and right must have one shape, got {lt.shape} and {rt.shape}")
     p = params
+    m: cv2.StereoMatcher
     if p.matcher == "sgbm":
         ch = 1 if lt.ndim == 2 else 3
-        m = cv2.StereoSGBM_create(
+        m = cv2.StereoSGBM.create(
             minDisparity=0, numDisparities=p.num_disparities, blockSize=p.block_size,
             P1=8 * ch * p.block_size ** 2, P2=32 * ch * p.block_size ** 2, disp12MaxDiff=p.disp12_max_diff,
             preFilterCap=63, uniquenessRatio=p.uniqueness_ratio, speckleWindowSize=p.speckle_window,
             speckleRange=p.speckle_range, mode=cv2.STEREO_SGBM_MODE_SGBM,
         )
     else:
-        m = cv2.StereoBM_create(numDisparities=p.num_disparities, blockSize=p.block_size)
-        m.setUniquenessRatio(p.uniqueness_ratio)
-        m.setDisp12MaxDiff(p.disp12_max_diff)
-        m.setSpeckleWindowSize(p.speckle_window)
-        m.setSpeckleRange(p.speckle_range)
-        m.setTextureThreshold(p.texture_threshold)
+        bm = cv2.StereoBM.create(numDisparities=p.num_disparities, blockSize=p.block_size)
+        bm.setUniquenessRatio(p.uniqueness_ratio)
+        bm.setDisp12MaxDiff(p.disp12_max_diff)
+        bm.setSpeckleWindowSize(p.speckle_window)
+        bm.setSpeckleRange(p.speckle_range)
+        bm.setTextureThreshold(p.texture_threshold)
+        m = bm
         if lt.ndim == 3:
             lt, rt = cv2.cvtColor(lt, cv2.COLOR_RGB2GRAY), cv2.cvtColor(rt, cv2.COLOR_RGB2GRAY)
     raw = m.compute(np.ascontiguousarray(lt), np.ascontiguousarray(rt))
