@@ -12,8 +12,11 @@ frames; five frames: wide), the per-frame F1 difference against the z-cut (mean,
 won), recall per size class of the truth's components and on the detectable subset, and CPU seconds
 per frame. Two trivial baselines are scored alike: ``zone`` flags every scored pixel; ``edges`` flags
 the depth discontinuities (a pixel with a valid 8-neighbour whose depth differs by more than r · Z,
-r tuned like the others). The union of the z-cut and the best other method, and of the two best, at
-their tuned sets, are scored too.
+r tuned like the others). The matcher's own post-filters (uniqueness ratio, left-right check,
+speckle filter) are scored as methods too: the pixels the plain matcher matched and the
+post-filter invalidates, tuned alike (``sgbm_uniqueness``, ``sgbm_lr_check``, ``sgbm_speckle``; their
+CPU time is the whole matcher's run with the post-filter). The union of the z-cut and the best
+other method, and of the two best, at their tuned sets, are scored too.
 
 The truth is passive stereo matching errors on real images, not a phase-shift structured-light
 camera's: say so wherever its figures are used.
@@ -56,6 +59,40 @@ AXES: dict[str, dict[str, tuple]] = {
 }
 EDGE_AXIS = (0.0025, 0.005, 0.01, 0.02, 0.05, 0.1)
 SIZE_NAMES = ("1px", "2-9px", "10-99px", ">=100px")
+#: The matcher's own post-filters, scored as methods: the pixels the plain matcher matched and the
+#: post-filter invalidates (zcut.stereo.MatcherParams; OpenCV's uniquenessRatio, disp12MaxDiff and
+#: speckle filter).
+POSTFILTERS: dict[str, list[dict]] = {
+    "sgbm_uniqueness": [{"uniqueness_ratio": v} for v in (5, 10, 15, 25)],
+    "sgbm_lr_check": [{"disp12_max_diff": v} for v in (0, 1, 2, 4)],
+    "sgbm_speckle": [{"speckle_window": w, "speckle_range": r} for w in (50, 100, 200, 400) for r in (1, 2, 4)],
+}
+
+
+class PostFilters:
+    """The post-filters' masks of the scenes (frame i of a log = scene i), the plain disparity cached."""
+
+    def __init__(self, data: Path, scenes: tuple[str, ...]) -> None:
+        self.data, self.scenes = data, scenes
+        self._plain: dict[int, tuple] = {}
+
+    def _params(self, calib, **kw):
+        from zcut.stereo import MatcherParams
+
+        nd = 128 if calib.ndisp is None else max(16, -(-int(calib.ndisp) // 16) * 16)
+        return MatcherParams(num_disparities=nd, **kw)
+
+    def mask(self, index: int, params: dict) -> tuple[np.ndarray, float]:
+        from replay.stereo_scene import load_scene
+        from zcut.stereo import match
+
+        if index not in self._plain:
+            sc = load_scene(self.data / self.scenes[index])
+            self._plain[index] = (sc, np.isfinite(match(sc.left, sc.right, self._params(sc.calib))))
+        sc, plain = self._plain[index]
+        t = time.process_time()
+        kept = np.isfinite(match(sc.left, sc.right, self._params(sc.calib, **params)))
+        return plain & ~kept, time.process_time() - t
 
 
 def record(data: Path, scenes: tuple[str, ...], out: Path) -> Path:
@@ -140,6 +177,14 @@ def run_method(known, m, frame, zone, config, params):
     return mask | zone.easy, time.process_time() - t
 
 
+def run_extra(m: str, frame, params: dict, post: PostFilters) -> tuple[np.ndarray, float]:
+    """A baseline or a matcher post-filter on one frame: (mask, CPU seconds)."""
+    if m == "edges":
+        t0 = time.process_time()
+        return edges(frame.xyz, params["r"]), time.process_time() - t0
+    return post.mask(frame.index, params)
+
+
 def f1(tp, fp, fn):
     d = 2 * tp + fp + fn
     return 2 * tp / d if d else math.nan
@@ -174,6 +219,9 @@ def main(argv=None) -> int:
     config = session.config
     grids = {m: sets_of(m, config) for m in methods}
     grids["edges"] = [{"r": r} for r in EDGE_AXIS]
+    extras = ["edges", *POSTFILTERS]
+    grids.update(POSTFILTERS)
+    post = {"tune": PostFilters(args.data, TUNE), "report": PostFilters(args.data, REPORT)}
     tune: dict[str, list[list[Scored]]] = {m: [[] for _ in g] for m, g in grids.items()}
     for frame, zone in session.zones():
         s, lab, code, det = frame_truth(frame, zone)
@@ -181,10 +229,10 @@ def main(argv=None) -> int:
             for i, params in enumerate(grids[m]):
                 mask, secs = run_method(known, m, frame, zone, config, params)
                 tune[m][i].append(score(mask, s, lab, code, det, secs))
-        for i, params in enumerate(grids["edges"]):
-            t0 = time.process_time()
-            mask = edges(frame.xyz, params["r"])
-            tune["edges"][i].append(score(mask, s, lab, code, det, time.process_time() - t0))
+        for m in extras:
+            for i, params in enumerate(grids[m]):
+                mask, secs = run_extra(m, frame, params, post["tune"])
+                tune[m][i].append(score(mask, s, lab, code, det, secs))
         print(f"tuned on frame {frame.index} ({time.process_time():.0f} CPU-s so far)", file=sys.stderr, flush=True)
     best = {}
     for m, rows in tune.items():
@@ -207,9 +255,9 @@ def main(argv=None) -> int:
                 rep.setdefault(f"{m}|{label}", []).append(score(mask, s, lab, code, det, secs))
                 if label == "tuned":
                     masks_keep.setdefault(m, []).append(mask)
-        t0 = time.process_time()
-        mask = edges(frame.xyz, best["edges"][0]["r"])
-        rep.setdefault("edges|tuned", []).append(score(mask, s, lab, code, det, time.process_time() - t0))
+        for m in extras:
+            mask, secs = run_extra(m, frame, best[m][0], post["report"])
+            rep.setdefault(f"{m}|tuned", []).append(score(mask, s, lab, code, det, secs))
         rep.setdefault("zone|-", []).append(score(s.copy(), s, lab, code, det, 0.0))
     # unions at the tuned sets: z-cut + the best other, and the two best
     ranked = sorted((m for m in methods), key=lambda m: -np.nan_to_num(best[m][1], nan=-1))
