@@ -36,6 +36,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="also score `learned`, the labelling assistant's newest model in this label store "
                         "(zcut labels train), on the frames it was not trained on (default: the --labels store, "
                         "when it holds a model)")
+    p.add_argument("--by-displacement", action="store_true",
+                   help="also give recall by displacement |Z - Z_GT| (<=1, 1-5, 5-30, >30 mm) from the log's "
+                        "/ground_truth/depth (a log, not a results file)")
     p.add_argument("--json", action="store_true", help="print the docs/accuracy.md JSON object instead of tables")
     add_pipeline_options(p)
 
@@ -90,7 +93,12 @@ def run(args: argparse.Namespace) -> int:
             frames = stream = session.results()
         learned = _learned_model(args, session)
         # |Z - Z_GT| of every pixel where the log has the true depth (recall by displacement)
-        with_depth = session is not None and layout.TRUTH_DEPTH in reader.topics
+        # (asked for: a results file cannot give it, and its report otherwise equals the log's)
+        with_depth = args.by_displacement
+        if with_depth and (session is None or layout.TRUTH_DEPTH not in reader.topics):
+            raise ZcutError(f"--by-displacement needs a log with {layout.TRUTH_DEPTH}"
+                            + (" (a results file has lost the z-cut's outliers' depths: give the log)"
+                               if session is None else f": {args.log} has none"))
         learned_seen: set[int] = set()
         results, unscored = [], []
         for frame, r in frames:

@@ -65,7 +65,7 @@ def stereo_log(tmp_path_factory):
 
 def test_accuracy_on_a_stereo_log_equals_an_independent_scorer(stereo_log, capsys):
     log, results, sc = stereo_log
-    rc, out, err = run_cli(capsys, "accuracy", log, "--region", "valid", "--json")
+    rc, out, err = run_cli(capsys, "accuracy", log, "--region", "valid", "--json", "--by-displacement")
     assert rc == 0, err
     rep = json.loads(out)
     frames = list(LogReader(log).frames())
@@ -103,6 +103,9 @@ def test_accuracy_on_a_stereo_log_equals_an_independent_scorer(stereo_log, capsy
     assert sum(e["n"] for e in rep["pooled"]["zcut"]["by_displacement"].values()) == pooled["zcut"]["tp"] + pooled["zcut"]["fn"]
     rc, text, err = run_cli(capsys, "accuracy", log, "--region", "valid")
     assert rc == 0, err
+    assert "by_displacement" not in json.dumps(json.loads(run_cli(capsys, "accuracy", log, "--json")[1]))
+    rc, _, err = run_cli(capsys, "accuracy", results, "--by-displacement")
+    assert rc == 1 and err.strip().splitlines()[-1].startswith("error: --by-displacement needs a log"), err
     assert "recall by size of the truth's 8-connected components" in text and "\ndetectable " in text
 
 
