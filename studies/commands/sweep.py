@@ -50,7 +50,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the grid is exactly the values given (and the config's value on the axes not given): "
                    "no 0.5×/1.5× points (θ, ω and the paper's findings need them)")
     g.add_argument("--max-points", type=int, default=DEFAULT_MAX_POINTS, metavar="N",
-                   help=f"refuse grids larger than this without --force (default {DEFAULT_MAX_POINTS})")
+                   help=f"refuse grids larger than this without --force (default {DEFAULT_MAX_POINTS}); a LIST of "
+                   "more values is refused before it is expanded")
     g.add_argument("--force", action="store_true", help="run a grid larger than --max-points")
     p.add_argument("--objective", default="f1",
                    help="what tuned.toml maximises: f1 (default), recall@precision=P or precision@recall=R")
@@ -111,10 +112,14 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     err = sys.stderr
     check_study_options(args)
     objective = sweep.parse_objective(args.objective)
-    axes = dict(steps=parse_list(args.step, name="--step"), depths=parse_list(args.max_depth, name="--max-depth"),
-                rhos=parse_list(args.rho, name="--rho"), sor_ks=parse_list(args.sor_k, name="--sor-k", integer=True),
-                sor_stds=parse_list(args.sor_std, name="--sor-std"))
-    bank_axes = parse_grid_options(args.grid)
+    # an axis of more values than --max-points is a grid of more points: refused before it is expanded
+    limit = None if args.force else args.max_points
+    axes = dict(steps=parse_list(args.step, name="--step", max_values=limit),
+                depths=parse_list(args.max_depth, name="--max-depth", max_values=limit),
+                rhos=parse_list(args.rho, name="--rho", max_values=limit),
+                sor_ks=parse_list(args.sor_k, name="--sor-k", integer=True, max_values=limit),
+                sor_stds=parse_list(args.sor_std, name="--sor-std", max_values=limit))
+    bank_axes = parse_grid_options(args.grid, max_values=limit)
     overrides = overrides_of(args)
     # results files: their source log (the filtered cloud has its outliers removed)
     logs = []
