@@ -146,9 +146,26 @@ def start_units(plans: list[LogPlan], store: PartStore, *, what: str, executor: 
 
 
 def identity(kind: str, options: dict[str, Any], plans: list[LogPlan]) -> dict[str, Any]:
-    """What identifies a study in its output folder (``run.json``)."""
+    """What identifies a study in its output folder (``run.json``): its kind and options, the resolved
+    config per log's content hash, and the content hash per input path (a changed log is refused,
+    not mixed: :class:`studies.parts.PartStore`)."""
     return {"kind": kind, "options": options,
-            "logs": {p.sha256: config_sha256(p.resolved.config) for p in plans if p.units and p.resolved}}
+            "logs": {p.sha256: config_sha256(p.resolved.config) for p in plans if p.units and p.resolved},
+            "paths": {str(p.path): p.sha256 for p in plans if p.sha256}}
+
+
+def named_as_now(table: pa.Table, plans: list[LogPlan]) -> pa.Table:
+    """``table`` with its ``log`` column naming each log as this run's inputs do (a unit done in an
+    earlier run keeps the name its log had then: a log renamed since would be named twice)."""
+    import pyarrow as pa
+
+    names = {p.sha256: p.path.name for p in plans if p.sha256}
+    if not table.num_rows or "log" not in table.column_names or "log_sha256" not in table.column_names:
+        return table
+    logs = [names.get(sha, log) for sha, log in zip(table.column("log_sha256").to_pylist(),
+                                                     table.column("log").to_pylist())]
+    i = table.column_names.index("log")
+    return table.set_column(i, table.schema.field(i), pa.array(logs, type=table.schema.field(i).type))
 
 
 def file_identity(path: str | None) -> str | None:

@@ -52,7 +52,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--max-points", type=int, default=DEFAULT_MAX_POINTS, metavar="N",
                    help=f"refuse grids larger than this without --force (default {DEFAULT_MAX_POINTS}); a LIST of "
                    "more values is refused before it is expanded")
-    g.add_argument("--force", action="store_true", help="run a grid larger than --max-points")
+    g.add_argument("--force", action="store_true", help="run a grid larger than --max-points; start afresh when "
+                   "an input log changed content since the study in DIR began (its earlier results are removed)")
     p.add_argument("--objective", default="f1",
                    help="what tuned.toml maximises: f1 (default), recall@precision=P or precision@recall=R")
     p.add_argument("--labels", metavar="DB", help="score against an annotator's labels (default: synthetic truth)")
@@ -96,6 +97,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
         check_study_options,
         execute,
         identity,
+        named_as_now,
         plan_logs,
         start_units,
         study_options,
@@ -160,7 +162,8 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
                          study_points=args.study_points)
         bank = make_bank_grid(bank_axes, base)
         options = study_options(args, overrides) | {"grid": grid.as_dict()} | ({"bank": bank} if bank else {})
-        store = stack.enter_context(PartStore(args.out, identity("sweep", options, plans)))
+        store = stack.enter_context(PartStore(args.out, identity("sweep", options, plans),
+                                                     start_afresh=args.force))
         with_sor = base.sor.enabled and "sor" in base.base_methods
         n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if with_sor else 0)
         n_bank = n_bank_sets(bank)
@@ -182,7 +185,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
         progress.finish()
     finally:
         executor.close()
-    table = store.table()
+    table = named_as_now(store.table(), plans)
     if table.num_rows:
         table = table.sort_by([("log_sha256", "ascending"), ("frame", "ascending"), ("method", "ascending")])
     store.write_table("sweep.parquet", table)
