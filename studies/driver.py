@@ -11,6 +11,7 @@ Named steps, shared by ``zcut batch`` and ``zcut sweep``::
 from __future__ import annotations
 
 import hashlib
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -19,7 +20,7 @@ from typing import IO, TYPE_CHECKING, Any, Protocol
 
 from replay.errors import ConfigError
 from replay.pipeline.config import Resolved, config_sha256
-from studies.units import WorkUnit, expand_logs, plan_log
+from studies.units import WorkUnit, broken_link, expand_logs, plan_log
 from studies.work import Job, UnitResult
 from zcut.errors import ZcutError
 
@@ -78,13 +79,18 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str
     from replay.pipeline.bin_model import bin_model_source
     from replay.pipeline.session import open_log
 
-    paths = [p.resolve() for p in expand_logs(inputs)]  # absolute: units run in other folders and nodes
+    # absolute: units run in other folders and nodes (a symlink that leads nowhere: as it stands)
+    paths = [Path(os.path.abspath(p)) if broken_link(p) else p.resolve() for p in expand_logs(inputs)]
     file_layer = cfg.load_toml(config_file) if config_file is not None else None
     plans: list[LogPlan] = []
     for i, path in enumerate(paths):
         if progress is not None:
             progress(i, len(paths), path)
         plan = LogPlan(path)
+        if (why := broken_link(path)) is not None:  # left out with a warning, as an unreadable log
+            plan.error = f"cannot be read: {why}"
+            plans.append(plan)
+            continue
         try:
             plan.sha256 = file_sha256(path)
             plan.units, plan.n_frames = plan_log(path, sha256=plan.sha256, frames_per_unit=frames_per_unit,
