@@ -109,6 +109,33 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str
     return plans
 
 
+def check_labels(labels: str | None, annotator: str | None, plans: list[LogPlan]) -> None:
+    """Refuse before any work what every unit's :class:`annotate.truth.LabelTruth` would refuse (an
+    annotator who did not label a log, or none named where a log has several), with ``zcut
+    accuracy``'s words: a usage error (exit 1), not a failed unit per log (exit 3). The logs are
+    looked up by the content hash the planning computed (not hashed again)."""
+    if labels is None:
+        return
+    from annotate.store import LabelStore
+    from zcut.errors import ParameterError
+
+    store = LabelStore(Path(labels), read_only=True)
+    try:
+        for p in plans:
+            if not p.units:
+                continue
+            log = store.log_by_sha(p.sha256)
+            known = store.annotators(log) if log is not None else store.annotators()
+            if annotator is not None and annotator not in known:
+                raise ParameterError(f"--annotator {annotator!r}: no labels by them in {labels} "
+                                     f"(annotators: {', '.join(known) or 'none'})")
+            if annotator is None and len(known) != 1:
+                raise ParameterError(f"{labels} has labels by {len(known)} annotators "
+                                     f"({', '.join(known) or 'none'}): choose one with --annotator")
+    finally:
+        store.close()
+
+
 def absolute(path: str | None) -> str | None:
     """An absolute path for the workers (they may run in another folder, on another node)."""
     return None if path is None else str(Path(path).resolve())

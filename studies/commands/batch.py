@@ -54,6 +54,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     from studies.driver import (
         Progress,
         absolute,
+        check_labels,
         check_study_options,
         execute,
         identity,
@@ -80,6 +81,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
         plans = plan_logs(args.inputs, config_file=args.config, overrides=overrides, topic=args.topic,
                           frames_per_unit=args.frames_per_unit, whole=args.results or args.rrd, progress=planning,
                           bin_model=args.bin_model)
+        check_labels(args.labels, args.annotator, plans)  # as zcut accuracy: before any work
         options = study_options(args, overrides) | {"results": args.results, "rrd": args.rrd}
         store = stack.enter_context(PartStore(args.out, identity("batch", options, plans),
                                                      start_afresh=args.force))

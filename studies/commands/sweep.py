@@ -94,6 +94,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     from studies.driver import (
         Progress,
         absolute,
+        check_labels,
         check_study_options,
         execute,
         identity,
@@ -155,6 +156,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     try:
         plans = plan_logs(logs, config_file=args.config, overrides=overrides, topic=args.topic,
                           frames_per_unit=args.frames_per_unit, whole=False, bin_model=args.bin_model)
+        check_labels(args.labels, args.annotator, plans)  # as zcut accuracy: before any work
         first = next(p for p in plans if p.units)
         assert first.resolved is not None  # a log with units was resolved
         base = first.resolved.config

@@ -58,3 +58,42 @@ def test_a_symlink_to_no_log_named_alone_is_a_one_line_error(log, tmp_path, caps
     rc, _, err = run_cli(capsys, "batch", tmp_path / "x.mcap", "-o", tmp_path / "out", "--workers", "0")
     assert rc == 1 and err.strip().splitlines()[-1] == (f"error: no usable log among 1 input(s): cannot be read: "
                                                          f"a dangling symlink: {tmp_path / 'gone.mcap'} does not exist")
+
+
+def _two_annotators(db, log):
+    import numpy as np
+
+    from annotate.store import LabelStore
+    from replay.logs.reader import LogReader
+
+    with LabelStore(db) as s:
+        lg = s.add_log(log)
+        for fr in LogReader(log).frames():
+            valid = np.isfinite(fr.xyz).all(axis=2)
+            rec = s.add_frame(lg, topic=fr.topic, stamp_ns=fr.stamp_ns, index=fr.index, shape=fr.shape,
+                              frame_id=fr.frame_id, valid=valid)
+            for who in ("ann", "bob"):
+                s.save_label(rec, annotator=who, outliers=np.zeros(fr.shape, bool), reviewed=valid, base_revision=0)
+
+
+@pytest.mark.parametrize("command", ["batch", "sweep"])
+def test_a_label_store_of_two_annotators_needs_annotator_before_any_work(log, tmp_path, capsys, command):
+    """As `zcut accuracy`: one line and exit 1 before any work, not exit 3 from every unit (issue 35
+    item 22)."""
+    db = tmp_path / "labels.sqlite"
+    _two_annotators(db, log)
+    rc, _, acc_err = run_cli(capsys, "accuracy", log, "--labels", db)
+    assert rc == 1
+    opts = ["--step", "0.2", "--rho", "0.07", "--no-report"] if command == "sweep" else []
+    for extra, said in (([], acc_err.strip().splitlines()[-1]),
+                        (["--annotator", "zoe"], "error: --annotator 'zoe': no labels by them in")):
+        rc, _, err = run_cli(capsys, command, log, "-o", tmp_path / f"out{len(extra)}", "--workers", "0",
+                             "--labels", db, *opts, *extra)
+        assert rc == 1, err
+        assert err.strip().splitlines()[-1].startswith(said), err
+        assert not (tmp_path / f"out{len(extra)}").exists()  # refused before any work
+    assert acc_err.strip().splitlines()[-1] == (f"error: {db} has labels by 2 annotators (ann, bob): "
+                                                "choose one with --annotator")
+    rc, _, err = run_cli(capsys, command, log, "-o", tmp_path / "ok", "--workers", "0", "--labels", db,
+                         "--annotator", "bob", *opts)
+    assert rc == 0, err
