@@ -14,7 +14,7 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from replay.logs.frame import Frame
@@ -174,7 +174,7 @@ def next_steps(*, sample: Path, bin_model: Path | None, rrd: Path, results: Path
 UNINFORMATIVE_WIDTH = 0.9
 
 
-def uninformative_note(report: dict) -> str | None:
+def uninformative_note(report: dict[str, Any]) -> str | None:
     """One line naming the pooled figures whose 95 % interval holds nearly all of [0, 1] (at the
     demo's 3 frames, every method's precision: ``0.933 [0.000, 1.000]``), None when there is none."""
     pooled = report.get("pooled") or {}
