@@ -64,8 +64,10 @@ def _field_types(section: str) -> dict[str, type]:
     return {f.name: type(getattr(defaults, f.name)) for f in dataclasses.fields(cls)}
 
 
-def parse_grid_options(items: Sequence[str] | None) -> dict[str, dict[str, tuple[float, ...]]]:
-    """``["radius.radius_mm=1,2", "cluster=default"]`` -> ``{section: {field: values}}``.
+def parse_grid_options(items: Sequence[str] | None, *,
+                       max_values: int | None = None) -> dict[str, dict[str, tuple[float, ...]]]:
+    """``["radius.radius_mm=1,2", "cluster=default"]`` -> ``{section: {field: values}}``; an axis of
+    more than ``max_values`` values is refused before it is expanded.
 
     Raises
     ------
@@ -97,7 +99,8 @@ def parse_grid_options(items: Sequence[str] | None) -> dict[str, dict[str, tuple
             raise ConfigError(f"--grid {item!r}: unknown field {section}.{fld} (known: {', '.join(sorted(types))})")
         if fld in axes:
             raise ConfigError(f"--grid: {section}.{fld} given twice")
-        vals = parse_list(values, name=f"--grid {section}.{fld}", integer=types[fld] is int)
+        vals = parse_list(values, name=f"--grid {section}.{fld}", integer=types[fld] is int,
+                          max_values=max_values)
         assert vals is not None
         axes[fld] = vals
     return out

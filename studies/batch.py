@@ -15,7 +15,7 @@ import numpy as np
 
 from studies.driver import LogPlan
 from studies.summary import BatchLog, BatchSummary, RunCost, Scores, Totals, intervals
-from studies.work import UnitResult
+from studies.work import COUNT_COLUMNS, UnitResult
 
 if TYPE_CHECKING:
     from studies.parts import PartStore
@@ -78,7 +78,7 @@ def summary(plans: list[LogPlan], store: PartStore, table: Any, results: list[Un
     logs = tuple(BatchLog(**{**e, "damage": tuple(e["damage"]), "errors": tuple(e["errors"])})
                  for e in sorted(by_log.values(), key=lambda e: e["log"]))
     sums = {c: int(sum(table.column(c).to_pylist())) if table.num_rows else 0
-            for c in ("valid_px", "zcut", "sor", "both", "above_rim", "clusters")}
+            for c in COUNT_COLUMNS}
     # frames whose bin removal did not work (their counts rest on it: docs/pipeline.md, "Bin removal")
     flagged = table.column("bin_flagged").to_pylist() if "bin_flagged" in table.column_names else []
     scored = table.column("scored").to_pylist() if "scored" in table.column_names else [False] * len(flagged)

@@ -11,6 +11,7 @@ Named steps, shared by ``zcut batch`` and ``zcut sweep``::
 from __future__ import annotations
 
 import hashlib
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -19,7 +20,7 @@ from typing import IO, TYPE_CHECKING, Any, Protocol
 
 from replay.errors import ConfigError
 from replay.pipeline.config import Resolved, config_sha256
-from studies.units import WorkUnit, expand_logs, plan_log
+from studies.units import WorkUnit, broken_link, expand_logs, plan_log
 from studies.work import Job, UnitResult
 from zcut.errors import ZcutError
 
@@ -78,13 +79,18 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str
     from replay.pipeline.bin_model import bin_model_source
     from replay.pipeline.session import open_log
 
-    paths = [p.resolve() for p in expand_logs(inputs)]  # absolute: units run in other folders and nodes
+    # absolute: units run in other folders and nodes (a symlink that leads nowhere: as it stands)
+    paths = [Path(os.path.abspath(p)) if broken_link(p) else p.resolve() for p in expand_logs(inputs)]
     file_layer = cfg.load_toml(config_file) if config_file is not None else None
     plans: list[LogPlan] = []
     for i, path in enumerate(paths):
         if progress is not None:
             progress(i, len(paths), path)
         plan = LogPlan(path)
+        if (why := broken_link(path)) is not None:  # left out with a warning, as an unreadable log
+            plan.error = f"cannot be read: {why}"
+            plans.append(plan)
+            continue
         try:
             plan.sha256 = file_sha256(path)
             plan.units, plan.n_frames = plan_log(path, sha256=plan.sha256, frames_per_unit=frames_per_unit,
@@ -101,6 +107,33 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str
         first_error = next((p.error for p in plans if p.error), "no frames")
         raise ZcutError(f"no usable log among {len(plans)} input(s): {first_error}")
     return plans
+
+
+def check_labels(labels: str | None, annotator: str | None, plans: list[LogPlan]) -> None:
+    """Refuse before any work what every unit's :class:`annotate.truth.LabelTruth` would refuse (an
+    annotator who did not label a log, or none named where a log has several), with ``zcut
+    accuracy``'s words: a usage error (exit 1), not a failed unit per log (exit 3). The logs are
+    looked up by the content hash the planning computed (not hashed again)."""
+    if labels is None:
+        return
+    from annotate.store import LabelStore
+    from zcut.errors import ParameterError
+
+    store = LabelStore(Path(labels), read_only=True)
+    try:
+        for p in plans:
+            if not p.units:
+                continue
+            log = store.log_by_sha(p.sha256)
+            known = store.annotators(log) if log is not None else store.annotators()
+            if annotator is not None and annotator not in known:
+                raise ParameterError(f"--annotator {annotator!r}: no labels by them in {labels} "
+                                     f"(annotators: {', '.join(known) or 'none'})")
+            if annotator is None and len(known) != 1:
+                raise ParameterError(f"{labels} has labels by {len(known)} annotators "
+                                     f"({', '.join(known) or 'none'}): choose one with --annotator")
+    finally:
+        store.close()
 
 
 def absolute(path: str | None) -> str | None:
@@ -146,9 +179,26 @@ def start_units(plans: list[LogPlan], store: PartStore, *, what: str, executor: 
 
 
 def identity(kind: str, options: dict[str, Any], plans: list[LogPlan]) -> dict[str, Any]:
-    """What identifies a study in its output folder (``run.json``)."""
+    """What identifies a study in its output folder (``run.json``): its kind and options, the resolved
+    config per log's content hash, and the content hash per input path (a changed log is refused,
+    not mixed: :class:`studies.parts.PartStore`)."""
     return {"kind": kind, "options": options,
-            "logs": {p.sha256: config_sha256(p.resolved.config) for p in plans if p.units and p.resolved}}
+            "logs": {p.sha256: config_sha256(p.resolved.config) for p in plans if p.units and p.resolved},
+            "paths": {str(p.path): p.sha256 for p in plans if p.sha256}}
+
+
+def named_as_now(table: pa.Table, plans: list[LogPlan]) -> pa.Table:
+    """``table`` with its ``log`` column naming each log as this run's inputs do (a unit done in an
+    earlier run keeps the name its log had then: a log renamed since would be named twice)."""
+    import pyarrow as pa
+
+    names = {p.sha256: p.path.name for p in plans if p.sha256}
+    if not table.num_rows or "log" not in table.column_names or "log_sha256" not in table.column_names:
+        return table
+    logs = [names.get(sha, log) for sha, log in zip(table.column("log_sha256").to_pylist(),
+                                                     table.column("log").to_pylist())]
+    i = table.column_names.index("log")
+    return table.set_column(i, table.schema.field(i), pa.array(logs, type=table.schema.field(i).type))
 
 
 def file_identity(path: str | None) -> str | None:

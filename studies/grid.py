@@ -16,6 +16,7 @@ still agree to the tolerance are merged, keeping the one given on the command li
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -38,24 +39,75 @@ def _tidy(v: float) -> float:
     return float(f"{v:.12g}")
 
 
+def _agree(a: float, b: float) -> bool:
+    """``a`` and ``b`` are one value: they agree to :data:`REL_TOL` (relative, at least absolute)."""
+    return abs(a - b) <= REL_TOL * max(1.0, abs(a), abs(b))
+
+
+class _SortedFloats:
+    """A sorted list of floats in blocks of at most ``2 · BLOCK``: find the neighbours of a value and
+    insert it in O(√n) (a plain list's insert moves half the list: quadratic over n values)."""
+
+    BLOCK = 512
+
+    def __init__(self) -> None:
+        self.blocks: list[list[float]] = []
+        self.maxes: list[float] = []
+
+    def neighbours(self, v: float) -> tuple[float | None, float | None]:
+        """The largest value < ``v`` and the smallest >= ``v`` (None where there is none)."""
+        i = bisect.bisect_left(self.maxes, v)
+        if i == len(self.blocks):
+            return (self.maxes[-1] if self.maxes else None), None
+        block = self.blocks[i]
+        j = bisect.bisect_left(block, v)
+        below = block[j - 1] if j else (self.maxes[i - 1] if i else None)
+        return below, block[j]
+
+    def insert(self, v: float) -> None:
+        if not self.blocks:
+            self.blocks.append([v])
+            self.maxes.append(v)
+            return
+        i = min(bisect.bisect_left(self.maxes, v), len(self.blocks) - 1)
+        block = self.blocks[i]
+        bisect.insort(block, v)
+        self.maxes[i] = block[-1]
+        if len(block) > 2 * self.BLOCK:
+            self.blocks[i:i + 1] = [block[:self.BLOCK], block[self.BLOCK:]]
+            self.maxes[i:i + 1] = [block[self.BLOCK - 1], block[-1]]
+
+    def values(self) -> list[float]:
+        return [v for block in self.blocks for v in block]
+
+
 def merge_values(*groups: Iterable[float]) -> tuple[float, ...]:
     """The values of ``groups`` (iterables, first group first), sorted, each kept once: a value within
     :data:`REL_TOL` (relative) of one kept before it is dropped, so an earlier group's spelling wins.
 
+    The values within the tolerance of ``v`` form an interval around it (the distance grows faster
+    than the tolerance), so only the kept neighbours of ``v`` on either side need a look: O(n √n)
+    at worst, O(n log n) for values given in order (a ``start:stop:count`` range).
+
     >>> merge_values([0.105], [0.035, 0.10500000000000001])
     (0.035, 0.105)
     """
-    kept: list[float] = []
+    kept = _SortedFloats()
     for group in groups:
         for v in group:
-            if not any(abs(v - k) <= REL_TOL * max(1.0, abs(v), abs(k)) for k in kept):
-                kept.append(v)
-    return tuple(sorted(kept))
+            below, above = kept.neighbours(v)
+            if not ((below is not None and _agree(v, below)) or (above is not None and _agree(v, above))):
+                kept.insert(v)
+    return tuple(kept.values())
 
 
-def parse_list(text: str | None, *, name: str, integer: bool = False) -> tuple[float, ...] | None:
+def parse_list(text: str | None, *, name: str, integer: bool = False,
+               max_values: int | None = None) -> tuple[float, ...] | None:
     """``a,b,c`` or ``start:stop:count`` -> sorted values, each once (:func:`merge_values`, after rounding
-    to 12 significant digits); None when not given."""
+    to 12 significant digits); None when not given.
+
+    ``max_values``: refuse a list of more values than that before expanding it (a sweep's
+    ``--max-points``: one axis of more values is a grid of more points)."""
     if text is None:
         return None
     t = text.strip()
@@ -76,11 +128,13 @@ def parse_list(text: str | None, *, name: str, integer: bool = False) -> tuple[f
             raise ConfigError(f"{name} {text!r}: an inverted range (stop {stop:g} < start {start:g})")
         if count == 1 and stop != start:
             raise ConfigError(f"{name} {text!r}: one value cannot span {start:g}..{stop:g} (count >= 2)")
+        _check_count(count, name=name, max_values=max_values)
         values = [start + (stop - start) * i / (count - 1) for i in range(count)] if count > 1 else [start]
     else:
         items = [x for x in t.split(",") if x.strip()]
         if not items:
             raise ConfigError(f"{name}: an empty list")
+        _check_count(len(items), name=name, max_values=max_values)
         try:
             values = [float(x) for x in items]
         except ValueError:
@@ -93,6 +147,11 @@ def parse_list(text: str | None, *, name: str, integer: bool = False) -> tuple[f
         if not math.isfinite(v):
             raise ConfigError(f"{name}: {v!r} is not a finite number")
     return merge_values(_tidy(v) for v in values)
+
+
+def _check_count(n: int, *, name: str, max_values: int | None) -> None:
+    if max_values is not None and n > max_values:
+        raise ConfigError(f"{name} has {n} values (more than --max-points {max_values}): narrow it, or use --force")
 
 
 @dataclass(frozen=True, slots=True)

@@ -5,8 +5,10 @@ Each finished unit is written at once, atomically, as ``parts/UNIT.parquet`` (it
 ``parts/UNIT.json`` (its damage, unscored frames and cost). Running the same study again over the
 same folder skips the units whose parts exist, so an interrupted run (even ``kill -9`` of the driver)
 loses at most the units in flight. ``run.json`` holds what identifies the study: the kind of study,
-its options, and per log (by content hash) the resolved config; a folder holding another config's
-run is refused before any work, never mixed.
+its options, per log (by content hash) the resolved config, and per input path the content hash it
+had; a folder holding another config's run is refused before any work, never mixed, and so is a
+folder whose input log changed content since (the old and the new frames would mix): with
+``start_afresh`` (``--force``) the study's files are removed and the study starts again.
 
 One process at a time writes a study's folder: the store locks it (:class:`replay.outputs.OutputLock`
 on ``DIR/.zcut.lock``) from its opening to :meth:`PartStore.close`, and a second ``zcut batch`` or
@@ -18,8 +20,10 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
+import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from replay.errors import ConfigError
 from replay.outputs import AtomicOutput, OutputLock, remove_stale_temporaries_in
@@ -33,6 +37,9 @@ PARTS = "parts"
 LOCK_FILE = ".zcut.lock"
 #: the folders of a study where units write (per-log outputs of ``zcut batch --results/--rrd`` too)
 WRITTEN_FOLDERS = (".", PARTS, "results", "rrd")
+#: what a study writes in its folder (removed when it starts afresh): files, then folders
+STUDY_FILES = (RUN_FILE, "frames.parquet", "sweep.parquet", "summary.json", "tuned.toml", "report.html")
+STUDY_FOLDERS = (PARTS, "results", "rrd", "plots")
 
 
 class PartStore:
@@ -43,16 +50,25 @@ class PartStore:
     root : path
         The folder (created if missing; its parent must exist).
     identity : dict
-        What the study is: ``{"kind": ..., "options": {...}, "logs": {sha256: config_sha}}``.
+        What the study is: ``{"kind": ..., "options": {...}, "logs": {sha256: config_sha},
+        "paths": {path: sha256}}``.
+    start_afresh : bool
+        When an input path holds other content than in the folder's run (``--force``): remove the
+        study's files and start again, instead of refusing.
+    stream : text stream, optional
+        Where to say that it starts afresh (stderr).
     """
 
-    def __init__(self, root: str | os.PathLike[str], identity: dict[str, Any]) -> None:
+    def __init__(self, root: str | os.PathLike[str], identity: dict[str, Any], *, start_afresh: bool = False,
+                 stream: IO[str] | None = None) -> None:
         self.root = Path(root)
         if self.root.exists() and not self.root.is_dir():
             raise ConfigError(f"-o {self.root}: exists and is not a folder")
         if not self.root.parent.is_dir():
             raise ConfigError(f"-o {self.root}: the folder {self.root.parent} does not exist")
         self.identity = identity
+        self.start_afresh = start_afresh
+        self.stream = sys.stderr if stream is None else stream
         self._lock = self._lock_folder()
         try:
             self._open()
@@ -81,10 +97,23 @@ class PartStore:
                 old = json.loads(run.read_text())
             except (OSError, ValueError):
                 raise ConfigError(f"{run}: not a zcut study's run file (delete the folder or choose another)") from None
-            self._check_compatible(old)
-            merged = dict(old)
-            merged["logs"] = {**old.get("logs", {}), **identity.get("logs", {})}
-            self.identity = merged
+            if old.get("kind") != identity.get("kind"):
+                raise ConfigError(f"-o {self.root}: holds a {old.get('kind')} run, not a {identity.get('kind')}: "
+                                  "choose another folder")
+            changed = self._changed_inputs(old)
+            if changed and self.start_afresh:
+                print(f"zcut: {changed}; --force: the study starts afresh (its earlier results removed)",
+                      file=self.stream, flush=True)
+                self._remove_study()
+            elif changed:
+                raise ConfigError(f"-o {self.root}: {changed}: its old and new frames would mix in one study; "
+                                  "--force starts it afresh (or choose another folder)")
+            else:
+                self._check_compatible(old)
+                merged = dict(old)
+                merged["logs"] = {**old.get("logs", {}), **identity.get("logs", {})}
+                merged["paths"] = {**old.get("paths", {}), **identity.get("paths", {})}
+                self.identity = merged
         elif any(p.name != LOCK_FILE for p in self.root.iterdir()):
             raise ConfigError(f"-o {self.root}: the folder holds other files and no {RUN_FILE}: "
                               "choose an empty or new folder")
@@ -106,11 +135,32 @@ class PartStore:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def _changed_inputs(self, old: dict[str, Any]) -> str | None:
+        """What says that an input path holds other content than in the folder's run (None when
+        none does): the first such log, its content hash then and now. A path whose old content is
+        still an input (under another name) has not lost its frames: not a change."""
+        had = old.get("paths") or {}
+        now = self.identity.get("paths") or {}
+        contents = set(now.values())
+        changed = [(path, had[path], sha) for path, sha in now.items()
+                   if had.get(path) not in (None, sha) and had[path] not in contents]
+        if not changed:
+            return None
+        path, then, sha = changed[0]
+        more = f" (and {len(changed) - 1} more log(s))" if len(changed) > 1 else ""
+        return (f"{path} changed since this study began (content sha256 {then[:12]}… then, {sha[:12]}… now)"
+                + more)
+
+    def _remove_study(self) -> None:
+        """Remove what a study wrote in the folder (the folder is locked: no live writer)."""
+        for name in STUDY_FILES:
+            (self.root / name).unlink(missing_ok=True)
+        for name in STUDY_FOLDERS:
+            if (self.root / name).is_dir():
+                shutil.rmtree(self.root / name)
+
     def _check_compatible(self, old: dict[str, Any]) -> None:
         new = self.identity
-        if old.get("kind") != new.get("kind"):
-            raise ConfigError(f"-o {self.root}: holds a {old.get('kind')} run, not a {new.get('kind')}: "
-                              "choose another folder")
         if old.get("options") != new.get("options"):
             diff = sorted(k for k in set(old.get("options", {})) | set(new.get("options", {}))
                           if old.get("options", {}).get(k) != new.get("options", {}).get(k))

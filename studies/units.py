@@ -7,6 +7,7 @@ is one unit. Frame indices are the log's own.
 
 from __future__ import annotations
 
+import errno
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,21 +45,39 @@ class WorkUnit:
         return f"{self.sha256[:16]}-{self.start:08d}-{'end' if self.stop is None else f'{self.stop:08d}'}"
 
 
+def broken_link(path: Path) -> str | None:
+    """Why ``path`` is a symlink that leads to no file (dangling, or a loop), None otherwise."""
+    if not path.is_symlink():
+        return None
+    try:
+        os.stat(path)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            return "a symlink loop"
+        if e.errno == errno.ENOENT:
+            return f"a dangling symlink: {os.readlink(path)} does not exist"
+        return f"a symlink that cannot be followed: {e.strerror or e}"
+    return None
+
+
 def expand_logs(inputs: list[str]) -> list[Path]:
     """Logs as given, folders expanded to their sorted ``*.mcap`` files (not recursive).
 
-    Raises :class:`ConfigError` for a missing path, a folder without logs, or a file that is not a
-    ``.mcap``; duplicates (the same file twice) are dropped.
+    A ``.mcap`` symlink that leads to no file (dangling: a log on an unmounted share; or a loop) is
+    kept, as an unreadable log is: the planning leaves it out with a warning that names it (exit 3),
+    never silently. Raises :class:`ConfigError` for a missing path, a folder without logs, or a file
+    that is not a ``.mcap``; duplicates (the same file twice) are dropped.
     """
     out: list[Path] = []
     seen: set[tuple[int, int]] = set()
     for raw in inputs:
         p = Path(raw)
         if p.is_dir():
-            found = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in LOG_SUFFIXES)
+            found = sorted(q for q in p.iterdir() if q.suffix.lower() in LOG_SUFFIXES
+                           and (q.is_file() or broken_link(q) is not None))
             if not found:
                 raise ConfigError(f"folder {p} holds no .mcap log")
-        elif p.is_file():
+        elif p.is_file() or (broken_link(p) is not None and p.suffix.lower() in LOG_SUFFIXES):
             if p.suffix.lower() not in LOG_SUFFIXES:
                 raise ConfigError(f"{p}: not an MCAP log (.mcap)")
             found = [p]
@@ -67,7 +86,7 @@ def expand_logs(inputs: list[str]) -> list[Path]:
         else:
             raise ConfigError(f"no such file or folder: {p}")
         for q in found:
-            st = os.stat(q)
+            st = os.lstat(q) if broken_link(q) is not None else os.stat(q)
             if (st.st_dev, st.st_ino) not in seen:
                 seen.add((st.st_dev, st.st_ino))
                 out.append(q)

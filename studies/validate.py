@@ -183,7 +183,8 @@ class Difference:
 
 @dataclass(frozen=True, slots=True)
 class Edge:
-    """The tuned set at the end of a swept axis: ``side`` ``"upper"`` or ``"lower"``; ``by_ranges``:
+    """The tuned set at the end of a swept axis: ``side`` ``"upper"``, ``"lower"`` or ``"both"`` (the
+    only value of the axis within the paper's ranges, the grid going on both ways); ``by_ranges``:
     the end of the candidates (the paper's §5.4 ranges), the grid goes on beyond; ``widen_to``: a
     value to add (None when the axis cannot go further, e.g. ρ_thr = 1)."""
 
@@ -197,8 +198,8 @@ class Edge:
         v = f"{self.value:g}{_UNIT[self.axis]}"
         name = _SHORT[self.axis]
         if self.by_ranges:
-            return (f"{name} {v} is the {'largest' if self.side == 'upper' else 'smallest'} value within the "
-                    f"paper's §5.4 range: the best may lie outside it")
+            which = {"upper": "largest", "lower": "smallest"}.get(self.side, "only")
+            return f"{name} {v} is the {which} value within the paper's §5.4 range: the best may lie outside it"
         how = f"widen {_OPTION[self.axis]} {'upward' if self.side == 'upper' else 'downward'}"
         if self.widen_to is not None:
             how += f" (e.g. add {self.widen_to:g}{_UNIT[self.axis]})"
@@ -212,7 +213,7 @@ class Edge:
     def from_json(cls, d: Any) -> Edge | None:
         if not isinstance(d, dict) or d.get("axis") not in _SHORT or _num(d.get("value")) is None:
             return None
-        return cls(str(d["axis"]), "upper" if d.get("side") == "upper" else "lower", float(d["value"]),
+        return cls(str(d["axis"]), d["side"] if d.get("side") in ("upper", "both") else "lower", float(d["value"]),
                    bool(d.get("by_ranges")), _num(d.get("widen_to")))
 
 
@@ -540,6 +541,9 @@ def grid_edges(params: Sequence[Params], candidates: np.ndarray, tuned: int) -> 
         vals = sorted({x for p in same if (x := p[j]) is not None})
         cands = sorted({x for i in np.flatnonzero(candidates) if (x := params[int(i)][j]) is not None})
         if len(vals) < 2:
+            continue
+        if cands and cands[0] == cands[-1] == v and vals[0] < v < vals[-1]:
+            out.append(Edge(axis, "both", float(v), True, None))  # the only candidate: one sentence, not two
             continue
         for side, end, cend in (("upper", vals[-1], cands[-1] if cands else None),
                                 ("lower", vals[0], cands[0] if cands else None)):

@@ -2,7 +2,8 @@
 
 Writes ``DIR/frames.parquet`` (one row per frame) and ``DIR/summary.json``; ``--results`` and ``--rrd``
 add one results MCAP and one .rrd per log under ``DIR/results`` and ``DIR/rrd``. Running it again over
-the same DIR skips the frames already done; a damaged log does not stop the others (exit 3 at the end).
+the same DIR skips the frames already done (a log whose content changed since is refused, or starts
+the study afresh with ``--force``); a damaged log does not stop the others (exit 3 at the end).
 """
 
 from __future__ import annotations
@@ -35,6 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rrd", action="store_true", help="also write a Rerun .rrd per log (DIR/rrd)")
     p.add_argument("--frames-per-unit", type=int, default=FRAMES_PER_UNIT, metavar="N",
                    help=f"frames per unit of work: whole chunks of one log (default {FRAMES_PER_UNIT})")
+    p.add_argument("--force", action="store_true", help="start afresh when an input log changed content since "
+                   "the study in DIR began (its earlier results are removed; without it: refused)")
     p.add_argument("--json", action="store_true", help="print summary.json to stdout")
     add_pipeline_options(p)
 
@@ -51,9 +54,11 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     from studies.driver import (
         Progress,
         absolute,
+        check_labels,
         check_study_options,
         execute,
         identity,
+        named_as_now,
         plan_logs,
         start_units,
         study_options,
@@ -76,8 +81,10 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
         plans = plan_logs(args.inputs, config_file=args.config, overrides=overrides, topic=args.topic,
                           frames_per_unit=args.frames_per_unit, whole=args.results or args.rrd, progress=planning,
                           bin_model=args.bin_model)
+        check_labels(args.labels, args.annotator, plans)  # as zcut accuracy: before any work
         options = study_options(args, overrides) | {"results": args.results, "rrd": args.rrd}
-        store = stack.enter_context(PartStore(args.out, identity("batch", options, plans)))
+        store = stack.enter_context(PartStore(args.out, identity("batch", options, plans),
+                                                     start_afresh=args.force))
         units, todo = start_units(plans, store, what="", executor=executor)
         job = Job(config_file=absolute(args.config), overrides=overrides, bin_model=absolute(args.bin_model), topic=args.topic,
                   labels=absolute(args.labels), annotator=args.annotator, region=args.region,
@@ -90,7 +97,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
         progress.finish()
     finally:
         executor.close()
-    table = batch.frames_table(store)
+    table = named_as_now(batch.frames_table(store), plans)
     frames_path = store.write_table("frames.parquet", table)
     from threadpoolctl import threadpool_limits
 

@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from replay.logs.frame import Frame
@@ -33,8 +34,7 @@ def run(args: argparse.Namespace) -> int:
     from replay.outputs import OutputPlan, config_path_for
     from replay.synth.log import sample_log_path
 
-    out_dir = Path(args.out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = make_out_dir(Path(args.out_dir))
     rrd = out_dir / "zcut_demo.rrd"
     results = out_dir / "zcut_demo_results.mcap"
     # the demo replaces its own outputs in its own folder (never the sample it reads); a second demo
@@ -45,6 +45,23 @@ def run(args: argparse.Namespace) -> int:
             plan.add(path, what)
             plan.add(config_path_for(path), f"the config beside {what}")
         return _demo(args, out_dir=out_dir, rrd=rrd, results=results)
+
+
+def make_out_dir(out_dir: Path) -> Path:
+    """The demo's folder, created if missing; as for a study's ``-o``, its parent must exist (a
+    mistyped path is refused, not created)."""
+    from replay.errors import ConfigError
+
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ConfigError(f"--out-dir {out_dir}: exists and is not a folder")
+    parent = Path(os.path.abspath(out_dir)).parent
+    if not parent.is_dir():
+        raise ConfigError(f"--out-dir {out_dir}: the folder {parent} does not exist")
+    try:
+        out_dir.mkdir(exist_ok=True)
+    except OSError as e:
+        raise ConfigError(f"--out-dir {out_dir}: cannot create the folder: {e.strerror or e}") from None
+    return out_dir
 
 
 def _demo(args: argparse.Namespace, *, out_dir: Path, rrd: Path, results: Path) -> int:
@@ -114,6 +131,8 @@ def _demo(args: argparse.Namespace, *, out_dir: Path, rrd: Path, results: Path) 
         print(f"\nz-cut found {pz['tp']} of {pz['tp'] + pz['fn']} true outliers "
               f"(recall {_pct(pz['recall'])}, precision {_pct(pz['precision'])}); "
               f"SOR found {ps['tp']} (recall {_pct(ps['recall'])}, precision {_pct(ps['precision'])}).")
+        if (note := uninformative_note(report)) is not None:
+            print(note)
     for name, written in summary.outputs.items():
         print(f"zcut: wrote {name}: {written}", file=err)
     print(next_steps(sample=sample, bin_model=model_path, rrd=rrd, results=results, out_dir=out_dir),
@@ -142,13 +161,46 @@ def next_steps(*, sample: Path, bin_model: Path | None, rrd: Path, results: Path
     steps = [
         ("every stage in the viewer (a browser: add --web-viewer)", f"{viewer_command()} {q(rrd)}"),
         ("label true outliers in a local page", f"{zcut} annotate {q(sample)}{model} --db "
-         f"{q(out_dir / 'zcut_demo.labels.sqlite')} --annotator \"$USER\""),
+         f"{q(out_dir / 'zcut_demo.labels.sqlite')} --annotator {shlex.quote(annotator_name())}"),
         ("true accuracy of the results file", f"{zcut} accuracy {q(results)}"),
         ("tune the z-cut and SOR parameters", f"{zcut} sweep {q(sample)}{model} -o {q(out_dir / 'sweep')} "
          "--step 0.1,0.2,0.4 --rho 0.035:0.105:3"),
         ("replay many logs (here one) on every core", f"{zcut} batch {q(sample)}{model} -o {q(out_dir / 'batch')}"),
     ]
     return "\nNext steps on the demo's own outputs:\n" + "\n".join(f"  # {what}\n  {cmd}" for what, cmd in steps)
+
+
+#: An interval that holds this much of [0, 1] or more says nothing yet about the figure.
+UNINFORMATIVE_WIDTH = 0.9
+
+
+def uninformative_note(report: dict[str, Any]) -> str | None:
+    """One line naming the pooled figures whose 95 % interval holds nearly all of [0, 1] (at the
+    demo's 3 frames, every method's precision: ``0.933 [0.000, 1.000]``), None when there is none."""
+    pooled = report.get("pooled") or {}
+    by_figure: dict[str, list[str]] = {}
+    for method, e in pooled.items():
+        for figure, (lo, hi) in (e.get("ci95") or {}).items():
+            if lo is not None and hi is not None and hi - lo >= UNINFORMATIVE_WIDTH:
+                by_figure.setdefault(figure, []).append(method)
+    if not by_figure:
+        return None
+    n = len(report.get("frames") or ())
+    which = "; ".join(f"{figure} of {', '.join(methods)}" for figure, methods in by_figure.items())
+    return (f"note: intervals uninformative at {n} frame{'s' if n != 1 else ''} ({which}: each holds "
+            f"{UNINFORMATIVE_WIDTH * 100:.0f} % or more of [0, 1]); more frames narrow them, see docs/coverage.md")
+
+
+def annotator_name() -> str:
+    """A name for the suggested ``--annotator``: the login name (``$USER`` is empty in many
+    containers), else ``me``; never an empty string."""
+    import getpass
+
+    try:
+        name = getpass.getuser()
+    except (OSError, KeyError):  # no login name in the environment and no passwd entry
+        name = ""
+    return name.strip() or "me"
 
 
 def _pct(v: float | None) -> str:

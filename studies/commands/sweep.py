@@ -50,8 +50,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the grid is exactly the values given (and the config's value on the axes not given): "
                    "no 0.5×/1.5× points (θ, ω and the paper's findings need them)")
     g.add_argument("--max-points", type=int, default=DEFAULT_MAX_POINTS, metavar="N",
-                   help=f"refuse grids larger than this without --force (default {DEFAULT_MAX_POINTS})")
-    g.add_argument("--force", action="store_true", help="run a grid larger than --max-points")
+                   help=f"refuse grids larger than this without --force (default {DEFAULT_MAX_POINTS}); a LIST of "
+                   "more values is refused before it is expanded")
+    g.add_argument("--force", action="store_true", help="run a grid larger than --max-points; start afresh when "
+                   "an input log changed content since the study in DIR began (its earlier results are removed)")
     p.add_argument("--objective", default="f1",
                    help="what tuned.toml maximises: f1 (default), recall@precision=P or precision@recall=R")
     p.add_argument("--labels", metavar="DB", help="score against an annotator's labels (default: synthetic truth)")
@@ -92,9 +94,11 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     from studies.driver import (
         Progress,
         absolute,
+        check_labels,
         check_study_options,
         execute,
         identity,
+        named_as_now,
         plan_logs,
         start_units,
         study_options,
@@ -111,10 +115,14 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     err = sys.stderr
     check_study_options(args)
     objective = sweep.parse_objective(args.objective)
-    axes = dict(steps=parse_list(args.step, name="--step"), depths=parse_list(args.max_depth, name="--max-depth"),
-                rhos=parse_list(args.rho, name="--rho"), sor_ks=parse_list(args.sor_k, name="--sor-k", integer=True),
-                sor_stds=parse_list(args.sor_std, name="--sor-std"))
-    bank_axes = parse_grid_options(args.grid)
+    # an axis of more values than --max-points is a grid of more points: refused before it is expanded
+    limit = None if args.force else args.max_points
+    axes = dict(steps=parse_list(args.step, name="--step", max_values=limit),
+                depths=parse_list(args.max_depth, name="--max-depth", max_values=limit),
+                rhos=parse_list(args.rho, name="--rho", max_values=limit),
+                sor_ks=parse_list(args.sor_k, name="--sor-k", integer=True, max_values=limit),
+                sor_stds=parse_list(args.sor_std, name="--sor-std", max_values=limit))
+    bank_axes = parse_grid_options(args.grid, max_values=limit)
     overrides = overrides_of(args)
     # results files: their source log (the filtered cloud has its outliers removed)
     logs = []
@@ -148,6 +156,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
     try:
         plans = plan_logs(logs, config_file=args.config, overrides=overrides, topic=args.topic,
                           frames_per_unit=args.frames_per_unit, whole=False, bin_model=args.bin_model)
+        check_labels(args.labels, args.annotator, plans)  # as zcut accuracy: before any work
         first = next(p for p in plans if p.units)
         assert first.resolved is not None  # a log with units was resolved
         base = first.resolved.config
@@ -155,7 +164,8 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
                          study_points=args.study_points)
         bank = make_bank_grid(bank_axes, base)
         options = study_options(args, overrides) | {"grid": grid.as_dict()} | ({"bank": bank} if bank else {})
-        store = stack.enter_context(PartStore(args.out, identity("sweep", options, plans)))
+        store = stack.enter_context(PartStore(args.out, identity("sweep", options, plans),
+                                                     start_afresh=args.force))
         with_sor = base.sor.enabled and "sor" in base.base_methods
         n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if with_sor else 0)
         n_bank = n_bank_sets(bank)
@@ -177,7 +187,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
         progress.finish()
     finally:
         executor.close()
-    table = store.table()
+    table = named_as_now(store.table(), plans)
     if table.num_rows:
         table = table.sort_by([("log_sha256", "ascending"), ("frame", "ascending"), ("method", "ascending")])
     store.write_table("sweep.parquet", table)

@@ -17,6 +17,7 @@ from scipy import stats
 
 from cli.main import main
 from studies.validate import (
+    Edge,
     FrameCounts,
     Validation,
     cross_validate,
@@ -170,6 +171,17 @@ def test_grid_edges_say_which_way_to_widen():
     assert e.by_ranges and e.side == "upper" and "§5.4" in str(e)
     # an axis of one value is not swept: no edge
     assert grid_edges(_grid((0.2,), (30.0,), (0.07,)), np.ones(1, bool), 0) == ()
+
+
+def test_the_only_value_within_the_ranges_is_said_once():
+    """ρ_thr 0.07 alone inside the §5.4 range, the grid going on both ways: once "the only value", not
+    "the largest" and "the smallest" on consecutive lines (issue 35 item 20)."""
+    params = _grid((0.2,), (30.0,), (0.035, 0.07, 0.105))
+    cand = np.array([p[2] == 0.07 for p in params])
+    edges = grid_edges(params, cand, params.index((0.2, 30.0, 0.07, None)))
+    assert [str(e) for e in edges] == ["ρ_thr 0.07 is the only value within the paper's §5.4 range: "
+                                       "the best may lie outside it"]
+    assert Edge.from_json(edges[0].to_json()) == edges[0]
 
 
 def test_grid_distance_counts_grid_steps_to_the_config():
