@@ -151,6 +151,7 @@ def _split_rows(r0, r1, a, mask, use_mask, x, y, z, valid, rowmax):  # type: ign
 
 
 _NO_MASK = np.ones((1, 1), dtype=bool)
+_NO_MASK.setflags(write=False)
 
 
 def _prepare(xyz: XYZ, run: Run, mask: Mask | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
