@@ -1,6 +1,7 @@
 """Benchmark: full replay (bin mask, ICP, removal, z-cut, SOR, metrics) on 1920 x 1200 synthetic frames.
 
-Run: ``.venv/bin/python bench/bench_replay.py [--frames N] [--kind KIND] [--dir DIR]``
+Run: ``.venv/bin/python bench/bench_replay.py [--frames N] [--kind KIND] [--dir DIR] [--stages] [--against OLD]``
+(or ``--stages-only --log LOG.mcap [--against OLD]`` for the cost per stage of an existing log)
 
 Synthesises (once, cached in ``--dir``) a log of N filled-bin frames and five empty-bin scans at
 the sensor's full size, builds the bin model, then replays the log three ways, each after a warm-up
@@ -15,6 +16,13 @@ frame (numba compilation, model caches):
   next frame is decoded, and its bin mask and registration run, while the removal, z-cut and SOR
   finish the current frame (and Rerun logging runs behind them), so the stage times (measured
   under that contention) do not add up to the frame time.
+- "Cost per stage" (``--stages``): CPU ms per frame of every stage, the stages run one after the
+  other in this thread (the stage timers of :mod:`replay.pipeline.stages` read
+  ``time.process_time``, which counts numba's worker threads too; nothing else runs meanwhile),
+  medians over the frames after a warm-up one. ``--against DIR`` runs the same measurement on the
+  source tree DIR (e.g. the previous release: ``git archive 1f542c6 | tar -x -C DIR``) in a
+  subprocess of the same run and prints the ratio old / new per stage. ``--stages-only`` skips
+  the frames/s and .rrd measurements. The machine is shared: CPU time, not wall time, is compared.
 """
 
 from __future__ import annotations
@@ -64,15 +72,95 @@ def timed_replay(log: Path, model, *, rrd: Path | None = None) -> tuple[float, f
     return time.perf_counter() - t0, time.process_time() - c0, len(summary.rows), timings
 
 
+STAGES = ("read", "bin_mask", "registration", "removal", "zcut", "sor", "metrics", "total")
+
+
+def stage_costs(log: Path, ply: Path | None) -> dict[str, float]:
+    """CPU ms per frame of every stage (medians over frames 1..; frame 0 warms up), stages run serially;
+    the bin model ``ply``, else the log's own."""
+    import types
+
+    from replay.pipeline import stages
+    from replay.pipeline.bin_model import bin_model_for
+
+    if ply is not None:
+        session = ReplaySession.open(log, bin_model=load_bin_model(ply))
+    else:
+        session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
+    cpu = types.SimpleNamespace(perf_counter=time.process_time)
+    stages.time = cpu  # type: ignore[attr-defined]  # the stage timers count CPU seconds (all threads)
+    rows: list[dict[str, float]] = []
+    frames = session.reader.frames()
+    while True:
+        t = time.process_time()
+        frame = next(frames, None)
+        read = time.process_time() - t
+        if frame is None:
+            break
+        located = stages.locate_bin(frame, session.config, bin_model=session.prepared, seed=session.seed)
+        r = stages.run_frame(frame, session.config, bin_model=session.prepared, located=located)
+        rows.append({"read": read, **r.timings, "total": read + r.timings["total"]})
+    rows = rows[1:] or rows
+    return {k: 1000 * statistics.median(row.get(k, 0.0) for row in rows) for k in STAGES} | {"frames": len(rows)}
+
+
+def print_stage_table(new: dict[str, float], old: dict[str, float] | None) -> None:
+    print(f"\ncost per stage, CPU ms per {SIZE[1]}x{SIZE[0]} frame (medians of {int(new['frames'])} frames; stages "
+          "run one after the other)")
+    head = f"  {'stage':13s} {'this tree':>10s}"
+    if old is not None:
+        head += f" {'previous':>10s} {'previous/this':>14s}"
+    print(head)
+    for k in STAGES:
+        line = f"  {k:13s} {new[k]:10.1f}"
+        if old is not None:
+            line += f" {old[k]:10.1f} {old[k] / new[k] if new[k] else float('nan'):14.2f}"
+        print(line)
+
+
+def stage_costs_of_tree(tree: Path, log: Path, ply: Path | None) -> dict[str, float]:
+    """:func:`stage_costs` with the code of the source tree ``tree`` (a subprocess; this script's own
+    copy of the function runs against that tree's modules)."""
+    import json
+    import subprocess
+    import sys
+
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    env.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
+    out = subprocess.run([sys.executable, __file__, "--stage-json", str(log), str(ply or "-")], env=env, cwd=str(tree),
+                         check=True, capture_output=True, text=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=4)
     ap.add_argument("--kind", default="zinc_nuts")
     ap.add_argument("--repeats", type=int, default=3, help="alternating runs of each; medians compared")
     ap.add_argument("--dir", default=str(Path(tempfile.gettempdir()) / "zcut_bench_replay"))
+    ap.add_argument("--stages", action="store_true", help="print the CPU cost per stage")
+    ap.add_argument("--stages-only", action="store_true", help="only the cost per stage")
+    ap.add_argument("--against", type=Path, help="source tree of the previous release, measured in the same run")
+    ap.add_argument("--log", type=Path, help="an existing log (with its bin model attachment) for the cost per stage")
+    ap.add_argument("--stage-json", nargs=2, help=argparse.SUPPRESS)  # LOG PLY|-: one JSON line
     args = ap.parse_args()
+    if args.stage_json:
+        import json
+
+        log_, ply_ = args.stage_json
+        print(json.dumps(stage_costs(Path(log_), None if ply_ == "-" else Path(ply_))))
+        return
     d = Path(args.dir)
-    log, ply = prepare(d, args.kind, args.frames)
+    if args.log is not None and args.stages_only:
+        log, ply = args.log, None
+    else:
+        log, ply = prepare(d, args.kind, args.frames)
+    if args.stages or args.stages_only or args.against:
+        os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")
+        old = stage_costs_of_tree(args.against, log, ply) if args.against else None
+        print_stage_table(stage_costs_of_tree(Path(__file__).resolve().parents[1], log, ply), old)
+        if args.stages_only:
+            return
     model = load_bin_model(ply)
 
     rrd = d / "bench.rrd"

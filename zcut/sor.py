@@ -76,7 +76,7 @@ from . import columns as _columns
 from . import sor_camera as _camera
 from . import sor_search as _search
 from . import sor_window as _window
-from .cloud import check_xyz
+from .cloud import check_mask, check_xyz
 from .errors import InputShapeError, ParameterError, describe_array
 from .types import XYZ, Mask
 
@@ -123,9 +123,10 @@ def _check_params(k: object, std_ratio: object, convention: object) -> tuple[int
 
 
 @nb.njit(cache=True, nogil=True)
-def _split_rows(r0, r1, a, x, y, z, valid, rowmax):  # type: ignore[no-untyped-def]  # numba kernel
+def _split_rows(r0, r1, a, mask, use_mask, x, y, z, valid, rowmax):  # type: ignore[no-untyped-def]  # numba kernel
     # float64 x, y, z planes (+inf where invalid: infinitely far from every valid point), the
-    # valid mask, and per row the largest |x|, |y|, |z| of its valid points
+    # valid mask (finite, and in ``mask`` when ``use_mask``), and per row the largest |x|, |y|, |z|
+    # of its valid points
     for r in range(r0, r1):
         mx = 0.0
         my = 0.0
@@ -135,6 +136,8 @@ def _split_rows(r0, r1, a, x, y, z, valid, rowmax):  # type: ignore[no-untyped-d
             v = np.float64(a[r, c, 1])
             w = np.float64(a[r, c, 2])
             ok = np.isfinite(u) & np.isfinite(v) & np.isfinite(w)
+            if use_mask:
+                ok = ok & mask[r, c]
             valid[r, c] = ok
             x[r, c] = u if ok else np.inf
             y[r, c] = v if ok else np.inf
@@ -147,17 +150,28 @@ def _split_rows(r0, r1, a, x, y, z, valid, rowmax):  # type: ignore[no-untyped-d
         rowmax[r, 2] = mz
 
 
-def _prepare(xyz: XYZ, run: Run) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """float64 x, y, z planes (+inf where invalid), the valid mask, max |coordinate| per axis."""
+_NO_MASK = np.ones((1, 1), dtype=bool)
+_NO_MASK.setflags(write=False)
+
+
+def _prepare(xyz: XYZ, run: Run, mask: Mask | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                                      np.ndarray]:
+    """float64 x, y, z planes (+inf where invalid), the valid mask, max |coordinate| per axis.
+
+    ``mask``: only its pixels may be valid (the same planes as of the cloud with every other pixel
+    NaN, without making that copy: ``xyz`` may then be a strided view, e.g. a crop of a frame)."""
     a = check_xyz(xyz)
     if a.dtype != np.float32:  # one compiled variant per dtype: float32 or float64, C order
         a = a.astype(np.float64, copy=False)
-    a = np.ascontiguousarray(a)
     H, W = a.shape[:2]
+    if mask is None:
+        a = np.ascontiguousarray(a)
+    else:
+        mask = check_mask(mask, name="mask", shape=(H, W))
     x, y, z = np.empty((H, W)), np.empty((H, W)), np.empty((H, W))
     valid = np.empty((H, W), dtype=bool)
     rowmax = np.zeros((H, 3))
-    run(_split_rows, H, a, x, y, z, valid, rowmax)
+    run(_split_rows, H, a, _NO_MASK if mask is None else mask, mask is not None, x, y, z, valid, rowmax)
     return x, y, z, valid, rowmax.max(axis=0, initial=0.0)
 
 
@@ -343,7 +357,7 @@ def _outlier_masks(dbar, valid, n, ratios, open3d):  # type: ignore[no-untyped-d
 # --------------------------------------------------------------------------------------------
 # public API
 # --------------------------------------------------------------------------------------------
-def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl") -> np.ndarray:
+def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl", mask: Mask | None = None) -> np.ndarray:
     """Mean distance d̄ of every valid pixel to its k nearest neighbours, exactly.
 
     Parameters
@@ -354,6 +368,9 @@ def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl") -> np.n
         Number of neighbours, >= 1.
     convention : {"pcl", "open3d"}
         ``"pcl"``: the point itself excluded; ``"open3d"``: included (at distance 0).
+    mask : (H, W) bool ndarray, optional
+        Only these pixels may be valid: the result of ``xyz`` with every other pixel NaN, without
+        that copy.
 
     Returns
     -------
@@ -363,7 +380,7 @@ def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl") -> np.n
     """
     k, _ = _check_params(k, 1.0, convention)
     with _workers() as run:
-        x, y, z, valid, amax = _prepare(xyz, run)
+        x, y, z, valid, amax = _prepare(xyz, run, mask)
         dbar = np.full(valid.shape, np.nan)
         n = int(valid.sum())
         if n == 0:
@@ -428,7 +445,8 @@ def sor_outliers_from_distances(
     return _outlier_masks(d, valid, float(n), ratios, convention == "open3d")
 
 
-def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: str = "pcl") -> Mask:
+def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: str = "pcl",
+                 mask: Mask | None = None) -> Mask:
     """Statistical outlier removal on an organized cloud (docs/filters.md).
 
     Parameters
@@ -448,6 +466,9 @@ def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: st
         as a neighbour at distance 0, μ = (sum of the d̄ > 0) / (number of points), σ² = (sum over
         the d̄ > 0 of (d̄ − μ)²) / (number of points − 1); inlier iff 0 < d̄ < μ + std_ratio·σ, and
         the outliers are the other valid pixels (so a point with k coincident copies is an outlier).
+    mask : (H, W) bool ndarray, optional
+        Only these pixels may be valid: the result of ``xyz`` with every other pixel NaN (exactly),
+        without that copy; ``xyz`` may be a strided view (a crop of a frame).
 
     Returns
     -------
@@ -467,7 +488,7 @@ def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: st
     """
     k, ratio = _check_params(k, std_ratio, convention)
     with _workers() as run:
-        x, y, z, valid, amax = _prepare(xyz, run)
+        x, y, z, valid, amax = _prepare(xyz, run, mask)
         n = int(valid.sum())
         if n < k + 1:
             return np.zeros(valid.shape, dtype=bool)

@@ -276,11 +276,11 @@ def bin_model_for(reader, explicit_path: str | Path | None, *,
 
 
 def _model_of(ply, voxel_mm: float) -> BinModel:
-    import open3d as o3d
-
     pts = ply.points
     voxel_m = voxel_mm / 1000.0
     if ply.faces is not None and len(ply.faces):
+        import open3d as o3d
+
         mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(pts),
                                          o3d.utility.Vector3iVector(np.ascontiguousarray(ply.faces, np.int32)))
         area = mesh.get_surface_area()

@@ -273,23 +273,33 @@ def zone_crop(xyz: np.ndarray, zone: np.ndarray, *, whole: bool):
     """
     if whole:
         return (slice(None), slice(None)), xyz
-    rows = np.flatnonzero(zone.any(axis=1))
-    if rows.size == 0:
+    sl = zone_box(zone)
+    if sl is None:
         return None
-    cols = np.flatnonzero(zone.any(axis=0))
-    sl = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
     z = zone[sl]
     return sl, np.where(z[..., None], xyz[sl], np.float32(np.nan)).astype(xyz.dtype, copy=False)
 
 
+def zone_box(zone: np.ndarray) -> tuple[slice, slice] | None:
+    """The slices of the zone's bounding box; None when the zone is empty."""
+    rows = np.flatnonzero(zone.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(zone.any(axis=0))
+    return slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)
+
+
 def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, **kw) -> np.ndarray:
-    """(H, W) bool: SOR outliers among the zone's points only (the rest of the frame set to NaN)."""
+    """(H, W) bool: SOR outliers among the zone's points only (as on the frame with the rest set to
+    NaN: SOR's ``mask`` on the zone's bounding box, no masked copy)."""
     out = np.zeros_like(zone)
-    crop = zone_crop(xyz, zone, whole=whole)
-    if crop is None:
+    if whole:
+        return sor_outliers(xyz, **kw) & zone
+    sl = zone_box(zone)
+    if sl is None:
         return out
-    sl, sub = crop
-    out[sl] = sor_outliers(sub, **kw) & zone[sl]
+    z = zone[sl]
+    out[sl] = sor_outliers(xyz[sl], mask=z, **kw) & z
     return out
 
 
@@ -301,11 +311,13 @@ def sor_masks_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, k: int,
 
     ratios = list(std_ratios)
     out = np.zeros((len(ratios), *zone.shape), dtype=bool)
-    crop = zone_crop(xyz, zone, whole=whole)
-    if crop is None:
+    if whole:
+        dbar = sor_mean_distances(xyz, k=k, convention=convention)
+        return sor_outliers_from_distances(dbar, k=k, std_ratios=ratios, convention=convention) & zone[None]
+    sl = zone_box(zone)
+    if sl is None:
         return out
-    sl, sub = crop
-    dbar = sor_mean_distances(sub, k=k, convention=convention)
+    dbar = sor_mean_distances(xyz[sl], k=k, convention=convention, mask=zone[sl])
     out[(slice(None), *sl)] = sor_outliers_from_distances(dbar, k=k, std_ratios=ratios, convention=convention) \
         & zone[sl][None]
     return out

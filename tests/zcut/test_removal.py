@@ -167,3 +167,24 @@ def test_robust_removal_equals_the_reference_with_its_tolerance(noisy, model, kw
             straggler_neighbours=p.straggler_neighbours, bin_first=True)
     _assert_same(fast, ref)
     assert fast.bin_points.sum() > 0.05 * fp.sum()
+
+
+@pytest.mark.parametrize("neighbours", [0, 1, 3, 5, 8])
+def test_straggler_start_counts_like_a_box_filter(neighbours):
+    """The fused first pass of the straggler test: its masks and candidates are the numpy
+    definitions (a 3x3 sum of the labelled pixels, minus the pixel, no neighbour beyond the edges)."""
+    import cv2
+
+    from zcut.removal import _straggler_start
+
+    rng = np.random.default_rng(neighbours)
+    shape = (37, 53)
+    valid, table, binp, easy, fp = (rng.random(shape) < q for q in (0.8, 0.3, 0.3, 0.1, 0.7))
+    lab, open_, cand = np.empty(shape, np.uint8), np.empty(shape, bool), np.empty(shape, bool)
+    _straggler_start(valid, table, binp, easy, fp, neighbours, lab, open_, cand)
+    want_lab = (table | binp | ~valid).astype(np.uint8)
+    count = cv2.filter2D(want_lab, -1, np.ones((3, 3), np.float32), borderType=cv2.BORDER_CONSTANT) - want_lab
+    want_open = valid & fp & ~easy & ~binp
+    np.testing.assert_array_equal(lab, want_lab)
+    np.testing.assert_array_equal(open_, want_open)
+    np.testing.assert_array_equal(cand, want_open & (count >= neighbours))

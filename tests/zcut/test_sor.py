@@ -582,3 +582,26 @@ def test_real_crop_pcl_equals_reference(real_data) -> None:
             sor_outliers(xyz, k=k, convention="pcl"),
             sor_outliers_reference(xyz, k=k, std_ratio=1.0, convention="pcl"),
         )
+
+
+@pytest.mark.parametrize("convention", ["pcl", "open3d"])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("gen", [pinhole, quantized, scattered])
+def test_mask_on_a_crop_equals_the_nan_masked_copy(convention: str, dtype, gen) -> None:
+    """``mask`` on a strided crop of the frame (how the pipeline runs SOR on its zone) gives what the
+    NaN-masked copy of the crop gives, bit for bit: outliers and d̄."""
+    rng = np.random.default_rng(41)
+    xyz = with_holes(rng, gen(rng, 70, 90), 0.05).astype(dtype)
+    mask = rng.random(xyz.shape[:2]) < 0.7
+    mask[:, :10] = False
+    sl = (slice(5, 61), slice(7, 83))
+    crop, m = xyz[sl], mask[sl]
+    assert not crop.flags.c_contiguous
+    copy = np.where(m[..., None], crop, np.nan).astype(dtype)
+    for ratio in (0.5, 1.0, 2.0):
+        assert np.array_equal(sor_outliers(crop, k=4, std_ratio=ratio, convention=convention, mask=m),
+                              sor_outliers(copy, k=4, std_ratio=ratio, convention=convention))
+    np.testing.assert_array_equal(sor_mean_distances(crop, k=4, convention=convention, mask=m),
+                                  sor_mean_distances(copy, k=4, convention=convention))
+    with pytest.raises(InputShapeError, match="mask"):
+        sor_outliers(crop, mask=mask)
