@@ -10,6 +10,7 @@ attachment (``docs/formats.md``, "Bin model attachment"): every command then rep
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from replay.logs import layout
@@ -29,9 +30,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--frame-id", default="camera_optical_frame", help="header frame_id (default camera_optical_frame)"
     )
-    parser.add_argument(
+    from replay.commands.common import SIZE_HELP, size_wxh
+
+    grid = parser.add_mutually_exclusive_group()
+    grid.add_argument(
+        "--size", type=size_wxh, metavar="WxH",
+        help=f"the grid of PLY files without organization info, {SIZE_HELP}, as zcut synth --size",
+    )
+    grid.add_argument(
         "--shape", metavar="HxW",
-        help="grid shape for PLY files without organization info (e.g. 1200x1920)",
+        help="the same grid as HEIGHTxWIDTH, rows x columns (the old spelling, e.g. 1200x1920; prefer --size)",
     )
     parser.add_argument(
         "--unit", choices=("auto", "m", "mm"), default="auto",
@@ -74,8 +82,15 @@ def _parse_shape(text: str | None) -> tuple[int, int] | None:
         h, w = (int(v) for v in text.lower().split("x"))
     except ValueError as e:
         raise ConfigError(f"--shape must look like 1200x1920, got {text!r}") from e
+    return _organized((h, w), f"--shape {text}")
+
+
+def _organized(shape: tuple[int, int], given: str) -> tuple[int, int]:
+    from replay.errors import ConfigError
+
+    h, w = shape
     if h < 2 or w < 1:
-        raise ConfigError(f"--shape must be organized (height > 1), got {text!r}")
+        raise ConfigError(f"{given}: the grid must be organized (at least 2 rows and 1 column)")
     return h, w
 
 
@@ -91,7 +106,10 @@ def run(args: argparse.Namespace) -> int:
     from replay.outputs import AtomicOutput, OutputPlan
 
     files = expand_inputs(args.inputs)
-    shape = _parse_shape(args.shape)
+    shape = _parse_shape(args.shape) if args.size is None else _organized(args.size, f"--size {args.size[1]}x{args.size[0]}")
+    if args.shape is not None and shape is not None:
+        print(f"zcut: --shape {args.shape} is HEIGHTxWIDTH: a grid {shape[1]} wide and {shape[0]} high "
+              f"(--size {shape[1]}x{shape[0]} says the same, WIDTHxHEIGHT as zcut synth)", file=sys.stderr)
     max_s = MAX_STAMP_NS / 1e9
     if not (np.isfinite(args.stamp_start) and 0 <= args.stamp_start <= max_s):
         raise ConfigError(f"--stamp-start must be in 0 .. {max_s:.0f} seconds (the ROS 2 time range, "
