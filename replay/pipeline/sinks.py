@@ -21,6 +21,7 @@ logs a write error and goes on), and closing it never waits without bound.
 from __future__ import annotations
 
 import os
+import sys
 import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -191,12 +192,14 @@ class RerunSink:
             self._file = AtomicOutput(self.rrd)
         try:
             try:
-                viz.open_sink(self._rec, rrd=None if self._file is None else str(self._file.temp), spawn=self.spawn,
-                              connect=self.connect, methods=info.config.base_methods)
+                note = viz.open_sink(self._rec, rrd=None if self._file is None else str(self._file.temp),
+                                     spawn=self.spawn, connect=self.connect, methods=info.config.base_methods)
             except RuntimeError as e:  # Rerun's file sink could not create the file
                 if self._file is None:
                     raise
                 raise self._opening_failure(e) from None
+            if note is not None:
+                print(f"zcut: {note}", file=sys.stderr, flush=True)
             viz.log_static(self._rec, config_toml=info.config_toml(), notes=info.notes, bin_model=info.bin_model,
                            source=f"log: {info.log}")
         except BaseException:

@@ -221,17 +221,28 @@ def spawn_viewer(*, port: int = VIEWER_PORT, executable: str = "rerun", timeout_
 
 
 def open_sink(rec: rr.RecordingStream, *, rrd: str | None = None, spawn: bool = False,
-              connect: str | None = None, methods: tuple[str, ...] = ("zcut", "sor")) -> None:
+              connect: str | None = None, methods: tuple[str, ...] = ("zcut", "sor")) -> str | None:
     """Send ``rec`` to a file, a spawned viewer (listening on 127.0.0.1 only, :func:`spawn_viewer`)
-    or a running viewer, with the default blueprint for the base ``methods`` the replay runs."""
+    or a running viewer, with the default blueprint for the base ``methods`` the replay runs.
+
+    Returns the line to tell the user for ``spawn``: a viewer was started, or one listens on the port
+    already and the recording streams into it (``rr.spawn``'s behaviour, which it does silently)."""
     bp = default_blueprint(methods)
+    note = None
     if rrd is not None:
         rec.save(rrd, default_blueprint=bp)
     elif spawn:
-        spawn_viewer()
-        rec.connect_grpc(f"rerun+http://{VIEWER_BIND}:{VIEWER_PORT}/proxy", default_blueprint=bp)
+        port = VIEWER_PORT
+        proc = spawn_viewer(port=port)
+        if proc is None:
+            note = (f"--spawn: something already listens on {VIEWER_BIND}:{port} (a Rerun viewer started before?): "
+                    "streaming into it, no new viewer started")
+        else:
+            note = f"--spawn: started a Rerun viewer on {VIEWER_BIND}:{port} (pid {proc.pid}); it stays open after the replay"
+        rec.connect_grpc(f"rerun+http://{VIEWER_BIND}:{port}/proxy", default_blueprint=bp)
     elif connect is not None:
         rec.connect_grpc(connect, default_blueprint=bp)
+    return note
 
 
 def abandon(rec: rr.RecordingStream) -> None:
