@@ -214,7 +214,8 @@ def _replay(args: argparse.Namespace, sinks: list, *, frames, overrides) -> int:
     for name, path in summary.outputs.items():
         print(f"zcut: wrote {name}: {path}", file=sys.stderr)
     if "rrd" in summary.outputs:
-        print(f"zcut: open it with: {viewer_command()} {summary.outputs['rrd']}", file=sys.stderr)
+        print(f"zcut: open it with: {viewer_command()} {summary.outputs['rrd']} (it opens on the frame timeline; "
+              "choose depth_um in the time panel's timeline menu to scrub the z-cuts)", file=sys.stderr)
     if summary.viewer_error:
         print(f"error: {summary.viewer_error}", file=sys.stderr)
         return 1
