@@ -638,7 +638,8 @@ def check_camera_model(config: PipelineConfig, facts: LogFacts) -> None:
     need = [m.name for m in registry().values() if m.needs_intrinsics and m.name in config.base_methods]
     if need:
         raise ConfigError(f"{', '.join(need)} needs the camera model (fx, fy) and the log has none (no CameraInfo): "
-                          f"leave {', '.join(need)} out of methods, or record the log with its camera info")
+                          f"leave {', '.join(need)} out of methods, or record the log with its camera info "
+                          "(zcut record --camera-info FILE.yaml, or --fx --fy --cx --cy)")
 
 
 def resolve_config(metadata: dict[str, dict[str, str]], first_frame, *, config_file: str | Path | None = None,
