@@ -47,7 +47,7 @@ FULL = (1200, 1920)
 
 def real_data_folder(root: Path = ROOT, environ=os.environ) -> tuple[Path, str | None]:
     """Where the real clouds are, as tests/conftest.py looks (docs/real_data.md): beside the checkout
-    (``../shared/data/real``), else ``$ZCUT_REAL_DATA``. (folder, None) when it holds .pcd files,
+    (docs/real_data.md says where), else ``$ZCUT_REAL_DATA``. (folder, None) when it holds .pcd files,
     else (the folder looked at, why no real class can run)."""
     beside = root.parent / "shared" / "data" / "real"
     folder = beside if beside.is_dir() or "ZCUT_REAL_DATA" not in environ else Path(environ["ZCUT_REAL_DATA"])
