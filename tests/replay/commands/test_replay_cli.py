@@ -166,7 +166,7 @@ def test_config_file_and_its_errors(tmp_path, capsys, logs):
     (["--frames", "x"], "--frames must look like"),
     (["--step", "-1"], "zcut.step_mm must be a number > 0, got -1.0"),
     (["--bin-model", "/nonexistent/bin.ply"], "no such file"),
-    (["--frames", "5:9"], "in --frames 5:9 (it has 2 frames)"),
+    (["--frames", "5:9"], "in --frames 5:9 (it has 2 frames, indices 0..1)"),
 ])
 def test_bad_options_are_one_line_errors(capsys, logs, argv, msg):
     _, filled, _ = logs
