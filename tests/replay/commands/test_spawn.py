@@ -3,6 +3,8 @@ recording streams into it, and the replay says so, naming the address."""
 
 from __future__ import annotations
 
+import os
+import signal
 import socket
 import subprocess
 import sys
@@ -29,8 +31,11 @@ def running_viewer_server():
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     exe = Path(sys.executable).with_name("rerun")
+    # the venv's ``rerun`` is a wrapper that starts the real binary as its child: its own process group,
+    # stopped whole
     proc = subprocess.Popen([str(exe), "--serve-grpc", "--bind", "127.0.0.1", "--port", str(port)],
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
     try:
         deadline = time.monotonic() + 60
         while not viz._listening(port):
@@ -38,8 +43,12 @@ def running_viewer_server():
             time.sleep(0.1)
         yield port
     finally:
-        proc.kill()
+        os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
+        deadline = time.monotonic() + 10
+        while viz._listening(port) and time.monotonic() < deadline:  # the binary is gone too
+            time.sleep(0.1)
+        assert not viz._listening(port)
 
 
 def test_spawn_into_a_viewer_already_listening_says_so(log, capsys, monkeypatch, running_viewer_server):
