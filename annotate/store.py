@@ -152,6 +152,11 @@ class StoreFullError(StoreError):
     """No space left on the store's device: nothing was written (free some space, then save again)."""
 
 
+class StoreBusyError(StoreError):
+    """Another writer (another process or connection) held the store past the busy timeout:
+    nothing of this write was done; everything committed before it stays."""
+
+
 class LabelConflictError(StoreError):
     """A save was based on a revision that is no longer the latest (someone saved in between)."""
 
@@ -431,6 +436,9 @@ class LabelStore:
                 self._migrate()
         except sqlite3.DatabaseError as e:
             self._db.close()
+            busy = self._busy(e)
+            if busy is not None:
+                raise busy from e
             raise StoreError(f"cannot use {self.path} as a label store: {e}") from e
         except BaseException:
             self._db.close()
@@ -518,8 +526,11 @@ class LabelStore:
             self.store._lock.acquire()
             try:
                 self.store._db.execute("BEGIN IMMEDIATE")
-            except BaseException:
+            except BaseException as e:
                 self.store._lock.release()
+                busy = self.store._busy(e)
+                if busy is not None:
+                    raise busy from e
                 raise
             return self.store._db
 
@@ -530,11 +541,13 @@ class LabelStore:
                 else:
                     self.store._db.execute("ROLLBACK")
             except sqlite3.DatabaseError as e:
-                raise (self.store._full(e) or self.store._damaged(e)) from e
+                raise (self.store._full(e) or self.store._busy(e) or self.store._damaged(e)) from e
             finally:
                 self.store._lock.release()
             if exc_type is not None and issubclass(exc_type, sqlite3.DatabaseError) and self.store._full(exc):
                 raise self.store._full(exc) from exc
+            if exc_type is not None and issubclass(exc_type, sqlite3.DatabaseError) and self.store._busy(exc):
+                raise self.store._busy(exc) from exc
             if exc_type is sqlite3.DatabaseError:  # not its subclasses (conflicts, a busy file)
                 raise self.store._damaged(exc) from exc
 
@@ -549,6 +562,16 @@ class LabelStore:
                                   "(free some space, then save again)")
         return None
 
+    def _busy(self, e: BaseException) -> StoreBusyError | None:
+        """The error of a statement that waited the whole busy timeout for another writer's lock
+        (SQLITE_BUSY, SQLITE_LOCKED), else None: one line naming the store."""
+        code = getattr(e, "sqlite_errorcode", None)
+        if isinstance(e, sqlite3.OperationalError) and code is not None \
+                and code & 0xFF in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED):
+            return StoreBusyError(f"label store {self.path} is held by another writer (waited "
+                                  f"{BUSY_TIMEOUT_MS / 1000:g} s for its lock); run this again once it is done")
+        return None
+
     def _write(self) -> LabelStore._Tx:
         return LabelStore._Tx(self)
 
@@ -559,6 +582,8 @@ class LabelStore:
             except sqlite3.DatabaseError as e:
                 if self._full(e):
                     raise self._full(e) from e
+                if self._busy(e):
+                    raise self._busy(e) from e
                 if type(e) is sqlite3.DatabaseError:
                     raise self._damaged(e) from e
                 raise

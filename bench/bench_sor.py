@@ -17,7 +17,9 @@ Classes (1920 x 1200, or the sensor's own size), all seeded:
                run along the rays, so image neighbours are rarely 3D neighbours (flying pixels at
                the silhouettes, noise, dropouts)
   synth        the project's own synthetic structured-light scan (replay.synth), if importable
-  kinect/NAME  the real Kinect clouds of the real data folder, docs/real_data.md (640 x 480, quantized depth)
+  kinect/NAME  the real Kinect clouds of the real data folder, docs/real_data.md (640 x 480, quantized depth),
+               found as tests/conftest.py finds them: beside the checkout, else $ZCUT_REAL_DATA. Without
+               them the run says so loudly and its minimum is not called the smallest ratio.
 
 For every class and convention: the CPU time of all threads (time.process_time, best of --repeat)
 of zcut and of Open3D's remove_statistical_outlier on the same valid points, the ratio, and
@@ -40,8 +42,25 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-REAL_DATA = Path(os.environ.get("ZCUT_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
 FULL = (1200, 1920)
+
+
+def real_data_folder(root: Path = ROOT, environ=os.environ) -> tuple[Path, str | None]:
+    """Where the real clouds are, as tests/conftest.py looks (docs/real_data.md): beside the checkout
+    (docs/real_data.md says where), else ``$ZCUT_REAL_DATA``. (folder, None) when it holds .pcd files,
+    else (the folder looked at, why no real class can run)."""
+    beside = root.parent / "shared" / "data" / "real"
+    folder = beside if beside.is_dir() or "ZCUT_REAL_DATA" not in environ else Path(environ["ZCUT_REAL_DATA"])
+    if not folder.is_dir():
+        looked = f"{beside}" + (f" nor $ZCUT_REAL_DATA={folder}" if folder != beside else "")
+        return folder, (f"no real data folder: neither {looked} exists (docs/real_data.md lists the files; "
+                        "put them beside the checkout or set ZCUT_REAL_DATA)")
+    if not any(folder.glob("*.pcd")):
+        return folder, f"the real data folder {folder} holds no .pcd file (docs/real_data.md lists them)"
+    return folder, None
+
+
+REAL_DATA, REAL_DATA_PROBLEM = real_data_folder()
 
 
 def configure_process() -> None:
@@ -355,7 +374,7 @@ def cloud_classes(seed: int) -> dict[str, object]:
         "steep": lambda: steep_cloud(seed),
         "synth": lambda: synth_cloud(seed),
     }
-    for path in sorted(REAL_DATA.glob("*.pcd")):
+    for path in sorted(REAL_DATA.glob("*.pcd")) if REAL_DATA_PROBLEM is None else []:
         classes[f"kinect/{path.stem[:18]}"] = lambda path=path: read_pcd(path)
     return classes
 
@@ -419,11 +438,17 @@ def main() -> int:
     print(header)
     print("-" * len(header))
     worst = np.inf
+    ran: list[str] = []
+    skipped: dict[str, str] = {}
+    if REAL_DATA_PROBLEM is not None:
+        print(f"WARNING: no real-data class will run: {REAL_DATA_PROBLEM}", file=sys.stderr, flush=True)
     for name, make in classes.items():
         xyz = make()
         if isinstance(xyz, str):
             print(f"{name:26s} (skipped: {xyz})")
+            skipped[name] = xyz
             continue
+        ran.append(name)
         valid = np.isfinite(xyz).all(axis=2)
         pts = np.ascontiguousarray(xyz[valid], dtype=np.float64)
         t_o3d, want_o3d = open3d_outliers(pts, valid, args.k, args.std_ratio, args.repeat)
@@ -441,8 +466,30 @@ def main() -> int:
             shape = f"{xyz.shape[0]}x{xyz.shape[1]}"
             print(f"{name:26s} {convention:6s} {shape:>11s} {pts.shape[0]:9d} {t:8.3f} {t_o3d:9.3f} {t_o3d / t:6.1f}x  {same}",
                   flush=True)
-    print(f"smallest ratio: {worst:.1f}x")
+    for line in summary(ran, skipped, worst, real_problem=REAL_DATA_PROBLEM):
+        print(line)
     return 0
+
+
+def is_real(name: str) -> bool:
+    return name.startswith("kinect/")
+
+
+def summary(ran: list[str], skipped: dict[str, str], worst: float, *, real_problem: str | None) -> list[str]:
+    """The closing lines: which classes ran (real ones named apart), which did not and why, and the
+    minimum ratio, called the smallest only when a real class is among those it is taken over."""
+    real = [c for c in ran if is_real(c)]
+    lines = [f"classes run ({len(ran)}): {', '.join(ran) or 'none'}",
+             f"real-data classes run ({len(real)}): {', '.join(real) or 'NONE'}"]
+    lines += [f"not run: {name}: {why}" for name, why in skipped.items()]
+    if not ran:
+        return [*lines, "no class ran: no ratio"]
+    if real:
+        return [*lines, f"smallest ratio: {worst:.1f}x (over {len(ran)} classes, {len(real)} of real data)"]
+    why = real_problem or "none was chosen (--classes)"
+    return [*lines, f"WARNING: no real-data class ran: {why}",
+            f"minimum ratio over the synthetic classes only: {worst:.1f}x (not the smallest: real clouds were "
+            "not measured)"]
 
 
 if __name__ == "__main__":

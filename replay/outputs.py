@@ -46,6 +46,13 @@ class OutputError(ZcutError):
     """An output path would destroy data or cannot be written; the message names the path."""
 
 
+def folder_gone(path: str | os.PathLike) -> OutputError:
+    """The error of an output whose folder was removed (or replaced) while zcut wrote it."""
+    folder = Path(path).parent if str(Path(path).parent) else Path(".")
+    return OutputError(f"{path}: its folder {folder} was removed while zcut wrote it; the output was not "
+                       "written and nothing of it is left")
+
+
 class OutputBusyError(OutputError):
     """Another process is writing the output (it holds the output's lock)."""
 
@@ -424,6 +431,8 @@ class AtomicOutput:
                 fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
             except FileExistsError:  # pragma: no cover - 2**32 names
                 continue
+            except (FileNotFoundError, NotADirectoryError):  # planned in a folder that was there
+                raise folder_gone(self.path) from None
             break
         else:  # pragma: no cover
             raise OutputError(f"{self.path}: no free temporary name beside it")
@@ -451,6 +460,9 @@ class AtomicOutput:
         target = self.path.resolve() if st is not None and stat.S_ISLNK(st.st_mode) else self.path
         try:
             os.replace(self.temp, target)
+        except (FileNotFoundError, NotADirectoryError):
+            self.abort()
+            raise folder_gone(self.path) from None
         except BaseException:
             self.abort()
             raise

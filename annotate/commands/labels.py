@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from annotate.label_files import export_labels, import_labels
-    from annotate.store import LabelStore, StoreError, file_sha256
+    from annotate.store import LabelStore, StoreBusyError, StoreError, file_sha256
     from zcut.errors import ParameterError
 
     with LabelStore(args.db, read_only=args.action != "import") as store:
@@ -97,7 +97,18 @@ def _run(args: argparse.Namespace) -> int:
             if args.log is not None:
                 n_frames = register_log(store, args.log)
                 print(f"registered {args.log} ({n_frames} frame(s)) in {args.db}")
-            n = import_labels(store, args.labels, annotator=args.annotator)
+            before = store.label_count()
+            try:
+                n = import_labels(store, args.labels, annotator=args.annotator)
+            except StoreBusyError as e:  # each label is its own transaction: those saved stay
+                try:
+                    done = store.label_count() - before
+                except StoreError:
+                    raise e from None
+                raise StoreBusyError(
+                    f"{e} (nothing of {args.labels} was imported)" if done == 0 else
+                    f"{e} ({done} label(s) of {args.labels} were imported before it and stay; importing again "
+                    "appends them once more, as new revisions)") from None
             print(f"imported {n} label(s) from {args.labels} into {args.db}")
             return 0
         log = store.log_by_sha(file_sha256(args.log))

@@ -27,7 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="multiply the --model's coordinates by S (e.g. 0.001 for a model in millimetres)")
     p.add_argument("--config", metavar="F.toml", help="pipeline config ([bin_mask] and [registration] are used)")
     p.add_argument("--voxel", type=float, default=1.0, metavar="MM", help="downsampling voxel (default 1 mm)")
-    p.add_argument("--frames", metavar="A:B", help="frame index range of the empty scans")
+    p.add_argument("--frames", metavar="A:B", help="the empty scans to use by their 0-based index: A:B (B exclusive), A:, :B or N")
     p.add_argument("--topic", metavar="T", help="cloud topic (when the log has several)")
     p.add_argument("--force", action="store_true",
                    help="replace an existing output; build from a log that is not marked as an empty bin, or "

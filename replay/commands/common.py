@@ -104,3 +104,28 @@ def open_session(log: str | Path, args: argparse.Namespace, *, overrides=None, s
 
 def add_force_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="replace existing outputs")
+
+
+#: How ``--size`` reads, in every command that takes one (``synth``, ``record``): WIDTHxHEIGHT, columns
+#: by rows, as camera data sheets give it (a Zivid 2 is 1920x1200). Arrays are (rows, columns) inside.
+SIZE_HELP = "WIDTHxHEIGHT in pixels, columns x rows as cameras say it (1920x1200; 640x480 is a small landscape frame)"
+
+
+def size_wxh(text: str, *, low: int = 1, high: int = 1 << 16) -> tuple[int, int]:
+    """An argparse type: ``WxH`` -> (height, width), each in ``low .. high``."""
+    try:
+        w, h = (int(v) for v in text.lower().replace("×", "x").split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT like 1920x1200, got {text!r}") from None
+    if not (low <= w <= high and low <= h <= high):
+        raise argparse.ArgumentTypeError(f"width and height must be {low}..{high}, got {text!r}")
+    return h, w
+
+
+def portrait_note(option: str, h: int, w: int) -> str | None:
+    """The note for a frame higher than wide (``--size 480x640``): WIDTHxHEIGHT may have been read the
+    other way round; the frame is made as asked."""
+    if h <= w:
+        return None
+    return (f"{option} {w}x{h} is WIDTHxHEIGHT: a portrait frame {w} wide and {h} high "
+            f"({h}x{w} makes the landscape one)")

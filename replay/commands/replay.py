@@ -22,7 +22,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     sink.add_argument("--connect", metavar="URL", help="stream to a running viewer (e.g. rerun+http://127.0.0.1:9876/proxy)")
     p.add_argument("--out", metavar="RESULTS.mcap", help="write results: /zcut/outliers, /zcut/sor_outliers, "
                    "/zcut/bin_mask, /zcut/filtered (+ ground truth passed through)")
-    p.add_argument("--frames", metavar="A:B", help="frame index range (B exclusive), or N for one frame")
+    p.add_argument("--frames", metavar="A:B", help="the frames to replay by their 0-based index in the log (the first "
+                   "is 0): A:B from A up to B exclusive, A: or :B, or N for frame N alone")
     p.add_argument("--full-detail", action="store_true", help="log full-resolution images and clouds to Rerun")
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of the table")
     add_force_option(p)
@@ -197,13 +198,13 @@ def _replay(args: argparse.Namespace, sinks: list, *, frames, overrides) -> int:
     planned = _planned(session, frames)
     if planned == 0:
         raise ConfigError(f"no frame of {args.log} in --frames {args.frames or '0:'} "
-                          f"(it has {session.reader.n_frames} frames)")
+                          f"(it has {_frames_held(session.reader.n_frames)})")
     on_start(session, planned=planned)
     summary = session.run(BackgroundSinks(sinks), frames=frames, on_frame=on_frame)
     if args.json:
         print(json.dumps(summary.as_dict(), indent=1))
     if not summary.rows and not summary.damage:
-        have = f" (it has {summary.n_log_frames} frames)" if summary.n_log_frames is not None else ""
+        have = f" (it has {_frames_held(summary.n_log_frames)})" if summary.n_log_frames is not None else ""
         raise ConfigError(f"no frame of {args.log} in --frames {args.frames or '0:'}{have}")
     flagged = [r.index for r in summary.rows if r.bin_flagged]
     if flagged:
@@ -213,7 +214,8 @@ def _replay(args: argparse.Namespace, sinks: list, *, frames, overrides) -> int:
     for name, path in summary.outputs.items():
         print(f"zcut: wrote {name}: {path}", file=sys.stderr)
     if "rrd" in summary.outputs:
-        print(f"zcut: open it with: {viewer_command()} {summary.outputs['rrd']}", file=sys.stderr)
+        print(f"zcut: open it with: {viewer_command()} {summary.outputs['rrd']} (it opens on the frame timeline; "
+              "choose depth_um in the time panel's timeline menu to scrub the z-cuts)", file=sys.stderr)
     if summary.viewer_error:
         print(f"error: {summary.viewer_error}", file=sys.stderr)
         return 1
@@ -223,6 +225,11 @@ def _replay(args: argparse.Namespace, sinks: list, *, frames, overrides) -> int:
         print(f"zcut: {len(summary.rows)} intact frame(s) processed; the log is damaged", file=sys.stderr)
         return EXIT_DATA_LOSS
     return 0
+
+
+def _frames_held(n: int) -> str:
+    """``3 frames, 0..2`` (indices are 0-based: ``--frames 3`` of a 3-frame log is past its end)."""
+    return f"{n} frame{'s' if n != 1 else ''}" + (f", indices 0..{n - 1}" if n > 1 else ", index 0" if n == 1 else "")
 
 
 def _planned(session, frames) -> int | None:

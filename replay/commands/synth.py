@@ -10,14 +10,30 @@ PART_KIND_NAMES = ("spheres", "zinc_nuts", "rods", "black_screws", "black_nuts",
 
 
 def _size(text: str) -> tuple[int, int]:
-    """``WxH`` -> (height, width)."""
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT like 1920x1200, got {text!r}") from None
-    if not (8 <= w <= 8192 and 8 <= h <= 8192):
-        raise argparse.ArgumentTypeError(f"width and height must be 8..8192, got {text!r}")
-    return h, w
+    """``WxH`` -> (height, width), 8..8192 each (:func:`replay.commands.common.size_wxh`)."""
+    from replay.commands.common import size_wxh
+
+    return size_wxh(text, low=8, high=8192)
+
+
+def check_readable(h: int, w: int) -> None:
+    """Refuse a size whose log no zcut reader would read: more pixels than ``ZCUT_MAX_PIXELS`` or a
+    cloud message larger than ``ZCUT_MAX_MESSAGE_BYTES`` (:mod:`replay.logs.files`), up front, not
+    after minutes of writing it."""
+    from replay.logs import files
+    from replay.logs import ros2_msgs as rm
+    from zcut.errors import ParameterError
+
+    if h * w > files.DEFAULT_MAX_PIXELS:
+        raise ParameterError(f"--size {w}x{h} is {h * w} pixels, more than the cap of {files.DEFAULT_MAX_PIXELS} "
+                             "every zcut command reads (ZCUT_MAX_PIXELS): no zcut command could read the log")
+    header = len(rm.encode_cloud(stamp_ns=0, frame_id="x" * 64, height=1, width=1, fields=rm.XYZRGBA_FIELDS,
+                                 point_step=16, row_step=16, data=bytes(16), is_dense=True)) - 16
+    cloud = header + 16 * h * w  # the largest message: the PointCloud2, 16 bytes a point
+    if cloud > files.DEFAULT_MAX_MESSAGE_BYTES:
+        raise ParameterError(f"--size {w}x{h} makes clouds of {cloud} bytes, more than the cap of "
+                             f"{files.DEFAULT_MAX_MESSAGE_BYTES} bytes every zcut command reads "
+                             "(ZCUT_MAX_MESSAGE_BYTES): no zcut command could read the log")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -27,8 +43,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="part kind of the paper's Figure 8 (default spheres)")
     p.add_argument("--frames", type=int, default=1, metavar="N", help="number of scans (default 1)")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="random seed; same seed, same bytes (default 0)")
+    from replay.commands.common import SIZE_HELP
+
     p.add_argument("--size", type=_size, default=(1200, 1920), metavar="WxH",
-                   help="image size (default 1920x1200, the sensor's)")
+                   help=f"image size, {SIZE_HELP}; default 1920x1200, the sensor's")
     finish = p.add_mutually_exclusive_group()
     finish.add_argument("--shiny", dest="shiny", action="store_const", const=True, default=None,
                         help="treat the parts as shiny (many outliers) whatever their kind")
@@ -68,6 +86,12 @@ def run(args: argparse.Namespace) -> int:
         name = str(e).split(" ", 1)[0].partition(".")[2]
         raise ParameterError(f"{flag.get(name, name)} {str(e).split(' ', 1)[1]}") from None
     h, w = args.size
+    check_readable(h, w)
+    from replay.commands.common import portrait_note
+
+    note = portrait_note("--size", h, w)
+    if note is not None:
+        print(f"zcut: {note}", file=sys.stderr)
     what = "empty bin" if args.empty else args.parts
 
     def progress(i: int, n: int, sf, seconds: float) -> None:

@@ -61,6 +61,8 @@ DEFAULT_FACE_FRACTION = 0.01
 ZCUT_KEYS = {"step_mm": "step", "max_depth_mm": "max_depth", "max_area_px": "max_area", "a_max_px": "a_max",
              "connectivity": "connectivity"}
 ZCUT_INPUTS = (*ZCUT_KEYS, "rho_thr")
+#: The command-line options that set [zcut] keys (:func:`cli_layer`), for the notes.
+_ZCUT_FLAGS = {"step_mm": "--step", "max_depth_mm": "--max-depth", "max_area_px": "--max-area", "rho_thr": "--rho"}
 TOP_KEYS = ("part", "parameters", "preset", "methods")
 
 #: The other sections: the stage types of zcut.params, whose fields are the file's keys.
@@ -551,22 +553,38 @@ def resolve(facts: LogFacts, *, file_layer: dict[str, Any] | None = None,
         notes.append(f"part: {part} (from {facts.sources.get('part', 'the log')})")
     mode = d.get("parameters", "nominal")
     z = dict(d.get("zcut", {}))
+
+    def given(key: str) -> str | None:
+        """Where a [zcut] key the layers set came from (the last layer wins), None if none set it."""
+        if key in (cli or {}).get("zcut", {}):
+            return f"{_ZCUT_FLAGS[key]}, the command line" if key in _ZCUT_FLAGS else "the command line"
+        if key in (file_layer or {}).get("zcut", {}):
+            return f"zcut.{key}, the config file"
+        return None
+
     if mode == "geometry":
         if part is None:
             raise ConfigError("parameters = \"geometry\" needs the part kind: give part = KIND (or --part KIND)")
         kind = PART_KINDS[part]
         g = ZCutParams.from_geometry(p_min_mm=kind.p_min_mm, bin_height_mm=BIN.height_mm, a_max_px=1.0)
         step, depth = g.step, g.max_depth
-        notes.append(f"z-cut Δd and d_max from the paper's §5.4 ranges for {part} (p_min {kind.p_min_mm:g} mm, "
-                     f"bin height {BIN.height_mm:g} mm): Δd = 0.02·p_min, d_max = 3·p_min in [p_min, 0.7·b_h]")
+        derived = (f"the paper's §5.4 ranges for {part} (p_min {kind.p_min_mm:g} mm, bin height {BIN.height_mm:g} mm): "
+                   "Δd = 0.02·p_min, d_max = 3·p_min in [p_min, 0.7·b_h]")
+        step_src, depth_src = f"0.02·p_min of {part}, paper §5.4", f"3·p_min of {part}, paper §5.4"
     else:
         step, depth = NOMINAL_STEP_MM, NOMINAL_MAX_DEPTH_MM
-        notes.append("z-cut Δd and d_max: the paper's nominal values (0.2 mm, 30 mm)")
+        derived = f"the paper's nominal values ({NOMINAL_STEP_MM:g} mm, {NOMINAL_MAX_DEPTH_MM:g} mm)"
+        step_src = depth_src = "the paper's nominal value"
     step = z.get("step_mm", step)
     depth = z.get("max_depth_mm", depth)
+    if given("step_mm") is None and given("max_depth_mm") is None:
+        notes.append(f"z-cut Δd and d_max from {derived}" if mode == "geometry" else f"z-cut Δd and d_max: {derived}")
+    else:  # say where each value came from: a value given overrides the derivation
+        notes.append(f"z-cut Δd = {step:g} mm ({given('step_mm') or step_src}), "
+                     f"d_max = {depth:g} mm ({given('max_depth_mm') or depth_src})")
     a_max = z.get("a_max_px")
     if a_max is not None:
-        notes.append(f"a_max = {a_max:g} px (given)")
+        notes.append(f"a_max = {a_max:g} px (given: {given('a_max_px')})")
     elif part is not None and facts.intrinsics is not None and facts.camera_distance_mm is not None:
         K = facts.intrinsics
         a_max = a_max_from_camera(PART_KINDS[part].face_area_mm2, distance_mm=facts.camera_distance_mm,
@@ -582,11 +600,12 @@ def resolve(facts: LogFacts, *, file_layer: dict[str, Any] | None = None,
                      f"(set zcut.a_max_px, part = KIND or --max-area)")
     if area_key == "max_area_px":
         max_area = z["max_area_px"]
-        notes.append(f"μ_thr = {max_area:g} px (given)")
+        notes.append(f"μ_thr = {max_area:g} px (given: {given('max_area_px')})")
     else:
         rho = z.get("rho_thr", NOMINAL_RHO_THR)
         max_area = rho * a_max
-        notes.append(f"μ_thr = ρ_thr · a_max = {rho:g} × {a_max:.1f} = {max_area:.2f} px")
+        rho_src = given("rho_thr") or "the paper's nominal value"
+        notes.append(f"μ_thr = ρ_thr · a_max = {rho:g} × {a_max:.1f} = {max_area:.2f} px (ρ_thr: {rho_src})")
     try:
         zc = ZCutParams(step=step, max_depth=depth, max_area=max_area, a_max=a_max,
                         connectivity=z.get("connectivity", 8))
@@ -619,7 +638,8 @@ def check_camera_model(config: PipelineConfig, facts: LogFacts) -> None:
     need = [m.name for m in registry().values() if m.needs_intrinsics and m.name in config.base_methods]
     if need:
         raise ConfigError(f"{', '.join(need)} needs the camera model (fx, fy) and the log has none (no CameraInfo): "
-                          f"leave {', '.join(need)} out of methods, or record the log with its camera info")
+                          f"leave {', '.join(need)} out of methods, or record the log with its camera info "
+                          "(zcut record --camera-info FILE.yaml, or --fx --fy --cx --cy)")
 
 
 def resolve_config(metadata: dict[str, dict[str, str]], first_frame, *, config_file: str | Path | None = None,

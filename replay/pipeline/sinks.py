@@ -21,6 +21,7 @@ logs a write error and goes on), and closing it never waits without bound.
 from __future__ import annotations
 
 import os
+import sys
 import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -32,7 +33,7 @@ import numpy as np
 
 from replay.logs import layout
 from replay.logs.frame import Frame
-from replay.outputs import AtomicOutput, OutputError, config_path_for, naming
+from replay.outputs import AtomicOutput, OutputError, config_path_for, folder_gone, naming
 from replay.pipeline.config import PipelineConfig, Resolved, to_toml
 from replay.pipeline.stages import FrameResult
 from zcut.bin_model import BinModel
@@ -190,8 +191,15 @@ class RerunSink:
         if self.rrd is not None:
             self._file = AtomicOutput(self.rrd)
         try:
-            viz.open_sink(self._rec, rrd=None if self._file is None else str(self._file.temp), spawn=self.spawn,
-                          connect=self.connect, methods=info.config.base_methods)
+            try:
+                note = viz.open_sink(self._rec, rrd=None if self._file is None else str(self._file.temp),
+                                     spawn=self.spawn, connect=self.connect, methods=info.config.base_methods)
+            except RuntimeError as e:  # Rerun's file sink could not create the file
+                if self._file is None:
+                    raise
+                raise self._opening_failure(e) from None
+            if note is not None:
+                print(f"zcut: {note}", file=sys.stderr, flush=True)
             viz.log_static(self._rec, config_toml=info.config_toml(), notes=info.notes, bin_model=info.bin_model,
                            source=f"log: {info.log}")
         except BaseException:
@@ -236,7 +244,15 @@ class RerunSink:
                 viz.abandon(rec)  # never flushed again, not even at exit
                 return _first_line(e)
 
+    def _opening_failure(self, e: RuntimeError) -> OutputError:
+        if not self._file.temp.parent.is_dir() or not self._file.temp.exists():
+            return folder_gone(self.rrd)
+        return OutputError(f"{self.rrd}: Rerun could not open the .rrd for writing ({_first_line(e)}); "
+                           "nothing was left under its name")
+
     def _failure(self, why: str) -> OutputError:
+        if not self._file.temp.parent.is_dir():
+            return folder_gone(self.rrd)
         if _disk_full(self._file.temp):
             return OutputError(f"{self.rrd}: no space left on the device; the .rrd was not written (Rerun: {why})")
         return OutputError(f"{self.rrd}: the .rrd could not be written completely (Rerun: {why}); nothing was "
@@ -275,9 +291,12 @@ class RerunSink:
         # replay does not wait long for a recording it throws away
         problem = self._flush(rec, RRD_FLUSH_TIMEOUT_S if completed else RRD_FRAME_FLUSH_S)
         if problem is None:
-            if not _within(rec.disconnect, RRD_CLOSE_TIMEOUT_S):  # writes the footer
-                problem = f"closing the file took more than {RRD_CLOSE_TIMEOUT_S:g} s"
-                viz.abandon(rec)
+            try:
+                if not _within(rec.disconnect, RRD_CLOSE_TIMEOUT_S):  # writes the footer
+                    problem = f"closing the file took more than {RRD_CLOSE_TIMEOUT_S:g} s"
+                    viz.abandon(rec)
+            except RuntimeError as e:  # Rerun's writer failed at the end
+                problem = _first_line(e)
         if not completed:
             file.abort()
             return

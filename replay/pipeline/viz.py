@@ -13,7 +13,8 @@ An explicit :class:`rerun.RecordingStream` is passed in (no global recording). E
 ``image/outliers``                    z-cut only (1), SOR only (2), both (3), above the rim (4)
 ``image/methods/NAME``                the outliers of every other filter method the config runs
                                       (``--methods``): one view each, with its count and time
-``zcut/cuts``                         the z-cuts: scrub the ``depth_um`` timeline (see below)
+``zcut/cuts``                         the z-cuts: scrub the ``depth_um`` timeline (see below; the
+                                      viewer opens on ``frame``, where the view shows every level)
 ``world/cloud``                       the cloud (every 4th pixel at default detail)
 ``world/outliers``                    the outliers in 3D, coloured as in ``image/outliers``
 ``world/bin_model``                   the registered bin model (pose per frame) + fitness/RMSE
@@ -112,6 +113,17 @@ def new_recording(*, application_id: str = "zcut", recording_id: str | None = No
                               make_thread_default=False)
 
 
+#: The timeline the viewer opens on: the frames (on ``depth_um`` at 0 the z-cuts view is empty and a
+#: per-frame series shows one point).
+OPENING_TIMELINE = "frame"
+#: The z-cuts view's name says how to scrub the cuts: the ``depth_um`` timeline, one click away.
+ZCUTS_VIEW = "z-cuts (every level; timeline depth_um scrubs them)"
+#: What the recording's config document and ``zcut replay`` say about the timelines.
+TIMELINES_HINT = ("The viewer opens on the frame timeline. To scrub the z-cuts of the frame shown, choose "
+                  "depth_um in the time panel's timeline menu (top left of the time panel) and drag its cursor "
+                  "down from 0; choose frame again to step through the frames.")
+
+
 def default_blueprint(methods: tuple[str, ...] = ("zcut", "sor")) -> rrb.Blueprint:
     """Image stages on the left, 3D and the z-cuts in the middle, scalars and config on the right;
     ``methods``: the base methods the replay runs (a view for each other than the z-cut and SOR)."""
@@ -133,7 +145,7 @@ def default_blueprint(methods: tuple[str, ...] = ("zcut", "sor")) -> rrb.Bluepri
                 rrb.Spatial3DView(name="3D: cloud, outliers, bin model", origin="world"),
                 rrb.Horizontal(
                     rrb.Spatial2DView(name="Clusters", origin="image", contents=["image/rgb", "image/clusters"]),
-                    rrb.Spatial2DView(name="z-cuts (scrub depth_um)", origin="zcut/cuts"),
+                    rrb.Spatial2DView(name=ZCUTS_VIEW, origin="zcut/cuts"),
                 ),
             ),
             rrb.Vertical(
@@ -147,8 +159,9 @@ def default_blueprint(methods: tuple[str, ...] = ("zcut", "sor")) -> rrb.Bluepri
             ),
             column_shares=[2, 3, 2],
         ),
-        # the viewer opens on the depth timeline: scrubbing it descends the z-cuts of the frame shown
-        rrb.TimePanel(timeline="depth_um", expanded=True, play_state="paused"),
+        # the viewer opens on the frame timeline: every stage of a frame, the per-frame series over every
+        # frame; picking depth_um in the time panel's timeline menu scrubs the z-cuts of the frame shown
+        rrb.TimePanel(timeline=OPENING_TIMELINE, state="expanded", play_state="paused"),
         collapse_panels=False,
     )
 
@@ -221,17 +234,28 @@ def spawn_viewer(*, port: int = VIEWER_PORT, executable: str = "rerun", timeout_
 
 
 def open_sink(rec: rr.RecordingStream, *, rrd: str | None = None, spawn: bool = False,
-              connect: str | None = None, methods: tuple[str, ...] = ("zcut", "sor")) -> None:
+              connect: str | None = None, methods: tuple[str, ...] = ("zcut", "sor")) -> str | None:
     """Send ``rec`` to a file, a spawned viewer (listening on 127.0.0.1 only, :func:`spawn_viewer`)
-    or a running viewer, with the default blueprint for the base ``methods`` the replay runs."""
+    or a running viewer, with the default blueprint for the base ``methods`` the replay runs.
+
+    Returns the line to tell the user for ``spawn``: a viewer was started, or one listens on the port
+    already and the recording streams into it (``rr.spawn``'s behaviour, which it does silently)."""
     bp = default_blueprint(methods)
+    note = None
     if rrd is not None:
         rec.save(rrd, default_blueprint=bp)
     elif spawn:
-        spawn_viewer()
-        rec.connect_grpc(f"rerun+http://{VIEWER_BIND}:{VIEWER_PORT}/proxy", default_blueprint=bp)
+        port = VIEWER_PORT
+        proc = spawn_viewer(port=port)
+        if proc is None:
+            note = (f"--spawn: something already listens on {VIEWER_BIND}:{port} (a Rerun viewer started before?): "
+                    "streaming into it, no new viewer started")
+        else:
+            note = f"--spawn: started a Rerun viewer on {VIEWER_BIND}:{port} (pid {proc.pid}); it stays open after the replay"
+        rec.connect_grpc(f"rerun+http://{VIEWER_BIND}:{port}/proxy", default_blueprint=bp)
     elif connect is not None:
         rec.connect_grpc(connect, default_blueprint=bp)
+    return note
 
 
 def abandon(rec: rr.RecordingStream) -> None:
@@ -290,7 +314,7 @@ def log_static(rec: rr.RecordingStream, *, config_toml: str, notes: tuple[str, .
     rec.log("world/outliers", _ctx(OUTLIER_CLASSES), static=True)
     rec.log("image/methods", _ctx(METHOD_CLASSES), static=True)
     rec.log("world", rr.ViewCoordinates.RDF, static=True)
-    head = f"# zcut replay\n\n{source}\n\n" if source else "# zcut replay\n\n"
+    head = f"# zcut replay\n\n{source}\n\n{TIMELINES_HINT}\n\n" if source else f"# zcut replay\n\n{TIMELINES_HINT}\n\n"
     body = "".join(f"- {n}\n" for n in notes)
     text = f"{head}{body}\n## Resolved config\n\n```toml\n{config_toml}```\n"
     rec.log("config", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)

@@ -123,3 +123,56 @@ def test_a_store_in_a_folder_that_cannot_be_written_is_read(log, tmp_path, capsy
                 LabelStore(ro2 / "l.sqlite", read_only=True)
         finally:
             remount(ro2, "rw")
+
+
+@pytest.fixture
+def held_store(log, tmp_path, monkeypatch):
+    """A store with labels and its export, then held by another connection's ``BEGIN EXCLUSIVE``
+    (the busy timeout cut to 0.2 s so the test does not wait 10 s)."""
+    import annotate.store as store_module
+
+    db = tmp_path / "held.sqlite"
+    _store_with_labels(db, log)
+    export = tmp_path / "labels.mcap"
+    with LabelStore(db, read_only=True) as store:
+        from annotate.label_files import export_labels
+
+        export_labels(store, store.logs()[0], export, annotator="ann")
+    monkeypatch.setattr(store_module, "BUSY_TIMEOUT_MS", 200)
+    other = sqlite3.connect(db, isolation_level=None)
+    other.execute("BEGIN EXCLUSIVE")
+    yield db, export
+    other.rollback()
+    other.close()
+
+
+def _labels_in(db) -> int:
+    with LabelStore(db, read_only=True) as store:
+        return store.label_count()
+
+
+def test_labels_import_into_a_store_another_writer_holds_is_one_line(log, held_store, capsys):
+    db, export = held_store
+    rc, _, err = run_cli(capsys, "labels", "import", export, "--db", db, "--annotator", "bob")
+    assert rc == 1
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert f"error: label store {db} is held by another writer" in err
+    assert "nothing of" in err and "was imported" in err
+
+
+def test_annotate_on_a_store_another_writer_holds_is_one_line(log, held_store, capsys):
+    db, _ = held_store
+    rc, out, err = run_cli(capsys, "annotate", log, "--db", db, "--no-browser", "--port", "0")
+    assert rc == 1
+    lines = [ln for ln in err.splitlines() if not ln.startswith("zcut: ")]
+    assert len(lines) == 1 and lines[0].startswith(f"error: label store {db} is held by another writer"), err
+    assert "http://" not in out
+
+
+def test_a_held_store_loses_nothing_already_saved(log, held_store, capsys):
+    db, export = held_store
+    run_cli(capsys, "labels", "import", export, "--db", db, "--annotator", "bob")
+    assert _labels_in(db) == 3  # readable under the other writer's lock (WAL), and unchanged
+    chk = sqlite3.connect(db)
+    assert chk.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    chk.close()

@@ -166,7 +166,7 @@ def test_config_file_and_its_errors(tmp_path, capsys, logs):
     (["--frames", "x"], "--frames must look like"),
     (["--step", "-1"], "zcut.step_mm must be a number > 0, got -1.0"),
     (["--bin-model", "/nonexistent/bin.ply"], "no such file"),
-    (["--frames", "5:9"], "in --frames 5:9 (it has 2 frames)"),
+    (["--frames", "5:9"], "in --frames 5:9 (it has 2 frames, indices 0..1)"),
 ])
 def test_bad_options_are_one_line_errors(capsys, logs, argv, msg):
     _, filled, _ = logs
@@ -407,3 +407,15 @@ def test_background_sinks_run_in_order_in_one_thread_and_report_errors():
     with pytest.raises(OSError, match="disk full"):
         sinks.close(completed=True)  # or at the close, and the file sinks leave nothing behind
     assert rec.closed is False
+
+
+def test_frames_are_0_based_and_help_and_error_say_so(tmp_path, capsys, logs):
+    """Issue 35 #13: ``--frames 3`` of a 3-frame log is past its end; the help and the error say why."""
+    _, filled, _ = logs  # 2 frames
+    rc, _, err = run_cli(capsys, "replay", filled, "--frames", "2")
+    assert rc == 1 and err.strip().endswith("(it has 2 frames, indices 0..1)"), err
+    with pytest.raises(SystemExit):
+        main(["replay", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "by their 0-based index in the log (the first is 0)" in text
+    assert "or N for frame N alone" in text

@@ -191,3 +191,30 @@ def test_preset_in_the_file_beats_the_metadata_and_file_values_beat_the_preset()
 def test_unknown_preset():
     with pytest.raises(ConfigError, match="preset must be one of .*got 'bolts'"):
         cfg.cli_layer(preset="bolts")
+
+
+def test_the_notes_say_where_each_zcut_value_came_from(tmp_path):
+    """Issue 35 #17: --step or a tuned config's d_max are not "the paper's nominal values"."""
+    p = tmp_path / "tuned.toml"
+    p.write_text("[zcut]\nmax_depth_mm = 60.0\n")
+    r = cfg.resolve(NO_FACTS, file_layer=cfg.load_toml(p))
+    assert not any("nominal values" in n for n in r.notes), r.notes
+    assert "z-cut Δd = 0.2 mm (the paper's nominal value), d_max = 60 mm (zcut.max_depth_mm, the config file)" \
+        in r.notes
+    r = cfg.resolve(NO_FACTS, file_layer=cfg.load_toml(p), cli=cfg.cli_layer(step=0.1, rho=0.05))
+    assert "z-cut Δd = 0.1 mm (--step, the command line), d_max = 60 mm (zcut.max_depth_mm, the config file)" \
+        in r.notes
+    assert any(n.startswith("μ_thr = ρ_thr · a_max = 0.05 × ") and n.endswith("(ρ_thr: --rho, the command line)")
+               for n in r.notes), r.notes
+    r = cfg.resolve(NO_FACTS, file_layer={"zcut": {"a_max_px": 1000.0, "max_area_px": 40.0}})
+    assert "a_max = 1000 px (given: zcut.a_max_px, the config file)" in r.notes
+    assert "μ_thr = 40 px (given: zcut.max_area_px, the config file)" in r.notes
+    r = cfg.resolve(facts(part="rods"), cli={**cfg.cli_layer(max_depth=12.0), "parameters": "geometry"})
+    assert any(n.startswith("z-cut Δd = ") and "(0.02·p_min of rods, paper §5.4)" in n
+               and n.endswith("d_max = 12 mm (--max-depth, the command line)") for n in r.notes), r.notes
+
+
+def test_the_notes_of_the_defaults_are_unchanged():
+    r = cfg.resolve(NO_FACTS)
+    assert "z-cut Δd and d_max: the paper's nominal values (0.2 mm, 30 mm)" in r.notes
+    assert any(n.endswith("(ρ_thr: the paper's nominal value)") for n in r.notes)

@@ -309,3 +309,59 @@ def test_a_spawned_viewer_listens_on_this_machine_only():
     assert seen and set(seen) == {"0100007F"}, (seen, exits)  # 127.0.0.1, and nothing on 0.0.0.0 or ::
     assert all("exited as it started" in e for e in exits), exits
     assert viz.viewer_args(port)[:2] == ["--bind", "127.0.0.1"]
+
+
+def _blueprint_column(path, entity: str, name: str) -> list:
+    reader = rr.chunk.RrdReader(str(path))
+    (bp,) = reader.blueprints()
+    out = []
+    for ch in reader.stream(store=bp):
+        rb = ch.to_record_batch()
+        if ch.entity_path == entity and name in rb.schema.names:
+            out += rb.column(name).to_pylist()
+    return out
+
+
+def test_the_recording_opens_on_the_frame_timeline(recording):
+    """Issue 35 #21: on ``depth_um`` at #0 the z-cuts view was empty and every per-frame series one point."""
+    path, _, _, _ = recording
+    assert _blueprint_column(path, "/time_panel", "TimePanelBlueprint:timeline") == [["frame"]]
+    reader = rr.chunk.RrdReader(str(path))
+    names = []
+    for ch in reader.stream(store=reader.blueprints()[0]):
+        rb = ch.to_record_batch()
+        if "ViewBlueprint:display_name" in rb.schema.names:
+            names += [n[0] for n in rb.column("ViewBlueprint:display_name").to_pylist() if n]
+    assert viz.ZCUTS_VIEW in names and "depth_um" in viz.ZCUTS_VIEW, names  # the scrub, one click away, said
+
+
+def test_on_the_frame_timeline_every_view_has_data_at_every_frame(recording):
+    """What the viewer shows at a frame of the frame timeline: the z-cuts' level image and the context of
+    the deepest level (every level coloured) at that frame, and a per-frame series with one point a frame."""
+    path, data, results, _ = recording
+    images, contexts = defaultdict(int), {}
+    for chunk in rr.chunk.RrdReader(str(path)).stream():
+        if chunk.entity_path != "/zcut/cuts" or chunk.is_static:
+            continue
+        rb = chunk.to_record_batch()
+        frames = rb.column("frame").to_pylist()
+        depth = rb.column("depth_um").to_pylist()
+        if "SegmentationImage:buffer" in rb.schema.names:
+            for f, img in zip(frames, rb.column("SegmentationImage:buffer").to_pylist()):
+                images[f] += img is not None
+        if "AnnotationContext:context" in rb.schema.names:
+            for f, d, c in zip(frames, depth, rb.column("AnnotationContext:context").to_pylist()):
+                if c is not None and d >= contexts.get(f, (-1, None))[0]:
+                    contexts[f] = (d, c)
+    assert set(images) == {0, 1} and all(images.values())
+    for i, (_, r) in enumerate(results):
+        deepest, ctx = contexts[i]
+        assert deepest == (r.cut.n_levels + 1) * 1000  # the last context of the frame: every level shown
+    counts = [v for _, cols in data["/counts/zcut"] for v in cols.get("frame", [])]
+    assert sorted(counts) == [0, 1]
+
+
+def test_the_config_document_says_how_to_scrub_the_zcuts(recording):
+    _, data, _, _ = recording
+    (text,) = [t for t in column(data["/config"], "TextDocument:text") if t]
+    assert viz.TIMELINES_HINT in (text[0] if isinstance(text, list) else text)
