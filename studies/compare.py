@@ -21,8 +21,9 @@ other side (:func:`~replay.pipeline.stages.judge_zone`'s ``done``). The masks ar
 of two separate replays, and the counts those of two separate ``zcut accuracy`` runs.
 
 Primary methods. A side's *primary* method is the first of its config's ``methods`` (a method name:
-that method; a results file: ``zcut``); the verdict compares A's primary with B's. Every method both
-sides report is also compared (``per_method``).
+that method; a results file: ``zcut``); when both configs run the same methods, the first of them
+whose parameters differ (:func:`primary_methods`). The verdict compares A's primary with B's. Every
+method both sides report is also compared (``per_method``).
 
 No argparse here: ``studies/commands/compare.py`` is the command.
 """
@@ -258,9 +259,32 @@ def same_bin_stages(a, b) -> bool:
     return all(getattr(a, s) == getattr(b, s) for s in BIN_SECTIONS)
 
 
-def primary_method(side: SideSpec, config) -> str:
-    """The side's primary method: its config's first method (a results file: ``zcut``)."""
-    return config.methods[0] if config is not None else "zcut"
+def primary_methods(a, b) -> tuple[str, str]:
+    """The methods the verdict compares (docs/compare.md): each config's first method (a results
+    file's: ``zcut``); when both configs run the same methods on the same zone, the first of them
+    whose parameters differ (two configs that differ only in SOR compare SOR).
+
+    Raises
+    ------
+    CompareError
+        Both configs run the same methods with the same parameters on the same zone: their masks
+        cannot differ.
+    """
+    from replay.pipeline.methods import members
+
+    pa = a.methods[0] if a is not None else "zcut"
+    pb = b.methods[0] if b is not None else "zcut"
+    if a is None or b is None or not (same_bin_stages(a, b) and a.zcut.max_depth == b.zcut.max_depth):
+        return pa, pb
+    if a.methods == b.methods:
+        for m in a.methods:
+            if any(getattr(a, s) != getattr(b, s) for base in members(m) for s in _method_sections(base)):
+                return m, m
+    elif pa != pb or any(getattr(a, s) != getattr(b, s) for base in members(pa) for s in _method_sections(base)):
+        return pa, pb
+    diff = ", ".join(d["key"] for d in config_difference(a, b)) or "nothing"
+    raise CompareError(f"A and B run {pa} with the same parameters on the same zone: its masks cannot differ "
+                       f"(the configs differ in {diff})")
 
 
 def config_difference(a, b) -> list[dict[str, Any]]:
@@ -358,6 +382,7 @@ class _Log:
     n_frames: int = 0
     n_unscored: int = 0
     intrinsics: Any = None
+    primaries: tuple[str, str] = ("zcut", "zcut")
 
 
 def _results_masks(spec: SideSpec, log: Path) -> tuple[dict[str, Any], dict[int, dict[str, np.ndarray]], tuple[str, ...]]:
@@ -401,27 +426,22 @@ def _results_config(meta: dict[str, Any], spec: SideSpec):
         return None
 
 
-def _check_differ(spec_a: SideSpec, spec_b: SideSpec, ca, cb, log: Path) -> None:
-    """Refuse two sides that run the same filter (nothing could differ)."""
+def _check_differ(spec_a: SideSpec, spec_b: SideSpec, ca, cb, log: Path) -> tuple[str, str]:
+    """The primary methods of the two sides; refuse two sides that run the same filter."""
     if spec_a.kind == "results" and spec_b.kind == "results":
         assert spec_a.path is not None and spec_b.path is not None
-        if spec_a.path.resolve() == spec_b.path.resolve() or os.path.samefile(spec_a.path, spec_b.path):
+        if os.path.samefile(spec_a.path, spec_b.path):
             raise CompareError("--a and --b are the same results file: nothing to compare")
-        return
-    if ca is None or cb is None:
-        return
     from replay.pipeline import config as cfg
 
-    if cfg.to_dict(ca) == cfg.to_dict(cb):
+    if ca is not None and cb is not None and cfg.to_dict(ca) == cfg.to_dict(cb) and "results" not in (
+            spec_a.kind, spec_b.kind):
         raise CompareError(f"--a {spec_a.name} and --b {spec_b.name} resolve to the same config for {log.name}: "
                            "they differ in nothing")
-    pa, pb = primary_method(spec_a, ca), primary_method(spec_b, cb)
-    from replay.pipeline.methods import members
-
-    if pa == pb and same_bin_stages(ca, cb) and ca.zcut.max_depth == cb.zcut.max_depth and all(
-            getattr(ca, s) == getattr(cb, s) for m in members(pa) for s in _method_sections(m)):
-        raise CompareError(f"--a {spec_a.name} and --b {spec_b.name} run {pa} with the same parameters on "
-                           f"{log.name}: its masks cannot differ (they differ only in {', '.join(d['key'] for d in config_difference(ca, cb))})")
+    try:
+        return primary_methods(ca, cb)
+    except CompareError as e:
+        raise CompareError(f"--a {spec_a.name}, --b {spec_b.name} on {log.name}: {e}") from None
 
 
 def _side_of_result(result, methods, region_name: str) -> SideFrame:
@@ -473,7 +493,7 @@ def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, ent
             cli = spec.layer if spec.kind == "method" else None
             resolved[spec.label] = cfg.resolve(facts, file_layer=file_layer, cli=cli)
             configs[spec.label] = resolved[spec.label].config
-    _check_differ(spec_a, spec_b, configs["A"], configs["B"], path)
+    entry.primaries = _check_differ(spec_a, spec_b, configs["A"], configs["B"], path)
     entry.resolved_a, entry.resolved_b = configs["A"], configs["B"]
     if configs["A"] is not None and configs["B"] is not None:
         entry.diff = config_difference(configs["A"], configs["B"])
@@ -817,7 +837,7 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, paths: dict[s
                 it = _frames_of_log(opts, spec_a, spec_b, entry, runs)
                 for frame, sa, sb in it:
                     if primaries is None:
-                        primaries = (primary_method(spec_a, entry.resolved_a), primary_method(spec_b, entry.resolved_b))
+                        primaries = entry.primaries
                         writer.start(spec_a, spec_b, entry.diff, has_truth=truth_src is not None,
                                      primaries=primaries)
                     if sa is None or sb is None:
