@@ -602,7 +602,6 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
         if not m.any():
             continue
         lab, n = ndimage.label(m, structure=np.ones((3, 3), dtype=bool))
-        idx = np.arange(1, n + 1)
         area = np.bincount(lab.ravel(), minlength=n + 1)[1:]
         rows, cols = np.nonzero(lab)
         ids = lab[rows, cols]
@@ -619,7 +618,7 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
             bad = (~outl if who == "B" else outl) & scored
             fixes = np.bincount(ids, weights=good[rows, cols], minlength=n + 1)[1:].astype(np.int64)
             breaks = np.bincount(ids, weights=bad[rows, cols], minlength=n + 1)[1:].astype(np.int64)
-        for k, i in enumerate(idx):
+        for k in range(n):
             fx = bk = 0
             consequence = None
             if truth is not None:
@@ -927,7 +926,7 @@ def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list
         "blobs": blobs,
         "blobs_total": n_blobs,
         "blob_fields": "connected components (8-connected) of the pixels only one side removed, frames worst "
-                       "regression first, at most %d per frame (the largest)" % MAX_BLOBS_PER_FRAME,
+                       f"regression first, at most {MAX_BLOBS_PER_FRAME} per frame (the largest)",
     }
 
 

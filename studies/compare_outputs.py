@@ -35,7 +35,9 @@ def config_markdown(spec_a, spec_b, diff: list[dict[str, Any]], primaries: tuple
 
 
 def _v(x: Any) -> str:
-    return "—" if x is None else f"`{x}`"
+    if x is None:
+        return "—"
+    return f"`{x:.6g}`" if isinstance(x, float) else f"`{x}`"
 
 
 def verdict_image(pred: np.ndarray, truth) -> np.ndarray:

@@ -52,10 +52,14 @@ def compare_blueprint(label_a: str, label_b: str) -> rrb.Blueprint:
                            view("Δ: consequence of B", "diff/consequence")),
             rrb.Horizontal(
                 rrb.Spatial3DView(name="Disagreement in 3D", origin="diff/points"),
-                rrb.TimeSeriesView(name="F1 per frame", contents=["a/scalars/f1", "b/scalars/f1"]),
-                rrb.TimeSeriesView(name="ΔF1 and disagreement", origin="diff/scalars"),
+                rrb.Vertical(
+                    rrb.TimeSeriesView(name="F1 per frame (A, B)", contents=["a/scalars/f1", "b/scalars/f1"]),
+                    rrb.TimeSeriesView(name="ΔF1 = B − A", contents=["diff/scalars/delta_f1"]),
+                ),
+                rrb.TimeSeriesView(name="Pixels removed by one side only",
+                                   contents=["diff/scalars/only_a_px", "diff/scalars/only_b_px"]),
             ),
-            row_shares=[1, 4, 3],
+            row_shares=[2, 5, 3],
         ),
         rrb.TimePanel(timeline="frame", expanded=True),
         collapse_panels=True,
@@ -83,6 +87,13 @@ class CompareRecording:
         for p in ("diff/consequence", "diff/points"):
             self.rec.log(p, _ctx(DIFF_CLASSES), static=True)
         self.rec.log("diff/points", rr.ViewCoordinates.RDF, static=True)
+        for path, name, colour in (("a/scalars", "A", (0, 114, 178)), ("b/scalars", "B", (213, 94, 0))):
+            for k in ("precision", "recall", "f1"):
+                self.rec.log(f"{path}/{k}", rr.SeriesLines(colors=[colour], names=f"{name} {k}"), static=True)
+        for path, name, colour in (("diff/scalars/delta_f1", "ΔF1", (0, 0, 0)),
+                                   ("diff/scalars/only_a_px", "only A", (255, 140, 0)),
+                                   ("diff/scalars/only_b_px", "only B", (30, 144, 255))):
+            self.rec.log(path, rr.SeriesLines(colors=[colour], names=name), static=True)
 
     def frame(self, seq: int, stamp_ns: int, *, rgb: np.ndarray | None, xyz: np.ndarray, verdict_a: np.ndarray,
               verdict_b: np.ndarray, diff: np.ndarray, scalars: dict[str, float]) -> None:
