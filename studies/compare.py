@@ -34,15 +34,20 @@ import math
 import os
 import time
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Generator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from replay.errors import ConfigError
 from zcut.errors import ZcutError
+
+if TYPE_CHECKING:
+    from replay.logs.frame import Frame
+    from replay.pipeline.config import PipelineConfig, Resolved
+    from zcut.paired import Counts
 
 #: What ``--a`` / ``--b`` may be.
 SIDE_KINDS = ("config", "method", "results")
@@ -232,12 +237,12 @@ class CompareResult:
     report: dict[str, Any]
     frames: list[FrameCompare]
     outputs: dict[str, str] = field(default_factory=dict)
-    stage_runs: Counter = field(default_factory=Counter)
+    stage_runs: Counter[str] = field(default_factory=Counter)
     data_loss: bool = False
 
     @property
     def verdict_line(self) -> str:
-        return self.report["verdict"]["line"]
+        return str(self.report["verdict"]["line"])
 
 
 # ------------------------------------------------------------------------------------- the engine
@@ -249,17 +254,17 @@ def _method_sections(name: str) -> tuple[str, ...]:
     return (section, "zcut") if name in ("sor", "suspects") else (section,)
 
 
-def shared_methods(a, b) -> tuple[str, ...]:
+def shared_methods(a: PipelineConfig, b: PipelineConfig) -> tuple[str, ...]:
     """The base methods both configs run with the same parameters (they run once on a shared zone)."""
     return tuple(m for m in b.base_methods if m in a.base_methods
                  and all(getattr(a, s) == getattr(b, s) for s in _method_sections(m)))
 
 
-def same_bin_stages(a, b) -> bool:
+def same_bin_stages(a: PipelineConfig, b: PipelineConfig) -> bool:
     return all(getattr(a, s) == getattr(b, s) for s in BIN_SECTIONS)
 
 
-def primary_methods(a, b) -> tuple[str, str]:
+def primary_methods(a: PipelineConfig | None, b: PipelineConfig | None) -> tuple[str, str]:
     """The methods the verdict compares (docs/compare.md): each config's first method (a results
     file's: ``zcut``); when both configs run the same methods on the same zone, the first of them
     whose parameters differ (two configs that differ only in SOR compare SOR).
@@ -287,7 +292,7 @@ def primary_methods(a, b) -> tuple[str, str]:
                        f"(the configs differ in {diff})")
 
 
-def config_difference(a, b) -> list[dict[str, Any]]:
+def config_difference(a: PipelineConfig, b: PipelineConfig) -> list[dict[str, Any]]:
     """The parameters that differ between two resolved configs: ``[{"key", "a", "b"}]`` (``section.key``,
     in the config file's keys; a value missing on one side is None)."""
     from replay.pipeline import config as cfg
@@ -313,7 +318,8 @@ class PairRunner:
     test and the report can see what was shared.
     """
 
-    def __init__(self, path: Path, reader, first, resolved_a, resolved_b, bin_model) -> None:
+    def __init__(self, path: Path, reader: Any, first: Frame, resolved_a: Resolved, resolved_b: Resolved,
+                 bin_model: Any) -> None:
         from replay.pipeline.session import ReplaySession
 
         self.a, self.b = resolved_a.config, resolved_b.config
@@ -323,15 +329,15 @@ class PairRunner:
         self.session_b = self.session_a if self.same_locate else ReplaySession(path, reader, resolved_b, bin_model,
                                                                                 first)
         self.shared = shared_methods(self.a, self.b) if self.same_zone else ()
-        self.runs: Counter = Counter()
+        self.runs: Counter[str] = Counter()
 
-    def frames(self, frames: tuple[int, int | None]):
+    def frames(self, frames: tuple[int, int | None]) -> Generator[tuple[Any, Any, Any], None, None]:
         """``(frame, result_a, result_b)`` of every readable frame; the stream (for its damage) is
         :attr:`stream` once started."""
         self.stream = self.session_a.located(frames=frames, config=self.a)
         return self._frames(self.stream)
 
-    def _frames(self, located) -> Iterator[tuple[Any, Any, Any]]:
+    def _frames(self, located: Any) -> Generator[tuple[Any, Any, Any], None, None]:
         from replay.pipeline.stages import bin_zone, judge_zone, locate_bin, run_methods
 
         sa, sb = self.session_a, self.session_b
@@ -411,7 +417,7 @@ def _results_masks(spec: SideSpec, log: Path) -> tuple[dict[str, Any], dict[int,
     return meta, masks, held
 
 
-def _results_config(meta: dict[str, Any], spec: SideSpec):
+def _results_config(meta: dict[str, Any], spec: SideSpec) -> PipelineConfig | None:
     """The config a results file was made with (its metadata's TOML), or None when unreadable."""
     import tomllib
 
@@ -426,7 +432,8 @@ def _results_config(meta: dict[str, Any], spec: SideSpec):
         return None
 
 
-def _check_differ(spec_a: SideSpec, spec_b: SideSpec, ca, cb, log: Path) -> tuple[str, str]:
+def _check_differ(spec_a: SideSpec, spec_b: SideSpec, ca: PipelineConfig | None, cb: PipelineConfig | None,
+                  log: Path) -> tuple[str, str]:
     """The primary methods of the two sides; refuse two sides that run the same filter."""
     if spec_a.kind == "results" and spec_b.kind == "results":
         assert spec_a.path is not None and spec_b.path is not None
@@ -444,13 +451,13 @@ def _check_differ(spec_a: SideSpec, spec_b: SideSpec, ca, cb, log: Path) -> tupl
         raise CompareError(f"--a {spec_a.name}, --b {spec_b.name} on {log.name}: {e}") from None
 
 
-def _side_of_result(result, methods, region_name: str) -> SideFrame:
+def _side_of_result(result: Any, methods: tuple[str, ...], region_name: str) -> SideFrame:
     from annotate.truth import method_predictions, scored_region
 
     return SideFrame(method_predictions(result, methods), result.valid, scored_region(result, region_name), result)
 
 
-def _side_of_masks(frame, masks: dict[str, np.ndarray] | None, held: tuple[str, ...], region_name: str,
+def _side_of_masks(frame: Frame, masks: dict[str, np.ndarray] | None, held: tuple[str, ...], region_name: str,
                    ) -> SideFrame | None:
     from replay.logs import layout
     from replay.pipeline.methods import method_masks, reported_methods
@@ -468,8 +475,8 @@ def _side_of_masks(frame, masks: dict[str, np.ndarray] | None, held: tuple[str, 
     return SideFrame(method_masks(base, reported_methods(list(base))), valid, region)
 
 
-def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, entry: _Log, runs: Counter,
-                   ) -> Iterator[tuple[Any, SideFrame | None, SideFrame | None]]:
+def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, entry: _Log, runs: Counter[str],
+                   ) -> Generator[tuple[Any, SideFrame | None, SideFrame | None], None, None]:
     """``(frame, side A, side B)`` of every readable frame of one log (a side is None on a frame a results
     file does not hold)."""
     from replay.pipeline import config as cfg
@@ -551,7 +558,7 @@ def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, ent
 
 
 # ------------------------------------------------------------------------------------ one frame
-def _truth_source(opts: CompareOptions, log: Path, reader_topics: tuple[str, ...]):
+def _truth_source(opts: CompareOptions, log: Path, reader_topics: tuple[str, ...]) -> Any:
     from annotate.truth import LabelTruth, SyntheticTruth
     from replay.logs import layout
 
@@ -562,7 +569,7 @@ def _truth_source(opts: CompareOptions, log: Path, reader_topics: tuple[str, ...
     return SyntheticTruth(with_kinds=layout.TRUTH_OUTLIER_KIND in reader_topics)
 
 
-def pixel_footprint_mm2(xyz: np.ndarray, intrinsics) -> np.ndarray | None:
+def pixel_footprint_mm2(xyz: np.ndarray, intrinsics: Any) -> np.ndarray | None:
     """(H, W) float64: the area one pixel covers at its depth, z² / (fx·fy) in mm² (NaN where invalid);
     None without a camera model."""
     if intrinsics is None or xyz.shape[:2] != (intrinsics.height, intrinsics.width):
@@ -571,7 +578,8 @@ def pixel_footprint_mm2(xyz: np.ndarray, intrinsics) -> np.ndarray | None:
     return z_mm * z_mm / (float(intrinsics.fx) * float(intrinsics.fy))
 
 
-def diff_image(mask_a: np.ndarray, mask_b: np.ndarray, where: np.ndarray, truth=None) -> np.ndarray:
+def diff_image(mask_a: np.ndarray, mask_b: np.ndarray, where: np.ndarray,
+               truth: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(H, W) uint8 codes of :data:`DIFF_CODES` over ``where``: with truth (``(outliers, scored)``) the
     consequence of B against A (1 B fixes, 2 B breaks, 3 both wrong), else who removed a pixel alone
     (4 only A, 5 only B)."""
@@ -592,7 +600,8 @@ def diff_image(mask_a: np.ndarray, mask_b: np.ndarray, where: np.ndarray, truth=
 
 
 def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, mask_b: np.ndarray,
-                       where: np.ndarray, *, truth=None, footprint: np.ndarray | None = None) -> list[Blob]:
+                       where: np.ndarray, *, truth: tuple[np.ndarray, np.ndarray] | None = None,
+                       footprint: np.ndarray | None = None) -> list[Blob]:
     """The 8-connected components of the pixels only A removed and of those only B removed (over
     ``where``), with area, centroid and, with truth (``(outliers, scored)``), what B's choice did there."""
     from scipy import ndimage
@@ -632,7 +641,8 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
     return blobs
 
 
-def _score_frame(log: str, frame, sa: SideFrame, sb: SideFrame, pa: str, pb: str, truth_src, intrinsics,
+def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, pb: str, truth_src: Any,
+                 intrinsics: Any,
                  ) -> tuple[FrameCompare, np.ndarray, Any]:
     from annotate.accuracy import frame_accuracy
 
@@ -663,6 +673,18 @@ def _score_frame(log: str, frame, sa: SideFrame, sb: SideFrame, pa: str, pb: str
 
 
 # ------------------------------------------------------------------------------------ the verdict
+def side_counts(frames: list[FrameCompare], side: str, method: str) -> Counts:
+    """Per-frame (TP, FP, FN) of one side's method over scored frames (``side``: "a" or "b")."""
+    rows = []
+    for f in frames:
+        counts = f.a if side == "a" else f.b
+        assert counts is not None
+        c = counts[method]
+        rows.append((c.tp, c.fp, c.fn))
+    arr = np.array(rows, dtype=np.int64).reshape(len(rows), 3).T
+    return arr[0], arr[1], arr[2]
+
+
 def _fmt_signed(v: float) -> str:
     return "n/a" if not math.isfinite(v) else f"{v:+.3f}"
 
@@ -676,8 +698,7 @@ def verdict(frames: list[FrameCompare], pa: str, pb: str, *, level: float = 0.95
     if not scored:
         return {"figure": "f1", "truth": False,
                 "line": "no truth: agreement only (A vs B: α, β, Jaccard of the removed pixels)"}
-    a = tuple(np.array([getattr(f.a[pa], k) for f in scored], dtype=np.int64) for k in ("tp", "fp", "fn"))
-    b = tuple(np.array([getattr(f.b[pb], k) for f in scored], dtype=np.int64) for k in ("tp", "fp", "fn"))
+    a, b = side_counts(scored, "a", pa), side_counts(scored, "b", pb)
     diffs = paired_differences(a, b, level=level)
     outcome = frame_outcomes(a, b, figure="f1")
     wins, losses = int((outcome > 0).sum()), int((outcome < 0).sum())
@@ -695,8 +716,8 @@ def verdict(frames: list[FrameCompare], pa: str, pb: str, *, level: float = 0.95
             f"frames (sign test p = {p:.3g}): {better}")
     f1_frame = []
     for f in scored:
-        ca, cb = f.a[pa], f.b[pb]
-        f1_frame.append((_f1(cb) - _f1(ca), f))
+        assert f.a is not None and f.b is not None
+        f1_frame.append((_f1(f.b[pb]) - _f1(f.a[pa]), f))
     losing = sorted([(dv, f) for (dv, f), o in zip(f1_frame, outcome) if o < 0], key=lambda x: x[0])
     return {
         "figure": "f1", "truth": True, "level": level, "line": line, "conclusion": better,
@@ -708,7 +729,7 @@ def verdict(frames: list[FrameCompare], pa: str, pb: str, *, level: float = 0.95
     }
 
 
-def _f1(c) -> float:
+def _f1(c: Any) -> float:
     den = 2 * c.tp + c.fp + c.fn
     return 1.0 if den == 0 else 2 * c.tp / den
 
@@ -724,8 +745,7 @@ def per_method(frames: list[FrameCompare], level: float) -> dict[str, Any]:
     common = [m for m in scored[0].a if m in scored[0].b]
     out = {}
     for m in common:
-        a = tuple(np.array([getattr(f.a[m], k) for f in scored], dtype=np.int64) for k in ("tp", "fp", "fn"))
-        b = tuple(np.array([getattr(f.b[m], k) for f in scored], dtype=np.int64) for k in ("tp", "fp", "fn"))
+        a, b = side_counts(scored, "a", m), side_counts(scored, "b", m)
         d = paired_differences(a, b, level=level)
         out[m] = {k: {"a": d[k].a, "b": d[k].b, "delta": d[k].delta, "ci": [d[k].lo, d[k].hi]} for k in FIGURES}
     return out
@@ -752,7 +772,8 @@ def _pooled(frames: list[FrameCompare], side: str) -> dict[str, Any]:
     if not scored:
         return {}
     fas = [FrameAccuracy(i, f.stamp_ns, getattr(f, side.lower())) for i, f in enumerate(scored)]
-    return accuracy_report(fas, region="valid")["pooled"]
+    pooled: dict[str, Any] = accuracy_report(fas, region="valid")["pooled"]
+    return pooled
 
 
 # ------------------------------------------------------------------------------------ outputs
@@ -772,7 +793,7 @@ def _frame_row(f: FrameCompare, pa: str, pb: str, outcome: int | None) -> dict[s
     return row
 
 
-def _entry_of(c) -> dict[str, Any]:
+def _entry_of(c: Any) -> dict[str, Any]:
     d = c.as_dict()
     return {k: (int(v) if k in ("tp", "fp", "fn") else v) for k, v in d.items()}
 
@@ -801,7 +822,7 @@ def run(opts: CompareOptions) -> CompareResult:
     if out.exists() and not out.is_dir():
         raise CompareError(f"-o {out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
-    inputs = [*opts.logs, *(s.path for s in (spec_a, spec_b) if s.path is not None),
+    inputs: list[str | os.PathLike[str]] = [*opts.logs, *(s.path for s in (spec_a, spec_b) if s.path is not None),
               *(x for x in (opts.labels, opts.bin_model) if x is not None)]
     names = {"json": "compare.json", "parquet": "summary.parquet"}
     if opts.report:
@@ -814,12 +835,12 @@ def run(opts: CompareOptions) -> CompareResult:
 
 
 def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, paths: dict[str, Path], t_wall: float,
-         t_cpu: float, LogReader) -> CompareResult:  # noqa: N803 - the class, passed in
+         t_cpu: float, LogReader: Any) -> CompareResult:  # noqa: N803 - the class, passed in
     from studies.compare_outputs import CompareWriter
 
     frames: list[FrameCompare] = []
     logs: list[_Log] = []
-    runs: Counter = Counter()
+    runs: Counter[str] = Counter()
     primaries: tuple[str, str] | None = None
     truth_names: set[str] = set()
     writer = CompareWriter(paths, has_truth=None)
@@ -834,24 +855,27 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, paths: dict[s
                 truth_names.add(truth_src.name)
             try:
                 it = _frames_of_log(opts, spec_a, spec_b, entry, runs)
-                for frame, sa, sb in it:
-                    if primaries is None:
-                        primaries = entry.primaries
-                        writer.start(spec_a, spec_b, entry.diff, has_truth=truth_src is not None,
-                                     primaries=primaries)
-                    if sa is None or sb is None:
-                        entry.damage.append(f"frame {frame.index} (stamp {frame.stamp_ns}): not in the results file "
-                                            f"{(spec_a if sa is None else spec_b).path}: skipped")
-                        continue
-                    pa, pb = primaries
-                    if pa not in sa.preds or pb not in sb.preds:
-                        raise CompareError(f"{entry.path.name}: the primary methods {pa} (A) and {pb} (B) must be "
-                                           "the same on every log")
-                    fc, diff, truth = _score_frame(entry.path.name, frame, sa, sb, pa, pb, truth_src, entry.intrinsics)
-                    entry.n_frames += 1
-                    entry.n_unscored += fc.unscored is not None
-                    frames.append(fc)
-                    writer.frame(frame, fc, sa, sb, diff, truth, pa, pb)
+                try:
+                    for frame, sa, sb in it:
+                        if primaries is None:
+                            primaries = entry.primaries
+                            writer.start(spec_a, spec_b, entry.diff, has_truth=truth_src is not None,
+                                         primaries=primaries)
+                        if sa is None or sb is None:
+                            entry.damage.append(f"frame {frame.index} (stamp {frame.stamp_ns}): not in the results file "
+                                                f"{(spec_a if sa is None else spec_b).path}: skipped")
+                            continue
+                        pa, pb = primaries
+                        if pa not in sa.preds or pb not in sb.preds:
+                            raise CompareError(f"{entry.path.name}: the primary methods {pa} (A) and {pb} (B) must be "
+                                               "the same on every log")
+                        fc, diff, truth = _score_frame(entry.path.name, frame, sa, sb, pa, pb, truth_src, entry.intrinsics)
+                        entry.n_frames += 1
+                        entry.n_unscored += fc.unscored is not None
+                        frames.append(fc)
+                        writer.frame(frame, fc, sa, sb, diff, truth, pa, pb)
+                finally:
+                    it.close()
             finally:
                 if truth_src is not None and hasattr(truth_src, "close"):
                     truth_src.close()
@@ -871,7 +895,7 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, paths: dict[s
 
 
 def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list[_Log], frames: list[FrameCompare],
-            pa: str, pb: str, runs: Counter, truth_names: set[str]) -> dict[str, Any]:
+            pa: str, pb: str, runs: Counter[str], truth_names: set[str]) -> dict[str, Any]:
     """The compare.json object (docs/compare.md documents every key)."""
     from zcut.paired import frame_outcomes
 
@@ -879,8 +903,7 @@ def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list
     scored = [f for f in frames if f.scored]
     outcomes: dict[tuple[str, int], int] = {}
     if scored:
-        a = tuple(np.array([getattr(f.a[pa], k) for f in scored], dtype=np.int64) for k in ("tp", "fp", "fn"))
-        b = tuple(np.array([getattr(f.b[pb], k) for f in scored], dtype=np.int64) for k in ("tp", "fp", "fn"))
+        a, b = side_counts(scored, "a", pa), side_counts(scored, "b", pb)
         outcomes = {(f.log, f.index): int(o) for f, o in zip(scored, frame_outcomes(a, b))}
     frames_json = []
     for f in frames:
@@ -930,9 +953,8 @@ def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list
     }
 
 
-def summary_rows(result: CompareResult) -> list[dict[str, Any]]:
+def summary_rows(report: dict[str, Any], frames: list[FrameCompare]) -> list[dict[str, Any]]:
     """``summary.parquet``'s rows: one per frame."""
-    rep = result.report
-    pa, pb = rep["a"]["primary"], rep["b"]["primary"]
-    outcomes = {(f["log"], f["index"]): f.get("outcome") for f in rep["frames"]}
-    return [_frame_row(f, pa, pb, outcomes.get((f.log, f.index))) for f in result.frames]
+    pa, pb = report["a"]["primary"], report["b"]["primary"]
+    outcomes = {(f["log"], f["index"]): f.get("outcome") for f in report["frames"]}
+    return [_frame_row(f, pa, pb, outcomes.get((f.log, f.index))) for f in frames]

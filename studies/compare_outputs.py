@@ -14,14 +14,19 @@ import base64
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from replay.outputs import AtomicOutput
 
+if TYPE_CHECKING:
+    from replay.logs.frame import Frame
+    from replay.pipeline.compare_viz import CompareRecording
+    from studies.compare import FrameCompare, SideFrame, SideSpec
 
-def config_markdown(spec_a, spec_b, diff: list[dict[str, Any]], primaries: tuple[str, str]) -> str:
+
+def config_markdown(spec_a: SideSpec, spec_b: SideSpec, diff: list[dict[str, Any]], primaries: tuple[str, str]) -> str:
     """The config difference as a Markdown document (the recording's first view)."""
     lines = [f"**A** = `{spec_a.name}` ({spec_a.kind}, primary `{primaries[0]}`) · "
              f"**B** = `{spec_b.name}` ({spec_b.kind}, primary `{primaries[1]}`)", ""]
@@ -40,7 +45,7 @@ def _v(x: Any) -> str:
     return f"`{x:.6g}`" if isinstance(x, float) else f"`{x}`"
 
 
-def verdict_image(pred: np.ndarray, truth) -> np.ndarray:
+def verdict_image(pred: np.ndarray, truth: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
     """(H, W) uint8: TP 1, FP 2, FN 3 over the scored pixels (``truth`` = (outliers, scored)); without
     truth, removed 4."""
     out = np.zeros(pred.shape, dtype=np.uint8)
@@ -66,10 +71,11 @@ class CompareWriter:
     def __init__(self, paths: dict[str, Path], *, has_truth: bool | None = None) -> None:
         self.paths = paths
         self.files = {k: AtomicOutput(p) for k, p in paths.items()}
-        self.rec = None
+        self.rec: CompareRecording | None = None
         self.seq = 0
+        self.has_truth = has_truth
 
-    def start(self, spec_a, spec_b, diff: list[dict[str, Any]], *, has_truth: bool, primaries: tuple[str, str]) -> None:
+    def start(self, spec_a: SideSpec, spec_b: SideSpec, diff: list[dict[str, Any]], *, has_truth: bool, primaries: tuple[str, str]) -> None:
         self.has_truth = has_truth
         if "rrd" in self.files:
             from replay.pipeline.compare_viz import CompareRecording
@@ -78,7 +84,8 @@ class CompareWriter:
                                         label_b=f"{spec_b.name} ({primaries[1]})",
                                         config_markdown=config_markdown(spec_a, spec_b, diff, primaries))
 
-    def frame(self, frame, fc, sa, sb, diff: np.ndarray, truth, pa: str, pb: str) -> None:
+    def frame(self, frame: Frame, fc: FrameCompare, sa: SideFrame, sb: SideFrame, diff: np.ndarray,
+              truth: tuple[np.ndarray, np.ndarray] | None, pa: str, pb: str) -> None:
         if self.rec is None:
             return
         ca = fc.a[pa] if fc.a is not None else None
@@ -95,7 +102,7 @@ class CompareWriter:
                        verdict_b=verdict_image(sb.preds[pb] & sb.region, truth), diff=diff, scalars=scalars)
         self.seq += 1
 
-    def finish(self, report: dict[str, Any], frames, pa: str, pb: str) -> None:
+    def finish(self, report: dict[str, Any], frames: list[FrameCompare], pa: str, pb: str) -> None:
         """Write every file's temporary (committed by :meth:`close`)."""
         import pyarrow as pa_
         import pyarrow.parquet as pq
@@ -108,7 +115,7 @@ class CompareWriter:
             self.rec = None
         self.files["json"].temp.write_text(json.dumps(jsonable(report), indent=1, allow_nan=False) + "\n",
                                            encoding="utf-8")
-        rows = summary_rows(_Result(report, frames))
+        rows = summary_rows(report, frames)
         pq.write_table(pa_.Table.from_pylist(rows), self.files["parquet"].temp)
         if "report" in self.files:
             self.files["report"].temp.write_text(render_html(report), encoding="utf-8", errors="backslashreplace")
@@ -127,12 +134,7 @@ class CompareWriter:
                 f.abort()
 
 
-class _Result:
-    def __init__(self, report, frames) -> None:
-        self.report, self.frames = report, frames
-
-
-def _f1(c) -> float:
+def _f1(c: Any) -> float:
     den = 2 * c.tp + c.fp + c.fn
     return 1.0 if den == 0 else 2 * c.tp / den
 

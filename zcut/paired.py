@@ -42,6 +42,8 @@ from zcut.errors import InputShapeError, ParameterError
 FIGURES: tuple[str, ...] = ("precision", "recall", "f1")
 #: The fewest frames that must define both figures for the difference to get an interval.
 PAIRED_MIN_FRAMES = 3
+#: Per-frame (TP, FP, FN) of one filter: three integer arrays of one shape, frames on the last axis.
+Counts = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def figure_parts(figure: str, tp: np.ndarray, fp: np.ndarray, fn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -67,8 +69,7 @@ def _counts(a: object, name: str, shape: tuple[int, ...] | None) -> np.ndarray:
     return arr.astype(np.int64)
 
 
-def paired_interval_many(a: tuple[np.ndarray, np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray, np.ndarray],
-                         *, level: float = 0.95) -> dict[str, np.ndarray]:
+def paired_interval_many(a: Counts, b: Counts, *, level: float = 0.95) -> dict[str, np.ndarray]:
     """Δ = R_B − R_A and its interval for every figure, for a batch of samples (rows).
 
     Parameters
@@ -140,8 +141,7 @@ class PairedDifference:
         return not (math.isnan(self.lo) or math.isnan(self.hi))
 
 
-def paired_differences(a: tuple[np.ndarray, np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray, np.ndarray], *,
-                       level: float = 0.95) -> dict[str, PairedDifference]:
+def paired_differences(a: Counts, b: Counts, *, level: float = 0.95) -> dict[str, PairedDifference]:
     """:func:`paired_interval_many` for one set of frames ((n_frames,) counts), as records."""
     got = paired_interval_many(a, b, level=level)
     out = {}
@@ -155,8 +155,7 @@ def paired_differences(a: tuple[np.ndarray, np.ndarray, np.ndarray], b: tuple[np
     return out
 
 
-def frame_outcomes(a: tuple[np.ndarray, np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray, np.ndarray], *,
-                   figure: str = "f1") -> np.ndarray:
+def frame_outcomes(a: Counts, b: Counts, *, figure: str = "f1") -> np.ndarray:
     """(n_frames,) int8: +1 where B's figure beats A's on the frame, −1 where it loses, 0 a tie.
 
     Compared exactly on the integer counts (num_B · den_A vs num_A · den_B); a 0/0 figure counts as 1.

@@ -63,5 +63,5 @@ def run(args: argparse.Namespace) -> int:
     return EXIT_DATA_LOSS if result.data_loss else 0
 
 
-def _f(v) -> str:
+def _f(v: float | None) -> str:
     return "-" if v is None or v != v else f"{v:.3f}"
