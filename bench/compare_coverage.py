@@ -17,7 +17,7 @@ population's Δ, as ``bench/interval_coverage.py`` does for one filter's pooled 
    compute the interval, count how often it holds the population's Δ (among the samples that get
    one).
 
-    python bench/compare_coverage.py generate [--kinds rods,zinc_nuts] [--logs 12] [--size 160x256]
+    python bench/compare_coverage.py generate [--kinds rods,spheres] [--logs 12] [--size 160x256]
     python bench/compare_coverage.py simulate [--draws 4000] [--markdown docs/compare_coverage.md]
 """
 
@@ -161,13 +161,13 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     g = sub.add_parser("generate")
-    g.add_argument("--kinds", default="rods,zinc_nuts")
+    g.add_argument("--kinds", default="rods,spheres")
     g.add_argument("--logs", type=int, default=12)
     g.add_argument("--frames-per-log", type=int, default=8)
     g.add_argument("--size", default="160x256")
     g.add_argument("--work", default="/tmp/zcut_compare_coverage")
     s = sub.add_parser("simulate")
-    s.add_argument("--kinds", default="rods,zinc_nuts")
+    s.add_argument("--kinds", default="rods,spheres")
     s.add_argument("--size", default="160x256")
     s.add_argument("--draws", type=int, default=4000)
     s.add_argument("--seed", type=int, default=1)

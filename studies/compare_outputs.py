@@ -144,6 +144,10 @@ def _num(v: Any, fmt: str = ".3f") -> str:
     return "—" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
 
 
+def _param(v: Any) -> str:
+    return "—" if v is None else format(v, ".6g") if isinstance(v, float) else str(v)
+
+
 def _signed(v: Any) -> str:
     return _num(v, "+.3f")
 
@@ -157,6 +161,7 @@ def _plots(report: dict[str, Any]) -> list[dict[str, Any]]:
     frames = [f for f in report["frames"] if f.get("scored")]
     pa, pb = report["a"]["primary"], report["b"]["primary"]
     import matplotlib
+    from matplotlib.ticker import MaxNLocator
 
     with matplotlib.rc_context(_RC):
         if frames:
@@ -176,6 +181,8 @@ def _plots(report: dict[str, Any]) -> list[dict[str, Any]]:
             ax.axhline(0, color="black", lw=0.8)
             ax.set_xlabel("frame (in order)")
             ax.set_ylabel("ΔF1 = B − A")
+            for a in axes[0]:
+                a.xaxis.set_major_locator(MaxNLocator(integer=True))
             p = _plot("frames.png", "F1 per frame", "", fig)
             out.append({"title": "F1 per frame, and B − A", "uri": _uri(p.png), "width": p.width_px})
             v = report["verdict"]
@@ -233,7 +240,7 @@ def page_context(report: dict[str, Any]) -> dict[str, Any]:
              for b in report["blobs"][:300]]
     return {
         "a": report["a"], "b": report["b"], "verdict": v["line"], "truth": report["truth"] or "none (agreement only)",
-        "region": report["region"], "diff": [{"key": d["key"], "a": str(d["a"]), "b": str(d["b"])}
+        "region": report["region"], "diff": [{"key": d["key"], "a": _param(d["a"]), "b": _param(d["b"])}
                                              for d in report["config_difference"]],
         "differences": diffs,
         "wins": v.get("wins"), "losses": v.get("losses"), "ties": v.get("ties"),
