@@ -38,6 +38,7 @@ from replay.process import (  # noqa: F401
     interrupts_unwind,
 )
 from studies.commands import batch as batch_cmd
+from studies.commands import compare as compare_cmd
 from studies.commands import demo as demo_cmd
 from studies.commands import sweep as sweep_cmd
 
@@ -55,6 +56,7 @@ COMMANDS = {
     "labels": (labels_cmd, "list, export (MCAP) and import human labels of a label store"),
     "sweep": (sweep_cmd, "parameter study of the z-cut and SOR scored by true accuracy; tuned parameters, report"),
     "batch": (batch_cmd, "replay many logs on all cores (or a Ray cluster): one table of every frame, scored"),
+    "compare": (compare_cmd, "two configs, methods or results files on the same frames: paired verdict, .rrd, report"),
 }
 
 

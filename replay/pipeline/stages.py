@@ -11,6 +11,7 @@ warning is recorded in the result) and the z-cut runs on the whole frame: then
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -445,12 +446,25 @@ def run_frame(
     """
     t_start = time.perf_counter()
     z = bin_zone(frame, config, bin_model=bin_model, seed=seed, located=located)
+    return judge_zone(frame, z, config, t_start=t_start)
+
+
+def judge_zone(frame: Frame, z: Zone, config: PipelineConfig, *, t_start: float,
+               done: Mapping[str, tuple[MethodOutput, float]] | None = None) -> FrameResult:
+    """The stages of :func:`run_frame` after :func:`bin_zone`: every base method of ``config`` on the
+    zone, α and β, the result.
+
+    ``t_start``: the ``time.perf_counter()`` at which the frame's own work began (for the total).
+    ``done``: ``{method: (its output, its seconds)}`` of base methods already run on this same zone
+    with the same parameters (a comparison of two configs shares them, ``studies/compare.py``):
+    they are taken as they are, not run again.
+    """
     located = z.located
     timings = dict(z.timings)
     warnings = list(z.warnings)
     valid, zone, easy = located.valid, z.zone, z.easy
 
-    found = run_methods(frame, z, config, timings=timings, warnings=warnings)
+    found = run_methods(frame, z, config, timings=timings, warnings=warnings, done=done)
     cut = found["zcut"].detail
     zone_only = {name: out.outliers for name, out in found.items()}
 
@@ -478,18 +492,27 @@ def run_frame(
 
 
 def run_methods(frame: Frame, zone: Zone, config: PipelineConfig, *, timings: dict[str, float],
-                warnings: list[str]) -> dict[str, MethodOutput]:
+                warnings: list[str], done: Mapping[str, tuple[MethodOutput, float]] | None = None,
+                ) -> dict[str, MethodOutput]:
     """Every base method of ``config`` on a zone (:mod:`replay.pipeline.methods`), timed.
 
     Adds each method's seconds to ``timings`` under its name and its warning, if any, to
     ``warnings``; a method that needs the camera model on a frame without one returns no outliers
-    and says so.
+    and says so. ``done``: ``{method: (output, seconds)}`` already computed on this zone with the
+    same parameters, taken as they are (in the same order, with the same warnings).
     """
     known = registry()
     out: dict[str, MethodOutput] = {}
     for name in config.base_methods:
         method = known[name]
         t = time.perf_counter()
+        if done is not None and name in done:
+            res, seconds = done[name]
+            timings[name] = seconds
+            if res.warning:
+                warnings.append(res.warning)
+            out[name] = res
+            continue
         if method.needs_intrinsics and frame.intrinsics is None:
             res = MethodOutput(np.zeros_like(zone.zone),
                                warning=f"{name}: needs the camera model and this frame has none (no CameraInfo): "

@@ -1,0 +1,960 @@
+"""``zcut compare``: two filters (configs, method names or results files) on the same frames, pixel by
+pixel, with a paired verdict (docs/compare.md).
+
+A library call, in named steps::
+
+    result = run(CompareOptions(logs=(log,), a="zcut", b="tuned.toml", out=Path("cmp")))
+    #   sides = side_spec(a), side_spec(b)          what A and B are (config, method, results file)
+    #   per log: _open_log -> _frames               resolve both configs once; run each frame once,
+    #                                               sharing every stage whose parameters A and B share
+    #   per frame: _score_frame                     the counts `zcut accuracy` gives each side, the
+    #                                               agreement of the two masks, the disagreement blobs
+    #   _verdict                                    pooled figures, paired Δ with intervals, sign test
+    #   _write_outputs                              compare.json, summary.parquet, report.html, .rrd
+
+Sharing. Both sides run on the frames read once. When A's and B's ``bin_mask``, ``registration`` and
+``removal`` sections are equal, the bin stages (:func:`replay.pipeline.stages.locate_bin`) run once and
+the zone (:func:`~replay.pipeline.stages.bin_zone`) is B's too (also when ``zcut.max_depth`` is equal:
+the bin check's band); each base method whose parameters are equal on both sides (its own section,
+and ``zcut`` for ``sor`` and ``suspects``, which read it) runs once on that zone and is handed to the
+other side (:func:`~replay.pipeline.stages.judge_zone`'s ``done``). The masks are then exactly those
+of two separate replays, and the counts those of two separate ``zcut accuracy`` runs.
+
+Primary methods. A side's *primary* method is the first of its config's ``methods`` (a method name:
+that method; a results file: ``zcut``); when both configs run the same methods, the first of them
+whose parameters differ (:func:`primary_methods`). The verdict compares A's primary with B's. Every
+method both sides report is also compared (``per_method``).
+
+No argparse here: ``studies/commands/compare.py`` is the command.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections import Counter
+from collections.abc import Generator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from replay.errors import ConfigError
+from zcut.errors import ZcutError
+
+if TYPE_CHECKING:
+    from replay.logs.frame import Frame
+    from replay.pipeline.config import PipelineConfig, Resolved
+    from zcut.paired import Counts
+
+#: What ``--a`` / ``--b`` may be.
+SIDE_KINDS = ("config", "method", "results")
+#: The bin stages' config sections: equal on both sides, they run once.
+BIN_SECTIONS = ("bin_mask", "registration", "removal")
+#: Per-pixel codes of the difference image (``diff/consequence`` in the recording, docs/compare.md).
+DIFF_CODES: dict[int, str] = {1: "B fixes", 2: "B breaks", 3: "both wrong", 4: "removed only by A",
+                              5: "removed only by B"}
+#: Blobs kept per frame in compare.json (the largest; every blob is counted).
+MAX_BLOBS_PER_FRAME = 50
+
+
+class CompareError(ZcutError, ValueError):
+    """Bad input to a comparison (one line naming what is wrong)."""
+
+
+@dataclass(frozen=True, slots=True)
+class SideSpec:
+    """What one side of the comparison is.
+
+    Attributes
+    ----------
+    label : {"A", "B"}
+    text : str
+        As given (``--a`` / ``--b``).
+    kind : {"config", "method", "results"}
+    path : Path or None
+        The config file or results file.
+    layer : dict
+        The config layer it stands for (a config file's, or ``{"methods": [name]}``); empty for a
+        results file.
+    """
+
+    label: str
+    text: str
+    kind: str
+    path: Path | None
+    layer: dict[str, Any]
+
+    @property
+    def name(self) -> str:
+        return self.path.name if self.path is not None else self.text
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"spec": self.text, "kind": self.kind, "name": self.name,
+                "path": str(self.path) if self.path is not None else None}
+
+
+def side_spec(text: str, *, label: str) -> SideSpec:
+    """Parse ``--a`` / ``--b``: an existing ``.mcap`` is a results file, another existing file a config
+    (TOML), else a method name (``zcut``, ``sor``, ``radius``, a union ``zcut+sor``, ...).
+
+    Raises
+    ------
+    CompareError
+        Neither a file nor a known method (naming the known ones); a config that is not valid.
+    """
+    from replay.pipeline import config as cfg
+    from replay.pipeline.methods import parse_methods, registry
+
+    p = Path(text)
+    if p.is_file():
+        if p.suffix == ".mcap":
+            return SideSpec(label, text, "results", p, {})
+        try:
+            return SideSpec(label, text, "config", p, cfg.load_toml(p))
+        except ConfigError as e:
+            raise CompareError(f"--{label.lower()}: {e}") from None
+    if os.sep in text or text.endswith((".toml", ".mcap")):
+        raise CompareError(f"--{label.lower()} {text}: no such file")
+    try:
+        methods = parse_methods(text, source=f"--{label.lower()}")
+    except ConfigError:
+        raise CompareError(f"--{label.lower()} {text!r}: neither a file nor a method name (methods: "
+                           f"{', '.join(registry())}; unions as a+b)") from None
+    if len(methods) != 1:
+        raise CompareError(f"--{label.lower()} {text!r}: one method name (a config file runs several)")
+    return SideSpec(label, text, "method", None, {"methods": list(methods)})
+
+
+@dataclass(frozen=True, slots=True)
+class CompareOptions:
+    """What to compare and where to write it (``zcut compare``'s options).
+
+    Attributes
+    ----------
+    logs : tuple of Path
+    a, b : str
+        Each a config file, a method name or a results file (:func:`side_spec`).
+    out : Path
+        Output folder (created).
+    labels, annotator : truth from an annotator's labels (default: the synthetic truth)
+    region : {"zone", "valid"}
+    bin_model, topic : as ``zcut replay``'s
+    frames : (start, stop)
+    force : bool
+        Replace existing outputs.
+    rrd, report : bool
+        Write ``compare.rrd`` and ``report.html``.
+    level : float
+        Confidence level of the intervals.
+    """
+
+    logs: tuple[Path, ...]
+    a: str
+    b: str
+    out: Path
+    labels: Path | None = None
+    annotator: str | None = None
+    region: str = "zone"
+    bin_model: Path | None = None
+    topic: str | None = None
+    frames: tuple[int, int | None] = (0, None)
+    force: bool = False
+    rrd: bool = True
+    report: bool = True
+    level: float = 0.95
+
+
+@dataclass(frozen=True, slots=True)
+class SideFrame:
+    """One side's view of one frame: its reported methods' masks, valid pixels and scored region;
+    ``result`` the pipeline's result (None for a results file)."""
+
+    preds: dict[str, np.ndarray]
+    valid: np.ndarray
+    region: np.ndarray
+    result: Any = None
+
+
+@dataclass(frozen=True, slots=True)
+class Blob:
+    """One connected component (8-connected) of the pixels only one side removed.
+
+    ``consequence``: with truth, ``"B fixes"`` / ``"B breaks"`` (all its scored pixels one way),
+    ``"mixed"``, or ``"unscored"`` (outside the reviewed pixels); without truth ``None``.
+    """
+
+    log: str
+    frame: int
+    stamp_ns: int
+    who: str  # "A" or "B": the side that removed it
+    area_px: int
+    area_mm2: float | None
+    row: float
+    col: float
+    fixes_px: int
+    breaks_px: int
+    consequence: str | None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"log": self.log, "frame": self.frame, "stamp_ns": self.stamp_ns, "who": self.who,
+                "area_px": self.area_px, "area_mm2": self.area_mm2, "row": round(self.row, 1),
+                "col": round(self.col, 1), "fixes_px": self.fixes_px, "breaks_px": self.breaks_px,
+                "consequence": self.consequence}
+
+
+@dataclass(frozen=True, slots=True)
+class FrameCompare:
+    """The comparison of one frame.
+
+    ``a``, ``b``: every reported method's counts (:class:`zcut.metrics.AccuracyCounts`) of each side,
+    None without truth; ``both``, ``only_a``, ``only_b``: pixels of the primary masks in the union
+    of the two scored regions; ``diff``: the (H, W) uint8 difference image (:data:`DIFF_CODES`).
+    """
+
+    log: str
+    index: int
+    stamp_ns: int
+    a: dict[str, Any] | None
+    b: dict[str, Any] | None
+    both: int
+    only_a: int
+    only_b: int
+    blobs: tuple[Blob, ...]
+    unscored: str | None = None
+
+    @property
+    def scored(self) -> bool:
+        return self.a is not None
+
+
+@dataclass(slots=True)
+class CompareResult:
+    """What a comparison found and wrote (``compare.json`` is :attr:`report`)."""
+
+    report: dict[str, Any]
+    frames: list[FrameCompare]
+    outputs: dict[str, str] = field(default_factory=dict)
+    stage_runs: Counter[str] = field(default_factory=Counter)
+    data_loss: bool = False
+
+    @property
+    def verdict_line(self) -> str:
+        return str(self.report["verdict"]["line"])
+
+
+# ------------------------------------------------------------------------------------- the engine
+def _method_sections(name: str) -> tuple[str, ...]:
+    """The config sections a base method reads."""
+    from replay.pipeline.methods import registry
+
+    section = registry()[name].section
+    return (section, "zcut") if name in ("sor", "suspects") else (section,)
+
+
+def shared_methods(a: PipelineConfig, b: PipelineConfig) -> tuple[str, ...]:
+    """The base methods both configs run with the same parameters (they run once on a shared zone)."""
+    return tuple(m for m in b.base_methods if m in a.base_methods
+                 and all(getattr(a, s) == getattr(b, s) for s in _method_sections(m)))
+
+
+def same_bin_stages(a: PipelineConfig, b: PipelineConfig) -> bool:
+    return all(getattr(a, s) == getattr(b, s) for s in BIN_SECTIONS)
+
+
+def primary_methods(a: PipelineConfig | None, b: PipelineConfig | None) -> tuple[str, str]:
+    """The methods the verdict compares (docs/compare.md): each config's first method (a results
+    file's: ``zcut``); when both configs run the same methods on the same zone, the first of them
+    whose parameters differ (two configs that differ only in SOR compare SOR).
+
+    Raises
+    ------
+    CompareError
+        Both configs run the same methods with the same parameters on the same zone: their masks
+        cannot differ.
+    """
+    from replay.pipeline.methods import members
+
+    pa = a.methods[0] if a is not None else "zcut"
+    pb = b.methods[0] if b is not None else "zcut"
+    if a is None or b is None or not (same_bin_stages(a, b) and a.zcut.max_depth == b.zcut.max_depth):
+        return pa, pb
+    if a.methods == b.methods:
+        for m in a.methods:
+            if any(getattr(a, s) != getattr(b, s) for base in members(m) for s in _method_sections(base)):
+                return m, m
+    elif pa != pb or any(getattr(a, s) != getattr(b, s) for base in members(pa) for s in _method_sections(base)):
+        return pa, pb
+    diff = ", ".join(d["key"] for d in config_difference(a, b)) or "nothing"
+    raise CompareError(f"A and B run {pa} with the same parameters on the same zone: its masks cannot differ "
+                       f"(the configs differ in {diff})")
+
+
+def config_difference(a: PipelineConfig, b: PipelineConfig) -> list[dict[str, Any]]:
+    """The parameters that differ between two resolved configs: ``[{"key", "a", "b"}]`` (``section.key``,
+    in the config file's keys; a value missing on one side is None)."""
+    from replay.pipeline import config as cfg
+
+    da, db = cfg.to_dict(a), cfg.to_dict(b)
+    out = []
+    for k in dict.fromkeys([*da, *db]):
+        va, vb = da.get(k), db.get(k)
+        if isinstance(va, dict) or isinstance(vb, dict):
+            va, vb = va or {}, vb or {}
+            for kk in dict.fromkeys([*va, *vb]):
+                if va.get(kk) != vb.get(kk):
+                    out.append({"key": f"{k}.{kk}", "a": va.get(kk), "b": vb.get(kk)})
+        elif va != vb:
+            out.append({"key": k, "a": va, "b": vb})
+    return out
+
+
+class PairRunner:
+    """Both configs on the frames of one log, each stage run once where A and B share it.
+
+    ``runs`` counts the stage calls made (``locate_bin``, ``bin_zone``, ``method:NAME``), so that a
+    test and the report can see what was shared.
+    """
+
+    def __init__(self, path: Path, reader: Any, first: Frame, resolved_a: Resolved, resolved_b: Resolved,
+                 bin_model: Any) -> None:
+        from replay.pipeline.session import ReplaySession
+
+        self.a, self.b = resolved_a.config, resolved_b.config
+        self.session_a = ReplaySession(path, reader, resolved_a, bin_model, first)
+        self.same_locate = same_bin_stages(self.a, self.b)
+        self.same_zone = self.same_locate and self.a.zcut.max_depth == self.b.zcut.max_depth
+        self.session_b = self.session_a if self.same_locate else ReplaySession(path, reader, resolved_b, bin_model,
+                                                                                first)
+        self.shared = shared_methods(self.a, self.b) if self.same_zone else ()
+        self.runs: Counter[str] = Counter()
+
+    def frames(self, frames: tuple[int, int | None]) -> Generator[tuple[Any, Any, Any], None, None]:
+        """``(frame, result_a, result_b)`` of every readable frame; the stream (for its damage) is
+        :attr:`stream` once started."""
+        self.stream = self.session_a.located(frames=frames, config=self.a)
+        return self._frames(self.stream)
+
+    def _frames(self, located: Any) -> Generator[tuple[Any, Any, Any], None, None]:
+        from replay.pipeline.stages import bin_zone, judge_zone, locate_bin, run_methods
+
+        sa, sb = self.session_a, self.session_b
+        try:
+            for frame, future in located:
+                t0 = time.perf_counter()
+                loc_a = future.result()
+                self.runs["locate_bin"] += 1
+                if self.same_locate:
+                    loc_b = loc_a
+                else:
+                    loc_b = locate_bin(frame, self.b, bin_model=sb.prepared, seed=sb.seed)
+                    self.runs["locate_bin"] += 1
+                zone_a = bin_zone(frame, self.a, bin_model=sa.prepared, located=loc_a)
+                self.runs["bin_zone"] += 1
+                if self.same_zone:
+                    zone_b = zone_a
+                else:
+                    zone_b = bin_zone(frame, self.b, bin_model=sb.prepared, located=loc_b)
+                    self.runs["bin_zone"] += 1
+                timings: dict[str, float] = {}
+                found = run_methods(frame, zone_a, self.a, timings=timings, warnings=[])
+                for m in found:
+                    self.runs[f"method:{m}"] += 1
+                done_a = {m: (found[m], timings[m]) for m in found}
+                res_a = judge_zone(frame, zone_a, self.a, t_start=t0, done=done_a)
+                t1 = time.perf_counter()
+                done_b = {m: done_a[m] for m in self.shared}
+                for m in self.b.base_methods:
+                    if m not in done_b:
+                        self.runs[f"method:{m}"] += 1
+                res_b = judge_zone(frame, zone_b, self.b, t_start=t1, done=done_b)
+                yield frame, res_a, res_b
+        finally:
+            located.close()
+
+
+# ------------------------------------------------------------------------------------ one log
+@dataclass(slots=True)
+class _Log:
+    path: Path
+    resolved_a: Any = None
+    resolved_b: Any = None
+    diff: list[dict[str, Any]] = field(default_factory=list)
+    damage: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    shared: dict[str, Any] = field(default_factory=dict)
+    n_frames: int = 0
+    n_unscored: int = 0
+    intrinsics: Any = None
+    primaries: tuple[str, str] = ("zcut", "zcut")
+
+
+def _results_masks(spec: SideSpec, log: Path) -> tuple[dict[str, Any], dict[int, dict[str, np.ndarray]], tuple[str, ...]]:
+    """A results file's (metadata record, masks by stamp, the base methods it holds); refused when it
+    is the results of another log."""
+    from replay.logs import layout
+    from replay.logs.reader import read_mask_topics
+    from replay.pipeline.methods import registry
+
+    assert spec.path is not None
+    wanted = tuple(layout.method_topic(m) for m in registry()) + (layout.ZONE,)
+    try:
+        metadata, masks = read_mask_topics(spec.path, wanted)
+    except ZcutError as e:
+        raise CompareError(f"--{spec.label.lower()} {spec.path}: {e}") from None
+    meta = metadata.get(layout.RESULTS_METADATA)
+    if meta is None:
+        raise CompareError(f"--{spec.label.lower()} {spec.path}: not a results file of `zcut replay --out` "
+                           f"(no {layout.RESULTS_METADATA} metadata)")
+    source = meta.get("source")
+    if source is not None and source != log.name:
+        raise CompareError(f"--{spec.label.lower()} {spec.path}: the results of {source}, not of {log.name}")
+    held = tuple(m for m in registry() if any(layout.method_topic(m) in f for f in masks.values()))
+    if "zcut" not in held:
+        raise CompareError(f"--{spec.label.lower()} {spec.path}: holds no {layout.ZCUT_OUTLIERS} masks")
+    return meta, masks, held
+
+
+def _results_config(meta: dict[str, Any], spec: SideSpec) -> PipelineConfig | None:
+    """The config a results file was made with (its metadata's TOML), or None when unreadable."""
+    import tomllib
+
+    from replay.pipeline import config as cfg
+
+    text = meta.get("config_toml")
+    if not text:
+        return None
+    try:
+        return cfg.from_dict(tomllib.loads(text), source=str(spec.path))
+    except (ConfigError, tomllib.TOMLDecodeError, ValueError):
+        return None
+
+
+def _check_differ(spec_a: SideSpec, spec_b: SideSpec, ca: PipelineConfig | None, cb: PipelineConfig | None,
+                  log: Path) -> tuple[str, str]:
+    """The primary methods of the two sides; refuse two sides that run the same filter."""
+    if spec_a.kind == "results" and spec_b.kind == "results":
+        assert spec_a.path is not None and spec_b.path is not None
+        if os.path.samefile(spec_a.path, spec_b.path):
+            raise CompareError("--a and --b are the same results file: nothing to compare")
+    from replay.pipeline import config as cfg
+
+    if ca is not None and cb is not None and cfg.to_dict(ca) == cfg.to_dict(cb) and "results" not in (
+            spec_a.kind, spec_b.kind):
+        raise CompareError(f"--a {spec_a.name} and --b {spec_b.name} resolve to the same config for {log.name}: "
+                           "they differ in nothing")
+    try:
+        return primary_methods(ca, cb)
+    except CompareError as e:
+        raise CompareError(f"--a {spec_a.name}, --b {spec_b.name} on {log.name}: {e}") from None
+
+
+def _side_of_result(result: Any, methods: tuple[str, ...], region_name: str) -> SideFrame:
+    from annotate.truth import method_predictions, scored_region
+
+    return SideFrame(method_predictions(result, methods), result.valid, scored_region(result, region_name), result)
+
+
+def _side_of_masks(frame: Frame, masks: dict[str, np.ndarray] | None, held: tuple[str, ...], region_name: str,
+                   ) -> SideFrame | None:
+    from replay.logs import layout
+    from replay.pipeline.methods import method_masks, reported_methods
+    from zcut.removal import finite_xyz
+
+    if masks is None:
+        return None
+    valid = finite_xyz(frame.xyz)
+    base = {b: masks[layout.method_topic(b)] for b in held if layout.method_topic(b) in masks}
+    if "zcut" not in base or base["zcut"].shape != valid.shape:
+        return None
+    region = valid
+    if region_name == "zone" and layout.ZONE in masks:
+        region = masks[layout.ZONE] & valid
+    return SideFrame(method_masks(base, reported_methods(list(base))), valid, region)
+
+
+def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, entry: _Log, runs: Counter[str],
+                   ) -> Generator[tuple[Any, SideFrame | None, SideFrame | None], None, None]:
+    """``(frame, side A, side B)`` of every readable frame of one log (a side is None on a frame a results
+    file does not hold)."""
+    from replay.pipeline import config as cfg
+    from replay.pipeline.bin_model import bin_model_for
+    from replay.pipeline.session import open_log
+
+    path = entry.path
+    reader, first, _ = open_log(path, topic=opts.topic)  # its default config is not used: A's and B's follow
+    facts = cfg.log_facts(reader.metadata, first, intrinsics=getattr(reader, "intrinsics", None))
+    entry.intrinsics = first.intrinsics
+    resolved: dict[str, Any] = {}
+    results: dict[str, Any] = {}
+    configs: dict[str, Any] = {}
+    for spec in (spec_a, spec_b):
+        if spec.kind == "results":
+            meta, masks, held = _results_masks(spec, path)
+            results[spec.label] = (masks, held)
+            configs[spec.label] = _results_config(meta, spec)
+        else:
+            file_layer = spec.layer if spec.kind == "config" else None
+            cli = spec.layer if spec.kind == "method" else None
+            resolved[spec.label] = cfg.resolve(facts, file_layer=file_layer, cli=cli)
+            configs[spec.label] = resolved[spec.label].config
+    entry.primaries = _check_differ(spec_a, spec_b, configs["A"], configs["B"], path)
+    entry.resolved_a, entry.resolved_b = configs["A"], configs["B"]
+    if configs["A"] is not None and configs["B"] is not None:
+        entry.diff = config_difference(configs["A"], configs["B"])
+    region = opts.region
+    if len(resolved) == 2:
+        choice = bin_model_for(reader, opts.bin_model)
+        if choice.warning:
+            entry.notes.append(choice.warning)
+        runner = PairRunner(path, reader, first, resolved["A"], resolved["B"], choice.model)
+        entry.shared = {"bin_stages": runner.same_locate, "zone": runner.same_zone, "methods": list(runner.shared)}
+        it = runner.frames(opts.frames)
+        try:
+            for frame, ra, rb in it:
+                yield (frame, _side_of_result(ra, runner.a.methods, region),
+                       _side_of_result(rb, runner.b.methods, region))
+        finally:
+            it.close()
+            entry.damage += [d.text for d in runner.stream.damage]
+            runs.update(runner.runs)
+        return
+    if len(resolved) == 1:
+        from replay.pipeline.session import ReplaySession
+
+        label = next(iter(resolved))
+        choice = bin_model_for(reader, opts.bin_model)
+        if choice.warning:
+            entry.notes.append(choice.warning)
+        session = ReplaySession(path, reader, resolved[label], choice.model, first)
+        entry.shared = {"bin_stages": False, "zone": False, "methods": []}
+        stream = session.results(frames=opts.frames)
+        other = "B" if label == "A" else "A"
+        masks, held = results[other]
+        try:
+            for frame, r in stream:
+                runs["locate_bin"] += 1
+                runs["bin_zone"] += 1
+                for m in r.outliers:
+                    runs[f"method:{m}"] += 1
+                mine = _side_of_result(r, resolved[label].config.methods, region)
+                theirs = _side_of_masks(frame, masks.get(frame.stamp_ns), held, region)
+                yield (frame, mine, theirs) if label == "A" else (frame, theirs, mine)
+        finally:
+            stream.close()
+            entry.damage += [d.text for d in stream.damage]
+        return
+    entry.shared = {"bin_stages": False, "zone": False, "methods": []}
+    stream = reader.frames(start=opts.frames[0], stop=opts.frames[1])
+    try:
+        for frame in stream:
+            sides = [_side_of_masks(frame, results[s][0].get(frame.stamp_ns), results[s][1], region) for s in "AB"]
+            yield frame, sides[0], sides[1]
+    finally:
+        stream.close()
+        entry.damage += [d.text for d in stream.damage]
+
+
+# ------------------------------------------------------------------------------------ one frame
+def _truth_source(opts: CompareOptions, log: Path, reader_topics: tuple[str, ...]) -> Any:
+    from annotate.truth import LabelTruth, SyntheticTruth
+    from replay.logs import layout
+
+    if opts.labels is not None:
+        return LabelTruth(opts.labels, log, annotator=opts.annotator)
+    if layout.TRUTH_OUTLIERS not in reader_topics:
+        return None
+    return SyntheticTruth(with_kinds=layout.TRUTH_OUTLIER_KIND in reader_topics)
+
+
+def pixel_footprint_mm2(xyz: np.ndarray, intrinsics: Any) -> np.ndarray | None:
+    """(H, W) float64: the area one pixel covers at its depth, z² / (fx·fy) in mm² (NaN where invalid);
+    None without a camera model."""
+    if intrinsics is None or xyz.shape[:2] != (intrinsics.height, intrinsics.width):
+        return None
+    z_mm = 1000.0 * xyz[..., 2].astype(np.float64)
+    return z_mm * z_mm / (float(intrinsics.fx) * float(intrinsics.fy))
+
+
+def diff_image(mask_a: np.ndarray, mask_b: np.ndarray, where: np.ndarray,
+               truth: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """(H, W) uint8 codes of :data:`DIFF_CODES` over ``where``: with truth (``(outliers, scored)``) the
+    consequence of B against A (1 B fixes, 2 B breaks, 3 both wrong), else who removed a pixel alone
+    (4 only A, 5 only B)."""
+    out = np.zeros(mask_a.shape, dtype=np.uint8)
+    only_a, only_b = mask_a & ~mask_b & where, mask_b & ~mask_a & where
+    if truth is None:
+        out[only_a] = 4
+        out[only_b] = 5
+        return out
+    lab, scored = truth
+    right_a = (mask_a == lab) & scored & where
+    right_b = (mask_b == lab) & scored & where
+    out[~right_a & right_b] = 1
+    out[right_a & ~right_b] = 2
+    out[~right_a & ~right_b & scored & where] = 3
+    out[(only_a | only_b) & ~scored] = 0
+    return out
+
+
+def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, mask_b: np.ndarray,
+                       where: np.ndarray, *, truth: tuple[np.ndarray, np.ndarray] | None = None,
+                       footprint: np.ndarray | None = None) -> list[Blob]:
+    """The 8-connected components of the pixels only A removed and of those only B removed (over
+    ``where``), with area, centroid and, with truth (``(outliers, scored)``), what B's choice did there."""
+    from scipy import ndimage
+
+    blobs: list[Blob] = []
+    for who, m in (("A", mask_a & ~mask_b & where), ("B", mask_b & ~mask_a & where)):
+        if not m.any():
+            continue
+        lab, n = ndimage.label(m, structure=np.ones((3, 3), dtype=bool))
+        area = np.bincount(lab.ravel(), minlength=n + 1)[1:]
+        rows, cols = np.nonzero(lab)
+        ids = lab[rows, cols]
+        r = np.bincount(ids, weights=rows, minlength=n + 1)[1:] / np.maximum(area, 1)
+        c = np.bincount(ids, weights=cols, minlength=n + 1)[1:] / np.maximum(area, 1)
+        mm2 = None
+        if footprint is not None:
+            fp = np.where(np.isfinite(footprint), footprint, 0.0)
+            mm2 = np.bincount(ids, weights=fp[rows, cols], minlength=n + 1)[1:]
+        if truth is not None:
+            outl, scored = truth
+            # B removed it alone: right where it is a true outlier; A removed it alone: B right where it is not
+            good = (outl if who == "B" else ~outl) & scored
+            bad = (~outl if who == "B" else outl) & scored
+            fixes = np.bincount(ids, weights=good[rows, cols], minlength=n + 1)[1:].astype(np.int64)
+            breaks = np.bincount(ids, weights=bad[rows, cols], minlength=n + 1)[1:].astype(np.int64)
+        for k in range(n):
+            fx = bk = 0
+            consequence = None
+            if truth is not None:
+                fx, bk = int(fixes[k]), int(breaks[k])
+                consequence = ("unscored" if fx + bk == 0 else "B fixes" if bk == 0 else "B breaks" if fx == 0
+                               else "mixed")
+            blobs.append(Blob(log, index, stamp_ns, who, int(area[k]),
+                              None if mm2 is None else round(float(mm2[k]), 3), float(r[k]), float(c[k]), fx, bk,
+                              consequence))
+    blobs.sort(key=lambda b: -b.area_px)
+    return blobs
+
+
+def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, pb: str, truth_src: Any,
+                 intrinsics: Any,
+                 ) -> tuple[FrameCompare, np.ndarray, Any]:
+    from annotate.accuracy import frame_accuracy
+
+    where = sa.region | sb.region
+    ma, mb = sa.preds[pa], sb.preds[pb]
+    both = int(np.count_nonzero(ma & mb & where))
+    only_a = int(np.count_nonzero(ma & ~mb & where))
+    only_b = int(np.count_nonzero(mb & ~ma & where))
+    counts_a = counts_b = None
+    unscored = None
+    truth = None
+    if truth_src is not None:
+        t = truth_src.truth(frame, sa.valid)
+        if isinstance(t, str):
+            unscored = t
+        else:
+            fa = frame_accuracy(frame.index, frame.stamp_ns, sa.preds, t.outliers, reviewed=t.reviewed,
+                                valid=sa.valid, region=sa.region, kinds=t.kind)
+            fb = frame_accuracy(frame.index, frame.stamp_ns, sb.preds, t.outliers, reviewed=t.reviewed,
+                                valid=sb.valid, region=sb.region, kinds=t.kind)
+            counts_a, counts_b = fa.counts, fb.counts
+            truth = (t.outliers, t.reviewed & where)
+    fp = pixel_footprint_mm2(frame.xyz, intrinsics)
+    blobs = disagreement_blobs(log, frame.index, frame.stamp_ns, ma, mb, where, truth=truth, footprint=fp)
+    diff = diff_image(ma, mb, where, truth)
+    return (FrameCompare(log, frame.index, frame.stamp_ns, counts_a, counts_b, both, only_a, only_b, tuple(blobs),
+                         unscored), diff, truth)
+
+
+# ------------------------------------------------------------------------------------ the verdict
+def side_counts(frames: list[FrameCompare], side: str, method: str) -> Counts:
+    """Per-frame (TP, FP, FN) of one side's method over scored frames (``side``: "a" or "b")."""
+    rows = []
+    for f in frames:
+        counts = f.a if side == "a" else f.b
+        assert counts is not None
+        c = counts[method]
+        rows.append((c.tp, c.fp, c.fn))
+    arr = np.array(rows, dtype=np.int64).reshape(len(rows), 3).T
+    return arr[0], arr[1], arr[2]
+
+
+def _fmt_signed(v: float) -> str:
+    return "n/a" if not math.isfinite(v) else f"{v:+.3f}"
+
+
+def verdict(frames: list[FrameCompare], pa: str, pb: str, *, level: float = 0.95) -> dict[str, Any]:
+    """Pooled figures of A's and B's primary methods, paired Δ with intervals, wins/losses/ties by
+    per-frame F1 with the sign test, the frames where B loses (worst first), the one-line verdict."""
+    from zcut.paired import FIGURES, frame_outcomes, paired_differences, sign_test
+
+    scored = [f for f in frames if f.scored]
+    if not scored:
+        return {"figure": "f1", "truth": False,
+                "line": "no truth: agreement only (A vs B: α, β, Jaccard of the removed pixels)"}
+    a, b = side_counts(scored, "a", pa), side_counts(scored, "b", pb)
+    diffs = paired_differences(a, b, level=level)
+    outcome = frame_outcomes(a, b, figure="f1")
+    wins, losses = int((outcome > 0).sum()), int((outcome < 0).sum())
+    ties = len(scored) - wins - losses
+    p = sign_test(wins, losses)
+    d = diffs["f1"]
+    ci = f"[{_fmt_signed(d.lo)}, {_fmt_signed(d.hi)}]" if d.has_interval else "[no interval: too few frames]"
+    if d.has_interval and d.lo > 0:
+        better = "B better"
+    elif d.has_interval and d.hi < 0:
+        better = "B worse"
+    else:
+        better = "no clear difference"
+    line = (f"B: F1 {_fmt_signed(d.delta)} {ci}, {wins} wins / {losses} losses / {ties} ties of {len(scored)} "
+            f"frames (sign test p = {p:.3g}): {better}")
+    f1_frame = []
+    for f in scored:
+        assert f.a is not None and f.b is not None
+        f1_frame.append((_f1(f.b[pb]) - _f1(f.a[pa]), f))
+    losing = sorted([(dv, f) for (dv, f), o in zip(f1_frame, outcome) if o < 0], key=lambda x: x[0])
+    return {
+        "figure": "f1", "truth": True, "level": level, "line": line, "conclusion": better,
+        "differences": {k: {"a": diffs[k].a, "b": diffs[k].b, "delta": diffs[k].delta,
+                            "ci": [diffs[k].lo, diffs[k].hi]} for k in FIGURES},
+        "wins": wins, "losses": losses, "ties": ties, "frames": len(scored), "sign_test_p": p,
+        "losing_frames": [{"log": f.log, "index": f.index, "stamp_ns": f.stamp_ns, "delta_f1": dv}
+                          for dv, f in losing],
+    }
+
+
+def _f1(c: Any) -> float:
+    den = 2 * c.tp + c.fp + c.fn
+    return 1.0 if den == 0 else 2 * c.tp / den
+
+
+def per_method(frames: list[FrameCompare], level: float) -> dict[str, Any]:
+    """Paired Δ of every method both sides report, on the scored frames."""
+    from zcut.paired import FIGURES, paired_differences
+
+    scored = [f for f in frames if f.scored]
+    if not scored:
+        return {}
+    assert scored[0].a is not None and scored[0].b is not None
+    common = [m for m in scored[0].a if m in scored[0].b]
+    out = {}
+    for m in common:
+        a, b = side_counts(scored, "a", m), side_counts(scored, "b", m)
+        d = paired_differences(a, b, level=level)
+        out[m] = {k: {"a": d[k].a, "b": d[k].b, "delta": d[k].delta, "ci": [d[k].lo, d[k].hi]} for k in FIGURES}
+    return out
+
+
+def agreement(frames: list[FrameCompare]) -> dict[str, Any]:
+    """α, β and the Jaccard index of the primary masks of A and B, pooled over every frame (A is method
+    1, B method 2 of the paper's eqs. 3-4)."""
+    from zcut.metrics import RelativeMetrics, ratio
+
+    both = sum(f.both for f in frames)
+    oa = sum(f.only_a for f in frames)
+    ob = sum(f.only_b for f in frames)
+    m = RelativeMetrics.from_counts(both, oa, ob)
+    return {"both": both, "only_a": oa, "only_b": ob, "alpha": m.alpha, "beta_a": m.beta1, "beta_b": m.beta2,
+            "jaccard": ratio(both, both + oa + ob)}
+
+
+def _pooled(frames: list[FrameCompare], side: str) -> dict[str, Any]:
+    """Every reported method's pooled entry of one side, as ``zcut accuracy --json`` writes it."""
+    from annotate.accuracy import FrameAccuracy, accuracy_report
+
+    scored = [f for f in frames if f.scored]
+    if not scored:
+        return {}
+    fas = [FrameAccuracy(i, f.stamp_ns, getattr(f, side.lower())) for i, f in enumerate(scored)]
+    pooled: dict[str, Any] = accuracy_report(fas, region="valid")["pooled"]
+    return pooled
+
+
+# ------------------------------------------------------------------------------------ outputs
+def _frame_row(f: FrameCompare, pa: str, pb: str, outcome: int | None) -> dict[str, Any]:
+    row: dict[str, Any] = {"log": f.log, "frame": f.index, "stamp_ns": f.stamp_ns, "scored": f.scored,
+                           "both": f.both, "only_a": f.only_a, "only_b": f.only_b, "blobs": len(f.blobs),
+                           "blobs_a": sum(b.who == "A" for b in f.blobs), "blobs_b": sum(b.who == "B" for b in f.blobs)}
+    for side, counts, prim in (("a", f.a, pa), ("b", f.b, pb)):
+        c = counts[prim] if counts is not None else None
+        for k in ("tp", "fp", "fn"):
+            row[f"{side}_{k}"] = getattr(c, k) if c is not None else None
+        for k in ("precision", "recall", "f1"):
+            v = getattr(c, k) if c is not None else None
+            row[f"{side}_{k}"] = v if v is not None and math.isfinite(v) else None
+    row["delta_f1"] = (None if f.a is None or f.b is None else _f1(f.b[pb]) - _f1(f.a[pa]))
+    row["outcome"] = outcome
+    return row
+
+
+def _entry_of(c: Any) -> dict[str, Any]:
+    d = c.as_dict()
+    return {k: (int(v) if k in ("tp", "fp", "fn") else v) for k, v in d.items()}
+
+
+def run(opts: CompareOptions) -> CompareResult:
+    """Compare ``opts.a`` and ``opts.b`` on ``opts.logs``; write the outputs into ``opts.out``.
+
+    Raises
+    ------
+    CompareError, ConfigError, OutputError, LogFormatError
+        Bad input, one line each; nothing is written then.
+    """
+    from annotate.truth import check_region
+    from replay.logs.reader import LogReader
+    from replay.outputs import OutputPlan
+
+    t_wall, t_cpu = time.perf_counter(), time.process_time()
+    check_region(opts.region)
+    if not opts.logs:
+        raise CompareError("no log given")
+    for p in (*opts.logs, *(x for x in (opts.labels, opts.bin_model) if x is not None)):
+        if not Path(p).is_file():
+            raise FileNotFoundError(2, "no such file", str(p))
+    spec_a, spec_b = side_spec(opts.a, label="A"), side_spec(opts.b, label="B")
+    out = Path(opts.out)
+    if out.exists() and not out.is_dir():
+        raise CompareError(f"-o {out}: exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    inputs: list[str | os.PathLike[str]] = [*opts.logs, *(s.path for s in (spec_a, spec_b) if s.path is not None),
+              *(x for x in (opts.labels, opts.bin_model) if x is not None)]
+    names = {"json": "compare.json", "parquet": "summary.parquet"}
+    if opts.report:
+        names["report"] = "report.html"
+    if opts.rrd:
+        names["rrd"] = "compare.rrd"
+    with OutputPlan(inputs, force=opts.force) as plan:
+        paths = {k: plan.add(out / v, f"the comparison's {v}") for k, v in names.items()}
+        return _run(opts, spec_a, spec_b, paths, t_wall, t_cpu, LogReader)
+
+
+def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, paths: dict[str, Path], t_wall: float,
+         t_cpu: float, LogReader: Any) -> CompareResult:  # noqa: N803 - the class, passed in
+    from studies.compare_outputs import CompareWriter
+
+    frames: list[FrameCompare] = []
+    logs: list[_Log] = []
+    runs: Counter[str] = Counter()
+    primaries: tuple[str, str] | None = None
+    truth_names: set[str] = set()
+    writer = CompareWriter(paths, has_truth=None)
+    completed = False
+    try:
+        for log in opts.logs:
+            entry = _Log(Path(log))
+            logs.append(entry)
+            reader = LogReader(entry.path, cloud_topic=opts.topic)
+            truth_src = _truth_source(opts, entry.path, tuple(reader.mask_topics))
+            if truth_src is not None:
+                truth_names.add(truth_src.name)
+            try:
+                it = _frames_of_log(opts, spec_a, spec_b, entry, runs)
+                try:
+                    for frame, sa, sb in it:
+                        if primaries is None:
+                            primaries = entry.primaries
+                            writer.start(spec_a, spec_b, entry.diff, has_truth=truth_src is not None,
+                                         primaries=primaries)
+                        if sa is None or sb is None:
+                            entry.damage.append(f"frame {frame.index} (stamp {frame.stamp_ns}): not in the results file "
+                                                f"{(spec_a if sa is None else spec_b).path}: skipped")
+                            continue
+                        pa, pb = primaries
+                        if pa not in sa.preds or pb not in sb.preds:
+                            raise CompareError(f"{entry.path.name}: the primary methods {pa} (A) and {pb} (B) must be "
+                                               "the same on every log")
+                        fc, diff, truth = _score_frame(entry.path.name, frame, sa, sb, pa, pb, truth_src, entry.intrinsics)
+                        entry.n_frames += 1
+                        entry.n_unscored += fc.unscored is not None
+                        frames.append(fc)
+                        writer.frame(frame, fc, sa, sb, diff, truth, pa, pb)
+                finally:
+                    it.close()
+            finally:
+                if truth_src is not None and hasattr(truth_src, "close"):
+                    truth_src.close()
+        if primaries is None:
+            raise CompareError("no readable frame in " + ", ".join(str(p) for p in opts.logs))
+        pa, pb = primaries
+        report = _report(opts, spec_a, spec_b, logs, frames, pa, pb, runs, truth_names)
+        report["cost"] = {"frames": len(frames), "wall_s": time.perf_counter() - t_wall,
+                          "cpu_s": time.process_time() - t_cpu}
+        report["outputs"] = {k: str(v) for k, v in paths.items()}
+        writer.finish(report, frames, pa, pb)
+        completed = True
+    finally:
+        writer.close(completed=completed)
+    return CompareResult(report, frames, {k: str(v) for k, v in paths.items()}, runs,
+                         data_loss=any(e.damage for e in logs))
+
+
+def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list[_Log], frames: list[FrameCompare],
+            pa: str, pb: str, runs: Counter[str], truth_names: set[str]) -> dict[str, Any]:
+    """The compare.json object (docs/compare.md documents every key)."""
+    from zcut.paired import frame_outcomes
+
+    v = verdict(frames, pa, pb, level=opts.level)
+    scored = [f for f in frames if f.scored]
+    outcomes: dict[tuple[str, int], int] = {}
+    if scored:
+        a, b = side_counts(scored, "a", pa), side_counts(scored, "b", pb)
+        outcomes = {(f.log, f.index): int(o) for f, o in zip(scored, frame_outcomes(a, b))}
+    frames_json = []
+    for f in frames:
+        e: dict[str, Any] = {"log": f.log, "index": f.index, "stamp_ns": f.stamp_ns, "scored": f.scored,
+                             "unscored": f.unscored, "both": f.both, "only_a": f.only_a, "only_b": f.only_b,
+                             "blobs": len(f.blobs)}
+        if f.scored:
+            assert f.a is not None and f.b is not None
+            e["a"] = {m: _entry_of(c) for m, c in f.a.items()}
+            e["b"] = {m: _entry_of(c) for m, c in f.b.items()}
+            e["delta_f1"] = _f1(f.b[pb]) - _f1(f.a[pa])
+            e["outcome"] = outcomes[(f.log, f.index)]
+        frames_json.append(e)
+    # worst regression first: the frames B loses most on (by ΔF1), else the most disagreement
+    order = sorted(range(len(frames)), key=lambda i: (frames_json[i].get("delta_f1", 0.0),
+                                                      -(frames[i].only_a + frames[i].only_b)))
+    blobs = []
+    n_blobs = 0
+    for i in order:
+        f = frames[i]
+        n_blobs += len(f.blobs)
+        blobs += [b.as_dict() for b in f.blobs[:MAX_BLOBS_PER_FRAME]]
+    first = logs[0]
+    return {
+        "a": {**spec_a.as_dict(), "primary": pa,
+              "methods": list(first.resolved_a.methods) if first.resolved_a is not None else None},
+        "b": {**spec_b.as_dict(), "primary": pb,
+              "methods": list(first.resolved_b.methods) if first.resolved_b is not None else None},
+        "config_difference": first.diff,
+        "truth": sorted(truth_names)[0] if len(truth_names) == 1 else (sorted(truth_names) or None),
+        "region": opts.region,
+        "logs": [{"log": str(e.path), "frames": e.n_frames, "unscored": e.n_unscored, "damage": e.damage,
+                  "notes": e.notes, "config_difference": e.diff, "shared": e.shared} for e in logs],
+        "shared": first.shared,
+        "stage_runs": dict(sorted(runs.items())),
+        "pooled": {"a": _pooled(frames, "A"), "b": _pooled(frames, "B")},
+        "verdict": v,
+        "per_method": per_method(frames, opts.level),
+        "agreement": agreement(frames),
+        "frames": frames_json,
+        "frames_worst_first": [{"log": frames[i].log, "index": frames[i].index,
+                                "delta_f1": frames_json[i].get("delta_f1")} for i in order],
+        "blobs": blobs,
+        "blobs_total": n_blobs,
+        "blob_fields": "connected components (8-connected) of the pixels only one side removed, frames worst "
+                       f"regression first, at most {MAX_BLOBS_PER_FRAME} per frame (the largest)",
+    }
+
+
+def summary_rows(report: dict[str, Any], frames: list[FrameCompare]) -> list[dict[str, Any]]:
+    """``summary.parquet``'s rows: one per frame."""
+    pa, pb = report["a"]["primary"], report["b"]["primary"]
+    outcomes = {(f["log"], f["index"]): f.get("outcome") for f in report["frames"]}
+    return [_frame_row(f, pa, pb, outcomes.get((f.log, f.index))) for f in frames]

@@ -1,0 +1,265 @@
+"""The files of ``zcut compare`` (docs/compare.md): ``compare.json``, ``summary.parquet``, ``report.html``
+and ``compare.rrd``, each written beside its final path and renamed into place when the comparison
+completes (:class:`replay.outputs.AtomicOutput`); an interrupted or failed comparison leaves none.
+
+:class:`CompareWriter` is the one writer: the recording is streamed frame by frame, the tables and
+the page are written at the end from the report. The page is the Jinja2 template
+``studies/templates/compare.html`` (autoescaped; the sweep's stylesheet ``report.css``), its plots
+drawn with the sweep's matplotlib helpers (:mod:`studies.plots`).
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from replay.outputs import AtomicOutput
+
+if TYPE_CHECKING:
+    from replay.logs.frame import Frame
+    from replay.pipeline.compare_viz import CompareRecording
+    from studies.compare import FrameCompare, SideFrame, SideSpec
+
+
+def config_markdown(spec_a: SideSpec, spec_b: SideSpec, diff: list[dict[str, Any]], primaries: tuple[str, str]) -> str:
+    """The config difference as a Markdown document (the recording's first view)."""
+    lines = [f"**A** = `{spec_a.name}` ({spec_a.kind}, primary `{primaries[0]}`) · "
+             f"**B** = `{spec_b.name}` ({spec_b.kind}, primary `{primaries[1]}`)", ""]
+    if not diff:
+        lines.append("No config parameter differs (a results file's config unknown, or the sides differ "
+                     "in their inputs only).")
+    else:
+        lines += ["| parameter | A | B |", "|---|---|---|"]
+        lines += [f"| `{d['key']}` | {_v(d['a'])} | {_v(d['b'])} |" for d in diff]
+    return "\n".join(lines) + "\n"
+
+
+def _v(x: Any) -> str:
+    if x is None:
+        return "—"
+    return f"`{x:.6g}`" if isinstance(x, float) else f"`{x}`"
+
+
+def verdict_image(pred: np.ndarray, truth: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+    """(H, W) uint8: TP 1, FP 2, FN 3 over the scored pixels (``truth`` = (outliers, scored)); without
+    truth, removed 4."""
+    out = np.zeros(pred.shape, dtype=np.uint8)
+    if truth is None:
+        out[pred] = 4
+        return out
+    lab, scored = truth
+    out[pred & lab & scored] = 1
+    out[pred & ~lab & scored] = 2
+    out[~pred & lab & scored] = 3
+    return out
+
+
+class CompareWriter:
+    """Streams the recording while frames come, writes the tables and the page at the end.
+
+    Parameters
+    ----------
+    paths : dict
+        ``{"json", "parquet", "report"?, "rrd"?}`` -> final path (planned and locked by the caller).
+    """
+
+    def __init__(self, paths: dict[str, Path], *, has_truth: bool | None = None) -> None:
+        self.paths = paths
+        self.files = {k: AtomicOutput(p) for k, p in paths.items()}
+        self.rec: CompareRecording | None = None
+        self.seq = 0
+        self.has_truth = has_truth
+
+    def start(self, spec_a: SideSpec, spec_b: SideSpec, diff: list[dict[str, Any]], *, has_truth: bool, primaries: tuple[str, str]) -> None:
+        self.has_truth = has_truth
+        if "rrd" in self.files:
+            from replay.pipeline.compare_viz import CompareRecording
+
+            self.rec = CompareRecording(self.files["rrd"].temp, label_a=f"{spec_a.name} ({primaries[0]})",
+                                        label_b=f"{spec_b.name} ({primaries[1]})",
+                                        config_markdown=config_markdown(spec_a, spec_b, diff, primaries))
+
+    def frame(self, frame: Frame, fc: FrameCompare, sa: SideFrame, sb: SideFrame, diff: np.ndarray,
+              truth: tuple[np.ndarray, np.ndarray] | None, pa: str, pb: str) -> None:
+        if self.rec is None:
+            return
+        ca = fc.a[pa] if fc.a is not None else None
+        cb = fc.b[pb] if fc.b is not None else None
+        scalars: dict[str, float] = {"diff/scalars/only_a_px": fc.only_a, "diff/scalars/only_b_px": fc.only_b}
+        for side, c in (("a", ca), ("b", cb)):
+            if c is not None:
+                for k in ("precision", "recall", "f1"):
+                    scalars[f"{side}/scalars/{k}"] = getattr(c, k)
+        if ca is not None and cb is not None:
+            scalars["diff/scalars/delta_f1"] = _f1(cb) - _f1(ca)
+        self.rec.frame(self.seq, frame.stamp_ns, rgb=frame.rgb, xyz=frame.xyz,
+                       verdict_a=verdict_image(sa.preds[pa] & sa.region, truth),
+                       verdict_b=verdict_image(sb.preds[pb] & sb.region, truth), diff=diff, scalars=scalars)
+        self.seq += 1
+
+    def finish(self, report: dict[str, Any], frames: list[FrameCompare], pa: str, pb: str) -> None:
+        """Write every file's temporary (committed by :meth:`close`)."""
+        import pyarrow as pa_
+        import pyarrow.parquet as pq
+
+        from annotate.accuracy import jsonable
+        from studies.compare import summary_rows
+
+        if self.rec is not None:
+            self.rec.close()
+            self.rec = None
+        self.files["json"].temp.write_text(json.dumps(jsonable(report), indent=1, allow_nan=False) + "\n",
+                                           encoding="utf-8")
+        rows = summary_rows(report, frames)
+        pq.write_table(pa_.Table.from_pylist(rows), self.files["parquet"].temp)
+        if "report" in self.files:
+            self.files["report"].temp.write_text(render_html(report), encoding="utf-8", errors="backslashreplace")
+
+    def close(self, *, completed: bool) -> None:
+        if self.rec is not None:
+            try:
+                self.rec.close()
+            except Exception:  # noqa: BLE001 - the comparison failed already; its temporaries go
+                pass
+            self.rec = None
+        for f in self.files.values():
+            if completed:
+                f.commit()
+            else:
+                f.abort()
+
+
+def _f1(c: Any) -> float:
+    den = 2 * c.tp + c.fp + c.fn
+    return 1.0 if den == 0 else 2 * c.tp / den
+
+
+# --------------------------------------------------------------------------------------- the page
+def _num(v: Any, fmt: str = ".3f") -> str:
+    return "—" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
+
+
+def _param(v: Any) -> str:
+    return "—" if v is None else format(v, ".6g") if isinstance(v, float) else str(v)
+
+
+def _signed(v: Any) -> str:
+    return _num(v, "+.3f")
+
+
+def _plots(report: dict[str, Any]) -> list[dict[str, Any]]:
+    """The page's plots (PNG data URIs): per-frame F1 of A and B with ΔF1; the pooled figures with
+    their paired Δ and intervals."""
+    from studies.plots import _RC, _figure, _plot  # the sweep's figure helpers (same style)
+
+    out = []
+    frames = [f for f in report["frames"] if f.get("scored")]
+    pa, pb = report["a"]["primary"], report["b"]["primary"]
+    import matplotlib
+    from matplotlib.ticker import MaxNLocator
+
+    with matplotlib.rc_context(_RC):
+        if frames:
+            fig, axes = _figure(1, 2, width_in=9.0, height_in=3.2)
+            ax = axes[0][0]
+            x = np.arange(len(frames))
+            fa = [_f1_of(f["a"][pa]) for f in frames]
+            fb = [_f1_of(f["b"][pb]) for f in frames]
+            ax.plot(x, fa, "o-", color="#0072B2", label=f"A ({pa})", ms=3)
+            ax.plot(x, fb, "s-", color="#D55E00", label=f"B ({pb})", ms=3)
+            ax.set_xlabel("frame (in order)")
+            ax.set_ylabel("F1 per frame")
+            ax.legend(frameon=False)
+            ax = axes[0][1]
+            d = np.array(fb) - np.array(fa)
+            ax.bar(x, d, color=np.where(d >= 0, "#009E73", "#CC3311"))
+            ax.axhline(0, color="black", lw=0.8)
+            ax.set_xlabel("frame (in order)")
+            ax.set_ylabel("ΔF1 = B − A")
+            for a in axes[0]:
+                a.xaxis.set_major_locator(MaxNLocator(integer=True))
+            p = _plot("frames.png", "F1 per frame", "", fig)
+            out.append({"title": "F1 per frame, and B − A", "uri": _uri(p.png), "width": p.width_px})
+            v = report["verdict"]
+            fig, axes = _figure(1, 1, width_in=6.0, height_in=2.8)
+            ax = axes[0][0]
+            names = ["precision", "recall", "f1"]
+            for i, k in enumerate(names):
+                e = v["differences"][k]
+                lo, hi = e["ci"]
+                ax.plot([e["delta"]], [i], "o", color="#D55E00")
+                if lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi):
+                    ax.plot([lo, hi], [i, i], "-", color="#D55E00", lw=2)
+            ax.axvline(0, color="black", lw=0.8)
+            ax.set_yticks(range(3), ["ΔP", "ΔR", "ΔF1"])
+            ax.set_xlabel("B − A, pooled, with the 95 % paired interval")
+            p = _plot("deltas.png", "Paired differences", "", fig)
+            out.append({"title": "Paired differences (B − A)", "uri": _uri(p.png), "width": p.width_px})
+    return out
+
+
+def _f1_of(e: dict[str, Any]) -> float:
+    den = 2 * e["tp"] + e["fp"] + e["fn"]
+    return 1.0 if den == 0 else 2 * e["tp"] / den
+
+
+def _uri(png: bytes) -> str:
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def page_context(report: dict[str, Any]) -> dict[str, Any]:
+    """What the page shows, as plain strings."""
+    v = report["verdict"]
+    pa, pb = report["a"]["primary"], report["b"]["primary"]
+    diffs = []
+    if v.get("truth"):
+        for k, name in (("precision", "precision"), ("recall", "recall"), ("f1", "F1")):
+            e = v["differences"][k]
+            lo, hi = e["ci"]
+            diffs.append({"name": name, "a": _num(e["a"]), "b": _num(e["b"]), "delta": _signed(e["delta"]),
+                          "ci": f"[{_signed(lo)}, {_signed(hi)}]" if lo is not None and hi is not None
+                          else "no interval (too few frames)"})
+    ag = report["agreement"]
+    frames = []
+    by_key = {(f["log"], f["index"]): f for f in report["frames"]}
+    for w in report["frames_worst_first"][:200]:
+        f = by_key[(w["log"], w["index"])]
+        a = f.get("a", {}).get(pa) if f.get("scored") else None
+        b = f.get("b", {}).get(pb) if f.get("scored") else None
+        frames.append({"log": f["log"], "index": f["index"], "a": "—" if a is None else f"{a['tp']}/{a['fp']}/{a['fn']}",
+                       "b": "—" if b is None else f"{b['tp']}/{b['fp']}/{b['fn']}",
+                       "delta": _signed(f.get("delta_f1")), "only_a": f["only_a"], "only_b": f["only_b"],
+                       "blobs": f["blobs"],
+                       "outcome": {1: "B wins", -1: "B loses", 0: "tie"}.get(f.get("outcome"), "—")})
+    blobs = [{**b, "area_mm2": _num(b["area_mm2"], ".2f"), "consequence": b["consequence"] or "—"}
+             for b in report["blobs"][:300]]
+    return {
+        "a": report["a"], "b": report["b"], "verdict": v["line"], "truth": report["truth"] or "none (agreement only)",
+        "region": report["region"], "diff": [{"key": d["key"], "a": _param(d["a"]), "b": _param(d["b"])}
+                                             for d in report["config_difference"]],
+        "differences": diffs,
+        "wins": v.get("wins"), "losses": v.get("losses"), "ties": v.get("ties"),
+        "sign_p": _num(v.get("sign_test_p"), ".3g"),
+        "agreement": {"both": ag["both"], "only_a": ag["only_a"], "only_b": ag["only_b"], "alpha": _num(ag["alpha"]),
+                      "beta_a": _num(ag["beta_a"]), "beta_b": _num(ag["beta_b"]), "jaccard": _num(ag["jaccard"])},
+        "frames": frames, "n_frames": len(report["frames"]), "blobs": blobs, "n_blobs": report["blobs_total"],
+        "shared": report["shared"], "stage_runs": report["stage_runs"],
+        "cost": {"frames": report["cost"]["frames"], "cpu_s": _num(report["cost"]["cpu_s"], ".1f"),
+                 "wall_s": _num(report["cost"]["wall_s"], ".1f")},
+        "plots": _plots(report) if v.get("truth") else [],
+        "logs": report["logs"],
+    }
+
+
+def render_html(report: dict[str, Any]) -> str:
+    """The report page: one self-contained HTML document (plots as data URIs, CSS inline)."""
+    import jinja2
+
+    env = jinja2.Environment(loader=jinja2.PackageLoader("studies", "templates"), autoescape=True,
+                             trim_blocks=True, lstrip_blocks=True, undefined=jinja2.StrictUndefined)
+    return env.get_template("compare.html").render(**page_context(report))

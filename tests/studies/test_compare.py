@@ -1,0 +1,214 @@
+"""`zcut compare`: two filters on the same frames; counts as two `zcut accuracy` runs, shared stages run
+once, bad input one line, the recording read back."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from cli_helpers import run_cli
+
+from cli.main import main
+
+SIZE = "120x180"
+FRAMES = 3
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    d = tmp_path_factory.mktemp("compare")
+    log = d / "log.mcap"
+    assert main(["synth", "-o", str(log), "--parts", "rods", "--frames", str(FRAMES), "--seed", "5",
+                 "--size", SIZE]) == 0
+    (d / "rho.toml").write_text("[zcut]\nrho_thr = 0.035\n")
+    (d / "sor.toml").write_text("[sor]\nstd_ratio = 2.0\n")
+    (d / "sor_default.toml").write_text("[sor]\nstd_ratio = 1.0\n")
+    (d / "removal.toml").write_text("[removal]\nmax_tolerance_mm = 12.0\n")
+    assert main(["replay", str(log), "--config", str(d / "rho.toml"), "--out", str(d / "rho.results.mcap")]) == 0
+    other = d / "other.mcap"
+    assert main(["synth", "-o", str(other), "--parts", "spheres", "--frames", "2", "--seed", "6",
+                 "--size", SIZE]) == 0
+    assert main(["replay", str(other), "--out", str(d / "other.results.mcap")]) == 0
+    _without_truth(log, d / "notruth.mcap")
+    return d
+
+
+def _without_truth(src: Path, dest: Path) -> None:
+    """The log's frames without any truth topic (its bin model attached as before)."""
+    from replay.logs import layout
+    from replay.logs.reader import LogReader
+    from replay.logs.writer import LogWriter
+
+    reader = LogReader(src)
+    att = {layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, reader.bin_model_ply)}
+    with LogWriter(dest, attachments=att) as w:
+        for f in reader.frames():
+            f.masks.clear()
+            w.write_frame(f)
+
+
+def _accuracy(capsys, *argv) -> dict:
+    rc, out, err = run_cli(capsys, "accuracy", *argv, "--json")
+    assert rc == 0, err
+    return json.loads(out)
+
+
+def test_counts_equal_two_accuracy_runs(data, tmp_path, capsys):
+    log = data / "log.mcap"
+    rc, out, err = run_cli(capsys, "compare", log, "--a", "zcut", "--b", data / "rho.toml", "-o", tmp_path / "c",
+                           "--json")
+    assert rc == 0, err
+    rep = json.loads(out)
+    acc_a = _accuracy(capsys, log, "--methods", "zcut")
+    acc_b = _accuracy(capsys, log, "--config", data / "rho.toml")
+    assert [f["index"] for f in rep["frames"]] == [f["index"] for f in acc_a["frames"]] == list(range(FRAMES))
+    for f, fa, fb in zip(rep["frames"], acc_a["frames"], acc_b["frames"]):
+        for m in ("zcut",):
+            assert {k: f["a"][m][k] for k in ("tp", "fp", "fn")} == {k: fa[m][k] for k in ("tp", "fp", "fn")}
+        for m in ("zcut", "sor", "union", "intersection"):
+            assert {k: f["b"][m][k] for k in ("tp", "fp", "fn")} == {k: fb[m][k] for k in ("tp", "fp", "fn")}
+    for side, acc in (("a", acc_a), ("b", acc_b)):
+        for m, e in rep["pooled"][side].items():
+            assert (e["tp"], e["fp"], e["fn"]) == tuple(acc["pooled"][m][k] for k in ("tp", "fp", "fn"))
+    v = rep["verdict"]
+    assert v["wins"] + v["losses"] + v["ties"] == FRAMES and v["line"].startswith("B: F1 ")
+    assert rep["config_difference"] == [{"key": "methods", "a": ["zcut"], "b": ["zcut", "sor"]},
+                                        {"key": "zcut.max_area_px", "a": pytest.approx(rep["config_difference"][1]["a"]),
+                                         "b": pytest.approx(rep["config_difference"][1]["a"] / 2)}]
+    # summary.parquet: one row per frame, the primary counts
+    rows = pq.read_table(tmp_path / "c" / "summary.parquet").to_pylist()
+    assert [(r["frame"], r["a_tp"], r["b_fp"]) for r in rows] == [
+        (f["index"], f["a"]["zcut"]["tp"], f["b"]["zcut"]["fp"]) for f in rep["frames"]]
+    # the blobs: the only-A / only-B pixels of the primary masks, split into components
+    for f in rep["frames"]:
+        blobs = [b for b in rep["blobs"] if b["frame"] == f["index"]]
+        assert sum(b["area_px"] for b in blobs if b["who"] == "A") == f["only_a"]
+        assert sum(b["area_px"] for b in blobs if b["who"] == "B") == f["only_b"]
+        assert all(b["fixes_px"] + b["breaks_px"] <= b["area_px"] for b in blobs)
+    html = (tmp_path / "c" / "report.html").read_text()
+    assert v["line"].split(":")[0] in html and "<script" not in html
+
+
+def test_a_results_file_scores_as_accuracy_scores_it(data, tmp_path, capsys):
+    log, res = data / "log.mcap", data / "rho.results.mcap"
+    rc, out, err = run_cli(capsys, "compare", log, "--a", res, "--b", "zcut", "-o", tmp_path / "c", "--json",
+                           "--no-rrd")
+    assert rc == 0, err
+    rep = json.loads(out)
+    acc = _accuracy(capsys, res)
+    for f, fa in zip(rep["frames"], acc["frames"], strict=True):
+        for m in ("zcut", "sor"):
+            assert {k: f["a"][m][k] for k in ("tp", "fp", "fn")} == {k: fa[m][k] for k in ("tp", "fp", "fn")}
+    assert not (tmp_path / "c" / "compare.rrd").exists()
+
+
+def test_shared_stages_run_once(data, tmp_path):
+    from studies.compare import CompareOptions, run
+
+    log = data / "log.mcap"
+    # A and B differ only in SOR: the bin stages and the z-cut run once per frame, SOR twice
+    r = run(CompareOptions(logs=(log,), a=str(data / "sor_default.toml"), b=str(data / "sor.toml"), out=tmp_path / "s",
+                           rrd=False, report=False))
+    assert dict(r.stage_runs) == {"locate_bin": FRAMES, "bin_zone": FRAMES, "method:zcut": FRAMES,
+                                  "method:sor": 2 * FRAMES}
+    assert r.report["shared"] == {"bin_stages": True, "zone": True, "methods": ["zcut"]}
+    assert r.report["config_difference"] == [{"key": "sor.std_ratio", "a": 1.0, "b": 2.0}]
+    # another removal: every stage runs for each side
+    r = run(CompareOptions(logs=(log,), a=str(data / "sor_default.toml"), b=str(data / "removal.toml"),
+                           out=tmp_path / "r", rrd=False, report=False))
+    assert dict(r.stage_runs) == {"locate_bin": 2 * FRAMES, "bin_zone": 2 * FRAMES, "method:zcut": 2 * FRAMES,
+                                  "method:sor": 2 * FRAMES}
+
+
+def test_the_shared_masks_are_those_of_two_replays(data):
+    """A zone and a z-cut handed from A to B give B exactly the masks of its own replay."""
+    from replay.pipeline import config as cfg
+    from replay.pipeline.bin_model import bin_model_for
+    from replay.pipeline.session import ReplaySession, open_log
+    from studies.compare import PairRunner
+
+    log = data / "log.mcap"
+    sa = ReplaySession.open(log, config_file=data / "sor_default.toml", choose_bin_model=lambda r: bin_model_for(r, None))
+    sb = ReplaySession.open(log, config_file=data / "sor.toml", choose_bin_model=lambda r: bin_model_for(r, None))
+    reader, first, _ = open_log(log)
+    runner = PairRunner(log, reader, first, sa.resolved, sb.resolved, sa.bin_model)
+    assert cfg.config_sha256(runner.a) != cfg.config_sha256(runner.b)
+    pairs = list(runner.frames((0, None)))
+    alone_a = [r for _, r in sa.results()]
+    alone_b = [r for _, r in sb.results()]
+    for (_, ra, rb), xa, xb in zip(pairs, alone_a, alone_b, strict=True):
+        for m in ("zcut", "sor"):
+            assert np.array_equal(ra.outliers[m], xa.outliers[m])
+            assert np.array_equal(rb.outliers[m], xb.outliers[m])
+        assert np.array_equal(ra.zone, xb.zone)
+
+
+def test_without_truth_agreement_only(data, tmp_path, capsys):
+    rc, out, err = run_cli(capsys, "compare", data / "notruth.mcap", "--a", "zcut", "--b", "sor", "-o", tmp_path / "n",
+                           "--json")
+    assert rc == 0, err
+    assert "no truth: agreement only" in err
+    rep = json.loads(out)
+    assert rep["truth"] is None and rep["verdict"]["truth"] is False
+    ag = rep["agreement"]
+    assert ag["both"] + ag["only_a"] + ag["only_b"] > 0 and 0 <= ag["jaccard"] <= 1
+    assert {b["consequence"] for b in rep["blobs"]} == {None}
+
+
+@pytest.mark.parametrize(("a", "b", "extra", "message"), [
+    ("zcut", "zcut", (), "differ in nothing"),
+    ("sor_default.toml", "zcut", (), "its masks cannot differ"),  # both compare zcut, with the same parameters
+    ("sor_default.toml", "sor", (), None),  # zcut vs sor: allowed
+    ("sor_default.toml", "sor.toml", ("--region", "everything"), "--region must be one of"),
+    ("zcut", "nonsense", (), "neither a file nor a method name"),
+    ("zcut", "missing.toml", (), "no such file"),
+    ("other.results.mcap", "zcut", (), "the results of other.mcap, not of log.mcap"),
+    ("rho.results.mcap", "rho.results.mcap", (), "the same results file"),
+    ("zcut", "sor", ("--frames", "5:2"), "--frames must satisfy"),
+])
+def test_bad_input_is_one_line(data, tmp_path, capsys, a, b, extra, message):
+    def arg(x: str) -> str:
+        return str(data / x) if x.endswith((".toml", ".mcap")) else x
+
+    rc, _, err = run_cli(capsys, "compare", data / "log.mcap", "--a", arg(a), "--b", arg(b), "-o", tmp_path / "x",
+                         "--no-rrd", *extra)
+    if message is None:
+        assert rc == 0, err
+        return
+    assert rc == 1, err
+    lines = err.strip().splitlines()
+    assert lines[-1].startswith("error: ") and message in lines[-1], err
+    assert "Traceback" not in err
+    assert not any((tmp_path / "x").glob("*.json"))
+
+
+def test_existing_outputs_need_force(data, tmp_path, capsys):
+    args = ("compare", data / "log.mcap", "--a", "zcut", "--b", "sor", "-o", tmp_path / "f", "--no-rrd")
+    assert run_cli(capsys, *args)[0] == 0
+    rc, _, err = run_cli(capsys, *args)
+    assert rc == 1 and "use --force" in err
+    assert run_cli(capsys, *args, "--force")[0] == 0
+
+
+def test_the_recording_reads_back(data, tmp_path, capsys):
+    import rerun as rr
+
+    rc, _, err = run_cli(capsys, "compare", data / "log.mcap", "--a", "zcut", "--b", data / "rho.toml",
+                         "-o", tmp_path / "r")
+    assert rc == 0, err
+    paths: dict[str, int] = {}
+    config_text = ""
+    for chunk in rr.chunk.RrdReader(str(tmp_path / "r" / "compare.rrd")).stream():
+        paths[chunk.entity_path] = paths.get(chunk.entity_path, 0) + chunk.num_rows
+        if chunk.entity_path == "/diff/config":
+            rb = chunk.to_record_batch()
+            for name in rb.schema.names:
+                if name.endswith("text"):
+                    config_text += "".join(str(x) for x in rb.column(name).to_pylist())
+    for p in ("/diff/config", "/image/rgb", "/a/verdict", "/b/verdict", "/diff/consequence", "/diff/points",
+              "/a/scalars/f1", "/b/scalars/f1", "/diff/scalars/delta_f1"):
+        assert p in paths, (p, sorted(paths))
+    assert "`zcut.max_area_px`" in config_text and "`methods`" in config_text
