@@ -52,8 +52,9 @@ from replay.synth.synthesize import (
 from zcut.errors import ParameterError
 
 #: Version of the hand-made generator's output; it names the demo sample's cache file, so a change
-#: of what a log holds (3: ``/ground_truth/depth``) makes stale samples be generated anew.
-GENERATOR_VERSION = "3"
+#: of what a log holds (3: ``/ground_truth/depth``; 4: ``/ground_truth/off_surface`` and the
+#: ``part_model.ply`` attachment) makes stale samples be generated anew.
+GENERATOR_VERSION = "4"
 
 #: The sample the demo replays: three frames of M16 rods (the paper's Figures 13 and 14 show rods)
 #: at half the sensor's resolution, so that synthesising and replaying it take seconds.

@@ -25,7 +25,7 @@ from replay.synth.raytrace.synthesize import FILL_RANGE_MM, MAX_PARTS, Raytraced
 from replay.synth.sensor import FULL_SIZE
 from zcut.errors import ParameterError
 
-RAYTRACE_VERSION = "1"
+RAYTRACE_VERSION = "2"  # 2: /ground_truth/off_surface and part_model.ply
 ProgressFn = Callable[[int, int, RaytracedFrame, float], None]
 #: entries of the hand-made generator's metadata that describe its hand-placed outliers
 _HANDMADE_ONLY = ("ghost_clusters_per_frame", "ghost_rho_range", "above_rim_groups_per_frame",

@@ -195,7 +195,7 @@ def test_a_damaged_attachment_is_a_named_warning(logs, tmp_path, capsys):
     _, synth, _, _ = logs
     raw = bytearray(synth.read_bytes())
     with McapFile(synth) as mf:
-        (a,) = mf.summary.attachment_indexes
+        (a,) = [x for x in mf.summary.attachment_indexes if x.name == layout.BIN_MODEL_ATTACHMENT]
     raw[a.offset + a.length // 2] ^= 0xFF  # inside the PLY data: the attachment's CRC no longer holds
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(bytes(raw))
