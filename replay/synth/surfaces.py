@@ -16,9 +16,10 @@ from the surface point on its centre ray), and q the depth step of a quantizing 
 
 **Distances** are exact point-to-triangle distances (Open3D's ``RaycastingScene``, float32: within
 1e-4 mm at the scene's coordinates) to meshes that are the solids themselves, and closed forms for
-spheres (of equal radius r, from the two nearest centres: a point outside every ball is nearest to
-the ball of the nearest centre, and a point inside one of the generator's balls, which do not
-overlap — each is dropped onto the others' height field — is nearest to that ball's own surface).
+spheres (of equal radius r, from the nearest centre: a point outside every ball is nearest to the
+ball of the nearest centre, and a point inside one of the generator's balls, which do not overlap —
+each is dropped onto the others' height field, checked at its grid nodes, so two may share a lens
+thinner than a grid step's sag, < 0.05 mm —, is nearest to that ball's own surface).
 The hand-made parts are prisms of convex polygons (a bore subtracted, teeth added): their meshes
 (:func:`solid_mesh`) are exact, as the ray-traced generator's meshes are its scene.
 """
@@ -351,20 +352,16 @@ class TrueSurfaces:
             dist = np.linalg.norm(p - near, axis=1)
         if self._tree is not None:
             assert self._centres is not None
-            k = min(2, len(self._centres))
-            _, idx = self._tree.query(p, k=k)
-            idx = np.asarray(idx).reshape(len(p), k)
-            for col in range(k):
-                c = self._centres[idx[:, col]]
-                v = p - c
-                n = np.sqrt(np.einsum("ij,ij->i", v, v))
-                d = np.abs(n - self._radius)
-                better = np.nonzero(d < dist)[0]
-                if len(better):
-                    nb = n[better, None]
-                    u = np.where(nb > 0, v[better] / np.maximum(nb, 1e-300), np.array([0.0, 0.0, -1.0]))
-                    near[better] = c[better] + self._radius * u
-                    dist[better] = d[better]
+            n, idx = self._tree.query(p, k=1)
+            d = np.abs(n - self._radius)
+            better = np.nonzero(d < dist)[0]
+            if len(better):
+                c = self._centres[idx[better]]
+                v = p[better] - c
+                nb = n[better, None]
+                u = np.where(nb > 0, v / np.maximum(nb, 1e-300), np.array([0.0, 0.0, -1.0]))
+                near[better] = c + self._radius * u
+                dist[better] = d[better]
         return dist, near
 
     def distance(self, points: np.ndarray) -> np.ndarray:
@@ -377,16 +374,9 @@ class TrueSurfaces:
             dist = self._scene.compute_distance(o3d.core.Tensor(p.astype(np.float32))).numpy().astype(np.float64)
         if len(p) and self._tree is not None:
             assert self._centres is not None
-            k = min(2, len(self._centres))
-            near, _ = self._tree.query(p, k=k)
-            near = np.asarray(near).reshape(len(p), k)
-            dist = np.minimum(dist, np.abs(near - self._radius).min(axis=1))
+            near, _ = self._tree.query(p, k=1)
+            dist = np.minimum(dist, np.abs(near - self._radius))
         return dist
-
-
-#: scenes with fewer triangles skip the anchor pass of :func:`off_surface` (measured at 480 x 300:
-#: spheres, ~30 triangles and closed-form balls, 0.065 s direct against 0.09 s with anchors)
-DIRECT_BELOW_TRIANGLES = 5_000
 
 
 @numba.njit(cache=True, nogil=True)
@@ -422,9 +412,7 @@ def off_surface(xyz_mm: np.ndarray, err: np.ndarray, surfaces: TrueSurfaces, *, 
     The valid points on even rows and columns are queried first (their nearest surface points);
     a point within ``k`` × Err of one of its four nearest such neighbours' nearest surface points
     is within it of a surface (that distance bounds its own from above), and only the other points
-    are queried: the same mask as querying every point, for about a third of the queries. Scenes of
-    fewer than :data:`DIRECT_BELOW_TRIANGLES` triangles (balls, whose distance is a closed form)
-    query every point at once, which is then cheaper.
+    are queried: the same mask as querying every point, for about a third of the queries.
 
     Parameters
     ----------
@@ -438,10 +426,6 @@ def off_surface(xyz_mm: np.ndarray, err: np.ndarray, surfaces: TrueSurfaces, *, 
     H, W = xyz.shape[:2]
     valid = np.isfinite(xyz).all(axis=2)
     thr = float(k) * np.ascontiguousarray(err, np.float64)
-    if surfaces.n_triangles < DIRECT_BELOW_TRIANGLES:  # cheap queries: every point at once
-        out = np.zeros((H, W), bool)
-        out[valid] = surfaces.distance(xyz[valid]) > thr[valid]
-        return out
     anchor = np.zeros((H, W), bool)
     anchor[::2, ::2] = valid[::2, ::2]
     out = np.zeros((H, W), bool)
