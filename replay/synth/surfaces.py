@@ -17,9 +17,10 @@ from the surface point on its centre ray), and q the depth step of a quantizing 
 **Distances** are exact point-to-triangle distances (Open3D's ``RaycastingScene``, float32: within
 1e-4 mm at the scene's coordinates) to meshes that are the solids themselves, and closed forms for
 spheres (of equal radius r, from the nearest centre: a point outside every ball is nearest to the
-ball of the nearest centre, and a point inside one of the generator's balls, which do not overlap —
-each is dropped onto the others' height field, checked at its grid nodes, so two may share a lens
-thinner than a grid step's sag, < 0.05 mm —, is nearest to that ball's own surface).
+ball of the nearest centre, and a point inside a ball is nearest to that ball's own surface as long
+as the balls do not overlap; the generator drops each ball onto the others' height field, checked
+at its grid nodes only, so two may share a thin lens between nodes, and a point inside such a lens
+is judged by the nearer centre's ball alone: an error no larger than the lens is thick).
 The hand-made parts are prisms of convex polygons (a bore subtracted, teeth added): their meshes
 (:func:`solid_mesh`) are exact, as the ray-traced generator's meshes are its scene.
 """
