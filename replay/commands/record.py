@@ -59,6 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="attach this bin model (from `zcut bin-model`; metres, bin frame, up = -z) to the log: commands "
              "replay it with that model without --bin-model",
     )
+    parser.add_argument("--part-model", metavar="FILE",
+                        help="attach this part mesh (PLY, STL or OBJ) to the log as its part_model.ply")
+    parser.add_argument("--part-model-unit", choices=("mm", "m"), help="unit of --part-model's vertices (required)")
 
 
 def expand_inputs(inputs: list[str]) -> list[Path]:
@@ -138,6 +141,14 @@ def run(args: argparse.Namespace) -> int:
     attachments = {}
     if args.bin_model is not None:
         attachments[layout.BIN_MODEL_ATTACHMENT] = (layout.BIN_MODEL_MEDIA_TYPE, _bin_model_bytes(args.bin_model))
+    if args.part_model is not None:  # the part's mesh (docs/formats.md, "Part model attachment")
+        from replay.logs.part_model import PART_MODEL_ATTACHMENT, PART_MODEL_MEDIA_TYPE, load_part_mesh
+
+        if args.part_model_unit is None:
+            raise ConfigError("--part-model needs --part-model-unit mm or m (the unit of its vertices)")
+        inputs.append(args.part_model)
+        attachments[PART_MODEL_ATTACHMENT] = (PART_MODEL_MEDIA_TYPE,
+                                              load_part_mesh(args.part_model, unit=args.part_model_unit))
     meta = {"zcut.record": {"sources": "\n".join(str(f) for f in files), "unit": args.unit}}
     with OutputPlan(inputs, force=args.force) as plan, AtomicOutput(plan.add(out, "the log")) as target:
         with LogWriter(target.temp, metadata=meta, attachments=attachments) as w:

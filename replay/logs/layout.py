@@ -30,6 +30,8 @@ def method_topic(name: str) -> str:
 # synthetic truth: mono8, 255 = true outlier; the kind image holds the codes of OUTLIER_KINDS
 TRUTH_OUTLIERS = "/ground_truth/outliers"
 TRUTH_OUTLIER_KIND = "/ground_truth/outlier_kind"
+#: the paper's truth (synthetic logs): mono8, 255 = farther than 3 × Err from every true surface of the scene
+TRUTH_OFF_SURFACE = "/ground_truth/off_surface"
 
 #: synthetic truth: sensor_msgs/Image ``32FC1``, the camera-frame z (metres) of the first surface each
 #: pixel's centre ray hits, NaN where it hits nothing (``docs/formats.md``, ground-truth topics)

@@ -8,8 +8,10 @@ exact outliers on ``/ground_truth/outliers`` (mono8, 255 = outlier) and their ki
 describes how it was made (part kind, seed, finish, camera distance, bin geometry, size, ...), and
 ``zcut.synth.poses`` holds every frame's true bin pose (:func:`true_poses` reads it back). The log
 carries the generator's exact bin model as its ``bin_model.ply`` attachment
-(:mod:`replay.synth.bin_surface`; ``docs/formats.md``, "Bin model attachment"). The same arguments
-give the same bytes.
+(:mod:`replay.synth.bin_surface`; ``docs/formats.md``, "Bin model attachment") and the part's mesh
+as its ``part_model.ply`` attachment (millimetres; "Part model attachment"). The paper's truth, the
+points farther than 3 × Err from every true surface, is on ``/ground_truth/off_surface`` (mono8;
+:mod:`replay.synth.surfaces`). The same arguments give the same bytes.
 """
 
 from __future__ import annotations
@@ -50,8 +52,9 @@ from replay.synth.synthesize import (
 from zcut.errors import ParameterError
 
 #: Version of the hand-made generator's output; it names the demo sample's cache file, so a change
-#: of what a log holds (3: ``/ground_truth/depth``) makes stale samples be generated anew.
-GENERATOR_VERSION = "3"
+#: of what a log holds (3: ``/ground_truth/depth``; 4: ``/ground_truth/off_surface`` and the
+#: ``part_model.ply`` attachment) makes stale samples be generated anew.
+GENERATOR_VERSION = "4"
 
 #: The sample the demo replays: three frames of M16 rods (the paper's Figures 13 and 14 show rods)
 #: at half the sensor's resolution, so that synthesising and replaying it take seconds.
@@ -101,6 +104,9 @@ def synth_metadata(
         "figure11_patches_per_frame": f"{rates.figure11:g}",
         "truth_topic": layout.TRUTH_OUTLIERS,
         "outlier_kind_topic": layout.TRUTH_OUTLIER_KIND,
+        "off_surface_topic": layout.TRUTH_OFF_SURFACE,
+        "off_surface_rule": "farther than 3 Err from every true surface; Err = sqrt(sigma^2 + c^2/2 + q^2/12), "
+                            "c = max(z/f, height-field step)",
         "outlier_kinds": ",".join(f"{code}={name}" for code, name in sorted(layout.HANDMADE_OUTLIER_KINDS.items())),
         "poses_metadata": layout.SYNTH_POSES_METADATA,
         "bin_frame": "camera optical frame with the bin at its nominal pose (centred below the camera, yaw 0)",
@@ -235,8 +241,11 @@ def write_synthetic_log(
     path = Path(path)
     from replay.synth.bin_surface import bin_model_ply
 
-    # the exact bin model travels with the log: replayed without --bin-model, it runs the bin stages
+    # the exact bin model travels with the log: replayed without --bin-model, it runs the bin stages;
+    # and so does the part's mesh (docs/formats.md, "Part model attachment")
     model = {layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, bin_model_ply())}
+    if not empty:
+        model.update(part_model_attachment(kind))
     with LogWriter(path, metadata={layout.SYNTH_METADATA: meta, layout.SYNTH_POSES_METADATA: poses},
                    attachments=model, bag_name=bag_name) as writer:
         for i in range(int(frames)):
@@ -247,6 +256,26 @@ def write_synthetic_log(
             if progress is not None:
                 progress(i, int(frames), sf, time.perf_counter() - t0)
     return path
+
+
+def part_model_attachment(kind: str, *, raytraced: bool = False) -> dict[str, tuple[str, bytes]]:
+    """The ``part_model.ply`` attachment of a log of ``kind`` parts: the hand-made generator's part
+    (:func:`replay.synth.surfaces.kind_model_mesh`, its random phases at 0) or the ray-traced one's
+    (:func:`replay.synth.raytrace.meshes.part_mesh`), millimetres, the part's local frame."""
+    from replay.logs.part_model import PART_MODEL_ATTACHMENT, PART_MODEL_MEDIA_TYPE, part_model_ply_bytes
+
+    if raytraced:
+        from replay.synth.raytrace.meshes import part_mesh
+
+        m = part_mesh(kind)
+        v, t, who = m.vertices, m.triangles, "zcut replay.synth.raytrace"
+    else:
+        from replay.synth.surfaces import kind_model_mesh
+
+        v, t = kind_model_mesh(kind)
+        who = "zcut replay.synth (hand-made; each part turned by its own random phase about its axis)"
+    data = part_model_ply_bytes(v, t, unit="mm", comment=f"{kind}: {who}, part frame")
+    return {PART_MODEL_ATTACHMENT: (PART_MODEL_MEDIA_TYPE, data)}
 
 
 def write_bin_cad(path: str | os.PathLike) -> Path:

@@ -49,8 +49,10 @@ def face_area_px(kind: PartKind, *, fx: float, fy: float, distance_m: float) -> 
 
 
 # ---------------------------------------------------------------------------------------------
-# Primitives: ("poly", normals (k, 3), offsets (k,), centre (3,), radius)
-#                 = {p : normals @ p <= offsets}, inside the ball (centre, radius);
+# Primitives: ("poly", normals (k, 3), offsets (k,), centre (3,), radius, outline (n, 2), z0, z1, R)
+#                 = {p : normals @ p <= offsets}, inside the ball (centre, radius); a prism: the convex
+#                 counter-clockwise ``outline`` extruded from z0 to z1, then rotated by R (None: not
+#                 rotated), which the true-surface meshes of ``replay.synth.surfaces`` are built from;
 #             ("sphere", centre (3,), radius).
 
 
@@ -74,7 +76,7 @@ def _prism(poly: np.ndarray, z0: float, z1: float, R: np.ndarray | None = None) 
     if R is not None:
         normals = normals @ R.T
         centre = R @ centre
-    return ("poly", normals, offsets, centre, radius)
+    return ("poly", normals, offsets, centre, radius, poly, float(z0), float(z1), R)
 
 
 _ALONG_X = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # maps local z to x

@@ -181,6 +181,9 @@ class PlacedPart:
         Rotation local -> world.
     centre_mm : (3,) float64 ndarray
         World position of the part origin.
+    solid : (primitives, hole) or None
+        The part's solid in its local frame (:func:`replay.synth.parts.part_solid`), from which
+        ``replay.synth.surfaces`` builds its exact surface (all faces, hidden ones included).
     """
 
     rows: slice
@@ -189,6 +192,7 @@ class PlacedPart:
     top: np.ndarray
     R: np.ndarray
     centre_mm: np.ndarray
+    solid: tuple | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -437,7 +441,7 @@ def drop_pile(
         part_id[rows, cols][raise_] = len(parts) + 1
         centre = np.array([grid.x0 + cj * g, grid.y0 + ci * g, base])
         parts.append(
-            PlacedPart(rows, cols, bottom.astype(np.float32), top.astype(np.float32), R, centre)
+            PlacedPart(rows, cols, bottom.astype(np.float32), top.astype(np.float32), R, centre, (prims, hole))
         )
     if deformation != NOMINAL_DEFORMATION:  # the same pile in the deformed bin
         height, label = bin_height_field(grid, pose, geometry, deformation)

@@ -47,6 +47,7 @@ from replay.synth.sensor import (
     shade_rgb,
     view_half_extent_mm,
 )
+from replay.synth.surfaces import err_mm, handmade_surfaces, off_surface
 from zcut.cloud import Intrinsics
 from zcut.errors import ParameterError
 
@@ -131,6 +132,12 @@ class SynthFrame:
         True bin pose (see :func:`T_cam_bin`).
     quantize_mm : float
         Depth step of the simulated sensor (0: continuous).
+    off_surface : (H, W) bool ndarray
+        The paper's truth (``/ground_truth/off_surface``): the valid points farther than 3 × Err from
+        every true surface of the scene (:mod:`replay.synth.surfaces`).
+    err_mm : (H, W) float32 ndarray
+        Err of each pixel: ``sqrt(σ² + c²/2 + q²/12)``, σ its noise sigma, c the larger of its
+        footprint z / f and the height-field step, q the depth step (:func:`~replay.synth.surfaces.err_mm`).
     """
 
     frame: Frame
@@ -146,6 +153,8 @@ class SynthFrame:
     a_max_px: float
     T_cam_bin: np.ndarray
     quantize_mm: float
+    off_surface: np.ndarray
+    err_mm: np.ndarray
 
 
 def frame_rng(seed: int, index: int, *, empty: bool) -> np.random.Generator:
@@ -352,6 +361,11 @@ def synthesize_frame(
 
     rays = pixel_rays(K)
     xyz = (rays * (np.where(valid, depth, np.nan) / 1000.0)[..., None]).astype(np.float32)
+
+    # the paper's truth: farther than 3 Err from every true surface (replay.synth.surfaces)
+    xyz_mm = xyz.astype(np.float64) * 1000.0
+    err = err_mm(xyz_mm[..., 2], sigma, K.fx, cell_mm=grid_step, quantize_mm=q)
+    off = off_surface(xyz_mm, err, handmade_surfaces(scene, camera_height_mm=CAMERA_HEIGHT_MM))
     frame = Frame(
         xyz=xyz,
         rgb=rgb,
@@ -360,10 +374,10 @@ def synthesize_frame(
         intrinsics=K,
         topic=layout.CLOUD,
         index=int(index),
-        masks={layout.TRUTH_OUTLIERS: truth},
+        masks={layout.TRUTH_OUTLIERS: truth, layout.TRUTH_OFF_SURFACE: off},
         codes={layout.TRUTH_OUTLIER_KIND: kind_img},
     )
     return SynthFrame(
         frame, truth, kind_img, cluster_id, surface, clean.astype(np.float32), figure11, saturated, scene,
-        is_shiny, a_max, T_cam_bin(pose), q,
+        is_shiny, a_max, T_cam_bin(pose), q, off, err.astype(np.float32),
     )

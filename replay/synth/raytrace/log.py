@@ -3,7 +3,8 @@
 The same topics as ``replay.synth.log`` (cloud, colour image, camera info, truth mask, kind codes,
 true depth), the same ``zcut.synth`` and ``zcut.synth.poses`` metadata records (the bin poses are
 the hand-made generator's for the same seed), the same ``bin_model.ply`` attachment (the bin both
-generators draw), and kind codes 5-8. Same arguments, same bytes.
+generators draw), the ray-traced part's mesh as ``part_model.ply``, ``/ground_truth/off_surface``
+(the paper's truth) and kind codes 5-8. Same arguments, same bytes.
 """
 
 from __future__ import annotations
@@ -18,13 +19,13 @@ import numpy as np
 from replay.logs import layout
 from replay.logs.writer import LogWriter
 from replay.presets import PART_KINDS
-from replay.synth.log import pose_metadata, synth_metadata
+from replay.synth.log import part_model_attachment, pose_metadata, synth_metadata
 from replay.synth.raytrace.optics import SensorModel
 from replay.synth.raytrace.synthesize import FILL_RANGE_MM, MAX_PARTS, RaytracedFrame, synthesize_raytraced_frame
 from replay.synth.sensor import FULL_SIZE
 from zcut.errors import ParameterError
 
-RAYTRACE_VERSION = "1"
+RAYTRACE_VERSION = "2"  # 2: /ground_truth/off_surface and part_model.ply
 ProgressFn = Callable[[int, int, RaytracedFrame, float], None]
 #: entries of the hand-made generator's metadata that describe its hand-placed outliers
 _HANDMADE_ONLY = ("ghost_clusters_per_frame", "ghost_rho_range", "above_rim_groups_per_frame",
@@ -46,6 +47,7 @@ def raytraced_metadata(*, kind: str, seed: int, frames: int, size: tuple[int, in
         "depth_topic": layout.TRUTH_DEPTH,
         "truth_rule": f"noise-free decoded depth farther than {model.outlier_sigmas:g} noise sigmas from every "
                       "surface the pixel's footprint sees",
+        "off_surface_rule": "farther than 3 Err from every triangle of the scene; Err = sqrt(sigma^2 + (z/f)^2/2)",
         "pile": "MuJoCo rigid-body drop",
         "fill_range_mm": f"{FILL_RANGE_MM[0]:g}-{FILL_RANGE_MM[1]:g}",
         "max_parts": str(MAX_PARTS),
@@ -85,6 +87,8 @@ def write_raytraced_log(
 
     # the exact bin model travels with the log (docs/formats.md, "Bin model attachment")
     attached = {layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, bin_model_ply())}
+    if not empty:  # the part's mesh, as the scene draws it ("Part model attachment")
+        attached.update(part_model_attachment(kind, raytraced=True))
     with LogWriter(path, metadata={layout.SYNTH_METADATA: meta, layout.SYNTH_POSES_METADATA: poses},
                    attachments=attached, bag_name=bag_name) as writer:
         for i in range(int(frames)):

@@ -153,6 +153,13 @@ class TracedScene:
         )
         return out
 
+    def surfaces(self):
+        """The scene's triangles as :class:`replay.synth.surfaces.TrueSurfaces` (the same ray caster:
+        distances to exactly the triangles the rays hit)."""
+        from replay.synth.surfaces import TrueSurfaces
+
+        return TrueSurfaces(self.vertices, self.triangles, scene=self._scene)
+
     def cast_t(self, rays: np.ndarray) -> np.ndarray:
         """Ray parameter of the first hit (float32; inf for a miss) of float32 ``rays`` (n, 6): origin, direction."""
         return self._raw(rays)["t_hit"].numpy()

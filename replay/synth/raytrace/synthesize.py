@@ -10,6 +10,9 @@ cloud, the colour image, and the truth from geometry:
   (the centre ray's first hit and each sub-pixel ray's), measured along z. The sigma is the
   pixel's own (it grows as its fringe signal weakens), so the rule is "farther than the sensor
   noise explains", and a pixel made wrong by noise alone is never an outlier.
+- **The paper's truth** (``/ground_truth/off_surface``, :mod:`replay.synth.surfaces`): a measured
+  point farther than 3 × Err from every triangle of the scene, Err = sqrt(sigma² + (z / f)² / 2)
+  (the pixel's noise sigma and half the diagonal of its footprint).
 - **Kinds** (``replay.logs.layout.RAYTRACED_OUTLIER_KINDS``): the depth decoded from the direct
   light alone already fails the rule -> ``mixed_pixel`` (7: sub-pixels on different surfaces);
   else adding the specular bounces makes it fail -> ``interreflection`` (6); else the glare did ->
@@ -41,6 +44,7 @@ from replay.synth.sensor import (
     pixel_rays,
     shade_rgb,
 )
+from replay.synth.surfaces import err_mm, off_surface
 from replay.synth.synthesize import FRAME_ID, T_cam_bin, bin_pose_for, frame_rng, pile_distance_m, stamp_ns
 from zcut.errors import ParameterError
 
@@ -83,8 +87,14 @@ class RaytracedFrame:
     a_max_px : float
         Pixel area of the part's largest face at the pile top (NaN for an empty bin).
     T_cam_bin : (4, 4) float64 ndarray
+    off_surface : (H, W) bool ndarray
+        The paper's truth (``/ground_truth/off_surface``): the valid points farther than 3 × Err
+        from every triangle of the scene (parts with all their faces, bin, table), Err =
+        ``sqrt(sigma² + (z / f)² / 2)`` (:func:`replay.synth.surfaces.err_mm`).
+    err_mm : (H, W) float32 ndarray
+        That Err (NaN where not measured).
     cpu_s : dict[str, float]
-        CPU seconds of each step (``pile``, ``scene``, ``trace``, ``measure``).
+        CPU seconds of each step (``pile``, ``scene``, ``trace``, ``measure``, ``off_surface``).
     """
 
     frame: Frame
@@ -98,6 +108,8 @@ class RaytracedFrame:
     pile: Pile | None
     a_max_px: float
     T_cam_bin: np.ndarray
+    off_surface: np.ndarray
+    err_mm: np.ndarray
     cpu_s: dict[str, float] = field(default_factory=dict)
 
 
@@ -205,14 +217,22 @@ def synthesize_raytraced_frame(
     rgb = np.clip(rgb.astype(np.float64) + 400.0 * rec.specular_light[..., None], 0, 255).astype(np.uint8)
 
     xyz = (pixel_rays(K) * (z_meas / 1000.0)[..., None]).astype(np.float32)
+
+    # the paper's truth: farther than 3 Err from every triangle of the scene (replay.synth.surfaces)
+    t0 = time.process_time()
+    xyz_mm = xyz.astype(np.float64) * 1000.0
+    err = err_mm(xyz_mm[..., 2], np.where(np.isfinite(sigma_z), sigma_z, 0.0), K.fx)
+    off = off_surface(xyz_mm, err, scene.surfaces())
+    cpu["off_surface"] = time.process_time() - t0
     frame = Frame(
         xyz=xyz, rgb=rgb, stamp_ns=stamp_ns(seed, index), frame_id=FRAME_ID, intrinsics=K, topic=layout.CLOUD,
-        index=int(index), masks={layout.TRUTH_OUTLIERS: truth}, codes={layout.TRUTH_OUTLIER_KIND: kind_img},
+        index=int(index), masks={layout.TRUTH_OUTLIERS: truth, layout.TRUTH_OFF_SURFACE: off},
+        codes={layout.TRUTH_OUTLIER_KIND: kind_img},
     )
     a_max = (face_area_px(part, fx=K.fx, fy=K.fy, distance_m=pile_distance_m(fill_mm)) if part is not None
              else float("nan"))
     depth_true_m = (z_true / 1000.0).astype(np.float32)
     return RaytracedFrame(
         frame, truth, kind_img, depth_true_m, z_clean - z_true, sigma_z, label, saturated & ~valid, pile, a_max,
-        T_cam_bin(pose), cpu,
+        T_cam_bin(pose), off, np.where(np.isfinite(xyz_mm[..., 2]), err, np.nan).astype(np.float32), cpu,
     )

@@ -67,8 +67,8 @@ def test_synth_attaches_the_exact_model(logs):
     _, synth, _, _ = logs
     with open(synth, "rb") as f:  # the independent reader, CRCs checked
         r = make_reader(f, validate_crcs=True)
-        (att,) = list(r.iter_attachments())
-        assert r.get_summary().statistics.attachment_count == 1
+        att, part = list(r.iter_attachments())  # and the part's mesh (docs/formats.md)
+        assert r.get_summary().statistics.attachment_count == 2 and part.name == "part_model.ply"
     assert (att.name, att.media_type) == (layout.BIN_MODEL_ATTACHMENT, layout.BIN_MODEL_MEDIA_TYPE)
     reader = LogReader(synth)
     assert reader.bin_model_ply == att.data and reader.bin_model_problem is None
@@ -195,7 +195,7 @@ def test_a_damaged_attachment_is_a_named_warning(logs, tmp_path, capsys):
     _, synth, _, _ = logs
     raw = bytearray(synth.read_bytes())
     with McapFile(synth) as mf:
-        (a,) = mf.summary.attachment_indexes
+        (a,) = [x for x in mf.summary.attachment_indexes if x.name == layout.BIN_MODEL_ATTACHMENT]
     raw[a.offset + a.length // 2] ^= 0xFF  # inside the PLY data: the attachment's CRC no longer holds
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(bytes(raw))

@@ -84,7 +84,7 @@ def test_same_seed_same_bytes(tmp_path):
     a = write_raytraced_log(tmp_path / "a" / "log.mcap", seed=4, **kw).read_bytes()
     b = write_raytraced_log(tmp_path / "b" / "log.mcap", seed=4, **kw).read_bytes()
     assert a == b
-    assert rt_log.RAYTRACE_VERSION == "1"
+    assert rt_log.RAYTRACE_VERSION == "2"
 
 
 def test_depth_topic_round_trip(tmp_path):
