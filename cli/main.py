@@ -167,6 +167,10 @@ def main(argv: list[str] | None = None) -> int:
                     return stdout.status(status)
                 raise Interrupted(interrupts.signum)  # a library swallowed the interruption: it still ends the command
             except BaseException as e:  # noqa: BLE001 - an interruption, whatever a library made of it
+                if isinstance(e, SystemExit) and not e.code:  # --help, --version: printed, if stdout took it
+                    stdout.flush()
+                    if stdout.lost:
+                        return stdout.status(EXIT_OK)
                 status = interrupted_by(e, interrupts)
                 if status is None:
                     raise
@@ -234,8 +238,8 @@ class _StdoutGuard(io.TextIOBase):
     def status(self, status: int) -> int:
         """The command's exit status, 1 if its standard output was lost (and it had succeeded)."""
         if self.lost:
-            print(f"error: the standard output could not be written ({self.problem}); "
-                  "the command's file outputs are complete", file=sys.stderr)
+            print(f"error: the standard output could not be written ({self.problem}): what the command "
+                  "printed is lost; its file outputs are complete", file=sys.stderr)
             return status or EXIT_USER_ERROR
         return status
 
