@@ -332,7 +332,8 @@ def _out_of_memory(e: BaseException) -> str | None:
             text = str(c).lower()
             if any(k in text for k in ("failed to map segment", "cannot allocate memory", "failed to allocate",
                                        "out of memory", "cannot map", "enomem")):
-                what = c.name or "a compiled extension"
+                lib = str(c).split(":")[0].strip()  # "libOpen3D.so.0.20: failed to map segment ..."
+                what = lib if ".so" in lib else (c.name or "a compiled extension")
                 return (f"not enough memory to load {what} (a memory limit such as `ulimit -v` "
                         "is lower than the command needs)")
     return None

@@ -8,7 +8,6 @@ import subprocess
 import sys
 
 import pytest
-
 from cli_helpers import run_cli
 
 MISTAKES = {
