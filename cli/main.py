@@ -18,6 +18,8 @@ import io
 import os
 import signal
 import sys
+from collections.abc import Iterator
+from typing import Any
 
 from annotate.commands import accuracy as accuracy_cmd
 from annotate.commands import annotate as annotate_cmd
@@ -257,7 +259,7 @@ class _StdoutGuard(io.TextIOBase):
             self._fail(None)
             return len(s)
         try:
-            return self._inner.write(s)
+            return int(self._inner.write(s))
         except BrokenPipeError:
             raise
         except OSError as e:
@@ -288,12 +290,12 @@ class _StdoutGuard(io.TextIOBase):
         return getattr(self._inner, "encoding", None) or "utf-8"
 
     @property
-    def buffer(self):
+    def buffer(self) -> Any:
         if self._inner is None:
             return io.BytesIO()  # bytes written here go nowhere, like the text
         return self._inner.buffer
 
-    def __getattr__(self, name: str):
+    def __getattr__(self, name: str) -> Any:
         return getattr(self._inner, name)
 
 
@@ -312,7 +314,7 @@ def _devnull_on(fd: int) -> None:
         os.close(null)
 
 
-def _chain(e: BaseException):
+def _chain(e: BaseException) -> Iterator[BaseException]:
     seen: set[int] = set()
     cur: BaseException | None = e
     while cur is not None and id(cur) not in seen:
