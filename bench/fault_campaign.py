@@ -1127,15 +1127,17 @@ def group_issue35_others(f, work, rng, rows, env) -> None:
     shutil.copy(f["db"], db)
     holder = sqlite3.connect(db, isolation_level=None)
     holder.execute("BEGIN EXCLUSIVE")
+    runs = []
     try:
         for name, argv in (("labels import", ["labels", "import", f["labels_mcap"], "--db", db, "--log", f["parts"]]),
                            ("labels list", ["labels", "list", f["parts"], "--db", db])):
-            r = run(argv, env=env, timeout=300)
-            rows.append(case_row("issue 35 (others)", f"label store locked by another writer: {name}", r,
-                                 allowed={1}, inputs_before={}, inputs=[], folders=[d]))
+            runs.append((name, run(argv, env=env, timeout=300)))
     finally:
         holder.execute("ROLLBACK")
         holder.close()
+    for name, r in runs:  # the store read back once the other writer let go
+        rows.append(case_row("issue 35 (others)", f"label store locked by another writer: {name}", r,
+                             allowed={1}, inputs_before={}, inputs=[], folders=[d]))
     # the output folder removed while replay --rrd writes
     d = _fresh(work / "removed")
     target = d / "sub"
