@@ -14,7 +14,23 @@ output, exit status), with generators of its own (not the fuzz suite's):
   reordered and padded point fields, big-endian and float64 clouds, rows with padding, an
   unorganized cloud, NaN everywhere, one point, identical points, duplicate and unordered stamps,
   unchunked and index-less files, lz4 and uncompressed chunks, foreign image encodings and sizes, an
-  all-zero CameraInfo, two organized clouds, an empty log, a huge frame_id.
+  all-zero CameraInfo, two organized clouds, an empty log, a huge frame_id;
+
+and issue 35's second campaign:
+
+- **stop/cont**: SIGSTOP then SIGCONT (a job suspended and resumed), and SIGTERM to a stopped job;
+- **SIGHUP** at random moments of every long command (a closed terminal: 129, as SIGTERM's clean-up);
+- **process group**: SIGINT, SIGTERM, SIGHUP to the whole group of a batch, a sweep, a replay;
+- **stdout** closed (``>&-``) or full (``>/dev/full``): file outputs complete, one line, exit 1;
+- **ulimit** ``-v`` (address space), ``-n`` (descriptors), ``-f`` (file size), set in the child;
+- **names** with spaces, unicode, a newline, 255 bytes, for inputs and outputs;
+- **links/FIFOs**: symlink loops and FIFOs as inputs and outputs (never a hang), a batch of a folder
+  with a dangling and a looping ``.mcap`` link;
+- **argparse**: a mistake of every kind (choice, type, missing value or argument, clash, unknown
+  option or command) is exactly one line naming it;
+- **issue 35 (others)**: a study resumed after its input changed, a ground-truth mask of the wrong
+  size, a label store held by another writer (``BEGIN EXCLUSIVE``), the output folder removed while
+  ``replay --rrd`` writes.
 
 Every case gives one row: the case, the exit status, the one-line message (the ``error:`` line, else
 the last line), whether the inputs are intact (SHA-256 before and after), the leftovers (zcut's
@@ -24,7 +40,7 @@ reader, PLY, TOML, Parquet, JSON, SQLite integrity) and whether the row is clean
 is one the contract allows, at most one ``error:`` line, no traceback, inputs intact, no leftovers,
 outputs complete).
 
-    .venv/bin/python bench/fault_campaign.py --work /tmp/campaign [--seed 1] [--only GROUP ...]
+    .venv/bin/python bench/fault_campaign.py --work /tmp/campaign [--seed 1] [--only GROUP ...] [--size 128x96]
 
 Needs root (tmpfs mounts, ``setpriv``); on a machine that refuses them those groups are skipped and
 say so. Prints the table as Markdown and the number of clean rows; exit status 0 when all are clean.
@@ -210,7 +226,7 @@ def outputs_complete(folder: Path) -> bool:
     if not folder.exists():
         return True
     return all(complete(q) for q in folder.rglob("*") if q.is_file() and not q.name.startswith(".")
-               and q.name not in ("filler",))
+               and q.name not in ("filler",) and not q.name.endswith(("-wal", "-shm", "-journal")))  # SQLite's
 
 
 # --------------------------------------------------------------------------------- mounts
@@ -753,8 +769,394 @@ def group_hostile(f, work, rng, rows, env) -> None:
                                  inputs=[log], folders=[d]))
 
 
+# ------------------------------------------------------- issue 35: the second campaign's cases
+#
+# Generators written here, independent of the code under test: signals sent with os.kill/os.killpg,
+# descriptors closed or pointed at /dev/full by the shell, limits set with resource.setrlimit in the
+# child, names, links and FIFOs made with os.*, logs written with the mcap library.
+
+
+def run_raw(cmd: list, *, timeout: float = 600, env: dict | None = None, stdout="pipe", preexec=None,
+            shell_redirect: str | None = None, new_session: bool = False) -> Run:
+    """Run ``zcut CMD`` with stdout as asked: "pipe", "closed" (the shell's ``>&-``), "full"
+    (``>/dev/full``) or "devnull"; ``preexec`` runs in the child (limits)."""
+    argv = [*ZCUT, *map(str, cmd)]
+    if stdout == "closed":
+        argv = ["sh", "-c", 'exec "$@" >&-', "sh", *argv]
+    out = {"pipe": subprocess.PIPE, "devnull": subprocess.DEVNULL, "closed": None}.get(stdout)
+    full = open("/dev/full", "w") if stdout == "full" else None  # noqa: SIM115
+    t0 = time.monotonic()
+    try:
+        p = subprocess.run(argv, stdout=full or out, stderr=subprocess.PIPE, text=True, timeout=timeout,
+                           env=dict(os.environ, **(env or {})), cwd="/", preexec_fn=preexec,
+                           start_new_session=new_session)
+        return Run(p.returncode, p.stdout or "", p.stderr, time.monotonic() - t0)
+    except subprocess.TimeoutExpired as e:
+        err = e.stderr.decode(errors="replace") if isinstance(e.stderr, bytes) else (e.stderr or "")
+        return Run(-999, "", err + f"\nHANG after {timeout:g} s", time.monotonic() - t0)
+    finally:
+        if full:
+            full.close()
+
+
+def _spawn(cmd: list, env: dict, *, new_session: bool = False) -> subprocess.Popen:
+    return subprocess.Popen([*ZCUT, *map(str, cmd)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, **env), cwd="/", start_new_session=new_session)
+
+
+def _finish(p: subprocess.Popen, timeout: float = 600) -> tuple[int, str]:
+    try:
+        _, err = p.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        _, err = p.communicate()
+        err += "\nHANG after the signal"
+        return -999, err
+    return p.returncode, err
+
+
+def _wait_line(p: subprocess.Popen, needle: str, seconds: float = 300) -> str:
+    """Read the child's stderr until a line holds ``needle`` (what was read is returned)."""
+    seen = ""
+    deadline = time.monotonic() + seconds
+    while needle not in seen and time.monotonic() < deadline and p.poll() is None:
+        line = p.stderr.readline()
+        if not line:
+            break
+        seen += line
+    return seen
+
+
+def _fresh(d: Path) -> Path:
+    shutil.rmtree(d, ignore_errors=True)
+    d.mkdir(parents=True)
+    return d
+
+
+def group_stop_cont(f, work, rng, rows, env) -> None:
+    """SIGSTOP then SIGCONT (a job suspended with Ctrl-Z and resumed): the command finishes normally;
+    SIGTERM to a stopped command (the shell's `kill %1`), then SIGCONT: it unwinds (143)."""
+    inputs = [f["parts"], f["rods"], f["bin"]]
+    before = digest(inputs)
+    d = work / "stopcont"
+    cmds = {
+        "replay": lambda d: ["replay", f["parts"], "--bin-model", f["bin"], "--rrd", d / "o.rrd", "--out", d / "r.mcap"],
+        "batch": lambda d: ["batch", f["parts"], f["rods"], "-o", d / "b", "--workers", "2", "--frames-per-unit", "1"],
+    }
+    for name, argv in cmds.items():
+        for then_term in (False, True):
+            _fresh(d)
+            p = _spawn(argv(d), env)
+            delay = rng.uniform(0.5, 4.0)
+            time.sleep(delay)
+            os.kill(p.pid, signal.SIGSTOP)
+            time.sleep(rng.uniform(0.5, 2.0))
+            if then_term:
+                os.kill(p.pid, signal.SIGTERM)
+            os.kill(p.pid, signal.SIGCONT)
+            rc, err = _finish(p)
+            case = f"{name}: SIGSTOP at {delay:.1f} s, " + ("SIGTERM, SIGCONT" if then_term else "SIGCONT")
+            rows.append(case_row("stop/cont", case, Run(rc, "", err, delay), allowed={0, 143} if then_term else {0},
+                                 inputs_before=before, inputs=inputs, folders=[d], procs=wait_gone(str(d))))
+
+
+def group_sighup(f, work, rng, rows, env) -> None:
+    """SIGHUP (a closed terminal or SSH session) at random moments: 129, one line, nothing left."""
+    inputs = [f["parts"], f["rods"], f["empty"], f["bin"], f["scans"]]
+    before = digest(inputs)
+    d = work / "hup"
+    for name in ("replay", "batch", "sweep", "synth", "record", "bin-model"):
+        for _ in range(2):
+            _fresh(d)
+            argv = signal_commands(f, d)[name]
+            p = _spawn(argv, env)
+            delay = rng.uniform(0.3, 6.0)
+            time.sleep(delay)
+            p.send_signal(signal.SIGHUP)
+            rc, err = _finish(p)
+            row = case_row("SIGHUP", f"{name}: SIGHUP at {delay:.1f} s", Run(rc, "", err, delay), allowed={0, 129},
+                           inputs_before=before, inputs=inputs, folders=[d], procs=wait_gone(str(d)))
+            if rc == 129:
+                row.one_line = row.one_line and err.rstrip().endswith("interrupted (SIGHUP)")
+            rows.append(row)
+
+
+def group_process_group(f, work, rng, rows, env) -> None:
+    """A signal to the whole process group (a terminal's Ctrl-C or hang-up, `kill -TERM -PGID`): the
+    driver and its workers all receive it; the driver decides (128 + signal), no worker is left."""
+    inputs = [f["parts"], f["rods"], f["bin"]]
+    before = digest(inputs)
+    d = work / "pgrp"
+    for name in ("batch", "sweep", "replay"):
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            _fresh(d)
+            p = _spawn(signal_commands(f, d)[name], env, new_session=True)
+            delay = rng.uniform(1.0, 8.0)
+            time.sleep(delay)
+            try:
+                os.killpg(p.pid, sig)
+            except ProcessLookupError:
+                pass
+            rc, err = _finish(p)
+            case = f"{name}: {signal.Signals(sig).name} to the group at {delay:.1f} s"
+            row = case_row("process group", case, Run(rc, "", err, delay), allowed={0, 128 + sig},
+                           inputs_before=before, inputs=inputs, folders=[d], procs=wait_gone(str(d)))
+            if rc == 128 + sig:
+                row.one_line = row.one_line and err.rstrip().endswith(f"interrupted ({signal.Signals(sig).name})")
+            rows.append(row)
+
+
+def group_stdout(f, work, rng, rows, env) -> None:
+    """A closed (`>&-`) or full (`>/dev/full`) stdout: the file outputs are complete; what was printed
+    and lost is one `error:` line and exit 1 (0 when nothing was printed to stdout)."""
+    inputs = [f["parts"], f["db"], f["bin"]]
+    before = digest(inputs)
+    d = work / "stdout"
+    cases = {
+        "topics": (lambda d: ["topics", f["parts"]], {1}),
+        "labels list": (lambda d: ["labels", "list", f["parts"], "--db", f["db"]], {1}),
+        "--version": (lambda d: ["--version"], {1}),
+        "replay --help": (lambda d: ["replay", "--help"], {1}),
+        "synth -o": (lambda d: ["synth", "-o", d / "s.mcap", "--size", SIZE], {0}),
+        "replay --out --rrd": (lambda d: ["replay", f["parts"], "--bin-model", f["bin"], "--out", d / "r.mcap",
+                                          "--rrd", d / "o.rrd"], {1}),
+        "batch --json": (lambda d: ["batch", f["parts"], "-o", d / "b", "--workers", "1", "--json"], {1}),
+    }
+    for how in ("closed", "full"):
+        for name, (argv, allowed) in cases.items():
+            _fresh(d)
+            r = run_raw(argv(d), env=env, stdout=how)
+            row = case_row("stdout", f"{name} >{'&-' if how == 'closed' else '/dev/full'}", r, allowed=allowed,
+                           inputs_before=before, inputs=inputs, folders=[d])
+            if 1 in allowed:  # the one line says that stdout was lost
+                row.one_line = row.one_line and "standard output" in row.message
+            row.one_line = row.one_line and "Exception ignored" not in r.err
+            rows.append(row)
+
+
+def _limit(kind: int, value: int):
+    def set_it() -> None:
+        import resource
+
+        resource.setrlimit(kind, (value, value))
+    return set_it
+
+
+def group_ulimit(f, work, rng, rows, env) -> None:
+    """Resource limits set in the child (`ulimit -v / -n / -f`): one line, exit 1 (or success), never
+    a traceback nor a death by a signal."""
+    import resource
+
+    inputs = [f["parts"], f["rods"], f["empty"], f["bin"]]
+    before = digest(inputs)
+    d = work / "ulimit"
+    cases = {
+        "-v 1000000: bin-model": (resource.RLIMIT_AS, 1_000_000 * 1024, lambda d: ["bin-model", f["empty"], "-o", d / "b.ply"]),
+        "-v 1000000: synth --sensor raytraced": (resource.RLIMIT_AS, 1_000_000 * 1024,
+                                                 lambda d: ["synth", "-o", d / "r.mcap", "--size", SIZE, "--sensor", "raytraced"]),
+        "-v 1000000: topics": (resource.RLIMIT_AS, 1_000_000 * 1024, lambda d: ["topics", f["parts"]]),
+        "-v 3000000: replay --out": (resource.RLIMIT_AS, 3_000_000 * 1024,
+                                     lambda d: ["replay", f["parts"], "--bin-model", f["bin"], "--out", d / "r.mcap"]),
+        "-n 24: replay --out --rrd": (resource.RLIMIT_NOFILE, 24,
+                                      lambda d: ["replay", f["parts"], "--out", d / "r.mcap", "--rrd", d / "o.rrd"]),
+        "-n 24: batch": (resource.RLIMIT_NOFILE, 24, lambda d: ["batch", f["parts"], f["rods"], "-o", d / "b", "--workers", "2"]),
+        "-f 64 KB: synth": (resource.RLIMIT_FSIZE, 64 * 1024, lambda d: ["synth", "-o", d / "s.mcap", "--size", SIZE]),
+        "-f 64 KB: replay --out --rrd": (resource.RLIMIT_FSIZE, 64 * 1024,
+                                         lambda d: ["replay", f["parts"], "--out", d / "r.mcap", "--rrd", d / "o.rrd"]),
+        "-f 64 KB: batch": (resource.RLIMIT_FSIZE, 64 * 1024, lambda d: ["batch", f["parts"], "-o", d / "b", "--workers", "1"]),
+    }
+    for name, (kind, value, argv) in cases.items():
+        _fresh(d)
+        r = run_raw(argv(d), env=env, stdout="devnull", preexec=_limit(kind, value))
+        rows.append(case_row("ulimit", name, r, allowed={0, 1, 3} if "batch" in name else {0, 1},
+                             inputs_before=before, inputs=inputs, folders=[d], procs=wait_gone(str(d))))
+
+
+def group_names(f, work, rng, rows, env) -> None:
+    """Inputs and outputs named with spaces, unicode, a newline, 255 bytes: the same contract."""
+    d = work / "names"
+    names = {"spaces": "a log with spaces", "unicode": "ñame-日本語-Ω", "newline": "two\nlines",
+             "255 bytes": "n" * (255 - len(".mcap"))}
+    for what, stem in names.items():
+        _fresh(d)
+        log = d / f"{stem}.mcap"
+        shutil.copy(f["parts"], log)
+        inputs = [log, f["bin"]]
+        before = digest(inputs)
+        out = d / ("out " + what)
+        out.mkdir()
+        cases = {
+            "topics": (["topics", log], {0}),
+            "replay --out --rrd": (["replay", log, "--bin-model", f["bin"], "--out", out / f"{stem}.r.mcap"[-255:],
+                                    "--rrd", out / f"{stem}.rrd"[-255:]], {0, 1}),
+            "synth -o": (["synth", "-o", out / f"{stem}.s.mcap"[-255:], "--size", SIZE], {0, 1}),
+            "batch": (["batch", log, "-o", out / f"{stem}.b"[-255:], "--workers", "1"], {0, 1}),
+        }
+        for name, (argv, allowed) in cases.items():
+            r = run(argv, env=env)
+            rows.append(case_row("names", f"{what}: {name}", r, allowed=allowed, inputs_before=before, inputs=inputs,
+                                 folders=[d], outputs=[out], procs=wait_gone(str(d))))
+
+
+def group_links_fifos(f, work, rng, rows, env) -> None:
+    """Symlink loops and FIFOs as inputs and outputs: refused in one line, never a hang."""
+    d = _fresh(work / "links")
+    loop_a, loop_b = d / "loop_a.mcap", d / "loop_b.mcap"
+    os.symlink(loop_b, loop_a)
+    os.symlink(loop_a, loop_b)
+    fifo_in, fifo_out = d / "in.mcap", d / "out.mcap"
+    os.mkfifo(fifo_in)
+    os.mkfifo(fifo_out)
+    out = d / "out"
+    out.mkdir()
+    inputs = [f["parts"], f["bin"]]
+    before = digest(inputs)
+    cases = {
+        "topics of a symlink loop": (["topics", loop_a], {1}),
+        "replay of a symlink loop": (["replay", loop_a], {1}),
+        "replay --out onto a symlink loop": (["replay", f["parts"], "--out", loop_a], {1}),
+        "synth -o onto a symlink loop": (["synth", "-o", loop_b, "--size", SIZE], {1}),
+        "topics of a FIFO (no writer)": (["topics", fifo_in], {1}),
+        "replay of a FIFO (no writer)": (["replay", fifo_in, "--out", out / "r.mcap"], {1}),
+        "replay --out onto a FIFO": (["replay", f["parts"], "--out", fifo_out], {1}),
+        "synth -o onto a FIFO": (["synth", "-o", fifo_out, "--size", SIZE, "--force"], {1}),
+        "bin-model -o onto a FIFO": (["bin-model", f["empty"], "-o", fifo_out], {1}),
+    }
+    for name, (argv, allowed) in cases.items():
+        r = run(argv, env=env, timeout=120)
+        rows.append(case_row("links/FIFOs", name, r, allowed=allowed, inputs_before=before, inputs=inputs,
+                             folders=[d], outputs=[out], procs=wait_gone(str(d))))
+    # a folder of logs with a looping and a dangling .mcap symlink (issue 35 item 5, another helper's)
+    logs = _fresh(work / "links-batch")
+    shutil.copy(f["parts"], logs / "a.mcap")
+    os.symlink(logs / "gone.mcap", logs / "dangling.mcap")
+    os.symlink(logs / "loop2.mcap", logs / "loop1.mcap")
+    os.symlink(logs / "loop1.mcap", logs / "loop2.mcap")
+    b = work / "links-batch-out"
+    shutil.rmtree(b, ignore_errors=True)
+    r = run(["batch", logs, "-o", b, "--workers", "1"], env=env)
+    rows.append(case_row("links/FIFOs", "batch of a folder with a dangling and a looping .mcap symlink", r,
+                         allowed={1, 3}, inputs_before=before, inputs=inputs, folders=[logs, b],
+                         procs=wait_gone(str(b))))
+
+
+#: (argv, what the one line must name): mistakes of every kind on several commands
+ARGPARSE_MISTAKES = [
+    (["replay", "x.mcap", "--methods", "telepathy"], "--methods"),
+    (["synth", "-o", "x.mcap", "--parts", "bolts"], "--parts"),
+    (["synth", "-o", "x.mcap", "--frames", "three"], "--frames"),
+    (["synth", "-o", "x.mcap", "--size"], "--size"),
+    (["synth"], "--output"),
+    (["replay"], "LOG"),
+    (["replay", "x.mcap", "--spawn", "--rrd", "o.rrd"], "--rrd"),
+    (["synth", "-o", "x.mcap", "--shiny", "--matte"], "--matte"),
+    (["batch", "x.mcap", "-o", "b", "--workers", "many"], "--workers"),
+    (["batch", "x.mcap"], "--out"),
+    (["sweep", "x.mcap", "-o", "s", "--workers"], "--workers"),
+    (["annotate", "x.mcap", "--port", "http"], "--port"),
+    (["labels"], "ACTION"),
+    (["labels", "export", "x.mcap", "--db", "l.sqlite"], "--out"),
+    (["topics", "x.mcap", "--colour"], "--colour"),
+    (["replays", "x.mcap"], "replays"),
+    (["--verison"], "--verison"),
+]
+
+
+def group_argparse(f, work, rng, rows, env) -> None:
+    """Command-line mistakes: exactly one line naming what was wrong, exit 1, nothing written."""
+    d = _fresh(work / "argparse")
+    for argv, names in ARGPARSE_MISTAKES:
+        r = run([*argv], env=env, timeout=120)
+        row = case_row("argparse", " ".join(argv), r, allowed={1}, inputs_before={}, inputs=[], folders=[d])
+        lines = [ln for ln in r.err.splitlines() if ln.strip()]
+        row.one_line = row.one_line and len(lines) == 1 and lines[0].startswith("error:") and names in lines[0]
+        rows.append(row)
+
+
+def group_issue35_others(f, work, rng, rows, env) -> None:
+    """The second campaign's cases that other parts of the code own: a study resumed after its input
+    changed, a ground-truth mask of the wrong size, a label store held by another writer, the output
+    folder removed while a recording is written."""
+    from mcap.writer import Writer as McapWriter
+    from mcap_ros2._dynamic import serialize_dynamic
+
+    # a study resumed after its input changed (the same path, other content): refused, or a fresh start
+    d = _fresh(work / "resume")
+    log = d / "log.mcap"
+    shutil.copy(f["parts"], log)
+    argv = ["batch", log, "-o", d / "b", "--workers", "1", "--frames-per-unit", "1"]
+    first = run(argv, env=env)
+    shutil.copy(f["rods"], log)
+    before = digest([log])
+    again = run(argv, env=env)
+    row = case_row("issue 35 (others)", "batch resumed after its input changed", again, allowed={1},
+                   inputs_before=before, inputs=[log], folders=[d])
+    row.exit = f"{first.rc}; again {again.rc}"
+    rows.append(row)
+    # a ground-truth mask of the wrong size (48 x 64 for 96 x 128 clouds), written here
+    d = _fresh(work / "wrongsize")
+    enc = {t: serialize_dynamic(t, s)[t] for t, s in (("sensor_msgs/msg/PointCloud2", PC2),
+                                                      ("sensor_msgs/msg/Image", IMAGE))}
+    path = d / "wrong_size_truth.mcap"
+    with open(path, "wb") as fh:
+        wr = McapWriter(fh)
+        wr.start(profile="ros2", library="zcut fault campaign")
+        sc = wr.register_schema("sensor_msgs/msg/PointCloud2", "ros2msg", PC2.encode())
+        si = wr.register_schema("sensor_msgs/msg/Image", "ros2msg", IMAGE.encode())
+        cc = wr.register_channel("/camera/points", "cdr", sc)
+        ct = wr.register_channel("/ground_truth/outliers", "cdr", si)
+        for i in range(2):
+            t = 1_700_000_000_000_000_000 + i * 10**8
+            wr.add_message(cc, log_time=t, publish_time=t,
+                           data=enc["sensor_msgs/msg/PointCloud2"](_cloud_msg(_scene(96, 128, rng), stamp_ns=t)))
+            wr.add_message(ct, log_time=t, publish_time=t,
+                           data=enc["sensor_msgs/msg/Image"](_image_msg(48, 64, stamp_ns=t, encoding="mono8")))
+        wr.finish()
+    before = digest([path])
+    out = _fresh(work / "wrongsize-out")
+    for name, argv in (("replay", ["replay", path, "--out", out / "r.mcap"]),
+                       ("batch", ["batch", path, "-o", out / "b", "--workers", "1"])):
+        r = run(argv, env=env)
+        row = case_row("issue 35 (others)", f"ground truth of the wrong size: {name}", r, allowed={1, 3},
+                       inputs_before=before, inputs=[path], folders=[out])
+        row.allowed = row.allowed and ("wrong_size" in r.err + r.out or "size" in row.message)
+        rows.append(row)
+    # a label store held by another writer (BEGIN EXCLUSIVE)
+    d = _fresh(work / "locked")
+    db = d / "labels.sqlite"
+    shutil.copy(f["db"], db)
+    holder = sqlite3.connect(db, isolation_level=None)
+    holder.execute("BEGIN EXCLUSIVE")
+    runs = []
+    try:
+        for name, argv in (("labels import", ["labels", "import", f["labels_mcap"], "--db", db, "--log", f["parts"]]),
+                           ("labels list", ["labels", "list", f["parts"], "--db", db])):
+            runs.append((name, run(argv, env=env, timeout=300)))
+    finally:
+        holder.execute("ROLLBACK")
+        holder.close()
+    for name, r in runs:  # the store read back once the other writer let go; a reader may read (WAL)
+        rows.append(case_row("issue 35 (others)", f"label store locked by another writer: {name}", r,
+                             allowed={1} if name == "labels import" else {0, 1}, inputs_before={}, inputs=[],
+                             folders=[d]))
+    # the output folder removed while replay --rrd writes
+    d = _fresh(work / "removed")
+    target = d / "sub"
+    target.mkdir()
+    p = _spawn(["replay", f["parts"], "--rrd", target / "o.rrd", "--out", target / "r.mcap"], env)
+    _wait_line(p, "frame 0")
+    shutil.rmtree(target, ignore_errors=True)
+    rc, err = _finish(p)
+    rows.append(case_row("issue 35 (others)", "output folder removed while replay --rrd writes", Run(rc, "", err, 0),
+                         allowed={1}, inputs_before={}, inputs=[], folders=[d]))
+
+
 GROUPS = {"full disk": group_full_disk, "signals": group_signals, "concurrent": group_concurrent,
-          "unprivileged": group_unprivileged, "hostile": group_hostile}
+          "unprivileged": group_unprivileged, "hostile": group_hostile,
+          # issue 35's second campaign
+          "stop/cont": group_stop_cont, "SIGHUP": group_sighup, "process group": group_process_group,
+          "stdout": group_stdout, "ulimit": group_ulimit, "names": group_names, "links/FIFOs": group_links_fifos,
+          "argparse": group_argparse, "issue 35 (others)": group_issue35_others}
 
 
 def table(rows: list[Row]) -> str:
@@ -770,11 +1172,15 @@ def table(rows: list[Row]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    global SIZE
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work", type=Path, required=True, help="a folder for the inputs, mounts and outputs")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--only", nargs="*", choices=list(GROUPS), help="run only these groups")
+    ap.add_argument("--size", default=SIZE, metavar="WxH",
+                    help=f"size of the synthetic scans (default {SIZE}; 128x96 keeps a run short)")
     args = ap.parse_args(argv)
+    SIZE = args.size
     rng = random.Random(args.seed)
     args.work.mkdir(parents=True, exist_ok=True)
     os.chmod(args.work, 0o755)

@@ -19,11 +19,14 @@ from __future__ import annotations
 import signal
 import sys
 
-_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def _before(signum: int, frame: object) -> None:
-    sys.stderr.write(f"interrupted ({signal.Signals(signum).name})\n")
+    try:
+        sys.stderr.write(f"interrupted ({signal.Signals(signum).name})\n")
+    except (AttributeError, OSError):  # stderr closed or gone (a hung-up terminal): the status says it
+        pass
     raise SystemExit(128 + signum)
 
 
@@ -36,6 +39,10 @@ def run() -> int:
     status = main()
     for s in _SIGNALS:  # ignored (not a Python handler): Python's teardown leaves SIG_IGN in place
         signal.signal(s, signal.SIG_IGN)
-    sys.stdout.flush()
-    sys.stderr.flush()
+    for stream in (sys.stdout, sys.stderr):  # None when closed (`>&-`): cli.main said what was lost
+        try:
+            if stream is not None:
+                stream.flush()
+        except OSError:
+            pass
     return status

@@ -14,9 +14,12 @@ from __future__ import annotations
 
 import argparse
 import errno
+import io
 import os
 import signal
 import sys
+from collections.abc import Iterator
+from typing import Any
 
 from annotate.commands import accuracy as accuracy_cmd
 from annotate.commands import annotate as annotate_cmd
@@ -61,6 +64,7 @@ COMMANDS = {
 
 
 def version() -> str:
+    """The installed distribution's version (read only when ``--version`` is asked)."""
     from importlib.metadata import PackageNotFoundError
     from importlib.metadata import version as dist_version
 
@@ -71,25 +75,58 @@ def version() -> str:
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with docs/cli.md exit status: a usage error is a user error (1), not argparse's 2."""
+    """argparse with docs/cli.md's usage errors: one line naming the option and what was wrong, and
+    where the options are listed (no usage block), exit 1 (a user error), not argparse's 2."""
+
+    #: the prog of the command a top-level parser parses (its unrecognized arguments are that command's)
+    command_prog: str | None = None
 
     def error(self, message: str):  # type: ignore[override]
-        self.print_usage(sys.stderr)
-        self.exit(EXIT_USER_ERROR, f"error: {message}\n")
+        prog = self.command_prog if self.command_prog and message.startswith("unrecognized") else self.prog
+        self.exit(EXIT_USER_ERROR, f"error: {message} (see `{prog} --help`)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+class _Version(argparse.Action):
+    """``--version``: the version is looked up only when asked (importlib.metadata costs ~0.1 s)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings=option_strings, dest=dest, default=default, nargs=0,
+                         help=help or "show the version and exit")
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        sys.stdout.write(f"zcut {version()}\n")
+        parser.exit()
+
+
+def command_of(argv: list[str]) -> str | None:
+    """The command named on a command line (the first word that is not an option), or None."""
+    for a in argv:
+        if not a.startswith("-"):
+            return a if a in COMMANDS else None
+    return None
+
+
+def build_parser(command: str | None = None, *, only: bool = False) -> _Parser:
+    """The whole parser; with ``only``, the options of ``command`` alone (of none if it is None).
+
+    Each command's ``add_arguments`` may import what its choices need (numpy, the method table): the
+    command line adds only the command it runs, so that ``zcut --version`` and ``zcut --help`` load
+    none of it.
+    """
     parser = _Parser(
         prog="zcut",
         description="Replay bin-picking scans through the z-cut outlier filter, "
         "log every stage to Rerun, and measure true accuracy against labels.",
     )
-    parser.add_argument("--version", action="version", version=f"zcut {version()}")
+    parser.add_argument("--version", action=_Version)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
-        module.add_arguments(p)
+        if not only or name == command:
+            module.add_arguments(p)
         p.set_defaults(_module=module)
+    if command in COMMANDS:
+        parser.command_prog = f"zcut {command}"
     return parser
 
 
@@ -98,19 +135,20 @@ _KERNEL_COMMANDS = {"demo", "replay", "accuracy", "annotate", "sweep", "batch", 
 
 
 def announce_compilation(args: argparse.Namespace) -> None:
-    """Say so when the numba kernels have never been compiled here (a first run waits ~1 min).
+    """Say so when the numba kernels have never been compiled here (a first run waits minutes).
 
     ``scripts/install.sh`` compiles them (``python -m replay.warmup``); the cache lives beside the
-    modules (``__pycache__/*.nbi``).
+    modules (``__pycache__/*.nbi``), else in ``NUMBA_CACHE_DIR`` or numba's per-user folder.
     """
     if args.command not in _KERNEL_COMMANDS:
         return
-    from pathlib import Path
+    import glob
 
-    import zcut
+    from replay.process import _user_cache_dir, numba_cache_folders
 
-    cache = Path(zcut.__file__).parent / "__pycache__"
-    if not any(cache.glob("cut_tree*.nbi")):
+    places = [f for f in numba_cache_folders() if os.path.basename(os.path.dirname(f)) == "zcut"]
+    places += [os.path.join(d, "zcut_*") for d in (os.environ.get("NUMBA_CACHE_DIR"), _user_cache_dir()) if d]
+    if not any(glob.glob(os.path.join(p, "cut_tree*.nbi")) for p in places):
         print("zcut: compiling the numba kernels (first run only; `bash scripts/install.sh` does it ahead)…",
               file=sys.stderr, flush=True)
 
@@ -126,23 +164,32 @@ def _os_error_message(e: OSError) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    with interrupts_unwind() as interrupts:
-        try:
-            status = _main(argv, interrupts)
-            if interrupts.exit_status is None:
+    stdout = _StdoutGuard.install()
+    try:
+        with interrupts_unwind() as interrupts:
+            try:
+                status = _main(argv, interrupts)
+                if interrupts.exit_status is None:
+                    return stdout.status(status)
+                raise Interrupted(interrupts.signum)  # a library swallowed the interruption: it still ends the command
+            except BaseException as e:  # noqa: BLE001 - an interruption, whatever a library made of it
+                if isinstance(e, SystemExit) and not e.code:  # --help, --version: printed, if stdout took it
+                    stdout.flush()
+                    if stdout.lost:
+                        return stdout.status(EXIT_OK)
+                status = interrupted_by(e, interrupts)
+                if status is None:
+                    raise
+                print(f"interrupted ({signal.Signals(status - 128).name})", file=sys.stderr)
                 return status
-            raise Interrupted(interrupts.signum)  # a library swallowed the interruption: it still ends the command
-        except BaseException as e:  # noqa: BLE001 - an interruption, whatever a library made of it
-            status = interrupted_by(e, interrupts)
-            if status is None:
-                raise
-            print(f"interrupted ({signal.Signals(status - 128).name})", file=sys.stderr)
-            return status
+    finally:
+        stdout.uninstall()
 
 
 def _main(argv: list[str] | None, interrupts) -> int:
     configure_process()
-    parser = build_parser()
+    words = sys.argv[1:] if argv is None else argv
+    parser = build_parser(command_of(words), only=True)
     args = parser.parse_args(argv)
     if getattr(args, "_module", None) is None:
         parser.print_help()
@@ -162,18 +209,155 @@ def _main(argv: list[str] | None, interrupts) -> int:
         return _report(e)
 
 
+class _StdoutGuard(io.TextIOBase):
+    """``sys.stdout`` while a command runs (docs/cli.md, "Exit status"): what cannot be written to a
+    closed (``>&-``) or full (``>/dev/full``, a full disk) standard output is dropped, so the command
+    still finishes and publishes its file outputs; the command line then says so in one line and
+    exits 1. A reader that went away (``| head``) still ends the command quietly (BrokenPipeError).
+    A closed descriptor 1 gets /dev/null, so that no file the command opens (nor a worker's output)
+    takes its place."""
+
+    def __init__(self, inner, problem: str | None) -> None:
+        super().__init__()
+        self._inner = inner
+        self.problem = problem  # why stdout could not be written (None: it could)
+        self.lost = False  # something was written that did not arrive
+
+    @classmethod
+    def install(cls) -> _StdoutGuard:
+        inner, problem = sys.stdout, None
+        if inner is None or _fd_closed(1):
+            _devnull_on(1)
+            inner, problem = None, "it is closed"
+        if sys.stderr is None or _fd_closed(2):  # nowhere to say anything: keep the descriptor taken
+            _devnull_on(2)
+            sys.stderr = open(os.devnull, "w")  # noqa: SIM115 - lives as long as the process
+        guard = cls(inner, problem)
+        guard._saved = sys.stdout
+        sys.stdout = guard
+        return guard
+
+    def uninstall(self) -> None:
+        if sys.stdout is self:
+            sys.stdout = self._saved
+
+    def status(self, status: int) -> int:
+        """The command's exit status, 1 if its standard output was lost (and it had succeeded)."""
+        if self.lost:
+            print(f"error: the standard output could not be written ({self.problem}): what the command "
+                  "printed is lost; its file outputs are complete", file=sys.stderr)
+            return status or EXIT_USER_ERROR
+        return status
+
+    def _fail(self, e: OSError | None) -> None:
+        self.lost = True
+        if e is not None:
+            self.problem = "no space left on the device" if e.errno == errno.ENOSPC else (e.strerror or str(e))
+            _devnull_on(1)  # the buffered rest goes nowhere, quietly, at exit too
+        self._inner = None
+
+    def write(self, s: str) -> int:
+        if not s:
+            return 0
+        if self._inner is None:
+            self._fail(None)
+            return len(s)
+        try:
+            return int(self._inner.write(s))
+        except BrokenPipeError:
+            raise
+        except OSError as e:
+            self._fail(e)
+            return len(s)
+
+    def flush(self) -> None:
+        if self._inner is None:
+            return
+        try:
+            self._inner.flush()
+        except BrokenPipeError:
+            raise
+        except OSError as e:
+            self._fail(e)
+
+    def writable(self) -> bool:
+        return True
+
+    def isatty(self) -> bool:
+        return self._inner is not None and self._inner.isatty()
+
+    def fileno(self) -> int:
+        return 1 if self._inner is None else self._inner.fileno()
+
+    @property
+    def encoding(self) -> str:  # type: ignore[override]
+        return getattr(self._inner, "encoding", None) or "utf-8"
+
+    @property
+    def buffer(self) -> Any:
+        if self._inner is None:
+            return io.BytesIO()  # bytes written here go nowhere, like the text
+        return self._inner.buffer
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._inner, name)
+
+
+def _fd_closed(fd: int) -> bool:
+    try:
+        os.fstat(fd)
+        return False
+    except OSError:
+        return True
+
+
+def _devnull_on(fd: int) -> None:
+    null = os.open(os.devnull, os.O_WRONLY)
+    if null != fd:
+        os.dup2(null, fd)
+        os.close(null)
+
+
+def _chain(e: BaseException) -> Iterator[BaseException]:
+    seen: set[int] = set()
+    cur: BaseException | None = e
+    while cur is not None and id(cur) not in seen:
+        seen.add(id(cur))
+        yield cur
+        cur = cur.__cause__ or cur.__context__
+
+
+def _out_of_memory(e: BaseException) -> str | None:
+    """The one line of a failure to get memory: a MemoryError, or a compiled extension that could not
+    be loaded for want of address space (``ulimit -v``: "failed to map segment from shared object",
+    "cannot allocate memory"), anywhere in the chain of causes; else None."""
+    for c in _chain(e):
+        if isinstance(c, MemoryError):
+            return f"not enough memory ({c})" if str(c) else "not enough memory"
+        if isinstance(c, ImportError) and not isinstance(c, ModuleNotFoundError):
+            text = str(c).lower()
+            if any(k in text for k in ("failed to map segment", "cannot allocate memory", "failed to allocate",
+                                       "out of memory", "cannot map", "enomem")):
+                lib = str(c).split(":")[0].strip()  # "libOpen3D.so.0.20: failed to map segment ..."
+                what = lib if ".so" in lib else (c.name or "a compiled extension")
+                return (f"not enough memory to load {what} (a memory limit such as `ulimit -v` "
+                        "is lower than the command needs)")
+    return None
+
+
 def _report(e: Exception) -> int:
     """Print the one line of an error a command raised and return its exit status; re-raise an
     error that is not the user's (a bug: its traceback is wanted)."""
-    from zcut.errors import ZcutError
-
-    if isinstance(e, ZcutError):
+    errors = sys.modules.get("zcut.errors")  # a ZcutError was raised only if zcut.errors is loaded
+    memory = _out_of_memory(e)
+    if errors is not None and isinstance(e, errors.ZcutError):
         print(f"error: {e}", file=sys.stderr)
+    elif memory is not None:
+        print(f"error: {memory}", file=sys.stderr)
     elif isinstance(e, BrokenPipeError):
         # the reader of stdout went away (`zcut topics LOG | head`): nothing more to say to anyone
         try:
-            devnull = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(devnull, sys.stdout.fileno())
+            _devnull_on(1)
         except OSError:
             pass
         return EXIT_OK
@@ -184,10 +368,8 @@ def _report(e: Exception) -> int:
     elif isinstance(e, UnicodeEncodeError):  # undecodable bytes of a file name or argument, where text is needed
         print(f"error: {e.object[:80]!r} is not valid UTF-8 text, which is needed here "
               "(a file name or an argument with undecodable bytes?)", file=sys.stderr)
-    elif isinstance(e, (OverflowError, RecursionError, MemoryError)):
-        kind = next(k for t, k in ((OverflowError, "a number is out of range"),
-                                   (RecursionError, "input nested too deeply"),
-                                   (MemoryError, "not enough memory")) if isinstance(e, t))
+    elif isinstance(e, (OverflowError, RecursionError)):
+        kind = "a number is out of range" if isinstance(e, OverflowError) else "input nested too deeply"
         print(f"error: {kind} ({e})" if str(e) else f"error: {kind}", file=sys.stderr)
     else:
         raise e

@@ -2,13 +2,18 @@
 process-wide settings every command (and every worker process of a study) starts with, and what a
 signal does to a command.
 
-Signals: while a command runs (:func:`interrupts_unwind`), SIGINT and SIGTERM raise
-:class:`Interrupted` in the main thread, a ``KeyboardInterrupt`` that remembers its signal. The
-command unwinds like after Ctrl-C: every ``finally`` runs, so the temporaries of its outputs are
-removed, its worker processes are stopped and a study's finished units stay on disk (a rerun goes
-on from there). The command line then prints one line and exits 128 + the signal: 130 for SIGINT,
-143 for SIGTERM. A second signal while unwinding is not raised (the clean-up finishes); a third
-ends the process at once.
+Signals: while a command runs (:func:`interrupts_unwind`), SIGINT, SIGTERM and SIGHUP (a closed
+terminal or SSH session) raise :class:`Interrupted` in the main thread, a ``KeyboardInterrupt`` that
+remembers its signal. The command unwinds like after Ctrl-C: every ``finally`` runs, so the
+temporaries of its outputs are removed, its worker processes are stopped and a study's finished
+units stay on disk (a rerun goes on from there). The command line then prints one line and exits
+128 + the signal: 130 for SIGINT, 143 for SIGTERM, 129 for SIGHUP. A second signal while unwinding
+is not raised (the clean-up finishes); a third ends the process at once.
+
+numba's cache: the kernels are cached beside their modules, else (a shared install the user cannot
+write) in numba's per-user folder; when neither can be written, :func:`configure_process` points
+``NUMBA_CACHE_DIR`` at a private folder of the temporary directory before numba is imported (numba
+itself would fail at import, in every command).
 """
 
 from __future__ import annotations
@@ -26,13 +31,14 @@ EXIT_DATA_LOSS = 3
 #: 128 + the signal, as a shell reports a process ended by it
 EXIT_SIGINT = 128 + signal.SIGINT
 EXIT_SIGTERM = 128 + signal.SIGTERM
+EXIT_SIGHUP = 128 + signal.SIGHUP
 
 #: the signals a command handles like Ctrl-C
-INTERRUPT_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+INTERRUPT_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 class Interrupted(KeyboardInterrupt):
-    """SIGINT or SIGTERM arrived while a command ran (see the module docstring).
+    """SIGINT, SIGTERM or SIGHUP arrived while a command ran (see the module docstring).
 
     Attributes
     ----------
@@ -45,7 +51,7 @@ class Interrupted(KeyboardInterrupt):
 
     @property
     def exit_status(self) -> int:
-        """128 + the signal (130 for SIGINT, 143 for SIGTERM)."""
+        """128 + the signal (130 for SIGINT, 143 for SIGTERM, 129 for SIGHUP)."""
         return 128 + self.signum
 
 
@@ -67,7 +73,7 @@ class InterruptState:
 
 @contextmanager
 def interrupts_unwind() -> Iterator[InterruptState]:
-    """SIGINT and SIGTERM raise :class:`Interrupted` in the main thread while the block runs.
+    """SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` in the main thread while the block runs.
 
     Yields the :class:`InterruptState`: after an exception other than :class:`Interrupted` (a
     library that turned the interruption into an error of its own, e.g. numba's ``SystemError``
@@ -95,7 +101,7 @@ def interrupts_unwind() -> Iterator[InterruptState]:
 
 
 def interrupted_by(error: BaseException, state: InterruptState | None = None) -> int | None:
-    """The exit status when ``error`` comes from an interruption (SIGINT/SIGTERM), else None.
+    """The exit status when ``error`` comes from an interruption (SIGINT/SIGTERM/SIGHUP), else None.
 
     An :class:`Interrupted`, a plain ``KeyboardInterrupt``, or any error raised after a signal was
     received (``state``) or caused by an interruption (in its chain of causes) is one.
@@ -130,10 +136,81 @@ def configure_process() -> None:
     # a recording that cannot be written is reported in zcut's one line, naming the output; Rerun's
     # own log lines (Rust's format, on stderr) would repeat it, many lines long
     os.environ.setdefault("RUST_LOG", "off")
+    ensure_numba_cache()
     # `--spawn` runs `rerun` from PATH: a venv that is not activated has it only beside its python
     here = os.path.dirname(sys.executable)
     if os.path.isfile(os.path.join(here, "rerun")) and here not in os.environ.get("PATH", "").split(os.pathsep):
         os.environ["PATH"] = here + os.pathsep + os.environ.get("PATH", "")
+
+
+#: the packages whose modules hold numba kernels cached on disk (``@njit(cache=True)``)
+_KERNEL_PACKAGES = ("zcut", "replay")
+
+
+def _writable_folder(path: str) -> bool:
+    """numba's own test of a cache folder: it can be made and a file created in it."""
+    import tempfile
+
+    try:
+        os.makedirs(path, exist_ok=True)
+        tempfile.TemporaryFile(dir=path).close()
+        return True
+    except OSError:
+        return False
+
+
+def numba_cache_folders() -> list[str]:
+    """Where numba caches the kernels of :data:`_KERNEL_PACKAGES` unless told otherwise: the
+    ``__pycache__`` beside each of their modules (found without importing them, which would load
+    numba)."""
+    import importlib.util
+
+    folders = []
+    for name in _KERNEL_PACKAGES:
+        spec = importlib.util.find_spec(name)
+        for loc in (spec.submodule_search_locations or []) if spec is not None else []:
+            for here, dirs, files in os.walk(loc):
+                dirs[:] = [d for d in dirs if d != "__pycache__" and not d.startswith(".")]
+                if any(f.endswith(".py") for f in files):
+                    folders.append(os.path.join(here, "__pycache__"))
+    return folders
+
+
+def _user_cache_dir() -> str:
+    """numba's per-user cache folder (numba.misc.appdirs on Linux: $XDG_CACHE_HOME or ~/.cache)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache")
+    return os.path.join(base, "numba")
+
+
+def ensure_numba_cache() -> str | None:
+    """Make sure numba has a folder it can write its compiled kernels to, before it is imported.
+
+    numba tries ``NUMBA_CACHE_DIR``, then the ``__pycache__`` beside the module, then its per-user
+    folder; when none can be written (a shared install and a read-only or missing home) it raises at
+    import, in every command. Then this points ``NUMBA_CACHE_DIR`` at a private folder of the
+    temporary directory (``zcut-numba-UID``). Returns the folder it chose, or None when numba's own
+    choice works (or numba is imported already, too late to choose)."""
+    if "numba" in sys.modules:
+        return None
+    chosen = os.environ.get("NUMBA_CACHE_DIR")
+    if chosen and _writable_folder(chosen):
+        return None
+    if all(_writable_folder(f) for f in numba_cache_folders()) or _writable_folder(_user_cache_dir()):
+        return None
+    import tempfile
+
+    fallback = os.path.join(tempfile.gettempdir(), f"zcut-numba-{os.getuid()}")
+    try:
+        os.makedirs(fallback, mode=0o700, exist_ok=True)
+        st = os.stat(fallback)
+        if st.st_uid != os.getuid() or st.st_mode & 0o022:  # another user's folder: not ours to load code from
+            return None
+    except OSError:
+        return None
+    if not _writable_folder(fallback):
+        return None
+    os.environ["NUMBA_CACHE_DIR"] = fallback
+    return fallback
 
 
 def check_environment() -> str | None:
@@ -143,4 +220,9 @@ def check_environment() -> str | None:
     for name in CAP_VARIABLES:
         if env_cap(name, 1) is None:
             return f"{name} must be a positive integer (a size cap), got {os.environ[name]!r}"
+    if "numba" not in sys.modules and not any(
+            _writable_folder(f) for f in [os.environ.get("NUMBA_CACHE_DIR") or "", *numba_cache_folders(),
+                                          _user_cache_dir()] if f):
+        return ("no folder can hold numba's compiled kernels (beside the modules, ~/.cache/numba, "
+                "the temporary directory): set NUMBA_CACHE_DIR to a folder you can write")
     return None

@@ -7,8 +7,9 @@ dies (a crash, the memory cap) is replaced and the one unit it was running is re
 reported as failed — the units the other workers run, and those still queued, are not touched.
 
 Local workers die with their driver: each asks the kernel for SIGKILL when its parent dies
-(``prctl(PR_SET_PDEATHSIG)``, Linux) and watches its parent's pid besides; they ignore SIGINT (a
-Ctrl-C in a terminal reaches the whole process group: the driver decides, and stops them). When the
+(``prctl(PR_SET_PDEATHSIG)``, Linux) and watches its parent's pid besides; they ignore SIGINT,
+SIGTERM and SIGHUP (a Ctrl-C or a hang-up in a terminal, or ``kill -PGID``, reaches the whole process
+group: the driver decides, and stops them). When the
 driver stops early (an interruption, an error), it kills its workers and waits for them before it
 returns, so nothing of the study keeps running and the study folder's leftovers can be removed.
 
@@ -157,9 +158,10 @@ def _worker_main(conn: Connection, parent_pid: int, fn: UnitFn, job: Job) -> Non
     """A local worker: run the units the driver sends (``(key, unit)``) until it sends None or is
     gone; answer ``(key, result)`` for each."""
     die_with_parent(parent_pid)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the driver stops its workers itself
-    from replay.process import configure_process  # the command line's process settings (workers start fresh)
+    from replay.process import INTERRUPT_SIGNALS, configure_process  # (workers start fresh)
 
+    for s in INTERRUPT_SIGNALS:  # a terminal or `kill -PGID` reaches the group: the driver stops its workers
+        signal.signal(s, signal.SIG_IGN)
     configure_process()
     while True:
         try:

@@ -1,5 +1,6 @@
-"""SIGINT and SIGTERM (docs/cli.md, exit status): one line, exit 130 or 143, no temporary file and no
-lock left, whenever the signal lands — during start-up, while frames run, while outputs close."""
+"""SIGINT, SIGTERM and SIGHUP (docs/cli.md, exit status): one line, exit 130, 143 or 129, no temporary
+file and no lock left, whenever the signal lands — during start-up, while frames run, while outputs
+close."""
 
 from __future__ import annotations
 
@@ -37,7 +38,11 @@ def _wait_for(p: subprocess.Popen, needle: bytes, seen: bytearray) -> None:
         seen += chunk
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+SIGNALS = [signal.SIGINT, signal.SIGTERM, signal.SIGHUP]
+SIGNAL_IDS = ["SIGINT", "SIGTERM", "SIGHUP"]
+
+
+@pytest.mark.parametrize("sig", SIGNALS, ids=SIGNAL_IDS)
 @pytest.mark.parametrize("moment", ["start-up", "first note", "first frame", "second frame"])
 def test_a_signal_ends_replay_in_one_line_with_no_leftovers(log, tmp_path, sig, moment):
     p = _start(log, tmp_path)
@@ -73,25 +78,27 @@ def test_the_command_line_handles_signals_before_it_loads_the_kernels():
     assert out.stdout.strip() == "[]"
 
 
-def test_a_signal_while_the_command_line_loads_is_one_line_and_143(tmp_path):
-    """The program entry (cli/entry.py) handles SIGTERM before the command's modules are imported: a
-    signal landing while ``cli.main`` loads ends with 143 and one line, not killed by it (-15)."""
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
+def test_a_signal_while_the_command_line_loads_is_one_line_and_128_plus_it(tmp_path, sig):
+    """The program entry (cli/entry.py) handles SIGTERM and SIGHUP before the command's modules are
+    imported: a signal landing while ``cli.main`` loads ends with 143 (129) and one line, not killed
+    by it (-15, -1)."""
     code = ("import builtins, os, signal, sys\n"
             "real = builtins.__import__\n"
             "def imp(name, *a, **k):\n"
             "    if name == 'cli.main':\n"
-            "        os.kill(os.getpid(), signal.SIGTERM)\n"
+            f"        os.kill(os.getpid(), {int(sig)})\n"
             "    return real(name, *a, **k)\n"
             "builtins.__import__ = imp\n"
             "sys.argv = ['zcut', '--help']\n"
             "from cli.entry import run\n"
             "sys.exit(run())\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
-    assert out.returncode == 128 + signal.SIGTERM, out
-    assert out.stderr.strip() == "interrupted (SIGTERM)"
+    assert out.returncode == 128 + sig, out
+    assert out.stderr.strip() == f"interrupted ({signal.Signals(sig).name})"
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("sig", SIGNALS, ids=SIGNAL_IDS)
 def test_a_signal_after_the_command_finished_keeps_its_status(log, sig):
     """Once the command returned, its outputs are published: a signal during the interpreter's teardown
     (where Python restores the default disposition) leaves the command's own exit status."""
