@@ -75,10 +75,14 @@ def scored_region(result, name: str) -> np.ndarray:
 
 def region_of_results_frame(frame, name: str) -> np.ndarray:
     """The scored region of a frame of a results file: ``/zcut/zone`` when the replay wrote one (the
-    bin stages ran), else every valid pixel of the source (the filtered cloud plus the outliers)."""
+    bin stages ran), else every valid pixel of the source: ``/zcut/valid`` (every results file has it;
+    one written without its cloud has only it), else, in a file written before it, the filtered cloud's
+    valid pixels plus the z-cut's outliers."""
     check_region(name)
-    # /zcut/filtered has the z-cut's outliers set to NaN: they were valid in the source
-    valid = np.isfinite(frame.xyz).all(axis=2) | frame.masks[layout.ZCUT_OUTLIERS]
+    valid = frame.masks.get(layout.VALID)
+    if valid is None:
+        # /zcut/filtered has the z-cut's outliers set to NaN: they were valid in the source
+        valid = np.isfinite(frame.xyz).all(axis=2) | frame.masks[layout.ZCUT_OUTLIERS]
     if name == "zone" and layout.ZONE in frame.masks:
         return frame.masks[layout.ZONE] & valid
     return valid

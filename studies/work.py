@@ -273,7 +273,8 @@ def _per_log_sinks(unit: WorkUnit, job: Job, session: ReplaySession) -> list[Fra
     stem = f"{Path(unit.log).stem}-{unit.sha256[:8]}"
     if job.extra.get("results"):
         (Path(out_dir) / "results").mkdir(exist_ok=True)
-        sinks.append(ResultsSink(Path(out_dir) / "results" / f"{stem}.results.mcap"))
+        sinks.append(ResultsSink(Path(out_dir) / "results" / f"{stem}.results.mcap",
+                                 cloud=bool(job.extra.get("results_cloud"))))
     if job.extra.get("rrd"):
         (Path(out_dir) / "rrd").mkdir(exist_ok=True)
         sinks.append(RerunSink(rrd=Path(out_dir) / "rrd" / f"{stem}.rrd"))

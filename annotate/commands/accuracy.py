@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.agreement:
         return _agreement(args)
-    reader = LogReader(args.log, cloud_topic=args.topic)
+    reader = LogReader(args.log, cloud_topic=args.topic, cloudless=True)
     truth_src = (LabelTruth(args.labels, args.log, annotator=args.annotator) if args.labels
                  else SyntheticTruth(with_kinds=layout.TRUTH_OUTLIER_KIND in reader.mask_topics,
                                      with_unknown=layout.TRUTH_UNKNOWN in reader.mask_topics))
@@ -250,7 +250,7 @@ def _agreement(args) -> int:
     a, b = args.agreement
     ta = LabelTruth(args.labels, args.log, annotator=a)
     tb = LabelTruth(args.labels, args.log, annotator=b)
-    reader = LogReader(args.log, cloud_topic=args.topic)
+    reader = LogReader(args.log, cloud_topic=args.topic, cloudless=True)
     try:
         rows = []
         stream = reader.frames()

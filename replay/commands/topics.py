@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     for note in info.notes + [d.text for d in info.peek_damage]:
         print(f"warning: {note}")
     try:
-        r = LogReader(args.log, cloud_topic=args.topic, image_topic=args.image_topic)
+        r = LogReader(args.log, cloud_topic=args.topic, image_topic=args.image_topic, cloudless=True)
     except LogFormatError:
         print("zcut would use: nothing (see the error below)", flush=True)
         raise

@@ -16,7 +16,9 @@ class Frame:
     Attributes
     ----------
     xyz : (H, W, 3) float32 ndarray
-        Metres, camera optical frame; NaN where invalid ((0, 0, 0) points are turned into NaN).
+        Metres, camera optical frame; NaN where invalid ((0, 0, 0) points are turned into NaN). A frame of a
+        results file written without its cloud has no points: a read-only all-NaN view (``has_points``
+        False), its valid pixels in ``masks['/zcut/valid']``.
     rgb : (H, W, 3) uint8 ndarray or None
         Colour image (from the Image topic, else from the cloud's rgb/rgba field).
     stamp_ns : int
@@ -33,6 +35,8 @@ class Frame:
     codes : dict[str, (H, W) uint8 ndarray]
         mono8 topics whose values are codes (``replay.logs.layout.CODE_TOPICS``, e.g.
         ``/ground_truth/outlier_kind``), as they are.
+    has_points : bool
+        False for a frame of a results file written without its cloud (``LogReader(cloudless=True)``).
     """
 
     xyz: np.ndarray
@@ -44,6 +48,7 @@ class Frame:
     index: int
     masks: dict[str, np.ndarray] = field(default_factory=dict)
     codes: dict[str, np.ndarray] = field(default_factory=dict)
+    has_points: bool = True
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -15,6 +15,9 @@ ZCUT_OUTLIERS = "/zcut/outliers"
 SOR_OUTLIERS = "/zcut/sor_outliers"
 BIN_MASK = "/zcut/bin_mask"
 FILTERED = "/zcut/filtered"
+#: the source's valid pixels (255 = a valid point): in every results file, so that one written without
+#: its cloud (the default) still tells which pixels were scored; such a file's frames are driven by it
+VALID = "/zcut/valid"
 #: the pixels the filters judged (valid minus table and bin, plus the above-the-rim points)
 ZONE = "/zcut/zone"
 RESULTS_PREFIX = "/zcut/"

@@ -293,10 +293,19 @@ class LogReader:
         hold this plus :data:`~replay.logs.files.CHUNK_SLACK_BYTES` (64 MiB) uncompressed, checked
         before decompressing. Default :data:`~replay.logs.files.DEFAULT_MAX_MESSAGE_BYTES`
         (256 MiB).
+    cloudless : bool
+        Accept a results file written without its cloud (``zcut replay --out`` without
+        ``--out-cloud``, docs/formats.md): its frames are driven by its ``/zcut/valid`` masks, have no
+        points (``Frame.has_points`` False, ``xyz`` a read-only all-NaN view) and carry their valid
+        pixels in ``masks['/zcut/valid']``. Without it such a file is refused in one line saying how
+        to get the cloud (for the commands that need the points).
 
     Attributes
     ----------
     cloud_topic : str
+        The topic driving the frames: the organized cloud, or ``/zcut/valid`` when :attr:`cloudless`.
+    cloudless : bool
+        The file is a results file without its cloud, read with ``cloudless=True``.
     image_topic, info_topic : str or None
     mask_topics : list[str]
         mono8 Image topics of the cloud's size; delivered in :attr:`Frame.masks`.
@@ -327,8 +336,12 @@ class LogReader:
         info_topic: str | None = None,
         max_pixels: int = DEFAULT_MAX_PIXELS,
         max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
+        cloudless: bool = False,
     ) -> None:
         check_caps(max_pixels, max_message_bytes)
+        self.allow_cloudless = cloudless
+        #: a results file written without its cloud, its frames driven by ``/zcut/valid`` (see ``cloudless``)
+        self.cloudless = False
         self.max_pixels, self.max_message_bytes = max_pixels, max_message_bytes
         info = inspect_log(path, keep_chunks=True, max_message_bytes=max_message_bytes)
         self._chunks = info.chunks  # for the first frames() scan
@@ -414,6 +427,14 @@ class LogReader:
                 f"{name} has several organized PointCloud2 topics: "
                 f"{', '.join(desc(t) for t in organized)}; choose one with --topic"
             )
+        elif self._valid_driver() is not None:
+            chosen = self._valid_driver()
+            if not self.allow_cloudless:
+                raise LogFormatError(
+                    f"{name} is a results file written without its cloud ({layout.FILTERED}): this command "
+                    "needs the points; give the log, or write the results with zcut replay --out-cloud"
+                )
+            self.cloudless = True
         else:
             if not topics and peek_damage:
                 raise LogDamageError(f"{name} is damaged before its first message: {peek_damage[0].text}")
@@ -438,6 +459,8 @@ class LogReader:
             t for t in topics.values()
             if t.msg_type == rm.IMAGE and t.message_encoding == "cdr" and t.encoding in rm.COLOR_ENCODINGS
         ]
+        if self.cloudless:
+            images = []  # a results file without its cloud has no image either
         if image_topic is not None:
             t = topics.get(image_topic)
             if t is None or t.msg_type != rm.IMAGE:
@@ -493,7 +516,15 @@ class LogReader:
             t.topic for t in topics.values()
             if t.msg_type == rm.IMAGE and t.message_encoding == "cdr" and t.encoding == "mono8"
             and ((t.height, t.width) == shape or t.topic.startswith(layout.MASK_PREFIXES))
+            and t.topic != self.cloud_topic
         )
+
+    def _valid_driver(self) -> TopicInfo | None:
+        """The ``/zcut/valid`` topic of a results file without an organized cloud, else None."""
+        t = self.topics.get(layout.VALID)
+        if (t is not None and t.msg_type == rm.IMAGE and t.message_encoding == "cdr" and t.encoding == "mono8" and t.height is not None and t.height > 1):
+            return t
+        return None
 
     # ------------------------------------------------------------------ attachments
     def attachments(self) -> list[tuple[str, str, int | None]]:

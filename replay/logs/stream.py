@@ -32,6 +32,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Self, TypeVar
 
+import numpy as np
+
 from replay.errors import LogDamageError, LogFormatError, OverCapError
 from replay.logs import layout
 from replay.logs import ros2_msgs as rm
@@ -102,7 +104,7 @@ class _Pending:
 
     index: int
     stamp: int | None
-    cloud: rm.CloudMsg | None
+    cloud: rm.CloudMsg | rm.ImageMsg | None  # an ImageMsg: the /zcut/valid of a results file without its cloud
     log_time: int
     parts: dict[str, object] = field(default_factory=dict)
     shares_stamp_with: int | None = None  # another cloud within the window with this header stamp
@@ -248,7 +250,8 @@ class FrameStream(Iterator[Frame]):
             return
         where = f"{self._r.path.name}: topic {topic}, message {idx}"
         try:
-            cloud = rm.decode_cloud(message_payload(rec.data, where, self._r.max_message_bytes), where=where)
+            data = message_payload(rec.data, where, self._r.max_message_bytes)
+            cloud = rm.decode_image(data, where=where) if self._r.cloudless else rm.decode_cloud(data, where=where)
         except LogFormatError as e:
             cloud = None
             if self._in_range(idx):
@@ -423,8 +426,13 @@ class FrameStream(Iterator[Frame]):
             gone = self._lost_parts.get(topic, ())
             if p.stamp in gone or p.log_time in gone:
                 raise _Skip(DamageKind.LOST_COMPANION, f"{where}: its {topic} message was lost", topic)
+        masks, codes = {}, {}
         try:
-            xyz, rgb = rm.cloud_to_arrays(cloud, where=where, max_pixels=r.max_pixels)
+            if isinstance(cloud, rm.ImageMsg):  # a results file without its cloud: no points
+                masks[ctopic] = rm.image_to_mask(cloud, where=where, max_pixels=r.max_pixels)
+                xyz, rgb = np.broadcast_to(np.float32(np.nan), (*shape, 3)), None
+            else:
+                xyz, rgb = rm.cloud_to_arrays(cloud, where=where, max_pixels=r.max_pixels)
         except LogFormatError as e:
             raise _Skip(_kind_of(e), str(e), ctopic) from None
         img = parts.get(r.image_topic) if r.image_topic else None
@@ -450,7 +458,6 @@ class FrameStream(Iterator[Frame]):
                 intrinsics = rm.camera_info_to_intrinsics(info, where=iwhere)
             except LogFormatError as e:
                 raise _Skip(_kind_of(e), str(e), r.info_topic) from None
-        masks, codes = {}, {}
         for topic in r.mask_topics:
             m = parts.get(topic)
             if m is None:
@@ -469,6 +476,7 @@ class FrameStream(Iterator[Frame]):
         return Frame(
             xyz=xyz, rgb=rgb, stamp_ns=cloud.stamp_ns, frame_id=cloud.frame_id,
             intrinsics=intrinsics, topic=ctopic, index=idx, masks=masks, codes=codes,
+            has_points=not r.cloudless,
         )
 
 

@@ -312,20 +312,21 @@ class RerunSink:
 
 class ResultsSink:
     """The results MCAP (docs/formats.md): ``/zcut/outliers``, ``/zcut/sor_outliers``, ``/zcut/methods/NAME``
-    (every other base method the config runs), ``/zcut/bin_mask``, ``/zcut/zone``, the source's
-    camera info and masks (ground truth) passed through, and with ``cloud`` ``/zcut/filtered`` and the
-    source's image.
+    (every other base method the config runs), ``/zcut/bin_mask``, ``/zcut/zone``, ``/zcut/valid`` (the
+    source's valid pixels), the source's camera info and masks (ground truth) passed through, and with
+    ``cloud`` ``/zcut/filtered`` and the source's image.
 
     Parameters
     ----------
     path : path
     cloud : bool
-        Write the filtered cloud and the image (~33 MB of a 1920 x 1200 frame's ~33.1 MB, which
-        chunk compression cannot shrink: measured noise); without them a frame takes ~0.1 MB. The
-        readers of results files (``zcut accuracy``) find a frame's valid pixels in the cloud.
+        Also write the filtered cloud and the image (``zcut replay --out-cloud``): ~33 MB of a
+        1920 x 1200 frame, which chunk compression cannot shrink (measured noise); without them (the
+        default) a frame takes ~0.1 MB. ``zcut accuracy`` scores either alike (the valid pixels are
+        ``/zcut/valid``); the commands that need the points refuse a file without them.
     """
 
-    def __init__(self, path: str | Path, *, cloud: bool = True) -> None:
+    def __init__(self, path: str | Path, *, cloud: bool = False) -> None:
         self.path = Path(path)
         self.cloud = cloud
         self._file: AtomicOutput | None = None
@@ -358,6 +359,7 @@ class ResultsSink:
             w.write_mask(layout.method_topic(name), mask, **kw)
         if result.bin_mask is not None:
             w.write_mask(layout.BIN_MASK, result.bin_mask.mask, **kw)
+        w.write_mask(layout.VALID, result.valid, **kw)
         if self.cloud:
             filtered = frame.xyz.copy()
             filtered[result.zcut_outliers] = np.nan

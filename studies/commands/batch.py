@@ -33,6 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--annotator", help="whose labels (when the store has several)")
     p.add_argument("--region", default="zone", help="scored region: zone (default, what the filters judge) or valid")
     p.add_argument("--results", action="store_true", help="also write a results MCAP per log (DIR/results)")
+    p.add_argument("--results-cloud", action="store_true", help="with --results: also write the filtered cloud "
+                   "and the image (as zcut replay --out-cloud; ~33 MB a 1920x1200 frame)")
     p.add_argument("--rrd", action="store_true", help="also write a Rerun .rrd per log (DIR/rrd)")
     p.add_argument("--frames-per-unit", type=int, default=FRAMES_PER_UNIT, metavar="N",
                    help=f"frames per unit of work: whole chunks of one log (default {FRAMES_PER_UNIT})")
@@ -83,6 +85,8 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
                           bin_model=args.bin_model)
         check_labels(args.labels, args.annotator, plans)  # as zcut accuracy: before any work
         options = study_options(args, overrides) | {"results": args.results, "rrd": args.rrd}
+        if args.results_cloud:  # only then: a study begun before the option keeps its identity
+            options["results_cloud"] = True
         store = stack.enter_context(PartStore(args.out, identity("batch", options, plans),
                                                      start_afresh=args.force))
         units, todo = start_units(plans, store, what="", executor=executor)
@@ -90,7 +94,7 @@ def _run(args: argparse.Namespace, stack: ExitStack) -> int:
                   labels=absolute(args.labels), annotator=args.annotator, region=args.region,
                   configs={p.sha256: p.resolved for p in plans if p.units},
                   extra={"out_dir": str(store.root) if (args.results or args.rrd) else None,
-                         "results": args.results, "rrd": args.rrd})
+                         "results": args.results, "results_cloud": args.results_cloud, "rrd": args.rrd})
         total = sum(u.n_frames or 0 for u in todo) or None
         progress = Progress(total)
         results = execute(units, job, run_batch_unit, executor, store, progress=progress)

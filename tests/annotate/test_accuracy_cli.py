@@ -31,7 +31,7 @@ def predictions(spike_log):
     results = log.with_name("results.mcap")
     assert main(["replay", str(log), "--out", str(results)]) == 0
     preds = []
-    for fr in LogReader(results).frames():
+    for fr in LogReader(results, cloudless=True).frames():
         preds.append((fr.masks["/zcut/outliers"], fr.masks["/zcut/sor_outliers"]))
     return results, preds
 

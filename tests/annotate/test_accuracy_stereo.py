@@ -25,7 +25,7 @@ METHODS = ("zcut", "sor", "union", "intersection")
 def _masks(results):
     """Per frame: method -> prediction, from a results file of `zcut replay --out`."""
     out = []
-    for f in LogReader(results).frames():
+    for f in LogReader(results, cloudless=True).frames():
         z, s = f.masks[layout.ZCUT_OUTLIERS], f.masks[layout.SOR_OUTLIERS]
         out.append({"zcut": z, "sor": s, "union": z | s, "intersection": z & s})
     return out

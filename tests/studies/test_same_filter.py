@@ -63,7 +63,7 @@ def test_every_command_resolves_the_same_config_and_masks(logs, kind, tmp_path, 
     z = tomllib.loads(replay_toml)["zcut"]
     assert (z["step_mm"], z["max_depth_mm"]) == (0.25, 25.0)
     assert tomllib.loads(replay_toml)["sor"]["k"] == 6
-    masks = {f.index: (f.masks[layout.ZCUT_OUTLIERS], f.masks[layout.SOR_OUTLIERS]) for f in LogReader(res).frames()}
+    masks = {f.index: (f.masks[layout.ZCUT_OUTLIERS], f.masks[layout.SOR_OUTLIERS]) for f in LogReader(res, cloudless=True).frames()}
     assert len(masks) >= 2
 
     # annotate: the log opened as `zcut annotate` opens it (annotate.server.open_page), frames in log

@@ -22,7 +22,8 @@ def log(tmp_path_factory):
 
 def test_batch_results_on_a_full_disk_name_the_results_file(log, tmp_path, capsys):
     with small_disk(tmp_path / "disk", "3m") as disk:
-        rc, _, err = run_cli(capsys, "batch", log, "-o", disk / "b", "--workers", "1", "--results")
+        rc, _, err = run_cli(capsys, "batch", log, "-o", disk / "b", "--workers", "1", "--results",
+                               "--results-cloud")
         assert rc == 3, err
         warnings = [ln for ln in err.splitlines() if ln.startswith("warning:")]
         assert len(warnings) == 1 and "No space left on device" in warnings[0], err

@@ -160,7 +160,7 @@ def test_bin_model_refuses_a_filled_bin_unless_forced(log, tmp_path, capsys):
 
 def test_replaying_a_results_file_says_so(log, tmp_path, capsys):
     res = tmp_path / "res.mcap"
-    assert run_cli(capsys, "replay", log, "--out", res)[0] == 0
+    assert run_cli(capsys, "replay", log, "--out", res, "--out-cloud")[0] == 0
     rc, _, err = run_cli(capsys, "replay", res, "--frames", "0")
     assert rc == 0 and "is a results file of zcut replay" in err
 

@@ -60,7 +60,8 @@ def test_bin_model_from_one_scan_warns_and_from_two_does_not(tmp_path, capsys, l
 def test_replay_with_bin_model_writes_rrd_results_and_config(tmp_path, capsys, logs, bin_ply):
     _, filled, _ = logs
     rrd, res = tmp_path / "r.rrd", tmp_path / "res.mcap"
-    rc, out, err = run_cli(capsys, "replay", filled, "--bin-model", bin_ply, "--rrd", rrd, "--out", res, "--json")
+    rc, out, err = run_cli(capsys, "replay", filled, "--bin-model", bin_ply, "--rrd", rrd, "--out", res, "--json",
+                           "--out-cloud")
     assert rc == 0, err
     assert "part: rods (from the log's zcut.synth metadata)" in err
     assert "the paper's nominal values" in err
@@ -204,7 +205,7 @@ def test_real_kinect_log_without_bin_equals_bare_zcut(tmp_path, capsys, real_dat
     assert "no RGB image" in err or "no bin model" in err
     summary = json.loads(out)
     assert len(summary["frames"]) == 2
-    got = {f.stamp_ns: f.masks["/zcut/outliers"] for f in LogReader(res).frames()}
+    got = {f.stamp_ns: f.masks["/zcut/outliers"] for f in LogReader(res, cloudless=True).frames()}
     for f in LogReader(log).frames():
         expect = zcut_outliers(-1000.0 * f.xyz[..., 2].astype(np.float64), step=0.5, max_depth=40.0, max_area=200.0)
         assert np.array_equal(got[f.stamp_ns], expect)

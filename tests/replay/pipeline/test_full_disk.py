@@ -33,7 +33,7 @@ def test_replay_on_a_full_disk_is_one_line_and_leaves_nothing(log, tmp_path, out
         if "rrd" in outputs:
             argv += ["--rrd", str(disk / "o.rrd")]
         if "out" in outputs:
-            argv += ["--out", str(disk / "r.mcap")]
+            argv += ["--out", str(disk / "r.mcap"), "--out-cloud"]
         t0 = time.monotonic()
         run = subprocess.run(argv, capture_output=True, text=True, timeout=600)  # a hang fails here
         errors = [ln for ln in run.stderr.splitlines() if ln.startswith("error:")]
