@@ -38,6 +38,9 @@ distortion, the sensor's own smoothing of the point cloud.
 
 from __future__ import annotations
 
+import contextlib
+import importlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,6 +59,29 @@ EXPOSURE = np.pi / 2
 REFERENCE_MM = 500.0
 #: width (pixels at 1920 across) of the kernel that turns projector-side photons into irradiance
 PHOTON_SIGMA_PX = 3.0
+
+
+@contextlib.contextmanager
+def small_pages() -> Iterator[None]:
+    """Within: numpy asks no transparent huge pages for its arrays (restored on exit; also a decorator).
+
+    numpy ``madvise``s every array of 4 MB or more for huge pages. Where the kernel's THP ``defrag``
+    setting is ``madvise`` (Ubuntu's default), each fault on such memory may compact memory first;
+    a frame allocates and frees some 5 GB of large arrays, and on the shared 2-core machine that
+    cost 5 of 20 CPU-s per 1920 x 1200 frame in the kernel (measured with ``getrusage``: system time
+    9.1 s with the advice, 4.1 s without; ``bench/bench_raytrace.py``). Only where the memory comes
+    from changes, never a value.
+    """
+    try:
+        setter = importlib.import_module("numpy._core.multiarray")._set_madvise_hugepage
+    except (ImportError, AttributeError):  # another numpy: leave its allocator alone
+        yield
+        return
+    previous = setter(False)
+    try:
+        yield
+    finally:
+        setter(previous)
 
 
 @dataclass(frozen=True, slots=True)
@@ -340,6 +366,7 @@ def edge_pixels(depth_mm: np.ndarray, part: np.ndarray, label: np.ndarray, *, ju
     return (hi - lo > jump_mm) | (khi != klo)
 
 
+@small_pages()
 def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.Generator) -> Received:
     """Trace the light every camera pixel receives (steps 1-5 of the module docstring).
 
@@ -559,6 +586,7 @@ def triangulate(code: np.ndarray, K: Intrinsics, model: SensorModel) -> np.ndarr
     return np.where(z > 0, z, np.nan)
 
 
+@small_pages()
 def measure(rec: Received, K: Intrinsics, model: SensorModel, rng: np.random.Generator):
     """Decode and triangulate: (measured z, noise-free z, sigma_z, staged noise-free z, saturated).
 
