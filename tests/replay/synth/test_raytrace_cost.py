@@ -9,7 +9,10 @@ import numpy as np
 import pytest
 
 from replay.synth.raytrace import optics, reference, synthesize_raytraced_frame
-from replay.synth.raytrace.optics import Phasors, small_pages
+from replay.synth.raytrace.optics import Phasors, SensorModel, small_pages
+from replay.synth.raytrace.scene import build_scene
+from replay.synth.sensor import default_intrinsics
+from replay.synth.synthesize import bin_pose_for, frame_rng
 
 SIZE = (40, 64)
 FILL = 5.0  # mm: a few parts, a fraction of a second of simulation
@@ -22,9 +25,10 @@ def same(a: np.ndarray, b: np.ndarray) -> bool:
 
 @pytest.mark.parametrize(("kind", "seed"), [("spheres", 5), ("zinc_nuts", 6), ("rods", 7), ("black_nuts", 8)])
 def test_a_frame_is_the_reference_paths_frame(kind, seed, monkeypatch):
-    """The frame of the fast path has the bytes of the frame of the literal numpy tracer."""
+    """The frame of the fast path has the bytes of the frame of the literal numpy tracer and decoder."""
     a = synthesize_raytraced_frame(kind=kind, seed=seed, size=SIZE, fill_mm=FILL)
     monkeypatch.setattr(optics, "trace", reference.trace_reference)
+    monkeypatch.setattr(optics, "measure", reference.measure_reference)
     b = synthesize_raytraced_frame(kind=kind, seed=seed, size=SIZE, fill_mm=FILL)
     assert a.frame.xyz.tobytes() == b.frame.xyz.tobytes()
     assert np.isfinite(a.frame.xyz).any()  # a comparison of clouds, not of NaN images
@@ -35,6 +39,22 @@ def test_a_frame_is_the_reference_paths_frame(kind, seed, monkeypatch):
         assert same(a.frame.masks[key], b.frame.masks[key]), key
     for key in a.frame.codes:
         assert same(a.frame.codes[key], b.frame.codes[key]), key
+
+
+def test_measure_is_the_reference():
+    """Decoding sums the stages in place; the images it was given stay as they were."""
+    scene = build_scene(bin_pose_for(frame_rng(9, 0, empty=True), empty=True, index=0), None)
+    K = default_intrinsics(SIZE)
+    m = SensorModel()
+    rec = optics.trace(scene, K, m, np.random.default_rng(2))
+    before = [p.z.copy() for p in (rec.direct, rec.camera_bounce, rec.projector_bounce, rec.glare)]
+    a = optics.measure(rec, K, m, np.random.default_rng(3))
+    b = reference.measure_reference(rec, K, m, np.random.default_rng(3))
+    for x, y in zip(a[:3] + tuple(a[3]) + a[4:], b[:3] + tuple(b[3]) + b[4:]):
+        assert same(x, y)
+    assert np.isfinite(a[0]).any()
+    for p, z in zip((rec.direct, rec.camera_bounce, rec.projector_bounce, rec.glare), before):
+        assert same(p.z, z)
 
 
 def _paths(rng: np.random.Generator, n: int, shape: tuple[int, int], periods: tuple[float, ...]):
