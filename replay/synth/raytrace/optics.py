@@ -38,6 +38,9 @@ distortion, the sensor's own smoothing of the point cloud.
 
 from __future__ import annotations
 
+import contextlib
+import importlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,6 +59,29 @@ EXPOSURE = np.pi / 2
 REFERENCE_MM = 500.0
 #: width (pixels at 1920 across) of the kernel that turns projector-side photons into irradiance
 PHOTON_SIGMA_PX = 3.0
+
+
+@contextlib.contextmanager
+def small_pages() -> Iterator[None]:
+    """Within: numpy asks no transparent huge pages for its arrays (restored on exit; also a decorator).
+
+    numpy ``madvise``s every array of 4 MB or more for huge pages. Where the kernel's THP ``defrag``
+    setting is ``madvise`` (Ubuntu's default), each fault on such memory may compact memory first;
+    a frame allocates and frees some 5 GB of large arrays, and on the shared 2-core machine that
+    cost 5 of 20 CPU-s per 1920 x 1200 frame in the kernel (measured with ``getrusage``: system time
+    9.1 s with the advice, 4.1 s without; ``bench/bench_raytrace.py``). Only where the memory comes
+    from changes, never a value.
+    """
+    try:
+        setter = importlib.import_module("numpy._core.multiarray")._set_madvise_hugepage
+    except (ImportError, AttributeError):  # another numpy: leave its allocator alone
+        yield
+        return
+    previous = setter(False)
+    try:
+        yield
+    finally:
+        setter(previous)
 
 
 @dataclass(frozen=True, slots=True)
@@ -214,6 +240,12 @@ class Phasors:
     def plus(self, other: Phasors) -> Phasors:
         return Phasors(self.z + other.z, self.intensity + other.intensity)
 
+    def add_in_place(self, other: Phasors) -> Phasors:
+        """``self`` with ``other`` added into its own arrays (the bits of :meth:`plus`, one image set less)."""
+        np.add(self.z, other.z, out=self.z)
+        np.add(self.intensity, other.intensity, out=self.intensity)
+        return self
+
 
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
@@ -340,6 +372,7 @@ def edge_pixels(depth_mm: np.ndarray, part: np.ndarray, label: np.ndarray, *, ju
     return (hi - lo > jump_mm) | (khi != klo)
 
 
+@small_pages()
 def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.Generator) -> Received:
     """Trace the light every camera pixel receives (steps 1-5 of the module docstring).
 
@@ -417,7 +450,7 @@ def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.
         kernels.add_at(spec_light, px[ok1], weight_k[ok1], rad1[ok1], np.ones(int(ok1.sum())))
         cur_hits, cur_idx, cur_dir, cur_pix, weight = h1, hit_idx, r, px, weight_k
     photons = _projector_bounces(scene, K, model, centre, rng)
-    glare = _glare(direct.plus(bounce).plus(photons), K, model)
+    glare = _glare(direct.plus(bounce).add_in_place(photons), K, model)
     return Received(direct, bounce, photons, glare, sub_depth, centre, spec_light.reshape(H, W))
 
 
@@ -559,6 +592,7 @@ def triangulate(code: np.ndarray, K: Intrinsics, model: SensorModel) -> np.ndarr
     return np.where(z > 0, z, np.nan)
 
 
+@small_pages()
 def measure(rec: Received, K: Intrinsics, model: SensorModel, rng: np.random.Generator):
     """Decode and triangulate: (measured z, noise-free z, sigma_z, staged noise-free z, saturated).
 
@@ -566,9 +600,9 @@ def measure(rec: Received, K: Intrinsics, model: SensorModel, rng: np.random.Gen
     then sub-pixel mixing), plus the specular bounces, plus the glare; they attribute an error to
     the physics that made it.
     """
-    stages = [rec.direct, rec.direct.plus(rec.camera_bounce).plus(rec.projector_bounce)]
-    stages.append(stages[1].plus(rec.glare))
-    decoded = [decode(s, model) for s in stages]
+    both = rec.direct.plus(rec.camera_bounce).add_in_place(rec.projector_bounce)
+    decoded = [decode(rec.direct, model), decode(both, model)]
+    decoded.append(decode(both.add_in_place(rec.glare), model))  # decoded already: its images may take the glare
     final = decoded[-1]
     sigma_u = model.sigma_code(final.signal)
     noise = correlated_noise(final.code.shape, rng).astype(np.float64) * sigma_u

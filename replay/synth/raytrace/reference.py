@@ -24,10 +24,12 @@ from replay.synth.raytrace.optics import (
     _glare,
     _perturbed_reflection,
     _unit,
+    decode,
     edge_pixels,
+    triangulate,
 )
 from replay.synth.raytrace.scene import Hits, TracedScene
-from replay.synth.sensor import FULL_SIZE
+from replay.synth.sensor import FULL_SIZE, correlated_noise
 from zcut.cloud import Intrinsics
 
 
@@ -243,3 +245,19 @@ def _projector_bounces_reference(scene: TracedScene, K: Intrinsics, model: Senso
     # mirrors spread them further); a kernel of PHOTON_SIGMA_PX (at 1920 across) turns them into
     # the smooth irradiance a rough mirror throws, instead of one-photon speckle
     return _blurred(out, PHOTON_SIGMA_PX * K.width / FULL_SIZE[1] + 0.5)
+
+
+def measure_reference(rec: Received, K: Intrinsics, model: SensorModel, rng: np.random.Generator):
+    """``optics.measure`` as first written (each stage's images summed afresh): the bits it must keep."""
+    stages = [rec.direct, rec.direct.plus(rec.camera_bounce).plus(rec.projector_bounce)]
+    stages.append(stages[1].plus(rec.glare))
+    decoded = [decode(s, model) for s in stages]
+    final = decoded[-1]
+    sigma_u = model.sigma_code(final.signal)
+    noise = correlated_noise(final.code.shape, rng).astype(np.float64) * sigma_u
+    z_clean = triangulate(final.code, K, model)
+    z_meas = triangulate(final.code + noise, K, model)
+    z_meas[~np.isfinite(z_clean)] = np.nan
+    sigma_z = model.depth_per_code_mm(np.where(np.isfinite(z_clean), z_clean, 1.0)) * sigma_u
+    staged = [triangulate(dc.code, K, model) for dc in decoded[:-1]]
+    return z_meas, z_clean, sigma_z, staged, final.saturated

@@ -1,0 +1,117 @@
+"""What made the ray-traced frame cheaper changed no byte: whole frames against the reference path,
+the phasor sums' shortcut for images still at zero, the huge-page switch (docs/raytraced.md, cost)."""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+import pytest
+
+from replay.synth.raytrace import optics, reference, synthesize_raytraced_frame
+from replay.synth.raytrace.optics import Phasors, SensorModel, small_pages
+from replay.synth.raytrace.scene import build_scene
+from replay.synth.sensor import default_intrinsics
+from replay.synth.synthesize import bin_pose_for, frame_rng
+
+SIZE = (40, 64)
+FILL = 5.0  # mm: a few parts, a fraction of a second of simulation
+
+
+def same(a: np.ndarray, b: np.ndarray) -> bool:
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize(("kind", "seed"), [("spheres", 5), ("zinc_nuts", 6), ("rods", 7), ("black_nuts", 8)])
+def test_a_frame_is_the_reference_paths_frame(kind, seed, monkeypatch):
+    """The frame of the fast path has the bytes of the frame of the literal numpy tracer and decoder."""
+    a = synthesize_raytraced_frame(kind=kind, seed=seed, size=SIZE, fill_mm=FILL)
+    monkeypatch.setattr(optics, "trace", reference.trace_reference)
+    monkeypatch.setattr(optics, "measure", reference.measure_reference)
+    b = synthesize_raytraced_frame(kind=kind, seed=seed, size=SIZE, fill_mm=FILL)
+    assert a.frame.xyz.tobytes() == b.frame.xyz.tobytes()
+    assert np.isfinite(a.frame.xyz).any()  # a comparison of clouds, not of NaN images
+    assert same(a.frame.rgb, b.frame.rgb)
+    for name in ("truth", "outlier_kind", "depth_true_m", "error_mm", "sigma_mm", "surface", "saturated"):
+        assert same(getattr(a, name), getattr(b, name)), name
+    for key in a.frame.masks:
+        assert same(a.frame.masks[key], b.frame.masks[key]), key
+    for key in a.frame.codes:
+        assert same(a.frame.codes[key], b.frame.codes[key]), key
+
+
+def test_measure_is_the_reference():
+    """Decoding sums the stages in place; the images it was given stay as they were."""
+    scene = build_scene(bin_pose_for(frame_rng(9, 0, empty=True), empty=True, index=0), None)
+    K = default_intrinsics(SIZE)
+    m = SensorModel()
+    rec = optics.trace(scene, K, m, np.random.default_rng(2))
+    before = [p.z.copy() for p in (rec.direct, rec.camera_bounce, rec.projector_bounce, rec.glare)]
+    a = optics.measure(rec, K, m, np.random.default_rng(3))
+    b = reference.measure_reference(rec, K, m, np.random.default_rng(3))
+    for x, y in zip(a[:3] + tuple(a[3]) + a[4:], b[:3] + tuple(b[3]) + b[4:]):
+        assert same(x, y)
+    assert np.isfinite(a[0]).any()
+    for p, z in zip((rec.direct, rec.camera_bounce, rec.projector_bounce, rec.glare), before):
+        assert same(p.z, z)
+
+
+def _paths(rng: np.random.Generator, n: int, shape: tuple[int, int], periods: tuple[float, ...]):
+    flat = rng.integers(0, shape[0] * shape[1], n)
+    weight = rng.choice([1.0, 0.25, 1 / 9], n)
+    value = rng.exponential(0.3, n)
+    code = rng.uniform(-10, 1300, n)
+    code[:40] = np.array(periods * 13 + (0.0,))
+    value[40:60] = 0.0  # products of -0.0 where the cosine or sine is negative
+    code[40:60] = rng.uniform(300, 900, 20)
+    return flat, weight, value, code
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("start", ["zeros", "a negative zero", "a NaN"])
+def test_phasor_sums_into_zero_images_are_the_reference(seed, start):
+    """Images still at +0.0 take the sums directly; one -0.0 or NaN sends them the buffered way: same bits."""
+    rng = np.random.default_rng(seed)
+    periods = (1280.0, 64.0, 8.0)
+    shape = (13, 17)
+    flat, weight, value, code = _paths(rng, 5000, shape, periods)
+    flat[flat == 3] = 4
+    flat[40:60] = 3  # pixel 3 gets only zero-light paths, some of whose products are -0.0
+    z0 = np.zeros((3,) + shape, np.complex128)
+    i0 = np.zeros(shape)
+    if start == "a negative zero":
+        z0.real[1, 0, 5] = -0.0
+        i0[0, 9] = -0.0
+        flat[flat == 9] = 10  # pixel 9 gets no path: the reference's -0.0 + 0.0 makes it +0.0
+    elif start == "a NaN":
+        i0[2, 2] = np.nan
+    a = Phasors(z0.copy(), i0.copy())
+    b = Phasors(z0.copy(), i0.copy())
+    a.add(flat, weight, value, code, periods)
+    b.add_reference(flat, weight * value, code, periods)
+    assert same(a.z, b.z) and same(a.intensity, b.intensity)
+    # a second batch onto what the first left
+    a.add(flat[::-1], weight, value, code, periods)
+    b.add_reference(flat[::-1], weight * value, code, periods)
+    assert same(a.z, b.z) and same(a.intensity, b.intensity)
+    # empty batches leave zero images as the reference does
+    c, d = Phasors.zeros(3, shape), Phasors.zeros(3, shape)
+    c.add(flat[:0], weight[:0], value[:0], code[:0], periods)
+    d.add_reference(flat[:0], weight[:0] * value[:0], code[:0], periods)
+    assert same(c.z, d.z) and same(c.intensity, d.intensity)
+
+
+def test_small_pages_switches_numpys_advice_off_and_back():
+    setter = importlib.import_module("numpy._core.multiarray")._set_madvise_hugepage
+    before = setter(True)
+    try:
+        with small_pages():
+            assert setter(False) is False  # off inside
+        assert setter(True) is True  # restored on exit
+        with pytest.raises(RuntimeError):
+            with small_pages():
+                raise RuntimeError("boom")
+        assert setter(True) is True  # restored on an error too
+    finally:
+        setter(before)
