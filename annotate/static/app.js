@@ -223,7 +223,9 @@ function propP(fd, e) {  // the assistant's outlier probability of a group (NaN 
   return e.src === 'g' && fd.prop && fd.prop.p.length > e.k ? fd.prop.p[e.k] : NaN;
 }
 function confidence(fd, e) { const p = propP(fd, e); return isNaN(p) ? NaN : Math.max(p, 1 - p); }
-function confident(fd, e) { return fd.prop && confidence(fd, e) >= fd.prop.confident; }
+// confident and pre-filled: only when the server lets the page pre-fill (the model agrees with the labels on
+// held-out frames at least as often as the gate asks), else a proposal is shown plain and Y takes nothing
+function confident(fd, e) { return !!(fd.prop && fd.prop.prefill) && confidence(fd, e) >= fd.prop.confident; }
 const SORTS = {
   auto: (a, b) => (state.cur && state.cur.prop && state.cur.prop.p.length ? SORTS.uncertainty(a, b) : SORTS.score(a, b)),
   uncertainty: (a, b) => {
