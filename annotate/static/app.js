@@ -254,18 +254,34 @@ function refreshList(fd, keepSel = true, render = true) {
   }
 }
 
+// no surface was measured below the group (a hole, the bin's edge): the gap says what to judge by instead
+const GAP_UNKNOWN = 'gap unknown: no surface below — judge by the 3D view / profile';
 function gapText(gap) {  // a gap to the surface: above (toward the camera) or below it
-  if (isNaN(gap)) return 'gap ?';
+  if (isNaN(gap)) return 'no surface: 3D/profile';
   return gap >= 0 ? `${gap.toFixed(1)} mm up` : `${(-gap).toFixed(1)} mm down`;
+}
+// What the header and the panel count, one definition: the frame's review groups, those decided (at least
+// half of their pixels labelled outlier or reviewed), and the painted components no group covers.
+function groupCounts(fd) {
+  const st = fd.states || [], ent = fd.entries || [];
+  let groups = 0, decided = 0, painted = 0;
+  ent.forEach((e, k) => {
+    if (e.src !== 'g') { painted++; return; }
+    groups++;
+    if (st[k] && st[k] !== 'undecided') decided++;
+  });
+  if (!ent.length) groups = fd.header.n_groups;
+  return { groups, decided, painted };
+}
+function countsText(fd) {
+  const c = groupCounts(fd);
+  return `${c.groups} groups · ${c.decided} decided` + (c.painted ? ` · ${c.painted} painted` : '');
 }
 function renderList() {
   const fd = state.cur, box = $('candlist');
   if (!fd) { box.innerHTML = ''; return; }
   const states = fd.states;
-  const groups = fd.entries.filter((e) => e.src === 'g');
-  const nUnd = states.filter((s, k) => s === 'undecided' && fd.entries[k].src === 'g').length;
-  const painted = fd.entries.length - groups.length;
-  $('candcount').textContent = `${groups.length} groups · ${groups.length - nUnd} decided` + (painted ? ` · ${painted} painted` : '');
+  $('candcount').textContent = countsText(fd);
   const frag = document.createDocumentFragment();
   const MAX_ROWS = 300;
   fd.entries.slice(0, MAX_ROWS).forEach((e, k) => {
@@ -276,8 +292,9 @@ function renderList() {
     const prop = isNaN(p) ? '' : `${p >= 0.5 ? 'out' : 'in'} ${Math.round(100 * Math.max(p, 1 - p))} %`;
     const why = e.src === 'L' ? 'painted' : e.source + (e.also.length ? ` +${e.also.join(',')}` : '');
     row.title = e.src === 'L' ? 'labelled by hand, no group covers it' :
-      `${e.source}: ${e.n} px, median gap to the local surface ${isNaN(e.gap) ? 'unknown' : e.gap >= 0 ? e.gap.toFixed(2) + ' mm above it' : (-e.gap).toFixed(2) + ' mm below it'}` + (e.also.length ? `; also flagged by ${e.also.join(', ')}` : '');
-    row.innerHTML = `<span class="src ${e.src}">${why}</span><span>${e.n} px</span><span>${gapText(e.gap)}</span>` +
+      `${e.source}: ${e.n} px, median gap to the local surface ${isNaN(e.gap) ? 'unknown (no surface below): judge by the 3D view / profile' : e.gap >= 0 ? e.gap.toFixed(2) + ' mm above it' : (-e.gap).toFixed(2) + ' mm below it'}` + (e.also.length ? `; also flagged by ${e.also.join(', ')}` : '');
+    row.innerHTML = `<span class="src ${e.src}">${why}</span><span>${e.n} px</span>` +
+      `<span class="gap${isNaN(e.gap) && e.src === 'g' ? ' unknown' : ''}"${isNaN(e.gap) && e.src === 'g' ? ` title="${GAP_UNKNOWN}"` : ''}>${e.src === 'g' ? gapText(e.gap) : ''}</span>` +
       `<span class="agree${conf ? ' conf' : ''}">${prop}</span><span class="st">${
         states[k] === 'accepted' ? 'outlier' : states[k] === 'rejected' ? 'not outlier' : '·'}</span>`;
     row.onclick = () => { window.zcut.inputs++; select(k, { zoom: true }); };
@@ -285,12 +302,12 @@ function renderList() {
   });
   const head = document.createElement('div');
   head.className = 'cand head';
-  head.innerHTML = '<span>why (detector)</span><span>size</span><span>gap to surface</span><span title="the assistant: outlier or inlier, confidence">assistant</span><span>decision</span>';
+  head.innerHTML = '<span>why (detector)</span><span>size</span><span>gap to surface</span><span title="the assistant: outlier or inlier, confidence">assist.</span><span>decision</span>';
   box.replaceChildren(head, frag);
   const selRow = box.querySelector('.sel');
   if (selRow) selRow.scrollIntoView({ block: 'nearest' });
   renderBulkHint(fd);
-  updateStatus();
+  updateInfo();  // the header and the frame list count what the panel counts
 }
 
 // What the bulk keys will do, said before they do it.
@@ -770,7 +787,8 @@ function drawMinimap(fd) {
   const mm = $('minimap');
   mm.hidden = !state.showMini;
   if (!state.showMini) return;
-  const dpr = window.devicePixelRatio || 1, w = 220, h = Math.round(220 * fd.H / fd.W);
+  const dpr = window.devicePixelRatio || 1, w = Math.max(120, Math.min(250, mm.parentElement.clientWidth - 22));
+  const h = Math.round(w * fd.H / fd.W);
   if (mm.width !== w * dpr || mm.height !== h * dpr) { mm.width = w * dpr; mm.height = h * dpr; mm.style.width = `${w}px`; mm.style.height = `${h}px`; }
   const g = mm.getContext('2d');
   g.setTransform(1, 0, 0, 1, 0, 0);
@@ -969,20 +987,19 @@ function frameRow(index) { return state.frames.find((f) => f.index === index); }
 
 function updateStatus() {
   const fd = state.cur; if (!fd) return;
-  const st = fd.states || [], und = st.filter((s) => s === 'undecided').length;
   const el = $('status');
   if (fd.nR >= fd.nValid) { el.textContent = 'frame reviewed ✓'; el.className = 'reviewed'; }
   else if (fd.nR > 0) {
     el.textContent = shadeUnreviewed(fd) ? `reviewed except ${fd.nValid - fd.nR} px (shaded)`
-      : `not reviewed yet · ${st.length - und} / ${st.length} groups decided (Enter: reviewed)`;
+      : `not reviewed yet · ${countsText(fd)} (Enter: reviewed)`;
     el.className = 'partial';
-  } else { el.textContent = `not reviewed · ${fd.header.n_groups} groups`; el.className = 'todo'; }
+  } else { el.textContent = `not reviewed · ${countsText(fd)}`; el.className = 'todo'; }
 }
 
 function updateInfo() {
   const fd = state.cur;
   if (fd) $('frameinfo').textContent = `frame ${fd.index} (${state.order.indexOf(fd.index) + 1} of ${state.order.length})  ` +
-    `${fd.header.n_groups} groups · z-cut ${fd.header.n_zcut} · SOR ${fd.header.n_sor} clusters  rev ${fd.rev}`;
+    `z-cut ${fd.header.n_zcut} · SOR ${fd.header.n_sor} clusters  rev ${fd.rev}`;
   const reviewed = state.frames.filter((f) => f.reviewed).length;
   $('progress').textContent = `reviewed ${reviewed} / ${state.total}` + (state.done ? '' : ' (preparing…)');
   updateStatus();
@@ -1000,9 +1017,11 @@ function updateInfo() {
     const f = frameRow(+li.dataset.index);
     if (!f) continue;
     const mark = f.reviewed ? '✓' : f.revision ? '◐' : '';
-    li.title = `frame ${f.index}: ${f.n_groups} review groups, ${f.decided} decided, ${f.n_outliers} outlier px labelled` +
+    const cur = fd && f.index === fd.index && fd.entries ? groupCounts(fd) : null;  // the panel's counts, unsaved edits included
+    const decided = cur ? cur.decided : f.decided;
+    li.title = `frame ${f.index}: ${f.n_groups} review groups, ${decided} decided, ${f.n_outliers} outlier px labelled` +
       (f.uncertain === null ? '' : `, the assistant is unsure of ${f.uncertain}`) + (f.bin_stages ? '' : ' (no bin stages)');
-    li.innerHTML = `<b>${f.index}</b><span>${f.n_groups} groups</span><span>${f.decided} dec.</span>` +
+    li.innerHTML = `<b>${f.index}</b><span>${f.n_groups} groups</span><span>${decided} dec.</span>` +
       `<span>${f.n_outliers} px</span><span class="dis">${f.uncertain === null ? '' : '?' + f.uncertain}</span><span class="mk">${mark}</span>`;
     li.classList.toggle('rev', !!f.reviewed);
     li.classList.toggle('cur', !!fd && f.index === fd.index);
@@ -1473,6 +1492,8 @@ window.zcut.imageToClient = (x, y) => {
   const r = canvas.getBoundingClientRect();
   return { x: r.left + state.px + (x + 0.5) * state.zoom, y: r.top + state.py + (y + 0.5) * state.zoom };
 };
+window.zcut.gapText = (gap) => gapText(gap === null ? NaN : gap);
+window.zcut.GAP_UNKNOWN = GAP_UNKNOWN;
 window.zcut.state = () => {
   const fd = state.cur; if (!fd) return null;
   let nL = 0, nR = 0;

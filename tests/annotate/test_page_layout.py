@@ -1,0 +1,89 @@
+"""The page at 1366 x 768 in the real browser (issue 29 item 5): the header counts what the panel counts,
+"gap ?" rows say what to judge by, the list shows at least 12 rows and the minimap covers none of the
+scene."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+from annotate_helpers import ServerProcess, close_page, open_page, wait_until, write_review_log
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    d = tmp_path_factory.mktemp("layout")
+    log = d / "review.mcap"
+    write_review_log(log, frames=2, shape=(480, 640))
+    srv = ServerProcess(log, d / "labels.sqlite", annotator="alice")
+    yield srv
+    srv.stop()
+
+
+def _counts(text):
+    m = re.search(r"(\d+) groups · (\d+) decided(?: · (\d+) painted)?", text)
+    assert m, text
+    return tuple(int(v or 0) for v in m.groups())
+
+
+def test_the_header_counts_what_the_panel_counts(served, browser):
+    page, errors, blocked = open_page(browser, served.url, viewport=(1366, 768))
+    try:
+        page.keyboard.press("Tab")
+        page.keyboard.press("a")  # one group decided
+        wait_until(page, "document.querySelector('#candcount').textContent.includes('1 decided')")
+        panel = _counts(page.text_content("#candcount"))
+        header = _counts(page.text_content("#status"))
+        assert panel == header and panel[1] == 1, (panel, header)
+        row = page.locator("#framelist li.cur").text_content()
+        assert f"{panel[0]} groups" in row and f"{panel[1]} dec." in row
+        assert not errors and not blocked
+    finally:
+        close_page(page)
+
+
+def test_unknown_gaps_say_what_to_judge_by(served, browser):
+    page, errors, blocked = open_page(browser, served.url, viewport=(1366, 768))
+    try:
+        text = page.evaluate("window.zcut.gapText(null)")
+        assert "?" not in text and "3D" in text and "profile" in text
+        assert page.evaluate("window.zcut.GAP_UNKNOWN") == (
+            "gap unknown: no surface below — judge by the 3D view / profile")
+        assert page.evaluate("window.zcut.gapText(1.25)") == "1.3 mm up"
+        assert not errors and not blocked
+    finally:
+        close_page(page)
+
+
+def test_at_1366x768_the_list_shows_12_rows_and_the_minimap_covers_no_scene(served, browser):
+    page, errors, blocked = open_page(browser, served.url, viewport=(1366, 768))
+    try:
+        wait_until(page, "document.querySelectorAll('#candlist .cand:not(.head)').length >= 12")
+        wait_until(page, "!document.querySelector('#minimap').hidden")
+        page.wait_for_timeout(300)
+        shown = page.evaluate("""(() => {
+          const box = document.querySelector('#candlist').getBoundingClientRect();
+          const head = document.querySelector('#candlist .cand.head').getBoundingClientRect();
+          const top = Math.max(box.top, head.bottom), bottom = Math.min(box.bottom, innerHeight);
+          return [...document.querySelectorAll('#candlist .cand:not(.head)')].filter((r) => {
+            const b = r.getBoundingClientRect();
+            return b.height > 0 && b.top >= top - 0.5 && b.bottom <= bottom + 0.5;
+          }).length;
+        })()""")
+        assert shown >= 12
+        mm, scene = page.evaluate("""[document.querySelector('#minimap'), document.querySelector('#canvas')]
+          .map((e) => { const b = e.getBoundingClientRect();
+                        return [b.left, b.top, Math.min(b.right, innerWidth), Math.min(b.bottom, innerHeight)]; })""")
+        assert mm[2] > mm[0] and mm[3] > mm[1]  # shown
+        overlap_x = min(mm[2], scene[2]) - max(mm[0], scene[0])
+        overlap_y = min(mm[3], scene[3]) - max(mm[1], scene[1])
+        assert overlap_x <= 0 or overlap_y <= 0, (mm, scene)
+        # the minimap still moves the view
+        o = page.evaluate("window.zcut.imageToClient(0, 0)")
+        page.mouse.click(mm[0] + 5, mm[1] + 5)
+        wait_until(page, f"window.zcut.imageToClient(0, 0).x !== {o['x']!r} || window.zcut.imageToClient(0, 0).y !== {o['y']!r}")
+        assert not errors and not blocked
+    finally:
+        close_page(page)
