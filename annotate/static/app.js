@@ -11,6 +11,9 @@ import { PointView } from './view3d.js';
 const BOOT = JSON.parse(document.getElementById('boot').textContent);
 const $ = (id) => document.getElementById(id);
 const TILE = 64;
+// tiles of one row per geometry request: the server's rectangle limit (routes.MAX_GEOMETRY_PX, in the boot data)
+// over a tile's pixels, so that no request, however large the selection, exceeds it
+const TILES_PER_REQUEST = Math.max(1, Math.floor((BOOT.max_geometry_px || TILE * TILE) / (TILE * TILE)));
 const CLIENT = Array.from(crypto.getRandomValues(new Uint8Array(12)), (b) => b.toString(16).padStart(2, '0')).join('');
 const KEEPALIVE_MAX = 60000;  // bytes a keepalive request may carry (browsers allow 64 KiB in flight)
 
@@ -407,13 +410,16 @@ function ensureTiles(fd, x0, y0, x1, y1) {  // Promise: every 64 x 64 tile touch
     if (t instanceof Promise) waits.push(t); else if (!t) missing.push([tx, ty]);
   }
   if (missing.length) {
-    // one request per row of missing tiles (at most 4 tiles a row: 256 px)
+    // one request per run of missing tiles of a row (at most TILES_PER_REQUEST of them)
     const rows = new Map();
     for (const [tx, ty] of missing) { if (!rows.has(ty)) rows.set(ty, []); rows.get(ty).push(tx); }
     for (const [ty, txs] of rows) {
       txs.sort((a, b) => a - b);
-      for (let a = 0; a < txs.length; a += 4) {
-        const group = txs.slice(a, a + 4), tA = group[0], tB = group[group.length - 1];
+      for (let a = 0; a < txs.length;) {  // a run of consecutive missing tiles, cut at TILES_PER_REQUEST
+        let b = a + 1;
+        while (b < txs.length && b - a < TILES_PER_REQUEST && txs[b] === txs[b - 1] + 1) b++;
+        const tA = txs[a], tB = txs[b - 1];
+        a = b;
         const p = fetchTiles(fd, tA, tB, ty);
         for (let tx = tA; tx <= tB; tx++) if (!fd.tiles.get(tileKey(tx, ty))) fd.tiles.set(tileKey(tx, ty), p);
         waits.push(p);

@@ -87,3 +87,51 @@ def test_at_1366x768_the_list_shows_12_rows_and_the_minimap_covers_no_scene(serv
         assert not errors and not blocked
     finally:
         close_page(page)
+
+
+@pytest.fixture(scope="module")
+def wide(tmp_path_factory):
+    d = tmp_path_factory.mktemp("wide")
+    log = d / "wide.mcap"
+    write_review_log(log, frames=1, shape=(1200, 1920))
+    srv = ServerProcess(log, d / "labels.sqlite", annotator="alice")
+    yield srv
+    srv.stop()
+
+
+def test_geometry_requests_never_exceed_the_servers_rectangle_limit(wide, browser):
+    """Issue 29 item 5: the tiles missing from a row were fetched four at a time as one rectangle from the
+    first to the last, however far apart: a profile across a row with a few tiles loaded asked for
+    1920 x 64 px and got a 400."""
+    from urllib.parse import parse_qs, urlparse
+
+    from annotate.routes import MAX_GEOMETRY_PX
+
+    page, errors, blocked = open_page(browser, wide.url, viewport=(1366, 768))
+    asked, failed = [], []
+    page.on("request", lambda r: asked.append(r.url) if "/geometry?" in r.url else None)
+    page.on("response", lambda r: failed.append((r.url, r.status)) if "/geometry?" in r.url and r.status != 200
+            else None)
+    try:
+        page.keyboard.press("Escape")
+        for tx in [t for t in range(30) if t not in (5, 16, 28)]:  # load the tiles between a few gaps
+            pt = page.evaluate(f"window.zcut.imageToClient({tx * 64 + 32}, 5)")
+            page.mouse.move(pt["x"], pt["y"])
+            wait_until(page, "window.zcut.readout().includes('height') && !window.zcut.readout().includes('…')")
+        page.keyboard.press("p")  # a profile across the whole row: the four tiles left
+        a = page.evaluate("window.zcut.imageToClient(3, 5)")
+        b = page.evaluate("window.zcut.imageToClient(1916, 5)")
+        page.mouse.move(a["x"], a["y"])
+        page.mouse.down()
+        page.mouse.move(b["x"], b["y"], steps=4)
+        page.mouse.up()
+        wait_until(page, "window.zcut.profileInfo().includes('mm/px')")
+        page.wait_for_timeout(300)
+        areas = []
+        for u in asked:
+            q = {k: int(v[0]) for k, v in parse_qs(urlparse(u).query).items()}
+            areas.append((q["x1"] - q["x0"]) * (q["y1"] - q["y0"]))
+        assert asked and max(areas) <= MAX_GEOMETRY_PX and not failed, (max(areas), failed)
+        assert not errors and not blocked
+    finally:
+        close_page(page)
