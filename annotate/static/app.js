@@ -1143,9 +1143,14 @@ function paintDisc(fd, cx, cy, r, mode) {
 }
 function riseAt(fd, i) { return fd.rise[i] * (fd.header.rise_step_mm || 0.1); }
 function riseThreshold(fd) { return state.riseMm !== null ? state.riseMm : Math.max(0.1, fd.header.threshold_mm || 0.5); }
+// The residual brush works inside one group: the one under the stroke's first pixel (0: the pixels no group
+// holds). It never takes a pixel of another group or outside, and when the stroke ends the group's pixels it
+// left are reviewed as not outliers, so the group is decided and no later Shift+A / Shift+R overwrites it.
+let rbrushGroup = -1;
 function setPixel(fd, i, mode) {  // every decision reviews the pixel: L ⊆ R
   if (!fd.valid[i]) return;
   if (mode === 'radd' || mode === 'rerase') {  // the residual brush: only pixels standing above the threshold
+    if (rbrushGroup >= 0 && fd.gIds[i] !== rbrushGroup) return;
     if (riseAt(fd, i) < riseThreshold(fd)) return;
     mode = mode === 'radd' ? 'add' : 'erase';
   }
@@ -1515,6 +1520,11 @@ window.zcut.state = () => {
            viewport: { x: r.left, y: r.top, width: r.width, height: r.height }, order: state.order.slice(),
            profile: state.profile ? { x0: state.profile.x0, y0: state.profile.y0, x1: state.profile.x1, y1: state.profile.y1 } : null };
 };
+window.zcut.labelOutside = (id) => {  // outlier pixels (L) not in review group id
+  const fd = state.cur; let n = 0;
+  for (let i = 0; i < fd.L.length; i++) if (fd.L[i] && fd.gIds[i] !== id) n++;
+  return n;
+};
 window.zcut.entries = () => {
   const fd = state.cur; if (!fd) return [];
   return fd.entries.map((e, k) => ({ src: e.src, id: e.id, n: e.n, cx: e.cx, cy: e.cy, gap: e.gap, both: e.both,
@@ -1549,6 +1559,10 @@ canvas.addEventListener('pointerdown', (e) => {
   if (t === 'brush' || t === 'eraser' || t === 'unreviewed' || t === 'rbrush') {
     const mode = t === 'brush' ? 'add' : t === 'eraser' ? 'erase' : t === 'rbrush' ? (e.shiftKey ? 'rerase' : 'radd') : 'unreview';
     beginAction(fd);
+    if (t === 'rbrush') {
+      const x = Math.floor(p.x), y = Math.floor(p.y);
+      rbrushGroup = x >= 0 && y >= 0 && x < fd.W && y < fd.H ? fd.gIds[y * fd.W + x] : 0;
+    }
     paintDisc(fd, p.x, p.y, state.brush, mode);
     drag = { kind: 'paint', mode, last: p };
     requestDraw();
@@ -1576,8 +1590,17 @@ canvas.addEventListener('pointermove', (e) => {
 canvas.addEventListener('pointerup', (e) => {
   const fd = state.cur, d = drag; drag = null;
   if (!d || !fd) return;
-  if (d.kind === 'paint') endAction(fd);
-  else if (d.kind === 'box') {
+  if (d.kind === 'paint') {
+    if ((d.mode === 'radd' || d.mode === 'rerase') && rbrushGroup > 0) {
+      const g = fd.base.find((b) => b.src === 'g' && b.id === rbrushGroup);
+      if (g) {  // the group's pixels the brush left: reviewed, not outliers (the group is decided)
+        for (const i of g.pix) if (fd.valid[i] && !fd.R[i]) { fd.R[i] = 1; fd.L[i] = 0; }
+        touch(g.x0, g.y0, g.x1, g.y1); renderOverlay(g.x0, g.y0, g.x1, g.y1);
+      }
+    }
+    rbrushGroup = -1;
+    endAction(fd);
+  } else if (d.kind === 'box') {
     const pts = [[d.x0, d.y0], [d.x, d.y0], [d.x, d.y], [d.x0, d.y]];
     beginAction(fd); fillPolygon(fd, pts, d.erase || e.shiftKey ? 'erase' : 'add'); endAction(fd);
   } else if (d.kind === 'lasso' && d.pts.length > 2) {  // only the suspects (review groups' pixels) inside

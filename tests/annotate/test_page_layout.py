@@ -135,3 +135,46 @@ def test_geometry_requests_never_exceed_the_servers_rectangle_limit(wide, browse
         assert not errors and not blocked
     finally:
         close_page(page)
+
+
+def test_the_residual_brush_decides_its_group_and_stays_inside_it(served, browser):
+    """Issue 29 item 5: a residual-brush stroke left its group undecided (a later Shift+A took all of it)
+    and took risen pixels of other groups under the disc."""
+    page, errors, blocked = open_page(browser, served.url, viewport=(1366, 768))
+    try:
+        groups = [e for e in page.evaluate("window.zcut.entries()") if e["src"] == "g" and e["gap"] > 1]
+        g = max(groups, key=lambda e: e["n"])
+        page.keyboard.press("t")
+        page.evaluate("document.querySelector('#brushsize').value = 1; "
+                      "document.querySelector('#brushsize').dispatchEvent(new Event('input'))")
+        a = page.evaluate(f"window.zcut.imageToClient({int(g['cx'])}, {int(g['cy'])})")
+        page.mouse.move(a["x"], a["y"])
+        page.mouse.down()
+        page.mouse.up()
+        wait_until(page, "window.zcut.state().nL > 0")
+        st = page.evaluate("window.zcut.state()")
+        assert 0 < st["nL"] < g["n"] / 2  # a part of the group taken
+        mine = next(e for e in page.evaluate("window.zcut.entries()") if e["src"] == "g" and e["id"] == g["id"])
+        assert mine["state"] != "undecided"
+        page.keyboard.press("Shift+A")  # the undecided groups only: the brush's decision stays
+        page.wait_for_timeout(200)
+        after = next(e for e in page.evaluate("window.zcut.entries()") if e["src"] == "g" and e["id"] == g["id"])
+        assert after["state"] == mine["state"]
+        # a wide stroke from the group across the frame takes nothing outside it
+        page.keyboard.press("Control+z")
+        page.keyboard.press("Control+z")
+        wait_until(page, "window.zcut.state().nL === 0")
+        page.evaluate("document.querySelector('#brushsize').value = 40; "
+                      "document.querySelector('#brushsize').dispatchEvent(new Event('input'))")
+        b = page.evaluate(f"window.zcut.imageToClient({int(g['cx'])}, {int(g['cy'])})")
+        page.mouse.move(b["x"], b["y"])
+        page.mouse.down()
+        for x in range(0, 640, 20):
+            c = page.evaluate(f"window.zcut.imageToClient({x}, {int(g['cy'])})")
+            page.mouse.move(c["x"], c["y"])
+        page.mouse.up()
+        wait_until(page, "window.zcut.state().nL > 0")
+        assert page.evaluate(f"window.zcut.labelOutside({g['id']})") == 0
+        assert not errors and not blocked
+    finally:
+        close_page(page)
