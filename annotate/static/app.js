@@ -333,9 +333,9 @@ function renderBulkHint(fd) {
     if (pr.prefill) parts.push(`Y takes the assistant's ${out.length + inl.length} confident proposals (${out.length} outlier, ${inl.length} not).`);
     else parts.push(`Y does nothing: ${pr.why_not || 'no confident proposals'}.`);
   }
-  $('bulkhint').textContent = parts.join(' ');
+  $('bulkhint').textContent = $('bulkhint').title = parts.join(' ');
   const a = $('assistinfo');
-  if (a) a.textContent = pr ? pr.message + (pr.why_not && pr.model ? ` — ${pr.why_not}` : '') : 'assistant: …';
+  if (a) a.textContent = a.title = pr ? pr.message + (pr.why_not && pr.model ? ` — ${pr.why_not}` : '') : 'assistant: …';
 }
 
 function select(k, { zoom = true, t0 = performance.now() } = {}) {
@@ -564,12 +564,23 @@ function drawProfile() {
   if (!valid.length) { $('profinfo').textContent = 'no points on this line'; return; }
   const e = pr.entry;
   let lo = Math.min(...valid.map((s) => s.h)), hi = Math.max(...valid.map((s) => s.h));
-  if (e && !isNaN(e.below)) lo = Math.min(lo, e.below);
-  const pad = Math.max(0.5, 0.08 * (hi - lo));
-  lo -= pad; hi += pad;
+  let zoomed = false;
+  if (e && !isNaN(e.below) && !isNaN(e.hmin)) {
+    // the height axis spans the group's neighbourhood (its heights and the surface below it, padded by
+    // half that and at least 1.5 mm), not the bin floor to the pile top: a 1 mm gap is tens of px tall;
+    // points beyond are drawn at the axis' edge
+    const top = Math.max(isNaN(e.hmax) ? e.hmin : e.hmax, e.below), bot = Math.min(e.hmin, e.below);
+    const p = Math.max(1.5, 0.5 * (top - bot));
+    zoomed = top + p < hi || bot - p > lo;
+    lo = bot - p; hi = top + p;
+  } else {
+    const pad = Math.max(0.5, 0.08 * (hi - lo));
+    lo -= pad; hi += pad;
+  }
   const sMax = samples[samples.length - 1].s || 1;
   const L = 46, R = 8, T = 10, B = 22;
-  const X = (s) => L + (w - L - R) * s / sMax, Y = (v) => T + (h - T - B) * (hi - v) / (hi - lo);
+  const X = (s) => L + (w - L - R) * s / sMax, Y = (v) => T + (h - T - B) * (hi - Math.min(hi, Math.max(lo, v))) / (hi - lo);
+  drawProfile.axis = { lo, hi, pxPerMm: (h - T - B) / (hi - lo), zoomed };
   // axes and ticks (mm)
   g.strokeStyle = '#444'; g.fillStyle = '#9aa'; g.font = '10px system-ui'; g.lineWidth = 1;
   const hs = niceStep(hi - lo, 4);
@@ -598,7 +609,8 @@ function drawProfile() {
   }
   // the gap between the selected cluster and the surface below it
   const exaggeration = ((h - T - B) / (hi - lo)) / ((w - L - R) / sMax);  // screen px per mm: vertical / horizontal
-  let info = `heights ×${exaggeration < 10 ? exaggeration.toFixed(1) : exaggeration.toFixed(0)}, ${mmPerPx.toFixed(2)} mm/px`;
+  let info = `heights ×${exaggeration < 10 ? exaggeration.toFixed(1) : exaggeration.toFixed(0)}, ${mmPerPx.toFixed(2)} mm/px` +
+    (zoomed ? ` · height axis zoomed to the group (${lo.toFixed(1)}…${hi.toFixed(1)} mm; points beyond at its edge)` : '');
   if (e && !isNaN(e.gap) && !isNaN(e.below)) {
     const onLine = valid.filter((s) => inSel.has(s.i));
     const xs = onLine.length ? X(onLine.reduce((a, s) => a + s.s, 0) / onLine.length) : X(sMax / 2);
@@ -1525,6 +1537,7 @@ window.zcut.labelOutside = (id) => {  // outlier pixels (L) not in review group 
   for (let i = 0; i < fd.L.length; i++) if (fd.L[i] && fd.gIds[i] !== id) n++;
   return n;
 };
+window.zcut.profileAxis = () => drawProfile.axis || null;
 window.zcut.entries = () => {
   const fd = state.cur; if (!fd) return [];
   return fd.entries.map((e, k) => ({ src: e.src, id: e.id, n: e.n, cx: e.cx, cy: e.cy, gap: e.gap, both: e.both,

@@ -178,3 +178,23 @@ def test_the_residual_brush_decides_its_group_and_stays_inside_it(served, browse
         assert not errors and not blocked
     finally:
         close_page(page)
+
+
+def test_the_profile_zooms_its_height_axis_to_the_group(served, browser):
+    """Issue 29 item 5: the profile's height axis spanned the bin floor to the pile top (~120 mm over
+    ~100 px); zoomed to the group's neighbourhood a 1 mm gap is at least 8 px tall."""
+    page, errors, blocked = open_page(browser, served.url, viewport=(1366, 768))
+    try:
+        rows = page.evaluate("window.zcut.entries()")
+        k, e = min(((i, r) for i, r in enumerate(rows) if r["src"] == "g" and r["gap"] is not None and r["gap"] > 0),
+                   key=lambda kr: kr[1]["gap"])  # the smallest gap of the scene (~4 mm)
+        page.click(f"#candlist .cand[data-k='{k}']")
+        wait_until(page, f"window.zcut.state().selected && window.zcut.state().selected.id === {e['id']}")
+        wait_until(page, "window.zcut.profileAxis() !== null")
+        page.wait_for_timeout(300)
+        ax = page.evaluate("window.zcut.profileAxis()")
+        assert ax["pxPerMm"] >= 8, ax
+        assert ax["hi"] - ax["lo"] <= 3 * abs(e["gap"]) + 4 and ax["lo"] < ax["hi"]
+        assert not errors and not blocked
+    finally:
+        close_page(page)
