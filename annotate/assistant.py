@@ -14,8 +14,10 @@ are outliers, and proposes a label and a confidence for every group of the frame
   held-out frames, and that of the confident proposals alone, is what the page shows.
 - **Proposals.** ``p`` = the probability that a group is an outlier; the proposal is ``p >= 0.5``,
   its confidence ``max(p, 1 - p)``; the page pre-fills the groups whose confidence is at least
-  :data:`CONFIDENT` — only when the model's part kind is the log's (:meth:`Model.applies_to`) and it
-  was checked on held-out frames.
+  :data:`CONFIDENT` — only when the model's part kind is the log's (:meth:`Model.applies_to`), it
+  was checked on held-out frames and it agrees with the labels on at least :data:`GATE` of the
+  held-out groups (``zcut annotate --assistant-gate``). Below that its proposals are shown and
+  nothing is pre-filled; ``zcut labels train`` warns.
 - **Library.** LightGBM (``bench/bench_assistant.py`` measured it against scikit-learn's
   HistGradientBoosting and XGBoost on the same held-out frames; the README's dependency table has
   the figures). Its model is stored as LightGBM's own text format, never as a pickle.
@@ -37,6 +39,8 @@ from zcut.errors import ZcutError
 
 #: Proposals at least this confident are pre-filled on the page (one input accepts them).
 CONFIDENT = 0.9
+#: The held-out agreement with the labels a model needs before the page pre-fills its proposals.
+GATE = 0.9
 #: Folds of whole frames held out to measure the model (fewer when fewer frames are labelled).
 FOLDS = 5
 BACKEND = "lightgbm"
@@ -260,20 +264,29 @@ class Model:
             return np.zeros(0)
         return self.booster.predict(np.asarray(X, np.float32))
 
-    def applies_to(self, part: str | None) -> str | None:
-        """None if its proposals may be pre-filled on a log of ``part``, else the reason why not."""
+    def applies_to(self, part: str | None, gate: float = GATE) -> str | None:
+        """None if its proposals may be pre-filled on a log of ``part``, else the reason why not
+        (another part kind, no held-out frame, held-out agreement below ``gate``)."""
         if self.part is not None and part is not None and part != self.part:
             return (f"the assistant was trained on {self.part} and this log is {part}: "
                     "its proposals are shown, nothing is pre-filled")
         if self.held_out.frames == 0:
             return "the assistant has not been checked on a held-out frame yet (label one more frame)"
+        return self.below_gate(gate)
+
+    def below_gate(self, gate: float = GATE) -> str | None:
+        """None if the held-out agreement reaches ``gate`` (or no frame was held out), else why not."""
+        h = self.held_out
+        if h.frames and not (h.accuracy >= gate):
+            return (f"the assistant agrees with your labels on only {100 * h.accuracy:.0f} % of {h.groups} held-out "
+                    f"groups (pre-filling needs {100 * gate:.0f} %): its proposals are shown, nothing is pre-filled")
         return None
 
     def summary(self) -> str:
         h = self.held_out
         acc = "no held-out frame yet" if h.frames == 0 else (
-            f"{100 * h.accuracy:.0f} % right on {h.groups} groups of {h.frames} held-out frame(s)"
-            + (f", {100 * h.confident_accuracy:.0f} % of the {h.confident} confident ones" if h.confident else ""))
+            f"agrees with your labels {100 * h.accuracy:.0f} % on {h.groups} groups of {h.frames} held-out frame(s)"
+            + (f", {100 * h.confident_accuracy:.0f} % on the {h.confident} confident ones" if h.confident else ""))
         return (f"trained on {len(self.frames)} frame(s), {self.n_groups} groups ({self.n_outliers} outliers)"
                 f"{' of ' + self.part if self.part else ''}: {acc}")
 
@@ -368,16 +381,16 @@ def train(ts: TrainingSet, *, part: str | None, log_sha256: str, backend: str = 
                  ts.disagreements, backend, version)
 
 
-def proposals(model: Model | None, features: np.ndarray, *, part: str | None) -> dict:
+def proposals(model: Model | None, features: np.ndarray, *, part: str | None, gate: float = GATE) -> dict:
     """What the page shows for a frame's groups: ``{"model": {...} | None, "p": [...], "prefill": bool,
     "why_not": str | None}``."""
     if model is None:
         return {"model": None, "p": [], "prefill": False, "why_not": None}
     p = model.predict(features)
-    why = model.applies_to(part)
+    why = model.applies_to(part, gate)
     return {"model": {"version": model.version, "summary": model.summary(), "part": model.part,
                       "held_out": model.held_out.as_dict(), "frames": len(model.frames),
-                      "confident": CONFIDENT, "backend": model.backend},
+                      "confident": CONFIDENT, "gate": gate, "backend": model.backend},
             "p": [round(float(v), 4) for v in p], "prefill": why is None, "why_not": why}
 
 
@@ -403,9 +416,12 @@ class Trainer:
         The log's part kind.
     debounce_s : float
         Labels saved within this many seconds train one model.
+    gate : float
+        The held-out agreement a model needs before its proposals are pre-filled (:data:`GATE`).
     """
 
-    def __init__(self, catalogue, store, log, *, part: str | None, debounce_s: float = 1.0) -> None:
+    def __init__(self, catalogue, store, log, *, part: str | None, debounce_s: float = 1.0,
+                 gate: float = GATE) -> None:
         import threading
 
         self.catalogue = catalogue
@@ -413,6 +429,7 @@ class Trainer:
         self.log = log
         self.part = part
         self.debounce_s = debounce_s
+        self.gate = gate
         self.model: Model | None = None
         self.message = "no labels yet: the assistant learns from the groups you decide"
         self.training = False
@@ -517,7 +534,7 @@ class Trainer:
                     "message": self.message, "model": None if m is None else {
                         "summary": m.summary(), "part": m.part, "held_out": m.held_out.as_dict(),
                         "frames": len(m.frames), "backend": m.backend, "confident": CONFIDENT,
-                        "why_not": m.applies_to(self.part)}}
+                        "gate": self.gate, "why_not": m.applies_to(self.part, self.gate)}}
 
 
 # --------------------------------------------------------------------------- offline: a log's labels

@@ -621,10 +621,12 @@ def prepare_frame(frame, result, *, suspect_params: SuspectParams | None = None,
               "candidate_columns": list(CANDIDATE_COLUMNS)}
     sections = [("valid", mask_kind(valid), valid), ("zcut", "sparse", z_ids), ("sor", "sparse", s_ids),
                 ("candidates", "table", table)]
-    zone = np.asarray(result.zone, bool)
+    easy = np.asarray(result.easy_outliers, bool) & valid
+    # the zone the labels are scored on (docs/accuracy.md): the pixels the filters judge plus the points
+    # above the rim, which the pipeline reports as outliers itself (the removal's zone leaves them out)
+    zone = (np.asarray(result.zone, bool) | easy) & valid
     if not np.array_equal(zone, valid):
         sections.append(("zone", mask_kind(zone), zone))
-    easy = np.asarray(result.easy_outliers, bool) & valid
     groups = review_groups(frame.xyz, frame.rgb, height_mm=np.asarray(result.height_mm, np.float64), valid=valid,
                            zone=zone & valid, above_rim=easy,
                            outliers={k: np.asarray(v, bool) & valid for k, v in result.outliers.items()},

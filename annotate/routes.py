@@ -190,7 +190,8 @@ def index(page: Page, request: Request) -> Response:
     html = (resources.files("annotate") / "static" / "index.html").read_text()
     c = client_of(page, request)
     boot = json.dumps({"log": page.log.name, "mode": _mode(page),
-                       "annotator": page.annotator or (c.annotator if c else None)})
+                       "annotator": page.annotator or (c.annotator if c else None),
+                       "max_geometry_px": MAX_GEOMETRY_PX})  # the client tiles its geometry requests under it
     html = html.replace("{{BOOT}}", boot.replace("<", "\\u003c"))
     return HTMLResponse(html, headers=PAGE_HEADERS)
 

@@ -31,7 +31,7 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
 
-from annotate.assistant import Trainer
+from annotate.assistant import GATE, Trainer
 from annotate.catalogue import Catalogue
 from annotate.guard import (
     ALLOWED_HOSTS,
@@ -107,6 +107,7 @@ def open_page(
     overrides: dict[str, Any] | None = None,
     topic: str | None = None,
     choose_bin_model: Callable[[Any], Any] | None = None,
+    assistant_gate: float | None = None,
 ) -> Page:
     """Open the log for replay and the store, and start preparing frames.
 
@@ -126,6 +127,9 @@ def open_page(
     choose_bin_model : callable, optional
         Chooses the bin model from the opened reader when ``bin_model`` is None
         (:meth:`replay.pipeline.session.ReplaySession.open`); its warning is among the page's notes.
+    assistant_gate : float, optional
+        The held-out agreement the assistant needs before its proposals are pre-filled
+        (default :data:`annotate.assistant.GATE`).
 
     Candidates come from :meth:`replay.pipeline.session.ReplaySession.results` with the config
     resolved as ``zcut replay`` resolves it. The log is read and its config resolved before the
@@ -153,7 +157,8 @@ def open_page(
         catalogue = Catalogue.of_replay(replay, store, log)
         page = Page(log_path=log_path, store=store, log=log, catalogue=catalogue, token=token or new_token(),
                     annotator=annotator, replay=replay,
-                    assistant=Trainer(catalogue, store, log, part=catalogue.part))
+                    assistant=Trainer(catalogue, store, log, part=catalogue.part,
+                                      gate=GATE if assistant_gate is None else assistant_gate))
     except BaseException:
         if catalogue is not None:
             catalogue.geometry.close()

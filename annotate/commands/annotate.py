@@ -19,9 +19,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      help="the name every page labels as (default: the login name)")
     who.add_argument("--ask-annotator", action="store_true",
                      help="each page session chooses its annotator name once (several people, one server)")
+    add_gate_option(p)
     from replay.commands.common import add_pipeline_options
 
     add_pipeline_options(p)
+
+
+def add_gate_option(p: argparse.ArgumentParser) -> None:
+    from annotate.assistant import GATE
+
+    p.add_argument("--assistant-gate", type=float, default=GATE, metavar="A",
+                   help="the assistant pre-fills its proposals (Y takes them) only when it agrees with your labels "
+                        f"on at least this share of the held-out groups (default {GATE})")
+
+
+def check_gate(args: argparse.Namespace) -> float:
+    from zcut.errors import ParameterError
+
+    g = args.assistant_gate
+    if not (0.0 <= g <= 1.0):
+        raise ParameterError(f"--assistant-gate must be in 0..1, got {g}")
+    return float(g)
 
 
 def _default_annotator() -> str:
@@ -41,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
 
     if not (0 <= args.port <= 65535):
         raise ParameterError(f"--port must be in 0..65535, got {args.port}")
+    gate = check_gate(args)
     if not args.log.is_file():
         raise FileNotFoundError(2, "no such file", str(args.log))
     db = args.db or args.log.with_suffix(".labels.sqlite")
@@ -61,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
             raise ParameterError(f"--port {args.port}: cannot listen on 127.0.0.1: {e.strerror}") from None
         port = sock.getsockname()[1]
         page = open_page(args.log, db, annotator=annotator, config_path=args.config, choose_bin_model=choose,
-                         overrides=overrides, topic=args.topic)
+                         overrides=overrides, topic=args.topic, assistant_gate=gate)
         warn_bin_model(page.replay)
         if page.replay is not None:  # what the config resolution decided, as every pipeline command says it
             for note in page.replay.notes:

@@ -33,6 +33,9 @@ def _add_train(sub) -> None:
     tr.add_argument("--db", type=Path, required=True, metavar="LABELS.sqlite")
     tr.add_argument("--annotator", action="append", default=None,
                     help="whose labels (repeat for several; default: every annotator of the log)")
+    from annotate.commands.annotate import add_gate_option
+
+    add_gate_option(tr)
     from replay.commands.common import add_pipeline_options
 
     add_pipeline_options(tr)
@@ -44,12 +47,14 @@ def train(args: argparse.Namespace) -> int:
 
     from annotate.assistant import train as fit
     from annotate.assistant import training_set_of_log
+    from annotate.commands.annotate import check_gate
     from annotate.store import LabelStore, StoreError, file_sha256
     from replay.commands.common import open_session, overrides_of
 
     for path in (args.log, args.db):
         if not path.is_file():
             raise FileNotFoundError(2, "no such file", str(path))
+    gate = check_gate(args)
     overrides = overrides_of(args)
     session = open_session(args.log, args, overrides=overrides)
     with LabelStore(args.db) as store:
@@ -69,6 +74,9 @@ def train(args: argparse.Namespace) -> int:
         mid = store.save_model(log_sha256=log.sha256, part=model.part, backend=model.backend,
                                meta=json.dumps(model.meta()), model=model.dumps())
     print(f"model {mid} in {args.db}: {model.summary()}")
+    below = model.below_gate(gate)
+    if below is not None:
+        print(f"warning: {below}", file=sys.stderr)
     return 0
 
 

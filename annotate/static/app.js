@@ -11,6 +11,9 @@ import { PointView } from './view3d.js';
 const BOOT = JSON.parse(document.getElementById('boot').textContent);
 const $ = (id) => document.getElementById(id);
 const TILE = 64;
+// tiles of one row per geometry request: the server's rectangle limit (routes.MAX_GEOMETRY_PX, in the boot data)
+// over a tile's pixels, so that no request, however large the selection, exceeds it
+const TILES_PER_REQUEST = Math.max(1, Math.floor((BOOT.max_geometry_px || TILE * TILE) / (TILE * TILE)));
 const CLIENT = Array.from(crypto.getRandomValues(new Uint8Array(12)), (b) => b.toString(16).padStart(2, '0')).join('');
 const KEEPALIVE_MAX = 60000;  // bytes a keepalive request may carry (browsers allow 64 KiB in flight)
 
@@ -223,7 +226,9 @@ function propP(fd, e) {  // the assistant's outlier probability of a group (NaN 
   return e.src === 'g' && fd.prop && fd.prop.p.length > e.k ? fd.prop.p[e.k] : NaN;
 }
 function confidence(fd, e) { const p = propP(fd, e); return isNaN(p) ? NaN : Math.max(p, 1 - p); }
-function confident(fd, e) { return fd.prop && confidence(fd, e) >= fd.prop.confident; }
+// confident and pre-filled: only when the server lets the page pre-fill (the model agrees with the labels on
+// held-out frames at least as often as the gate asks), else a proposal is shown plain and Y takes nothing
+function confident(fd, e) { return !!(fd.prop && fd.prop.prefill) && confidence(fd, e) >= fd.prop.confident; }
 const SORTS = {
   auto: (a, b) => (state.cur && state.cur.prop && state.cur.prop.p.length ? SORTS.uncertainty(a, b) : SORTS.score(a, b)),
   uncertainty: (a, b) => {
@@ -252,18 +257,34 @@ function refreshList(fd, keepSel = true, render = true) {
   }
 }
 
+// no surface was measured below the group (a hole, the bin's edge): the gap says what to judge by instead
+const GAP_UNKNOWN = 'gap unknown: no surface below — judge by the 3D view / profile';
 function gapText(gap) {  // a gap to the surface: above (toward the camera) or below it
-  if (isNaN(gap)) return 'gap ?';
+  if (isNaN(gap)) return 'no surface: 3D/profile';
   return gap >= 0 ? `${gap.toFixed(1)} mm up` : `${(-gap).toFixed(1)} mm down`;
+}
+// What the header and the panel count, one definition: the frame's review groups, those decided (at least
+// half of their pixels labelled outlier or reviewed), and the painted components no group covers.
+function groupCounts(fd) {
+  const st = fd.states || [], ent = fd.entries || [];
+  let groups = 0, decided = 0, painted = 0;
+  ent.forEach((e, k) => {
+    if (e.src !== 'g') { painted++; return; }
+    groups++;
+    if (st[k] && st[k] !== 'undecided') decided++;
+  });
+  if (!ent.length) groups = fd.header.n_groups;
+  return { groups, decided, painted };
+}
+function countsText(fd) {
+  const c = groupCounts(fd);
+  return `${c.groups} groups · ${c.decided} decided` + (c.painted ? ` · ${c.painted} painted` : '');
 }
 function renderList() {
   const fd = state.cur, box = $('candlist');
   if (!fd) { box.innerHTML = ''; return; }
   const states = fd.states;
-  const groups = fd.entries.filter((e) => e.src === 'g');
-  const nUnd = states.filter((s, k) => s === 'undecided' && fd.entries[k].src === 'g').length;
-  const painted = fd.entries.length - groups.length;
-  $('candcount').textContent = `${groups.length} groups · ${groups.length - nUnd} decided` + (painted ? ` · ${painted} painted` : '');
+  $('candcount').textContent = countsText(fd);
   const frag = document.createDocumentFragment();
   const MAX_ROWS = 300;
   fd.entries.slice(0, MAX_ROWS).forEach((e, k) => {
@@ -274,8 +295,9 @@ function renderList() {
     const prop = isNaN(p) ? '' : `${p >= 0.5 ? 'out' : 'in'} ${Math.round(100 * Math.max(p, 1 - p))} %`;
     const why = e.src === 'L' ? 'painted' : e.source + (e.also.length ? ` +${e.also.join(',')}` : '');
     row.title = e.src === 'L' ? 'labelled by hand, no group covers it' :
-      `${e.source}: ${e.n} px, median gap to the local surface ${isNaN(e.gap) ? 'unknown' : e.gap >= 0 ? e.gap.toFixed(2) + ' mm above it' : (-e.gap).toFixed(2) + ' mm below it'}` + (e.also.length ? `; also flagged by ${e.also.join(', ')}` : '');
-    row.innerHTML = `<span class="src ${e.src}">${why}</span><span>${e.n} px</span><span>${gapText(e.gap)}</span>` +
+      `${e.source}: ${e.n} px, median gap to the local surface ${isNaN(e.gap) ? 'unknown (no surface below): judge by the 3D view / profile' : e.gap >= 0 ? e.gap.toFixed(2) + ' mm above it' : (-e.gap).toFixed(2) + ' mm below it'}` + (e.also.length ? `; also flagged by ${e.also.join(', ')}` : '');
+    row.innerHTML = `<span class="src ${e.src}">${why}</span><span>${e.n} px</span>` +
+      `<span class="gap${isNaN(e.gap) && e.src === 'g' ? ' unknown' : ''}"${isNaN(e.gap) && e.src === 'g' ? ` title="${GAP_UNKNOWN}"` : ''}>${e.src === 'g' ? gapText(e.gap) : ''}</span>` +
       `<span class="agree${conf ? ' conf' : ''}">${prop}</span><span class="st">${
         states[k] === 'accepted' ? 'outlier' : states[k] === 'rejected' ? 'not outlier' : '·'}</span>`;
     row.onclick = () => { window.zcut.inputs++; select(k, { zoom: true }); };
@@ -283,12 +305,12 @@ function renderList() {
   });
   const head = document.createElement('div');
   head.className = 'cand head';
-  head.innerHTML = '<span>why (detector)</span><span>size</span><span>gap to surface</span><span title="the assistant: outlier or inlier, confidence">assistant</span><span>decision</span>';
+  head.innerHTML = '<span>why (detector)</span><span>size</span><span>gap to surface</span><span title="the assistant: outlier or inlier, confidence">assist.</span><span>decision</span>';
   box.replaceChildren(head, frag);
   const selRow = box.querySelector('.sel');
   if (selRow) selRow.scrollIntoView({ block: 'nearest' });
   renderBulkHint(fd);
-  updateStatus();
+  updateInfo();  // the header and the frame list count what the panel counts
 }
 
 // What the bulk keys will do, said before they do it.
@@ -311,9 +333,9 @@ function renderBulkHint(fd) {
     if (pr.prefill) parts.push(`Y takes the assistant's ${out.length + inl.length} confident proposals (${out.length} outlier, ${inl.length} not).`);
     else parts.push(`Y does nothing: ${pr.why_not || 'no confident proposals'}.`);
   }
-  $('bulkhint').textContent = parts.join(' ');
+  $('bulkhint').textContent = $('bulkhint').title = parts.join(' ');
   const a = $('assistinfo');
-  if (a) a.textContent = pr ? pr.message + (pr.why_not && pr.model ? ` — ${pr.why_not}` : '') : 'assistant: …';
+  if (a) a.textContent = a.title = pr ? pr.message + (pr.why_not && pr.model ? ` — ${pr.why_not}` : '') : 'assistant: …';
 }
 
 function select(k, { zoom = true, t0 = performance.now() } = {}) {
@@ -388,13 +410,16 @@ function ensureTiles(fd, x0, y0, x1, y1) {  // Promise: every 64 x 64 tile touch
     if (t instanceof Promise) waits.push(t); else if (!t) missing.push([tx, ty]);
   }
   if (missing.length) {
-    // one request per row of missing tiles (at most 4 tiles a row: 256 px)
+    // one request per run of missing tiles of a row (at most TILES_PER_REQUEST of them)
     const rows = new Map();
     for (const [tx, ty] of missing) { if (!rows.has(ty)) rows.set(ty, []); rows.get(ty).push(tx); }
     for (const [ty, txs] of rows) {
       txs.sort((a, b) => a - b);
-      for (let a = 0; a < txs.length; a += 4) {
-        const group = txs.slice(a, a + 4), tA = group[0], tB = group[group.length - 1];
+      for (let a = 0; a < txs.length;) {  // a run of consecutive missing tiles, cut at TILES_PER_REQUEST
+        let b = a + 1;
+        while (b < txs.length && b - a < TILES_PER_REQUEST && txs[b] === txs[b - 1] + 1) b++;
+        const tA = txs[a], tB = txs[b - 1];
+        a = b;
         const p = fetchTiles(fd, tA, tB, ty);
         for (let tx = tA; tx <= tB; tx++) if (!fd.tiles.get(tileKey(tx, ty))) fd.tiles.set(tileKey(tx, ty), p);
         waits.push(p);
@@ -539,12 +564,23 @@ function drawProfile() {
   if (!valid.length) { $('profinfo').textContent = 'no points on this line'; return; }
   const e = pr.entry;
   let lo = Math.min(...valid.map((s) => s.h)), hi = Math.max(...valid.map((s) => s.h));
-  if (e && !isNaN(e.below)) lo = Math.min(lo, e.below);
-  const pad = Math.max(0.5, 0.08 * (hi - lo));
-  lo -= pad; hi += pad;
+  let zoomed = false;
+  if (e && !isNaN(e.below) && !isNaN(e.hmin)) {
+    // the height axis spans the group's neighbourhood (its heights and the surface below it, padded by
+    // half that and at least 1.5 mm), not the bin floor to the pile top: a 1 mm gap is tens of px tall;
+    // points beyond are drawn at the axis' edge
+    const top = Math.max(isNaN(e.hmax) ? e.hmin : e.hmax, e.below), bot = Math.min(e.hmin, e.below);
+    const p = Math.max(1.5, 0.5 * (top - bot));
+    zoomed = top + p < hi || bot - p > lo;
+    lo = bot - p; hi = top + p;
+  } else {
+    const pad = Math.max(0.5, 0.08 * (hi - lo));
+    lo -= pad; hi += pad;
+  }
   const sMax = samples[samples.length - 1].s || 1;
   const L = 46, R = 8, T = 10, B = 22;
-  const X = (s) => L + (w - L - R) * s / sMax, Y = (v) => T + (h - T - B) * (hi - v) / (hi - lo);
+  const X = (s) => L + (w - L - R) * s / sMax, Y = (v) => T + (h - T - B) * (hi - Math.min(hi, Math.max(lo, v))) / (hi - lo);
+  drawProfile.axis = { lo, hi, pxPerMm: (h - T - B) / (hi - lo), zoomed };
   // axes and ticks (mm)
   g.strokeStyle = '#444'; g.fillStyle = '#9aa'; g.font = '10px system-ui'; g.lineWidth = 1;
   const hs = niceStep(hi - lo, 4);
@@ -573,7 +609,8 @@ function drawProfile() {
   }
   // the gap between the selected cluster and the surface below it
   const exaggeration = ((h - T - B) / (hi - lo)) / ((w - L - R) / sMax);  // screen px per mm: vertical / horizontal
-  let info = `heights ×${exaggeration < 10 ? exaggeration.toFixed(1) : exaggeration.toFixed(0)}, ${mmPerPx.toFixed(2)} mm/px`;
+  let info = `heights ×${exaggeration < 10 ? exaggeration.toFixed(1) : exaggeration.toFixed(0)}, ${mmPerPx.toFixed(2)} mm/px` +
+    (zoomed ? ` · height axis zoomed to the group (${lo.toFixed(1)}…${hi.toFixed(1)} mm; points beyond at its edge)` : '');
   if (e && !isNaN(e.gap) && !isNaN(e.below)) {
     const onLine = valid.filter((s) => inSel.has(s.i));
     const xs = onLine.length ? X(onLine.reduce((a, s) => a + s.s, 0) / onLine.length) : X(sMax / 2);
@@ -768,7 +805,8 @@ function drawMinimap(fd) {
   const mm = $('minimap');
   mm.hidden = !state.showMini;
   if (!state.showMini) return;
-  const dpr = window.devicePixelRatio || 1, w = 220, h = Math.round(220 * fd.H / fd.W);
+  const dpr = window.devicePixelRatio || 1, w = Math.max(120, Math.min(250, mm.parentElement.clientWidth - 22));
+  const h = Math.round(w * fd.H / fd.W);
   if (mm.width !== w * dpr || mm.height !== h * dpr) { mm.width = w * dpr; mm.height = h * dpr; mm.style.width = `${w}px`; mm.style.height = `${h}px`; }
   const g = mm.getContext('2d');
   g.setTransform(1, 0, 0, 1, 0, 0);
@@ -967,20 +1005,19 @@ function frameRow(index) { return state.frames.find((f) => f.index === index); }
 
 function updateStatus() {
   const fd = state.cur; if (!fd) return;
-  const st = fd.states || [], und = st.filter((s) => s === 'undecided').length;
   const el = $('status');
   if (fd.nR >= fd.nValid) { el.textContent = 'frame reviewed ✓'; el.className = 'reviewed'; }
   else if (fd.nR > 0) {
     el.textContent = shadeUnreviewed(fd) ? `reviewed except ${fd.nValid - fd.nR} px (shaded)`
-      : `not reviewed yet · ${st.length - und} / ${st.length} groups decided (Enter: reviewed)`;
+      : `not reviewed yet · ${countsText(fd)} (Enter: reviewed)`;
     el.className = 'partial';
-  } else { el.textContent = `not reviewed · ${fd.header.n_groups} groups`; el.className = 'todo'; }
+  } else { el.textContent = `not reviewed · ${countsText(fd)}`; el.className = 'todo'; }
 }
 
 function updateInfo() {
   const fd = state.cur;
   if (fd) $('frameinfo').textContent = `frame ${fd.index} (${state.order.indexOf(fd.index) + 1} of ${state.order.length})  ` +
-    `${fd.header.n_groups} groups · z-cut ${fd.header.n_zcut} · SOR ${fd.header.n_sor} clusters  rev ${fd.rev}`;
+    `z-cut ${fd.header.n_zcut} · SOR ${fd.header.n_sor} clusters  rev ${fd.rev}`;
   const reviewed = state.frames.filter((f) => f.reviewed).length;
   $('progress').textContent = `reviewed ${reviewed} / ${state.total}` + (state.done ? '' : ' (preparing…)');
   updateStatus();
@@ -998,9 +1035,11 @@ function updateInfo() {
     const f = frameRow(+li.dataset.index);
     if (!f) continue;
     const mark = f.reviewed ? '✓' : f.revision ? '◐' : '';
-    li.title = `frame ${f.index}: ${f.n_groups} review groups, ${f.decided} decided, ${f.n_outliers} outlier px labelled` +
+    const cur = fd && f.index === fd.index && fd.entries ? groupCounts(fd) : null;  // the panel's counts, unsaved edits included
+    const decided = cur ? cur.decided : f.decided;
+    li.title = `frame ${f.index}: ${f.n_groups} review groups, ${decided} decided, ${f.n_outliers} outlier px labelled` +
       (f.uncertain === null ? '' : `, the assistant is unsure of ${f.uncertain}`) + (f.bin_stages ? '' : ' (no bin stages)');
-    li.innerHTML = `<b>${f.index}</b><span>${f.n_groups} groups</span><span>${f.decided} dec.</span>` +
+    li.innerHTML = `<b>${f.index}</b><span>${f.n_groups} groups</span><span>${decided} dec.</span>` +
       `<span>${f.n_outliers} px</span><span class="dis">${f.uncertain === null ? '' : '?' + f.uncertain}</span><span class="mk">${mark}</span>`;
     li.classList.toggle('rev', !!f.reviewed);
     li.classList.toggle('cur', !!fd && f.index === fd.index);
@@ -1116,9 +1155,14 @@ function paintDisc(fd, cx, cy, r, mode) {
 }
 function riseAt(fd, i) { return fd.rise[i] * (fd.header.rise_step_mm || 0.1); }
 function riseThreshold(fd) { return state.riseMm !== null ? state.riseMm : Math.max(0.1, fd.header.threshold_mm || 0.5); }
+// The residual brush works inside one group: the one under the stroke's first pixel (0: the pixels no group
+// holds). It never takes a pixel of another group or outside, and when the stroke ends the group's pixels it
+// left are reviewed as not outliers, so the group is decided and no later Shift+A / Shift+R overwrites it.
+let rbrushGroup = -1;
 function setPixel(fd, i, mode) {  // every decision reviews the pixel: L ⊆ R
   if (!fd.valid[i]) return;
   if (mode === 'radd' || mode === 'rerase') {  // the residual brush: only pixels standing above the threshold
+    if (rbrushGroup >= 0 && fd.gIds[i] !== rbrushGroup) return;
     if (riseAt(fd, i) < riseThreshold(fd)) return;
     mode = mode === 'radd' ? 'add' : 'erase';
   }
@@ -1471,6 +1515,8 @@ window.zcut.imageToClient = (x, y) => {
   const r = canvas.getBoundingClientRect();
   return { x: r.left + state.px + (x + 0.5) * state.zoom, y: r.top + state.py + (y + 0.5) * state.zoom };
 };
+window.zcut.gapText = (gap) => gapText(gap === null ? NaN : gap);
+window.zcut.GAP_UNKNOWN = GAP_UNKNOWN;
 window.zcut.state = () => {
   const fd = state.cur; if (!fd) return null;
   let nL = 0, nR = 0;
@@ -1486,6 +1532,12 @@ window.zcut.state = () => {
            viewport: { x: r.left, y: r.top, width: r.width, height: r.height }, order: state.order.slice(),
            profile: state.profile ? { x0: state.profile.x0, y0: state.profile.y0, x1: state.profile.x1, y1: state.profile.y1 } : null };
 };
+window.zcut.labelOutside = (id) => {  // outlier pixels (L) not in review group id
+  const fd = state.cur; let n = 0;
+  for (let i = 0; i < fd.L.length; i++) if (fd.L[i] && fd.gIds[i] !== id) n++;
+  return n;
+};
+window.zcut.profileAxis = () => drawProfile.axis || null;
 window.zcut.entries = () => {
   const fd = state.cur; if (!fd) return [];
   return fd.entries.map((e, k) => ({ src: e.src, id: e.id, n: e.n, cx: e.cx, cy: e.cy, gap: e.gap, both: e.both,
@@ -1520,6 +1572,10 @@ canvas.addEventListener('pointerdown', (e) => {
   if (t === 'brush' || t === 'eraser' || t === 'unreviewed' || t === 'rbrush') {
     const mode = t === 'brush' ? 'add' : t === 'eraser' ? 'erase' : t === 'rbrush' ? (e.shiftKey ? 'rerase' : 'radd') : 'unreview';
     beginAction(fd);
+    if (t === 'rbrush') {
+      const x = Math.floor(p.x), y = Math.floor(p.y);
+      rbrushGroup = x >= 0 && y >= 0 && x < fd.W && y < fd.H ? fd.gIds[y * fd.W + x] : 0;
+    }
     paintDisc(fd, p.x, p.y, state.brush, mode);
     drag = { kind: 'paint', mode, last: p };
     requestDraw();
@@ -1547,8 +1603,17 @@ canvas.addEventListener('pointermove', (e) => {
 canvas.addEventListener('pointerup', (e) => {
   const fd = state.cur, d = drag; drag = null;
   if (!d || !fd) return;
-  if (d.kind === 'paint') endAction(fd);
-  else if (d.kind === 'box') {
+  if (d.kind === 'paint') {
+    if ((d.mode === 'radd' || d.mode === 'rerase') && rbrushGroup > 0) {
+      const g = fd.base.find((b) => b.src === 'g' && b.id === rbrushGroup);
+      if (g) {  // the group's pixels the brush left: reviewed, not outliers (the group is decided)
+        for (const i of g.pix) if (fd.valid[i] && !fd.R[i]) { fd.R[i] = 1; fd.L[i] = 0; }
+        touch(g.x0, g.y0, g.x1, g.y1); renderOverlay(g.x0, g.y0, g.x1, g.y1);
+      }
+    }
+    rbrushGroup = -1;
+    endAction(fd);
+  } else if (d.kind === 'box') {
     const pts = [[d.x0, d.y0], [d.x, d.y0], [d.x, d.y], [d.x0, d.y]];
     beginAction(fd); fillPolygon(fd, pts, d.erase || e.shiftKey ? 'erase' : 'add'); endAction(fd);
   } else if (d.kind === 'lasso' && d.pts.length > 2) {  // only the suspects (review groups' pixels) inside

@@ -163,3 +163,76 @@ def test_the_page_trains_in_the_background_and_proposes(tmp_path):
             assert np.mean(right) >= 0.75, (p["p"], big3)
     finally:
         srv.stop()
+
+
+def _noise(rng, n_frames=6, per=20):
+    """Frames of groups whose labels no feature explains (a coin): held-out agreement about one half."""
+    b = TrainingSetBuilder()
+    for f in range(n_frames):
+        X = rng.normal(size=(per, len(FEATURES))).astype(np.float32)
+        y = rng.random(per) < 0.5
+        b.add(("/cloud", f), X, [("alice", np.ones(per, bool), y.astype(float))])
+    return b.build()
+
+
+def test_a_model_below_the_agreement_gate_never_prefills_and_never_says_right(rng):
+    """Issue 29 item 5: a model "3 % right on 92 groups" pre-filled; below the gate (0.9, configurable)
+    its proposals are shown, nothing is pre-filled, and the page says "agrees with your labels"."""
+    from annotate.assistant import GATE
+
+    m = train(_noise(rng), part="zinc_nuts", log_sha256="a" * 64)
+    assert m.held_out.frames == 6 and m.held_out.accuracy < GATE == 0.9
+    got = proposals(m, np.zeros((4, len(FEATURES)), np.float32), part="zinc_nuts")
+    assert not got["prefill"] and len(got["p"]) == 4
+    assert "agrees with your labels on only" in got["why_not"] and "needs 90 %" in got["why_not"]
+    assert "agrees with your labels" in m.summary() and "right" not in m.summary() + got["why_not"]
+    # the gate is configurable: at 0 the same model pre-fills
+    assert proposals(m, np.zeros((4, len(FEATURES)), np.float32), part="zinc_nuts", gate=0.0)["prefill"]
+    good = train(_separable(rng), part="zinc_nuts", log_sha256="a" * 64)
+    assert good.below_gate() is None and "right" not in good.summary()
+
+
+def _label_log(log, db, *, coin=None):
+    """Frames 0..2 of a spike log labelled by a person who takes the groups of >= 16 px (or a coin)."""
+    from annotate.payload import parse_bundle, prepare_frame
+    from replay.pipeline.session import ReplaySession
+
+    results = ReplaySession.open(log).results()
+    with LabelStore(db) as store:
+        rec = store.add_log(log)
+        try:
+            for frame, r in results:
+                if frame.index == 3:
+                    continue
+                header, a = parse_bundle(prepare_frame(frame, r).served.bundle)
+                gids, valid = a["groups"].astype(np.int64), a["valid"]
+                t = a["group_table"]
+                take = t[:, GCOL["n"]] >= 16 if coin is None else coin.random(len(t)) < 0.5
+                out = t[take, GCOL["id"]]
+                fr = store.add_frame(rec, topic=frame.topic, stamp_ns=frame.stamp_ns, index=frame.index,
+                                     shape=valid.shape, valid=valid)
+                store.save_label(fr, annotator="alice", outliers=np.isin(gids, out) & valid, reviewed=valid,
+                                 base_revision=None)
+        finally:
+            results.close()
+
+
+def test_labels_train_warns_when_the_stored_model_is_below_the_gate(tmp_path, capsys, rng):
+    """Issue 29 item 5: `zcut labels train` stored a model "3 % right on 92 groups" without a word."""
+    from annotate_helpers import write_spike_log as write
+
+    from cli.main import main
+
+    log, db = tmp_path / "spikes.mcap", tmp_path / "labels.sqlite"
+    write(log, frames=4, shape=(120, 160), seed=2)
+    _label_log(log, db, coin=rng)
+    capsys.readouterr()
+    assert main(["labels", "train", str(log), "--db", str(db)]) == 0
+    cap = capsys.readouterr()
+    warn = [ln for ln in cap.err.splitlines() if ln.startswith("warning:") and "assistant" in ln]
+    assert len(warn) == 1 and "agrees with your labels on only" in warn[0] and "needs 90 %" in warn[0], cap.err
+    assert "agrees with your labels" in cap.out and "right" not in cap.out
+    assert main(["labels", "train", str(log), "--db", str(db), "--assistant-gate", "0"]) == 0
+    assert "assistant" not in capsys.readouterr().err
+    assert main(["labels", "train", str(log), "--db", str(db), "--assistant-gate", "1.5"]) == 1
+    assert capsys.readouterr().err.strip() == "error: --assistant-gate must be in 0..1, got 1.5"

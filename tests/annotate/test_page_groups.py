@@ -46,7 +46,7 @@ def test_counts_agree_and_gaps_read_as_words(served, browser):
         first = page.text_content("#framelist li")
         assert f"{n} groups" in first and "0 dec." in first
         assert page.text_content("#candcount").startswith(f"{n} groups · 0 decided")
-        assert f"{n} groups" in page.text_content("#frameinfo")
+        assert f"{n} groups" in page.text_content("#status")
         rows = page.evaluate("window.zcut.entries()")
         assert len(rows) == n and all(r["src"] == "g" and r["source"] for r in rows)
         cells = page.locator("#candlist .cand:not(.head) span:nth-child(3)").all_text_contents()

@@ -262,3 +262,23 @@ def test_prepare_frame():
     no_rgb = type(fr)(**{**{k: getattr(fr, k) for k in fr.__slots__}, "rgb": None})
     pf2 = prepare_frame(no_rgb, pipeline_result(no_rgb))
     assert pf2.served.rgb_jpeg is None and parse_bundle(pf2.served.bundle)[0]["has_rgb"] is False
+
+
+def test_the_served_zone_holds_the_points_above_the_rim():
+    """Issue 29 item 5 / docs/accuracy.md: the zone is the pixels the filters judge plus the above-the-rim
+    points (the removal's own zone leaves them out: it served a zone without them)."""
+    fr, _ = review_frame(0, shape=(120, 160))
+    res = pipeline_result(fr)
+    valid = np.asarray(res.valid, bool)
+    judged = valid.copy()
+    judged[:, :40] = False  # the bin and the table, say
+    easy = np.zeros_like(valid)
+    easy[:5, :20] = True  # above the rim
+
+    class WithBin:  # the same result as the bin stages would leave it
+        def __getattr__(self, name):
+            return {"zone": judged, "easy_outliers": easy}.get(name, getattr(res, name))
+
+    _, arrays = parse_bundle(prepare_frame(fr, WithBin()).served.bundle)
+    zone = arrays["zone"].astype(bool)
+    assert np.array_equal(zone, (judged | easy) & valid) and (zone & easy).sum() == (easy & valid).sum() > 0
