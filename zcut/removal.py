@@ -431,10 +431,11 @@ COHERENCE_MM = 1.0
 #: τ falls back to the percentile of all the residuals (ghosts included) when fewer than this share
 #: of the measured pixels are coherent: then the residuals are not a surface's (a pose far off).
 MIN_COHERENT_SHARE = 0.5
-#: ... and when more than this share of them have no model point within ``max_tolerance_mm``: then
-#: not only ghosts lie that far, the bin's own surface does (a pose or a model far off; ghosts are
-#: about 1 % of the certain bin pixels on ray-traced sphere frames). The bin check flags such a frame.
-MAX_FAR_SHARE = 0.1
+#: ... and when more than this share of them lie beyond ``max_tolerance_mm`` of the model with every
+#: neighbour beyond it too (a far surface, not scattered ghosts): then the bin's own surface lies
+#: that far (a pose or a model far off; the ray-traced ghost clusters are about 1 % of the certain
+#: bin pixels on sphere frames). The bin check flags such a frame.
+MAX_FAR_SHARE = 0.2
 _N4 = ((-1, 0), (1, 0), (0, -1), (0, 1))
 _N8 = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
 
@@ -507,8 +508,8 @@ def coherent_residuals(xyz: XYZ, ring: Mask, pixels: np.ndarray, index: RemovalI
     residuals : (M,) float64 ndarray
         mm; +inf where no model point lies within ``max_tolerance_mm``.
     around : (M,) float64 ndarray
-        The median of the residuals of the pixel's ring neighbours (infinite ones included; NaN for
-        a pixel with no ring neighbour).
+        The median of the finite residuals of the pixel's ring neighbours (ghosts among them do not
+        move it); +inf when none of them is finite, NaN for a pixel with no ring neighbour.
     coherent : (M,) bool ndarray
         The residual is finite and within :data:`COHERENCE_MM` of ``around`` (an infinite one never
         is: ray-traced ghosts above the rim come in clusters whose neighbours are ghosts too).
@@ -535,12 +536,27 @@ def coherent_residuals(xyz: XYZ, ring: Mask, pixels: np.ndarray, index: RemovalI
     has = nb >= 0
     nbr[has] = res[np.searchsorted(want, nb[has])]
     around = np.full(len(pixels), np.nan)
-    any_nb = has.any(axis=1)
-    if any_nb.any():
-        around[any_nb] = np.nanmedian(nbr[any_nb], axis=1)
+    around[has.any(axis=1)] = np.inf  # ring neighbours, none of them within max_tolerance_mm
+    fin = np.where(np.isfinite(nbr), nbr, np.nan)
+    some = np.isfinite(fin).any(axis=1)
+    if some.any():
+        around[some] = np.nanmedian(fin[some], axis=1)
     with np.errstate(invalid="ignore"):
         coherent = np.isfinite(own) & (np.abs(own - around) <= COHERENCE_MM)
     return own, around, coherent
+
+
+def far_share(residuals: np.ndarray, around: np.ndarray) -> float:
+    """The share of the measured pixels beyond ``max_tolerance_mm`` of the model whose ring neighbours
+    all are too (:data:`MAX_FAR_SHARE`); 0 with no pixel."""
+    return float(np.mean(np.isinf(residuals) & np.isinf(around))) if len(residuals) else 0.0
+
+
+def surface_residuals(xyz: XYZ, ring: Mask, index: RemovalIndex,
+                      T_cam_bin: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`coherent_residuals` of a regular subsample of at most :data:`MAX_RESIDUAL_PX` certain bin
+    pixels with a finite point, each against its four neighbours: ``(residuals, around, coherent)``."""
+    return _measured(xyz, ring, index, T_cam_bin, coherence=True)
 
 
 def bin_residuals_mm(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray) -> np.ndarray:
@@ -571,7 +587,7 @@ def _ring_sample(a: np.ndarray, ring: Mask) -> np.ndarray:
 
 
 def _measured(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray, *,
-              coherence: bool) -> tuple[np.ndarray, np.ndarray]:
+              coherence: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if index.tree is None:
         raise ParameterError("bin_residuals_mm: the index has no KD-tree (prepare_removal_index builds it)")
     a = np.asarray(xyz)
@@ -581,9 +597,8 @@ def _measured(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray, 
     flat = _ring_sample(a, ring)
     if not coherence:
         res = _residuals_of(a, flat, index, np.asarray(T_cam_bin, dtype=np.float64))
-        return res, np.isfinite(res)
-    res, _, coherent = coherent_residuals(a, ring, flat, index, T_cam_bin, neighbours=4)
-    return res, coherent
+        return res, res, np.isfinite(res)
+    return coherent_residuals(a, ring, flat, index, T_cam_bin, neighbours=4)
 
 
 def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray) -> Tolerance:
@@ -597,18 +612,19 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
     floating above the rim, mixed pixels along its edges) are not coherent with their neighbours
     and do not count, however many: on ray-traced shiny frames they made the plain percentile
     infinite and τ its maximum. When fewer than :data:`MIN_COHERENT_SHARE` of the measured pixels are
-    coherent, or more than :data:`MAX_FAR_SHARE` lie beyond ``max_tolerance_mm`` (a pose far off), the
+    coherent, or more than :data:`MAX_FAR_SHARE` lie beyond ``max_tolerance_mm`` among neighbours
+    that do too (:func:`far_share`: a pose far off), the
     percentile of all of them is taken, as before; with no pixel to measure τ is the maximum.
     """
     p = index.params
     lo = max(p.min_tolerance_mm, p.delta_mm)
     if p.tolerance_mm is not None:
         return Tolerance(max(float(p.tolerance_mm), p.delta_mm), float("nan"), 0)
-    res, coherent = _measured(xyz, ring, index, T_cam_bin, coherence=True)
+    res, around, coherent = surface_residuals(xyz, ring, index, T_cam_bin)
     if len(res) == 0:
         return Tolerance(max(p.max_tolerance_mm, lo), float("nan"), 0)
     n_coh = int(np.count_nonzero(coherent))
-    surface = n_coh and n_coh >= MIN_COHERENT_SHARE * len(res) and np.mean(np.isinf(res)) <= MAX_FAR_SHARE
+    surface = n_coh and n_coh >= MIN_COHERENT_SHARE * len(res) and far_share(res, around) <= MAX_FAR_SHARE
     use = res[coherent] if surface else res
     q = float(np.percentile(use, p.residual_quantile, method="higher"))
     tau = min(max(q + p.residual_margin_mm, lo), max(p.max_tolerance_mm, lo)) if np.isfinite(q) \
