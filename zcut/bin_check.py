@@ -23,8 +23,8 @@ form, and counts; a sensor's ghost floating above the rim or a mixed pixel along
 ray-traced sensor's shiny frames have hundreds on the rim, in clusters) lies millimetres off it or
 beyond ``max_tolerance_mm`` of the model, and does not. A pose so far off that the bin's own surface
 lies beyond ``max_tolerance_mm`` is caught apart: the frame is flagged when more than
-:data:`zcut.removal.MAX_FAR_SHARE` of its certain bin pixels have no model point within ``max_tolerance_mm``
-(ghosts are about 1 % of them on ray-traced sphere frames).
+:data:`zcut.removal.MAX_FAR_SHARE` of its certain bin pixels lie that far among neighbours that do too
+(:func:`zcut.removal.far_share`; the ray-traced ghost clusters are about 1 % of them on sphere frames).
 
 A frame is flagged when the count exceeds ``RemovalParams.check_threshold_px`` (0 by default:
 measured on synthetic piles, a single such pixel at the zone's top cost the frame its whole z-cut
@@ -43,7 +43,7 @@ import numpy as np
 
 from .errors import InputShapeError, ParameterError, describe_array
 from .params import RemovalParams
-from .removal import MAX_FAR_SHARE, RemovalIndex, RemovalResult, bin_residuals_mm, coherent_residuals
+from .removal import MAX_FAR_SHARE, RemovalIndex, RemovalResult, coherent_residuals, far_share, surface_residuals
 from .types import XYZ, Mask
 
 __all__ = ["BinCheck", "check_bin_removal", "failed_bin_check"]
@@ -154,8 +154,8 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         a = np.asarray(xyz)
         if a.shape[:2] != ring.shape:
             raise InputShapeError(f"xyz must be an {ring.shape} image of points, got {describe_array(a)}")
-        res = bin_residuals_mm(a, ring, index, T_cam_bin)
-        far = float(np.mean(np.isinf(res))) if len(res) else 0.0
+        res, around, _ = surface_residuals(a, ring, index, T_cam_bin)
+        far = far_share(res, around)
     if all(given) and offending.any():
         assert xyz is not None and index is not None and T_cam_bin is not None
         cand = np.flatnonzero(offending)
