@@ -17,7 +17,8 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
   which judges only the top ``d_max`` of the zone, never reaches the pile.
 - ``"robust"`` (default): δ is replaced by a tolerance τ measured on the frame
   (:func:`frame_tolerance`): the distances of the frame's certain bin pixels (the rim and upper
-  walls the registration used) to the registered model, their ``residual_quantile`` percentile
+  walls the registration used) to the registered model, the ``residual_quantile`` percentile of
+  those coherent with their neighbours' (a sensor's ghosts are not: :func:`coherent_residuals`)
   plus ``residual_margin_mm``, within ``[min_tolerance_mm, max_tolerance_mm]``. A point within τ of
   the model is bin before it can be an easy outlier (a tilted pose lifts one end of the real rim
   above the model's rim plus the offset), and the straggler test reaches τ + ``straggler_mm``.
@@ -71,8 +72,7 @@ class RemovalResult:
         robust mode; NaN when no model was registered.
     residual_mm : float
         Robust mode: the percentile of the certain bin pixels' residuals τ was derived from (before
-        the margin and the bounds; +inf when more of them than the percentile leaves out have no
-        model point within ``max_tolerance_mm``); NaN otherwise.
+        the margin and the bounds; :attr:`Tolerance.residual_mm`); NaN otherwise.
     """
 
     table: Mask
