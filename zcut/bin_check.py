@@ -20,8 +20,11 @@ residual to the model is finite (within ``max_tolerance_mm``) and coherent with 
 (:func:`zcut.removal.coherent_residuals`: within ``COHERENCE_MM`` of their median). A rim pixel
 left behind — by a pose a little off, a model with a hole — lies on the surface its neighbours
 form, and counts; a sensor's ghost floating above the rim or a mixed pixel along its edge (the
-ray-traced sensor's shiny frames have hundreds on the rim, in clusters) lies millimetres off it or
-beyond ``max_tolerance_mm`` of the model, and does not. A pose so far off that the bin's own surface
+ray-traced sensor's shiny frames have hundreds on the rim, in clusters) lies millimetres off it, and
+does not. Pixels beyond ``max_tolerance_mm`` of the model (no residual) are judged by clumps: a
+clump counts when the surface around it runs out to that distance (a neighbour's residual within
+``COHERENCE_MM`` of it: the far end of a rim tilted by 2°) or when nothing around it fits the model;
+a clump ringed by pixels that fit the model (a ghost cluster above the rim) does not. A pose so far off that the bin's own surface
 lies beyond ``max_tolerance_mm`` is caught apart: the frame is flagged when more than
 :data:`zcut.removal.MAX_FAR_SHARE` of its certain bin pixels lie that far among neighbours that do too
 (:func:`zcut.removal.far_share`; the ray-traced ghost clusters are about 1 % of them on sphere frames).
@@ -40,10 +43,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from .errors import InputShapeError, ParameterError, describe_array
 from .params import RemovalParams
-from .removal import MAX_FAR_SHARE, RemovalIndex, RemovalResult, coherent_residuals, far_share, surface_residuals
+from .removal import (
+    COHERENCE_MM,
+    MAX_FAR_SHARE,
+    RemovalIndex,
+    RemovalResult,
+    coherent_residuals,
+    far_share,
+    surface_residuals,
+)
 from .types import XYZ, Mask
 
 __all__ = ["BinCheck", "check_bin_removal", "failed_bin_check"]
@@ -88,6 +100,12 @@ class BinCheck:
     offending: Mask | None = None
     ring: Mask | None = None
     ghosts: int = 0
+
+
+def _image(shape: tuple[int, ...], flat: np.ndarray) -> Mask:
+    out = np.zeros(shape, dtype=bool)
+    out.reshape(-1)[flat] = True
+    return out
 
 
 def failed_bin_check(reason: str, *, params: RemovalParams) -> BinCheck:
@@ -159,8 +177,18 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
     if all(given) and offending.any():
         assert xyz is not None and index is not None and T_cam_bin is not None
         cand = np.flatnonzero(offending)
-        _, _, coherent = coherent_residuals(a, ring, cand, index, T_cam_bin, neighbours=8)
-        ghost = ~coherent  # off the surface its neighbours form, or beyond max_tolerance_mm of the model
+        own, around, coherent = coherent_residuals(a, ring, cand, index, T_cam_bin, neighbours=8)
+        ghost = ~coherent  # off the surface its neighbours form
+        beyond = np.isinf(own)
+        if beyond.any():  # beyond max_tolerance_mm: by clumps, bin if the surface around runs out to there
+            clumps, _ = ndimage.label(_image(ring.shape, cand[beyond]), structure=np.ones((3, 3), bool))
+            lab = clumps.reshape(-1)[cand[beyond]]
+            near_reach = np.isfinite(around[beyond]) & (around[beyond] >= params.max_tolerance_mm - COHERENCE_MM)
+            seen = np.isfinite(around[beyond])
+            n_lab = int(lab.max()) + 1
+            runs_out = np.bincount(lab, near_reach, n_lab) > 0
+            enclosed = np.bincount(lab, seen, n_lab) == 0
+            ghost[beyond] = ~(runs_out | enclosed)[lab]
         ghosts = int(np.count_nonzero(ghost))
         offending = offending.copy()
         offending.reshape(-1)[cand[ghost]] = False
@@ -170,7 +198,7 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
     reasons = []
     if n > threshold:
         where = []
-        n_easy = int(np.count_nonzero(ring & removal.easy_outliers))
+        n_easy = int(np.count_nonzero(offending & removal.easy_outliers))
         if n - n_easy:
             where.append(f"{n - n_easy} in the zone's top {band_mm:g} mm")
         if n_easy:
