@@ -293,7 +293,7 @@ def test_record_attaches_a_part_model(tmp_path, capsys):
     assert o3d.io.write_triangle_mesh(str(stl), mesh)
     src = _cloud_dir(tmp_path)
     out = tmp_path / "log.mcap"
-    rc, _, err = run_cli(capsys, "record", src, "-o", out, "--shape", "4x5", "--unit", "m", "--part-model", stl, "--part-model-unit", "mm")
+    rc, _, err = run_cli(capsys, "record", src, "-o", out, "--size", "5x4", "--unit", "m", "--part-model", stl, "--part-model-unit", "mm")
     assert rc == 0, err
     model = read_part_model(out)
     assert model is not None and model.unit == "mm" and len(model.triangles) == len(t)
@@ -313,7 +313,7 @@ def test_record_refuses_a_bad_part_model(tmp_path, capsys, content, unit, match)
         bad.write_bytes(content)
     src = _cloud_dir(tmp_path)
     out = tmp_path / "log.mcap"
-    argv = ["record", src, "-o", out, "--shape", "4x5", "--unit", "m", "--part-model", bad] + (["--part-model-unit", unit] if unit else [])
+    argv = ["record", src, "-o", out, "--size", "5x4", "--unit", "m", "--part-model", bad] + (["--part-model-unit", unit] if unit else [])
     rc, _, err = run_cli(capsys, *argv)
     assert rc == 1
     lines = [x for x in err.splitlines() if not x.startswith("zcut: compiling")]  # a first run's notice
