@@ -79,7 +79,7 @@ def test_reviewed_only_when_asked_and_an_edit_just_before_a_reload_is_kept(srv, 
         page.keyboard.press("r")  # not an outlier: those pixels reviewed, nothing else
         wait_until(page, "window.zcut.unsaved().length === 0")
         st = page.evaluate("window.zcut.state()")
-        assert st["nR"] == sel["n"] and st["nL"] == 0 and "not reviewed yet · 1 /" in st["status"]
+        assert st["nR"] == sel["n"] and st["nL"] == 0 and "not reviewed yet · " in st["status"] and " · 1 decided" in st["status"]
         assert "reviewed 0 / 9" in st["progress"]
         lab = _label(srv, nine, 0)
         ids = {"g": arrays["groups"], "z": arrays["zcut"], "s": arrays["sor"]}[sel["src"]]  # the list's first: a group
