@@ -167,7 +167,7 @@ def _signatures(log, model, config, out_dir) -> dict:
     frames = _json_of("replay", log, "--bin-model", model, "--config", config, "--out", res,
                       "--json")["frames"]
     masks = {f.index: {t: m.tobytes() for t, m in sorted(f.masks.items()) if t.startswith("/zcut/")}
-             for f in LogReader(res).frames()}
+             for f in LogReader(res, cloudless=True).frames()}
     sig["replay"] = ([(r["index"], r["valid_px"], r["zcut"], r["sor"], r["both"], r["above_rim"], r["clusters"],
                        _rounded(r["fitness"]), _rounded(r["rmse_mm"]), r["bin_check"], r["bin_flagged"],
                        *(r.get(m) for m in BANK)) for r in frames], masks)

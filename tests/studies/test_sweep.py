@@ -38,7 +38,7 @@ def test_counts_equal_replay_at_grid_points(log, swept, capsys):
         rc, out, err = run_cli(capsys, "replay", log, "--step", step, "--max-depth", depth, "--rho", rho, "--out",
                             swept.parent / f"r{step}_{depth}_{rho}.mcap", "--json")
         assert rc == 0, err
-        res = {f.index: f for f in LogReader(swept.parent / f"r{step}_{depth}_{rho}.mcap").frames()}
+        res = {f.index: f for f in LogReader(swept.parent / f"r{step}_{depth}_{rho}.mcap", cloudless=True).frames()}
         for fr in json.loads(out)["frames"]:
             row = [r for r in t if r["method"] == "zcut" and r["frame"] == fr["index"] and r["step_mm"] == step
                    and r["max_depth_mm"] == depth and abs(r["rho_thr"] - rho) < 1e-12]
