@@ -42,6 +42,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from replay.errors import ConfigError
+from studies.compare_records import (  # noqa: F401 - the records are part of this module's API
+    Blob,
+    FrameCompare,
+    SideFrame,
+    SideSpec,
+    count_f1,
+    summary_rows,
+)
 from zcut.errors import ZcutError
 
 if TYPE_CHECKING:
@@ -62,38 +70,6 @@ MAX_BLOBS_PER_FRAME = 50
 
 class CompareError(ZcutError, ValueError):
     """Bad input to a comparison (one line naming what is wrong)."""
-
-
-@dataclass(frozen=True, slots=True)
-class SideSpec:
-    """What one side of the comparison is.
-
-    Attributes
-    ----------
-    label : {"A", "B"}
-    text : str
-        As given (``--a`` / ``--b``).
-    kind : {"config", "method", "results"}
-    path : Path or None
-        The config file or results file.
-    layer : dict
-        The config layer it stands for (a config file's, or ``{"methods": [name]}``); empty for a
-        results file.
-    """
-
-    label: str
-    text: str
-    kind: str
-    path: Path | None
-    layer: dict[str, Any]
-
-    @property
-    def name(self) -> str:
-        return self.path.name if self.path is not None else self.text
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"spec": self.text, "kind": self.kind, "name": self.name,
-                "path": str(self.path) if self.path is not None else None}
 
 
 def side_spec(text: str, *, label: str) -> SideSpec:
@@ -165,69 +141,6 @@ class CompareOptions:
     rrd: bool = True
     report: bool = True
     level: float = 0.95
-
-
-@dataclass(frozen=True, slots=True)
-class SideFrame:
-    """One side's view of one frame: its reported methods' masks, valid pixels and scored region;
-    ``result`` the pipeline's result (None for a results file)."""
-
-    preds: dict[str, np.ndarray]
-    valid: np.ndarray
-    region: np.ndarray
-    result: Any = None
-
-
-@dataclass(frozen=True, slots=True)
-class Blob:
-    """One connected component (8-connected) of the pixels only one side removed.
-
-    ``consequence``: with truth, ``"B fixes"`` / ``"B breaks"`` (all its scored pixels one way),
-    ``"mixed"``, or ``"unscored"`` (outside the reviewed pixels); without truth ``None``.
-    """
-
-    log: str
-    frame: int
-    stamp_ns: int
-    who: str  # "A" or "B": the side that removed it
-    area_px: int
-    area_mm2: float | None
-    row: float
-    col: float
-    fixes_px: int
-    breaks_px: int
-    consequence: str | None
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"log": self.log, "frame": self.frame, "stamp_ns": self.stamp_ns, "who": self.who,
-                "area_px": self.area_px, "area_mm2": self.area_mm2, "row": round(self.row, 1),
-                "col": round(self.col, 1), "fixes_px": self.fixes_px, "breaks_px": self.breaks_px,
-                "consequence": self.consequence}
-
-
-@dataclass(frozen=True, slots=True)
-class FrameCompare:
-    """The comparison of one frame.
-
-    ``a``, ``b``: every reported method's counts (:class:`zcut.metrics.AccuracyCounts`) of each side,
-    None without truth; ``both``, ``only_a``, ``only_b``: pixels of the primary masks in the union
-    of the two scored regions; ``diff``: the (H, W) uint8 difference image (:data:`DIFF_CODES`).
-    """
-
-    log: str
-    index: int
-    stamp_ns: int
-    a: dict[str, Any] | None
-    b: dict[str, Any] | None
-    both: int
-    only_a: int
-    only_b: int
-    blobs: tuple[Blob, ...]
-    unscored: str | None = None
-
-    @property
-    def scored(self) -> bool:
-        return self.a is not None
 
 
 @dataclass(slots=True)
@@ -717,7 +630,7 @@ def verdict(frames: list[FrameCompare], pa: str, pb: str, *, level: float = 0.95
     f1_frame = []
     for f in scored:
         assert f.a is not None and f.b is not None
-        f1_frame.append((_f1(f.b[pb]) - _f1(f.a[pa]), f))
+        f1_frame.append((count_f1(f.b[pb]) - count_f1(f.a[pa]), f))
     losing = sorted([(dv, f) for (dv, f), o in zip(f1_frame, outcome) if o < 0], key=lambda x: x[0])
     return {
         "figure": "f1", "truth": True, "level": level, "line": line, "conclusion": better,
@@ -727,11 +640,6 @@ def verdict(frames: list[FrameCompare], pa: str, pb: str, *, level: float = 0.95
         "losing_frames": [{"log": f.log, "index": f.index, "stamp_ns": f.stamp_ns, "delta_f1": dv}
                           for dv, f in losing],
     }
-
-
-def _f1(c: Any) -> float:
-    den = 2 * c.tp + c.fp + c.fn
-    return 1.0 if den == 0 else 2 * c.tp / den
 
 
 def per_method(frames: list[FrameCompare], level: float) -> dict[str, Any]:
@@ -777,22 +685,6 @@ def _pooled(frames: list[FrameCompare], side: str) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------------ outputs
-def _frame_row(f: FrameCompare, pa: str, pb: str, outcome: int | None) -> dict[str, Any]:
-    row: dict[str, Any] = {"log": f.log, "frame": f.index, "stamp_ns": f.stamp_ns, "scored": f.scored,
-                           "both": f.both, "only_a": f.only_a, "only_b": f.only_b, "blobs": len(f.blobs),
-                           "blobs_a": sum(b.who == "A" for b in f.blobs), "blobs_b": sum(b.who == "B" for b in f.blobs)}
-    for side, counts, prim in (("a", f.a, pa), ("b", f.b, pb)):
-        c = counts[prim] if counts is not None else None
-        for k in ("tp", "fp", "fn"):
-            row[f"{side}_{k}"] = getattr(c, k) if c is not None else None
-        for k in ("precision", "recall", "f1"):
-            v = getattr(c, k) if c is not None else None
-            row[f"{side}_{k}"] = v if v is not None and math.isfinite(v) else None
-    row["delta_f1"] = (None if f.a is None or f.b is None else _f1(f.b[pb]) - _f1(f.a[pa]))
-    row["outcome"] = outcome
-    return row
-
-
 def _entry_of(c: Any) -> dict[str, Any]:
     d = c.as_dict()
     return {k: (int(v) if k in ("tp", "fp", "fn") else v) for k, v in d.items()}
@@ -886,7 +778,7 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, paths: dict[s
         report["cost"] = {"frames": len(frames), "wall_s": time.perf_counter() - t_wall,
                           "cpu_s": time.process_time() - t_cpu}
         report["outputs"] = {k: str(v) for k, v in paths.items()}
-        writer.finish(report, frames, pa, pb)
+        writer.finish(report, summary_rows(report, frames))
         completed = True
     finally:
         writer.close(completed=completed)
@@ -914,7 +806,7 @@ def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list
             assert f.a is not None and f.b is not None
             e["a"] = {m: _entry_of(c) for m, c in f.a.items()}
             e["b"] = {m: _entry_of(c) for m, c in f.b.items()}
-            e["delta_f1"] = _f1(f.b[pb]) - _f1(f.a[pa])
+            e["delta_f1"] = count_f1(f.b[pb]) - count_f1(f.a[pa])
             e["outcome"] = outcomes[(f.log, f.index)]
         frames_json.append(e)
     # worst regression first: the frames B loses most on (by ΔF1), else the most disagreement
@@ -951,10 +843,3 @@ def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list
         "blob_fields": "connected components (8-connected) of the pixels only one side removed, frames worst "
                        f"regression first, at most {MAX_BLOBS_PER_FRAME} per frame (the largest)",
     }
-
-
-def summary_rows(report: dict[str, Any], frames: list[FrameCompare]) -> list[dict[str, Any]]:
-    """``summary.parquet``'s rows: one per frame."""
-    pa, pb = report["a"]["primary"], report["b"]["primary"]
-    outcomes = {(f["log"], f["index"]): f.get("outcome") for f in report["frames"]}
-    return [_frame_row(f, pa, pb, outcomes.get((f.log, f.index))) for f in frames]

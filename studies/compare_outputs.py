@@ -19,11 +19,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from replay.outputs import AtomicOutput
+from studies.compare_records import FrameCompare, SideFrame, SideSpec, count_f1
 
 if TYPE_CHECKING:
     from replay.logs.frame import Frame
     from replay.pipeline.compare_viz import CompareRecording
-    from studies.compare import FrameCompare, SideFrame, SideSpec
 
 
 def config_markdown(spec_a: SideSpec, spec_b: SideSpec, diff: list[dict[str, Any]], primaries: tuple[str, str]) -> str:
@@ -96,26 +96,24 @@ class CompareWriter:
                 for k in ("precision", "recall", "f1"):
                     scalars[f"{side}/scalars/{k}"] = getattr(c, k)
         if ca is not None and cb is not None:
-            scalars["diff/scalars/delta_f1"] = _f1(cb) - _f1(ca)
+            scalars["diff/scalars/delta_f1"] = count_f1(cb) - count_f1(ca)
         self.rec.frame(self.seq, frame.stamp_ns, rgb=frame.rgb, xyz=frame.xyz,
                        verdict_a=verdict_image(sa.preds[pa] & sa.region, truth),
                        verdict_b=verdict_image(sb.preds[pb] & sb.region, truth), diff=diff, scalars=scalars)
         self.seq += 1
 
-    def finish(self, report: dict[str, Any], frames: list[FrameCompare], pa: str, pb: str) -> None:
+    def finish(self, report: dict[str, Any], rows: list[dict[str, Any]]) -> None:
         """Write every file's temporary (committed by :meth:`close`)."""
         import pyarrow as pa_
         import pyarrow.parquet as pq
 
         from annotate.accuracy import jsonable
-        from studies.compare import summary_rows
 
         if self.rec is not None:
             self.rec.close()
             self.rec = None
         self.files["json"].temp.write_text(json.dumps(jsonable(report), indent=1, allow_nan=False) + "\n",
                                            encoding="utf-8")
-        rows = summary_rows(report, frames)
         pq.write_table(pa_.Table.from_pylist(rows), self.files["parquet"].temp)
         if "report" in self.files:
             self.files["report"].temp.write_text(render_html(report), encoding="utf-8", errors="backslashreplace")
@@ -132,11 +130,6 @@ class CompareWriter:
                 f.commit()
             else:
                 f.abort()
-
-
-def _f1(c: Any) -> float:
-    den = 2 * c.tp + c.fp + c.fn
-    return 1.0 if den == 0 else 2 * c.tp / den
 
 
 # --------------------------------------------------------------------------------------- the page

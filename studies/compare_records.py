@@ -1,0 +1,138 @@
+"""The records of a comparison (``zcut compare``), below the engine (:mod:`studies.compare`) and its
+writer (:mod:`studies.compare_outputs`), which both use them: what a side is, one side's view of a
+frame, a disagreement blob, one frame's comparison, and ``summary.parquet``'s row of a frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+@dataclass(frozen=True, slots=True)
+class SideSpec:
+    """What one side of the comparison is.
+
+    Attributes
+    ----------
+    label : {"A", "B"}
+    text : str
+        As given (``--a`` / ``--b``).
+    kind : {"config", "method", "results"}
+    path : Path or None
+        The config file or results file.
+    layer : dict
+        The config layer it stands for (a config file's, or ``{"methods": [name]}``); empty for a
+        results file.
+    """
+
+    label: str
+    text: str
+    kind: str
+    path: Path | None
+    layer: dict[str, Any]
+
+    @property
+    def name(self) -> str:
+        return self.path.name if self.path is not None else self.text
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"spec": self.text, "kind": self.kind, "name": self.name,
+                "path": str(self.path) if self.path is not None else None}
+
+
+@dataclass(frozen=True, slots=True)
+class SideFrame:
+    """One side's view of one frame: its reported methods' masks, valid pixels and scored region;
+    ``result`` the pipeline's result (None for a results file)."""
+
+    preds: dict[str, np.ndarray]
+    valid: np.ndarray
+    region: np.ndarray
+    result: Any = None
+
+
+@dataclass(frozen=True, slots=True)
+class Blob:
+    """One connected component (8-connected) of the pixels only one side removed.
+
+    ``consequence``: with truth, ``"B fixes"`` / ``"B breaks"`` (all its scored pixels one way),
+    ``"mixed"``, or ``"unscored"`` (outside the reviewed pixels); without truth ``None``.
+    """
+
+    log: str
+    frame: int
+    stamp_ns: int
+    who: str  # "A" or "B": the side that removed it
+    area_px: int
+    area_mm2: float | None
+    row: float
+    col: float
+    fixes_px: int
+    breaks_px: int
+    consequence: str | None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"log": self.log, "frame": self.frame, "stamp_ns": self.stamp_ns, "who": self.who,
+                "area_px": self.area_px, "area_mm2": self.area_mm2, "row": round(self.row, 1),
+                "col": round(self.col, 1), "fixes_px": self.fixes_px, "breaks_px": self.breaks_px,
+                "consequence": self.consequence}
+
+
+@dataclass(frozen=True, slots=True)
+class FrameCompare:
+    """The comparison of one frame.
+
+    ``a``, ``b``: every reported method's counts (:class:`zcut.metrics.AccuracyCounts`) of each side,
+    None without truth; ``both``, ``only_a``, ``only_b``: pixels of the primary masks in the union
+    of the two scored regions; ``diff``: the (H, W) uint8 difference image (:data:`DIFF_CODES`).
+    """
+
+    log: str
+    index: int
+    stamp_ns: int
+    a: dict[str, Any] | None
+    b: dict[str, Any] | None
+    both: int
+    only_a: int
+    only_b: int
+    blobs: tuple[Blob, ...]
+    unscored: str | None = None
+
+    @property
+    def scored(self) -> bool:
+        return self.a is not None
+
+
+def count_f1(c: Any) -> float:
+    """F1 of a frame's counts, 1.0 when there is nothing to find and nothing was flagged (a frame
+    both sides got right), so a per-frame difference is defined on every scored frame."""
+    den = 2 * c.tp + c.fp + c.fn
+    return 1.0 if den == 0 else 2 * c.tp / den
+
+
+def _frame_row(f: FrameCompare, pa: str, pb: str, outcome: int | None) -> dict[str, Any]:
+    row: dict[str, Any] = {"log": f.log, "frame": f.index, "stamp_ns": f.stamp_ns, "scored": f.scored,
+                           "both": f.both, "only_a": f.only_a, "only_b": f.only_b, "blobs": len(f.blobs),
+                           "blobs_a": sum(b.who == "A" for b in f.blobs), "blobs_b": sum(b.who == "B" for b in f.blobs)}
+    for side, counts, prim in (("a", f.a, pa), ("b", f.b, pb)):
+        c = counts[prim] if counts is not None else None
+        for k in ("tp", "fp", "fn"):
+            row[f"{side}_{k}"] = getattr(c, k) if c is not None else None
+        for k in ("precision", "recall", "f1"):
+            v = getattr(c, k) if c is not None else None
+            row[f"{side}_{k}"] = v if v is not None and math.isfinite(v) else None
+    row["delta_f1"] = (None if f.a is None or f.b is None else count_f1(f.b[pb]) - count_f1(f.a[pa]))
+    row["outcome"] = outcome
+    return row
+
+
+def summary_rows(report: dict[str, Any], frames: list[FrameCompare]) -> list[dict[str, Any]]:
+    """``summary.parquet``'s rows: one per frame."""
+    pa, pb = report["a"]["primary"], report["b"]["primary"]
+    outcomes = {(f["log"], f["index"]): f.get("outcome") for f in report["frames"]}
+    return [_frame_row(f, pa, pb, outcomes.get((f.log, f.index))) for f in frames]
