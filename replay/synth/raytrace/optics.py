@@ -603,6 +603,12 @@ def measure(rec: Received, K: Intrinsics, model: SensorModel, rng: np.random.Gen
     both = rec.direct.plus(rec.camera_bounce).add_in_place(rec.projector_bounce)
     decoded = [decode(rec.direct, model), decode(both, model)]
     decoded.append(decode(both.add_in_place(rec.glare), model))  # decoded already: its images may take the glare
+    return triangulate_decoded(decoded, K, model, rng)
+
+
+def triangulate_decoded(decoded: list, K: Intrinsics, model: SensorModel, rng: np.random.Generator):
+    """The depths of the decoded stages (the last is what the sensor measures, with its noise): as
+    :func:`measure` returns them."""
     final = decoded[-1]
     sigma_u = model.sigma_code(final.signal)
     noise = correlated_noise(final.code.shape, rng).astype(np.float64) * sigma_u

@@ -26,10 +26,10 @@ from replay.synth.raytrace.optics import (
     _unit,
     decode,
     edge_pixels,
-    triangulate,
+    triangulate_decoded,
 )
 from replay.synth.raytrace.scene import Hits, TracedScene
-from replay.synth.sensor import FULL_SIZE, correlated_noise
+from replay.synth.sensor import FULL_SIZE
 from zcut.cloud import Intrinsics
 
 
@@ -248,16 +248,8 @@ def _projector_bounces_reference(scene: TracedScene, K: Intrinsics, model: Senso
 
 
 def measure_reference(rec: Received, K: Intrinsics, model: SensorModel, rng: np.random.Generator):
-    """``optics.measure`` as first written (each stage's images summed afresh): the bits it must keep."""
+    """``optics.measure`` as first written (each stage's images summed afresh, not in place): the bits it
+    must keep. The depths of the decoded stages are :func:`optics.triangulate_decoded`, shared."""
     stages = [rec.direct, rec.direct.plus(rec.camera_bounce).plus(rec.projector_bounce)]
     stages.append(stages[1].plus(rec.glare))
-    decoded = [decode(s, model) for s in stages]
-    final = decoded[-1]
-    sigma_u = model.sigma_code(final.signal)
-    noise = correlated_noise(final.code.shape, rng).astype(np.float64) * sigma_u
-    z_clean = triangulate(final.code, K, model)
-    z_meas = triangulate(final.code + noise, K, model)
-    z_meas[~np.isfinite(z_clean)] = np.nan
-    sigma_z = model.depth_per_code_mm(np.where(np.isfinite(z_clean), z_clean, 1.0)) * sigma_u
-    staged = [triangulate(dc.code, K, model) for dc in decoded[:-1]]
-    return z_meas, z_clean, sigma_z, staged, final.saturated
+    return triangulate_decoded([decode(s, model) for s in stages], K, model, rng)
