@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from replay.outputs import AtomicOutput
+from replay.outputs import AtomicOutput, naming
 from studies.compare_records import FrameCompare, SideFrame, SideSpec, count_f1
 
 if TYPE_CHECKING:
@@ -69,20 +69,26 @@ class CompareWriter:
     """
 
     def __init__(self, paths: dict[str, Path], *, has_truth: bool | None = None) -> None:
+        from replay.pipeline.sinks import RrdFile
+
         self.paths = paths
-        self.files = {k: AtomicOutput(p) for k, p in paths.items()}
+        self.files = {k: AtomicOutput(p) for k, p in paths.items() if k != "rrd"}
+        self.rrd = RrdFile(paths["rrd"]) if "rrd" in paths else None  # checked per frame, as replay's
         self.rec: CompareRecording | None = None
         self.seq = 0
         self.has_truth = has_truth
 
     def start(self, spec_a: SideSpec, spec_b: SideSpec, diff: list[dict[str, Any]], *, has_truth: bool, primaries: tuple[str, str]) -> None:
         self.has_truth = has_truth
-        if "rrd" in self.files:
+        if self.rrd is not None:
             from replay.pipeline.compare_viz import CompareRecording
 
-            self.rec = CompareRecording(self.files["rrd"].temp, label_a=f"{spec_a.name} ({primaries[0]})",
-                                        label_b=f"{spec_b.name} ({primaries[1]})",
-                                        config_markdown=config_markdown(spec_a, spec_b, diff, primaries))
+            try:
+                self.rec = CompareRecording(self.rrd.temp, label_a=f"{spec_a.name} ({primaries[0]})",
+                                            label_b=f"{spec_b.name} ({primaries[1]})",
+                                            config_markdown=config_markdown(spec_a, spec_b, diff, primaries))
+            except RuntimeError as e:  # Rerun's file sink could not create the file
+                raise self.rrd.opening_failure(e) from None
 
     def frame(self, frame: Frame, fc: FrameCompare, sa: SideFrame, sb: SideFrame, diff: np.ndarray,
               truth: tuple[np.ndarray, np.ndarray] | None, pa: str, pb: str) -> None:
@@ -101,30 +107,42 @@ class CompareWriter:
                        verdict_a=verdict_image(sa.preds[pa] & sa.region, truth),
                        verdict_b=verdict_image(sb.preds[pb] & sb.region, truth), diff=diff, scalars=scalars)
         self.seq += 1
+        assert self.rrd is not None
+        self.rrd.check(self.rec.rec)
 
     def finish(self, report: dict[str, Any], rows: list[dict[str, Any]]) -> None:
-        """Write every file's temporary (committed by :meth:`close`)."""
+        """Write every file's temporary (committed by :meth:`close`); the recording is closed, read
+        back and named last, once everything else was written."""
         import pyarrow as pa_
         import pyarrow.parquet as pq
 
         from annotate.accuracy import jsonable
 
-        if self.rec is not None:
-            self.rec.close()
-            self.rec = None
-        self.files["json"].temp.write_text(json.dumps(jsonable(report), indent=1, allow_nan=False) + "\n",
-                                           encoding="utf-8")
-        pq.write_table(pa_.Table.from_pylist(rows), self.files["parquet"].temp)
+        self._write("json", lambda t: t.write_text(json.dumps(jsonable(report), indent=1, allow_nan=False) + "\n",
+                                                   encoding="utf-8"))
+        self._write("parquet", lambda t: pq.write_table(pa_.Table.from_pylist(rows), t))
         if "report" in self.files:
-            self.files["report"].temp.write_text(render_html(report), encoding="utf-8", errors="backslashreplace")
+            self._write("report", lambda t: t.write_text(render_html(report), encoding="utf-8", errors="backslashreplace"))
+        if self.rec is not None:
+            rec, self.rec = self.rec, None
+            assert self.rrd is not None
+            self.rrd.close(rec.rec, completed=True)
+
+    def _write(self, key: str, write: Any) -> None:
+        """One file's temporary written; an OSError (a full disk) names the output, not the temporary."""
+        f = self.files[key]
+        with naming(f.path, f.temp):
+            write(f.temp)
 
     def close(self, *, completed: bool) -> None:
-        if self.rec is not None:
-            try:
-                self.rec.close()
-            except Exception:  # noqa: BLE001 - the comparison failed already; its temporaries go
-                pass
-            self.rec = None
+        rec, self.rec = self.rec, None
+        if self.rrd is not None:
+            if rec is not None:  # not finished: an error, an interruption
+                try:
+                    self.rrd.close(rec.rec, completed=False)
+                except Exception:  # noqa: BLE001 - the comparison failed already; its temporaries go
+                    pass
+            self.rrd.abort()
         for f in self.files.values():
             if completed:
                 f.commit()

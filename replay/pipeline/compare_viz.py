@@ -67,7 +67,8 @@ def compare_blueprint(label_a: str, label_b: str) -> rrb.Blueprint:
 
 
 class CompareRecording:
-    """One .rrd of a comparison, written to ``path`` (a temporary the caller renames into place).
+    """One .rrd of a comparison, written to ``path`` (a temporary the caller renames into place; the
+    caller's :class:`replay.pipeline.sinks.RrdFile` checks, closes and names it).
 
     Parameters
     ----------
@@ -121,8 +122,3 @@ class CompareRecording:
         for path, v in scalars.items():
             if v is not None and np.isfinite(v):
                 rec.log(path, rr.Scalars(float(v)))
-
-    def close(self) -> None:
-        """Flush and close the file."""
-        self.rec.flush(timeout_sec=60.0)
-        self.rec.disconnect()

@@ -156,67 +156,38 @@ def _first_line(e: BaseException) -> str:
     return lines[0] if lines else type(e).__name__
 
 
-class RerunSink:
-    """Log every stage to Rerun: to an .rrd file, a spawned viewer, or a running viewer.
+class RrdFile:
+    """An .rrd written by Rerun's file sink through an atomic output: checked after every frame (a
+    full disk stops the command at once), closed within bounds, read back complete, then given its
+    name; every failure is one :class:`OutputError` naming the output, with nothing left under it.
+    Used by :class:`RerunSink` and by ``zcut compare``'s recording.
 
     Parameters
     ----------
-    rrd : path, optional
-        Write a recording (through a temporary file renamed into place when complete).
-    spawn : bool
-        Spawn a viewer.
-    connect : str, optional
-        A running viewer's URL (``rerun+http://127.0.0.1:9876/proxy``).
-    full_detail : bool
-        Log full-resolution images and clouds.
+    path : path
+        The .rrd's final path (planned and locked by the caller).
     """
 
-    def __init__(self, *, rrd: str | Path | None = None, spawn: bool = False, connect: str | None = None,
-                 full_detail: bool = False) -> None:
-        self.rrd = None if rrd is None else Path(rrd)
-        self.spawn, self.connect, self.full_detail = spawn, connect, full_detail
-        self._rec = None
-        self._file: AtomicOutput | None = None
-        self._opts = None
-        self._step = 0.0
-        self._outputs: dict[str, str] = {}
-        self.viewer_error: str | None = None
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.file = AtomicOutput(self.path)
 
-    def start(self, info: ReplayStart) -> None:
-        from replay.pipeline import viz
+    @property
+    def temp(self) -> Path:
+        """Where Rerun writes (renamed to :attr:`path` by :meth:`close`)."""
+        return self.file.temp
 
-        self._opts = viz.VizOptions.full() if self.full_detail else viz.VizOptions()
-        self._step = info.config.zcut.step
-        self._rec = viz.new_recording()
-        if self.rrd is not None:
-            self._file = AtomicOutput(self.rrd)
-        try:
-            try:
-                note = viz.open_sink(self._rec, rrd=None if self._file is None else str(self._file.temp),
-                                     spawn=self.spawn, connect=self.connect, methods=info.config.base_methods)
-            except RuntimeError as e:  # Rerun's file sink could not create the file
-                if self._file is None:
-                    raise
-                raise self._opening_failure(e) from None
-            if note is not None:
-                print(f"zcut: {note}", file=sys.stderr, flush=True)
-            viz.log_static(self._rec, config_toml=info.config_toml(), notes=info.notes, bin_model=info.bin_model,
-                           source=f"log: {info.log}")
-        except BaseException:
-            self.close(completed=False)
-            raise
+    def opening_failure(self, e: RuntimeError) -> OutputError:
+        """What Rerun's "could not create the file" means here."""
+        if not self.temp.parent.is_dir() or not self.temp.exists():
+            return folder_gone(self.path)
+        return OutputError(f"{self.path}: Rerun could not open the .rrd for writing ({_first_line(e)}); "
+                           "nothing was left under its name")
 
-    def write(self, frame: Frame, result: FrameResult) -> None:
-        from replay.pipeline import viz
-
-        viz.log_frame(self._rec, frame, result, step_mm=self._step, opts=self._opts)
-        if self._file is not None:
-            self._check_writer()
-
-    def _check_writer(self) -> None:
+    def check(self, rec) -> None:
         """Stop at the first frame after Rerun's file writer failed (a full disk): it only logs the
         error, and the frames logged after it would pile up in memory."""
-        problem = self._flush(self._rec, RRD_FRAME_FLUSH_S, slow_ok=True)
+        problem = self._flush(rec, RRD_FRAME_FLUSH_S, slow_ok=True)
         if problem is not None:
             raise self._failure(problem)
 
@@ -237,40 +208,124 @@ class RerunSink:
                 return None
             except Exception as e:  # noqa: BLE001 - rerun raises RuntimeError
                 slow = "timed out" in str(e)
-                if slow and not _disk_full(self._file.temp) and time.monotonic() < deadline:
+                if slow and not _disk_full(self.temp) and time.monotonic() < deadline:
                     continue
-                if slow and slow_ok and not _disk_full(self._file.temp):
+                if slow and slow_ok and not _disk_full(self.temp):
                     return None
                 viz.abandon(rec)  # never flushed again, not even at exit
                 return _first_line(e)
 
-    def _opening_failure(self, e: RuntimeError) -> OutputError:
-        if not self._file.temp.parent.is_dir() or not self._file.temp.exists():
-            return folder_gone(self.rrd)
-        return OutputError(f"{self.rrd}: Rerun could not open the .rrd for writing ({_first_line(e)}); "
-                           "nothing was left under its name")
-
     def _failure(self, why: str) -> OutputError:
-        if not self._file.temp.parent.is_dir():
-            return folder_gone(self.rrd)
-        if _disk_full(self._file.temp):
-            return OutputError(f"{self.rrd}: no space left on the device; the .rrd was not written (Rerun: {why})")
-        return OutputError(f"{self.rrd}: the .rrd could not be written completely (Rerun: {why}); nothing was "
+        if not self.temp.parent.is_dir():
+            return folder_gone(self.path)
+        if _disk_full(self.temp):
+            return OutputError(f"{self.path}: no space left on the device; the .rrd was not written (Rerun: {why})")
+        return OutputError(f"{self.path}: the .rrd could not be written completely (Rerun: {why}); nothing was "
                            "left under its name")
+
+    def close(self, rec, *, completed: bool) -> Path | None:
+        """Flush and close the recording (bounded), check it complete, then give it its name (returned;
+        None when not ``completed``: the temporary is removed). Never leaves the temporary behind."""
+        from replay.pipeline import viz
+
+        try:
+            # a writer that failed is not disconnected (that would wait for it for ever); an
+            # interrupted command does not wait long for a recording it throws away
+            problem = self._flush(rec, RRD_FLUSH_TIMEOUT_S if completed else RRD_FRAME_FLUSH_S)
+            if problem is None:
+                try:
+                    if not _within(rec.disconnect, RRD_CLOSE_TIMEOUT_S):  # writes the footer
+                        problem = f"closing the file took more than {RRD_CLOSE_TIMEOUT_S:g} s"
+                        viz.abandon(rec)
+                except RuntimeError as e:  # Rerun's writer failed at the end
+                    problem = _first_line(e)
+            if not completed:
+                return None
+            if problem is None:
+                problem = viz.rrd_problem(str(self.temp))
+            if problem is not None:
+                raise self._failure(problem)
+            return self.file.commit()
+        finally:
+            if not self.file.done:
+                self.file.abort()
+
+    def abort(self) -> None:
+        """No recording was started: the temporary goes."""
+        if not self.file.done:
+            self.file.abort()
+
+
+class RerunSink:
+    """Log every stage to Rerun: to an .rrd file, a spawned viewer, or a running viewer.
+
+    Parameters
+    ----------
+    rrd : path, optional
+        Write a recording (through a temporary file renamed into place when complete).
+    spawn : bool
+        Spawn a viewer.
+    connect : str, optional
+        A running viewer's URL (``rerun+http://127.0.0.1:9876/proxy``).
+    full_detail : bool
+        Log full-resolution images and clouds.
+    """
+
+    def __init__(self, *, rrd: str | Path | None = None, spawn: bool = False, connect: str | None = None,
+                 full_detail: bool = False) -> None:
+        self.rrd = None if rrd is None else Path(rrd)
+        self.spawn, self.connect, self.full_detail = spawn, connect, full_detail
+        self._rec = None
+        self._file: RrdFile | None = None
+        self._opts = None
+        self._step = 0.0
+        self._outputs: dict[str, str] = {}
+        self.viewer_error: str | None = None
+
+    def start(self, info: ReplayStart) -> None:
+        from replay.pipeline import viz
+
+        self._opts = viz.VizOptions.full() if self.full_detail else viz.VizOptions()
+        self._step = info.config.zcut.step
+        self._rec = viz.new_recording()
+        if self.rrd is not None:
+            self._file = RrdFile(self.rrd)
+        try:
+            try:
+                note = viz.open_sink(self._rec, rrd=None if self._file is None else str(self._file.temp),
+                                     spawn=self.spawn, connect=self.connect, methods=info.config.base_methods)
+            except RuntimeError as e:  # Rerun's file sink could not create the file
+                if self._file is None:
+                    raise
+                raise self._file.opening_failure(e) from None
+            if note is not None:
+                print(f"zcut: {note}", file=sys.stderr, flush=True)
+            viz.log_static(self._rec, config_toml=info.config_toml(), notes=info.notes, bin_model=info.bin_model,
+                           source=f"log: {info.log}")
+        except BaseException:
+            self.close(completed=False)
+            raise
+
+    def write(self, frame: Frame, result: FrameResult) -> None:
+        from replay.pipeline import viz
+
+        viz.log_frame(self._rec, frame, result, step_mm=self._step, opts=self._opts)
+        if self._file is not None:
+            self._file.check(self._rec)
 
     def close(self, *, completed: bool) -> None:
         rec, self._rec = self._rec, None
         file = self._file
-        try:
-            if rec is None:
-                return
-            if file is None:
-                self._close_viewer(rec)
-            else:
-                self._close_file(rec, file, completed=completed)
-        finally:
-            if file is not None and not file.done:
-                file.abort()  # an error, an interruption: no temporary left
+        if rec is None:
+            if file is not None:
+                file.abort()
+            return
+        if file is None:
+            self._close_viewer(rec)
+            return
+        done = file.close(rec, completed=completed)
+        if done is not None:
+            self._outputs["rrd"] = str(done)
 
     def _close_viewer(self, rec) -> None:
         # a viewer that is gone must not hang the replay
@@ -282,29 +337,6 @@ class RerunSink:
             return  # disconnecting would wait for it
         if not _within(rec.disconnect, RRD_CLOSE_TIMEOUT_S):
             self.viewer_error = f"the viewer did not close the stream within {RRD_CLOSE_TIMEOUT_S:g} s"
-
-    def _close_file(self, rec, file: AtomicOutput, *, completed: bool) -> None:
-        """Flush and close the recording (bounded), check it complete, then give it its name."""
-        from replay.pipeline import viz
-
-        # a writer that failed is not disconnected (that would wait for it for ever); an interrupted
-        # replay does not wait long for a recording it throws away
-        problem = self._flush(rec, RRD_FLUSH_TIMEOUT_S if completed else RRD_FRAME_FLUSH_S)
-        if problem is None:
-            try:
-                if not _within(rec.disconnect, RRD_CLOSE_TIMEOUT_S):  # writes the footer
-                    problem = f"closing the file took more than {RRD_CLOSE_TIMEOUT_S:g} s"
-                    viz.abandon(rec)
-            except RuntimeError as e:  # Rerun's writer failed at the end
-                problem = _first_line(e)
-        if not completed:
-            file.abort()
-            return
-        if problem is None:
-            problem = viz.rrd_problem(str(file.temp))
-        if problem is not None:
-            raise self._failure(problem)
-        self._outputs["rrd"] = str(file.commit())
 
     def outputs(self) -> dict[str, str]:
         return dict(self._outputs)

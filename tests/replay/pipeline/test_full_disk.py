@@ -83,3 +83,19 @@ def test_bin_model_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, size)
     cut.write_bytes(data[: len(data) - 8])
     with pytest.raises(OSError, match="cut short"):
         _check_complete_ply(cut)
+
+
+@pytest.mark.parametrize(("size", "short"), [("64k", "compare.rrd"), ("400k", "compare.rrd")])
+def test_compare_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, size, short):
+    """``zcut compare``'s recording goes through replay's checked .rrd file (a full disk met by Rerun's
+    writer was a RuntimeError traceback)."""
+    log = tmp_path / "s.mcap"
+    assert main(["synth", "-o", str(log), "--parts", "rods", "--frames", "3", "--seed", "5", "--size", "320x200"]) == 0
+    with small_disk(tmp_path / "disk", size) as disk:
+        run = subprocess.run([sys.executable, "-m", "cli", "compare", str(log), "--a", "zcut", "--b", "sor", "-o",
+                              str(disk / "o")], capture_output=True, text=True, timeout=600)
+        errors = [ln for ln in run.stderr.splitlines() if ln.startswith("error:")]
+        assert run.returncode == 1, run.stderr
+        assert len(errors) == 1 and "Traceback" not in run.stderr, run.stderr
+        assert "no space left on the device" in errors[0] and str(disk / "o" / short) in errors[0], errors
+        assert sorted(p.name for p in (disk / "o").iterdir()) == []  # no output, no temporary, no lock
