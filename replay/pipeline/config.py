@@ -3,13 +3,18 @@
 
 Layers, later ones win: built-in defaults (the paper's nominal z-cut parameters, docs/filters.md) < the
 TOML file (``--config``) < command-line overrides (``--step`` ...). Every layer is a nested dict
-with the TOML file's keys; unknown keys are errors. :func:`resolve_config` is the one place where
+with the TOML file's keys; unknown keys are errors. :func:`resolve` is the one place where
 derived values are filled in (the z-cut's area threshold μ_thr = ρ_thr · a_max, a_max from the
 part's geometry and the camera, the §5.4 geometry-derived Δd and d_max when asked for); every
 command calls it, so that ``zcut replay``, ``accuracy``, ``annotate``, ``sweep`` and ``batch`` run
 the same filter on a log (docs/accuracy.md, "Same filter everywhere"). Its result is written next to every
 output (:func:`to_toml`) and logged to Rerun as a document, with notes saying where each derived
 value came from.
+
+The sections are the pipeline's own (``bin_mask``, ``registration``, ``removal``), then one per method
+of the registry (:mod:`replay.pipeline.methods`: ``zcut``, ``sor`` and the filter bank), in its order:
+:func:`section_names`, :func:`stage_sections` and :func:`bank_sections` are views of the registry, and
+the bank's parameters live in :attr:`PipelineConfig.bank` (read as ``config.radius``).
 
 Units follow the paper and the config file: millimetres for lengths, pixels for areas. The stage
 types hold the same fields as the file's keys (the z-cut's with the short names of
@@ -22,6 +27,8 @@ import dataclasses
 import json
 import math
 import tomllib
+import types
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,7 +37,7 @@ import numpy as np
 
 from replay.errors import ConfigError
 from replay.logs import layout
-from replay.pipeline.methods import DEFAULT_METHODS, base_methods, parse_methods, reported_methods
+from replay.pipeline.methods import DEFAULT_METHODS, base_methods, parse_methods, registry, reported_methods
 from zcut.cloud import Intrinsics
 from zcut.errors import ParameterError
 from zcut.params import (
@@ -38,15 +45,9 @@ from zcut.params import (
     NOMINAL_RHO_THR,
     NOMINAL_STEP_MM,
     BinMaskParams,
-    ClusterParams,
-    MixedPixelParams,
-    RadiusParams,
     RegistrationParams,
     RemovalParams,
     SorParams,
-    SpeckleParams,
-    SuspectParams,
-    WindowParams,
     ZCutParams,
     a_max_from_camera,
 )
@@ -65,23 +66,42 @@ ZCUT_INPUTS = (*ZCUT_KEYS, "rho_thr")
 _ZCUT_FLAGS = {"step_mm": "--step", "max_depth_mm": "--max-depth", "max_area_px": "--max-area", "rho_thr": "--rho"}
 TOP_KEYS = ("part", "parameters", "preset", "methods")
 
-#: The other sections: the stage types of zcut.params, whose fields are the file's keys.
-STAGE_SECTIONS: dict[str, type] = {
-    "bin_mask": BinMaskParams,
-    "registration": RegistrationParams,
-    "removal": RemovalParams,
-    "sor": SorParams,
-    "radius": RadiusParams,
-    "cluster": ClusterParams,
-    "speckle": SpeckleParams,
-    "window": WindowParams,
-    "mixed_pixel": MixedPixelParams,
-    "suspects": SuspectParams,
-}
-#: The sections of the filter bank and the suspects (one per method of replay.pipeline.methods).
-BANK_SECTIONS = ("radius", "cluster", "speckle", "window", "mixed_pixel", "suspects")
-SECTION_NAMES = ("bin_mask", "registration", "removal", "zcut", "sor", *BANK_SECTIONS)
-_CLASS_SECTION = {cls.__name__: name for name, cls in STAGE_SECTIONS.items()} | {"ZCutParams": "zcut"}
+#: The pipeline's own sections (the bin stages), before the methods' sections.
+PIPELINE_SECTIONS: Mapping[str, type] = types.MappingProxyType(
+    {"bin_mask": BinMaskParams, "registration": RegistrationParams, "removal": RemovalParams})
+#: The methods' sections that are fields of :class:`PipelineConfig` (the others are its bank).
+FIXED_METHOD_SECTIONS = ("zcut", "sor")
+
+
+def stage_sections() -> dict[str, type]:
+    """Every section but ``zcut`` -> its params class (the pipeline's, then the registry's methods')."""
+    return {**PIPELINE_SECTIONS, **{m.section: m.params for m in registry().values() if m.section != "zcut"}}
+
+
+def bank_sections() -> tuple[str, ...]:
+    """The sections of the filter bank and the suspects: the registry's methods but the z-cut and SOR."""
+    return tuple(m.section for m in registry().values() if m.section not in FIXED_METHOD_SECTIONS)
+
+
+def section_names() -> tuple[str, ...]:
+    """Every section, in the file's order: the pipeline's, then one per method of the registry."""
+    return (*PIPELINE_SECTIONS, *(m.section for m in registry().values()))
+
+
+def sections() -> dict[str, Any]:
+    """Section name -> a function that validates the section's keys (raises ConfigError naming
+    ``section.key`` and the value)."""
+    return {name: _stage_section(name, cls) for name, cls in stage_sections().items()} | {"zcut": _zcut_section}
+
+
+def __getattr__(name: str) -> Any:
+    """The old constants, now views of the registry: ``STAGE_SECTIONS``, ``BANK_SECTIONS``,
+    ``SECTION_NAMES``, ``SECTIONS``."""
+    views = {"STAGE_SECTIONS": stage_sections, "BANK_SECTIONS": bank_sections, "SECTION_NAMES": section_names,
+             "SECTIONS": sections}
+    if name in views:
+        return views[name]()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _config_error(e: ParameterError, source: str | None = None) -> ConfigError:
@@ -89,10 +109,11 @@ def _config_error(e: ParameterError, source: str | None = None) -> ConfigError:
     msg = str(e)
     head, _, rest = msg.partition(" ")
     cls, _, name = head.partition(".")
-    if cls in _CLASS_SECTION:
+    class_section = {c.__name__: n for n, c in stage_sections().items()} | {"ZCutParams": "zcut"}
+    if cls in class_section:
         if cls == "ZCutParams":
             name = {v: k for k, v in ZCUT_KEYS.items()}.get(name, name)
-        msg = f"{_CLASS_SECTION[cls]}.{name} {rest}"
+        msg = f"{class_section[cls]}.{name} {rest}"
     return ConfigError(f"{source}: {msg}" if source else msg)
 
 
@@ -117,9 +138,7 @@ def _zcut_section(**keys: Any) -> dict[str, Any]:
     return keys
 
 
-def _stage_section(name: str):
-    cls = STAGE_SECTIONS[name]
-
+def _stage_section(name: str, cls: type):
     def build(**keys: Any):
         names = {f.name for f in dataclasses.fields(cls)}
         for k in keys:
@@ -133,9 +152,38 @@ def _stage_section(name: str):
     return build
 
 
-#: Section name -> a function that validates the section's keys (raises ConfigError naming
-#: ``section.key`` and the value).
-SECTIONS = {name: _stage_section(name) for name in STAGE_SECTIONS} | {"zcut": _zcut_section}
+class Bank(Mapping[str, Any]):
+    """The filter bank's parameters of a config: section name -> params, in the registry's order
+    (read-only and hashable, as the config's other fields)."""
+
+    __slots__ = ("_items",)
+
+    def __init__(self, items: Mapping[str, Any] | None = None) -> None:
+        self._items = dict(items or {})
+
+    def __getitem__(self, key: str) -> Any:
+        return self._items[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._items)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __hash__(self) -> int:
+        return hash(tuple(self._items.items()))
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Mapping) and dict(self.items()) == dict(other.items())
+
+    def __repr__(self) -> str:
+        return f"Bank({self._items!r})"
+
+    def __getstate__(self) -> dict[str, Any]:
+        return self._items
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self._items = dict(state)
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,8 +195,10 @@ class PipelineConfig:
     zcut : ZCutParams
         Δd, d_max (mm), μ_thr (px), a_max (px, or None when unknown), connectivity.
     sor, bin_mask, registration, removal : the stage parameters of :mod:`zcut.params`
-    radius, cluster, speckle, window, mixed_pixel, suspects : the filter bank's and the suspects'
-        parameters (:mod:`zcut.params`), read only when :attr:`methods` names them.
+    bank : Bank
+        The other methods' parameters (the filter bank's and the suspects', :func:`bank_sections`),
+        by section, each read as an attribute (``config.radius``) and only when :attr:`methods`
+        names its method; a section not given takes its class's defaults.
     part : str or None
         The part kind (``replay.presets.PART_KINDS`` key) whose geometry gave a_max (and Δd,
         d_max with ``parameters = "geometry"``).
@@ -164,21 +214,28 @@ class PipelineConfig:
     bin_mask: BinMaskParams = field(default_factory=BinMaskParams)
     registration: RegistrationParams = field(default_factory=RegistrationParams)
     removal: RemovalParams = field(default_factory=RemovalParams)
-    radius: RadiusParams = field(default_factory=RadiusParams)
-    cluster: ClusterParams = field(default_factory=ClusterParams)
-    speckle: SpeckleParams = field(default_factory=SpeckleParams)
-    window: WindowParams = field(default_factory=WindowParams)
-    mixed_pixel: MixedPixelParams = field(default_factory=MixedPixelParams)
-    suspects: SuspectParams = field(default_factory=SuspectParams)
+    bank: Mapping[str, Any] = field(default_factory=Bank)
     part: str | None = None
     parameters: str = "nominal"
     methods: tuple[str, ...] = DEFAULT_METHODS
 
     def __post_init__(self) -> None:
-        types = {"zcut": ZCutParams, **STAGE_SECTIONS}
-        for name, cls in types.items():
+        own = stage_sections()
+        for name in ("zcut", *PIPELINE_SECTIONS, "sor"):
+            cls = ZCutParams if name == "zcut" else own[name]
             if not isinstance(getattr(self, name), cls):
                 raise ConfigError(f"PipelineConfig.{name} must be a {cls.__name__}, got {getattr(self, name)!r}")
+        given = dict(self.bank)
+        bank = {}
+        for name in bank_sections():
+            cls = own[name]
+            bank[name] = given.pop(name) if name in given else cls()
+            if not isinstance(bank[name], cls):
+                raise ConfigError(f"PipelineConfig.{name} must be a {cls.__name__}, got {bank[name]!r}")
+        if given:
+            raise ConfigError(f"PipelineConfig.bank: unknown section {', '.join(given)} "
+                              f"(known: {', '.join(bank_sections())})")
+        object.__setattr__(self, "bank", Bank(bank))
         if self.parameters not in PARAMETER_MODES:
             raise ConfigError(f"parameters must be one of {', '.join(PARAMETER_MODES)}, got {self.parameters!r}")
         object.__setattr__(self, "methods", parse_methods(self.methods, source="PipelineConfig.methods"))
@@ -194,9 +251,28 @@ class PipelineConfig:
         and sor when both are there."""
         return reported_methods(self.methods)
 
+    def __getattr__(self, name: str) -> Any:
+        """A bank section's parameters by its name (``config.radius``)."""
+        if name.startswith("_") or name == "bank":
+            raise AttributeError(name)
+        try:
+            return object.__getattribute__(self, "bank")[name]
+        except (AttributeError, KeyError):
+            raise AttributeError(f"'PipelineConfig' object has no attribute {name!r}") from None
+
     def replace(self, **changes: Any) -> PipelineConfig:
-        """A copy with some stage parameters replaced (e.g. one grid point of a sweep)."""
+        """A copy with some stage parameters replaced, the bank's by their section name too
+        (``config.replace(radius=...)``; e.g. one grid point of a sweep)."""
+        bank = {k: changes.pop(k) for k in list(changes) if k in self.bank}
+        if bank:
+            changes["bank"] = {**changes.get("bank", self.bank), **bank}
         return dataclasses.replace(self, **changes)
+
+
+def _config(zc: ZCutParams, stages: dict[str, Any], **rest: Any) -> PipelineConfig:
+    """A config from its z-cut and every other section (``stage_sections()``'s names)."""
+    fixed = {k: stages.pop(k) for k in (*PIPELINE_SECTIONS, "sor")}
+    return PipelineConfig(zcut=zc, **fixed, bank=stages, **rest)
 
 
 # ----------------------------------------------------------------------------------- dict layers
@@ -208,7 +284,7 @@ def to_dict(config: PipelineConfig) -> dict[str, Any]:
     if config.part is not None:
         out["part"] = config.part
     out["methods"] = list(config.methods)
-    for name in SECTION_NAMES:
+    for name in section_names():
         sec = getattr(config, name)
         if name == "zcut":
             out[name] = {k: getattr(sec, f) for k, f in ZCUT_KEYS.items() if getattr(sec, f) is not None}
@@ -251,8 +327,9 @@ def check_layer(layer: dict[str, Any], *, source: str) -> dict[str, Any]:
         if key == "methods":
             parse_methods(value, source=f"{source}: methods")
             continue
-        if key not in SECTIONS:
-            raise ConfigError(f"{source}: unknown section [{key}] (known: {', '.join(SECTION_NAMES)}, "
+        known = sections()
+        if key not in known:
+            raise ConfigError(f"{source}: unknown section [{key}] (known: {', '.join(section_names())}, "
                               f"{', '.join(TOP_KEYS)})")
         if not isinstance(value, dict):
             raise ConfigError(f"{source}: [{key}] must be a table, got {value!r}")
@@ -260,7 +337,7 @@ def check_layer(layer: dict[str, Any], *, source: str) -> dict[str, Any]:
             raise ConfigError(f"{source}: give zcut.max_area_px or zcut.rho_thr, not both "
                               "(max_area_px = rho_thr × a_max_px)")
         try:
-            SECTIONS[key](**value)
+            known[key](**value)
         except ConfigError as e:
             raise ConfigError(f"{source}: {e}") from None
     return layer
@@ -348,7 +425,7 @@ def to_toml(config: PipelineConfig, *, header: str = "") -> str:
     if "part" in d:
         lines.append(f"part = {_toml_value(d['part'])}")
     lines.append("methods = [" + ", ".join(_toml_value(m) for m in d["methods"]) + "]")
-    for name in SECTION_NAMES:
+    for name in section_names():
         lines.append("")
         lines.append(f"[{name}]")
         for k, v in d[name].items():
@@ -371,13 +448,12 @@ def from_dict(d: dict[str, Any], *, source: str = "config") -> PipelineConfig:
     z.setdefault("max_depth_mm", NOMINAL_MAX_DEPTH_MM)
     try:
         zc = ZCutParams(**{ZCUT_KEYS[k]: v for k, v in z.items()})
-        stages = {name: cls(**d.get(name, {})) for name, cls in STAGE_SECTIONS.items()}
+        stages = {name: cls(**d.get(name, {})) for name, cls in stage_sections().items()}
     except ParameterError as e:
         raise _config_error(e, source) from None
     part = d.get("part") if d.get("part") is not None else d.get("preset")
     mode = d.get("parameters") or ("geometry" if d.get("preset") else "nominal")
-    return PipelineConfig(zcut=zc, **stages, part=part, parameters=mode,
-                          methods=tuple(d.get("methods", DEFAULT_METHODS)))
+    return _config(zc, stages, part=part, parameters=mode, methods=tuple(d.get("methods", DEFAULT_METHODS)))
 
 
 # ----------------------------------------------------------------------------------- resolution
@@ -609,11 +685,10 @@ def resolve(facts: LogFacts, *, file_layer: dict[str, Any] | None = None,
     try:
         zc = ZCutParams(step=step, max_depth=depth, max_area=max_area, a_max=a_max,
                         connectivity=z.get("connectivity", 8))
-        stages = {name: cls(**d.get(name, {})) for name, cls in STAGE_SECTIONS.items()}
+        stages = {name: cls(**d.get(name, {})) for name, cls in stage_sections().items()}
     except ParameterError as e:
         raise _config_error(e, "resolved config") from None
-    config = PipelineConfig(zcut=zc, **stages, part=part, parameters=mode,
-                            methods=tuple(d.get("methods", DEFAULT_METHODS)))
+    config = _config(zc, stages, part=part, parameters=mode, methods=tuple(d.get("methods", DEFAULT_METHODS)))
     check_camera_model(config, facts)
     if config.methods != DEFAULT_METHODS:
         notes.append(f"methods: {', '.join(config.methods)}")
@@ -631,8 +706,6 @@ def check_camera_model(config: PipelineConfig, facts: LogFacts) -> None:
     ConfigError
         One line naming the methods and what to do.
     """
-    from replay.pipeline.methods import registry
-
     if facts.intrinsics is not None and not facts.intrinsics_fitted:
         return
     need = [m.name for m in registry().values() if m.needs_intrinsics and m.name in config.base_methods]
@@ -640,29 +713,3 @@ def check_camera_model(config: PipelineConfig, facts: LogFacts) -> None:
         raise ConfigError(f"{', '.join(need)} needs the camera model (fx, fy) and the log has none (no CameraInfo): "
                           f"leave {', '.join(need)} out of methods, or record the log with its camera info "
                           "(zcut record --camera-info FILE.yaml, or --fx --fy --cx --cy)")
-
-
-def resolve_config(metadata: dict[str, dict[str, str]], first_frame, *, config_file: str | Path | None = None,
-                   overrides: dict[str, Any] | None = None, intrinsics: Intrinsics | None = None) -> Resolved:
-    """Resolve the pipeline config of a log: what every command calls.
-
-    Parameters
-    ----------
-    metadata : dict
-        The log's MCAP metadata records.
-    first_frame : replay.logs.frame.Frame
-        The log's first readable frame.
-    config_file : path, optional
-        TOML config (``--config``).
-    overrides : dict, optional
-        The command line's layer (:func:`cli_layer`).
-    intrinsics : Intrinsics, optional
-        The log's camera intrinsics, when known apart from the frame.
-
-    Returns
-    -------
-    Resolved
-    """
-    file_layer = load_toml(config_file) if config_file is not None else None
-    return resolve(log_facts(metadata, first_frame, intrinsics=intrinsics), file_layer=file_layer,
-                   cli=overrides)

@@ -1,7 +1,7 @@
 """The filter methods a replay runs and scores: one registry, so that every command knows the same names.
 
 A *method* is a named outlier filter that judges the zone of a frame (the pixels the bin stages left,
-:class:`replay.pipeline.stages.Zone`) and returns its outliers there. ``zcut`` (the paper's filter)
+:class:`replay.pipeline.zone.Zone`) and returns its outliers there. ``zcut`` (the paper's filter)
 and ``sor`` (its comparison) are methods; so is every filter added to the bank. A method reads its
 parameters from its own section of the resolved :class:`~replay.pipeline.config.PipelineConfig`
 (``config.zcut``, ``config.sor``, ...), never from loose keywords.
@@ -11,8 +11,14 @@ reports and scores, and unions of them written ``a+b`` (e.g. ``zcut+mixed_pixel`
 derived from the masks of its members, never run on its own. ``union`` and ``intersection`` are the
 report's two derived methods of ``zcut`` and ``sor`` (docs/accuracy.md), present whenever both are.
 
-Adding a filter is one :class:`Method` entry in :func:`registry` and one parameter section in the
-config (``replay.pipeline.config.STAGE_SECTIONS``).
+Adding a filter is one :class:`Method` entry in :data:`BUILTIN` (its module in ``zcut/`` and its
+parameters class in ``zcut/params.py`` beside it): the entry declares its name, parameters class (the
+config section of that name, whose keys are the class's fields), summary, run function, whether it
+needs the camera model, its default sweep axes (``--grid NAME=default``) and its warm-up. The
+config's sections and bank (:mod:`replay.pipeline.config`), the sweep's default axes
+(:mod:`studies.bank`) and the install's warm-up (:mod:`replay.warmup`) are views of the registry. A
+method kept outside the tree (or a test's toy method) is plugged in by naming it in the environment
+variable ``ZCUT_METHODS`` (:data:`PLUGINS_ENV`), which reaches every command and its worker processes.
 
 Which points each method sees (docs/filters.md, "In the pipeline"): every method judges the zone and
 returns outliers in the zone only (the pipeline adds the points above the rim to every method alike).
@@ -27,14 +33,27 @@ contract, docs/filters.md "Suspects").
 
 from __future__ import annotations
 
+import importlib
+import os
 import types
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from replay.errors import ConfigError
+from replay.pipeline.zone import sor_on_zone, zone_crop
+from zcut.params import (
+    ClusterParams,
+    MixedPixelParams,
+    RadiusParams,
+    SorParams,
+    SpeckleParams,
+    SuspectParams,
+    WindowParams,
+    ZCutParams,
+)
 
 #: The methods a config runs when it names none: the paper's filter and its comparison.
 DEFAULT_METHODS: tuple[str, ...] = ("zcut", "sor")
@@ -42,6 +61,9 @@ DEFAULT_METHODS: tuple[str, ...] = ("zcut", "sor")
 DERIVED: tuple[str, ...] = ("union", "intersection")
 #: Joins the members of a union (``zcut+mixed_pixel``).
 UNION_SEP = "+"
+#: The environment variable that plugs in methods kept outside the tree: comma-separated
+#: ``module:NAME`` items, each ``NAME`` a :class:`Method` or a tuple of them (``module`` importable).
+PLUGINS_ENV = "ZCUT_METHODS"
 
 
 @dataclass(frozen=True, slots=True)
@@ -64,30 +86,49 @@ class MethodOutput:
     warning: str | None = None
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class Method:
-    """One filter of the registry.
+    """One filter of the registry: everything the commands need to know of it, declared once.
 
     Attributes
     ----------
     name : str
-        The name in ``methods`` lists, reports and tables.
-    section : str
-        The config section holding its parameters.
+        The name in ``methods`` lists, reports, tables and Rerun entity paths.
+    params : type
+        Its parameters class (a frozen dataclass of :mod:`zcut.params` whose every field has a
+        default and which raises :class:`zcut.errors.ParameterError` naming ``Class.field`` on a bad
+        value): the config section's keys are its fields.
     summary : str
         One line for ``--help`` and the docs.
     run : callable
         ``run(frame, zone, config) -> MethodOutput``: the frame (``replay.logs.frame.Frame``), its
-        zone (``replay.pipeline.stages.Zone``) and the resolved config.
+        zone (``replay.pipeline.zone.Zone``) and the resolved config, whose ``config.<section>``
+        holds the method's parameters.
     needs_intrinsics : bool
         It needs the camera model (a log without one gets a named warning and no outliers).
+    axes : mapping of str to tuple
+        Its default sweep axes (``--grid NAME=default``): a few values of some fields, from a light
+        to a strong filter; empty when it has none (then the sweep runs it at the config's values).
+    warmup : callable or None
+        ``warmup()`` runs its numba kernels once on tiny inputs (``python -m replay.warmup``); None
+        when it compiles nothing.
+    section : str
+        The config section holding its parameters (default: its name).
     """
 
     name: str
-    section: str
+    params: type
     summary: str
     run: Callable[..., MethodOutput]
     needs_intrinsics: bool = False
+    axes: Mapping[str, tuple[Any, ...]] = field(default_factory=dict, compare=False)
+    warmup: Callable[[], None] | None = field(default=None, compare=False)
+    section: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.section:
+            object.__setattr__(self, "section", self.name)
+        object.__setattr__(self, "axes", types.MappingProxyType({k: tuple(v) for k, v in self.axes.items()}))
 
 
 def _run_zcut(frame, zone, config) -> MethodOutput:
@@ -98,8 +139,6 @@ def _run_zcut(frame, zone, config) -> MethodOutput:
 
 
 def _run_sor(frame, zone, config) -> MethodOutput:
-    from replay.pipeline.stages import sor_on_zone
-
     if not config.sor.enabled:
         return MethodOutput(np.zeros_like(zone.zone), warning="SOR disabled (sor.enabled = false)")
     return MethodOutput(sor_on_zone(frame, zone, config))
@@ -110,7 +149,6 @@ def _in_zone(zone, mask: np.ndarray) -> MethodOutput:
 
 
 def _run_radius(frame, zone, config) -> MethodOutput:
-    from replay.pipeline.stages import zone_crop
     from zcut.radius import radius_stage
 
     out = np.zeros_like(zone.zone)
@@ -165,27 +203,173 @@ def _run_suspects(frame, zone, config) -> MethodOutput:
     return MethodOutput(res.mask & zone.zone, res)
 
 
+# ------------------------------------------------------------------------------------- warm-ups
+def _tiny() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tiny inputs for the warm-ups: a height image, its organized cloud (mm-sized, float32) and a
+    scattered cloud (no camera: SOR's column search)."""
+    rng = np.random.default_rng(0)
+    h = rng.normal(size=(40, 50)).cumsum(axis=0)
+    xyz = np.dstack([*np.meshgrid(np.arange(50.0), np.arange(40.0)), 500 + h]).astype(np.float32)
+    scattered = rng.normal(size=(40, 50, 3)).astype(np.float32)
+    return h, xyz, scattered
+
+
+def _bank_clouds() -> Iterable[np.ndarray]:
+    """The filter bank's warm-up clouds: float32 and float64, organized and scattered."""
+    _, xyz, scattered = _tiny()
+    for cloud in (xyz / 1000.0, scattered):
+        for dtype in (np.float32, np.float64):
+            yield cloud.astype(dtype)
+
+
+def _camera() -> Any:
+    from zcut.cloud import Intrinsics
+
+    return Intrinsics(fx=300.0, fy=300.0, cx=25.0, cy=20.0, width=50, height=40)
+
+
+def _warm_zcut() -> None:
+    from zcut.cut_grid import zcut_tree
+    from zcut.cuts import find_clusters, zcut_outliers
+
+    h, _, _ = _tiny()
+    zcut_outliers(h, step=0.2, max_depth=3.0, max_area=20)
+    for kernel in ("flood", "union-find"):
+        find_clusters(h, params=ZCutParams(step=0.2, max_depth=3.0, max_area=20.0), kernel=kernel)
+    tree = zcut_tree(h, step=0.2, max_depth=3.0)
+    tree.counts([1.0, 3.0], [5.0, 20.0], truth=h > 1, scored=np.ones(h.shape, bool))
+
+
+def _warm_sor() -> None:
+    from zcut.sor import sor_outliers
+
+    _, xyz, scattered = _tiny()
+    for convention in ("pcl", "open3d"):
+        sor_outliers(xyz, k=4, convention=convention)
+        sor_outliers(xyz.astype(np.float64) * [1, 1, -1], k=4, convention=convention)
+        sor_outliers(scattered, k=4, convention=convention)
+
+
+def _warm_radius() -> None:
+    from zcut.radius import radius_outliers
+
+    for a in _bank_clouds():
+        radius_outliers(a, 2.0, 8)
+
+
+def _warm_cluster() -> None:
+    from zcut.components import cluster_outliers
+
+    for a in _bank_clouds():
+        cluster_outliers(a, max_neighbour_mm=3.0, min_area_mm2=50.0, intrinsics=_camera())
+
+
+def _warm_speckle() -> None:
+    from zcut.components import speckle_outliers
+
+    for a in _bank_clouds():
+        speckle_outliers(a, max_diff_mm=2.0, max_size_px=100)
+
+
+def _warm_window() -> None:
+    from zcut.local_rules import window_outliers
+
+    for a in _bank_clouds():
+        window_outliers(a, min_inliers=3, rel_tolerance=0.005)
+
+
+def _warm_mixed_pixel() -> None:
+    from zcut.local_rules import mixed_pixel_outliers
+
+    for a in _bank_clouds():
+        mixed_pixel_outliers(a, min_angle_deg=8.0)
+
+
+def _warm_suspects() -> None:
+    from zcut.suspects import suspects
+
+    h, xyz, _ = _tiny()
+    suspects(xyz / 1000.0, -np.asarray(xyz[..., 2], np.float64), np.ones(h.shape, bool), params=SuspectParams())
+
+
+# ------------------------------------------------------------------------------------ the registry
+#: Every method of the tree, in the registry's order (the order of reports, tables and config
+#: sections). Adding a filter is one entry here.
+BUILTIN: tuple[Method, ...] = (
+    Method(name="zcut", params=ZCutParams, run=_run_zcut, warmup=_warm_zcut,
+           summary="the paper's z-cut: floating clusters smaller than μ_thr, found by descending cuts"),
+    Method(name="sor", params=SorParams, run=_run_sor, warmup=_warm_sor,
+           summary="statistical outlier removal, the paper's comparison (PCL / MATLAB pcdenoise)"),
+    Method(name="radius", params=RadiusParams, run=_run_radius, warmup=_warm_radius,
+           axes={"radius_mm": (1.0, 2.0, 4.0), "min_points": (2, 4, 8, 16)},
+           summary="radius outlier removal: too few other points within a ball (Open3D, PCL)"),
+    Method(name="cluster", params=ClusterParams, run=_run_cluster, warmup=_warm_cluster, needs_intrinsics=True,
+           axes={"max_neighbour_mm": (1.0, 3.0, 6.0), "min_area_mm2": (10.0, 50.0, 200.0)},
+           summary="cluster removal: small 3D-connected groups of pixels, by area in mm² (Zivid)"),
+    Method(name="speckle", params=SpeckleParams, run=_run_speckle, warmup=_warm_speckle,
+           axes={"max_diff_mm": (0.5, 2.0, 5.0), "max_size_px": (25, 100, 400)},
+           summary="speckle removal: small regions cut off by depth jumps (OpenCV, Ensenso)"),
+    Method(name="window", params=WindowParams, run=_run_window, warmup=_warm_window,
+           axes={"min_inliers": (1, 3, 5), "rel_tolerance": (0.001, 0.005, 0.02)},
+           summary="3 × 3 window rule: too few neighbours within a relative depth tolerance (Basler)"),
+    Method(name="mixed_pixel", params=MixedPixelParams, run=_run_mixed_pixel, warmup=_warm_mixed_pixel,
+           axes={"min_angle_deg": (2.0, 5.0, 8.0, 12.0, 20.0)},
+           summary="mixed pixels: the surface leaves the pixel along its ray (ifm)"),
+    Method(name="suspects", params=SuspectParams, run=_run_suspects, warmup=_warm_suspects,
+           summary="the labelling page's suspects: every detector of zcut.suspects, united (not a filter to ship)"),
+)
+_BUILTIN_MAP = types.MappingProxyType({m.name: m for m in BUILTIN})
+
+
+def plugins(spec: str) -> tuple[Method, ...]:
+    """The methods a :data:`PLUGINS_ENV` value names (``"pkg.mod:TOY,pkg.other:METHODS"``).
+
+    Raises
+    ------
+    ConfigError
+        One line: an item not ``module:NAME``, a module that does not import, a name that is not a
+        Method (or a tuple of them).
+    """
+    out: list[Method] = []
+    for item in (i.strip() for i in spec.split(",")):
+        if not item:
+            continue
+        module, colon, attr = item.partition(":")
+        if not colon or not module or not attr:
+            raise ConfigError(f"{PLUGINS_ENV}: expected module:NAME items, got {item!r}")
+        try:
+            found = getattr(importlib.import_module(module), attr)
+        except (ImportError, AttributeError) as e:
+            raise ConfigError(f"{PLUGINS_ENV}: cannot load {item!r}: {e}") from None
+        entries = found if isinstance(found, (tuple, list)) else (found,)
+        for m in entries:
+            if not isinstance(m, Method):
+                raise ConfigError(f"{PLUGINS_ENV}: {item!r} is not a Method (or a tuple of them): {m!r}")
+            out.append(m)
+    return tuple(out)
+
+
 def registry() -> Mapping[str, Method]:
-    """Every method zcut knows, by name (a read-only mapping, built anew on each call)."""
-    methods = (
-        Method("zcut", "zcut", "the paper's z-cut: floating clusters smaller than μ_thr, found by descending cuts",
-               _run_zcut),
-        Method("sor", "sor", "statistical outlier removal, the paper's comparison (PCL / MATLAB pcdenoise)",
-               _run_sor),
-        Method("radius", "radius", "radius outlier removal: too few other points within a ball (Open3D, PCL)",
-               _run_radius),
-        Method("cluster", "cluster", "cluster removal: small 3D-connected groups of pixels, by area in mm² (Zivid)",
-               _run_cluster, needs_intrinsics=True),
-        Method("speckle", "speckle", "speckle removal: small regions cut off by depth jumps (OpenCV, Ensenso)",
-               _run_speckle),
-        Method("window", "window", "3 × 3 window rule: too few neighbours within a relative depth tolerance (Basler)",
-               _run_window),
-        Method("mixed_pixel", "mixed_pixel", "mixed pixels: the surface leaves the pixel along its ray (ifm)",
-               _run_mixed_pixel),
-        Method("suspects", "suspects", "the labelling page's suspects: every detector of zcut.suspects, united "
-               "(not a filter to ship)", _run_suspects),
-    )
-    return types.MappingProxyType({m.name: m for m in methods})
+    """Every method zcut knows, by name (a read-only mapping): :data:`BUILTIN`, then the plug-ins
+    :data:`PLUGINS_ENV` names (read on each call, so that a test's toy method reaches every command).
+
+    Raises
+    ------
+    ConfigError
+        A plug-in that does not load, or whose name or section is already taken.
+    """
+    spec = os.environ.get(PLUGINS_ENV, "")
+    if not spec.strip():
+        return _BUILTIN_MAP
+    out = dict(_BUILTIN_MAP)
+    sections = {m.section for m in BUILTIN} | {"bin_mask", "registration", "removal"}
+    for m in plugins(spec):
+        if m.name in out or m.section in sections or UNION_SEP in m.name or m.name in DERIVED:
+            raise ConfigError(f"{PLUGINS_ENV}: method {m.name!r} (section {m.section!r}) is already taken or not "
+                              f"a valid name")
+        out[m.name] = m
+        sections.add(m.section)
+    return types.MappingProxyType(out)
 
 
 def members(name: str) -> tuple[str, ...]:

@@ -20,7 +20,8 @@ from replay.logs.frame import Frame
 from replay.logs.reader import LogReader
 from replay.pipeline import config as cfg
 from replay.pipeline.methods import registry, suspect_params
-from replay.pipeline.stages import Zone, bin_zone, run_methods
+from replay.pipeline.stages import bin_zone, run_methods
+from replay.pipeline.zone import Zone
 from zcut import (
     Intrinsics,
     cluster_stage,

@@ -10,7 +10,8 @@ import pytest
 
 from replay.pipeline.bin_model import build_bin_model
 from replay.pipeline.config import PipelineConfig
-from replay.pipeline.stages import STAGES, run_frame, sor_region
+from replay.pipeline.stages import STAGES, run_frame
+from replay.pipeline.zone import sor_region
 from zcut import sor_outliers
 from zcut.cuts import zcut_outliers
 from zcut.metrics import relative_metrics
@@ -179,7 +180,7 @@ def test_a_moved_bin_is_registered_afresh(model, config):
 
 @pytest.mark.parametrize("zone_kind", ["blob", "scattered", "corner", "empty"])
 def test_sor_on_the_zone_bounding_box_equals_sor_on_the_masked_frame(zone_kind):
-    from replay.pipeline.stages import _sor_on_zone
+    from replay.pipeline.zone import _sor_on_zone
 
     rng = np.random.default_rng(8)
     h, w = 90, 120
