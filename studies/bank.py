@@ -3,7 +3,7 @@ SOR's, and the ranking per part kind (docs/filters.md, "The bank in a sweep").
 
 Axes are given as ``--grid SECTION.FIELD=LIST`` (``--grid radius.radius_mm=1,2,3 --grid
 radius.min_points=4,8``), or ``--grid SECTION=default`` for the filter's default axes
-(:data:`DEFAULT_AXES`). An axis not given holds the config's value. Every filter the config's
+(:func:`default_axes`, from each filter's registry entry). An axis not given holds the config's value. Every filter the config's
 ``methods`` names (other than ``zcut`` and ``sor``, swept by their own axes) is run at every point of
 the product of its axes, on the same zone the replay gives it (:func:`replay.pipeline.methods`), and a
 union ``a+b`` of the methods list is scored at the config's own parameters of its members.
@@ -26,40 +26,45 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from replay.errors import ConfigError
+from studies.scoring import SOR_COLUMNS, ZCUT_COLUMNS, Counts, score
 
 if TYPE_CHECKING:
     from annotate.truth import FrameTruth
     from replay.logs.frame import Frame
     from replay.pipeline.config import PipelineConfig
-    from replay.pipeline.stages import Zone
+    from replay.pipeline.zone import Zone
 
-#: Each filter's default axes (``--grid NAME=default``): a few values around the defaults of
-#: ``zcut.params``, from a light to a strong filter.
-DEFAULT_AXES: dict[str, dict[str, tuple[float, ...]]] = {
-    "radius": {"radius_mm": (1.0, 2.0, 4.0), "min_points": (2, 4, 8, 16)},
-    "cluster": {"max_neighbour_mm": (1.0, 3.0, 6.0), "min_area_mm2": (10.0, 50.0, 200.0)},
-    "speckle": {"max_diff_mm": (0.5, 2.0, 5.0), "max_size_px": (25, 100, 400)},
-    "window": {"min_inliers": (1, 3, 5), "rel_tolerance": (0.001, 0.005, 0.02)},
-    "mixed_pixel": {"min_angle_deg": (2.0, 5.0, 8.0, 12.0, 20.0)},
-    "suspects": {},
-}
+def default_axes() -> dict[str, dict[str, tuple[float, ...]]]:
+    """Each filter's default axes (``--grid NAME=default``), as its registry entry declares them
+    (:attr:`replay.pipeline.methods.Method.axes`): a few values around the defaults of
+    ``zcut.params``, from a light to a strong filter; ``{}`` for a filter that declares none."""
+    from replay.pipeline.methods import registry
+
+    return {m.section: dict(m.axes) for m in registry().values() if m.section in bank_sections()}
+
+
+def __getattr__(name: str) -> Any:
+    """``DEFAULT_AXES``: a view of the registry (:func:`default_axes`)."""
+    if name == "DEFAULT_AXES":
+        return default_axes()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def bank_sections() -> tuple[str, ...]:
-    from replay.pipeline.config import BANK_SECTIONS
+    from replay.pipeline.config import bank_sections
 
-    return BANK_SECTIONS
+    return bank_sections()
 
 
 def _field_types(section: str) -> dict[str, type]:
-    from replay.pipeline.config import STAGE_SECTIONS
+    from replay.pipeline.config import stage_sections
 
-    cls = STAGE_SECTIONS[section]
+    cls = stage_sections()[section]
     defaults = cls()
     return {f.name: type(getattr(defaults, f.name)) for f in dataclasses.fields(cls)}
 
@@ -84,14 +89,15 @@ def parse_grid_options(items: Sequence[str] | None, *,
         if not eq or not values.strip():
             raise ConfigError(f"--grid {item!r}: expected SECTION.FIELD=LIST or SECTION=default")
         section, dot, fld = name.partition(".")
-        if section not in bank_sections():
-            raise ConfigError(f"--grid {item!r}: unknown section {section!r} (filters: {', '.join(bank_sections())}; "
+        known = bank_sections()
+        if section not in known:
+            raise ConfigError(f"--grid {item!r}: unknown section {section!r} (filters: {', '.join(known)}; "
                               "the z-cut and SOR have --step/--max-depth/--rho/--sor-k/--sor-std)")
         axes = out.setdefault(section, {})
         if not dot:
             if values.strip() != "default":
                 raise ConfigError(f"--grid {item!r}: expected {section}.FIELD=LIST or {section}=default")
-            for f, v in DEFAULT_AXES[section].items():
+            for f, v in default_axes().get(section, {}).items():
                 axes.setdefault(f, v)
             continue
         types = _field_types(section)
@@ -116,10 +122,12 @@ def make_bank_grid(axes: Mapping[str, Mapping[str, Sequence[float]]], config: Pi
         A grid for a filter the methods do not name; a grid point its params class refuses (one line
         naming ``section.field`` and the value).
     """
-    from replay.pipeline.config import STAGE_SECTIONS, _config_error
+    from replay.pipeline.config import _config_error, stage_sections
     from zcut.errors import ParameterError
 
-    base = [m for m in config.base_methods if m in bank_sections()]
+    known = bank_sections()
+    classes = stage_sections()
+    base = [m for m in config.base_methods if m in known]
     for section in axes:
         if section not in base:
             raise ConfigError(f"--grid {section}.*: {section} is not among the methods ({', '.join(config.methods)}): "
@@ -134,7 +142,7 @@ def make_bank_grid(axes: Mapping[str, Mapping[str, Sequence[float]]], config: Pi
         for combo in itertools.product(*values):
             d = dict(zip(names, combo))
             try:
-                p = STAGE_SECTIONS[m](**d)
+                p = classes[m](**d)
             except ParameterError as e:
                 raise _config_error(e, "--grid") from None
             sets.append({k: getattr(p, k) for k in names if getattr(p, k) is not None})
@@ -179,11 +187,8 @@ def bank_rows(row: Callable[..., dict[str, Any]], frame: Frame, zone: Zone, conf
     own: dict[str, np.ndarray] = {}
 
     def counts(pred: np.ndarray) -> dict[str, Any]:
-        p = pred & scored
-        tp = int(np.count_nonzero(p & lab))
-        ktp, kn = _kind_counts(p, truth.kind, lab)
-        return {"tp": tp, "fp": int(np.count_nonzero(p)) - tp, "fn": int(np.count_nonzero(lab)) - tp,
-                "n_pred": int(np.count_nonzero(pred)), "kind_tp": ktp, "kind_n": kn}
+        ktp, kn = _kind_counts(pred & scored, truth.kind, lab)
+        return {**Counts.of(pred, L, scored).columns(), "kind_tp": ktp, "kind_n": kn}
 
     if grid or unions_of(config):  # the z-cut's and SOR's time (and masks) at the config's own point
         for m in ("zcut", "sor"):
@@ -276,8 +281,6 @@ def _r(a: int, b: int) -> float | None:
 
 
 def _set_params(method: str, cols: Mapping[str, list[Any]], i: int) -> dict[str, Any]:
-    from studies.sweep import SOR_COLUMNS, ZCUT_COLUMNS
-
     p = cols.get("params", [None] * (i + 1))[i]
     if p is not None:
         return dict(json.loads(p))
@@ -354,10 +357,8 @@ def ranking(table: Any, objective: tuple[str, float | None]) -> dict[str, Any]:
 
 
 def _score(s: BankSet, objective: tuple[str, float | None]) -> float:
-    """:func:`studies.sweep.score` of a bank's set (it reads precision, recall and F1 only)."""
-    from studies.sweep import score
-
-    return score(cast(Any, s), objective)
+    """:func:`studies.scoring.score` of a bank's set (it reads precision, recall and F1 only)."""
+    return score(s, objective)
 
 
 def _finite(v: float) -> float:

@@ -3,7 +3,7 @@
 Speed comes from reuse, not brute force. Per frame, the bin stages (bin mask, registration, removal)
 run once. Per frame and Δd, one component tree (:func:`zcut.zcut_tree`) answers every (d_max, μ_thr)
 pair, and scores them without building a mask. Per frame, k and judged region, one d̄ computation
-answers every std_ratio (:func:`replay.pipeline.stages.sor_masks_on_zone`). The counts at any grid
+answers every std_ratio (:func:`replay.pipeline.zone.sor_masks_on_zone`). The counts at any grid
 point equal those of ``zcut replay`` with the same parameters (the tests check it).
 
 Rows (``sweep.parquet``): one per log × frame × parameter set × method. A z-cut row's parameters
@@ -23,6 +23,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from studies.grid import Grid
+from studies.scoring import (  # noqa: F401 - OBJECTIVES, parse_objective, score: moved, see studies/scoring.py
+    BANK_COLUMNS,
+    COUNT_COLUMNS,
+    OBJECTIVES,
+    SOR_COLUMNS,
+    ZCUT_COLUMNS,
+    Counts,
+    parse_objective,
+    score,
+)
 from studies.summary import Overlap, ParamSet, RatioPair, Sensitivities, Tuned, finite_or_none, intervals
 from studies.work import Job, UnitResult, run_unit
 
@@ -31,17 +41,10 @@ if TYPE_CHECKING:
     from replay.logs.frame import Frame
     from replay.pipeline.config import PipelineConfig
     from replay.pipeline.session import ReplaySession
-    from replay.pipeline.stages import Zone
+    from replay.pipeline.zone import Zone
     from studies.units import WorkUnit
     from studies.validate import FrameCounts, Validation
     from studies.work import TruthSource
-
-ZCUT_COLUMNS = ("step_mm", "max_depth_mm", "rho_thr", "max_area_px")
-SOR_COLUMNS = ("sor_k", "sor_std_ratio")
-#: Columns of the filter bank's rows (``studies.bank``), None on the z-cut's and SOR's except
-#: ``seconds`` and ``part`` when the sweep has a bank.
-BANK_COLUMNS = ("params", "seconds", "part", "kind_tp", "kind_n")
-
 
 def grid_of(job: Job) -> Grid:
     g = job.extra["grid"]
@@ -56,7 +59,7 @@ def grid_dict(grid: Grid) -> dict[str, Any]:
 def _row(unit: WorkUnit, frame: Frame, method: str, **kw: Any) -> dict[str, Any]:
     out: dict[str, Any] = {"log": Path(unit.log).name, "log_sha256": unit.sha256, "frame": frame.index,
            "stamp_ns": frame.stamp_ns, "method": method}
-    for c in ZCUT_COLUMNS + SOR_COLUMNS + ("tp", "fp", "fn", "n_pred", "n_both", "n_sor_only", "n_zcut_only"):
+    for c in ZCUT_COLUMNS + SOR_COLUMNS + COUNT_COLUMNS:
         out[c] = kw.get(c)
     for c in BANK_COLUMNS:  # the filter bank's (studies.bank)
         out[c] = kw.get(c)
@@ -67,7 +70,7 @@ def sweep_frame(unit: WorkUnit, frame: Frame, zone: Zone, config: PipelineConfig
                 region: np.ndarray, bank: dict[str, list[dict[str, Any]]] | None = None) -> list[dict[str, Any]]:
     """Every grid point of one frame (see the module docstring); ``bank``: the filter bank's sets
     (:func:`studies.bank.make_bank_grid`)."""
-    from replay.pipeline.stages import sor_masks_on_zone, sor_region
+    from replay.pipeline.zone import sor_masks_on_zone, sor_region
     from zcut import zcut_tree
 
     rows: list[dict[str, Any]] = []
@@ -89,12 +92,8 @@ def sweep_frame(unit: WorkUnit, frame: Frame, zone: Zone, config: PipelineConfig
                                                convention=config.sor.convention, std_ratios=grid.sor_stds)
         return sor_cache[key]
 
-    def counts(pred: np.ndarray) -> dict[str, int]:
-        p = pred & S
-        lab = L & S
-        tp = int(np.count_nonzero(p & lab))
-        return {"tp": tp, "fp": int(np.count_nonzero(p)) - tp, "fn": int(np.count_nonzero(lab)) - tp,
-                "n_pred": int(np.count_nonzero(pred))}
+    def counts(pred: np.ndarray) -> dict[str, int | None]:
+        return Counts.of(pred, L, S).columns()
 
     k0, std0 = config.sor.k, config.sor.std_ratio
     with_sor = config.sor.enabled and "sor" in config.base_methods  # SOR as the replay runs it, or not at all
@@ -117,10 +116,11 @@ def sweep_frame(unit: WorkUnit, frame: Frame, zone: Zone, config: PipelineConfig
             n_sor = int(np.count_nonzero(s_ref))
             for j, (rho, area) in enumerate(zip(rhos, areas)):
                 both = int(ov["tp"][0, j])
-                rows.append(_row(unit, frame, "zcut", step_mm=step, max_depth_mm=depth, rho_thr=rho, max_area_px=area,
-                                 tp=int(c["tp"][i, j]), fp=int(c["fp"][i, j]), fn=int(c["fn"][i, j]),
+                counted = Counts(tp=int(c["tp"][i, j]), fp=int(c["fp"][i, j]), fn=int(c["fn"][i, j]),
                                  n_pred=int(c["n_pred"][i, j]), n_both=both, n_sor_only=n_sor - both,
-                                 n_zcut_only=int(ov["fp"][0, j])))
+                                 n_zcut_only=int(ov["fp"][0, j]))
+                rows.append(_row(unit, frame, "zcut", step_mm=step, max_depth_mm=depth, rho_thr=rho, max_area_px=area,
+                                 **counted.columns()))
             if with_sor and (top or (step == grid.steps[0] and i == 0)):
                 for k in grid.sor_ks:
                     masks = sor_masks(k, judged)
@@ -233,39 +233,6 @@ def pooled_sets(table: Any) -> list[ParamSet]:
 
 def _r(a: int, b: int) -> float | None:
     return a / b if b else None
-
-
-OBJECTIVES = ("f1", "recall@precision", "precision@recall")
-
-
-def parse_objective(text: str) -> tuple[str, float | None]:
-    """``f1``, ``recall@precision=0.9`` or ``precision@recall=0.8`` -> (kind, floor)."""
-    from replay.errors import ConfigError
-
-    t = text.strip()
-    if t == "f1":
-        return "f1", None
-    for kind in ("recall@precision", "precision@recall"):
-        if t.startswith(kind + "="):
-            try:
-                v = float(t.split("=", 1)[1])
-            except ValueError:
-                break
-            if not 0 < v <= 1:
-                raise ConfigError(f"--objective {text!r}: the floor must be in (0, 1]")
-            return kind, v
-    raise ConfigError(f"--objective must be f1, recall@precision=P or precision@recall=R, got {text!r}")
-
-
-def score(e: ParamSet, objective: tuple[str, float | None]) -> float:
-    """The objective's value of a set (-inf when it misses the floor or is undefined)."""
-    kind, floor = objective
-    p, r, f = e.precision, e.recall, e.f1
-    if kind == "f1":
-        return f if f is not None else -math.inf
-    if kind == "recall@precision":
-        return r if (p is not None and r is not None and floor is not None and p >= floor) else -math.inf
-    return p if (p is not None and r is not None and floor is not None and r >= floor) else -math.inf
 
 
 def section_5_4_ranges(part: str | None) -> dict[str, tuple[float, float]] | None:
