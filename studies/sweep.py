@@ -23,16 +23,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from studies.grid import Grid
-from studies.scoring import (  # noqa: F401 - OBJECTIVES, parse_objective, score: moved, see studies/scoring.py
-    BANK_COLUMNS,
-    COUNT_COLUMNS,
-    OBJECTIVES,
-    SOR_COLUMNS,
-    ZCUT_COLUMNS,
-    Counts,
-    parse_objective,
-    score,
-)
+from studies.scoring import BANK_COLUMNS, COUNT_COLUMNS, SOR_COLUMNS, ZCUT_COLUMNS, Counts
+from studies.scoring import OBJECTIVES as OBJECTIVES  # moved: see studies/scoring.py
+from studies.scoring import parse_objective as parse_objective  # moved: see studies/scoring.py
+from studies.scoring import score as score  # moved: see studies/scoring.py
 from studies.summary import Overlap, ParamSet, RatioPair, Sensitivities, Tuned, finite_or_none, intervals
 from studies.work import Job, UnitResult, run_unit
 
