@@ -48,13 +48,6 @@ def default_axes() -> dict[str, dict[str, tuple[float, ...]]]:
     return {m.section: dict(m.axes) for m in registry().values() if m.section in bank_sections()}
 
 
-def __getattr__(name: str) -> Any:
-    """``DEFAULT_AXES``: a view of the registry (:func:`default_axes`)."""
-    if name == "DEFAULT_AXES":
-        return default_axes()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 def bank_sections() -> tuple[str, ...]:
     from replay.pipeline.config import bank_sections
 

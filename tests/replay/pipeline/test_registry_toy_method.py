@@ -46,8 +46,12 @@ def _run_toy(frame, zone, config) -> MethodOutput:
         return MethodOutput(zone.zone & (h >= np.nanmax(h) - config.toy.band_mm))
 
 
+def _warm_toy() -> None:
+    """The toy compiles nothing; a filter with numba kernels runs them here on tiny inputs."""
+
+
 #: The one place the toy filter is declared.
-TOY = Method(name="toy", params=ToyParams, run=_run_toy, axes={"band_mm": (0.5, 1.0, 2.0)},
+TOY = Method(name="toy", params=ToyParams, run=_run_toy, axes={"band_mm": (0.5, 1.0, 2.0)}, warmup=_warm_toy,
              summary="toy: the zone's top band (a test's filter)")
 METHODS = "zcut,sor,toy"
 
@@ -71,8 +75,13 @@ def test_without_the_plug_in_the_toy_is_unknown(log, capsys):
     assert rc == 1 and err.strip().startswith("error:") and "unknown method 'toy'" in err
 
 
-def test_the_config_holds_its_section(toy):
+def test_the_config_its_axes_and_its_warm_up(toy):
+    from replay.warmup import groups
+    from studies.bank import default_axes
+
     assert registry()["toy"] is TOY
+    assert default_axes()["toy"] == {"band_mm": (0.5, 1.0, 2.0)}
+    assert any("toy" in what for what, _ in groups())
     assert "toy" in cfg.section_names() and cfg.stage_sections()["toy"] is ToyParams
     assert "toy" in cfg.BANK_SECTIONS
     c = cfg.resolve(cfg.LogFacts(None, None, None, (8, 9)), cli=cfg.cli_layer(methods=METHODS)).config
