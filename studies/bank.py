@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from replay.errors import ConfigError
-from studies.scoring import SOR_COLUMNS, ZCUT_COLUMNS, Counts, score
+from studies.scoring import CONFUSION_COLUMNS, SOR_COLUMNS, ZCUT_COLUMNS, Counts, score
 
 if TYPE_CHECKING:
     from annotate.truth import FrameTruth
@@ -308,9 +308,9 @@ def pooled_bank_sets(table: Any, *, by_part: bool) -> list[BankSet]:
         groups.setdefault((cols["method"][i], json.dumps(params, sort_keys=True), part), []).append(i)
     out = []
     for (method, ptext, part), idx in groups.items():
-        arr = {c: np.array([[cols[c][i] for i in idx]], dtype=np.int64) for c in ("tp", "fp", "fn")}
+        arr = {c: np.array([[cols[c][i] for i in idx]], dtype=np.int64) for c in CONFUSION_COLUMNS}
         ci = pooled_interval_many(arr["tp"], arr["fp"], arr["fn"])
-        T, F, N = (int(arr[c].sum()) for c in ("tp", "fp", "fn"))
+        T, F, N = (int(arr[c].sum()) for c in CONFUSION_COLUMNS)
         secs = [cols["seconds"][i] for i in idx if "seconds" in have and cols["seconds"][i] is not None]
         ktp: dict[str, int] = {}
         kn: dict[str, int] = {}

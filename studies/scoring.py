@@ -66,6 +66,8 @@ class Counts:
 
 #: The count columns of ``sweep.parquet``, in the table's order: :class:`Counts`' fields.
 COUNT_COLUMNS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Counts))
+#: The counts a set's precision, recall and F1 are pooled from: ``tp``, ``fp``, ``fn``.
+CONFUSION_COLUMNS: tuple[str, ...] = COUNT_COLUMNS[:3]
 
 OBJECTIVES = ("f1", "recall@precision", "precision@recall")
 

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from studies.grid import Grid
-from studies.scoring import BANK_COLUMNS, COUNT_COLUMNS, SOR_COLUMNS, ZCUT_COLUMNS, Counts
+from studies.scoring import BANK_COLUMNS, CONFUSION_COLUMNS, COUNT_COLUMNS, SOR_COLUMNS, ZCUT_COLUMNS, Counts
 from studies.scoring import OBJECTIVES as OBJECTIVES  # moved: see studies/scoring.py
 from studies.scoring import parse_objective as parse_objective  # moved: see studies/scoring.py
 from studies.scoring import score as score  # moved: see studies/scoring.py
@@ -205,10 +205,10 @@ def pooled_sets(table: Any) -> list[ParamSet]:
         by_frames.setdefault(len(idx), []).append((key, idx))
     for n_frames, items in by_frames.items():
         arr = {c: np.array([[cols[c][i] for i in idx] for _, idx in items], dtype=np.int64)
-               for c in ("tp", "fp", "fn")}
+               for c in CONFUSION_COLUMNS}
         cis = pooled_interval_many(arr["tp"], arr["fp"], arr["fn"])
         for j, (key, idx) in enumerate(items):
-            T, F, N = (int(arr[c][j].sum()) for c in ("tp", "fp", "fn"))
+            T, F, N = (int(arr[c][j].sum()) for c in CONFUSION_COLUMNS)
             overlap = None
             if key[0] == "zcut":
                 both = sum(cols["n_both"][i] for i in idx)
