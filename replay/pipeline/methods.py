@@ -353,11 +353,18 @@ def registry() -> Mapping[str, Method]:
     """Every method zcut knows, by name (a read-only mapping): :data:`BUILTIN`, then the plug-ins
     :data:`PLUGINS_ENV` names (read on each call, so that a test's toy method reaches every command).
 
-    Raises
-    ------
-    ConfigError
-        A plug-in that does not load, or whose name or section is already taken.
+    A plug-in that does not load is left out here (the parser's help lists the methods before any
+    error can be reported as one line); :func:`parse_methods`, which every config runs, refuses it.
     """
+    try:
+        return _registry()
+    except ConfigError:
+        return _BUILTIN_MAP
+
+
+def _registry() -> Mapping[str, Method]:
+    """:func:`registry`, raising :class:`ConfigError` for a plug-in that does not load or whose name
+    or section is already taken."""
     spec = os.environ.get(PLUGINS_ENV, "")
     if not spec.strip():
         return _BUILTIN_MAP
@@ -390,7 +397,8 @@ def parse_methods(value: str | Iterable[str], *, source: str = "methods") -> tup
     Raises
     ------
     ConfigError
-        An empty list, an unknown name (naming the known ones), an empty member (``zcut+``).
+        An empty list, an unknown name (naming the known ones), an empty member (``zcut+``); a
+        plug-in of :data:`PLUGINS_ENV` that does not load.
     """
     if isinstance(value, str):
         items = [v.strip() for v in value.split(",")]
@@ -398,7 +406,7 @@ def parse_methods(value: str | Iterable[str], *, source: str = "methods") -> tup
         items = list(value)
     else:
         raise ConfigError(f"{source} must be a list of method names, got {value!r}")
-    known = registry()
+    known = _registry()  # a plug-in that does not load: one line here, in every command
     out: list[str] = []
     for item in items:
         if not isinstance(item, str) or not item.strip():

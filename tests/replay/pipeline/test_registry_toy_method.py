@@ -153,3 +153,15 @@ def test_the_page_lists_it(toy, log):
         results.close()
     header, _ = parse_bundle(prepare_frame(frame, result).served.bundle)
     assert "toy" in header["methods"]
+
+
+@pytest.mark.parametrize("spec, match", [("no_such_module_zcut:TOY", "cannot load 'no_such_module_zcut:TOY'"),
+                                         ("replay.pipeline.methods:BUILTIN", "method 'zcut' .* already taken"),
+                                         ("replay.pipeline.methods", "expected module:NAME")])
+def test_a_bad_plug_in_is_one_line(log, monkeypatch, capsys, spec, match):
+    import re
+
+    monkeypatch.setenv(PLUGINS_ENV, spec)
+    rc, _, err = run_cli(capsys, "replay", log)
+    assert rc == 1 and len(err.strip().splitlines()) == 1 and re.search(match, err), err
+    assert err.startswith(f"error: {PLUGINS_ENV}: ")
