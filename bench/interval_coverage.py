@@ -7,7 +7,7 @@ population and prints an interval; this benchmark measures how often such interv
 population's figure.
 
 1. **Populations** (``generate``). For each part kind and each seed set, ``zcut synth`` logs of
-   independent frames (every frame has its own generator state, ``replay.synth.frame_rng``), one bin
+   independent frames (every frame has its own generator state, ``replay.synth.synthesize.frame_rng``), one bin
    model from five synthetic empty-bin scans (``zcut bin-model``), ``zcut batch`` with the default
    config (the paper's nominal parameters): TP, FP, FN of every method per frame over the zone. The
    counts are cached in ``WORK/counts_KIND_SET.npz`` (the logs are deleted once counted), so reruns
@@ -674,7 +674,7 @@ def markdown(rows, args, work: Path) -> str:
         + "".join(f"; {k} {v[0]} frames" for k, v in other_sizes.items())
         + f") and `heldout` (seeds {SEED_SETS['heldout']}+); this table is the `{args.set}` set. "
         "Log seeds: `SEED_SET + 1000·kind index + log`, 8 frames per log; "
-        "every frame's generator is seeded by (log seed, frame index) (`replay.synth.frame_rng`), so the two sets share no "
+        "every frame's generator is seeded by (log seed, frame index) (`replay.synth.synthesize.frame_rng`), so the two sets share no "
         "frame.",
         f"- **Samples**: {args.draws} samples of n = 3, 6, 12, 24 frames per kind, filter and n, drawn "
         + ("without replacement" if args.without_replacement else
