@@ -38,13 +38,19 @@ CONFIG_KEYS = {"zcut.max_depth", "zcut.max_depth_mm"}
 FOREIGN_PATHS = {"tests/testdata/test.mcap"}
 
 #: Cited names that exist only once the other branches of issue 34 are merged (the registry's zone
-#: module, the studies' count columns, every command in cli/commands/, the studies and accuracy
-#: as library calls, zcut/suspects/ as a package). Missing today, they are not failures; once
+#: module and default axes, the pipeline's options, the log index, the studies' count columns, every
+#: command in cli/commands/, the studies and accuracy as library calls, zcut/suspects/ as a package,
+#: the page's group budget). Missing today, they are not failures; once
 #: present, ``test_pending_names_are_still_pending`` asks for them to be taken off this list, so
 #: that after the merge the list is empty and every name is checked.
 PENDING = {
     "replay/pipeline/zone.py",
+    "replay/options.py",
+    "replay/logs/index.py",
     "studies/scoring.py",
+    "studies/sweep_run.py",
+    "studies.bank.default_axes",
+    "annotate/budget.py",
     "cli/commands/",
     "tests/cli/test_record_stereo.py",
     "zcut/suspects/",
