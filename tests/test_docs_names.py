@@ -47,6 +47,7 @@ PENDING = {
     "replay/pipeline/zone.py",
     "replay/options.py",
     "replay/logs/index.py",
+    "replay.logs.poses.true_poses",
     "studies/scoring.py",
     "studies/sweep_run.py",
     "studies.bank.default_axes",
