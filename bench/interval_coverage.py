@@ -209,18 +209,6 @@ def bm_df(den, power: int = 1):
         return np.where(np.isfinite(tr) & (tr2 > 0), tr * tr / tr2, np.nan)
 
 
-def _bm_df_matrix(den, power: int = 1):
-    """:func:`bm_df` from the matrix A itself (a check of the sums)."""
-    sd = den.sum(-1, keepdims=True)
-    h = den / sd
-    c = h / (1 - h) ** power
-    u = np.sqrt(h)
-    n = den.shape[-1]
-    M = np.eye(n) - u[..., :, None] * u[..., None, :]
-    A = M @ (c[..., :, None] * M)
-    return np.trace(A, axis1=-2, axis2=-1) ** 2 / (A * A).sum((-1, -2))
-
-
 def bell_mccaffrey(num, den, *, level, scale="ratio", hc="hc2", df_rule="bm", df_scale=1.0):
     """:func:`linearised` with the hc2 (or hc3) variance and a t quantile of :func:`bm_df` degrees of
     freedom (``df_rule = "bm"``), or of the smaller of that and the effective number of frames of the
