@@ -29,7 +29,7 @@ only. Nothing here touches the store's labels.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -392,10 +392,6 @@ def proposals(model: Model | None, features: np.ndarray, *, part: str | None, ga
                       "held_out": model.held_out.as_dict(), "frames": len(model.frames),
                       "confident": CONFIDENT, "gate": gate, "backend": model.backend},
             "p": [round(float(v), 4) for v in p], "prefill": why is None, "why_not": why}
-
-
-def frame_keys(frames: Iterable[tuple[str, int]]) -> set[tuple[str, int]]:
-    return {(str(t), int(s)) for t, s in frames}
 
 
 # --------------------------------------------------------------------------- the page's trainer

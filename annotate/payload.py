@@ -551,33 +551,6 @@ def _z_levels(z_ids: np.ndarray, n_z: int, cut) -> np.ndarray:
     return out
 
 
-def _listed_pixels(z_ids: np.ndarray, s_ids: np.ndarray, table: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels of the candidates that frame counts use (z-cut, and SOR of >= SOR_DEFAULT_MIN_PX px),
-    grouped by candidate: (flat indices, starts)."""
-    src = table[:, COLUMN["source"]].astype(int)
-    ids = table[:, COLUMN["id"]].astype(np.int64)
-    n = table[:, COLUMN["n"]]
-    pieces = []
-    for s, id_img in ((SOURCE_ZCUT, z_ids), (SOURCE_SOR, s_ids)):
-        want = ids[(src == s) & ((s == SOURCE_ZCUT) | (n >= SOR_DEFAULT_MIN_PX))]
-        if want.size == 0:
-            continue
-        flat = id_img.ravel()
-        pix = np.flatnonzero(flat)
-        lab = flat[pix].astype(np.int64)
-        lut = np.full(int(lab.max(initial=0)) + 1, -1, np.int64)
-        lut[want] = np.arange(want.size)
-        rank = lut[lab]
-        keep = rank >= 0
-        order = np.argsort(rank[keep], kind="stable")
-        pieces.append((pix[keep][order], np.bincount(rank[keep], minlength=want.size)))
-    if not pieces:
-        return np.zeros(0, np.int32), np.zeros(1, np.int64)
-    pixels = np.concatenate([p for p, _ in pieces]).astype(np.int32)
-    sizes = np.concatenate([c for _, c in pieces])
-    return pixels, np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
-
-
 def prepare_frame(frame, result, *, suspect_params: SuspectParams | None = None, part: str | None = None
                   ) -> PreparedFrame:
     """Build the page's view of a frame from the frame and the pipeline's result for it.

@@ -655,13 +655,6 @@ class LabelStore:
         )
         return [FrameRecord(*r) for r in rows]
 
-    def frames_by_stamp(self, *, topic: str, stamp_ns: int) -> list[FrameRecord]:
-        """Frames of any log with this (topic, stamp) — to match a results file to its source log."""
-        rows = self._query(
-            f"SELECT {self._FRAME_COLS} FROM frames WHERE topic = ? AND stamp_ns = ? ORDER BY id", (topic, int(stamp_ns))
-        )
-        return [FrameRecord(*r) for r in rows]
-
     def frames_at_stamp(self, stamp_ns: int) -> list[FrameRecord]:
         """Frames of any log and topic with this stamp (a results file re-publishes its source's stamps)."""
         rows = self._query(f"SELECT {self._FRAME_COLS} FROM frames WHERE stamp_ns = ? ORDER BY id", (int(stamp_ns),))

@@ -7,7 +7,7 @@ population and prints an interval; this benchmark measures how often such interv
 population's figure.
 
 1. **Populations** (``generate``). For each part kind and each seed set, ``zcut synth`` logs of
-   independent frames (every frame has its own generator state, ``replay.synth.frame_rng``), one bin
+   independent frames (every frame has its own generator state, ``replay.synth.synthesize.frame_rng``), one bin
    model from five synthetic empty-bin scans (``zcut bin-model``), ``zcut batch`` with the default
    config (the paper's nominal parameters): TP, FP, FN of every method per frame over the zone. The
    counts are cached in ``WORK/counts_KIND_SET.npz`` (the logs are deleted once counted), so reruns
@@ -207,18 +207,6 @@ def bm_df(den, power: int = 1):
         diag = c + h * (s - 2 * c)
         tr2 = (diag * diag).sum(-1) + 2 * m2 - s[..., 0] ** 2 - (h * h * (s - 2 * c) ** 2).sum(-1)
         return np.where(np.isfinite(tr) & (tr2 > 0), tr * tr / tr2, np.nan)
-
-
-def _bm_df_matrix(den, power: int = 1):
-    """:func:`bm_df` from the matrix A itself (a check of the sums)."""
-    sd = den.sum(-1, keepdims=True)
-    h = den / sd
-    c = h / (1 - h) ** power
-    u = np.sqrt(h)
-    n = den.shape[-1]
-    M = np.eye(n) - u[..., :, None] * u[..., None, :]
-    A = M @ (c[..., :, None] * M)
-    return np.trace(A, axis1=-2, axis2=-1) ** 2 / (A * A).sum((-1, -2))
 
 
 def bell_mccaffrey(num, den, *, level, scale="ratio", hc="hc2", df_rule="bm", df_scale=1.0):
@@ -674,7 +662,7 @@ def markdown(rows, args, work: Path) -> str:
         + "".join(f"; {k} {v[0]} frames" for k, v in other_sizes.items())
         + f") and `heldout` (seeds {SEED_SETS['heldout']}+); this table is the `{args.set}` set. "
         "Log seeds: `SEED_SET + 1000·kind index + log`, 8 frames per log; "
-        "every frame's generator is seeded by (log seed, frame index) (`replay.synth.frame_rng`), so the two sets share no "
+        "every frame's generator is seeded by (log seed, frame index) (`replay.synth.synthesize.frame_rng`), so the two sets share no "
         "frame.",
         f"- **Samples**: {args.draws} samples of n = 3, 6, 12, 24 frames per kind, filter and n, drawn "
         + ("without replacement" if args.without_replacement else

@@ -30,8 +30,6 @@ EXIT_USER_ERROR = 1
 EXIT_DATA_LOSS = 3
 #: 128 + the signal, as a shell reports a process ended by it
 EXIT_SIGINT = 128 + signal.SIGINT
-EXIT_SIGTERM = 128 + signal.SIGTERM
-EXIT_SIGHUP = 128 + signal.SIGHUP
 
 #: the signals a command handles like Ctrl-C
 INTERRUPT_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)

@@ -57,8 +57,6 @@ if TYPE_CHECKING:
     from replay.pipeline.config import PipelineConfig, Resolved
     from zcut.paired import Counts
 
-#: What ``--a`` / ``--b`` may be.
-SIDE_KINDS = ("config", "method", "results")
 #: The bin stages' config sections: equal on both sides, they run once.
 BIN_SECTIONS = ("bin_mask", "registration", "removal")
 #: Per-pixel codes of the difference image (``diff/consequence`` in the recording, docs/compare.md).
@@ -152,10 +150,6 @@ class CompareResult:
     outputs: dict[str, str] = field(default_factory=dict)
     stage_runs: Counter[str] = field(default_factory=Counter)
     data_loss: bool = False
-
-    @property
-    def verdict_line(self) -> str:
-        return str(self.report["verdict"]["line"])
 
 
 # ------------------------------------------------------------------------------------- the engine

@@ -5,9 +5,13 @@ its notes), then gets every frame with its result (:meth:`FrameSink.write`) in f
 :meth:`FrameSink.close` (``completed=False`` when the replay failed: a file sink then leaves no
 output behind). :class:`NullSink` does nothing; :class:`RerunSink` logs every stage to Rerun (a
 file, a spawned viewer or a running one); :class:`ResultsSink` writes the docs/formats.md results MCAP.
-:class:`BackgroundSinks` runs a list of sinks in one worker thread, at most one frame behind the
-pipeline, so that writing frame k overlaps computing frame k + 1 (threading lives here and in the
-session's frame prefetcher, nowhere else).
+:class:`BackgroundSinks` runs a list of sinks in one worker thread (``zcut-sinks``), at most one
+frame behind the pipeline, so that writing frame k overlaps computing frame k + 1; closing a
+recording runs in a thread of its own (``zcut-rrd-close``) so that it never waits without bound.
+A replay's other threads: the session's frame reader and bin locator (``zcut-frame-reader``,
+``zcut-locate``, :mod:`replay.pipeline.session`), the MCAP scanner's chunk readers
+(``mcap-chunks``, :mod:`replay.logs.mcap_scan`) and SOR's kernels (``zcut-sor``, :mod:`zcut.sor`):
+six kinds in four files (docs/architecture.md, "Threads").
 
 File sinks write through :class:`replay.outputs.AtomicOutput` (a unique temporary name, renamed
 into place when complete) and write the resolved config beside their output

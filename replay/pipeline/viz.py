@@ -1,4 +1,5 @@
-"""Every pipeline stage in Rerun. The only module of zcut that imports ``rerun``.
+"""Every pipeline stage in Rerun. One of the two modules of zcut that import ``rerun`` (the other is
+:mod:`replay.pipeline.compare_viz`, the recording of ``zcut compare``; tests/test_layout.py lists both).
 
 An explicit :class:`rerun.RecordingStream` is passed in (no global recording). Entity paths:
 
