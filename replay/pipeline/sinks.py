@@ -40,10 +40,8 @@ from replay.pipeline.stages import FrameResult
 from zcut.bin_model import BinModel
 
 if TYPE_CHECKING:
-    import rerun as rr
-
     from replay.logs.writer import LogWriter
-    from replay.pipeline.viz import VizOptions
+    from replay.pipeline.viz import RecordingStream, VizOptions
 
 VIEWER_FLUSH_TIMEOUT_S = 10.0
 #: seconds Rerun's file writer may take to write the last frames of a recording (a writer that
@@ -191,14 +189,14 @@ class RrdFile:
         return OutputError(f"{self.path}: Rerun could not open the .rrd for writing ({_first_line(e)}); "
                            "nothing was left under its name")
 
-    def check(self, rec: rr.RecordingStream) -> None:
+    def check(self, rec: RecordingStream) -> None:
         """Stop at the first frame after Rerun's file writer failed (a full disk): it only logs the
         error, and the frames logged after it would pile up in memory."""
         problem = self._flush(rec, RRD_FRAME_FLUSH_S, slow_ok=True)
         if problem is not None:
             raise self._failure(problem)
 
-    def _flush(self, rec: rr.RecordingStream, timeout_s: float, *, slow_ok: bool = False) -> str | None:
+    def _flush(self, rec: RecordingStream, timeout_s: float, *, slow_ok: bool = False) -> str | None:
         """Flush the recording to its file within ``timeout_s``; what went wrong, or None.
 
         Rerun's flush says "timed out" both for a slow disk and for a writer that died on a full
@@ -230,7 +228,7 @@ class RrdFile:
         return OutputError(f"{self.path}: the .rrd could not be written completely (Rerun: {why}); nothing was "
                            "left under its name")
 
-    def close(self, rec: rr.RecordingStream, *, completed: bool) -> Path | None:
+    def close(self, rec: RecordingStream, *, completed: bool) -> Path | None:
         """Flush and close the recording (bounded), check it complete, then give it its name (returned;
         None when not ``completed``: the temporary is removed). Never leaves the temporary behind."""
         from replay.pipeline import viz
@@ -282,7 +280,7 @@ class RerunSink:
                  full_detail: bool = False) -> None:
         self.rrd = None if rrd is None else Path(rrd)
         self.spawn, self.connect, self.full_detail = spawn, connect, full_detail
-        self._rec: rr.RecordingStream | None = None
+        self._rec: RecordingStream | None = None
         self._file: RrdFile | None = None
         self._opts: VizOptions | None = None
         self._step = 0.0
@@ -334,7 +332,7 @@ class RerunSink:
         if done is not None:
             self._outputs["rrd"] = str(done)
 
-    def _close_viewer(self, rec: rr.RecordingStream) -> None:
+    def _close_viewer(self, rec: RecordingStream) -> None:
         # a viewer that is gone must not hang the replay
         try:
             rec.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)

@@ -54,6 +54,9 @@ from zcut.bin_model import BinModel
 if TYPE_CHECKING:
     import subprocess
 
+#: the recording a sink logs to, for the annotations of modules that do not import Rerun themselves
+RecordingStream = rr.RecordingStream
+
 OUTLIER_CLASSES = (
     (1, "z-cut only", (255, 140, 0)),
     (2, "SOR only", (30, 144, 255)),
