@@ -29,13 +29,27 @@ only. Nothing here touches the store's labels.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from annotate.groups import FEATURES
 from zcut.errors import ZcutError
+
+if TYPE_CHECKING:
+    import lightgbm as lgb
+    import xgboost as xgb
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    from annotate.catalogue import Catalogue
+    from annotate.payload import ServedFrame
+    from annotate.store import LabelStore, LogRecord, ModelRecord
+    from replay.logs.frame import Frame
+    from replay.pipeline.config import PipelineConfig
+    from replay.pipeline.session import ReplaySession
+    from replay.pipeline.stages import FrameResult
 
 #: Proposals at least this confident are pre-filled on the page (one input accepts them).
 CONFIDENT = 0.9
@@ -126,7 +140,19 @@ class TrainingSetBuilder:
 
 
 # --------------------------------------------------------------------------- backends
-def fit_booster(X: np.ndarray, y: np.ndarray, *, backend: str = BACKEND):
+class Predictor(Protocol):
+    """What scores groups: ``predict(X) -> p``, the outlier probability of each row of features."""
+
+    def predict(self, X: np.ndarray) -> np.ndarray: ...
+
+
+class Booster(Predictor, Protocol):
+    """A fitted classifier of a backend, which a store keeps as bytes."""
+
+    def dumps(self) -> bytes: ...
+
+
+def fit_booster(X: np.ndarray, y: np.ndarray, *, backend: str = BACKEND) -> Booster:
     """A fitted classifier of ``backend`` (``lightgbm``, ``xgboost``, ``hgb``) with ``predict(X) -> p``."""
     if backend == "lightgbm":
         import lightgbm as lgb
@@ -149,7 +175,7 @@ def fit_booster(X: np.ndarray, y: np.ndarray, *, backend: str = BACKEND):
 
 @dataclass
 class _Lgb:
-    booster: object
+    booster: lgb.Booster
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         return np.asarray(self.booster.predict(np.asarray(X, np.float32), num_threads=1), np.float64)
@@ -160,7 +186,7 @@ class _Lgb:
 
 @dataclass
 class _Xgb:
-    booster: object
+    booster: xgb.Booster
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         import xgboost as xgb
@@ -173,7 +199,7 @@ class _Xgb:
 
 @dataclass
 class _Hgb:
-    clf: object
+    clf: HistGradientBoostingClassifier
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         return np.asarray(self.clf.predict_proba(np.asarray(X, np.float32))[:, 1], np.float64)
@@ -182,7 +208,7 @@ class _Hgb:
         raise TrainingError("scikit-learn's models are stored only as pickles: zcut does not store them")
 
 
-def _single_class(y: np.ndarray):
+def _single_class(y: np.ndarray) -> Predictor:
     """A constant 'model' for a fold whose training frames hold one class only."""
     v = float(y[0]) if y.size else 0.5
 
@@ -214,7 +240,7 @@ class HeldOut:
     confident: int
     confident_accuracy: float
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, int | float | None]:
         def f(v: float) -> float | None:
             return None if not np.isfinite(v) else round(float(v), 4)
 
@@ -245,7 +271,7 @@ class Model:
         Counts the models a page trained (the page asks again when it changes).
     """
 
-    booster: object
+    booster: Booster
     part: str | None
     held_out: HeldOut
     frames: tuple[tuple[str, int], ...]
@@ -290,7 +316,7 @@ class Model:
         return (f"trained on {len(self.frames)} frame(s), {self.n_groups} groups ({self.n_outliers} outliers)"
                 f"{' of ' + self.part if self.part else ''}: {acc}")
 
-    def meta(self) -> dict:
+    def meta(self) -> dict[str, Any]:
         return {"features": list(self.features), "frames": [list(f) for f in self.frames],
                 "annotators": list(self.annotators), "n_groups": self.n_groups, "n_outliers": self.n_outliers,
                 "disagreements": self.disagreements, "held_out": self.held_out.as_dict()}
@@ -299,7 +325,7 @@ class Model:
         return self.booster.dumps()
 
 
-def load_model(record) -> Model:
+def load_model(record: ModelRecord) -> Model:
     """A :class:`Model` from a stored :class:`annotate.store.ModelRecord`.
 
     Raises
@@ -311,6 +337,7 @@ def load_model(record) -> Model:
     if tuple(meta.get("features", ())) != FEATURES:
         raise TrainingError(f"stored model {record.id} uses other features than this zcut: train it again "
                             "(zcut labels train)")
+    booster: Booster
     if record.backend == "lightgbm":
         import lightgbm as lgb
 
@@ -381,7 +408,7 @@ def train(ts: TrainingSet, *, part: str | None, log_sha256: str, backend: str = 
                  ts.disagreements, backend, version)
 
 
-def proposals(model: Model | None, features: np.ndarray, *, part: str | None, gate: float = GATE) -> dict:
+def proposals(model: Model | None, features: np.ndarray, *, part: str | None, gate: float = GATE) -> dict[str, Any]:
     """What the page shows for a frame's groups: ``{"model": {...} | None, "p": [...], "prefill": bool,
     "why_not": str | None}``."""
     if model is None:
@@ -416,7 +443,7 @@ class Trainer:
         The held-out agreement a model needs before its proposals are pre-filled (:data:`GATE`).
     """
 
-    def __init__(self, catalogue, store, log, *, part: str | None, debounce_s: float = 1.0,
+    def __init__(self, catalogue: Catalogue, store: LabelStore, log: LogRecord, *, part: str | None, debounce_s: float = 1.0,
                  gate: float = GATE) -> None:
         import threading
 
@@ -509,7 +536,7 @@ class Trainer:
                 return
             self.train_now()
 
-    def predictions(self, sf) -> np.ndarray | None:
+    def predictions(self, sf: ServedFrame) -> np.ndarray | None:
         """(n_groups,) outlier probabilities of a served frame's groups (None without a model)."""
         with self._lock:
             model = self.model
@@ -523,7 +550,7 @@ class Trainer:
             self._cache[key] = p
         return p
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         with self._lock:
             m = self.model
             return {"version": self.version if m is not None else 0, "training": self.training,
@@ -534,7 +561,7 @@ class Trainer:
 
 
 # --------------------------------------------------------------------------- offline: a log's labels
-def frame_groups(frame, result, *, config) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def frame_groups(frame: Frame, result: FrameResult, *, config: PipelineConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(features, pixels, starts, group ids) of one replayed frame's review groups, as the page builds them."""
     from annotate.groups import review_groups
     from zcut.params import SuspectParams
@@ -549,8 +576,9 @@ def frame_groups(frame, result, *, config) -> tuple[np.ndarray, np.ndarray, np.n
     return g.features, pix, starts, g.ids
 
 
-def training_set_of_log(session, store, log, *, annotators: Sequence[str] | None = None,
-                        progress=None) -> TrainingSet:
+def training_set_of_log(session: ReplaySession, store: LabelStore, log: LogRecord, *,
+                        annotators: Sequence[str] | None = None,
+                        progress: Callable[[int, int], object] | None = None) -> TrainingSet:
     """The labelled groups of a log: every frame some annotator labelled, replayed as the page would.
 
     Parameters
@@ -574,8 +602,8 @@ def training_set_of_log(session, store, log, *, annotators: Sequence[str] | None
             rec = store.frame(log, topic=frame.topic, stamp_ns=frame.stamp_ns)
             if rec is None:
                 continue
-            labs = [(a, store.label(rec, annotator=a)) for a in who]
-            labs = [(a, lab) for a, lab in labs if lab is not None]
+            found = [(a, store.label(rec, annotator=a)) for a in who]
+            labs = [(a, lab) for a, lab in found if lab is not None]
             if not labs:
                 continue
             feats, pix, starts, _ = frame_groups(frame, result, config=session.config)
@@ -588,11 +616,12 @@ def training_set_of_log(session, store, log, *, annotators: Sequence[str] | None
     return b.build()
 
 
-def learned_mask(model: Model, frame, result, *, config) -> np.ndarray:
+def learned_mask(model: Model, frame: Frame, result: FrameResult, *, config: PipelineConfig) -> np.ndarray:
     """(H, W) bool: the ``learned`` method's outliers on a frame — the pixels of the review groups the
     model proposes as outliers (``p >= 0.5``)."""
     feats, _, _, ids = frame_groups(frame, result, config=config)
     if feats.shape[0] == 0:
         return np.zeros(ids.shape, bool)
     out = np.concatenate(([False], model.predict(feats) >= 0.5))
-    return out[ids]
+    mask: np.ndarray = out[ids]
+    return mask

@@ -34,6 +34,7 @@ from annotate.store import FrameRecord, LabelStore, LogRecord
 from zcut.params import SuspectParams
 
 if TYPE_CHECKING:
+    from replay.logs.damage import Damage
     from replay.logs.frame import Frame
     from replay.pipeline.session import ReplaySession
     from replay.pipeline.stages import FrameResult
@@ -206,7 +207,7 @@ class Catalogue:
             return [(self.frames[i], self.records[i]) for i in sorted(self.frames)]
 
     @property
-    def damage(self) -> tuple:
+    def damage(self) -> tuple[Damage, ...]:
         """The damage records (:class:`replay.logs.damage.Damage`) of the pass over the log so far."""
         return tuple(getattr(self._results, "damage", ()))
 

@@ -22,6 +22,7 @@ pipeline result alone.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -160,7 +161,7 @@ def _class_budgets(cls: np.ndarray, total: int) -> list[tuple[int, int]]:
     return [(c, budget[c]) for c in present]
 
 
-def _per_group(values: np.ndarray, ids: np.ndarray, n: int, fn) -> np.ndarray:
+def _per_group(values: np.ndarray, ids: np.ndarray, n: int, fn: Callable[[np.ndarray], object]) -> np.ndarray:
     """``fn`` of the finite values of each group 1..n (NaN where a group has none)."""
     out = np.full(n, np.nan)
     sel = (ids > 0) & np.isfinite(values)

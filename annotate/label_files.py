@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
+
 from annotate.store import (
     SCHEMA_VERSION,
     LabelStore,
@@ -22,7 +24,7 @@ from annotate.store import (
 from replay.logs import layout
 
 
-def export_labels(store: LabelStore, log: LogRecord, path: str | os.PathLike, *, annotator: str) -> int:
+def export_labels(store: LabelStore, log: LogRecord, path: str | os.PathLike[str], *, annotator: str) -> int:
     """Write an annotator's current labels of a log to MCAP.
 
     Returns
@@ -50,7 +52,7 @@ def export_labels(store: LabelStore, log: LogRecord, path: str | os.PathLike, *,
     return len(pairs)
 
 
-def read_label_masks(path: str | os.PathLike):
+def read_label_masks(path: str | os.PathLike[str]) -> tuple[dict[str, str], dict[int, dict[str, np.ndarray]]]:
     """(``zcut.labels`` metadata, stamp_ns -> {topic: (H, W) bool}) of an exported label MCAP.
 
     A damaged file is a :class:`~replay.errors.LogFormatError` (labels are imported whole or not at
@@ -66,7 +68,7 @@ def read_label_masks(path: str | os.PathLike):
     return meta, masks
 
 
-def import_labels(store: LabelStore, path: str | os.PathLike, *, annotator: str | None = None) -> int:
+def import_labels(store: LabelStore, path: str | os.PathLike[str], *, annotator: str | None = None) -> int:
     """Append the labels of an exported MCAP as new revisions (``source='import'``).
 
     Frames are found by the log's sha256 and (cloud topic, stamp_ns); the log must be registered

@@ -55,6 +55,7 @@ import json
 import struct
 import zlib
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -65,6 +66,10 @@ from annotate.store import pack_mask
 from zcut.cloud import height_mm
 from zcut.params import SuspectParams
 from zcut.suspects import DETECTORS
+
+if TYPE_CHECKING:
+    from replay.logs.frame import Frame
+    from replay.pipeline.stages import FrameResult
 
 EIGHT = np.ones((3, 3), bool)
 JPEG_QUALITY = 90
@@ -210,7 +215,7 @@ def _small_uint(ids: np.ndarray, n: int) -> np.ndarray:
     return ids.astype(dtype, copy=False)
 
 
-def make_bundle(header: dict, sections: list[tuple[str, str, np.ndarray]], *, compress: bool = True) -> bytes:
+def make_bundle(header: dict[str, Any], sections: list[tuple[str, str, np.ndarray]], *, compress: bool = True) -> bytes:
     """Pack a header dict and ``(name, kind, array)`` sections into one bundle (module docstring).
 
     ``compress=False`` leaves out the zlib step of every section (marked ``"zlib": false``): the page
@@ -324,7 +329,7 @@ def make_geometry(points: np.ndarray, *, x0: int, y0: int) -> bytes:
     return struct.pack("<I", len(head)) + head + planes.tobytes()
 
 
-def parse_geometry(data: bytes) -> tuple[dict, np.ndarray]:
+def parse_geometry(data: bytes) -> tuple[dict[str, Any], np.ndarray]:
     """(header, (h, w, 3) float32 points) of a geometry rectangle."""
     (n,) = struct.unpack_from("<I", data, 0)
     header = json.loads(data[4:4 + n])
@@ -333,7 +338,7 @@ def parse_geometry(data: bytes) -> tuple[dict, np.ndarray]:
     return header, np.moveaxis(planes.reshape(len(header["channels"]), h, w), 0, 2)
 
 
-def bundle_with_blobs(header: dict, blobs: list[tuple[str, bytes]]) -> bytes:
+def bundle_with_blobs(header: dict[str, Any], blobs: list[tuple[str, bytes]]) -> bytes:
     """A bundle of already packed ``bits`` sections (label masks straight from the store)."""
     meta, offset = [], 0
     for name, blob in blobs:
@@ -374,7 +379,8 @@ def height_colormap(xyz: np.ndarray, valid: np.ndarray, *, limits: tuple[float, 
 def turbo_lut() -> list[list[int]]:
     """The 256 RGB colours of the height colour map (OpenCV's turbo), for the page's legend."""
     bgr = cv2.applyColorMap(np.arange(256, dtype=np.uint8).reshape(1, 256), cv2.COLORMAP_TURBO)[0]
-    return bgr[:, ::-1].astype(int).tolist()
+    rgb: list[list[int]] = bgr[:, ::-1].astype(int).tolist()
+    return rgb
 
 
 def rgb_picture(rgb: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -536,7 +542,7 @@ def candidate_table(z_ids: np.ndarray, n_z: int, s_ids: np.ndarray, n_s: int, *,
     return np.concatenate(rows).astype(np.float32)
 
 
-def _z_levels(z_ids: np.ndarray, n_z: int, cut) -> np.ndarray:
+def _z_levels(z_ids: np.ndarray, n_z: int, cut: object) -> np.ndarray:
     """The z-cut level of each renumbered z-cut cluster (-1 for outliers outside the cut's clusters)."""
     out = np.full(n_z, -1, np.int64)
     clusters = getattr(cut, "clusters", None)
@@ -551,7 +557,7 @@ def _z_levels(z_ids: np.ndarray, n_z: int, cut) -> np.ndarray:
     return out
 
 
-def prepare_frame(frame, result, *, suspect_params: SuspectParams | None = None, part: str | None = None
+def prepare_frame(frame: Frame, result: FrameResult, *, suspect_params: SuspectParams | None = None, part: str | None = None
                   ) -> PreparedFrame:
     """Build the page's view of a frame from the frame and the pipeline's result for it.
 
@@ -628,7 +634,7 @@ def prepare_frame(frame, result, *, suspect_params: SuspectParams | None = None,
                          geometry=np.asarray(frame.xyz, np.float32))
 
 
-def parse_bundle(data: bytes) -> tuple[dict, dict[str, np.ndarray]]:
+def parse_bundle(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Decode a bundle back into (header, name -> array) — what the page does, in Python (for tests)."""
     (n,) = struct.unpack_from("<I", data, 0)
     header = json.loads(data[4:4 + n])

@@ -348,7 +348,7 @@ def api_proposals(page: Page, request: Request) -> Response:
     groups (in group order), whether the page may pre-fill the confident ones, and why not."""
     sf, _ = requested_frame(page, request)
     tr = page.assistant
-    st = tr.status() if tr is not None else {"version": 0, "message": "no assistant", "model": None}
+    st: dict[str, Any] = tr.status() if tr is not None else {"version": 0, "message": "no assistant", "model": None}
     p = tr.predictions(sf) if tr is not None else None
     why = st["model"]["why_not"] if st["model"] else None
     return JSONResponse({"index": sf.index, "version": st["version"], "message": st["message"],

@@ -58,7 +58,8 @@ import zlib
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Self
+from types import TracebackType
+from typing import Any, Self
 
 import numpy as np
 
@@ -256,7 +257,7 @@ class LabelSummary:
     created_ns: int
 
 
-def file_sha256(path: str | os.PathLike, *, chunk_bytes: int = 1 << 20) -> str:
+def file_sha256(path: str | os.PathLike[str], *, chunk_bytes: int = 1 << 20) -> str:
     """Hex sha256 of a file's bytes, read in chunks (never the whole file in memory)."""
     h = hashlib.sha256()
     with open(path, "rb") as f:
@@ -403,7 +404,7 @@ class LabelStore:
     Use as a context manager or call :meth:`close`.
     """
 
-    def __init__(self, path: str | os.PathLike, *, read_only: bool = False) -> None:
+    def __init__(self, path: str | os.PathLike[str], *, read_only: bool = False) -> None:
         self.path = Path(path)
         self.read_only = read_only
         self._lock = threading.RLock()
@@ -534,7 +535,8 @@ class LabelStore:
                 raise
             return self.store._db
 
-        def __exit__(self, exc_type, exc, tb) -> None:
+        def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                     tb: TracebackType | None) -> None:
             try:
                 if exc_type is None:
                     self.store._db.execute("COMMIT")
@@ -544,11 +546,13 @@ class LabelStore:
                 raise (self.store._full(e) or self.store._busy(e) or self.store._damaged(e)) from e
             finally:
                 self.store._lock.release()
-            if exc_type is not None and issubclass(exc_type, sqlite3.DatabaseError) and self.store._full(exc):
-                raise self.store._full(exc) from exc
-            if exc_type is not None and issubclass(exc_type, sqlite3.DatabaseError) and self.store._busy(exc):
-                raise self.store._busy(exc) from exc
-            if exc_type is sqlite3.DatabaseError:  # not its subclasses (conflicts, a busy file)
+            if exc is None:
+                return
+            if issubclass(type(exc), sqlite3.DatabaseError) and self.store._full(exc):
+                raise self.store._full(exc) from exc  # type: ignore[misc]  # not None: tested above
+            if issubclass(type(exc), sqlite3.DatabaseError) and self.store._busy(exc):
+                raise self.store._busy(exc) from exc  # type: ignore[misc]  # not None: tested above
+            if type(exc) is sqlite3.DatabaseError:  # not its subclasses (conflicts, a busy file)
                 raise self.store._damaged(exc) from exc
 
     def _damaged(self, e: BaseException) -> StoreError:
@@ -575,21 +579,21 @@ class LabelStore:
     def _write(self) -> LabelStore._Tx:
         return LabelStore._Tx(self)
 
-    def _query(self, sql: str, params: Sequence = ()) -> list[tuple]:
+    def _query(self, sql: str, params: Sequence[object] = ()) -> list[tuple[Any, ...]]:
         with self._lock:
             try:
                 return self._db.execute(sql, params).fetchall()
             except sqlite3.DatabaseError as e:
                 if self._full(e):
-                    raise self._full(e) from e
+                    raise self._full(e) from e  # type: ignore[misc]  # not None: tested above
                 if self._busy(e):
-                    raise self._busy(e) from e
+                    raise self._busy(e) from e  # type: ignore[misc]  # not None: tested above
                 if type(e) is sqlite3.DatabaseError:
                     raise self._damaged(e) from e
                 raise
 
     # ------------------------------------------------------------------- logs
-    def add_log(self, path: str | os.PathLike, *, sha256: str | None = None) -> LogRecord:
+    def add_log(self, path: str | os.PathLike[str], *, sha256: str | None = None) -> LogRecord:
         """Register a log by its content hash (idempotent); returns its record."""
         p = Path(path)
         digest = sha256 or file_sha256(p)
@@ -724,7 +728,7 @@ class LabelStore:
         n_l, n_r = int(outliers.sum()), int(reviewed.sum())
         base = int(base_revision or 0)
         with self._write() as db:
-            latest = db.execute(
+            latest: int = db.execute(
                 "SELECT COALESCE(MAX(revision), 0) FROM labels WHERE frame_id = ? AND annotator = ?",
                 (frame.id, annotator),
             ).fetchone()[0]
@@ -753,7 +757,7 @@ class LabelStore:
 
     _LABEL_COLS = "frame_id, annotator, revision, outliers, reviewed, created_ns, source, height, width"
 
-    def _label_from_row(self, row: tuple) -> Label:
+    def _label_from_row(self, row: tuple[Any, ...]) -> Label:
         fid, ann, rev, bl, br, created, source, h, w = row
         return Label(fid, ann, rev, unpack_mask(bl, (h, w)), unpack_mask(br, (h, w)), created, source)
 
@@ -847,7 +851,7 @@ class LabelStore:
                 "INSERT INTO servers (pid, host, port, log_sha256, started_ns, heartbeat_ns) VALUES (?, ?, ?, ?, ?, ?)",
                 (os.getpid(), socket.gethostname(), port, log_sha256, now, now),
             )
-            sid = int(cur.lastrowid)
+            sid = int(cur.lastrowid)  # type: ignore[arg-type]  # an INSERT sets it
         return ServerRecord(sid, os.getpid(), socket.gethostname(), port, log_sha256, now, now)
 
     def heartbeat_server(self, server_id: int) -> None:
@@ -865,7 +869,7 @@ class LabelStore:
         with self._write() as db:
             cur = db.execute("INSERT INTO models (created_ns, log_sha256, part, backend, meta, model)"
                              " VALUES (?, ?, ?, ?, ?, ?)", (time.time_ns(), log_sha256, part, backend, meta, model))
-            return int(cur.lastrowid)
+            return int(cur.lastrowid)  # type: ignore[arg-type]  # an INSERT sets it
 
     def latest_model(self, *, log_sha256: str | None = None) -> ModelRecord | None:
         """The newest stored model (of one log's labels, or of any)."""

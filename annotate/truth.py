@@ -18,13 +18,20 @@ through this module, so they score alike.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from replay.logs import layout
 from zcut.errors import ParameterError
+
+if TYPE_CHECKING:
+    from annotate.store import FrameRecord
+    from replay.logs.frame import Frame
+    from replay.pipeline.stages import FrameResult
 
 REGIONS = ("zone", "valid")
 
@@ -60,7 +67,7 @@ def check_region(name: str) -> str:
     return name
 
 
-def scored_region(result, name: str) -> np.ndarray:
+def scored_region(result: FrameResult, name: str) -> np.ndarray:
     """(H, W) bool: the region of a :class:`~replay.pipeline.stages.FrameResult` that is scored.
 
     ``zone``: the zone the z-cut and SOR judged plus the above-the-rim points (which the pipeline
@@ -70,10 +77,11 @@ def scored_region(result, name: str) -> np.ndarray:
     check_region(name)
     if name == "valid":
         return result.valid
-    return result.zone | result.easy_outliers
+    region: np.ndarray = result.zone | result.easy_outliers
+    return region
 
 
-def region_of_results_frame(frame, name: str) -> np.ndarray:
+def region_of_results_frame(frame: Frame, name: str) -> np.ndarray:
     """The scored region of a frame of a results file: ``/zcut/zone`` when the replay wrote one (the
     bin stages ran), else every valid pixel of the source: ``/zcut/valid`` (every results file has it;
     one written without its cloud has only it), else, in a file written before it, the filtered cloud's
@@ -84,7 +92,8 @@ def region_of_results_frame(frame, name: str) -> np.ndarray:
         # /zcut/filtered has the z-cut's outliers set to NaN: they were valid in the source
         valid = np.isfinite(frame.xyz).all(axis=2) | frame.masks[layout.ZCUT_OUTLIERS]
     if name == "zone" and layout.ZONE in frame.masks:
-        return frame.masks[layout.ZONE] & valid
+        zone: np.ndarray = frame.masks[layout.ZONE] & valid
+        return zone
     return valid
 
 
@@ -109,7 +118,7 @@ class SyntheticTruth:
         self.with_kinds = with_kinds
         self.with_unknown = with_unknown
 
-    def truth(self, frame, valid: np.ndarray) -> FrameTruth | str:
+    def truth(self, frame: Frame, valid: np.ndarray) -> FrameTruth | str:
         gt = frame.masks.get(layout.TRUTH_OUTLIERS)
         if gt is None:
             return f"no {layout.TRUTH_OUTLIERS} message with this frame"
@@ -141,7 +150,7 @@ class LabelTruth:
         Whose labels; needed when the log has several annotators.
     """
 
-    def __init__(self, db: str | os.PathLike, log: str | os.PathLike, *, annotator: str | None = None) -> None:
+    def __init__(self, db: str | os.PathLike[str], log: str | os.PathLike[str], *, annotator: str | None = None) -> None:
         from annotate.store import LabelStore, file_sha256
 
         self.db = Path(db)
@@ -164,7 +173,7 @@ class LabelTruth:
         self.annotator = annotator
         self.name = f"labels by {annotator} ({self.db})"
 
-    def record(self, frame):
+    def record(self, frame: Frame) -> FrameRecord | None:
         """The store's frame record for a log frame: by (log, topic, stamp), else by a unique stamp."""
         if self.log is not None:
             rec = self.store.frame(self.log, topic=frame.topic, stamp_ns=frame.stamp_ns)
@@ -175,7 +184,7 @@ class LabelTruth:
             recs = [r for r in recs if r.log_id == self.log.id] or recs
         return recs[0] if len(recs) == 1 else None
 
-    def truth(self, frame, valid: np.ndarray) -> FrameTruth | str:
+    def truth(self, frame: Frame, valid: np.ndarray) -> FrameTruth | str:
         rec = self.record(frame)
         lab = self.store.label(rec, annotator=self.annotator) if rec is not None else None
         if lab is None:
@@ -189,7 +198,7 @@ class LabelTruth:
         self.store.close()
 
 
-def method_predictions(result, methods) -> dict[str, np.ndarray]:
+def method_predictions(result: FrameResult, methods: Iterable[str]) -> dict[str, np.ndarray]:
     """The masks of the reported ``methods`` (``config.reported_methods``) of a
     :class:`~replay.pipeline.stages.FrameResult` (docs/accuracy.md)."""
     from replay.pipeline.methods import method_masks

@@ -32,6 +32,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import TracebackType
 
 from zcut.errors import ZcutError
 
@@ -46,7 +47,7 @@ class OutputError(ZcutError):
     """An output path would destroy data or cannot be written; the message names the path."""
 
 
-def folder_gone(path: str | os.PathLike) -> OutputError:
+def folder_gone(path: str | os.PathLike[str]) -> OutputError:
     """The error of an output whose folder was removed (or replaced) while zcut wrote it."""
     folder = Path(path).parent if str(Path(path).parent) else Path(".")
     return OutputError(f"{path}: its folder {folder} was removed while zcut wrote it; the output was not "
@@ -57,20 +58,20 @@ class OutputBusyError(OutputError):
     """Another process is writing the output (it holds the output's lock)."""
 
 
-def config_path_for(output: str | os.PathLike) -> Path:
+def config_path_for(output: str | os.PathLike[str]) -> Path:
     """Where the resolved config goes beside an output: ``OUT.rrd`` -> ``OUT.config.toml``."""
     p = Path(output)
     return p.with_name(p.stem + ".config.toml")
 
 
-def lock_path_for(output: str | os.PathLike) -> Path:
+def lock_path_for(output: str | os.PathLike[str]) -> Path:
     """The lock file of an output: ``DIR/NAME`` -> ``DIR/.NAME.zcut.lock``."""
     p = Path(output)
     return p.with_name(f".{p.name}{LOCK_SUFFIX}")
 
 
 @contextmanager
-def naming(output: str | os.PathLike, *temporaries: str | os.PathLike) -> Iterator[None]:
+def naming(output: str | os.PathLike[str], *temporaries: str | os.PathLike[str]) -> Iterator[None]:
     """An ``OSError`` raised while writing ``output`` names it: a write to an open file (a full disk)
     raises one without a file name, and one naming a temporary would name a file that is gone."""
     try:
@@ -120,8 +121,8 @@ class OutputLock:
         Where the lock lives (default :func:`lock_path_for` ``(output)``).
     """
 
-    def __init__(self, output: str | os.PathLike, *, what: str = "the output",
-                 lock_file: str | os.PathLike | None = None) -> None:
+    def __init__(self, output: str | os.PathLike[str], *, what: str = "the output",
+                 lock_file: str | os.PathLike[str] | None = None) -> None:
         self.output = Path(output)
         self.what = what
         self.lock_file = lock_path_for(output) if lock_file is None else Path(lock_file)
@@ -228,7 +229,7 @@ def _temp_parts(path: Path) -> tuple[str, str]:
     return (stem if _utf8(stem) else "output"), (suffix if _utf8(suffix) else "")
 
 
-def _temp_pattern(path: Path) -> re.Pattern:
+def _temp_pattern(path: Path) -> re.Pattern[str]:
     """The names of ``path``'s temporaries (this module's ``secrets`` names and the 8 characters of
     older zcut's ``tempfile.mkstemp``), and nothing else: not another output's."""
     stem, suffix = _temp_parts(path)
@@ -259,9 +260,9 @@ def _remove_if_unheld(path: Path) -> bool:
         os.close(fd)
 
 
-def _remove_unheld_matching(folder: str | os.PathLike, pattern: re.Pattern[str]) -> list[Path]:
+def _remove_unheld_matching(folder: str | os.PathLike[str], pattern: re.Pattern[str]) -> list[Path]:
     """Remove the entries of ``folder`` whose names match ``pattern`` and that no live process holds."""
-    removed = []
+    removed: list[Path] = []
     try:
         entries = list(os.scandir(folder))
     except OSError:
@@ -272,7 +273,7 @@ def _remove_unheld_matching(folder: str | os.PathLike, pattern: re.Pattern[str])
     return removed
 
 
-def remove_stale_temporaries(output: str | os.PathLike) -> list[Path]:
+def remove_stale_temporaries(output: str | os.PathLike[str]) -> list[Path]:
     """Remove the temporaries of ``output`` (``.NAME.XXXXXXXX.partial.SUFFIX`` beside it) that no
     live process holds: what a killed writer left. Returns the paths removed.
 
@@ -284,7 +285,7 @@ def remove_stale_temporaries(output: str | os.PathLike) -> list[Path]:
     return _remove_unheld_matching(folder, pattern)
 
 
-def remove_stale_temporaries_in(folder: str | os.PathLike) -> list[Path]:
+def remove_stale_temporaries_in(folder: str | os.PathLike[str]) -> list[Path]:
     """Remove every zcut temporary (``.*.XXXXXXXX.partial*``) in ``folder`` that no live process
     holds: for a folder that one locked process owns (a study's output folder)."""
     pattern = re.compile(r"\..+\.[a-z0-9_]{8}\.partial(\.[^/]*)?")
@@ -304,7 +305,7 @@ class OutputPlan:
         Replace existing outputs (``--force``).
     """
 
-    inputs: list[str | os.PathLike] = field(default_factory=list)
+    inputs: list[str | os.PathLike[str]] = field(default_factory=list)
     force: bool = False
     outputs: dict[Path, str] = field(default_factory=dict)
 
@@ -315,7 +316,7 @@ class OutputPlan:
         for p in self.inputs:
             self.add_input(p)
 
-    def add_input(self, path: str | os.PathLike) -> None:
+    def add_input(self, path: str | os.PathLike[str]) -> None:
         """Register a file the command reads."""
         p = Path(path)
         ident = _identity(p)
@@ -323,7 +324,7 @@ class OutputPlan:
             self._inputs[ident] = p
         self._input_paths[Path(os.path.abspath(p))] = p
 
-    def add(self, path: str | os.PathLike, what: str) -> Path:
+    def add(self, path: str | os.PathLike[str], what: str) -> Path:
         """Register an output (``what``: e.g. "the .rrd"), check it and lock it; returns the path.
 
         The temporaries a killed writer of this output left beside it are removed.
@@ -419,7 +420,7 @@ class AtomicOutput:
         The final path (checked by an :class:`OutputPlan`).
     """
 
-    def __init__(self, path: str | os.PathLike) -> None:
+    def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
         self.done = False
         self._fd: int | None = None
@@ -483,7 +484,8 @@ class AtomicOutput:
     def __enter__(self) -> AtomicOutput:
         return self
 
-    def __exit__(self, exc_type, exc, tb) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
         if exc_type is None:
             if not self.done:
                 self.commit()

@@ -24,6 +24,7 @@ import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from types import FrameType
 
 EXIT_OK = 0
 EXIT_USER_ERROR = 1
@@ -83,7 +84,7 @@ def interrupts_unwind() -> Iterator[InterruptState]:
         yield state
         return
 
-    def handler(signum: int, frame) -> None:
+    def handler(signum: int, frame: FrameType | None) -> None:
         state.signals.append(signum)
         if len(state.signals) == 1:
             raise Interrupted(signum)
@@ -130,7 +131,7 @@ def configure_process() -> None:
         if "numba" in sys.modules:  # numba read its config at import: set it there too
             import numba
 
-            numba.config.THREADING_LAYER_PRIORITY = ["workqueue", "omp", "tbb"]
+            numba.config.THREADING_LAYER_PRIORITY = ["workqueue", "omp", "tbb"]  # type: ignore[attr-defined]  # set at import
     # a recording that cannot be written is reported in zcut's one line, naming the output; Rerun's
     # own log lines (Rust's format, on stderr) would repeat it, many lines long
     os.environ.setdefault("RUST_LOG", "off")

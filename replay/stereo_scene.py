@@ -118,7 +118,7 @@ def _decode_png(path: Path, flags: int) -> np.ndarray:
     return img
 
 
-def read_rgb(path: str | os.PathLike) -> np.ndarray:
+def read_rgb(path: str | os.PathLike[str]) -> np.ndarray:
     """An 8-bit image as (H, W, 3) uint8 RGB (a gray image is repeated in the three channels)."""
     import cv2
 
@@ -133,7 +133,7 @@ def read_rgb(path: str | os.PathLike) -> np.ndarray:
     return np.ascontiguousarray(img[..., ::-1])
 
 
-def read_pfm(path: str | os.PathLike) -> np.ndarray:
+def read_pfm(path: str | os.PathLike[str]) -> np.ndarray:
     """A one-channel PFM (``Pf``) as (H, W) float32, top row first (the file stores rows bottom-up;
     a negative scale means little-endian)."""
     p = Path(path)
@@ -158,7 +158,7 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
     return np.ascontiguousarray(a[::-1]).astype(np.float32)
 
 
-def read_gt(path: str | os.PathLike, *, scale: float | None = None) -> np.ndarray:
+def read_gt(path: str | os.PathLike[str], *, scale: float | None = None) -> np.ndarray:
     """A ground-truth disparity (H, W) float32, ``inf`` where unknown: PFM; PNG (8 or 16 bit, value /
     ``scale``, 0 unknown); NPY (float, or integer / ``scale``; not finite or <= 0 unknown)."""
     p = Path(path)
@@ -196,7 +196,7 @@ def read_gt(path: str | os.PathLike, *, scale: float | None = None) -> np.ndarra
     return d
 
 
-def read_occlusion(path: str | os.PathLike) -> np.ndarray:
+def read_occlusion(path: str | os.PathLike[str]) -> np.ndarray:
     """(H, W) bool, True where the truth is not judged: a mask image whose value is not 255
     (Middlebury's ``mask0nocc.png``: 255 non-occluded, 128 occluded, 0 unknown)."""
     import cv2
@@ -205,7 +205,8 @@ def read_occlusion(path: str | os.PathLike) -> np.ndarray:
     img = _decode_png(p, cv2.IMREAD_UNCHANGED)
     if img.ndim != 2 or img.dtype != np.uint8:
         raise LogFormatError(f"{p}: an occlusion mask must be a one-channel 8-bit image")
-    return img != 255
+    unjudged: np.ndarray = img != 255
+    return unjudged
 
 
 _CAM = re.compile(r"^\s*cam0\s*=\s*\[([^\]]*)\]\s*$")
@@ -249,7 +250,7 @@ def _resolve(folder: Path, given: str | None, default: str) -> Path:
     return p if p.is_absolute() else folder / p
 
 
-def load_scene(folder: str | os.PathLike, over: SceneOverrides = SceneOverrides()) -> StereoScene:
+def load_scene(folder: str | os.PathLike[str], over: SceneOverrides = SceneOverrides()) -> StereoScene:
     """Read one scene (module docstring); the ground truth and occlusion mask are optional unless named."""
     d = Path(folder)
     if not d.is_dir():

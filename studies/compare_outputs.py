@@ -20,6 +20,7 @@ import numpy as np
 
 from replay.outputs import AtomicOutput, naming
 from studies.compare_records import FrameCompare, SideFrame, SideSpec, count_f1
+from studies.schemas import COMPARE_SUMMARY_COLUMNS, table_of
 
 if TYPE_CHECKING:
     from replay.logs.frame import Frame
@@ -113,14 +114,14 @@ class CompareWriter:
     def finish(self, report: dict[str, Any], rows: list[dict[str, Any]]) -> None:
         """Write every file's temporary (committed by :meth:`close`); the recording is closed, read
         back and named last, once everything else was written."""
-        import pyarrow as pa_
         import pyarrow.parquet as pq
 
         from annotate.accuracy import jsonable
 
         self._write("json", lambda t: t.write_text(json.dumps(jsonable(report), indent=1, allow_nan=False) + "\n",
                                                    encoding="utf-8"))
-        self._write("parquet", lambda t: pq.write_table(pa_.Table.from_pylist(rows), t))
+        table = table_of(rows, COMPARE_SUMMARY_COLUMNS)  # the declared types, whatever the values
+        self._write("parquet", lambda t: pq.write_table(table, t))
         if "report" in self.files:
             self._write("report", lambda t: t.write_text(render_html(report), encoding="utf-8", errors="backslashreplace"))
         if self.rec is not None:

@@ -1,8 +1,8 @@
 """The linter and the type checker, as part of the suite (README, "Lint and types").
 
 ruff checks the whole repository with the rules chosen in pyproject.toml (``[tool.ruff.lint]``);
-mypy checks ``zcut/`` and ``studies/`` strictly (``[tool.mypy]``: every function annotated, no
-implicit Any, no unused ignores). A finding fails the test with the tool's own report.
+mypy checks the five packages strictly (``[tool.mypy]``: every function annotated, no implicit Any,
+no unused ignores). A finding fails the test with the tool's own report.
 """
 
 from __future__ import annotations
@@ -14,8 +14,18 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-#: the packages mypy checks strictly (the others follow when they are ready)
-STRICT = ("zcut", "studies")
+#: the packages mypy checks, all strictly
+STRICT = ("zcut", "replay", "annotate", "studies", "cli")
+#: TEMPORARY (issue 34): the modules whose errors are not reported yet, being restructured on other
+#: branches. The list only shrinks: a module leaves it when mypy passes without it.
+UNFINISHED = {
+    "zcut.suspects",
+    "replay.pipeline.methods", "replay.pipeline.config", "replay.pipeline.stages",
+    "replay.pipeline.session", "replay.pipeline.bin_model",
+    "replay.logs.reader", "replay.logs.stream",
+    "replay.synth.log", "replay.synth.raytrace.reference", "replay.synth.raytrace.optics",
+    "replay.commands.*", "annotate.commands.*", "annotate.accuracy", "cli", "cli.*",
+}
 
 
 def _run(*argv: str) -> subprocess.CompletedProcess[str]:
@@ -36,13 +46,26 @@ def test_mypy_strict_finds_nothing():
 
 
 def test_mypy_is_strict_where_the_test_says():
-    """The strict packages really are strict in the config (not merely checked)."""
+    """One strict setting for the whole tree (not merely checked): no override turns a strict check
+    off, and only the modules of the temporary list have their errors left unreported."""
     import tomllib
 
-    overrides = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["mypy"]["overrides"]
-    strict = {m for o in overrides if o.get("strict") for m in o["module"]}
-    for pkg in STRICT:
-        assert pkg in strict and f"{pkg}.*" in strict
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["mypy"]
+    assert config.get("strict") is True
+    relaxed = {"zcut", "zcut.*"}  # warn_return_any off: a typed function may return what a numba kernel returned
+    unreported = set()
+    for override in config.get("overrides", []):
+        modules = set(override["module"])
+        for key, value in override.items():
+            if key == "module":
+                continue
+            if key == "ignore_errors" and value is True:
+                unreported |= modules
+            elif key == "warn_return_any" and value is False:
+                assert modules <= relaxed, f"warn_return_any off outside zcut: {sorted(modules - relaxed)}"
+            else:
+                raise AssertionError(f"an override of {sorted(modules)} sets {key} = {value!r}")
+    assert unreported <= UNFINISHED, f"errors unreported in {sorted(unreported - UNFINISHED)}"
 
 
 #: What the repository must not cite: contracts and style live in docs/ (docs/README.md), and no

@@ -28,6 +28,8 @@ docs/filters.md, "The filter bank", describes both filters.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
+
 import numba as nb
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -191,7 +193,8 @@ def _labels(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     return connected_components(graph, directed=False)[1]
 
 
-def _joined_pairs(H: int, W: int, steps, joined) -> tuple[np.ndarray, np.ndarray]:
+def _joined_pairs(H: int, W: int, steps: Iterable[tuple[int, int]],
+                  joined: Callable[[int, int], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Flat indices (i, j) of the pixel pairs (r, c), (r + dr, c + dc) for which ``joined(dr, dc)``
     (an (H, W) bool array over the first pixels, False where the second is outside) holds."""
     idx = np.arange(H * W).reshape(H, W)

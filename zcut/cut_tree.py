@@ -57,7 +57,7 @@ def _inside(zt: float, z_max: float, step: float, k: np.int64, hi: np.int64) -> 
     # pixel in the cut at level k; level hi stands for "beyond" (always true)
     if k >= hi:
         return True
-    return zt >= z_max - k * step
+    return zt >= z_max - k * step  # type: ignore[return-value]  # numba kernel: a numpy bool
 
 
 @numba.njit(cache=True)
@@ -311,7 +311,7 @@ def union_find_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-d
             # before p in raster order (the later one of two same-level pixels does the joining)
             mask = 0
             for u in range(n_ring):
-                mask |= (np.int64(q[p + offs[u]]) <= (lvl_prev if u < n_prev else lvl_next)) << u
+                mask |= (np.int64(q[p + offs[u]]) <= (lvl_prev if u < n_prev else lvl_next)) << u  # type: ignore[assignment]  # numba kernel: an int64 local
             # join one neighbour per group of touching ring neighbours (one set already)
             for u in range(reps_n[mask]):
                 rp, n_pend, k = _join(par, rec, p, rp, p + offs[reps[mask, u]], rank,
@@ -393,13 +393,13 @@ def _bit_next(occ, summ, lv):  # type: ignore[no-untyped-def]  # numba kernel
     w = lv >> 6
     x = occ[w] >> np.uint64(lv & 63)
     if x != 0:
-        return lv + np.int64(trailing_zeros(x))
+        return lv + np.int64(trailing_zeros(x))  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
     if w >= 63:
         return np.int64(-1)
     y = summ >> np.uint64(w + 1)
     if y == 0:
         return np.int64(-1)
-    w2 = w + 1 + np.int64(trailing_zeros(y))
+    w2 = w + 1 + np.int64(trailing_zeros(y))  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
     return w2 * 64 + np.int64(trailing_zeros(occ[w2]))
 
 
@@ -538,7 +538,7 @@ def flood_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-def]  
                 node_b[node] = cur
                 lab[p] = node
                 n_nodes += 1
-                area = 1
+                area = 1  # type: ignore[assignment]  # numba kernel: an int64 local
                 stk_lv[sp] = cur
                 stk_node[sp] = node
                 sp += 1
@@ -548,7 +548,7 @@ def flood_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-def]  
             if ftop > sbeg:
                 ftop -= 1
                 p = bucket[ftop]
-                e = -1 - np.int64(st[p])
+                e = -1 - np.int64(st[p])  # type: ignore[assignment]  # numba kernel: an int64 local
                 if e == 0:  # first visit (else p resumes after a descent)
                     lab[p] = node
                     area += 1
@@ -583,7 +583,7 @@ def flood_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-def]  
             sbeg = start[cur]
             ftop = fill[cur] - 1
             p = bucket[ftop]
-            e = -1 - np.int64(st[p])
+            e = -1 - np.int64(st[p])  # type: ignore[assignment]  # numba kernel: an int64 local
             if e == 0:
                 lab[p] = node
                 area += 1
@@ -851,7 +851,7 @@ def grid_counts(node_of_pixel, kmin, size, ks, areas, truth, scored, within, has
         a_tp = np.int64(0)
         a_fp = np.int64(0)
         a_n = np.int64(0)
-        for j in range(n_a):
+        for j in range(n_a):  # type: ignore[assignment]  # numba kernel: an int64 local
             a_tp += h_tp[i, j]
             a_fp += h_fp[i, j]
             a_n += h_n[i, j]

@@ -34,6 +34,7 @@ the lower walls, so a wall point the frame does not show proves nothing.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -41,6 +42,10 @@ from .bin_model import BinModel
 from .cloud import Intrinsics
 from .errors import InputShapeError, ParameterError, describe_array
 from .params import RegistrationParams
+
+if TYPE_CHECKING:
+    import open3d as o3d
+    from scipy.spatial import cKDTree
 
 __all__ = [
     "PIXEL_REACH",
@@ -171,7 +176,7 @@ def _guess(model_top_centre: tuple[np.ndarray, float] | None, t: np.ndarray) -> 
 _MAX_VOXELS_PER_AXIS = 2**30
 
 
-def voxel_down(pc, voxel_m: float, what: str):
+def voxel_down(pc: o3d.geometry.PointCloud, voxel_m: float, what: str) -> o3d.geometry.PointCloud:
     """``pc.voxel_down_sample(voxel_m)``, after checking that the cloud's extent fits Open3D's voxel
     index: a cloud spanning ~1e38 m (garbage coordinates) is an :class:`InputShapeError`, not a
     RuntimeError from C++."""
@@ -183,7 +188,7 @@ def voxel_down(pc, voxel_m: float, what: str):
     return pc.voxel_down_sample(voxel_m)
 
 
-def _cloud(points: np.ndarray, voxel_m: float, what: str = "the target"):
+def _cloud(points: np.ndarray, voxel_m: float, what: str = "the target") -> o3d.geometry.PointCloud:
     import open3d as o3d
 
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
@@ -192,7 +197,8 @@ def _cloud(points: np.ndarray, voxel_m: float, what: str = "the target"):
     return pc
 
 
-def _model_cloud(model: np.ndarray, normals: np.ndarray | None, voxel_m: float, normal_radius: float):
+def _model_cloud(model: np.ndarray, normals: np.ndarray | None, voxel_m: float,
+                 normal_radius: float) -> o3d.geometry.PointCloud:
     """The downsampled model with unit normals (estimated when the model has none)."""
     import open3d as o3d
 
@@ -217,7 +223,7 @@ class IcpModel:
     points : (N, 3) float64 ndarray
         The model's points (bin frame, metres).
     top_centre : ((2,) float64 ndarray, float)
-        The model's (x, y) centre and top z, for :func:`initial_guess`.
+        The model's (x, y) centre and top z, for :func:`initial_guess` (None for an empty model).
     fine, coarse : open3d.geometry.PointCloud
         Downsampled at the voxel (fine pass) and twice the voxel (coarse pass), with unit normals.
     tree : scipy.spatial.cKDTree
@@ -231,10 +237,10 @@ class IcpModel:
     """
 
     points: np.ndarray
-    top_centre: tuple[np.ndarray, float]
-    fine: object
-    coarse: object
-    tree: object
+    top_centre: tuple[np.ndarray, float] | None
+    fine: o3d.geometry.PointCloud
+    coarse: o3d.geometry.PointCloud
+    tree: cKDTree
     params: RegistrationParams
     rim: np.ndarray
     up: np.ndarray
@@ -335,9 +341,9 @@ class TargetPoints:
     """
 
     points: np.ndarray
-    cloud: object
+    cloud: o3d.geometry.PointCloud
     voxel_m: float
-    tree: object
+    tree: cKDTree
     intrinsics: Intrinsics | None
 
 
@@ -427,6 +433,7 @@ def register_bin(
             T0.copy(), 0.0, float("nan"), False,
             f"too few points (model {n_m}, target {n_t}, need {min_points})", n_m, n_t, T0.copy(), 0.0, 0,
         )
+    est: o3d.pipelines.registration.TransformationEstimation
     if params.method == "point_to_plane":
         est = o3d.pipelines.registration.TransformationEstimationPointToPlane()
     else:

@@ -28,6 +28,7 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
@@ -37,6 +38,9 @@ from .cloud import check_xyz
 from .errors import InputShapeError, ParameterError, describe_array
 from .params import RemovalParams
 from .types import XYZ, FloatImage, Mask
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 # In the bin frame "up" is -z: models are built in a top-down camera's optical frame.
 BIN_UP = np.array([0.0, 0.0, -1.0])
@@ -165,7 +169,7 @@ class RemovalIndex:
     radius_m: float
     bin: _ModelIndex
     straggler: _ModelIndex | None
-    tree: object = None
+    tree: cKDTree | None = None
 
 
 def _radius(params: RemovalParams, spacing_m: float, delta_m: float) -> float:
@@ -202,7 +206,7 @@ def prepare_removal_index(model: BinModel, params: RemovalParams) -> RemovalInde
 
 
 @numba.njit(cache=True, inline="always")
-def _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radius, planes):  # pragma: no cover - numba  # type: ignore[no-untyped-def]  # numba kernel
+def _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radius, planes):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """Some model point within ``radius`` of (px, py, pz) passes (plane distance, or distance, <= delta).
 
     Only the neighbouring cells that the radius reaches are searched (a cell's points lie within
@@ -246,7 +250,7 @@ def _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radiu
 
 
 @numba.njit(cache=True, inline="always")
-def _to_bin(a, r, c, R, t):  # pragma: no cover - numba  # type: ignore[no-untyped-def]  # numba kernel
+def _to_bin(a, r, c, R, t):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """Pixel (r, c) of ``a`` in the bin frame: ``(p - t) @ R`` in float64."""
     dx = np.float64(a[r, c, 0]) - t[0]
     dy = np.float64(a[r, c, 1]) - t[1]
@@ -287,7 +291,7 @@ def _classify(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, dims, 
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _straggler_start(valid, table, binp, easy, fp, neighbours, lab, open_, cand):  # pragma: no cover - numba  # type: ignore[no-untyped-def]  # numba kernel
+def _straggler_start(valid, table, binp, easy, fp, neighbours, lab, open_, cand):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """One pass over the frame: ``lab`` (uint8: table, bin or invalid), ``open_`` (valid, in the
     footprint, neither easy nor bin) and ``cand`` (``open_`` with at least ``neighbours`` of its 8
     neighbours in ``lab``): the straggler test's first candidates in one pass, each count a sum of
@@ -322,7 +326,7 @@ def _test_pixels(a, flat, R, t, origin, cell, dims, start, pts, nrm, off, delta,
 
 
 @numba.njit(cache=True, nogil=True)
-def _next_candidates(new, lab, open_, seen, neighbours):  # pragma: no cover - numba  # type: ignore[no-untyped-def]  # numba kernel
+def _next_candidates(new, lab, open_, seen, neighbours):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """Row-major indices of the ``open_`` neighbours of ``new`` with >= ``neighbours`` pixels in ``lab``.
 
     ``lab``, ``open_`` and ``seen`` are flat (H * W,) views of (H, W) arrays; ``seen`` is scratch,
@@ -362,7 +366,7 @@ def _next_candidates(new, lab, open_, seen, neighbours):  # pragma: no cover - n
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _finish(a, valid, labelled, plane, floor, up, z_far, height, xyz_out):  # pragma: no cover - numba  # type: ignore[no-untyped-def]  # numba kernel
+def _finish(a, valid, labelled, plane, floor, up, z_far, height, xyz_out):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """Height image (mm, NaN invalid) and float32 cloud with the labelled pixels' z on the floor.
 
     ``plane``: the floor is the plane {q : q . up = floor} (z solves x*ux + y*uy + z*uz = floor);
@@ -387,7 +391,7 @@ def _finish(a, valid, labelled, plane, floor, up, z_far, height, xyz_out):  # pr
                 height[r, c] = -1000.0 * np.float64(a[r, c, 2])
 
 
-def _grid_args(index: _ModelIndex) -> tuple:
+def _grid_args(index: _ModelIndex) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return (index.origin, index.cell, index.dims, index.start, index.points, index.normals, index.offsets)
 
 

@@ -187,13 +187,13 @@ def _workers() -> Iterator[Run]:
     compiled this module several times slower, and not starting numba's threading layer leaves
     its choice (a process-wide setting) to the command line.
     """
-    n_threads = int(nb.config.NUMBA_NUM_THREADS)
+    n_threads = int(nb.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # numba.config sets it at import
     if n_threads <= 1:
         yield lambda kernel, n, *args: kernel(0, n, *args) if n else None
         return
     with ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="zcut-sor") as pool:
 
-        def run(kernel, n, *args):
+        def run(kernel: Callable[..., None], n: int, *args: object) -> None:
             n_chunks = min(n, 8 * n_threads)
             edges = [n * i // n_chunks for i in range(n_chunks + 1)] if n else []
             jobs = [pool.submit(kernel, i0, i1, *args) for i0, i1 in itertools.pairwise(edges) if i1 > i0]
@@ -206,13 +206,14 @@ def _workers() -> Iterator[Run]:
 # --------------------------------------------------------------------------------------------
 # the search
 # --------------------------------------------------------------------------------------------
-def _mean_distances(x, y, z, valid, amax, m: int, divisor: float, run: Run) -> np.ndarray:
+def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, amax: np.ndarray, m: int,
+                    divisor: float, run: Run) -> np.ndarray:
     """(H, W) d̄ over the m smallest squared distances (self included); anything where invalid."""
     H, W = valid.shape
     P = _camera.fit_camera(x, y, z, valid) if _USE_CAMERA else None
     use_cam = P is not None
-    S = _camera.camera_scale(P, amax) if use_cam else 1.0
-    if not use_cam:
+    S = _camera.camera_scale(P, amax) if P is not None else 1.0
+    if P is None:
         P = np.zeros((3, 4))
     stats = _camera.new_stats(H, W)
     run(_camera.block_rows, stats[0].shape[0], x, y, z, valid, P, S, use_cam, *stats)
@@ -240,7 +241,8 @@ def _mean_distances(x, y, z, valid, amax, m: int, divisor: float, run: Run) -> n
     return dbar
 
 
-def _column_stage(x, y, z, valid, rows, cols, lim, m, divisor, dbar, run: Run) -> np.ndarray:
+def _column_stage(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                  lim: np.ndarray, m: int, divisor: float, dbar: np.ndarray, run: Run) -> np.ndarray:
     """k-nearest search in columns (:mod:`zcut.columns`) for the unproven pixels with a finite
     bound ``lim``, when they are many (tall parts on end, flying pixels everywhere: the tile search
     would measure whole tiles for each). Writes their d̄ into dbar; returns which it settled."""
@@ -268,7 +270,9 @@ def _column_stage(x, y, z, valid, rows, cols, lim, m, divisor, dbar, run: Run) -
     return done
 
 
-def _fallback(x, y, z, valid, rows, cols, lim, m, divisor, use_cam, tree, dbar, run: Run) -> None:
+def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+              lim: np.ndarray, m: int, divisor: float, use_cam: bool, tree: tuple[np.ndarray, ...], dbar: np.ndarray,
+              run: Run) -> None:
     """Columns, then a tile search for the unproven pixels left, then a KD-tree for those it could
     not finish."""
     if _USE_COLUMNS:
@@ -277,13 +281,13 @@ def _fallback(x, y, z, valid, rows, cols, lim, m, divisor, use_cam, tree, dbar, 
             return
         rows, cols, lim = rows[~done], cols[~done], lim[~done]
 
-    def tile_search(rows, cols, lim):
+    def tile_search(rows: np.ndarray, cols: np.ndarray, lim: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         out, outcome, radius2 = np.zeros(rows.size), np.zeros(rows.size, np.uint8), np.full(rows.size, np.inf)
         run(_search.tile_queries, rows.size, x, y, z, valid, rows, cols, lim, m, divisor, int(_TILE_SCAN_CAP),
             use_cam, tree, out, outcome, radius2)
         return out, outcome, radius2
 
-    def kd_search(pts, rows, cols, lim):
+    def kd_search(pts: np.ndarray, rows: np.ndarray, cols: np.ndarray, lim: np.ndarray) -> None:
         kd = _search.kd_build(pts)
         out = np.zeros(rows.size)
         run(_search.kd_queries, rows.size, x, y, z, rows, cols, lim, m, divisor, kd, out)

@@ -249,7 +249,7 @@ def _uv_chunk(x, y, z, valid, r, c0, n, P, S, tau, buf):  # type: ignore[no-unty
         a = P[0, 0] * xq + P[0, 1] * yq + P[0, 2] * zq + P[0, 3]
         b = P[1, 0] * xq + P[1, 1] * yq + P[1, 2] * zq + P[1, 3]
         d = P[2, 0] * xq + P[2, 1] * yq + P[2, 2] * zq + P[2, 3]
-        bad += np.int64(ok & (d <= tau))
+        bad += np.int64(ok & (d <= tau))  # type: ignore[assignment]  # numba kernel: an int64 local
         d = max(d, tau)
         inv = 1.0 / d
         u = a * inv

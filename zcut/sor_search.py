@@ -84,7 +84,8 @@ def valid_range(x, y, z, valid):  # type: ignore[no-untyped-def]  # numba kernel
 # --------------------------------------------------------------------------------------------
 # quadtree over the tiles
 # --------------------------------------------------------------------------------------------
-def build_quadtree(tcount, tbox, tuv, P, M, use_cam):
+def build_quadtree(tcount: np.ndarray, tbox: np.ndarray, tuv: np.ndarray, P: np.ndarray, M: float,
+                   use_cam: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Flat quadtree: level 0 = tiles, each level merges 2 × 2 nodes, the last is one node.
 
     Returns (level_off, level_h, level_w, count, box, planes) with ``planes`` (n, 16) the planes

@@ -37,12 +37,12 @@ _RING2.setflags(write=False)
 # distances and the m smallest
 # --------------------------------------------------------------------------------------------
 @intrinsic
-def _sqrt(typingctx, v):
+def _sqrt(typingctx, v):  # type: ignore[no-untyped-def]  # numba intrinsic
     """IEEE square root as the llvm.sqrt intrinsic (math.sqrt is a libm call, which keeps loops
     from being vectorized); both are correctly rounded, so the results are identical."""
     sig = types.float64(types.float64)
 
-    def codegen(context, builder, signature, args):
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]  # numba intrinsic
         fn = builder.module.declare_intrinsic("llvm.sqrt", [ir.DoubleType()])
         return builder.call(fn, [args[0]])
 
@@ -76,7 +76,7 @@ def mean_of_sorted(best, divisor):  # type: ignore[no-untyped-def]  # numba kern
     """``std::accumulate(sqrt(dist)) / k`` in ascending order from 0.0 (Open3D's d̄)."""
     s = 0.0
     for i in range(best.shape[0]):
-        s += _sqrt(best[i])
+        s += _sqrt(best[i])  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
     return s / divisor
 
 
@@ -138,14 +138,14 @@ def _pick(m, divisor, s1, s2, s3, s4, s5, s6, s7, s8):  # type: ignore[no-untype
     dm2 = s7 if m == 8 else dm2
     dm2 = s8 if m == 9 else dm2
     sm = 0.0
-    sm += _sqrt(s1) if m >= 2 else 0.0
-    sm += _sqrt(s2) if m >= 3 else 0.0
-    sm += _sqrt(s3) if m >= 4 else 0.0
-    sm += _sqrt(s4) if m >= 5 else 0.0
-    sm += _sqrt(s5) if m >= 6 else 0.0
-    sm += _sqrt(s6) if m >= 7 else 0.0
-    sm += _sqrt(s7) if m >= 8 else 0.0
-    sm += _sqrt(s8) if m >= 9 else 0.0
+    sm += _sqrt(s1) if m >= 2 else 0.0  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+    sm += _sqrt(s2) if m >= 3 else 0.0  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+    sm += _sqrt(s3) if m >= 4 else 0.0  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+    sm += _sqrt(s4) if m >= 5 else 0.0  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+    sm += _sqrt(s5) if m >= 6 else 0.0  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+    sm += _sqrt(s6) if m >= 7 else 0.0  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+    sm += _sqrt(s7) if m >= 8 else 0.0  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+    sm += _sqrt(s8) if m >= 9 else 0.0  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
     return dm2, sm / divisor
 
 
@@ -488,7 +488,7 @@ def _scan_ring(best, r, c, w_old, w_new, H, W, x, y, z, xq, yq, zq):  # type: ig
                 a1 = c1
             for cc in range(a0, a1 + 1):
                 insert(best, d2(xq, yq, zq, x[rr, cc], y[rr, cc], z[rr, cc]))
-                n += np.int64(x[rr, cc] < np.inf)
+                n += np.int64(x[rr, cc] < np.inf)  # type: ignore[assignment]  # numba kernel: an int64 local
     return n
 
 

@@ -121,7 +121,7 @@ class Damage:
     def __str__(self) -> str:
         return self.text
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, object]:
         """The record as JSON-ready fields (``kind`` by its name), with its rendered ``text``."""
         return {"kind": self.kind.value, "frame_index": self.frame_index, "n_frames": self.n_frames,
                 "stamp_ns": self.stamp_ns, "log_time_ns": self.log_time_ns, "last_log_time_ns": self.last_log_time_ns,

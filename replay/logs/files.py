@@ -77,7 +77,7 @@ def _check_kind(mode: int, p: Path, what: str) -> None:
         raise LogFormatError(f"{p} is not a regular file, not {what}")
 
 
-def open_input(path: str | os.PathLike, what: str) -> tuple[BinaryIO, int]:
+def open_input(path: str | os.PathLike[str], what: str) -> tuple[BinaryIO, int]:
     """Open a regular file for reading: (binary file object, size in bytes).
 
     Parameters

@@ -42,6 +42,7 @@ from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from isal.isal_zlib import crc32
@@ -177,11 +178,11 @@ _PARSERS = {
 }
 
 
-def parse_record(op: int, mv: memoryview, start: int = 0, end: int | None = None):
+def parse_record(op: int, mv: memoryview, start: int = 0, end: int | None = None) -> Any:  # the class of op
     """mcap's record class (``mcap.records``) parsed from the body ``mv[start:end]``, or raise
     :class:`_Bad` (any field past the body, bad UTF-8, …)."""
     view = _View(mv, start, end)
-    stream = ReadDataStream(view)
+    stream = ReadDataStream(view)  # type: ignore[arg-type]  # a duck-typed stream over the buffer
     try:
         if op == OP_MESSAGE:
             return Message.read(stream, view.end - start)
@@ -269,7 +270,7 @@ def decompress(
                     bigger = new(min(size, 2 * len(buf)))
                     bigger[:total] = buf
                     buf = bigger
-                n = reader.readinto(memoryview(buf)[total:])
+                n = reader.readinto(memoryview(buf)[total:])  # type: ignore[arg-type]  # an ndarray is a buffer
                 if n == 0:
                     break
                 total += n
@@ -306,7 +307,7 @@ def decompress(
         raise _Bad(f"does not decompress ({compression}: {e})") from e
     if total != size or extra:
         raise _Bad(f"decompresses to {'more than ' if extra else ''}{total} bytes, not {size}")
-    return memoryview(buf)
+    return memoryview(buf)  # type: ignore[arg-type]  # an ndarray is a buffer
 
 
 class McapFile:
@@ -384,8 +385,8 @@ class McapFile:
             raise _Bad(f"record at {offset} is {9 + length} bytes, the index says {expect_len}")
         if length > self.max_chunk_bytes:
             raise _Bad(f"record at {offset} claims {length} bytes, more than the cap of {self.max_chunk_bytes}")
-        body = memoryview(self.pool.get(length))
-        if self._f.readinto(body) != length:
+        body = memoryview(self.pool.get(length))  # type: ignore[arg-type]  # an ndarray is a buffer
+        if self._f.readinto(body) != length:  # type: ignore[attr-defined]  # a file opened for binary reading
             return None
         return op, body
 
@@ -499,7 +500,7 @@ class McapFile:
         op, body = rec
         if op != OP_ATTACHMENT:
             raise _Bad(f"no attachment record at byte {index.offset} (opcode 0x{op:02x})")
-        att = parse_record(OP_ATTACHMENT, body)
+        att: Attachment = parse_record(OP_ATTACHMENT, body)
         if len(att.data) > max_bytes:
             raise _Bad(f"holds {len(att.data)} bytes, more than the cap of {max_bytes}")
         crc = struct.unpack_from("<I", body, len(body) - 4)[0]
@@ -510,7 +511,7 @@ class McapFile:
 
     def _chunk_at(self, ref: _ChunkRef) -> list[tuple[int, object]]:
         """Read (``os.pread``: safe from any thread), decompress, CRC-check and parse a chunk."""
-        body = memoryview(self.pool.get(ref.length))
+        body = memoryview(self.pool.get(ref.length))  # type: ignore[arg-type]  # an ndarray is a buffer
         if hasattr(os, "preadv"):
             got = os.preadv(self._f.fileno(), [body], ref.offset + 9)
         else:  # pragma: no cover - Windows: a handle of its own
@@ -574,8 +575,8 @@ class McapFile:
                     key = (pos, body.length if isinstance(body, _ChunkRef) else len(body))
                     job: object = cached.pop(key, None) if cached else None  # None: not kept
                     if job is None and pool is not None:
-                        job = pool.submit(self._chunk_at, body)
-                        size = min(body.usize, self.max_chunk_bytes)
+                        job = pool.submit(self._chunk_at, body)  # type: ignore[arg-type]  # lazy: a _ChunkRef
+                        size = min(body.usize, self.max_chunk_bytes)  # type: ignore[union-attr]  # lazy: a _ChunkRef
                     elif job is None:
                         job = body
                 else:
@@ -606,7 +607,7 @@ class McapFile:
 
     def _finish(self, pos: int, op: int, job: object, damage: list[Damage]) -> Iterator[tuple[int, object]]:
         if op == _OP_NOTE:
-            damage.append(job)
+            damage.append(job)  # type: ignore[arg-type]  # the op names the job's type
             return
         if op == OP_LOST:
             yield OP_LOST, Lost(pos, self.lost_messages(pos))
@@ -618,9 +619,9 @@ class McapFile:
                 elif isinstance(job, list):
                     recs = job
                 else:
-                    recs = self._chunk_records(job)
+                    recs = self._chunk_records(job)  # type: ignore[arg-type]  # the op names the job's type
             else:
-                recs = [(op, parse_record(op, job))] if op in _INNER else []
+                recs = [(op, parse_record(op, job))] if op in _INNER else []  # type: ignore[arg-type]  # the op names the job's type
         except _Bad as e:
             what = "chunk" if op == OP_CHUNK else "record"
             damage.append(Damage(DamageKind.DAMAGED_CHUNK,

@@ -255,7 +255,7 @@ def _footer(summary: bytes | bytearray, summary_start: int, summary_offset_start
 _COPY_PIECE = 16 << 20
 
 
-def copy_with_attachment(src: str | os.PathLike, out: BinaryIO, *, name: str, media_type: str, data: bytes) -> int:
+def copy_with_attachment(src: str | os.PathLike[str], out: BinaryIO, *, name: str, media_type: str, data: bytes) -> int:
     """Copy the MCAP log ``src`` into ``out`` with one more attachment; ``src`` is only read.
 
     The data section is copied byte for byte and the attachment record goes at its end (before the

@@ -94,7 +94,7 @@ def read_part_model_bytes(data: bytes, *, name: str = PART_MODEL_ATTACHMENT) -> 
     return PartModel(np.asarray(model.points, np.float64), np.asarray(model.faces, np.int64), unit.group(1).decode())
 
 
-def read_part_model(path: str | os.PathLike) -> PartModel | None:
+def read_part_model(path: str | os.PathLike[str]) -> PartModel | None:
     """The part model a log carries (its last ``part_model.ply`` attachment), None when it has none.
 
     Raises
@@ -119,7 +119,7 @@ def read_part_model(path: str | os.PathLike) -> PartModel | None:
     return read_part_model_bytes(bytes(found), name=f"{path.name}: attachment {PART_MODEL_ATTACHMENT}")
 
 
-def load_part_mesh(path: str | os.PathLike, *, unit: str) -> bytes:
+def load_part_mesh(path: str | os.PathLike[str], *, unit: str) -> bytes:
     """A PLY, STL or OBJ mesh file as the bytes of a ``part_model.ply`` attachment in ``unit``.
 
     Read with Open3D's ``read_triangle_mesh``; its vertices are kept as they are, in the unit the
@@ -142,7 +142,7 @@ def load_part_mesh(path: str | os.PathLike, *, unit: str) -> bytes:
 
     try:
         with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-            mesh = o3d.io.read_triangle_mesh(str(path))
+            mesh = o3d.io.read_triangle_mesh(str(path))  # type: ignore[arg-type]  # Open3D's stub: it takes a str too
     except Exception as e:  # noqa: BLE001 - whatever the C++ reader raised, it is a bad mesh
         raise ParameterError(f"{path}: not a readable mesh ({e})") from None
     v = np.asarray(mesh.vertices, np.float64)

@@ -23,11 +23,15 @@ import os
 import struct
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from replay.errors import LogFormatError
 from replay.logs.files import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_MAX_PIXELS, check_caps, open_input
+
+if TYPE_CHECKING:
+    from pypcd4.pypcd4 import MetaData
 
 _HEADER_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
 _MAX_HEADER = 64 * 1024
@@ -89,7 +93,7 @@ def _header_lines(raw: bytes, name: str) -> tuple[list[str], int]:
 
 
 def read_pcd(
-    path: str | os.PathLike, *, max_pixels: int = DEFAULT_MAX_PIXELS,
+    path: str | os.PathLike[str], *, max_pixels: int = DEFAULT_MAX_PIXELS,
     max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
 ) -> Cloud:
     """Read an organized PCD file.
@@ -113,8 +117,7 @@ def read_pcd(
         Not a regular file, not a PCD, unorganized (HEIGHT 1), no x/y/z, unsupported layout, over a
         cap, truncated or corrupt data.
     """
-    from pypcd4 import PointCloud
-    from pypcd4.pypcd4 import MetaData
+    from pypcd4.pypcd4 import MetaData, PointCloud
 
     check_caps(max_pixels, max_message_bytes)
     path = Path(path)
@@ -197,7 +200,7 @@ def read_pcd(
         f.seek(data_at)
         data = f.read(n_read)  # exactly the data section's bytes, behind the checked header
         try:
-            arr = PointCloud.from_fileobj(io.BytesIO(("\n".join(lines) + "\n").encode() + data)).pc_data
+            arr = PointCloud.from_fileobj(io.BytesIO(("\n".join(lines) + "\n").encode() + data)).pc_data  # type: ignore[arg-type]  # pypcd4 reads any binary file object
         except (ValueError, TypeError, RuntimeError, struct.error, IndexError) as e:
             what = "LZF data is corrupt" if data_kind == "binary_compressed" else "data does not parse"
             raise LogFormatError(f"{name}: PCD {data_kind}: {what} ({str(e).splitlines()[0][:120]})") from None
@@ -206,20 +209,20 @@ def read_pcd(
     return _to_cloud(arr, meta, height, width)
 
 
-def _to_cloud(arr: np.ndarray, meta, height: int, width: int) -> Cloud:
+def _to_cloud(arr: np.ndarray, meta: MetaData, height: int, width: int) -> Cloud:
     arr = arr.reshape(height, width)
     cols = arr.dtype.names
     xyz = np.empty((height, width, 3), dtype=np.float32)
     with np.errstate(invalid="ignore", over="ignore"):  # signalling NaN / huge doubles in the file
         for j, axis in enumerate("xyz"):
-            xyz[..., j] = arr[cols[_column(meta, axis)]]
+            xyz[..., j] = arr[cols[_column(meta, axis)]]  # type: ignore[index]  # a structured array has names
     invalid_to_nan(xyz)
     rgb = None
     for cname in ("rgba", "rgb"):
         if cname in meta.fields:
             i = meta.fields.index(cname)
             if meta.size[i] == 4 and meta.count[i] == 1:
-                c = np.ascontiguousarray(arr[cols[_column(meta, cname)]]).view(np.uint32)
+                c = np.ascontiguousarray(arr[cols[_column(meta, cname)]]).view(np.uint32)  # type: ignore[index]  # a structured array has names
                 rgb = np.empty((height, width, 3), dtype=np.uint8)
                 rgb[..., 0] = (c >> 16) & 0xFF
                 rgb[..., 1] = (c >> 8) & 0xFF
@@ -228,7 +231,7 @@ def _to_cloud(arr: np.ndarray, meta, height: int, width: int) -> Cloud:
     return Cloud(xyz, rgb)
 
 
-def _column(meta, field: str) -> int:
+def _column(meta: MetaData, field: str) -> int:
     """Column of ``field`` in pypcd4's structured array (a COUNT n field takes n columns)."""
     i = meta.fields.index(field)
     return sum(meta.count[:i])

@@ -43,6 +43,7 @@ import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, BinaryIO
 
 import numba
 import numpy as np
@@ -50,6 +51,9 @@ import numpy as np
 from replay.errors import LogFormatError
 from replay.logs.files import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_MAX_PIXELS, check_caps, open_input
 from replay.logs.pcd import Cloud, invalid_to_nan
+
+if TYPE_CHECKING:
+    from plyfile import PlyData, PlyElement
 
 _MAX_HEADER = 64 * 1024
 _ORG = re.compile(r"\s*(num_rows|num_cols)\s+(\d+)")
@@ -60,7 +64,7 @@ def _uint_at(buf: np.ndarray, pos: int, size: int, big: bool) -> int:
     """Unsigned integer of ``size`` bytes at ``buf[pos]``, big- or little-endian."""
     v = 0
     for b in range(size):
-        v = (v << 8) | np.int64(buf[pos + (b if big else size - 1 - b)])
+        v = (v << 8) | np.int64(buf[pos + (b if big else size - 1 - b)])  # type: ignore[assignment]  # numba kernel: an int64 local
     return v
 
 
@@ -88,7 +92,7 @@ def _grid_from_lists(buf: np.ndarray, start: int, n_cells: int, cnt_size: int, i
     return pos
 
 
-def _header(f, size: int, name: str):
+def _header(f: BinaryIO, size: int, name: str) -> tuple[PlyData, int]:
     """plyfile's parse of the header (at most :data:`_MAX_HEADER` bytes), and the data offset."""
     from plyfile import PlyData, PlyParseError
 
@@ -110,7 +114,7 @@ def _header(f, size: int, name: str):
 
 
 def read_ply(
-    path: str | os.PathLike, *, shape: tuple[int, int] | None = None,
+    path: str | os.PathLike[str], *, shape: tuple[int, int] | None = None,
     max_pixels: int = DEFAULT_MAX_PIXELS, max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
 ) -> Cloud:
     """Read an organized PLY cloud (conventions in the module docstring).
@@ -145,7 +149,8 @@ def read_ply(
         return _read(f, size, ply, body_at, name, shape, max_pixels, max_message_bytes)
 
 
-def _read(f, size, ply, body_at, name, shape, max_pixels, max_message_bytes) -> Cloud:
+def _read(f: BinaryIO, size: int, ply: PlyData, body_at: int, name: str, shape: tuple[int, int] | None,
+          max_pixels: int, max_message_bytes: int) -> Cloud:
     from plyfile import PlyData, PlyListProperty, PlyParseError
 
     elements = list(ply.elements)
@@ -266,7 +271,7 @@ def _read(f, size, ply, body_at, name, shape, max_pixels, max_message_bytes) -> 
                 rgb_v = np.clip(np.round(np.nan_to_num(rgb_v.astype(np.float64)) * 255.0), 0, 255)
         rgb_v = rgb_v.astype(np.uint8)
     if grid is not None:
-        xyz = np.full((n_cells, 3), np.nan, dtype=np.float32)
+        xyz: np.ndarray = np.full((n_cells, 3), np.nan, dtype=np.float32)
         have = grid >= 0
         xyz[have] = xyz_v[grid[have]]
         rgb = None
@@ -282,7 +287,7 @@ def _read(f, size, ply, body_at, name, shape, max_pixels, max_message_bytes) -> 
     return Cloud(np.ascontiguousarray(xyz), rgb)
 
 
-def _check_grid_el(name: str, el, gshape: tuple[int, int]) -> None:
+def _check_grid_el(name: str, el: PlyElement, gshape: tuple[int, int]) -> None:
     from plyfile import PlyListProperty
 
     if len(el.properties) != 1 or not isinstance(el.properties[0], PlyListProperty):
@@ -293,7 +298,8 @@ def _check_grid_el(name: str, el, gshape: tuple[int, int]) -> None:
         )
 
 
-def _grid_shape(name: str, nv: int, rows: int | None, cols: int | None, shape, camera: dict[str, float]):
+def _grid_shape(name: str, nv: int, rows: int | None, cols: int | None, shape: tuple[int, int] | None,
+                camera: dict[str, float]) -> tuple[int, int]:
     """(H, W) from obj_info/comment, the caller's shape, or PCL's camera viewport."""
     vx, vy = camera.get("viewportx", 0.0), camera.get("viewporty", 0.0)
     if rows is not None and cols is not None:
@@ -336,7 +342,7 @@ _FACE_LISTS = ("vertex_indices", "vertex_index")
 
 
 def read_ply_model(
-    path: str | os.PathLike, *, max_points: int = DEFAULT_MAX_PIXELS,
+    path: str | os.PathLike[str], *, max_points: int = DEFAULT_MAX_PIXELS,
     max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
 ) -> PlyModel:
     """Read a PLY point cloud or mesh (a bin model, a CAD part) with the size checks of :func:`read_ply`.
@@ -398,7 +404,7 @@ def read_ply_model_bytes(
     return _read_model(io.BytesIO(data), len(data), name, max_points, max_message_bytes)
 
 
-def _read_model(f, size: int, name: str, max_points: int, max_message_bytes: int) -> PlyModel:
+def _read_model(f: BinaryIO, size: int, name: str, max_points: int, max_message_bytes: int) -> PlyModel:
     from plyfile import PlyData, PlyListProperty, PlyParseError
 
     ply, body_at = _header(f, size, name)
@@ -497,7 +503,7 @@ def _fan(polys: np.ndarray, n: int, name: str) -> np.ndarray:
     return tris.reshape(-1, 3)
 
 
-def _binary_elements(ply, raw: bytes, body_at: int) -> dict[str, np.ndarray] | None:
+def _binary_elements(ply: PlyData, raw: bytes, body_at: int) -> dict[str, np.ndarray] | None:
     """Every element of a binary PLY as a structured array read with ``np.frombuffer`` (not plyfile's
     row-by-row read of a file held in memory: 4-5 s for a 65k-point bin model, here ~1 ms).
 
@@ -510,7 +516,7 @@ def _binary_elements(ply, raw: bytes, body_at: int) -> dict[str, np.ndarray] | N
     out: dict[str, np.ndarray] = {}
     at = body_at
     for el in ply.elements:
-        fields: list[tuple] = []
+        fields: list[tuple[str, str] | tuple[str, str, tuple[int]]] = []
         lens: list[str] = []
         pos = at  # where the first row's next property starts (for list lengths)
         for p in el.properties:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import struct
 import sys
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numba
@@ -199,12 +200,14 @@ class _Cdr:
     def u32(self, what: str) -> int:
         self._align(4)
         s = self._take(4, what)
-        return struct.unpack_from(self.bo + "I", self.buf, s)[0]
+        value: int = struct.unpack_from(self.bo + "I", self.buf, s)[0]
+        return value
 
     def i32(self, what: str) -> int:
         self._align(4)
         s = self._take(4, what)
-        return struct.unpack_from(self.bo + "i", self.buf, s)[0]
+        value: int = struct.unpack_from(self.bo + "i", self.buf, s)[0]
+        return value
 
     def f64s(self, n: int, what: str) -> tuple[float, ...]:
         if n == 0:
@@ -342,8 +345,8 @@ class _CdrOut:
         self._pad(4)
         self.raw(struct.pack("<i", v))
 
-    def f64s(self, vals) -> None:
-        vals = list(vals)
+    def f64s(self, values: Iterable[float]) -> None:
+        vals = list(values)
         if vals:
             self._pad(8)
             self.raw(struct.pack(f"<{len(vals)}d", *vals))
@@ -568,7 +571,7 @@ def cloud_to_arrays(
 
 
 @numba.njit(cache=True, nogil=True)
-def _unpack_xyz(px, py, pz, xyz):  # pragma: no cover - compiled
+def _unpack_xyz(px, py, pz, xyz):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - compiled
     h, w = px.shape
     nan = np.float32(np.nan)
     for i in range(h):
@@ -584,7 +587,7 @@ def _unpack_xyz(px, py, pz, xyz):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _unpack_xyz_rgb(px, py, pz, c, xyz, rgb):  # pragma: no cover - compiled
+def _unpack_xyz_rgb(px, py, pz, c, xyz, rgb):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - compiled
     # one pass: each point's bytes are read from memory once
     h, w = px.shape
     nan = np.float32(np.nan)
@@ -610,7 +613,7 @@ _NAN = np.uint32(0x7FC00000)  # the bits of np.float32(np.nan)
 
 
 @numba.njit(cache=True, nogil=True)
-def _unpack_words(words, ox, oy, oz, xyz):  # pragma: no cover - compiled
+def _unpack_words(words, ox, oy, oz, xyz):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - compiled
     # same result as _unpack_xyz for little-endian FLOAT32 coordinates, bitwise and branch-free
     h, w = words.shape[0], words.shape[1]
     out = xyz.view(np.uint32)
@@ -626,7 +629,7 @@ def _unpack_words(words, ox, oy, oz, xyz):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _unpack_words_rgb(words, ox, oy, oz, oc, xyz, rgb):  # pragma: no cover - compiled
+def _unpack_words_rgb(words, ox, oy, oz, oc, xyz, rgb):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - compiled
     h, w = words.shape[0], words.shape[1]
     out = xyz.view(np.uint32)
     for i in range(h):
@@ -660,11 +663,11 @@ def arrays_to_cloud_data(xyz: np.ndarray, rgb: np.ndarray | None) -> memoryview:
         if rgb is not None:
             r = rgb.astype(np.uint32)
             out.view("<u4")[..., 3] = (0xFF << 24) | (r[..., 0] << 16) | (r[..., 1] << 8) | r[..., 2]
-    return memoryview(out).cast("B")
+    return memoryview(out).cast("B")  # type: ignore[arg-type]  # an ndarray is a buffer
 
 
 @numba.njit(cache=True, nogil=True)
-def _pack_xyz(xyz, out):  # pragma: no cover - compiled
+def _pack_xyz(xyz, out):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - compiled
     h, w = out.shape[0], out.shape[1]
     bits = out.view(np.uint32)
     for i in range(h):
@@ -676,7 +679,7 @@ def _pack_xyz(xyz, out):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _pack_xyz_rgb(xyz, rgb, out):  # pragma: no cover - compiled
+def _pack_xyz_rgb(xyz, rgb, out):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - compiled
     h, w = out.shape[0], out.shape[1]
     bits = out.view(np.uint32)
     for i in range(h):
@@ -737,7 +740,8 @@ def image_to_mask(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -
     """(H, W) bool of a mono8 mask ``Image``: nonzero (255 as zcut writes it) -> True."""
     if msg.encoding != "mono8":
         raise LogFormatError(f"{where}: a mask must be a mono8 Image, got '{msg.encoding}'")
-    return _image_pixels(msg, where=where, max_pixels=max_pixels)[..., 0] != 0
+    mask: np.ndarray = _image_pixels(msg, where=where, max_pixels=max_pixels)[..., 0] != 0
+    return mask
 
 
 def image_to_codes(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -> np.ndarray:

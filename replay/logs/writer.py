@@ -97,7 +97,7 @@ class LogWriter:
 
     def __init__(
         self,
-        path: str | os.PathLike,
+        path: str | os.PathLike[str],
         *,
         metadata: dict[str, dict[str, str]] | None = None,
         attachments: dict[str, tuple[str, bytes]] | None = None,
@@ -277,19 +277,19 @@ class LogWriter:
         """Write a :class:`Frame`: cloud on ``/camera/points``, image on ``/camera/image`` (when
         ``frame.rgb`` is set), ``/camera/camera_info`` (when intrinsics are set), and every mask of
         ``frame.masks`` under its own topic, all stamped ``frame.stamp_ns``."""
-        kw = {"stamp_ns": frame.stamp_ns, "frame_id": frame.frame_id}
-        self.write_cloud(layout.CLOUD, frame.xyz, rgb=frame.rgb, **kw)
+        stamp_ns, frame_id = frame.stamp_ns, frame.frame_id
+        self.write_cloud(layout.CLOUD, frame.xyz, rgb=frame.rgb, stamp_ns=stamp_ns, frame_id=frame_id)
         if frame.rgb is not None:
-            self.write_image(layout.IMAGE, frame.rgb, **kw)
+            self.write_image(layout.IMAGE, frame.rgb, stamp_ns=stamp_ns, frame_id=frame_id)
         if frame.intrinsics is not None:
-            self.write_camera_info(layout.CAMERA_INFO, frame.intrinsics, **kw)
+            self.write_camera_info(layout.CAMERA_INFO, frame.intrinsics, stamp_ns=stamp_ns, frame_id=frame_id)
         for topic, mask in frame.masks.items():
-            self.write_mask(topic, mask, **kw)
+            self.write_mask(topic, mask, stamp_ns=stamp_ns, frame_id=frame_id)
 
     # ---------------------------------------------------------------- closing
     def _bag_info_yaml(self) -> str:
         start = self._t_min or 0
-        duration = (self._t_max - self._t_min) if self._t_min is not None else 0
+        duration = (self._t_max - self._t_min) if self._t_min is not None else 0  # type: ignore[operator]  # set together
         total = sum(self._counts.values())
         lines = [
             "rosbag2_bagfile_information:",

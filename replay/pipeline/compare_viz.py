@@ -22,6 +22,7 @@ Timelines: ``frame`` (the comparison's frame number, over every log in order) an
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +35,7 @@ DIFF_CLASSES = ((1, "B fixes", (0, 200, 0)), (2, "B breaks", (230, 0, 0)), (3, "
                 (4, "removed only by A", (255, 140, 0)), (5, "removed only by B", (30, 144, 255)))
 
 
-def _ctx(classes) -> rr.AnnotationContext:
+def _ctx(classes: Iterable[tuple[int, str, tuple[int, int, int]]]) -> rr.AnnotationContext:
     return rr.AnnotationContext([rr.AnnotationInfo(id=0, label="none", color=(0, 0, 0, 0))]
                                 + [rr.AnnotationInfo(id=i, label=n, color=c) for i, n, c in classes])
 

@@ -28,10 +28,11 @@ import os
 import sys
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -41,6 +42,10 @@ from replay.outputs import AtomicOutput, OutputError, config_path_for, folder_go
 from replay.pipeline.config import PipelineConfig, Resolved, to_toml
 from replay.pipeline.stages import FrameResult
 from zcut.bin_model import BinModel
+
+if TYPE_CHECKING:
+    from replay.logs.writer import LogWriter
+    from replay.pipeline.viz import RecordingStream, VizOptions
 
 VIEWER_FLUSH_TIMEOUT_S = 10.0
 #: seconds Rerun's file writer may take to write the last frames of a recording (a writer that
@@ -134,7 +139,7 @@ def _disk_full(path: Path) -> bool:
     return st.f_bavail * st.f_frsize < FULL_DISK_BYTES
 
 
-def _within(fn, timeout_s: float) -> bool:
+def _within(fn: Callable[[], object], timeout_s: float) -> bool:
     """Run ``fn()`` in a daemon thread; True when it returned within ``timeout_s`` (its error is
     raised here), False when it still runs (it is left behind)."""
     error: list[BaseException] = []
@@ -188,14 +193,14 @@ class RrdFile:
         return OutputError(f"{self.path}: Rerun could not open the .rrd for writing ({_first_line(e)}); "
                            "nothing was left under its name")
 
-    def check(self, rec) -> None:
+    def check(self, rec: RecordingStream) -> None:
         """Stop at the first frame after Rerun's file writer failed (a full disk): it only logs the
         error, and the frames logged after it would pile up in memory."""
         problem = self._flush(rec, RRD_FRAME_FLUSH_S, slow_ok=True)
         if problem is not None:
             raise self._failure(problem)
 
-    def _flush(self, rec, timeout_s: float, *, slow_ok: bool = False) -> str | None:
+    def _flush(self, rec: RecordingStream, timeout_s: float, *, slow_ok: bool = False) -> str | None:
         """Flush the recording to its file within ``timeout_s``; what went wrong, or None.
 
         Rerun's flush says "timed out" both for a slow disk and for a writer that died on a full
@@ -227,7 +232,7 @@ class RrdFile:
         return OutputError(f"{self.path}: the .rrd could not be written completely (Rerun: {why}); nothing was "
                            "left under its name")
 
-    def close(self, rec, *, completed: bool) -> Path | None:
+    def close(self, rec: RecordingStream, *, completed: bool) -> Path | None:
         """Flush and close the recording (bounded), check it complete, then give it its name (returned;
         None when not ``completed``: the temporary is removed). Never leaves the temporary behind."""
         from replay.pipeline import viz
@@ -279,9 +284,9 @@ class RerunSink:
                  full_detail: bool = False) -> None:
         self.rrd = None if rrd is None else Path(rrd)
         self.spawn, self.connect, self.full_detail = spawn, connect, full_detail
-        self._rec = None
+        self._rec: RecordingStream | None = None
         self._file: RrdFile | None = None
-        self._opts = None
+        self._opts: VizOptions | None = None
         self._step = 0.0
         self._outputs: dict[str, str] = {}
         self.viewer_error: str | None = None
@@ -313,9 +318,9 @@ class RerunSink:
     def write(self, frame: Frame, result: FrameResult) -> None:
         from replay.pipeline import viz
 
-        viz.log_frame(self._rec, frame, result, step_mm=self._step, opts=self._opts)
+        viz.log_frame(self._rec, frame, result, step_mm=self._step, opts=self._opts)  # type: ignore[arg-type]  # started
         if self._file is not None:
-            self._file.check(self._rec)
+            self._file.check(self._rec)  # type: ignore[arg-type]  # started
 
     def close(self, *, completed: bool) -> None:
         rec, self._rec = self._rec, None
@@ -331,7 +336,7 @@ class RerunSink:
         if done is not None:
             self._outputs["rrd"] = str(done)
 
-    def _close_viewer(self, rec) -> None:
+    def _close_viewer(self, rec: RecordingStream) -> None:
         # a viewer that is gone must not hang the replay
         try:
             rec.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)
@@ -366,7 +371,7 @@ class ResultsSink:
         self.path = Path(path)
         self.cloud = cloud
         self._file: AtomicOutput | None = None
-        self._writer = None
+        self._writer: LogWriter | None = None
         self._outputs: dict[str, str] = {}
 
     def start(self, info: ReplayStart) -> None:
@@ -385,12 +390,12 @@ class ResultsSink:
             raise
 
     def write(self, frame: Frame, result: FrameResult) -> None:
-        with naming(self.path, self._file.temp):
+        with naming(self.path, self._file.temp):  # type: ignore[union-attr]  # started
             self._write(frame, result)
 
     def _write(self, frame: Frame, result: FrameResult) -> None:
-        w = self._writer
-        kw = {"stamp_ns": frame.stamp_ns, "frame_id": frame.frame_id}
+        w: LogWriter = self._writer  # type: ignore[assignment]  # started
+        kw: dict[str, Any] = {"stamp_ns": frame.stamp_ns, "frame_id": frame.frame_id}
         for name, mask in result.outliers.items():  # the z-cut first, then SOR and the others that ran
             w.write_mask(layout.method_topic(name), mask, **kw)
         if result.bin_mask is not None:
@@ -416,14 +421,15 @@ class ResultsSink:
         writer, self._writer = self._writer, None
         if writer is None:
             return
+        file: AtomicOutput = self._file  # type: ignore[assignment]  # opened with the writer
         try:
-            with naming(self.path, self._file.temp):
+            with naming(self.path, file.temp):
                 writer.close()
             if completed:
-                self._outputs["results"] = str(self._file.commit())
+                self._outputs["results"] = str(file.commit())
         finally:
-            if not self._file.done:
-                self._file.abort()  # an error, an interruption: no temporary left
+            if not file.done:
+                file.abort()  # an error, an interruption: no temporary left
 
     def outputs(self) -> dict[str, str]:
         return dict(self._outputs)
@@ -461,7 +467,7 @@ class BackgroundSinks:
     def __init__(self, sinks: list[FrameSink]) -> None:
         self.sinks = list(sinks)
         self._pool: ThreadPoolExecutor | None = None
-        self._pending: Future | None = None
+        self._pending: Future[None] | None = None
 
     def start(self, info: ReplayStart) -> None:
         """Start every sink; if one fails (or an interruption arrives), close those started with
@@ -531,7 +537,7 @@ class BackgroundSinks:
     @property
     def viewer_error(self) -> str | None:
         for s in self.sinks:
-            e = getattr(s, "viewer_error", None)
+            e: str | None = getattr(s, "viewer_error", None)
             if e:
                 return e
         return None

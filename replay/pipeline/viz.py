@@ -38,7 +38,9 @@ timeline shows the last frame logged (replay one frame with ``--frames N:N+1`` t
 from __future__ import annotations
 
 import functools
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -49,6 +51,12 @@ import rerun.blueprint as rrb
 from replay.logs.frame import Frame
 from replay.pipeline.stages import FrameResult
 from zcut.bin_model import BinModel
+
+if TYPE_CHECKING:
+    import subprocess
+
+#: the recording a sink logs to, for the annotations of modules that do not import Rerun themselves
+RecordingStream = rr.RecordingStream
 
 OUTLIER_CLASSES = (
     (1, "z-cut only", (255, 140, 0)),
@@ -129,7 +137,7 @@ def default_blueprint(methods: tuple[str, ...] = ("zcut", "sor")) -> rrb.Bluepri
     """Image stages on the left, 3D and the z-cuts in the middle, scalars and config on the right;
     ``methods``: the base methods the replay runs (a view for each other than the z-cut and SOR)."""
     others = [m for m in methods if m not in ("zcut", "sor")]
-    image_views = [
+    image_views: list[rrb.Spatial2DView | rrb.Tabs] = [
         rrb.Spatial2DView(name="RGB + bin mask", origin="image", contents=["image/rgb", "image/bin_mask"]),
         rrb.Spatial2DView(name="Removal", origin="image", contents=["image/rgb", "image/removal", "image/bin_check"]),
         rrb.Spatial2DView(name="Outliers (z-cut / SOR / both)", origin="image",
@@ -191,7 +199,8 @@ def viewer_args(port: int = VIEWER_PORT) -> list[str]:
     return ["--bind", VIEWER_BIND, "--port", str(port), "--memory-limit", "75%"]
 
 
-def spawn_viewer(*, port: int = VIEWER_PORT, executable: str = "rerun", timeout_s: float = VIEWER_START_S):
+def spawn_viewer(*, port: int = VIEWER_PORT, executable: str = "rerun",
+                 timeout_s: float = VIEWER_START_S) -> subprocess.Popen[bytes] | None:
     """Start a Rerun viewer listening on 127.0.0.1:``port`` only, detached from this process (it
     stays open after the replay, as ``rr.spawn``'s does; ``rr.spawn`` cannot bind an address).
 
@@ -300,7 +309,7 @@ def rrd_problem(path: str) -> str | None:
     return None
 
 
-def _ctx(classes) -> rr.AnnotationContext:
+def _ctx(classes: Iterable[tuple[int, str, tuple[int, int, int]]]) -> rr.AnnotationContext:
     return rr.AnnotationContext([rr.AnnotationInfo(id=0, label="none", color=(0, 0, 0, 0))]
                                 + [rr.AnnotationInfo(id=i, label=name, color=col) for i, name, col in classes])
 
@@ -336,7 +345,7 @@ def set_frame_time(rec: rr.RecordingStream, frame: Frame) -> None:
     rec.set_time("depth_um", sequence=0)
 
 
-def _image(rgb: np.ndarray, opts: VizOptions):
+def _image(rgb: np.ndarray, opts: VizOptions) -> rr.Image | rr.EncodedImage:
     """Raw at full detail; else JPEG-encoded once with OpenCV (faster than ``rr.Image.compress``)."""
     if opts.full_detail:
         return rr.Image(np.ascontiguousarray(rgb), color_model="RGB")
@@ -558,7 +567,7 @@ def log_clusters(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions)
     ctx = _contexts_arrow(np.arange(k + 1), labels, colours, np.array([0, k + 1]))
     rec.log("image/clusters", rr.AnnotationContext(ctx))
     dtype = np.uint8 if n < 256 else np.uint16 if n < 65536 else np.uint32  # the smallest that holds every id
-    rec.log("image/clusters", rr.SegmentationImage(cut.clusters.astype(dtype)))
+    rec.log("image/clusters", rr.SegmentationImage(cut.clusters.astype(dtype)))  # type: ignore[arg-type]  # unsigned ids
 
 
 def _outlier_classes(result: FrameResult) -> np.ndarray:
@@ -566,7 +575,8 @@ def _outlier_classes(result: FrameResult) -> np.ndarray:
     s = _u8(result.sor_outliers)
     c = _u8(result.zcut_outliers) + s
     c += s
-    return np.maximum(c, _u8(result.easy_outliers) * np.uint8(4), out=c)
+    classes: np.ndarray = np.maximum(c, _u8(result.easy_outliers) * np.uint8(4), out=c)
+    return classes
 
 
 def log_outliers(rec: rr.RecordingStream, frame: Frame, result: FrameResult, classes: np.ndarray) -> None:

@@ -118,7 +118,8 @@ STEEP_DEG = 65.0
 _EIGHT = np.ones((3, 3), bool)
 
 
-def blob(shape: tuple[int, int], centre: tuple[int, int], area_px: float, rng: np.random.Generator):
+def blob(shape: tuple[int, int], centre: tuple[int, int], area_px: float,
+         rng: np.random.Generator) -> tuple[slice, slice, np.ndarray]:
     """A random compact blob of about ``area_px`` pixels around ``centre`` (row, col).
 
     Returns
@@ -242,7 +243,7 @@ def drop_steep_fragments(
 
 
 @numba.njit(cache=True, nogil=True)
-def _drop_steep(valid, cosine, depth, sid, steep_cos):  # pragma: no cover - numba
+def _drop_steep(valid, cosine, depth, sid, steep_cos):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     H, W = valid.shape
     reached = np.zeros((H, W), np.bool_)
     stack = np.empty(H * W, np.int64)
@@ -306,7 +307,7 @@ def drop_surface_fragments(valid: np.ndarray, surface_id: np.ndarray, *, max_px:
 
 
 @numba.njit(cache=True, nogil=True)
-def _find(parent, x):  # pragma: no cover - numba
+def _find(parent, x):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     while parent[x] != x:
         parent[x] = parent[parent[x]]
         x = parent[x]
@@ -314,7 +315,7 @@ def _find(parent, x):  # pragma: no cover - numba
 
 
 @numba.njit(cache=True, nogil=True)
-def _drop_fragments(valid, sid, max_px):  # pragma: no cover - numba
+def _drop_fragments(valid, sid, max_px):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     H, W = valid.shape
     parent = np.arange(H * W)
     for r in range(H):
@@ -487,7 +488,8 @@ def _ghost_depth(
     extent = max(float(np.ptp(proj)), 1.0)
     tilt = rng.uniform(0.0, 0.5) * offset_mm * (proj - proj.min()) / extent
     scatter = np.sqrt(sigma_mm[M] ** 2 + roughness_mm**2)
-    return base_mm - offset_mm - tilt + rng.normal(0.0, 1.0, rr.size) * scatter
+    depth: np.ndarray = base_mm - offset_mm - tilt + rng.normal(0.0, 1.0, rr.size) * scatter
+    return depth
 
 
 def floating_clusters(

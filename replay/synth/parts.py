@@ -9,6 +9,8 @@ needs).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from replay.presets import HEX_M_MM as _HEX_M
@@ -54,6 +56,10 @@ def face_area_px(kind: PartKind, *, fx: float, fy: float, distance_m: float) -> 
 #                 counter-clockwise ``outline`` extruded from z0 to z1, then rotated by R (None: not
 #                 rotated), which the true-surface meshes of ``replay.synth.surfaces`` are built from;
 #             ("sphere", centre (3,), radius).
+#: one primitive (the layouts above): its fields differ by kind, so to mypy it is a tuple of Any
+Primitive = tuple[Any, ...]
+#: a part's solid: the primitives of the union and the primitive subtracted (None: no hole)
+Solid = tuple[list[Primitive], Primitive | None]
 
 
 def _regular_polygon(n: int, circumradius: float, phase: float = 0.0) -> np.ndarray:
@@ -61,7 +67,7 @@ def _regular_polygon(n: int, circumradius: float, phase: float = 0.0) -> np.ndar
     return np.stack([circumradius * np.cos(a), circumradius * np.sin(a)], axis=1)
 
 
-def _prism(poly: np.ndarray, z0: float, z1: float, R: np.ndarray | None = None) -> tuple:
+def _prism(poly: np.ndarray, z0: float, z1: float, R: np.ndarray | None = None) -> Primitive:
     """Convex prism {(x, y) in poly (CCW), z0 <= z <= z1}, optionally rotated by R about the origin."""
     nxt = np.roll(poly, -1, axis=0)
     edge = nxt - poly
@@ -82,7 +88,7 @@ def _prism(poly: np.ndarray, z0: float, z1: float, R: np.ndarray | None = None) 
 _ALONG_X = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # maps local z to x
 
 
-def _cylinder_x(radius: float, x0: float, x1: float, sides: int = 40, phase: float = 0.0) -> tuple:
+def _cylinder_x(radius: float, x0: float, x1: float, sides: int = 40, phase: float = 0.0) -> Primitive:
     return _prism(_regular_polygon(sides, radius / np.cos(np.pi / sides), phase), x0, x1, _ALONG_X)
 
 
@@ -90,7 +96,7 @@ def _hexagon(s: float, phase: float = 0.0) -> np.ndarray:
     return _regular_polygon(6, s / np.sqrt(3.0), phase)
 
 
-def part_solid(name: str, rng: np.random.Generator) -> tuple[list[tuple], tuple | None]:
+def part_solid(name: str, rng: np.random.Generator) -> Solid:
     """Primitives of one part of kind ``name`` in its local frame (origin near the centroid).
 
     Returns
@@ -137,7 +143,8 @@ def _rot_z(a: float) -> np.ndarray:
 def _rot_axis(axis: np.ndarray, a: float) -> np.ndarray:
     axis = axis / np.linalg.norm(axis)
     K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
+    R: np.ndarray = np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
+    return R
 
 
 def random_rest_rotation(name: str, rng: np.random.Generator) -> np.ndarray:
@@ -157,11 +164,12 @@ def random_rest_rotation(name: str, rng: np.random.Generator) -> np.ndarray:
         tilt = min(abs(rng.normal(0.0, np.radians(10))), np.radians(30))
     else:
         raise KeyError(name)
-    return _rot_axis(tilt_axis, tilt) @ _rot_z(yaw) @ rest
+    R: np.ndarray = _rot_axis(tilt_axis, tilt) @ _rot_z(yaw) @ rest
+    return R
 
 
 def height_profile(
-    primitives: list[tuple], hole: tuple | None, R: np.ndarray, xs: np.ndarray, ys: np.ndarray
+    primitives: list[Primitive], hole: Primitive | None, R: np.ndarray, xs: np.ndarray, ys: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Lowest and highest point of the rotated solid on each vertical line (x, y).
 
@@ -207,7 +215,7 @@ def height_profile(
     return lo, hi
 
 
-def _window(prim: tuple, R: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> tuple[slice, slice] | None:
+def _window(prim: Primitive, R: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> tuple[slice, slice] | None:
     """Grid window (rows, cols) covering the primitive's bounding ball, None when off the grid."""
     c = R @ (prim[1] if prim[0] == "sphere" else prim[3])
     r = prim[2] if prim[0] == "sphere" else prim[4]
@@ -220,7 +228,7 @@ def _window(prim: tuple, R: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> tuple
     return slice(int(i0), int(i1)), slice(int(j0), int(j1))
 
 
-def _interval(prim: tuple, R: np.ndarray, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _interval(prim: Primitive, R: np.ndarray, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if prim[0] == "sphere":
         c = R @ prim[1]
         r2 = prim[2] ** 2 - (X - c[0]) ** 2 - (Y - c[1]) ** 2

@@ -11,6 +11,7 @@ already there).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numba
@@ -18,6 +19,7 @@ import numpy as np
 
 from replay.presets import BIN, PART_KINDS, BinGeometry
 from replay.synth.parts import (
+    Solid,
     height_profile,
     part_solid,
     random_rest_rotation,
@@ -87,9 +89,11 @@ class BinShape:
     deform_mm: float = 0.0
 
     def __post_init__(self) -> None:
-        for name, v, ok in (("scale", self.scale, lambda x: abs(x - 1.0) <= MAX_BIN_SCALE_DEVIATION),
-                            ("bulge_mm", self.bulge_mm, lambda x: abs(x) <= MAX_BIN_SHAPE_MM),
-                            ("deform_mm", self.deform_mm, lambda x: 0.0 <= x <= MAX_BIN_SHAPE_MM)):
+        checks: tuple[tuple[str, float, Callable[[float], bool]], ...] = (
+            ("scale", self.scale, lambda x: abs(x - 1.0) <= MAX_BIN_SCALE_DEVIATION),
+            ("bulge_mm", self.bulge_mm, lambda x: abs(x) <= MAX_BIN_SHAPE_MM),
+            ("deform_mm", self.deform_mm, lambda x: 0.0 <= x <= MAX_BIN_SHAPE_MM))
+        for name, v, ok in checks:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not ok(float(v)):
                 limits = {"scale": f"within {MAX_BIN_SCALE_DEVIATION:g} of 1",
                           "bulge_mm": f"within ±{MAX_BIN_SHAPE_MM:g} mm",
@@ -112,7 +116,7 @@ class BinShape:
                 raise ParameterError("BinShape.realise: deform_mm > 0 needs a random generator")
             bulges = bulges + rng.uniform(-self.deform_mm, self.deform_mm, 4)
             twist = float(rng.uniform(-self.deform_mm, self.deform_mm))
-        return BinDeformation(self.scale, tuple(float(b) for b in bulges), twist)
+        return BinDeformation(self.scale, tuple(float(b) for b in bulges), twist)  # type: ignore[arg-type]  # four walls
 
 
 @dataclass(frozen=True, slots=True)
@@ -192,7 +196,7 @@ class PlacedPart:
     top: np.ndarray
     R: np.ndarray
     centre_mm: np.ndarray
-    solid: tuple | None = None
+    solid: Solid | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -304,7 +308,7 @@ def bin_mesh_mm(geometry: BinGeometry = BIN) -> tuple[np.ndarray, np.ndarray]:
     fx, fy = geometry.floor_half
     h, f = geometry.height_mm, geometry.floor_mm
 
-    def rect(hx, hy, z):  # corners counter-clockwise from (+x, +y)
+    def rect(hx: float, hy: float, z: float) -> list[tuple[float, float, float]]:  # corners counter-clockwise from (+x, +y)
         return [(hx, hy, z), (-hx, hy, z), (-hx, -hy, z), (hx, -hy, z)]
 
     vertices = np.array(rect(ox, oy, h) + rect(ix, iy, h) + rect(fx, fy, f) + rect(ox, oy, 0.0), np.float64)
@@ -319,7 +323,7 @@ def bin_mesh_mm(geometry: BinGeometry = BIN) -> tuple[np.ndarray, np.ndarray]:
 
 
 @numba.njit(cache=True, nogil=True)
-def _rest(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, u, v):  # pragma: no cover - numba
+def _rest(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, u, v):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """Resting base (mm) of a part whose origin is dropped at bin-frame (u, v); -inf if off-grid."""
     u = min(max(u, -lim_u), lim_u)
     v = min(max(v, -lim_v), lim_v)
@@ -339,7 +343,7 @@ def _rest(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, u, v):
 
 
 @numba.njit(cache=True, nogil=True)
-def _settle(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, us, vs, roll):  # pragma: no cover
+def _settle(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, us, vs, roll):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover
     """Lowest rest among the drop points (us, vs), then downhill moves of ``roll`` mm in 8 directions."""
     best_b, best_i, best_j, best_u, best_v = -np.inf, 0, 0, 0.0, 0.0
     for k in range(us.size):

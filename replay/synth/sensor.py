@@ -47,7 +47,7 @@ SPECULAR_LOBES = ((420.0, 400.0), (70.0, 25.0))
 def check_size(size: object) -> tuple[int, int]:
     """``size`` as (height, width) ints in 8..8192, or :class:`ParameterError` naming it."""
     try:
-        h, w = (int(v) for v in size)  # type: ignore[union-attr]
+        h, w = (int(v) for v in size)  # type: ignore[attr-defined]  # not iterable: the TypeError below
     except (TypeError, ValueError) as e:
         raise ParameterError(f"size must be (height, width), got {size!r}") from e
     if not (8 <= h <= 8192 and 8 <= w <= 8192):
@@ -96,7 +96,7 @@ class Render:
 
 
 @numba.njit(cache=True, nogil=True)
-def _raster(Xc, Yc, Zc, U, V, node_label, node_pid, fx, fy, cx, cy, depth, normal, label, pid):  # pragma: no cover
+def _raster(Xc, Yc, Zc, U, V, node_label, node_pid, fx, fy, cx, cy, depth, normal, label, pid):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover
     ny, nx = Zc.shape
     H, W = depth.shape
     for i in range(ny - 1):
@@ -195,7 +195,8 @@ def _raster(Xc, Yc, Zc, U, V, node_label, node_pid, fx, fy, cx, cy, depth, norma
                             pid[r, c] = pp
 
 
-def _node_camera_coords(scene: Scene, *, camera_height_mm: float, offset_x_mm: float = 0.0):
+def _node_camera_coords(scene: Scene, *, camera_height_mm: float,
+                        offset_x_mm: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     g = scene.grid
     X = np.broadcast_to(g.xs[None, :] - offset_x_mm, scene.height.shape)
     Y = np.broadcast_to(-g.ys[:, None], scene.height.shape)
@@ -290,7 +291,7 @@ def measure(
 
 
 @numba.njit(cache=True, nogil=True)
-def _measurable(depth, normal, shadow, fx, fy, cx, cy, fp, cxp, cyp, baseline, cos_min, ok, cosine):  # pragma: no cover
+def _measurable(depth, normal, shadow, fx, fy, cx, cy, fp, cxp, cyp, baseline, cos_min, ok, cosine):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover
     H, W = depth.shape
     hp, wp = shadow.shape
     for r in range(H):
@@ -351,7 +352,8 @@ def correlated_noise(
     truncate = 3.0
     noise = ndimage.gaussian_filter(noise, sigma_px, mode="reflect", truncate=truncate)
     noise *= np.float32(1.0 / _gaussian_gain(sigma_px, truncate))
-    return noise
+    smooth: np.ndarray = noise
+    return smooth
 
 
 def quantize_depth(depth_mm: np.ndarray, step_mm: float) -> np.ndarray:
@@ -408,7 +410,7 @@ def shade_rgb(
 
 
 @numba.njit(cache=True, nogil=True)
-def _shade(normal, depth, colours, shiny, ambient, fx, fy, cx, cy, baseline, lobes, img, saturated):  # pragma: no cover
+def _shade(normal, depth, colours, shiny, ambient, fx, fy, cx, cy, baseline, lobes, img, saturated):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover
     H, W = shiny.shape
     lx, ly, lz = -0.25, 0.35, -1.0  # towards a lamp beside the camera
     ln = np.sqrt(lx * lx + ly * ly + lz * lz)

@@ -28,9 +28,16 @@ The hand-made parts are prisms of convex polygons (a bore subtracted, teeth adde
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
+
+if TYPE_CHECKING:
+    import open3d as o3d
+
+    from replay.synth.parts import Primitive, Solid
+    from replay.synth.scene import Scene
 
 #: the paper's factor: an outlier lies farther than K × Err from every true surface
 OFF_SURFACE_K = 3.0
@@ -93,7 +100,8 @@ def _segment_crossings(polys: Sequence[np.ndarray]) -> np.ndarray:
         u = (w[..., 0] * pr[..., 1] - w[..., 1] * pr[..., 0]) / den
     ok = (owner[:, None] != owner[None, :]) & (np.abs(den) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
     i, _ = np.nonzero(ok)
-    return a[i] + t[ok][:, None] * r[i]
+    points: np.ndarray = a[i] + t[ok][:, None] * r[i]
+    return points
 
 
 def _angles(points: np.ndarray) -> np.ndarray | None:
@@ -113,7 +121,8 @@ def _outline(polys: Sequence[np.ndarray], angles: np.ndarray) -> np.ndarray:
     r = np.max([_exit_distance(p, angles) for p in polys], axis=0)
     if not np.isfinite(r).all():
         raise ValueError("the outline is not star-shaped about the part's axis")
-    return r
+    radius: np.ndarray = r
+    return radius
 
 
 #: longest wall triangle along a prism's axis (mm): long slivers (an 80 mm rod's sides) slow the
@@ -170,7 +179,7 @@ def _extrusion(angles: np.ndarray, outer: np.ndarray, z0: float, z1: float, *, b
     return v, np.concatenate(tri).astype(np.int64)
 
 
-def _signature(solid: tuple) -> tuple:
+def _signature(solid: Solid) -> tuple[object, ...]:
     prims, hole = solid
     R = prims[0][8]
     return (tuple((p[0], len(p[5]) if p[0] == "poly" else 0, p[6] if p[0] == "poly" else 0,
@@ -179,10 +188,10 @@ def _signature(solid: tuple) -> tuple:
             None if R is None else np.asarray(R).tobytes())
 
 
-def solid_meshes(solids: Sequence[tuple]) -> list[tuple[np.ndarray, np.ndarray]]:
+def solid_meshes(solids: Sequence[Solid]) -> list[tuple[np.ndarray, np.ndarray]]:
     """:func:`solid_mesh` of each of ``solids`` ((primitives, hole) pairs), those of one shape at once."""
-    out: list = [None] * len(solids)
-    groups: dict[tuple, list[int]] = {}
+    out: list[tuple[np.ndarray, np.ndarray]] = [None] * len(solids)  # type: ignore[list-item]  # all set below
+    groups: dict[tuple[object, ...], list[int]] = {}
     same: dict[bytes, int] = {}  # parts drawn without a random phase (sprockets) are one solid
     copies: list[tuple[int, int]] = []
     for k, (prims, hole) in enumerate(solids):
@@ -209,7 +218,7 @@ class _Uneven(Exception):
     """Rows of a batch whose outlines have different numbers of breakpoints."""
 
 
-def solid_mesh(primitives: Sequence[tuple], hole: tuple | None) -> tuple[np.ndarray, np.ndarray]:
+def solid_mesh(primitives: list[Primitive], hole: Primitive | None) -> tuple[np.ndarray, np.ndarray]:
     """The exact closed surface of a hand-made part (:func:`replay.synth.parts.part_solid`), local frame, mm.
 
     Handles the kinds the generator makes: co-axial prisms of one height whose union is star-shaped
@@ -229,7 +238,7 @@ def solid_mesh(primitives: Sequence[tuple], hole: tuple | None) -> tuple[np.ndar
         raise ValueError("solid_mesh: two breakpoints of the outline coincide") from None
 
 
-def _solid_mesh_batch(solids: Sequence[tuple]) -> list[tuple[np.ndarray, np.ndarray]]:
+def _solid_mesh_batch(solids: Sequence[Solid]) -> list[tuple[np.ndarray, np.ndarray]]:
     """:func:`solid_mesh` of solids of one signature (:func:`_signature`)."""
     primitives, hole = solids[0]
     if any(p[0] != "poly" for p in primitives) or (hole is not None and hole[0] != "poly"):
@@ -251,7 +260,7 @@ def _solid_mesh_batch(solids: Sequence[tuple]) -> list[tuple[np.ndarray, np.ndar
         if hole is not None:
             if not (hole[6] <= z0 and hole[7] >= z1):
                 raise ValueError("solid_mesh takes a bore through the whole part")
-            holes = np.stack([s[1][5] for s in solids])
+            holes = np.stack([s[1][5] for s in solids])  # type: ignore[index]  # one signature: each has a hole
             pts.append(holes)
         ang = _angles(np.concatenate(pts, axis=1))
         if ang is None:
@@ -289,7 +298,7 @@ def kind_model_mesh(kind: str) -> tuple[np.ndarray, np.ndarray]:
     from replay.synth.parts import part_solid
 
     class _Zero:  # draws 0 wherever part_solid draws a phase
-        def uniform(self, lo, hi=None):
+        def uniform(self, lo: float, hi: float | None = None) -> float:
             return 0.0
 
     prims, hole = part_solid(kind, _Zero())  # type: ignore[arg-type]
@@ -320,14 +329,14 @@ class TrueSurfaces:
     """
 
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray, *, sphere_centres: np.ndarray | None = None,
-                 sphere_radius: float = 0.0, scene=None):
+                 sphere_radius: float = 0.0, scene: o3d.t.geometry.RaycastingScene | None = None) -> None:
         import open3d as o3d
 
         self.n_triangles = int(len(triangles))
         if scene is None and self.n_triangles:
             scene = o3d.t.geometry.RaycastingScene()
-            scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, np.float32)),
-                                o3d.core.Tensor(np.ascontiguousarray(triangles, np.uint32)))
+            scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, np.float32)),  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
+                                o3d.core.Tensor(np.ascontiguousarray(triangles, np.uint32)))  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
         self._scene = scene
         self._centres = None if sphere_centres is None or len(sphere_centres) == 0 else \
             np.asarray(sphere_centres, np.float64)
@@ -348,7 +357,7 @@ class TrueSurfaces:
         if len(p) == 0:
             return dist, near
         if self._scene is not None:
-            q = self._scene.compute_closest_points(o3d.core.Tensor(p.astype(np.float32)))["points"].numpy()
+            q = self._scene.compute_closest_points(o3d.core.Tensor(p.astype(np.float32)))["points"].numpy()  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
             near = q.astype(np.float64)
             dist = np.linalg.norm(p - near, axis=1)
         if self._tree is not None:
@@ -372,7 +381,7 @@ class TrueSurfaces:
         p = np.asarray(points, np.float64).reshape(-1, 3)
         dist = np.full(len(p), np.inf)
         if len(p) and self._scene is not None:
-            dist = self._scene.compute_distance(o3d.core.Tensor(p.astype(np.float32))).numpy().astype(np.float64)
+            dist = self._scene.compute_distance(o3d.core.Tensor(p.astype(np.float32))).numpy().astype(np.float64)  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
         if len(p) and self._tree is not None:
             assert self._centres is not None
             near, _ = self._tree.query(p, k=1)
@@ -381,7 +390,7 @@ class TrueSurfaces:
 
 
 @numba.njit(cache=True, nogil=True)
-def _undecided(xyz, near, thr, valid, anchor):  # pragma: no cover - numba
+def _undecided(xyz, near, thr, valid, anchor):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """The valid non-anchor points none of whose four nearest anchors' nearest surface points lies
     within their threshold."""
     H, W = valid.shape
@@ -425,7 +434,7 @@ def off_surface(xyz_mm: np.ndarray, err: np.ndarray, surfaces: TrueSurfaces, *, 
     """
     xyz = np.ascontiguousarray(xyz_mm, np.float64)
     H, W = xyz.shape[:2]
-    valid = np.isfinite(xyz).all(axis=2)
+    valid: np.ndarray = np.isfinite(xyz).all(axis=2)  # type: ignore[assignment]  # an array for a 3-D input
     thr = float(k) * np.ascontiguousarray(err, np.float64)
     anchor = np.zeros((H, W), bool)
     anchor[::2, ::2] = valid[::2, ::2]
@@ -447,7 +456,7 @@ def _to_camera(world: np.ndarray, camera_height_mm: float) -> np.ndarray:
     return np.column_stack([world[:, 0], -world[:, 1], camera_height_mm - world[:, 2]])
 
 
-def handmade_surfaces(scene, *, camera_height_mm: float) -> TrueSurfaces:
+def handmade_surfaces(scene: Scene, *, camera_height_mm: float) -> TrueSurfaces:
     """The true surfaces of a hand-made :class:`~replay.synth.scene.Scene`, camera frame (mm).
 
     Parts: their exact solids (:func:`solid_mesh`; spheres as closed forms). The bin: its CAD mesh
@@ -480,7 +489,7 @@ def handmade_surfaces(scene, *, camera_height_mm: float) -> TrueSurfaces:
             radius = float(prims[0][2])
         else:
             prisms.append(part)
-    for part, (v, t) in zip(prisms, solid_meshes([p.solid for p in prisms])):
+    for part, (v, t) in zip(prisms, solid_meshes([p.solid for p in prisms])):  # type: ignore[misc]  # each checked above
         add(v @ part.R.T + part.centre_mm, t)
     g = scene.grid
     d = scene.deformation
@@ -496,7 +505,7 @@ def handmade_surfaces(scene, *, camera_height_mm: float) -> TrueSurfaces:
                         sphere_radius=radius)
 
 
-def _bin_height_field_mesh(scene) -> tuple[np.ndarray, np.ndarray]:
+def _bin_height_field_mesh(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """The bin part of the scene's height field (``bin_height``) as triangles, world frame: the grid
     cells within the bin's outline grown by two steps (the renderer's own triangulation)."""
     from replay.presets import BIN

@@ -14,11 +14,10 @@ import numpy as np
 
 from replay.logs import layout
 from replay.logs.frame import Frame
-from replay.presets import PART_KINDS
+from replay.presets import BIN, PART_KINDS
 from replay.synth import outliers as out
 from replay.synth.parts import PART_COLOURS, face_area_px
 from replay.synth.scene import (
-    BIN,
     BIN_COLOUR,
     LABEL_FLOOR,
     LABEL_PART,
@@ -199,7 +198,8 @@ def check_quantize(quantize_mm: object) -> float:
     return q
 
 
-def _colour_image(view: Render, K: Intrinsics, part_colour, shiny_px: np.ndarray, rng: np.random.Generator):
+def _colour_image(view: Render, K: Intrinsics, part_colour: tuple[int, int, int] | None, shiny_px: np.ndarray,
+                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """(rgb, saturated) of :func:`shade_rgb` with the table, bin and part colours of each pixel."""
     surface = view.label
     colours = np.empty(surface.shape + (3,))

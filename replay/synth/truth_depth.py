@@ -16,7 +16,7 @@ from replay.logs import layout
 from replay.logs import ros2_msgs as rm
 
 
-def read_truth_depth(path: str | os.PathLike, *, topic: str = layout.TRUTH_DEPTH) -> dict[int, np.ndarray]:
+def read_truth_depth(path: str | os.PathLike[str], *, topic: str = layout.TRUTH_DEPTH) -> dict[int, np.ndarray]:
     """Every true-depth image of a log: header stamp (ns) -> (H, W) float32 camera z in metres (NaN: no hit).
 
     Raises

@@ -57,7 +57,7 @@ def raytraced_metadata(*, kind: str, seed: int, frames: int, size: tuple[int, in
 
 
 def write_raytraced_log(
-    path: str | os.PathLike,
+    path: str | os.PathLike[str],
     *,
     kind: str = "spheres",
     frames: int = 1,

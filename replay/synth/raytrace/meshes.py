@@ -84,7 +84,8 @@ def concatenate(meshes: list[Mesh]) -> Mesh:
 
 def _face_normals(v: np.ndarray, tri: np.ndarray) -> np.ndarray:
     n = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])
-    return n / np.linalg.norm(n, axis=1, keepdims=True)
+    unit: np.ndarray = n / np.linalg.norm(n, axis=1, keepdims=True)
+    return unit
 
 
 def _flat(v: np.ndarray, tri: np.ndarray, label: int = 0) -> Mesh:
@@ -223,7 +224,7 @@ def part_mesh(kind: str) -> Mesh:
     return Mesh(m.vertices, m.triangles, m.normals, np.full(len(m.triangles), LABEL_PART, np.uint8))
 
 
-def _quad(a, b, c, d) -> np.ndarray:
+def _quad(a: int, b: int, c: int, d: int) -> np.ndarray:
     return np.array([[a, b, c], [a, c, d]])
 
 

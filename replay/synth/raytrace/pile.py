@@ -129,7 +129,8 @@ def _bin_geoms(geometry: BinGeometry) -> str:
 def _random_quaternions(n: int, rng: np.random.Generator) -> np.ndarray:
     """(n, 4) uniformly random unit quaternions (w, x, y, z)."""
     q = rng.standard_normal((n, 4))
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
+    unit: np.ndarray = q / np.linalg.norm(q, axis=1, keepdims=True)
+    return unit
 
 
 def _quat_to_R(q: np.ndarray) -> np.ndarray:

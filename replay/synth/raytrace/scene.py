@@ -9,6 +9,7 @@ label and its part index, looked up by the primitive id a ray returns.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,6 +20,11 @@ from replay.synth.raytrace.meshes import Mesh, bin_mesh, check_mesh, concatenate
 from replay.synth.raytrace.pile import Pile
 from replay.synth.scene import LABEL_TABLE, BinPose
 from replay.synth.sensor import CAMERA_HEIGHT_MM
+
+if TYPE_CHECKING:
+    import open3d as o3d
+
+    from replay.synth.surfaces import TrueSurfaces
 
 #: half size of the table top (mm): wider than what the camera and the projector see
 TABLE_HALF_MM = (900.0, 700.0)
@@ -57,7 +63,8 @@ class Hits:
 
     @property
     def hit(self) -> np.ndarray:
-        return np.isfinite(self.t)
+        hit: np.ndarray = np.isfinite(self.t)
+        return hit
 
     def take(self, idx: np.ndarray) -> Hits:
         """The hits of rays ``idx``."""
@@ -115,14 +122,14 @@ class TracedScene:
         self.mat = material_table(materials)
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(
-            o3d.core.Tensor(self.vertices.astype(np.float32)),
-            o3d.core.Tensor(self.triangles.astype(np.uint32)),
+            o3d.core.Tensor(self.vertices.astype(np.float32)),  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
+            o3d.core.Tensor(self.triangles.astype(np.uint32)),  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
         )
 
-    def _raw(self, rays: np.ndarray) -> dict:
+    def _raw(self, rays: np.ndarray) -> dict[str, o3d.core.Tensor]:
         import open3d as o3d
 
-        return self._scene.cast_rays(o3d.core.Tensor(rays))
+        return self._scene.cast_rays(o3d.core.Tensor(rays))  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
 
     def cast(self, origins: np.ndarray, directions: np.ndarray, *, out: Hits | None = None, at: int = 0) -> Hits:
         """First hits of rays ``origins + t * directions`` (camera frame, mm; directions unit length).
@@ -153,7 +160,7 @@ class TracedScene:
         )
         return out
 
-    def surfaces(self):
+    def surfaces(self) -> TrueSurfaces:
         """The scene's triangles as :class:`replay.synth.surfaces.TrueSurfaces` (the same ray caster:
         distances to exactly the triangles the rays hit)."""
         from replay.synth.surfaces import TrueSurfaces
@@ -162,7 +169,8 @@ class TracedScene:
 
     def cast_t(self, rays: np.ndarray) -> np.ndarray:
         """Ray parameter of the first hit (float32; inf for a miss) of float32 ``rays`` (n, 6): origin, direction."""
-        return self._raw(rays)["t_hit"].numpy()
+        t: np.ndarray = self._raw(rays)["t_hit"].numpy()
+        return t
 
     def cast_reference(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
         """:meth:`cast` in whole-array numpy (the reference the numba kernel must equal bit for bit).
@@ -178,7 +186,7 @@ class TracedScene:
         rays = np.empty((n, 6), np.float32)
         rays[:, :3] = origins
         rays[:, 3:] = directions
-        res = self._scene.cast_rays(o3d.core.Tensor(rays))
+        res = self._scene.cast_rays(o3d.core.Tensor(rays))  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
         t = res["t_hit"].numpy().astype(np.float64)
         prim = res["primitive_ids"].numpy().astype(np.int64)
         hit = np.isfinite(t)

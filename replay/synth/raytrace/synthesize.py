@@ -230,7 +230,7 @@ def synthesize_raytraced_frame(
         index=int(index), masks={layout.TRUTH_OUTLIERS: truth, layout.TRUTH_OFF_SURFACE: off},
         codes={layout.TRUTH_OUTLIER_KIND: kind_img},
     )
-    a_max = (face_area_px(part, fx=K.fx, fy=K.fy, distance_m=pile_distance_m(fill_mm)) if part is not None
+    a_max = (face_area_px(part, fx=K.fx, fy=K.fy, distance_m=pile_distance_m(fill_mm)) if part is not None  # type: ignore[arg-type]  # drawn with the part
              else float("nan"))
     depth_true_m = (z_true / 1000.0).astype(np.float32)
     return RaytracedFrame(
