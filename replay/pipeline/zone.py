@@ -8,8 +8,9 @@ engine that calls it. No I/O, no viewer.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -84,7 +85,8 @@ def sor_region(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams) -> np.
         return zone & (h >= threshold)
 
 
-def zone_crop(xyz: np.ndarray, zone: np.ndarray, *, whole: bool):
+def zone_crop(xyz: np.ndarray, zone: np.ndarray, *, whole: bool
+              ) -> tuple[tuple[slice, slice], np.ndarray] | None:
     """(crop slices, the zone's points with everything else NaN) on the zone's bounding box; None
     when the zone is empty. ``whole``: the zone is every valid pixel, ``xyz`` is used as it is.
 
@@ -110,12 +112,12 @@ def zone_box(zone: np.ndarray) -> tuple[slice, slice] | None:
     return slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)
 
 
-def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, **kw) -> np.ndarray:
+def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, **kw: Any) -> np.ndarray:
     """(H, W) bool: SOR outliers among the zone's points only (as on the frame with the rest set to
     NaN: SOR's ``mask`` on the zone's bounding box, no masked copy)."""
     out = np.zeros_like(zone)
     if whole:
-        return sor_outliers(xyz, **kw) & zone
+        return np.asarray(sor_outliers(xyz, **kw) & zone)
     sl = zone_box(zone)
     if sl is None:
         return out
@@ -125,7 +127,7 @@ def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, **kw) -> np.
 
 
 def sor_masks_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, k: int, convention: str,
-                      std_ratios) -> np.ndarray:
+                      std_ratios: Iterable[float]) -> np.ndarray:
     """(n, H, W) bool: :func:`_sor_on_zone` for every std_ratio from one d̄ computation (a sweep),
     exactly equal to it for each ratio."""
     from zcut.sor import sor_mean_distances, sor_outliers_from_distances
@@ -134,7 +136,7 @@ def sor_masks_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, k: int,
     out = np.zeros((len(ratios), *zone.shape), dtype=bool)
     if whole:
         dbar = sor_mean_distances(xyz, k=k, convention=convention)
-        return sor_outliers_from_distances(dbar, k=k, std_ratios=ratios, convention=convention) & zone[None]
+        return np.asarray(sor_outliers_from_distances(dbar, k=k, std_ratios=ratios, convention=convention) & zone[None])
     sl = zone_box(zone)
     if sl is None:
         return out
