@@ -45,7 +45,7 @@ if not DATA.is_dir():
 TUNE = ("Adirondack", "ArtL", "Motorcycle", "MotorcycleE", "Teddy")
 REPORT = ("Piano", "PianoL", "Playroom", "Playtable", "PlaytableP")
 METHODS = ("zcut", "sor", "radius", "cluster", "speckle", "window", "mixed_pixel")
-#: The grid of each method: wider than the bank's default axes (studies.bank.DEFAULT_AXES) — these scenes
+#: The grid of each method: wider than the bank's default axes (studies.bank.default_axes()) — these scenes
 #: are 0.5-3 m deep with points 1-5 mm apart, where the bin-picking defaults sit at the grids' edges.
 AXES: dict[str, dict[str, tuple]] = {
     "zcut": {"max_depth": (10.0, 30.0, 100.0, 300.0, 1000.0, 3000.0),
