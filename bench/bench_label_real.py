@@ -122,11 +122,11 @@ def look(page, base: str, token: str, index: int, shots: Path | None, tag: str) 
     if listed_sources != Counter(sources):
         raise SystemExit(f"frame {index}: the page lists {dict(listed_sources)}, the bundle holds {dict(Counter(sources))}")
     warn = page.inner_text("#framewarn") if page.is_visible("#framewarn") else ""
-    from annotate.groups import METHOD_GROUPS_MAX
+    from annotate.budget import review_budget
     from zcut.params import SuspectParams
 
     row = {"groups": len(entries), "n_groups": header["n_groups"], "by_source": dict(Counter(sources)),
-           "budget": SuspectParams().max_groups + METHOD_GROUPS_MAX * len(header["methods"]),
+           "budget": review_budget(SuspectParams(), len(header["methods"])),
            "largest": sorted((int(n) for n in table[:, GCOL["n"]]), reverse=True)[:5],
            "singletons": int((table[:, GCOL["n"]] == 1).sum()),
            "n_valid": header["n_valid"], "size": (header["height"], header["width"]),
