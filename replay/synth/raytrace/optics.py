@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -318,6 +318,49 @@ def _perturbed_reflection(d: np.ndarray, n: np.ndarray, roughness: np.ndarray, r
 
 
 @dataclass(frozen=True, slots=True)
+class Ops:
+    """What the tracing steps cast, light and add with: the numba kernels (:data:`FAST`), or the literal
+    numpy of ``reference.py``, which runs the same steps (:func:`camera_bounces`,
+    :func:`projector_bounces`) with its own: it is the oracle of these operations, and the steps'
+    physics is written once.
+
+    Attributes
+    ----------
+    cast : (scene, origins, directions) -> Hits
+        First hits (``TracedScene.cast``).
+    light : (scene, model, hits, idx, wo) -> (keep, radiance, code)
+        Projector light the points ``hits[idx]`` send toward ``wo`` (:func:`direct_light`).
+    add : (image, flat_index, weight, value, code, periods) -> None
+        Paths of intensity ``weight * value`` added to a :class:`Phasors` image (:meth:`Phasors.add`).
+    add_light : (image, flat_index, weight, value) -> None
+        ``image[flat_index] += weight * value`` (repeats allowed) into a flat float64 image.
+    """
+
+    cast: Callable[[TracedScene, np.ndarray, np.ndarray], Hits]
+    light: Callable[[TracedScene, SensorModel, Hits, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+    add: Callable[[Phasors, np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[float, ...]], None]
+    add_light: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None]
+
+
+def _cast(scene: TracedScene, origins: np.ndarray, directions: np.ndarray) -> Hits:
+    return scene.cast(origins, directions)
+
+
+def _light(scene: TracedScene, model: SensorModel, hits: Hits, idx: np.ndarray, wo: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ok, radiance, code, _ = direct_light(scene, model, hits, idx, wo)
+    return ok, radiance, code
+
+
+def _add_light(image: np.ndarray, flat_index: np.ndarray, weight: np.ndarray, value: np.ndarray) -> None:
+    kernels.add_at(image, flat_index, weight, value, np.ones(flat_index.size))
+
+
+#: The fast path's operations: numba kernels.
+FAST = Ops(cast=_cast, light=_light, add=Phasors.add, add_light=_add_light)
+
+
+@dataclass(frozen=True, slots=True)
 class Received:
     """Everything a frame's pixels received, by path.
 
@@ -424,7 +467,20 @@ def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.
         share = np.empty(sel.size)
         kernels.specular_share(h0.material[sel], scene.mat["albedo"], refl[ok], share)
         kernels.add_at(spec_light, pix[sel], w_s[sel], rad[ok], share)
-    # camera-side specular bounces
+    camera_bounces(scene, model, FAST, h0, idx, d, pix, w_s, rng, bounce, spec_light)
+    photons = projector_bounces(scene, K, model, centre, rng, FAST)
+    glare = _glare(direct.plus(bounce).add_in_place(photons), K, model)
+    return Received(direct, bounce, photons, glare, sub_depth, centre, spec_light.reshape(H, W))
+
+
+def camera_bounces(scene: TracedScene, model: SensorModel, ops: Ops, h0: Hits, idx: np.ndarray, d: np.ndarray,
+                   pix: np.ndarray, w_s: np.ndarray, rng: np.random.Generator, bounce: Phasors,
+                   spec_light: np.ndarray) -> None:
+    """Step 3: the specular bounces on the camera side, added into ``bounce`` and ``spec_light``.
+
+    ``h0[idx]`` are the first hits of the rays ``d[idx]`` of pixels ``pix[idx]`` with weights
+    ``w_s[idx]``; each bounce casts, lights and adds with ``ops`` (:data:`FAST`, or the reference's).
+    """
     cur_hits, cur_idx, cur_dir, cur_pix, weight = h0, idx, d[idx], pix[idx], w_s[idx]
     for _ in range(int(model.bounces)):
         mids = cur_hits.material[cur_idx]
@@ -437,26 +493,24 @@ def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.
         r = _perturbed_reflection(cur_dir[k], n, scene.mat["roughness"][mids[k]], rng)
         up = np.einsum("kj,kj->k", ng, r) > 0
         k, r, ng = k[up], r[up], ng[up]
-        h1 = scene.cast(cur_hits.point[cur_idx[k]] + 0.01 * ng, r)
+        h1 = ops.cast(scene, cur_hits.point[cur_idx[k]] + 0.01 * ng, r)
         got = h1.hit
         if not got.any():
             break
         k, r = k[got], r[got]
         weight_k = (weight * spec)[k]
         hit_idx = np.flatnonzero(got)
-        ok1, rad1, code1, _ = direct_light(scene, model, h1, hit_idx, -r)
+        ok1, rad1, code1 = ops.light(scene, model, h1, hit_idx, -r)
         px = cur_pix[k]
-        bounce.add(px[ok1], weight_k[ok1], rad1[ok1], code1[ok1], model.periods_px)
-        kernels.add_at(spec_light, px[ok1], weight_k[ok1], rad1[ok1], np.ones(int(ok1.sum())))
+        ops.add(bounce, px[ok1], weight_k[ok1], rad1[ok1], code1[ok1], model.periods_px)
+        ops.add_light(spec_light, px[ok1], weight_k[ok1], rad1[ok1])
         cur_hits, cur_idx, cur_dir, cur_pix, weight = h1, hit_idx, r, px, weight_k
-    photons = _projector_bounces(scene, K, model, centre, rng)
-    glare = _glare(direct.plus(bounce).add_in_place(photons), K, model)
-    return Received(direct, bounce, photons, glare, sub_depth, centre, spec_light.reshape(H, W))
 
 
-def _projector_bounces(scene: TracedScene, K: Intrinsics, model: SensorModel, centre: Hits,
-                       rng: np.random.Generator) -> Phasors:
-    """Step 4: projector light mirrored by shiny surfaces onto what the camera sees (photon splats)."""
+def projector_bounces(scene: TracedScene, K: Intrinsics, model: SensorModel, centre: Hits, rng: np.random.Generator,
+                      ops: Ops) -> Phasors:
+    """Step 4: projector light mirrored by shiny surfaces onto what the camera sees (photon splats),
+    cast and added with ``ops`` (:data:`FAST`, or the reference's)."""
     H, W = K.height, K.width
     out = Phasors.zeros(len(model.periods_px), (H, W))
     st = int(model.photon_stride)
@@ -472,7 +526,7 @@ def _projector_bounces(scene: TracedScene, K: Intrinsics, model: SensorModel, ce
     cos3 = 1.0 / np.linalg.norm(d, axis=1) ** 3
     d = _unit(d)
     proj = model.projector_origin
-    q = scene.cast(proj, d)
+    q = ops.cast(scene, proj, d)
     spec = np.where(q.hit, scene.mat["specular"][np.maximum(q.material, 0)], 0.0)
     k = np.flatnonzero(q.hit & (spec >= MIRROR_MIN))
     if k.size == 0:
@@ -480,7 +534,7 @@ def _projector_bounces(scene: TracedScene, K: Intrinsics, model: SensorModel, ce
     r = _perturbed_reflection(d[k], q.normal[k], scene.mat["roughness"][q.material[k]], rng)
     up = np.einsum("kj,kj->k", q.geo_normal[k], r) > 0
     k, r = k[up], r[up]
-    p = scene.cast(q.point[k] + 0.01 * q.geo_normal[k], r)
+    p = ops.cast(scene, q.point[k] + 0.01 * q.geo_normal[k], r)
     got = p.hit & (p.point[:, 2] > 1.0)
     k, r = k[got], r[got]
     pt = p.point[got]
@@ -504,7 +558,7 @@ def _projector_bounces(scene: TracedScene, K: Intrinsics, model: SensorModel, ce
     area = cos_ray * pt[:, 2] ** 2 / (K.fx * K.fy * np.maximum(cos_c, 0.05))
     radiance = scene.mat["albedo"][mid] / np.pi * phi / area
     code = uu[k]
-    out.add(flat[vis], np.ones(int(vis.sum())), (EXPOSURE * radiance)[vis], code[vis], model.periods_px)
+    ops.add(out, flat[vis], np.ones(int(vis.sum())), (EXPOSURE * radiance)[vis], code[vis], model.periods_px)
     # density estimate: photons are sparse (a projector pixel covers ~3 camera pixels, and convex
     # mirrors spread them further); a kernel of PHOTON_SIGMA_PX (at 1920 across) turns them into
     # the smooth irradiance a rough mirror throws, instead of one-photon speckle
