@@ -214,30 +214,14 @@ def test_labels_list_export_import(spike_log, tmp_path, capsys):
 def test_json_says_which_frames_learned_left_out(tmp_path, capsys):
     """``learned`` is scored only on frames its model was not trained on; the JSON says per method how many
     frames it scored, which it left out and why (docs/accuracy.md), as the table's line does."""
-    from annotate.groups import GCOL
-    from annotate.payload import parse_bundle, prepare_frame
-    from replay.pipeline.session import ReplaySession
+    from annotate_helpers import label_groups
 
     log, db = tmp_path / "spikes.mcap", tmp_path / "labels.sqlite"
     truths = write_spike_log(log, frames=4, shape=(120, 160), seed=2)
-    results = ReplaySession.open(log).results()
     with LabelStore(db) as store:
-        rec = store.add_log(log)
-        try:
-            for frame, r in results:
-                if frame.index == 3:  # frame 3 stays unlabelled: the model is not trained on it
-                    continue
-                header, a = parse_bundle(prepare_frame(frame, r).served.bundle)
-                gids, valid = a["groups"].astype(np.int64), a["valid"]
-                t = a["group_table"]
-                out = t[t[:, GCOL["n"]] >= 16, GCOL["id"]]  # a person who takes the groups of >= 16 px
-                assert 0 < out.size < header["n_groups"]
-                fr = store.add_frame(rec, topic=frame.topic, stamp_ns=frame.stamp_ns, index=frame.index,
-                                     shape=valid.shape, valid=valid)
-                store.save_label(fr, annotator="alice", outliers=np.isin(gids, out) & valid, reviewed=valid,
-                                 base_revision=None)
-        finally:
-            results.close()
+        # frame 3 stays unlabelled: the model is not trained on it; a person takes the groups of >= 16 px
+        taken = label_groups(store, log, skip=(3,))
+    assert len(taken) == 3 and all(0 < n < listed for n, listed in taken)
     assert main(["labels", "train", str(log), "--db", str(db)]) == 0
     rep = _json(capsys, ["accuracy", str(log), "--learned", str(db), "--json"])
     learned = rep["pooled"]["learned"]
