@@ -425,16 +425,10 @@ def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.
     same in numpy, and the two agree bit for bit.
     """
     H, W = K.height, K.width
-    P = len(model.periods_px)
-    direct = Phasors.zeros(P, (H, W))
-    bounce = Phasors.zeros(P, (H, W))
-    spec_light = np.zeros(H * W)
     S = int(model.samples)
     origin = np.zeros(3)
     d_centre = pixel_directions(K)
-    centre = scene.cast(origin, d_centre)
-    z_centre = np.where(centre.hit, centre.point[:, 2], np.inf).reshape(H, W)
-    sub_depth = np.broadcast_to(z_centre.astype(np.float32), (S * S, H, W)).copy()
+    direct, bounce, spec_light, centre, z_centre, sub_depth = centre_rays(scene, K, model, FAST, d_centre)
     if S > 1:
         # the centre rays of plain pixels, then S x S sub-pixel rays of every edge pixel, offset by offset
         edge = edge_pixels(z_centre, centre.part.reshape(H, W), centre.label.reshape(H, W)).ravel()
@@ -471,6 +465,22 @@ def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.
     photons = projector_bounces(scene, K, model, centre, rng, FAST)
     glare = _glare(direct.plus(bounce).add_in_place(photons), K, model)
     return Received(direct, bounce, photons, glare, sub_depth, centre, spec_light.reshape(H, W))
+
+
+def centre_rays(scene: TracedScene, K: Intrinsics, model: SensorModel, ops: Ops, d_centre: np.ndarray
+                ) -> tuple[Phasors, Phasors, np.ndarray, Hits, np.ndarray, np.ndarray]:
+    """A frame's empty light images and step 1 for its centre rays ``d_centre`` (H*W, 3), cast with ``ops``.
+
+    Returns (direct, camera bounce, specular light (H*W,), the centre hits, their camera z (H, W),
+    the sub-pixel depths (S*S, H, W), each its pixel's centre z until its sub-pixel rays are cast).
+    """
+    H, W = K.height, K.width
+    P = len(model.periods_px)
+    S = int(model.samples)
+    centre = ops.cast(scene, np.zeros(3), d_centre)
+    z_centre = np.where(centre.hit, centre.point[:, 2], np.inf).reshape(H, W)
+    sub_depth = np.broadcast_to(z_centre.astype(np.float32), (S * S, H, W)).copy()
+    return Phasors.zeros(P, (H, W)), Phasors.zeros(P, (H, W)), np.zeros(H * W), centre, z_centre, sub_depth
 
 
 def camera_bounces(scene: TracedScene, model: SensorModel, ops: Ops, h0: Hits, idx: np.ndarray, d: np.ndarray,

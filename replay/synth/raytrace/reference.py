@@ -30,6 +30,7 @@ from replay.synth.raytrace.optics import (
     _glare,
     _unit,
     camera_bounces,
+    centre_rays,
     decode,
     edge_pixels,
     projector_bounces,
@@ -71,17 +72,8 @@ def brdf_reference(mat: dict[str, np.ndarray], mid: np.ndarray, n: np.ndarray, w
 
 def direct_light_reference(scene: TracedScene, model: SensorModel, hits: Hits, idx: np.ndarray, wo: np.ndarray, *,
                            diffuse_only: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Projector light that the points ``hits[idx]`` send toward ``wo`` (unit, (k, 3)).
-
-    Returns
-    -------
-    keep : (k,) bool ndarray
-        The projector lights the point (not in its shadow, inside its image, facing it).
-    radiance : (k,) float64 ndarray
-        Camera intensity per unit of path weight (0 where not ``keep``).
-    code : (k,) float64 ndarray
-        Projector column of the point.
-    """
+    """:func:`optics.direct_light <replay.synth.raytrace.optics.direct_light>` in whole-array numpy: its
+    ``keep``, ``radiance`` and ``code`` (not its reflectance; ``code`` is NaN where not ``keep``)."""
     p = hits.point[idx]
     n = hits.normal[idx]
     ng = hits.geo_normal[idx]
@@ -135,16 +127,9 @@ def trace_reference(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: 
     centre ray (they see one smooth surface: more rays would only average the same code).
     """
     H, W = K.height, K.width
-    P = len(model.periods_px)
-    direct = Phasors.zeros(P, (H, W))
-    bounce = Phasors.zeros(P, (H, W))
-    spec_light = np.zeros(H * W)
     S = int(model.samples)
-    origin = np.zeros(3)
     d_centre = pixel_directions_reference(K)
-    centre = scene.cast_reference(origin, d_centre)
-    z_centre = np.where(centre.hit, centre.point[:, 2], np.inf).reshape(H, W)
-    sub_depth = np.broadcast_to(z_centre.astype(np.float32), (S * S, H, W)).copy()
+    direct, bounce, spec_light, centre, z_centre, sub_depth = centre_rays(scene, K, model, REFERENCE_OPS, d_centre)
     pix_list, dir_list, hit_list, w_list = [], [], [], []
     if S > 1:
         edge = edge_pixels(z_centre, centre.part.reshape(H, W), centre.label.reshape(H, W)).ravel()
@@ -157,7 +142,7 @@ def trace_reference(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: 
         offsets = [((i + 0.5) / S - 0.5, (j + 0.5) / S - 0.5) for j in range(S) for i in range(S)]
         for s, (du, dv) in enumerate(offsets):
             d = pixel_directions_reference(K, du, dv)[e]
-            hs = scene.cast_reference(origin, d)
+            hs = scene.cast_reference(np.zeros(3), d)
             sub_depth[s].reshape(-1)[e] = np.where(hs.hit, hs.point[:, 2], np.inf)
             pix_list.append(e)
             dir_list.append(d)
