@@ -182,6 +182,17 @@ def pipeline_result(frame: Frame):
     return result
 
 
+def status_line(sock) -> bytes:
+    """First line of the server's answer on a raw socket (empty if it closed without one)."""
+    got = b""
+    while b"\r\n" not in got:
+        part = sock.recv(4096)
+        if not part:
+            break
+        got += part
+    return got.split(b"\r\n", 1)[0]
+
+
 @contextlib.contextmanager
 def page_client(base: str, token: str, **kw):
     """An httpx client with the page-session cookie of ``GET /?token=`` and this server's Origin."""
