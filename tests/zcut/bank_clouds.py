@@ -28,9 +28,9 @@ def quantized(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     return np.round(base / q) * q
 
 
-def coincident(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
-    """Runs of exactly identical points in a pinhole cloud."""
-    xyz = pinhole(rng, h, w, flying=0.0)
+def coincident(rng: np.random.Generator, h: int, w: int, *, cloud=None) -> np.ndarray:
+    """Runs of exactly identical points in a pinhole cloud (made by ``cloud``, :func:`pinhole` by default)."""
+    xyz = (cloud or pinhole)(rng, h, w, flying=0.0)
     for _ in range(max(1, h * w // 20)):
         r, c = rng.integers(0, h), rng.integers(0, max(1, w - 6))
         xyz[r, c:c + rng.integers(2, 7)] = xyz[r, c]
