@@ -12,9 +12,8 @@ import time
 from pathlib import Path
 
 import pytest
-from cli_helpers import run_cli
+from cli_helpers import run_cli, synth_with_bin_model
 
-from cli.main import main
 from replay.outputs import (
     AtomicOutput,
     OutputBusyError,
@@ -35,10 +34,8 @@ def files(tmp_path_factory):
     from annotate.store import LabelStore
 
     d = tmp_path_factory.mktemp("lock_inputs")
-    log, empty, model, db = d / "log.mcap", d / "empty.mcap", d / "bin.ply", d / "labels.sqlite"
-    assert main(["synth", "-o", str(log), "--parts", "rods", "--frames", "2", "--seed", "1", "--size", SIZE]) == 0
-    assert main(["synth", "-o", str(empty), "--empty", "--frames", "2", "--seed", "2", "--size", SIZE]) == 0
-    assert main(["bin-model", str(empty), "-o", str(model)]) == 0
+    log, empty, model = synth_with_bin_model(d, parts="rods", seed=1, size=SIZE, empty_seed=2)
+    db = d / "labels.sqlite"
     with LabelStore(db) as store:
         label_with_truth(store, log)
     return {"log": log, "empty": empty, "model": model, "db": db, "pcd": None}
