@@ -95,6 +95,14 @@ def _label_store(db, log, labels_by_annotator):
                 s.save_label(recs[i], annotator=who, outliers=L, reviewed=R, base_revision=0)
 
 
+def _truth_store(db, log, truths, frames):
+    """A store at ``db`` in which "ann" labelled ``frames`` of ``log`` with their truth, every valid pixel
+    reviewed; returns every frame's valid mask."""
+    valid = [np.isfinite(fr.xyz).all(axis=2) for fr in LogReader(log).frames()]
+    _label_store(db, log, {"ann": {i: (truths[i] & valid[i], valid[i]) for i in frames}})
+    return valid
+
+
 def test_human_labels_and_agreement(spike_log, predictions, tmp_path, capsys):
     log, truths = spike_log
     results, preds = predictions
@@ -177,9 +185,8 @@ def test_errors(spike_log, tmp_path, capsys):
 
 def test_labels_list_export_import(spike_log, tmp_path, capsys):
     log, truths = spike_log
-    valid = [np.isfinite(fr.xyz).all(axis=2) for fr in LogReader(log).frames()]
     db = tmp_path / "labels.sqlite"
-    _label_store(db, log, {"ann": {0: (truths[0] & valid[0], valid[0]), 1: (truths[1] & valid[1], valid[1])}})
+    valid = _truth_store(db, log, truths, (0, 1))
     assert main(["labels", "list", str(log), "--db", str(db)]) == 0
     assert "ann: 2 frame(s) labelled" in capsys.readouterr().out
     out = tmp_path / "ann.mcap"
@@ -242,9 +249,8 @@ def test_json_says_which_frames_learned_left_out(tmp_path, capsys):
 def test_unscored_frames_are_listed_once(spike_log, tmp_path, capsys):
     """Issue 35 item 19: `--labels` printed the unscored frames three times."""
     log, truths = spike_log
-    valid = [np.isfinite(fr.xyz).all(axis=2) for fr in LogReader(log).frames()]
     db = tmp_path / "labels.sqlite"
-    _label_store(db, log, {"ann": {0: (truths[0] & valid[0], valid[0]), 2: (truths[2] & valid[2], valid[2])}})
+    _truth_store(db, log, truths, (0, 2))
     capsys.readouterr()
     assert main(["accuracy", str(log), "--labels", str(db)]) == 0
     cap = capsys.readouterr()
