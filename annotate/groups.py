@@ -9,9 +9,10 @@ from the camera). The page therefore proposes *groups* (``docs/labelling.md``):
   grouped by detector and merged until a frame has at most ``SuspectParams.max_groups`` (40) of them;
 - for every filter method the replay ran (``zcut``, ``sor``, the bank), the pixels it flags that no
   suspect group holds, grouped by strength class (:func:`zcut.suspects.strength_classes`, with the
-  frame's τ) and proximity into at most :data:`METHOD_GROUPS_MAX` groups per method (a filter's
-  proposal is never hidden, but it never floods the list either, and the few pixels it flags far off
-  the surface are not decided with its thousands at the noise's edge).
+  frame's τ) and proximity into at most :data:`~annotate.budget.METHOD_GROUPS_MAX` groups per method
+  (a filter's proposal is never hidden, but it never floods the list either, and the few pixels it
+  flags far off the surface are not decided with its thousands at the noise's edge). The page's
+  budget, both shares, is :mod:`annotate.budget`.
 
 Every group carries why it is a suspect: the detector (or method) it was grouped by, every detector
 and method that flags any of its pixels, its size, its gap to the local surface in mm (positive:
@@ -27,14 +28,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
+from annotate.budget import METHOD_GROUPS_MAX, class_budgets, merged_components
 from zcut.params import SuspectParams
 from zcut.suspects import DETECTORS, local_gaps, strength_classes, suspects
 
-EIGHT = np.ones((3, 3), bool)
-#: At most this many groups per method for the pixels a filter flags that no suspect group holds.
-METHOD_GROUPS_MAX = 4
 #: Methods whose share of a group's pixels is a feature (the others are in the table's method bits).
 FEATURE_METHODS = ("zcut", "sor")
 #: The gap below which a group is shown as "on the surface" (|gap| under this many mm).
@@ -132,35 +130,6 @@ def group_targets(pixels: np.ndarray, starts: np.ndarray, outliers: np.ndarray, 
     return 2 * in_r >= size, in_l / size
 
 
-def _merged_components(mask: np.ndarray, budget: int) -> tuple[np.ndarray, int]:
-    """8-connected components of ``mask``, merged by proximity (components closer than ~2 r pixels join,
-    r doubling from 1) until there are at most ``budget`` of them."""
-    lab, n = ndimage.label(mask, structure=EIGHT)
-    r = 1
-    while n > budget:
-        grown = cv2.dilate(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_RECT, (2 * r + 1, 2 * r + 1)))
-        big, n = ndimage.label(grown > 0, structure=EIGHT)
-        lab = np.where(mask, big, 0)
-        used = np.unique(lab[lab > 0])
-        lut = np.zeros(int(big.max()) + 1, np.int64)
-        lut[used] = np.arange(1, used.size + 1)
-        lab, n = lut[lab], int(used.size)
-        r *= 2
-    return lab.astype(np.int32), int(n)
-
-
-def _class_budgets(cls: np.ndarray, total: int) -> list[tuple[int, int]]:
-    """(class, groups it may have) for each strength class present in ``cls`` (-1 = none): one group
-    each, the rest of ``total`` handed out in turn, the class with most pixels first."""
-    counts = np.bincount(cls[cls >= 0].astype(np.int64))
-    present = [int(c) for c in np.flatnonzero(counts)]
-    budget = dict.fromkeys(present, 1)
-    by_size = sorted(present, key=lambda c: (-counts[c], c))
-    for k in range(max(total - len(present), 0) if present else 0):
-        budget[by_size[k % len(by_size)]] += 1
-    return [(c, budget[c]) for c in present]
-
-
 def _per_group(values: np.ndarray, ids: np.ndarray, n: int, fn: Callable[[np.ndarray], object]) -> np.ndarray:
     """``fn`` of the finite values of each group 1..n (NaN where a group has none)."""
     out = np.full(n, np.nan)
@@ -217,8 +186,8 @@ def review_groups(xyz: np.ndarray, rgb: np.ndarray | None, *, height_mm: np.ndar
             continue
         gap_m = local_gaps(h_all, rest, valid & ~rest & ~taken)
         cls = strength_classes(np.where(rest, 0, -1).astype(np.int8), np.abs(gap_m) / tau)
-        for c, budget in _class_budgets(cls, METHOD_GROUPS_MAX):
-            lab, n = _merged_components(rest & (cls == c), budget)
+        for c, budget in class_budgets(cls, METHOD_GROUPS_MAX):
+            lab, n = merged_components(rest & (cls == c), budget)
             ids = np.where(lab > 0, lab + ids.max(), ids)
             primary += [len(DETECTORS) + j] * n
         gap[rest] = gap_m[rest]

@@ -27,13 +27,12 @@ from __future__ import annotations
 
 import argparse
 import math
-import statistics
 import sys
-import time
 from functools import partial
 
 import numpy as np
 from threadpoolctl import threadpool_limits
+from timing import cpu
 
 from annotate.accuracy import METHODS, N_KINDS, frame_accuracy, method_masks
 from zcut.cuts import zcut_outliers
@@ -42,16 +41,6 @@ from zcut.params import NOMINAL_MAX_DEPTH_MM, NOMINAL_RHO_THR, NOMINAL_STEP_MM
 from zcut.sor import sor_outliers
 
 N_BOOT = 2000
-
-
-def cpu(fn, repeat: int):
-    """Median CPU time of ``repeat`` calls and the last result."""
-    times, out = [], None
-    for _ in range(repeat):
-        c0 = time.process_time()
-        out = fn()
-        times.append(time.process_time() - c0)
-    return statistics.median(times), out
 
 
 def synth_frames(kinds: list[str], size: tuple[int, int]):

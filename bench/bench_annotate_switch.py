@@ -32,8 +32,8 @@ import numpy as np
 
 # the repository before tests/, whose replay/ and annotate/ folders mirror the packages
 sys.path[:0] = [str(Path(__file__).resolve().parents[1]), str(Path(__file__).resolve().parents[1] / "tests")]
-from annotate_helpers import CHROMIUM, CHROMIUM_ARGS, local_only
-from page_helpers import start_server, wait_prepared, wait_until
+from annotate_helpers import CHROMIUM, CHROMIUM_ARGS
+from page_helpers import open_page, serving, wait_prepared, wait_until
 
 TARGET_MS = 150.0
 
@@ -71,18 +71,14 @@ def main() -> int:
             t0 = time.perf_counter()
             write_synthetic_log(log, kind="spheres", frames=args.frames, seed=7, size=(1200, 1920))
             print(f"synthesised {args.frames} frames of 1920x1200 in {time.perf_counter() - t0:.1f} s")
-        proc, base, token = start_server(log, tmp / "labels.sqlite")
-        try:
+        with serving(log, tmp / "labels.sqlite") as (base, token):
             t_prep = wait_prepared(base, token)
             load_before = loadavg()
             print(f"server prepared the candidates in {t_prep:.1f} s")
             vw, vh = (int(v) for v in args.viewport.split("x"))
             with sync_playwright() as p:
                 browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-                page = browser.new_context(viewport={"width": vw, "height": vh}).new_page()
-                blocked = local_only(page)
-                page.goto(f"{base}/?token={token}")
-                wait_until(page, "window.zcut && window.zcut.ready === true")
+                page, blocked = open_page(browser, base, token, (vw, vh))
                 st = page.evaluate("window.zcut.state()")
                 print(f"frame {st['W']}x{st['H']} in a {vw}x{vh} viewport")
                 n_frames = page.evaluate("document.querySelectorAll('#framelist li').length")
@@ -113,9 +109,6 @@ def main() -> int:
                 loads = page.evaluate("window.zcut.loads")
                 parts = page.evaluate("window.zcut.switchParts")
                 browser.close()
-        finally:
-            proc.terminate()
-            proc.wait(timeout=30)
     print(f"load average (1/5/15 min) before {load_before}, after {loadavg()} on {os.cpu_count()} cores")
     print(f"frame switch, {st['W']}x{st['H']}, from the key event to the next animation frame after drawing:")
     stats("sequential", nxt)

@@ -44,7 +44,8 @@ def frames_of(work: Path, kinds, seeds, frames: int):
     import hashlib
 
     # the features depend on how groups are made: a change of those modules makes a new cache
-    code = hashlib.sha256(b"".join((ROOT / m).read_bytes() for m in ("annotate/groups.py", "zcut/suspects.py")))
+    modules = [ROOT / "annotate/groups.py", ROOT / "annotate/budget.py", *sorted((ROOT / "zcut/suspects").glob("*.py"))]
+    code = hashlib.sha256(b"".join(m.read_bytes() for m in modules))
     cache = work / f"assistant_features_{code.hexdigest()[:12]}"
     cache.mkdir(exist_ok=True)
     out = []

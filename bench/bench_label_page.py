@@ -43,10 +43,9 @@ from annotate_helpers import (
     CHROMIUM,
     CHROMIUM_ARGS,
     REVIEW_CLUSTERS,
-    local_only,
     write_review_log,
 )
-from page_helpers import start_server, wait_prepared, wait_until
+from page_helpers import open_page, serving, wait_prepared, wait_until
 
 SELECT_TARGET_MS = 200.0
 SWITCH_TARGET_MS = 150.0
@@ -165,17 +164,13 @@ def main() -> int:
         t0 = time.perf_counter()
         write_review_log(log, frames=args.frames + 1)
         print(f"synthesised {args.frames + 1} review frames of 1920x1200 in {time.perf_counter() - t0:.1f} s")
-        proc, base, token = start_server(log, tmp / "labels.sqlite")
-        try:
+        with serving(log, tmp / "labels.sqlite") as (base, token):
             print(f"server prepared the candidates in {wait_prepared(base, token):.1f} s")
             load_before = loadavg()
             vw, vh = (int(v) for v in args.viewport.split("x"))
             with sync_playwright() as p:
                 browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-                page = browser.new_context(viewport={"width": vw, "height": vh}).new_page()
-                blocked = local_only(page)
-                page.goto(f"{base}/?token={token}")
-                wait_until(page, "window.zcut && window.zcut.ready === true")
+                page, blocked = open_page(browser, base, token, (vw, vh))
                 if args.shots is not None:
                     page.wait_for_timeout(300)
                     page.screenshot(path=str(args.shots / "01_overview_markers_minimap.png"))
@@ -185,9 +180,6 @@ def main() -> int:
                 if args.shots is not None:
                     take_shots(page, base, token, args.shots)
                 browser.close()
-        finally:
-            proc.terminate()
-            proc.wait(timeout=30)
     print(f"load average (1/5/15 min) before {load_before}, after {loadavg()} on {os.cpu_count()} cores")
     inputs = [f["inputs"] for f in per_frame]
     pans = sum(f["pans"] for f in per_frame)

@@ -35,8 +35,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
-from annotate_helpers import CHROMIUM, CHROMIUM_ARGS, local_only  # noqa: E402
-from page_helpers import get_bundle, start_server, wait_prepared, wait_until  # noqa: E402
+from annotate_helpers import CHROMIUM, CHROMIUM_ARGS  # noqa: E402
+from page_helpers import get_bundle, open_page, serving, wait_prepared, wait_until  # noqa: E402
 
 REAL = Path(os.environ.get("ZCUT_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
 #: The real organized scans, in the order they are recorded (frame i of the log is the i-th found).
@@ -122,11 +122,11 @@ def look(page, base: str, token: str, index: int, shots: Path | None, tag: str) 
     if listed_sources != Counter(sources):
         raise SystemExit(f"frame {index}: the page lists {dict(listed_sources)}, the bundle holds {dict(Counter(sources))}")
     warn = page.inner_text("#framewarn") if page.is_visible("#framewarn") else ""
-    from annotate.groups import METHOD_GROUPS_MAX
+    from annotate.budget import review_budget
     from zcut.params import SuspectParams
 
     row = {"groups": len(entries), "n_groups": header["n_groups"], "by_source": dict(Counter(sources)),
-           "budget": SuspectParams().max_groups + METHOD_GROUPS_MAX * len(header["methods"]),
+           "budget": review_budget(SuspectParams(), len(header["methods"])),
            "largest": sorted((int(n) for n in table[:, GCOL["n"]]), reverse=True)[:5],
            "singletons": int((table[:, GCOL["n"]] == 1).sum()),
            "n_valid": header["n_valid"], "size": (header["height"], header["width"]),
@@ -162,16 +162,11 @@ def run_log(log: Path, names: dict[int, str], db: Path, browser, shots: Path | N
     t0 = time.process_time()
     dets = detector_pixels(log)
     print(f"  {len(dets)} frames in {time.process_time() - t0:.1f} s CPU", flush=True)
-    proc, base, token = start_server(log, db)
     rows = []
-    try:
+    with serving(log, db) as (base, token):
         print(f"{log.name}: server prepared the frames in {wait_prepared(base, token):.0f} s", flush=True)
-        page = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]}).new_page()
-        blocked = local_only(page)
         errors: list[str] = []
-        page.on("pageerror", lambda e: errors.append(str(e)))
-        page.goto(f"{base}/?token={token}")
-        wait_until(page, "window.zcut && window.zcut.ready === true")
+        page, blocked = open_page(browser, base, token, viewport, errors)
         frames = httpx.get(f"{base}/api/frames", headers={"X-Zcut-Token": token}, timeout=60).json()["frames"]
         for f in frames:
             i = f["index"]
@@ -188,9 +183,6 @@ def run_log(log: Path, names: dict[int, str], db: Path, browser, shots: Path | N
         if errors:
             print(f"  page errors: {errors}")
         page.context.close()
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
     return rows
 
 

@@ -31,10 +31,11 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
-from annotate_helpers import CHROMIUM, CHROMIUM_ARGS, local_only  # noqa: E402
+from annotate_helpers import CHROMIUM, CHROMIUM_ARGS  # noqa: E402
 from page_helpers import (  # noqa: E402
     get_bundle,
-    start_server,
+    open_page,
+    serving,
     synthetic_bin_model,
     synthetic_log,
     wait_prepared,
@@ -116,14 +117,10 @@ def person(page, *, truth_share: dict[int, float], shots: Path | None, tag: str)
 
 def run_kind(kind: str, log: Path, ply: Path, db: Path, browser, shots: Path | None, viewport) -> list[dict]:
     truths = frame_truth(log)
-    proc, base, token = start_server(log, db, "--bin-model", ply, quiet=True)
     rows = []
-    try:
+    with serving(log, db, "--bin-model", ply, quiet=True) as (base, token):
         print(f"{kind}: server prepared {len(truths)} frames in {wait_prepared(base, token):.0f} s", flush=True)
-        page = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]}).new_page()
-        blocked = local_only(page)
-        page.goto(f"{base}/?token={token}")
-        wait_until(page, "window.zcut && window.zcut.ready === true")
+        page, blocked = open_page(browser, base, token, viewport)
         for k, index in enumerate(sorted(truths)):
             wait_until(page, f"window.zcut.state() && window.zcut.state().index === {index}")
             header, gids, region = groups_of(base, token, index)
@@ -157,9 +154,6 @@ def run_kind(kind: str, log: Path, ply: Path, db: Path, browser, shots: Path | N
         if blocked:
             print(f"  blocked requests: {blocked}")
         page.context.close()
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
     return rows
 
 

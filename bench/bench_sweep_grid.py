@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -45,6 +44,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_zcut import dense_frame, pile_frame
+from timing import cpu
 
 from replay.presets import PART_KINDS
 from zcut.cut_grid import zcut_tree
@@ -78,16 +78,6 @@ def frames(kinds: list[str]):
     for path in sorted(REAL_DIR.glob("*.pcd")):
         z = -1000.0 * read_pcd(path).xyz[..., 2].astype(np.float64)
         yield f"real:{path.stem[:18]}", z, 0.01 * z.size, None, None
-
-
-def cpu(fn, repeat: int):
-    """Median CPU time of ``repeat`` calls and the last result."""
-    times, out = [], None
-    for _ in range(repeat):
-        c0 = time.process_time()
-        out = fn()
-        times.append(time.process_time() - c0)
-    return statistics.median(times), out
 
 
 def score(mask, truth, scored, within, plus):

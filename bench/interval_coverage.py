@@ -156,6 +156,17 @@ def _ratio_rows(num: np.ndarray, den: np.ndarray) -> np.ndarray:
     return np.divide(sn, sd, out=np.full(sn.shape, np.nan), where=sd > 0)
 
 
+def _residuals(num: np.ndarray, den: np.ndarray):
+    """(frames n, Σden, the pooled ratio R, each frame's residual z_i = num_i − R·den_i, its leverage
+    h_i = den_i/Σden) of rows of frames."""
+    n = num.shape[-1]
+    sd = den.sum(-1)
+    r = _ratio_rows(num, den)
+    z = num - np.nan_to_num(r)[..., None] * den
+    h = np.divide(den, sd[..., None], out=np.zeros_like(den), where=sd[..., None] > 0)
+    return n, sd, r, z, h
+
+
 def linearised(num, den, *, level, hc="hc1", scale="ratio", quantile="t"):
     """Wald/t interval of the pooled ratio Σnum/Σden from its linearisation over frames.
 
@@ -163,11 +174,7 @@ def linearised(num, den, *, level, hc="hc1", scale="ratio", quantile="t"):
     (hc1), 1/(1−h_i) (hc2) or 1/(1−h_i)² (hc3), h_i = den_i/Σden the frame's leverage (hc0: 1).
     ``scale = "logit"`` builds the interval on logit(R) (se / (R(1−R))) and maps it back.
     """
-    n = num.shape[-1]
-    sd = den.sum(-1)
-    r = _ratio_rows(num, den)
-    z = num - np.nan_to_num(r)[..., None] * den
-    h = np.divide(den, sd[..., None], out=np.zeros_like(den), where=sd[..., None] > 0)
+    n, sd, r, z, h = _residuals(num, den)
     with np.errstate(divide="ignore", invalid="ignore"):
         w = {"hc0": np.ones_like(h), "hc1": np.full_like(h, n / max(n - 1, 1)), "hc2": 1.0 / (1.0 - h),
              "hc3": 1.0 / (1.0 - h) ** 2}[hc]
@@ -218,11 +225,7 @@ def bell_mccaffrey(num, den, *, level, scale="ratio", hc="hc2", df_rule="bm", df
     ``df_scale`` multiplies the result."""
     from scipy import stats
 
-    n = num.shape[-1]
-    sd = den.sum(-1)
-    r = _ratio_rows(num, den)
-    z = num - np.nan_to_num(r)[..., None] * den
-    h = np.divide(den, sd[..., None], out=np.zeros_like(den), where=sd[..., None] > 0)
+    n, sd, r, z, h = _residuals(num, den)
     with np.errstate(divide="ignore", invalid="ignore"):
         w = np.where(z == 0, 0.0, 1.0 / (1.0 - h) ** (2 if hc == "hc3" else 1))
         se = np.sqrt((w * z * z).sum(-1)) / sd

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import re
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 
@@ -20,6 +22,17 @@ def start_server(log: Path, db: Path, *extra: str, quiet: bool = False) -> tuple
         if m:
             return proc, m.group(1), m.group(2)
     raise SystemExit(f"server did not start (exit {proc.wait()})")
+
+
+@contextlib.contextmanager
+def serving(log: Path, db: Path, *extra: str, quiet: bool = False) -> Iterator[tuple[str, str]]:
+    """:func:`start_server` for the ``with`` block: (base URL, token); the server is stopped on leaving."""
+    proc, base, token = start_server(log, db, *extra, quiet=quiet)
+    try:
+        yield base, token
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
 
 
 def get_bundle(base: str, token: str, index: int, what: str = "bundle") -> tuple[dict, dict]:
@@ -75,6 +88,21 @@ def wait_prepared(base: str, token: str) -> float:
         except httpx.TransportError:
             pass
         time.sleep(0.5)
+
+
+def open_page(browser, base: str, token: str, viewport: tuple[int, int], errors: list[str] | None = None):
+    """A page in a context of its own (``viewport``: width, height) on the server at ``base``, local requests
+    only (the tests' ``local_only``), once it is ready: (page, the blocked requests). ``errors``: the page's
+    errors are appended to it."""
+    from annotate_helpers import local_only
+
+    page = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]}).new_page()
+    blocked = local_only(page)
+    if errors is not None:
+        page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(f"{base}/?token={token}")
+    wait_until(page, "window.zcut && window.zcut.ready === true")
+    return page, blocked
 
 
 def wait_until(page, expr: str, *, timeout_s: float = 120.0) -> None:

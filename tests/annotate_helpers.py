@@ -109,6 +109,59 @@ def write_spike_log(path: Path, *, frames=3, shape=(120, 160), seed=0) -> list[n
     return truths
 
 
+def added_frames(store, rec, log: Path):
+    """Add every frame of ``log`` to ``store`` under the log record ``rec``, yielding (frame record, frame,
+    valid mask) as each is added (a caller labels a frame before the next is added)."""
+    from replay.logs.reader import LogReader
+
+    for f in LogReader(log).frames():
+        valid = np.isfinite(f.xyz).all(axis=2)
+        yield store.add_frame(rec, topic=f.topic, stamp_ns=f.stamp_ns, index=f.index, shape=f.shape,
+                              frame_id=f.frame_id, valid=valid), f, valid
+
+
+def label_with_truth(store, log: Path, *, annotator: str = "ann"):
+    """``log`` added to ``store`` and each frame labelled by ``annotator`` with its ground-truth outliers
+    (every valid pixel reviewed): (the log's record, [(frame record, valid mask)])."""
+    rec = store.add_log(log)
+    frames = []
+    for fr, f, valid in added_frames(store, rec, log):
+        store.save_label(fr, annotator=annotator, outliers=f.masks["/ground_truth/outliers"] & valid,
+                         reviewed=valid, base_revision=0)
+        frames.append((fr, valid))
+    return rec, frames
+
+
+def label_groups(store, log: Path, *, coin=None, skip=(3,)) -> list[tuple[int, int]]:
+    """The frames of ``log`` but ``skip`` labelled by "alice", a person who takes the review groups of
+    >= 16 px (or, with ``coin`` (a numpy Generator), each group at even odds): per labelled frame,
+    (groups taken, groups listed)."""
+    from annotate.groups import GCOL
+    from annotate.payload import parse_bundle, prepare_frame
+    from replay.pipeline.session import ReplaySession
+
+    taken = []
+    results = ReplaySession.open(log).results()
+    rec = store.add_log(log)
+    try:
+        for frame, r in results:
+            if frame.index in skip:
+                continue
+            header, a = parse_bundle(prepare_frame(frame, r).served.bundle)
+            gids, valid = a["groups"].astype(np.int64), a["valid"]
+            t = a["group_table"]
+            take = t[:, GCOL["n"]] >= 16 if coin is None else coin.random(len(t)) < 0.5
+            out = t[take, GCOL["id"]]
+            taken.append((int(out.size), int(header["n_groups"])))
+            fr = store.add_frame(rec, topic=frame.topic, stamp_ns=frame.stamp_ns, index=frame.index,
+                                 shape=valid.shape, valid=valid)
+            store.save_label(fr, annotator="alice", outliers=np.isin(gids, out) & valid, reviewed=valid,
+                             base_revision=None)
+    finally:
+        results.close()
+    return taken
+
+
 def pipeline_result(frame: Frame):
     """The pipeline's result for one frame, as ``zcut annotate`` computes it (no config file, no bin
     model): the frame written alone to a log, opened with ``ReplaySession.open`` and run; what
@@ -127,6 +180,17 @@ def pipeline_result(frame: Frame):
         finally:
             results.close()
     return result
+
+
+def status_line(sock) -> bytes:
+    """First line of the server's answer on a raw socket (empty if it closed without one)."""
+    got = b""
+    while b"\r\n" not in got:
+        part = sock.recv(4096)
+        if not part:
+            break
+        got += part
+    return got.split(b"\r\n", 1)[0]
 
 
 @contextlib.contextmanager

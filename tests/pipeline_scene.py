@@ -96,11 +96,41 @@ def scene(*, h: int = 120, w: int = 160, shift=(0.0, 0.0, 0.0), parts: bool = Tr
     return frame, truth
 
 
+def bin_pixels(frame: Frame) -> np.ndarray:
+    """(H, W) bool: the pixels that see the bin (its bright plastic)."""
+    return (frame.rgb == np.array(BRIGHT, np.uint8)).all(axis=2)
+
+
 def model_from_empty(*, h: int = 120, w: int = 160) -> np.ndarray:
     """(N, 3) float64 points of the empty bin at its nominal pose (the bright pixels)."""
     frame, _ = scene(h=h, w=w, parts=False)
-    bright = (frame.rgb == np.array(BRIGHT, np.uint8)).all(axis=2)
-    return frame.xyz[bright].astype(np.float64)
+    return frame.xyz[bin_pixels(frame)].astype(np.float64)
+
+
+#: The shift (m) of the bin in :func:`filled_bin_scene` from the pose :func:`shifted_bin_model` is built at.
+SHIFT = (0.006, -0.004, 0.003)
+
+
+def filled_bin_scene() -> tuple[Frame, np.ndarray]:
+    """A 240 x 320 frame of the filled bin shifted by :data:`SHIFT`, with 12 flying specks (seed 3)."""
+    return scene(h=240, w=320, shift=SHIFT, specks=12, seed=3)
+
+
+def shifted_bin_model():
+    """The bin model built from five 240 x 320 frames of the empty bin, at its pose and 2 cm off it
+    along x and y (``replay.pipeline.bin_model.build_bin_model``, 1 mm voxels); every frame used."""
+    import dataclasses
+
+    from replay.pipeline.bin_model import build_bin_model
+    from zcut.params import RegistrationParams
+
+    frames = []
+    for i, s in enumerate([(0, 0, 0), (0.02, 0, 0), (-0.02, 0, 0), (0, 0.02, 0), (0, -0.02, 0)]):
+        f, _ = scene(h=240, w=320, shift=s, parts=False)
+        frames.append(dataclasses.replace(f, index=i))
+    m, reports = build_bin_model(frames, registration=RegistrationParams(voxel_mm=1.0), voxel_mm=1.0)
+    assert all(r.skipped == "" for r in reports)
+    return m
 
 
 def resolved_config(layer: dict, shape: tuple[int, int] = (240, 320)):

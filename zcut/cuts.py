@@ -153,6 +153,17 @@ def _valid_range(z: np.ndarray) -> tuple[np.ndarray, float, float] | None:
     return valid, z_min, z_max
 
 
+def _checked(height: FloatImage, step: object, max_depth: object, max_area: object, connectivity: object
+             ) -> tuple[np.ndarray, float, float, int, int, tuple[np.ndarray, float, float] | None]:
+    """The checked inputs of a z-cut: ``(z, step, max_area, connectivity, K, range)``, K the number of
+    cuts (:func:`n_levels`) and range :func:`_valid_range`'s, None when no pixel is valid or K < 1."""
+    z = _check_height(height)
+    step, max_depth, max_area, connectivity = _check_params(step, max_depth, max_area, connectivity)
+    rng = _valid_range(z)
+    K = n_levels(step, max_depth)
+    return z, step, max_area, connectivity, K, None if K < 1 else rng
+
+
 @numba.njit(cache=True)
 def _finite_min_max(z):  # type: ignore[no-untyped-def]  # numba kernel
     n = 0
@@ -173,38 +184,14 @@ def _finite_min_max(z):  # type: ignore[no-untyped-def]  # numba kernel
 # --------------------------------------------------------------------------------------------
 
 
-def zcut_outliers_reference(
-    height: FloatImage,
-    *,
-    step: float,
-    max_depth: float,
-    max_area: float,
-    connectivity: int = 8,
-) -> Mask:
-    """The z-cut filter as the literal loop of docs/filters.md (slow, obviously correct).
-
-    Parameters
-    ----------
-    height : (H, W) float ndarray
-        Larger = higher; NaN (or any non-finite value) = invalid. float32 is upcast to float64.
-    step, max_depth : float
-        Δd > 0 and d_max >= 0, in the unit of ``height``.
-    max_area : float
-        μ_thr in pixels: only components with fewer pixels are tagged (+inf: no limit).
-    connectivity : {8, 4}
-        Pixel adjacency of the components.
-
-    Returns
-    -------
-    (H, W) bool ndarray
-        True on the valid pixels of the tagged components.
+def zcut_outliers_reference(height: FloatImage, *, step: float, max_depth: float, max_area: float,
+                            connectivity: int = 8) -> Mask:
+    """The z-cut filter as the literal loop of docs/filters.md (slow, obviously correct); the parameters
+    and the result of :func:`zcut_outliers`.
     """
-    z = _check_height(height)
-    step, max_depth, max_area, connectivity = _check_params(step, max_depth, max_area, connectivity)
+    z, step, max_area, connectivity, K, rng = _checked(height, step, max_depth, max_area, connectivity)
     out = np.zeros(z.shape, dtype=bool)
-    rng = _valid_range(z)
-    K = n_levels(step, max_depth)
-    if rng is None or K < 1:
+    if rng is None:
         return out
     valid, z_min, z_max = rng
     zt = np.where(valid, z, z_min)
@@ -299,12 +286,9 @@ def zcut_outliers(
     (H, W) bool ndarray
         True on the valid pixels of the tagged components.
     """
-    z = _check_height(height)
-    step, max_depth, max_area, connectivity = _check_params(step, max_depth, max_area, connectivity)
+    z, step, max_area, connectivity, K, rng = _checked(height, step, max_depth, max_area, connectivity)
     out = np.zeros(z.shape, dtype=bool)
-    rng = _valid_range(z)
-    K = n_levels(step, max_depth)
-    if rng is None or K < 1:
+    if rng is None:
         return out
     valid, z_min, z_max = rng
     _, _, lab, _, _, node_parent, tagged, fin = _tree(

@@ -73,17 +73,8 @@ def _params(radius_mm: object, min_points: object) -> RadiusParams:
 # distances and box bounds (the arithmetic of Open3D's nanoflann metric)
 # --------------------------------------------------------------------------------------------
 _d2 = _columns.d2
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _near2(lo, hi, k, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba kernel
-    # a lower bound on the computed d² to any point of box k, in the order of _d2
-    g = max(lo[k, 0] - xq, 0.0, xq - hi[k, 0])
-    s = g * g
-    g = max(lo[k, 1] - yq, 0.0, yq - hi[k, 1])
-    s += g * g
-    g = max(lo[k, 2] - zq, 0.0, zq - hi[k, 2])
-    return s + g * g
+# a lower bound on the computed d² to any point of box k, in the order of _d2 (the KD-tree's own)
+_near2 = _kd._kd_box_d2
 
 
 @nb.njit(cache=True, nogil=True, inline="always")

@@ -219,37 +219,21 @@ class LogWriter:
         rgb = np.asarray(rgb)
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8 or rgb.size == 0:
             raise InputShapeError(f"rgb must be an (H, W, 3) uint8 array, got {describe_array(rgb)}")
-        h, w = rgb.shape[:2]
-        msg = rm.encode_image(
-            stamp_ns=stamp_ns, frame_id=frame_id, height=h, width=w, encoding="rgb8", step=3 * w,
-            data=np.ascontiguousarray(rgb).tobytes(),
-        )
-        self._add(topic, rm.IMAGE, msg, stamp_ns)
+        self._write_pixels(topic, rgb, "rgb8", stamp_ns=stamp_ns, frame_id=frame_id)
 
     def write_mask(self, topic: str, mask: np.ndarray, *, stamp_ns: int, frame_id: str) -> None:
         """Write an (H, W) bool mask as a ``mono8`` Image, 255 = set."""
         mask = np.asarray(mask)
         if mask.ndim != 2 or mask.dtype != np.bool_ or mask.size == 0:
             raise InputShapeError(f"mask must be an (H, W) bool array, got {describe_array(mask)}")
-        h, w = mask.shape
-        data = (mask.astype(np.uint8) * np.uint8(255)).tobytes()
-        msg = rm.encode_image(
-            stamp_ns=stamp_ns, frame_id=frame_id, height=h, width=w, encoding="mono8", step=w,
-            data=data,
-        )
-        self._add(topic, rm.IMAGE, msg, stamp_ns)
+        self._write_pixels(topic, mask.astype(np.uint8) * np.uint8(255), "mono8", stamp_ns=stamp_ns, frame_id=frame_id)
 
     def write_codes(self, topic: str, codes: np.ndarray, *, stamp_ns: int, frame_id: str) -> None:
         """Write an (H, W) uint8 code image (e.g. ``/ground_truth/outlier_kind``) as a ``mono8`` Image."""
         codes = np.asarray(codes)
         if codes.ndim != 2 or codes.dtype != np.uint8 or codes.size == 0:
             raise InputShapeError(f"codes must be an (H, W) uint8 array, got {describe_array(codes)}")
-        h, w = codes.shape
-        msg = rm.encode_image(
-            stamp_ns=stamp_ns, frame_id=frame_id, height=h, width=w, encoding="mono8", step=w,
-            data=np.ascontiguousarray(codes).tobytes(),
-        )
-        self._add(topic, rm.IMAGE, msg, stamp_ns)
+        self._write_pixels(topic, codes, "mono8", stamp_ns=stamp_ns, frame_id=frame_id)
 
     def write_depth(self, topic: str, depth_m: np.ndarray, *, stamp_ns: int, frame_id: str) -> None:
         """Write an (H, W) float32 depth image (metres, NaN = none) as a ``32FC1`` Image, little-endian
@@ -257,10 +241,15 @@ class LogWriter:
         depth_m = np.asarray(depth_m)
         if depth_m.ndim != 2 or depth_m.dtype != np.float32 or depth_m.size == 0:
             raise InputShapeError(f"depth must be an (H, W) float32 array, got {describe_array(depth_m)}")
-        h, w = depth_m.shape
+        self._write_pixels(topic, depth_m.astype("<f4", copy=False), layout.TRUTH_DEPTH_ENCODING, stamp_ns=stamp_ns,
+                           frame_id=frame_id)
+
+    def _write_pixels(self, topic: str, pixels: np.ndarray, encoding: str, *, stamp_ns: int, frame_id: str) -> None:
+        """An Image of ``encoding`` holding ``pixels`` ((H, W) or (H, W, C), checked) row by row, unpadded."""
+        h, w = pixels.shape[:2]
         msg = rm.encode_image(
-            stamp_ns=stamp_ns, frame_id=frame_id, height=h, width=w, encoding=layout.TRUTH_DEPTH_ENCODING,
-            step=4 * w, data=np.ascontiguousarray(depth_m, dtype="<f4").tobytes(),
+            stamp_ns=stamp_ns, frame_id=frame_id, height=h, width=w, encoding=encoding,
+            step=w * pixels[0, 0].nbytes, data=np.ascontiguousarray(pixels).tobytes(),
         )
         self._add(topic, rm.IMAGE, msg, stamp_ns)
 

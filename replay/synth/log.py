@@ -181,7 +181,7 @@ def _write_frame(writer: LogWriter, sf: SynthFrame) -> None:
 
 
 def write_synthetic_log(
-    path: str | os.PathLike,
+    path: str | os.PathLike[str],
     *,
     kind: str = "spheres",
     frames: int = 1,
@@ -278,7 +278,7 @@ def part_model_attachment(kind: str, *, raytraced: bool = False) -> dict[str, tu
     return {PART_MODEL_ATTACHMENT: (PART_MODEL_MEDIA_TYPE, data)}
 
 
-def write_bin_cad(path: str | os.PathLike) -> Path:
+def write_bin_cad(path: str | os.PathLike[str]) -> Path:
     """Write the nominal synthetic bin as a CAD mesh PLY, in the bin frame of the synthetic logs.
 
     The bin frame is the camera optical frame with the bin at its nominal pose (metres, up = -z, see
@@ -315,7 +315,7 @@ def sample_log_path() -> Path:
     return base / f"sample_{SAMPLE_KIND}_seed{SAMPLE_SEED}_{SAMPLE_FRAMES}x{w}x{h}_v{GENERATOR_VERSION}.mcap"
 
 
-def ensure_sample_log(path: str | os.PathLike | None = None, *, progress: ProgressFn | None = None) -> Path:
+def ensure_sample_log(path: str | os.PathLike[str] | None = None, *, progress: ProgressFn | None = None) -> Path:
     """Return the sample log, synthesising it first if it does not exist.
 
     It is written in a private temporary folder and renamed into place, so an interrupted run

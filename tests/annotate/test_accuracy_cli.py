@@ -95,6 +95,14 @@ def _label_store(db, log, labels_by_annotator):
                 s.save_label(recs[i], annotator=who, outliers=L, reviewed=R, base_revision=0)
 
 
+def _truth_store(db, log, truths, frames):
+    """A store at ``db`` in which "ann" labelled ``frames`` of ``log`` with their truth, every valid pixel
+    reviewed; returns every frame's valid mask."""
+    valid = [np.isfinite(fr.xyz).all(axis=2) for fr in LogReader(log).frames()]
+    _label_store(db, log, {"ann": {i: (truths[i] & valid[i], valid[i]) for i in frames}})
+    return valid
+
+
 def test_human_labels_and_agreement(spike_log, predictions, tmp_path, capsys):
     log, truths = spike_log
     results, preds = predictions
@@ -177,9 +185,8 @@ def test_errors(spike_log, tmp_path, capsys):
 
 def test_labels_list_export_import(spike_log, tmp_path, capsys):
     log, truths = spike_log
-    valid = [np.isfinite(fr.xyz).all(axis=2) for fr in LogReader(log).frames()]
     db = tmp_path / "labels.sqlite"
-    _label_store(db, log, {"ann": {0: (truths[0] & valid[0], valid[0]), 1: (truths[1] & valid[1], valid[1])}})
+    valid = _truth_store(db, log, truths, (0, 1))
     assert main(["labels", "list", str(log), "--db", str(db)]) == 0
     assert "ann: 2 frame(s) labelled" in capsys.readouterr().out
     out = tmp_path / "ann.mcap"
@@ -214,30 +221,14 @@ def test_labels_list_export_import(spike_log, tmp_path, capsys):
 def test_json_says_which_frames_learned_left_out(tmp_path, capsys):
     """``learned`` is scored only on frames its model was not trained on; the JSON says per method how many
     frames it scored, which it left out and why (docs/accuracy.md), as the table's line does."""
-    from annotate.groups import GCOL
-    from annotate.payload import parse_bundle, prepare_frame
-    from replay.pipeline.session import ReplaySession
+    from annotate_helpers import label_groups
 
     log, db = tmp_path / "spikes.mcap", tmp_path / "labels.sqlite"
     truths = write_spike_log(log, frames=4, shape=(120, 160), seed=2)
-    results = ReplaySession.open(log).results()
     with LabelStore(db) as store:
-        rec = store.add_log(log)
-        try:
-            for frame, r in results:
-                if frame.index == 3:  # frame 3 stays unlabelled: the model is not trained on it
-                    continue
-                header, a = parse_bundle(prepare_frame(frame, r).served.bundle)
-                gids, valid = a["groups"].astype(np.int64), a["valid"]
-                t = a["group_table"]
-                out = t[t[:, GCOL["n"]] >= 16, GCOL["id"]]  # a person who takes the groups of >= 16 px
-                assert 0 < out.size < header["n_groups"]
-                fr = store.add_frame(rec, topic=frame.topic, stamp_ns=frame.stamp_ns, index=frame.index,
-                                     shape=valid.shape, valid=valid)
-                store.save_label(fr, annotator="alice", outliers=np.isin(gids, out) & valid, reviewed=valid,
-                                 base_revision=None)
-        finally:
-            results.close()
+        # frame 3 stays unlabelled: the model is not trained on it; a person takes the groups of >= 16 px
+        taken = label_groups(store, log, skip=(3,))
+    assert len(taken) == 3 and all(0 < n < listed for n, listed in taken)
     assert main(["labels", "train", str(log), "--db", str(db)]) == 0
     rep = _json(capsys, ["accuracy", str(log), "--learned", str(db), "--json"])
     learned = rep["pooled"]["learned"]
@@ -258,9 +249,8 @@ def test_json_says_which_frames_learned_left_out(tmp_path, capsys):
 def test_unscored_frames_are_listed_once(spike_log, tmp_path, capsys):
     """Issue 35 item 19: `--labels` printed the unscored frames three times."""
     log, truths = spike_log
-    valid = [np.isfinite(fr.xyz).all(axis=2) for fr in LogReader(log).frames()]
     db = tmp_path / "labels.sqlite"
-    _label_store(db, log, {"ann": {0: (truths[0] & valid[0], valid[0]), 2: (truths[2] & valid[2], valid[2])}})
+    _truth_store(db, log, truths, (0, 2))
     capsys.readouterr()
     assert main(["accuracy", str(log), "--labels", str(db)]) == 0
     cap = capsys.readouterr()

@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 import pytest
-from annotate_helpers import ServerProcess, write_spike_log
+from annotate_helpers import ServerProcess, label_groups, write_spike_log
 
 from annotate.assistant import (
     CONFIDENT,
@@ -194,27 +194,8 @@ def test_a_model_below_the_agreement_gate_never_prefills_and_never_says_right(rn
 
 def _label_log(log, db, *, coin=None):
     """Frames 0..2 of a spike log labelled by a person who takes the groups of >= 16 px (or a coin)."""
-    from annotate.payload import parse_bundle, prepare_frame
-    from replay.pipeline.session import ReplaySession
-
-    results = ReplaySession.open(log).results()
     with LabelStore(db) as store:
-        rec = store.add_log(log)
-        try:
-            for frame, r in results:
-                if frame.index == 3:
-                    continue
-                header, a = parse_bundle(prepare_frame(frame, r).served.bundle)
-                gids, valid = a["groups"].astype(np.int64), a["valid"]
-                t = a["group_table"]
-                take = t[:, GCOL["n"]] >= 16 if coin is None else coin.random(len(t)) < 0.5
-                out = t[take, GCOL["id"]]
-                fr = store.add_frame(rec, topic=frame.topic, stamp_ns=frame.stamp_ns, index=frame.index,
-                                     shape=valid.shape, valid=valid)
-                store.save_label(fr, annotator="alice", outliers=np.isin(gids, out) & valid, reviewed=valid,
-                                 base_revision=None)
-        finally:
-            results.close()
+        label_groups(store, log, coin=coin)
 
 
 def test_labels_train_warns_when_the_stored_model_is_below_the_gate(tmp_path, capsys, rng):

@@ -9,25 +9,13 @@ import sys
 import httpx
 import numpy as np
 import pytest
-from annotate_helpers import ServerProcess, write_spike_log
+from annotate_helpers import ServerProcess, wait_until, write_spike_log
 from scipy import ndimage
 
 from annotate.payload import parse_bundle
 from annotate.store import LabelStore, file_sha256
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
-
-
-def wait_until(page, expr: str, *, timeout_s: float = 60.0) -> None:
-    """Poll a JS expression with page.evaluate: the page's CSP forbids the eval that Playwright's
-    waiting helper needs, and the tests run under the page's real CSP."""
-    import time
-
-    deadline = time.monotonic() + timeout_s
-    while not page.evaluate(f"(() => {{ try {{ return !!({expr}); }} catch (e) {{ return false; }} }})()"):
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {expr}")
-        page.wait_for_timeout(30)
 
 
 def _open(browser, url):

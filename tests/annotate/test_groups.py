@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from annotate_helpers import pipeline_result, spike_frame
 
-from annotate.groups import FEATURES, GCOL, GROUP_COLUMNS, METHOD_GROUPS_MAX, group_targets, review_groups
+from annotate.budget import METHOD_GROUPS_MAX, class_budgets, review_budget
+from annotate.groups import FEATURES, GCOL, GROUP_COLUMNS, group_targets, review_groups
 from annotate.payload import parse_bundle, prepare_frame
 from replay.logs import layout
 from replay.logs.frame import Frame
@@ -24,7 +25,7 @@ def _groups(frame, result, **kw):
 def test_groups_hold_the_spikes_and_say_why():
     frame, truth = spike_frame(0, shape=(120, 160), seed=3)
     g = _groups(frame, pipeline_result(frame), a_max=400.0)  # a part face of 400 px: spikes of 9-36 px float
-    assert 1 <= g.n <= 40 + METHOD_GROUPS_MAX * len(g.methods)
+    assert 1 <= g.n <= review_budget(SuspectParams(), len(g.methods))
     assert g.table.shape == (g.n, len(GROUP_COLUMNS)) and g.features.shape == (g.n, len(FEATURES))
     assert set(np.unique(g.ids)) == set(range(g.n + 1))
     # every true spike pixel is in a group, and the groups that hold them float well above the floor
@@ -82,7 +83,7 @@ def test_100000_suspect_pixels_stay_in_at_most_about_40_groups():
     res = pipeline_result(frame)
     g = _groups(frame, res)
     assert g.n_suspect_px >= 100_000
-    assert g.n <= 40 + METHOD_GROUPS_MAX * len(g.methods)
+    assert g.n <= review_budget(SuspectParams(), len(g.methods))
     assert np.isfinite(g.features[:, FEATURES.index("log_size")]).all()
 
 
@@ -117,13 +118,17 @@ def test_a_methods_groups_are_shared_among_its_strength_classes():
     """The pixels a filter flags that no suspect holds are grouped per strength class (one group each, the
     rest of METHOD_GROUPS_MAX in turn, largest class first), so its few pixels far off the surface are
     not decided with its thousands at the noise's edge."""
-    from annotate.groups import _class_budgets
-
     cls = np.full((10, 10), -1, np.int8)
     cls[0, :] = 0          # 10 px at the noise's edge
     cls[1, :3] = 2         # 3 px far off the surface
-    assert _class_budgets(cls, 4) == [(0, 2), (2, 2)]  # the rest in turn, the class with most pixels first
+    assert class_budgets(cls, 4) == [(0, 2), (2, 2)]  # the rest in turn, the class with most pixels first
     cls[2, :5] = 1
-    assert _class_budgets(cls, 4) == [(0, 2), (1, 1), (2, 1)]
-    assert _class_budgets(cls, 2) == [(0, 1), (1, 1), (2, 1)]  # every class present keeps one group
-    assert _class_budgets(np.full((3, 3), -1, np.int8), 4) == []
+    assert class_budgets(cls, 4) == [(0, 2), (1, 1), (2, 1)]
+    assert class_budgets(cls, 2) == [(0, 1), (1, 1), (2, 1)]  # every class present keeps one group
+    assert class_budgets(np.full((3, 3), -1, np.int8), 4) == []
+
+
+def test_the_page_budget_is_the_suspects_share_and_each_methods():
+    """A frame lists at most max_groups suspect groups and METHOD_GROUPS_MAX groups per filter method."""
+    assert review_budget(SuspectParams(), 0) == 40
+    assert review_budget(SuspectParams(max_groups=7), 3) == 7 + 3 * METHOD_GROUPS_MAX == 19

@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 from cli_helpers import run_cli
 
-from annotate.groups import GCOL, METHOD_GROUPS_MAX
+from annotate.budget import METHOD_GROUPS_MAX, review_budget
+from annotate.groups import GCOL
 from annotate.payload import parse_bundle, prepare_frame
 from replay.pipeline.session import ReplaySession
 from zcut.params import SuspectParams
@@ -49,7 +50,7 @@ def test_real_kinect_scan_groups_within_budget_each_with_its_why(real_data, tmp_
     assert 5 <= n_suspect_groups <= params.max_groups
     for m in methods:
         assert src.count(m) <= METHOD_GROUPS_MAX
-    assert n <= params.max_groups + METHOD_GROUPS_MAX * len(methods)
+    assert n <= review_budget(params, len(methods))
     assert len({s for s in src if s in DETECTORS}) >= 3  # not one detector's specks only
 
     # each group: its size is its pixels, its detector or method flags it, its gap is a number

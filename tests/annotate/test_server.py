@@ -12,7 +12,7 @@ import zlib
 import httpx
 import numpy as np
 import pytest
-from annotate_helpers import ServerProcess, write_spike_log
+from annotate_helpers import ServerProcess, status_line, write_spike_log
 
 from annotate.guard import MAX_BODY_BYTES
 from annotate.payload import mask_runs, parse_bundle, parse_view
@@ -208,17 +208,6 @@ def test_malformed_payloads_are_4xx_and_store_nothing(served):
     assert np.array_equal(lab.outliers, L) and np.array_equal(lab.reviewed, R)
 
 
-def _status_line(s: socket.socket) -> bytes:
-    """First line of the server's answer on a raw socket (empty if it closed without one)."""
-    got = b""
-    while b"\r\n" not in got:
-        part = s.recv(4096)
-        if not part:
-            break
-        got += part
-    return got.split(b"\r\n", 1)[0]
-
-
 def test_oversized_bodies_get_413_before_being_read(served):
     """Raw sockets, so that the client never has unread bytes in flight when the server closes:
     a 413 sent while a client is still uploading can be lost to the TCP reset of the close (as with
@@ -231,7 +220,7 @@ def test_oversized_bodies_get_413_before_being_read(served):
     for length in (MAX_BODY_BYTES + 1, 9 * 1024 * 1024, 999999999999):
         with socket.create_connection(("127.0.0.1", srv.port), timeout=10) as s:
             s.sendall(f"{head}Content-Length: {length}\r\n\r\n".encode())
-            assert _status_line(s).startswith(b"HTTP/1.1 413"), length
+            assert status_line(s).startswith(b"HTTP/1.1 413"), length
     # no Content-Length (chunked): counted while it streams; one byte over the limit is refused
     with socket.create_connection(("127.0.0.1", srv.port), timeout=10) as s:
         s.sendall(f"{head}Transfer-Encoding: chunked\r\n\r\n".encode())
@@ -241,7 +230,7 @@ def test_oversized_bodies_get_413_before_being_read(served):
             n = min(left, len(piece))
             s.sendall(f"{n:x}\r\n".encode() + piece[:n] + b"\r\n")
             left -= n
-        assert _status_line(s).startswith(b"HTTP/1.1 413")
+        assert status_line(s).startswith(b"HTTP/1.1 413")
     # exactly at the limit is not refused for its size (it is refused as malformed JSON instead)
     body = b"z" * MAX_BODY_BYTES
     r = httpx.put(f"{srv.base}/api/frames/0/label", content=body, timeout=30,

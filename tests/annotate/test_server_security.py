@@ -11,7 +11,7 @@ import time
 
 import httpx
 import pytest
-from annotate_helpers import LiveServer, ServerProcess, page_client, write_spike_log
+from annotate_helpers import LiveServer, ServerProcess, page_client, status_line, write_spike_log
 
 from annotate.catalogue import Catalogue, GeometrySpill
 from annotate.guard import cookie_name, new_token
@@ -225,16 +225,6 @@ def test_a_frame_lost_to_damage_is_404_while_the_rest_is_prepared(tmp_path):
         srv.stop()
 
 
-def _status(sock: socket.socket) -> bytes:
-    got = b""
-    while b"\r\n" not in got:
-        part = sock.recv(4096)
-        if not part:
-            break
-        got += part
-    return got.split(b"\r\n", 1)[0]
-
-
 def _closed(sock: socket.socket) -> bool:
     try:
         while sock.recv(4096):
@@ -262,12 +252,12 @@ def test_slow_headers_and_bodies_are_timed_out(tmp_path):
         for name, data in cases.items():
             with socket.create_connection(("127.0.0.1", srv.port), timeout=10) as s:
                 s.sendall(data)
-                assert _status(s).startswith(b"HTTP/1.1 408"), name
+                assert status_line(s).startswith(b"HTTP/1.1 408"), name
                 assert _closed(s), name
         # a kept-alive connection: the next request's headers are timed out as well
         with socket.create_connection(("127.0.0.1", srv.port), timeout=10) as s:
             s.sendall(f"GET /api/session HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Zcut-Token: {srv.token}\r\n\r\n".encode())
-            assert _status(s).startswith(b"HTTP/1.1 200")
+            assert status_line(s).startswith(b"HTTP/1.1 200")
             time.sleep(0.1)
             s.sendall(b"GET /api/session HTTP/1.1\r\nHost: 127.0.0.1\r\n")
             got = b""
@@ -284,7 +274,7 @@ def test_slow_headers_and_bodies_are_timed_out(tmp_path):
 def _raw(port: int, data: bytes) -> bytes:
     with socket.create_connection(("127.0.0.1", port), timeout=30) as s:
         s.sendall(data)
-        return _status(s)
+        return status_line(s)
 
 
 def test_malformed_requests_are_4xx_never_500(served):

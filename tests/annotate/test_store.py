@@ -57,6 +57,16 @@ def _label(rng, valid):
     return outliers, reviewed
 
 
+def _one_label(path, log_file, rng, valid):
+    """A store at ``path`` with one frame of ``log_file`` labelled by "ann": its outliers."""
+    with LabelStore(path) as store:
+        log = store.add_log(log_file)
+        fr = store.add_frame(log, topic="/c", stamp_ns=5, index=0, shape=SHAPE, valid=valid)
+        outliers, reviewed = _label(rng, valid)
+        store.save_label(fr, annotator="ann", outliers=outliers, reviewed=reviewed, base_revision=0)
+    return outliers
+
+
 def test_pack_roundtrip(rng):
     for shape in [(1, 1), (3, 5), (7, 8), (120, 160)]:
         m = rng.random(shape) > 0.5
@@ -150,11 +160,7 @@ def test_bad_annotator_names(store_frame, valid, name):
 
 def test_reopen_keeps_everything_and_pragmas(tmp_path, log_file, rng, valid):
     path = tmp_path / "p.sqlite"
-    with LabelStore(path) as store:
-        log = store.add_log(log_file)
-        fr = store.add_frame(log, topic="/c", stamp_ns=5, index=0, shape=SHAPE, valid=valid)
-        l1, r1 = _label(rng, valid)
-        store.save_label(fr, annotator="ann", outliers=l1, reviewed=r1, base_revision=0)
+    l1 = _one_label(path, log_file, rng, valid)
     with LabelStore(path) as store:
         assert store.schema_version == SCHEMA_VERSION
         log = store.log_by_sha(file_sha256(log_file))
@@ -220,11 +226,7 @@ def test_a_damaged_store_found_by_a_query_is_a_store_error(tmp_path, log_file, r
 
 def test_read_only_stores_are_never_written(tmp_path, log_file, rng, valid):
     path = tmp_path / "p.sqlite"
-    with LabelStore(path) as store:
-        log = store.add_log(log_file)
-        fr = store.add_frame(log, topic="/c", stamp_ns=5, index=0, shape=SHAPE, valid=valid)
-        l1, r1 = _label(rng, valid)
-        store.save_label(fr, annotator="ann", outliers=l1, reviewed=r1, base_revision=0)
+    l1 = _one_label(path, log_file, rng, valid)
     files = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.name.startswith("p.sqlite")}
     with LabelStore(path, read_only=True) as store:
         fr = store.frame(store.log_by_sha(file_sha256(log_file)), topic="/c", stamp_ns=5)

@@ -10,12 +10,11 @@ import sqlite3
 
 import numpy as np
 import pytest
-from annotate_helpers import ServerProcess, close_page, open_page, wait_until, write_spike_log
+from annotate_helpers import ServerProcess, close_page, label_with_truth, open_page, wait_until, write_spike_log
 from cli_helpers import run_cli
 from disk_helpers import fill, remount, small_disk
 
 from annotate.store import LabelStore, StoreError, StoreFullError, file_sha256, pack_mask
-from replay.logs.reader import LogReader
 
 
 @pytest.fixture(scope="module")
@@ -27,16 +26,7 @@ def log(tmp_path_factory):
 
 def _store_with_labels(db, log) -> list:
     with LabelStore(db) as store:
-        rec = store.add_log(log)
-        frames = []
-        for f in LogReader(log).frames():
-            valid = np.isfinite(f.xyz).all(axis=2)
-            fr = store.add_frame(rec, topic=f.topic, stamp_ns=f.stamp_ns, index=f.index, shape=f.shape,
-                                 frame_id=f.frame_id, valid=valid)
-            store.save_label(fr, annotator="ann", outliers=f.masks["/ground_truth/outliers"] & valid,
-                             reviewed=valid, base_revision=0)
-            frames.append((fr, valid))
-    return frames
+        return label_with_truth(store, log)[1]
 
 
 def test_a_full_disk_is_no_space_not_damage(log, tmp_path):

@@ -11,11 +11,9 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
-from cli_helpers import run_cli
+from cli_helpers import run_cli, synth_with_bin_model
 
-from cli.main import main
 from replay.outputs import (
     AtomicOutput,
     OutputBusyError,
@@ -31,22 +29,15 @@ SIZE = "90x120"
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     """A small synthetic log, an empty-bin log, its bin model and a label store with labels."""
+    from annotate_helpers import label_with_truth
+
     from annotate.store import LabelStore
-    from replay.logs.reader import LogReader
 
     d = tmp_path_factory.mktemp("lock_inputs")
-    log, empty, model, db = d / "log.mcap", d / "empty.mcap", d / "bin.ply", d / "labels.sqlite"
-    assert main(["synth", "-o", str(log), "--parts", "rods", "--frames", "2", "--seed", "1", "--size", SIZE]) == 0
-    assert main(["synth", "-o", str(empty), "--empty", "--frames", "2", "--seed", "2", "--size", SIZE]) == 0
-    assert main(["bin-model", str(empty), "-o", str(model)]) == 0
+    log, empty, model = synth_with_bin_model(d, parts="rods", seed=1, size=SIZE, empty_seed=2)
+    db = d / "labels.sqlite"
     with LabelStore(db) as store:
-        rec = store.add_log(log)
-        for f in LogReader(log).frames():
-            valid = np.isfinite(f.xyz).all(axis=2)
-            fr = store.add_frame(rec, topic=f.topic, stamp_ns=f.stamp_ns, index=f.index, shape=f.shape,
-                                 frame_id=f.frame_id, valid=valid)
-            store.save_label(fr, annotator="ann", outliers=f.masks["/ground_truth/outliers"] & valid,
-                             reviewed=valid, base_revision=0)
+        label_with_truth(store, log)
     return {"log": log, "empty": empty, "model": model, "db": db, "pcd": None}
 
 

@@ -8,9 +8,7 @@ import shutil
 
 import pyarrow.parquet as pq
 import pytest
-from cli_helpers import run_cli
-
-from cli.main import main
+from cli_helpers import run_cli, synth_logs
 
 SIZE = "120x180"
 
@@ -18,11 +16,7 @@ SIZE = "120x180"
 
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
-    d = tmp_path_factory.mktemp("batch_logs")
-    for name, kind, n, seed in (("a", "rods", 3, 1), ("b", "spheres", 2, 2)):
-        assert main(["synth", "-o", str(d / f"{name}.mcap"), "--parts", kind, "--frames", str(n), "--seed", str(seed),
-                     "--size", SIZE]) == 0
-    return d
+    return synth_logs(tmp_path_factory.mktemp("batch_logs"), (("a", "rods", 3, 1), ("b", "spheres", 2, 2)), size=SIZE)
 
 
 def test_batch_table_resume_and_summary(logs, tmp_path, capsys):

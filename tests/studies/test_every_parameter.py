@@ -19,7 +19,7 @@ import json
 
 import pyarrow.parquet as pq
 import pytest
-from cli_helpers import main
+from cli_helpers import main, synth_with_bin_model
 
 from replay.pipeline import config as cfg
 
@@ -221,11 +221,7 @@ def _signatures(log, model, config, out_dir) -> dict:
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
     d = tmp_path_factory.mktemp("every_parameter")
-    log, empty, model = d / "log.mcap", d / "empty.mcap", d / "bin.ply"
-    assert main(["synth", "-o", str(log), "--parts", "rods", "--frames", "2", "--seed", "21",
-                 "--size", "180x240"]) == 0
-    assert main(["synth", "-o", str(empty), "--empty", "--frames", "2", "--seed", "3", "--size", "180x240"]) == 0
-    assert main(["bin-model", str(empty), "-o", str(model)]) == 0
+    log, _, model = synth_with_bin_model(d, parts="rods", seed=21, size="180x240")
     return d, log, model
 
 

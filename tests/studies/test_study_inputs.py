@@ -62,16 +62,12 @@ def test_a_symlink_to_no_log_named_alone_is_a_one_line_error(log, tmp_path, caps
 
 def _two_annotators(db, log):
     import numpy as np
+    from annotate_helpers import added_frames
 
     from annotate.store import LabelStore
-    from replay.logs.reader import LogReader
 
     with LabelStore(db) as s:
-        lg = s.add_log(log)
-        for fr in LogReader(log).frames():
-            valid = np.isfinite(fr.xyz).all(axis=2)
-            rec = s.add_frame(lg, topic=fr.topic, stamp_ns=fr.stamp_ns, index=fr.index, shape=fr.shape,
-                              frame_id=fr.frame_id, valid=valid)
+        for rec, fr, valid in added_frames(s, s.add_log(log), log):
             for who in ("ann", "bob"):
                 s.save_label(rec, annotator=who, outliers=np.zeros(fr.shape, bool), reviewed=valid, base_revision=0)
 

@@ -10,20 +10,15 @@ import shutil
 
 import pyarrow.parquet as pq
 import pytest
-from cli_helpers import run_cli
-
-from cli.main import main
+from cli_helpers import run_cli, synth_logs
 
 SIZE = "120x180"
 
 
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
-    d = tmp_path_factory.mktemp("resume_logs")
-    for name, kind, n, seed in (("old", "rods", 3, 1), ("new", "spheres", 2, 2)):
-        assert main(["synth", "-o", str(d / f"{name}.mcap"), "--parts", kind, "--frames", str(n), "--seed", str(seed),
-                     "--size", SIZE]) == 0
-    return d
+    specs = (("old", "rods", 3, 1), ("new", "spheres", 2, 2))
+    return synth_logs(tmp_path_factory.mktemp("resume_logs"), specs, size=SIZE)
 
 
 def _sha(path):

@@ -28,9 +28,9 @@ def quantized(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     return np.round(base / q) * q
 
 
-def coincident(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
-    """Runs of exactly identical points in a pinhole cloud."""
-    xyz = pinhole(rng, h, w, flying=0.0)
+def coincident(rng: np.random.Generator, h: int, w: int, *, cloud=None) -> np.ndarray:
+    """Runs of exactly identical points in a pinhole cloud (made by ``cloud``, :func:`pinhole` by default)."""
+    xyz = (cloud or pinhole)(rng, h, w, flying=0.0)
     for _ in range(max(1, h * w // 20)):
         r, c = rng.integers(0, h), rng.integers(0, max(1, w - 6))
         xyz[r, c:c + rng.integers(2, 7)] = xyz[r, c]
@@ -107,3 +107,13 @@ def degenerate_clouds() -> dict[str, np.ndarray]:
         "identical-f32": np.broadcast_to(np.array([0.1, -0.2, 0.5], np.float32), (8, 8, 3)).copy(),
         "inf": inf,
     }
+
+
+def assert_equals_reference(fast, reference, xyz: np.ndarray, *args, **kw) -> np.ndarray:
+    """``fast(xyz, *args, **kw)`` is an (H, W) bool mask of measured pixels only, equal to ``reference``'s
+    with the same arguments; returns it."""
+    got = fast(xyz, *args, **kw)
+    valid = np.isfinite(xyz).all(axis=2)
+    assert got.shape == xyz.shape[:2] and got.dtype == bool and not (got & ~valid).any()
+    np.testing.assert_array_equal(got, reference(xyz, *args, **kw))
+    return got

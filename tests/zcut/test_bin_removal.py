@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pipeline_scene as ps
 import pytest
@@ -16,30 +14,10 @@ from zcut.registration import prepare_icp_model, prepare_target, register_bin
 from zcut.removal import prepare_removal_index, remove_table_and_bin
 
 H, W = 240, 320
-SHIFT = (0.006, -0.004, 0.003)
-
-
-@pytest.fixture(scope="module")
-def filled():
-    return ps.scene(h=H, w=W, shift=SHIFT, specks=12, seed=3)
-
-
-@pytest.fixture(scope="module")
-def model():
-    from replay.pipeline.bin_model import build_bin_model
-    from zcut.params import RegistrationParams
-
-    frames = []
-    for i, s in enumerate([(0, 0, 0), (0.02, 0, 0), (-0.02, 0, 0), (0, 0.02, 0), (0, -0.02, 0)]):
-        f, _ = ps.scene(h=H, w=W, shift=s, parts=False)
-        frames.append(dataclasses.replace(f, index=i))
-    m, reports = build_bin_model(frames, registration=RegistrationParams(voxel_mm=1.0), voxel_mm=1.0)
-    assert all(r.skipped == "" for r in reports)
-    return m
-
-
-def _bin_pixels(frame) -> np.ndarray:
-    return (frame.rgb == np.array(ps.BRIGHT, np.uint8)).all(axis=2)
+SHIFT = ps.SHIFT
+# the 240 x 320 filled bin, shifted, and the bin model it is registered to (tests/pipeline_scene.py)
+filled = pytest.fixture(scope="module")(ps.filled_bin_scene)
+model = pytest.fixture(scope="module")(ps.shifted_bin_model)
 
 
 def _index(model, **mm):
@@ -60,7 +38,7 @@ def test_removal_classes(filled, model):
     assert sum(c.astype(int) for c in classes).max() == 1            # disjoint
     assert np.array_equal(r.table | r.easy_outliers | r.bin_points | r.zone, valid)
     assert np.array_equal(r.table, valid & ~bm.mask)
-    bright = _bin_pixels(frame)
+    bright = ps.bin_pixels(frame)
     assert (r.bin_points | r.table)[bright].mean() > 0.95             # the bin is gone
     parts = (frame.rgb == np.array(ps.PART, np.uint8)).all(axis=2)
     part_tops = parts & (frame.xyz[..., 2] < ps.FLOOR_Z + SHIFT[2] - 0.005)

@@ -11,23 +11,13 @@ from zcut.binmask import BinMaskResult, bin_mask, bin_pixels, fill_holes
 from zcut.errors import InputShapeError, ParameterError
 from zcut.params import BinMaskParams
 
-H, W = 240, 320
-SHIFT = (0.006, -0.004, 0.003)
-
-
-@pytest.fixture(scope="module")
-def filled():
-    return ps.scene(h=H, w=W, shift=SHIFT, specks=12, seed=3)
-
-
-def _bin_pixels(frame) -> np.ndarray:
-    return (frame.rgb == np.array(ps.BRIGHT, np.uint8)).all(axis=2)
+filled = pytest.fixture(scope="module")(ps.filled_bin_scene)  # the 240 x 320 filled bin, shifted
 
 
 def test_bin_mask_is_the_bin_footprint(filled):
     frame, _ = filled
     r = bin_mask(frame.rgb)
-    truth_walls = _bin_pixels(frame)
+    truth_walls = ps.bin_pixels(frame)
     inside = truth_walls | (frame.rgb == np.array(ps.PART, np.uint8)).all(axis=2)
     assert r.found and r.covers_centre
     assert r.mask[inside].all()                       # every bin or part pixel is in the footprint

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
-from test_cuts import NASTY, figure6_scene, random_frame  # the z-cut's own nasty inputs
+from test_cuts import NASTY, figure6_scene, figure6_truth, random_frame  # the z-cut's own nasty inputs
 
 from zcut import InputShapeError, ParameterError, ZCutParams, find_clusters, zcut_outliers
 from zcut.cut_grid import COUNT_KEYS, ZCutTree, zcut_tree
@@ -137,10 +137,7 @@ def test_float32_input_is_upcast() -> None:
 
 def test_figure6_and_figure11() -> None:
     z = figure6_scene()
-    floating = np.zeros(z.shape, bool)
-    floating[7:9, 7:9] = True
-    walled = np.zeros(z.shape, bool)
-    walled[2:4, 12:14] = True
+    floating, walled = figure6_truth()
     tree = zcut_tree(z, step=0.5, max_depth=8.0)
     np.testing.assert_array_equal(tree.outliers(8.0, 5), floating | walled)
     assert tree.n_clusters(8.0, 5) == 2 and tree.n_clusters(8.0, 4) == 0

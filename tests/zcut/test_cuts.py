@@ -297,12 +297,18 @@ def figure6_scene() -> np.ndarray:
     return z
 
 
+def figure6_truth() -> tuple[np.ndarray, np.ndarray]:
+    """The pixels of :func:`figure6_scene`'s floating cluster and of its walled patch."""
+    floating = np.zeros((12, 16), bool)
+    floating[7:9, 7:9] = True
+    walled = np.zeros((12, 16), bool)
+    walled[2:4, 12:14] = True
+    return floating, walled
+
+
 def test_figure6_and_figure11() -> None:
     z = figure6_scene()
-    floating = np.zeros(z.shape, bool)
-    floating[7:9, 7:9] = True
-    walled = np.zeros(z.shape, bool)
-    walled[2:4, 12:14] = True
+    floating, walled = figure6_truth()
     for f in (zcut_outliers, zcut_outliers_reference):
         out = f(z, step=0.5, max_depth=8.0, max_area=5)
         np.testing.assert_array_equal(out, floating | walled)

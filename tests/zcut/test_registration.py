@@ -24,31 +24,10 @@ from zcut.registration import (
     transform_points,
 )
 
-H, W = 240, 320
-SHIFT = (0.006, -0.004, 0.003)
-
-
-@pytest.fixture(scope="module")
-def filled():
-    return ps.scene(h=H, w=W, shift=SHIFT, specks=12, seed=3)
-
-
-@pytest.fixture(scope="module")
-def model():
-    from replay.pipeline.bin_model import build_bin_model
-    from zcut.params import RegistrationParams
-
-    frames = []
-    for i, s in enumerate([(0, 0, 0), (0.02, 0, 0), (-0.02, 0, 0), (0, 0.02, 0), (0, -0.02, 0)]):
-        f, _ = ps.scene(h=H, w=W, shift=s, parts=False)
-        frames.append(dataclasses.replace(f, index=i))
-    m, reports = build_bin_model(frames, registration=RegistrationParams(voxel_mm=1.0), voxel_mm=1.0)
-    assert all(r.skipped == "" for r in reports)
-    return m
-
-
-def _bin_pixels(frame) -> np.ndarray:
-    return (frame.rgb == np.array(ps.BRIGHT, np.uint8)).all(axis=2)
+SHIFT = ps.SHIFT
+# the 240 x 320 filled bin, shifted, and the bin model it is registered to (tests/pipeline_scene.py)
+filled = pytest.fixture(scope="module")(ps.filled_bin_scene)
+model = pytest.fixture(scope="module")(ps.shifted_bin_model)
 
 
 def _register(model, target, **params):

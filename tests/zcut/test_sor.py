@@ -6,6 +6,7 @@ import math
 import subprocess
 import sys
 
+import bank_clouds
 import numpy as np
 import open3d as o3d
 import pytest
@@ -68,11 +69,7 @@ def quantized(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
 
 def coincident(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     """Pinhole cloud with groups of exactly coincident points (d̄ = 0 for the open3d convention)."""
-    xyz = pinhole(rng, h, w, flying=0.0)
-    for _ in range(max(1, h * w // 20)):
-        r, c = rng.integers(0, h), rng.integers(0, max(1, w - 6))
-        xyz[r, c:c + rng.integers(2, 7)] = xyz[r, c]
-    return xyz
+    return bank_clouds.coincident(rng, h, w, cloud=pinhole)
 
 
 def scattered(rng: np.random.Generator, h: int, w: int) -> np.ndarray:

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -177,7 +177,8 @@ class SensorModel:
 
     def code(self, point: np.ndarray) -> np.ndarray:
         """Projector column (pixels) lighting camera-frame ``point`` (..., 3) mm."""
-        return self.projector_f_px * (point[..., 0] - self.baseline_mm) / point[..., 2] + self.projector_c_px[0]
+        return np.asarray(self.projector_f_px * (point[..., 0] - self.baseline_mm) / point[..., 2]
+                          + self.projector_c_px[0])
 
     def in_projector(self, point: np.ndarray) -> np.ndarray:
         """Whether the projector's image covers camera-frame ``point`` (..., 3)."""
@@ -186,11 +187,11 @@ class SensorModel:
         with np.errstate(invalid="ignore", divide="ignore"):
             u = self.code(point)
             v = self.projector_f_px * point[..., 1] / z + self.projector_c_px[1]
-            return (z > 0) & (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5)
+            return np.asarray((z > 0) & (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5))
 
     def sigma_code(self, signal: np.ndarray) -> np.ndarray:
         """Noise sigma (projector pixels) of the decoded column at ``signal`` (full scale of the exposure read)."""
-        return self.sigma_code_px * np.sqrt(self.sigma_signal / np.maximum(signal, self.min_signal))
+        return np.asarray(self.sigma_code_px * np.sqrt(self.sigma_signal / np.maximum(signal, self.min_signal)))
 
     def depth_per_code_mm(self, z_mm: np.ndarray) -> np.ndarray:
         """Depth change (mm) per projector pixel of code at camera depth ``z_mm``."""
@@ -248,7 +249,7 @@ class Phasors:
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+    return np.asarray(v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12))
 
 
 def direct_light(scene: TracedScene, model: SensorModel, hits: Hits, idx: np.ndarray, wo: np.ndarray
@@ -318,6 +319,49 @@ def _perturbed_reflection(d: np.ndarray, n: np.ndarray, roughness: np.ndarray, r
 
 
 @dataclass(frozen=True, slots=True)
+class Ops:
+    """What the tracing steps cast, light and add with: the numba kernels (:data:`FAST`), or the literal
+    numpy of ``reference.py``, which runs the same steps (:func:`camera_bounces`,
+    :func:`projector_bounces`) with its own: it is the oracle of these operations, and the steps'
+    physics is written once.
+
+    Attributes
+    ----------
+    cast : (scene, origins, directions) -> Hits
+        First hits (``TracedScene.cast``).
+    light : (scene, model, hits, idx, wo) -> (keep, radiance, code)
+        Projector light the points ``hits[idx]`` send toward ``wo`` (:func:`direct_light`).
+    add : (image, flat_index, weight, value, code, periods) -> None
+        Paths of intensity ``weight * value`` added to a :class:`Phasors` image (:meth:`Phasors.add`).
+    add_light : (image, flat_index, weight, value) -> None
+        ``image[flat_index] += weight * value`` (repeats allowed) into a flat float64 image.
+    """
+
+    cast: Callable[[TracedScene, np.ndarray, np.ndarray], Hits]
+    light: Callable[[TracedScene, SensorModel, Hits, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+    add: Callable[[Phasors, np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[float, ...]], None]
+    add_light: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None]
+
+
+def _cast(scene: TracedScene, origins: np.ndarray, directions: np.ndarray) -> Hits:
+    return scene.cast(origins, directions)
+
+
+def _light(scene: TracedScene, model: SensorModel, hits: Hits, idx: np.ndarray, wo: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ok, radiance, code, _ = direct_light(scene, model, hits, idx, wo)
+    return ok, radiance, code
+
+
+def _add_light(image: np.ndarray, flat_index: np.ndarray, weight: np.ndarray, value: np.ndarray) -> None:
+    kernels.add_at(image, flat_index, weight, value, np.ones(flat_index.size))
+
+
+#: The fast path's operations: numba kernels.
+FAST = Ops(cast=_cast, light=_light, add=Phasors.add, add_light=_add_light)
+
+
+@dataclass(frozen=True, slots=True)
 class Received:
     """Everything a frame's pixels received, by path.
 
@@ -369,7 +413,7 @@ def edge_pixels(depth_mm: np.ndarray, part: np.ndarray, label: np.ndarray, *, ju
     key = part.astype(np.int64) * 16 + label
     khi = ndimage.maximum_filter(key, size=3, mode="nearest")
     klo = ndimage.minimum_filter(key, size=3, mode="nearest")
-    return (hi - lo > jump_mm) | (khi != klo)
+    return np.asarray((hi - lo > jump_mm) | (khi != klo))
 
 
 @small_pages()
@@ -382,16 +426,10 @@ def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.
     same in numpy, and the two agree bit for bit.
     """
     H, W = K.height, K.width
-    P = len(model.periods_px)
-    direct = Phasors.zeros(P, (H, W))
-    bounce = Phasors.zeros(P, (H, W))
-    spec_light = np.zeros(H * W)
     S = int(model.samples)
     origin = np.zeros(3)
     d_centre = pixel_directions(K)
-    centre = scene.cast(origin, d_centre)
-    z_centre = np.where(centre.hit, centre.point[:, 2], np.inf).reshape(H, W)
-    sub_depth = np.broadcast_to(z_centre.astype(np.float32), (S * S, H, W)).copy()
+    direct, bounce, spec_light, centre, z_centre, sub_depth = centre_rays(scene, K, model, FAST, d_centre)
     if S > 1:
         # the centre rays of plain pixels, then S x S sub-pixel rays of every edge pixel, offset by offset
         edge = edge_pixels(z_centre, centre.part.reshape(H, W), centre.label.reshape(H, W)).ravel()
@@ -424,7 +462,36 @@ def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.
         share = np.empty(sel.size)
         kernels.specular_share(h0.material[sel], scene.mat["albedo"], refl[ok], share)
         kernels.add_at(spec_light, pix[sel], w_s[sel], rad[ok], share)
-    # camera-side specular bounces
+    camera_bounces(scene, model, FAST, h0, idx, d, pix, w_s, rng, bounce, spec_light)
+    photons = projector_bounces(scene, K, model, centre, rng, FAST)
+    glare = _glare(direct.plus(bounce).add_in_place(photons), K, model)
+    return Received(direct, bounce, photons, glare, sub_depth, centre, spec_light.reshape(H, W))
+
+
+def centre_rays(scene: TracedScene, K: Intrinsics, model: SensorModel, ops: Ops, d_centre: np.ndarray
+                ) -> tuple[Phasors, Phasors, np.ndarray, Hits, np.ndarray, np.ndarray]:
+    """A frame's empty light images and step 1 for its centre rays ``d_centre`` (H*W, 3), cast with ``ops``.
+
+    Returns (direct, camera bounce, specular light (H*W,), the centre hits, their camera z (H, W),
+    the sub-pixel depths (S*S, H, W), each its pixel's centre z until its sub-pixel rays are cast).
+    """
+    H, W = K.height, K.width
+    P = len(model.periods_px)
+    S = int(model.samples)
+    centre = ops.cast(scene, np.zeros(3), d_centre)
+    z_centre = np.where(centre.hit, centre.point[:, 2], np.inf).reshape(H, W)
+    sub_depth = np.broadcast_to(z_centre.astype(np.float32), (S * S, H, W)).copy()
+    return Phasors.zeros(P, (H, W)), Phasors.zeros(P, (H, W)), np.zeros(H * W), centre, z_centre, sub_depth
+
+
+def camera_bounces(scene: TracedScene, model: SensorModel, ops: Ops, h0: Hits, idx: np.ndarray, d: np.ndarray,
+                   pix: np.ndarray, w_s: np.ndarray, rng: np.random.Generator, bounce: Phasors,
+                   spec_light: np.ndarray) -> None:
+    """Step 3: the specular bounces on the camera side, added into ``bounce`` and ``spec_light``.
+
+    ``h0[idx]`` are the first hits of the rays ``d[idx]`` of pixels ``pix[idx]`` with weights
+    ``w_s[idx]``; each bounce casts, lights and adds with ``ops`` (:data:`FAST`, or the reference's).
+    """
     cur_hits, cur_idx, cur_dir, cur_pix, weight = h0, idx, d[idx], pix[idx], w_s[idx]
     for _ in range(int(model.bounces)):
         mids = cur_hits.material[cur_idx]
@@ -437,26 +504,24 @@ def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.
         r = _perturbed_reflection(cur_dir[k], n, scene.mat["roughness"][mids[k]], rng)
         up = np.einsum("kj,kj->k", ng, r) > 0
         k, r, ng = k[up], r[up], ng[up]
-        h1 = scene.cast(cur_hits.point[cur_idx[k]] + 0.01 * ng, r)
+        h1 = ops.cast(scene, cur_hits.point[cur_idx[k]] + 0.01 * ng, r)
         got = h1.hit
         if not got.any():
             break
         k, r = k[got], r[got]
         weight_k = (weight * spec)[k]
         hit_idx = np.flatnonzero(got)
-        ok1, rad1, code1, _ = direct_light(scene, model, h1, hit_idx, -r)
+        ok1, rad1, code1 = ops.light(scene, model, h1, hit_idx, -r)
         px = cur_pix[k]
-        bounce.add(px[ok1], weight_k[ok1], rad1[ok1], code1[ok1], model.periods_px)
-        kernels.add_at(spec_light, px[ok1], weight_k[ok1], rad1[ok1], np.ones(int(ok1.sum())))
+        ops.add(bounce, px[ok1], weight_k[ok1], rad1[ok1], code1[ok1], model.periods_px)
+        ops.add_light(spec_light, px[ok1], weight_k[ok1], rad1[ok1])
         cur_hits, cur_idx, cur_dir, cur_pix, weight = h1, hit_idx, r, px, weight_k
-    photons = _projector_bounces(scene, K, model, centre, rng)
-    glare = _glare(direct.plus(bounce).add_in_place(photons), K, model)
-    return Received(direct, bounce, photons, glare, sub_depth, centre, spec_light.reshape(H, W))
 
 
-def _projector_bounces(scene: TracedScene, K: Intrinsics, model: SensorModel, centre: Hits,
-                       rng: np.random.Generator) -> Phasors:
-    """Step 4: projector light mirrored by shiny surfaces onto what the camera sees (photon splats)."""
+def projector_bounces(scene: TracedScene, K: Intrinsics, model: SensorModel, centre: Hits, rng: np.random.Generator,
+                      ops: Ops) -> Phasors:
+    """Step 4: projector light mirrored by shiny surfaces onto what the camera sees (photon splats),
+    cast and added with ``ops`` (:data:`FAST`, or the reference's)."""
     H, W = K.height, K.width
     out = Phasors.zeros(len(model.periods_px), (H, W))
     st = int(model.photon_stride)
@@ -465,14 +530,14 @@ def _projector_bounces(scene: TracedScene, K: Intrinsics, model: SensorModel, ce
     wp, hp = model.projector_size
     u = np.arange(0, wp, st, dtype=np.float64)
     v = np.arange(0, hp, st, dtype=np.float64)
-    uu, vv = np.meshgrid(u, v)
-    uu, vv = uu.ravel(), vv.ravel()
+    grid_u, grid_v = np.meshgrid(u, v)
+    uu, vv = grid_u.ravel(), grid_v.ravel()
     f = model.projector_f_px
     d = np.stack([(uu - model.projector_c_px[0]) / f, (vv - model.projector_c_px[1]) / f, np.ones_like(uu)], axis=1)
     cos3 = 1.0 / np.linalg.norm(d, axis=1) ** 3
     d = _unit(d)
     proj = model.projector_origin
-    q = scene.cast(proj, d)
+    q = ops.cast(scene, proj, d)
     spec = np.where(q.hit, scene.mat["specular"][np.maximum(q.material, 0)], 0.0)
     k = np.flatnonzero(q.hit & (spec >= MIRROR_MIN))
     if k.size == 0:
@@ -480,7 +545,7 @@ def _projector_bounces(scene: TracedScene, K: Intrinsics, model: SensorModel, ce
     r = _perturbed_reflection(d[k], q.normal[k], scene.mat["roughness"][q.material[k]], rng)
     up = np.einsum("kj,kj->k", q.geo_normal[k], r) > 0
     k, r = k[up], r[up]
-    p = scene.cast(q.point[k] + 0.01 * q.geo_normal[k], r)
+    p = ops.cast(scene, q.point[k] + 0.01 * q.geo_normal[k], r)
     got = p.hit & (p.point[:, 2] > 1.0)
     k, r = k[got], r[got]
     pt = p.point[got]
@@ -504,7 +569,7 @@ def _projector_bounces(scene: TracedScene, K: Intrinsics, model: SensorModel, ce
     area = cos_ray * pt[:, 2] ** 2 / (K.fx * K.fy * np.maximum(cos_c, 0.05))
     radiance = scene.mat["albedo"][mid] / np.pi * phi / area
     code = uu[k]
-    out.add(flat[vis], np.ones(int(vis.sum())), (EXPOSURE * radiance)[vis], code[vis], model.periods_px)
+    ops.add(out, flat[vis], np.ones(int(vis.sum())), (EXPOSURE * radiance)[vis], code[vis], model.periods_px)
     # density estimate: photons are sparse (a projector pixel covers ~3 camera pixels, and convex
     # mirrors spread them further); a kernel of PHOTON_SIGMA_PX (at 1920 across) turns them into
     # the smooth irradiance a rough mirror throws, instead of one-photon speckle
@@ -593,7 +658,7 @@ def triangulate(code: np.ndarray, K: Intrinsics, model: SensorModel) -> np.ndarr
 
 
 @small_pages()
-def measure(rec: Received, K: Intrinsics, model: SensorModel, rng: np.random.Generator):
+def measure(rec: Received, K: Intrinsics, model: SensorModel, rng: np.random.Generator) -> Measured:
     """Decode and triangulate: (measured z, noise-free z, sigma_z, staged noise-free z, saturated).
 
     The staged depths decode the light of successively more paths: direct only (differences are
@@ -606,7 +671,12 @@ def measure(rec: Received, K: Intrinsics, model: SensorModel, rng: np.random.Gen
     return triangulate_decoded(decoded, K, model, rng)
 
 
-def triangulate_decoded(decoded: list, K: Intrinsics, model: SensorModel, rng: np.random.Generator):
+#: What :func:`measure` returns: measured z, noise-free z, sigma_z, the staged noise-free depths, saturated.
+Measured = tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]
+
+
+def triangulate_decoded(decoded: list[Decoded], K: Intrinsics, model: SensorModel,
+                        rng: np.random.Generator) -> Measured:
     """The depths of the decoded stages (the last is what the sensor measures, with its noise): as
     :func:`measure` returns them."""
     final = decoded[-1]

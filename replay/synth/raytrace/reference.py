@@ -3,33 +3,41 @@
 :func:`trace_reference` is the first version of :func:`replay.synth.raytrace.optics.trace`, written
 with whole-array numpy operations (every step as the module docstring of ``optics`` says, readable
 line by line). ``optics.trace`` does the same arithmetic ray by ray in numba kernels
-(:mod:`.kernels`); ``tests/replay/synth/test_raytrace.py`` checks that both give the same bits
-over frames of every part kind and several sensor settings. Keep them in step: a change of the
+(:mod:`.kernels`); ``tests/replay/synth/test_raytrace_kernels.py`` checks that both give the same
+bits over frames of every part kind and several sensor settings. Keep them in step: a change of the
 physics goes into both.
+
+The reference is the oracle of the operations the kernels do: casting rays, lighting points, summing
+paths into phasor images (:data:`REFERENCE_OPS`, each in plain numpy, and the first hits, the
+direct light and the sub-pixel rays written out here). The specular bounces on the camera and
+projector sides (steps 3 and 4) are no kernel's: both paths run ``optics``'s
+:func:`~replay.synth.raytrace.optics.camera_bounces` and
+:func:`~replay.synth.raytrace.optics.projector_bounces` once, each with its own operations, so that
+their physics is written once.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from replay.synth.raytrace.materials import MIRROR_MIN
 from replay.synth.raytrace.optics import (
     EXPOSURE,
-    PHOTON_SIGMA_PX,
     REFERENCE_MM,
+    Measured,
+    Ops,
     Phasors,
     Received,
     SensorModel,
-    _blurred,
     _glare,
-    _perturbed_reflection,
     _unit,
+    camera_bounces,
+    centre_rays,
     decode,
     edge_pixels,
+    projector_bounces,
     triangulate_decoded,
 )
 from replay.synth.raytrace.scene import Hits, TracedScene
-from replay.synth.sensor import FULL_SIZE
 from zcut.cloud import Intrinsics
 
 
@@ -50,7 +58,7 @@ def brdf_reference(mat: dict[str, np.ndarray], mid: np.ndarray, n: np.ndarray, w
     albedo = mat["albedo"][mid]
     f = albedo / np.pi
     if diffuse_only:
-        return f
+        return np.asarray(f)
     spec = mat["specular"][mid]
     a = mat["roughness"][mid]
     cos_i = np.clip(np.einsum("kj,kj->k", n, wi), 1e-3, 1.0)
@@ -60,22 +68,13 @@ def brdf_reference(mat: dict[str, np.ndarray], mid: np.ndarray, n: np.ndarray, w
     ch = np.clip(np.einsum("kj,kj->k", n, h), 1e-3, 1.0)
     tan2 = (1.0 - ch * ch) / (ch * ch)
     D = np.exp(-tan2 / (a * a)) / (np.pi * a * a * ch**4)
-    return f + spec * D / (4.0 * cos_i * cos_o)
+    return np.asarray(f + spec * D / (4.0 * cos_i * cos_o))
 
 
 def direct_light_reference(scene: TracedScene, model: SensorModel, hits: Hits, idx: np.ndarray, wo: np.ndarray, *,
                            diffuse_only: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Projector light that the points ``hits[idx]`` send toward ``wo`` (unit, (k, 3)).
-
-    Returns
-    -------
-    keep : (k,) bool ndarray
-        The projector lights the point (not in its shadow, inside its image, facing it).
-    radiance : (k,) float64 ndarray
-        Camera intensity per unit of path weight (0 where not ``keep``).
-    code : (k,) float64 ndarray
-        Projector column of the point.
-    """
+    """:func:`optics.direct_light <replay.synth.raytrace.optics.direct_light>` in whole-array numpy: its
+    ``keep``, ``radiance`` and ``code`` (not its reflectance; ``code`` is NaN where not ``keep``)."""
     p = hits.point[idx]
     n = hits.normal[idx]
     ng = hits.geo_normal[idx]
@@ -104,6 +103,24 @@ def direct_light_reference(scene: TracedScene, model: SensorModel, hits: Hits, i
     return ok, radiance, code
 
 
+def _cast_reference(scene: TracedScene, origins: np.ndarray, directions: np.ndarray) -> Hits:
+    return scene.cast_reference(np.broadcast_to(origins, directions.shape), directions)
+
+
+def _add_reference(image: Phasors, flat_index: np.ndarray, weight: np.ndarray, value: np.ndarray, code: np.ndarray,
+                   periods: tuple[float, ...]) -> None:
+    image.add_reference(flat_index, weight * value, code, periods)
+
+
+def _add_light_reference(image: np.ndarray, flat_index: np.ndarray, weight: np.ndarray, value: np.ndarray) -> None:
+    np.add.at(image, flat_index, weight * value)
+
+
+#: The reference's operations for the steps shared with ``optics`` (its literal numpy).
+REFERENCE_OPS = Ops(cast=_cast_reference, light=direct_light_reference, add=_add_reference,
+                    add_light=_add_light_reference)
+
+
 def trace_reference(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.Generator) -> Received:
     """``optics.trace`` in whole-array numpy (the reference; see the module docstring).
 
@@ -111,16 +128,9 @@ def trace_reference(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: 
     centre ray (they see one smooth surface: more rays would only average the same code).
     """
     H, W = K.height, K.width
-    P = len(model.periods_px)
-    direct = Phasors.zeros(P, (H, W))
-    bounce = Phasors.zeros(P, (H, W))
-    spec_light = np.zeros(H * W)
     S = int(model.samples)
-    origin = np.zeros(3)
     d_centre = pixel_directions_reference(K)
-    centre = scene.cast_reference(origin, d_centre)
-    z_centre = np.where(centre.hit, centre.point[:, 2], np.inf).reshape(H, W)
-    sub_depth = np.broadcast_to(z_centre.astype(np.float32), (S * S, H, W)).copy()
+    direct, bounce, spec_light, centre, z_centre, sub_depth = centre_rays(scene, K, model, REFERENCE_OPS, d_centre)
     pix_list, dir_list, hit_list, w_list = [], [], [], []
     if S > 1:
         edge = edge_pixels(z_centre, centre.part.reshape(H, W), centre.label.reshape(H, W)).ravel()
@@ -133,7 +143,7 @@ def trace_reference(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: 
         offsets = [((i + 0.5) / S - 0.5, (j + 0.5) / S - 0.5) for j in range(S) for i in range(S)]
         for s, (du, dv) in enumerate(offsets):
             d = pixel_directions_reference(K, du, dv)[e]
-            hs = scene.cast_reference(origin, d)
+            hs = scene.cast_reference(np.zeros(3), d)
             sub_depth[s].reshape(-1)[e] = np.where(hs.hit, hs.point[:, 2], np.inf)
             pix_list.append(e)
             dir_list.append(d)
@@ -160,94 +170,14 @@ def trace_reference(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: 
         lam = brdf_reference(scene.mat, h0.material[sel], h0.normal[sel], wi, -d[sel], diffuse_only=True)
         full = brdf_reference(scene.mat, h0.material[sel], h0.normal[sel], wi, -d[sel])
         np.add.at(spec_light, pix[sel], w_s[sel] * rad[ok] * (1.0 - lam / full))
-    # camera-side specular bounces
-    cur_hits, cur_idx, cur_dir, cur_pix, weight = h0, idx, d[idx], pix[idx], w_s[idx]
-    for _ in range(int(model.bounces)):
-        mids = cur_hits.material[cur_idx]
-        spec = scene.mat["specular"][mids]
-        k = np.flatnonzero(spec >= MIRROR_MIN)
-        if k.size == 0:
-            break
-        n = cur_hits.normal[cur_idx[k]]
-        ng = cur_hits.geo_normal[cur_idx[k]]
-        r = _perturbed_reflection(cur_dir[k], n, scene.mat["roughness"][mids[k]], rng)
-        up = np.einsum("kj,kj->k", ng, r) > 0
-        k, r, ng = k[up], r[up], ng[up]
-        h1 = scene.cast_reference(cur_hits.point[cur_idx[k]] + 0.01 * ng, r)
-        got = h1.hit
-        if not got.any():
-            break
-        k, r = k[got], r[got]
-        weight_k = (weight * spec)[k]
-        hit_idx = np.flatnonzero(got)
-        ok1, rad1, code1 = direct_light_reference(scene, model, h1, hit_idx, -r)
-        px = cur_pix[k]
-        bounce.add_reference(px[ok1], weight_k[ok1] * rad1[ok1], code1[ok1], model.periods_px)
-        np.add.at(spec_light, px[ok1], weight_k[ok1] * rad1[ok1])
-        cur_hits, cur_idx, cur_dir, cur_pix, weight = h1, hit_idx, r, px, weight_k
-    photons = _projector_bounces_reference(scene, K, model, centre, rng)
+    camera_bounces(scene, model, REFERENCE_OPS, h0, idx, d, pix, w_s, rng, bounce, spec_light)
+    photons = projector_bounces(scene, K, model, centre, rng, REFERENCE_OPS)
     glare = _glare(direct.plus(bounce).plus(photons), K, model)
     return Received(direct, bounce, photons, glare, sub_depth, centre, spec_light.reshape(H, W))
 
 
-def _projector_bounces_reference(scene: TracedScene, K: Intrinsics, model: SensorModel, centre: Hits,
-                                 rng: np.random.Generator) -> Phasors:
-    """Step 4: projector light mirrored by shiny surfaces onto what the camera sees (photon splats)."""
-    H, W = K.height, K.width
-    out = Phasors.zeros(len(model.periods_px), (H, W))
-    st = int(model.photon_stride)
-    if st == 0:
-        return out
-    wp, hp = model.projector_size
-    u = np.arange(0, wp, st, dtype=np.float64)
-    v = np.arange(0, hp, st, dtype=np.float64)
-    uu, vv = np.meshgrid(u, v)
-    uu, vv = uu.ravel(), vv.ravel()
-    f = model.projector_f_px
-    d = np.stack([(uu - model.projector_c_px[0]) / f, (vv - model.projector_c_px[1]) / f, np.ones_like(uu)], axis=1)
-    cos3 = 1.0 / np.linalg.norm(d, axis=1) ** 3
-    d = _unit(d)
-    proj = model.projector_origin
-    q = scene.cast_reference(np.broadcast_to(proj, d.shape), d)
-    spec = np.where(q.hit, scene.mat["specular"][np.maximum(q.material, 0)], 0.0)
-    k = np.flatnonzero(q.hit & (spec >= MIRROR_MIN))
-    if k.size == 0:
-        return out
-    r = _perturbed_reflection(d[k], q.normal[k], scene.mat["roughness"][q.material[k]], rng)
-    up = np.einsum("kj,kj->k", q.geo_normal[k], r) > 0
-    k, r = k[up], r[up]
-    p = scene.cast_reference(q.point[k] + 0.01 * q.geo_normal[k], r)
-    got = p.hit & (p.point[:, 2] > 1.0)
-    k, r = k[got], r[got]
-    pt = p.point[got]
-    n = p.normal[got]
-    mid = p.material[got]
-    # the pixel that sees P, and whether P is what it sees
-    col = np.rint(K.fx * pt[:, 0] / pt[:, 2] + K.cx).astype(np.int64)
-    row = np.rint(K.fy * pt[:, 1] / pt[:, 2] + K.cy).astype(np.int64)
-    inside = (col >= 0) & (col < W) & (row >= 0) & (row < H)
-    flat = np.where(inside, row * W + col, 0)
-    z_seen = np.where(centre.hit, centre.point[:, 2], np.inf)[flat]
-    view = -_unit(pt)
-    cos_c = np.einsum("kj,kj->k", n, view)
-    vis = inside & (np.abs(pt[:, 2] - z_seen) < 1.0 + 0.02 * pt[:, 2] / K.fx / np.maximum(cos_c, 0.05)) & (cos_c > 0.05)
-    if not vis.any():
-        return out
-    # flux of one projector pixel (irradiance 1 at REFERENCE_MM on a facing surface), mirrored,
-    # spread over the camera pixel's footprint on P, reflected diffusely toward the camera
-    phi = REFERENCE_MM**2 * cos3[k] * st * st / f**2 * scene.mat["specular"][q.material[k]]
-    cos_ray = 1.0 / np.linalg.norm(pt / pt[:, 2:3], axis=1)
-    area = cos_ray * pt[:, 2] ** 2 / (K.fx * K.fy * np.maximum(cos_c, 0.05))
-    radiance = scene.mat["albedo"][mid] / np.pi * phi / area
-    code = uu[k]
-    out.add_reference(flat[vis], (EXPOSURE * radiance)[vis], code[vis], model.periods_px)
-    # density estimate: photons are sparse (a projector pixel covers ~3 camera pixels, and convex
-    # mirrors spread them further); a kernel of PHOTON_SIGMA_PX (at 1920 across) turns them into
-    # the smooth irradiance a rough mirror throws, instead of one-photon speckle
-    return _blurred(out, PHOTON_SIGMA_PX * K.width / FULL_SIZE[1] + 0.5)
-
-
-def measure_reference(rec: Received, K: Intrinsics, model: SensorModel, rng: np.random.Generator):
+def measure_reference(rec: Received, K: Intrinsics, model: SensorModel,
+                      rng: np.random.Generator) -> Measured:
     """``optics.measure`` as first written (each stage's images summed afresh, not in place): the bits it
     must keep. The depths of the decoded stages are :func:`optics.triangulate_decoded`, shared."""
     stages = [rec.direct, rec.direct.plus(rec.camera_bounce).plus(rec.projector_bounce)]

@@ -166,21 +166,14 @@ def test_replaying_a_results_file_says_so(log, tmp_path, capsys):
 
 
 def test_labels_import_creates_the_store_and_registers_the_log(log, tmp_path, capsys):
-    import numpy as np
+    from annotate_helpers import label_with_truth
 
     from annotate.label_files import export_labels
     from annotate.store import LabelStore
-    from replay.logs.reader import LogReader
 
     db = tmp_path / "a.sqlite"
     with LabelStore(db) as store:
-        rec = store.add_log(log)
-        for f in LogReader(log).frames():
-            valid = np.isfinite(f.xyz).all(axis=2)
-            fr = store.add_frame(rec, topic=f.topic, stamp_ns=f.stamp_ns, index=f.index, shape=f.shape,
-                                 frame_id=f.frame_id, valid=valid)
-            store.save_label(fr, annotator="ann", outliers=f.masks["/ground_truth/outliers"] & valid,
-                             reviewed=valid, base_revision=0)
+        rec, _ = label_with_truth(store, log)
         export_labels(store, rec, tmp_path / "l.mcap", annotator="ann")
     fresh = tmp_path / "new.sqlite"
     rc, out, err = run_cli(capsys, "labels", "import", tmp_path / "l.mcap", "--db", fresh, "--log", log)

@@ -12,7 +12,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import rerun as rr
-from cli_helpers import main, run_cli
+from cli_helpers import run_cli, synth_with_bin_model
 
 from replay.errors import ConfigError
 from replay.logs import layout
@@ -161,11 +161,7 @@ def test_a_camera_model_of_another_size_is_a_named_warning():
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
     d = tmp_path_factory.mktemp("bank_methods")
-    log, empty, model = d / "s.mcap", d / "e.mcap", d / "bin.ply"
-    assert main(["synth", "-o", str(log), "--parts", "zinc_nuts", "--frames", "2", "--seed", "17",
-                 "--size", "150x200"]) == 0
-    assert main(["synth", "-o", str(empty), "--empty", "--frames", "2", "--seed", "3", "--size", "150x200"]) == 0
-    assert main(["bin-model", str(empty), "-o", str(model)]) == 0
+    log, _, model = synth_with_bin_model(d, parts="zinc_nuts", seed=17, size="150x200", names=("s.mcap", "e.mcap"))
     return d, log, model
 
 

@@ -101,13 +101,9 @@ def test_methods_in_the_config_file_and_on_the_command_line(tmp_path):
 
 @pytest.fixture(scope="module")
 def small_log(tmp_path_factory):
-    d = tmp_path_factory.mktemp("methods")
-    log = d / "s.mcap"
-    from cli_helpers import main
+    from cli_helpers import synth_log
 
-    assert main(["synth", "-o", str(log), "--parts", "rods", "--frames", "2", "--seed", "11",
-                 "--size", "120x192"]) == 0
-    return log
+    return synth_log(tmp_path_factory.mktemp("methods") / "s.mcap", parts="rods", frames=2, seed=11, size="120x192")
 
 
 def test_replay_and_accuracy_score_the_methods_asked_for(small_log, tmp_path, capsys):

@@ -15,13 +15,9 @@ from replay.pipeline.sinks import BackgroundSinks, ResultsSink
 
 @pytest.fixture(scope="module")
 def small_log(tmp_path_factory):
-    d = tmp_path_factory.mktemp("results")
-    log = d / "s.mcap"
-    from cli_helpers import main
+    from cli_helpers import synth_log
 
-    assert main(["synth", "-o", str(log), "--parts", "rods", "--frames", "2", "--seed", "11",
-                 "--size", "240x384"]) == 0
-    return log
+    return synth_log(tmp_path_factory.mktemp("results") / "s.mcap", parts="rods", frames=2, seed=11, size="240x384")
 
 
 def _messages(path):

@@ -1,0 +1,277 @@
+"""The residual detectors: surface residuals up and down, mixed pixels, and blob completion.
+
+``residual_up`` / ``residual_down`` / ``mixed`` (:func:`surface_residuals`, see :mod:`zcut.suspects`):
+a pixel off every one-sided continuation of the surface around it; blobs of them are completed by
+:func:`fill_blobs`. Each numba kernel has its literal reference beside it.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import numpy.typing as npt
+from scipy import ndimage
+
+from ..cloud import check_mask
+from ..errors import InputShapeError, ParameterError, describe_array
+from ..types import FloatImage, Mask
+from .detectors import _DC, _DR, _OPP, MIXED, RESIDUAL_DOWN, RESIDUAL_UP, shifted
+
+#: A threshold of :func:`surface_residuals`: one for the frame, or one per pixel.
+Threshold = float | npt.NDArray[np.floating]
+# blob completion: a pixel joins when at least this many of its 8 neighbours are suspects
+FILL_MIN_NEIGHBOURS = 3
+
+
+@numba.njit(cache=True)
+def _residual_kernel(h, judged, taus, jumps, min_below, codes, best):  # type: ignore[no-untyped-def]  # numba kernel
+    H, W = h.shape
+    e = np.empty(8)
+    for i in range(H):
+        for j in range(W):
+            best[i, j] = np.nan
+            codes[i, j] = 0
+            if not judged[i, j]:
+                continue
+            hp = h[i, j]
+            if not np.isfinite(hp):
+                continue
+            n = 0
+            rmin = np.inf
+            eb = np.inf
+            emin = np.inf
+            emax = -np.inf
+            for k in range(8):
+                e[k] = np.nan
+                i2 = i + 2 * _DR[k]
+                j2 = j + 2 * _DC[k]
+                if i2 < 0 or i2 >= H or j2 < 0 or j2 >= W:
+                    continue
+                a1 = h[i + _DR[k], j + _DC[k]]
+                a2 = h[i2, j2]
+                if not (np.isfinite(a1) and np.isfinite(a2)):
+                    continue
+                ek = hp - (2.0 * a1 - a2)
+                e[k] = ek
+                n += 1
+                if abs(ek) < rmin:
+                    rmin = abs(ek)
+                    eb = ek
+                if ek < emin:
+                    emin = ek
+                if ek > emax:
+                    emax = ek
+            best[i, j] = eb
+            tau = taus[i, j]
+            jump = jumps[i, j]
+            if n == 0 or not rmin > tau:
+                continue
+            if emin > tau:
+                codes[i, j] = RESIDUAL_UP
+                continue
+            if emax < -tau:
+                if n >= min_below:
+                    codes[i, j] = RESIDUAL_DOWN
+                continue
+            between = False
+            for k in range(8):
+                if e[k] > tau and e[_OPP[k]] < -tau:
+                    between = True
+            if not between:
+                hi = -np.inf
+                lo = np.inf
+                for k in range(8):
+                    i1 = i + _DR[k]
+                    j1 = j + _DC[k]
+                    if i1 < 0 or i1 >= H or j1 < 0 or j1 >= W:
+                        continue
+                    d = h[i1, j1] - hp
+                    if np.isfinite(d):
+                        if d > hi:
+                            hi = d
+                        if d < lo:
+                            lo = d
+                between = hi > jump and lo < -jump
+            if between:
+                codes[i, j] = MIXED
+
+
+def _check_residual_args(height: object, judged: object, tau: object, jump: object, min_below: object
+                         ) -> tuple[np.ndarray, Mask, np.ndarray, np.ndarray, int]:
+    h = np.asarray(height)
+    if h.ndim != 2 or h.dtype.kind != "f":
+        raise InputShapeError(f"height must be an (H, W) real float array, got {describe_array(h)}")
+    judged = check_mask(judged, name="judged", shape=h.shape)
+    out = []
+    for name, v in (("tau", tau), ("jump", jump)):
+        if isinstance(v, (bool, np.bool_)):
+            raise ParameterError(f"{name} must be a number >= 0 or an (H, W) array of them, got {v!r}")
+        a = np.asarray(v, dtype=np.float64) if isinstance(v, (int, float, np.ndarray, np.floating, np.integer)) \
+            else None
+        if a is None or a.ndim not in (0, 2) or (a.ndim == 2 and a.shape != h.shape):
+            raise ParameterError(f"{name} must be a number >= 0 or an array of the height's shape {h.shape}, "
+                                 f"got {describe_array(v) if hasattr(v, 'shape') else repr(v)}")
+        if not np.all(a >= 0):
+            raise ParameterError(f"{name} must be >= 0 everywhere (not NaN)")
+        out.append(np.ascontiguousarray(np.broadcast_to(a, h.shape)))
+    if isinstance(min_below, bool) or not isinstance(min_below, (int, np.integer)) or not 1 <= min_below <= 8:
+        raise ParameterError(f"min_below must be an integer in 1..8, got {min_below!r}")
+    return np.ascontiguousarray(h, dtype=np.float64), np.ascontiguousarray(judged), out[0], out[1], int(min_below)
+
+
+def surface_residuals(height: FloatImage, judged: Mask, *, tau: Threshold, jump: Threshold,
+                      min_below: int) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals of the judged pixels against the one-sided continuations of the surface around them.
+
+    For a judged pixel p and each of the 8 directions d whose two pixels p+d, p+2d are measured,
+    ``e_d = h(p) - (2 h(p+d) - h(p+2d))``. The pixel's residual is the ``e_d`` of smallest
+    magnitude (first in the order E, W, S, N, SE, SW, NE, NW on ties). With r = |residual| > τ:
+
+    - ``RESIDUAL_UP`` if every ``e_d > τ`` (above every continuation);
+    - ``RESIDUAL_DOWN`` if every ``e_d < -τ`` and at least ``min_below`` directions exist;
+    - ``MIXED`` otherwise, if the pixel lies between two surfaces: ``e_d > τ`` and ``e_{-d} < -τ``
+      for some direction d, or a neighbour nearer by more than ``jump`` and one farther by more
+      than ``jump``.
+
+    Parameters
+    ----------
+    height : (H, W) float ndarray
+        Height (mm, larger = nearer the camera); every measured pixel serves as context, NaN =
+        unmeasured. float32 is upcast to float64.
+    judged : (H, W) bool ndarray
+        The pixels to judge (the zone).
+    tau, jump : float or (H, W) float ndarray
+        Thresholds (mm, >= 0), one for the frame or one per pixel; strict comparisons.
+    min_below : int
+        1-8.
+
+    Returns
+    -------
+    codes : (H, W) uint8 ndarray
+        One of the bits above, 0 = not a suspect (and everywhere outside ``judged``).
+    residual : (H, W) float64 ndarray
+        The signed residual; +inf where no direction exists, NaN outside ``judged`` or unmeasured.
+    """
+    h, judged, tau, jump, min_below = _check_residual_args(height, judged, tau, jump, min_below)
+    codes = np.zeros(h.shape, np.uint8)
+    best = np.empty(h.shape, np.float64)
+    _residual_kernel(h, judged, tau, jump, min_below, codes, best)
+    return codes, best
+
+
+def surface_residuals_reference(height: FloatImage, judged: Mask, *, tau: Threshold, jump: Threshold,
+                                min_below: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`surface_residuals` as whole-image numpy operations, one shifted image per direction."""
+    h, judged, tau, jump, min_below = _check_residual_args(height, judged, tau, jump, min_below)
+    A1 = np.stack([shifted(h, dr, dc, np.nan) for dr, dc in zip(_DR, _DC)])
+    A2 = np.stack([shifted(h, 2 * dr, 2 * dc, np.nan) for dr, dc in zip(_DR, _DC)])
+    with np.errstate(over="ignore", invalid="ignore"):
+        E = h - (2.0 * A1 - A2)
+    have = np.isfinite(A1) & np.isfinite(A2) & np.isfinite(h)
+    n = have.sum(axis=0)
+    mag = np.where(have, np.abs(E), np.inf)
+    k = np.argmin(mag, axis=0)
+    rmin = np.take_along_axis(mag, k[None], axis=0)[0]
+    eb = np.where(rmin < np.inf, np.take_along_axis(E, k[None], axis=0)[0], np.inf)
+    ok = judged & np.isfinite(h)
+    residual = np.where(ok, eb, np.nan)
+    r = rmin
+    emin = np.where(have, E, np.inf).min(axis=0)
+    emax = np.where(have, E, -np.inf).max(axis=0)
+    E = np.where(have, E, np.nan)
+    off = ok & (n > 0) & (r > tau)
+    up = off & (emin > tau)
+    down_pattern = off & ~up & (emax < -tau)
+    down = down_pattern & (n >= min_below)
+    pair = np.zeros_like(off)
+    for i, j in enumerate(_OPP):
+        pair |= (E[i] > tau) & (E[j] < -tau)
+    with np.errstate(over="ignore", invalid="ignore"):
+        D = A1 - h
+    hi = np.where(np.isfinite(D), D, -np.inf).max(axis=0)
+    lo = np.where(np.isfinite(D), D, np.inf).min(axis=0)
+    mixed = off & ~up & ~down_pattern & (pair | ((hi > jump) & (lo < -jump)))
+    codes = np.zeros(h.shape, np.uint8)
+    codes[up] = RESIDUAL_UP
+    codes[down] = RESIDUAL_DOWN
+    codes[mixed] = MIXED
+    return codes, residual
+
+
+@numba.njit(cache=True)
+def _fill_kernel(seed, judged, valid, iterations, min_nb):  # type: ignore[no-untyped-def]  # numba kernel
+    H, W = seed.shape
+    cur = seed.copy()
+    nxt = seed.copy()
+    for _ in range(iterations):
+        changed = False
+        for i in range(H):
+            for j in range(W):
+                nxt[i, j] = cur[i, j]
+                if cur[i, j] or not judged[i, j]:
+                    continue
+                nf = 0
+                nv = 0
+                for k in range(8):
+                    i1 = i + _DR[k]
+                    j1 = j + _DC[k]
+                    if i1 < 0 or i1 >= H or j1 < 0 or j1 >= W:
+                        continue
+                    if cur[i1, j1]:
+                        nf += 1
+                    elif valid[i1, j1]:
+                        nv += 1
+                if nf >= min_nb and nf > nv:
+                    nxt[i, j] = True
+                    changed = True
+        cur, nxt = nxt, cur
+        if not changed:
+            break
+    return cur
+
+
+def _check_fill_args(seed: object, judged: object, valid: object, iterations: object) -> tuple[Mask, Mask, Mask, int]:
+    seed = check_mask(seed, name="seed")
+    judged = check_mask(judged, name="judged", shape=seed.shape)
+    valid = check_mask(valid, name="valid", shape=seed.shape)
+    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or iterations < 0:
+        raise ParameterError(f"iterations must be an integer >= 0, got {iterations!r}")
+    return seed, judged, valid, int(iterations)
+
+
+def fill_blobs(seed: Mask, judged: Mask, valid: Mask, *, iterations: int) -> Mask:
+    """Complete blobs of suspects: up to ``iterations`` rounds, each adding (all at once) every judged
+    pixel outside the set that has at least 3 of its 8 neighbours in the set and more neighbours in
+    it than measured ones outside it.
+
+    Parameters
+    ----------
+    seed, judged, valid : (H, W) bool ndarray
+        The suspects, the pixels that may join, the measured pixels.
+    iterations : int
+
+    Returns
+    -------
+    (H, W) bool ndarray
+        ``seed`` and the pixels that joined.
+    """
+    seed, judged, valid, iterations = _check_fill_args(seed, judged, valid, iterations)
+    filled: Mask = _fill_kernel(np.ascontiguousarray(seed), np.ascontiguousarray(judged), np.ascontiguousarray(valid),
+                                iterations, FILL_MIN_NEIGHBOURS)
+    return filled
+
+
+def fill_blobs_reference(seed: Mask, judged: Mask, valid: Mask, *, iterations: int) -> Mask:
+    """:func:`fill_blobs` with neighbour counts from ``scipy.ndimage.correlate``."""
+    seed, judged, valid, iterations = _check_fill_args(seed, judged, valid, iterations)
+    ring = np.ones((3, 3), np.int32)
+    ring[1, 1] = 0
+    cur = seed.copy()
+    for _ in range(iterations):
+        nf = ndimage.correlate(cur.astype(np.int32), ring, mode="constant")
+        nv = ndimage.correlate((valid & ~cur).astype(np.int32), ring, mode="constant")
+        add = judged & ~cur & (nf >= FILL_MIN_NEIGHBOURS) & (nf > nv)
+        if not add.any():
+            break
+        cur = cur | add
+    return cur

@@ -1,0 +1,237 @@
+"""The union of the detectors, grouped: :func:`suspects` runs them all on one frame (:mod:`zcut.suspects`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from ..cloud import Intrinsics, check_mask, check_xyz
+from ..errors import InputShapeError, ParameterError, describe_array
+from ..params import SuspectParams
+from ..types import XYZ, FloatImage, Labels, Mask
+from .detectors import ABOVE_RIM, DETECTORS, FLOATING, RESIDUAL_UP, detector_bits, detector_names, label_medians
+from .floating import FLOATING_STEP_SIGMAS, floating_components
+from .gaps import local_gaps
+from .grouping import group_suspects
+from .noise import NoiseProfile, local_height, noise_profile
+from .residuals import fill_blobs, surface_residuals
+
+
+@dataclass(frozen=True, slots=True)
+class SuspectGroup:
+    """One group of suspects to review (accept or reject as a whole).
+
+    Attributes
+    ----------
+    label : int
+        Its value in :attr:`SuspectResult.groups` (1 = highest score).
+    detectors : tuple of str
+        The detectors that flagged any of its pixels (:data:`DETECTORS` order); the first is the one it
+        was grouped by.
+    size_px : int
+    gap_mm : float
+        Median gap of its pixels to the local surface (mm, positive = toward the camera; NaN when no
+        measured surface is near).
+    bbox : tuple of int
+        (row0, col0, row1, col1), ends exclusive.
+    score : float
+    """
+
+    label: int
+    detectors: tuple[str, ...]
+    size_px: int
+    gap_mm: float
+    bbox: tuple[int, int, int, int]
+    score: float
+
+
+@dataclass(frozen=True, slots=True)
+class SuspectResult:
+    """The suspects of one frame and their groups.
+
+    Attributes
+    ----------
+    mask : (H, W) bool ndarray
+        Every suspect pixel (inside the zone, or above the rim).
+    groups : (H, W) int32 ndarray
+        0 = none, g = the g-th group; groups are numbered by decreasing score. ``mask == groups > 0``.
+    detectors : (H, W) uint8 ndarray
+        Per pixel, the bits (1 << i for :data:`DETECTORS`\\[i]) of the detectors that flagged it.
+    gap_mm : (H, W) float64 ndarray
+        Per suspect pixel, its gap (mm, positive = toward the camera): its residual for a pixel the
+        residual detectors flagged alone, else its gap to the local surface (:func:`local_gaps`);
+        NaN elsewhere or when no measured surface is near.
+    residual_mm : (H, W) float64 ndarray
+        The signed surface residual of every judged pixel (:func:`surface_residuals`); NaN outside
+        the zone, +inf where no continuation exists.
+    group_detectors : (n,) uint8 ndarray
+        Bits of the detectors that flagged any pixel of each group.
+    group_primary : (n,) uint8 ndarray
+        Index in :data:`DETECTORS` of the detector each group was grouped by.
+    group_size : (n,) int64 ndarray
+    group_gap_mm : (n,) float64 ndarray
+    group_bbox : (n, 4) int32 ndarray
+        row0, col0, row1, col1 (ends exclusive).
+    group_score : (n,) float64 ndarray
+        sqrt(size_px) · |gap_mm| (0 when the gap is unknown): large groups far from the surface first.
+    noise_mm : float
+        The median over the zone of σ̂ at each pixel's height (:func:`noise_profile`).
+    threshold_mm : float
+        The median over the zone of τ = max(min_residual_mm, noise_k · σ̂(height)).
+    noise_profile : NoiseProfile
+        σ̂ and the depth step as functions of height (:func:`noise_profile`).
+    floating_step_mm : float
+        The floating detector's z-cut step.
+    merge_radius_px : (5,) int64 ndarray
+        The merge radius each detector ended with.
+    """
+
+    mask: Mask
+    groups: Labels
+    detectors: np.ndarray
+    gap_mm: np.ndarray
+    residual_mm: np.ndarray
+    group_detectors: np.ndarray
+    group_primary: np.ndarray
+    group_size: np.ndarray
+    group_gap_mm: np.ndarray
+    group_bbox: np.ndarray
+    group_score: np.ndarray
+    noise_mm: float
+    threshold_mm: float
+    noise_profile: NoiseProfile
+    floating_step_mm: float
+    merge_radius_px: np.ndarray
+
+    @property
+    def n_groups(self) -> int:
+        return int(self.group_size.size)
+
+    def group(self, label: int) -> SuspectGroup:
+        """Group ``label`` (1-based) as a record."""
+        if not 1 <= label <= self.n_groups:
+            raise ParameterError(f"group label must be in 1..{self.n_groups}, got {label!r}")
+        i = label - 1
+        p = int(self.group_primary[i])
+        names = detector_names(int(self.group_detectors[i]))
+        names = (DETECTORS[p],) + tuple(n for n in names if n != DETECTORS[p])
+        r0, c0, r1, c1 = (int(v) for v in self.group_bbox[i])
+        return SuspectGroup(label, names, int(self.group_size[i]), float(self.group_gap_mm[i]), (r0, c0, r1, c1),
+                            float(self.group_score[i]))
+
+    def detector_mask(self, name: str) -> Mask:
+        """(H, W) bool: the pixels detector ``name`` flagged."""
+        return (self.detectors & detector_bits([name])) > 0
+
+
+def suspects(
+    xyz: XYZ,
+    height_mm: FloatImage,
+    zone: Mask,
+    above_rim: Mask | None = None,
+    *,
+    params: SuspectParams,
+    intrinsics: Intrinsics | None = None,
+) -> SuspectResult:
+    """Every suspect of one frame, from all the detectors, grouped for review.
+
+    Parameters
+    ----------
+    xyz : (H, W, 3) float ndarray
+        The frame (metres, camera optical frame, NaN = unmeasured): every measured point is context
+        for the residual tests, in the zone or not (a flying pixel between a part and the bin floor is
+        judged against the floor's points).
+    height_mm : (H, W) float ndarray
+        The height image the z-cut is given (mm); only its zone pixels are used (the floating
+        detector).
+    zone : (H, W) bool ndarray
+        The pixels judged (the zone of the pipeline; every valid pixel without the bin stages).
+    above_rim : (H, W) bool ndarray, optional
+        Points above the rim, flagged by the pipeline's removal (``Zone.easy``); they are suspects,
+        and not context for the others.
+    params : SuspectParams
+    intrinsics : Intrinsics, optional
+        The camera; when given, its image size must be the frame's (a check that ``xyz`` is the
+        camera's organized grid). The detectors work on the grid and need nothing else from it.
+
+    Returns
+    -------
+    SuspectResult
+    """
+    if not isinstance(params, SuspectParams):
+        raise ParameterError(f"params must be a SuspectParams, got {type(params).__name__}")
+    a = check_xyz(xyz)
+    H, W = a.shape[:2]
+    h_img = np.asarray(height_mm)
+    if h_img.shape != (H, W) or h_img.dtype.kind != "f":
+        raise InputShapeError(f"height_mm must be an (H, W) float array like xyz {(H, W)}, got {describe_array(h_img)}")
+    zone = check_mask(zone, name="zone", shape=(H, W))
+    easy = np.zeros((H, W), bool) if above_rim is None else check_mask(above_rim, name="above_rim", shape=(H, W))
+    if intrinsics is not None:
+        if not isinstance(intrinsics, Intrinsics):
+            raise ParameterError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
+        if (intrinsics.height, intrinsics.width) != (H, W):
+            raise InputShapeError(f"intrinsics are for {intrinsics.height}x{intrinsics.width} images, "
+                                  f"the frame is {H}x{W}")
+    valid = np.isfinite(a[..., 0]) & np.isfinite(a[..., 1]) & np.isfinite(a[..., 2])
+    zone = zone & valid & ~easy
+    easy = easy & valid
+    context = np.where(valid & ~easy, -1000.0 * a[..., 2].astype(np.float64), np.nan)
+    h_zcut = np.ascontiguousarray(h_img, dtype=np.float64)
+
+    profile = noise_profile(context, zone)
+    sigma_px = profile.sigma_at(local_height(context))
+    sigma = float(np.median(sigma_px[zone])) if zone.any() else 0.0
+    tau = np.maximum(params.min_residual_mm, params.noise_k * sigma_px)
+    jump = np.maximum(params.jump_mm, params.noise_k * sigma_px)
+    step = max(params.floating_step_mm, FLOATING_STEP_SIGMAS * sigma)
+    a_max = params.a_max if params.a_max is not None else max(0.01 * H * W, 1.0)
+
+    codes, residual = surface_residuals(context, zone, tau=tau, jump=jump, min_below=params.below_min_directions)
+    off = codes > 0
+    if params.fill_iterations > 0:
+        filled = fill_blobs(off, zone, valid & ~easy, iterations=params.fill_iterations)
+        codes[filled & ~off] = RESIDUAL_UP
+    rough = zone & ~(np.abs(residual) <= tau)  # in the zone: inf (no continuation) is rough
+    floating, floating_gap = floating_components(h_zcut, zone, valid & ~easy, rough, params, a_max, step, profile)
+    codes[floating] |= FLOATING
+    codes[easy] |= ABOVE_RIM
+    mask = codes > 0
+
+    # gaps: a floating pixel's over the measured pixels bordering its component; a pixel off the
+    # surface, its residual (to the nearest continuation); a blob's or an above-rim pixel's, to the
+    # local surface around it
+    by_residual = off & ((codes & (FLOATING | ABOVE_RIM)) == 0) & np.isfinite(residual)
+    by_border = floating & ~easy
+    gap = local_gaps(np.where(valid, -1000.0 * a[..., 2].astype(np.float64), np.nan),
+                     mask & ~by_residual & ~by_border, valid & ~mask)
+    gap[by_residual] = residual[by_residual]
+    gap[by_border] = floating_gap[by_border]
+    tau_px = np.where(np.isfinite(tau) & (tau > 0), tau, params.min_residual_mm)
+    groups, primary, radii = group_suspects(codes, np.abs(gap) / tau_px, params)
+    n = int(primary.size)
+    size = np.bincount(groups.ravel(), minlength=n + 1)[1:].astype(np.int64)
+    bits = np.zeros(n + 1, np.uint8)
+    np.bitwise_or.at(bits, groups.ravel(), codes.ravel())
+    bits = bits[1:]
+    if n:
+        g_gap = label_medians(gap, groups, n)
+        boxes = ndimage.find_objects(groups, max_label=n)
+        bbox = np.array([[s[0].start, s[1].start, s[0].stop, s[1].stop] for s in boxes], np.int32)
+    else:
+        g_gap = np.zeros(0)
+        bbox = np.zeros((0, 4), np.int32)
+    score = np.sqrt(size) * np.nan_to_num(np.abs(g_gap), nan=0.0)
+    order = np.lexsort((np.arange(n), -size, -score))  # score, then size, then first found
+    rank = np.zeros(n + 1, np.int32)
+    rank[order + 1] = np.arange(1, n + 1, dtype=np.int32)
+    groups = rank[groups]
+    return SuspectResult(
+        mask=mask, groups=groups, detectors=codes, gap_mm=gap, residual_mm=residual,
+        group_detectors=bits[order], group_primary=primary[order], group_size=size[order],
+        group_gap_mm=g_gap[order], group_bbox=bbox[order], group_score=score[order],
+        noise_mm=sigma, threshold_mm=float(np.median(tau[zone])) if zone.any() else float(params.min_residual_mm),
+        noise_profile=profile, floating_step_mm=step, merge_radius_px=radii,
+    )
