@@ -30,6 +30,7 @@ import numpy as np
 from replay.errors import ConfigError, LogDamageError
 from replay.logs.damage import Damage
 from replay.logs.frame import Frame
+from replay.logs.poses import true_poses
 from replay.logs.stream import DerivedStream
 from replay.pipeline import config as cfg
 from replay.pipeline.sinks import FrameSink, NullSink, ReplayStart
@@ -111,14 +112,7 @@ def pose_error(T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
 
 
 def true_poses_of(metadata: dict) -> dict[int, np.ndarray]:
-    """A synthetic log's true bin poses by stamp (empty for other logs; the scene generator is only
-    imported for a log that carries poses)."""
-    from replay.logs import layout
-
-    if layout.SYNTH_POSES_METADATA not in metadata:
-        return {}
-    from replay.synth.log import true_poses
-
+    """A synthetic log's true bin poses by stamp (empty for other logs): :func:`replay.logs.poses.true_poses`."""
     return true_poses(metadata)
 
 
