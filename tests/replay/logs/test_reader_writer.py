@@ -254,7 +254,7 @@ def test_start_seeks_through_the_summary(tmp_path, rng):
         for f in frames:
             w.write_frame(f)
     r = LogReader(p)
-    offset, before = r._seek(5)
+    offset, before = r.index().seek(5)
     assert offset is not None and before == 5  # one cloud per chunk here
     for start in range(8):
         got = list(r.frames(start=start, stop=start + 2))
