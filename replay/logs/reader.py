@@ -47,6 +47,7 @@ from replay.logs import layout
 from replay.logs import ros2_msgs as rm
 from replay.logs.damage import Damage, DamageKind, stamp_text
 from replay.logs.files import CHUNK_SLACK_BYTES, DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_MAX_PIXELS, check_caps
+from replay.logs.frame import Frame
 from replay.logs.index import LogIndex, open_mcap
 from replay.logs.mcap_scan import (
     OP_CHANNEL,
@@ -571,7 +572,7 @@ class LogReader:
         return self._bin_model_attachment[2]
 
     # ------------------------------------------------------------------ streaming
-    def frames(self, *, start: int = 0, stop: int | None = None) -> FrameStream:
+    def frames(self, *, start: int = 0, stop: int | None = None, decoded: Frame | None = None) -> FrameStream:
         """The intact frames with ``start <= index < stop`` in log order, as a :class:`FrameStream`.
 
         Each cloud is paired with the image, camera info and masks of the same header stamp that
@@ -581,9 +582,10 @@ class LogReader:
         :class:`~replay.logs.damage.Damage` record in the stream's ``damage`` that names it; indices
         stay the log's own. Each call is a pass of its own, with its own records (starting with
         :attr:`open_damage`). The stream raises :class:`LogDamageError` if the log is damaged so
-        that not one frame of the range could be delivered.
+        that not one frame of the range could be delivered. ``decoded``: a frame an earlier pass over
+        this reader delivered, delivered again as it is (not decoded again) when this pass reaches it.
         """
-        return FrameStream(self.index(), start=start, stop=stop)
+        return FrameStream(self.index(), start=start, stop=stop, decoded=decoded)
 
     def chunk_frame_ranges(self) -> list[tuple[int, int]] | None:
         """The cloud index range ``(start, stop)`` of every chunk that holds clouds, in file order,

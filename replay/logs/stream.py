@@ -149,10 +149,13 @@ class FrameStream(Iterator[Frame]):
 
     Iterate it (or ``next``); :attr:`damage` holds the records of what this pass lost (final once
     the iteration has ended or :meth:`close` was called). Raises :class:`LogDamageError` at the end
-    when not one frame of a non-empty range could be delivered.
+    when not one frame of a non-empty range could be delivered. ``decoded``: a frame an earlier pass
+    over the same log delivered (the one a session resolved its config from); when this pass comes to
+    it (same index and stamp, its checks passed), it is delivered as it is instead of decoded again.
     """
 
-    def __init__(self, index: LogIndex, *, start: int = 0, stop: int | None = None) -> None:
+    def __init__(self, index: LogIndex, *, start: int = 0, stop: int | None = None,
+                 decoded: Frame | None = None) -> None:
         if start < 0 or (stop is not None and stop < start):
             raise ParameterError(f"frames: need 0 <= start <= stop, got start={start}, stop={stop}")
         self._r = index
@@ -175,6 +178,7 @@ class FrameStream(Iterator[Frame]):
         self._seq = _Sequences(enabled=not index.has_summary and self._begin is None)
         # a chunk of unknown content was lost after this frame: its record, until a sequence gap says more
         self._unknown_loss: list[Damage] = []
+        self._decoded = decoded
         self._gen = self._scan()
 
     # ------------------------------------------------------------------ iteration
@@ -426,6 +430,9 @@ class FrameStream(Iterator[Frame]):
             gone = self._lost_parts.get(topic, ())
             if p.stamp in gone or p.log_time in gone:
                 raise _Skip(DamageKind.LOST_COMPANION, f"{where}: its {topic} message was lost", topic)
+        if self._decoded is not None and (self._decoded.index, self._decoded.stamp_ns) == (idx, p.stamp):
+            frame, self._decoded = self._decoded, None  # the same bytes, already decoded and checked
+            return frame
         masks, codes = {}, {}
         try:
             if isinstance(cloud, rm.ImageMsg):  # a results file without its cloud: no points

@@ -34,7 +34,7 @@ from replay.logs.poses import true_poses
 from replay.logs.stream import DerivedStream
 from replay.pipeline import config as cfg
 from replay.pipeline.sinks import FrameSink, NullSink, ReplayStart
-from replay.pipeline.stages import FrameResult, Zone, bin_zone, locate_bin, run_frame
+from replay.pipeline.stages import BinLocation, FrameResult, Zone, bin_zone, locate_bin, run_frame
 from zcut.bin_model import BinModel
 from zcut.prepared_model import PreparedBinModel, prepare_bin_model
 from zcut.registration import RegistrationResult
@@ -273,6 +273,11 @@ class ReplaySession:
     Use :meth:`open`. Attributes: ``path``, ``reader`` (a :class:`replay.logs.reader.LogReader`),
     ``resolved`` (config and notes), ``bin_model`` (the :class:`BinModel` or None) and ``prepared``
     (its :class:`PreparedBinModel` for this config, or None).
+
+    Each frame is read and located once: the first readable frame, read to resolve the config and
+    located for the :attr:`seed`, is kept until the first pass over it, which delivers that frame
+    object instead of decoding it again (and takes its bin location when it is exactly what the pass
+    would compute: no converged seed to start from, the same bin stages' parameters).
     """
 
     def __init__(self, path: Path, reader, resolved: cfg.Resolved, bin_model: BinModel | None,
@@ -285,12 +290,20 @@ class ReplaySession:
         c = resolved.config
         self.prepared: PreparedBinModel | None = None
         self.seed: RegistrationResult | None = None
+        #: the first readable frame and, when the run would compute it again, its bin location: kept
+        #: for the first pass over it (see :meth:`located`), then dropped
+        self._first: Frame | None = first_frame
+        self._first_location: BinLocation | None = None
         if bin_model is not None:
             self.prepared = prepare_bin_model(bin_model, registration=c.registration, removal=c.removal)
             if first_frame is not None and c.registration.seed_from_first_frame:
                 # the log's first frame's pose seeds every frame (a static bin): each frame's result
                 # then depends on that frame alone, whatever order or split the frames run in
-                self.seed = locate_bin(first_frame, c, bin_model=self.prepared).registration
+                first_location = locate_bin(first_frame, c, bin_model=self.prepared)
+                self.seed = first_location.registration
+                if self.seed is None or not self.seed.converged:
+                    # no seed to start from: the run's locate_bin of this frame is this very call
+                    self._first_location = first_location
 
     @classmethod
     def open(cls, path: str | Path, *, config_file: str | Path | None = None,
@@ -363,10 +376,19 @@ class ReplaySession:
         """
         config = self._check(config)
         start, stop = frames
-        stream = self.reader.frames(start=start, stop=stop)
-        return DerivedStream(self._located(stream, config), stream)
+        first, location = self._first, self._first_location
+        if first is not None and start <= first.index and (stop is None or first.index < stop):
+            self._first = self._first_location = None  # this pass delivers it
+        else:
+            first = location = None
+        if location is not None and (config.bin_mask, config.registration) != (self.config.bin_mask,
+                                                                              self.config.registration):
+            location = None
+        stream = self.reader.frames(start=start, stop=stop, decoded=first)
+        return DerivedStream(self._located(stream, config, first, location), stream)
 
-    def _located(self, stream, config: cfg.PipelineConfig) -> Iterator[tuple[Frame, Future]]:
+    def _located(self, stream, config: cfg.PipelineConfig, first: Frame | None = None,
+                 first_location: BinLocation | None = None) -> Iterator[tuple[Frame, Future]]:
         from threadpoolctl import threadpool_limits
 
         bin_model, seed = self.prepared, self.seed
@@ -385,7 +407,12 @@ class ReplaySession:
                         yield pending
                         pending = None
                     raise
-                ahead = (frame, locator.submit(locate_bin, frame, config, bin_model=bin_model, seed=seed))
+                if first_location is not None and frame is first:
+                    done: Future = Future()
+                    done.set_result(first_location)  # computed when the session opened, exactly as here
+                    ahead = (frame, done)
+                else:
+                    ahead = (frame, locator.submit(locate_bin, frame, config, bin_model=bin_model, seed=seed))
                 if pending is not None:
                     yield pending
                 pending = ahead
