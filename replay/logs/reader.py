@@ -572,7 +572,8 @@ class LogReader:
         return self._bin_model_attachment[2]
 
     # ------------------------------------------------------------------ streaming
-    def frames(self, *, start: int = 0, stop: int | None = None, decoded: Frame | None = None) -> FrameStream:
+    def frames(self, *, start: int = 0, stop: int | None = None, decoded: Frame | None = None,
+               peek: bool = False) -> FrameStream:
         """The intact frames with ``start <= index < stop`` in log order, as a :class:`FrameStream`.
 
         Each cloud is paired with the image, camera info and masks of the same header stamp that
@@ -584,8 +585,11 @@ class LogReader:
         :attr:`open_damage`). The stream raises :class:`LogDamageError` if the log is damaged so
         that not one frame of the range could be delivered. ``decoded``: a frame an earlier pass over
         this reader delivered, delivered again as it is (not decoded again) when this pass reaches it.
+        ``peek``: a pass that reads a first frame only, before the run: no chunk is decompressed ahead,
+        and the chunks parsed while opening serve it and are left to the next pass too.
         """
-        return FrameStream(self.index(), start=start, stop=stop, decoded=decoded)
+        return FrameStream(self.index(keep_chunks=peek), start=start, stop=stop, decoded=decoded,
+                           prefetch=0 if peek else None)
 
     def chunk_frame_ranges(self) -> list[tuple[int, int]] | None:
         """The cloud index range ``(start, stop)`` of every chunk that holds clouds, in file order,
@@ -594,13 +598,16 @@ class LogReader:
         whole chunks that read independently (``zcut batch``)."""
         return self.index(first_pass=False).chunk_frame_ranges()
 
-    def index(self, *, first_pass: bool = True) -> LogIndex:
+    def index(self, *, first_pass: bool = True, keep_chunks: bool = False) -> LogIndex:
         """What a pass over the frames reads the log with (:class:`~replay.logs.index.LogIndex`): the
         topics chosen, the caps, the records known at open. With ``first_pass`` the chunks parsed
-        while opening go with it (once: a later index has none)."""
+        while opening go with it (once: a later index has none, unless ``keep_chunks`` leaves them to
+        the next one too)."""
         chunks: dict[tuple[int, int], list] = {}
         if first_pass:
-            chunks, self._chunks = self._chunks, {}
+            chunks = dict(self._chunks)
+            if not keep_chunks:
+                self._chunks = {}
         return LogIndex(
             path=self.path, cloud_topic=self.cloud_topic, image_topic=self.image_topic, info_topic=self.info_topic,
             mask_topics=tuple(self.mask_topics), cloudless=self.cloudless, max_pixels=self.max_pixels,

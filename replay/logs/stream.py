@@ -47,6 +47,7 @@ from replay.logs.mcap_scan import (
     OP_MESSAGE,
     OP_METADATA,
     OP_SCHEMA,
+    PREFETCH,
     Lost,
     _Bad,
     decompress,
@@ -152,10 +153,12 @@ class FrameStream(Iterator[Frame]):
     when not one frame of a non-empty range could be delivered. ``decoded``: a frame an earlier pass
     over the same log delivered (the one a session resolved its config from); when this pass comes to
     it (same index and stamp, its checks passed), it is delivered as it is instead of decoded again.
+    ``prefetch``: chunks decompressed ahead (the scanner's default when None; 0 for a pass that
+    reads a first frame only).
     """
 
     def __init__(self, index: LogIndex, *, start: int = 0, stop: int | None = None,
-                 decoded: Frame | None = None) -> None:
+                 decoded: Frame | None = None, prefetch: int | None = None) -> None:
         if start < 0 or (stop is not None and stop < start):
             raise ParameterError(f"frames: need 0 <= start <= stop, got start={start}, stop={stop}")
         self._r = index
@@ -179,6 +182,7 @@ class FrameStream(Iterator[Frame]):
         # a chunk of unknown content was lost after this frame: its record, until a sequence gap says more
         self._unknown_loss: list[Damage] = []
         self._decoded = decoded
+        self._prefetch = PREFETCH if prefetch is None else prefetch
         self._gen = self._scan()
 
     # ------------------------------------------------------------------ iteration
@@ -211,7 +215,8 @@ class FrameStream(Iterator[Frame]):
             r.chunks.clear()
             if self._begin is not None:  # chunks before the seek target are never reached
                 cached = {k: v for k, v in cached.items() if k[0] >= self._begin}
-            for op, rec in mf.records(self._damage, start_offset=self._begin, cached=cached):
+            for op, rec in mf.records(self._damage, prefetch=self._prefetch, start_offset=self._begin,
+                                      cached=cached):
                 if op == OP_MESSAGE:
                     yield from self._message(rec)
                     if self._stopped:

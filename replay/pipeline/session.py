@@ -253,7 +253,7 @@ def open_log(path: Path, *, file_layer: dict[str, Any] | None = None, overrides:
     from replay.logs.reader import LogReader
 
     reader = LogReader(path, cloud_topic=topic, **(reader_options or {}))
-    it = reader.frames(start=0)
+    it = reader.frames(start=0, peek=True)  # the run takes over the chunks read at open: parsed once
     try:
         first = next(it, None)
     finally:

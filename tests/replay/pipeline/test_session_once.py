@@ -11,6 +11,9 @@ import numpy as np
 import pytest
 
 from replay.logs import ros2_msgs as rm
+from replay.logs.mcap_scan import McapFile
+from replay.logs.reader import LogReader
+from replay.logs.writer import LogWriter
 from replay.pipeline import session as session_mod
 from replay.pipeline.bin_model import bin_model_for
 from replay.pipeline.session import ReplaySession
@@ -120,3 +123,25 @@ def test_the_run_summary_is_that_of_a_fresh_pass(log, tmp_path):
     for r, s in zip(rows, again):
         assert r.pose_error_mm == pytest.approx(s.pose_error_mm, abs=1e-6)
     assert all(not math.isnan(r.fitness) for r in rows) and np.isfinite([r.pose_error_mm for r in rows]).all()
+
+
+def test_each_chunk_is_parsed_once_but_the_one_that_ends_frame_0(log, tmp_path, monkeypatch):
+    """Opening parses the chunks of the first messages and keeps them; the first-frame pass reads on
+    to the next cloud (no chunk decompressed ahead) and leaves them to the run, which parses the rest."""
+    p = tmp_path / "small_chunks.mcap"
+    with LogWriter(p, chunk_size=1024) as w:  # a chunk per message
+        for f in LogReader(log).frames():
+            w.write_frame(f)
+    with McapFile(p) as mf:
+        n_chunks = len(mf.summary.chunk_indexes)
+    parsed: Counter = Counter()
+    parse = McapFile._chunk_records
+
+    def counting(self, body, where=""):
+        parsed[len(body)] += 1
+        return parse(self, body, where)
+
+    monkeypatch.setattr(McapFile, "_chunk_records", counting)
+    session = ReplaySession.open(p)
+    assert len(session.run().rows) == 3
+    assert n_chunks >= 12 and sum(parsed.values()) == n_chunks + 1  # frame 1's cloud: read to end frame 0
