@@ -13,9 +13,11 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from mcap.records import Channel, Schema
+
 from replay.logs.damage import Damage
 from replay.logs.files import CHUNK_SLACK_BYTES
-from replay.logs.mcap_scan import Channel, McapFile, Schema, _Bad
+from replay.logs.mcap_scan import McapFile, _Bad
 
 
 def open_mcap(path: Path, max_message_bytes: int) -> McapFile:
@@ -69,7 +71,7 @@ class LogIndex:
     n_frames: int | None
     open_damage: tuple[Damage, ...]
     metadata: dict[str, dict[str, str]]
-    chunks: dict[tuple[int, int], list] = field(default_factory=dict)
+    chunks: dict[tuple[int, int], list[tuple[int, object]]] = field(default_factory=dict)
 
     def open(self) -> McapFile:
         """The log opened for scanning (a context manager)."""
