@@ -6,8 +6,10 @@ In the manner of KISS-ICP's pipeline, a replay is a few named steps::
     summary = session.run(sink, frames=(0, None), on_frame=...)                      # pipeline -> sink
 
 :meth:`ReplaySession.open` resolves the config from the log's metadata and its first readable frame
-(:func:`replay.pipeline.config.resolve_config`), whatever frame range is run later, so every command
-that opens a session runs the same filter on a log; it prepares the bin model once for that config.
+(:func:`open_log`), whatever frame range is run later, so every command that opens a session runs the
+same filter on a log; it prepares the bin model once for that config. That first frame is read once: the
+run delivers the same object (and takes over the chunks read at open, and the frame's bin location when
+the seed does not change it).
 :meth:`ReplaySession.results` yields ``(frame, result)`` for a frame range, reading the next frame in
 a background thread (:func:`prefetched`) and locating the bin of frame k + 1 while frame k finishes;
 :meth:`ReplaySession.run` feeds them to a sink (:mod:`replay.pipeline.sinks`) and returns a
