@@ -131,6 +131,15 @@ def test_no_package_imports_one_above_it():
     assert up == [], "imports that point up the layers:\n" + "\n".join(up)
 
 
+def test_the_pipeline_imports_nothing_from_the_scene_generator():
+    """replay/pipeline sits below replay/synth: the generator may use the pipeline (a sample's bin
+    model), never the other way (a frame's true pose is decoded by replay.logs.poses)."""
+    up = [f"{path.relative_to(ROOT)}:{line} imports {module}"
+          for path in sorted((ROOT / "replay" / "pipeline").rglob("*.py")) for line, module in _imports(path)
+          if module == "replay.synth" or module.startswith("replay.synth.")]
+    assert up == [], "replay/pipeline imports replay/synth:\n" + "\n".join(up)
+
+
 def test_the_layout_check_sees_imports_inside_functions(tmp_path):
     f = tmp_path / "m.py"
     f.write_text("import os\ndef f():\n    from studies.grid import x\n    import cli.main\n")

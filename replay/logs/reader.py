@@ -47,6 +47,8 @@ from replay.logs import layout
 from replay.logs import ros2_msgs as rm
 from replay.logs.damage import Damage, DamageKind, stamp_text
 from replay.logs.files import CHUNK_SLACK_BYTES, DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_MAX_PIXELS, check_caps
+from replay.logs.frame import Frame
+from replay.logs.index import LogIndex, open_mcap
 from replay.logs.mcap_scan import (
     OP_CHANNEL,
     OP_LOST,
@@ -362,7 +364,7 @@ class LogReader:
         self.intrinsics: Intrinsics | None = self._first_intrinsics()
 
     def _mcap(self) -> McapFile:
-        return McapFile(self.path, max_chunk_bytes=self.max_message_bytes + CHUNK_SLACK_BYTES)
+        return open_mcap(self.path, self.max_message_bytes)
 
     def _first_intrinsics(self) -> Intrinsics | None:
         if self.info_topic is None:
@@ -570,7 +572,8 @@ class LogReader:
         return self._bin_model_attachment[2]
 
     # ------------------------------------------------------------------ streaming
-    def frames(self, *, start: int = 0, stop: int | None = None) -> FrameStream:
+    def frames(self, *, start: int = 0, stop: int | None = None, decoded: Frame | None = None,
+               peek: bool = False) -> FrameStream:
         """The intact frames with ``start <= index < stop`` in log order, as a :class:`FrameStream`.
 
         Each cloud is paired with the image, camera info and masks of the same header stamp that
@@ -580,60 +583,39 @@ class LogReader:
         :class:`~replay.logs.damage.Damage` record in the stream's ``damage`` that names it; indices
         stay the log's own. Each call is a pass of its own, with its own records (starting with
         :attr:`open_damage`). The stream raises :class:`LogDamageError` if the log is damaged so
-        that not one frame of the range could be delivered.
+        that not one frame of the range could be delivered. ``decoded``: a frame an earlier pass over
+        this reader delivered, delivered again as it is (not decoded again) when this pass reaches it.
+        ``peek``: a pass that reads a first frame only, before the run: no chunk is decompressed ahead,
+        and the chunks parsed while opening serve it and are left to the next pass too.
         """
-        return FrameStream(self, start=start, stop=stop)
+        return FrameStream(self.index(keep_chunks=peek), start=start, stop=stop, decoded=decoded,
+                           prefetch=0 if peek else None)
 
     def chunk_frame_ranges(self) -> list[tuple[int, int]] | None:
         """The cloud index range ``(start, stop)`` of every chunk that holds clouds, in file order,
         from the summary's chunk and message indexes; None when the log has no usable index (then
         only a scan from the start can number its frames). Used to split a long log into units of
         whole chunks that read independently (``zcut batch``)."""
-        cloud_ids = {cid for cid, ch in self._channels.items() if ch.topic == self.cloud_topic}
-        out: list[tuple[int, int]] = []
-        try:
-            with self._mcap() as mf:
-                if mf.summary is None or not mf.summary.chunk_indexes:
-                    return None
-                before = 0
-                for ci in mf.summary.chunk_indexes:
-                    n = 0
-                    for cid, off in ci.message_index_offsets.items():
-                        if cid in cloud_ids:
-                            got = mf.message_index_count(off)
-                            if got is None:
-                                return None
-                            n += got
-                    if n:
-                        out.append((before, before + n))
-                    before += n
-        except _Bad:
-            return None
-        return out
+        return self.index(first_pass=False).chunk_frame_ranges()
 
-    def _seek(self, k: int) -> tuple[int | None, int]:
-        """(file offset of the chunk holding the k-th cloud, number of clouds before that chunk),
-        from the summary's chunk and message indexes; (None, 0) = scan from the start."""
-        cloud_ids = {cid for cid, ch in self._channels.items() if ch.topic == self.cloud_topic}
-        try:
-            with self._mcap() as mf:
-                if mf.summary is None or not mf.summary.chunk_indexes:
-                    return None, 0
-                before = 0
-                for ci in mf.summary.chunk_indexes:
-                    offs = [o for cid, o in ci.message_index_offsets.items() if cid in cloud_ids]
-                    n = 0
-                    for off in offs:
-                        got = mf.message_index_count(off)
-                        if got is None:
-                            return None, 0
-                        n += got
-                    if before + n > k:
-                        return ci.chunk_start_offset, before
-                    before += n
-        except _Bad:
-            pass
-        return None, 0
+    def index(self, *, first_pass: bool = True, keep_chunks: bool = False) -> LogIndex:
+        """What a pass over the frames reads the log with (:class:`~replay.logs.index.LogIndex`): the
+        topics chosen, the caps, the records known at open. With ``first_pass`` the chunks parsed
+        while opening go with it (once: a later index has none, unless ``keep_chunks`` leaves them to
+        the next one too)."""
+        chunks: dict[tuple[int, int], list] = {}
+        if first_pass:
+            chunks = dict(self._chunks)
+            if not keep_chunks:
+                self._chunks = {}
+        return LogIndex(
+            path=self.path, cloud_topic=self.cloud_topic, image_topic=self.image_topic, info_topic=self.info_topic,
+            mask_topics=tuple(self.mask_topics), cloudless=self.cloudless, max_pixels=self.max_pixels,
+            max_message_bytes=self.max_message_bytes, schemas=self._schemas, channels=self._channels,
+            has_summary=self._has_summary, n_frames=self.n_frames, open_damage=self.open_damage,
+            metadata=self.metadata, chunks=chunks,
+        )
+
 
 #: Largest total of mask pixels :func:`read_mask_topics` returns from one file (2**30: 1 GiB of bool masks).
 MAX_MASK_FILE_PIXELS = 1 << 30

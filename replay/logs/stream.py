@@ -30,7 +30,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Self, TypeVar
+from typing import Self, TypeVar
 
 import numpy as np
 
@@ -40,21 +40,20 @@ from replay.logs import ros2_msgs as rm
 from replay.logs.damage import Damage, DamageKind, stamp_text
 from replay.logs.files import DEFAULT_MAX_MESSAGE_BYTES
 from replay.logs.frame import Frame
+from replay.logs.index import LogIndex
 from replay.logs.mcap_scan import (
     OP_CHANNEL,
     OP_LOST,
     OP_MESSAGE,
     OP_METADATA,
     OP_SCHEMA,
+    PREFETCH,
     Lost,
     _Bad,
     decompress,
 )
 from zcut.cloud import Intrinsics
 from zcut.errors import ParameterError
-
-if TYPE_CHECKING:
-    from replay.logs.reader import LogReader
 
 T = TypeVar("T")
 
@@ -146,36 +145,44 @@ class _Sequences:
 
 
 class FrameStream(Iterator[Frame]):
-    """The intact frames of ``reader`` with ``start <= index < stop``, in log order.
+    """The intact frames of a log with ``start <= index < stop``, in log order, read through the
+    ``index`` its :class:`~replay.logs.reader.LogReader` built (:meth:`~replay.logs.reader.LogReader.index`).
 
     Iterate it (or ``next``); :attr:`damage` holds the records of what this pass lost (final once
     the iteration has ended or :meth:`close` was called). Raises :class:`LogDamageError` at the end
-    when not one frame of a non-empty range could be delivered.
+    when not one frame of a non-empty range could be delivered. ``decoded``: a frame an earlier pass
+    over the same log delivered (the one a session resolved its config from); when this pass comes to
+    it (same index and stamp, its checks passed), it is delivered as it is instead of decoded again.
+    ``prefetch``: chunks decompressed ahead (the scanner's default when None; 0 for a pass that
+    reads a first frame only).
     """
 
-    def __init__(self, reader: LogReader, *, start: int = 0, stop: int | None = None) -> None:
+    def __init__(self, index: LogIndex, *, start: int = 0, stop: int | None = None,
+                 decoded: Frame | None = None, prefetch: int | None = None) -> None:
         if start < 0 or (stop is not None and stop < start):
             raise ParameterError(f"frames: need 0 <= start <= stop, got start={start}, stop={stop}")
-        self._r = reader
+        self._r = index
         self.start, self.stop = start, stop
-        self._damage: list[Damage] = list(reader.open_damage)
-        self._companions = [t for t in (reader.image_topic, reader.info_topic) if t] + list(reader.mask_topics)
-        self._want = {reader.cloud_topic, *self._companions}
+        self._damage: list[Damage] = list(index.open_damage)
+        self._companions = [t for t in (index.image_topic, index.info_topic) if t] + list(index.mask_topics)
+        self._want = {index.cloud_topic, *self._companions}
         self._orphan_limit = 4 * len(self._companions) + 4
         self._pending: list[_Pending] = []
         self._orphans: list[tuple[int, str, object]] = []  # (stamp, topic, decoded)
         self._lost_parts: dict[str, set[int]] = {}  # companion topic -> log times of its lost messages
         self._recent: deque[tuple[int, int]] = deque(maxlen=PAIRING_WINDOW)  # (index, stamp) of the last clouds
-        self._schemas = dict(reader._schemas)
-        self._channels = dict(reader._channels)
+        self._schemas = dict(index.schemas)
+        self._channels = dict(index.channels)
         self.delivered = 0
         self._stopped = False  # left the scan before the end of the log
         # seek: begin at the chunk holding cloud start - PAIRING_WINDOW (companions may precede)
-        self._begin, self._next_index = reader._seek(max(0, start - PAIRING_WINDOW)) if start > 0 else (None, 0)
+        self._begin, self._next_index = index.seek(max(0, start - PAIRING_WINDOW)) if start > 0 else (None, 0)
         # sequence numbers find clouds lost without a trace when there is no intact summary
-        self._seq = _Sequences(enabled=not reader._has_summary and self._begin is None)
+        self._seq = _Sequences(enabled=not index.has_summary and self._begin is None)
         # a chunk of unknown content was lost after this frame: its record, until a sequence gap says more
         self._unknown_loss: list[Damage] = []
+        self._decoded = decoded
+        self._prefetch = PREFETCH if prefetch is None else prefetch
         self._gen = self._scan()
 
     # ------------------------------------------------------------------ iteration
@@ -203,11 +210,13 @@ class FrameStream(Iterator[Frame]):
     # ------------------------------------------------------------------ the steps
     def _scan(self) -> Iterator[Frame]:
         r = self._r
-        with r._mcap() as mf:
-            cached, r._chunks = r._chunks, {}
+        with r.open() as mf:
+            cached = dict(r.chunks)  # this pass's alone: not held once the scan has ended
+            r.chunks.clear()
             if self._begin is not None:  # chunks before the seek target are never reached
                 cached = {k: v for k, v in cached.items() if k[0] >= self._begin}
-            for op, rec in mf.records(self._damage, start_offset=self._begin, cached=cached):
+            for op, rec in mf.records(self._damage, prefetch=self._prefetch, start_offset=self._begin,
+                                      cached=cached):
                 if op == OP_MESSAGE:
                     yield from self._message(rec)
                     if self._stopped:
@@ -426,6 +435,9 @@ class FrameStream(Iterator[Frame]):
             gone = self._lost_parts.get(topic, ())
             if p.stamp in gone or p.log_time in gone:
                 raise _Skip(DamageKind.LOST_COMPANION, f"{where}: its {topic} message was lost", topic)
+        if self._decoded is not None and (self._decoded.index, self._decoded.stamp_ns) == (idx, p.stamp):
+            frame, self._decoded = self._decoded, None  # the same bytes, already decoded and checked
+            return frame
         masks, codes = {}, {}
         try:
             if isinstance(cloud, rm.ImageMsg):  # a results file without its cloud: no points

@@ -6,8 +6,10 @@ In the manner of KISS-ICP's pipeline, a replay is a few named steps::
     summary = session.run(sink, frames=(0, None), on_frame=...)                      # pipeline -> sink
 
 :meth:`ReplaySession.open` resolves the config from the log's metadata and its first readable frame
-(:func:`replay.pipeline.config.resolve_config`), whatever frame range is run later, so every command
-that opens a session runs the same filter on a log; it prepares the bin model once for that config.
+(:func:`open_log`), whatever frame range is run later, so every command that opens a session runs the
+same filter on a log; it prepares the bin model once for that config. That first frame is read once: the
+run delivers the same object (and takes over the chunks read at open, and the frame's bin location when
+the seed does not change it).
 :meth:`ReplaySession.results` yields ``(frame, result)`` for a frame range, reading the next frame in
 a background thread (:func:`prefetched`) and locating the bin of frame k + 1 while frame k finishes;
 :meth:`ReplaySession.run` feeds them to a sink (:mod:`replay.pipeline.sinks`) and returns a
@@ -30,10 +32,11 @@ import numpy as np
 from replay.errors import ConfigError, LogDamageError
 from replay.logs.damage import Damage
 from replay.logs.frame import Frame
+from replay.logs.poses import true_poses
 from replay.logs.stream import DerivedStream
 from replay.pipeline import config as cfg
 from replay.pipeline.sinks import FrameSink, NullSink, ReplayStart
-from replay.pipeline.stages import FrameResult, Zone, bin_zone, locate_bin, run_frame
+from replay.pipeline.stages import BinLocation, FrameResult, Zone, bin_zone, locate_bin, run_frame
 from zcut.bin_model import BinModel
 from zcut.prepared_model import PreparedBinModel, prepare_bin_model
 from zcut.registration import RegistrationResult
@@ -111,14 +114,7 @@ def pose_error(T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
 
 
 def true_poses_of(metadata: dict) -> dict[int, np.ndarray]:
-    """A synthetic log's true bin poses by stamp (empty for other logs; the scene generator is only
-    imported for a log that carries poses)."""
-    from replay.logs import layout
-
-    if layout.SYNTH_POSES_METADATA not in metadata:
-        return {}
-    from replay.synth.log import true_poses
-
+    """A synthetic log's true bin poses by stamp (empty for other logs): :func:`replay.logs.poses.true_poses`."""
     return true_poses(metadata)
 
 
@@ -259,7 +255,7 @@ def open_log(path: Path, *, file_layer: dict[str, Any] | None = None, overrides:
     from replay.logs.reader import LogReader
 
     reader = LogReader(path, cloud_topic=topic, **(reader_options or {}))
-    it = reader.frames(start=0)
+    it = reader.frames(start=0, peek=True)  # the run takes over the chunks read at open: parsed once
     try:
         first = next(it, None)
     finally:
@@ -279,6 +275,11 @@ class ReplaySession:
     Use :meth:`open`. Attributes: ``path``, ``reader`` (a :class:`replay.logs.reader.LogReader`),
     ``resolved`` (config and notes), ``bin_model`` (the :class:`BinModel` or None) and ``prepared``
     (its :class:`PreparedBinModel` for this config, or None).
+
+    Each frame is read and located once: the first readable frame, read to resolve the config and
+    located for the :attr:`seed`, is kept until the first pass over it, which delivers that frame
+    object instead of decoding it again (and takes its bin location when it is exactly what the pass
+    would compute: no converged seed to start from, the same bin stages' parameters).
     """
 
     def __init__(self, path: Path, reader, resolved: cfg.Resolved, bin_model: BinModel | None,
@@ -291,12 +292,20 @@ class ReplaySession:
         c = resolved.config
         self.prepared: PreparedBinModel | None = None
         self.seed: RegistrationResult | None = None
+        #: the first readable frame and, when the run would compute it again, its bin location: kept
+        #: for the first pass over it (see :meth:`located`), then dropped
+        self._first: Frame | None = first_frame
+        self._first_location: BinLocation | None = None
         if bin_model is not None:
             self.prepared = prepare_bin_model(bin_model, registration=c.registration, removal=c.removal)
             if first_frame is not None and c.registration.seed_from_first_frame:
                 # the log's first frame's pose seeds every frame (a static bin): each frame's result
                 # then depends on that frame alone, whatever order or split the frames run in
-                self.seed = locate_bin(first_frame, c, bin_model=self.prepared).registration
+                first_location = locate_bin(first_frame, c, bin_model=self.prepared)
+                self.seed = first_location.registration
+                if self.seed is None or not self.seed.converged:
+                    # no seed to start from: the run's locate_bin of this frame is this very call
+                    self._first_location = first_location
 
     @classmethod
     def open(cls, path: str | Path, *, config_file: str | Path | None = None,
@@ -369,10 +378,19 @@ class ReplaySession:
         """
         config = self._check(config)
         start, stop = frames
-        stream = self.reader.frames(start=start, stop=stop)
-        return DerivedStream(self._located(stream, config), stream)
+        first, location = self._first, self._first_location
+        if first is not None and start <= first.index and (stop is None or first.index < stop):
+            self._first = self._first_location = None  # this pass delivers it
+        else:
+            first = location = None
+        if location is not None and (config.bin_mask, config.registration) != (self.config.bin_mask,
+                                                                              self.config.registration):
+            location = None
+        stream = self.reader.frames(start=start, stop=stop, decoded=first)
+        return DerivedStream(self._located(stream, config, first, location), stream)
 
-    def _located(self, stream, config: cfg.PipelineConfig) -> Iterator[tuple[Frame, Future]]:
+    def _located(self, stream, config: cfg.PipelineConfig, first: Frame | None = None,
+                 first_location: BinLocation | None = None) -> Iterator[tuple[Frame, Future]]:
         from threadpoolctl import threadpool_limits
 
         bin_model, seed = self.prepared, self.seed
@@ -391,7 +409,12 @@ class ReplaySession:
                         yield pending
                         pending = None
                     raise
-                ahead = (frame, locator.submit(locate_bin, frame, config, bin_model=bin_model, seed=seed))
+                if first_location is not None and frame is first:
+                    done: Future = Future()
+                    done.set_result(first_location)  # computed when the session opened, exactly as here
+                    ahead = (frame, done)
+                else:
+                    ahead = (frame, locator.submit(locate_bin, frame, config, bin_model=bin_model, seed=seed))
                 if pending is not None:
                     yield pending
                 pending = ahead

@@ -6,8 +6,8 @@ exact outliers on ``/ground_truth/outliers`` (mono8, 255 = outlier) and their ki
 ``/ground_truth/outlier_kind`` (mono8, docs/formats.md codes), and the true depth on
 ``/ground_truth/depth`` (32FC1, metres). The MCAP metadata record ``zcut.synth``
 describes how it was made (part kind, seed, finish, camera distance, bin geometry, size, ...), and
-``zcut.synth.poses`` holds every frame's true bin pose (:func:`true_poses` reads it back). The log
-carries the generator's exact bin model as its ``bin_model.ply`` attachment
+``zcut.synth.poses`` holds every frame's true bin pose (:func:`replay.logs.poses.true_poses` reads it
+back). The log carries the generator's exact bin model as its ``bin_model.ply`` attachment
 (:mod:`replay.synth.bin_surface`; ``docs/formats.md``, "Bin model attachment") and the part's mesh
 as its ``part_model.ply`` attachment (millimetres; "Part model attachment"). The paper's truth, the
 points farther than 3 × Err from every true surface, is on ``/ground_truth/off_surface`` (mono8;
@@ -18,13 +18,13 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from replay.errors import LogFormatError
 from replay.logs import layout
+from replay.logs.poses import true_poses as true_poses  # moved: see replay/logs/poses.py
 from replay.logs.writer import LogWriter
 from replay.presets import BIN, PART_KINDS
 from replay.synth import outliers as out
@@ -134,37 +134,6 @@ def pose_metadata(*, seed: int, frames: int, empty: bool) -> dict[str, str]:
         str(stamp_ns(seed, i)): ",".join(repr(float(v)) for v in frame_pose(seed, i, empty=empty).ravel())
         for i in range(int(frames))
     }
-
-
-def true_poses(metadata: Mapping[str, Mapping[str, str]]) -> dict[int, np.ndarray]:
-    """Every frame's true ``T_cam_bin`` from a synthetic log's metadata (``LogReader.metadata``).
-
-    Parameters
-    ----------
-    metadata : mapping
-        MCAP metadata records, name -> key/value strings.
-
-    Returns
-    -------
-    dict[int, (4, 4) float64 ndarray]
-        Header stamp (ns) -> bin frame to camera optical frame, metres (see
-        :func:`replay.synth.synthesize.T_cam_bin`); empty when the log carries no poses.
-    """
-    record = metadata.get(layout.SYNTH_POSES_METADATA)
-    if record is None:
-        return {}
-    poses: dict[int, np.ndarray] = {}
-    for key, value in record.items():
-        where = f"{layout.SYNTH_POSES_METADATA}[{key!r}]"
-        try:
-            stamp = int(key)
-            T = np.array([float(v) for v in value.split(",")], dtype=np.float64)
-        except ValueError:
-            raise LogFormatError(f"{where}: expected an integer stamp and 16 comma-separated floats") from None
-        if T.size != 16 or not np.isfinite(T).all():
-            raise LogFormatError(f"{where}: expected 16 finite comma-separated floats, got {T.size} values")
-        poses[stamp] = T.reshape(4, 4)
-    return poses
 
 
 def _write_frame(writer: LogWriter, sf: SynthFrame) -> None:
@@ -338,4 +307,39 @@ def ensure_sample_log(path: str | os.PathLike[str] | None = None, *, progress: P
         if tmp.exists():
             tmp.unlink()
         tmp_dir.rmdir()
+    return target
+
+
+def ensure_sample_bin_model(*, progress=None) -> Path:
+    """The bin model of the demo's sample: built once from a synthetic empty-bin log, then cached.
+
+    Five empty-bin scans (the paper's five positions, §4) at the sample's size are synthesised
+    next to the sample log, turned into a model (:func:`replay.pipeline.bin_model.build_bin_model`)
+    and saved as PLY; an interrupted run leaves no partial file behind.
+
+    Parameters
+    ----------
+    progress : callable, optional
+        Passed to :func:`write_synthetic_log`.
+    """
+    from replay.logs.reader import LogReader
+    from replay.pipeline.bin_model import build_bin_model, save_bin_model
+
+    h, w = SAMPLE_SIZE
+    base = sample_log_path().parent
+    target = base / f"sample_bin_model_seed{SAMPLE_SEED}_{w}x{h}_v{GENERATOR_VERSION}.ply"
+    if target.is_file():
+        return target
+    base.mkdir(parents=True, exist_ok=True)
+    empty = base / f".sample_empty_{os.getpid()}.mcap"
+    tmp = base / f".{target.stem}.tmp{os.getpid()}.ply"
+    try:
+        write_synthetic_log(empty, empty=True, frames=5, seed=SAMPLE_SEED, size=SAMPLE_SIZE, progress=progress)
+        model, _ = build_bin_model(LogReader(empty).frames())
+        save_bin_model(model, tmp)
+        os.replace(tmp, target)
+    finally:
+        for p in (empty, tmp):
+            if p.exists():
+                p.unlink()
     return target

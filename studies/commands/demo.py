@@ -74,11 +74,11 @@ def _demo(args: argparse.Namespace, *, out_dir: Path, rrd: Path, results: Path) 
     from annotate.truth import SyntheticTruth, scored_region
     from replay.commands.replay import print_table_callbacks
     from replay.logs.reader import LogReader
-    from replay.pipeline.bin_model import BinModelChoice, bin_model_for, ensure_sample_bin_model, load_bin_model
+    from replay.pipeline.bin_model import BinModelChoice, bin_model_for, load_bin_model
     from replay.pipeline.session import ReplaySession
     from replay.pipeline.sinks import BackgroundSinks, ConfigBeside, RerunSink, ResultsSink
     from replay.process import EXIT_DATA_LOSS
-    from replay.synth.log import ensure_sample_log, sample_log_path
+    from replay.synth.log import ensure_sample_bin_model, ensure_sample_log, sample_log_path
 
     err = sys.stderr
 

@@ -254,7 +254,7 @@ def test_start_seeks_through_the_summary(tmp_path, rng):
         for f in frames:
             w.write_frame(f)
     r = LogReader(p)
-    offset, before = r._seek(5)
+    offset, before = r.index().seek(5)
     assert offset is not None and before == 5  # one cloud per chunk here
     for start in range(8):
         got = list(r.frames(start=start, stop=start + 2))
@@ -268,3 +268,24 @@ def test_start_seeks_through_the_summary(tmp_path, rng):
     assert [g.index for g in LogReader(cut).frames(start=6)] == [6, 7]
     with pytest.raises(ValueError, match="need 0 <= start <= stop, got start=3, stop=1"):
         list(r.frames(start=3, stop=1))
+
+
+def test_a_frame_already_decoded_is_delivered_again_as_it_is(tmp_path, rng):
+    """frames(decoded=f): the frame an earlier pass delivered comes out of this pass as that object
+    (not decoded again), the other frames and the pass's damage as without it."""
+    p = tmp_path / "three.mcap"
+    with LogWriter(p, chunk_size=1024) as w:
+        for f in _frames(rng, 3):
+            w.write_frame(f)
+    r = LogReader(p)
+    it = r.frames()
+    first = next(it)
+    it.close()
+    plain = list(r.frames())
+    again = r.frames(decoded=first)
+    got = list(again)
+    assert got[0] is first and [g.index for g in got] == [0, 1, 2] and again.damage == ()
+    for a, b in zip(got, plain):
+        np.testing.assert_array_equal(a.xyz, b.xyz)
+        assert a.stamp_ns == b.stamp_ns and a.masks.keys() == b.masks.keys()
+    assert list(r.frames(start=1, decoded=first))[0] is not first  # not in the range: not delivered
