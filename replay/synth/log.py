@@ -310,7 +310,7 @@ def ensure_sample_log(path: str | os.PathLike[str] | None = None, *, progress: P
     return target
 
 
-def ensure_sample_bin_model(*, progress=None) -> Path:
+def ensure_sample_bin_model(*, progress: ProgressFn | None = None) -> Path:
     """The bin model of the demo's sample: built once from a synthetic empty-bin log, then cached.
 
     Five empty-bin scans (the paper's five positions, §4) at the sample's size are synthesised
