@@ -46,17 +46,10 @@ FOREIGN_PATHS = {"tests/testdata/test.mcap"}
 #: present, ``test_pending_names_are_still_pending`` asks for them to be taken off this list, so
 #: that after the merge the list is empty and every name is checked.
 PENDING = {
-    "replay/pipeline/zone.py",
     "replay/options.py",
-    "replay/logs/index.py",
-    "replay.logs.poses.true_poses",
-    "studies/scoring.py",
     "studies/sweep_run.py",
-    "studies.bank.default_axes",
-    "annotate/budget.py",
     "cli/commands/",
     "tests/cli/test_record_stereo.py",
-    "zcut/suspects/",
     "studies.sweep.run",
     "studies.batch.run",
     "annotate.accuracy.run",
@@ -226,11 +219,7 @@ def test_every_name_the_docs_cite_as_code_exists_and_is_used():
 
 #: Docstrings that cite a name that is gone or unused, in files other branches of issue 34 own (each
 #: with its fix): taken off as they are fixed (``test_known_stale_docstrings_are_still_stale``).
-KNOWN_STALE = {
-    # replay/pipeline/session.py:9 and replay/pipeline/stages.py:432: the resolver is
-    # :func:`replay.pipeline.config.resolve` (through :func:`replay.pipeline.session.open_log`)
-    "replay.pipeline.config.resolve_config",
-}
+KNOWN_STALE: set[str] = set()
 
 _ROLE = re.compile(rf":(?:func|class|mod|meth|data|attr|exc):`~?(?:[^`<]*<)?((?:{_PACKAGE})\.[\w.]+)>?`")
 _LITERAL = re.compile(rf"``((?:{_PACKAGE})(?:\.[A-Za-z_]\w*)+)``")
