@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from replay.commands.common import add_pipeline_options
+    from cli.commands.common import add_pipeline_options
     from studies.grid import DEFAULT_MAX_POINTS
 
     p.add_argument("inputs", nargs="+", metavar="LOG_OR_RESULTS.mcap", help="logs (or folders of them) with "
@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, stack: ExitStack) -> int:
-    from replay.commands.common import overrides_of
+    from cli.commands.common import overrides_of
     from replay.errors import ConfigError
     from replay.logs import layout
     from replay.logs.reader import LogReader

@@ -20,7 +20,7 @@ from replay.logs import layout
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from replay.commands.common import add_pipeline_options
+    from cli.commands.common import add_pipeline_options
 
     p.add_argument("log", type=Path, metavar="LOG_OR_RESULTS.mcap",
                    help="a log (predictions computed by the pipeline) or a results file of `zcut replay`")
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         region_of_results_frame,
         scored_region,
     )
-    from replay.commands.common import open_session, overrides_of
+    from cli.commands.common import open_session, overrides_of
     from replay.logs.reader import LogReader
     from replay.pipeline.methods import base_methods, method_masks
     from zcut.errors import ParameterError, ZcutError

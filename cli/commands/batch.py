@@ -23,7 +23,7 @@ FRAMES_PER_UNIT = 8
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from replay.commands.common import add_pipeline_options
+    from cli.commands.common import add_pipeline_options
 
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="MCAP logs or folders of them")
     p.add_argument("-o", "--out", required=True, metavar="DIR", help="output folder (created; rerun to resume)")
@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, stack: ExitStack) -> int:
-    from replay.commands.common import overrides_of
+    from cli.commands.common import overrides_of
     from replay.process import EXIT_DATA_LOSS
     from studies import batch
     from studies.driver import (
