@@ -54,7 +54,8 @@ def run(args: argparse.Namespace) -> int:
     import webbrowser
 
     from annotate.server import make_server, open_page
-    from cli.commands.common import model_chooser, overrides_of, warn_bin_model
+    from cli.commands.common import model_chooser, overrides_of
+    from replay.options import warn_bin_model
     from zcut.errors import ParameterError
 
     if not (0 <= args.port <= 65535):

@@ -47,8 +47,8 @@ def train(args: argparse.Namespace) -> int:
 
     from annotate.assistant import train as fit
     from annotate.assistant import training_set_of_log
-    from cli.commands.annotate import check_gate
     from annotate.store import LabelStore, StoreError, file_sha256
+    from cli.commands.annotate import check_gate
     from cli.commands.common import open_session, overrides_of
 
     for path in (args.log, args.db):
