@@ -69,7 +69,7 @@ class StudyOptions:
     region: str = "zone"
     workers: int | None = None
     ray: str | None = None
-    frames_per_unit: int = 4
+    frames_per_unit: int  # each study's own default
     force: bool = False
 
 
