@@ -424,7 +424,8 @@ def _zparams(zsets: list[ParamSet] | tuple[ParamSet, ...]) -> list[tuple[float |
 
 # ------------------------------------------------------------------ the sweep as a library call
 # (below the scoring it calls; the steps that need none of it are studies/sweep_run.py)
-from studies.sweep_run import SweepOptions, SweepResult  # noqa: E402
+from studies.sweep_run import SweepOptions as SweepOptions  # noqa: E402 - run's options and result
+from studies.sweep_run import SweepResult as SweepResult  # noqa: E402
 
 if TYPE_CHECKING:
     from contextlib import ExitStack
