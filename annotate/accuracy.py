@@ -1,7 +1,9 @@
 """True accuracy of the outlier filters against the truth (docs/accuracy.md): the report and its table.
 
-Pure functions on arrays: no file I/O, no printing. The callers (``zcut accuracy``, ``zcut demo``)
-gather per-frame predictions and truth, then::
+The report's functions are pure, on arrays: no file I/O, no printing. :func:`run` (at the end) is
+``zcut accuracy`` as a library call: ``run(AccuracyOptions(log=path))`` opens the log, computes or
+reads the predictions, gathers the truth and returns an :class:`AccuracyResult` (warnings on stderr).
+Its callers, and ``zcut demo``, gather per-frame predictions and truth, then::
 
     frames = [frame_accuracy(i, stamp_ns, {"zcut": z, "sor": s}, truth,
                              reviewed=r, valid=v, region=zone, kinds=kind_image) for ...]
