@@ -4,6 +4,7 @@
 fitness, stage timings, and TP/FP/FN per method over the scored region where truth exists);
 ``summary.json`` the totals, the per-log losses, the pooled accuracy with intervals and the cost
 (:func:`summary`: a :class:`studies.summary.BatchSummary`, serialised by its ``to_json``).
+:func:`run` is the whole batch as a library call: ``run(BatchOptions(inputs=(log,), out=folder))``.
 """
 
 from __future__ import annotations
