@@ -771,7 +771,7 @@ class AccuracyResult:
         What the pass over the log lost.
     """
 
-    report: dict
+    report: dict[str, Any]
     truth: str
     predictions: str
     from_results: bool
@@ -790,7 +790,7 @@ class AccuracyResult:
 class AgreementResult:
     """The agreement of two annotators (:func:`agreement_report`; :func:`format_agreement_table` prints it)."""
 
-    report: dict
+    report: dict[str, Any]
     damage: tuple[Damage, ...] = ()
 
     @property
@@ -817,7 +817,7 @@ def run(options: AccuracyOptions) -> AccuracyResult | AgreementResult:
     return _accuracy(options, overrides)
 
 
-def _accuracy(options: AccuracyOptions, overrides: dict) -> AccuracyResult:
+def _accuracy(options: AccuracyOptions, overrides: dict[str, Any]) -> AccuracyResult:
     from annotate.truth import LabelTruth, SyntheticTruth
     from replay.logs import layout
     from replay.logs.reader import LogReader
@@ -835,6 +835,8 @@ def _accuracy(options: AccuracyOptions, overrides: dict) -> AccuracyResult:
         if options.labels is None and layout.TRUTH_OUTLIERS not in reader.mask_topics:
             raise ZcutError(f"{log} has no {layout.TRUTH_OUTLIERS}: give human labels with --labels DB")
         session = None
+        stream: Any  # the pass over the log (its damage)
+        frames: Iterable[tuple[Any, Any]]
         if is_results:
             stream = reader.frames()
             frames = ((f, None) for f in stream)
@@ -851,13 +853,16 @@ def _accuracy(options: AccuracyOptions, overrides: dict) -> AccuracyResult:
         results, unscored, learned_seen = _score_frames(options, frames, truth_src, methods, session, learned)
         if not results:
             what = (f"no frame of {log} is labelled by {truth_src.annotator!r} in {options.labels}"
-                    if options.labels else f"no frame of {log} has {layout.TRUTH_OUTLIERS}")
+                    if isinstance(truth_src, LabelTruth) else f"no frame of {log} has {layout.TRUTH_OUTLIERS}")
             raise ZcutError(what)
         left_out = ({"learned": (learned_seen, "the assistant's model was trained on these frames")}
                     if learned is not None else None)
         report = accuracy_report(results, region=options.region, unscored=unscored, left_out=left_out)
-        pred = "computed by the pipeline" if session is not None else \
-            f"from {', '.join(layout.method_topic(b) for b in base_methods(methods))}"
+        if session is not None:
+            pred = "computed by the pipeline"
+        else:
+            assert methods is not None  # a results file's
+            pred = f"from {', '.join(layout.method_topic(b) for b in base_methods(methods))}"
         return AccuracyResult(report, truth_src.name, pred, from_results=session is None,
                               notes=tuple(session.notes) if session is not None else (),
                               learned=learned.summary() if learned is not None else None,
@@ -867,7 +872,7 @@ def _accuracy(options: AccuracyOptions, overrides: dict) -> AccuracyResult:
             truth_src.close()
 
 
-def _score_frames(options: AccuracyOptions, frames: Iterable, truth_src: Any, methods: list[str] | None,
+def _score_frames(options: AccuracyOptions, frames: Iterable[tuple[Any, Any]], truth_src: Any, methods: list[str] | None,
                   session: Any, learned: Any) -> tuple[list[FrameAccuracy], list[UnscoredFrame], set[int]]:
     """Each frame's counts (and the learned model's, on the frames it was not trained on)."""
     import dataclasses
@@ -881,6 +886,7 @@ def _score_frames(options: AccuracyOptions, frames: Iterable, truth_src: Any, me
     results, unscored = [], []
     for frame, r in frames:
         if r is None:
+            assert methods is not None  # a results file's
             preds = method_masks_of({b: frame.masks[layout.method_topic(b)] for b in base_methods(methods)
                                      if layout.method_topic(b) in frame.masks}, methods)
             # a results file's /zcut/filtered has the outliers set to NaN: its valid pixels plus the
@@ -940,7 +946,8 @@ def _displacement_mm(log: Path, frame: Any) -> np.ndarray | None:
                         or (msg.height, msg.width) != frame.shape or len(msg.data) != 4 * msg.width * msg.height):
                     continue
                 depth = np.frombuffer(bytes(msg.data), dtype="<f4").reshape(msg.height, msg.width)
-                return np.abs(frame.xyz[..., 2].astype(np.float64) - depth) * 1000.0
+                shift: np.ndarray = np.abs(frame.xyz[..., 2].astype(np.float64) - depth) * 1000.0
+                return shift
     except (McapError, LogFormatError, ValueError, OSError, EOFError):
         return None
     return None
