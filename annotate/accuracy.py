@@ -1,7 +1,9 @@
 """True accuracy of the outlier filters against the truth (docs/accuracy.md): the report and its table.
 
-Pure functions on arrays: no file I/O, no printing. The callers (``zcut accuracy``, ``zcut demo``)
-gather per-frame predictions and truth, then::
+The report's functions are pure, on arrays: no file I/O, no printing. :func:`run` (at the end) is
+``zcut accuracy`` as a library call: ``run(AccuracyOptions(log=path))`` opens the log, computes or
+reads the predictions, gathers the truth and returns an :class:`AccuracyResult` (warnings on stderr).
+Its callers, and ``zcut demo``, gather per-frame predictions and truth, then::
 
     frames = [frame_accuracy(i, stamp_ns, {"zcut": z, "sor": s}, truth,
                              reviewed=r, valid=v, region=zone, kinds=kind_image) for ...]
@@ -30,10 +32,13 @@ import json
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from replay.logs.layout import OUTLIER_KINDS
+from replay.options import PipelineOptions
 from replay.pipeline.methods import method_masks as method_masks_of
 from replay.pipeline.methods import reported_methods
 from zcut.cloud import check_mask
@@ -50,6 +55,9 @@ from zcut.metrics import (
     scored_truth,
 )
 from zcut.types import Mask
+
+if TYPE_CHECKING:
+    from replay.logs.damage import Damage
 
 #: Methods of the default report (the config's default methods and the derived pair), in the order
 #: shown; a report lists the methods its predictions hold (``--methods``).
@@ -701,3 +709,320 @@ def format_agreement_table(report: dict) -> str:
     rows.append(["pooled", "", str(p["pixels"]), str(p["both"]), str(p["only_a"]), str(p["only_b"]),
                  _fmt_rate(p["iou"]), _fmt_rate(p["kappa"])])
     return f"agreement of {a} and {b} over the pixels both reviewed\n" + _render(head, rows, left=2)
+
+
+# ------------------------------------------------------------------ true accuracy as a library call
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AccuracyOptions:
+    """What :func:`run` scores (docs/accuracy.md); the defaults are ``zcut accuracy``'s.
+
+    Attributes
+    ----------
+    log : Path
+        A log (predictions computed by the pipeline, resolved as ``zcut replay`` resolves them) or a
+        results file of ``zcut replay --out`` (its masks are the predictions).
+    labels, annotator :
+        Score against this annotator's labels in this label store (default: the log's synthetic truth).
+    agreement : (str, str) or None
+        Instead: the agreement of two annotators of ``labels``.
+    region : {"zone", "valid"}
+        The scored region.
+    learned : Path or None
+        Also score the labelling assistant's newest model in this store (default: the ``labels`` store's, if any).
+    by_displacement : bool
+        Also give recall by displacement |Z - Z_GT| (a log with ``/ground_truth/depth``).
+    pipeline : PipelineOptions
+        The config, its overrides, the topic and the bin model.
+    """
+
+    log: Path
+    labels: Path | None = None
+    annotator: str | None = None
+    agreement: tuple[str, str] | None = None
+    region: str = "zone"
+    learned: Path | None = None
+    by_displacement: bool = False
+    pipeline: PipelineOptions = PipelineOptions()
+
+
+@dataclass(frozen=True, slots=True)
+class AccuracyResult:
+    """What :func:`run` found.
+
+    Attributes
+    ----------
+    report : dict
+        The docs/accuracy.md report (:func:`accuracy_report`; :func:`format_accuracy_table` prints it).
+    truth : str
+        What the frames were scored against (the truth source's name).
+    predictions : str
+        Where the predictions came from ("computed by the pipeline", or the results file's topics).
+    from_results : bool
+        The predictions were read from a results file (which does not carry the bin check).
+    notes : tuple of str
+        The resolved config's notes (predictions computed by the pipeline).
+    learned : str or None
+        The assistant's model scored as ``learned`` (its summary), None when none was.
+    learned_left_out : int
+        Frames the model was trained on (not scored for it).
+    damage : tuple of Damage
+        What the pass over the log lost.
+    """
+
+    report: dict[str, Any]
+    truth: str
+    predictions: str
+    from_results: bool
+    notes: tuple[str, ...] = ()
+    learned: str | None = None
+    learned_left_out: int = 0
+    damage: tuple[Damage, ...] = ()
+
+    @property
+    def data_loss(self) -> bool:
+        """Frames were lost (``zcut accuracy`` exits 3)."""
+        return bool(self.damage)
+
+
+@dataclass(frozen=True, slots=True)
+class AgreementResult:
+    """The agreement of two annotators (:func:`agreement_report`; :func:`format_agreement_table` prints it)."""
+
+    report: dict[str, Any]
+    damage: tuple[Damage, ...] = ()
+
+    @property
+    def data_loss(self) -> bool:
+        return bool(self.damage)
+
+
+def run(options: AccuracyOptions) -> AccuracyResult | AgreementResult:
+    """The true accuracy of the methods on ``options.log`` (or, with ``agreement``, two annotators'
+    agreement). A frame whose bin check failed is named in a warning on stderr, as is a session
+    without a bin model. Raises :class:`~zcut.errors.ZcutError` when nothing can be scored."""
+    from annotate.truth import check_region
+
+    if not options.log.is_file():
+        raise FileNotFoundError(2, "no such file", str(options.log))
+    check_region(options.region)
+    if options.agreement and options.labels is None:
+        raise ParameterError("--agreement needs --labels DB")
+    if options.labels is not None and not options.labels.is_file():
+        raise FileNotFoundError(2, "no such file", str(options.labels))
+    overrides = options.pipeline.overrides()  # bad values fail before the log is read
+    if options.agreement:
+        return _agreement(options)
+    return _accuracy(options, overrides)
+
+
+def _accuracy(options: AccuracyOptions, overrides: dict[str, Any]) -> AccuracyResult:
+    from annotate.truth import LabelTruth, SyntheticTruth
+    from replay.logs import layout
+    from replay.logs.reader import LogReader
+    from replay.pipeline.methods import base_methods
+    from zcut.errors import ZcutError
+
+    log = options.log
+    reader = LogReader(log, cloud_topic=options.pipeline.topic, cloudless=True)
+    truth_src = (LabelTruth(options.labels, log, annotator=options.annotator) if options.labels
+                 else SyntheticTruth(with_kinds=layout.TRUTH_OUTLIER_KIND in reader.mask_topics,
+                                     with_unknown=layout.TRUTH_UNKNOWN in reader.mask_topics))
+    try:
+        is_results = layout.ZCUT_OUTLIERS in reader.mask_topics
+        methods = _results_methods(reader, options) if is_results else None
+        if options.labels is None and layout.TRUTH_OUTLIERS not in reader.mask_topics:
+            raise ZcutError(f"{log} has no {layout.TRUTH_OUTLIERS}: give human labels with --labels DB")
+        session = None
+        stream: Any  # the pass over the log (its damage)
+        frames: Iterable[tuple[Any, Any]]
+        if is_results:
+            stream = reader.frames()
+            frames = ((f, None) for f in stream)
+        else:  # predictions computed as `zcut replay` computes them (the same resolved config)
+            session = options.pipeline.open_session(log, overrides=overrides)
+            frames = stream = session.results()
+        learned = _learned_model(options, session)
+        # |Z - Z_GT| of every pixel where the log has the true depth (recall by displacement)
+        # (asked for: a results file cannot give it, and its report otherwise equals the log's)
+        if options.by_displacement and (session is None or layout.TRUTH_DEPTH not in reader.topics):
+            raise ZcutError(f"--by-displacement needs a log with {layout.TRUTH_DEPTH}"
+                            + (" (a results file has lost the z-cut's outliers' depths: give the log)"
+                               if session is None else f": {log} has none"))
+        results, unscored, learned_seen = _score_frames(options, frames, truth_src, methods, session, learned)
+        if not results:
+            what = (f"no frame of {log} is labelled by {truth_src.annotator!r} in {options.labels}"
+                    if isinstance(truth_src, LabelTruth) else f"no frame of {log} has {layout.TRUTH_OUTLIERS}")
+            raise ZcutError(what)
+        left_out = ({"learned": (learned_seen, "the assistant's model was trained on these frames")}
+                    if learned is not None else None)
+        report = accuracy_report(results, region=options.region, unscored=unscored, left_out=left_out)
+        if session is not None:
+            pred = "computed by the pipeline"
+        else:
+            assert methods is not None  # a results file's
+            pred = f"from {', '.join(layout.method_topic(b) for b in base_methods(methods))}"
+        return AccuracyResult(report, truth_src.name, pred, from_results=session is None,
+                              notes=tuple(session.notes) if session is not None else (),
+                              learned=learned.summary() if learned is not None else None,
+                              learned_left_out=len(learned_seen), damage=tuple(stream.damage))
+    finally:
+        if hasattr(truth_src, "close"):
+            truth_src.close()
+
+
+def _score_frames(options: AccuracyOptions, frames: Iterable[tuple[Any, Any]], truth_src: Any, methods: list[str] | None,
+                  session: Any, learned: Any) -> tuple[list[FrameAccuracy], list[UnscoredFrame], set[int]]:
+    """Each frame's counts (and the learned model's, on the frames it was not trained on)."""
+    import dataclasses
+    import sys
+
+    from annotate.truth import method_predictions, region_of_results_frame, scored_region
+    from replay.logs import layout
+    from replay.pipeline.methods import base_methods
+
+    learned_seen: set[int] = set()
+    results, unscored = [], []
+    for frame, r in frames:
+        if r is None:
+            assert methods is not None  # a results file's
+            preds = method_masks_of({b: frame.masks[layout.method_topic(b)] for b in base_methods(methods)
+                                     if layout.method_topic(b) in frame.masks}, methods)
+            # a results file's /zcut/filtered has the outliers set to NaN: its valid pixels plus the
+            # predictions are the source's valid pixels
+            region = region_of_results_frame(frame, options.region)
+            valid = region_of_results_frame(frame, "valid")
+        else:
+            preds = method_predictions(r, session.config.methods)
+            region, valid = scored_region(r, options.region), r.valid
+        t = truth_src.truth(frame, valid)
+        if isinstance(t, str):
+            unscored.append(UnscoredFrame(frame.index, frame.stamp_ns, t))
+            continue
+        shift = _displacement_mm(options.log, frame) if options.by_displacement else None
+        fa = frame_accuracy(frame.index, frame.stamp_ns, preds, t.outliers, reviewed=t.reviewed,
+                            valid=valid, region=region, kinds=t.kind, detectable=t.detectable,
+                            displacement_mm=shift)
+        if r is not None:  # the bin check of the frame (a results file does not carry it)
+            check = r.bin_check
+            fa = dataclasses.replace(fa, bin_check=None if check is None else float(check.value),
+                                     bin_flagged=r.bin_flagged)
+            if r.bin_flagged:
+                print(f"warning: frame {frame.index}: bin check: {check.reason}", file=sys.stderr)
+        if learned is not None:
+            from annotate.assistant import learned_mask
+
+            seen = (frame.topic, frame.stamp_ns) in learned.frames  # trained on it: not scored
+            if seen:
+                learned_seen.add(frame.index)
+            fb = frame_accuracy(frame.index, frame.stamp_ns, {"learned": learned_mask(learned, frame, r,
+                                config=session.config)}, t.outliers, reviewed=t.reviewed, valid=valid,
+                                region=region & (not seen), kinds=t.kind, detectable=t.detectable,
+                                displacement_mm=shift)
+            fa.counts.update(fb.counts)
+            fa.classes.update(fb.classes)
+        results.append(fa)
+    return results, unscored, learned_seen
+
+
+def _displacement_mm(log: Path, frame: Any) -> np.ndarray | None:
+    """|Z − Z_GT| (mm) of every pixel of a frame from the log's ``/ground_truth/depth`` message of its
+    stamp (NaN where either is unknown); None when that message cannot be read (the frame then has no
+    displacement classes, and the pooled report none)."""
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    from replay.errors import LogFormatError
+    from replay.logs import layout
+    from replay.logs import ros2_msgs as rm
+
+    try:
+        with open(log, "rb") as f:
+            for _s, _c, message in make_reader(f).iter_messages(topics=[layout.TRUTH_DEPTH], starting_at=frame.stamp_ns,
+                                                                 ending_at=frame.stamp_ns):
+                msg = rm.decode_image(message.data, where=f"{layout.TRUTH_DEPTH} message")
+                if (msg.stamp_ns != frame.stamp_ns or msg.encoding != layout.TRUTH_DEPTH_ENCODING or msg.is_bigendian
+                        or (msg.height, msg.width) != frame.shape or len(msg.data) != 4 * msg.width * msg.height):
+                    continue
+                depth = np.frombuffer(bytes(msg.data), dtype="<f4").reshape(msg.height, msg.width)
+                shift: np.ndarray = np.abs(frame.xyz[..., 2].astype(np.float64) - depth) * 1000.0
+                return shift
+    except (McapError, LogFormatError, ValueError, OSError, EOFError):
+        return None
+    return None
+
+
+def _learned_model(options: AccuracyOptions, session: Any) -> Any:
+    """The assistant's model to score as ``learned`` (None when there is none to score)."""
+    import sys
+
+    from annotate.assistant import load_model
+    from annotate.store import LabelStore
+    from zcut.errors import ZcutError
+
+    db = options.learned or options.labels
+    if db is None:
+        return None
+    if session is None:
+        if options.learned is not None:
+            raise ZcutError("--learned scores the assistant on a log, not on a results file: give the log")
+        return None
+    if not Path(db).is_file():
+        raise FileNotFoundError(2, "no such file", str(db))
+    with LabelStore(db, read_only=True) as store:
+        rec = store.latest_model()
+    if rec is None:
+        if options.learned is not None:
+            raise ZcutError(f"{db} holds no assistant model: train one with zcut labels train")
+        return None
+    model = load_model(rec)
+    if model.part is not None and session.config.part is not None and model.part != session.config.part:
+        print(f"warning: learned: the model was trained on {model.part}, this log is {session.config.part}",
+              file=sys.stderr)
+    return model
+
+
+def _results_methods(reader: Any, options: AccuracyOptions) -> list[str]:
+    """The base methods a results file holds masks of (``/zcut/outliers``, ``/zcut/sor_outliers``,
+    ``/zcut/methods/NAME``), restricted to ``--methods`` when given (each must be there)."""
+    from replay.logs import layout
+    from replay.pipeline.methods import members, parse_methods, registry
+    from zcut.errors import ZcutError
+
+    held = [m for m in registry() if layout.method_topic(m) in reader.mask_topics]
+    if options.pipeline.methods is None:
+        return held
+    want = parse_methods(options.pipeline.methods, source="--methods")
+    missing = sorted({b for m in want for b in members(m)} - set(held))
+    if missing:
+        raise ZcutError(f"{options.log} is a results file without the masks of {', '.join(missing)} "
+                        f"(it holds {', '.join(held)}): replay the log with --methods, or score the log itself")
+    return list(want)
+
+
+def _agreement(options: AccuracyOptions) -> AgreementResult:
+    from annotate.truth import LabelTruth
+    from replay.logs.reader import LogReader
+    from zcut.errors import ZcutError
+
+    assert options.agreement is not None and options.labels is not None
+    a, b = options.agreement
+    ta = LabelTruth(options.labels, options.log, annotator=a)
+    tb = LabelTruth(options.labels, options.log, annotator=b)
+    reader = LogReader(options.log, cloud_topic=options.pipeline.topic, cloudless=True)
+    try:
+        rows = []
+        stream = reader.frames()
+        for frame in stream:
+            la = ta.store.label(r, annotator=a) if (r := ta.record(frame)) is not None else None
+            lb = tb.store.label(r, annotator=b) if (r := tb.record(frame)) is not None else None
+            if la is not None and lb is not None:
+                rows.append((frame.index, frame.stamp_ns,
+                             agreement_counts(la.outliers, la.reviewed, lb.outliers, lb.reviewed)))
+        if not rows:
+            raise ZcutError(f"no frame of {options.log} is labelled by both {a!r} and {b!r} in {options.labels}")
+        return AgreementResult(agreement_report(a, b, rows), tuple(stream.damage))
+    finally:
+        ta.close()
+        tb.close()

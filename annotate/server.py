@@ -10,7 +10,7 @@ Read it in this order:
   the :class:`~annotate.routes.Page` and the request) and wraps them in the access and size guards
   (:mod:`annotate.guard`: token then cookie, Origin on writes, Host, body size and time limits).
 - :func:`make_server` is the ``uvicorn.Server`` with the header timeout; ``zcut annotate``
-  (:mod:`annotate.commands.annotate`) runs it on its socket.
+  (:mod:`cli.commands.annotate`) runs it on its socket.
 
 Another ``zcut annotate`` on the same store is detected through the store's ``servers`` table
 (:mod:`annotate.presence`); the command says so when it starts and the page shows it. Request

@@ -1,6 +1,6 @@
 """The ``zcut`` console script: the one composition root.
 
-It imports every package's commands explicitly (each a module with ``add_arguments(parser)`` and
+It imports every command of ``cli/commands/`` explicitly (each a module with ``add_arguments(parser)`` and
 ``run(args) -> int``, importing its heavy dependencies inside ``run`` so that ``zcut --help`` stays
 fast), sets the process-wide settings a command line owns (the numba threading layer), and is the
 only place that turns errors into messages and exit codes (docs/cli.md): 0 success, 1 user error (one
@@ -21,15 +21,19 @@ import sys
 from collections.abc import Iterator
 from typing import Any
 
-from annotate.commands import accuracy as accuracy_cmd
-from annotate.commands import annotate as annotate_cmd
-from annotate.commands import labels as labels_cmd
-from replay.commands import bin_model as bin_model_cmd
-from replay.commands import record as record_cmd
-from replay.commands import record_stereo as record_stereo_cmd
-from replay.commands import replay as replay_cmd
-from replay.commands import synth as synth_cmd
-from replay.commands import topics as topics_cmd
+from cli.commands import accuracy as accuracy_cmd
+from cli.commands import annotate as annotate_cmd
+from cli.commands import batch as batch_cmd
+from cli.commands import bin_model as bin_model_cmd
+from cli.commands import compare as compare_cmd
+from cli.commands import demo as demo_cmd
+from cli.commands import labels as labels_cmd
+from cli.commands import record as record_cmd
+from cli.commands import record_stereo as record_stereo_cmd
+from cli.commands import replay as replay_cmd
+from cli.commands import sweep as sweep_cmd
+from cli.commands import synth as synth_cmd
+from cli.commands import topics as topics_cmd
 from replay.process import (  # noqa: F401
     EXIT_DATA_LOSS,
     EXIT_OK,
@@ -40,10 +44,6 @@ from replay.process import (  # noqa: F401
     interrupted_by,
     interrupts_unwind,
 )
-from studies.commands import batch as batch_cmd
-from studies.commands import compare as compare_cmd
-from studies.commands import demo as demo_cmd
-from studies.commands import sweep as sweep_cmd
 
 # name -> (module, one-line help). Order is the order shown by --help.
 COMMANDS = {

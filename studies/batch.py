@@ -4,20 +4,26 @@
 fitness, stage timings, and TP/FP/FN per method over the scored region where truth exists);
 ``summary.json`` the totals, the per-log losses, the pooled accuracy with intervals and the cost
 (:func:`summary`: a :class:`studies.summary.BatchSummary`, serialised by its ``to_json``).
+:func:`run` is the whole batch as a library call: ``run(BatchOptions(inputs=(log,), out=folder))``.
 """
 
 from __future__ import annotations
 
 import platform
+from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from studies.driver import LogPlan
+from studies.driver import LogPlan, StudyOptions
 from studies.summary import BatchLog, BatchSummary, RunCost, Scores, Totals, intervals
 from studies.work import COUNT_COLUMNS, UnitResult
 
 if TYPE_CHECKING:
+    from contextlib import ExitStack
+
+    from studies.executors import Executor
     from studies.parts import PartStore
 
 
@@ -96,3 +102,126 @@ def summary(plans: list[LogPlan], store: PartStore, table: Any, results: list[Un
                          peak_rss_mb_per_worker=max((r.peak_rss_mb for r in this_run), default=None),
                          executor=executor_name, workers=workers, host=platform.node()),
     )
+
+
+# ------------------------------------------------------------------ the batch as a library call
+
+#: Frames per unit of work of a batch: whole chunks of one log.
+FRAMES_PER_UNIT = 8
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BatchOptions(StudyOptions):
+    """Every frame of many logs replayed, counted and scored (docs/studies.md); the defaults are ``zcut batch``'s.
+
+    Attributes
+    ----------
+    results : bool
+        Also write a results MCAP per log (``out/results``).
+    results_cloud : bool
+        With ``results``: also write the filtered cloud and the image.
+    rrd : bool
+        Also write a Rerun .rrd per log (``out/rrd``).
+    """
+
+    frames_per_unit: int = FRAMES_PER_UNIT
+    results: bool = False
+    results_cloud: bool = False
+    rrd: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class BatchResult:
+    """What :func:`run` wrote: ``frames.parquet`` (its table) and ``summary.json`` (its summary)."""
+
+    summary: BatchSummary
+    table: Any
+    frames_path: Path
+    summary_path: Path
+
+    @property
+    def data_loss(self) -> bool:
+        """Frames or logs were lost (``zcut batch`` exits 3)."""
+        return self.summary.data_loss
+
+
+def run(options: BatchOptions) -> BatchResult:
+    """Replay every frame of ``options.inputs`` on the executor the options choose, skipping the frames
+    done in an earlier run over the same folder; write ``frames.parquet`` and ``summary.json``.
+
+    Says on stderr what runs and how far it is. The output folder stays locked until the tables are
+    written. Raises :class:`~zcut.errors.ZcutError` for options or inputs no work can start from."""
+    from contextlib import ExitStack
+
+    with ExitStack() as stack:
+        return _run(options, stack)
+
+
+def _run(options: BatchOptions, stack: ExitStack) -> BatchResult:
+    import time
+
+    from threadpoolctl import threadpool_limits
+
+    from studies.driver import check_study_options, named_as_now
+
+    t0 = time.perf_counter()
+    check_study_options(options)
+    overrides = options.pipeline.overrides()
+    store, plans, results, executor = _run_units(options, stack, overrides)
+    table = named_as_now(frames_table(store), plans)
+    frames_path = store.write_table("frames.parquet", table)
+    with threadpool_limits(limits=1, user_api="blas"):  # the bootstrap's product: OpenBLAS threads spin
+        summ = summary(plans, store, table, results, executor_name=executor.name, workers=executor.workers,
+                       seconds=time.perf_counter() - t0, region=options.region)
+    summ_path = store.write_json("summary.json", summ.to_json())
+    return BatchResult(summ, table, frames_path, summ_path)
+
+
+def _run_units(options: BatchOptions, stack: ExitStack, overrides: dict[str, Any]
+               ) -> tuple[PartStore, list[LogPlan], list[UnitResult], Executor]:
+    """Plan the logs, lock the folder, run every unit not done yet: (store, plans, this run's results,
+    the executor, closed)."""
+    import sys
+
+    from studies.driver import (
+        Progress,
+        check_labels,
+        execute,
+        identity,
+        plan_logs,
+        start_units,
+        study_job,
+        study_options,
+    )
+    from studies.executors import make_executor
+    from studies.parts import PartStore
+    from studies.work import run_batch_unit
+
+    executor = make_executor(workers=options.workers, ray=options.ray)  # an unreachable cluster fails here
+    try:
+        err = sys.stderr
+
+        def planning(i: int, n: int, path: Path) -> None:
+            if n > 5 and (i % 20 == 0 or i == n - 1):
+                print(f"zcut: reading {n} logs: {i + 1}/{n} {path.name}", file=err, flush=True)
+
+        pipe = options.pipeline
+        plans = plan_logs(list(options.inputs), config_file=pipe.config, overrides=overrides, topic=pipe.topic,
+                          frames_per_unit=options.frames_per_unit, whole=options.results or options.rrd,
+                          progress=planning, bin_model=pipe.bin_model)
+        check_labels(options.labels, options.annotator, plans)  # as zcut accuracy: before any work
+        ident = study_options(options, overrides) | {"results": options.results, "rrd": options.rrd}
+        if options.results_cloud:  # only then: a study begun before the option keeps its identity
+            ident["results_cloud"] = True
+        store = stack.enter_context(PartStore(options.out, identity("batch", ident, plans),
+                                              start_afresh=options.force))
+        units, todo = start_units(plans, store, what="", executor=executor)
+        job = study_job(options, overrides, plans,
+                        {"out_dir": str(store.root) if (options.results or options.rrd) else None,
+                         "results": options.results, "results_cloud": options.results_cloud, "rrd": options.rrd})
+        progress = Progress(sum(u.n_frames or 0 for u in todo) or None)
+        results = execute(units, job, run_batch_unit, executor, store, progress=progress)
+        progress.finish()
+    finally:
+        executor.close()
+    return store, plans, results, executor

@@ -25,7 +25,7 @@ that method; a results file: ``zcut``); when both configs run the same methods, 
 whose parameters differ (:func:`primary_methods`). The verdict compares A's primary with B's. Every
 method both sides report is also compared (``per_method``).
 
-No argparse here: ``studies/commands/compare.py`` is the command.
+No argparse here: ``cli/commands/compare.py`` is the command.
 """
 
 from __future__ import annotations

@@ -19,19 +19,58 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Protocol
 
 from replay.errors import ConfigError
+from replay.options import PipelineOptions
 from replay.pipeline.config import Resolved, config_sha256
 from studies.units import WorkUnit, broken_link, expand_logs, plan_log
 from studies.work import Job, UnitResult
 from zcut.errors import ZcutError
 
 if TYPE_CHECKING:
-    import argparse
     from collections.abc import Callable
 
     import pyarrow as pa
 
     from studies.executors import Executor, UnitFn
     from studies.parts import PartStore
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StudyOptions:
+    """What ``zcut batch`` and ``zcut sweep`` share (:class:`studies.batch.BatchOptions`,
+    :class:`studies.sweep.SweepOptions`); the defaults are the command line's.
+
+    Attributes
+    ----------
+    inputs : tuple of str
+        Logs, or folders of them (their ``*.mcap`` files).
+    out : str
+        The output folder (created; a rerun over it continues where it stopped).
+    pipeline : PipelineOptions
+        The config, its overrides, the topic and the bin model, resolved per log as ``zcut replay`` does.
+    labels, annotator : str or None
+        Score against this annotator's labels in this label store (default: the logs' synthetic truth).
+    region : {"zone", "valid"}
+        The scored region.
+    workers : int or None
+        Local processes (None: the cores; 0: this process, one unit after another).
+    ray : str or None
+        A Ray cluster's address, or ``auto``, instead of local processes.
+    frames_per_unit : int
+        Frames per unit of work.
+    force : bool
+        Start afresh when an input log changed content since the study in ``out`` began.
+    """
+
+    inputs: tuple[str, ...]
+    out: str
+    pipeline: PipelineOptions = PipelineOptions()
+    labels: str | None = None
+    annotator: str | None = None
+    region: str = "zone"
+    workers: int | None = None
+    ray: str | None = None
+    frames_per_unit: int  # each study's own default
+    force: bool = False
 
 
 @dataclass(slots=True)
@@ -141,23 +180,34 @@ def absolute(path: str | None) -> str | None:
     return None if path is None else str(Path(path).resolve())
 
 
-def check_study_options(args: argparse.Namespace) -> None:
+def check_study_options(options: StudyOptions) -> None:
     """The options ``zcut batch`` and ``zcut sweep`` share, checked before any work."""
     from annotate.truth import check_region
 
-    check_region(args.region)
-    if args.frames_per_unit < 1:
-        raise ConfigError(f"--frames-per-unit must be >= 1, got {args.frames_per_unit}")
-    for path in (args.config, args.bin_model, args.labels):
+    check_region(options.region)
+    if options.frames_per_unit < 1:
+        raise ConfigError(f"--frames-per-unit must be >= 1, got {options.frames_per_unit}")
+    for path in (options.pipeline.config, options.pipeline.bin_model, options.labels):
         if path is not None and not Path(path).is_file():
             raise FileNotFoundError(2, "no such file", str(path))
 
 
-def study_options(args: argparse.Namespace, overrides: dict[str, Any]) -> dict[str, Any]:
+def study_options(options: StudyOptions, overrides: dict[str, Any]) -> dict[str, Any]:
     """The options that identify a study in its folder (with the inputs' content hashes)."""
-    return {"config_sha256": file_identity(args.config), "overrides": overrides,
-            "bin_model_sha256": file_identity(args.bin_model), "topic": args.topic, "labels": args.labels,
-            "annotator": args.annotator, "region": args.region, "frames_per_unit": args.frames_per_unit}
+    pipe = options.pipeline
+    return {"config_sha256": file_identity(pipe.config), "overrides": overrides,
+            "bin_model_sha256": file_identity(pipe.bin_model), "topic": pipe.topic, "labels": options.labels,
+            "annotator": options.annotator, "region": options.region, "frames_per_unit": options.frames_per_unit}
+
+
+def study_job(options: StudyOptions, overrides: dict[str, Any], plans: list[LogPlan],
+              extra: dict[str, Any]) -> Job:
+    """The :class:`~studies.work.Job` of a study: its options with absolute paths (the workers may run in
+    another folder, on another node) and the config resolved per log."""
+    pipe = options.pipeline
+    return Job(config_file=absolute(pipe.config), overrides=overrides, bin_model=absolute(pipe.bin_model),
+               topic=pipe.topic, labels=absolute(options.labels), annotator=options.annotator,
+               region=options.region, configs={p.sha256: p.resolved for p in plans if p.units}, extra=extra)
 
 
 def start_units(plans: list[LogPlan], store: PartStore, *, what: str, executor: Executor,

@@ -381,3 +381,169 @@ def validate_tuning(table: Any, sets: list[ParamSet], tuned: Tuned, objective: t
 def _zparams(zsets: list[ParamSet] | tuple[ParamSet, ...]) -> list[tuple[float | None, ...]]:
     """(Δd, d_max, ρ_thr, μ_thr) of each z-cut set, as :class:`studies.validate.FrameCounts` holds them."""
     return [(e.step_mm, e.max_depth_mm, e.rho_thr, e.max_area_px) for e in zsets]
+
+
+# ------------------------------------------------------------------ the sweep as a library call
+# (below the scoring it calls; the steps that need none of it are studies/sweep_run.py)
+from studies.sweep_run import SweepOptions as SweepOptions  # noqa: E402 - run's options and result
+from studies.sweep_run import SweepResult as SweepResult  # noqa: E402
+
+if TYPE_CHECKING:
+    from contextlib import ExitStack
+
+    from studies.driver import LogPlan
+    from studies.parts import PartStore
+    from studies.summary import SweepSummary
+
+
+def run(options: SweepOptions) -> SweepResult:
+    """Run the parameter study ``options`` describe (docs/studies.md), continuing one begun in its folder.
+
+    Writes ``sweep.parquet``, ``summary.json``, ``tuned.toml`` and (``options.report``) the plots and
+    ``report.html`` into ``options.out``; says on stderr what runs and how far it is. The output folder
+    stays locked until the tables are written. Raises :class:`~zcut.errors.ZcutError` for options or
+    inputs no work can start from (``zcut sweep`` exits 1)."""
+    from contextlib import ExitStack
+
+    with ExitStack() as stack:
+        return _run(options, stack)
+
+
+def _run(options: SweepOptions, stack: ExitStack) -> SweepResult:
+    import time
+
+    from replay.errors import ConfigError
+    from studies.driver import check_study_options, named_as_now
+    from studies.sweep_run import check_truth, grid_axes, sweep_logs
+
+    t0 = time.perf_counter()
+    check_study_options(options)
+    objective = parse_objective(options.objective)
+    axes, bank_axes = grid_axes(options)
+    overrides = options.pipeline.overrides()
+    logs = sweep_logs(options.inputs)  # results files: their source log (the filtered cloud lost its outliers)
+    check_truth(logs, labels=options.labels, topic=options.pipeline.topic)  # the truth exists before any work
+    plans, store, grid, bank, results = _run_units(options, stack, logs, overrides, axes, bank_axes)
+    table = named_as_now(store.table(), plans)
+    if table.num_rows:
+        table = table.sort_by([("log_sha256", "ascending"), ("frame", "ascending"), ("method", "ascending")])
+    store.write_table("sweep.parquet", table)
+    if not table.num_rows:
+        failed = [f"{Path(str(r.unit.log)).name}: {r.error}" for r in results if r.error]
+        failed += [f"{Path(str(p.path)).name}: {p.error}" for p in plans if p.error]
+        if failed:  # the frames were lost, not truthless: data loss (as batch), naming what failed
+            more = f" (and {len(failed) - 1} more)" if len(failed) > 1 else ""
+            return SweepResult(store.root, None, failure=f"{failed[0]}{more}")
+        raise ConfigError("no frame was scored (no truth in any frame): nothing to sum up")
+    summary, tuned_path = _sum_up(options, objective, store, plans, grid, bank, results, table, t0)
+    return SweepResult(store.root, summary, tuned_path)
+
+
+def _run_units(options: SweepOptions, stack: ExitStack, logs: list[str], overrides: dict[str, Any],
+               axes: dict[str, Any], bank_axes: dict[str, dict[str, tuple[float, ...]]]
+               ) -> tuple[list[LogPlan], PartStore, Grid, dict[str, Any], list[UnitResult]]:
+    """Plan the logs, make the grid, lock the folder and run every unit not done yet: (plans, store, grid,
+    bank, this run's unit results)."""
+    from replay.errors import ConfigError
+    from studies.bank import make_bank_grid, n_bank_sets
+    from studies.driver import (
+        Progress,
+        check_labels,
+        execute,
+        identity,
+        plan_logs,
+        start_units,
+        study_job,
+        study_options,
+    )
+    from studies.executors import make_executor
+    from studies.grid import make_grid
+    from studies.parts import PartStore
+    from studies.sweep_run import Scaled
+
+    executor = make_executor(workers=options.workers, ray=options.ray)
+    try:
+        plans = plan_logs(logs, config_file=options.pipeline.config, overrides=overrides, topic=options.pipeline.topic,
+                          frames_per_unit=options.frames_per_unit, whole=False, bin_model=options.pipeline.bin_model)
+        check_labels(options.labels, options.annotator, plans)  # as zcut accuracy: before any work
+        base = _first_config(plans)
+        grid = make_grid(**axes, config=base, max_points=options.max_points, force=options.force,
+                         study_points=options.study_points)
+        bank = make_bank_grid(bank_axes, base)
+        ident = study_options(options, overrides) | {"grid": grid.as_dict()} | ({"bank": bank} if bank else {})
+        store = stack.enter_context(PartStore(options.out, identity("sweep", ident, plans),
+                                              start_afresh=options.force))
+        with_sor = base.sor.enabled and "sor" in base.base_methods
+        n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if with_sor else 0)
+        n_bank = n_bank_sets(bank)
+        if n_sets + n_bank > options.max_points and not options.force:
+            raise ConfigError(f"the grid has {n_sets + n_bank} parameter sets (more than {options.max_points}): "
+                              "narrow it, or use --force")
+        units, todo = start_units(plans, store, executor=executor,
+                                  what=f"{n_sets + n_bank} parameter sets ({grid.n_zcut} z-cut, {n_sets - grid.n_zcut} "
+                                       f"SOR{f', {n_bank} of the filter bank' if n_bank else ''}), ")
+        job = study_job(options, overrides, plans, {"grid": grid_dict(grid), "bank": bank})
+        per_frame = len(grid.steps)
+        progress = Progress(sum((u.n_frames or 0) for u in todo) * per_frame or None, what="frames × Δd")
+        results = execute(units, job, run_sweep_unit, executor, store, progress=Scaled(progress, per_frame))
+        progress.finish()
+    finally:
+        executor.close()
+    return plans, store, grid, bank, results
+
+
+def _first_config(plans: list[LogPlan]) -> PipelineConfig:
+    """The resolved config of the first log with units (the grid's base)."""
+    first = next(p for p in plans if p.units)
+    assert first.resolved is not None  # a log with units was resolved
+    config: PipelineConfig = first.resolved.config
+    return config
+
+
+def _sum_up(options: SweepOptions, objective: tuple[str, float | None], store: PartStore, plans: list[LogPlan],
+            grid: Grid, bank: dict[str, Any], results: list[UnitResult], table: Any, t0: float
+            ) -> tuple[SweepSummary, Path | None]:
+    """Pool, tune and validate; write ``summary.json``, ``tuned.toml`` and the report."""
+    import time
+
+    from threadpoolctl import threadpool_limits
+
+    from studies.bank import ranking
+    from studies.summary import DamageNote, SweepLog, SweepSummary, UnscoredFrame
+    from studies.sweep_run import flagged_frames, reproduce, write_tuned
+
+    first = next(p for p in plans if p.units)
+    base = _first_config(plans)
+    with threadpool_limits(limits=1, user_api="blas"):  # OpenBLAS's spinning threads cost ~20x here
+        sets = pooled_sets(table)
+    tuned = tune(sets, objective, part=base.part)
+    chosen = grid.chosen
+    point = (chosen[0], chosen[1], chosen[2], base.zcut.max_area if chosen[2] is None else None)
+    tuned, validation = validate_tuning(table, sets, tuned, objective, point=point)
+    metas = store.metas().values()
+    summary = SweepSummary(
+        logs=tuple(SweepLog(str(p.path), p.sha256, p.error) for p in plans),
+        frames=len(set(zip(table.column("log_sha256").to_pylist(), table.column("frame").to_pylist()))),
+        region=options.region, objective=options.objective, truth="labels" if options.labels else "synthetic",
+        grid=grid, config=first.config_toml, notes=tuple(first.notes), sets=tuple(sets), tuned=tuned,
+        chosen_zcut=find_set(sets, "zcut", chosen[0], chosen[1], chosen[2]),
+        chosen_sor=find_sor_set(sets, chosen[3], chosen[4], chosen[0], chosen[1]),
+        nominal=find_set(sets, "zcut", 0.2, 30.0, 0.07),
+        sensitivity_chosen=sensitivity_at(sets, chosen[:3]),
+        sensitivity_tuned=(sensitivity_at(sets, (tuned.zcut.step_mm, tuned.zcut.max_depth_mm, tuned.zcut.rho_thr))
+                           if tuned.zcut else None),
+        damage=tuple(DamageNote(Path(m["log"]).name, d) for m in metas for d in m["damage"]),
+        errors=tuple(f"{r.unit.log}: {r.error}" for r in results if r.error),
+        unscored=tuple(UnscoredFrame(Path(m["log"]).name, u.get("index"), u.get("stamp_ns"), u.get("reason"))
+                       for m in metas for u in m["unscored"]),
+        reproduce=reproduce(options), seconds=time.perf_counter() - t0, bin_flagged=flagged_frames(table),
+        validation=validation,
+        ranking=ranking(table, objective) if (bank or any("+" in m for m in base.methods)) else None,
+    )
+    store.write_json("summary.json", summary.to_json())
+    tuned_path = write_tuned(store, base, tuned, options.objective, validation, summary.ranking)
+    if options.report:
+        from studies.report import write_report
+
+        write_report(store.root, summary)
+    return summary, tuned_path

@@ -100,21 +100,47 @@ def test_importing_zcut_changes_no_global_setting():
 
 
 def test_the_console_script_is_the_one_composition_root():
-    """cli.main imports every command module explicitly; no command module imports another's."""
+    """cli.main imports every command module of cli/commands/ explicitly (common.py is their shared options)."""
     tree = ast.parse((ROOT / "cli" / "main.py").read_text())
     imported = {f"{n.module}.{a.name}" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module
                 for a in n.names}
-    commands = {f"{pkg}.commands.{p.stem}" for pkg in ("replay", "annotate", "studies")
-                for p in (ROOT / pkg / "commands").glob("*.py") if p.stem not in ("__init__", "common")}
+    commands = {f"cli.commands.{p.stem}" for p in (ROOT / "cli" / "commands").glob("*.py")
+                if p.stem not in ("__init__", "common")}
     assert commands <= imported, f"not in the command table: {sorted(commands - imported)}"
     assert "import_module" not in (ROOT / "cli" / "main.py").read_text()
+
+
+#: The library: what a benchmark, a test or another program calls without a command line.
+LIBRARY = ("zcut", "replay", "annotate", "studies")
+
+
+def _is_command_line(module: str) -> bool:
+    """argparse, the cli package, or any package's ``commands`` module."""
+    return module.split(".")[0] in ("argparse", "cli") or "commands" in module.split(".")
+
+
+def test_the_library_imports_no_command_line():
+    """Every command and its options live in cli/ (issue 34): the library takes options objects
+    (``studies.sweep.SweepOptions``, ``studies.batch.BatchOptions``, ``annotate.accuracy.AccuracyOptions``),
+    never an argparse Namespace, and no package of it has a ``commands`` module."""
+    found = [f"{path.relative_to(ROOT)}:{line} imports {module}" for pkg, path in _package_files()
+             if pkg in LIBRARY for line, module in _imports(path) if _is_command_line(module)]
+    assert found == [], "the library imports a command line:\n" + "\n".join(found)
+    modules = sorted(str(p.relative_to(ROOT)) for pkg in LIBRARY for p in (ROOT / pkg).rglob("commands*"))
+    assert modules == [], f"commands outside cli/: {modules}"
+
+
+def test_the_command_line_check_sees_argparse_and_commands(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text("import argparse\nfrom replay.commands import common\ndef f():\n    from cli.commands import sweep\n")
+    assert [m for _, m in _imports(f) if _is_command_line(m)] == ["argparse", "replay.commands", "cli.commands"]
 
 
 def test_replaying_a_real_log_does_not_import_the_scene_generator():
     code = (
         "import sys\n"
         "from replay.pipeline import config, session, stages, sinks\n"
-        "from replay.commands import replay\n"
+        "from cli.commands import replay\n"
         "print([m for m in sys.modules if m.startswith('replay.synth')])\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

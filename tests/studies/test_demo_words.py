@@ -10,7 +10,7 @@ from pathlib import Path
 
 from cli_helpers import run_cli
 
-from studies.commands import demo
+from cli.commands import demo
 
 
 def test_a_missing_parent_of_out_dir_is_refused_in_one_line(tmp_path, capsys):

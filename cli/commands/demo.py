@@ -72,7 +72,7 @@ def _demo(args: argparse.Namespace, *, out_dir: Path, rrd: Path, results: Path) 
         jsonable,
     )
     from annotate.truth import SyntheticTruth, scored_region
-    from replay.commands.replay import print_table_callbacks
+    from cli.commands.replay import print_table_callbacks
     from replay.logs.reader import LogReader
     from replay.pipeline.bin_model import BinModelChoice, bin_model_for, load_bin_model
     from replay.pipeline.session import ReplaySession
@@ -149,7 +149,7 @@ def next_steps(*, sample: Path, bin_model: Path | None, rrd: Path, results: Path
     labelling, true accuracy, a sweep, a batch)."""
     import shlex
 
-    from replay.commands.replay import viewer_command
+    from cli.commands.replay import viewer_command
 
     here = Path(sys.executable).with_name("zcut")
     zcut = shlex.quote(str(here)) if here.is_file() else "zcut"

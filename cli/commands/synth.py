@@ -10,8 +10,8 @@ PART_KIND_NAMES = ("spheres", "zinc_nuts", "rods", "black_screws", "black_nuts",
 
 
 def _size(text: str) -> tuple[int, int]:
-    """``WxH`` -> (height, width), 8..8192 each (:func:`replay.commands.common.size_wxh`)."""
-    from replay.commands.common import size_wxh
+    """``WxH`` -> (height, width), 8..8192 each (:func:`cli.commands.common.size_wxh`)."""
+    from cli.commands.common import size_wxh
 
     return size_wxh(text, low=8, high=8192)
 
@@ -43,7 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="part kind of the paper's Figure 8 (default spheres)")
     p.add_argument("--frames", type=int, default=1, metavar="N", help="number of scans (default 1)")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="random seed; same seed, same bytes (default 0)")
-    from replay.commands.common import SIZE_HELP
+    from cli.commands.common import SIZE_HELP
 
     p.add_argument("--size", type=_size, default=(1200, 1920), metavar="WxH",
                    help=f"image size, {SIZE_HELP}; default 1920x1200, the sensor's")
@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
         raise ParameterError(f"{flag.get(name, name)} {str(e).split(' ', 1)[1]}") from None
     h, w = args.size
     check_readable(h, w)
-    from replay.commands.common import portrait_note
+    from cli.commands.common import portrait_note
 
     note = portrait_note("--size", h, w)
     if note is not None:

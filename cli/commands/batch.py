@@ -11,19 +11,17 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
-from contextlib import ExitStack
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from studies.batch import BatchOptions
     from studies.summary import BatchSummary
 
 FRAMES_PER_UNIT = 8
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from replay.commands.common import add_pipeline_options
+    from cli.commands.common import add_pipeline_options
 
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="MCAP logs or folders of them")
     p.add_argument("-o", "--out", required=True, metavar="DIR", help="output folder (created; rerun to resume)")
@@ -44,82 +42,34 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_pipeline_options(p)
 
 
+def options_of(args: argparse.Namespace) -> BatchOptions:
+    """The command line's options as :func:`studies.batch.run` takes them."""
+    from cli.commands.common import pipeline_options
+    from studies.batch import BatchOptions
+
+    return BatchOptions(inputs=tuple(args.inputs), out=args.out, pipeline=pipeline_options(args), labels=args.labels,
+                        annotator=args.annotator, region=args.region, workers=args.workers, ray=args.ray,
+                        frames_per_unit=args.frames_per_unit, force=args.force, results=args.results,
+                        results_cloud=args.results_cloud, rrd=args.rrd)
+
+
 def run(args: argparse.Namespace) -> int:
-    with ExitStack() as stack:  # the output folder stays locked until the tables are written
-        return _run(args, stack)
-
-
-def _run(args: argparse.Namespace, stack: ExitStack) -> int:
-    from replay.commands.common import overrides_of
     from replay.process import EXIT_DATA_LOSS
     from studies import batch
-    from studies.driver import (
-        Progress,
-        absolute,
-        check_labels,
-        check_study_options,
-        execute,
-        identity,
-        named_as_now,
-        plan_logs,
-        start_units,
-        study_options,
-    )
-    from studies.executors import make_executor
-    from studies.parts import PartStore
-    from studies.work import Job, run_batch_unit
 
-    t0 = time.perf_counter()
-    check_study_options(args)
-    overrides = overrides_of(args)
-    executor = make_executor(workers=args.workers, ray=args.ray)  # an unreachable cluster fails here
-    try:
-        err = sys.stderr
-
-        def planning(i: int, n: int, path: Path) -> None:
-            if n > 5 and (i % 20 == 0 or i == n - 1):
-                print(f"zcut: reading {n} logs: {i + 1}/{n} {path.name}", file=err, flush=True)
-
-        plans = plan_logs(args.inputs, config_file=args.config, overrides=overrides, topic=args.topic,
-                          frames_per_unit=args.frames_per_unit, whole=args.results or args.rrd, progress=planning,
-                          bin_model=args.bin_model)
-        check_labels(args.labels, args.annotator, plans)  # as zcut accuracy: before any work
-        options = study_options(args, overrides) | {"results": args.results, "rrd": args.rrd}
-        if args.results_cloud:  # only then: a study begun before the option keeps its identity
-            options["results_cloud"] = True
-        store = stack.enter_context(PartStore(args.out, identity("batch", options, plans),
-                                                     start_afresh=args.force))
-        units, todo = start_units(plans, store, what="", executor=executor)
-        job = Job(config_file=absolute(args.config), overrides=overrides, bin_model=absolute(args.bin_model), topic=args.topic,
-                  labels=absolute(args.labels), annotator=args.annotator, region=args.region,
-                  configs={p.sha256: p.resolved for p in plans if p.units},
-                  extra={"out_dir": str(store.root) if (args.results or args.rrd) else None,
-                         "results": args.results, "results_cloud": args.results_cloud, "rrd": args.rrd})
-        total = sum(u.n_frames or 0 for u in todo) or None
-        progress = Progress(total)
-        results = execute(units, job, run_batch_unit, executor, store, progress=progress)
-        progress.finish()
-    finally:
-        executor.close()
-    table = named_as_now(batch.frames_table(store), plans)
-    frames_path = store.write_table("frames.parquet", table)
-    from threadpoolctl import threadpool_limits
-
-    with threadpool_limits(limits=1, user_api="blas"):  # the bootstrap's product: OpenBLAS threads spin
-        summ = batch.summary(plans, store, table, results, executor_name=executor.name, workers=executor.workers,
-                             seconds=time.perf_counter() - t0, region=args.region)
-    summ_path = store.write_json("summary.json", summ.to_json())
+    result = batch.run(options_of(args))
+    summ, err = result.summary, sys.stderr
     for lg in summ.logs:
         for d in lg.damage:
             print(f"warning: data loss: {d}", file=err)
         for x in lg.errors:
             print(f"warning: {lg.log}: {x}", file=err)
-    print(f"zcut: wrote {frames_path} ({table.num_rows} frames) and {summ_path}", file=err)
+    print(f"zcut: wrote {result.frames_path} ({result.table.num_rows} frames) and {result.summary_path}", file=err)
     if args.json:
         print(json.dumps(summ.to_json(), indent=1))
     else:
         _print_table(summ)
-    return EXIT_DATA_LOSS if summ.data_loss else 0
+    return EXIT_DATA_LOSS if result.data_loss else 0
 
 
 def _print_table(summ: BatchSummary) -> None:

@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--frame-id", default="camera_optical_frame", help="header frame_id (default camera_optical_frame)"
     )
-    from replay.commands.common import SIZE_HELP, size_wxh
+    from cli.commands.common import SIZE_HELP, size_wxh
 
     grid = parser.add_mutually_exclusive_group()
     grid.add_argument(

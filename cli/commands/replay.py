@@ -13,7 +13,7 @@ import sys
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from replay.commands.common import add_force_option, add_pipeline_options
+    from cli.commands.common import add_force_option, add_pipeline_options
 
     p.add_argument("log", metavar="LOG.mcap", help="ROS 2 MCAP log with an organized PointCloud2")
     sink = p.add_mutually_exclusive_group()
@@ -173,7 +173,7 @@ def check_viewer_url(url: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from replay.commands.common import inputs_of, overrides_of
+    from cli.commands.common import inputs_of, overrides_of
     from replay.outputs import OutputPlan
     from replay.pipeline.session import parse_frames
 
@@ -184,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _replay(args: argparse.Namespace, sinks: list, *, frames, overrides) -> int:
-    from replay.commands.common import open_session
+    from cli.commands.common import open_session
     from replay.errors import ConfigError
     from replay.pipeline.sinks import BackgroundSinks
     from replay.process import EXIT_DATA_LOSS

@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     who.add_argument("--ask-annotator", action="store_true",
                      help="each page session chooses its annotator name once (several people, one server)")
     add_gate_option(p)
-    from replay.commands.common import add_pipeline_options
+    from cli.commands.common import add_pipeline_options
 
     add_pipeline_options(p)
 
@@ -54,7 +54,8 @@ def run(args: argparse.Namespace) -> int:
     import webbrowser
 
     from annotate.server import make_server, open_page
-    from replay.commands.common import model_chooser, overrides_of, warn_bin_model
+    from cli.commands.common import model_chooser, overrides_of
+    from replay.options import warn_bin_model
     from zcut.errors import ParameterError
 
     if not (0 <= args.port <= 65535):

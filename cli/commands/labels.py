@@ -33,10 +33,10 @@ def _add_train(sub) -> None:
     tr.add_argument("--db", type=Path, required=True, metavar="LABELS.sqlite")
     tr.add_argument("--annotator", action="append", default=None,
                     help="whose labels (repeat for several; default: every annotator of the log)")
-    from annotate.commands.annotate import add_gate_option
+    from cli.commands.annotate import add_gate_option
 
     add_gate_option(tr)
-    from replay.commands.common import add_pipeline_options
+    from cli.commands.common import add_pipeline_options
 
     add_pipeline_options(tr)
 
@@ -47,9 +47,9 @@ def train(args: argparse.Namespace) -> int:
 
     from annotate.assistant import train as fit
     from annotate.assistant import training_set_of_log
-    from annotate.commands.annotate import check_gate
     from annotate.store import LabelStore, StoreError, file_sha256
-    from replay.commands.common import open_session, overrides_of
+    from cli.commands.annotate import check_gate
+    from cli.commands.common import open_session, overrides_of
 
     for path in (args.log, args.db):
         if not path.is_file():

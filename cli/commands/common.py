@@ -1,20 +1,28 @@
 """Options and steps that several commands share: the pipeline's inputs, outputs, the session.
 
-Every command that runs the pipeline on a log (``replay``, ``demo``, ``accuracy``, ``annotate``,
-``sweep``, ``batch``) takes the same options from :func:`add_pipeline_options` and opens its log
-with :func:`open_session`, so that it resolves the same config (docs/accuracy.md, "Same filter everywhere"),
-and replays it with the bin model :func:`replay.pipeline.bin_model.bin_model_for` chooses: the
-``--bin-model`` given, else the log's own attachment, else none, with one warning line.
+Every command that runs the pipeline on a log (``replay``, ``accuracy``, ``annotate``, ``labels``,
+``sweep``, ``batch``) takes the same options from :func:`add_pipeline_options`, reads them into a
+:class:`replay.options.PipelineOptions` (:func:`pipeline_options`) and opens its log with it, so that
+it resolves the same config (docs/accuracy.md, "Same filter everywhere"), and replays it with the bin
+model :func:`replay.pipeline.bin_model.bin_model_for` chooses: the ``--bin-model`` given, else the
+log's own attachment, else none, with one warning line.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
-from typing import Any
+from typing import IO, TYPE_CHECKING, Any
 
 from replay.presets import PART_KINDS
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from replay.logs.reader import LogReader
+    from replay.options import PipelineOptions
+    from replay.pipeline.bin_model import BinModelChoice
+    from replay.pipeline.session import ReplaySession
 
 
 def add_pipeline_options(p: argparse.ArgumentParser, *, bin_model: bool = True, zcut: bool = True) -> None:
@@ -45,13 +53,19 @@ def add_pipeline_options(p: argparse.ArgumentParser, *, bin_model: bool = True, 
                        "are skipped")
 
 
-def overrides_of(args: argparse.Namespace) -> dict[str, Any]:
-    """The command line's config layer (validated: a bad value fails before the log is read)."""
-    from replay.pipeline import config as cfg
+def pipeline_options(args: argparse.Namespace) -> PipelineOptions:
+    """The options :func:`add_pipeline_options` added, as the library takes them."""
+    from replay.options import PipelineOptions
 
     z = {k: getattr(args, k, None) for k in ("step", "max_depth", "max_area", "rho")} if args.zcut_overrides else {}
-    return cfg.cli_layer(**z, part=args.part, parameters=args.parameters, preset=args.preset,
-                         methods=getattr(args, "methods", None))
+    return PipelineOptions(config=args.config, **z, part=args.part, parameters=args.parameters, preset=args.preset,
+                           methods=getattr(args, "methods", None), topic=getattr(args, "topic", None),
+                           bin_model=getattr(args, "bin_model", None))
+
+
+def overrides_of(args: argparse.Namespace) -> dict[str, Any]:
+    """The command line's config layer (validated: a bad value fails before the log is read)."""
+    return pipeline_options(args).overrides()
 
 
 def _method_names() -> list[str]:
@@ -62,44 +76,19 @@ def _method_names() -> list[str]:
 
 def inputs_of(args: argparse.Namespace) -> list[str]:
     """The files the pipeline options name (for the outputs check)."""
-    return [p for p in (getattr(args, "config", None), getattr(args, "bin_model", None)) if p]
+    return pipeline_options(args).inputs()
 
 
-def _check_inputs(args: argparse.Namespace) -> None:
-    for path in (getattr(args, "config", None), getattr(args, "bin_model", None)):
-        if path and not Path(path).is_file():
-            raise FileNotFoundError(2, "no such file", str(path))
+def model_chooser(args: argparse.Namespace) -> Callable[[LogReader], BinModelChoice]:
+    """:meth:`replay.options.PipelineOptions.model_chooser` of the pipeline options."""
+    return pipeline_options(args).model_chooser()
 
 
-def model_chooser(args: argparse.Namespace):
-    """What :meth:`ReplaySession.open <replay.pipeline.session.ReplaySession.open>` calls with the opened
-    reader to choose the bin model: :func:`replay.pipeline.bin_model.bin_model_for` with ``--bin-model``
-    (given: that model; else the log's own attachment; else none, with a warning)."""
-    from replay.pipeline.bin_model import bin_model_for
-
-    _check_inputs(args)
-    explicit = getattr(args, "bin_model", None)
-    return lambda reader: bin_model_for(reader, explicit)
-
-
-def warn_bin_model(session, *, stream=None) -> None:
-    """Print the one warning line of a session opened without a bin model (names the log, says what to do)."""
-    choice = session.bin_model_choice
-    if choice is not None and choice.warning:
-        print(f"warning: {choice.warning}", file=sys.stderr if stream is None else stream, flush=True)
-
-
-def open_session(log: str | Path, args: argparse.Namespace, *, overrides=None, stream=None):
-    """Open ``log`` as a :class:`~replay.pipeline.session.ReplaySession` with the pipeline options and the
-    bin model :func:`model_chooser` chooses (its warning printed when there is none)."""
-    from replay.pipeline.session import ReplaySession
-
-    choose = model_chooser(args)
-    session = ReplaySession.open(log, config_file=args.config,
-                                 overrides=overrides_of(args) if overrides is None else overrides,
-                                 topic=getattr(args, "topic", None), choose_bin_model=choose)
-    warn_bin_model(session, stream=stream)
-    return session
+def open_session(log: str | Path, args: argparse.Namespace, *, overrides: dict[str, Any] | None = None,
+                 stream: IO[str] | None = None) -> ReplaySession:
+    """:meth:`replay.options.PipelineOptions.open_session` of the pipeline options: ``log`` opened with them
+    and the bin model they choose (its warning printed when there is none)."""
+    return pipeline_options(args).open_session(log, overrides=overrides, stream=stream)
 
 
 def add_force_option(p: argparse.ArgumentParser) -> None:

@@ -1,1 +1,0 @@
-"""``zcut annotate`` and ``zcut accuracy`` (registered in ``cli.main.COMMANDS``)."""

@@ -1,1 +1,0 @@
-"""Subcommands of the ``zcut`` console script: each module has ``add_arguments(p)`` and ``run(args) -> int``."""

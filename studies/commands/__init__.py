@@ -1,1 +1,0 @@
-"""``zcut batch`` and ``zcut sweep`` (registered in ``cli.main.COMMANDS``)."""
