@@ -134,7 +134,7 @@ def evaluate(train_dir: Path, test_dir: Path, acc: list[dict]) -> dict:
     difference against the nominal set)."""
     import pyarrow.parquet as pq
 
-    from studies import sweep
+    from studies import scoring, sweep
     from studies.setgrid import same_set
     from studies.summary import SweepSummary
     from studies.validate import RULES, _parts, paired_difference
@@ -144,7 +144,7 @@ def evaluate(train_dir: Path, test_dir: Path, acc: list[dict]) -> dict:
     test = SweepSummary.from_json(json.loads((test_dir / "summary.json").read_text()))
     train_table = pq.read_table(train_dir / "sweep.parquet")
     test_table = pq.read_table(test_dir / "sweep.parquet")
-    objective = sweep.parse_objective(train.objective)
+    objective = scoring.parse_objective(train.objective)
     chosen = train.grid.chosen
     point = (chosen[0], chosen[1], chosen[2], None)
     base_tuned = sweep.tune(list(train.sets), objective, part=_part(train))

@@ -124,7 +124,7 @@ def _swept(g: SetGrid) -> dict[str, Any]:
 
 def _objective(s: SweepSummary) -> tuple[str, float | None]:
     from replay.errors import ConfigError
-    from studies.sweep import parse_objective
+    from studies.scoring import parse_objective
 
     try:
         return parse_objective(s.objective)
@@ -133,7 +133,7 @@ def _objective(s: SweepSummary) -> tuple[str, float | None]:
 
 
 def _best(g: SetGrid) -> dict[str, Any]:
-    from studies.sweep import score
+    from studies.scoring import score
 
     s = g.summary
     objective = _objective(s)

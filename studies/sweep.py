@@ -23,10 +23,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from studies.grid import Grid
-from studies.scoring import BANK_COLUMNS, CONFUSION_COLUMNS, COUNT_COLUMNS, SOR_COLUMNS, ZCUT_COLUMNS, Counts
-from studies.scoring import OBJECTIVES as OBJECTIVES  # moved: see studies/scoring.py
-from studies.scoring import parse_objective as parse_objective  # moved: see studies/scoring.py
-from studies.scoring import score as score  # moved: see studies/scoring.py
+from studies.scoring import (
+    BANK_COLUMNS,
+    CONFUSION_COLUMNS,
+    COUNT_COLUMNS,
+    SOR_COLUMNS,
+    ZCUT_COLUMNS,
+    Counts,
+    parse_objective,
+    score,
+)
 from studies.summary import Overlap, ParamSet, RatioPair, Sensitivities, Tuned, finite_or_none, intervals
 from studies.work import Job, UnitResult, run_unit
 

@@ -381,7 +381,7 @@ def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
 
 def _scores(T: np.ndarray, F: np.ndarray, N: np.ndarray, objective: tuple[str, float | None]) -> np.ndarray:
     """The objective's value per set from pooled counts (-inf: undefined or below the floor), as
-    ``studies.sweep.score`` computes it for one set."""
+    ``studies.scoring.score`` computes it for one set."""
     T, F, N = (np.asarray(a, dtype=np.float64) for a in (T, F, N))
     p, r, f = _ratio(*_parts("precision", T, F, N)), _ratio(*_parts("recall", T, F, N)), _ratio(*_parts("f1", T, F, N))
     kind, floor = objective
@@ -502,7 +502,7 @@ def select(tp: np.ndarray, fp: np.ndarray, fn: np.ndarray, *, objective: tuple[s
     tp, fp, fn : (n_sets, m) int ndarray
         Per-frame counts of every set.
     objective : (kind, floor)
-        As ``studies.sweep.parse_objective`` returns it.
+        As ``studies.scoring.parse_objective`` returns it.
     candidates : (n_sets,) bool ndarray
         Sets the rule may pick (within the paper's ranges).
     distance : (n_sets,) float ndarray

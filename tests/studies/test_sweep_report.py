@@ -24,8 +24,9 @@ import pytest
 
 from studies import findings, plots, report
 from studies.grid import Grid
+from studies.scoring import parse_objective
 from studies.summary import SweepLog, SweepSummary
-from studies.sweep import find_set, find_sor_set, parse_objective, pooled_sets, sensitivity_at, tune
+from studies.sweep import find_set, find_sor_set, pooled_sets, sensitivity_at, tune
 
 A_MAX = 171.4
 NOMINAL = (0.2, 30.0, 0.07)
