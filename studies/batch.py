@@ -163,12 +163,17 @@ def _run(options: BatchOptions, stack: ExitStack) -> BatchResult:
     from threadpoolctl import threadpool_limits
 
     from studies.driver import check_study_options, named_as_now
+    from studies.schemas import conform, frames_columns
 
     t0 = time.perf_counter()
     check_study_options(options)
     overrides = options.pipeline.overrides()
     store, plans, results, executor = _run_units(options, stack, overrides)
     table = named_as_now(frames_table(store), plans)
+    config = next((p.resolved.config for p in plans if p.resolved is not None), None)
+    if config is not None:  # the declared columns (studies/schemas.py), whatever the values
+        others = [m for m in config.base_methods if m not in ("zcut", "sor")]
+        table = conform(table, frames_columns(config.reported_methods, others))
     frames_path = store.write_table("frames.parquet", table)
     with threadpool_limits(limits=1, user_api="blas"):  # the bootstrap's product: OpenBLAS threads spin
         summ = summary(plans, store, table, results, executor_name=executor.name, workers=executor.workers,

@@ -96,3 +96,20 @@ def table_of(rows: list[dict[str, object]], columns: Iterable[Column]) -> pa.Tab
         if extra:
             raise ValueError(f"row columns not in the declared schema: {', '.join(extra)}")
     return pa.Table.from_pylist(rows, schema=arrow_schema(cols))
+
+
+def conform(table: pa.Table, columns: Iterable[Column]) -> pa.Table:
+    """``table`` with the declared ``columns``, in their order and of their types: a column no row
+    had (or whose every value was None, which pyarrow types ``null``) is written with its declared
+    type; a column of the table that is not declared is an error, as in :func:`table_of`."""
+    import pyarrow as pa
+
+    cols = tuple(columns)
+    names = [name for name, _ in cols]
+    extra = [n for n in table.column_names if n not in names]
+    if extra:
+        raise ValueError(f"table columns not in the declared schema: {', '.join(extra)}")
+    schema = arrow_schema(cols)
+    arrays = [table.column(f.name).cast(f.type) if f.name in table.column_names
+              else pa.nulls(table.num_rows, f.type) for f in schema]
+    return pa.Table.from_arrays(arrays, schema=schema)

@@ -420,6 +420,7 @@ def _run(options: SweepOptions, stack: ExitStack) -> SweepResult:
 
     from replay.errors import ConfigError
     from studies.driver import check_study_options, named_as_now
+    from studies.schemas import SWEEP_COLUMNS, conform
     from studies.sweep_run import check_truth, grid_axes, sweep_logs
 
     t0 = time.perf_counter()
@@ -430,7 +431,7 @@ def _run(options: SweepOptions, stack: ExitStack) -> SweepResult:
     logs = sweep_logs(options.inputs)  # results files: their source log (the filtered cloud lost its outliers)
     check_truth(logs, labels=options.labels, topic=options.pipeline.topic)  # the truth exists before any work
     plans, store, grid, bank, results = _run_units(options, stack, logs, overrides, axes, bank_axes)
-    table = named_as_now(store.table(), plans)
+    table = conform(named_as_now(store.table(), plans), SWEEP_COLUMNS)
     if table.num_rows:
         table = table.sort_by([("log_sha256", "ascending"), ("frame", "ascending"), ("method", "ascending")])
     store.write_table("sweep.parquet", table)

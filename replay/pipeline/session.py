@@ -7,9 +7,9 @@ In the manner of KISS-ICP's pipeline, a replay is a few named steps::
 
 :meth:`ReplaySession.open` resolves the config from the log's metadata and its first readable frame
 (:func:`open_log`), whatever frame range is run later, so every command that opens a session runs the
-same filter on a log; it prepares the bin model once for that config. That first frame is read once: the
-run delivers the same object (and takes over the chunks read at open, and the frame's bin location when
-the seed does not change it).
+same filter on a log; it prepares the bin model once for that config. That first frame is read and
+located once: the run delivers the same object (and takes over the chunks read at open), and its bin
+location is the seed's (every other frame's registration starts from that pose).
 :meth:`ReplaySession.results` yields ``(frame, result)`` for a frame range, reading the next frame in
 a background thread (:func:`prefetched`) and locating the bin of frame k + 1 while frame k finishes;
 :meth:`ReplaySession.run` feeds them to a sink (:mod:`replay.pipeline.sinks`) and returns a
@@ -278,8 +278,9 @@ class ReplaySession:
 
     Each frame is read and located once: the first readable frame, read to resolve the config and
     located for the :attr:`seed`, is kept until the first pass over it, which delivers that frame
-    object instead of decoding it again (and takes its bin location when it is exactly what the pass
-    would compute: no converged seed to start from, the same bin stages' parameters).
+    object instead of decoding it again; its bin location is the seed's own (the full coarse-to-fine
+    registration, which every other frame starts from), taken by every pass over that frame with the
+    session's bin stages' parameters.
     """
 
     def __init__(self, path: Path, reader, resolved: cfg.Resolved, bin_model: BinModel | None,
@@ -292,20 +293,20 @@ class ReplaySession:
         c = resolved.config
         self.prepared: PreparedBinModel | None = None
         self.seed: RegistrationResult | None = None
-        #: the first readable frame and, when the run would compute it again, its bin location: kept
-        #: for the first pass over it (see :meth:`located`), then dropped
+        #: the first readable frame, kept for the first pass over it (see :meth:`located`), then
+        #: dropped; its bin location, the seed's, kept for every pass
         self._first: Frame | None = first_frame
         self._first_location: BinLocation | None = None
+        self._first_index = -1
         if bin_model is not None:
             self.prepared = prepare_bin_model(bin_model, registration=c.registration, removal=c.removal)
             if first_frame is not None and c.registration.seed_from_first_frame:
                 # the log's first frame's pose seeds every frame (a static bin): each frame's result
                 # then depends on that frame alone, whatever order or split the frames run in
-                first_location = locate_bin(first_frame, c, bin_model=self.prepared)
-                self.seed = first_location.registration
-                if self.seed is None or not self.seed.converged:
-                    # no seed to start from: the run's locate_bin of this frame is this very call
-                    self._first_location = first_location
+                # that frame's own location: located once, not again from its own pose
+                self._first_location = locate_bin(first_frame, c, bin_model=self.prepared)
+                self.seed = self._first_location.registration
+                self._first_index = first_frame.index
 
     @classmethod
     def open(cls, path: str | Path, *, config_file: str | Path | None = None,
@@ -380,16 +381,16 @@ class ReplaySession:
         start, stop = frames
         first, location = self._first, self._first_location
         if first is not None and start <= first.index and (stop is None or first.index < stop):
-            self._first = self._first_location = None  # this pass delivers it
+            self._first = None  # this pass delivers it
         else:
-            first = location = None
+            first = None
         if location is not None and (config.bin_mask, config.registration) != (self.config.bin_mask,
                                                                               self.config.registration):
             location = None
         stream = self.reader.frames(start=start, stop=stop, decoded=first)
-        return DerivedStream(self._located(stream, config, first, location), stream)
+        return DerivedStream(self._located(stream, config, location), stream)
 
-    def _located(self, stream, config: cfg.PipelineConfig, first: Frame | None = None,
+    def _located(self, stream, config: cfg.PipelineConfig,
                  first_location: BinLocation | None = None) -> Iterator[tuple[Frame, Future]]:
         from threadpoolctl import threadpool_limits
 
@@ -409,9 +410,9 @@ class ReplaySession:
                         yield pending
                         pending = None
                     raise
-                if first_location is not None and frame is first:
+                if first_location is not None and frame.index == self._first_index:
                     done: Future = Future()
-                    done.set_result(first_location)  # computed when the session opened, exactly as here
+                    done.set_result(first_location)  # the seed's: located when the session opened
                     ahead = (frame, done)
                 else:
                     ahead = (frame, locator.submit(locate_bin, frame, config, bin_model=bin_model, seed=seed))

@@ -17,6 +17,7 @@ from studies.schemas import (
     COMPARE_SUMMARY_COLUMNS,
     SWEEP_COLUMNS,
     arrow_schema,
+    conform,
     frames_columns,
     table_of,
 )
@@ -90,6 +91,15 @@ def test_sweep_table_has_the_declared_columns(logs, tmp_path, capsys):
     assert rc == 0, err
     got = pq.read_schema(tmp_path / "s" / "sweep.parquet").remove_metadata()
     want = arrow_schema(SWEEP_COLUMNS)
-    assert _same_but_null(got, want) == []
-    if got != want:  # the writer, studies/commands/sweep.py, does not build its table with the schema yet
-        pytest.xfail("sweep.parquet's writer infers its types: the filter bank's columns are null without a bank")
+    assert got == want, _same_but_null(got, want)
+
+
+def test_conform_declares_a_null_column_and_refuses_an_undeclared_one():
+    import pyarrow as pa
+
+    t = pa.table({"b": pa.nulls(2), "a": pa.array([1, 2])})
+    out = conform(t, (("a", "int64"), ("b", "double"), ("c", "string")))
+    assert out.schema == arrow_schema((("a", "int64"), ("b", "double"), ("c", "string")))
+    assert out.column("a").to_pylist() == [1, 2] and out.column("c").null_count == 2
+    with pytest.raises(ValueError, match="not in the declared schema: a"):
+        conform(t, (("b", "double"),))

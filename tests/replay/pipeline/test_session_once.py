@@ -85,11 +85,10 @@ def test_frame_0_is_decoded_once_per_session(log, tmp_path, counted):
     assert counted["decode"] == 1
     first = _results(session)
     assert counted["decode"] == 3  # frames 0, 1, 2: frame 0 not decoded again
-    # frame 0 seeded by its own converged pose is not the seed's registration (a fine pass more):
-    # the run locates it again, as it always did
-    assert counted[("locate", 0, False)] == 1 and counted[("locate", 0, True)] == 1
+    # frame 0's location is the seed's: not located again from its own pose
+    assert counted[("locate", 0, False)] == 1 and counted[("locate", 0, True)] == 0
     again = _results(session)  # a second pass reads every frame anew: the same results
-    assert counted["decode"] == 6
+    assert counted["decode"] == 6 and counted[("locate", 0, True)] == 0
     assert again == first
 
 
@@ -101,7 +100,7 @@ def test_frame_0_is_located_once_when_no_seed_changes_it(log, tmp_path, counted)
     assert counted[("locate", 0, False)] == 1  # the session's location is the run's
     assert sum(n for k, n in counted.items() if k[0] == "locate") == 3
     again = _results(session)
-    assert counted[("locate", 0, False)] == 2 and again == first
+    assert counted[("locate", 0, False)] == 1 and again == first  # kept for every pass
 
 
 def test_a_run_that_starts_later_leaves_frame_0_to_the_pass_that_reads_it(log, tmp_path, counted):
