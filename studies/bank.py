@@ -356,11 +356,3 @@ def _score(s: BankSet, objective: tuple[str, float | None]) -> float:
 
 def _finite(v: float) -> float:
     return v if math.isfinite(v) else -1e300
-
-
-def combination(rank: Sequence[Mapping[str, Any]]) -> Mapping[str, Any] | None:
-    """The first union of the ranking (best first) that beats every single filter's tuned set, else None."""
-    if not rank:
-        return None
-    top = rank[0]
-    return top if "+" in str(top.get("method")) else None

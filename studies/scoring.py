@@ -69,9 +69,6 @@ COUNT_COLUMNS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Counts
 #: The counts a set's precision, recall and F1 are pooled from: ``tp``, ``fp``, ``fn``.
 CONFUSION_COLUMNS: tuple[str, ...] = COUNT_COLUMNS[:3]
 
-OBJECTIVES = ("f1", "recall@precision", "precision@recall")
-
-
 class Scored(Protocol):
     """What :func:`score` reads of a pooled set (``studies.summary.ParamSet``, ``studies.bank.BankSet``)."""
 
