@@ -454,14 +454,14 @@ def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, ent
             entry.damage += [d.text for d in stream.damage]
         return
     entry.shared = {"bin_stages": False, "zone": False, "methods": []}
-    stream = reader.frames(start=opts.frames[0], stop=opts.frames[1])
+    frames = reader.frames(start=opts.frames[0], stop=opts.frames[1])
     try:
-        for frame in stream:
+        for frame in frames:
             sides = [_side_of_masks(frame, results[s][0].get(frame.stamp_ns), results[s][1], region) for s in "AB"]
             yield frame, sides[0], sides[1]
     finally:
-        stream.close()
-        entry.damage += [d.text for d in stream.damage]
+        frames.close()
+        entry.damage += [d.text for d in frames.damage]
 
 
 # ------------------------------------------------------------------------------------ one frame

@@ -41,6 +41,9 @@ import functools
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
+
+from mcap.records import Channel, Message, Metadata, Schema
 
 from replay.errors import LogDamageError, LogFormatError
 from replay.logs import layout
@@ -55,15 +58,16 @@ from replay.logs.mcap_scan import (
     OP_MESSAGE,
     OP_METADATA,
     OP_SCHEMA,
-    Channel,
+    Lost,
     McapFile,
-    Message,
-    Schema,
     _Bad,
 )
 from replay.logs.ply import PlyModel, read_ply_model_bytes
 from replay.logs.stream import PAIRING_WINDOW, FrameStream, message_payload
 from zcut.cloud import Intrinsics
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["PAIRING_WINDOW", "FrameStream", "LogInfo", "LogReader", "TopicInfo", "inspect_log", "read_mask_topics",
            "stamp_text"]
@@ -97,7 +101,7 @@ def _ns(topic: str) -> str:
 
 def _peek(
     mf: McapFile, schemas: dict[int, Schema], channels: dict[int, Channel],
-    metadata: dict[str, dict[str, str]], keep: dict[tuple[int, int], list] | None = None,
+    metadata: dict[str, dict[str, str]], keep: dict[tuple[int, int], list[tuple[int, object]]] | None = None,
     *, max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
 ) -> tuple[dict[int, object], list[Damage]]:
     """First decodable message (header only) of every PointCloud2/Image/CameraInfo channel, or
@@ -144,10 +148,11 @@ def _peek(
                 continue
             try:
                 recs = mf.chunk_records_at(ci.chunk_start_offset, ci.chunk_length)
-                for op, msg in recs:
+                for op, rec in recs:
+                    msg = cast(Message, rec)  # the op names the record's type
                     if op == OP_MESSAGE and msg.channel_id in need and msg.channel_id not in firsts:
                         take(msg)
-                size = sum(len(m.data) for op, m in recs if op == OP_MESSAGE)
+                size = sum(len(cast(Message, m).data) for op, m in recs if op == OP_MESSAGE)
                 if keep is not None and kept + size <= KEEP_PEEKED_BYTES:
                     keep[(ci.chunk_start_offset, ci.chunk_length - 9)] = recs
                     kept += size
@@ -163,24 +168,28 @@ def _peek(
     # (at least _PEEK_AFTER_FIRST_CLOUD messages and one second of log time after it)
     after = None
     t_cloud = 0
-    for op, rec in mf.records(damage, prefetch=0):
+    for op, rec in mf.records(damage, prefetch=0):  # the op names the record's type
         if op == OP_LOST:
             continue
         if op == OP_SCHEMA:
-            schemas[rec.id] = rec
+            schema = cast(Schema, rec)
+            schemas[schema.id] = schema
         elif op == OP_CHANNEL:
-            channels[rec.id] = rec
+            channel = cast(Channel, rec)
+            channels[channel.id] = channel
         elif op == OP_METADATA:
-            metadata[rec.name] = rec.metadata
+            meta = cast(Metadata, rec)
+            metadata[meta.name] = meta.metadata
         elif op == OP_MESSAGE:
-            if rec.channel_id not in firsts and wanted(rec.channel_id):
-                take(rec)
-                if after is None and isinstance(firsts.get(rec.channel_id), rm.CloudMsg):
-                    after, t_cloud = 0, rec.log_time
+            msg = cast(Message, rec)
+            if msg.channel_id not in firsts and wanted(msg.channel_id):
+                take(msg)
+                if after is None and isinstance(firsts.get(msg.channel_id), rm.CloudMsg):
+                    after, t_cloud = 0, msg.log_time
             if after is not None:
                 after += 1
                 if after > _PEEK_AFTER_FIRST_CLOUD and (
-                    rec.log_time > t_cloud + 1_000_000_000 or after > 64 * _PEEK_AFTER_FIRST_CLOUD
+                    msg.log_time > t_cloud + 1_000_000_000 or after > 64 * _PEEK_AFTER_FIRST_CLOUD
                 ):
                     break
     return {**errors, **firsts}, damage
@@ -207,11 +216,11 @@ class LogInfo:
     #: a damaged summary or metadata record
     damage: list[Damage] = field(default_factory=list)
     #: chunks parsed while peeking, by (offset, record length) (only with ``keep_chunks``)
-    chunks: dict[tuple[int, int], list] = field(default_factory=dict)
+    chunks: dict[tuple[int, int], list[tuple[int, object]]] = field(default_factory=dict)
 
 
 def inspect_log(
-    path: str | os.PathLike, *, keep_chunks: bool = False,
+    path: str | os.PathLike[str], *, keep_chunks: bool = False,
     max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
 ) -> LogInfo:
     """List the topics of an MCAP log with the size of their first decodable message (no topic
@@ -222,7 +231,7 @@ def inspect_log(
     (and, plus a slack of :data:`~replay.logs.files.CHUNK_SLACK_BYTES`, a chunk). Raises
     :class:`LogFormatError` if the file is not a regular file or not MCAP.
     """
-    kept: dict[tuple[int, int], list] = {}
+    kept: dict[tuple[int, int], list[tuple[int, object]]] = {}
     path = Path(path)
     metadata: dict[str, dict[str, str]] = {}
     notes: list[str] = []
@@ -331,7 +340,7 @@ class LogReader:
 
     def __init__(
         self,
-        path: str | os.PathLike,
+        path: str | os.PathLike[str],
         *,
         cloud_topic: str | None = None,
         image_topic: str | None = None,
@@ -360,7 +369,8 @@ class LogReader:
         self._choose_topics(cloud_topic, image_topic, info_topic, info.peek_damage)
         self.n_frames: int | None = self.topics[self.cloud_topic].count if info.has_summary else None
         t = self.topics[self.cloud_topic]
-        self.first_shape: tuple[int, int] = (t.height, t.width)
+        # the chosen cloud topic has a decoded first message (_choose_topics refuses one without)
+        self.first_shape: tuple[int, int] = cast(tuple[int, int], (t.height, t.width))
         self.intrinsics: Intrinsics | None = self._first_intrinsics()
 
     def _mcap(self) -> McapFile:
@@ -429,8 +439,8 @@ class LogReader:
                 f"{name} has several organized PointCloud2 topics: "
                 f"{', '.join(desc(t) for t in organized)}; choose one with --topic"
             )
-        elif self._valid_driver() is not None:
-            chosen = self._valid_driver()
+        elif (valid := self._valid_driver()) is not None:
+            chosen = valid
             if not self.allow_cloudless:
                 raise LogFormatError(
                     f"{name} is a results file written without its cloud ({layout.FILTERED}): this command "
@@ -603,7 +613,7 @@ class LogReader:
         topics chosen, the caps, the records known at open. With ``first_pass`` the chunks parsed
         while opening go with it (once: a later index has none, unless ``keep_chunks`` leaves them to
         the next one too)."""
-        chunks: dict[tuple[int, int], list] = {}
+        chunks: dict[tuple[int, int], list[tuple[int, object]]] = {}
         if first_pass:
             chunks = dict(self._chunks)
             if not keep_chunks:
@@ -621,8 +631,10 @@ class LogReader:
 MAX_MASK_FILE_PIXELS = 1 << 30
 
 
-def read_mask_topics(path: str | os.PathLike, wanted: tuple[str, ...], *, max_pixels: int = DEFAULT_MAX_PIXELS,
-                     max_total_pixels: int = MAX_MASK_FILE_PIXELS):
+def read_mask_topics(
+    path: str | os.PathLike[str], wanted: tuple[str, ...], *, max_pixels: int = DEFAULT_MAX_PIXELS,
+    max_total_pixels: int = MAX_MASK_FILE_PIXELS,
+) -> tuple[dict[str, dict[str, str]], dict[int, dict[str, np.ndarray]]]:
     """Every mono8 mask of the ``wanted`` topics in a small MCAP file (e.g. a label export).
 
     The file is read whole with the same defensive scanner and Image codec as :class:`LogReader`;
@@ -643,17 +655,18 @@ def read_mask_topics(path: str | os.PathLike, wanted: tuple[str, ...], *, max_pi
     packed: dict[int, dict[str, tuple[tuple[int, int], np.ndarray]]] = {}
     damage: list[Damage] = []
     total = 0
-    with McapFile(path) as f:
+    with McapFile(Path(path)) as f:
         metadata, notes = f.read_metadata()
         damage += notes
         chosen: dict[int, str] = {}
-        for op, rec in f.records(damage, prefetch=0):
-            if op == OP_CHANNEL and rec.topic in wanted:
-                chosen[rec.id] = rec.topic
-            elif op == OP_MESSAGE and rec.channel_id in chosen:
-                topic = chosen[rec.channel_id]
+        for op, rec in f.records(damage, prefetch=0):  # the op names the record's type
+            channel, message = cast(Channel, rec), cast(Message, rec)
+            if op == OP_CHANNEL and channel.topic in wanted:
+                chosen[channel.id] = channel.topic
+            elif op == OP_MESSAGE and message.channel_id in chosen:
+                topic = chosen[message.channel_id]
                 where = f"{path}: {topic}"
-                msg = rm.decode_image(rec.data, where=where)
+                msg = rm.decode_image(message.data, where=where)
                 mask = rm.image_to_mask(msg, where=where, max_pixels=max_pixels)
                 old = packed.get(msg.stamp_ns, {}).get(topic)
                 total += mask.size - (0 if old is None else old[0][0] * old[0][1])
@@ -662,8 +675,9 @@ def read_mask_topics(path: str | os.PathLike, wanted: tuple[str, ...], *, max_pi
                                          "(the cap of one label file); split it")
                 packed.setdefault(msg.stamp_ns, {})[topic] = (mask.shape, np.packbits(mask))
             elif op == OP_LOST:
+                lost = cast(Lost, rec)
                 damage.append(Damage(DamageKind.DAMAGED_CHUNK,
-                                     f"messages were lost with the chunk at byte {rec.offset}", byte=rec.offset))
+                                     f"messages were lost with the chunk at byte {lost.offset}", byte=lost.offset))
     if damage:
         raise LogFormatError(f"{path}: damaged file: {damage[0].text}")
     masks = {stamp: {topic: np.unpackbits(bits, count=shape[0] * shape[1]).view(np.bool_).reshape(shape)

@@ -28,11 +28,12 @@ are read for their stamps, so a frame is paired (or skipped) the same whatever r
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass, field
-from typing import Self, TypeVar
+from typing import Any, Self, TypeVar, cast
 
 import numpy as np
+from mcap.records import Channel, Message, Metadata, Schema
 
 from replay.errors import LogDamageError, LogFormatError, OverCapError
 from replay.logs import layout
@@ -63,7 +64,9 @@ PAIRING_WINDOW = 2
 _ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
 
 
-def message_payload(data: memoryview, where: str, max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> memoryview:
+def message_payload(
+    data: bytes | memoryview, where: str, max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
+) -> bytes | memoryview:
     """The CDR bytes of a message; rosbag2's per-message compression (``--compression-mode
     message``, zstd) is undone here. The message and its content size are checked against
     ``max_bytes`` first (:class:`~replay.errors.OverCapError`)."""
@@ -80,7 +83,7 @@ def message_payload(data: memoryview, where: str, max_bytes: int = DEFAULT_MAX_M
     if size < 0:
         raise LogFormatError(f"{where}: zstd-compressed message without a content size")
     try:
-        return decompress("zstd", data, size, max_size=max_bytes)
+        return decompress("zstd", memoryview(data), size, max_size=max_bytes)
     except _Bad as e:
         raise LogFormatError(f"{where}: zstd-compressed message {e}") from e
 
@@ -105,13 +108,13 @@ class _Pending:
     stamp: int | None
     cloud: rm.CloudMsg | rm.ImageMsg | None  # an ImageMsg: the /zcut/valid of a results file without its cloud
     log_time: int
-    parts: dict[str, object] = field(default_factory=dict)
+    parts: dict[str, rm.ImageMsg | rm.CameraInfoMsg] = field(default_factory=dict)
     shares_stamp_with: int | None = None  # another cloud within the window with this header stamp
 
     def complete(self, companions: list[str]) -> bool:
         return all(t in self.parts for t in companions)
 
-    def missing(self, image: str | None, info: str | None, masks: list[str]) -> list[str]:
+    def missing(self, image: str | None, info: str | None, masks: tuple[str, ...]) -> list[str]:
         return [t for t in (image, info, *masks) if t and t not in self.parts]
 
 
@@ -168,7 +171,7 @@ class FrameStream(Iterator[Frame]):
         self._want = {index.cloud_topic, *self._companions}
         self._orphan_limit = 4 * len(self._companions) + 4
         self._pending: list[_Pending] = []
-        self._orphans: list[tuple[int, str, object]] = []  # (stamp, topic, decoded)
+        self._orphans: list[tuple[int, str, rm.ImageMsg | rm.CameraInfoMsg]] = []  # (stamp, topic, decoded)
         self._lost_parts: dict[str, set[int]] = {}  # companion topic -> log times of its lost messages
         self._recent: deque[tuple[int, int]] = deque(maxlen=PAIRING_WINDOW)  # (index, stamp) of the last clouds
         self._schemas = dict(index.schemas)
@@ -208,7 +211,7 @@ class FrameStream(Iterator[Frame]):
         self.close()
 
     # ------------------------------------------------------------------ the steps
-    def _scan(self) -> Iterator[Frame]:
+    def _scan(self) -> Generator[Frame, None, None]:
         r = self._r
         with r.open() as mf:
             cached = dict(r.chunks)  # this pass's alone: not held once the scan has ended
@@ -216,23 +219,26 @@ class FrameStream(Iterator[Frame]):
             if self._begin is not None:  # chunks before the seek target are never reached
                 cached = {k: v for k, v in cached.items() if k[0] >= self._begin}
             for op, rec in mf.records(self._damage, prefetch=self._prefetch, start_offset=self._begin,
-                                      cached=cached):
+                                      cached=cached):  # the op names the record's type
                 if op == OP_MESSAGE:
-                    yield from self._message(rec)
+                    yield from self._message(cast(Message, rec))
                     if self._stopped:
                         break
                 elif op == OP_LOST:
-                    self._lost_chunk(rec)
+                    self._lost_chunk(cast(Lost, rec))
                 elif op == OP_CHANNEL:
-                    self._channels[rec.id] = rec
+                    channel = cast(Channel, rec)
+                    self._channels[channel.id] = channel
                 elif op == OP_SCHEMA:
-                    self._schemas[rec.id] = rec
+                    schema = cast(Schema, rec)
+                    self._schemas[schema.id] = schema
                 elif op == OP_METADATA:
-                    r.metadata.setdefault(rec.name, rec.metadata)
+                    meta = cast(Metadata, rec)
+                    r.metadata.setdefault(meta.name, meta.metadata)
             yield from self._emit(final=True)
         self._finish()
 
-    def _message(self, rec) -> Iterator[Frame]:
+    def _message(self, rec: Message) -> Iterator[Frame]:
         ch = self._channels.get(rec.channel_id)
         if ch is None or ch.topic not in self._want:
             return
@@ -242,7 +248,7 @@ class FrameStream(Iterator[Frame]):
             self._companion(rec, ch)
             yield from self._emit(final=False)
 
-    def _cloud(self, rec, topic: str) -> Iterator[Frame]:
+    def _cloud(self, rec: Message, topic: str) -> Iterator[Frame]:
         """Number the cloud (a sequence gap first names the clouds lost before it), decode its header
         and wait for its companions."""
         gap = self._seq.gap(rec.channel_id, rec.sequence)
@@ -268,7 +274,7 @@ class FrameStream(Iterator[Frame]):
                                            log_time_ns=rec.log_time, topic=topic))
                 return
         stamp = None if cloud is None else cloud.stamp_ns
-        shares = None if cloud is None else self._note_stamp(idx, stamp)
+        shares = None if cloud is None else self._note_stamp(idx, cloud.stamp_ns)
         if idx < self.start:
             return  # read for its stamp only
         if self.stop is not None and idx >= self.stop:
@@ -278,6 +284,7 @@ class FrameStream(Iterator[Frame]):
             if self._pending[0].cloud is None:
                 self._stopped = True
             return
+        assert cloud is not None  # in range: a cloud that does not decode returned above
         p = _Pending(idx, cloud.stamp_ns, cloud, rec.log_time, shares_stamp_with=shares)
         keep = []
         for o in self._orphans:
@@ -305,13 +312,14 @@ class FrameStream(Iterator[Frame]):
         self._recent.append((idx, stamp))
         return other
 
-    def _companion(self, rec, ch) -> None:
+    def _companion(self, rec: Message, ch: Channel) -> None:
         """Decode an image, camera info or mask and give it to the waiting cloud of its stamp, or keep
         it for a cloud still to come."""
         topic = ch.topic
         r = self._r
         where = f"{r.path.name}: topic {topic}, message at log time {stamp_text(rec.log_time)}"
         sc = self._schemas.get(ch.schema_id)
+        msg: rm.CameraInfoMsg | rm.ImageMsg
         try:
             data = message_payload(rec.data, where, r.max_message_bytes)
             if sc is not None and sc.name == rm.CAMERAINFO:
@@ -419,6 +427,7 @@ class FrameStream(Iterator[Frame]):
         r = self._r
         idx = p.index
         cloud = p.cloud
+        assert cloud is not None  # _emit delivers no placeholder
         ctopic = r.cloud_topic
         where = f"{r.path.name}: topic {ctopic}, message {idx}"
         if p.shares_stamp_with is not None:
@@ -438,7 +447,8 @@ class FrameStream(Iterator[Frame]):
         if self._decoded is not None and (self._decoded.index, self._decoded.stamp_ns) == (idx, p.stamp):
             frame, self._decoded = self._decoded, None  # the same bytes, already decoded and checked
             return frame
-        masks, codes = {}, {}
+        masks: dict[str, np.ndarray] = {}
+        codes: dict[str, np.ndarray] = {}
         try:
             if isinstance(cloud, rm.ImageMsg):  # a results file without its cloud: no points
                 masks[ctopic] = rm.image_to_mask(cloud, where=where, max_pixels=r.max_pixels)
@@ -447,7 +457,9 @@ class FrameStream(Iterator[Frame]):
                 xyz, rgb = rm.cloud_to_arrays(cloud, where=where, max_pixels=r.max_pixels)
         except LogFormatError as e:
             raise _Skip(_kind_of(e), str(e), ctopic) from None
-        img = parts.get(r.image_topic) if r.image_topic else None
+        # a companion is decoded by its channel's schema: an Image on the image and mask topics, a
+        # CameraInfo on the camera info topic (the topics were chosen by the schema of their first channel)
+        img = cast(rm.ImageMsg | None, parts.get(r.image_topic) if r.image_topic else None)
         if img is not None:
             iwhere = f"{r.path.name}: topic {r.image_topic}, stamp {stamp_text(img.stamp_ns)}"
             if (img.height, img.width) != shape:
@@ -459,7 +471,7 @@ class FrameStream(Iterator[Frame]):
             except LogFormatError as e:
                 raise _Skip(_kind_of(e), str(e), r.image_topic) from None
         intrinsics: Intrinsics | None = None
-        info = parts.get(r.info_topic) if r.info_topic else None
+        info = cast(rm.CameraInfoMsg | None, parts.get(r.info_topic) if r.info_topic else None)
         if info is not None and any(info.k):
             iwhere = f"{r.path.name}: topic {r.info_topic}, stamp {stamp_text(info.stamp_ns)}"
             if (info.height, info.width) != shape:
@@ -471,7 +483,7 @@ class FrameStream(Iterator[Frame]):
             except LogFormatError as e:
                 raise _Skip(_kind_of(e), str(e), r.info_topic) from None
         for topic in r.mask_topics:
-            m = parts.get(topic)
+            m = cast(rm.ImageMsg | None, parts.get(topic))
             if m is None:
                 continue
             mwhere = f"{r.path.name}: topic {topic}, stamp {stamp_text(m.stamp_ns)}"
@@ -504,7 +516,7 @@ class DerivedStream(Iterator[T]):
         Where :attr:`damage` comes from.
     """
 
-    def __init__(self, items: Iterator[T], source: FrameStream | DerivedStream) -> None:
+    def __init__(self, items: Iterator[T], source: FrameStream | DerivedStream[Any]) -> None:
         self._items = items
         self._source = source
 

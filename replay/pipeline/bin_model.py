@@ -17,6 +17,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -27,6 +28,12 @@ from zcut.binmask import bin_mask
 from zcut.errors import InputShapeError
 from zcut.params import BinMaskParams, RegistrationParams
 from zcut.registration import RegistrationResult, prepare_icp_model, prepare_target, register_bin, voxel_down
+
+if TYPE_CHECKING:
+    import open3d as o3d
+
+    from replay.logs.ply import PlyModel
+    from replay.logs.reader import LogReader
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,7 +46,7 @@ class ScanReport:
     skipped: str  # why the scan was left out, else ""
 
 
-def _with_normals(points: np.ndarray, voxel_m: float, what: str):
+def _with_normals(points: np.ndarray, voxel_m: float, what: str) -> o3d.geometry.PointCloud:
     import open3d as o3d
 
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, np.float64)))
@@ -129,7 +136,7 @@ def save_bin_model(model: BinModel, path: str | Path) -> None:
     if free < need:  # Open3D's writer would print a line per failed block and report success
         raise OSError(errno.ENOSPC, f"no space left on the device ({free} bytes free, the bin model needs "
                                     f"about {need})", str(path))
-    if not o3d.io.write_point_cloud(str(path), pc, write_ascii=False):
+    if not o3d.io.write_point_cloud(str(path), pc, write_ascii=False):  # type: ignore[arg-type]  # Open3D's stub: it takes a str too
         raise LogFormatError(f"{path}: could not write the bin model")
     _check_complete_ply(path)
 
@@ -188,7 +195,7 @@ def load_bin_model(path: str | Path, *, voxel_mm: float = 1.0) -> BinModel:
     return bin_model_from_ply(read_ply_model(p), what=str(p), voxel_mm=voxel_mm)
 
 
-def bin_model_from_ply(ply, *, what: str, voxel_mm: float = 1.0) -> BinModel:
+def bin_model_from_ply(ply: PlyModel, *, what: str, voxel_mm: float = 1.0) -> BinModel:
     """The :class:`BinModel` of a PLY read by :func:`replay.logs.ply.read_ply_model` (a cloud with or
     without normals, or a mesh, sampled); ``what`` names it in errors (:class:`LogFormatError`)."""
     if len(ply.points) == 0:
@@ -225,7 +232,7 @@ class BinModelChoice:
     warning: str | None = None
 
 
-def bin_model_source(reader, explicit_path: str | Path | None) -> tuple[str, str | None]:
+def bin_model_source(reader: LogReader, explicit_path: str | Path | None) -> tuple[str, str | None]:
     """Which bin model ``reader``'s log gets, without loading it: (``"explicit"`` | ``"log"`` |
     ``"none"``, the warning when ``"none"``). The log's attachment is read and checked here."""
     if explicit_path is not None:
@@ -242,7 +249,7 @@ def bin_model_source(reader, explicit_path: str | Path | None) -> tuple[str, str
                     "or give --bin-model PLY")
 
 
-def bin_model_for(reader, explicit_path: str | Path | None, *,
+def bin_model_for(reader: LogReader, explicit_path: str | Path | None, *,
                   load: Callable[[str | Path], BinModel] | None = None) -> BinModelChoice:
     """The bin model to replay ``reader``'s log with: ``explicit_path`` (``--bin-model``) when given,
     else the log's own ``bin_model.ply`` attachment, else none with a warning.
@@ -261,12 +268,15 @@ def bin_model_for(reader, explicit_path: str | Path | None, *,
     """
     source, warning = bin_model_source(reader, explicit_path)
     if source == "explicit":
+        assert explicit_path is not None  # what "explicit" means
         return BinModelChoice((load or load_bin_model)(explicit_path), source)
     if source == "log":
         from replay.logs import layout
 
+        attached = reader.attached_bin_model
+        assert attached is not None  # what "log" means (read once, cached)
         try:
-            model = bin_model_from_ply(reader.attached_bin_model,
+            model = bin_model_from_ply(attached,
                                        what=f"{reader.path.name}: attachment {layout.BIN_MODEL_ATTACHMENT}")
         except LogFormatError as e:
             return BinModelChoice(None, "none", f"{reader.path}: its bin model attachment is not usable ({e}); the "
@@ -275,7 +285,7 @@ def bin_model_for(reader, explicit_path: str | Path | None, *,
     return BinModelChoice(None, source, warning)
 
 
-def _model_of(ply, voxel_mm: float) -> BinModel:
+def _model_of(ply: PlyModel, voxel_mm: float) -> BinModel:
     pts = ply.points
     voxel_m = voxel_mm / 1000.0
     if ply.faces is not None and len(ply.faces):

@@ -28,10 +28,10 @@ import json
 import math
 import tomllib
 import types
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -51,6 +51,9 @@ from zcut.params import (
     ZCutParams,
     a_max_from_camera,
 )
+
+if TYPE_CHECKING:
+    from replay.logs.frame import Frame
 
 #: How the z-cut's Δd and d_max are chosen: the paper's nominal values (its choice for all six
 #: datasets, the default) or the §5.4 ranges applied to the part's geometry.
@@ -138,8 +141,8 @@ def _zcut_section(**keys: Any) -> dict[str, Any]:
     return keys
 
 
-def _stage_section(name: str, cls: type):
-    def build(**keys: Any):
+def _stage_section(name: str, cls: type) -> Callable[..., Any]:
+    def build(**keys: Any) -> Any:
         names = {f.name for f in dataclasses.fields(cls)}
         for k in keys:
             if k not in names:
@@ -393,9 +396,9 @@ def cli_layer(*, step: float | None = None, max_depth: float | None = None, max_
         if value is not None:
             out[key] = value
     z: dict[str, Any] = {}
-    for key, value in (("step_mm", step), ("max_depth_mm", max_depth), ("max_area_px", max_area), ("rho_thr", rho)):
-        if value is not None:
-            z[key] = float(value)
+    for key, number in (("step_mm", step), ("max_depth_mm", max_depth), ("max_area_px", max_area), ("rho_thr", rho)):
+        if number is not None:
+            z[key] = float(number)
     if z:
         out["zcut"] = z
     return check_layer(out, source="command line")
@@ -541,7 +544,7 @@ def intrinsics_from_cloud(xyz: np.ndarray) -> Intrinsics | None:
         return None
 
 
-def log_facts(metadata: dict[str, dict[str, str]], first_frame, *,
+def log_facts(metadata: dict[str, dict[str, str]], first_frame: Frame, *,
               intrinsics: Intrinsics | None = None) -> LogFacts:
     """The facts :func:`resolve` needs, from a log's metadata and its first readable frame.
 

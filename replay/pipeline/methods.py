@@ -43,7 +43,8 @@ from typing import Any
 import numpy as np
 
 from replay.errors import ConfigError
-from replay.pipeline.zone import sor_on_zone, zone_crop
+from replay.logs.frame import Frame
+from replay.pipeline.zone import Zone, sor_on_zone, zone_crop
 from zcut.params import (
     ClusterParams,
     MixedPixelParams,
@@ -131,24 +132,29 @@ class Method:
         object.__setattr__(self, "axes", types.MappingProxyType({k: tuple(v) for k, v in self.axes.items()}))
 
 
-def _run_zcut(frame, zone, config) -> MethodOutput:
+#: The resolved :class:`~replay.pipeline.config.PipelineConfig` a method runs with (not imported: the config
+#: imports this module), read by section name, ``config.<section>`` (the bank's sections are views of the registry).
+Config = Any
+
+
+def _run_zcut(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
     from zcut.cuts import find_clusters
 
     cut = find_clusters(zone.height_mm, params=config.zcut)
     return MethodOutput(cut.outliers & zone.zone, cut)
 
 
-def _run_sor(frame, zone, config) -> MethodOutput:
+def _run_sor(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
     if not config.sor.enabled:
         return MethodOutput(np.zeros_like(zone.zone), warning="SOR disabled (sor.enabled = false)")
     return MethodOutput(sor_on_zone(frame, zone, config))
 
 
-def _in_zone(zone, mask: np.ndarray) -> MethodOutput:
+def _in_zone(zone: Zone, mask: np.ndarray) -> MethodOutput:
     return MethodOutput(mask & zone.zone)
 
 
-def _run_radius(frame, zone, config) -> MethodOutput:
+def _run_radius(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
     from zcut.radius import radius_stage
 
     out = np.zeros_like(zone.zone)
@@ -159,31 +165,31 @@ def _run_radius(frame, zone, config) -> MethodOutput:
     return MethodOutput(out)
 
 
-def _run_cluster(frame, zone, config) -> MethodOutput:
+def _run_cluster(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
     from zcut.components import cluster_stage
 
     return _in_zone(zone, cluster_stage(frame.xyz, params=config.cluster, intrinsics=frame.intrinsics))
 
 
-def _run_speckle(frame, zone, config) -> MethodOutput:
+def _run_speckle(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
     from zcut.components import speckle_stage
 
     return _in_zone(zone, speckle_stage(frame.xyz, params=config.speckle))
 
 
-def _run_window(frame, zone, config) -> MethodOutput:
+def _run_window(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
     from zcut.local_rules import window_stage
 
     return _in_zone(zone, window_stage(frame.xyz, params=config.window))
 
 
-def _run_mixed_pixel(frame, zone, config) -> MethodOutput:
+def _run_mixed_pixel(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
     from zcut.local_rules import mixed_pixel_stage
 
     return _in_zone(zone, mixed_pixel_stage(frame.xyz, params=config.mixed_pixel))
 
 
-def suspect_params(config) -> Any:
+def suspect_params(config: Config) -> Any:
     """The config's :class:`~zcut.params.SuspectParams`, with the z-cut's a_max when its own is not set."""
     import dataclasses
 
@@ -193,7 +199,7 @@ def suspect_params(config) -> Any:
     return p
 
 
-def _run_suspects(frame, zone, config) -> MethodOutput:
+def _run_suspects(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
     from zcut.suspects import suspects
 
     K = frame.intrinsics
@@ -449,7 +455,7 @@ def method_mask(outliers: Mapping[str, np.ndarray], name: str) -> np.ndarray:
     if name in outliers:
         return outliers[name]
     if name == "intersection":
-        return outliers["zcut"] & outliers["sor"]
+        return np.asarray(outliers["zcut"] & outliers["sor"])
     out = None
     for m in members(name):
         out = outliers[m].copy() if out is None else (out | outliers[m])

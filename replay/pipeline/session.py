@@ -21,11 +21,11 @@ from __future__ import annotations
 import math
 import queue
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -33,13 +33,17 @@ from replay.errors import ConfigError, LogDamageError
 from replay.logs.damage import Damage
 from replay.logs.frame import Frame
 from replay.logs.poses import true_poses
-from replay.logs.stream import DerivedStream
+from replay.logs.stream import DerivedStream, FrameStream
 from replay.pipeline import config as cfg
 from replay.pipeline.sinks import FrameSink, NullSink, ReplayStart
-from replay.pipeline.stages import BinLocation, FrameResult, Zone, bin_zone, locate_bin, run_frame
+from replay.pipeline.stages import FrameResult, bin_zone, locate_bin, run_frame
+from replay.pipeline.zone import BinLocation, Zone
 from zcut.bin_model import BinModel
 from zcut.prepared_model import PreparedBinModel, prepare_bin_model
 from zcut.registration import RegistrationResult
+
+if TYPE_CHECKING:
+    from replay.logs.reader import LogReader
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,7 +117,7 @@ def pose_error(T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
     return dt, float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
-def true_poses_of(metadata: dict) -> dict[int, np.ndarray]:
+def true_poses_of(metadata: Mapping[str, Mapping[str, str]]) -> dict[int, np.ndarray]:
     """A synthetic log's true bin poses by stamp (empty for other logs): :func:`replay.logs.poses.true_poses`."""
     return true_poses(metadata)
 
@@ -178,7 +182,7 @@ def parse_frames(text: str | None) -> tuple[int, int | None]:
     return start, stop
 
 
-def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Iterator[Frame]:
+def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Generator[Frame, None, None]:
     """Iterate ``frames`` in a background thread, up to ``depth`` frames ahead of the consumer.
 
     Decoding the next frame (zstd and the cloud unpacking release the GIL) then overlaps the
@@ -186,10 +190,10 @@ def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Iterator[Frame]:
     happened in the sequence; closing this generator (or an exception in the consumer, once the
     caller closes it) stops and joins the thread and closes ``frames``.
     """
-    q: queue.Queue = queue.Queue(maxsize=depth)
+    q: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=depth)  # (kind, frame or exception or None)
     stop = threading.Event()
 
-    def put(item) -> bool:
+    def put(item: tuple[str, Any]) -> bool:
         while not stop.is_set():
             try:
                 q.put(item, timeout=0.05)
@@ -236,7 +240,7 @@ def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Iterator[Frame]:
 
 def open_log(path: Path, *, file_layer: dict[str, Any] | None = None, overrides: dict[str, Any] | None = None,
              topic: str | None = None, reader_options: dict[str, Any] | None = None,
-             resolved: cfg.Resolved | None = None):
+             resolved: cfg.Resolved | None = None) -> tuple[LogReader, Frame, cfg.Resolved]:
     """Open a log, read its first readable frame and resolve its config (docs/accuracy.md: the one place a
     log's parameters come from; :meth:`ReplaySession.open` and the study planner both call it).
 
@@ -283,7 +287,7 @@ class ReplaySession:
     session's bin stages' parameters.
     """
 
-    def __init__(self, path: Path, reader, resolved: cfg.Resolved, bin_model: BinModel | None,
+    def __init__(self, path: Path, reader: LogReader, resolved: cfg.Resolved, bin_model: BinModel | None,
                  first_frame: Frame | None = None) -> None:
         self.path = path
         self.reader = reader
@@ -366,7 +370,7 @@ class ReplaySession:
         return ReplayStart(self.path.name, self.resolved, self.reader.metadata, self.bin_model)
 
     def located(self, *, frames: tuple[int, int | None] = (0, None),
-                config: cfg.PipelineConfig | None = None) -> DerivedStream[tuple[Frame, Future]]:
+                config: cfg.PipelineConfig | None = None) -> DerivedStream[tuple[Frame, Future[BinLocation]]]:
         """``(frame, future of its BinLocation)`` for every readable frame in ``frames``.
 
         The next frame is read in a background thread while this one runs; the bin mask and
@@ -390,15 +394,15 @@ class ReplaySession:
         stream = self.reader.frames(start=start, stop=stop, decoded=first)
         return DerivedStream(self._located(stream, config, location), stream)
 
-    def _located(self, stream, config: cfg.PipelineConfig,
-                 first_location: BinLocation | None = None) -> Iterator[tuple[Frame, Future]]:
+    def _located(self, stream: FrameStream, config: cfg.PipelineConfig,
+                 first_location: BinLocation | None = None) -> Iterator[tuple[Frame, Future[BinLocation]]]:
         from threadpoolctl import threadpool_limits
 
         bin_model, seed = self.prepared, self.seed
         frame_iter = prefetched(stream)
         locator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="zcut-locate")
         blas = threadpool_limits(limits=1, user_api="blas")
-        pending: tuple[Frame, Future] | None = None
+        pending: tuple[Frame, Future[BinLocation]] | None = None
         try:
             while True:
                 try:
@@ -411,7 +415,7 @@ class ReplaySession:
                         pending = None
                     raise
                 if first_location is not None and frame.index == self._first_index:
-                    done: Future = Future()
+                    done: Future[BinLocation] = Future()
                     done.set_result(first_location)  # the seed's: located when the session opened
                     ahead = (frame, done)
                 else:
@@ -445,7 +449,7 @@ class ReplaySession:
         located = self.located(frames=frames, config=config)
         return DerivedStream(self._results(located, config), located)
 
-    def _results(self, located, config: cfg.PipelineConfig) -> Iterator[tuple[Frame, FrameResult]]:
+    def _results(self, located: DerivedStream[tuple[Frame, Future[BinLocation]]], config: cfg.PipelineConfig) -> Iterator[tuple[Frame, FrameResult]]:
         try:
             for frame, future in located:
                 yield frame, run_frame(frame, config, bin_model=self.prepared, located=future.result())
@@ -458,7 +462,7 @@ class ReplaySession:
         located = self.located(frames=frames)
         return DerivedStream(self._zones(located), located)
 
-    def _zones(self, located) -> Iterator[tuple[Frame, Zone]]:
+    def _zones(self, located: DerivedStream[tuple[Frame, Future[BinLocation]]]) -> Iterator[tuple[Frame, Zone]]:
         try:
             for frame, future in located:
                 yield frame, bin_zone(frame, self.config, bin_model=self.prepared, located=future.result())

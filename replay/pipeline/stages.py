@@ -118,7 +118,7 @@ class FrameResult:
     @property
     def both_outliers(self) -> np.ndarray:
         """(H, W) bool: found by both the z-cut and SOR."""
-        return self.zcut_outliers & self.sor_outliers
+        return np.asarray(self.zcut_outliers & self.sor_outliers)
 
     @property
     def T_cam_bin(self) -> np.ndarray | None:
@@ -183,7 +183,7 @@ def locate_bin(
         t = time.perf_counter()
         c = config.registration
         use = seed is not None and seed.converged and c.seed_from_first_frame
-        init = seed.T_cam_bin if use else None
+        init = seed.T_cam_bin if use and seed is not None else None
         # the bin itself (rim and upper walls), not the shiny parts as bright as its plastic
         pixels = bin_pixels(bm, xyz, ring_frac=c.ring_frac)
         # the ICP downsamples to voxel_mm anyway: a regular subgrid of at most ~150k pixels is enough
@@ -198,6 +198,7 @@ def locate_bin(
                                failure=failure)
         reg = None
         if init is not None:
+            assert seed is not None  # init is its pose
             # a static bin: the seed pose needs only the fine pass (a moved bin: the full one)
             f0 = pose_fitness(bin_model.icp, target, init, max_correspondence_m=c.fine_correspondence_m)
             if f0 >= SEED_FITNESS_KEPT * seed.fitness:
