@@ -66,6 +66,11 @@ BANK_BASE: dict[str, dict[str, str]] = {
 
 #: fields that cannot change the result on this log, and why (a reason, never a silence)
 UNCHANGED: dict[str, str] = {
+    "registration.seed_from_first_frame": "the synthetic bin does not move between frames: frame 0's pose is the "
+                                          "seed itself, and frame 1, registered from scratch or from frame 0's "
+                                          "pose, converges to the same pose (fitness and RMSE equal to 9 digits); "
+                                          "tests/replay/pipeline/test_stages.py checks that the seed starts the "
+                                          "registration, and does not when off",
     "suspects.merge_radius_px": "it groups the suspects for review (docs/filters.md, Groups): the suspect mask, "
                                 "which the commands score, is the detectors' union whatever the grouping",
     "suspects.max_groups": "it bounds the number of review groups (docs/filters.md, Groups): the suspect mask, "
@@ -83,11 +88,7 @@ UNCHANGED: dict[str, str] = {
 }
 #: fields that change only the registration's figures (fitness, RMSE) on this log, not a mask: only the
 #: commands that report those figures (replay's table, batch's frames.parquet) show them
-REGISTRATION_ONLY: dict[str, str] = {
-    "registration.seed_from_first_frame": "the synthetic bin does not move between frames: registered from "
-                                          "scratch or from the first frame's pose, frame 1 lands on the same "
-                                          "pose to far below a pixel; only its RMSE moves",
-}
+REGISTRATION_ONLY: dict[str, str] = {}
 #: registration fields whose change moves the registered pose by a fraction of a millimetre on this log:
 #: the robust removal's tolerance absorbs it (docs/bin_robustness.md), so a mask changes at most by a
 #: pixel at the tolerance's edge, from run to run (Open3D's ICP sums in parallel); the registration's
