@@ -28,7 +28,7 @@ are read for their stamps, so a frame is paired (or skipped) the same whatever r
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Generator, Iterator
+from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Self, TypeVar, cast
 
@@ -92,6 +92,42 @@ def _kind_of(e: LogFormatError) -> DamageKind:
     return DamageKind.OVER_CAP if isinstance(e, OverCapError) else DamageKind.MALFORMED_MESSAGE
 
 
+#: the decoder of each message type a companion channel may carry, to read its header stamp
+_DECODERS: dict[str, Callable[..., rm.CloudMsg | rm.ImageMsg | rm.CameraInfoMsg]] = {
+    rm.POINTCLOUD2: rm.decode_cloud, rm.IMAGE: rm.decode_image, rm.CAMERAINFO: rm.decode_camera_info}
+
+
+def _wrong_schema(have: str | None, expected: str, channel: int) -> str:
+    """Why a message of schema ``have`` (None: its channel has none) is not one of its topic's."""
+    what = f"a {have} message" if have else "a message without a schema"
+    return f"{what} (channel {channel}), not a {expected}"
+
+
+def _stamp_of(data: bytes | memoryview, schema: str | None, where: str) -> int:
+    """The header stamp of a message decoded by its own ``schema``; :class:`LogFormatError` saying
+    ``where`` when it is not a type zcut decodes or does not decode."""
+    decode = _DECODERS.get(schema or "")
+    try:
+        if decode is not None:
+            return decode(data, where=where).stamp_ns
+    except LogFormatError:
+        pass
+    raise LogFormatError(where)
+
+
+@dataclass(frozen=True)
+class _WrongSchema:
+    """Internal: a message on a companion topic whose channel carries another schema than the topic's
+    (e.g. an Image on the camera info topic): its frame is skipped (``message`` says why)."""
+
+    stamp_ns: int
+    message: str
+
+
+#: what a waiting frame holds of a companion topic
+_Part = rm.ImageMsg | rm.CameraInfoMsg | _WrongSchema
+
+
 class _Skip(Exception):
     """Internal: a frame that was read cannot be delivered (kind, message, topic)."""
 
@@ -108,7 +144,7 @@ class _Pending:
     stamp: int | None
     cloud: rm.CloudMsg | rm.ImageMsg | None  # an ImageMsg: the /zcut/valid of a results file without its cloud
     log_time: int
-    parts: dict[str, rm.ImageMsg | rm.CameraInfoMsg] = field(default_factory=dict)
+    parts: dict[str, _Part] = field(default_factory=dict)
     shares_stamp_with: int | None = None  # another cloud within the window with this header stamp
 
     def complete(self, companions: list[str]) -> bool:
@@ -171,7 +207,7 @@ class FrameStream(Iterator[Frame]):
         self._want = {index.cloud_topic, *self._companions}
         self._orphan_limit = 4 * len(self._companions) + 4
         self._pending: list[_Pending] = []
-        self._orphans: list[tuple[int, str, rm.ImageMsg | rm.CameraInfoMsg]] = []  # (stamp, topic, decoded)
+        self._orphans: list[tuple[int, str, _Part]] = []  # (stamp, topic, decoded)
         self._lost_parts: dict[str, set[int]] = {}  # companion topic -> log times of its lost messages
         self._recent: deque[tuple[int, int]] = deque(maxlen=PAIRING_WINDOW)  # (index, stamp) of the last clouds
         self._schemas = dict(index.schemas)
@@ -243,14 +279,16 @@ class FrameStream(Iterator[Frame]):
         if ch is None or ch.topic not in self._want:
             return
         if ch.topic == self._r.cloud_topic:
-            yield from self._cloud(rec, ch.topic)
+            yield from self._cloud(rec, ch)
         else:
             self._companion(rec, ch)
             yield from self._emit(final=False)
 
-    def _cloud(self, rec: Message, topic: str) -> Iterator[Frame]:
+    def _cloud(self, rec: Message, ch: Channel) -> Iterator[Frame]:
         """Number the cloud (a sequence gap first names the clouds lost before it), decode its header
-        and wait for its companions."""
+        and wait for its companions. A message whose channel carries another schema than the topic's is
+        a frame that does not decode."""
+        topic = ch.topic
         gap = self._seq.gap(rec.channel_id, rec.sequence)
         if gap:
             self._lose(self._next_index, gap, f"lost: {topic} message sequence jumps from "
@@ -266,6 +304,11 @@ class FrameStream(Iterator[Frame]):
         where = f"{self._r.path.name}: topic {topic}, message {idx}"
         try:
             data = message_payload(rec.data, where, self._r.max_message_bytes)
+            expected = rm.IMAGE if self._r.cloudless else rm.POINTCLOUD2
+            sc = self._schemas.get(ch.schema_id)
+            have = sc.name if sc is not None else None
+            if have != expected:
+                raise LogFormatError(f"{where}: {_wrong_schema(have, expected, ch.id)}")
             cloud = rm.decode_image(data, where=where) if self._r.cloudless else rm.decode_cloud(data, where=where)
         except LogFormatError as e:
             cloud = None
@@ -288,7 +331,7 @@ class FrameStream(Iterator[Frame]):
         p = _Pending(idx, cloud.stamp_ns, cloud, rec.log_time, shares_stamp_with=shares)
         keep = []
         for o in self._orphans:
-            if o[0] == cloud.stamp_ns and o[1] not in p.parts:
+            if o[0] == cloud.stamp_ns and (o[1] not in p.parts or isinstance(o[2], _WrongSchema)):
                 p.parts[o[1]] = o[2]
             else:
                 keep.append(o)
@@ -314,25 +357,34 @@ class FrameStream(Iterator[Frame]):
 
     def _companion(self, rec: Message, ch: Channel) -> None:
         """Decode an image, camera info or mask and give it to the waiting cloud of its stamp, or keep
-        it for a cloud still to come."""
+        it for a cloud still to come. A message whose channel carries another schema than the topic's
+        (the topics were chosen by the schema of their first channel) is given as a :class:`_WrongSchema`:
+        its frame is skipped, whichever message of its topic and stamp came first."""
         topic = ch.topic
         r = self._r
         where = f"{r.path.name}: topic {topic}, message at log time {stamp_text(rec.log_time)}"
         sc = self._schemas.get(ch.schema_id)
-        msg: rm.CameraInfoMsg | rm.ImageMsg
+        expected = rm.CAMERAINFO if topic == r.info_topic else rm.IMAGE
+        have = sc.name if sc is not None else None
+        msg: _Part
         try:
             data = message_payload(rec.data, where, r.max_message_bytes)
-            if sc is not None and sc.name == rm.CAMERAINFO:
+            if have == rm.CAMERAINFO == expected:
                 msg = rm.decode_camera_info(data, where=where)
-            else:
+            elif have == rm.IMAGE == expected:
                 msg = rm.decode_image(data, where=where)
+            else:
+                why = _wrong_schema(have, expected, ch.id)
+                stamp = _stamp_of(data, have, f"{where}: {why}")
+                msg = _WrongSchema(stamp, f"{r.path.name}: topic {topic}, stamp {stamp_text(stamp)}: {why}")
         except LogFormatError as e:
             self._damage.append(Damage(_kind_of(e), f"{e}; its frame cannot be told (not paired)", topic=topic,
                                        log_time_ns=rec.log_time))
             self._lost_parts.setdefault(topic, set()).add(rec.log_time)
             return
+        wrong = isinstance(msg, _WrongSchema)
         for p in self._pending:
-            if p.stamp == msg.stamp_ns and topic not in p.parts:
+            if p.stamp == msg.stamp_ns and (topic not in p.parts or wrong):
                 p.parts[topic] = msg
                 return
         self._orphans.append((msg.stamp_ns, topic, msg))
@@ -444,6 +496,9 @@ class FrameStream(Iterator[Frame]):
             gone = self._lost_parts.get(topic, ())
             if p.stamp in gone or p.log_time in gone:
                 raise _Skip(DamageKind.LOST_COMPANION, f"{where}: its {topic} message was lost", topic)
+        for topic, part in parts.items():
+            if isinstance(part, _WrongSchema):
+                raise _Skip(DamageKind.MALFORMED_MESSAGE, part.message, topic)
         if self._decoded is not None and (self._decoded.index, self._decoded.stamp_ns) == (idx, p.stamp):
             frame, self._decoded = self._decoded, None  # the same bytes, already decoded and checked
             return frame
@@ -457,8 +512,8 @@ class FrameStream(Iterator[Frame]):
                 xyz, rgb = rm.cloud_to_arrays(cloud, where=where, max_pixels=r.max_pixels)
         except LogFormatError as e:
             raise _Skip(_kind_of(e), str(e), ctopic) from None
-        # a companion is decoded by its channel's schema: an Image on the image and mask topics, a
-        # CameraInfo on the camera info topic (the topics were chosen by the schema of their first channel)
+        # every part is now of its topic's schema (_companion): an Image on the image and mask topics, a
+        # CameraInfo on the camera info topic
         img = cast(rm.ImageMsg | None, parts.get(r.image_topic) if r.image_topic else None)
         if img is not None:
             iwhere = f"{r.path.name}: topic {r.image_topic}, stamp {stamp_text(img.stamp_ns)}"
