@@ -323,7 +323,7 @@ def pooled_classes(frames: Iterable[FrameAccuracy]) -> dict[str, dict[str, KindC
     return out
 
 
-def classes_entry(family: str, counts: KindCounts) -> dict:
+def classes_entry(family: str, counts: KindCounts) -> dict[str, Any]:
     """A family's report entry: ``{CLASS: {"n", "found", "recall"}}`` (``detectable``: the one class's
     ``{"n", "found", "recall"}`` itself)."""
     names = CLASS_FAMILIES[family]
@@ -378,8 +378,8 @@ def by_kind(kinds: KindCounts) -> dict[str, dict[str, int | float]]:
 
 
 def _entry(c: AccuracyCounts, ci: Mapping[str, list[float]] | None = None,
-           classes: Mapping[str, KindCounts] | None = None) -> dict:
-    out: dict = {}
+           classes: Mapping[str, KindCounts] | None = None) -> dict[str, Any]:
+    out: dict[str, Any] = {}
     for k, v in c.as_dict().items():
         out[k] = int(v) if k in COUNT_KEYS else float(v)
     if ci is not None:
@@ -397,7 +397,7 @@ def accuracy_report(
     region: str = "valid",
     unscored: Iterable[UnscoredFrame] = (),
     left_out: Mapping[str, tuple[Iterable[int], str]] | None = None,
-) -> dict:
+) -> dict[str, Any]:
     """The docs/accuracy.md report object.
 
     Parameters
@@ -517,7 +517,7 @@ def jsonable(obj: object) -> object:
     return obj
 
 
-def report_json(report: dict, *, indent: int | None = None) -> str:
+def report_json(report: dict[str, Any], *, indent: int | None = None) -> str:
     """Strict JSON text of a report (NaN / inf -> ``null``; never emits ``NaN``)."""
     return json.dumps(jsonable(report), indent=indent, allow_nan=False)
 
@@ -529,7 +529,7 @@ def _fmt_rate(v: float | None) -> str:
     return f"{v:.3f}"
 
 
-def _fmt_ci(v: float | None, ci: list | None) -> str:
+def _fmt_ci(v: float | None, ci: list[float | None] | None) -> str:
     lo, hi = (None, None) if ci is None else ci
     if lo is None or hi is None or not (math.isfinite(lo) and math.isfinite(hi)):
         if v is None or not math.isfinite(v):
@@ -558,11 +558,11 @@ def _render(header: list[str], rows: list[list[str]], left: int, tight: int | No
     return "\n".join(lines)
 
 
-def _frame_row(prefix: list[str], e: Mapping) -> list[str]:
+def _frame_row(prefix: list[str], e: Mapping[str, Any]) -> list[str]:
     return prefix + [str(e[k]) for k in COUNT_KEYS] + [_fmt_rate(e[k]) for k in RATE_KEYS]
 
 
-def format_accuracy_table(report: dict, *, per_frame: bool = True) -> str:
+def format_accuracy_table(report: dict[str, Any], *, per_frame: bool = True) -> str:
     """Plain-text tables of a report (at most ~120 columns; ``-`` for undefined rates).
 
     The region; per frame (optional) every method's counts and rates; pooled counts with the 95 %
@@ -689,7 +689,7 @@ def agreement_counts(outliers_a: Mask, reviewed_a: Mask, outliers_b: Mask, revie
 
 
 def agreement_report(annotator_a: str, annotator_b: str,
-                     frames: Iterable[tuple[int, int, AgreementCounts]]) -> dict:
+                     frames: Iterable[tuple[int, int, AgreementCounts]]) -> dict[str, Any]:
     """``{"annotators": [A, B], "pooled": {...}, "frames": [{"index", "stamp_ns", ...}]}`` (NaN kept)."""
     frames = list(frames)
     pooled = AgreementCounts(0, 0, 0, 0)
@@ -699,7 +699,7 @@ def agreement_report(annotator_a: str, annotator_b: str,
             "frames": [{"index": int(i), "stamp_ns": int(s), **c.as_dict()} for i, s, c in frames]}
 
 
-def format_agreement_table(report: dict) -> str:
+def format_agreement_table(report: dict[str, Any]) -> str:
     """Plain-text table of :func:`agreement_report`."""
     a, b = report["annotators"]
     head = ["frame", "stamp_ns", "pixels", "both", f"only {a}", f"only {b}", "IoU", "kappa"]

@@ -18,8 +18,8 @@ import io
 import os
 import signal
 import sys
-from collections.abc import Iterator
-from typing import Any
+from collections.abc import Iterator, Sequence
+from typing import TYPE_CHECKING, Any, NoReturn, TextIO
 
 from cli.commands import accuracy as accuracy_cmd
 from cli.commands import annotate as annotate_cmd
@@ -44,6 +44,9 @@ from replay.process import (  # noqa: F401
     interrupted_by,
     interrupts_unwind,
 )
+
+if TYPE_CHECKING:
+    from replay.process import InterruptState
 
 # name -> (module, one-line help). Order is the order shown by --help.
 COMMANDS = {
@@ -81,7 +84,7 @@ class _Parser(argparse.ArgumentParser):
     #: the prog of the command a top-level parser parses (its unrecognized arguments are that command's)
     command_prog: str | None = None
 
-    def error(self, message: str):  # type: ignore[override]
+    def error(self, message: str) -> NoReturn:
         prog = self.command_prog if self.command_prog and message.startswith("unrecognized") else self.prog
         self.exit(EXIT_USER_ERROR, f"error: {message} (see `{prog} --help`)\n")
 
@@ -89,11 +92,13 @@ class _Parser(argparse.ArgumentParser):
 class _Version(argparse.Action):
     """``--version``: the version is looked up only when asked (importlib.metadata costs ~0.1 s)."""
 
-    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS, default: Any = argparse.SUPPRESS,
+                 help: str | None = None) -> None:
         super().__init__(option_strings=option_strings, dest=dest, default=default, nargs=0,
                          help=help or "show the version and exit")
 
-    def __call__(self, parser, namespace, values, option_string=None):
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: str | Sequence[Any] | None, option_string: str | None = None) -> None:
         sys.stdout.write(f"zcut {version()}\n")
         parser.exit()
 
@@ -169,24 +174,25 @@ def main(argv: list[str] | None = None) -> int:
         with interrupts_unwind() as interrupts:
             try:
                 status = _main(argv, interrupts)
-                if interrupts.exit_status is None:
+                signum = interrupts.signum  # None: no signal came (no exit status of one)
+                if signum is None:
                     return stdout.status(status)
-                raise Interrupted(interrupts.signum)  # a library swallowed the interruption: it still ends the command
+                raise Interrupted(signum)  # a library swallowed the interruption: it still ends the command
             except BaseException as e:  # noqa: BLE001 - an interruption, whatever a library made of it
                 if isinstance(e, SystemExit) and not e.code:  # --help, --version: printed, if stdout took it
                     stdout.flush()
                     if stdout.lost:
                         return stdout.status(EXIT_OK)
-                status = interrupted_by(e, interrupts)
-                if status is None:
+                interrupted = interrupted_by(e, interrupts)
+                if interrupted is None:
                     raise
-                print(f"interrupted ({signal.Signals(status - 128).name})", file=sys.stderr)
-                return status
+                print(f"interrupted ({signal.Signals(interrupted - 128).name})", file=sys.stderr)
+                return interrupted
     finally:
         stdout.uninstall()
 
 
-def _main(argv: list[str] | None, interrupts) -> int:
+def _main(argv: list[str] | None, interrupts: InterruptState) -> int:
     configure_process()
     words = sys.argv[1:] if argv is None else argv
     parser = build_parser(command_of(words), only=True)
@@ -217,7 +223,9 @@ class _StdoutGuard(io.TextIOBase):
     A closed descriptor 1 gets /dev/null, so that no file the command opens (nor a worker's output)
     takes its place."""
 
-    def __init__(self, inner, problem: str | None) -> None:
+    _saved: TextIO  # sys.stdout before install (set by it)
+
+    def __init__(self, inner: TextIO | None, problem: str | None) -> None:
         super().__init__()
         self._inner = inner
         self.problem = problem  # why stdout could not be written (None: it could)

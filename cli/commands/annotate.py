@@ -82,8 +82,9 @@ def run(args: argparse.Namespace) -> int:
         port = sock.getsockname()[1]
         page = open_page(args.log, db, annotator=annotator, config_path=args.config, choose_bin_model=choose,
                          overrides=overrides, topic=args.topic, assistant_gate=gate)
-        warn_bin_model(page.replay)
-        if page.replay is not None:  # what the config resolution decided, as every pipeline command says it
+        if page.replay is not None:  # always (open_page opens the log for replay)
+            warn_bin_model(page.replay)
+            # what the config resolution decided, as every pipeline command says it
             for note in page.replay.notes:
                 print(f"zcut: {note}", file=sys.stderr, flush=True)
         for other in page.announce(port):

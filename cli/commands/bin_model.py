@@ -10,6 +10,10 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from zcut.bin_model import BinModel
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -101,10 +105,11 @@ def _build(args: argparse.Namespace) -> int:
         else:
             print(f"scan {r.index}: {r.n_points} bin points, fitness {r.registration.fitness:.3f}, "
                   f"RMSE {r.registration.inlier_rmse * 1000:.2f} mm")
-    weak = [r for r in reports if r.registration is not None and r.registration.fitness < MIN_SCAN_FITNESS]
+    weak = [(r.index, r.registration.fitness) for r in reports
+            if r.registration is not None and r.registration.fitness < MIN_SCAN_FITNESS]
     if weak and not args.force:
-        raise ConfigError(f"scan(s) {', '.join(str(r.index) for r in weak)} fit the first scan poorly (fitness "
-                          f"{min(r.registration.fitness for r in weak):.2f} < {MIN_SCAN_FITNESS}): is the bin empty "
+        raise ConfigError(f"scan(s) {', '.join(str(i) for i, _ in weak)} fit the first scan poorly (fitness "
+                          f"{min(f for _, f in weak):.2f} < {MIN_SCAN_FITNESS}): is the bin empty "
                           "and the same in every scan? (--force to build anyway)")
     used = sum(1 for r in reports if not r.skipped)
     if used < MIN_SCANS:
@@ -121,7 +126,7 @@ def _build(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write(args: argparse.Namespace, model, what: str) -> None:
+def _write(args: argparse.Namespace, model: BinModel, what: str) -> None:
     """The model as a PLY at ``-o``, or with ``--into`` a copy of that log carrying it at ``-o``."""
     from replay.logs import layout
     from replay.logs.mcap_write import copy_with_attachment

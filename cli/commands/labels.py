@@ -5,6 +5,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from annotate.store import LabelStore
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -27,7 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     _add_train(sub)
 
 
-def _add_train(sub) -> None:
+def _add_train(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     tr = sub.add_parser("train", help="train the labelling assistant on a log's labels and store the model")
     tr.add_argument("log", type=Path, metavar="LOG.mcap")
     tr.add_argument("--db", type=Path, required=True, metavar="LABELS.sqlite")
@@ -148,7 +152,7 @@ def _run(args: argparse.Namespace) -> int:
         return 0
 
 
-def register_log(store, log: Path) -> int:
+def register_log(store: LabelStore, log: Path) -> int:
     """Register a log and its frames in a store (as ``zcut annotate`` does when it opens it)."""
     import numpy as np
 

@@ -13,8 +13,12 @@ import argparse
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from replay.logs import layout
+
+if TYPE_CHECKING:
+    from zcut.cloud import Intrinsics
 
 CLOUD_SUFFIXES = (".pcd", ".ply")
 
@@ -246,7 +250,7 @@ class Camera:
     source: str
     size: tuple[int, int] | None = None
 
-    def for_grid(self, shape: tuple[int, int], cloud: Path):
+    def for_grid(self, shape: tuple[int, int], cloud: Path) -> Intrinsics:
         from replay.errors import ConfigError
         from zcut.cloud import Intrinsics
 
@@ -281,7 +285,7 @@ def camera_of(args: argparse.Namespace) -> Camera | None:
     return _checked_camera(flags, source="--fx --fy --cx --cy", size=None)
 
 
-def _checked_camera(v: dict, *, source: str, size: tuple[int, int] | None) -> Camera:
+def _checked_camera(v: dict[str, float], *, source: str, size: tuple[int, int] | None) -> Camera:
     import math
 
     from replay.errors import ConfigError
@@ -315,7 +319,7 @@ def read_camera_info_yaml(path: str) -> Camera:
     except ValueError as e:
         raise ConfigError(f"{path}: not a camera_info YAML file this reader knows ({e})") from None
 
-    def number(key: str, value) -> float:
+    def number(key: str, value: Any) -> float:
         try:
             return float(value)
         except (TypeError, ValueError):
@@ -339,7 +343,7 @@ def read_camera_info_yaml(path: str) -> Camera:
     return _checked_camera({"fx": k[0], "fy": k[4], "cx": k[2], "cy": k[5]}, source=str(path), size=grid)
 
 
-def _scalar(text: str):
+def _scalar(text: str) -> str | float | int:
     text = text.strip()
     if len(text) >= 2 and text[0] == text[-1] and text[0] in "'\"":
         return text[1:-1]
@@ -350,7 +354,7 @@ def _scalar(text: str):
         return text
 
 
-def _small_yaml(text: str) -> dict:
+def _small_yaml(text: str) -> dict[str, Any]:
     """The subset of YAML a camera_info file is written in (see :func:`read_camera_info_yaml`)."""
     lines: list[str] = []
     pending = ""
@@ -369,9 +373,9 @@ def _small_yaml(text: str) -> dict:
             lines.append(line)
     if pending:
         raise ValueError("a [ list is not closed")
-    doc: dict = {}
+    doc: dict[str, Any] = {}
     parent: str | None = None  # the top-level key indented lines belong to
-    last: tuple[dict, str] | None = None  # the key a "- item" line appends to
+    last: tuple[dict[str, Any], str] | None = None  # the key a "- item" line appends to
     for line in lines:
         indent = len(line) - len(line.lstrip(" "))
         body = line.strip()
@@ -384,6 +388,7 @@ def _small_yaml(text: str) -> dict:
         if not colon or not key.strip():
             raise ValueError(f"not a key: value line: {body!r}")
         key, value = key.strip(), value.strip()
+        parsed: list[str | float | int] | str | float | int
         if value.startswith("[") and value.endswith("]"):
             parsed = [_scalar(x) for x in value[1:-1].split(",") if x.strip()]
         elif value.startswith("{"):

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -114,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     meta = {layout.STEREO_METADATA: {"tau_px": repr(float(args.tau_px)), "matcher": args.matcher,
                                      "frames": json.dumps(frames_meta)}}
     out = Path(args.output)
-    inputs = [v for s in scenes for v in s.sources.values()]
+    inputs: list[str | os.PathLike[str]] = [v for s in scenes for v in s.sources.values()]
     with OutputPlan(inputs, force=args.force) as plan, AtomicOutput(plan.add(out, "the log")) as target:
         with LogWriter(target.temp, metadata=meta) as w:
             for i, (scene, p) in enumerate(zip(scenes, params)):

@@ -10,6 +10,15 @@ import json
 import math
 import os
 import sys
+from collections.abc import Callable
+from typing import IO, TYPE_CHECKING, Any, Protocol
+
+if TYPE_CHECKING:
+    from replay.logs.frame import Frame
+    from replay.outputs import OutputPlan
+    from replay.pipeline.session import FrameRow, ReplaySession
+    from replay.pipeline.sinks import FrameSink
+    from replay.pipeline.stages import FrameResult
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -57,7 +66,7 @@ HEADER = (f"{'frame':>5} {'stamp_ns':>19} {'valid px':>9} {'z-cut':>7} {'SOR':>7
           f"{'α':>6} {'β_SOR':>6} {'β_zcut':>6} {'fitness':>7} {'RMSE mm':>7} {'bin chk':>7} {'time s':>6}")
 
 
-def _bin_check(row) -> str:
+def _bin_check(row: FrameRow) -> str:
     """The bin check's column: its figure (pixels), ``!`` when it flagged the frame, ``failed`` when
     the bin stages failed, ``-`` when they did not run."""
     if math.isnan(row.bin_check):
@@ -70,14 +79,22 @@ def header(others: tuple[str, ...] = ()) -> str:
     return HEADER + "".join(f" {m:>{max(len(m), 7)}}" for m in others)
 
 
-def format_row(row) -> str:
+def format_row(row: FrameRow) -> str:
     return (f"{row.index:>5} {row.stamp_ns:>19} {row.valid_px:>9} {row.zcut:>7} {row.sor:>7} {row.both:>6} "
             f"{_fmt(row.alpha, '6.3f'):>6} {_fmt(row.beta_sor, '6.3f'):>6} {_fmt(row.beta_zcut, '6.3f'):>6} "
             f"{_fmt(row.fitness, '7.3f'):>7} {_fmt(row.rmse_mm, '7.2f'):>7} {_bin_check(row):>7} {row.time_s:>6.2f}"
             + "".join(f" {n:>{max(len(m), 7)}}" for m, n in row.others.items()))
 
 
-def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=None):
+class OnStart(Protocol):
+    """The ``on_start`` of :func:`print_table_callbacks`: called once the session is open."""
+
+    def __call__(self, session: ReplaySession, *, planned: int | None = None) -> None: ...
+
+
+def print_table_callbacks(*, json_mode: bool, total: int | None, out: IO[str] | None = None,
+                          err: IO[str] | None = None
+                          ) -> tuple[OnStart, Callable[[Frame, FrameResult, FrameRow], None]]:
     """(on_start, on_frame) printing notes, warnings and progress on stderr, rows on stdout."""
     out = sys.stdout if out is None else out
     err = sys.stderr if err is None else err
@@ -85,7 +102,7 @@ def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=N
 
     planned_ = [total]
 
-    def on_start(session, *, planned: int | None = None) -> None:
+    def on_start(session: ReplaySession, *, planned: int | None = None) -> None:
         if planned is not None:
             planned_[0] = planned
         for note in session.notes:
@@ -94,14 +111,14 @@ def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=N
             others = tuple(m for m in session.config.base_methods if m not in ("zcut", "sor"))
             print(header(others), file=out, flush=True)
 
-    def on_frame(frame, result, row) -> None:
+    def on_frame(frame: Frame, result: FrameResult, row: FrameRow) -> None:
         for w in result.warnings:
             if w not in seen_warnings:
                 seen_warnings.add(w)
                 print(f"warning: {w}", file=err)
         if result.registration is not None and not result.registration.converged:
             print(f"warning: frame {frame.index}: registration failed: {result.registration.reason}", file=err)
-        if result.bin_flagged:
+        if result.bin_flagged and result.bin_check is not None:  # flagged: it has a check
             print(f"warning: frame {frame.index}: bin check: {result.bin_check.reason}", file=err)
         n = f"/{planned_[0]}" if planned_[0] else ""
         print(f"[{len(seen_rows) + 1}{n}] frame {frame.index}: {row.time_s:.2f} s", file=err, flush=True)
@@ -113,7 +130,7 @@ def print_table_callbacks(*, json_mode: bool, total: int | None, out=None, err=N
     return on_start, on_frame
 
 
-def plan_outputs(args: argparse.Namespace, plan) -> list:
+def plan_outputs(args: argparse.Namespace, plan: OutputPlan) -> list[FrameSink]:
     """Check ``--rrd``/``--out`` (and the configs written beside them) with ``plan`` (an
     :class:`replay.outputs.OutputPlan`, which locks them) before any work; the sinks.
 
@@ -122,10 +139,10 @@ def plan_outputs(args: argparse.Namespace, plan) -> list:
     from replay.outputs import config_path_for
     from replay.pipeline.sinks import ConfigBeside, RerunSink, ResultsSink
 
-    sinks = []
-    configs: set = set()
+    sinks: list[FrameSink] = []
+    configs: set[str] = set()
 
-    def config_beside(output, what) -> None:
+    def config_beside(output: str, what: str) -> None:
         path = config_path_for(output)
         key = os.path.abspath(path)
         if key not in configs:  # one file for two outputs of one stem
@@ -183,7 +200,8 @@ def run(args: argparse.Namespace) -> int:
         return _replay(args, plan_outputs(args, plan), frames=frames, overrides=overrides)
 
 
-def _replay(args: argparse.Namespace, sinks: list, *, frames, overrides) -> int:
+def _replay(args: argparse.Namespace, sinks: list[FrameSink], *, frames: tuple[int, int | None],
+            overrides: dict[str, Any]) -> int:
     from cli.commands.common import open_session
     from replay.errors import ConfigError
     from replay.pipeline.sinks import BackgroundSinks
@@ -200,6 +218,7 @@ def _replay(args: argparse.Namespace, sinks: list, *, frames, overrides) -> int:
     on_start, on_frame = print_table_callbacks(json_mode=args.json, total=total)
     planned = _planned(session, frames)
     if planned == 0:
+        assert session.reader.n_frames is not None  # a planned count comes from the log's frame count
         raise ConfigError(f"no frame of {args.log} in --frames {args.frames or '0:'} "
                           f"(it has {_frames_held(session.reader.n_frames)})")
     on_start(session, planned=planned)
@@ -235,7 +254,7 @@ def _frames_held(n: int) -> str:
     return f"{n} frame{'s' if n != 1 else ''}" + (f", indices 0..{n - 1}" if n > 1 else ", index 0" if n == 1 else "")
 
 
-def _planned(session, frames) -> int | None:
+def _planned(session: ReplaySession, frames: tuple[int, int | None]) -> int | None:
     n = session.reader.n_frames
     if n is None:
         return None

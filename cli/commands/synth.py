@@ -5,6 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from replay.synth import SynthFrame
+    from replay.synth.log import ProgressFn
+    from replay.synth.raytrace.synthesize import RaytracedFrame
 
 PART_KIND_NAMES = ("spheres", "zinc_nuts", "rods", "black_screws", "black_nuts", "sprockets")
 
@@ -94,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"zcut: {note}", file=sys.stderr)
     what = "empty bin" if args.empty else args.parts
 
-    def progress(i: int, n: int, sf, seconds: float) -> None:
+    def progress(i: int, n: int, sf: SynthFrame, seconds: float) -> None:
         n_out = int(sf.truth.sum())
         n_valid = int(np.isfinite(sf.frame.xyz[..., 2]).sum())
         print(f"frame {i + 1}/{n}: {what} {w}x{h}, {len(sf.scene.parts)} parts, {n_valid} valid points, "
@@ -124,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_raytraced(args: argparse.Namespace, what: str, progress) -> int:
+def _run_raytraced(args: argparse.Namespace, what: str, progress: ProgressFn) -> int:
     """``--sensor raytraced``: the same log layout from the ray-traced sensor."""
     from replay.outputs import AtomicOutput
     from replay.synth.raytrace import write_raytraced_log
@@ -134,7 +140,7 @@ def _run_raytraced(args: argparse.Namespace, what: str, progress) -> int:
         raise ParameterError("--shiny, --matte and --quantize-mm belong to the hand-made sensor; the ray-traced "
                              "one takes the finish from the part's material")
 
-    def rt_progress(i: int, n: int, rf, seconds: float) -> None:
+    def rt_progress(i: int, n: int, rf: RaytracedFrame, seconds: float) -> None:
         h, w = args.size
         n_parts = len(rf.pile) if rf.pile is not None else 0
         n_valid = int(np.isfinite(rf.frame.xyz[..., 2]).sum())

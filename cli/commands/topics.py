@@ -41,8 +41,8 @@ def run(args: argparse.Namespace) -> int:
         rows.append((t.topic, t.msg_type, t.message_encoding, "?" if t.count is None else str(t.count), size, extra))
     head = ("topic", "type", "encoding", "messages", "HxW", "image encoding / fields")
     widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
-    for r in [head, *rows]:
-        print("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
+    for cells in [head, *rows]:
+        print("  ".join(c.ljust(w) for c, w in zip(cells, widths, strict=True)).rstrip())
     for name, kv in info.metadata.items():
         print(f"metadata '{name}':")
         for k, v in kv.items():
@@ -59,8 +59,8 @@ def run(args: argparse.Namespace) -> int:
     for note in r.notes:
         if note not in info.notes:
             print(f"note: {note}")
-    for name, media_type, size in r.attachments():
-        print(f"attachment '{name}': {media_type}" + (f", {size} bytes" if size is not None else ""))
+    for name, media_type, n_bytes in r.attachments():
+        print(f"attachment '{name}': {media_type}" + (f", {n_bytes} bytes" if n_bytes is not None else ""))
     print("zcut would use:")
     n = "?" if r.n_frames is None else r.n_frames
     print(f"  cloud:       {r.cloud_topic}  ({n} frames)")
