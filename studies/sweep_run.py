@@ -230,7 +230,7 @@ def write_tuned(store: PartStore, base: PipelineConfig, tuned: Tuned, objective:
     ranked = ((ranking or {}).get("by_part") or {}).get("all") or []
     for row in ranked:
         m = row.get("method")
-        if m in cfg.BANK_SECTIONS and row.get("params"):
+        if m in cfg.bank_sections() and row.get("params"):
             tuned_cfg = tuned_cfg.replace(**{m: dataclasses.replace(getattr(base, m), **row["params"])})
 
     def f(v: float | None) -> str:

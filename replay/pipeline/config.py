@@ -97,16 +97,6 @@ def sections() -> dict[str, Any]:
     return {name: _stage_section(name, cls) for name, cls in stage_sections().items()} | {"zcut": _zcut_section}
 
 
-def __getattr__(name: str) -> Any:
-    """The old constants, now views of the registry: ``STAGE_SECTIONS``, ``BANK_SECTIONS``,
-    ``SECTION_NAMES``, ``SECTIONS``."""
-    views = {"STAGE_SECTIONS": stage_sections, "BANK_SECTIONS": bank_sections, "SECTION_NAMES": section_names,
-             "SECTIONS": sections}
-    if name in views:
-        return views[name]()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 def _config_error(e: ParameterError, source: str | None = None) -> ConfigError:
     """A stage type's ParameterError in the file's words: ``ZCutParams.step`` -> ``zcut.step_mm``."""
     msg = str(e)

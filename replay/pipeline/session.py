@@ -138,7 +138,6 @@ class ReplaySummary:
     damage: list[Damage] = field(default_factory=list)  # what the pass over the log lost
     outputs: dict[str, str] = field(default_factory=dict)
     part_kind: str | None = None
-    n_planned: int | None = None  # frames in the requested range, when the log's summary says
     viewer_error: str | None = None  # --spawn/--connect: the viewer did not take the data
     n_log_frames: int | None = None  # clouds in the log, when its summary says
 
@@ -479,9 +478,6 @@ class ReplaySession:
         summary = ReplaySummary(log=str(self.path), resolved=self.resolved, part_kind=self.config.part)
         reader = self.reader
         summary.n_log_frames = reader.n_frames
-        if reader.n_frames is not None:
-            end = reader.n_frames if frames[1] is None else min(frames[1], reader.n_frames)
-            summary.n_planned = max(end - frames[0], 0)
         completed = False
         poses = true_poses_of(reader.metadata)
         sink.start(self.start_info())

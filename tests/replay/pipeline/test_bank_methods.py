@@ -39,8 +39,8 @@ ALL = ("zcut", "sor", *BANK)
 def test_every_bank_method_is_registered_with_its_section():
     reg = registry()
     for name in BANK:
-        assert name in reg and reg[name].section == name and name in cfg.STAGE_SECTIONS
-        assert name in cfg.SECTION_NAMES
+        assert name in reg and reg[name].section == name and name in cfg.stage_sections()
+        assert name in cfg.section_names()
     assert [m for m in reg if reg[m].needs_intrinsics] == ["cluster"]
 
 
@@ -270,6 +270,6 @@ def test_cluster_on_a_log_without_camera_info_is_one_line(tmp_path, capsys):
 
 def test_dataclass_fields_of_every_bank_section_have_defaults():
     for name in BANK:
-        cls = cfg.STAGE_SECTIONS[name]
+        cls = cfg.stage_sections()[name]
         cls()  # every field has its default
         assert all(f.default is not dataclasses.MISSING for f in dataclasses.fields(cls))

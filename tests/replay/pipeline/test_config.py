@@ -43,14 +43,14 @@ def test_defaults_are_the_papers_nominal_values():
 ])
 def test_bad_values_name_field_and_value(section, kw, match):
     with pytest.raises(ConfigError, match=match):
-        cfg.SECTIONS[section](**kw)
+        cfg.sections()[section](**kw)
     with pytest.raises(ConfigError, match=match):
         cfg.check_layer({section: kw}, source="config")
 
 
 def test_config_error_is_a_value_error():
     with pytest.raises(ValueError):
-        cfg.SECTIONS["zcut"](step_mm=-1.0)
+        cfg.sections()["zcut"](step_mm=-1.0)
 
 
 @pytest.mark.parametrize("text, match", [

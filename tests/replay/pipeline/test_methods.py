@@ -26,7 +26,7 @@ def test_registry_holds_the_papers_two_filters_with_their_sections():
     reg = registry()
     assert list(reg)[:2] == ["zcut", "sor"]
     for m in reg.values():
-        assert m.section in cfg.SECTION_NAMES or m.section in cfg.STAGE_SECTIONS, m
+        assert m.section in cfg.section_names() or m.section in cfg.stage_sections(), m
     with pytest.raises(TypeError):
         reg["x"] = reg["zcut"]  # read-only
 

@@ -83,7 +83,7 @@ def test_the_config_its_axes_and_its_warm_up(toy):
     assert default_axes()["toy"] == {"band_mm": (0.5, 1.0, 2.0)}
     assert any("toy" in what for what, _ in groups())
     assert "toy" in cfg.section_names() and cfg.stage_sections()["toy"] is ToyParams
-    assert "toy" in cfg.BANK_SECTIONS
+    assert "toy" in cfg.bank_sections()
     c = cfg.resolve(cfg.LogFacts(None, None, None, (8, 9)), cli=cfg.cli_layer(methods=METHODS)).config
     assert c.toy == ToyParams() and c.replace(toy=ToyParams(band_mm=3.0)).toy.band_mm == 3.0
     text = cfg.to_toml(c)
