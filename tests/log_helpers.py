@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 
@@ -45,3 +46,17 @@ def read_frames(path, *, start: int = 0, stop: int | None = None, **reader_optio
     stream = LogReader(path, **reader_options).frames(start=start, stop=stop)
     got = list(stream)
     return got, damage_lines(stream.damage)
+
+
+def without_truth(src: Path, dest: Path) -> None:
+    """The log's frames without any truth topic (its bin model attached as before)."""
+    from replay.logs import layout
+    from replay.logs.reader import LogReader
+    from replay.logs.writer import LogWriter
+
+    reader = LogReader(src)
+    att = {layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, reader.bin_model_ply)}
+    with LogWriter(dest, attachments=att) as w:
+        for f in reader.frames():
+            f.masks.clear()
+            w.write_frame(f)

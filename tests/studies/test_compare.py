@@ -4,12 +4,12 @@ once, bad input one line, the recording read back."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from cli_helpers import run_cli
+from log_helpers import without_truth
 
 from cli.main import main
 
@@ -32,22 +32,8 @@ def data(tmp_path_factory):
     assert main(["synth", "-o", str(other), "--parts", "spheres", "--frames", "2", "--seed", "6",
                  "--size", SIZE]) == 0
     assert main(["replay", str(other), "--out", str(d / "other.results.mcap")]) == 0
-    _without_truth(log, d / "notruth.mcap")
+    without_truth(log, d / "notruth.mcap")
     return d
-
-
-def _without_truth(src: Path, dest: Path) -> None:
-    """The log's frames without any truth topic (its bin model attached as before)."""
-    from replay.logs import layout
-    from replay.logs.reader import LogReader
-    from replay.logs.writer import LogWriter
-
-    reader = LogReader(src)
-    att = {layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, reader.bin_model_ply)}
-    with LogWriter(dest, attachments=att) as w:
-        for f in reader.frames():
-            f.masks.clear()
-            w.write_frame(f)
 
 
 def _accuracy(capsys, *argv) -> dict:

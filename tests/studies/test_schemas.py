@@ -5,12 +5,12 @@ filter bank does not turn a column into pyarrow's ``null``)."""
 from __future__ import annotations
 
 import io
-from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 from cli_helpers import run_cli
+from log_helpers import without_truth
 
 from cli.main import main
 from studies.schemas import (
@@ -32,25 +32,11 @@ def logs(tmp_path_factory):
     d = tmp_path_factory.mktemp("schemas")
     assert main(["synth", "-o", str(d / "log.mcap"), "--parts", "rods", "--frames", "1", "--seed", "3",
                  "--size", SIZE]) == 0
-    _without_truth(d / "log.mcap", d / "notruth.mcap")
+    without_truth(d / "log.mcap", d / "notruth.mcap")
     return d
 
 
-def _without_truth(src: Path, dest: Path) -> None:
-    """The log's frames without any truth topic (its bin model attached as before)."""
-    from replay.logs import layout
-    from replay.logs.reader import LogReader
-    from replay.logs.writer import LogWriter
-
-    reader = LogReader(src)
-    att = {layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, reader.bin_model_ply)}
-    with LogWriter(dest, attachments=att) as w:
-        for f in reader.frames():
-            f.masks.clear()
-            w.write_frame(f)
-
-
-def test_compare_summary_has_the_declared_schema_with_or_without_truth(logs, tmp_path, capsys):
+def test_compare_summary_has_the_declared_schema_with_orwithout_truth(logs, tmp_path, capsys):
     want = arrow_schema(COMPARE_SUMMARY_COLUMNS)
     for name in ("log", "notruth"):
         rc, _, err = run_cli(capsys, "compare", logs / f"{name}.mcap", "--a", "zcut", "--b", "sor",
