@@ -883,6 +883,7 @@ def _score_frames(options: AccuracyOptions, frames: Iterable[tuple[Any, Any]], t
     from replay.pipeline.methods import base_methods
 
     learned_seen: set[int] = set()
+    said: set[str] = set()
     results, unscored = [], []
     for frame, r in frames:
         if r is None:
@@ -910,6 +911,11 @@ def _score_frames(options: AccuracyOptions, frames: Iterable[tuple[Any, Any]], t
                                      bin_flagged=r.bin_flagged)
             if r.bin_flagged:
                 print(f"warning: frame {frame.index}: bin check: {check.reason}", file=sys.stderr)
+            # a method that could not judge the frame (a stereo post-filter's mask not in the log): each text once
+            for w in r.warnings:
+                if w.startswith(tuple(f"{b}: " for b in session.config.base_methods)) and w not in said:
+                    said.add(w)
+                    print(f"warning: frame {frame.index}: {w}", file=sys.stderr)
         if learned is not None:
             from annotate.assistant import learned_mask
 

@@ -770,3 +770,91 @@ class SuspectParams:
             object.__setattr__(self, name, float(getattr(self, name)))
         if self.a_max is not None:
             object.__setattr__(self, "a_max", float(self.a_max))
+
+
+# --------------------------------------------------------------------------------------------
+__all__ += ["StereoLrParams", "StereoSpeckleParams", "StereoTextureParams", "StereoUniquenessParams"]
+
+# The stereo matcher's own post-filters scored as methods (replay/pipeline/stereo_methods.py): each class
+# holds the one filter's settings under the names of zcut.stereo.MatcherParams, so that a set of its
+# parameters is the matcher's settings of that filter; `zcut record-stereo` records, per set it is asked
+# for, the pixels the filter at that strength invalidates, and the method scores the set its parameters
+# name (docs/real_data.md, "The matcher's post-filters as methods").
+
+
+@dataclass(frozen=True, slots=True)
+class StereoUniquenessParams:
+    """The matcher's uniqueness test (OpenCV's ``uniquenessRatio``), method ``stereo_uniqueness``.
+
+    Attributes
+    ----------
+    uniqueness_ratio : int
+        Margin (%) by which the best matching cost must beat the second best, 1..100. Default 10
+        (OpenCV: "a value within the 5-15 range is good enough").
+    """
+
+    uniqueness_ratio: int = 10
+
+    def __post_init__(self) -> None:
+        _number(self, "uniqueness_ratio", ge=1, le=100, integer=True)
+        _as_int(self, "uniqueness_ratio")
+
+
+@dataclass(frozen=True, slots=True)
+class StereoLrParams:
+    """The matcher's left-right consistency check (OpenCV's ``disp12MaxDiff``), method ``stereo_lr``.
+
+    Attributes
+    ----------
+    disp12_max_diff : int
+        Largest difference (px) between the left disparity and the right one at its match, >= 0.
+        Default 1.
+    """
+
+    disp12_max_diff: int = 1
+
+    def __post_init__(self) -> None:
+        _number(self, "disp12_max_diff", ge=0, integer=True)
+        _as_int(self, "disp12_max_diff")
+
+
+@dataclass(frozen=True, slots=True)
+class StereoSpeckleParams:
+    """The matcher's speckle filter on the disparity (OpenCV's ``speckleWindowSize`` and
+    ``speckleRange``), method ``stereo_speckle``.
+
+    Attributes
+    ----------
+    speckle_window : int
+        Regions of the disparity of at most this many pixels are invalidated, >= 1. Default 100
+        (OpenCV: "somewhere in the 50-200 range").
+    speckle_range : int
+        Largest disparity step (px) inside one region, >= 0. Default 2 (OpenCV: "1 or 2").
+    """
+
+    speckle_window: int = 100
+    speckle_range: int = 2
+
+    def __post_init__(self) -> None:
+        _number(self, "speckle_window", ge=1, integer=True)
+        _number(self, "speckle_range", ge=0, integer=True)
+        _as_int(self, "speckle_window")
+        _as_int(self, "speckle_range")
+
+
+@dataclass(frozen=True, slots=True)
+class StereoTextureParams:
+    """StereoBM's texture test (OpenCV's ``textureThreshold``), method ``stereo_texture`` (BM only).
+
+    Attributes
+    ----------
+    texture_threshold : int
+        Least sum of the pre-filtered image's absolute values over the block, >= 1. Default 10
+        (OpenCV's StereoBM default).
+    """
+
+    texture_threshold: int = 10
+
+    def __post_init__(self) -> None:
+        _number(self, "texture_threshold", ge=1, integer=True)
+        _as_int(self, "texture_threshold")

@@ -17,32 +17,50 @@ pixel's depth differs from the median depth of its valid 8-neighbours by more th
 smooth as a right one, is not detectable by a filter that sees only the cloud.
 
 Pure functions on arrays (no file I/O); the matcher wraps OpenCV's StereoSGBM / StereoBM with their
-own post-filters off unless asked for.
+own post-filters off unless asked for. Each post-filter is also an outlier filter to score
+(:func:`rejected_pixels`): the pixels a run of the matcher matches and the same run with the
+post-filter on (at the strength of a :data:`POST_FILTERS` params class) leaves unmatched.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from .errors import InputShapeError, ParameterError, describe_array
+from .params import StereoLrParams, StereoSpeckleParams, StereoTextureParams, StereoUniquenessParams
 
 __all__ = [
     "MATCHERS",
+    "POST_FILTERS",
     "MatcherParams",
+    "PostFilter",
     "StereoCalibration",
     "StereoTruth",
     "depth_tolerance_mm",
     "detectable_outliers",
     "disparity_to_depth_mm",
     "match",
+    "rejected_pixels",
     "stereo_truth",
     "xyz_from_depth_mm",
 ]
 
 #: The matchers of :func:`match`.
 MATCHERS = ("sgbm", "bm")
+
+#: The settings of one of the matcher's post-filters (fields named as :class:`MatcherParams`').
+PostFilter = StereoUniquenessParams | StereoLrParams | StereoSpeckleParams | StereoTextureParams
+#: The matcher's post-filters scored as methods: the method's name -> its settings class
+#: (``stereo_texture``: StereoBM only).
+POST_FILTERS: dict[str, type[PostFilter]] = {
+    "stereo_uniqueness": StereoUniquenessParams,
+    "stereo_lr": StereoLrParams,
+    "stereo_speckle": StereoSpeckleParams,
+    "stereo_texture": StereoTextureParams,
+}
 
 
 @dataclass(frozen=True, slots=True)
@@ -201,6 +219,41 @@ def match(left: np.ndarray, right: np.ndarray, params: MatcherParams) -> np.ndar
     disp = raw.astype(np.float32) / np.float32(16.0)
     disp[raw < 0] = np.nan  # minDisparity 0: OpenCV's invalid value is (0 - 1) * 16
     return disp
+
+
+def rejected_pixels(left: np.ndarray, right: np.ndarray, params: MatcherParams, post: PostFilter, *,
+                    matched: np.ndarray | None = None) -> np.ndarray:
+    """The pixels one of the matcher's post-filters invalidates: matched by ``params``, unmatched by
+    ``params`` with ``post``'s settings (the same run, that filter on at that strength).
+
+    Parameters
+    ----------
+    left, right : (H, W, 3) or (H, W) uint8 ndarray
+        The rectified pair, as for :func:`match`.
+    params : MatcherParams
+        The matcher run the cloud comes from.
+    post : StereoUniquenessParams, StereoLrParams, StereoSpeckleParams or StereoTextureParams
+        The post-filter and its strength (:data:`POST_FILTERS`).
+    matched : (H, W) bool ndarray, optional
+        ``isfinite(match(left, right, params))``, when already computed.
+
+    Returns
+    -------
+    (H, W) bool ndarray
+
+    Raises
+    ------
+    ParameterError
+        The texture threshold with SGBM (a StereoBM setting only).
+    """
+    if not isinstance(post, tuple(POST_FILTERS.values())):
+        raise ParameterError(f"post must be one of {', '.join(c.__name__ for c in POST_FILTERS.values())}, got {post!r}")
+    if isinstance(post, StereoTextureParams) and params.matcher != "bm":
+        raise ParameterError(f"the texture threshold is a setting of StereoBM (matcher bm), not of {params.matcher}")
+    if matched is None:
+        matched = np.isfinite(match(left, right, params))
+    on = dataclasses.replace(params, **dataclasses.asdict(post))
+    return np.asarray(matched, dtype=bool) & ~np.isfinite(match(left, right, on))
 
 
 def disparity_to_depth_mm(disparity: np.ndarray, calib: StereoCalibration) -> np.ndarray:

@@ -9,18 +9,30 @@ left image, its CameraInfo and, with a ground truth, ``/ground_truth/depth`` (32
 unknown or occluded: not scored) and ``/ground_truth/detectable`` (docs/formats.md, docs/real_data.md).
 τ_d (``--tau-px``), the matcher and every frame's calibration are in the log's ``zcut.stereo``
 metadata.
+
+The matcher's own post-filters are scored as methods (``stereo_uniqueness``, ``stereo_lr``,
+``stereo_speckle``, ``stereo_texture``; replay/pipeline/stereo_methods.py): for each post-filter, at
+each strength asked for (``--reject-uniqueness`` ...; one default strength each unless told), the
+matcher is run again with that filter on, and the pixels of the cloud it invalidates are written as
+``/stereo/rejected/<settings>`` (mono8), their settings in the metadata's ``rejected``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import itertools
 import json
 import os
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from replay.logs import layout
+
+if TYPE_CHECKING:
+    from zcut.stereo import PostFilter
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -56,6 +68,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     m.add_argument("--speckle-range", type=int, default=2, metavar="PX", help="speckle filter range (default 2)")
     m.add_argument("--texture-threshold", type=int, default=0, metavar="N",
                    help="post-filter (bm only): texture threshold (default 0: off)")
+    r = parser.add_argument_group(
+        "the matcher's post-filters as methods to score (each LIST: values a,b,c; 'none' records none)")
+    r.add_argument("--reject-uniqueness", metavar="LIST",
+                   help="uniqueness ratios (%%) whose rejected pixels are recorded, for the method stereo_uniqueness "
+                        "(default 10)")
+    r.add_argument("--reject-lr", metavar="LIST",
+                   help="left-right check disp12MaxDiff values (px), for the method stereo_lr (default 1)")
+    r.add_argument("--reject-speckle", metavar="LIST",
+                   help="speckle filter settings WINDOW:RANGE (px), for the method stereo_speckle (default 100:2)")
+    r.add_argument("--reject-texture", metavar="LIST",
+                   help="texture thresholds, for the method stereo_texture (bm only; default 10 with --matcher bm)")
+    r.add_argument("--reject-axes", action="store_true",
+                   help="also every point of each of these methods' default sweep axes (zcut sweep --grid "
+                        "stereo_uniqueness=default ...)")
+    r.add_argument("--no-rejected", action="store_true", help="record no post-filter's rejected pixels")
     parser.add_argument("--tau-px", type=float, default=1.0, metavar="PX",
                         help="truth tolerance τ_d in px of disparity: an outlier is |Z - Z_GT| > τ_d·Z²/(f·B) (default 1)")
     parser.add_argument("--frame-id", default="camera_optical_frame", help="header frame_id (default camera_optical_frame)")
@@ -65,6 +92,68 @@ def _num_disparities(args: argparse.Namespace, ndisp: int | None) -> int:
     if args.num_disparities is not None:
         return int(args.num_disparities)
     return 128 if ndisp is None else max(16, -(-int(ndisp) // 16) * 16)
+
+
+#: the flag of each post-filter method (zcut.stereo.POST_FILTERS)
+REJECT_FLAGS = {"stereo_uniqueness": "reject_uniqueness", "stereo_lr": "reject_lr", "stereo_speckle": "reject_speckle",
+                "stereo_texture": "reject_texture"}
+
+
+def post_filter_sets(args: argparse.Namespace) -> list[tuple[str, PostFilter]]:
+    """``[(method, settings), ...]``: the post-filter strengths whose rejected pixels are recorded, in
+    the order of ``zcut.stereo.POST_FILTERS`` and as given, each once.
+
+    Raises
+    ------
+    ConfigError
+        A value that is not integers ``a:b`` of the filter's fields, one its settings class refuses,
+        the texture threshold with SGBM.
+    """
+    from replay.errors import ConfigError
+    from replay.pipeline.methods import registry
+    from zcut.errors import ParameterError
+    from zcut.stereo import POST_FILTERS
+
+    if args.no_rejected:
+        given = [f"--{f.replace('_', '-')}" for f in (*REJECT_FLAGS.values(), "reject_axes") if getattr(args, f)]
+        if given:
+            raise ConfigError(f"--no-rejected records no post-filter: leave out {', '.join(given)}")
+        return []
+    out: list[tuple[str, PostFilter]] = []
+    for name, cls in POST_FILTERS.items():
+        flag = "--" + REJECT_FLAGS[name].replace("_", "-")
+        text = getattr(args, REJECT_FLAGS[name])
+        fields = [f.name for f in dataclasses.fields(cls)]
+        applies = name != "stereo_texture" or args.matcher == "bm"
+        values: list[dict[str, int]] = []
+        if text is None:
+            values = [{}] if applies else []
+        elif text.strip().lower() != "none":
+            for item in text.split(","):
+                parts = item.strip().split(":")
+                try:
+                    ints = [int(v) for v in parts]
+                except ValueError:
+                    ints = []
+                if not ints or len(ints) > len(fields):
+                    raise ConfigError(f"{flag}: {item.strip()!r} is not {':'.join(f.upper() for f in fields)} "
+                                      "(integers)")
+                values.append(dict(zip(fields, ints)))
+        if args.reject_axes and applies:
+            axes = registry()[name].axes
+            default = cls()
+            grid = [axes.get(f, (getattr(default, f),)) for f in fields]
+            values += [dict(zip(fields, (int(v) for v in combo))) for combo in itertools.product(*grid)]
+        if values and not applies:
+            raise ConfigError(f"{flag}: the texture threshold is StereoBM's (--matcher bm), not SGBM's")
+        for v in values:
+            try:
+                post = cls(**v)
+            except ParameterError as e:
+                raise ConfigError(f"{flag}: {e}") from None
+            if (name, post) not in out:
+                out.append((name, post))
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -81,6 +170,7 @@ def run(args: argparse.Namespace) -> int:
         StereoCalibration,
         disparity_to_depth_mm,
         match,
+        rejected_pixels,
         stereo_truth,
         xyz_from_depth_mm,
     )
@@ -112,8 +202,12 @@ def run(args: argparse.Namespace) -> int:
     params = [params_for(s.calib) for s in scenes]
     frames_meta = [{"scene": s.name, "sources": s.sources, "calibration": s.calib.as_dict(),
                     "matcher": p.as_dict(), "truth": s.gt_disparity is not None} for s, p in zip(scenes, params)]
-    meta = {layout.STEREO_METADATA: {"tau_px": repr(float(args.tau_px)), "matcher": args.matcher,
-                                     "frames": json.dumps(frames_meta)}}
+    posts = post_filter_sets(args)
+    topics = [layout.stereo_rejected_topic(dataclasses.asdict(post)) for _, post in posts]
+    meta = {layout.STEREO_METADATA: {
+        "tau_px": repr(float(args.tau_px)), "matcher": args.matcher, "frames": json.dumps(frames_meta),
+        "rejected": json.dumps([{"method": name, "settings": dataclasses.asdict(post), "topic": topic}
+                                for (name, post), topic in zip(posts, topics)])}}
     out = Path(args.output)
     inputs: list[str | os.PathLike[str]] = [v for s in scenes for v in s.sources.values()]
     with OutputPlan(inputs, force=args.force) as plan, AtomicOutput(plan.add(out, "the log")) as target:
@@ -123,6 +217,9 @@ def run(args: argparse.Namespace) -> int:
                 disp = match(scene.left, scene.right, p)
                 cal = scene.calib
                 xyz = xyz_from_depth_mm(disparity_to_depth_mm(disp, cal), cal)
+                # the pixels of the cloud each post-filter would invalidate (the same run, that filter on)
+                valid = np.isfinite(xyz[..., 2])
+                rejected = [rejected_pixels(scene.left, scene.right, p, post, matched=valid) for _, post in posts]
                 h, wd = xyz.shape[:2]
                 stamp = i * 1_000_000_000
                 kw = {"stamp_ns": stamp, "frame_id": args.frame_id}
@@ -130,6 +227,8 @@ def run(args: argparse.Namespace) -> int:
                 w.write_image(layout.IMAGE, scene.left, **kw)
                 w.write_camera_info(layout.CAMERA_INFO, Intrinsics(fx=cal.focal_px, fy=cal.focal_px, cx=cal.cx,
                                                                    cy=cal.cy, width=wd, height=h), **kw)
+                for topic, mask in zip(topics, rejected):
+                    w.write_mask(topic, mask, **kw)
                 n_valid = int(np.isfinite(xyz[..., 2]).sum())
                 line = f"{i:4d} {scene.name}: {h}x{wd}, {n_valid} matched pixels ({args.matcher})"
                 if scene.gt_disparity is not None:
@@ -148,6 +247,9 @@ def run(args: argparse.Namespace) -> int:
                 else:
                     line += ", no ground truth"
                 print(f"{line}, {time.process_time() - t0:.2f} CPU-s")
+                if topics:
+                    print("       rejected by the matcher's post-filters: " + ", ".join(
+                        f"{t[len(layout.STEREO_REJECTED_PREFIX):]} {int(m.sum())}" for t, m in zip(topics, rejected)))
     n_truth = sum(s.gt_disparity is not None for s in scenes)
     print(f"wrote {len(scenes)} frame{'s' if len(scenes) != 1 else ''} to {out} ({n_truth} with ground truth, "
           f"τ_d = {args.tau_px:g} px)")

@@ -65,13 +65,27 @@ RAYTRACED_OUTLIER_KINDS: dict[int, str] = {
 #: every ``/ground_truth/outlier_kind`` code and its name; 0 = not an outlier.
 OUTLIER_KINDS: dict[int, str] = {**HANDMADE_OUTLIER_KINDS, **RAYTRACED_OUTLIER_KINDS}
 
+#: mono8, 255 = a pixel the stereo matcher's cloud holds and one of its post-filters, at one strength, would
+#: invalidate (``zcut record-stereo``; docs/formats.md, "Stereo post-filters"): one topic per post-filter and
+#: strength, named by :func:`stereo_rejected_topic`; read by the methods ``stereo_uniqueness``, ``stereo_lr``,
+#: ``stereo_speckle``, ``stereo_texture`` (``replay/pipeline/stereo_methods.py``)
+STEREO_REJECTED_PREFIX = "/stereo/rejected/"
+
+
+def stereo_rejected_topic(settings: dict[str, int]) -> str:
+    """The topic of a post-filter's rejected pixels at these settings (its matcher fields and their
+    values, in order): ``{"speckle_window": 100, "speckle_range": 2}`` ->
+    ``/stereo/rejected/speckle_window_100_speckle_range_2``."""
+    return STEREO_REJECTED_PREFIX + "_".join(f"{k}_{int(v)}" for k, v in settings.items())
+
+
 #: mono8 topics whose values are codes, not a mask: a Frame holds them in ``Frame.codes`` (uint8)
 CODE_TOPICS = (TRUTH_OUTLIER_KIND,)
 
-#: mono8 topics under these prefixes are zcut's own masks (truth, labels, results): a frame is paired with
+#: mono8 topics under these prefixes are zcut's own masks (truth, labels, results, stereo rejections): a frame is paired with
 #: them whatever their size, so that one of the wrong size is reported as ``wrong_size`` damage (its frame
 #: skipped), never taken for a missing topic. Other mono8 topics are masks only when of the cloud's size.
-MASK_PREFIXES = ("/ground_truth/", "/labels/", RESULTS_PREFIX)
+MASK_PREFIXES = ("/ground_truth/", "/labels/", RESULTS_PREFIX, STEREO_REJECTED_PREFIX)
 
 # exported human labels (``zcut labels export``): mono8
 LABEL_OUTLIERS = "/labels/outliers"
@@ -84,7 +98,8 @@ BIN_MODEL_MEDIA_TYPE = "application/x-ply"
 
 # MCAP metadata record names
 SYNTH_METADATA = "zcut.synth"
-#: ``zcut record-stereo``: the matcher, τ_d (``tau_px``) and every frame's scene and calibration
+#: ``zcut record-stereo``: the matcher, τ_d (``tau_px``), every frame's scene and calibration, and the
+#: post-filter settings whose rejected pixels it recorded (``rejected``)
 STEREO_METADATA = "zcut.stereo"
 #: true bin pose of every synthetic frame: key = str(stamp_ns), value = the 16 row-major floats of
 #: ``T_cam_bin`` (metres, camera optical frame <- bin frame) joined by commas

@@ -51,6 +51,10 @@ from zcut.params import (
     RadiusParams,
     SorParams,
     SpeckleParams,
+    StereoLrParams,
+    StereoSpeckleParams,
+    StereoTextureParams,
+    StereoUniquenessParams,
     SuspectParams,
     WindowParams,
     ZCutParams,
@@ -209,6 +213,29 @@ def _run_suspects(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
     return MethodOutput(res.mask & zone.zone, res)
 
 
+def _run_stereo(frame: Frame, zone: Zone, name: str, params: Any) -> MethodOutput:
+    from replay.pipeline.stereo_methods import rejected
+
+    mask, warning = rejected(frame, zone, name, params)
+    return MethodOutput(mask, warning=warning)
+
+
+def _run_stereo_uniqueness(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
+    return _run_stereo(frame, zone, "stereo_uniqueness", config.stereo_uniqueness)
+
+
+def _run_stereo_lr(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
+    return _run_stereo(frame, zone, "stereo_lr", config.stereo_lr)
+
+
+def _run_stereo_speckle(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
+    return _run_stereo(frame, zone, "stereo_speckle", config.stereo_speckle)
+
+
+def _run_stereo_texture(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
+    return _run_stereo(frame, zone, "stereo_texture", config.stereo_texture)
+
+
 # ------------------------------------------------------------------------------------- warm-ups
 def _tiny() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Tiny inputs for the warm-ups: a height image, its organized cloud (mm-sized, float32) and a
@@ -323,6 +350,18 @@ BUILTIN: tuple[Method, ...] = (
            summary="mixed pixels: the surface leaves the pixel along its ray (ifm)"),
     Method(name="suspects", params=SuspectParams, run=_run_suspects, warmup=_warm_suspects,
            summary="the labelling page's suspects: every detector of zcut.suspects, united (not a filter to ship)"),
+    # the stereo matcher's own post-filters, read from a `zcut record-stereo` log (replay/pipeline/stereo_methods.py)
+    Method(name="stereo_uniqueness", params=StereoUniquenessParams, run=_run_stereo_uniqueness,
+           axes={"uniqueness_ratio": (5, 10, 15, 25)},
+           summary="stereo logs: the pixels the matcher's uniqueness test rejects (recorded by record-stereo)"),
+    Method(name="stereo_lr", params=StereoLrParams, run=_run_stereo_lr, axes={"disp12_max_diff": (0, 1, 2, 4)},
+           summary="stereo logs: the pixels the matcher's left-right check rejects (recorded by record-stereo)"),
+    Method(name="stereo_speckle", params=StereoSpeckleParams, run=_run_stereo_speckle,
+           axes={"speckle_window": (50, 100, 200, 400), "speckle_range": (1, 2, 4)},
+           summary="stereo logs: the pixels the matcher's speckle filter rejects (recorded by record-stereo)"),
+    Method(name="stereo_texture", params=StereoTextureParams, run=_run_stereo_texture,
+           axes={"texture_threshold": (5, 10, 20, 40)},
+           summary="stereo logs (bm): the pixels StereoBM's texture test rejects (recorded by record-stereo)"),
 )
 _BUILTIN_MAP = types.MappingProxyType({m.name: m for m in BUILTIN})
 
