@@ -25,6 +25,8 @@ post-filter on (at the strength of a :data:`POST_FILTERS` params class) leaves u
 from __future__ import annotations
 
 import dataclasses
+import types
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,12 +57,12 @@ MATCHERS = ("sgbm", "bm")
 PostFilter = StereoUniquenessParams | StereoLrParams | StereoSpeckleParams | StereoTextureParams
 #: The matcher's post-filters scored as methods: the method's name -> its settings class
 #: (``stereo_texture``: StereoBM only).
-POST_FILTERS: dict[str, type[PostFilter]] = {
+POST_FILTERS: Mapping[str, type[PostFilter]] = types.MappingProxyType({
     "stereo_uniqueness": StereoUniquenessParams,
     "stereo_lr": StereoLrParams,
     "stereo_speckle": StereoSpeckleParams,
     "stereo_texture": StereoTextureParams,
-}
+})
 
 
 @dataclass(frozen=True, slots=True)

@@ -360,7 +360,7 @@ BUILTIN: tuple[Method, ...] = (
            axes={"speckle_window": (50, 100, 200, 400), "speckle_range": (1, 2, 4)},
            summary="stereo logs: the pixels the matcher's speckle filter rejects (recorded by record-stereo)"),
     Method(name="stereo_texture", params=StereoTextureParams, run=_run_stereo_texture,
-           axes={"texture_threshold": (5, 10, 20, 40)},
+           axes={"texture_threshold": (10, 200, 800, 1600)},
            summary="stereo logs (bm): the pixels StereoBM's texture test rejects (recorded by record-stereo)"),
 )
 _BUILTIN_MAP = types.MappingProxyType({m.name: m for m in BUILTIN})

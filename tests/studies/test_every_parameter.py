@@ -47,6 +47,10 @@ VALUES: dict[str, dict[str, str]] = {
                  "fill_iterations": "0", "floating_step_mm": "20.0", "floating_rho": "0.07", "plain_rho": "0.0",
                  "evidence_holes": "0.0", "evidence_inconsistent": "1.0", "evidence_ring_valid": "0.0",
                  "a_max": "20.0", "merge_radius_px": "0", "max_groups": "5"},
+    "stereo_uniqueness": {"uniqueness_ratio": "25"},
+    "stereo_lr": {"disp12_max_diff": "0"},
+    "stereo_speckle": {"speckle_window": "400", "speckle_range": "1"},
+    "stereo_texture": {"texture_threshold": "800"},
 }
 #: the sections of methods that run only when the methods list names them: their fields are set with
 #: every method named, and compared with the defaults of that same list
@@ -79,6 +83,12 @@ UNCHANGED: dict[str, str] = {
                               "image centre: preferring the centre chooses the same component",
     "bin_mask.dilate_px": "the synthetic bin's walls have no gap: the closing (dilate, fill the holes, erode back) "
                           "gives the same footprint at any radius",
+    **{f"{section}.{f}": "a stereo post-filter's strength selects one of the masks `zcut record-stereo` recorded "
+                         "(/stereo/rejected/...); this synthetic log holds none, so every strength scores nothing; "
+                         "tests/cli/test_record_stereo_rejected.py checks that accuracy and sweep score the mask "
+                         "each strength names"
+       for section in ("stereo_uniqueness", "stereo_lr", "stereo_speckle", "stereo_texture")
+       for f in VALUES[section]},
     "registration.min_fitness": "the synthetic bin's rim is confirmed everywhere (fitness 1.000): no threshold "
                                 "fails it",
     "removal.check_threshold_px": "the removal leaves no certain bin pixel where the filters judge on this log (the "
