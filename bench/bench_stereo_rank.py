@@ -13,10 +13,13 @@ won), recall per size class of the truth's components and on the detectable subs
 per frame. Two trivial baselines are scored alike: ``zone`` flags every scored pixel; ``edges`` flags
 the depth discontinuities (a pixel with a valid 8-neighbour whose depth differs by more than r · Z,
 r tuned like the others). The matcher's own post-filters (uniqueness ratio, left-right check,
-speckle filter) are scored as methods too: the pixels the plain matcher matched and the
-post-filter invalidates, tuned alike (``sgbm_uniqueness``, ``sgbm_lr_check``, ``sgbm_speckle``; their
-CPU time is the whole matcher's run with the post-filter). The union of the z-cut and the best
-other method, and of the two best, at their tuned sets, are scored too.
+speckle filter) are scored as the methods ``stereo_uniqueness``, ``stereo_lr``, ``stereo_speckle``
+(replay/pipeline/stereo_methods.py): the logs are recorded with ``--reject-axes``, so that every point of
+their default axes is in the log as the pixels the plain matcher matched and the post-filter
+invalidates, and they are tuned alike; their CPU time is a whole matcher run with the post-filter,
+measured here (what recording the mask costs). The union of the z-cut and the best other cloud
+method, of the two best cloud methods, and of the best post-filter with the best cloud method, at
+their tuned sets, are scored too.
 
 The truth is passive stereo matching errors on real images, not a phase-shift structured-light
 camera's: say so wherever its figures are used.
@@ -44,7 +47,10 @@ if not DATA.is_dir():
     DATA = Path(os.environ.get("ZCUT_MIDDLEBURY", DATA))
 TUNE = ("Adirondack", "ArtL", "Motorcycle", "MotorcycleE", "Teddy")
 REPORT = ("Piano", "PianoL", "Playroom", "Playtable", "PlaytableP")
-METHODS = ("zcut", "sor", "radius", "cluster", "speckle", "window", "mixed_pixel")
+METHODS = ("zcut", "sor", "radius", "cluster", "speckle", "window", "mixed_pixel", "stereo_uniqueness", "stereo_lr",
+           "stereo_speckle")
+#: The matcher's post-filters among the methods: their grids are their registry axes, all recorded in the logs.
+POST = ("stereo_uniqueness", "stereo_lr", "stereo_speckle")
 #: The grid of each method: wider than the bank's default axes (studies.bank.default_axes()) — these scenes
 #: are 0.5-3 m deep with points 1-5 mm apart, where the bin-picking defaults sit at the grids' edges.
 AXES: dict[str, dict[str, tuple]] = {
@@ -59,55 +65,41 @@ AXES: dict[str, dict[str, tuple]] = {
 }
 EDGE_AXIS = (0.0025, 0.005, 0.01, 0.02, 0.05, 0.1)
 SIZE_NAMES = ("1px", "2-9px", "10-99px", ">=100px")
-#: The matcher's own post-filters, scored as methods: the pixels the plain matcher matched and the
-#: post-filter invalidates (zcut.stereo.MatcherParams; OpenCV's uniquenessRatio, disp12MaxDiff and
-#: speckle filter).
-POSTFILTERS: dict[str, list[dict]] = {
-    "sgbm_uniqueness": [{"uniqueness_ratio": v} for v in (5, 10, 15, 25)],
-    "sgbm_lr_check": [{"disp12_max_diff": v} for v in (0, 1, 2, 4)],
-    "sgbm_speckle": [{"speckle_window": w, "speckle_range": r} for w in (50, 100, 200, 400) for r in (1, 2, 4)],
-}
-
-
-class PostFilters:
-    """The post-filters' masks of the scenes (frame i of a log = scene i), the plain disparity cached."""
+class MatcherClock:
+    """CPU seconds of one matcher run with a post-filter's settings on scene i (what recording its mask costs)."""
 
     def __init__(self, data: Path, scenes: tuple[str, ...]) -> None:
         self.data, self.scenes = data, scenes
-        self._plain: dict[int, tuple] = {}
+        self._scenes: dict[int, object] = {}
 
-    def _params(self, calib, **kw):
-        from zcut.stereo import MatcherParams
-
-        nd = 128 if calib.ndisp is None else max(16, -(-int(calib.ndisp) // 16) * 16)
-        return MatcherParams(num_disparities=nd, **kw)
-
-    def mask(self, index: int, params: dict) -> tuple[np.ndarray, float]:
+    def seconds(self, index: int, settings: dict) -> float:
         from replay.stereo_scene import load_scene
-        from zcut.stereo import match
+        from zcut.stereo import MatcherParams, match
 
-        if index not in self._plain:
-            sc = load_scene(self.data / self.scenes[index])
-            self._plain[index] = (sc, np.isfinite(match(sc.left, sc.right, self._params(sc.calib))))
-        sc, plain = self._plain[index]
+        if index not in self._scenes:
+            self._scenes[index] = load_scene(self.data / self.scenes[index])
+        sc = self._scenes[index]
+        nd = 128 if sc.calib.ndisp is None else max(16, -(-int(sc.calib.ndisp) // 16) * 16)
         t = time.process_time()
-        kept = np.isfinite(match(sc.left, sc.right, self._params(sc.calib, **params)))
-        return plain & ~kept, time.process_time() - t
+        match(sc.left, sc.right, MatcherParams(num_disparities=nd, **settings))
+        return time.process_time() - t
 
 
 def record(data: Path, scenes: tuple[str, ...], out: Path) -> Path:
     from cli.main import main
 
-    log = out / "stereo.mcap"
+    log = out / "stereo-axes.mcap"
     if not log.exists():
-        rc = main(["record-stereo", *(str(data / s) for s in scenes), "-o", str(log)])
+        rc = main(["record-stereo", *(str(data / s) for s in scenes), "-o", str(log), "--reject-axes"])
         if rc != 0:
             raise SystemExit(f"record-stereo failed ({rc})")
     return log
 
 
 def sets_of(method: str, config) -> list[dict]:
-    axes = AXES.get(method, {})
+    from replay.pipeline.methods import registry
+
+    axes = dict(registry()[method].axes) if method in POST else AXES.get(method, {})
     own = getattr(config, method)
     names = list(axes)
     out = [{}]  # {} = the config's own (default) set
@@ -177,12 +169,11 @@ def run_method(known, m, frame, zone, config, params):
     return mask | zone.easy, time.process_time() - t
 
 
-def run_extra(m: str, frame, params: dict, post: PostFilters) -> tuple[np.ndarray, float]:
-    """A baseline or a matcher post-filter on one frame: (mask, CPU seconds)."""
-    if m == "edges":
-        t0 = time.process_time()
-        return edges(frame.xyz, params["r"]), time.process_time() - t0
-    return post.mask(frame.index, params)
+def run_extra(m: str, frame, params: dict) -> tuple[np.ndarray, float]:
+    """A baseline on one frame: (mask, CPU seconds)."""
+    assert m == "edges"
+    t0 = time.process_time()
+    return edges(frame.xyz, params["r"]), time.process_time() - t0
 
 
 def f1(tp, fp, fn):
@@ -219,9 +210,8 @@ def main(argv=None) -> int:
     config = session.config
     grids = {m: sets_of(m, config) for m in methods}
     grids["edges"] = [{"r": r} for r in EDGE_AXIS]
-    extras = ["edges", *POSTFILTERS]
-    grids.update(POSTFILTERS)
-    post = {"tune": PostFilters(args.data, TUNE), "report": PostFilters(args.data, REPORT)}
+    extras = ["edges"]
+    clock = MatcherClock(args.data, REPORT)
     tune: dict[str, list[list[Scored]]] = {m: [[] for _ in g] for m, g in grids.items()}
     for frame, zone in session.zones():
         s, lab, code, det = frame_truth(frame, zone)
@@ -231,7 +221,7 @@ def main(argv=None) -> int:
                 tune[m][i].append(score(mask, s, lab, code, det, secs))
         for m in extras:
             for i, params in enumerate(grids[m]):
-                mask, secs = run_extra(m, frame, params, post["tune"])
+                mask, secs = run_extra(m, frame, params)
                 tune[m][i].append(score(mask, s, lab, code, det, secs))
         print(f"tuned on frame {frame.index} ({time.process_time():.0f} CPU-s so far)", file=sys.stderr, flush=True)
     best = {}
@@ -252,21 +242,28 @@ def main(argv=None) -> int:
         for m in methods:
             for label, params in (("tuned", best[m][0]), ("default", {})):
                 mask, secs = run_method(known, m, frame, zone, config, params)
+                if m in POST:  # a recorded mask: its cost is the matcher's run with the post-filter
+                    secs = clock.seconds(frame.index, dataclasses.asdict(
+                        dataclasses.replace(getattr(config, m), **params)))
                 rep.setdefault(f"{m}|{label}", []).append(score(mask, s, lab, code, det, secs))
                 if label == "tuned":
                     masks_keep.setdefault(m, []).append(mask)
         for m in extras:
-            mask, secs = run_extra(m, frame, best[m][0], post["report"])
+            mask, secs = run_extra(m, frame, best[m][0])
             rep.setdefault(f"{m}|tuned", []).append(score(mask, s, lab, code, det, secs))
         rep.setdefault("zone|-", []).append(score(s.copy(), s, lab, code, det, 0.0))
-    # unions at the tuned sets: z-cut + the best other, and the two best
-    ranked = sorted((m for m in methods), key=lambda m: -np.nan_to_num(best[m][1], nan=-1))
+    # unions at the tuned sets: z-cut + the best other cloud method, the two best cloud methods, the best
+    # post-filter + the best cloud method
+    ranked = sorted((m for m in methods if m not in POST), key=lambda m: -np.nan_to_num(best[m][1], nan=-1))
     unions = []
     others = [m for m in ranked if m != "zcut"]
     if "zcut" in methods and others:
         unions.append(("zcut", others[0]))
     if len(ranked) >= 2 and tuple(ranked[:2]) not in unions and tuple(ranked[1::-1]) not in unions:
         unions.append(tuple(ranked[:2]))
+    posts = sorted((m for m in methods if m in POST), key=lambda m: -np.nan_to_num(best[m][1], nan=-1))
+    if posts and ranked:
+        unions.append((posts[0], ranked[0]))
     for a, b in unions:
         for i, (s, lab, code, det) in enumerate(truths):
             rep.setdefault(f"{a}+{b}|tuned", []).append(
