@@ -307,6 +307,8 @@ def main(argv=None) -> int:
         params = best[m][0] if label == "tuned" and m in best else {}
         set_txt = label if label != "tuned" else ("tuned " + ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
                                                                        for k, v in params.items())).strip()
+        if label == "tuned" and m in best and not params:
+            set_txt = "tuned (the default set)"
         rows.append([m, set_txt, fmt(P, *ci["precision"][i]), fmt(R, *ci["recall"][i]), fmt(F, *ci["f1"][i]), diff,
                      *size_r, det_r, f"{np.mean([r.secs for r in rep[n]]):.2f}"])
     scored = sum(int(s.sum()) for (s, _, _, _) in truths)
