@@ -9,12 +9,16 @@ import pytest
 from replay.errors import LogFormatError
 from replay.stereo_scene import parse_calib, read_pfm
 from zcut.errors import ParameterError
+from zcut.params import StereoLrParams, StereoSpeckleParams, StereoTextureParams, StereoUniquenessParams
 from zcut.stereo import (
+    POST_FILTERS,
     MatcherParams,
     StereoCalibration,
     depth_tolerance_mm,
     detectable_outliers,
     disparity_to_depth_mm,
+    match,
+    rejected_pixels,
     stereo_truth,
     xyz_from_depth_mm,
 )
@@ -69,6 +73,41 @@ def test_detectable_is_the_neighbours_median_rule():
 def test_matcher_settings_are_checked(kw, message):
     with pytest.raises(ParameterError, match=message):
         MatcherParams(**kw)
+
+
+@pytest.mark.parametrize(("make", "message"), [
+    (lambda: StereoUniquenessParams(uniqueness_ratio=0), "StereoUniquenessParams.uniqueness_ratio must be an integer"),
+    (lambda: StereoLrParams(disp12_max_diff=-1), "StereoLrParams.disp12_max_diff must be an integer >= 0"),
+    (lambda: StereoSpeckleParams(speckle_window=0), "StereoSpeckleParams.speckle_window must be"),
+    (lambda: StereoSpeckleParams(speckle_range=1.5), "StereoSpeckleParams.speckle_range must be an integer"),
+    (lambda: StereoTextureParams(texture_threshold=True), "StereoTextureParams.texture_threshold must be"),
+])
+def test_post_filter_strengths_are_checked(make, message):
+    with pytest.raises(ParameterError, match=message):
+        make()
+
+
+def test_rejected_pixels_are_the_filter_on_run_minus_the_plain_one():
+    rng = np.random.default_rng(3)
+    right = rng.integers(0, 255, size=(40, 96), dtype=np.uint8)
+    left = np.roll(right, 6, axis=1)  # a shift of 6 px: a plane, with a textureless stripe
+    left[:, 50:70] = 128
+    plain = MatcherParams(num_disparities=16)
+    got = rejected_pixels(left, right, plain, StereoUniquenessParams(uniqueness_ratio=30))
+    want = np.isfinite(match(left, right, plain)) & ~np.isfinite(
+        match(left, right, MatcherParams(num_disparities=16, uniqueness_ratio=30)))
+    assert np.array_equal(got, want) and got.any()
+    assert not rejected_pixels(left, right, plain, StereoUniquenessParams(30), matched=np.zeros(got.shape, bool)).any()
+    assert set(POST_FILTERS) == {"stereo_uniqueness", "stereo_lr", "stereo_speckle", "stereo_texture"}
+    with pytest.raises(ParameterError, match="texture threshold is a setting of StereoBM"):
+        rejected_pixels(left, right, plain, StereoTextureParams())
+    with pytest.raises(ParameterError, match="post must be one of"):
+        rejected_pixels(left, right, plain, plain)  # type: ignore[arg-type]
+    bm = MatcherParams(matcher="bm", num_disparities=16, block_size=9)
+    tex = rejected_pixels(left, right, bm, StereoTextureParams(texture_threshold=400))
+    want = np.isfinite(match(left, right, bm)) & ~np.isfinite(
+        match(left, right, MatcherParams(matcher="bm", num_disparities=16, block_size=9, texture_threshold=400)))
+    assert np.array_equal(tex, want) and tex[:, 55:65].any()  # the flat stripe has no texture
 
 
 def test_calibration_is_checked():
