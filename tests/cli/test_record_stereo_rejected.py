@@ -157,6 +157,15 @@ def test_accuracy_of_the_post_filters_equals_an_independent_scorer(log, tmp_path
             pooled = {k: pooled[k] + ind[k] for k in ind}
         assert {k: rep["pooled"][m][k] for k in pooled} == pooled
     assert rep["pooled"]["stereo_uniqueness"]["tp"] > 0
+    # through a results file: the replay writes each method's mask, accuracy scores it without replaying
+    res = tmp_path / "results.mcap"
+    rc, _, err = run_cli(capsys, "replay", log, "--methods", POST + ",zcut", "--out", res)
+    assert rc == 0, err
+    rc, out, err = run_cli(capsys, "accuracy", res, "--json")
+    assert rc == 0, err
+    again = json.loads(out)
+    for m in want:
+        assert {k: again["pooled"][m][k] for k in ("tp", "fp", "fn")} == {k: rep["pooled"][m][k] for k in ("tp", "fp", "fn")}
     # another recorded strength, through the config: its own mask
     cfg = tmp_path / "c.toml"
     cfg.write_text("[stereo_uniqueness]\nuniqueness_ratio = 25\n[stereo_speckle]\nspeckle_window = 400\n"
