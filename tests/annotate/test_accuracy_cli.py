@@ -79,7 +79,8 @@ def test_table_output(spike_log, predictions, capsys):
     results, _ = predictions
     assert main(["accuracy", str(results)]) == 0
     out = capsys.readouterr().out
-    assert "truth: ground truth /ground_truth/outliers; predictions: from /zcut/outliers" in out
+    assert ("truth: the sensor's truth /ground_truth/outliers (the log has no /ground_truth/off_surface); "
+            "predictions: from /zcut/outliers") in out
     assert "pooled over 3 frames" in out and "intersection" in out
 
 
@@ -207,6 +208,8 @@ def test_labels_list_export_import(spike_log, tmp_path, capsys):
     assert "imported 2 label(s)" in capsys.readouterr().out
     a = _json(capsys, ["accuracy", str(log), "--labels", str(db), "--annotator", "ann", "--json"])
     d = _json(capsys, ["accuracy", str(log), "--labels", str(db), "--annotator", "dan", "--json"])
+    # the same figures; the report names whose labels scored it
+    assert a.pop("truth").startswith("labels by ann (") and d.pop("truth").startswith("labels by dan (")
     assert a == d
     assert main(["labels", "export", str(log), "--db", str(db), "-o", str(out)]) == 1
     assert "exists (use --force" in capsys.readouterr().err  # outputs are checked before anything else
