@@ -95,6 +95,27 @@ CLASS_FAMILIES: dict[str, tuple[str, ...]] = {
 
 
 @dataclass(frozen=True, slots=True)
+class Undecided:
+    """How much of a method's verdict fell on pixels the truth left undecided (docs/accuracy.md,
+    "Undecided pixels"): of its ``flagged`` outlier pixels in the region (valid ones), ``undecided``
+    lie outside R — an annotator's labels did not judge them, so they are in no count."""
+
+    undecided: int
+    flagged: int
+
+    def __add__(self, other: Undecided) -> Undecided:
+        return Undecided(self.undecided + other.undecided, self.flagged + other.flagged)
+
+    @property
+    def share(self) -> float:
+        """undecided / flagged (NaN when the method flagged nothing in the region)."""
+        return ratio(self.undecided, self.flagged)
+
+    def as_dict(self) -> dict[str, int | float]:
+        return {"px": self.undecided, "flagged": self.flagged, "share": self.share}
+
+
+@dataclass(frozen=True, slots=True)
 class FrameAccuracy:
     """Accuracy counts of every method on one frame.
 
@@ -117,6 +138,9 @@ class FrameAccuracy:
         Per method, per family of :data:`CLASS_FAMILIES` the frame's truth has (``by_size``
         always, ``detectable`` and ``by_displacement`` where the truth says), the true outlier
         pixels of each class (``n``) and those found; entry ``i`` is the family's class ``i``.
+    undecided : dict[str, Undecided]
+        Per method, its outliers in the region and those of them on pixels the truth left
+        undecided (not reviewed: outside R); only when the caller asked (``--labels``).
     """
 
     index: int
@@ -125,6 +149,7 @@ class FrameAccuracy:
     bin_check: float | None = None
     bin_flagged: bool | None = None
     classes: dict[str, dict[str, KindCounts]] = field(default_factory=dict)
+    undecided: dict[str, Undecided] = field(default_factory=dict)
 
     @property
     def methods(self) -> tuple[str, ...]:
@@ -212,6 +237,7 @@ def frame_accuracy(
     kinds: np.ndarray | None = None,
     detectable: Mask | None = None,
     displacement_mm: np.ndarray | None = None,
+    undecided: bool = False,
 ) -> FrameAccuracy:
     """Count pixels, clusters, singletons, kinds and classes of every method on one frame (docs/accuracy.md).
 
@@ -243,6 +269,9 @@ def frame_accuracy(
     displacement_mm : (H, W) float ndarray, optional
         |Z − Z_GT| (mm) of every pixel (NaN where unknown): adds the ``by_displacement`` classes
         (a true outlier of unknown displacement is in none).
+    undecided : bool
+        Also count, per method, its outliers in the region (and ``valid``) that lie outside R: the
+        pixels the truth left undecided (:class:`Undecided`).
 
     Returns
     -------
@@ -266,7 +295,18 @@ def frame_accuracy(
     codes = truth_classes(scored, detectable=detectable, displacement_mm=displacement_mm)
     classes = {m: {fam: _class_counts(c, preds[m].ravel()[scored.true_index], len(CLASS_FAMILIES[fam]))
                    for fam, c in codes.items()} for m in preds}
-    return FrameAccuracy(index=int(index), stamp_ns=int(stamp_ns), counts=counts, classes=classes)
+    open_ = {}
+    if undecided:
+        judged = np.ones(truth.shape, dtype=bool)
+        for mask, name in ((region, "region"), (valid, "valid")):
+            if mask is not None:
+                judged &= check_mask(mask, name=name, shape=truth.shape)
+        rev = reviewed if reviewed is not None else valid
+        left = judged if rev is None else judged & ~check_mask(rev, name="reviewed", shape=truth.shape)
+        open_ = {m: Undecided(int(np.count_nonzero(p & left)), int(np.count_nonzero(p & judged)))
+                 for m, p in preds.items()}
+    return FrameAccuracy(index=int(index), stamp_ns=int(stamp_ns), counts=counts, classes=classes,
+                         undecided=open_)
 
 
 def truth_classes(scored: ScoredTruth, *, detectable: Mask | None = None,
@@ -397,6 +437,7 @@ def accuracy_report(
     region: str = "valid",
     unscored: Iterable[UnscoredFrame] = (),
     left_out: Mapping[str, tuple[Iterable[int], str]] | None = None,
+    truth: str | None = None,
 ) -> dict[str, Any]:
     """The docs/accuracy.md report object.
 
@@ -440,6 +481,11 @@ def accuracy_report(
         Unknown region name; a frame both scored and unscored; kind truth in some frames only; a
         ``left_out`` method the frames do not hold, or a left-out frame that is not scored, or that
         the method has counts on.
+
+    With ``truth`` (what the frames were scored against, e.g. :data:`annotate.truth.TRUTH_NAMES`'s) the
+    report names it (``"truth"``, after ``"region"``). Where every frame counted its undecided pixels
+    (:func:`frame_accuracy`'s ``undecided``), each method's entry has ``"undecided": {"px", "flagged",
+    "share"}``.
     """
     if region not in REGIONS:
         raise ParameterError(f"region must be one of {', '.join(REGIONS)}, got {region!r}")
@@ -458,16 +504,21 @@ def accuracy_report(
     per_frame = {k: np.array([[getattr(f.counts[m], k) for f in frames] for m in methods], dtype=np.int64)
                  .reshape(len(methods), len(frames)) for k in COUNT_KEYS}
     ci = pooled_interval_many(per_frame["tp"], per_frame["fp"], per_frame["fn"])
+    open_ = ({m: sum((f.undecided[m] for f in frames), Undecided(0, 0)) for m in methods}
+             if frames and all(m in f.undecided for f in frames for m in methods) else {})
     return {
         "region": region,
+        **({"truth": truth} if truth is not None else {}),
         "pooled": {m: {**_entry(pooled[m], {k: ci[k][i].tolist() for k in CI_KEYS}, pooled_cls.get(m)),
+                       **({"undecided": open_[m].as_dict()} if open_ else {}),
                        "frames_scored": len(frames) - len(out_of.get(m, ((), None))[0]),
                        "frames_left_out": list(out_of.get(m, ((), None))[0]),
                        "left_out_reason": out_of.get(m, ((), None))[1]}
                    for i, m in enumerate(methods)},
         "frames": [
-            {"index": f.index, "stamp_ns": f.stamp_ns, **{m: _entry(f.counts[m], None, f.classes.get(m))
-                                                          for m in methods},
+            {"index": f.index, "stamp_ns": f.stamp_ns,
+             **{m: {**_entry(f.counts[m], None, f.classes.get(m)),
+                    **({"undecided": f.undecided[m].as_dict()} if open_ else {})} for m in methods},
              "bin_check": f.bin_check, "bin_flagged": f.bin_flagged}
             for f in frames
         ],
@@ -538,6 +589,8 @@ def _fmt_ci(v: float | None, ci: list[float | None] | None) -> str:
     return f"{_fmt_rate(v)} [{lo:.3f}, {hi:.3f}]"
 
 
+UNDECIDED_LEGEND = ("undecided: share (pixels) of the method's outliers in the region on pixels the labels left "
+                    "undecided, in no count above")
 _FRAME_HEADER = ("tp", "fp", "fn", "prec", "recall", "F1", "IoU", "cl.P", "cl.R", "1px.P", "1px.R")
 _LEGEND = "cl.P, cl.R: cluster (>= 2 px) precision, recall; 1px.P, 1px.R: singleton (1 px) precision, recall"
 _CLUSTER_ROWS = (("cluster precision (>= 2 px)", "cluster_precision"), ("cluster recall", "cluster_recall"),
@@ -592,7 +645,14 @@ def format_accuracy_table(report: dict[str, Any], *, per_frame: bool = True) -> 
              *(_fmt_ci(pooled[m][k], pooled[m].get("ci95", {}).get(k)) for k in CI_KEYS),
              _fmt_rate(pooled[m]["iou"])] for m in METHODS]
     head = ["method", *COUNT_KEYS, "precision [95 %]", "recall [95 %]", "F1 [95 %]", "IoU"]
-    parts.append(f"pooled over {n} frame{'s' if n != 1 else ''} ({note})\n" + _render(head, rows, left=1))
+    open_ = all("undecided" in pooled[m] for m in METHODS)
+    if open_:
+        head.append("undecided")
+        for r, m in zip(rows, METHODS):
+            u = pooled[m]["undecided"]
+            r.append(f"{_fmt_rate(u['share'])} ({u['px']})")
+    parts.append(f"pooled over {n} frame{'s' if n != 1 else ''} ({note})\n" + _render(head, rows, left=1)
+                 + ("\n" + UNDECIDED_LEGEND if open_ else ""))
     rows = [[label, *(_fmt_rate(pooled[m][k]) for m in METHODS)] for label, k in _CLUSTER_ROWS]
     parts.append(_render(["clusters and singletons, pooled", *METHODS], rows, left=1))
     kinds = [k for k in KINDS.values() if any(k in pooled[m].get("by_kind", {}) for m in METHODS)]
@@ -733,6 +793,11 @@ class AccuracyOptions:
         Also score the labelling assistant's newest model in this store (default: the ``labels`` store's, if any).
     by_displacement : bool
         Also give recall by displacement |Z - Z_GT| (a log with ``/ground_truth/depth``).
+    truth : {"paper", "sensor"} or None
+        Which recorded truth scores the log (docs/accuracy.md, "Two truths"): None (the default) the
+        paper's ``/ground_truth/off_surface`` where the log has it, else the sensor's
+        ``/ground_truth/outliers`` (the report says so); a truth asked for that the log lacks is an
+        error. Not with ``labels``.
     pipeline : PipelineOptions
         The config, its overrides, the topic and the bin model.
     """
@@ -744,6 +809,7 @@ class AccuracyOptions:
     region: str = "zone"
     learned: Path | None = None
     by_displacement: bool = False
+    truth: str | None = None
     pipeline: PipelineOptions = PipelineOptions()
 
 
@@ -802,11 +868,15 @@ def run(options: AccuracyOptions) -> AccuracyResult | AgreementResult:
     """The true accuracy of the methods on ``options.log`` (or, with ``agreement``, two annotators'
     agreement). A frame whose bin check failed is named in a warning on stderr, as is a session
     without a bin model. Raises :class:`~zcut.errors.ZcutError` when nothing can be scored."""
-    from annotate.truth import check_region
+    from annotate.truth import check_region, check_truth
 
     if not options.log.is_file():
         raise FileNotFoundError(2, "no such file", str(options.log))
     check_region(options.region)
+    check_truth(options.truth)
+    if options.truth is not None and (options.labels is not None or options.agreement):
+        raise ParameterError(f"--truth {options.truth} scores against the log's recorded truth, --labels against "
+                             "an annotator's: give one")
     if options.agreement and options.labels is None:
         raise ParameterError("--agreement needs --labels DB")
     if options.labels is not None and not options.labels.is_file():
@@ -818,7 +888,7 @@ def run(options: AccuracyOptions) -> AccuracyResult | AgreementResult:
 
 
 def _accuracy(options: AccuracyOptions, overrides: dict[str, Any]) -> AccuracyResult:
-    from annotate.truth import LabelTruth, SyntheticTruth
+    from annotate.truth import LabelTruth, SyntheticTruth, synthetic_truth
     from replay.logs import layout
     from replay.logs.reader import LogReader
     from replay.pipeline.methods import base_methods
@@ -826,14 +896,17 @@ def _accuracy(options: AccuracyOptions, overrides: dict[str, Any]) -> AccuracyRe
 
     log = options.log
     reader = LogReader(log, cloud_topic=options.pipeline.topic, cloudless=True)
-    truth_src = (LabelTruth(options.labels, log, annotator=options.annotator) if options.labels
-                 else SyntheticTruth(with_kinds=layout.TRUTH_OUTLIER_KIND in reader.mask_topics,
-                                     with_unknown=layout.TRUTH_UNKNOWN in reader.mask_topics))
+    truth_src: LabelTruth | SyntheticTruth
+    if options.labels:
+        truth_src = LabelTruth(options.labels, log, annotator=options.annotator)
+    else:
+        found = synthetic_truth(options.truth, reader.mask_topics, log)
+        if found is None:
+            raise ZcutError(f"{log} has no {layout.TRUTH_OUTLIERS}: give human labels with --labels DB")
+        truth_src = found
     try:
         is_results = layout.ZCUT_OUTLIERS in reader.mask_topics
         methods = _results_methods(reader, options) if is_results else None
-        if options.labels is None and layout.TRUTH_OUTLIERS not in reader.mask_topics:
-            raise ZcutError(f"{log} has no {layout.TRUTH_OUTLIERS}: give human labels with --labels DB")
         session = None
         stream: Any  # the pass over the log (its damage)
         frames: Iterable[tuple[Any, Any]]
@@ -853,11 +926,12 @@ def _accuracy(options: AccuracyOptions, overrides: dict[str, Any]) -> AccuracyRe
         results, unscored, learned_seen = _score_frames(options, frames, truth_src, methods, session, learned)
         if not results:
             what = (f"no frame of {log} is labelled by {truth_src.annotator!r} in {options.labels}"
-                    if isinstance(truth_src, LabelTruth) else f"no frame of {log} has {layout.TRUTH_OUTLIERS}")
+                    if isinstance(truth_src, LabelTruth) else f"no frame of {log} has {truth_src.topic}")
             raise ZcutError(what)
         left_out = ({"learned": (learned_seen, "the assistant's model was trained on these frames")}
                     if learned is not None else None)
-        report = accuracy_report(results, region=options.region, unscored=unscored, left_out=left_out)
+        report = accuracy_report(results, region=options.region, unscored=unscored, left_out=left_out,
+                                 truth=truth_src.name)
         if session is not None:
             pred = "computed by the pipeline"
         else:
@@ -902,9 +976,10 @@ def _score_frames(options: AccuracyOptions, frames: Iterable[tuple[Any, Any]], t
             unscored.append(UnscoredFrame(frame.index, frame.stamp_ns, t))
             continue
         shift = _displacement_mm(options.log, frame) if options.by_displacement else None
+        open_ = options.labels is not None  # how much of each verdict the labels left undecided
         fa = frame_accuracy(frame.index, frame.stamp_ns, preds, t.outliers, reviewed=t.reviewed,
                             valid=valid, region=region, kinds=t.kind, detectable=t.detectable,
-                            displacement_mm=shift)
+                            displacement_mm=shift, undecided=open_)
         if r is not None:  # the bin check of the frame (a results file does not carry it)
             check = r.bin_check
             fa = dataclasses.replace(fa, bin_check=None if check is None else float(check.value),
@@ -925,9 +1000,10 @@ def _score_frames(options: AccuracyOptions, frames: Iterable[tuple[Any, Any]], t
             fb = frame_accuracy(frame.index, frame.stamp_ns, {"learned": learned_mask(learned, frame, r,
                                 config=session.config)}, t.outliers, reviewed=t.reviewed, valid=valid,
                                 region=region & (not seen), kinds=t.kind, detectable=t.detectable,
-                                displacement_mm=shift)
+                                displacement_mm=shift, undecided=open_)
             fa.counts.update(fb.counts)
             fa.classes.update(fb.classes)
+            fa.undecided.update(fb.undecided)
         results.append(fa)
     return results, unscored, learned_seen
 

@@ -4,9 +4,12 @@ region, and the kind of every true outlier where the truth says it.
 Two sources of truth, one interface (:meth:`TruthSource.truth` -> :class:`FrameTruth`, or a string
 saying why the frame is unscored):
 
-- :class:`SyntheticTruth`: a log's recorded ``/ground_truth/outliers`` (R = the valid pixels minus
-  ``/ground_truth/unknown``, the pixels whose truth cannot be judged), ``/ground_truth/outlier_kind``
-  and ``/ground_truth/detectable``;
+- :class:`SyntheticTruth`: a log's recorded truth, one of :data:`TRUTHS` (docs/accuracy.md, "Two
+  truths"): the paper's ``/ground_truth/off_surface`` (the points farther than 3 × Err from every true
+  surface) or the sensor's ``/ground_truth/outliers`` with its ``/ground_truth/outlier_kind`` and
+  ``/ground_truth/detectable``; R = the valid pixels minus ``/ground_truth/unknown`` (the pixels whose
+  truth cannot be judged). :func:`truth_of_log` chooses between them: the paper's where the log has
+  it, else the sensor's (stereo logs, older synthetic logs), unless the caller asks for one;
 - :class:`LabelTruth`: an annotator's labels in a label store (``--labels DB``), matched to the frame
   by the log's content hash, the cloud topic and the stamp.
 
@@ -18,7 +21,7 @@ through this module, so they score alike.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -34,6 +37,13 @@ if TYPE_CHECKING:
     from replay.pipeline.stages import FrameResult
 
 REGIONS = ("zone", "valid")
+#: The recorded truths a log may be scored against (docs/accuracy.md, "Two truths"): name -> its topic.
+TRUTHS: dict[str, str] = {"paper": layout.TRUTH_OFF_SURFACE, "sensor": layout.TRUTH_OUTLIERS}
+#: What each truth is, for the reports.
+TRUTH_NAMES: dict[str, str] = {
+    "paper": f"the paper's truth {layout.TRUTH_OFF_SURFACE} (farther than 3 Err from every true surface)",
+    "sensor": f"the sensor's truth {layout.TRUTH_OUTLIERS}",
+}
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,7 +59,7 @@ class FrameTruth:
     kind : (H, W) uint8 ndarray or None
         ``/ground_truth/outlier_kind`` codes where the truth has them.
     source : str
-        What the truth is, for the tables ("ground truth /ground_truth/outliers", "labels by alice").
+        What the truth is, for the tables ("the paper's truth /ground_truth/off_surface (...)", "labels by alice").
     detectable : (H, W) bool ndarray or None
         ``/ground_truth/detectable`` (inside ``outliers``) where the truth has it.
     """
@@ -65,6 +75,57 @@ def check_region(name: str) -> str:
     if name not in REGIONS:
         raise ParameterError(f"--region must be one of {', '.join(REGIONS)}, got {name!r}")
     return name
+
+
+def check_truth(name: str | None) -> str | None:
+    """``name`` when it is one of :data:`TRUTHS` or None (the default: the paper's where the log has it)."""
+    if name is not None and name not in TRUTHS:
+        raise ParameterError(f"--truth must be one of {', '.join(TRUTHS)}, got {name!r}")
+    return name
+
+
+def truth_of_log(requested: str | None, mask_topics: Collection[str], log: str | os.PathLike[str]) -> str | None:
+    """Which recorded truth scores ``log`` (docs/accuracy.md, "Two truths"): ``"paper"`` or ``"sensor"``,
+    None when the log has neither topic (the caller says what to do then).
+
+    Parameters
+    ----------
+    requested : {"paper", "sensor"} or None
+        What was asked for; None: the paper's truth where the log has ``/ground_truth/off_surface``,
+        else the sensor's ``/ground_truth/outliers`` (stereo logs, older synthetic logs).
+    mask_topics : collection of str
+        The log's mask topics (``LogReader.mask_topics``).
+    log : path
+        The log, named in the error.
+
+    Raises
+    ------
+    ParameterError
+        A truth asked for that the log does not have (one line naming the log and the topic).
+    """
+    check_truth(requested)
+    if requested is None:
+        held = [name for name, topic in TRUTHS.items() if topic in mask_topics]
+        return held[0] if held else None
+    if TRUTHS[requested] not in mask_topics:
+        other = next(n for n in TRUTHS if n != requested)
+        hint = (f": score it with --truth {other}" if TRUTHS[other] in mask_topics
+                else ": give human labels with --labels DB")
+        raise ParameterError(f"{log} has no {TRUTHS[requested]} (--truth {requested}){hint}")
+    return requested
+
+
+def synthetic_truth(requested: str | None, mask_topics: Collection[str], log: str | os.PathLike[str], *,
+                    with_kinds: bool = True) -> SyntheticTruth | None:
+    """The :class:`SyntheticTruth` of a log (:func:`truth_of_log` chooses which), None when the log has
+    no recorded truth. ``with_kinds``: a frame without its kind image is unscored where the log has
+    kinds (the sensor's truth only; the paper's has no kinds)."""
+    chosen = truth_of_log(requested, mask_topics, log)
+    if chosen is None:
+        return None
+    return SyntheticTruth(chosen, with_kinds=with_kinds and layout.TRUTH_OUTLIER_KIND in mask_topics,
+                          with_unknown=layout.TRUTH_UNKNOWN in mask_topics,
+                          fallback=requested is None and chosen != "paper")
 
 
 def scored_region(result: FrameResult, name: str) -> np.ndarray:
@@ -100,28 +161,45 @@ def region_of_results_frame(frame: Frame, name: str) -> np.ndarray:
 class SyntheticTruth:
     """A log's recorded truth (synthetic, or ``zcut record-stereo``'s): R = valid minus
     ``/ground_truth/unknown`` (when the log has it: pixels whose truth cannot be judged, docs/accuracy.md),
-    L = ``/ground_truth/outliers`` ∩ R.
+    L = the truth's topic ∩ R.
 
     Parameters
     ----------
+    truth : {"sensor", "paper"}
+        Which of :data:`TRUTHS`: the sensor's ``/ground_truth/outliers`` (with its kinds and
+        ``/ground_truth/detectable``) or the paper's ``/ground_truth/off_surface`` (no kinds: those
+        say what made a sensor's outlier).
     with_kinds : bool
         The log has ``/ground_truth/outlier_kind``: a frame without its kind image is unscored (the
-        report's per-kind recall needs every frame's kinds).
+        report's per-kind recall needs every frame's kinds). The sensor's truth only.
     with_unknown : bool
         The log has ``/ground_truth/unknown``: a frame without its unknown mask is unscored (its
         unjudgeable pixels would be scored).
+    fallback : bool
+        The sensor's truth stands in for the paper's, which the log lacks (its name says so).
     """
 
-    name = f"ground truth {layout.TRUTH_OUTLIERS}"
-
-    def __init__(self, *, with_kinds: bool = False, with_unknown: bool = False) -> None:
-        self.with_kinds = with_kinds
+    def __init__(self, truth: str = "sensor", *, with_kinds: bool = False, with_unknown: bool = False,
+                 fallback: bool = False) -> None:
+        if truth not in TRUTHS:
+            raise ParameterError(f"truth must be one of {', '.join(TRUTHS)}, got {truth!r}")
+        self.choice = truth
+        self.topic = TRUTHS[truth]
+        self.with_kinds = with_kinds and truth == "sensor"
         self.with_unknown = with_unknown
+        self.fallback = fallback
+        self.name = TRUTH_NAMES[truth] + (f" (the log has no {layout.TRUTH_OFF_SURFACE})" if fallback else "")
 
     def truth(self, frame: Frame, valid: np.ndarray) -> FrameTruth | str:
-        gt = frame.masks.get(layout.TRUTH_OUTLIERS)
+        gt = frame.masks.get(self.topic)
         if gt is None:
-            return f"no {layout.TRUTH_OUTLIERS} message with this frame"
+            return f"no {self.topic} message with this frame"
+        if self.choice == "paper":  # no kinds, no detectable: they describe the sensor's truth
+            unknown = frame.masks.get(layout.TRUTH_UNKNOWN)
+            if unknown is None and self.with_unknown:
+                return f"no {layout.TRUTH_UNKNOWN} message with this frame"
+            reviewed = valid if unknown is None else valid & ~unknown
+            return FrameTruth(gt & reviewed, reviewed, None, self.name)
         kind = frame.codes.get(layout.TRUTH_OUTLIER_KIND)
         if kind is None and self.with_kinds:
             return f"no {layout.TRUTH_OUTLIER_KIND} message with this frame"
@@ -172,6 +250,7 @@ class LabelTruth:
                                  f"({', '.join(known) or 'none'}): choose one with --annotator")
         self.annotator = annotator
         self.name = f"labels by {annotator} ({self.db})"
+        self.choice = "labels"
 
     def record(self, frame: Frame) -> FrameRecord | None:
         """The store's frame record for a log frame: by (log, topic, stamp), else by a unique stamp."""

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from studies.driver import LogPlan, StudyOptions
-from studies.summary import BatchLog, BatchSummary, RunCost, Scores, Totals, intervals
+from studies.summary import BatchLog, BatchSummary, RunCost, Scores, Totals, intervals, truth_summary, truths_by_log
 from studies.work import COUNT_COLUMNS, UnitResult
 
 if TYPE_CHECKING:
@@ -81,6 +81,9 @@ def summary(plans: list[LogPlan], store: PartStore, table: Any, results: list[Un
     for r in results:
         if r.error is not None:
             by_log[r.unit.sha256]["errors"].append(f"frames {r.unit.start}-{r.unit.stop or 'end'}: {r.error}")
+    truths = truths_by_log(table)  # which truth scored each log (docs/accuracy.md, "Two truths")
+    for sha, e in by_log.items():
+        e["truth"] = truths.get(sha)
     logs = tuple(BatchLog(**{**e, "damage": tuple(e["damage"]), "errors": tuple(e["errors"])})
                  for e in sorted(by_log.values(), key=lambda e: e["log"]))
     sums = {c: int(sum(table.column(c).to_pylist())) if table.num_rows else 0
@@ -95,7 +98,7 @@ def summary(plans: list[LogPlan], store: PartStore, table: Any, results: list[Un
     cpu = sum(r.cpu_seconds for r in this_run)
     return BatchSummary(
         totals=Totals(logs=len(plans), frames=int(table.num_rows), **sums),
-        region=region, pooled=pooled(table), logs=logs,
+        region=region, pooled=pooled(table), logs=logs, truth=truth_summary(truths) or None,
         data_loss=any(lg.damage or lg.errors for lg in logs),
         this_run=RunCost(frames=frames_now, seconds=seconds, frames_per_s=frames_now / seconds if seconds else None,
                          cpu_seconds_per_frame=cpu / frames_now if frames_now else None,
@@ -215,6 +218,11 @@ def _run_units(options: BatchOptions, stack: ExitStack, overrides: dict[str, Any
                           frames_per_unit=options.frames_per_unit, whole=options.results or options.rrd,
                           progress=planning, bin_model=pipe.bin_model)
         check_labels(options.labels, options.annotator, plans)  # as zcut accuracy: before any work
+        if options.truth is not None:  # the truth asked for is in every log, before any work
+            from studies.sweep_run import check_truth
+
+            check_truth([str(p.path) for p in plans if p.units], labels=options.labels, topic=pipe.topic,
+                        truth=options.truth)
         ident = study_options(options, overrides) | {"results": options.results, "rrd": options.rrd}
         if options.results_cloud:  # only then: a study begun before the option keeps its identity
             ident["results_cloud"] = True

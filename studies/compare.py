@@ -113,7 +113,10 @@ class CompareOptions:
         Each a config file, a method name or a results file (:func:`side_spec`).
     out : Path
         Output folder (created).
-    labels, annotator : truth from an annotator's labels (default: the synthetic truth)
+    labels, annotator : truth from an annotator's labels (default: the log's recorded truth)
+    truth : {"paper", "sensor"} or None
+        The log's recorded truth to score against (docs/accuracy.md, "Two truths"; None: the paper's
+        where the log has it, else the sensor's); not with ``labels``.
     region : {"zone", "valid"}
     bin_model, topic : as ``zcut replay``'s
     frames : (start, stop)
@@ -138,6 +141,7 @@ class CompareOptions:
     force: bool = False
     rrd: bool = True
     report: bool = True
+    truth: str | None = None
     level: float = 0.95
 
 
@@ -466,14 +470,11 @@ def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, ent
 
 # ------------------------------------------------------------------------------------ one frame
 def _truth_source(opts: CompareOptions, log: Path, reader_topics: tuple[str, ...]) -> Any:
-    from annotate.truth import LabelTruth, SyntheticTruth
-    from replay.logs import layout
+    from annotate.truth import LabelTruth, synthetic_truth
 
     if opts.labels is not None:
         return LabelTruth(opts.labels, log, annotator=opts.annotator)
-    if layout.TRUTH_OUTLIERS not in reader_topics:
-        return None
-    return SyntheticTruth(with_kinds=layout.TRUTH_OUTLIER_KIND in reader_topics)
+    return synthetic_truth(opts.truth, reader_topics, log)
 
 
 def pixel_footprint_mm2(xyz: np.ndarray, intrinsics: Any) -> np.ndarray | None:
@@ -692,17 +693,24 @@ def run(opts: CompareOptions) -> CompareResult:
     CompareError, ConfigError, OutputError, LogFormatError
         Bad input, one line each; nothing is written then.
     """
-    from annotate.truth import check_region
+    from annotate.truth import check_region, check_truth, truth_of_log
     from replay.logs.reader import LogReader
     from replay.outputs import OutputPlan
 
     t_wall, t_cpu = time.perf_counter(), time.process_time()
     check_region(opts.region)
+    check_truth(opts.truth)
     if not opts.logs:
         raise CompareError("no log given")
     for p in (*opts.logs, *(x for x in (opts.labels, opts.bin_model) if x is not None)):
         if not Path(p).is_file():
             raise FileNotFoundError(2, "no such file", str(p))
+    if opts.truth is not None:  # the truth asked for is in every log, before anything is written
+        if opts.labels is not None:
+            raise CompareError(f"--truth {opts.truth} scores against the log's recorded truth, --labels against "
+                               "an annotator's: give one")
+        for p in opts.logs:
+            truth_of_log(opts.truth, LogReader(p, cloud_topic=opts.topic).mask_topics, p)
     spec_a, spec_b = side_spec(opts.a, label="A"), side_spec(opts.b, label="B")
     out = Path(opts.out)
     if out.exists() and not out.is_dir():

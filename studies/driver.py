@@ -51,6 +51,9 @@ class StudyOptions:
         Score against this annotator's labels in this label store (default: the logs' synthetic truth).
     region : {"zone", "valid"}
         The scored region.
+    truth : {"paper", "sensor"} or None
+        The logs' recorded truth to score against (docs/accuracy.md, "Two truths"); None: the paper's
+        where a log has it, else the sensor's.
     workers : int or None
         Local processes (None: the cores; 0: this process, one unit after another).
     ray : str or None
@@ -67,6 +70,7 @@ class StudyOptions:
     labels: str | None = None
     annotator: str | None = None
     region: str = "zone"
+    truth: str | None = None
     workers: int | None = None
     ray: str | None = None
     frames_per_unit: int  # each study's own default
@@ -197,7 +201,9 @@ def study_options(options: StudyOptions, overrides: dict[str, Any]) -> dict[str,
     pipe = options.pipeline
     return {"config_sha256": file_identity(pipe.config), "overrides": overrides,
             "bin_model_sha256": file_identity(pipe.bin_model), "topic": pipe.topic, "labels": options.labels,
-            "annotator": options.annotator, "region": options.region, "frames_per_unit": options.frames_per_unit}
+            "annotator": options.annotator, "region": options.region, "frames_per_unit": options.frames_per_unit,
+            # the truth's choice (a study begun before it scored the sensor's truth: "sensor" keeps its identity)
+            **({"truth": options.truth or "paper"} if options.labels is None and options.truth != "sensor" else {})}
 
 
 def study_job(options: StudyOptions, overrides: dict[str, Any], plans: list[LogPlan],
@@ -207,7 +213,8 @@ def study_job(options: StudyOptions, overrides: dict[str, Any], plans: list[LogP
     pipe = options.pipeline
     return Job(config_file=absolute(pipe.config), overrides=overrides, bin_model=absolute(pipe.bin_model),
                topic=pipe.topic, labels=absolute(options.labels), annotator=options.annotator,
-               region=options.region, configs={p.sha256: p.resolved for p in plans if p.units}, extra=extra)
+               region=options.region, configs={p.sha256: p.resolved for p in plans if p.units}, extra=extra,
+               truth=options.truth)
 
 
 def start_units(plans: list[LogPlan], store: PartStore, *, what: str, executor: Executor,

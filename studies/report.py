@@ -25,7 +25,7 @@ from studies.findings import Finding, findings, fmt_num, param_text
 from studies.plots import BANK_PLOT_NAMES, PLOT_NAMES, Plot, make_plots
 from studies.setgrid import SetGrid, as_summary, same_set
 from studies.setgrid import key as _key
-from studies.summary import ParamSet, Sensitivities, SweepSummary
+from studies.summary import ParamSet, Sensitivities, SweepSummary, truth_text
 
 __all__ = ["PLOTS_DIR", "PLOT_NAMES", "REPORT_NAME", "page_context", "render_html", "write_report"]
 
@@ -40,7 +40,8 @@ SECTIONS = (("swept", "What was swept"), ("best", "Best parameter sets"),
             ("notes", "Notes and warnings"), ("reproduce", "How to reproduce"))
 _REGIONS = {"zone": "zone: the pixels the filters judge (valid pixels minus table and bin, plus the above-the-rim "
                     "points)", "valid": "valid: every valid pixel"}
-_TRUTHS = {"synthetic": "synthetic ground truth (/ground_truth/outliers)", "labels": "human labels (--labels)"}
+#: the lead's words for a truth ("scored against {them} truth")
+_LEAD_TRUTHS = {"paper": "the paper's", "sensor": "the sensor's", "paper, sensor": "the paper's (else the sensor's)"}
 _AXES = ("step_mm", "max_depth_mm", "rho_thr", "sor_k", "sor_std_ratio")
 
 
@@ -95,7 +96,7 @@ def _inside_ranges(e: ParamSet, ranges: dict[str, tuple[float, float]] | None) -
 def _lead(g: SetGrid) -> dict[str, Any]:
     s = g.summary
     tuned, nominal = s.tuned.zcut, s.nominal
-    return {"logs": len(s.logs), "frames": s.frames, "truth": s.truth, "region": s.region, "n_zcut": len(g.zsets),
+    return {"logs": len(s.logs), "frames": s.frames, "truth": _LEAD_TRUTHS.get(s.truth, s.truth), "region": s.region, "n_zcut": len(g.zsets),
             "n_sor": len(g.ssets),
             "tuned_f1": f"{fmt_num(tuned.f1)} {_ci_text(tuned)}" if tuned is not None else None,
             "nominal_f1": f"{fmt_num(nominal.f1)} {_ci_text(nominal)}" if nominal is not None else None}
@@ -114,11 +115,13 @@ def _swept(g: SetGrid) -> dict[str, Any]:
         axes.append({"key": k, "n": len(values), "cells": [(param_text(v), _key(v) == c) for v in values],
                      "chosen": param_text(chosen.get(k)),
                      "range": "—" if not r else f"{param_text(r[0])} … {param_text(r[1])}"})
-    return {"frames": s.frames, "truth": _TRUTHS.get(s.truth, s.truth), "region": _REGIONS.get(s.region, s.region),
+    return {"frames": s.frames, "truth": truth_text(s.truth), "region": _REGIONS.get(s.region, s.region),
             "objective": s.objective, "n_zcut": len(g.zsets), "n_sor": len(g.ssets), "sor_enabled": g.sor_enabled,
             "seconds": round(float(s.seconds), 1) if s.seconds is not None else None,
             "a_max": f"{g.a_max:.1f}" if g.a_max is not None else None,
-            "logs": [{"log": lg.log, "sha256": str(lg.sha256 or "")[:12], "status": lg.error or "ok"} for lg in s.logs],
+            "logs": [{"log": lg.log, "sha256": str(lg.sha256 or "")[:12],
+                      "status": lg.error or ("ok" if lg.truth is None or lg.truth == s.truth
+                                             else f"ok; scored against {truth_text(lg.truth)}")} for lg in s.logs],
             "axes": axes, "study_points": bool(grid.get("study_points", True))}
 
 

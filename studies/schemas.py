@@ -43,7 +43,7 @@ def frames_columns(methods: Sequence[str], others: Sequence[str] = ()) -> tuple[
         *FRAMES_HEAD,
         *((m, "int64") for m in others),
         *((f"t_{s}_s", "double") for s in (*STAGE_COLUMNS, *others)),
-        ("warnings", "string"), ("scored", "bool"),
+        ("warnings", "string"), ("scored", "bool"), ("truth", "string"),
         *((f"{m}_{k}", "int64") for m in methods for k in ("tp", "fp", "fn")),
     )
 
@@ -51,7 +51,8 @@ def frames_columns(methods: Sequence[str], others: Sequence[str] = ()) -> tuple[
 # --------------------------------------------------------------------------- sweep.parquet
 #: the columns of ``sweep.parquet`` (:func:`studies.sweep.sweep_frame`): one row per log × frame ×
 #: parameter set × method; a z-cut row's parameters, SOR's, the counts over the scored region, the
-#: filter bank's columns (``params``, ``kind_tp`` and ``kind_n`` JSON text) and the frame's bin check
+#: filter bank's columns (``params``, ``kind_tp`` and ``kind_n`` JSON text), the frame's bin check and
+#: the truth it was scored against (``paper``, ``sensor`` or ``labels``: docs/accuracy.md, "Two truths")
 SWEEP_COLUMNS: tuple[Column, ...] = (
     ("log", "string"), ("log_sha256", "string"), ("frame", "int64"), ("stamp_ns", "int64"), ("method", "string"),
     ("step_mm", "double"), ("max_depth_mm", "double"), ("rho_thr", "double"), ("max_area_px", "double"),
@@ -59,7 +60,7 @@ SWEEP_COLUMNS: tuple[Column, ...] = (
     ("tp", "int64"), ("fp", "int64"), ("fn", "int64"), ("n_pred", "int64"),
     ("n_both", "int64"), ("n_sor_only", "int64"), ("n_zcut_only", "int64"),
     ("params", "string"), ("seconds", "double"), ("part", "string"), ("kind_tp", "string"), ("kind_n", "string"),
-    ("bin_check", "double"), ("bin_flagged", "bool"),
+    ("bin_check", "double"), ("bin_flagged", "bool"), ("truth", "string"),
 )
 
 # --------------------------------------------------------------------------- compare's summary.parquet

@@ -232,11 +232,51 @@ def _sensitivities(d: Any) -> Sensitivities | None:
 # ------------------------------------------------------------------------------------ a sweep's summary
 @dataclass(frozen=True, slots=True)
 class SweepLog:
-    """An input log of a sweep: its path, content hash and why it was left out (None: used)."""
+    """An input log of a sweep: its path, content hash, why it was left out (None: used) and the truth
+    its frames were scored against (``paper``, ``sensor``, ``labels``; None: no frame scored)."""
 
     log: str
     sha256: str | None
     error: str | None
+    truth: str | None = None
+
+
+def truths_by_log(table: Any) -> dict[str, str]:
+    """Per log (content hash), the truth its scored rows were scored against (``paper``, ``sensor``,
+    ``labels``; docs/accuracy.md, "Two truths"), from a study table's ``truth`` column."""
+    if not table.num_rows or "truth" not in table.column_names:
+        return {}
+    seen: dict[str, set[str]] = {}
+    for sha, t in zip(table.column("log_sha256").to_pylist(), table.column("truth").to_pylist()):
+        if t is not None:
+            seen.setdefault(sha, set()).add(t)
+    return {sha: ", ".join(sorted(ts)) for sha, ts in seen.items()}
+
+
+#: What each truth of a study's summary is, in words (``synthetic``: summaries written before the paper's truth).
+TRUTH_TEXT: dict[str, str] = {
+    "paper": "the paper's truth (/ground_truth/off_surface: farther than 3 Err from every true surface)",
+    "sensor": "the sensor's truth (/ground_truth/outliers)",
+    "labels": "human labels (--labels)",
+    "synthetic": "synthetic ground truth (/ground_truth/outliers)",
+}
+
+
+def truth_text(truth: str | None) -> str:
+    """A study's truth (:func:`truth_summary`) in words: ``paper, sensor`` says that logs without the
+    paper's truth were scored against the sensor's."""
+    if not truth:
+        return "no truth"
+    names = truth.split(", ")
+    if set(names) == {"paper", "sensor"}:
+        return f"{TRUTH_TEXT['paper']}; the sensor's (/ground_truth/outliers) for the logs without it"
+    return "; ".join(TRUTH_TEXT.get(n, n) for n in names)
+
+
+def truth_summary(by_log: dict[str, str]) -> str:
+    """The truth of a study as a whole: ``paper``, ``sensor`` or ``labels`` when every log was scored
+    against the same one, else the ones met joined (``paper, sensor``: some logs lack the paper's)."""
+    return ", ".join(sorted({t for v in by_log.values() for t in v.split(", ")}))
 
 
 @dataclass(frozen=True, slots=True)
@@ -287,7 +327,8 @@ class SweepSummary:
         Frames scored.
     region, objective, truth : str
         The scored region (``zone`` or ``valid``), the objective (``f1``, ``recall@precision=P``...),
-        the truth (``synthetic`` or ``labels``).
+        the truth (:func:`truth_summary`: ``paper``, ``sensor``, ``labels``, or ``paper, sensor`` when
+        some logs lack the paper's; ``synthetic`` in summaries written before the paper's truth).
     grid : Grid or None
         The axes and the chosen point (the config's own).
     config : str
@@ -349,7 +390,7 @@ class SweepSummary:
     def to_json(self) -> Json:
         """The ``summary.json`` object (keys and values as ``docs/studies.md`` describes them)."""
         d: Json = {
-            "logs": [{"log": lg.log, "sha256": lg.sha256, "error": lg.error} for lg in self.logs],
+            "logs": [{"log": lg.log, "sha256": lg.sha256, "error": lg.error, "truth": lg.truth} for lg in self.logs],
             "frames": self.frames, "region": self.region, "objective": self.objective, "truth": self.truth,
             "grid": self.grid.as_dict() if self.grid is not None else None, "config": self.config,
             "notes": list(self.notes), "sets": [s.to_json() for s in self.sets], "tuned": self._tuned_json(),
@@ -390,7 +431,7 @@ class SweepSummary:
         sens = _dict(d.get("sensitivity"))
         seconds = d.get("seconds")
         return cls(
-            logs=tuple(SweepLog(str(lg.get("log")), lg.get("sha256"), lg.get("error"))
+            logs=tuple(SweepLog(str(lg.get("log")), lg.get("sha256"), lg.get("error"), lg.get("truth"))
                        for lg in d.get("logs") or [] if isinstance(lg, dict)),
             frames=int(d.get("frames") or 0), region=str(d.get("region") or "zone"),
             objective=str(d.get("objective") or "f1"), truth=str(d.get("truth") or ""),
@@ -474,7 +515,8 @@ class Scores:
 @dataclass(frozen=True, slots=True)
 class BatchLog:
     """One log of a batch: frames done, frames lost (``damage``), frames without truth (``unscored``),
-    units or the log that failed (``errors``). ``frames_in_log`` and ``notes`` (how its config was
+    units or the log that failed (``errors``), the truth its frames were scored against (``truth``:
+    ``paper``, ``sensor``, ``labels``; None when none was). ``frames_in_log`` and ``notes`` (how its config was
     resolved) are known for the logs planned in this run (``planned``)."""
 
     log: str
@@ -486,12 +528,14 @@ class BatchLog:
     frames_in_log: int | None = None
     notes: tuple[str, ...] = ()
     planned: bool = True
+    truth: str | None = None
 
     def to_json(self) -> Json:
         d: Json = {"log": self.log, "sha256": self.sha256}
         if self.planned:
             d["frames_in_log"] = self.frames_in_log
-        d.update(frames=self.frames, damage=list(self.damage), unscored=self.unscored, errors=list(self.errors))
+        d.update(frames=self.frames, damage=list(self.damage), unscored=self.unscored, errors=list(self.errors),
+                 truth=self.truth)
         if self.planned:
             d["notes"] = list(self.notes)
         return d
@@ -517,7 +561,8 @@ class RunCost:
 @dataclass(frozen=True, slots=True)
 class BatchSummary:
     """What ``zcut batch`` did (``DIR/summary.json``): totals, pooled accuracy per method over
-    ``region`` (empty without truth), the logs, whether data was lost, this run's cost."""
+    ``region`` (empty without truth) against ``truth`` (:func:`truth_summary`; None without truth),
+    the logs, whether data was lost, this run's cost."""
 
     totals: Totals
     region: str | None
@@ -525,11 +570,13 @@ class BatchSummary:
     logs: tuple[BatchLog, ...]
     data_loss: bool
     this_run: RunCost
+    truth: str | None = None
 
     def to_json(self) -> Json:
         return {
             "totals": self.totals.to_json(),
-            "accuracy": {"region": self.region, "pooled": {m: s.to_json() for m, s in self.pooled.items()}},
+            "accuracy": {"region": self.region, "truth": self.truth,
+                         "pooled": {m: s.to_json() for m, s in self.pooled.items()}},
             "logs": [lg.to_json() for lg in self.logs],
             "data_loss": self.data_loss,
             "this_run": self.this_run.to_json(),

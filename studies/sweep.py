@@ -161,8 +161,11 @@ def run_sweep_unit(unit: WorkUnit, job: Job) -> UnitResult:
                 if isinstance(t, str):
                     res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": t})
                     continue
-                res.rows += sweep_frame(unit, frame, zone, session.config, grid, t, _region(zone, job.region),
-                                        job.extra.get("bank"))
+                rows = sweep_frame(unit, frame, zone, session.config, grid, t, _region(zone, job.region),
+                                   job.extra.get("bank"))
+                for r in rows:  # which truth scored it (docs/accuracy.md, "Two truths")
+                    r["truth"] = truth_src.choice
+                res.rows += rows
         finally:
             zones.close()
             res.damage = list(zones.damage)
@@ -429,7 +432,8 @@ def _run(options: SweepOptions, stack: ExitStack) -> SweepResult:
     axes, bank_axes = grid_axes(options)
     overrides = options.pipeline.overrides()
     logs = sweep_logs(options.inputs)  # results files: their source log (the filtered cloud lost its outliers)
-    check_truth(logs, labels=options.labels, topic=options.pipeline.topic)  # the truth exists before any work
+    check_truth(logs, labels=options.labels, topic=options.pipeline.topic,
+                truth=options.truth)  # the truth exists before any work
     plans, store, grid, bank, results = _run_units(options, stack, logs, overrides, axes, bank_axes)
     table = conform(named_as_now(store.table(), plans), SWEEP_COLUMNS)
     if table.num_rows:
@@ -516,7 +520,7 @@ def _sum_up(options: SweepOptions, objective: tuple[str, float | None], store: P
     from threadpoolctl import threadpool_limits
 
     from studies.bank import ranking
-    from studies.summary import DamageNote, SweepLog, SweepSummary, UnscoredFrame
+    from studies.summary import DamageNote, SweepLog, SweepSummary, UnscoredFrame, truth_summary, truths_by_log
     from studies.sweep_run import flagged_frames, reproduce, write_tuned
 
     first = next(p for p in plans if p.units)
@@ -528,10 +532,11 @@ def _sum_up(options: SweepOptions, objective: tuple[str, float | None], store: P
     point = (chosen[0], chosen[1], chosen[2], base.zcut.max_area if chosen[2] is None else None)
     tuned, validation = validate_tuning(table, sets, tuned, objective, point=point)
     metas = store.metas().values()
+    by_log = truths_by_log(table)
     summary = SweepSummary(
-        logs=tuple(SweepLog(str(p.path), p.sha256, p.error) for p in plans),
+        logs=tuple(SweepLog(str(p.path), p.sha256, p.error, by_log.get(p.sha256)) for p in plans),
         frames=len(set(zip(table.column("log_sha256").to_pylist(), table.column("frame").to_pylist()))),
-        region=options.region, objective=options.objective, truth="labels" if options.labels else "synthetic",
+        region=options.region, objective=options.objective, truth=truth_summary(by_log),
         grid=grid, config=first.config_toml, notes=tuple(first.notes), sets=tuple(sets), tuned=tuned,
         chosen_zcut=find_set(sets, "zcut", chosen[0], chosen[1], chosen[2]),
         chosen_sor=find_sor_set(sets, chosen[3], chosen[4], chosen[0], chosen[1]),

@@ -122,14 +122,21 @@ def sweep_logs(inputs: tuple[str, ...], *, stream: IO[str] | None = None) -> lis
     return logs
 
 
-def check_truth(logs: list[str], *, labels: str | None, topic: str | None) -> None:
-    """Without ``labels``, every readable log must carry the synthetic truth (before any work)."""
+def check_truth(logs: list[str], *, labels: str | None, topic: str | None, truth: str | None = None) -> None:
+    """Without ``labels``, every readable log must carry a recorded truth, and the one asked for
+    (``truth``: :func:`annotate.truth.truth_of_log`) when one is (before any work)."""
+    from annotate.truth import check_truth as check_truth_name
+    from annotate.truth import truth_of_log
     from replay.errors import ConfigError
     from replay.logs import layout
     from replay.logs.reader import LogReader
     from zcut.errors import ZcutError
 
+    check_truth_name(truth)
     if labels is not None:
+        if truth is not None:
+            raise ConfigError(f"--truth {truth} scores against the logs' recorded truth, --labels against an "
+                              "annotator's: give one")
         return
     for log in logs:
         try:
@@ -138,7 +145,7 @@ def check_truth(logs: list[str], *, labels: str | None, topic: str | None) -> No
             raise
         except (ZcutError, OSError):
             continue  # unreadable: left out by the planning, with a warning
-        if layout.TRUTH_OUTLIERS not in topics:
+        if truth_of_log(truth, topics, log) is None:
             raise ConfigError(f"{log} has no {layout.TRUTH_OUTLIERS} (not a synthetic log): label it "
                               "(zcut annotate) and give --labels DB")
 
@@ -179,7 +186,7 @@ def reproduce(options: SweepOptions) -> str:
     pipe = options.pipeline
     values = {"step": options.step, "max_depth": options.max_depth, "rho": options.rho, "sor_k": options.sor_k,
               "sor_std": options.sor_std, "objective": options.objective, "labels": options.labels,
-              "annotator": options.annotator, "region": options.region, "config": pipe.config,
+              "annotator": options.annotator, "region": options.region, "truth": options.truth, "config": pipe.config,
               "bin_model": pipe.bin_model, "part": pipe.part, "parameters": pipe.parameters, "preset": pipe.preset,
               "topic": pipe.topic, "methods": pipe.methods}
     for opt, v in values.items():

@@ -26,7 +26,7 @@ from replay.logs.damage import Damage
 from zcut.errors import ZcutError
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+    from collections.abc import Callable, Collection, Sequence
 
     from annotate.truth import FrameTruth, LabelTruth, SyntheticTruth
     from replay.logs.frame import Frame
@@ -60,6 +60,9 @@ class Job:
         Label store (truth from an annotator's labels instead of the synthetic truth).
     annotator : str or None
     region : {"zone", "valid"}
+    truth : {"paper", "sensor"} or None
+        The recorded truth to score against (:func:`annotate.truth.truth_of_log`; None: the paper's
+        where a log has it, else the sensor's).
     configs : dict[str, Resolved]
         Log sha256 -> the config the driver resolved for it: the worker runs exactly that config
         (it never resolves one again).
@@ -76,6 +79,7 @@ class Job:
     region: str
     configs: dict[str, Any]
     extra: dict[str, Any] = field(default_factory=dict)
+    truth: str | None = None
 
 
 @dataclass(slots=True)
@@ -150,13 +154,16 @@ def open_unit_session(unit: WorkUnit, job: Job) -> ReplaySession:
     return session
 
 
-def truth_source(unit: WorkUnit, job: Job) -> TruthSource:
-    """The unit's truth: the annotator's labels (``--labels``) or the synthetic ground truth."""
-    from annotate.truth import LabelTruth, SyntheticTruth
+def truth_source(unit: WorkUnit, job: Job, mask_topics: Collection[str]) -> TruthSource:
+    """The unit's truth: the annotator's labels (``--labels``) or the log's recorded truth that
+    :func:`annotate.truth.truth_of_log` chooses from its ``mask_topics`` (``job.truth``)."""
+    from annotate.truth import LabelTruth, SyntheticTruth, synthetic_truth
 
     if job.labels is not None:
         return LabelTruth(job.labels, unit.log, annotator=job.annotator)
-    return SyntheticTruth()  # pixel counts only: no per-kind recall in the tables
+    # pixel counts only: no per-kind recall in the tables (a frame without its kind image is scored)
+    found = synthetic_truth(job.truth, mask_topics, unit.log, with_kinds=False)
+    return found if found is not None else SyntheticTruth()  # no truth: every frame unscored, saying why
 
 
 def _peak_rss_mb() -> float:
@@ -168,9 +175,10 @@ def _finite(v: float) -> float | None:
 
 
 def batch_row(unit: WorkUnit, frame: Frame, result: FrameResult, row: FrameRow, truth: FrameTruth | None,
-              region: np.ndarray, methods: Sequence[str]) -> dict[str, Any]:
+              region: np.ndarray, methods: Sequence[str], *, truth_name: str | None = None) -> dict[str, Any]:
     """One row of ``frames.parquet``: the replay table's counts, fitness, stage timings and, where
-    there is truth, TP/FP/FN per reported method (``methods``) over S = R ∩ region."""
+    there is truth, which (``truth_name``: ``paper``, ``sensor`` or ``labels``) and TP/FP/FN per
+    reported method (``methods``) over S = R ∩ region."""
     from annotate.truth import method_predictions, pixel_counts
 
     out: dict[str, Any] = {"log": Path(unit.log).name, "log_sha256": unit.sha256, "frame": frame.index,
@@ -192,6 +200,7 @@ def batch_row(unit: WorkUnit, frame: Frame, result: FrameResult, row: FrameRow, 
     out["warnings"] = "; ".join(result.warnings + ((f"bin check: {check.reason}",)
                                                    if result.bin_flagged and check is not None else ()))
     out["scored"] = truth is not None
+    out["truth"] = truth_name if truth is not None else None
     preds = method_predictions(result, methods)
     for m in methods:
         tp = fp = fn = None
@@ -210,7 +219,7 @@ def run_unit(unit: WorkUnit, job: Job, body: Callable[[UnitResult, ReplaySession
     truth_src = None
     try:
         session = open_unit_session(unit, job)
-        truth_src = truth_source(unit, job)
+        truth_src = truth_source(unit, job, session.reader.mask_topics)
         body(res, session, truth_src)
     except ZcutError as e:
         res.error = str(e)
@@ -252,7 +261,7 @@ def _batch_frames(unit: WorkUnit, job: Job, res: UnitResult, session: ReplaySess
             else:
                 truth = got
             res.rows.append(batch_row(unit, frame, result, row, truth, scored_region(result, job.region),
-                                      session.config.reported_methods))
+                                      session.config.reported_methods, truth_name=truth_src.choice))
             res.frames += 1
         completed = True
     finally:

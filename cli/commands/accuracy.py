@@ -3,9 +3,11 @@ and of ``learned``, the labelling assistant's model (``--learned DB`` or a ``--l
 on the frames it was not trained on (docs/labelling.md).
 
 Predictions come from the pipeline, resolved and run as ``zcut replay`` runs it (the same options
-resolve the same filter), or from a results file of ``zcut replay --out``; the truth from a
-synthetic log's ``/ground_truth/outliers`` (and ``/ground_truth/outlier_kind``) or from an
-annotator's labels (``--labels DB``). Counts are taken over the scored region (``--region``: ``zone``,
+resolve the same filter), or from a results file of ``zcut replay --out``; the truth from the log's
+recorded truth (``--truth``: the paper's ``/ground_truth/off_surface`` by default where the log has it,
+else the sensor's ``/ground_truth/outliers`` with its ``/ground_truth/outlier_kind``) or from an
+annotator's labels (``--labels DB``; the report then says how much of each method's verdict fell on
+pixels the annotator left undecided). Counts are taken over the scored region (``--region``: ``zone``,
 the pixels the filters judge, by default; ``valid``: every valid pixel).
 """
 
@@ -22,12 +24,12 @@ if TYPE_CHECKING:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from cli.commands.common import add_pipeline_options
+    from cli.commands.common import add_pipeline_options, add_truth_option
 
     p.add_argument("log", type=Path, metavar="LOG_OR_RESULTS.mcap",
                    help="a log (predictions computed by the pipeline) or a results file of `zcut replay`")
     p.add_argument("--labels", type=Path, default=None, metavar="DB",
-                   help="human labels (zcut annotate's SQLite file); default: the log's /ground_truth/outliers")
+                   help="human labels (zcut annotate's SQLite file); default: the log's recorded truth (--truth)")
     p.add_argument("--annotator", default=None, help="whose labels (needed when the DB has several annotators)")
     p.add_argument("--agreement", nargs=2, metavar=("A", "B"), default=None,
                    help="instead: agreement of two annotators (IoU, Cohen's kappa over the pixels both reviewed)")
@@ -41,6 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--by-displacement", action="store_true",
                    help="also give recall by displacement |Z - Z_GT| (<=1, 1-5, 5-30, >30 mm) from the log's "
                         "/ground_truth/depth (a log, not a results file)")
+    add_truth_option(p)
     p.add_argument("--json", action="store_true", help="print the docs/accuracy.md JSON object instead of tables")
     add_pipeline_options(p)
 
@@ -52,7 +55,7 @@ def options_of(args: argparse.Namespace) -> AccuracyOptions:
 
     return AccuracyOptions(log=args.log, labels=args.labels, annotator=args.annotator,
                            agreement=tuple(args.agreement) if args.agreement else None, region=args.region,
-                           learned=args.learned, by_displacement=args.by_displacement,
+                           learned=args.learned, by_displacement=args.by_displacement, truth=args.truth,
                            pipeline=pipeline_options(args))
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -21,14 +22,15 @@ FRAMES_PER_UNIT = 8
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from cli.commands.common import add_pipeline_options
+    from cli.commands.common import add_pipeline_options, add_truth_option
 
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="MCAP logs or folders of them")
     p.add_argument("-o", "--out", required=True, metavar="DIR", help="output folder (created; rerun to resume)")
     p.add_argument("--workers", type=int, default=None, metavar="N", help="local processes (default: the cores; 0: run in this process, one unit after another)")
     p.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster: its address, or `auto` (RAY_ADDRESS)")
-    p.add_argument("--labels", metavar="DB", help="score against an annotator's labels (default: synthetic truth)")
+    p.add_argument("--labels", metavar="DB", help="score against an annotator's labels (default: the logs' recorded truth, --truth)")
     p.add_argument("--annotator", help="whose labels (when the store has several)")
+    add_truth_option(p)
     p.add_argument("--region", default="zone", help="scored region: zone (default, what the filters judge) or valid")
     p.add_argument("--results", action="store_true", help="also write a results MCAP per log (DIR/results)")
     p.add_argument("--results-cloud", action="store_true", help="with --results: also write the filtered cloud "
@@ -48,7 +50,7 @@ def options_of(args: argparse.Namespace) -> BatchOptions:
     from studies.batch import BatchOptions
 
     return BatchOptions(inputs=tuple(args.inputs), out=args.out, pipeline=pipeline_options(args), labels=args.labels,
-                        annotator=args.annotator, region=args.region, workers=args.workers, ray=args.ray,
+                        annotator=args.annotator, region=args.region, truth=args.truth, workers=args.workers, ray=args.ray,
                         frames_per_unit=args.frames_per_unit, force=args.force, results=args.results,
                         results_cloud=args.results_cloud, rrd=args.rrd)
 
@@ -81,7 +83,13 @@ def _print_table(summ: BatchSummary) -> None:
               "their counts rest on a bin removal that did not work (frames.parquet: bin_flagged, warnings)",
               file=sys.stderr)
     if summ.pooled:
-        print(f"true accuracy over the scored region ({summ.region}), pooled:")
+        from studies.summary import truth_text
+
+        print(f"true accuracy over the scored region ({summ.region}) against {truth_text(summ.truth)}, pooled:")
+        sensor = [Path(lg.log).name for lg in summ.logs if lg.truth == "sensor"]
+        if summ.truth is not None and "paper" in summ.truth and sensor:
+            print(f"  (the sensor's truth for {len(sensor)} log(s) without /ground_truth/off_surface: "
+                  f"{', '.join(sensor[:5])}{' …' if len(sensor) > 5 else ''})")
         print(f"  {'method':13s} {'precision':>22s} {'recall':>22s} {'F1':>22s}")
         for m, e in summ.pooled.items():
             cells = []

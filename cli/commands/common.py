@@ -95,6 +95,14 @@ def add_force_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="replace existing outputs")
 
 
+def add_truth_option(p: argparse.ArgumentParser) -> None:
+    """``--truth paper|sensor`` (docs/accuracy.md, "Two truths"); default None: the paper's where a log has it."""
+    p.add_argument("--truth", choices=("paper", "sensor"), default=None,
+                   help="the recorded truth to score against: paper (/ground_truth/off_surface: farther than 3 Err "
+                        "from every true surface) or sensor (/ground_truth/outliers); default: paper where the log "
+                        "has it, else sensor (stereo logs, older synthetic logs), as the report says")
+
+
 #: How ``--size`` reads, in every command that takes one (``synth``, ``record``): WIDTHxHEIGHT, columns
 #: by rows, as camera data sheets give it (a Zivid 2 is 1920x1200). Arrays are (rows, columns) inside.
 SIZE_HELP = "WIDTHxHEIGHT in pixels, columns x rows as cameras say it (1920x1200; 640x480 is a small landscape frame)"

@@ -13,6 +13,8 @@ from pathlib import Path
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from cli.commands.common import add_truth_option
+
     p.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP logs (the same frames for A and B)")
     p.add_argument("--a", required=True, metavar="A",
                    help="the reference: a config file (TOML), a method name (zcut, sor, radius, …) or a results "
@@ -20,8 +22,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--b", required=True, metavar="B", help="the candidate, as --a")
     p.add_argument("-o", "--out", required=True, type=Path, metavar="DIR", help="output folder (created)")
     p.add_argument("--labels", type=Path, metavar="DB", help="score against an annotator's labels "
-                   "(default: the log's /ground_truth/outliers; without either: agreement only)")
+                   "(default: the log's recorded truth, --truth; without either: agreement only)")
     p.add_argument("--annotator", help="whose labels (when the store has several)")
+    add_truth_option(p)
     p.add_argument("--region", default="zone", help="scored region: zone (default) or valid")
     p.add_argument("--bin-model", type=Path, metavar="PLY", help="bin model (default: the log's attachment)")
     p.add_argument("--topic", metavar="T", help="cloud topic (when the log has several)")
@@ -42,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
 
     opts = CompareOptions(logs=tuple(args.logs), a=args.a, b=args.b, out=args.out, labels=args.labels,
                           annotator=args.annotator, region=args.region, bin_model=args.bin_model, topic=args.topic,
-                          frames=parse_frames(args.frames), force=args.force, rrd=not args.no_rrd)
+                          frames=parse_frames(args.frames), force=args.force, rrd=not args.no_rrd, truth=args.truth)
     result = compare(opts)
     rep = result.report
     for log in rep["logs"]:
@@ -57,6 +60,9 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(jsonable(rep), indent=1))
     else:
         ag = rep["agreement"]
+        if rep.get("truth"):  # which truth scored it (docs/accuracy.md, "Two truths")
+            t = rep["truth"]
+            print(f"truth: {t if isinstance(t, str) else '; '.join(t)}")
         print(rep["verdict"]["line"])
         print(f"removed by both {ag['both']} px, only by A {ag['only_a']} px, only by B {ag['only_b']} px "
               f"(Jaccard {_f(ag['jaccard'])}); {rep['blobs_total']} disagreement blobs")

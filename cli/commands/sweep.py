@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from cli.commands.common import add_pipeline_options
+    from cli.commands.common import add_pipeline_options, add_truth_option
     from studies.grid import DEFAULT_MAX_POINTS
 
     p.add_argument("inputs", nargs="+", metavar="LOG_OR_RESULTS.mcap", help="logs (or folders of them) with "
@@ -50,8 +50,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "an input log changed content since the study in DIR began (its earlier results are removed)")
     p.add_argument("--objective", default="f1",
                    help="what tuned.toml maximises: f1 (default), recall@precision=P or precision@recall=R")
-    p.add_argument("--labels", metavar="DB", help="score against an annotator's labels (default: synthetic truth)")
+    p.add_argument("--labels", metavar="DB", help="score against an annotator's labels (default: the logs' recorded truth, --truth)")
     p.add_argument("--annotator", help="whose labels (when the store has several)")
+    add_truth_option(p)
     p.add_argument("--region", default="zone", help="scored region: zone (default) or valid")
     p.add_argument("--workers", type=int, default=None, metavar="N", help="local processes (default: the cores; 0: run in this process, one unit after another)")
     p.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster: its address, or `auto`")
@@ -66,7 +67,7 @@ def options_of(args: argparse.Namespace) -> SweepOptions:
     from studies.sweep import SweepOptions
 
     return SweepOptions(inputs=tuple(args.inputs), out=args.out, pipeline=pipeline_options(args), labels=args.labels,
-                        annotator=args.annotator, region=args.region, workers=args.workers, ray=args.ray,
+                        annotator=args.annotator, region=args.region, truth=args.truth, workers=args.workers, ray=args.ray,
                         frames_per_unit=args.frames_per_unit, force=args.force, step=args.step,
                         max_depth=args.max_depth, rho=args.rho, sor_k=args.sor_k, sor_std=args.sor_std,
                         grid=tuple(args.grid or ()), study_points=args.study_points, max_points=args.max_points,
@@ -98,7 +99,10 @@ def _print(summary: SweepSummary, tuned_path: Path | None) -> None:
                   else f"k {e.sor_k} std {e.sor_std_ratio:g}")
         return f"  {name:10s} {params:32s} " + "  ".join(f"{c:>22s}" for c in cells)
 
-    print(f"{summary.frames} frame(s) scored over the {summary.region} region; objective {summary.objective}")
+    from studies.summary import truth_text
+
+    print(f"{summary.frames} frame(s) scored over the {summary.region} region against {truth_text(summary.truth)}; "
+          f"objective {summary.objective}")
     if summary.bin_flagged:
         shown = ", ".join(str(f) for f in summary.bin_flagged[:10])
         print(f"warning: {len(summary.bin_flagged)} scored frame(s) flagged by the bin check (their scores rest on "

@@ -79,7 +79,8 @@ def test_table_output(spike_log, predictions, capsys):
     results, _ = predictions
     assert main(["accuracy", str(results)]) == 0
     out = capsys.readouterr().out
-    assert "truth: ground truth /ground_truth/outliers; predictions: from /zcut/outliers" in out
+    assert ("truth: the sensor's truth /ground_truth/outliers (the log has no /ground_truth/off_surface); "
+            "predictions: from /zcut/outliers") in out
     assert "pooled over 3 frames" in out and "intersection" in out
 
 
@@ -130,6 +131,19 @@ def test_human_labels_and_agreement(spike_log, predictions, tmp_path, capsys):
         z, s = preds[f["index"]]
         assert {k: f["zcut"][k] for k in ("tp", "fp", "fn")} == _hand(z, L, R)
         assert {k: f["sor"][k] for k in ("tp", "fp", "fn")} == _hand(s, L, R)
+        # how much of each verdict fell on pixels ann left undecided (no bin stages: the zone is every valid pixel)
+        v = valid[f["index"]]
+        for m, p in (("zcut", z), ("sor", s), ("union", z | s), ("intersection", z & s)):
+            assert f[m]["undecided"] == {"px": int((p & v & ~R).sum()), "flagged": int((p & v).sum()),
+                                         "share": pytest.approx(int((p & v & ~R).sum()) / int((p & v).sum()))}, m
+    assert rep["frames"][1]["union"]["undecided"]["px"] > 0 and rep["frames"][0]["union"]["undecided"]["px"] == 0
+    u = rep["pooled"]["union"]["undecided"]
+    assert u["px"] == rep["frames"][1]["union"]["undecided"]["px"] and u["share"] == pytest.approx(u["px"] / u["flagged"])
+    rc = main(["accuracy", str(log), "--labels", str(db), "--annotator", "ann"])
+    text = capsys.readouterr().out
+    assert rc == 0 and "undecided" in text.split("pooled over 2 frames")[1].splitlines()[1]
+    assert f"{u['share']:.3f} ({u['px']})" in text and "the labels left undecided" in text
+    assert "undecided" not in json.dumps(_json(capsys, ["accuracy", str(log), "--json"]))  # recorded truth: none
     # the results file finds the same labels by stamp (its cloud topic is /zcut/filtered); it does not
     # carry the bin check
     from_results = _json(capsys, ["accuracy", str(results), "--labels", str(db), "--annotator", "ann", "--json"])
@@ -207,6 +221,8 @@ def test_labels_list_export_import(spike_log, tmp_path, capsys):
     assert "imported 2 label(s)" in capsys.readouterr().out
     a = _json(capsys, ["accuracy", str(log), "--labels", str(db), "--annotator", "ann", "--json"])
     d = _json(capsys, ["accuracy", str(log), "--labels", str(db), "--annotator", "dan", "--json"])
+    # the same figures; the report names whose labels scored it
+    assert a.pop("truth").startswith("labels by ann (") and d.pop("truth").startswith("labels by dan (")
     assert a == d
     assert main(["labels", "export", str(log), "--db", str(db), "-o", str(out)]) == 1
     assert "exists (use --force" in capsys.readouterr().err  # outputs are checked before anything else

@@ -68,6 +68,11 @@ def test_accuracy_on_a_stereo_log_equals_an_independent_scorer(stereo_log, capsy
     rc, out, err = run_cli(capsys, "accuracy", log, "--region", "valid", "--json", "--by-displacement")
     assert rc == 0, err
     rep = json.loads(out)
+    # a stereo log's real truth is its /ground_truth/outliers: the paper's truth is not there, and the report says so
+    assert rep["truth"] == "the sensor's truth /ground_truth/outliers (the log has no /ground_truth/off_surface)"
+    rc, _, err = run_cli(capsys, "accuracy", log, "--truth", "paper")
+    assert rc == 1 and err.strip() == (f"error: {log} has no /ground_truth/off_surface (--truth paper): "
+                                       "score it with --truth sensor"), err
     frames = list(LogReader(log).frames())
     preds = _masks(results)
     pooled = {m: {"tp": 0, "fp": 0, "fn": 0} for m in METHODS}

@@ -83,7 +83,7 @@ def test_a_batch_as_a_library_call_is_the_commands(log, tmp_path, capsys):
     def table(text: str) -> list[str]:  # the cost of this run (seconds, frames/s) differs between runs
         return [line for line in text.splitlines() if not line.startswith("this run:")]
 
-    assert table(printed) == table(out) and "true accuracy over the scored region (zone), pooled:" in out
+    assert table(printed) == table(out) and "true accuracy over the scored region (zone) against " in out
     cmd_json = json.loads((tmp_path / "cmd" / "summary.json").read_text())
     lib_json = json.loads(json.dumps(result.summary.to_json()))
     assert (lib_json["totals"], lib_json["accuracy"]) == (cmd_json["totals"], cmd_json["accuracy"])

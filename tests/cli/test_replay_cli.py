@@ -242,7 +242,7 @@ def test_demo_end_to_end(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("ZCUT_CACHE", str(tmp_path / "cache"))
     rc, out, err = run_cli(capsys, "demo", "--out-dir", tmp_path / "out")
     assert rc == 0, err
-    assert "True accuracy against the sample's exact ground truth" in out
+    assert "True accuracy against the sample's exact truth, the paper's truth /ground_truth/off_surface" in out
     assert "rerun --bind 127.0.0.1 " + str(tmp_path / "out" / "zcut_demo.rrd") in out
     # the next steps are exact commands on the demo's own outputs: each parses, and one runs
     import shlex

@@ -33,7 +33,9 @@ def swept(log, tmp_path_factory):
 
 def test_counts_equal_replay_at_grid_points(log, swept, capsys):
     t = pq.read_table(swept / "sweep.parquet").to_pylist()
-    truth = {f.index: f.masks[layout.TRUTH_OUTLIERS] for f in LogReader(log).frames()}
+    # the paper's truth by default (the log has /ground_truth/off_surface), and every row says so
+    assert {r["truth"] for r in t} == {"paper"}
+    truth = {f.index: f.masks[layout.TRUTH_OFF_SURFACE] for f in LogReader(log).frames()}
     for step, depth, rho in [(0.2, 20.0, 0.07), (0.5, 40.0, 0.03), (0.5, 10.0, 0.07)]:
         rc, out, err = run_cli(capsys, "replay", log, "--step", step, "--max-depth", depth, "--rho", rho, "--out",
                             swept.parent / f"r{step}_{depth}_{rho}.mcap", "--json")

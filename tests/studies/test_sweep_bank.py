@@ -47,7 +47,9 @@ def test_every_set_of_the_bank_equals_replay(logs, swept, capsys):
                                                                                                      12.0, 20.0}
     assert all(r["seconds"] is not None and r["part"] in ("zinc_nuts", "black_nuts") for r in radius)
     log = logs[0]
-    truth = {f.index: f.masks[layout.TRUTH_OUTLIERS] for f in LogReader(log).frames()}
+    # the paper's truth by default (the log has /ground_truth/off_surface), and every row says so
+    assert {r["truth"] for r in t} == {"paper"}
+    truth = {f.index: f.masks[layout.TRUTH_OFF_SURFACE] for f in LogReader(log).frames()}
     cfg = swept.parent / "c.toml"
     cfg.write_text("[radius]\nradius_mm = 4.0\nmin_points = 2\n[mixed_pixel]\nmin_angle_deg = 12.0\n")
     res = swept.parent / "r.mcap"
