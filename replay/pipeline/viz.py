@@ -193,7 +193,10 @@ def default_blueprint(methods: tuple[str, ...] = ("zcut", "sor"), judged: tuple[
     pipeline = rrb.Horizontal(
         rrb.Vertical(*image_views),
         rrb.Vertical(
-            rrb.Spatial3DView(name="3D: cloud, outliers, bin model", origin="world"),
+            # with truth the verdicts' points stay in their own tab
+            rrb.Spatial3DView(name="3D: cloud, outliers, bin model", origin="world",
+                              contents=["$origin/**", "- /world/verdicts/**"])
+            if judged else rrb.Spatial3DView(name="3D: cloud, outliers, bin model", origin="world"),
             rrb.Horizontal(
                 rrb.Spatial2DView(name="Clusters", origin="image", contents=["image/rgb", "image/clusters"]),
                 rrb.Spatial2DView(name=ZCUTS_VIEW, origin="zcut/cuts"),

@@ -102,6 +102,9 @@ def test_the_blueprint_has_a_verdicts_tab():
     root = viz.default_blueprint(("zcut", "sor"), ("zcut", "sor")).root_container
     assert isinstance(root, rr.blueprint.Tabs)
     assert [c.name for c in root.contents] == [viz.PIPELINE_TAB, viz.VERDICTS_TAB]
+    view3d = root.contents[0].contents[1].contents[0]
+    assert view3d.name == "3D: cloud, outliers, bin model"
+    assert "- /world/verdicts/**" in str(view3d.contents)  # the verdicts' points stay in their own tab
     assert isinstance(viz.default_blueprint(("zcut", "sor")).root_container, rr.blueprint.Horizontal)  # no truth
 
 
