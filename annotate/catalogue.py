@@ -102,6 +102,9 @@ class Catalogue:
         The review groups' suspect detectors (:mod:`annotate.groups`), with the config's a_max.
     part : str or None
         The part kind the config names.
+    focus : callable or None
+        Given a frame, the only pixels to list as its review groups (``zcut annotate --disagreement``:
+        :meth:`annotate.disagreement.Disagreement.focus`); None: the usual groups.
     """
 
     results: Results
@@ -116,19 +119,21 @@ class Catalogue:
     seconds_per_frame: float = 1.0
     suspect_params: SuspectParams = field(default_factory=SuspectParams)
     part: str | None = None
+    focus: Callable[[Frame], np.ndarray] | None = None
     _cond: threading.Condition = field(default_factory=threading.Condition)
     _thread: threading.Thread | None = None
     _stop: threading.Event = field(default_factory=threading.Event)
     _results: object | None = None  # the pass over the log: its ``damage`` names what a damaged log lost
 
     @classmethod
-    def of_replay(cls, replay: ReplaySession, store: LabelStore, log: LogRecord) -> Catalogue:
+    def of_replay(cls, replay: ReplaySession, store: LabelStore, log: LogRecord, *,
+                  focus: Callable[[Frame], np.ndarray] | None = None) -> Catalogue:
         """The catalogue of a log opened for replay (not started; its points spill to a new temporary
-        directory)."""
+        directory); ``focus``: see the class."""
         config = replay.config
         return cls(results=replay.results, store=store, log=log, geometry=GeometrySpill(),
                    total_hint=replay.reader.n_frames, suspect_params=SuspectParams(a_max=config.zcut.a_max),
-                   part=config.part)
+                   part=config.part, focus=focus)
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="zcut-annotate-prepare", daemon=True)
@@ -169,7 +174,8 @@ class Catalogue:
 
     def _prepare(self, frame: Frame, result: FrameResult) -> tuple[ServedFrame, FrameRecord]:
         """The page's payloads of one frame, its points spilled, the frame registered in the store."""
-        pf = prepare_frame(frame, result, suspect_params=self.suspect_params, part=self.part)
+        pf = prepare_frame(frame, result, suspect_params=self.suspect_params, part=self.part,
+                           focus=None if self.focus is None else self.focus(frame))
         sf = pf.served
         self.geometry.put(sf.index, pf.geometry)
         rec = self.store.add_frame(

@@ -146,9 +146,14 @@ def _per_group(values: np.ndarray, ids: np.ndarray, n: int, fn: Callable[[np.nda
     return out
 
 
+#: The sources of the groups of a disagreement (``review_groups(focus=...)``): the pixels only A removed,
+#: only B removed (codes 1 and 2 of ``focus``, annotate/disagreement.py).
+FOCUS_SOURCES = ("removed only by A", "removed only by B")
+
+
 def review_groups(xyz: np.ndarray, rgb: np.ndarray | None, *, height_mm: np.ndarray, valid: np.ndarray,
                   zone: np.ndarray, above_rim: np.ndarray, outliers: dict[str, np.ndarray],
-                  params: SuspectParams) -> ReviewGroups:
+                  params: SuspectParams, focus: np.ndarray | None = None) -> ReviewGroups:
     """The review groups of a frame and their features.
 
     Parameters
@@ -164,6 +169,10 @@ def review_groups(xyz: np.ndarray, rgb: np.ndarray | None, *, height_mm: np.ndar
     outliers : dict of str to (H, W) bool ndarray
         Every base method's outliers (``FrameResult.outliers``).
     params : SuspectParams
+    focus : (H, W) uint8 ndarray, optional
+        Review only these pixels (``zcut annotate --disagreement``: 1 where only A removed a pixel, 2
+        where only B did): the groups are their components by code, merged by proximity to at most
+        half of ``params.max_groups`` each (sources :data:`FOCUS_SOURCES`), and nothing else.
 
     Returns
     -------
@@ -180,7 +189,19 @@ def review_groups(xyz: np.ndarray, rgb: np.ndarray | None, *, height_mm: np.ndar
     gap = np.asarray(res.gap_mm, np.float64).copy()
     taken = ids > 0
     tau = float(res.threshold_mm) if np.isfinite(res.threshold_mm) and res.threshold_mm > 0 else 1.0
-    for j, name in enumerate(methods):
+    if focus is not None:  # only the pixels asked for, grouped by who removed them
+        sources += FOCUS_SOURCES
+        ids[:] = 0
+        primary = []
+        asked = (focus > 0) & valid
+        gap_f = local_gaps(h_all, asked, valid & ~asked)
+        gap = np.where(asked, gap_f, np.nan)
+        for k in range(len(FOCUS_SOURCES)):
+            lab, n = merged_components(asked & (focus == k + 1), max(int(params.max_groups) // 2, 1))
+            ids = np.where(lab > 0, lab + ids.max(), ids)
+            primary += [len(DETECTORS) + len(methods) + k] * n
+        taken = asked
+    for j, name in enumerate(methods if focus is None else ()):
         rest = np.asarray(outliers[name], bool) & judged & ~taken
         if not rest.any():
             continue

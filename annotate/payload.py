@@ -557,8 +557,8 @@ def _z_levels(z_ids: np.ndarray, n_z: int, cut: object) -> np.ndarray:
     return out
 
 
-def prepare_frame(frame: Frame, result: FrameResult, *, suspect_params: SuspectParams | None = None, part: str | None = None
-                  ) -> PreparedFrame:
+def prepare_frame(frame: Frame, result: FrameResult, *, suspect_params: SuspectParams | None = None, part: str | None = None,
+                  focus: np.ndarray | None = None) -> PreparedFrame:
     """Build the page's view of a frame from the frame and the pipeline's result for it.
 
     Parameters
@@ -572,6 +572,9 @@ def prepare_frame(frame: Frame, result: FrameResult, *, suspect_params: SuspectP
         config's a_max).
     part : str, optional
         The part kind of the log's config (kept for the assistant).
+    focus : (H, W) uint8 ndarray, optional
+        The only pixels to list as review groups (``zcut annotate --disagreement``: where two filters
+        disagree, :func:`annotate.groups.review_groups`); the header's ``focus`` is then true.
 
     Returns
     -------
@@ -609,13 +612,13 @@ def prepare_frame(frame: Frame, result: FrameResult, *, suspect_params: SuspectP
     groups = review_groups(frame.xyz, frame.rgb, height_mm=np.asarray(result.height_mm, np.float64), valid=valid,
                            zone=zone & valid, above_rim=easy,
                            outliers={k: np.asarray(v, bool) & valid for k, v in result.outliers.items()},
-                           params=suspect_params if suspect_params is not None else SuspectParams())
+                           params=suspect_params if suspect_params is not None else SuspectParams(), focus=focus)
     bin_stages = result.removal is not None
     header.update({
         "n_groups": groups.n, "group_columns": list(GROUP_COLUMNS), "group_sources": list(groups.sources),
         "methods": list(groups.methods), "detectors": list(DETECTORS), "noise_mm": groups.noise_mm,
         "threshold_mm": groups.threshold_mm, "n_suspect_px": groups.n_suspect_px, "bin_stages": bin_stages,
-        "rise_step_mm": RISE_STEP_MM, "part": part,
+        "rise_step_mm": RISE_STEP_MM, "part": part, "focus": focus is not None,
     })
     rise_q = np.minimum(np.round(groups.rise_mm / RISE_STEP_MM), 255).astype(np.uint8)
     rise_q[groups.rise_mm < 0.5 * max(groups.threshold_mm, 0.0)] = 0

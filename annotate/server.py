@@ -108,6 +108,7 @@ def open_page(
     topic: str | None = None,
     choose_bin_model: Callable[[Any], Any] | None = None,
     assistant_gate: float | None = None,
+    focus: Callable[[Any], Any] | None = None,
 ) -> Page:
     """Open the log for replay and the store, and start preparing frames.
 
@@ -130,6 +131,9 @@ def open_page(
     assistant_gate : float, optional
         The held-out agreement the assistant needs before its proposals are pre-filled
         (default :data:`annotate.assistant.GATE`).
+    focus : callable, optional
+        Given a frame, the only pixels its review groups hold (``--disagreement``:
+        :meth:`annotate.disagreement.Disagreement.focus`).
 
     Candidates come from :meth:`replay.pipeline.session.ReplaySession.results` with the config
     resolved as ``zcut replay`` resolves it. The log is read and its config resolved before the
@@ -154,7 +158,7 @@ def open_page(
             except LabelValidationError as e:
                 raise ParameterError(f"--annotator: {e}") from None
         log = store.add_log(log_path)
-        catalogue = Catalogue.of_replay(replay, store, log)
+        catalogue = Catalogue.of_replay(replay, store, log, focus=focus)
         page = Page(log_path=log_path, store=store, log=log, catalogue=catalogue, token=token or new_token(),
                     annotator=annotator, replay=replay,
                     assistant=Trainer(catalogue, store, log, part=catalogue.part,

@@ -718,7 +718,9 @@ def run(opts: CompareOptions) -> CompareResult:
     out.mkdir(parents=True, exist_ok=True)
     inputs: list[str | os.PathLike[str]] = [*opts.logs, *(s.path for s in (spec_a, spec_b) if s.path is not None),
               *(x for x in (opts.labels, opts.bin_model) if x is not None)]
-    names = {"json": "compare.json", "parquet": "summary.parquet"}
+    from annotate.disagreement import FILE as DISAGREEMENT
+
+    names = {"json": "compare.json", "parquet": "summary.parquet", "disagreement": DISAGREEMENT}
     if opts.report:
         names["report"] = "report.html"
     if opts.rrd:
@@ -743,6 +745,7 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, paths: dict[s
         for log in opts.logs:
             entry = _Log(Path(log))
             logs.append(entry)
+            writer.log(entry.path)
             reader = LogReader(entry.path, cloud_topic=opts.topic)
             truth_src = _truth_source(opts, entry.path, tuple(reader.mask_topics))
             if truth_src is not None:

@@ -70,17 +70,27 @@ class CompareWriter:
     """
 
     def __init__(self, paths: dict[str, Path], *, has_truth: bool | None = None) -> None:
+        from annotate.disagreement import DisagreementRecorder
         from replay.pipeline.sinks import RrdFile
 
         self.paths = paths
         self.files = {k: AtomicOutput(p) for k, p in paths.items() if k != "rrd"}
+        #: the pixels where A and B disagree, for ``zcut annotate --disagreement`` (annotate/disagreement.py)
+        self.disagreement = DisagreementRecorder() if "disagreement" in paths else None
         self.rrd = RrdFile(paths["rrd"]) if "rrd" in paths else None  # checked per frame, as replay's
         self.rec: CompareRecording | None = None
         self.seq = 0
         self.has_truth = has_truth
 
+    def log(self, path: Path) -> None:
+        """The frames that follow are of the log at ``path``."""
+        if self.disagreement is not None:
+            self.disagreement.log(path)
+
     def start(self, spec_a: SideSpec, spec_b: SideSpec, diff: list[dict[str, Any]], *, has_truth: bool, primaries: tuple[str, str]) -> None:
         self.has_truth = has_truth
+        if self.disagreement is not None:
+            self.disagreement.primaries = primaries
         if self.rrd is not None:
             from replay.pipeline.compare_viz import CompareRecording
 
@@ -93,6 +103,10 @@ class CompareWriter:
 
     def frame(self, frame: Frame, fc: FrameCompare, sa: SideFrame, sb: SideFrame, diff: np.ndarray,
               truth: tuple[np.ndarray, np.ndarray] | None, pa: str, pb: str) -> None:
+        if self.disagreement is not None:  # the pixels _score_frame counts as only_a and only_b
+            where = sa.region | sb.region
+            ma, mb = sa.preds[pa], sb.preds[pb]
+            self.disagreement.frame(frame.index, frame.stamp_ns, ma & ~mb & where, mb & ~ma & where)
         if self.rec is None:
             return
         ca = fc.a[pa] if fc.a is not None else None
@@ -122,6 +136,14 @@ class CompareWriter:
                                                    encoding="utf-8"))
         table = table_of(rows, COMPARE_SUMMARY_COLUMNS)  # the declared types, whatever the values
         self._write("parquet", lambda t: pq.write_table(table, t))
+        if self.disagreement is not None:
+            recorder = self.disagreement
+
+            def write_npz(t: Path) -> None:
+                with open(t, "wb") as f:
+                    recorder.write(f)
+
+            self._write("disagreement", write_npz)
         if "report" in self.files:
             self._write("report", lambda t: t.write_text(render_html(report), encoding="utf-8", errors="backslashreplace"))
         if self.rec is not None:

@@ -19,6 +19,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      help="the name every page labels as (default: the login name)")
     who.add_argument("--ask-annotator", action="store_true",
                      help="each page session chooses its annotator name once (several people, one server)")
+    p.add_argument("--disagreement", type=Path, default=None, metavar="DIR",
+                   help="list only the pixels where the two filters of a comparison disagree (DIR: the -o folder of "
+                        "zcut compare on this log): only they can change its verdict")
     add_gate_option(p)
     from cli.commands.common import add_pipeline_options
 
@@ -69,6 +72,15 @@ def run(args: argparse.Namespace) -> int:
     if args.config is not None and not Path(args.config).is_file():
         raise FileNotFoundError(2, "no such file", str(args.config))
     choose = model_chooser(args)  # --bin-model, else the log's own (checked before the log is read)
+    focus = None
+    if getattr(args, "disagreement", None) is not None:
+        from annotate.disagreement import load
+
+        focus = load(args.disagreement, args.log)
+        a, b = focus.primaries
+        print(f"zcut: the page lists only the {focus.n_pixels} pixel(s) where A ({a}) and B ({b}) disagree, "
+              f"on {sum(p.size > 0 for _, p, _ in focus.frames.values())} of the {len(focus.frames)} compared "
+              f"frame(s) ({args.disagreement})", file=sys.stderr, flush=True)
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # restart at once on the same port
     # small responses (a label, the session) otherwise wait ~40 ms for the client's delayed ACK
@@ -81,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
             raise ParameterError(f"--port {args.port}: cannot listen on 127.0.0.1: {e.strerror}") from None
         port = sock.getsockname()[1]
         page = open_page(args.log, db, annotator=annotator, config_path=args.config, choose_bin_model=choose,
-                         overrides=overrides, topic=args.topic, assistant_gate=gate)
+                         overrides=overrides, topic=args.topic, assistant_gate=gate,
+                         focus=None if focus is None else focus.focus)
         if page.replay is not None:  # always (open_page opens the log for replay)
             warn_bin_model(page.replay)
             # what the config resolution decided, as every pipeline command says it

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from typing import IO, TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
+    from annotate.judge import TruthJudge
     from replay.logs.frame import Frame
     from replay.outputs import OutputPlan
     from replay.pipeline.session import FrameRow, ReplaySession
@@ -37,6 +38,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", metavar="A:B", help="the frames to replay by their 0-based index in the log (the first "
                    "is 0): A:B from A up to B exclusive, A: or :B, or N for frame N alone")
     p.add_argument("--full-detail", action="store_true", help="log full-resolution images and clouds to Rerun")
+    p.add_argument("--labels", metavar="DB", help="with --rrd/--spawn/--connect: show where each filter is wrong "
+                   "against an annotator's labels in this label store (a log with recorded truth shows it "
+                   "against that truth without this option)")
+    p.add_argument("--annotator", metavar="NAME", help="whose labels in --labels (needed when several annotators "
+                   "labelled the log)")
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of the table")
     add_force_option(p)
     add_pipeline_options(p)
@@ -196,19 +202,49 @@ def run(args: argparse.Namespace) -> int:
 
     frames = parse_frames(args.frames)
     overrides = overrides_of(args)  # bad values fail before the log is read
-    with OutputPlan([args.log, *inputs_of(args)], force=args.force) as plan:  # locked until the end
+    labels = [args.labels] if getattr(args, "labels", None) else []
+    with OutputPlan([args.log, *inputs_of(args), *labels], force=args.force) as plan:  # locked until the end
         return _replay(args, plan_outputs(args, plan), frames=frames, overrides=overrides)
 
 
 def _replay(args: argparse.Namespace, sinks: list[FrameSink], *, frames: tuple[int, int | None],
             overrides: dict[str, Any]) -> int:
     from cli.commands.common import open_session
-    from replay.errors import ConfigError
-    from replay.pipeline.sinks import BackgroundSinks
-    from replay.process import EXIT_DATA_LOSS
 
     session = open_session(args.log, args, overrides=overrides)
+    judge = _judge(args, session, sinks)
+    try:
+        return _run_session(args, session, sinks, frames=frames, judge=judge)
+    finally:
+        if judge is not None:
+            judge.close()
+
+
+def _judge(args: argparse.Namespace, session: ReplaySession, sinks: list[FrameSink]) -> TruthJudge | None:
+    """What the recording shows each filter's mistakes against: ``--labels`` (with ``--annotator``), else
+    the log's recorded truth, else nothing (docs/compare.md, "Where each filter is wrong")."""
+    from annotate.judge import judge_for_log
+    from replay.errors import ConfigError
+    from replay.pipeline.sinks import RerunSink
+
+    labels, annotator = getattr(args, "labels", None), getattr(args, "annotator", None)
+    if not any(isinstance(s, RerunSink) for s in sinks):
+        if labels is not None or annotator is not None:
+            raise ConfigError("--labels/--annotator show where each filter is wrong in Rerun: "
+                              "give --rrd, --spawn or --connect")
+        return None
+    if annotator is not None and labels is None:
+        raise ConfigError("--annotator needs --labels DB")
+    return judge_for_log(args.log, session.reader.mask_topics, session.config.methods, labels=labels,
+                         annotator=annotator)
+
+
+def _run_session(args: argparse.Namespace, session: ReplaySession, sinks: list[FrameSink], *,
+                 frames: tuple[int, int | None], judge: TruthJudge | None) -> int:
+    from replay.errors import ConfigError
     from replay.logs import layout
+    from replay.pipeline.sinks import BackgroundSinks
+    from replay.process import EXIT_DATA_LOSS
 
     if layout.RESULTS_METADATA in session.reader.metadata:
         src = session.reader.metadata[layout.RESULTS_METADATA].get("source", "?")
@@ -222,7 +258,9 @@ def _replay(args: argparse.Namespace, sinks: list[FrameSink], *, frames: tuple[i
         raise ConfigError(f"no frame of {args.log} in --frames {args.frames or '0:'} "
                           f"(it has {_frames_held(session.reader.n_frames)})")
     on_start(session, planned=planned)
-    summary = session.run(BackgroundSinks(sinks), frames=frames, on_frame=on_frame)
+    if judge is not None:
+        print(f"zcut: the recording shows where each filter is wrong against {judge.source}", file=sys.stderr)
+    summary = session.run(BackgroundSinks(sinks), frames=frames, on_frame=on_frame, judge=judge)
     if args.json:
         print(json.dumps(summary.as_dict(), indent=1))
     if not summary.rows and not summary.damage:

@@ -44,6 +44,7 @@ from zcut.registration import RegistrationResult
 
 if TYPE_CHECKING:
     from replay.logs.reader import LogReader
+    from replay.pipeline.verdicts import FrameJudge
 
 
 @dataclass(frozen=True, slots=True)
@@ -365,8 +366,8 @@ class ReplaySession:
     def notes(self) -> tuple[str, ...]:
         return self.resolved.notes
 
-    def start_info(self) -> ReplayStart:
-        return ReplayStart(self.path.name, self.resolved, self.reader.metadata, self.bin_model)
+    def start_info(self, judge: FrameJudge | None = None) -> ReplayStart:
+        return ReplayStart(self.path.name, self.resolved, self.reader.metadata, self.bin_model, judge)
 
     def located(self, *, frames: tuple[int, int | None] = (0, None),
                 config: cfg.PipelineConfig | None = None) -> DerivedStream[tuple[Frame, Future[BinLocation]]]:
@@ -469,8 +470,10 @@ class ReplaySession:
             located.close()
 
     def run(self, sink: FrameSink | None = None, *, frames: tuple[int, int | None] = (0, None),
-            on_frame: Callable[[Frame, FrameResult, FrameRow], None] | None = None) -> ReplaySummary:
-        """Run the pipeline over ``frames`` into ``sink``; returns the summary.
+            on_frame: Callable[[Frame, FrameResult, FrameRow], None] | None = None,
+            judge: FrameJudge | None = None) -> ReplaySummary:
+        """Run the pipeline over ``frames`` into ``sink``; returns the summary. ``judge``: what the
+        frames are scored against, handed to the sinks (the recording shows where each filter is wrong).
 
         ``summary.damage`` is non-empty when frames were lost (the command exits 3).
         """
@@ -480,7 +483,7 @@ class ReplaySession:
         summary.n_log_frames = reader.n_frames
         completed = False
         poses = true_poses_of(reader.metadata)
-        sink.start(self.start_info())
+        sink.start(self.start_info(judge))
         results = None
         try:
             results = self.results(frames=frames)

@@ -45,6 +45,7 @@ from zcut.bin_model import BinModel
 
 if TYPE_CHECKING:
     from replay.logs.writer import LogWriter
+    from replay.pipeline.verdicts import FrameJudge
     from replay.pipeline.viz import RecordingStream, VizOptions
 
 VIEWER_FLUSH_TIMEOUT_S = 10.0
@@ -72,12 +73,16 @@ class ReplayStart:
     metadata : dict
         The log's MCAP metadata records.
     bin_model : BinModel or None
+    judge : FrameJudge or None
+        What the frames are scored against when the command has truth (the log's, or labels): the
+        recording then shows where each filter is wrong (:mod:`replay.pipeline.verdicts`).
     """
 
     log: str
     resolved: Resolved
     metadata: dict[str, dict[str, str]]
     bin_model: BinModel | None
+    judge: FrameJudge | None = None
 
     @property
     def config(self) -> PipelineConfig:
@@ -288,6 +293,7 @@ class RerunSink:
         self._file: RrdFile | None = None
         self._opts: VizOptions | None = None
         self._step = 0.0
+        self._judge: FrameJudge | None = None
         self._outputs: dict[str, str] = {}
         self.viewer_error: str | None = None
 
@@ -296,13 +302,15 @@ class RerunSink:
 
         self._opts = viz.VizOptions.full() if self.full_detail else viz.VizOptions()
         self._step = info.config.zcut.step
+        self._judge = info.judge
         self._rec = viz.new_recording()
         if self.rrd is not None:
             self._file = RrdFile(self.rrd)
         try:
             try:
                 note = viz.open_sink(self._rec, rrd=None if self._file is None else str(self._file.temp),
-                                     spawn=self.spawn, connect=self.connect, methods=info.config.base_methods)
+                                     spawn=self.spawn, connect=self.connect, methods=info.config.base_methods,
+                                     judged=() if self._judge is None else self._judge.methods)
             except RuntimeError as e:  # Rerun's file sink could not create the file
                 if self._file is None:
                     raise
@@ -311,6 +319,8 @@ class RerunSink:
                 print(f"zcut: {note}", file=sys.stderr, flush=True)
             viz.log_static(self._rec, config_toml=info.config_toml(), notes=info.notes, bin_model=info.bin_model,
                            source=f"log: {info.log}")
+            if self._judge is not None:
+                viz.log_verdicts_static(self._rec, self._judge.methods, source=self._judge.source)
         except BaseException:
             self.close(completed=False)
             raise
@@ -319,6 +329,8 @@ class RerunSink:
         from replay.pipeline import viz
 
         viz.log_frame(self._rec, frame, result, step_mm=self._step, opts=self._opts)  # type: ignore[arg-type]  # started
+        if self._judge is not None:
+            viz.log_verdicts(self._rec, frame, self._judge.judge(frame, result), self._judge.methods)  # type: ignore[arg-type]  # started
         if self._file is not None:
             self._file.check(self._rec)  # type: ignore[arg-type]  # started
 

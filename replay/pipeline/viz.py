@@ -25,6 +25,12 @@ An explicit :class:`rerun.RecordingStream` is passed in (no global recording). E
                                       tolerance (mm)
 ``config``                            the resolved config (TOML), static
 ``log``                               per-frame warnings (skipped or failed stages)
+``image/verdicts/NAME``               with truth only (the log's, or ``--labels``): where method
+                                      NAME is wrong, TP (1), FP (2), FN, missed (3), over the
+                                      scored region (docs/compare.md, "Where each filter is wrong")
+``world/verdicts/NAME``               the same pixels in 3D, coloured alike
+``accuracy/NAME/*``                   with truth: per-frame ``precision``, ``recall`` of NAME
+``accuracy/truth``                    with truth: what the frames are scored against, static
 ====================================  ==========================================================
 
 The z-cuts cost one small image per frame: ``zcut/cuts`` holds the pixel level (the first cut a
@@ -38,7 +44,7 @@ timeline shows the last frame logged (replay one frame with ``--frames N:N+1`` t
 from __future__ import annotations
 
 import functools
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -50,6 +56,7 @@ import rerun.blueprint as rrb
 
 from replay.logs.frame import Frame
 from replay.pipeline.stages import FrameResult
+from replay.pipeline.verdicts import MethodVerdict
 from zcut.bin_model import BinModel
 
 if TYPE_CHECKING:
@@ -81,6 +88,12 @@ BIN_MASK_CLASSES = (
 BIN_CHECK_CLASSES = (
     (1, "certain bin pixels (rim, upper walls)", (0, 90, 160)),
     (2, "bin left where the filters judge", (255, 0, 255)),
+)
+#: where a filter is wrong (replay.pipeline.verdicts: TP 1, FP 2, FN 3), the colours of zcut compare's grid
+VERDICT_CLASSES = (
+    (1, "TP (a true outlier it removed)", (0, 170, 0)),
+    (2, "FP (a good point it removed)", (230, 30, 30)),
+    (3, "FN (a true outlier it missed)", (255, 200, 0)),
 )
 
 
@@ -133,9 +146,39 @@ TIMELINES_HINT = ("The viewer opens on the frame timeline. To scrub the z-cuts o
                   "down from 0; choose frame again to step through the frames.")
 
 
-def default_blueprint(methods: tuple[str, ...] = ("zcut", "sor")) -> rrb.Blueprint:
+#: the name of the blueprint's tab of the verdicts (with truth)
+VERDICTS_TAB = "Where each filter is wrong (truth)"
+#: the name of the blueprint's tab of the pipeline's stages (a tab with truth, the whole layout without)
+PIPELINE_TAB = "Pipeline"
+
+
+def verdicts_layout(judged: tuple[str, ...]) -> rrb.Horizontal:
+    """The tab of the verdicts: a verdict image per method (TP / FP / FN over the image), the same
+    pixels in 3D (one view per method, over the cloud), precision and recall per frame."""
+    images = [rrb.Spatial2DView(name=f"{m}: TP / FP / FN", origin="image",
+                                contents=["image/rgb", f"image/verdicts/{m}"]) for m in judged]
+    clouds = [rrb.Spatial3DView(name=f"{m} in 3D: TP / FP / FN", origin="world",
+                                contents=["world/cloud", f"world/verdicts/{m}"]) for m in judged]
+    return rrb.Horizontal(
+        rrb.Grid(*images, name="Verdicts"),
+        rrb.Tabs(*clouds, name="Verdicts in 3D"),
+        rrb.Vertical(
+            rrb.TimeSeriesView(name="Precision per frame", contents=[f"accuracy/{m}/precision" for m in judged]),
+            rrb.TimeSeriesView(name="Recall per frame", contents=[f"accuracy/{m}/recall" for m in judged]),
+            rrb.TextDocumentView(name="Scored against", origin="accuracy/truth"),
+            row_shares=[3, 3, 1],
+        ),
+        column_shares=[3, 2, 2],
+        name=VERDICTS_TAB,
+    )
+
+
+def default_blueprint(methods: tuple[str, ...] = ("zcut", "sor"), judged: tuple[str, ...] = ()) -> rrb.Blueprint:
     """Image stages on the left, 3D and the z-cuts in the middle, scalars and config on the right;
-    ``methods``: the base methods the replay runs (a view for each other than the z-cut and SOR)."""
+    ``methods``: the base methods the replay runs (a view for each other than the z-cut and SOR).
+    ``judged``: the methods judged against truth; when there are some, the layout above is the tab
+    :data:`PIPELINE_TAB` and :func:`verdicts_layout` the tab :data:`VERDICTS_TAB`, which the viewer
+    opens on."""
     others = [m for m in methods if m not in ("zcut", "sor")]
     image_views: list[rrb.Spatial2DView | rrb.Tabs] = [
         rrb.Spatial2DView(name="RGB + bin mask", origin="image", contents=["image/rgb", "image/bin_mask"]),
@@ -147,27 +190,36 @@ def default_blueprint(methods: tuple[str, ...] = ("zcut", "sor")) -> rrb.Bluepri
         image_views.append(rrb.Tabs(*[rrb.Spatial2DView(name=f"Outliers: {m}", origin="image",
                                                         contents=["image/rgb", f"image/methods/{m}"])
                                       for m in others]))
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(*image_views),
-            rrb.Vertical(
-                rrb.Spatial3DView(name="3D: cloud, outliers, bin model", origin="world"),
-                rrb.Horizontal(
-                    rrb.Spatial2DView(name="Clusters", origin="image", contents=["image/rgb", "image/clusters"]),
-                    rrb.Spatial2DView(name=ZCUTS_VIEW, origin="zcut/cuts"),
-                ),
+    pipeline = rrb.Horizontal(
+        rrb.Vertical(*image_views),
+        rrb.Vertical(
+            # with truth the verdicts' points stay in their own tab
+            rrb.Spatial3DView(name="3D: cloud, outliers, bin model", origin="world",
+                              contents=["$origin/**", "- /world/verdicts/**"])
+            if judged else rrb.Spatial3DView(name="3D: cloud, outliers, bin model", origin="world"),
+            rrb.Horizontal(
+                rrb.Spatial2DView(name="Clusters", origin="image", contents=["image/rgb", "image/clusters"]),
+                rrb.Spatial2DView(name=ZCUTS_VIEW, origin="zcut/cuts"),
             ),
-            rrb.Vertical(
-                rrb.TimeSeriesView(name="Outlier counts", origin="counts"),
-                rrb.TimeSeriesView(name="α, β", origin="metrics"),
-                rrb.TimeSeriesView(name="Stage times (ms)", origin="timings_ms"),
-                rrb.TimeSeriesView(name="Registration", origin="registration"),
-                rrb.TimeSeriesView(name="Bin check", origin="bin_check"),
-                rrb.Tabs(rrb.TextDocumentView(name="Config", origin="config"),
-                         rrb.TextLogView(name="Warnings", origin="log")),
-            ),
-            column_shares=[2, 3, 2],
         ),
+        rrb.Vertical(
+            rrb.TimeSeriesView(name="Outlier counts", origin="counts"),
+            rrb.TimeSeriesView(name="α, β", origin="metrics"),
+            rrb.TimeSeriesView(name="Stage times (ms)", origin="timings_ms"),
+            rrb.TimeSeriesView(name="Registration", origin="registration"),
+            rrb.TimeSeriesView(name="Bin check", origin="bin_check"),
+            rrb.Tabs(rrb.TextDocumentView(name="Config", origin="config"),
+                     rrb.TextLogView(name="Warnings", origin="log")),
+        ),
+        column_shares=[2, 3, 2],
+        name=PIPELINE_TAB if judged else None,
+    )
+    root: rrb.Horizontal | rrb.Tabs = pipeline
+    if judged:
+        tab = verdicts_layout(judged)
+        root = rrb.Tabs(pipeline, tab, active_tab=1)  # the verdicts (a name finds views only)
+    return rrb.Blueprint(
+        root,
         # the viewer opens on the frame timeline: every stage of a frame, the per-frame series over every
         # frame; picking depth_um in the time panel's timeline menu scrubs the z-cuts of the frame shown
         rrb.TimePanel(timeline=OPENING_TIMELINE, state="expanded", play_state="paused"),
@@ -244,13 +296,15 @@ def spawn_viewer(*, port: int = VIEWER_PORT, executable: str = "rerun",
 
 
 def open_sink(rec: rr.RecordingStream, *, rrd: str | None = None, spawn: bool = False,
-              connect: str | None = None, methods: tuple[str, ...] = ("zcut", "sor")) -> str | None:
+              connect: str | None = None, methods: tuple[str, ...] = ("zcut", "sor"),
+              judged: tuple[str, ...] = ()) -> str | None:
     """Send ``rec`` to a file, a spawned viewer (listening on 127.0.0.1 only, :func:`spawn_viewer`)
-    or a running viewer, with the default blueprint for the base ``methods`` the replay runs.
+    or a running viewer, with the default blueprint for the base ``methods`` the replay runs (and
+    the ``judged`` methods' verdicts, with truth).
 
     Returns the line to tell the user for ``spawn``: a viewer was started, or one listens on the port
     already and the recording streams into it (``rr.spawn``'s behaviour, which it does silently)."""
-    bp = default_blueprint(methods)
+    bp = default_blueprint(methods, judged)
     note = None
     if rrd is not None:
         rec.save(rrd, default_blueprint=bp)
@@ -647,3 +701,40 @@ def log_frame(rec: rr.RecordingStream, frame: Frame, result: FrameResult, *,
     log_scalars(rec, result, classes)
     for w in result.warnings:
         rec.log("log", rr.TextLog(f"frame {frame.index}: {w}", level=rr.TextLogLevel.WARN))
+
+
+def log_verdicts_static(rec: rr.RecordingStream, judged: Iterable[str], *, source: str) -> None:
+    """The verdicts' classes (one context for the images, one for the points), their series' names
+    and colours, and what the frames are scored against."""
+    rec.log("image/verdicts", _ctx(VERDICT_CLASSES), static=True)
+    rec.log("world/verdicts", _ctx(VERDICT_CLASSES), static=True)
+    for m in judged:
+        rec.log(f"accuracy/{m}/precision", rr.SeriesLines(names=f"{m} precision"), static=True)
+        rec.log(f"accuracy/{m}/recall", rr.SeriesLines(names=f"{m} recall"), static=True)
+    text = (f"Scored against: **{source}**, over the scored region (docs/accuracy.md).\n\n"
+            "TP: a true outlier the method removed; FP: a good point it removed; FN: a true outlier it missed. "
+            "A frame without truth shows no verdict.\n")
+    rec.log("accuracy/truth", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
+
+
+def log_verdicts(rec: rr.RecordingStream, frame: Frame, verdicts: Mapping[str, MethodVerdict] | str,
+                 judged: Iterable[str]) -> None:
+    """Each judged method's verdict on the frame: its image (TP 1, FP 2, FN 3), the same pixels in 3D
+    and its precision and recall (left out when undefined); a frame without truth (``verdicts`` is
+    why) clears them and says so in the warnings log."""
+    if isinstance(verdicts, str):
+        for m in judged:
+            rec.log(f"image/verdicts/{m}", rr.Clear(recursive=False))
+            rec.log(f"world/verdicts/{m}", rr.Clear(recursive=False))
+        rec.log("log", rr.TextLog(f"frame {frame.index}: not scored: {verdicts}", level=rr.TextLogLevel.INFO))
+        return
+    width = frame.xyz.shape[1]
+    for m, v in verdicts.items():
+        rec.log(f"image/verdicts/{m}", rr.SegmentationImage(v.classes, opacity=0.8))
+        idx = np.flatnonzero(v.classes)
+        rows, cols = np.divmod(idx, width)
+        rec.log(f"world/verdicts/{m}", rr.Points3D(frame.xyz[rows, cols], class_ids=v.classes.ravel()[idx],
+                                                   radii=rr.Radius.ui_points(3.0)))
+        for name, value in (("precision", v.precision), ("recall", v.recall)):
+            if np.isfinite(value):
+                rec.log(f"accuracy/{m}/{name}", rr.Scalars(float(value)))
