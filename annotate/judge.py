@@ -9,7 +9,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from annotate.truth import LabelTruth, SyntheticTruth, check_region, method_predictions, scored_region
+from annotate.truth import LabelTruth, check_region, method_predictions, scored_region, synthetic_truth
 from replay.pipeline.verdicts import MethodVerdict, method_verdict
 
 if TYPE_CHECKING:
@@ -52,26 +52,21 @@ class TruthJudge:
 
 def judge_for_log(log: str | os.PathLike[str], mask_topics: Any, methods: tuple[str, ...], *,
                   labels: str | os.PathLike[str] | None = None, annotator: str | None = None,
-                  region: str = "zone") -> TruthJudge | None:
+                  truth: str | None = None, region: str = "zone") -> TruthJudge | None:
     """The judge of a log's replay: an annotator's labels with ``labels`` (``--labels DB``), else the
-    log's recorded truth when it has one (``mask_topics``: the log's mask topics), else None (no
-    truth: the recording shows nothing more).
+    log's recorded truth as ``zcut accuracy`` picks it (``truth``: ``--truth paper|sensor``, None the
+    paper's where the log has it, :func:`annotate.truth.synthetic_truth`; ``mask_topics``: the log's
+    mask topics), else None (no truth: the recording shows nothing more).
 
     Raises
     ------
     FileNotFoundError, ParameterError
-        ``labels`` missing; no labels by ``annotator`` (or several annotators and none chosen).
+        ``labels`` missing; no labels by ``annotator`` (or several annotators and none chosen); a
+        ``truth`` asked for that the log does not have.
     """
-    from replay.logs import layout
-
     if labels is not None:
         if not Path(labels).is_file():
             raise FileNotFoundError(2, "no such file", str(labels))
         return TruthJudge(LabelTruth(labels, log, annotator=annotator), methods, region=region)
-    topics = set(mask_topics)
-    # the synthetic truth's own test of a log that has it (annotate.accuracy asks the same)
-    if layout.TRUTH_OUTLIERS not in topics:
-        return None
-    truth = SyntheticTruth(with_kinds=layout.TRUTH_OUTLIER_KIND in topics,
-                           with_unknown=layout.TRUTH_UNKNOWN in topics)
-    return TruthJudge(truth, methods, region=region)
+    found = synthetic_truth(truth, set(mask_topics), log)
+    return None if found is None else TruthJudge(found, methods, region=region)

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from cli.commands.common import add_force_option, add_pipeline_options
+    from cli.commands.common import add_force_option, add_pipeline_options, add_truth_option
 
     p.add_argument("log", metavar="LOG.mcap", help="ROS 2 MCAP log with an organized PointCloud2")
     sink = p.add_mutually_exclusive_group()
@@ -43,6 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "against that truth without this option)")
     p.add_argument("--annotator", metavar="NAME", help="whose labels in --labels (needed when several annotators "
                    "labelled the log)")
+    add_truth_option(p)
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of the table")
     add_force_option(p)
     add_pipeline_options(p)
@@ -228,15 +229,18 @@ def _judge(args: argparse.Namespace, session: ReplaySession, sinks: list[FrameSi
     from replay.pipeline.sinks import RerunSink
 
     labels, annotator = getattr(args, "labels", None), getattr(args, "annotator", None)
+    truth = getattr(args, "truth", None)
     if not any(isinstance(s, RerunSink) for s in sinks):
-        if labels is not None or annotator is not None:
-            raise ConfigError("--labels/--annotator show where each filter is wrong in Rerun: "
+        if labels is not None or annotator is not None or truth is not None:
+            raise ConfigError("--labels/--annotator/--truth show where each filter is wrong in Rerun: "
                               "give --rrd, --spawn or --connect")
         return None
     if annotator is not None and labels is None:
         raise ConfigError("--annotator needs --labels DB")
+    if truth is not None and labels is not None:
+        raise ConfigError("--truth chooses the log's recorded truth: not with --labels")
     return judge_for_log(args.log, session.reader.mask_topics, session.config.methods, labels=labels,
-                         annotator=annotator)
+                         annotator=annotator, truth=truth)
 
 
 def _run_session(args: argparse.Namespace, session: ReplaySession, sinks: list[FrameSink], *,

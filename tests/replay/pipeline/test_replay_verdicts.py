@@ -96,6 +96,16 @@ def test_the_verdicts_are_accuracy_s_counts(data, tmp_path, capsys):
     assert all((img == c).any() for c in (1, 2, 3))
 
 
+def test_the_truth_asked_for(data, tmp_path, capsys):
+    log = data / "log.mcap"
+    rc, _, err = run_cli(capsys, "replay", log, "--rrd", tmp_path / "s.rrd", "--truth", "sensor")
+    assert rc == 0, err
+    assert "/ground_truth/outliers" in err.split("wrong against", 1)[1].splitlines()[0]
+    _check_counts(read_verdicts(tmp_path / "s.rrd"), _accuracy(capsys, log, "--truth", "sensor"), list(range(FRAMES)))
+    rc, _, err = run_cli(capsys, "replay", data / "notruth.mcap", "--rrd", tmp_path / "p.rrd", "--truth", "paper")
+    assert rc == 1 and len(err.strip().splitlines()) == 1 and "/ground_truth/off_surface" in err, err
+
+
 def test_the_blueprint_has_a_verdicts_tab():
     from replay.pipeline import viz
 
