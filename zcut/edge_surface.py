@@ -6,10 +6,13 @@ a part's real edge as off the surface: the window holds the floor below as well 
 and the top's last pixels stand millimetres above their mixture. Here the surfaces are fitted on
 each side separately:
 
-- **Patches.** Around every valid pixel q, the valid points of its (2r+1) × (2r+1) window
-  (r = ``patch_radius_px``; at least ``min_patch_px`` of them) get a least-squares plane in 3D
-  (centroid and the eigenvector of the smallest eigenvalue of their covariance); the patch's
-  residual is the RMS distance of its points to that plane.
+- **Patches.** Around every valid pixel q, the valid points of its (2r+1) × (2r+1) window that
+  lie on q's side of any edge (their depth within k · footprint · tan(``max_incidence_deg``) +
+  ``side_step_mm`` of q's, k pixels away; the footprint z / f with f estimated from the frame's
+  adjacent points) — at least ``min_patch_px`` of them (r = ``patch_radius_px``) — get a
+  least-squares plane in 3D (centroid and the eigenvector of the smallest eigenvalue of their
+  covariance); the patch's residual is the RMS distance of its points to that plane. A ring two
+  pixels wide (a nut's top) thus has patches of its own.
 - **Surfaces.** A patch is a surface when it lies on one side of every edge, which is what a low
   residual says: a window straddling a depth discontinuity (a part's top and the floor, a flying
   pixel) does not fit one plane. The threshold is the frame's own: ``fit_k`` × the median patch
@@ -69,6 +72,10 @@ class EdgeSurfaceParams:
     max_incidence_deg : float
         A patch whose normal makes more than this angle with its viewing ray is not a surface
         (0 < angle <= 90; 90: no such limit). 80.
+    side_step_mm : float
+        A patch holds only its centre's side of an edge: the points of its window whose depth differs
+        from the centre's by at most k × footprint × tan(max_incidence_deg) + side_step_mm, k pixels
+        away (>= 0). 1 mm.
     """
 
     patch_radius_px: int = 1
@@ -78,6 +85,7 @@ class EdgeSurfaceParams:
     fit_k: float = 3.0
     min_fit_mm: float = 0.05
     max_incidence_deg: float = 80.0
+    side_step_mm: float = 1.0
 
     def __post_init__(self) -> None:
         _check(self, "patch_radius_px", 1, 8, integer=True)
@@ -88,9 +96,10 @@ class EdgeSurfaceParams:
         _check(self, "fit_k", 0.0, math.inf, open_low=True)
         _check(self, "min_fit_mm", 0.0, math.inf)
         _check(self, "max_incidence_deg", 0.0, 90.0, open_low=True)
+        _check(self, "side_step_mm", 0.0, math.inf)
         for name in ("patch_radius_px", "min_patch_px", "search_radius_px", "max_search_radius_px"):
             object.__setattr__(self, name, int(getattr(self, name)))
-        for name in ("fit_k", "min_fit_mm", "max_incidence_deg"):
+        for name in ("fit_k", "min_fit_mm", "max_incidence_deg", "side_step_mm"):
             object.__setattr__(self, name, float(getattr(self, name)))
 
 
@@ -153,20 +162,21 @@ def _smallest_eigvec(c00, c01, c02, c11, c12, c22):  # type: ignore[no-untyped-d
 
 
 @numba.njit(cache=True)
-def _patch_kernel(xyz, valid, r, min_px, cen, nrm, rms):  # type: ignore[no-untyped-def]  # numba kernel
+def _patch_kernel(xyz, valid, r, min_px, reach, floor, cen, nrm, rms):  # type: ignore[no-untyped-def]  # numba kernel
     H, W = valid.shape
     for i in range(H):
         for j in range(W):
             rms[i, j] = np.nan
             if not valid[i, j]:
                 continue
+            zq = xyz[i, j, 2]
             n = 0
             sx = 0.0
             sy = 0.0
             sz = 0.0
             for a in range(max(i - r, 0), min(i + r + 1, H)):
                 for b in range(max(j - r, 0), min(j + r + 1, W)):
-                    if valid[a, b]:
+                    if valid[a, b] and abs(xyz[a, b, 2] - zq) <= max(abs(a - i), abs(b - j)) * reach[i, j] + floor:
                         n += 1
                         sx += xyz[a, b, 0]
                         sy += xyz[a, b, 1]
@@ -184,7 +194,7 @@ def _patch_kernel(xyz, valid, r, min_px, cen, nrm, rms):  # type: ignore[no-unty
             c22 = 0.0
             for a in range(max(i - r, 0), min(i + r + 1, H)):
                 for b in range(max(j - r, 0), min(j + r + 1, W)):
-                    if valid[a, b]:
+                    if valid[a, b] and abs(xyz[a, b, 2] - zq) <= max(abs(a - i), abs(b - j)) * reach[i, j] + floor:
                         dx = xyz[a, b, 0] - mx
                         dy = xyz[a, b, 1] - my
                         dz = xyz[a, b, 2] - mz
@@ -257,6 +267,25 @@ def _check_args(xyz_mm: object, valid: object, params: object) -> tuple[np.ndarr
     return a, np.ascontiguousarray(valid), params
 
 
+def _reach(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams) -> np.ndarray:
+    """Per pixel, how much farther (mm) a point one pixel away may lie along the ray and still be on
+    the pixel's side: its footprint (z / f, f the frame's focal length in pixels, estimated from its
+    adjacent points) × tan(max_incidence_deg)."""
+    pairs = []
+    for d0, d1 in ((0, 1), (1, 0)):
+        p = a[: a.shape[0] - d0, : a.shape[1] - d1]
+        q = a[d0:, d1:]
+        both = valid[: a.shape[0] - d0, : a.shape[1] - d1] & valid[d0:, d1:]
+        if both.any():
+            pairs.append(np.abs(q[..., d0][both] - p[..., d0][both]) / np.abs(p[..., 2][both]))
+    step = np.concatenate(pairs) if pairs else np.zeros(0)
+    step = step[np.isfinite(step)]
+    per_px = float(np.median(step)) if step.size else 0.0  # 1 / f
+    tan = min(math.tan(math.radians(params.max_incidence_deg)), 1e6)
+    reach: np.ndarray = np.ascontiguousarray(np.where(valid, np.abs(a[..., 2]) * per_px * tan, 0.0))
+    return reach
+
+
 def _surfaces(rms: np.ndarray, nrm: np.ndarray, cen: np.ndarray, params: EdgeSurfaceParams) -> Mask:
     """The patches that are surfaces: residual within the frame's gate, incidence within the limit."""
     have = np.isfinite(rms)
@@ -293,7 +322,8 @@ def signed_edge_distance(xyz_mm: XYZ, valid: Mask, *, params: EdgeSurfaceParams 
     cen = np.zeros((H, W, 3))
     nrm = np.zeros((H, W, 3))
     rms = np.empty((H, W))
-    _patch_kernel(a, valid, params.patch_radius_px, params.min_patch_px, cen, nrm, rms)
+    _patch_kernel(a, valid, params.patch_radius_px, params.min_patch_px, _reach(a, valid, params), params.side_step_mm,
+                  cen, nrm, rms)
     surface = np.ascontiguousarray(_surfaces(rms, nrm, cen, params))
     out = np.empty((H, W))
     _nearest_kernel(a, valid, surface, cen, nrm, params.patch_radius_px, params.search_radius_px,
@@ -320,12 +350,16 @@ def signed_edge_distance_reference(xyz_mm: XYZ, valid: Mask, *, params: EdgeSurf
     cen = np.zeros((H, W, 3))
     nrm = np.zeros((H, W, 3))
     rms = np.full((H, W), np.nan)
+    reach = _reach(a, valid, params)
+    rows, cols = np.mgrid[0:H, 0:W]
     for i in range(H):
         for j in range(W):
             if not valid[i, j]:
                 continue
             win = (slice(max(i - r, 0), i + r + 1), slice(max(j - r, 0), j + r + 1))
-            pts = a[win][valid[win]]
+            cheb = np.maximum(np.abs(rows[win] - i), np.abs(cols[win] - j))
+            side = valid[win] & (np.abs(a[win][..., 2] - a[i, j, 2]) <= cheb * reach[i, j] + params.side_step_mm)
+            pts = a[win][side]
             if len(pts) < params.min_patch_px:
                 continue
             m = pts.mean(axis=0)

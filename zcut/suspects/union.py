@@ -224,16 +224,13 @@ def suspects(
     by_border = floating & ~easy
     gap = local_gaps(np.where(valid, -1000.0 * a[..., 2].astype(np.float64), np.nan),
                      mask & ~by_residual & ~by_border, valid & ~mask)
-    surface_mm = None
-    if edge_surface is None:
-        gap[by_residual] = residual[by_residual]
-    else:
-        fit = valid & ~easy
-        surface_mm = signed_edge_distance(np.where(fit[..., None], 1000.0 * a.astype(np.float64), np.nan), fit,
-                                          params=edge_surface)
-        near = by_residual & np.isfinite(surface_mm)  # no surface within reach: the continuation's residual
-        gap[by_residual] = np.where(near, surface_mm, residual)[by_residual]
+    gap[by_residual] = residual[by_residual]
     gap[by_border] = floating_gap[by_border]
+    surface_mm = None
+    if edge_surface is not None:  # every suspect with a surface near: its distance to the nearest one
+        surface_mm = signed_edge_distance(1000.0 * a.astype(np.float64), valid, params=edge_surface)
+        near = mask & np.isfinite(surface_mm)
+        gap[near] = surface_mm[near]
     tau_px = np.where(np.isfinite(tau) & (tau > 0), tau, params.min_residual_mm)
     groups, primary, radii = group_suspects(codes, np.abs(gap) / tau_px, params)
     n = int(primary.size)
