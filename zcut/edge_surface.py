@@ -13,9 +13,9 @@ each side separately:
   least-squares plane in 3D (centroid and the eigenvector of the smallest eigenvalue of their
   covariance); the patch's residual is the RMS distance of its points to that plane. A ring two
   pixels wide (a nut's top) thus has patches of its own.
-- **Surfaces.** A patch is a surface when it lies on one side of every edge, which is what a low
-  residual says: a window straddling a depth discontinuity (a part's top and the floor, a flying
-  pixel) does not fit one plane. The threshold is the frame's own: ``fit_k`` × the median patch
+- **Surfaces.** A patch is a surface when its points fit one plane: a window that still straddles
+  a depth discontinuity (a small step, flying pixels between the sides) or a rough spot does not.
+  No plane fits points on a line (a column of mixed pixels at one depth). The threshold is the frame's own: ``fit_k`` × the median patch
   residual of the frame (at least ``min_fit_mm``), the median being a smooth patch's. A patch
   seen at grazing incidence (its normal more than ``max_incidence_deg`` from the viewing ray) is
   not a surface either: the mixed pixels of a step form such a steep "ramp" of their own.
@@ -27,8 +27,9 @@ each side separately:
   neither side.
 
 The sign (:func:`signed_edge_distance`) is toward the camera: the plane's normal is turned to face
-the camera at the origin. Limits: a smooth blob at least a patch wide (an interreflection ghost of
-20 px) is a surface of its own; a surface curved over the search radius is approximated by planes
+the camera at the origin. Limits: a smooth blob at least 4 pixels across (an interreflection
+ghost) is a surface of its own; a smooth steep "curtain" the sensor measured where a part overhangs
+is one too; a surface curved over the search radius is approximated by planes
 (the nearest patch, 2 px away, extrapolates least).
 
 :func:`edge_aware_distance` and :func:`signed_edge_distance` are numba kernels;
