@@ -16,7 +16,8 @@ each side separately:
 - **Surfaces.** A patch is a surface when its points fit one plane: a window that still straddles
   a depth discontinuity (a small step, flying pixels between the sides) or a rough spot does not.
   No plane fits points on a line (a column of mixed pixels at one depth). The threshold is the frame's own: ``fit_k`` × the median patch
-  residual of the frame (at least ``min_fit_mm``), the median being a smooth patch's. A patch
+  residual of the frame (the median being a smooth patch's), scaled by the square of the patch's
+  depth over the frame's as a depth sensor's noise is (at least ``min_fit_mm``). A patch
   seen at grazing incidence (its normal more than ``max_incidence_deg`` from the viewing ray) is
   not a surface either: the mixed pixels of a step form such a steep "ramp" of their own.
 - **Distance.** A pixel's distance is its distance to the nearest plane among the surfaces whose
@@ -67,7 +68,7 @@ class EdgeSurfaceParams:
         The search radius doubles while no surface is found, up to this (>= search_radius_px). 12.
     fit_k : float
         A patch is a surface when its RMS residual is at most ``fit_k`` × the frame's median patch
-        residual (> 0). 3.
+        residual, both taken relative to the square of the depth (> 0). 3.
     min_fit_mm : float
         ... and in any case up to this many mm (>= 0). 0.05.
     max_incidence_deg : float
@@ -288,12 +289,16 @@ def _reach(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams) -> np.ndarray:
 
 
 def _surfaces(rms: np.ndarray, nrm: np.ndarray, cen: np.ndarray, params: EdgeSurfaceParams) -> Mask:
-    """The patches that are surfaces: residual within the frame's gate, incidence within the limit."""
-    have = np.isfinite(rms)
+    """The patches that are surfaces: residual within the frame's gate, incidence within the limit.
+
+    The gate grows with the square of the depth, as a depth sensor's noise does: fit_k × the median
+    over the frame of rms / z², × z² of the patch (at least min_fit_mm)."""
+    z2 = cen[..., 2] ** 2
+    have = np.isfinite(rms) & (z2 > 0)
     if not have.any():
         return have
-    gate = max(params.min_fit_mm, params.fit_k * float(np.median(rms[have])))
     with np.errstate(invalid="ignore", divide="ignore"):
+        gate = np.maximum(params.min_fit_mm, params.fit_k * float(np.median(rms[have] / z2[have])) * z2)
         ray = cen / np.linalg.norm(cen, axis=2, keepdims=True)
         cos_inc = np.abs((ray * nrm).sum(axis=2))
     cos_max = math.cos(math.radians(params.max_incidence_deg))

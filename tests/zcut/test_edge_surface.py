@@ -158,6 +158,17 @@ def test_the_gate_follows_the_frames_noise(seed: int) -> None:
     assert np.median(d[:, 28:32]) < 0.2
 
 
+def test_the_gate_grows_with_the_square_of_the_depth() -> None:
+    """A wall 2.8 × as far as the table, with 8 × its noise (a depth sensor's noise grows as z²):
+    the wall's patches are surfaces too, not 'off the surface' for being rougher than the table."""
+    rng = np.random.default_rng(8)
+    z = np.full((60, 60), 500.0) + rng.normal(0, 0.1, (60, 60))
+    z[:20] = 1400.0 + rng.normal(0, 0.8, (20, 60))
+    d = edge_aware_distance(cloud(z), np.ones(z.shape, bool))
+    assert np.isfinite(d).all()
+    assert np.percentile(d[2:18], 99) < 2.0 and np.percentile(d[22:], 99) < 0.3
+
+
 BAD_PARAMS = [
     ({"patch_radius_px": 0}, "EdgeSurfaceParams.patch_radius_px"),
     ({"patch_radius_px": 1.5}, "EdgeSurfaceParams.patch_radius_px"),
