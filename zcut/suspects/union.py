@@ -90,7 +90,7 @@ class SuspectResult:
     surface_mm : (H, W) float64 ndarray or None
         With ``edge_surface``: every valid pixel's signed distance to the nearest surface fitted on
         one side of an edge (:func:`zcut.edge_surface.signed_edge_distance`; mm, positive = toward
-        the camera, NaN where unmeasured or above the rim, +inf where no surface is near); else None.
+        the camera, NaN where unmeasured, +inf where no surface is near); else None.
     """
 
     mask: Mask
@@ -163,12 +163,15 @@ def suspects(
         The camera; when given, its image size must be the frame's (a check that ``xyz`` is the
         camera's organized grid). The detectors work on the grid and need nothing else from it.
     edge_surface : EdgeSurfaceParams, optional
-        When given, the gap of a pixel the residual detectors flagged (surface residuals, mixed
-        pixels) is its signed distance to the nearest surface fitted on one side of an edge
-        (:func:`zcut.edge_surface.signed_edge_distance`) instead of its residual to the nearest
-        one-sided continuation: a real part edge is then on the surface (the labelling page's
-        gaps, ``docs/labelling.md``). The suspects themselves do not change; the groups follow the
-        gaps (their strength classes).
+        When given, the gap of a pixel the residual detectors flagged (surface residuals up and
+        down, mixed pixels; not a floating component, a completed blob or a point above the rim,
+        which keep their gaps) is its signed distance to the nearest surface fitted on one side of
+        an edge (:func:`zcut.edge_surface.signed_edge_distance`) where one lies within reach,
+        instead of its residual to the nearest one-sided continuation: a part's real edge is then
+        on the surface (the labelling page's gaps, ``docs/labelling.md``). A floating component
+        keeps its height over the points around it: a flat one of 4 × 4 pixels would be a surface
+        of its own. The suspects themselves do not change; the groups follow the gaps (their
+        strength classes).
 
     Returns
     -------
@@ -227,9 +230,9 @@ def suspects(
     gap[by_residual] = residual[by_residual]
     gap[by_border] = floating_gap[by_border]
     surface_mm = None
-    if edge_surface is not None:  # every suspect with a surface near: its distance to the nearest one
+    if edge_surface is not None:  # a pixel off the surface with a surface near: its distance to the nearest one
         surface_mm = signed_edge_distance(1000.0 * a.astype(np.float64), valid, params=edge_surface)
-        near = mask & np.isfinite(surface_mm)
+        near = by_residual & np.isfinite(surface_mm)
         gap[near] = surface_mm[near]
     tau_px = np.where(np.isfinite(tau) & (tau > 0), tau, params.min_residual_mm)
     groups, primary, radii = group_suspects(codes, np.abs(gap) / tau_px, params)
