@@ -16,9 +16,13 @@ the log's own bin model) and then, on the zone:
 Pixels: the paper's truth (``/ground_truth/off_surface``) in the zone; **edge inliers** are the zone
 pixels it calls inliers whose true depth (``/ground_truth/depth``) spans more than 2 mm over their
 3 × 3 neighbourhood (a depth discontinuity of the true scene runs through them: a part's edge).
-Printed per log: |old| and |new| of the edge inliers and of the outliers (median, 90th percentile),
-the share of edge inliers above the suspects' τ, and the IoU with the paper's truth (in the zone)
-of the best single threshold on each distance. CPU ms per frame of ``edge_aware_distance``.
+Printed per log: |old| and |new| of the edge inliers and of the outliers (median, 90th percentile)
+and the IoU with the paper's truth (in the zone) of the best single threshold on each distance;
+CPU ms per frame of ``edge_aware_distance``. Then the page itself: the gaps
+(``SuspectResult.gap_mm``) of the suspects at edges the truth calls inliers and of the suspects it
+calls outliers, without and with ``suspects(edge_surface=EdgeSurfaceParams())`` (median, 90th
+percentile, share above τ), and for the groups the best IoU of one threshold on their gap and of
+any per-group decision (zone and above-rim points).
 
 ``--real DIR``: the organized PCDs in DIR (the Kinect scans), recorded with ``zcut record``; zone =
 every valid pixel; per scan the pixels each model puts farther than the suspects' τ from the
