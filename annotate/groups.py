@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 
 from annotate.budget import METHOD_GROUPS_MAX, class_budgets, merged_components
+from zcut.edge_surface import EdgeSurfaceParams
 from zcut.params import SuspectParams
 from zcut.suspects import DETECTORS, local_gaps, strength_classes, suspects
 
@@ -179,7 +180,8 @@ def review_groups(xyz: np.ndarray, rgb: np.ndarray | None, *, height_mm: np.ndar
     ReviewGroups
     """
     H, W = valid.shape
-    res = suspects(xyz, height_mm, zone, above_rim, params=params)
+    # the suspects' gaps on one side of an edge: a part's real edge is on the surface (docs/labelling.md)
+    res = suspects(xyz, height_mm, zone, above_rim, params=params, edge_surface=EdgeSurfaceParams())
     ids = res.groups.astype(np.int32).copy()
     methods = tuple(outliers)
     sources = tuple(DETECTORS) + methods

@@ -8,6 +8,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..cloud import Intrinsics, check_mask, check_xyz
+from ..edge_surface import EdgeSurfaceParams, signed_edge_distance
 from ..errors import InputShapeError, ParameterError, describe_array
 from ..params import SuspectParams
 from ..types import XYZ, FloatImage, Labels, Mask
@@ -86,6 +87,10 @@ class SuspectResult:
         The floating detector's z-cut step.
     merge_radius_px : (5,) int64 ndarray
         The merge radius each detector ended with.
+    surface_mm : (H, W) float64 ndarray or None
+        With ``edge_surface``: every valid pixel's signed distance to the nearest surface fitted on
+        one side of an edge (:func:`zcut.edge_surface.signed_edge_distance`; mm, positive = toward
+        the camera, NaN where unmeasured, +inf where no surface is near); else None.
     """
 
     mask: Mask
@@ -104,6 +109,7 @@ class SuspectResult:
     noise_profile: NoiseProfile
     floating_step_mm: float
     merge_radius_px: np.ndarray
+    surface_mm: np.ndarray | None = None
 
     @property
     def n_groups(self) -> int:
@@ -134,6 +140,7 @@ def suspects(
     *,
     params: SuspectParams,
     intrinsics: Intrinsics | None = None,
+    edge_surface: EdgeSurfaceParams | None = None,
 ) -> SuspectResult:
     """Every suspect of one frame, from all the detectors, grouped for review.
 
@@ -155,6 +162,16 @@ def suspects(
     intrinsics : Intrinsics, optional
         The camera; when given, its image size must be the frame's (a check that ``xyz`` is the
         camera's organized grid). The detectors work on the grid and need nothing else from it.
+    edge_surface : EdgeSurfaceParams, optional
+        When given, the gap of a pixel the residual detectors flagged (surface residuals up and
+        down, mixed pixels; not a floating component, a completed blob or a point above the rim,
+        which keep their gaps) is its signed distance to the nearest surface fitted on one side of
+        an edge (:func:`zcut.edge_surface.signed_edge_distance`) where one lies within reach,
+        instead of its residual to the nearest one-sided continuation: a part's real edge is then
+        on the surface (the labelling page's gaps, ``docs/labelling.md``). A floating component
+        keeps its height over the points around it: a flat one of 4 × 4 pixels would be a surface
+        of its own. The suspects themselves do not change; the groups follow the gaps (their
+        strength classes).
 
     Returns
     -------
@@ -169,6 +186,8 @@ def suspects(
         raise InputShapeError(f"height_mm must be an (H, W) float array like xyz {(H, W)}, got {describe_array(h_img)}")
     zone = check_mask(zone, name="zone", shape=(H, W))
     easy = np.zeros((H, W), bool) if above_rim is None else check_mask(above_rim, name="above_rim", shape=(H, W))
+    if edge_surface is not None and not isinstance(edge_surface, EdgeSurfaceParams):
+        raise ParameterError(f"edge_surface must be an EdgeSurfaceParams or None, got {type(edge_surface).__name__}")
     if intrinsics is not None:
         if not isinstance(intrinsics, Intrinsics):
             raise ParameterError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
@@ -201,14 +220,20 @@ def suspects(
     mask = codes > 0
 
     # gaps: a floating pixel's over the measured pixels bordering its component; a pixel off the
-    # surface, its residual (to the nearest continuation); a blob's or an above-rim pixel's, to the
-    # local surface around it
+    # surface, its residual (to the nearest continuation) or, with edge_surface, its distance to the
+    # nearest surface fitted on one side of an edge; a blob's or an above-rim pixel's, to the local
+    # surface around it
     by_residual = off & ((codes & (FLOATING | ABOVE_RIM)) == 0) & np.isfinite(residual)
     by_border = floating & ~easy
     gap = local_gaps(np.where(valid, -1000.0 * a[..., 2].astype(np.float64), np.nan),
                      mask & ~by_residual & ~by_border, valid & ~mask)
     gap[by_residual] = residual[by_residual]
     gap[by_border] = floating_gap[by_border]
+    surface_mm = None
+    if edge_surface is not None:  # a pixel off the surface with a surface near: its distance to the nearest one
+        surface_mm = signed_edge_distance(1000.0 * a.astype(np.float64), valid, params=edge_surface)
+        near = by_residual & np.isfinite(surface_mm)
+        gap[near] = surface_mm[near]
     tau_px = np.where(np.isfinite(tau) & (tau > 0), tau, params.min_residual_mm)
     groups, primary, radii = group_suspects(codes, np.abs(gap) / tau_px, params)
     n = int(primary.size)
@@ -233,5 +258,5 @@ def suspects(
         group_detectors=bits[order], group_primary=primary[order], group_size=size[order],
         group_gap_mm=g_gap[order], group_bbox=bbox[order], group_score=score[order],
         noise_mm=sigma, threshold_mm=float(np.median(tau[zone])) if zone.any() else float(params.min_residual_mm),
-        noise_profile=profile, floating_step_mm=step, merge_radius_px=radii,
+        noise_profile=profile, floating_step_mm=step, merge_radius_px=radii, surface_mm=surface_mm,
     )

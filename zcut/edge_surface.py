@@ -1,0 +1,394 @@
+"""An edge-aware local surface model: each pixel's distance to the surfaces fitted on each side of an edge.
+
+Where no part model is known, the only surfaces are the measured ones. A surface *continued* across
+a depth discontinuity (a window's median, the linear continuation of the pixels on one side) reads
+a part's real edge as off the surface: the window holds the floor below as well as the part's top,
+and the top's last pixels stand millimetres above their mixture. Here the surfaces are fitted on
+each side separately:
+
+- **Patches.** Around every valid pixel q, the valid points of its (2r+1) × (2r+1) window that
+  lie on q's side of any edge (their depth within k · footprint · tan(``max_incidence_deg``) +
+  ``side_step_mm`` of q's, k pixels away; the footprint z / f with f estimated from the frame's
+  adjacent points) — at least ``min_patch_px`` of them (r = ``patch_radius_px``) — get a
+  least-squares plane in 3D (centroid and the eigenvector of the smallest eigenvalue of their
+  covariance); the patch's residual is the RMS distance of its points to that plane. A ring two
+  pixels wide (a nut's top) thus has patches of its own.
+- **Surfaces.** A patch is a surface when its points fit one plane: a window that still straddles
+  a depth discontinuity (a small step, flying pixels between the sides) or a rough spot does not.
+  No plane fits points on a line (a column of mixed pixels at one depth). The threshold is the frame's own: ``fit_k`` × the median patch
+  residual of the frame (the median being a smooth patch's), scaled by the square of the patch's
+  depth over the frame's as a depth sensor's noise is (at least ``min_fit_mm``). A patch
+  seen at grazing incidence (its normal more than ``max_incidence_deg`` from the viewing ray) is
+  not a surface either: the mixed pixels of a step form such a steep "ramp" of their own.
+- **Distance.** A pixel's distance is its distance to the nearest plane among the surfaces whose
+  window does not hold it (centres farther than r, within ``search_radius_px``; the radius doubles
+  up to ``max_search_radius_px`` while none is found, +inf past that). Leaving the pixel out of
+  every plane that judges it keeps an outlier from explaining itself; an inlier at a part's edge
+  is explained by the patches inside the part, a flying pixel between the part and the floor by
+  neither side.
+
+The sign (:func:`signed_edge_distance`) is toward the camera: the plane's normal is turned to face
+the camera at the origin. Limits: a smooth blob at least 4 pixels across (an interreflection
+ghost) is a surface of its own; a smooth steep "curtain" the sensor measured where a part overhangs
+is one too; a surface curved over the search radius is approximated by planes
+(the nearest patch, 2 px away, extrapolates least).
+
+:func:`edge_aware_distance` and :func:`signed_edge_distance` are numba kernels;
+:func:`signed_edge_distance_reference` is the same with plain loops and ``np.linalg.eigh`` (the
+tests' oracle).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from .cloud import check_mask, check_xyz
+from .errors import InputShapeError, ParameterError
+from .types import XYZ, Mask
+
+
+@dataclass(frozen=True, slots=True)
+class EdgeSurfaceParams:
+    """Parameters of :func:`edge_aware_distance`.
+
+    Attributes
+    ----------
+    patch_radius_px : int
+        Half-size of a patch (1-8): planes are fitted to (2r+1) × (2r+1) windows. 1: a 3 × 3 patch
+        fits on a nut's ring a few pixels wide.
+    min_patch_px : int
+        Valid points a patch needs (3 to (2r+1)²). 6 of 9.
+    search_radius_px : int
+        Patch centres within this many pixels (Chebyshev) of a pixel judge it (> patch_radius_px). 3.
+    max_search_radius_px : int
+        The search radius doubles while no surface is found, up to this (>= search_radius_px). 12.
+    fit_k : float
+        A patch is a surface when its RMS residual is at most ``fit_k`` × the frame's median patch
+        residual, both taken relative to the square of the depth (> 0). 3.
+    min_fit_mm : float
+        ... and in any case up to this many mm (>= 0). 0.05.
+    max_incidence_deg : float
+        A patch whose normal makes more than this angle with its viewing ray is not a surface
+        (0 < angle <= 90; 90: no such limit). 80.
+    side_step_mm : float
+        A patch holds only its centre's side of an edge: the points of its window whose depth differs
+        from the centre's by at most k × footprint × tan(max_incidence_deg) + side_step_mm, k pixels
+        away (>= 0). 1 mm.
+    """
+
+    patch_radius_px: int = 1
+    min_patch_px: int = 6
+    search_radius_px: int = 3
+    max_search_radius_px: int = 12
+    fit_k: float = 3.0
+    min_fit_mm: float = 0.05
+    max_incidence_deg: float = 80.0
+    side_step_mm: float = 1.0
+
+    def __post_init__(self) -> None:
+        _check(self, "patch_radius_px", 1, 8, integer=True)
+        side = (2 * self.patch_radius_px + 1) ** 2
+        _check(self, "min_patch_px", 3, side, integer=True)
+        _check(self, "search_radius_px", self.patch_radius_px + 1, 256, integer=True)
+        _check(self, "max_search_radius_px", self.search_radius_px, 4096, integer=True)
+        _check(self, "fit_k", 0.0, math.inf, open_low=True)
+        _check(self, "min_fit_mm", 0.0, math.inf)
+        _check(self, "max_incidence_deg", 0.0, 90.0, open_low=True)
+        _check(self, "side_step_mm", 0.0, math.inf)
+        for name in ("patch_radius_px", "min_patch_px", "search_radius_px", "max_search_radius_px"):
+            object.__setattr__(self, name, int(getattr(self, name)))
+        for name in ("fit_k", "min_fit_mm", "max_incidence_deg", "side_step_mm"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+
+
+def _check(obj: object, name: str, lo: float, hi: float, *, integer: bool = False, open_low: bool = False) -> None:
+    """``obj.name`` must be a finite number (an int when ``integer``) in [lo, hi] ((lo, hi] when ``open_low``)."""
+    v = getattr(obj, name)
+    bad = isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v)
+    if not bad and integer and int(v) != v:
+        bad = True
+    if not bad and not ((v > lo if open_low else v >= lo) and v <= hi):
+        bad = True
+    if bad:
+        kind = "an integer" if integer else "a number"
+        low = f"> {lo:g}" if open_low else f">= {lo:g}"
+        high = "" if math.isinf(hi) else f" and <= {hi:g}"
+        raise ParameterError(f"{type(obj).__name__}.{name} must be {kind} {low}{high}, got {v!r}")
+
+
+# ---------------------------------------------------------------------------------------------- kernels
+
+@numba.njit(cache=True)
+def _smallest_eigvec(c00, c01, c02, c11, c12, c22):  # type: ignore[no-untyped-def]  # numba kernel
+    """(λ_min, nx, ny, nz) of a symmetric 3 × 3 matrix (closed form); nx = NaN when the vector is
+    undetermined (the two smallest eigenvalues equal: points on a line or one point)."""
+    q = (c00 + c11 + c22) / 3.0
+    p1 = c01 * c01 + c02 * c02 + c12 * c12
+    p2 = (c00 - q) ** 2 + (c11 - q) ** 2 + (c22 - q) ** 2 + 2.0 * p1
+    if p2 <= 0.0:
+        return q, np.nan, np.nan, np.nan
+    p = math.sqrt(p2 / 6.0)
+    b00 = (c00 - q) / p
+    b11 = (c11 - q) / p
+    b22 = (c22 - q) / p
+    b01 = c01 / p
+    b02 = c02 / p
+    b12 = c12 / p
+    r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02))
+    r = min(max(r, -1.0), 1.0)
+    phi = math.acos(r) / 3.0
+    lam = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    # rows of A - λI; the eigenvector is the largest cross product of two of them
+    a0x, a0y, a0z = c00 - lam, c01, c02
+    a1x, a1y, a1z = c01, c11 - lam, c12
+    a2x, a2y, a2z = c02, c12, c22 - lam
+    v0x, v0y, v0z = a0y * a1z - a0z * a1y, a0z * a1x - a0x * a1z, a0x * a1y - a0y * a1x
+    v1x, v1y, v1z = a0y * a2z - a0z * a2y, a0z * a2x - a0x * a2z, a0x * a2y - a0y * a2x
+    v2x, v2y, v2z = a1y * a2z - a1z * a2y, a1z * a2x - a1x * a2z, a1x * a2y - a1y * a2x
+    n0 = v0x * v0x + v0y * v0y + v0z * v0z
+    n1 = v1x * v1x + v1y * v1y + v1z * v1z
+    n2 = v2x * v2x + v2y * v2y + v2z * v2z
+    if n1 > n0 and n1 >= n2:
+        v0x, v0y, v0z, n0 = v1x, v1y, v1z, n1
+    elif n2 > n0:
+        v0x, v0y, v0z, n0 = v2x, v2y, v2z, n2
+    scale = (c00 + c11 + c22) ** 2
+    if not n0 > 1e-9 * scale:
+        return lam, np.nan, np.nan, np.nan
+    s = 1.0 / math.sqrt(n0)
+    return lam, v0x * s, v0y * s, v0z * s
+
+
+@numba.njit(cache=True)
+def _patch_kernel(xyz, valid, r, min_px, reach, floor, cen, nrm, rms):  # type: ignore[no-untyped-def]  # numba kernel
+    H, W = valid.shape
+    for i in range(H):
+        for j in range(W):
+            rms[i, j] = np.nan
+            if not valid[i, j]:
+                continue
+            zq = xyz[i, j, 2]
+            n = 0
+            sx = 0.0
+            sy = 0.0
+            sz = 0.0
+            for a in range(max(i - r, 0), min(i + r + 1, H)):
+                for b in range(max(j - r, 0), min(j + r + 1, W)):
+                    if valid[a, b] and abs(xyz[a, b, 2] - zq) <= max(abs(a - i), abs(b - j)) * reach[i, j] + floor:
+                        n += 1
+                        sx += xyz[a, b, 0]
+                        sy += xyz[a, b, 1]
+                        sz += xyz[a, b, 2]
+            if n < min_px:
+                continue
+            mx = sx / n
+            my = sy / n
+            mz = sz / n
+            c00 = 0.0
+            c01 = 0.0
+            c02 = 0.0
+            c11 = 0.0
+            c12 = 0.0
+            c22 = 0.0
+            for a in range(max(i - r, 0), min(i + r + 1, H)):
+                for b in range(max(j - r, 0), min(j + r + 1, W)):
+                    if valid[a, b] and abs(xyz[a, b, 2] - zq) <= max(abs(a - i), abs(b - j)) * reach[i, j] + floor:
+                        dx = xyz[a, b, 0] - mx
+                        dy = xyz[a, b, 1] - my
+                        dz = xyz[a, b, 2] - mz
+                        c00 += dx * dx
+                        c01 += dx * dy
+                        c02 += dx * dz
+                        c11 += dy * dy
+                        c12 += dy * dz
+                        c22 += dz * dz
+            lam, nx, ny, nz = _smallest_eigvec(c00 / n, c01 / n, c02 / n, c11 / n, c12 / n, c22 / n)
+            if not np.isfinite(nx):
+                continue
+            if nx * mx + ny * my + nz * mz > 0.0:  # face the camera at the origin
+                nx, ny, nz = -nx, -ny, -nz
+            cen[i, j, 0] = mx
+            cen[i, j, 1] = my
+            cen[i, j, 2] = mz
+            nrm[i, j, 0] = nx
+            nrm[i, j, 1] = ny
+            nrm[i, j, 2] = nz
+            rms[i, j] = math.sqrt(max(lam, 0.0))
+
+
+@numba.njit(cache=True)
+def _nearest_kernel(xyz, valid, surface, cen, nrm, r, radius, max_radius, out):  # type: ignore[no-untyped-def]  # numba kernel
+    H, W = valid.shape
+    for i in range(H):
+        for j in range(W):
+            out[i, j] = np.nan
+            if not valid[i, j]:
+                continue
+            px = xyz[i, j, 0]
+            py = xyz[i, j, 1]
+            pz = xyz[i, j, 2]
+            R = radius
+            best = np.inf
+            signed = np.inf
+            while True:
+                for a in range(max(i - R, 0), min(i + R + 1, H)):
+                    for b in range(max(j - R, 0), min(j + R + 1, W)):
+                        if abs(a - i) <= r and abs(b - j) <= r:
+                            continue
+                        if not surface[a, b]:
+                            continue
+                        d = (nrm[a, b, 0] * (px - cen[a, b, 0]) + nrm[a, b, 1] * (py - cen[a, b, 1])
+                             + nrm[a, b, 2] * (pz - cen[a, b, 2]))
+                        if abs(d) < best:
+                            best = abs(d)
+                            signed = d
+                if best < np.inf or R >= max_radius:
+                    break
+                R = min(2 * R, max_radius)
+            out[i, j] = signed
+
+
+# ---------------------------------------------------------------------------------------------- API
+
+def _check_args(xyz_mm: object, valid: object, params: object) -> tuple[np.ndarray, Mask, EdgeSurfaceParams]:
+    a = check_xyz(xyz_mm, name="xyz_mm")  # type: ignore[arg-type]
+    valid = check_mask(valid, name="valid", shape=a.shape[:2])
+    if params is None:
+        params = EdgeSurfaceParams()
+    if not isinstance(params, EdgeSurfaceParams):
+        raise ParameterError(f"params must be an EdgeSurfaceParams, got {type(params).__name__}")
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    finite = np.isfinite(a).all(axis=2)
+    if (valid & ~finite).any():
+        raise InputShapeError("valid must hold only pixels whose three coordinates are finite "
+                              f"({int((valid & ~finite).sum())} valid pixels have NaN or inf)")
+    return a, np.ascontiguousarray(valid), params
+
+
+def _reach(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams) -> np.ndarray:
+    """Per pixel, how much farther (mm) a point one pixel away may lie along the ray and still be on
+    the pixel's side: its footprint (z / f, f the frame's focal length in pixels, estimated from its
+    adjacent points) × tan(max_incidence_deg)."""
+    pairs = []
+    for d0, d1 in ((0, 1), (1, 0)):
+        p = a[: a.shape[0] - d0, : a.shape[1] - d1]
+        q = a[d0:, d1:]
+        both = valid[: a.shape[0] - d0, : a.shape[1] - d1] & valid[d0:, d1:]
+        if both.any():
+            pairs.append(np.abs(q[..., d0][both] - p[..., d0][both]) / np.abs(p[..., 2][both]))
+    step = np.concatenate(pairs) if pairs else np.zeros(0)
+    step = step[np.isfinite(step)]
+    per_px = float(np.median(step)) if step.size else 0.0  # 1 / f
+    tan = min(math.tan(math.radians(params.max_incidence_deg)), 1e6)
+    reach: np.ndarray = np.ascontiguousarray(np.where(valid, np.abs(a[..., 2]) * per_px * tan, 0.0))
+    return reach
+
+
+def _surfaces(rms: np.ndarray, nrm: np.ndarray, cen: np.ndarray, params: EdgeSurfaceParams) -> Mask:
+    """The patches that are surfaces: residual within the frame's gate, incidence within the limit.
+
+    The gate grows with the square of the depth, as a depth sensor's noise does: fit_k × the median
+    over the frame of rms / z², × z² of the patch (at least min_fit_mm)."""
+    z2 = cen[..., 2] ** 2
+    have = np.isfinite(rms) & (z2 > 0)
+    if not have.any():
+        return have
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gate = np.maximum(params.min_fit_mm, params.fit_k * float(np.median(rms[have] / z2[have])) * z2)
+        ray = cen / np.linalg.norm(cen, axis=2, keepdims=True)
+        cos_inc = np.abs((ray * nrm).sum(axis=2))
+    cos_max = math.cos(math.radians(params.max_incidence_deg))
+    ok: Mask = have & (rms <= gate) & ((cos_inc >= cos_max) | (params.max_incidence_deg >= 90.0))
+    return ok
+
+
+def signed_edge_distance(xyz_mm: XYZ, valid: Mask, *, params: EdgeSurfaceParams | None = None) -> np.ndarray:
+    """Signed distance (mm, positive = toward the camera) of every valid pixel to the nearest surface
+    fitted on one side of an edge (the module docstring says how).
+
+    Parameters
+    ----------
+    xyz_mm : (H, W, 3) float ndarray
+        The organized cloud in millimetres, camera frame (the camera at the origin), NaN invalid.
+    valid : (H, W) bool ndarray
+        The pixels to judge and to fit from; every one must be finite.
+    params : EdgeSurfaceParams, optional
+
+    Returns
+    -------
+    (H, W) float64 ndarray
+        NaN where not valid; +inf where no surface lies within ``max_search_radius_px``.
+    """
+    a, valid, params = _check_args(xyz_mm, valid, params)
+    H, W = valid.shape
+    cen = np.zeros((H, W, 3))
+    nrm = np.zeros((H, W, 3))
+    rms = np.empty((H, W))
+    _patch_kernel(a, valid, params.patch_radius_px, params.min_patch_px, _reach(a, valid, params), params.side_step_mm,
+                  cen, nrm, rms)
+    surface = np.ascontiguousarray(_surfaces(rms, nrm, cen, params))
+    out = np.empty((H, W))
+    _nearest_kernel(a, valid, surface, cen, nrm, params.patch_radius_px, params.search_radius_px,
+                    params.max_search_radius_px, out)
+    return out
+
+
+def edge_aware_distance(xyz_mm: XYZ, valid: Mask, *, params: EdgeSurfaceParams | None = None) -> np.ndarray:
+    """Distance (mm) of every valid pixel to the nearest surface fitted on one side of an edge.
+
+    ``abs`` of :func:`signed_edge_distance` (same parameters): NaN where not valid, +inf where no
+    surface lies within ``max_search_radius_px``.
+    """
+    out: np.ndarray = np.abs(signed_edge_distance(xyz_mm, valid, params=params))
+    return out
+
+
+def signed_edge_distance_reference(xyz_mm: XYZ, valid: Mask, *, params: EdgeSurfaceParams | None = None
+                                   ) -> np.ndarray:
+    """:func:`signed_edge_distance` as plain loops with ``np.linalg.eigh`` (slow; the tests' oracle)."""
+    a, valid, params = _check_args(xyz_mm, valid, params)
+    H, W = valid.shape
+    r = params.patch_radius_px
+    cen = np.zeros((H, W, 3))
+    nrm = np.zeros((H, W, 3))
+    rms = np.full((H, W), np.nan)
+    reach = _reach(a, valid, params)
+    rows, cols = np.mgrid[0:H, 0:W]
+    for i in range(H):
+        for j in range(W):
+            if not valid[i, j]:
+                continue
+            win = (slice(max(i - r, 0), i + r + 1), slice(max(j - r, 0), j + r + 1))
+            cheb = np.maximum(np.abs(rows[win] - i), np.abs(cols[win] - j))
+            side = valid[win] & (np.abs(a[win][..., 2] - a[i, j, 2]) <= cheb * reach[i, j] + params.side_step_mm)
+            pts = a[win][side]
+            if len(pts) < params.min_patch_px:
+                continue
+            m = pts.mean(axis=0)
+            w, v = np.linalg.eigh((pts - m).T @ (pts - m) / len(pts))
+            if not w[1] - w[0] > 1e-6 * max(w[2], 1e-300):  # a line or a point: no plane
+                continue
+            n = v[:, 0] if m @ v[:, 0] <= 0 else -v[:, 0]
+            cen[i, j], nrm[i, j], rms[i, j] = m, n, math.sqrt(max(w[0], 0.0))
+    surface = _surfaces(rms, nrm, cen, params)
+    out = np.full((H, W), np.nan)
+    for i, j in zip(*np.nonzero(valid)):
+        R = params.search_radius_px
+        while True:
+            best = np.inf
+            for a_ in range(max(i - R, 0), min(i + R + 1, H)):
+                for b in range(max(j - R, 0), min(j + R + 1, W)):
+                    if (abs(a_ - i) <= r and abs(b - j) <= r) or not surface[a_, b]:
+                        continue
+                    d = float(nrm[a_, b] @ (a[i, j] - cen[a_, b]))
+                    if abs(d) < abs(best):
+                        best = d
+            if np.isfinite(best) or R >= params.max_search_radius_px:
+                break
+            R = min(2 * R, params.max_search_radius_px)
+        out[i, j] = best
+    return out
