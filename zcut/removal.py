@@ -22,6 +22,9 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
   plus ``residual_margin_mm``, within ``[min_tolerance_mm, max_tolerance_mm]``. A point within τ of
   the model is bin before it can be an easy outlier (a tilted pose lifts one end of the real rim
   above the model's rim plus the offset), and the straggler test reaches τ + ``straggler_mm``.
+  The search radius of the test (a model point that near, then its normal distance within τ) is
+  measured on the same pixels, across the normals (:attr:`Tolerance.reach_mm`): a model built from
+  a few low-resolution scans is sampled more coarsely than ``1.5 × spacing_m`` says.
   With a right pose τ stays near 1 mm (the sensor's noise); a pose 2 mm off raises it to about
   3 mm, and the removal follows the registration instead of failing on it.
 """
@@ -77,6 +80,10 @@ class RemovalResult:
     residual_mm : float
         Robust mode: the percentile of the certain bin pixels' residuals τ was derived from (before
         the margin and the bounds; :attr:`Tolerance.residual_mm`); NaN otherwise.
+    radius_mm : float
+        The search radius of the bin test (mm): a point is bin when a model point within it lies
+        within ``tolerance_mm`` of the point along its normal. Robust mode: at least the frame's
+        lateral reach (:attr:`Tolerance.reach_mm`); NaN when no model was registered.
     """
 
     table: Mask
@@ -90,6 +97,7 @@ class RemovalResult:
     up_cam: np.ndarray
     tolerance_mm: float = float("nan")
     residual_mm: float = float("nan")
+    radius_mm: float = float("nan")
 
     @property
     def labelled(self) -> Mask:
@@ -461,12 +469,44 @@ class Tolerance:
         Certain bin pixels measured.
     n_coherent : int
         Of those, the ones whose residual is coherent with their neighbours' (:data:`COHERENCE_MM`).
+    reach_mm : float
+        The lateral reach the bin test needs (mm): the ``residual_quantile`` percentile of the same
+        pixels' distances to their nearest model point *along* the model's surface (across its
+        normal) plus ``residual_margin_mm``, at most ``max_tolerance_mm``. The test looks for a model
+        point within its search radius before it measures the distance along that point's normal:
+        where the model is sampled more coarsely than ``1.5 × spacing_m`` (a model built from a few
+        low-resolution scans: 4.2 mm between a 200 × 150 frame's rim pixels and the nearest point of
+        a model from two 200 × 150 empty scans, whose median spacing is 1.55 mm), a pixel on the
+        bin's surface finds none and stays in the zone. NaN when not measured (no pixel, a fixed
+        τ, or a model without normals, whose residuals are distances already).
     """
 
     tolerance_mm: float
     residual_mm: float
     n_pixels: int
     n_coherent: int = 0
+    reach_mm: float = float("nan")
+
+
+def _lateral_mm(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) -> np.ndarray:
+    """(len(flat),) float64: the distance (mm) of each pixel ``flat`` to its nearest model point
+    across that point's normal (along the model's surface); +inf where the point is not finite or no
+    model point lies within ``max_tolerance_mm``. The model has normals."""
+    out = np.full(len(flat), np.inf)
+    model = index.model
+    if len(flat) == 0 or len(model.points) == 0 or model.normals is None:
+        return out
+    pts = a.reshape(-1, 3)[flat].astype(np.float64)
+    ok = np.isfinite(pts).all(axis=1)
+    p_bin = (pts[ok] - T[:3, 3]) @ T[:3, :3]
+    d, j = index.tree.query(p_bin, k=1, distance_upper_bound=index.params.max_tolerance_mm / 1000.0)  # type: ignore[attr-defined]
+    found = np.isfinite(d)
+    r = np.full(len(p_bin), np.inf)
+    jj = j[found]
+    normal = np.einsum("ij,ij->i", p_bin[found] - model.points[jj], model.normals[jj])
+    r[found] = np.sqrt(np.maximum(d[found] ** 2 - normal**2, 0.0))
+    out[ok] = r * 1000.0
+    return out
 
 
 def _residuals_of(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) -> np.ndarray:
@@ -619,6 +659,10 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
     coherent, or more than :data:`MAX_FAR_SHARE` lie beyond ``max_tolerance_mm`` among neighbours
     that do too (:func:`far_share`: a pose far off), the
     percentile of all of them is taken, as before; with no pixel to measure τ is the maximum.
+
+    τ bounds the test along the model's normals; its search radius bounds it across them, and is
+    measured on the same pixels (:attr:`Tolerance.reach_mm`): the removal's radius is at least that
+    reach, so a model sampled more coarsely than the frame does not leave its bin pixels in the zone.
     """
     p = index.params
     lo = max(p.min_tolerance_mm, p.delta_mm)
@@ -633,7 +677,15 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
     q = float(np.percentile(use, p.residual_quantile, method="higher"))
     tau = min(max(q + p.residual_margin_mm, lo), max(p.max_tolerance_mm, lo)) if np.isfinite(q) \
         else max(p.max_tolerance_mm, lo)
-    return Tolerance(float(tau), q, len(res), n_coh)
+    reach = float("nan")
+    if index.model.normals is not None:
+        # the same pixels, the same percentile and margin, across the normal: the test's other extent
+        flat = _ring_sample(np.asarray(xyz), np.asarray(ring, dtype=bool))
+        lateral = _lateral_mm(np.asarray(xyz), flat[coherent] if surface else flat, index,
+                              np.asarray(T_cam_bin, dtype=np.float64))
+        q_lat = float(np.percentile(lateral, p.residual_quantile, method="higher"))
+        reach = min(q_lat + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_lat) else p.max_tolerance_mm
+    return Tolerance(float(tau), q, len(res), n_coh, float(reach))
 
 
 def check_removal_args(
@@ -734,6 +786,8 @@ def remove_table_and_bin(
                             float("nan"), 0)
         delta_m, residual_mm = tol.tolerance_mm / 1000.0, tol.residual_mm
         radius_m = _radius(p, index.model.spacing_m, delta_m)
+        if p.search_radius_mm is None and np.isfinite(tol.reach_mm):  # a radius given is kept as given
+            radius_m = max(radius_m, tol.reach_mm / 1000.0)
         straggler_m = p.straggler_m + delta_m if p.straggler_m > 0 else 0.0
     else:
         delta_m, radius_m, straggler_m = p.delta_m, index.radius_m, p.straggler_m
@@ -759,7 +813,8 @@ def remove_table_and_bin(
     height = np.empty(shape, np.float64)
     xyz_out = np.empty(a.shape, np.float32)
     _finish(a, valid, labelled, plane, float(floor), up, float(z_far), height, xyz_out)
-    return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up, delta_m * 1000.0, residual_mm)
+    return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up, delta_m * 1000.0, residual_mm,
+                         r_bin * 1000.0)
 
 
 def _remove_table(a: np.ndarray, fp: Mask) -> RemovalResult:
