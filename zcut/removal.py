@@ -21,10 +21,11 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
   those coherent with their neighbours' (a sensor's ghosts are not: :func:`coherent_residuals`)
   plus ``residual_margin_mm``, within ``[min_tolerance_mm, max_tolerance_mm]``. A point within τ of
   the model is bin before it can be an easy outlier (a tilted pose lifts one end of the real rim
-  above the model's rim plus the offset), and the straggler test reaches τ + ``straggler_mm``.
-  The search radius of the test (a model point that near, then its normal distance within τ) is
-  measured on the same pixels, across the normals (:attr:`Tolerance.reach_mm`): a model built from
-  a few low-resolution scans is sampled more coarsely than ``1.5 × spacing_m`` says.
+  above the model's rim plus the offset). The test's search radius (a model point that near, then
+  the point within τ of it along its normal) is measured on the same pixels: their distances to the
+  nearest model point (:attr:`Tolerance.reach_mm`; a model built from a few low-resolution scans
+  is sampled more coarsely than ``1.5 × spacing_m`` says). The straggler test reaches
+  ``straggler_mm`` beyond both: τ + ``straggler_mm`` along the normal, the radius + ``straggler_mm``.
   With a right pose τ stays near 1 mm (the sensor's noise); a pose 2 mm off raises it to about
   3 mm, and the removal follows the registration instead of failing on it.
 """
@@ -83,7 +84,7 @@ class RemovalResult:
     radius_mm : float
         The search radius of the bin test (mm): a point is bin when a model point within it lies
         within ``tolerance_mm`` of the point along its normal. Robust mode: at least the frame's
-        lateral reach (:attr:`Tolerance.reach_mm`); NaN when no model was registered.
+        reach (:attr:`Tolerance.reach_mm`); NaN when no model was registered.
     """
 
     table: Mask
@@ -202,6 +203,8 @@ def prepare_removal_index(model: BinModel, params: RemovalParams) -> RemovalInde
     if params.straggler_m > 0:
         s = params.straggler_m + (delta if params.robust else 0.0)
         r_str = max(radius, s) if planes else s
+        if params.robust and planes:  # the stragglers reach straggler_mm beyond a measured radius too
+            r_str = max(r_str, radius + params.straggler_m)
         straggler = _model_index(model.points, model.normals, r_str)
     from scipy.spatial import cKDTree
 
@@ -470,15 +473,15 @@ class Tolerance:
     n_coherent : int
         Of those, the ones whose residual is coherent with their neighbours' (:data:`COHERENCE_MM`).
     reach_mm : float
-        The lateral reach the bin test needs (mm): the ``residual_quantile`` percentile of the same
-        pixels' distances to their nearest model point *along* the model's surface (across its
-        normal) plus ``residual_margin_mm``, at most ``max_tolerance_mm``. The test looks for a model
-        point within its search radius before it measures the distance along that point's normal:
-        where the model is sampled more coarsely than ``1.5 × spacing_m`` (a model built from a few
-        low-resolution scans: 4.2 mm between a 200 × 150 frame's rim pixels and the nearest point of
-        a model from two 200 × 150 empty scans, whose median spacing is 1.55 mm), a pixel on the
-        bin's surface finds none and stays in the zone. NaN when not measured (no pixel, a fixed
-        τ, or a model without normals, whose residuals are distances already).
+        The search radius the bin test needs (mm): the ``residual_quantile`` percentile of the same
+        pixels' distances to their nearest model point plus ``residual_margin_mm``, at most
+        ``max_tolerance_mm``. The test looks for a model point within its search radius before it
+        measures the distance along that point's normal: where the model is sampled more coarsely
+        than ``1.5 × spacing_m`` (a model built from a few low-resolution scans: up to 4.4 mm between
+        a 200 × 150 frame's rim pixels and the nearest point of a model from two 200 × 150 empty
+        scans, whose median spacing is 1.55 mm), a pixel on the bin's surface finds none and stays
+        in the zone. NaN when not measured (no pixel, a fixed τ, or a model without normals, whose
+        residuals are these distances already).
     """
 
     tolerance_mm: float
@@ -488,24 +491,17 @@ class Tolerance:
     reach_mm: float = float("nan")
 
 
-def _lateral_mm(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) -> np.ndarray:
-    """(len(flat),) float64: the distance (mm) of each pixel ``flat`` to its nearest model point
-    across that point's normal (along the model's surface); +inf where the point is not finite or no
-    model point lies within ``max_tolerance_mm``. The model has normals."""
+def _nearest_mm(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) -> np.ndarray:
+    """(len(flat),) float64: the distance (mm) of each pixel ``flat`` to its nearest model point; +inf
+    where the point is not finite or no model point lies within ``max_tolerance_mm``."""
     out = np.full(len(flat), np.inf)
-    model = index.model
-    if len(flat) == 0 or len(model.points) == 0 or model.normals is None:
+    if len(flat) == 0 or len(index.model.points) == 0:
         return out
     pts = a.reshape(-1, 3)[flat].astype(np.float64)
     ok = np.isfinite(pts).all(axis=1)
     p_bin = (pts[ok] - T[:3, 3]) @ T[:3, :3]
-    d, j = index.tree.query(p_bin, k=1, distance_upper_bound=index.params.max_tolerance_mm / 1000.0)  # type: ignore[attr-defined]
-    found = np.isfinite(d)
-    r = np.full(len(p_bin), np.inf)
-    jj = j[found]
-    normal = np.einsum("ij,ij->i", p_bin[found] - model.points[jj], model.normals[jj])
-    r[found] = np.sqrt(np.maximum(d[found] ** 2 - normal**2, 0.0))
-    out[ok] = r * 1000.0
+    d, _ = index.tree.query(p_bin, k=1, distance_upper_bound=index.params.max_tolerance_mm / 1000.0)  # type: ignore[attr-defined]
+    out[ok] = d * 1000.0
     return out
 
 
@@ -660,7 +656,7 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
     that do too (:func:`far_share`: a pose far off), the
     percentile of all of them is taken, as before; with no pixel to measure τ is the maximum.
 
-    τ bounds the test along the model's normals; its search radius bounds it across them, and is
+    τ bounds the test along the model's normals; its search radius (a model point that near) is
     measured on the same pixels (:attr:`Tolerance.reach_mm`): the removal's radius is at least that
     reach, so a model sampled more coarsely than the frame does not leave its bin pixels in the zone.
     """
@@ -679,12 +675,12 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
         else max(p.max_tolerance_mm, lo)
     reach = float("nan")
     if index.model.normals is not None:
-        # the same pixels, the same percentile and margin, across the normal: the test's other extent
+        # the same pixels, the same percentile and margin, for the test's other extent: its radius
         flat = _ring_sample(np.asarray(xyz), np.asarray(ring, dtype=bool))
-        lateral = _lateral_mm(np.asarray(xyz), flat[coherent] if surface else flat, index,
-                              np.asarray(T_cam_bin, dtype=np.float64))
-        q_lat = float(np.percentile(lateral, p.residual_quantile, method="higher"))
-        reach = min(q_lat + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_lat) else p.max_tolerance_mm
+        near = _nearest_mm(np.asarray(xyz), flat[coherent] if surface else flat, index,
+                           np.asarray(T_cam_bin, dtype=np.float64))
+        q_near = float(np.percentile(near, p.residual_quantile, method="higher"))
+        reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
     return Tolerance(float(tau), q, len(res), n_coh, float(reach))
 
 
@@ -746,7 +742,7 @@ def remove_table_and_bin(
         move the z-cut's z_max up to the rim; 0: off). ``mode``: ``"paper"`` uses δ as given;
         ``"robust"`` replaces it by the frame's tolerance (:func:`frame_tolerance`), tests it before
         the rim (a point within τ of the model is bin, not an easy outlier) and lets the
-        stragglers reach τ + ``straggler_mm``.
+        stragglers reach ``straggler_mm`` beyond τ and beyond the search radius.
     T_cam_bin : (4, 4) float ndarray, optional
         The registered pose of the model.
     ring : (H, W) bool ndarray, optional
@@ -786,18 +782,22 @@ def remove_table_and_bin(
                             float("nan"), 0)
         delta_m, residual_mm = tol.tolerance_mm / 1000.0, tol.residual_mm
         radius_m = _radius(p, index.model.spacing_m, delta_m)
-        if p.search_radius_mm is None and np.isfinite(tol.reach_mm):  # a radius given is kept as given
-            radius_m = max(radius_m, tol.reach_mm / 1000.0)
         straggler_m = p.straggler_m + delta_m if p.straggler_m > 0 else 0.0
+        r_str = max(radius_m, straggler_m)
+        if p.search_radius_mm is None and np.isfinite(tol.reach_mm):  # a radius given is kept as given
+            # measured like τ, a percentile: the stragglers reach straggler_mm beyond it as beyond τ
+            radius_m = max(radius_m, tol.reach_mm / 1000.0)
+            r_str = max(radius_m + p.straggler_m, straggler_m)
     else:
         delta_m, radius_m, straggler_m = p.delta_m, index.radius_m, p.straggler_m
+        r_str = max(radius_m, straggler_m)
     r_bin = radius_m if planes else delta_m
     shape = fp.shape
     valid, table, easy, binp = (np.zeros(shape, bool) for _ in range(4))
     _classify(a, fp, R, t, index.rim_b + p.rim_offset_m, delta_m > 0, p.robust, *_grid_args(index.bin),
               float(delta_m), float(r_bin), planes, valid, table, easy, binp)
     if index.straggler is not None:
-        r_str = max(radius_m, straggler_m) if planes else straggler_m
+        r_str = r_str if planes else straggler_m
         lab = np.empty(shape, np.uint8)  # table, bin or invalid: invalid neighbours count as not zone
         open_, first = np.empty(shape, bool), np.empty(shape, bool)
         _straggler_start(valid, table, binp, easy, fp, int(p.straggler_neighbours), lab, open_, first)

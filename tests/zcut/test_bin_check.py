@@ -334,3 +334,29 @@ def test_check_model_arguments_go_together(model, filled):
     r, _ = run(model, filled, pose())
     with pytest.raises(ParameterError, match="go together"):
         check_bin_removal(r, ring, params=RemovalParams(), band_mm=BAND_MM, xyz=xyz)
+
+
+def test_a_model_sampled_more_coarsely_than_its_spacing_leaves_no_bin_in_the_zone(model, filled):
+    # a model from a few low-resolution scans: each scan samples the surface every few millimetres and
+    # the scans interleave, so the median spacing (the search radius's 1.5 x spacing) says 0.5 mm while
+    # a bin pixel lies up to ~4 mm from the nearest model point (two 200 x 150 empty scans: 4.4 mm)
+    xyz, fp, ring = filled
+    grid = np.round(model.points / 0.006)
+    keep = np.unique(grid, axis=0, return_index=True)[1]  # one point per 6 mm cell
+    pts = np.concatenate([model.points[keep], model.points[keep] + [0.0005, 0.0, 0.0]])
+    nrm = np.concatenate([model.normals[keep]] * 2)
+    sparse = BinModel(pts, nrm, 0.0005)
+    p = RemovalParams()
+    index = prepare_removal_index(sparse, p)
+    tol = frame_tolerance(xyz, ring, index, pose())
+    assert tol.tolerance_mm < 2.0 and 4.0 < tol.reach_mm < 6.0  # τ the noise's, the radius the gaps'
+    r = remove_table_and_bin(xyz, fp, index=index, T_cam_bin=pose(), ring=ring)
+    assert r.radius_mm == pytest.approx(tol.reach_mm)
+    check = check_bin_removal(r, ring, params=p, band_mm=BAND_MM, xyz=xyz, index=index, T_cam_bin=pose())
+    assert not check.flagged and check.value == 0, check.reason
+    # the same τ with the radius of 1.5 x spacing and the stragglers' τ + 2 mm (before): bin left at the top
+    fixed = RemovalParams(tolerance_mm=tol.tolerance_mm)
+    index_fixed = dataclasses.replace(index, params=fixed)
+    before = remove_table_and_bin(xyz, fp, index=index_fixed, T_cam_bin=pose(), ring=ring)
+    old = check_bin_removal(before, ring, params=p, band_mm=BAND_MM, xyz=xyz, index=index, T_cam_bin=pose())
+    assert old.flagged and old.value > 10
