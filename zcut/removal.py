@@ -500,7 +500,9 @@ def _nearest_mm(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndar
     pts = a.reshape(-1, 3)[flat].astype(np.float64)
     ok = np.isfinite(pts).all(axis=1)
     p_bin = (pts[ok] - T[:3, 3]) @ T[:3, :3]
-    d, _ = index.tree.query(p_bin, k=1, distance_upper_bound=index.params.max_tolerance_mm / 1000.0)  # type: ignore[attr-defined]
+    tree = index.tree
+    assert tree is not None  # prepare_removal_index builds it in both modes
+    d, _ = tree.query(p_bin, k=1, distance_upper_bound=index.params.max_tolerance_mm / 1000.0)
     out[ok] = d * 1000.0
     return out
 
@@ -516,7 +518,9 @@ def _residuals_of(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.nd
     ok = np.isfinite(pts).all(axis=1)
     p_bin = (pts[ok] - T[:3, 3]) @ T[:3, :3]
     reach = index.params.max_tolerance_mm / 1000.0
-    d, j = index.tree.query(p_bin, k=1, distance_upper_bound=reach)  # type: ignore[attr-defined]
+    tree = index.tree
+    assert tree is not None  # prepare_removal_index builds it in both modes
+    d, j = tree.query(p_bin, k=1, distance_upper_bound=reach)
     found = np.isfinite(d)
     r = np.full(len(p_bin), np.inf)
     if model.normals is None:
