@@ -14,13 +14,16 @@ runs twice:
   pixels' residuals, ghosts included, + the margin, within the bounds), given to the removal as a
   fixed ``tolerance_mm``, whose search radius is then main's (``max(τ, 1.5 × spacing)``); main's
   check (every candidate counts: :func:`zcut.bin_check.check_bin_removal` without the points);
-- **new**: the pipeline as it runs now (coherent τ, the search radius at least the measured lateral
-  reach, the ghost-proof check).
+- **new**: the pipeline as it runs now (coherent τ, the search radius at least the measured reach:
+  the same percentile + margin of the distances to the nearest model point; the ghost-proof check).
 
 Reported: false alarms (frames flagged at a correct pose), τ, the search radius, and the z-cut's and
 SOR's F1 over each run's zone (the code path of ``zcut accuracy``).
 
     .venv/bin/python bench/bin_check_sizes.py --seeds report --sizes 160x100,320x200,480x300,960x600
+    .venv/bin/python bench/bin_check_sizes.py --sensors raytraced --scans 5 --models scans   # 5 empty scans
+
+The results are in ``docs/bin_robustness.md``, "Issue 31, relanded".
 
 Logs and models are cached in ``--dir``; the results are written there as JSON and the tables printed.
 """
