@@ -69,11 +69,14 @@ def zcut(*args: object) -> None:
         sys.exit(f"zcut {' '.join(map(str, args))} failed with {out.returncode}: {out.stderr[-400:]}")
 
 
-def prepare(d: Path, sensor: str, size: str, seeds: str, frames: int, scans: int) -> tuple[dict[str, Path], Path]:
+def prepare(d: Path, sensor: str, size: str, seeds: str, frames: int, scans: int,
+            kinds: tuple[str, ...] = KINDS) -> tuple[dict[str, Path], Path]:
     d.mkdir(parents=True, exist_ok=True)
     base, empty_seed = SEEDS[seeds][sensor]
     logs = {}
     for k, kind in enumerate(KINDS):
+        if kind not in kinds:
+            continue
         p = d / f"{sensor}_{size}_{kind}_{base + k}.mcap"
         if not p.is_file():
             print(f"synth {p.name}", flush=True)
@@ -125,8 +128,8 @@ def run_pair(frame, session, loc) -> dict:
 
 
 def study(d: Path, sensor: str, size: str, seeds: str, frames: int, scans: int,
-          models: tuple[str, ...]) -> list[dict]:
-    logs, scans_ply = prepare(d, sensor, size, seeds, frames, scans)
+          models: tuple[str, ...], kinds: tuple[str, ...] = KINDS) -> list[dict]:
+    logs, scans_ply = prepare(d, sensor, size, seeds, frames, scans, kinds)
     model_scans = load_bin_model(scans_ply)
     scans_name = f"{scans} scans"
     rows = []
@@ -215,6 +218,7 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=2)
     ap.add_argument("--scans", type=int, default=EMPTY_SCANS, help="empty scans per scan-built model")
     ap.add_argument("--models", default="exact,scans", help="exact (the log's), scans (built from empty scans)")
+    ap.add_argument("--kinds", default=",".join(KINDS), help="of " + ", ".join(KINDS))
     ap.add_argument("--dir", default=None, help="cache (default /tmp/zcut_bin_sizes_SEEDS)")
     args = ap.parse_args()
     d = Path(args.dir or f"/tmp/zcut_bin_sizes_{args.seeds}")
@@ -227,7 +231,8 @@ def main() -> int:
             if cache.is_file():
                 part = json.loads(cache.read_text())
             else:
-                part = study(d, sensor, size, args.seeds, args.frames, args.scans, tuple(args.models.split(",")))
+                part = study(d, sensor, size, args.seeds, args.frames, args.scans, tuple(args.models.split(",")),
+                             tuple(args.kinds.split(",")))
                 cache.write_text(json.dumps(part))
             rows += part
             print(tables(part), flush=True)
