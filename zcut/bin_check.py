@@ -13,7 +13,22 @@ below the rim and in from the walls, never reaches them) — that the removal le
   pixel above the pile moves the zone's top up to it, and the z-cut, which looks only ``d_max``
   down from the top, no longer reaches the pile), or
 - labelled as points above the rim (flagged as outliers by both filters: a tilted pose lifts one
-  end of the real rim above the model's).
+  end of the real rim above the model's),
+
+and that lie on the bin's surface: given the model and its pose, a pixel counts only when its
+residual to the model is finite (within ``max_tolerance_mm``) and coherent with its ring neighbours'
+(:func:`zcut.removal.coherent_residuals`: within ``COHERENCE_MM`` of their median). A rim pixel
+left behind — by a pose a little off, a model with a hole — lies on the surface its neighbours
+form, and counts; a sensor's ghost floating above the rim or a mixed pixel along its edge (the
+ray-traced sensor's shiny frames have hundreds on the rim, in clusters) lies millimetres off it, and
+does not. Pixels beyond ``max_tolerance_mm`` of the model (no residual) are judged by clumps: a
+clump counts when the surface around it runs out to that distance (a neighbour's residual within
+``COHERENCE_MM`` of it: the far end of a rim tilted by 2°); a ghost cluster above the rim, ringed by
+pixels that fit the model or by other ghosts, does not (counting clumps with nothing finite around
+them brought back 153 of the 197 ghosts of a ray-traced sphere frame). A pose so far off that the bin's own surface
+lies beyond ``max_tolerance_mm`` is caught apart: the frame is flagged when more than
+:data:`zcut.removal.MAX_FAR_SHARE` of its certain bin pixels lie that far among neighbours that do too
+(:func:`zcut.removal.far_share`; the ray-traced ghost clusters are about 1 % of them on sphere frames).
 
 A frame is flagged when the count exceeds ``RemovalParams.check_threshold_px`` (0 by default:
 measured on synthetic piles, a single such pixel at the zone's top cost the frame its whole z-cut
@@ -29,11 +44,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from .errors import InputShapeError, ParameterError, describe_array
 from .params import RemovalParams
-from .removal import RemovalResult
-from .types import Mask
+from .removal import (
+    COHERENCE_MM,
+    MAX_FAR_SHARE,
+    RemovalIndex,
+    RemovalResult,
+    coherent_residuals,
+    far_share,
+    surface_residuals,
+)
+from .types import XYZ, Mask
 
 __all__ = ["BinCheck", "check_bin_removal", "failed_bin_check"]
 
@@ -63,6 +87,9 @@ class BinCheck:
         Why the frame is flagged and what to do ("" when not flagged).
     offending : (H, W) bool ndarray or None
         The pixels counted in ``value``; None when the bin stages failed.
+    ghosts : int
+        Candidates (certain bin pixels left in the band or above the rim) not counted: their residual
+        to the model is not coherent with their neighbours' (a sensor's ghosts); 0 without a model.
     ring : (H, W) bool ndarray or None
         The certain bin pixels the check looked at; None when the bin stages failed.
     """
@@ -73,6 +100,13 @@ class BinCheck:
     reason: str
     offending: Mask | None = None
     ring: Mask | None = None
+    ghosts: int = 0
+
+
+def _image(shape: tuple[int, ...], flat: np.ndarray) -> Mask:
+    out = np.zeros(shape, dtype=bool)
+    out.reshape(-1)[flat] = True
+    return out
 
 
 def failed_bin_check(reason: str, *, params: RemovalParams) -> BinCheck:
@@ -88,7 +122,8 @@ def failed_bin_check(reason: str, *, params: RemovalParams) -> BinCheck:
 
 
 def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalParams, band_mm: float,
-                      rim_in_view: float = 1.0) -> BinCheck:
+                      rim_in_view: float = 1.0, xyz: XYZ | None = None, index: RemovalIndex | None = None,
+                      T_cam_bin: np.ndarray | None = None) -> BinCheck:
     """Count the certain bin pixels the removal left where they matter; flag the frame.
 
     Parameters
@@ -105,6 +140,10 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         The share of the registered model's rim in the camera's view (``n_rim`` of the
         registration over the model's rim points); below ``check_min_rim_in_view`` the frame is
         flagged.
+    xyz, index, T_cam_bin : optional, all three or none
+        The frame's points, the prepared model and its registered pose: a candidate pixel then
+        counts only when its residual to the model is coherent with its neighbours' (not a ghost).
+        Without them every candidate counts.
 
     Returns
     -------
@@ -117,6 +156,9 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         raise ParameterError(f"band_mm must be a number >= 0, got {band_mm!r}")
     if not 0.0 <= rim_in_view <= 1.0:
         raise ParameterError(f"rim_in_view must be a number in [0, 1], got {rim_in_view!r}")
+    given = [v is not None for v in (xyz, index, T_cam_bin)]
+    if any(given) and not all(given):
+        raise ParameterError("check_bin_removal: xyz, index and T_cam_bin go together")
     zone = removal.zone
     h = removal.height_mm
     offending = ring & removal.easy_outliers
@@ -124,27 +166,57 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         top = float(np.max(h[zone]))
         with np.errstate(invalid="ignore"):
             offending |= ring & zone & (h >= top - float(band_mm))
+    ghosts = 0
+    far = 0.0
+    if all(given):
+        assert xyz is not None and index is not None and T_cam_bin is not None
+        a = np.asarray(xyz)
+        if a.shape[:2] != ring.shape:
+            raise InputShapeError(f"xyz must be an {ring.shape} image of points, got {describe_array(a)}")
+        res, around, _ = surface_residuals(a, ring, index, T_cam_bin)
+        far = far_share(res, around)
+    if all(given) and offending.any():
+        assert xyz is not None and index is not None and T_cam_bin is not None
+        cand = np.flatnonzero(offending)
+        own, around, coherent = coherent_residuals(a, ring, cand, index, T_cam_bin, neighbours=8)
+        ghost = ~coherent  # off the surface its neighbours form
+        beyond = np.isinf(own)
+        if beyond.any():  # beyond max_tolerance_mm: by clumps, bin if the surface around runs out to there
+            clumps, _ = ndimage.label(_image(ring.shape, cand[beyond]), structure=np.ones((3, 3), bool))
+            lab = clumps.reshape(-1)[cand[beyond]]
+            near_reach = np.isfinite(around[beyond]) & (around[beyond] >= params.max_tolerance_mm - COHERENCE_MM)
+            runs_out = np.bincount(lab, near_reach, int(lab.max()) + 1) > 0
+            ghost[beyond] = ~runs_out[lab]
+        ghosts = int(np.count_nonzero(ghost))
+        offending = offending.copy()
+        offending.reshape(-1)[cand[ghost]] = False
     n = int(np.count_nonzero(offending))
     n_ring = int(np.count_nonzero(ring & np.isfinite(h)))
     threshold = float(params.check_threshold_px)
     reasons = []
     if n > threshold:
         where = []
-        n_easy = int(np.count_nonzero(ring & removal.easy_outliers))
+        n_easy = int(np.count_nonzero(offending & removal.easy_outliers))
         if n - n_easy:
             where.append(f"{n - n_easy} in the zone's top {band_mm:g} mm")
         if n_easy:
             where.append(f"{n_easy} called above the rim")
+        if ghosts:
+            where.append(f"{ghosts} more off the bin's surface, not counted: ghosts")
         tol = f"tolerance {removal.tolerance_mm:.2f} mm"
         if np.isfinite(removal.residual_mm) or removal.residual_mm == np.inf:
             tol += f", residuals {removal.residual_mm:.2f} mm"
         advice = ADVICE_LEAK if params.robust else ADVICE_PAPER.format(delta=params.delta_mm)
         reasons.append(f"{n} of the bin's {n_ring} rim and upper-wall pixels not removed ({', '.join(where)}; {tol}): "
                        f"{advice}")
+    if far > MAX_FAR_SHARE:
+        reasons.append(f"{100 * far:.0f} % of the bin's rim and upper-wall pixels lie more than "
+                       f"{params.max_tolerance_mm:g} mm from the registered model (> {100 * MAX_FAR_SHARE:.0f} %): "
+                       f"{ADVICE_LEAK if params.robust else ADVICE_PAPER.format(delta=params.delta_mm)}")
     if n_ring < params.check_min_ring_px:
         reasons.append(f"only {n_ring} of the bin's rim and upper-wall pixels in view (< {params.check_min_ring_px}): "
                        f"{ADVICE_HIDDEN}")
     if rim_in_view < params.check_min_rim_in_view:
         reasons.append(f"only {100 * rim_in_view:.0f} % of the bin's rim in the camera's view "
                        f"(< {100 * params.check_min_rim_in_view:.0f} %): {ADVICE_HIDDEN}")
-    return BinCheck(float(n), threshold, bool(reasons), "; ".join(reasons), offending, ring)
+    return BinCheck(float(n), threshold, bool(reasons), "; ".join(reasons), offending, ring, ghosts)

@@ -17,10 +17,15 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
   which judges only the top ``d_max`` of the zone, never reaches the pile.
 - ``"robust"`` (default): δ is replaced by a tolerance τ measured on the frame
   (:func:`frame_tolerance`): the distances of the frame's certain bin pixels (the rim and upper
-  walls the registration used) to the registered model, their ``residual_quantile`` percentile
+  walls the registration used) to the registered model, the ``residual_quantile`` percentile of
+  those coherent with their neighbours' (a sensor's ghosts are not: :func:`coherent_residuals`)
   plus ``residual_margin_mm``, within ``[min_tolerance_mm, max_tolerance_mm]``. A point within τ of
   the model is bin before it can be an easy outlier (a tilted pose lifts one end of the real rim
-  above the model's rim plus the offset), and the straggler test reaches τ + ``straggler_mm``.
+  above the model's rim plus the offset). The test's search radius (a model point that near, then
+  the point within τ of it along its normal) is measured on the same pixels: their distances to the
+  nearest model point (:attr:`Tolerance.reach_mm`; a model built from a few low-resolution scans
+  is sampled more coarsely than ``1.5 × spacing_m`` says). The straggler test reaches
+  ``straggler_mm`` beyond both: τ + ``straggler_mm`` along the normal, the radius + ``straggler_mm``.
   With a right pose τ stays near 1 mm (the sensor's noise); a pose 2 mm off raises it to about
   3 mm, and the removal follows the registration instead of failing on it.
 """
@@ -75,8 +80,11 @@ class RemovalResult:
         robust mode; NaN when no model was registered.
     residual_mm : float
         Robust mode: the percentile of the certain bin pixels' residuals τ was derived from (before
-        the margin and the bounds; +inf when more of them than the percentile leaves out have no
-        model point within ``max_tolerance_mm``); NaN otherwise.
+        the margin and the bounds; :attr:`Tolerance.residual_mm`); NaN otherwise.
+    radius_mm : float
+        The search radius of the bin test (mm): a point is bin when a model point within it lies
+        within ``tolerance_mm`` of the point along its normal. Robust mode: at least the frame's
+        reach (:attr:`Tolerance.reach_mm`); NaN when no model was registered.
     """
 
     table: Mask
@@ -90,6 +98,7 @@ class RemovalResult:
     up_cam: np.ndarray
     tolerance_mm: float = float("nan")
     residual_mm: float = float("nan")
+    radius_mm: float = float("nan")
 
     @property
     def labelled(self) -> Mask:
@@ -159,7 +168,7 @@ class RemovalIndex:
     straggler : _ModelIndex or None
         Cell grid for the straggler test (None when ``params.straggler_mm`` is 0).
     tree : scipy.spatial.cKDTree or None
-        Robust mode: over the model's points, for the residuals of :func:`frame_tolerance`.
+        Over the model's points, for the residuals of :func:`frame_tolerance` and of the bin check.
     """
 
     model: BinModel
@@ -194,12 +203,13 @@ def prepare_removal_index(model: BinModel, params: RemovalParams) -> RemovalInde
     if params.straggler_m > 0:
         s = params.straggler_m + (delta if params.robust else 0.0)
         r_str = max(radius, s) if planes else s
+        if params.robust and planes:  # the stragglers reach straggler_mm beyond a measured radius too
+            r_str = max(r_str, radius + params.straggler_m)
         straggler = _model_index(model.points, model.normals, r_str)
-    tree = None
-    if params.robust:
-        from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree
 
-        tree = cKDTree(model.points)
+    # both modes: the residuals of the robust tolerance and of the bin check (zcut.bin_check)
+    tree = cKDTree(model.points)
     rim_b, floor_b = (float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5))) if len(h) else (np.nan, np.nan)
     return RemovalIndex(model, params, rim_b, floor_b, _radius(params, model.spacing_m, params.delta_m),
                         _model_index(model.points, model.normals, r_bin), straggler, tree)
@@ -424,9 +434,25 @@ def _straggler_passes(a: np.ndarray, binp: Mask, lab: np.ndarray, open_: Mask, R
 
 
 #: The residuals of :func:`frame_tolerance` are measured on at most this many certain bin pixels (a
-#: regular subsample): their percentile moves by less than 0.05 mm from 20,000 to all 120,000 of a
-#: 1920 x 1200 frame.
+#: regular subsample, each with its four neighbours): their percentile moves by less than 0.05 mm
+#: from 20,000 to all 120,000 of a 1920 x 1200 frame.
 MAX_RESIDUAL_PX = 20_000
+#: A residual is *coherent* with its neighbours' (it lies on the surface they form) when it is
+#: finite and within this many millimetres of the median of its certain-bin neighbours' residuals.
+#: The bin surface's residuals vary smoothly (the sensor's noise, about 0.3 mm, and a pose error,
+#: which changes them by hundredths of a millimetre per pixel); a sensor's ghost above the rim or
+#: beside an edge lies millimetres off the surface its neighbours form. See ``docs/bin_robustness.md``.
+COHERENCE_MM = 1.0
+#: τ falls back to the percentile of all the residuals (ghosts included) when fewer than this share
+#: of the measured pixels are coherent: then the residuals are not a surface's (a pose far off).
+MIN_COHERENT_SHARE = 0.5
+#: ... and when more than this share of them lie beyond ``max_tolerance_mm`` of the model with every
+#: neighbour beyond it too (a far surface, not scattered ghosts): then the bin's own surface lies
+#: that far (a pose or a model far off; the ray-traced ghost clusters are about 1 % of the certain
+#: bin pixels on sphere frames). The bin check flags such a frame.
+MAX_FAR_SHARE = 0.2
+_N4 = ((-1, 0), (1, 0), (0, -1), (0, 1))
+_N8 = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
 
 
 @dataclass(frozen=True, slots=True)
@@ -436,17 +462,145 @@ class Tolerance:
     Attributes
     ----------
     tolerance_mm : float
-        τ: the residuals' percentile plus the margin, within the bounds.
+        τ: the coherent residuals' percentile plus the margin, within the bounds.
     residual_mm : float
-        The residuals' percentile (mm); +inf when more pixels than the percentile leaves out have no
-        model point within ``max_tolerance_mm``; NaN when there was no pixel to measure.
+        The percentile τ was derived from (mm): of the coherent residuals, or, when fewer than
+        :data:`MIN_COHERENT_SHARE` of them are coherent, of all of them (+inf when more pixels than
+        the percentile leaves out have no model point within ``max_tolerance_mm``); NaN when there
+        was no pixel to measure.
     n_pixels : int
         Certain bin pixels measured.
+    n_coherent : int
+        Of those, the ones whose residual is coherent with their neighbours' (:data:`COHERENCE_MM`).
+    reach_mm : float
+        The search radius the bin test needs (mm): the ``residual_quantile`` percentile of the same
+        pixels' distances to their nearest model point plus ``residual_margin_mm``, at most
+        ``max_tolerance_mm``. The test looks for a model point within its search radius before it
+        measures the distance along that point's normal: where the model is sampled more coarsely
+        than ``1.5 × spacing_m`` (a model built from a few low-resolution scans: up to 4.4 mm between
+        a 200 × 150 frame's rim pixels and the nearest point of a model from two 200 × 150 empty
+        scans, whose median spacing is 1.55 mm), a pixel on the bin's surface finds none and stays
+        in the zone. NaN when not measured (no pixel, a fixed τ, or a model without normals, whose
+        residuals are these distances already).
     """
 
     tolerance_mm: float
     residual_mm: float
     n_pixels: int
+    n_coherent: int = 0
+    reach_mm: float = float("nan")
+
+
+def _nearest_mm(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) -> np.ndarray:
+    """(len(flat),) float64: the distance (mm) of each pixel ``flat`` to its nearest model point; +inf
+    where the point is not finite or no model point lies within ``max_tolerance_mm``."""
+    out = np.full(len(flat), np.inf)
+    if len(flat) == 0 or len(index.model.points) == 0:
+        return out
+    pts = a.reshape(-1, 3)[flat].astype(np.float64)
+    ok = np.isfinite(pts).all(axis=1)
+    p_bin = (pts[ok] - T[:3, 3]) @ T[:3, :3]
+    tree = index.tree
+    assert tree is not None  # prepare_removal_index builds it in both modes
+    d, _ = tree.query(p_bin, k=1, distance_upper_bound=index.params.max_tolerance_mm / 1000.0)
+    out[ok] = d * 1000.0
+    return out
+
+
+def _residuals_of(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) -> np.ndarray:
+    """(len(flat),) float64: residuals (mm) of the pixels ``flat`` (flat indices into ``a``'s image);
+    +inf where the point is not finite or no model point lies within ``max_tolerance_mm``."""
+    out = np.full(len(flat), np.inf)
+    model = index.model
+    if len(flat) == 0 or len(model.points) == 0:
+        return out
+    pts = a.reshape(-1, 3)[flat].astype(np.float64)
+    ok = np.isfinite(pts).all(axis=1)
+    p_bin = (pts[ok] - T[:3, 3]) @ T[:3, :3]
+    reach = index.params.max_tolerance_mm / 1000.0
+    tree = index.tree
+    assert tree is not None  # prepare_removal_index builds it in both modes
+    d, j = tree.query(p_bin, k=1, distance_upper_bound=reach)
+    found = np.isfinite(d)
+    r = np.full(len(p_bin), np.inf)
+    if model.normals is None:
+        r[found] = d[found]
+    else:
+        jj = j[found]
+        r[found] = np.abs(np.einsum("ij,ij->i", p_bin[found] - model.points[jj], model.normals[jj]))
+    out[ok] = r * 1000.0
+    return out
+
+
+def coherent_residuals(xyz: XYZ, ring: Mask, pixels: np.ndarray, index: RemovalIndex, T_cam_bin: np.ndarray, *,
+                       neighbours: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Residuals of ``pixels`` to the model and whether each is coherent with its neighbours'.
+
+    Parameters
+    ----------
+    xyz : (H, W, 3) float ndarray
+    ring : (H, W) bool ndarray
+        The certain bin pixels: the neighbours looked at are these (the bin surface around).
+    pixels : (M,) int ndarray
+        Flat indices of the pixels to judge.
+    index : RemovalIndex
+    T_cam_bin : (4, 4) float ndarray
+    neighbours : {4, 8}
+
+    Returns
+    -------
+    residuals : (M,) float64 ndarray
+        mm; +inf where no model point lies within ``max_tolerance_mm``.
+    around : (M,) float64 ndarray
+        The median of the finite residuals of the pixel's ring neighbours (ghosts among them do not
+        move it); +inf when none of them is finite, NaN for a pixel with no ring neighbour.
+    coherent : (M,) bool ndarray
+        The residual is finite and within :data:`COHERENCE_MM` of ``around`` (an infinite one never
+        is: ray-traced ghosts above the rim come in clusters whose neighbours are ghosts too).
+    """
+    if index.tree is None:
+        raise ParameterError("coherent_residuals: the index has no KD-tree (prepare_removal_index builds it)")
+    a = np.asarray(xyz)
+    h, w = a.shape[:2]
+    pixels = np.asarray(pixels, dtype=np.int64)
+    rows, cols = np.divmod(pixels, w)
+    offs = _N8 if neighbours == 8 else _N4
+    nb = np.full((len(pixels), len(offs)), -1, dtype=np.int64)
+    for k, (dr, dc) in enumerate(offs):
+        r2, c2 = rows + dr, cols + dc
+        inside = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
+        f = r2 * w + c2
+        sel = inside.copy()
+        sel[inside] = ring.reshape(-1)[f[inside]]
+        nb[sel, k] = f[sel]
+    want = np.unique(np.concatenate([pixels, nb[nb >= 0]]))
+    res = _residuals_of(a, want, index, np.asarray(T_cam_bin, dtype=np.float64))
+    own = res[np.searchsorted(want, pixels)]
+    nbr = np.full(nb.shape, np.nan)
+    has = nb >= 0
+    nbr[has] = res[np.searchsorted(want, nb[has])]
+    around = np.full(len(pixels), np.nan)
+    around[has.any(axis=1)] = np.inf  # ring neighbours, none of them within max_tolerance_mm
+    fin = np.where(np.isfinite(nbr), nbr, np.nan)
+    some = np.isfinite(fin).any(axis=1)
+    if some.any():
+        around[some] = np.nanmedian(fin[some], axis=1)
+    with np.errstate(invalid="ignore"):
+        coherent = np.isfinite(own) & (np.abs(own - around) <= COHERENCE_MM)
+    return own, around, coherent
+
+
+def far_share(residuals: np.ndarray, around: np.ndarray) -> float:
+    """The share of the measured pixels beyond ``max_tolerance_mm`` of the model whose ring neighbours
+    all are too (:data:`MAX_FAR_SHARE`); 0 with no pixel."""
+    return float(np.mean(np.isinf(residuals) & np.isinf(around))) if len(residuals) else 0.0
+
+
+def surface_residuals(xyz: XYZ, ring: Mask, index: RemovalIndex,
+                      T_cam_bin: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`coherent_residuals` of a regular subsample of at most :data:`MAX_RESIDUAL_PX` certain bin
+    pixels with a finite point, each against its four neighbours: ``(residuals, around, coherent)``."""
+    return _measured(xyz, ring, index, T_cam_bin, coherence=True)
 
 
 def bin_residuals_mm(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray) -> np.ndarray:
@@ -463,54 +617,75 @@ def bin_residuals_mm(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nd
     ring : (H, W) bool ndarray
         Pixels that are bin for certain (:func:`zcut.binmask.bin_pixels`).
     index : RemovalIndex
-        Prepared in the robust mode (it holds the model's KD-tree).
+        Prepared by :func:`prepare_removal_index` (it holds the model's KD-tree).
     T_cam_bin : (4, 4) float ndarray
     """
+    return _measured(xyz, ring, index, T_cam_bin, coherence=False)[0]
+
+
+def _ring_sample(a: np.ndarray, ring: Mask) -> np.ndarray:
+    """Flat indices of a regular subsample of at most MAX_RESIDUAL_PX ring pixels with a finite point."""
+    flat = np.flatnonzero(ring)
+    flat = flat[:: max(1, -(-len(flat) // MAX_RESIDUAL_PX))]
+    return flat[np.isfinite(a.reshape(-1, 3)[flat]).all(axis=1)]
+
+
+def _measured(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray, *,
+              coherence: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if index.tree is None:
-        raise ParameterError("bin_residuals_mm: the index was not prepared in the robust mode")
+        raise ParameterError("bin_residuals_mm: the index has no KD-tree (prepare_removal_index builds it)")
     a = np.asarray(xyz)
     ring = np.asarray(ring, dtype=bool)
     if ring.shape != a.shape[:2]:
         raise InputShapeError(f"ring must be an {a.shape[:2]} bool array, got {describe_array(ring)}")
-    flat = np.flatnonzero(ring)
-    pts = a.reshape(-1, 3)[flat[:: max(1, -(-len(flat) // MAX_RESIDUAL_PX))]].astype(np.float64)
-    pts = pts[np.isfinite(pts).all(axis=1)]
-    model = index.model
-    if len(pts) == 0 or len(model.points) == 0:
-        return np.full(len(pts), np.inf)
-    T = np.asarray(T_cam_bin, dtype=np.float64)
-    p_bin = (pts - T[:3, 3]) @ T[:3, :3]
-    reach = index.params.max_tolerance_mm / 1000.0
-    d, j = index.tree.query(p_bin, k=1, distance_upper_bound=reach)
-    out = np.full(len(p_bin), np.inf)
-    ok = np.isfinite(d)
-    if model.normals is None:
-        out[ok] = d[ok]
-    else:
-        jj = j[ok]
-        out[ok] = np.abs(np.einsum("ij,ij->i", p_bin[ok] - model.points[jj], model.normals[jj]))
-    return out * 1000.0
+    flat = _ring_sample(a, ring)
+    if not coherence:
+        res = _residuals_of(a, flat, index, np.asarray(T_cam_bin, dtype=np.float64))
+        return res, res, np.isfinite(res)
+    return coherent_residuals(a, ring, flat, index, T_cam_bin, neighbours=4)
 
 
 def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray) -> Tolerance:
     """The robust mode's tolerance τ of one frame, from its certain bin pixels' residuals.
 
-    τ = the ``residual_quantile`` percentile of :func:`bin_residuals_mm` + ``residual_margin_mm``,
+    τ = the ``residual_quantile`` percentile of the *coherent* residuals (:func:`coherent_residuals`
+    over a subsample of the certain bin pixels, with their four neighbours) + ``residual_margin_mm``,
     clipped to ``[max(min_tolerance_mm, delta_mm), max_tolerance_mm]``; ``tolerance_mm`` when the
     parameters fix it. The residuals hold the pose's error where it shows (a wall moved sideways, a
-    rim tilted) and the sensor's noise; with no pixel to measure τ is the maximum.
+    rim tilted) and the sensor's noise, both smooth over the surface; a sensor's ghosts (points
+    floating above the rim, mixed pixels along its edges) are not coherent with their neighbours
+    and do not count, however many: on ray-traced shiny frames they made the plain percentile
+    infinite and τ its maximum. When fewer than :data:`MIN_COHERENT_SHARE` of the measured pixels are
+    coherent, or more than :data:`MAX_FAR_SHARE` lie beyond ``max_tolerance_mm`` among neighbours
+    that do too (:func:`far_share`: a pose far off), the
+    percentile of all of them is taken, as before; with no pixel to measure τ is the maximum.
+
+    τ bounds the test along the model's normals; its search radius (a model point that near) is
+    measured on the same pixels (:attr:`Tolerance.reach_mm`): the removal's radius is at least that
+    reach, so a model sampled more coarsely than the frame does not leave its bin pixels in the zone.
     """
     p = index.params
     lo = max(p.min_tolerance_mm, p.delta_mm)
     if p.tolerance_mm is not None:
         return Tolerance(max(float(p.tolerance_mm), p.delta_mm), float("nan"), 0)
-    res = bin_residuals_mm(xyz, ring, index, T_cam_bin)
+    res, around, coherent = surface_residuals(xyz, ring, index, T_cam_bin)
     if len(res) == 0:
         return Tolerance(max(p.max_tolerance_mm, lo), float("nan"), 0)
-    q = float(np.percentile(res, p.residual_quantile, method="higher"))
+    n_coh = int(np.count_nonzero(coherent))
+    surface = n_coh and n_coh >= MIN_COHERENT_SHARE * len(res) and far_share(res, around) <= MAX_FAR_SHARE
+    use = res[coherent] if surface else res
+    q = float(np.percentile(use, p.residual_quantile, method="higher"))
     tau = min(max(q + p.residual_margin_mm, lo), max(p.max_tolerance_mm, lo)) if np.isfinite(q) \
         else max(p.max_tolerance_mm, lo)
-    return Tolerance(float(tau), q, len(res))
+    reach = float("nan")
+    if index.model.normals is not None:
+        # the same pixels, the same percentile and margin, for the test's other extent: its radius
+        flat = _ring_sample(np.asarray(xyz), np.asarray(ring, dtype=bool))
+        near = _nearest_mm(np.asarray(xyz), flat[coherent] if surface else flat, index,
+                           np.asarray(T_cam_bin, dtype=np.float64))
+        q_near = float(np.percentile(near, p.residual_quantile, method="higher"))
+        reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
+    return Tolerance(float(tau), q, len(res), n_coh, float(reach))
 
 
 def check_removal_args(
@@ -571,7 +746,7 @@ def remove_table_and_bin(
         move the z-cut's z_max up to the rim; 0: off). ``mode``: ``"paper"`` uses δ as given;
         ``"robust"`` replaces it by the frame's tolerance (:func:`frame_tolerance`), tests it before
         the rim (a point within τ of the model is bin, not an easy outlier) and lets the
-        stragglers reach τ + ``straggler_mm``.
+        stragglers reach ``straggler_mm`` beyond τ and beyond the search radius.
     T_cam_bin : (4, 4) float ndarray, optional
         The registered pose of the model.
     ring : (H, W) bool ndarray, optional
@@ -612,15 +787,21 @@ def remove_table_and_bin(
         delta_m, residual_mm = tol.tolerance_mm / 1000.0, tol.residual_mm
         radius_m = _radius(p, index.model.spacing_m, delta_m)
         straggler_m = p.straggler_m + delta_m if p.straggler_m > 0 else 0.0
+        r_str = max(radius_m, straggler_m)
+        if p.search_radius_mm is None and np.isfinite(tol.reach_mm):  # a radius given is kept as given
+            # measured like τ, a percentile: the stragglers reach straggler_mm beyond it as beyond τ
+            radius_m = max(radius_m, tol.reach_mm / 1000.0)
+            r_str = max(radius_m + p.straggler_m, straggler_m)
     else:
         delta_m, radius_m, straggler_m = p.delta_m, index.radius_m, p.straggler_m
+        r_str = max(radius_m, straggler_m)
     r_bin = radius_m if planes else delta_m
     shape = fp.shape
     valid, table, easy, binp = (np.zeros(shape, bool) for _ in range(4))
     _classify(a, fp, R, t, index.rim_b + p.rim_offset_m, delta_m > 0, p.robust, *_grid_args(index.bin),
               float(delta_m), float(r_bin), planes, valid, table, easy, binp)
     if index.straggler is not None:
-        r_str = max(radius_m, straggler_m) if planes else straggler_m
+        r_str = r_str if planes else straggler_m
         lab = np.empty(shape, np.uint8)  # table, bin or invalid: invalid neighbours count as not zone
         open_, first = np.empty(shape, bool), np.empty(shape, bool)
         _straggler_start(valid, table, binp, easy, fp, int(p.straggler_neighbours), lab, open_, first)
@@ -636,7 +817,8 @@ def remove_table_and_bin(
     height = np.empty(shape, np.float64)
     xyz_out = np.empty(a.shape, np.float32)
     _finish(a, valid, labelled, plane, float(floor), up, float(z_far), height, xyz_out)
-    return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up, delta_m * 1000.0, residual_mm)
+    return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up, delta_m * 1000.0, residual_mm,
+                         r_bin * 1000.0)
 
 
 def _remove_table(a: np.ndarray, fp: Mask) -> RemovalResult:

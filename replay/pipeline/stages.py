@@ -241,7 +241,8 @@ def bin_zone(frame: Frame, config: PipelineConfig, *, bin_model: PreparedBinMode
                                        ring=located.ring)
             rim_in_view = min(reg.n_rim / len(bin_model.icp.rim), 1.0) if len(bin_model.icp.rim) else 0.0
             check = check_bin_removal(rem, located.ring if located.ring is not None else np.zeros_like(valid),
-                                      params=config.removal, band_mm=config.zcut.max_depth, rim_in_view=rim_in_view)
+                                      params=config.removal, band_mm=config.zcut.max_depth, rim_in_view=rim_in_view,
+                                      xyz=xyz, index=bin_model.removal, T_cam_bin=reg.T_cam_bin)
         else:
             warnings.append(f"bin registration failed ({reg.reason}): only the table removed")
             rem = remove_table_and_bin(xyz, bm.mask)

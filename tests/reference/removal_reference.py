@@ -191,9 +191,12 @@ def remove_table_and_bin_reference(
     straggler_m: float = 0.0,
     straggler_neighbours: int = 5,
     bin_first: bool = False,
+    straggler_radius_m: float | None = None,
 ) -> RemovalResult:
     """The removal as it was before the fused numba kernels (:func:`zcut.removal.remove_table_and_bin`
-    has the same contract and parameters); kept to prove the fast path bit for bit."""
+    has the same contract and parameters); kept to prove the fast path bit for bit.
+    ``straggler_radius_m``: the stragglers' search radius (default the larger of the search radius
+    and ``straggler_m``; the robust mode's measured radius gives its stragglers ``straggler_mm`` more)."""
     a, fp = check_removal_args(
         xyz, footprint, model=model, T_cam_bin=T_cam_bin, delta_m=delta_m, rim_offset_m=rim_offset_m,
         straggler_m=straggler_m, straggler_neighbours=straggler_neighbours,
@@ -239,7 +242,8 @@ def remove_table_and_bin_reference(
                 binp[rows[rest[near]], cols[rest[near]]] = True
         if straggler_m > 0:
             _straggler_passes(binp, table, valid, inside & ~easy, rows, cols, p_bin, model,
-                              straggler_m=straggler_m, radius_m=max(radius, straggler_m),
+                              straggler_m=straggler_m,
+                              radius_m=max(radius, straggler_m) if straggler_radius_m is None else straggler_radius_m,
                               neighbours=int(straggler_neighbours))
         # floor plane {q : q . up = floor}: z at (x, y) solves x*ux + y*uy + z*uz = floor
         if abs(up[2]) > 1e-6:

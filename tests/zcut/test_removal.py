@@ -146,8 +146,9 @@ def _ring(xyz):
 @pytest.mark.parametrize("angle", [0.0, 2.0])
 @pytest.mark.parametrize("normals", [True, False])
 def test_robust_removal_equals_the_reference_with_its_tolerance(noisy, model, kw, angle, normals):
-    """The robust mode is the literal rule with δ = the frame's τ, the bin test first and the
-    stragglers at τ + straggler_mm."""
+    """The robust mode is the literal rule with δ = the frame's τ, the search radius at least the
+    frame's measured reach (a model with normals, no radius given), the bin test first and the
+    stragglers at τ + straggler_mm, searching straggler_mm beyond a measured radius."""
     from zcut.removal import _radius, frame_tolerance
 
     xyz, fp = noisy
@@ -157,13 +158,21 @@ def test_robust_removal_equals_the_reference_with_its_tolerance(noisy, model, kw
     T = _pose(angle)
     ring = _ring(xyz)
     fast = remove_table_and_bin(xyz, fp, index=index, T_cam_bin=T, ring=ring)
-    tau = frame_tolerance(xyz, ring, index, T).tolerance_mm
+    tol = frame_tolerance(xyz, ring, index, T)
+    tau = tol.tolerance_mm
     assert fast.tolerance_mm == pytest.approx(tau)
     d = tau / 1000.0
+    radius, straggler = _radius(p, m.spacing_m, d), p.straggler_m + d if p.straggler_m else 0.0
+    r_str = max(radius, straggler)
+    assert np.isfinite(tol.reach_mm) == (normals and p.tolerance_mm is None)  # measured with τ, across normals
+    if np.isfinite(tol.reach_mm) and p.search_radius_mm is None:
+        radius = max(radius, tol.reach_mm / 1000.0)
+        r_str = max(radius + p.straggler_m, straggler)
+    assert fast.radius_mm == pytest.approx(1000.0 * radius if normals else tau)
     with np.errstate(invalid="ignore"):
         ref = remove_table_and_bin_reference(
             xyz, fp, model=m, T_cam_bin=T, delta_m=d, rim_offset_m=p.rim_offset_m,
-            search_radius_m=_radius(p, m.spacing_m, d), straggler_m=p.straggler_m + d if p.straggler_m else 0.0,
+            search_radius_m=radius, straggler_m=straggler, straggler_radius_m=r_str,
             straggler_neighbours=p.straggler_neighbours, bin_first=True)
     _assert_same(fast, ref)
     assert fast.bin_points.sum() > 0.05 * fp.sum()
