@@ -47,6 +47,7 @@ from replay.logs.frame import Frame
 from replay.pipeline.zone import Zone, sor_on_zone, zone_crop
 from zcut.params import (
     ClusterParams,
+    ExplainedParams,
     MixedPixelParams,
     RadiusParams,
     SorParams,
@@ -209,6 +210,13 @@ def _run_suspects(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
     return MethodOutput(res.mask & zone.zone, res)
 
 
+def _run_explained(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
+    from replay.pipeline.explained import run_explained
+
+    mask, detail, warning = run_explained(frame, zone, config)
+    return MethodOutput(mask, detail, warning)
+
+
 # ------------------------------------------------------------------------------------- warm-ups
 def _tiny() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Tiny inputs for the warm-ups: a height image, its organized cloud (mm-sized, float32) and a
@@ -323,6 +331,9 @@ BUILTIN: tuple[Method, ...] = (
            summary="mixed pixels: the surface leaves the pixel along its ray (ifm)"),
     Method(name="suspects", params=SuspectParams, run=_run_suspects, warmup=_warm_suspects,
            summary="the labelling page's suspects: every detector of zcut.suspects, united (not a filter to ship)"),
+    Method(name="explained", params=ExplainedParams, run=_run_explained,
+           axes={"k": (2.0, 3.0, 5.0)},
+           summary="the paper's §2: farther than k × Err from every known surface (part fits, bin, table)"),
 )
 _BUILTIN_MAP = types.MappingProxyType({m.name: m for m in BUILTIN})
 

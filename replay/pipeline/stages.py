@@ -208,7 +208,8 @@ def locate_bin(
         if reg is None:
             reg = register_bin(bin_model.icp, target, params=c)
         timings["registration"] = time.perf_counter() - t
-        return BinLocation(valid, bm, reg, timings, time.perf_counter() - t_start, tuple(warnings), pixels)
+        return BinLocation(valid, bm, reg, timings, time.perf_counter() - t_start, tuple(warnings), pixels,
+                           bin_model=bin_model.model)
     return BinLocation(valid, bm, reg, timings, time.perf_counter() - t_start, tuple(warnings))
 
 
