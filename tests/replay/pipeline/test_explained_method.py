@@ -106,3 +106,15 @@ def test_batch_workers_read_the_same_part_model(capsys, tmp_path, log):
     assert "explained" in text and any("explained" in k for k in table[0])
     tp = [v for k, v in table[0].items() if k.startswith("explained") and k.endswith("tp")]
     assert tp and tp[0] > 0
+
+
+def test_the_recording_shows_the_fits_the_distances_and_the_unexplained(capsys, tmp_path, log):
+    import rerun as rr
+
+    rrd = tmp_path / "e.rrd"
+    rc, out, err = run_cli(capsys, "replay", log, "--methods", METHODS, "--rrd", rrd)
+    assert rc == 0, err
+    entities = {chunk.entity_path for chunk in rr.chunk.RrdReader(str(rrd)).stream()}
+    for path in ("/image/explained", "/image/explained_distance", "/world/explained/fits",
+                 "/world/explained/labels", "/image/methods/explained"):
+        assert path in entities, sorted(entities)
