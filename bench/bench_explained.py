@@ -132,7 +132,11 @@ def main() -> None:
     for g in a.generators.split(","):
         for k_i, kind in enumerate(a.kinds.split(",")):
             seed = (HANDMADE_SEED if g == "handmade" else RAYTRACED_SEED) + 10 * k_i
-            m = method_check(g, kind, seed, (h, w))
+            try:
+                m = method_check(g, kind, seed, (h, w))
+            except Exception as e:  # noqa: BLE001 - a failing fit is a row of the table, not the end of it
+                print(f"{g:<10} {kind:<11} {seed:>5} failed: {type(e).__name__}: {e}", flush=True)
+                continue
             print(f"{g:<10} {kind:<11} {seed:>5} {m['fits']:>5} {m['fit_share']:>9.3f} {m['precision']:>9.3f} "
                   f"{m['recall']:>7.3f} {m['iou']:>6.3f} {m['cpu']:>6.1f} {m['warning']}", flush=True)
 

@@ -41,7 +41,6 @@ from replay.pipeline.zone import Zone
 
 if TYPE_CHECKING:
     from replay.logs.reader import LogReader
-    from replay.pipeline.config import Resolved
     from zcut.fits import PartFit
     from zcut.fits.model import PartModel as PreparedPart
 
@@ -121,8 +120,9 @@ def part_model(path: str, unit: str) -> tuple[np.ndarray, np.ndarray, PreparedPa
     return _load(str(Path(path).resolve()), unit, (st.st_mtime_ns, st.st_size))
 
 
-def with_log_part_model(resolved: Resolved, log: str | os.PathLike[str], reader: LogReader) -> Resolved:
-    """``resolved`` with ``explained.part_model`` set to ``log`` when the config runs ``explained``,
+def with_log_part_model(resolved: Any, log: str | os.PathLike[str], reader: LogReader) -> Any:
+    """``resolved`` (a :class:`replay.pipeline.config.Resolved`, not imported: the config imports the
+    registry, which imports this module) with ``explained.part_model`` set to ``log`` when the config runs ``explained``,
     names no part model and the log carries a ``part_model.ply`` attachment; else as it is."""
     from replay.logs.part_model import PART_MODEL_ATTACHMENT
 
