@@ -787,9 +787,6 @@ class ExplainedParams:
         The paper's factor: 3.
     err_floor_mm : float
         Err is never below this (mm): a noise-free cloud's fits have Err ≈ 0. 0.05.
-    min_pixels : int
-        The bin's and the table's residual σ are measured on the pixels each explains; a surface
-        explaining fewer than this many takes the σ pooled over every surface. 100.
     part_model : str
         The part's mesh: a PLY, STL or OBJ file, or an MCAP log whose ``part_model.ply`` it takes;
         "" (default): the replayed log's own attachment (``--part-model FILE`` sets it).
@@ -804,7 +801,6 @@ class ExplainedParams:
 
     k: float = 3.0
     err_floor_mm: float = 0.05
-    min_pixels: int = 100
     part_model: str = ""
     part_model_unit: str = "mm"
     fit_max_err_mm: float = 1.5
@@ -813,12 +809,10 @@ class ExplainedParams:
     def __post_init__(self) -> None:
         _number(self, "k", gt=0)
         _number(self, "err_floor_mm", ge=0)
-        _number(self, "min_pixels", ge=1, integer=True)
         if not isinstance(self.part_model, str):
             raise ParameterError(f"ExplainedParams.part_model must be a file path (a string), got {self.part_model!r}")
         _choice(self, "part_model_unit", PART_MODEL_UNITS)
         _number(self, "fit_max_err_mm", gt=0)
         _number(self, "fit_min_support", ge=0, le=1)
-        object.__setattr__(self, "min_pixels", int(self.min_pixels))
         for name in ("k", "err_floor_mm", "fit_max_err_mm", "fit_min_support"):
             object.__setattr__(self, name, float(getattr(self, name)))
