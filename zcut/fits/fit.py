@@ -201,23 +201,51 @@ def _subsample(flat: np.ndarray, n: int) -> np.ndarray:
     return flat[np.linspace(0, len(flat) - 1, n).round().astype(np.int64)]
 
 
+def _occluding_boundary(frame: _Frame, flat: np.ndarray, jump_mm: float) -> np.ndarray:
+    """The pixels of the region whose 4-neighbour outside it is missing or lies farther than
+    ``jump_mm`` behind: where the region's own silhouette is seen (not where something occludes it)."""
+    H, W = frame.valid.shape
+    inside = np.zeros(H * W, bool)
+    inside[flat] = True
+    z = frame.xyz[..., 2].reshape(-1)
+    valid = frame.valid.reshape(-1)
+    r, c = np.divmod(flat, W)
+    edge = np.zeros(len(flat), bool)
+    for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        rr, cc = r + dr, c + dc
+        ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+        nb = np.where(ok, rr * W + cc, 0)
+        out = ok & ~inside[nb]
+        far = ~valid[nb] | (z[nb] > z[flat] + jump_mm)
+        edge |= out & far
+    return flat[edge]
+
+
 def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> tuple[np.ndarray, float]:
     """(pose, err) of one instance of a general model in the region's points."""
     sub = _subsample(flat, params.max_points)
     pts = frame.xyz.reshape(-1, 3)[sub]
+    bnd = _subsample(_occluding_boundary(frame, flat, params.jump_mm), params.max_points // 2)
+    epts = frame.xyz.reshape(-1, 3)[bnd]
+    f = 0.5 * (frame.K[0] + frame.K[1])
+    px_mm = float(np.median(pts[:, 2])) / f  # the pixel footprint
+    edge_gate = max(3.0 * px_mm, params.k * params.err_floor_mm)
     best = None
     score_tol = max(params.k * params.err_floor_mm, params.gate_mm / 4)
+    opts = dict(gate_mm=params.gate_mm, k=params.k, floor_mm=params.err_floor_mm, edge_points=epts,
+                edge_gate_mm=edge_gate)
     for R in initial_rotations(pts, model):
         T0 = initial_pose(pts, R, model)
-        T, _, _ = icp(pts, model, T0, iterations=params.coarse_iterations, gate_mm=params.gate_mm, k=params.k,
-                      floor_mm=params.err_floor_mm)
+        T, _, _ = icp(pts, model, T0, iterations=params.coarse_iterations, **opts)  # type: ignore[arg-type]
         d = model.distance((pts - T[:3, 3]) @ T[:3, :3])
         score = float(np.sum(d <= score_tol)) - float(np.mean(np.minimum(d, score_tol)))
+        if len(epts):
+            de, _ = model.nearest_edges((epts - T[:3, 3]) @ T[:3, :3])
+            score += float(np.sum(de <= 1.5 * px_mm)) * len(pts) / len(epts) * 0.5
         if best is None or score > best[0]:
             best = (score, T)
     assert best is not None
-    T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, gate_mm=params.gate_mm, k=params.k,
-                    floor_mm=params.err_floor_mm)
+    T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, **opts)  # type: ignore[arg-type]
     d = model.distance((pts - T[:3, 3]) @ T[:3, :3])
     gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
     inl = d <= gate

@@ -41,6 +41,9 @@ class PartModel:
         among a fixed set of candidates (:func:`_symmetries`); ``continuous_axis`` when the surface
         is a body of revolution.
     continuous_axis : (3,) float64 ndarray or None
+    edges : (e, 3) float64 ndarray
+        Points along the mesh's sharp edges (faces meeting at more than 30°, or open edges): where
+        the part's silhouette lies, matched by the occluding boundary of a region in the ICP.
     """
 
     vertices: np.ndarray
@@ -53,8 +56,10 @@ class PartModel:
     extent_mm: float
     symmetries: np.ndarray
     continuous_axis: np.ndarray | None
+    edges: np.ndarray
     _scene: Any = field(repr=False)
     _tree: Any = field(repr=False)
+    _edge_tree: Any = field(repr=False)
 
     def distance(self, points_model: np.ndarray) -> np.ndarray:
         """Exact distance (mm) of each of ``points_model`` (n, 3), model frame, to the surface."""
@@ -83,6 +88,14 @@ class PartModel:
         rays = np.concatenate([origins, directions], axis=1).astype(np.float32)
         t: np.ndarray = self._scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
         return t.astype(np.float64)
+
+    def nearest_edges(self, points_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(distance, index into ``edges``) of the nearest edge point of each point (model frame)."""
+        if self._edge_tree is None:
+            n = len(points_model)
+            return np.full(n, np.inf), np.zeros(n, np.int64)
+        d, i = self._edge_tree.query(points_model, k=1)
+        return np.asarray(d, np.float64), np.asarray(i, np.int64)
 
     def nearest_samples(self, points_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(distance, index) of the nearest surface sample of each point (model frame)."""
@@ -137,6 +150,44 @@ def _sample_surface(v: np.ndarray, t: np.ndarray, n: int) -> tuple[np.ndarray, n
     if (out < 0).mean() > 0.5:
         normals = -normals
     return pts, normals, centroid
+
+
+def _sharp_edges(v: np.ndarray, t: np.ndarray, spacing: float, angle_deg: float = 30.0) -> np.ndarray:
+    """Points every ``spacing`` along the edges where faces meet at more than ``angle_deg`` (or
+    which only one face has)."""
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    cr = np.cross(b - a, c - a)
+    nrm = cr / np.maximum(np.linalg.norm(cr, axis=1, keepdims=True), 1e-300)
+    e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    face = np.tile(np.arange(len(t)), 3)
+    key = np.sort(e, axis=1)
+    order = np.lexsort((key[:, 1], key[:, 0]))
+    key, face = key[order], face[order]
+    same = np.all(key[1:] == key[:-1], axis=1)
+    sharp: list[np.ndarray] = []
+    i = 0
+    n = len(key)
+    cos_thr = np.cos(np.radians(angle_deg))
+    while i < n:
+        j = i + 1
+        while j < n and same[j - 1]:
+            j += 1
+        fs = face[i:j]
+        if j - i == 1 or np.min(nrm[fs] @ nrm[fs].T) < cos_thr:
+            sharp.append(key[i])
+        i = j
+    if not sharp:
+        return np.zeros((0, 3))
+    E = np.array(sharp)
+    p0, p1 = v[E[:, 0]], v[E[:, 1]]
+    L = np.linalg.norm(p1 - p0, axis=1)
+    pts = []
+    for k in range(len(E)):
+        m = max(2, int(np.ceil(L[k] / spacing)) + 1)
+        s = np.linspace(0.0, 1.0, m)[:, None]
+        pts.append(p0[k] + s * (p1[k] - p0[k]))
+    out: np.ndarray = np.unique(np.round(np.concatenate(pts), 9), axis=0)
+    return out
 
 
 def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -245,6 +296,8 @@ def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tole
     if np.linalg.det(axes) < 0:
         axes[:, 2] = -axes[:, 2]
     tree = cKDTree(samples)
+    edges = _sharp_edges(v, t, spacing=extent / 150.0)
+    edge_tree = cKDTree(edges) if len(edges) else None
     scene = None
     if sphere is None:
         import open3d as o3d
@@ -257,4 +310,4 @@ def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tole
         sym, cont = np.eye(3)[None], None
     return PartModel(vertices=v, triangles=t, centroid=centroid, sphere_radius=sphere, samples=samples,
                      normals=normals, axes=axes, extent_mm=extent, symmetries=sym, continuous_axis=cont,
-                     _scene=scene, _tree=tree)
+                     edges=edges, _scene=scene, _tree=tree, _edge_tree=edge_tree)
