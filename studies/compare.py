@@ -116,6 +116,8 @@ class CompareOptions:
     labels, annotator : truth from an annotator's labels (default: the synthetic truth)
     region : {"zone", "valid"}
     bin_model, topic : as ``zcut replay``'s
+    part_model, part_model_unit : the part's mesh of the method ``explained`` (as ``zcut replay
+        --part-model``); without it the log's own ``part_model.ply``
     frames : (start, stop)
     force : bool
         Replace existing outputs.
@@ -134,6 +136,8 @@ class CompareOptions:
     region: str = "zone"
     bin_model: Path | None = None
     topic: str | None = None
+    part_model: Path | None = None
+    part_model_unit: str = "mm"
     frames: tuple[int, int | None] = (0, None)
     force: bool = False
     rrd: bool = True
@@ -388,6 +392,7 @@ def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, ent
     file does not hold)."""
     from replay.pipeline import config as cfg
     from replay.pipeline.bin_model import bin_model_for
+    from replay.pipeline.explained import with_log_part_model, with_part_model
     from replay.pipeline.session import open_log
 
     path = entry.path
@@ -405,7 +410,10 @@ def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, ent
         else:
             file_layer = spec.layer if spec.kind == "config" else None
             cli = spec.layer if spec.kind == "method" else None
-            resolved[spec.label] = cfg.resolve(facts, file_layer=file_layer, cli=cli)
+            r = cfg.resolve(facts, file_layer=file_layer, cli=cli)
+            if opts.part_model is not None and "explained" in r.config.base_methods:
+                r = with_part_model(r, opts.part_model, unit=opts.part_model_unit)
+            resolved[spec.label] = with_log_part_model(r, path, reader)
             configs[spec.label] = resolved[spec.label].config
     entry.primaries = _check_differ(spec_a, spec_b, configs["A"], configs["B"], path)
     entry.resolved_a, entry.resolved_b = configs["A"], configs["B"]
@@ -700,16 +708,20 @@ def run(opts: CompareOptions) -> CompareResult:
     check_region(opts.region)
     if not opts.logs:
         raise CompareError("no log given")
-    for p in (*opts.logs, *(x for x in (opts.labels, opts.bin_model) if x is not None)):
+    for p in (*opts.logs, *(x for x in (opts.labels, opts.bin_model, opts.part_model) if x is not None)):
         if not Path(p).is_file():
             raise FileNotFoundError(2, "no such file", str(p))
+    if opts.part_model is not None:  # a bad mesh is one line before anything runs
+        from replay.pipeline.explained import part_model
+
+        part_model(str(opts.part_model), opts.part_model_unit)
     spec_a, spec_b = side_spec(opts.a, label="A"), side_spec(opts.b, label="B")
     out = Path(opts.out)
     if out.exists() and not out.is_dir():
         raise CompareError(f"-o {out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
     inputs: list[str | os.PathLike[str]] = [*opts.logs, *(s.path for s in (spec_a, spec_b) if s.path is not None),
-              *(x for x in (opts.labels, opts.bin_model) if x is not None)]
+              *(x for x in (opts.labels, opts.bin_model, opts.part_model) if x is not None)]
     names = {"json": "compare.json", "parquet": "summary.parquet"}
     if opts.report:
         names["report"] = "report.html"

@@ -120,9 +120,18 @@ def part_model(path: str, unit: str) -> tuple[np.ndarray, np.ndarray, PreparedPa
     return _load(str(Path(path).resolve()), unit, (st.st_mtime_ns, st.st_size))
 
 
-def with_log_part_model(resolved: Any, log: str | os.PathLike[str], reader: LogReader) -> Any:
+def with_part_model(resolved: Any, path: str | os.PathLike[str], *, unit: str = "mm", note: str = "") -> Any:
     """``resolved`` (a :class:`replay.pipeline.config.Resolved`, not imported: the config imports the
-    registry, which imports this module) with ``explained.part_model`` set to ``log`` when the config runs ``explained``,
+    registry, which imports this module) with ``explained.part_model`` = ``path`` (a mesh file in
+    ``unit``, or a log) and ``note`` added to its notes."""
+    config = resolved.config
+    p = dataclasses.replace(config.bank[NAME], part_model=str(Path(path).resolve()), part_model_unit=unit)
+    config = dataclasses.replace(config, bank={**config.bank, NAME: p})
+    return dataclasses.replace(resolved, config=config, notes=(*resolved.notes, note) if note else resolved.notes)
+
+
+def with_log_part_model(resolved: Any, log: str | os.PathLike[str], reader: LogReader) -> Any:
+    """``resolved`` with ``explained.part_model`` set to ``log`` when the config runs ``explained``,
     names no part model and the log carries a ``part_model.ply`` attachment; else as it is."""
     from replay.logs.part_model import PART_MODEL_ATTACHMENT
 
@@ -131,10 +140,7 @@ def with_log_part_model(resolved: Any, log: str | os.PathLike[str], reader: LogR
         return resolved
     if not any(name == PART_MODEL_ATTACHMENT for name, _, _ in reader.attachments()):
         return resolved
-    p = dataclasses.replace(config.bank[NAME], part_model=str(Path(log).resolve()))
-    config = dataclasses.replace(config, bank={**config.bank, NAME: p})
-    return dataclasses.replace(resolved, config=config,
-                               notes=(*resolved.notes, f"explained: the part model is the log's {PART_MODEL_ATTACHMENT}"))
+    return with_part_model(resolved, log, note=f"explained: the part model is the log's {PART_MODEL_ATTACHMENT}")
 
 
 def _no_outliers(zone: Zone, why: str) -> tuple[np.ndarray, None, str]:

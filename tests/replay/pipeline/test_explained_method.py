@@ -118,3 +118,15 @@ def test_the_recording_shows_the_fits_the_distances_and_the_unexplained(capsys, 
     for path in ("/image/explained", "/image/explained_distance", "/world/explained/fits",
                  "/world/explained/labels", "/image/methods/explained"):
         assert path in entities, sorted(entities)
+
+
+def test_compare_runs_explained_with_the_logs_part_model(capsys, tmp_path, log):
+    rc, out, err = run_cli(capsys, "compare", log, "--a", "zcut", "--b", "explained", "-o", tmp_path / "c", "--no-rrd",
+                           "--json")
+    assert rc == 0, err
+    assert "no part model" not in out + err
+    bad = tmp_path / "bad.obj"
+    bad.write_text("# nothing\n")
+    rc, out, err = run_cli(capsys, "compare", log, "--a", "zcut", "--b", "explained", "-o", tmp_path / "d",
+                           "--no-rrd", "--part-model", bad)
+    assert rc == 1 and err.startswith("error: ") and err.count("\n") == 1
