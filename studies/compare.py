@@ -410,10 +410,10 @@ def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, ent
         else:
             file_layer = spec.layer if spec.kind == "config" else None
             cli = spec.layer if spec.kind == "method" else None
-            r = cfg.resolve(facts, file_layer=file_layer, cli=cli)
-            if opts.part_model is not None and "explained" in r.config.base_methods:
-                r = with_part_model(r, opts.part_model, unit=opts.part_model_unit)
-            resolved[spec.label] = with_log_part_model(r, path, reader)
+            side = cfg.resolve(facts, file_layer=file_layer, cli=cli)
+            if opts.part_model is not None and "explained" in side.config.base_methods:
+                side = with_part_model(side, opts.part_model, unit=opts.part_model_unit)
+            resolved[spec.label] = with_log_part_model(side, path, reader)
             configs[spec.label] = resolved[spec.label].config
     entry.primaries = _check_differ(spec_a, spec_b, configs["A"], configs["B"], path)
     entry.resolved_a, entry.resolved_b = configs["A"], configs["B"]
