@@ -40,6 +40,11 @@ class PipelineOptions:
         The cloud topic (when the log has several).
     bin_model : str or None
         A bin model PLY; without it the log's own attachment, else no bin stages.
+    part_model, part_model_unit : str or None
+        The part's mesh (PLY, STL or OBJ, or a log carrying a ``part_model.ply``) and the unit of a
+        mesh file's vertices (``mm``, default, or ``m``): the method ``explained``'s
+        ``explained.part_model`` and ``explained.part_model_unit``; without it the log's own
+        attachment.
     """
 
     config: str | None = None
@@ -53,23 +58,34 @@ class PipelineOptions:
     methods: str | None = None
     topic: str | None = None
     bin_model: str | None = None
+    part_model: str | None = None
+    part_model_unit: str | None = None
 
     def overrides(self) -> dict[str, Any]:
         """The config layer of these options (validated: a bad value fails before the log is read)."""
         from replay.pipeline import config as cfg
 
-        return cfg.cli_layer(step=self.step, max_depth=self.max_depth, max_area=self.max_area, rho=self.rho,
-                             part=self.part, parameters=self.parameters, preset=self.preset, methods=self.methods)
+        layer = cfg.cli_layer(step=self.step, max_depth=self.max_depth, max_area=self.max_area, rho=self.rho,
+                              part=self.part, parameters=self.parameters, preset=self.preset, methods=self.methods)
+        if self.part_model:
+            layer["explained"] = {"part_model": str(Path(self.part_model).resolve()),
+                                  "part_model_unit": self.part_model_unit or "mm"}
+        return layer
 
     def inputs(self) -> list[str]:
         """The files these options name (for the outputs check)."""
-        return [p for p in (self.config, self.bin_model) if p]
+        return [p for p in (self.config, self.bin_model, self.part_model) if p]
 
     def check_inputs(self) -> None:
-        """Refuse a config or bin model that is not a file (as a missing file: ``error: no such file``)."""
-        for path in (self.config, self.bin_model):
+        """Refuse a config, bin model or part model that is not a file (as a missing file: ``error: no
+        such file``), and a part model that is not a mesh (one line, :func:`replay.pipeline.explained.part_model`)."""
+        for path in (self.config, self.bin_model, self.part_model):
             if path and not Path(path).is_file():
                 raise FileNotFoundError(2, "no such file", str(path))
+        if self.part_model:
+            from replay.pipeline.explained import part_model
+
+            part_model(self.part_model, self.part_model_unit or "mm")
 
     def model_chooser(self) -> Callable[[LogReader], BinModelChoice]:
         """What :meth:`ReplaySession.open <replay.pipeline.session.ReplaySession.open>` calls with the opened

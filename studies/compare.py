@@ -119,6 +119,8 @@ class CompareOptions:
         where the log has it, else the sensor's); not with ``labels``.
     region : {"zone", "valid"}
     bin_model, topic : as ``zcut replay``'s
+    part_model, part_model_unit : the part's mesh of the method ``explained`` (as ``zcut replay
+        --part-model``); without it the log's own ``part_model.ply``
     frames : (start, stop)
     force : bool
         Replace existing outputs.
@@ -137,6 +139,8 @@ class CompareOptions:
     region: str = "zone"
     bin_model: Path | None = None
     topic: str | None = None
+    part_model: Path | None = None
+    part_model_unit: str = "mm"
     frames: tuple[int, int | None] = (0, None)
     force: bool = False
     rrd: bool = True
@@ -392,6 +396,7 @@ def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, ent
     file does not hold)."""
     from replay.pipeline import config as cfg
     from replay.pipeline.bin_model import bin_model_for
+    from replay.pipeline.explained import with_log_part_model, with_part_model
     from replay.pipeline.session import open_log
 
     path = entry.path
@@ -409,7 +414,10 @@ def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, ent
         else:
             file_layer = spec.layer if spec.kind == "config" else None
             cli = spec.layer if spec.kind == "method" else None
-            resolved[spec.label] = cfg.resolve(facts, file_layer=file_layer, cli=cli)
+            side = cfg.resolve(facts, file_layer=file_layer, cli=cli)
+            if opts.part_model is not None and "explained" in side.config.base_methods:
+                side = with_part_model(side, opts.part_model, unit=opts.part_model_unit)
+            resolved[spec.label] = with_log_part_model(side, path, reader)
             configs[spec.label] = resolved[spec.label].config
     entry.primaries = _check_differ(spec_a, spec_b, configs["A"], configs["B"], path)
     entry.resolved_a, entry.resolved_b = configs["A"], configs["B"]
@@ -702,7 +710,7 @@ def run(opts: CompareOptions) -> CompareResult:
     check_truth(opts.truth)
     if not opts.logs:
         raise CompareError("no log given")
-    for p in (*opts.logs, *(x for x in (opts.labels, opts.bin_model) if x is not None)):
+    for p in (*opts.logs, *(x for x in (opts.labels, opts.bin_model, opts.part_model) if x is not None)):
         if not Path(p).is_file():
             raise FileNotFoundError(2, "no such file", str(p))
     if opts.truth is not None:  # the truth asked for is in every log, before anything is written
@@ -711,13 +719,17 @@ def run(opts: CompareOptions) -> CompareResult:
                                "an annotator's: give one")
         for p in opts.logs:
             truth_of_log(opts.truth, LogReader(p, cloud_topic=opts.topic).mask_topics, p)
+    if opts.part_model is not None:  # a bad mesh is one line before anything runs
+        from replay.pipeline.explained import part_model
+
+        part_model(str(opts.part_model), opts.part_model_unit)
     spec_a, spec_b = side_spec(opts.a, label="A"), side_spec(opts.b, label="B")
     out = Path(opts.out)
     if out.exists() and not out.is_dir():
         raise CompareError(f"-o {out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
     inputs: list[str | os.PathLike[str]] = [*opts.logs, *(s.path for s in (spec_a, spec_b) if s.path is not None),
-              *(x for x in (opts.labels, opts.bin_model) if x is not None)]
+              *(x for x in (opts.labels, opts.bin_model, opts.part_model) if x is not None)]
     from annotate.disagreement import FILE as DISAGREEMENT
 
     names = {"json": "compare.json", "parquet": "summary.parquet", "disagreement": DISAGREEMENT}

@@ -859,3 +859,49 @@ class StereoTextureParams:
     def __post_init__(self) -> None:
         _number(self, "texture_threshold", ge=1, integer=True)
         _as_int(self, "texture_threshold")
+
+
+#: the units a part model file may be stated in (``ExplainedParams.part_model_unit``)
+PART_MODEL_UNITS = ("mm", "m")
+
+
+@dataclass(frozen=True, slots=True)
+class ExplainedParams:
+    """The method ``explained`` (paper §2; :mod:`zcut.explained`): the points farther than ``k`` × Err
+    from every known surface (the fitted part instances, the registered bin, the table plane).
+
+    Attributes
+    ----------
+    k : float
+        The paper's factor: 3.
+    err_floor_mm : float
+        Err is never below this (mm): a noise-free cloud's fits have Err ≈ 0. 0.05.
+    part_model : str
+        The part's mesh: a PLY, STL or OBJ file, or an MCAP log whose ``part_model.ply`` it takes;
+        "" (default): the replayed log's own attachment (``--part-model FILE`` sets it).
+    part_model_unit : {"mm", "m"}
+        The unit of a mesh file's vertices (a log's attachment states its own).
+    fit_max_err_mm : float
+        A part fit is accepted only when its residual Err is at most this (``FitParams.max_err_mm``). 1.5.
+    fit_min_support : float
+        ... and when at least this share of its predicted visible pixels is measured on it
+        (``FitParams.min_support``). 0.5.
+    """
+
+    k: float = 3.0
+    err_floor_mm: float = 0.05
+    part_model: str = ""
+    part_model_unit: str = "mm"
+    fit_max_err_mm: float = 1.5
+    fit_min_support: float = 0.5
+
+    def __post_init__(self) -> None:
+        _number(self, "k", gt=0)
+        _number(self, "err_floor_mm", ge=0)
+        if not isinstance(self.part_model, str):
+            raise ParameterError(f"ExplainedParams.part_model must be a file path (a string), got {self.part_model!r}")
+        _choice(self, "part_model_unit", PART_MODEL_UNITS)
+        _number(self, "fit_max_err_mm", gt=0)
+        _number(self, "fit_min_support", ge=0, le=1)
+        for name in ("k", "err_floor_mm", "fit_max_err_mm", "fit_min_support"):
+            object.__setattr__(self, name, float(getattr(self, name)))

@@ -51,6 +51,9 @@ def add_pipeline_options(p: argparse.ArgumentParser, *, bin_model: bool = True, 
         g.add_argument("--bin-model", metavar="PLY", help="bin model (from `zcut bin-model` or a CAD PLY); "
                        "without it the log's own bin model attachment is used, and without that the bin stages "
                        "are skipped")
+    g.add_argument("--part-model", metavar="FILE", help="the part's mesh (PLY, STL or OBJ) for the method "
+                   "explained; without it the log's own part_model.ply attachment")
+    g.add_argument("--part-model-unit", choices=("mm", "m"), help="the unit of --part-model's vertices (default mm)")
 
 
 def pipeline_options(args: argparse.Namespace) -> PipelineOptions:
@@ -60,7 +63,8 @@ def pipeline_options(args: argparse.Namespace) -> PipelineOptions:
     z = {k: getattr(args, k, None) for k in ("step", "max_depth", "max_area", "rho")} if args.zcut_overrides else {}
     return PipelineOptions(config=args.config, **z, part=args.part, parameters=args.parameters, preset=args.preset,
                            methods=getattr(args, "methods", None), topic=getattr(args, "topic", None),
-                           bin_model=getattr(args, "bin_model", None))
+                           bin_model=getattr(args, "bin_model", None), part_model=getattr(args, "part_model", None),
+                           part_model_unit=getattr(args, "part_model_unit", None))
 
 
 def overrides_of(args: argparse.Namespace) -> dict[str, Any]:

@@ -28,6 +28,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--region", default="zone", help="scored region: zone (default) or valid")
     p.add_argument("--bin-model", type=Path, metavar="PLY", help="bin model (default: the log's attachment)")
     p.add_argument("--topic", metavar="T", help="cloud topic (when the log has several)")
+    p.add_argument("--part-model", type=Path, metavar="FILE", help="the part's mesh (PLY, STL or OBJ) for the "
+                   "method explained (default: the log's part_model.ply attachment)")
+    p.add_argument("--part-model-unit", choices=("mm", "m"), default="mm",
+                   help="the unit of --part-model's vertices (default mm)")
     p.add_argument("--frames", metavar="A:B", help="frame range (as zcut replay's)")
     p.add_argument("--no-rrd", action="store_true", help="do not write compare.rrd")
     p.add_argument("--json", action="store_true", help="print compare.json to stdout")
@@ -45,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
 
     opts = CompareOptions(logs=tuple(args.logs), a=args.a, b=args.b, out=args.out, labels=args.labels,
                           annotator=args.annotator, region=args.region, bin_model=args.bin_model, topic=args.topic,
+                          part_model=args.part_model, part_model_unit=args.part_model_unit,
                           frames=parse_frames(args.frames), force=args.force, rrd=not args.no_rrd, truth=args.truth)
     result = compare(opts)
     rep = result.report

@@ -47,6 +47,7 @@ from replay.logs.frame import Frame
 from replay.pipeline.zone import Zone, sor_on_zone, zone_crop
 from zcut.params import (
     ClusterParams,
+    ExplainedParams,
     MixedPixelParams,
     RadiusParams,
     SorParams,
@@ -236,6 +237,13 @@ def _run_stereo_texture(frame: Frame, zone: Zone, config: Config) -> MethodOutpu
     return _run_stereo(frame, zone, "stereo_texture", config.stereo_texture)
 
 
+def _run_explained(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
+    from replay.pipeline.explained import run_explained
+
+    mask, detail, warning = run_explained(frame, zone, config)
+    return MethodOutput(mask, detail, warning)
+
+
 # ------------------------------------------------------------------------------------- warm-ups
 def _tiny() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Tiny inputs for the warm-ups: a height image, its organized cloud (mm-sized, float32) and a
@@ -362,6 +370,9 @@ BUILTIN: tuple[Method, ...] = (
     Method(name="stereo_texture", params=StereoTextureParams, run=_run_stereo_texture,
            axes={"texture_threshold": (10, 200, 800, 1600)},
            summary="stereo logs (bm): the pixels StereoBM's texture test rejects (recorded by record-stereo)"),
+    Method(name="explained", params=ExplainedParams, run=_run_explained,
+           axes={"k": (2.0, 3.0, 5.0)},
+           summary="the paper's §2: farther than k × Err from every known surface (part fits, bin, table)"),
 )
 _BUILTIN_MAP = types.MappingProxyType({m.name: m for m in BUILTIN})
 

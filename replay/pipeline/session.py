@@ -35,6 +35,7 @@ from replay.logs.frame import Frame
 from replay.logs.poses import true_poses
 from replay.logs.stream import DerivedStream, FrameStream
 from replay.pipeline import config as cfg
+from replay.pipeline.explained import with_log_part_model
 from replay.pipeline.sinks import FrameSink, NullSink, ReplayStart
 from replay.pipeline.stages import FrameResult, bin_zone, locate_bin, run_frame
 from replay.pipeline.zone import BinLocation, Zone
@@ -270,6 +271,7 @@ def open_log(path: Path, *, file_layer: dict[str, Any] | None = None, overrides:
     if resolved is None:
         facts = cfg.log_facts(reader.metadata, first, intrinsics=getattr(reader, "intrinsics", None))
         resolved = cfg.resolve(facts, file_layer=file_layer, cli=overrides)
+        resolved = with_log_part_model(resolved, path, reader)
     return reader, first, resolved
 
 

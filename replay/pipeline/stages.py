@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -74,6 +75,9 @@ class FrameResult:
         Whether the bin removal worked (:func:`zcut.bin_check.check_bin_removal`); flagged when it
         did not or when the bin stages failed; None when they did not run (no RGB image, no bin
         model, disabled).
+    details : dict[str, object]
+        The other base methods' own results for the viewer (``MethodOutput.detail``, e.g. the
+        ``explained`` method's fits and distance image), by method; the z-cut's is :attr:`cut`.
     """
 
     index: int
@@ -90,6 +94,7 @@ class FrameResult:
     timings: dict[str, float]
     warnings: tuple[str, ...]
     bin_check: BinCheck | None = None
+    details: dict[str, Any] = field(default_factory=dict)
 
     @property
     def bin_flagged(self) -> bool:
@@ -208,7 +213,8 @@ def locate_bin(
         if reg is None:
             reg = register_bin(bin_model.icp, target, params=c)
         timings["registration"] = time.perf_counter() - t
-        return BinLocation(valid, bm, reg, timings, time.perf_counter() - t_start, tuple(warnings), pixels)
+        return BinLocation(valid, bm, reg, timings, time.perf_counter() - t_start, tuple(warnings), pixels,
+                           bin_model=bin_model.model)
     return BinLocation(valid, bm, reg, timings, time.perf_counter() - t_start, tuple(warnings))
 
 
@@ -330,6 +336,7 @@ def judge_zone(frame: Frame, z: Zone, config: PipelineConfig, *, t_start: float,
         timings=timings,
         warnings=tuple(warnings),
         bin_check=z.bin_check,
+        details={name: out.detail for name, out in found.items() if name != "zcut" and out.detail is not None},
     )
 
 

@@ -14,6 +14,12 @@ An explicit :class:`rerun.RecordingStream` is passed in (no global recording). E
 ``image/outliers``                    z-cut only (1), SOR only (2), both (3), above the rim (4)
 ``image/methods/NAME``                the outliers of every other filter method the config runs
                                       (``--methods``): one view each, with its count and time
+``image/explained``                   the method ``explained``: each zone pixel's nearest known
+                                      surface, a part fit (1), the bin (2), the table (3), or
+                                      unexplained (4: farther than k × Err from every one)
+``image/explained_distance``          its distance to the nearest known surface (mm, colour-mapped)
+``world/explained/fits``              the fitted part instances in 3D, each labelled with its
+                                      residual Err and support
 ``zcut/cuts``                         the z-cuts: scrub the ``depth_um`` timeline (see below; the
                                       viewer opens on ``frame``, where the view shows every level)
 ``world/cloud``                       the cloud (every 4th pixel at default detail)
@@ -653,6 +659,46 @@ def log_methods(rec: rr.RecordingStream, result: FrameResult) -> None:
         rec.log(f"counts/{name}", rr.Scalars(float(np.count_nonzero(mask))))
 
 
+#: the classes of ``image/explained``
+EXPLAINED_CLASSES = ((1, "part fit", (60, 180, 75)), (2, "bin", (0, 120, 255)), (3, "table", (150, 150, 150)),
+                     (4, "unexplained", (230, 25, 75)))
+
+
+def log_explained(rec: rr.RecordingStream, result: FrameResult) -> None:
+    """The method ``explained``'s stage (when it ran): the nearest known surface of each zone pixel
+    and the unexplained ones, the distance image, the fitted instances in 3D (metres, as the cloud)."""
+    from replay.pipeline.explained import ExplainedDetail
+    from zcut.explained import SURFACE_BIN, SURFACE_TABLE
+
+    d = result.details.get("explained")
+    if not isinstance(d, ExplainedDetail):
+        return
+    cls = np.zeros(d.surface.shape, np.uint8)
+    judged = np.isfinite(d.dist_mm)
+    cls[judged & (d.surface >= 0)] = 1
+    cls[judged & (d.surface == SURFACE_BIN)] = 2
+    cls[judged & (d.surface == SURFACE_TABLE)] = 3
+    cls[d.unexplained] = 4
+    rec.log("image/explained", _ctx(EXPLAINED_CLASSES))
+    rec.log("image/explained", rr.SegmentationImage(cls, opacity=0.6))
+    dist = np.where(judged & np.isfinite(d.dist_mm), d.dist_mm, 0.0).astype(np.float32)
+    rec.log("image/explained_distance", rr.DepthImage(dist, meter=1000.0, colormap="turbo"))
+    rec.log("counts/explained_fits", rr.Scalars(float(len(d.fits))))
+    if not d.fits:
+        rec.log("world/explained/fits", rr.Clear(recursive=False))
+        return
+    n = len(d.vertices_mm)
+    verts = np.concatenate([d.instance_mesh(i) for i in range(len(d.fits))]) / 1000.0
+    tris = np.concatenate([d.triangles + i * n for i in range(len(d.fits))])
+    rec.log("world/explained/fits", rr.Mesh3D(vertex_positions=verts.astype(np.float32),
+                                              triangle_indices=tris.astype(np.uint32),
+                                              albedo_factor=(60, 180, 75, 160)))
+    centres = np.array([f.pose[:3, 3] for f in d.fits]) / 1000.0
+    labels = [f"fit {i}: Err {f.err_mm:.2f} mm, support {f.support:.2f}" for i, f in enumerate(d.fits)]
+    rec.log("world/explained/labels", rr.Points3D(centres.astype(np.float32), labels=labels,
+                                                  radii=rr.Radius.ui_points(2.0)))
+
+
 def log_cloud(rec: rr.RecordingStream, frame: Frame, opts: VizOptions) -> None:
     """The cloud in 3D (strided at default detail), in its RGB colours when there are some."""
     s = 1 if opts.full_detail else max(int(opts.cloud_stride), 1)
@@ -697,6 +743,7 @@ def log_frame(rec: rr.RecordingStream, frame: Frame, result: FrameResult, *,
     classes = _outlier_classes(result)
     log_outliers(rec, frame, result, classes)
     log_methods(rec, result)
+    log_explained(rec, result)
     log_cloud(rec, frame, opts)
     log_scalars(rec, result, classes)
     for w in result.warnings:

@@ -16,6 +16,7 @@ import numpy as np
 
 from replay.logs.frame import Frame
 from zcut.bin_check import BinCheck
+from zcut.bin_model import BinModel
 from zcut.binmask import BinMaskResult
 from zcut.params import SorParams, ZCutParams
 from zcut.registration import RegistrationResult
@@ -56,6 +57,9 @@ class BinLocation:
     failure : str
         Why the bin stages failed although a bin model and an RGB image were given (no bin in the
         image, coordinates no registration can take); "" otherwise.
+    bin_model : BinModel or None
+        The bin model registered (the method ``explained`` poses it by ``registration``); None
+        when the bin stages did not register one.
     """
 
     valid: np.ndarray
@@ -66,6 +70,7 @@ class BinLocation:
     warnings: tuple[str, ...]
     ring: np.ndarray | None = None
     failure: str = ""
+    bin_model: BinModel | None = None
 
 
 def sor_region(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams) -> np.ndarray:

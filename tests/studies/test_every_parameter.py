@@ -51,7 +51,12 @@ VALUES: dict[str, dict[str, str]] = {
     "stereo_lr": {"disp12_max_diff": "0"},
     "stereo_speckle": {"speckle_window": "400", "speckle_range": "1"},
     "stereo_texture": {"texture_threshold": "800"},
+    "explained": {"k": "1.0", "err_floor_mm": "3.0", "part_model": '"{part_mesh}"', "part_model_unit": '"m"',
+                  "fit_max_err_mm": "0.01", "fit_min_support": "1.0"},
 }
+#: sections whose method runs with a methods list of its own (the base values are the defaults): its
+#: fields are compared with the defaults of that same list
+OWN: dict[str, str] = {"explained": 'methods = ["zcut", "sor", "explained"]\n'}
 #: the sections of methods that run only when the methods list names them: their fields are set with
 #: every method named, and compared with the defaults of that same list
 BANK = ("radius", "cluster", "speckle", "window", "mixed_pixel", "suspects")
@@ -95,6 +100,8 @@ UNCHANGED: dict[str, str] = {
                                   "bin check's figure is 0 on both frames): no threshold >= 0 changes a flag",
     "removal.check_min_rim_in_view": "the whole of the bin's rim is in the camera's view on this log (share 1.0): no "
                                      "threshold <= 1 flags a frame",
+    "explained.part_model_unit": "it states the unit of a mesh file given as explained.part_model; the log's own "
+                                 "part_model.ply, used when none is given, states its unit in its header",
 }
 #: fields that change only the registration's figures (fitness, RMSE) on this log, not a mask: only the
 #: commands that report those figures (replay's table, batch's frames.parquet) show them
@@ -114,7 +121,7 @@ NOT_READ: dict[tuple[str, str], str] = {
 } | {
     (f"{section}.{f}", "annotate"): "the labelling page's candidates are the z-cut's and SOR's clusters "
                                     "(docs/filters.md, \"In the pipeline\"): the bank's masks are not on the page"
-    for section in BANK for f in VALUES[section]
+    for section in (*BANK, *OWN) for f in VALUES[section]
 }
 #: the registration's float figures are compared to this many significant digits (Open3D's ICP sums in
 #: parallel: the last digit of its RMSE varies from run to run, docs/studies.md)
@@ -140,8 +147,10 @@ def test_the_table_covers_every_field_of_every_stage():
     assert set(_fields()) == want
 
 
-def _config_text(field: str | None, *, bank: bool = False) -> str:
+def _config_text(field: str | None, *, bank: bool = False, own: str | None = None) -> str:
     section, _, name = field.rpartition(".") if field is not None else ("", "", "")
+    if own is not None:
+        return OWN[own] + ("" if field is None else f"[{section}]\n{name} = {VALUES[section][name]}\n")
     if not bank:
         if field is None:
             return "# the defaults\n"
@@ -181,9 +190,9 @@ def _signatures(log, model, config, out_dir) -> dict:
              for f in LogReader(res, cloudless=True).frames()}
     sig["replay"] = ([(r["index"], r["valid_px"], r["zcut"], r["sor"], r["both"], r["above_rim"], r["clusters"],
                        _rounded(r["fitness"]), _rounded(r["rmse_mm"]), r["bin_check"], r["bin_flagged"],
-                       *(r.get(m) for m in BANK)) for r in frames], masks)
+                       *(r.get(m) for m in (*BANK, *OWN))) for r in frames], masks)
     counts = {r["index"]: (r["zcut"], r["sor"]) for r in frames}
-    bank_counts = {(r["index"], m): r[m] for r in frames for m in BANK if m in r}
+    bank_counts = {(r["index"], m): r[m] for r in frames for m in (*BANK, *OWN) if m in r}
 
     rep = _json_of("accuracy", log, "--bin-model", model, "--config", config, "--json")
     sig["accuracy"] = json.dumps(rep["frames"], sort_keys=True)
@@ -207,7 +216,7 @@ def _signatures(log, model, config, out_dir) -> dict:
                     for r in rows]
     for r in rows:
         assert (r["zcut"], r["sor"]) == counts[r["frame"]], "batch disagrees with replay"
-        for m in BANK:
+        for m in (*BANK, *OWN):
             if (r["frame"], m) in bank_counts:
                 assert r[m] == bank_counts[(r["frame"], m)], f"batch disagrees with replay ({m})"
 
@@ -221,10 +230,11 @@ def _signatures(log, model, config, out_dir) -> dict:
                     and (r["rho_thr"] is None or abs(r["rho_thr"] - c["rho_thr"]) < 1e-12))
                 or (r["method"] == "sor" and r["sor_k"] == c["sor_k"] and r["sor_std_ratio"] == c["sor_std_ratio"]
                     and r["step_mm"] in (None, c["step_mm"]) and r["max_depth_mm"] in (None, c["max_depth_mm"])))
-    at += sorted((r["frame"], r["method"], r["n_pred"], r["tp"], r["fp"], r["fn"]) for r in t if r["method"] in BANK)
+    at += sorted((r["frame"], r["method"], r["n_pred"], r["tp"], r["fp"], r["fn"]) for r in t
+                 if r["method"] in (*BANK, *OWN))
     sig["sweep"] = (at, summary["bin_flagged"])
     for frame, method, n_pred, *_ in at:
-        want = bank_counts[(frame, method)] if method in BANK else counts[frame][0 if method == "zcut" else 1]
+        want = bank_counts[(frame, method)] if method in (*BANK, *OWN) else counts[frame][0 if method == "zcut" else 1]
         assert n_pred == want, f"sweep disagrees with replay ({method})"
     return sig
 
@@ -233,7 +243,22 @@ def _signatures(log, model, config, out_dir) -> dict:
 def setup(tmp_path_factory):
     d = tmp_path_factory.mktemp("every_parameter")
     log, _, model = synth_with_bin_model(d, parts="rods", seed=21, size="180x240")
+    _ball_mesh(d / "ball.stl")  # another part's mesh: explained.part_model
     return d, log, model
+
+
+def _ball_mesh(path) -> None:
+    import open3d as o3d
+
+    o3d.io.write_triangle_mesh(str(path), o3d.geometry.TriangleMesh.create_sphere(radius=8.0).compute_triangle_normals())
+
+
+@pytest.fixture(scope="module")
+def own_baseline(setup):
+    d, log, model = setup
+    config = d / "explained.toml"
+    config.write_text(_config_text(None, own="explained"))
+    return _signatures(log, model, config, d / "explained")
 
 
 @pytest.fixture(scope="module")
@@ -256,10 +281,12 @@ def bank_baseline(setup):
 @pytest.mark.parametrize("field", _fields())
 def test_every_parameter_changes_every_command(setup, request, field, tmp_path):
     d, log, model = setup
-    bank = field.partition(".")[0] in BANK
-    baseline = request.getfixturevalue("bank_baseline" if bank else "baseline")
+    section = field.partition(".")[0]
+    bank = section in BANK
+    own = section if section in OWN else None
+    baseline = request.getfixturevalue("own_baseline" if own else "bank_baseline" if bank else "baseline")
     config = tmp_path / "c.toml"
-    config.write_text(_config_text(field, bank=bank))
+    config.write_text(_config_text(field, bank=bank, own=own).replace("{part_mesh}", str(d / "ball.stl")))
     got = _signatures(log, model, config, tmp_path / "field")
     changed = {cmd for cmd in got if got[cmd] != baseline[cmd]}
     if field in UNCHANGED:

@@ -1,0 +1,204 @@
+"""The method ``explained``: the zone's points no known surface explains (paper §2; issue 29 item 4).
+
+The known surfaces of a frame: the part instances :func:`zcut.fits.fit_prepared` finds in the zone
+with the part's mesh, the registered bin model at the pose the bin stages found, and the table
+plane fitted to the pixels the removal labelled table. :mod:`zcut.explained` gives every zone pixel
+its distance to the nearest of them and Err; the method's outliers are the zone's pixels farther
+than ``k`` × Err (``[explained]`` section, :class:`zcut.params.ExplainedParams`).
+
+- **Part instances**: σ_s is the fit's residual (``PartFit.err_mm``).
+- **The bin**: the registered model cloud with its normals (the pipeline's bin model), posed by the
+  registration; σ_s is the robust residual (:func:`zcut.explained.residual_sigma`) of up to 20,000 of
+  the pixels the removal labelled bin.
+- **The table**: the plane :func:`zcut.explained.fit_plane` fits to up to 20,000 of the pixels the
+  removal labelled table, with its robust residual.
+
+**The part model** is ``explained.part_model``: a mesh file (PLY, STL or OBJ, in
+``explained.part_model_unit``) or an MCAP log whose ``part_model.ply`` attachment it takes. The
+command line's ``--part-model FILE`` sets it; when it is empty and the replayed log carries a
+``part_model.ply``, :func:`with_log_part_model` (called where the config is resolved) sets it to the
+log itself, so that a study's worker processes read the same model. Without a part model, or
+without the bin stages (no bin model or no image: the bin and the table would be unexplained), the
+method returns a named warning and no outliers.
+
+What it leaves for the viewer (:class:`ExplainedDetail`): the fits and the posed part mesh, the
+distance image, the nearest surface's code, Err and the unexplained pixels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from replay.logs.frame import Frame
+from replay.pipeline.zone import Zone
+
+if TYPE_CHECKING:
+    from replay.logs.reader import LogReader
+    from zcut.fits import PartFit
+    from zcut.fits.model import PartModel as PreparedPart
+
+#: the method's name and config section
+NAME = "explained"
+#: at most this many of the removal's bin (table) pixels measure the bin's residual (fit the table)
+SAMPLE_PX = 20_000
+
+
+@dataclass(frozen=True, slots=True)
+class ExplainedDetail:
+    """What ``explained`` found on a frame, for the viewer.
+
+    Attributes
+    ----------
+    fits : tuple of PartFit
+        The part instances fitted in the zone.
+    vertices_mm, triangles : ndarray
+        The part's mesh (its own frame, mm): instance i is ``vertices_mm @ R_i.T + t_i``.
+    dist_mm : (H, W) float32 ndarray
+        Distance to the nearest known surface (mm), NaN outside the zone.
+    surface : (H, W) int32 ndarray
+        The nearest surface's code (:mod:`zcut.explained`: part index, ``SURFACE_BIN``, ...).
+    err_mm : (H, W) float64 ndarray
+        Err of each zone pixel.
+    unexplained : (H, W) bool ndarray
+        The method's outliers.
+    """
+
+    fits: tuple[PartFit, ...]
+    vertices_mm: np.ndarray
+    triangles: np.ndarray
+    dist_mm: np.ndarray
+    surface: np.ndarray
+    err_mm: np.ndarray
+    unexplained: np.ndarray
+
+    def instance_mesh(self, i: int) -> np.ndarray:
+        """The vertices (n, 3) of fit ``i`` posed in the camera frame (mm)."""
+        T = self.fits[i].pose
+        out: np.ndarray = self.vertices_mm @ T[:3, :3].T + T[:3, 3]
+        return out
+
+
+@functools.lru_cache(maxsize=4)
+def _load(path: str, unit: str, stamp: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, PreparedPart]:
+    """The part mesh (mm) of ``path`` and its prepared fit model, read once per file version."""
+    from replay.logs.part_model import UNITS, load_part_mesh, read_part_model, read_part_model_bytes
+    from zcut.errors import ParameterError
+    from zcut.fits import prepare_model
+
+    if path.lower().endswith(".mcap"):
+        model = read_part_model(path)
+        if model is None:
+            raise ParameterError(f"{path}: the log carries no part_model.ply attachment")
+    else:
+        model = read_part_model_bytes(load_part_mesh(path, unit=unit), name=path)
+    v = np.asarray(model.vertices, np.float64) * (UNITS[model.unit] / UNITS["mm"])
+    t = np.asarray(model.triangles, np.int64)
+    return v, t, prepare_model(v, t)
+
+
+def part_model(path: str, unit: str) -> tuple[np.ndarray, np.ndarray, PreparedPart]:
+    """(vertices mm, triangles, prepared model) of ``explained.part_model`` (a mesh file or a log).
+
+    Raises
+    ------
+    ParameterError, LogFormatError
+        One line: not a file, not a mesh, a log without a part model.
+    """
+    from zcut.errors import ParameterError
+
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        raise ParameterError(f"{path}: no such part model file ({e.strerror})") from None
+    return _load(str(Path(path).resolve()), unit, (st.st_mtime_ns, st.st_size))
+
+
+def with_part_model(resolved: Any, path: str | os.PathLike[str], *, unit: str = "mm", note: str = "") -> Any:
+    """``resolved`` (a :class:`replay.pipeline.config.Resolved`, not imported: the config imports the
+    registry, which imports this module) with ``explained.part_model`` = ``path`` (a mesh file in
+    ``unit``, or a log) and ``note`` added to its notes."""
+    config = resolved.config
+    p = dataclasses.replace(config.bank[NAME], part_model=str(Path(path).resolve()), part_model_unit=unit)
+    config = dataclasses.replace(config, bank={**config.bank, NAME: p})
+    return dataclasses.replace(resolved, config=config, notes=(*resolved.notes, note) if note else resolved.notes)
+
+
+def with_log_part_model(resolved: Any, log: str | os.PathLike[str], reader: LogReader) -> Any:
+    """``resolved`` with ``explained.part_model`` set to ``log`` when the config runs ``explained``,
+    names no part model and the log carries a ``part_model.ply`` attachment; else as it is."""
+    from replay.logs.part_model import PART_MODEL_ATTACHMENT
+
+    config = resolved.config
+    if NAME not in config.base_methods or config.bank[NAME].part_model:
+        return resolved
+    if not any(name == PART_MODEL_ATTACHMENT for name, _, _ in reader.attachments()):
+        return resolved
+    return with_part_model(resolved, log, note=f"explained: the part model is the log's {PART_MODEL_ATTACHMENT}")
+
+
+def _no_outliers(zone: Zone, why: str) -> tuple[np.ndarray, None, str]:
+    return np.zeros_like(zone.zone), None, f"{NAME}: {why}: no outliers"
+
+
+def _sample(mask: np.ndarray, n: int) -> np.ndarray:
+    idx = np.flatnonzero(mask)
+    if len(idx) > n:
+        idx = idx[np.linspace(0, len(idx) - 1, n).astype(np.int64)]
+    return idx
+
+
+def run_explained(frame: Frame, zone: Zone, config: Any) -> tuple[np.ndarray, ExplainedDetail | None, str | None]:
+    """The method on one frame (module docstring): (outliers in the zone, detail, warning), the
+    fields of the ``MethodOutput`` its registry entry returns."""
+    from zcut import explained as ex
+    from zcut.fits import FitParams, fit_prepared
+
+    p = config.bank[NAME]
+    if not p.part_model:
+        return _no_outliers(zone, "no part model (the log has no part_model.ply; give --part-model FILE)")
+    rem = zone.removal
+    reg = zone.located.registration
+    model = zone.located.bin_model
+    if rem is None or reg is None or model is None:
+        return _no_outliers(zone, "no bin stages (the bin and the table are then no known surfaces)")
+    v, t, prepared = part_model(p.part_model, p.part_model_unit)
+    xyz = frame.xyz.astype(np.float64) * 1000.0
+    K = frame.intrinsics
+    intr = None if K is None or (K.height, K.width) != zone.zone.shape else (K.fx, K.fy, K.cx, K.cy)
+    fits = tuple(fit_prepared(xyz, zone.zone, prepared, intrinsics=intr,
+                              params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm, min_support=p.fit_min_support)))
+    T = np.asarray(reg.T_cam_bin, np.float64)
+    bin_points = (1000.0 * (model.points @ T[:3, :3].T) + 1000.0 * T[:3, 3],
+                  np.zeros_like(model.points) if model.normals is None else model.normals @ T[:3, :3].T)
+    flat = xyz.reshape(-1, 3)
+    table = None
+    tab = _sample(rem.table, SAMPLE_PX)
+    if len(tab) >= 3:
+        table = ex.fit_plane(flat[tab])
+    surfaces = ex.KnownSurfaces(parts=[(v @ f.pose[:3, :3].T + f.pose[:3, 3], t) for f in fits],
+                                part_err_mm=[f.err_mm for f in fits], bin_points=bin_points,
+                                bin_spacing_mm=1000.0 * model.spacing_m, table=table)
+    bins = _sample(rem.bin_points, SAMPLE_PX)
+    if len(bins):
+        d_bin = ex.nearest_surface(flat[bins][:, None, :], dataclasses.replace(surfaces, parts=(), part_err_mm=(),
+                                                                                table=None)).dist_mm
+        surfaces = dataclasses.replace(surfaces, bin_err_mm=ex.residual_sigma(d_bin, gate_mm=_gate(d_bin)))
+    near = ex.nearest_surface(xyz, surfaces, where=zone.zone)
+    f_px = 0.5 * (K.fx + K.fy) if intr is not None and K is not None else ex.focal_px(xyz)
+    err = ex.err_image(near, surfaces, ex.footprint_mm(xyz, f_px), floor_mm=p.err_floor_mm)
+    out = ex.unexplained(near.dist_mm, err, p.k) & zone.zone
+    return out, ExplainedDetail(fits, v, t, near.dist_mm, near.surface, err, out), None
+
+
+def _gate(d: np.ndarray) -> float:
+    """The gate of the bin's residual: 3 × the median distance (outliers and parts resting on the
+    bin's floor left out)."""
+    finite = d[np.isfinite(d)]
+    return 3.0 * float(np.median(finite)) if finite.size else 0.0

@@ -1,0 +1,132 @@
+"""The method ``explained`` in the pipeline: its part model (the log's attachment or ``--part-model``),
+its mask in ``replay --out``, its named warning without a part model, a study's spawn workers.
+
+Real MCAP logs from ``zcut synth`` (spheres at 320 × 200: the part fits are closed forms there).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from cli_helpers import run_cli, synth_log
+from log_helpers import without_truth
+from mcap.reader import make_reader
+
+from replay.logs import layout
+from replay.logs.part_model import read_part_model
+from replay.logs.ros2_msgs import decode_image, image_to_mask
+
+METHODS = "zcut,explained"
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory):
+    return synth_log(tmp_path_factory.mktemp("explained") / "spheres.mcap", parts="spheres", frames=1, seed=9601,
+                     size="320x200")
+
+
+def _mask(results, topic: str) -> np.ndarray:
+    """The one frame's mask on ``topic`` of a results MCAP (its records read with the mcap library)."""
+    with open(results, "rb") as f:
+        msgs = [m for _, _, m in make_reader(f).iter_messages(topics=[topic])]
+    assert len(msgs) == 1
+    return image_to_mask(decode_image(msgs[0].data), where=topic)
+
+
+def _replay(capsys, log, out, *extra) -> tuple[int, str, str]:
+    return run_cli(capsys, "replay", log, "--methods", METHODS, "--out", out, "--json", *extra)
+
+
+def test_replay_writes_the_explained_mask_from_the_logs_part_model(capsys, tmp_path, log):
+    rc, out, err = _replay(capsys, log, tmp_path / "r.mcap")
+    assert rc == 0, err
+    mask = _mask(tmp_path / "r.mcap", layout.method_topic("explained"))
+    scored = _mask(tmp_path / "r.mcap", layout.ZONE)  # the zone and the points above the rim
+    assert mask.sum() > 20 and not (mask & ~scored).any()
+    assert "explained: the part model is the log's part_model.ply" in (out + err)
+    assert "explained: no part model" not in (out + err)
+
+
+def test_part_model_option_gives_the_same_mask(capsys, tmp_path, log):
+    """The log's mesh written as an STL in metres and given with --part-model: the same outliers."""
+    import open3d as o3d
+
+    model = read_part_model(log)
+    assert model is not None and model.unit == "mm"
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(model.vertices / 1000.0),
+                                     o3d.utility.Vector3iVector(model.triangles.astype(np.int32)))
+    mesh.compute_triangle_normals()
+    stl = tmp_path / "ball.stl"
+    assert o3d.io.write_triangle_mesh(str(stl), mesh)
+    assert _replay(capsys, log, tmp_path / "a.mcap")[0] == 0
+    rc, out, err = _replay(capsys, log, tmp_path / "b.mcap", "--part-model", stl, "--part-model-unit", "m")
+    assert rc == 0, err
+    a = _mask(tmp_path / "a.mcap", layout.method_topic("explained"))
+    b = _mask(tmp_path / "b.mcap", layout.method_topic("explained"))
+    assert (a ^ b).sum() <= max(2, 0.02 * a.sum())  # the STL stores float32 vertices
+
+
+def test_a_bad_part_model_is_one_line(capsys, tmp_path, log):
+    bad = tmp_path / "bad.stl"
+    bad.write_text("solid nothing\nendsolid nothing\n")
+    rc, out, err = _replay(capsys, log, tmp_path / "r.mcap", "--part-model", bad)
+    assert rc == 1
+    assert err.startswith("error: ") and err.count("\n") == 1 and "bad.stl" in err
+    rc, out, err = _replay(capsys, log, tmp_path / "r.mcap", "--part-model", tmp_path / "missing.ply")
+    assert rc == 1 and err.startswith("error: ") and err.count("\n") == 1
+
+
+def test_without_a_part_model_a_named_warning_and_no_outliers(capsys, tmp_path, log):
+    bare = tmp_path / "bare.mcap"
+    without_truth(log, bare)  # its frames and bin model, no part_model.ply
+    rc, out, err = _replay(capsys, bare, tmp_path / "r.mcap")
+    assert rc == 0, err
+    assert "explained: no part model" in (out + err)
+    mask = _mask(tmp_path / "r.mcap", layout.method_topic("explained"))
+    # only the points above the rim, which the pipeline adds to every method (and the z-cut flags)
+    assert not (mask & ~_mask(tmp_path / "r.mcap", layout.method_topic("zcut"))).any()
+
+
+@pytest.mark.slow
+def test_batch_workers_read_the_same_part_model(capsys, tmp_path, log):
+    """A batch on spawn worker processes scores explained as the in-process accuracy does."""
+    rc, out, err = run_cli(capsys, "accuracy", log, "--methods", METHODS, "--json")
+    assert rc == 0, err
+    acc = json.loads(out)
+    rc, out, err = run_cli(capsys, "batch", log, "-o", tmp_path / "b", "--workers", "1", "--methods", METHODS,
+                           "--json")
+    assert rc == 0, err
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(tmp_path / "b" / "frames.parquet").to_pylist()
+    assert len(table) == 1
+    text = json.dumps(acc)
+    assert "explained" in text and any("explained" in k for k in table[0])
+    tp = [v for k, v in table[0].items() if k.startswith("explained") and k.endswith("tp")]
+    assert tp and tp[0] > 0
+
+
+def test_the_recording_shows_the_fits_the_distances_and_the_unexplained(capsys, tmp_path, log):
+    import rerun as rr
+
+    rrd = tmp_path / "e.rrd"
+    rc, out, err = run_cli(capsys, "replay", log, "--methods", METHODS, "--rrd", rrd)
+    assert rc == 0, err
+    entities = {chunk.entity_path for chunk in rr.chunk.RrdReader(str(rrd)).stream()}
+    for path in ("/image/explained", "/image/explained_distance", "/world/explained/fits",
+                 "/world/explained/labels", "/image/methods/explained"):
+        assert path in entities, sorted(entities)
+
+
+def test_compare_runs_explained_with_the_logs_part_model(capsys, tmp_path, log):
+    rc, out, err = run_cli(capsys, "compare", log, "--a", "zcut", "--b", "explained", "-o", tmp_path / "c", "--no-rrd",
+                           "--json")
+    assert rc == 0, err
+    assert "no part model" not in out + err
+    bad = tmp_path / "bad.obj"
+    bad.write_text("# nothing\n")
+    rc, out, err = run_cli(capsys, "compare", log, "--a", "zcut", "--b", "explained", "-o", tmp_path / "d",
+                           "--no-rrd", "--part-model", bad)
+    assert rc == 1 and err.startswith("error: ") and err.count("\n") == 1

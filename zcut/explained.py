@@ -1,0 +1,369 @@
+"""What the known surfaces explain: every valid pixel's distance to the nearest one, and which it is.
+
+The paper (§2) calls a point an outlier when its distance to the fitted CAD model exceeds 3 × Err,
+Err the fit's residual. In a bin-picking cell the known surfaces are the fitted part instances,
+the registered bin model and the table plane: a point farther than ``k`` × Err from every one of
+them is *unexplained* (:func:`unexplained`), and the method ``explained`` reports those points.
+
+**Distances** (:func:`nearest_surface`) are exact: point-to-triangle distances to the posed part
+meshes and to a bin mesh (Open3D's ``RaycastingScene``, float32 in mm: within 1e-4 mm at a camera's
+coordinates, as :mod:`replay.synth.surfaces` computes the synthetic scenes' truth), the
+point-to-plane distance to the table, and — when the bin is a registered model *cloud* with
+normals (the pipeline's ``bin_model.ply``) — the point-to-plane distance to the nearest model point
+when that point lies within ``2 × spacing``, else the distance to that point.
+The nearest surface is recorded as a code (:data:`SURFACE_TABLE`, :data:`SURFACE_BIN`,
+:data:`SURFACE_NONE`, or the part instance's 0-based index).
+
+**Err** (:func:`err_image`) is, per pixel, the residual a fit of the surface that explains it has
+there: ``Err = max(floor, sqrt(σ_s² + c²/2))``, with σ_s the residual of that surface's fit (a
+part instance: its ``PartFit.err_mm``; the bin: the registration's residual on the frame's certain
+bin pixels; the table: the robust residual of the plane fit, :func:`fit_plane`) and c the side
+of the pixel's footprint at its depth (z / f, :func:`footprint_mm`; c·√2/2 is half its diagonal,
+how far a point the footprint measured can lie from the surface point on its centre ray). It is
+the form of the synthetic truth's Err (:func:`replay.synth.surfaces.err_mm`) with the generator's
+known noise sigma replaced by what a fit measures. A pixel no surface explains takes the largest
+σ_s. :func:`residual_sigma` is the robust residual of a surface's supporting pixels, for a
+surface whose fit states none.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputShapeError, ParameterError, describe_array
+
+#: the paper's factor: a point farther than K × Err from every known surface is an outlier
+K_ERR = 3.0
+#: the surface codes of :attr:`Nearest.surface` that are not part instances (those are 0, 1, ...)
+SURFACE_NONE = -1
+SURFACE_TABLE = -2
+SURFACE_BIN = -3
+#: 1 / Φ⁻¹(3/4): the normal σ of a median absolute value (the half-normal's median is 0.6745 σ)
+MAD_TO_SIGMA = 1.482602218505602
+
+
+@dataclass(frozen=True, slots=True)
+class Plane:
+    """A plane ``normal · p = offset`` in the camera frame (mm), with its fit's residual.
+
+    Attributes
+    ----------
+    normal : (3,) float64 ndarray
+        Unit normal.
+    offset : float
+        mm.
+    residual_mm : float
+        Robust σ of the fit's inliers' distances (NaN when unknown).
+    """
+
+    normal: np.ndarray
+    offset: float
+    residual_mm: float = float("nan")
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Unsigned distance (mm) of each of ``points`` (n, 3) to the plane."""
+        return np.abs(np.asarray(points, np.float64) @ self.normal - self.offset)
+
+
+@dataclass(frozen=True, slots=True)
+class KnownSurfaces:
+    """The surfaces that explain a frame, all posed in the camera frame (mm).
+
+    Attributes
+    ----------
+    parts : sequence of (vertices (n, 3), triangles (m, 3))
+        The fitted part instances' meshes, each at its pose; instance i has code i.
+    part_err_mm : sequence of float
+        Each instance's residual σ (``PartFit.err_mm``), one per part.
+    bin_mesh : (vertices, triangles) or None
+        The bin as a mesh (a CAD model at its registered pose).
+    bin_points : (vertices (n, 3), normals (n, 3)) or None
+        The bin as a registered model cloud with unit normals (the pipeline's bin model).
+    bin_spacing_mm : float
+        Typical spacing of ``bin_points`` (their point-to-plane distance holds within 2 × it).
+    bin_err_mm : float
+        The bin's residual σ (NaN: unknown).
+    table : Plane or None
+    """
+
+    parts: Sequence[tuple[np.ndarray, np.ndarray]] = ()
+    part_err_mm: Sequence[float] = ()
+    bin_mesh: tuple[np.ndarray, np.ndarray] | None = None
+    bin_points: tuple[np.ndarray, np.ndarray] | None = None
+    bin_spacing_mm: float = 1.0
+    bin_err_mm: float = float("nan")
+    table: Plane | None = None
+
+    def __post_init__(self) -> None:
+        if len(self.part_err_mm) != len(self.parts):
+            raise InputShapeError(f"KnownSurfaces: {len(self.parts)} parts but {len(self.part_err_mm)} residuals")
+        for i, (v, t) in enumerate(self.parts):
+            _check_mesh(v, t, f"part {i}")
+        if self.bin_mesh is not None:
+            _check_mesh(*self.bin_mesh, "the bin mesh")
+        if self.bin_points is not None:
+            p, n = (np.asarray(a) for a in self.bin_points)
+            if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
+                raise InputShapeError(f"KnownSurfaces.bin_points must be two (n, 3) arrays, got "
+                                      f"{describe_array(p)} and {describe_array(n)}")
+
+    def sigma(self, code: int) -> float:
+        """The residual σ (mm) of the surface ``code`` (NaN when unknown)."""
+        if code >= 0:
+            return float(self.part_err_mm[code])
+        if code == SURFACE_BIN:
+            return float(self.bin_err_mm)
+        if code == SURFACE_TABLE and self.table is not None:
+            return float(self.table.residual_mm)
+        return float("nan")
+
+
+def _check_mesh(v: np.ndarray, t: np.ndarray, what: str) -> None:
+    v, t = np.asarray(v), np.asarray(t)
+    if v.ndim != 2 or v.shape[1] != 3 or not np.isfinite(v).all():
+        raise InputShapeError(f"{what}: vertices must be a finite (n, 3) array, got {describe_array(v)}")
+    if t.ndim != 2 or t.shape[1] != 3 or len(t) == 0 or t.min() < 0 or t.max() >= len(v):
+        raise InputShapeError(f"{what}: triangles must be (m, 3) indices of its vertices, got {describe_array(t)}")
+
+
+@dataclass(frozen=True, slots=True)
+class Nearest:
+    """Every judged pixel's nearest known surface.
+
+    Attributes
+    ----------
+    dist_mm : (H, W) float32 ndarray
+        Distance to the nearest known surface (mm); NaN where not judged (invalid or outside
+        ``where``), inf where no surface is known.
+    surface : (H, W) int32 ndarray
+        Its code: a part instance's index, :data:`SURFACE_BIN`, :data:`SURFACE_TABLE`, or
+        :data:`SURFACE_NONE` (not judged, or no surface known).
+    """
+
+    dist_mm: np.ndarray
+    surface: np.ndarray
+
+
+def _cloud(xyz_mm: np.ndarray) -> np.ndarray:
+    a = np.asarray(xyz_mm)
+    if a.ndim != 3 or a.shape[2] != 3 or not np.issubdtype(a.dtype, np.floating):
+        raise InputShapeError(f"xyz_mm must be an (H, W, 3) float array, got {describe_array(a)}")
+    return a
+
+
+def nearest_surface(xyz_mm: np.ndarray, surfaces: KnownSurfaces, *, where: np.ndarray | None = None) -> Nearest:
+    """The distance of every valid pixel (in ``where``) to the nearest known surface, and which it is.
+
+    Parameters
+    ----------
+    xyz_mm : (H, W, 3) float ndarray
+        The organized cloud in the camera frame (mm), NaN where invalid.
+    surfaces : KnownSurfaces
+    where : (H, W) bool ndarray, optional
+        The pixels to judge (default: every valid one).
+    """
+    a = _cloud(xyz_mm)
+    H, W = a.shape[:2]
+    valid = np.isfinite(a).all(axis=2)
+    if where is not None:
+        if np.shape(where) != (H, W):
+            raise InputShapeError(f"where must be ({H}, {W}) bool, got {describe_array(where)}")
+        valid &= np.asarray(where, bool)
+    p = a[valid].astype(np.float64)
+    dist = np.full(len(p), np.inf)
+    code = np.full(len(p), SURFACE_NONE, np.int32)
+
+    def better(d: np.ndarray, c: np.ndarray | int) -> None:
+        b = d < dist
+        dist[b] = d[b]
+        code[b] = c[b] if isinstance(c, np.ndarray) else c
+
+    meshes = [(v, t, i) for i, (v, t) in enumerate(surfaces.parts)]
+    if surfaces.bin_mesh is not None:
+        meshes.append((*surfaces.bin_mesh, SURFACE_BIN))
+    if len(p) and meshes:
+        import open3d as o3d
+
+        scene = o3d.t.geometry.RaycastingScene()
+        codes = {}
+        for v, t, c in meshes:
+            gid = scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(v, np.float32)),  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
+                                      o3d.core.Tensor(np.ascontiguousarray(t, np.uint32)))  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
+            codes[int(gid)] = c
+        ans = scene.compute_closest_points(o3d.core.Tensor(p.astype(np.float32)))  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
+        q = ans["points"].numpy().astype(np.float64)
+        gids = ans["geometry_ids"].numpy().astype(np.int64)
+        lut = np.full(max(codes) + 1, SURFACE_NONE, np.int32)
+        for g, c in codes.items():
+            lut[g] = c
+        ok = (gids >= 0) & (gids < len(lut))
+        d = np.where(ok, np.linalg.norm(p - q, axis=1), np.inf)
+        better(d, np.where(ok, lut[np.clip(gids, 0, len(lut) - 1)], SURFACE_NONE).astype(np.int32))
+    if len(p) and surfaces.bin_points is not None and len(surfaces.bin_points[0]):
+        better(_point_model_distance(p, *surfaces.bin_points, spacing_mm=surfaces.bin_spacing_mm), SURFACE_BIN)
+    if len(p) and surfaces.table is not None:
+        better(surfaces.table.distance(p), SURFACE_TABLE)
+    dist_img = np.full((H, W), np.nan, np.float32)
+    dist_img[valid] = dist
+    code_img = np.full((H, W), SURFACE_NONE, np.int32)
+    code_img[valid] = code
+    return Nearest(dist_img, code_img)
+
+
+def _point_model_distance(p: np.ndarray, points: np.ndarray, normals: np.ndarray, *, spacing_mm: float) -> np.ndarray:
+    """Distance of ``p`` (n, 3) to a surface sampled by ``points`` with unit ``normals``: point-to-plane
+    to the nearest sample when it lies within 2 × ``spacing_mm``, else the distance to that sample."""
+    from scipy.spatial import cKDTree
+
+    e, j = cKDTree(np.asarray(points, np.float64)).query(p, k=1)
+    m = np.asarray(points, np.float64)[j]
+    n = np.asarray(normals, np.float64)[j]
+    plane = np.abs(np.einsum("ij,ij->i", p - m, n))
+    return np.where(e <= 2.0 * spacing_mm, plane, e)
+
+
+def focal_px(xyz_mm: np.ndarray) -> float:
+    """The focal length (pixels) of an organized cloud, read off the cloud itself: the median of
+    1 / Δ(x / z) between horizontally adjacent valid pixels (NaN when none)."""
+    a = _cloud(xyz_mm)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = a[..., 0] / a[..., 2]
+        du = np.abs(np.diff(u, axis=1))
+    du = du[np.isfinite(du) & (du > 0)]
+    return float(1.0 / np.median(du)) if du.size else float("nan")
+
+
+def footprint_mm(xyz_mm: np.ndarray, f_px: float) -> np.ndarray:
+    """(H, W) side of each pixel's footprint at its depth, |z| / f (mm); NaN where invalid."""
+    if not (np.isfinite(f_px) and f_px > 0):
+        raise ParameterError(f"the focal length must be a positive number of pixels, got {f_px!r}")
+    return np.abs(np.asarray(_cloud(xyz_mm)[..., 2], np.float64)) / float(f_px)
+
+
+def err_image(nearest: Nearest, surfaces: KnownSurfaces, footprint: np.ndarray, *, floor_mm: float = 0.0,
+              default_sigma_mm: float = 0.0) -> np.ndarray:
+    """(H, W) Err of each judged pixel: ``max(floor, sqrt(σ_s² + c²/2))``, σ_s the residual of its
+    nearest surface (:meth:`KnownSurfaces.sigma`; a surface whose residual is unknown and a pixel no
+    surface explains take the largest known one, else ``default_sigma_mm``), c its footprint
+    (:func:`footprint_mm`). NaN where not judged."""
+    code = nearest.surface
+    codes = [*range(len(surfaces.parts)), SURFACE_BIN, SURFACE_TABLE]
+    known = [s for s in (surfaces.sigma(c) for c in codes) if np.isfinite(s)]
+    fallback = max(known) if known else float(default_sigma_mm)
+    lut = np.array([fallback if not np.isfinite(surfaces.sigma(c)) else surfaces.sigma(c) for c in codes]
+                   + [fallback])  # the last entry: SURFACE_NONE
+    idx = np.where(code >= 0, code, np.where(code == SURFACE_BIN, len(surfaces.parts),
+                                             np.where(code == SURFACE_TABLE, len(surfaces.parts) + 1,
+                                                      len(surfaces.parts) + 2)))
+    sigma = lut[idx]
+    c = np.asarray(footprint, np.float64)
+    err = np.maximum(float(floor_mm), np.sqrt(sigma * sigma + 0.5 * c * c))
+    out: np.ndarray = np.where(np.isnan(nearest.dist_mm), np.nan, err)
+    return out
+
+
+def unexplained(dist: np.ndarray, err: np.ndarray, k: float = K_ERR) -> np.ndarray:
+    """(H, W) bool: the judged pixels farther than ``k`` × ``err`` from every known surface
+    (``dist`` NaN: not judged, never unexplained; inf: no surface known, always unexplained)."""
+    if not (np.isfinite(k) and k > 0):
+        raise ParameterError(f"k must be a positive number, got {k!r}")
+    d = np.asarray(dist, np.float64)
+    e = np.asarray(err, np.float64)
+    if d.shape != e.shape:
+        raise InputShapeError(f"dist and err must have one shape, got {d.shape} and {e.shape}")
+    with np.errstate(invalid="ignore"):
+        out: np.ndarray = ~np.isnan(d) & ~(d <= float(k) * e)
+    return out
+
+
+def residual_sigma(dist: np.ndarray, *, gate_mm: float | None = None) -> float:
+    """The robust residual σ (mm) of a surface's supporting pixels from their unsigned distances:
+    1.4826 × their median (a normal residual's |d| has median 0.6745 σ), over the distances at most
+    ``gate_mm`` (outliers left out); NaN when none."""
+    d = np.asarray(dist, np.float64)
+    d = d[np.isfinite(d)]
+    if gate_mm is not None:
+        d = d[d <= gate_mm]
+    return float(MAD_TO_SIGMA * np.median(d)) if d.size else float("nan")
+
+
+def surface_sigmas(nearest: Nearest, n_parts: int, footprint: np.ndarray, *, min_pixels: int = 100,
+                   gate: float = 3.0) -> tuple[list[float], float, float]:
+    """The residual σ of every surface measured on the frame: (parts (n_parts,), bin, table), for
+    surfaces whose fit states none (the check with true meshes; the table and bin of the pipeline).
+
+    A surface's σ is :func:`residual_sigma` of the distances of the pixels it explains, gated at
+    ``gate`` × the median footprint (outliers left out); one with fewer than ``min_pixels`` such
+    pixels (a part barely seen, which would explain only stray points) takes the σ pooled over every
+    pixel within the gate. NaN where nothing is known.
+    """
+    d = nearest.dist_mm
+    code = nearest.surface
+    c = np.asarray(footprint, np.float64)
+    judged = np.isfinite(d)
+    g = gate * float(np.nanmedian(c[judged])) if judged.any() else 0.0
+    inside = judged & (d <= g)
+    pooled = residual_sigma(d[inside])
+    counts = np.bincount((code[inside] - SURFACE_BIN).ravel(), minlength=n_parts - SURFACE_BIN)
+    order = np.argsort(code[inside], kind="stable")
+    ds = d[inside][order]
+    bounds = np.concatenate([[0], np.cumsum(counts)])
+
+    def sigma(c_: int) -> float:
+        j = c_ - SURFACE_BIN
+        if counts[j] < min_pixels:
+            return pooled
+        return residual_sigma(ds[bounds[j]:bounds[j + 1]])
+
+    return [sigma(i) for i in range(n_parts)], sigma(SURFACE_BIN), sigma(SURFACE_TABLE)
+
+
+def fit_plane(points: np.ndarray, *, iterations: int = 3, gate_sigmas: float = 3.0) -> Plane:
+    """The least-squares plane of ``points`` (n ≥ 3, mm), refitted ``iterations`` times to the points
+    within ``gate_sigmas`` robust σ of the last fit; its residual is that robust σ (:func:`residual_sigma`).
+
+    Raises
+    ------
+    InputShapeError
+        Fewer than 3 finite points.
+    """
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    p = p[np.isfinite(p).all(axis=1)]
+    if len(p) < 3:
+        raise InputShapeError(f"a plane needs at least 3 points, got {len(p)}")
+    keep = np.ones(len(p), bool)
+    n, off, sigma = np.array([0.0, 0.0, 1.0]), 0.0, float("nan")
+    for _ in range(max(1, iterations)):
+        q = p[keep] if keep.sum() >= 3 else p
+        c = q.mean(axis=0)
+        _, _, vt = np.linalg.svd(q - c, full_matrices=False)
+        n = vt[-1] / np.linalg.norm(vt[-1])
+        if n[2] < 0:
+            n = -n
+        off = float(n @ c)
+        d = np.abs(p @ n - off)
+        sigma = residual_sigma(d)
+        keep = d <= gate_sigmas * max(sigma, 1e-9)
+    return Plane(n, off, sigma)
+
+
+__all__ = [
+    "K_ERR",
+    "SURFACE_BIN",
+    "SURFACE_NONE",
+    "SURFACE_TABLE",
+    "KnownSurfaces",
+    "Nearest",
+    "Plane",
+    "err_image",
+    "fit_plane",
+    "focal_px",
+    "footprint_mm",
+    "nearest_surface",
+    "residual_sigma",
+    "surface_sigmas",
+    "unexplained",
+]

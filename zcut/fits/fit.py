@@ -1,0 +1,376 @@
+"""Find the instances of a part in a frame's zone: :func:`fit_parts`.
+
+The method (issue 29 item 2; paper §2 defines the residual Err these fits give):
+
+1. **Segment** the zone's valid pixels into candidate regions by 3-D connectivity on the organized
+   grid, broken at depth discontinuities (:mod:`zcut.fits.segment`).
+2. **Fit** each region, largest first:
+
+   - a **sphere** model (every vertex at one radius from the centroid) in closed form: the centre
+     from normal votes p − R n, then linear least squares (algebraic sphere) refined with the radius
+     fixed, trimming points farther than k × the residual (:mod:`zcut.fits.sphere`);
+   - any other model by a **global initial guess that copes with its symmetries** — the region's
+     principal axes matched to the model's in every proper signed permutation, those equivalent
+     under the model's detected symmetry group dropped — each refined by a few point-to-plane ICP
+     steps, the best (most points within the gate) refined fully (:mod:`zcut.fits.icp`).
+
+3. **Accept** a fit when its residual Err (RMS distance of its matched points to the posed model)
+   is at most ``max_err_mm``, its **support** (the share of the pixels where the posed model is
+   predicted visible — ray cast through the intrinsics, minus those where something measured lies in
+   front of it — whose measured point lies within k × Err of the model) is at least
+   ``min_support``, and it explains at least ``min_explained`` of its region. The pixels it explains
+   leave the region; what is left is segmented again and fitted (touching parts), up to
+   ``max_instances_per_region`` times.
+4. **Reassign pixels**: every zone pixel within k × max(Err, ``err_floor_mm``) of an accepted fit
+   belongs to the nearest such fit.
+
+The fits read only the cloud, the zone, the mesh and the intrinsics (estimated from the organized
+cloud itself when not given): never a log's truth or the poses in its metadata.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from zcut.errors import InputShapeError, describe_array
+
+from .icp import icp, initial_pose, initial_rotations, pose_matrix
+from .model import PartModel, prepare_model
+from .params import FitParams
+from .segment import segment
+from .sphere import algebraic_sphere, refine_sphere, vote_centres
+
+__all__ = ["PartFit", "estimate_intrinsics", "fit_parts", "fit_prepared"]
+
+Intrinsics = tuple[float, float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class PartFit:
+    """One fitted instance of the part.
+
+    Attributes
+    ----------
+    pose : (4, 4) float64 ndarray
+        Part model frame (mm) -> camera optical frame (mm).
+    err_mm : float
+        RMS point-to-model distance of its support pixels (mm): the paper's Err.
+    support : float
+        Share (0..1) of the instance's predicted visible pixels that measured points support.
+    pixels : (N,) int64 ndarray
+        Flat indices (row-major, H × W) of the pixels it explains.
+    """
+
+    pose: np.ndarray
+    err_mm: float
+    support: float
+    pixels: np.ndarray
+
+
+def estimate_intrinsics(xyz_mm: np.ndarray) -> Intrinsics | None:
+    """(fx, fy, cx, cy) of an organized cloud by least squares on col = fx x/z + cx and
+    row = fy y/z + cy; None when fewer than two distinct columns or rows are valid."""
+    H, W = xyz_mm.shape[:2]
+    valid = np.isfinite(xyz_mm).all(axis=2) & (xyz_mm[..., 2] > 0)
+    rows, cols = np.nonzero(valid)
+    if len(rows) < 2:
+        return None
+    step = max(1, len(rows) // 20000)
+    rows, cols = rows[::step], cols[::step]
+    p = xyz_mm[rows, cols]
+    out = []
+    for pix, ratio in ((cols, p[:, 0] / p[:, 2]), (rows, p[:, 1] / p[:, 2])):
+        if np.ptp(pix) == 0 or np.ptp(ratio) == 0:
+            return None
+        sol, *_ = np.linalg.lstsq(np.c_[ratio, np.ones(len(ratio))], pix.astype(np.float64), rcond=None)
+        out.append(sol)
+    return float(out[0][0]), float(out[1][0]), float(out[0][1]), float(out[1][1])
+
+
+def _grid_normals(xyz: np.ndarray, valid: np.ndarray, step: int = 2) -> np.ndarray:
+    """(H, W, 3) unit normals toward the camera from central differences ``step`` pixels apart,
+    NaN where a neighbour is missing."""
+    H, W = valid.shape
+    n = np.full((H, W, 3), np.nan)
+    s = step
+    if H <= 2 * s or W <= 2 * s:
+        return n
+    dx = xyz[s:-s, 2 * s:] - xyz[s:-s, : -2 * s]
+    dy = xyz[2 * s:, s:-s] - xyz[: -2 * s, s:-s]
+    c = np.cross(dx, dy)
+    norm = np.linalg.norm(c, axis=2, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = c / norm
+    p = xyz[s:-s, s:-s]
+    flip = np.einsum("ijk,ijk->ij", c, p) > 0
+    c[flip] = -c[flip]
+    n[s:-s, s:-s] = c
+    return n
+
+
+@dataclass(frozen=True, slots=True)
+class _Frame:
+    xyz: np.ndarray  # (H, W, 3)
+    valid: np.ndarray  # (H, W) finite
+    zone: np.ndarray  # (H, W) valid & zone
+    normals: np.ndarray  # (H, W, 3)
+    K: Intrinsics
+
+
+def _window(frame: _Frame, T: np.ndarray, model: PartModel) -> tuple[slice, slice] | None:
+    fx, fy, cx, cy = frame.K
+    H, W = frame.valid.shape
+    c = T[:3, :3] @ model.centroid + T[:3, 3]
+    z = c[2] - model.extent_mm
+    if z <= 1e-6:
+        return None
+    ru = fx * model.extent_mm / z + 2
+    rv = fy * model.extent_mm / z + 2
+    u, v = fx * c[0] / c[2] + cx, fy * c[1] / c[2] + cy
+    c0, c1 = max(int(np.floor(u - ru)), 0), min(int(np.ceil(u + ru)) + 1, W)
+    r0, r1 = max(int(np.floor(v - rv)), 0), min(int(np.ceil(v + rv)) + 1, H)
+    if c0 >= c1 or r0 >= r1:
+        return None
+    return slice(r0, r1), slice(c0, c1)
+
+
+def _model_distance(frame: _Frame, T: np.ndarray, model: PartModel, flat: np.ndarray) -> np.ndarray:
+    p = frame.xyz.reshape(-1, 3)[flat]
+    return model.distance((p - T[:3, 3]) @ T[:3, :3])
+
+
+def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float) -> float:
+    """Share of the pixels where the posed model is predicted visible (and nothing measured lies in
+    front of it) whose measured point lies within ``tol`` of the model."""
+    win = _window(frame, T, model)
+    if win is None:
+        return 0.0
+    fx, fy, cx, cy = frame.K
+    rs, cs = win
+    rr, cc = np.mgrid[rs, cs]
+    d = np.stack([(cc - cx) / fx, (rr - cy) / fy, np.ones(rr.shape)], axis=-1).reshape(-1, 3)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    R, t = T[:3, :3], T[:3, 3]
+    origin = np.broadcast_to(-R.T @ t, d.shape)
+    hit = model.ray_depths(np.ascontiguousarray(origin), d @ R)
+    predicted = np.isfinite(hit)
+    if not predicted.any():
+        return 0.0
+    pts = frame.xyz[rs, cs].reshape(-1, 3)[predicted]
+    ok = np.isfinite(pts).all(axis=1)
+    rng = np.full(len(pts), np.nan)
+    rng[ok] = np.linalg.norm(pts[ok], axis=1)
+    dist = np.full(len(pts), np.inf)
+    dist[ok] = model.distance((pts[ok] - t) @ R)
+    supported = dist <= tol
+    with np.errstate(invalid="ignore"):
+        occluded = ok & (rng < hit[predicted] - tol) & ~supported
+    denom = int((~occluded).sum())
+    return float(supported.sum() / denom) if denom else 0.0
+
+
+def _fit_sphere(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> tuple[np.ndarray, float]:
+    """(pose, err) of one sphere in the region's points."""
+    assert model.sphere_radius is not None
+    R = model.sphere_radius
+    pts = frame.xyz.reshape(-1, 3)[flat]
+    nrm = frame.normals.reshape(-1, 3)[flat]
+    c = vote_centres(pts, nrm, R)
+    if c is None:
+        c, _ = algebraic_sphere(pts)
+    use = np.abs(np.linalg.norm(pts - c, axis=1) - R) <= params.gate_mm
+    err = np.inf
+    for _ in range(4):
+        if use.sum() < 4:
+            break
+        c0, r0 = algebraic_sphere(pts[use])
+        if np.isfinite(r0) and abs(r0 - R) < 0.5 * R:
+            c = c0
+        c = refine_sphere(pts[use], c, R)
+        res = np.abs(np.linalg.norm(pts - c, axis=1) - R)
+        err = float(np.sqrt(np.mean(res[use] ** 2)))
+        use = res <= params.k * max(err, params.err_floor_mm)
+    return pose_matrix(np.eye(3), c - model.centroid), err
+
+
+def _subsample(flat: np.ndarray, n: int) -> np.ndarray:
+    if len(flat) <= n:
+        return flat
+    return flat[np.linspace(0, len(flat) - 1, n).round().astype(np.int64)]
+
+
+def _occluding_boundary(frame: _Frame, flat: np.ndarray, jump_mm: float) -> np.ndarray:
+    """The pixels of the region whose 4-neighbour outside it is missing or lies farther than
+    ``jump_mm`` behind: where the region's own silhouette is seen (not where something occludes it)."""
+    H, W = frame.valid.shape
+    inside = np.zeros(H * W, bool)
+    inside[flat] = True
+    z = frame.xyz[..., 2].reshape(-1)
+    valid = frame.valid.reshape(-1)
+    r, c = np.divmod(flat, W)
+    edge = np.zeros(len(flat), bool)
+    for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        rr, cc = r + dr, c + dc
+        ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+        nb = np.where(ok, rr * W + cc, 0)
+        out = ok & ~inside[nb]
+        far = ~valid[nb] | (z[nb] > z[flat] + jump_mm)
+        edge |= out & far
+    return flat[edge]
+
+
+def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> tuple[np.ndarray, float]:
+    """(pose, err) of one instance of a general model in the region's points."""
+    sub = _subsample(flat, params.max_points)
+    pts = frame.xyz.reshape(-1, 3)[sub]
+    bnd = _subsample(_occluding_boundary(frame, flat, params.jump_mm), params.max_points // 2)
+    epts = frame.xyz.reshape(-1, 3)[bnd]
+    f = 0.5 * (frame.K[0] + frame.K[1])
+    px_mm = float(np.median(pts[:, 2])) / f  # the pixel footprint
+    edge_gate = max(3.0 * px_mm, params.k * params.err_floor_mm)
+    best = None
+    score_tol = max(params.k * params.err_floor_mm, params.gate_mm / 4)
+    opts = dict(gate_mm=params.gate_mm, k=params.k, floor_mm=params.err_floor_mm, edge_points=epts,
+                edge_gate_mm=edge_gate)
+    for R in initial_rotations(pts, model):
+        T0 = initial_pose(pts, R, model)
+        T, _, _ = icp(pts, model, T0, iterations=params.coarse_iterations, **opts)  # type: ignore[arg-type]
+        d = model.distance((pts - T[:3, 3]) @ T[:3, :3])
+        score = float(np.sum(d <= score_tol)) - float(np.mean(np.minimum(d, score_tol)))
+        if len(epts):
+            de, _ = model.nearest_edges((epts - T[:3, 3]) @ T[:3, :3])
+            score += float(np.sum(de <= 1.5 * px_mm)) * len(pts) / len(epts) * 0.5
+        if best is None or score > best[0]:
+            best = (score, T)
+    assert best is not None
+    T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, **opts)  # type: ignore[arg-type]
+    d = model.distance((pts - T[:3, 3]) @ T[:3, :3])
+    gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
+    inl = d <= gate
+    err = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else np.inf
+    return T, err
+
+
+def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intrinsics: Intrinsics | None = None,
+                 params: FitParams | None = None) -> list[PartFit]:
+    """:func:`fit_parts` with the part model already prepared (:func:`zcut.fits.model.prepare_model`),
+    for many frames of one part."""
+    params = FitParams() if params is None else params
+    xyz = np.asarray(xyz_mm)
+    z = np.asarray(zone)
+    if xyz.ndim != 3 or xyz.shape[2] != 3 or not np.issubdtype(xyz.dtype, np.floating):
+        raise InputShapeError(f"xyz_mm must be (H, W, 3) float, got {describe_array(xyz)}")
+    if z.shape != xyz.shape[:2] or z.dtype != np.bool_:
+        raise InputShapeError(f"zone must be (H, W) bool matching xyz_mm {xyz.shape[:2]}, got {describe_array(z)}")
+    xyz = xyz.astype(np.float64, copy=False)
+    valid = np.isfinite(xyz).all(axis=2)
+    zv = z & valid
+    if zv.sum() < params.min_region_px:
+        return []
+    K = intrinsics if intrinsics is not None else estimate_intrinsics(xyz)
+    if K is None:
+        return []
+    K = (float(K[0]), float(K[1]), float(K[2]), float(K[3]))
+    frame = _Frame(xyz=xyz, valid=valid, zone=zv, normals=_grid_normals(xyz, valid), K=K)
+    f = 0.5 * (K[0] + K[1])
+    H, W = zv.shape
+    accepted: list[tuple[np.ndarray, float, float]] = []
+    pending = segment(xyz, zv, f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px, min_px=params.min_region_px)
+    for region in pending:
+        left = region
+        for _ in range(params.max_instances_per_region):
+            if len(left) < params.min_region_px:
+                break
+            if model.sphere_radius is not None:
+                T, err = _fit_sphere(frame, left, model, params)
+            else:
+                T, err = _fit_general(frame, left, model, params)
+            if not (np.isfinite(err) and err <= params.max_err_mm):
+                break
+            tol = params.k * max(err, params.err_floor_mm)
+            d = _model_distance(frame, T, model, left)
+            near = d <= tol
+            if near.mean() < params.min_explained:
+                break
+            support = _support(frame, T, model, tol)
+            if support < params.min_support:
+                break
+            accepted.append((T, err, support))
+            rest = left[~near]
+            if len(rest) < params.min_region_px:
+                break
+            m = np.zeros(H * W, bool)
+            m[rest] = True
+            parts = segment(xyz, m.reshape(H, W), f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
+                            min_px=params.min_region_px)
+            if not parts:
+                break
+            left = parts[0]
+            pending.extend(parts[1:])
+    return _assign(frame, model, accepted, params)
+
+
+def _assign(frame: _Frame, model: PartModel, accepted: list[tuple[np.ndarray, float, float]],
+            params: FitParams) -> list[PartFit]:
+    """Every zone pixel within k × max(Err, floor) of an accepted fit goes to the nearest one."""
+    H, W = frame.zone.shape
+    best = np.full(H * W, np.inf)
+    owner = np.full(H * W, -1, np.int64)
+    zone_flat = frame.zone.reshape(-1)
+    for i, (T, err, _) in enumerate(accepted):
+        win = _window(frame, T, model)
+        if win is None:
+            continue
+        rs, cs = win
+        rr, cc = np.mgrid[rs, cs]
+        flat = (rr * W + cc).reshape(-1)
+        flat = flat[zone_flat[flat]]
+        d = _model_distance(frame, T, model, flat)
+        tol = params.k * max(err, params.err_floor_mm)
+        take = (d <= tol) & (d < best[flat])
+        best[flat[take]] = d[take]
+        owner[flat[take]] = i
+    out = []
+    for i, (T, err, support) in enumerate(accepted):
+        pix = np.flatnonzero(owner == i).astype(np.int64)
+        out.append(PartFit(pose=T, err_mm=float(err), support=float(support), pixels=pix))
+    return out
+
+
+def fit_parts(xyz_mm: np.ndarray, zone: np.ndarray, vertices_mm: np.ndarray, triangles: np.ndarray, *,
+              intrinsics: Intrinsics | None = None, params: FitParams | None = None) -> list[PartFit]:
+    """Find the instances of the part (mesh ``vertices_mm``, ``triangles``) in the zone.
+
+    Segments the zone into candidate regions at depth discontinuities, fits each (closed form for a
+    sphere mesh, else symmetry-aware initial guesses + point-to-plane ICP), accepts a fit by its
+    residual and support and reassigns the pixels to the nearest fit (module docstring).
+
+    Parameters
+    ----------
+    xyz_mm : (H, W, 3) float ndarray
+        Camera optical frame, mm; NaN where invalid.
+    zone : (H, W) bool ndarray
+        The pixels to explain.
+    vertices_mm, triangles : (n, 3) float ndarray, (m, 3) int ndarray
+        The part's mesh in its model frame (mm).
+    intrinsics : (fx, fy, cx, cy) or None
+        Pixels; None: estimated from the organized cloud.
+    params : FitParams or None
+
+    Returns
+    -------
+    list of PartFit
+        Empty when the zone has no valid pixels.
+
+    Raises
+    ------
+    zcut.errors.ParameterError
+        The mesh is degenerate (one line).
+    zcut.errors.InputShapeError
+        An array has the wrong shape or dtype.
+    """
+    params = FitParams() if params is None else params
+    model = prepare_model(vertices_mm, triangles, sphere_tolerance=params.sphere_tolerance)
+    return fit_prepared(xyz_mm, zone, model, intrinsics=intrinsics, params=params)

@@ -1,0 +1,172 @@
+"""Initial guesses and point-to-plane ICP of one instance of a general part.
+
+The measured points are moved into the model frame (the model's samples sit in a k-d tree built
+once) and matched to their nearest surface sample; matches farther than the gate, or on a face
+turned away from the camera, are ignored; each step solves the linearised point-to-plane problem
+(6 × 6) exactly and composes the rotation by Rodrigues' formula.
+
+Initial guesses (:func:`initial_rotations`): the region's principal axes matched to the model's in
+the 24 proper signed permutations, and the same turned by 45° about the region's normal (its
+least-variance axis: a flat face's in-plane turn is what its points leave free), the equivalent
+ones under the model's symmetries dropped; the translation puts the centroid of the
+model's camera-facing samples on the region's centroid.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from .model import PartModel
+
+__all__ = ["icp", "initial_pose", "initial_rotations", "pose_matrix"]
+
+
+def pose_matrix(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+def _rodrigues(w: np.ndarray) -> np.ndarray:
+    a = float(np.linalg.norm(w))
+    if a < 1e-15:
+        return np.eye(3)
+    k = w / a
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    R: np.ndarray = np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
+    return R
+
+
+def _equivalent(R1: np.ndarray, R2: np.ndarray, model: PartModel) -> bool:
+    for S in model.symmetries:
+        if np.abs(R1 @ S - R2).max() < 0.15:
+            return True
+    if model.continuous_axis is not None:
+        a = model.continuous_axis
+        for S in model.symmetries:
+            if float((R1 @ S @ a) @ (R2 @ a)) > 0.99:
+                return True
+    return False
+
+
+def initial_rotations(points: np.ndarray, model: PartModel) -> list[np.ndarray]:
+    """Rotations (model -> camera) aligning the model's principal axes with the points', one per
+    class of equivalent ones under the model's symmetries."""
+    c = points.mean(axis=0)
+    w, ax = np.linalg.eigh(np.cov((points - c).T))
+    ax = ax[:, ::-1]
+    if np.linalg.det(ax) < 0:
+        ax[:, 2] = -ax[:, 2]
+    out: list[np.ndarray] = []
+    for turn in (0.0, np.pi / 4):
+        for perm in itertools.permutations(range(3)):
+            for signs in itertools.product((1.0, -1.0), repeat=3):
+                P = np.zeros((3, 3))
+                for i, j in enumerate(perm):
+                    P[i, j] = signs[i]
+                if np.linalg.det(P) < 0:
+                    continue
+                R = _rodrigues(turn * ax[:, 2]) @ ax @ P @ model.axes.T
+                if not any(_equivalent(R, Q, model) for Q in out):
+                    out.append(R)
+    return out
+
+
+def initial_pose(points: np.ndarray, R: np.ndarray, model: PartModel) -> np.ndarray:
+    """The pose with rotation ``R`` that puts the centroid of the model's camera-facing samples
+    (seen along the direction of the points' centroid) on the points' centroid."""
+    c = points.mean(axis=0)
+    view = c / max(float(np.linalg.norm(c)), 1e-9)
+    facing = (model.normals @ R.T) @ view < 0
+    front = model.samples[facing] if facing.any() else model.samples
+    return pose_matrix(R, c - R @ front.mean(axis=0))
+
+
+def _skew_rows(q: np.ndarray) -> np.ndarray:
+    """(3n, 6) Jacobian rows of q + ω × q + τ with respect to (ω, τ): [−[q]×, I] per point."""
+    n = len(q)
+    J = np.zeros((n, 3, 6))
+    J[:, 0, 1], J[:, 0, 2] = q[:, 2], -q[:, 1]
+    J[:, 1, 0], J[:, 1, 2] = -q[:, 2], q[:, 0]
+    J[:, 2, 0], J[:, 2, 1] = q[:, 1], -q[:, 0]
+    J[:, 0, 3] = J[:, 1, 4] = J[:, 2, 5] = 1.0
+    return J.reshape(3 * n, 6)
+
+
+def icp(points: np.ndarray, model: PartModel, T0: np.ndarray, *, iterations: int, gate_mm: float,
+        k: float, floor_mm: float, edge_points: np.ndarray | None = None,
+        edge_gate_mm: float = 1.0) -> tuple[np.ndarray, float, int]:
+    """Refine ``T0`` (model -> camera) on ``points`` (n, 3), camera frame.
+
+    ``edge_points`` (camera frame): points on the region's occluding boundary, matched point to point
+    to the model's sharp edges (:attr:`PartModel.edges`) within ``edge_gate_mm``; they hold what the
+    surface alone leaves free (a flat face seen head-on: its turn about its normal, its slide).
+
+    Returns
+    -------
+    T : (4, 4) ndarray
+    rms_mm : float
+        RMS point-to-plane residual of the last step's surface matches.
+    n_matched : int
+        Number of surface matches of the last step.
+    """
+    R = T0[:3, :3].copy()
+    t = T0[:3, 3].copy()
+    gate = gate_mm
+    rms = np.inf
+    n_used = 0
+    use_edges = edge_points is not None and len(edge_points) > 0 and len(model.edges) > 0
+    scale = np.array([model.extent_mm] * 3 + [1.0] * 3)
+    weak = 1e-2
+    for _ in range(iterations):
+        q = (points - t) @ R  # model frame
+        d, idx = model.nearest_samples(q)
+        m = model.samples[idx]
+        n = model.normals[idx]
+        cam = -R.T @ t
+        use = (d < gate) & (np.einsum("ij,ij->i", n, cam - m) > 0)
+        n_used = int(use.sum())
+        if n_used < 6:
+            break
+        qu, mu, nu = q[use], m[use], n[use]
+        r = np.einsum("ij,ij->i", qu - mu, nu)
+        A = np.c_[np.cross(qu, nu), nu]
+        An = A / scale  # normalised unknowns xn = (extent · ω, τ)
+        Hn = An.T @ An
+        gn = An.T @ r
+        if use_edges:
+            assert edge_points is not None
+            qe = (edge_points - t) @ R
+            de, ie = model.nearest_edges(qe)
+            ue = de < max(edge_gate_mm, min(gate, 2 * edge_gate_mm))
+            if ue.sum() >= 3:
+                # Cauchy weights at a third of the gate: the silhouette is quantised to pixels and
+                # a boundary point may be no edge at all (a steep wall cut by the segmentation)
+                sw = np.repeat(1.0 / np.sqrt(1.0 + (de[ue] / (edge_gate_mm / 3.0)) ** 2), 3)
+                # the edges act only in the directions the surface leaves (nearly) free
+                ev, V = np.linalg.eigh(Hn)
+                Vw = V[:, ev < weak * max(float(ev.max()), 1e-300)]
+                if Vw.shape[1]:
+                    P = Vw @ Vw.T
+                    Jn = _skew_rows(qe[ue]) / scale * sw[:, None]
+                    re = (qe[ue] - model.edges[ie[ue]]).reshape(-1) * sw
+                    Hn = Hn + P @ (Jn.T @ Jn) @ P
+                    gn = gn + P @ (Jn.T @ re)
+        x = np.linalg.solve(Hn + 1e-12 * np.eye(6), -gn) / scale
+        dR = _rodrigues(x[:3])
+        dt = x[3:]
+        # q' = dR q + dt  =>  inverse pose Rinv' = dR R^T, tinv' = dR (-R^T t) + dt
+        Rinv = dR @ R.T
+        tinv = dR @ (-R.T @ t) + dt
+        R = Rinv.T
+        t = -R @ tinv
+        rms = float(np.sqrt(np.mean(r * r)))
+        gate = min(gate, max(k * rms, k * floor_mm, 0.5 * gate))
+        if np.abs(x).max() < 1e-8:
+            break
+    U, _, Vt = np.linalg.svd(R)
+    R = U @ Vt
+    return pose_matrix(R, t), rms, n_used

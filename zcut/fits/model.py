@@ -1,0 +1,313 @@
+"""The part model prepared for fitting: checked, classified (sphere or general), sampled.
+
+A mesh whose vertices all lie at one radius from their centroid (within ``sphere_tolerance`` of it)
+is a **sphere**: its instances are fitted in closed form (:mod:`zcut.fits.sphere`). Any other mesh
+is fitted by initial guesses and ICP (:mod:`zcut.fits.icp`) against area-weighted samples of its
+surface (points with their face normals) and the exact point-to-triangle distances of an Open3D
+``RaycastingScene`` built once on the mesh in its own frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from zcut.errors import InputShapeError, ParameterError, describe_array
+
+__all__ = ["PartModel", "prepare_model"]
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class PartModel:
+    """A checked part mesh (model frame, mm) and what the fits need of it.
+
+    Attributes
+    ----------
+    vertices, triangles : (n, 3) float64, (m, 3) int64 ndarray
+    centroid : (3,) float64 ndarray
+        Area-weighted centroid of the surface.
+    sphere_radius : float or None
+        The radius when the mesh is a sphere (centred on ``centroid``), else None.
+    samples, normals : (s, 3) float64 ndarray
+        Points on the surface (area-weighted, deterministic) and their outward face normals.
+    axes : (3, 3) float64 ndarray
+        Principal axes of the surface samples (columns, descending variance, right-handed).
+    extent_mm : float
+        Largest distance of a vertex from the centroid.
+    symmetries : (k, 3, 3) float64 ndarray
+        Rotations about the centroid that map the surface onto itself (identity first), found
+        among a fixed set of candidates (:func:`_symmetries`); ``continuous_axis`` when the surface
+        is a body of revolution.
+    continuous_axis : (3,) float64 ndarray or None
+    edges : (e, 3) float64 ndarray
+        Points along the mesh's sharp edges (faces meeting at more than 30°, or open edges): where
+        the part's silhouette lies, matched by the occluding boundary of a region in the ICP.
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    centroid: np.ndarray
+    sphere_radius: float | None
+    samples: np.ndarray
+    normals: np.ndarray
+    axes: np.ndarray
+    extent_mm: float
+    symmetries: np.ndarray
+    continuous_axis: np.ndarray | None
+    edges: np.ndarray
+    _scene: Any = field(repr=False)
+    _tree: Any = field(repr=False)
+    _edge_tree: Any = field(repr=False)
+
+    def distance(self, points_model: np.ndarray) -> np.ndarray:
+        """Exact distance (mm) of each of ``points_model`` (n, 3), model frame, to the surface."""
+        p = np.asarray(points_model, np.float64).reshape(-1, 3)
+        if len(p) == 0:
+            return np.zeros(0)
+        if self.sphere_radius is not None:
+            return np.abs(np.linalg.norm(p - self.centroid, axis=1) - self.sphere_radius)
+        import open3d as o3d
+
+        d: np.ndarray = self._scene.compute_distance(o3d.core.Tensor(p.astype(np.float32))).numpy()
+        return d.astype(np.float64)
+
+    def ray_depths(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Distance along each ray (model frame, unit directions) to the first hit of the surface,
+        inf where none (a sphere: the closed form)."""
+        if self.sphere_radius is not None:
+            oc = origins - self.centroid
+            b = np.einsum("ij,ij->i", oc, directions)
+            disc = b * b - (np.einsum("ij,ij->i", oc, oc) - self.sphere_radius ** 2)
+            with np.errstate(invalid="ignore"):
+                hit = -b - np.sqrt(disc)
+            return np.where((disc >= 0) & (hit > 0), hit, np.inf)
+        import open3d as o3d
+
+        rays = np.concatenate([origins, directions], axis=1).astype(np.float32)
+        t: np.ndarray = self._scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        return t.astype(np.float64)
+
+    def nearest_edges(self, points_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(distance, index into ``edges``) of the nearest edge point of each point (model frame)."""
+        if self._edge_tree is None:
+            n = len(points_model)
+            return np.full(n, np.inf), np.zeros(n, np.int64)
+        d, i = self._edge_tree.query(points_model, k=1)
+        return np.asarray(d, np.float64), np.asarray(i, np.int64)
+
+    def nearest_samples(self, points_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(distance, index) of the nearest surface sample of each point (model frame)."""
+        d, i = self._tree.query(points_model, k=1)
+        return np.asarray(d, np.float64), np.asarray(i, np.int64)
+
+
+def _check_mesh(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    v = np.asarray(vertices)
+    t = np.asarray(triangles)
+    if v.ndim != 2 or v.shape[1] != 3 or not np.issubdtype(v.dtype, np.number):
+        raise InputShapeError(f"vertices_mm must be (n, 3) numbers, got {describe_array(v)}")
+    if t.ndim != 2 or t.shape[1] != 3 or not np.issubdtype(t.dtype, np.integer):
+        raise InputShapeError(f"triangles must be (m, 3) integers, got {describe_array(t)}")
+    v = v.astype(np.float64)
+    t = t.astype(np.int64)
+    if len(v) < 4 or len(t) < 4:
+        raise ParameterError(f"part model is degenerate: {len(v)} vertices and {len(t)} triangles (need at least 4 of each)")
+    if not np.isfinite(v).all():
+        raise ParameterError("part model is degenerate: a vertex is not finite")
+    if t.min() < 0 or t.max() >= len(v):
+        raise ParameterError(f"part model is degenerate: a triangle index is outside 0..{len(v) - 1}")
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    scale = float(np.ptp(v, axis=0).max())
+    if not scale > 0 or area.sum() <= 1e-9 * scale * scale:
+        raise ParameterError("part model is degenerate: its triangles have no area")
+    sv = np.linalg.svd(v - v.mean(axis=0), compute_uv=False)
+    if sv[2] <= 1e-6 * sv[0]:
+        raise ParameterError("part model is degenerate: its vertices are flat (all in one plane)")
+    return v, t
+
+
+def _sample_surface(v: np.ndarray, t: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Area-weighted deterministic samples (points, unit normals) and the area-weighted centroid."""
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    cr = np.cross(b - a, c - a)
+    area = 0.5 * np.linalg.norm(cr, axis=1)
+    keep = area > 0
+    a, b, c, cr, area = a[keep], b[keep], c[keep], cr[keep], area[keep]
+    centroid = ((a + b + c) / 3.0 * area[:, None]).sum(axis=0) / area.sum()
+    nrm = cr / (2.0 * area[:, None])
+    rng = np.random.default_rng(0)
+    face = rng.choice(len(area), size=n, p=area / area.sum())
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    u, w = 1 - s, s * (1 - r2)
+    pts = u[:, None] * a[face] + w[:, None] * b[face] + (s * r2)[:, None] * c[face]
+    normals = nrm[face]
+    # orient outward where the mesh's winding is inconsistent: away from the centroid on average
+    out = np.einsum("ij,ij->i", normals, pts - centroid)
+    if (out < 0).mean() > 0.5:
+        normals = -normals
+    return pts, normals, centroid
+
+
+def _sharp_edges(v: np.ndarray, t: np.ndarray, spacing: float, angle_deg: float = 30.0) -> np.ndarray:
+    """Points every ``spacing`` along the edges where faces meet at more than ``angle_deg`` (or
+    which only one face has)."""
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    cr = np.cross(b - a, c - a)
+    nrm = cr / np.maximum(np.linalg.norm(cr, axis=1, keepdims=True), 1e-300)
+    e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    face = np.tile(np.arange(len(t)), 3)
+    key = np.sort(e, axis=1)
+    order = np.lexsort((key[:, 1], key[:, 0]))
+    key, face = key[order], face[order]
+    same = np.all(key[1:] == key[:-1], axis=1)
+    sharp: list[np.ndarray] = []
+    i = 0
+    n = len(key)
+    cos_thr = np.cos(np.radians(angle_deg))
+    while i < n:
+        j = i + 1
+        while j < n and same[j - 1]:
+            j += 1
+        fs = face[i:j]
+        if j - i == 1 or np.min(nrm[fs] @ nrm[fs].T) < cos_thr:
+            sharp.append(key[i])
+        i = j
+    if not sharp:
+        return np.zeros((0, 3))
+    E = np.array(sharp)
+    p0, p1 = v[E[:, 0]], v[E[:, 1]]
+    L = np.linalg.norm(p1 - p0, axis=1)
+    pts = []
+    for k in range(len(E)):
+        m = max(2, int(np.ceil(L[k] / spacing)) + 1)
+        s = np.linspace(0.0, 1.0, m)[:, None]
+        pts.append(p0[k] + s * (p1[k] - p0[k]))
+    out: np.ndarray = np.unique(np.round(np.concatenate(pts), 9), axis=0)
+    return out
+
+
+def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
+    axis = axis / np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    R: np.ndarray = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * (K @ K)
+    return R
+
+
+def _maps_onto_itself(R: np.ndarray, samples: np.ndarray, centroid: np.ndarray, tree: Any, tol: float) -> bool:
+    q = (samples - centroid) @ R.T + centroid
+    d, _ = tree.query(q, k=1)
+    return bool(np.percentile(d, 95) <= tol)
+
+
+def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The rotation R minimising Σ |R a_i − b_i|² (both centred already)."""
+    U, _, Vt = np.linalg.svd(b.T @ a)
+    D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)))])
+    R: np.ndarray = U @ D @ Vt
+    return R
+
+
+def _refine_symmetry(R: np.ndarray, points: np.ndarray, centroid: np.ndarray, tree: Any) -> tuple[np.ndarray, float]:
+    """Refine an approximate symmetry rotation by nearest-point Kabsch steps on ``points`` (the
+    vertices: a symmetric mesh maps its vertices onto vertices); (R, RMS nearest distance)."""
+    a = points - centroid
+    for _ in range(8):
+        _, i = tree.query(a @ R.T + centroid, k=1)
+        R = _kabsch(a, points[i] - centroid)
+    d, _ = tree.query(a @ R.T + centroid, k=1)
+    return R, float(np.sqrt(np.mean(d * d)))
+
+
+def _symmetries(samples: np.ndarray, vertices: np.ndarray, centroid: np.ndarray, axes: np.ndarray, tree: Any,
+                tol: float) -> tuple[np.ndarray, np.ndarray | None]:
+    """Rotations about the principal axes (n-fold, n = 2..12, and continuous) and the half-turns
+    about axes perpendicular to a symmetry axis which map the surface samples onto themselves within
+    ``tol``; each refined on the vertices (nearest-vertex Kabsch) when they map onto themselves, and
+    the set closed into a group by products."""
+    from scipy.spatial import cKDTree
+
+    found = [np.eye(3)]
+    cont = None
+    probe = samples[:: max(1, len(samples) // 1500)]
+    vtree = cKDTree(vertices)
+    for j in range(3):
+        ax = axes[:, j]
+        if all(_maps_onto_itself(_rot(ax, a), probe, centroid, tree, tol) for a in (0.37, 1.1, 2.3)):
+            cont = ax
+            found += [_rot(ax, 2 * np.pi * k / 12) for k in range(1, 12)]
+            break
+        for n in range(12, 1, -1):
+            R = _rot(ax, 2 * np.pi / n)
+            if _maps_onto_itself(R, probe, centroid, tree, tol):
+                found += [_rot(ax, 2 * np.pi * k / n) for k in range(1, n)]
+                break
+    # half-turns about axes perpendicular to the principal ones (a nut upside down)
+    for j in range(3):
+        ax = axes[:, j]
+        perp = axes[:, (j + 1) % 3]
+        for a in np.linspace(0, np.pi, 72, endpoint=False):
+            h = _rot(ax, a) @ perp
+            R = _rot(h, np.pi)
+            if _maps_onto_itself(R, probe, centroid, tree, tol):
+                found.append(R)
+    exact = 1e-4 * float(np.linalg.norm(vertices - centroid, axis=1).max())
+    refined = []
+    for R in found:
+        Rv, rms = _refine_symmetry(R, vertices, centroid, vtree)
+        if rms <= exact:
+            R = Rv
+        elif cont is None:
+            R, _ = _refine_symmetry(R, samples[:: max(1, len(samples) // 4000)], centroid, tree)
+        refined.append(R)
+    group: list[np.ndarray] = []
+    for R in refined:
+        if not any(np.abs(R - G).max() < 1e-3 for G in group):
+            group.append(R)
+    changed = True
+    while changed and len(group) < 200:
+        changed = False
+        for A in list(group):
+            for B in list(group):
+                C = A @ B
+                if not any(np.abs(C - G).max() < 1e-3 for G in group):
+                    group.append(C)
+                    changed = True
+    return np.stack(group), cont
+
+
+def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tolerance: float = 0.01,
+                  n_samples: int = 20000) -> PartModel:
+    """Check and prepare a part mesh; raise :class:`~zcut.errors.ParameterError` (one line) when it
+    is degenerate (too few vertices or triangles, no area, flat, indices out of range)."""
+    from scipy.spatial import cKDTree
+
+    v, t = _check_mesh(vertices_mm, triangles)
+    samples, normals, centroid = _sample_surface(v, t, n_samples)
+    r = np.linalg.norm(v - centroid, axis=1)
+    extent = float(r.max())
+    sphere = float(r.mean()) if float(np.abs(r - r.mean()).max()) <= sphere_tolerance * float(r.mean()) else None
+    cov = np.cov((samples - centroid).T)
+    w, axes = np.linalg.eigh(cov)
+    axes = axes[:, ::-1]
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] = -axes[:, 2]
+    tree = cKDTree(samples)
+    edges = _sharp_edges(v, t, spacing=extent / 150.0)
+    edge_tree = cKDTree(edges) if len(edges) else None
+    scene = None
+    if sphere is None:
+        import open3d as o3d
+
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(t.astype(np.uint32)))
+        spacing = np.sqrt(4 * np.pi * extent * extent / n_samples)
+        sym, cont = _symmetries(samples, v, centroid, axes, tree, tol=max(0.02 * extent, 2 * spacing))
+    else:
+        sym, cont = np.eye(3)[None], None
+    return PartModel(vertices=v, triangles=t, centroid=centroid, sphere_radius=sphere, samples=samples,
+                     normals=normals, axes=axes, extent_mm=extent, symmetries=sym, continuous_axis=cont,
+                     edges=edges, _scene=scene, _tree=tree, _edge_tree=edge_tree)

@@ -1,0 +1,100 @@
+"""The knobs of :func:`zcut.fits.fit_parts`, one frozen dataclass validated in its constructor."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from zcut.errors import ParameterError
+
+__all__ = ["FitParams"]
+
+
+def _check(obj: object, name: str, *, gt: float | None = None, ge: float | None = None, le: float | None = None,
+           integer: bool = False) -> None:
+    v = getattr(obj, name)
+    bad = isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+    if not bad and integer and int(v) != v:
+        bad = True
+    if not bad and ((gt is not None and not v > gt) or (ge is not None and not v >= ge)
+                    or (le is not None and not v <= le)):
+        bad = True
+    if bad:
+        rng = [f"> {gt:g}"] if gt is not None else []
+        rng += [f">= {ge:g}"] if ge is not None else []
+        rng += [f"<= {le:g}"] if le is not None else []
+        kind = "an integer" if integer else "a number"
+        raise ParameterError(f"FitParams.{name} must be {' '.join([kind, ' and '.join(rng)]).strip()}, got {v!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class FitParams:
+    """Parameters of the part fits (lengths in mm, pixels in pixels).
+
+    Attributes
+    ----------
+    jump_mm : float
+        Segmentation: two neighbouring pixels belong to one candidate region when their 3-D distance
+        is at most ``jump_mm`` plus ``jump_px`` pixel footprints (the footprint at their depth).
+    jump_px : float
+        See ``jump_mm`` (a slope allowance: on a surface tilted by θ neighbours lie 1 / cos θ
+        footprints apart).
+    min_region_px : int
+        Candidate regions (and leftovers of a region after a fit) smaller than this are not fitted.
+    icp_iterations : int
+        Point-to-plane ICP iterations of the refinement of the best initial guess.
+    coarse_iterations : int
+        ICP iterations run from every initial guess before the best one is refined.
+    max_points : int
+        At most this many points of a region take part in the ICP (an even subsample).
+    gate_mm : float
+        ICP correspondences farther than this from the model are ignored at the start; the gate
+        then shrinks to max(``k`` × the running residual, ``err_floor_mm`` × ``k``).
+    err_floor_mm : float
+        The smallest Err used to decide which pixels a fit explains (a noise-free cloud has Err ≈ 0).
+    k : float
+        A pixel is explained by a fit when it lies within ``k`` × max(Err, ``err_floor_mm``) of it
+        (paper §2: 3).
+    max_err_mm : float
+        A fit is accepted only when its residual Err is at most this.
+    min_support : float
+        ... and when at least this share (0..1) of its predicted visible pixels is supported.
+    min_explained : float
+        ... and when it explains at least this share of the region points it was fitted to.
+    max_instances_per_region : int
+        At most this many instances are fitted in one candidate region (touching parts).
+    sphere_tolerance : float
+        The mesh is treated as a sphere (closed-form fits) when every vertex lies within this share
+        of the mean radius from the vertices' centroid.
+    """
+
+    jump_mm: float = 1.5
+    jump_px: float = 3.0
+    min_region_px: int = 40
+    icp_iterations: int = 30
+    coarse_iterations: int = 8
+    max_points: int = 600
+    gate_mm: float = 4.0
+    err_floor_mm: float = 0.1
+    k: float = 3.0
+    max_err_mm: float = 1.5
+    min_support: float = 0.5
+    min_explained: float = 0.3
+    max_instances_per_region: int = 8
+    sphere_tolerance: float = 0.01
+
+    def __post_init__(self) -> None:
+        _check(self, "jump_mm", gt=0)
+        _check(self, "jump_px", ge=0)
+        _check(self, "min_region_px", ge=4, integer=True)
+        _check(self, "icp_iterations", ge=1, integer=True)
+        _check(self, "coarse_iterations", ge=1, integer=True)
+        _check(self, "max_points", ge=10, integer=True)
+        _check(self, "gate_mm", gt=0)
+        _check(self, "err_floor_mm", gt=0)
+        _check(self, "k", gt=0)
+        _check(self, "max_err_mm", gt=0)
+        _check(self, "min_support", ge=0, le=1)
+        _check(self, "min_explained", ge=0, le=1)
+        _check(self, "max_instances_per_region", ge=1, integer=True)
+        _check(self, "sphere_tolerance", gt=0, le=0.5)
