@@ -18,7 +18,7 @@ The method (issue 29 item 2; paper §2 defines the residual Err these fits give)
    is at most ``max_err_mm``, its **support** (the share of the pixels where the posed model is
    predicted visible — ray cast through the intrinsics, minus those where something measured lies in
    front of it — whose measured point lies within k × Err of the model) is at least
-   ``min_support``, and it explains at least ``min_explained`` of its region. The pixels it explains
+   ``min_support``, and it explains at least ``min_region_px`` pixels of its region. The pixels it explains
    leave the region; what is left is segmented again and fitted (touching parts), up to
    ``max_instances_per_region`` times.
 4. **Reassign pixels**: every zone pixel within k × max(Err, ``err_floor_mm``) of an accepted fit
@@ -171,27 +171,37 @@ def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float) -> floa
     return float(supported.sum() / denom) if denom else 0.0
 
 
-def _fit_sphere(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> tuple[np.ndarray, float]:
-    """(pose, err) of one sphere in the region's points."""
+def _fit_sphere(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
+                centre: np.ndarray) -> tuple[np.ndarray, float]:
+    """(pose, err) of the sphere near ``centre`` in the region's points: algebraic least squares
+    and radius-fixed Gauss-Newton on the points within a gate that shrinks to k × the robust
+    residual."""
     assert model.sphere_radius is not None
     R = model.sphere_radius
     pts = frame.xyz.reshape(-1, 3)[flat]
-    nrm = frame.normals.reshape(-1, 3)[flat]
-    c = vote_centres(pts, nrm, R)
-    if c is None:
-        c, _ = algebraic_sphere(pts)
-    use = np.abs(np.linalg.norm(pts - c, axis=1) - R) <= params.gate_mm
+    c = np.asarray(centre, np.float64)
+    gate = params.gate_mm
+    pts = pts[np.linalg.norm(pts - c, axis=1) <= R + gate]  # its own points: within R of its centre
     err = np.inf
-    for _ in range(4):
+    res = np.zeros(0)
+    for _ in range(6):
+        res = np.abs(np.linalg.norm(pts - c, axis=1) - R)
+        use = res <= gate
         if use.sum() < 4:
-            break
+            return pose_matrix(np.eye(3), c - model.centroid), np.inf
         c0, r0 = algebraic_sphere(pts[use])
-        if np.isfinite(r0) and abs(r0 - R) < 0.5 * R:
+        if np.isfinite(r0) and abs(r0 - R) < 0.1 * R:
             c = c0
         c = refine_sphere(pts[use], c, R)
         res = np.abs(np.linalg.norm(pts - c, axis=1) - R)
+        robust = 1.4826 * float(np.median(res[use]))
         err = float(np.sqrt(np.mean(res[use] ** 2)))
-        use = res <= params.k * max(err, params.err_floor_mm)
+        gate = max(params.k * max(robust, params.err_floor_mm), 0.5 * gate)
+        if gate <= params.k * max(robust, params.err_floor_mm) + 1e-12:
+            break
+    use = res <= params.k * max(err, params.err_floor_mm)
+    if use.any():
+        err = float(np.sqrt(np.mean(res[use] ** 2)))
     return pose_matrix(np.eye(3), c - model.centroid), err
 
 
@@ -222,34 +232,46 @@ def _occluding_boundary(frame: _Frame, flat: np.ndarray, jump_mm: float) -> np.n
 
 
 def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> tuple[np.ndarray, float]:
-    """(pose, err) of one instance of a general model in the region's points."""
+    """(pose, err) of one instance of a general model in the region's points.
+
+    Every initial guess takes ``coarse_iterations`` ICP steps on half the points; the best (most
+    points within the score tolerance, plus the boundary points on the model's edges) is refined.
+    A guess whose points nearly all fit stops the search."""
     sub = _subsample(flat, params.max_points)
     pts = frame.xyz.reshape(-1, 3)[sub]
+    coarse = pts[:: 2] if len(pts) >= 2 * params.min_region_px else pts
     bnd = _subsample(_occluding_boundary(frame, flat, params.jump_mm), params.max_points // 2)
     epts = frame.xyz.reshape(-1, 3)[bnd]
+    coarse_e = epts[:: 2]
     f = 0.5 * (frame.K[0] + frame.K[1])
     px_mm = float(np.median(pts[:, 2])) / f  # the pixel footprint
     edge_gate = max(3.0 * px_mm, params.k * params.err_floor_mm)
     best = None
     score_tol = max(params.k * params.err_floor_mm, params.gate_mm / 4)
-    opts = dict(gate_mm=params.gate_mm, k=params.k, floor_mm=params.err_floor_mm, edge_points=epts,
-                edge_gate_mm=edge_gate)
+    opts = dict(gate_mm=params.gate_mm, k=params.k, floor_mm=params.err_floor_mm, edge_gate_mm=edge_gate)
     for R in initial_rotations(pts, model):
         T0 = initial_pose(pts, R, model)
-        T, _, _ = icp(pts, model, T0, iterations=params.coarse_iterations, **opts)  # type: ignore[arg-type]
-        d = model.distance((pts - T[:3, 3]) @ T[:3, :3])
-        score = float(np.sum(d <= score_tol)) - float(np.mean(np.minimum(d, score_tol)))
-        if len(epts):
-            de, _ = model.nearest_edges((epts - T[:3, 3]) @ T[:3, :3])
-            score += float(np.sum(de <= 1.5 * px_mm)) * len(pts) / len(epts) * 0.5
+        T, _, _ = icp(coarse, model, T0, iterations=params.coarse_iterations, edge_points=coarse_e,
+                      **opts)  # type: ignore[arg-type]
+        d = model.distance((coarse - T[:3, 3]) @ T[:3, :3])
+        inl = float(np.mean(d <= score_tol))
+        score = inl - 0.01 * float(np.mean(np.minimum(d, score_tol))) / score_tol
+        e_inl = 1.0
+        if len(coarse_e):
+            de, _ = model.nearest_edges((coarse_e - T[:3, 3]) @ T[:3, :3])
+            e_inl = float(np.mean(de <= 1.5 * px_mm))
+            score += 0.5 * e_inl
         if best is None or score > best[0]:
             best = (score, T)
+        if inl >= 0.95 and e_inl >= 0.7:
+            break
     assert best is not None
-    T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, **opts)  # type: ignore[arg-type]
+    T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,
+                    **opts)  # type: ignore[arg-type]
     d = model.distance((pts - T[:3, 3]) @ T[:3, :3])
     gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
-    inl = d <= gate
-    err = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else np.inf
+    inl_mask = d <= gate
+    err = float(np.sqrt(np.mean(d[inl_mask] ** 2))) if inl_mask.any() else np.inf
     return T, err
 
 
@@ -277,39 +299,60 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
     f = 0.5 * (K[0] + K[1])
     H, W = zv.shape
     accepted: list[tuple[np.ndarray, float, float]] = []
-    pending = segment(xyz, zv, f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px, min_px=params.min_region_px)
+    pending = segment(xyz, np.flatnonzero(zv), f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
+                      min_px=params.min_region_px)
     for region in pending:
         left = region
-        for _ in range(params.max_instances_per_region):
-            if len(left) < params.min_region_px:
+        attempts = 0
+        while len(left) >= params.min_region_px and attempts < params.max_instances_per_region:
+            progress = False
+            for T, err in _candidates(frame, left, model, params):
+                attempts += 1
+                fit = _accept(frame, left, model, params, T, err)
+                if fit is None:
+                    continue
+                accepted.append(fit[0])
+                left = left[~fit[1]]
+                progress = True
+                if len(left) < params.min_region_px or attempts >= params.max_instances_per_region:
+                    break
+            if not progress:
                 break
-            if model.sphere_radius is not None:
-                T, err = _fit_sphere(frame, left, model, params)
-            else:
-                T, err = _fit_general(frame, left, model, params)
-            if not (np.isfinite(err) and err <= params.max_err_mm):
-                break
-            tol = params.k * max(err, params.err_floor_mm)
-            d = _model_distance(frame, T, model, left)
-            near = d <= tol
-            if near.mean() < params.min_explained:
-                break
-            support = _support(frame, T, model, tol)
-            if support < params.min_support:
-                break
-            accepted.append((T, err, support))
-            rest = left[~near]
-            if len(rest) < params.min_region_px:
-                break
-            m = np.zeros(H * W, bool)
-            m[rest] = True
-            parts = segment(xyz, m.reshape(H, W), f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
+            parts = segment(xyz, left, f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
                             min_px=params.min_region_px)
             if not parts:
                 break
             left = parts[0]
             pending.extend(parts[1:])
     return _assign(frame, model, accepted, params)
+
+
+def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> list[tuple[np.ndarray, float]]:
+    """The fits to try in a region: one per vote cluster for a sphere, the best one otherwise."""
+    if model.sphere_radius is None:
+        return [_fit_general(frame, flat, model, params)]
+    pts = frame.xyz.reshape(-1, 3)[flat]
+    nrm = frame.normals.reshape(-1, 3)[flat]
+    centres = vote_centres(pts, nrm, model.sphere_radius, min_votes=max(3, params.min_region_px // 4))
+    if not centres:
+        c, _ = algebraic_sphere(pts)
+        centres = [c]
+    return [_fit_sphere(frame, flat, model, params, c) for c in centres[: params.max_instances_per_region]]
+
+
+def _accept(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams, T: np.ndarray,
+            err: float) -> tuple[tuple[np.ndarray, float, float], np.ndarray] | None:
+    """((pose, err, support), the region's pixels it explains) when the fit is accepted, else None."""
+    if not (np.isfinite(err) and err <= params.max_err_mm):
+        return None
+    tol = params.k * max(err, params.err_floor_mm)
+    near = _model_distance(frame, T, model, flat) <= tol
+    if near.sum() < params.min_region_px:
+        return None
+    support = _support(frame, T, model, tol)
+    if support < params.min_support:
+        return None
+    return (T, err, support), near
 
 
 def _assign(frame: _Frame, model: PartModel, accepted: list[tuple[np.ndarray, float, float]],

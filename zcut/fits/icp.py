@@ -40,39 +40,48 @@ def _rodrigues(w: np.ndarray) -> np.ndarray:
     return R
 
 
-def _equivalent(R1: np.ndarray, R2: np.ndarray, model: PartModel) -> bool:
-    for S in model.symmetries:
-        if np.abs(R1 @ S - R2).max() < 0.15:
-            return True
-    if model.continuous_axis is not None:
-        a = model.continuous_axis
-        for S in model.symmetries:
-            if float((R1 @ S @ a) @ (R2 @ a)) > 0.99:
-                return True
-    return False
+def _dedupe(candidates: np.ndarray, model: PartModel) -> list[np.ndarray]:
+    """The candidates (k, 3, 3), each kept unless equivalent to a kept one under the model's
+    symmetries (R1 S ≈ R2 for a symmetry S; for a body of revolution: the axis goes to the same place)."""
+    G = model.symmetries
+    kept: list[np.ndarray] = []
+    variants = np.zeros((0, 3, 3))
+    axes = np.zeros((0, 3))
+    a = model.continuous_axis
+    for R in candidates:
+        if len(variants) and np.abs(variants - R).max(axis=(1, 2)).min() < 0.15:
+            continue
+        if a is not None and len(axes) and float((axes @ (R @ a)).max()) > 0.99:
+            continue
+        kept.append(R)
+        variants = np.concatenate([variants, np.einsum("ij,kjl->kil", R, G)])
+        if a is not None:
+            axes = np.concatenate([axes, np.einsum("ij,kjl,l->ki", R, G, a)])
+    return kept
 
 
 def initial_rotations(points: np.ndarray, model: PartModel) -> list[np.ndarray]:
     """Rotations (model -> camera) aligning the model's principal axes with the points', one per
-    class of equivalent ones under the model's symmetries."""
+    class of equivalent ones under the model's symmetries; those that put the model's least-variance
+    axis on the points' (a part lying as it shows itself) first."""
     c = points.mean(axis=0)
     w, ax = np.linalg.eigh(np.cov((points - c).T))
     ax = ax[:, ::-1]
     if np.linalg.det(ax) < 0:
         ax[:, 2] = -ax[:, 2]
-    out: list[np.ndarray] = []
-    for turn in (0.0, np.pi / 4):
-        for perm in itertools.permutations(range(3)):
-            for signs in itertools.product((1.0, -1.0), repeat=3):
-                P = np.zeros((3, 3))
-                for i, j in enumerate(perm):
-                    P[i, j] = signs[i]
-                if np.linalg.det(P) < 0:
-                    continue
+    first: list[np.ndarray] = []
+    rest: list[np.ndarray] = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            P = np.zeros((3, 3))
+            for i, j in enumerate(perm):
+                P[i, j] = signs[i]
+            if np.linalg.det(P) < 0:
+                continue
+            for turn in (0.0, np.pi / 4):
                 R = _rodrigues(turn * ax[:, 2]) @ ax @ P @ model.axes.T
-                if not any(_equivalent(R, Q, model) for Q in out):
-                    out.append(R)
-    return out
+                (first if perm[2] == 2 else rest).append(R)
+    return _dedupe(np.stack(first + rest), model)
 
 
 def initial_pose(points: np.ndarray, R: np.ndarray, model: PartModel) -> np.ndarray:
@@ -165,7 +174,7 @@ def icp(points: np.ndarray, model: PartModel, T0: np.ndarray, *, iterations: int
         t = -R @ tinv
         rms = float(np.sqrt(np.mean(r * r)))
         gate = min(gate, max(k * rms, k * floor_mm, 0.5 * gate))
-        if np.abs(x).max() < 1e-8:
+        if np.abs(x).max() < 1e-6:
             break
     U, _, Vt = np.linalg.svd(R)
     R = U @ Vt

@@ -211,13 +211,16 @@ def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return R
 
 
-def _refine_symmetry(R: np.ndarray, points: np.ndarray, centroid: np.ndarray, tree: Any) -> tuple[np.ndarray, float]:
-    """Refine an approximate symmetry rotation by nearest-point Kabsch steps on ``points`` (the
-    vertices: a symmetric mesh maps its vertices onto vertices); (R, RMS nearest distance)."""
+def _refine_symmetry(R: np.ndarray, points: np.ndarray, centroid: np.ndarray, tree: Any,
+                     targets: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """Refine an approximate symmetry rotation by nearest-point Kabsch steps taking ``points`` to
+    ``targets`` (the points ``tree`` holds; default ``points``: the vertices, which a symmetric mesh
+    maps onto vertices); (R, RMS nearest distance)."""
+    targets = points if targets is None else targets
     a = points - centroid
     for _ in range(8):
         _, i = tree.query(a @ R.T + centroid, k=1)
-        R = _kabsch(a, points[i] - centroid)
+        R = _kabsch(a, targets[i] - centroid)
     d, _ = tree.query(a @ R.T + centroid, k=1)
     return R, float(np.sqrt(np.mean(d * d)))
 
@@ -261,7 +264,7 @@ def _symmetries(samples: np.ndarray, vertices: np.ndarray, centroid: np.ndarray,
         if rms <= exact:
             R = Rv
         elif cont is None:
-            R, _ = _refine_symmetry(R, samples[:: max(1, len(samples) // 4000)], centroid, tree)
+            R, _ = _refine_symmetry(R, samples[:: max(1, len(samples) // 4000)], centroid, tree, samples)
         refined.append(R)
     group: list[np.ndarray] = []
     for R in refined:
@@ -280,7 +283,7 @@ def _symmetries(samples: np.ndarray, vertices: np.ndarray, centroid: np.ndarray,
 
 
 def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tolerance: float = 0.01,
-                  n_samples: int = 20000) -> PartModel:
+                  n_samples: int = 10000) -> PartModel:
     """Check and prepare a part mesh; raise :class:`~zcut.errors.ParameterError` (one line) when it
     is degenerate (too few vertices or triangles, no area, flat, indices out of range)."""
     from scipy.spatial import cKDTree

@@ -58,11 +58,10 @@ class FitParams:
     max_err_mm : float
         A fit is accepted only when its residual Err is at most this.
     min_support : float
-        ... and when at least this share (0..1) of its predicted visible pixels is supported.
-    min_explained : float
-        ... and when it explains at least this share of the region points it was fitted to.
+        ... and when at least this share (0..1) of its predicted visible pixels is supported (and
+        it explains at least ``min_region_px`` pixels of its region).
     max_instances_per_region : int
-        At most this many instances are fitted in one candidate region (touching parts).
+        At most this many fits are tried in one candidate region (touching parts).
     sphere_tolerance : float
         The mesh is treated as a sphere (closed-form fits) when every vertex lies within this share
         of the mean radius from the vertices' centroid.
@@ -73,14 +72,13 @@ class FitParams:
     min_region_px: int = 40
     icp_iterations: int = 30
     coarse_iterations: int = 8
-    max_points: int = 600
+    max_points: int = 400
     gate_mm: float = 4.0
     err_floor_mm: float = 0.1
     k: float = 3.0
     max_err_mm: float = 1.5
     min_support: float = 0.5
-    min_explained: float = 0.3
-    max_instances_per_region: int = 8
+    max_instances_per_region: int = 40
     sphere_tolerance: float = 0.01
 
     def __post_init__(self) -> None:
@@ -95,6 +93,5 @@ class FitParams:
         _check(self, "k", gt=0)
         _check(self, "max_err_mm", gt=0)
         _check(self, "min_support", ge=0, le=1)
-        _check(self, "min_explained", ge=0, le=1)
         _check(self, "max_instances_per_region", ge=1, integer=True)
         _check(self, "sphere_tolerance", gt=0, le=0.5)

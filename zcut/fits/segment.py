@@ -12,45 +12,47 @@ import numpy as np
 __all__ = ["segment"]
 
 
-def segment(xyz: np.ndarray, mask: np.ndarray, *, f_px: float, jump_mm: float, jump_px: float,
+def segment(xyz: np.ndarray, flat: np.ndarray, *, f_px: float, jump_mm: float, jump_px: float,
             min_px: int) -> list[np.ndarray]:
-    """The regions of ``mask`` with at least ``min_px`` pixels, largest first.
+    """The regions of the pixels ``flat`` with at least ``min_px`` pixels, largest first.
 
     Parameters
     ----------
     xyz : (H, W, 3) float64 ndarray
-        Camera frame, mm (finite wherever ``mask``).
-    mask : (H, W) bool ndarray
+        Camera frame, mm (finite at ``flat``).
+    flat : (n,) int64 ndarray
+        Flat pixel indices (row-major) of the pixels to segment, sorted ascending.
     f_px : float
         Focal length (pixels) for the footprint z / f.
 
     Returns
     -------
-    list of (n,) int64 ndarray
-        Flat pixel indices of each region.
+    list of (k,) int64 ndarray
+        Flat pixel indices of each region, sorted ascending.
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    H, W = mask.shape
-    flat = np.flatnonzero(mask)
+    H, W = xyz.shape[:2]
+    flat = np.asarray(flat, np.int64)
     if len(flat) < min_px:
         return []
-    index = np.full(H * W, -1, np.int64)
-    index[flat] = np.arange(len(flat))
     pts = xyz.reshape(-1, 3)
     rows: list[np.ndarray] = []
     cols: list[np.ndarray] = []
     for step, ok in ((1, (flat % W) < W - 1), (W, flat < (H - 1) * W)):
-        a = flat[ok]
-        b = a + step
-        both = mask.reshape(-1)[b]
-        a, b = a[both], b[both]
-        d = np.linalg.norm(pts[a] - pts[b], axis=1)
-        z = np.minimum(pts[a, 2], pts[b, 2])
+        ia = np.flatnonzero(ok)
+        b = flat[ia] + step
+        ib = np.searchsorted(flat, b)
+        ib = np.minimum(ib, len(flat) - 1)
+        both = flat[ib] == b
+        ia, ib = ia[both], ib[both]
+        pa, pb = pts[flat[ia]], pts[flat[ib]]
+        d = np.linalg.norm(pa - pb, axis=1)
+        z = np.minimum(pa[:, 2], pb[:, 2])
         near = d <= jump_mm + jump_px * np.abs(z) / f_px
-        rows.append(index[a[near]])
-        cols.append(index[b[near]])
+        rows.append(ia[near])
+        cols.append(ib[near])
     r = np.concatenate(rows)
     c = np.concatenate(cols)
     g = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(len(flat), len(flat)))

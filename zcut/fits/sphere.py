@@ -40,27 +40,45 @@ def refine_sphere(points: np.ndarray, centre: np.ndarray, radius: float, *, iter
             break
         J = -v[ok] / d[ok, None]
         r = d[ok] - radius
-        step, *_ = np.linalg.lstsq(J, -r, rcond=None)
+        step = np.linalg.solve(J.T @ J + 1e-12 * np.eye(3), -J.T @ r)
         c += step
         if np.abs(step).max() < 1e-9:
             break
     return c
 
 
-def vote_centres(points: np.ndarray, normals: np.ndarray, radius: float) -> np.ndarray | None:
-    """The densest cluster of the votes p − R n (``normals`` outward, NaN where unknown): its mean,
-    or None when no point has a normal."""
+def vote_centres(points: np.ndarray, normals: np.ndarray, radius: float, *, min_votes: int = 10,
+                 max_centres: int = 64) -> list[np.ndarray]:
+    """The vote clusters p − R n (``normals`` outward, NaN where unknown), densest first: each the
+    median of the votes within R / 5 of the densest vote left; the votes within R of a chosen centre
+    (its own sphere) are then removed. Stops when the densest cluster has fewer than ``min_votes``
+    votes of a subsample of at most 1,000."""
     from scipy.spatial import cKDTree
 
     ok = np.isfinite(normals).all(axis=1)
-    if ok.sum() < 4:
-        return None
     votes = points[ok] - radius * normals[ok]
-    tree = cKDTree(votes)
+    if len(votes) < 4:
+        return []
+    step = max(1, len(votes) // 1000)
+    votes = votes[::step]
+    min_votes = max(3, int(np.ceil(min_votes / step)))
     r = 0.2 * radius
-    sub = votes[:: max(1, len(votes) // 400)]
-    counts = np.array([len(x) for x in tree.query_ball_point(sub, r)])
-    best = sub[int(np.argmax(counts))]
-    near = votes[np.linalg.norm(votes - best, axis=1) <= r]
-    centre: np.ndarray = np.median(near, axis=0)
-    return centre
+    tree = cKDTree(votes)
+    counts = np.asarray(tree.query_ball_point(votes, r, return_length=True))
+    alive = np.ones(len(votes), bool)
+    out: list[np.ndarray] = []
+    while alive.any() and len(out) < max_centres:
+        i = int(np.argmax(np.where(alive, counts, -1)))
+        if counts[i] < min_votes:
+            break
+        near = tree.query_ball_point(votes[i], r)
+        near = [j for j in near if alive[j]]
+        if len(near) < min_votes:
+            alive[i] = False
+            continue
+        c: np.ndarray = np.median(votes[near], axis=0)
+        out.append(c)
+        gone = tree.query_ball_point(c, radius)
+        alive[gone] = False
+        alive[i] = False
+    return out

@@ -1,0 +1,236 @@
+"""How well :func:`zcut.fits.fit_prepared` finds the parts of synthetic frames (issue 29 item 2).
+
+    PYTHONPATH=. .venv/bin/python bench/bench_fits.py [--set tune|report] [--size 960x600]
+        [--kinds spheres,zinc_nuts,rods,black_nuts] [--sensors handmade,raytraced] [--json OUT]
+
+Per frame (both generators, each kind, the seeds of the set: ``tune`` 2951-2952, ``report``
+2961-2963, used nowhere else) the fits get only what a log holds: the cloud (mm), the zone, the part
+model the log attaches (``part_model.ply``, read back with ``read_part_model_bytes``) and the
+intrinsics. The zone is the valid pixels that the bin and the table do not explain: the pixels whose
+centre ray hits a part, plus every true outlier (the pipeline's zone keeps them too). The scene,
+regenerated from the seed, then scores the fits — only to score them:
+
+- **pose error** of the *fully visible* instances (≥ 95 % of the pixels the instance would cover
+  alone are its own in the scene, and ≥ 100 of them): the fit whose posed centroid is nearest the
+  instance's (within half the part's extent) is its match; translation = distance of the centroids,
+  rotation = the smallest angle modulo the model's symmetry group (a sphere: none; a body of
+  revolution: the angle between the axes). Medians, with the share of fully visible instances matched.
+- **explained** on the top layer: the share of the valid, on-surface (not ``/ground_truth/off_surface``)
+  pixels of the instances at least half visible that lie in some fit's ``pixels`` (within
+  3 × max(Err, floor) of a fitted instance).
+- **CPU-s per frame**: ``time.process_time`` of ``fit_prepared`` (all threads); preparing the model
+  (once per log) is reported apart.
+
+The instances' true poses: hand-made parts are ``[R · Rz(phase), centre]`` (the hexagon's random phase
+about the part's axis; the model carries phase 0) in the world, ray-traced ones ``[R, t]`` of the
+pile; the world -> camera map is (x, −y, 580 − z).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from replay.logs.part_model import PART_MODEL_ATTACHMENT, read_part_model_bytes
+from replay.synth.log import part_model_attachment
+from replay.synth.sensor import CAMERA_HEIGHT_MM
+from zcut.fits import FitParams, fit_prepared, pose_error, prepare_model
+
+SEEDS = {"tune": (2951, 2952), "report": (2961, 2962, 2963)}
+_C = np.diag([1.0, -1.0, -1.0])
+LABEL_PART = 5
+
+
+@dataclass
+class Truth:
+    poses: list[np.ndarray]  # model -> camera (mm)
+    meshes: list[tuple[np.ndarray, np.ndarray]]  # camera frame vertices, triangles
+    xyz_mm: np.ndarray
+    label: np.ndarray
+    off: np.ndarray
+    outliers: np.ndarray
+    K: tuple[float, float, float, float]
+
+
+def _to_cam(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = _C @ R
+    T[:3, 3] = _C @ t + np.array([0.0, 0.0, CAMERA_HEIGHT_MM])
+    return T
+
+
+def _rz(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def handmade(kind: str, seed: int, size: tuple[int, int]) -> Truth:
+    from replay.synth import synthesize_frame
+    from replay.synth.raytrace.meshes import _icosphere
+    from replay.synth.surfaces import solid_meshes
+
+    sf = synthesize_frame(kind=kind, seed=seed, size=size)
+    K = sf.frame.intrinsics
+    poses, meshes = [], []
+    prisms = [p for p in sf.scene.parts if p.solid is not None and p.solid[0][0][0] != "sphere"]
+    solid_vt = dict(zip([id(p) for p in prisms], solid_meshes([p.solid for p in prisms])))  # type: ignore[misc]
+    for p in sf.scene.parts:
+        assert p.solid is not None
+        prim = p.solid[0][0]
+        if prim[0] == "sphere":
+            m = _icosphere(float(prim[2]), 4)
+            v_local, t_local = m.vertices + prim[1], m.triangles
+            phase_R = np.eye(3)
+        else:
+            v_local, t_local = solid_vt[id(p)]
+            phase_R = np.eye(3)
+            if kind in ("zinc_nuts", "black_nuts"):
+                poly = prim[5]
+                phase_R = _rz(float(np.arctan2(poly[0, 1], poly[0, 0])))
+        T = _to_cam(p.R @ phase_R, p.centre_mm)
+        Tw = _to_cam(p.R, p.centre_mm)
+        poses.append(T)
+        meshes.append((v_local @ Tw[:3, :3].T + Tw[:3, 3], t_local))
+    return Truth(poses, meshes, sf.frame.xyz.astype(np.float64) * 1000.0, sf.surface, sf.off_surface, sf.truth,
+                 (K.fx, K.fy, K.cx, K.cy))
+
+
+def raytraced(kind: str, seed: int, size: tuple[int, int]) -> Truth:
+    from replay.synth.raytrace import synthesize_raytraced_frame
+    from replay.synth.raytrace.meshes import part_mesh
+
+    rf = synthesize_raytraced_frame(kind=kind, seed=seed, size=size)
+    K = rf.frame.intrinsics
+    m = part_mesh(kind)
+    poses, meshes = [], []
+    assert rf.pile is not None
+    for R, t in zip(rf.pile.R, rf.pile.t_mm):
+        T = _to_cam(R, t)
+        poses.append(T)
+        meshes.append((m.vertices @ T[:3, :3].T + T[:3, 3], m.triangles))
+    return Truth(poses, meshes, rf.frame.xyz.astype(np.float64) * 1000.0, rf.surface, rf.off_surface, rf.truth,
+                 (K.fx, K.fy, K.cx, K.cy))
+
+
+def instance_ids(truth: Truth) -> tuple[np.ndarray, np.ndarray]:
+    """(id image: i + 1 where the centre ray's first part hit is instance i and the surface is a part,
+    alone: (n,) pixel count each instance would cover on its own)."""
+    import open3d as o3d
+
+    H, W = truth.label.shape
+    fx, fy, cx, cy = truth.K
+    rr, cc = np.mgrid[0:H, 0:W]
+    d = np.stack([(cc - cx) / fx, (rr - cy) / fy, np.ones((H, W))], axis=-1)
+    rays = np.concatenate([np.zeros((H, W, 3)), d], axis=-1).astype(np.float32)
+    scene = o3d.t.geometry.RaycastingScene()
+    for v, t in truth.meshes:
+        scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(t.astype(np.uint32)))
+    ans = scene.cast_rays(o3d.core.Tensor(rays))
+    gid = ans["geometry_ids"].numpy().astype(np.int64)
+    hit = np.isfinite(ans["t_hit"].numpy())
+    ids = np.where(hit & (truth.label == LABEL_PART), gid + 1, 0)
+    alone = np.zeros(len(truth.meshes), np.int64)
+    for i, (v, t) in enumerate(truth.meshes):
+        u = fx * v[:, 0] / v[:, 2] + cx
+        w = fy * v[:, 1] / v[:, 2] + cy
+        c0, c1 = max(int(u.min()) - 1, 0), min(int(u.max()) + 2, W)
+        r0, r1 = max(int(w.min()) - 1, 0), min(int(w.max()) + 2, H)
+        if c0 >= c1 or r0 >= r1:
+            continue
+        one = o3d.t.geometry.RaycastingScene()
+        one.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(t.astype(np.uint32)))
+        a = one.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays[r0:r1, c0:c1])))
+        alone[i] = int(np.isfinite(a["t_hit"].numpy()).sum())
+    return ids, alone
+
+
+def score(truth: Truth, fits: list, model) -> dict[str, float]:  # type: ignore[no-untyped-def,type-arg]
+    ids, alone = instance_ids(truth)
+    n = len(truth.poses)
+    seen = np.bincount(ids.reshape(-1), minlength=n + 1)[1:]
+    share = np.where(alone > 0, seen / np.maximum(alone, 1), 0.0)
+    full = np.flatnonzero((share >= 0.95) & (seen >= 100))
+    top = np.flatnonzero(share >= 0.5)
+    c = model.centroid
+    fit_c = np.array([f.pose[:3, :3] @ c + f.pose[:3, 3] for f in fits]).reshape(-1, 3)
+    dts, das = [], []
+    matched = 0
+    for i in full:
+        T = truth.poses[i]
+        ci = T[:3, :3] @ c + T[:3, 3]
+        if len(fit_c) == 0:
+            continue
+        j = int(np.argmin(np.linalg.norm(fit_c - ci, axis=1)))
+        if np.linalg.norm(fit_c[j] - ci) > 0.5 * model.extent_mm:
+            continue
+        matched += 1
+        dt, da = pose_error(fits[j].pose, T, model)
+        dts.append(dt)
+        das.append(da)
+    explained = np.zeros(ids.size, bool)
+    for f in fits:
+        explained[f.pixels] = True
+    valid = np.isfinite(truth.xyz_mm).all(axis=2)
+    on_top = np.isin(ids, top + 1) & valid & ~truth.off
+    return {
+        "instances": n, "fully_visible": len(full), "matched": matched, "fits": len(fits),
+        "median_mm": float(np.median(dts)) if dts else float("nan"),
+        "median_deg": float(np.median(das)) if das else float("nan"),
+        "p90_mm": float(np.percentile(dts, 90)) if dts else float("nan"),
+        "p90_deg": float(np.percentile(das, 90)) if das else float("nan"),
+        "explained_top": float(explained[on_top.reshape(-1)].mean()) if on_top.any() else float("nan"),
+        "top_px": int(on_top.sum()),
+        "median_err_mm": float(np.median([f.err_mm for f in fits])) if fits else float("nan"),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--set", choices=tuple(SEEDS), default="report")
+    ap.add_argument("--size", default="960x600")
+    ap.add_argument("--kinds", default="spheres,zinc_nuts,rods,black_nuts")
+    ap.add_argument("--sensors", default="handmade,raytraced")
+    ap.add_argument("--seeds", default=None, help="comma-separated seeds instead of the set's")
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args()
+    w, h = (int(v) for v in args.size.split("x"))
+    seeds = [int(s) for s in args.seeds.split(",")] if args.seeds else list(SEEDS[args.set])
+    params = FitParams()
+    rows = []
+    print(f"size {w}x{h}, seeds {seeds}; CPU seconds per frame (process_time, all threads)")
+    print(f"{'sensor':9s} {'kind':10s} {'seed':>5s} {'inst':>4s} {'full':>4s} {'match':>5s} {'fits':>4s} "
+          f"{'med mm':>7s} {'med deg':>7s} {'p90 mm':>7s} {'p90 deg':>7s} {'expl':>5s} {'Err':>5s} {'cpu s':>6s} "
+          f"{'prep s':>6s}")
+    for sensor in args.sensors.split(","):
+        for kind in args.kinds.split(","):
+            data = part_model_attachment(kind, raytraced=sensor == "raytraced")[PART_MODEL_ATTACHMENT][1]
+            pm = read_part_model_bytes(data)
+            scale = 1000.0 if pm.unit == "m" else 1.0
+            c0 = time.process_time()
+            model = prepare_model(pm.vertices * scale, pm.triangles, sphere_tolerance=params.sphere_tolerance)
+            prep = time.process_time() - c0
+            for seed in seeds:
+                truth = handmade(kind, seed, (h, w)) if sensor == "handmade" else raytraced(kind, seed, (h, w))
+                valid = np.isfinite(truth.xyz_mm).all(axis=2)
+                zone = valid & ((truth.label == LABEL_PART) | truth.outliers | truth.off)
+                c0 = time.process_time()
+                fits = fit_prepared(truth.xyz_mm, zone, model, intrinsics=truth.K, params=params)
+                cpu = time.process_time() - c0
+                s = score(truth, fits, model)
+                s.update(sensor=sensor, kind=kind, seed=seed, cpu_s=cpu, prepare_s=prep)
+                rows.append(s)
+                print(f"{sensor:9s} {kind:10s} {seed:5d} {s['instances']:4d} {s['fully_visible']:4d} "
+                      f"{s['matched']:5d} {s['fits']:4d} {s['median_mm']:7.3f} {s['median_deg']:7.3f} "
+                      f"{s['p90_mm']:7.3f} {s['p90_deg']:7.3f} {s['explained_top']:5.3f} "
+                      f"{s['median_err_mm']:5.3f} {cpu:6.2f} {prep:6.2f}", flush=True)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(rows, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()
