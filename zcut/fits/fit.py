@@ -252,7 +252,7 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     for R in initial_rotations(pts, model):
         T0 = initial_pose(pts, R, model)
         T, _, _ = icp(coarse, model, T0, iterations=params.coarse_iterations, edge_points=coarse_e,
-                      **opts)  # type: ignore[arg-type]
+                      **opts)
         d = model.distance((coarse - T[:3, 3]) @ T[:3, :3])
         inl = float(np.mean(d <= score_tol))
         score = inl - 0.01 * float(np.mean(np.minimum(d, score_tol))) / score_tol
@@ -267,7 +267,7 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
             break
     assert best is not None
     T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,
-                    **opts)  # type: ignore[arg-type]
+                    **opts)
     d = model.distance((pts - T[:3, 3]) @ T[:3, :3])
     gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
     inl_mask = d <= gate

@@ -70,7 +70,7 @@ class PartModel:
             return np.abs(np.linalg.norm(p - self.centroid, axis=1) - self.sphere_radius)
         import open3d as o3d
 
-        d: np.ndarray = self._scene.compute_distance(o3d.core.Tensor(p.astype(np.float32))).numpy()
+        d: np.ndarray = self._scene.compute_distance(o3d.core.Tensor(p.astype(np.float32))).numpy()  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
         return d.astype(np.float64)
 
     def ray_depths(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
@@ -86,7 +86,7 @@ class PartModel:
         import open3d as o3d
 
         rays = np.concatenate([origins, directions], axis=1).astype(np.float32)
-        t: np.ndarray = self._scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        t: np.ndarray = self._scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
         return t.astype(np.float64)
 
     def nearest_edges(self, points_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -306,7 +306,7 @@ def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tole
         import open3d as o3d
 
         scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(t.astype(np.uint32)))
+        scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(t.astype(np.uint32)))  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
         spacing = np.sqrt(4 * np.pi * extent * extent / n_samples)
         sym, cont = _symmetries(samples, v, centroid, axes, tree, tol=max(0.02 * extent, 2 * spacing))
     else:
