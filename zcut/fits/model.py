@@ -271,19 +271,19 @@ def _symmetries(samples: np.ndarray, vertices: np.ndarray, centroid: np.ndarray,
         if not any(np.abs(R - G).max() < 1e-3 for G in group):
             group.append(R)
     changed = True
-    while changed and len(group) < 200:
+    while changed and len(group) < 48:  # inexact rotations would make a closure without end
         changed = False
         for A in list(group):
             for B in list(group):
                 C = A @ B
-                if not any(np.abs(C - G).max() < 1e-3 for G in group):
+                if len(group) < 48 and not any(np.abs(C - G).max() < 1e-3 for G in group):
                     group.append(C)
                     changed = True
     return np.stack(group), cont
 
 
 def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tolerance: float = 0.01,
-                  n_samples: int = 10000) -> PartModel:
+                  n_samples: int = 20000) -> PartModel:
     """Check and prepare a part mesh; raise :class:`~zcut.errors.ParameterError` (one line) when it
     is degenerate (too few vertices or triangles, no area, flat, indices out of range)."""
     from scipy.spatial import cKDTree

@@ -72,7 +72,7 @@ class FitParams:
     min_region_px: int = 40
     icp_iterations: int = 30
     coarse_iterations: int = 8
-    max_points: int = 400
+    max_points: int = 600
     gate_mm: float = 4.0
     err_floor_mm: float = 0.1
     k: float = 3.0
