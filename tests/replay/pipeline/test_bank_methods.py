@@ -209,8 +209,9 @@ def test_every_method_through_replay_results_accuracy_and_rerun(logs, capsys):
             assert zone.removal is not None  # the bin stages ran: the zone is not every valid pixel
     finally:
         zones.close()
-    # accuracy scores each under its name, from the log and from the results file alike
-    rc, out, err = run_cli(capsys, "accuracy", log, "--bin-model", model, "--methods", METHODS, "--json")
+    # accuracy scores each under its name, from the log and from the results file alike (the sensor's truth:
+    # its kind image gives by_kind)
+    rc, out, err = run_cli(capsys, "accuracy", log, "--bin-model", model, "--methods", METHODS, "--json", "--truth", "sensor")
     assert rc == 0, err
     rep = json.loads(out)
     assert list(rep["pooled"]) == METHODS.split(",") + ["union", "intersection"]
@@ -223,7 +224,7 @@ def test_every_method_through_replay_results_accuracy_and_rerun(logs, capsys):
         for name in BANK:
             mask = written[fr["index"]].masks[layout.method_topic(name)]
             assert fr[name]["tp"] == int((mask & truth).sum()), name  # the mask lies in the scored region
-    rc, out2, err = run_cli(capsys, "accuracy", res, "--methods", METHODS, "--json")
+    rc, out2, err = run_cli(capsys, "accuracy", res, "--methods", METHODS, "--json", "--truth", "sensor")
     assert rc == 0, err
     rep2 = json.loads(out2)
     for name in METHODS.split(","):

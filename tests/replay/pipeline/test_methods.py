@@ -114,11 +114,11 @@ def test_replay_and_accuracy_score_the_methods_asked_for(small_log, tmp_path, ca
     config_back = (tmp_path / "r.config.toml").read_text()
     assert 'methods = ["sor", "zcut+sor"]' in config_back
     # accuracy computes the same methods from the log, and reads them back from the results file
-    rc, out, err = run_cli(capsys, "accuracy", small_log, "--methods", "sor,zcut+sor", "--json", "--region", "valid")
+    rc, out, err = run_cli(capsys, "accuracy", small_log, "--methods", "sor,zcut+sor", "--json", "--region", "valid", "--truth", "sensor")
     assert rc == 0, err
     rep = json.loads(out)
     assert list(rep["pooled"]) == ["sor", "zcut+sor"]
-    rc, out2, err = run_cli(capsys, "accuracy", res, "--methods", "sor,zcut+sor", "--json", "--region", "valid")
+    rc, out2, err = run_cli(capsys, "accuracy", res, "--methods", "sor,zcut+sor", "--json", "--region", "valid", "--truth", "sensor")
     assert rc == 0, err
     rep2 = json.loads(out2)
     for f in rep2["frames"]:  # a results file does not carry the bin check (docs/pipeline.md, "Bin removal")
