@@ -2,29 +2,11 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
-from zcut.errors import ParameterError
+from zcut.params import _number  # the house's range check (its message names FitParams.field)
 
 __all__ = ["FitParams"]
-
-
-def _check(obj: object, name: str, *, gt: float | None = None, ge: float | None = None, le: float | None = None,
-           integer: bool = False) -> None:
-    v = getattr(obj, name)
-    bad = isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
-    if not bad and integer and int(v) != v:
-        bad = True
-    if not bad and ((gt is not None and not v > gt) or (ge is not None and not v >= ge)
-                    or (le is not None and not v <= le)):
-        bad = True
-    if bad:
-        rng = [f"> {gt:g}"] if gt is not None else []
-        rng += [f">= {ge:g}"] if ge is not None else []
-        rng += [f"<= {le:g}"] if le is not None else []
-        kind = "an integer" if integer else "a number"
-        raise ParameterError(f"FitParams.{name} must be {' '.join([kind, ' and '.join(rng)]).strip()}, got {v!r}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,16 +64,16 @@ class FitParams:
     sphere_tolerance: float = 0.01
 
     def __post_init__(self) -> None:
-        _check(self, "jump_mm", gt=0)
-        _check(self, "jump_px", ge=0)
-        _check(self, "min_region_px", ge=4, integer=True)
-        _check(self, "icp_iterations", ge=1, integer=True)
-        _check(self, "coarse_iterations", ge=1, integer=True)
-        _check(self, "max_points", ge=10, integer=True)
-        _check(self, "gate_mm", gt=0)
-        _check(self, "err_floor_mm", gt=0)
-        _check(self, "k", gt=0)
-        _check(self, "max_err_mm", gt=0)
-        _check(self, "min_support", ge=0, le=1)
-        _check(self, "max_instances_per_region", ge=1, integer=True)
-        _check(self, "sphere_tolerance", gt=0, le=0.5)
+        _number(self, "jump_mm", gt=0)
+        _number(self, "jump_px", ge=0)
+        _number(self, "min_region_px", ge=4, integer=True)
+        _number(self, "icp_iterations", ge=1, integer=True)
+        _number(self, "coarse_iterations", ge=1, integer=True)
+        _number(self, "max_points", ge=10, integer=True)
+        _number(self, "gate_mm", gt=0)
+        _number(self, "err_floor_mm", gt=0)
+        _number(self, "k", gt=0)
+        _number(self, "max_err_mm", gt=0)
+        _number(self, "min_support", ge=0, le=1)
+        _number(self, "max_instances_per_region", ge=1, integer=True)
+        _number(self, "sphere_tolerance", gt=0, le=0.5)
