@@ -94,12 +94,9 @@ class CompareWriter:
         if self.rrd is not None:
             from replay.pipeline.compare_viz import CompareRecording
 
-            try:
-                self.rec = CompareRecording(self.rrd.temp, label_a=f"{spec_a.name} ({primaries[0]})",
-                                            label_b=f"{spec_b.name} ({primaries[1]})",
-                                            config_markdown=config_markdown(spec_a, spec_b, diff, primaries))
-            except RuntimeError as e:  # Rerun's file sink could not create the file
-                raise self.rrd.opening_failure(e) from None
+            self.rec = CompareRecording(self.rrd, label_a=f"{spec_a.name} ({primaries[0]})",
+                                        label_b=f"{spec_b.name} ({primaries[1]})",
+                                        config_markdown=config_markdown(spec_a, spec_b, diff, primaries))
 
     def frame(self, frame: Frame, fc: FrameCompare, sa: SideFrame, sb: SideFrame, diff: np.ndarray,
               truth: tuple[np.ndarray, np.ndarray] | None, pa: str, pb: str) -> None:

@@ -23,11 +23,14 @@ Timelines: ``frame`` (the comparison's frame number, over every log in order) an
 from __future__ import annotations
 
 from collections.abc import Iterable
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
+
+if TYPE_CHECKING:
+    from replay.pipeline.sinks import RrdFile
 
 VERDICT_CLASSES = ((1, "TP", (0, 170, 0)), (2, "FP", (230, 30, 30)), (3, "FN (missed)", (255, 200, 0)),
                    (4, "removed", (220, 20, 220)))
@@ -68,21 +71,21 @@ def compare_blueprint(label_a: str, label_b: str) -> rrb.Blueprint:
 
 
 class CompareRecording:
-    """One .rrd of a comparison, written to ``path`` (a temporary the caller renames into place; the
-    caller's :class:`replay.pipeline.sinks.RrdFile` checks, closes and names it).
+    """One .rrd of a comparison, written through ``rrd`` (a :class:`replay.pipeline.sinks.RrdFile`: it
+    opens the file bounded, and the caller has it check, close and name the recording).
 
     Parameters
     ----------
-    path : path
+    rrd : RrdFile
     label_a, label_b : str
         What A and B are (view titles).
     config_markdown : str
         The config difference as a Markdown document.
     """
 
-    def __init__(self, path: str | Path, *, label_a: str, label_b: str, config_markdown: str) -> None:
+    def __init__(self, rrd: RrdFile, *, label_a: str, label_b: str, config_markdown: str) -> None:
         self.rec = rr.RecordingStream("zcut-compare", make_default=False, make_thread_default=False)
-        self.rec.save(str(path), default_blueprint=compare_blueprint(label_a, label_b))
+        rrd.save(self.rec, compare_blueprint(label_a, label_b))
         self.rec.log("diff/config", rr.TextDocument(config_markdown, media_type=rr.MediaType.MARKDOWN), static=True)
         for p in ("a/verdict", "b/verdict"):
             self.rec.log(p, _ctx(VERDICT_CLASSES), static=True)

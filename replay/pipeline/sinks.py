@@ -58,6 +58,9 @@ RRD_CLOSE_TIMEOUT_S = 30.0
 RRD_FRAME_FLUSH_S = 0.5
 #: free bytes under which a failed write is said to have met a full disk
 FULL_DISK_BYTES = 1 << 20
+#: seconds Rerun's ``save`` may wait on a full disk before the file is said not to open (it writes
+#: the blueprint at once, and waits for ever on a writer that failed doing so)
+RRD_OPEN_FULL_S = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -198,6 +201,38 @@ class RrdFile:
         return OutputError(f"{self.path}: Rerun could not open the .rrd for writing ({_first_line(e)}); "
                            "nothing was left under its name")
 
+    def save(self, rec: RecordingStream, blueprint: Any) -> None:
+        """Start Rerun's file sink on :attr:`temp` with the default ``blueprint``, bounded: Rerun's
+        ``save`` writes the blueprint before it returns and waits for ever when that write meets a
+        full disk (seen on a 64 KiB disk), so it runs in a daemon thread that is given up (and the
+        recording with it, :func:`replay.pipeline.viz.abandon`) once the disk is full or
+        :data:`RRD_CLOSE_TIMEOUT_S` have passed. Every failure is one :class:`OutputError`."""
+        from replay.pipeline import viz
+
+        error: list[BaseException] = []
+
+        def target() -> None:
+            try:
+                rec.save(str(self.temp), default_blueprint=blueprint)
+            except BaseException as e:  # noqa: BLE001 - handed to the caller
+                error.append(e)
+
+        t = threading.Thread(target=target, name="zcut-rrd-open", daemon=True)
+        t0 = time.monotonic()
+        t.start()
+        while t.is_alive():
+            t.join(0.1)
+            waited = time.monotonic() - t0
+            if t.is_alive() and ((waited > RRD_OPEN_FULL_S and _disk_full(self.temp)) or waited > RRD_CLOSE_TIMEOUT_S):
+                viz.abandon(rec)
+                raise self._failure("its file writer did not start: "
+                                    + ("the disk is full" if _disk_full(self.temp) else
+                                       f"waited {RRD_CLOSE_TIMEOUT_S:g} s"))
+        if error:
+            if isinstance(error[0], RuntimeError):  # Rerun's file sink could not create the file
+                raise self.opening_failure(error[0]) from None
+            raise error[0]
+
     def check(self, rec: RecordingStream) -> None:
         """Stop at the first frame after Rerun's file writer failed (a full disk): it only logs the
         error, and the frames logged after it would pile up in memory."""
@@ -307,14 +342,13 @@ class RerunSink:
         if self.rrd is not None:
             self._file = RrdFile(self.rrd)
         try:
-            try:
-                note = viz.open_sink(self._rec, rrd=None if self._file is None else str(self._file.temp),
-                                     spawn=self.spawn, connect=self.connect, methods=info.config.base_methods,
-                                     judged=() if self._judge is None else self._judge.methods)
-            except RuntimeError as e:  # Rerun's file sink could not create the file
-                if self._file is None:
-                    raise
-                raise self._file.opening_failure(e) from None
+            judged = () if self._judge is None else self._judge.methods
+            note = None
+            if self._file is not None:  # bounded: Rerun's save waits for ever on a full disk
+                self._file.save(self._rec, viz.default_blueprint(info.config.base_methods, judged))
+            else:
+                note = viz.open_sink(self._rec, spawn=self.spawn, connect=self.connect,
+                                     methods=info.config.base_methods, judged=judged)
             if note is not None:
                 print(f"zcut: {note}", file=sys.stderr, flush=True)
             viz.log_static(self._rec, config_toml=info.config_toml(), notes=info.notes, bin_model=info.bin_model,
