@@ -48,6 +48,7 @@ import numpy as np
 
 from .cloud import check_mask, check_xyz
 from .errors import InputShapeError, ParameterError
+from .params import _number
 from .types import XYZ, Mask
 
 
@@ -90,34 +91,19 @@ class EdgeSurfaceParams:
     side_step_mm: float = 1.0
 
     def __post_init__(self) -> None:
-        _check(self, "patch_radius_px", 1, 8, integer=True)
+        _number(self, "patch_radius_px", ge=1, le=8, integer=True)
         side = (2 * self.patch_radius_px + 1) ** 2
-        _check(self, "min_patch_px", 3, side, integer=True)
-        _check(self, "search_radius_px", self.patch_radius_px + 1, 256, integer=True)
-        _check(self, "max_search_radius_px", self.search_radius_px, 4096, integer=True)
-        _check(self, "fit_k", 0.0, math.inf, open_low=True)
-        _check(self, "min_fit_mm", 0.0, math.inf)
-        _check(self, "max_incidence_deg", 0.0, 90.0, open_low=True)
-        _check(self, "side_step_mm", 0.0, math.inf)
+        _number(self, "min_patch_px", ge=3, le=side, integer=True)
+        _number(self, "search_radius_px", ge=self.patch_radius_px + 1, le=256, integer=True)
+        _number(self, "max_search_radius_px", ge=self.search_radius_px, le=4096, integer=True)
+        _number(self, "fit_k", gt=0.0)
+        _number(self, "min_fit_mm", ge=0.0)
+        _number(self, "max_incidence_deg", gt=0.0, le=90.0)
+        _number(self, "side_step_mm", ge=0.0)
         for name in ("patch_radius_px", "min_patch_px", "search_radius_px", "max_search_radius_px"):
             object.__setattr__(self, name, int(getattr(self, name)))
         for name in ("fit_k", "min_fit_mm", "max_incidence_deg", "side_step_mm"):
             object.__setattr__(self, name, float(getattr(self, name)))
-
-
-def _check(obj: object, name: str, lo: float, hi: float, *, integer: bool = False, open_low: bool = False) -> None:
-    """``obj.name`` must be a finite number (an int when ``integer``) in [lo, hi] ((lo, hi] when ``open_low``)."""
-    v = getattr(obj, name)
-    bad = isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v)
-    if not bad and integer and int(v) != v:
-        bad = True
-    if not bad and not ((v > lo if open_low else v >= lo) and v <= hi):
-        bad = True
-    if bad:
-        kind = "an integer" if integer else "a number"
-        low = f"> {lo:g}" if open_low else f">= {lo:g}"
-        high = "" if math.isinf(hi) else f" and <= {hi:g}"
-        raise ParameterError(f"{type(obj).__name__}.{name} must be {kind} {low}{high}, got {v!r}")
 
 
 # ---------------------------------------------------------------------------------------------- kernels
