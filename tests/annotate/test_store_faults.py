@@ -166,3 +166,24 @@ def test_a_held_store_loses_nothing_already_saved(log, held_store, capsys):
     chk = sqlite3.connect(db)
     assert chk.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     chk.close()
+
+
+def test_a_file_hashed_twice_is_read_once_and_a_changed_one_again(tmp_path):
+    """``file_sha256`` keeps the digest of a file it read (same device, inode, size, mtime); a file
+    changed since is read again."""
+    import hashlib
+    import os
+
+    from annotate import store
+
+    p = tmp_path / "f.bin"
+    p.write_bytes(b"a" * 3000)
+    assert file_sha256(p) == hashlib.sha256(b"a" * 3000).hexdigest()
+    p.write_bytes(b"b" * 3000)  # same size, rewritten within the file system's time tick: read again
+    assert file_sha256(p) == hashlib.sha256(b"b" * 3000).hexdigest()
+    old = os.stat(p).st_mtime_ns - 10_000_000_000
+    os.utime(p, ns=(old, old))  # last changed 10 s ago: its digest is kept
+    assert file_sha256(p) == hashlib.sha256(b"b" * 3000).hexdigest()
+    assert any(k[3] == old for k in store._DIGESTS)
+    p.write_bytes(b"c" * 3000)  # changed since: read again
+    assert file_sha256(p) == hashlib.sha256(b"c" * 3000).hexdigest()
