@@ -515,14 +515,33 @@ def diff_image(mask_a: np.ndarray, mask_b: np.ndarray, where: np.ndarray,
     return out
 
 
+def _nearest_kept(xyz_mm: np.ndarray, kept: np.ndarray) -> np.ndarray | None:
+    """(H, W, 3) float64: for every pixel, the point of the nearest ``kept`` pixel in the image (the
+    Euclidean distance transform's nearest); None when nothing is kept."""
+    from scipy import ndimage
+
+    if not kept.any():
+        return None
+    _, (ri, ci) = ndimage.distance_transform_edt(~kept, return_indices=True)
+    out: np.ndarray = xyz_mm[ri, ci]
+    return out
+
+
 def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, mask_b: np.ndarray,
                        where: np.ndarray, *, truth: tuple[np.ndarray, np.ndarray] | None = None,
-                       footprint: np.ndarray | None = None) -> list[Blob]:
+                       footprint: np.ndarray | None = None, xyz: np.ndarray | None = None) -> list[Blob]:
     """The 8-connected components of the pixels only A removed and of those only B removed (over
-    ``where``), with area, centroid and, with truth (``(outliers, scored)``), what B's choice did there."""
+    ``where``), with area, centroid, with truth (``(outliers, scored)``) what B's choice did there,
+    and with the frame's points ``xyz`` (metres, NaN invalid) its height above the local surface and
+    its distance to the nearest kept point (:class:`Blob`)."""
     from scipy import ndimage
 
     blobs: list[Blob] = []
+    near = xyz_mm = None
+    if xyz is not None and ((mask_a ^ mask_b) & where).any():
+        xyz_mm = 1000.0 * xyz.astype(np.float64)
+        kept = where & ~mask_a & ~mask_b & np.isfinite(xyz_mm).all(axis=2)
+        near = _nearest_kept(xyz_mm, kept)
     for who, m in (("A", mask_a & ~mask_b & where), ("B", mask_b & ~mask_a & where)):
         if not m.any():
             continue
@@ -543,6 +562,18 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
             bad = (~outl if who == "B" else outl) & scored
             fixes = np.bincount(ids, weights=good[rows, cols], minlength=n + 1)[1:].astype(np.int64)
             breaks = np.bincount(ids, weights=bad[rows, cols], minlength=n + 1)[1:].astype(np.int64)
+        height = part = None
+        if near is not None and xyz_mm is not None:
+            p, q = xyz_mm[rows, cols], near[rows, cols]
+            ok = np.isfinite(p).all(axis=1)
+            h = np.where(ok, q[:, 2] - p[:, 2], 0.0)  # the camera looks along +z: nearer it is higher
+            d = np.where(ok, np.linalg.norm(p - q, axis=1), np.inf)
+            n_ok = np.bincount(ids, weights=ok, minlength=n + 1)[1:]
+            height = np.bincount(ids, weights=h, minlength=n + 1)[1:] / np.maximum(n_ok, 1)
+            height[n_ok == 0] = np.nan
+            part = np.full(n + 1, np.inf)
+            np.minimum.at(part, ids, d)
+            part = part[1:]
         for k in range(n):
             fx = bk = 0
             consequence = None
@@ -552,7 +583,9 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
                                else "mixed")
             blobs.append(Blob(log, index, stamp_ns, who, int(area[k]),
                               None if mm2 is None else round(float(mm2[k]), 3), float(r[k]), float(c[k]), fx, bk,
-                              consequence))
+                              consequence,
+                              None if height is None or not np.isfinite(height[k]) else round(float(height[k]), 3),
+                              None if part is None or not np.isfinite(part[k]) else round(float(part[k]), 3)))
     blobs.sort(key=lambda b: -b.area_px)
     return blobs
 
@@ -582,7 +615,8 @@ def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, 
             counts_a, counts_b = fa.counts, fb.counts
             truth = (t.outliers, t.reviewed & where)
     fp = pixel_footprint_mm2(frame.xyz, intrinsics)
-    blobs = disagreement_blobs(log, frame.index, frame.stamp_ns, ma, mb, where, truth=truth, footprint=fp)
+    blobs = disagreement_blobs(log, frame.index, frame.stamp_ns, ma, mb, where, truth=truth, footprint=fp,
+                               xyz=frame.xyz)
     diff = diff_image(ma, mb, where, truth)
     return (FrameCompare(log, frame.index, frame.stamp_ns, counts_a, counts_b, both, only_a, only_b, tuple(blobs),
                          unscored), diff, truth)

@@ -267,7 +267,8 @@ def page_context(report: dict[str, Any]) -> dict[str, Any]:
                        "delta": _signed(f.get("delta_f1")), "only_a": f["only_a"], "only_b": f["only_b"],
                        "blobs": f["blobs"],
                        "outcome": {1: "B wins", -1: "B loses", 0: "tie"}.get(f.get("outcome"), "—")})
-    blobs = [{**b, "area_mm2": _num(b["area_mm2"], ".2f"), "consequence": b["consequence"] or "—"}
+    blobs = [{**b, "area_mm2": _num(b["area_mm2"], ".2f"), "height_mm": _num(b.get("height_mm"), ".1f"),
+              "part_mm": _num(b.get("part_mm"), ".1f"), "consequence": b["consequence"] or "—"}
              for b in report["blobs"][:300]]
     return {
         "a": report["a"], "b": report["b"], "verdict": v["line"], "truth": report["truth"] or "none (agreement only)",

@@ -62,6 +62,10 @@ class Blob:
 
     ``consequence``: with truth, ``"B fixes"`` / ``"B breaks"`` (all its scored pixels one way),
     ``"mixed"``, or ``"unscored"`` (outside the reviewed pixels); without truth ``None``.
+    ``height_mm``: the mean over its pixels of their height above the nearest pixel (in the image) that
+    neither side removed in the scored region — the local surface, parts or bin floor (positive: nearer
+    the camera); ``part_mm``: the smallest 3D distance from one of its pixels to that nearest kept pixel;
+    both None when no pixel was kept or its pixels have no depth.
     """
 
     log: str
@@ -75,12 +79,14 @@ class Blob:
     fixes_px: int
     breaks_px: int
     consequence: str | None
+    height_mm: float | None = None
+    part_mm: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return {"log": self.log, "frame": self.frame, "stamp_ns": self.stamp_ns, "who": self.who,
                 "area_px": self.area_px, "area_mm2": self.area_mm2, "row": round(self.row, 1),
                 "col": round(self.col, 1), "fixes_px": self.fixes_px, "breaks_px": self.breaks_px,
-                "consequence": self.consequence}
+                "consequence": self.consequence, "height_mm": self.height_mm, "part_mm": self.part_mm}
 
 
 @dataclass(frozen=True, slots=True)

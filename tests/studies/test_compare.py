@@ -198,3 +198,31 @@ def test_the_recording_reads_back(data, tmp_path, capsys):
               "/a/scalars/f1", "/b/scalars/f1", "/diff/scalars/delta_f1"):
         assert p in paths, (p, sorted(paths))
     assert "`zcut.max_area_px`" in config_text and "`methods`" in config_text
+
+
+def test_a_blobs_height_and_distance_to_what_was_kept():
+    """A blob floating 10 mm above a plane the two sides kept: its height is 10 mm and its distance to
+    the kept surface 10 mm (it sits straight above it); a blob in the plane: 0 and the pixel pitch's
+    distance; nothing kept: both unknown (docs/compare.md, ``blobs``)."""
+    from studies.compare import disagreement_blobs
+
+    h, w = 40, 50
+    rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
+    xyz = np.dstack([cols * 0.001, rows * 0.001, np.full((h, w), 1.0)])  # a plane 1 m away, 1 mm pitch
+    xyz[10:13, 10:13, 2] -= 0.010  # a patch 10 mm nearer the camera
+    a = np.zeros((h, w), bool)
+    b = np.zeros((h, w), bool)
+    b[10:13, 10:13] = True  # B removed the floating patch
+    a[30, 30] = True  # A removed one pixel of the plane
+    where = np.ones((h, w), bool)
+    where[:, 45:] = False
+    blobs = {bl.who: bl for bl in disagreement_blobs("l", 0, 0, a, b, where, xyz=xyz.astype(np.float32))}
+    assert blobs["B"].height_mm == pytest.approx(10.0, abs=1e-3)
+    assert blobs["B"].part_mm == pytest.approx(10.0, abs=0.1)  # its edge pixels: 10 mm up, 1 mm across
+    assert blobs["A"].height_mm == pytest.approx(0.0, abs=1e-3)
+    assert blobs["A"].part_mm == pytest.approx(1.0, abs=1e-3)
+    assert set(blobs["A"].as_dict()) >= {"height_mm", "part_mm"}
+    xyz[..., 2] = np.nan  # nothing kept: unknown
+    blobs = disagreement_blobs("l", 0, 0, a, b, where, xyz=xyz)
+    assert all(bl.height_mm is None and bl.part_mm is None for bl in blobs)
+    assert all(bl.height_mm is None for bl in disagreement_blobs("l", 0, 0, a, b, where))  # no points given
