@@ -273,7 +273,31 @@ def _reproduce(s: SweepSummary, out_dir: Path | None) -> dict[str, str]:
     replays = "\n".join(f"zcut replay {shlex.quote(str(lg))} --config {shlex.quote(tuned)}" for lg in logs[:5])
     if len(logs) > 5:
         replays += f"\n# … and {len(logs) - 5} more logs"
-    return {"sweep": s.reproduce or "(unknown)", "replays": replays or f"zcut replay LOG.mcap --config {tuned}"}
+    return {"sweep": s.reproduce or "(unknown)", "replays": replays or f"zcut replay LOG.mcap --config {tuned}",
+            "compare": _compare_command(s, logs, tuned, out_dir)}
+
+
+def _compare_command(s: SweepSummary, logs: list[str], tuned: str, out_dir: Path | None) -> str:
+    """``zcut compare`` of the sweep's own config (A: its ``--config``, else the logs' defaults, ``zcut``)
+    against ``tuned.toml`` (B) on the same logs, truth and region: the paired verdict per frame."""
+    given: dict[str, str] = {}
+    try:
+        words = shlex.split(s.reproduce or "")
+    except ValueError:  # pragma: no cover - reproduce is written with shlex.quote
+        words = []
+    for flag in ("--config", "--bin-model", "--topic", "--labels", "--annotator"):
+        if flag in words[:-1]:
+            given[flag] = words[words.index(flag) + 1]
+    a = given.pop("--config", "zcut")
+    parts = ["zcut", "compare", *(logs or ["LOG.mcap"]), "--a", a, "--b", tuned,
+             "-o", str(out_dir / "compare") if out_dir is not None else "DIR/compare"]
+    for flag, v in given.items():
+        parts += [flag, v]
+    if s.region and s.region != "zone":
+        parts += ["--region", s.region]
+    if s.truth in ("paper", "sensor") and "--labels" not in given:
+        parts += ["--truth", s.truth]
+    return " ".join(shlex.quote(str(p)) for p in parts)
 
 
 def _num(v: Any, fmt: str = ".3f") -> str:

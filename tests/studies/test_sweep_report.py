@@ -404,3 +404,27 @@ def test_tuning_says_when_the_grids_best_z_cut_lies_outside_the_papers_ranges(tm
     # the best set within the ranges is the grid's best: no note
     pq.write_table(pa.Table.from_pylist([row(30.0, 0.07, 80, 20), row(120.0, 0.14, 20, 80)]), tmp_path / "t.parquet")
     assert tune(pooled_sets(pq.read_table(tmp_path / "t.parquet")), parse_objective("f1"), part="zinc_nuts").note is None
+
+
+def test_the_report_gives_the_compare_command_of_its_config_against_tuned(tmp_path):
+    """The report's reproduce section ends with ``zcut compare`` of the sweep's own config (A) against
+    ``tuned.toml`` (B) on the same logs, with the sweep's region and truth (issue 33)."""
+    import shlex
+
+    summary = model_summary(tmp_path)
+    summary["reproduce"] = ("zcut sweep /data/a.mcap -o out --config '/c/my cfg.toml' --bin-model /m/b.ply "
+                            "--truth sensor --region valid")
+    summary["region"], summary["truth"] = "valid", "sensor"
+    page = report.write_report(tmp_path, summary).read_text()
+    cmd = html.unescape(page.split("paired verdict")[1].split("<pre>")[1].split("</pre>")[0])
+    words = shlex.split(cmd)
+    assert words[:2] == ["zcut", "compare"] and "/data/<scan & co>.mcap" in words
+    assert words[words.index("--a") + 1] == "/c/my cfg.toml"
+    assert words[words.index("--b") + 1] == str(tmp_path / "tuned.toml")
+    assert words[words.index("-o") + 1] == str(tmp_path / "compare")
+    assert words[words.index("--bin-model") + 1] == "/m/b.ply"
+    assert words[words.index("--region") + 1] == "valid" and words[words.index("--truth") + 1] == "sensor"
+    summary["reproduce"], summary["region"], summary["truth"] = "zcut sweep /data/a.mcap -o out", "zone", "paper, sensor"
+    words = shlex.split(html.unescape(report.write_report(tmp_path, summary).read_text()
+                                      .split("paired verdict")[1].split("<pre>")[1].split("</pre>")[0]))
+    assert words[words.index("--a") + 1] == "zcut" and "--region" not in words and "--truth" not in words
