@@ -696,6 +696,49 @@ def per_method(frames: list[FrameCompare], level: float) -> dict[str, Any]:
     return out
 
 
+def per_class(frames: list[FrameCompare], pa: str, pb: str, level: float) -> dict[str, Any]:
+    """The primary methods' paired differences per class of the truth (docs/compare.md): clusters and
+    singletons (component counts of docs/accuracy.md: recall = true components found, precision =
+    predicted components correct) and, where the truth says what each outlier is, recall per outlier
+    kind (pixels). Each entry: A's and B's pooled figure, B − A, and the paired interval over frames."""
+    from replay.logs.layout import OUTLIER_KINDS
+    from zcut.paired import paired_differences
+
+    scored = [f for f in frames if f.scored]
+    if not scored:
+        return {}
+    ca = [f.a[pa] for f in scored if f.a is not None]
+    cb = [f.b[pb] for f in scored if f.b is not None]
+
+    def entry(fig: str, make: Any) -> dict[str, Any] | None:
+        a = tuple(np.array(x, dtype=np.int64) for x in zip(*(make(c) for c in ca)))
+        b = tuple(np.array(x, dtype=np.int64) for x in zip(*(make(c) for c in cb)))
+        d = paired_differences(a, b, level=level)[fig]  # type: ignore[arg-type]
+        if not (math.isfinite(d.a) or math.isfinite(d.b)):
+            return None  # the class is empty
+        return {"a": d.a, "b": d.b, "delta": d.delta, "ci": [d.lo, d.hi]}
+
+    out: dict[str, Any] = {}
+    for name, true_n, found, pred_n, correct in (
+            ("clusters", "true_clusters", "true_clusters_found", "pred_clusters", "pred_clusters_correct"),
+            ("singletons", "true_singletons", "true_singletons_found", "pred_singletons", "pred_singletons_correct")):
+        row = {"recall": entry("recall", lambda c, t=true_n, f=found: (getattr(c, f), 0, getattr(c, t) - getattr(c, f))),
+               "precision": entry("precision", lambda c, p=pred_n, k=correct: (getattr(c, k),
+                                                                             getattr(c, p) - getattr(c, k), 0))}
+        out[name] = {k: v for k, v in row.items() if v is not None}
+    if all(c.kinds is not None for c in ca + cb) and ca:
+        first = ca[0].kinds
+        assert first is not None
+        for code in range(1, len(first.n) + 1):
+            def kind(c: Any, i: int = code - 1) -> tuple[int, int, int]:
+                return c.kinds.found[i], 0, c.kinds.n[i] - c.kinds.found[i]
+
+            e = entry("recall", kind)
+            if e is not None:
+                out[f"kind {OUTLIER_KINDS.get(code, code)}"] = {"recall": e}
+    return {k: v for k, v in out.items() if v}
+
+
 def agreement(frames: list[FrameCompare]) -> dict[str, Any]:
     """α, β and the Jaccard index of the primary masks of A and B, pooled over every frame (A is method
     1, B method 2 of the paper's eqs. 3-4)."""
@@ -885,6 +928,7 @@ def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list
         "pooled": {"a": _pooled(frames, "A"), "b": _pooled(frames, "B")},
         "verdict": v,
         "per_method": per_method(frames, opts.level),
+        "per_class": per_class(frames, pa, pb, opts.level),
         "agreement": agreement(frames),
         "frames": frames_json,
         "frames_worst_first": [{"log": frames[i].log, "index": frames[i].index,

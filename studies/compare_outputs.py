@@ -255,6 +255,14 @@ def page_context(report: dict[str, Any]) -> dict[str, Any]:
             diffs.append({"name": name, "a": _num(e["a"]), "b": _num(e["b"]), "delta": _signed(e["delta"]),
                           "ci": f"[{_signed(lo)}, {_signed(hi)}]" if lo is not None and hi is not None
                           else "no interval (too few frames)"})
+    classes = []
+    for cls, figs in (report.get("per_class") or {}).items():
+        for fig, e in figs.items():
+            lo, hi = e["ci"]
+            classes.append({"name": cls, "figure": fig, "a": _num(e["a"]), "b": _num(e["b"]),
+                            "delta": _signed(e["delta"]),
+                            "ci": f"[{_signed(lo)}, {_signed(hi)}]" if lo is not None and hi is not None
+                            else "no interval (too few frames)"})
     ag = report["agreement"]
     frames = []
     by_key = {(f["log"], f["index"]): f for f in report["frames"]}
@@ -274,7 +282,7 @@ def page_context(report: dict[str, Any]) -> dict[str, Any]:
         "a": report["a"], "b": report["b"], "verdict": v["line"], "truth": report["truth"] or "none (agreement only)",
         "region": report["region"], "diff": [{"key": d["key"], "a": _param(d["a"]), "b": _param(d["b"])}
                                              for d in report["config_difference"]],
-        "differences": diffs,
+        "differences": diffs, "classes": classes,
         "wins": v.get("wins"), "losses": v.get("losses"), "ties": v.get("ties"),
         "sign_p": _num(v.get("sign_test_p"), ".3g"),
         "agreement": {"both": ag["both"], "only_a": ag["only_a"], "only_b": ag["only_b"], "alpha": _num(ag["alpha"]),

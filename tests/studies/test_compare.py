@@ -226,3 +226,24 @@ def test_a_blobs_height_and_distance_to_what_was_kept():
     blobs = disagreement_blobs("l", 0, 0, a, b, where, xyz=xyz)
     assert all(bl.height_mm is None and bl.part_mm is None for bl in blobs)
     assert all(bl.height_mm is None for bl in disagreement_blobs("l", 0, 0, a, b, where))  # no points given
+
+
+def test_per_class_figures_equal_accuracys(data, tmp_path, capsys):
+    """compare.json's ``per_class``: A's and B's pooled cluster, singleton and per-kind figures are
+    those ``zcut accuracy`` reports for each side's method, and Δ is B − A (issue 33 item 5)."""
+    rc, out, err = run_cli(capsys, "compare", data / "log.mcap", "--a", "zcut", "--b", "sor", "--truth", "sensor",
+                           "-o", tmp_path / "c", "--no-rrd", "--json")
+    assert rc == 0, err
+    per = json.loads(out)["per_class"]
+    acc = _accuracy(capsys, data / "log.mcap", "--truth", "sensor", "--methods", "zcut,sor")["pooled"]
+    for side, m in (("a", "zcut"), ("b", "sor")):
+        assert per["clusters"]["recall"][side] == pytest.approx(acc[m]["cluster_recall"])
+        assert per["singletons"]["precision"][side] == pytest.approx(acc[m]["singletons_precision"])
+        for kind, k in acc[m]["by_kind"].items():
+            if k["n"]:
+                assert per[f"kind {kind}"]["recall"][side] == pytest.approx(k["recall"]), kind
+    for cls in per.values():
+        for e in cls.values():
+            assert e["delta"] == pytest.approx(e["b"] - e["a"])
+    page = (tmp_path / "c" / "report.html").read_text()
+    assert "Per class of the truth" in page and "kind floating" in page
