@@ -243,10 +243,10 @@ def run_batch_unit(unit: WorkUnit, job: Job) -> UnitResult:
 
 def _batch_frames(unit: WorkUnit, job: Job, res: UnitResult, session: ReplaySession, truth_src: TruthSource) -> None:
     from annotate.truth import scored_region
-    from replay.pipeline.session import FrameRow, true_poses_of
+    from replay.pipeline.session import FrameRow
 
     sinks = _per_log_sinks(unit, job, session)
-    poses = true_poses_of(session.reader.metadata)
+    poses = session.true_poses()
     results = session.results(frames=(unit.start, unit.stop))
     completed = False
     try:

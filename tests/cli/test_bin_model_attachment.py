@@ -236,3 +236,31 @@ def test_the_raytraced_sensor_attaches_the_same_bin(tmp_path):
 
     rt = write_raytraced_log(tmp_path / "rt.mcap", kind="spheres", frames=1, seed=3, size=(40, 64), fill_mm=20.0)
     assert LogReader(rt).bin_model_ply == bin_model_ply()
+
+
+def test_a_pose_error_only_for_a_model_in_the_truths_frame(logs, capsys, tmp_path):
+    """The log's own model, attached or given as the same file: a pose error against the true pose; a
+    model turned by 0.5° about the bin's centre (another frame: its own displacement would be read as
+    the registration's error) registers as well, but its pose error is null (issue 31)."""
+    from replay.pipeline.bin_model import save_bin_model
+    from zcut.bin_model import BinModel
+
+    _, synth, _, _ = logs
+    own = LogReader(synth).attached_bin_model
+    same, turned = tmp_path / "same.ply", tmp_path / "turned.ply"
+    save_bin_model(BinModel(own.points.astype(np.float64), own.normals.astype(np.float64), 0.002), same)
+    a = np.radians(0.5)
+    R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    c = own.points.mean(axis=0)
+    pts = (own.points.astype(np.float64) - c) @ R.T + c
+    save_bin_model(BinModel(pts, own.normals.astype(np.float64) @ R.T, 0.002), turned)
+    for model, stated in ((None, True), (same, True), (turned, False)):
+        argv = ["replay", synth, "--json"] + (["--bin-model", model] if model is not None else [])
+        rc, out, err = run_cli(capsys, *argv)
+        assert rc == 0, err
+        rows = json.loads(out)["frames"]
+        assert all(r["rmse_mm"] is not None for r in rows), rows
+        if stated:
+            assert all(r["pose_error_mm"] is not None and r["pose_error_mm"] < 3.0 for r in rows), (model, rows)
+        else:
+            assert all(r["pose_error_mm"] is None and r["pose_error_deg"] is None for r in rows), rows
