@@ -5,7 +5,8 @@ Run: ``.venv/bin/python bench/bench_removal.py [--sizes 640x480,1920x1200,3840x2
 
 For each size, synthesises (once, cached in ``--dir``) a log of N filled-bin frames of ``--kind`` (its own
 bin model attached), locates the bin in each frame as the replay does (bin mask, registration: not
-timed), then times on each frame, alternating, ``R`` times each:
+timed), then times on each frame, alternating, ``R`` times each (BLAS limited to one thread, as the
+replay session limits it: a multi-threaded BLAS spins ~30 CPU-ms in the residuals' small matrix product):
 
 - ``removal``: :func:`zcut.removal.remove_table_and_bin` with ``reference=True`` (the previous
   implementation) and without (the fast path);
@@ -21,19 +22,23 @@ log (with its bin model) instead, at its own size.
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
 
-from replay.pipeline import stages
-from replay.pipeline.bin_model import bin_model_for
-from replay.pipeline.session import ReplaySession
-from replay.synth.log import write_synthetic_log
-from zcut.bin_check import check_bin_removal
-from zcut.removal import remove_table_and_bin
+import numpy as np  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
+
+from replay.pipeline import stages  # noqa: E402
+from replay.pipeline.bin_model import bin_model_for  # noqa: E402
+from replay.pipeline.session import ReplaySession  # noqa: E402
+from replay.synth.log import write_synthetic_log  # noqa: E402
+from zcut.bin_check import check_bin_removal  # noqa: E402
+from zcut.removal import remove_table_and_bin  # noqa: E402
 
 FIELDS = ("table", "easy_outliers", "bin_points", "zone", "height_mm", "xyz")
 
@@ -108,7 +113,8 @@ def main() -> None:
           "stage = removal + bin check")
     print(f"  {'size':>10s} {'what':8s} {'old':>8s} {'new':>8s} {'old/new':>8s} {'old/Mpx':>8s} {'new/Mpx':>8s}")
     for log in logs:
-        r = measure(log, args.frames, args.repeats)
+        with threadpool_limits(limits=1, user_api="blas"):
+            r = measure(log, args.frames, args.repeats)
         for what in ("removal", "stage"):
             o, n = r[f"{what} old"], r[f"{what} new"]
             print(f"  {int(r['w']):>5d}x{int(r['h']):<4d} {what:8s} {o:8.1f} {n:8.1f} {o / n:8.2f} "

@@ -129,18 +129,25 @@ class _ModelIndex:
     floor_b: float  # 0.5th percentile
     ijk: np.ndarray  # (N, 3) int64: the cell of each point, sorted by cell
     busy: np.ndarray  # (n_cells,) bool: some model point in the cell or one of its 26 neighbours
+    order: np.ndarray  # (N,) int64: the model's index of each sorted point
+    empty_to: np.ndarray  # (n_cells,) uint8: Chebyshev distance in cells to the nearest occupied cell (<= 255)
+    box: np.ndarray  # (n_cells, 6) float64: each cell's points' bounds (lo xyz, hi xyz; empty: +inf, -inf)
 
 
 GRID_CELL_M = 0.002
 
 
-def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) -> _ModelIndex:
-    """Search structures of a model array, valid for search radii up to ``radius``."""
+def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float, *,
+                 boxes: bool = True) -> _ModelIndex:
+    """Search structures of a model array, valid for search radii up to ``radius`` (``boxes``: with the
+    cells' bounds, which the fast path's bin and straggler tests read; the nearest-point grid has none)."""
     cell = max(GRID_CELL_M, float(radius))
     if len(points) == 0:  # an empty model: one empty cell, no point is ever near it
         empty = np.zeros((0, 3))
         return _ModelIndex(cell, np.zeros(3), np.full(3, 3, np.int64), np.zeros(28, np.int64), empty, empty.copy(),
-                           np.zeros(0), float("nan"), float("nan"), np.zeros((0, 3), np.int64), np.zeros(27, bool))
+                           np.zeros(0), float("nan"), float("nan"), np.zeros((0, 3), np.int64), np.zeros(27, bool),
+                           np.zeros(0, np.int64), np.full(27, 255, np.uint8),
+                           np.concatenate([np.full((27, 3), np.inf), np.full((27, 3), -np.inf)], axis=1))
     origin = points.min(axis=0) - 2 * cell
     ijk = np.floor((points - origin) / cell).astype(np.int64)
     dims = ijk.max(axis=0) + 3
@@ -153,17 +160,29 @@ def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) 
     offsets = np.einsum("ij,ij->i", points, nrm)
     # a cell whose 27-cell neighbourhood holds no model point: no search from it finds one (model points lie in
     # cells 2 .. dims - 3, the searched cells of a point inside 1 .. dims - 2 are within its neighbourhood)
+    from scipy import ndimage
+
     occupied = (counts > 0).reshape(tuple(int(d) for d in dims))
-    busy = np.zeros_like(occupied)
-    for dx in (-1, 0, 1):
-        for dy in (-1, 0, 1):
-            for dz in (-1, 0, 1):
-                busy[1:-1, 1:-1, 1:-1] |= occupied[1 + dx:dims[0] - 1 + dx, 1 + dy:dims[1] - 1 + dy,
-                                                   1 + dz:dims[2] - 1 + dz]
+    # each cell's Chebyshev distance (in cells) to the nearest occupied one: <= 1 is "busy"
+    empty_to = np.minimum(ndimage.distance_transform_cdt(~occupied, metric="chessboard"), 255).astype(np.uint8)
+    busy = empty_to <= 1
     return _ModelIndex(cell, origin, dims.astype(np.int64), start,
                        np.ascontiguousarray(points[order], np.float64), np.ascontiguousarray(nrm[order]),
                        offsets[order], float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5)),
-                       np.ascontiguousarray(ijk[order]), busy.reshape(-1))
+                       np.ascontiguousarray(ijk[order]), busy.reshape(-1), order, empty_to.reshape(-1),
+                       _cell_boxes(points[order], start, counts) if boxes else np.zeros((0, 6)))
+
+
+def _cell_boxes(points: np.ndarray, start: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """(n_cells, 6): the bounds of each cell's points (lo x, y, z, hi x, y, z; +inf, -inf when empty), from
+    the points sorted by cell."""
+    n = len(counts)
+    box = np.concatenate([np.full((n, 3), np.inf), np.full((n, 3), -np.inf)], axis=1)
+    full = np.flatnonzero(counts)
+    for k in range(3):
+        box[full, k] = np.minimum.reduceat(points[:, k], start[full])
+        box[full, 3 + k] = np.maximum.reduceat(points[:, k], start[full])
+    return box
 
 
 @dataclass(frozen=True, slots=True)
@@ -185,6 +204,10 @@ class RemovalIndex:
         Cell grid for the straggler test (None when ``params.straggler_mm`` is 0).
     tree : scipy.spatial.cKDTree or None
         Over the model's points, for the residuals of :func:`frame_tolerance` and of the bin check.
+    nearest : _ModelIndex or None
+        A finer cell grid (:data:`GRID_CELL_M`) answering the tree's nearest-point queries of the residuals
+        (the same points and distances, :func:`_nearest_grid`; ~4x cheaper); the tree answers the few
+        where the two could differ.
     """
 
     model: BinModel
@@ -195,6 +218,7 @@ class RemovalIndex:
     bin: _ModelIndex
     straggler: _ModelIndex | None
     tree: cKDTree | None = None
+    nearest: _ModelIndex | None = None
 
 
 def _radius(params: RemovalParams, spacing_m: float, delta_m: float) -> float:
@@ -228,7 +252,8 @@ def prepare_removal_index(model: BinModel, params: RemovalParams) -> RemovalInde
     tree = cKDTree(model.points)
     rim_b, floor_b = (float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5))) if len(h) else (np.nan, np.nan)
     return RemovalIndex(model, params, rim_b, floor_b, _radius(params, model.spacing_m, params.delta_m),
-                        _model_index(model.points, model.normals, r_bin), straggler, tree)
+                        _model_index(model.points, model.normals, r_bin), straggler, tree,
+                        _model_index(model.points, model.normals, GRID_CELL_M, boxes=False))
 
 
 @numba.njit(cache=True, inline="always")
@@ -425,12 +450,14 @@ _INVALID, _TABLE, _EASY, _BIN, _OPEN, _TRIED = 0, 1, 2, 3, 4, 5
 
 
 @numba.njit(cache=True, inline="always")
-def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, delta, radius, planes, hint):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius, planes, hint):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """:func:`_near_one` as an index: a model point that passes (-1: none), the same answer.
 
     A cell whose neighbourhood holds no model point answers -1 at once; ``hint`` (a point that passed for a
     nearby pixel, or -1) is tried first, when it lies in one of the cells :func:`_near_one` searches: the
-    answer "some point passes" is then the same, whichever point is found.
+    answer "some point passes" is then the same, whichever point is found. A cell whose points' bounds
+    (``box``) lie beyond the radius (with a relative margin of 1e-9 for the rounding) is skipped: none of
+    its points is within it.
     """
     fx = (px - origin[0]) / cell
     fy = (py - origin[1]) / cell
@@ -463,10 +490,18 @@ def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, 
                 d = np.sqrt(d2)
             if d <= delta:
                 return hint
+    skip2 = r2 * (1.0 + 1e-9) + 1e-18
     for dx in range(x0, x1 + 1):
         for dy in range(y0, y1 + 1):
             for dz in range(z0, z1 + 1):
                 c = ((ci + dx) * dims[1] + (cj + dy)) * dims[2] + (ck + dz)
+                if start[c] == start[c + 1]:
+                    continue
+                bx = max(box[c, 0] - px, px - box[c, 3], 0.0)
+                by = max(box[c, 1] - py, py - box[c, 4], 0.0)
+                bz = max(box[c, 2] - pz, pz - box[c, 5], 0.0)
+                if bx * bx + by * by + bz * bz > skip2:
+                    continue
                 for j in range(start[c], start[c + 1]):
                     ex = px - pts[j, 0]
                     ey = py - pts[j, 1]
@@ -485,7 +520,7 @@ def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _classify_codes(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm, off,  # type: ignore[no-untyped-def]  # numba kernel
-                    ijk, busy, delta, radius, planes, code):  # pragma: no cover - numba
+                    ijk, busy, box, delta, radius, planes, code):  # pragma: no cover - numba
     """:func:`_classify` into one (H, W) uint8 image of class codes (``_INVALID`` .. ``_OPEN``)."""
     H, W = fp.shape
     for r in numba.prange(H):
@@ -502,8 +537,8 @@ def _classify_codes(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, 
             if bin_first:
                 j = -1
                 if test_bin:
-                    j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, delta, radius,
-                                   planes, hint)
+                    j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta,
+                                   radius, planes, hint)
                 if j >= 0:
                     k = _BIN
                     hint = j
@@ -512,7 +547,7 @@ def _classify_codes(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, 
             elif -pz > easy_above:
                 k = _EASY
             elif test_bin:
-                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, delta, radius,
+                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,
                                planes, hint)
                 if j >= 0:
                     k = _BIN
@@ -534,35 +569,71 @@ def _labelled_around(code, r, c, H, W):  # type: ignore[no-untyped-def]  # numba
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _straggler_first(code, neighbours, first):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """:func:`_straggler_start`'s candidates from the codes: open pixels with >= ``neighbours`` labelled ones
-    (the counts only at the open pixels)."""
+def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,  # type: ignore[no-untyped-def]  # numba kernel
+                     planes, first):  # pragma: no cover - numba
+    """The straggler test's first pass in one pass over the frame: ``first`` (uint8) is 1 at
+    :func:`_straggler_start`'s candidates (open pixels with >= ``neighbours`` labelled ones; the counts only
+    at the open pixels) that fail the test, 2 at those that pass. ``code`` is only read: every candidate
+    is judged on the labels before the pass, as the reference's first pass judges them."""
     H, W = code.shape
     for r in numba.prange(H):
-        for c in range(W):
-            first[r, c] = code[r, c] == _OPEN and _labelled_around(code, r, c, H, W) >= neighbours
-
-
-@numba.njit(parallel=True, cache=True, nogil=True)
-def _test_codes(a, flat, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, delta, radius,  # type: ignore[no-untyped-def]  # numba kernel
-                planes):  # pragma: no cover - numba
-    """:func:`_test_pixels` by chunks of neighbouring candidates, each trying first the point of the last pass."""
-    W = a.shape[1]
-    n = flat.shape[0]
-    ok = np.zeros(n, np.bool_)
-    chunk = 512
-    for b in numba.prange((n + chunk - 1) // chunk):
         hint = -1
-        for i in range(b * chunk, min(n, (b + 1) * chunk)):
-            r = flat[i] // W
-            c = flat[i] - r * W
+        for c in range(W):
+            first[r, c] = 0
+            if code[r, c] == _OPEN and _labelled_around(code, r, c, H, W) >= neighbours:
+                px, py, pz = _to_bin(a, r, c, R, t)
+                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,
+                               planes, hint)
+                first[r, c] = 1
+                if j >= 0:
+                    first[r, c] = 2
+                    hint = j
+
+
+@numba.njit(cache=True, nogil=True)
+def _straggler_rest(a, code, first, neighbours, passes, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,  # type: ignore[no-untyped-def]  # numba kernel
+                    delta, radius, planes):  # pragma: no cover - numba
+    """The first pass's outcome (``first``) into ``code``, then the passes after it (up to ``passes`` in
+    all), each testing the open neighbours of the pixels the previous one labelled (serial: a few
+    pixels each; a parallel launch would cost more than them)."""
+    cf = code.reshape(-1)
+    ff = first.reshape(-1)
+    n = 0
+    for q in range(ff.shape[0]):
+        if ff[q] == 2:
+            n += 1
+    new = np.empty(n, np.int64)
+    n = 0
+    for q in range(ff.shape[0]):
+        if ff[q]:
+            cf[q] = _TRIED
+            if ff[q] == 2:
+                new[n] = q
+                n += 1
+    W = code.shape[1]
+    for _ in range(passes - 1):
+        if new.shape[0] == 0:
+            break
+        cand = _grow_codes(new, code, neighbours)
+        if cand.shape[0] == 0:
+            break
+        ok = np.zeros(cand.shape[0], np.bool_)
+        hint = -1
+        for i in range(cand.shape[0]):
+            q = cand[i]
+            cf[q] = _TRIED
+            r = q // W
+            c = q - r * W
             px, py, pz = _to_bin(a, r, c, R, t)
-            j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, delta, radius, planes,
+            j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius, planes,
                            hint)
             if j >= 0:
                 ok[i] = True
                 hint = j
-    return ok
+        new = cand[ok]
+    if new.shape[0]:
+        for p in new:
+            cf[p] = _BIN
 
 
 @numba.njit(cache=True, nogil=True)
@@ -630,20 +701,78 @@ def _straggler_codes(a: np.ndarray, code: np.ndarray, R: np.ndarray, t: np.ndarr
                      straggler_m: float, radius_m: float, planes: bool, neighbours: int) -> None:
     """:func:`_straggler_passes` on the class codes (in place): the same passes, each testing only the open
     neighbours of the pixels the previous one labelled."""
-    grid = _grid_args(index)
-    first = np.empty(code.shape, bool)
-    _straggler_first(code, neighbours, first)
-    cand = np.flatnonzero(first)
-    code_f = code.reshape(-1)
-    for _ in range(STRAGGLER_PASSES):
-        if cand.size == 0:
-            break
-        code_f[cand] = _TRIED
-        near = _test_codes(a, cand, R, t, *grid, index.ijk, index.busy, float(straggler_m), float(radius_m), planes)
-        new = cand[near]
-        if new.size == 0:
-            break
-        cand = _grow_codes(new, code, neighbours)
+    grid = (*_grid_args(index), index.ijk, index.busy, index.box, float(straggler_m), float(radius_m), planes)
+    first = np.empty(code.shape, np.uint8)
+    _straggler_first(a, code, neighbours, R, t, *grid, first)
+    _straggler_rest(a, code, first, neighbours, STRAGGLER_PASSES, R, t, *grid)
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _nearest_grid(p, origin, cell, dims, start, pts, empty_to, ub):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """Nearest model point of each row of ``p`` (M, 3) within ``ub`` as ``cKDTree.query`` finds it.
+
+    Returns ``(d2, j, unsure)``: the squared distance (computed as the tree computes it: the three
+    squared differences summed in order; +inf when no point lies within ``ub``), the point (sorted
+    order; -1 for none) and whether the answer may differ from the tree's (another point within a
+    relative 1e-9 of the same distance, or the distance within that of ``ub``: the tree's visiting
+    order or its pruning's rounding could decide; those rows are left to the tree). The cells are
+    searched shell by shell around the point's, from the first that holds a point (``empty_to``), until
+    the next shell lies farther than the best.
+    """
+    M = p.shape[0]
+    d2_out = np.full(M, np.inf)
+    j_out = np.full(M, -1, np.int64)
+    unsure = np.zeros(M, np.bool_)
+    ub2 = ub * ub
+    K = int(np.ceil(ub / cell)) + 2
+    for i in numba.prange(M):
+        px = p[i, 0]
+        py = p[i, 1]
+        pz = p[i, 2]
+        ci = int(np.floor((px - origin[0]) / cell))
+        cj = int(np.floor((py - origin[1]) / cell))
+        ck = int(np.floor((pz - origin[2]) / cell))
+        best = np.inf
+        second = np.inf
+        jb = -1
+        k0 = 0  # the shells nearer than the nearest occupied cell are empty
+        if 0 <= ci < dims[0] and 0 <= cj < dims[1] and 0 <= ck < dims[2]:
+            k0 = min(int(empty_to[(ci * dims[1] + cj) * dims[2] + ck]), K + 1)
+        for k in range(k0, K + 1):
+            if k >= 2:
+                gap = (k - 1) * cell * (1.0 - 1e-9)  # every cell of shell k lies at least this far
+                g2 = gap * gap
+                if g2 > ub2 * (1.0 + 1e-6) or g2 > best * (1.0 + 1e-6):
+                    break
+            for a in range(ci - k, ci + k + 1):
+                if a < 0 or a >= dims[0]:
+                    continue
+                for b in range(cj - k, cj + k + 1):
+                    if b < 0 or b >= dims[1]:
+                        continue
+                    edge = a == ci - k or a == ci + k or b == cj - k or b == cj + k
+                    step = 1 if edge else 2 * k
+                    c3 = ck - k
+                    while c3 <= ck + k:
+                        if 0 <= c3 < dims[2]:
+                            c = (a * dims[1] + b) * dims[2] + c3
+                            for j in range(start[c], start[c + 1]):
+                                dx = pts[j, 0] - px
+                                dy = pts[j, 1] - py
+                                dz = pts[j, 2] - pz
+                                d2 = dx * dx + dy * dy + dz * dz
+                                if d2 < best:
+                                    second = best
+                                    best = d2
+                                    jb = j
+                                elif d2 < second:
+                                    second = d2
+                        c3 += step if step > 0 else 1
+        if best < ub2:
+            d2_out[i] = best
+            j_out[i] = jb
+        unsure[i] = best < np.inf and (second <= best * (1.0 + 1e-9) or abs(best - ub2) <= ub2 * 1e-9)
+    return d2_out, j_out, unsure
 
 
 def _grid_args(index: _ModelIndex) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -938,9 +1067,7 @@ def _query(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) 
     ok = np.isfinite(pts).all(axis=1)
     p_bin = (pts[ok] - T[:3, 3]) @ T[:3, :3]
     p_all[ok] = p_bin
-    tree = index.tree
-    assert tree is not None  # prepare_removal_index builds it in both modes
-    d, j = tree.query(p_bin, k=1, distance_upper_bound=index.params.max_tolerance_mm / 1000.0)
+    d, j = _nearest_points(p_bin, index)
     found = np.isfinite(d)
     r = np.full(len(p_bin), np.inf)
     if model.normals is None:
@@ -951,6 +1078,25 @@ def _query(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) 
     out[ok] = r * 1000.0
     near[ok] = d * 1000.0
     return _Queried(flat, p_all, out, near)
+
+
+def _nearest_points(p_bin: np.ndarray, index: RemovalIndex) -> tuple[np.ndarray, np.ndarray]:
+    """``cKDTree.query(p_bin, k=1, distance_upper_bound=max_tolerance)`` of the model's tree, the same
+    distances and points (+inf and ``len(points)`` for none), from the grid :attr:`RemovalIndex.nearest`
+    where it is sure to give them, from the tree elsewhere."""
+    tree = index.tree
+    assert tree is not None  # prepare_removal_index builds it in both modes
+    ub = index.params.max_tolerance_mm / 1000.0
+    g = index.nearest
+    if g is None:
+        return tree.query(p_bin, k=1, distance_upper_bound=ub)  # type: ignore[no-any-return]
+    d2, js, unsure = _nearest_grid(np.ascontiguousarray(p_bin), g.origin, g.cell, g.dims, g.start, g.points,
+                                   g.empty_to, ub)
+    d = np.sqrt(d2)
+    j = np.where(js >= 0, g.order[np.maximum(js, 0)], len(index.model.points))
+    if unsure.any():
+        d[unsure], j[unsure] = tree.query(p_bin[unsure], k=1, distance_upper_bound=ub)
+    return d, j
 
 
 def _nearest_again(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray, q: _Queried) -> np.ndarray:
@@ -967,10 +1113,7 @@ def _nearest_again(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.n
     same = (p_bin == q.p_bin[at]).all(axis=1)
     d = q.nearest_mm[at]
     if not same.all():
-        tree = index.tree
-        assert tree is not None
-        d2, _ = tree.query(p_bin[~same], k=1, distance_upper_bound=index.params.max_tolerance_mm / 1000.0)
-        d[~same] = d2 * 1000.0
+        d[~same] = _nearest_points(p_bin[~same], index)[0] * 1000.0
     out[ok] = d
     return out
 
@@ -1236,12 +1379,13 @@ def remove_table_and_bin(
     plane = abs(up[2]) > 1e-6
     if not reference:
         code = np.empty(shape, np.uint8)
-        _classify_codes(a, fp, R, t, index.rim_b + p.rim_offset_m, delta_m > 0, p.robust, *_grid_args(index.bin),
-                        index.bin.ijk, index.bin.busy, float(delta_m), float(r_bin), planes, code)
+        g = index.bin
+        _classify_codes(a, fp, R, t, index.rim_b + p.rim_offset_m, delta_m > 0, p.robust, *_grid_args(g),
+                        g.ijk, g.busy, g.box, float(delta_m), float(r_bin), planes, code)
         if index.straggler is not None:
+            r_s = r_str if planes else straggler_m
             _straggler_codes(a, code, R, t, index.straggler, straggler_m=straggler_m,
-                             radius_m=r_str if planes else straggler_m, planes=planes,
-                             neighbours=int(p.straggler_neighbours))
+                             radius_m=r_s, planes=planes, neighbours=int(p.straggler_neighbours))
         z_far = np.nan
         if not plane:  # a bin seen from the side: fall back to the farthest point
             z_far = float(np.nanmax(a[..., 2][code != _INVALID])) if (code != _INVALID).any() else np.nan
