@@ -708,20 +708,20 @@ def _straggler_codes(a: np.ndarray, code: np.ndarray, R: np.ndarray, t: np.ndarr
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _nearest_grid(p, origin, cell, dims, start, pts, empty_to, ub):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+def _nearest_grid(p, origin, cell, dims, start, pts, empty_to, order, ub):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """Nearest model point of each row of ``p`` (M, 3) within ``ub`` as ``cKDTree.query`` finds it.
 
-    Returns ``(d2, j, unsure)``: the squared distance (computed as the tree computes it: the three
-    squared differences summed in order; +inf when no point lies within ``ub``), the point (sorted
-    order; -1 for none) and whether the answer may differ from the tree's (another point within a
+    Returns ``(d, j, unsure)``: the distance (computed as the tree computes it: the square root of the
+    three squared differences summed in order; +inf when no point lies within ``ub``), the point (the
+    model's index, ``order``; ``len(order)`` for none, as the tree says) and whether the answer may differ from the tree's (another point within a
     relative 1e-9 of the same distance, or the distance within that of ``ub``: the tree's visiting
     order or its pruning's rounding could decide; those rows are left to the tree). The cells are
     searched shell by shell around the point's, from the first that holds a point (``empty_to``), until
     the next shell lies farther than the best.
     """
     M = p.shape[0]
-    d2_out = np.full(M, np.inf)
-    j_out = np.full(M, -1, np.int64)
+    d_out = np.full(M, np.inf)
+    j_out = np.full(M, order.shape[0], np.int64)
     unsure = np.zeros(M, np.bool_)
     ub2 = ub * ub
     K = int(np.ceil(ub / cell)) + 2
@@ -769,10 +769,10 @@ def _nearest_grid(p, origin, cell, dims, start, pts, empty_to, ub):  # type: ign
                                     second = d2
                         c3 += step if step > 0 else 1
         if best < ub2:
-            d2_out[i] = best
-            j_out[i] = jb
+            d_out[i] = np.sqrt(best)
+            j_out[i] = order[jb]
         unsure[i] = best < np.inf and (second <= best * (1.0 + 1e-9) or abs(best - ub2) <= ub2 * 1e-9)
-    return d2_out, j_out, unsure
+    return d_out, j_out, unsure
 
 
 def _grid_args(index: _ModelIndex) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -1063,9 +1063,8 @@ def _query(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) 
     model = index.model
     if len(flat) == 0 or len(model.points) == 0:
         return _Queried(flat, p_all, out, near)
-    pts = a.reshape(-1, 3)[flat].astype(np.float64)
-    ok = np.isfinite(pts).all(axis=1)
-    p_bin = (pts[ok] - T[:3, 3]) @ T[:3, :3]
+    pts, ok = _gather_finite(a, flat)
+    p_bin = (pts - T[:3, 3]) @ T[:3, :3]  # numpy's product, as the reference's: the same rounding
     p_all[ok] = p_bin
     d, j = _nearest_points(p_bin, index)
     found = np.isfinite(d)
@@ -1073,11 +1072,57 @@ def _query(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) 
     if model.normals is None:
         r[found] = d[found]
     else:
-        jj = j[found]
-        r[found] = np.abs(np.einsum("ij,ij->i", p_bin[found] - model.points[jj], model.normals[jj]))
+        diff, nrm = _residual_parts(p_bin, j, model.points, model.normals)
+        r[found] = np.abs(np.einsum("ij,ij->i", diff, nrm))
     out[ok] = r * 1000.0
     near[ok] = d * 1000.0
     return _Queried(flat, p_all, out, near)
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_finite(a, flat):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``(pts, ok)``: the float64 points of the pixels ``flat`` whose three coordinates are finite (in
+    order) and which ones those are: ``a.reshape(-1, 3)[flat].astype(np.float64)`` and its finite rows."""
+    n = flat.shape[0]
+    W = a.shape[1]
+    ok = np.zeros(n, np.bool_)
+    pts = np.empty((n, 3))
+    m = 0
+    for i in range(n):
+        r = flat[i] // W
+        c = flat[i] - r * W
+        x = np.float64(a[r, c, 0])
+        y = np.float64(a[r, c, 1])
+        z = np.float64(a[r, c, 2])
+        if np.isfinite(x) and np.isfinite(y) and np.isfinite(z):
+            ok[i] = True
+            pts[m, 0] = x
+            pts[m, 1] = y
+            pts[m, 2] = z
+            m += 1
+    return pts[:m], ok
+
+
+@numba.njit(cache=True, nogil=True)
+def _residual_parts(p_bin, j, points, normals):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``(p_bin[found] - points[j[found]], normals[j[found]])`` where ``j`` names a point (``found``: below
+    ``len(points)``), the operands of the residuals' ``einsum`` in one pass."""
+    n = points.shape[0]
+    k = 0
+    for i in range(j.shape[0]):
+        if j[i] < n:
+            k += 1
+    diff = np.empty((k, 3))
+    nrm = np.empty((k, 3))
+    k = 0
+    for i in range(j.shape[0]):
+        q = j[i]
+        if q < n:
+            for c in range(3):
+                diff[k, c] = p_bin[i, c] - points[q, c]
+                nrm[k, c] = normals[q, c]
+            k += 1
+    return diff, nrm
 
 
 def _nearest_points(p_bin: np.ndarray, index: RemovalIndex) -> tuple[np.ndarray, np.ndarray]:
@@ -1089,11 +1134,9 @@ def _nearest_points(p_bin: np.ndarray, index: RemovalIndex) -> tuple[np.ndarray,
     ub = index.params.max_tolerance_mm / 1000.0
     g = index.nearest
     if g is None:
-        return tree.query(p_bin, k=1, distance_upper_bound=ub)  # type: ignore[no-any-return]
-    d2, js, unsure = _nearest_grid(np.ascontiguousarray(p_bin), g.origin, g.cell, g.dims, g.start, g.points,
-                                   g.empty_to, ub)
-    d = np.sqrt(d2)
-    j = np.where(js >= 0, g.order[np.maximum(js, 0)], len(index.model.points))
+        return tree.query(p_bin, k=1, distance_upper_bound=ub)
+    d, j, unsure = _nearest_grid(np.ascontiguousarray(p_bin), g.origin, g.cell, g.dims, g.start, g.points,
+                                 g.empty_to, g.order, ub)
     if unsure.any():
         d[unsure], j[unsure] = tree.query(p_bin[unsure], k=1, distance_upper_bound=ub)
     return d, j
