@@ -173,7 +173,7 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         a = np.asarray(xyz)
         if a.shape[:2] != ring.shape:
             raise InputShapeError(f"xyz must be an {ring.shape} image of points, got {describe_array(a)}")
-        res, around, _ = surface_residuals(a, ring, index, T_cam_bin)
+        res, around, _ = surface_residuals(a, ring, index, T_cam_bin, removal=removal)  # measured once
         far = far_share(res, around)
     if all(given) and offending.any():
         assert xyz is not None and index is not None and T_cam_bin is not None

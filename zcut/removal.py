@@ -85,6 +85,9 @@ class RemovalResult:
         The search radius of the bin test (mm): a point is bin when a model point within it lies
         within ``tolerance_mm`` of the point along its normal. Robust mode: at least the frame's
         reach (:attr:`Tolerance.reach_mm`); NaN when no model was registered.
+    surface : optional
+        The ring's residuals :func:`frame_tolerance` measured (:func:`surface_residuals` returns them
+        for the same ring, model and pose instead of measuring again); None when not measured.
     """
 
     table: Mask
@@ -99,6 +102,7 @@ class RemovalResult:
     tolerance_mm: float = float("nan")
     residual_mm: float = float("nan")
     radius_mm: float = float("nan")
+    surface: _Surface | None = None
 
     @property
     def labelled(self) -> Mask:
@@ -123,18 +127,27 @@ class _ModelIndex:
     offsets: np.ndarray  # (N,) float64: n . m, sorted by cell
     rim_b: float  # 99.5th percentile of the model's height (-z), bin frame
     floor_b: float  # 0.5th percentile
+    ijk: np.ndarray  # (N, 3) int64: the cell of each point, sorted by cell
+    busy: np.ndarray  # (n_cells,) bool: some model point in the cell or one of its 26 neighbours
+    order: np.ndarray  # (N,) int64: the model's index of each sorted point
+    empty_to: np.ndarray  # (n_cells,) uint8: Chebyshev distance in cells to the nearest occupied cell (<= 255)
+    box: np.ndarray  # (n_cells, 6) float64: each cell's points' bounds (lo xyz, hi xyz; empty: +inf, -inf)
 
 
 GRID_CELL_M = 0.002
 
 
-def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) -> _ModelIndex:
-    """Search structures of a model array, valid for search radii up to ``radius``."""
+def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float, *,
+                 boxes: bool = True) -> _ModelIndex:
+    """Search structures of a model array, valid for search radii up to ``radius`` (``boxes``: with the
+    cells' bounds, which the fast path's bin and straggler tests read; the nearest-point grid has none)."""
     cell = max(GRID_CELL_M, float(radius))
     if len(points) == 0:  # an empty model: one empty cell, no point is ever near it
         empty = np.zeros((0, 3))
         return _ModelIndex(cell, np.zeros(3), np.full(3, 3, np.int64), np.zeros(28, np.int64), empty, empty.copy(),
-                           np.zeros(0), float("nan"), float("nan"))
+                           np.zeros(0), float("nan"), float("nan"), np.zeros((0, 3), np.int64), np.zeros(27, bool),
+                           np.zeros(0, np.int64), np.full(27, 255, np.uint8),
+                           np.concatenate([np.full((27, 3), np.inf), np.full((27, 3), -np.inf)], axis=1))
     origin = points.min(axis=0) - 2 * cell
     ijk = np.floor((points - origin) / cell).astype(np.int64)
     dims = ijk.max(axis=0) + 3
@@ -145,9 +158,31 @@ def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) 
     nrm = np.zeros_like(points) if normals is None else np.ascontiguousarray(normals, np.float64)
     h = -points[:, 2]
     offsets = np.einsum("ij,ij->i", points, nrm)
+    # a cell whose 27-cell neighbourhood holds no model point: no search from it finds one (model points lie in
+    # cells 2 .. dims - 3, the searched cells of a point inside 1 .. dims - 2 are within its neighbourhood)
+    from scipy import ndimage
+
+    occupied = (counts > 0).reshape(tuple(int(d) for d in dims))
+    # each cell's Chebyshev distance (in cells) to the nearest occupied one: <= 1 is "busy"
+    empty_to = np.minimum(ndimage.distance_transform_cdt(~occupied, metric="chessboard"), 255).astype(np.uint8)
+    busy = empty_to <= 1
     return _ModelIndex(cell, origin, dims.astype(np.int64), start,
                        np.ascontiguousarray(points[order], np.float64), np.ascontiguousarray(nrm[order]),
-                       offsets[order], float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5)))
+                       offsets[order], float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5)),
+                       np.ascontiguousarray(ijk[order]), busy.reshape(-1), order, empty_to.reshape(-1),
+                       _cell_boxes(points[order], start, counts) if boxes else np.zeros((0, 6)))
+
+
+def _cell_boxes(points: np.ndarray, start: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """(n_cells, 6): the bounds of each cell's points (lo x, y, z, hi x, y, z; +inf, -inf when empty), from
+    the points sorted by cell."""
+    n = len(counts)
+    box = np.concatenate([np.full((n, 3), np.inf), np.full((n, 3), -np.inf)], axis=1)
+    full = np.flatnonzero(counts)
+    for k in range(3):
+        box[full, k] = np.minimum.reduceat(points[:, k], start[full])
+        box[full, 3 + k] = np.maximum.reduceat(points[:, k], start[full])
+    return box
 
 
 @dataclass(frozen=True, slots=True)
@@ -169,6 +204,10 @@ class RemovalIndex:
         Cell grid for the straggler test (None when ``params.straggler_mm`` is 0).
     tree : scipy.spatial.cKDTree or None
         Over the model's points, for the residuals of :func:`frame_tolerance` and of the bin check.
+    nearest : _ModelIndex or None
+        A finer cell grid (:data:`GRID_CELL_M`) answering the tree's nearest-point queries of the residuals
+        (the same points and distances, :func:`_nearest_grid`; ~4x cheaper); the tree answers the few
+        where the two could differ.
     """
 
     model: BinModel
@@ -179,6 +218,7 @@ class RemovalIndex:
     bin: _ModelIndex
     straggler: _ModelIndex | None
     tree: cKDTree | None = None
+    nearest: _ModelIndex | None = None
 
 
 def _radius(params: RemovalParams, spacing_m: float, delta_m: float) -> float:
@@ -212,7 +252,8 @@ def prepare_removal_index(model: BinModel, params: RemovalParams) -> RemovalInde
     tree = cKDTree(model.points)
     rim_b, floor_b = (float(np.percentile(h, 99.5)), float(np.percentile(h, 0.5))) if len(h) else (np.nan, np.nan)
     return RemovalIndex(model, params, rim_b, floor_b, _radius(params, model.spacing_m, params.delta_m),
-                        _model_index(model.points, model.normals, r_bin), straggler, tree)
+                        _model_index(model.points, model.normals, r_bin), straggler, tree,
+                        _model_index(model.points, model.normals, GRID_CELL_M, boxes=False))
 
 
 @numba.njit(cache=True, inline="always")
@@ -401,6 +442,339 @@ def _finish(a, valid, labelled, plane, floor, up, z_far, height, xyz_out):  # ty
                 height[r, c] = -1000.0 * np.float64(a[r, c, 2])
 
 
+# --- the fast path (issue 32): a class code per pixel, the model search skipping empty neighbourhoods and trying
+# first the model point that passed for the previous pixel. The kernels above are the reference (reference=True).
+
+#: The class codes of the fast path's (H, W) uint8 image.
+_INVALID, _TABLE, _EASY, _BIN, _OPEN, _TRIED = 0, 1, 2, 3, 4, 5
+
+
+@numba.njit(cache=True, inline="always")
+def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius, planes, hint):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """:func:`_near_one` as an index: a model point that passes (-1: none), the same answer.
+
+    A cell whose neighbourhood holds no model point answers -1 at once; ``hint`` (a point that passed for a
+    nearby pixel, or -1) is tried first, when it lies in one of the cells :func:`_near_one` searches: the
+    answer "some point passes" is then the same, whichever point is found. A cell whose points' bounds
+    (``box``) lie beyond the radius (with a relative margin of 1e-9 for the rounding) is skipped: none of
+    its points is within it.
+    """
+    fx = (px - origin[0]) / cell
+    fy = (py - origin[1]) / cell
+    fz = (pz - origin[2]) / cell
+    ci = int(np.floor(fx))
+    cj = int(np.floor(fy))
+    ck = int(np.floor(fz))
+    if ci < 1 or cj < 1 or ck < 1 or ci > dims[0] - 2 or cj > dims[1] - 2 or ck > dims[2] - 2:
+        return -1
+    if not busy[(ci * dims[1] + cj) * dims[2] + ck]:
+        return -1
+    reach = radius + 1e-9
+    x0 = -1 if (fx - ci) * cell <= reach else 0
+    x1 = 1 if (ci + 1 - fx) * cell <= reach else 0
+    y0 = -1 if (fy - cj) * cell <= reach else 0
+    y1 = 1 if (cj + 1 - fy) * cell <= reach else 0
+    z0 = -1 if (fz - ck) * cell <= reach else 0
+    z1 = 1 if (ck + 1 - fz) * cell <= reach else 0
+    r2 = radius * radius
+    if hint >= 0 and ci + x0 <= ijk[hint, 0] <= ci + x1 and cj + y0 <= ijk[hint, 1] <= cj + y1 \
+            and ck + z0 <= ijk[hint, 2] <= ck + z1:
+        ex = px - pts[hint, 0]
+        ey = py - pts[hint, 1]
+        ez = pz - pts[hint, 2]
+        d2 = ex * ex + ey * ey + ez * ez
+        if d2 <= r2:
+            if planes:
+                d = abs(nrm[hint, 0] * px + nrm[hint, 1] * py + nrm[hint, 2] * pz - off[hint])
+            else:
+                d = np.sqrt(d2)
+            if d <= delta:
+                return hint
+    skip2 = r2 * (1.0 + 1e-9) + 1e-18
+    for dx in range(x0, x1 + 1):
+        for dy in range(y0, y1 + 1):
+            for dz in range(z0, z1 + 1):
+                c = ((ci + dx) * dims[1] + (cj + dy)) * dims[2] + (ck + dz)
+                if start[c] == start[c + 1]:
+                    continue
+                bx = max(box[c, 0] - px, px - box[c, 3], 0.0)
+                by = max(box[c, 1] - py, py - box[c, 4], 0.0)
+                bz = max(box[c, 2] - pz, pz - box[c, 5], 0.0)
+                if bx * bx + by * by + bz * bz > skip2:
+                    continue
+                for j in range(start[c], start[c + 1]):
+                    ex = px - pts[j, 0]
+                    ey = py - pts[j, 1]
+                    ez = pz - pts[j, 2]
+                    d2 = ex * ex + ey * ey + ez * ez
+                    if d2 > r2:
+                        continue
+                    if planes:
+                        d = abs(nrm[j, 0] * px + nrm[j, 1] * py + nrm[j, 2] * pz - off[j])
+                    else:
+                        d = np.sqrt(d2)
+                    if d <= delta:
+                        return j
+    return -1
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _classify_codes(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm, off,  # type: ignore[no-untyped-def]  # numba kernel
+                    ijk, busy, box, delta, radius, planes, code):  # pragma: no cover - numba
+    """:func:`_classify` into one (H, W) uint8 image of class codes (``_INVALID`` .. ``_OPEN``)."""
+    H, W = fp.shape
+    for r in numba.prange(H):
+        hint = -1
+        for c in range(W):
+            if not (np.isfinite(a[r, c, 0]) and np.isfinite(a[r, c, 1]) and np.isfinite(a[r, c, 2])):
+                code[r, c] = _INVALID
+                continue
+            if not fp[r, c]:
+                code[r, c] = _TABLE
+                continue
+            px, py, pz = _to_bin(a, r, c, R, t)
+            k = _OPEN
+            if bin_first:
+                j = -1
+                if test_bin:
+                    j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta,
+                                   radius, planes, hint)
+                if j >= 0:
+                    k = _BIN
+                    hint = j
+                elif -pz > easy_above:
+                    k = _EASY
+            elif -pz > easy_above:
+                k = _EASY
+            elif test_bin:
+                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,
+                               planes, hint)
+                if j >= 0:
+                    k = _BIN
+                    hint = j
+            code[r, c] = k
+
+
+@numba.njit(cache=True, inline="always")
+def _labelled_around(code, r, c, H, W):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """How many of the 8 neighbours of (r, c) in the image are table, bin or invalid."""
+    k = 0
+    for rr in range(max(r - 1, 0), min(r + 2, H)):
+        for cc in range(max(c - 1, 0), min(c + 2, W)):
+            if rr != r or cc != c:
+                v = code[rr, cc]
+                if v == _INVALID or v == _TABLE or v == _BIN:
+                    k += 1
+    return k
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,  # type: ignore[no-untyped-def]  # numba kernel
+                     planes, first):  # pragma: no cover - numba
+    """The straggler test's first pass in one pass over the frame: ``first`` (uint8) is 1 at
+    :func:`_straggler_start`'s candidates (open pixels with >= ``neighbours`` labelled ones; the counts only
+    at the open pixels) that fail the test, 2 at those that pass. ``code`` is only read: every candidate
+    is judged on the labels before the pass, as the reference's first pass judges them."""
+    H, W = code.shape
+    for r in numba.prange(H):
+        hint = -1
+        for c in range(W):
+            first[r, c] = 0
+            if code[r, c] == _OPEN and _labelled_around(code, r, c, H, W) >= neighbours:
+                px, py, pz = _to_bin(a, r, c, R, t)
+                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,
+                               planes, hint)
+                first[r, c] = 1
+                if j >= 0:
+                    first[r, c] = 2
+                    hint = j
+
+
+@numba.njit(cache=True, nogil=True)
+def _straggler_rest(a, code, first, neighbours, passes, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,  # type: ignore[no-untyped-def]  # numba kernel
+                    delta, radius, planes):  # pragma: no cover - numba
+    """The first pass's outcome (``first``) into ``code``, then the passes after it (up to ``passes`` in
+    all), each testing the open neighbours of the pixels the previous one labelled (serial: a few
+    pixels each; a parallel launch would cost more than them)."""
+    cf = code.reshape(-1)
+    ff = first.reshape(-1)
+    n = 0
+    for q in range(ff.shape[0]):
+        if ff[q] == 2:
+            n += 1
+    new = np.empty(n, np.int64)
+    n = 0
+    for q in range(ff.shape[0]):
+        if ff[q]:
+            cf[q] = _TRIED
+            if ff[q] == 2:
+                new[n] = q
+                n += 1
+    W = code.shape[1]
+    for _ in range(passes - 1):
+        if new.shape[0] == 0:
+            break
+        cand = _grow_codes(new, code, neighbours)
+        if cand.shape[0] == 0:
+            break
+        ok = np.zeros(cand.shape[0], np.bool_)
+        hint = -1
+        for i in range(cand.shape[0]):
+            q = cand[i]
+            cf[q] = _TRIED
+            r = q // W
+            c = q - r * W
+            px, py, pz = _to_bin(a, r, c, R, t)
+            j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius, planes,
+                           hint)
+            if j >= 0:
+                ok[i] = True
+                hint = j
+        new = cand[ok]
+    if new.shape[0]:
+        for p in new:
+            cf[p] = _BIN
+
+
+@numba.njit(cache=True, nogil=True)
+def _grow_codes(new, code, neighbours):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """Label ``new`` bin in ``code`` and return :func:`_next_candidates` of them, marked tried."""
+    H, W = code.shape
+    cf = code.reshape(-1)
+    for p in new:
+        cf[p] = _BIN
+    out = np.empty(8 * new.shape[0], np.int64)
+    n = 0
+    for p in new:
+        r = p // W
+        c = p - r * W
+        for rr in range(max(r - 1, 0), min(r + 2, H)):
+            for cc in range(max(c - 1, 0), min(c + 2, W)):
+                q = rr * W + cc
+                if cf[q] == _OPEN:
+                    cf[q] = _TRIED  # listed once; tried below or never (too few labelled neighbours: reset)
+                    out[n] = q
+                    n += 1
+    keep = 0
+    for i in range(n):
+        q = out[i]
+        cf[q] = _OPEN
+    for i in range(n):
+        q = out[i]
+        r = q // W
+        c = q - r * W
+        if _labelled_around(code, r, c, H, W) >= neighbours:
+            out[keep] = q
+            keep += 1
+    return np.sort(out[:keep])
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _finish_codes(a, code, plane, floor, up, z_far, valid, table, easy, binp, zone, height, xyz_out):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """:func:`_finish` from the class codes, writing the five class masks too."""
+    H, W = code.shape
+    for r in numba.prange(H):
+        for c in range(W):
+            k = code[r, c]
+            valid[r, c] = k != _INVALID
+            table[r, c] = k == _TABLE
+            easy[r, c] = k == _EASY
+            binp[r, c] = k == _BIN
+            zone[r, c] = k == _OPEN or k == _TRIED
+            xyz_out[r, c, 0] = np.float32(a[r, c, 0])
+            xyz_out[r, c, 1] = np.float32(a[r, c, 1])
+            xyz_out[r, c, 2] = np.float32(a[r, c, 2])
+            if k == _INVALID:
+                height[r, c] = np.nan
+            elif k == _TABLE or k == _EASY or k == _BIN:
+                if plane:
+                    zf = (floor - np.float64(a[r, c, 0]) * up[0] - np.float64(a[r, c, 1]) * up[1]) / up[2]
+                else:
+                    zf = z_far
+                height[r, c] = -1000.0 * zf
+                xyz_out[r, c, 2] = np.float32(zf)
+            else:
+                height[r, c] = -1000.0 * np.float64(a[r, c, 2])
+
+
+def _straggler_codes(a: np.ndarray, code: np.ndarray, R: np.ndarray, t: np.ndarray, index: _ModelIndex, *,
+                     straggler_m: float, radius_m: float, planes: bool, neighbours: int) -> None:
+    """:func:`_straggler_passes` on the class codes (in place): the same passes, each testing only the open
+    neighbours of the pixels the previous one labelled."""
+    grid = (*_grid_args(index), index.ijk, index.busy, index.box, float(straggler_m), float(radius_m), planes)
+    first = np.empty(code.shape, np.uint8)
+    _straggler_first(a, code, neighbours, R, t, *grid, first)
+    _straggler_rest(a, code, first, neighbours, STRAGGLER_PASSES, R, t, *grid)
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _nearest_grid(p, origin, cell, dims, start, pts, empty_to, order, ub):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """Nearest model point of each row of ``p`` (M, 3) within ``ub`` as ``cKDTree.query`` finds it.
+
+    Returns ``(d, j, unsure)``: the distance (computed as the tree computes it: the square root of the
+    three squared differences summed in order; +inf when no point lies within ``ub``), the point (the
+    model's index, ``order``; ``len(order)`` for none, as the tree says) and whether the answer may differ from the tree's (another point within a
+    relative 1e-9 of the same distance, or the distance within that of ``ub``: the tree's visiting
+    order or its pruning's rounding could decide; those rows are left to the tree). The cells are
+    searched shell by shell around the point's, from the first that holds a point (``empty_to``), until
+    the next shell lies farther than the best.
+    """
+    M = p.shape[0]
+    d_out = np.full(M, np.inf)
+    j_out = np.full(M, order.shape[0], np.int64)
+    unsure = np.zeros(M, np.bool_)
+    ub2 = ub * ub
+    K = int(np.ceil(ub / cell)) + 2
+    for i in numba.prange(M):
+        px = p[i, 0]
+        py = p[i, 1]
+        pz = p[i, 2]
+        ci = int(np.floor((px - origin[0]) / cell))
+        cj = int(np.floor((py - origin[1]) / cell))
+        ck = int(np.floor((pz - origin[2]) / cell))
+        best = np.inf
+        second = np.inf
+        jb = -1
+        k0 = 0  # the shells nearer than the nearest occupied cell are empty
+        if 0 <= ci < dims[0] and 0 <= cj < dims[1] and 0 <= ck < dims[2]:
+            k0 = min(int(empty_to[(ci * dims[1] + cj) * dims[2] + ck]), K + 1)
+        for k in range(k0, K + 1):
+            if k >= 2:
+                gap = (k - 1) * cell * (1.0 - 1e-9)  # every cell of shell k lies at least this far
+                g2 = gap * gap
+                if g2 > ub2 * (1.0 + 1e-6) or g2 > best * (1.0 + 1e-6):
+                    break
+            for a in range(ci - k, ci + k + 1):
+                if a < 0 or a >= dims[0]:
+                    continue
+                for b in range(cj - k, cj + k + 1):
+                    if b < 0 or b >= dims[1]:
+                        continue
+                    edge = a == ci - k or a == ci + k or b == cj - k or b == cj + k
+                    step = 1 if edge else 2 * k
+                    c3 = ck - k
+                    while c3 <= ck + k:
+                        if 0 <= c3 < dims[2]:
+                            c = (a * dims[1] + b) * dims[2] + c3
+                            for j in range(start[c], start[c + 1]):
+                                dx = pts[j, 0] - px
+                                dy = pts[j, 1] - py
+                                dz = pts[j, 2] - pz
+                                d2 = dx * dx + dy * dy + dz * dz
+                                if d2 < best:
+                                    second = best
+                                    best = d2
+                                    jb = j
+                                elif d2 < second:
+                                    second = d2
+                        c3 += step if step > 0 else 1
+        if best < ub2:
+            d_out[i] = np.sqrt(best)
+            j_out[i] = order[jb]
+        unsure[i] = best < np.inf and (second <= best * (1.0 + 1e-9) or abs(best - ub2) <= ub2 * 1e-9)
+    return d_out, j_out, unsure
+
+
 def _grid_args(index: _ModelIndex) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return (index.origin, index.cell, index.dims, index.start, index.points, index.normals, index.offsets)
 
@@ -482,6 +856,8 @@ class Tolerance:
         scans, whose median spacing is 1.55 mm), a pixel on the bin's surface finds none and stays
         in the zone. NaN when not measured (no pixel, a fixed τ, or a model without normals, whose
         residuals are these distances already).
+    surface : optional
+        The fast path's :func:`surface_residuals` of the frame (None from the reference or a fixed τ).
     """
 
     tolerance_mm: float
@@ -489,6 +865,21 @@ class Tolerance:
     n_pixels: int
     n_coherent: int = 0
     reach_mm: float = float("nan")
+    surface: _Surface | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class _Surface:
+    """:func:`surface_residuals` of ``xyz`` and ``ring`` with ``index`` at pose ``T``, as :func:`frame_tolerance`
+    measured them (the bin check reads them from the removal, :attr:`RemovalResult.surface`)."""
+
+    xyz: np.ndarray
+    ring: Mask
+    index: RemovalIndex
+    T: np.ndarray
+    residuals: np.ndarray
+    around: np.ndarray
+    coherent: np.ndarray
 
 
 def _nearest_mm(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) -> np.ndarray:
@@ -533,7 +924,7 @@ def _residuals_of(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.nd
 
 
 def coherent_residuals(xyz: XYZ, ring: Mask, pixels: np.ndarray, index: RemovalIndex, T_cam_bin: np.ndarray, *,
-                       neighbours: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                       neighbours: int = 8, reference: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Residuals of ``pixels`` to the model and whether each is coherent with its neighbours'.
 
     Parameters
@@ -546,6 +937,9 @@ def coherent_residuals(xyz: XYZ, ring: Mask, pixels: np.ndarray, index: RemovalI
     index : RemovalIndex
     T_cam_bin : (4, 4) float ndarray
     neighbours : {4, 8}
+    reference : bool
+        The previous implementation (``np.unique``, ``np.nanmedian``), the oracle of the tests: the same
+        arrays.
 
     Returns
     -------
@@ -561,8 +955,16 @@ def coherent_residuals(xyz: XYZ, ring: Mask, pixels: np.ndarray, index: RemovalI
     if index.tree is None:
         raise ParameterError("coherent_residuals: the index has no KD-tree (prepare_removal_index builds it)")
     a = np.asarray(xyz)
-    h, w = a.shape[:2]
     pixels = np.asarray(pixels, dtype=np.int64)
+    nb = _ring_neighbours(a.shape[:2], ring, pixels, neighbours)
+    own, around, coherent, _ = _coherent(a, pixels, nb, index, np.asarray(T_cam_bin, dtype=np.float64),
+                                         reference=reference)
+    return own, around, coherent
+
+
+def _ring_neighbours(shape: tuple[int, ...], ring: Mask, pixels: np.ndarray, neighbours: int) -> np.ndarray:
+    """(M, 4 or 8) int64: the flat indices of the ``ring`` neighbours of ``pixels`` (-1: none there)."""
+    h, w = shape
     rows, cols = np.divmod(pixels, w)
     offs = _N8 if neighbours == 8 else _N4
     nb = np.full((len(pixels), len(offs)), -1, dtype=np.int64)
@@ -573,12 +975,33 @@ def coherent_residuals(xyz: XYZ, ring: Mask, pixels: np.ndarray, index: RemovalI
         sel = inside.copy()
         sel[inside] = ring.reshape(-1)[f[inside]]
         nb[sel, k] = f[sel]
-    want = np.unique(np.concatenate([pixels, nb[nb >= 0]]))
-    res = _residuals_of(a, want, index, np.asarray(T_cam_bin, dtype=np.float64))
+    return nb
+
+
+def _coherent(a: np.ndarray, pixels: np.ndarray, nb: np.ndarray, index: RemovalIndex, T: np.ndarray, *,
+              reference: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, _Queried]:
+    """:func:`coherent_residuals` of ``pixels`` with their ring neighbours ``nb`` (flat, -1: none), and the
+    queried pixels (the fast path's, for :func:`frame_tolerance`'s nearest distances)."""
+    if reference:
+        want = np.unique(np.concatenate([pixels, nb[nb >= 0]]))
+        res = _residuals_of(a, want, index, T)
+        queried = _Queried(want, np.zeros((0, 3)), res, np.zeros(0))
+    else:  # the same sorted distinct pixels, from a mark per pixel (np.unique hashes: ~10x slower)
+        mark = np.zeros(a.shape[0] * a.shape[1], bool)
+        mark[pixels] = True
+        mark[nb[nb >= 0]] = True
+        want = np.flatnonzero(mark)
+        queried = _query(a, want, index, T)
+        res = queried.residual_mm
     own = res[np.searchsorted(want, pixels)]
     nbr = np.full(nb.shape, np.nan)
     has = nb >= 0
     nbr[has] = res[np.searchsorted(want, nb[has])]
+    if not reference:
+        around = _around_median(nbr)
+        with np.errstate(invalid="ignore"):
+            coherent = np.isfinite(own) & (np.abs(own - around) <= COHERENCE_MM)
+        return own, around, coherent, queried
     around = np.full(len(pixels), np.nan)
     around[has.any(axis=1)] = np.inf  # ring neighbours, none of them within max_tolerance_mm
     fin = np.where(np.isfinite(nbr), nbr, np.nan)
@@ -587,7 +1010,155 @@ def coherent_residuals(xyz: XYZ, ring: Mask, pixels: np.ndarray, index: RemovalI
         around[some] = np.nanmedian(fin[some], axis=1)
     with np.errstate(invalid="ignore"):
         coherent = np.isfinite(own) & (np.abs(own - around) <= COHERENCE_MM)
-    return own, around, coherent
+    return own, around, coherent, queried
+
+
+@numba.njit(cache=True, nogil=True)
+def _around_median(nbr):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """(M,) float64: per row of ``nbr`` (NaN: no ring neighbour) the median of its finite values as
+    ``np.nanmedian`` gives it (the middle one, or the two middle ones' sum halved); +inf when the row
+    has neighbours but none finite, NaN when it has none."""
+    M, K = nbr.shape
+    out = np.empty(M)
+    buf = np.empty(K)
+    for i in range(M):
+        n = 0
+        seen = False
+        for k in range(K):
+            v = nbr[i, k]
+            if not np.isnan(v):
+                seen = True
+            if np.isfinite(v):
+                j = n  # insertion sort: at most 8 values
+                while j > 0 and buf[j - 1] > v:
+                    buf[j] = buf[j - 1]
+                    j -= 1
+                buf[j] = v
+                n += 1
+        if n == 0:
+            out[i] = np.inf if seen else np.nan
+        elif n % 2 == 1:
+            out[i] = buf[n // 2]
+        else:
+            out[i] = (buf[n // 2 - 1] + buf[n // 2]) / 2.0
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class _Queried:
+    """The fast path's query of the model's KD-tree for the pixels ``flat``: their points in the bin frame
+    (NaN rows where not finite), residuals and nearest-point distances (mm, +inf: none within reach)."""
+
+    flat: np.ndarray
+    p_bin: np.ndarray
+    residual_mm: np.ndarray
+    nearest_mm: np.ndarray
+
+
+def _query(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) -> _Queried:
+    """:func:`_residuals_of` and :func:`_nearest_mm` of the pixels ``flat`` from one query of the tree."""
+    out = np.full(len(flat), np.inf)
+    near = np.full(len(flat), np.inf)
+    p_all = np.full((len(flat), 3), np.nan)
+    model = index.model
+    if len(flat) == 0 or len(model.points) == 0:
+        return _Queried(flat, p_all, out, near)
+    pts, ok = _gather_finite(a, flat)
+    p_bin = (pts - T[:3, 3]) @ T[:3, :3]  # numpy's product, as the reference's: the same rounding
+    p_all[ok] = p_bin
+    d, j = _nearest_points(p_bin, index)
+    found = np.isfinite(d)
+    r = np.full(len(p_bin), np.inf)
+    if model.normals is None:
+        r[found] = d[found]
+    else:
+        diff, nrm = _residual_parts(p_bin, j, model.points, model.normals)
+        r[found] = np.abs(np.einsum("ij,ij->i", diff, nrm))
+    out[ok] = r * 1000.0
+    near[ok] = d * 1000.0
+    return _Queried(flat, p_all, out, near)
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_finite(a, flat):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``(pts, ok)``: the float64 points of the pixels ``flat`` whose three coordinates are finite (in
+    order) and which ones those are: ``a.reshape(-1, 3)[flat].astype(np.float64)`` and its finite rows."""
+    n = flat.shape[0]
+    W = a.shape[1]
+    ok = np.zeros(n, np.bool_)
+    pts = np.empty((n, 3))
+    m = 0
+    for i in range(n):
+        r = flat[i] // W
+        c = flat[i] - r * W
+        x = np.float64(a[r, c, 0])
+        y = np.float64(a[r, c, 1])
+        z = np.float64(a[r, c, 2])
+        if np.isfinite(x) and np.isfinite(y) and np.isfinite(z):
+            ok[i] = True
+            pts[m, 0] = x
+            pts[m, 1] = y
+            pts[m, 2] = z
+            m += 1
+    return pts[:m], ok
+
+
+@numba.njit(cache=True, nogil=True)
+def _residual_parts(p_bin, j, points, normals):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``(p_bin[found] - points[j[found]], normals[j[found]])`` where ``j`` names a point (``found``: below
+    ``len(points)``), the operands of the residuals' ``einsum`` in one pass."""
+    n = points.shape[0]
+    k = 0
+    for i in range(j.shape[0]):
+        if j[i] < n:
+            k += 1
+    diff = np.empty((k, 3))
+    nrm = np.empty((k, 3))
+    k = 0
+    for i in range(j.shape[0]):
+        q = j[i]
+        if q < n:
+            for c in range(3):
+                diff[k, c] = p_bin[i, c] - points[q, c]
+                nrm[k, c] = normals[q, c]
+            k += 1
+    return diff, nrm
+
+
+def _nearest_points(p_bin: np.ndarray, index: RemovalIndex) -> tuple[np.ndarray, np.ndarray]:
+    """``cKDTree.query(p_bin, k=1, distance_upper_bound=max_tolerance)`` of the model's tree, the same
+    distances and points (+inf and ``len(points)`` for none), from the grid :attr:`RemovalIndex.nearest`
+    where it is sure to give them, from the tree elsewhere."""
+    tree = index.tree
+    assert tree is not None  # prepare_removal_index builds it in both modes
+    ub = index.params.max_tolerance_mm / 1000.0
+    g = index.nearest
+    if g is None:
+        return tree.query(p_bin, k=1, distance_upper_bound=ub)
+    d, j, unsure = _nearest_grid(np.ascontiguousarray(p_bin), g.origin, g.cell, g.dims, g.start, g.points,
+                                 g.empty_to, g.order, ub)
+    if unsure.any():
+        d[unsure], j[unsure] = tree.query(p_bin[unsure], k=1, distance_upper_bound=ub)
+    return d, j
+
+
+def _nearest_again(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray, q: _Queried) -> np.ndarray:
+    """:func:`_nearest_mm` of ``flat`` (pixels among ``q.flat``), from ``q``'s query where the batch of
+    ``flat`` gives their points the very same bin-frame coordinates (a matrix product's rounding may
+    differ with the batch: those rows are queried again)."""
+    out = np.full(len(flat), np.inf)
+    if len(flat) == 0 or len(index.model.points) == 0:
+        return out
+    pts = a.reshape(-1, 3)[flat].astype(np.float64)
+    ok = np.isfinite(pts).all(axis=1)
+    p_bin = (pts[ok] - T[:3, 3]) @ T[:3, :3]
+    at = np.searchsorted(q.flat, flat[ok])
+    same = (p_bin == q.p_bin[at]).all(axis=1)
+    d = q.nearest_mm[at]
+    if not same.all():
+        d[~same] = _nearest_points(p_bin[~same], index)[0] * 1000.0
+    out[ok] = d
+    return out
 
 
 def far_share(residuals: np.ndarray, around: np.ndarray) -> float:
@@ -596,10 +1167,18 @@ def far_share(residuals: np.ndarray, around: np.ndarray) -> float:
     return float(np.mean(np.isinf(residuals) & np.isinf(around))) if len(residuals) else 0.0
 
 
-def surface_residuals(xyz: XYZ, ring: Mask, index: RemovalIndex,
-                      T_cam_bin: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def surface_residuals(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray, *,
+                      removal: RemovalResult | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`coherent_residuals` of a regular subsample of at most :data:`MAX_RESIDUAL_PX` certain bin
-    pixels with a finite point, each against its four neighbours: ``(residuals, around, coherent)``."""
+    pixels with a finite point, each against its four neighbours: ``(residuals, around, coherent)``.
+
+    ``removal``: the frame's removal; when it measured them (the robust mode's :func:`frame_tolerance`)
+    of this very ``xyz``, ``ring`` and ``index`` at this pose, its arrays are returned (the same values), not
+    measured again.
+    """
+    s = removal.surface if removal is not None else None
+    if s is not None and s.xyz is xyz and s.ring is ring and s.index is index and np.array_equal(s.T, T_cam_bin):
+        return s.residuals, s.around, s.coherent
     return _measured(xyz, ring, index, T_cam_bin, coherence=True)
 
 
@@ -631,7 +1210,7 @@ def _ring_sample(a: np.ndarray, ring: Mask) -> np.ndarray:
 
 
 def _measured(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray, *,
-              coherence: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              coherence: bool, reference: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if index.tree is None:
         raise ParameterError("bin_residuals_mm: the index has no KD-tree (prepare_removal_index builds it)")
     a = np.asarray(xyz)
@@ -642,10 +1221,11 @@ def _measured(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray, 
     if not coherence:
         res = _residuals_of(a, flat, index, np.asarray(T_cam_bin, dtype=np.float64))
         return res, res, np.isfinite(res)
-    return coherent_residuals(a, ring, flat, index, T_cam_bin, neighbours=4)
+    return coherent_residuals(a, ring, flat, index, T_cam_bin, neighbours=4, reference=reference)
 
 
-def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray) -> Tolerance:
+def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray, *,
+                    reference: bool = False) -> Tolerance:
     """The robust mode's tolerance τ of one frame, from its certain bin pixels' residuals.
 
     τ = the ``residual_quantile`` percentile of the *coherent* residuals (:func:`coherent_residuals`
@@ -663,12 +1243,17 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
     τ bounds the test along the model's normals; its search radius (a model point that near) is
     measured on the same pixels (:attr:`Tolerance.reach_mm`): the removal's radius is at least that
     reach, so a model sampled more coarsely than the frame does not leave its bin pixels in the zone.
+
+    ``reference``: the previous implementation (two queries of the model's tree, ``np.unique``), the
+    tests' oracle; the fast path queries the tree once and keeps the residuals (:attr:`Tolerance.surface`).
     """
     p = index.params
     lo = max(p.min_tolerance_mm, p.delta_mm)
     if p.tolerance_mm is not None:
         return Tolerance(max(float(p.tolerance_mm), p.delta_mm), float("nan"), 0)
-    res, around, coherent = surface_residuals(xyz, ring, index, T_cam_bin)
+    if not reference:
+        return _frame_tolerance(xyz, ring, index, np.asarray(T_cam_bin, dtype=np.float64))
+    res, around, coherent = _measured(xyz, ring, index, T_cam_bin, coherence=True, reference=True)
     if len(res) == 0:
         return Tolerance(max(p.max_tolerance_mm, lo), float("nan"), 0)
     n_coh = int(np.count_nonzero(coherent))
@@ -686,6 +1271,36 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
         q_near = float(np.percentile(near, p.residual_quantile, method="higher"))
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
     return Tolerance(float(tau), q, len(res), n_coh, float(reach))
+
+
+def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -> Tolerance:
+    """:func:`frame_tolerance`'s fast path (``tolerance_mm`` not fixed): one sample, one query of the tree."""
+    p = index.params
+    lo = max(p.min_tolerance_mm, p.delta_mm)
+    if index.tree is None:
+        raise ParameterError("bin_residuals_mm: the index has no KD-tree (prepare_removal_index builds it)")
+    a = np.asarray(xyz)
+    ring_a = np.asarray(ring, dtype=bool)
+    if ring_a.shape != a.shape[:2]:
+        raise InputShapeError(f"ring must be an {a.shape[:2]} bool array, got {describe_array(ring_a)}")
+    flat = _ring_sample(a, ring_a)
+    res, around, coherent, queried = _coherent(a, flat, _ring_neighbours(a.shape[:2], ring_a, flat, 4), index, T,
+                                               reference=False)
+    surface = _Surface(a, ring, index, T.copy(), res, around, coherent)
+    if len(res) == 0:
+        return Tolerance(max(p.max_tolerance_mm, lo), float("nan"), 0, surface=surface)
+    n_coh = int(np.count_nonzero(coherent))
+    use_coherent = n_coh and n_coh >= MIN_COHERENT_SHARE * len(res) and far_share(res, around) <= MAX_FAR_SHARE
+    use = res[coherent] if use_coherent else res
+    q = float(np.percentile(use, p.residual_quantile, method="higher"))
+    tau = min(max(q + p.residual_margin_mm, lo), max(p.max_tolerance_mm, lo)) if np.isfinite(q) \
+        else max(p.max_tolerance_mm, lo)
+    reach = float("nan")
+    if index.model.normals is not None:
+        near = _nearest_again(a, flat[coherent] if use_coherent else flat, index, T, queried)
+        q_near = float(np.percentile(near, p.residual_quantile, method="higher"))
+        reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
+    return Tolerance(float(tau), q, len(res), n_coh, float(reach), surface=surface)
 
 
 def check_removal_args(
@@ -721,6 +1336,7 @@ def remove_table_and_bin(
     index: RemovalIndex | None = None,
     T_cam_bin: np.ndarray | None = None,
     ring: Mask | None = None,
+    reference: bool = False,
 ) -> RemovalResult:
     """Label table, easy outliers and bin points; return the classes and the zone's height image.
 
@@ -753,6 +1369,10 @@ def remove_table_and_bin(
         Robust mode: the frame's certain bin pixels (:func:`zcut.binmask.bin_pixels`, the rim and
         upper walls), whose residuals give τ. Without them τ is ``tolerance_mm`` if set, else
         ``max_tolerance_mm``.
+    reference : bool
+        The previous implementation (a mask per class, the straggler passes' masks, the tolerance's two
+        queries of the model's tree), kept as the oracle of ``tests/zcut/test_removal_fast.py``: the
+        same result bit for bit, ~3x the CPU time (``bench/bench_removal.py``).
 
     Returns
     -------
@@ -778,9 +1398,11 @@ def remove_table_and_bin(
     rim, floor = index.rim_b + shift, index.floor_b + shift
     planes = index.model.normals is not None
     residual_mm = float("nan")
+    surface: _Surface | None = None
     if p.robust:
         if ring is not None:
-            tol = frame_tolerance(a, ring, index, T)
+            tol = frame_tolerance(a, ring, index, T, reference=reference)
+            surface = tol.surface
         else:
             tol = Tolerance(max(p.tolerance_mm if p.tolerance_mm is not None else p.max_tolerance_mm, p.delta_mm),
                             float("nan"), 0)
@@ -797,6 +1419,25 @@ def remove_table_and_bin(
         r_str = max(radius_m, straggler_m)
     r_bin = radius_m if planes else delta_m
     shape = fp.shape
+    plane = abs(up[2]) > 1e-6
+    if not reference:
+        code = np.empty(shape, np.uint8)
+        g = index.bin
+        _classify_codes(a, fp, R, t, index.rim_b + p.rim_offset_m, delta_m > 0, p.robust, *_grid_args(g),
+                        g.ijk, g.busy, g.box, float(delta_m), float(r_bin), planes, code)
+        if index.straggler is not None:
+            r_s = r_str if planes else straggler_m
+            _straggler_codes(a, code, R, t, index.straggler, straggler_m=straggler_m,
+                             radius_m=r_s, planes=planes, neighbours=int(p.straggler_neighbours))
+        z_far = np.nan
+        if not plane:  # a bin seen from the side: fall back to the farthest point
+            z_far = float(np.nanmax(a[..., 2][code != _INVALID])) if (code != _INVALID).any() else np.nan
+        valid, table, easy, binp, zone = (np.empty(shape, bool) for _ in range(5))
+        height = np.empty(shape, np.float64)
+        xyz_out = np.empty(a.shape, np.float32)
+        _finish_codes(a, code, plane, float(floor), up, float(z_far), valid, table, easy, binp, zone, height, xyz_out)
+        return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up, delta_m * 1000.0, residual_mm,
+                             r_bin * 1000.0, surface)
     valid, table, easy, binp = (np.zeros(shape, bool) for _ in range(4))
     _classify(a, fp, R, t, index.rim_b + p.rim_offset_m, delta_m > 0, p.robust, *_grid_args(index.bin),
               float(delta_m), float(r_bin), planes, valid, table, easy, binp)
@@ -810,7 +1451,6 @@ def remove_table_and_bin(
                           neighbours=int(p.straggler_neighbours), first=first)
     labelled = table | easy | binp
     zone = valid & ~labelled
-    plane = abs(up[2]) > 1e-6
     z_far = np.nan
     if not plane:  # a bin seen from the side: fall back to the farthest point
         z_far = float(np.nanmax(a[..., 2][valid])) if valid.any() else np.nan

@@ -1,0 +1,125 @@
+"""Benchmark: the bin removal (and the bin check after it) per frame, fast path against the previous one.
+
+Run: ``.venv/bin/python bench/bench_removal.py [--sizes 640x480,1920x1200,3840x2400] [--frames N] [--repeats R]
+[--kind KIND] [--dir DIR] [--log LOG]``
+
+For each size, synthesises (once, cached in ``--dir``) a log of N filled-bin frames of ``--kind`` (its own
+bin model attached), locates the bin in each frame as the replay does (bin mask, registration: not
+timed), then times on each frame, alternating, ``R`` times each (BLAS limited to one thread, as the
+replay session limits it: a multi-threaded BLAS spins ~30 CPU-ms in the residuals' small matrix product):
+
+- ``removal``: :func:`zcut.removal.remove_table_and_bin` with ``reference=True`` (the previous
+  implementation) and without (the fast path);
+- ``stage``: the replay's removal stage, the removal then :func:`zcut.bin_check.check_bin_removal` (which
+  reads the frame tolerance's residuals from the fast removal instead of measuring them again).
+
+It checks that both give the same classes, height image and cloud bit for bit, and prints CPU ms per
+frame (``time.process_time``, all threads: the machine is shared, wall time is not compared), medians
+over frames and repeats, the ratio previous / fast and the cost per Mpx. ``--log`` measures an existing
+log (with its bin model) instead, at its own size.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
+
+import numpy as np  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
+
+from replay.pipeline import stages  # noqa: E402
+from replay.pipeline.bin_model import bin_model_for  # noqa: E402
+from replay.pipeline.session import ReplaySession  # noqa: E402
+from replay.synth.log import write_synthetic_log  # noqa: E402
+from zcut.bin_check import check_bin_removal  # noqa: E402
+from zcut.removal import remove_table_and_bin  # noqa: E402
+
+FIELDS = ("table", "easy_outliers", "bin_points", "zone", "height_mm", "xyz")
+
+
+def located_frames(log: Path, frames: int):
+    """The session and ``[(xyz, footprint, ring, T)]`` of the log's first ``frames`` frames."""
+    s = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
+    out = []
+    for i, frame in enumerate(s.reader.frames()):
+        if i >= frames:
+            break
+        loc = stages.locate_bin(frame, s.config, bin_model=s.prepared, seed=s.seed)
+        if loc.registration is None or not loc.registration.converged:
+            continue
+        out.append((frame.xyz, loc.bin_mask.mask, loc.ring, loc.registration.T_cam_bin))
+    return s, out
+
+
+def measure(log: Path, frames: int, repeats: int) -> dict[str, float]:
+    s, located = located_frames(log, frames)
+    assert s.prepared is not None
+    index, params, band = s.prepared.removal, s.config.removal, s.config.zcut.max_depth
+    times: dict[str, list[float]] = {"removal old": [], "removal new": [], "stage old": [], "stage new": []}
+
+    def stage(xyz, fp, ring, T, reference: bool) -> tuple[float, float]:
+        t0 = time.process_time()
+        rem = remove_table_and_bin(xyz, fp, index=index, T_cam_bin=T, ring=ring, reference=reference)
+        t1 = time.process_time()
+        check_bin_removal(rem, ring, params=params, band_mm=band, xyz=xyz, index=index, T_cam_bin=T)
+        return t1 - t0, time.process_time() - t0
+
+    for xyz, fp, ring, T in located:  # warm-up (numba) and the bit-for-bit check
+        old = remove_table_and_bin(xyz, fp, index=index, T_cam_bin=T, ring=ring, reference=True)
+        new = remove_table_and_bin(xyz, fp, index=index, T_cam_bin=T, ring=ring)
+        for f in FIELDS:
+            if not np.array_equal(getattr(old, f), getattr(new, f), equal_nan=True):
+                raise SystemExit(f"{log.name}: the fast removal's {f} differs from the previous one's")
+    for _ in range(repeats):
+        for xyz, fp, ring, T in located:
+            for ref in (True, False):
+                rem, st = stage(xyz, fp, ring, T, ref)
+                times["removal old" if ref else "removal new"].append(rem)
+                times["stage old" if ref else "stage new"].append(st)
+    h, w = located[0][0].shape[:2]
+    return {k: 1000 * statistics.median(v) for k, v in times.items()} | {"mpx": h * w / 1e6, "w": w, "h": h,
+                                                                         "frames": len(located)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="640x480,1920x1200", help="WxH,... (3840x2400 takes minutes to synthesise)")
+    ap.add_argument("--frames", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--kind", default="zinc_nuts")
+    ap.add_argument("--dir", default=str(Path(tempfile.gettempdir()) / "zcut_bench_removal"))
+    ap.add_argument("--log", type=Path, help="an existing log (with its bin model) instead of synthetic ones")
+    args = ap.parse_args()
+    d = Path(args.dir)
+    d.mkdir(parents=True, exist_ok=True)
+    logs = []
+    if args.log is not None:
+        logs.append(args.log)
+    else:
+        for size in args.sizes.split(","):
+            w, h = (int(v) for v in size.lower().split("x"))
+            log = d / f"removal_{args.kind}_{args.frames}x{w}x{h}.mcap"
+            if not log.is_file():
+                print(f"synthesising {args.frames} frames of {args.kind} at {w}x{h} -> {log}")
+                write_synthetic_log(log, kind=args.kind, frames=args.frames, seed=11, size=(h, w))
+            logs.append(log)
+    print("CPU ms per frame (time.process_time, all threads), medians; old = reference=True, new = fast path; "
+          "stage = removal + bin check")
+    print(f"  {'size':>10s} {'what':8s} {'old':>8s} {'new':>8s} {'old/new':>8s} {'old/Mpx':>8s} {'new/Mpx':>8s}")
+    for log in logs:
+        with threadpool_limits(limits=1, user_api="blas"):
+            r = measure(log, args.frames, args.repeats)
+        for what in ("removal", "stage"):
+            o, n = r[f"{what} old"], r[f"{what} new"]
+            print(f"  {int(r['w']):>5d}x{int(r['h']):<4d} {what:8s} {o:8.1f} {n:8.1f} {o / n:8.2f} "
+                  f"{o / r['mpx']:8.1f} {n / r['mpx']:8.1f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,166 @@
+"""The removal's fast path (issue 32) against its previous implementation, kept as ``reference=True``.
+
+Every class mask, the height image, the cloud, rim, floor, tolerance, residual and radius bit for bit,
+and the frame tolerance's residuals, on: hand-made synthetic logs of several part kinds and seeds (their
+piles lie against the bin's walls), a small ray-traced frame, frames with large invalid regions and
+degenerate ones (all NaN, one valid pixel, 3 x 3), in both modes and with the stragglers off.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from replay.pipeline import stages
+from replay.pipeline.bin_model import bin_model_for
+from replay.pipeline.session import ReplaySession
+from replay.synth.log import write_synthetic_log
+from replay.synth.raytrace import write_raytraced_log
+from zcut.bin_check import check_bin_removal
+from zcut.params import RemovalParams
+from zcut.removal import (
+    coherent_residuals,
+    frame_tolerance,
+    prepare_removal_index,
+    remove_table_and_bin,
+    surface_residuals,
+)
+
+SIZE = (150, 200)
+FIELDS = ("table", "easy_outliers", "bin_points", "zone", "height_mm", "xyz", "rim_m", "floor_m", "tolerance_mm",
+          "residual_mm", "radius_mm")
+
+
+def _inputs(path):
+    """(model, params, [(xyz, footprint, ring, T)]) of every frame of a log, located as the replay does."""
+    s = ReplaySession.open(path, choose_bin_model=lambda reader: bin_model_for(reader, None))
+    out = []
+    for frame in s.reader.frames():
+        loc = stages.locate_bin(frame, s.config, bin_model=s.prepared, seed=s.seed)
+        assert loc.registration is not None and loc.registration.converged
+        out.append((frame.xyz, loc.bin_mask.mask, loc.ring, loc.registration.T_cam_bin))
+    assert s.prepared is not None
+    return s.prepared.model, s.config.removal, out
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    """Synthetic logs of four part kinds and seeds, and a ray-traced one, with their frames located."""
+    d = tmp_path_factory.mktemp("removal_fast")
+    made = {}
+    for kind, seed in (("zinc_nuts", 3), ("rods", 5), ("spheres", 9), ("sprockets", 11)):
+        made[f"{kind}-{seed}"] = _inputs(write_synthetic_log(d / f"{kind}.mcap", kind=kind, frames=2, seed=seed,
+                                                             size=SIZE))
+    made["raytraced"] = _inputs(write_raytraced_log(d / "rt.mcap", kind="zinc_nuts", frames=1, seed=4, size=(120, 160)))
+    return made
+
+
+PARAMS = {
+    "robust": {},
+    "robust-no-stragglers": {"straggler_mm": 0.0},
+    "paper": {"mode": "paper"},
+    "paper-stragglers": {"mode": "paper", "straggler_mm": 2.0, "straggler_neighbours": 3},
+    "paper-no-stragglers": {"mode": "paper", "straggler_mm": 0.0},
+    "robust-fixed-tolerance": {"tolerance_mm": 2.0, "straggler_neighbours": 5},
+}
+
+
+def _assert_same(fast, ref, what=""):
+    for f in FIELDS:
+        a, b = getattr(fast, f), getattr(ref, f)
+        assert np.asarray(a).dtype == np.asarray(b).dtype and np.shape(a) == np.shape(b), f"{what} {f}"
+        assert np.array_equal(a, b, equal_nan=True), f"{what} {f}: {int(np.sum(a != b))} differ"
+    assert np.array_equal(fast.up_cam, ref.up_cam)
+
+
+def _both(xyz, fp, index, T, ring):
+    fast = remove_table_and_bin(xyz, fp, index=index, T_cam_bin=T, ring=ring)
+    ref = remove_table_and_bin(xyz, fp, index=index, T_cam_bin=T, ring=ring, reference=True)
+    return fast, ref
+
+
+@pytest.mark.parametrize("name", list(PARAMS))
+def test_fast_equals_reference_on_synthetic_logs(logs, name):
+    for log, (model, params, frames) in logs.items():
+        index = prepare_removal_index(model, dataclasses.replace(params, **PARAMS[name]))
+        for i, (xyz, fp, ring, T) in enumerate(frames):
+            fast, ref = _both(xyz, fp, index, T, ring)
+            _assert_same(fast, ref, f"{log} frame {i} {name}")
+            assert fast.bin_points.any() and fast.zone.any()
+
+
+def test_fast_equals_reference_with_large_invalid_regions(logs):
+    model, params, frames = logs["zinc_nuts-3"]
+    index = prepare_removal_index(model, params)
+    xyz, fp, ring, T = frames[0]
+    rng = np.random.default_rng(2)
+    for holes in ("left half", "bands", "speckle"):
+        a = xyz.copy()
+        if holes == "left half":
+            a[:, : a.shape[1] // 2] = np.nan
+        elif holes == "bands":
+            a[::7] = np.nan
+            a[:, 40:90] = np.nan
+        else:
+            a[rng.random(a.shape[:2]) < 0.4] = np.nan
+            a[rng.random(a.shape[:2]) < 0.02, 1] = np.inf  # one non-finite coordinate: invalid
+        with np.errstate(invalid="ignore"):
+            fast, ref = _both(a, fp, index, T, ring)
+        _assert_same(fast, ref, holes)
+
+
+def test_fast_equals_reference_on_degenerate_frames(logs):
+    model, params, frames = logs["rods-5"]
+    xyz, fp, ring, T = frames[0]
+    for extra in ({}, {"mode": "paper"}, {"straggler_mm": 0.0}):
+        index = prepare_removal_index(model, dataclasses.replace(params, **extra))
+        nan = np.full_like(xyz, np.nan)
+        one = nan.copy()
+        r, c = np.argwhere(ring)[len(np.argwhere(ring)) // 2]
+        one[r, c] = xyz[r, c]
+        tiny = np.ascontiguousarray(xyz[r - 1:r + 2, c - 1:c + 2])
+        cases = [(nan, fp, ring), (one, fp, ring), (one, np.ones_like(fp), None),
+                 (tiny, np.ones((3, 3), bool), np.ones((3, 3), bool)), (tiny, np.zeros((3, 3), bool), None),
+                 (xyz, np.zeros_like(fp), np.zeros_like(ring))]
+        for k, (a, f, g) in enumerate(cases):
+            fast, ref = _both(a, f, index, T, g)
+            _assert_same(fast, ref, f"case {k} {extra}")
+
+
+def test_residuals_equal_reference(logs):
+    """The frame tolerance, its surface residuals and the bin check's coherent residuals (8 neighbours)."""
+    for log, (model, params, frames) in logs.items():
+        index = prepare_removal_index(model, params)
+        for xyz, _, ring, T in frames:
+            fast, ref = frame_tolerance(xyz, ring, index, T), frame_tolerance(xyz, ring, index, T, reference=True)
+            assert (fast.tolerance_mm, fast.n_pixels, fast.n_coherent) == (ref.tolerance_mm, ref.n_pixels,
+                                                                             ref.n_coherent), log
+            assert np.array_equal([fast.residual_mm, fast.reach_mm], [ref.residual_mm, ref.reach_mm], equal_nan=True)
+            pixels = np.flatnonzero(ring | np.roll(ring, 3, axis=1))[::3]
+            for a, b in zip(coherent_residuals(xyz, ring, pixels, index, T),
+                            coherent_residuals(xyz, ring, pixels, index, T, reference=True), strict=True):
+                assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), log
+
+
+def test_the_check_reads_the_removals_residuals(logs):
+    """The bin check gets the residuals the removal measured (the same arrays), and the same verdict."""
+    model, params, frames = logs["spheres-9"]
+    index = prepare_removal_index(model, params)
+    xyz, fp, ring, T = frames[0]
+    fast, ref = _both(xyz, fp, index, T, ring)
+    assert fast.surface is not None and ref.surface is None
+    kept = surface_residuals(xyz, ring, index, T, removal=fast)
+    assert kept[0] is fast.surface.residuals
+    again = surface_residuals(xyz, ring, index, T)
+    for a, b in zip(kept, again, strict=True):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert surface_residuals(xyz, ring.copy(), index, T, removal=fast)[0] is not fast.surface.residuals
+    c_fast, c_ref = (check_bin_removal(r, ring, params=params, band_mm=10.0, xyz=xyz, index=index, T_cam_bin=T)
+                     for r in (fast, ref))
+    assert (c_fast.value, c_fast.flagged, c_fast.reason) == (c_ref.value, c_ref.flagged, c_ref.reason)
+
+
+def test_params_cover_both_modes():
+    assert RemovalParams().robust and not RemovalParams(mode="paper").robust
