@@ -189,6 +189,191 @@ def _ring(dist, thr, walls, xyz, r0, r1, c0, c1, all_in, out):  # type: ignore[n
                 orow[c] = np.isfinite(p[0]) and np.isfinite(p[1]) and np.isfinite(p[2])
 
 
+#: "No zero in this column" among the vertical distances of :func:`_column_distances` (int16).
+_NONE = (1 << 15) - 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _row_distances(f, sqr, inv, out):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """One row of OpenCV's precise distance transform (``trueDistTrans``'s second stage, its float32
+    arithmetic step by step): ``f`` the squared column distances (1e15 where a column has no zero);
+    the row's largest distance."""
+    n = f.shape[0]
+    inf = np.float32(1e15)
+    z = np.empty(n + 1, np.float32)
+    v = np.empty(n + 1, np.int64)
+    v[0] = 0
+    z[0] = -inf
+    z[1] = inf
+    k = 0
+    for q in range(1, n):
+        fq = f[q]
+        while True:
+            p = v[k]
+            s = (((fq + sqr[q]) - f[p]) - sqr[p]) * inv[q - p]
+            if s > z[k]:
+                k += 1
+                v[k] = q
+                z[k] = s
+                z[k + 1] = inf
+                break
+            k -= 1
+    k = 0
+    best = np.float32(0.0)
+    for q in range(n):
+        while z[k + 1] < q:
+            k += 1
+        p = v[k]
+        x = np.float32(np.sqrt(sqr[abs(q - p)] + f[p]))
+        out[q] = x
+        if x > best:
+            best = x
+    return best
+
+
+@numba.njit(cache=True, nogil=True)
+def _column_distances(fp):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """(m, n) int16: every pixel's distance to the nearest zero of its column in the crop ``fp``
+    (0/1 bytes; ``_NONE`` when the column has none), and each row's largest."""
+    m, n = fp.shape
+    g = np.empty((m, n), np.int16)
+    run = np.full(n, _NONE, np.int32)
+    for r in range(m):  # down: rows since the last zero above
+        fr = fp[r]
+        gr = g[r]
+        for c in range(n):
+            x = min(run[c] + 1, _NONE)
+            x = x if fr[c] else 0
+            run[c] = x
+            gr[c] = x
+    run[:] = _NONE
+    row_max = np.zeros(m, np.int64)
+    for r in range(m - 1, -1, -1):  # up: and below
+        fr = fp[r]
+        gr = g[r]
+        best = 0
+        for c in range(n):
+            x = min(run[c] + 1, _NONE)
+            x = x if fr[c] else 0
+            run[c] = x
+            y = min(x, gr[c])
+            y = y if y < m else _NONE
+            gr[c] = y
+            best = max(best, y)
+        row_max[r] = best
+    return g, row_max
+
+
+@numba.njit(cache=True, nogil=True)
+def _largest_distance(g, row_max, order):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """The largest value of OpenCV's distance transform of the crop: rows in decreasing order of
+    their largest column distance (a bound of the row's distances), computed until no remaining
+    row can beat the best found."""
+    m, n = g.shape
+    sqr = np.empty(n, np.float32)
+    inv = np.empty(n, np.float32)
+    sqr[0] = 0.0
+    inv[0] = 0.0
+    for i in range(1, n):
+        inv[i] = np.float32(0.5 / i)
+        sqr[i] = np.float32(i * i)
+    f = np.empty(n, np.float32)
+    out = np.empty(n, np.float32)
+    best = np.float32(-1.0)
+    for i in range(m):
+        r = order[i]
+        bound = row_max[r]
+        if bound < _NONE and np.float32(np.sqrt(np.float32(bound * bound))) <= best:
+            break
+        for c in range(n):
+            x = np.int64(g[r, c])
+            f[c] = np.float32(x * x) if x < _NONE else np.float32(1e15)
+        x = _row_distances(f, sqr, inv, out)
+        if x > best:
+            best = x
+    return best
+
+
+@numba.njit(cache=True, nogil=True)
+def _ring_bounded(g, vmax, walls, xyz, r0, c0, out):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """out = walls & (squared distance to the nearest zero <= vmax) & finite(xyz) on the crop at
+    (r0, c0), from the column distances ``g``: in the ring when the vertical or the horizontal
+    distance is within reach; out of it when no column within reach has its zero within reach;
+    else by the exact squared distance over the columns within reach."""
+    m, n = g.shape
+    reach = int(np.sqrt(vmax))
+    while (reach + 1) * (reach + 1) <= vmax:
+        reach += 1
+    while reach * reach > vmax:
+        reach -= 1
+    far = 1 << 40
+    zero_left = np.empty(n, np.int64)
+    near_left = np.empty(n, np.int64)
+    for r in range(m):
+        gr = g[r]
+        wr = walls[r0 + r, c0:c0 + n]
+        orow = out[r0 + r, c0:c0 + n]
+        xr = xyz[r0 + r, c0:c0 + n]
+        zl = -far
+        nl = -far
+        for c in range(n):
+            x = gr[c]
+            if x == 0:
+                zl = c
+            if x <= reach:
+                nl = c
+            zero_left[c] = zl
+            near_left[c] = nl
+        zr = far
+        nr = far
+        for c in range(n - 1, -1, -1):
+            x = gr[c]
+            if x == 0:
+                zr = c
+            if x <= reach:
+                nr = c
+            if not wr[c]:
+                continue
+            inside = x <= reach or min(c - zero_left[c], zr - c) <= reach
+            if not inside and min(c - near_left[c], nr - c) <= reach:
+                best = vmax + 1
+                for p in range(max(c - reach, 0), min(c + reach, n - 1) + 1):
+                    y = np.int64(gr[p])
+                    best = min(best, y * y + (p - c) * (p - c))
+                inside = best <= vmax
+            if inside:
+                # 0 * v is 0 for a finite v, NaN for an infinite or NaN one
+                orow[c] = xr[c, 0] * 0 + xr[c, 1] * 0 + xr[c, 2] * 0 == 0
+
+
+#: The bounded distance transform of :func:`bin_pixels` stands for OpenCV's precise one where that
+#: is the exact Euclidean distance transform: not below 2^14 pixels or on one thread, where OpenCV
+#: runs Intel IPP's (another rounding); not on crops 1448 px wide or more, where the float32
+#: intersections of its parabolas could, in principle, err by more than the gap between two of them
+#: at a pixel (their error is below |s| 2^-23 for an intersection s < W, a wrong choice needs a gap
+#: below 1/(2 W) over a slope difference below 2 W: 4 W^2 2^-23 < 1 holds below 1448); nor where the
+#: squared distances (row^2 + col^2) leave float32's integers (2^24). Elsewhere: OpenCV's.
+_EXACT_MIN_PX = 1 << 14
+_EXACT_MAX_W = 1447
+
+
+def _exact_opencv(shape: tuple[int, int]) -> bool:
+    """Is OpenCV's precise distance transform of a crop this shape the exact one (see above)?"""
+    m, n = shape
+    return m * n >= _EXACT_MIN_PX and n <= _EXACT_MAX_W and m * m + n * n < (1 << 24) and cv2.getNumThreads() > 1
+
+
+def _vmax(thr: np.float32) -> int:
+    """The largest integer V whose float32 square root is <= thr (the ring's squared distances)."""
+    cap = 1 << 40
+    v = min(int(np.floor(float(thr) * float(thr))), cap)
+    while v < cap and np.sqrt(np.float32(v + 1)) <= thr:
+        v += 1
+    while v >= 0 and np.sqrt(np.float32(v)) > thr:
+        v -= 1
+    return v
+
+
 def bin_mask(rgb: RGB, *, params: BinMaskParams = BinMaskParams()) -> BinMaskResult:
     """Segment the bin footprint from an RGB image (paper §5.1; the stage's parameters are
     :class:`~zcut.params.BinMaskParams`).
@@ -225,7 +410,7 @@ def bin_mask(rgb: RGB, *, params: BinMaskParams = BinMaskParams()) -> BinMaskRes
     gray = cv2.cvtColor(np.ascontiguousarray(a), cv2.COLOR_RGB2GRAY)
     # gray is an integer: gray > threshold <=> gray > floor(threshold); 0/1 bytes without a copy
     bright = (gray > int(np.floor(threshold))).view(np.uint8)
-    grown = bright
+    grown: np.ndarray = bright
     if dilate_px > 0:
         k = 2 * int(dilate_px) + 1
         grown = cv2.dilate(bright, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
@@ -329,7 +514,17 @@ def bin_pixels(result: BinMaskResult, xyz: XYZ, *, ring_frac: float = 0.2, min_r
     r0, c0 = max(y0 - 1, 0), max(x0 - 1, 0)
     r1, c1 = min(y1 + 1, shape[0]), min(x1 + 1, shape[1])
     fp = np.ascontiguousarray(result.mask[r0:r1, c0:c1]).view(np.uint8)
+    walls = np.ascontiguousarray(result.walls, dtype=bool).view(np.uint8)
     all_in = bool(fp.all())
+    if not all_in and _exact_opencv(fp.shape):
+        # the bounded transform: the largest distance from the few rows that can hold it, the ring's
+        # distances only where the bounds do not decide
+        g, row_max = _column_distances(fp)
+        largest = _largest_distance(g, row_max, np.argsort(-row_max, kind="stable"))
+        thr = np.float32(max(float(ring_frac) * float(largest), float(min_ring_px)))
+        _ring_bounded(g, _vmax(thr), walls, a, r0, c0, out.view(np.uint8))
+        return out
+    dist: np.ndarray
     if all_in:
         dist = np.zeros((1, 1), np.float32)
         thr = np.float32(0.0)
@@ -337,8 +532,7 @@ def bin_pixels(result: BinMaskResult, xyz: XYZ, *, ring_frac: float = 0.2, min_r
         dist = cv2.distanceTransform(fp, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
         # `dist <= thr` of the oracle compares in float32 (NumPy casts a Python float to the array's type)
         thr = np.float32(max(float(ring_frac) * float(dist.max()), float(min_ring_px)))
-    walls = np.ascontiguousarray(result.walls, dtype=bool)
-    _ring(dist, thr, walls.view(np.uint8), a, r0, r1, c0, c1, all_in, out.view(np.uint8))
+    _ring(dist, thr, walls, a, r0, r1, c0, c1, all_in, out.view(np.uint8))
     return out
 
 
