@@ -12,8 +12,11 @@ first frame is located without a seed and its registration seeds the others, as 
 ``prepare_target``, copied below) and with this tree's (``new``), alternately, ``--repeats`` times.
 It prints the CPU milliseconds (``time.process_time``: every thread) of the ``bin_mask`` stage and of
 the ``registration`` stage (everything ``locate_bin`` does after the mask: the ring of bin pixels,
-the target, the seed's fitness, the ICP), medians over frames and repeats, their ratio, the cost
-per megapixel, and whether every output is the same (the masks, the ring, the pose bit for bit).
+the target, the seed's fitness, the ICP), medians over frames and repeats, their ratio, the CPU of
+``register_bin`` (Open3D's ICP and the bin fitness, code this change leaves alone) and of the rest,
+the cost per megapixel, and whether every output is the same (the masks, the ring, hence the points ICP is
+given; the registration's counts and verdict), with the largest pose difference old vs new beside
+that of two runs of the old code (Open3D's ICP is not bit-reproducible from run to run).
 
 The first, unseeded frame (coarse and fine ICP from the translation-only guess) is timed the same
 way on its own line.
@@ -86,17 +89,27 @@ def bin_model_for(d: Path, size: tuple[int, int]):  # type: ignore[no-untyped-de
 
 
 def locate(variant: str, frame, config, prepared, seed):  # type: ignore[no-untyped-def]
-    """(BinLocation, CPU s of the bin mask, CPU s of the registration stage) with ``variant``'s code."""
+    """(BinLocation, CPU s of the bin mask, CPU s of the registration stage, CPU s of its ICP calls)
+    with ``variant``'s code."""
     fns = VARIANTS[variant]
     marks: list[float] = []
+    icp = [0.0]
+    register = stages.register_bin
+
+    def timed_register(*a: Any, **k: Any) -> Any:
+        c0 = time.process_time()
+        out = register(*a, **k)
+        icp[0] += time.process_time() - c0
+        return out
 
     def timed_mask(*a: Any, **k: Any) -> Any:
         out = fns["bin_mask"](*a, **k)
         marks.append(time.process_time())
         return out
 
-    saved = {name: getattr(stages, name) for name in fns}
+    saved = {name: getattr(stages, name) for name in (*fns, "register_bin")}
     try:
+        stages.register_bin = timed_register
         stages.bin_mask = timed_mask
         stages.bin_pixels = fns["bin_pixels"]
         stages.prepare_target = fns["prepare_target"]
@@ -106,16 +119,20 @@ def locate(variant: str, frame, config, prepared, seed):  # type: ignore[no-unty
         fns["bin_mask"](rgb, params=config.bin_mask)
         t_mask = time.process_time() - c0
         marks.clear()
+        icp[0] = 0.0
         out = stages.locate_bin(frame, config, bin_model=prepared, seed=seed)
         t_reg = time.process_time() - marks[0]
     finally:
         for name, fn in saved.items():
             setattr(stages, name, fn)
-    return out, t_mask, t_reg
+    return out, t_mask, t_reg, icp[0]
 
 
 def same_location(a, b) -> list[str]:  # type: ignore[no-untyped-def]
-    """Names of the outputs that differ (empty: identical bit for bit)."""
+    """Names of the outputs that differ: the mask, the ring (hence the points handed to ICP, in the
+    same order), and the registration's counts and verdict. The pose itself is compared apart
+    (:func:`pose_gap`): Open3D's ICP sums its correspondences over threads in no fixed order, so two
+    runs of the same code on the same points differ in the last bits."""
     bad = []
     for f in a.bin_mask.__slots__:
         x, y = getattr(a.bin_mask, f), getattr(b.bin_mask, f)
@@ -123,15 +140,16 @@ def same_location(a, b) -> list[str]:  # type: ignore[no-untyped-def]
             bad.append(f"bin_mask.{f}")
     if not np.array_equal(a.ring, b.ring):
         bad.append("ring")
-    ra, rb = a.registration, b.registration
-    for f in ra.__slots__:
-        x, y = getattr(ra, f), getattr(rb, f)
-        if isinstance(x, np.ndarray):
-            if x.tobytes() != y.tobytes():
-                bad.append(f"registration.{f}")
-        elif repr(x) != repr(y):
+    for f in ("n_model", "n_target", "n_rim", "converged", "T_init"):
+        x, y = getattr(a.registration, f), getattr(b.registration, f)
+        if (x.tobytes() != y.tobytes()) if isinstance(x, np.ndarray) else x != y:
             bad.append(f"registration.{f}")
     return bad
+
+
+def pose_gap(a, b) -> float:  # type: ignore[no-untyped-def]
+    """Largest difference between two poses' entries (metres, or rotation matrix entries)."""
+    return float(np.abs(a.registration.T_cam_bin - b.registration.T_cam_bin).max())
 
 
 def main() -> None:
@@ -152,38 +170,52 @@ def main() -> None:
         prepared = prepare_bin_model(bin_model_for(d, size), registration=config.registration, removal=config.removal)
         frames = [synthesize_frame(kind=args.kind, seed=KIND_SEED, index=i, size=size).frame
                   for i in range(args.frames + 1)]
-        first, _, _ = locate("new", frames[0], config, prepared, None)
+        first, _, _, _ = locate("new", frames[0], config, prepared, None)
         seed = first.registration
         print(f"  seed: converged {seed.converged}, fitness {seed.fitness:.3f}", flush=True)
         for label, todo, s in (("first frame (unseeded)", frames[:1], None), ("seeded frames", frames[1:], seed)):
-            times: dict[str, dict[str, list[float]]] = {v: {"mask": [], "reg": []} for v in VARIANTS}
+            times: dict[str, dict[str, list[float]]] = {v: {"mask": [], "reg": [], "icp": []} for v in VARIANTS}
             differ: set[str] = set()
+            gap_new, gap_old = 0.0, 0.0
             for frame in todo:
+                previous_old = None
                 for _ in range(args.repeats):
                     got = {}
                     for v in VARIANTS:
-                        loc, tm, tr = locate(v, frame, config, prepared, s)
+                        loc, tm, tr, ti = locate(v, frame, config, prepared, s)
                         times[v]["mask"].append(tm * 1000)
                         times[v]["reg"].append(tr * 1000)
+                        times[v]["icp"].append(ti * 1000)
                         got[v] = loc
                     differ.update(same_location(got["old"], got["new"]))
+                    gap_new = max(gap_new, pose_gap(got["old"], got["new"]))
+                    if previous_old is not None:
+                        gap_old = max(gap_old, pose_gap(previous_old, got["old"]))
+                    previous_old = got["old"]
             med = {v: {k: statistics.median(x) for k, x in t.items()} for v, t in times.items()}
             mpx = h * w / 1e6
             o, n = med["old"], med["new"]
             tot_o, tot_n = o["mask"] + o["reg"], n["mask"] + n["reg"]
-            rows.append((f"{w}x{h}", label, o, n, tot_o, tot_n, mpx, differ))
+            rows.append((f"{w}x{h}", label, o, n, tot_o, tot_n, mpx, differ, gap_new, gap_old))
             print(f"  {label:24s} bin mask {o['mask']:6.1f} -> {n['mask']:5.1f} ms ({o['mask'] / n['mask']:.2f}x)  "
                   f"registration {o['reg']:6.1f} -> {n['reg']:5.1f} ms ({o['reg'] / n['reg']:.2f}x)  "
-                  f"both {tot_o:6.1f} -> {tot_n:5.1f} ms ({tot_o / tot_n:.2f}x); "
+                  f"both {tot_o:6.1f} -> {tot_n:5.1f} ms ({tot_o / tot_n:.2f}x), of which register_bin (ICP, "
+                  f"untouched) {o['icp']:5.1f} / {n['icp']:5.1f}, the rest {tot_o - o['icp']:5.1f} -> "
+                  f"{tot_n - n['icp']:5.1f} ms ({(tot_o - o['icp']) / (tot_n - n['icp']):.2f}x); "
                   f"per Mpx {tot_o / mpx:5.1f} -> {tot_n / mpx:5.1f} ms; "
-                  + ("identical" if not differ else f"DIFFER: {sorted(differ)}"), flush=True)
+                  + ("identical" if not differ else f"DIFFER: {sorted(differ)}")
+                  + f"; pose old vs new {gap_new:.1e}, old vs old {gap_old:.1e}", flush=True)
     print()
     print("| size | frames | bin mask old | new | registration old | new | both old | new | old / new | "
-          "new per Mpx | identical |")
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|")
-    for size_s, label, o, n, tot_o, tot_n, mpx, differ in rows:
+          "ICP old | new | both without ICP old | new | old / new | "
+          "new per Mpx | masks, ring, counts identical | pose old vs new | old vs old |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|")
+    for size_s, label, o, n, tot_o, tot_n, mpx, differ, gap_new, gap_old in rows:
         print(f"| {size_s} | {label} | {o['mask']:.1f} | {n['mask']:.1f} | {o['reg']:.1f} | {n['reg']:.1f} | "
-              f"{tot_o:.1f} | {tot_n:.1f} | {tot_o / tot_n:.2f} | {tot_n / mpx:.1f} | {'yes' if not differ else 'NO'} |")
+              f"{tot_o:.1f} | {tot_n:.1f} | {tot_o / tot_n:.2f} | {o['icp']:.1f} | {n['icp']:.1f} | "
+              f"{tot_o - o['icp']:.1f} | {tot_n - n['icp']:.1f} | {(tot_o - o['icp']) / (tot_n - n['icp']):.2f} | "
+              f"{tot_n / mpx:.1f} | {'yes' if not differ else 'NO'} | "
+              f"{gap_new:.1e} | {gap_old:.1e} |")
 
 
 if __name__ == "__main__":
