@@ -508,13 +508,15 @@ def bin_pixels(result: BinMaskResult, xyz: XYZ, *, ring_frac: float = 0.2, min_r
     out = np.zeros(shape, bool)
     if not result.found:
         return out
-    if a.dtype not in (np.float32, np.float64):
+    walls = np.asarray(result.walls)
+    if a.dtype not in (np.float32, np.float64) or walls.dtype != bool or walls.shape != shape:
+        # other float types, or masks not as bin_mask makes them: the oracle's own arithmetic
         return bin_pixels_reference(result, a, ring_frac=ring_frac, min_ring_px=min_ring_px)
     y0, x0, y1, x1 = result.bbox_rc
     r0, c0 = max(y0 - 1, 0), max(x0 - 1, 0)
     r1, c1 = min(y1 + 1, shape[0]), min(x1 + 1, shape[1])
-    fp = np.ascontiguousarray(result.mask[r0:r1, c0:c1]).view(np.uint8)
-    walls = np.ascontiguousarray(result.walls, dtype=bool).view(np.uint8)
+    fp = np.ascontiguousarray(result.mask[r0:r1, c0:c1], dtype=np.uint8)
+    walls = np.ascontiguousarray(walls).view(np.uint8)
     all_in = bool(fp.all())
     if not all_in and _exact_opencv(fp.shape):
         # the bounded transform: the largest distance from the few rows that can hold it, the ring's

@@ -113,6 +113,11 @@ def test_large_invalid_regions_and_degenerate_clouds():
     assert_same_pixels(r, f.xyz.astype(np.float64))
     assert_same_pixels(r, f.xyz[:, :, ::-1])                     # a strided view
     assert_same_pixels(r, f.xyz.astype(np.float16))              # a float type the fast path leaves to the oracle
+    # masks not as bin_mask makes them (bytes, 0/2): the oracle's arithmetic
+    import dataclasses
+
+    odd = dataclasses.replace(r, mask=r.mask.astype(np.uint8) * 3, walls=r.walls.astype(np.uint8) * 2)
+    assert_same_pixels(odd, f.xyz)
 
 
 @pytest.mark.parametrize("shape", [(3, 3), (1, 1), (1, 7), (5, 1), (0, 4)])
