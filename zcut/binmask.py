@@ -350,9 +350,10 @@ def _ring_bounded(g, vmax, walls, xyz, r0, c0, out):  # type: ignore[no-untyped-
 #: is the exact Euclidean distance transform: not below 2^14 pixels or on one thread, where OpenCV
 #: runs Intel IPP's (another rounding); not on crops 1448 px wide or more, where the float32
 #: intersections of its parabolas could, in principle, err by more than the gap between two of them
-#: at a pixel (their error is below |s| 2^-23 for an intersection s < W, a wrong choice needs a gap
-#: below 1/(2 W) over a slope difference below 2 W: 4 W^2 2^-23 < 1 holds below 1448); nor where the
-#: squared distances (row^2 + col^2) leave float32's integers (2^24). Elsewhere: OpenCV's.
+#: at a pixel (an error-bound argument, not a formal proof: their error is below |s| 2^-23 for an
+#: intersection s < W, a wrong choice needs a gap below 1/(2 W) over a slope difference below 2 W,
+#: and 4 W^2 2^-23 < 1 below 1448; tests/zcut/test_binmask_fast.py checks it against OpenCV); nor
+#: where the squared distances (row^2 + col^2) leave float32's integers (2^24). Elsewhere: OpenCV's.
 _EXACT_MIN_PX = 1 << 14
 _EXACT_MAX_W = 1447
 
@@ -365,7 +366,7 @@ def _exact_opencv(shape: tuple[int, int]) -> bool:
 
 def _vmax(thr: np.float32) -> int:
     """The largest integer V whose float32 square root is <= thr (the ring's squared distances)."""
-    cap = 1 << 40
+    cap = 1 << 25  # above every squared distance of a crop the bounded transform takes
     v = min(int(np.floor(float(thr) * float(thr))), cap)
     while v < cap and np.sqrt(np.float32(v + 1)) <= thr:
         v += 1
