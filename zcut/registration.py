@@ -124,6 +124,8 @@ def _check_points(p: np.ndarray, name: str) -> np.ndarray:
     a = np.asarray(p)
     if a.ndim != 2 or a.shape[1] != 3 or not np.issubdtype(a.dtype, np.floating):
         raise InputShapeError(f"{name} must be an (N, 3) float array, got {describe_array(a)}")
+    if np.isfinite(a).all():  # the usual case: one flat reduction, not a row-wise one and a gather (5 -> 0.3 ms)
+        return np.array(a, dtype=np.float64, order="C")
     a = a[np.isfinite(a).all(axis=1)]
     return np.ascontiguousarray(a, dtype=np.float64)
 
@@ -370,7 +372,9 @@ def prepare_target(target: np.ndarray, *, voxel_m: float, intrinsics: Intrinsics
     if intrinsics is not None and not isinstance(intrinsics, Intrinsics):
         raise InputShapeError(f"intrinsics must be a zcut.cloud.Intrinsics or None, got {type(intrinsics).__name__}")
     cloud = _cloud(t, voxel_m)
-    return TargetPoints(t, cloud, float(voxel_m), cKDTree(np.asarray(cloud.points, dtype=np.float64)), intrinsics)
+    # an unbalanced tree without shrunk boxes builds in half the time; its nearest distances are the same
+    tree = cKDTree(np.asarray(cloud.points, dtype=np.float64), balanced_tree=False, compact_nodes=False)
+    return TargetPoints(t, cloud, float(voxel_m), tree, intrinsics)
 
 
 def register_bin(
