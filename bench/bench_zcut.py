@@ -5,7 +5,12 @@ kernel (sorted pixels; the default before, now used beyond 4095 levels) is timed
 ``find_clusters(..., kernel=...)`` (the stage view: the same tree, more read-outs), next to the flood
 through the same function.
 
-Run: ``.venv/bin/python bench/bench_zcut.py [--repeat-fast N] [--repeat-ref N]``
+Run: ``.venv/bin/python bench/bench_zcut.py [--repeat-fast N] [--repeat-ref N] [--against OLD_TREE]``
+
+``--against OLD_TREE`` (a checkout of the previous code, e.g. ``git archive HEAD~1 | tar -x -C
+/tmp/old``) times that tree's ``zcut_outliers`` and ``find_clusters`` on the same frames in the same
+run (a child process with OLD_TREE first on its path) and prints the ratio old / new, and whether
+its masks are identical.
 
 Two frames, heights in mm (larger = higher), seeded:
 - ``pile``: a top-down view of a bin (floor, walls, rim) with parts piled ~100 mm deep, floating
@@ -21,8 +26,14 @@ CPU time (process_time) is the figure to quote on a shared machine.
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -105,10 +116,50 @@ def timed(fn, repeat: int) -> tuple[float, float, np.ndarray]:
     return statistics.median(wall), statistics.median(cpu), out
 
 
+_OLD_SNIPPET = """
+import json, statistics, sys, time
+import numpy as np
+from zcut.cuts import find_clusters, zcut_outliers
+from zcut.params import ZCutParams
+frames, params, repeat, out = sys.argv[1], json.loads(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+zcut_outliers(np.zeros((3, 3)), **params)
+zp = ZCutParams(params["step"], params["max_depth"], params["max_area"])
+res = {}
+for name in frames.split(","):
+    z = np.load(out + "/" + name + ".npy")
+    find_clusters(z, params=zp)
+    cpu = {"zcut_outliers": [], "find_clusters": []}
+    for _ in range(repeat):
+        for key, fn in (("zcut_outliers", lambda: zcut_outliers(z, **params)),
+                        ("find_clusters", lambda: find_clusters(z, params=zp))):
+            c0 = time.process_time()
+            m = fn()
+            cpu[key].append(time.process_time() - c0)
+    np.save(out + "/" + name + ".old.npy", zcut_outliers(z, **params))
+    res[name] = {k: statistics.median(v) for k, v in cpu.items()}
+print(json.dumps(res))
+"""
+
+
+def time_old_tree(tree: Path, frames: dict[str, np.ndarray], params: dict, repeat: int
+                  ) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
+    """Median CPU seconds of the old tree's zcut_outliers and find_clusters per frame, and its masks."""
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, z in frames.items():
+            np.save(f"{tmp}/{name}.npy", z)
+        env = dict(os.environ, PYTHONPATH=str(tree))
+        run = subprocess.run([sys.executable, "-c", _OLD_SNIPPET, ",".join(frames), json.dumps(params), str(repeat), tmp],
+                             env=env, cwd=str(tree), capture_output=True, text=True, check=True)
+        times = json.loads(run.stdout.strip().splitlines()[-1])
+        masks = {name: np.load(f"{tmp}/{name}.old.npy") for name in frames}
+    return times, masks
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat-fast", type=int, default=7)
     ap.add_argument("--repeat-ref", type=int, default=2)
+    ap.add_argument("--against", type=Path, default=None, help="a checkout of the previous code to time beside")
     args = ap.parse_args()
 
     params = dict(step=NOMINAL_STEP_MM, max_depth=NOMINAL_MAX_DEPTH_MM,
@@ -119,6 +170,10 @@ def main() -> int:
     print(f"numba warm-up (compile or cache load): {warm:.2f} s")
 
     frames = {"pile": pile_frame(), "dense": dense_frame()}
+    old: dict[str, dict[str, float]] = {}
+    old_masks: dict[str, np.ndarray] = {}
+    if args.against is not None:
+        old, old_masks = time_old_tree(args.against, frames, params, args.repeat_fast)
     ok = True
     for name, z in frames.items():
         valid = np.isfinite(z)
@@ -142,6 +197,14 @@ def main() -> int:
         for kernel, (w_k, c_k, _) in stage.items():
             print(f"    find_clusters, {kernel + ' kernel:':18s} wall {w_k * 1e3:7.1f} ms, "
                   f"cpu {c_k * 1e3:7.1f} ms, cpu ratio {c_ref / c_k:6.1f}x")
+        if name in old:
+            c_stage = timed(lambda z=z, zp=zp: find_clusters(z, params=zp), args.repeat_fast)[1]
+            same_old = bool(np.array_equal(old_masks[name], m_fast))
+            ok &= same_old
+            o = old[name]
+            print(f"    against {args.against}: zcut_outliers cpu {o['zcut_outliers'] * 1e3:7.1f} -> {c_fast * 1e3:7.1f} ms "
+                  f"({o['zcut_outliers'] / c_fast:4.1f}x), find_clusters cpu {o['find_clusters'] * 1e3:7.1f} -> "
+                  f"{c_stage * 1e3:7.1f} ms ({o['find_clusters'] / c_stage:4.1f}x); identical: {same_old}")
     return 0 if ok else 1
 
 

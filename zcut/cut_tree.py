@@ -12,6 +12,10 @@ Building the tree
 - :func:`pixel_levels` — that level for every pixel, into the padded level image ``q``.
 - :func:`flood_tree` — the tree by flooding with a bucket queue over the levels (the default, up
   to ``FLOOD_MAX_LEVELS`` levels).
+- :func:`finite_range`, :func:`flood_levels`, :func:`flood_core` — the flood's fast path of
+  :func:`zcut.cuts.zcut_outliers` and :func:`zcut.cuts.find_clusters`: one pass for the extremes
+  (and the largest height of each row segment), one for the levels of the pixels in the cuts only
+  (a segment wholly below the lowest cut is not read again), then the flood over those pixels.
 - :func:`union_find_tree` — the same tree by union-find over the pixels sorted by level (any
   number of levels); :func:`node_image` turns its output into the flood's node image.
 
@@ -19,6 +23,8 @@ Reading it back
 
 - :func:`outlier_mask` — the outlier mask of one parameter set (tags given per node).
 - :func:`cluster_labels` — the outermost tagged nodes as (H, W) cluster labels.
+- :func:`listed_outlier_mask`, :func:`listed_cluster_labels` — the same two over the pixels in the
+  cuts only (the fast path).
 - :func:`level_counts` — the number of components of every cut.
 - :func:`taggable_forest` — the nodes that some ``(K, max_area)`` can tag, and for each pixel the
   lowest one holding it (the index of :class:`zcut.cut_grid.ZCutTree`).
@@ -34,11 +40,17 @@ from numba.cpython.unsafe.numbers import trailing_zeros
 
 __all__ = [
     "FLOOD_MAX_LEVELS",
+    "SEGMENT",
     "cluster_labels",
+    "finite_range",
+    "flood_core",
+    "flood_levels",
     "flood_tree",
     "forest_mask",
     "grid_counts",
     "level_counts",
+    "listed_cluster_labels",
+    "listed_outlier_mask",
     "node_image",
     "outlier_mask",
     "pixel_levels",
@@ -144,6 +156,158 @@ def pixel_levels(z, valid, z_min, z_max, step, hi, sentinel, q):  # type: ignore
         for c in range(W):
             zt = z[r, c] if valid[r, c] else z_min
             q[base + 1 + c] = _qlevel_guess(zt, z_max, step, inv_step, hi)
+
+
+#: Row segments of :func:`finite_range`: a segment with no height in the cuts is not read twice.
+SEGMENT = 64
+
+
+@numba.njit(cache=True, nogil=True)
+def finite_range(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
+    """(count, min, max) of the finite heights of z (H, W), and in ``seg_max`` (H, ceil(W /
+    SEGMENT)) the largest finite height of each row segment of SEGMENT pixels (-inf: none)."""
+    H, W = z.shape
+    n = 0
+    lo = np.inf
+    hi = -np.inf
+    for r in range(H):
+        for c0 in range(0, W, SEGMENT):
+            c1 = min(c0 + SEGMENT, W)
+            s_n = 0
+            s_lo = np.inf
+            s_hi = -np.inf
+            for c in range(c0, c1):  # no branch: NaN fails every comparison, an infinity is checked below
+                v = z[r, c]
+                s_n += (v - v) == 0.0
+                s_lo = v if v < s_lo else s_lo
+                s_hi = v if v > s_hi else s_hi
+            if s_lo == -np.inf or s_hi == np.inf:  # an infinite height (invalid) counted: again, with the test
+                s_lo = np.inf
+                s_hi = -np.inf
+                for c in range(c0, c1):
+                    v = z[r, c]
+                    if np.isfinite(v):
+                        s_lo = v if v < s_lo else s_lo
+                        s_hi = v if v > s_hi else s_hi
+            n += s_n
+            seg_max[r, c0 // SEGMENT] = s_hi
+            # strict comparisons: the first of equal extremes in raster order, as _finite_min_max
+            lo = s_lo if s_lo < lo else lo
+            hi = s_hi if s_hi > hi else hi
+    return n, lo, hi
+
+
+@numba.njit(cache=True, nogil=True)
+def flood_levels(z, seg_max, z_min, z_max, step, hi, top, K, st, start, pix, own, pixel_level, want_levels):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`pixel_levels` and the first pass of :func:`flood_tree` in one pass over the heights,
+    touching only the pixels in the cuts (level <= ``top``) beyond one comparison each.
+
+    Writes ``st`` (padded, int16): the level of each pixel in the cuts, -1 elsewhere and on the
+    border; ``start[lv + 1]``: the number of pixels at level lv (``start`` zeroed, ``top + 2``
+    long); ``pix[:m]``: the padded indices of the pixels in the cuts in raster order, and
+    ``own[:m]`` their index in the flat (H, W) image, ``-1 - index`` for an invalid pixel; and,
+    when ``want_levels``, ``pixel_level`` (H, W): the level where it is <= K + 1, else -1.
+    Returns m. A pixel is in the cuts iff ``zt >= z_max - top * step``, the exact test of the cut
+    at level ``top`` (the cuts are nested), and its level is then :func:`qlevel`'s. ``seg_max``
+    is :func:`finite_range`'s: a segment of valid heights all below that threshold is not read.
+    """
+    H, W = z.shape
+    Wp = W + 2
+    inv_step = 1.0 / step
+    thr = z_max - top * step
+    skip = z_min < thr  # invalid pixels (at z_min) are outside the cuts: segments may be skipped
+    for c in range(Wp):
+        st[c] = -1
+        st[(H + 1) * Wp + c] = -1
+    m = 0
+    for r in range(H):
+        base = (r + 1) * Wp
+        st[base] = -1
+        st[base + W + 1] = -1
+        for c0 in range(0, W, SEGMENT):
+            c1 = min(c0 + SEGMENT, W)
+            if skip and not seg_max[r, c0 // SEGMENT] >= thr:
+                # no height of this segment is in the cuts: mark it without reading it again
+                for c in range(c0, c1):
+                    st[base + 1 + c] = -1
+                if want_levels:
+                    for c in range(c0, c1):
+                        pixel_level[r, c] = -1
+                continue
+            for c in range(c0, c1):
+                v = z[r, c]
+                ok = np.isfinite(v)
+                zt = v if ok else z_min
+                p = base + 1 + c
+                if zt >= thr:
+                    lv = _qlevel_guess(zt, z_max, step, inv_step, hi)
+                    st[p] = lv
+                    start[lv + 1] += 1
+                    pix[m] = p
+                    o = r * W + c
+                    own[m] = o if ok else -1 - o
+                    m += 1
+                    if want_levels:
+                        pixel_level[r, c] = lv if lv <= K + 1 else -1
+                else:
+                    st[p] = -1
+                    if want_levels:
+                        pixel_level[r, c] = -1
+    return m
+
+
+@numba.njit(cache=True, nogil=True)
+def _outermost(fin, node_parent, tagged):  # type: ignore[no-untyped-def]  # numba kernel
+    """The outermost tagged node holding each node (itself included), -1: none."""
+    outer = np.full(tagged.size, -1, np.int64)
+    for t in range(fin.size - 1, -1, -1):  # parents are closed after their children
+        a = fin[t]
+        pa = node_parent[a]
+        if pa >= 0 and outer[pa] >= 0:
+            outer[a] = outer[pa]
+        elif tagged[a]:
+            outer[a] = a
+    return outer
+
+
+@numba.njit(cache=True, nogil=True)
+def listed_outlier_mask(lab, pix, own, fin, node_parent, tagged, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`outlier_mask` over the pixels of :func:`flood_levels` only: ``out`` (H * W, zeroed)
+    True on the valid ones held by a tagged node or by a node inside one."""
+    outer = _outermost(fin, node_parent, tagged)
+    for t in range(pix.size):
+        o = own[t]
+        if o >= 0 and outer[lab[pix[t]]] >= 0:
+            out[o] = True
+
+
+@numba.njit(cache=True, nogil=True)
+def listed_cluster_labels(lab, pix, own, fin, node_parent, tagged, labels, outliers):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`cluster_labels` over the pixels of :func:`flood_levels` only (``labels`` int32 and
+    ``outliers`` bool, H * W, zeroed): the same numbers (raster order of first pixel); returns the
+    clusters' nodes and their valid pixel counts."""
+    outer = _outermost(fin, node_parent, tagged)
+    n_nodes = tagged.size
+    number = np.zeros(n_nodes, np.int64)
+    tops = np.empty(n_nodes, np.int64)
+    areas = np.zeros(n_nodes, np.int64)
+    n = 0
+    for t in range(pix.size):
+        o = own[t]
+        if o < 0:
+            continue
+        x = outer[lab[pix[t]]]
+        if x < 0:
+            continue
+        if number[x] == 0:
+            tops[n] = x
+            n += 1
+            number[x] = n
+        i = number[x]
+        labels[o] = i
+        outliers[o] = True
+        areas[i - 1] += 1
+    return tops[:n], areas[:n]
 
 
 @numba.njit(cache=True, inline="always")
@@ -432,21 +596,37 @@ def flood_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-def]  
     closing order (every node is closed before its parent).
     """
     n = q.size
-    Wp = W + 2
     nlev = top + 1
     start = np.zeros(nlev + 1, np.int64)
     # st: the level of an unseen pixel (>= 0); once seen (queued, or not in the cuts) -1 - the
     # neighbour to go on with when the pixel is popped (0 for a queued pixel)
     st = np.empty(n, np.int16)
     lab = np.empty(n, np.int32)  # written for every pixel: here, or when it is first visited
+    pix = np.empty(n, np.int32)  # the pixels in the cuts, in raster order
+    m = 0
     for i in range(n):
         qi = q[i]
         if qi <= top:
             start[qi + 1] += 1
             st[i] = qi
+            pix[m] = i
+            m += 1
         else:
             st[i] = -1
             lab[i] = -1
+    node_b, node_size, node_parent, tagged, fin = flood_core(st, start, pix[:m], W, K, top, conn8, max_area, lab)
+    return lab, node_b, node_size, node_parent, tagged, fin
+
+
+@numba.njit(cache=True, nogil=True)
+def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore[no-untyped-def]  # numba kernel
+    """The flood of :func:`flood_tree` from its prepared state: ``st`` (padded, int16) the level
+    of each pixel in the cuts and -1 elsewhere (the border included), ``start[lv + 1]`` the
+    number of pixels at level lv (turned into the bucket starts here), ``pix`` the pixels in the
+    cuts in raster order. Writes ``lab`` at those pixels only; returns what :func:`flood_tree`
+    returns but ``lab``."""
+    Wp = W + 2
+    nlev = top + 1
     for lv in range(nlev):
         start[lv + 1] += start[lv]
     m = start[nlev]
@@ -469,7 +649,8 @@ def flood_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-def]  
     ne = offs.size
     n_nodes = 0
     n_fin = 0
-    for s in range(n):
+    for t_s in range(pix.size):
+        s = pix[t_s]
         if st[s] < 0:
             continue
         # ---- flood the region of the cuts that holds s. Kept in registers: the level cur of the
@@ -597,7 +778,7 @@ def flood_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-def]  
             sp -= 1
         n_fin = _close(stk_node[0], stk_area[0], -1, K + 2, K, max_area,
                        node_b, node_size, node_parent, tagged, fin, n_fin)
-    return (lab, node_b[:n_nodes], node_size[:n_nodes], node_parent[:n_nodes], tagged[:n_nodes],
+    return (node_b[:n_nodes], node_size[:n_nodes], node_parent[:n_nodes], tagged[:n_nodes],
             fin[:n_fin])
 
 

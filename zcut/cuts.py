@@ -34,6 +34,13 @@ found from the guess ``floor((z_max - z~) * (1 / step))`` corrected with the exa
 With ``Q`` the level of ``z_min`` (the deepest level of any pixel), every level
 past ``Q + 1`` changes nothing and ``K`` can be replaced by ``min(K, Q + 1)``: huge ``max_depth /
 step`` ratios cost nothing.
+
+With the flood (the default), :func:`zcut_outliers` and :func:`find_clusters` build the tree
+straight from the heights (:func:`_flood`): one pass finds the extremes and the largest height of
+every 64-pixel row segment, one pass gives the pixels in the cuts their level (a segment wholly
+below the lowest cut is not read again, and no other pixel costs more than one comparison), and
+the flood and the read-outs visit those pixels only. The tree, hence every output, is the one of
+:func:`_tree` (which the union-find kernel and :mod:`zcut.cut_grid` use).
 """
 
 from __future__ import annotations
@@ -49,9 +56,15 @@ from scipy import ndimage
 
 from .cut_tree import (
     FLOOD_MAX_LEVELS,
+    SEGMENT,
     cluster_labels,
+    finite_range,
+    flood_core,
+    flood_levels,
     flood_tree,
     level_counts,
+    listed_cluster_labels,
+    listed_outlier_mask,
     node_image,
     outlier_mask,
     pixel_levels,
@@ -179,6 +192,14 @@ def _finite_min_max(z):  # type: ignore[no-untyped-def]  # numba kernel
     return n, lo, hi
 
 
+def _finite_range(z: np.ndarray) -> tuple[int, float, float, np.ndarray]:
+    """:func:`_finite_min_max` with the largest finite height of every row segment
+    (:func:`zcut.cut_tree.finite_range`), in one pass."""
+    seg_max = np.empty((z.shape[0], -(-z.shape[1] // SEGMENT)))
+    n, lo, hi = finite_range(z, seg_max)
+    return int(n), float(lo), float(hi), seg_max
+
+
 # --------------------------------------------------------------------------------------------
 # The oracle
 # --------------------------------------------------------------------------------------------
@@ -257,6 +278,56 @@ def _tree(z: np.ndarray, valid: np.ndarray, z_min: float, z_max: float, step: fl
     return q, k_eff, lab, node_b, node_size, node_parent, tagged, fin
 
 
+def _levels(z_min: float, z_max: float, step: float, K: int) -> tuple[int, int]:
+    """``(k_eff, top)`` of :func:`_tree`: the cuts 0 .. k_eff + 1 = top hold every change."""
+    K = min(K, _K_CAP)
+    q_min = int(qlevel(z_min, z_max, step, np.int64(K + 2)))  # the deepest level of any pixel
+    k_eff = min(K, q_min + 1)  # levels past q_min + 1 change nothing (module notes)
+    return k_eff, k_eff + 1
+
+
+@dataclass(frozen=True, slots=True)
+class _Flood:
+    """The flood's tree built straight from the heights (:func:`_flood`), over the pixels in the
+    cuts only: ``pix`` (padded) and ``own`` (flat, ``-1 - index`` when invalid) list them in
+    raster order, ``lab`` is written at them only."""
+
+    lab: np.ndarray
+    pix: np.ndarray
+    own: np.ndarray
+    node_b: np.ndarray
+    node_parent: np.ndarray
+    tagged: np.ndarray
+    fin: np.ndarray
+
+
+def _flood(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step: float, K: int, max_area: float,
+           connectivity: int, pixel_level: np.ndarray | None = None) -> _Flood | None:
+    """The flood kernel's tree without the full-image passes of :func:`_tree` (no valid mask, no
+    padded level image, no pass over the pixels outside the cuts but one comparison each): the
+    same nodes, tags and closing order. None when it does not apply (too many levels or pixels:
+    :func:`_tree` then). ``seg_max``: from :func:`_finite_range`. ``pixel_level``: (H, W) int16,
+    filled as :class:`CutResult` has it."""
+    k_eff, top = _levels(z_min, z_max, step, K)
+    H, W = z.shape
+    n = (H + 2) * (W + 2)
+    if top >= FLOOD_MAX_LEVELS or n >= 2**31 - 1:
+        return None
+    st = np.empty(n, np.int16)
+    start = np.zeros(top + 2, np.int64)
+    pix = np.empty(n, np.int32)
+    own = np.empty(n, np.int32)
+    want = pixel_level is not None
+    levels = pixel_level if pixel_level is not None else np.empty((1, 1), np.int16)
+    m = int(flood_levels(z, seg_max, z_min, z_max, step, np.int64(k_eff + 2), np.int64(top), np.int64(K), st, start, pix,
+                         own, levels, want))
+    lab = np.empty(n, np.int32)
+    pix, own = pix[:m], own[:m]
+    node_b, _, node_parent, tagged, fin = flood_core(st, start, pix, W, np.int64(k_eff), np.int64(top),
+                                                     connectivity == 8, float(max_area), lab)
+    return _Flood(lab, pix, own, node_b, node_parent, tagged, fin)
+
+
 def zcut_outliers(
     height: FloatImage,
     *,
@@ -286,11 +357,18 @@ def zcut_outliers(
     (H, W) bool ndarray
         True on the valid pixels of the tagged components.
     """
-    z, step, max_area, connectivity, K, rng = _checked(height, step, max_depth, max_area, connectivity)
+    z = _check_height(height)
+    step, max_depth, max_area, connectivity = _check_params(step, max_depth, max_area, connectivity)
+    K = n_levels(step, max_depth)
     out = np.zeros(z.shape, dtype=bool)
-    if rng is None:
+    n, z_min, z_max, seg_max = _finite_range(z)
+    if n == 0 or K < 1:
         return out
-    valid, z_min, z_max = rng
+    tree = _flood(z, seg_max, z_min, z_max, step, K, max_area, connectivity)
+    if tree is not None:
+        listed_outlier_mask(tree.lab, tree.pix, tree.own, tree.fin, tree.node_parent, tree.tagged, out.reshape(-1))
+        return out
+    valid = np.isfinite(z)
     _, _, lab, _, _, node_parent, tagged, fin = _tree(
         z, valid, z_min, z_max, step, K, max_area, connectivity
     )
@@ -384,13 +462,24 @@ def find_clusters(height: FloatImage, *, params: ZCutParams, kernel: str = "auto
     outliers = np.zeros((H, W), dtype=bool)
     clusters = np.zeros((H, W), dtype=np.int32)
     counts = np.zeros(K + 1, dtype=np.int64)
-    pixel_level = np.full((H, W), -1, dtype=np.int16)
     empty_i64 = np.zeros(0, dtype=np.int64)
-    rng = _valid_range(z)
-    if rng is None:
+    n, z_min, z_max, seg_max = _finite_range(z)
+    if n == 0:
         return CutResult(outliers, clusters, empty_i64, np.zeros(0), np.zeros(0, np.int32),
-                         counts, pixel_level, math.nan, math.nan, K)
-    valid, z_min, z_max = rng
+                         counts, np.full((H, W), -1, dtype=np.int16), math.nan, math.nan, K)
+    if kernel != "union-find":
+        pixel_level = np.empty((H, W), dtype=np.int16)
+        tree = _flood(z, seg_max, z_min, z_max, step, K, max_area, connectivity, pixel_level)
+        if tree is not None:
+            level_counts(tree.node_b, tree.node_parent, counts)
+            tops, areas = empty_i64, empty_i64
+            if K >= 1:
+                tops, areas = listed_cluster_labels(tree.lab, tree.pix, tree.own, tree.fin, tree.node_parent,
+                                                    tree.tagged, clusters.reshape(-1), outliers.reshape(-1))
+            return _result(params, outliers, clusters, areas, np.maximum(tree.node_b[tops], 1).astype(np.int32),
+                           counts, pixel_level, z_max, z_min, K)
+    pixel_level = np.full((H, W), -1, dtype=np.int16)
+    valid = np.isfinite(z)
     q, k_eff, lab, node_b, _, node_parent, tagged, fin = _tree(
         z, valid, z_min, z_max, step, K, max_area, connectivity, kernel
     )
@@ -406,7 +495,11 @@ def find_clusters(height: FloatImage, *, params: ZCutParams, kernel: str = "auto
         tops = empty_i64
     areas = np.bincount(clusters.ravel(), minlength=tops.size + 1)[1:].astype(np.int64)
     levels = np.maximum(node_b[tops], 1).astype(np.int32)
+    return _result(params, outliers, clusters, areas, levels, counts, pixel_level, z_max, z_min, K)
+
+
+def _result(params: ZCutParams, outliers: Mask, clusters: Labels, areas: np.ndarray, levels: np.ndarray,
+            counts: np.ndarray, pixel_level: np.ndarray, z_max: float, z_min: float, K: int) -> CutResult:
     a_max = params.a_max
     rho = areas / float(a_max) if a_max is not None else np.full(areas.size, math.nan)
-    return CutResult(outliers, clusters, areas, rho, levels, counts, pixel_level,
-                     z_max, z_min, K)
+    return CutResult(outliers, clusters, areas, rho, levels, counts, pixel_level, z_max, z_min, K)

@@ -1,0 +1,216 @@
+"""z-cut: the flood straight from the heights (zcut.cuts._flood: no valid mask, no padded level
+image, row segments outside the cuts not read twice, read-outs over the pixels in the cuts only)
+against the literal loop and against the previous full-image path, on synthetic scans, a ray-traced
+frame, the real Kinect clouds, large invalid regions and degenerate inputs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from zcut import ZCutParams, find_clusters, zcut_outliers, zcut_outliers_reference
+from zcut.cut_tree import SEGMENT, outlier_mask
+from zcut.cuts import CutResult, _finite_min_max, _finite_range, _tree
+from zcut.params import n_levels
+
+NOMINAL = dict(step=0.2, max_depth=30.0, max_area=210.0)
+
+
+def previous_outliers(z: np.ndarray, *, step: float, max_depth: float, max_area: float,
+                      connectivity: int = 8) -> np.ndarray:
+    """zcut_outliers as it was before the fast path: valid mask, padded level image, full-image flood
+    and read-out (zcut.cuts._tree, which the union-find kernel and zcut_tree still use)."""
+    z = np.ascontiguousarray(z, dtype=np.float64)
+    out = np.zeros(z.shape, dtype=bool)
+    K = n_levels(step, max_depth)
+    n, z_min, z_max = _finite_min_max(z)
+    if n == 0 or K < 1:
+        return out
+    valid = np.isfinite(z)
+    _, _, lab, _, _, node_parent, tagged, fin = _tree(z, valid, z_min, z_max, step, K, max_area, connectivity,
+                                                      "flood")
+    outlier_mask(lab, fin, node_parent, tagged, valid, out)
+    return out
+
+
+def same_result(a: CutResult, b: CutResult) -> None:
+    for name in ("outliers", "clusters", "areas", "levels", "level_counts", "pixel_level"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.dtype == y.dtype and x.shape == y.shape, name
+        np.testing.assert_array_equal(x, y, err_msg=name)
+    np.testing.assert_array_equal(a.rho, b.rho)
+    for name in ("z_max", "z_min"):  # bit for bit, the sign of a zero included
+        assert np.array(getattr(a, name)).tobytes() == np.array(getattr(b, name)).tobytes(), name
+    assert a.n_levels == b.n_levels
+
+
+def check(z: np.ndarray, *, reference: bool = True, **params: float) -> np.ndarray:
+    """Every path agrees on z: the fast zcut_outliers, the previous path, the literal loop (when
+    ``reference``), and find_clusters with the flood (fast) and the union-find (full image)."""
+    got = zcut_outliers(z, **params)
+    np.testing.assert_array_equal(got, previous_outliers(z, **params))
+    if reference:
+        np.testing.assert_array_equal(got, zcut_outliers_reference(z, **params))
+    p = ZCutParams(params["step"], params["max_depth"], params["max_area"],
+                   connectivity=int(params.get("connectivity", 8)), a_max=1000.0)
+    fast = find_clusters(z, params=p)
+    for kernel in ("flood", "union-find"):
+        same_result(fast, find_clusters(z, params=p, kernel=kernel))
+    np.testing.assert_array_equal(fast.outliers, got)
+    return got
+
+
+def height_mm(xyz: np.ndarray) -> np.ndarray:
+    """The pipeline's height image of a camera cloud: -1000 z (higher = nearer)."""
+    return -1000.0 * np.asarray(xyz[..., 2], dtype=np.float64)
+
+
+# ------------------------------------------------------------------------------------------------
+# synthetic scans, ray-traced, real
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(("kind", "seed"), [("spheres", 1), ("zinc_nuts", 2), ("rods", 3), ("black_screws", 4),
+                                            ("sprockets", 5)])
+def test_synthetic_scans(kind: str, seed: int) -> None:
+    from replay.synth import synthesize_frame
+
+    xyz = synthesize_frame(kind=kind, seed=seed, size=(96, 160)).frame.xyz
+    z = height_mm(xyz)
+    assert np.isfinite(z).any()
+    for params in (NOMINAL, dict(step=0.5, max_depth=60.0, max_area=40.0, connectivity=4),
+                   dict(step=0.1, max_depth=400.0, max_area=math.inf)):
+        check(z, **params)
+
+
+def test_raytraced_frame() -> None:
+    from replay.synth.raytrace import synthesize_raytraced_frame
+
+    z = height_mm(synthesize_raytraced_frame(kind="spheres", seed=903, size=(60, 96), fill_mm=6.0).frame.xyz)
+    assert np.isfinite(z).any()
+    for params in (NOMINAL, dict(step=0.25, max_depth=80.0, max_area=20.0)):
+        check(z, **params)
+
+
+@pytest.mark.parametrize("name", ["mosd_test16.pcd", "table_scene_mug_stereo_textured.pcd"])
+def test_real_kinect_clouds(real_data, name: str) -> None:
+    import open3d as o3d
+
+    cloud = o3d.io.read_point_cloud(str(real_data / name), remove_nan_points=False, remove_infinite_points=False)
+    z = height_mm(np.asarray(cloud.points).reshape(480, 640, 3))
+    assert np.isfinite(z).sum() > 100_000
+    got = check(z, **NOMINAL)
+    assert got.any()  # a case that tags something
+    check(z[100:300, 50:400], step=1.0, max_depth=120.0, max_area=500.0, connectivity=4)
+
+
+# ------------------------------------------------------------------------------------------------
+# large invalid regions, segments, degenerate inputs
+# ------------------------------------------------------------------------------------------------
+def bumpy(rng: np.random.Generator, H: int, W: int, step: float) -> np.ndarray:
+    """A pile of caps with floating patches, heights on the step/2 grid (many exactly on thresholds)."""
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+    z = 0.01 * yy + 0.02 * xx
+    for _ in range(40):
+        cy, cx, r = rng.uniform(0, H), rng.uniform(0, W), rng.uniform(2, 12)
+        z = np.maximum(z, rng.uniform(0, 20) * step * np.clip(1 - ((yy - cy) ** 2 + (xx - cx) ** 2) / r**2, 0, None)
+                       + rng.uniform(0, 10) * step * (((yy - cy) ** 2 + (xx - cx) ** 2) < r**2))
+    for _ in range(30):
+        y, x = int(rng.integers(0, H)), int(rng.integers(0, W))
+        z[y:y + 3, x:x + 2] += rng.uniform(1, 8) * step
+    z = z + rng.normal(0, 0.3 * step, z.shape)
+    return np.round(z / (step / 2)) * (step / 2)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_large_invalid_regions(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    H, W = 70, 3 * SEGMENT + 17
+    z = bumpy(rng, H, W, 0.5)
+    z[:, : 2 * SEGMENT] = np.nan  # whole segments invalid
+    z[10:40, 150:] = np.nan  # a block across segment edges
+    z[rng.random(z.shape) < 0.3] = np.nan  # scattered dropouts
+    z[5, 200] = np.inf
+    z[6, 201] = -np.inf  # infinities are invalid, like NaN
+    for params in (dict(step=0.5, max_depth=3.0, max_area=30.0), dict(step=0.5, max_depth=6.0, max_area=math.inf),
+                   dict(step=0.5, max_depth=200.0, max_area=8.0, connectivity=4)):
+        check(z, **params)
+        check(z.astype(np.float32), **params)
+        check(z.T.copy(), **params)
+
+
+@pytest.mark.parametrize("width", [1, 2, SEGMENT - 1, SEGMENT, SEGMENT + 1, 2 * SEGMENT + 3])
+def test_segment_edges(width: int) -> None:
+    rng = np.random.default_rng(width)
+    step = 0.5
+    z = bumpy(rng, 23, width, step)
+    z_max = float(z.max())
+    # segments whose highest height lies exactly on, just above or just below the lowest cut
+    for k, delta in ((4, 0.0), (4, step / 2), (4, -step / 2)):
+        z2 = z.copy()
+        z2[::3] = np.minimum(z2[::3], z_max - k * step + delta)
+        z2[1::4] = np.nan
+        check(z2, step=step, max_depth=(k - 1) * step, max_area=25.0)
+        check(z2, step=step, max_depth=k * step, max_area=25.0, connectivity=4)
+
+
+def test_every_pixel_in_the_cuts() -> None:
+    """z_min within the cut range: the invalid pixels (at z_min) are in the cuts, no segment skipped."""
+    rng = np.random.default_rng(5)
+    z = bumpy(rng, 40, 150, 0.5)
+    z[rng.random(z.shape) < 0.4] = np.nan
+    z[:, 70:140] = np.nan
+    check(z, step=0.5, max_depth=1000.0, max_area=50.0)
+    check(z, step=0.5, max_depth=float(np.nanmax(z) - np.nanmin(z)), max_area=math.inf)
+
+
+@pytest.mark.parametrize("case", ["all_nan", "one_valid", "three", "one_row", "one_column", "constant",
+                                  "signed_zeros", "two_values", "empty"])
+def test_degenerate(case: str) -> None:
+    z = {
+        "all_nan": np.full((5, 70), np.nan),
+        "one_valid": np.where(np.arange(200).reshape(10, 20) == 57, 3.0, np.nan),
+        "three": np.array([[0.0, 1.0, 0.0], [1.0, 5.0, 1.0], [0.0, np.nan, 0.0]]),
+        "one_row": np.array([[0.0, 2.0, 2.0, 0.0, np.nan, 3.0, 0.0]]),
+        "one_column": np.array([[0.0], [2.0], [np.nan], [0.5], [0.0]]),
+        "constant": np.full((9, 130), 7.0),
+        "signed_zeros": np.array([[-0.0, 0.0, 1.0, -0.0], [0.0, -0.0, np.nan, 0.0]]),
+        "two_values": np.where(np.random.default_rng(1).random((20, 140)) < 0.1, 2.0, 0.0),
+        "empty": np.zeros((0, 5)),
+    }[case]
+    for params in (dict(step=0.5, max_depth=2.0, max_area=4.0), dict(step=1.0, max_depth=0.0, max_area=4.0),
+                   dict(step=0.25, max_depth=10.0, max_area=math.inf, connectivity=4)):
+        check(z, **params)
+
+
+def test_finite_range_equals_the_min_max() -> None:
+    rng = np.random.default_rng(3)
+    for shape in ((0, 4), (3, 0), (1, 1), (7, SEGMENT), (5, 3 * SEGMENT + 1)):
+        z = rng.normal(size=shape)
+        z[rng.random(shape) < 0.3] = np.nan
+        if z.size > 4:
+            z.flat[1], z.flat[3] = np.inf, -np.inf
+        n, lo, hi, seg = _finite_range(z)
+        assert (n, lo, hi) == tuple(_finite_min_max(z))
+        for r in range(shape[0]):
+            for j in range(seg.shape[1]):
+                part = z[r, j * SEGMENT:(j + 1) * SEGMENT]
+                part = part[np.isfinite(part)]
+                assert seg[r, j] == (part.max() if part.size else -np.inf)
+    z = np.array([[-0.0, 0.0, 0.0, -0.0]])  # the first of equal extremes, as before
+    assert [np.signbit(v) for v in _finite_range(z)[1:3]] == [np.signbit(v) for v in _finite_min_max(z)[1:]]
+
+
+def test_bench_frames_at_nominal_parameters() -> None:
+    """The benchmark's two 1920 x 1200 frames: the previous path and the union-find view agree (the
+    literal loop takes minutes there; bench/bench_zcut.py compares it)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+    try:
+        from bench_zcut import A_MAX, dense_frame, pile_frame
+    finally:
+        sys.path.pop(0)
+    for z in (pile_frame(), dense_frame()):
+        check(z, reference=False, step=0.2, max_depth=30.0, max_area=0.07 * A_MAX)
