@@ -24,7 +24,9 @@ def _literal(predicted, outliers, scored):
 def _cases():
     rng = np.random.default_rng(5)
     for shape in [(1, 1), (3, 3), (40, 64), (120, 193)]:
-        r = lambda q: rng.random(shape) < q  # noqa: E731
+        def r(q: float, shape: tuple[int, int] = shape) -> np.ndarray:
+            return rng.random(shape) < q
+
         yield r(0.3), r(0.2), r(0.8)
         yield np.zeros(shape, bool), r(0.5), np.ones(shape, bool)
         yield np.ones(shape, bool), np.ones(shape, bool), r(0.5)
