@@ -526,7 +526,7 @@ class LogReader:
 
         self.mask_topics = sorted(
             t.topic for t in topics.values()
-            if t.msg_type == rm.IMAGE and t.message_encoding == "cdr" and t.encoding == "mono8"
+            if t.msg_type == rm.IMAGE and t.message_encoding == "cdr" and t.encoding in rm.MASK_ENCODINGS
             and ((t.height, t.width) == shape or t.topic.startswith(layout.MASK_PREFIXES))
             and t.topic != self.cloud_topic
         )
@@ -534,7 +534,7 @@ class LogReader:
     def _valid_driver(self) -> TopicInfo | None:
         """The ``/zcut/valid`` topic of a results file without an organized cloud, else None."""
         t = self.topics.get(layout.VALID)
-        if (t is not None and t.msg_type == rm.IMAGE and t.message_encoding == "cdr" and t.encoding == "mono8" and t.height is not None and t.height > 1):
+        if (t is not None and t.msg_type == rm.IMAGE and t.message_encoding == "cdr" and t.encoding in rm.MASK_ENCODINGS and t.height is not None and t.height > 1):
             return t
         return None
 

@@ -695,6 +695,13 @@ def _pack_xyz_rgb(xyz, rgb, out):  # type: ignore[no-untyped-def]  # numba kerne
 
 _IMAGE_CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}
 COLOR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8")
+#: zcut's bit-packed mask ``Image`` (docs/formats.md, "Results"): one bit a pixel, each row packed into
+#: ``ceil(width / 8)`` bytes, its first pixel in the most significant bit (``np.packbits(mask, axis=1)``),
+#: ``step`` bytes from one row to the next; 1 = set. Not a ROS standard encoding: ``zcut replay --out``
+#: writes its masks so (the previous releases wrote ``mono8``, 255 = set; both are read).
+PACKED_MASK_ENCODING = "mono1"
+#: the Image encodings a mask is read from
+MASK_ENCODINGS = ("mono8", PACKED_MASK_ENCODING)
 
 
 def _image_pixels(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -> np.ndarray:
@@ -737,11 +744,41 @@ def image_to_rgb(msg: ImageMsg, *, where: str, max_pixels: int | None = None) ->
 
 
 def image_to_mask(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -> np.ndarray:
-    """(H, W) bool of a mono8 mask ``Image``: nonzero (255 as zcut writes it) -> True."""
+    """(H, W) bool of a mask ``Image``: ``mono8`` (nonzero, 255 as zcut wrote it, -> True) or zcut's
+    bit-packed ``mono1`` (:data:`PACKED_MASK_ENCODING`; set bits -> True)."""
+    if msg.encoding == PACKED_MASK_ENCODING:
+        return _packed_mask(msg, where=where, max_pixels=max_pixels)
     if msg.encoding != "mono8":
-        raise LogFormatError(f"{where}: a mask must be a mono8 Image, got '{msg.encoding}'")
+        raise LogFormatError(f"{where}: a mask must be a mono8 or {PACKED_MASK_ENCODING} Image, got '{msg.encoding}'")
     mask: np.ndarray = _image_pixels(msg, where=where, max_pixels=max_pixels)[..., 0] != 0
     return mask
+
+
+def _packed_mask(msg: ImageMsg, *, where: str, max_pixels: int | None) -> np.ndarray:
+    """(H, W) bool of a ``mono1`` Image (sizes checked against the bytes present first)."""
+    h, w, step = msg.height, msg.width, msg.step
+    if h < 1 or w < 1:
+        raise LogFormatError(f"{where}: Image is empty (height {h}, width {w})")
+    row = (w + 7) // 8
+    if step < row:
+        raise LogFormatError(f"{where}: Image step {step} is smaller than width {w} / 8 bytes, rounded up "
+                             f"({row}; {PACKED_MASK_ENCODING})")
+    need = (h - 1) * step + row
+    if need > len(msg.data):
+        raise LogFormatError(
+            f"{where}: Image {h}x{w} {PACKED_MASK_ENCODING} with step {step} needs {need} bytes of data "
+            f"but has {len(msg.data)}"
+        )
+    check_grid(h, w, max_pixels, what="Image", where=where)
+    buf = np.frombuffer(msg.data, dtype=np.uint8, count=need)
+    rows = np.lib.stride_tricks.as_strided(buf, shape=(h, row), strides=(step, 1), writeable=False)
+    mask: np.ndarray = np.unpackbits(rows, axis=1, count=w).view(np.bool_)
+    return mask
+
+
+def mask_to_packed(mask: np.ndarray) -> np.ndarray:
+    """(H, ceil(W / 8)) uint8: an (H, W) bool mask's rows bit-packed as :data:`PACKED_MASK_ENCODING` holds them."""
+    return np.packbits(np.ascontiguousarray(mask, dtype=np.bool_), axis=1)
 
 
 def image_to_codes(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -> np.ndarray:

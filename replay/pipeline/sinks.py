@@ -401,7 +401,8 @@ class ResultsSink:
     """The results MCAP (docs/formats.md): ``/zcut/outliers``, ``/zcut/sor_outliers``, ``/zcut/methods/NAME``
     (every other base method the config runs), ``/zcut/bin_mask``, ``/zcut/zone``, ``/zcut/valid`` (the
     source's valid pixels), the source's camera info and masks (ground truth) passed through, and with
-    ``cloud`` ``/zcut/filtered`` and the source's image.
+    ``cloud`` ``/zcut/filtered`` and the source's image. Every mask is a bit-packed ``mono1`` Image (one
+    bit a pixel; files of the previous releases hold ``mono8`` masks, read alike), in zstd chunks.
 
     Parameters
     ----------
@@ -409,7 +410,7 @@ class ResultsSink:
     cloud : bool
         Also write the filtered cloud and the image (``zcut replay --out-cloud``): ~33 MB of a
         1920 x 1200 frame, which chunk compression cannot shrink (measured noise); without them (the
-        default) a frame takes ~0.1 MB. ``zcut accuracy`` scores either alike (the valid pixels are
+        default) a frame takes ~0.1-0.2 MB (bench/bench_outputs.py). ``zcut accuracy`` scores either alike (the valid pixels are
         ``/zcut/valid``); the commands that need the points refuse a file without them.
     """
 
@@ -442,11 +443,12 @@ class ResultsSink:
     def _write(self, frame: Frame, result: FrameResult) -> None:
         w: LogWriter = self._writer  # type: ignore[assignment]  # started
         kw: dict[str, Any] = {"stamp_ns": frame.stamp_ns, "frame_id": frame.frame_id}
+        kw_mask = {**kw, "packed": True}  # one bit a pixel (docs/formats.md, "Results")
         for name, mask in result.outliers.items():  # the z-cut first, then SOR and the others that ran
-            w.write_mask(layout.method_topic(name), mask, **kw)
+            w.write_mask(layout.method_topic(name), mask, **kw_mask)
         if result.bin_mask is not None:
-            w.write_mask(layout.BIN_MASK, result.bin_mask.mask, **kw)
-        w.write_mask(layout.VALID, result.valid, **kw)
+            w.write_mask(layout.BIN_MASK, result.bin_mask.mask, **kw_mask)
+        w.write_mask(layout.VALID, result.valid, **kw_mask)
         if self.cloud:
             filtered = frame.xyz.copy()
             filtered[result.zcut_outliers] = np.nan
@@ -457,11 +459,11 @@ class ResultsSink:
             w.write_camera_info(layout.CAMERA_INFO, frame.intrinsics, **kw)
         for topic, mask in frame.masks.items():
             if not topic.startswith(layout.RESULTS_PREFIX):
-                w.write_mask(topic, mask, **kw)
+                w.write_mask(topic, mask, **kw_mask)
         for topic, codes in frame.codes.items():
             w.write_codes(topic, codes, **kw)
         if result.removal is not None:  # the scored region of `zcut accuracy` (docs/accuracy.md "zone")
-            w.write_mask(layout.ZONE, result.zone | result.easy_outliers, **kw)
+            w.write_mask(layout.ZONE, result.zone | result.easy_outliers, **kw_mask)
 
     def close(self, *, completed: bool) -> None:
         writer, self._writer = self._writer, None

@@ -204,7 +204,7 @@ def test_bad_images(enc, step, n, match):
 
 def test_mask_must_be_mono8():
     raw = rm.encode_image(stamp_ns=0, frame_id="c", height=2, width=2, encoding="rgb8", step=6, data=bytes(12))
-    with pytest.raises(LogFormatError, match="mask must be a mono8 Image, got 'rgb8'"):
+    with pytest.raises(LogFormatError, match="mask must be a mono8 or mono1 Image, got 'rgb8'"):
         rm.image_to_mask(rm.decode_image(raw, where="m"), where="m")
 
 

@@ -1,4 +1,4 @@
-"""The results file's size: without the cloud, a frame is its masks (chunk-compressed mono8 images)."""
+"""The results file's size: without the cloud, a frame is its masks (chunk-compressed, bit-packed mono1 images)."""
 
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ def test_results_without_the_cloud_hold_the_same_masks(small_log, tmp_path):
     full, lean = _messages(paths[True]), _messages(paths[False])
     assert {t for t, _ in full} - {t for t, _ in lean} == {layout.FILTERED, layout.IMAGE}
     kept = [(t, m.log_time, m.data) for t, m in full if t not in (layout.FILTERED, layout.IMAGE)]
-    assert kept == [(t, m.log_time, m.data) for t, m in lean]  # the same mono8 messages, byte for byte
+    assert kept == [(t, m.log_time, m.data) for t, m in lean]  # the same mask messages, byte for byte
     masks = [rm.image_to_mask(rm.decode_image(m.data, where="x"), where="x")
              for t, m in lean if t == layout.ZCUT_OUTLIERS]
     assert len(masks) == 2 and all(mk.dtype == np.bool_ for mk in masks)

@@ -1,0 +1,189 @@
+"""Benchmark: what replay's outputs cost per frame: the results file (``--out``, ``--out --out-cloud``) and
+the Rerun recording (``--rrd``, default detail, with the truth's verdicts when the log has truth).
+
+Run: ``.venv/bin/python bench/bench_outputs.py --log LOG.mcap [--frames N] [--repeats R] [--rounds K]
+[--against OLD] [--profile rrd|results]``
+
+The pipeline runs once on the log's first N frames (this tree) and its frames and results are kept
+(pickled to a temporary file). Then each output's sink is fed those same frames, ``--repeats`` times,
+and for each output it prints the CPU ms per frame of its ``write`` (``time.process_time``: every thread
+of the process, so Rerun's own encoder threads count; median over frames and repeats, the first frame
+of each repeat excluded), the CPU ms of ``close`` per frame, and the file's MB per frame. ``--against
+DIR`` measures the sinks of the source tree DIR (the previous release: ``git -C /work/main archive HEAD |
+tar -x -C DIR``) on the same frames in subprocesses of the same run, ``--rounds`` times alternating with
+this tree's (medians of the rounds), and prints the ratios old / new.
+``--profile rrd`` prints the cProfile of this tree's Rerun writes (where the time goes).
+The machine is shared: CPU time, not wall time, is compared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pickle
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+OUTPUTS = ("results", "results+cloud", "rrd")
+
+
+def capture(log: Path, frames: int, dump: Path) -> None:
+    """Run the pipeline on the first ``frames`` frames of ``log`` and pickle (info, [(frame, result)])."""
+    from replay.pipeline.bin_model import bin_model_for
+    from replay.pipeline.session import ReplaySession
+
+    session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
+    pairs: list[tuple[Any, Any]] = []
+
+    class Keep:
+        def start(self, info: Any) -> None:
+            pass
+
+        def write(self, frame: Any, result: Any) -> None:
+            pairs.append((frame, result))
+
+        def close(self, *, completed: bool) -> None:
+            pass
+
+        def outputs(self) -> dict[str, str]:
+            return {}
+
+    session.run(Keep(), frames=(0, frames))  # type: ignore[arg-type]  # a FrameSink
+    info = session.start_info(None)
+    with open(dump, "wb") as f:
+        pickle.dump({"log": str(log), "info": info, "pairs": pairs}, f, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _sink(kind: str, path: Path) -> Any:
+    from replay.pipeline.sinks import RerunSink, ResultsSink
+
+    if kind == "rrd":
+        return RerunSink(rrd=path)
+    return ResultsSink(path, cloud=kind == "results+cloud")
+
+
+def measure(dump: Path, repeats: int, out_dir: Path, profile: str | None) -> dict[str, dict[str, float]]:
+    """CPU ms per frame of write and close, MB per frame, of every output of this process's tree."""
+    import dataclasses
+
+    with open(dump, "rb") as f:
+        data = pickle.load(f)
+    info, pairs = data["info"], data["pairs"]
+    try:
+        from annotate.judge import judge_for_log
+        from replay.logs.reader import LogReader
+
+        reader = LogReader(data["log"])
+        judge = judge_for_log(data["log"], reader.mask_topics, info.config.methods)
+    except Exception as e:  # noqa: BLE001 - a log without truth: the recording without verdicts
+        print(f"no judge: {e}", file=sys.stderr)
+        judge = None
+    out: dict[str, dict[str, float]] = {}
+    for kind in OUTPUTS:
+        writes: list[float] = []
+        closes: list[float] = []
+        size = 0.0
+        prof = None
+        if profile is not None and kind.startswith(profile) and kind != "results+cloud":
+            import cProfile
+
+            prof = cProfile.Profile()
+        for _ in range(repeats):
+            path = out_dir / (kind.replace("+", "_") + (".rrd" if kind == "rrd" else ".mcap"))
+            sink = _sink(kind, path)
+            sink.start(dataclasses.replace(info, judge=judge if kind == "rrd" else None))
+            for i, (frame, result) in enumerate(pairs):
+                if prof is not None:
+                    prof.enable()
+                c = time.process_time()
+                sink.write(frame, result)
+                dt = time.process_time() - c
+                if prof is not None:
+                    prof.disable()
+                if i > 0 or len(pairs) == 1:
+                    writes.append(dt)
+            c = time.process_time()
+            sink.close(completed=True)
+            closes.append((time.process_time() - c) / len(pairs))
+            size = path.stat().st_size / 1e6 / len(pairs)
+        out[kind] = {"write_ms": 1000 * statistics.median(writes), "close_ms": 1000 * statistics.median(closes),
+                     "mb": size}
+        if prof is not None:
+            import pstats
+
+            pstats.Stats(prof, stream=sys.stderr).sort_stats("cumulative").print_stats(40)
+    if judge is not None:
+        judge.close()
+    return out
+
+
+def measure_tree(tree: Path, dump: Path, repeats: int, profile: str | None) -> dict[str, dict[str, float]]:
+    """:func:`measure` with the code of the source tree ``tree``, in a subprocess."""
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    env.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")
+    cmd = [sys.executable, __file__, "--measure-json", str(dump), str(repeats)]
+    if profile:
+        cmd += ["--profile", profile]
+    res = subprocess.run(cmd, env=env, cwd=str(tree), check=True, stdout=subprocess.PIPE, text=True)
+    return json.loads(res.stdout.strip().splitlines()[-1])  # type: ignore[no-any-return]
+
+
+def _medians(runs: list[dict[str, dict[str, float]]]) -> dict[str, dict[str, float]]:
+    return {k: {f: statistics.median(r[k][f] for r in runs) for f in runs[0][k]} for k in runs[0]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--log", type=Path, required=False, help="a log with its bin model attachment")
+    ap.add_argument("--frames", type=int, default=4)
+    ap.add_argument("--repeats", type=int, default=2, help="repeats of the frames in one process")
+    ap.add_argument("--rounds", type=int, default=3, help="alternating processes of the previous tree and this one")
+    ap.add_argument("--against", type=Path, help="source tree of the previous release, measured in the same run")
+    ap.add_argument("--profile", choices=("rrd", "results"), help="cProfile this tree's writes of that output")
+    ap.add_argument("--measure-json", nargs=2, help=argparse.SUPPRESS)  # DUMP REPEATS: one JSON line
+    args = ap.parse_args()
+    if args.measure_json:
+        with tempfile.TemporaryDirectory(prefix="zcut_bench_outputs_") as d:
+            print(json.dumps(measure(Path(args.measure_json[0]), int(args.measure_json[1]), Path(d), args.profile)))
+        return
+    if args.log is None:
+        ap.error("--log LOG.mcap is required (e.g. a 1920x1200 `zcut synth` log with its bin model)")
+    with tempfile.TemporaryDirectory(prefix="zcut_bench_outputs_") as d:
+        dump = Path(d) / "frames.pickle"
+        capture(args.log, args.frames, dump)
+        with open(dump, "rb") as f:
+            pairs = pickle.load(f)["pairs"]
+        h, w = pairs[0][0].xyz.shape[:2]
+        olds: list[dict[str, dict[str, float]]] = []
+        news: list[dict[str, dict[str, float]]] = []
+        for r in range(max(args.rounds, 1)):  # alternating: a shared machine's load swings both alike
+            if args.against:
+                olds.append(measure_tree(args.against, dump, args.repeats, None))
+            news.append(measure_tree(Path(__file__).resolve().parents[1], dump, args.repeats,
+                                     args.profile if r == 0 else None))
+        old = _medians(olds) if olds else None
+        new = _medians(news)
+    print(f"\noutputs of {args.log.name}: {len(pairs)} frames of {w}x{h}; CPU ms per frame (medians of "
+          f"{args.rounds} alternating rounds of {args.repeats} repeats, first frame of each excluded) and MB per frame")
+    head = f"  {'output':14s} {'write ms':>9s} {'close ms':>9s} {'MB':>7s}"
+    if old is not None:
+        head += f" | {'prev write':>10s} {'prev close':>10s} {'prev MB':>8s} | {'write x':>8s} {'MB x':>6s}"
+    print(head)
+    for kind in OUTPUTS:
+        n = new[kind]
+        line = f"  {kind:14s} {n['write_ms']:9.1f} {n['close_ms']:9.1f} {n['mb']:7.3f}"
+        if old is not None:
+            o = old[kind]
+            line += (f" | {o['write_ms']:10.1f} {o['close_ms']:10.1f} {o['mb']:8.3f} | "
+                     f"{o['write_ms'] / max(n['write_ms'], 1e-9):8.2f} {o['mb'] / max(n['mb'], 1e-9):6.2f}")
+        print(line)
+
+
+if __name__ == "__main__":
+    main()
