@@ -305,9 +305,12 @@ def _cache_read(name: str) -> dict[str, np.ndarray] | None:
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
-        os.utime(path)  # the newest used are kept
     except (OSError, ValueError, EOFError, zipfile.BadZipFile):  # absent, or damaged: made again
         return None
+    try:
+        os.utime(path)  # the newest used are kept
+    except OSError:  # a read-only cache: used as it is
+        pass
     return arrays
 
 
