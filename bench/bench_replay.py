@@ -23,6 +23,16 @@ frame (numba compilation, model caches):
   source tree DIR (e.g. the previous release: ``git archive 1f542c6 | tar -x -C DIR``) in a
   subprocess of the same run and prints the ratio old / new per stage. ``--stages-only`` skips
   the frames/s and .rrd measurements. The machine is shared: CPU time, not wall time, is compared.
+- "Stage table" (``--table``, issue 32 item 8): the cost per stage above, CPU ms and wall ms (each
+  stage's timer read with ``time.process_time`` on one pass over the frames, with
+  ``time.perf_counter`` on a second), for every size of ``--sizes`` (default 640x480, 1280x800,
+  1920x1200, 3840x2400: one synthetic log each, cached in ``--dir``, replayed with its own bin
+  model attachment) and every core count of ``--cores`` (default 1 and 2: the measuring subprocess
+  pins itself with ``os.sched_setaffinity`` and runs numba with as many threads). Each row also says
+  the CPU cost per Mpx and its ratio to the 1920x1200 row's (1.00: cost proportional to pixels;
+  issue 32 item 4 asks for 0.75-1.25), and with ``--against DIR`` the previous tree's CPU ms and
+  the ratio previous / this, measured in the same run. ``docs/performance.md`` holds the budget per
+  stage and a run's figures.
 """
 
 from __future__ import annotations
@@ -41,6 +51,21 @@ from replay.pipeline.sinks import BackgroundSinks, RerunSink
 from replay.synth.log import write_synthetic_log
 
 SIZE = (1200, 1920)
+#: the sizes of the stage table, (H, W): the issue's four, 640x480 to 3840x2400
+TABLE_SIZES = ((480, 640), (800, 1280), (1200, 1920), (2400, 3840))
+
+
+def table_log(d: Path, kind: str, frames: int, size: tuple[int, int]) -> Path:
+    """A synthetic log of ``frames`` + 1 frames at ``size`` (H, W), with its bin model attachment
+    (made once, cached in ``d``)."""
+    d.mkdir(parents=True, exist_ok=True)
+    log = d / f"table_{kind}_{frames}x{size[1]}x{size[0]}.mcap"
+    if not log.is_file():
+        print(f"synthesising {frames + 1} frames of {kind} at {size[1]}x{size[0]} -> {log}", flush=True)
+        tmp = log.with_suffix(".tmp.mcap")
+        write_synthetic_log(tmp, kind=kind, frames=frames + 1, seed=11, size=size)
+        tmp.replace(log)
+    return log
 
 
 def prepare(d: Path, kind: str, frames: int) -> tuple[Path, Path]:
@@ -75,9 +100,9 @@ def timed_replay(log: Path, model, *, rrd: Path | None = None) -> tuple[float, f
 STAGES = ("read", "bin_mask", "registration", "removal", "zcut", "sor", "metrics", "total")
 
 
-def stage_costs(log: Path, ply: Path | None) -> dict[str, float]:
-    """CPU ms per frame of every stage (medians over frames 1..; frame 0 warms up), stages run serially;
-    the bin model ``ply``, else the log's own."""
+def stage_costs(log: Path, ply: Path | None, *, clock: str = "cpu") -> dict[str, float]:
+    """CPU ms (``clock`` "cpu") or wall ms ("wall") per frame of every stage (medians over frames 1..;
+    frame 0 warms up), stages run serially; the bin model ``ply``, else the log's own."""
     import types
 
     from replay.pipeline import stages
@@ -87,14 +112,15 @@ def stage_costs(log: Path, ply: Path | None) -> dict[str, float]:
         session = ReplaySession.open(log, bin_model=load_bin_model(ply))
     else:
         session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
-    cpu = types.SimpleNamespace(perf_counter=time.process_time)
-    stages.time = cpu  # type: ignore[attr-defined]  # the stage timers count CPU seconds (all threads)
+    now = time.process_time if clock == "cpu" else time.perf_counter
+    if clock == "cpu":
+        stages.time = types.SimpleNamespace(perf_counter=time.process_time)  # type: ignore[attr-defined]  # the stage timers count CPU seconds (all threads)
     rows: list[dict[str, float]] = []
     frames = session.reader.frames()
     while True:
-        t = time.process_time()
+        t = now()
         frame = next(frames, None)
-        read = time.process_time() - t
+        read = now() - t
         if frame is None:
             break
         located = stages.locate_bin(frame, session.config, bin_model=session.prepared, seed=session.seed)
@@ -118,18 +144,64 @@ def print_stage_table(new: dict[str, float], old: dict[str, float] | None) -> No
         print(line)
 
 
-def stage_costs_of_tree(tree: Path, log: Path, ply: Path | None) -> dict[str, float]:
+def stage_costs_of_tree(tree: Path, log: Path, ply: Path | None, *, cores: int | None = None,
+                        clock: str = "cpu") -> dict[str, float]:
     """:func:`stage_costs` with the code of the source tree ``tree`` (a subprocess; this script's own
-    copy of the function runs against that tree's modules)."""
+    copy of the function runs against that tree's modules), pinned to ``cores`` cores (numba runs as
+    many threads) when given."""
     import json
     import subprocess
     import sys
 
     env = dict(os.environ, PYTHONPATH=str(tree))
     env.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
-    out = subprocess.run([sys.executable, __file__, "--stage-json", str(log), str(ply or "-")], env=env, cwd=str(tree),
-                         check=True, capture_output=True, text=True).stdout
+    extra = []
+    if cores is not None:
+        env["NUMBA_NUM_THREADS"] = str(cores)
+        extra = ["--pin", str(cores)]
+    out = subprocess.run([sys.executable, __file__, "--stage-json", str(log), str(ply or "-"), "--clock", clock,
+                          *extra], env=env, cwd=str(tree), check=True, capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
+
+
+def stage_table(logs: dict[tuple[int, int], Path], cores: list[int], against: Path | None) -> None:
+    """Print the stage table: per size and core count, CPU and wall ms per stage, CPU ms per Mpx and
+    its ratio to the 1920x1200 row, and the previous tree's CPU ms with the ratio previous / this."""
+    this_tree = Path(__file__).resolve().parents[1]
+    load = os.getloadavg()[0]
+    print(f"\nstage table: ms per frame, medians of the frames after a warm-up one, stages one after the other; "
+          f"load average {load:.1f} on {os.cpu_count()} cores (wall times on a loaded machine are not the "
+          "quiet machine's; CPU times count every thread)")
+    results: dict[tuple[tuple[int, int], int], dict[str, dict[str, float]]] = {}
+    for n in cores:
+        for size, log in logs.items():
+            got = {"cpu": stage_costs_of_tree(this_tree, log, None, cores=n, clock="cpu"),
+                   "wall": stage_costs_of_tree(this_tree, log, None, cores=n, clock="wall")}
+            if against is not None:
+                got["old"] = stage_costs_of_tree(against, log, None, cores=n, clock="cpu")
+            results[(size, n)] = got
+    ref_size = (1200, 1920) if (1200, 1920) in logs else next(iter(logs))
+    for n in cores:
+        for size in logs:
+            got = results[(size, n)]
+            mpx = size[0] * size[1] / 1e6
+            ref = results[(ref_size, n)]["cpu"]
+            ref_mpx = ref_size[0] * ref_size[1] / 1e6
+            print(f"\n{size[1]}x{size[0]} ({mpx:.2f} Mpx), {n} core(s), {int(got['cpu']['frames'])} frames")
+            head = (f"  {'stage':13s} {'CPU ms':>8s} {'wall ms':>8s} {'CPU ms/Mpx':>11s} "
+                    f"{'/Mpx vs ' + str(ref_size[1]) + 'x' + str(ref_size[0]):>18s}")
+            if "old" in got:
+                head += f" {'previous CPU':>13s} {'previous/this':>14s}"
+            print(head)
+            for k in STAGES:
+                c, w = got["cpu"][k], got["wall"][k]
+                per = c / mpx
+                rel = per / (ref[k] / ref_mpx) if ref[k] else float("nan")
+                line = f"  {k:13s} {c:8.1f} {w:8.1f} {per:11.1f} {rel:18.2f}"
+                if "old" in got:
+                    o = got["old"][k]
+                    line += f" {o:13.1f} {o / c if c else float('nan'):14.2f}"
+                print(line)
 
 
 def main() -> None:
@@ -142,13 +214,27 @@ def main() -> None:
     ap.add_argument("--stages-only", action="store_true", help="only the cost per stage")
     ap.add_argument("--against", type=Path, help="source tree of the previous release, measured in the same run")
     ap.add_argument("--log", type=Path, help="an existing log (with its bin model attachment) for the cost per stage")
+    ap.add_argument("--table", action="store_true", help="the stage table: sizes x cores, CPU and wall, per Mpx")
+    ap.add_argument("--sizes", default=",".join(f"{w}x{h}" for h, w in TABLE_SIZES),
+                    help="WxH,... of the stage table (default the issue's four)")
+    ap.add_argument("--cores", default="1,2", help="core counts of the stage table (default 1,2)")
     ap.add_argument("--stage-json", nargs=2, help=argparse.SUPPRESS)  # LOG PLY|-: one JSON line
+    ap.add_argument("--clock", default="cpu", choices=("cpu", "wall"), help=argparse.SUPPRESS)
+    ap.add_argument("--pin", type=int, help=argparse.SUPPRESS)  # cores the --stage-json process runs on
     args = ap.parse_args()
     if args.stage_json:
         import json
 
+        if args.pin:
+            os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: args.pin])
         log_, ply_ = args.stage_json
-        print(json.dumps(stage_costs(Path(log_), None if ply_ == "-" else Path(ply_))))
+        print(json.dumps(stage_costs(Path(log_), None if ply_ == "-" else Path(ply_), clock=args.clock)))
+        return
+    if args.table:
+        os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")
+        sizes = [tuple(int(v) for v in s.lower().split("x"))[::-1] for s in args.sizes.split(",")]
+        logs = {(h, w): table_log(Path(args.dir), args.kind, args.frames, (h, w)) for h, w in sizes}
+        stage_table(logs, [int(c) for c in args.cores.split(",")], args.against)
         return
     d = Path(args.dir)
     if args.log is not None and args.stages_only:

@@ -40,7 +40,7 @@ from replay.pipeline.sinks import FrameSink, NullSink, ReplayStart
 from replay.pipeline.stages import FrameResult, bin_zone, locate_bin, run_frame
 from replay.pipeline.zone import BinLocation, Zone
 from zcut.bin_model import BinModel
-from zcut.prepared_model import PreparedBinModel, prepare_bin_model
+from zcut.prepared_model import PreparedBinModel
 from zcut.registration import RegistrationResult
 
 if TYPE_CHECKING:
@@ -305,7 +305,9 @@ class ReplaySession:
         self._first_location: BinLocation | None = None
         self._first_index = -1
         if bin_model is not None:
-            self.prepared = prepare_bin_model(bin_model, registration=c.registration, removal=c.removal)
+            from replay.pipeline.bin_model import prepared_bin_model  # cached by the model's content
+
+            self.prepared = prepared_bin_model(bin_model, registration=c.registration, removal=c.removal)
             if first_frame is not None and c.registration.seed_from_first_frame:
                 # the log's first frame's pose seeds every frame (a static bin): each frame's result
                 # then depends on that frame alone, whatever order or split the frames run in

@@ -1,0 +1,54 @@
+"""The command line loads heavy libraries only where a command uses them (issue 32, fixed costs).
+
+``import cli.main``, ``zcut --help`` and ``zcut --version`` load none of Open3D (~1 CPU-s with the
+Dash and Plotly it imports), Rerun, pyarrow or pandas; a command's ``--help`` loads none of them
+either (it may load numpy and the method table), and a replay without outputs loads Rerun and
+pyarrow not at all. Each is checked in a fresh interpreter (``sys.modules`` at its end).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+HEAVY = ("open3d", "rerun", "pyarrow", "pandas", "sklearn", "matplotlib", "dash", "plotly")
+
+
+def _loaded(code: str) -> list[str]:
+    """The :data:`HEAVY` modules in ``sys.modules`` after ``code`` ran in a fresh interpreter."""
+    probe = (f"{code}\nimport sys\n"
+             f"print(','.join(m for m in {HEAVY!r} if m in sys.modules), file=sys.__stderr__)\n")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=str(ROOT), timeout=300)
+    assert out.returncode == 0, out.stderr
+    last = out.stderr.strip().splitlines()[-1] if out.stderr.strip() else ""
+    return [m for m in last.split(",") if m]
+
+
+def _main(*argv: str) -> str:
+    return ("import sys\n"
+            f"sys.argv = ['zcut', *{list(argv)!r}]\n"
+            "import cli.main\n"
+            "try:\n    cli.main.main()\nexcept SystemExit:\n    pass\n")
+
+
+def test_import_cli_main_loads_no_heavy_library() -> None:
+    assert _loaded("import cli.main") == []
+
+
+@pytest.mark.parametrize("argv", [("--help",), ("--version",), ("replay", "--help"), ("batch", "--help"),
+                                  ("compare", "--help"), ("synth", "--help")])
+def test_help_loads_no_heavy_library(argv: tuple[str, ...]) -> None:
+    assert _loaded(_main(*argv)) == []
+
+
+def test_replay_without_outputs_loads_neither_rerun_nor_pyarrow(tmp_path: Path) -> None:
+    log = tmp_path / "small.mcap"
+    made = subprocess.run([sys.executable, "-m", "cli", "synth", "-o", str(log), "--size", "64x48"],
+                          capture_output=True, text=True, cwd=str(ROOT), timeout=600)
+    assert made.returncode == 0, made.stderr
+    loaded = _loaded(_main("replay", str(log)))
+    assert not {"rerun", "pyarrow", "pandas", "sklearn", "matplotlib"} & set(loaded), loaded
