@@ -9,6 +9,16 @@ from pathlib import Path
 # numba's own workqueue threads, not an old TBB that warns when probed
 os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")
 
+# the suite's caches (prepared bin models, the demo's sample log) live in one folder of its own,
+# shared by the session's tests and removed at the end: never the user's ~/.cache/zcut
+import atexit  # noqa: E402
+import shutil  # noqa: E402
+import tempfile  # noqa: E402
+
+_CACHE = tempfile.mkdtemp(prefix="zcut-test-cache-")
+os.environ["ZCUT_CACHE"] = _CACHE
+atexit.register(shutil.rmtree, _CACHE, True)
+
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 

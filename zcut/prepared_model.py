@@ -112,22 +112,34 @@ def _cloud_of(a: dict[str, np.ndarray], prefix: str) -> o3d.geometry.PointCloud:
 
 
 def _index_arrays(ix: _ModelIndex, prefix: str, out: dict[str, np.ndarray]) -> None:
-    """A removal cell grid; its CSR ``start`` (one int64 a cell, mostly empty) as the nonzero counts."""
+    """A removal cell grid. Its per-cell arrays are mostly empty cells: the CSR ``start`` is kept as the
+    nonzero counts, the bounds ``box`` as the occupied cells' rows, ``busy`` as ``empty_to <= 1``."""
     counts = np.diff(ix.start)
     nz = np.flatnonzero(counts)
     out.update({f"{prefix}.scalars": np.array([ix.cell, ix.rim_b, ix.floor_b]), f"{prefix}.origin": ix.origin,
                 f"{prefix}.dims": ix.dims, f"{prefix}.cells": np.array([len(ix.start)], np.int64),
                 f"{prefix}.nonzero": nz.astype(np.int64), f"{prefix}.counts": counts[nz].astype(np.int64),
-                f"{prefix}.points": ix.points, f"{prefix}.normals": ix.normals, f"{prefix}.offsets": ix.offsets})
+                f"{prefix}.points": ix.points, f"{prefix}.normals": ix.normals, f"{prefix}.offsets": ix.offsets,
+                f"{prefix}.ijk": ix.ijk, f"{prefix}.order": ix.order, f"{prefix}.empty_to": ix.empty_to,
+                f"{prefix}.box": ix.box[nz] if len(ix.box) else np.zeros((0, 6))})
 
 
 def _index_of(a: dict[str, np.ndarray], prefix: str) -> _ModelIndex:
-    start = np.zeros(int(a[f"{prefix}.cells"][0]), np.int64)
-    start[a[f"{prefix}.nonzero"] + 1] = a[f"{prefix}.counts"]
+    n_cells = int(a[f"{prefix}.cells"][0]) - 1
+    nz = a[f"{prefix}.nonzero"]
+    start = np.zeros(n_cells + 1, np.int64)
+    start[nz + 1] = a[f"{prefix}.counts"]
     np.cumsum(start, out=start)
     cell, rim_b, floor_b = (float(v) for v in a[f"{prefix}.scalars"])
+    empty_to = a[f"{prefix}.empty_to"]
+    rows = a[f"{prefix}.box"]
+    box = np.zeros((0, 6))
+    if len(rows) or not len(nz):  # a grid made with its cells' bounds (an empty model's too)
+        box = np.concatenate([np.full((n_cells, 3), np.inf), np.full((n_cells, 3), -np.inf)], axis=1)
+        box[nz] = rows
     return _ModelIndex(cell, a[f"{prefix}.origin"], a[f"{prefix}.dims"], start, a[f"{prefix}.points"],
-                       a[f"{prefix}.normals"], a[f"{prefix}.offsets"], rim_b, floor_b)
+                       a[f"{prefix}.normals"], a[f"{prefix}.offsets"], rim_b, floor_b, a[f"{prefix}.ijk"],
+                       empty_to <= 1, a[f"{prefix}.order"], empty_to, box)
 
 
 def prepared_arrays(prepared: PreparedBinModel) -> dict[str, np.ndarray] | None:
@@ -152,6 +164,8 @@ def prepared_arrays(prepared: PreparedBinModel) -> dict[str, np.ndarray] | None:
     _index_arrays(rem.bin, "removal.bin", out)
     if rem.straggler is not None:
         _index_arrays(rem.straggler, "removal.straggler", out)
+    if rem.nearest is not None:
+        _index_arrays(rem.nearest, "removal.nearest", out)
     return out
 
 
@@ -175,6 +189,7 @@ def prepared_from_arrays(arrays: dict[str, np.ndarray], *, registration: Registr
                    a["icp.up"])
     rim_b, floor_b, radius_m = (float(v) for v in a["removal.scalars"])
     straggler = _index_of(a, "removal.straggler") if "removal.straggler.points" in a else None
+    nearest = _index_of(a, "removal.nearest") if "removal.nearest.points" in a else None
     rem = RemovalIndex(model, removal, rim_b, floor_b, radius_m, _index_of(a, "removal.bin"), straggler,
-                       _tree_of(a, "removal.tree"))
+                       _tree_of(a, "removal.tree"), nearest)
     return PreparedBinModel(model, icp, rem)
