@@ -118,6 +118,14 @@ class Disagreement:
     def n_pixels(self) -> int:
         return int(sum(p.size for _, p, _ in self.frames.values()))
 
+    def summary(self) -> dict[str, object]:
+        """What the page says of the review it is open on (``GET /api/session``'s ``focus``): the
+        comparison's folder name, the methods of A and B, the pixels and frames in disagreement."""
+        a = sum(int((w == ONLY_A).sum()) for _, _, w in self.frames.values())
+        return {"folder": self.folder.name, "a": self.primaries[0], "b": self.primaries[1],
+                "pixels": self.n_pixels, "only_a": a, "only_b": self.n_pixels - a,
+                "frames": sum(p.size > 0 for _, p, _ in self.frames.values()), "compared": len(self.frames)}
+
     def focus(self, frame: Frame) -> np.ndarray:
         """(H, W) uint8 of the frame: :data:`ONLY_A`, :data:`ONLY_B` where A and B disagree, 0 elsewhere
         (everywhere on a frame the comparison did not hold)."""

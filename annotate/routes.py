@@ -96,6 +96,9 @@ class Page:
     assistant : Trainer or None
         The labelling assistant (:mod:`annotate.assistant`), retrained in the background when labels
         change.
+    focus : dict or None
+        With ``zcut annotate --disagreement``, what the page says of that review
+        (:meth:`annotate.disagreement.Disagreement.summary`); None otherwise.
     """
 
     log_path: Path
@@ -109,6 +112,7 @@ class Page:
     presence: Presence | None = None
     assistant: Trainer | None = None
     turbo: list[list[int]] = field(default_factory=turbo_lut)
+    focus: dict[str, Any] | None = None
     #: (frame record id, revision) -> (candidates decided, accepted) of that label
     decided: dict[tuple[int, int], tuple[int, int]] = field(default_factory=dict)
 
@@ -229,6 +233,7 @@ def api_session(page: Page, request: Request) -> Response:
         "damage": [d.text for d in c.damage],
         "annotators": page.store.annotators(page.log),
         "other_servers": [describe_server(s) for s in others], "turbo": page.turbo,
+        "focus": page.focus,
     })
 
 

@@ -109,6 +109,7 @@ def open_page(
     choose_bin_model: Callable[[Any], Any] | None = None,
     assistant_gate: float | None = None,
     focus: Callable[[Any], Any] | None = None,
+    focus_summary: dict[str, Any] | None = None,
 ) -> Page:
     """Open the log for replay and the store, and start preparing frames.
 
@@ -134,6 +135,8 @@ def open_page(
     focus : callable, optional
         Given a frame, the only pixels its review groups hold (``--disagreement``:
         :meth:`annotate.disagreement.Disagreement.focus`).
+    focus_summary : dict, optional
+        What the page's header says of that review (:meth:`annotate.disagreement.Disagreement.summary`).
 
     Candidates come from :meth:`replay.pipeline.session.ReplaySession.results` with the config
     resolved as ``zcut replay`` resolves it. The log is read and its config resolved before the
@@ -160,7 +163,7 @@ def open_page(
         log = store.add_log(log_path)
         catalogue = Catalogue.of_replay(replay, store, log, focus=focus)
         page = Page(log_path=log_path, store=store, log=log, catalogue=catalogue, token=token or new_token(),
-                    annotator=annotator, replay=replay,
+                    annotator=annotator, replay=replay, focus=focus_summary,
                     assistant=Trainer(catalogue, store, log, part=catalogue.part,
                                       gate=GATE if assistant_gate is None else assistant_gate))
     except BaseException:

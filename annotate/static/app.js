@@ -1081,6 +1081,17 @@ async function refreshSession() {
   } finally { setTimeout(refreshSession, 10000); }
 }
 
+function showFocus(f) {  // zcut annotate --disagreement: what this review is, for as long as the page is open
+  const el = $('focusbar');
+  if (!f) { el.hidden = true; return; }
+  const px = (n) => `${n} pixel${n === 1 ? '' : 's'}`;
+  el.textContent = `Disagreement review (zcut compare ${f.folder}): the groups are only the ${px(f.pixels)} ` +
+    `where A (${f.a}) and B (${f.b}) disagree — ${f.only_a} removed by A alone, ${f.only_b} by B alone — on ` +
+    `${f.frames} of the ${f.compared} compared frames. Only these pixels can change the comparison's verdict; ` +
+    'label them, then score both with zcut compare --labels.';
+  el.hidden = false;
+}
+
 function nextUnreviewed() {
   const k = state.cur ? state.order.indexOf(state.cur.index) : -1;
   const rows = state.order.map(frameRow);
@@ -1780,6 +1791,7 @@ function chooseAnnotator() {
   $('who').textContent = `annotator: ${state.annotator}`;
   $('who').title = state.mode === 'fixed' ? 'set when the server started (zcut annotate --annotator)'
     : 'chosen for this page session; it does not change';
+  showFocus(s.focus);
   const notes = s.notes.concat((s.damage || []).map((d) => `data loss: ${d}`));
   if (notes.length) $('notes').textContent = notes.join('\n');
   await refreshFrames();

@@ -94,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
         port = sock.getsockname()[1]
         page = open_page(args.log, db, annotator=annotator, config_path=args.config, choose_bin_model=choose,
                          overrides=overrides, topic=args.topic, assistant_gate=gate,
-                         focus=None if focus is None else focus.focus)
+                         focus=None if focus is None else focus.focus,
+                         focus_summary=None if focus is None else focus.summary())
         if page.replay is not None:  # always (open_page opens the log for replay)
             warn_bin_model(page.replay)
             # what the config resolution decided, as every pipeline command says it

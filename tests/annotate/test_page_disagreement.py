@@ -28,11 +28,21 @@ def served(tmp_path_factory):
     srv.stop()
 
 
-def test_the_page_lists_only_the_disagreement(served, browser):
+def test_the_page_lists_only_the_disagreement(served, browser, tmp_path):
     srv, rep = served
     assert any("disagree" in line for line in srv.stderr_lines), srv.stderr_lines
     page, errors, blocked = open_page(browser, srv.url, viewport=(1400, 900))
     try:
+        # the header says what this review is, with compare.json's counts, for as long as the page is open
+        wait_until(page, "!document.getElementById('focusbar').hidden")
+        bar = page.text_content("#focusbar")
+        only_a = sum(f["only_a"] for f in rep["frames"])
+        only_b = sum(f["only_b"] for f in rep["frames"])
+        assert f"only the {only_a + only_b} pixels where A (sor) and B (" in bar, bar
+        assert f"{only_a} removed by A alone, {only_b} by B alone" in bar, bar
+        assert f"on {len(rep['frames'])} of the {len(rep['frames'])} compared frames" in bar, bar
+        assert "zcut compare cmp" in bar, bar
+        page.screenshot(path=str(tmp_path / "focusbar.png"))  # to look at (pytest --basetemp)
         for k, f in enumerate(rep["frames"]):
             assert f["only_a"] + f["only_b"] > 0  # something to list on every frame
             page.click(f"#framelist li:nth-child({k + 1})")
