@@ -216,8 +216,10 @@ def _f(x: float, spec: str = ".3f") -> str:
 
 def recall_table(rows: list[dict], pose: str) -> list[str]:
     out = [f"| generator | pile | method | near: n | near: recall | elsewhere: n | elsewhere: recall | "
-           f"Δ (near − elsewhere) | within {TARGET:g} | Δ at the near outliers' kinds | zone F1 |",
-           "|---|---|---|---|---|---|---|---|---|---|---|"]
+           f"Δ (near − elsewhere) | within {TARGET:g} | Δ at the near outliers' kinds | "
+           "recall of those the removal kept: near / elsewhere | elsewhere without the above-rim outliers: n, recall | "
+           "zone F1 |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     groups = sorted({(r["sensor"], r["pile"]) for r in rows}, key=lambda k: (k[0], k[1] != "walls"))
     for sensor, pile in groups:
         sel = [r for r in rows if r["sensor"] == sensor and r["pile"] == pile and r["pose"] == pose]
@@ -232,8 +234,14 @@ def recall_table(rows: list[dict], pose: str) -> list[str]:
             c = np.sum([r["zone_counts"][m] for r in sel], axis=0)
             f1 = 2 * c[0] / max(2 * c[0] + c[1] + c[2], 1)
             ok = "yes" if abs(rn - rf) <= TARGET else "**no**"
+            kn = sum(r["kept_near"] for r in sel)
+            kf = sum(r["kept_far"] for r in sel)
+            rim = [r.get("found_by_kind", {}).get(m, {}).get("far", {}).get("above_rim", [0, 0]) for r in sel]
+            nf_r = nf - sum(x[1] for x in rim)
+            ff_r = ff - sum(x[0] for x in rim)
             out.append(f"| {sensor} | {pile} | {m} | {nn} | {_f(rn)} | {nf} | {_f(rf)} | {_f(rn - rf, '+.3f')} | {ok} | "
-                       f"{_f(rn - kind_matched(sel, m), '+.3f')} | {f1:.3f} |")
+                       f"{_f(rn - kind_matched(sel, m), '+.3f')} | {_f(_rec(fn_, kn))} / {_f(_rec(ff, kf))} | "
+                       f"{nf_r}, {_f(_rec(ff_r, nf_r))} | {f1:.3f} |")
     return out
 
 
