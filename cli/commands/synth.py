@@ -62,6 +62,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="scan the empty bin instead (the 5-position series of paper §4, repeating)")
     p.add_argument("--quantize-mm", type=float, default=0.0, metavar="MM",
                    help="quantize depth to steps of MM (a consumer stereo or ToF camera, e.g. 1); default 0: off")
+    p.add_argument("--pile", choices=("floor", "walls"), default="floor",
+                   help="floor (default): the parts keep off the walls; walls: they lean on one wall or a corner "
+                        "of the bin, drawn per frame from the seed (both sensors)")
     p.add_argument("--sensor", choices=("handmade", "raytraced"), default="handmade",
                    help="handmade (default, fast): outliers placed by hand; raytraced: a structured-light "
                         "sensor simulated by ray tracing over a physics-dropped pile (docs/raytraced.md)")
@@ -93,6 +96,11 @@ def run(args: argparse.Namespace) -> int:
         raise ParameterError(f"{flag.get(name, name)} {str(e).split(' ', 1)[1]}") from None
     h, w = args.size
     check_readable(h, w)
+    if args.pile == "walls" and args.empty:
+        raise ParameterError("--pile walls needs parts to pile: it does not go with --empty")
+    if args.pile == "walls" and not shape.nominal:
+        raise ParameterError("--pile walls needs the nominal bin: it does not go with --bin-scale, --bin-bulge-mm "
+                             "or --bin-deform-mm")
     from cli.commands.common import portrait_note
 
     note = portrait_note("--size", h, w)
@@ -120,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
         with AtomicOutput(args.output) as out:
             write_synthetic_log(out.temp, kind=args.parts, frames=args.frames, seed=args.seed, size=(h, w),
                                 empty=args.empty, shiny=args.shiny, quantize_mm=args.quantize_mm, progress=progress,
-                                bin_shape=shape, bag_name=Path(args.output).name)
+                                bin_shape=shape, bag_name=Path(args.output).name, pile=args.pile)
         print(f"zcut: wrote {args.output} ({args.frames} frame(s), seed {args.seed})", file=sys.stderr)
         if args.bin_cad is not None:
             with AtomicOutput(args.bin_cad) as out:
@@ -151,6 +159,7 @@ def _run_raytraced(args: argparse.Namespace, what: str, progress: ProgressFn) ->
 
     with AtomicOutput(args.output) as out:
         write_raytraced_log(out.temp, kind=args.parts, frames=args.frames, seed=args.seed, size=args.size,
-                            empty=args.empty, progress=rt_progress, bag_name=Path(args.output).name)
+                            empty=args.empty, progress=rt_progress, bag_name=Path(args.output).name,
+                            pile=args.pile)
     print(f"zcut: wrote {args.output} ({args.frames} frame(s), seed {args.seed}, ray-traced)", file=sys.stderr)
     return 0

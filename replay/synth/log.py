@@ -29,7 +29,7 @@ from replay.logs.writer import LogWriter
 from replay.presets import BIN, PART_KINDS
 from replay.synth import outliers as out
 from replay.synth.parts import face_area_px
-from replay.synth.scene import BinShape, bin_mesh_mm
+from replay.synth.scene import WALL_TILT_DEG, BinShape, bin_mesh_mm, lean_walls
 from replay.synth.sensor import (
     CAMERA_HEIGHT_MM,
     FULL_SIZE,
@@ -43,6 +43,7 @@ from replay.synth.sensor import (
 from replay.synth.synthesize import (
     SynthFrame,
     camera_distance_m,
+    check_pile_for,
     check_quantize,
     frame_pose,
     pile_distance_m,
@@ -69,9 +70,11 @@ ProgressFn = Callable[[int, int, SynthFrame, float], None]
 def synth_metadata(
     *, kind: str, seed: int, frames: int, size: tuple[int, int], shiny: bool, empty: bool, quantize_mm: float = 0.0,
     bin_shape: BinShape = BinShape(),
+    pile: str = "floor",
 ) -> dict[str, str]:
     """The ``zcut.synth`` metadata record (all values strings); a bin that is not the nominal one adds
-    ``bin_scale``, ``bin_bulge_mm`` and ``bin_deform_mm``."""
+    ``bin_scale``, ``bin_bulge_mm`` and ``bin_deform_mm``, a pile against the walls ``pile`` and
+    ``pile_walls`` (the walls of each frame, ``;``-separated)."""
     K = default_intrinsics(size)
     rates = out.SHINY_RATES if shiny else out.MATTE_RATES
     meta = {
@@ -115,6 +118,9 @@ def synth_metadata(
     if not bin_shape.nominal:
         meta.update({"bin_scale": f"{bin_shape.scale:g}", "bin_bulge_mm": f"{bin_shape.bulge_mm:g}",
                      "bin_deform_mm": f"{bin_shape.deform_mm:g}"})
+    if pile != "floor":
+        meta.update({"pile": pile, "pile_tilt_deg": f"{WALL_TILT_DEG:g}",
+                     "pile_walls": ";".join(",".join(lean_walls(seed, i)) for i in range(int(frames)))})
     if not empty:
         part = PART_KINDS[kind]
         meta.update(
@@ -162,6 +168,7 @@ def write_synthetic_log(
     progress: ProgressFn | None = None,
     bin_shape: BinShape = BinShape(),
     bag_name: str | None = None,
+    pile: str = "floor",
 ) -> Path:
     """Synthesise ``frames`` scans and write them as a ROS 2 MCAP log.
 
@@ -193,6 +200,9 @@ def write_synthetic_log(
         The file name the ``rosbag2`` record names (default: the name of ``path``); ``zcut synth``
         passes the final name of the file it writes through a temporary one, so that the same
         arguments give the same bytes.
+    pile : {"floor", "walls"}
+        ``walls``: the parts lean on one wall or a corner of each frame's bin (see
+        :func:`replay.synth.synthesize.synthesize_frame`).
 
     Returns
     -------
@@ -203,9 +213,10 @@ def write_synthetic_log(
     if int(frames) != frames or frames < 1:
         raise ParameterError(f"frames must be a positive integer, got {frames!r}")
     q = check_quantize(quantize_mm)
+    check_pile_for(pile, empty=empty, bin_shape=bin_shape)
     is_shiny = (False if empty else PART_KINDS[kind].shiny) if shiny is None else bool(shiny)
     meta = synth_metadata(kind=kind, seed=seed, frames=int(frames), size=size, shiny=is_shiny, empty=empty,
-                          quantize_mm=q, bin_shape=bin_shape)
+                          quantize_mm=q, bin_shape=bin_shape, pile=pile)
     poses = pose_metadata(seed=seed, frames=int(frames), empty=empty)
     path = Path(path)
     from replay.synth.bin_surface import bin_model_ply
@@ -220,7 +231,7 @@ def write_synthetic_log(
         for i in range(int(frames)):
             t0 = time.perf_counter()
             sf = synthesize_frame(kind=kind, seed=seed, index=i, size=size, shiny=shiny, empty=empty, quantize_mm=q,
-                                  bin_shape=bin_shape)
+                                  bin_shape=bin_shape, pile=pile)
             _write_frame(writer, sf)
             if progress is not None:
                 progress(i, int(frames), sf, time.perf_counter() - t0)

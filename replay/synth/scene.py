@@ -36,6 +36,94 @@ LABEL_PART = 5
 
 
 
+#: How a pile lies in the bin (``zcut synth --pile``): ``floor``, parts dropped over the flat floor and
+#: kept off the walls (the paper's scenes); ``walls``, parts settled as in a bin tilted towards one wall
+#: or a corner, so that they touch and lean on those walls and the pile heaps against them.
+PILES = ("floor", "walls")
+#: The walls a ``walls`` pile may lean on, as bin-frame outward directions: one wall (+x, -x, +y, -y)
+#: or a corner (two adjacent walls); :func:`lean_walls` draws one set per frame.
+WALL_SETS: tuple[tuple[str, ...], ...] = (
+    ("+x",), ("-x",), ("+y",), ("-y",), ("+x", "+y"), ("+x", "-y"), ("-x", "+y"), ("-x", "-y"))
+#: The ``walls`` pile settles as under gravity tilted by this angle towards its walls: a part moves
+#: towards them unless that lifts it by more than tan(15°) = 0.27 mm per mm, so the parts reach the
+#: walls and the pile's top slopes down from them by about that much.
+WALL_TILT_DEG = 15.0
+_WALL_DIRS = {"+x": (1.0, 0.0), "-x": (-1.0, 0.0), "+y": (0.0, 1.0), "-y": (0.0, -1.0)}
+
+
+def check_pile(pile: object) -> str:
+    """``pile`` if it is one of :data:`PILES`, else :class:`ParameterError` naming them."""
+    if not isinstance(pile, str) or pile not in PILES:
+        raise ParameterError(f"pile must be one of {', '.join(PILES)}, got {pile!r}")
+    return pile
+
+
+def lean_walls(seed: int, index: int) -> tuple[str, ...]:
+    """The walls frame ``index`` of a ``walls`` pile with ``seed`` leans on (one of :data:`WALL_SETS`).
+
+    Drawn from a generator of its own, so that the bin pose, the fill and everything else a frame
+    draws are those of the ``floor`` pile with the same seed, and both generators lean on the same
+    walls for the same seed and frame.
+    """
+    rng = np.random.default_rng([int(seed) % (2**63), int(index), 0x3A115])
+    return WALL_SETS[int(rng.integers(len(WALL_SETS)))]
+
+
+def tilt_vector(walls: tuple[str, ...], tilt_deg: float = WALL_TILT_DEG) -> tuple[float, float]:
+    """Bin-frame (u, v) of the horizontal pull towards ``walls``: tan(tilt) times the unit vector
+    towards them (the corner's diagonal for two walls); (0, 0) for none."""
+    if not walls:
+        return 0.0, 0.0
+    for w in walls:
+        if w not in _WALL_DIRS:
+            raise ParameterError(f"walls must be of {', '.join(_WALL_DIRS)}, got {w!r}")
+    du = sum(_WALL_DIRS[w][0] for w in walls)
+    dv = sum(_WALL_DIRS[w][1] for w in walls)
+    n = math.hypot(du, dv)
+    if n == 0:
+        raise ParameterError(f"walls {walls!r} pull nowhere (opposite walls)")
+    k = math.tan(math.radians(tilt_deg)) / n
+    return du * k, dv * k
+
+
+def wall_distance_mm(p: np.ndarray, geometry: BinGeometry = BIN) -> np.ndarray:
+    """Distance (mm) from bin-frame points to the nearest inner wall face of the nominal bin.
+
+    ``p``: (..., 3) in the scene's bin frame (u, v along the bin's length and width from its
+    centre, z up, the table at 0), millimetres. Each wall face is the drafted plane from the floor's
+    edge up to the rim's inner edge; a point's foot on a face is clamped to the face's height
+    (floor to rim) and then to its length at that height (exact on the face and beside its middle;
+    at the corners it may overstate the distance by a fraction of the draft). NaN where ``p`` is not
+    finite.
+    """
+    p = np.asarray(p, np.float64)
+    fx, fy = geometry.floor_half
+    d = math.radians(geometry.draft_deg)
+    c, s = math.cos(d), math.sin(d)
+    f, h = geometry.floor_mm, geometry.height_mm
+    slope_len = (h - f) / c
+    best = np.full(p.shape[:-1], np.inf)
+    for axis, half, other_half in ((0, fx, fy), (1, fy, fx)):
+        a = p[..., axis]
+        b = p[..., 1 - axis]
+        z = p[..., 2]
+        for sign in (1.0, -1.0):
+            x = sign * a - half  # outward from the floor's edge
+            # face coordinates: t up the slope from the floor edge, n the signed distance along the inward normal
+            t = x * s + (z - f) * c
+            n = -x * c + (z - f) * s
+            tc = np.clip(t, 0.0, slope_len)
+            width = other_half + tc * s  # the face's half length at that height (the draft widens it)
+            bc = np.clip(b, -width, width)
+            # the clamped foot back in (x, z): x = tc*s - 0*c, z - f = tc*c
+            dx = x - tc * s
+            dz = (z - f) - tc * c
+            dist = np.sqrt(dx * dx + dz * dz + (b - bc) ** 2)
+            dist = np.where(t == tc, np.sqrt(n * n + (b - bc) ** 2), dist)
+            best = np.fmin(best, dist)
+    return np.where(np.isfinite(p).all(axis=-1), best, np.nan)
+
+
 # Bright plastic bin on a dark table (paper §5.1 segments the bin by grey level).
 BIN_COLOUR = (224, 220, 208)
 TABLE_COLOUR = (52, 50, 56)
@@ -220,6 +308,8 @@ class Scene:
     bin_pose : BinPose
     deformation : BinDeformation
         How the bin differs from the nominal one.
+    walls : tuple of str
+        The walls the pile leans on (:data:`WALL_SETS`; empty: a ``floor`` pile).
     """
 
     grid: Grid
@@ -231,6 +321,7 @@ class Scene:
     kind: str | None
     bin_pose: BinPose
     deformation: BinDeformation = NOMINAL_DEFORMATION
+    walls: tuple[str, ...] = ()
 
 
 def make_grid(*, half_x_mm: float, half_y_mm: float, step_mm: float) -> Grid:
@@ -366,6 +457,41 @@ def _settle(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, us, 
     return best_b, best_i, best_j
 
 
+@numba.njit(cache=True, nogil=True)
+def _settle_tilted(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, us, vs, roll, gu, gv):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover
+    """:func:`_settle` under gravity tilted by (gu, gv): the potential is the resting base minus
+    gu·u + gv·v, and the downhill moves shrink from ``roll`` to one grid step, so that a part
+    slides on until it touches what stops it (a wall, another part)."""
+    best_p, best_b, best_i, best_j, best_u, best_v = np.inf, -np.inf, 0, 0, 0.0, 0.0
+    for k in range(us.size):
+        b, ci, cj, u, v = _rest(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, us[k], vs[k])
+        if b != -np.inf:
+            p = b - gu * u - gv * v
+            if p < best_p:
+                best_p, best_b, best_i, best_j, best_u, best_v = p, b, ci, cj, u, v
+    if best_b == -np.inf:
+        return best_b, best_i, best_j
+    step = roll
+    while True:
+        for _ in range(64):
+            moved = False
+            for a in range(8):
+                u = best_u + step * np.cos(a * np.pi / 4)
+                v = best_v + step * np.sin(a * np.pi / 4)
+                b, ci, cj, u, v = _rest(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, u, v)
+                if b != -np.inf:
+                    p = b - gu * u - gv * v
+                    if p < best_p - 1e-9:
+                        best_p, best_b, best_i, best_j, best_u, best_v = p, b, ci, cj, u, v
+                        moved = True
+            if not moved:
+                break
+        if step <= g:
+            break
+        step = max(0.5 * step, g)
+    return best_b, best_i, best_j
+
+
 def drop_pile(
     grid: Grid,
     pose: BinPose,
@@ -377,6 +503,7 @@ def drop_pile(
     max_parts: int = 4000,
     settle_tries: int = 16,
     deformation: BinDeformation = NOMINAL_DEFORMATION,
+    walls: tuple[str, ...] = (),
 ) -> Scene:
     """Drop parts of ``kind`` into the bin until the mean pile height above the floor reaches ``fill_mm``.
 
@@ -391,7 +518,19 @@ def drop_pile(
     ``settle_tries`` drop points around a random one, the part keeps the one where it rests lowest and
     then moves downhill in steps of half its radius while that lowers it (a crude stand-in for
     rolling and sliding into gaps, which packs the pile densely and keeps its top nearly level).
+
+    ``walls`` (of :data:`WALL_SETS`; empty: the floor pile above) piles the parts against those
+    walls instead: a part may lie anywhere inside the rim's opening, over the floor or on the drafted
+    walls, and settles as in a bin tilted by :data:`WALL_TILT_DEG` towards them (it takes the drop
+    point and then the moves, down to one grid step, that lower its resting base minus the tilt's
+    pull), so it slides until a wall or another part stops it. The fill level is then the mean over
+    the whole floor, and a part that would stick out above the rim is dropped elsewhere (after 200
+    such in a row the pile is full). Only the nominal bin (``deformation`` must be the nominal one).
     """
+    walls = tuple(walls)
+    gu, gv = tilt_vector(walls)
+    if walls and deformation != NOMINAL_DEFORMATION:
+        raise ParameterError("a pile against the walls needs the nominal bin (no scale, bulge or deformation)")
     height, label = bin_height_field(grid, pose, geometry)
     bin_height = height.copy()
     part_id = np.zeros(height.shape, np.int32)
@@ -400,7 +539,9 @@ def drop_pile(
     # the fill level is measured over the floor away from the walls (parts keep off the walls)
     X, Y = np.meshgrid(grid.xs - pose.x_mm, grid.ys - pose.y_mm)
     c, s = np.cos(pose.yaw_rad), np.sin(pose.yaw_rad)
-    margin = min(PART_KINDS[kind].bounding_radius_mm + 5.0, 0.4 * min(fxh, fyh))
+    margin = min(PART_KINDS[kind].bounding_radius_mm + 5.0, 0.4 * min(fxh, fyh)) if not walls else 0.0
+    ixh, iyh = geometry.inner_top_half
+    rejected = 0
     floor_nodes = (np.abs(c * X + s * Y) < fxh - margin) & (np.abs(-s * X + c * Y) < fyh - margin)
     del X, Y
     parts: list[PlacedPart] = []
@@ -422,15 +563,21 @@ def drop_pile(
             continue
         # settle: of a few nearby drop points the part takes the one where it rests lowest, then
         # rolls downhill (moves of half its radius while that lowers it)
-        lim_u, lim_v = fxh - extent, fyh - extent
+        lim_u, lim_v = (fxh - extent, fyh - extent) if not walls else (ixh - extent, iyh - extent)
         u0 = rng.uniform(-lim_u, lim_u)
         v0 = rng.uniform(-lim_v, lim_v)
         jitter = rng.uniform(-2.0, 2.0, (settle_tries, 2)) * r
         jitter[0] = 0.0
-        best = _settle(
-            height, lo[hit], ii - n, jj - n, n, grid.x0, grid.y0, g, R2, pose.x_mm, pose.y_mm,
-            lim_u, lim_v, u0 + jitter[:, 0], v0 + jitter[:, 1], 0.5 * r,
-        )
+        if not walls:
+            best = _settle(
+                height, lo[hit], ii - n, jj - n, n, grid.x0, grid.y0, g, R2, pose.x_mm, pose.y_mm,
+                lim_u, lim_v, u0 + jitter[:, 0], v0 + jitter[:, 1], 0.5 * r,
+            )
+        else:
+            best = _settle_tilted(
+                height, lo[hit], ii - n, jj - n, n, grid.x0, grid.y0, g, R2, pose.x_mm, pose.y_mm,
+                lim_u, lim_v, u0 + jitter[:, 0], v0 + jitter[:, 1], 0.5 * r, gu, gv,
+            )
         if best[0] == -np.inf:
             continue
         base, ci, cj = best[0], int(best[1]), int(best[2])
@@ -439,6 +586,13 @@ def drop_pile(
         win = height[rows, cols]
         bottom = lo + base
         top = hi + base
+        if walls:
+            if float(np.nanmax(top)) > geometry.height_mm:  # it would stick out of the bin
+                rejected += 1
+                if rejected >= 200:
+                    break
+                continue
+            rejected = 0
         raise_ = hit & (top > win)
         win[raise_] = top[raise_]
         label[rows, cols][raise_] = LABEL_PART
@@ -457,7 +611,7 @@ def drop_pile(
             win[raise_] = p.top[raise_]
             label[p.rows, p.cols][raise_] = LABEL_PART
             part_id[p.rows, p.cols][raise_] = i + 1
-    return Scene(grid, height, label, part_id, bin_height, tuple(parts), kind, pose, deformation)
+    return Scene(grid, height, label, part_id, bin_height, tuple(parts), kind, pose, deformation, walls)
 
 
 def empty_scene(grid: Grid, pose: BinPose, *, geometry: BinGeometry = BIN,

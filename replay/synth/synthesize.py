@@ -27,8 +27,10 @@ from replay.synth.scene import (
     BinPose,
     BinShape,
     Scene,
+    check_pile,
     drop_pile,
     empty_scene,
+    lean_walls,
     make_grid,
 )
 from replay.synth.sensor import (
@@ -198,6 +200,17 @@ def check_quantize(quantize_mm: object) -> float:
     return q
 
 
+def check_pile_for(pile: object, *, empty: bool, bin_shape: object = None) -> str:
+    """``pile`` (:data:`~replay.synth.scene.PILES`) if it goes with the rest of the scan, else
+    :class:`ParameterError`: a pile against the walls needs parts and the nominal bin."""
+    p = check_pile(pile)
+    if p == "walls" and empty:
+        raise ParameterError("pile 'walls' needs parts to pile, not an empty bin")
+    if p == "walls" and isinstance(bin_shape, BinShape) and not bin_shape.nominal:
+        raise ParameterError("pile 'walls' needs the nominal bin (no bin scale, bulge or deformation)")
+    return p
+
+
 def _colour_image(view: Render, K: Intrinsics, part_colour: tuple[int, int, int] | None, shiny_px: np.ndarray,
                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """(rgb, saturated) of :func:`shade_rgb` with the table, bin and part colours of each pixel."""
@@ -225,6 +238,7 @@ def synthesize_frame(
     fill_mm: float | None = None,
     quantize_mm: float = 0.0,
     bin_shape: BinShape = BinShape(),
+    pile: str = "floor",
 ) -> SynthFrame:
     """Synthesise frame ``index`` of a log with ``seed``: a bin of ``kind`` parts (or an empty bin).
 
@@ -249,11 +263,16 @@ def synthesize_frame(
         How the bin differs from the nominal one (scale, wall bulge, a deformation drawn per scan
         from :func:`shape_rng`); the pile, the noise and the outliers are those of the nominal bin's
         frame with the same seed and index. The true pose stays that of the bin's frame.
+    pile : {"floor", "walls"}
+        ``floor``: the parts keep off the walls; ``walls``: they lean on the walls of
+        :func:`~replay.synth.scene.lean_walls` ``(seed, index)`` (:func:`~replay.synth.scene.drop_pile`),
+        with the bin pose and fill of the ``floor`` pile of the same seed. Needs parts and the nominal bin.
     """
     if not empty and kind not in PART_KINDS:
         raise ParameterError(f"kind must be one of {', '.join(PART_KINDS)}, got {kind!r}")
     h, w = check_size(size)
     q = check_quantize(quantize_mm)
+    check_pile_for(pile, empty=empty, bin_shape=bin_shape)
     rng = frame_rng(seed, index, empty=empty)
     K = default_intrinsics((h, w))
 
@@ -274,7 +293,8 @@ def synthesize_frame(
         part = None
         is_shiny = False if shiny is None else bool(shiny)
     else:
-        scene = drop_pile(grid, pose, kind, rng, fill_mm=fill_mm, deformation=deformation)
+        walls = lean_walls(seed, index) if pile == "walls" else ()
+        scene = drop_pile(grid, pose, kind, rng, fill_mm=fill_mm, deformation=deformation, walls=walls)
         part = PART_KINDS[kind]
         is_shiny = part.shiny if shiny is None else bool(shiny)
     rates = out.SHINY_RATES if is_shiny else out.MATTE_RATES

@@ -21,8 +21,10 @@ from replay.logs.writer import LogWriter
 from replay.presets import PART_KINDS
 from replay.synth.log import part_model_attachment, pose_metadata, synth_metadata
 from replay.synth.raytrace.optics import SensorModel
+from replay.synth.raytrace.pile import WALL_TILT_DEG, WALL_TILT_S
 from replay.synth.raytrace.synthesize import FILL_RANGE_MM, MAX_PARTS, RaytracedFrame, synthesize_raytraced_frame
 from replay.synth.sensor import FULL_SIZE
+from replay.synth.synthesize import check_pile_for
 from zcut.errors import ParameterError
 
 RAYTRACE_VERSION = "2"  # 2: /ground_truth/off_surface and part_model.ply
@@ -33,10 +35,10 @@ _HANDMADE_ONLY = ("ghost_clusters_per_frame", "ghost_rho_range", "above_rim_grou
 
 
 def raytraced_metadata(*, kind: str, seed: int, frames: int, size: tuple[int, int], empty: bool,
-                       model: SensorModel) -> dict[str, str]:
+                       model: SensorModel, pile: str = "floor") -> dict[str, str]:
     """The ``zcut.synth`` record of a ray-traced log (all values strings)."""
     shiny = False if empty else PART_KINDS[kind].shiny
-    meta = synth_metadata(kind=kind, seed=seed, frames=frames, size=size, shiny=shiny, empty=empty)
+    meta = synth_metadata(kind=kind, seed=seed, frames=frames, size=size, shiny=shiny, empty=empty, pile=pile)
     for key in _HANDMADE_ONLY:
         meta.pop(key, None)
     meta.update({
@@ -48,11 +50,15 @@ def raytraced_metadata(*, kind: str, seed: int, frames: int, size: tuple[int, in
         "truth_rule": f"noise-free decoded depth farther than {model.outlier_sigmas:g} noise sigmas from every "
                       "surface the pixel's footprint sees",
         "off_surface_rule": "farther than 3 Err from every triangle of the scene; Err = sqrt(sigma^2 + (z/f)^2/2)",
-        "pile": "MuJoCo rigid-body drop",
+        "pile": "MuJoCo rigid-body drop" + (
+            f", against the walls (gravity tilted {WALL_TILT_DEG:g} deg towards them for {WALL_TILT_S:g} s)"
+            if pile == "walls" else ""),
         "fill_range_mm": f"{FILL_RANGE_MM[0]:g}-{FILL_RANGE_MM[1]:g}",
         "max_parts": str(MAX_PARTS),
         **{f"sensor_{k}": repr(getattr(model, k)) for k in model.__dataclass_fields__},
     })
+    if pile == "walls":
+        meta["pile_tilt_deg"] = f"{WALL_TILT_DEG:g}"
     return meta
 
 
@@ -68,19 +74,22 @@ def write_raytraced_log(
     model: SensorModel | None = None,
     progress: ProgressFn | None = None,
     bag_name: str | None = None,
+    pile: str = "floor",
 ) -> Path:
     """Ray-trace ``frames`` scans and write them as a ROS 2 MCAP log (see ``replay.synth.write_synthetic_log``).
 
     ``fill_mm``: mean pile height (default: drawn per frame from ``FILL_RANGE_MM``). ``bag_name``:
     the file name the ``rosbag2`` record names (default: the name of ``path``; ``zcut synth``
-    passes the final name of the file it writes through a temporary one).
+    passes the final name of the file it writes through a temporary one). ``pile``: ``walls`` leans
+    the parts on one wall or a corner (:func:`.synthesize.synthesize_raytraced_frame`).
     """
     if not empty and kind not in PART_KINDS:
         raise ParameterError(f"kind must be one of {', '.join(PART_KINDS)}, got {kind!r}")
     if int(frames) != frames or frames < 1:
         raise ParameterError(f"frames must be a positive integer, got {frames!r}")
+    check_pile_for(pile, empty=empty)
     model = SensorModel() if model is None else model
-    meta = raytraced_metadata(kind=kind, seed=seed, frames=int(frames), size=size, empty=empty, model=model)
+    meta = raytraced_metadata(kind=kind, seed=seed, frames=int(frames), size=size, empty=empty, model=model, pile=pile)
     poses = pose_metadata(seed=seed, frames=int(frames), empty=empty)
     path = Path(path)
     from replay.synth.bin_surface import bin_model_ply
@@ -94,7 +103,7 @@ def write_raytraced_log(
         for i in range(int(frames)):
             t0 = time.perf_counter()
             rf = synthesize_raytraced_frame(kind=kind, seed=seed, index=i, size=size, empty=empty,
-                                            fill_mm=fill_mm, model=model)
+                                            fill_mm=fill_mm, model=model, pile=pile)
             f = rf.frame
             writer.write_frame(f)
             for topic, codes in f.codes.items():

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from replay.presets import BIN, PART_KINDS, BinGeometry
-from replay.synth.scene import BinPose
+from replay.synth.scene import BinPose, tilt_vector
 from zcut.errors import ParameterError
 
 #: volume of one part (mm³), from the dimensions in :mod:`replay.presets`
@@ -41,6 +41,12 @@ TIME_STEP_S = 0.004
 MAX_SIM_S = 1.5
 #: the pile rests when no part moves faster than this (m/s)
 REST_SPEED_M_S = 0.02
+#: a pile against the walls (``walls``): gravity tilted by this angle towards them for
+#: :data:`WALL_TILT_S`, then vertical until the pile rests. Steeper than the hand-made generator's 15°
+#: (:data:`replay.synth.scene.WALL_TILT_DEG`, which has no friction): at friction 0.4 a part slides
+#: only on a slope steeper than atan(0.4) = 21.8°, so 15° would move the balls alone.
+WALL_TILT_DEG = 30.0
+WALL_TILT_S = 0.8
 
 
 @dataclass(frozen=True, slots=True)
@@ -151,12 +157,19 @@ def drop_parts(
     count: int,
     geometry: BinGeometry = BIN,
     max_sim_s: float = MAX_SIM_S,
+    walls: tuple[str, ...] = (),
 ) -> Pile:
     """Drop ``count`` parts of ``kind`` into the bin at ``pose`` and let them come to rest.
 
     The parts start in a loose column above the bin floor (one per cell of a grid as wide as the
     part, random orientation, a random sideways nudge) and fall under gravity; friction 0.4 (steel
     on steel, steel on plastic, dry). Deterministic: the same ``rng`` state gives the same pile.
+
+    ``walls`` (of :data:`replay.synth.scene.WALL_SETS`; empty: straight down) piles them against
+    those walls: for the first :data:`WALL_TILT_S` gravity is tilted by :data:`WALL_TILT_DEG`
+    towards them (a bin tilted while it is filled), so the
+    parts slide and roll there; then it turns vertical and the pile settles as it is (the walls
+    hold it; friction keeps it heaped), for up to ``max_sim_s`` more.
 
     Raises
     ------
@@ -203,12 +216,21 @@ def drop_parts(
     data = mujoco.MjData(model)
     data.qvel.reshape(n, 6)[:, :3] = vel
     steps = int(round(max_sim_s / TIME_STEP_S))
+    tilted = 0
+    if walls:
+        gu, gv = tilt_vector(tuple(walls), WALL_TILT_DEG)
+        cos_t = float(np.cos(np.radians(WALL_TILT_DEG)))
+        model.opt.gravity[:] = (9.81 * cos_t * gu, 9.81 * cos_t * gv, -9.81 * cos_t)
+        tilted = int(round(WALL_TILT_S / TIME_STEP_S))
+        steps += tilted
     check = max(1, int(round(0.05 / TIME_STEP_S)))
     rested = False
     i = 0
     for i in range(1, steps + 1):
+        if i == tilted + 1 and tilted:
+            model.opt.gravity[:] = (0.0, 0.0, -9.81)
         mujoco.mj_step(model, data)
-        if i % check == 0 and i * TIME_STEP_S > 0.3:
+        if i % check == 0 and (i - tilted) * TIME_STEP_S > 0.3:
             if float(np.abs(data.qvel.reshape(n, 6)[:, :3]).max()) < REST_SPEED_M_S:
                 rested = True
                 break

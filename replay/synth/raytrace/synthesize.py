@@ -34,7 +34,7 @@ from replay.synth.parts import face_area_px
 from replay.synth.raytrace import optics
 from replay.synth.raytrace.pile import Pile, drop_parts, part_count
 from replay.synth.raytrace.scene import build_scene
-from replay.synth.scene import LABEL_FLOOR, LABEL_RIM, LABEL_WALL
+from replay.synth.scene import LABEL_FLOOR, LABEL_RIM, LABEL_WALL, lean_walls
 from replay.synth.sensor import (
     CAMERA_HEIGHT_MM,
     FULL_SIZE,
@@ -45,7 +45,15 @@ from replay.synth.sensor import (
     shade_rgb,
 )
 from replay.synth.surfaces import err_mm, off_surface
-from replay.synth.synthesize import FRAME_ID, T_cam_bin, bin_pose_for, frame_rng, pile_distance_m, stamp_ns
+from replay.synth.synthesize import (
+    FRAME_ID,
+    T_cam_bin,
+    bin_pose_for,
+    check_pile_for,
+    frame_rng,
+    pile_distance_m,
+    stamp_ns,
+)
 from zcut.errors import ParameterError
 
 _CODE = {name: code for code, name in layout.OUTLIER_KINDS.items()}
@@ -144,8 +152,13 @@ def synthesize_raytraced_frame(
     empty: bool = False,
     fill_mm: float | None = None,
     model: optics.SensorModel | None = None,
+    pile: str = "floor",
 ) -> RaytracedFrame:
     """Ray-trace frame ``index`` of a log with ``seed``: a bin of ``kind`` parts (or the empty bin).
+
+    ``pile="walls"``: the parts lean on the walls of :func:`replay.synth.scene.lean_walls` ``(seed,
+    index)`` (the hand-made generator's for the same seed and frame), see
+    :func:`~replay.synth.raytrace.pile.drop_parts`.
 
     Raises
     ------
@@ -156,6 +169,7 @@ def synthesize_raytraced_frame(
     if not empty and kind not in PART_KINDS:
         raise ParameterError(f"kind must be one of {', '.join(PART_KINDS)}, got {kind!r}")
     h, w = check_size(size)
+    pile_kind = check_pile_for(pile, empty=empty)
     model = optics.SensorModel() if model is None else model
     K = default_intrinsics((h, w))
     pose = bin_pose_for(frame_rng(seed, index, empty=empty), empty=empty, index=index)
@@ -164,19 +178,20 @@ def synthesize_raytraced_frame(
 
     # the pile
     t0 = time.process_time()
-    pile = None
+    heap = None
     part = None
     if not empty:
         part = PART_KINDS[kind]
         if fill_mm is None:
             fill_mm = float(rng.uniform(*FILL_RANGE_MM))
         count = min(part_count(kind, fill_mm), MAX_PARTS)
-        pile = check_pile(drop_parts(kind, pose, rng, count=count), seed=seed, index=index)
+        walls = lean_walls(seed, index) if pile_kind == "walls" else ()
+        heap = check_pile(drop_parts(kind, pose, rng, count=count, walls=walls), seed=seed, index=index)
     cpu["pile"] = time.process_time() - t0
 
     # the scene and its light
     t0 = time.process_time()
-    scene = build_scene(pose, pile)
+    scene = build_scene(pose, heap)
     cpu["scene"] = time.process_time() - t0
     t0 = time.process_time()
     rec = optics.trace(scene, K, model, rng)
@@ -234,6 +249,6 @@ def synthesize_raytraced_frame(
              else float("nan"))
     depth_true_m = (z_true / 1000.0).astype(np.float32)
     return RaytracedFrame(
-        frame, truth, kind_img, depth_true_m, z_clean - z_true, sigma_z, label, saturated & ~valid, pile, a_max,
+        frame, truth, kind_img, depth_true_m, z_clean - z_true, sigma_z, label, saturated & ~valid, heap, a_max,
         T_cam_bin(pose), off, np.where(np.isfinite(xyz_mm[..., 2]), err, np.nan).astype(np.float32), cpu,
     )
