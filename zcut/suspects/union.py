@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
 
 from ..cloud import Intrinsics, check_mask, check_xyz
-from ..edge_surface import EdgeSurfaceParams, signed_edge_distance
+from ..edge_surface import EdgeSurfaceParams, EdgeSurfaces, edge_surfaces
 from ..errors import InputShapeError, ParameterError, describe_array
 from ..params import SuspectParams
 from ..types import XYZ, FloatImage, Labels, Mask
@@ -90,7 +91,8 @@ class SuspectResult:
     surface_mm : (H, W) float64 ndarray or None
         With ``edge_surface``: every valid pixel's signed distance to the nearest surface fitted on
         one side of an edge (:func:`zcut.edge_surface.signed_edge_distance`; mm, positive = toward
-        the camera, NaN where unmeasured, +inf where no surface is near); else None.
+        the camera, NaN where unmeasured, +inf where no surface is near); else None. Measured on
+        first access (the suspects need it only at the pixels whose gap it gives).
     """
 
     mask: Mask
@@ -109,7 +111,14 @@ class SuspectResult:
     noise_profile: NoiseProfile
     floating_step_mm: float
     merge_radius_px: np.ndarray
-    surface_mm: np.ndarray | None = None
+    _surface_mm: np.ndarray | None = None
+    _surfaces: EdgeSurfaces | None = dataclasses.field(default=None, repr=False, compare=False)
+
+    @property
+    def surface_mm(self) -> np.ndarray | None:
+        if self._surface_mm is None and self._surfaces is not None:
+            object.__setattr__(self, "_surface_mm", self._surfaces.distance())
+        return self._surface_mm
 
     @property
     def n_groups(self) -> int:
@@ -229,9 +238,10 @@ def suspects(
                      mask & ~by_residual & ~by_border, valid & ~mask)
     gap[by_residual] = residual[by_residual]
     gap[by_border] = floating_gap[by_border]
-    surface_mm = None
+    surfaces = None
     if edge_surface is not None:  # a pixel off the surface with a surface near: its distance to the nearest one
-        surface_mm = signed_edge_distance(1000.0 * a.astype(np.float64), valid, params=edge_surface)
+        surfaces = edge_surfaces(1000.0 * a.astype(np.float64), valid, params=edge_surface)
+        surface_mm = surfaces.distance(by_residual)
         near = by_residual & np.isfinite(surface_mm)
         gap[near] = surface_mm[near]
     tau_px = np.where(np.isfinite(tau) & (tau > 0), tau, params.min_residual_mm)
@@ -258,5 +268,5 @@ def suspects(
         group_detectors=bits[order], group_primary=primary[order], group_size=size[order],
         group_gap_mm=g_gap[order], group_bbox=bbox[order], group_score=score[order],
         noise_mm=sigma, threshold_mm=float(np.median(tau[zone])) if zone.any() else float(params.min_residual_mm),
-        noise_profile=profile, floating_step_mm=step, merge_radius_px=radii, surface_mm=surface_mm,
+        noise_profile=profile, floating_step_mm=step, merge_radius_px=radii, _surfaces=surfaces,
     )
