@@ -494,6 +494,12 @@ def edge_surfaces(xyz_mm: XYZ, valid: Mask, *, params: EdgeSurfaceParams | None 
     same bit for bit (``tests/zcut/test_suspects_fast.py``).
     """
     a, valid, params = _check_args(xyz_mm, valid, params)
+    return _edge_surfaces(a, valid, params)
+
+
+def _edge_surfaces(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams) -> EdgeSurfaces:
+    """:func:`edge_surfaces` of checked arguments: ``a`` C-contiguous float64, finite where ``valid``
+    (C-contiguous too)."""
     H, W = valid.shape
     cen = np.zeros((H, W, 3))
     nrm = np.zeros((H, W, 3))

@@ -20,8 +20,8 @@ from replay.synth.log import write_synthetic_log
 from replay.synth.raytrace import write_raytraced_log
 from zcut.edge_surface import EdgeSurfaceParams, edge_surfaces, signed_edge_distance
 from zcut.params import SuspectParams
-from zcut.suspects import noise_profile, suspects
 from zcut.suspects import _reference as ref
+from zcut.suspects import noise_profile, suspects
 from zcut.suspects.grouping import _merge_compact
 from zcut.suspects.noise import local_height
 
@@ -196,7 +196,7 @@ def test_sparse_components_equal_the_grown_mask_labels() -> None:
         r = int(rng.choice([0, 1, 2, 3, 7, 20]))
         lab, n = ref._components_reference(m, r)
         flat = np.flatnonzero(m)
-        got, n2, boxes = _kind_components(flat, m.shape, r, np.full(m.shape, -1, np.int64))
+        got, n2, boxes = _kind_components(flat, m.shape, r, np.full(m.shape, -1, np.int32))
         assert n2 == n
         np.testing.assert_array_equal(got, lab.ravel()[flat])
         from scipy import ndimage

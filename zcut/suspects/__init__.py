@@ -43,6 +43,7 @@ groups, the suspects' share and the filters', lives beside the page (:mod:`annot
 
 from __future__ import annotations
 
+from ._reference import suspects_reference  # noqa: E402  (the previous code, after the modules it uses)
 from .detectors import (
     ABOVE_RIM,
     DETECTORS,
@@ -102,6 +103,7 @@ __all__ = [
     "surface_residuals",
     "surface_residuals_reference",
     "suspects",
+    "suspects_reference",
     # the detectors' bits and the constants the docs name
     "ABOVE_RIM",
     "FLOATING",

@@ -17,7 +17,7 @@ from ..cuts import MAX_STAGE_LEVELS, find_clusters
 from ..edge_surface import EdgeSurfaceParams, _check_args, _nearest_kernel, _patch_kernel, _reach, _surfaces
 from ..errors import InputShapeError, ParameterError, describe_array
 from ..params import SuspectParams, ZCutParams
-from ..types import XYZ, FloatImage, Labels, Mask
+from ..types import XYZ, FloatImage, Mask
 from .detectors import ABOVE_RIM, DETECTORS, FLOATING, RESIDUAL_UP, label_medians, shifted
 from .floating import (
     FLOATING_CLEARANCE_SIGMAS,
@@ -27,8 +27,15 @@ from .floating import (
 )
 from .gaps import local_gaps
 from .grouping import MAX_NODES, STRENGTH_CLASSES
-from .noise import NOISE_MAX_BINS, NOISE_MAX_SAMPLES, NOISE_MIN_SAMPLES, QUANTIZED_ZERO_SHARE, NoiseProfile, \
-    _robust_sigma, _second_differences
+from .noise import (
+    NOISE_MAX_BINS,
+    NOISE_MAX_SAMPLES,
+    NOISE_MIN_SAMPLES,
+    QUANTIZED_ZERO_SHARE,
+    NoiseProfile,
+    _robust_sigma,
+    _second_differences,
+)
 from .residuals import fill_blobs, surface_residuals
 from .union import SuspectResult
 

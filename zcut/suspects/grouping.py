@@ -44,7 +44,7 @@ def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # nu
     Chebyshev distance 2r + 1 of the next (their grown squares touch or overlap); ``ndimage.label``
     numbers the components by their first grown pixel in raster order: row max(top - r, 0), column
     max(c - r, 0) for c the leftmost column among the pixels whose square reaches that row.
-    ``index`` is an (H, W) int64 image of -1, left so. Returns the label (1..n) of each pixel, n and
+    ``index`` is an (H, W) int32 image of -1, left so. Returns the label (1..n) of each pixel, n and
     the (n, 4) bounding boxes (row0, col0, row1, col1; ends exclusive) of the labels' pixels.
     """
     m = flat.size
@@ -227,7 +227,7 @@ def _merge_compact(boxes: np.ndarray, kind: np.ndarray, max_groups: int) -> np.n
     return rep
 
 
-def strength_classes(primary: np.ndarray, strength: np.ndarray) -> np.ndarray:
+def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.ndarray | None = None) -> np.ndarray:
     """The strength class of each suspect pixel (0, 1, 2; -1 where ``primary`` is -1).
 
     Per detector, the 8-connected components of its pixels take the median of their pixels'
@@ -241,16 +241,27 @@ def strength_classes(primary: np.ndarray, strength: np.ndarray) -> np.ndarray:
     strength : (H, W) float ndarray
         |gap| / τ of each pixel.
     """
+    primary = np.asarray(primary)
     out = np.full(primary.shape, -1, np.int8)
-    s = np.where(np.isfinite(strength), strength, np.inf)
+    flat_p = primary.reshape(-1)
+    sus = np.flatnonzero(flat_p >= 0)
+    if sus.size == 0:
+        return out
+    det = flat_p[sus]
+    by_det = np.argsort(det, kind="stable")  # each detector's pixels in raster order
+    ends = np.searchsorted(det[by_det], np.arange(len(DETECTORS) + 1), side="left")
+    s = np.asarray(strength, np.float64).reshape(-1)[sus]
+    s = np.where(np.isfinite(s), s, np.inf)
+    index = np.full(primary.shape, -1, np.int32) if _index is None else _index
+    flat_out = out.reshape(-1)
     for i in range(len(DETECTORS)):
-        m = primary == i
-        if not m.any():
+        sel = by_det[ends[i]:ends[i + 1]]
+        if sel.size == 0:
             continue
-        lab, n = ndimage.label(m, structure=np.ones((3, 3), bool))
-        med = label_medians(s, lab, n)
+        lab, n, _ = _kind_components(sus[sel], primary.shape, 0, index)  # ndimage.label's 8-connected components
+        med = label_medians(s[sel], lab, n)
         cls = np.searchsorted(np.asarray(STRENGTH_CLASSES), med, side="right").astype(np.int8)
-        out[m] = cls[lab[m] - 1]
+        flat_out[sus[sel]] = cls[lab - 1]
     return out
 
 
@@ -270,7 +281,8 @@ def group_suspects(codes: np.ndarray, strength: np.ndarray, params: SuspectParam
     primary = np.full(codes.shape, -1, np.int8)
     for i in reversed(range(len(DETECTORS))):  # the first detector in DETECTORS wins
         primary[(codes >> i) & 1 > 0] = i
-    cls = strength_classes(primary, strength)
+    index = np.full(codes.shape, -1, np.int32)  # the components' work image, left all -1 by each use
+    cls = strength_classes(primary, strength, _index=index)
     n_cls = len(STRENGTH_CLASSES) + 1
     radii = np.full(len(DETECTORS), params.merge_radius_px, np.int64)
     limit = max(codes.shape)
@@ -279,7 +291,6 @@ def group_suspects(codes: np.ndarray, strength: np.ndarray, params: SuspectParam
     fine_of = primary.ravel()[sus].astype(np.int64) * n_cls + cls.ravel()[sus]
     by_kind = np.argsort(fine_of, kind="stable")
     ends = np.searchsorted(fine_of[by_kind], np.arange(len(DETECTORS) * n_cls + 1), side="left")
-    index = np.full(codes.shape, -1, np.int64)
     per = []
     fine = []
     for i in range(len(DETECTORS)):

@@ -14,7 +14,6 @@ from numpy.typing import ArrayLike
 
 from ..cloud import check_mask
 from ..types import FloatImage, Mask
-from .detectors import shifted
 
 # the noise profile: bins of at least this many second differences, at most this many bins
 NOISE_MIN_SAMPLES = 2000
@@ -249,7 +248,7 @@ def noise_profile(height: FloatImage, judged: Mask) -> NoiseProfile:
     upper = np.array([at[j - 1] for j in edges[1:]])
     which = np.minimum(np.searchsorted(upper, d1_at, side="left"), bins - 1)
     steps = np.zeros(bins)
-    by_bin = np.argsort(which, kind="stable")
+    by_bin = np.argsort(which.astype(np.int8), kind="stable")  # bins < 128: a radix sort
     ends = np.searchsorted(which[by_bin], np.arange(bins + 1), side="left")
     for k in range(bins):
         v = d1[by_bin[ends[k]:ends[k + 1]]]

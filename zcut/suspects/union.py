@@ -9,7 +9,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..cloud import Intrinsics, check_mask, check_xyz
-from ..edge_surface import EdgeSurfaceParams, EdgeSurfaces, edge_surfaces
+from ..edge_surface import EdgeSurfaceParams, EdgeSurfaces, _edge_surfaces, edge_surfaces
 from ..errors import InputShapeError, ParameterError, describe_array
 from ..params import SuspectParams
 from ..types import XYZ, FloatImage, Labels, Mask
@@ -240,7 +240,11 @@ def suspects(
     gap[by_border] = floating_gap[by_border]
     surfaces = None
     if edge_surface is not None:  # a pixel off the surface with a surface near: its distance to the nearest one
-        surfaces = edge_surfaces(1000.0 * a.astype(np.float64), valid, params=edge_surface)
+        # the frame in mm (1000.0 * a.astype(np.float64) in one product); a float32 frame's valid
+        # points stay finite in mm, so only a float64 one needs edge_surfaces' check
+        a_mm = np.multiply(a, 1000.0, dtype=np.float64)
+        surfaces = _edge_surfaces(a_mm, np.ascontiguousarray(valid), edge_surface) if a.dtype == np.float32 \
+            else edge_surfaces(a_mm, valid, params=edge_surface)
         surface_mm = surfaces.distance(by_residual)
         near = by_residual & np.isfinite(surface_mm)
         gap[near] = surface_mm[near]
@@ -248,9 +252,12 @@ def suspects(
     groups, primary, radii = group_suspects(codes, np.abs(gap) / tau_px, params)
     n = int(primary.size)
     size = np.bincount(groups.ravel(), minlength=n + 1)[1:].astype(np.int64)
-    bits = np.zeros(n + 1, np.uint8)
-    np.bitwise_or.at(bits, groups.ravel(), codes.ravel())
-    bits = bits[1:]
+    g_flat = groups.ravel()
+    in_group = np.flatnonzero(g_flat)
+    g_of, c_of = g_flat[in_group], codes.ravel()[in_group]
+    bits = np.zeros(n, np.uint8)  # the OR of the codes of each group's pixels, bit by bit
+    for b in range(len(DETECTORS)):
+        bits |= ((np.bincount(g_of, weights=(c_of >> b) & 1, minlength=n + 1)[1:] > 0) << b).astype(np.uint8)
     if n:
         g_gap = label_medians(gap, groups, n)
         boxes = ndimage.find_objects(groups, max_label=n)
