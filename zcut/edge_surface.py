@@ -406,6 +406,21 @@ def _nearest_at(xyz, rows, cols, surface, cen, nrm, r, radius, max_radius, out):
         out[k] = signed
 
 
+def _median_of_temporary(x: np.ndarray) -> float:
+    """``np.median`` of a 1-D float array the caller no longer needs (partitioned in place: no copy).
+    The same value: the middle order statistic, or the mean of the two middle ones as ``np.mean``
+    takes it; NaN when any is NaN."""
+    n = x.size
+    if n == 0 or np.isnan(x).any():
+        return float("nan")
+    h = n // 2
+    if n % 2:
+        x.partition(h)
+        return float(x[h])
+    x.partition((h - 1, h))
+    return float((x[h - 1] + x[h]) / 2.0)
+
+
 # ---------------------------------------------------------------------------------------------- API
 
 def _check_args(xyz_mm: object, valid: object, params: object) -> tuple[np.ndarray, Mask, EdgeSurfaceParams]:
@@ -505,14 +520,14 @@ def _edge_surfaces(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams) -> Edg
     nrm = np.zeros((H, W, 3))
     rms = np.empty((H, W))
     step = _reach_samples(a, valid)
-    per_px = float(np.median(step)) if step.size else 0.0  # 1 / f
+    per_px = _median_of_temporary(step) if step.size else 0.0  # 1 / f
     tan = min(math.tan(math.radians(params.max_incidence_deg)), 1e6)
     _patch_kernel_fast(a, valid, params.patch_radius_px, params.min_patch_px, per_px, tan, params.side_step_mm,
                        cen, nrm, rms)
     surface = np.zeros((H, W), bool)
     ratios = _surface_ratios(rms, cen)
     if ratios.size:
-        gate_k = params.fit_k * float(np.median(ratios))
+        gate_k = params.fit_k * _median_of_temporary(ratios)
         _surfaces_kernel(rms, cen, nrm, params.min_fit_mm, gate_k, math.cos(math.radians(params.max_incidence_deg)),
                          params.max_incidence_deg >= 90.0, surface)
     return EdgeSurfaces(a, valid, params, surface, cen, nrm)

@@ -149,30 +149,41 @@ def _kind_components(flat: np.ndarray, shape: tuple[int, int], r: int, index: np
 @numba.njit(cache=True)
 def _merge_kernel(boxes, kind, max_groups):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`_merge_compact` (see there); distances compared as squared integer diagonals, whose
-    order is the order of their square roots (the previous code's ``np.hypot``)."""
+    order is the order of their square roots (the previous code's ``np.hypot``), and each box only
+    with the boxes of its kind (in increasing index: the lowest index on ties, as ``np.argmin``)."""
     n = boxes.shape[0]
     rep = np.arange(n)
     alive = np.ones(n, np.bool_)
     inf = np.iinfo(np.int64).max
     best = np.full(n, inf)
-    partner = np.full(n, -1)
+    partner = np.zeros(n, np.int64)  # a box with no partner: 0, as np.argmin of a row of inf
     r0 = boxes[:, 0].copy()
     c0 = boxes[:, 1].copy()
     r1 = boxes[:, 2].copy()
     c1 = boxes[:, 3].copy()
-
-    def diag2(i, k):  # type: ignore[no-untyped-def]
-        dr = max(r1[k], r1[i]) - min(r0[k], r0[i])
-        dc = max(c1[k], c1[i]) - min(c0[k], c0[i])
-        return dr * dr + dc * dc
+    by_kind = np.argsort(kind, kind="mergesort")  # each kind's boxes in increasing index
+    start = np.zeros(n, np.int64)  # of each box's kind in by_kind
+    stop = np.zeros(n, np.int64)
+    s = 0
+    while s < n:
+        e = s
+        while e < n and kind[by_kind[e]] == kind[by_kind[s]]:
+            e += 1
+        for q in range(s, e):
+            start[by_kind[q]] = s
+            stop[by_kind[q]] = e
+        s = e
 
     def refresh(i):  # type: ignore[no-untyped-def]
         b = inf
         bj = 0
-        for k in range(n):
-            if k == i or not alive[k] or kind[k] != kind[i]:
+        for q in range(start[i], stop[i]):
+            k = by_kind[q]
+            if k == i or not alive[k]:
                 continue
-            d = diag2(i, k)
+            dr = max(r1[k], r1[i]) - min(r0[k], r0[i])
+            dc = max(c1[k], c1[i]) - min(c0[k], c0[i])
+            d = dr * dr + dc * dc
             if d < b:
                 b = d
                 bj = k
@@ -202,14 +213,19 @@ def _merge_kernel(boxes, kind, max_groups):  # type: ignore[no-untyped-def]  # n
             if rep[k] == b:
                 rep[k] = a
         count -= 1
-        for k in range(n):
-            if k == a or not alive[k] or kind[k] != kind[a]:
+        for q in range(start[a], stop[a]):
+            k = by_kind[q]
+            if k == a or not alive[k]:
                 continue
-            d = diag2(a, k)
+            dr = max(r1[k], r1[a]) - min(r0[k], r0[a])
+            dc = max(c1[k], c1[a]) - min(c0[k], c0[a])
+            d = dr * dr + dc * dc
             if d < best[k]:
                 best[k] = d
                 partner[k] = a
-        for k in range(n):
+        # the boxes whose partner was a or b (boxes of other kinds keep theirs: their rows did not change)
+        for q in range(start[a], stop[a]):
+            k = by_kind[q]
             if alive[k] and (partner[k] == a or partner[k] == b):
                 refresh(k)
         refresh(a)

@@ -9,7 +9,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..cloud import Intrinsics, check_mask, check_xyz
-from ..edge_surface import EdgeSurfaceParams, EdgeSurfaces, _edge_surfaces, edge_surfaces
+from ..edge_surface import EdgeSurfaceParams, EdgeSurfaces, _edge_surfaces, _median_of_temporary, edge_surfaces
 from ..errors import InputShapeError, ParameterError, describe_array
 from ..params import SuspectParams
 from ..types import XYZ, FloatImage, Labels, Mask
@@ -206,12 +206,13 @@ def suspects(
     valid = np.isfinite(a[..., 0]) & np.isfinite(a[..., 1]) & np.isfinite(a[..., 2])
     zone = zone & valid & ~easy
     easy = easy & valid
-    context = np.where(valid & ~easy, -1000.0 * a[..., 2].astype(np.float64), np.nan)
+    h_all = np.where(valid, -1000.0 * a[..., 2].astype(np.float64), np.nan)  # every measured point's height
+    context = np.where(easy, np.nan, h_all)
     h_zcut = np.ascontiguousarray(h_img, dtype=np.float64)
 
     profile = noise_profile(context, zone)
     sigma_px = profile.sigma_at(local_height(context))
-    sigma = float(np.median(sigma_px[zone])) if zone.any() else 0.0
+    sigma = _median_of_temporary(sigma_px[zone]) if zone.any() else 0.0
     tau = np.maximum(params.min_residual_mm, params.noise_k * sigma_px)
     jump = np.maximum(params.jump_mm, params.noise_k * sigma_px)
     step = max(params.floating_step_mm, FLOATING_STEP_SIGMAS * sigma)
@@ -234,7 +235,7 @@ def suspects(
     # surface around it
     by_residual = off & ((codes & (FLOATING | ABOVE_RIM)) == 0) & np.isfinite(residual)
     by_border = floating & ~easy
-    gap = local_gaps(np.where(valid, -1000.0 * a[..., 2].astype(np.float64), np.nan),
+    gap = local_gaps(h_all,
                      mask & ~by_residual & ~by_border, valid & ~mask)
     gap[by_residual] = residual[by_residual]
     gap[by_border] = floating_gap[by_border]
@@ -274,6 +275,6 @@ def suspects(
         mask=mask, groups=groups, detectors=codes, gap_mm=gap, residual_mm=residual,
         group_detectors=bits[order], group_primary=primary[order], group_size=size[order],
         group_gap_mm=g_gap[order], group_bbox=bbox[order], group_score=score[order],
-        noise_mm=sigma, threshold_mm=float(np.median(tau[zone])) if zone.any() else float(params.min_residual_mm),
+        noise_mm=sigma, threshold_mm=_median_of_temporary(tau[zone]) if zone.any() else float(params.min_residual_mm),
         noise_profile=profile, floating_step_mm=step, merge_radius_px=radii, _surfaces=surfaces,
     )
