@@ -241,7 +241,7 @@ def _nearest_kernel(xyz, valid, surface, cen, nrm, r, radius, max_radius, out): 
 # the fast path (issue 32): the same arithmetic in the same order as the kernels above and the numpy
 # of _reach and _surfaces, without their whole-frame temporaries; the nearest surface only where asked
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
 def _reach_samples(xyz, valid):  # type: ignore[no-untyped-def]  # numba kernel
     """The finite |dx| / |z| of the row-adjacent valid pairs, then |dy| / |z| of the column-adjacent
     ones (what :func:`_reach` takes the median of)."""
@@ -265,7 +265,7 @@ def _reach_samples(xyz, valid):  # type: ignore[no-untyped-def]  # numba kernel
     return out[:m]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
 def _patch_kernel_fast(xyz, valid, r, min_px, per_px, tan, floor, cen, nrm, rms):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`_patch_kernel` with the reach computed in place and the window's side points kept
     from the first pass for the second."""
@@ -338,7 +338,7 @@ def _patch_kernel_fast(xyz, valid, r, min_px, per_px, tan, floor, cen, nrm, rms)
             rms[i, j] = math.sqrt(max(lam, 0.0))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
 def _surface_ratios(rms, cen):  # type: ignore[no-untyped-def]  # numba kernel
     """rms / z² of the fitted patches (finite rms, z² > 0): what :func:`_surfaces` takes the median of."""
     H, W = rms.shape
@@ -353,7 +353,7 @@ def _surface_ratios(rms, cen):  # type: ignore[no-untyped-def]  # numba kernel
     return out[:m]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
 def _surfaces_kernel(rms, cen, nrm, min_fit, gate_k, cos_max, any_angle, ok):  # type: ignore[no-untyped-def]  # numba kernel
     H, W = rms.shape
     for i in range(H):
@@ -375,7 +375,7 @@ def _surfaces_kernel(rms, cen, nrm, min_fit, gate_k, cos_max, any_angle, ok):  #
             ok[i, j] = cos_inc >= cos_max
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
 def _nearest_at(xyz, rows, cols, surface, cen, nrm, r, radius, max_radius, out):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`_nearest_kernel` at the pixels (rows[k], cols[k]) only: out[k]."""
     H, W = surface.shape

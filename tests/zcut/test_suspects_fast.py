@@ -202,3 +202,17 @@ def test_sparse_components_equal_the_grown_mask_labels() -> None:
         from scipy import ndimage
         want = [[s[0].start, s[1].start, s[0].stop, s[1].stop] for s in ndimage.find_objects(lab, max_label=n)]
         np.testing.assert_array_equal(boxes, np.array(want, np.int64).reshape(-1, 4))
+
+
+def test_fill_blobs_equal_the_previous_kernel() -> None:
+    from zcut.suspects import fill_blobs
+
+    rng = np.random.default_rng(12)
+    for _ in range(60):
+        H, W = int(rng.integers(0, 50)), int(rng.integers(0, 50))
+        seed = rng.random((H, W)) < float(rng.choice([0.01, 0.1, 0.3, 0.6]))
+        valid = rng.random((H, W)) < 0.9
+        judged = valid & (rng.random((H, W)) < 0.9)
+        it = int(rng.choice([0, 1, 2, 5, 50]))
+        np.testing.assert_array_equal(fill_blobs(seed, judged, valid, iterations=it),
+                                      ref._fill_blobs_previous(seed, judged, valid, iterations=it))

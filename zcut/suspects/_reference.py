@@ -36,7 +36,7 @@ from .noise import (
     _robust_sigma,
     _second_differences,
 )
-from .residuals import fill_blobs, surface_residuals
+from .residuals import FILL_MIN_NEIGHBOURS, _check_fill_args, _fill_kernel, surface_residuals
 from .union import SuspectResult
 
 
@@ -55,6 +55,14 @@ def _signed_edge_distance_reference(xyz_mm: XYZ, valid: Mask, *, params: EdgeSur
     _nearest_kernel(a, valid, surface, cen, nrm, params.patch_radius_px, params.search_radius_px,
                     params.max_search_radius_px, out)
     return out
+
+
+def _fill_blobs_previous(seed: Mask, judged: Mask, valid: Mask, *, iterations: int) -> Mask:
+    """:func:`zcut.suspects.fill_blobs` as it was (its whole-frame rounds)."""
+    seed, judged, valid, iterations = _check_fill_args(seed, judged, valid, iterations)
+    filled: Mask = _fill_kernel(np.ascontiguousarray(seed), np.ascontiguousarray(judged), np.ascontiguousarray(valid),
+                                iterations, FILL_MIN_NEIGHBOURS)
+    return filled
 
 
 def strength_classes_reference(primary: np.ndarray, strength: np.ndarray) -> np.ndarray:
@@ -364,7 +372,7 @@ def suspects_reference(
     codes, residual = surface_residuals(context, zone, tau=tau, jump=jump, min_below=params.below_min_directions)
     off = codes > 0
     if params.fill_iterations > 0:
-        filled = fill_blobs(off, zone, valid & ~easy, iterations=params.fill_iterations)
+        filled = _fill_blobs_previous(off, zone, valid & ~easy, iterations=params.fill_iterations)
         codes[filled & ~off] = RESIDUAL_UP
     rough = zone & ~(np.abs(residual) <= tau)  # in the zone: inf (no continuation) is rough
     floating, floating_gap = floating_components_reference(h_zcut, zone, valid & ~easy, rough, params, a_max, step, profile)
