@@ -35,7 +35,12 @@ is one too; a surface curved over the search radius is approximated by planes
 
 :func:`edge_aware_distance` and :func:`signed_edge_distance` are numba kernels;
 :func:`signed_edge_distance_reference` is the same with plain loops and ``np.linalg.eigh`` (the
-tests' oracle).
+tests' oracle). :func:`edge_surfaces` fits the patches once and :meth:`EdgeSurfaces.distance`
+measures only the pixels asked for (the suspects ask for the few whose gap it gives: the fits cost
+~0.35 CPU-s per 1920 × 1200 frame, 2.1 M closed-form eigen solves of ~0.12 µs each, the distances of
+every pixel as much again). Its kernels repeat the previous ones' arithmetic in the same order (the
+reach and the gate's median from the same samples), so the surfaces are the same bit for bit
+(``tests/zcut/test_suspects_fast.py`` checks them against the previous kernels).
 """
 
 from __future__ import annotations

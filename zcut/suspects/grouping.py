@@ -191,7 +191,7 @@ def _merge_kernel(boxes, kind, max_groups):  # type: ignore[no-untyped-def]  # n
         partner[i] = bj
 
     for i in range(n):
-        refresh(i)
+        refresh(i)  # type: ignore[no-untyped-call]  # numba closure
     count = n
     while count > max_groups:
         i = 0
@@ -227,8 +227,8 @@ def _merge_kernel(boxes, kind, max_groups):  # type: ignore[no-untyped-def]  # n
         for q in range(start[a], stop[a]):
             k = by_kind[q]
             if alive[k] and (partner[k] == a or partner[k] == b):
-                refresh(k)
-        refresh(a)
+                refresh(k)  # type: ignore[no-untyped-call]  # numba closure
+        refresh(a)  # type: ignore[no-untyped-call]  # numba closure
     return rep
 
 
