@@ -92,7 +92,9 @@ class SuspectResult:
         With ``edge_surface``: every valid pixel's signed distance to the nearest surface fitted on
         one side of an edge (:func:`zcut.edge_surface.signed_edge_distance`; mm, positive = toward
         the camera, NaN where unmeasured, +inf where no surface is near); else None. Measured on
-        first access (the suspects need it only at the pixels whose gap it gives).
+        first access (the suspects need it only at the pixels whose gap it gives); until then the
+        result holds the frame's fitted planes (:class:`zcut.edge_surface.EdgeSurfaces`, ~170 MB
+        at 1920 × 1200).
     """
 
     mask: Mask
