@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/bench_suspects.py [--work DIR] [--kinds zinc_nuts,...] [--frames 3]
         [--tune-seeds 1] [--report-seeds 2,3] [--tune] [--real DIR] [--png DIR]
+    .venv/bin/python bench/bench_suspects.py --speed [--sizes 1920x1200,960x600] [--real DIR] [--repeat 3]
 
 1. Synthetic logs (``zcut synth``, 1920 × 1200) of each part kind and seed, and a bin model built from
    an empty-bin series (``zcut synth --empty``, ``zcut bin-model``), in ``--work`` (reused when
@@ -20,6 +21,14 @@
    into a log (``zcut record``) and replayed without bin stages (zone = every valid pixel): per frame,
    σ̂, τ, the pixels each detector proposes and the groups. ``--png DIR`` writes overlays of the
    groups (outside the repository) to look at.
+5. ``--speed``: CPU ms per frame of each part of :func:`zcut.suspects.suspects` as the labelling
+   page calls it (``edge_surface=EdgeSurfaceParams()``), the previous code
+   (:func:`zcut.suspects.suspects_reference`) against the fast path in the same run, and their
+   ratio: hand-made synthetic frames of several kinds (one quantized), a ray-traced frame, at each
+   ``--sizes``, and the real scans of ``--real``; zone = every valid pixel (no bin stages: the
+   most pixels to judge). Whole calls: the median of ``--repeat`` calls' CPU time; parts: the CPU
+   time cProfile gives each part's function in one more call. Each frame's two results are checked
+   equal field by field first.
 """
 
 from __future__ import annotations
@@ -281,6 +290,113 @@ def run_real(src: Path, work: Path, png: Path | None) -> None:
                     f.write(f"{res.group(g)}\n")
 
 
+
+# --------------------------------------------------------------------------------------------
+# Speed: the previous code against the fast path, per part (issue 32)
+# --------------------------------------------------------------------------------------------
+
+#: (part, the fast path's functions, the previous code's): CPU time of a part = the sum of its functions'
+#: cumulative times in one profiled call
+PARTS = (
+    ("noise", ("noise_profile", "local_height"), ("noise_profile_reference", "local_height_reference")),
+    ("residuals", ("surface_residuals", "fill_blobs"), ("surface_residuals", "fill_blobs")),
+    ("floating", ("floating_components",), ("floating_components_reference",)),
+    ("gaps", ("local_gaps",), ("local_gaps",)),
+    ("edge surface", ("_edge_surfaces", "edge_surfaces", "distance"), ("_signed_edge_distance_reference",)),
+    ("grouping", ("group_suspects",), ("group_suspects_reference",)),
+)
+#: the frames of --speed: (name, kind, sensor, quantize_mm, seed)
+SPEED_FRAMES = (("zinc_nuts", "zinc_nuts", "handmade", 0.0, 1), ("black_nuts", "black_nuts", "handmade", 0.0, 2),
+                ("spheres q1mm", "spheres", "handmade", 1.0, 3), ("sprockets", "sprockets", "handmade", 0.0, 4),
+                ("zinc_nuts ray-traced", "zinc_nuts", "raytraced", 0.0, 5))
+
+
+def speed_frame(work: Path, name: str, kind: str, sensor: str, quantize: float, seed: int, size: tuple[int, int]):
+    """(xyz, height_mm) of one frame of a synthetic log made once in ``work``."""
+    from replay.logs.reader import LogReader
+
+    log = work / f"speed_{kind}_{sensor}_q{quantize:g}_s{seed}_{size[1]}x{size[0]}.mcap"
+    if not log.exists():
+        print(f"making {log.name}", flush=True)
+        if sensor == "raytraced":
+            from replay.synth.raytrace import write_raytraced_log
+            write_raytraced_log(log, kind=kind, frames=1, seed=seed, size=size)
+        else:
+            from replay.synth.log import write_synthetic_log
+            write_synthetic_log(log, kind=kind, frames=1, seed=seed, size=size, quantize_mm=quantize)
+    frame = next(iter(LogReader(log).frames()))
+    return frame.xyz, -1000.0 * frame.xyz[..., 2].astype(np.float64)
+
+
+def _parts_cpu(fn, names_per_part) -> list[float]:
+    """CPU seconds of each part (sum of its functions' cumulative times) in one profiled call of fn."""
+    import cProfile
+    import pstats
+
+    prof = cProfile.Profile(time.process_time)
+    prof.runcall(fn)
+    stats = pstats.Stats(prof).stats  # type: ignore[attr-defined]
+    out = []
+    for names in names_per_part:
+        out.append(sum(v[3] for (path, _line, func), v in stats.items()
+                       if func in names and ("zcut" in path or "edge_surface" in path)))
+    return out
+
+
+def time_frame(label: str, xyz: np.ndarray, height: np.ndarray, repeat: int) -> tuple[float, float]:
+    """Print one frame's row of parts, old / new / ratio; return the whole calls' CPU ms (old, new)."""
+    from zcut.edge_surface import EdgeSurfaceParams
+    from zcut.suspects import suspects_reference
+
+    zone = np.isfinite(xyz).all(axis=2)
+    params = SuspectParams()  # a_max: 1 % of the frame
+    es = EdgeSurfaceParams()
+
+    def new():
+        return suspects(xyz, height, zone, params=params, edge_surface=es)
+
+    def old():
+        return suspects_reference(xyz, height, zone, params=params, edge_surface=es)
+
+    a, b = new(), old()  # warm-up (numba's cache), and the check
+    for f in ("mask", "groups", "detectors", "gap_mm", "residual_mm", "group_score", "group_bbox", "group_gap_mm"):
+        if not np.array_equal(getattr(a, f), getattr(b, f), equal_nan=True):
+            raise SystemExit(f"{label}: the fast path's {f} differs from the previous code's")
+    whole = []
+    for fn in (old, new):
+        cpu = []
+        for _ in range(repeat):
+            c0 = time.process_time()
+            fn()
+            cpu.append(time.process_time() - c0)
+        whole.append(1000.0 * float(np.median(cpu)))
+    p_old = _parts_cpu(old, [p[2] for p in PARTS])
+    p_new = _parts_cpu(new, [p[1] for p in PARTS])
+    cells = " ".join(f"{1000 * o:6.0f}/{1000 * n:4.0f} {o / max(n, 1e-9):4.1f}x" for o, n in zip(p_old, p_new))
+    print(f"{label:34s} {int(zone.sum()):8d} {cells} {whole[0]:7.0f}/{whole[1]:5.0f} {whole[0] / whole[1]:5.1f}x",
+          flush=True)
+    return whole[0], whole[1]
+
+
+def run_speed(work: Path, sizes: list[tuple[int, int]], real: Path | None, repeat: int) -> None:
+    work.mkdir(parents=True, exist_ok=True)
+    print("CPU ms per frame (process time, all threads; the machine may be shared: read the ratios), "
+          "old = the previous code (suspects_reference) / new = the fast path, and old / new")
+    print(f"{'frame':34s} {'judged':>8s} " + " ".join(f"{p[0]:>17s}" for p in PARTS) + f" {'whole old/new':>13s} "
+          f"{'ratio':>6s}")
+    for H, W in sizes:
+        for name, kind, sensor, q, seed in SPEED_FRAMES:
+            xyz, height = speed_frame(work, name, kind, sensor, q, seed, (H, W))
+            time_frame(f"{name} {W}x{H}", xyz, height, repeat)
+    if real is not None:
+        from replay.logs.pcd import read_pcd
+
+        for pcd in sorted(real.glob("*.pcd")):
+            xyz = read_pcd(pcd).xyz
+            time_frame(f"{pcd.stem[:24]} {xyz.shape[1]}x{xyz.shape[0]}", xyz,
+                       -1000.0 * xyz[..., 2].astype(np.float64), repeat)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, default=Path("/tmp/zcut_bench_suspects"))
@@ -292,7 +408,14 @@ def main() -> None:
     ap.add_argument("--real", type=Path, help="folder of organized PCD scans (no truth)")
     ap.add_argument("--png", type=Path, help="write overlays of the real scans' groups here")
     ap.add_argument("--skip-synthetic", action="store_true")
+    ap.add_argument("--speed", action="store_true", help="CPU time per part, previous code against the fast path")
+    ap.add_argument("--sizes", default="1920x1200", help="--speed: frame sizes WxH, comma-separated")
+    ap.add_argument("--repeat", type=int, default=3, help="--speed: calls per frame and path (median)")
     args = ap.parse_args()
+    if args.speed:
+        sizes = [tuple(int(v) for v in s.split("x"))[::-1] for s in args.sizes.split(",")]
+        run_speed(args.work, sizes, args.real, args.repeat)  # type: ignore[arg-type]
+        return
     kinds = args.kinds.split(",")
     cache = args.work / "zones"
     print(f"defaults: {SuspectParams()}")

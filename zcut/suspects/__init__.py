@@ -30,7 +30,14 @@ has at most ``max_groups`` groups. Every group says which detectors flagged it, 
 to the local surface in mm (positive: toward the camera) and a score for ordering.
 
 Each numba kernel has a literal reference beside it (``*_reference``: numpy or plain loops) and the
-tests check they agree bit for bit (``tests/zcut/test_suspects.py``).
+tests check they agree bit for bit (``tests/zcut/test_suspects.py``). The whole of :func:`suspects`
+has one too: :func:`suspects_reference` (:mod:`~zcut.suspects._reference`) is the code as it stood
+before it was made fast (issue 32: whole-frame numpy, scipy's labelling per detector and class, the
+agglomeration in Python, the edge-aware distance of every pixel), and every field of their results
+is equal bit for bit (``tests/zcut/test_suspects_fast.py``). The fast path labels each detector's
+pixels directly (no grown mask), gathers the noise samples and the local heights in numba, completes
+blobs from the pixels that joined last, and measures the edge-aware distance only at the pixels whose
+gap takes it (:attr:`SuspectResult.surface_mm` measures the rest when read).
 
 The modules, one per part: :mod:`~zcut.suspects.detectors` (the names, their bits, the grid helpers
 they share), :mod:`~zcut.suspects.noise` (σ̂ and the depth step by height),
@@ -43,6 +50,7 @@ groups, the suspects' share and the filters', lives beside the page (:mod:`annot
 
 from __future__ import annotations
 
+from ._reference import suspects_reference  # noqa: E402  (the previous code, after the modules it uses)
 from .detectors import (
     ABOVE_RIM,
     DETECTORS,
@@ -102,6 +110,7 @@ __all__ = [
     "surface_residuals",
     "surface_residuals_reference",
     "suspects",
+    "suspects_reference",
     # the detectors' bits and the constants the docs name
     "ABOVE_RIM",
     "FLOATING",

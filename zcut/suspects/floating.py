@@ -216,9 +216,13 @@ def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: M
                     | (rough_frac >= params.evidence_inconsistent) | (ring >= params.evidence_ring_valid))
     mask = np.concatenate([[False], keep])[lab] & zone
     if mask.any():
-        kept = np.where(mask, lab, 0)
+        rows = np.flatnonzero(mask.any(axis=1))
+        cols = np.flatnonzero(mask.any(axis=0))
+        box = (slice(max(int(rows[0]) - 1, 0), int(rows[-1]) + 2), slice(max(int(cols[0]) - 1, 0), int(cols[-1]) + 2))
+        m, h = mask[box], height_mm[box]  # the components and the pixels bordering them
+        kept = np.where(m, lab[box], 0)
         border = ndimage.maximum_filter(kept, size=3, mode="constant")
-        border = np.where((kept == 0) & valid & np.isfinite(height_mm), border, 0)  # measured, outside
-        ring_h = label_medians(height_mm, border, cut.n_clusters)
-        gap[mask] = hz[mask] - np.concatenate([[np.nan], ring_h])[kept[mask]]
+        border = np.where((kept == 0) & valid[box] & np.isfinite(h), border, 0)  # measured, outside
+        ring_h = label_medians(h, border, cut.n_clusters)
+        gap[box][m] = hz[box][m] - np.concatenate([[np.nan], ring_h])[kept[m]]
     return mask, gap

@@ -8,12 +8,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..cloud import check_mask
 from ..types import FloatImage, Mask
-from .detectors import shifted
 
 # the noise profile: bins of at least this many second differences, at most this many bins
 NOISE_MIN_SAMPLES = 2000
@@ -53,22 +53,106 @@ def _second_differences(height: np.ndarray, judged: Mask) -> tuple[np.ndarray, n
     return np.abs(np.concatenate(vals)), np.concatenate(at)
 
 
+@numba.njit(cache=True)
+def _local_height_kernel(h, out):  # type: ignore[no-untyped-def]  # numba kernel
+    H, W = h.shape
+    v = np.empty(5)
+    for i in range(H):
+        for j in range(W):
+            x = h[i, j]
+            if not np.isfinite(x):
+                out[i, j] = np.nan
+                continue
+            # the pixel, then its neighbours E, W, S, N (the previous code's order: a stable sort of
+            # equal values keeps it)
+            v[0] = x
+            n = 1
+            for k in range(4):
+                i1 = i + (0, 0, 1, -1)[k]
+                j1 = j + (1, -1, 0, 0)[k]
+                if 0 <= i1 < H and 0 <= j1 < W:
+                    y = h[i1, j1]
+                    if np.isfinite(y):
+                        m = n
+                        while m > 0 and v[m - 1] > y:  # insertion: stable
+                            v[m] = v[m - 1]
+                            m -= 1
+                        v[m] = y
+                        n += 1
+            lo = v[(n - 1) // 2]
+            hi = v[n // 2]
+            out[i, j] = lo if n % 2 == 1 else 0.5 * (lo + hi)
+
+
 def local_height(height: FloatImage) -> np.ndarray:
     """The median of each pixel's height and its 4 neighbours' (measured ones only; NaN where the
     pixel is not measured): the height at which to look up the noise of a pixel, so that a spike
     gets the noise of the surface it sticks out of."""
-    h = np.asarray(height, dtype=np.float64)
-    stack = np.stack([h] + [shifted(h, dr, dc, np.nan) for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0))])
-    out = np.full(h.shape, np.nan)
-    fin = np.isfinite(h)
-    if fin.any():
-        sub = stack[:, fin]
-        sub = np.sort(np.where(np.isfinite(sub), sub, np.inf), axis=0)  # measured values first
-        n = np.isfinite(sub).sum(axis=0)
-        cols = np.arange(sub.shape[1])
-        lo, hi = sub[(n - 1) // 2, cols], sub[n // 2, cols]
-        out[fin] = np.where(n % 2 == 1, lo, 0.5 * (lo + hi))
+    h = np.ascontiguousarray(height, dtype=np.float64)
+    out = np.empty(h.shape)
+    _local_height_kernel(h, out)
     return out
+
+
+@numba.njit(cache=True)
+def _differences_kernel(h, judged, order, stride, vals, at):  # type: ignore[no-untyped-def]  # numba kernel
+    """Every ``stride``-th of the |differences| of :func:`_sampled_differences` (all when ``vals`` is
+    empty: then only counted); returns the count."""
+    H, W = h.shape
+    m = 0
+    k = 0
+    fill = vals.size > 0
+    for axis in range(2):
+        di = 1 if axis == 1 else 0
+        dj = 1 - di
+        for i in range(H - order * di):
+            for j in range(W - order * dj):
+                if order == 2:
+                    if not judged[i + di, j + dj]:
+                        continue
+                    a = h[i, j]
+                    b = h[i + di, j + dj]
+                    c = h[i + 2 * di, j + 2 * dj]
+                    e = a - 2.0 * b + c
+                    if not np.isfinite(e):
+                        continue
+                    if fill and m % stride == 0:
+                        vals[k] = abs(e)
+                        # the median of three as numpy's minimum / maximum take it (the second on ties)
+                        lo = a if a < b else b
+                        hi = a if a > b else b
+                        hi = hi if hi < c else c
+                        at[k] = lo if lo > hi else hi
+                        k += 1
+                else:
+                    if not judged[i, j]:
+                        continue
+                    d = h[i + di, j + dj] - h[i, j]
+                    if not np.isfinite(d):
+                        continue
+                    if fill and m % stride == 0:
+                        vals[k] = abs(d)
+                        at[k] = h[i, j]
+                        k += 1
+                m += 1
+    return m
+
+
+def _sampled_differences(h: np.ndarray, judged: np.ndarray, order: int, most: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every k-th (k = the least that leaves at most ``most``) of the frame's |differences| of
+    ``order`` 2 (what :func:`_second_differences` gives, its order: along rows, then columns) or 1
+    (|h(q) - h(p)| for judged p, q its right then lower neighbour, and h(p)), and the heights they are
+    at: what ``noise_profile`` subsampled from whole-frame arrays, without making them."""
+    empty = np.zeros(0)
+    total = _differences_kernel(h, judged, order, 1, empty, empty)
+    if total == 0:
+        return empty, empty
+    stride = -(-total // most)
+    n = -(-total // stride)
+    vals = np.empty(n)
+    at = np.empty(n)
+    _differences_kernel(h, judged, order, stride, vals, at)
+    return vals, at
 
 
 def _robust_sigma(a: np.ndarray) -> float:
@@ -148,35 +232,26 @@ def noise_profile(height: FloatImage, judged: Mask) -> NoiseProfile:
     height, its robust σ̂, and the depth step of the neighbour differences |h(p) - h(q)| (rows and
     columns, judged p, measured q) whose height falls in the bin.
     """
-    judged = check_mask(judged, name="judged", shape=np.shape(height))
-    a, at = _second_differences(height, judged)
+    judged = np.ascontiguousarray(check_mask(judged, name="judged", shape=np.shape(height)))
+    h = np.ascontiguousarray(height, dtype=np.float64)
+    a, at = _sampled_differences(h, judged, 2, NOISE_MAX_SAMPLES)
     if a.size == 0:
         return NoiseProfile(np.zeros(0), np.zeros(0), np.zeros(0))
-    stride = -(-a.size // NOISE_MAX_SAMPLES)  # a regular subsample is plenty for 32 robust spreads
-    a, at = a[::stride], at[::stride]
     order = np.argsort(at, kind="stable")
     a, at = a[order], at[order]
     bins = int(min(NOISE_MAX_BINS, max(1, a.size // NOISE_MIN_SAMPLES)))
     edges = np.linspace(0, a.size, bins + 1).astype(np.int64)
     heights = np.array([np.median(at[i:j]) for i, j in zip(edges[:-1], edges[1:])])
     sigmas = np.array([_robust_sigma(a[i:j]) for i, j in zip(edges[:-1], edges[1:])])
-    h = np.asarray(height, dtype=np.float64)
-    parts: list[np.ndarray] = []
-    parts_at: list[np.ndarray] = []
-    for dh, at1, where in ((h[:, 1:] - h[:, :-1], h[:, :-1], judged[:, :-1]),
-                           (h[1:, :] - h[:-1, :], h[:-1, :], judged[:-1, :])):
-        sel = where & np.isfinite(dh)
-        parts.append(np.abs(dh[sel]))
-        parts_at.append(at1[sel])
-    d1, d1_at = np.concatenate(parts), np.concatenate(parts_at)
-    stride = -(-d1.size // NOISE_MAX_SAMPLES)
-    d1, d1_at = d1[::stride], d1_at[::stride]
+    d1, d1_at = _sampled_differences(h, judged, 1, NOISE_MAX_SAMPLES)
     # a first difference belongs to the bin whose range of second-difference heights holds it
     upper = np.array([at[j - 1] for j in edges[1:]])
     which = np.minimum(np.searchsorted(upper, d1_at, side="left"), bins - 1)
     steps = np.zeros(bins)
+    by_bin = np.argsort(which.astype(np.int8), kind="stable")  # bins < 128: a radix sort
+    ends = np.searchsorted(which[by_bin], np.arange(bins + 1), side="left")
     for k in range(bins):
-        v = d1[which == k]
+        v = d1[by_bin[ends[k]:ends[k + 1]]]
         nonzero = v[v > 0]
         if v.size and nonzero.size and (v.size - nonzero.size) >= QUANTIZED_ZERO_SHARE * v.size:
             steps[k] = np.median(nonzero)

@@ -230,6 +230,69 @@ def _fill_kernel(seed, judged, valid, iterations, min_nb):  # type: ignore[no-un
     return cur
 
 
+@numba.njit(cache=True)
+def _fill_frontier_kernel(seed, judged, valid, iterations, min_nb):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_fill_kernel` judging only the pixels that can join: in a round, the neighbours of the
+    pixels that joined in the previous one (of the seeds in the first); a pixel's counts change only
+    when a neighbour joins."""
+    H, W = seed.shape
+    cur = seed.copy()
+    stamp = np.zeros((H, W), np.int32)
+    n = 0
+    for i in range(H):
+        for j in range(W):
+            if seed[i, j]:
+                n += 1
+    front = np.empty(n, np.int64)
+    n = 0
+    for i in range(H):
+        for j in range(W):
+            if seed[i, j]:
+                front[n] = i * W + j
+                n += 1
+    for it in range(1, iterations + 1):
+        cand = np.empty(min(8 * front.size, H * W), np.int64)
+        m = 0
+        for p in front:
+            i = p // W
+            j = p % W
+            for k in range(8):
+                i1 = i + _DR[k]
+                j1 = j + _DC[k]
+                if i1 < 0 or i1 >= H or j1 < 0 or j1 >= W:
+                    continue
+                if cur[i1, j1] or not judged[i1, j1] or stamp[i1, j1] == it:
+                    continue
+                stamp[i1, j1] = it
+                cand[m] = i1 * W + j1
+                m += 1
+        add = np.empty(m, np.int64)
+        na = 0
+        for c in range(m):
+            i = cand[c] // W
+            j = cand[c] % W
+            nf = 0
+            nv = 0
+            for k in range(8):
+                i1 = i + _DR[k]
+                j1 = j + _DC[k]
+                if i1 < 0 or i1 >= H or j1 < 0 or j1 >= W:
+                    continue
+                if cur[i1, j1]:
+                    nf += 1
+                elif valid[i1, j1]:
+                    nv += 1
+            if nf >= min_nb and nf > nv:
+                add[na] = cand[c]
+                na += 1
+        if na == 0:
+            break
+        for c in range(na):
+            cur[add[c] // W, add[c] % W] = True
+        front = add[:na]
+    return cur
+
+
 def _check_fill_args(seed: object, judged: object, valid: object, iterations: object) -> tuple[Mask, Mask, Mask, int]:
     seed = check_mask(seed, name="seed")
     judged = check_mask(judged, name="judged", shape=seed.shape)
@@ -256,8 +319,8 @@ def fill_blobs(seed: Mask, judged: Mask, valid: Mask, *, iterations: int) -> Mas
         ``seed`` and the pixels that joined.
     """
     seed, judged, valid, iterations = _check_fill_args(seed, judged, valid, iterations)
-    filled: Mask = _fill_kernel(np.ascontiguousarray(seed), np.ascontiguousarray(judged), np.ascontiguousarray(valid),
-                                iterations, FILL_MIN_NEIGHBOURS)
+    filled: Mask = _fill_frontier_kernel(np.ascontiguousarray(seed), np.ascontiguousarray(judged),
+                                         np.ascontiguousarray(valid), iterations, FILL_MIN_NEIGHBOURS)
     return filled
 
 

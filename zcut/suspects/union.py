@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
 
 from ..cloud import Intrinsics, check_mask, check_xyz
-from ..edge_surface import EdgeSurfaceParams, signed_edge_distance
+from ..edge_surface import EdgeSurfaceParams, EdgeSurfaces, _edge_surfaces, _median_of_temporary, edge_surfaces
 from ..errors import InputShapeError, ParameterError, describe_array
 from ..params import SuspectParams
 from ..types import XYZ, FloatImage, Labels, Mask
@@ -90,7 +91,10 @@ class SuspectResult:
     surface_mm : (H, W) float64 ndarray or None
         With ``edge_surface``: every valid pixel's signed distance to the nearest surface fitted on
         one side of an edge (:func:`zcut.edge_surface.signed_edge_distance`; mm, positive = toward
-        the camera, NaN where unmeasured, +inf where no surface is near); else None.
+        the camera, NaN where unmeasured, +inf where no surface is near); else None. Measured on
+        first access (the suspects need it only at the pixels whose gap it gives); until then the
+        result holds the frame's fitted planes (:class:`zcut.edge_surface.EdgeSurfaces`, ~170 MB
+        at 1920 × 1200).
     """
 
     mask: Mask
@@ -109,7 +113,14 @@ class SuspectResult:
     noise_profile: NoiseProfile
     floating_step_mm: float
     merge_radius_px: np.ndarray
-    surface_mm: np.ndarray | None = None
+    _surface_mm: np.ndarray | None = None
+    _surfaces: EdgeSurfaces | None = dataclasses.field(default=None, repr=False, compare=False)
+
+    @property
+    def surface_mm(self) -> np.ndarray | None:
+        if self._surface_mm is None and self._surfaces is not None:
+            object.__setattr__(self, "_surface_mm", self._surfaces.distance())
+        return self._surface_mm
 
     @property
     def n_groups(self) -> int:
@@ -197,12 +208,13 @@ def suspects(
     valid = np.isfinite(a[..., 0]) & np.isfinite(a[..., 1]) & np.isfinite(a[..., 2])
     zone = zone & valid & ~easy
     easy = easy & valid
-    context = np.where(valid & ~easy, -1000.0 * a[..., 2].astype(np.float64), np.nan)
+    h_all = np.where(valid, -1000.0 * a[..., 2].astype(np.float64), np.nan)  # every measured point's height
+    context = np.where(easy, np.nan, h_all)
     h_zcut = np.ascontiguousarray(h_img, dtype=np.float64)
 
     profile = noise_profile(context, zone)
     sigma_px = profile.sigma_at(local_height(context))
-    sigma = float(np.median(sigma_px[zone])) if zone.any() else 0.0
+    sigma = _median_of_temporary(sigma_px[zone]) if zone.any() else 0.0
     tau = np.maximum(params.min_residual_mm, params.noise_k * sigma_px)
     jump = np.maximum(params.jump_mm, params.noise_k * sigma_px)
     step = max(params.floating_step_mm, FLOATING_STEP_SIGMAS * sigma)
@@ -225,22 +237,30 @@ def suspects(
     # surface around it
     by_residual = off & ((codes & (FLOATING | ABOVE_RIM)) == 0) & np.isfinite(residual)
     by_border = floating & ~easy
-    gap = local_gaps(np.where(valid, -1000.0 * a[..., 2].astype(np.float64), np.nan),
+    gap = local_gaps(h_all,
                      mask & ~by_residual & ~by_border, valid & ~mask)
     gap[by_residual] = residual[by_residual]
     gap[by_border] = floating_gap[by_border]
-    surface_mm = None
+    surfaces = None
     if edge_surface is not None:  # a pixel off the surface with a surface near: its distance to the nearest one
-        surface_mm = signed_edge_distance(1000.0 * a.astype(np.float64), valid, params=edge_surface)
+        # the frame in mm (1000.0 * a.astype(np.float64) in one product); a float32 frame's valid
+        # points stay finite in mm, so only a float64 one needs edge_surfaces' check
+        a_mm = np.multiply(a, 1000.0, dtype=np.float64)
+        surfaces = _edge_surfaces(a_mm, np.ascontiguousarray(valid), edge_surface) if a.dtype == np.float32 \
+            else edge_surfaces(a_mm, valid, params=edge_surface)
+        surface_mm = surfaces.distance(by_residual)
         near = by_residual & np.isfinite(surface_mm)
         gap[near] = surface_mm[near]
     tau_px = np.where(np.isfinite(tau) & (tau > 0), tau, params.min_residual_mm)
     groups, primary, radii = group_suspects(codes, np.abs(gap) / tau_px, params)
     n = int(primary.size)
     size = np.bincount(groups.ravel(), minlength=n + 1)[1:].astype(np.int64)
-    bits = np.zeros(n + 1, np.uint8)
-    np.bitwise_or.at(bits, groups.ravel(), codes.ravel())
-    bits = bits[1:]
+    g_flat = groups.ravel()
+    in_group = np.flatnonzero(g_flat)
+    g_of, c_of = g_flat[in_group], codes.ravel()[in_group]
+    bits = np.zeros(n, np.uint8)  # the OR of the codes of each group's pixels, bit by bit
+    for b in range(len(DETECTORS)):
+        bits |= ((np.bincount(g_of, weights=(c_of >> b) & 1, minlength=n + 1)[1:] > 0) << b).astype(np.uint8)
     if n:
         g_gap = label_medians(gap, groups, n)
         boxes = ndimage.find_objects(groups, max_label=n)
@@ -257,6 +277,6 @@ def suspects(
         mask=mask, groups=groups, detectors=codes, gap_mm=gap, residual_mm=residual,
         group_detectors=bits[order], group_primary=primary[order], group_size=size[order],
         group_gap_mm=g_gap[order], group_bbox=bbox[order], group_score=score[order],
-        noise_mm=sigma, threshold_mm=float(np.median(tau[zone])) if zone.any() else float(params.min_residual_mm),
-        noise_profile=profile, floating_step_mm=step, merge_radius_px=radii, surface_mm=surface_mm,
+        noise_mm=sigma, threshold_mm=_median_of_temporary(tau[zone]) if zone.any() else float(params.min_residual_mm),
+        noise_profile=profile, floating_step_mm=step, merge_radius_px=radii, _surfaces=surfaces,
     )

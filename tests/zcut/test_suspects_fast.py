@@ -1,0 +1,218 @@
+"""The suspects' fast path against the previous code (``zcut.suspects._reference``), bit for bit (issue 32).
+
+Every field of the result (mask, groups, detectors, gaps, residuals, per-group tables, noise, the
+edge-aware distances) on synthetic hand-made logs of several kinds and seeds, a ray-traced frame, the
+real Kinect scans, frames with large invalid regions and degenerate ones; and each fast part against
+its previous version on its own.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from test_suspects import random_heights, scene
+
+from replay.logs.pcd import read_pcd
+from replay.logs.reader import LogReader
+from replay.synth.log import write_synthetic_log
+from replay.synth.raytrace import write_raytraced_log
+from zcut.edge_surface import EdgeSurfaceParams, edge_surfaces, signed_edge_distance
+from zcut.params import SuspectParams
+from zcut.suspects import _reference as ref
+from zcut.suspects import noise_profile, suspects
+from zcut.suspects.grouping import _merge_compact
+from zcut.suspects.noise import local_height
+
+SIZE = (120, 160)
+FIELDS = [f.name for f in dataclasses.fields(ref.SuspectResult) if not f.name.startswith("_")] + ["surface_mm"]
+
+
+def assert_same(fast, old) -> None:
+    """Every field equal, dtype and NaN included."""
+    for name in FIELDS:
+        a, b = getattr(fast, name), getattr(old, name)
+        if name == "noise_profile":
+            for part in ("heights_mm", "sigma_mm", "step_mm"):
+                assert np.array_equal(getattr(a, part), getattr(b, part), equal_nan=True), f"noise_profile.{part}"
+            continue
+        if a is None or b is None:
+            assert a is None and b is None, name
+            continue
+        a, b = np.asarray(a), np.asarray(b)
+        assert a.dtype == b.dtype and a.shape == b.shape, f"{name}: {a.dtype}{a.shape} vs {b.dtype}{b.shape}"
+        assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f"), name
+
+
+def both(xyz, height, zone, above=None, params=None, edge=True) -> None:
+    params = params or SuspectParams()
+    es = EdgeSurfaceParams() if edge else None
+    fast = suspects(xyz, height, zone, above, params=params, edge_surface=es)
+    old = ref.suspects_reference(xyz, height, zone, above, params=params, edge_surface=es)
+    assert_same(fast, old)
+
+
+def frames_of(path):
+    return [(f.xyz, -1000.0 * f.xyz[..., 2].astype(np.float64)) for f in LogReader(path).frames()]
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("suspects_fast")
+    out = {}
+    for kind, seed in (("zinc_nuts", 3), ("black_nuts", 5), ("spheres", 9), ("sprockets", 11)):
+        out[f"{kind}-{seed}"] = frames_of(write_synthetic_log(d / f"{kind}.mcap", kind=kind, frames=1, seed=seed,
+                                                              size=SIZE))
+    out["quantized"] = frames_of(write_synthetic_log(d / "q.mcap", kind="rods", frames=1, seed=2, size=SIZE,
+                                                     quantize_mm=1.0))
+    out["raytraced"] = frames_of(write_raytraced_log(d / "rt.mcap", kind="zinc_nuts", frames=1, seed=4, size=SIZE))
+    return out
+
+
+@pytest.mark.parametrize("name", ["zinc_nuts-3", "black_nuts-5", "spheres-9", "sprockets-11", "quantized",
+                                  "raytraced"])
+def test_fast_equals_reference_on_logs(logs, name) -> None:
+    for xyz, height in logs[name]:
+        valid = np.isfinite(xyz).all(axis=2)
+        both(xyz, height, valid, params=SuspectParams(a_max=200.0))
+        # a zone with a hole, points above the rim, no edge surface, other grouping
+        zone = valid.copy()
+        zone[30:70, 40:100] = False
+        above = valid & (np.arange(xyz.shape[1])[None, :] > 150)
+        both(xyz, height, zone, above, params=SuspectParams(a_max=50.0, merge_radius_px=1, max_groups=5))
+        both(xyz, height, zone, params=SuspectParams(a_max=1000.0), edge=False)
+
+
+def test_fast_equals_reference_with_large_invalid_regions(logs) -> None:
+    rng = np.random.default_rng(7)
+    for name in ("zinc_nuts-3", "raytraced"):
+        xyz, height = (a.copy() for a in logs[name][0])
+        xyz[:60, :] = np.nan  # half the frame unmeasured
+        xyz[rng.random(xyz.shape[:2]) < 0.3] = np.nan  # and a third of the rest
+        height = -1000.0 * xyz[..., 2].astype(np.float64)
+        both(xyz, height, np.isfinite(xyz).all(axis=2), params=SuspectParams(a_max=100.0))
+
+
+def test_fast_equals_reference_on_real_scans(real_data) -> None:
+    for name in ("mosd_test16.pcd", "table_scene_mug_stereo_textured.pcd"):
+        xyz = read_pcd(real_data / name).xyz
+        valid = np.isfinite(xyz).all(axis=2)
+        both(xyz, -1000.0 * xyz[..., 2].astype(np.float64), valid)
+
+
+def test_fast_equals_reference_on_hand_made_scenes() -> None:
+    rng = np.random.default_rng(31)
+    for _ in range(4):
+        xyz, height, zone, above, _ = scene(rng)
+        both(xyz, height, zone, above, params=SuspectParams(a_max=2000))
+    for _ in range(40):  # random small scenes of every size from 0 x 0, ties on the thresholds
+        h = random_heights(rng).astype(np.float64)
+        H, W = h.shape
+        yy, xx = np.mgrid[0:H, 0:W]
+        z = -h / 1000.0 + 0.6
+        xyz = np.stack([(xx - W / 2) * z / 600.0, (yy - H / 2) * z / 600.0, z], axis=2)
+        zone = np.isfinite(h) & (rng.random((H, W)) < 0.9)
+        above = (rng.random((H, W)) < 0.02) if rng.random() < 0.5 else None
+        params = SuspectParams(a_max=float(rng.choice([10, 100, 1000])), max_groups=int(rng.choice([5, 8, 40])),
+                               merge_radius_px=int(rng.choice([0, 1, 3])))
+        both(xyz, -1000.0 * xyz[..., 2], zone, above, params=params)
+
+
+@pytest.mark.parametrize("case", ["0x0", "1x1", "3x3", "1xN", "Nx1", "all NaN", "one point", "identical points",
+                                  "empty zone", "float32"])
+def test_fast_equals_reference_on_degenerate_frames(case: str) -> None:
+    shapes = {"0x0": (0, 0), "1x1": (1, 1), "3x3": (3, 3), "1xN": (1, 50), "Nx1": (50, 1)}
+    H, W = shapes.get(case, (30, 40))
+    rng = np.random.default_rng(3)
+    xyz = np.stack([rng.normal(0, 0.1, (H, W)), rng.normal(0, 0.1, (H, W)), 0.5 + rng.normal(0, 0.002, (H, W))], 2)
+    if case == "all NaN":
+        xyz[:] = np.nan
+    if case == "one point":
+        xyz[:] = np.nan
+        xyz[3, 4] = (0.0, 0.0, 0.5)
+    if case == "identical points":
+        xyz[:] = (0.01, 0.02, 0.5)
+    if case == "float32":
+        xyz = xyz.astype(np.float32)
+    valid = np.isfinite(xyz).all(axis=2)
+    zone = np.zeros((H, W), bool) if case == "empty zone" else valid
+    both(xyz, -1000.0 * xyz[..., 2].astype(np.float64), zone)
+
+
+# --------------------------------------------------------------------------------------------
+# The parts on their own
+# --------------------------------------------------------------------------------------------
+
+
+def test_edge_surfaces_equal_the_previous_kernels(logs, real_data) -> None:
+    clouds = [logs[n][0][0] for n in ("zinc_nuts-3", "raytraced", "quantized")]
+    clouds.append(read_pcd(real_data / "mosd_test20.pcd").xyz)
+    for xyz in clouds:
+        a = 1000.0 * np.asarray(xyz, np.float64)
+        valid = np.isfinite(a).all(axis=2)
+        for params in (EdgeSurfaceParams(), EdgeSurfaceParams(patch_radius_px=2, min_patch_px=10, max_incidence_deg=90),
+                       EdgeSurfaceParams(max_incidence_deg=30.0, side_step_mm=0.0)):
+            old = ref._signed_edge_distance_reference(a, valid, params=params)
+            assert np.array_equal(signed_edge_distance(a, valid, params=params), old, equal_nan=True)
+            where = np.random.default_rng(1).random(valid.shape) < 0.1
+            part = edge_surfaces(a, valid, params=params).distance(where)
+            assert np.array_equal(part, np.where(where, old, np.nan), equal_nan=True)
+
+
+def test_local_height_and_noise_profile_equal_the_previous_code(logs) -> None:
+    rng = np.random.default_rng(2)
+    heights = [h for n in logs for _, h in logs[n]] + [random_heights(rng).astype(np.float64) for _ in range(30)]
+    for h in heights:
+        judged = np.isfinite(h) & (rng.random(h.shape) < 0.8)
+        assert np.array_equal(local_height(h), ref.local_height_reference(h), equal_nan=True)
+        a, b = noise_profile(h, judged), ref.noise_profile_reference(h, judged)
+        for part in ("heights_mm", "sigma_mm", "step_mm"):
+            assert np.array_equal(getattr(a, part), getattr(b, part), equal_nan=True)
+
+
+def test_merge_compact_equals_the_previous_code() -> None:
+    rng = np.random.default_rng(4)
+    for _ in range(60):
+        n = int(rng.integers(1, 300))
+        r0 = rng.integers(0, 100, n)
+        c0 = rng.integers(0, 100, n)
+        boxes = np.stack([r0, c0, r0 + rng.integers(1, 6, n), c0 + rng.integers(1, 6, n)], 1)
+        if rng.random() < 0.3:  # many ties
+            boxes = boxes // 8 * 8
+        kind = rng.integers(0, int(rng.integers(1, 6)), n)
+        m = int(rng.integers(1, n + 1))
+        np.testing.assert_array_equal(_merge_compact(boxes, kind, m), ref._merge_compact_reference(boxes, kind, m))
+
+
+def test_sparse_components_equal_the_grown_mask_labels() -> None:
+    """The components linked pixel to pixel are the grown mask's, numbered as ``ndimage.label`` does."""
+    from zcut.suspects.grouping import _kind_components
+
+    rng = np.random.default_rng(8)
+    for _ in range(80):
+        H, W = int(rng.integers(1, 60)), int(rng.integers(1, 60))
+        m = rng.random((H, W)) < float(rng.choice([0.002, 0.02, 0.1, 0.5]))
+        r = int(rng.choice([0, 1, 2, 3, 7, 20]))
+        lab, n = ref._components_reference(m, r)
+        flat = np.flatnonzero(m)
+        got, n2, boxes = _kind_components(flat, m.shape, r, np.full(m.shape, -1, np.int32))
+        assert n2 == n
+        np.testing.assert_array_equal(got, lab.ravel()[flat])
+        from scipy import ndimage
+        want = [[s[0].start, s[1].start, s[0].stop, s[1].stop] for s in ndimage.find_objects(lab, max_label=n)]
+        np.testing.assert_array_equal(boxes, np.array(want, np.int64).reshape(-1, 4))
+
+
+def test_fill_blobs_equal_the_previous_kernel() -> None:
+    from zcut.suspects import fill_blobs
+
+    rng = np.random.default_rng(12)
+    for _ in range(60):
+        H, W = int(rng.integers(0, 50)), int(rng.integers(0, 50))
+        seed = rng.random((H, W)) < float(rng.choice([0.01, 0.1, 0.3, 0.6]))
+        valid = rng.random((H, W)) < 0.9
+        judged = valid & (rng.random((H, W)) < 0.9)
+        it = int(rng.choice([0, 1, 2, 5, 50]))
+        np.testing.assert_array_equal(fill_blobs(seed, judged, valid, iterations=it),
+                                      ref._fill_blobs_previous(seed, judged, valid, iterations=it))
