@@ -1117,11 +1117,13 @@ def _assemble(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: l
     runs: Counter[str] = Counter()
     truth_names: set[str] = set()
     pa, pb = primaries
+    given = {Path(os.path.abspath(p)): Path(p) for p in opts.logs}  # a log named as given (a folder's: its path)
+    given.update({Path(p).resolve(): Path(p) for p in opts.logs})
     writer = CompareWriter(paths, has_truth=None)
     started = completed = False
     try:
         for plan in plans:
-            entry = _Log(plan.path)
+            entry = _Log(given.get(plan.path, plan.path))
             logs.append(entry)
             if plan.error is not None or plan.sha256 not in sides:
                 entry.damage.append(f"left out: {plan.error or 'no frames'}")
