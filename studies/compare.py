@@ -948,11 +948,11 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
     import sys
 
     from annotate.disagreement import FILE as DISAGREEMENT
-    from replay.outputs import OutputPlan
+    from replay.outputs import OutputPlan, naming
     from replay.pipeline.session import open_log
     from studies.driver import Progress, check_labels, execute, plan_logs, start_units
     from studies.executors import make_executor
-    from studies.parts import PartStore
+    from studies.parts import PARTS, PartStore
     from studies.work import Job
 
     executor = make_executor(workers=opts.workers, ray=opts.ray)  # an unreachable cluster fails here
@@ -993,7 +993,8 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
                   annotator=opts.annotator, region=opts.region, configs=dict(sides), truth=opts.truth,
                   extra={"options": abs_opts, "a": abs_a, "b": abs_b, "primaries": primaries})
         progress = Progress(sum(u.n_frames or 0 for u in todo) or None)
-        results = execute(units, job, run_compare_unit, executor, store, progress=progress, schema=part_schema())
+        with naming(store.root / PARTS):  # a full disk met by a unit's part (Arrow's error names no file)
+            results = execute(units, job, run_compare_unit, executor, store, progress=progress, schema=part_schema())
         progress.finish()
     finally:
         executor.close()
