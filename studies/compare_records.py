@@ -204,8 +204,8 @@ def frame_from_json(text: str) -> FrameCompare:
 class FrameImages:
     """The (H, W) uint8 images of one compared frame that the writer needs: each side's verdict image
     (``verdict_a``, ``verdict_b``: TP 1, FP 2, FN 3, or removed 4 without truth), the difference image
-    ``diff`` (``studies.compare.DIFF_CODES``) and ``who`` (1 where only A removed a pixel, 2 where only B
-    did: ``disagreement.npz``'s pixels)."""
+    ``diff`` (its codes: docs/compare.md, ``compare.rrd``) and ``who`` (1 where only A removed a pixel,
+    2 where only B did: ``disagreement.npz``'s pixels)."""
 
     verdict_a: np.ndarray
     verdict_b: np.ndarray
