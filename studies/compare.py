@@ -43,7 +43,6 @@ No argparse here: ``cli/commands/compare.py`` is the command.
 
 from __future__ import annotations
 
-import functools
 import json
 import math
 import os
@@ -81,7 +80,6 @@ if TYPE_CHECKING:
     from studies.parts import PartStore
     from studies.units import WorkUnit
     from studies.work import Job, UnitResult
-    from zcut.bin_model import BinModel
     from zcut.paired import Counts
 
 #: The bin stages' config sections: equal on both sides, they run once.
@@ -488,28 +486,61 @@ def _side_of_masks(frame: Frame, masks: dict[str, np.ndarray] | None, held: tupl
     return SideFrame(method_masks(base, reported_methods(list(base))), valid, region)
 
 
-@functools.lru_cache(maxsize=2)
-def _load_bin_model(path: str | Path) -> BinModel:
-    """``--bin-model``, loaded once per worker process (its units usually come one after another)."""
-    from replay.pipeline.bin_model import load_bin_model
+#: What a worker process keeps of the logs it ran (its units usually come one log after another): the
+#: opened log, its runner of A and B, a results file's masks; the last :data:`_MAX_KEPT` of each.
+_KEPT: dict[tuple[Any, ...], Any] = {}
+_MAX_KEPT = 6
 
-    return load_bin_model(path)
+
+def _kept(key: tuple[Any, ...], make: Any) -> Any:
+    """``make()``, kept by this process under ``key`` (the oldest entries dropped)."""
+    if key not in _KEPT:
+        while len(_KEPT) >= _MAX_KEPT:
+            _KEPT.pop(next(iter(_KEPT)))
+        _KEPT[key] = make()
+    return _KEPT[key]
+
+
+def _open_unit_log(path: Path, sha256: str, topic: str | None) -> tuple[Any, Frame]:
+    """The unit's log opened (reader, first readable frame), kept for the next unit of the same log."""
+    from replay.pipeline.session import open_log
+
+    def make() -> tuple[Any, Frame]:
+        reader, first, _ = open_log(path, topic=topic)
+        return reader, first
+
+    got: tuple[Any, Frame] = _kept(("log", str(path), sha256, topic), make)
+    return got
 
 
 def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, path: Path, sides: LogSides,
                    reader: Any, first: Frame, frames: tuple[int, int | None], runs: Counter[str], lost: list[Any],
-                   ) -> Generator[tuple[Any, SideFrame | None, SideFrame | None], None, None]:
+                   sha256: str) -> Generator[tuple[Any, SideFrame | None, SideFrame | None], None, None]:
     """``(frame, side A, side B)`` of every readable frame of one log in ``frames`` (a side is None on a
     frame a results file does not hold); the stage calls are counted into ``runs``, the frames the
-    stream lost (:class:`~replay.logs.damage.Damage`) added to ``lost`` when it ends."""
+    stream lost (:class:`~replay.logs.damage.Damage`) added to ``lost`` when it ends. The runner of a
+    log (its sessions, their prepared bin model) is kept for the next unit of the same log (every
+    frame's registration starts from the log's first frame's pose: a frame's result does not depend
+    on the frames run before it)."""
     from replay.pipeline.bin_model import bin_model_for
+    from replay.pipeline.config import config_sha256
 
     region = opts.region
     resolved = sides.resolved
-    results = {spec.label: _results_masks(spec, path)[1:] for spec in (spec_a, spec_b) if spec.kind == "results"}
+    results = {spec.label: _kept(("results", str(spec.path), str(path), sha256),
+                                 lambda spec=spec: _results_masks(spec, path)[1:])
+               for spec in (spec_a, spec_b) if spec.kind == "results"}
+    model = None
+    if opts.bin_model is not None:
+        st = os.stat(opts.bin_model)
+        model = (str(opts.bin_model), st.st_size, st.st_mtime_ns)
+    key = ("runner", str(path), sha256, opts.topic, model,
+           *(config_sha256(resolved[k].config) if k in resolved else None for k in "AB"))
     if len(resolved) == 2:
-        choice = bin_model_for(reader, opts.bin_model, load=_load_bin_model)
-        runner = PairRunner(path, reader, first, resolved["A"], resolved["B"], choice.model, runs)
+        runner: PairRunner = _kept(key, lambda: PairRunner(
+            path, reader, first, resolved["A"], resolved["B"],
+            bin_model_for(reader, opts.bin_model).model))
+        runner.runs = runs
         it = runner.frames(frames)
         try:
             for frame, ra, rb in it:
@@ -523,8 +554,8 @@ def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, pat
         from replay.pipeline.session import ReplaySession
 
         label = next(iter(resolved))
-        choice = bin_model_for(reader, opts.bin_model, load=_load_bin_model)
-        session = ReplaySession(path, reader, resolved[label], choice.model, first)
+        session: ReplaySession = _kept(key, lambda: ReplaySession(
+            path, reader, resolved[label], bin_model_for(reader, opts.bin_model).model, first))
         stream = session.results(frames=frames)
         other = "B" if label == "A" else "A"
         masks, held = results[other]
@@ -998,6 +1029,7 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
         progress.finish()
     finally:
         executor.close()
+        _KEPT.clear()  # what the units kept when they ran in this process (--workers 0)
     return _assemble(opts, spec_a, spec_b, plans, sides, primaries, store, results, executor, paths, t_wall, t_cpu)
 
 
@@ -1009,7 +1041,6 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
     import resource
     import traceback
 
-    from replay.pipeline.session import open_log
     from studies.compare_outputs import frame_images
     from studies.work import UnitResult
 
@@ -1025,12 +1056,13 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
         path = Path(unit.log)
         if sides is None:
             raise CompareError(f"{path.name}: the driver resolved no sides for this log")
-        reader, first, _ = open_log(path, topic=opts.topic)
+        reader, first = _open_unit_log(path, unit.sha256, opts.topic)
         truth_src = _truth_source(opts, path, tuple(reader.mask_topics))
         truth_name = truth_src.name if truth_src is not None else None
         runs: Counter[str] = Counter()
         lost: list[Any] = []
-        it = _frames_of_log(opts, spec_a, spec_b, path, sides, reader, first, (unit.start, unit.stop), runs, lost)
+        it = _frames_of_log(opts, spec_a, spec_b, path, sides, reader, first, (unit.start, unit.stop), runs, lost,
+                            unit.sha256)
         try:
             seen: Counter[str] = Counter()
             for frame, sa, sb in it:
@@ -1084,12 +1116,10 @@ def _part_rows(store: PartStore, key: str) -> list[dict[str, Any]]:
 
 
 class _Reread:
-    """A unit's frames read again from its log, in order, for the recording's image and points."""
+    """A unit's frames read again from its log (``reader``), in order, for the recording's image and points."""
 
-    def __init__(self, path: Path, topic: str | None, unit: WorkUnit) -> None:
-        from replay.logs.reader import LogReader
-
-        self.stream = LogReader(path, cloud_topic=topic).frames(start=unit.start, stop=unit.stop)
+    def __init__(self, reader: Any, unit: WorkUnit) -> None:
+        self.stream = reader.frames(start=unit.start, stop=unit.stop)
         self.last: Any = None
 
     def get(self, index: int) -> Any:
@@ -1109,6 +1139,7 @@ def _assemble(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: l
               executor: Executor, paths: dict[str, Path], t_wall: float, t_cpu: float) -> CompareResult:
     """The one writer: every unit's frames in log order (those done in an earlier run too) into the
     recording, the disagreement, the tables and the page."""
+    from replay.logs.reader import LogReader
     from studies.compare_outputs import CompareWriter
 
     failed = {r.unit.key: r.error for r in results if r.error is not None}
@@ -1135,12 +1166,13 @@ def _assemble(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: l
             if s.resolved and plan.bin_model_warning:
                 entry.notes.append(plan.bin_model_warning)
             writer.log(plan.path)
+            log_reader = LogReader(plan.path, cloud_topic=opts.topic) if "rrd" in paths else None
             for u in plan.units:
                 if u.key in failed or not store.done(u.key):
                     entry.damage.append(f"frames {u.start}-{u.stop if u.stop is not None else 'end'} not compared: "
                                         f"{failed.get(u.key) or 'the unit did not finish'}")
                     continue
-                reread = _Reread(plan.path, opts.topic, u) if "rrd" in paths else None
+                reread = _Reread(log_reader, u) if log_reader is not None else None
                 try:
                     for row in _part_rows(store, u.key):
                         runs.update(json.loads(row["stage_runs"] or "{}"))

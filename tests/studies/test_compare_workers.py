@@ -159,3 +159,38 @@ def test_bad_executor_options_are_one_line(data, tmp_path, capsys, extra, messag
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and message in lines[0], err
     assert not (tmp_path / "b").exists()
+
+
+def _damaged_copy(src, dst, chunk: int) -> None:
+    """``src`` with the middle of its ``chunk``-th chunk overwritten (its CRC fails: its frame is lost)."""
+    from mcap.reader import make_reader
+
+    with open(src, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    idx = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)[chunk]
+    data = bytearray(src.read_bytes())
+    mid = idx.chunk_start_offset + idx.chunk_length // 2
+    data[mid:mid + 64] = bytes(64)
+    dst.write_bytes(bytes(data))
+
+
+def test_a_damaged_log_loses_its_frames_not_the_comparison(data, tmp_path, capsys):
+    log = tmp_path / "damaged.mcap"
+    _damaged_copy(data / "rods.mcap", log, 1)
+    reps = []
+    for workers in ("0", "2"):
+        rc, text, err = run_cli(capsys, "compare", log, data / "spheres.mcap", "--a", "zcut", "--b", data / "rho.toml",
+                                "-o", tmp_path / workers, "--frames-per-unit", "1", "--workers", workers, "--json",
+                                "--no-rrd")
+        assert rc == 3, err  # data loss
+        assert "warning: data loss: " in err and "Traceback" not in err, err
+        reps.append(json.loads(text))
+    for rep in reps:
+        del rep["cost"], rep["outputs"]
+    assert reps[0] == reps[1]
+    damaged = reps[0]["logs"][0]
+    assert damaged["frames"] == 2 and damaged["damage"], damaged
+    kept = [f["index"] for f in reps[0]["frames"] if f["log"] == "damaged.mcap"]
+    assert len(kept) == 2 and set(kept) < {0, 1, 2}  # one frame lost with its chunk
+    assert [f["index"] for f in reps[0]["frames"] if f["log"] == "spheres.mcap"] == [0, 1]
