@@ -5,12 +5,17 @@ A library call, in named steps::
 
     result = run(CompareOptions(logs=(log,), a="zcut", b="tuned.toml", out=Path("cmp")))
     #   sides = side_spec(a), side_spec(b)          what A and B are (config, method, results file)
-    #   per log: _open_log -> _frames               resolve both configs once; run each frame once,
-    #                                               sharing every stage whose parameters A and B share
-    #   per frame: _score_frame                     the counts `zcut accuracy` gives each side, the
+    #   plan_logs, resolve_log                      the driver: hash and split every log into units (as
+    #                                               `zcut batch`), resolve both configs once per log
+    #   PartStore(out, identity)                    resumable: units done in DIR are not run again
+    #   execute(units, run_compare_unit)            per unit (local processes, Ray or this process):
+    #     _frames_of_log                            run each frame once, sharing every stage whose
+    #                                               parameters A and B share
+    #     _score_frame                              the counts `zcut accuracy` gives each side, the
     #                                               agreement of the two masks, the disagreement blobs
-    #   _verdict                                    pooled figures, paired Δ with intervals, sign test
-    #   _write_outputs                              compare.json, summary.parquet, report.html, .rrd
+    #   _assemble                                   the one writer, frames in log order: the verdict
+    #                                               (pooled figures, paired Δ, sign test), compare.json,
+    #                                               summary.parquet, report.html, compare.rrd, the npz
 
 Sharing. Both sides run on the frames read once. When A's and B's ``bin_mask``, ``registration`` and
 ``removal`` sections are equal, the bin stages (:func:`replay.pipeline.stages.locate_bin`) run once and
@@ -25,11 +30,20 @@ that method; a results file: ``zcut``); when both configs run the same methods, 
 whose parameters differ (:func:`primary_methods`). The verdict compares A's primary with B's. Every
 method both sides report is also compared (``per_method``).
 
+Scale. The work runs in the units of a study (:mod:`studies.driver`, as ``zcut batch``): whole chunks of
+one log (``frames_per_unit``), on local worker processes (``workers``), a Ray cluster (``ray``) or this
+process (``workers=0``). Each unit returns per frame its :class:`FrameCompare` and the images the writer
+needs (:data:`studies.compare_records.PART_COLUMNS`), kept in ``DIR/parts`` as it finishes; a rerun over
+the same DIR runs only the units not done (another config, log set or option is refused, one line). The
+one writer then takes the frames in log order, so every output equals that of one process running the
+frames one after another.
+
 No argparse here: ``cli/commands/compare.py`` is the command.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import time
@@ -45,16 +59,27 @@ from replay.errors import ConfigError
 from studies.compare_records import (  # noqa: F401 - the records are part of this module's API
     Blob,
     FrameCompare,
+    FrameImages,
     SideFrame,
     SideSpec,
     count_f1,
+    frame_from_json,
+    frame_to_json,
+    part_schema,
     summary_rows,
 )
 from zcut.errors import ZcutError
 
 if TYPE_CHECKING:
+    from contextlib import ExitStack
+
     from replay.logs.frame import Frame
     from replay.pipeline.config import PipelineConfig, Resolved
+    from studies.driver import LogPlan
+    from studies.executors import Executor
+    from studies.parts import PartStore
+    from studies.units import WorkUnit
+    from studies.work import Job, UnitResult
     from zcut.paired import Counts
 
 #: The bin stages' config sections: equal on both sides, they run once.
@@ -64,6 +89,8 @@ DIFF_CODES: dict[int, str] = {1: "B fixes", 2: "B breaks", 3: "both wrong", 4: "
                               5: "removed only by B"}
 #: Blobs kept per frame in compare.json (the largest; every blob is counted).
 MAX_BLOBS_PER_FRAME = 50
+#: Frames per unit of work (whole chunks of one log), as ``zcut batch``'s.
+FRAMES_PER_UNIT = 8
 
 
 class CompareError(ZcutError, ValueError):
@@ -128,6 +155,13 @@ class CompareOptions:
         Write ``compare.rrd`` and ``report.html``.
     level : float
         Confidence level of the intervals.
+    workers : int or None
+        Local worker processes (None: the cores, as many as the free memory holds; 0: this process,
+        one unit after another), as ``zcut batch``'s.
+    ray : str or None
+        A Ray cluster's address, or ``auto``, instead of local processes.
+    frames_per_unit : int
+        Frames per unit of work (whole chunks of one log).
     """
 
     logs: tuple[Path, ...]
@@ -147,6 +181,9 @@ class CompareOptions:
     report: bool = True
     truth: str | None = None
     level: float = 0.95
+    workers: int | None = None
+    ray: str | None = None
+    frames_per_unit: int = FRAMES_PER_UNIT
 
 
 @dataclass(slots=True)
@@ -234,7 +271,7 @@ class PairRunner:
     """
 
     def __init__(self, path: Path, reader: Any, first: Frame, resolved_a: Resolved, resolved_b: Resolved,
-                 bin_model: Any) -> None:
+                 bin_model: Any, runs: Counter[str] | None = None) -> None:
         from replay.pipeline.session import ReplaySession
 
         self.a, self.b = resolved_a.config, resolved_b.config
@@ -244,7 +281,7 @@ class PairRunner:
         self.session_b = self.session_a if self.same_locate else ReplaySession(path, reader, resolved_b, bin_model,
                                                                                 first)
         self.shared = shared_methods(self.a, self.b) if self.same_zone else ()
-        self.runs: Counter[str] = Counter()
+        self.runs: Counter[str] = Counter() if runs is None else runs
 
     def frames(self, frames: tuple[int, int | None]) -> Generator[tuple[Any, Any, Any], None, None]:
         """``(frame, result_a, result_b)`` of every readable frame; the stream (for its damage) is
@@ -304,6 +341,65 @@ class _Log:
     n_unscored: int = 0
     intrinsics: Any = None
     primaries: tuple[str, str] = ("zcut", "zcut")
+
+
+@dataclass(frozen=True, slots=True)
+class LogSides:
+    """Both sides of one log as the driver resolved them; a unit runs exactly these (never resolves again).
+
+    Attributes
+    ----------
+    resolved : dict
+        ``"A"`` / ``"B"`` -> :class:`~replay.pipeline.config.Resolved` of a config or method side.
+    configs : dict
+        ``"A"`` / ``"B"`` -> its config (a results file's from its metadata, None when unknown).
+    primaries : (str, str)
+        The methods the verdict compares (:func:`primary_methods`).
+    diff : list of dict
+        :func:`config_difference` (empty without both configs).
+    shared : dict
+        What runs once for both: ``bin_stages``, ``zone``, ``methods`` (as :class:`PairRunner` shares).
+    """
+
+    resolved: dict[str, Any]
+    configs: dict[str, Any]
+    primaries: tuple[str, str]
+    diff: list[dict[str, Any]]
+    shared: dict[str, Any]
+
+
+def resolve_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, path: Path, reader: Any, first: Frame,
+                ) -> LogSides:
+    """Resolve A and B for one log (``reader``, its ``first`` readable frame), check that they differ and
+    that a results file is this log's; one line of :class:`CompareError` otherwise."""
+    from replay.pipeline import config as cfg
+    from replay.pipeline.explained import with_log_part_model, with_part_model
+
+    facts = cfg.log_facts(reader.metadata, first, intrinsics=getattr(reader, "intrinsics", None))
+    resolved: dict[str, Any] = {}
+    configs: dict[str, Any] = {}
+    for spec in (spec_a, spec_b):
+        if spec.kind == "results":
+            meta, _, _ = _results_masks(spec, path)
+            configs[spec.label] = _results_config(meta, spec)
+        else:
+            file_layer = spec.layer if spec.kind == "config" else None
+            cli = spec.layer if spec.kind == "method" else None
+            side = cfg.resolve(facts, file_layer=file_layer, cli=cli)
+            if opts.part_model is not None and "explained" in side.config.base_methods:
+                side = with_part_model(side, opts.part_model, unit=opts.part_model_unit)
+            resolved[spec.label] = with_log_part_model(side, path, reader)
+            configs[spec.label] = resolved[spec.label].config
+    primaries = _check_differ(spec_a, spec_b, configs["A"], configs["B"], path)
+    diff = config_difference(configs["A"], configs["B"]) if configs["A"] is not None and configs["B"] is not None else []
+    shared: dict[str, Any] = {"bin_stages": False, "zone": False, "methods": []}
+    if len(resolved) == 2:
+        a, b = resolved["A"].config, resolved["B"].config
+        same_locate = same_bin_stages(a, b)
+        same_zone = same_locate and a.zcut.max_depth == b.zcut.max_depth
+        shared = {"bin_stages": same_locate, "zone": same_zone,
+                  "methods": list(shared_methods(a, b)) if same_zone else []}
+    return LogSides(resolved, configs, primaries, diff, shared)
 
 
 def _results_masks(spec: SideSpec, log: Path) -> tuple[dict[str, Any], dict[int, dict[str, np.ndarray]], tuple[str, ...]]:
@@ -390,66 +486,77 @@ def _side_of_masks(frame: Frame, masks: dict[str, np.ndarray] | None, held: tupl
     return SideFrame(method_masks(base, reported_methods(list(base))), valid, region)
 
 
-def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, entry: _Log, runs: Counter[str],
-                   ) -> Generator[tuple[Any, SideFrame | None, SideFrame | None], None, None]:
-    """``(frame, side A, side B)`` of every readable frame of one log (a side is None on a frame a results
-    file does not hold)."""
-    from replay.pipeline import config as cfg
-    from replay.pipeline.bin_model import bin_model_for
-    from replay.pipeline.explained import with_log_part_model, with_part_model
+#: What a worker process keeps of the logs it ran (its units usually come one log after another): the
+#: opened log, its runner of A and B, a results file's masks; the last :data:`_MAX_KEPT` of each.
+_KEPT: dict[tuple[Any, ...], Any] = {}
+_MAX_KEPT = 6
+
+
+def _kept(key: tuple[Any, ...], make: Any) -> Any:
+    """``make()``, kept by this process under ``key`` (the oldest entries dropped)."""
+    if key not in _KEPT:
+        while len(_KEPT) >= _MAX_KEPT:
+            _KEPT.pop(next(iter(_KEPT)))
+        _KEPT[key] = make()
+    return _KEPT[key]
+
+
+def _open_unit_log(path: Path, sha256: str, topic: str | None) -> tuple[Any, Frame]:
+    """The unit's log opened (reader, first readable frame), kept for the next unit of the same log."""
     from replay.pipeline.session import open_log
 
-    path = entry.path
-    reader, first, _ = open_log(path, topic=opts.topic)  # its default config is not used: A's and B's follow
-    facts = cfg.log_facts(reader.metadata, first, intrinsics=getattr(reader, "intrinsics", None))
-    entry.intrinsics = first.intrinsics
-    resolved: dict[str, Any] = {}
-    results: dict[str, Any] = {}
-    configs: dict[str, Any] = {}
-    for spec in (spec_a, spec_b):
-        if spec.kind == "results":
-            meta, masks, held = _results_masks(spec, path)
-            results[spec.label] = (masks, held)
-            configs[spec.label] = _results_config(meta, spec)
-        else:
-            file_layer = spec.layer if spec.kind == "config" else None
-            cli = spec.layer if spec.kind == "method" else None
-            side = cfg.resolve(facts, file_layer=file_layer, cli=cli)
-            if opts.part_model is not None and "explained" in side.config.base_methods:
-                side = with_part_model(side, opts.part_model, unit=opts.part_model_unit)
-            resolved[spec.label] = with_log_part_model(side, path, reader)
-            configs[spec.label] = resolved[spec.label].config
-    entry.primaries = _check_differ(spec_a, spec_b, configs["A"], configs["B"], path)
-    entry.resolved_a, entry.resolved_b = configs["A"], configs["B"]
-    if configs["A"] is not None and configs["B"] is not None:
-        entry.diff = config_difference(configs["A"], configs["B"])
+    def make() -> tuple[Any, Frame]:
+        reader, first, _ = open_log(path, topic=topic)
+        return reader, first
+
+    got: tuple[Any, Frame] = _kept(("log", str(path), sha256, topic), make)
+    return got
+
+
+def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, path: Path, sides: LogSides,
+                   reader: Any, first: Frame, frames: tuple[int, int | None], runs: Counter[str], lost: list[Any],
+                   sha256: str) -> Generator[tuple[Any, SideFrame | None, SideFrame | None], None, None]:
+    """``(frame, side A, side B)`` of every readable frame of one log in ``frames`` (a side is None on a
+    frame a results file does not hold); the stage calls are counted into ``runs``, the frames the
+    stream lost (:class:`~replay.logs.damage.Damage`) added to ``lost`` when it ends. The runner of a
+    log (its sessions, their prepared bin model) is kept for the next unit of the same log (every
+    frame's registration starts from the log's first frame's pose: a frame's result does not depend
+    on the frames run before it)."""
+    from replay.pipeline.bin_model import bin_model_for
+    from replay.pipeline.config import config_sha256
+
     region = opts.region
+    resolved = sides.resolved
+    results = {spec.label: _kept(("results", str(spec.path), str(path), sha256),
+                                 lambda spec=spec: _results_masks(spec, path)[1:])
+               for spec in (spec_a, spec_b) if spec.kind == "results"}
+    model = None
+    if opts.bin_model is not None:
+        st = os.stat(opts.bin_model)
+        model = (str(opts.bin_model), st.st_size, st.st_mtime_ns)
+    key = ("runner", str(path), sha256, opts.topic, model,
+           *(config_sha256(resolved[k].config) if k in resolved else None for k in "AB"))
     if len(resolved) == 2:
-        choice = bin_model_for(reader, opts.bin_model)
-        if choice.warning:
-            entry.notes.append(choice.warning)
-        runner = PairRunner(path, reader, first, resolved["A"], resolved["B"], choice.model)
-        entry.shared = {"bin_stages": runner.same_locate, "zone": runner.same_zone, "methods": list(runner.shared)}
-        it = runner.frames(opts.frames)
+        runner: PairRunner = _kept(key, lambda: PairRunner(
+            path, reader, first, resolved["A"], resolved["B"],
+            bin_model_for(reader, opts.bin_model).model))
+        runner.runs = runs
+        it = runner.frames(frames)
         try:
             for frame, ra, rb in it:
                 yield (frame, _side_of_result(ra, runner.a.methods, region),
                        _side_of_result(rb, runner.b.methods, region))
         finally:
             it.close()
-            entry.damage += [d.text for d in runner.stream.damage]
-            runs.update(runner.runs)
+            lost += runner.stream.damage
         return
     if len(resolved) == 1:
         from replay.pipeline.session import ReplaySession
 
         label = next(iter(resolved))
-        choice = bin_model_for(reader, opts.bin_model)
-        if choice.warning:
-            entry.notes.append(choice.warning)
-        session = ReplaySession(path, reader, resolved[label], choice.model, first)
-        entry.shared = {"bin_stages": False, "zone": False, "methods": []}
-        stream = session.results(frames=opts.frames)
+        session: ReplaySession = _kept(key, lambda: ReplaySession(
+            path, reader, resolved[label], bin_model_for(reader, opts.bin_model).model, first))
+        stream = session.results(frames=frames)
         other = "B" if label == "A" else "A"
         masks, held = results[other]
         try:
@@ -463,17 +570,16 @@ def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, ent
                 yield (frame, mine, theirs) if label == "A" else (frame, theirs, mine)
         finally:
             stream.close()
-            entry.damage += [d.text for d in stream.damage]
+            lost += stream.damage
         return
-    entry.shared = {"bin_stages": False, "zone": False, "methods": []}
-    frames = reader.frames(start=opts.frames[0], stop=opts.frames[1])
+    stream_f = reader.frames(start=frames[0], stop=frames[1])
     try:
-        for frame in frames:
-            sides = [_side_of_masks(frame, results[s][0].get(frame.stamp_ns), results[s][1], region) for s in "AB"]
-            yield frame, sides[0], sides[1]
+        for frame in stream_f:
+            found = [_side_of_masks(frame, results[s][0].get(frame.stamp_ns), results[s][1], region) for s in "AB"]
+            yield frame, found[0], found[1]
     finally:
-        frames.close()
-        entry.damage += [d.text for d in frames.damage]
+        stream_f.close()
+        lost += stream_f.damage
 
 
 # ------------------------------------------------------------------------------------ one frame
@@ -773,20 +879,27 @@ def _entry_of(c: Any) -> dict[str, Any]:
 def run(opts: CompareOptions) -> CompareResult:
     """Compare ``opts.a`` and ``opts.b`` on ``opts.logs``; write the outputs into ``opts.out``.
 
+    The frames run in units on the executor the options choose (``workers``, ``ray``), each unit's
+    frames kept in ``opts.out/parts`` as it finishes; a rerun over the same folder runs only the units
+    not done. Says on stderr what runs and how far it is.
+
     Raises
     ------
     CompareError, ConfigError, OutputError, LogFormatError
         Bad input, one line each; nothing is written then.
     """
+    from contextlib import ExitStack
+
     from annotate.truth import check_region, check_truth, truth_of_log
     from replay.logs.reader import LogReader
-    from replay.outputs import OutputPlan
 
     t_wall, t_cpu = time.perf_counter(), time.process_time()
     check_region(opts.region)
     check_truth(opts.truth)
     if not opts.logs:
         raise CompareError("no log given")
+    if isinstance(opts.frames_per_unit, bool) or opts.frames_per_unit < 1:
+        raise ConfigError(f"--frames-per-unit must be >= 1, got {opts.frames_per_unit!r}")
     for p in (*opts.logs, *(x for x in (opts.labels, opts.bin_model, opts.part_model) if x is not None)):
         if not Path(p).is_file():
             raise FileNotFoundError(2, "no such file", str(p))
@@ -804,73 +917,296 @@ def run(opts: CompareOptions) -> CompareResult:
     out = Path(opts.out)
     if out.exists() and not out.is_dir():
         raise CompareError(f"-o {out}: exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    inputs: list[str | os.PathLike[str]] = [*opts.logs, *(s.path for s in (spec_a, spec_b) if s.path is not None),
-              *(x for x in (opts.labels, opts.bin_model, opts.part_model) if x is not None)]
+    with ExitStack() as stack:
+        return _run(opts, spec_a, spec_b, stack, t_wall, t_cpu)
+
+
+def _limited(units: list[WorkUnit], frames: tuple[int, int | None]) -> list[WorkUnit]:
+    """The units cut to the frame range ``frames`` (those outside it dropped)."""
+    from dataclasses import replace
+
+    lo, hi = frames
+    out = []
+    for u in units:
+        start = max(u.start, lo)
+        ends = [x for x in (u.stop, hi, None if u.n_frames is None else u.start + u.n_frames) if x is not None]
+        end = min(ends) if ends else None
+        if end is not None and end <= start:
+            continue
+        stop = u.stop if hi is None or (u.stop is not None and u.stop <= hi) else hi
+        out.append(replace(u, start=start, stop=stop, n_frames=None if end is None else end - start))
+    return out
+
+
+def _identity(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: list[LogPlan],
+              sides: dict[str, LogSides]) -> dict[str, Any]:
+    """What identifies a comparison in its folder (``run.json``, :class:`studies.parts.PartStore`): the
+    sides, the options, the logs in order (another log set is another comparison) and per log the
+    content hashes of A's and B's resolved configs."""
+    from replay.pipeline.config import config_sha256
+    from studies.driver import absolute, file_identity
+
+    def side(spec: SideSpec) -> dict[str, Any]:
+        return {"kind": spec.kind, "spec": spec.text if spec.path is None else None,
+                "sha256": file_identity(str(spec.path)) if spec.path is not None else None}
+
+    options = {"a": side(spec_a), "b": side(spec_b), "labels": absolute(None if opts.labels is None else str(opts.labels)),
+               "annotator": opts.annotator, "region": opts.region, "truth": opts.truth,
+               "bin_model_sha256": file_identity(None if opts.bin_model is None else str(opts.bin_model)),
+               "part_model_sha256": file_identity(None if opts.part_model is None else str(opts.part_model)),
+               "part_model_unit": opts.part_model_unit, "topic": opts.topic, "frames": list(opts.frames),
+               "frames_per_unit": opts.frames_per_unit, "logs": [p.sha256 for p in plans if p.units]}
+    logs = {sha: [None if c is None else config_sha256(c) for c in (s.configs["A"], s.configs["B"])]
+            for sha, s in sides.items()}
+    return {"kind": "compare", "options": options, "logs": logs,
+            "paths": {str(p.path): p.sha256 for p in plans if p.sha256}}
+
+
+def _absolute(opts: CompareOptions, *specs: SideSpec) -> tuple[CompareOptions, list[SideSpec]]:
+    """The options and sides with absolute paths (the units may run in another folder, on another node)."""
+    from dataclasses import replace
+
+    def ab(p: Path | None) -> Path | None:
+        return None if p is None else Path(os.path.abspath(p))
+
+    o = replace(opts, logs=tuple(Path(os.path.abspath(p)) for p in opts.logs), out=Path(os.path.abspath(opts.out)),
+                labels=ab(opts.labels), bin_model=ab(opts.bin_model), part_model=ab(opts.part_model))
+    return o, [replace(s, path=ab(s.path)) for s in specs]
+
+
+def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitStack, t_wall: float,
+         t_cpu: float) -> CompareResult:
+    import sys
+
     from annotate.disagreement import FILE as DISAGREEMENT
+    from replay.outputs import OutputPlan, naming
+    from replay.pipeline.session import open_log
+    from studies.driver import Progress, check_labels, execute, plan_logs, start_units
+    from studies.executors import make_executor
+    from studies.parts import PARTS, PartStore
+    from studies.work import Job
 
-    names = {"json": "compare.json", "parquet": "summary.parquet", "disagreement": DISAGREEMENT}
-    if opts.report:
-        names["report"] = "report.html"
-    if opts.rrd:
-        names["rrd"] = "compare.rrd"
-    with OutputPlan(inputs, force=opts.force) as plan:
-        paths = {k: plan.add(out / v, f"the comparison's {v}") for k, v in names.items()}
-        return _run(opts, spec_a, spec_b, paths, t_wall, t_cpu, LogReader)
+    executor = make_executor(workers=opts.workers, ray=opts.ray)  # an unreachable cluster fails here
+    try:
+        def planning(i: int, n: int, path: Path) -> None:
+            if n > 5 and (i % 20 == 0 or i == n - 1):
+                print(f"zcut: reading {n} logs: {i + 1}/{n} {path.name}", file=sys.stderr, flush=True)
+
+        plans = plan_logs([str(p) for p in opts.logs], config_file=None, overrides={}, topic=opts.topic,
+                          frames_per_unit=opts.frames_per_unit, whole=False, progress=planning,
+                          bin_model=None if opts.bin_model is None else str(opts.bin_model))
+        check_labels(None if opts.labels is None else str(opts.labels), opts.annotator, plans)
+        sides: dict[str, LogSides] = {}
+        for plan in plans:
+            if plan.units:
+                reader, first, _ = open_log(plan.path, topic=opts.topic)
+                sides[plan.sha256] = resolve_log(opts, spec_a, spec_b, plan.path, reader, first)
+                plan.units = _limited(plan.units, opts.frames)
+        primaries = next(sides[p.sha256].primaries for p in plans if p.sha256 in sides)
+        out = Path(opts.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        store = stack.enter_context(PartStore(out, _identity(opts, spec_a, spec_b, plans, sides),
+                                              start_afresh=opts.force))
+        inputs: list[str | os.PathLike[str]] = [
+            *(p.path for p in plans), *(s.path for s in (spec_a, spec_b) if s.path is not None),
+            *(x for x in (opts.labels, opts.bin_model, opts.part_model) if x is not None)]
+        names = {"json": "compare.json", "parquet": "summary.parquet", "disagreement": DISAGREEMENT}
+        if opts.report:
+            names["report"] = "report.html"
+        if opts.rrd:
+            names["rrd"] = "compare.rrd"
+        plan_out = stack.enter_context(OutputPlan(inputs, force=opts.force))
+        paths = {k: plan_out.add(out / v, f"the comparison's {v}") for k, v in names.items()}
+        units, todo = start_units(plans, store, what="", executor=executor)
+        abs_opts, (abs_a, abs_b) = _absolute(opts, spec_a, spec_b)
+        job = Job(config_file=None, overrides={}, bin_model=None if abs_opts.bin_model is None else str(abs_opts.bin_model),
+                  topic=opts.topic, labels=None if abs_opts.labels is None else str(abs_opts.labels),
+                  annotator=opts.annotator, region=opts.region, configs=dict(sides), truth=opts.truth,
+                  extra={"options": abs_opts, "a": abs_a, "b": abs_b, "primaries": primaries})
+        progress = Progress(sum(u.n_frames or 0 for u in todo) or None)
+        with naming(store.root / PARTS):  # a full disk met by a unit's part (Arrow's error names no file)
+            results = execute(units, job, run_compare_unit, executor, store, progress=progress, schema=part_schema())
+        progress.finish()
+    finally:
+        executor.close()
+        _KEPT.clear()  # what the units kept when they ran in this process (--workers 0)
+    return _assemble(opts, spec_a, spec_b, plans, sides, primaries, store, results, executor, paths, t_wall, t_cpu)
 
 
-def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, paths: dict[str, Path], t_wall: float,
-         t_cpu: float, LogReader: Any) -> CompareResult:  # noqa: N803 - the class, passed in
+# ------------------------------------------------------------------------------------ one unit
+def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
+    """Compare A and B on the frames of one unit (in a worker): one row per frame
+    (:data:`studies.compare_records.PART_COLUMNS`). Any error of the unit (a damaged log, a bug) is
+    caught into the result's ``error``, never raised: one bad unit does not stop the others."""
+    import resource
+    import traceback
+
+    from studies.compare_outputs import frame_images
+    from studies.work import UnitResult
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = UnitResult(unit)
+    truth_src = None
+    try:
+        opts: CompareOptions = job.extra["options"]
+        spec_a: SideSpec = job.extra["a"]
+        spec_b: SideSpec = job.extra["b"]
+        pa, pb = job.extra["primaries"]
+        sides: LogSides | None = job.configs.get(unit.sha256)
+        path = Path(unit.log)
+        if sides is None:
+            raise CompareError(f"{path.name}: the driver resolved no sides for this log")
+        reader, first = _open_unit_log(path, unit.sha256, opts.topic)
+        truth_src = _truth_source(opts, path, tuple(reader.mask_topics))
+        truth_name = truth_src.name if truth_src is not None else None
+        runs: Counter[str] = Counter()
+        lost: list[Any] = []
+        it = _frames_of_log(opts, spec_a, spec_b, path, sides, reader, first, (unit.start, unit.stop), runs, lost,
+                            unit.sha256)
+        try:
+            seen: Counter[str] = Counter()
+            for frame, sa, sb in it:
+                row: dict[str, Any] = {"log": path.name, "log_sha256": unit.sha256, "frame": frame.index,
+                                       "stamp_ns": frame.stamp_ns, "record": None, "skipped": None,
+                                       "truth": truth_name, "stage_runs": json.dumps(dict(runs - seen)),
+                                       "images": None}
+                seen = Counter(runs)
+                res.rows.append(row)
+                if sa is None or sb is None:
+                    row["skipped"] = (f"frame {frame.index} (stamp {frame.stamp_ns}): not in the results file "
+                                      f"{(spec_a if sa is None else spec_b).path}: skipped")
+                    continue
+                if pa not in sa.preds or pb not in sb.preds:
+                    raise CompareError(f"{path.name}: the primary methods {pa} (A) and {pb} (B) must be the same "
+                                       "on every log")
+                fc, diff, truth = _score_frame(path.name, frame, sa, sb, pa, pb, truth_src, first.intrinsics)
+                row["record"] = frame_to_json(fc)
+                row["images"] = frame_images(sa, sb, diff, truth, pa, pb).to_bytes()
+                if fc.unscored is not None:
+                    res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": fc.unscored})
+                res.frames += 1
+        finally:
+            it.close()
+            res.damage = list(lost)
+    except ZcutError as e:
+        res.error = str(e)
+    except OSError as e:
+        res.error = f"{e.strerror or e}: {e.filename or unit.log}"
+    except Exception as e:  # noqa: BLE001 - a bug must not stop the other units; its trace goes to the report
+        res.error = f"{type(e).__name__}: {e} ({traceback.format_exc(limit=3).splitlines()[-1]})"
+    finally:
+        if truth_src is not None and hasattr(truth_src, "close"):
+            truth_src.close()
+    if res.error is not None:
+        res.rows = []
+    res.seconds = time.perf_counter() - t0
+    res.cpu_seconds = time.process_time() - c0
+    res.peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return res
+
+
+# ------------------------------------------------------------------------------------ the one writer
+def _part_rows(store: PartStore, key: str) -> list[dict[str, Any]]:
+    import pyarrow.parquet as pq
+
+    from studies.parts import PARTS
+
+    rows: list[dict[str, Any]] = pq.read_table(store.root / PARTS / f"{key}.parquet").to_pylist()
+    return sorted(rows, key=lambda r: r["frame"])
+
+
+class _Reread:
+    """A unit's frames read again from its log (``reader``), in order, for the recording's image and points."""
+
+    def __init__(self, reader: Any, unit: WorkUnit) -> None:
+        self.stream = reader.frames(start=unit.start, stop=unit.stop)
+        self.last: Any = None
+
+    def get(self, index: int) -> Any:
+        while self.last is None or self.last.index < index:
+            nxt = next(self.stream, None)
+            if nxt is None:
+                return None
+            self.last = nxt
+        return self.last if self.last.index == index else None
+
+    def close(self) -> None:
+        self.stream.close()
+
+
+def _assemble(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: list[LogPlan],
+              sides: dict[str, LogSides], primaries: tuple[str, str], store: PartStore, results: list[UnitResult],
+              executor: Executor, paths: dict[str, Path], t_wall: float, t_cpu: float) -> CompareResult:
+    """The one writer: every unit's frames in log order (those done in an earlier run too) into the
+    recording, the disagreement, the tables and the page."""
+    from replay.logs.reader import LogReader
     from studies.compare_outputs import CompareWriter
 
+    failed = {r.unit.key: r.error for r in results if r.error is not None}
+    metas = store.metas()
     frames: list[FrameCompare] = []
     logs: list[_Log] = []
     runs: Counter[str] = Counter()
-    primaries: tuple[str, str] | None = None
     truth_names: set[str] = set()
+    pa, pb = primaries
+    given = {Path(os.path.abspath(p)): Path(p) for p in opts.logs}  # a log named as given (a folder's: its path)
+    given.update({Path(p).resolve(): Path(p) for p in opts.logs})
     writer = CompareWriter(paths, has_truth=None)
-    completed = False
+    started = completed = False
     try:
-        for log in opts.logs:
-            entry = _Log(Path(log))
+        for plan in plans:
+            entry = _Log(given.get(plan.path, plan.path))
             logs.append(entry)
-            writer.log(entry.path)
-            reader = LogReader(entry.path, cloud_topic=opts.topic)
-            truth_src = _truth_source(opts, entry.path, tuple(reader.mask_topics))
-            if truth_src is not None:
-                truth_names.add(truth_src.name)
-            try:
-                it = _frames_of_log(opts, spec_a, spec_b, entry, runs)
+            if plan.error is not None or plan.sha256 not in sides:
+                entry.damage.append(f"left out: {plan.error or 'no frames'}")
+                continue
+            s = sides[plan.sha256]
+            entry.resolved_a, entry.resolved_b = s.configs["A"], s.configs["B"]
+            entry.diff, entry.shared, entry.primaries = s.diff, s.shared, s.primaries
+            if s.resolved and plan.bin_model_warning:
+                entry.notes.append(plan.bin_model_warning)
+            writer.log(plan.path)
+            log_reader = LogReader(plan.path, cloud_topic=opts.topic) if "rrd" in paths else None
+            for u in plan.units:
+                if u.key in failed or not store.done(u.key):
+                    entry.damage.append(f"frames {u.start}-{u.stop if u.stop is not None else 'end'} not compared: "
+                                        f"{failed.get(u.key) or 'the unit did not finish'}")
+                    continue
+                reread = _Reread(log_reader, u) if log_reader is not None else None
                 try:
-                    for frame, sa, sb in it:
-                        if primaries is None:
-                            primaries = entry.primaries
-                            writer.start(spec_a, spec_b, entry.diff, has_truth=truth_src is not None,
-                                         primaries=primaries)
-                        if sa is None or sb is None:
-                            entry.damage.append(f"frame {frame.index} (stamp {frame.stamp_ns}): not in the results file "
-                                                f"{(spec_a if sa is None else spec_b).path}: skipped")
+                    for row in _part_rows(store, u.key):
+                        runs.update(json.loads(row["stage_runs"] or "{}"))
+                        if row["truth"] is not None:
+                            truth_names.add(row["truth"])
+                        if row["record"] is None:
+                            entry.damage.append(row["skipped"])
                             continue
-                        pa, pb = primaries
-                        if pa not in sa.preds or pb not in sb.preds:
-                            raise CompareError(f"{entry.path.name}: the primary methods {pa} (A) and {pb} (B) must be "
-                                               "the same on every log")
-                        fc, diff, truth = _score_frame(entry.path.name, frame, sa, sb, pa, pb, truth_src, entry.intrinsics)
+                        fc = frame_from_json(row["record"])
+                        if not started:
+                            writer.start(spec_a, spec_b, entry.diff, has_truth=row["truth"] is not None,
+                                         primaries=primaries)
+                            started = True
+                        frame = reread.get(fc.index) if reread is not None else None
+                        writer.frame(frame, fc, FrameImages.from_bytes(row["images"]), pa, pb)
                         entry.n_frames += 1
                         entry.n_unscored += fc.unscored is not None
                         frames.append(fc)
-                        writer.frame(frame, fc, sa, sb, diff, truth, pa, pb)
                 finally:
-                    it.close()
-            finally:
-                if truth_src is not None and hasattr(truth_src, "close"):
-                    truth_src.close()
-        if primaries is None:
+                    if reread is not None:
+                        reread.close()
+                entry.damage += metas.get(u.key, {}).get("damage", [])
+        if not started:
             raise CompareError("no readable frame in " + ", ".join(str(p) for p in opts.logs))
-        pa, pb = primaries
         report = _report(opts, spec_a, spec_b, logs, frames, pa, pb, runs, truth_names)
-        report["cost"] = {"frames": len(frames), "wall_s": time.perf_counter() - t_wall,
-                          "cpu_s": time.process_time() - t_cpu}
+        this_run = [r for r in results if r.error is None]
+        n_now = sum(r.frames for r in this_run)
+        cpu_units = sum(r.cpu_seconds for r in this_run)
+        cpu = time.process_time() - t_cpu + (cpu_units if executor.workers else 0.0)
+        report["cost"] = {"frames": len(frames), "wall_s": time.perf_counter() - t_wall, "cpu_s": cpu,
+                          "frames_this_run": n_now,
+                          "cpu_s_per_frame": cpu_units / n_now if n_now else None,
+                          "executor": executor.name, "workers": executor.workers,
+                          "units": sum(len(p.units) for p in plans), "units_this_run": len(results)}
         report["outputs"] = {k: str(v) for k, v in paths.items()}
         writer.finish(report, summary_rows(report, frames))
         completed = True
@@ -912,7 +1248,7 @@ def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list
         f = frames[i]
         n_blobs += len(f.blobs)
         blobs += [b.as_dict() for b in f.blobs[:MAX_BLOBS_PER_FRAME]]
-    first = logs[0]
+    first = next((e for e in logs if e.n_frames), logs[0])
     return {
         "a": {**spec_a.as_dict(), "primary": pa,
               "methods": list(first.resolved_a.methods) if first.resolved_a is not None else None},

@@ -2,8 +2,9 @@
 and ``compare.rrd``, each written beside its final path and renamed into place when the comparison
 completes (:class:`replay.outputs.AtomicOutput`); an interrupted or failed comparison leaves none.
 
-:class:`CompareWriter` is the one writer: the recording is streamed frame by frame, the tables and
-the page are written at the end from the report. The page is the Jinja2 template
+:class:`CompareWriter` is the one writer: it takes the frames in order once the units of work are
+done (each frame's comparison and images, :func:`frame_images`, as the units returned them), streams
+the recording and the disagreement, and writes the tables and the page from the report. The page is the Jinja2 template
 ``studies/templates/compare.html`` (autoescaped; the sweep's stylesheet ``report.css``), its plots
 drawn with the sweep's matplotlib helpers (:mod:`studies.plots`).
 """
@@ -19,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from replay.outputs import AtomicOutput, naming
-from studies.compare_records import FrameCompare, SideFrame, SideSpec, count_f1
+from studies.compare_records import FrameCompare, FrameImages, SideFrame, SideSpec, count_f1
 from studies.schemas import COMPARE_SUMMARY_COLUMNS, table_of
 
 if TYPE_CHECKING:
@@ -44,6 +45,18 @@ def _v(x: Any) -> str:
     if x is None:
         return "—"
     return f"`{x:.6g}`" if isinstance(x, float) else f"`{x}`"
+
+
+def frame_images(sa: SideFrame, sb: SideFrame, diff: np.ndarray, truth: tuple[np.ndarray, np.ndarray] | None,
+                 pa: str, pb: str) -> FrameImages:
+    """What the writer needs of one compared frame (computed where the frame ran: a worker)."""
+    where = sa.region | sb.region
+    ma, mb = sa.preds[pa], sb.preds[pb]
+    who = np.zeros(ma.shape, dtype=np.uint8)
+    who[ma & ~mb & where] = 1
+    who[mb & ~ma & where] = 2
+    return FrameImages(verdict_image(sa.preds[pa] & sa.region, truth), verdict_image(sb.preds[pb] & sb.region, truth),
+                       diff, who)
 
 
 def verdict_image(pred: np.ndarray, truth: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
@@ -98,13 +111,12 @@ class CompareWriter:
                                         label_b=f"{spec_b.name} ({primaries[1]})",
                                         config_markdown=config_markdown(spec_a, spec_b, diff, primaries))
 
-    def frame(self, frame: Frame, fc: FrameCompare, sa: SideFrame, sb: SideFrame, diff: np.ndarray,
-              truth: tuple[np.ndarray, np.ndarray] | None, pa: str, pb: str) -> None:
+    def frame(self, frame: Frame | None, fc: FrameCompare, images: FrameImages, pa: str, pb: str) -> None:
+        """One compared frame, in order: its disagreement, and in the recording (``frame``: the log's frame
+        read again, for its image and points; None leaves the frame out of the recording)."""
         if self.disagreement is not None:  # the pixels _score_frame counts as only_a and only_b
-            where = sa.region | sb.region
-            ma, mb = sa.preds[pa], sb.preds[pb]
-            self.disagreement.frame(frame.index, frame.stamp_ns, ma & ~mb & where, mb & ~ma & where)
-        if self.rec is None:
+            self.disagreement.frame(fc.index, fc.stamp_ns, images.who == 1, images.who == 2)
+        if self.rec is None or frame is None:
             return
         ca = fc.a[pa] if fc.a is not None else None
         cb = fc.b[pb] if fc.b is not None else None
@@ -115,9 +127,8 @@ class CompareWriter:
                     scalars[f"{side}/scalars/{k}"] = getattr(c, k)
         if ca is not None and cb is not None:
             scalars["diff/scalars/delta_f1"] = count_f1(cb) - count_f1(ca)
-        self.rec.frame(self.seq, frame.stamp_ns, rgb=frame.rgb, xyz=frame.xyz,
-                       verdict_a=verdict_image(sa.preds[pa] & sa.region, truth),
-                       verdict_b=verdict_image(sb.preds[pb] & sb.region, truth), diff=diff, scalars=scalars)
+        self.rec.frame(self.seq, frame.stamp_ns, rgb=frame.rgb, xyz=frame.xyz, verdict_a=images.verdict_a,
+                       verdict_b=images.verdict_b, diff=images.diff, scalars=scalars)
         self.seq += 1
         assert self.rrd is not None
         self.rrd.check(self.rec.rec)

@@ -1,12 +1,19 @@
 """The records of a comparison (``zcut compare``), below the engine (:mod:`studies.compare`) and its
 writer (:mod:`studies.compare_outputs`), which both use them: what a side is, one side's view of a
 frame, a disagreement blob, one frame's comparison, and ``summary.parquet``'s row of a frame.
+
+A unit of a comparison's work (:func:`studies.compare.run_compare_unit`, in a worker process or on a
+Ray node) returns each frame as one row of its part file (:data:`PART_COLUMNS`): the frame's
+comparison as JSON (:func:`frame_to_json`, read back exactly by :func:`frame_from_json`) and the
+images the one writer needs (:class:`FrameImages`, a compressed ``.npz`` without pickled objects).
 """
 
 from __future__ import annotations
 
+import io
+import json
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -142,3 +149,75 @@ def summary_rows(report: dict[str, Any], frames: list[FrameCompare]) -> list[dic
     pa, pb = report["a"]["primary"], report["b"]["primary"]
     outcomes = {(f["log"], f["index"]): f.get("outcome") for f in report["frames"]}
     return [_frame_row(f, pa, pb, outcomes.get((f.log, f.index))) for f in frames]
+
+
+# ------------------------------------------------------------------------- a unit's rows (parts)
+#: The columns of a comparison unit's part file (one row per frame): ``record`` the frame's
+#: :class:`FrameCompare` as JSON (null on a frame skipped, whose reason is ``skipped``), ``truth``
+#: the name of what scored it, ``stage_runs`` the stage calls it took (JSON), ``images`` its
+#: :class:`FrameImages` (``.npz`` bytes).
+PART_COLUMNS: dict[str, str] = {"log": "string", "log_sha256": "string", "frame": "int64", "stamp_ns": "int64",
+                                "record": "string", "skipped": "string", "truth": "string",
+                                "stage_runs": "string", "images": "binary"}
+
+
+def part_schema() -> Any:
+    """:data:`PART_COLUMNS` as an Arrow schema."""
+    import pyarrow as pa
+
+    types = {"string": pa.string(), "int64": pa.int64(), "binary": pa.binary()}
+    return pa.schema([(k, types[v]) for k, v in PART_COLUMNS.items()])
+
+
+def _counts_from(d: dict[str, Any] | None) -> Any:
+    from zcut.metrics import AccuracyCounts, KindCounts
+
+    if d is None:
+        return None
+    kinds = d.get("kinds")
+    return AccuracyCounts(**{**d, "kinds": None if kinds is None else
+                             KindCounts(**{k: tuple(v) for k, v in kinds.items()})})
+
+
+def frame_to_json(f: FrameCompare) -> str:
+    """One frame's comparison as JSON text (every count and figure exactly; :func:`frame_from_json`)."""
+    def side(counts: dict[str, Any] | None) -> dict[str, Any] | None:
+        return None if counts is None else {m: asdict(c) for m, c in counts.items()}
+
+    return json.dumps({"log": f.log, "index": f.index, "stamp_ns": f.stamp_ns, "a": side(f.a), "b": side(f.b),
+                       "both": f.both, "only_a": f.only_a, "only_b": f.only_b,
+                       "blobs": [asdict(b) for b in f.blobs], "unscored": f.unscored})
+
+
+def frame_from_json(text: str) -> FrameCompare:
+    """The :class:`FrameCompare` :func:`frame_to_json` wrote (equal to it)."""
+    d = json.loads(text)
+
+    def side(counts: dict[str, Any] | None) -> dict[str, Any] | None:
+        return None if counts is None else {m: _counts_from(c) for m, c in counts.items()}
+
+    return FrameCompare(d["log"], d["index"], d["stamp_ns"], side(d["a"]), side(d["b"]), d["both"], d["only_a"],
+                        d["only_b"], tuple(Blob(**b) for b in d["blobs"]), d["unscored"])
+
+
+@dataclass(frozen=True, slots=True)
+class FrameImages:
+    """The (H, W) uint8 images of one compared frame that the writer needs: each side's verdict image
+    (``verdict_a``, ``verdict_b``: TP 1, FP 2, FN 3, or removed 4 without truth), the difference image
+    ``diff`` (its codes: docs/compare.md, ``compare.rrd``) and ``who`` (1 where only A removed a pixel,
+    2 where only B did: ``disagreement.npz``'s pixels)."""
+
+    verdict_a: np.ndarray
+    verdict_b: np.ndarray
+    diff: np.ndarray
+    who: np.ndarray
+
+    def to_bytes(self) -> bytes:
+        buf = io.BytesIO()
+        np.savez_compressed(buf, verdict_a=self.verdict_a, verdict_b=self.verdict_b, diff=self.diff, who=self.who)
+        return buf.getvalue()
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> FrameImages:
+        with np.load(io.BytesIO(data), allow_pickle=False) as z:
+            return cls(z["verdict_a"], z["verdict_b"], z["diff"], z["who"])

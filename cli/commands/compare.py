@@ -1,8 +1,10 @@
 """``zcut compare LOG… --a A --b B -o DIR``: two filters on the same frames, pixel by pixel, with a
 paired verdict (docs/compare.md). A and B: a config file, a method name or a results file.
 
-Writes ``DIR/compare.json``, ``DIR/summary.parquet``, ``DIR/report.html`` and ``DIR/compare.rrd``
-(:func:`studies.compare.run`) and prints the one-line verdict.
+Writes ``DIR/compare.json``, ``DIR/summary.parquet``, ``DIR/report.html``, ``DIR/compare.rrd`` and
+``DIR/disagreement.npz`` (:func:`studies.compare.run`) and prints the one-line verdict. The frames run
+as ``zcut batch``'s do: in units on local processes (``--workers``) or a Ray cluster (``--ray``), kept in
+``DIR/parts``; running it again over an interrupted DIR runs only the units not done.
 """
 
 from __future__ import annotations
@@ -10,6 +12,9 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+
+#: as :data:`studies.compare.FRAMES_PER_UNIT` (not imported: ``--help`` stays light)
+FRAMES_PER_UNIT = 8
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -33,9 +38,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--part-model-unit", choices=("mm", "m"), default="mm",
                    help="the unit of --part-model's vertices (default mm)")
     p.add_argument("--frames", metavar="A:B", help="frame range (as zcut replay's)")
+    p.add_argument("--workers", type=int, default=None, metavar="N", help="local processes (default: the cores; "
+                   "0: run in this process, one unit after another)")
+    p.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster: its address, or `auto` (RAY_ADDRESS)")
+    p.add_argument("--frames-per-unit", type=int, default=FRAMES_PER_UNIT, metavar="N",
+                   help=f"frames per unit of work: whole chunks of one log (default {FRAMES_PER_UNIT})")
     p.add_argument("--no-rrd", action="store_true", help="do not write compare.rrd")
     p.add_argument("--json", action="store_true", help="print compare.json to stdout")
-    p.add_argument("--force", action="store_true", help="replace existing outputs")
+    p.add_argument("--force", action="store_true", help="replace existing outputs (the units done in DIR are "
+                   "kept); start afresh when an input log changed content since the comparison in DIR began")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -50,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
     opts = CompareOptions(logs=tuple(args.logs), a=args.a, b=args.b, out=args.out, labels=args.labels,
                           annotator=args.annotator, region=args.region, bin_model=args.bin_model, topic=args.topic,
                           part_model=args.part_model, part_model_unit=args.part_model_unit,
-                          frames=parse_frames(args.frames), force=args.force, rrd=not args.no_rrd, truth=args.truth)
+                          frames=parse_frames(args.frames), force=args.force, rrd=not args.no_rrd, truth=args.truth,
+                          workers=args.workers, ray=args.ray, frames_per_unit=args.frames_per_unit)
     result = compare(opts)
     rep = result.report
     for log in rep["logs"]:
@@ -61,6 +73,12 @@ def run(args: argparse.Namespace) -> int:
     if not rep["verdict"].get("truth"):
         print("zcut: no truth: agreement only (give --labels DB for a verdict)", file=sys.stderr)
     print(f"zcut: wrote {', '.join(result.outputs.values())}", file=sys.stderr)
+    cost = rep["cost"]
+    if cost.get("frames_this_run"):
+        per = cost["cpu_s_per_frame"]
+        print(f"zcut: this run: {cost['frames_this_run']} frames in {cost['wall_s']:.1f} s"
+              + (f", {per:.2f} CPU-s/frame" if per is not None else "")
+              + f" on {cost['workers']} worker(s) ({cost['executor']})", file=sys.stderr)
     if args.json:
         print(json.dumps(jsonable(rep), indent=1))
     else:

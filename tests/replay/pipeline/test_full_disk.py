@@ -85,7 +85,7 @@ def test_bin_model_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, size)
         _check_complete_ply(cut)
 
 
-@pytest.mark.parametrize(("size", "short"), [("64k", ("compare.rrd",)),
+@pytest.mark.parametrize(("size", "short"), [("64k", ("compare.rrd", "parts")),
                                              # which output meets the full disk first depends on their sizes
                                              ("400k", ("compare.rrd", "report.html", "disagreement.npz"))])
 def test_compare_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, size, short):
@@ -100,4 +100,7 @@ def test_compare_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, size, s
         assert run.returncode == 1, run.stderr
         assert len(errors) == 1 and "Traceback" not in run.stderr, run.stderr
         assert "no space left on the device" in errors[0] and any(str(disk / "o" / n) in errors[0] for n in short), errors
-        assert sorted(p.name for p in (disk / "o").iterdir()) == []  # no output, no temporary, no lock
+        # no output, no temporary, no lock: only the units done, for a rerun to continue (docs/compare.md)
+        assert sorted(p.name for p in (disk / "o").iterdir()) == ["parts", "run.json"]
+        assert all(p.suffix in (".json", ".parquet") and not p.name.startswith(".")
+                   for p in (disk / "o" / "parts").iterdir())
