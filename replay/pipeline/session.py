@@ -21,6 +21,8 @@ from __future__ import annotations
 import math
 import queue
 import threading
+import time
+from collections import deque
 from collections.abc import Callable, Generator, Iterator, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -37,7 +39,7 @@ from replay.logs.stream import DerivedStream, FrameStream
 from replay.pipeline import config as cfg
 from replay.pipeline.explained import with_log_part_model
 from replay.pipeline.sinks import FrameSink, NullSink, ReplayStart
-from replay.pipeline.stages import FrameResult, bin_zone, locate_bin, run_frame
+from replay.pipeline.stages import FrameResult, bin_zone, judge_zone, locate_bin, run_frame
 from replay.pipeline.zone import BinLocation, Zone
 from zcut.bin_model import BinModel
 from zcut.prepared_model import PreparedBinModel
@@ -181,6 +183,21 @@ def parse_frames(text: str | None) -> tuple[int, int | None]:
     if start < 0 or (stop is not None and stop <= start):
         raise ConfigError(f"--frames must satisfy 0 <= A < B, got {text!r}")
     return start, stop
+
+
+#: Held while a frame's bin stages run (:meth:`ReplaySession.results` with two frames in flight): the
+#: removal and the bin check run numba's ``parallel=True`` kernels, and numba's default "workqueue"
+#: threading layer (the one ``zcut`` chooses) aborts the process when two threads launch such kernels at
+#: once. The other stages run serial kernels (and SOR its own threads), free to overlap.
+PARALLEL_KERNELS = threading.Lock()
+
+
+def frames_in_flight() -> int:
+    """Frames :meth:`ReplaySession.results` computes at once by default: 2 when numba may use two
+    threads or more (``NUMBA_NUM_THREADS``: the cores, or a study worker's share of them), else 1."""
+    import numba
+
+    return 2 if int(numba.config.NUMBA_NUM_THREADS) >= 2 else 1  # type: ignore[attr-defined]  # set at import
 
 
 def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Generator[Frame, None, None]:
@@ -444,21 +461,71 @@ class ReplaySession:
         return config
 
     def results(self, *, frames: tuple[int, int | None] = (0, None),
-                config: cfg.PipelineConfig | None = None) -> DerivedStream[tuple[Frame, FrameResult]]:
+                config: cfg.PipelineConfig | None = None,
+                in_flight: int | None = None) -> DerivedStream[tuple[Frame, FrameResult]]:
         """``(frame, result)`` of every readable frame in ``frames`` (start, stop exclusive or None),
-        computed as :meth:`located` describes; its ``damage`` names the frames lost. ``config``: run
-        another config than the resolved one (it must keep the resolved registration and removal
-        parameters, which the bin model was prepared with)."""
-        config = self._check(config)
-        located = self.located(frames=frames, config=config)
-        return DerivedStream(self._results(located, config), located)
+        in log order, computed as :meth:`located` describes; its ``damage`` names the frames lost.
+        ``config``: run another config than the resolved one (it must keep the resolved registration
+        and removal parameters, which the bin model was prepared with).
 
-    def _results(self, located: DerivedStream[tuple[Frame, Future[BinLocation]]], config: cfg.PipelineConfig) -> Iterator[tuple[Frame, FrameResult]]:
+        ``in_flight``: frames computed at once (default :func:`frames_in_flight`: 2 when numba may
+        use two threads or more, else 1). With 2, frame k + 1 runs in a second worker while frame k
+        finishes (each frame's result depends on that frame alone: see :attr:`seed`), so the removal
+        of one frame overlaps the z-cut and SOR of the other and both cores stay busy; the results are
+        the same bit for bit and come in the same order. A frame whose computation raises raises here
+        after the frames before it; an error of the reader, after the frames read before it.
+        """
+        config = self._check(config)
+        n = frames_in_flight() if in_flight is None else in_flight
+        if n < 1:
+            raise ConfigError(f"in_flight must be >= 1, got {n}")
+        located = self.located(frames=frames, config=config)
+        return DerivedStream(self._results(located, config, n), located)
+
+    def _results(self, located: DerivedStream[tuple[Frame, Future[BinLocation]]], config: cfg.PipelineConfig,
+                 in_flight: int = 1) -> Iterator[tuple[Frame, FrameResult]]:
+        if in_flight <= 1:
+            try:
+                for frame, future in located:
+                    yield frame, run_frame(frame, config, bin_model=self.prepared, located=future.result())
+            finally:
+                located.close()
+            return
+        pool = ThreadPoolExecutor(max_workers=in_flight, thread_name_prefix="zcut-frame")
+        running: deque[tuple[Frame, Future[FrameResult]]] = deque()
         try:
-            for frame, future in located:
-                yield frame, run_frame(frame, config, bin_model=self.prepared, located=future.result())
+            while True:
+                try:
+                    frame, future = next(located)
+                except StopIteration:
+                    break
+                except BaseException:
+                    while running:  # the frames before the reader's error still count, in order
+                        done_frame, work = running.popleft()
+                        yield done_frame, work.result()
+                    raise
+                running.append((frame, pool.submit(self._frame_result, frame, config, future)))
+                if len(running) >= in_flight:
+                    done_frame, work = running.popleft()
+                    yield done_frame, work.result()
+            while running:
+                done_frame, work = running.popleft()
+                yield done_frame, work.result()
         finally:
+            for _, work in running:
+                work.cancel()
+            pool.shutdown(wait=True, cancel_futures=True)
             located.close()
+
+    def _frame_result(self, frame: Frame, config: cfg.PipelineConfig, future: Future[BinLocation]) -> FrameResult:
+        """:func:`run_frame` of one frame as a worker of :meth:`results` runs it: its bin stages (the
+        removal and the bin check run numba's ``parallel=True`` kernels) under :data:`PARALLEL_KERNELS`,
+        its methods (serial kernels, SOR's own threads) beside the other frame's."""
+        location = future.result()
+        with PARALLEL_KERNELS:
+            t_start = time.perf_counter()  # the frame's own work: not the wait for the other frame's kernels
+            z = bin_zone(frame, config, bin_model=self.prepared, located=location)
+        return judge_zone(frame, z, config, t_start=t_start)
 
     def zones(self, *, frames: tuple[int, int | None] = (0, None)) -> DerivedStream[tuple[Frame, Zone]]:
         """``(frame, zone)``: the bin stages only, for callers that filter a zone many ways (a sweep);
@@ -492,9 +559,11 @@ class ReplaySession:
 
     def run(self, sink: FrameSink | None = None, *, frames: tuple[int, int | None] = (0, None),
             on_frame: Callable[[Frame, FrameResult, FrameRow], None] | None = None,
-            judge: FrameJudge | None = None) -> ReplaySummary:
+            judge: FrameJudge | None = None, in_flight: int | None = None) -> ReplaySummary:
         """Run the pipeline over ``frames`` into ``sink``; returns the summary. ``judge``: what the
         frames are scored against, handed to the sinks (the recording shows where each filter is wrong).
+        ``in_flight``: frames computed at once (:meth:`results`); the sink and ``on_frame`` see them
+        one at a time, in log order, in this thread.
 
         ``summary.damage`` is non-empty when frames were lost (the command exits 3).
         """
@@ -507,7 +576,7 @@ class ReplaySession:
         sink.start(self.start_info(judge))
         results = None
         try:
-            results = self.results(frames=frames)
+            results = self.results(frames=frames, in_flight=in_flight)
             try:
                 for frame, result in results:
                     sink.write(frame, result)
