@@ -390,8 +390,8 @@ class ReplaySession:
     def start_info(self, judge: FrameJudge | None = None) -> ReplayStart:
         return ReplayStart(self.path.name, self.resolved, self.reader.metadata, self.bin_model, judge)
 
-    def located(self, *, frames: tuple[int, int | None] = (0, None),
-                config: cfg.PipelineConfig | None = None) -> DerivedStream[tuple[Frame, Future[BinLocation]]]:
+    def located(self, *, frames: tuple[int, int | None] = (0, None), config: cfg.PipelineConfig | None = None,
+                hold: bool = True) -> DerivedStream[tuple[Frame, Future[BinLocation]]]:
         """``(frame, future of its BinLocation)`` for every readable frame in ``frames``.
 
         The next frame is read in a background thread while this one runs; the bin mask and
@@ -401,6 +401,9 @@ class ReplaySession:
         result does not depend on which frames ran before it. BLAS is limited to one thread meanwhile
         (its spinning workers otherwise steal the cores from those threads). Closing the generator
         stops and joins both threads. Its ``damage`` is the frame stream's (final once it has ended).
+        ``hold``: a frame is given once the next one has been read and its location started (a caller
+        that works on one frame at a time); False: as soon as its own location has started (a caller
+        with frames in flight, whose workers wait on the futures).
         """
         config = self._check(config)
         start, stop = frames
@@ -413,10 +416,10 @@ class ReplaySession:
                                                                               self.config.registration):
             location = None
         stream = self.reader.frames(start=start, stop=stop, decoded=first)
-        return DerivedStream(self._located(stream, config, location), stream)
+        return DerivedStream(self._located(stream, config, location, hold=hold), stream)
 
-    def _located(self, stream: FrameStream, config: cfg.PipelineConfig,
-                 first_location: BinLocation | None = None) -> Iterator[tuple[Frame, Future[BinLocation]]]:
+    def _located(self, stream: FrameStream, config: cfg.PipelineConfig, first_location: BinLocation | None = None,
+                 *, hold: bool = True) -> Iterator[tuple[Frame, Future[BinLocation]]]:
         from threadpoolctl import threadpool_limits
 
         bin_model, seed = self.prepared, self.seed
@@ -444,6 +447,9 @@ class ReplaySession:
                 if pending is not None:
                     yield pending
                 pending = ahead
+                if not hold:
+                    yield pending
+                    pending = None
             if pending is not None:
                 yield pending
                 pending = None
@@ -479,7 +485,7 @@ class ReplaySession:
         n = frames_in_flight() if in_flight is None else in_flight
         if n < 1:
             raise ConfigError(f"in_flight must be >= 1, got {n}")
-        located = self.located(frames=frames, config=config)
+        located = self.located(frames=frames, config=config, hold=n <= 1)
         return DerivedStream(self._results(located, config, n), located)
 
     def _results(self, located: DerivedStream[tuple[Frame, Future[BinLocation]]], config: cfg.PipelineConfig,
@@ -505,7 +511,7 @@ class ReplaySession:
                         yield done_frame, work.result()
                     raise
                 running.append((frame, pool.submit(self._frame_result, frame, config, future)))
-                if len(running) >= in_flight:
+                if len(running) > in_flight:  # one more frame queued: its location runs meanwhile
                     done_frame, work = running.popleft()
                     yield done_frame, work.result()
             while running:
