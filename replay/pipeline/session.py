@@ -427,6 +427,7 @@ class ReplaySession:
         locator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="zcut-locate")
         blas = threadpool_limits(limits=1, user_api="blas")
         pending: tuple[Frame, Future[BinLocation]] | None = None
+        early = False
         try:
             while True:
                 try:
@@ -453,8 +454,12 @@ class ReplaySession:
             if pending is not None:
                 yield pending
                 pending = None
+        except GeneratorExit:  # closed early: the locations not started are not needed
+            early = True
+            raise
         finally:
-            locator.shutdown(wait=True, cancel_futures=True)
+            # else every frame given has its location computed (frames in flight wait on them)
+            locator.shutdown(wait=True, cancel_futures=early)
             blas.restore_original_limits()
             frame_iter.close()  # joins the reader thread: the stream's damage is final
 

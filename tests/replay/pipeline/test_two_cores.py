@@ -211,3 +211,15 @@ def test_in_flight_must_be_positive(logs, tmp_path):
 
     with pytest.raises(ConfigError, match="in_flight"):
         _open(logs["zinc_nuts"], tmp_path).results(in_flight=0)
+
+
+def test_a_consumer_that_stops_early_leaves_no_thread(logs, tmp_path):
+    session = _open(logs["zinc_nuts"], tmp_path)
+    stream = session.results(in_flight=2)
+    got = [next(stream)[0].index, next(stream)[0].index]
+    stream.close()
+    assert got == [0, 1]
+    names = {t.name.rsplit("_", 1)[0] for t in threading.enumerate()}
+    assert not names & {"zcut-frame", "zcut-locate", "zcut-frame-reader"}
+    # the session still runs a whole pass afterwards, the same as one frame at a time
+    _same_runs(_run(session, 2), _run(_open(logs["zinc_nuts"], tmp_path), 1))
