@@ -223,3 +223,23 @@ def test_a_consumer_that_stops_early_leaves_no_thread(logs, tmp_path):
     assert not names & {"zcut-frame", "zcut-locate", "zcut-frame-reader"}
     # the session still runs a whole pass afterwards, the same as one frame at a time
     _same_runs(_run(session, 2), _run(_open(logs["zinc_nuts"], tmp_path), 1))
+
+
+def test_a_frame_that_fails_raises_after_the_frames_before_it(logs, tmp_path, monkeypatch):
+    import replay.pipeline.session as session_mod
+
+    judge = session_mod.judge_zone
+
+    def failing(frame, z, config, **kw):  # frame 2's methods fail (in its worker)
+        if frame.index == 2:
+            raise RuntimeError("frame 2 failed")
+        return judge(frame, z, config, **kw)
+
+    monkeypatch.setattr(session_mod, "judge_zone", failing)
+    stream = _open(logs["zinc_nuts"], tmp_path).results(in_flight=2)
+    got = []
+    with pytest.raises(RuntimeError, match="frame 2 failed"):
+        for frame, _ in stream:
+            got.append(frame.index)
+    stream.close()
+    assert got == [0, 1]
