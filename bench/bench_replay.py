@@ -33,6 +33,12 @@ frame (numba compilation, model caches):
   issue 32 item 4 asks for 0.75-1.25), and with ``--against DIR`` the previous tree's CPU ms and
   the ratio previous / this, measured in the same run. ``docs/performance.md`` holds the budget per
   stage and a run's figures.
+- "Whole replay" (``--throughput [--log LOG] [--against DIR] [--repeats N]``, issue 32, both cores):
+  ``ReplaySession.run`` over the log's frames after a warm-up one (no outputs; the replay's own
+  threads: the reader, the locator, frames in flight), CPU s and wall s per frame, for this tree with
+  one frame in flight and with two, and for the tree DIR, alternating N times in subprocesses, medians
+  and every run's figures, with the load average: on a shared machine the wall times are indicative
+  only.
 """
 
 from __future__ import annotations
