@@ -10,8 +10,10 @@ In the manner of KISS-ICP's pipeline, a replay is a few named steps::
 same filter on a log; it prepares the bin model once for that config. That first frame is read and
 located once: the run delivers the same object (and takes over the chunks read at open), and its bin
 location is the seed's (every other frame's registration starts from that pose).
-:meth:`ReplaySession.results` yields ``(frame, result)`` for a frame range, reading the next frame in
-a background thread (:func:`prefetched`) and locating the bin of frame k + 1 while frame k finishes;
+:meth:`ReplaySession.results` yields ``(frame, result)`` for a frame range, in log order, reading the
+next frame in a background thread (:func:`prefetched`), locating the bin of the next frames in another
+and, when numba has two threads or more, computing two frames at once (:func:`frames_in_flight`; their
+bin stages one at a time, :data:`PARALLEL_KERNELS`);
 :meth:`ReplaySession.run` feeds them to a sink (:mod:`replay.pipeline.sinks`) and returns a
 :class:`ReplaySummary`. Library code: it never prints; commands pass an ``on_frame`` callback.
 """
