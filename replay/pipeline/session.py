@@ -12,8 +12,8 @@ located once: the run delivers the same object (and takes over the chunks read a
 location is the seed's (every other frame's registration starts from that pose).
 :meth:`ReplaySession.results` yields ``(frame, result)`` for a frame range, in log order, reading the
 next frame in a background thread (:func:`prefetched`), locating the bin of the next frames in another
-and, when numba has two threads or more, computing two frames at once (:func:`frames_in_flight`; their
-bin stages one at a time, :data:`PARALLEL_KERNELS`);
+and, when asked (:func:`frames_in_flight`), computing two frames at once (their bin stages one at a
+time, :data:`PARALLEL_KERNELS`);
 :meth:`ReplaySession.run` feeds them to a sink (:mod:`replay.pipeline.sinks`) and returns a
 :class:`ReplaySummary`. Library code: it never prints; commands pass an ``on_frame`` callback.
 """
@@ -194,12 +194,35 @@ def parse_frames(text: str | None) -> tuple[int, int | None]:
 PARALLEL_KERNELS = threading.Lock()
 
 
-def frames_in_flight() -> int:
-    """Frames :meth:`ReplaySession.results` computes at once by default: 2 when numba may use two
-    threads or more (``NUMBA_NUM_THREADS``: the cores, or a study worker's share of them), else 1."""
-    import numba
+#: The variable that sets :func:`frames_in_flight` (a whole number >= 1).
+FRAMES_IN_FLIGHT_VARIABLE = "ZCUT_FRAMES_IN_FLIGHT"
 
-    return 2 if int(numba.config.NUMBA_NUM_THREADS) >= 2 else 1  # type: ignore[attr-defined]  # set at import
+
+def frames_in_flight() -> int:
+    """Frames :meth:`ReplaySession.results` computes at once by default: ``$ZCUT_FRAMES_IN_FLIGHT``, else 1.
+
+    One by default: on the shared 2-core machine of the last measurement (docs/performance.md, "Two
+    frames in flight") two frames in flight cost 10-30 % more CPU a frame and gave no wall gain; set
+    the variable to 2 where two quiet cores are free (at most the cores numba uses,
+    ``NUMBA_NUM_THREADS``, which a study worker sets to its share of them).
+
+    Raises
+    ------
+    ConfigError
+        The variable is not a whole number >= 1.
+    """
+    import os
+
+    text = os.environ.get(FRAMES_IN_FLIGHT_VARIABLE, "").strip()
+    if not text:
+        return 1
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ConfigError(f"{FRAMES_IN_FLIGHT_VARIABLE} must be a whole number >= 1, got {text!r}")
+    return n
 
 
 def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Generator[Frame, None, None]:
@@ -481,8 +504,8 @@ class ReplaySession:
         ``config``: run another config than the resolved one (it must keep the resolved registration
         and removal parameters, which the bin model was prepared with).
 
-        ``in_flight``: frames computed at once (default :func:`frames_in_flight`: 2 when numba may
-        use two threads or more, else 1). With 2, frame k + 1 runs in a second worker while frame k
+        ``in_flight``: frames computed at once (default :func:`frames_in_flight`: 1, or
+        ``$ZCUT_FRAMES_IN_FLIGHT``). With 2, frame k + 1 runs in a second worker while frame k
         finishes (each frame's result depends on that frame alone: see :attr:`seed`), so the removal
         of one frame overlaps the z-cut and SOR of the other and both cores stay busy; the results are
         the same bit for bit and come in the same order. A frame whose computation raises raises here

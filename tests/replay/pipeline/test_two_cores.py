@@ -243,3 +243,20 @@ def test_a_frame_that_fails_raises_after_the_frames_before_it(logs, tmp_path, mo
             got.append(frame.index)
     stream.close()
     assert got == [0, 1]
+
+
+def test_the_default_is_one_frame_unless_the_variable_says(logs, tmp_path, monkeypatch):
+    from replay.errors import ConfigError
+    from replay.pipeline.session import frames_in_flight
+
+    monkeypatch.delenv("ZCUT_FRAMES_IN_FLIGHT", raising=False)
+    assert frames_in_flight() == 1
+    monkeypatch.setenv("ZCUT_FRAMES_IN_FLIGHT", "2")
+    assert frames_in_flight() == 2
+    sink = _Recorder()
+    _open(logs["zinc_nuts"], tmp_path).run(sink)  # the variable's two frames in flight
+    assert sink.indices == [0, 1, 2, 3, 4]
+    for bad in ("0", "two", "-1"):
+        monkeypatch.setenv("ZCUT_FRAMES_IN_FLIGHT", bad)
+        with pytest.raises(ConfigError, match="ZCUT_FRAMES_IN_FLIGHT"):
+            _open(logs["zinc_nuts"], tmp_path).results()
