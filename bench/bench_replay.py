@@ -33,6 +33,12 @@ frame (numba compilation, model caches):
   issue 32 item 4 asks for 0.75-1.25), and with ``--against DIR`` the previous tree's CPU ms and
   the ratio previous / this, measured in the same run. ``docs/performance.md`` holds the budget per
   stage and a run's figures.
+- "Whole replay" (``--throughput [--log LOG] [--against DIR] [--repeats N]``, issue 32, both cores):
+  ``ReplaySession.run`` over the log's frames after a warm-up one (no outputs; the replay's own
+  threads: the reader, the locator, frames in flight), CPU s and wall s per frame, for this tree with
+  one frame in flight and with two, and for the tree DIR, alternating N times in subprocesses, medians
+  and every run's figures, with the load average: on a shared machine the wall times are indicative
+  only.
 """
 
 from __future__ import annotations
@@ -204,6 +210,68 @@ def stage_table(logs: dict[tuple[int, int], Path], cores: list[int], against: Pa
                 print(line)
 
 
+def throughput(log: Path, in_flight: int | None) -> dict[str, float]:
+    """CPU s and wall s per frame of a whole replay (``ReplaySession.run``, no sink: read, bin stages,
+    z-cut, SOR, metrics, with the replay's own threads) over frames 1.. after frame 0 as warm-up, the
+    log's own bin model; ``in_flight`` frames at once (None: the tree's default; a tree whose ``run``
+    has no such argument runs its own way)."""
+    import inspect
+
+    from replay.pipeline.bin_model import bin_model_for
+
+    session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
+    kw = {}
+    if in_flight is not None and "in_flight" in inspect.signature(session.run).parameters:
+        kw["in_flight"] = in_flight
+    session.run(frames=(0, 1), **kw)  # warm-up: numba kernels, the first chunk
+    t0, c0 = time.perf_counter(), time.process_time()
+    summary = session.run(frames=(1, None), **kw)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    n = max(len(summary.rows), 1)
+    return {"cpu_s": cpu / n, "wall_s": wall / n, "frames": len(summary.rows)}
+
+
+def throughput_of_tree(tree: Path, log: Path, in_flight: int | None) -> dict[str, float]:
+    """:func:`throughput` with the code of the source tree ``tree``, in a subprocess."""
+    import json
+    import subprocess
+    import sys
+
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    env.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
+    out = subprocess.run([sys.executable, __file__, "--throughput-json", str(log), str(in_flight or 0)], env=env,
+                         cwd=str(tree), check=True, capture_output=True, text=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def throughput_table(log: Path, against: Path | None, repeats: int) -> None:
+    """Print CPU s and wall s per frame of whole replays: this tree with one frame in flight and with
+    two, and the previous tree (``against``), alternating ``repeats`` times, medians."""
+    this_tree = Path(__file__).resolve().parents[1]
+    runs: dict[str, tuple[Path, int | None]] = {"this tree, 1 frame in flight": (this_tree, 1),
+                                               "this tree, 2 frames in flight": (this_tree, 2)}
+    if against is not None:
+        runs["previous tree"] = (against, None)
+    got: dict[str, list[dict[str, float]]] = {k: [] for k in runs}
+    loads = []
+    for _ in range(max(repeats, 1)):
+        for name, (tree, n) in runs.items():
+            loads.append(os.getloadavg()[0])
+            got[name].append(throughput_of_tree(tree, log, n))
+    frames = int(next(iter(got.values()))[0]["frames"])
+    print(f"\nwhole replay of {log.name} ({frames} frames after a warm-up one, no outputs), medians of {repeats} "
+          f"alternating runs; load average {min(loads):.1f}-{max(loads):.1f} on {os.cpu_count()} cores "
+          "(wall times on a shared machine are indicative only)")
+    base = statistics.median(r["cpu_s"] for r in got[next(iter(runs))])
+    base_w = statistics.median(r["wall_s"] for r in got[next(iter(runs))])
+    print(f"  {'':32s} {'CPU s/frame':>12s} {'wall s/frame':>13s} {'frames/s':>9s} {'wall vs 1 in flight':>20s}")
+    for name, rs in got.items():
+        c, w = statistics.median(r["cpu_s"] for r in rs), statistics.median(r["wall_s"] for r in rs)
+        print(f"  {name:32s} {c:12.3f} {w:13.3f} {1 / w:9.2f} {base_w / w:20.2f}"
+              + ("" if name == next(iter(runs)) else f"   (CPU {c / base:.2f} x)"))
+        print("    per run (CPU, wall): " + ", ".join(f"{r['cpu_s']:.3f}/{r['wall_s']:.3f}" for r in rs))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=4)
@@ -218,6 +286,10 @@ def main() -> None:
     ap.add_argument("--sizes", default=",".join(f"{w}x{h}" for h, w in TABLE_SIZES),
                     help="WxH,... of the stage table (default the issue's four)")
     ap.add_argument("--cores", default="1,2", help="core counts of the stage table (default 1,2)")
+    ap.add_argument("--throughput", action="store_true",
+                    help="whole replays of --log (or the synthetic log), CPU and wall s per frame: this tree with "
+                         "1 and 2 frames in flight, and --against's tree, alternating --repeats times")
+    ap.add_argument("--throughput-json", nargs=2, help=argparse.SUPPRESS)  # LOG IN_FLIGHT (0: default): one line
     ap.add_argument("--stage-json", nargs=2, help=argparse.SUPPRESS)  # LOG PLY|-: one JSON line
     ap.add_argument("--clock", default="cpu", choices=("cpu", "wall"), help=argparse.SUPPRESS)
     ap.add_argument("--pin", type=int, help=argparse.SUPPRESS)  # cores the --stage-json process runs on
@@ -229,6 +301,17 @@ def main() -> None:
             os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: args.pin])
         log_, ply_ = args.stage_json
         print(json.dumps(stage_costs(Path(log_), None if ply_ == "-" else Path(ply_), clock=args.clock)))
+        return
+    if args.throughput_json:
+        import json
+
+        log_, n_ = args.throughput_json
+        print(json.dumps(throughput(Path(log_), int(n_) or None)))
+        return
+    if args.throughput:
+        os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")
+        log = args.log if args.log is not None else prepare(Path(args.dir), args.kind, args.frames)[0]
+        throughput_table(log, args.against, args.repeats)
         return
     if args.table:
         os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")

@@ -27,6 +27,7 @@ are read for their stamps, so a frame is paired (or skipped) the same whatever r
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass, field
@@ -86,6 +87,18 @@ def message_payload(
         return decompress("zstd", memoryview(data), size, max_size=max_bytes)
     except _Bad as e:
         raise LogFormatError(f"{where}: zstd-compressed message {e}") from e
+
+
+#: the PointCloud2 fields :func:`replay.logs.ros2_msgs.cloud_to_arrays` reads colours from
+COLOUR_FIELDS = ("rgb", "rgba")
+
+
+def without_colour(cloud: rm.CloudMsg) -> rm.CloudMsg:
+    """The cloud without its colour fields (:data:`COLOUR_FIELDS`), for a decoding of x, y, z only: the
+    same bytes, the same checks, the same points (a colour field never makes a cloud unreadable)."""
+    if not any(f.name in COLOUR_FIELDS for f in cloud.fields):
+        return cloud
+    return dataclasses.replace(cloud, fields=tuple(f for f in cloud.fields if f.name not in COLOUR_FIELDS))
 
 
 def _kind_of(e: LogFormatError) -> DamageKind:
@@ -504,17 +517,20 @@ class FrameStream(Iterator[Frame]):
             return frame
         masks: dict[str, np.ndarray] = {}
         codes: dict[str, np.ndarray] = {}
+        # every part is now of its topic's schema (_companion): an Image on the image and mask topics, a
+        # CameraInfo on the camera info topic
+        img = cast(rm.ImageMsg | None, parts.get(r.image_topic) if r.image_topic else None)
         try:
             if isinstance(cloud, rm.ImageMsg):  # a results file without its cloud: no points
                 masks[ctopic] = rm.image_to_mask(cloud, where=where, max_pixels=r.max_pixels)
                 xyz, rgb = np.broadcast_to(np.float32(np.nan), (*shape, 3)), None
             else:
-                xyz, rgb = rm.cloud_to_arrays(cloud, where=where, max_pixels=r.max_pixels)
+                # with an Image paired the frame's colours are the image's (below, or the frame is
+                # skipped): the cloud's own colour field is not decoded, only x, y, z
+                xyz, rgb = rm.cloud_to_arrays(cloud if img is None else without_colour(cloud), where=where,
+                                              max_pixels=r.max_pixels)
         except LogFormatError as e:
             raise _Skip(_kind_of(e), str(e), ctopic) from None
-        # every part is now of its topic's schema (_companion): an Image on the image and mask topics, a
-        # CameraInfo on the camera info topic
-        img = cast(rm.ImageMsg | None, parts.get(r.image_topic) if r.image_topic else None)
         if img is not None:
             iwhere = f"{r.path.name}: topic {r.image_topic}, stamp {stamp_text(img.stamp_ns)}"
             if (img.height, img.width) != shape:

@@ -10,8 +10,10 @@ In the manner of KISS-ICP's pipeline, a replay is a few named steps::
 same filter on a log; it prepares the bin model once for that config. That first frame is read and
 located once: the run delivers the same object (and takes over the chunks read at open), and its bin
 location is the seed's (every other frame's registration starts from that pose).
-:meth:`ReplaySession.results` yields ``(frame, result)`` for a frame range, reading the next frame in
-a background thread (:func:`prefetched`) and locating the bin of frame k + 1 while frame k finishes;
+:meth:`ReplaySession.results` yields ``(frame, result)`` for a frame range, in log order, reading the
+next frame in a background thread (:func:`prefetched`), locating the bin of the next frames in another
+and, when asked (:func:`frames_in_flight`), computing two frames at once (their bin stages one at a
+time, :data:`PARALLEL_KERNELS`);
 :meth:`ReplaySession.run` feeds them to a sink (:mod:`replay.pipeline.sinks`) and returns a
 :class:`ReplaySummary`. Library code: it never prints; commands pass an ``on_frame`` callback.
 """
@@ -21,6 +23,8 @@ from __future__ import annotations
 import math
 import queue
 import threading
+import time
+from collections import deque
 from collections.abc import Callable, Generator, Iterator, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -37,7 +41,7 @@ from replay.logs.stream import DerivedStream, FrameStream
 from replay.pipeline import config as cfg
 from replay.pipeline.explained import with_log_part_model
 from replay.pipeline.sinks import FrameSink, NullSink, ReplayStart
-from replay.pipeline.stages import FrameResult, bin_zone, locate_bin, run_frame
+from replay.pipeline.stages import FrameResult, bin_zone, judge_zone, locate_bin, run_frame
 from replay.pipeline.zone import BinLocation, Zone
 from zcut.bin_model import BinModel
 from zcut.prepared_model import PreparedBinModel
@@ -181,6 +185,44 @@ def parse_frames(text: str | None) -> tuple[int, int | None]:
     if start < 0 or (stop is not None and stop <= start):
         raise ConfigError(f"--frames must satisfy 0 <= A < B, got {text!r}")
     return start, stop
+
+
+#: Held while a frame's bin stages run (:meth:`ReplaySession.results` with two frames in flight): the
+#: removal and the bin check run numba's ``parallel=True`` kernels, and numba's default "workqueue"
+#: threading layer (the one ``zcut`` chooses) aborts the process when two threads launch such kernels at
+#: once. The other stages run serial kernels (and SOR its own threads), free to overlap.
+PARALLEL_KERNELS = threading.Lock()
+
+
+#: The variable that sets :func:`frames_in_flight` (a whole number >= 1).
+FRAMES_IN_FLIGHT_VARIABLE = "ZCUT_FRAMES_IN_FLIGHT"
+
+
+def frames_in_flight() -> int:
+    """Frames :meth:`ReplaySession.results` computes at once by default: ``$ZCUT_FRAMES_IN_FLIGHT``, else 1.
+
+    One by default: on the shared 2-core machine of the last measurement (docs/performance.md, "Two
+    frames in flight") two frames in flight cost 10-30 % more CPU a frame and gave no wall gain; set
+    the variable to 2 where two quiet cores are free (at most the cores numba uses,
+    ``NUMBA_NUM_THREADS``, which a study worker sets to its share of them).
+
+    Raises
+    ------
+    ConfigError
+        The variable is not a whole number >= 1.
+    """
+    import os
+
+    text = os.environ.get(FRAMES_IN_FLIGHT_VARIABLE, "").strip()
+    if not text:
+        return 1
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ConfigError(f"{FRAMES_IN_FLIGHT_VARIABLE} must be a whole number >= 1, got {text!r}")
+    return n
 
 
 def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Generator[Frame, None, None]:
@@ -373,8 +415,8 @@ class ReplaySession:
     def start_info(self, judge: FrameJudge | None = None) -> ReplayStart:
         return ReplayStart(self.path.name, self.resolved, self.reader.metadata, self.bin_model, judge)
 
-    def located(self, *, frames: tuple[int, int | None] = (0, None),
-                config: cfg.PipelineConfig | None = None) -> DerivedStream[tuple[Frame, Future[BinLocation]]]:
+    def located(self, *, frames: tuple[int, int | None] = (0, None), config: cfg.PipelineConfig | None = None,
+                hold: bool = True) -> DerivedStream[tuple[Frame, Future[BinLocation]]]:
         """``(frame, future of its BinLocation)`` for every readable frame in ``frames``.
 
         The next frame is read in a background thread while this one runs; the bin mask and
@@ -384,6 +426,9 @@ class ReplaySession:
         result does not depend on which frames ran before it. BLAS is limited to one thread meanwhile
         (its spinning workers otherwise steal the cores from those threads). Closing the generator
         stops and joins both threads. Its ``damage`` is the frame stream's (final once it has ended).
+        ``hold``: a frame is given once the next one has been read and its location started (a caller
+        that works on one frame at a time); False: as soon as its own location has started (a caller
+        with frames in flight, whose workers wait on the futures).
         """
         config = self._check(config)
         start, stop = frames
@@ -396,10 +441,10 @@ class ReplaySession:
                                                                               self.config.registration):
             location = None
         stream = self.reader.frames(start=start, stop=stop, decoded=first)
-        return DerivedStream(self._located(stream, config, location), stream)
+        return DerivedStream(self._located(stream, config, location, hold=hold), stream)
 
-    def _located(self, stream: FrameStream, config: cfg.PipelineConfig,
-                 first_location: BinLocation | None = None) -> Iterator[tuple[Frame, Future[BinLocation]]]:
+    def _located(self, stream: FrameStream, config: cfg.PipelineConfig, first_location: BinLocation | None = None,
+                 *, hold: bool = True) -> Iterator[tuple[Frame, Future[BinLocation]]]:
         from threadpoolctl import threadpool_limits
 
         bin_model, seed = self.prepared, self.seed
@@ -407,6 +452,7 @@ class ReplaySession:
         locator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="zcut-locate")
         blas = threadpool_limits(limits=1, user_api="blas")
         pending: tuple[Frame, Future[BinLocation]] | None = None
+        early = False
         try:
             while True:
                 try:
@@ -427,11 +473,18 @@ class ReplaySession:
                 if pending is not None:
                     yield pending
                 pending = ahead
+                if not hold:
+                    yield pending
+                    pending = None
             if pending is not None:
                 yield pending
                 pending = None
+        except GeneratorExit:  # closed early: the locations not started are not needed
+            early = True
+            raise
         finally:
-            locator.shutdown(wait=True, cancel_futures=True)
+            # else every frame given has its location computed (frames in flight wait on them)
+            locator.shutdown(wait=True, cancel_futures=early)
             blas.restore_original_limits()
             frame_iter.close()  # joins the reader thread: the stream's damage is final
 
@@ -444,21 +497,71 @@ class ReplaySession:
         return config
 
     def results(self, *, frames: tuple[int, int | None] = (0, None),
-                config: cfg.PipelineConfig | None = None) -> DerivedStream[tuple[Frame, FrameResult]]:
+                config: cfg.PipelineConfig | None = None,
+                in_flight: int | None = None) -> DerivedStream[tuple[Frame, FrameResult]]:
         """``(frame, result)`` of every readable frame in ``frames`` (start, stop exclusive or None),
-        computed as :meth:`located` describes; its ``damage`` names the frames lost. ``config``: run
-        another config than the resolved one (it must keep the resolved registration and removal
-        parameters, which the bin model was prepared with)."""
-        config = self._check(config)
-        located = self.located(frames=frames, config=config)
-        return DerivedStream(self._results(located, config), located)
+        in log order, computed as :meth:`located` describes; its ``damage`` names the frames lost.
+        ``config``: run another config than the resolved one (it must keep the resolved registration
+        and removal parameters, which the bin model was prepared with).
 
-    def _results(self, located: DerivedStream[tuple[Frame, Future[BinLocation]]], config: cfg.PipelineConfig) -> Iterator[tuple[Frame, FrameResult]]:
+        ``in_flight``: frames computed at once (default :func:`frames_in_flight`: 1, or
+        ``$ZCUT_FRAMES_IN_FLIGHT``). With 2, frame k + 1 runs in a second worker while frame k
+        finishes (each frame's result depends on that frame alone: see :attr:`seed`), so the removal
+        of one frame overlaps the z-cut and SOR of the other and both cores stay busy; the results are
+        the same bit for bit and come in the same order. A frame whose computation raises raises here
+        after the frames before it; an error of the reader, after the frames read before it.
+        """
+        config = self._check(config)
+        n = frames_in_flight() if in_flight is None else in_flight
+        if n < 1:
+            raise ConfigError(f"in_flight must be >= 1, got {n}")
+        located = self.located(frames=frames, config=config, hold=n <= 1)
+        return DerivedStream(self._results(located, config, n), located)
+
+    def _results(self, located: DerivedStream[tuple[Frame, Future[BinLocation]]], config: cfg.PipelineConfig,
+                 in_flight: int = 1) -> Iterator[tuple[Frame, FrameResult]]:
+        if in_flight <= 1:
+            try:
+                for frame, future in located:
+                    yield frame, run_frame(frame, config, bin_model=self.prepared, located=future.result())
+            finally:
+                located.close()
+            return
+        pool = ThreadPoolExecutor(max_workers=in_flight, thread_name_prefix="zcut-frame")
+        running: deque[tuple[Frame, Future[FrameResult]]] = deque()
         try:
-            for frame, future in located:
-                yield frame, run_frame(frame, config, bin_model=self.prepared, located=future.result())
+            while True:
+                try:
+                    frame, future = next(located)
+                except StopIteration:
+                    break
+                except BaseException:
+                    while running:  # the frames before the reader's error still count, in order
+                        done_frame, work = running.popleft()
+                        yield done_frame, work.result()
+                    raise
+                running.append((frame, pool.submit(self._frame_result, frame, config, future)))
+                if len(running) > in_flight:  # one more frame queued: its location runs meanwhile
+                    done_frame, work = running.popleft()
+                    yield done_frame, work.result()
+            while running:
+                done_frame, work = running.popleft()
+                yield done_frame, work.result()
         finally:
+            for _, work in running:
+                work.cancel()
+            pool.shutdown(wait=True, cancel_futures=True)
             located.close()
+
+    def _frame_result(self, frame: Frame, config: cfg.PipelineConfig, future: Future[BinLocation]) -> FrameResult:
+        """:func:`run_frame` of one frame as a worker of :meth:`results` runs it: its bin stages (the
+        removal and the bin check run numba's ``parallel=True`` kernels) under :data:`PARALLEL_KERNELS`,
+        its methods (serial kernels, SOR's own threads) beside the other frame's."""
+        location = future.result()
+        with PARALLEL_KERNELS:
+            t_start = time.perf_counter()  # the frame's own work: not the wait for the other frame's kernels
+            z = bin_zone(frame, config, bin_model=self.prepared, located=location)
+        return judge_zone(frame, z, config, t_start=t_start)
 
     def zones(self, *, frames: tuple[int, int | None] = (0, None)) -> DerivedStream[tuple[Frame, Zone]]:
         """``(frame, zone)``: the bin stages only, for callers that filter a zone many ways (a sweep);
@@ -492,9 +595,11 @@ class ReplaySession:
 
     def run(self, sink: FrameSink | None = None, *, frames: tuple[int, int | None] = (0, None),
             on_frame: Callable[[Frame, FrameResult, FrameRow], None] | None = None,
-            judge: FrameJudge | None = None) -> ReplaySummary:
+            judge: FrameJudge | None = None, in_flight: int | None = None) -> ReplaySummary:
         """Run the pipeline over ``frames`` into ``sink``; returns the summary. ``judge``: what the
         frames are scored against, handed to the sinks (the recording shows where each filter is wrong).
+        ``in_flight``: frames computed at once (:meth:`results`); the sink and ``on_frame`` see them
+        one at a time, in log order, in this thread.
 
         ``summary.damage`` is non-empty when frames were lost (the command exits 3).
         """
@@ -507,7 +612,7 @@ class ReplaySession:
         sink.start(self.start_info(judge))
         results = None
         try:
-            results = self.results(frames=frames)
+            results = self.results(frames=frames, in_flight=in_flight)
             try:
                 for frame, result in results:
                     sink.write(frame, result)
