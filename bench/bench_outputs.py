@@ -1,8 +1,8 @@
 """Benchmark: what replay's outputs cost per frame: the results file (``--out``, ``--out --out-cloud``) and
 the Rerun recording (``--rrd``, default detail, with the truth's verdicts when the log has truth).
 
-Run: ``.venv/bin/python bench/bench_outputs.py --log LOG.mcap [--frames N] [--repeats R] [--rounds K]
-[--against OLD] [--profile rrd|results]``
+Run: ``.venv/bin/python bench/bench_outputs.py --log LOG.mcap [LOG2.mcap ...] [--frames N] [--repeats R]
+[--rounds K] [--against OLD] [--outputs rrd,results,results+cloud] [--profile rrd|results]``
 
 The pipeline runs once on the log's first N frames (this tree) and its frames and results are kept
 (pickled to a temporary file). Then each output's sink is fed those same frames, ``--repeats`` times,
@@ -12,8 +12,13 @@ of each repeat excluded), the CPU ms of ``close`` per frame, and the file's MB p
 DIR`` measures the sinks of the source tree DIR (the previous release: ``git -C /work/main archive HEAD |
 tar -x -C DIR``) on the same frames in subprocesses of the same run, ``--rounds`` times alternating with
 this tree's (medians of the rounds), and prints the ratios old / new.
-``--profile rrd`` prints the cProfile of this tree's Rerun writes (where the time goes).
+``--profile rrd`` prints the cProfile of this tree's Rerun writes (where the time goes). Several logs
+(e.g. a 640 x 480 and a 1920 x 1200 one) are measured one after the other, a table each; ``--outputs``
+picks the outputs measured (the Rerun recording alone: ``--outputs rrd``).
 The machine is shared: CPU time, not wall time, is compared.
+
+Measured (issue 32, item 3: the recording at default detail, with the truth's verdicts): see
+docs/pipeline.md, "The recording (Rerun)".
 """
 
 from __future__ import annotations
@@ -68,7 +73,8 @@ def _sink(kind: str, path: Path) -> Any:
     return ResultsSink(path, cloud=kind == "results+cloud")
 
 
-def measure(dump: Path, repeats: int, out_dir: Path, profile: str | None) -> dict[str, dict[str, float]]:
+def measure(dump: Path, repeats: int, out_dir: Path, profile: str | None,
+            outputs: tuple[str, ...] = OUTPUTS) -> dict[str, dict[str, float]]:
     """CPU ms per frame of write and close, MB per frame, of every output of this process's tree."""
     import dataclasses
 
@@ -85,7 +91,7 @@ def measure(dump: Path, repeats: int, out_dir: Path, profile: str | None) -> dic
         print(f"no judge: {e}", file=sys.stderr)
         judge = None
     out: dict[str, dict[str, float]] = {}
-    for kind in OUTPUTS:
+    for kind in outputs:
         writes: list[float] = []
         closes: list[float] = []
         size = 0.0
@@ -123,11 +129,12 @@ def measure(dump: Path, repeats: int, out_dir: Path, profile: str | None) -> dic
     return out
 
 
-def measure_tree(tree: Path, dump: Path, repeats: int, profile: str | None) -> dict[str, dict[str, float]]:
+def measure_tree(tree: Path, dump: Path, repeats: int, profile: str | None,
+                 outputs: tuple[str, ...] = OUTPUTS) -> dict[str, dict[str, float]]:
     """:func:`measure` with the code of the source tree ``tree``, in a subprocess."""
     env = dict(os.environ, PYTHONPATH=str(tree))
     env.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")
-    cmd = [sys.executable, __file__, "--measure-json", str(dump), str(repeats)]
+    cmd = [sys.executable, __file__, "--measure-json", str(dump), str(repeats), "--outputs", ",".join(outputs)]
     if profile:
         cmd += ["--profile", profile]
     res = subprocess.run(cmd, env=env, cwd=str(tree), check=True, stdout=subprocess.PIPE, text=True)
@@ -140,23 +147,35 @@ def _medians(runs: list[dict[str, dict[str, float]]]) -> dict[str, dict[str, flo
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--log", type=Path, required=False, help="a log with its bin model attachment")
+    ap.add_argument("--log", type=Path, nargs="+", required=False,
+                    help="logs with their bin model attachment, measured one after the other")
     ap.add_argument("--frames", type=int, default=4)
     ap.add_argument("--repeats", type=int, default=2, help="repeats of the frames in one process")
     ap.add_argument("--rounds", type=int, default=3, help="alternating processes of the previous tree and this one")
     ap.add_argument("--against", type=Path, help="source tree of the previous release, measured in the same run")
     ap.add_argument("--profile", choices=("rrd", "results"), help="cProfile this tree's writes of that output")
+    ap.add_argument("--outputs", default=",".join(OUTPUTS), help=f"the outputs measured, of {','.join(OUTPUTS)}")
     ap.add_argument("--measure-json", nargs=2, help=argparse.SUPPRESS)  # DUMP REPEATS: one JSON line
     args = ap.parse_args()
+    outputs = tuple(o for o in OUTPUTS if o in args.outputs.split(","))
+    if not outputs:
+        ap.error(f"--outputs: none of {','.join(OUTPUTS)}")
     if args.measure_json:
         with tempfile.TemporaryDirectory(prefix="zcut_bench_outputs_") as d:
-            print(json.dumps(measure(Path(args.measure_json[0]), int(args.measure_json[1]), Path(d), args.profile)))
+            print(json.dumps(measure(Path(args.measure_json[0]), int(args.measure_json[1]), Path(d), args.profile,
+                                     outputs)))
         return
     if args.log is None:
         ap.error("--log LOG.mcap is required (e.g. a 1920x1200 `zcut synth` log with its bin model)")
+    for log in args.log:
+        bench_log(log, args, outputs)
+
+
+def bench_log(log: Path, args: argparse.Namespace, outputs: tuple[str, ...]) -> None:
+    """Measure the outputs of one log (this tree, and ``--against``'s in the same run) and print its table."""
     with tempfile.TemporaryDirectory(prefix="zcut_bench_outputs_") as d:
         dump = Path(d) / "frames.pickle"
-        capture(args.log, args.frames, dump)
+        capture(log, args.frames, dump)
         with open(dump, "rb") as f:
             pairs = pickle.load(f)["pairs"]
         h, w = pairs[0][0].xyz.shape[:2]
@@ -164,18 +183,18 @@ def main() -> None:
         news: list[dict[str, dict[str, float]]] = []
         for r in range(max(args.rounds, 1)):  # alternating: a shared machine's load swings both alike
             if args.against:
-                olds.append(measure_tree(args.against, dump, args.repeats, None))
+                olds.append(measure_tree(args.against, dump, args.repeats, None, outputs))
             news.append(measure_tree(Path(__file__).resolve().parents[1], dump, args.repeats,
-                                     args.profile if r == 0 else None))
+                                     args.profile if r == 0 else None, outputs))
         old = _medians(olds) if olds else None
         new = _medians(news)
-    print(f"\noutputs of {args.log.name}: {len(pairs)} frames of {w}x{h}; CPU ms per frame (medians of "
+    print(f"\noutputs of {log.name}: {len(pairs)} frames of {w}x{h}; CPU ms per frame (medians of "
           f"{args.rounds} alternating rounds of {args.repeats} repeats, first frame of each excluded) and MB per frame")
     head = f"  {'output':14s} {'write ms':>9s} {'close ms':>9s} {'MB':>7s}"
     if old is not None:
         head += f" | {'prev write':>10s} {'prev close':>10s} {'prev MB':>8s} | {'write x':>8s} {'MB x':>6s}"
     print(head)
-    for kind in OUTPUTS:
+    for kind in outputs:
         n = new[kind]
         line = f"  {kind:14s} {n['write_ms']:9.1f} {n['close_ms']:9.1f} {n['mb']:7.3f}"
         if old is not None:

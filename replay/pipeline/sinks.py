@@ -352,9 +352,9 @@ class RerunSink:
             if note is not None:
                 print(f"zcut: {note}", file=sys.stderr, flush=True)
             viz.log_static(self._rec, config_toml=info.config_toml(), notes=info.notes, bin_model=info.bin_model,
-                           source=f"log: {info.log}")
+                           source=f"log: {info.log}", opts=self._opts)
             if self._judge is not None:
-                viz.log_verdicts_static(self._rec, self._judge.methods, source=self._judge.source)
+                viz.log_verdicts_static(self._rec, self._judge.methods, source=self._judge.source, opts=self._opts)
         except BaseException:
             self.close(completed=False)
             raise
@@ -364,7 +364,8 @@ class RerunSink:
 
         viz.log_frame(self._rec, frame, result, step_mm=self._step, opts=self._opts)  # type: ignore[arg-type]  # started
         if self._judge is not None:
-            viz.log_verdicts(self._rec, frame, self._judge.judge(frame, result), self._judge.methods)  # type: ignore[arg-type]  # started
+            viz.log_verdicts(self._rec, frame, self._judge.judge(frame, result), self._judge.methods,  # type: ignore[arg-type]  # started
+                             self._opts)  # type: ignore[arg-type]  # started
         if self._file is not None:
             self._file.check(self._rec)  # type: ignore[arg-type]  # started
 

@@ -20,7 +20,8 @@ if TYPE_CHECKING:
     from replay.logs.frame import Frame
     from replay.pipeline.stages import FrameResult
 
-#: The classes of a verdict image (0: not flagged and not a true outlier, or not scored).
+#: The classes of a verdict image (0: not flagged and not a true outlier, or not scored);
+#: :func:`method_verdict` computes them as (2·P + 3·L) mod 4.
 TP, FP, FN = 1, 2, 3
 
 
@@ -57,11 +58,13 @@ def method_verdict(predicted: np.ndarray, outliers: np.ndarray, scored: np.ndarr
     """The verdict of a prediction P against the true outliers L over the scored pixels S."""
     p = np.asarray(predicted, bool) & scored
     lab = np.asarray(outliers, bool) & scored
-    tp, fp, fn = p & lab, p & ~lab, lab & ~p  # disjoint: their codes add up (no masked stores, no bincount)
-    classes = fp.view(np.uint8) * np.uint8(FP)
-    classes += tp.view(np.uint8) * np.uint8(TP)
-    classes += fn.view(np.uint8) * np.uint8(FN)
-    return MethodVerdict(classes, int(np.count_nonzero(tp)), int(np.count_nonzero(fp)), int(np.count_nonzero(fn)))
+    # with x = P, y = L (0 / 1): TP (1, 1) -> 1, FP (1, 0) -> 2, FN (0, 1) -> 3, nothing (0, 0) -> 0 is
+    # (2x + 3y) mod 4: four passes over bytes instead of TP, FP, FN's masks painted one by one
+    classes = p.view(np.uint8) * np.uint8(2)
+    classes += lab.view(np.uint8) * np.uint8(3)
+    classes &= np.uint8(3)
+    tp = int(np.count_nonzero(p & lab))
+    return MethodVerdict(classes, tp, int(np.count_nonzero(p)) - tp, int(np.count_nonzero(lab)) - tp)
 
 
 class FrameJudge(Protocol):

@@ -50,6 +50,7 @@ timeline shows the last frame logged (replay one frame with ``--frames N:N+1`` t
 from __future__ import annotations
 
 import functools
+import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -112,7 +113,10 @@ class VizOptions:
     full_detail : bool
         Raw images, every point, every level at full resolution.
     cloud_stride : int
-        Log every n-th row and column of the cloud in 3D.
+        Log every n-th row and column of the cloud in 3D (or a coarser n: :attr:`max_cloud_points`).
+    max_cloud_points : int
+        The cloud's grid holds at most this many points: n is at least ceil(sqrt(H·W / this))
+        (a 1920 x 1200 frame: every 6th row and column).
     level_stride : int
         Resolution divisor of the z-cut level image.
     jpeg_quality : int
@@ -121,6 +125,10 @@ class VizOptions:
         Clusters beyond this many get no label (the colour stays).
     max_scrub_levels : int
         Cut levels shown on the depth timeline per frame (full detail: all).
+    overlay_stride : int
+        Resolution divisor of the class images over the RGB image (:data:`OVERLAYS`, the verdicts):
+        each of their pixels holds the highest class of an ``s`` x ``s`` block of the frame's
+        (:func:`pool_max`), and a static ``Transform3D`` scales them by ``s`` onto the image.
     """
 
     full_detail: bool = False
@@ -129,10 +137,75 @@ class VizOptions:
     jpeg_quality: int = 85
     max_cluster_labels: int = 2000
     max_scrub_levels: int = 32
+    overlay_stride: int = 2
+    max_cloud_points: int = 80_000
 
     @classmethod
     def full(cls) -> VizOptions:
-        return cls(full_detail=True, cloud_stride=1, level_stride=1)
+        return cls(full_detail=True, cloud_stride=1, level_stride=1, overlay_stride=1)
+
+    def cloud_step(self, height: int, width: int) -> int:
+        """The row and column step of the cloud logged in 3D (1 at full detail)."""
+        if self.full_detail:
+            return 1
+        cap = int(np.ceil(np.sqrt(height * width / max(int(self.max_cloud_points), 1)) - 1e-9))
+        return max(int(self.cloud_stride), cap, 1)
+
+    @property
+    def overlay_scale(self) -> int:
+        """The overlays' resolution divisor (1 at full detail)."""
+        return 1 if self.full_detail else max(int(self.overlay_stride), 1)
+
+
+#: the class images drawn over ``image/rgb`` (and their subtrees: ``image/methods/NAME``), logged at
+#: 1 / :attr:`VizOptions.overlay_stride` of the frame's resolution at default detail, their scale
+#: static from the start; ``image/verdicts`` (with truth) and ``image/explained`` (when that method
+#: runs) too, their scale logged with them
+OVERLAYS = ("image/bin_mask", "image/removal", "image/bin_check", "image/clusters", "image/outliers",
+            "image/methods")
+
+
+def pool_max(img: np.ndarray, s: int) -> np.ndarray:
+    """(ceil(H / s), ceil(W / s)): each pixel the highest value of its ``s`` x ``s`` block of ``img``
+    (rows and columns ``s·i .. s·i + s - 1``, cut at the border): a class image at 1 / ``s`` of the
+    resolution where one pixel of a class still shows (the higher class wins, as in the images'
+    painting order); a bool mask: whether any pixel of the block is set. ``s`` = 1: ``img`` itself."""
+    if s <= 1:
+        return img
+    a = img.view(np.uint8) if img.dtype == bool else img
+    h, w = a.shape
+    wider = _WIDER.get(a.dtype.str) if a.dtype.kind == "u" else None
+    if s == 2 and not h % 2 and not w % 2 and wider is not None:
+        # the rows' maxima, then each pair of columns read as one integer of twice the width: the max
+        # of its two halves (no strided column pass)
+        v = np.ascontiguousarray(np.maximum(a[0::2], a[1::2])).view(wider)  # (a view of a transpose: F order)
+        out = (v >> np.array(8 * a.itemsize, wider)).astype(a.dtype)
+        np.maximum(out, v.astype(a.dtype), out=out)  # the low half (astype keeps it)
+    else:
+        if h % s or w % s:  # the border blocks padded with zeros (class 0, nothing)
+            a = np.pad(a, ((0, -h % s), (0, -w % s)))
+        rows = a[0::s]
+        for i in range(1, s):
+            rows = np.maximum(rows, a[i::s])
+        out = rows[:, 0::s]
+        for j in range(1, s):
+            out = np.maximum(out, rows[:, j::s])
+        out = np.ascontiguousarray(out)
+    pooled: np.ndarray = out.view(bool) if img.dtype == bool else out
+    return pooled
+
+
+#: the unsigned integer of twice the width of a pixel's (:func:`pool_max` pairs columns in one)
+_WIDER = {np.dtype(np.uint8).str: np.uint16, np.dtype(np.uint16).str: np.uint32, np.dtype(np.uint32).str: np.uint64}
+
+
+def log_overlay_scale(rec: rr.RecordingStream, entities: Iterable[str], opts: VizOptions) -> None:
+    """A static ``Transform3D`` scaling each of ``entities`` by the overlays' divisor onto the
+    image's pixels (nothing at full detail)."""
+    s = opts.overlay_scale
+    if s > 1:
+        for e in entities:
+            rec.log(e, rr.Transform3D(scale=float(s)), static=True)
 
 
 def new_recording(*, application_id: str = "zcut", recording_id: str | None = None) -> rr.RecordingStream:
@@ -279,8 +352,6 @@ def spawn_viewer(*, port: int = VIEWER_PORT, executable: str = "rerun",
 
     if _listening(port):
         return None
-    import sys
-
     beside = os.path.join(os.path.dirname(sys.executable), executable)  # a venv that is not activated
     exe = beside if os.path.isfile(beside) else shutil.which(executable)
     if exe is None:
@@ -375,14 +446,16 @@ def _ctx(classes: Iterable[tuple[int, str, tuple[int, int, int]]]) -> rr.Annotat
 
 
 def log_static(rec: rr.RecordingStream, *, config_toml: str, notes: tuple[str, ...] = (),
-               bin_model: BinModel | None = None, source: str = "") -> None:
-    """Things that do not change per frame: annotation contexts, axes, the config, the bin model."""
+               bin_model: BinModel | None = None, source: str = "", opts: VizOptions = VizOptions()) -> None:
+    """Things that do not change per frame: annotation contexts, the overlays' scale (``opts``: those
+    of :func:`log_frame`), axes, the config, the bin model."""
     rec.log("image/outliers", _ctx(OUTLIER_CLASSES), static=True)
     rec.log("image/removal", _ctx(REMOVAL_CLASSES), static=True)
     rec.log("image/bin_mask", _ctx(BIN_MASK_CLASSES), static=True)
     rec.log("image/bin_check", _ctx(BIN_CHECK_CLASSES), static=True)
     rec.log("world/outliers", _ctx(OUTLIER_CLASSES), static=True)
     rec.log("image/methods", _ctx(METHOD_CLASSES), static=True)
+    log_overlay_scale(rec, OVERLAYS, opts)
     rec.log("world", rr.ViewCoordinates.RDF, static=True)
     head = f"# zcut replay\n\n{source}\n\n{TIMELINES_HINT}\n\n" if source else f"# zcut replay\n\n{TIMELINES_HINT}\n\n"
     body = "".join(f"- {n}\n" for n in notes)
@@ -394,6 +467,33 @@ def log_static(rec: rr.RecordingStream, *, config_toml: str, notes: tuple[str, .
             pts = pts[:: int(np.ceil(len(pts) / 200_000))]
         rec.log("world/bin_model/points", rr.Points3D(pts.astype(np.float32), colors=(0, 120, 255),
                                                       radii=rr.Radius.ui_points(1.5)), static=True)
+
+
+#: the Arrow type of a Rerun blob (an image's bytes)
+_BLOB_TYPE = rr.components.BlobBatch._ARROW_DATATYPE
+
+
+def _blob(data: np.ndarray) -> pa.Array:
+    """One Rerun blob: the bytes of ``data`` in C order, without a copy (the SDK's converter copies
+    them twice and takes ~0.3 ms an image on the Python side)."""
+    flat = np.ascontiguousarray(data).reshape(-1).view(np.uint8)
+    return pa.ListArray.from_arrays(pa.array(np.array([0, flat.size], np.int32)), pa.array(flat), type=_BLOB_TYPE)
+
+
+@functools.lru_cache(maxsize=64)
+def _image_format(height: int, width: int, dtype: str) -> pa.Array:
+    """The ``ImageFormat`` component of a one-channel image (built once per size and pixel type)."""
+    fmt = rr.components.ImageFormat(width=width, height=height,
+                                    channel_datatype=rr.encodings.ChannelDatatype.from_np_dtype(np.dtype(dtype)))
+    return rr.components.ImageFormatBatch(fmt).as_arrow_array()
+
+
+def _segmentation(img: np.ndarray, opacity: float | None = None) -> rr.SegmentationImage:
+    """``rr.SegmentationImage(img, opacity=opacity)`` with its components built directly: the same
+    Arrow arrays (tests/replay/pipeline/test_viz_overlays.py), the pixels not copied."""
+    h, w = img.shape
+    return rr.SegmentationImage.from_fields(buffer=_blob(img), format=_image_format(h, w, img.dtype.str),
+                                            opacity=opacity)
 
 
 def set_frame_time(rec: rr.RecordingStream, frame: Frame) -> None:
@@ -413,7 +513,7 @@ def _image(rgb: np.ndarray, opts: VizOptions) -> rr.Image | rr.EncodedImage:
     ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(opts.jpeg_quality)])
     if not ok:  # pragma: no cover - OpenCV encodes every uint8 image
         return rr.Image(np.ascontiguousarray(rgb), color_model="RGB").compress(jpeg_quality=opts.jpeg_quality)
-    return rr.EncodedImage(contents=buf.tobytes(), media_type="image/jpeg")
+    return rr.EncodedImage.from_fields(blob=_blob(buf), media_type="image/jpeg")  # the encoder's buffer, not a copy
 
 
 def _height_gray(height_mm: np.ndarray) -> np.ndarray:
@@ -447,13 +547,15 @@ def _u8(mask: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
 
 
-def log_bin_stages(rec: rr.RecordingStream, frame: Frame, result: FrameResult) -> None:
+def log_bin_stages(rec: rr.RecordingStream, frame: Frame, result: FrameResult,
+                   opts: VizOptions = VizOptions()) -> None:
     """Bin mask, removal classes, registered bin model with fitness/RMSE (or a Clear when skipped)."""
+    s = opts.overlay_scale
     if result.bin_mask is None:
         rec.log("image/bin_mask", rr.Clear(recursive=False))
     else:
         m = np.maximum(_u8(result.bin_mask.mask), _u8(result.bin_mask.walls) * np.uint8(2))  # walls win
-        rec.log("image/bin_mask", rr.SegmentationImage(m, opacity=0.35))
+        rec.log("image/bin_mask", _segmentation(pool_max(m, s), opacity=0.35))
     rem = result.removal
     if rem is None:
         rec.log("image/removal", rr.Clear(recursive=False))
@@ -462,7 +564,7 @@ def log_bin_stages(rec: rr.RecordingStream, frame: Frame, result: FrameResult) -
         c = np.maximum(_u8(rem.table), _u8(rem.bin_points) * np.uint8(2))
         np.maximum(c, _u8(rem.easy_outliers) * np.uint8(3), out=c)
         np.maximum(c, _u8(rem.zone) * np.uint8(4), out=c)
-        rec.log("image/removal", rr.SegmentationImage(c, opacity=0.4))
+        rec.log("image/removal", _segmentation(pool_max(c, s), opacity=0.4))
     reg = result.registration
     if reg is None:  # the model keeps its last pose; the label says this frame did not register it
         why = result.warnings[0] if result.warnings else "bin stages skipped"
@@ -481,7 +583,7 @@ def log_bin_stages(rec: rr.RecordingStream, frame: Frame, result: FrameResult) -
     rec.log("registration/rmse_mm", rr.Scalars(reg.inlier_rmse * 1000.0))
 
 
-def log_bin_check(rec: rr.RecordingStream, result: FrameResult) -> None:
+def log_bin_check(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions = VizOptions()) -> None:
     """The bin check: its figure, threshold and the removal's tolerance as scalars, the certain bin
     pixels and the offending ones as an image, the reason as a warning (a Clear when not checked)."""
     check = result.bin_check
@@ -491,7 +593,7 @@ def log_bin_check(rec: rr.RecordingStream, result: FrameResult) -> None:
         c = _u8(check.offending) * np.uint8(2)
         if check.ring is not None:
             np.maximum(c, _u8(check.ring), out=c)
-        rec.log("image/bin_check", rr.SegmentationImage(c, opacity=0.6))
+        rec.log("image/bin_check", _segmentation(pool_max(c, opts.overlay_scale), opacity=0.6))
     if check is not None:
         if np.isfinite(check.value):
             rec.log("bin_check/pixels", rr.Scalars(float(check.value)))
@@ -582,9 +684,8 @@ def log_cuts(rec: rr.RecordingStream, frame: Frame, result: FrameResult, opts: V
     cut = result.cut
     s = 1 if opts.full_detail else max(int(opts.level_stride), 1)
     m, levels = scrub_levels(cut.n_levels, opts)
-    lvl = cut.pixel_level[::s, ::s].astype(np.int32)
-    seg = np.where(lvl >= 0, (lvl + m - 1) // m + 1, 0).astype(np.uint16)
-    rec.log("zcut/cuts", rr.SegmentationImage(seg))  # at depth_um 0 (set_frame_time)
+    seg = cut_classes(cut.pixel_level, s, m, small=not opts.full_detail)
+    rec.log("zcut/cuts", _segmentation(seg))  # at depth_um 0 (set_frame_time)
     depths = np.array([round(k * step_mm * 1000.0) for k in levels], np.int64)
     n = len(levels)
     rec.send_columns("zcut/cuts", indexes=[
@@ -592,6 +693,31 @@ def log_cuts(rec: rr.RecordingStream, frame: Frame, result: FrameResult, opts: V
         rr.TimeColumn("stamp", timestamp=np.full(n, int(frame.stamp_ns), np.int64).astype("datetime64[ns]")),
         rr.TimeColumn("depth_um", sequence=depths)],
         columns=rr.AnnotationContext.columns(context=_cut_contexts(cut.n_levels, m, tuple(levels))))
+
+
+def cut_classes(pixel_level: np.ndarray, s: int, m: int, *, small: bool = False) -> np.ndarray:
+    """The level image of :func:`log_cuts`: every ``s``-th row and column's class
+    ``ceil(level / m) + 1`` (0: no level, -1), uint16; ``small``: uint8 when every class fits."""
+    pl = pixel_level
+    if (small and s == 2 and pl.dtype == np.int16 and pl.ndim == 2 and pl.size and not pl.shape[1] % 2
+            and pl.strides[1] == 2 and sys.byteorder == "little"):
+        # the even columns of the even rows without a strided pass: each pair of columns read as one
+        # int32 whose low half is the even column's; + 1 and the low 16 bits: level + 1 for levels
+        # -1 .. 32766 (others would read >= 32768: the general formula below takes them)
+        x = (pl[0::2].view(np.int32) + np.int32(1)) & np.int32(0xFFFF)
+        top = int(x.max())
+        if top <= 32767:
+            v = np.arange(top + 1) - 1  # the level of each x
+            lut = np.where(v >= 0, (v + m - 1) // m + 1, 0)
+            if top < 256 and lut[-1] < 256:
+                lut8 = np.zeros(256, np.uint8)  # OpenCV's table: 256 entries
+                lut8[: top + 1] = lut
+                classes: np.ndarray = cv2.LUT(x.astype(np.uint8), lut8)
+                return classes
+            return np.take(lut.astype(np.uint8 if lut[-1] < 256 else np.uint16), x)
+    lvl = pl[::s, ::s].astype(np.int32)
+    seg = np.where(lvl >= 0, (lvl + m - 1) // m + 1, 0)
+    return seg.astype(np.uint8 if small and (seg.size == 0 or seg.max() < 256) else np.uint16)
 
 
 @functools.lru_cache(maxsize=64)
@@ -627,7 +753,17 @@ def log_clusters(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions)
     ctx = _contexts_arrow(np.arange(k + 1), labels, colours, np.array([0, k + 1]))
     rec.log("image/clusters", rr.AnnotationContext(ctx))
     dtype = np.uint8 if n < 256 else np.uint16 if n < 65536 else np.uint32  # the smallest that holds every id
-    rec.log("image/clusters", rr.SegmentationImage(cut.clusters.astype(dtype)))  # type: ignore[arg-type]  # unsigned ids
+    ids = pool_max(cut.clusters, opts.overlay_scale).astype(dtype)  # a block: the highest id in it
+    rec.log("image/clusters", _segmentation(ids))
+
+
+def _pixels_xyz(xyz: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """(n, 3): the points of the flat pixel indices ``idx`` of the (H, W, 3) cloud (``xyz[rows, cols]``)."""
+    if xyz.flags.c_contiguous:
+        return np.take(xyz.reshape(-1, 3), idx, axis=0)
+    rows, cols = np.divmod(idx, xyz.shape[1])
+    pts: np.ndarray = xyz[rows, cols]
+    return pts
 
 
 def _outlier_classes(result: FrameResult) -> np.ndarray:
@@ -639,23 +775,24 @@ def _outlier_classes(result: FrameResult) -> np.ndarray:
     return classes
 
 
-def log_outliers(rec: rr.RecordingStream, frame: Frame, result: FrameResult, classes: np.ndarray) -> None:
+def log_outliers(rec: rr.RecordingStream, frame: Frame, result: FrameResult, classes: np.ndarray,
+                 opts: VizOptions = VizOptions()) -> None:
     """Outliers of the z-cut, SOR and both, in 2D (segmentation) and 3D (points), same colours."""
-    rec.log("image/outliers", rr.SegmentationImage(classes, opacity=0.8))
+    rec.log("image/outliers", _segmentation(pool_max(classes, opts.overlay_scale), opacity=0.8))
     idx = np.flatnonzero(result.zcut_outliers | result.sor_outliers | result.easy_outliers)  # bool: fast
-    rows, cols = np.divmod(idx, classes.shape[1])
-    rec.log("world/outliers", rr.Points3D(frame.xyz[rows, cols], class_ids=classes.ravel()[idx],
+    rec.log("world/outliers", rr.Points3D(_pixels_xyz(frame.xyz, idx), class_ids=classes.ravel()[idx],
                                           radii=rr.Radius.ui_points(3.0)))
 
 
-def log_methods(rec: rr.RecordingStream, result: FrameResult) -> None:
+def log_methods(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions = VizOptions()) -> None:
     """The outliers of every base method other than the z-cut and SOR (one segmentation image each:
     its outliers 1, the above-the-rim points 2) and their counts."""
     easy = _u8(result.easy_outliers) * np.uint8(2)
     for name, mask in result.outliers.items():
         if name in ("zcut", "sor"):
             continue
-        rec.log(f"image/methods/{name}", rr.SegmentationImage(np.maximum(_u8(mask), easy), opacity=0.8))
+        rec.log(f"image/methods/{name}", _segmentation(pool_max(np.maximum(_u8(mask), easy), opts.overlay_scale),
+                                                              opacity=0.8))
         rec.log(f"counts/{name}", rr.Scalars(float(np.count_nonzero(mask))))
 
 
@@ -664,7 +801,7 @@ EXPLAINED_CLASSES = ((1, "part fit", (60, 180, 75)), (2, "bin", (0, 120, 255)), 
                      (4, "unexplained", (230, 25, 75)))
 
 
-def log_explained(rec: rr.RecordingStream, result: FrameResult) -> None:
+def log_explained(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions = VizOptions()) -> None:
     """The method ``explained``'s stage (when it ran): the nearest known surface of each zone pixel
     and the unexplained ones, the distance image, the fitted instances in 3D (metres, as the cloud)."""
     from replay.pipeline.explained import ExplainedDetail
@@ -680,7 +817,8 @@ def log_explained(rec: rr.RecordingStream, result: FrameResult) -> None:
     cls[judged & (d.surface == SURFACE_TABLE)] = 3
     cls[d.unexplained] = 4
     rec.log("image/explained", _ctx(EXPLAINED_CLASSES))
-    rec.log("image/explained", rr.SegmentationImage(cls, opacity=0.6))
+    log_overlay_scale(rec, ("image/explained",), opts)
+    rec.log("image/explained", _segmentation(pool_max(cls, opts.overlay_scale), opacity=0.6))
     dist = np.where(judged & np.isfinite(d.dist_mm), d.dist_mm, 0.0).astype(np.float32)
     rec.log("image/explained_distance", rr.DepthImage(dist, meter=1000.0, colormap="turbo"))
     rec.log("counts/explained_fits", rr.Scalars(float(len(d.fits))))
@@ -701,7 +839,7 @@ def log_explained(rec: rr.RecordingStream, result: FrameResult) -> None:
 
 def log_cloud(rec: rr.RecordingStream, frame: Frame, opts: VizOptions) -> None:
     """The cloud in 3D (strided at default detail), in its RGB colours when there are some."""
-    s = 1 if opts.full_detail else max(int(opts.cloud_stride), 1)
+    s = opts.cloud_step(*frame.xyz.shape[:2])
     ok = np.isfinite(frame.xyz[::s, ::s, 2])  # z first (one strided pass), then x and y of those only
     idx = np.flatnonzero(ok)
     flat = (idx // ok.shape[1]) * (s * frame.xyz.shape[1]) + (idx % ok.shape[1]) * s  # into the full grid
@@ -736,24 +874,27 @@ def log_frame(rec: rr.RecordingStream, frame: Frame, result: FrameResult, *,
     """Log every stage of one frame."""
     set_frame_time(rec, frame)
     log_image(rec, frame, result, opts)
-    log_bin_stages(rec, frame, result)
-    log_bin_check(rec, result)
+    log_bin_stages(rec, frame, result, opts)
+    log_bin_check(rec, result, opts)
     log_cuts(rec, frame, result, opts, step_mm=step_mm)
     log_clusters(rec, result, opts)
     classes = _outlier_classes(result)
-    log_outliers(rec, frame, result, classes)
-    log_methods(rec, result)
-    log_explained(rec, result)
+    log_outliers(rec, frame, result, classes, opts)
+    log_methods(rec, result, opts)
+    log_explained(rec, result, opts)
     log_cloud(rec, frame, opts)
     log_scalars(rec, result, classes)
     for w in result.warnings:
         rec.log("log", rr.TextLog(f"frame {frame.index}: {w}", level=rr.TextLogLevel.WARN))
 
 
-def log_verdicts_static(rec: rr.RecordingStream, judged: Iterable[str], *, source: str) -> None:
-    """The verdicts' classes (one context for the images, one for the points), their series' names
-    and colours, and what the frames are scored against."""
+def log_verdicts_static(rec: rr.RecordingStream, judged: Iterable[str], *, source: str,
+                        opts: VizOptions = VizOptions()) -> None:
+    """The verdicts' classes (one context for the images, one for the points), the images' scale
+    (``opts``: those of :func:`log_verdicts`), their series' names and colours, and what the frames
+    are scored against."""
     rec.log("image/verdicts", _ctx(VERDICT_CLASSES), static=True)
+    log_overlay_scale(rec, ("image/verdicts",), opts)
     rec.log("world/verdicts", _ctx(VERDICT_CLASSES), static=True)
     for m in judged:
         rec.log(f"accuracy/{m}/precision", rr.SeriesLines(names=f"{m} precision"), static=True)
@@ -765,7 +906,7 @@ def log_verdicts_static(rec: rr.RecordingStream, judged: Iterable[str], *, sourc
 
 
 def log_verdicts(rec: rr.RecordingStream, frame: Frame, verdicts: Mapping[str, MethodVerdict] | str,
-                 judged: Iterable[str]) -> None:
+                 judged: Iterable[str], opts: VizOptions = VizOptions()) -> None:
     """Each judged method's verdict on the frame: its image (TP 1, FP 2, FN 3), the same pixels in 3D
     and its precision and recall (left out when undefined); a frame without truth (``verdicts`` is
     why) clears them and says so in the warnings log."""
@@ -775,12 +916,10 @@ def log_verdicts(rec: rr.RecordingStream, frame: Frame, verdicts: Mapping[str, M
             rec.log(f"world/verdicts/{m}", rr.Clear(recursive=False))
         rec.log("log", rr.TextLog(f"frame {frame.index}: not scored: {verdicts}", level=rr.TextLogLevel.INFO))
         return
-    width = frame.xyz.shape[1]
     for m, v in verdicts.items():
-        rec.log(f"image/verdicts/{m}", rr.SegmentationImage(v.classes, opacity=0.8))
+        rec.log(f"image/verdicts/{m}", _segmentation(pool_max(v.classes, opts.overlay_scale), opacity=0.8))
         idx = np.flatnonzero(v.classes.astype(bool))  # bool: ~14 x faster than on the uint8 classes
-        rows, cols = np.divmod(idx, width)
-        rec.log(f"world/verdicts/{m}", rr.Points3D(frame.xyz[rows, cols], class_ids=v.classes.ravel()[idx],
+        rec.log(f"world/verdicts/{m}", rr.Points3D(_pixels_xyz(frame.xyz, idx), class_ids=v.classes.ravel()[idx],
                                                    radii=rr.Radius.ui_points(3.0)))
         for name, value in (("precision", v.precision), ("recall", v.recall)):
             if np.isfinite(value):

@@ -36,6 +36,11 @@ def read_rrd(path):
     return out
 
 
+def _any2(mask):
+    """Whether any pixel of each 2 x 2 block is set (the overlays' resolution at default detail)."""
+    return np.asarray(mask, bool).reshape(mask.shape[0] // 2, 2, mask.shape[1] // 2, 2).any(axis=(1, 3))
+
+
 def column(entries, name):
     vals = []
     for _, cols in entries:
@@ -97,9 +102,9 @@ def test_the_bin_check_is_a_scalar_and_an_image(recording):
     assert [v[0] for v in column(data["/bin_check/flagged"], "Scalars:scalars")] == [float(check.flagged)]
     images = [v for v in column(data["/image/bin_check"], "SegmentationImage:buffer") if v is not None]
     assert len(images) == 1  # the second frame (no RGB) clears it
-    classes = np.asarray(images[0], np.uint8).reshape(H, W)
-    assert np.array_equal(classes == 1, check.ring & ~check.offending)
-    assert np.array_equal(classes == 2, check.offending)
+    classes = np.asarray(images[0], np.uint8).reshape(H // 2, W // 2)  # default detail: 2 x 2 blocks
+    assert np.array_equal(classes == 2, _any2(check.offending))
+    assert np.array_equal(classes == 1, _any2(check.ring) & ~_any2(check.offending))
 
 
 def test_counts_match_the_masks(recording):
@@ -131,9 +136,9 @@ def test_outlier_classes_in_2d_and_3d(recording):
     assert static_ctx, "the outlier classes' AnnotationContext is static"
     seg = column(data["/image/outliers"], "SegmentationImage:buffer")
     assert len(seg) == 2
-    buf = np.asarray(seg[0], np.uint8).reshape(H, W)
-    assert np.array_equal(buf > 0, r.zcut_outliers | r.sor_outliers)
-    assert np.array_equal(buf == 1, r.zcut_outliers & ~r.sor_outliers)
+    buf = np.asarray(seg[0], np.uint8).reshape(H // 2, W // 2)  # default detail: 2 x 2 blocks, highest class
+    assert np.array_equal(buf > 0, _any2(r.zcut_outliers | r.sor_outliers))
+    assert np.array_equal(buf >= 2, _any2(r.sor_outliers))
 
 
 def test_cuts_are_scrubbable_on_the_depth_timeline(recording):
@@ -182,7 +187,7 @@ def test_a_shown_cut_is_exactly_the_cut(recording):
             rb = chunk.to_record_batch()
             if "SegmentationImage:buffer" in rb.schema.names:
                 bufs = [b for b in rb.column("SegmentationImage:buffer").to_pylist() if b]
-                seg = np.asarray(bufs[-1][0], np.uint8).view(np.uint16).reshape(H // 2, W // 2)
+                seg = np.asarray(bufs[-1][0], np.uint8).reshape(H // 2, W // 2)  # uint8 at default detail
     assert seg is not None
     pl = r.cut.pixel_level[::2, ::2].astype(np.int32)
     for k in levels:

@@ -1,6 +1,7 @@
-"""The class images the recording holds (bin mask, removal, bin check, outliers, z-cut levels, verdicts)
-and the verdicts' points (their indices now from a bool view) are those of the literal formulas: a real
-.rrd written and read back with rr.chunk.RrdReader."""
+"""The class images the recording holds at full detail (bin mask, removal, bin check, outliers, z-cut
+levels, verdicts) and the verdicts' points (their indices now from a bool view) are those of the literal
+formulas: a real .rrd written and read back with rr.chunk.RrdReader (default detail holds their 2 x 2
+block maxima: test_viz_overlays.py)."""
 
 from __future__ import annotations
 
@@ -70,11 +71,12 @@ def logged(setup, tmp_path_factory):  # noqa: F811 - the fixture of test_viz
     frame, _ = ps.scene(h=H, w=W, shift=(0.004, 0.0, 0.0), specks=6, seed=3)
     frame = dataclasses.replace(frame, index=0, stamp_ns=1_000)
     r = run_frame(frame, config, bin_model=ps.prepared(model, config))
-    viz.log_frame(rec, frame, r, step_mm=config.zcut.step)
+    full = viz.VizOptions.full()
+    viz.log_frame(rec, frame, r, step_mm=config.zcut.step, opts=full)
     truth = np.random.default_rng(4).random((H, W)) < 0.05
     verdicts = {"zcut": method_verdict(r.zcut_outliers, truth, r.valid),
                 "sor": method_verdict(r.sor_outliers, truth, r.valid)}
-    viz.log_verdicts(rec, frame, verdicts, ("zcut", "sor"))
+    viz.log_verdicts(rec, frame, verdicts, ("zcut", "sor"), full)
     rec.flush()
     rec.disconnect()
     return path, frame, r, verdicts, config
@@ -97,9 +99,9 @@ def test_the_class_images_are_the_literal_ones(logged):
         want["/image/bin_check"] = _literal_max((1, ring), (2, check.offending))
     for entity, w in want.items():
         assert np.array_equal(imgs[entity][0].reshape(H, W), w), entity
-    m, _ = viz.scrub_levels(r.cut.n_levels, viz.VizOptions())
-    cuts = imgs["/zcut/cuts"][0].view(np.uint16).reshape(H // 2, W // 2)
-    assert np.array_equal(cuts, _literal_cuts(r.cut.pixel_level[::2, ::2], m))
+    m, _ = viz.scrub_levels(r.cut.n_levels, viz.VizOptions.full())
+    cuts = imgs["/zcut/cuts"][0].view(np.uint16).reshape(H, W)
+    assert np.array_equal(cuts, _literal_cuts(r.cut.pixel_level, m))
 
 
 def test_the_verdicts_points_are_the_literal_ones(logged):
