@@ -154,95 +154,6 @@ def _smallest_eigvec(c00, c01, c02, c11, c12, c22):  # type: ignore[no-untyped-d
     return lam, v0x * s, v0y * s, v0z * s
 
 
-@numba.njit(cache=True)
-def _patch_kernel(xyz, valid, r, min_px, reach, floor, cen, nrm, rms):  # type: ignore[no-untyped-def]  # numba kernel
-    H, W = valid.shape
-    for i in range(H):
-        for j in range(W):
-            rms[i, j] = np.nan
-            if not valid[i, j]:
-                continue
-            zq = xyz[i, j, 2]
-            n = 0
-            sx = 0.0
-            sy = 0.0
-            sz = 0.0
-            for a in range(max(i - r, 0), min(i + r + 1, H)):
-                for b in range(max(j - r, 0), min(j + r + 1, W)):
-                    if valid[a, b] and abs(xyz[a, b, 2] - zq) <= max(abs(a - i), abs(b - j)) * reach[i, j] + floor:
-                        n += 1
-                        sx += xyz[a, b, 0]
-                        sy += xyz[a, b, 1]
-                        sz += xyz[a, b, 2]
-            if n < min_px:
-                continue
-            mx = sx / n
-            my = sy / n
-            mz = sz / n
-            c00 = 0.0
-            c01 = 0.0
-            c02 = 0.0
-            c11 = 0.0
-            c12 = 0.0
-            c22 = 0.0
-            for a in range(max(i - r, 0), min(i + r + 1, H)):
-                for b in range(max(j - r, 0), min(j + r + 1, W)):
-                    if valid[a, b] and abs(xyz[a, b, 2] - zq) <= max(abs(a - i), abs(b - j)) * reach[i, j] + floor:
-                        dx = xyz[a, b, 0] - mx
-                        dy = xyz[a, b, 1] - my
-                        dz = xyz[a, b, 2] - mz
-                        c00 += dx * dx
-                        c01 += dx * dy
-                        c02 += dx * dz
-                        c11 += dy * dy
-                        c12 += dy * dz
-                        c22 += dz * dz
-            lam, nx, ny, nz = _smallest_eigvec(c00 / n, c01 / n, c02 / n, c11 / n, c12 / n, c22 / n)
-            if not np.isfinite(nx):
-                continue
-            if nx * mx + ny * my + nz * mz > 0.0:  # face the camera at the origin
-                nx, ny, nz = -nx, -ny, -nz
-            cen[i, j, 0] = mx
-            cen[i, j, 1] = my
-            cen[i, j, 2] = mz
-            nrm[i, j, 0] = nx
-            nrm[i, j, 1] = ny
-            nrm[i, j, 2] = nz
-            rms[i, j] = math.sqrt(max(lam, 0.0))
-
-
-@numba.njit(cache=True)
-def _nearest_kernel(xyz, valid, surface, cen, nrm, r, radius, max_radius, out):  # type: ignore[no-untyped-def]  # numba kernel
-    H, W = valid.shape
-    for i in range(H):
-        for j in range(W):
-            out[i, j] = np.nan
-            if not valid[i, j]:
-                continue
-            px = xyz[i, j, 0]
-            py = xyz[i, j, 1]
-            pz = xyz[i, j, 2]
-            R = radius
-            best = np.inf
-            signed = np.inf
-            while True:
-                for a in range(max(i - R, 0), min(i + R + 1, H)):
-                    for b in range(max(j - R, 0), min(j + R + 1, W)):
-                        if abs(a - i) <= r and abs(b - j) <= r:
-                            continue
-                        if not surface[a, b]:
-                            continue
-                        d = (nrm[a, b, 0] * (px - cen[a, b, 0]) + nrm[a, b, 1] * (py - cen[a, b, 1])
-                             + nrm[a, b, 2] * (pz - cen[a, b, 2]))
-                        if abs(d) < best:
-                            best = abs(d)
-                            signed = d
-                if best < np.inf or R >= max_radius:
-                    break
-                R = min(2 * R, max_radius)
-            out[i, j] = signed
-
-
 # the fast path (issue 32): the same arithmetic in the same order as the kernels above and the numpy
 # of _reach and _surfaces, without their whole-frame temporaries; the nearest surface only where asked
 
@@ -272,7 +183,7 @@ def _reach_samples(xyz, valid):  # type: ignore[no-untyped-def]  # numba kernel
 
 @numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
 def _patch_kernel_fast(xyz, valid, r, min_px, per_px, tan, floor, cen, nrm, rms):  # type: ignore[no-untyped-def]  # numba kernel
-    """:func:`_patch_kernel` with the reach computed in place and the window's side points kept
+    """:func:`zcut.suspects._reference._patch_kernel` (the previous kernel) with the reach computed in place and the window's side points kept
     from the first pass for the second."""
     H, W = valid.shape
     side = (2 * r + 1) * (2 * r + 1)
@@ -382,7 +293,7 @@ def _surfaces_kernel(rms, cen, nrm, min_fit, gate_k, cos_max, any_angle, ok):  #
 
 @numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
 def _nearest_at(xyz, rows, cols, surface, cen, nrm, r, radius, max_radius, out):  # type: ignore[no-untyped-def]  # numba kernel
-    """:func:`_nearest_kernel` at the pixels (rows[k], cols[k]) only: out[k]."""
+    """:func:`zcut.suspects._reference._nearest_kernel` (the previous kernel) at the pixels (rows[k], cols[k]) only: out[k]."""
     H, W = surface.shape
     for k in range(rows.size):
         i = rows[k]

@@ -9,16 +9,19 @@ where a gap takes it): every function here is the previous code, verbatim but fo
 
 from __future__ import annotations
 
+import math
+
+import numba
 import numpy as np
 from scipy import ndimage
 
 from ..cloud import Intrinsics, check_mask, check_xyz
 from ..cuts import MAX_STAGE_LEVELS, find_clusters
-from ..edge_surface import EdgeSurfaceParams, _check_args, _nearest_kernel, _patch_kernel, _reach, _surfaces
+from ..edge_surface import EdgeSurfaceParams, _check_args, _reach, _smallest_eigvec, _surfaces
 from ..errors import InputShapeError, ParameterError, describe_array
 from ..params import SuspectParams, ZCutParams
 from ..types import XYZ, FloatImage, Mask
-from .detectors import ABOVE_RIM, DETECTORS, FLOATING, RESIDUAL_UP, label_medians, shifted
+from .detectors import _DC, _DR, ABOVE_RIM, DETECTORS, FLOATING, RESIDUAL_UP, label_medians, shifted
 from .floating import (
     FLOATING_CLEARANCE_SIGMAS,
     FLOATING_CLEARANCE_STEPS,
@@ -36,8 +39,130 @@ from .noise import (
     _robust_sigma,
     _second_differences,
 )
-from .residuals import FILL_MIN_NEIGHBOURS, _check_fill_args, _fill_kernel, surface_residuals
+from .residuals import FILL_MIN_NEIGHBOURS, _check_fill_args, surface_residuals
 from .union import SuspectResult
+
+
+# the previous kernels, used only here (the fast path's are in zcut/edge_surface.py, zcut/suspects/residuals.py)
+@numba.njit(cache=True)
+def _patch_kernel(xyz, valid, r, min_px, reach, floor, cen, nrm, rms):  # type: ignore[no-untyped-def]  # numba kernel
+    H, W = valid.shape
+    for i in range(H):
+        for j in range(W):
+            rms[i, j] = np.nan
+            if not valid[i, j]:
+                continue
+            zq = xyz[i, j, 2]
+            n = 0
+            sx = 0.0
+            sy = 0.0
+            sz = 0.0
+            for a in range(max(i - r, 0), min(i + r + 1, H)):
+                for b in range(max(j - r, 0), min(j + r + 1, W)):
+                    if valid[a, b] and abs(xyz[a, b, 2] - zq) <= max(abs(a - i), abs(b - j)) * reach[i, j] + floor:
+                        n += 1
+                        sx += xyz[a, b, 0]
+                        sy += xyz[a, b, 1]
+                        sz += xyz[a, b, 2]
+            if n < min_px:
+                continue
+            mx = sx / n
+            my = sy / n
+            mz = sz / n
+            c00 = 0.0
+            c01 = 0.0
+            c02 = 0.0
+            c11 = 0.0
+            c12 = 0.0
+            c22 = 0.0
+            for a in range(max(i - r, 0), min(i + r + 1, H)):
+                for b in range(max(j - r, 0), min(j + r + 1, W)):
+                    if valid[a, b] and abs(xyz[a, b, 2] - zq) <= max(abs(a - i), abs(b - j)) * reach[i, j] + floor:
+                        dx = xyz[a, b, 0] - mx
+                        dy = xyz[a, b, 1] - my
+                        dz = xyz[a, b, 2] - mz
+                        c00 += dx * dx
+                        c01 += dx * dy
+                        c02 += dx * dz
+                        c11 += dy * dy
+                        c12 += dy * dz
+                        c22 += dz * dz
+            lam, nx, ny, nz = _smallest_eigvec(c00 / n, c01 / n, c02 / n, c11 / n, c12 / n, c22 / n)
+            if not np.isfinite(nx):
+                continue
+            if nx * mx + ny * my + nz * mz > 0.0:  # face the camera at the origin
+                nx, ny, nz = -nx, -ny, -nz
+            cen[i, j, 0] = mx
+            cen[i, j, 1] = my
+            cen[i, j, 2] = mz
+            nrm[i, j, 0] = nx
+            nrm[i, j, 1] = ny
+            nrm[i, j, 2] = nz
+            rms[i, j] = math.sqrt(max(lam, 0.0))
+
+
+@numba.njit(cache=True)
+def _nearest_kernel(xyz, valid, surface, cen, nrm, r, radius, max_radius, out):  # type: ignore[no-untyped-def]  # numba kernel
+    H, W = valid.shape
+    for i in range(H):
+        for j in range(W):
+            out[i, j] = np.nan
+            if not valid[i, j]:
+                continue
+            px = xyz[i, j, 0]
+            py = xyz[i, j, 1]
+            pz = xyz[i, j, 2]
+            R = radius
+            best = np.inf
+            signed = np.inf
+            while True:
+                for a in range(max(i - R, 0), min(i + R + 1, H)):
+                    for b in range(max(j - R, 0), min(j + R + 1, W)):
+                        if abs(a - i) <= r and abs(b - j) <= r:
+                            continue
+                        if not surface[a, b]:
+                            continue
+                        d = (nrm[a, b, 0] * (px - cen[a, b, 0]) + nrm[a, b, 1] * (py - cen[a, b, 1])
+                             + nrm[a, b, 2] * (pz - cen[a, b, 2]))
+                        if abs(d) < best:
+                            best = abs(d)
+                            signed = d
+                if best < np.inf or R >= max_radius:
+                    break
+                R = min(2 * R, max_radius)
+            out[i, j] = signed
+
+
+@numba.njit(cache=True)
+def _fill_kernel(seed, judged, valid, iterations, min_nb):  # type: ignore[no-untyped-def]  # numba kernel
+    H, W = seed.shape
+    cur = seed.copy()
+    nxt = seed.copy()
+    for _ in range(iterations):
+        changed = False
+        for i in range(H):
+            for j in range(W):
+                nxt[i, j] = cur[i, j]
+                if cur[i, j] or not judged[i, j]:
+                    continue
+                nf = 0
+                nv = 0
+                for k in range(8):
+                    i1 = i + _DR[k]
+                    j1 = j + _DC[k]
+                    if i1 < 0 or i1 >= H or j1 < 0 or j1 >= W:
+                        continue
+                    if cur[i1, j1]:
+                        nf += 1
+                    elif valid[i1, j1]:
+                        nv += 1
+                if nf >= min_nb and nf > nv:
+                    nxt[i, j] = True
+                    changed = True
+        cur, nxt = nxt, cur
+        if not changed:
+            break
+    return cur
 
 
 def _signed_edge_distance_reference(xyz_mm: XYZ, valid: Mask, *, params: EdgeSurfaceParams | None = None

@@ -199,40 +199,8 @@ def surface_residuals_reference(height: FloatImage, judged: Mask, *, tau: Thresh
 
 
 @numba.njit(cache=True)
-def _fill_kernel(seed, judged, valid, iterations, min_nb):  # type: ignore[no-untyped-def]  # numba kernel
-    H, W = seed.shape
-    cur = seed.copy()
-    nxt = seed.copy()
-    for _ in range(iterations):
-        changed = False
-        for i in range(H):
-            for j in range(W):
-                nxt[i, j] = cur[i, j]
-                if cur[i, j] or not judged[i, j]:
-                    continue
-                nf = 0
-                nv = 0
-                for k in range(8):
-                    i1 = i + _DR[k]
-                    j1 = j + _DC[k]
-                    if i1 < 0 or i1 >= H or j1 < 0 or j1 >= W:
-                        continue
-                    if cur[i1, j1]:
-                        nf += 1
-                    elif valid[i1, j1]:
-                        nv += 1
-                if nf >= min_nb and nf > nv:
-                    nxt[i, j] = True
-                    changed = True
-        cur, nxt = nxt, cur
-        if not changed:
-            break
-    return cur
-
-
-@numba.njit(cache=True)
 def _fill_frontier_kernel(seed, judged, valid, iterations, min_nb):  # type: ignore[no-untyped-def]  # numba kernel
-    """:func:`_fill_kernel` judging only the pixels that can join: in a round, the neighbours of the
+    """:func:`zcut.suspects._reference._fill_kernel` (the previous kernel) judging only the pixels that can join: in a round, the neighbours of the
     pixels that joined in the previous one (of the seeds in the first); a pixel's counts change only
     when a neighbour joins."""
     H, W = seed.shape
