@@ -136,10 +136,40 @@ def configure_process() -> None:
     # own log lines (Rust's format, on stderr) would repeat it, many lines long
     os.environ.setdefault("RUST_LOG", "off")
     ensure_numba_cache()
+    open3d_without_plotly()
     # `--spawn` runs `rerun` from PATH: a venv that is not activated has it only beside its python
     here = os.path.dirname(sys.executable)
     if os.path.isfile(os.path.join(here, "rerun")) and here not in os.environ.get("PATH", "").split(os.pathsep):
         os.environ["PATH"] = here + os.pathsep + os.environ.get("PATH", "")
+
+
+#: the module of Open3D that imports Dash and Plotly (0.6-0.9 CPU-s) at ``import open3d``
+_PLOTLY_MODULE = "open3d.visualization.draw_plotly"
+
+
+def _plotly_unavailable(*args: object, **kwargs: object) -> None:
+    raise RuntimeError("open3d.visualization.draw_plotly is not loaded in a zcut command's process "
+                       "(replay.process.open3d_without_plotly): call it from a Python session of your own")
+
+
+def open3d_without_plotly() -> None:
+    """Let ``import open3d`` skip Dash and Plotly in a command's process (docs/performance.md, "Fixed costs").
+
+    Open3D's ``visualization`` package imports ``draw_plotly`` whatever is used, and that module
+    imports Dash and Plotly: 0.6-0.9 of the 1.4-1.7 CPU-s Open3D's import costs, paid by every
+    command and every worker process, for a viewer zcut never calls. Before Open3D is imported, a
+    stand-in takes that module's place: its three functions raise a ``RuntimeError`` saying why.
+    Nothing is done when Open3D is already imported (its real module stays), nor for a library user
+    (only the command line and the study workers call :func:`configure_process`).
+    """
+    if "open3d" in sys.modules or _PLOTLY_MODULE in sys.modules:
+        return
+    import types
+
+    stand_in = types.ModuleType(_PLOTLY_MODULE, "Stand-in for Open3D's Plotly viewer (not loaded by zcut's commands).")
+    for name in ("get_plotly_fig", "draw_plotly", "draw_plotly_server"):
+        setattr(stand_in, name, _plotly_unavailable)
+    sys.modules[_PLOTLY_MODULE] = stand_in
 
 
 #: the packages whose modules hold numba kernels cached on disk (``@njit(cache=True)``)

@@ -52,3 +52,35 @@ def test_replay_without_outputs_loads_neither_rerun_nor_pyarrow(tmp_path: Path) 
     assert made.returncode == 0, made.stderr
     loaded = _loaded(_main("replay", str(log)))
     assert not {"rerun", "pyarrow", "pandas", "sklearn", "matplotlib"} & set(loaded), loaded
+    # the replay registered the bin model with Open3D, without the Dash and Plotly its viewer imports
+    assert "open3d" in loaded and not {"dash", "plotly"} & set(loaded), loaded
+
+
+def test_open3d_without_plotly_in_a_commands_process() -> None:
+    """After the command line's process settings, Open3D loads without Dash and Plotly, its ICP
+    works, and its Plotly viewer says in one error why it is not there."""
+    code = ("from replay.process import configure_process\n"
+            "configure_process()\n"
+            "import numpy as np, open3d as o3d\n"
+            "pts = o3d.utility.Vector3dVector(np.random.default_rng(0).random((200, 3)))\n"
+            "a = o3d.geometry.PointCloud(pts)\n"
+            "b = o3d.geometry.PointCloud(pts).translate((0.01, 0, 0))\n"
+            "r = o3d.pipelines.registration.registration_icp(a, b, 0.05)\n"
+            "assert abs(r.transformation[0, 3] - 0.01) < 1e-6, r.transformation\n"
+            "try:\n    o3d.visualization.draw_plotly([a])\nexcept RuntimeError as e:\n"
+            "    assert 'not loaded in a zcut command' in str(e), e\n"
+            "else:\n    raise AssertionError('draw_plotly ran')\n")
+    loaded = _loaded(code)
+    assert "open3d" in loaded and not {"dash", "plotly"} & set(loaded), loaded
+
+
+def test_open3d_imported_first_keeps_its_plotly_viewer() -> None:
+    """A process that imported Open3D before the settings keeps Open3D's own module."""
+    code = ("import open3d\n"
+            "from replay.process import configure_process\n"
+            "configure_process()\n"
+            "from open3d.visualization import draw_plotly\n"
+            "assert draw_plotly.__module__ == 'open3d.visualization.draw_plotly'\n"
+            "import sys\n"
+            "assert hasattr(sys.modules['open3d.visualization.draw_plotly'], 'Dash'), 'the stand-in took its place'\n")
+    assert {"open3d", "dash"} <= set(_loaded(code))
