@@ -166,3 +166,15 @@ def test_bad_thresholds_and_the_flag_on_the_wrong_sensor(tmp_path, capsys):
     errors = [line for line in err.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "--camera-filters" in errors[0] and "Traceback" not in err
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_the_flag_reaches_the_log(tmp_path, capsys):
+    """``zcut synth --sensor raytraced --camera-filters`` writes a log that says so (rods: a small pile)."""
+    log = tmp_path / "rods.mcap"
+    rc, _out, err = run_cli(capsys, "synth", "--sensor", "raytraced", "--camera-filters", "--parts", "rods",
+                            "--size", "40x24", "--seed", "2", "-o", str(log))
+    assert rc == 0, err
+    assert "camera filters" in err
+    meta = LogReader(log).metadata[layout.SYNTH_METADATA]
+    assert meta["camera_filters"] == CameraFilters().describe()
+    assert (meta["camera_filter_noise_snr"], meta["camera_filter_outlier_mm"]) == ("7", "5")
