@@ -103,6 +103,33 @@ def _components(mask: np.ndarray) -> np.ndarray:
     return np.bincount(lab.ravel(), minlength=n + 1)[1:]
 
 
+def floating_pixels(truth: np.ndarray, z_mm: np.ndarray, height_mm: np.ndarray, *, floor_mm: float,
+                    gap_mm: float = 0.2) -> tuple[int, int]:
+    """Pixels of ``truth`` in 8-connected components lying at least ``gap_mm`` nearer the camera than
+    every valid pixel bordering them (the outliers a z-cut of step ``gap_mm`` can separate; a patch
+    next to a higher surface, or behind its own, joins that surface's cluster at every level), as
+    (those reaching above ``floor_mm`` of height, the z-cut's lowest level z_max - d_max; those
+    lying wholly below it, out of its reach)."""
+    lab, _ = ndimage.label(truth, structure=EIGHT)
+    valid = np.isfinite(z_mm)
+    within = below = 0
+    for i, sl in enumerate(ndimage.find_objects(lab), start=1):
+        if sl is None:
+            continue
+        r0, r1 = max(sl[0].start - 1, 0), sl[0].stop + 1
+        c0, c1 = max(sl[1].start - 1, 0), sl[1].stop + 1
+        comp = lab[r0:r1, c0:c1] == i
+        ring = ndimage.binary_dilation(comp, structure=EIGHT) & ~comp & valid[r0:r1, c0:c1]
+        zb = z_mm[r0:r1, c0:c1]
+        if ring.any() and zb[comp].max() > zb[ring].min() - gap_mm:
+            continue
+        if np.nanmax(height_mm[r0:r1, c0:c1][comp]) >= floor_mm:
+            within += int(comp.sum())
+        else:
+            below += int(comp.sum())
+    return within, below
+
+
 def judge_log(path: Path) -> dict:
     """Pool the statistics of the module docstring over the frames of one log."""
     from replay.pipeline.bin_model import bin_model_for
@@ -133,6 +160,11 @@ def judge_log(path: Path) -> dict:
             t = frame.masks[key] & zone
             acc[tname] += int(t.sum())
             acc.setdefault(f"{tname}_sizes", []).extend(_components(t).tolist())
+            z_mm = frame.xyz[..., 2].astype(np.float64) * 1000.0
+            top = float(np.nanmax(np.where(zone, r.height_mm, np.nan))) if zone.any() else 0.0
+            within, below = floating_pixels(t, z_mm, r.height_mm, floor_mm=top - session.config.zcut.max_depth)
+            acc[f"{tname}_floating"] = acc.get(f"{tname}_floating", 0) + within + below
+            acc[f"{tname}_floating_below"] = acc.get(f"{tname}_floating_below", 0) + below
             lab, n = ndimage.label(found["zcut"], structure=EIGHT)
             hit = np.unique(lab[t & found["zcut"]])
             acc[f"zcut_false_comps_{tname}"] = acc.get(f"zcut_false_comps_{tname}", 0) + n - int((hit > 0).sum())
@@ -151,6 +183,8 @@ def summarize(acc: dict) -> dict:
                  "n2": acc["n2"]}
     for t in ("paper", "sensor"):
         out[f"zcut_false_comps_{t}_per_frame"] = ratio(acc.get(f"zcut_false_comps_{t}", 0), acc["frames"])
+        out[f"{t}_floating%"] = 100 * ratio(acc.get(f"{t}_floating", 0), acc[t])
+        out[f"{t}_floating_below%"] = 100 * ratio(acc.get(f"{t}_floating_below", 0), acc[t])
         sizes = np.asarray(acc.get(f"{t}_sizes", []), np.int64)
         out[f"{t}_clustered%"] = 100 * ratio(int(sizes[sizes >= 2].sum()), int(sizes.sum()))
     for m in METHODS:
@@ -178,7 +212,7 @@ def fmt(v: float, nd: int = 2) -> str:
 
 def tables(rows: dict[tuple[str, str], dict], variants: list[str], kinds: list[str]) -> str:
     lines = ["### Figs. 14, 15, 12b/21: per kind and variant (zone, above-the-rim points left out)", "",
-             "| kind | variant | NaN % | paper truth % of zone / clustered % | z-cut flagged / clustered % / median comp | "
+             "| kind | variant | NaN % | paper truth % of zone / clustered % / floating % (below d_max %) | z-cut flagged / clustered % / median comp | "
              "SOR flagged / clustered % / median comp | α | β_SOR | β_zcut | SOR P (paper) | SOR false px/frame | "
              "z-cut P / R (paper) |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -188,7 +222,7 @@ def tables(rows: dict[tuple[str, str], dict], variants: list[str], kinds: list[s
             if r is None:
                 continue
             lines.append(
-                f"| {k} | {v} | {fmt(r['nan%'], 1)} | {fmt(r['paper_rate%'], 2)} / {fmt(r['paper_clustered%'], 0)} | "
+                f"| {k} | {v} | {fmt(r['nan%'], 1)} | {fmt(r['paper_rate%'], 2)} / {fmt(r['paper_clustered%'], 0)} / {fmt(r['paper_floating%'], 0)} ({fmt(r['paper_floating_below%'], 0)}) | "
                 f"{r['zcut_flagged']} / {fmt(r['zcut_clustered%'], 0)} / {fmt(r['zcut_median_size'], 0)} | "
                 f"{r['sor_flagged']} / {fmt(r['sor_clustered%'], 0)} / {fmt(r['sor_median_size'], 0)} | "
                 f"{fmt(r['alpha'])} | {fmt(r['beta_sor'])} | {fmt(r['beta_zcut'])} | {fmt(r['sor_paper_P'])} | "
