@@ -156,6 +156,17 @@ def judge_log(path: Path) -> dict:
         for m in METHODS:
             acc["sizes"][m].extend(_components(found[m]).tolist())
             acc["flagged"][m] += int(found[m].sum())
+        # the z-cut's window: the zone within d_max of its highest point z_max; where z_max lies
+        # above the pile's own top (the 99.9th percentile of the pixels no truth calls outliers)
+        if zone.any():
+            h = np.where(zone, r.height_mm, np.nan)
+            top = float(np.nanmax(h))
+            window = zone & (r.height_mm >= top - session.config.zcut.max_depth)
+            clean = zone & ~frame.masks[layout.TRUTH_OFF_SURFACE] & ~frame.masks[layout.TRUTH_OUTLIERS]
+            if clean.any():
+                acc.setdefault("top_above_pile", []).append(top - float(np.nanpercentile(r.height_mm[clean], 99.9)))
+            acc["window"] = acc.get("window", 0) + int(window.sum())
+            acc["window_truth"] = acc.get("window_truth", 0) + int((window & frame.masks[layout.TRUTH_OFF_SURFACE]).sum())
         for tname, key in (("paper", layout.TRUTH_OFF_SURFACE), ("sensor", layout.TRUTH_OUTLIERS)):
             t = frame.masks[key] & zone
             acc[tname] += int(t.sum())
@@ -180,7 +191,10 @@ def summarize(acc: dict) -> dict:
                  "sensor_rate%": 100 * ratio(acc["sensor"], acc["zone"]),
                  "alpha": ratio(acc["n1"], acc["n2"]), "beta_sor": ratio(acc["n_both"], acc["n1"]),
                  "beta_zcut": ratio(acc["n_both"], acc["n2"]), "n_both": acc["n_both"], "n1": acc["n1"],
-                 "n2": acc["n2"]}
+                 "n2": acc["n2"],
+                 "top_above_pile_mm": float(np.mean(acc["top_above_pile"])) if acc.get("top_above_pile") else float("nan"),
+                 "window_px_per_frame": ratio(acc.get("window", 0), acc["frames"]),
+                 "window_truth%": 100 * ratio(acc.get("window_truth", 0), acc.get("window", 0))}
     for t in ("paper", "sensor"):
         out[f"zcut_false_comps_{t}_per_frame"] = ratio(acc.get(f"zcut_false_comps_{t}", 0), acc["frames"])
         out[f"{t}_floating%"] = 100 * ratio(acc.get(f"{t}_floating", 0), acc[t])
@@ -212,17 +226,18 @@ def fmt(v: float, nd: int = 2) -> str:
 
 def tables(rows: dict[tuple[str, str], dict], variants: list[str], kinds: list[str]) -> str:
     lines = ["### Figs. 14, 15, 12b/21: per kind and variant (zone, above-the-rim points left out)", "",
-             "| kind | variant | NaN % | paper truth % of zone / clustered % / floating % (below d_max %) | z-cut flagged / clustered % / median comp | "
+             "| kind | variant | NaN % | z_max above the pile's top (mm) / window px per frame / truth % of it | paper truth % of zone / clustered % / floating % (below d_max %) | z-cut flagged / clustered % / median comp | "
              "SOR flagged / clustered % / median comp | α | β_SOR | β_zcut | SOR P (paper) | SOR false px/frame | "
              "z-cut P / R (paper) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for k in kinds:
         for v in variants:
             r = rows.get((k, v))
             if r is None:
                 continue
             lines.append(
-                f"| {k} | {v} | {fmt(r['nan%'], 1)} | {fmt(r['paper_rate%'], 2)} / {fmt(r['paper_clustered%'], 0)} / {fmt(r['paper_floating%'], 0)} ({fmt(r['paper_floating_below%'], 0)}) | "
+                f"| {k} | {v} | {fmt(r['nan%'], 1)} | {fmt(r['top_above_pile_mm'], 0)} / "
+                f"{fmt(r['window_px_per_frame'], 0)} / {fmt(r['window_truth%'], 0)} | {fmt(r['paper_rate%'], 2)} / {fmt(r['paper_clustered%'], 0)} / {fmt(r['paper_floating%'], 0)} ({fmt(r['paper_floating_below%'], 0)}) | "
                 f"{r['zcut_flagged']} / {fmt(r['zcut_clustered%'], 0)} / {fmt(r['zcut_median_size'], 0)} | "
                 f"{r['sor_flagged']} / {fmt(r['sor_clustered%'], 0)} / {fmt(r['sor_median_size'], 0)} | "
                 f"{fmt(r['alpha'])} | {fmt(r['beta_sor'])} | {fmt(r['beta_zcut'])} | {fmt(r['sor_paper_P'])} | "
