@@ -130,13 +130,14 @@ def floating_pixels(truth: np.ndarray, z_mm: np.ndarray, height_mm: np.ndarray, 
     return within, below
 
 
-def judge_log(path: Path) -> dict:
-    """Pool the statistics of the module docstring over the frames of one log."""
+def judge_log(path: Path, *, max_depth: float | None = None) -> dict:
+    """Pool the statistics of the module docstring over the frames of one log (``max_depth``: the
+    z-cut's d_max in mm instead of the nominal 30)."""
     from replay.pipeline.bin_model import bin_model_for
     from replay.pipeline.config import cli_layer
     from replay.pipeline.session import ReplaySession
 
-    session = ReplaySession.open(path, overrides=cli_layer(methods=",".join(METHODS)),
+    session = ReplaySession.open(path, overrides=cli_layer(methods=",".join(METHODS), max_depth=max_depth),
                                  choose_bin_model=lambda reader: bin_model_for(reader, None))
     acc: dict = {"frames": 0, "zone": 0, "valid": 0, "pixels": 0, "paper": 0, "sensor": 0,
                  "n_both": 0, "n1": 0, "n2": 0, "sizes": {m: [] for m in METHODS},
@@ -360,6 +361,8 @@ def main() -> int:
     ap.add_argument("--variants", default=",".join(VARIANTS))
     ap.add_argument("--work", default="/tmp/zcut_rt_paper")
     ap.add_argument("--json", default=None, help="also write the rows as JSON")
+    ap.add_argument("--max-depth", type=float, default=None,
+                    help="the z-cut's d_max in mm (default: the nominal 30; the window then reaches down from z_max)")
     args = ap.parse_args()
     w, h = (int(x) for x in args.size.lower().split("x"))
     kinds = args.kinds.split(",")
@@ -375,11 +378,12 @@ def main() -> int:
             log = work / f"{v}_{k}_{args.seed}_{w}x{h}_{args.frames}.mcap"
             t_make += make_log(log, k, v, seed=args.seed, frames=args.frames, size=(h, w))
             t0 = time.process_time()
-            rows[(k, v)] = summarize(judge_log(log))
+            rows[(k, v)] = summarize(judge_log(log, max_depth=args.max_depth))
             t_judge += time.process_time() - t0
             print(f"{v} {k}: done", file=sys.stderr, flush=True)
         print(f"variant {v}: CPU {t_make:.1f} s tracing (0 when reused), {t_judge:.1f} s judging", file=sys.stderr)
-    print(f"size {w}x{h}, seed {args.seed}, {args.frames} frame(s) per kind and variant\n")
+    print(f"size {w}x{h}, seed {args.seed}, {args.frames} frame(s) per kind and variant"
+          + (f", z-cut d_max {args.max_depth:g} mm" if args.max_depth is not None else "") + "\n")
     print(tables(rows, variants, kinds))
     print()
     print(survival(rows, variants, kinds))
