@@ -3,7 +3,7 @@ paper reports, per kind, with and without the camera's own filters, and their se
 
     .venv/bin/python bench/raytrace_paper.py [--kinds spheres,zinc_nuts,black_nuts] [--size 480x300] \\
         [--frames 2] [--seed 73201] [--variants base,filters,spec_half,bounces2,strict] \\
-        [--work /tmp/zcut_rt_paper] [--json OUT.json]
+        [--max-depth MM] [--work /tmp/zcut_rt_paper] [--json OUT.json]
 
 Per variant of the sensor and part kind it ray-traces ``--frames`` frames of seed ``--seed`` (a
 seed no test or other bench uses; nothing here is tuned, every figure is a check), runs the full
@@ -20,6 +20,11 @@ left out):
 - **Figs. 12b, 21** (matte clouds are clean; SOR's extra finds there are mostly false): the paper's
   truth (``/ground_truth/off_surface``) as a share of the zone, SOR's precision and false pixels per
   frame.
+- **Where the z-cut looks**: how far the zone's highest point z_max (from which the z-cut's window
+  of d_max reaches down; SOR runs on the same top part) lies above the pile's own top (the 99.9th
+  percentile of the pixels neither truth calls outliers), the window's pixels and their truth
+  share; the share of the true outliers that float (components at least Δd nearer the camera than
+  every valid pixel around them) and of those, the share wholly below the window.
 - **The ranking** (docs/filters.md, ray-traced truth): F1 of ``zcut``, ``sor``, ``radius``,
   ``cluster`` and the ``zone`` baseline (flag every judged pixel) under the paper's truth and the
   sensor's (``/ground_truth/outliers``).
@@ -28,8 +33,9 @@ Variants: ``base`` (the sensor as it is), ``filters`` (``--camera-filters``: noi
 reflection, outlier 5 mm), ``spec_half`` (every part's specular share halved: the materials are
 substituted in this process only, not a sensor option), ``bounces2`` (two camera-side bounces),
 ``strict`` (a stricter decoder: fringe contrast >= 0.5 instead of 0.35, signal >= 0.008 instead of
-0.004). CPU seconds (``time.process_time``) per variant are printed. Logs are kept under ``--work``
-and reused.
+0.004). ``--max-depth``: the z-cut's d_max instead of the nominal 30 mm (a pipeline setting, not a
+sensor variant). CPU seconds (``time.process_time``) per variant are printed; logs are kept under
+``--work`` and reused. Then a table of which observations and conclusions hold, per kind and variant.
 """
 
 from __future__ import annotations
