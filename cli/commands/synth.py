@@ -68,6 +68,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sensor", choices=("handmade", "raytraced"), default="handmade",
                    help="handmade (default, fast): outliers placed by hand; raytraced: a structured-light "
                         "sensor simulated by ray tracing over a physics-dropped pile (docs/raytraced.md)")
+    p.add_argument("--camera-filters", action="store_true",
+                   help="raytraced sensor: apply the camera's own noise (SNR < 7), reflection and outlier (no "
+                        "neighbour within 5 mm) filters to the cloud before it is written, as a real camera "
+                        "delivers it; recorded in the log's metadata (docs/raytraced.md); default off")
     shape = p.add_argument_group("a bin that is not the nominal (CAD) bin (the hand-made sensor)")
     shape.add_argument("--bin-scale", type=float, default=1.0, metavar="S",
                        help="scale the whole bin by S (e.g. 1.002: 0.8 mm longer); default 1")
@@ -123,6 +127,8 @@ def run(args: argparse.Namespace) -> int:
                 raise ParameterError("--bin-scale, --bin-bulge-mm, --bin-deform-mm and --bin-cad belong to the "
                                      "hand-made sensor's bin")
             return _run_raytraced(args, what, progress)
+        if args.camera_filters:
+            raise ParameterError("--camera-filters belongs to the ray-traced sensor (--sensor raytraced)")
         if args.bin_cad is not None:
             plan.add(args.bin_cad, "the CAD bin")
         with AtomicOutput(args.output) as out:
@@ -142,6 +148,7 @@ def _run_raytraced(args: argparse.Namespace, what: str, progress: ProgressFn) ->
     """``--sensor raytraced``: the same log layout from the ray-traced sensor."""
     from replay.outputs import AtomicOutput
     from replay.synth.raytrace import write_raytraced_log
+    from replay.synth.raytrace.camera_filters import CameraFilters
     from zcut.errors import ParameterError
 
     if args.shiny is not None or args.quantize_mm != 0.0:
@@ -160,6 +167,7 @@ def _run_raytraced(args: argparse.Namespace, what: str, progress: ProgressFn) ->
     with AtomicOutput(args.output) as out:
         write_raytraced_log(out.temp, kind=args.parts, frames=args.frames, seed=args.seed, size=args.size,
                             empty=args.empty, progress=rt_progress, bag_name=Path(args.output).name,
-                            pile=args.pile)
-    print(f"zcut: wrote {args.output} ({args.frames} frame(s), seed {args.seed}, ray-traced)", file=sys.stderr)
+                            pile=args.pile, camera_filters=CameraFilters() if args.camera_filters else None)
+    print(f"zcut: wrote {args.output} ({args.frames} frame(s), seed {args.seed}, ray-traced"
+          + (", camera filters" if args.camera_filters else "") + ")", file=sys.stderr)
     return 0

@@ -20,6 +20,7 @@ from replay.logs import layout
 from replay.logs.writer import LogWriter
 from replay.presets import PART_KINDS
 from replay.synth.log import part_model_attachment, pose_metadata, synth_metadata
+from replay.synth.raytrace.camera_filters import CameraFilters
 from replay.synth.raytrace.optics import SensorModel
 from replay.synth.raytrace.pile import WALL_TILT_DEG, WALL_TILT_S
 from replay.synth.raytrace.synthesize import FILL_RANGE_MM, MAX_PARTS, RaytracedFrame, synthesize_raytraced_frame
@@ -35,8 +36,14 @@ _HANDMADE_ONLY = ("ghost_clusters_per_frame", "ghost_rho_range", "above_rim_grou
 
 
 def raytraced_metadata(*, kind: str, seed: int, frames: int, size: tuple[int, int], empty: bool,
-                       model: SensorModel, pile: str = "floor") -> dict[str, str]:
-    """The ``zcut.synth`` record of a ray-traced log (all values strings)."""
+                       model: SensorModel, pile: str = "floor",
+                       camera_filters: CameraFilters | None = None) -> dict[str, str]:
+    """The ``zcut.synth`` record of a ray-traced log (all values strings).
+
+    With the camera's own filters on, ``camera_filters`` says which ran and their thresholds, and
+    ``camera_filter_*`` holds each threshold (``off`` for a filter that did not run); without them
+    the record has none of these keys (the log is the bytes it was before the option).
+    """
     shiny = False if empty else PART_KINDS[kind].shiny
     meta = synth_metadata(kind=kind, seed=seed, frames=frames, size=size, shiny=shiny, empty=empty, pile=pile)
     for key in _HANDMADE_ONLY:
@@ -59,6 +66,11 @@ def raytraced_metadata(*, kind: str, seed: int, frames: int, size: tuple[int, in
     })
     if pile == "walls":
         meta["pile_tilt_deg"] = f"{WALL_TILT_DEG:g}"
+    if camera_filters is not None and camera_filters.enabled:
+        meta["camera_filters"] = camera_filters.describe()
+        for name in ("noise_snr", "reflection_sigmas", "outlier_mm"):
+            v = getattr(camera_filters, name)
+            meta[f"camera_filter_{name}"] = "off" if v is None else f"{v:g}"
     return meta
 
 
@@ -75,6 +87,7 @@ def write_raytraced_log(
     progress: ProgressFn | None = None,
     bag_name: str | None = None,
     pile: str = "floor",
+    camera_filters: CameraFilters | None = None,
 ) -> Path:
     """Ray-trace ``frames`` scans and write them as a ROS 2 MCAP log (see ``replay.synth.write_synthetic_log``).
 
@@ -82,6 +95,8 @@ def write_raytraced_log(
     the file name the ``rosbag2`` record names (default: the name of ``path``; ``zcut synth``
     passes the final name of the file it writes through a temporary one). ``pile``: ``walls`` leans
     the parts on one wall or a corner (:func:`.synthesize.synthesize_raytraced_frame`).
+    ``camera_filters``: the camera's own filters (:mod:`.camera_filters`), recorded in the metadata;
+    None (default): none, and the log is byte for byte what it was before the option.
     """
     if not empty and kind not in PART_KINDS:
         raise ParameterError(f"kind must be one of {', '.join(PART_KINDS)}, got {kind!r}")
@@ -89,7 +104,8 @@ def write_raytraced_log(
         raise ParameterError(f"frames must be a positive integer, got {frames!r}")
     check_pile_for(pile, empty=empty)
     model = SensorModel() if model is None else model
-    meta = raytraced_metadata(kind=kind, seed=seed, frames=int(frames), size=size, empty=empty, model=model, pile=pile)
+    meta = raytraced_metadata(kind=kind, seed=seed, frames=int(frames), size=size, empty=empty, model=model, pile=pile,
+                              camera_filters=camera_filters)
     poses = pose_metadata(seed=seed, frames=int(frames), empty=empty)
     path = Path(path)
     from replay.synth.bin_surface import bin_model_ply
@@ -103,7 +119,7 @@ def write_raytraced_log(
         for i in range(int(frames)):
             t0 = time.perf_counter()
             rf = synthesize_raytraced_frame(kind=kind, seed=seed, index=i, size=size, empty=empty,
-                                            fill_mm=fill_mm, model=model, pile=pile)
+                                            fill_mm=fill_mm, model=model, pile=pile, camera_filters=camera_filters)
             f = rf.frame
             writer.write_frame(f)
             for topic, codes in f.codes.items():

@@ -32,6 +32,7 @@ from replay.logs.frame import Frame
 from replay.presets import BIN, PART_KINDS
 from replay.synth.parts import face_area_px
 from replay.synth.raytrace import optics
+from replay.synth.raytrace.camera_filters import CameraFilters, apply_camera_filters
 from replay.synth.raytrace.pile import Pile, drop_parts, part_count
 from replay.synth.raytrace.scene import build_scene
 from replay.synth.scene import LABEL_FLOOR, LABEL_RIM, LABEL_WALL, lean_walls
@@ -102,7 +103,12 @@ class RaytracedFrame:
     err_mm : (H, W) float32 ndarray
         That Err (NaN where not measured).
     cpu_s : dict[str, float]
-        CPU seconds of each step (``pile``, ``scene``, ``trace``, ``measure``, ``off_surface``).
+        CPU seconds of each step (``pile``, ``scene``, ``trace``, ``measure``, ``off_surface``, and
+        ``camera_filters`` when they ran).
+    camera_removed : (H, W) uint8 ndarray or None
+        Where the camera's own filters discarded a measured point, which filter
+        (:mod:`.camera_filters` codes: 1 noise, 2 reflection, 3 outlier; 0 kept); None when they did
+        not run.
     """
 
     frame: Frame
@@ -119,6 +125,7 @@ class RaytracedFrame:
     off_surface: np.ndarray
     err_mm: np.ndarray
     cpu_s: dict[str, float] = field(default_factory=dict)
+    camera_removed: np.ndarray | None = None
 
 
 def raytrace_rng(seed: int, index: int, *, empty: bool) -> np.random.Generator:
@@ -153,12 +160,15 @@ def synthesize_raytraced_frame(
     fill_mm: float | None = None,
     model: optics.SensorModel | None = None,
     pile: str = "floor",
+    camera_filters: CameraFilters | None = None,
 ) -> RaytracedFrame:
     """Ray-trace frame ``index`` of a log with ``seed``: a bin of ``kind`` parts (or the empty bin).
 
     ``pile="walls"``: the parts lean on the walls of :func:`replay.synth.scene.lean_walls` ``(seed,
     index)`` (the hand-made generator's for the same seed and frame), see
-    :func:`~replay.synth.raytrace.pile.drop_parts`.
+    :func:`~replay.synth.raytrace.pile.drop_parts`. ``camera_filters``: the camera's own filters
+    (:mod:`.camera_filters`) on the decoded depth before the cloud is made; None (default) or all
+    off: none, and the frame is what it was without the option, bit for bit.
 
     Raises
     ------
@@ -204,6 +214,12 @@ def synthesize_raytraced_frame(
     # decode, triangulate, judge
     t0 = time.process_time()
     z_meas, z_clean, sigma_z, staged, saturated = optics.measure(rec, K, model, rng)
+    removed = None
+    if camera_filters is not None and camera_filters.enabled:
+        t1 = time.process_time()
+        filtered = apply_camera_filters(z_meas, rec, pixel_rays(K), model, camera_filters)
+        z_meas, removed = filtered.z_mm, filtered.removed
+        cpu["camera_filters"] = time.process_time() - t1
     centre = rec.centre
     z_true = np.where(centre.hit, centre.point[:, 2], np.nan).reshape(h, w)
     valid = np.isfinite(z_meas)
@@ -250,5 +266,5 @@ def synthesize_raytraced_frame(
     depth_true_m = (z_true / 1000.0).astype(np.float32)
     return RaytracedFrame(
         frame, truth, kind_img, depth_true_m, z_clean - z_true, sigma_z, label, saturated & ~valid, heap, a_max,
-        T_cam_bin(pose), off, np.where(np.isfinite(xyz_mm[..., 2]), err, np.nan).astype(np.float32), cpu,
+        T_cam_bin(pose), off, np.where(np.isfinite(xyz_mm[..., 2]), err, np.nan).astype(np.float32), cpu, removed,
     )
