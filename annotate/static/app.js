@@ -75,7 +75,7 @@ function rgba(r, g, b, a) { return ((a << 24) | (b << 16) | (g << 8) | r) >>> 0;
 const COL_G = rgba(0, 230, 230, 150), COL_GR = rgba(0, 120, 90, 110);  // review groups: undecided, reviewed
 const COL = {  // candidate colours by source and state (markers, list, profile, 3D)
   g: '#00e6e6', z: '#ffaa00', s: '#2896ff', L: '#ff4da6', accepted: '#ff1e3c', rejected: '#5fd38d', sel: '#ffffff',
-  u: '#ffeb00', f: '#ffffff',
+  u: '#ffeb00', f: '#aaff00',
 };
 const RGB = { accepted: [255, 30, 60], rejected: [95, 211, 141], g: [0, 230, 230], z: [255, 170, 0], s: [40, 150, 255],
               L: [255, 77, 166], u: [255, 235, 0] };
@@ -873,7 +873,7 @@ function drawFitLabels(fd) {  // each fit's Err (mm) at its centre, where it is 
     if (c.x < -40 || c.y < -20 || c.x > vw + 40 || c.y > vh + 20) continue;
     const t = e.rejected ? `✗ ${e.err.toFixed(2)}` : e.err.toFixed(2);
     ctx.lineWidth = 3; ctx.strokeStyle = 'rgba(0,0,0,0.8)'; ctx.strokeText(t, c.x, c.y + 4);
-    ctx.fillStyle = e.rejected ? '#ff40ff' : '#ffffff'; ctx.fillText(t, c.x, c.y + 4);
+    ctx.fillStyle = e.rejected ? '#ff40ff' : '#d8ff80'; ctx.fillText(t, c.x, c.y + 4);
   }
   ctx.textAlign = 'start';
 }
@@ -1031,7 +1031,7 @@ function showFrameWarning(fd) {
 // the unexplained pixels (farther than k × Err from every known surface) are the proposals ('u' entries),
 // each with its distance to the nearest known surface. K rejects the selected fit (or the one under the
 // pointer): its pixels return to review as proposals of their own; K again takes the rejection back.
-const COL_FIT = rgba(255, 255, 255, 190), COL_FITX = rgba(255, 0, 255, 230), COL_U = rgba(255, 235, 0, 170);
+const COL_FIT = rgba(170, 255, 0, 230), COL_FITX = rgba(255, 0, 255, 230), COL_U = rgba(255, 235, 0, 170);
 function parseFitsBundle(buf) {  // an uncompressed bundle of annotate/payload.py: sparse ids and tables
   const dv = new DataView(buf), n = dv.getUint32(0, true);
   const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
@@ -1127,7 +1127,7 @@ async function rejectFit() {  // K: reject the selected fit (or the one under th
   if (!r.ok) { showError(`fit ${e.fit}: HTTP ${r.status}`); return; }
   const was = e.rejected;
   applyFits(fd, parseFitsBundle(await r.arrayBuffer()));
-  setSaveState(was ? `fit #${e.id} taken back` : `fit #${e.id} rejected: its pixels are proposals to decide`, 'saved');
+  setSaveState(was ? `fit #${e.id} taken back` : `fit #${e.id} rejected`, 'saved');
   const k = fd.entries.findIndex((x) => x.src === 'u' && x.fromFit === e.fit);
   if (!was && k >= 0) select(k, { zoom: true });
   else { const j = fd.entries.findIndex((x) => x.src === 'f' && x.fit === e.fit); if (j >= 0) select(j, { zoom: false }); }
