@@ -42,6 +42,8 @@ if TYPE_CHECKING:
     from replay.logs.frame import Frame
     from replay.pipeline.stages import FrameResult
     from zcut.bin_model import BinModel
+    from zcut.registration import RegistrationResult
+    from zcut.removal import RemovalResult
 
 #: Columns of the fit table (float32): ``fit`` its 0-based index; ``n`` the zone pixels it explains;
 #: ``x0, y0, x1, y1`` their box (end exclusive), ``cx, cy`` their centroid; ``err_mm`` its residual
@@ -190,25 +192,41 @@ class FrameFits:
                            compress=False)
 
 
-def fit_frame(frame: Frame, result: FrameResult, config: Any, bin_model: BinModel | None) -> FrameFits:
+@dataclass(frozen=True, slots=True)
+class Job:
+    """What a frame waiting to be fitted keeps of its pipeline result: the zone and the bin stages'
+    masks and pose (not the points, the height image or the filters' outputs)."""
+
+    valid: np.ndarray
+    zone: np.ndarray
+    removal: RemovalResult | None
+    registration: RegistrationResult | None
+
+    @classmethod
+    def of(cls, result: FrameResult) -> Job:
+        rem = result.removal
+        if rem is not None:  # its cloud and height image are the frame's: not kept twice
+            rem = dataclasses.replace(rem, xyz=np.zeros((0, 0, 3), np.float32), height_mm=np.zeros((0, 0)))
+        return cls(np.asarray(result.valid, bool), np.asarray(result.zone, bool), rem, result.registration)
+
+
+def fit_frame(frame: Frame, job: Job, config: Any, bin_model: BinModel | None) -> FrameFits:
     """Run ``explained`` on one prepared frame (its pipeline result's zone) and keep what the page needs."""
     from replay.pipeline.explained import run_explained
     from replay.pipeline.zone import BinLocation, Zone
 
-    H, W = np.shape(result.valid)
+    H, W = np.shape(job.valid)
     t = time.process_time()
-    if result.removal is None or result.registration is None or bin_model is None:
+    if job.removal is None or job.registration is None or bin_model is None:
         return FrameFits(frame.index, "error", "no fits: the bin stages did not run on this frame (the bin and "
                          "the table would be no known surfaces)", (H, W))
-    located = BinLocation(np.asarray(result.valid, bool), result.bin_mask, result.registration, {}, 0.0, (),
-                          bin_model=bin_model)
-    zone = Zone(located, result.removal, np.asarray(result.zone, bool), np.asarray(result.height_mm),
-                np.asarray(result.removal.easy_outliers, bool), {}, ())
+    located = BinLocation(job.valid, None, job.registration, {}, 0.0, (), bin_model=bin_model)
+    zone = Zone(located, job.removal, job.zone, np.zeros((0, 0)), np.asarray(job.removal.easy_outliers, bool), {}, ())
     out, detail, warning = run_explained(frame, zone, config)
     seconds = time.process_time() - t
     if detail is None:
         return FrameFits(frame.index, "error", warning or "no fits", (H, W), seconds=seconds)
-    judged = np.asarray(result.zone, bool) & ~np.asarray(out, bool) & np.isfinite(detail.dist_mm)
+    judged = job.zone & ~np.asarray(out, bool) & np.isfinite(detail.dist_mm)
     code = np.where(judged, detail.surface, -1).ravel()
     fit_pix = np.flatnonzero(code >= 0)
     un_pix = np.flatnonzero(np.asarray(out, bool).ravel())
@@ -237,7 +255,7 @@ class Fitter:
         self.model_points = model_points
         self.k = k
         self.results: dict[int, FrameFits] = {}
-        self._pending: dict[int, tuple[Frame, FrameResult]] = {}
+        self._pending: dict[int, tuple[Frame, Job]] = {}
         self._running: int | None = None
         self._wanted: int | None = None
         self._cond = threading.Condition()
@@ -258,9 +276,9 @@ class Fitter:
     def submit(self, frame: Frame, result: FrameResult) -> None:
         """Queue a prepared frame (its points are read from ``points`` when its turn comes)."""
         light = dataclasses.replace(frame, xyz=np.zeros((0, 0, 3), np.float32), rgb=None, masks={}, codes={})
-        lean = dataclasses.replace(result, outliers={}, details={})
+        job = Job.of(result)
         with self._cond:
-            self._pending[frame.index] = (light, lean)
+            self._pending[frame.index] = (light, job)
             self._cond.notify_all()
 
     def want(self, index: int) -> None:
@@ -278,7 +296,7 @@ class Fitter:
                 return got.status, got
             return ("fitting" if index == self._running else "waiting"), None
 
-    def _next(self) -> tuple[int, tuple[Frame, FrameResult]] | None:
+    def _next(self) -> tuple[int, tuple[Frame, Job]] | None:
         with self._cond:
             while not self._stop.is_set():
                 if self._pending:
@@ -296,12 +314,13 @@ class Fitter:
             job = self._next()
             if job is None:
                 return
-            i, (light, result) = job
+            i, (light, work) = job
             try:
                 frame = dataclasses.replace(light, xyz=self.points(i))
-                got = fit_frame(frame, result, self.config, self.bin_model)
+                got = fit_frame(frame, work, self.config, self.bin_model)
             except Exception as e:  # noqa: BLE001 - shown on the page for this frame; the others go on
-                got = FrameFits(i, "error", f"the fits failed: {type(e).__name__}: {e}", tuple(np.shape(result.valid)))
+                H, W = np.shape(work.valid)
+                got = FrameFits(i, "error", f"the fits failed: {type(e).__name__}: {e}", (H, W))
             with self._cond:
                 self.results[i] = got
                 self._running = None

@@ -1064,6 +1064,8 @@ function pixelsOf(ids, n) {  // id (1..n) -> Int32Array of its pixels
   return (id) => pix.subarray(count[id], count[id + 1]);
 }
 function applyFits(fd, f) {
+  const had = (fd.fitEntries || []).length + (fd.propEntries || []).length;
+  const selE = state.cur === fd && state.sel >= 0 ? fd.entries[state.sel] : null;  // kept selected
   fd.fits = f;
   const h = f.header;
   fd.fitEntries = []; fd.propEntries = [];
@@ -1083,7 +1085,13 @@ function applyFits(fd, f) {
         both: 0, also: [], pix: ppix(id) });
     }
   }
-  buildEntries(fd);
+  if (had || fd.fitEntries.length || fd.propEntries.length) {  // no part model: the list stays as it is
+    buildEntries(fd);
+    if (selE && state.cur === fd) {
+      state.sel = fd.entries.findIndex((e) => e.src === selE.src && e.id === selE.id);
+      renderList();
+    }
+  }
   if (state.cur === fd) { renderOverlay(); requestDraw(); showFitInfo(fd); }
 }
 function showFitInfo(fd) {
