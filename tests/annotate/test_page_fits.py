@@ -8,6 +8,8 @@ rejection stored with the labels and remembered by a reopened page, and the prof
 
 from __future__ import annotations
 
+import time
+
 import httpx
 import pytest
 from annotate_helpers import LiveServer, close_page, open_page, wait_until, write_spike_log
@@ -171,3 +173,26 @@ def srv_client(srv):
     from annotate_helpers import page_client
 
     return page_client(srv.base, srv.token)
+
+
+def test_zcut_annotate_takes_part_model(spheres_log, tmp_path):
+    """``zcut annotate LOG --part-model FILE --part-model-unit U``: the file, not the log's attachment,
+    is fitted, and the command says so."""
+    from annotate_helpers import ServerProcess
+
+    from replay.logs.part_model import part_model_ply_bytes, read_part_model
+
+    m = read_part_model(spheres_log)
+    mesh = tmp_path / "ball.ply"
+    mesh.write_bytes(part_model_ply_bytes(m.vertices, m.triangles, unit=m.unit))
+    srv = ServerProcess(spheres_log, tmp_path / "labels.sqlite", annotator="alice",
+                        extra=["--part-model", str(mesh), "--part-model-unit", m.unit])
+    try:
+        deadline = time.monotonic() + 300
+        while (h := _fits(srv, 0)[0])["status"] in ("waiting", "fitting") and time.monotonic() < deadline:
+            time.sleep(0.5)
+        assert h["status"] == "ready" and h["model"] == "ball.ply" and h["n_fits"] > 10, h
+    finally:
+        srv.stop()
+    assert any("zcut: fitting ball.ply to every frame in the background (k = 3;" in line for line in srv.stderr_lines), \
+        srv.stderr_lines
