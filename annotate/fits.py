@@ -49,9 +49,9 @@ if TYPE_CHECKING:
 #: ``x0, y0, x1, y1`` their box (end exclusive), ``cx, cy`` their centroid; ``err_mm`` its residual
 #: (the paper's Err); ``support`` the share of its predicted visible pixels that measured points
 #: support; ``rejected`` 1 when the annotator rejected it; ``r00 .. t2`` its pose (model mm -> camera mm,
-#: rotation row-major then translation).
+#: rotation row-major then translation); ``seeded`` 1 for an instance found from a person's click (:meth:`Fitter.seed`).
 FIT_COLUMNS = ("fit", "n", "x0", "y0", "x1", "y1", "cx", "cy", "err_mm", "support", "rejected",
-               "r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22", "t0", "t1", "t2")
+               "r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22", "t0", "t1", "t2", "seeded")
 #: Columns of the proposal table (float32): ``id`` (in ``proposals``), ``n``, box, centroid, heights
 #: and the gap to the surface around it as the candidate table's (:data:`annotate.payload.CANDIDATE_COLUMNS`);
 #: ``dist_mm``, ``dist_max_mm``: median and largest distance of its pixels to the nearest known surface;
@@ -62,6 +62,8 @@ PROPOSAL_COLUMNS = ("id", "n", "x0", "y0", "x1", "y1", "cx", "cy", "h_min_mm", "
 JOIN_PX = 1
 #: A stored rejection applies to the fit of the same index whose position lies this close (mm).
 SAME_FIT_MM = 2.0
+#: The half side (pixels) of the window a seed click refits, when the frame has no fits to size it by.
+SEED_WINDOW = 40
 #: At most this many of the part model's surface samples go to the page's 3D view.
 MODEL_POINTS = 400
 
@@ -180,7 +182,8 @@ class FrameFits:
                     "x1": st["x1"], "y1": st["y1"], "cx": st["cx"], "cy": st["cy"],
                     "err_mm": np.array([f["err_mm"] for f in self.fits]),
                     "support": np.array([f["support"] for f in self.fits]),
-                    "rejected": np.array([float(i in rejected) for i in range(n_fit)])}
+                    "rejected": np.array([float(i in rejected) for i in range(n_fit)]),
+                    "seeded": np.array([float(bool(f.get("seeded"))) for f in self.fits])}
             for r in range(3):
                 for c in range(3):
                     cols[f"r{r}{c}"] = poses[:, r, c]
@@ -325,6 +328,53 @@ class Fitter:
                 self.results[i] = got
                 self._running = None
                 self._cond.notify_all()
+
+    def seed(self, index: int, x: int, y: int) -> int:
+        """Seed a missed instance at pixel (``x``, ``y``) of a fitted frame: the part is fitted again on the
+        unexplained pixels of a window around it (:data:`SEED_WINDOW`); each instance found joins the
+        frame's fits and its pixels leave the proposals. Returns how many were found (kept in memory:
+        not stored). Raises ValueError when the frame has no fits yet."""
+        from replay.pipeline.explained import NAME, part_model
+        from zcut.fits import FitParams, fit_prepared
+
+        with self._cond:
+            ff = self.results.get(index)
+        if ff is None or ff.status != "ready":
+            raise ValueError(f"frame {index} has no fits yet")
+        H, W = ff.shape
+        p = self.config.bank[NAME]
+        areas = np.bincount(ff.fit_of, minlength=len(ff.fits)) if len(ff.fits) else np.zeros(0)
+        r = int(np.clip(1.5 * np.sqrt(np.median(areas)) + 8, 16, 200)) if areas.size else SEED_WINDOW
+        flat_un = np.zeros(H * W, bool)
+        flat_un[ff.un_pix] = True
+        local = np.zeros((H, W), bool)
+        local[max(0, y - r):y + r + 1, max(0, x - r):x + r + 1] = True
+        local &= flat_un.reshape(H, W)
+        if local.sum() < 10:
+            return 0
+        _, _, prepared = part_model(p.part_model, p.part_model_unit)
+        xyz = np.asarray(self.points(index), np.float64) * 1000.0
+        found = fit_prepared(xyz, local, prepared, params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm,
+                                                                    min_support=p.fit_min_support))
+        if not found:
+            return 0
+        new_pix, new_of = [ff.fit_pix], [ff.fit_of]
+        taken = np.zeros(H * W, bool)
+        for j, f in enumerate(found):
+            px = np.asarray(f.pixels, np.int64)
+            px = px[flat_un[px] & ~taken[px]]
+            taken[px] = True
+            new_pix.append(px)
+            new_of.append(np.full(px.size, len(ff.fits) + j, np.int32))
+        keep = ~taken[ff.un_pix]
+        fits = ff.fits + tuple({"err_mm": float(f.err_mm), "support": float(f.support),
+                                "pose": np.asarray(f.pose).tolist(), "seeded": True} for f in found)
+        got = dataclasses.replace(ff, fits=fits, fit_pix=np.concatenate(new_pix), fit_of=np.concatenate(new_of),
+                                  un_pix=ff.un_pix[keep], un_dist=ff.un_dist[keep], un_err=ff.un_err[keep],
+                                  message=f"{len(fits)} fits, {int(keep.sum())} unexplained px")
+        with self._cond:
+            self.results[index] = got
+        return len(found)
 
     def wait(self, index: int, timeout: float) -> FrameFits | None:
         """Block until frame ``index`` is fitted (tests, tools); None on timeout."""

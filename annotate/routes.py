@@ -435,6 +435,32 @@ async def api_fit_put(page: Page, request: Request) -> Response:
     return _bytes(await run_in_threadpool(save))
 
 
+async def api_fit_seed(page: Page, request: Request) -> Response:
+    """``POST /api/frames/{index}/fits/seed`` ``{"x", "y"}``: seed a missed instance at that pixel
+    (:meth:`annotate.fits.Fitter.seed`); answers the new fits bundle, ``X-Zcut-Seeded`` how many were found."""
+    sf, rec = requested_frame(page, request)
+    who = annotator_of(page, request)
+    d = parse_json_body(await _read_body(request))
+    x, y = d.get("x"), d.get("y")
+    if not (isinstance(x, int) and isinstance(y, int) and 0 <= x < sf.width and 0 <= y < sf.height):
+        raise BadRequest(422, f"a seed is {{\"x\", \"y\"}}: a pixel of the {sf.width}x{sf.height} frame")
+    fitter = page.catalogue.fitter
+    status, ff = (None, None) if fitter is None else fitter.status(sf.index)
+    if fitter is None or ff is None or ff.status != "ready":
+        raise BadRequest(409, f"frame {sf.index} has no fits to add to ({page.fits_note or status})")
+
+    def seed() -> tuple[int, bytes]:
+        assert fitter is not None
+        n = fitter.seed(sf.index, x, y)
+        for key in [k for k in page.fits_bundles if k[0] == sf.index]:
+            del page.fits_bundles[key]
+        return n, fits_bundle(page, sf, rec, who)
+
+    n, data = await run_in_threadpool(seed)
+    return Response(data, media_type="application/octet-stream", headers={"Cache-Control": "no-store",
+                                                                          "X-Zcut-Seeded": str(n)})
+
+
 # --------------------------------------------------------------------------- saving a label
 async def api_label_put(page: Page, request: Request) -> Response:
     """``PUT /api/frames/{index}/label`` (application/json): save a label (:func:`save_label`)."""
@@ -501,5 +527,6 @@ ROUTES: tuple[tuple[str, str, Handler], ...] = (
     ("/api/frames/{index}/proposals", "GET", api_proposals),
     ("/api/assistant", "GET", api_assistant),
     ("/api/frames/{index}/fits", "GET", api_fits),
+    ("/api/frames/{index}/fits/seed", "POST", api_fit_seed),
     ("/api/frames/{index}/fits/{fit}", "PUT", api_fit_put),
 )

@@ -334,7 +334,7 @@ function fitRow(fd, e, k, st) {  // a fit ('f') or a proposal of the fits ('u') 
   if (e.src === 'f') {
     row.title = `fitted instance #${e.id}: explains ${e.n} px within ${k3} × Err; residual Err ${e.err.toFixed(3)} mm, ` +
       `${Math.round(100 * e.support)} % of its visible surface supported` + (e.rejected ? '; rejected (K takes it back)' : '; K rejects it');
-    row.innerHTML = `<span class="src f">fit #${e.id}</span><span>${e.n} px</span><span class="err">Err ${e.err.toFixed(2)} mm</span>` +
+    row.innerHTML = `<span class="src f">fit #${e.id}${e.seeded ? ' (seed)' : ''}</span><span>${e.n} px</span><span class="err">Err ${e.err.toFixed(2)} mm</span>` +
       `<span>${Math.round(100 * e.support)} %</span><span class="st">${e.rejected ? 'fit rejected' : st === 'accepted' ? 'outlier' : st === 'rejected' ? 'not outlier' : '·'}</span>`;
   } else {
     const from = e.fromFit >= 0 ? `fit #${e.fromFit + 1} rej.` : 'unexplained';
@@ -1075,6 +1075,7 @@ function applyFits(fd, f) {
       const i = v('fit'), pose = ['r00', 'r01', 'r02', 't0', 'r10', 'r11', 'r12', 't1', 'r20', 'r21', 'r22', 't2'].map(v);
       fd.fitEntries.push({ src: 'f', id: i + 1, fit: i, n: v('n'), x0: v('x0'), y0: v('y0'), x1: v('x1'), y1: v('y1'),
         cx: v('cx'), cy: v('cy'), err: v('err_mm'), support: v('support'), rejected: v('rejected') > 0, pose,
+        seeded: v('seeded') > 0,
         hmin: NaN, hmax: NaN, below: NaN, gap: NaN, score: v('err_mm'), both: 0, also: [], pix: fpix(i + 1) });
     }
     for (const v of tableRows(f.proposal_table, h.proposal_columns)) {
@@ -1139,6 +1140,19 @@ async function rejectFit() {  // K: reject the selected fit (or the one under th
   const k = fd.entries.findIndex((x) => x.src === 'u' && x.fromFit === e.fit);
   if (!was && k >= 0) select(k, { zoom: true });
   else { const j = fd.entries.findIndex((x) => x.src === 'f' && x.fit === e.fit); if (j >= 0) select(j, { zoom: false }); }
+}
+async function seedFit(fd, x, y) {  // Ctrl+click: fit the part again around (x, y), on its unexplained pixels
+  if (!fd.fits || fd.fits.header.status !== 'ready') { setSaveState('no fits on this frame to add to', 'error'); return; }
+  x = Math.floor(x); y = Math.floor(y);
+  if (x < 0 || y < 0 || x >= fd.W || y >= fd.H) return;
+  setSaveState('fitting at the click…', 'saving');
+  const r = await fetch(`/api/frames/${fd.index}/fits/seed`, { method: 'POST', headers: { 'Content-Type': 'application/json' },
+                                                              body: JSON.stringify({ x, y }) });
+  if (!r.ok) { showError(`seed: HTTP ${r.status}`); return; }
+  const n = +r.headers.get('X-Zcut-Seeded');
+  applyFits(fd, parseFitsBundle(await r.arrayBuffer()));
+  setSaveState(n ? `seeded ${n} fit${n > 1 ? 's' : ''}` : 'no instance found at the click', n ? 'saved' : 'error');
+  if (n) { const j = fd.entries.findIndex((e) => e.src === 'f' && e.fit === fd.fitEntries.length - 1); if (j >= 0) select(j, { zoom: false }); }
 }
 function fitPoints(fd, nb, ox, oy, oz, sel) {  // the fits near the neighbourhood, posed model samples (view coordinates)
   const f = fd.fits, pos = [], col = [];
@@ -1784,7 +1798,8 @@ window.zcut.fits = () => {
   const h = fd.fits.header;
   return { status: h.status, message: h.message, n_fits: h.n_fits || 0, n_rejected: h.n_rejected || 0,
            n_proposals: h.n_proposals || 0, info: $('fitinfo').textContent,
-           fits: (fd.fitEntries || []).map((e) => ({ fit: e.fit, n: e.n, err: e.err, rejected: e.rejected, cx: e.cx, cy: e.cy })),
+           fits: (fd.fitEntries || []).map((e) => ({ fit: e.fit, n: e.n, err: e.err, rejected: e.rejected, seeded: e.seeded,
+                                                     cx: e.cx, cy: e.cy })),
            proposals: (fd.propEntries || []).map((e) => ({ id: e.id, n: e.n, dist: e.dist, fromFit: e.fromFit, cx: e.cx, cy: e.cy })) };
 };
 window.zcut.unsaved = () => [...loaded.values()].filter((fd) => fd.dirty || fd.saving || fd.conflict).map((fd) => fd.index);
@@ -1802,6 +1817,7 @@ canvas.addEventListener('pointerdown', (e) => {
     return;
   }
   if (e.button !== 0) return;
+  if (e.ctrlKey || e.metaKey) { seedFit(fd, p.x, p.y); return; }  // Ctrl+click: seed a missed instance
   const t = state.tool;
   if (t === 'select') { clickCluster(fd, p.x, p.y, e.altKey); return; }
   if (t === 'wand') { wand(fd, p.x, p.y, e.shiftKey ? 'erase' : 'add'); return; }

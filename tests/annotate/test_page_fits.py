@@ -196,3 +196,52 @@ def test_zcut_annotate_takes_part_model(spheres_log, tmp_path):
         srv.stop()
     assert any("zcut: fitting ball.ply to every frame in the background (k = 3;" in line for line in srv.stderr_lines), \
         srv.stderr_lines
+
+
+def test_ctrl_click_seeds_a_missed_instance(spheres_log, tmp_path, browser):
+    """A fit the fitter missed (here: one taken out of the frame's fits, its pixels made unexplained) is
+    found again by a Ctrl+click on its pixels: it joins the fits and its pixels leave the proposals."""
+    import dataclasses
+
+    import numpy as np
+
+    srv = _server(spheres_log, tmp_path / "labels.sqlite")
+    try:
+        assert srv.page.catalogue.wait_until_done(300)
+        fitter = srv.page.catalogue.fitter
+        ff = fitter.wait(0, 300)
+        assert ff is not None and ff.status == "ready"
+        areas = np.bincount(ff.fit_of, minlength=len(ff.fits))
+        j = int(np.argmax(areas))
+        mine = ff.fit_of == j
+        gone = ff.fit_pix[mine]
+        un = np.concatenate([ff.un_pix, gone])
+        order = np.argsort(un)
+        missed = dataclasses.replace(
+            ff, fits=ff.fits[:j] + ff.fits[j + 1:], fit_pix=ff.fit_pix[~mine],
+            fit_of=np.where(ff.fit_of[~mine] > j, ff.fit_of[~mine] - 1, ff.fit_of[~mine]).astype(np.int32),
+            un_pix=un[order], un_dist=np.concatenate([ff.un_dist, np.full(gone.size, 5.0, np.float32)])[order],
+            un_err=np.concatenate([ff.un_err, np.full(gone.size, 0.5, np.float32)])[order])
+        fitter.results[0] = missed
+        H, W = ff.shape
+        y, x = np.divmod(gone, W)
+        page, errors, blocked = open_page(browser, _url(srv), viewport=(1366, 768))
+        try:
+            wait_until(page, "window.zcut.fits() && window.zcut.fits().status === 'ready'", timeout_s=120)
+            before = page.evaluate("window.zcut.fits()")
+            assert before["n_fits"] == len(ff.fits) - 1
+            at = page.evaluate(f"window.zcut.imageToClient({float(np.median(x))}, {float(np.median(y))})")
+            page.keyboard.down("Control")
+            page.mouse.click(at["x"], at["y"])
+            page.keyboard.up("Control")
+            wait_until(page, f"window.zcut.fits().n_fits === {len(ff.fits)}", timeout_s=120)
+            after = page.evaluate("window.zcut.fits()")
+            assert after["fits"][-1]["seeded"] and after["fits"][-1]["n"] >= 0.8 * gone.size, after["fits"][-1]
+            assert (sum(p["n"] for p in before["proposals"]) - sum(p["n"] for p in after["proposals"])
+                    >= 0.8 * gone.size)
+            assert "(seed)" in page.text_content("#candlist .cand.sel")
+            assert not errors and not blocked
+        finally:
+            close_page(page)
+    finally:
+        srv.stop()
