@@ -273,8 +273,8 @@ class Fitter:
         self._stop.set()
         with self._cond:
             self._cond.notify_all()
-        if self._thread is not None:
-            self._thread.join(timeout=60)
+        if self._thread is not None:  # a fit under way is not interrupted: a daemon thread, not waited for long
+            self._thread.join(timeout=5)
 
     def submit(self, frame: Frame, result: FrameResult) -> None:
         """Queue a prepared frame (its points are read from ``points`` when its turn comes)."""
