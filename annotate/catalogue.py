@@ -34,6 +34,7 @@ from annotate.store import FrameRecord, LabelStore, LogRecord
 from zcut.params import SuspectParams
 
 if TYPE_CHECKING:
+    from annotate.fits import Fitter
     from replay.logs.damage import Damage
     from replay.logs.frame import Frame
     from replay.pipeline.session import ReplaySession
@@ -70,6 +71,11 @@ class GeometrySpill:
         np.save(tmp, np.ascontiguousarray(xyz, dtype=np.float32))
         tmp.replace(self._path(index))
 
+    def points(self, index: int) -> np.ndarray:
+        """The (H, W, 3) float32 points of frame ``index``, memory-mapped (read-only)."""
+        arr: np.ndarray = np.load(self._path(index), mmap_mode="r")
+        return arr
+
     def rect(self, index: int, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
         """(y1 - y0, x1 - x0, 3) float32 points of frame ``index`` (bounds already clipped)."""
         arr = np.load(self._path(index), mmap_mode="r")
@@ -105,6 +111,9 @@ class Catalogue:
     focus : callable or None
         Given a frame, the only pixels to list as its review groups (``zcut annotate --disagreement``:
         :meth:`annotate.disagreement.Disagreement.focus`); None: the usual groups.
+    fitter : Fitter or None
+        With a part model, every prepared frame goes to it to be fitted in the background
+        (:mod:`annotate.fits`).
     """
 
     results: Results
@@ -120,6 +129,7 @@ class Catalogue:
     suspect_params: SuspectParams = field(default_factory=SuspectParams)
     part: str | None = None
     focus: Callable[[Frame], np.ndarray] | None = None
+    fitter: Fitter | None = None
     _cond: threading.Condition = field(default_factory=threading.Condition)
     _thread: threading.Thread | None = None
     _stop: threading.Event = field(default_factory=threading.Event)
@@ -182,6 +192,8 @@ class Catalogue:
             self.log, topic=sf.topic, stamp_ns=sf.stamp_ns, index=sf.index,
             shape=(sf.height, sf.width), frame_id=sf.frame_id, valid=pf.valid,
         )
+        if self.fitter is not None:
+            self.fitter.submit(frame, result)
         return sf, rec
 
     def wait_until_done(self, timeout: float) -> bool:

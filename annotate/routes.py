@@ -41,7 +41,7 @@ from annotate.inputs import (
     parse_json_body,
     uint,
 )
-from annotate.payload import ServedFrame, bundle_with_blobs, make_geometry, make_view, turbo_lut
+from annotate.payload import ServedFrame, bundle_with_blobs, make_bundle, make_geometry, make_view, turbo_lut
 from annotate.presence import Presence, describe_server
 from annotate.store import (
     FrameRecord,
@@ -51,6 +51,7 @@ from annotate.store import (
     LabelValidationError,
     LogRecord,
 )
+from zcut.cloud import height_mm
 
 if TYPE_CHECKING:
     from replay.pipeline.session import ReplaySession
@@ -115,6 +116,10 @@ class Page:
     focus: dict[str, Any] | None = None
     #: (frame record id, revision) -> (candidates decided, accepted) of that label
     decided: dict[tuple[int, int], tuple[int, int]] = field(default_factory=dict)
+    #: why the page shows no fits ("" when a part model is known: :mod:`annotate.fits`)
+    fits_note: str = ""
+    #: (frame index, rejected fits) -> the fits bundle (:meth:`annotate.fits.FrameFits.bundle`)
+    fits_bundles: dict[tuple[int, frozenset[int]], bytes] = field(default_factory=dict)
 
     def announce(self, port: int | None) -> list[str]:
         """Register this server in the store; returns one line per other live server of the store."""
@@ -124,6 +129,8 @@ class Page:
     def close(self) -> None:
         """Stop preparing, leave the store's servers table, remove the spilled points, close the store."""
         self.catalogue.stop()
+        if self.catalogue.fitter is not None:
+            self.catalogue.fitter.stop()
         if self.assistant is not None:
             self.assistant.stop()
         if self.presence is not None:
@@ -230,6 +237,8 @@ def api_session(page: Page, request: Request) -> Response:
         "total": c.total, "prepared": c.prepared, "done": c.done, "error": c.error,
         "notes": _notes(replay),
         "part": page.catalogue.part,
+        "fits": {"model": page.catalogue.fitter.model_name, "k": page.catalogue.fitter.k}
+        if page.catalogue.fitter is not None else {"model": None, "note": page.fits_note},
         "damage": [d.text for d in c.damage],
         "annotators": page.store.annotators(page.log),
         "other_servers": [describe_server(s) for s in others], "turbo": page.turbo,
@@ -369,6 +378,89 @@ def api_assistant(page: Page, request: Request) -> Response:
                                                             "message": "no assistant", "model": None})
 
 
+# --------------------------------------------------------------------------- part fits
+def fits_bundle(page: Page, sf: ServedFrame, rec: FrameRecord, who: str) -> bytes:
+    """The frame's fits as ``who`` judged them (:meth:`annotate.fits.FrameFits.bundle`), or their status
+    (``none``: no part model; ``waiting``, ``fitting``; ``error``) in a bundle without sections."""
+    fitter = page.catalogue.fitter
+    header: dict[str, Any] = {"index": sf.index}
+    if fitter is None:
+        return make_bundle({**header, "status": "none", "message": page.fits_note, "height": sf.height,
+                            "width": sf.width}, [], compress=False)
+    header.update({"k": fitter.k, "model": fitter.model_name, "model_points": fitter.model_points})
+    fitter.want(sf.index)
+    status, ff = fitter.status(sf.index)
+    if ff is None:
+        return make_bundle({**header, "status": status, "height": sf.height, "width": sf.width,
+                            "message": "fitting the part model…" if status == "fitting" else "waiting to be fitted…"},
+                           [], compress=False)
+    rejected = ff.rejected(page.store.rejected_fits(rec, annotator=who))
+    key = (sf.index, frozenset(rejected))
+    if key not in page.fits_bundles:
+        xyz = np.asarray(page.catalogue.geometry.points(sf.index))
+        valid = np.isfinite(xyz).all(axis=2)
+        while len(page.fits_bundles) >= 32:  # a few frames' worth, the oldest out first
+            page.fits_bundles.pop(next(iter(page.fits_bundles)))
+        page.fits_bundles[key] = ff.bundle(heights_mm=height_mm(xyz), valid=valid, rejected=rejected, header=header)
+    return page.fits_bundles[key]
+
+
+def api_fits(page: Page, request: Request) -> Response:
+    """``GET /api/frames/{index}/fits``: the frame's part fits and proposals (:func:`fits_bundle`)."""
+    sf, rec = requested_frame(page, request)
+    return _bytes(fits_bundle(page, sf, rec, annotator_of(page, request)))
+
+
+async def api_fit_put(page: Page, request: Request) -> Response:
+    """``PUT /api/frames/{index}/fits/{fit}`` ``{"rejected": bool}``: the annotator rejects a fit (its
+    pixels return to review) or takes it back; stored with the labels; answers the new fits bundle."""
+    sf, rec = requested_frame(page, request)
+    who = annotator_of(page, request)
+    fit = uint(request.path_params["fit"], "fit", hi=1 << 20)
+    d = parse_json_body(await _read_body(request))
+    if not isinstance(d.get("rejected"), bool):
+        raise BadRequest(422, "a fit decision is {\"rejected\": true | false}")
+    fitter = page.catalogue.fitter
+    status, ff = (None, None) if fitter is None else fitter.status(sf.index)
+    if ff is None or ff.status != "ready":
+        raise BadRequest(409, f"frame {sf.index} has no fits to judge ({page.fits_note or status})")
+    if fit >= len(ff.fits):
+        raise BadRequest(404, f"frame {sf.index} has {len(ff.fits)} fits, no fit {fit}")
+
+    def save() -> bytes:
+        page.store.save_fit_decision(rec, annotator=who, fit=fit, position_mm=ff.position_mm(fit),
+                                     rejected=bool(d["rejected"]))
+        return fits_bundle(page, sf, rec, who)
+
+    return _bytes(await run_in_threadpool(save))
+
+
+async def api_fit_seed(page: Page, request: Request) -> Response:
+    """``POST /api/frames/{index}/fits/seed`` ``{"x", "y"}``: seed a missed instance at that pixel
+    (:meth:`annotate.fits.Fitter.seed`); answers the new fits bundle, ``X-Zcut-Seeded`` how many were found."""
+    sf, rec = requested_frame(page, request)
+    who = annotator_of(page, request)
+    d = parse_json_body(await _read_body(request))
+    x, y = d.get("x"), d.get("y")
+    if not (isinstance(x, int) and isinstance(y, int) and 0 <= x < sf.width and 0 <= y < sf.height):
+        raise BadRequest(422, f"a seed is {{\"x\", \"y\"}}: a pixel of the {sf.width}x{sf.height} frame")
+    fitter = page.catalogue.fitter
+    status, ff = (None, None) if fitter is None else fitter.status(sf.index)
+    if fitter is None or ff is None or ff.status != "ready":
+        raise BadRequest(409, f"frame {sf.index} has no fits to add to ({page.fits_note or status})")
+
+    def seed() -> tuple[int, bytes]:
+        assert fitter is not None
+        n = fitter.seed(sf.index, x, y)
+        for key in [k for k in page.fits_bundles if k[0] == sf.index]:
+            del page.fits_bundles[key]
+        return n, fits_bundle(page, sf, rec, who)
+
+    n, data = await run_in_threadpool(seed)
+    return Response(data, media_type="application/octet-stream", headers={"Cache-Control": "no-store",
+                                                                          "X-Zcut-Seeded": str(n)})
+
+
 # --------------------------------------------------------------------------- saving a label
 async def api_label_put(page: Page, request: Request) -> Response:
     """``PUT /api/frames/{index}/label`` (application/json): save a label (:func:`save_label`)."""
@@ -434,4 +526,7 @@ ROUTES: tuple[tuple[str, str, Handler], ...] = (
     ("/api/frames/{index}/label", "PUT", api_label_put),
     ("/api/frames/{index}/proposals", "GET", api_proposals),
     ("/api/assistant", "GET", api_assistant),
+    ("/api/frames/{index}/fits", "GET", api_fits),
+    ("/api/frames/{index}/fits/seed", "POST", api_fit_seed),
+    ("/api/frames/{index}/fits/{fit}", "PUT", api_fit_put),
 )

@@ -33,6 +33,7 @@ from starlette.routing import Route
 
 from annotate.assistant import GATE, Trainer
 from annotate.catalogue import Catalogue
+from annotate.fits import fitter_for
 from annotate.guard import (
     ALLOWED_HOSTS,
     BODY_TIMEOUT_S,
@@ -138,13 +139,17 @@ def open_page(
     focus_summary : dict, optional
         What the page's header says of that review (:meth:`annotate.disagreement.Disagreement.summary`).
 
+    With a part model (the config's ``explained.part_model``, which ``--part-model`` sets, else the
+    log's ``part_model.ply``) the frames are also fitted in the background (:mod:`annotate.fits`).
+
     Candidates come from :meth:`replay.pipeline.session.ReplaySession.results` with the config
     resolved as ``zcut replay`` resolves it. The log is read and its config resolved before the
     store is touched: nothing is created for a log that cannot be read.
 
     Raises
     ------
-    LogFormatError, LogDamageError (no readable frame), ConfigError, ParameterError (``annotator``)
+    LogFormatError, LogDamageError (no readable frame), ConfigError, ParameterError (``annotator``, a part
+    model that is no mesh)
     """
     from replay.pipeline.session import ReplaySession
     from zcut.errors import ParameterError
@@ -162,8 +167,9 @@ def open_page(
                 raise ParameterError(f"--annotator: {e}") from None
         log = store.add_log(log_path)
         catalogue = Catalogue.of_replay(replay, store, log, focus=focus)
+        catalogue.fitter, fits_note = fitter_for(replay, log_path, catalogue.geometry.points)
         page = Page(log_path=log_path, store=store, log=log, catalogue=catalogue, token=token or new_token(),
-                    annotator=annotator, replay=replay, focus=focus_summary,
+                    annotator=annotator, replay=replay, focus=focus_summary, fits_note=fits_note,
                     assistant=Trainer(catalogue, store, log, part=catalogue.part,
                                       gate=GATE if assistant_gate is None else assistant_gate))
     except BaseException:
@@ -171,6 +177,8 @@ def open_page(
             catalogue.geometry.close()
         store.close()
         raise
+    if catalogue.fitter is not None:
+        catalogue.fitter.start()
     catalogue.start()
     assert page.assistant is not None
     page.assistant.start()

@@ -65,7 +65,7 @@ import numpy as np
 
 from zcut.errors import InputShapeError, ZcutError, describe_array
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 BUSY_TIMEOUT_MS = 10_000
 #: Largest mask the store accepts (pixels), a guard against absurd shapes from a client.
 MAX_PIXELS = 64_000_000
@@ -141,6 +141,23 @@ MIGRATIONS: list[list[str]] = [
             meta TEXT NOT NULL,
             model BLOB NOT NULL
         )""",
+    ],
+    [
+        # the page's verdicts on part fits (docs/labelling.md, "Judging fits"): append-only, the latest row
+        # of a (frame, annotator, fit) says whether that fit is rejected; the fit's position (mm) tells a
+        # fit found again from one found otherwise
+        """CREATE TABLE fit_decisions (
+            id INTEGER PRIMARY KEY,
+            frame_id INTEGER NOT NULL REFERENCES frames(id),
+            annotator TEXT NOT NULL,
+            fit INTEGER NOT NULL CHECK (fit >= 0),
+            x_mm REAL NOT NULL,
+            y_mm REAL NOT NULL,
+            z_mm REAL NOT NULL,
+            rejected INTEGER NOT NULL CHECK (rejected IN (0, 1)),
+            created_ns INTEGER NOT NULL
+        )""",
+        "CREATE INDEX fit_decisions_frame ON fit_decisions (frame_id, annotator, fit, id DESC)",
     ],
 ]
 
@@ -827,6 +844,30 @@ class LabelStore:
             (log.id, annotator),
         )
         return {r[0]: LabelSummary(*r) for r in rows}
+
+    # ------------------------------------------------------------------ fits
+    def save_fit_decision(self, frame: FrameRecord, *, annotator: str, fit: int,
+                          position_mm: Sequence[float], rejected: bool) -> None:
+        """Append whether ``annotator`` rejects part fit ``fit`` of the frame (its position, mm, in the
+        camera frame: the translation of its pose); the latest row of a fit counts."""
+        who = _check_annotator(annotator)
+        x, y, z = (float(v) for v in position_mm)
+        if not (int(fit) >= 0 and np.isfinite([x, y, z]).all()):
+            raise LabelValidationError(f"a fit decision needs a fit index >= 0 and a finite position, got "
+                                       f"{fit!r} at {position_mm!r}")
+        with self._write() as db:
+            db.execute("INSERT INTO fit_decisions (frame_id, annotator, fit, x_mm, y_mm, z_mm, rejected, created_ns)"
+                       " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                       (frame.id, who, int(fit), x, y, z, int(bool(rejected)), time.time_ns()))
+
+    def rejected_fits(self, frame: FrameRecord, *, annotator: str) -> dict[int, tuple[float, float, float]]:
+        """The fits ``annotator`` rejects on the frame (their latest decision): fit index -> its
+        position (mm) when rejected."""
+        rows = self._query(
+            "SELECT d.fit, d.x_mm, d.y_mm, d.z_mm, d.rejected FROM fit_decisions d WHERE d.frame_id = ? AND"
+            " d.annotator = ? AND d.id = (SELECT MAX(id) FROM fit_decisions m WHERE m.frame_id = d.frame_id"
+            " AND m.annotator = d.annotator AND m.fit = d.fit)", (frame.id, annotator))
+        return {int(r[0]): (float(r[1]), float(r[2]), float(r[3])) for r in rows if r[4]}
 
     def label_count(self) -> int:
         """Number of label revisions in the store (all annotators, all revisions)."""

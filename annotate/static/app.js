@@ -75,9 +75,10 @@ function rgba(r, g, b, a) { return ((a << 24) | (b << 16) | (g << 8) | r) >>> 0;
 const COL_G = rgba(0, 230, 230, 150), COL_GR = rgba(0, 120, 90, 110);  // review groups: undecided, reviewed
 const COL = {  // candidate colours by source and state (markers, list, profile, 3D)
   g: '#00e6e6', z: '#ffaa00', s: '#2896ff', L: '#ff4da6', accepted: '#ff1e3c', rejected: '#5fd38d', sel: '#ffffff',
+  u: '#ffeb00', f: '#aaff00',
 };
 const RGB = { accepted: [255, 30, 60], rejected: [95, 211, 141], g: [0, 230, 230], z: [255, 170, 0], s: [40, 150, 255],
-              L: [255, 77, 166] };
+              L: [255, 77, 166], u: [255, 235, 0] };
 
 // ------------------------------------------------------------------ loading frames
 function flags() { return { showL: state.showL, showZ: state.showZ, showS: state.showS, showG: state.showG, sorMin: state.sorMin }; }
@@ -181,9 +182,9 @@ function buildEntries(fd) {
                gap, hmin, hmax, below: isNaN(gap) ? NaN : hmin - gap, source: src, also, score: v('score'), both: 0,
                pix: fd.gPix.subarray(fd.gStart[id], fd.gStart[id + 1]) });
   }
-  fd.base = out;
+  fd.base = out.concat(fd.propEntries || [], fd.fitEntries || []);  // and the fits' proposals and fits (loadFits)
   fd.covered = new Uint8Array(fd.W * fd.H);  // pixels of the review groups
-  for (const e of out) for (const i of e.pix) fd.covered[i] = 1;
+  for (const e of fd.base) for (const i of e.pix) fd.covered[i] = 1;
   fd.labelEntries = labelComponents(fd);
   refreshList(fd, false);
 }
@@ -248,7 +249,10 @@ function refreshList(fd, keepSel = true, render = true) {
   const selE = keepSel && state.cur === fd && state.sel >= 0 ? fd.entries[state.sel] : null;
   const list = fd.base.slice();
   list.push(...fd.labelEntries);
-  list.sort((a, b) => SORTS[state.sortKey](a, b) || (a.cy - b.cy) || (a.cx - b.cx));
+  // the fits' proposals first (farthest from every known surface first), then the fits (largest Err first)
+  const rank = (e) => (e.src === 'u' ? 0 : e.src === 'f' ? 1 : 2);
+  list.sort((a, b) => rank(a) - rank(b) || (rank(a) < 2 ? (b.score - a.score) : SORTS[state.sortKey](a, b)) ||
+    (a.cy - b.cy) || (a.cx - b.cx));
   fd.entries = list;
   if (state.cur === fd) {
     state.sel = selE ? list.indexOf(selE) : -1;
@@ -269,6 +273,7 @@ function groupCounts(fd) {
   const st = fd.states || [], ent = fd.entries || [];
   let groups = 0, decided = 0, painted = 0;
   ent.forEach((e, k) => {
+    if (e.src === 'f' || e.src === 'u') return;  // the fits' own, counted by fitCounts
     if (e.src !== 'g') { painted++; return; }
     groups++;
     if (st[k] && st[k] !== 'undecided') decided++;
@@ -276,9 +281,16 @@ function groupCounts(fd) {
   if (!ent.length) groups = fd.header.n_groups;
   return { groups, decided, painted };
 }
+function fitCounts(fd) {  // the fits' proposals (decided as groups are) and the fits (rejected)
+  const st = fd.states || [], ent = fd.entries || [];
+  let props = 0, decided = 0;
+  ent.forEach((e, k) => { if (e.src === 'u') { props++; if (st[k] && st[k] !== 'undecided') decided++; } });
+  return { fits: (fd.fitEntries || []).length, rejected: (fd.fitEntries || []).filter((e) => e.rejected).length, props, decided };
+}
 function countsText(fd) {
-  const c = groupCounts(fd);
-  return `${c.groups} groups · ${c.decided} decided` + (c.painted ? ` · ${c.painted} painted` : '');
+  const c = groupCounts(fd), f = fitCounts(fd);
+  return `${c.groups} groups · ${c.decided} decided` + (c.painted ? ` · ${c.painted} painted` : '') +
+    (f.fits ? ` · ${f.fits} fits${f.rejected ? ` (${f.rejected} rejected)` : ''} · ${f.props} proposals, ${f.decided} decided` : '');
 }
 function renderList() {
   const fd = state.cur, box = $('candlist');
@@ -286,13 +298,14 @@ function renderList() {
   const states = fd.states;
   $('candcount').textContent = countsText(fd);
   const frag = document.createDocumentFragment();
-  const MAX_ROWS = 300;
+  const MAX_ROWS = 800;
   fd.entries.slice(0, MAX_ROWS).forEach((e, k) => {
     const row = document.createElement('div');
     row.className = `cand ${states[k]}${k === state.sel ? ' sel' : ''}`;
     row.dataset.k = k;
     const p = propP(fd, e), conf = confident(fd, e);
     const prop = isNaN(p) ? '' : `${p >= 0.5 ? 'out' : 'in'} ${Math.round(100 * Math.max(p, 1 - p))} %`;
+    if (e.src === 'f' || e.src === 'u') { frag.appendChild(fitRow(fd, e, k, states[k])); return; }
     const why = e.src === 'L' ? 'painted' : e.source + (e.also.length ? ` +${e.also.join(',')}` : '');
     row.title = e.src === 'L' ? 'labelled by hand, no group covers it' :
       `${e.source}: ${e.n} px, median gap to the local surface ${isNaN(e.gap) ? 'unknown (no surface below): judge by the 3D view / profile' : e.gap >= 0 ? e.gap.toFixed(2) + ' mm above it' : (-e.gap).toFixed(2) + ' mm below it'}` + (e.also.length ? `; also flagged by ${e.also.join(', ')}` : '');
@@ -313,6 +326,29 @@ function renderList() {
   updateInfo();  // the header and the frame list count what the panel counts
 }
 
+function fitRow(fd, e, k, st) {  // a fit ('f') or a proposal of the fits ('u') in the list
+  const row = document.createElement('div');
+  row.className = `cand ${st}${k === state.sel ? ' sel' : ''}${e.rejected ? ' fitrej' : ''}`;
+  row.dataset.k = k;
+  const k3 = fd.fits ? fd.fits.header.k : 3;
+  if (e.src === 'f') {
+    row.title = `fitted instance #${e.id}: explains ${e.n} px within ${k3} × Err; residual Err ${e.err.toFixed(3)} mm, ` +
+      `${Math.round(100 * e.support)} % of its visible surface supported` + (e.rejected ? '; rejected (K takes it back)' : '; K rejects it');
+    row.innerHTML = `<span class="src f">fit #${e.id}${e.seeded ? ' (seed)' : ''}</span><span>${e.n} px</span><span class="err">Err ${e.err.toFixed(2)} mm</span>` +
+      `<span>${Math.round(100 * e.support)} %</span><span class="st">${e.rejected ? 'fit rejected' : st === 'accepted' ? 'outlier' : st === 'rejected' ? 'not outlier' : '·'}</span>`;
+  } else {
+    const from = e.fromFit >= 0 ? `fit #${e.fromFit + 1} rej.` : 'unexplained';
+    row.title = e.fromFit >= 0 ? `the pixels of rejected fit #${e.fromFit + 1}: decide them` :
+      `${e.n} px farther than ${k3} × Err from every known surface: median distance ${e.dist.toFixed(2)} mm ` +
+      `(largest ${e.distMax.toFixed(2)} mm, Err ${e.err.toFixed(2)} mm)`;
+    row.innerHTML = `<span class="src u">${from}</span><span>${e.n} px</span>` +
+      `<span class="dist">${isNaN(e.dist) ? 'fit rejected' : `${e.dist.toFixed(1)} mm off`}</span><span></span>` +
+      `<span class="st">${st === 'accepted' ? 'outlier' : st === 'rejected' ? 'not outlier' : '·'}</span>`;
+  }
+  row.onclick = () => { window.zcut.inputs++; select(k, { zoom: true }); };
+  return row;
+}
+
 // What the bulk keys will do, said before they do it.
 function proposalPlan(fd) {
   const out = [], inl = [];
@@ -324,8 +360,8 @@ function proposalPlan(fd) {
   return { out, inl };
 }
 function renderBulkHint(fd) {
-  const und = fd.entries.filter((e, k) => e.src === 'g' && fd.states[k] === 'undecided').length;
-  const px = fd.entries.filter((e, k) => e.src === 'g' && fd.states[k] === 'undecided').reduce((a, e) => a + e.n, 0);
+  const und = fd.entries.filter((e, k) => (e.src === 'g' || e.src === 'u') && fd.states[k] === 'undecided').length;
+  const px = fd.entries.filter((e, k) => (e.src === 'g' || e.src === 'u') && fd.states[k] === 'undecided').reduce((a, e) => a + e.n, 0);
   const parts = [`Shift+A accepts the ${und} undecided groups of this list (${px} px; not the z-cut or SOR overlays), Shift+R rejects them.`];
   const pr = fd.prop;
   if (pr && pr.p.length) {
@@ -355,6 +391,7 @@ function nextUndecided(fd, from) {
   const n = fd.entries.length;
   for (let d = 1; d <= n; d++) {
     const k = (from + d + n) % n;
+    if (fd.entries[k].src === 'f') continue;  // a fit is judged by looking: K rejects a wrong one, Enter keeps the rest
     if (entryState(fd, fd.entries[k]) === 'undecided') return k;
   }
   return -1;
@@ -392,7 +429,7 @@ function decideAll(accept) {  // every undecided listed group (one undo step)
   const fd = state.cur; if (!fd) return;
   beginAction(fd);
   fd.entries.forEach((e) => {
-    if (e.src !== 'g' || entryState(fd, e) !== 'undecided') return;
+    if ((e.src !== 'g' && e.src !== 'u') || entryState(fd, e) !== 'undecided') return;
     for (const i of e.pix) setPixel(fd, i, accept ? 'add' : 'erase');
     touch(e.x0, e.y0, e.x1, e.y1);
   });
@@ -484,6 +521,7 @@ function defaultProfile(fd, e) {  // a horizontal line through the entry's pixel
 
 function pixelClass(fd, i) {
   if (fd.L[i]) return 'accepted';
+  if (fd.fits && fd.fits.proposals && fd.fits.proposals[i]) return fd.R[i] ? 'rejected' : 'u';
   if (fd.gIds[i]) return fd.R[i] ? 'rejected' : 'g';
   if (fd.zIds[i]) return fd.R[i] ? 'rejected' : 'z';
   if (fd.sIds[i] && fd.sSize[fd.sIds[i]] >= state.sorMin) return fd.R[i] ? 'rejected' : 's';
@@ -565,7 +603,15 @@ function drawProfile() {
   const e = pr.entry;
   let lo = Math.min(...valid.map((s) => s.h)), hi = Math.max(...valid.map((s) => s.h));
   let zoomed = false;
-  if (e && !isNaN(e.below) && !isNaN(e.hmin)) {
+  if (e && e.src === 'u' && !isNaN(e.hmin)) {
+    // a proposal of the fits: the height axis spans its lowest heights (at most max(4 mm, 3 × its largest
+    // distance to the nearest known surface) above its lowest point) padded by that distance (at least 1 mm):
+    // that surface lies within it where the group meets it, and a 1 mm distance is ~10 px tall or more
+    const d = isNaN(e.distMax) ? 0 : Math.min(e.distMax, 20);
+    const top = Math.min(isNaN(e.hmax) ? e.hmin : e.hmax, e.hmin + Math.max(4, 3 * d)), p = Math.max(1, 1.2 * d);
+    zoomed = top + p < hi || e.hmin - p > lo;
+    lo = e.hmin - p; hi = top + p;
+  } else if (e && !isNaN(e.below) && !isNaN(e.hmin)) {
     // the height axis spans the group's neighbourhood (its heights and the surface below it, padded by
     // half that and at least 1.5 mm), not the bin floor to the pile top: a 1 mm gap is tens of px tall;
     // points beyond are drawn at the axis' edge
@@ -626,6 +672,11 @@ function drawProfile() {
     g.fillText(label, Math.min(xs + 8, w - R - g.measureText(label).width), (Y(e.hmin) + Y(e.below)) / 2 + 4);
     info = (e.gap >= 0 ? `gap ${e.gap.toFixed(2)} mm above the surface` : `${(-e.gap).toFixed(2)} mm below the surface`) + ` · ${info}`;
   }
+  if (e && e.src === 'u') {
+    info = (isNaN(e.dist) ? `the pixels of rejected fit #${e.fromFit + 1}` :
+      `${e.dist.toFixed(2)} mm from the nearest known surface (median; largest ${e.distMax.toFixed(2)} mm; ` +
+      `${fd.fits.header.k} × Err = ${(fd.fits.header.k * e.err).toFixed(2)} mm)`) + ` · ${info}`;
+  }
   $('profinfo').textContent = info;
 }
 
@@ -656,8 +707,12 @@ function draw3d(fd, e, nb) {
     if (inSel.has(i)) { big.push(...q); bigCol.push(...(cls ? RGB[cls] : [255, 255, 255])); } else { pos.push(...q); col.push(...rgb); }
   }
   const radius = 500 * Math.hypot(x1 - x0, y1 - y0, z1 - z0) || 20;  // of the points' bounding sphere, mm
+  const fp = fitPoints(fd, nb, ox, oy, oz, e);  // the fitted instances: their models' surface points
+  pos.push(...fp.pos); col.push(...fp.col);
   view3d.setPoints(new Float32Array([...big, ...pos]), new Uint8Array([...bigCol, ...col]), big.length / 3, Math.max(radius, 5));
-  $('v3info').textContent = `${(big.length + pos.length) / 3} points · ${view3d.kind} · drag to turn`;
+  $('v3info').textContent = `${(big.length + pos.length - fp.pos.length) / 3} points` +
+    (fp.pos.length ? ` + fitted models (blue; white: selected, magenta: rejected)` : '') +
+    (e.src === 'f' ? ` · fit #${e.id}: Err ${e.err.toFixed(3)} mm` : '') + ` · ${view3d.kind} · drag to turn`;
 }
 
 // ------------------------------------------------------------------ overlay + drawing
@@ -692,6 +747,8 @@ function renderOverlay(x0 = 0, y0 = 0, x1 = null, y1 = null) {
   const c = fd.conflict, cv = c && c.theirs ? state.conflictView : 'mine';
   const L = cv === 'theirs' ? c.theirs.L : fd.L, other = cv === 'diff' ? c.theirs.L : null;
   const sL = state.showL, sZ = state.showZ, sS = state.showS, sG = state.showG, sorMin = state.sorMin, gIds = fd.gIds;
+  const fits = fd.fits && fd.fits.fit_ids ? fd.fits : null, fIds = fits ? fits.fit_ids : null, uIds = fits ? fits.proposals : null;
+  const fx = fd.fitEntries || [];
   for (let y = y0; y < y1; y++) {
     let i = y * W + x0;
     for (let x = x0; x < x1; x++, i++) {
@@ -700,7 +757,11 @@ function renderOverlay(x0 = 0, y0 = 0, x1 = null, y1 = null) {
       else if (sL && L[i]) col = COL_L;
       else {
         const z = sZ && zIds[i] !== 0, s = sS && sIds[i] !== 0 && sSize[sIds[i]] >= sorMin;
-        if (sG && gIds[i] !== 0) col = R[i] ? COL_GR : COL_G;
+        const f = fIds ? fIds[i] : 0;
+        if (uIds && uIds[i] !== 0) col = R[i] ? COL_GR : COL_U;
+        else if (f && ((x > 0 && fIds[i - 1] !== f) || (x < W - 1 && fIds[i + 1] !== f) ||  // a fit's outline
+                       (y > 0 && fIds[i - W] !== f) || (y < fd.H - 1 && fIds[i + W] !== f))) col = fx[f - 1] && fx[f - 1].rejected ? COL_FITX : COL_FIT;
+        else if (sG && gIds[i] !== 0) col = R[i] ? COL_GR : COL_G;
         else if (z) col = s ? COL_ZS : COL_Z; else if (s) col = COL_S;
         else if (shade && valid[i] && !R[i]) col = COL_UNREV;
       }
@@ -766,11 +827,13 @@ function drawMarkers(fd) {
   if (!fd.entries) return;
   const vw = canvas.clientWidth, vh = canvas.clientHeight;
   const states = fd.states || [];
-  const rank = { s: 0, L: 1, z: 2 };  // z-cut drawn last (on top), the selected one after all
+  const rank = { f: -1, s: 0, L: 1, g: 1, u: 2, z: 2 };  // z-cut drawn last (on top), the selected one after all
+  drawFitLabels(fd);
   const order = fd.entries.map((e, k) => k).sort((a, b) => (a === state.sel) - (b === state.sel) ||
     rank[fd.entries[a].src] - rank[fd.entries[b].src]);
   order.forEach((k) => {
     const e = fd.entries[k];
+    if (e.src === 'f' && k !== state.sel) return;  // a fit: its outline and Err label (drawFitLabels)
     // a ring of at least 7 px around a small cluster, a box around a large one: seen at any zoom
     const c = toScreen(e.cx, e.cy), p0 = toScreen(e.x0, e.y0), p1 = toScreen(e.x1, e.y1);
     const big = Math.max(p1.x - p0.x, p1.y - p0.y) > 24;
@@ -801,6 +864,20 @@ function drawMarkers(fd) {
   });
 }
 
+function drawFitLabels(fd) {  // each fit's Err (mm) at its centre, where it is at least 26 px wide on screen
+  const vw = canvas.clientWidth, vh = canvas.clientHeight;
+  ctx.font = 'bold 11px system-ui'; ctx.textAlign = 'center';
+  for (const e of fd.fitEntries || []) {
+    if ((e.x1 - e.x0) * state.zoom < 26 && !(state.sel >= 0 && fd.entries[state.sel] === e)) continue;
+    const c = toScreen(e.cx, e.cy);
+    if (c.x < -40 || c.y < -20 || c.x > vw + 40 || c.y > vh + 20) continue;
+    const t = e.rejected ? `✗ ${e.err.toFixed(2)}` : e.err.toFixed(2);
+    ctx.lineWidth = 3; ctx.strokeStyle = 'rgba(0,0,0,0.8)'; ctx.strokeText(t, c.x, c.y + 4);
+    ctx.fillStyle = e.rejected ? '#ff40ff' : '#d8ff80'; ctx.fillText(t, c.x, c.y + 4);
+  }
+  ctx.textAlign = 'start';
+}
+
 function drawMinimap(fd) {
   const mm = $('minimap');
   mm.hidden = !state.showMini;
@@ -815,6 +892,7 @@ function drawMinimap(fd) {
   g.setTransform(dpr * w / fd.W, 0, 0, dpr * h / fd.H, 0, 0);
   const s = fd.W / w;
   (fd.entries || []).forEach((e, k) => {
+    if (e.src === 'f' && k !== state.sel) return;  // the fits are outlined in the view
     const st = (fd.states || [])[k] || 'undecided';
     g.fillStyle = k === state.sel ? COL.sel : st === 'undecided' ? COL[e.src] : COL[st];
     const r = (k === state.sel ? 3.5 : 2) * s;
@@ -895,6 +973,12 @@ function readout() {
   }
   if (fd.zone && fd.valid[i] && !fd.zone[i]) parts.push('table / bin (not judged)');
   const cls = pixelClass(fd, i);
+  const fe = fitAt(fd, x, y);
+  if (fe) parts.push(`fit #${fe.id} (Err ${fe.err.toFixed(2)} mm${fe.rejected ? ', rejected' : ''})`);
+  if (fd.fits && fd.fits.proposals && fd.fits.proposals[i]) {
+    const pe = (fd.propEntries || [])[fd.fits.proposals[i] - 1];
+    if (pe) parts.push(isNaN(pe.dist) ? `proposal: rejected fit's pixels` : `unexplained: group ${pe.dist.toFixed(2)} mm off`);
+  }
   if (fd.zIds[i]) parts.push(`z-cut #${fd.zIds[i]}`);
   if (fd.sIds[i]) parts.push(`SOR #${fd.sIds[i]} (${fd.sSize[fd.sIds[i]]} px)`);
   parts.push(fd.L[i] ? 'labelled outlier' : fd.R[i] ? 'reviewed, not outlier' : cls ? 'undecided' : 'not reviewed');
@@ -941,6 +1025,150 @@ function showFrameWarning(fd) {
   else el.hidden = true;
 }
 
+// ------------------------------------------------------------------ part fits (docs/labelling.md, "Judging fits")
+// With a part model the server fits the part's instances in the background (annotate/fits.py): each fitted
+// instance is outlined over the image with its residual Err, listed ('f' entries) and drawn in the 3D view;
+// the unexplained pixels (farther than k × Err from every known surface) are the proposals ('u' entries),
+// each with its distance to the nearest known surface. K rejects the selected fit (or the one under the
+// pointer): its pixels return to review as proposals of their own; K again takes the rejection back.
+const COL_FIT = rgba(170, 255, 0, 230), COL_FITX = rgba(255, 0, 255, 230), COL_U = rgba(255, 235, 0, 170);
+function parseFitsBundle(buf) {  // an uncompressed bundle of annotate/payload.py: sparse ids and tables
+  const dv = new DataView(buf), n = dv.getUint32(0, true);
+  const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
+  const base = 4 + n, out = {}, size = header.width * header.height;
+  for (const s of header.sections || []) {
+    const bytes = new Uint8Array(buf.slice(base + s.offset, base + s.offset + s.length));
+    if (s.kind === 'sparse') {
+      const c = s.count, deltas = new Uint32Array(bytes.buffer, 0, c);
+      const T = { uint8: Uint8Array, uint16: Uint16Array, uint32: Uint32Array }[s.dtype];
+      const vals = new T(bytes.buffer.slice(4 * c, 4 * c + c * T.BYTES_PER_ELEMENT));
+      const a = new Uint32Array(size);
+      let i = 0;
+      for (let k = 0; k < c; k++) { i += deltas[k]; a[i] = vals[k]; }
+      out[s.name] = a;
+    } else if (s.kind === 'table') out[s.name] = new Float32Array(bytes.buffer);
+  }
+  return { header, ...out };
+}
+function tableRows(t, cols) {
+  const nc = cols.length, col = Object.fromEntries(cols.map((c, i) => [c, i])), rows = [];
+  for (let r = 0; t && r < t.length / nc; r++) rows.push((name) => t[r * nc + col[name]]);
+  return rows;
+}
+function pixelsOf(ids, n) {  // id (1..n) -> Int32Array of its pixels
+  const count = new Int32Array(n + 2);
+  for (let i = 0; i < ids.length; i++) if (ids[i]) count[ids[i] + 1]++;
+  for (let k = 1; k < count.length; k++) count[k] += count[k - 1];
+  const pix = new Int32Array(count[n + 1]), at = count.slice();
+  for (let i = 0; i < ids.length; i++) if (ids[i]) pix[at[ids[i]]++] = i;
+  return (id) => pix.subarray(count[id], count[id + 1]);
+}
+function applyFits(fd, f) {
+  const had = (fd.fitEntries || []).length + (fd.propEntries || []).length;
+  const selE = state.cur === fd && state.sel >= 0 ? fd.entries[state.sel] : null;  // kept selected
+  fd.fits = f;
+  const h = f.header;
+  fd.fitEntries = []; fd.propEntries = [];
+  if (h.status === 'ready') {
+    const fpix = pixelsOf(f.fit_ids, h.n_fits), ppix = pixelsOf(f.proposals, h.n_proposals);
+    for (const v of tableRows(f.fit_table, h.fit_columns)) {
+      const i = v('fit'), pose = ['r00', 'r01', 'r02', 't0', 'r10', 'r11', 'r12', 't1', 'r20', 'r21', 'r22', 't2'].map(v);
+      fd.fitEntries.push({ src: 'f', id: i + 1, fit: i, n: v('n'), x0: v('x0'), y0: v('y0'), x1: v('x1'), y1: v('y1'),
+        cx: v('cx'), cy: v('cy'), err: v('err_mm'), support: v('support'), rejected: v('rejected') > 0, pose,
+        seeded: v('seeded') > 0,
+        hmin: NaN, hmax: NaN, below: NaN, gap: NaN, score: v('err_mm'), both: 0, also: [], pix: fpix(i + 1) });
+    }
+    for (const v of tableRows(f.proposal_table, h.proposal_columns)) {
+      const id = v('id');
+      fd.propEntries.push({ src: 'u', id, n: v('n'), x0: v('x0'), y0: v('y0'), x1: v('x1'), y1: v('y1'), cx: v('cx'),
+        cy: v('cy'), hmin: v('h_min_mm'), hmax: v('h_max_mm'), below: NaN, gap: NaN, dist: v('dist_mm'),
+        distMax: v('dist_max_mm'), err: v('err_mm'), fromFit: v('fit'), score: 1e6 + (isNaN(v('dist_mm')) ? 1e3 : v('dist_mm')),
+        both: 0, also: [], pix: ppix(id) });
+    }
+  }
+  if (had || fd.fitEntries.length || fd.propEntries.length) {  // no part model: the list stays as it is
+    buildEntries(fd);
+    if (selE && state.cur === fd) {
+      state.sel = fd.entries.findIndex((e) => e.src === selE.src && e.id === selE.id);
+      renderList();
+    }
+  }
+  if (state.cur === fd) { renderOverlay(); requestDraw(); showFitInfo(fd); }
+}
+function showFitInfo(fd) {
+  const el = $('fitinfo'); if (!el) return;
+  const f = fd.fits;
+  if (!f) { el.textContent = 'fits: …'; return; }
+  const h = f.header;
+  if (h.status === 'ready') {
+    const errs = fd.fitEntries.map((e) => e.err).sort((a, b) => a - b);
+    el.textContent = `${h.n_fits} fits of ${h.model} (median Err ${errs.length ? errs[errs.length >> 1].toFixed(2) : '–'} mm` +
+      `${h.n_rejected ? `, ${h.n_rejected} rejected` : ''}) · ${h.n_proposals} proposals: pixels farther than ` +
+      `${h.k} × Err from every known surface`;
+  } else el.textContent = h.status === 'none' ? h.message : h.status === 'error' ? `no fits: ${h.message}` : 'fitting…';
+  el.className = `info fits ${h.status}`;
+}
+async function loadFits(fd) {
+  try {
+    const r = await fetch(`/api/frames/${fd.index}/fits`);
+    if (!r.ok) throw new Error(`fits: HTTP ${r.status}`);
+    const f = parseFitsBundle(await r.arrayBuffer());
+    if (f.header.status === 'ready' || f.header.status === 'none' || f.header.status === 'error') applyFits(fd, f);
+    else {
+      fd.fits = f; if (state.cur === fd) showFitInfo(fd);
+      setTimeout(() => { if (state.cur === fd) loadFits(fd); }, 1000);
+    }
+  } catch (e) { setTimeout(() => { if (state.cur === fd) loadFits(fd); }, 2000); }
+}
+function fitAt(fd, x, y) {  // the fit entry whose pixels hold (x, y), or null
+  if (!fd.fits || !fd.fits.fit_ids || x < 0 || y < 0 || x >= fd.W || y >= fd.H) return null;
+  const id = fd.fits.fit_ids[Math.floor(y) * fd.W + Math.floor(x)];
+  return id ? fd.fitEntries[id - 1] : null;
+}
+async function rejectFit() {  // K: reject the selected fit (or the one under the pointer); again: take it back
+  const fd = state.cur; if (!fd || !fd.fits || fd.fits.header.status !== 'ready') { setSaveState('no fits on this frame', 'error'); return; }
+  let e = state.sel >= 0 ? fd.entries[state.sel] : null;
+  if (e && e.src === 'u' && e.fromFit >= 0) e = fd.fitEntries[e.fromFit];
+  if (!e || e.src !== 'f') e = hover ? fitAt(fd, hover.x, hover.y) : null;
+  if (!e) { setSaveState('K: select a fit (or point at one) first', 'error'); return; }
+  const r = await fetch(`/api/frames/${fd.index}/fits/${e.fit}`, { method: 'PUT', headers: { 'Content-Type': 'application/json' },
+                                                                  body: JSON.stringify({ rejected: !e.rejected }) });
+  if (!r.ok) { showError(`fit ${e.fit}: HTTP ${r.status}`); return; }
+  const was = e.rejected;
+  applyFits(fd, parseFitsBundle(await r.arrayBuffer()));
+  setSaveState(was ? `fit #${e.id} taken back` : `fit #${e.id} rejected`, 'saved');
+  const k = fd.entries.findIndex((x) => x.src === 'u' && x.fromFit === e.fit);
+  if (!was && k >= 0) select(k, { zoom: true });
+  else { const j = fd.entries.findIndex((x) => x.src === 'f' && x.fit === e.fit); if (j >= 0) select(j, { zoom: false }); }
+}
+async function seedFit(fd, x, y) {  // Ctrl+click: fit the part again around (x, y), on its unexplained pixels
+  if (!fd.fits || fd.fits.header.status !== 'ready') { setSaveState('no fits on this frame to add to', 'error'); return; }
+  x = Math.floor(x); y = Math.floor(y);
+  if (x < 0 || y < 0 || x >= fd.W || y >= fd.H) return;
+  setSaveState('fitting at the click…', 'saving');
+  const r = await fetch(`/api/frames/${fd.index}/fits/seed`, { method: 'POST', headers: { 'Content-Type': 'application/json' },
+                                                              body: JSON.stringify({ x, y }) });
+  if (!r.ok) { showError(`seed: HTTP ${r.status}`); return; }
+  const n = +r.headers.get('X-Zcut-Seeded');
+  applyFits(fd, parseFitsBundle(await r.arrayBuffer()));
+  setSaveState(n ? `seeded ${n} fit${n > 1 ? 's' : ''}` : 'no instance found at the click', n ? 'saved' : 'error');
+  if (n) { const j = fd.entries.findIndex((e) => e.src === 'f' && e.fit === fd.fitEntries.length - 1); if (j >= 0) select(j, { zoom: false }); }
+}
+function fitPoints(fd, nb, ox, oy, oz, sel) {  // the fits near the neighbourhood, posed model samples (view coordinates)
+  const f = fd.fits, pos = [], col = [];
+  if (!f || f.header.status !== 'ready' || !f.header.model_points) return { pos, col };
+  for (const e of fd.fitEntries) {
+    if (e.x1 < nb.x0 || e.x0 > nb.x1 || e.y1 < nb.y0 || e.y0 > nb.y1) continue;
+    const P = e.pose, c = e.rejected ? [255, 0, 255] : e === sel ? [255, 255, 255] : [150, 190, 255];
+    for (const m of f.header.model_points) {
+      const x = P[0] * m[0] + P[1] * m[1] + P[2] * m[2] + P[3], y = P[4] * m[0] + P[5] * m[1] + P[6] * m[2] + P[7];
+      const z = P[8] * m[0] + P[9] * m[1] + P[10] * m[2] + P[11];
+      pos.push(x - 1000 * ox, -(y - 1000 * oy), -(z - 1000 * oz)); col.push(...c);
+    }
+  }
+  return { pos, col };
+}
+
 // ------------------------------------------------------------------ navigation
 let navToken = 0;
 async function goTo(index, t0 = performance.now()) {
@@ -973,6 +1201,8 @@ async function goTo(index, t0 = performance.now()) {
   renderList();
   $('candlist').scrollTop = 0;
   loadProposals(fd);
+  if (!fd.fits || fd.fits.header.status === 'waiting' || fd.fits.header.status === 'fitting') loadFits(fd);
+  showFitInfo(fd);
   drawProfile();
   updateInfo();
   const t3 = performance.now();
@@ -1552,6 +1782,7 @@ window.zcut.profileAxis = () => drawProfile.axis || null;
 window.zcut.entries = () => {
   const fd = state.cur; if (!fd) return [];
   return fd.entries.map((e, k) => ({ src: e.src, id: e.id, n: e.n, cx: e.cx, cy: e.cy, gap: e.gap, both: e.both,
+                                     err: e.err, dist: e.dist, fit: e.fit, fromFit: e.fromFit, rejected: e.rejected,
                                      source: e.source, also: e.also, p: propP(fd, e), confident: !!confident(fd, e),
                                      state: (fd.states || [])[k] }));
 };
@@ -1562,6 +1793,15 @@ window.zcut.proposals = () => {
            n: fd.prop.p.length, out: out.map((e) => e.id), inl: inl.map((e) => e.id), model: fd.prop.model };
 };
 window.zcut.readout = () => $('readout').textContent;
+window.zcut.fits = () => {
+  const fd = state.cur; if (!fd || !fd.fits) return null;
+  const h = fd.fits.header;
+  return { status: h.status, message: h.message, n_fits: h.n_fits || 0, n_rejected: h.n_rejected || 0,
+           n_proposals: h.n_proposals || 0, info: $('fitinfo').textContent,
+           fits: (fd.fitEntries || []).map((e) => ({ fit: e.fit, n: e.n, err: e.err, rejected: e.rejected, seeded: e.seeded,
+                                                     cx: e.cx, cy: e.cy })),
+           proposals: (fd.propEntries || []).map((e) => ({ id: e.id, n: e.n, dist: e.dist, fromFit: e.fromFit, cx: e.cx, cy: e.cy })) };
+};
 window.zcut.unsaved = () => [...loaded.values()].filter((fd) => fd.dirty || fd.saving || fd.conflict).map((fd) => fd.index);
 window.zcut.profileInfo = () => $('profinfo').textContent;
 
@@ -1577,6 +1817,7 @@ canvas.addEventListener('pointerdown', (e) => {
     return;
   }
   if (e.button !== 0) return;
+  if (e.ctrlKey || e.metaKey) { seedFit(fd, p.x, p.y); return; }  // Ctrl+click: seed a missed instance
   const t = state.tool;
   if (t === 'select') { clickCluster(fd, p.x, p.y, e.altKey); return; }
   if (t === 'wand') { wand(fd, p.x, p.y, e.shiftKey ? 'erase' : 'add'); return; }
@@ -1704,6 +1945,7 @@ window.addEventListener('keydown', (e) => {
     case 'r': decide(false, t0); break;
     case 'A': decideAll(true); break;
     case 'y': case 'Y': acceptProposals(); break;
+    case 'k': case 'K': rejectFit(); break;
     case 'w': case 'W': setTool('wand'); break;
     case 't': case 'T': setTool('rbrush'); break;
     case ',': setRise(riseThreshold(fd || { header: {} }) - 0.1); break;

@@ -101,6 +101,10 @@ def run(args: argparse.Namespace) -> int:
             # what the config resolution decided, as every pipeline command says it
             for note in page.replay.notes:
                 print(f"zcut: {note}", file=sys.stderr, flush=True)
+        fitter = page.catalogue.fitter
+        print(f"zcut: {page.fits_note}" if fitter is None else
+              f"zcut: fitting {fitter.model_name} to every frame in the background (k = {fitter.k:g}; "
+              "docs/labelling.md, \"Judging fits\")", file=sys.stderr, flush=True)
         for other in page.announce(port):
             print(f"warning: {other} serves the same label store {db}: edits from both are kept, "
                   "but the same annotator on both will meet conflicts", file=sys.stderr, flush=True)

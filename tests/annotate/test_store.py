@@ -424,7 +424,7 @@ def test_a_version_1_store_is_migrated_and_keeps_its_labels(tmp_path, log_file, 
     db.commit()
     db.close()
     with LabelStore(path) as store:
-        assert store.schema_version == SCHEMA_VERSION == 3
+        assert store.schema_version == SCHEMA_VERSION == 4
         fr = store.frame(store.log_by_sha(file_sha256(log_file)), topic="/c", stamp_ns=5)
         assert np.array_equal(store.label(fr, annotator="ann").outliers, l1)
         assert store.save_label(fr, annotator="ann", outliers=l1, reviewed=r1, base_revision=1,

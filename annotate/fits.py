@@ -1,0 +1,422 @@
+"""The part fits the labelling page judges (docs/labelling.md, "Judging fits"; issue 29 item 5).
+
+When the part's mesh is known (``zcut annotate --part-model FILE``, else the log's ``part_model.ply``
+attachment), a :class:`Fitter` thread runs the method ``explained``
+(:func:`replay.pipeline.explained.run_explained`: the part instances fitted in the zone, every zone
+pixel's distance to the nearest known surface — fitted instances, registered bin, table plane — and
+the pixels farther than k × Err from all of them) on every frame the catalogue prepared, in log
+order, the frame the page asks for first. The page is usable meanwhile: a frame not fitted yet is
+answered with its status (``waiting``, ``fitting``), never by holding a worker.
+
+What a frame's fits give the page (:meth:`FrameFits.bundle`, a bundle of :mod:`annotate.payload`):
+
+- ``fit_ids`` (sparse): which fitted instance (1-based) explains each zone pixel (its nearest surface,
+  within k × Err), and ``fit_table`` (:data:`FIT_COLUMNS`, one row per instance: its pixels, box, Err,
+  support, pose, whether the annotator rejected it);
+- ``proposals`` (sparse ids) and ``proposal_table`` (:data:`PROPOSAL_COLUMNS`): the review groups of
+  the fits — the unexplained pixels, as groups of pixels within two pixels of each other, each with
+  its distance to the nearest known surface (median and largest, mm), its Err and its heights; and
+  the pixels of every rejected fit, which return to review as groups of their own (``fit`` names the
+  rejected instance; they have no distance: the fit that explained them is no known surface any more).
+
+A rejection is stored with the labels (:meth:`annotate.store.LabelStore.save_fit_decision`), with the
+fit's position: a fit found again at that position (within :data:`SAME_FIT_MM`) on a reopened page
+is the same fit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from scipy import ndimage
+
+from annotate.payload import EIGHT, _cluster_stats, _small_uint, make_bundle
+
+if TYPE_CHECKING:
+    from replay.logs.frame import Frame
+    from replay.pipeline.stages import FrameResult
+    from zcut.bin_model import BinModel
+    from zcut.registration import RegistrationResult
+    from zcut.removal import RemovalResult
+
+#: Columns of the fit table (float32): ``fit`` its 0-based index; ``n`` the zone pixels it explains;
+#: ``x0, y0, x1, y1`` their box (end exclusive), ``cx, cy`` their centroid; ``err_mm`` its residual
+#: (the paper's Err); ``support`` the share of its predicted visible pixels that measured points
+#: support; ``rejected`` 1 when the annotator rejected it; ``r00 .. t2`` its pose (model mm -> camera mm,
+#: rotation row-major then translation); ``seeded`` 1 for an instance found from a person's click (:meth:`Fitter.seed`).
+FIT_COLUMNS = ("fit", "n", "x0", "y0", "x1", "y1", "cx", "cy", "err_mm", "support", "rejected",
+               "r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22", "t0", "t1", "t2", "seeded")
+#: Columns of the proposal table (float32): ``id`` (in ``proposals``), ``n``, box, centroid, heights
+#: and the gap to the surface around it as the candidate table's (:data:`annotate.payload.CANDIDATE_COLUMNS`);
+#: ``dist_mm``, ``dist_max_mm``: median and largest distance of its pixels to the nearest known surface;
+#: ``err_mm``: their median Err; ``fit``: -1 for unexplained pixels, else the rejected fit they came from.
+PROPOSAL_COLUMNS = ("id", "n", "x0", "y0", "x1", "y1", "cx", "cy", "h_min_mm", "h_max_mm", "below_mm", "gap_mm",
+                    "dist_mm", "dist_max_mm", "err_mm", "fit")
+#: Unexplained pixels this close (pixels, 8-connected after a dilation of this many) form one proposal.
+JOIN_PX = 1
+#: A stored rejection applies to the fit of the same index whose position lies this close (mm).
+SAME_FIT_MM = 2.0
+#: The half side (pixels) of the window a seed click refits, when the frame has no fits to size it by.
+SEED_WINDOW = 40
+#: At most this many of the part model's surface samples go to the page's 3D view.
+MODEL_POINTS = 400
+
+
+@dataclass(frozen=True, slots=True)
+class FrameFits:
+    """What ``explained`` found on one frame, kept compact (sparse pixel lists), or why it did not.
+
+    Attributes
+    ----------
+    index : int
+    status : str
+        ``"ready"`` or ``"error"`` (``message`` says why: no bin stages, a failed fit).
+    message : str
+    shape : (int, int)
+    fits : tuple of dict
+        Per instance: ``err_mm``, ``support``, ``pose`` (4 x 4 list).
+    fit_pix, fit_of : (k,) int64, (k,) int32 ndarray
+        The zone pixels a fit explains (flat indices, increasing) and which fit (0-based).
+    un_pix : (u,) int64 ndarray
+        The unexplained pixels (flat, increasing), with ``un_dist`` and ``un_err`` (mm) there.
+    un_dist, un_err : (u,) float32 ndarray
+    seconds : float
+        CPU seconds the fits took.
+    """
+
+    index: int
+    status: str
+    message: str = ""
+    shape: tuple[int, int] = (0, 0)
+    fits: tuple[dict[str, Any], ...] = ()
+    fit_pix: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    fit_of: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    un_pix: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    un_dist: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    un_err: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    seconds: float = 0.0
+
+    def rejected(self, stored: dict[int, tuple[float, float, float]]) -> set[int]:
+        """The fits a store's rejections (:meth:`annotate.store.LabelStore.rejected_fits`) name: same
+        index, position within :data:`SAME_FIT_MM`."""
+        out = set()
+        for i, pos in stored.items():
+            if 0 <= i < len(self.fits):
+                t = np.asarray(self.fits[i]["pose"], np.float64)[:3, 3]
+                if float(np.linalg.norm(t - np.asarray(pos))) <= SAME_FIT_MM:
+                    out.add(i)
+        return out
+
+    def position_mm(self, fit: int) -> tuple[float, float, float]:
+        t = np.asarray(self.fits[fit]["pose"], np.float64)[:3, 3]
+        return float(t[0]), float(t[1]), float(t[2])
+
+    def bundle(self, *, heights_mm: np.ndarray | None, valid: np.ndarray | None, rejected: set[int],
+               header: dict[str, Any]) -> bytes:
+        """The page's bundle of these fits with ``rejected`` fits' pixels returned to review (module
+        docstring); ``heights_mm`` and ``valid`` (H, W) give the proposals' heights and gaps."""
+        H, W = self.shape
+        head = {**header, "status": self.status, "message": self.message, "height": H, "width": W,
+                "n_fits": len(self.fits), "n_rejected": len(rejected), "fit_columns": list(FIT_COLUMNS),
+                "proposal_columns": list(PROPOSAL_COLUMNS), "seconds": round(self.seconds, 3)}
+        if self.status != "ready" or heights_mm is None or valid is None:
+            return make_bundle(head, [], compress=False)
+        n_fit = len(self.fits)
+        flat_fit = np.zeros(H * W, np.int64)
+        flat_fit[self.fit_pix] = self.fit_of + 1
+        fit_ids = flat_fit.reshape(H, W)
+        # the proposals: unexplained pixels joined within JOIN_PX, then each rejected fit's pixels
+        flat_un = np.zeros(H * W, bool)
+        flat_un[self.un_pix] = True
+        un = flat_un.reshape(H, W)
+        ids = np.zeros((H, W), np.int64)
+        n = 0
+        if un.any():
+            joined, n = ndimage.label(ndimage.binary_dilation(un, EIGHT, iterations=JOIN_PX), structure=EIGHT)
+            ids[un] = joined[un]
+            used = np.unique(ids[un])  # renumber 1..n (a dilated component always holds a pixel of its own)
+            lut = np.zeros(int(n) + 1, np.int64)
+            lut[used] = np.arange(1, used.size + 1)
+            ids = lut[ids]
+            n = int(used.size)
+        src_fit = [-1] * n
+        for f in sorted(rejected):
+            mine = (fit_ids == f + 1) & (ids == 0)
+            if not mine.any():
+                continue
+            comp, m = ndimage.label(mine, structure=EIGHT)
+            ids[mine] = comp[mine] + n
+            n += int(m)
+            src_fit += [f] * int(m)
+        table = np.zeros((n, len(PROPOSAL_COLUMNS)), np.float32)
+        if n:
+            st = _cluster_stats(ids, n, heights_mm, valid, np.zeros((H, W), bool))
+            g = ids.ravel()[self.un_pix]
+            dist_med = np.full(n, np.nan)
+            dist_max = np.full(n, np.nan)
+            err_med = np.full(n, np.nan)
+            order = np.argsort(g, kind="stable")
+            gs, ds, es = g[order], self.un_dist[order].astype(np.float64), self.un_err[order].astype(np.float64)
+            bounds = np.searchsorted(gs, np.arange(1, n + 2))
+            for j in range(n):
+                a, b = bounds[j], bounds[j + 1]
+                if b > a:
+                    d = ds[a:b]
+                    d = d[np.isfinite(d)] if np.isfinite(d).any() else d
+                    dist_med[j], dist_max[j] = float(np.median(d)), float(np.max(d))
+                    err_med[j] = float(np.nanmedian(es[a:b]))
+            cols = {"id": np.arange(1, n + 1, dtype=np.float64), **st, "dist_mm": dist_med, "dist_max_mm": dist_max,
+                    "err_mm": err_med, "fit": np.asarray(src_fit, np.float64)}
+            table = np.stack([np.asarray(cols[c], np.float64) for c in PROPOSAL_COLUMNS], axis=1).astype(np.float32)
+        ft = np.zeros((n_fit, len(FIT_COLUMNS)), np.float32)
+        if n_fit:
+            st = _cluster_stats(fit_ids, n_fit, heights_mm, valid, np.zeros((H, W), bool))
+            poses = np.asarray([f["pose"] for f in self.fits], np.float64)
+            cols = {"fit": np.arange(n_fit, dtype=np.float64), "n": st["n"], "x0": st["x0"], "y0": st["y0"],
+                    "x1": st["x1"], "y1": st["y1"], "cx": st["cx"], "cy": st["cy"],
+                    "err_mm": np.array([f["err_mm"] for f in self.fits]),
+                    "support": np.array([f["support"] for f in self.fits]),
+                    "rejected": np.array([float(i in rejected) for i in range(n_fit)]),
+                    "seeded": np.array([float(bool(f.get("seeded"))) for f in self.fits])}
+            for r in range(3):
+                for c in range(3):
+                    cols[f"r{r}{c}"] = poses[:, r, c]
+                cols[f"t{r}"] = poses[:, r, 3]
+            ft = np.stack([np.asarray(cols[c], np.float64) for c in FIT_COLUMNS], axis=1).astype(np.float32)
+        head["n_proposals"] = n
+        return make_bundle(head, [("fit_ids", "sparse", _small_uint(fit_ids, n_fit)), ("fit_table", "table", ft),
+                                  ("proposals", "sparse", _small_uint(ids, n)), ("proposal_table", "table", table)],
+                           compress=False)
+
+
+@dataclass(frozen=True, slots=True)
+class Job:
+    """What a frame waiting to be fitted keeps of its pipeline result: the zone and the bin stages'
+    masks and pose (not the points, the height image or the filters' outputs)."""
+
+    valid: np.ndarray
+    zone: np.ndarray
+    removal: RemovalResult | None
+    registration: RegistrationResult | None
+
+    @classmethod
+    def of(cls, result: FrameResult) -> Job:
+        rem = result.removal
+        if rem is not None:  # its cloud and height image are the frame's: not kept twice
+            rem = dataclasses.replace(rem, xyz=np.zeros((0, 0, 3), np.float32), height_mm=np.zeros((0, 0)))
+        return cls(np.asarray(result.valid, bool), np.asarray(result.zone, bool), rem, result.registration)
+
+
+def fit_frame(frame: Frame, job: Job, config: Any, bin_model: BinModel | None) -> FrameFits:
+    """Run ``explained`` on one prepared frame (its pipeline result's zone) and keep what the page needs."""
+    from replay.pipeline.explained import run_explained
+    from replay.pipeline.zone import BinLocation, Zone
+
+    H, W = np.shape(job.valid)
+    t = time.process_time()
+    if job.removal is None or job.registration is None or bin_model is None:
+        return FrameFits(frame.index, "error", "no fits: the bin stages did not run on this frame (the bin and "
+                         "the table would be no known surfaces)", (H, W))
+    located = BinLocation(job.valid, None, job.registration, {}, 0.0, (), bin_model=bin_model)
+    zone = Zone(located, job.removal, job.zone, np.zeros((0, 0)), np.asarray(job.removal.easy_outliers, bool), {}, ())
+    out, detail, warning = run_explained(frame, zone, config)
+    seconds = time.process_time() - t
+    if detail is None:
+        return FrameFits(frame.index, "error", warning or "no fits", (H, W), seconds=seconds)
+    judged = job.zone & ~np.asarray(out, bool) & np.isfinite(detail.dist_mm)
+    code = np.where(judged, detail.surface, -1).ravel()
+    fit_pix = np.flatnonzero(code >= 0)
+    un_pix = np.flatnonzero(np.asarray(out, bool).ravel())
+    fits = tuple({"err_mm": float(f.err_mm), "support": float(f.support), "pose": np.asarray(f.pose).tolist()}
+                 for f in detail.fits)
+    return FrameFits(frame.index, "ready", f"{len(fits)} fits, {un_pix.size} unexplained px", (H, W), fits,
+                     fit_pix, code[fit_pix].astype(np.int32), un_pix,
+                     detail.dist_mm.ravel()[un_pix].astype(np.float32), detail.err_mm.ravel()[un_pix].astype(np.float32),
+                     seconds)
+
+
+class Fitter:
+    """Fits the frames the catalogue prepared, one at a time in a background thread: the frame the
+    page wants first (:meth:`want`), else the lowest index waiting.
+
+    ``points(index)`` gives a frame's points (the catalogue's spill, memory-mapped): the frames
+    waiting keep their zone, not their cloud.
+    """
+
+    def __init__(self, config: Any, bin_model: BinModel | None, points: Any, *, model_name: str,
+                 model_points: list[list[float]], k: float) -> None:
+        self.config = config
+        self.bin_model = bin_model
+        self.points = points
+        self.model_name = model_name
+        self.model_points = model_points
+        self.k = k
+        self.results: dict[int, FrameFits] = {}
+        self._pending: dict[int, tuple[Frame, Job]] = {}
+        self._running: int | None = None
+        self._wanted: int | None = None
+        self._cond = threading.Condition()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="zcut-annotate-fits", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        with self._cond:
+            self._cond.notify_all()
+        if self._thread is not None:  # a fit under way is not interrupted: a daemon thread, not waited for long
+            self._thread.join(timeout=5)
+
+    def submit(self, frame: Frame, result: FrameResult) -> None:
+        """Queue a prepared frame (its points are read from ``points`` when its turn comes)."""
+        light = dataclasses.replace(frame, xyz=np.zeros((0, 0, 3), np.float32), rgb=None, masks={}, codes={})
+        job = Job.of(result)
+        with self._cond:
+            self._pending[frame.index] = (light, job)
+            self._cond.notify_all()
+
+    def want(self, index: int) -> None:
+        """The page shows frame ``index``: fit it next."""
+        with self._cond:
+            if index not in self.results and index != self._running:
+                self._wanted = index
+                self._cond.notify_all()
+
+    def status(self, index: int) -> tuple[str, FrameFits | None]:
+        """(``"ready"`` / ``"error"`` with its fits, ``"fitting"``, ``"waiting"``) of a frame."""
+        with self._cond:
+            got = self.results.get(index)
+            if got is not None:
+                return got.status, got
+            return ("fitting" if index == self._running else "waiting"), None
+
+    def _next(self) -> tuple[int, tuple[Frame, Job]] | None:
+        with self._cond:
+            while not self._stop.is_set():
+                if self._pending:
+                    i = self._wanted if self._wanted in self._pending else min(self._pending)
+                    assert i is not None
+                    if i == self._wanted:
+                        self._wanted = None
+                    self._running = i
+                    return i, self._pending.pop(i)
+                self._cond.wait(timeout=1.0)
+        return None
+
+    def _run(self) -> None:
+        while True:
+            job = self._next()
+            if job is None:
+                return
+            i, (light, work) = job
+            try:
+                frame = dataclasses.replace(light, xyz=self.points(i))
+                got = fit_frame(frame, work, self.config, self.bin_model)
+            except Exception as e:  # noqa: BLE001 - shown on the page for this frame; the others go on
+                H, W = np.shape(work.valid)
+                got = FrameFits(i, "error", f"the fits failed: {type(e).__name__}: {e}", (H, W))
+            with self._cond:
+                self.results[i] = got
+                self._running = None
+                self._cond.notify_all()
+
+    def seed(self, index: int, x: int, y: int) -> int:
+        """Seed a missed instance at pixel (``x``, ``y``) of a fitted frame: the part is fitted again on the
+        unexplained pixels of a window around it (:data:`SEED_WINDOW`); each instance found joins the
+        frame's fits and its pixels leave the proposals. Returns how many were found (kept in memory:
+        not stored). Raises ValueError when the frame has no fits yet."""
+        from replay.pipeline.explained import NAME, part_model
+        from zcut.fits import FitParams, fit_prepared
+
+        with self._cond:
+            ff = self.results.get(index)
+        if ff is None or ff.status != "ready":
+            raise ValueError(f"frame {index} has no fits yet")
+        H, W = ff.shape
+        p = self.config.bank[NAME]
+        areas = np.bincount(ff.fit_of, minlength=len(ff.fits)) if len(ff.fits) else np.zeros(0)
+        r = int(np.clip(1.5 * np.sqrt(np.median(areas)) + 8, 16, 200)) if areas.size else SEED_WINDOW
+        flat_un = np.zeros(H * W, bool)
+        flat_un[ff.un_pix] = True
+        local = np.zeros((H, W), bool)
+        local[max(0, y - r):y + r + 1, max(0, x - r):x + r + 1] = True
+        local &= flat_un.reshape(H, W)
+        if local.sum() < 10:
+            return 0
+        _, _, prepared = part_model(p.part_model, p.part_model_unit)
+        xyz = np.asarray(self.points(index), np.float64) * 1000.0
+        found = fit_prepared(xyz, local, prepared, params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm,
+                                                                    min_support=p.fit_min_support))
+        if not found:
+            return 0
+        new_pix, new_of = [ff.fit_pix], [ff.fit_of]
+        taken = np.zeros(H * W, bool)
+        for j, f in enumerate(found):
+            px = np.asarray(f.pixels, np.int64)
+            px = px[flat_un[px] & ~taken[px]]
+            taken[px] = True
+            new_pix.append(px)
+            new_of.append(np.full(px.size, len(ff.fits) + j, np.int32))
+        keep = ~taken[ff.un_pix]
+        fits = ff.fits + tuple({"err_mm": float(f.err_mm), "support": float(f.support),
+                                "pose": np.asarray(f.pose).tolist(), "seeded": True} for f in found)
+        got = dataclasses.replace(ff, fits=fits, fit_pix=np.concatenate(new_pix), fit_of=np.concatenate(new_of),
+                                  un_pix=ff.un_pix[keep], un_dist=ff.un_dist[keep], un_err=ff.un_err[keep],
+                                  message=f"{len(fits)} fits, {int(keep.sum())} unexplained px")
+        with self._cond:
+            self.results[index] = got
+        return len(found)
+
+    def wait(self, index: int, timeout: float) -> FrameFits | None:
+        """Block until frame ``index`` is fitted (tests, tools); None on timeout."""
+        with self._cond:
+            self._cond.wait_for(lambda: index in self.results or self._stop.is_set(), timeout=timeout)
+            return self.results.get(index)
+
+
+def model_points(prepared: Any, n: int = MODEL_POINTS) -> list[list[float]]:
+    """Up to ``n`` of the part model's surface samples (mm, model frame), evenly taken, for the 3D view."""
+    s = np.asarray(prepared.samples, np.float64)
+    if len(s) > n:
+        s = s[np.linspace(0, len(s) - 1, n).astype(np.int64)]
+    out: list[list[float]] = np.round(s, 3).tolist()
+    return out
+
+
+def fitter_for(replay: Any, log_path: str | Path, points: Any) -> tuple[Fitter | None, str]:
+    """The page's :class:`Fitter` for a log opened for replay (a
+    :class:`replay.pipeline.session.ReplaySession`), or None and why not: its part model is the config's
+    ``explained.part_model`` (``--part-model FILE``), else the log's ``part_model.ply`` attachment.
+
+    Raises
+    ------
+    ParameterError, LogFormatError
+        One line: a part model that is not a readable mesh.
+    """
+    from replay.logs.part_model import PART_MODEL_ATTACHMENT
+    from replay.pipeline.explained import NAME, part_model, with_part_model
+
+    resolved = replay.resolved
+    p = resolved.config.bank[NAME]
+    if not p.part_model:
+        if not any(name == PART_MODEL_ATTACHMENT for name, _, _ in replay.reader.attachments()):
+            return None, (f"no part model: the page shows no fits (give --part-model FILE; the log carries no "
+                          f"{PART_MODEL_ATTACHMENT})")
+        resolved = with_part_model(resolved, log_path)
+        p = resolved.config.bank[NAME]
+    _, _, prepared = part_model(p.part_model, p.part_model_unit)
+    bin_model = replay.prepared.model if getattr(replay, "prepared", None) is not None else None
+    name = Path(p.part_model).name
+    if name.lower().endswith(".mcap"):
+        name = f"{name}'s {PART_MODEL_ATTACHMENT}"
+    return Fitter(resolved.config, bin_model, points, model_name=name, model_points=model_points(prepared),
+                  k=float(p.k)), ""
