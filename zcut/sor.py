@@ -289,7 +289,10 @@ def _column_stage(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray
     if not (math.isfinite(inv) and nx * ny <= _COLUMNS_PER_POINT * n_valid + 4096 and nz < 2.0**53):
         return done
     nx, ny = int(nx), int(ny)
-    marked = np.ones(nx * ny, dtype=bool)
+    # only the columns a query's ball can reach (a point outside them is farther than its bound,
+    # so never among its m nearest) are filled
+    marked = np.zeros(nx * ny, dtype=bool)
+    _columns.mark_columns(x[rows, cols], y[rows, cols], np.where(eligible, rad, -1.0), x0, y0, inv, nx, ny, marked)
     columns = _columns.build_columns(x, y, z, x0, y0, z0, inv, nx, marked)
     out = np.zeros(rows.size)
     run(_search.column_queries, rows.size, x, y, z, rows, cols, lim, eligible, m, divisor, int(_COLUMN_SCAN),
