@@ -56,6 +56,14 @@ nanoflann L2 metric: ``sqrt((dx*dx + dy*dy) + dz*dz)`` in float64, and d̄ sums 
 ascending order, so d̄ is bit-identical to Open3D's. The statistics are accumulated sequentially
 over the valid pixels in row-major order (the order in which ``xyz[valid]`` hands them to Open3D).
 
+Only what can hold a valid pixel is read: :func:`_prepare` notes each row's first and last valid
+column (with ``mask``, only the columns between the mask's first and last pixel of the row are
+read), the block statistics read the tiles of that span and compute U and V over its runs of tiles
+with a valid pixel, the row stages' chunks start at a valid pixel and end at a run of more than
+``sor_window._GAP`` invalid columns, and the column search fills only the columns its queries can
+reach. A top-of-pile region scattered over its bounding box thus costs about what its points cost,
+not what the box does.
+
 The kernels are serial numba functions that release the GIL, run over ranges of rows or pixels on
 a thread pool that lives for one call (see :func:`_workers`); importing or calling this module
 changes no process-wide setting.
