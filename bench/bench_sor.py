@@ -23,15 +23,25 @@ Classes (1920 x 1200, or the sensor's own size), all seeded:
                found as tests/conftest.py finds them: beside the checkout, else $ZCUT_REAL_DATA. Without
                them the run says so loudly and its minimum is not called the smallest ratio.
 
-For every class and convention: the CPU time of all threads (time.process_time, best of --repeat)
-of zcut and of Open3D's remove_statistical_outlier on the same valid points, the ratio, and
-whether the result is identical: the "open3d" convention against Open3D's own mask, the "pcl"
+For every class and convention: the CPU time of all threads (time.process_time, median of
+--repeat) of zcut and of Open3D's remove_statistical_outlier on the same valid points, the ratio,
+and whether the result is identical: the "open3d" convention against Open3D's own mask, the "pcl"
 convention against the exact KD-tree reference of tests/reference/sor_reference.py (Open3D's time
-is the yardstick for both). Targets: issue 12, >= 5x on every class and >= 10x on the pile; issue 32
-item 7, >= 10x on every class in both conventions.
+is the yardstick for both). With ``--against OLD_TREE`` (a source tree of the previous code, e.g.
+``git archive COMMIT | tar -x -C OLD_TREE``; its numba kernels compile on its first run) the same
+cloud also goes through the previous code in a subprocess of the same run: its CPU time, the ratio
+previous / this, and whether its masks are this code's bit for bit. The load average is printed
+before and after. Targets: issue 12, >= 5x on every class and >= 10x on the pile; issue 32 item 7,
+>= 10x on every class in both conventions.
 
     .venv/bin/python bench/bench_sor.py [--repeat N] [--seed S] [--k K] [--std-ratio R]
-                                        [--classes pile,walls,...] [--no-reference]
+                                        [--classes pile,walls,...] [--no-reference] [--against OLD_TREE]
+
+The SOR stage inside a replay: ``--stage LOG.mcap [--against OLD_TREE]`` runs the bin stages on
+every frame of the log (its own bin model, its config) and times the pipeline's SOR stage on the
+zone they leave (``replay.pipeline.zone.sor_on_zone``: the judged region, its crop, the filter;
+CPU ms, median of --repeat), with the previous tree's in a subprocess and whether its masks are
+this code's bit for bit.
 """
 
 from __future__ import annotations
@@ -389,7 +399,8 @@ def cloud_classes(seed: int) -> dict[str, object]:
 # measurement
 # ------------------------------------------------------------------------------------------------
 def cpu_best(fn, repeat: int) -> tuple[float, object]:
-    """Smallest CPU time (all threads of the process) of ``repeat`` calls, and the last result."""
+    """Smallest CPU time (all threads of the process) of ``repeat`` calls, and the last result
+    (bench/bench_bank.py's yardstick)."""
     best, out = np.inf, None
     for _ in range(repeat):
         t0 = time.process_time()
@@ -398,16 +409,132 @@ def cpu_best(fn, repeat: int) -> tuple[float, object]:
     return best, out
 
 
+def cpu_median(fn, repeat: int) -> tuple[float, object]:
+    """Median CPU time (all threads of the process) of ``repeat`` calls, and the last result."""
+    times, out = [], None
+    for _ in range(repeat):
+        t0 = time.process_time()
+        out = fn()
+        times.append(time.process_time() - t0)
+    return float(np.median(times)), out
+
+
+def warm_up(k: int) -> None:
+    """JIT compile / cache load of every path of zcut.sor (not timed)."""
+    from zcut.sor import sor_outliers
+
+    warm = np.random.default_rng(0).normal(size=(40, 40, 3))
+    for convention in ("pcl", "open3d"):
+        sor_outliers(warm, k=k, convention=convention)
+        sor_outliers(pile_cloud(0, height=60, width=90), k=k, convention=convention)
+
+
+def time_both(xyz: np.ndarray, k: int, std_ratio: float, repeat: int) -> dict[str, tuple[float, np.ndarray]]:
+    """Convention -> (median CPU s, outlier mask) of zcut.sor_outliers (whichever zcut is imported)."""
+    from zcut.sor import sor_outliers
+
+    return {c: cpu_median(lambda c=c: sor_outliers(xyz, k=k, std_ratio=std_ratio, convention=c), repeat)
+            for c in ("pcl", "open3d")}
+
+
+def previous_run(tree: Path, cloud: Path, out: Path, k: int, std_ratio: float, repeat: int) -> dict[str, tuple[float, np.ndarray]]:
+    """:func:`time_both` with the zcut of the source tree ``tree``, in a subprocess (this file's
+    ``--previous-run`` mode) on the cloud saved in ``cloud``."""
+    import subprocess
+
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    subprocess.run([sys.executable, __file__, "--previous-run", str(cloud), str(out), "--k", str(k), "--std-ratio",
+                    str(std_ratio), "--repeat", str(repeat)], env=env, cwd=str(tree), check=True)
+    with np.load(out) as f:
+        return {c: (float(f[f"t_{c}"]), f[f"m_{c}"]) for c in ("pcl", "open3d")}
+
+
+def _previous_main(cloud: str, out: str, k: int, std_ratio: float, repeat: int) -> int:
+    import zcut
+
+    assert str(Path(zcut.__file__).resolve()).startswith(os.path.realpath(os.getcwd())), zcut.__file__
+    warm_up(k)
+    res = time_both(np.load(cloud), k, std_ratio, repeat)
+    np.savez(out, **{f"t_{c}": t for c, (t, _) in res.items()}, **{f"m_{c}": m for c, (_, m) in res.items()})
+    return 0
+
+
 def open3d_outliers(pts: np.ndarray, valid: np.ndarray, k: int, std_ratio: float, repeat: int) -> tuple[float, np.ndarray]:
     import open3d as o3d
 
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
-    t, (_, kept) = cpu_best(lambda: pcd.remove_statistical_outlier(nb_neighbors=k, std_ratio=std_ratio), repeat)
+    t, (_, kept) = cpu_median(lambda: pcd.remove_statistical_outlier(nb_neighbors=k, std_ratio=std_ratio), repeat)
     keep = np.zeros(pts.shape[0], dtype=bool)
     keep[np.asarray(kept, dtype=np.int64)] = True
     out = np.zeros(valid.shape, dtype=bool)
     out[valid] = ~keep
     return t, out
+
+
+def stage_costs(log: Path, repeat: int) -> tuple[list[float], list[np.ndarray]]:
+    """CPU s (median of ``repeat``) and the mask of the pipeline's SOR stage on every frame of ``log``."""
+    from replay.pipeline import stages
+    from replay.pipeline.bin_model import bin_model_for
+    from replay.pipeline.session import ReplaySession
+    from replay.pipeline.zone import sor_on_zone
+
+    warm_up(4)
+    session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
+    times, masks = [], []
+    for frame in session.reader.frames():
+        located = stages.locate_bin(frame, session.config, bin_model=session.prepared, seed=session.seed)
+        zone = stages.bin_zone(frame, session.config, bin_model=session.prepared, located=located)
+        t, mask = cpu_median(lambda frame=frame, zone=zone: sor_on_zone(frame, zone, session.config), repeat)
+        times.append(t)
+        masks.append(np.asarray(mask))
+    return times, masks
+
+
+def _stage_previous_main(log: str, out: str, repeat: int) -> int:
+    import zcut
+
+    assert str(Path(zcut.__file__).resolve()).startswith(os.path.realpath(os.getcwd())), zcut.__file__
+    times, masks = stage_costs(Path(log), repeat)
+    np.savez(out, times=np.array(times), masks=np.array(masks))
+    return 0
+
+
+def stage_main(log: Path, against: Path | None, repeat: int) -> int:
+    """Print the SOR stage's CPU ms per frame of ``log``, this code and (``against``) the previous."""
+    import subprocess
+    import tempfile
+
+    print(f"SOR stage of {log}: CPU ms (all threads), median of {repeat}; load average {load_average()}"
+          + (f"; previous code: {against}" if against else ""), flush=True)
+    times, masks = stage_costs(log, repeat)
+    prev_t: list[float] = []
+    prev_m: list[np.ndarray] = []
+    if against is not None:
+        with tempfile.TemporaryDirectory(prefix="bench-sor-") as d:
+            out = Path(d) / "prev.npz"
+            subprocess.run([sys.executable, __file__, "--stage-previous", str(log), str(out), "--repeat", str(repeat)],
+                           env=dict(os.environ, PYTHONPATH=str(against)), cwd=str(against), check=True)
+            with np.load(out) as f:
+                prev_t, prev_m = list(f["times"]), list(f["masks"])
+    print(f"{'frame':>5s} {'outliers':>10s} {'this ms':>8s}" + (f" {'prev ms':>8s} {'prev/this':>9s} same" if prev_t else ""))
+    for i, (t, m) in enumerate(zip(times, masks, strict=True)):
+        line = f"{i:5d} {int(m.sum()):10d} {1000 * t:8.1f}"
+        if prev_t:
+            line += f" {1000 * prev_t[i]:8.1f} {prev_t[i] / t:8.2f}x {'yes' if np.array_equal(m, prev_m[i]) else 'NO'}"
+        print(line)
+    line = f"{'median':>5s} {'':10s} {1000 * float(np.median(times)):8.1f}"
+    if prev_t:
+        line += f" {1000 * float(np.median(prev_t)):8.1f} {float(np.median(prev_t)) / float(np.median(times)):8.2f}x"
+    print(line)
+    print(f"load average at the end: {load_average()}")
+    return 0
+
+
+def load_average() -> str:
+    try:
+        return " ".join(f"{v:.1f}" for v in os.getloadavg())
+    except OSError:  # not on this platform
+        return "unknown"
 
 
 def main() -> int:
@@ -418,29 +545,41 @@ def main() -> int:
     parser.add_argument("--std-ratio", type=float, default=1.0)
     parser.add_argument("--classes", default="", help="comma-separated class names or prefixes (default: all)")
     parser.add_argument("--no-reference", action="store_true", help="skip the exact pcl reference (KD-tree, slow)")
+    parser.add_argument("--against", metavar="OLD_TREE", type=Path,
+                        help="also time the previous code of this source tree on every cloud, and compare its masks")
+    parser.add_argument("--stage", metavar="LOG", type=Path,
+                        help="time the pipeline's SOR stage on every frame of this log instead of the classes")
+    parser.add_argument("--previous-run", nargs=2, metavar=("CLOUD_NPY", "OUT_NPZ"), help=argparse.SUPPRESS)
+    parser.add_argument("--stage-previous", nargs=2, metavar=("LOG", "OUT_NPZ"), help=argparse.SUPPRESS)
     args = parser.parse_args()
 
     configure_process()
+    if args.previous_run:
+        return _previous_main(*args.previous_run, args.k, args.std_ratio, args.repeat)
+    if args.stage_previous:
+        return _stage_previous_main(*args.stage_previous, args.repeat)
+    if args.stage:
+        return stage_main(args.stage, args.against, args.repeat)
+    import tempfile
+
     import numba
 
     sys.path.insert(0, str(ROOT / "tests" / "reference"))  # not tests/: its folders mirror the packages
     from sor_reference import sor_outliers_reference
-
-    from zcut.sor import sor_outliers
 
     classes = cloud_classes(args.seed)
     wanted = [c for c in args.classes.split(",") if c]
     if wanted:
         classes = {name: f for name, f in classes.items() if any(name.startswith(w) for w in wanted)}
 
-    warm = np.random.default_rng(0).normal(size=(40, 40, 3))
-    for convention in ("pcl", "open3d"):  # JIT compile / cache load of every path
-        sor_outliers(warm, k=args.k, convention=convention)
-        sor_outliers(pile_cloud(0, height=60, width=90), k=args.k, convention=convention)
-
+    warm_up(args.k)
     print(f"k={args.k} std_ratio={args.std_ratio} repeat={args.repeat} seed={args.seed}, {os.cpu_count()} cores, "
-          f"zcut on {numba.config.NUMBA_NUM_THREADS} threads; CPU s = process time of all threads, best of {args.repeat}")
-    header = f"{'class':26s} {'conv':6s} {'H x W':>11s} {'n valid':>9s} {'zcut s':>8s} {'Open3D s':>9s} {'ratio':>7s}  identical"
+          f"zcut on {numba.config.NUMBA_NUM_THREADS} threads; CPU s = process time of all threads, median of "
+          f"{args.repeat}; load average {load_average()}" + (f"; previous code: {args.against}" if args.against else ""))
+    header = f"{'class':26s} {'conv':6s} {'H x W':>11s} {'n valid':>9s} {'zcut s':>8s} {'Open3D s':>9s} {'ratio':>7s}"
+    if args.against:
+        header += f" {'prev s':>8s} {'prev/this':>9s} {'same as prev':>12s}"
+    header += "  identical"
     print(header)
     print("-" * len(header))
     worst = np.inf
@@ -448,6 +587,7 @@ def main() -> int:
     skipped: dict[str, str] = {}
     if REAL_DATA_PROBLEM is not None:
         print(f"WARNING: no real-data class will run: {REAL_DATA_PROBLEM}", file=sys.stderr, flush=True)
+    scratch = tempfile.TemporaryDirectory(prefix="bench-sor-")
     for name, make in classes.items():
         xyz = make()
         if isinstance(xyz, str):
@@ -458,9 +598,15 @@ def main() -> int:
         valid = np.isfinite(xyz).all(axis=2)
         pts = np.ascontiguousarray(xyz[valid], dtype=np.float64)
         t_o3d, want_o3d = open3d_outliers(pts, valid, args.k, args.std_ratio, args.repeat)
+        mine = time_both(xyz, args.k, args.std_ratio, args.repeat)
+        prev = None
+        if args.against:
+            cloud = Path(scratch.name) / "cloud.npy"
+            np.save(cloud, xyz)
+            prev = previous_run(args.against, cloud, Path(scratch.name) / "prev.npz", args.k, args.std_ratio,
+                                args.repeat)
         for convention in ("pcl", "open3d"):
-            t, got = cpu_best(lambda xyz=xyz, c=convention: sor_outliers(xyz, k=args.k, std_ratio=args.std_ratio, convention=c),
-                              args.repeat)
+            t, got = mine[convention]
             if convention == "open3d":
                 same = "yes" if np.array_equal(got, want_o3d) else f"NO ({int((got != want_o3d).sum())} px)"
             elif args.no_reference:
@@ -470,10 +616,16 @@ def main() -> int:
                 same = "yes" if np.array_equal(got, want) else f"NO ({int((got != want).sum())} px)"
             worst = min(worst, t_o3d / t)
             shape = f"{xyz.shape[0]}x{xyz.shape[1]}"
-            print(f"{name:26s} {convention:6s} {shape:>11s} {pts.shape[0]:9d} {t:8.3f} {t_o3d:9.3f} {t_o3d / t:6.1f}x  {same}",
-                  flush=True)
+            line = f"{name:26s} {convention:6s} {shape:>11s} {pts.shape[0]:9d} {t:8.3f} {t_o3d:9.3f} {t_o3d / t:6.1f}x"
+            if prev is not None:
+                t_prev, m_prev = prev[convention]
+                as_prev = "yes" if np.array_equal(got, m_prev) else f"NO ({int((got != m_prev).sum())} px)"
+                line += f" {t_prev:8.3f} {t_prev / t:8.2f}x {as_prev:>12s}"
+            print(f"{line}  {same}", flush=True)
+    scratch.cleanup()
     for line in summary(ran, skipped, worst, real_problem=REAL_DATA_PROBLEM):
         print(line)
+    print(f"load average at the end: {load_average()}")
     return 0
 
 

@@ -56,6 +56,14 @@ nanoflann L2 metric: ``sqrt((dx*dx + dy*dy) + dz*dz)`` in float64, and d̄ sums 
 ascending order, so d̄ is bit-identical to Open3D's. The statistics are accumulated sequentially
 over the valid pixels in row-major order (the order in which ``xyz[valid]`` hands them to Open3D).
 
+Only what can hold a valid pixel is read: :func:`_prepare` notes each row's first and last valid
+column (with ``mask``, only the columns between the mask's first and last pixel of the row are
+read), the block statistics read the tiles of that span and compute U and V over its runs of tiles
+with a valid pixel, the row stages' chunks start at a valid pixel and end at a run of more than
+``sor_window._GAP`` invalid columns, and the column search fills only the columns its queries can
+reach. A top-of-pile region scattered over its bounding box thus costs about what its points cost,
+not what the box does.
+
 The kernels are serial numba functions that release the GIL, run over ranges of rows or pixels on
 a thread pool that lives for one call (see :func:`_workers`); importing or calling this module
 changes no process-wide setting.
@@ -123,15 +131,36 @@ def _check_params(k: object, std_ratio: object, convention: object) -> tuple[int
 
 
 @nb.njit(cache=True, nogil=True)
-def _split_rows(r0, r1, a, mask, use_mask, x, y, z, valid, rowmax):  # type: ignore[no-untyped-def]  # numba kernel
+def _split_rows(r0, r1, a, mask, use_mask, x, y, z, valid, rowmax, span):  # type: ignore[no-untyped-def]  # numba kernel
     # float64 x, y, z planes (+inf where invalid: infinitely far from every valid point), the
-    # valid mask (finite, and in ``mask`` when ``use_mask``), and per row the largest |x|, |y|, |z|
-    # of its valid points
+    # valid mask (finite, and in ``mask`` when ``use_mask``), per row the largest |x|, |y|, |z|
+    # of its valid points and the span [first, last] of its valid columns (first > last: none).
+    # With a mask, only the columns between its first and last pixel of the row are read.
+    W = a.shape[1]
     for r in range(r0, r1):
+        lo = 0
+        hi = W - 1
+        if use_mask:
+            while lo < W and not mask[r, lo]:
+                lo += 1
+            while hi >= lo and not mask[r, hi]:
+                hi -= 1
+        for c in range(lo):
+            valid[r, c] = False
+            x[r, c] = np.inf
+            y[r, c] = np.inf
+            z[r, c] = np.inf
+        for c in range(hi + 1, W):
+            valid[r, c] = False
+            x[r, c] = np.inf
+            y[r, c] = np.inf
+            z[r, c] = np.inf
         mx = 0.0
         my = 0.0
         mz = 0.0
-        for c in range(a.shape[1]):
+        first = W
+        last = -1
+        for c in range(lo, hi + 1):
             u = np.float64(a[r, c, 0])
             v = np.float64(a[r, c, 1])
             w = np.float64(a[r, c, 2])
@@ -145,9 +174,13 @@ def _split_rows(r0, r1, a, mask, use_mask, x, y, z, valid, rowmax):  # type: ign
             mx = max(mx, abs(u) if ok else 0.0)
             my = max(my, abs(v) if ok else 0.0)
             mz = max(mz, abs(w) if ok else 0.0)
+            first = min(first, c if ok else W)
+            last = max(last, c if ok else -1)
         rowmax[r, 0] = mx
         rowmax[r, 1] = my
         rowmax[r, 2] = mz
+        span[r, 0] = first
+        span[r, 1] = last
 
 
 _NO_MASK = np.ones((1, 1), dtype=bool)
@@ -155,8 +188,9 @@ _NO_MASK.setflags(write=False)
 
 
 def _prepare(xyz: XYZ, run: Run, mask: Mask | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                                      np.ndarray]:
-    """float64 x, y, z planes (+inf where invalid), the valid mask, max |coordinate| per axis.
+                                                                      np.ndarray, np.ndarray]:
+    """float64 x, y, z planes (+inf where invalid), the valid mask, max |coordinate| per axis, and
+    per row the first and last valid column (H, 2) (first > last: the row has none).
 
     ``mask``: only its pixels may be valid (the same planes as of the cloud with every other pixel
     NaN, without making that copy: ``xyz`` may then be a strided view, e.g. a crop of a frame)."""
@@ -171,8 +205,9 @@ def _prepare(xyz: XYZ, run: Run, mask: Mask | None = None) -> tuple[np.ndarray, 
     x, y, z = np.empty((H, W)), np.empty((H, W)), np.empty((H, W))
     valid = np.empty((H, W), dtype=bool)
     rowmax = np.zeros((H, 3))
-    run(_split_rows, H, a, _NO_MASK if mask is None else mask, mask is not None, x, y, z, valid, rowmax)
-    return x, y, z, valid, rowmax.max(axis=0, initial=0.0)
+    span = np.empty((H, 2), dtype=np.int64)
+    run(_split_rows, H, a, _NO_MASK if mask is None else mask, mask is not None, x, y, z, valid, rowmax, span)
+    return x, y, z, valid, rowmax.max(axis=0, initial=0.0), span
 
 
 # --------------------------------------------------------------------------------------------
@@ -206,9 +241,10 @@ def _workers() -> Iterator[Run]:
 # --------------------------------------------------------------------------------------------
 # the search
 # --------------------------------------------------------------------------------------------
-def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, amax: np.ndarray, m: int,
-                    divisor: float, run: Run) -> np.ndarray:
-    """(H, W) d̄ over the m smallest squared distances (self included); anything where invalid."""
+def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, span: np.ndarray, amax: np.ndarray,
+                    m: int, divisor: float, run: Run) -> np.ndarray:
+    """(H, W) d̄ over the m smallest squared distances (self included); anything where invalid.
+    ``span``: per row the first and last valid column (:func:`_prepare`)."""
     H, W = valid.shape
     P = _camera.fit_camera(x, y, z, valid) if _USE_CAMERA else None
     use_cam = P is not None
@@ -216,7 +252,7 @@ def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarr
     if P is None:
         P = np.zeros((3, 4))
     stats = _camera.new_stats(H, W)
-    run(_camera.block_rows, stats[0].shape[0], x, y, z, valid, P, S, use_cam, *stats)
+    run(_camera.block_rows, stats[0].shape[0], x, y, z, valid, span, P, S, use_cam, *stats)
     rowU, colV, tcount, tbox, tuv, bad = stats
     use_cam = use_cam and not bad.any()  # some depth not safely positive: no camera bounds
     M = float(amax.max())
@@ -233,7 +269,7 @@ def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarr
     w0 = _window.first_window(m, wmax)
     dbar = np.empty((H, W))
     unproven = np.zeros(H, dtype=np.int64)
-    run(_window.window_rows, H, x, y, z, valid, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven)
+    run(_window.window_rows, H, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven)
     rows, cols = _window.unproven_pixels(valid, dbar, unproven)  # their dbar: minus the m-th squared distance
     if rows.size:
         tree = _search.build_quadtree(tcount, tbox, tuv, P, M, use_cam)
@@ -261,7 +297,10 @@ def _column_stage(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray
     if not (math.isfinite(inv) and nx * ny <= _COLUMNS_PER_POINT * n_valid + 4096 and nz < 2.0**53):
         return done
     nx, ny = int(nx), int(ny)
-    marked = np.ones(nx * ny, dtype=bool)
+    # only the columns a query's ball can reach (a point outside them is farther than its bound,
+    # so never among its m nearest) are filled
+    marked = np.zeros(nx * ny, dtype=bool)
+    _columns.mark_columns(x[rows, cols], y[rows, cols], np.where(eligible, rad, -1.0), x0, y0, inv, nx, ny, marked)
     columns = _columns.build_columns(x, y, z, x0, y0, z0, inv, nx, marked)
     out = np.zeros(rows.size)
     run(_search.column_queries, rows.size, x, y, z, rows, cols, lim, eligible, m, divisor, int(_COLUMN_SCAN),
@@ -330,7 +369,7 @@ def _outlier_masks(dbar, valid, n, ratios, open3d):  # type: ignore[no-untyped-d
     # The summed values are first gathered in order without branches (valid pixels at random
     # would make a branch mispredict), then summed: the same values in the same order.
     H, W = valid.shape
-    terms = np.empty(int(n))
+    terms = np.empty(int(n) + 1)  # + 1: every pixel after the last summed one writes terms[k], k = its count
     k = 0
     for r in range(H):
         for c in range(W):
@@ -384,7 +423,7 @@ def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl", mask: M
     """
     k, _ = _check_params(k, 1.0, convention)
     with _workers() as run:
-        x, y, z, valid, amax = _prepare(xyz, run, mask)
+        x, y, z, valid, amax, span = _prepare(xyz, run, mask)
         dbar = np.full(valid.shape, np.nan)
         n = int(valid.sum())
         if n == 0:
@@ -397,7 +436,7 @@ def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl", mask: M
             if divisor == 0.0:
                 dbar[valid] = 0.0
                 return dbar
-        dbar[valid] = _mean_distances(x, y, z, valid, amax, m, divisor, run)[valid]
+        dbar[valid] = _mean_distances(x, y, z, valid, span, amax, m, divisor, run)[valid]
     return dbar
 
 
@@ -492,10 +531,10 @@ def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: st
     """
     k, ratio = _check_params(k, std_ratio, convention)
     with _workers() as run:
-        x, y, z, valid, amax = _prepare(xyz, run, mask)
+        x, y, z, valid, amax, span = _prepare(xyz, run, mask)
         n = int(valid.sum())
         if n < k + 1:
             return np.zeros(valid.shape, dtype=bool)
         m = k + 1 if convention == "pcl" else k
-        dbar = _mean_distances(x, y, z, valid, amax, m, float(k), run)
+        dbar = _mean_distances(x, y, z, valid, span, amax, m, float(k), run)
     return _outlier_masks(dbar, valid, float(n), np.array([ratio]), convention == "open3d")[0]

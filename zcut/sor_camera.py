@@ -266,16 +266,24 @@ def _uv_chunk(x, y, z, valid, r, c0, n, P, S, tau, buf):  # type: ignore[no-unty
 
 
 @nb.njit(cache=True, nogil=True)
-def block_rows(b0, b1, x, y, z, valid, P, S, use_cam, rowU, colV, tcount, tbox, tuv, bad):  # type: ignore[no-untyped-def]  # numba kernel
-    """Row blocks b0..b1-1 of the statistics of :func:`new_stats` (invalid pixels, +inf, change
-    nothing)."""
+def block_rows(b0, b1, x, y, z, valid, span, P, S, use_cam, rowU, colV, tcount, tbox, tuv, bad):  # type: ignore[no-untyped-def]  # numba kernel
+    """Row blocks b0..b1-1 of the statistics of :func:`new_stats`.
+
+    Invalid pixels (+inf) change nothing, so a row is read only over the tiles of its valid span
+    (``span[r]`` = first, last valid column), and U and V are computed only over its runs of tiles
+    that hold a valid pixel of the row."""
     H, W = valid.shape
     tau = 1e-6 * S
     buf = np.empty(5 * _CH)
+    rowcount = np.zeros(-(-W // TILE), np.int64)
     for blk in range(b0, b1):
         for r in range(blk * BLOCK, min(H, (blk + 1) * BLOCK)):
+            if span[r, 0] > span[r, 1]:
+                continue
             ti = r // TILE
-            for tj in range(-(-W // TILE)):  # boxes and counts
+            tj0 = span[r, 0] // TILE
+            tj1 = span[r, 1] // TILE
+            for tj in range(tj0, tj1 + 1):  # boxes and counts
                 n = 0
                 x0 = y0 = z0 = np.inf
                 x1 = y1 = z1 = -np.inf
@@ -288,6 +296,7 @@ def block_rows(b0, b1, x, y, z, valid, P, S, use_cam, rowU, colV, tcount, tbox, 
                     x1 = max(x1, x[r, c] if ok else -np.inf)
                     y1 = max(y1, y[r, c] if ok else -np.inf)
                     z1 = max(z1, z[r, c] if ok else -np.inf)
+                rowcount[tj] = n
                 tcount[ti, tj] += n
                 tbox[ti, tj, 0] = min(tbox[ti, tj, 0], x0)
                 tbox[ti, tj, 1] = min(tbox[ti, tj, 1], y0)
@@ -297,31 +306,41 @@ def block_rows(b0, b1, x, y, z, valid, P, S, use_cam, rowU, colV, tcount, tbox, 
                 tbox[ti, tj, 5] = max(tbox[ti, tj, 5], z1)
             if not use_cam:
                 continue
-            for c0 in range(0, W, _CH):  # U and V
-                n = min(_CH, W - c0)
-                if _uv_chunk(x, y, z, valid, r, c0, n, P, S, tau, buf):
-                    bad[blk] = True
-                for i in range(n):
-                    rowU[blk, c0 + i, 0] = min(rowU[blk, c0 + i, 0], buf[i])
-                    rowU[blk, c0 + i, 1] = max(rowU[blk, c0 + i, 1], buf[_CH + i])
-                for t0 in range(0, n, TILE):
-                    tj = (c0 + t0) // TILE
-                    u0 = d0 = v0 = np.inf
-                    u1 = v1 = -np.inf
-                    for i in range(t0, min(n, t0 + TILE)):
-                        u0 = min(u0, buf[i])
-                        u1 = max(u1, buf[_CH + i])
-                        v0 = min(v0, buf[2 * _CH + i])
-                        v1 = max(v1, buf[3 * _CH + i])
-                        d0 = min(d0, buf[4 * _CH + i])
-                    tuv[ti, tj, 0] = min(tuv[ti, tj, 0], u0)
-                    tuv[ti, tj, 1] = max(tuv[ti, tj, 1], u1)
-                    tuv[ti, tj, 2] = min(tuv[ti, tj, 2], v0)
-                    tuv[ti, tj, 3] = max(tuv[ti, tj, 3], v1)
-                    tuv[ti, tj, 4] = min(tuv[ti, tj, 4], d0)
-                    cb = (c0 + t0) // BLOCK
-                    colV[cb, r, 0] = min(colV[cb, r, 0], v0)
-                    colV[cb, r, 1] = max(colV[cb, r, 1], v1)
+            ta = tj0
+            while ta <= tj1:  # U and V over each run of tiles with a valid pixel
+                if rowcount[ta] == 0:
+                    ta += 1
+                    continue
+                te = ta
+                while te < tj1 and rowcount[te + 1] > 0:
+                    te += 1
+                c_end = min(W, (te + 1) * TILE)
+                for c0 in range(ta * TILE, c_end, _CH):  # tile-aligned chunks
+                    n = min(_CH, c_end - c0)
+                    if _uv_chunk(x, y, z, valid, r, c0, n, P, S, tau, buf):
+                        bad[blk] = True
+                    for i in range(n):
+                        rowU[blk, c0 + i, 0] = min(rowU[blk, c0 + i, 0], buf[i])
+                        rowU[blk, c0 + i, 1] = max(rowU[blk, c0 + i, 1], buf[_CH + i])
+                    for t0 in range(0, n, TILE):
+                        tj = (c0 + t0) // TILE
+                        u0 = d0 = v0 = np.inf
+                        u1 = v1 = -np.inf
+                        for i in range(t0, min(n, t0 + TILE)):
+                            u0 = min(u0, buf[i])
+                            u1 = max(u1, buf[_CH + i])
+                            v0 = min(v0, buf[2 * _CH + i])
+                            v1 = max(v1, buf[3 * _CH + i])
+                            d0 = min(d0, buf[4 * _CH + i])
+                        tuv[ti, tj, 0] = min(tuv[ti, tj, 0], u0)
+                        tuv[ti, tj, 1] = max(tuv[ti, tj, 1], u1)
+                        tuv[ti, tj, 2] = min(tuv[ti, tj, 2], v0)
+                        tuv[ti, tj, 3] = max(tuv[ti, tj, 3], v1)
+                        tuv[ti, tj, 4] = min(tuv[ti, tj, 4], d0)
+                        cb = (c0 + t0) // BLOCK
+                        colV[cb, r, 0] = min(colV[cb, r, 0], v0)
+                        colV[cb, r, 1] = max(colV[cb, r, 1], v1)
+                ta = te + 1
 
 
 # --------------------------------------------------------------------------------------------
@@ -340,21 +359,27 @@ def band_tables(blocks, P, i, M):  # type: ignore[no-untyped-def]  # numba kerne
     pl = np.empty(4)
     for b in range(nblk + 1):
         run = np.inf
+        last = np.nan  # the t of the plane in pl (a run over empty columns keeps it: no new plane)
         for j in range(L - 1, -1, -1):
             if b >= 1:
                 run = min(run, blocks[b - 1, j, 0])
             if b < nblk:
                 run = min(run, blocks[b, j, 0])
-            _plane(P, i, run, True, M, pl)
+            if not (run == last and run != 0.0):  # (a zero may be -0.0: recomputed)
+                _plane(P, i, run, True, M, pl)
+                last = run
             for f in range(4):
                 out[b, f, j] = pl[f]
         run = -np.inf
+        last = np.nan
         for j in range(L):
             if b >= 1:
                 run = max(run, blocks[b - 1, j, 1])
             if b < nblk:
                 run = max(run, blocks[b, j, 1])
-            _plane(P, i, run, False, M, pl)
+            if not (run == last and run != 0.0):
+                _plane(P, i, run, False, M, pl)
+                last = run
             for f in range(4):
                 out[b, 4 + f, j] = pl[f]
     return out

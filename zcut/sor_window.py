@@ -218,6 +218,7 @@ def _corners(b, bc, xq, yq, zq, Q):  # type: ignore[no-untyped-def]  # numba ker
 # query column (the right and left row-band planes at c ± (w + 1), the column band's planes for
 # the rows r ± (w + 1), the corner floor); then the output.
 CH = 256
+_GAP = 8  # invalid columns in a row that end a chunk of the row stages
 
 
 def _layout(w: int) -> tuple[int, int, int, int, int, int]:
@@ -407,15 +408,28 @@ def _fill_chunk(buf, w, r, c0, n, x, y, z, Rb, C, floor, b, use_cam):  # type: i
 
 
 @nb.njit(cache=True)
-def _row_stage(buf, w, r, x, y, z, m, divisor, use_cam, Rb, C, floor, b, dbar, merge=True):  # type: ignore[no-untyped-def]  # numba kernel
-    # stage 1 (w = 1: every column 2 .. W - 3) or stage 2 (w = 2: columns 3 .. W - 4, only where
-    # stage 1 left NaN if merge, else all) of row r
+def _row_stage(buf, w, r, x, y, z, valid, first, last, m, divisor, use_cam, Rb, C, floor, b, dbar, merge=True):  # type: ignore[no-untyped-def]  # numba kernel
+    # stage 1 (w = 1: columns 2 .. W - 3) or stage 2 (w = 2: columns 3 .. W - 4, only where
+    # stage 1 left NaN if merge, else all) of row r, over its valid columns first .. last: chunks
+    # of at most CH columns, each starting at a valid pixel and ending before a run of more than
+    # _GAP invalid ones (the columns between chunks are invalid: their dbar is left as it is)
     W = x.shape[1]
-    c_lo = w + 1
-    c_hi = W - w - 2
+    c = max(w + 1, first)
+    end = min(W - w - 2, last)
     oo = 3 * (2 * w + 1) * (CH + 2 * w) + 17 * CH
-    for c0 in range(c_lo, c_hi + 1, CH):
-        n = min(CH, c_hi + 1 - c0)
+    while c <= end:
+        if not valid[r, c]:
+            c += 1
+            continue
+        c0 = c
+        lastv = c
+        c += 1
+        while c <= end and c - c0 < CH and c - lastv <= _GAP:
+            if valid[r, c]:
+                lastv = c
+            c += 1
+        n = lastv - c0 + 1
+        c = lastv + 1
         _fill_chunk(buf, w, r, c0, n, x, y, z, Rb, C, floor, b, use_cam)
         if w == 1:
             _chunk_3x3(buf, n, m, divisor, use_cam)
@@ -556,12 +570,13 @@ def first_window(m: int, wmax: int) -> int:
 
 
 @nb.njit(cache=True, nogil=True)
-def window_rows(r0, r1, x, y, z, valid, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven):  # type: ignore[no-untyped-def]  # numba kernel
-    """Rows r0..r1-1 of the window phase.
+def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven):  # type: ignore[no-untyped-def]  # numba kernel
+    """Rows r0..r1-1 of the window phase; ``span[r]`` = the first and last valid column of row r.
 
     Writes into dbar (H, W): d̄ >= 0 where proven; at the other valid pixels minus the m-th
     smallest squared distance found in the window (an upper bound on the true one is its
-    negative; -inf if the window held fewer than m valid pixels); anything at invalid pixels.
+    negative; -inf if the window held fewer than m valid pixels); anything at invalid pixels
+    (those outside a row's valid runs are not written at all).
     unproven[r] = the number of the row's unproven pixels.
     """
     H, W = valid.shape
@@ -570,28 +585,35 @@ def window_rows(r0, r1, x, y, z, valid, m, divisor, w0, wmax, use_cam, R, C, Q, 
     best = np.empty(m)
     sparse = False  # the last row with a 3 x 3 stage left many pixels to the 5 x 5 one
     for r in range(r0, r1):
+        first = span[r, 0]
+        last = span[r, 1]
+        if first > last:  # no valid pixel
+            unproven[r] = 0
+            continue
         b = (r + BLOCK // 2) // BLOCK
         lo, hi = 0, -1  # the columns the row stages decided (d̄ or NaN)
         if w0 == 1 and 0 < r < H - 1 and W >= 5:
             five = 2 <= r < H - 2 and wmax >= 2 and W >= 7
             if five and sparse and r % 8:  # straight to 5 x 5 (the same d̄ where both prove it)
-                _row_stage(buf, 2, r, x, y, z, m, divisor, use_cam, R[b], C, floor, b, dbar, False)
+                _row_stage(buf, 2, r, x, y, z, valid, first, last, m, divisor, use_cam, R[b], C, floor, b, dbar,
+                           False)
                 lo, hi = 3, W - 4
             else:
-                _row_stage(buf, 1, r, x, y, z, m, divisor, use_cam, R[b], C, floor, b, dbar)
+                _row_stage(buf, 1, r, x, y, z, valid, first, last, m, divisor, use_cam, R[b], C, floor, b, dbar)
                 lo, hi = 2, W - 3
                 if five:  # what it left, with a 5 x 5 window
                     n = 0
-                    for c in range(3, W - 3):
+                    for c in range(max(3, first), min(W - 3, last + 1)):
                         cols[n] = c
                         n += valid[r, c] & np.isnan(dbar[r, c])
-                    sparse = 8 * n > W
+                    sparse = 8 * n > last - first + 1
                     if sparse:  # many: the whole row, vectorized
-                        _row_stage(buf, 2, r, x, y, z, m, divisor, use_cam, R[b], C, floor, b, dbar)
+                        _row_stage(buf, 2, r, x, y, z, valid, first, last, m, divisor, use_cam, R[b], C, floor, b,
+                                   dbar)
                     elif n:
                         _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, floor, b, dbar)
         n = 0
-        for c in range(W):
+        for c in range(first, last + 1):
             if valid[r, c] and not (lo <= c <= hi and not np.isnan(dbar[r, c])):
                 dbar[r, c] = _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor)
                 n += dbar[r, c] < 0.0

@@ -80,14 +80,13 @@ def sor_region(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams) -> np.
     highest valid height and K = floor(d_max / Δd + 1e-9), computed as the z-cut computes its
     thresholds (docs/filters.md). SOR and the z-cut then judge the same top portion of the data.
     """
-    h = np.where(zone, height_mm, np.nan)
     finite = np.isfinite(height_mm)
     if not finite.any():
         return np.zeros_like(zone)
-    z_max = float(np.max(height_mm[finite]))
+    z_max = float(np.max(height_mm, where=finite, initial=-np.inf))  # no copy of the finite heights
     threshold = z_max - zcut.n_levels * zcut.step
     with np.errstate(invalid="ignore"):
-        return zone & (h >= threshold)
+        return zone & (height_mm >= threshold)
 
 
 def zone_crop(xyz: np.ndarray, zone: np.ndarray, *, whole: bool

@@ -1,0 +1,236 @@
+"""zcut.sor reading only each row's valid runs (issue 32, item 7 and the SOR stage of a replay).
+
+The kernels skip what holds no valid pixel: rows without one, columns outside a row's first and last
+valid pixel, runs of more than ``sor_window._GAP`` invalid columns inside it (the row stages' chunks
+start at a valid pixel), tiles without a valid pixel of the row (the block statistics), columns of
+the column search no query can reach. The oracle is the one today's code was held to and equals
+bit for bit (tests/reference/sor_reference.py: d̄ by brute force or by scipy's KD-tree with every
+candidate re-measured, the masks from it; and Open3D itself for the ``open3d`` convention), on
+inputs made to hit these paths: masks with gaps just below, at and above the gap and wider than a
+chunk, isolated pixels, pixels on the borders; the project's hand-made frames of several kinds and
+seeds with the pipeline's top-of-pile region; a small ray-traced frame; the real Kinect clouds; large
+invalid regions with steep walls through the column search; degenerate inputs.
+"""
+
+from __future__ import annotations
+
+import math
+
+import bank_clouds
+import numpy as np
+import open3d as o3d
+import pytest
+from reference.sor_reference import mean_distances_reference, sor_outliers_reference
+
+import zcut.sor as sor_module
+from zcut import sor_window
+from zcut.sor import sor_mean_distances, sor_outliers
+
+
+def open3d_outliers(xyz: np.ndarray, *, k: int, std_ratio: float) -> np.ndarray:
+    valid = np.isfinite(xyz).all(axis=2)
+    pts = np.ascontiguousarray(xyz[valid], dtype=np.float64)
+    _, kept = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).remove_statistical_outlier(
+        nb_neighbors=k, std_ratio=std_ratio)
+    keep = np.zeros(pts.shape[0], dtype=bool)
+    keep[np.asarray(kept, dtype=np.int64)] = True
+    out = np.zeros(valid.shape, dtype=bool)
+    out[valid] = ~keep
+    return out
+
+
+def masked_copy(xyz: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
+    return xyz if mask is None else np.where(mask[..., None], xyz, np.nan).astype(xyz.dtype)
+
+
+def assert_as_oracle(xyz: np.ndarray, mask: np.ndarray | None = None, *, ks=(4,), ratios=(1.0,),
+                     conventions=("pcl", "open3d")) -> None:
+    """d̄ and the masks of zcut.sor (with ``mask``, and on the NaN-masked copy) equal the oracle's."""
+    copy = masked_copy(xyz, mask)
+    n = int(np.isfinite(copy).all(axis=2).sum())
+    method = "brute" if n <= 3000 else "kdtree"
+    for k in ks:
+        for convention in conventions:
+            if n < k + 1:
+                continue
+            want = mean_distances_reference(copy, k=k, convention=convention, method=method)
+            np.testing.assert_array_equal(sor_mean_distances(xyz, k=k, convention=convention, mask=mask), want)
+            np.testing.assert_array_equal(sor_mean_distances(copy, k=k, convention=convention), want)
+            for ratio in ratios:
+                got = sor_outliers(xyz, k=k, std_ratio=ratio, convention=convention, mask=mask)
+                np.testing.assert_array_equal(got, sor_outliers(copy, k=k, std_ratio=ratio, convention=convention))
+                if convention == "open3d":
+                    np.testing.assert_array_equal(got, open3d_outliers(copy, k=k, std_ratio=ratio))
+                else:
+                    np.testing.assert_array_equal(
+                        got, sor_outliers_reference(copy, k=k, std_ratio=ratio, convention="pcl", method=method))
+
+
+def camera(rng: np.random.Generator, h: int, w: int, *, f: float = 300.0) -> np.ndarray:
+    """A camera cloud with bumps, a depth step and a few flying pixels (the window phase proves most)."""
+    return bank_clouds.pinhole(rng, h, w, f=f, flying=0.01)
+
+
+# ------------------------------------------------------------------------------------------------
+# masks made to hit the row runs
+# ------------------------------------------------------------------------------------------------
+def gap_mask(h: int, w: int, gap: int, run: int) -> np.ndarray:
+    """Runs of ``run`` valid columns separated by ``gap`` invalid ones, shifted by one every row."""
+    c = np.arange(w)
+    return np.stack([((c + r) % (run + gap)) < run for r in range(h)])
+
+
+def mask_kinds(rng: np.random.Generator, h: int, w: int) -> dict[str, np.ndarray]:
+    from scipy.ndimage import gaussian_filter
+
+    G = sor_window._GAP
+    field = gaussian_filter(rng.normal(size=(h, w)), 6.0)
+    border = np.zeros((h, w), bool)
+    border[:, [0, 1, w - 2, w - 1]] = True
+    border[[0, 1, h - 2, h - 1], :] = True
+    rows = np.zeros((h, w), bool)
+    rows[::3] = True  # two empty rows between valid ones
+    return {
+        **{f"gap{g}": gap_mask(h, w, g, run) for g, run in ((G - 1, 3), (G, 1), (G + 1, 5), (G + 2, 2))},
+        "wide": gap_mask(h, w, 3, sor_window.CH + 37),  # runs longer than a chunk
+        "isolated": rng.random((h, w)) < 0.02,
+        "blobs": field > np.quantile(field, 0.7),  # a top-of-pile-like region
+        "border": border,
+        "rows": rows,
+        "right-edge": np.broadcast_to(np.arange(w) >= w - 3, (h, w)).copy(),
+    }
+
+
+@pytest.mark.parametrize(("kind", "dtype"), [("gap7", np.float32), ("gap8", np.float64), ("gap9", np.float32),
+                                           ("gap10", np.float64), ("wide", np.float32), ("isolated", np.float64),
+                                           ("blobs", np.float32), ("border", np.float64), ("rows", np.float32),
+                                           ("right-edge", np.float64)])
+def test_masks_with_gaps_runs_and_borders(kind: str, dtype) -> None:
+    assert sor_window._GAP == 8  # the names above
+    rng = np.random.default_rng(5150 + len(kind))
+    w = 2 * sor_window.CH + 90 if kind == "wide" else 150
+    xyz = bank_clouds.with_holes(rng, camera(rng, 36, w), 0.02).astype(dtype)
+    mask = mask_kinds(rng, *xyz.shape[:2])[kind]
+    sl = (slice(3, 34), slice(1, w - 2))  # a strided crop, as the pipeline's zone box
+    assert_as_oracle(xyz[sl], mask[sl], ks=(1, 4, 9), ratios=(0.5, 1.0))
+
+
+@pytest.mark.parametrize("seed", [3, 17])
+def test_large_invalid_regions_and_steep_walls(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    # blob-shaped holes over half of the image and tall parts on end (the bench's holes-walls and
+    # steep classes, small); the column search, forced for every unproven pixel, fills only the
+    # columns its queries can reach
+    from scipy.ndimage import gaussian_filter
+
+    rng = np.random.default_rng(seed)
+    xyz = bank_clouds.steep(rng, 120, 200)
+    field = gaussian_filter(rng.normal(size=xyz.shape[:2]), 5.0)
+    xyz[field > np.quantile(field, 0.5)] = np.nan
+    assert_as_oracle(xyz, ks=(4, 8))
+    monkeypatch.setattr(sor_module, "_COLUMNS_MIN_SHARE", 1 << 40)
+    monkeypatch.setattr(sor_module, "_COLUMN_WIDTH", 0.05)
+    assert_as_oracle(xyz, ks=(4,))
+    assert_as_oracle(xyz, np.isfinite(xyz[..., 2]) & (xyz[..., 2] < 0.79), ks=(4,))
+
+
+# ------------------------------------------------------------------------------------------------
+# the project's frames
+# ------------------------------------------------------------------------------------------------
+def top_of_pile(xyz: np.ndarray, share: float) -> np.ndarray:
+    """The nearest ``share`` of the valid points (like the pipeline's ``sor.region = "top"``: the top
+    of the pile, scattered over its box)."""
+    ok = np.isfinite(xyz).all(axis=2)
+    return ok & (xyz[..., 2] <= np.quantile(xyz[ok, 2], share))
+
+
+@pytest.mark.parametrize(("kind", "seed"), [("zinc_nuts", 4), ("rods", 9), ("spheres", 23)])
+def test_hand_made_frames_and_their_top(kind: str, seed: int) -> None:
+    from replay.synth.synthesize import synthesize_frame
+
+    xyz = np.asarray(synthesize_frame(kind=kind, seed=seed, size=(60, 96)).frame.xyz)
+    assert_as_oracle(xyz, ks=(4,))
+    top = top_of_pile(xyz, 0.3)
+    assert 50 < top.sum() < np.isfinite(xyz).all(axis=2).sum()
+    rows, cols = np.flatnonzero(top.any(axis=1)), np.flatnonzero(top.any(axis=0))
+    sl = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))  # the zone box, as the pipeline crops it
+    assert_as_oracle(xyz[sl], top[sl], ks=(4, 6))
+
+
+def test_small_ray_traced_frame() -> None:
+    from replay.synth.raytrace import synthesize_raytraced_frame
+
+    xyz = np.asarray(synthesize_raytraced_frame(kind="spheres", seed=3, size=(60, 96), fill_mm=6.0).frame.xyz)
+    assert np.isfinite(xyz).all(axis=2).sum() > 1000
+    assert_as_oracle(xyz, ks=(4, 8))
+    assert_as_oracle(xyz, top_of_pile(xyz, 0.3), ks=(4,))
+
+
+@pytest.mark.parametrize("name", ["mosd_test16.pcd", "milk_cartoon_all_small_clorox.pcd"])
+def test_real_kinect_clouds(real_data, name: str) -> None:
+    cloud = o3d.io.read_point_cloud(str(real_data / name), remove_nan_points=False, remove_infinite_points=False)
+    xyz = np.asarray(cloud.points).reshape(480, 640, 3)
+    valid = np.isfinite(xyz).all(axis=2)
+    # the whole frame in Open3D's convention, against Open3D
+    np.testing.assert_array_equal(sor_outliers(xyz, k=4, convention="open3d"), open3d_outliers(xyz, k=4, std_ratio=1.0))
+    # the nearest fifth of the scene as a mask on its box, both conventions
+    near = valid & (xyz[..., 2] <= np.quantile(xyz[valid, 2], 0.2))
+    rows, cols = np.flatnonzero(near.any(axis=1)), np.flatnonzero(near.any(axis=0))
+    sl = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+    assert_as_oracle(xyz[sl], near[sl], ks=(4,))
+
+
+# ------------------------------------------------------------------------------------------------
+# degenerate inputs
+# ------------------------------------------------------------------------------------------------
+def all_points_mean(xyz: np.ndarray, convention: str) -> np.ndarray:
+    """d̄ when there are fewer valid points than the search needs: over all of them (Open3D)."""
+    valid = np.isfinite(xyz).all(axis=2)
+    p = xyz[valid].astype(np.float64)
+    n = p.shape[0]
+    out = np.full(valid.shape, np.nan)
+    vals = []
+    for q in p:
+        d = q - p
+        d2 = np.sort((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2])
+        s = 0.0
+        for v in d2:
+            s += math.sqrt(v)
+        vals.append(s / (n - 1 if convention == "pcl" else n) if (n - 1 if convention == "pcl" else n) else 0.0)
+    out[valid] = vals
+    return out
+
+
+@pytest.mark.parametrize("convention", ["pcl", "open3d"])
+def test_degenerate_inputs(convention: str) -> None:
+    rng = np.random.default_rng(808)
+    xyz = camera(rng, 30, 40)
+    none = np.zeros((30, 40), bool)
+    one = none.copy()
+    one[29, 39] = True
+    three = none.copy()
+    three[[0, 15, 29], [0, 39, 20]] = True
+    column = none.copy()
+    column[:, 39] = True
+    last_row = none.copy()
+    last_row[29, :] = True
+    for name, mask in (("all masked", none), ("one pixel", one), ("three", three)):
+        for k in (1, 4, 12):  # k larger than the points for all but k = 1 with three
+            if mask.sum() < k + 1:
+                assert not sor_outliers(xyz, k=k, convention=convention, mask=mask).any(), name
+            got = sor_mean_distances(xyz, k=k, convention=convention, mask=mask)
+            if mask.sum() and mask.sum() < (k + 1 if convention == "pcl" else k):
+                np.testing.assert_array_equal(got, all_points_mean(masked_copy(xyz, mask), convention))
+            elif not mask.sum():
+                assert np.isnan(got).all()
+    for name, cloud in (("all NaN", np.full((20, 600, 3), np.nan, np.float32)),
+                        ("all NaN but a corner", np.where(one[..., None], xyz, np.nan))):
+        assert not sor_outliers(cloud, k=4, convention=convention).any(), name
+    assert_as_oracle(xyz, column, ks=(1, 4, 12), conventions=(convention,))
+    assert_as_oracle(xyz, last_row, ks=(1, 4, 12), conventions=(convention,))
+    assert_as_oracle(xyz, three, ks=(1, 2), conventions=(convention,))
+    for name, cloud in bank_clouds.degenerate_clouds().items():
+        n = int(np.isfinite(cloud).all(axis=2).sum())
+        if n >= 5:
+            assert_as_oracle(cloud, ks=(4,), conventions=(convention,))
+        else:
+            assert not sor_outliers(cloud, k=4, convention=convention).any(), name
