@@ -23,7 +23,8 @@ returns a named warning and no outliers.
 
 **Without a part model** (issue 29 item 3) the parts' pixels are judged against the edge-aware local
 surface (:func:`zcut.explained.local_surface_distance`: planes fitted on each side of an edge to the
-frame's valid pixels, the page's suspects' surface) while the bin model and the table plane still
+frame's valid pixels, the page's suspects' surface, a patch being a surface when it fits within 0.1
+of the zone's median footprint too, :func:`zcut.explained.local_surface_params`) while the bin model and the table plane still
 explain theirs: a pixel is unexplained when it is farther than ``k`` × Err from the bin, the table
 and the local surface (code ``SURFACE_LOCAL``). The local surface's σ_s is the robust residual of
 the zone pixels it explains (:func:`zcut.explained.local_sigma`: 1.4826 × the median distance,
@@ -212,14 +213,17 @@ def run_explained(frame: Frame, zone: Zone, config: Any) -> tuple[np.ndarray, Ex
         surfaces = _bin_and_table(xyz, rem, reg, model, surfaces)
     near = ex.nearest_surface(xyz, surfaces, where=zone.zone)
     warning = None
+    f_px = 0.5 * (K.fx + K.fy) if intr is not None and K is not None else ex.focal_px(xyz)
+    footprint = ex.footprint_mm(xyz, f_px)
     if not p.part_model:  # the fallback: the edge-aware local surface explains the parts
         valid = np.asarray(np.isfinite(xyz).all(axis=2))
-        near = ex.with_local_surface(near, ex.local_surface_distance(xyz, valid, where=zone.zone))
+        local = ex.local_surface_distance(xyz, valid, where=zone.zone,
+                                          params=ex.local_surface_params(footprint, zone.zone))
+        near = ex.with_local_surface(near, local)
         surfaces = dataclasses.replace(surfaces, local_err_mm=ex.local_sigma(
             near.dist_mm[near.surface == ex.SURFACE_LOCAL]))
         warning = FALLBACK_WARNING if bin_stages else FALLBACK_ALONE_WARNING
-    f_px = 0.5 * (K.fx + K.fy) if intr is not None and K is not None else ex.focal_px(xyz)
-    err = ex.err_image(near, surfaces, ex.footprint_mm(xyz, f_px), floor_mm=p.err_floor_mm)
+    err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm)
     out = ex.unexplained(near.dist_mm, err, p.k) & zone.zone
     return out, ExplainedDetail(fits, v, t, near.dist_mm, near.surface, err, out,
                                 surface_model=PART_FITS if p.part_model else LOCAL_SURFACE,
