@@ -211,14 +211,16 @@ def run_explained(frame: Frame, zone: Zone, config: Any) -> tuple[np.ndarray, Ex
     if bin_stages:
         assert rem is not None and reg is not None and model is not None
         surfaces = _bin_and_table(xyz, rem, reg, model, surfaces)
-    near = ex.nearest_surface(xyz, surfaces, where=zone.zone)
     warning = None
     f_px = 0.5 * (K.fx + K.fy) if intr is not None and K is not None else ex.focal_px(xyz)
     footprint = ex.footprint_mm(xyz, f_px)
+    local = None
     if not p.part_model:  # the fallback: the edge-aware local surface explains the parts
         valid = np.asarray(np.isfinite(xyz).all(axis=2))
         local = ex.local_surface_distance(xyz, valid, where=zone.zone,
                                           params=ex.local_surface_params(footprint, zone.zone))
+    near = ex.nearest_surface(xyz, surfaces, where=zone.zone, within_mm=local)
+    if local is not None:
         near = ex.with_local_surface(near, local)
         surfaces = dataclasses.replace(surfaces, local_err_mm=ex.local_sigma(
             near.dist_mm[near.surface == ex.SURFACE_LOCAL]))
