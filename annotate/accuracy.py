@@ -141,6 +141,9 @@ class FrameAccuracy:
     undecided : dict[str, Undecided]
         Per method, its outliers in the region and those of them on pixels the truth left
         undecided (not reviewed: outside R); only when the caller asked (``--labels``).
+    labels_vs_fits : LabelsVsFits or None
+        The labels' own agreement with ``explained`` on the frame (:func:`labels_vs_fits`); only
+        with labels, where ``explained`` could be run (or read from a results file).
     """
 
     index: int
@@ -150,6 +153,7 @@ class FrameAccuracy:
     bin_flagged: bool | None = None
     classes: dict[str, dict[str, KindCounts]] = field(default_factory=dict)
     undecided: dict[str, Undecided] = field(default_factory=dict)
+    labels_vs_fits: LabelsVsFits | None = None
 
     @property
     def methods(self) -> tuple[str, ...]:
@@ -485,7 +489,9 @@ def accuracy_report(
     With ``truth`` (what the frames were scored against, e.g. :data:`annotate.truth.TRUTH_NAMES`'s) the
     report names it (``"truth"``, after ``"region"``). Where every frame counted its undecided pixels
     (:func:`frame_accuracy`'s ``undecided``), each method's entry has ``"undecided": {"px", "flagged",
-    "share"}``.
+    "share"}``. Where every frame has the labels' agreement with the fits
+    (:attr:`FrameAccuracy.labels_vs_fits`), that frame has ``"labels_vs_fits"``
+    (:meth:`LabelsVsFits.as_dict`) and the report its sum over those frames, with ``"frames"``: how many.
     """
     if region not in REGIONS:
         raise ParameterError(f"region must be one of {', '.join(REGIONS)}, got {region!r}")
@@ -506,9 +512,12 @@ def accuracy_report(
     ci = pooled_interval_many(per_frame["tp"], per_frame["fp"], per_frame["fn"])
     open_ = ({m: sum((f.undecided[m] for f in frames), Undecided(0, 0)) for m in methods}
              if frames and all(m in f.undecided for f in frames for m in methods) else {})
+    with_fits = [f.labels_vs_fits for f in frames if f.labels_vs_fits is not None]
+    vs_fits = sum(with_fits, LabelsVsFits.empty()) if with_fits else None
     return {
         "region": region,
         **({"truth": truth} if truth is not None else {}),
+        **({"labels_vs_fits": {**vs_fits.as_dict(), "frames": len(with_fits)}} if vs_fits is not None else {}),
         "pooled": {m: {**_entry(pooled[m], {k: ci[k][i].tolist() for k in CI_KEYS}, pooled_cls.get(m)),
                        **({"undecided": open_[m].as_dict()} if open_ else {}),
                        "frames_scored": len(frames) - len(out_of.get(m, ((), None))[0]),
@@ -519,6 +528,7 @@ def accuracy_report(
             {"index": f.index, "stamp_ns": f.stamp_ns,
              **{m: {**_entry(f.counts[m], None, f.classes.get(m)),
                     **({"undecided": f.undecided[m].as_dict()} if open_ else {})} for m in methods},
+             **({"labels_vs_fits": f.labels_vs_fits.as_dict()} if f.labels_vs_fits is not None else {}),
              "bin_check": f.bin_check, "bin_flagged": f.bin_flagged}
             for f in frames
         ],
@@ -676,6 +686,9 @@ def format_accuracy_table(report: dict[str, Any], *, per_frame: bool = True) -> 
                                for m in METHODS)])
             parts.append(f"{title}, pooled: recall (found) of the n true outlier pixels of each class\n"
                          + _render(["class", "n", *METHODS], rows, left=1))
+    vs = report.get("labels_vs_fits")
+    if vs is not None:
+        parts.append(format_labels_vs_fits(vs))
     unscored = report.get("unscored", [])
     if unscored:
         lines = [f"  frame {u['index']} (stamp_ns {u['stamp_ns']}): {u['reason']}" for u in unscored]
@@ -685,6 +698,17 @@ def format_accuracy_table(report: dict[str, Any], *, per_frame: bool = True) -> 
         parts.append(f"bin check: {len(flagged)} of the {len(report['frames'])} scored frames flagged (their scores "
                      "rest on a bin removal that did not work): frames " + ", ".join(map(str, flagged)))
     return "\n\n".join(parts)
+
+
+def format_labels_vs_fits(vs: Mapping[str, Any]) -> str:
+    """The lines of a report's ``labels_vs_fits`` (docs/accuracy.md, "Labels against the fits")."""
+    n = vs.get("frames")
+    on = f" on {n} frame{'s' if n != 1 else ''}" if n is not None else ""
+    return (f"labels against the fits (explained, {vs['surfaces'] or 'unknown surfaces'}){on}: over the "
+            f"{vs['decided']} decided pixels, zone IoU {_fmt_rate(vs['iou'])} of the labelled outliers with the "
+            f"unexplained pixels (kappa {_fmt_rate(vs['kappa'])}); {vs['both']} labelled outlier and unexplained, "
+            f"{vs['labelled_outlier_explained']} labelled outlier but explained, "
+            f"{vs['labelled_inlier_unexplained']} labelled inlier but unexplained")
 
 
 # ------------------------------------------------------------------ agreement between annotators
@@ -746,6 +770,40 @@ def agreement_counts(outliers_a: Mask, reviewed_a: Mask, outliers_b: Mask, revie
     both = int(np.count_nonzero(a & b))
     na, nb, nr = int(np.count_nonzero(a)), int(np.count_nonzero(b)), int(np.count_nonzero(r))
     return AgreementCounts(both=both, only_a=na - both, only_b=nb - both, neither=nr - na - nb + both)
+
+
+@dataclass(frozen=True, slots=True)
+class LabelsVsFits:
+    """The labels' own agreement with the method ``explained`` (docs/accuracy.md, "Labels against the
+    fits"): over the decided pixels D (reviewed, in the region), ``counts`` is the confusion of the
+    labelled outliers (A) with the pixels no known surface explains (B); ``surfaces`` says what
+    explained the parts (``"part fits"``, ``"local surface"``: no part model, or ``"results file"``:
+    the mask a results file holds), several joined by ", " once pooled."""
+
+    counts: AgreementCounts
+    surfaces: str
+
+    @staticmethod
+    def empty() -> LabelsVsFits:
+        return LabelsVsFits(AgreementCounts(0, 0, 0, 0), "")
+
+    def __add__(self, other: LabelsVsFits) -> LabelsVsFits:
+        names = [n for s in (self.surfaces, other.surfaces) for n in s.split(", ") if n]
+        return LabelsVsFits(self.counts + other.counts, ", ".join(dict.fromkeys(names)))
+
+    def as_dict(self) -> dict[str, int | float | str]:
+        c = self.counts
+        return {"surfaces": self.surfaces, "decided": c.n, "both": c.both,
+                "labelled_outlier_explained": c.only_a, "labelled_inlier_unexplained": c.only_b,
+                "neither": c.neither, "iou": c.iou, "kappa": c.kappa}
+
+
+def labels_vs_fits(outliers: Mask, reviewed: Mask, unexplained: Mask, region: Mask, *, surfaces: str) -> LabelsVsFits:
+    """The labels' agreement with ``explained`` on one frame: the confusion of the labelled outliers
+    with the unexplained pixels over the decided pixels (``reviewed`` ∩ ``region``)."""
+    reg = check_mask(region, name="region", shape=None)
+    rev = check_mask(reviewed, name="reviewed", shape=reg.shape) & reg
+    return LabelsVsFits(agreement_counts(outliers, rev, unexplained, rev), surfaces)
 
 
 def agreement_report(annotator_a: str, annotator_b: str,
@@ -915,7 +973,8 @@ def _accuracy(options: AccuracyOptions, overrides: dict[str, Any]) -> AccuracyRe
             frames = ((f, None) for f in stream)
         else:  # predictions computed as `zcut replay` computes them (the same resolved config)
             session = options.pipeline.open_session(log, overrides=overrides)
-            frames = stream = session.results()
+            # with labels, explained runs too: the labels' agreement with the fits (not a reported method)
+            frames = stream = session.results(config=_with_explained(session) if options.labels else None)
         learned = _learned_model(options, session)
         # |Z - Z_GT| of every pixel where the log has the true depth (recall by displacement)
         # (asked for: a results file cannot give it, and its report otherwise equals the log's)
@@ -980,6 +1039,10 @@ def _score_frames(options: AccuracyOptions, frames: Iterable[tuple[Any, Any]], t
         fa = frame_accuracy(frame.index, frame.stamp_ns, preds, t.outliers, reviewed=t.reviewed,
                             valid=valid, region=region, kinds=t.kind, detectable=t.detectable,
                             displacement_mm=shift, undecided=open_)
+        fits = _unexplained(frame, r) if open_ else None
+        if fits is not None:
+            fa = dataclasses.replace(fa, labels_vs_fits=labels_vs_fits(t.outliers, t.reviewed, fits[0], region,
+                                                                       surfaces=fits[1]))
         if r is not None:  # the bin check of the frame (a results file does not carry it)
             check = r.bin_check
             fa = dataclasses.replace(fa, bin_check=None if check is None else float(check.value),
@@ -1006,6 +1069,37 @@ def _score_frames(options: AccuracyOptions, frames: Iterable[tuple[Any, Any]], t
             fa.undecided.update(fb.undecided)
         results.append(fa)
     return results, unscored, learned_seen
+
+
+def _with_explained(session: Any) -> Any:
+    """The session's config running ``explained`` too (its part model: the one given, else the log's
+    ``part_model.ply``, else none: the local surface), for the labels' agreement with the fits; the
+    report still lists only the config's own methods."""
+    import dataclasses
+
+    from replay.pipeline.explained import NAME, with_log_part_model
+
+    config = session.config
+    if NAME in config.base_methods:
+        return config
+    more = dataclasses.replace(session.resolved, config=dataclasses.replace(config, methods=(*config.methods, NAME)))
+    return with_log_part_model(more, session.path, session.reader).config
+
+
+def _unexplained(frame: Any, r: Any) -> tuple[Mask, str] | None:
+    """``explained``'s outliers on a frame and what explained the parts (:class:`LabelsVsFits`): from
+    the pipeline's result, or the mask a results file holds; None when there are none (a results file
+    without it, a frame ``explained`` could not judge)."""
+    from replay.logs import layout
+    from replay.pipeline.explained import NAME, ExplainedDetail
+
+    if r is None:
+        mask = frame.masks.get(layout.method_topic(NAME))
+        return None if mask is None else (mask, "results file")
+    detail = r.details.get(NAME)
+    if NAME not in r.outliers or not isinstance(detail, ExplainedDetail):
+        return None
+    return r.outliers[NAME], detail.surface_model
 
 
 def _displacement_mm(log: Path, frame: Any) -> np.ndarray | None:

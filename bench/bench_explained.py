@@ -1,6 +1,7 @@
 """Benchmark: the method ``explained`` against the paper's truth (issue 29 item 4).
 
-Run: ``.venv/bin/python bench/bench_explained.py [--size 960x600] [--kinds LIST] [--frames N] [--method]``
+Run: ``.venv/bin/python bench/bench_explained.py [--size 960x600] [--kinds LIST] [--frames N] [--method]
+[--no-part-model [--no-fits]] [--no-rule] [--real DIR [--picture PNG]]``
 
 **The rule and the truth are one definition.** Per (generator, kind), frames synthesised with seeds
 used nowhere else (hand-made 9701.., ray-traced 9801..), the scene's true meshes standing in for the
@@ -18,6 +19,15 @@ valid pixel judged by :mod:`zcut.explained`:
 part fits of :mod:`zcut.fits`, the registered bin, the table plane): precision, recall and IoU of its
 outliers with the paper's truth inside the zone, the share of the zone's pixels its fits explain and
 its CPU seconds per frame.
+
+``--no-part-model``: on logs of seeds used nowhere else (9951.. hand-made, 9961.. ray-traced; the
+fallback's one parameter was chosen on 9901..9914 and 9905), the method with the part fits
+(``--no-fits``: left out, they cost 1-40 CPU-s a frame), the method without a part model (the
+parts' pixels against the edge-aware local surface, docs/accuracy.md "Explained without a part
+model") and the z-cut, each scored as ``zcut accuracy`` scores (the zone and the points above the
+rim, against ``/ground_truth/off_surface``): truth and flagged pixels, precision, recall, IoU, CPU s
+of the method (``process_time``). ``--real DIR``: the fallback on the real scans of DIR (no truth:
+the share it flags beside the z-cut's; ``--picture PNG`` saves the first one's depth with its flags).
 """
 
 from __future__ import annotations
@@ -28,6 +38,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -38,6 +49,8 @@ from explained_helpers import handmade_true_surfaces, raytraced_true_surfaces  #
 from zcut import explained as ex  # noqa: E402
 
 HANDMADE_SEED, RAYTRACED_SEED = 9701, 9801
+#: the report seeds of ``--no-part-model`` (the fallback was looked at on 9901.. and 9911.. only)
+FALLBACK_HANDMADE_SEED, FALLBACK_RAYTRACED_SEED = 9951, 9961
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -72,8 +85,18 @@ def rule_check(generator: str, kind: str, seed: int, size: tuple[int, int]) -> d
     return {"truth": float(truth.sum()), "iou_gen": _iou(gen, truth), "iou_own": _iou(own, truth), "cpu": cpu}
 
 
-def method_check(generator: str, kind: str, seed: int, size: tuple[int, int]) -> dict[str, float]:
-    """The whole method on a one-frame log: precision, recall, IoU in the zone, fits' share, CPU s."""
+def _fallback_config(config: Any) -> Any:
+    """``config`` with no part model: ``explained`` judges the parts against the edge-aware local surface."""
+    e = dataclasses.replace(config.bank["explained"], part_model="")
+    return dataclasses.replace(config, bank={**config.bank, "explained": e})
+
+
+def method_check(generator: str, kind: str, seed: int, size: tuple[int, int], *,
+                 fits: bool = True) -> dict[str, dict[str, Any]]:
+    """The methods on a one-frame log (``zcut synth`` in a temporary folder) scored as ``zcut accuracy``
+    scores them (the zone and the points above the rim, against ``/ground_truth/off_surface``):
+    ``explained`` with the part fits (``fits``), ``explained`` without a part model (the fallback) and
+    the z-cut; each with precision, recall, IoU and the CPU s of the method."""
     from cli.main import main
     from replay.logs import layout
     from replay.options import PipelineOptions
@@ -87,20 +110,67 @@ def method_check(generator: str, kind: str, seed: int, size: tuple[int, int]) ->
             args += ["--sensor", "raytraced"]
         assert main(args) == 0
         session = PipelineOptions(methods="zcut,explained").open_session(log)
-        frame = next(iter(session.reader.frames()))
-        zone = bin_zone(frame, session.resolved.config, bin_model=session.prepared)
-        t = time.process_time()
-        mask, detail, warning = run_explained(frame, zone, session.resolved.config)
-        cpu = time.process_time() - t
-    truth = frame.masks[layout.TRUTH_OFF_SURFACE] & zone.zone
-    tp = int((mask & truth).sum())
-    explained = np.zeros(zone.zone.size, bool)
-    for f in detail.fits if detail is not None else ():
-        explained[f.pixels] = True
-    return {"precision": tp / max(int(mask.sum()), 1), "recall": tp / max(int(truth.sum()), 1),
-            "iou": _iou(mask, truth), "fits": len(detail.fits) if detail is not None else 0,
-            "fit_share": float((explained.reshape(zone.zone.shape) & zone.zone).sum() / max(int(zone.zone.sum()), 1)),
-            "cpu": cpu, "warning": warning or ""}  # type: ignore[dict-item]
+        frame, r = next(iter(session.results(config=_fallback_config(session.config))))  # the z-cut's mask
+        zone = bin_zone(frame, session.config, bin_model=session.prepared)
+        region = zone.zone | zone.easy
+        truth = frame.masks[layout.TRUTH_OFF_SURFACE] & region
+        runs = [("explained fits", session.config)] if fits else []
+        runs.append(("explained fallback", _fallback_config(session.config)))
+        rows: dict[str, dict[str, Any]] = {}
+
+        def row(mask: np.ndarray, cpu: float, n_fits: int | str) -> dict[str, Any]:
+            mask = mask & region
+            tp = int((mask & truth).sum())
+            return {"truth": int(truth.sum()), "flagged": int(mask.sum()), "precision": tp / max(int(mask.sum()), 1),
+                    "recall": tp / max(int(truth.sum()), 1), "iou": _iou(mask, truth), "cpu": cpu, "fits": n_fits}
+
+        for name, config in runs:
+            t = time.process_time()
+            mask, detail, _ = run_explained(frame, zone, config)
+            cpu = time.process_time() - t
+            rows[name] = row(mask | zone.easy, cpu, len(detail.fits) if detail is not None else 0)
+        rows["zcut"] = row(r.outliers["zcut"], float("nan"), "")
+    return rows
+
+
+def real_check(path: Path) -> dict[str, Any]:
+    """The fallback on a real scan (``zcut record`` of a PCD in a temporary folder, no bin stages: the
+    zone is every valid pixel, the local surface alone explains it): the share it flags, its
+    local-surface σ and CPU s (``process_time`` of the method), and the mask for a picture."""
+    from cli.main import main
+    from replay.options import PipelineOptions
+    from replay.pipeline.explained import run_explained
+    from replay.pipeline.stages import bin_zone
+
+    with tempfile.TemporaryDirectory() as d:
+        log = Path(d) / "log.mcap"
+        assert main(["record", str(path), "-o", str(log)]) == 0
+        session = PipelineOptions(methods="zcut,explained").open_session(log)
+        config = _fallback_config(session.config)
+        frame, r = next(iter(session.results(config=config)))
+        zone = bin_zone(frame, config, bin_model=session.prepared)
+    t = time.process_time()
+    mask, d_, _ = run_explained(frame, zone, config)
+    cpu = time.process_time() - t
+    assert d_ is not None
+    valid = r.valid
+    return {"valid": int(valid.sum()), "flagged": int(mask.sum()), "share": float(mask.sum() / max(int(valid.sum()), 1)),
+            "zcut_share": float(r.outliers["zcut"].sum() / max(int(valid.sum()), 1)),
+            "sigma": d_.local_err_mm, "cpu": cpu, "err_median": float(np.nanmedian(d_.err_mm)), "mask": mask,
+            "frame": frame}
+
+
+def _picture(out: Path, frame: Any, mask: np.ndarray) -> None:
+    """The scan's depth (grey, near bright) with the flagged pixels in red, saved as a PNG."""
+    from PIL import Image
+
+    z = frame.xyz[..., 2].astype(np.float64)
+    ok = np.isfinite(z)
+    lo, hi = (np.percentile(z[ok], [1, 99]) if ok.any() else (0.0, 1.0))
+    g = np.where(ok, 255 * (1 - np.clip((z - lo) / max(hi - lo, 1e-9), 0, 1)), 0).astype(np.uint8)
+    img = np.dstack([g, g, g])
+    img[mask] = (255, 0, 0)
+    Image.fromarray(img).save(out)
 
 
 def main() -> None:
@@ -110,35 +180,69 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=1, help="frames (seeds) per generator and kind")
     ap.add_argument("--generators", default="handmade,raytraced")
     ap.add_argument("--method", action="store_true", help="also run the whole method (part fits) on a log of each")
+    ap.add_argument("--no-part-model", action="store_true",
+                    help="the method without a part model (the edge-aware local surface) beside the fits and the "
+                         "z-cut, on logs of seeds 9951.. (hand-made) and 9961.. (ray-traced); with --no-fits "
+                         "the fits are left out (they cost 10-60 CPU-s a frame)")
+    ap.add_argument("--no-fits", action="store_true", help="with --no-part-model: leave out the part fits")
+    ap.add_argument("--no-rule", action="store_true", help="leave out the true-meshes check")
+    ap.add_argument("--real", type=Path, default=None, metavar="DIR",
+                    help="the fallback on the real scans of DIR (*.pcd; no truth: the share it flags)")
+    ap.add_argument("--picture", type=Path, default=None, metavar="PNG",
+                    help="with --real: save the first scan's depth with the flagged pixels in red")
     a = ap.parse_args()
     w, h = (int(v) for v in a.size.split("x"))
-    print(f"true meshes as fits, {w}x{h}; IoU with /ground_truth/off_surface (every valid pixel)")
-    print(f"{'generator':<10} {'kind':<11} {'seed':>5} {'truth px':>8} {'IoU gen-Err':>11} {'IoU own-Err':>11} {'CPU s':>6}")
-    rows = []
-    for g in a.generators.split(","):
-        for k_i, kind in enumerate(a.kinds.split(",")):
-            for f in range(a.frames):
-                seed = (HANDMADE_SEED if g == "handmade" else RAYTRACED_SEED) + 10 * k_i + f
-                r = rule_check(g, kind, seed, (h, w))
-                rows.append(r)
-                print(f"{g:<10} {kind:<11} {seed:>5} {r['truth']:>8.0f} {r['iou_gen']:>11.4f} {r['iou_own']:>11.4f} "
-                      f"{r['cpu']:>6.2f}", flush=True)
-    print(f"min IoU gen-Err {min(r['iou_gen'] for r in rows):.4f}, own-Err {min(r['iou_own'] for r in rows):.4f}")
-    if not a.method:
-        return
-    print(f"\nthe method with its part fits ({w}x{h}), in the zone, against /ground_truth/off_surface")
-    print(f"{'generator':<10} {'kind':<11} {'seed':>5} {'fits':>5} {'fit share':>9} {'precision':>9} {'recall':>7} "
-          f"{'IoU':>6} {'CPU s':>6}")
-    for g in a.generators.split(","):
-        for k_i, kind in enumerate(a.kinds.split(",")):
-            seed = (HANDMADE_SEED if g == "handmade" else RAYTRACED_SEED) + 10 * k_i
-            try:
-                m = method_check(g, kind, seed, (h, w))
-            except Exception as e:  # noqa: BLE001 - a failing fit is a row of the table, not the end of it
-                print(f"{g:<10} {kind:<11} {seed:>5} failed: {type(e).__name__}: {e}", flush=True)
-                continue
-            print(f"{g:<10} {kind:<11} {seed:>5} {m['fits']:>5} {m['fit_share']:>9.3f} {m['precision']:>9.3f} "
-                  f"{m['recall']:>7.3f} {m['iou']:>6.3f} {m['cpu']:>6.1f} {m['warning']}", flush=True)
+    if not a.no_rule:
+        print(f"true meshes as fits, {w}x{h}; IoU with /ground_truth/off_surface (every valid pixel)")
+        print(f"{'generator':<10} {'kind':<11} {'seed':>5} {'truth px':>8} {'IoU gen-Err':>11} {'IoU own-Err':>11} "
+              f"{'CPU s':>6}")
+        rows = []
+        for g in a.generators.split(","):
+            for k_i, kind in enumerate(a.kinds.split(",")):
+                for f in range(a.frames):
+                    seed = (HANDMADE_SEED if g == "handmade" else RAYTRACED_SEED) + 10 * k_i + f
+                    r = rule_check(g, kind, seed, (h, w))
+                    rows.append(r)
+                    print(f"{g:<10} {kind:<11} {seed:>5} {r['truth']:>8.0f} {r['iou_gen']:>11.4f} "
+                          f"{r['iou_own']:>11.4f} {r['cpu']:>6.2f}", flush=True)
+        print(f"min IoU gen-Err {min(r['iou_gen'] for r in rows):.4f}, own-Err {min(r['iou_own'] for r in rows):.4f}")
+    if a.method or a.no_part_model:
+        fits = a.method or not a.no_fits
+        print(f"\nthe methods ({w}x{h}) in the zone and above the rim, against /ground_truth/off_surface"
+              + ("" if not a.no_part_model else "; explained with the part fits, without a part model "
+                 "(the local surface), the z-cut"))
+        print(f"{'generator':<10} {'kind':<11} {'seed':>5} {'method':<19} {'fits':>4} {'truth':>6} {'flagged':>7} "
+              f"{'precision':>9} {'recall':>7} {'IoU':>6} {'CPU s':>6}")
+        base = (FALLBACK_HANDMADE_SEED, FALLBACK_RAYTRACED_SEED) if a.no_part_model else (HANDMADE_SEED, RAYTRACED_SEED)
+        for g in a.generators.split(","):
+            for k_i, kind in enumerate(a.kinds.split(",")):
+                for f in range(a.frames if a.no_part_model else 1):
+                    seed = base[g != "handmade"] + 10 * f + k_i if a.no_part_model else base[g != "handmade"] + 10 * k_i
+                    try:
+                        res = method_check(g, kind, seed, (h, w), fits=fits)
+                    except Exception as e:  # noqa: BLE001 - a failing fit is a row of the table, not the end of it
+                        print(f"{g:<10} {kind:<11} {seed:>5} failed: {type(e).__name__}: {e}", flush=True)
+                        continue
+                    if not a.no_part_model:
+                        res.pop("explained fallback", None)
+                        res.pop("zcut", None)
+                    for name, m in res.items():
+                        print(f"{g:<10} {kind:<11} {seed:>5} {name:<19} {m['fits']!s:>4} {m['truth']:>6} "
+                              f"{m['flagged']:>7} {m['precision']:>9.3f} {m['recall']:>7.3f} {m['iou']:>6.3f} "
+                              f"{m['cpu']:>6.2f}", flush=True)
+    if a.real is not None:
+        print(f"\nthe fallback on the real scans of {a.real} (no bin stages: every valid pixel judged against the "
+              "local surface alone; no truth)")
+        print(f"{'scan':<36} {'valid':>7} {'flagged':>7} {'share':>7} {'z-cut':>7} {'σ mm':>6} {'Err mm':>6} "
+              f"{'CPU s':>6}")
+        first = True
+        for pcd in sorted(a.real.glob("*.pcd")):
+            rr = real_check(pcd)
+            print(f"{pcd.stem:<36} {rr['valid']:>7} {rr['flagged']:>7} {rr['share']:>7.4f} {rr['zcut_share']:>7.4f} "
+                  f"{rr['sigma']:>6.2f} {rr['err_median']:>6.2f} {rr['cpu']:>6.2f}", flush=True)
+            if first and a.picture is not None:
+                _picture(a.picture, rr["frame"], rr["mask"])
+                first = False
 
 
 if __name__ == "__main__":

@@ -7,7 +7,8 @@ resolve the same filter), or from a results file of ``zcut replay --out``; the t
 recorded truth (``--truth``: the paper's ``/ground_truth/off_surface`` by default where the log has it,
 else the sensor's ``/ground_truth/outliers`` with its ``/ground_truth/outlier_kind``) or from an
 annotator's labels (``--labels DB``; the report then says how much of each method's verdict fell on
-pixels the annotator left undecided). Counts are taken over the scored region (``--region``: ``zone``,
+pixels the annotator left undecided, and the labels' own agreement with the fits: the method ``explained``,
+with the part model when known, else the edge-aware local surface). Counts are taken over the scored region (``--region``: ``zone``,
 the pixels the filters judge, by default; ``valid``: every valid pixel).
 """
 
@@ -62,6 +63,7 @@ def options_of(args: argparse.Namespace) -> AccuracyOptions:
 def run(args: argparse.Namespace) -> int:
     from annotate.accuracy import AgreementResult, format_accuracy_table, format_agreement_table, report_json
     from annotate.accuracy import run as accuracy
+    from replay.logs import layout
 
     result = accuracy(options_of(args))
     if isinstance(result, AgreementResult):
@@ -80,6 +82,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"learned: the assistant's model ({result.learned}), scored on the "
                   f"{len(report['frames']) - n_seen} frame(s) it was not trained on ({n_seen} left out)")
         print(format_accuracy_table(report, per_frame=args.per_frame))
+        if args.labels is not None and "labels_vs_fits" not in report:
+            print("labels against the fits: not known (a results file without explained's mask "
+                  f"{layout.method_topic('explained')}: score the log itself, or replay it with --methods ...,explained)")
         if result.from_results:
             print("bin check: not known (a results file does not carry it; score the log itself to see "
                   "which frames' removal did not work)")

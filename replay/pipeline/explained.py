@@ -17,12 +17,24 @@ than ``k`` × Err (``[explained]`` section, :class:`zcut.params.ExplainedParams`
 ``explained.part_model_unit``) or an MCAP log whose ``part_model.ply`` attachment it takes. The
 command line's ``--part-model FILE`` sets it; when it is empty and the replayed log carries a
 ``part_model.ply``, :func:`with_log_part_model` (called where the config is resolved) sets it to the
-log itself, so that a study's worker processes read the same model. Without a part model, or
-without the bin stages (no bin model or no image: the bin and the table would be unexplained), the
-method returns a named warning and no outliers.
+log itself, so that a study's worker processes read the same model. With a part model but without
+the bin stages (no bin model or no image: the bin and the table would be unexplained), the method
+returns a named warning and no outliers.
+
+**Without a part model** (issue 29 item 3) the parts' pixels are judged against the edge-aware local
+surface (:func:`zcut.explained.local_surface_distance`: planes fitted on each side of an edge to the
+frame's valid pixels, the page's suspects' surface, a patch being a surface when it fits within 0.1
+of the zone's median footprint too, :func:`zcut.explained.local_surface_params`) while the bin model and the table plane still
+explain theirs: a pixel is unexplained when it is farther than ``k`` × Err from the bin, the table
+and the local surface (code ``SURFACE_LOCAL``). The local surface's σ_s is the robust residual of
+the zone pixels it explains (:func:`zcut.explained.local_sigma`: 1.4826 × the median distance,
+re-taken over the distances within 5 σ, three times). Without the bin stages either (a scan with no
+bin model) every valid pixel is judged against the local surface alone. Each frame carries the
+warning :data:`FALLBACK_WARNING` (:data:`FALLBACK_ALONE_WARNING`) naming the surface model used.
 
 What it leaves for the viewer (:class:`ExplainedDetail`): the fits and the posed part mesh, the
-distance image, the nearest surface's code, Err and the unexplained pixels.
+distance image, the nearest surface's code, Err, the unexplained pixels, the surface model used and
+the local surface's σ.
 """
 
 from __future__ import annotations
@@ -46,6 +58,15 @@ if TYPE_CHECKING:
 
 #: the method's name and config section
 NAME = "explained"
+#: :attr:`ExplainedDetail.surface_model`: the parts' pixels explained by the part model's fits, or by
+#: the edge-aware local surface (no part model)
+PART_FITS = "part fits"
+LOCAL_SURFACE = "local surface"
+#: the method's warning on every frame it judges without a part model (with the bin stages, and without)
+FALLBACK_WARNING = (f"{NAME}: no part model (the log has no part_model.ply; give --part-model FILE): the parts are "
+                    "judged against the edge-aware local surface, the bin and the table against their models")
+FALLBACK_ALONE_WARNING = (f"{NAME}: no part model and no bin stages: every pixel is judged against the edge-aware "
+                          "local surface alone")
 #: at most this many of the removal's bin (table) pixels measure the bin's residual (fit the table)
 SAMPLE_PX = 20_000
 
@@ -68,6 +89,11 @@ class ExplainedDetail:
         Err of each zone pixel.
     unexplained : (H, W) bool ndarray
         The method's outliers.
+    surface_model : str
+        What explained the parts' pixels: :data:`PART_FITS` (the part model's fitted instances) or
+        :data:`LOCAL_SURFACE` (no part model: the edge-aware local surface, code ``SURFACE_LOCAL``).
+    local_err_mm : float
+        The local surface's residual σ (mm; NaN with part fits).
     """
 
     fits: tuple[PartFit, ...]
@@ -77,6 +103,8 @@ class ExplainedDetail:
     surface: np.ndarray
     err_mm: np.ndarray
     unexplained: np.ndarray
+    surface_model: str = "part fits"
+    local_err_mm: float = float("nan")
 
     def instance_mesh(self, i: int) -> np.ndarray:
         """The vertices (n, 3) of fit ``i`` posed in the camera frame (mm)."""
@@ -158,22 +186,57 @@ def run_explained(frame: Frame, zone: Zone, config: Any) -> tuple[np.ndarray, Ex
     """The method on one frame (module docstring): (outliers in the zone, detail, warning), the
     fields of the ``MethodOutput`` its registry entry returns."""
     from zcut import explained as ex
-    from zcut.fits import FitParams, fit_prepared
 
     p = config.bank[NAME]
-    if not p.part_model:
-        return _no_outliers(zone, "no part model (the log has no part_model.ply; give --part-model FILE)")
     rem = zone.removal
     reg = zone.located.registration
     model = zone.located.bin_model
-    if rem is None or reg is None or model is None:
+    bin_stages = rem is not None and reg is not None and model is not None
+    if p.part_model and not bin_stages:
         return _no_outliers(zone, "no bin stages (the bin and the table are then no known surfaces)")
-    v, t, prepared = part_model(p.part_model, p.part_model_unit)
     xyz = frame.xyz.astype(np.float64) * 1000.0
     K = frame.intrinsics
     intr = None if K is None or (K.height, K.width) != zone.zone.shape else (K.fx, K.fy, K.cx, K.cy)
-    fits = tuple(fit_prepared(xyz, zone.zone, prepared, intrinsics=intr,
-                              params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm, min_support=p.fit_min_support)))
+    fits: tuple[PartFit, ...] = ()
+    v, t = np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    if p.part_model:
+        from zcut.fits import FitParams, fit_prepared
+
+        v, t, prepared = part_model(p.part_model, p.part_model_unit)
+        fits = tuple(fit_prepared(xyz, zone.zone, prepared, intrinsics=intr,
+                                  params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm,
+                                                   min_support=p.fit_min_support)))
+    surfaces = ex.KnownSurfaces(parts=[(v @ f.pose[:3, :3].T + f.pose[:3, 3], t) for f in fits],
+                                part_err_mm=[f.err_mm for f in fits])
+    if bin_stages:
+        assert rem is not None and reg is not None and model is not None
+        surfaces = _bin_and_table(xyz, rem, reg, model, surfaces)
+    warning = None
+    f_px = 0.5 * (K.fx + K.fy) if intr is not None and K is not None else ex.focal_px(xyz)
+    footprint = ex.footprint_mm(xyz, f_px)
+    local = None
+    if not p.part_model:  # the fallback: the edge-aware local surface explains the parts
+        valid = np.asarray(np.isfinite(xyz).all(axis=2))
+        local = ex.local_surface_distance(xyz, valid, where=zone.zone,
+                                          params=ex.local_surface_params(footprint, zone.zone))
+    near = ex.nearest_surface(xyz, surfaces, where=zone.zone, within_mm=local)
+    if local is not None:
+        near = ex.with_local_surface(near, local)
+        surfaces = dataclasses.replace(surfaces, local_err_mm=ex.local_sigma(
+            near.dist_mm[near.surface == ex.SURFACE_LOCAL]))
+        warning = FALLBACK_WARNING if bin_stages else FALLBACK_ALONE_WARNING
+    err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm)
+    out = ex.unexplained(near.dist_mm, err, p.k) & zone.zone
+    return out, ExplainedDetail(fits, v, t, near.dist_mm, near.surface, err, out,
+                                surface_model=PART_FITS if p.part_model else LOCAL_SURFACE,
+                                local_err_mm=surfaces.local_err_mm), warning
+
+
+def _bin_and_table(xyz: np.ndarray, rem: Any, reg: Any, model: Any, surfaces: Any) -> Any:
+    """``surfaces`` with the registered bin model (its residual measured on up to :data:`SAMPLE_PX`
+    of the removal's bin pixels) and the table plane fitted to up to as many of its table pixels."""
+    from zcut import explained as ex
+
     T = np.asarray(reg.T_cam_bin, np.float64)
     bin_points = (1000.0 * (model.points @ T[:3, :3].T) + 1000.0 * T[:3, 3],
                   np.zeros_like(model.points) if model.normals is None else model.normals @ T[:3, :3].T)
@@ -182,19 +245,14 @@ def run_explained(frame: Frame, zone: Zone, config: Any) -> tuple[np.ndarray, Ex
     tab = _sample(rem.table, SAMPLE_PX)
     if len(tab) >= 3:
         table = ex.fit_plane(flat[tab])
-    surfaces = ex.KnownSurfaces(parts=[(v @ f.pose[:3, :3].T + f.pose[:3, 3], t) for f in fits],
-                                part_err_mm=[f.err_mm for f in fits], bin_points=bin_points,
-                                bin_spacing_mm=1000.0 * model.spacing_m, table=table)
+    surfaces = dataclasses.replace(surfaces, bin_points=bin_points, bin_spacing_mm=1000.0 * model.spacing_m,
+                                   table=table)
     bins = _sample(rem.bin_points, SAMPLE_PX)
     if len(bins):
         d_bin = ex.nearest_surface(flat[bins][:, None, :], dataclasses.replace(surfaces, parts=(), part_err_mm=(),
                                                                                 table=None)).dist_mm
         surfaces = dataclasses.replace(surfaces, bin_err_mm=ex.residual_sigma(d_bin, gate_mm=_gate(d_bin)))
-    near = ex.nearest_surface(xyz, surfaces, where=zone.zone)
-    f_px = 0.5 * (K.fx + K.fy) if intr is not None and K is not None else ex.focal_px(xyz)
-    err = ex.err_image(near, surfaces, ex.footprint_mm(xyz, f_px), floor_mm=p.err_floor_mm)
-    out = ex.unexplained(near.dist_mm, err, p.k) & zone.zone
-    return out, ExplainedDetail(fits, v, t, near.dist_mm, near.surface, err, out), None
+    return surfaces
 
 
 def _gate(d: np.ndarray) -> float:

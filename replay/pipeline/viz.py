@@ -15,8 +15,9 @@ An explicit :class:`rerun.RecordingStream` is passed in (no global recording). E
 ``image/methods/NAME``                the outliers of every other filter method the config runs
                                       (``--methods``): one view each, with its count and time
 ``image/explained``                   the method ``explained``: each zone pixel's nearest known
-                                      surface, a part fit (1), the bin (2), the table (3), or
-                                      unexplained (4: farther than k × Err from every one)
+                                      surface, a part fit (1), the bin (2), the table (3), the
+                                      local surface (5: no part model), or unexplained (4:
+                                      farther than k × Err from every one)
 ``image/explained_distance``          its distance to the nearest known surface (mm, colour-mapped)
 ``world/explained/fits``              the fitted part instances in 3D, each labelled with its
                                       residual Err and support
@@ -798,14 +799,14 @@ def log_methods(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions =
 
 #: the classes of ``image/explained``
 EXPLAINED_CLASSES = ((1, "part fit", (60, 180, 75)), (2, "bin", (0, 120, 255)), (3, "table", (150, 150, 150)),
-                     (4, "unexplained", (230, 25, 75)))
+                     (4, "unexplained", (230, 25, 75)), (5, "local surface", (255, 200, 40)))
 
 
 def log_explained(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions = VizOptions()) -> None:
     """The method ``explained``'s stage (when it ran): the nearest known surface of each zone pixel
     and the unexplained ones, the distance image, the fitted instances in 3D (metres, as the cloud)."""
     from replay.pipeline.explained import ExplainedDetail
-    from zcut.explained import SURFACE_BIN, SURFACE_TABLE
+    from zcut.explained import SURFACE_BIN, SURFACE_LOCAL, SURFACE_TABLE
 
     d = result.details.get("explained")
     if not isinstance(d, ExplainedDetail):
@@ -815,6 +816,7 @@ def log_explained(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions
     cls[judged & (d.surface >= 0)] = 1
     cls[judged & (d.surface == SURFACE_BIN)] = 2
     cls[judged & (d.surface == SURFACE_TABLE)] = 3
+    cls[judged & (d.surface == SURFACE_LOCAL)] = 5  # no part model: the edge-aware local surface
     cls[d.unexplained] = 4
     rec.log("image/explained", _ctx(EXPLAINED_CLASSES))
     log_overlay_scale(rec, ("image/explained",), opts)

@@ -150,6 +150,10 @@ def test_human_labels_and_agreement(spike_log, predictions, tmp_path, capsys):
     assert from_results.pop("bin_flagged") is None and rep.pop("bin_flagged") == 0
     for f in (*rep["frames"], *from_results["frames"]):
         del f["bin_check"], f["bin_flagged"]
+    # the log runs explained for the labels' agreement with the fits; this results file holds no mask of it
+    assert rep.pop("labels_vs_fits")["frames"] == 2 and "labels_vs_fits" not in from_results
+    for f in rep["frames"]:
+        del f["labels_vs_fits"]
     assert from_results == rep
 
     agree = _json(capsys, ["accuracy", str(log), "--labels", str(db), "--agreement", "ann", "bob", "--json"])

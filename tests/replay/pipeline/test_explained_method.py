@@ -1,5 +1,6 @@
 """The method ``explained`` in the pipeline: its part model (the log's attachment or ``--part-model``),
-its mask in ``replay --out``, its named warning without a part model, a study's spawn workers.
+its mask in ``replay --out``, the local surface and its named warning without a part model, a
+study's spawn workers.
 
 Real MCAP logs from ``zcut synth`` (spheres at 320 × 200: the part fits are closed forms there).
 """
@@ -78,15 +79,26 @@ def test_a_bad_part_model_is_one_line(capsys, tmp_path, log):
     assert rc == 1 and err.startswith("error: ") and err.count("\n") == 1
 
 
-def test_without_a_part_model_a_named_warning_and_no_outliers(capsys, tmp_path, log):
+def test_without_a_part_model_the_local_surface_judges_the_parts(capsys, tmp_path, log):
+    """No part model: a named warning, and the parts' pixels judged against the edge-aware local
+    surface (before: no outliers but the points above the rim)."""
+    from replay.logs.reader import LogReader
+
     bare = tmp_path / "bare.mcap"
     without_truth(log, bare)  # its frames and bin model, no part_model.ply
     rc, out, err = _replay(capsys, bare, tmp_path / "r.mcap")
     assert rc == 0, err
-    assert "explained: no part model" in (out + err)
+    assert "explained: no part model" in err and "edge-aware local surface" in err
     mask = _mask(tmp_path / "r.mcap", layout.method_topic("explained"))
-    # only the points above the rim, which the pipeline adds to every method (and the z-cut flags)
-    assert not (mask & ~_mask(tmp_path / "r.mcap", layout.method_topic("zcut"))).any()
+    scored = _mask(tmp_path / "r.mcap", layout.ZONE)
+    zcut = _mask(tmp_path / "r.mcap", layout.method_topic("zcut"))
+    assert not (mask & ~scored).any()
+    assert (mask & ~zcut).sum() > 20  # its own outliers, not only the points above the rim
+    truth = next(iter(LogReader(log).frames())).masks[layout.TRUTH_OFF_SURFACE] & scored
+    tp = int((mask & truth).sum())
+    print(f"fallback: flagged {int(mask.sum())}, truth {int(truth.sum())}, tp {tp}")
+    # 320 × 200 (balls ~10 px across) is coarse for local planes: a few of the truth, few false alarms
+    assert tp >= 0.2 * truth.sum() and mask.sum() <= 0.05 * scored.sum()
 
 
 @pytest.mark.slow
@@ -118,6 +130,22 @@ def test_the_recording_shows_the_fits_the_distances_and_the_unexplained(capsys, 
     for path in ("/image/explained", "/image/explained_distance", "/world/explained/fits",
                  "/world/explained/labels", "/image/methods/explained"):
         assert path in entities, sorted(entities)
+
+
+def test_the_recording_shows_the_local_surface_without_a_part_model(capsys, tmp_path, log):
+    import rerun as rr
+
+    from replay.pipeline.viz import EXPLAINED_CLASSES
+
+    bare = tmp_path / "bare.mcap"
+    without_truth(log, bare)
+    rrd = tmp_path / "e.rrd"
+    rc, out, err = run_cli(capsys, "replay", bare, "--methods", METHODS, "--rrd", rrd)
+    assert rc == 0, err
+    entities = {chunk.entity_path for chunk in rr.chunk.RrdReader(str(rrd)).stream()}
+    for path in ("/image/explained", "/image/explained_distance", "/image/methods/explained"):
+        assert path in entities, sorted(entities)
+    assert (5, "local surface") in [(c, name) for c, name, _ in EXPLAINED_CLASSES]
 
 
 def test_compare_runs_explained_with_the_logs_part_model(capsys, tmp_path, log):
