@@ -341,6 +341,7 @@ class _Log:
     n_unscored: int = 0
     intrinsics: Any = None
     primaries: tuple[str, str] = ("zcut", "zcut")
+    part_kind: str = "unknown"
 
 
 @dataclass(frozen=True, slots=True)
@@ -359,6 +360,9 @@ class LogSides:
         :func:`config_difference` (empty without both configs).
     shared : dict
         What runs once for both: ``bin_stages``, ``zone``, ``methods`` (as :class:`PairRunner` shares).
+    part_kind : str
+        The log's part kind as its metadata says it (a synthetic log's ``zcut.synth`` ``part_kind``:
+        ``rods``, ``empty``, ...), ``unknown`` when it does not.
     """
 
     resolved: dict[str, Any]
@@ -366,6 +370,7 @@ class LogSides:
     primaries: tuple[str, str]
     diff: list[dict[str, Any]]
     shared: dict[str, Any]
+    part_kind: str = "unknown"
 
 
 def resolve_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, path: Path, reader: Any, first: Frame,
@@ -399,7 +404,14 @@ def resolve_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, path: 
         same_zone = same_locate and a.zcut.max_depth == b.zcut.max_depth
         shared = {"bin_stages": same_locate, "zone": same_zone,
                   "methods": list(shared_methods(a, b)) if same_zone else []}
-    return LogSides(resolved, configs, primaries, diff, shared)
+    return LogSides(resolved, configs, primaries, diff, shared, log_part_kind(reader.metadata))
+
+
+def log_part_kind(metadata: dict[str, dict[str, str]]) -> str:
+    """A log's part kind as its metadata says it (``zcut.synth``'s ``part_kind``), else ``unknown``."""
+    from replay.logs import layout
+
+    return metadata.get(layout.SYNTH_METADATA, {}).get("part_kind") or "unknown"
 
 
 def _results_masks(spec: SideSpec, log: Path) -> tuple[dict[str, Any], dict[int, dict[str, np.ndarray]], tuple[str, ...]]:
@@ -697,9 +709,12 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
 
 
 def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, pb: str, truth_src: Any,
-                 intrinsics: Any,
+                 intrinsics: Any, *, depth_log: Path | None = None,
                  ) -> tuple[FrameCompare, np.ndarray, Any]:
-    from annotate.accuracy import frame_accuracy
+    """One frame's comparison, its difference image and its truth (``(outliers, scored)``, None without).
+    ``depth_log``: the log, when it has ``/ground_truth/depth``: the true outliers' displacement
+    classes of each side's primary method, as ``zcut accuracy --by-displacement`` counts them."""
+    from annotate.accuracy import _displacement_mm, frame_accuracy
 
     where = sa.region | sb.region
     ma, mb = sa.preds[pa], sb.preds[pb]
@@ -709,23 +724,29 @@ def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, 
     counts_a = counts_b = None
     unscored = None
     truth = None
+    classes = None
     if truth_src is not None:
         t = truth_src.truth(frame, sa.valid)
         if isinstance(t, str):
             unscored = t
         else:
+            shift = _displacement_mm(depth_log, frame) if depth_log is not None else None
             fa = frame_accuracy(frame.index, frame.stamp_ns, sa.preds, t.outliers, reviewed=t.reviewed,
-                                valid=sa.valid, region=sa.region, kinds=t.kind)
+                                valid=sa.valid, region=sa.region, kinds=t.kind, displacement_mm=shift)
             fb = frame_accuracy(frame.index, frame.stamp_ns, sb.preds, t.outliers, reviewed=t.reviewed,
-                                valid=sb.valid, region=sb.region, kinds=t.kind)
+                                valid=sb.valid, region=sb.region, kinds=t.kind, displacement_mm=shift)
             counts_a, counts_b = fa.counts, fb.counts
             truth = (t.outliers, t.reviewed & where)
+            if shift is not None:
+                classes = {side: {fam: {"n": list(k.n), "found": list(k.found)} for fam, k in fx.classes[m].items()
+                                  if fam == "by_displacement"}
+                           for side, fx, m in (("a", fa, pa), ("b", fb, pb))}
     fp = pixel_footprint_mm2(frame.xyz, intrinsics)
     blobs = disagreement_blobs(log, frame.index, frame.stamp_ns, ma, mb, where, truth=truth, footprint=fp,
                                xyz=frame.xyz)
     diff = diff_image(ma, mb, where, truth)
     return (FrameCompare(log, frame.index, frame.stamp_ns, counts_a, counts_b, both, only_a, only_b, tuple(blobs),
-                         unscored), diff, truth)
+                         unscored, classes), diff, truth)
 
 
 # ------------------------------------------------------------------------------------ the verdict
@@ -802,23 +823,30 @@ def per_method(frames: list[FrameCompare], level: float) -> dict[str, Any]:
     return out
 
 
-def per_class(frames: list[FrameCompare], pa: str, pb: str, level: float) -> dict[str, Any]:
+def per_class(frames: list[FrameCompare], pa: str, pb: str, level: float,
+              part_kinds: list[str] | None = None) -> dict[str, Any]:
     """The primary methods' paired differences per class of the truth (docs/compare.md): clusters and
     singletons (component counts of docs/accuracy.md: recall = true components found, precision =
-    predicted components correct) and, where the truth says what each outlier is, recall per outlier
-    kind (pixels). Each entry: A's and B's pooled figure, B − A, and the paired interval over frames."""
+    predicted components correct); where the truth says what each outlier is, recall per outlier
+    kind (pixels); where the log has the true depth, recall per displacement class
+    (:data:`annotate.accuracy.DISPLACEMENT_CLASSES`, pixels, over the frames that have them); and per
+    part kind of the logs (``part_kinds``: each frame's log's, parallel to ``frames``) precision,
+    recall and F1 over the frames of that kind's logs. Each entry: A's and B's pooled figure, B − A,
+    and the paired interval over frames."""
+    from annotate.accuracy import DISPLACEMENT_CLASSES
     from replay.logs.layout import OUTLIER_KINDS
-    from zcut.paired import paired_differences
+    from zcut.paired import FIGURES, paired_differences
 
+    kinds_of = part_kinds if part_kinds is not None else ["unknown"] * len(frames)
     scored = [f for f in frames if f.scored]
     if not scored:
         return {}
     ca = [f.a[pa] for f in scored if f.a is not None]
     cb = [f.b[pb] for f in scored if f.b is not None]
 
-    def entry(fig: str, make: Any) -> dict[str, Any] | None:
-        a = tuple(np.array(x, dtype=np.int64) for x in zip(*(make(c) for c in ca)))
-        b = tuple(np.array(x, dtype=np.int64) for x in zip(*(make(c) for c in cb)))
+    def entry(fig: str, make: Any, xa: list[Any] = ca, xb: list[Any] = cb) -> dict[str, Any] | None:
+        a = tuple(np.array(x, dtype=np.int64).reshape(len(xa)) for x in zip(*(make(c) for c in xa), strict=True))
+        b = tuple(np.array(x, dtype=np.int64).reshape(len(xb)) for x in zip(*(make(c) for c in xb), strict=True))
         d = paired_differences(a, b, level=level)[fig]  # type: ignore[arg-type]
         if not (math.isfinite(d.a) or math.isfinite(d.b)):
             return None  # the class is empty
@@ -842,6 +870,26 @@ def per_class(frames: list[FrameCompare], pa: str, pb: str, level: float) -> dic
             e = entry("recall", kind)
             if e is not None:
                 out[f"kind {OUTLIER_KINDS.get(code, code)}"] = {"recall": e}
+    # the displacement classes |Z - Z_GT| of the true outliers, on the frames whose log has the true depth
+    moved = [f.classes for f in scored if f.classes is not None and "by_displacement" in f.classes.get("a", {})
+             and "by_displacement" in f.classes.get("b", {})]
+    if moved:
+        for i, name in enumerate(DISPLACEMENT_CLASSES):
+            da = [c["a"]["by_displacement"] for c in moved]
+            db = [c["b"]["by_displacement"] for c in moved]
+            e = entry("recall", lambda k, i=i: (k["found"][i], 0, k["n"][i] - k["found"][i]), da, db)
+            if e is not None:
+                out[f"displacement {name}"] = {"recall": e}
+    # the part kind of the logs: every figure over the frames of that kind's logs (always, one kind too)
+    by_part: dict[str, list[FrameCompare]] = {}
+    for f, k in zip(frames, kinds_of, strict=True):
+        if f.scored:
+            by_part.setdefault(k, []).append(f)
+    for k in sorted(by_part):
+        xa = [f.a[pa] for f in by_part[k] if f.a is not None]
+        xb = [f.b[pb] for f in by_part[k] if f.b is not None]
+        row = {fig: entry(fig, lambda c: (c.tp, c.fp, c.fn), xa, xb) for fig in FIGURES}
+        out[f"part {k}"] = {fig: e for fig, e in row.items() if e is not None}
     return {k: v for k, v in out.items() if v}
 
 
@@ -1041,6 +1089,7 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
     import resource
     import traceback
 
+    from replay.logs import layout
     from studies.compare_outputs import frame_images
     from studies.work import UnitResult
 
@@ -1059,6 +1108,7 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
         reader, first = _open_unit_log(path, unit.sha256, opts.topic)
         truth_src = _truth_source(opts, path, tuple(reader.mask_topics))
         truth_name = truth_src.name if truth_src is not None else None
+        depth_log = path if layout.TRUTH_DEPTH in reader.topics else None  # the displacement classes
         runs: Counter[str] = Counter()
         lost: list[Any] = []
         it = _frames_of_log(opts, spec_a, spec_b, path, sides, reader, first, (unit.start, unit.stop), runs, lost,
@@ -1079,7 +1129,8 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
                 if pa not in sa.preds or pb not in sb.preds:
                     raise CompareError(f"{path.name}: the primary methods {pa} (A) and {pb} (B) must be the same "
                                        "on every log")
-                fc, diff, truth = _score_frame(path.name, frame, sa, sb, pa, pb, truth_src, first.intrinsics)
+                fc, diff, truth = _score_frame(path.name, frame, sa, sb, pa, pb, truth_src, first.intrinsics,
+                                               depth_log=depth_log)
                 row["record"] = frame_to_json(fc)
                 row["images"] = frame_images(sa, sb, diff, truth, pa, pb).to_bytes()
                 if fc.unscored is not None:
@@ -1145,6 +1196,7 @@ def _assemble(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: l
     failed = {r.unit.key: r.error for r in results if r.error is not None}
     metas = store.metas()
     frames: list[FrameCompare] = []
+    kinds: list[str] = []  # each frame's log's part kind
     logs: list[_Log] = []
     runs: Counter[str] = Counter()
     truth_names: set[str] = set()
@@ -1162,7 +1214,7 @@ def _assemble(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: l
                 continue
             s = sides[plan.sha256]
             entry.resolved_a, entry.resolved_b = s.configs["A"], s.configs["B"]
-            entry.diff, entry.shared, entry.primaries = s.diff, s.shared, s.primaries
+            entry.diff, entry.shared, entry.primaries, entry.part_kind = s.diff, s.shared, s.primaries, s.part_kind
             if s.resolved and plan.bin_model_warning:
                 entry.notes.append(plan.bin_model_warning)
             writer.log(plan.path)
@@ -1191,13 +1243,14 @@ def _assemble(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: l
                         entry.n_frames += 1
                         entry.n_unscored += fc.unscored is not None
                         frames.append(fc)
+                        kinds.append(entry.part_kind)
                 finally:
                     if reread is not None:
                         reread.close()
                 entry.damage += metas.get(u.key, {}).get("damage", [])
         if not started:
             raise CompareError("no readable frame in " + ", ".join(str(p) for p in opts.logs))
-        report = _report(opts, spec_a, spec_b, logs, frames, pa, pb, runs, truth_names)
+        report = _report(opts, spec_a, spec_b, logs, frames, kinds, pa, pb, runs, truth_names)
         this_run = [r for r in results if r.error is None]
         n_now = sum(r.frames for r in this_run)
         cpu_units = sum(r.cpu_seconds for r in this_run)
@@ -1217,8 +1270,10 @@ def _assemble(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: l
 
 
 def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list[_Log], frames: list[FrameCompare],
-            pa: str, pb: str, runs: Counter[str], truth_names: set[str]) -> dict[str, Any]:
+            kinds: list[str], pa: str, pb: str, runs: Counter[str], truth_names: set[str]) -> dict[str, Any]:
     """The compare.json object (docs/compare.md documents every key)."""
+    from annotate.accuracy import classes_entry
+    from zcut.metrics import KindCounts
     from zcut.paired import frame_outcomes
 
     v = verdict(frames, pa, pb, level=opts.level)
@@ -1238,6 +1293,10 @@ def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list
             e["b"] = {m: _entry_of(c) for m, c in f.b.items()}
             e["delta_f1"] = count_f1(f.b[pb]) - count_f1(f.a[pa])
             e["outcome"] = outcomes[(f.log, f.index)]
+            if f.classes is not None and "by_displacement" in f.classes.get("a", {}):
+                e["by_displacement"] = {side: classes_entry("by_displacement", KindCounts(
+                    tuple(k["n"]), tuple(k["n"]), tuple(k["found"])))
+                    for side, k in ((s, f.classes[s]["by_displacement"]) for s in "ab")}
         frames_json.append(e)
     # worst regression first: the frames B loses most on (by ΔF1), else the most disagreement
     order = sorted(range(len(frames)), key=lambda i: (frames_json[i].get("delta_f1", 0.0),
@@ -1257,14 +1316,15 @@ def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list
         "config_difference": first.diff,
         "truth": sorted(truth_names)[0] if len(truth_names) == 1 else (sorted(truth_names) or None),
         "region": opts.region,
-        "logs": [{"log": str(e.path), "frames": e.n_frames, "unscored": e.n_unscored, "damage": e.damage,
+        "logs": [{"log": str(e.path), "part_kind": e.part_kind, "frames": e.n_frames, "unscored": e.n_unscored,
+                  "damage": e.damage,
                   "notes": e.notes, "config_difference": e.diff, "shared": e.shared} for e in logs],
         "shared": first.shared,
         "stage_runs": dict(sorted(runs.items())),
         "pooled": {"a": _pooled(frames, "A"), "b": _pooled(frames, "B")},
         "verdict": v,
         "per_method": per_method(frames, opts.level),
-        "per_class": per_class(frames, pa, pb, opts.level),
+        "per_class": per_class(frames, pa, pb, opts.level, kinds),
         "agreement": agreement(frames),
         "frames": frames_json,
         "frames_worst_first": [{"log": frames[i].log, "index": frames[i].index,

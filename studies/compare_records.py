@@ -103,6 +103,10 @@ class FrameCompare:
     ``a``, ``b``: every reported method's counts (:class:`zcut.metrics.AccuracyCounts`) of each side,
     None without truth; ``both``, ``only_a``, ``only_b``: pixels of the primary masks in the union
     of the two scored regions; ``diff``: the (H, W) uint8 difference image (:data:`DIFF_CODES`).
+    ``classes``: where the frame's truth has them, the true outlier pixels per class of each side's
+    primary method, ``{"a" | "b": {FAMILY: {"n": [...], "found": [...]}}}`` (a family of
+    :data:`annotate.accuracy.CLASS_FAMILIES`, today ``by_displacement``; entry ``i`` its class ``i``);
+    None when the frame has none.
     """
 
     log: str
@@ -115,6 +119,7 @@ class FrameCompare:
     only_b: int
     blobs: tuple[Blob, ...]
     unscored: str | None = None
+    classes: dict[str, dict[str, dict[str, list[int]]]] | None = None
 
     @property
     def scored(self) -> bool:
@@ -186,7 +191,7 @@ def frame_to_json(f: FrameCompare) -> str:
 
     return json.dumps({"log": f.log, "index": f.index, "stamp_ns": f.stamp_ns, "a": side(f.a), "b": side(f.b),
                        "both": f.both, "only_a": f.only_a, "only_b": f.only_b,
-                       "blobs": [asdict(b) for b in f.blobs], "unscored": f.unscored})
+                       "blobs": [asdict(b) for b in f.blobs], "unscored": f.unscored, "classes": f.classes})
 
 
 def frame_from_json(text: str) -> FrameCompare:
@@ -197,7 +202,7 @@ def frame_from_json(text: str) -> FrameCompare:
         return None if counts is None else {m: _counts_from(c) for m, c in counts.items()}
 
     return FrameCompare(d["log"], d["index"], d["stamp_ns"], side(d["a"]), side(d["b"]), d["both"], d["only_a"],
-                        d["only_b"], tuple(Blob(**b) for b in d["blobs"]), d["unscored"])
+                        d["only_b"], tuple(Blob(**b) for b in d["blobs"]), d["unscored"], d.get("classes"))
 
 
 @dataclass(frozen=True, slots=True)
