@@ -1029,7 +1029,7 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
     from annotate.disagreement import FILE as DISAGREEMENT
     from replay.outputs import OutputPlan, naming
     from replay.pipeline.session import open_log
-    from studies.driver import Progress, check_labels, execute, plan_logs, start_units
+    from studies.driver import Progress, check_labels, meta_of, plan_logs, start_units
     from studies.executors import make_executor
     from studies.parts import PARTS, PartStore
     from studies.work import Job
@@ -1072,13 +1072,30 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
                   annotator=opts.annotator, region=opts.region, configs=dict(sides), truth=opts.truth,
                   extra={"options": abs_opts, "a": abs_a, "b": abs_b, "primaries": primaries})
         progress = Progress(sum(u.n_frames or 0 for u in todo) or None)
-        with naming(store.root / PARTS):  # a full disk met by a unit's part (Arrow's error names no file)
-            results = execute(units, job, run_compare_unit, executor, store, progress=progress, schema=part_schema())
+        writer = _Assembler(opts, spec_a, spec_b, plans, sides, primaries, store, paths)
+        stack.callback(writer.abort)  # an error or an interruption: no output is named
+        writer.advance({})  # the units done in an earlier run over DIR, up to the first not done
+        results: list[UnitResult] = []
+        failed: dict[str, str] = {}
+        try:
+            # as driver.execute, the writer taking each frame as soon as the units before it are done
+            for unit, res in executor.run(run_compare_unit, todo, job):
+                results.append(res)
+                if res.error is None:
+                    with naming(store.root / PARTS):  # a full disk met by a unit's part (Arrow's error names no file)
+                        store.write(unit.key, res.rows, meta_of(res), schema=part_schema())
+                else:
+                    failed[unit.key] = res.error
+                note = f"{Path(unit.log).name} failed: {res.error.splitlines()[0][:60]}" if res.error else ""
+                progress.update(res.frames, note=note, force=bool(note))
+                writer.advance(failed)
+        finally:
+            executor.close()
         progress.finish()
     finally:
         executor.close()
         _KEPT.clear()  # what the units kept when they ran in this process (--workers 0)
-    return _assemble(opts, spec_a, spec_b, plans, sides, primaries, store, results, executor, paths, t_wall, t_cpu)
+    return writer.finish(results, executor, t_wall, t_cpu)
 
 
 # ------------------------------------------------------------------------------------ one unit
@@ -1132,7 +1149,7 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
                 fc, diff, truth = _score_frame(path.name, frame, sa, sb, pa, pb, truth_src, first.intrinsics,
                                                depth_log=depth_log)
                 row["record"] = frame_to_json(fc)
-                row["images"] = frame_images(sa, sb, diff, truth, pa, pb).to_bytes()
+                row["images"] = frame_images(sa, sb, diff, truth, pa, pb, frame if opts.rrd else None).to_bytes()
                 if fc.unscored is not None:
                     res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": fc.unscored})
                 res.frames += 1
@@ -1166,8 +1183,20 @@ def _part_rows(store: PartStore, key: str) -> list[dict[str, Any]]:
     return sorted(rows, key=lambda r: r["frame"])
 
 
+def _part_meta(store: PartStore, key: str) -> dict[str, Any]:
+    """A finished unit's meta (``parts/KEY.json``; empty when it does not read)."""
+    from studies.parts import PARTS
+
+    try:
+        meta: dict[str, Any] = json.loads((store.root / PARTS / f"{key}.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return meta
+
+
 class _Reread:
-    """A unit's frames read again from its log (``reader``), in order, for the recording's image and points."""
+    """A unit's frames read again from its log (``reader``), in order: the recording's content of the
+    frames whose part holds none (a part written by a comparison without ``compare.rrd``)."""
 
     def __init__(self, reader: Any, unit: WorkUnit) -> None:
         self.stream = reader.frames(start=unit.start, stop=unit.stop)
@@ -1185,72 +1214,121 @@ class _Reread:
         self.stream.close()
 
 
-def _assemble(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: list[LogPlan],
-              sides: dict[str, LogSides], primaries: tuple[str, str], store: PartStore, results: list[UnitResult],
-              executor: Executor, paths: dict[str, Path], t_wall: float, t_cpu: float) -> CompareResult:
-    """The one writer: every unit's frames in log order (those done in an earlier run too) into the
-    recording, the disagreement, the tables and the page."""
-    from replay.logs.reader import LogReader
-    from studies.compare_outputs import CompareWriter
+class _Assembler:
+    """The one writer: every unit's frames in log order and frame order (those done in an earlier run
+    too) into the recording and the disagreement as soon as the units before them are done
+    (:meth:`advance`, after each unit), then the tables and the page (:meth:`finish`)."""
 
-    failed = {r.unit.key: r.error for r in results if r.error is not None}
-    metas = store.metas()
-    frames: list[FrameCompare] = []
-    kinds: list[str] = []  # each frame's log's part kind
-    logs: list[_Log] = []
-    runs: Counter[str] = Counter()
-    truth_names: set[str] = set()
-    pa, pb = primaries
-    given = {Path(os.path.abspath(p)): Path(p) for p in opts.logs}  # a log named as given (a folder's: its path)
-    given.update({Path(p).resolve(): Path(p) for p in opts.logs})
-    writer = CompareWriter(paths, has_truth=None)
-    started = completed = False
-    try:
+    def __init__(self, opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: list[LogPlan],
+                 sides: dict[str, LogSides], primaries: tuple[str, str], store: PartStore,
+                 paths: dict[str, Path]) -> None:
+        from studies.compare_outputs import CompareWriter
+
+        self.opts, self.spec_a, self.spec_b, self.plans = opts, spec_a, spec_b, plans
+        self.sides, self.primaries, self.store, self.paths = sides, primaries, store, paths
+        self.frames: list[FrameCompare] = []
+        self.kinds: list[str] = []  # each frame's log's part kind
+        self.logs: list[_Log] = []
+        self.runs: Counter[str] = Counter()
+        self.truth_names: set[str] = set()
+        self.given = {Path(os.path.abspath(p)): Path(p) for p in opts.logs}  # a log named as given (a folder's: its path)
+        self.given.update({Path(p).resolve(): Path(p) for p in opts.logs})
+        self.writer = CompareWriter(paths, has_truth=None)
+        self.started = False
+        #: what is left to write, in order: ("log", plan) starts a log, ("unit", plan, unit) its unit
+        self.steps: list[tuple[Any, ...]] = []
         for plan in plans:
-            entry = _Log(given.get(plan.path, plan.path))
-            logs.append(entry)
-            if plan.error is not None or plan.sha256 not in sides:
-                entry.damage.append(f"left out: {plan.error or 'no frames'}")
-                continue
-            s = sides[plan.sha256]
-            entry.resolved_a, entry.resolved_b = s.configs["A"], s.configs["B"]
-            entry.diff, entry.shared, entry.primaries, entry.part_kind = s.diff, s.shared, s.primaries, s.part_kind
-            if s.resolved and plan.bin_model_warning:
-                entry.notes.append(plan.bin_model_warning)
-            writer.log(plan.path)
-            log_reader = LogReader(plan.path, cloud_topic=opts.topic) if "rrd" in paths else None
-            for u in plan.units:
-                if u.key in failed or not store.done(u.key):
+            self.steps.append(("log", plan))
+            if plan.error is None and plan.sha256 in sides:
+                self.steps += [("unit", plan, u) for u in plan.units]
+        self.at = 0
+        self.closed = False
+        self.reader: Any = None  # the current log's reader, opened only to read a frame again
+
+    def advance(self, failed: dict[str, str], *, last: bool = False) -> None:
+        """Write every frame whose unit and every unit before it are done (or failed: ``failed``, unit key
+        -> error); ``last``: every unit left, a unit not done being named in its log's damage."""
+        while self.at < len(self.steps):
+            step = self.steps[self.at]
+            if step[0] == "log":
+                self._log(step[1])
+            else:
+                u = step[2]
+                done = u.key not in failed and self.store.done(u.key)
+                if not (done or last or u.key in failed):
+                    return
+                entry = self.logs[-1]
+                if not done:
                     entry.damage.append(f"frames {u.start}-{u.stop if u.stop is not None else 'end'} not compared: "
                                         f"{failed.get(u.key) or 'the unit did not finish'}")
+                else:
+                    self._unit(step[1], u, entry)
+            self.at += 1
+
+    def _log(self, plan: LogPlan) -> None:
+        entry = _Log(self.given.get(plan.path, plan.path))
+        self.logs.append(entry)
+        self.reader = None
+        if plan.error is not None or plan.sha256 not in self.sides:
+            entry.damage.append(f"left out: {plan.error or 'no frames'}")
+            return
+        s = self.sides[plan.sha256]
+        entry.resolved_a, entry.resolved_b = s.configs["A"], s.configs["B"]
+        entry.diff, entry.shared, entry.primaries, entry.part_kind = s.diff, s.shared, s.primaries, s.part_kind
+        if s.resolved and plan.bin_model_warning:
+            entry.notes.append(plan.bin_model_warning)
+        self.writer.log(plan.path)
+
+    def _unit(self, plan: LogPlan, u: WorkUnit, entry: _Log) -> None:
+        from studies.compare_outputs import frame_view
+
+        pa, pb = self.primaries
+        reread: _Reread | None = None
+        try:
+            for row in _part_rows(self.store, u.key):
+                self.runs.update(json.loads(row["stage_runs"] or "{}"))
+                if row["truth"] is not None:
+                    self.truth_names.add(row["truth"])
+                if row["record"] is None:
+                    entry.damage.append(row["skipped"])
                     continue
-                reread = _Reread(log_reader, u) if log_reader is not None else None
-                try:
-                    for row in _part_rows(store, u.key):
-                        runs.update(json.loads(row["stage_runs"] or "{}"))
-                        if row["truth"] is not None:
-                            truth_names.add(row["truth"])
-                        if row["record"] is None:
-                            entry.damage.append(row["skipped"])
-                            continue
-                        fc = frame_from_json(row["record"])
-                        if not started:
-                            writer.start(spec_a, spec_b, entry.diff, has_truth=row["truth"] is not None,
-                                         primaries=primaries)
-                            started = True
-                        frame = reread.get(fc.index) if reread is not None else None
-                        writer.frame(frame, fc, FrameImages.from_bytes(row["images"]), pa, pb)
-                        entry.n_frames += 1
-                        entry.n_unscored += fc.unscored is not None
-                        frames.append(fc)
-                        kinds.append(entry.part_kind)
-                finally:
-                    if reread is not None:
-                        reread.close()
-                entry.damage += metas.get(u.key, {}).get("damage", [])
-        if not started:
-            raise CompareError("no readable frame in " + ", ".join(str(p) for p in opts.logs))
-        report = _report(opts, spec_a, spec_b, logs, frames, kinds, pa, pb, runs, truth_names)
+                fc = frame_from_json(row["record"])
+                if not self.started:
+                    self.writer.start(self.spec_a, self.spec_b, entry.diff, has_truth=row["truth"] is not None,
+                                      primaries=self.primaries)
+                    self.started = True
+                images = FrameImages.from_bytes(row["images"])
+                view = images.view
+                if view is None and "rrd" in self.paths:  # a part without the recording's content: read it again
+                    if reread is None:
+                        if self.reader is None:
+                            from replay.logs.reader import LogReader
+
+                            self.reader = LogReader(plan.path, cloud_topic=self.opts.topic)
+                        reread = _Reread(self.reader, u)
+                    frame = reread.get(fc.index)
+                    view = None if frame is None else frame_view(frame, images.diff)
+                self.writer.frame(fc, images, pa, pb, view)
+                entry.n_frames += 1
+                entry.n_unscored += fc.unscored is not None
+                self.frames.append(fc)
+                self.kinds.append(entry.part_kind)
+        finally:
+            if reread is not None:
+                reread.close()
+        entry.damage += _part_meta(self.store, u.key).get("damage", [])
+
+    def finish(self, results: list[UnitResult], executor: Executor, t_wall: float, t_cpu: float) -> CompareResult:
+        """Every unit left (named in the damage when not done), then compare.json, the tables, the page;
+        every output named."""
+        failed = {r.unit.key: r.error for r in results if r.error is not None}
+        self.advance(failed, last=True)
+        if not self.started:
+            raise CompareError("no readable frame in " + ", ".join(str(p) for p in self.opts.logs))
+        pa, pb = self.primaries
+        frames, plans, paths = self.frames, self.plans, self.paths
+        report = _report(self.opts, self.spec_a, self.spec_b, self.logs, frames, self.kinds, pa, pb, self.runs,
+                         self.truth_names)
         this_run = [r for r in results if r.error is None]
         n_now = sum(r.frames for r in this_run)
         cpu_units = sum(r.cpu_seconds for r in this_run)
@@ -1261,12 +1339,17 @@ def _assemble(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: l
                           "executor": executor.name, "workers": executor.workers,
                           "units": sum(len(p.units) for p in plans), "units_this_run": len(results)}
         report["outputs"] = {k: str(v) for k, v in paths.items()}
-        writer.finish(report, summary_rows(report, frames))
-        completed = True
-    finally:
-        writer.close(completed=completed)
-    return CompareResult(report, frames, {k: str(v) for k, v in paths.items()}, runs,
-                         data_loss=any(e.damage for e in logs))
+        self.writer.finish(report, summary_rows(report, frames))  # an error: abort() (the caller's) names nothing
+        self.writer.close(completed=True)
+        self.closed = True
+        return CompareResult(report, frames, {k: str(v) for k, v in paths.items()}, self.runs,
+                             data_loss=any(e.damage for e in self.logs))
+
+    def abort(self) -> None:
+        """Nothing named (an error, an interruption); safe after :meth:`finish` (then nothing to do)."""
+        if not self.closed:
+            self.closed = True
+            self.writer.close(completed=False)
 
 
 def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list[_Log], frames: list[FrameCompare],
