@@ -13,9 +13,11 @@ A library call, in named steps::
     #                                               parameters A and B share
     #     _score_frame                              the counts `zcut accuracy` gives each side, the
     #                                               agreement of the two masks, the disagreement blobs
-    #   _assemble                                   the one writer, frames in log order: the verdict
-    #                                               (pooled figures, paired Δ, sign test), compare.json,
-    #                                               summary.parquet, report.html, compare.rrd, the npz
+    #   _Assembler.advance                          the one writer, after each unit: every frame whose
+    #                                               units before it are done, in log order, into
+    #                                               compare.rrd and the npz
+    #   _Assembler.finish                           the verdict (pooled figures, paired Δ, sign test),
+    #                                               compare.json, summary.parquet, report.html
 
 Sharing. Both sides run on the frames read once. When A's and B's ``bin_mask``, ``registration`` and
 ``removal`` sections are equal, the bin stages (:func:`replay.pipeline.stages.locate_bin`) run once and
@@ -35,8 +37,9 @@ one log (``frames_per_unit``), on local worker processes (``workers``), a Ray cl
 process (``workers=0``). Each unit returns per frame its :class:`FrameCompare` and the images the writer
 needs (:data:`studies.compare_records.PART_COLUMNS`), kept in ``DIR/parts`` as it finishes; a rerun over
 the same DIR runs only the units not done (another config, log set or option is refused, one line). The
-one writer then takes the frames in log order, so every output equals that of one process running the
-frames one after another.
+one writer takes the frames in log order, each as soon as the units before it are done (the recording
+grows while the units run), so every output equals that of one process running the frames one after
+another.
 
 No argparse here: ``cli/commands/compare.py`` is the command.
 """

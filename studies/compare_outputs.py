@@ -2,9 +2,10 @@
 and ``compare.rrd``, each written beside its final path and renamed into place when the comparison
 completes (:class:`replay.outputs.AtomicOutput`); an interrupted or failed comparison leaves none.
 
-:class:`CompareWriter` is the one writer: it takes the frames in order once the units of work are
-done (each frame's comparison and images, :func:`frame_images`, as the units returned them), streams
-the recording and the disagreement, and writes the tables and the page from the report. The page is the Jinja2 template
+:class:`CompareWriter` is the one writer: it takes the frames in log and frame order as soon as the
+units before them are done (each frame's comparison and images, :func:`frame_images`, as the units
+returned them: the recording's content of the frame too, :func:`frame_view`), streams the recording
+and the disagreement, and writes the tables and the page from the report. The page is the Jinja2 template
 ``studies/templates/compare.html`` (autoescaped; the sweep's stylesheet ``report.css``), its plots
 drawn with the sweep's matplotlib helpers (:mod:`studies.plots`).
 """
