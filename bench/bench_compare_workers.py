@@ -2,7 +2,8 @@
 code (the one-process comparison before it ran in units) measured in the same run.
 
 Run: ``.venv/bin/python bench/bench_compare_workers.py [--logs 3] [--frames 4] [--size 240x320]
-[--repeats 2] [--dir DIR] [--old OLD_TREE]``
+[--kinds rods,spheres,zinc_nuts] [--seed 10] [--repeats 2] [--dir DIR] [--old OLD_TREE] [--vs-replay]
+[--b-zcut-only]``
 
 Synthesises (once, cached in ``--dir``) ``--logs`` small synthetic logs (rods, spheres, …) of
 ``--frames`` frames, rechunked to a frame per chunk (a unit per frame with ``--frames-per-unit 1``),
@@ -20,6 +21,18 @@ counts the workers' imports and start-up too. Printed as medians, with the load 
 is shared: wall-clock figures say little, CPU-s are the figures), CPU-s per frame each way and the
 ratios to ``workers 0`` and ``old``; the outputs of every way are checked equal (compare.json but its
 cost and paths, summary.parquet, disagreement.npz).
+
+``--vs-replay``: instead, the cost of a comparison against one replay of A on the same logs (the
+issue's target: at most 1.3 x when A and B share the bin stages), all in this process (numba's kernels
+warmed by a first run of each way, not measured), CPU time of the process (``time.process_time``,
+its threads included), alternating the ways ``--repeats`` times: ``zcut replay LOG --methods zcut``
+over every log (the table to a string, no outputs; then with ``--rrd``), the same of B
+(``--config RHO.toml``: z-cut at ρ_thr 0.035 and SOR), ``studies.compare.run`` with
+``workers=0`` without ``.rrd`` and report, with the ``.rrd``, and the whole command (``.rrd`` and
+``report.html``). Then, per frame of the first log, what the one writer's recording costs either way
+(a unit's part holding the frame's content, or the writer reading the frame again from its log):
+CPU of making the content (JPEG, points) in the unit, of reading it back from the part, of reading
+and decoding the frame again, and the part's bytes with and without it.
 """
 
 from __future__ import annotations
@@ -75,23 +88,31 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--dir", type=Path, default=Path("/tmp/bench_compare_workers"))
     ap.add_argument("--old", type=Path, help="the previous code's tree (git archive of the base)")
+    ap.add_argument("--kinds", default="rods,spheres,zinc_nuts", help="the logs' part kinds, in turn")
+    ap.add_argument("--seed", type=int, default=10, help="the first log's seed (then +1 each)")
+    ap.add_argument("--b-zcut-only", action="store_true",
+                    help="B runs the z-cut alone (methods = [\"zcut\"]), as A; default: the default methods")
+    ap.add_argument("--vs-replay", action="store_true", help="compare's cost against one replay of A, in process")
     args = ap.parse_args()
     from test_batch_ray import rechunk
 
     d = args.dir
     d.mkdir(parents=True, exist_ok=True)
-    kinds = ("rods", "spheres", "zinc_nuts", "rods", "spheres")
+    kinds = tuple(args.kinds.split(","))
     logs = []
     for i in range(args.logs):
         log = d / f"log{i}.mcap"
         if not log.is_file():
             whole = d / f"log{i}_whole.mcap"
             subprocess.run([sys.executable, "-m", "cli", "synth", "-o", str(whole), "--parts", kinds[i % len(kinds)],
-                            "--frames", str(args.frames), "--seed", str(10 + i), "--size", args.size],
+                            "--frames", str(args.frames), "--seed", str(args.seed + i), "--size", args.size],
                            env={**os.environ, "PYTHONPATH": str(HERE)}, check=True, capture_output=True)
             rechunk(whole, log, chunk_size=16 * 1024)
         logs.append(log.name)
-    (d / "rho.toml").write_text("[zcut]\nrho_thr = 0.035\n")
+    (d / "rho.toml").write_text(('methods = ["zcut"]\n' if args.b_zcut_only else "") + "[zcut]\nrho_thr = 0.035\n")
+    if args.vs_replay:
+        vs_replay(d, logs, args)
+        return
     base = ["compare", *logs, "--a", "zcut", "--b", "rho.toml"]
     ways: dict[str, tuple[list[str], Path]] = {}
     if args.old is not None:
@@ -126,6 +147,100 @@ def main() -> None:
         print(line)
     same = len({v for v in (json.dumps(o, sort_keys=True, default=str) for o in outputs.values())}) == 1
     print("outputs identical every way:", same)
+
+
+def vs_replay(d: Path, logs: list[str], args: argparse.Namespace) -> None:
+    import contextlib
+    import io
+
+    from cli.main import main as cli
+    from studies.compare import CompareOptions, run
+
+    paths = tuple(d / lg for lg in logs)
+
+    def replay(rrd: bool, side: tuple[str, ...] = ("--methods", "zcut")) -> None:
+        for i, log in enumerate(paths):
+            extra = ["--rrd", str(d / "vs" / f"replay{i}.rrd"), "--force"] if rrd else []
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                assert cli(["replay", str(log), *side, *extra]) == 0
+
+    def compare(rrd: bool, report: bool) -> None:
+        out = d / "vs" / "compare"
+        shutil.rmtree(out, ignore_errors=True)
+        with contextlib.redirect_stderr(io.StringIO()):
+            run(CompareOptions(logs=paths, a="zcut", b=str(d / "rho.toml"), out=out, workers=0, rrd=rrd,
+                               report=report))
+
+    (d / "vs").mkdir(exist_ok=True)
+    ways = {"replay A": lambda: replay(False), "replay B": lambda: replay(False, ("--config", str(d / "rho.toml"))),
+            "compare": lambda: compare(False, False),
+            "replay A --rrd": lambda: replay(True), "compare .rrd": lambda: compare(True, False),
+            "compare .rrd + report": lambda: compare(True, True)}
+    for fn in ways.values():  # warm
+        fn()
+    cpu: dict[str, list[float]] = {k: [] for k in ways}
+    load = []
+    for _ in range(args.repeats):
+        for name, fn in ways.items():
+            c0 = time.process_time()
+            fn()
+            cpu[name].append(time.process_time() - c0)
+            load.append(os.getloadavg()[0])
+    n = args.logs * args.frames
+    print(f"{args.logs} logs ({', '.join(logs)}) x {args.frames} frames of {args.size}, {args.repeats} runs each, "
+          f"in process, load average {min(load):.1f}-{max(load):.1f} on {os.cpu_count()} cores")
+    for name in ways:
+        c = statistics.median(cpu[name])
+        ref = statistics.median(cpu["replay A --rrd" if ".rrd" in name else "replay A"])
+        print(f"{name:22s} CPU {c:6.2f} s ({', '.join(f'{x:.2f}' for x in cpu[name])}), {c / n:.3f} CPU-s/frame; "
+              f"x{c / ref:.2f} of {'replay A --rrd' if '.rrd' in name else 'replay A'}")
+    writer_cost(paths[0], d)
+
+
+def writer_cost(log: Path, d: Path) -> None:
+    """Per frame: the recording's content kept in the part against the frame read again by the writer."""
+    import pyarrow.parquet as pq
+
+    from replay.logs.reader import LogReader
+    from studies.compare_outputs import frame_view
+    from studies.compare_records import FrameImages
+
+    rows = sorted(pq.read_table(next((d / "vs" / "compare" / "parts").glob("*.parquet"))).to_pylist(),
+                  key=lambda r: r["frame"])
+    make, back, plain, again, with_b, without_b = [], [], [], [], [], []
+    reader = LogReader(log)
+    frames = {f.index: f for f in reader.frames()}
+    for row in rows:
+        if row["images"] is None:
+            continue
+        img = FrameImages.from_bytes(row["images"])
+        bare = FrameImages(img.verdict_a, img.verdict_b, img.diff, img.who)
+        f = frames[row["frame"]]
+        c0 = time.process_time()
+        full = FrameImages(img.verdict_a, img.verdict_b, img.diff, img.who, frame_view(f, img.diff)).to_bytes()
+        c1 = time.process_time()
+        bare_b = bare.to_bytes()
+        c2 = time.process_time()
+        FrameImages.from_bytes(full)
+        c3 = time.process_time()
+        FrameImages.from_bytes(bare_b)
+        c4 = time.process_time()
+        make.append((c1 - c0) - (c2 - c1))  # the content made and packed, beyond the bare images
+        back.append((c3 - c2) - (c4 - c3))
+        plain.append(c4 - c3)
+        with_b.append(len(full))
+        without_b.append(len(bare_b))
+    diffs = {row["frame"]: FrameImages.from_bytes(row["images"]).diff for row in rows if row["images"] is not None}
+    c0 = time.process_time()
+    for f in LogReader(log).frames():  # as the writer read them again: one stream per unit, here one per log
+        if f.index in diffs:
+            frame_view(f, diffs[f.index])
+    again.append((time.process_time() - c0) / max(len(diffs), 1))
+    med = statistics.median
+    print(f"the recording's content per frame ({len(make)} frames of {log.name}): in the part +{med(make) * 1e3:.1f} "
+          f"CPU-ms in the unit (JPEG, points, packing), +{med(back) * 1e3:.1f} ms for the writer to unpack, part "
+          f"{med(without_b) / 1e3:.1f} -> {med(with_b) / 1e3:.1f} kB; read again by the writer instead: "
+          f"{med(again) * 1e3:.1f} CPU-ms (open, read, decode the frame, JPEG, points)")
 
 
 if __name__ == "__main__":

@@ -13,9 +13,11 @@ A library call, in named steps::
     #                                               parameters A and B share
     #     _score_frame                              the counts `zcut accuracy` gives each side, the
     #                                               agreement of the two masks, the disagreement blobs
-    #   _assemble                                   the one writer, frames in log order: the verdict
-    #                                               (pooled figures, paired Δ, sign test), compare.json,
-    #                                               summary.parquet, report.html, compare.rrd, the npz
+    #   _Assembler.advance                          the one writer, after each unit: every frame whose
+    #                                               units before it are done, in log order, into
+    #                                               compare.rrd and the npz
+    #   _Assembler.finish                           the verdict (pooled figures, paired Δ, sign test),
+    #                                               compare.json, summary.parquet, report.html
 
 Sharing. Both sides run on the frames read once. When A's and B's ``bin_mask``, ``registration`` and
 ``removal`` sections are equal, the bin stages (:func:`replay.pipeline.stages.locate_bin`) run once and
@@ -35,8 +37,9 @@ one log (``frames_per_unit``), on local worker processes (``workers``), a Ray cl
 process (``workers=0``). Each unit returns per frame its :class:`FrameCompare` and the images the writer
 needs (:data:`studies.compare_records.PART_COLUMNS`), kept in ``DIR/parts`` as it finishes; a rerun over
 the same DIR runs only the units not done (another config, log set or option is refused, one line). The
-one writer then takes the frames in log order, so every output equals that of one process running the
-frames one after another.
+one writer takes the frames in log order, each as soon as the units before it are done (the recording
+grows while the units run), so every output equals that of one process running the frames one after
+another.
 
 No argparse here: ``cli/commands/compare.py`` is the command.
 """
@@ -341,6 +344,7 @@ class _Log:
     n_unscored: int = 0
     intrinsics: Any = None
     primaries: tuple[str, str] = ("zcut", "zcut")
+    part_kind: str = "unknown"
 
 
 @dataclass(frozen=True, slots=True)
@@ -359,6 +363,9 @@ class LogSides:
         :func:`config_difference` (empty without both configs).
     shared : dict
         What runs once for both: ``bin_stages``, ``zone``, ``methods`` (as :class:`PairRunner` shares).
+    part_kind : str
+        The log's part kind as its metadata says it (a synthetic log's ``zcut.synth`` ``part_kind``:
+        ``rods``, ``empty``, ...), ``unknown`` when it does not.
     """
 
     resolved: dict[str, Any]
@@ -366,6 +373,7 @@ class LogSides:
     primaries: tuple[str, str]
     diff: list[dict[str, Any]]
     shared: dict[str, Any]
+    part_kind: str = "unknown"
 
 
 def resolve_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, path: Path, reader: Any, first: Frame,
@@ -399,7 +407,14 @@ def resolve_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, path: 
         same_zone = same_locate and a.zcut.max_depth == b.zcut.max_depth
         shared = {"bin_stages": same_locate, "zone": same_zone,
                   "methods": list(shared_methods(a, b)) if same_zone else []}
-    return LogSides(resolved, configs, primaries, diff, shared)
+    return LogSides(resolved, configs, primaries, diff, shared, log_part_kind(reader.metadata))
+
+
+def log_part_kind(metadata: dict[str, dict[str, str]]) -> str:
+    """A log's part kind as its metadata says it (``zcut.synth``'s ``part_kind``), else ``unknown``."""
+    from replay.logs import layout
+
+    return metadata.get(layout.SYNTH_METADATA, {}).get("part_kind") or "unknown"
 
 
 def _results_masks(spec: SideSpec, log: Path) -> tuple[dict[str, Any], dict[int, dict[str, np.ndarray]], tuple[str, ...]]:
@@ -697,9 +712,12 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
 
 
 def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, pb: str, truth_src: Any,
-                 intrinsics: Any,
+                 intrinsics: Any, *, depth_log: Path | None = None,
                  ) -> tuple[FrameCompare, np.ndarray, Any]:
-    from annotate.accuracy import frame_accuracy
+    """One frame's comparison, its difference image and its truth (``(outliers, scored)``, None without).
+    ``depth_log``: the log, when it has ``/ground_truth/depth``: the true outliers' displacement
+    classes of each side's primary method, as ``zcut accuracy --by-displacement`` counts them."""
+    from annotate.accuracy import _displacement_mm, frame_accuracy
 
     where = sa.region | sb.region
     ma, mb = sa.preds[pa], sb.preds[pb]
@@ -709,23 +727,29 @@ def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, 
     counts_a = counts_b = None
     unscored = None
     truth = None
+    classes = None
     if truth_src is not None:
         t = truth_src.truth(frame, sa.valid)
         if isinstance(t, str):
             unscored = t
         else:
+            shift = _displacement_mm(depth_log, frame) if depth_log is not None else None
             fa = frame_accuracy(frame.index, frame.stamp_ns, sa.preds, t.outliers, reviewed=t.reviewed,
-                                valid=sa.valid, region=sa.region, kinds=t.kind)
+                                valid=sa.valid, region=sa.region, kinds=t.kind, displacement_mm=shift)
             fb = frame_accuracy(frame.index, frame.stamp_ns, sb.preds, t.outliers, reviewed=t.reviewed,
-                                valid=sb.valid, region=sb.region, kinds=t.kind)
+                                valid=sb.valid, region=sb.region, kinds=t.kind, displacement_mm=shift)
             counts_a, counts_b = fa.counts, fb.counts
             truth = (t.outliers, t.reviewed & where)
+            if shift is not None:
+                classes = {side: {fam: {"n": list(k.n), "found": list(k.found)} for fam, k in fx.classes[m].items()
+                                  if fam == "by_displacement"}
+                           for side, fx, m in (("a", fa, pa), ("b", fb, pb))}
     fp = pixel_footprint_mm2(frame.xyz, intrinsics)
     blobs = disagreement_blobs(log, frame.index, frame.stamp_ns, ma, mb, where, truth=truth, footprint=fp,
                                xyz=frame.xyz)
     diff = diff_image(ma, mb, where, truth)
     return (FrameCompare(log, frame.index, frame.stamp_ns, counts_a, counts_b, both, only_a, only_b, tuple(blobs),
-                         unscored), diff, truth)
+                         unscored, classes), diff, truth)
 
 
 # ------------------------------------------------------------------------------------ the verdict
@@ -802,23 +826,30 @@ def per_method(frames: list[FrameCompare], level: float) -> dict[str, Any]:
     return out
 
 
-def per_class(frames: list[FrameCompare], pa: str, pb: str, level: float) -> dict[str, Any]:
+def per_class(frames: list[FrameCompare], pa: str, pb: str, level: float,
+              part_kinds: list[str] | None = None) -> dict[str, Any]:
     """The primary methods' paired differences per class of the truth (docs/compare.md): clusters and
     singletons (component counts of docs/accuracy.md: recall = true components found, precision =
-    predicted components correct) and, where the truth says what each outlier is, recall per outlier
-    kind (pixels). Each entry: A's and B's pooled figure, B − A, and the paired interval over frames."""
+    predicted components correct); where the truth says what each outlier is, recall per outlier
+    kind (pixels); where the log has the true depth, recall per displacement class
+    (:data:`annotate.accuracy.DISPLACEMENT_CLASSES`, pixels, over the frames that have them); and per
+    part kind of the logs (``part_kinds``: each frame's log's, parallel to ``frames``) precision,
+    recall and F1 over the frames of that kind's logs. Each entry: A's and B's pooled figure, B − A,
+    and the paired interval over frames."""
+    from annotate.accuracy import DISPLACEMENT_CLASSES
     from replay.logs.layout import OUTLIER_KINDS
-    from zcut.paired import paired_differences
+    from zcut.paired import FIGURES, paired_differences
 
+    kinds_of = part_kinds if part_kinds is not None else ["unknown"] * len(frames)
     scored = [f for f in frames if f.scored]
     if not scored:
         return {}
     ca = [f.a[pa] for f in scored if f.a is not None]
     cb = [f.b[pb] for f in scored if f.b is not None]
 
-    def entry(fig: str, make: Any) -> dict[str, Any] | None:
-        a = tuple(np.array(x, dtype=np.int64) for x in zip(*(make(c) for c in ca)))
-        b = tuple(np.array(x, dtype=np.int64) for x in zip(*(make(c) for c in cb)))
+    def entry(fig: str, make: Any, xa: list[Any] = ca, xb: list[Any] = cb) -> dict[str, Any] | None:
+        a = tuple(np.array(x, dtype=np.int64).reshape(len(xa)) for x in zip(*(make(c) for c in xa), strict=True))
+        b = tuple(np.array(x, dtype=np.int64).reshape(len(xb)) for x in zip(*(make(c) for c in xb), strict=True))
         d = paired_differences(a, b, level=level)[fig]  # type: ignore[arg-type]
         if not (math.isfinite(d.a) or math.isfinite(d.b)):
             return None  # the class is empty
@@ -842,6 +873,26 @@ def per_class(frames: list[FrameCompare], pa: str, pb: str, level: float) -> dic
             e = entry("recall", kind)
             if e is not None:
                 out[f"kind {OUTLIER_KINDS.get(code, code)}"] = {"recall": e}
+    # the displacement classes |Z - Z_GT| of the true outliers, on the frames whose log has the true depth
+    moved = [f.classes for f in scored if f.classes is not None and "by_displacement" in f.classes.get("a", {})
+             and "by_displacement" in f.classes.get("b", {})]
+    if moved:
+        for i, name in enumerate(DISPLACEMENT_CLASSES):
+            da = [c["a"]["by_displacement"] for c in moved]
+            db = [c["b"]["by_displacement"] for c in moved]
+            e = entry("recall", lambda k, i=i: (k["found"][i], 0, k["n"][i] - k["found"][i]), da, db)
+            if e is not None:
+                out[f"displacement {name}"] = {"recall": e}
+    # the part kind of the logs: every figure over the frames of that kind's logs (always, one kind too)
+    by_part: dict[str, list[FrameCompare]] = {}
+    for f, k in zip(frames, kinds_of, strict=True):
+        if f.scored:
+            by_part.setdefault(k, []).append(f)
+    for k in sorted(by_part):
+        xa = [f.a[pa] for f in by_part[k] if f.a is not None]
+        xb = [f.b[pb] for f in by_part[k] if f.b is not None]
+        row = {fig: entry(fig, lambda c: (c.tp, c.fp, c.fn), xa, xb) for fig in FIGURES}
+        out[f"part {k}"] = {fig: e for fig, e in row.items() if e is not None}
     return {k: v for k, v in out.items() if v}
 
 
@@ -981,7 +1032,7 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
     from annotate.disagreement import FILE as DISAGREEMENT
     from replay.outputs import OutputPlan, naming
     from replay.pipeline.session import open_log
-    from studies.driver import Progress, check_labels, execute, plan_logs, start_units
+    from studies.driver import Progress, check_labels, meta_of, plan_logs, start_units
     from studies.executors import make_executor
     from studies.parts import PARTS, PartStore
     from studies.work import Job
@@ -1024,13 +1075,30 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
                   annotator=opts.annotator, region=opts.region, configs=dict(sides), truth=opts.truth,
                   extra={"options": abs_opts, "a": abs_a, "b": abs_b, "primaries": primaries})
         progress = Progress(sum(u.n_frames or 0 for u in todo) or None)
-        with naming(store.root / PARTS):  # a full disk met by a unit's part (Arrow's error names no file)
-            results = execute(units, job, run_compare_unit, executor, store, progress=progress, schema=part_schema())
+        writer = _Assembler(opts, spec_a, spec_b, plans, sides, primaries, store, paths)
+        stack.callback(writer.abort)  # an error or an interruption: no output is named
+        writer.advance({})  # the units done in an earlier run over DIR, up to the first not done
+        results: list[UnitResult] = []
+        failed: dict[str, str] = {}
+        try:
+            # as driver.execute, the writer taking each frame as soon as the units before it are done
+            for unit, res in executor.run(run_compare_unit, todo, job):
+                results.append(res)
+                if res.error is None:
+                    with naming(store.root / PARTS):  # a full disk met by a unit's part (Arrow's error names no file)
+                        store.write(unit.key, res.rows, meta_of(res), schema=part_schema())
+                else:
+                    failed[unit.key] = res.error
+                note = f"{Path(unit.log).name} failed: {res.error.splitlines()[0][:60]}" if res.error else ""
+                progress.update(res.frames, note=note, force=bool(note))
+                writer.advance(failed)
+        finally:
+            executor.close()
         progress.finish()
     finally:
         executor.close()
         _KEPT.clear()  # what the units kept when they ran in this process (--workers 0)
-    return _assemble(opts, spec_a, spec_b, plans, sides, primaries, store, results, executor, paths, t_wall, t_cpu)
+    return writer.finish(results, executor, t_wall, t_cpu)
 
 
 # ------------------------------------------------------------------------------------ one unit
@@ -1041,6 +1109,7 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
     import resource
     import traceback
 
+    from replay.logs import layout
     from studies.compare_outputs import frame_images
     from studies.work import UnitResult
 
@@ -1059,6 +1128,7 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
         reader, first = _open_unit_log(path, unit.sha256, opts.topic)
         truth_src = _truth_source(opts, path, tuple(reader.mask_topics))
         truth_name = truth_src.name if truth_src is not None else None
+        depth_log = path if layout.TRUTH_DEPTH in reader.topics else None  # the displacement classes
         runs: Counter[str] = Counter()
         lost: list[Any] = []
         it = _frames_of_log(opts, spec_a, spec_b, path, sides, reader, first, (unit.start, unit.stop), runs, lost,
@@ -1079,9 +1149,10 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
                 if pa not in sa.preds or pb not in sb.preds:
                     raise CompareError(f"{path.name}: the primary methods {pa} (A) and {pb} (B) must be the same "
                                        "on every log")
-                fc, diff, truth = _score_frame(path.name, frame, sa, sb, pa, pb, truth_src, first.intrinsics)
+                fc, diff, truth = _score_frame(path.name, frame, sa, sb, pa, pb, truth_src, first.intrinsics,
+                                               depth_log=depth_log)
                 row["record"] = frame_to_json(fc)
-                row["images"] = frame_images(sa, sb, diff, truth, pa, pb).to_bytes()
+                row["images"] = frame_images(sa, sb, diff, truth, pa, pb, frame if opts.rrd else None).to_bytes()
                 if fc.unscored is not None:
                     res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": fc.unscored})
                 res.frames += 1
@@ -1115,8 +1186,20 @@ def _part_rows(store: PartStore, key: str) -> list[dict[str, Any]]:
     return sorted(rows, key=lambda r: r["frame"])
 
 
+def _part_meta(store: PartStore, key: str) -> dict[str, Any]:
+    """A finished unit's meta (``parts/KEY.json``; empty when it does not read)."""
+    from studies.parts import PARTS
+
+    try:
+        meta: dict[str, Any] = json.loads((store.root / PARTS / f"{key}.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return meta
+
+
 class _Reread:
-    """A unit's frames read again from its log (``reader``), in order, for the recording's image and points."""
+    """A unit's frames read again from its log (``reader``), in order: the recording's content of the
+    frames whose part holds none (a part written by a comparison without ``compare.rrd``)."""
 
     def __init__(self, reader: Any, unit: WorkUnit) -> None:
         self.stream = reader.frames(start=unit.start, stop=unit.stop)
@@ -1134,70 +1217,121 @@ class _Reread:
         self.stream.close()
 
 
-def _assemble(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: list[LogPlan],
-              sides: dict[str, LogSides], primaries: tuple[str, str], store: PartStore, results: list[UnitResult],
-              executor: Executor, paths: dict[str, Path], t_wall: float, t_cpu: float) -> CompareResult:
-    """The one writer: every unit's frames in log order (those done in an earlier run too) into the
-    recording, the disagreement, the tables and the page."""
-    from replay.logs.reader import LogReader
-    from studies.compare_outputs import CompareWriter
+class _Assembler:
+    """The one writer: every unit's frames in log order and frame order (those done in an earlier run
+    too) into the recording and the disagreement as soon as the units before them are done
+    (:meth:`advance`, after each unit), then the tables and the page (:meth:`finish`)."""
 
-    failed = {r.unit.key: r.error for r in results if r.error is not None}
-    metas = store.metas()
-    frames: list[FrameCompare] = []
-    logs: list[_Log] = []
-    runs: Counter[str] = Counter()
-    truth_names: set[str] = set()
-    pa, pb = primaries
-    given = {Path(os.path.abspath(p)): Path(p) for p in opts.logs}  # a log named as given (a folder's: its path)
-    given.update({Path(p).resolve(): Path(p) for p in opts.logs})
-    writer = CompareWriter(paths, has_truth=None)
-    started = completed = False
-    try:
+    def __init__(self, opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: list[LogPlan],
+                 sides: dict[str, LogSides], primaries: tuple[str, str], store: PartStore,
+                 paths: dict[str, Path]) -> None:
+        from studies.compare_outputs import CompareWriter
+
+        self.opts, self.spec_a, self.spec_b, self.plans = opts, spec_a, spec_b, plans
+        self.sides, self.primaries, self.store, self.paths = sides, primaries, store, paths
+        self.frames: list[FrameCompare] = []
+        self.kinds: list[str] = []  # each frame's log's part kind
+        self.logs: list[_Log] = []
+        self.runs: Counter[str] = Counter()
+        self.truth_names: set[str] = set()
+        self.given = {Path(os.path.abspath(p)): Path(p) for p in opts.logs}  # a log named as given (a folder's: its path)
+        self.given.update({Path(p).resolve(): Path(p) for p in opts.logs})
+        self.writer = CompareWriter(paths, has_truth=None)
+        self.started = False
+        #: what is left to write, in order: ("log", plan) starts a log, ("unit", plan, unit) its unit
+        self.steps: list[tuple[Any, ...]] = []
         for plan in plans:
-            entry = _Log(given.get(plan.path, plan.path))
-            logs.append(entry)
-            if plan.error is not None or plan.sha256 not in sides:
-                entry.damage.append(f"left out: {plan.error or 'no frames'}")
-                continue
-            s = sides[plan.sha256]
-            entry.resolved_a, entry.resolved_b = s.configs["A"], s.configs["B"]
-            entry.diff, entry.shared, entry.primaries = s.diff, s.shared, s.primaries
-            if s.resolved and plan.bin_model_warning:
-                entry.notes.append(plan.bin_model_warning)
-            writer.log(plan.path)
-            log_reader = LogReader(plan.path, cloud_topic=opts.topic) if "rrd" in paths else None
-            for u in plan.units:
-                if u.key in failed or not store.done(u.key):
+            self.steps.append(("log", plan))
+            if plan.error is None and plan.sha256 in sides:
+                self.steps += [("unit", plan, u) for u in plan.units]
+        self.at = 0
+        self.closed = False
+        self.reader: Any = None  # the current log's reader, opened only to read a frame again
+
+    def advance(self, failed: dict[str, str], *, last: bool = False) -> None:
+        """Write every frame whose unit and every unit before it are done (or failed: ``failed``, unit key
+        -> error); ``last``: every unit left, a unit not done being named in its log's damage."""
+        while self.at < len(self.steps):
+            step = self.steps[self.at]
+            if step[0] == "log":
+                self._log(step[1])
+            else:
+                u = step[2]
+                done = u.key not in failed and self.store.done(u.key)
+                if not (done or last or u.key in failed):
+                    return
+                entry = self.logs[-1]
+                if not done:
                     entry.damage.append(f"frames {u.start}-{u.stop if u.stop is not None else 'end'} not compared: "
                                         f"{failed.get(u.key) or 'the unit did not finish'}")
+                else:
+                    self._unit(step[1], u, entry)
+            self.at += 1
+
+    def _log(self, plan: LogPlan) -> None:
+        entry = _Log(self.given.get(plan.path, plan.path))
+        self.logs.append(entry)
+        self.reader = None
+        if plan.error is not None or plan.sha256 not in self.sides:
+            entry.damage.append(f"left out: {plan.error or 'no frames'}")
+            return
+        s = self.sides[plan.sha256]
+        entry.resolved_a, entry.resolved_b = s.configs["A"], s.configs["B"]
+        entry.diff, entry.shared, entry.primaries, entry.part_kind = s.diff, s.shared, s.primaries, s.part_kind
+        if s.resolved and plan.bin_model_warning:
+            entry.notes.append(plan.bin_model_warning)
+        self.writer.log(plan.path)
+
+    def _unit(self, plan: LogPlan, u: WorkUnit, entry: _Log) -> None:
+        from studies.compare_outputs import frame_view
+
+        pa, pb = self.primaries
+        reread: _Reread | None = None
+        try:
+            for row in _part_rows(self.store, u.key):
+                self.runs.update(json.loads(row["stage_runs"] or "{}"))
+                if row["truth"] is not None:
+                    self.truth_names.add(row["truth"])
+                if row["record"] is None:
+                    entry.damage.append(row["skipped"])
                     continue
-                reread = _Reread(log_reader, u) if log_reader is not None else None
-                try:
-                    for row in _part_rows(store, u.key):
-                        runs.update(json.loads(row["stage_runs"] or "{}"))
-                        if row["truth"] is not None:
-                            truth_names.add(row["truth"])
-                        if row["record"] is None:
-                            entry.damage.append(row["skipped"])
-                            continue
-                        fc = frame_from_json(row["record"])
-                        if not started:
-                            writer.start(spec_a, spec_b, entry.diff, has_truth=row["truth"] is not None,
-                                         primaries=primaries)
-                            started = True
-                        frame = reread.get(fc.index) if reread is not None else None
-                        writer.frame(frame, fc, FrameImages.from_bytes(row["images"]), pa, pb)
-                        entry.n_frames += 1
-                        entry.n_unscored += fc.unscored is not None
-                        frames.append(fc)
-                finally:
-                    if reread is not None:
-                        reread.close()
-                entry.damage += metas.get(u.key, {}).get("damage", [])
-        if not started:
-            raise CompareError("no readable frame in " + ", ".join(str(p) for p in opts.logs))
-        report = _report(opts, spec_a, spec_b, logs, frames, pa, pb, runs, truth_names)
+                fc = frame_from_json(row["record"])
+                if not self.started:
+                    self.writer.start(self.spec_a, self.spec_b, entry.diff, has_truth=row["truth"] is not None,
+                                      primaries=self.primaries)
+                    self.started = True
+                images = FrameImages.from_bytes(row["images"])
+                view = images.view
+                if view is None and "rrd" in self.paths:  # a part without the recording's content: read it again
+                    if reread is None:
+                        if self.reader is None:
+                            from replay.logs.reader import LogReader
+
+                            self.reader = LogReader(plan.path, cloud_topic=self.opts.topic)
+                        reread = _Reread(self.reader, u)
+                    frame = reread.get(fc.index)
+                    view = None if frame is None else frame_view(frame, images.diff)
+                self.writer.frame(fc, images, pa, pb, view)
+                entry.n_frames += 1
+                entry.n_unscored += fc.unscored is not None
+                self.frames.append(fc)
+                self.kinds.append(entry.part_kind)
+        finally:
+            if reread is not None:
+                reread.close()
+        entry.damage += _part_meta(self.store, u.key).get("damage", [])
+
+    def finish(self, results: list[UnitResult], executor: Executor, t_wall: float, t_cpu: float) -> CompareResult:
+        """Every unit left (named in the damage when not done), then compare.json, the tables, the page;
+        every output named."""
+        failed = {r.unit.key: r.error for r in results if r.error is not None}
+        self.advance(failed, last=True)
+        if not self.started:
+            raise CompareError("no readable frame in " + ", ".join(str(p) for p in self.opts.logs))
+        pa, pb = self.primaries
+        frames, plans, paths = self.frames, self.plans, self.paths
+        report = _report(self.opts, self.spec_a, self.spec_b, self.logs, frames, self.kinds, pa, pb, self.runs,
+                         self.truth_names)
         this_run = [r for r in results if r.error is None]
         n_now = sum(r.frames for r in this_run)
         cpu_units = sum(r.cpu_seconds for r in this_run)
@@ -1208,17 +1342,24 @@ def _assemble(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, plans: l
                           "executor": executor.name, "workers": executor.workers,
                           "units": sum(len(p.units) for p in plans), "units_this_run": len(results)}
         report["outputs"] = {k: str(v) for k, v in paths.items()}
-        writer.finish(report, summary_rows(report, frames))
-        completed = True
-    finally:
-        writer.close(completed=completed)
-    return CompareResult(report, frames, {k: str(v) for k, v in paths.items()}, runs,
-                         data_loss=any(e.damage for e in logs))
+        self.writer.finish(report, summary_rows(report, frames))  # an error: abort() (the caller's) names nothing
+        self.writer.close(completed=True)
+        self.closed = True
+        return CompareResult(report, frames, {k: str(v) for k, v in paths.items()}, self.runs,
+                             data_loss=any(e.damage for e in self.logs))
+
+    def abort(self) -> None:
+        """Nothing named (an error, an interruption); safe after :meth:`finish` (then nothing to do)."""
+        if not self.closed:
+            self.closed = True
+            self.writer.close(completed=False)
 
 
 def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list[_Log], frames: list[FrameCompare],
-            pa: str, pb: str, runs: Counter[str], truth_names: set[str]) -> dict[str, Any]:
+            kinds: list[str], pa: str, pb: str, runs: Counter[str], truth_names: set[str]) -> dict[str, Any]:
     """The compare.json object (docs/compare.md documents every key)."""
+    from annotate.accuracy import classes_entry
+    from zcut.metrics import KindCounts
     from zcut.paired import frame_outcomes
 
     v = verdict(frames, pa, pb, level=opts.level)
@@ -1238,6 +1379,10 @@ def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list
             e["b"] = {m: _entry_of(c) for m, c in f.b.items()}
             e["delta_f1"] = count_f1(f.b[pb]) - count_f1(f.a[pa])
             e["outcome"] = outcomes[(f.log, f.index)]
+            if f.classes is not None and "by_displacement" in f.classes.get("a", {}):
+                e["by_displacement"] = {side: classes_entry("by_displacement", KindCounts(
+                    tuple(k["n"]), tuple(k["n"]), tuple(k["found"])))
+                    for side, k in ((s, f.classes[s]["by_displacement"]) for s in "ab")}
         frames_json.append(e)
     # worst regression first: the frames B loses most on (by ΔF1), else the most disagreement
     order = sorted(range(len(frames)), key=lambda i: (frames_json[i].get("delta_f1", 0.0),
@@ -1257,14 +1402,15 @@ def _report(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, logs: list
         "config_difference": first.diff,
         "truth": sorted(truth_names)[0] if len(truth_names) == 1 else (sorted(truth_names) or None),
         "region": opts.region,
-        "logs": [{"log": str(e.path), "frames": e.n_frames, "unscored": e.n_unscored, "damage": e.damage,
+        "logs": [{"log": str(e.path), "part_kind": e.part_kind, "frames": e.n_frames, "unscored": e.n_unscored,
+                  "damage": e.damage,
                   "notes": e.notes, "config_difference": e.diff, "shared": e.shared} for e in logs],
         "shared": first.shared,
         "stage_runs": dict(sorted(runs.items())),
         "pooled": {"a": _pooled(frames, "A"), "b": _pooled(frames, "B")},
         "verdict": v,
         "per_method": per_method(frames, opts.level),
-        "per_class": per_class(frames, pa, pb, opts.level),
+        "per_class": per_class(frames, pa, pb, opts.level, kinds),
         "agreement": agreement(frames),
         "frames": frames_json,
         "frames_worst_first": [{"log": frames[i].log, "index": frames[i].index,

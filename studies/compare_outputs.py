@@ -2,9 +2,10 @@
 and ``compare.rrd``, each written beside its final path and renamed into place when the comparison
 completes (:class:`replay.outputs.AtomicOutput`); an interrupted or failed comparison leaves none.
 
-:class:`CompareWriter` is the one writer: it takes the frames in order once the units of work are
-done (each frame's comparison and images, :func:`frame_images`, as the units returned them), streams
-the recording and the disagreement, and writes the tables and the page from the report. The page is the Jinja2 template
+:class:`CompareWriter` is the one writer: it takes the frames in log and frame order as soon as the
+units before them are done (each frame's comparison and images, :func:`frame_images`, as the units
+returned them: the recording's content of the frame too, :func:`frame_view`), streams the recording
+and the disagreement, and writes the tables and the page from the report. The page is the Jinja2 template
 ``studies/templates/compare.html`` (autoescaped; the sweep's stylesheet ``report.css``), its plots
 drawn with the sweep's matplotlib helpers (:mod:`studies.plots`).
 """
@@ -12,6 +13,7 @@ drawn with the sweep's matplotlib helpers (:mod:`studies.plots`).
 from __future__ import annotations
 
 import base64
+import io
 import json
 import math
 from pathlib import Path
@@ -20,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from replay.outputs import AtomicOutput, naming
-from studies.compare_records import FrameCompare, FrameImages, SideFrame, SideSpec, count_f1
+from studies.compare_records import FrameCompare, FrameImages, FrameView, SideFrame, SideSpec, count_f1
 from studies.schemas import COMPARE_SUMMARY_COLUMNS, table_of
 
 if TYPE_CHECKING:
@@ -48,15 +50,46 @@ def _v(x: Any) -> str:
 
 
 def frame_images(sa: SideFrame, sb: SideFrame, diff: np.ndarray, truth: tuple[np.ndarray, np.ndarray] | None,
-                 pa: str, pb: str) -> FrameImages:
-    """What the writer needs of one compared frame (computed where the frame ran: a worker)."""
+                 pa: str, pb: str, frame: Frame | None = None) -> FrameImages:
+    """What the writer needs of one compared frame (computed where the frame ran: a worker); with the
+    ``frame``, its own part of the recording too (:func:`frame_view`), so that the writer need not
+    read it again."""
     where = sa.region | sb.region
     ma, mb = sa.preds[pa], sb.preds[pb]
     who = np.zeros(ma.shape, dtype=np.uint8)
     who[ma & ~mb & where] = 1
     who[mb & ~ma & where] = 2
     return FrameImages(verdict_image(sa.preds[pa] & sa.region, truth), verdict_image(sb.preds[pb] & sb.region, truth),
-                       diff, who)
+                       diff, who, None if frame is None else frame_view(frame, diff))
+
+
+#: JPEG quality of the recording's RGB image (as ``zcut replay``'s recording compresses it).
+JPEG_QUALITY = 85
+
+
+def frame_view(frame: Frame, diff: np.ndarray) -> FrameView:
+    """A frame's own content in the recording: its RGB image JPEG-encoded (the bytes Rerun's
+    ``Image.compress(85)`` makes: Pillow, quality 85), or a gray height image without RGB (near is
+    bright); the points where ``diff`` is set (the disagreement in 3D) with their codes."""
+    from PIL import Image
+
+    rgb = frame.rgb
+    jpeg = image = None
+    if rgb is not None and rgb.dtype == np.uint8 and rgb.ndim == 3 and rgb.shape[2] == 3:
+        buf = io.BytesIO()
+        Image.fromarray(rgb).save(buf, format="JPEG", quality=JPEG_QUALITY)
+        jpeg = buf.getvalue()
+    elif rgb is not None:
+        image = rgb
+    else:
+        z = frame.xyz[..., 2].astype(np.float64)
+        ok = np.isfinite(z)
+        image = np.zeros(z.shape, dtype=np.uint8)
+        if ok.any():
+            lo, hi = float(z[ok].min()), float(z[ok].max())
+            image[ok] = (255 * (hi - z[ok]) / max(hi - lo, 1e-9)).astype(np.uint8)
+    sel = (diff > 0) & np.isfinite(frame.xyz).all(axis=2)
+    return FrameView(jpeg, image, frame.xyz[sel].astype(np.float32), diff[sel])
 
 
 def verdict_image(pred: np.ndarray, truth: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
@@ -111,12 +144,13 @@ class CompareWriter:
                                         label_b=f"{spec_b.name} ({primaries[1]})",
                                         config_markdown=config_markdown(spec_a, spec_b, diff, primaries))
 
-    def frame(self, frame: Frame | None, fc: FrameCompare, images: FrameImages, pa: str, pb: str) -> None:
-        """One compared frame, in order: its disagreement, and in the recording (``frame``: the log's frame
-        read again, for its image and points; None leaves the frame out of the recording)."""
+    def frame(self, fc: FrameCompare, images: FrameImages, pa: str, pb: str, view: FrameView | None = None) -> None:
+        """One compared frame, in order: its disagreement, and in the recording its own content (``view``:
+        the part's, :attr:`FrameImages.view`, or made from the log's frame read again when the part has
+        none; None leaves the frame out of the recording)."""
         if self.disagreement is not None:  # the pixels _score_frame counts as only_a and only_b
             self.disagreement.frame(fc.index, fc.stamp_ns, images.who == 1, images.who == 2)
-        if self.rec is None or frame is None:
+        if self.rec is None or view is None:
             return
         ca = fc.a[pa] if fc.a is not None else None
         cb = fc.b[pb] if fc.b is not None else None
@@ -127,8 +161,9 @@ class CompareWriter:
                     scalars[f"{side}/scalars/{k}"] = getattr(c, k)
         if ca is not None and cb is not None:
             scalars["diff/scalars/delta_f1"] = count_f1(cb) - count_f1(ca)
-        self.rec.frame(self.seq, frame.stamp_ns, rgb=frame.rgb, xyz=frame.xyz, verdict_a=images.verdict_a,
-                       verdict_b=images.verdict_b, diff=images.diff, scalars=scalars)
+        self.rec.frame(self.seq, fc.stamp_ns, jpeg=view.jpeg, image=view.image, points=view.points,
+                       point_ids=view.point_ids, verdict_a=images.verdict_a, verdict_b=images.verdict_b,
+                       diff=images.diff, scalars=scalars)
         self.seq += 1
         assert self.rrd is not None
         self.rrd.check(self.rec.rec)

@@ -103,6 +103,10 @@ class FrameCompare:
     ``a``, ``b``: every reported method's counts (:class:`zcut.metrics.AccuracyCounts`) of each side,
     None without truth; ``both``, ``only_a``, ``only_b``: pixels of the primary masks in the union
     of the two scored regions; ``diff``: the (H, W) uint8 difference image (:data:`DIFF_CODES`).
+    ``classes``: where the frame's truth has them, the true outlier pixels per class of each side's
+    primary method, ``{"a" | "b": {FAMILY: {"n": [...], "found": [...]}}}`` (a family of
+    :data:`annotate.accuracy.CLASS_FAMILIES`, today ``by_displacement``; entry ``i`` its class ``i``);
+    None when the frame has none.
     """
 
     log: str
@@ -115,6 +119,7 @@ class FrameCompare:
     only_b: int
     blobs: tuple[Blob, ...]
     unscored: str | None = None
+    classes: dict[str, dict[str, dict[str, list[int]]]] | None = None
 
     @property
     def scored(self) -> bool:
@@ -186,7 +191,7 @@ def frame_to_json(f: FrameCompare) -> str:
 
     return json.dumps({"log": f.log, "index": f.index, "stamp_ns": f.stamp_ns, "a": side(f.a), "b": side(f.b),
                        "both": f.both, "only_a": f.only_a, "only_b": f.only_b,
-                       "blobs": [asdict(b) for b in f.blobs], "unscored": f.unscored})
+                       "blobs": [asdict(b) for b in f.blobs], "unscored": f.unscored, "classes": f.classes})
 
 
 def frame_from_json(text: str) -> FrameCompare:
@@ -197,7 +202,7 @@ def frame_from_json(text: str) -> FrameCompare:
         return None if counts is None else {m: _counts_from(c) for m, c in counts.items()}
 
     return FrameCompare(d["log"], d["index"], d["stamp_ns"], side(d["a"]), side(d["b"]), d["both"], d["only_a"],
-                        d["only_b"], tuple(Blob(**b) for b in d["blobs"]), d["unscored"])
+                        d["only_b"], tuple(Blob(**b) for b in d["blobs"]), d["unscored"], d.get("classes"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -205,19 +210,51 @@ class FrameImages:
     """The (H, W) uint8 images of one compared frame that the writer needs: each side's verdict image
     (``verdict_a``, ``verdict_b``: TP 1, FP 2, FN 3, or removed 4 without truth), the difference image
     ``diff`` (its codes: docs/compare.md, ``compare.rrd``) and ``who`` (1 where only A removed a pixel,
-    2 where only B did: ``disagreement.npz``'s pixels)."""
+    2 where only B did: ``disagreement.npz``'s pixels).
+
+    With a recording, also the frame's own part of it (:attr:`view`, None without: a comparison
+    without ``compare.rrd``, whose writer then reads the frame again if a later run asks for one):
+    ``jpeg`` the frame's RGB image as the recording holds it (JPEG, quality 85: the bytes
+    ``rr.Image(rgb).compress(85)`` gives), or ``image`` (the gray height image of a frame without
+    RGB, or an RGB image JPEG does not take), ``points`` the disagreement's points (N, 3) float32 and
+    ``point_ids`` their codes of ``diff``.
+    """
 
     verdict_a: np.ndarray
     verdict_b: np.ndarray
     diff: np.ndarray
     who: np.ndarray
+    view: FrameView | None = None
 
     def to_bytes(self) -> bytes:
         buf = io.BytesIO()
-        np.savez_compressed(buf, verdict_a=self.verdict_a, verdict_b=self.verdict_b, diff=self.diff, who=self.who)
+        arrays: dict[str, Any] = {"verdict_a": self.verdict_a, "verdict_b": self.verdict_b, "diff": self.diff, "who": self.who}
+        if self.view is not None:
+            v = self.view
+            arrays.update({"points": v.points, "point_ids": v.point_ids})
+            if v.jpeg is not None:
+                arrays["jpeg"] = np.frombuffer(v.jpeg, dtype=np.uint8)
+            if v.image is not None:
+                arrays["image"] = v.image
+        np.savez_compressed(buf, **arrays)
         return buf.getvalue()
 
     @classmethod
     def from_bytes(cls, data: bytes) -> FrameImages:
         with np.load(io.BytesIO(data), allow_pickle=False) as z:
-            return cls(z["verdict_a"], z["verdict_b"], z["diff"], z["who"])
+            view = None
+            if "points" in z.files:
+                view = FrameView(z["jpeg"].tobytes() if "jpeg" in z.files else None,
+                                 z["image"] if "image" in z.files else None, z["points"], z["point_ids"])
+            return cls(z["verdict_a"], z["verdict_b"], z["diff"], z["who"], view)
+
+
+@dataclass(frozen=True, slots=True)
+class FrameView:
+    """A compared frame's own content in the recording (:class:`FrameImages`' ``view``): ``jpeg`` or
+    ``image`` (one of them), the disagreement's ``points`` (N, 3) float32 and ``point_ids`` (N,) uint8."""
+
+    jpeg: bytes | None
+    image: np.ndarray | None
+    points: np.ndarray
+    point_ids: np.ndarray

@@ -6,7 +6,7 @@ arrays, so it knows nothing of the comparison's bookkeeping (``studies/compare.p
 ==============================  ================================================================
 ``diff/config``                 the config difference (only the parameters that differ, A and B
                                 values), a Markdown document, static
-``image/rgb``                   the frame's RGB image (a gray height image without one)
+``image/rgb``                   the frame's RGB image, JPEG (a gray height image without one)
 ``a/verdict``, ``b/verdict``    each side's primary method per pixel: with truth TP (1), FP (2),
                                 FN (3); without, removed (4)
 ``diff/consequence``            with truth: B fixes (1), B breaks (2), both wrong (3); without:
@@ -100,29 +100,24 @@ class CompareRecording:
                                    ("diff/scalars/only_b_px", "only B", (30, 144, 255))):
             self.rec.log(path, rr.SeriesLines(colors=[colour], names=name), static=True)
 
-    def frame(self, seq: int, stamp_ns: int, *, rgb: np.ndarray | None, xyz: np.ndarray, verdict_a: np.ndarray,
-              verdict_b: np.ndarray, diff: np.ndarray, scalars: dict[str, float]) -> None:
-        """Log one frame: ``verdict_a``/``verdict_b``/``diff`` (H, W) uint8 class images, ``scalars``
-        by entity path (NaN values are left out)."""
+    def frame(self, seq: int, stamp_ns: int, *, jpeg: bytes | None, image: np.ndarray | None, points: np.ndarray,
+              point_ids: np.ndarray, verdict_a: np.ndarray, verdict_b: np.ndarray, diff: np.ndarray,
+              scalars: dict[str, float]) -> None:
+        """Log one frame: ``jpeg`` the frame's RGB image JPEG-encoded, else ``image`` ((H, W) gray or
+        (H, W, 3) RGB uint8); ``points`` (N, 3) the disagreement in 3D with ``point_ids`` their codes
+        of ``diff``; ``verdict_a``/``verdict_b``/``diff`` (H, W) uint8 class images, ``scalars`` by
+        entity path (NaN values are left out)."""
         rec = self.rec
         rec.set_time("frame", sequence=int(seq))
         rec.set_time("stamp", timestamp=np.datetime64(int(stamp_ns), "ns"))
-        if rgb is not None:
-            rec.log("image/rgb", rr.Image(rgb, color_model="RGB").compress(jpeg_quality=85))
-        else:
-            z = xyz[..., 2].astype(np.float64)
-            ok = np.isfinite(z)
-            g = np.zeros(z.shape, dtype=np.uint8)
-            if ok.any():
-                lo, hi = float(z[ok].min()), float(z[ok].max())
-                g[ok] = (255 * (hi - z[ok]) / max(hi - lo, 1e-9)).astype(np.uint8)
-            rec.log("image/rgb", rr.Image(g, color_model="L"))
+        if jpeg is not None:
+            rec.log("image/rgb", rr.EncodedImage(contents=jpeg, media_type="image/jpeg"))
+        elif image is not None:
+            rec.log("image/rgb", rr.Image(image, color_model="L" if image.ndim == 2 else "RGB"))
         rec.log("a/verdict", rr.SegmentationImage(verdict_a))
         rec.log("b/verdict", rr.SegmentationImage(verdict_b))
         rec.log("diff/consequence", rr.SegmentationImage(diff))
-        sel = (diff > 0) & np.isfinite(xyz).all(axis=2)
-        pts = xyz[sel].astype(np.float32)
-        rec.log("diff/points", rr.Points3D(pts, class_ids=diff[sel].astype(np.uint16), radii=0.0015))
+        rec.log("diff/points", rr.Points3D(points, class_ids=point_ids.astype(np.uint16), radii=0.0015))
         for path, v in scalars.items():
             if v is not None and np.isfinite(v):
                 rec.log(path, rr.Scalars(float(v)))

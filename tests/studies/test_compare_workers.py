@@ -55,6 +55,28 @@ def _same_outputs(x, y) -> None:
             assert np.array_equal(zx[k], zy[k]), k
 
 
+def _rrd_content(path) -> dict[str, list[str]]:
+    """Every row of the recording by entity, its timelines and components (not its row ids, log times or
+    the recording's start time, which differ from run to run)."""
+    import pyarrow as pa
+    import rerun as rr
+
+    out: dict[str, list[str]] = {}
+    for chunk in rr.chunk.RrdReader(str(path)).stream():
+        if chunk.entity_path == "/__properties":
+            continue
+        rb = chunk.to_record_batch()
+        cols = {}
+        for n in rb.schema.names:
+            if "rowid" in n.lower().replace("_", "") or n == "log_time":
+                continue
+            c = rb.column(n)
+            cols[n] = (c.cast(pa.int64()) if pa.types.is_timestamp(c.type) else c).to_pylist()
+        out.setdefault(chunk.entity_path, []).extend(
+            json.dumps({n: v[i] for n, v in cols.items()}, sort_keys=True, default=str) for i in range(rb.num_rows))
+    return {k: sorted(v) for k, v in out.items()}
+
+
 def _rrd_rows(path) -> dict[str, int]:
     import rerun as rr
 
@@ -89,9 +111,9 @@ def test_workers_give_the_outputs_of_one_process(runs):
     assert cost["frames_this_run"] == 5 and cost["cpu_s_per_frame"] > 0
     # the stages each frame ran, summed over the units: A and B share the bin stages
     assert rep["stage_runs"] == {"bin_zone": 5, "locate_bin": 5, "method:zcut": 10, "method:sor": 5}
-    # the recording: the same entities, as many rows of each
-    assert _rrd_rows(one / "compare.rrd") == _rrd_rows(two / "compare.rrd")
-    assert _rrd_rows(two / "compare.rrd")["/image/rgb"] == 5  # every frame, read again from its log
+    # the recording: the same rows (the same images, points, scalars at the same times)
+    assert _rrd_content(one / "compare.rrd") == _rrd_content(two / "compare.rrd")
+    assert _rrd_rows(two / "compare.rrd")["/image/rgb"] == 5  # every frame, from its unit's part
 
 
 def test_an_interrupted_comparison_resumes_where_it_stopped(data, runs, tmp_path, capsys):
@@ -194,3 +216,45 @@ def test_a_damaged_log_loses_its_frames_not_the_comparison(data, tmp_path, capsy
     kept = [f["index"] for f in reps[0]["frames"] if f["log"] == "damaged.mcap"]
     assert len(kept) == 2 and set(kept) < {0, 1, 2}  # one frame lost with its chunk
     assert [f["index"] for f in reps[0]["frames"] if f["log"] == "spheres.mcap"] == [0, 1]
+
+
+def test_the_writer_takes_each_frame_as_soon_as_the_units_before_it_are_done(data, runs, tmp_path, monkeypatch):
+    """The recording is written while the units run, in log and frame order, each frame from its unit's
+    part (the log is not read again); the outputs are those of the comparison's other runs."""
+    import studies.compare as compare
+    from studies.compare_outputs import CompareWriter
+
+    out = tmp_path / "w"
+    written: list[tuple[str, int, int]] = []
+    frame = CompareWriter.frame
+
+    def frame_seen(self, fc, images, pa, pb, view=None):
+        assert view is not None and images.view is not None  # from the part
+        written.append((fc.log, fc.index, len(list((out / "parts").glob("*.json")))))
+        return frame(self, fc, images, pa, pb, view)
+
+    def no_reread(*args, **kwargs):
+        raise AssertionError("a frame read again from its log")
+
+    monkeypatch.setattr(CompareWriter, "frame", frame_seen)
+    monkeypatch.setattr(compare, "_Reread", no_reread)
+    assert main(["compare", str(data / "rods.mcap"), str(data / "spheres.mcap"), "--a", "zcut", "--b",
+                 str(data / "rho.toml"), "-o", str(out), "--frames-per-unit", "1", "--workers", "0"]) == 0
+    # a unit per frame, one after another: frame k written when its unit, the k-th, is done
+    assert written == [("rods.mcap", 0, 1), ("rods.mcap", 1, 2), ("rods.mcap", 2, 3), ("spheres.mcap", 0, 4),
+                       ("spheres.mcap", 1, 5)]
+    _same_outputs(out, runs["0"])
+    assert _rrd_content(out / "compare.rrd") == _rrd_content(runs["0"] / "compare.rrd")
+
+
+def test_parts_without_the_recording_read_their_frames_again(data, runs, tmp_path, capsys):
+    """Parts written by a comparison without compare.rrd hold no image: a later --force that writes the
+    recording reads those frames again from the logs; the recording is the same."""
+    out = tmp_path / "n"
+    rc, _, err = _compare(capsys, data, out, "--workers", "0", "--no-rrd")
+    assert rc == 0, err
+    assert not (out / "compare.rrd").exists()
+    rc, _, err = _compare(capsys, data, out, "--workers", "0", "--force")
+    assert rc == 0 and "5 already done" in err, err
+    _same_outputs(out, runs["0"])
+    assert _rrd_content(out / "compare.rrd") == _rrd_content(runs["0"] / "compare.rrd")

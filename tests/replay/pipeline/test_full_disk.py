@@ -87,7 +87,7 @@ def test_bin_model_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, size)
 
 @pytest.mark.parametrize(("size", "short"), [("64k", ("compare.rrd", "parts")),
                                              # which output meets the full disk first depends on their sizes
-                                             ("400k", ("compare.rrd", "report.html", "disagreement.npz"))])
+                                             ("400k", ("compare.rrd", "compare.json", "report.html", "disagreement.npz"))])
 def test_compare_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, size, short):
     """``zcut compare``'s recording goes through replay's checked .rrd file (a full disk met by Rerun's
     writer was a RuntimeError traceback)."""
