@@ -636,16 +636,15 @@ def diff_image(mask_a: np.ndarray, mask_b: np.ndarray, where: np.ndarray,
     return out
 
 
-def _nearest_kept(xyz_mm: np.ndarray, kept: np.ndarray) -> np.ndarray | None:
-    """(H, W, 3) float64: for every pixel, the point of the nearest ``kept`` pixel in the image (the
-    Euclidean distance transform's nearest); None when nothing is kept."""
+def _nearest_kept(kept: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(row, column) images: for every pixel, the nearest ``kept`` pixel in the image (the Euclidean
+    distance transform's nearest; its distances are not computed); None when nothing is kept."""
     from scipy import ndimage
 
     if not kept.any():
         return None
-    _, (ri, ci) = ndimage.distance_transform_edt(~kept, return_indices=True)
-    out: np.ndarray = xyz_mm[ri, ci]
-    return out
+    ri, ci = ndimage.distance_transform_edt(~kept, return_distances=False, return_indices=True)
+    return ri, ci
 
 
 def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, mask_b: np.ndarray,
@@ -658,11 +657,10 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
     from scipy import ndimage
 
     blobs: list[Blob] = []
-    near = xyz_mm = None
+    near = None
     if xyz is not None and ((mask_a ^ mask_b) & where).any():
-        xyz_mm = 1000.0 * xyz.astype(np.float64)
-        kept = where & ~mask_a & ~mask_b & np.isfinite(xyz_mm).all(axis=2)
-        near = _nearest_kept(xyz_mm, kept)
+        kept = where & ~mask_a & ~mask_b & np.isfinite(xyz).all(axis=2)
+        near = _nearest_kept(kept)  # only the blobs' pixels and their nearest are read: no whole-frame copies
     for who, m in (("A", mask_a & ~mask_b & where), ("B", mask_b & ~mask_a & where)):
         if not m.any():
             continue
@@ -684,8 +682,9 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
             fixes = np.bincount(ids, weights=good[rows, cols], minlength=n + 1)[1:].astype(np.int64)
             breaks = np.bincount(ids, weights=bad[rows, cols], minlength=n + 1)[1:].astype(np.int64)
         height = part = None
-        if near is not None and xyz_mm is not None:
-            p, q = xyz_mm[rows, cols], near[rows, cols]
+        if near is not None and xyz is not None:
+            p = 1000.0 * xyz[rows, cols].astype(np.float64)
+            q = 1000.0 * xyz[near[0][rows, cols], near[1][rows, cols]].astype(np.float64)
             ok = np.isfinite(p).all(axis=1)
             h = np.where(ok, q[:, 2] - p[:, 2], 0.0)  # the camera looks along +z: nearer it is higher
             d = np.where(ok, np.linalg.norm(p - q, axis=1), np.inf)
