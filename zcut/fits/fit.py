@@ -37,6 +37,7 @@ import numpy as np
 from zcut.errors import InputShapeError, describe_array
 
 from .icp import icp, initial_pose, initial_rotations, pose_matrix
+from .kernels import edge_distances, surface_distances
 from .model import PartModel, prepare_model
 from .params import FitParams
 from .segment import segment
@@ -231,6 +232,27 @@ def _occluding_boundary(frame: _Frame, flat: np.ndarray, jump_mm: float) -> np.n
     return flat[edge]
 
 
+def _surface_distances(model: PartModel, points: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """Distances of camera-frame points to the posed model: through its voxel index when it has one
+    (:func:`zcut.fits.kernels.surface_distances`), else exact."""
+    ix = model.index
+    if ix is None:
+        return model.distance((points - T[:3, 3]) @ T[:3, :3])
+    out: np.ndarray = surface_distances(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(T[:3, :3]),
+                                        np.ascontiguousarray(T[:3, 3]), ix.origin, ix.h, ix.tri_grid, ix.a, ix.b,
+                                        ix.c, ix.n)
+    return out
+
+
+def _edge_distances(model: PartModel, points: np.ndarray, T: np.ndarray) -> np.ndarray:
+    ix = model.index
+    if ix is None:
+        return model.nearest_edges((points - T[:3, 3]) @ T[:3, :3])[0]
+    out: np.ndarray = edge_distances(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(T[:3, :3]),
+                                     np.ascontiguousarray(T[:3, 3]), ix.origin, ix.h, ix.seg_grid, ix.p0, ix.p1)
+    return out
+
+
 def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> tuple[np.ndarray, float]:
     """(pose, err) of one instance of a general model in the region's points.
 
@@ -253,12 +275,12 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
         T0 = initial_pose(pts, R, model)
         T, _, _ = icp(coarse, model, T0, iterations=params.coarse_iterations, edge_points=coarse_e,
                       **opts)
-        d = model.distance((coarse - T[:3, 3]) @ T[:3, :3])
+        d = _surface_distances(model, coarse, T)
         inl = float(np.mean(d <= score_tol))
         score = inl - 0.01 * float(np.mean(np.minimum(d, score_tol))) / score_tol
         e_inl = 1.0
         if len(coarse_e):
-            de, _ = model.nearest_edges((coarse_e - T[:3, 3]) @ T[:3, :3])
+            de = _edge_distances(model, coarse_e, T)
             e_inl = float(np.mean(de <= 1.5 * px_mm))
             score += 0.5 * e_inl
         if best is None or score > best[0]:
