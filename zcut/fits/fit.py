@@ -253,6 +253,17 @@ def _edge_distances(model: PartModel, points: np.ndarray, T: np.ndarray) -> np.n
     return out
 
 
+#: The turns (degrees) about the region's normal tried from the best initial guess (:func:`_fit_general`).
+TURNS_DEG = (-24.0, -16.0, -8.0, 8.0, 16.0, 24.0)
+
+
+def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
+    a = axis / np.linalg.norm(axis)
+    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    R: np.ndarray = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * (K @ K)
+    return R
+
+
 def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> tuple[np.ndarray, float]:
     """(pose, err) of one instance of a general model in the region's points.
 
@@ -268,25 +279,41 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     f = 0.5 * (frame.K[0] + frame.K[1])
     px_mm = float(np.median(pts[:, 2])) / f  # the pixel footprint
     edge_gate = max(3.0 * px_mm, params.k * params.err_floor_mm)
-    best = None
     score_tol = max(params.k * params.err_floor_mm, params.gate_mm / 4)
     opts = dict(gate_mm=params.gate_mm, k=params.k, floor_mm=params.err_floor_mm, edge_gate_mm=edge_gate)
-    for R in initial_rotations(pts, model):
-        T0 = initial_pose(pts, R, model)
-        T, _, _ = icp(coarse, model, T0, iterations=params.coarse_iterations, edge_points=coarse_e,
-                      **opts)
+
+    def coarse_fit(T0: np.ndarray) -> tuple[float, float, float, np.ndarray]:
+        T, _, _ = icp(coarse, model, T0, iterations=params.coarse_iterations, edge_points=coarse_e, **opts)
         d = _surface_distances(model, coarse, T)
         inl = float(np.mean(d <= score_tol))
         score = inl - 0.01 * float(np.mean(np.minimum(d, score_tol))) / score_tol
         e_inl = 1.0
         if len(coarse_e):
-            de = _edge_distances(model, coarse_e, T)
-            e_inl = float(np.mean(de <= 1.5 * px_mm))
+            e_inl = float(np.mean(_edge_distances(model, coarse_e, T) <= 1.5 * px_mm))
             score += 0.5 * e_inl
+        return score, inl, e_inl, T
+
+    best = None
+    for R in initial_rotations(pts, model):
+        score, inl, e_inl, T = coarse_fit(initial_pose(pts, R, model))
         if best is None or score > best[0]:
             best = (score, T)
         if inl >= 0.95 and e_inl >= 0.7:
             break
+    assert best is not None
+    # the guesses turn 45° apart about the region's normal, the turn its surface leaves nearly free:
+    # the best one's turns in between, about its own centroid, each refined the same way
+    c = pts.mean(axis=0)
+    _, ax = np.linalg.eigh(np.cov((pts - c).T))
+    T_best = best[1]
+    for deg in TURNS_DEG:
+        Rt = _turn(ax[:, 0], np.radians(deg))
+        T0 = T_best.copy()
+        T0[:3, :3] = Rt @ T_best[:3, :3]
+        T0[:3, 3] = Rt @ (T_best[:3, 3] - c) + c
+        score, _, _, T = coarse_fit(T0)
+        if score > best[0]:
+            best = (score, T)
     assert best is not None
     T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,
                     **opts)

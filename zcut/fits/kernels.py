@@ -231,7 +231,7 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
     slack = 0.8660254037844386 * h
     use_edges = len(edge_points) > 0 and len(p0) > 0
     scale = np.array([extent, extent, extent, 1.0, 1.0, 1.0])
-    weak = 1e-2
+    weak = 1e-4
     H = np.zeros((6, 6))
     g = np.zeros(6)
     He = np.zeros((6, 6))
@@ -282,6 +282,11 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
                 qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
                 de, ex, ey, ez = _match_edge(qx, qy, qz, origin, inv_h, seg_grid, p0, p1)
                 if not de < egate:
+                    continue
+                # a silhouette point lies on the part: a mixed pixel between it and what lies
+                # behind (off every surface) says nothing of where the edge is
+                js, ds, _, _, _, _ = _match(qx, qy, qz, origin, inv_h, slack, grid, a, b, c, n)
+                if js < 0 or not ds < gate:
                     continue
                 w2 = 1.0 / (1.0 + (de / s3) ** 2)
                 res = (qx - ex, qy - ey, qz - ez)
