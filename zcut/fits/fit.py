@@ -253,6 +253,9 @@ def _edge_distances(model: PartModel, points: np.ndarray, T: np.ndarray) -> np.n
     return out
 
 
+#: At most this many of a region's points (and half as many of its boundary) score the initial guesses.
+COARSE_POINTS = 300
+
 #: The turns (degrees) about the region's normal tried from the best initial guess (:func:`_fit_general`).
 TURNS_DEG = (-24.0, -16.0, -8.0, 8.0, 16.0, 24.0)
 
@@ -267,15 +270,17 @@ def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
 def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> tuple[np.ndarray, float]:
     """(pose, err) of one instance of a general model in the region's points.
 
-    Every initial guess takes ``coarse_iterations`` ICP steps on half the points; the best (most
-    points within the score tolerance, plus the boundary points on the model's edges) is refined.
-    A guess whose points nearly all fit stops the search."""
+    Every initial guess takes ``coarse_iterations`` ICP steps on an even subsample of
+    ``COARSE_POINTS`` points; the best (most points within the score tolerance, plus the boundary
+    points on the model's edges) and its turns by ``TURNS_DEG`` about the region's normal the same,
+    and the best of all is refined on up to ``max_points`` points. A guess whose points nearly all
+    fit stops the search of the guesses."""
     sub = _subsample(flat, params.max_points)
     pts = frame.xyz.reshape(-1, 3)[sub]
-    coarse = pts[:: 2] if len(pts) >= 2 * params.min_region_px else pts
+    coarse = pts[_subsample(np.arange(len(pts)), COARSE_POINTS)]
     bnd = _subsample(_occluding_boundary(frame, flat, params.jump_mm), params.max_points // 2)
     epts = frame.xyz.reshape(-1, 3)[bnd]
-    coarse_e = epts[:: 2]
+    coarse_e = epts[_subsample(np.arange(len(epts)), COARSE_POINTS // 2)]
     f = 0.5 * (frame.K[0] + frame.K[1])
     px_mm = float(np.median(pts[:, 2])) / f  # the pixel footprint
     edge_gate = max(3.0 * px_mm, params.k * params.err_floor_mm)
@@ -353,9 +358,18 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
     for region in pending:
         left = region
         attempts = 0
+        tried = np.zeros(H * W, bool)  # seeds of patches already fitted in this region
         while len(left) >= params.min_region_px and attempts < params.max_instances_per_region:
             progress = False
-            for T, err in _candidates(frame, left, model, params):
+            many = model.sphere_radius is None and _holds_many(frame, left, model)
+            if many:
+                patch = _patch(frame, left, model, tried)
+                if patch is None:
+                    break
+                cands = [_fit_general(frame, patch, model, params)] if len(patch) >= params.min_region_px else []
+            else:
+                cands = _candidates(frame, left, model, params)
+            for T, err in cands:
                 attempts += 1
                 fit = _accept(frame, left, model, params, T, err)
                 if fit is None:
@@ -366,6 +380,8 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
                 if len(left) < params.min_region_px or attempts >= params.max_instances_per_region:
                     break
             if not progress:
+                if many:
+                    continue  # the next patch
                 break
             parts = segment(xyz, left, f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
                             min_px=params.min_region_px)
@@ -374,6 +390,36 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
             left = parts[0]
             pending.extend(parts[1:])
     return _assign(frame, model, accepted, params)
+
+
+def _holds_many(frame: _Frame, flat: np.ndarray, model: PartModel) -> bool:
+    """Whether the region spreads farther than one instance can: 98 % of its points farther than
+    1.3 × the model's extent from their centroid."""
+    pts = frame.xyz.reshape(-1, 3)[_subsample(flat, 2000)]
+    r = np.linalg.norm(pts - pts.mean(axis=0), axis=1)
+    return bool(np.percentile(r, 98) > 1.3 * model.extent_mm)
+
+
+def _patch(frame: _Frame, flat: np.ndarray, model: PartModel, tried: np.ndarray) -> np.ndarray | None:
+    """The pixels of a region holding several instances that one instance may cover: seeded at the
+    untried point nearest the camera (the top of a pile is the least occluded), the points within the
+    model's extent of the seed, then twice those within it of their centroid (the patch slides onto
+    the instance the seed lies on). The seed's neighbourhood (half the extent) is marked tried.
+    None when every point was tried."""
+    pts = frame.xyz.reshape(-1, 3)[flat]
+    free = ~tried[flat]
+    if not free.any():
+        return None
+    cand = np.flatnonzero(free)
+    seed = pts[cand[int(np.argmin(pts[cand, 2]))]]
+    tried[flat[np.linalg.norm(pts - seed, axis=1) <= 0.5 * model.extent_mm]] = True
+    centre = seed
+    near = np.linalg.norm(pts - centre, axis=1) <= model.extent_mm
+    for _ in range(2):
+        centre = pts[near].mean(axis=0)
+        near = np.linalg.norm(pts - centre, axis=1) <= model.extent_mm
+    out: np.ndarray = flat[near]
+    return out
 
 
 def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> list[tuple[np.ndarray, float]]:
