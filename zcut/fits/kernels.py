@@ -217,11 +217,12 @@ def _rodrigues(w0: float, w1: float, w2: float) -> np.ndarray:
 def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: int, gate_mm: float, k: float,
                floor_mm: float, edge_points: np.ndarray, edge_gate_mm: float, extent: float, origin: np.ndarray,
                h: float, grid: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, n: np.ndarray,
-               seg_grid: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, int]:
+               seg_grid: np.ndarray, p0: np.ndarray, p1: np.ndarray, weak: float) -> tuple[np.ndarray, np.ndarray, float, int]:
     """Point-to-plane ICP of ``points`` (camera frame) from (R0, t0) (model -> camera): the steps of
     :func:`zcut.fits.icp.icp` (surface matches gated and facing the camera, the occluding boundary's
-    ``edge_points`` matched to the sharp edges in the directions the surface leaves free, Cauchy
-    weights) with the index's correspondences. (R, t, rms of the last step's matches, their number)."""
+    ``edge_points`` matched to the sharp edges in the directions the surface leaves free — those of
+    eigenvalue below ``weak`` × the largest of the surface's normal matrix — Cauchy weights) with the
+    index's correspondences. (R, t, rms of the last step's matches, their number)."""
     R = R0.copy()
     t = t0.copy()
     gate = gate_mm
@@ -231,7 +232,6 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
     slack = 0.8660254037844386 * h
     use_edges = len(edge_points) > 0 and len(p0) > 0
     scale = np.array([extent, extent, extent, 1.0, 1.0, 1.0])
-    weak = 1e-4
     H = np.zeros((6, 6))
     g = np.zeros(6)
     He = np.zeros((6, 6))
