@@ -254,7 +254,7 @@ def _edge_distances(model: PartModel, points: np.ndarray, T: np.ndarray) -> np.n
 
 
 #: At most this many of a region's points (and half as many of its boundary) score the initial guesses.
-COARSE_POINTS = 300
+COARSE_POINTS = 150
 
 #: The turns (degrees) about the region's normal tried from the best initial guess (:func:`_fit_general`).
 TURNS_DEG = (-24.0, -16.0, -8.0, 8.0, 16.0, 24.0)

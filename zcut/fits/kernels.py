@@ -237,6 +237,9 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
     He = np.zeros((6, 6))
     ge = np.zeros(6)
     row = np.zeros(6)
+    J = np.zeros((3, 6))
+    J[0, 3] = J[1, 4] = J[2, 5] = 1.0
+    res = np.zeros(3)
     for _ in range(iterations):
         H[:] = 0.0
         g[:] = 0.0
@@ -289,18 +292,19 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
                 if js < 0 or not ds < gate:
                     continue
                 w2 = 1.0 / (1.0 + (de / s3) ** 2)
-                res = (qx - ex, qy - ey, qz - ez)
-                # rows of d(q + w x q + tau)/d(w, tau) = [-[q]x, I], scaled
-                J = np.zeros((3, 6))
+                # rows of d(q + w x q + tau)/d(w, tau) = [-[q]x, I], scaled (J reused, no allocation)
                 J[0, 1], J[0, 2] = qz / scale[1], -qy / scale[2]
                 J[1, 0], J[1, 2] = -qz / scale[0], qx / scale[2]
                 J[2, 0], J[2, 1] = qy / scale[0], -qx / scale[1]
-                J[0, 3] = J[1, 4] = J[2, 5] = 1.0
+                res[0], res[1], res[2] = qx - ex, qy - ey, qz - ez
                 for m in range(3):
                     for u in range(6):
-                        ge[u] += w2 * J[m, u] * res[m]
+                        ju = w2 * J[m, u]
+                        if ju == 0.0:
+                            continue
+                        ge[u] += ju * res[m]
                         for w in range(6):
-                            He[u, w] += w2 * J[m, u] * J[m, w]
+                            He[u, w] += ju * J[m, w]
                 ne += 1
             if ne >= 3:
                 ev, V = np.linalg.eigh(H)
