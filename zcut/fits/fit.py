@@ -17,7 +17,8 @@ The method (issue 29 item 2; paper §2 defines the residual Err these fits give)
 3. **Accept** a fit when its residual Err (RMS distance of its matched points to the posed model)
    is at most ``max_err_mm``, its **support** (the share of the pixels where the posed model is
    predicted visible — ray cast through the intrinsics, minus those where something measured lies in
-   front of it — whose measured point lies within k × Err of the model) is at least
+   front of it and those without a measurement — whose measured point lies within k × Err of the
+   model) is at least
    ``min_support``, and it explains at least ``min_region_px`` pixels of its region. The pixels it explains
    leave the region; what is left is segmented again and fitted (touching parts), up to
    ``max_instances_per_region`` times.
@@ -36,8 +37,8 @@ import numpy as np
 
 from zcut.errors import InputShapeError, describe_array
 
-from .icp import icp, initial_pose, initial_rotations, pose_matrix
-from .kernels import edge_distances, surface_distances
+from .icp import icp, initial_poses, initial_rotations, pose_matrix
+from .kernels import edge_distances, guess_score, surface_distances
 from .model import PartModel, prepare_model
 from .params import FitParams
 from .segment import segment
@@ -143,8 +144,8 @@ def _model_distance(frame: _Frame, T: np.ndarray, model: PartModel, flat: np.nda
 
 
 def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float) -> float:
-    """Share of the pixels where the posed model is predicted visible (and nothing measured lies in
-    front of it) whose measured point lies within ``tol`` of the model."""
+    """Share of the pixels where the posed model is predicted visible, measured, and nothing measured
+    lies in front of it, whose measured point lies within ``tol`` of the model."""
     win = _window(frame, T, model)
     if win is None:
         return 0.0
@@ -168,7 +169,8 @@ def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float) -> floa
     supported = dist <= tol
     with np.errstate(invalid="ignore"):
         occluded = ok & (rng < hit[predicted] - tol) & ~supported
-    denom = int((~occluded).sum())
+    # a pixel without a measurement (a projector's shadow, a dropout) neither supports nor contradicts
+    denom = int((ok & ~occluded).sum())
     return float(supported.sum() / denom) if denom else 0.0
 
 
@@ -277,10 +279,10 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     fit stops the search of the guesses."""
     sub = _subsample(flat, params.max_points)
     pts = frame.xyz.reshape(-1, 3)[sub]
-    coarse = pts[_subsample(np.arange(len(pts)), COARSE_POINTS)]
+    coarse = np.ascontiguousarray(pts[_subsample(np.arange(len(pts)), COARSE_POINTS)])
     bnd = _subsample(_occluding_boundary(frame, flat, params.jump_mm), params.max_points // 2)
     epts = frame.xyz.reshape(-1, 3)[bnd]
-    coarse_e = epts[_subsample(np.arange(len(epts)), COARSE_POINTS // 2)]
+    coarse_e = np.ascontiguousarray(epts[_subsample(np.arange(len(epts)), COARSE_POINTS // 2)])
     f = 0.5 * (frame.K[0] + frame.K[1])
     px_mm = float(np.median(pts[:, 2])) / f  # the pixel footprint
     edge_gate = max(3.0 * px_mm, params.k * params.err_floor_mm)
@@ -289,18 +291,21 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
 
     def coarse_fit(T0: np.ndarray) -> tuple[float, float, float, np.ndarray]:
         T, _, _ = icp(coarse, model, T0, iterations=params.coarse_iterations, edge_points=coarse_e, **opts)
-        d = _surface_distances(model, coarse, T)
-        inl = float(np.mean(d <= score_tol))
-        score = inl - 0.01 * float(np.mean(np.minimum(d, score_tol))) / score_tol
-        e_inl = 1.0
-        if len(coarse_e):
-            e_inl = float(np.mean(_edge_distances(model, coarse_e, T) <= 1.5 * px_mm))
-            score += 0.5 * e_inl
+        ix = model.index
+        if ix is not None:
+            inl, near, e_inl = guess_score(coarse, coarse_e, np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
+                                           score_tol, 1.5 * px_mm, ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n,
+                                           ix.seg_grid, ix.p0, ix.p1)
+        else:
+            d = _surface_distances(model, coarse, T)
+            inl, near = float(np.mean(d <= score_tol)), float(np.mean(np.minimum(d, score_tol))) / score_tol
+            e_inl = float(np.mean(_edge_distances(model, coarse_e, T) <= 1.5 * px_mm)) if len(coarse_e) else 1.0
+        score = inl - 0.01 * near + (0.5 * e_inl if len(coarse_e) else 0.0)
         return score, inl, e_inl, T
 
     best = None
-    for R in initial_rotations(pts, model):
-        score, inl, e_inl, T = coarse_fit(initial_pose(pts, R, model))
+    for T0 in initial_poses(pts, initial_rotations(pts, model), model):
+        score, inl, e_inl, T = coarse_fit(T0)
         if best is None or score > best[0]:
             best = (score, T)
         if inl >= 0.95 and e_inl >= 0.7:

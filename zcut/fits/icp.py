@@ -19,7 +19,7 @@ import numpy as np
 from .kernels import icp_kernel
 from .model import PartModel
 
-__all__ = ["icp", "icp_reference", "initial_pose", "initial_rotations", "pose_matrix"]
+__all__ = ["icp", "icp_reference", "initial_pose", "initial_poses", "initial_rotations", "pose_matrix"]
 
 
 #: The silhouette's edges act in the directions whose eigenvalue of the surface's (normalised)
@@ -69,6 +69,22 @@ def initial_pose(points: np.ndarray, R: np.ndarray, model: PartModel) -> np.ndar
     facing = (model.probe_normals @ R.T) @ view < 0
     front = model.probe_samples[facing] if facing.any() else model.probe_samples
     return pose_matrix(R, c - R @ front.mean(axis=0))
+
+
+def initial_poses(points: np.ndarray, rotations: list[np.ndarray], model: PartModel) -> list[np.ndarray]:
+    """:func:`initial_pose` of each rotation, in one pass."""
+    if not rotations:
+        return []
+    c = points.mean(axis=0)
+    view = c / max(float(np.linalg.norm(c)), 1e-9)
+    Rs = np.stack(rotations)
+    facing = model.probe_normals @ (Rs.transpose(0, 2, 1) @ view).T < 0  # (s, g): n·(Rᵀ view) = (R n)·view
+    facing = facing.T
+    counts = facing.sum(axis=1)
+    sums = facing.astype(np.float64) @ model.probe_samples
+    allm = model.probe_samples.mean(axis=0)
+    front = np.where(counts[:, None] > 0, sums / np.maximum(counts, 1)[:, None], allm)
+    return [pose_matrix(R, c - R @ f) for R, f in zip(Rs, front)]
 
 
 def _skew_rows(q: np.ndarray) -> np.ndarray:

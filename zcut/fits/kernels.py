@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["ModelIndex", "build_index", "edge_distances", "icp_kernel", "surface_distances"]
+__all__ = ["ModelIndex", "build_index", "edge_distances", "guess_score", "icp_kernel", "surface_distances"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -202,6 +202,32 @@ def edge_distances(points: np.ndarray, R: np.ndarray, t: np.ndarray, origin: np.
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def guess_score(points: np.ndarray, edge_points: np.ndarray, R: np.ndarray, t: np.ndarray, tol: float,
+                edge_tol: float, origin: np.ndarray, h: float, grid: np.ndarray, a: np.ndarray, b: np.ndarray,
+                c: np.ndarray, n: np.ndarray, seg_grid: np.ndarray, p0: np.ndarray,
+                p1: np.ndarray) -> tuple[float, float, float]:
+    """(share of ``points`` within ``tol`` of the posed model, mean of min(distance, tol) / tol, share of
+    ``edge_points`` within ``edge_tol`` of its sharp edges; 1 without edge points)."""
+    d = surface_distances(points, R, t, origin, h, grid, a, b, c, n)
+    inl = 0.0
+    near = 0.0
+    for i in range(len(d)):
+        if d[i] <= tol:
+            inl += 1.0
+        near += min(d[i], tol) / tol
+    e_inl = 1.0
+    if len(edge_points):
+        de = edge_distances(edge_points, R, t, origin, h, seg_grid, p0, p1)
+        e_inl = 0.0
+        for i in range(len(de)):
+            if de[i] <= edge_tol:
+                e_inl += 1.0
+        e_inl /= len(de)
+    m = max(len(d), 1)
+    return inl / m, near / m, e_inl
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
 def _rodrigues(w0: float, w1: float, w2: float) -> np.ndarray:
     a = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
@@ -326,7 +352,8 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
         t = -(R @ tinv)
         rms = np.sqrt(ssq / n_used)
         gate = min(gate, max(k * rms, k * floor_mm, 0.5 * gate))
-        if np.abs(x).max() < 1e-6:
+        # converged: the step moves no point of the model by a micron
+        if max(np.abs(x[:3]).max() * extent, np.abs(x[3:]).max()) < 1e-3:
             break
     U, _, Vt = np.linalg.svd(R)
     R = U @ Vt
