@@ -212,3 +212,20 @@ def test_touching_nuts_in_one_region_are_fitted_patch_by_patch():
     for f in fits:
         explained[f.pixels] = True
     assert explained[zone.reshape(-1)].mean() > 0.98
+
+
+def test_pixels_without_a_measurement_do_not_count_against_a_fit():
+    """A projector's shadow over most of a nut: the pixels left still find it (the shadowed ones are
+    no evidence either way, not missing support)."""
+    v, t = hex_nut_mesh()
+    T = pose(rotation((1, 0.2, 0), 25), (2, 1, 300))
+    xyz, ids = render([(v, t, T)], floor_z_mm=320)
+    rows = np.flatnonzero((ids > 0).any(axis=1))
+    cut = rows[0] + int(0.6 * (rows[-1] - rows[0]))
+    xyz[:cut] = np.nan  # the upper 60 % of the nut's rows unmeasured
+    zone = (ids > 0) & np.isfinite(xyz).all(axis=2)
+    assert zone.sum() < 0.5 * (ids > 0).sum()
+    fits = fit_parts(xyz, zone, v, t, intrinsics=K_TEST)
+    assert len(fits) == 1 and fits[0].support > 0.9
+    dt, da = pose_error(fits[0].pose, T, prepare_model(v, t))
+    assert dt < 0.1 and da < 1.5  # 40 % of a nut seen: its turn less held
