@@ -17,7 +17,8 @@ The method (issue 29 item 2; paper §2 defines the residual Err these fits give)
 3. **Accept** a fit when its residual Err (RMS distance of its matched points to the posed model)
    is at most ``max_err_mm``, its **support** (the share of the pixels where the posed model is
    predicted visible — ray cast through the intrinsics, minus those where something measured lies in
-   front of it — whose measured point lies within k × Err of the model) is at least
+   front of it and those without a measurement — whose measured point lies within k × Err of the
+   model) is at least
    ``min_support``, and it explains at least ``min_region_px`` pixels of its region. The pixels it explains
    leave the region; what is left is segmented again and fitted (touching parts), up to
    ``max_instances_per_region`` times.
@@ -36,7 +37,8 @@ import numpy as np
 
 from zcut.errors import InputShapeError, describe_array
 
-from .icp import icp, initial_pose, initial_rotations, pose_matrix
+from .icp import icp, initial_poses, initial_rotations, pose_matrix
+from .kernels import edge_distances, guess_score, surface_distances
 from .model import PartModel, prepare_model
 from .params import FitParams
 from .segment import segment
@@ -142,8 +144,8 @@ def _model_distance(frame: _Frame, T: np.ndarray, model: PartModel, flat: np.nda
 
 
 def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float) -> float:
-    """Share of the pixels where the posed model is predicted visible (and nothing measured lies in
-    front of it) whose measured point lies within ``tol`` of the model."""
+    """Share of the pixels where the posed model is predicted visible, measured, and nothing measured
+    lies in front of it, whose measured point lies within ``tol`` of the model."""
     win = _window(frame, T, model)
     if win is None:
         return 0.0
@@ -167,7 +169,8 @@ def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float) -> floa
     supported = dist <= tol
     with np.errstate(invalid="ignore"):
         occluded = ok & (rng < hit[predicted] - tol) & ~supported
-    denom = int((~occluded).sum())
+    # a pixel without a measurement (a projector's shadow, a dropout) neither supports nor contradicts
+    denom = int((ok & ~occluded).sum())
     return float(supported.sum() / denom) if denom else 0.0
 
 
@@ -231,40 +234,96 @@ def _occluding_boundary(frame: _Frame, flat: np.ndarray, jump_mm: float) -> np.n
     return flat[edge]
 
 
+def _surface_distances(model: PartModel, points: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """Distances of camera-frame points to the posed model: through its voxel index when it has one
+    (:func:`zcut.fits.kernels.surface_distances`), else exact."""
+    ix = model.index
+    if ix is None:
+        return model.distance((points - T[:3, 3]) @ T[:3, :3])
+    out: np.ndarray = surface_distances(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(T[:3, :3]),
+                                        np.ascontiguousarray(T[:3, 3]), ix.origin, ix.h, ix.tri_grid, ix.a, ix.b,
+                                        ix.c, ix.n)
+    return out
+
+
+def _edge_distances(model: PartModel, points: np.ndarray, T: np.ndarray) -> np.ndarray:
+    ix = model.index
+    if ix is None:
+        return model.nearest_edges((points - T[:3, 3]) @ T[:3, :3])[0]
+    out: np.ndarray = edge_distances(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(T[:3, :3]),
+                                     np.ascontiguousarray(T[:3, 3]), ix.origin, ix.h, ix.seg_grid, ix.p0, ix.p1)
+    return out
+
+
+#: At most this many of a region's points (and half as many of its boundary) score the initial guesses.
+COARSE_POINTS = 150
+
+#: The turns (degrees) about the region's normal tried from the best initial guess (:func:`_fit_general`).
+TURNS_DEG = (-24.0, -16.0, -8.0, 8.0, 16.0, 24.0)
+
+
+def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
+    a = axis / np.linalg.norm(axis)
+    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    R: np.ndarray = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * (K @ K)
+    return R
+
+
 def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> tuple[np.ndarray, float]:
     """(pose, err) of one instance of a general model in the region's points.
 
-    Every initial guess takes ``coarse_iterations`` ICP steps on half the points; the best (most
-    points within the score tolerance, plus the boundary points on the model's edges) is refined.
-    A guess whose points nearly all fit stops the search."""
+    Every initial guess takes ``coarse_iterations`` ICP steps on an even subsample of
+    ``COARSE_POINTS`` points; the best (most points within the score tolerance, plus the boundary
+    points on the model's edges) and its turns by ``TURNS_DEG`` about the region's normal the same,
+    and the best of all is refined on up to ``max_points`` points. A guess whose points nearly all
+    fit stops the search of the guesses."""
     sub = _subsample(flat, params.max_points)
     pts = frame.xyz.reshape(-1, 3)[sub]
-    coarse = pts[:: 2] if len(pts) >= 2 * params.min_region_px else pts
+    coarse = np.ascontiguousarray(pts[_subsample(np.arange(len(pts)), COARSE_POINTS)])
     bnd = _subsample(_occluding_boundary(frame, flat, params.jump_mm), params.max_points // 2)
     epts = frame.xyz.reshape(-1, 3)[bnd]
-    coarse_e = epts[:: 2]
+    coarse_e = np.ascontiguousarray(epts[_subsample(np.arange(len(epts)), COARSE_POINTS // 2)])
     f = 0.5 * (frame.K[0] + frame.K[1])
     px_mm = float(np.median(pts[:, 2])) / f  # the pixel footprint
     edge_gate = max(3.0 * px_mm, params.k * params.err_floor_mm)
-    best = None
     score_tol = max(params.k * params.err_floor_mm, params.gate_mm / 4)
     opts = dict(gate_mm=params.gate_mm, k=params.k, floor_mm=params.err_floor_mm, edge_gate_mm=edge_gate)
-    for R in initial_rotations(pts, model):
-        T0 = initial_pose(pts, R, model)
-        T, _, _ = icp(coarse, model, T0, iterations=params.coarse_iterations, edge_points=coarse_e,
-                      **opts)
-        d = model.distance((coarse - T[:3, 3]) @ T[:3, :3])
-        inl = float(np.mean(d <= score_tol))
-        score = inl - 0.01 * float(np.mean(np.minimum(d, score_tol))) / score_tol
-        e_inl = 1.0
-        if len(coarse_e):
-            de, _ = model.nearest_edges((coarse_e - T[:3, 3]) @ T[:3, :3])
-            e_inl = float(np.mean(de <= 1.5 * px_mm))
-            score += 0.5 * e_inl
+
+    def coarse_fit(T0: np.ndarray) -> tuple[float, float, float, np.ndarray]:
+        T, _, _ = icp(coarse, model, T0, iterations=params.coarse_iterations, edge_points=coarse_e, **opts)
+        ix = model.index
+        if ix is not None:
+            inl, near, e_inl = guess_score(coarse, coarse_e, np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
+                                           score_tol, 1.5 * px_mm, ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n,
+                                           ix.seg_grid, ix.p0, ix.p1)
+        else:
+            d = _surface_distances(model, coarse, T)
+            inl, near = float(np.mean(d <= score_tol)), float(np.mean(np.minimum(d, score_tol))) / score_tol
+            e_inl = float(np.mean(_edge_distances(model, coarse_e, T) <= 1.5 * px_mm)) if len(coarse_e) else 1.0
+        score = inl - 0.01 * near + (0.5 * e_inl if len(coarse_e) else 0.0)
+        return score, inl, e_inl, T
+
+    best = None
+    for T0 in initial_poses(pts, initial_rotations(pts, model), model):
+        score, inl, e_inl, T = coarse_fit(T0)
         if best is None or score > best[0]:
             best = (score, T)
         if inl >= 0.95 and e_inl >= 0.7:
             break
+    assert best is not None
+    # the guesses turn 45° apart about the region's normal, the turn its surface leaves nearly free:
+    # the best one's turns in between, about its own centroid, each refined the same way
+    c = pts.mean(axis=0)
+    _, ax = np.linalg.eigh(np.cov((pts - c).T))
+    T_best = best[1]
+    for deg in TURNS_DEG:
+        Rt = _turn(ax[:, 0], np.radians(deg))
+        T0 = T_best.copy()
+        T0[:3, :3] = Rt @ T_best[:3, :3]
+        T0[:3, 3] = Rt @ (T_best[:3, 3] - c) + c
+        score, _, _, T = coarse_fit(T0)
+        if score > best[0]:
+            best = (score, T)
     assert best is not None
     T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,
                     **opts)
@@ -304,9 +363,18 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
     for region in pending:
         left = region
         attempts = 0
+        tried = np.zeros(H * W, bool)  # seeds of patches already fitted in this region
         while len(left) >= params.min_region_px and attempts < params.max_instances_per_region:
             progress = False
-            for T, err in _candidates(frame, left, model, params):
+            many = model.sphere_radius is None and _holds_many(frame, left, model)
+            if many:
+                patch = _patch(frame, left, model, tried)
+                if patch is None:
+                    break
+                cands = [_fit_general(frame, patch, model, params)] if len(patch) >= params.min_region_px else []
+            else:
+                cands = _candidates(frame, left, model, params)
+            for T, err in cands:
                 attempts += 1
                 fit = _accept(frame, left, model, params, T, err)
                 if fit is None:
@@ -317,6 +385,8 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
                 if len(left) < params.min_region_px or attempts >= params.max_instances_per_region:
                     break
             if not progress:
+                if many:
+                    continue  # the next patch
                 break
             parts = segment(xyz, left, f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
                             min_px=params.min_region_px)
@@ -325,6 +395,36 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
             left = parts[0]
             pending.extend(parts[1:])
     return _assign(frame, model, accepted, params)
+
+
+def _holds_many(frame: _Frame, flat: np.ndarray, model: PartModel) -> bool:
+    """Whether the region spreads farther than one instance can: 98 % of its points farther than
+    1.3 × the model's extent from their centroid."""
+    pts = frame.xyz.reshape(-1, 3)[_subsample(flat, 2000)]
+    r = np.linalg.norm(pts - pts.mean(axis=0), axis=1)
+    return bool(np.percentile(r, 98) > 1.3 * model.extent_mm)
+
+
+def _patch(frame: _Frame, flat: np.ndarray, model: PartModel, tried: np.ndarray) -> np.ndarray | None:
+    """The pixels of a region holding several instances that one instance may cover: seeded at the
+    untried point nearest the camera (the top of a pile is the least occluded), the points within the
+    model's extent of the seed, then twice those within it of their centroid (the patch slides onto
+    the instance the seed lies on). The seed's neighbourhood (half the extent) is marked tried.
+    None when every point was tried."""
+    pts = frame.xyz.reshape(-1, 3)[flat]
+    free = ~tried[flat]
+    if not free.any():
+        return None
+    cand = np.flatnonzero(free)
+    seed = pts[cand[int(np.argmin(pts[cand, 2]))]]
+    tried[flat[np.linalg.norm(pts - seed, axis=1) <= 0.5 * model.extent_mm]] = True
+    centre = seed
+    near = np.linalg.norm(pts - centre, axis=1) <= model.extent_mm
+    for _ in range(2):
+        centre = pts[near].mean(axis=0)
+        near = np.linalg.norm(pts - centre, axis=1) <= model.extent_mm
+    out: np.ndarray = flat[near]
+    return out
 
 
 def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> list[tuple[np.ndarray, float]]:

@@ -16,6 +16,8 @@ import numpy as np
 
 from zcut.errors import InputShapeError, ParameterError, describe_array
 
+from .kernels import ModelIndex, build_index
+
 __all__ = ["PartModel", "prepare_model"]
 
 
@@ -44,6 +46,15 @@ class PartModel:
     edges : (e, 3) float64 ndarray
         Points along the mesh's sharp edges (faces meeting at more than 30°, or open edges): where
         the part's silhouette lies, matched by the occluding boundary of a region in the ICP.
+    index : ModelIndex or None
+        The voxel index the ICP and the guesses' scores match points through
+        (:mod:`zcut.fits.kernels`), built once here; None for a sphere.
+    guesses : (g, 3, 3) float64 ndarray
+        The initial rotations up to the region's principal axes (:func:`zcut.fits.icp.initial_rotations`
+        returns ``axes_of_the_region @ guesses[i]``), those equivalent under the symmetries dropped:
+        computed once per model.
+    front_probe : (p, 3), (p, 3) float64 ndarrays
+        An even subsample of ``samples`` and ``normals`` for the initial translations.
     """
 
     vertices: np.ndarray
@@ -57,6 +68,10 @@ class PartModel:
     symmetries: np.ndarray
     continuous_axis: np.ndarray | None
     edges: np.ndarray
+    index: ModelIndex | None
+    guesses: np.ndarray
+    probe_samples: np.ndarray
+    probe_normals: np.ndarray
     _scene: Any = field(repr=False)
     _tree: Any = field(repr=False)
     _edge_tree: Any = field(repr=False)
@@ -152,9 +167,10 @@ def _sample_surface(v: np.ndarray, t: np.ndarray, n: int) -> tuple[np.ndarray, n
     return pts, normals, centroid
 
 
-def _sharp_edges(v: np.ndarray, t: np.ndarray, spacing: float, angle_deg: float = 30.0) -> np.ndarray:
-    """Points every ``spacing`` along the edges where faces meet at more than ``angle_deg`` (or
-    which only one face has)."""
+def _sharp_edges(v: np.ndarray, t: np.ndarray, spacing: float,
+                 angle_deg: float = 30.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(points every ``spacing`` along the edges where faces meet at more than ``angle_deg`` (or
+    which only one face has), the edges' first ends, their second ends)."""
     a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
     cr = np.cross(b - a, c - a)
     nrm = cr / np.maximum(np.linalg.norm(cr, axis=1, keepdims=True), 1e-300)
@@ -177,7 +193,7 @@ def _sharp_edges(v: np.ndarray, t: np.ndarray, spacing: float, angle_deg: float 
             sharp.append(key[i])
         i = j
     if not sharp:
-        return np.zeros((0, 3))
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))
     E = np.array(sharp)
     p0, p1 = v[E[:, 0]], v[E[:, 1]]
     L = np.linalg.norm(p1 - p0, axis=1)
@@ -187,7 +203,7 @@ def _sharp_edges(v: np.ndarray, t: np.ndarray, spacing: float, angle_deg: float 
         s = np.linspace(0.0, 1.0, m)[:, None]
         pts.append(p0[k] + s * (p1[k] - p0[k]))
     out: np.ndarray = np.unique(np.round(np.concatenate(pts), 9), axis=0)
-    return out
+    return out, p0, p1
 
 
 def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -282,10 +298,64 @@ def _symmetries(samples: np.ndarray, vertices: np.ndarray, centroid: np.ndarray,
     return np.stack(group), cont
 
 
+def _triangle_normals(v: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Unit normals per triangle, outward as :func:`_sample_surface` orients them (away from the
+    centroid for most of the area); zero for a triangle without area."""
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    cr = np.cross(b - a, c - a)
+    area = 0.5 * np.linalg.norm(cr, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nrm = np.where(area[:, None] > 0, cr / (2.0 * area[:, None]), 0.0)
+    centroid = ((a + b + c) / 3.0 * area[:, None]).sum(axis=0) / area.sum()
+    out = np.einsum("ij,ij->i", nrm, (a + b + c) / 3.0 - centroid)
+    if area[out < 0].sum() > 0.5 * area.sum():
+        nrm = -nrm
+    return nrm
+
+
+def _guess_templates(axes: np.ndarray, sym: np.ndarray, cont: np.ndarray | None) -> np.ndarray:
+    """The initial rotations up to the region's axes X (the guess is X @ M): M = Rz(turn) P Aᵀ for
+    the 24 proper signed permutations P, turns 0 and 45° about the region's least-variance axis, A
+    the model's axes; those with the model's least-variance axis on the region's first; one of each
+    class equivalent under the symmetries (M1 S ≈ M2; a body of revolution: the axis goes to the
+    same place). Left-multiplying by X changes no equivalence, so the classes are the model's."""
+    import itertools
+
+    first: list[np.ndarray] = []
+    rest: list[np.ndarray] = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            P = np.zeros((3, 3))
+            for i, j in enumerate(perm):
+                P[i, j] = signs[i]
+            if np.linalg.det(P) < 0:
+                continue
+            for turn in (0.0, np.pi / 4):
+                M = _rot(np.array([0.0, 0.0, 1.0]), turn) @ P @ axes.T
+                (first if perm[2] == 2 else rest).append(M)
+    kept: list[np.ndarray] = []
+    variants = np.zeros((0, 3, 3))
+    ax_seen = np.zeros((0, 3))
+    for M in first + rest:
+        if len(variants) and np.abs(variants - M).max(axis=(1, 2)).min() < 0.15:
+            continue
+        if cont is not None and len(ax_seen) and float((ax_seen @ (M @ cont)).max()) > 0.99:
+            continue
+        kept.append(M)
+        variants = np.concatenate([variants, np.einsum("ij,kjl->kil", M, sym)])
+        if cont is not None:
+            ax_seen = np.concatenate([ax_seen, np.einsum("ij,kjl,l->ki", M, sym, cont)])
+    return np.stack(kept)
+
+
 def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tolerance: float = 0.01,
-                  n_samples: int = 20000) -> PartModel:
+                  n_samples: int = 20000, index_margin_mm: float = 6.0, index_voxels: int = 1_000_000) -> PartModel:
     """Check and prepare a part mesh; raise :class:`~zcut.errors.ParameterError` (one line) when it
-    is degenerate (too few vertices or triangles, no area, flat, indices out of range)."""
+    is degenerate (too few vertices or triangles, no area, flat, indices out of range).
+
+    The voxel index of a general model (:class:`~zcut.fits.kernels.ModelIndex`) covers the bounding
+    box grown by ``index_margin_mm`` (points farther out match nothing: keep it above
+    :attr:`FitParams.gate_mm <zcut.fits.FitParams>`) in about ``index_voxels`` voxels."""
     from scipy.spatial import cKDTree
 
     v, t = _check_mesh(vertices_mm, triangles)
@@ -299,7 +369,7 @@ def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tole
     if np.linalg.det(axes) < 0:
         axes[:, 2] = -axes[:, 2]
     tree = cKDTree(samples)
-    edges = _sharp_edges(v, t, spacing=extent / 150.0)
+    edges, seg0, seg1 = _sharp_edges(v, t, spacing=extent / 150.0)
     edge_tree = cKDTree(edges) if len(edges) else None
     scene = None
     if sphere is None:
@@ -309,8 +379,14 @@ def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tole
         scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(t.astype(np.uint32)))  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
         spacing = np.sqrt(4 * np.pi * extent * extent / n_samples)
         sym, cont = _symmetries(samples, v, centroid, axes, tree, tol=max(0.02 * extent, 2 * spacing))
+        box = np.ptp(v, axis=0) + 2 * index_margin_mm
+        h = max(float(np.cbrt(np.prod(box) / index_voxels)), extent / 400.0)
+        index = build_index(v, t, _triangle_normals(v, t), seg0, seg1, scene, margin_mm=index_margin_mm, h_mm=h)
     else:
-        sym, cont = np.eye(3)[None], None
+        sym, cont, index = np.eye(3)[None], None, None
+    probe = slice(None, None, max(1, n_samples // 2000))
     return PartModel(vertices=v, triangles=t, centroid=centroid, sphere_radius=sphere, samples=samples,
                      normals=normals, axes=axes, extent_mm=extent, symmetries=sym, continuous_axis=cont,
-                     edges=edges, _scene=scene, _tree=tree, _edge_tree=edge_tree)
+                     edges=edges, index=index, guesses=_guess_templates(axes, sym, cont),
+                     probe_samples=samples[probe], probe_normals=normals[probe],
+                     _scene=scene, _tree=tree, _edge_tree=edge_tree)

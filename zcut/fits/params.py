@@ -53,7 +53,7 @@ class FitParams:
     jump_px: float = 3.0
     min_region_px: int = 40
     icp_iterations: int = 30
-    coarse_iterations: int = 8
+    coarse_iterations: int = 4
     max_points: int = 600
     gate_mm: float = 4.0
     err_floor_mm: float = 0.1

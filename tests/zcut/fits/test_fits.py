@@ -136,3 +136,96 @@ def test_bad_arrays_and_params_say_what_is_wrong():
         FitParams(min_support=1.5)
     with pytest.raises(ParameterError, match=r"FitParams\.icp_iterations"):
         FitParams(icp_iterations=2.5)  # type: ignore[arg-type]
+
+
+def test_a_symmetric_equivalent_pose_is_no_error():
+    """The nut maps onto itself by 60° turns about its axis and half-turns about its flats: a fit
+    off by one of those is exact; a 10° turn is 10° off."""
+    v, t = hex_nut_mesh()
+    model = prepare_model(v, t)
+    T = pose(rotation((0.3, 1, 0.2), 37), (4, -2, 300))
+    c = model.centroid
+    for S in model.symmetries:
+        Tf = T.copy()
+        Tf[:3, :3] = T[:3, :3] @ S
+        Tf[:3, 3] = T[:3, :3] @ c + T[:3, 3] - Tf[:3, :3] @ c  # the same centroid
+        dt, da = pose_error(Tf, T, model)
+        assert dt < 1e-6 and da < 1e-3
+    assert any(abs(np.degrees(np.arccos(np.clip((np.trace(S) - 1) / 2, -1, 1))) - 60) < 1e-3 for S in model.symmetries)
+    Tf = T.copy()
+    Tf[:3, :3] = T[:3, :3] @ rotation((0, 0, 1), 10)
+    assert pose_error(Tf, T, model)[1] == pytest.approx(10.0, abs=1e-6)
+
+
+def test_the_model_index_matches_the_exact_distances_and_the_reference_icp():
+    """The voxel index built once per model gives the exact distance to the surface near it (within
+    the voxel's tangential slack), and ICP through it lands where the k-d tree ICP lands."""
+    from zcut.fits.fit import _surface_distances
+    from zcut.fits.icp import icp, icp_reference
+
+    v, t = hex_nut_mesh()
+    model = prepare_model(v, t)
+    assert model.index is not None and model.index.tri_grid.dtype == np.int32
+    rng = np.random.default_rng(5)
+    q = model.samples[rng.choice(len(model.samples), 2000)] + rng.normal(0, 0.4, (2000, 3))
+    exact = model.distance(q)
+    approx = _surface_distances(model, q, np.eye(4))
+    # float32 in Open3D's exact distance; the voxel's triangle is the nearest one but near a face's border
+    assert np.all(np.abs(approx - exact) <= 0.87 * model.index.h + 1e-4)
+    assert np.mean(np.abs(approx - exact) < 1e-4) > 0.9
+    T = pose(rotation((1, 0.3, 0), 160), (5, -3, 300))
+    xyz, ids = render([(v, t, T)], floor_z_mm=320)
+    pts = xyz[ids > 0]
+    T0 = T @ pose(rotation((0, 1, 0.4), 4), (0.8, -0.5, 0.3))
+    opts = dict(iterations=30, gate_mm=4.0, k=3.0, floor_mm=0.1)
+    Tk, rk, _ = icp(pts, model, T0, **opts)
+    Tr, rr, _ = icp_reference(pts, model, T0, **opts)
+    assert pose_error(Tk, T, model)[0] < 0.02 and pose_error(Tk, T, model)[1] < 0.1
+    assert pose_error(Tk, Tr, model)[0] < 0.05 and pose_error(Tk, Tr, model)[1] < 0.2
+    assert rk < 0.01
+
+
+def test_touching_nuts_in_one_region_are_fitted_patch_by_patch():
+    """Three nuts lying nearly flat (tilted a few degrees each way, as in a pile), flats touching: one
+    candidate region holds two of them (no depth jump between them), fitted one instance at a time
+    (a guess from the whole region's axes fits neither)."""
+    from zcut.fits.fit import _Frame, _grid_normals, _holds_many
+    from zcut.fits.segment import segment
+
+    v, t = hex_nut_mesh()
+    model = prepare_model(v, t)
+    truths = [pose(rotation((1, 0, 0), a) @ rotation((0, 0, 1), b), (1.0, y, 300.0))
+              for y, a, b in ((-18.3, 6.0, 3.0), (0.0, -5.0, -2.0), (18.3, 7.0, 1.0))]
+    xyz, ids = render([(v, t, T) for T in truths], floor_z_mm=330)
+    zone = ids > 0
+    regions = segment(xyz, np.flatnonzero(zone), f_px=500.0, jump_mm=1.5, jump_px=3.0, min_px=40)
+    assert len(regions) == 2 and len(regions[0]) > 1.5 * len(regions[1])
+    frame = _Frame(xyz=xyz, valid=np.isfinite(xyz).all(axis=2), zone=zone,
+                   normals=_grid_normals(xyz, np.isfinite(xyz).all(axis=2)), K=K_TEST)
+    assert _holds_many(frame, regions[0], model)
+    fits = fit_parts(xyz, zone, v, t, intrinsics=K_TEST)
+    assert len(fits) == 3
+    for dt, da in _match(fits, truths, model):
+        # near head-on the silhouette alone holds the turn (a pixel is 0.6 mm here)
+        assert dt < 0.2 and da < 1.0
+    explained = np.zeros(ids.size, bool)
+    for f in fits:
+        explained[f.pixels] = True
+    assert explained[zone.reshape(-1)].mean() > 0.98
+
+
+def test_pixels_without_a_measurement_do_not_count_against_a_fit():
+    """A projector's shadow over most of a nut: the pixels left still find it (the shadowed ones are
+    no evidence either way, not missing support)."""
+    v, t = hex_nut_mesh()
+    T = pose(rotation((1, 0.2, 0), 25), (2, 1, 300))
+    xyz, ids = render([(v, t, T)], floor_z_mm=320)
+    rows = np.flatnonzero((ids > 0).any(axis=1))
+    cut = rows[0] + int(0.6 * (rows[-1] - rows[0]))
+    xyz[:cut] = np.nan  # the upper 60 % of the nut's rows unmeasured
+    zone = (ids > 0) & np.isfinite(xyz).all(axis=2)
+    assert zone.sum() < 0.5 * (ids > 0).sum()
+    fits = fit_parts(xyz, zone, v, t, intrinsics=K_TEST)
+    assert len(fits) == 1 and fits[0].support > 0.9
+    dt, da = pose_error(fits[0].pose, T, prepare_model(v, t))
+    assert dt < 0.1 and da < 1.5  # 40 % of a nut seen: its turn less held

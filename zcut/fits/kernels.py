@@ -1,0 +1,360 @@
+"""Numba kernels of the general fits: correspondences through a voxel index of the model, ICP.
+
+The model's index (:class:`ModelIndex`, built once per model by :func:`build_index`) is a voxel
+grid over the model's bounding box grown by a margin: each voxel holds the triangle nearest its
+centre and the sharp-edge segment nearest its centre. A point (model frame) is matched to the
+triangle of its voxel: its point-to-plane residual is exact on that triangle's plane, its distance
+is the exact distance to that triangle, less the tangential part a voxel's half-diagonal can account
+for (a point near the border of two coplanar triangles may sit in the voxel of the neighbour). The
+same for the edges: the exact distance to the nearest segment of the voxel. No k-d tree query and no
+Python loop per ICP step: one ICP run from one initial guess is one kernel call.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+__all__ = ["ModelIndex", "build_index", "edge_distances", "guess_score", "icp_kernel", "surface_distances"]
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ModelIndex:
+    """The voxel index of a part model (model frame, mm).
+
+    Attributes
+    ----------
+    origin : (3,) float64
+        The corner of voxel (0, 0, 0).
+    h : float
+        Voxel edge (mm).
+    tri_grid : (nx, ny, nz) int32
+        Index of the triangle nearest each voxel's centre.
+    a, b, c, n : (m, 3) float64
+        The triangles' corners and unit outward normals.
+    seg_grid : (nx, ny, nz) int32
+        Index of the sharp-edge segment nearest each voxel's centre (-1: the model has none).
+    p0, p1 : (e, 3) float64
+        The sharp-edge segments' ends.
+    """
+
+    origin: np.ndarray
+    h: float
+    tri_grid: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    n: np.ndarray
+    seg_grid: np.ndarray
+    p0: np.ndarray
+    p1: np.ndarray
+
+
+def build_index(v: np.ndarray, t: np.ndarray, normals: np.ndarray, seg0: np.ndarray, seg1: np.ndarray, scene: object,
+                *, margin_mm: float, h_mm: float) -> ModelIndex:
+    """The index of the mesh (``normals`` outward per triangle, ``scene`` an Open3D RaycastingScene of
+    it), the grid ``h_mm`` fine over the bounding box grown by ``margin_mm``."""
+    import open3d as o3d
+    from scipy.spatial import cKDTree
+
+    lo = v.min(axis=0) - margin_mm
+    hi = v.max(axis=0) + margin_mm
+    dims = np.maximum(np.ceil((hi - lo) / h_mm).astype(np.int64), 1)
+    axes = [lo[i] + h_mm * (np.arange(dims[i]) + 0.5) for i in range(3)]
+    centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    ans = scene.compute_closest_points(o3d.core.Tensor(centres.astype(np.float32)))  # type: ignore[attr-defined,call-overload]  # Open3D stub: dtype and device required
+    tri = ans["primitive_ids"].numpy().astype(np.int32).reshape(tuple(dims))
+    if len(seg0):
+        # the segments sampled densely enough that the nearest sample's segment is the nearest segment
+        # to within a small fraction of a voxel
+        step = 0.25 * h_mm
+        L = np.linalg.norm(seg1 - seg0, axis=1)
+        m = np.maximum(2, np.ceil(L / step).astype(np.int64) + 1)
+        sid = np.repeat(np.arange(len(seg0)), m)
+        s = np.concatenate([np.linspace(0.0, 1.0, k) for k in m])[:, None]
+        pts = seg0[sid] + s * (seg1[sid] - seg0[sid])
+        _, i = cKDTree(pts).query(centres, k=1)
+        seg = sid[i].astype(np.int32).reshape(tuple(dims))
+    else:
+        seg = np.full(tuple(dims), -1, np.int32)
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    return ModelIndex(origin=lo.astype(np.float64), h=float(h_mm), tri_grid=tri, a=a, b=b, c=c,
+                      n=np.ascontiguousarray(normals, np.float64), seg_grid=seg,
+                      p0=np.ascontiguousarray(seg0, np.float64), p1=np.ascontiguousarray(seg1, np.float64))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _closest_on_triangle(px: float, py: float, pz: float, a: np.ndarray, b: np.ndarray,
+                         c: np.ndarray) -> tuple[float, float, float]:
+    """The point of triangle (a, b, c) nearest p (Ericson, Real-Time Collision Detection 5.1.5)."""
+    abx, aby, abz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    acx, acy, acz = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    apx, apy, apz = px - a[0], py - a[1], pz - a[2]
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    if d1 <= 0.0 and d2 <= 0.0:
+        return a[0], a[1], a[2]
+    bpx, bpy, bpz = px - b[0], py - b[1], pz - b[2]
+    d3 = abx * bpx + aby * bpy + abz * bpz
+    d4 = acx * bpx + acy * bpy + acz * bpz
+    if d3 >= 0.0 and d4 <= d3:
+        return b[0], b[1], b[2]
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        w = d1 / (d1 - d3)
+        return a[0] + w * abx, a[1] + w * aby, a[2] + w * abz
+    cpx, cpy, cpz = px - c[0], py - c[1], pz - c[2]
+    d5 = abx * cpx + aby * cpy + abz * cpz
+    d6 = acx * cpx + acy * cpy + acz * cpz
+    if d6 >= 0.0 and d5 <= d6:
+        return c[0], c[1], c[2]
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        w = d2 / (d2 - d6)
+        return a[0] + w * acx, a[1] + w * acy, a[2] + w * acz
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return b[0] + w * (c[0] - b[0]), b[1] + w * (c[1] - b[1]), b[2] + w * (c[2] - b[2])
+    denom = 1.0 / (va + vb + vc)
+    v_ = vb * denom
+    w = vc * denom
+    return a[0] + abx * v_ + acx * w, a[1] + aby * v_ + acy * w, a[2] + abz * v_ + acz * w
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _voxel(qx: float, qy: float, qz: float, origin: np.ndarray, inv_h: float, grid: np.ndarray) -> int:
+    i = int(np.floor((qx - origin[0]) * inv_h))
+    j = int(np.floor((qy - origin[1]) * inv_h))
+    k = int(np.floor((qz - origin[2]) * inv_h))
+    if i < 0 or j < 0 or k < 0 or i >= grid.shape[0] or j >= grid.shape[1] or k >= grid.shape[2]:
+        return -1
+    return int(grid[i, j, k])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _match(qx: float, qy: float, qz: float, origin: np.ndarray, inv_h: float, slack: float, grid: np.ndarray,
+           a: np.ndarray, b: np.ndarray, c: np.ndarray, n: np.ndarray) -> tuple[int, float, float, float, float, float]:
+    """(triangle, distance, plane residual, closest point) of q; triangle -1 outside the grid."""
+    j = _voxel(qx, qy, qz, origin, inv_h, grid)
+    if j < 0:
+        return -1, np.inf, np.inf, 0.0, 0.0, 0.0
+    cx, cy, cz = _closest_on_triangle(qx, qy, qz, a[j], b[j], c[j])
+    dx, dy, dz = qx - cx, qy - cy, qz - cz
+    d2 = dx * dx + dy * dy + dz * dz
+    r = (qx - a[j, 0]) * n[j, 0] + (qy - a[j, 1]) * n[j, 1] + (qz - a[j, 2]) * n[j, 2]
+    tang = np.sqrt(max(d2 - r * r, 0.0)) - slack
+    d = abs(r) if tang <= 0.0 else np.sqrt(r * r + tang * tang)
+    return j, d, r, cx, cy, cz
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _match_edge(qx: float, qy: float, qz: float, origin: np.ndarray, inv_h: float, grid: np.ndarray,
+                p0: np.ndarray, p1: np.ndarray) -> tuple[float, float, float, float]:
+    """(distance, closest point) of q to the edge segment of its voxel; inf outside the grid."""
+    s = _voxel(qx, qy, qz, origin, inv_h, grid)
+    if s < 0:
+        return np.inf, 0.0, 0.0, 0.0
+    ex, ey, ez = p1[s, 0] - p0[s, 0], p1[s, 1] - p0[s, 1], p1[s, 2] - p0[s, 2]
+    L2 = ex * ex + ey * ey + ez * ez
+    w = 0.0
+    if L2 > 0.0:
+        w = ((qx - p0[s, 0]) * ex + (qy - p0[s, 1]) * ey + (qz - p0[s, 2]) * ez) / L2
+        w = min(max(w, 0.0), 1.0)
+    cx, cy, cz = p0[s, 0] + w * ex, p0[s, 1] + w * ey, p0[s, 2] + w * ez
+    d = np.sqrt((qx - cx) ** 2 + (qy - cy) ** 2 + (qz - cz) ** 2)
+    return d, cx, cy, cz
+
+
+@numba.njit(cache=True, nogil=True)
+def surface_distances(points: np.ndarray, R: np.ndarray, t: np.ndarray, origin: np.ndarray, h: float,
+                      grid: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Distance (mm) of each camera-frame point to the model posed (R, t) through the index; inf
+    outside its grid."""
+    inv_h = 1.0 / h
+    slack = 0.8660254037844386 * h
+    out = np.empty(len(points))
+    for i in range(len(points)):
+        px, py, pz = points[i, 0] - t[0], points[i, 1] - t[1], points[i, 2] - t[2]
+        qx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
+        qy = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
+        qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
+        _, d, _, _, _, _ = _match(qx, qy, qz, origin, inv_h, slack, grid, a, b, c, n)
+        out[i] = d
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def edge_distances(points: np.ndarray, R: np.ndarray, t: np.ndarray, origin: np.ndarray, h: float,
+                   grid: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+    """Distance (mm) of each camera-frame point to the posed model's sharp edges; inf outside the grid."""
+    inv_h = 1.0 / h
+    out = np.empty(len(points))
+    for i in range(len(points)):
+        px, py, pz = points[i, 0] - t[0], points[i, 1] - t[1], points[i, 2] - t[2]
+        qx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
+        qy = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
+        qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
+        d, _, _, _ = _match_edge(qx, qy, qz, origin, inv_h, grid, p0, p1)
+        out[i] = d
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def guess_score(points: np.ndarray, edge_points: np.ndarray, R: np.ndarray, t: np.ndarray, tol: float,
+                edge_tol: float, origin: np.ndarray, h: float, grid: np.ndarray, a: np.ndarray, b: np.ndarray,
+                c: np.ndarray, n: np.ndarray, seg_grid: np.ndarray, p0: np.ndarray,
+                p1: np.ndarray) -> tuple[float, float, float]:
+    """(share of ``points`` within ``tol`` of the posed model, mean of min(distance, tol) / tol, share of
+    ``edge_points`` within ``edge_tol`` of its sharp edges; 1 without edge points)."""
+    d = surface_distances(points, R, t, origin, h, grid, a, b, c, n)
+    inl = 0.0
+    near = 0.0
+    for i in range(len(d)):
+        if d[i] <= tol:
+            inl += 1.0
+        near += min(d[i], tol) / tol
+    e_inl = 1.0
+    if len(edge_points):
+        de = edge_distances(edge_points, R, t, origin, h, seg_grid, p0, p1)
+        e_inl = 0.0
+        for i in range(len(de)):
+            if de[i] <= edge_tol:
+                e_inl += 1.0
+        e_inl /= len(de)
+    m = max(len(d), 1)
+    return inl / m, near / m, e_inl
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _rodrigues(w0: float, w1: float, w2: float) -> np.ndarray:
+    a = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    R = np.eye(3)
+    if a < 1e-15:
+        return R
+    k0, k1, k2 = w0 / a, w1 / a, w2 / a
+    K = np.array([[0.0, -k2, k1], [k2, 0.0, -k0], [-k1, k0, 0.0]])
+    return R + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
+
+
+@numba.njit(cache=True, nogil=True)
+def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: int, gate_mm: float, k: float,
+               floor_mm: float, edge_points: np.ndarray, edge_gate_mm: float, extent: float, origin: np.ndarray,
+               h: float, grid: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, n: np.ndarray,
+               seg_grid: np.ndarray, p0: np.ndarray, p1: np.ndarray, weak: float) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """Point-to-plane ICP of ``points`` (camera frame) from (R0, t0) (model -> camera): the steps of
+    :func:`zcut.fits.icp.icp` (surface matches gated and facing the camera, the occluding boundary's
+    ``edge_points`` matched to the sharp edges in the directions the surface leaves free — those of
+    eigenvalue below ``weak`` × the largest of the surface's normal matrix — Cauchy weights) with the
+    index's correspondences. (R, t, rms of the last step's matches, their number)."""
+    R = R0.copy()
+    t = t0.copy()
+    gate = gate_mm
+    rms = np.inf
+    n_used = 0
+    inv_h = 1.0 / h
+    slack = 0.8660254037844386 * h
+    use_edges = len(edge_points) > 0 and len(p0) > 0
+    scale = np.array([extent, extent, extent, 1.0, 1.0, 1.0])
+    H = np.zeros((6, 6))
+    g = np.zeros(6)
+    He = np.zeros((6, 6))
+    ge = np.zeros(6)
+    row = np.zeros(6)
+    J = np.zeros((3, 6))
+    J[0, 3] = J[1, 4] = J[2, 5] = 1.0
+    res = np.zeros(3)
+    for _ in range(iterations):
+        H[:] = 0.0
+        g[:] = 0.0
+        # camera centre in the model frame: -R^T t
+        camx = -(R[0, 0] * t[0] + R[1, 0] * t[1] + R[2, 0] * t[2])
+        camy = -(R[0, 1] * t[0] + R[1, 1] * t[1] + R[2, 1] * t[2])
+        camz = -(R[0, 2] * t[0] + R[1, 2] * t[1] + R[2, 2] * t[2])
+        ssq = 0.0
+        n_used = 0
+        for i in range(len(points)):
+            px, py, pz = points[i, 0] - t[0], points[i, 1] - t[1], points[i, 2] - t[2]
+            qx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
+            qy = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
+            qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
+            j, d, r, cx, cy, cz = _match(qx, qy, qz, origin, inv_h, slack, grid, a, b, c, n)
+            if j < 0 or not d < gate:
+                continue
+            nx, ny, nz = n[j, 0], n[j, 1], n[j, 2]
+            if nx * (camx - cx) + ny * (camy - cy) + nz * (camz - cz) <= 0.0:
+                continue
+            row[0] = (qy * nz - qz * ny) / scale[0]
+            row[1] = (qz * nx - qx * nz) / scale[1]
+            row[2] = (qx * ny - qy * nx) / scale[2]
+            row[3], row[4], row[5] = nx, ny, nz
+            for u in range(6):
+                g[u] += row[u] * r
+                for w in range(6):
+                    H[u, w] += row[u] * row[w]
+            ssq += r * r
+            n_used += 1
+        if n_used < 6:
+            break
+        if use_edges:
+            He[:] = 0.0
+            ge[:] = 0.0
+            ne = 0
+            egate = max(edge_gate_mm, min(gate, 2.0 * edge_gate_mm))
+            s3 = edge_gate_mm / 3.0
+            for i in range(len(edge_points)):
+                px, py, pz = edge_points[i, 0] - t[0], edge_points[i, 1] - t[1], edge_points[i, 2] - t[2]
+                qx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
+                qy = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
+                qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
+                de, ex, ey, ez = _match_edge(qx, qy, qz, origin, inv_h, seg_grid, p0, p1)
+                if not de < egate:
+                    continue
+                # a silhouette point lies on the part: a mixed pixel between it and what lies
+                # behind (off every surface) says nothing of where the edge is
+                js, ds, _, _, _, _ = _match(qx, qy, qz, origin, inv_h, slack, grid, a, b, c, n)
+                if js < 0 or not ds < gate:
+                    continue
+                w2 = 1.0 / (1.0 + (de / s3) ** 2)
+                # rows of d(q + w x q + tau)/d(w, tau) = [-[q]x, I], scaled (J reused, no allocation)
+                J[0, 1], J[0, 2] = qz / scale[1], -qy / scale[2]
+                J[1, 0], J[1, 2] = -qz / scale[0], qx / scale[2]
+                J[2, 0], J[2, 1] = qy / scale[0], -qx / scale[1]
+                res[0], res[1], res[2] = qx - ex, qy - ey, qz - ez
+                for m in range(3):
+                    for u in range(6):
+                        ju = w2 * J[m, u]
+                        if ju == 0.0:
+                            continue
+                        ge[u] += ju * res[m]
+                        for w in range(6):
+                            He[u, w] += ju * J[m, w]
+                ne += 1
+            if ne >= 3:
+                ev, V = np.linalg.eigh(H)
+                top = max(ev.max(), 1e-300)
+                P = np.zeros((6, 6))
+                nw = 0
+                for u in range(6):
+                    if ev[u] < weak * top:
+                        P += np.outer(V[:, u], V[:, u])
+                        nw += 1
+                if nw:
+                    H = H + P @ He @ P
+                    g = g + P @ ge
+        x = np.linalg.solve(H + 1e-12 * np.eye(6), -g) / scale
+        dR = _rodrigues(x[0], x[1], x[2])
+        Rinv = dR @ R.T
+        tinv = dR @ (-(R.T @ t)) + x[3:]
+        R = Rinv.T.copy()
+        t = -(R @ tinv)
+        rms = np.sqrt(ssq / n_used)
+        gate = min(gate, max(k * rms, k * floor_mm, 0.5 * gate))
+        # converged: the step moves no point of the model by a micron
+        if max(np.abs(x[:3]).max() * extent, np.abs(x[3:]).max()) < 1e-3:
+            break
+    U, _, Vt = np.linalg.svd(R)
+    R = U @ Vt
+    return R, t, rms, n_used
