@@ -51,6 +51,7 @@ from .params import RemovalParams
 from .removal import (
     COHERENCE_MM,
     MAX_FAR_SHARE,
+    MAX_RESIDUAL_PX,
     RemovalIndex,
     RemovalResult,
     coherent_residuals,
@@ -59,7 +60,7 @@ from .removal import (
 )
 from .types import XYZ, Mask
 
-__all__ = ["BinCheck", "check_bin_removal", "failed_bin_check"]
+__all__ = ["BinCheck", "ResidualField", "check_bin_removal", "failed_bin_check", "residual_field"]
 
 #: What a user should do about a flagged frame, by cause.
 ADVICE_LEAK = ("the bin model does not fit this frame's bin: look at image/bin_check in Rerun (zcut replay "
@@ -90,6 +91,11 @@ class BinCheck:
     ghosts : int
         Candidates (certain bin pixels left in the band or above the rim) not counted: their residual
         to the model is not coherent with their neighbours' (a sensor's ghosts); 0 without a model.
+    off_surface : int
+        Candidates not counted because, coherent with their neighbours, they lie off the surface the
+        registered bin forms: their signed residual misses the ring's residual field
+        (:func:`residual_field`) by more than ``COHERENCE_MM`` (the face of a part leaning on a wall,
+        a few millimetres in front of it); 0 without a model or when the model has no normals.
     ring : (H, W) bool ndarray or None
         The certain bin pixels the check looked at; None when the bin stages failed.
     """
@@ -101,6 +107,126 @@ class BinCheck:
     offending: Mask | None = None
     ring: Mask | None = None
     ghosts: int = 0
+    off_surface: int = 0
+
+
+#: The residual field's fit is trimmed this many times (each keeps the rows within 3 robust sigmas).
+FIELD_TRIMS = 3
+#: ... and needs at least this many certain bin pixels with a model point within ``max_tolerance_mm``.
+FIELD_MIN_PX = 50
+
+
+def _signed_residuals(a: np.ndarray, flat: np.ndarray, index: RemovalIndex,
+                      T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(r, p, n)`` of the pixels ``flat``: the signed distance (m) of each point to the tangent plane of
+    its nearest model point, along that point's normal (NaN where the point is not finite or no model
+    point lies within ``max_tolerance_mm``), the point in the bin frame (m) and that normal (NaN rows)."""
+    m = len(flat)
+    r = np.full(m, np.nan)
+    p = np.full((m, 3), np.nan)
+    n = np.full((m, 3), np.nan)
+    model = index.model
+    if m == 0 or len(model.points) == 0 or model.normals is None or index.tree is None:
+        return r, p, n
+    pts = a.reshape(-1, 3)[flat].astype(np.float64)
+    ok = np.isfinite(pts).all(axis=1)
+    p[ok] = (pts[ok] - T[:3, 3]) @ T[:3, :3]
+    d, j = index.tree.query(p[ok], k=1, distance_upper_bound=index.params.max_tolerance_mm / 1000.0)
+    found = np.flatnonzero(ok)[np.isfinite(d)]
+    jj = j[np.isfinite(d)]
+    n[found] = model.normals[jj]
+    r[found] = np.einsum("ij,ij->i", p[found] - model.points[jj], n[found])
+    return r, p, n
+
+
+@dataclass(frozen=True, slots=True)
+class ResidualField:
+    """Where the registered bin's surface lies, seen through the model: the signed residual a small pose
+    error and a model of a slightly different size make at each point of the bin.
+
+    A pose off by a translation ``t`` and a small turn ``ω`` moves a bin point ``p`` by ``t + ω × p``, a
+    model scaled by ``1 + s`` by ``s p``: the point's signed residual along the model's normal ``n`` is
+    ``n·t + ω·(p × n) + s n·p``, seven numbers for the whole bin, fitted (least squares, trimmed to
+    3 robust sigmas :data:`FIELD_TRIMS` times) to the certain bin pixels' signed residuals (a regular
+    subsample of at most :data:`zcut.removal.MAX_RESIDUAL_PX`). A bin pixel the removal left behind —
+    the tail of a pose error the tolerance did not cover, a wall where the model has a hole — lies on
+    that field; the face of a part leaning on a wall, a few millimetres in front of it, does not.
+
+    Attributes
+    ----------
+    coef : (7,) float64 ndarray
+        ``t`` (m), ``ω`` (rad), ``s``, about ``centre``.
+    centre : (3,) float64 ndarray
+        The fitted pixels' mean point (bin frame, m).
+    sigma_mm : float
+        The robust scale (1.4826 × MAD) of the kept pixels' misfit (mm).
+    n_pixels : int
+        Pixels fitted (after the trims).
+    index : RemovalIndex
+    T : (4, 4) float64 ndarray
+        The registered pose.
+    """
+
+    coef: np.ndarray
+    centre: np.ndarray
+    sigma_mm: float
+    n_pixels: int
+    index: RemovalIndex
+    T: np.ndarray
+
+    def misfit_mm(self, xyz: XYZ, pixels: np.ndarray) -> np.ndarray:
+        """(M,) float64: each pixel's signed residual minus the field's there (mm); NaN where the point
+        is not finite or no model point lies within ``max_tolerance_mm``."""
+        r, p, n = _signed_residuals(np.asarray(xyz), np.asarray(pixels, dtype=np.int64), self.index, self.T)
+        return 1000.0 * (r - _design(p, n, self.centre) @ self.coef)
+
+    def fits(self, xyz: XYZ, pixels: np.ndarray) -> np.ndarray:
+        """(M,) bool: the pixel lies on the field, within ``COHERENCE_MM`` (True where it has no residual:
+        nothing to tell)."""
+        e = self.misfit_mm(xyz, pixels)
+        with np.errstate(invalid="ignore"):
+            return ~(np.abs(e) > COHERENCE_MM)
+
+
+def _design(p: np.ndarray, n: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """(M, 7): the field's columns ``n``, ``(p - centre) × n``, ``n·(p - centre)``."""
+    q = p - centre
+    return np.concatenate([n, np.cross(q, n), np.einsum("ij,ij->i", n, q)[:, None]], axis=1)
+
+
+def residual_field(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray) -> ResidualField | None:
+    """The :class:`ResidualField` of a frame's certain bin pixels ``ring`` at the registered pose.
+
+    None when the model has no normals, when fewer than :data:`FIELD_MIN_PX` of the pixels have a model
+    point within ``max_tolerance_mm``, or when the fit's misfit is too wide to tell a surface
+    ``COHERENCE_MM`` off the bin's (3 robust sigmas beyond it): the residuals then form no such field —
+    a pose several millimetres off, whose nearest model points lie on the wrong faces (the inner wall's
+    pixels nearer the wall's outer face or the rim's top).
+    """
+    a = np.asarray(xyz)
+    T = np.asarray(T_cam_bin, dtype=np.float64)
+    flat = np.flatnonzero(np.asarray(ring, dtype=bool))
+    flat = flat[:: max(1, -(-len(flat) // MAX_RESIDUAL_PX))]
+    r, p, n = _signed_residuals(a, flat, index, T)
+    use = np.isfinite(r)
+    if np.count_nonzero(use) < FIELD_MIN_PX:
+        return None
+    r, p, n = r[use], p[use], n[use]
+    centre = p.mean(axis=0)
+    A = _design(p, n, centre)
+    keep = np.ones(len(r), bool)
+    coef = np.zeros(7)
+    sigma = 0.0
+    for _ in range(FIELD_TRIMS + 1):
+        coef = np.linalg.lstsq(A[keep], r[keep], rcond=None)[0]
+        e = r - A @ coef
+        sigma = 1.4826 * float(np.median(np.abs(e[keep] - np.median(e[keep]))))
+        keep = np.abs(e) <= max(3.0 * sigma, 1e-4)
+        if np.count_nonzero(keep) < FIELD_MIN_PX:
+            return None
+    if 3000.0 * sigma > COHERENCE_MM:
+        return None
+    return ResidualField(coef, centre, 1000.0 * sigma, int(np.count_nonzero(keep)), index, T)
 
 
 def _image(shape: tuple[int, ...], flat: np.ndarray) -> Mask:
@@ -167,6 +293,7 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         with np.errstate(invalid="ignore"):
             offending |= ring & zone & (h >= top - float(band_mm))
     ghosts = 0
+    off_surface = 0
     far = 0.0
     if all(given):
         assert xyz is not None and index is not None and T_cam_bin is not None
@@ -188,8 +315,18 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
             runs_out = np.bincount(lab, near_reach, int(lab.max()) + 1) > 0
             ghost[beyond] = ~runs_out[lab]
         ghosts = int(np.count_nonzero(ghost))
+        # coherent, finite: on a surface; but on the bin's only when that surface is where the pose's and
+        # the model's error put the bin (the residual field fitted over the ring), not a part's face a few
+        # millimetres in front of a wall it leans on
+        test = ~ghost & np.isfinite(own)
+        off = np.zeros(len(cand), bool)
+        if test.any():
+            field = residual_field(a, ring, index, T_cam_bin)
+            if field is not None:
+                off[test] = ~field.fits(a, cand[test])
+        off_surface = int(np.count_nonzero(off))
         offending = offending.copy()
-        offending.reshape(-1)[cand[ghost]] = False
+        offending.reshape(-1)[cand[ghost | off]] = False
     n = int(np.count_nonzero(offending))
     n_ring = int(np.count_nonzero(ring & np.isfinite(h)))
     threshold = float(params.check_threshold_px)
@@ -203,6 +340,9 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
             where.append(f"{n_easy} called above the rim")
         if ghosts:
             where.append(f"{ghosts} more off the bin's surface, not counted: ghosts")
+        if off_surface:
+            where.append(f"{off_surface} more on a surface off the registered bin's, not counted: parts against "
+                         "a wall")
         tol = f"tolerance {removal.tolerance_mm:.2f} mm"
         if np.isfinite(removal.residual_mm) or removal.residual_mm == np.inf:
             tol += f", residuals {removal.residual_mm:.2f} mm"
@@ -219,4 +359,4 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
     if rim_in_view < params.check_min_rim_in_view:
         reasons.append(f"only {100 * rim_in_view:.0f} % of the bin's rim in the camera's view "
                        f"(< {100 * params.check_min_rim_in_view:.0f} %): {ADVICE_HIDDEN}")
-    return BinCheck(float(n), threshold, bool(reasons), "; ".join(reasons), offending, ring, ghosts)
+    return BinCheck(float(n), threshold, bool(reasons), "; ".join(reasons), offending, ring, ghosts, off_surface)
