@@ -21,7 +21,13 @@ residual to the model is finite (within ``max_tolerance_mm``) and coherent with 
 left behind — by a pose a little off, a model with a hole — lies on the surface its neighbours
 form, and counts; a sensor's ghost floating above the rim or a mixed pixel along its edge (the
 ray-traced sensor's shiny frames have hundreds on the rim, in clusters) lies millimetres off it, and
-does not. Pixels beyond ``max_tolerance_mm`` of the model (no residual) are judged by clumps: a
+does not. A coherent pixel counts only when it lies, too, on the surface the registered bin forms:
+its signed residual within ``COHERENCE_MM`` of the residual field a small pose error and a model of a
+slightly different size make over the whole ring (:func:`residual_field`, seven numbers fitted to the
+ring's residuals). Bin left behind by a pose or a model a little off lies on that field; the face of a
+part leaning on an upper wall, a few millimetres in front of it and coherent with its neighbours, does
+not (issue 31: on piles heaped against a wall the check counted 14–39 such pixels a frame and flagged
+every hand-made walls frame; ``docs/bin_robustness.md``). Pixels beyond ``max_tolerance_mm`` of the model (no residual) are judged by clumps: a
 clump counts when the surface around it runs out to that distance (a neighbour's residual within
 ``COHERENCE_MM`` of it: the far end of a rim tilted by 2°); a ghost cluster above the rim, ringed by
 pixels that fit the model or by other ghosts, does not (counting clumps with nothing finite around
@@ -60,7 +66,7 @@ from .removal import (
 )
 from .types import XYZ, Mask
 
-__all__ = ["BinCheck", "ResidualField", "check_bin_removal", "failed_bin_check", "residual_field"]
+__all__ = ["BinCheck", "ResidualField", "check_bin_removal", "failed_bin_check", "residual_field", "signed_residuals"]
 
 #: What a user should do about a flagged frame, by cause.
 ADVICE_LEAK = ("the bin model does not fit this frame's bin: look at image/bin_check in Rerun (zcut replay "
@@ -95,7 +101,9 @@ class BinCheck:
         Candidates not counted because, coherent with their neighbours, they lie off the surface the
         registered bin forms: their signed residual misses the ring's residual field
         (:func:`residual_field`) by more than ``COHERENCE_MM`` (the face of a part leaning on a wall,
-        a few millimetres in front of it); 0 without a model or when the model has no normals.
+        a few millimetres in front of it), or, beyond ``max_tolerance_mm`` of the model in a clump
+        whose surface runs out to there, the field does not reach that far at the clump (a part's
+        face curving away from the wall); 0 without a model or when the model has no normals.
     ring : (H, W) bool ndarray or None
         The certain bin pixels the check looked at; None when the bin stages failed.
     """
@@ -116,11 +124,15 @@ FIELD_TRIMS = 3
 FIELD_MIN_PX = 50
 
 
-def _signed_residuals(a: np.ndarray, flat: np.ndarray, index: RemovalIndex,
-                      T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(r, p, n)`` of the pixels ``flat``: the signed distance (m) of each point to the tangent plane of
+def signed_residuals(xyz: XYZ, pixels: np.ndarray, index: RemovalIndex,
+                     T_cam_bin: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(r, p, n)`` of the flat ``pixels``: the signed distance (m) of each point to the tangent plane of
     its nearest model point, along that point's normal (NaN where the point is not finite or no model
-    point lies within ``max_tolerance_mm``), the point in the bin frame (m) and that normal (NaN rows)."""
+    point lies within ``max_tolerance_mm``), the point in the bin frame (m) and that normal (NaN rows).
+    All NaN when the model has no normals."""
+    a = np.asarray(xyz)
+    flat = np.asarray(pixels, dtype=np.int64)
+    T = np.asarray(T_cam_bin, dtype=np.float64)
     m = len(flat)
     r = np.full(m, np.nan)
     p = np.full((m, 3), np.nan)
@@ -177,8 +189,24 @@ class ResidualField:
     def misfit_mm(self, xyz: XYZ, pixels: np.ndarray) -> np.ndarray:
         """(M,) float64: each pixel's signed residual minus the field's there (mm); NaN where the point
         is not finite or no model point lies within ``max_tolerance_mm``."""
-        r, p, n = _signed_residuals(np.asarray(xyz), np.asarray(pixels, dtype=np.int64), self.index, self.T)
+        r, p, n = signed_residuals(np.asarray(xyz), np.asarray(pixels, dtype=np.int64), self.index, self.T)
         return 1000.0 * (r - _design(p, n, self.centre) @ self.coef)
+
+    def predicted_mm(self, xyz: XYZ, pixels: np.ndarray) -> np.ndarray:
+        """(M,) float64: the field's signed residual (mm) at each pixel's point, along the normal of its
+        nearest model point however far (NaN where the point is not finite)."""
+        a = np.asarray(xyz)
+        flat = np.asarray(pixels, dtype=np.int64)
+        out = np.full(len(flat), np.nan)
+        pts = a.reshape(-1, 3)[flat].astype(np.float64)
+        ok = np.isfinite(pts).all(axis=1)
+        model = self.index.model
+        if not ok.any() or model.normals is None or self.index.tree is None:
+            return out
+        p = (pts[ok] - self.T[:3, 3]) @ self.T[:3, :3]
+        _, j = self.index.tree.query(p, k=1)
+        out[ok] = 1000.0 * (_design(p, model.normals[j], self.centre) @ self.coef)
+        return out
 
     def fits(self, xyz: XYZ, pixels: np.ndarray) -> np.ndarray:
         """(M,) bool: the pixel lies on the field, within ``COHERENCE_MM`` (True where it has no residual:
@@ -207,7 +235,7 @@ def residual_field(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndar
     T = np.asarray(T_cam_bin, dtype=np.float64)
     flat = np.flatnonzero(np.asarray(ring, dtype=bool))
     flat = flat[:: max(1, -(-len(flat) // MAX_RESIDUAL_PX))]
-    r, p, n = _signed_residuals(a, flat, index, T)
+    r, p, n = signed_residuals(a, flat, index, T)
     use = np.isfinite(r)
     if np.count_nonzero(use) < FIELD_MIN_PX:
         return None
@@ -308,20 +336,31 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         own, around, coherent = coherent_residuals(a, ring, cand, index, T_cam_bin, neighbours=8)
         ghost = ~coherent  # off the surface its neighbours form
         beyond = np.isinf(own)
+        off = np.zeros(len(cand), bool)
+        field: ResidualField | None = None
+        fitted = False
         if beyond.any():  # beyond max_tolerance_mm: by clumps, bin if the surface around runs out to there
             clumps, _ = ndimage.label(_image(ring.shape, cand[beyond]), structure=np.ones((3, 3), bool))
             lab = clumps.reshape(-1)[cand[beyond]]
             near_reach = np.isfinite(around[beyond]) & (around[beyond] >= params.max_tolerance_mm - COHERENCE_MM)
             runs_out = np.bincount(lab, near_reach, int(lab.max()) + 1) > 0
             ghost[beyond] = ~runs_out[lab]
+            if runs_out.any():
+                # ... and when the bin's surface reaches that far there: the residual field says so (a part's
+                # face curving away from a wall runs out to max_tolerance_mm too, where the field is ~0)
+                field, fitted = residual_field(a, ring, index, T_cam_bin), True
+                if field is not None:
+                    reach = np.abs(field.predicted_mm(a, cand[beyond])) >= params.max_tolerance_mm - COHERENCE_MM
+                    reaches = np.bincount(lab, reach, int(lab.max()) + 1) > 0
+                    off[np.flatnonzero(beyond)] = runs_out[lab] & ~reaches[lab]
         ghosts = int(np.count_nonzero(ghost))
         # coherent, finite: on a surface; but on the bin's only when that surface is where the pose's and
         # the model's error put the bin (the residual field fitted over the ring), not a part's face a few
         # millimetres in front of a wall it leans on
         test = ~ghost & np.isfinite(own)
-        off = np.zeros(len(cand), bool)
         if test.any():
-            field = residual_field(a, ring, index, T_cam_bin)
+            if not fitted:
+                field = residual_field(a, ring, index, T_cam_bin)
             if field is not None:
                 off[test] = ~field.fits(a, cand[test])
         off_surface = int(np.count_nonzero(off))

@@ -408,6 +408,29 @@ def test_a_part_leaning_on_a_wall_is_not_bin_left_behind(model, filled):
     assert check.flagged and check.value == len(face) and check.off_surface == 0
 
 
+def test_a_part_face_curving_away_from_a_wall_is_not_bin_left_behind(model, filled):
+    # a sphere leaning on a wall: its face runs from a few millimetres in front of the wall out beyond
+    # max_tolerance_mm (8 mm); the clump beyond it has neighbours at 7.5 mm, "a surface running out to
+    # there", which counted as a tilted rim's far end: the residual field reaches nowhere near 8 mm there
+    xyz, fp, ring = filled
+    T = pose()
+    wall = on_inner_wall(xyz, ring, T, 25.0)
+    r0, c0 = np.argwhere(wall)[np.count_nonzero(wall) // 2]
+    face = rim_block(wall, r0 - 3, c0 - 3, 7)
+    rows, cols = np.divmod(face, ring.shape[1])
+    rank = rows - rows.min() if np.ptp(rows) >= np.ptp(cols) else cols - cols.min()  # across the wall's strip
+    moved = xyz.copy().reshape(-1, 3)
+    x = moved[face, 0] - T[0, 3]
+    moved[face, 0] -= (np.sign(x) * (0.0045 + 0.0015 * rank)).astype(np.float32)
+    moved = moved.reshape(xyz.shape)
+    r, old, new = run_with_model(model, moved, fp, ring, T)
+    far = 4.5 + 1.5 * rank > 8.0
+    assert far.sum() >= 5 and r.zone.reshape(-1)[face].all()
+    assert old.flagged
+    assert not new.flagged and new.value == 0, new.reason
+    assert new.off_surface >= np.count_nonzero(far & old.offending.reshape(-1)[face]) > 0
+
+
 @pytest.mark.parametrize("dx_mm, dz_mm, tilt_deg", [(0.5, 0.0, 0.0), (0.0, 3.0, 0.0), (2.0, 1.0, 0.0),
                                                     (5.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, 5.0)])
 def test_bin_left_behind_by_a_pose_error_lies_on_the_residual_field(model, filled, dx_mm, dz_mm, tilt_deg):
