@@ -209,6 +209,29 @@ def study(d: Path, sensor: str, pile: str, kind: str, size: str, frames: int) ->
 SIDE_K = (3.0, 4.0, 6.0)
 
 
+def check_rows(d: Path, sensor: str, pile: str, kind: str, size: str, frames: int) -> list[dict]:
+    """The bin check of each frame at the registered and the true pose (the log's exact model): flagged,
+    counted, and the pixels the residual field left out (``BinCheck.off_surface``: counted before it)."""
+    log = log_path(d, sensor, pile, kind, size, frames)
+    model = bin_model_for(LogReader(log), None).model
+    session = ReplaySession.open(log, bin_model=model, overrides=cli_layer(methods="zcut"))
+    poses = true_poses_of(session.reader.metadata)
+    rows = []
+    for frame in session.reader.frames():
+        loc = locate_bin(frame, session.config, bin_model=session.prepared, seed=session.seed)
+        assert loc.registration is not None
+        true = dataclasses.replace(loc, registration=dataclasses.replace(
+            loc.registration, T_cam_bin=poses[frame.stamp_ns], converged=True))
+        for pose, lo in (("registered", loc), ("true", true)):
+            c = run_frame(frame, session.config, bin_model=session.prepared, located=lo).bin_check
+            assert c is not None
+            rows.append({"sensor": sensor, "pile": pile, "kind": kind, "frame": frame.index, "pose": pose,
+                         "flagged": bool(c.flagged), "value": float(c.value), "off_surface": int(c.off_surface),
+                         "previous": bool(c.flagged or c.value + c.off_surface > c.threshold),
+                         "reason": c.reason[:160]})
+    return rows
+
+
 def truth_depth(log: Path, frame) -> np.ndarray | None:
     """(H, W) float64: the frame's ``/ground_truth/depth`` (the centre ray's first hit, z in metres)."""
     from mcap.reader import make_reader
@@ -461,11 +484,28 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=2)
     ap.add_argument("--dir", default="/tmp/zcut_wall_recall")
     ap.add_argument("--side", action="store_true", help="only the side test's table (issue 31 item 2)")
+    ap.add_argument("--check", action="store_true", help="only the bin check's flags (issue 31 item 1)")
     args = ap.parse_args()
     d = Path(args.dir)
     d.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     rows: list[dict] = []
+    if args.check:
+        for sensor in args.sensors.split(","):
+            for pile in args.piles.split(","):
+                for kind in args.kinds.split(","):
+                    rows += check_rows(d, sensor, pile, kind, args.size, args.frames)
+        print("\n| generator | pile | frame-poses | flagged: previous | flagged: new | pixels left out by the field |")
+        print("|---|---|---|---|---|---|")
+        for sensor, pile in sorted({(r["sensor"], r["pile"]) for r in rows}):
+            sel = [r for r in rows if (r["sensor"], r["pile"]) == (sensor, pile)]
+            print(f"| {sensor} | {pile} | {len(sel)} | {sum(r['previous'] for r in sel)} | "
+                  f"{sum(r['flagged'] for r in sel)} | {sum(r['off_surface'] for r in sel)} |")
+        for r in rows:
+            if r["flagged"]:
+                print(f"- flagged: {r['sensor']} {r['pile']} {r['kind']} frame {r['frame']} {r['pose']}: {r['reason']}")
+        print(f"\n{time.perf_counter() - t0:.0f} s, {cpu_seconds():.0f} CPU-s")
+        return 0
     if args.side:
         for sensor in args.sensors.split(","):
             for pile in args.piles.split(","):
