@@ -26,11 +26,11 @@ its signed residual within ``COHERENCE_MM`` of the residual field a small pose e
 slightly different size make over the whole ring (:func:`residual_field`, seven numbers fitted to the
 ring's residuals). Bin left behind by a pose or a model a little off lies on that field; the face of a
 part leaning on an upper wall, a few millimetres in front of it and coherent with its neighbours, does
-not. A pixel off the field at its nearest model point still counts when it lies on the
-plane of another face of the model near it, or when the model has no point on its line of sight
-(:meth:`ResidualField.faces`): over a gap of the model (a wall a few empty scans did not see) the
-nearest model point is on another face, the rim's top straight above, and the model has nothing there
-to judge the pixel by; a part's face in front of a wall has the wall's model behind it (issue 31: on piles heaped against a wall the check counted 14–39 such pixels a frame and flagged
+not. A pixel off the field at its nearest model point still counts when the model has no
+point on its line of sight (:meth:`ResidualField.modelled`): over a gap of the model (a wall a few empty
+scans did not see) the nearest model point is on another face, the rim's top straight above, and the
+model has nothing there to judge the pixel by; a part's face in front of a wall has the wall's model
+behind it (issue 31: on piles heaped against a wall the check counted 14–39 such pixels a frame and flagged
 every hand-made walls frame; ``docs/bin_robustness.md``). Pixels beyond ``max_tolerance_mm`` of the model (no residual) are judged by clumps: a
 clump counts when the surface around it runs out to that distance (a neighbour's residual within
 ``COHERENCE_MM`` of it: the far end of a rim tilted by 2°); a ghost cluster above the rim, ringed by
@@ -107,9 +107,8 @@ class BinCheck:
         (:func:`residual_field`) by more than ``COHERENCE_MM`` (the face of a part leaning on a wall,
         a few millimetres in front of it), or, beyond ``max_tolerance_mm`` of the model in a clump
         whose surface runs out to there, the field does not reach that far at the clump (a part's
-        face curving away from the wall); never when it lies on the plane of a model face near it or the
-        model has no point on its line of sight (a gap of the model, :meth:`ResidualField.faces`); 0
-        without a model or when the model has no normals.
+        face curving away from the wall); never when the model has no point on its line of sight (a gap
+        of the model, :meth:`ResidualField.modelled`); 0 without a model or when the model has no normals.
     ring : (H, W) bool ndarray or None
         The certain bin pixels the check looked at; None when the bin stages failed.
     """
@@ -128,13 +127,7 @@ class BinCheck:
 FIELD_TRIMS = 3
 #: ... and needs at least this many certain bin pixels with a model point within ``max_tolerance_mm``.
 FIELD_MIN_PX = 50
-#: A pixel off the field at its nearest model point may still lie on another face's plane near it (a gap of
-#: the model): the faces looked at are those of the model thinned to one point per cell of this size (mm),
-#: the ``FACE_POINTS`` nearest within ``FACE_REACH_MM``: about 25 mm of a wall around the pixel.
-FACE_CELL_MM = 6.0
-FACE_POINTS = 64
-FACE_REACH_MM = 30.0
-#: ... and the model covers a pixel when one of its points is seen within this many pixel pitches of the
+#: The model covers a pixel when one of its points is seen within this many pixel pitches of the
 #: pixel's line of sight (a model built from scans at the frame's size has about one point per pixel).
 COVER_PITCHES = 2.0
 
@@ -239,52 +232,29 @@ class ResidualField:
         out[ok] = 1000.0 * (_design(p, model.normals[j], self.centre) @ self.coef)
         return out
 
-    def faces(self, xyz: XYZ, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(on_plane, modelled)``, (M,) bool each, of the pixels off the field at their nearest model point.
-
-        The faces looked at are the model thinned to one point per :data:`FACE_CELL_MM` cell, the
-        :data:`FACE_POINTS` nearest within :data:`FACE_REACH_MM`. *on_plane*: the pixel lies within
-        ``COHERENCE_MM`` of the field-corrected tangent plane of one of them (a gap in a face the model
-        has around it: the wall's plane beside the gap runs through the pixel). *modelled*: the model has
-        a point on the pixel's line of sight, in front of the pixel or behind it (within
-        :data:`COVER_PITCHES` pixel pitches): where it has none, the model has nothing there to judge the
-        pixel by (a wall two empty scans did not see at all, whose pixels' nearest model points are the
-        rim's top above them), and the pixel counts as before. The face of a part in front of a wall is
-        modelled (the wall behind it is on its line of sight) and lies on no face's plane."""
+    def modelled(self, xyz: XYZ, pixels: np.ndarray) -> np.ndarray:
+        """(M,) bool: the model has a point on the pixel's line of sight, in front of the pixel or behind
+        it (seen within :data:`COVER_PITCHES` pixel pitches of it). Where it has none the model has nothing
+        there to judge the pixel by: a wall a few empty scans did not see (a ray-traced 320 x 200 model from
+        two scans lacks a whole upper wall, whose pixels' nearest model points are the rim's top above
+        them); the face of a part in front of a wall has the wall's model behind it. True where the point
+        is not finite."""
         a = np.asarray(xyz)
         flat = np.asarray(pixels, dtype=np.int64)
-        on_plane = np.zeros(len(flat), bool)
-        modelled = np.ones(len(flat), bool)
+        out = np.ones(len(flat), bool)
         model = self.index.model
         pts = a.reshape(-1, 3)[flat].astype(np.float64)
         ok = np.isfinite(pts).all(axis=1)
-        if not ok.any() or model.normals is None or len(model.points) == 0:
-            return on_plane, modelled
+        if not ok.any() or len(model.points) == 0:
+            return out
         from scipy.spatial import cKDTree
 
-        cell = FACE_CELL_MM / 1000.0
-        _, first = np.unique(np.floor(model.points / cell).astype(np.int64), axis=0, return_index=True)
-        mp, mn = model.points[first], model.normals[first]
-        p = (pts[ok] - self.T[:3, 3]) @ self.T[:3, :3]
-        k = min(FACE_POINTS, len(mp))
-        d, j = cKDTree(mp).query(p, k=k, distance_upper_bound=FACE_REACH_MM / 1000.0)
-        d, j = d.reshape(len(p), k), j.reshape(len(p), k)
-        found = np.isfinite(d)
-        jj = np.where(found, j, 0)
-        n = mn[jj]  # (M, k, 3)
-        r = np.einsum("mkc,mkc->mk", p[:, None, :] - mp[jj], n)
-        q = p[:, None, :] - self.centre
-        pred = (np.einsum("mkc,c->mk", n, self.coef[:3]) + np.einsum("mkc,c->mk", np.cross(q, n), self.coef[3:6])
-                + self.coef[6] * np.einsum("mkc,mkc->mk", n, q))
-        on_plane[ok] = (found & (np.abs(r - pred) <= COHERENCE_MM / 1000.0)).any(axis=1)
-        # modelled: a model point (in the camera frame) seen within COVER_PITCHES pixel pitches of the
-        # pixel's line of sight, in front of it or behind it
         cam = model.points @ self.T[:3, :3].T + self.T[:3, 3]
         rays = cam / np.linalg.norm(cam, axis=1, keepdims=True)
         mine = pts[ok] / np.linalg.norm(pts[ok], axis=1, keepdims=True)
         hit = cKDTree(rays).query(mine, k=1, distance_upper_bound=COVER_PITCHES * _pixel_pitch(a))[0]
-        modelled[ok] = np.isfinite(hit)
-        return on_plane, modelled
+        out[ok] = np.isfinite(hit)
+        return out
 
     def fits(self, xyz: XYZ, pixels: np.ndarray) -> np.ndarray:
         """(M,) bool: the pixel lies on the field, within ``COHERENCE_MM`` (True where it has no residual:
@@ -429,8 +399,7 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
                 field, fitted = residual_field(a, ring, index, T_cam_bin), True
                 if field is not None:
                     reach = np.abs(field.predicted_mm(a, cand[beyond])) >= params.max_tolerance_mm - COHERENCE_MM
-                    on_plane, modelled = field.faces(a, cand[beyond])
-                    reach |= on_plane | ~modelled  # over a gap of the model
+                    reach |= ~field.modelled(a, cand[beyond])  # over a gap of the model
                     reaches = np.bincount(lab, reach, int(lab.max()) + 1) > 0
                     off[np.flatnonzero(beyond)] = runs_out[lab] & ~reaches[lab]
         ghosts = int(np.count_nonzero(ghost))
@@ -445,8 +414,7 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
                 at = np.flatnonzero(test)
                 miss = ~field.fits(a, cand[at])
                 at = at[miss]
-                on_plane, modelled = field.faces(a, cand[at])
-                off[at] = ~on_plane & modelled  # over a gap of the model: it counts, as before
+                off[at] = field.modelled(a, cand[at])  # over a gap of the model: it counts, as before
         off_surface = int(np.count_nonzero(off))
         offending = offending.copy()
         offending.reshape(-1)[cand[ghost | off]] = False

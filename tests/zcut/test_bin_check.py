@@ -434,15 +434,17 @@ def test_a_part_face_curving_away_from_a_wall_is_not_bin_left_behind(model, fill
 def test_bin_over_a_gap_of_the_model_still_counts(model, filled):
     # a model from a few empty scans misses patches of the walls (the ray-traced sensor's shadows: 8 of 12
     # frames of a 2-scan model at 320 x 200 left wall pixels 5-24 mm from the model in the zone). Over the
-    # gap the nearest model point is on another face (here the wall's outer face, 8 mm away) and its
-    # residual is off the field: the model cannot say there, and the pixels count as bin left behind
+    # gap the nearest model point is on another face (the rim's top, the floor's) and its
+    # residual is off the field, and the model has nothing on their line of sight: they count as bin left
+    # behind. A model from scans holds only what the camera sees (here: no outer face behind the wall)
     xyz, fp, ring = filled
     T = pose()
+    seen = np.einsum("ij,ij->i", -T[:3, :3].T @ T[:3, 3] - model.points, model.normals) > 0
     x_in, top = ps.HALF[0] - ps.WALL, ps.RIM_Z
     y0 = float(np.median((xyz.reshape(-1, 3)[on_inner_wall(xyz, ring, T, 25.0).reshape(-1)] - T[:3, 3])[:, 1]))
     pts = model.points
     hole = (np.abs(pts[:, 0] - x_in) < 1e-4) & (np.abs(pts[:, 1] - y0) < 0.015) & (pts[:, 2] < top + 0.03)
-    gappy = BinModel(pts[~hole], model.normals[~hole], model.spacing_m)
+    gappy = BinModel(pts[seen & ~hole], model.normals[seen & ~hole], model.spacing_m)
     r, old, new = run_with_model(gappy, xyz, fp, ring, T)
     assert hole.sum() > 500 and old.flagged and old.value > 5
     assert new.flagged and new.off_surface == 0 and new.value == old.value - new.ghosts > 5, new.reason
