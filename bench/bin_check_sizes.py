@@ -67,8 +67,9 @@ KINDS = ("rods", "spheres", "zinc_nuts")
 #: was looked at on (the failing test's seed 4 and the first study's 9101); "report": seen once.
 SEEDS = {"tuning": {"handmade": (4, 4), "raytraced": (9101, 9111)},
          "report": {"handmade": (7301, 7311), "raytraced": (9301, 9311)}}
-#: piles leaning on the walls: the seed of kind k is base + k (k its index in KINDS); "tuning": the frames the
-#: residual field was looked at on (hand-made 8651-8652 at 480 x 300), "report": seen once
+#: piles leaning on the walls: the seed of kind k is base + k (k its index in KINDS); "tuning": seeds of their
+#: own (the residual field was looked at on hand-made walls logs of zinc nuts 8651 and spheres 8652 made by
+#: hand at 480 x 300), "report": see docs/bin_robustness.md for which report rows were looked at
 WALL_SEEDS = {"tuning": {"handmade": 8650, "raytraced": 9650}, "report": {"handmade": 7320, "raytraced": 9320}}
 WALL_KINDS = ("spheres", "zinc_nuts")
 EMPTY_SCANS = 2  # the failing test's: the coarsest model a user would build (--scans 5: zcut synth --empty's series)
