@@ -215,6 +215,10 @@ def row_of(kind, frame, result, study, condition, mode, *, surface=None, cpu=Non
            "stamp_ns": frame.stamp_ns, **counts(frame, result),
            "check": None if bc is None or not np.isfinite(bc.value) else bc.value,
            "flagged": bool(result.bin_flagged), "reason": "" if bc is None else bc.reason[:160],
+           # the check before issue 31's residual field: its count plus the candidates the field left out
+           "prev_flagged": bool(result.bin_flagged) if bc is None or not np.isfinite(bc.value) else bool(
+               bc.flagged or bc.value + bc.off_surface > bc.threshold),
+           "off_surface": 0 if bc is None else int(bc.off_surface),
            "tolerance_mm": None if rem is None or not np.isfinite(rem.tolerance_mm) else rem.tolerance_mm,
            "removal_cpu_s": cpu}
     if surface is not None and rem is not None:
@@ -361,17 +365,20 @@ def condition_table(rows, conds, label) -> list[str]:
 
 
 def flag_table(rows) -> list[str]:
-    out = ["| mode | frames | dropped (F1 > 10 % below) | flagged of those | not dropped | flagged of those |",
-           "|---|---|---|---|---|---|"]
+    out = ["| mode | frames | dropped (F1 > 10 % below) | flagged of those | not dropped | flagged of those | "
+           "the check before the residual field: flagged of the dropped, of the others |",
+           "|---|---|---|---|---|---|---|"]
     for mode in MODES:
         sel = [r for r in rows if r["mode"] == mode and r["condition"] != "true pose" and r["judged"]]
         d = [r for r in sel if r["dropped"]]
         n = [r for r in sel if not r["dropped"]]
 
-        def rate(xs):
-            return f"{sum(r['flagged'] for r in xs)} ({100 * sum(r['flagged'] for r in xs) / max(len(xs), 1):.1f} %)"
+        def rate(xs, key="flagged"):
+            k = sum(r.get(key, r["flagged"]) for r in xs)
+            return f"{k} ({100 * k / max(len(xs), 1):.1f} %)"
 
-        out.append(f"| {mode} | {len(sel)} | {len(d)} | {rate(d)} | {len(n)} | {rate(n)} |")
+        out.append(f"| {mode} | {len(sel)} | {len(d)} | {rate(d)} | {len(n)} | {rate(n)} | "
+                   f"{rate(d, 'prev_flagged')}, {rate(n, 'prev_flagged')} |")
     return out
 
 
