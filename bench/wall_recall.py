@@ -203,6 +203,166 @@ def study(d: Path, sensor: str, pile: str, kind: str, size: str, frames: int) ->
     return rows
 
 
+# ---- the side test (issue 31 item 2) ----------------------------------------------------------------
+
+#: the side test's thresholds, in robust sigmas of the wall's own inward residuals
+SIDE_K = (3.0, 4.0, 6.0)
+
+
+def check_rows(d: Path, sensor: str, pile: str, kind: str, size: str, frames: int) -> list[dict]:
+    """The bin check of each frame at the registered and the true pose (the log's exact model): flagged,
+    counted, and the pixels the residual field left out (``BinCheck.off_surface``: counted before it)."""
+    log = log_path(d, sensor, pile, kind, size, frames)
+    model = bin_model_for(LogReader(log), None).model
+    session = ReplaySession.open(log, bin_model=model, overrides=cli_layer(methods="zcut"))
+    poses = true_poses_of(session.reader.metadata)
+    rows = []
+    for frame in session.reader.frames():
+        loc = locate_bin(frame, session.config, bin_model=session.prepared, seed=session.seed)
+        assert loc.registration is not None
+        true = dataclasses.replace(loc, registration=dataclasses.replace(
+            loc.registration, T_cam_bin=poses[frame.stamp_ns], converged=True))
+        for pose, lo in (("registered", loc), ("true", true)):
+            c = run_frame(frame, session.config, bin_model=session.prepared, located=lo).bin_check
+            assert c is not None
+            rows.append({"sensor": sensor, "pile": pile, "kind": kind, "frame": frame.index, "pose": pose,
+                         "flagged": bool(c.flagged), "value": float(c.value), "off_surface": int(c.off_surface),
+                         "previous": bool(c.flagged or c.value + c.off_surface > c.threshold),
+                         "reason": c.reason[:160]})
+    return rows
+
+
+def truth_depth(log: Path, frame) -> np.ndarray | None:
+    """(H, W) float64: the frame's ``/ground_truth/depth`` (the centre ray's first hit, z in metres)."""
+    from mcap.reader import make_reader
+
+    from replay.logs import ros2_msgs as rm
+
+    with open(log, "rb") as f:
+        for _s, _c, message in make_reader(f).iter_messages(topics=[layout.TRUTH_DEPTH], start_time=frame.stamp_ns,
+                                                             end_time=frame.stamp_ns + 1):
+            msg = rm.decode_image(message.data, where=layout.TRUTH_DEPTH)
+            if msg.stamp_ns == frame.stamp_ns and (msg.height, msg.width) == frame.xyz.shape[:2]:
+                return np.frombuffer(bytes(msg.data), dtype="<f4").reshape(msg.height, msg.width).astype(np.float64)
+    return None
+
+
+def side_rows(d: Path, sensor: str, pile: str, kind: str, size: str, frames: int) -> list[dict]:
+    """Per frame (registered pose): how far in front of their wall (towards the bin's inside) the true
+    outliers the removal labelled bin lie, in units of that wall's own noise, and what a side test at
+    k robust sigmas would save and free.
+
+    Each pixel's signed residual to the tangent plane of its nearest model point
+    (:func:`zcut.bin_check.signed_residuals`), turned positive towards the bin's inside; per wall face
+    (the nearest model point's normal: +x, -x, +y, -y), the median and robust sigma (1.4826 × MAD) of
+    the face's inlier pixels the removal labelled bin. A side test "a point more than k sigmas in front of
+    its wall is not bin" would *save* the near outliers labelled bin beyond it and *free* (leave in the
+    zone) the inlier wall pixels beyond it, of which those in the ring (the rim and upper walls, the zone's
+    top when left) flag the frame and cost the z-cut its F1 (``docs/bin_robustness.md``).
+    """
+    cache = d / f"side_{sensor}_{pile}_{kind}_{size}_{frames}f.json"
+    if cache.is_file():
+        return json.loads(cache.read_text())
+    from zcut.bin_check import signed_residuals
+
+    log = log_path(d, sensor, pile, kind, size, frames)
+    model = bin_model_for(LogReader(log), None).model
+    assert model is not None and model.normals is not None, f"{log.name}: no bin model with normals"
+    session = ReplaySession.open(log, bin_model=model, overrides=cli_layer(methods="zcut"))
+    assert session.prepared is not None
+    poses = true_poses_of(session.reader.metadata)
+    lo, hi = model.points.min(axis=0), model.points.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    rows = []
+    for frame in session.reader.frames():
+        cfg, pm = session.config, session.prepared
+        loc = locate_bin(frame, cfg, bin_model=pm, seed=session.seed)
+        r = run_frame(frame, cfg, bin_model=pm, located=loc)
+        assert r.removal is not None and loc.registration is not None
+        T = loc.registration.T_cam_bin
+        dist, inside = wall_mm(frame.xyz, poses[frame.stamp_ns])
+        truth = frame.masks[layout.TRUTH_OUTLIERS] & r.valid
+        binp = r.removal.bin_points
+        flat = np.flatnonzero(binp)
+        res, p, n = signed_residuals(frame.xyz, flat, pm.removal, T)
+        ok = np.isfinite(res) & (np.abs(n[:, 2]) < 0.5)  # on a wall: the normal horizontal
+        flat, res, p, n = flat[ok], res[ok], p[ok], n[ok]
+        inward = np.sign(np.einsum("ij,ij->i", n[:, :2], centre[:2] - p[:, :2]))
+        e = 1000.0 * res * inward  # mm, positive in front of the wall (towards the bin's inside)
+        face = np.where(np.abs(n[:, 0]) > np.abs(n[:, 1]), np.where(n[:, 0] > 0, 0, 1), np.where(n[:, 1] > 0, 2, 3))
+        is_out = truth.reshape(-1)[flat]
+        depth = truth_depth(log, frame)
+        assert depth is not None, f"{log.name}: no {layout.TRUTH_DEPTH}"
+        z_meas = frame.xyz.reshape(-1, 3)[flat, 2].astype(np.float64)
+        true_pts = frame.xyz.reshape(-1, 3)[flat].astype(np.float64) * (depth.reshape(-1)[flat] / z_meas)[:, None]
+        tr = np.full(len(flat), np.nan)
+        okt = np.isfinite(true_pts).all(axis=1)
+        tb = (true_pts[okt] - T[:3, 3]) @ T[:3, :3]
+        dd, jj = pm.removal.tree.query(tb, k=1, distance_upper_bound=0.008)
+        fnd = np.isfinite(dd)
+        trr = np.full(len(tb), np.inf)
+        trr[fnd] = 1000.0 * np.abs(np.einsum("ij,ij->i", tb[fnd] - model.points[jj[fnd]], model.normals[jj[fnd]]))
+        tr[okt] = trr
+        on_bin = ~is_out & (tr <= 0.5)  # the truth's point lies on the bin: wall pixels
+        on_part = ~is_out & ~(tr <= 2.0)  # off it: a part the removal took
+        near = is_out & (dist.reshape(-1)[flat] <= NEAR_MM) & inside.reshape(-1)[flat]
+        ring = loc.ring.reshape(-1)[flat] if loc.ring is not None else np.zeros(len(flat), bool)
+        z = np.full(len(flat), np.nan)
+        sig = {}
+        for f in range(4):
+            w = (face == f) & on_bin
+            if np.count_nonzero(w) < 50:
+                continue
+            med = float(np.median(e[w]))
+            s = 1.4826 * float(np.median(np.abs(e[w] - med)))
+            sig[f] = (med, s, int(np.count_nonzero(w)))
+            z[face == f] = (e[face == f] - med) / max(s, 1e-6)
+        row = {"sensor": sensor, "pile": pile, "kind": kind, "frame": frame.index,
+               "sigma_mm": [sig[f][1] for f in sorted(sig)], "wall_px": int(np.count_nonzero(on_bin & np.isfinite(z))),
+               "part_px": int(np.count_nonzero(on_part & np.isfinite(z))),
+               "near_bin": int(np.count_nonzero(near & np.isfinite(z))),
+               "wall_e_mm": [float(x) for x in np.percentile(e[on_bin & np.isfinite(z)], (99, 99.9, 100))]
+               if (on_bin & np.isfinite(z)).any() else [],
+               "near_e_mm": [float(x) for x in np.percentile(e[near], (10, 50, 90))] if near.any() else [],
+               "near_z": [float(x) for x in np.percentile(z[near & np.isfinite(z)], (10, 50, 90))]
+               if (near & np.isfinite(z)).any() else []}
+        for k in SIDE_K:
+            beyond = np.isfinite(z) & (z > k)
+            row[f"k{k:g}"] = {"saved": int(np.count_nonzero(beyond & near)),
+                              "freed": int(np.count_nonzero(beyond & on_bin)),
+                              "freed_ring": int(np.count_nonzero(beyond & on_bin & ring)),
+                              "parts": int(np.count_nonzero(beyond & on_part))}
+        rows.append(row)
+        print(f"  side: {sensor} {pile} {kind} frame {frame.index} done", flush=True)
+    cache.write_text(json.dumps(rows))
+    return rows
+
+
+def side_table(rows: list[dict]) -> list[str]:
+    out = ["| generator | pile | frames | wall's own sigma mm (per face, median; range) | wall px labelled bin | "
+           "part px labelled bin | near outliers labelled bin | their distance in front of the wall mm p10/p50/p90 | "
+           "in wall sigmas p10/p50/p90 | the wall px in front of it mm p99/p99.9/max | "
+           + " | ".join(f"k = {k:g}: outliers saved / wall px freed (in the ring) / part px freed" for k in SIDE_K)
+           + " |",
+           "|---|---|---|---|---|---|---|---|---|---|" + "---|" * len(SIDE_K)]
+    for sensor, pile in sorted({(r["sensor"], r["pile"]) for r in rows}, key=lambda k: (k[0], k[1] != "walls")):
+        sel = [r for r in rows if (r["sensor"], r["pile"]) == (sensor, pile)]
+        sig = [s for r in sel for s in r["sigma_mm"]]
+        e = "; ".join("/".join(f"{x:.1f}" for x in r["near_e_mm"]) for r in sel if r["near_e_mm"])
+        zz = "; ".join("/".join(f"{x:.0f}" for x in r["near_z"]) for r in sel if r["near_z"])
+        cells = []
+        for k in SIDE_K:
+            a = [r[f"k{k:g}"] for r in sel]
+            cells.append(f"{sum(x['saved'] for x in a)} / {sum(x['freed'] for x in a)} "
+                         f"({sum(x['freed_ring'] for x in a)}) / {sum(x['parts'] for x in a)}")
+        out.append(f"| {sensor} | {pile} | {len(sel)} | {np.median(sig):.3f}; {min(sig):.3f}–{max(sig):.3f} | "
+                   f"{sum(r['wall_px'] for r in sel)} | {sum(r['part_px'] for r in sel)} | "
+                   f"{sum(r['near_bin'] for r in sel)} | {e or '–'} | {zz or '–'} | "
+                   f"{'; '.join('/'.join(f'{x:.2f}' for x in r['wall_e_mm']) for r in sel if r['wall_e_mm']) or '–'} | "
+                   + " | ".join(cells) + " |")
+    return out
+
+
 # ---- tables ---------------------------------------------------------------------------------------
 
 
@@ -323,11 +483,38 @@ def main() -> int:
     ap.add_argument("--size", default="480x300")
     ap.add_argument("--frames", type=int, default=2)
     ap.add_argument("--dir", default="/tmp/zcut_wall_recall")
+    ap.add_argument("--side", action="store_true", help="only the side test's table (issue 31 item 2)")
+    ap.add_argument("--check", action="store_true", help="only the bin check's flags (issue 31 item 1)")
     args = ap.parse_args()
     d = Path(args.dir)
     d.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     rows: list[dict] = []
+    if args.check:
+        for sensor in args.sensors.split(","):
+            for pile in args.piles.split(","):
+                for kind in args.kinds.split(","):
+                    rows += check_rows(d, sensor, pile, kind, args.size, args.frames)
+        print("\n| generator | pile | frame-poses | flagged: previous | flagged: new | pixels left out by the field |")
+        print("|---|---|---|---|---|---|")
+        for sensor, pile in sorted({(r["sensor"], r["pile"]) for r in rows}):
+            sel = [r for r in rows if (r["sensor"], r["pile"]) == (sensor, pile)]
+            print(f"| {sensor} | {pile} | {len(sel)} | {sum(r['previous'] for r in sel)} | "
+                  f"{sum(r['flagged'] for r in sel)} | {sum(r['off_surface'] for r in sel)} |")
+        for r in rows:
+            if r["flagged"]:
+                print(f"- flagged: {r['sensor']} {r['pile']} {r['kind']} frame {r['frame']} {r['pose']}: {r['reason']}")
+        print(f"\n{time.perf_counter() - t0:.0f} s, {cpu_seconds():.0f} CPU-s")
+        return 0
+    if args.side:
+        for sensor in args.sensors.split(","):
+            for pile in args.piles.split(","):
+                for kind in args.kinds.split(","):
+                    rows += side_rows(d, sensor, pile, kind, args.size, args.frames)
+        print("\n### The side test (registered pose)\n")
+        print("\n".join(side_table(rows)))
+        print(f"\n{time.perf_counter() - t0:.0f} s, {cpu_seconds():.0f} CPU-s (this run; cached parts cost none)")
+        return 0
     for sensor in args.sensors.split(","):
         for pile in args.piles.split(","):
             for kind in args.kinds.split(","):

@@ -21,7 +21,17 @@ residual to the model is finite (within ``max_tolerance_mm``) and coherent with 
 left behind — by a pose a little off, a model with a hole — lies on the surface its neighbours
 form, and counts; a sensor's ghost floating above the rim or a mixed pixel along its edge (the
 ray-traced sensor's shiny frames have hundreds on the rim, in clusters) lies millimetres off it, and
-does not. Pixels beyond ``max_tolerance_mm`` of the model (no residual) are judged by clumps: a
+does not. A coherent pixel counts only when it lies, too, on the surface the registered bin forms:
+its signed residual within ``COHERENCE_MM`` of the residual field a small pose error and a model of a
+slightly different size make over the whole ring (:func:`residual_field`, seven numbers fitted to the
+ring's residuals). Bin left behind by a pose or a model a little off lies on that field; the face of a
+part leaning on an upper wall, a few millimetres in front of it and coherent with its neighbours, does
+not. A pixel off the field at its nearest model point still counts when the model has no
+point on its line of sight (:meth:`ResidualField.modelled`): over a gap of the model (a wall a few empty
+scans did not see) the nearest model point is on another face, the rim's top straight above, and the
+model has nothing there to judge the pixel by; a part's face in front of a wall has the wall's model
+behind it (issue 31: on piles heaped against a wall the check counted 14–39 such pixels a frame and flagged
+every hand-made walls frame; ``docs/bin_robustness.md``). Pixels beyond ``max_tolerance_mm`` of the model (no residual) are judged by clumps: a
 clump counts when the surface around it runs out to that distance (a neighbour's residual within
 ``COHERENCE_MM`` of it: the far end of a rim tilted by 2°); a ghost cluster above the rim, ringed by
 pixels that fit the model or by other ghosts, does not (counting clumps with nothing finite around
@@ -51,6 +61,7 @@ from .params import RemovalParams
 from .removal import (
     COHERENCE_MM,
     MAX_FAR_SHARE,
+    MAX_RESIDUAL_PX,
     RemovalIndex,
     RemovalResult,
     coherent_residuals,
@@ -59,7 +70,7 @@ from .removal import (
 )
 from .types import XYZ, Mask
 
-__all__ = ["BinCheck", "check_bin_removal", "failed_bin_check"]
+__all__ = ["BinCheck", "ResidualField", "check_bin_removal", "failed_bin_check", "residual_field", "signed_residuals"]
 
 #: What a user should do about a flagged frame, by cause.
 ADVICE_LEAK = ("the bin model does not fit this frame's bin: look at image/bin_check in Rerun (zcut replay "
@@ -90,6 +101,14 @@ class BinCheck:
     ghosts : int
         Candidates (certain bin pixels left in the band or above the rim) not counted: their residual
         to the model is not coherent with their neighbours' (a sensor's ghosts); 0 without a model.
+    off_surface : int
+        Candidates not counted because, coherent with their neighbours, they lie off the surface the
+        registered bin forms: their signed residual misses the ring's residual field
+        (:func:`residual_field`) by more than ``COHERENCE_MM`` (the face of a part leaning on a wall,
+        a few millimetres in front of it), or, beyond ``max_tolerance_mm`` of the model in a clump
+        whose surface runs out to there, the field does not reach that far at the clump (a part's
+        face curving away from the wall); never when the model has no point on its line of sight (a gap
+        of the model, :meth:`ResidualField.modelled`); 0 without a model or when the model has no normals.
     ring : (H, W) bool ndarray or None
         The certain bin pixels the check looked at; None when the bin stages failed.
     """
@@ -101,6 +120,189 @@ class BinCheck:
     offending: Mask | None = None
     ring: Mask | None = None
     ghosts: int = 0
+    off_surface: int = 0
+
+
+#: The residual field's fit is trimmed this many times (each keeps the rows within 3 robust sigmas).
+FIELD_TRIMS = 3
+#: ... and needs at least this many certain bin pixels with a model point within ``max_tolerance_mm``.
+FIELD_MIN_PX = 50
+#: The model covers a pixel when one of its points is seen within this many pixel pitches of the
+#: pixel's line of sight (a model built from scans at the frame's size has about one point per pixel).
+COVER_PITCHES = 2.0
+
+
+def _pixel_pitch(a: np.ndarray) -> float:
+    """The angle (radians) between the lines of sight of neighbouring pixels of the organized cloud ``a``
+    (the median over a sample of horizontally adjacent pixels with finite points)."""
+    v = a.reshape(-1, 3).astype(np.float64)
+    w = a.shape[1]
+    i = np.arange(0, len(v) - 1, max(1, len(v) // 20_000))
+    i = i[(i % w) < w - 1]
+    p, q = v[i], v[i + 1]
+    ok = np.isfinite(p).all(axis=1) & np.isfinite(q).all(axis=1)
+    if not ok.any():
+        return float("inf")
+    p = p[ok] / np.linalg.norm(p[ok], axis=1, keepdims=True)
+    q = q[ok] / np.linalg.norm(q[ok], axis=1, keepdims=True)
+    return float(np.median(np.linalg.norm(p - q, axis=1)))
+
+
+def signed_residuals(xyz: XYZ, pixels: np.ndarray, index: RemovalIndex,
+                     T_cam_bin: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(r, p, n)`` of the flat ``pixels``: the signed distance (m) of each point to the tangent plane of
+    its nearest model point, along that point's normal (NaN where the point is not finite or no model
+    point lies within ``max_tolerance_mm``), the point in the bin frame (m) and that normal (NaN rows).
+    All NaN when the model has no normals."""
+    a = np.asarray(xyz)
+    flat = np.asarray(pixels, dtype=np.int64)
+    T = np.asarray(T_cam_bin, dtype=np.float64)
+    m = len(flat)
+    r = np.full(m, np.nan)
+    p = np.full((m, 3), np.nan)
+    n = np.full((m, 3), np.nan)
+    model = index.model
+    if m == 0 or len(model.points) == 0 or model.normals is None or index.tree is None:
+        return r, p, n
+    pts = a.reshape(-1, 3)[flat].astype(np.float64)
+    ok = np.isfinite(pts).all(axis=1)
+    p[ok] = (pts[ok] - T[:3, 3]) @ T[:3, :3]
+    d, j = index.tree.query(p[ok], k=1, distance_upper_bound=index.params.max_tolerance_mm / 1000.0)
+    found = np.flatnonzero(ok)[np.isfinite(d)]
+    jj = j[np.isfinite(d)]
+    n[found] = model.normals[jj]
+    r[found] = np.einsum("ij,ij->i", p[found] - model.points[jj], n[found])
+    return r, p, n
+
+
+@dataclass(frozen=True, slots=True)
+class ResidualField:
+    """Where the registered bin's surface lies, seen through the model: the signed residual a small pose
+    error and a model of a slightly different size make at each point of the bin.
+
+    A pose off by a translation ``t`` and a small turn ``ω`` moves a bin point ``p`` by ``t + ω × p``, a
+    model scaled by ``1 + s`` by ``s p``: the point's signed residual along the model's normal ``n`` is
+    ``n·t + ω·(p × n) + s n·p``, seven numbers for the whole bin, fitted (least squares, trimmed to
+    3 robust sigmas :data:`FIELD_TRIMS` times) to the certain bin pixels' signed residuals (a regular
+    subsample of at most :data:`zcut.removal.MAX_RESIDUAL_PX`). A bin pixel the removal left behind —
+    the tail of a pose error the tolerance did not cover, a wall where the model has a hole — lies on
+    that field; the face of a part leaning on a wall, a few millimetres in front of it, does not.
+
+    Attributes
+    ----------
+    coef : (7,) float64 ndarray
+        ``t`` (m), ``ω`` (rad), ``s``, about ``centre``.
+    centre : (3,) float64 ndarray
+        The fitted pixels' mean point (bin frame, m).
+    sigma_mm : float
+        The robust scale (1.4826 × MAD) of the kept pixels' misfit (mm).
+    n_pixels : int
+        Pixels fitted (after the trims).
+    index : RemovalIndex
+    T : (4, 4) float64 ndarray
+        The registered pose.
+    """
+
+    coef: np.ndarray
+    centre: np.ndarray
+    sigma_mm: float
+    n_pixels: int
+    index: RemovalIndex
+    T: np.ndarray
+
+    def misfit_mm(self, xyz: XYZ, pixels: np.ndarray) -> np.ndarray:
+        """(M,) float64: each pixel's signed residual minus the field's there (mm); NaN where the point
+        is not finite or no model point lies within ``max_tolerance_mm``."""
+        r, p, n = signed_residuals(np.asarray(xyz), np.asarray(pixels, dtype=np.int64), self.index, self.T)
+        return 1000.0 * (r - _design(p, n, self.centre) @ self.coef)
+
+    def predicted_mm(self, xyz: XYZ, pixels: np.ndarray) -> np.ndarray:
+        """(M,) float64: the field's signed residual (mm) at each pixel's point, along the normal of its
+        nearest model point however far (NaN where the point is not finite)."""
+        a = np.asarray(xyz)
+        flat = np.asarray(pixels, dtype=np.int64)
+        out = np.full(len(flat), np.nan)
+        pts = a.reshape(-1, 3)[flat].astype(np.float64)
+        ok = np.isfinite(pts).all(axis=1)
+        model = self.index.model
+        if not ok.any() or model.normals is None or self.index.tree is None:
+            return out
+        p = (pts[ok] - self.T[:3, 3]) @ self.T[:3, :3]
+        _, j = self.index.tree.query(p, k=1)
+        out[ok] = 1000.0 * (_design(p, model.normals[j], self.centre) @ self.coef)
+        return out
+
+    def modelled(self, xyz: XYZ, pixels: np.ndarray) -> np.ndarray:
+        """(M,) bool: the model has a point on the pixel's line of sight, in front of the pixel or behind
+        it (seen within :data:`COVER_PITCHES` pixel pitches of it). Where it has none the model has nothing
+        there to judge the pixel by: a wall a few empty scans did not see (a ray-traced 320 x 200 model from
+        two scans lacks a whole upper wall, whose pixels' nearest model points are the rim's top above
+        them); the face of a part in front of a wall has the wall's model behind it. True where the point
+        is not finite."""
+        a = np.asarray(xyz)
+        flat = np.asarray(pixels, dtype=np.int64)
+        out = np.ones(len(flat), bool)
+        model = self.index.model
+        pts = a.reshape(-1, 3)[flat].astype(np.float64)
+        ok = np.isfinite(pts).all(axis=1)
+        if not ok.any() or len(model.points) == 0:
+            return out
+        from scipy.spatial import cKDTree
+
+        cam = model.points @ self.T[:3, :3].T + self.T[:3, 3]
+        rays = cam / np.linalg.norm(cam, axis=1, keepdims=True)
+        mine = pts[ok] / np.linalg.norm(pts[ok], axis=1, keepdims=True)
+        hit = cKDTree(rays).query(mine, k=1, distance_upper_bound=COVER_PITCHES * _pixel_pitch(a))[0]
+        out[ok] = np.isfinite(hit)
+        return out
+
+    def fits(self, xyz: XYZ, pixels: np.ndarray) -> np.ndarray:
+        """(M,) bool: the pixel lies on the field, within ``COHERENCE_MM`` (True where it has no residual:
+        nothing to tell)."""
+        e = self.misfit_mm(xyz, pixels)
+        with np.errstate(invalid="ignore"):
+            return ~(np.abs(e) > COHERENCE_MM)
+
+
+def _design(p: np.ndarray, n: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """(M, 7): the field's columns ``n``, ``(p - centre) × n``, ``n·(p - centre)``."""
+    q = p - centre
+    return np.concatenate([n, np.cross(q, n), np.einsum("ij,ij->i", n, q)[:, None]], axis=1)
+
+
+def residual_field(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray) -> ResidualField | None:
+    """The :class:`ResidualField` of a frame's certain bin pixels ``ring`` at the registered pose.
+
+    None when the model has no normals, when fewer than :data:`FIELD_MIN_PX` of the pixels have a model
+    point within ``max_tolerance_mm``, or when the fit's misfit is too wide to tell a surface
+    ``COHERENCE_MM`` off the bin's (3 robust sigmas beyond it): the residuals then form no such field —
+    a pose several millimetres off, whose nearest model points lie on the wrong faces (the inner wall's
+    pixels nearer the wall's outer face or the rim's top).
+    """
+    a = np.asarray(xyz)
+    T = np.asarray(T_cam_bin, dtype=np.float64)
+    flat = np.flatnonzero(np.asarray(ring, dtype=bool))
+    flat = flat[:: max(1, -(-len(flat) // MAX_RESIDUAL_PX))]
+    r, p, n = signed_residuals(a, flat, index, T)
+    use = np.isfinite(r)
+    if np.count_nonzero(use) < FIELD_MIN_PX:
+        return None
+    r, p, n = r[use], p[use], n[use]
+    centre = p.mean(axis=0)
+    A = _design(p, n, centre)
+    keep = np.ones(len(r), bool)
+    coef = np.zeros(7)
+    sigma = 0.0
+    for _ in range(FIELD_TRIMS + 1):
+        coef = np.linalg.lstsq(A[keep], r[keep], rcond=None)[0]
+        e = r - A @ coef
+        sigma = 1.4826 * float(np.median(np.abs(e[keep] - np.median(e[keep]))))
+        keep = np.abs(e) <= max(3.0 * sigma, 1e-4)
+        if np.count_nonzero(keep) < FIELD_MIN_PX:
+            return None
+    if 3000.0 * sigma > COHERENCE_MM:
+        return None
+    return ResidualField(coef, centre, 1000.0 * sigma, int(np.count_nonzero(keep)), index, T)
 
 
 def _image(shape: tuple[int, ...], flat: np.ndarray) -> Mask:
@@ -167,6 +369,7 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         with np.errstate(invalid="ignore"):
             offending |= ring & zone & (h >= top - float(band_mm))
     ghosts = 0
+    off_surface = 0
     far = 0.0
     if all(given):
         assert xyz is not None and index is not None and T_cam_bin is not None
@@ -181,15 +384,40 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         own, around, coherent = coherent_residuals(a, ring, cand, index, T_cam_bin, neighbours=8)
         ghost = ~coherent  # off the surface its neighbours form
         beyond = np.isinf(own)
+        off = np.zeros(len(cand), bool)
+        field: ResidualField | None = None
+        fitted = False
         if beyond.any():  # beyond max_tolerance_mm: by clumps, bin if the surface around runs out to there
             clumps, _ = ndimage.label(_image(ring.shape, cand[beyond]), structure=np.ones((3, 3), bool))
             lab = clumps.reshape(-1)[cand[beyond]]
             near_reach = np.isfinite(around[beyond]) & (around[beyond] >= params.max_tolerance_mm - COHERENCE_MM)
             runs_out = np.bincount(lab, near_reach, int(lab.max()) + 1) > 0
             ghost[beyond] = ~runs_out[lab]
+            if runs_out.any():
+                # ... and when the bin's surface reaches that far there: the residual field says so (a part's
+                # face curving away from a wall runs out to max_tolerance_mm too, where the field is ~0)
+                field, fitted = residual_field(a, ring, index, T_cam_bin), True
+                if field is not None:
+                    reach = np.abs(field.predicted_mm(a, cand[beyond])) >= params.max_tolerance_mm - COHERENCE_MM
+                    reach |= ~field.modelled(a, cand[beyond])  # over a gap of the model
+                    reaches = np.bincount(lab, reach, int(lab.max()) + 1) > 0
+                    off[np.flatnonzero(beyond)] = runs_out[lab] & ~reaches[lab]
         ghosts = int(np.count_nonzero(ghost))
+        # coherent, finite: on a surface; but on the bin's only when that surface is where the pose's and
+        # the model's error put the bin (the residual field fitted over the ring), not a part's face a few
+        # millimetres in front of a wall it leans on
+        test = ~ghost & np.isfinite(own)
+        if test.any():
+            if not fitted:
+                field = residual_field(a, ring, index, T_cam_bin)
+            if field is not None:
+                at = np.flatnonzero(test)
+                miss = ~field.fits(a, cand[at])
+                at = at[miss]
+                off[at] = field.modelled(a, cand[at])  # over a gap of the model: it counts, as before
+        off_surface = int(np.count_nonzero(off))
         offending = offending.copy()
-        offending.reshape(-1)[cand[ghost]] = False
+        offending.reshape(-1)[cand[ghost | off]] = False
     n = int(np.count_nonzero(offending))
     n_ring = int(np.count_nonzero(ring & np.isfinite(h)))
     threshold = float(params.check_threshold_px)
@@ -203,6 +431,9 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
             where.append(f"{n_easy} called above the rim")
         if ghosts:
             where.append(f"{ghosts} more off the bin's surface, not counted: ghosts")
+        if off_surface:
+            where.append(f"{off_surface} more on a surface off the registered bin's, not counted: parts against "
+                         "a wall")
         tol = f"tolerance {removal.tolerance_mm:.2f} mm"
         if np.isfinite(removal.residual_mm) or removal.residual_mm == np.inf:
             tol += f", residuals {removal.residual_mm:.2f} mm"
@@ -219,4 +450,4 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
     if rim_in_view < params.check_min_rim_in_view:
         reasons.append(f"only {100 * rim_in_view:.0f} % of the bin's rim in the camera's view "
                        f"(< {100 * params.check_min_rim_in_view:.0f} %): {ADVICE_HIDDEN}")
-    return BinCheck(float(n), threshold, bool(reasons), "; ".join(reasons), offending, ring, ghosts)
+    return BinCheck(float(n), threshold, bool(reasons), "; ".join(reasons), offending, ring, ghosts, off_surface)
