@@ -306,8 +306,9 @@ def cross_check(logs, models, rows, d: Path) -> list[str]:
         cfg = d / f"removal_{mode}.toml"
         cfg.write_text(f'[removal]\nmode = "{mode}"\n')
         for kind in KINDS:
+            # the bench scores the sensor's truth (/ground_truth/outliers); accuracy's default is the paper's
             out = json.loads(zcut("accuracy", logs[kind], "--bin-model", models["scans"], "--config", cfg,
-                                  "--json", capture=True))
+                                  "--truth", "sensor", "--json", capture=True))
             for fr in out["frames"]:
                 mine = next(r for r in rows if r["study"] == "pose" and r["condition"] == "registered"
                             and r["mode"] == mode and r["kind"] == kind and r["frame"] == fr["index"])
