@@ -167,7 +167,10 @@ def open_page(
                 raise ParameterError(f"--annotator: {e}") from None
         log = store.add_log(log_path)
         catalogue = Catalogue.of_replay(replay, store, log, focus=focus)
-        catalogue.fitter, fits_note = fitter_for(replay, log_path, catalogue.geometry.points)
+        if focus is None:
+            catalogue.fitter, fits_note = fitter_for(replay, log_path, catalogue.geometry.points)
+        else:  # the review is of a comparison's disagreement alone: no fits, no unexplained proposals
+            fits_note = "no part fits: the page lists only the pixels where the comparison's A and B disagree"
         page = Page(log_path=log_path, store=store, log=log, catalogue=catalogue, token=token or new_token(),
                     annotator=annotator, replay=replay, focus=focus_summary, fits_note=fits_note,
                     assistant=Trainer(catalogue, store, log, part=catalogue.part,
