@@ -4,8 +4,8 @@ Built as the generators build their truth (:mod:`replay.synth.surfaces`): the ha
 exact solids (:func:`replay.synth.surfaces.solid_meshes`; a ball as the 5,120-face icosphere of
 :func:`replay.synth.surfaces.kind_model_mesh`, within 0.008 mm of it), the ray-traced parts' own
 meshes, the bin's CAD mesh at the scan's pose, the table top as the plane z = camera height. Used
-by ``tests/zcut/test_explained.py`` and ``bench/bench_explained.py`` only: the check that the method's
-rule and the paper's truth are one definition.
+by ``tests/zcut/test_explained.py`` and ``bench/bench_explained.py``: the check that the method's
+rule and the paper's truth are one definition; :func:`box_mesh` by the explained tests.
 """
 
 from __future__ import annotations
@@ -63,3 +63,14 @@ def raytraced_true_surfaces(rf: RaytracedFrame, *, seed: int, index: int) -> tup
     b = bin_mesh(pose, BIN)
     return parts, KnownSurfaces(parts=parts, part_err_mm=[float("nan")] * len(parts),
                                 bin_mesh=(_cam(b.vertices), b.triangles), table=_table())
+
+
+def box_mesh(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A closed axis-aligned box mesh (vertices, outward triangles)."""
+    x0, y0, z0 = lo
+    x1, y1, z1 = hi
+    v = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
+                  [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]], float)
+    t = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
+                  [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]])
+    return v, t

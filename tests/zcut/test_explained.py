@@ -9,21 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from explained_helpers import box_mesh as _box
 from explained_helpers import handmade_true_surfaces, raytraced_true_surfaces
 
 from zcut import explained as ex
 from zcut.errors import InputShapeError, ParameterError
-
-
-def _box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A closed axis-aligned box mesh."""
-    x0, y0, z0 = lo
-    x1, y1, z1 = hi
-    v = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
-                  [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]], float)
-    t = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
-                  [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]])
-    return v, t
 
 
 def _box_distance(p: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -7,19 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from explained_helpers import box_mesh as _box
 
 from zcut import explained as ex
 from zcut.errors import InputShapeError
-
-
-def _box(lo, hi):
-    x0, y0, z0 = lo
-    x1, y1, z1 = hi
-    v = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
-                  [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]], float)
-    t = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
-                  [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]])
-    return v, t
 
 
 def _bin(spacing: float) -> tuple[np.ndarray, np.ndarray]:
