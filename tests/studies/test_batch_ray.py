@@ -18,7 +18,7 @@ from pathlib import Path
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
-from ray_in_netns import ADDRESS, netns_unavailable, run_with_ray_cluster
+from ray_in_netns import ADDRESS
 
 ZCUT = str(Path(sys.executable).with_name("zcut"))
 COUNTS = ("valid_px", "zcut", "sor", "both", "above_rim", "clusters")
@@ -102,13 +102,10 @@ def _frames(out: Path):
     return t.drop_columns([c for c in t.column_names if c.startswith("t_") and c.endswith("_s")])
 
 
-@pytest.fixture(scope="module")
-def runs(tmp_path_factory):
+def prepare_batch(d: Path) -> tuple[dict, list[dict]]:
     """Two small synthetic logs (and one rechunked to a chunk per cloud), a bin model; the sequential
-    replays, the local batch, and on a 2-CPU Ray cluster: the batch, the batch of the rechunked log in
-    units of one frame, and two unreachable addresses."""
-    _require(_ray_missing() or netns_unavailable())
-    d = tmp_path_factory.mktemp("batch_ray")
+    replays, the local batch and sweep; returns them and the commands for the Ray cluster: the batch,
+    the batch of the rechunked log in units of one frame, two unreachable addresses and the sweep."""
     logs = ["a.mcap", "b.mcap"]
     for seed, name in enumerate(logs, start=1):
         _ok(_zcut("synth", "-o", name, "--parts", "rods", "--frames", "4", "--seed", str(seed), "--size", "120x160",
@@ -124,7 +121,7 @@ def runs(tmp_path_factory):
             "--no-report", "--bin-model", "bin.ply"]
     sweep_local = _zcut("sweep", *logs, "-o", "sweep_local", *grid, cwd=d)
     z = {"cwd": str(d)}
-    cluster = run_with_ray_cluster([
+    commands = [
         {"argv": [ZCUT, "batch", *logs, "-o", "ray", "--bin-model", "bin.ply", "--ray", ADDRESS], **z},
         {"argv": [ZCUT, "batch", "a_split.mcap", "-o", "ray_split", "--bin-model", "bin.ply", "--ray", "auto",
                   "--frames-per-unit", "1"], **z},  # RAY_ADDRESS is set
@@ -132,11 +129,20 @@ def runs(tmp_path_factory):
         {"argv": [ZCUT, "batch", *logs, "-o", "nowhere_auto", "--ray", "auto"], "env": {"RAY_ADDRESS": "127.0.0.1:2"},
          **z},
         {"argv": [ZCUT, "sweep", *logs, "-o", "sweep_ray", *grid, "--ray", ADDRESS], **z},
-    ], cpus=2, timeout=900)
-    ray, split, nowhere, nowhere_auto, sweep_ray = cluster["results"]
-    return {"dir": d, "logs": logs, "replay": replay, "local": local, "ray": ray, "split": split,
-            "nowhere": [nowhere, nowhere_auto], "interfaces": cluster["interfaces"],
-            "sweep_local": sweep_local, "sweep_ray": sweep_ray}
+    ]
+    return {"dir": d, "logs": logs, "replay": replay, "local": local, "sweep_local": sweep_local}, commands
+
+
+def collect_batch(prepared: dict, results: list[dict], interfaces: list[str]) -> dict:
+    ray, split, nowhere, nowhere_auto, sweep_ray = results
+    return {**prepared, "ray": ray, "split": split, "nowhere": [nowhere, nowhere_auto], "interfaces": interfaces,
+            "sweep_ray": sweep_ray}
+
+
+@pytest.fixture(scope="module")
+def runs(ray_cluster_runs):
+    """The batch's part of the session's one Ray cluster run (tests/studies/conftest.py)."""
+    return ray_cluster_runs["batch"]
 
 
 def test_the_cluster_saw_loopback_only(runs):

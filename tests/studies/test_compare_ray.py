@@ -15,19 +15,16 @@ import sys
 from pathlib import Path
 
 import pytest
-from ray_in_netns import ADDRESS, netns_unavailable, run_with_ray_cluster
-from test_batch_ray import _ok, _ray_missing, _require, _zcut, rechunk
+from ray_in_netns import ADDRESS
+from test_batch_ray import _ok, _zcut, rechunk
 from test_compare_workers import _rrd_rows, _same_outputs
 
 ZCUT = str(Path(sys.executable).with_name("zcut"))
 
 
-@pytest.fixture(scope="module")
-def runs(tmp_path_factory):
-    """Two small synthetic logs of a frame per chunk; the comparison in one process, and on a 2-CPU Ray
-    cluster in units of one frame, and an unreachable address."""
-    _require(_ray_missing() or netns_unavailable())
-    d = tmp_path_factory.mktemp("compare_ray")
+def prepare_compare(d: Path) -> tuple[dict, list[dict]]:
+    """Two small synthetic logs of a frame per chunk; the comparison in one process; the commands for
+    the Ray cluster: the comparison in units of one frame, and an unreachable address."""
     for name, parts, seed in (("a", "rods", 1), ("b", "spheres", 2)):
         _ok(_zcut("synth", "-o", f"{name}_whole.mcap", "--parts", parts, "--frames", "3", "--seed", str(seed),
                   "--size", "120x160", cwd=d))
@@ -35,12 +32,23 @@ def runs(tmp_path_factory):
     (d / "rho.toml").write_text("[zcut]\nrho_thr = 0.035\n")
     args = ["compare", "a.mcap", "b.mcap", "--a", "zcut", "--b", "rho.toml", "--frames-per-unit", "1"]
     local = _zcut(*args, "-o", "local", "--workers", "0", cwd=d)  # also warms numba's caches for the workers
-    cluster = run_with_ray_cluster([
+    commands = [
         {"argv": [ZCUT, *args, "-o", "ray", "--ray", ADDRESS, "--json"], "cwd": str(d)},
         {"argv": [ZCUT, *args, "-o", "nowhere", "--ray", "127.0.0.1:1"], "cwd": str(d)},
-    ], cpus=2, timeout=900)
-    ray, nowhere = cluster["results"]
-    return {"dir": d, "local": local, "ray": ray, "nowhere": nowhere, "interfaces": cluster["interfaces"]}
+    ]
+    return {"dir": d, "local": local}, commands
+
+
+def collect_compare(prepared: dict, results: list[dict], interfaces: list[str]) -> dict:
+    ray, nowhere = results
+    return {**prepared, "ray": ray, "nowhere": nowhere, "interfaces": interfaces}
+
+
+@pytest.fixture(scope="module")
+def runs(ray_cluster_runs):
+    """The comparison's part of the session's one Ray cluster run (tests/studies/conftest.py), on a
+    2-CPU cluster in units of one frame, and an unreachable address."""
+    return ray_cluster_runs["compare"]
 
 
 def test_the_cluster_saw_loopback_only(runs):
