@@ -1,0 +1,132 @@
+"""Benchmark: the bin stages (bin mask, registration, removal) of a log taken apart, CPU ms per piece.
+
+Run: ``.venv/bin/python bench/bench_bin_pieces.py LOG.mcap [--icp-repeats N]``
+
+For each frame of the log (its own bin model attached) the frame is located as the replay locates it
+(not timed), then each piece is timed alone on it (``time.process_time``, all threads; BLAS limited to
+one thread as the replay session limits it): the bin mask, the bin pixels (``bin_pixels``), the ICP
+target's preparation, the seed pose's fitness, the fine ICP from the seed pose (what a static bin
+runs), the removal whole and its pieces (the frame tolerance and the query of the model for its
+residuals, the classification, the straggler test's first pass and the passes after it, the masks and
+height image), and the bin check. Medians and minima over the frames after the first (a warm-up).
+
+``--icp-repeats N`` (default 6) also runs the fine ICP N times on the same frame and input and prints
+how many distinct poses came back and the removal results they give (Open3D's ICP reduces over
+threads in an order that varies: the pose may differ in its last bits from call to call).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
+
+import numpy as np  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
+
+from replay.pipeline import stages  # noqa: E402
+from replay.pipeline.bin_model import bin_model_for  # noqa: E402
+from replay.pipeline.session import ReplaySession  # noqa: E402
+from zcut import removal as rm  # noqa: E402
+from zcut.bin_check import check_bin_removal  # noqa: E402
+from zcut.binmask import bin_mask, bin_pixels  # noqa: E402
+from zcut.registration import pose_fitness, prepare_target, register_bin  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("log", type=Path)
+    ap.add_argument("--icp-repeats", type=int, default=6)
+    args = ap.parse_args()
+    session = ReplaySession.open(args.log, choose_bin_model=lambda reader: bin_model_for(reader, None))
+    cfg, pm = session.config, session.prepared
+    assert pm is not None and session.seed is not None, "the log needs its bin model and a registered first frame"
+    index, p, c = pm.removal, pm.removal.params, cfg.registration
+    times: dict[str, list[float]] = {}
+    distinct: list[str] = []
+
+    def timed(name: str, f: Callable[..., Any], *a: Any, **k: Any) -> Any:
+        t0 = time.process_time()
+        out = f(*a, **k)
+        times.setdefault(name, []).append(time.process_time() - t0)
+        return out
+
+    with threadpool_limits(1, "blas"):
+        for i, frame in enumerate(session.reader.frames()):
+            loc = stages.locate_bin(frame, cfg, bin_model=pm, seed=session.seed)
+            if loc.registration is None or not loc.registration.converged:
+                print(f"frame {i}: not registered, skipped", file=sys.stderr)
+                continue
+            a, T = frame.xyz, loc.registration.T_cam_bin
+            bm = timed("bin mask", bin_mask, frame.rgb, params=cfg.bin_mask)
+            ring = timed("registration: bin_pixels", bin_pixels, bm, a, ring_frac=c.ring_frac)
+            s = max(1, int(np.ceil(np.sqrt(ring.sum() / stages.REGISTRATION_MAX_POINTS))))
+            sub = a[::s, ::s][ring[::s, ::s]].astype(np.float64)  # ~0.1 ms, not timed
+            target = timed("registration: prepare_target", prepare_target, sub, voxel_m=c.voxel_m,
+                           intrinsics=frame.intrinsics)
+            timed("registration: pose_fitness", pose_fitness, pm.icp, target, session.seed.T_cam_bin,
+                  max_correspondence_m=c.fine_correspondence_m)
+            timed("registration: fine ICP", register_bin, pm.icp, target, params=c, init=session.seed.T_cam_bin,
+                  coarse=False)
+            rem = timed("removal: whole", rm.remove_table_and_bin, a, loc.bin_mask.mask, index=index, T_cam_bin=T,
+                        ring=loc.ring)
+            timed("removal: frame_tolerance", rm.frame_tolerance, a, loc.ring, index, T)
+            flat = rm._ring_sample(a, loc.ring)
+            nb = rm._ring_neighbours(a.shape[:2], loc.ring, flat, 4)
+            mark = np.zeros(a.shape[0] * a.shape[1], bool)
+            mark[flat] = True
+            mark[nb[nb >= 0]] = True
+            timed("removal:   the residuals' query", rm._query, a, np.flatnonzero(mark), index, T)
+            R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
+            planes = index.model.normals is not None
+            code = np.empty(a.shape[:2], np.uint8)
+            g = index.bin
+            delta_m, r_bin = rem.tolerance_mm / 1000.0, rem.radius_mm / 1000.0
+            timed("removal: classify", rm._classify_codes, a, loc.bin_mask.mask, R, t, index.rim_b + p.rim_offset_m,
+                  delta_m > 0, p.robust, *rm._grid_args(g), g.ijk, g.busy, g.box, float(delta_m), float(r_bin),
+                  planes, code)
+            if index.straggler is not None:
+                gs = index.straggler
+                straggler_m = p.straggler_m + delta_m
+                grid = (*rm._grid_args(gs), gs.ijk, gs.busy, gs.box, float(straggler_m),
+                        float(max(r_bin + p.straggler_m, straggler_m)), planes)
+                first = np.empty(code.shape, np.uint8)
+                timed("removal: straggler first pass", rm._straggler_first, a, code, int(p.straggler_neighbours),
+                      R, t, *grid, first)
+                timed("removal: straggler later passes", rm._straggler_rest, a, code, first,
+                      int(p.straggler_neighbours), rm.STRAGGLER_PASSES, R, t, *grid)
+            masks = [np.empty(code.shape, bool) for _ in range(5)]
+            timed("removal: finish (masks, heights)", rm._finish_codes, a, code, True, float(rem.floor_m),
+                  rem.up_cam, float("nan"), *masks, np.empty(code.shape), np.empty(a.shape, np.float32))
+            rim_in_view = min(loc.registration.n_rim / len(pm.icp.rim), 1.0) if len(pm.icp.rim) else 0.0
+            timed("removal: bin check", check_bin_removal, rem, loc.ring, params=cfg.removal,
+                  band_mm=cfg.zcut.max_depth, rim_in_view=rim_in_view, xyz=a, index=index, T_cam_bin=T)
+            if args.icp_repeats > 1:
+                poses = [register_bin(pm.icp, target, params=c, init=session.seed.T_cam_bin, coarse=False).T_cam_bin
+                         for _ in range(args.icp_repeats)]
+                outs = [rm.remove_table_and_bin(a, loc.bin_mask.mask, index=index, T_cam_bin=q, ring=loc.ring)
+                        for q in poses]
+                spread = max(float(np.abs(q - poses[0]).max()) for q in poses)
+                distinct.append(
+                    f"frame {i}: {len({q.tobytes() for q in poses})} distinct poses of {len(poses)} (max diff "
+                    f"{spread:.1e}); their removals: masks {len({o.bin_points.tobytes() + o.zone.tobytes() + o.easy_outliers.tobytes() for o in outs})} distinct, "  # noqa: E501
+                    f"height images {len({o.height_mm.tobytes() for o in outs})}, "
+                    f"tolerances {len({o.tolerance_mm for o in outs})}")
+    h, w = a.shape[:2]
+    print(f"{args.log.name}: {w}x{h}, CPU ms per frame (medians over frames 1.., min)")
+    for name, v in times.items():
+        v = v[1:] or v
+        print(f"  {name:36s} {1000 * statistics.median(v):7.1f}  (min {1000 * min(v):6.1f})")
+    for line in distinct:
+        print(" ", line)
+
+
+if __name__ == "__main__":
+    main()
