@@ -12,14 +12,20 @@ Run: ``.venv/bin/python bench/bench_zcut.py [--repeat-fast N] [--repeat-ref N] [
 run (a child process with OLD_TREE first on its path) and prints the ratio old / new, and whether
 its masks are identical.
 
-Two frames, heights in mm (larger = higher), seeded:
+Frames, heights in mm (larger = higher), seeded; nominal parameters step 0.2 mm, max_depth 30 mm,
+max_area = 0.07 * a_max (a_max = 3000 px):
 - ``pile``: a top-down view of a bin (floor, walls, rim) with parts piled ~100 mm deep, floating
-  specular clusters above the parts and NaN holes (shadows); nominal parameters step 0.2 mm,
-  max_depth 30 mm, max_area = 0.07 * a_max.
+  specular clusters above the parts and NaN holes (shadows).
 - ``dense``: a gently curved surface with noise whose whole range lies inside the cut range, so
   every pixel takes part in every level.
+- ``holes``: the pile with large invalid regions (a third of the width, and big blocks).
+- ``kinect16``, ``mug`` (``--real DIR``, e.g. /work/shared/data/real): the real 480 x 640 Kinect and
+  stereo clouds ``mosd_test16.pcd`` and ``table_scene_mug_stereo_textured.pcd`` as the pipeline sees
+  them (h = -1000 z).
 
 Prints the times, the ratio reference / fast and checks that the masks are identical.
+``--passes`` also prints where ``zcut_outliers``' CPU time goes (the extremes pass, the level pass,
+the flood, the read-out) beside the floor of reading the heights and writing a mask.
 CPU time (process_time) is the figure to quote on a shared machine.
 """
 
@@ -103,6 +109,68 @@ def dense_frame(seed: int = 11) -> np.ndarray:
     return np.clip(z, -12.0, 12.0)
 
 
+def holes_frame(seed: int = 13) -> np.ndarray:
+    """The pile with large invalid regions: a band of a third of the width and 40 big blocks."""
+    rng = np.random.default_rng(seed)
+    z = pile_frame(seed)
+    z[:, W // 3: 2 * W // 3] = np.nan
+    for _ in range(40):
+        py, px = rng.integers(0, H), rng.integers(0, W)
+        ry, rx = rng.integers(30, 120, 2)
+        z[max(py - ry, 0):py + ry, max(px - rx, 0):px + rx] = np.nan
+    return z
+
+
+def real_frames(folder: Path) -> dict[str, np.ndarray]:
+    """The real Kinect and stereo clouds as height images (mm, h = -1000 z)."""
+    import open3d as o3d
+
+    out = {}
+    for name, file in (("kinect16", "mosd_test16.pcd"), ("mug", "table_scene_mug_stereo_textured.pcd")):
+        cloud = o3d.io.read_point_cloud(str(folder / file), remove_nan_points=False, remove_infinite_points=False)
+        out[name] = -1000.0 * np.asarray(cloud.points).reshape(480, 640, 3)[..., 2].astype(np.float64)
+    return out
+
+
+def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
+    """Median CPU ms of each pass of ``zcut_outliers`` on z (the flood path), and of the floor."""
+    from zcut.cut_tree import flood_core, flood_levels, listed_outlier_mask
+    from zcut.cuts import _finite_range, _levels
+    from zcut.params import n_levels
+
+    step, max_area = params["step"], float(params["max_area"])
+    K = n_levels(step, params["max_depth"])
+    n, lo, hi, seg = _finite_range(z)
+    k_eff, top = _levels(lo, hi, step, K)
+    Hz, Wz = z.shape
+    size = (Hz + 2) * (Wz + 2)
+
+    def levels() -> tuple:
+        st, start = np.empty(size, np.int16), np.zeros(top + 2, np.int64)
+        pix, own = np.empty(size, np.int32), np.empty(size, np.int32)
+        m = flood_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top), np.int64(K), st, start, pix,
+                         own, np.empty((1, 1), np.int16), False)
+        return st, start, pix[:m], own[:m]
+
+    st, start, pix, own = levels()
+    lab = np.empty(size, np.int32)
+
+    def flood() -> tuple:
+        return flood_core(st.copy(), start.copy(), pix, Wz, np.int64(k_eff), np.int64(top), True, max_area, lab)
+
+    node_b, _, node_parent, tagged, fin = flood()
+    res = {
+        "floor (read heights, write a mask)": timed(lambda: (z.sum(), np.zeros(z.shape, bool).fill(False)), repeat)[1],
+        "extremes pass": timed(lambda: _finite_range(z), repeat)[1],
+        "level pass": timed(levels, repeat)[1],
+        "flood": timed(flood, repeat)[1],
+        "read-out": timed(lambda: listed_outlier_mask(lab, pix, own, fin, node_parent, tagged,
+                                                      np.zeros(z.size, bool)), repeat)[1],
+    }
+    res["pixels in the cuts"] = float(pix.size)
+    return res
+
+
 def timed(fn, repeat: int) -> tuple[float, float, np.ndarray]:
     """Median wall-clock and median CPU time (process_time: less disturbed by other processes
     on a shared machine) of ``repeat`` calls, and the last result."""
@@ -160,6 +228,9 @@ def main() -> int:
     ap.add_argument("--repeat-fast", type=int, default=7)
     ap.add_argument("--repeat-ref", type=int, default=2)
     ap.add_argument("--against", type=Path, default=None, help="a checkout of the previous code to time beside")
+    ap.add_argument("--real", type=Path, default=None, help="the folder of the real clouds (adds kinect16, mug)")
+    ap.add_argument("--frames", default=None, help="comma-separated frame names to run (default: all)")
+    ap.add_argument("--passes", action="store_true", help="print the CPU time of each pass of zcut_outliers")
     args = ap.parse_args()
 
     params = dict(step=NOMINAL_STEP_MM, max_depth=NOMINAL_MAX_DEPTH_MM,
@@ -169,7 +240,11 @@ def main() -> int:
     warm = time.perf_counter() - t0
     print(f"numba warm-up (compile or cache load): {warm:.2f} s")
 
-    frames = {"pile": pile_frame(), "dense": dense_frame()}
+    frames = {"pile": pile_frame(), "dense": dense_frame(), "holes": holes_frame()}
+    if args.real is not None:
+        frames.update(real_frames(args.real))
+    if args.frames is not None:
+        frames = {k: v for k, v in frames.items() if k in args.frames.split(",")}
     old: dict[str, dict[str, float]] = {}
     old_masks: dict[str, np.ndarray] = {}
     if args.against is not None:
@@ -188,7 +263,7 @@ def main() -> int:
         same = np.array_equal(m_fast, m_ref) and all(
             np.array_equal(res.outliers, m_ref) for _, _, res in stage.values())
         ok &= same
-        print(f"{name:6s} {H}x{W}: {in_range.mean():5.1%} of pixels in the cut range, "
+        print(f"{name:6s} {z.shape[0]}x{z.shape[1]}: {in_range.mean():5.1%} of pixels in the cut range, "
               f"{int(m_ref.sum())} outliers, identical: {same}")
         print(f"    wall: reference {w_ref * 1e3:8.1f} ms, fast {w_fast * 1e3:7.1f} ms, "
               f"ratio {w_ref / w_fast:6.1f}x")
@@ -197,6 +272,10 @@ def main() -> int:
         for kernel, (w_k, c_k, _) in stage.items():
             print(f"    find_clusters, {kernel + ' kernel:':18s} wall {w_k * 1e3:7.1f} ms, "
                   f"cpu {c_k * 1e3:7.1f} ms, cpu ratio {c_ref / c_k:6.1f}x")
+        if args.passes:
+            for what, ms in passes(z, params, args.repeat_fast).items():
+                print(f"    {what:36s} {ms:10.0f}" if what.startswith("pixels") else
+                      f"    {what:36s} {ms * 1e3:7.2f} ms cpu")
         if name in old:
             c_stage = timed(lambda z=z, zp=zp: find_clusters(z, params=zp), args.repeat_fast)[1]
             same_old = bool(np.array_equal(old_masks[name], m_fast))
