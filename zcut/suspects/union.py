@@ -93,8 +93,8 @@ class SuspectResult:
         one side of an edge (:func:`zcut.edge_surface.signed_edge_distance`; mm, positive = toward
         the camera, NaN where unmeasured, +inf where no surface is near); else None. Measured on
         first access (the suspects need it only at the pixels whose gap it gives); until then the
-        result holds the frame's fitted planes (:class:`zcut.edge_surface.EdgeSurfaces`, ~170 MB
-        at 1920 × 1200).
+        result holds the frame's surfaces (:class:`zcut.edge_surface.EdgeSurfaces`: the frame in mm, which
+        patches are surfaces, the planes fitted so far; ~70 MB at 1920 × 1200, 170 MB before).
     """
 
     mask: Mask
