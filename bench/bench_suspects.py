@@ -3,6 +3,7 @@
     .venv/bin/python bench/bench_suspects.py [--work DIR] [--kinds zinc_nuts,...] [--frames 3]
         [--tune-seeds 1] [--report-seeds 2,3] [--tune] [--real DIR] [--png DIR]
     .venv/bin/python bench/bench_suspects.py --speed [--sizes 1920x1200,960x600] [--real DIR] [--repeat 3]
+        [--against OLD_TREE] [--rounds 2]
 
 1. Synthetic logs (``zcut synth``, 1920 × 1200) of each part kind and seed, and a bin model built from
    an empty-bin series (``zcut synth --empty``, ``zcut bin-model``), in ``--work`` (reused when
@@ -29,6 +30,11 @@
    most pixels to judge). Whole calls: the median of ``--repeat`` calls' CPU time; parts: the CPU
    time cProfile gives each part's function in one more call. Each frame's two results are checked
    equal field by field first.
+6. ``--speed --against OLD_TREE`` (e.g. ``git archive <commit> | tar -x -C /tmp/sus_old``): instead,
+   the whole call of the fast path of that tree against this one's, each in its own process (the
+   same frames, written once to ``--work`` as .npy), alternating ``--rounds`` times; per frame the
+   median CPU ms of ``--repeat`` calls of each round, and whether the two trees' results are equal
+   (mask, groups, detectors, gaps, residuals, group scores).
 """
 
 from __future__ import annotations
@@ -397,6 +403,71 @@ def run_speed(work: Path, sizes: list[tuple[int, int]], real: Path | None, repea
                        -1000.0 * xyz[..., 2].astype(np.float64), repeat)
 
 
+#: the worker of --against: times suspects() as the labelling page calls it on .npy / .pcd frames
+_WORKER = """
+import sys, time
+import numpy as np
+from zcut.params import SuspectParams
+from zcut.edge_surface import EdgeSurfaceParams
+from zcut.suspects import suspects
+from replay.logs.pcd import read_pcd
+repeat, out = int(sys.argv[1]), sys.argv[2]
+for k, path in enumerate(sys.argv[3:]):
+    xyz = read_pcd(path).xyz if path.endswith(".pcd") else np.load(path)
+    h = -1000.0 * xyz[..., 2].astype(np.float64)
+    zone = np.isfinite(xyz).all(axis=2)
+    call = lambda: suspects(xyz, h, zone, params=SuspectParams(), edge_surface=EdgeSurfaceParams())
+    r = call()
+    ts = []
+    for _ in range(repeat):
+        c0 = time.process_time()
+        call()
+        ts.append(time.process_time() - c0)
+    np.savez(f"{out}.{k}.npz", mask=r.mask, groups=r.groups, detectors=r.detectors, gap=r.gap_mm,
+             residual=r.residual_mm, score=r.group_score)
+    print(1000.0 * float(np.median(ts)), flush=True)
+"""
+
+
+def run_against(work: Path, old: Path, sizes: list[tuple[int, int]], real: Path | None, repeat: int,
+                rounds: int) -> None:
+    """The fast path of tree ``old`` against this one's, whole calls in alternating processes."""
+    import subprocess
+    import sys
+
+    work.mkdir(parents=True, exist_ok=True)
+    here = Path(__file__).resolve().parents[1]
+    files, labels = [], []
+    for H, W in sizes:
+        for name, kind, sensor, q, seed in SPEED_FRAMES:
+            f = work / f"speed_{kind}_{sensor}_q{q:g}_s{seed}_{W}x{H}.npy"
+            if not f.exists():
+                np.save(f, speed_frame(work, name, kind, sensor, q, seed, (H, W))[0])
+            files.append(str(f))
+            labels.append(f"{name} {W}x{H}")
+    if real is not None:
+        for pcd in sorted(real.glob("*.pcd")):
+            files.append(str(pcd))
+            labels.append(pcd.stem[:24])
+    cpu: dict[str, list[list[float]]] = {"old": [], "new": []}
+    for _ in range(rounds):
+        for tag, tree in (("old", old.resolve()), ("new", here)):
+            res = subprocess.run([sys.executable, "-c", _WORKER, str(repeat), str(work / f"against_{tag}"), *files],
+                                 cwd=tree, env={**__import__("os").environ, "PYTHONPATH": str(tree)},
+                                 check=True, capture_output=True, text=True)
+            cpu[tag].append([float(v) for v in res.stdout.split()])
+    print(f"CPU ms per call, suspects(edge_surface=EdgeSurfaceParams()), zone = every valid pixel; old = {old}, "
+          f"new = {here}; median of {repeat} calls, each of {rounds} alternating rounds")
+    print(f"{'frame':34s} {'old':>15s} {'new':>15s} {'old/new':>7s} same")
+    for k, label in enumerate(labels):
+        o = [r[k] for r in cpu["old"]]
+        n = [r[k] for r in cpu["new"]]
+        a, b = np.load(work / f"against_old.{k}.npz"), np.load(work / f"against_new.{k}.npz")
+        same = all(np.array_equal(a[f], b[f], equal_nan=True) for f in a.files)
+        print(f"{label:34s} {'/'.join(f'{v:.0f}' for v in o):>15s} {'/'.join(f'{v:.0f}' for v in n):>15s} "
+              f"{np.median(o) / np.median(n):7.2f} {'yes' if same else 'NO'}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, default=Path("/tmp/zcut_bench_suspects"))
@@ -411,9 +482,14 @@ def main() -> None:
     ap.add_argument("--speed", action="store_true", help="CPU time per part, previous code against the fast path")
     ap.add_argument("--sizes", default="1920x1200", help="--speed: frame sizes WxH, comma-separated")
     ap.add_argument("--repeat", type=int, default=3, help="--speed: calls per frame and path (median)")
+    ap.add_argument("--against", type=Path, help="--speed: another tree's fast path against this one's")
+    ap.add_argument("--rounds", type=int, default=2, help="--against: alternating rounds")
     args = ap.parse_args()
     if args.speed:
         sizes = [tuple(int(v) for v in s.split("x"))[::-1] for s in args.sizes.split(",")]
+        if args.against is not None:
+            run_against(args.work, args.against, sizes, args.real, args.repeat, args.rounds)  # type: ignore[arg-type]
+            return
         run_speed(args.work, sizes, args.real, args.repeat)  # type: ignore[arg-type]
         return
     kinds = args.kinds.split(",")

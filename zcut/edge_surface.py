@@ -37,10 +37,13 @@ is one too; a surface curved over the search radius is approximated by planes
 :func:`signed_edge_distance_reference` is the same with plain loops and ``np.linalg.eigh`` (the
 tests' oracle). :func:`edge_surfaces` fits the patches once and :meth:`EdgeSurfaces.distance`
 measures only the pixels asked for (the suspects ask for the few whose gap it gives: the fits cost
-~0.35 CPU-s per 1920 × 1200 frame, 2.1 M closed-form eigen solves of ~0.12 µs each, the distances of
-every pixel as much again). Its kernels repeat the previous ones' arithmetic in the same order (the
-reach and the gate's median from the same samples), so the surfaces are the same bit for bit
-(``tests/zcut/test_suspects_fast.py`` checks them against the previous kernels).
+~0.3 CPU-s per 1920 × 1200 frame, 2.1 M closed-form eigen solves, all needed for the frame's median
+fit gate). The fitting pass keeps of each patch only what the surface test needs (its rms, depth and
+incidence: 17 bytes a pixel instead of 56); a distance fits again the planes of the surfaces it reads,
+once each (~40 k of 1.6 M on a zinc-nut frame). Its kernels repeat the previous ones' arithmetic in
+the same order (the reach and the gate's median from the same samples, one plane routine for both
+passes), so the surfaces and planes are the same bit for bit (``tests/zcut/test_suspects_fast.py``
+checks them against the previous kernels).
 """
 
 from __future__ import annotations
@@ -181,120 +184,148 @@ def _reach_samples(xyz, valid):  # type: ignore[no-untyped-def]  # numba kernel
     return out[:m]
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")  # IEEE division, as the numpy it replaces
+def _fit_at(xyz, valid, i, j, r, min_px, per_px, tan, floor, px, py, pz):  # type: ignore[no-untyped-def]  # numba kernel
+    """The plane of pixel (i, j)'s patch: (fitted, λ_min, mx, my, mz, nx, ny, nz), the normal facing the
+    camera; the arithmetic of :func:`zcut.suspects._reference._patch_kernel` (the previous kernel) in its
+    order, with the reach computed in place. ``px``, ``py``, ``pz``: scratch of (2r+1)² values."""
+    H, W = valid.shape
+    zq = xyz[i, j, 2]
+    reach = abs(zq) * per_px * tan
+    n = 0
+    sx = 0.0
+    sy = 0.0
+    sz = 0.0
+    for a in range(max(i - r, 0), min(i + r + 1, H)):
+        for b in range(max(j - r, 0), min(j + r + 1, W)):
+            if valid[a, b]:
+                z = xyz[a, b, 2]
+                if abs(z - zq) <= max(abs(a - i), abs(b - j)) * reach + floor:
+                    x = xyz[a, b, 0]
+                    y = xyz[a, b, 1]
+                    px[n] = x
+                    py[n] = y
+                    pz[n] = z
+                    n += 1
+                    sx += x
+                    sy += y
+                    sz += z
+    if n < min_px:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    mx = sx / n
+    my = sy / n
+    mz = sz / n
+    c00 = 0.0
+    c01 = 0.0
+    c02 = 0.0
+    c11 = 0.0
+    c12 = 0.0
+    c22 = 0.0
+    for k in range(n):
+        dx = px[k] - mx
+        dy = py[k] - my
+        dz = pz[k] - mz
+        c00 += dx * dx
+        c01 += dx * dy
+        c02 += dx * dz
+        c11 += dy * dy
+        c12 += dy * dz
+        c22 += dz * dz
+    lam, nx, ny, nz = _smallest_eigvec(c00 / n, c01 / n, c02 / n, c11 / n, c12 / n, c22 / n)
+    if not np.isfinite(nx):
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    if nx * mx + ny * my + nz * mz > 0.0:  # face the camera at the origin
+        nx, ny, nz = -nx, -ny, -nz
+    return True, lam, mx, my, mz, nx, ny, nz
+
+
 @numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
-def _patch_kernel_fast(xyz, valid, r, min_px, per_px, tan, floor, cen, nrm, rms):  # type: ignore[no-untyped-def]  # numba kernel
-    """:func:`zcut.suspects._reference._patch_kernel` (the previous kernel) with the reach computed in place and the window's side points kept
-    from the first pass for the second."""
+def _patch_gate_kernel(xyz, valid, r, min_px, per_px, tan, floor, cos_max, rms, z2, steep, ratios):  # type: ignore[no-untyped-def]  # numba kernel
+    """Every patch's fit, kept only as what the surface test needs: rms (NaN: no plane), the squared
+    depth of its centroid, whether its incidence exceeds the limit (``steep``), and the ratios rms / z²
+    of the fitted patches with z² > 0 in raster order (what :func:`_surfaces` takes the median of; their
+    count is returned). The planes themselves are fitted again where a distance needs them
+    (:class:`EdgeSurfaces`): the same arithmetic, so the same planes."""
     H, W = valid.shape
     side = (2 * r + 1) * (2 * r + 1)
     px = np.empty(side)
     py = np.empty(side)
     pz = np.empty(side)
-    for i in range(H):
-        a0 = max(i - r, 0)
-        a1 = min(i + r + 1, H)
-        for j in range(W):
-            rms[i, j] = np.nan
-            if not valid[i, j]:
-                continue
-            zq = xyz[i, j, 2]
-            reach = abs(zq) * per_px * tan
-            b0 = max(j - r, 0)
-            b1 = min(j + r + 1, W)
-            n = 0
-            sx = 0.0
-            sy = 0.0
-            sz = 0.0
-            for a in range(a0, a1):
-                for b in range(b0, b1):
-                    if valid[a, b]:
-                        z = xyz[a, b, 2]
-                        if abs(z - zq) <= max(abs(a - i), abs(b - j)) * reach + floor:
-                            x = xyz[a, b, 0]
-                            y = xyz[a, b, 1]
-                            px[n] = x
-                            py[n] = y
-                            pz[n] = z
-                            n += 1
-                            sx += x
-                            sy += y
-                            sz += z
-            if n < min_px:
-                continue
-            mx = sx / n
-            my = sy / n
-            mz = sz / n
-            c00 = 0.0
-            c01 = 0.0
-            c02 = 0.0
-            c11 = 0.0
-            c12 = 0.0
-            c22 = 0.0
-            for k in range(n):
-                dx = px[k] - mx
-                dy = py[k] - my
-                dz = pz[k] - mz
-                c00 += dx * dx
-                c01 += dx * dy
-                c02 += dx * dz
-                c11 += dy * dy
-                c12 += dy * dz
-                c22 += dz * dz
-            lam, nx, ny, nz = _smallest_eigvec(c00 / n, c01 / n, c02 / n, c11 / n, c12 / n, c22 / n)
-            if not np.isfinite(nx):
-                continue
-            if nx * mx + ny * my + nz * mz > 0.0:  # face the camera at the origin
-                nx, ny, nz = -nx, -ny, -nz
-            cen[i, j, 0] = mx
-            cen[i, j, 1] = my
-            cen[i, j, 2] = mz
-            nrm[i, j, 0] = nx
-            nrm[i, j, 1] = ny
-            nrm[i, j, 2] = nz
-            rms[i, j] = math.sqrt(max(lam, 0.0))
-
-
-@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
-def _surface_ratios(rms, cen):  # type: ignore[no-untyped-def]  # numba kernel
-    """rms / z² of the fitted patches (finite rms, z² > 0): what :func:`_surfaces` takes the median of."""
-    H, W = rms.shape
-    out = np.empty(H * W)
     m = 0
     for i in range(H):
         for j in range(W):
-            z2 = cen[i, j, 2] ** 2
-            if np.isfinite(rms[i, j]) and z2 > 0:
-                out[m] = rms[i, j] / z2
+            rms[i, j] = np.nan
+            z2[i, j] = 0.0
+            steep[i, j] = False
+            if not valid[i, j]:
+                continue
+            fitted, lam, mx, my, mz, nx, ny, nz = _fit_at(xyz, valid, i, j, r, min_px, per_px, tan, floor, px, py, pz)
+            if not fitted:
+                continue
+            s = math.sqrt(max(lam, 0.0))
+            rms[i, j] = s
+            zz = mz ** 2
+            z2[i, j] = zz
+            if zz > 0:
+                ratios[m] = s / zz
                 m += 1
-    return out[:m]
+            norm = math.sqrt(mx * mx + my * my + mz * mz)
+            cos_inc = abs(mx / norm * nx + my / norm * ny + mz / norm * nz)
+            steep[i, j] = not cos_inc >= cos_max
+    return m
 
 
 @numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
-def _surfaces_kernel(rms, cen, nrm, min_fit, gate_k, cos_max, any_angle, ok):  # type: ignore[no-untyped-def]  # numba kernel
+def _surfaces_kernel(rms, z2, steep, min_fit, gate_k, any_angle, ok):  # type: ignore[no-untyped-def]  # numba kernel
     H, W = rms.shape
     for i in range(H):
         for j in range(W):
-            ok[i, j] = False
-            z2 = cen[i, j, 2] ** 2
-            if not (np.isfinite(rms[i, j]) and z2 > 0):
-                continue
-            if not rms[i, j] <= max(min_fit, gate_k * z2):
-                continue
-            if any_angle:
-                ok[i, j] = True
-                continue
-            cx = cen[i, j, 0]
-            cy = cen[i, j, 1]
-            cz = cen[i, j, 2]
-            norm = math.sqrt(cx * cx + cy * cy + cz * cz)
-            cos_inc = abs(cx / norm * nrm[i, j, 0] + cy / norm * nrm[i, j, 1] + cz / norm * nrm[i, j, 2])
-            ok[i, j] = cos_inc >= cos_max
+            zz = z2[i, j]
+            ok[i, j] = (np.isfinite(rms[i, j]) and zz > 0 and rms[i, j] <= max(min_fit, gate_k * zz)
+                        and (any_angle or not steep[i, j]))
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")  # IEEE division, as the numpy it replaces
+def _fit_into(xyz, valid, a, b, r, min_px, per_px, tan, floor, px, py, pz, slot, planes, count):  # type: ignore[no-untyped-def]  # numba kernel
+    """Append the plane of surface (a, b) (:func:`_fit_at`: centroid, normal) to ``planes`` (``count[0]``
+    of them so far), its row in ``slot[a, b]``; return the row."""
+    _, _, mx, my, mz, nx, ny, nz = _fit_at(xyz, valid, a, b, r, min_px, per_px, tan, floor, px, py, pz)
+    s = count[0]
+    planes[s, 0] = mx
+    planes[s, 1] = my
+    planes[s, 2] = mz
+    planes[s, 3] = nx
+    planes[s, 4] = ny
+    planes[s, 5] = nz
+    slot[a, b] = s
+    count[0] = s + 1
+    return s
 
 
 @numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
-def _nearest_at(xyz, rows, cols, surface, cen, nrm, r, radius, max_radius, out):  # type: ignore[no-untyped-def]  # numba kernel
-    """:func:`zcut.suspects._reference._nearest_kernel` (the previous kernel) at the pixels (rows[k], cols[k]) only: out[k]."""
+def _fit_surfaces(xyz, valid, surface, r, min_px, per_px, tan, floor, slot, planes, count):  # type: ignore[no-untyped-def]  # numba kernel
+    """The planes of every surface not fitted yet."""
     H, W = surface.shape
+    side = (2 * r + 1) * (2 * r + 1)
+    px = np.empty(side)
+    py = np.empty(side)
+    pz = np.empty(side)
+    for a in range(H):
+        for b in range(W):
+            if surface[a, b] and slot[a, b] < 0:
+                _fit_into(xyz, valid, a, b, r, min_px, per_px, tan, floor, px, py, pz, slot, planes, count)
+
+
+@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
+def _nearest_at(xyz, valid, rows, cols, surface, r, min_px, per_px, tan, floor, radius, max_radius, slot, planes,  # type: ignore[no-untyped-def]  # numba kernel
+                count, out):
+    """:func:`zcut.suspects._reference._nearest_kernel` (the previous kernel) at the pixels (rows[k], cols[k])
+    only: out[k]; the planes of the surfaces it reads are fitted when first read (:func:`_fit_into`)."""
+    H, W = surface.shape
+    side = (2 * r + 1) * (2 * r + 1)
+    qx = np.empty(side)
+    qy = np.empty(side)
+    qz = np.empty(side)
     for k in range(rows.size):
         i = rows[k]
         j = cols[k]
@@ -311,8 +342,11 @@ def _nearest_at(xyz, rows, cols, surface, cen, nrm, r, radius, max_radius, out):
                         continue
                     if not surface[a, b]:
                         continue
-                    d = (nrm[a, b, 0] * (px - cen[a, b, 0]) + nrm[a, b, 1] * (py - cen[a, b, 1])
-                         + nrm[a, b, 2] * (pz - cen[a, b, 2]))
+                    t = slot[a, b]
+                    if t < 0:
+                        t = _fit_into(xyz, valid, a, b, r, min_px, per_px, tan, floor, qx, qy, qz, slot, planes, count)
+                    d = (planes[t, 3] * (px - planes[t, 0]) + planes[t, 4] * (py - planes[t, 1])
+                         + planes[t, 5] * (pz - planes[t, 2]))
                     if abs(d) < best:
                         best = abs(d)
                         signed = d
@@ -392,15 +426,40 @@ def _surfaces(rms: np.ndarray, nrm: np.ndarray, cen: np.ndarray, params: EdgeSur
 
 
 class EdgeSurfaces:
-    """The surfaces of one frame (:func:`edge_surfaces`): its patches' planes and which of them are
-    surfaces; :meth:`distance` measures pixels against them."""
+    """The surfaces of one frame (:func:`edge_surfaces`): which patches are surfaces; :meth:`distance`
+    measures pixels against their planes, fitted again (the same arithmetic, so the same planes) only
+    where a measured pixel may reach them, once each."""
 
-    __slots__ = ("_xyz", "_valid", "_params", "surface", "centre", "normal")
+    __slots__ = ("_xyz", "_valid", "_params", "_per_px", "_tan", "surface", "_slot", "_planes", "_count")
 
-    def __init__(self, xyz_mm: np.ndarray, valid: Mask, params: EdgeSurfaceParams, surface: Mask,
-                 centre: np.ndarray, normal: np.ndarray) -> None:
+    def __init__(self, xyz_mm: np.ndarray, valid: Mask, params: EdgeSurfaceParams, surface: Mask, per_px: float,
+                 tan: float) -> None:
         self._xyz, self._valid, self._params = xyz_mm, valid, params
-        self.surface, self.centre, self.normal = surface, centre, normal
+        self._per_px, self._tan = per_px, tan
+        self.surface = surface
+        self._slot = np.full(surface.shape, -1, np.int32)  # row of each fitted surface's plane in _planes
+        self._planes = np.empty((int(surface.sum()), 6))  # centroid, normal; touched only as far as filled
+        self._count = np.zeros(1, np.int64)
+
+    @property
+    def centre(self) -> np.ndarray:
+        """(H, W, 3) float64: each surface's centroid (mm; 0 where not a surface)."""
+        return self._all_planes()[0]
+
+    @property
+    def normal(self) -> np.ndarray:
+        """(H, W, 3) float64: each surface's unit normal, facing the camera (0 where not a surface)."""
+        return self._all_planes()[1]
+
+    def _all_planes(self) -> tuple[np.ndarray, np.ndarray]:
+        p = self._params
+        _fit_surfaces(self._xyz, self._valid, self.surface, p.patch_radius_px, p.min_patch_px, self._per_px, self._tan,
+                      p.side_step_mm, self._slot, self._planes, self._count)
+        cen = np.zeros((*self.surface.shape, 3))
+        nrm = np.zeros((*self.surface.shape, 3))
+        cen[self.surface] = self._planes[self._slot[self.surface], :3]
+        nrm[self.surface] = self._planes[self._slot[self.surface], 3:]
+        return cen, nrm
 
     def distance(self, where: Mask | None = None) -> np.ndarray:
         """Signed distance (mm) of the valid pixels (of those in ``where`` too, when given) to the
@@ -409,8 +468,9 @@ class EdgeSurfaces:
         rows, cols = np.nonzero(at)
         d = np.empty(rows.size)
         p = self._params
-        _nearest_at(self._xyz, rows, cols, self.surface, self.centre, self.normal, p.patch_radius_px,
-                    p.search_radius_px, p.max_search_radius_px, d)
+        _nearest_at(self._xyz, self._valid, rows, cols, self.surface, p.patch_radius_px, p.min_patch_px, self._per_px,
+                    self._tan, p.side_step_mm, p.search_radius_px, p.max_search_radius_px, self._slot,
+                    self._planes, self._count, d)
         out = np.full(at.shape, np.nan)
         out[rows, cols] = d
         return out
@@ -432,21 +492,21 @@ def _edge_surfaces(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams) -> Edg
     """:func:`edge_surfaces` of checked arguments: ``a`` C-contiguous float64, finite where ``valid``
     (C-contiguous too)."""
     H, W = valid.shape
-    cen = np.zeros((H, W, 3))
-    nrm = np.zeros((H, W, 3))
     rms = np.empty((H, W))
+    z2 = np.empty((H, W))
+    steep = np.empty((H, W), bool)
+    ratios = np.empty(H * W)
     step = _reach_samples(a, valid)
     per_px = _median_of_temporary(step) if step.size else 0.0  # 1 / f
+    del step
     tan = min(math.tan(math.radians(params.max_incidence_deg)), 1e6)
-    _patch_kernel_fast(a, valid, params.patch_radius_px, params.min_patch_px, per_px, tan, params.side_step_mm,
-                       cen, nrm, rms)
+    m = _patch_gate_kernel(a, valid, params.patch_radius_px, params.min_patch_px, per_px, tan, params.side_step_mm,
+                           math.cos(math.radians(params.max_incidence_deg)), rms, z2, steep, ratios)
     surface = np.zeros((H, W), bool)
-    ratios = _surface_ratios(rms, cen)
-    if ratios.size:
-        gate_k = params.fit_k * _median_of_temporary(ratios)
-        _surfaces_kernel(rms, cen, nrm, params.min_fit_mm, gate_k, math.cos(math.radians(params.max_incidence_deg)),
-                         params.max_incidence_deg >= 90.0, surface)
-    return EdgeSurfaces(a, valid, params, surface, cen, nrm)
+    if m:
+        gate_k = params.fit_k * _median_of_temporary(ratios[:m])
+        _surfaces_kernel(rms, z2, steep, params.min_fit_mm, gate_k, params.max_incidence_deg >= 90.0, surface)
+    return EdgeSurfaces(a, valid, params, surface, per_px, tan)
 
 
 def signed_edge_distance(xyz_mm: XYZ, valid: Mask, *, params: EdgeSurfaceParams | None = None) -> np.ndarray:

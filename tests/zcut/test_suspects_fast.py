@@ -160,6 +160,29 @@ def test_edge_surfaces_equal_the_previous_kernels(logs, real_data) -> None:
             assert np.array_equal(part, np.where(where, old, np.nan), equal_nan=True)
 
 
+def test_surfaces_and_planes_equal_the_previous_kernel(logs, real_data) -> None:
+    """The surface mask, and the planes fitted again where a distance reads them (every surface's when
+    asked), are the previous whole-frame kernel's bit for bit."""
+    from zcut.edge_surface import _reach, _surfaces
+
+    clouds = [logs[n][0][0] for n in ("sprockets-11", "quantized")] + [read_pcd(real_data / "mosd_test16.pcd").xyz]
+    for xyz in clouds:
+        a = 1000.0 * np.asarray(xyz, np.float64)
+        valid = np.isfinite(a).all(axis=2)
+        for params in (EdgeSurfaceParams(), EdgeSurfaceParams(patch_radius_px=2, min_patch_px=10, max_incidence_deg=90)):
+            H, W = valid.shape
+            cen, nrm, rms = np.zeros((H, W, 3)), np.zeros((H, W, 3)), np.empty((H, W))
+            ref._patch_kernel(a, valid, params.patch_radius_px, params.min_patch_px, _reach(a, valid, params),
+                              params.side_step_mm, cen, nrm, rms)
+            surface = _surfaces(rms, nrm, cen, params)
+            got = edge_surfaces(a, valid, params=params)
+            got.distance(np.random.default_rng(5).random(valid.shape) < 0.05)  # some planes fitted first
+            assert surface.any()
+            np.testing.assert_array_equal(got.surface, surface)
+            np.testing.assert_array_equal(got.centre, np.where(surface[..., None], cen, 0.0))
+            np.testing.assert_array_equal(got.normal, np.where(surface[..., None], nrm, 0.0))
+
+
 def test_local_height_and_noise_profile_equal_the_previous_code(logs) -> None:
     rng = np.random.default_rng(2)
     heights = [h for n in logs for _, h in logs[n]] + [random_heights(rng).astype(np.float64) for _ in range(30)]

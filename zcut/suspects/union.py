@@ -9,7 +9,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..cloud import Intrinsics, check_mask, check_xyz
-from ..edge_surface import EdgeSurfaceParams, EdgeSurfaces, _edge_surfaces, _median_of_temporary, edge_surfaces
+from ..edge_surface import EdgeSurfaceParams, EdgeSurfaces, _edge_surfaces, edge_surfaces
 from ..errors import InputShapeError, ParameterError, describe_array
 from ..params import SuspectParams
 from ..types import XYZ, FloatImage, Labels, Mask
@@ -93,8 +93,8 @@ class SuspectResult:
         one side of an edge (:func:`zcut.edge_surface.signed_edge_distance`; mm, positive = toward
         the camera, NaN where unmeasured, +inf where no surface is near); else None. Measured on
         first access (the suspects need it only at the pixels whose gap it gives); until then the
-        result holds the frame's fitted planes (:class:`zcut.edge_surface.EdgeSurfaces`, ~170 MB
-        at 1920 × 1200).
+        result holds the frame's surfaces (:class:`zcut.edge_surface.EdgeSurfaces`: the frame in mm, which
+        patches are surfaces, the planes fitted so far; ~70 MB at 1920 × 1200, 170 MB before).
     """
 
     mask: Mask
@@ -141,6 +141,28 @@ class SuspectResult:
     def detector_mask(self, name: str) -> Mask:
         """(H, W) bool: the pixels detector ``name`` flagged."""
         return (self.detectors & detector_bits([name])) > 0
+
+
+def _sigma_and_tau_medians(sigma_px: np.ndarray, params: SuspectParams) -> tuple[float, float]:
+    """The medians of σ̂ and of τ = max(min_residual_mm, noise_k · σ̂) over the zone (``sigma_px``: σ̂ there,
+    a temporary, partitioned in place), from one partition: τ is a non-decreasing function of σ̂
+    (noise_k >= 0, IEEE products and maximum are monotone), so its middle order statistics are those
+    of σ̂ mapped. The values of ``_median_of_temporary`` of each, NaN (both) when any σ̂ is NaN."""
+    n = sigma_px.size
+    if np.isnan(sigma_px).any():
+        return float("nan"), float("nan")
+
+    def tau(x: float) -> float:
+        return float(np.maximum(params.min_residual_mm, params.noise_k * x))
+
+    h = n // 2
+    if n % 2:
+        sigma_px.partition(h)
+        x = float(sigma_px[h])
+        return x, tau(x)
+    sigma_px.partition((h - 1, h))
+    a, b = float(sigma_px[h - 1]), float(sigma_px[h])
+    return (a + b) / 2.0, (tau(a) + tau(b)) / 2.0
 
 
 def suspects(
@@ -214,8 +236,9 @@ def suspects(
 
     profile = noise_profile(context, zone)
     sigma_px = profile.sigma_at(local_height(context))
-    sigma = _median_of_temporary(sigma_px[zone]) if zone.any() else 0.0
     tau = np.maximum(params.min_residual_mm, params.noise_k * sigma_px)
+    sigma, threshold = (_sigma_and_tau_medians(sigma_px[zone], params) if zone.any()
+                        else (0.0, float(params.min_residual_mm)))
     jump = np.maximum(params.jump_mm, params.noise_k * sigma_px)
     step = max(params.floating_step_mm, FLOATING_STEP_SIGMAS * sigma)
     a_max = params.a_max if params.a_max is not None else max(0.01 * H * W, 1.0)
@@ -277,6 +300,6 @@ def suspects(
         mask=mask, groups=groups, detectors=codes, gap_mm=gap, residual_mm=residual,
         group_detectors=bits[order], group_primary=primary[order], group_size=size[order],
         group_gap_mm=g_gap[order], group_bbox=bbox[order], group_score=score[order],
-        noise_mm=sigma, threshold_mm=_median_of_temporary(tau[zone]) if zone.any() else float(params.min_residual_mm),
+        noise_mm=sigma, threshold_mm=threshold,
         noise_profile=profile, floating_step_mm=step, merge_radius_px=radii, _surfaces=surfaces,
     )
