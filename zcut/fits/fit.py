@@ -38,7 +38,7 @@ import numpy as np
 from zcut.errors import InputShapeError, describe_array
 
 from .icp import icp, initial_poses, initial_rotations, pose_matrix
-from .kernels import edge_distances, guess_score, surface_distances
+from .kernels import edge_distances, guess_score, lower_bounds, surface_distances
 from .model import PartModel, prepare_model
 from .params import FitParams
 from .segment import segment
@@ -91,24 +91,27 @@ def estimate_intrinsics(xyz_mm: np.ndarray) -> Intrinsics | None:
     return float(out[0][0]), float(out[1][0]), float(out[0][1]), float(out[1][1])
 
 
-def _grid_normals(xyz: np.ndarray, valid: np.ndarray, step: int = 2) -> np.ndarray:
-    """(H, W, 3) unit normals toward the camera from central differences ``step`` pixels apart,
-    NaN where a neighbour is missing."""
-    H, W = valid.shape
-    n = np.full((H, W, 3), np.nan)
+def _normals_at(xyz: np.ndarray, flat: np.ndarray, step: int = 2) -> np.ndarray:
+    """(n, 3) unit normals toward the camera at the pixels ``flat`` from central differences ``step``
+    pixels apart, NaN where a neighbour is missing or the pixel lies within ``step`` of the border."""
+    H, W = xyz.shape[:2]
     s = step
-    if H <= 2 * s or W <= 2 * s:
+    n = np.full((len(flat), 3), np.nan)
+    r, c = np.divmod(np.asarray(flat, np.int64), W)
+    inside = np.flatnonzero((r >= s) & (r < H - s) & (c >= s) & (c < W - s))
+    if not len(inside):
         return n
-    dx = xyz[s:-s, 2 * s:] - xyz[s:-s, : -2 * s]
-    dy = xyz[2 * s:, s:-s] - xyz[: -2 * s, s:-s]
-    c = np.cross(dx, dy)
-    norm = np.linalg.norm(c, axis=2, keepdims=True)
+    p = xyz.reshape(-1, 3)
+    f = flat[inside]
+    dx = p[f + s] - p[f - s]
+    dy = p[f + s * W] - p[f - s * W]
+    cr = np.cross(dx, dy)
+    norm = np.linalg.norm(cr, axis=1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
-        c = c / norm
-    p = xyz[s:-s, s:-s]
-    flip = np.einsum("ijk,ijk->ij", c, p) > 0
-    c[flip] = -c[flip]
-    n[s:-s, s:-s] = c
+        cr = cr / norm
+    flip = np.einsum("ij,ij->i", cr, p[f]) > 0
+    cr[flip] = -cr[flip]
+    n[inside] = cr
     return n
 
 
@@ -117,7 +120,6 @@ class _Frame:
     xyz: np.ndarray  # (H, W, 3)
     valid: np.ndarray  # (H, W) finite
     zone: np.ndarray  # (H, W) valid & zone
-    normals: np.ndarray  # (H, W, 3)
     K: Intrinsics
 
 
@@ -138,9 +140,26 @@ def _window(frame: _Frame, T: np.ndarray, model: PartModel) -> tuple[slice, slic
     return slice(r0, r1), slice(c0, c1)
 
 
-def _model_distance(frame: _Frame, T: np.ndarray, model: PartModel, flat: np.ndarray) -> np.ndarray:
-    p = frame.xyz.reshape(-1, 3)[flat]
-    return model.distance((p - T[:3, 3]) @ T[:3, :3])
+def _model_distance(frame: _Frame, T: np.ndarray, model: PartModel, flat: np.ndarray, within: float) -> np.ndarray:
+    """:func:`_near_distances` of the pixels ``flat``."""
+    return _near_distances(model, frame.xyz.reshape(-1, 3)[flat], T, within)
+
+
+def _near_distances(model: PartModel, points: np.ndarray, T: np.ndarray, within: float) -> np.ndarray:
+    """The exact distances of camera-frame ``points`` to the posed model where they may be at most
+    ``within``, inf where a lower bound through the model's voxel index is farther (the same answer to
+    every "d <= within" and the same d below it, without the exact query of the points far away)."""
+    ix = model.index
+    if ix is None or len(points) == 0:
+        return model.distance((points - T[:3, 3]) @ T[:3, :3])
+    p = np.ascontiguousarray(points, np.float64)
+    lb = lower_bounds(p, np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), ix.origin, ix.h,
+                      ix.centre_dist, ix.margin)
+    out = np.full(len(p), np.inf)
+    near = lb <= within
+    if near.any():
+        out[near] = model.distance((p[near] - T[:3, 3]) @ T[:3, :3])
+    return out
 
 
 def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float) -> float:
@@ -165,7 +184,7 @@ def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float) -> floa
     rng = np.full(len(pts), np.nan)
     rng[ok] = np.linalg.norm(pts[ok], axis=1)
     dist = np.full(len(pts), np.inf)
-    dist[ok] = model.distance((pts[ok] - t) @ R)
+    dist[ok] = _near_distances(model, pts[ok], T, tol)
     supported = dist <= tol
     with np.errstate(invalid="ignore"):
         occluded = ok & (rng < hit[predicted] - tol) & ~supported
@@ -327,8 +346,8 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     assert best is not None
     T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,
                     **opts)
-    d = model.distance((pts - T[:3, 3]) @ T[:3, :3])
     gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
+    d = _near_distances(model, pts, T, gate)
     inl_mask = d <= gate
     err = float(np.sqrt(np.mean(d[inl_mask] ** 2))) if inl_mask.any() else np.inf
     return T, err
@@ -354,7 +373,7 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
     if K is None:
         return []
     K = (float(K[0]), float(K[1]), float(K[2]), float(K[3]))
-    frame = _Frame(xyz=xyz, valid=valid, zone=zv, normals=_grid_normals(xyz, valid), K=K)
+    frame = _Frame(xyz=xyz, valid=valid, zone=zv, K=K)
     f = 0.5 * (K[0] + K[1])
     H, W = zv.shape
     accepted: list[tuple[np.ndarray, float, float]] = []
@@ -432,7 +451,7 @@ def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitPa
     if model.sphere_radius is None:
         return [_fit_general(frame, flat, model, params)]
     pts = frame.xyz.reshape(-1, 3)[flat]
-    nrm = frame.normals.reshape(-1, 3)[flat]
+    nrm = _normals_at(frame.xyz, flat)
     centres = vote_centres(pts, nrm, model.sphere_radius, min_votes=max(3, params.min_region_px // 4))
     if not centres:
         c, _ = algebraic_sphere(pts)
@@ -446,7 +465,7 @@ def _accept(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams
     if not (np.isfinite(err) and err <= params.max_err_mm):
         return None
     tol = params.k * max(err, params.err_floor_mm)
-    near = _model_distance(frame, T, model, flat) <= tol
+    near = _model_distance(frame, T, model, flat, tol) <= tol
     if near.sum() < params.min_region_px:
         return None
     support = _support(frame, T, model, tol)
@@ -470,8 +489,8 @@ def _assign(frame: _Frame, model: PartModel, accepted: list[tuple[np.ndarray, fl
         rr, cc = np.mgrid[rs, cs]
         flat = (rr * W + cc).reshape(-1)
         flat = flat[zone_flat[flat]]
-        d = _model_distance(frame, T, model, flat)
         tol = params.k * max(err, params.err_floor_mm)
+        d = _model_distance(frame, T, model, flat, tol)
         take = (d <= tol) & (d < best[flat])
         best[flat[take]] = d[take]
         owner[flat[take]] = i
