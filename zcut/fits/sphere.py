@@ -67,12 +67,15 @@ def vote_centres(points: np.ndarray, normals: np.ndarray, radius: float, *, min_
     counts = np.asarray(tree.query_ball_point(votes, r, return_length=True))
     alive = np.ones(len(votes), bool)
     out: list[np.ndarray] = []
-    while alive.any() and len(out) < max_centres:
-        i = int(np.argmax(np.where(alive, counts, -1)))
-        if counts[i] < min_votes:
+    # the densest alive vote first (the counts do not change, a vote only dies): the votes in order of
+    # their counts, ties by index, the dead ones skipped
+    for i in np.argsort(-counts, kind="stable"):
+        if len(out) >= max_centres or counts[i] < min_votes:
             break
-        near = tree.query_ball_point(votes[i], r)
-        near = [j for j in near if alive[j]]
+        if not alive[i]:
+            continue
+        near = np.asarray(tree.query_ball_point(votes[i], r), np.int64)
+        near = near[alive[near]]
         if len(near) < min_votes:
             alive[i] = False
             continue
