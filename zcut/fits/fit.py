@@ -140,8 +140,20 @@ def _window(frame: _Frame, T: np.ndarray, model: PartModel) -> tuple[slice, slic
     return slice(r0, r1), slice(c0, c1)
 
 
-def _model_distance(frame: _Frame, T: np.ndarray, model: PartModel, flat: np.ndarray, within: float) -> np.ndarray:
-    """:func:`_near_distances` of the pixels ``flat``."""
+def _model_distance(frame: _Frame, T: np.ndarray, model: PartModel, flat: np.ndarray, within: float,
+                    known: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """:func:`_near_distances` of the pixels ``flat``; those in ``known`` (sorted pixels, their
+    distances to this fit at this ``within``) taken from it."""
+    if known is not None and len(known[0]) and len(flat):
+        kf, kd = known
+        i = np.minimum(np.searchsorted(kf, flat), len(kf) - 1)
+        have = kf[i] == flat
+        out = np.empty(len(flat))
+        out[have] = kd[i[have]]
+        rest = ~have
+        if rest.any():
+            out[rest] = _near_distances(model, frame.xyz.reshape(-1, 3)[flat[rest]], T, within)
+        return out
     return _near_distances(model, frame.xyz.reshape(-1, 3)[flat], T, within)
 
 
@@ -162,9 +174,11 @@ def _near_distances(model: PartModel, points: np.ndarray, T: np.ndarray, within:
     return out
 
 
-def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float) -> float:
+def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float,
+             known: tuple[np.ndarray, np.ndarray] | None = None) -> float:
     """Share of the pixels where the posed model is predicted visible, measured, and nothing measured
-    lies in front of it, whose measured point lies within ``tol`` of the model."""
+    lies in front of it, whose measured point lies within ``tol`` of the model (``known``: see
+    :func:`_model_distance`)."""
     win = _window(frame, T, model)
     if win is None:
         return 0.0
@@ -180,11 +194,12 @@ def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float) -> floa
     if not predicted.any():
         return 0.0
     pts = frame.xyz[rs, cs].reshape(-1, 3)[predicted]
+    pflat = (rr * frame.valid.shape[1] + cc).reshape(-1)[predicted]
     ok = np.isfinite(pts).all(axis=1)
     rng = np.full(len(pts), np.nan)
     rng[ok] = np.linalg.norm(pts[ok], axis=1)
     dist = np.full(len(pts), np.inf)
-    dist[ok] = _near_distances(model, pts[ok], T, tol)
+    dist[ok] = _model_distance(frame, T, model, pflat[ok], tol, known)
     supported = dist <= tol
     with np.errstate(invalid="ignore"):
         occluded = ok & (rng < hit[predicted] - tol) & ~supported
@@ -377,6 +392,7 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
     f = 0.5 * (K[0] + K[1])
     H, W = zv.shape
     accepted: list[tuple[np.ndarray, float, float]] = []
+    known: list[tuple[np.ndarray, np.ndarray]] = []  # each fit's distances at its region's pixels
     pending = segment(xyz, np.flatnonzero(zv), f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
                       min_px=params.min_region_px)
     for region in pending:
@@ -399,6 +415,7 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
                 if fit is None:
                     continue
                 accepted.append(fit[0])
+                known.append(fit[2])
                 left = left[~fit[1]]
                 progress = True
                 if len(left) < params.min_region_px or attempts >= params.max_instances_per_region:
@@ -413,7 +430,7 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
                 break
             left = parts[0]
             pending.extend(parts[1:])
-    return _assign(frame, model, accepted, params)
+    return _assign(frame, model, accepted, params, known)
 
 
 def _holds_many(frame: _Frame, flat: np.ndarray, model: PartModel) -> bool:
@@ -460,22 +477,26 @@ def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitPa
 
 
 def _accept(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams, T: np.ndarray,
-            err: float) -> tuple[tuple[np.ndarray, float, float], np.ndarray] | None:
-    """((pose, err, support), the region's pixels it explains) when the fit is accepted, else None."""
+            err: float) -> tuple[tuple[np.ndarray, float, float], np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
+    """((pose, err, support), the region's pixels it explains, the region's pixels of finite distance
+    and their distances) when the fit is accepted, else None."""
     if not (np.isfinite(err) and err <= params.max_err_mm):
         return None
     tol = params.k * max(err, params.err_floor_mm)
-    near = _model_distance(frame, T, model, flat, tol) <= tol
+    d = _model_distance(frame, T, model, flat, tol)
+    near = d <= tol
     if near.sum() < params.min_region_px:
         return None
-    support = _support(frame, T, model, tol)
+    finite = np.isfinite(d)
+    known = (flat[finite], d[finite])
+    support = _support(frame, T, model, tol, known)
     if support < params.min_support:
         return None
-    return (T, err, support), near
+    return (T, err, support), near, known
 
 
 def _assign(frame: _Frame, model: PartModel, accepted: list[tuple[np.ndarray, float, float]],
-            params: FitParams) -> list[PartFit]:
+            params: FitParams, known: list[tuple[np.ndarray, np.ndarray]] | None = None) -> list[PartFit]:
     """Every zone pixel within k × max(Err, floor) of an accepted fit goes to the nearest one."""
     H, W = frame.zone.shape
     best = np.full(H * W, np.inf)
@@ -490,7 +511,7 @@ def _assign(frame: _Frame, model: PartModel, accepted: list[tuple[np.ndarray, fl
         flat = (rr * W + cc).reshape(-1)
         flat = flat[zone_flat[flat]]
         tol = params.k * max(err, params.err_floor_mm)
-        d = _model_distance(frame, T, model, flat, tol)
+        d = _model_distance(frame, T, model, flat, tol, None if known is None else known[i])
         take = (d <= tol) & (d < best[flat])
         best[flat[take]] = d[take]
         owner[flat[take]] = i
