@@ -38,7 +38,7 @@ import numpy as np
 from zcut.errors import InputShapeError, describe_array
 
 from .icp import icp, initial_poses, initial_rotations, pose_matrix
-from .kernels import edge_distances, guess_score, surface_distances
+from .kernels import edge_distances, guess_score, lower_bounds, surface_distances
 from .model import PartModel, prepare_model
 from .params import FitParams
 from .segment import segment
@@ -91,24 +91,27 @@ def estimate_intrinsics(xyz_mm: np.ndarray) -> Intrinsics | None:
     return float(out[0][0]), float(out[1][0]), float(out[0][1]), float(out[1][1])
 
 
-def _grid_normals(xyz: np.ndarray, valid: np.ndarray, step: int = 2) -> np.ndarray:
-    """(H, W, 3) unit normals toward the camera from central differences ``step`` pixels apart,
-    NaN where a neighbour is missing."""
-    H, W = valid.shape
-    n = np.full((H, W, 3), np.nan)
+def _normals_at(xyz: np.ndarray, flat: np.ndarray, step: int = 2) -> np.ndarray:
+    """(n, 3) unit normals toward the camera at the pixels ``flat`` from central differences ``step``
+    pixels apart, NaN where a neighbour is missing or the pixel lies within ``step`` of the border."""
+    H, W = xyz.shape[:2]
     s = step
-    if H <= 2 * s or W <= 2 * s:
+    n = np.full((len(flat), 3), np.nan)
+    r, c = np.divmod(np.asarray(flat, np.int64), W)
+    inside = np.flatnonzero((r >= s) & (r < H - s) & (c >= s) & (c < W - s))
+    if not len(inside):
         return n
-    dx = xyz[s:-s, 2 * s:] - xyz[s:-s, : -2 * s]
-    dy = xyz[2 * s:, s:-s] - xyz[: -2 * s, s:-s]
-    c = np.cross(dx, dy)
-    norm = np.linalg.norm(c, axis=2, keepdims=True)
+    p = xyz.reshape(-1, 3)
+    f = flat[inside]
+    dx = p[f + s] - p[f - s]
+    dy = p[f + s * W] - p[f - s * W]
+    cr = np.cross(dx, dy)
+    norm = np.linalg.norm(cr, axis=1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
-        c = c / norm
-    p = xyz[s:-s, s:-s]
-    flip = np.einsum("ijk,ijk->ij", c, p) > 0
-    c[flip] = -c[flip]
-    n[s:-s, s:-s] = c
+        cr = cr / norm
+    flip = np.einsum("ij,ij->i", cr, p[f]) > 0
+    cr[flip] = -cr[flip]
+    n[inside] = cr
     return n
 
 
@@ -117,7 +120,6 @@ class _Frame:
     xyz: np.ndarray  # (H, W, 3)
     valid: np.ndarray  # (H, W) finite
     zone: np.ndarray  # (H, W) valid & zone
-    normals: np.ndarray  # (H, W, 3)
     K: Intrinsics
 
 
@@ -138,14 +140,45 @@ def _window(frame: _Frame, T: np.ndarray, model: PartModel) -> tuple[slice, slic
     return slice(r0, r1), slice(c0, c1)
 
 
-def _model_distance(frame: _Frame, T: np.ndarray, model: PartModel, flat: np.ndarray) -> np.ndarray:
-    p = frame.xyz.reshape(-1, 3)[flat]
-    return model.distance((p - T[:3, 3]) @ T[:3, :3])
+def _model_distance(frame: _Frame, T: np.ndarray, model: PartModel, flat: np.ndarray, within: float,
+                    known: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """:func:`_near_distances` of the pixels ``flat``; those in ``known`` (sorted pixels, their
+    distances to this fit at this ``within``) taken from it."""
+    if known is not None and len(known[0]) and len(flat):
+        kf, kd = known
+        i = np.minimum(np.searchsorted(kf, flat), len(kf) - 1)
+        have = kf[i] == flat
+        out = np.empty(len(flat))
+        out[have] = kd[i[have]]
+        rest = ~have
+        if rest.any():
+            out[rest] = _near_distances(model, frame.xyz.reshape(-1, 3)[flat[rest]], T, within)
+        return out
+    return _near_distances(model, frame.xyz.reshape(-1, 3)[flat], T, within)
 
 
-def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float) -> float:
+def _near_distances(model: PartModel, points: np.ndarray, T: np.ndarray, within: float) -> np.ndarray:
+    """The exact distances of camera-frame ``points`` to the posed model where they may be at most
+    ``within``, inf where a lower bound through the model's voxel index is farther (the same answer to
+    every "d <= within" and the same d below it, without the exact query of the points far away)."""
+    ix = model.index
+    if ix is None or len(points) == 0:
+        return model.distance((points - T[:3, 3]) @ T[:3, :3])
+    p = np.ascontiguousarray(points, np.float64)
+    lb = lower_bounds(p, np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), ix.origin, ix.h,
+                      ix.centre_dist, ix.margin)
+    out = np.full(len(p), np.inf)
+    near = lb <= within
+    if near.any():
+        out[near] = model.distance((p[near] - T[:3, 3]) @ T[:3, :3])
+    return out
+
+
+def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float,
+             known: tuple[np.ndarray, np.ndarray] | None = None) -> float:
     """Share of the pixels where the posed model is predicted visible, measured, and nothing measured
-    lies in front of it, whose measured point lies within ``tol`` of the model."""
+    lies in front of it, whose measured point lies within ``tol`` of the model (``known``: see
+    :func:`_model_distance`)."""
     win = _window(frame, T, model)
     if win is None:
         return 0.0
@@ -161,17 +194,23 @@ def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float) -> floa
     if not predicted.any():
         return 0.0
     pts = frame.xyz[rs, cs].reshape(-1, 3)[predicted]
+    pflat = (rr * frame.valid.shape[1] + cc).reshape(-1)[predicted]
     ok = np.isfinite(pts).all(axis=1)
     rng = np.full(len(pts), np.nan)
     rng[ok] = np.linalg.norm(pts[ok], axis=1)
     dist = np.full(len(pts), np.inf)
-    dist[ok] = model.distance((pts[ok] - t) @ R)
+    dist[ok] = _model_distance(frame, T, model, pflat[ok], tol, known)
     supported = dist <= tol
     with np.errstate(invalid="ignore"):
         occluded = ok & (rng < hit[predicted] - tol) & ~supported
     # a pixel without a measurement (a projector's shadow, a dropout) neither supports nor contradicts
     denom = int((ok & ~occluded).sum())
     return float(supported.sum() / denom) if denom else 0.0
+
+
+#: At most this many of a sphere's points (an even subsample) fit its centre; the pixels it explains
+#: and its support are then decided on every pixel.
+SPHERE_POINTS = 1500
 
 
 def _fit_sphere(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
@@ -185,6 +224,7 @@ def _fit_sphere(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitPa
     c = np.asarray(centre, np.float64)
     gate = params.gate_mm
     pts = pts[np.linalg.norm(pts - c, axis=1) <= R + gate]  # its own points: within R of its centre
+    pts = pts[_subsample(np.arange(len(pts)), SPHERE_POINTS)]  # even: the centre's noise is σ / √n
     err = np.inf
     res = np.zeros(0)
     for _ in range(6):
@@ -327,8 +367,8 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     assert best is not None
     T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,
                     **opts)
-    d = model.distance((pts - T[:3, 3]) @ T[:3, :3])
     gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
+    d = _near_distances(model, pts, T, gate)
     inl_mask = d <= gate
     err = float(np.sqrt(np.mean(d[inl_mask] ** 2))) if inl_mask.any() else np.inf
     return T, err
@@ -354,10 +394,11 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
     if K is None:
         return []
     K = (float(K[0]), float(K[1]), float(K[2]), float(K[3]))
-    frame = _Frame(xyz=xyz, valid=valid, zone=zv, normals=_grid_normals(xyz, valid), K=K)
+    frame = _Frame(xyz=xyz, valid=valid, zone=zv, K=K)
     f = 0.5 * (K[0] + K[1])
     H, W = zv.shape
     accepted: list[tuple[np.ndarray, float, float]] = []
+    known: list[tuple[np.ndarray, np.ndarray]] = []  # each fit's distances at its region's pixels
     pending = segment(xyz, np.flatnonzero(zv), f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
                       min_px=params.min_region_px)
     for region in pending:
@@ -380,6 +421,7 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
                 if fit is None:
                     continue
                 accepted.append(fit[0])
+                known.append(fit[2])
                 left = left[~fit[1]]
                 progress = True
                 if len(left) < params.min_region_px or attempts >= params.max_instances_per_region:
@@ -394,7 +436,7 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
                 break
             left = parts[0]
             pending.extend(parts[1:])
-    return _assign(frame, model, accepted, params)
+    return _assign(frame, model, accepted, params, known)
 
 
 def _holds_many(frame: _Frame, flat: np.ndarray, model: PartModel) -> bool:
@@ -432,7 +474,7 @@ def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitPa
     if model.sphere_radius is None:
         return [_fit_general(frame, flat, model, params)]
     pts = frame.xyz.reshape(-1, 3)[flat]
-    nrm = frame.normals.reshape(-1, 3)[flat]
+    nrm = _normals_at(frame.xyz, flat)
     centres = vote_centres(pts, nrm, model.sphere_radius, min_votes=max(3, params.min_region_px // 4))
     if not centres:
         c, _ = algebraic_sphere(pts)
@@ -441,22 +483,26 @@ def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitPa
 
 
 def _accept(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams, T: np.ndarray,
-            err: float) -> tuple[tuple[np.ndarray, float, float], np.ndarray] | None:
-    """((pose, err, support), the region's pixels it explains) when the fit is accepted, else None."""
+            err: float) -> tuple[tuple[np.ndarray, float, float], np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
+    """((pose, err, support), the region's pixels it explains, the region's pixels of finite distance
+    and their distances) when the fit is accepted, else None."""
     if not (np.isfinite(err) and err <= params.max_err_mm):
         return None
     tol = params.k * max(err, params.err_floor_mm)
-    near = _model_distance(frame, T, model, flat) <= tol
+    d = _model_distance(frame, T, model, flat, tol)
+    near = d <= tol
     if near.sum() < params.min_region_px:
         return None
-    support = _support(frame, T, model, tol)
+    finite = np.isfinite(d)
+    known = (flat[finite], d[finite])
+    support = _support(frame, T, model, tol, known)
     if support < params.min_support:
         return None
-    return (T, err, support), near
+    return (T, err, support), near, known
 
 
 def _assign(frame: _Frame, model: PartModel, accepted: list[tuple[np.ndarray, float, float]],
-            params: FitParams) -> list[PartFit]:
+            params: FitParams, known: list[tuple[np.ndarray, np.ndarray]] | None = None) -> list[PartFit]:
     """Every zone pixel within k × max(Err, floor) of an accepted fit goes to the nearest one."""
     H, W = frame.zone.shape
     best = np.full(H * W, np.inf)
@@ -470,8 +516,8 @@ def _assign(frame: _Frame, model: PartModel, accepted: list[tuple[np.ndarray, fl
         rr, cc = np.mgrid[rs, cs]
         flat = (rr * W + cc).reshape(-1)
         flat = flat[zone_flat[flat]]
-        d = _model_distance(frame, T, model, flat)
         tol = params.k * max(err, params.err_floor_mm)
+        d = _model_distance(frame, T, model, flat, tol, None if known is None else known[i])
         take = (d <= tol) & (d < best[flat])
         best[flat[take]] = d[take]
         owner[flat[take]] = i

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["ModelIndex", "build_index", "edge_distances", "guess_score", "icp_kernel", "surface_distances"]
+__all__ = ["ModelIndex", "build_index", "edge_distances", "guess_score", "icp_kernel", "lower_bounds", "surface_distances"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -38,6 +38,12 @@ class ModelIndex:
         Index of the sharp-edge segment nearest each voxel's centre (-1: the model has none).
     p0, p1 : (e, 3) float64
         The sharp-edge segments' ends.
+    centre_dist : (nx, ny, nz) float64
+        Exact distance of each voxel's centre to the surface: a point of the voxel lies at least this
+        less the half-diagonal from it (:func:`lower_bounds`).
+    margin : float
+        The margin (mm) the grid adds around the model's bounding box: a point outside the grid lies at
+        least this far from the surface.
     """
 
     origin: np.ndarray
@@ -50,6 +56,8 @@ class ModelIndex:
     seg_grid: np.ndarray
     p0: np.ndarray
     p1: np.ndarray
+    centre_dist: np.ndarray
+    margin: float
 
 
 def build_index(v: np.ndarray, t: np.ndarray, normals: np.ndarray, seg0: np.ndarray, seg1: np.ndarray, scene: object,
@@ -66,6 +74,8 @@ def build_index(v: np.ndarray, t: np.ndarray, normals: np.ndarray, seg0: np.ndar
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     ans = scene.compute_closest_points(o3d.core.Tensor(centres.astype(np.float32)))  # type: ignore[attr-defined,call-overload]  # Open3D stub: dtype and device required
     tri = ans["primitive_ids"].numpy().astype(np.int32).reshape(tuple(dims))
+    closest = ans["points"].numpy().astype(np.float64)
+    cdist = np.linalg.norm(closest - centres.astype(np.float32).astype(np.float64), axis=1).reshape(tuple(dims))
     if len(seg0):
         # the segments sampled densely enough that the nearest sample's segment is the nearest segment
         # to within a small fraction of a voxel
@@ -82,7 +92,8 @@ def build_index(v: np.ndarray, t: np.ndarray, normals: np.ndarray, seg0: np.ndar
     a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
     return ModelIndex(origin=lo.astype(np.float64), h=float(h_mm), tri_grid=tri, a=a, b=b, c=c,
                       n=np.ascontiguousarray(normals, np.float64), seg_grid=seg,
-                      p0=np.ascontiguousarray(seg0, np.float64), p1=np.ascontiguousarray(seg1, np.float64))
+                      p0=np.ascontiguousarray(seg0, np.float64), p1=np.ascontiguousarray(seg1, np.float64),
+                      centre_dist=cdist, margin=float(margin_mm))
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -199,6 +210,31 @@ def edge_distances(points: np.ndarray, R: np.ndarray, t: np.ndarray, origin: np.
         qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
         d, _, _, _ = _match_edge(qx, qy, qz, origin, inv_h, grid, p0, p1)
         out[i] = d
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def lower_bounds(points: np.ndarray, R: np.ndarray, t: np.ndarray, origin: np.ndarray, h: float,
+                 centre_dist: np.ndarray, margin: float) -> np.ndarray:
+    """A lower bound of the distance of each of ``points`` (camera frame) to the model posed by (R, t):
+    its voxel centre's distance less the half-diagonal (the triangle inequality), the grid's margin
+    outside it; less a micron for the float32 of the exact distances it stands in front of."""
+    out = np.empty(len(points))
+    inv_h = 1.0 / h
+    half = 0.8660254037844386 * h + 1e-3
+    nx, ny, nz = centre_dist.shape
+    for i in range(len(points)):
+        px, py, pz = points[i, 0] - t[0], points[i, 1] - t[1], points[i, 2] - t[2]
+        qx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
+        qy = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
+        qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
+        a = int(np.floor((qx - origin[0]) * inv_h))
+        b = int(np.floor((qy - origin[1]) * inv_h))
+        c = int(np.floor((qz - origin[2]) * inv_h))
+        if a < 0 or b < 0 or c < 0 or a >= nx or b >= ny or c >= nz:
+            out[i] = margin - 1e-3
+        else:
+            out[i] = centre_dist[a, b, c] - half
     return out
 
 

@@ -100,9 +100,14 @@ class PartModel:
             return np.where((disc >= 0) & (hit > 0), hit, np.inf)
         import open3d as o3d
 
-        rays = np.concatenate([origins, directions], axis=1).astype(np.float32)
+        out = np.full(len(origins), np.inf)
+        hits = _box_hits(origins, directions, self.vertices.min(axis=0), self.vertices.max(axis=0))
+        if not hits.any():
+            return out
+        rays = np.concatenate([origins[hits], directions[hits]], axis=1).astype(np.float32)
         t: np.ndarray = self._scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
-        return t.astype(np.float64)
+        out[hits] = t.astype(np.float64)
+        return out
 
     def nearest_edges(self, points_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(distance, index into ``edges``) of the nearest edge point of each point (model frame)."""
@@ -116,6 +121,23 @@ class PartModel:
         """(distance, index) of the nearest surface sample of each point (model frame)."""
         d, i = self._tree.query(points_model, k=1)
         return np.asarray(d, np.float64), np.asarray(i, np.int64)
+
+
+def _box_hits(origins: np.ndarray, directions: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Whether each ray may meet the box [lo, hi] grown by 0.01 mm (the slab test; a ray that misses it
+    misses every triangle inside it, also in the float32 of the ray casts)."""
+    lo = lo - 0.01
+    hi = hi + 0.01
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / directions
+        t0 = (lo - origins) * inv
+        t1 = (hi - origins) * inv
+    free = np.isnan(t0) | np.isnan(t1)  # a ray parallel to a slab starting on its plane
+    tmin = np.where(free, -np.inf, np.minimum(t0, t1))
+    tmax = np.where(free, np.inf, np.maximum(t0, t1))
+    near = tmin.max(axis=1)
+    far = tmax.min(axis=1)
+    return np.asarray((far >= np.maximum(near, 0.0)), bool)
 
 
 def _check_mesh(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

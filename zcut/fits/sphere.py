@@ -48,18 +48,19 @@ def refine_sphere(points: np.ndarray, centre: np.ndarray, radius: float, *, iter
 
 
 def vote_centres(points: np.ndarray, normals: np.ndarray, radius: float, *, min_votes: int = 10,
-                 max_centres: int = 64) -> list[np.ndarray]:
+                 max_centres: int = 64, max_votes: int = 400) -> list[np.ndarray]:
     """The vote clusters p − R n (``normals`` outward, NaN where unknown), densest first: each the
     median of the votes within R / 5 of the densest vote left; the votes within R of a chosen centre
     (its own sphere) are then removed. Stops when the densest cluster has fewer than ``min_votes``
-    votes of a subsample of at most 1,000."""
+    votes of an even subsample of at most ``max_votes`` (counting the votes near each vote grows with
+    the square of their number: a sphere's votes all fall near its centre)."""
     from scipy.spatial import cKDTree
 
     ok = np.isfinite(normals).all(axis=1)
     votes = points[ok] - radius * normals[ok]
     if len(votes) < 4:
         return []
-    step = max(1, len(votes) // 1000)
+    step = max(1, len(votes) // max_votes)
     votes = votes[::step]
     min_votes = max(3, int(np.ceil(min_votes / step)))
     r = 0.2 * radius
@@ -67,12 +68,15 @@ def vote_centres(points: np.ndarray, normals: np.ndarray, radius: float, *, min_
     counts = np.asarray(tree.query_ball_point(votes, r, return_length=True))
     alive = np.ones(len(votes), bool)
     out: list[np.ndarray] = []
-    while alive.any() and len(out) < max_centres:
-        i = int(np.argmax(np.where(alive, counts, -1)))
-        if counts[i] < min_votes:
+    # the densest alive vote first (the counts do not change, a vote only dies): the votes in order of
+    # their counts, ties by index, the dead ones skipped
+    for i in np.argsort(-counts, kind="stable"):
+        if len(out) >= max_centres or counts[i] < min_votes:
             break
-        near = tree.query_ball_point(votes[i], r)
-        near = [j for j in near if alive[j]]
+        if not alive[i]:
+            continue
+        near = np.asarray(tree.query_ball_point(votes[i], r), np.int64)
+        near = near[alive[near]]
         if len(near) < min_votes:
             alive[i] = False
             continue

@@ -189,7 +189,7 @@ def test_touching_nuts_in_one_region_are_fitted_patch_by_patch():
     """Three nuts lying nearly flat (tilted a few degrees each way, as in a pile), flats touching: one
     candidate region holds two of them (no depth jump between them), fitted one instance at a time
     (a guess from the whole region's axes fits neither)."""
-    from zcut.fits.fit import _Frame, _grid_normals, _holds_many
+    from zcut.fits.fit import _Frame, _holds_many
     from zcut.fits.segment import segment
 
     v, t = hex_nut_mesh()
@@ -200,8 +200,7 @@ def test_touching_nuts_in_one_region_are_fitted_patch_by_patch():
     zone = ids > 0
     regions = segment(xyz, np.flatnonzero(zone), f_px=500.0, jump_mm=1.5, jump_px=3.0, min_px=40)
     assert len(regions) == 2 and len(regions[0]) > 1.5 * len(regions[1])
-    frame = _Frame(xyz=xyz, valid=np.isfinite(xyz).all(axis=2), zone=zone,
-                   normals=_grid_normals(xyz, np.isfinite(xyz).all(axis=2)), K=K_TEST)
+    frame = _Frame(xyz=xyz, valid=np.isfinite(xyz).all(axis=2), zone=zone, K=K_TEST)
     assert _holds_many(frame, regions[0], model)
     fits = fit_parts(xyz, zone, v, t, intrinsics=K_TEST)
     assert len(fits) == 3
