@@ -54,7 +54,7 @@ def main() -> None:
                 cpu, wall = time.process_time() - c0, time.perf_counter() - w0
                 r1 = resource.getrusage(resource.RUSAGE_SELF)
                 s = rf.cpu_s
-                print(f"{kind:13s} {index:5d} {len(rf.pile):5d} {s['pile']:6.2f} {s['scene']:6.2f} {s['trace']:6.2f} "
+                print(f"{kind:13s} {index:5d} {len(rf.pile or ()):5d} {s['pile']:6.2f} {s['scene']:6.2f} {s['trace']:6.2f} "
                       f"{s['measure']:7.2f} {cpu:6.2f} {r1.ru_utime - r0.ru_utime:6.2f} {r1.ru_stime - r0.ru_stime:5.2f} "
                       f"{(r1.ru_minflt - r0.ru_minflt) / 1e6:6.2f}M {wall:6.1f} {ref:8.2f} {cpu / ref:6.1f}", flush=True)
 
