@@ -21,7 +21,7 @@ from replay.logs.writer import LogWriter
 from replay.presets import PART_KINDS
 from replay.synth.log import part_model_attachment, pose_metadata, synth_metadata
 from replay.synth.raytrace.camera_filters import CameraFilters
-from replay.synth.raytrace.optics import SensorModel
+from replay.synth.raytrace.optics import SensorModel, kept_memory
 from replay.synth.raytrace.pile import WALL_TILT_DEG, WALL_TILT_S
 from replay.synth.raytrace.synthesize import FILL_RANGE_MM, MAX_PARTS, RaytracedFrame, synthesize_raytraced_frame
 from replay.synth.sensor import FULL_SIZE
@@ -115,7 +115,8 @@ def write_raytraced_log(
     if not empty:  # the part's mesh, as the scene draws it ("Part model attachment")
         attached.update(part_model_attachment(kind, raytraced=True))
     with LogWriter(path, metadata={layout.SYNTH_METADATA: meta, layout.SYNTH_POSES_METADATA: poses},
-                   attachments=attached, bag_name=bag_name) as writer:
+                   attachments=attached, bag_name=bag_name) as writer, kept_memory():
+        # the frames reuse each other's freed memory (optics.kept_memory): no page faults after the first
         for i in range(int(frames)):
             t0 = time.perf_counter()
             rf = synthesize_raytraced_frame(kind=kind, seed=seed, index=i, size=size, empty=empty,

@@ -39,7 +39,10 @@ distortion, the sensor's own smoothing of the point cloud.
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import ctypes.util
 import importlib
+import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
@@ -82,6 +85,62 @@ def small_pages() -> Iterator[None]:
         yield
     finally:
         setter(previous)
+
+
+#: glibc ``mallopt`` parameters (``malloc.h``) and their defaults
+_M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4
+_DEFAULT_TRIM_THRESHOLD, _DEFAULT_MMAP_MAX = 128 * 1024, 65536
+_kept = {"depth": 0}
+_kept_lock = threading.Lock()
+
+
+def _glibc() -> ctypes.CDLL | None:
+    """The C library when it is glibc (it has ``mallopt`` and ``malloc_trim``), else None."""
+    name = ctypes.util.find_library("c")
+    if name is None:
+        return None
+    try:
+        libc = ctypes.CDLL(name)
+        libc.mallopt.argtypes, libc.malloc_trim.argtypes = [ctypes.c_int, ctypes.c_int], [ctypes.c_size_t]
+    except (OSError, AttributeError):  # not glibc (musl, macOS): leave its allocator alone
+        return None
+    return libc
+
+
+_LIBC = _glibc()
+
+
+@contextlib.contextmanager
+def kept_memory() -> Iterator[None]:
+    """Within: glibc's ``malloc`` keeps freed memory for the next arrays instead of returning it (also a decorator).
+
+    A 1920 x 1200 frame allocates and frees some 5 GB of arrays of 4 MB to 60 MB. glibc serves
+    each with a fresh ``mmap`` and ``munmap``s it when freed, so every page of every array is a
+    page fault when first written: 1.25 M faults, 2-6.5 of a frame's 10-14 CPU-s in the kernel
+    (``bench/bench_raytrace.py``, ``docs/raytraced.md``). Within, large blocks come from the
+    heap (``M_MMAP_MAX`` 0) and freed memory stays in it (``M_TRIM_THRESHOLD`` 2 GB), so only
+    the frame's peak (about 2.5 GB) is faulted in once per process and the next frame's arrays
+    reuse it. Nested uses share the outermost one (a log keeps the memory across its frames); on
+    leaving it the defaults are set back (glibc's dynamic mmap threshold stays off, ``mallopt``
+    switches it off) and the kept memory is returned (``malloc_trim``). Only where the memory comes
+    from changes, never a value; with another C library, nothing.
+    """
+    libc = _LIBC
+    with _kept_lock:
+        outer = _kept["depth"] == 0
+        _kept["depth"] += 1
+        if outer and libc is not None:
+            libc.mallopt(_M_MMAP_MAX, 0)
+            libc.mallopt(_M_TRIM_THRESHOLD, 2**31 - 1)
+    try:
+        yield
+    finally:
+        with _kept_lock:
+            _kept["depth"] -= 1
+            if _kept["depth"] == 0 and libc is not None:
+                libc.mallopt(_M_MMAP_MAX, _DEFAULT_MMAP_MAX)
+                libc.mallopt(_M_TRIM_THRESHOLD, _DEFAULT_TRIM_THRESHOLD)
+                libc.malloc_trim(0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -289,6 +348,7 @@ def direct_light(scene: TracedScene, model: SensorModel, hits: Hits, idx: np.nda
     kernels.shadow_rays(proj, wi, sel, rays)
     t = scene.cast_t(rays).astype(np.float64)
     sel = sel[t >= dist[sel] - 0.05]
+    del rays, t  # (k, 6) and (k,): not kept through the BRDF's arrays (a smaller peak, fewer page faults)
     ok[:] = False
     ok[sel] = True
     m = sel.size
@@ -452,9 +512,14 @@ def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.
             sub_depth[s].reshape(-1)[e] = np.where(np.isfinite(h0.t[at:at + n_e]), h0.point[at:at + n_e, 2], np.inf)
     else:
         h0, d, pix, w_s = centre, d_centre, np.arange(H * W), np.ones(H * W)
+    # arrays are dropped as soon as they are done with: the frame's peak is what its first frame in a
+    # process pays in page faults (optics.kept_memory)
+    del d_centre
 
     idx = np.flatnonzero(h0.hit)
-    ok, rad, code, refl = direct_light(scene, model, h0, idx, -d[idx])
+    wo = d[idx]
+    ok, rad, code, refl = direct_light(scene, model, h0, idx, np.negative(wo, out=wo))  # one (k, 3) array, not two
+    del wo
     sel = idx[ok]
     direct.add(pix[sel], w_s[sel], rad[ok], code[ok], model.periods_px)
     if sel.size:
@@ -462,7 +527,10 @@ def trace(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: np.random.
         share = np.empty(sel.size)
         kernels.specular_share(h0.material[sel], scene.mat["albedo"], refl[ok], share)
         kernels.add_at(spec_light, pix[sel], w_s[sel], rad[ok], share)
+        del share
+    del ok, rad, code, refl, sel
     camera_bounces(scene, model, FAST, h0, idx, d, pix, w_s, rng, bounce, spec_light)
+    del h0, d, pix, w_s, idx
     photons = projector_bounces(scene, K, model, centre, rng, FAST)
     glare = _glare(direct.plus(bounce).add_in_place(photons), K, model)
     return Received(direct, bounce, photons, glare, sub_depth, centre, spec_light.reshape(H, W))

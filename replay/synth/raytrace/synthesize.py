@@ -149,6 +149,7 @@ def _distance_to_surfaces(z_mm: np.ndarray, centre_mm: np.ndarray, sub_mm: np.nd
     return np.where(np.isfinite(z_mm), d, np.nan)
 
 
+@optics.kept_memory()
 @optics.small_pages()
 def synthesize_raytraced_frame(
     *,

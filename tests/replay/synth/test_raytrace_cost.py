@@ -1,15 +1,17 @@
 """What made the ray-traced frame cheaper changed no byte: whole frames against the reference path,
-the phasor sums' shortcut for images still at zero, the huge-page switch (docs/raytraced.md, cost)."""
+the phasor sums' shortcut for images still at zero, the huge-page switch, the kept memory
+(docs/raytraced.md, cost)."""
 
 from __future__ import annotations
 
+import ctypes
 import importlib
 
 import numpy as np
 import pytest
 
 from replay.synth.raytrace import optics, reference, synthesize_raytraced_frame
-from replay.synth.raytrace.optics import Phasors, SensorModel, small_pages
+from replay.synth.raytrace.optics import Phasors, SensorModel, kept_memory, small_pages
 from replay.synth.raytrace.scene import build_scene
 from replay.synth.sensor import default_intrinsics
 from replay.synth.synthesize import bin_pose_for, frame_rng
@@ -115,3 +117,64 @@ def test_small_pages_switches_numpys_advice_off_and_back():
         assert setter(True) is True  # restored on an error too
     finally:
         setter(before)
+
+
+class _Mallinfo2(ctypes.Structure):
+    _fields_ = [(f, ctypes.c_size_t) for f in ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks",
+                                                "fsmblks", "uordblks", "fordblks", "keepcost")]
+
+
+def _mallinfo() -> _Mallinfo2:
+    libc = optics._LIBC
+    if libc is None or not hasattr(libc, "mallinfo2"):
+        pytest.skip("not glibc 2.33 or later: kept_memory leaves the allocator alone")
+    libc.mallinfo2.restype = _Mallinfo2
+    info: _Mallinfo2 = libc.mallinfo2()
+    return info
+
+
+def test_kept_memory_serves_large_arrays_from_the_heap_and_keeps_them():
+    """Outside, a 64 MB array is a fresh mmap; inside, it comes from the heap and its memory stays
+    there when freed (the next array reuses it), until the outermost use ends."""
+    big = 8 << 20  # float64: 64 MB
+    before = _mallinfo()
+    a = np.ones(big)
+    assert _mallinfo().hblkhd >= before.hblkhd + 8 * big  # mmapped
+    del a
+    with kept_memory():
+        with kept_memory():  # nested: the outer one decides
+            before = _mallinfo()
+            a = np.ones(big)
+            inside = _mallinfo()
+            assert inside.hblkhd < before.hblkhd + 8 * big  # not mmapped: the heap
+            assert inside.uordblks >= before.uordblks + 8 * big
+            del a
+            assert _mallinfo().fordblks >= 8 * big  # freed, kept
+        assert optics._kept["depth"] == 1
+        assert _mallinfo().fordblks >= 8 * big  # still kept: the outer use is on
+        b = np.ones(big)
+        assert _mallinfo().hblkhd < before.hblkhd + 8 * big
+        del b
+    assert optics._kept["depth"] == 0
+    with pytest.raises(RuntimeError):
+        with kept_memory():
+            raise RuntimeError("boom")
+    assert optics._kept["depth"] == 0  # left on an error too
+    before = _mallinfo()
+    c = np.ones(big)
+    assert _mallinfo().hblkhd >= before.hblkhd + 8 * big  # the defaults are back: mmapped again
+    del c
+
+
+def test_frames_in_kept_memory_are_the_frames_made_alone():
+    """A frame made after another in the same kept memory (as a log makes them) has the bytes of the
+    frame made alone."""
+    alone = synthesize_raytraced_frame(kind="zinc_nuts", seed=11, size=SIZE, fill_mm=FILL)
+    with kept_memory():
+        synthesize_raytraced_frame(kind="spheres", seed=12, size=SIZE, fill_mm=FILL)
+        kept = synthesize_raytraced_frame(kind="zinc_nuts", seed=11, size=SIZE, fill_mm=FILL)
+    assert kept.frame.xyz.tobytes() == alone.frame.xyz.tobytes()
+    assert np.isfinite(alone.frame.xyz).any()
+    assert same(kept.frame.rgb, alone.frame.rgb)
+    for name in ("truth", "outlier_kind", "depth_true_m", "error_mm", "sigma_mm", "surface", "saturated"):
+        assert same(getattr(kept, name), getattr(alone, name)), name
