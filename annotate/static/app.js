@@ -363,6 +363,8 @@ function renderBulkHint(fd) {
   const und = fd.entries.filter((e, k) => (e.src === 'g' || e.src === 'u') && fd.states[k] === 'undecided').length;
   const px = fd.entries.filter((e, k) => (e.src === 'g' || e.src === 'u') && fd.states[k] === 'undecided').reduce((a, e) => a + e.n, 0);
   const parts = [`Shift+A accepts the ${und} undecided groups of this list (${px} px; not the z-cut or SOR overlays), Shift+R rejects them.`];
+  const uu = fd.entries.filter((e, k) => e.src === 'u' && fd.states[k] === 'undecided');
+  if (uu.length) parts.push(`Shift+U accepts the ${uu.length} undecided proposals of the fits (${uu.reduce((a, e) => a + e.n, 0)} px) only.`);
   const pr = fd.prop;
   if (pr && pr.p.length) {
     const { out, inl } = proposalPlan(fd);
@@ -425,11 +427,11 @@ function acceptProposals() {  // Y: the assistant's confident proposals of the u
   if (k >= 0) select(k, { zoom: true }); else { state.sel = -1; renderList(); requestDraw(); }
 }
 
-function decideAll(accept) {  // every undecided listed group (one undo step)
+function decideAll(accept, proposalsOnly = false) {  // every undecided listed group, or proposal (one undo step)
   const fd = state.cur; if (!fd) return;
   beginAction(fd);
   fd.entries.forEach((e) => {
-    if ((e.src !== 'g' && e.src !== 'u') || entryState(fd, e) !== 'undecided') return;
+    if ((e.src !== 'u' && (proposalsOnly || e.src !== 'g')) || entryState(fd, e) !== 'undecided') return;
     for (const i of e.pix) setPixel(fd, i, accept ? 'add' : 'erase');
     touch(e.x0, e.y0, e.x1, e.y1);
   });
@@ -1963,7 +1965,8 @@ window.addEventListener('keydown', (e) => {
     case 'e': case 'E': setTool('eraser'); break;
     case 'x': case 'X': setTool('box'); break;
     case 'l': case 'L': setTool('lasso'); break;
-    case 'u': case 'U': setTool('unreviewed'); break;
+    case 'u': setTool('unreviewed'); break;
+    case 'U': decideAll(true, true); break;  // Shift+U: every undecided proposal of the fits, as outliers
     case 'p': case 'P': setTool('profile'); break;
     case '[': setBrush(state.brush - (state.brush > 10 ? 2 : 1)); break;
     case ']': setBrush(state.brush + (state.brush >= 10 ? 2 : 1)); break;

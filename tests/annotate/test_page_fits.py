@@ -245,3 +245,40 @@ def test_ctrl_click_seeds_a_missed_instance(spheres_log, tmp_path, browser):
             close_page(page)
     finally:
         srv.stop()
+
+
+def test_shift_u_takes_the_proposals_only(spheres_log, tmp_path, browser):
+    """Shift+U accepts every undecided proposal of the fits as outliers and nothing else (not the review
+    groups, which Shift+A would take too): the saved label is exactly the proposals' pixels, one input, and
+    the line under the list says beforehand how many it takes (what the page-only person of
+    bench/bench_label_pageonly.py needs)."""
+    db = tmp_path / "labels.sqlite"
+    srv = _server(spheres_log, db)
+    try:
+        assert srv.page.catalogue.wait_until_done(300)
+        assert srv.page.catalogue.fitter.wait(0, 300) is not None
+        header, arrays = _fits(srv, 0)
+        props = arrays["proposals"] > 0
+        assert header["n_proposals"] > 1 and props.any()
+        page, errors, blocked = open_page(browser, _url(srv), viewport=(1366, 768))
+        try:
+            wait_until(page, "window.zcut.fits() && window.zcut.fits().status === 'ready'", timeout_s=120)
+            n_g = page.evaluate("window.zcut.entries().filter((e) => e.src === 'g').length")
+            assert n_g > 0
+            assert f"Shift+U accepts the {header['n_proposals']} undecided proposals" in page.text_content("#bulkhint")
+            inputs0 = page.evaluate("window.zcut.inputs")
+            page.keyboard.press("Shift+U")
+            wait_until(page, "window.zcut.entries().every((e) => e.src !== 'u' || e.state === 'accepted')")
+            assert page.evaluate("window.zcut.inputs") == inputs0 + 1
+            assert page.evaluate("window.zcut.state().tool") != "unreviewed"  # u (lower case) stays the tool
+            wait_until(page, "window.zcut.unsaved().length === 0 && window.zcut.state().rev >= 1")
+            assert "Shift+U" not in page.text_content("#bulkhint")  # nothing left to take
+            assert not errors and not blocked
+        finally:
+            close_page(page)
+        with LabelStore(db) as store:
+            rec = store.frames(store.logs()[0])[0]
+            got = store.label(rec, annotator="alice").outliers
+        assert got.shape == props.shape and (got == props).all(), (int(got.sum()), int(props.sum()))
+    finally:
+        srv.stop()

@@ -1,0 +1,288 @@
+"""A scripted person that decides **only from what the labelling page shows** (issue 29, "Measure"): zone IoU
+of its labels against the paper's truth and the sensor's truth, its inputs per frame, with and without
+part models, then the accuracy of the filter bank scored by those labels against the paper's truth.
+
+The rule is docs/labelling.md's "A person who reads only the page" (written before any truth was read,
+not tuned). The person reads the rows of the list and the numbers they draw (``window.zcut.entries()``,
+``window.zcut.fits()``: the same fields the rows render), the fits line and the rise slider's τ; never the
+truth topics nor the generator's metadata. The bench reads the truth only after the label is saved.
+
+For each log (``--logs``: synthetic logs written by ``zcut synth``; seeds no test uses) the page is served
+in this process (``annotate.server.open_page`` + the tests' ``LiveServer``), once with the log's part
+model and once without (``--modes``; without: :func:`annotate.fits.fitter_for` answers "no part model",
+the page's fallback — review groups with their gap to the edge-aware local surface), and driven in
+Debian's chromium (Playwright; every request not to 127.0.0.1 blocked), frame after frame. Printed per
+frame: inputs (the page's own count), zone IoU of the saved label against ``/ground_truth/off_surface``
+(the paper's truth, ``zcut accuracy``'s default) and ``/ground_truth/outliers`` (the sensor's), and the
+limit of per-group decisions (each proposal, or each review group without a model, decided by its
+majority of the paper's truth). Then ``zcut accuracy LOG --labels DB --annotator page --json`` and
+``zcut accuracy LOG --json`` (the paper's truth) for the bank's methods.
+
+    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --logs A.mcap,B.mcap [--modes model,none]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+from annotate_helpers import CHROMIUM, CHROMIUM_ARGS, LiveServer  # noqa: E402
+from page_helpers import get_bundle, open_page, wait_until  # noqa: E402
+
+BANK = "zcut,sor,radius,cluster,speckle,window,mixed_pixel"
+K = 3.0  # the paper's k; the page shows its own (the fits line), which the person reads
+REJECT = 10.0  # K rejects a fit whose Err exceeds REJECT × the frame's median Err (docs/labelling.md: tuned on seed 7731)
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    u = (a | b).sum()
+    return float((a & b).sum() / u) if u else 1.0
+
+
+def truths(log: Path) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Per frame index: (paper's truth, sensor's truth), valid pixels only. Read after the labels are saved."""
+    from replay.logs import layout
+    from replay.logs.reader import LogReader
+
+    out = {}
+    for f in LogReader(log).frames():
+        v = np.isfinite(f.xyz).all(axis=2)
+        out[f.index] = (f.masks[layout.TRUTH_OFF_SURFACE] & v, f.masks[layout.TRUTH_OUTLIERS] & v)
+    return out
+
+
+def click_row(page, k: int) -> None:
+    page.click(f"#candlist .cand[data-k='{k}']")
+
+
+def person_with_model(page) -> dict:
+    """docs/labelling.md's rule with a part model: K (and R) the fits whose Err exceeds 10 × the median Err
+    the fits line shows; R the proposals whose shown distance is not above k × their shown Err; Shift+U;
+    Enter."""
+    wait_until(page, "window.zcut.fits() && ['ready', 'none', 'error'].includes(window.zcut.fits().status)",
+               timeout_s=1800)
+    f = page.evaluate("window.zcut.fits()")
+    if f["status"] != "ready":
+        return {"note": f"no fits: {f['message']}", "rejected_fits": 0, "exceptions": 0}
+    m = re.search(r"median Err ([0-9.]+) mm", f["info"])
+    km = re.search(r"([0-9.]+) × Err", f["info"])
+    k = float(km.group(1)) if km else K
+    med = float(m.group(1)) if m else float("nan")
+    rejected = 0
+    for fit in [x for x in f["fits"] if x["err"] > REJECT * med and not x["rejected"]]:
+        entries = page.evaluate("window.zcut.entries()")
+        j = next(i for i, e in enumerate(entries) if e["src"] == "f" and e["fit"] == fit["fit"])
+        click_row(page, j)
+        page.keyboard.press("k")
+        wait_until(page, f"window.zcut.fits().n_rejected === {rejected + 1}")
+        wait_until(page, "window.zcut.state().selected && window.zcut.state().selected.src === 'u'")
+        page.keyboard.press("r")  # its pixels: a part, measured, only badly fitted
+        rejected += 1
+    exceptions = 0
+    for _ in range(10_000):
+        entries = page.evaluate("window.zcut.entries()")
+        j = next((i for i, e in enumerate(entries) if e["src"] == "u" and e["state"] == "undecided"
+                  and e["dist"] is not None and not math.isnan(e["dist"]) and not e["dist"] > k * e["err"]), None)
+        if j is None:
+            break
+        click_row(page, j)
+        page.keyboard.press("r")
+        exceptions += 1
+    page.keyboard.press("Shift+U")
+    return {"note": "", "rejected_fits": rejected, "exceptions": exceptions, "median_err": med}
+
+
+def person_without_model(page) -> dict:
+    """docs/labelling.md's fallback rule: a group is an outlier when its shown gap exceeds 3 × τ (the rise
+    slider's starting value), or, with no surface below, when it was grouped as floating or above the rim;
+    the larger side in bulk, the other side row by row; Enter."""
+    tau = float(page.text_content("#riseval"))
+    entries = page.evaluate("window.zcut.entries()")
+
+    def outlier(e: dict) -> bool:
+        if e["gap"] is None or math.isnan(e["gap"]):
+            return e["source"] in ("floating", "above_rim")
+        return abs(e["gap"]) > 3 * tau
+
+    groups = [(i, e) for i, e in enumerate(entries) if e["src"] == "g"]
+    out = {e["id"] for _, e in groups if outlier(e)}
+    bulk_accept = len(out) >= len(groups) - len(out)
+    page.keyboard.press("Shift+A" if bulk_accept else "Shift+R")
+    minority = [e["id"] for _, e in groups if (e["id"] in out) != bulk_accept]
+    for gid in minority:
+        entries = page.evaluate("window.zcut.entries()")
+        j = next(i for i, e in enumerate(entries) if e["src"] == "g" and e["id"] == gid)
+        click_row(page, j)
+        page.keyboard.press("r" if bulk_accept else "a")
+    return {"note": f"τ {tau} mm", "groups": len(groups), "outlier_groups": len(out), "exceptions": len(minority)}
+
+
+def finish(page) -> None:
+    n_switch = page.evaluate("window.zcut.switchTimes.length")
+    page.keyboard.press("Enter")
+    wait_until(page, f"window.zcut.switchTimes.length > {n_switch} || window.zcut.state().nR >= window.zcut.state().nValid")
+    wait_until(page, "window.zcut.unsaved().length === 0")
+
+
+def serve(log: Path, db: Path, annotator: str, with_model: bool) -> LiveServer:
+    import annotate.server as server
+    from annotate.server import open_page as open_server_page
+    from replay.options import PipelineOptions
+
+    if with_model:
+        return LiveServer(open_server_page(log, db, annotator=annotator,
+                                           choose_bin_model=PipelineOptions().model_chooser()))
+    orig = server.fitter_for
+    server.fitter_for = lambda *a, **kw: (None, "no part model (bench: the page's fallback)")
+    try:
+        return LiveServer(open_server_page(log, db, annotator=annotator,
+                                           choose_bin_model=PipelineOptions().model_chooser()))
+    finally:
+        server.fitter_for = orig
+
+
+def run(log: Path, mode: str, db: Path, browser, viewport) -> list[dict]:
+    with_model = mode == "model"
+    t0 = time.process_time()
+    srv = serve(log, db, "page", with_model)
+    rows: list[dict] = []
+    try:
+        assert srv.page.catalogue.wait_until_done(3600)
+        page, blocked = open_page(browser, srv.base, srv.token, viewport)
+        n = len(srv.page.catalogue.frames)
+        for k in range(n):
+            wait_until(page, "window.zcut.state() && window.zcut.state().entries >= 0")
+            index = page.evaluate("window.zcut.state().index")
+            in0 = page.evaluate("window.zcut.inputs")
+            got = person_with_model(page) if with_model else person_without_model(page)
+            finish(page)
+            got["inputs"] = page.evaluate("window.zcut.inputs") - in0
+            rows.append({"log": log.name, "mode": mode, "frame": index, **got})
+            print(f"  {log.name} {mode} frame {index}: {got['inputs']} inputs {got}", flush=True)
+            if k + 1 < n:
+                wait_until(page, f"window.zcut.state().index !== {index}")
+        if blocked:
+            print(f"  blocked requests: {blocked}")
+        page.context.close()
+        # what the page saved and the groups it showed, read back from the server (after the labels)
+        for r in rows:
+            header, arrays = get_bundle(srv.base, srv.token, r["frame"])
+            r["region"] = arrays.get("zone", arrays["valid"])
+            _, lab = get_bundle(srv.base, srv.token, r["frame"], "label")
+            r["label"] = lab.get("outliers", np.zeros(r["region"].shape, bool))
+            if with_model:
+                import httpx
+
+                from annotate.payload import parse_bundle
+
+                resp = httpx.get(f"{srv.base}/api/frames/{r['frame']}/fits", headers=srv.headers(), timeout=60)
+                fh, fa = parse_bundle(resp.content)
+                r["units"] = fa["proposals"].astype(np.int64) if "proposals" in fa else np.zeros(r["region"].shape, np.int64)
+            else:
+                r["units"] = arrays["groups"].astype(np.int64)
+    finally:
+        srv.stop()
+    print(f"  {log.name} {mode}: {time.process_time() - t0:.0f} CPU-s of this process (server + bench)", flush=True)
+    return rows
+
+
+def score(rows: list[dict], log: Path) -> None:
+    tr = truths(log)
+    for r in rows:
+        paper, sensor = tr[r["frame"]]
+        reg = r["region"]
+        P, S, L = paper & reg, sensor & reg, r["label"] & reg
+        u = r["units"]
+        n = int(u.max())
+        best = np.zeros_like(P)
+        if n:
+            sz = np.bincount(u.ravel(), minlength=n + 1)
+            tp = np.bincount(u.ravel(), weights=P.ravel(), minlength=n + 1)
+            best = np.isin(u, [g for g in range(1, n + 1) if tp[g] >= 0.5 * sz[g]])
+        r.update(iou_paper=iou(L, P), iou_sensor=iou(L, S), limit=iou(best & reg, P), paper_px=int(P.sum()),
+                 label_px=int(L.sum()))
+        for key in ("region", "label", "units"):
+            del r[key]
+
+
+def accuracy(log: Path, db: Path | None) -> dict:
+    cmd = [sys.executable, "-m", "cli", "accuracy", str(log), "--json", "--methods", BANK]
+    if db is not None:
+        cmd += ["--labels", str(db), "--annotator", "page"]
+    p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    if p.returncode:
+        raise SystemExit(f"{' '.join(cmd)} failed: {p.stderr.strip()[-400:]}")
+    return json.loads(p.stdout)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--logs", required=True, help="comma-separated synthetic logs (zcut synth)")
+    ap.add_argument("--modes", default="model,none", help="model (the log's part model), none (the fallback)")
+    ap.add_argument("--work", type=Path, default=Path("/tmp/zcut_bench_label_pageonly"))
+    ap.add_argument("--viewport", default="1600x900")
+    ap.add_argument("--no-accuracy", action="store_true", help="skip zcut accuracy from the labels")
+    ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
+    args = ap.parse_args()
+    from playwright.sync_api import sync_playwright
+
+    logs = [Path(v) for v in args.logs.split(",")]
+    for lg in logs:
+        if not lg.is_file():
+            raise SystemExit(f"error: --logs: {lg}: no such file")
+    modes = args.modes.split(",")
+    if not set(modes) <= {"model", "none"}:
+        raise SystemExit(f"error: --modes takes model and/or none, got {args.modes!r}")
+    args.work.mkdir(parents=True, exist_ok=True)
+    vp = tuple(int(v) for v in args.viewport.split("x"))
+    rows, acc = [], []
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        for lg in logs:
+            for mode in modes:
+                db = args.work / f"{lg.stem}_{mode}.sqlite"
+                for q in (db, db.with_name(db.name + "-wal"), db.with_name(db.name + "-shm")):
+                    q.unlink(missing_ok=True)
+                got = run(lg, mode, db, browser, vp)
+                score(got, lg)
+                rows += got
+                if not args.no_accuracy and mode == "model":
+                    acc.append((lg, accuracy(lg, db), accuracy(lg, None)))
+        browser.close()
+    print()
+    print("| log | part model | frame | inputs | IoU paper's truth | IoU sensor's truth | per-group limit (paper) | label px | truth px |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['log']} | {'yes' if r['mode'] == 'model' else 'no'} | {r['frame']} | {r['inputs']} | "
+              f"{r['iou_paper']:.3f} | {r['iou_sensor']:.3f} | {r['limit']:.3f} | {r['label_px']} | {r['paper_px']} |")
+    for lg, by_labels, by_truth in acc:
+        print(f"\naccuracy of {lg.name}: labels ({by_labels['truth']}) vs {by_truth['truth']}")
+        meths = list(by_truth["pooled"])
+        fl = {m: by_labels["pooled"][m]["f1"] for m in meths}
+        ft = {m: by_truth["pooled"][m]["f1"] for m in meths}
+        rl = {m: i + 1 for i, m in enumerate(sorted(meths, key=lambda m: -fl[m]))}
+        rt = {m: i + 1 for i, m in enumerate(sorted(meths, key=lambda m: -ft[m]))}
+        print("| method | F1 by labels | F1 by paper's truth | Δ | rank by labels | rank by truth |")
+        print("|---|---|---|---|---|---|")
+        for m in sorted(meths, key=lambda m: rt[m]):
+            print(f"| {m} | {fl[m]:.3f} | {ft[m]:.3f} | {fl[m] - ft[m]:+.3f} | {rl[m]} | {rt[m]} |")
+        print(f"within ± 0.03: {sum(abs(fl[m] - ft[m]) <= 0.03 for m in meths)} / {len(meths)}; "
+              f"same ranking: {'yes' if rl == rt else 'no'}")
+    if args.json is not None:
+        args.json.write_text(json.dumps({"rows": rows, "accuracy": [
+            {"log": str(lg), "labels": a["pooled"], "truth": b["pooled"]} for lg, a, b in acc]}, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
