@@ -1034,7 +1034,7 @@ def _score_frames(options: AccuracyOptions, frames: Iterable[tuple[Any, Any]], t
         if isinstance(t, str):
             unscored.append(UnscoredFrame(frame.index, frame.stamp_ns, t))
             continue
-        shift = _displacement_mm(options.log, frame) if options.by_displacement else None
+        shift = displacement_mm(options.log, frame) if options.by_displacement else None
         open_ = options.labels is not None  # how much of each verdict the labels left undecided
         fa = frame_accuracy(frame.index, frame.stamp_ns, preds, t.outliers, reviewed=t.reviewed,
                             valid=valid, region=region, kinds=t.kind, detectable=t.detectable,
@@ -1102,7 +1102,7 @@ def _unexplained(frame: Any, r: Any) -> tuple[Mask, str] | None:
     return r.outliers[NAME], detail.surface_model
 
 
-def _displacement_mm(log: Path, frame: Any) -> np.ndarray | None:
+def displacement_mm(log: Path, frame: Any) -> np.ndarray | None:
     """|Z − Z_GT| (mm) of every pixel of a frame from the log's ``/ground_truth/depth`` message of its
     stamp (NaN where either is unknown); None when that message cannot be read (the frame then has no
     displacement classes, and the pooled report none)."""
@@ -1121,8 +1121,12 @@ def _displacement_mm(log: Path, frame: Any) -> np.ndarray | None:
                 if (msg.stamp_ns != frame.stamp_ns or msg.encoding != layout.TRUTH_DEPTH_ENCODING or msg.is_bigendian
                         or (msg.height, msg.width) != frame.shape or len(msg.data) != 4 * msg.width * msg.height):
                     continue
-                depth = np.frombuffer(bytes(msg.data), dtype="<f4").reshape(msg.height, msg.width)
-                shift: np.ndarray = np.abs(frame.xyz[..., 2].astype(np.float64) - depth) * 1000.0
+                depth = np.frombuffer(msg.data, dtype="<f4").reshape(msg.height, msg.width)  # read, not copied
+                # |Z − Z_GT| · 1000 in float64, in place: the same operations in the same order (the same bits)
+                shift: np.ndarray = frame.xyz[..., 2].astype(np.float64)
+                shift -= depth
+                np.abs(shift, out=shift)
+                shift *= 1000.0
                 return shift
     except (McapError, LogFormatError, ValueError, OSError, EOFError):
         return None

@@ -716,7 +716,7 @@ def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, 
     """One frame's comparison, its difference image and its truth (``(outliers, scored)``, None without).
     ``depth_log``: the log, when it has ``/ground_truth/depth``: the true outliers' displacement
     classes of each side's primary method, as ``zcut accuracy --by-displacement`` counts them."""
-    from annotate.accuracy import _displacement_mm, frame_accuracy
+    from annotate.accuracy import displacement_mm, frame_accuracy
 
     where = sa.region | sb.region
     ma, mb = sa.preds[pa], sb.preds[pb]
@@ -732,7 +732,7 @@ def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, 
         if isinstance(t, str):
             unscored = t
         else:
-            shift = _displacement_mm(depth_log, frame) if depth_log is not None else None
+            shift = displacement_mm(depth_log, frame) if depth_log is not None else None
             fa = frame_accuracy(frame.index, frame.stamp_ns, sa.preds, t.outliers, reviewed=t.reviewed,
                                 valid=sa.valid, region=sa.region, kinds=t.kind, displacement_mm=shift)
             fb = frame_accuracy(frame.index, frame.stamp_ns, sb.preds, t.outliers, reviewed=t.reviewed,
@@ -1030,9 +1030,8 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
 
     from annotate.disagreement import FILE as DISAGREEMENT
     from replay.outputs import OutputPlan, naming
-    from replay.pipeline.session import open_log
     from studies.driver import Progress, check_labels, meta_of, plan_logs, start_units
-    from studies.executors import make_executor
+    from studies.executors import InlineExecutor, make_executor
     from studies.parts import PARTS, PartStore
     from studies.work import Job
 
@@ -1042,16 +1041,34 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
             if n > 5 and (i % 20 == 0 or i == n - 1):
                 print(f"zcut: reading {n} logs: {i + 1}/{n} {path.name}", file=sys.stderr, flush=True)
 
+        # each log opened once: the planning's reader resolves the sides (their errors raised after the
+        # planning, as before); in this process (--workers 0) the first log's unit takes it too
+        sides: dict[str, LogSides] = {}
+        refused: list[Exception] = []
+        inline = isinstance(executor, InlineExecutor)
+
+        def opened(plan: LogPlan, reader: Any, first: Frame) -> None:
+            if refused or not plan.units:
+                return
+            try:
+                sides[plan.sha256] = resolve_log(opts, spec_a, spec_b, plan.path, reader, first)
+            except Exception as e:  # noqa: BLE001 - raised after the planning, as when the sides were resolved then
+                refused.append(e)
+                return
+            if inline and not _KEPT:
+                _kept(("log", str(plan.path), plan.sha256, opts.topic), lambda: (reader, first))
+
         plans = plan_logs([str(p) for p in opts.logs], config_file=None, overrides={}, topic=opts.topic,
                           frames_per_unit=opts.frames_per_unit, whole=False, progress=planning,
-                          bin_model=None if opts.bin_model is None else str(opts.bin_model))
+                          bin_model=None if opts.bin_model is None else str(opts.bin_model), opened=opened)
         check_labels(None if opts.labels is None else str(opts.labels), opts.annotator, plans)
-        sides: dict[str, LogSides] = {}
+        if refused:
+            raise refused[0]
         for plan in plans:
             if plan.units:
-                reader, first, _ = open_log(plan.path, topic=opts.topic)
-                sides[plan.sha256] = resolve_log(opts, spec_a, spec_b, plan.path, reader, first)
                 plan.units = _limited(plan.units, opts.frames)
+        usable = {p.sha256 for p in plans if p.units}
+        sides = {sha: s for sha, s in sides.items() if sha in usable}
         primaries = next(sides[p.sha256].primaries for p in plans if p.sha256 in sides)
         out = Path(opts.out)
         out.parent.mkdir(parents=True, exist_ok=True)

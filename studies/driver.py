@@ -114,10 +114,13 @@ def file_sha256(path: Path) -> str:
 def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str, Any], topic: str | None,
               frames_per_unit: int, whole: bool,
               progress: Callable[[int, int, Path], None] | None = None,
-              bin_model: str | None = None) -> list[LogPlan]:
+              bin_model: str | None = None,
+              opened: Callable[[LogPlan, Any, Any], None] | None = None) -> list[LogPlan]:
     """Every input log with its resolved config and units; a log that cannot be opened keeps its
     error (a warning and exit 3 at the end) unless no log at all can be used (an error). A log that
-    gets no bin model (no ``bin_model``, no attachment of its own) keeps the warning that says so."""
+    gets no bin model (no ``bin_model``, no attachment of its own) keeps the warning that says so.
+    ``opened(plan, reader, first)``: called with each usable log as opened here (its reader and first
+    readable frame), so that a caller needs not open it again (it must not raise)."""
     from replay.pipeline import config as cfg
     from replay.pipeline.bin_model import bin_model_source
     from replay.pipeline.session import open_log
@@ -138,8 +141,10 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str
             plan.sha256 = file_sha256(path)
             plan.units, plan.n_frames = plan_log(path, sha256=plan.sha256, frames_per_unit=frames_per_unit,
                                                  whole=whole, topic=topic)
-            reader, _, plan.resolved = open_log(path, file_layer=file_layer, overrides=overrides, topic=topic)
+            reader, first, plan.resolved = open_log(path, file_layer=file_layer, overrides=overrides, topic=topic)
             plan.bin_model_warning = bin_model_source(reader, bin_model)[1]
+            if opened is not None:
+                opened(plan, reader, first)
         except ConfigError:
             raise  # the options are wrong for every log: an error before any work
         except (ZcutError, OSError) as e:

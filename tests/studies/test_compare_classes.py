@@ -69,3 +69,26 @@ def test_two_part_kinds_hold_their_own_frames(data, tmp_path, capsys):
             e = per[f"part {kind}"][fig]
             assert (e["a"], e["b"], e["delta"]) == pytest.approx((d["a"], d["b"], d["delta"])), (kind, fig)
             assert (e["ci"][0] is None) == (d["ci"][0] is None)
+
+
+def test_displacement_mm_is_the_recorded_depths_difference(data):
+    """displacement_mm (which compare calls every frame) against the literal formula on the depth read
+    back by the project's own reader: the same float64 bits, every frame of a log."""
+    import numpy as np
+
+    from annotate.accuracy import displacement_mm
+    from replay.pipeline.session import open_log
+    from replay.synth.truth_depth import read_truth_depth
+
+    log = data / "rods.mcap"
+    depths = read_truth_depth(log)
+    reader, _, _ = open_log(log)
+    frames = list(reader.frames())
+    assert len(frames) == 3
+    for frame in frames:
+        got = displacement_mm(log, frame)
+        want = np.abs(frame.xyz[..., 2].astype(np.float64) - depths[frame.stamp_ns]) * 1000.0
+        assert got is not None and got.dtype == np.float64
+        assert np.array_equal(got, want, equal_nan=True), frame.index
+        assert np.isfinite(got).sum() > 1000  # a frame of real depths, not all NaN
+    assert displacement_mm(data / "missing.mcap", frames[0]) is None  # a log that cannot be read: no classes

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -258,3 +259,22 @@ def test_parts_without_the_recording_read_their_frames_again(data, runs, tmp_pat
     assert rc == 0 and "5 already done" in err, err
     _same_outputs(out, runs["0"])
     assert _rrd_content(out / "compare.rrd") == _rrd_content(runs["0"] / "compare.rrd")
+
+
+def test_in_one_process_the_planning_s_reader_serves_the_sides_and_the_first_log(data, runs, tmp_path, monkeypatch):
+    """Each log is opened by the planning only, its reader resolving A and B; in this process the first
+    log's units take it too (the second log's first unit opens its own): the same outputs."""
+    import replay.pipeline.session as session
+
+    real, opened = session.open_log, []
+
+    def counting(path, *args, **kwargs):
+        opened.append(Path(path).name)
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(session, "open_log", counting)
+    out = tmp_path / "once"
+    assert main(["compare", str(data / "rods.mcap"), str(data / "spheres.mcap"), "--a", "zcut", "--b",
+                 str(data / "rho.toml"), "-o", str(out), "--frames-per-unit", "1", "--workers", "0"]) == 0
+    assert sorted(opened) == ["rods.mcap", "spheres.mcap", "spheres.mcap"]  # before: three times each
+    _same_outputs(out, runs["0"])
