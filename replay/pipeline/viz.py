@@ -267,9 +267,16 @@ def default_blueprint(methods: tuple[str, ...] = ("zcut", "sor"), judged: tuple[
                           contents=["image/rgb", "image/outliers"]),
     ]
     if others:
-        image_views.append(rrb.Tabs(*[rrb.Spatial2DView(name=f"Outliers: {m}", origin="image",
-                                                        contents=["image/rgb", f"image/methods/{m}"])
-                                      for m in others]))
+        method_views = [rrb.Spatial2DView(name=f"Outliers: {m}", origin="image",
+                                          contents=["image/rgb", f"image/methods/{m}"]) for m in others]
+        if "explained" in others:  # its nearest known surface per pixel (classes) and the distance to it
+            method_views += [
+                rrb.Spatial2DView(name="Explained: nearest surface", origin="image",
+                                  contents=["image/rgb", "image/explained"]),
+                rrb.Spatial2DView(name="Explained: distance (mm)", origin="image",
+                                  contents=["image/explained_distance"]),
+            ]
+        image_views.append(rrb.Tabs(*method_views))
     pipeline = rrb.Horizontal(
         rrb.Vertical(*image_views),
         rrb.Vertical(

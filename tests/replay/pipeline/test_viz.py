@@ -370,3 +370,24 @@ def test_the_config_document_says_how_to_scrub_the_zcuts(recording):
     _, data, _, _ = recording
     (text,) = [t for t in column(data["/config"], "TextDocument:text") if t]
     assert viz.TIMELINES_HINT in (text[0] if isinstance(text, list) else text)
+
+
+def _view_names(container) -> list[str]:
+    """Every view's name in a blueprint container, depth first."""
+    import rerun.blueprint as rrb
+
+    out: list[str] = []
+    for c in container.contents:
+        out += [c.name] if isinstance(c, rrb.View) else _view_names(c)
+    return out
+
+
+def test_the_explained_method_shows_its_surfaces_and_distances():
+    """With ``explained`` run, the method tabs also show ``image/explained`` (each pixel's nearest known
+    surface, the fallback's "local surface" included) and ``image/explained_distance``; without it, not."""
+    from replay.pipeline.viz import default_blueprint
+
+    with_it = _view_names(default_blueprint(("zcut", "sor", "explained")).root_container)
+    assert {"Outliers: explained", "Explained: nearest surface", "Explained: distance (mm)"} <= set(with_it)
+    without = _view_names(default_blueprint(("zcut", "sor", "radius")).root_container)
+    assert "Outliers: radius" in without and not any(n.startswith("Explained") for n in without)
