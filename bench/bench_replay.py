@@ -122,6 +122,7 @@ def stage_costs(log: Path, ply: Path | None, *, clock: str = "cpu") -> dict[str,
     if clock == "cpu":
         stages.time = types.SimpleNamespace(perf_counter=time.process_time)  # type: ignore[attr-defined]  # the stage timers count CPU seconds (all threads)
     rows: list[dict[str, float]] = []
+    height = width = 0
     frames = session.reader.frames()
     while True:
         t = now()
@@ -132,12 +133,15 @@ def stage_costs(log: Path, ply: Path | None, *, clock: str = "cpu") -> dict[str,
         located = stages.locate_bin(frame, session.config, bin_model=session.prepared, seed=session.seed)
         r = stages.run_frame(frame, session.config, bin_model=session.prepared, located=located)
         rows.append({"read": read, **r.timings, "total": read + r.timings["total"]})
+        height, width = frame.xyz.shape[:2]
     rows = rows[1:] or rows
-    return {k: 1000 * statistics.median(row.get(k, 0.0) for row in rows) for k in STAGES} | {"frames": len(rows)}
+    return ({k: 1000 * statistics.median(row.get(k, 0.0) for row in rows) for k in STAGES}
+            | {"frames": len(rows), "width": width, "height": height})
 
 
 def print_stage_table(new: dict[str, float], old: dict[str, float] | None) -> None:
-    print(f"\ncost per stage, CPU ms per {SIZE[1]}x{SIZE[0]} frame (medians of {int(new['frames'])} frames; stages "
+    size = f"{int(new['width'])}x{int(new['height'])}" if "width" in new else f"{SIZE[1]}x{SIZE[0]}"
+    print(f"\ncost per stage, CPU ms per {size} frame (medians of {int(new['frames'])} frames; stages "
           "run one after the other)")
     head = f"  {'stage':13s} {'this tree':>10s}"
     if old is not None:
