@@ -65,3 +65,22 @@ def browser():
         b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         yield b
         b.close()
+
+
+@pytest.fixture(scope="session")
+def ray_cluster_runs(tmp_path_factory):
+    """The Ray tests' one cluster (tests/studies/test_batch_ray.py, test_compare_ray.py): starting a cluster in
+    its namespaces costs tens of seconds, so the session starts one and runs both modules' commands on it
+    in turn; their inputs and local runs first. (Here, not in tests/studies/conftest.py: a second
+    conftest module would take the name ``conftest`` that tests import for ``REAL_DATA``.)"""
+    from ray_in_netns import netns_unavailable, run_with_ray_cluster
+    from test_batch_ray import _ray_missing, _require, collect_batch, prepare_batch
+    from test_compare_ray import collect_compare, prepare_compare
+
+    _require(_ray_missing() or netns_unavailable())
+    batch, batch_cmds = prepare_batch(tmp_path_factory.mktemp("batch_ray"))
+    compare, compare_cmds = prepare_compare(tmp_path_factory.mktemp("compare_ray"))
+    cluster = run_with_ray_cluster([*batch_cmds, *compare_cmds], cpus=2, timeout=1500)
+    results = cluster["results"]
+    return {"batch": collect_batch(batch, results[:len(batch_cmds)], cluster["interfaces"]),
+            "compare": collect_compare(compare, results[len(batch_cmds):], cluster["interfaces"])}
