@@ -364,7 +364,8 @@ function renderBulkHint(fd) {
   const px = fd.entries.filter((e, k) => (e.src === 'g' || e.src === 'u') && fd.states[k] === 'undecided').reduce((a, e) => a + e.n, 0);
   const parts = [`Shift+A accepts the ${und} undecided groups of this list (${px} px; not the z-cut or SOR overlays), Shift+R rejects them.`];
   const uu = fd.entries.filter((e, k) => e.src === 'u' && fd.states[k] === 'undecided');
-  if (uu.length) parts.push(`Shift+U accepts the ${uu.length} undecided proposals of the fits (${uu.reduce((a, e) => a + e.n, 0)} px) only.`);
+  // first, where the one line shows it at 1366 x 768 (the rest is in the title)
+  if (uu.length) parts.unshift(`Shift+U accepts the ${uu.length} proposals (${uu.reduce((a, e) => a + e.n, 0)} px).`);
   const pr = fd.prop;
   if (pr && pr.p.length) {
     const { out, inl } = proposalPlan(fd);
