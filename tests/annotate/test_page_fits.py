@@ -48,13 +48,18 @@ def _fits(srv, i, client=None):
     return parse_bundle(r.content)
 
 
+def _fitted(srv, i=0):
+    """Once the page's frames are prepared and frame ``i`` is fitted: its fits (header, arrays)."""
+    assert srv.page.catalogue.wait_until_done(300)
+    assert srv.page.catalogue.fitter.wait(i, 300) is not None
+    return _fits(srv, i)
+
+
 def test_fits_are_shown_rejected_with_one_key_and_remembered(spheres_log, tmp_path, browser):
     db = tmp_path / "labels.sqlite"
     srv = _server(spheres_log, db)
     try:
-        assert srv.page.catalogue.wait_until_done(300)
-        assert srv.page.catalogue.fitter.wait(0, 300) is not None
-        header, arrays = _fits(srv, 0)
+        header, arrays = _fitted(srv)
         assert header["status"] == "ready" and header["n_fits"] > 10 and header["n_proposals"] > 0, header
         assert header["model"] == "spheres.mcap's part_model.ply" and header["k"] == 3.0
         # a fit decision is checked: its body, its index
@@ -255,9 +260,7 @@ def test_shift_u_takes_the_proposals_only(spheres_log, tmp_path, browser):
     db = tmp_path / "labels.sqlite"
     srv = _server(spheres_log, db)
     try:
-        assert srv.page.catalogue.wait_until_done(300)
-        assert srv.page.catalogue.fitter.wait(0, 300) is not None
-        header, arrays = _fits(srv, 0)
+        header, arrays = _fitted(srv)
         props = arrays["proposals"] > 0
         assert header["n_proposals"] > 1 and props.any()
         page, errors, blocked = open_page(browser, _url(srv), viewport=(1366, 768))
