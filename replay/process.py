@@ -8,7 +8,9 @@ remembers its signal. The command unwinds like after Ctrl-C: every ``finally`` r
 temporaries of its outputs are removed, its worker processes are stopped and a study's finished
 units stay on disk (a rerun goes on from there). The command line then prints one line and exits
 128 + the signal: 130 for SIGINT, 143 for SIGTERM, 129 for SIGHUP. A second signal while unwinding
-is not raised (the clean-up finishes); a third ends the process at once.
+is not raised (the clean-up finishes); a third ends the process at once. A signal whose exception
+Python cannot raise where it lands (a weakref callback or a ``__del__``, which Python would report
+as "Exception ignored" and go on from) is delivered again, so it raises at the next ordinary line.
 
 numba's cache: the kernels are cached beside their modules, else (a shared install the user cannot
 write) in numba's per-user folder; when neither can be written, :func:`configure_process` points
@@ -18,10 +20,12 @@ itself would fail at import, in every command).
 
 from __future__ import annotations
 
+import _thread
 import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
@@ -83,18 +87,45 @@ def interrupts_unwind() -> Iterator[InterruptState]:
     if threading.current_thread() is not threading.main_thread():
         yield state
         return
+    raised = [False]
 
     def handler(signum: int, frame: FrameType | None) -> None:
         state.signals.append(signum)
-        if len(state.signals) == 1:
+        if not raised[0]:
+            raised[0] = True
             raise Interrupted(signum)
         if len(state.signals) >= 3:  # a clean-up that hangs: leave now (a later run removes the leftovers)
             os._exit(128 + state.signals[0])
 
+    in_hook = [False]
+
+    def redeliver(signum: int) -> None:
+        while in_hook[0]:  # (the handler must not run inside the hook: its exception would be ignored again)
+            time.sleep(0.0005)
+        _thread.interrupt_main(signal.Signals(signum))
+
+    def swallowed(unraisable: sys.UnraisableHookArgs) -> None:
+        # The handler's exception landed where Python cannot raise it (a weakref callback, such as
+        # importlib's module-lock one, or a __del__): Python would print "Exception ignored in ..." and
+        # go on. Deliver the same signal again from a thread once this hook has returned, so that it
+        # raises at the main thread's next ordinary line instead.
+        e = unraisable.exc_value
+        if not (isinstance(e, Interrupted) and raised[0] and state.signals):
+            previous_hook(unraisable)
+            return
+        in_hook[0] = True
+        raised[0] = False
+        state.signals.pop()
+        threading.Thread(target=redeliver, args=(e.signum,), name="zcut-redeliver", daemon=True).start()
+        in_hook[0] = False
+
+    previous_hook = sys.unraisablehook
     previous = {s: signal.signal(s, handler) for s in INTERRUPT_SIGNALS}
+    sys.unraisablehook = swallowed
     try:
         yield state
     finally:
+        sys.unraisablehook = previous_hook
         for s, h in previous.items():
             signal.signal(s, h)
 

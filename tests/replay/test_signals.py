@@ -147,3 +147,37 @@ def test_sinks_interrupted_while_starting_leave_nothing(log, tmp_path):
     with pytest.raises(Interrupted):
         sinks.start(info)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("where", ["weakref callback", "__del__"])
+def test_a_signal_landing_where_python_ignores_exceptions_still_interrupts(where):
+    """The handler's exception may land in a weakref callback (CI: importlib's module-lock ``cb``
+    while replay imported a module) or a ``__del__``, where Python prints "Exception ignored in ..."
+    and goes on: the signal is delivered again and raises at the next ordinary line, with nothing
+    printed (it was the replay that ran to its end, printed a traceback and then 'interrupted')."""
+    code = (
+        "import os, signal, time, weakref\n"
+        "from replay.process import Interrupted, interrupts_unwind\n"
+        "class Thing:\n"
+        "    def __del__(self):\n"
+        "        if WHERE == '__del__':\n"
+        "            os.kill(os.getpid(), signal.SIGHUP)\n"
+        "            for _ in range(1000): pass\n"
+        "def cb(ref):\n"
+        "    os.kill(os.getpid(), signal.SIGHUP)\n"
+        "    for _ in range(1000): pass\n"
+        "try:\n"
+        "    with interrupts_unwind() as state:\n"
+        "        t = Thing()\n"
+        "        r = weakref.ref(t, cb if WHERE == 'weakref callback' else None)\n"
+        "        del t\n"
+        "        deadline = time.monotonic() + 30\n"
+        "        while time.monotonic() < deadline: pass\n"
+        "        print('not interrupted')\n"
+        "except Interrupted as e:\n"
+        "    print('interrupted', e.signum, state.signals)\n"
+    ).replace("WHERE", repr(where))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out
+    assert out.stdout.strip() == f"interrupted {int(signal.SIGHUP)} [{int(signal.SIGHUP)}]", out
+    assert out.stderr == "", out
