@@ -16,6 +16,7 @@ runner's own signal handling must stay as it is.
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 
@@ -23,11 +24,14 @@ _SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def _before(signum: int, frame: object) -> None:
+    # Nothing is written yet, so the process ends here at once: an exception (SystemExit) could land in
+    # an import's weakref callback, where Python prints "Exception ignored" and goes on importing.
     try:
         sys.stderr.write(f"interrupted ({signal.Signals(signum).name})\n")
+        sys.stderr.flush()
     except (AttributeError, OSError):  # stderr closed or gone (a hung-up terminal): the status says it
         pass
-    raise SystemExit(128 + signum)
+    os._exit(128 + signum)
 
 
 def run() -> int:

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 
+from replay.process import raise_if_interrupted
 from zcut.errors import ZcutError
 
 __all__ = ["AtomicOutput", "OutputBusyError", "OutputError", "OutputLock", "OutputPlan", "config_path_for",
@@ -450,7 +451,14 @@ class AtomicOutput:
             os.close(fd)
 
     def commit(self) -> Path:
-        """Rename the finished file into place (only over a regular file); returns the final path."""
+        """Rename the finished file into place (only over a regular file); returns the final path.
+        After a signal whose exception a library swallowed, raises :class:`~replay.process.Interrupted`
+        instead (the temporary is removed): an interrupted command publishes nothing."""
+        try:
+            raise_if_interrupted()
+        except BaseException:
+            self.abort()
+            raise
         try:
             st = os.lstat(self.path)
         except FileNotFoundError:

@@ -10,7 +10,9 @@ units stay on disk (a rerun goes on from there). The command line then prints on
 128 + the signal: 130 for SIGINT, 143 for SIGTERM, 129 for SIGHUP. A second signal while unwinding
 is not raised (the clean-up finishes); a third ends the process at once. A signal whose exception
 Python cannot raise where it lands (a weakref callback or a ``__del__``, which Python would report
-as "Exception ignored" and go on from) is delivered again, so it raises at the next ordinary line.
+as "Exception ignored" and go on from) is delivered again, so it raises at the next ordinary line;
+one a library swallowed (a bare ``except``) raises again between frames and before an output is
+published (:func:`raise_if_interrupted`).
 
 numba's cache: the kernels are cached beside their modules, else (a shared install the user cannot
 write) in numba's per-user folder; when neither can be written, :func:`configure_process` points
@@ -74,6 +76,20 @@ class InterruptState:
         return None if not self.signals else 128 + self.signals[0]
 
 
+#: the states of the :func:`interrupts_unwind` blocks running (innermost last)
+_active: list[InterruptState] = []
+
+
+def raise_if_interrupted() -> None:
+    """Raise :class:`Interrupted` when a signal came during :func:`interrupts_unwind` but the work
+    went on as if it had not: a library swallowed its exception (a bare ``except`` around an import,
+    ...). Called before what cannot be undone (publishing an output) and between frames. Does nothing
+    while an exception is being handled (the unwinding after the signal, whose clean-up must finish),
+    outside such a block, and in a study's worker processes (they ignore the signals)."""
+    if _active and _active[-1].signals and sys.exc_info()[1] is None:
+        raise Interrupted(_active[-1].signals[0])
+
+
 @contextmanager
 def interrupts_unwind() -> Iterator[InterruptState]:
     """SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` in the main thread while the block runs.
@@ -122,9 +138,11 @@ def interrupts_unwind() -> Iterator[InterruptState]:
     previous_hook = sys.unraisablehook
     previous = {s: signal.signal(s, handler) for s in INTERRUPT_SIGNALS}
     sys.unraisablehook = swallowed
+    _active.append(state)
     try:
         yield state
     finally:
+        _active.remove(state)
         sys.unraisablehook = previous_hook
         for s, h in previous.items():
             signal.signal(s, h)

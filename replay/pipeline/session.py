@@ -43,6 +43,7 @@ from replay.pipeline.explained import with_log_part_model
 from replay.pipeline.sinks import FrameSink, NullSink, ReplayStart
 from replay.pipeline.stages import FrameResult, bin_zone, judge_zone, locate_bin, run_frame
 from replay.pipeline.zone import BinLocation, Zone
+from replay.process import raise_if_interrupted
 from zcut.bin_model import BinModel
 from zcut.prepared_model import PreparedBinModel
 from zcut.registration import RegistrationResult
@@ -615,6 +616,7 @@ class ReplaySession:
             results = self.results(frames=frames, in_flight=in_flight)
             try:
                 for frame, result in results:
+                    raise_if_interrupted()  # a signal a library swallowed: stop here, not at the end
                     sink.write(frame, result)
                     row = FrameRow.of(result, true_pose=poses.get(frame.stamp_ns))
                     summary.rows.append(row)

@@ -181,3 +181,35 @@ def test_a_signal_landing_where_python_ignores_exceptions_still_interrupts(where
     assert out.returncode == 0, out
     assert out.stdout.strip() == f"interrupted {int(signal.SIGHUP)} [{int(signal.SIGHUP)}]", out
     assert out.stderr == "", out
+
+
+def test_a_signal_a_library_swallowed_still_publishes_nothing(tmp_path):
+    """A library may swallow the interruption (a bare ``except`` around an import: CI saw a replay
+    that ran to its end and wrote its outputs after a SIGHUP at start-up): the next output to be
+    published raises it instead and its temporary is removed; during the unwinding that follows, the
+    clean-up runs (nothing raises again); outside a command's block nothing is checked."""
+    from replay.outputs import AtomicOutput
+    from replay.process import interrupts_unwind, raise_if_interrupted
+
+    target = tmp_path / "out.bin"
+    raise_if_interrupted()  # no block: nothing
+    with pytest.raises(Interrupted) as caught:
+        with interrupts_unwind() as state:
+            try:
+                signal.raise_signal(signal.SIGHUP)
+            except BaseException:  # noqa: BLE001,S110 - the library that swallows it
+                pass
+            assert state.signals == [signal.SIGHUP]
+            out = AtomicOutput(target)
+            out.temp.write_bytes(b"x")
+            try:
+                out.commit()
+            finally:
+                raise_if_interrupted()  # unwinding: the clean-up is not interrupted again
+    assert caught.value.signum == signal.SIGHUP
+    assert list(tmp_path.iterdir()) == []
+    with interrupts_unwind():  # no signal: publishes
+        out = AtomicOutput(target)
+        out.temp.write_bytes(b"x")
+        out.commit()
+    assert target.read_bytes() == b"x"
