@@ -10,6 +10,11 @@ runs), the removal whole and its pieces (the frame tolerance and the query of th
 residuals, the classification, the straggler test's first pass and the passes after it, the masks and
 height image), and the bin check. Medians and minima over the frames after the first (a warm-up).
 
+``--warm`` also runs the fine ICP from the previous frame's pose (as a replay that carried each frame's pose
+to the next would: a warm start) and prints, per frame, its CPU ms against the seed pose's, how far its pose
+lies from the replay's (translation of the bin origin in mm, rotation in degrees) and whether the removal at
+that pose gives the same masks and height image as at the replay's pose.
+
 ``--icp-repeats N`` (default 6) also runs the fine ICP N times on the same frame and input and prints
 how many distinct poses came back and the removal results they give (Open3D's ICP reduces over
 threads in an order that varies: the pose may differ in its last bits from call to call).
@@ -44,6 +49,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("log", type=Path)
     ap.add_argument("--icp-repeats", type=int, default=6)
+    ap.add_argument("--warm", action="store_true", help="also the fine ICP from the previous frame's pose")
     args = ap.parse_args()
     session = ReplaySession.open(args.log, choose_bin_model=lambda reader: bin_model_for(reader, None))
     cfg, pm = session.config, session.prepared
@@ -51,6 +57,8 @@ def main() -> None:
     index, p, c = pm.removal, pm.removal.params, cfg.registration
     times: dict[str, list[float]] = {}
     distinct: list[str] = []
+    warm: list[str] = []
+    previous: np.ndarray | None = None
 
     def timed(name: str, f: Callable[..., Any], *a: Any, **k: Any) -> Any:
         t0 = time.process_time()
@@ -77,6 +85,21 @@ def main() -> None:
                   coarse=False)
             rem = timed("removal: whole", rm.remove_table_and_bin, a, loc.bin_mask.mask, index=index, T_cam_bin=T,
                         ring=loc.ring)
+            if args.warm and previous is not None:
+                w = timed("registration: fine ICP, warm start", register_bin, pm.icp, target, params=c, init=previous,
+                          coarse=False)
+                Tw = w.T_cam_bin
+                rem_w = rm.remove_table_and_bin(a, loc.bin_mask.mask, index=index, T_cam_bin=Tw, ring=loc.ring)
+                same = all(np.array_equal(getattr(rem, f), getattr(rem_w, f), equal_nan=True)
+                           for f in ("table", "easy_outliers", "bin_points", "zone"))
+                cos = np.clip((np.trace(T[:3, :3].T @ Tw[:3, :3]) - 1) / 2, -1.0, 1.0)
+                warm.append(f"frame {i}: warm {1000 * times['registration: fine ICP, warm start'][-1]:.1f} ms, seed "
+                            f"{1000 * times['registration: fine ICP'][-1]:.1f} ms; pose off the replay's by "
+                            f"{1000 * np.linalg.norm(Tw[:3, 3] - T[:3, 3]):.2e} mm, {np.degrees(np.arccos(cos)):.1e} deg; "
+                            f"masks {'the same' if same else 'DIFFER'}, height image "
+                            f"{'the same' if np.array_equal(rem.height_mm, rem_w.height_mm, equal_nan=True) else 'differs'}, "
+                            f"converged {w.converged}")
+            previous = T
             timed("removal: frame_tolerance", rm.frame_tolerance, a, loc.ring, index, T)
             flat = rm._ring_sample(a, loc.ring)
             nb = rm._ring_neighbours(a.shape[:2], loc.ring, flat, 4)
@@ -124,7 +147,7 @@ def main() -> None:
     for name, v in times.items():
         v = v[1:] or v
         print(f"  {name:36s} {1000 * statistics.median(v):7.1f}  (min {1000 * min(v):6.1f})")
-    for line in distinct:
+    for line in distinct + warm:
         print(" ", line)
 
 
