@@ -579,7 +579,7 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
     at the open pixels) that fail the test, 2 at those that pass. ``code`` is only read: every candidate
     is judged on the labels before the pass, as the reference's first pass judges them. The counts are
     :func:`_labelled_around`'s, as sums of three column sums of the row and its two neighbours (no branch per
-    neighbour: ~3x cheaper)."""
+    neighbour; the whole pass 11.1-11.3 -> 10.5-10.6 CPU ms at 1920 x 1200, with the bin test's shortcut)."""
     H, W = code.shape
     for r in numba.prange(H):
         col = np.empty(W + 2, np.int32)  # col[c + 1]: labelled pixels of column c in rows r-1..r+1
