@@ -10,6 +10,17 @@ runs), the removal whole and its pieces (the frame tolerance and the query of th
 residuals, the classification, the straggler test's first pass and the passes after it, the masks and
 height image), and the bin check. Medians and minima over the frames after the first (a warm-up).
 
+``--warm`` also runs the fine ICP from the previous frame's pose (as a replay that carried each frame's pose
+to the next would: a warm start) and prints, per frame, its CPU ms against the seed pose's, how far its pose
+lies from the replay's (translation of the bin origin in mm, rotation in degrees) and whether the removal at
+that pose gives the same masks and height image as at the replay's pose.
+
+``--own-icp`` also runs the fine pass as a plain numpy point-to-plane ICP written after Open3D 0.20's
+``registration_icp`` (correspondences from the prepared model's KD-tree, built once, instead of the tree Open3D
+builds on every call; the same Jacobian, update and stopping rule) and prints how far its pose lies from
+Open3D's, their fitness, RMSE and iterations, and both CPU times: the measure of whether such a step could
+replace Open3D's (a prototype, not used by the pipeline).
+
 ``--icp-repeats N`` (default 6) also runs the fine ICP N times on the same frame and input and prints
 how many distinct poses came back and the removal results they give (Open3D's ICP reduces over
 threads in an order that varies: the pose may differ in its last bits from call to call).
@@ -40,10 +51,73 @@ from zcut.binmask import bin_mask, bin_pixels  # noqa: E402
 from zcut.registration import pose_fitness, prepare_target, register_bin  # noqa: E402
 
 
+def _euler(x: np.ndarray) -> np.ndarray:
+    """Open3D's ``TransformVector6dToMatrix4d``: Rz(x[2]) Ry(x[1]) Rx(x[0]), translation x[3:]."""
+    ca, sa, cb, sb, cc, sc = np.cos(x[0]), np.sin(x[0]), np.cos(x[1]), np.sin(x[1]), np.cos(x[2]), np.sin(x[2])
+    U = np.eye(4)
+    U[:3, :3] = (np.array([[cc, -sc, 0], [sc, cc, 0], [0, 0, 1]]) @ np.array([[cb, 0, sb], [0, 1, 0], [-sb, 0, cb]])
+                 @ np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]]))
+    U[:3, 3] = x[3:]
+    return U
+
+
+def own_icp(src: np.ndarray, icp: Any, dist: float, T: np.ndarray, max_iterations: int
+            ) -> tuple[np.ndarray, float, float, int]:
+    """Point-to-plane ICP as Open3D 0.20's ``registration_icp`` runs it, on the prepared model's KD-tree:
+    ``(T, fitness, rmse, iterations)``."""
+    pts, nrm = np.asarray(icp.fine.points), np.asarray(icp.fine.normals)
+    pcd = src @ T[:3, :3].T + T[:3, 3]
+
+    def correspond(pcd: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+        d, j = icp.tree.query(pcd, k=1, distance_upper_bound=dist)
+        ok = np.isfinite(d)
+        n = int(ok.sum())
+        return ok, j, n / len(pcd), float(np.sqrt((d[ok] ** 2).sum() / n)) if n else 0.0
+
+    ok, j, fit, rmse = correspond(pcd)
+    its = 0
+    for _ in range(max_iterations):
+        its += 1
+        vs, vt, nt = pcd[ok], pts[j[ok]], nrm[j[ok]]
+        r = np.einsum("ij,ij->i", vs - vt, nt)
+        J = np.concatenate([np.cross(vs, nt), nt], axis=1)
+        U = _euler(np.linalg.solve(J.T @ J, -(J.T @ r)))
+        T = U @ T
+        pcd = pcd @ U[:3, :3].T + U[:3, 3]
+        fit0, rmse0 = fit, rmse
+        ok, j, fit, rmse = correspond(pcd)
+        if abs(fit0 - fit) < 1e-6 and abs(rmse0 - rmse) < 1e-6:  # Open3D's relative_fitness, relative_rmse
+            break
+    return T, fit, rmse, its
+
+
+def own_against_open3d(icp: Any, target: Any, c: Any, T_seed: np.ndarray) -> str:
+    """The fine pass from ``T_seed`` by Open3D and by :func:`own_icp`: their poses' difference and CPU times."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    T0 = np.linalg.inv(T_seed)
+    t0 = time.process_time()
+    ref = reg.registration_icp(target.cloud, icp.fine, c.fine_correspondence_m, T0,
+                               reg.TransformationEstimationPointToPlane(),
+                               reg.ICPConvergenceCriteria(max_iteration=int(c.max_iterations)))
+    t1 = time.process_time()
+    T, fit, rmse, its = own_icp(np.asarray(target.cloud.points), icp, c.fine_correspondence_m, T0,
+                                int(c.max_iterations))
+    t2 = time.process_time()
+    Tr = np.asarray(ref.transformation)
+    return (f"own ICP off Open3D's by {1000 * np.abs(T[:3, 3] - Tr[:3, 3]).max():.1e} mm (rotation entries "
+            f"{np.abs(T[:3, :3] - Tr[:3, :3]).max():.1e}); fitness {fit - ref.fitness:+.1e}, RMSE "
+            f"{rmse - ref.inlier_rmse:+.1e} m; {its} iterations; Open3D {1000 * (t1 - t0):.1f} ms, own "
+            f"{1000 * (t2 - t1):.1f} ms")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("log", type=Path)
     ap.add_argument("--icp-repeats", type=int, default=6)
+    ap.add_argument("--warm", action="store_true", help="also the fine ICP from the previous frame's pose")
+    ap.add_argument("--own-icp", action="store_true", help="also a numpy point-to-plane ICP against Open3D's")
     args = ap.parse_args()
     session = ReplaySession.open(args.log, choose_bin_model=lambda reader: bin_model_for(reader, None))
     cfg, pm = session.config, session.prepared
@@ -51,6 +125,9 @@ def main() -> None:
     index, p, c = pm.removal, pm.removal.params, cfg.registration
     times: dict[str, list[float]] = {}
     distinct: list[str] = []
+    warm: list[str] = []
+    own: list[str] = []
+    previous: np.ndarray | None = None
 
     def timed(name: str, f: Callable[..., Any], *a: Any, **k: Any) -> Any:
         t0 = time.process_time()
@@ -77,6 +154,23 @@ def main() -> None:
                   coarse=False)
             rem = timed("removal: whole", rm.remove_table_and_bin, a, loc.bin_mask.mask, index=index, T_cam_bin=T,
                         ring=loc.ring)
+            if args.warm and previous is not None:
+                w = timed("registration: fine ICP, warm start", register_bin, pm.icp, target, params=c, init=previous,
+                          coarse=False)
+                Tw = w.T_cam_bin
+                rem_w = rm.remove_table_and_bin(a, loc.bin_mask.mask, index=index, T_cam_bin=Tw, ring=loc.ring)
+                same = all(np.array_equal(getattr(rem, f), getattr(rem_w, f), equal_nan=True)
+                           for f in ("table", "easy_outliers", "bin_points", "zone"))
+                cos = np.clip((np.trace(T[:3, :3].T @ Tw[:3, :3]) - 1) / 2, -1.0, 1.0)
+                warm.append(f"frame {i}: warm {1000 * times['registration: fine ICP, warm start'][-1]:.1f} ms, seed "
+                            f"{1000 * times['registration: fine ICP'][-1]:.1f} ms; pose off the replay's by "
+                            f"{1000 * np.linalg.norm(Tw[:3, 3] - T[:3, 3]):.2e} mm, {np.degrees(np.arccos(cos)):.1e} deg; "
+                            f"masks {'the same' if same else 'DIFFER'}, height image "
+                            f"{'the same' if np.array_equal(rem.height_mm, rem_w.height_mm, equal_nan=True) else 'differs'}, "
+                            f"converged {w.converged}")
+            previous = T
+            if args.own_icp:
+                own.append(f"frame {i}: " + own_against_open3d(pm.icp, target, c, session.seed.T_cam_bin))
             timed("removal: frame_tolerance", rm.frame_tolerance, a, loc.ring, index, T)
             flat = rm._ring_sample(a, loc.ring)
             nb = rm._ring_neighbours(a.shape[:2], loc.ring, flat, 4)
@@ -124,7 +218,7 @@ def main() -> None:
     for name, v in times.items():
         v = v[1:] or v
         print(f"  {name:36s} {1000 * statistics.median(v):7.1f}  (min {1000 * min(v):6.1f})")
-    for line in distinct:
+    for line in distinct + warm + own:
         print(" ", line)
 
 

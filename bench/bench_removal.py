@@ -1,7 +1,7 @@
 """Benchmark: the bin removal (and the bin check after it) per frame, fast path against the previous one.
 
 Run: ``.venv/bin/python bench/bench_removal.py [--sizes 640x480,1920x1200,3840x2400] [--frames N] [--repeats R]
-[--kind KIND] [--dir DIR] [--log LOG]``
+[--kind KIND] [--dir DIR] [--log LOG ...] [--against OLD_TREE]``
 
 For each size, synthesises (once, cached in ``--dir``) a log of N filled-bin frames of ``--kind`` (its own
 bin model attached), locates the bin in each frame as the replay does (bin mask, registration: not
@@ -15,18 +15,28 @@ replay session limits it: a multi-threaded BLAS spins ~30 CPU-ms in the residual
 
 It checks that both give the same classes, height image and cloud bit for bit, and prints CPU ms per
 frame (``time.process_time``, all threads: the machine is shared, wall time is not compared), medians
-over frames and repeats, the ratio previous / fast and the cost per Mpx. ``--log`` measures an existing
-log (with its bin model) instead, at its own size.
+over frames and repeats, the ratio previous / fast and the cost per Mpx. ``--log`` measures existing
+logs (with their bin model) instead, at their own size.
+
+``--against OLD_TREE`` (a source tree of an earlier commit, e.g. ``git archive COMMIT | tar -x -C OLD_TREE``)
+also times that tree's fast path (its ``zcut`` imported as ``zcut_prev``, on the same prepared index and
+frames, alternating with this tree's), checks it gives the same results bit for bit, and prints its ratio
+to this tree's (``prev/new``). ``--holes`` measures the frames with large invalid regions instead: their
+left half and every 7th row set to NaN after locating (the same footprint, ring and pose).
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import statistics
+import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
 
@@ -57,11 +67,37 @@ def located_frames(log: Path, frames: int):
     return s, out
 
 
-def measure(log: Path, frames: int, repeats: int) -> dict[str, float]:
+def previous_removal(tree: Path) -> Callable[..., Any]:
+    """The ``remove_table_and_bin`` of the source tree ``tree`` (its ``zcut`` imported as ``zcut_prev``)."""
+    spec = importlib.util.spec_from_file_location("zcut_prev", tree / "zcut" / "__init__.py",
+                                                  submodule_search_locations=[str(tree / "zcut")])
+    if spec is None or spec.loader is None:
+        raise SystemExit(f"{tree}: no zcut package there")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["zcut_prev"] = module
+    spec.loader.exec_module(module)
+    from zcut_prev.removal import remove_table_and_bin as prev  # type: ignore[import-not-found]
+
+    return prev  # type: ignore[no-any-return]
+
+
+def with_holes(xyz: np.ndarray) -> np.ndarray:
+    """The frame with large invalid regions: its left half and every 7th row NaN."""
+    a = xyz.copy()
+    a[:, : a.shape[1] // 2] = np.nan
+    a[::7] = np.nan
+    return a
+
+
+def measure(log: Path, frames: int, repeats: int, prev: Callable[..., Any] | None = None,
+            holes: bool = False) -> dict[str, float]:
     s, located = located_frames(log, frames)
+    if holes:
+        located = [(with_holes(xyz), fp, ring, T) for xyz, fp, ring, T in located]
     assert s.prepared is not None
     index, params, band = s.prepared.removal, s.config.removal, s.config.zcut.max_depth
-    times: dict[str, list[float]] = {"removal old": [], "removal new": [], "stage old": [], "stage new": []}
+    times: dict[str, list[float]] = {"removal old": [], "removal new": [], "stage old": [], "stage new": [],
+                                     "removal prev": []}
 
     def stage(xyz, fp, ring, T, reference: bool) -> tuple[float, float]:
         t0 = time.process_time()
@@ -76,14 +112,21 @@ def measure(log: Path, frames: int, repeats: int) -> dict[str, float]:
         for f in FIELDS:
             if not np.array_equal(getattr(old, f), getattr(new, f), equal_nan=True):
                 raise SystemExit(f"{log.name}: the fast removal's {f} differs from the previous one's")
+            if prev is not None and not np.array_equal(getattr(prev(xyz, fp, index=index, T_cam_bin=T, ring=ring), f),
+                                                       getattr(new, f), equal_nan=True):
+                raise SystemExit(f"{log.name}: the removal's {f} differs from the previous tree's")
     for _ in range(repeats):
         for xyz, fp, ring, T in located:
             for ref in (True, False):
                 rem, st = stage(xyz, fp, ring, T, ref)
                 times["removal old" if ref else "removal new"].append(rem)
                 times["stage old" if ref else "stage new"].append(st)
+            if prev is not None:
+                t0 = time.process_time()
+                prev(xyz, fp, index=index, T_cam_bin=T, ring=ring)
+                times["removal prev"].append(time.process_time() - t0)
     h, w = located[0][0].shape[:2]
-    return {k: 1000 * statistics.median(v) for k, v in times.items()} | {"mpx": h * w / 1e6, "w": w, "h": h,
+    return {k: 1000 * statistics.median(v) for k, v in times.items() if v} | {"mpx": h * w / 1e6, "w": w, "h": h,
                                                                          "frames": len(located)}
 
 
@@ -94,13 +137,16 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--kind", default="zinc_nuts")
     ap.add_argument("--dir", default=str(Path(tempfile.gettempdir()) / "zcut_bench_removal"))
-    ap.add_argument("--log", type=Path, help="an existing log (with its bin model) instead of synthetic ones")
+    ap.add_argument("--log", type=Path, nargs="+", help="existing logs (with their bin model) instead of synthetic ones")
+    ap.add_argument("--against", type=Path, help="a source tree of an earlier commit: time its fast path too")
+    ap.add_argument("--holes", action="store_true", help="the frames with large invalid regions")
     args = ap.parse_args()
+    prev = previous_removal(args.against) if args.against is not None else None
     d = Path(args.dir)
     d.mkdir(parents=True, exist_ok=True)
     logs = []
     if args.log is not None:
-        logs.append(args.log)
+        logs.extend(args.log)
     else:
         for size in args.sizes.split(","):
             w, h = (int(v) for v in size.lower().split("x"))
@@ -111,14 +157,20 @@ def main() -> None:
             logs.append(log)
     print("CPU ms per frame (time.process_time, all threads), medians; old = reference=True, new = fast path; "
           "stage = removal + bin check")
-    print(f"  {'size':>10s} {'what':8s} {'old':>8s} {'new':>8s} {'old/new':>8s} {'old/Mpx':>8s} {'new/Mpx':>8s}")
+    if prev is not None:
+        print(f"prev = the fast path of {args.against}")
+    print(f"  {'log':32s} {'size':>10s} {'what':8s} {'old':>8s} {'new':>8s} {'old/new':>8s} {'old/Mpx':>8s} "
+          f"{'new/Mpx':>8s}" + (f" {'prev':>8s} {'prev/new':>8s}" if prev is not None else ""))
     for log in logs:
         with threadpool_limits(limits=1, user_api="blas"):
-            r = measure(log, args.frames, args.repeats)
+            r = measure(log, args.frames, args.repeats, prev, args.holes)
         for what in ("removal", "stage"):
             o, n = r[f"{what} old"], r[f"{what} new"]
-            print(f"  {int(r['w']):>5d}x{int(r['h']):<4d} {what:8s} {o:8.1f} {n:8.1f} {o / n:8.2f} "
-                  f"{o / r['mpx']:8.1f} {n / r['mpx']:8.1f}")
+            extra = ""
+            if prev is not None and what == "removal":
+                extra = f" {r['removal prev']:8.1f} {r['removal prev'] / n:8.2f}"
+            print(f"  {log.name[:32]:32s} {int(r['w']):>5d}x{int(r['h']):<4d} {what:8s} {o:8.1f} {n:8.1f} "
+                  f"{o / n:8.2f} {o / r['mpx']:8.1f} {n / r['mpx']:8.1f}" + extra, flush=True)
 
 
 if __name__ == "__main__":

@@ -447,18 +447,35 @@ def _finish(a, valid, labelled, plane, floor, up, z_far, height, xyz_out):  # ty
 
 #: The class codes of the fast path's (H, W) uint8 image.
 _INVALID, _TABLE, _EASY, _BIN, _OPEN, _TRIED = 0, 1, 2, 3, 4, 5
+#: Bit k set: code k counts as labelled for the straggler test (table, bin or invalid).
+_LABELLED_BITS = (1 << _INVALID) | (1 << _TABLE) | (1 << _BIN)
 
 
 @numba.njit(cache=True, inline="always")
 def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius, planes, hint):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """:func:`_near_one` as an index: a model point that passes (-1: none), the same answer.
 
-    A cell whose neighbourhood holds no model point answers -1 at once; ``hint`` (a point that passed for a
-    nearby pixel, or -1) is tried first, when it lies in one of the cells :func:`_near_one` searches: the
-    answer "some point passes" is then the same, whichever point is found. A cell whose points' bounds
-    (``box``) lie beyond the radius (with a relative margin of 1e-9 for the rounding) is skipped: none of
-    its points is within it.
+    ``hint`` (a point that passed for a nearby pixel, or -1) is tried first, before any cell arithmetic:
+    a point within the radius lies in one of the cells :func:`_near_one` searches (a cell is at least the
+    radius wide, and its reach has a 1 nm margin for the rounding of the cell indices), so when the hint
+    passes the answer "some point passes" is the same, whichever point is found. Else a cell whose
+    neighbourhood holds no model point answers -1 at once, and a cell whose points' bounds (``box``) lie
+    beyond the radius (with a relative margin of 1e-9 for the rounding) is skipped: none of its points is
+    within it.
     """
+    r2 = radius * radius
+    if hint >= 0:
+        ex = px - pts[hint, 0]
+        ey = py - pts[hint, 1]
+        ez = pz - pts[hint, 2]
+        d2 = ex * ex + ey * ey + ez * ez
+        if d2 <= r2:
+            if planes:
+                d = abs(nrm[hint, 0] * px + nrm[hint, 1] * py + nrm[hint, 2] * pz - off[hint])
+            else:
+                d = np.sqrt(d2)
+            if d <= delta:
+                return hint
     fx = (px - origin[0]) / cell
     fy = (py - origin[1]) / cell
     fz = (pz - origin[2]) / cell
@@ -476,20 +493,6 @@ def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, 
     y1 = 1 if (cj + 1 - fy) * cell <= reach else 0
     z0 = -1 if (fz - ck) * cell <= reach else 0
     z1 = 1 if (ck + 1 - fz) * cell <= reach else 0
-    r2 = radius * radius
-    if hint >= 0 and ci + x0 <= ijk[hint, 0] <= ci + x1 and cj + y0 <= ijk[hint, 1] <= cj + y1 \
-            and ck + z0 <= ijk[hint, 2] <= ck + z1:
-        ex = px - pts[hint, 0]
-        ey = py - pts[hint, 1]
-        ez = pz - pts[hint, 2]
-        d2 = ex * ex + ey * ey + ez * ez
-        if d2 <= r2:
-            if planes:
-                d = abs(nrm[hint, 0] * px + nrm[hint, 1] * py + nrm[hint, 2] * pz - off[hint])
-            else:
-                d = np.sqrt(d2)
-            if d <= delta:
-                return hint
     skip2 = r2 * (1.0 + 1e-9) + 1e-18
     for dx in range(x0, x1 + 1):
         for dy in range(y0, y1 + 1):
@@ -574,13 +577,26 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
     """The straggler test's first pass in one pass over the frame: ``first`` (uint8) is 1 at
     :func:`_straggler_start`'s candidates (open pixels with >= ``neighbours`` labelled ones; the counts only
     at the open pixels) that fail the test, 2 at those that pass. ``code`` is only read: every candidate
-    is judged on the labels before the pass, as the reference's first pass judges them."""
+    is judged on the labels before the pass, as the reference's first pass judges them. The counts are
+    :func:`_labelled_around`'s, as sums of three column sums of the row and its two neighbours (no branch per
+    neighbour; the whole pass 11.1-11.3 -> 10.5-10.6 CPU ms at 1920 x 1200, with the bin test's shortcut)."""
     H, W = code.shape
     for r in numba.prange(H):
+        col = np.empty(W + 2, np.int32)  # col[c + 1]: labelled pixels of column c in rows r-1..r+1
+        col[0] = 0
+        col[W + 1] = 0
+        r0 = max(r - 1, 0)
+        r1 = min(r + 2, H)
+        for c in range(W):
+            k = 0
+            for rr in range(r0, r1):
+                k += _LABELLED_BITS >> code[rr, c] & 1
+            col[c + 1] = k
         hint = -1
         for c in range(W):
             first[r, c] = 0
-            if code[r, c] == _OPEN and _labelled_around(code, r, c, H, W) >= neighbours:
+            # an open pixel is not labelled itself: its count is the three columns' sum
+            if code[r, c] == _OPEN and col[c] + col[c + 1] + col[c + 2] >= neighbours:
                 px, py, pz = _to_bin(a, r, c, R, t)
                 j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,
                                planes, hint)

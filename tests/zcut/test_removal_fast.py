@@ -64,6 +64,8 @@ PARAMS = {
     "paper-stragglers": {"mode": "paper", "straggler_mm": 2.0, "straggler_neighbours": 3},
     "paper-no-stragglers": {"mode": "paper", "straggler_mm": 0.0},
     "robust-fixed-tolerance": {"tolerance_mm": 2.0, "straggler_neighbours": 5},
+    # τ near its maximum: the bin test's radius near the grid's cell, the stragglers' beyond it
+    "robust-wide-tolerance": {"min_tolerance_mm": 7.5, "straggler_neighbours": 2},
 }
 
 
@@ -89,6 +91,19 @@ def test_fast_equals_reference_on_synthetic_logs(logs, name):
             fast, ref = _both(xyz, fp, index, T, ring)
             _assert_same(fast, ref, f"{log} frame {i} {name}")
             assert fast.bin_points.any() and fast.zone.any()
+
+
+@pytest.mark.parametrize("extra", [{}, {"mode": "paper", "delta_mm": 0.5}])
+def test_fast_equals_reference_with_a_model_without_normals(logs, extra):
+    """Point distances instead of plane distances: the first point that passes (the previous pixel's, tried
+    first) decides as any other would."""
+    for log in ("zinc_nuts-3", "sprockets-11"):
+        model, params, frames = logs[log]
+        index = prepare_removal_index(dataclasses.replace(model, normals=None), dataclasses.replace(params, **extra))
+        for i, (xyz, fp, ring, T) in enumerate(frames):
+            fast, ref = _both(xyz, fp, index, T, ring)
+            _assert_same(fast, ref, f"{log} frame {i} {extra}")
+            assert fast.bin_points.any()
 
 
 def test_fast_equals_reference_with_large_invalid_regions(logs):
