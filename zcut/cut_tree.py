@@ -40,6 +40,7 @@ from numba.cpython.unsafe.numbers import trailing_zeros
 
 __all__ = [
     "FLOOD_MAX_LEVELS",
+    "OUTSIDE",
     "SEGMENT",
     "cluster_labels",
     "finite_range",
@@ -47,6 +48,8 @@ __all__ = [
     "flood_levels",
     "flood_tree",
     "forest_mask",
+    "gentle_levels",
+    "gentle_prune",
     "grid_counts",
     "level_counts",
     "listed_cluster_labels",
@@ -54,6 +57,7 @@ __all__ = [
     "node_image",
     "outlier_mask",
     "pixel_levels",
+    "pruned_outlier_mask",
     "qlevel",
     "taggable_forest",
     "union_find_tree",
@@ -253,6 +257,165 @@ def flood_levels(z, seg_max, z_min, z_max, step, hi, top, K, st, start, pix, own
                     if want_levels:
                         pixel_level[r, c] = -1
     return m
+
+
+#: ``st`` of :func:`flood_core` at a pixel in the cuts left out of the flood: ``OUTSIDE - level``.
+OUTSIDE = -16
+
+
+@numba.njit(cache=True, inline="always")
+def _near(qa, qb):  # type: ignore[no-untyped-def]  # numba kernel
+    """Two levels within 1 of each other."""
+    return qa - qb <= 1 and qb - qa <= 1
+
+
+@numba.njit(cache=True, inline="always")
+def _merge(gpar, a, b):  # type: ignore[no-untyped-def]  # numba kernel
+    """Union of the sets of labels a and b (the smaller root becomes the root); returns a."""
+    ra = _find(gpar, a)
+    rb = _find(gpar, b)
+    if ra < rb:
+        gpar[rb] = ra
+    elif rb < ra:
+        gpar[ra] = rb
+    return a
+
+
+@numba.njit(cache=True, nogil=True)
+def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, st, pix, gl, gpar, gcnt):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`flood_levels` without ``own`` and ``pixel_level``, labelling on the way the *gentle
+    components*: the components of the pixels in the cuts where two neighbours are joined when
+    their levels differ by at most 1 (one raster scan with provisional labels copied from the
+    neighbours before the pixel, and a union-find over the labels where two sets meet).
+
+    Writes ``st`` (padded; level or -1), ``pix[:m]`` (padded indices in raster order), ``gl``
+    (padded, at the pixels in the cuts only: a provisional label), ``gpar`` (the labels'
+    union-find, a parent's label smaller than its child's) and ``gcnt`` (the pixels that took
+    each label). Returns (m, number of labels)."""
+    H, W = z.shape
+    Wp = W + 2
+    inv_step = 1.0 / step
+    thr = z_max - top * step
+    skip = z_min < thr  # invalid pixels (at z_min) are outside the cuts: segments may be skipped
+    for c in range(Wp):
+        st[c] = -1
+        st[(H + 1) * Wp + c] = -1
+    m = 0
+    nl = 0
+    for r in range(H):
+        base = (r + 1) * Wp
+        st[base] = -1
+        st[base + W + 1] = -1
+        for c0 in range(0, W, SEGMENT):
+            c1 = min(c0 + SEGMENT, W)
+            if skip and not seg_max[r, c0 // SEGMENT] >= thr:
+                st[base + 1 + c0:base + 1 + c1] = -1
+                continue
+            for c in range(c0, c1):
+                v = z[r, c]
+                zt = v if np.isfinite(v) else z_min
+                p = base + 1 + c
+                if not zt >= thr:
+                    st[p] = -1
+                    continue
+                lv = _qlevel_guess(zt, z_max, step, inv_step, hi)
+                st[p] = lv
+                pix[m] = p
+                m += 1
+                # the neighbours before p; two of them joined by a gentle edge between them are
+                # in one set already (that edge was looked at when the later one was labelled)
+                qw = np.int64(st[p - 1])
+                qn = np.int64(st[p - Wp])
+                gw = qw >= 0 and _near(qw, lv)
+                gn = qn >= 0 and _near(qn, lv)
+                lab = np.int64(-1)
+                if conn8:
+                    qnw = np.int64(st[p - Wp - 1])
+                    qne = np.int64(st[p - Wp + 1])
+                    gnw = qnw >= 0 and _near(qnw, lv)
+                    gne = qne >= 0 and _near(qne, lv)
+                    if gn:
+                        lab = np.int64(gl[p - Wp])
+                        if gnw and not _near(qnw, qn):
+                            lab = _merge(gpar, lab, np.int64(gl[p - Wp - 1]))
+                        if gne and not _near(qne, qn):
+                            lab = _merge(gpar, lab, np.int64(gl[p - Wp + 1]))
+                        if gw and not _near(qw, qn):
+                            lab = _merge(gpar, lab, np.int64(gl[p - 1]))
+                    elif gnw:
+                        lab = np.int64(gl[p - Wp - 1])
+                        if gne:
+                            lab = _merge(gpar, lab, np.int64(gl[p - Wp + 1]))
+                        if gw and not _near(qw, qnw):
+                            lab = _merge(gpar, lab, np.int64(gl[p - 1]))
+                    elif gne:
+                        lab = np.int64(gl[p - Wp + 1])
+                        if gw:
+                            lab = _merge(gpar, lab, np.int64(gl[p - 1]))
+                    elif gw:
+                        lab = np.int64(gl[p - 1])
+                elif gn:
+                    lab = np.int64(gl[p - Wp])
+                    if gw:
+                        lab = _merge(gpar, lab, np.int64(gl[p - 1]))
+                elif gw:
+                    lab = np.int64(gl[p - 1])
+                if lab < 0:
+                    lab = np.int64(nl)
+                    gpar[nl] = nl
+                    gcnt[nl] = 0
+                    nl += 1
+                gl[p] = lab
+                gcnt[lab] += 1
+    return m, nl
+
+
+@numba.njit(cache=True, nogil=True)
+def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start):  # type: ignore[no-untyped-def]  # numba kernel
+    """Keep in ``pix`` only the pixels of the gentle components (:func:`gentle_levels`) of fewer
+    than ``max_area`` pixels, count them per level in ``start`` (zeroed; ``start[lv + 1]``, as
+    :func:`flood_core` wants), and mark the others ``OUTSIDE - level`` in ``st``. Returns the
+    number kept.
+
+    Why the flood over the kept pixels gives the outliers of the whole tree: a tagged node C is a
+    component of two cuts k, k + 1, so every neighbour of C has a level >= k + 2 and no gentle
+    edge leaves C: C is a union of whole gentle components, each smaller than C. So the kept
+    pixels hold every tagged node, and each one is also a component of the same cuts among the
+    kept pixels; conversely a node of the kept pixels' tree is a component of the whole cut at
+    level k unless it touches a left-out pixel of level <= k, which :func:`flood_core` accounts
+    for. The tagged nodes, as pixel sets, are the same in both trees."""
+    for i in range(nl):  # labels in creation order: a parent's label is smaller, flattened first
+        r = gpar[gpar[i]]
+        gpar[i] = r
+        if r != i:
+            gcnt[r] += gcnt[i]  # the root's count is final once every label is flattened
+    keep = 0
+    for t in range(m):
+        p = pix[t]
+        lv = np.int64(st[p])
+        if gcnt[gpar[gl[p]]] < max_area:
+            pix[keep] = p
+            keep += 1
+            start[lv + 1] += 1
+        else:
+            st[p] = OUTSIDE - lv
+    return keep
+
+
+@numba.njit(cache=True, nogil=True)
+def pruned_outlier_mask(z, lab, pix, fin, node_parent, tagged, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`listed_outlier_mask` over the pixels kept by :func:`gentle_prune` (``out`` (H * W,
+    zeroed); the flat index and the validity of a pixel are found from its padded index)."""
+    outer = _outermost(fin, node_parent, tagged)
+    W = z.shape[1]
+    Wp = W + 2
+    zf = z.reshape(-1)
+    for t in range(pix.size):
+        p = pix[t]
+        if outer[lab[p]] >= 0:
+            o = (p // Wp - 1) * W + (p % Wp - 1)
+            if np.isfinite(zf[o]):
+                out[o] = True
 
 
 @numba.njit(cache=True, nogil=True)
@@ -623,7 +786,12 @@ def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore
     of each pixel in the cuts and -1 elsewhere (the border included), ``start[lv + 1]`` the
     number of pixels at level lv (turned into the bucket starts here), ``pix`` the pixels in the
     cuts in raster order. Writes ``lab`` at those pixels only; returns what :func:`flood_tree`
-    returns but ``lab``."""
+    returns but ``lab``.
+
+    ``st`` may also hold, at a pixel in the cuts left out of the flood, ``OUTSIDE - level``
+    (:func:`gentle_prune`): such a neighbour is never flooded, but a node whose pixels touch one
+    of level l is not a component of the cut at l, so its end ``e`` is taken as
+    ``min(e, l)`` in the tag (the smallest such l is carried along the stack)."""
     Wp = W + 2
     nlev = top + 1
     for lv in range(nlev):
@@ -636,6 +804,8 @@ def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore
     stk_lv = np.empty(nlev + 1, np.int64)
     stk_area = np.empty(nlev + 1, np.int64)
     stk_node = np.empty(nlev + 1, np.int32)
+    stk_lm = np.empty(nlev + 1, np.int64)  # the lowest level of a left-out neighbour
+    nolim = np.int64(K + 2)
     node_b = np.empty(m, np.int64)
     node_size = np.empty(m, np.int64)
     node_parent = np.empty(m, np.int32)
@@ -665,6 +835,7 @@ def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore
         lab[p] = node
         n_nodes += 1
         area = np.int64(1)
+        lmn = nolim
         stk_lv[0] = cur
         stk_node[0] = node
         sp = 1
@@ -681,7 +852,9 @@ def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore
                     break
                 nb = p + offs[u]
                 qn = np.int64(st[nb])
-                if qn < 0:  # seen
+                if qn < 0:  # seen, or left out of the flood
+                    if qn <= OUTSIDE:
+                        lmn = min(lmn, OUTSIDE - qn)
                     continue
                 st[nb] = -1
                 if qn == cur:  # queue it
@@ -710,6 +883,8 @@ def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore
                 else:
                     summ = _bit_clear(occ, summ, cur)
                 stk_area[sp - 1] = area
+                stk_lm[sp - 1] = lmn
+                lmn = nolim
                 p = p + offs[d]
                 cur = dq
                 ftop = fill[cur]
@@ -736,6 +911,7 @@ def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore
             fill[cur] = ftop
             summ = _bit_clear(occ, summ, cur)
             stk_area[sp - 1] = area
+            stk_lm[sp - 1] = lmn
             lv = _bit_next(occ, summ, cur)
             if lv < 0:
                 break
@@ -743,14 +919,15 @@ def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore
             while True:
                 t = sp - 1
                 if sp >= 2 and stk_lv[t - 1] <= lv:  # becomes part of the next one
-                    n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], stk_lv[t - 1], K,
+                    n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], min(stk_lv[t - 1], stk_lm[t]), K,
                                    max_area, node_b, node_size, node_parent, tagged, fin, n_fin)
                     stk_area[t - 1] += stk_area[t]
+                    stk_lm[t - 1] = min(stk_lm[t - 1], stk_lm[t])
                     sp -= 1
                     if stk_lv[t - 1] == lv:
                         break
                 else:  # becomes part of a new component at lv
-                    n_fin = _close(stk_node[t], stk_area[t], n_nodes, lv, K, max_area,
+                    n_fin = _close(stk_node[t], stk_area[t], n_nodes, min(lv, stk_lm[t]), K, max_area,
                                    node_b, node_size, node_parent, tagged, fin, n_fin)
                     stk_lv[t] = lv
                     stk_node[t] = n_nodes
@@ -760,6 +937,7 @@ def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore
             cur = lv
             node = stk_node[sp - 1]
             area = stk_area[sp - 1]
+            lmn = stk_lm[sp - 1]
             sbeg = start[cur]
             ftop = fill[cur] - 1
             p = bucket[ftop]
@@ -771,11 +949,12 @@ def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore
         # last one (the whole region) lives to the end
         while sp > 1:
             t = sp - 1
-            n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], stk_lv[t - 1], K, max_area,
-                           node_b, node_size, node_parent, tagged, fin, n_fin)
+            n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], min(stk_lv[t - 1], stk_lm[t]), K,
+                           max_area, node_b, node_size, node_parent, tagged, fin, n_fin)
             stk_area[t - 1] += stk_area[t]
+            stk_lm[t - 1] = min(stk_lm[t - 1], stk_lm[t])
             sp -= 1
-        n_fin = _close(stk_node[0], stk_area[0], -1, K + 2, K, max_area,
+        n_fin = _close(stk_node[0], stk_area[0], -1, min(K + 2, stk_lm[0]), K, max_area,
                        node_b, node_size, node_parent, tagged, fin, n_fin)
     return (node_b[:n_nodes], node_size[:n_nodes], node_parent[:n_nodes], tagged[:n_nodes],
             fin[:n_fin])
