@@ -19,13 +19,16 @@ max_area = 0.07 * a_max (a_max = 3000 px):
 - ``dense``: a gently curved surface with noise whose whole range lies inside the cut range, so
   every pixel takes part in every level.
 - ``holes``: the pile with large invalid regions (a third of the width, and big blocks).
+- ``zinc`` (``--synth``): a synthetic 1920 x 1200 zinc-nut frame (``replay.synth``), the whole
+  height image the sensor gives (bin and walls included).
 - ``kinect16``, ``mug`` (``--real DIR``, e.g. /work/shared/data/real): the real 480 x 640 Kinect and
   stereo clouds ``mosd_test16.pcd`` and ``table_scene_mug_stereo_textured.pcd`` as the pipeline sees
   them (h = -1000 z).
 
 Prints the times, the ratio reference / fast and checks that the masks are identical.
-``--passes`` also prints where ``zcut_outliers``' CPU time goes (the extremes pass, the level pass,
-the flood, the read-out) beside the floor of reading the heights and writing a mask.
+``--passes`` also prints where ``zcut_outliers``' CPU time goes (the extremes pass, the level pass with
+the gentle components, the prune, the flood of the kept pixels, the read-out) beside the floor of
+reading the heights and writing a mask.
 CPU time (process_time) is the figure to quote on a shared machine.
 """
 
@@ -132,9 +135,19 @@ def real_frames(folder: Path) -> dict[str, np.ndarray]:
     return out
 
 
+def synth_frame(seed: int = 3) -> np.ndarray:
+    """The height (mm, h = -1000 z) of a synthetic 1920 x 1200 zinc-nut frame of ``replay.synth`` (the bin,
+    its walls and the pile as the sensor sees them, before the bin stages)."""
+    from replay.synth import synthesize_frame
+
+    xyz = synthesize_frame(kind="zinc_nuts", seed=seed, size=(H, W)).frame.xyz
+    return -1000.0 * np.asarray(xyz[..., 2], dtype=np.float64)
+
+
 def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
-    """Median CPU ms of each pass of ``zcut_outliers`` on z (the flood path), and of the floor."""
-    from zcut.cut_tree import flood_core, flood_levels, listed_outlier_mask
+    """Median CPU ms of each pass of ``zcut_outliers`` on z (the pruned flood), and of the floor; each
+    pass timed on fresh copies of what it writes (the copies made outside the timing)."""
+    from zcut.cut_tree import flood_core, gentle_levels, gentle_prune, pruned_outlier_mask
     from zcut.cuts import _finite_range, _levels
     from zcut.params import n_levels
 
@@ -144,31 +157,53 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
     k_eff, top = _levels(lo, hi, step, K)
     Hz, Wz = z.shape
     size = (Hz + 2) * (Wz + 2)
+    st, gl = np.empty(size, np.int16), np.empty(size, np.int32)
+    pix, gpar, gcnt = (np.empty(Hz * Wz, np.int32) for _ in range(3))
 
     def levels() -> tuple:
-        st, start = np.empty(size, np.int16), np.zeros(top + 2, np.int64)
-        pix, own = np.empty(size, np.int32), np.empty(size, np.int32)
-        m = flood_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top), np.int64(K), st, start, pix,
-                         own, np.empty((1, 1), np.int16), False)
-        return st, start, pix[:m], own[:m]
+        return gentle_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top), True, st, pix, gl, gpar, gcnt)
 
-    st, start, pix, own = levels()
-    lab = np.empty(size, np.int32)
+    m, nl = levels()
+    state = (st.copy(), pix.copy(), gpar.copy(), gcnt.copy())
 
-    def flood() -> tuple:
-        return flood_core(st.copy(), start.copy(), pix, Wz, np.int64(k_eff), np.int64(top), True, max_area, lab)
+    def prune_inputs() -> tuple:
+        return tuple(a.copy() for a in state) + (np.zeros(top + 2, np.int64),)
 
-    node_b, _, node_parent, tagged, fin = flood()
+    def prune(a: tuple) -> int:
+        return gentle_prune(a[0], a[1], m, gl, a[2], a[3], nl, max_area, a[4])
+
+    a = prune_inputs()
+    keep = int(prune(a))
+    st_kept, kept, start = a[0], a[1][:keep].copy(), a[4]
+    lab = gl.copy()
+
+    def flood(b: tuple) -> tuple:
+        return flood_core(b[0], b[1], kept, Wz, np.int64(k_eff), np.int64(top), True, max_area, lab)
+
+    _, _, node_parent, tagged, fin = flood((st_kept.copy(), start.copy()))
     res = {
         "floor (read heights, write a mask)": timed(lambda: (z.sum(), np.zeros(z.shape, bool).fill(False)), repeat)[1],
         "extremes pass": timed(lambda: _finite_range(z), repeat)[1],
-        "level pass": timed(levels, repeat)[1],
-        "flood": timed(flood, repeat)[1],
-        "read-out": timed(lambda: listed_outlier_mask(lab, pix, own, fin, node_parent, tagged,
+        "level pass + gentle components": timed(levels, repeat)[1],
+        "prune": timed_on(prune_inputs, prune, repeat),
+        "flood": timed_on(lambda: (st_kept.copy(), start.copy()), flood, repeat),
+        "read-out": timed(lambda: pruned_outlier_mask(z, lab, kept, fin, node_parent, tagged,
                                                       np.zeros(z.size, bool)), repeat)[1],
     }
-    res["pixels in the cuts"] = float(pix.size)
+    res["pixels in the cuts"] = float(m)
+    res["pixels flooded"] = float(keep)
     return res
+
+
+def timed_on(prepare, fn, repeat: int) -> float:
+    """Median CPU time of ``fn(prepare())``, ``prepare`` left out of the timing."""
+    cpu = []
+    for _ in range(repeat):
+        args = prepare()
+        c0 = time.process_time()
+        fn(args)
+        cpu.append(time.process_time() - c0)
+    return statistics.median(cpu)
 
 
 def timed(fn, repeat: int) -> tuple[float, float, np.ndarray]:
@@ -229,6 +264,7 @@ def main() -> int:
     ap.add_argument("--repeat-ref", type=int, default=2)
     ap.add_argument("--against", type=Path, default=None, help="a checkout of the previous code to time beside")
     ap.add_argument("--real", type=Path, default=None, help="the folder of the real clouds (adds kinect16, mug)")
+    ap.add_argument("--synth", action="store_true", help="add zinc: a synthetic 1920 x 1200 zinc-nut frame")
     ap.add_argument("--frames", default=None, help="comma-separated frame names to run (default: all)")
     ap.add_argument("--passes", action="store_true", help="print the CPU time of each pass of zcut_outliers")
     args = ap.parse_args()
@@ -241,6 +277,8 @@ def main() -> int:
     print(f"numba warm-up (compile or cache load): {warm:.2f} s")
 
     frames = {"pile": pile_frame(), "dense": dense_frame(), "holes": holes_frame()}
+    if args.synth:
+        frames["zinc"] = synth_frame()
     if args.real is not None:
         frames.update(real_frames(args.real))
     if args.frames is not None:

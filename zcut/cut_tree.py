@@ -265,28 +265,36 @@ OUTSIDE = -16
 
 @numba.njit(cache=True, inline="always")
 def _near(qa, qb):  # type: ignore[no-untyped-def]  # numba kernel
-    """Two levels within 1 of each other."""
-    return qa - qb <= 1 and qb - qa <= 1
+    """Two levels within 1 of each other (no branch)."""
+    return (qa - qb <= 1) & (qb - qa <= 1)
 
 
 @numba.njit(cache=True, inline="always")
-def _merge(gpar, a, b):  # type: ignore[no-untyped-def]  # numba kernel
-    """Union of the sets of labels a and b (the smaller root becomes the root); returns a."""
-    ra = _find(gpar, a)
-    rb = _find(gpar, b)
+def _unite(gpar, ra, b):  # type: ignore[no-untyped-def]  # numba kernel
+    """Union of the set of root ra and the set of label b (the smaller root becomes the root, so a
+    parent's label is always smaller than its child's); returns the root."""
+    if b == ra:
+        return ra
+    rb = np.int64(_find(gpar, b))
     if ra < rb:
         gpar[rb] = ra
-    elif rb < ra:
+        return ra
+    if rb < ra:
         gpar[ra] = rb
-    return a
+    return rb
 
 
 @numba.njit(cache=True, nogil=True)
 def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, st, pix, gl, gpar, gcnt):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`flood_levels` without ``own`` and ``pixel_level``, labelling on the way the *gentle
     components*: the components of the pixels in the cuts where two neighbours are joined when
-    their levels differ by at most 1 (one raster scan with provisional labels copied from the
-    neighbours before the pixel, and a union-find over the labels where two sets meet).
+    their levels differ by at most 1.
+
+    One raster scan: a pixel copies the provisional label of a gentle neighbour before it, and the
+    sets of the labels are united (a union-find over the labels) only where two gentle neighbours
+    are not already known to be in one set (two neighbours joined by a gentle edge between them
+    were united when the later one was labelled). The choices are made without branches where
+    the data is noisy (a branch per neighbour costs a misprediction there).
 
     Writes ``st`` (padded; level or -1), ``pix[:m]`` (padded indices in raster order), ``gl``
     (padded, at the pixels in the cuts only: a provisional label), ``gpar`` (the labels'
@@ -306,60 +314,62 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, st, pix, gl, g
         base = (r + 1) * Wp
         st[base] = -1
         st[base + W + 1] = -1
+        qw = np.int64(-1)  # the level and label of the pixel before (-1: not in the cuts)
+        lw = np.int64(-1)
         for c0 in range(0, W, SEGMENT):
             c1 = min(c0 + SEGMENT, W)
             if skip and not seg_max[r, c0 // SEGMENT] >= thr:
                 st[base + 1 + c0:base + 1 + c1] = -1
+                qw = -1  # type: ignore[assignment]  # numba kernel: an int64 local
                 continue
             for c in range(c0, c1):
+                p = base + 1 + c
                 v = z[r, c]
                 zt = v if np.isfinite(v) else z_min
-                p = base + 1 + c
                 if not zt >= thr:
                     st[p] = -1
+                    qw = -1  # type: ignore[assignment]  # numba kernel: an int64 local
                     continue
                 lv = _qlevel_guess(zt, z_max, step, inv_step, hi)
                 st[p] = lv
                 pix[m] = p
                 m += 1
-                # the neighbours before p; two of them joined by a gentle edge between them are
-                # in one set already (that edge was looked at when the later one was labelled)
-                qw = np.int64(st[p - 1])
                 qn = np.int64(st[p - Wp])
-                gw = qw >= 0 and _near(qw, lv)
-                gn = qn >= 0 and _near(qn, lv)
-                lab = np.int64(-1)
+                gw = (qw >= 0) & _near(qw, lv)
+                gn = (qn >= 0) & _near(qn, lv)
+                ln = np.int64(gl[p - Wp])  # (read even where not in the cuts: then unused)
                 if conn8:
                     qnw = np.int64(st[p - Wp - 1])
                     qne = np.int64(st[p - Wp + 1])
-                    gnw = qnw >= 0 and _near(qnw, lv)
-                    gne = qne >= 0 and _near(qne, lv)
-                    if gn:
-                        lab = np.int64(gl[p - Wp])
-                        if gnw and not _near(qnw, qn):
-                            lab = _merge(gpar, lab, np.int64(gl[p - Wp - 1]))
-                        if gne and not _near(qne, qn):
-                            lab = _merge(gpar, lab, np.int64(gl[p - Wp + 1]))
-                        if gw and not _near(qw, qn):
-                            lab = _merge(gpar, lab, np.int64(gl[p - 1]))
-                    elif gnw:
-                        lab = np.int64(gl[p - Wp - 1])
-                        if gne:
-                            lab = _merge(gpar, lab, np.int64(gl[p - Wp + 1]))
-                        if gw and not _near(qw, qnw):
-                            lab = _merge(gpar, lab, np.int64(gl[p - 1]))
-                    elif gne:
-                        lab = np.int64(gl[p - Wp + 1])
-                        if gw:
-                            lab = _merge(gpar, lab, np.int64(gl[p - 1]))
-                    elif gw:
-                        lab = np.int64(gl[p - 1])
-                elif gn:
-                    lab = np.int64(gl[p - Wp])
-                    if gw:
-                        lab = _merge(gpar, lab, np.int64(gl[p - 1]))
-                elif gw:
-                    lab = np.int64(gl[p - 1])
+                    gnw = (qnw >= 0) & _near(qnw, lv)
+                    gne = (qne >= 0) & _near(qne, lv)
+                    lnw = np.int64(gl[p - Wp - 1])
+                    lne = np.int64(gl[p - Wp + 1])
+                    lab = lw if gw else np.int64(-1)
+                    lab = lne if gne else lab
+                    lab = lnw if gnw else lab
+                    lab = ln if gn else lab
+                    # the label comes from N, else NW, else NE, else W; the others are united
+                    # with it unless a gentle edge joins them to it already (N touches NW, NE
+                    # and W; NW touches W; NE and W do not touch, nor NW and NE)
+                    ngn = not gn
+                    unw = gn & gnw & (not _near(qnw, qn))
+                    une = gne & ((gn & (not _near(qne, qn))) | (ngn & gnw))
+                    uw = gw & ((gn & (not _near(qw, qn))) | (ngn & gnw & (not _near(qw, qnw)))
+                               | (ngn & (not gnw) & gne))
+                    if (unw & (lnw != lab)) | (une & (lne != lab)) | (uw & (lw != lab)):
+                        lab = np.int64(_find(gpar, lab))
+                        if unw:
+                            lab = _unite(gpar, lab, lnw)
+                        if une:
+                            lab = _unite(gpar, lab, lne)
+                        if uw:
+                            lab = _unite(gpar, lab, lw)
+                else:
+                    lab = lw if gw else np.int64(-1)
+                    lab = ln if gn else lab
+                    if gn & gw & (lw != lab):
+                        lab = _unite(gpar, np.int64(_find(gpar, lab)), lw)
                 if lab < 0:
                     lab = np.int64(nl)
                     gpar[nl] = nl
@@ -367,6 +377,8 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, st, pix, gl, g
                     nl += 1
                 gl[p] = lab
                 gcnt[lab] += 1
+                qw = lv
+                lw = lab
     return m, nl
 
 
@@ -409,11 +421,15 @@ def pruned_outlier_mask(z, lab, pix, fin, node_parent, tagged, out):  # type: ig
     outer = _outermost(fin, node_parent, tagged)
     W = z.shape[1]
     Wp = W + 2
+    inv = 1.0 / Wp
     zf = z.reshape(-1)
     for t in range(pix.size):
         p = pix[t]
         if outer[lab[p]] >= 0:
-            o = (p // Wp - 1) * W + (p % Wp - 1)
+            # the row p // Wp by a product: (p + 0.5) / Wp lies >= 0.5 / Wp from an integer and p
+            # < 2**31, far more than the product's rounding error
+            rp = np.int64((p + 0.5) * inv)
+            o = p - Wp - 1 - 2 * (rp - 1)
             if np.isfinite(zf[o]):
                 out[o] = True
 
