@@ -145,10 +145,11 @@ def synth_frame(seed: int = 3) -> np.ndarray:
 
 
 def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
-    """Median CPU ms of each pass of ``zcut_outliers`` on z (the pruned flood), and of the floor; each
-    pass timed on fresh copies of what it writes (the copies made outside the timing)."""
-    from zcut.cut_tree import flood_core, gentle_levels, gentle_prune, pruned_outlier_mask
-    from zcut.cuts import _finite_range, _levels
+    """Median CPU ms of each pass of ``zcut_outliers`` on z (the pruned flood, taken whatever the frame's
+    size: ``zcut_outliers`` floods frames of fewer than ``PRUNE_MIN`` pixels in the cuts whole), and of
+    the floor; each pass timed on fresh copies of what it writes (the copies made outside the timing)."""
+    from zcut.cut_tree import flood_core_left_out, gentle_levels, gentle_prune, pruned_outlier_mask
+    from zcut.cuts import PRUNE_CHECK, PRUNE_CHECK_ROWS, _finite_range, _levels
     from zcut.params import n_levels
 
     step, max_area = params["step"], float(params["max_area"])
@@ -161,16 +162,17 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
     pix, gpar, gcnt = (np.empty(Hz * Wz, np.int32) for _ in range(3))
 
     def levels() -> tuple:
-        return gentle_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top), True, st, pix, gl, gpar, gcnt)
+        return gentle_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top), True, max_area,
+                             np.int64(max(PRUNE_CHECK, PRUNE_CHECK_ROWS * Wz)), st, pix, gl, gpar, gcnt)
 
-    m, nl = levels()
+    m, nl, labelled = levels()
     state = (st.copy(), pix.copy(), gpar.copy(), gcnt.copy())
 
     def prune_inputs() -> tuple:
         return tuple(a.copy() for a in state) + (np.zeros(top + 2, np.int64),)
 
     def prune(a: tuple) -> int:
-        return gentle_prune(a[0], a[1], m, gl, a[2], a[3], nl, max_area, a[4])
+        return gentle_prune(a[0], a[1], m, gl, a[2], a[3], nl, max_area, a[4], labelled)
 
     a = prune_inputs()
     keep = int(prune(a))
@@ -178,7 +180,7 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
     lab = gl.copy()
 
     def flood(b: tuple) -> tuple:
-        return flood_core(b[0], b[1], kept, Wz, np.int64(k_eff), np.int64(top), True, max_area, lab)
+        return flood_core_left_out(b[0], b[1], kept, Wz, np.int64(k_eff), np.int64(top), True, max_area, lab)
 
     _, _, node_parent, tagged, fin = flood((st_kept.copy(), start.copy()))
     res = {
@@ -192,6 +194,7 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
     }
     res["pixels in the cuts"] = float(m)
     res["pixels flooded"] = float(keep)
+    res["pixels flooded (labelling kept: 1)"] = float(labelled)
     return res
 
 

@@ -46,7 +46,11 @@ a component of the cut at ``l``). Its tagged nodes are the whole tree's, as pixe
 tagged node of the whole tree is a component of the same two cuts among the kept pixels, and a
 kept node tagged with the left-out neighbours' levels accounted for is a component of the same two
 whole cuts. The left-out pixels were 86 % of the pile's pixels in the cuts and 95 % of the dense
-frame's (docs/performance.md).
+frame's (docs/performance.md). The labelling costs about half of what the flood costs a pixel,
+so it is skipped where it cannot pay: with fewer than ``PRUNE_MIN`` pixels in the cuts, and, after
+the first ``PRUNE_CHECK`` pixels (``PRUNE_CHECK_ROWS`` rows' worth) when fewer than half of them
+lie in large gentle components (quantised depths: the real Kinect clouds at Δd 0.2 mm keep 69–100
+% of their pixels), it labels no further and the flood visits every pixel, as before.
 
 With the flood (the default), :func:`zcut_outliers` and :func:`find_clusters` build the tree
 straight from the heights (:func:`_flood`): one pass finds the extremes and the largest height of
@@ -73,6 +77,7 @@ from .cut_tree import (
     cluster_labels,
     finite_range,
     flood_core,
+    flood_core_left_out,
     flood_levels,
     flood_tree,
     gentle_levels,
@@ -100,6 +105,16 @@ __all__ = [
     "zcut_outliers_reference",
 ]
 
+#: :func:`zcut_outliers` stops labelling the gentle components when, after this many pixels in the
+#: cuts (at least), fewer than half of them lie in components of ``max_area`` pixels or more (then the flood
+#: would visit most pixels anyway; :func:`zcut.cut_tree.gentle_levels`).
+PRUNE_CHECK = 4096
+#: ... and at least this many rows' worth of pixels (components need rows to join up).
+PRUNE_CHECK_ROWS = 8
+#: With fewer pixels in the cuts than this (counted by row segments: an upper bound)
+#: the flood visits them all at once: its whole cost is then a few tenths of a ms,
+#: below what the labelling's fixed costs and its share of the pixels can win back.
+PRUNE_MIN = 65536
 #: Largest level count :func:`find_clusters` accepts (``pixel_level`` is int16).
 MAX_STAGE_LEVELS = 32766
 #: The component-tree kernels: ``"auto"`` floods below ``FLOOD_MAX_LEVELS`` levels and uses the
@@ -345,29 +360,37 @@ def _flood(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step:
 
 
 def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step: float, K: int,
-                     max_area: float, connectivity: int, out: np.ndarray) -> bool:
+                     max_area: float, connectivity: int, out: np.ndarray, *, minimum: int = PRUNE_MIN,
+                     check: int | None = None) -> bool:
     """The outlier mask (into ``out``, zeroed) by the flood over the pixels of the small gentle
     components only (:func:`zcut.cut_tree.gentle_prune`: the same tagged nodes as the whole tree).
-    False when it does not apply (too many levels or pixels: nothing written)."""
+    False when it does not apply (too many levels or pixels, or fewer than ``minimum`` in the cuts:
+    nothing written). ``check``: when the labelling looks whether it pays (default: at
+    ``PRUNE_CHECK`` pixels and ``PRUNE_CHECK_ROWS`` rows' worth)."""
     k_eff, top = _levels(z_min, z_max, step, K)
     H, W = z.shape
     n = (H + 2) * (W + 2)
     if top >= FLOOD_MAX_LEVELS or n >= 2**31 - 1 or not max_area <= H * W:
         return False  # (no gentle component reaches max_area: nothing would be left out)
+    if check is None:
+        check = max(PRUNE_CHECK, PRUNE_CHECK_ROWS * W)
+    thr = z_max - top * step
+    if z_min < thr and int(np.count_nonzero(seg_max >= thr)) * SEGMENT < minimum:
+        return False  # too few pixels in the cuts (an upper bound) for the labelling to pay
     st = np.empty(n, np.int16)
     pix = np.empty(H * W, np.int32)
     gl = np.empty(n, np.int32)
     gpar = np.empty(H * W, np.int32)
     gcnt = np.empty(H * W, np.int32)
     conn8 = connectivity == 8
-    m, nl = gentle_levels(z, seg_max, z_min, z_max, step, np.int64(k_eff + 2), np.int64(top), conn8, st, pix, gl,
-                          gpar, gcnt)
+    m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, np.int64(k_eff + 2), np.int64(top), conn8,
+                                    float(max_area), np.int64(check), st, pix, gl, gpar, gcnt)
     start = np.zeros(top + 2, np.int64)
-    keep = int(gentle_prune(st, pix, m, gl, gpar, gcnt, nl, float(max_area), start))
+    keep = int(gentle_prune(st, pix, m, gl, gpar, gcnt, nl, float(max_area), start, labelled))
     pix = pix[:keep]
     lab = gl  # the labels are read; the flood writes its node image over them at the kept pixels
-    _, _, node_parent, tagged, fin = flood_core(st, start, pix, W, np.int64(k_eff), np.int64(top), conn8,
-                                                float(max_area), lab)
+    _, _, node_parent, tagged, fin = flood_core_left_out(st, start, pix, W, np.int64(k_eff), np.int64(top), conn8,
+                                                         float(max_area), lab)
     pruned_outlier_mask(z, lab, pix, fin, node_parent, tagged, out.reshape(-1))
     return True
 
