@@ -10,7 +10,9 @@ Run: ``.venv/bin/python bench/bench_zcut.py [--repeat-fast N] [--repeat-ref N] [
 ``--against OLD_TREE`` (a checkout of the previous code, e.g. ``git archive HEAD~1 | tar -x -C
 /tmp/old``) times that tree's ``zcut_outliers`` and ``find_clusters`` on the same frames in the same
 run (a child process with OLD_TREE first on its path) and prints the ratio old / new, and whether
-its masks are identical.
+its masks are identical. ``--alternate`` (with ``--against``) times both trees in this one process
+instead, calls alternating (a child process on a loaded machine reads slower than the same code
+here), and skips the reference and the passes.
 
 Frames, heights in mm (larger = higher), seeded; nominal parameters step 0.2 mm, max_depth 30 mm,
 max_area = 0.07 * a_max (a_max = 3000 px):
@@ -23,7 +25,7 @@ max_area = 0.07 * a_max (a_max = 3000 px):
   height image the sensor gives (bin and walls included).
 - ``kinect16``, ``mug`` (``--real DIR``, e.g. /work/shared/data/real): the real 480 x 640 Kinect and
   stereo clouds ``mosd_test16.pcd`` and ``table_scene_mug_stereo_textured.pcd`` as the pipeline sees
-  them (h = -1000 z).
+  them (h = -1000 z), then every other organised 480 x 640 cloud of DIR (named by its file).
 
 Prints the times, the ratio reference / fast and checks that the masks are identical.
 ``--passes`` also prints where ``zcut_outliers``' CPU time goes (the extremes pass, the level pass with
@@ -129,9 +131,13 @@ def real_frames(folder: Path) -> dict[str, np.ndarray]:
     import open3d as o3d
 
     out = {}
-    for name, file in (("kinect16", "mosd_test16.pcd"), ("mug", "table_scene_mug_stereo_textured.pcd")):
-        cloud = o3d.io.read_point_cloud(str(folder / file), remove_nan_points=False, remove_infinite_points=False)
-        out[name] = -1000.0 * np.asarray(cloud.points).reshape(480, 640, 3)[..., 2].astype(np.float64)
+    named = {"mosd_test16.pcd": "kinect16", "table_scene_mug_stereo_textured.pcd": "mug"}
+    files = [folder / f for f in named] + sorted(f for f in folder.glob("*.pcd") if f.name not in named)
+    for file in files:
+        cloud = o3d.io.read_point_cloud(str(file), remove_nan_points=False, remove_infinite_points=False)
+        points = np.asarray(cloud.points)
+        if points.shape[0] == 480 * 640:  # the organised 640 x 480 clouds
+            out[named.get(file.name, file.stem[:16])] = -1000.0 * points.reshape(480, 640, 3)[..., 2].astype(np.float64)
     return out
 
 
@@ -261,11 +267,58 @@ def time_old_tree(tree: Path, frames: dict[str, np.ndarray], params: dict, repea
     return times, masks
 
 
+def alternate(tree: Path, frames: dict[str, np.ndarray], params: dict, repeat: int) -> bool:
+    """``--alternate``: the old tree's and this tree's ``zcut_outliers`` and ``find_clusters`` in this
+    one process, calls alternating (the old package imported first and kept as module objects, then
+    this one); prints median CPU ms and the ratios, returns whether every result is identical."""
+    import importlib
+
+    here = {k: v for k, v in sys.modules.items() if k == "zcut" or k.startswith("zcut.")}
+    for k in here:
+        del sys.modules[k]
+    sys.path.insert(0, str(tree))
+    try:
+        old_cuts = importlib.import_module("zcut.cuts")
+        old_params = importlib.import_module("zcut.params")
+    finally:
+        sys.path.pop(0)
+        for k in [k for k in sys.modules if k == "zcut" or k.startswith("zcut.")]:
+            del sys.modules[k]
+        sys.modules.update(here)
+    if not str(old_cuts.__file__).startswith(str(tree.resolve())) and not str(old_cuts.__file__).startswith(str(tree)):
+        raise SystemExit(f"--alternate: {tree} did not provide zcut (got {old_cuts.__file__})")
+    zp_old = old_params.ZCutParams(params["step"], params["max_depth"], params["max_area"])
+    zp_new = ZCutParams(params["step"], params["max_depth"], params["max_area"])
+    calls = {
+        "zo": lambda z: old_cuts.zcut_outliers(z, **params), "zn": lambda z: zcut_outliers(z, **params),
+        "fo": lambda z: old_cuts.find_clusters(z, params=zp_old), "fn": lambda z: find_clusters(z, params=zp_new),
+    }
+    ok = True
+    print(f"alternating in one process against {tree} (median CPU ms of {repeat} calls each):")
+    for name, z in frames.items():
+        fo, fn = calls["fo"](z), calls["fn"](z)
+        same = (np.array_equal(calls["zo"](z), calls["zn"](z)) and np.array_equal(fo.clusters, fn.clusters)
+                and np.array_equal(fo.level_counts, fn.level_counts) and np.array_equal(fo.pixel_level, fn.pixel_level))
+        ok &= same
+        cpu: dict[str, list[float]] = {k: [] for k in calls}
+        for _ in range(repeat):
+            for key, fnc in calls.items():
+                c0 = time.process_time()
+                fnc(z)
+                cpu[key].append(time.process_time() - c0)
+        m = {k: statistics.median(v) * 1e3 for k, v in cpu.items()}
+        print(f"    {name:8s} zcut_outliers {m['zo']:7.2f} -> {m['zn']:7.2f} ms ({m['zo'] / m['zn']:4.2f}x), "
+              f"find_clusters {m['fo']:7.2f} -> {m['fn']:7.2f} ms ({m['fo'] / m['fn']:4.2f}x); identical: {same}")
+    return ok
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat-fast", type=int, default=7)
     ap.add_argument("--repeat-ref", type=int, default=2)
     ap.add_argument("--against", type=Path, default=None, help="a checkout of the previous code to time beside")
+    ap.add_argument("--alternate", action="store_true",
+                    help="with --against: time both trees in this process, calls alternating (no reference, no passes)")
     ap.add_argument("--real", type=Path, default=None, help="the folder of the real clouds (adds kinect16, mug)")
     ap.add_argument("--synth", action="store_true", help="add zinc: a synthetic 1920 x 1200 zinc-nut frame")
     ap.add_argument("--frames", default=None, help="comma-separated frame names to run (default: all)")
@@ -286,6 +339,10 @@ def main() -> int:
         frames.update(real_frames(args.real))
     if args.frames is not None:
         frames = {k: v for k, v in frames.items() if k in args.frames.split(",")}
+    if args.alternate:
+        if args.against is None:
+            raise SystemExit("--alternate needs --against OLD_TREE")
+        return 0 if alternate(args.against, frames, params, args.repeat_fast) else 1
     old: dict[str, dict[str, float]] = {}
     old_masks: dict[str, np.ndarray] = {}
     if args.against is not None:

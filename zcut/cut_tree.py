@@ -939,8 +939,9 @@ def _flood_kernel(left_out: bool) -> Any:
                     else:
                         summ = _bit_clear(occ, summ, cur)
                     stk_area[sp - 1] = area
-                    stk_lm[sp - 1] = lmn
-                    lmn = nolim
+                    if left_out:
+                        stk_lm[sp - 1] = lmn
+                        lmn = nolim
                     p = p + offs[d]
                     cur = dq
                     ftop = fill[cur]
@@ -967,7 +968,8 @@ def _flood_kernel(left_out: bool) -> Any:
                 fill[cur] = ftop
                 summ = _bit_clear(occ, summ, cur)
                 stk_area[sp - 1] = area
-                stk_lm[sp - 1] = lmn
+                if left_out:
+                    stk_lm[sp - 1] = lmn
                 lv = _bit_next(occ, summ, cur)
                 if lv < 0:
                     break
@@ -975,15 +977,16 @@ def _flood_kernel(left_out: bool) -> Any:
                 while True:
                     t = sp - 1
                     if sp >= 2 and stk_lv[t - 1] <= lv:  # becomes part of the next one
-                        n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], min(stk_lv[t - 1], stk_lm[t]), K,
+                        n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], (min(stk_lv[t - 1], stk_lm[t]) if left_out else stk_lv[t - 1]), K,
                                        max_area, node_b, node_size, node_parent, tagged, fin, n_fin)
                         stk_area[t - 1] += stk_area[t]
-                        stk_lm[t - 1] = min(stk_lm[t - 1], stk_lm[t])
+                        if left_out:
+                            stk_lm[t - 1] = min(stk_lm[t - 1], stk_lm[t])
                         sp -= 1
                         if stk_lv[t - 1] == lv:
                             break
                     else:  # becomes part of a new component at lv
-                        n_fin = _close(stk_node[t], stk_area[t], n_nodes, min(lv, stk_lm[t]), K, max_area,
+                        n_fin = _close(stk_node[t], stk_area[t], n_nodes, (min(lv, stk_lm[t]) if left_out else lv), K, max_area,
                                        node_b, node_size, node_parent, tagged, fin, n_fin)
                         stk_lv[t] = lv
                         stk_node[t] = n_nodes
@@ -993,7 +996,8 @@ def _flood_kernel(left_out: bool) -> Any:
                 cur = lv
                 node = stk_node[sp - 1]
                 area = stk_area[sp - 1]
-                lmn = stk_lm[sp - 1]
+                if left_out:
+                    lmn = stk_lm[sp - 1]
                 sbeg = start[cur]
                 ftop = fill[cur] - 1
                 p = bucket[ftop]
@@ -1005,12 +1009,13 @@ def _flood_kernel(left_out: bool) -> Any:
             # last one (the whole region) lives to the end
             while sp > 1:
                 t = sp - 1
-                n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], min(stk_lv[t - 1], stk_lm[t]), K,
+                n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], (min(stk_lv[t - 1], stk_lm[t]) if left_out else stk_lv[t - 1]), K,
                                max_area, node_b, node_size, node_parent, tagged, fin, n_fin)
                 stk_area[t - 1] += stk_area[t]
-                stk_lm[t - 1] = min(stk_lm[t - 1], stk_lm[t])
+                if left_out:
+                    stk_lm[t - 1] = min(stk_lm[t - 1], stk_lm[t])
                 sp -= 1
-            n_fin = _close(stk_node[0], stk_area[0], -1, min(K + 2, stk_lm[0]), K, max_area,
+            n_fin = _close(stk_node[0], stk_area[0], -1, (min(K + 2, stk_lm[0]) if left_out else K + 2), K, max_area,
                            node_b, node_size, node_parent, tagged, fin, n_fin)
         return (node_b[:n_nodes], node_size[:n_nodes], node_parent[:n_nodes], tagged[:n_nodes],
                 fin[:n_fin])
