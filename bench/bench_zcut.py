@@ -10,7 +10,9 @@ Run: ``.venv/bin/python bench/bench_zcut.py [--repeat-fast N] [--repeat-ref N] [
 ``--against OLD_TREE`` (a checkout of the previous code, e.g. ``git archive HEAD~1 | tar -x -C
 /tmp/old``) times that tree's ``zcut_outliers`` and ``find_clusters`` on the same frames in the same
 run (a child process with OLD_TREE first on its path) and prints the ratio old / new, and whether
-its masks are identical.
+its masks are identical. ``--alternate`` (with ``--against``) times both trees in this one process
+instead, calls alternating (a child process on a loaded machine reads slower than the same code
+here), and skips the reference and the passes.
 
 Frames, heights in mm (larger = higher), seeded; nominal parameters step 0.2 mm, max_depth 30 mm,
 max_area = 0.07 * a_max (a_max = 3000 px):
@@ -19,13 +21,16 @@ max_area = 0.07 * a_max (a_max = 3000 px):
 - ``dense``: a gently curved surface with noise whose whole range lies inside the cut range, so
   every pixel takes part in every level.
 - ``holes``: the pile with large invalid regions (a third of the width, and big blocks).
+- ``zinc`` (``--synth``): a synthetic 1920 x 1200 zinc-nut frame (``replay.synth``), the whole
+  height image the sensor gives (bin and walls included).
 - ``kinect16``, ``mug`` (``--real DIR``, e.g. /work/shared/data/real): the real 480 x 640 Kinect and
   stereo clouds ``mosd_test16.pcd`` and ``table_scene_mug_stereo_textured.pcd`` as the pipeline sees
-  them (h = -1000 z).
+  them (h = -1000 z), then every other organised 480 x 640 cloud of DIR (named by its file).
 
 Prints the times, the ratio reference / fast and checks that the masks are identical.
-``--passes`` also prints where ``zcut_outliers``' CPU time goes (the extremes pass, the level pass,
-the flood, the read-out) beside the floor of reading the heights and writing a mask.
+``--passes`` also prints where ``zcut_outliers``' CPU time goes (the extremes pass, the level pass with
+the gentle components, the prune, the flood of the kept pixels, the read-out) beside the floor of
+reading the heights and writing a mask.
 CPU time (process_time) is the figure to quote on a shared machine.
 """
 
@@ -126,16 +131,31 @@ def real_frames(folder: Path) -> dict[str, np.ndarray]:
     import open3d as o3d
 
     out = {}
-    for name, file in (("kinect16", "mosd_test16.pcd"), ("mug", "table_scene_mug_stereo_textured.pcd")):
-        cloud = o3d.io.read_point_cloud(str(folder / file), remove_nan_points=False, remove_infinite_points=False)
-        out[name] = -1000.0 * np.asarray(cloud.points).reshape(480, 640, 3)[..., 2].astype(np.float64)
+    named = {"mosd_test16.pcd": "kinect16", "table_scene_mug_stereo_textured.pcd": "mug"}
+    files = [folder / f for f in named] + sorted(f for f in folder.glob("*.pcd") if f.name not in named)
+    for file in files:
+        cloud = o3d.io.read_point_cloud(str(file), remove_nan_points=False, remove_infinite_points=False)
+        points = np.asarray(cloud.points)
+        if points.shape[0] == 480 * 640:  # the organised 640 x 480 clouds
+            out[named.get(file.name, file.stem[:16])] = -1000.0 * points.reshape(480, 640, 3)[..., 2].astype(np.float64)
     return out
 
 
+def synth_frame(seed: int = 3) -> np.ndarray:
+    """The height (mm, h = -1000 z) of a synthetic 1920 x 1200 zinc-nut frame of ``replay.synth`` (the bin,
+    its walls and the pile as the sensor sees them, before the bin stages)."""
+    from replay.synth import synthesize_frame
+
+    xyz = synthesize_frame(kind="zinc_nuts", seed=seed, size=(H, W)).frame.xyz
+    return -1000.0 * np.asarray(xyz[..., 2], dtype=np.float64)
+
+
 def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
-    """Median CPU ms of each pass of ``zcut_outliers`` on z (the flood path), and of the floor."""
-    from zcut.cut_tree import flood_core, flood_levels, listed_outlier_mask
-    from zcut.cuts import _finite_range, _levels
+    """Median CPU ms of each pass of ``zcut_outliers`` on z (the pruned flood, taken whatever the frame's
+    size: ``zcut_outliers`` floods frames of fewer than ``PRUNE_MIN`` pixels in the cuts whole), and of
+    the floor; each pass timed on fresh copies of what it writes (the copies made outside the timing)."""
+    from zcut.cut_tree import flood_core_left_out, gentle_levels, gentle_prune, pruned_outlier_mask
+    from zcut.cuts import PRUNE_CHECK, PRUNE_CHECK_ROWS, _finite_range, _levels
     from zcut.params import n_levels
 
     step, max_area = params["step"], float(params["max_area"])
@@ -144,31 +164,55 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
     k_eff, top = _levels(lo, hi, step, K)
     Hz, Wz = z.shape
     size = (Hz + 2) * (Wz + 2)
+    st, gl = np.empty(size, np.int16), np.empty(size, np.int32)
+    pix, gpar, gcnt = (np.empty(Hz * Wz, np.int32) for _ in range(3))
 
     def levels() -> tuple:
-        st, start = np.empty(size, np.int16), np.zeros(top + 2, np.int64)
-        pix, own = np.empty(size, np.int32), np.empty(size, np.int32)
-        m = flood_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top), np.int64(K), st, start, pix,
-                         own, np.empty((1, 1), np.int16), False)
-        return st, start, pix[:m], own[:m]
+        return gentle_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top), True, max_area,
+                             np.int64(max(PRUNE_CHECK, PRUNE_CHECK_ROWS * Wz)), st, pix, gl, gpar, gcnt)
 
-    st, start, pix, own = levels()
-    lab = np.empty(size, np.int32)
+    m, nl, labelled = levels()
+    state = (st.copy(), pix.copy(), gpar.copy(), gcnt.copy())
 
-    def flood() -> tuple:
-        return flood_core(st.copy(), start.copy(), pix, Wz, np.int64(k_eff), np.int64(top), True, max_area, lab)
+    def prune_inputs() -> tuple:
+        return tuple(a.copy() for a in state) + (np.zeros(top + 2, np.int64),)
 
-    node_b, _, node_parent, tagged, fin = flood()
+    def prune(a: tuple) -> int:
+        return gentle_prune(a[0], a[1], m, gl, a[2], a[3], nl, max_area, a[4], labelled)
+
+    a = prune_inputs()
+    keep = int(prune(a))
+    st_kept, kept, start = a[0], a[1][:keep].copy(), a[4]
+    lab = gl.copy()
+
+    def flood(b: tuple) -> tuple:
+        return flood_core_left_out(b[0], b[1], kept, Wz, np.int64(k_eff), np.int64(top), True, max_area, lab)
+
+    _, _, node_parent, tagged, fin = flood((st_kept.copy(), start.copy()))
     res = {
         "floor (read heights, write a mask)": timed(lambda: (z.sum(), np.zeros(z.shape, bool).fill(False)), repeat)[1],
         "extremes pass": timed(lambda: _finite_range(z), repeat)[1],
-        "level pass": timed(levels, repeat)[1],
-        "flood": timed(flood, repeat)[1],
-        "read-out": timed(lambda: listed_outlier_mask(lab, pix, own, fin, node_parent, tagged,
+        "level pass + gentle components": timed(levels, repeat)[1],
+        "prune": timed_on(prune_inputs, prune, repeat),
+        "flood": timed_on(lambda: (st_kept.copy(), start.copy()), flood, repeat),
+        "read-out": timed(lambda: pruned_outlier_mask(z, lab, kept, fin, node_parent, tagged,
                                                       np.zeros(z.size, bool)), repeat)[1],
     }
-    res["pixels in the cuts"] = float(pix.size)
+    res["pixels in the cuts"] = float(m)
+    res["pixels flooded"] = float(keep)
+    res["pixels flooded (labelling kept: 1)"] = float(labelled)
     return res
+
+
+def timed_on(prepare, fn, repeat: int) -> float:
+    """Median CPU time of ``fn(prepare())``, ``prepare`` left out of the timing."""
+    cpu = []
+    for _ in range(repeat):
+        args = prepare()
+        c0 = time.process_time()
+        fn(args)
+        cpu.append(time.process_time() - c0)
+    return statistics.median(cpu)
 
 
 def timed(fn, repeat: int) -> tuple[float, float, np.ndarray]:
@@ -223,12 +267,60 @@ def time_old_tree(tree: Path, frames: dict[str, np.ndarray], params: dict, repea
     return times, masks
 
 
+def alternate(tree: Path, frames: dict[str, np.ndarray], params: dict, repeat: int) -> bool:
+    """``--alternate``: the old tree's and this tree's ``zcut_outliers`` and ``find_clusters`` in this
+    one process, calls alternating (the old package imported first and kept as module objects, then
+    this one); prints median CPU ms and the ratios, returns whether every result is identical."""
+    import importlib
+
+    here = {k: v for k, v in sys.modules.items() if k == "zcut" or k.startswith("zcut.")}
+    for k in here:
+        del sys.modules[k]
+    sys.path.insert(0, str(tree))
+    try:
+        old_cuts = importlib.import_module("zcut.cuts")
+        old_params = importlib.import_module("zcut.params")
+    finally:
+        sys.path.pop(0)
+        for k in [k for k in sys.modules if k == "zcut" or k.startswith("zcut.")]:
+            del sys.modules[k]
+        sys.modules.update(here)
+    if not str(old_cuts.__file__).startswith(str(tree.resolve())) and not str(old_cuts.__file__).startswith(str(tree)):
+        raise SystemExit(f"--alternate: {tree} did not provide zcut (got {old_cuts.__file__})")
+    zp_old = old_params.ZCutParams(params["step"], params["max_depth"], params["max_area"])
+    zp_new = ZCutParams(params["step"], params["max_depth"], params["max_area"])
+    calls = {
+        "zo": lambda z: old_cuts.zcut_outliers(z, **params), "zn": lambda z: zcut_outliers(z, **params),
+        "fo": lambda z: old_cuts.find_clusters(z, params=zp_old), "fn": lambda z: find_clusters(z, params=zp_new),
+    }
+    ok = True
+    print(f"alternating in one process against {tree} (median CPU ms of {repeat} calls each):")
+    for name, z in frames.items():
+        fo, fn = calls["fo"](z), calls["fn"](z)
+        same = (np.array_equal(calls["zo"](z), calls["zn"](z)) and np.array_equal(fo.clusters, fn.clusters)
+                and np.array_equal(fo.level_counts, fn.level_counts) and np.array_equal(fo.pixel_level, fn.pixel_level))
+        ok &= same
+        cpu: dict[str, list[float]] = {k: [] for k in calls}
+        for _ in range(repeat):
+            for key, fnc in calls.items():
+                c0 = time.process_time()
+                fnc(z)
+                cpu[key].append(time.process_time() - c0)
+        m = {k: statistics.median(v) * 1e3 for k, v in cpu.items()}
+        print(f"    {name:8s} zcut_outliers {m['zo']:7.2f} -> {m['zn']:7.2f} ms ({m['zo'] / m['zn']:4.2f}x), "
+              f"find_clusters {m['fo']:7.2f} -> {m['fn']:7.2f} ms ({m['fo'] / m['fn']:4.2f}x); identical: {same}")
+    return ok
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat-fast", type=int, default=7)
     ap.add_argument("--repeat-ref", type=int, default=2)
     ap.add_argument("--against", type=Path, default=None, help="a checkout of the previous code to time beside")
+    ap.add_argument("--alternate", action="store_true",
+                    help="with --against: time both trees in this process, calls alternating (no reference, no passes)")
     ap.add_argument("--real", type=Path, default=None, help="the folder of the real clouds (adds kinect16, mug)")
+    ap.add_argument("--synth", action="store_true", help="add zinc: a synthetic 1920 x 1200 zinc-nut frame")
     ap.add_argument("--frames", default=None, help="comma-separated frame names to run (default: all)")
     ap.add_argument("--passes", action="store_true", help="print the CPU time of each pass of zcut_outliers")
     args = ap.parse_args()
@@ -241,10 +333,16 @@ def main() -> int:
     print(f"numba warm-up (compile or cache load): {warm:.2f} s")
 
     frames = {"pile": pile_frame(), "dense": dense_frame(), "holes": holes_frame()}
+    if args.synth:
+        frames["zinc"] = synth_frame()
     if args.real is not None:
         frames.update(real_frames(args.real))
     if args.frames is not None:
         frames = {k: v for k, v in frames.items() if k in args.frames.split(",")}
+    if args.alternate:
+        if args.against is None:
+            raise SystemExit("--alternate needs --against OLD_TREE")
+        return 0 if alternate(args.against, frames, params, args.repeat_fast) else 1
     old: dict[str, dict[str, float]] = {}
     old_masks: dict[str, np.ndarray] = {}
     if args.against is not None:

@@ -34,19 +34,25 @@ Reading it back
 
 from __future__ import annotations
 
+from typing import Any
+
 import numba
 import numpy as np
 from numba.cpython.unsafe.numbers import trailing_zeros
 
 __all__ = [
     "FLOOD_MAX_LEVELS",
+    "OUTSIDE",
     "SEGMENT",
     "cluster_labels",
     "finite_range",
     "flood_core",
+    "flood_core_left_out",
     "flood_levels",
     "flood_tree",
     "forest_mask",
+    "gentle_levels",
+    "gentle_prune",
     "grid_counts",
     "level_counts",
     "listed_cluster_labels",
@@ -54,6 +60,7 @@ __all__ = [
     "node_image",
     "outlier_mask",
     "pixel_levels",
+    "pruned_outlier_mask",
     "qlevel",
     "taggable_forest",
     "union_find_tree",
@@ -253,6 +260,213 @@ def flood_levels(z, seg_max, z_min, z_max, step, hi, top, K, st, start, pix, own
                     if want_levels:
                         pixel_level[r, c] = -1
     return m
+
+
+#: ``st`` of :func:`flood_core` at a pixel in the cuts left out of the flood: ``OUTSIDE - level``.
+OUTSIDE = -16
+
+
+@numba.njit(cache=True, inline="always")
+def _near(qa, qb):  # type: ignore[no-untyped-def]  # numba kernel
+    """Two levels within 1 of each other (no branch)."""
+    return (qa - qb <= 1) & (qb - qa <= 1)
+
+
+@numba.njit(cache=True, inline="always")
+def _unite(gpar, ra, b):  # type: ignore[no-untyped-def]  # numba kernel
+    """Union of the set of root ra and the set of label b (the smaller root becomes the root, so a
+    parent's label is always smaller than its child's); returns the root."""
+    if b == ra:
+        return ra
+    rb = np.int64(_find(gpar, b))
+    if ra < rb:
+        gpar[rb] = ra
+        return ra
+    if rb < ra:
+        gpar[ra] = rb
+    return rb
+
+
+@numba.njit(cache=True, nogil=True)
+def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`flood_levels` without ``own`` and ``pixel_level``, labelling on the way the *gentle
+    components*: the components of the pixels in the cuts where two neighbours are joined when
+    their levels differ by at most 1.
+
+    One raster scan: a pixel copies the provisional label of a gentle neighbour before it, and the
+    sets of the labels are united (a union-find over the labels) only where two gentle neighbours
+    are not already known to be in one set (two neighbours joined by a gentle edge between them
+    were united when the later one was labelled). The choices are made without branches where
+    the data is noisy (a branch per neighbour costs a misprediction there).
+
+    Writes ``st`` (padded; level or -1), ``pix[:m]`` (padded indices in raster order), ``gl``
+    (padded, at the pixels in the cuts only: a provisional label), ``gpar`` (the labels'
+    union-find, a parent's label smaller than its child's) and ``gcnt`` (the pixels that took
+    each label). Returns (m, number of labels, labelled).
+
+    Once ``check`` pixels in the cuts are labelled (at the end of that row), it looks whether the
+    labelling pays: if fewer than half of them lie in sets of ``max_area`` pixels or more (few
+    gentle edges: quantised depths, steep relief; the flood would then visit most pixels anyway),
+    it labels no further and returns labelled = False (the levels and ``pix`` are complete; the
+    labels are not)."""
+    H, W = z.shape
+    Wp = W + 2
+    inv_step = 1.0 / step
+    thr = z_max - top * step
+    skip = z_min < thr  # invalid pixels (at z_min) are outside the cuts: segments may be skipped
+    for c in range(Wp):
+        st[c] = -1
+        st[(H + 1) * Wp + c] = -1
+    m = 0
+    nl = 0
+    labelling = True
+    checked = False
+    for r in range(H):
+        if labelling and not checked and m >= check:
+            checked = True
+            labelling = _labelling_pays(gpar, gcnt, nl, m, max_area)
+        base = (r + 1) * Wp
+        st[base] = -1
+        st[base + W + 1] = -1
+        qw = np.int64(-1)  # the level and label of the pixel before (-1: not in the cuts)
+        lw = np.int64(-1)
+        for c0 in range(0, W, SEGMENT):
+            c1 = min(c0 + SEGMENT, W)
+            if skip and not seg_max[r, c0 // SEGMENT] >= thr:
+                st[base + 1 + c0:base + 1 + c1] = -1
+                qw = -1  # type: ignore[assignment]  # numba kernel: an int64 local
+                continue
+            for c in range(c0, c1):
+                p = base + 1 + c
+                v = z[r, c]
+                zt = v if np.isfinite(v) else z_min
+                if not zt >= thr:
+                    st[p] = -1
+                    qw = -1  # type: ignore[assignment]  # numba kernel: an int64 local
+                    continue
+                lv = _qlevel_guess(zt, z_max, step, inv_step, hi)
+                st[p] = lv
+                pix[m] = p
+                m += 1
+                if not labelling:
+                    continue
+                qn = np.int64(st[p - Wp])
+                gw = (qw >= 0) & _near(qw, lv)
+                gn = (qn >= 0) & _near(qn, lv)
+                ln = np.int64(gl[p - Wp])  # (read even where not in the cuts: then unused)
+                if conn8:
+                    qnw = np.int64(st[p - Wp - 1])
+                    qne = np.int64(st[p - Wp + 1])
+                    gnw = (qnw >= 0) & _near(qnw, lv)
+                    gne = (qne >= 0) & _near(qne, lv)
+                    lnw = np.int64(gl[p - Wp - 1])
+                    lne = np.int64(gl[p - Wp + 1])
+                    lab = lw if gw else np.int64(-1)
+                    lab = lne if gne else lab
+                    lab = lnw if gnw else lab
+                    lab = ln if gn else lab
+                    # the label comes from N, else NW, else NE, else W; the others are united
+                    # with it unless a gentle edge joins them to it already (N touches NW, NE
+                    # and W; NW touches W; NE and W do not touch, nor NW and NE)
+                    ngn = not gn
+                    unw = gn & gnw & (not _near(qnw, qn))
+                    une = gne & ((gn & (not _near(qne, qn))) | (ngn & gnw))
+                    uw = gw & ((gn & (not _near(qw, qn))) | (ngn & gnw & (not _near(qw, qnw)))
+                               | (ngn & (not gnw) & gne))
+                    if (unw & (lnw != lab)) | (une & (lne != lab)) | (uw & (lw != lab)):
+                        lab = np.int64(_find(gpar, lab))
+                        if unw:
+                            lab = _unite(gpar, lab, lnw)
+                        if une:
+                            lab = _unite(gpar, lab, lne)
+                        if uw:
+                            lab = _unite(gpar, lab, lw)
+                else:
+                    lab = lw if gw else np.int64(-1)
+                    lab = ln if gn else lab
+                    if gn & gw & (lw != lab):
+                        lab = _unite(gpar, np.int64(_find(gpar, lab)), lw)
+                if lab < 0:
+                    lab = np.int64(nl)
+                    gpar[nl] = nl
+                    gcnt[nl] = 0
+                    nl += 1
+                gl[p] = lab
+                gcnt[lab] += 1
+                qw = lv
+                lw = lab
+    return m, nl, labelling
+
+
+@numba.njit(cache=True, nogil=True)
+def _labelling_pays(gpar, gcnt, nl, m, max_area):  # type: ignore[no-untyped-def]  # numba kernel
+    """At least half of the m pixels labelled so far lie in sets of max_area pixels or more."""
+    size = np.zeros(nl, np.int64)
+    for i in range(nl):
+        r = gpar[gpar[i]]  # (flattening is a valid union-find step: labels in creation order)
+        gpar[i] = r
+        size[r] += gcnt[i]
+    big = 0
+    for i in range(nl):
+        if size[gpar[i]] >= max_area:
+            big += gcnt[i]
+    return 2 * big >= m
+
+
+@numba.njit(cache=True, nogil=True)
+def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled):  # type: ignore[no-untyped-def]  # numba kernel
+    """Keep in ``pix`` only the pixels of the gentle components (:func:`gentle_levels`) of fewer
+    than ``max_area`` pixels, count them per level in ``start`` (zeroed; ``start[lv + 1]``, as
+    :func:`flood_core` wants), and mark the others ``OUTSIDE - level`` in ``st``. Returns the
+    number kept. Without ``labelled`` (:func:`gentle_levels` gave up) every pixel is kept.
+
+    Why the flood over the kept pixels gives the outliers of the whole tree: a tagged node C is a
+    component of two cuts k, k + 1, so every neighbour of C has a level >= k + 2 and no gentle
+    edge leaves C: C is a union of whole gentle components, each smaller than C. So the kept
+    pixels hold every tagged node, and each one is also a component of the same cuts among the
+    kept pixels; conversely a node of the kept pixels' tree is a component of the whole cut at
+    level k unless it touches a left-out pixel of level <= k, which :func:`flood_core` accounts
+    for. The tagged nodes, as pixel sets, are the same in both trees."""
+    if not labelled:
+        for t in range(m):
+            start[np.int64(st[pix[t]]) + 1] += 1
+        return m
+    for i in range(nl):  # labels in creation order: a parent's label is smaller, flattened first
+        r = gpar[gpar[i]]
+        gpar[i] = r
+        if r != i:
+            gcnt[r] += gcnt[i]  # the root's count is final once every label is flattened
+    keep = 0
+    for t in range(m):
+        p = pix[t]
+        lv = np.int64(st[p])
+        if gcnt[gpar[gl[p]]] < max_area:
+            pix[keep] = p
+            keep += 1
+            start[lv + 1] += 1
+        else:
+            st[p] = OUTSIDE - lv
+    return keep
+
+
+@numba.njit(cache=True, nogil=True)
+def pruned_outlier_mask(z, lab, pix, fin, node_parent, tagged, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`listed_outlier_mask` over the pixels kept by :func:`gentle_prune` (``out`` (H * W,
+    zeroed); the flat index and the validity of a pixel are found from its padded index)."""
+    outer = _outermost(fin, node_parent, tagged)
+    W = z.shape[1]
+    Wp = W + 2
+    inv = 1.0 / Wp
+    zf = z.reshape(-1)
+    for t in range(pix.size):
+        p = pix[t]
+        if outer[lab[p]] >= 0:
+            # the row p // Wp by a product: (p + 0.5) / Wp lies >= 0.5 / Wp from an integer and p
+            # < 2**31, far more than the product's rounding error
+            rp = np.int64((p + 0.5) * inv)
+            o = p - Wp - 1 - 2 * (rp - 1)
+            if np.isfinite(zf[o]):
+                out[o] = True
 
 
 @numba.njit(cache=True, nogil=True)
@@ -617,168 +831,200 @@ def flood_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-def]  
     return lab, node_b, node_size, node_parent, tagged, fin
 
 
-@numba.njit(cache=True, nogil=True)
-def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore[no-untyped-def]  # numba kernel
-    """The flood of :func:`flood_tree` from its prepared state: ``st`` (padded, int16) the level
-    of each pixel in the cuts and -1 elsewhere (the border included), ``start[lv + 1]`` the
-    number of pixels at level lv (turned into the bucket starts here), ``pix`` the pixels in the
-    cuts in raster order. Writes ``lab`` at those pixels only; returns what :func:`flood_tree`
-    returns but ``lab``."""
-    Wp = W + 2
-    nlev = top + 1
-    for lv in range(nlev):
-        start[lv + 1] += start[lv]
-    m = start[nlev]
-    fill = start[:nlev].copy()  # bucket lv = bucket[start[lv]:fill[lv]], a stack
-    bucket = np.empty(m, np.int32)  # a pixel is queued at most once at a time, at its level
-    occ = np.zeros(64, np.uint64)  # bit lv: bucket lv non-empty
-    summ = np.uint64(0)  # bit w: occ[w] != 0
-    stk_lv = np.empty(nlev + 1, np.int64)
-    stk_area = np.empty(nlev + 1, np.int64)
-    stk_node = np.empty(nlev + 1, np.int32)
-    node_b = np.empty(m, np.int64)
-    node_size = np.empty(m, np.int64)
-    node_parent = np.empty(m, np.int32)
-    tagged = np.zeros(m, np.bool_)
-    fin = np.empty(m, np.int32)
-    if conn8:
-        offs = np.array([-Wp - 1, -Wp, -Wp + 1, -1, 1, Wp - 1, Wp, Wp + 1])
-    else:
-        offs = np.array([-Wp, -1, 1, Wp])
-    ne = offs.size
-    n_nodes = 0
-    n_fin = 0
-    for t_s in range(pix.size):
-        s = pix[t_s]
-        if st[s] < 0:
-            continue
-        # ---- flood the region of the cuts that holds s. Kept in registers: the level cur of the
-        # top of the stack, its node and area, and the fill of its bucket (bucket cur's bit in
-        # occ is only brought up to date when cur changes)
-        p = s
-        cur = np.int64(st[s])
-        st[p] = -1
-        ftop = fill[cur]
-        sbeg = start[cur]
-        node = n_nodes
-        node_b[node] = cur
-        lab[p] = node
-        n_nodes += 1
-        area = np.int64(1)
-        stk_lv[0] = cur
-        stk_node[0] = node
-        sp = 1
-        e = 0  # the neighbour of p to go on with
-        while True:
-            # a loop of constant trip count (unrolled by the compiler: twice as fast as a loop
-            # from e to ne), leaving at the first lower neighbour
-            d = -1
-            dq = np.int64(0)
-            for u in range(8):
-                if u < e:
-                    continue
-                if u >= ne:
-                    break
-                nb = p + offs[u]
-                qn = np.int64(st[nb])
-                if qn < 0:  # seen
-                    continue
-                st[nb] = -1
-                if qn == cur:  # queue it
-                    bucket[ftop] = nb
-                    ftop += 1
-                    continue
-                if qn > cur:  # queue it
-                    slot = fill[qn]
-                    bucket[slot] = nb
-                    fill[qn] = slot + 1
-                    if slot == start[qn]:
-                        summ = _bit_set(occ, summ, qn)
-                    continue
-                d = u
-                dq = qn
-                break
-            if d >= 0:
-                # a lower neighbour: push p back (if it has neighbours left), descend
-                if d + 1 < ne:
-                    st[p] = -2 - d
-                    bucket[ftop] = p
-                    ftop += 1
-                fill[cur] = ftop
-                if ftop > sbeg:
-                    summ = _bit_set(occ, summ, cur)
-                else:
-                    summ = _bit_clear(occ, summ, cur)
-                stk_area[sp - 1] = area
-                p = p + offs[d]
-                cur = dq
-                ftop = fill[cur]
-                sbeg = start[cur]
-                node = n_nodes
-                node_b[node] = cur
-                lab[p] = node
-                n_nodes += 1
-                area = 1  # type: ignore[assignment]  # numba kernel: an int64 local
-                stk_lv[sp] = cur
-                stk_node[sp] = node
-                sp += 1
-                e = 0
+def _flood_kernel(left_out: bool) -> Any:
+    """:func:`flood_core` (``left_out`` False) or :func:`flood_core_left_out` (True: ``st`` may hold
+    left-out pixels, whose levels end the nodes they touch; a check the whole tree's flood need not
+    pay in its innermost loop). The flag is a constant of the compiled kernel."""
+
+    @numba.njit(cache=True, nogil=True)
+    def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore[no-untyped-def]  # numba kernel
+        """The flood of :func:`flood_tree` from its prepared state: ``st`` (padded, int16) the level
+        of each pixel in the cuts and -1 elsewhere (the border included), ``start[lv + 1]`` the
+        number of pixels at level lv (turned into the bucket starts here), ``pix`` the pixels in the
+        cuts in raster order. Writes ``lab`` at those pixels only; returns what :func:`flood_tree`
+        returns but ``lab``.
+
+        ``st`` may also hold, at a pixel in the cuts left out of the flood, ``OUTSIDE - level``
+        (:func:`gentle_prune`): such a neighbour is never flooded, but a node whose pixels touch one
+        of level l is not a component of the cut at l, so its end ``e`` is taken as
+        ``min(e, l)`` in the tag (the smallest such l is carried along the stack)."""
+        Wp = W + 2
+        nlev = top + 1
+        for lv in range(nlev):
+            start[lv + 1] += start[lv]
+        m = start[nlev]
+        fill = start[:nlev].copy()  # bucket lv = bucket[start[lv]:fill[lv]], a stack
+        bucket = np.empty(m, np.int32)  # a pixel is queued at most once at a time, at its level
+        occ = np.zeros(64, np.uint64)  # bit lv: bucket lv non-empty
+        summ = np.uint64(0)  # bit w: occ[w] != 0
+        stk_lv = np.empty(nlev + 1, np.int64)
+        stk_area = np.empty(nlev + 1, np.int64)
+        stk_node = np.empty(nlev + 1, np.int32)
+        stk_lm = np.empty(nlev + 1, np.int64)  # the lowest level of a left-out neighbour
+        nolim = np.int64(K + 2)
+        node_b = np.empty(m, np.int64)
+        node_size = np.empty(m, np.int64)
+        node_parent = np.empty(m, np.int32)
+        tagged = np.zeros(m, np.bool_)
+        fin = np.empty(m, np.int32)
+        if conn8:
+            offs = np.array([-Wp - 1, -Wp, -Wp + 1, -1, 1, Wp - 1, Wp, Wp + 1])
+        else:
+            offs = np.array([-Wp, -1, 1, Wp])
+        ne = offs.size
+        n_nodes = 0
+        n_fin = 0
+        for t_s in range(pix.size):
+            s = pix[t_s]
+            if st[s] < 0:
                 continue
-            # ---- p is done: pop the next pixel from the lowest non-empty bucket
-            if ftop > sbeg:
-                ftop -= 1
+            # ---- flood the region of the cuts that holds s. Kept in registers: the level cur of the
+            # top of the stack, its node and area, and the fill of its bucket (bucket cur's bit in
+            # occ is only brought up to date when cur changes)
+            p = s
+            cur = np.int64(st[s])
+            st[p] = -1
+            ftop = fill[cur]
+            sbeg = start[cur]
+            node = n_nodes
+            node_b[node] = cur
+            lab[p] = node
+            n_nodes += 1
+            area = np.int64(1)
+            lmn = nolim
+            stk_lv[0] = cur
+            stk_node[0] = node
+            sp = 1
+            e = 0  # the neighbour of p to go on with
+            while True:
+                # a loop of constant trip count (unrolled by the compiler: twice as fast as a loop
+                # from e to ne), leaving at the first lower neighbour
+                d = -1
+                dq = np.int64(0)
+                for u in range(8):
+                    if u < e:
+                        continue
+                    if u >= ne:
+                        break
+                    nb = p + offs[u]
+                    qn = np.int64(st[nb])
+                    if qn < 0:  # seen, or left out of the flood
+                        if left_out and qn <= OUTSIDE:
+                            lmn = min(lmn, OUTSIDE - qn)
+                        continue
+                    st[nb] = -1
+                    if qn == cur:  # queue it
+                        bucket[ftop] = nb
+                        ftop += 1
+                        continue
+                    if qn > cur:  # queue it
+                        slot = fill[qn]
+                        bucket[slot] = nb
+                        fill[qn] = slot + 1
+                        if slot == start[qn]:
+                            summ = _bit_set(occ, summ, qn)
+                        continue
+                    d = u
+                    dq = qn
+                    break
+                if d >= 0:
+                    # a lower neighbour: push p back (if it has neighbours left), descend
+                    if d + 1 < ne:
+                        st[p] = -2 - d
+                        bucket[ftop] = p
+                        ftop += 1
+                    fill[cur] = ftop
+                    if ftop > sbeg:
+                        summ = _bit_set(occ, summ, cur)
+                    else:
+                        summ = _bit_clear(occ, summ, cur)
+                    stk_area[sp - 1] = area
+                    if left_out:
+                        stk_lm[sp - 1] = lmn
+                        lmn = nolim
+                    p = p + offs[d]
+                    cur = dq
+                    ftop = fill[cur]
+                    sbeg = start[cur]
+                    node = n_nodes
+                    node_b[node] = cur
+                    lab[p] = node
+                    n_nodes += 1
+                    area = 1  # type: ignore[assignment]  # numba kernel: an int64 local
+                    stk_lv[sp] = cur
+                    stk_node[sp] = node
+                    sp += 1
+                    e = 0
+                    continue
+                # ---- p is done: pop the next pixel from the lowest non-empty bucket
+                if ftop > sbeg:
+                    ftop -= 1
+                    p = bucket[ftop]
+                    e = -1 - np.int64(st[p])  # type: ignore[assignment]  # numba kernel: an int64 local
+                    if e == 0:  # first visit (else p resumes after a descent)
+                        lab[p] = node
+                        area += 1
+                    continue
+                fill[cur] = ftop
+                summ = _bit_clear(occ, summ, cur)
+                stk_area[sp - 1] = area
+                if left_out:
+                    stk_lm[sp - 1] = lmn
+                lv = _bit_next(occ, summ, cur)
+                if lv < 0:
+                    break
+                # rising: close the components below lv
+                while True:
+                    t = sp - 1
+                    if sp >= 2 and stk_lv[t - 1] <= lv:  # becomes part of the next one
+                        n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], (min(stk_lv[t - 1], stk_lm[t]) if left_out else stk_lv[t - 1]), K,
+                                       max_area, node_b, node_size, node_parent, tagged, fin, n_fin)
+                        stk_area[t - 1] += stk_area[t]
+                        if left_out:
+                            stk_lm[t - 1] = min(stk_lm[t - 1], stk_lm[t])
+                        sp -= 1
+                        if stk_lv[t - 1] == lv:
+                            break
+                    else:  # becomes part of a new component at lv
+                        n_fin = _close(stk_node[t], stk_area[t], n_nodes, (min(lv, stk_lm[t]) if left_out else lv), K, max_area,
+                                       node_b, node_size, node_parent, tagged, fin, n_fin)
+                        stk_lv[t] = lv
+                        stk_node[t] = n_nodes
+                        node_b[n_nodes] = lv
+                        n_nodes += 1
+                        break
+                cur = lv
+                node = stk_node[sp - 1]
+                area = stk_area[sp - 1]
+                if left_out:
+                    lmn = stk_lm[sp - 1]
+                sbeg = start[cur]
+                ftop = fill[cur] - 1
                 p = bucket[ftop]
                 e = -1 - np.int64(st[p])  # type: ignore[assignment]  # numba kernel: an int64 local
-                if e == 0:  # first visit (else p resumes after a descent)
+                if e == 0:
                     lab[p] = node
                     area += 1
-                continue
-            fill[cur] = ftop
-            summ = _bit_clear(occ, summ, cur)
-            stk_area[sp - 1] = area
-            lv = _bit_next(occ, summ, cur)
-            if lv < 0:
-                break
-            # rising: close the components below lv
-            while True:
+            # ---- the region is flooded: each component left becomes part of the next one, and the
+            # last one (the whole region) lives to the end
+            while sp > 1:
                 t = sp - 1
-                if sp >= 2 and stk_lv[t - 1] <= lv:  # becomes part of the next one
-                    n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], stk_lv[t - 1], K,
-                                   max_area, node_b, node_size, node_parent, tagged, fin, n_fin)
-                    stk_area[t - 1] += stk_area[t]
-                    sp -= 1
-                    if stk_lv[t - 1] == lv:
-                        break
-                else:  # becomes part of a new component at lv
-                    n_fin = _close(stk_node[t], stk_area[t], n_nodes, lv, K, max_area,
-                                   node_b, node_size, node_parent, tagged, fin, n_fin)
-                    stk_lv[t] = lv
-                    stk_node[t] = n_nodes
-                    node_b[n_nodes] = lv
-                    n_nodes += 1
-                    break
-            cur = lv
-            node = stk_node[sp - 1]
-            area = stk_area[sp - 1]
-            sbeg = start[cur]
-            ftop = fill[cur] - 1
-            p = bucket[ftop]
-            e = -1 - np.int64(st[p])  # type: ignore[assignment]  # numba kernel: an int64 local
-            if e == 0:
-                lab[p] = node
-                area += 1
-        # ---- the region is flooded: each component left becomes part of the next one, and the
-        # last one (the whole region) lives to the end
-        while sp > 1:
-            t = sp - 1
-            n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], stk_lv[t - 1], K, max_area,
+                n_fin = _close(stk_node[t], stk_area[t], stk_node[t - 1], (min(stk_lv[t - 1], stk_lm[t]) if left_out else stk_lv[t - 1]), K,
+                               max_area, node_b, node_size, node_parent, tagged, fin, n_fin)
+                stk_area[t - 1] += stk_area[t]
+                if left_out:
+                    stk_lm[t - 1] = min(stk_lm[t - 1], stk_lm[t])
+                sp -= 1
+            n_fin = _close(stk_node[0], stk_area[0], -1, (min(K + 2, stk_lm[0]) if left_out else K + 2), K, max_area,
                            node_b, node_size, node_parent, tagged, fin, n_fin)
-            stk_area[t - 1] += stk_area[t]
-            sp -= 1
-        n_fin = _close(stk_node[0], stk_area[0], -1, K + 2, K, max_area,
-                       node_b, node_size, node_parent, tagged, fin, n_fin)
-    return (node_b[:n_nodes], node_size[:n_nodes], node_parent[:n_nodes], tagged[:n_nodes],
-            fin[:n_fin])
+        return (node_b[:n_nodes], node_size[:n_nodes], node_parent[:n_nodes], tagged[:n_nodes],
+                fin[:n_fin])
+
+    return flood_core
+
+
+flood_core = _flood_kernel(False)
+flood_core_left_out = _flood_kernel(True)
 
 
 @numba.njit(cache=True)

@@ -214,3 +214,122 @@ def test_bench_frames_at_nominal_parameters() -> None:
         sys.path.pop(0)
     for z in (pile_frame(), dense_frame()):
         check(z, reference=False, step=0.2, max_depth=30.0, max_area=0.07 * A_MAX)
+
+
+# ------------------------------------------------------------------------------------------------
+# the flood over the small gentle components only (zcut.cut_tree.gentle_prune)
+# ------------------------------------------------------------------------------------------------
+def terraces(rng: np.random.Generator, H: int, W: int, step: float) -> np.ndarray:
+    """Heights exactly on the levels (z_max - k * step, dyadic step): plateaus of random sizes, cliffs of
+    1, 2 and 3 levels between them, single-pixel spikes and pits, NaN holes; every tie at a level
+    boundary is exact."""
+    q = np.zeros((H, W), np.int64)
+    for _ in range(int(rng.integers(5, 40))):
+        y, x = int(rng.integers(0, H)), int(rng.integers(0, W))
+        h, w = int(rng.integers(1, 14)), int(rng.integers(1, 14))
+        q[y:y + h, x:x + w] = int(rng.integers(0, 9))
+    spikes = rng.random((H, W)) < 0.03
+    q[spikes] = rng.integers(0, 9, int(spikes.sum()))
+    z = -step * q.astype(np.float64)
+    z[rng.random((H, W)) < 0.05] = np.nan
+    return z
+
+
+def pruned_counts(z: np.ndarray, *, step: float, max_depth: float, max_area: float, connectivity: int,
+                  check: int = 2**40) -> tuple[int, int]:
+    """(pixels in the cuts, pixels kept by gentle_prune) of z, from the kernels themselves (labelling
+    every pixel unless ``check`` says when to look whether it pays)."""
+    from zcut.cut_tree import gentle_levels, gentle_prune
+    from zcut.cuts import _levels
+
+    z = np.ascontiguousarray(z, dtype=np.float64)
+    H, W = z.shape
+    n, lo, hi, seg = _finite_range(z)
+    k_eff, top = _levels(lo, hi, step, n_levels(step, max_depth))
+    size = (H + 2) * (W + 2)
+    st, gl = np.empty(size, np.int16), np.empty(size, np.int32)
+    pix, gpar, gcnt = (np.empty(H * W, np.int32) for _ in range(3))
+    m, nl, labelled = gentle_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top), connectivity == 8,
+                                    max_area, np.int64(check), st, pix, gl, gpar, gcnt)
+    keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, np.zeros(top + 2, np.int64), labelled)
+    return int(m), int(keep)
+
+
+def pruned_outliers(z: np.ndarray, *, step: float, max_depth: float, max_area: float, connectivity: int = 8,
+                    check: int = 2**40) -> np.ndarray:
+    """zcut_outliers through the pruned flood whatever the frame's size (zcut_outliers itself floods
+    frames of fewer than PRUNE_MIN pixels in the cuts whole); ``check``: when the labelling looks
+    whether it pays (default: never, every pixel labelled)."""
+    from zcut.cuts import _pruned_outliers
+
+    z = np.ascontiguousarray(z, dtype=np.float64)
+    out = np.zeros(z.shape, dtype=bool)
+    K = n_levels(step, max_depth)
+    n, lo, hi, seg = _finite_range(z)
+    if n == 0 or K < 1:
+        return out
+    done = _pruned_outliers(z, seg, lo, hi, step, K, max_area, connectivity, out, minimum=0, check=check)
+    if max_area > z.size:  # no gentle component can reach max_area: the whole flood's path
+        assert not done
+        return zcut_outliers(z, step=step, max_depth=max_depth, max_area=max_area, connectivity=connectivity)
+    assert done
+    return out
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_pruned_flood_on_terraces(seed: int) -> None:
+    """Plateaus and cliffs whose gentle components straddle max_area, exact ties at the levels: the flood
+    over the small gentle components (with the left-out neighbours' levels) gives the whole tree's mask,
+    labelling every pixel or giving up after the first rows."""
+    rng = np.random.default_rng(seed)
+    step = 0.25
+    z = terraces(rng, int(rng.integers(8, 40)), int(rng.integers(8, 150)), step)
+    pruned = 0
+    for conn in (8, 4):
+        for max_area in (1.0, 2.0, 5.0, 17.0, 60.0, 400.0):
+            for max_depth in (0.5, 1.0, 2.0, 10.0):
+                params = dict(step=step, max_depth=max_depth, max_area=max_area, connectivity=conn)
+                want = check(z, reference=max_area in (5.0, 60.0), **params)
+                for when in (2**40, 1, 60):
+                    np.testing.assert_array_equal(pruned_outliers(z, check=when, **params), want)
+                if np.isfinite(z).any():
+                    m, keep = pruned_counts(z, **params)
+                    pruned += m - keep
+    assert pruned > 0  # the left-out pixels (and their levels at the kept ones' borders) were exercised
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_pruned_flood_on_random_fields(seed: int) -> None:
+    """The fuzz frames of the other tests (bumps, floating patches, heights on the step/2 grid, NaN) through
+    the pruned flood, against the whole flood and the literal loop."""
+    rng = np.random.default_rng(100 + seed)
+    z = bumpy(rng, 50, 130, 0.5)
+    z[rng.random(z.shape) < 0.1] = np.nan
+    z[10:25, 40:90] = np.nan
+    for params in (dict(step=0.5, max_depth=3.0, max_area=30.0), dict(step=0.5, max_depth=20.0, max_area=8.0,
+                                                                       connectivity=4),
+                   dict(step=0.25, max_depth=1000.0, max_area=200.0)):
+        want = zcut_outliers_reference(z, **params)
+        np.testing.assert_array_equal(previous_outliers(z, **params), want)
+        for when in (2**40, 1):
+            np.testing.assert_array_equal(pruned_outliers(z, check=when, **params), want)
+
+
+def test_pruned_flood_keeps_few_pixels_of_the_pile() -> None:
+    """On the benchmark's pile only the small gentle components are flooded, and the mask is the whole
+    flood's."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+    try:
+        from bench_zcut import pile_frame
+    finally:
+        sys.path.pop(0)
+    z = pile_frame()[300:700, 500:1300]
+    m, keep = pruned_counts(z, step=0.2, max_depth=30.0, max_area=210.0, connectivity=8)
+    assert 0 < keep < m / 3
+    want = previous_outliers(z, **NOMINAL)
+    assert want.any()
+    np.testing.assert_array_equal(pruned_outliers(z, **NOMINAL), want)
+    np.testing.assert_array_equal(zcut_outliers(z, **NOMINAL), want)
