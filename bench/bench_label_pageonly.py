@@ -18,7 +18,15 @@ limit of per-group decisions (each proposal, or each review group without a mode
 majority of the paper's truth). Then ``zcut accuracy LOG --labels DB --annotator page --json`` and
 ``zcut accuracy LOG --json`` (the paper's truth) for the bank's methods.
 
+Real inputs: ``--kinect`` records the real Kinect-class scans (``$ZCUT_REAL_DATA``; docs/labelling_real.md)
+into one log as bench_label_real.py does — no truth, no part model: the fallback, and the counts only (groups,
+inputs, what each decision rested on); ``--middlebury SCENES`` turns Middlebury scenes (``$ZCUT_MIDDLEBURY``)
+into one log with ``zcut record-stereo``, whose truth is the matcher's errors against the structured-light
+disparity (``/ground_truth/outliers``; ``/ground_truth/unknown`` left out of the scores). A log without a part
+model runs the fallback only, and its accuracy is scored from the fallback's labels.
+
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --logs A.mcap,B.mcap [--modes model,none]
+    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --kinect --middlebury Teddy,Piano
 """
 
 from __future__ import annotations
@@ -144,7 +152,9 @@ def person_without_model(page) -> dict:
     no_gap = [e for _, e in groups if e["gap"] is None or math.isnan(e["gap"])]
     return {"note": f"τ {tau} mm", "groups": len(groups), "outlier_groups": len(out), "exceptions": len(minority),
             "no_surface": len(no_gap), "no_surface_out": sum(outlier(e) for e in no_gap),
-            "near_threshold": sum(1 for _, e in groups if e not in no_gap and 1.5 * tau < abs(e["gap"]) <= 6 * tau)}
+            "near_threshold": sum(1 for _, e in groups if e not in no_gap and 1.5 * tau < abs(e["gap"]) <= 6 * tau),
+            "outliers_by": sorted(((e["source"], e["n"], None if e["gap"] is None or math.isnan(e["gap"]) else
+                                    round(e["gap"], 1)) for _, e in groups if e["id"] in out), key=lambda t: -t[1])}
 
 
 def finish(page) -> None:
