@@ -18,7 +18,15 @@ limit of per-group decisions (each proposal, or each review group without a mode
 majority of the paper's truth). Then ``zcut accuracy LOG --labels DB --annotator page --json`` and
 ``zcut accuracy LOG --json`` (the paper's truth) for the bank's methods.
 
+Real inputs: ``--kinect`` records the real Kinect-class scans (``$ZCUT_REAL_DATA``; docs/labelling_real.md)
+into one log as bench_label_real.py does — no truth, no part model: the fallback, and the counts only (groups,
+inputs, what each decision rested on); ``--middlebury SCENES`` turns Middlebury scenes (``$ZCUT_MIDDLEBURY``)
+into one log with ``zcut record-stereo``, whose truth is the matcher's errors against the structured-light
+disparity (``/ground_truth/outliers``; ``/ground_truth/unknown`` left out of the scores). A log without a part
+model runs the fallback only, and its accuracy is scored from the fallback's labels.
+
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --logs A.mcap,B.mcap [--modes model,none]
+    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --kinect --middlebury Teddy,Piano
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import re
 import subprocess
 import sys
@@ -49,16 +58,30 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
     return float((a & b).sum() / u) if u else 1.0
 
 
-def truths(log: Path) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """Per frame index: (paper's truth, sensor's truth), valid pixels only. Read after the labels are saved."""
+def truths(log: Path) -> dict[int, dict[str, np.ndarray | None]]:
+    """Per frame index: the paper's truth, the sensor's truth (either None where the log lacks it: a stereo
+    log's one truth is its measured one, on ``/ground_truth/outliers``; a real scan has none) and the scored
+    pixels (valid, not ``/ground_truth/unknown``). Read after the labels are saved."""
     from replay.logs import layout
     from replay.logs.reader import LogReader
 
     out = {}
     for f in LogReader(log).frames():
         v = np.isfinite(f.xyz).all(axis=2)
-        out[f.index] = (f.masks[layout.TRUTH_OFF_SURFACE] & v, f.masks[layout.TRUTH_OUTLIERS] & v)
+        unknown = f.masks.get(layout.TRUTH_UNKNOWN)
+        scored = v if unknown is None else v & ~unknown
+        paper, sensor = f.masks.get(layout.TRUTH_OFF_SURFACE), f.masks.get(layout.TRUTH_OUTLIERS)
+        out[f.index] = {"paper": None if paper is None else paper & scored,
+                        "sensor": None if sensor is None else sensor & scored, "scored": scored}
     return out
+
+
+def has_truth(log: Path) -> bool:
+    from replay.logs import layout
+    from replay.logs.reader import LogReader
+
+    topics = LogReader(log).mask_topics
+    return layout.TRUTH_OFF_SURFACE in topics or layout.TRUTH_OUTLIERS in topics
 
 
 def click_row(page, k: int) -> None:
@@ -124,7 +147,14 @@ def person_without_model(page) -> dict:
         j = next(i for i, e in enumerate(entries) if e["src"] == "g" and e["id"] == gid)
         click_row(page, j)
         page.keyboard.press("r" if bulk_accept else "a")
-    return {"note": f"τ {tau} mm", "groups": len(groups), "outlier_groups": len(out), "exceptions": len(minority)}
+    # what the page gave the decision: a gap (a number to compare), or no surface below, where only the
+    # group's source (floating / above the rim: outlier; a filter's or a detector's: not) decides
+    no_gap = [e for _, e in groups if e["gap"] is None or math.isnan(e["gap"])]
+    return {"note": f"τ {tau} mm", "groups": len(groups), "outlier_groups": len(out), "exceptions": len(minority),
+            "no_surface": len(no_gap), "no_surface_out": sum(outlier(e) for e in no_gap),
+            "near_threshold": sum(1 for _, e in groups if e not in no_gap and 1.5 * tau < abs(e["gap"]) <= 6 * tau),
+            "outliers_by": sorted(((e["source"], e["n"], None if e["gap"] is None or math.isnan(e["gap"]) else
+                                    round(e["gap"], 1)) for _, e in groups if e["id"] in out), key=lambda t: -t[1])}
 
 
 def finish(page) -> None:
@@ -197,20 +227,33 @@ def run(log: Path, mode: str, db: Path, browser, viewport) -> list[dict]:
 
 
 def score(rows: list[dict], log: Path) -> None:
-    tr = truths(log)
+    """IoU of each saved label with the truths the log has, in the page's zone minus the unscored pixels, and
+    the per-proposal limit against the first truth it has (the paper's, else the measured one of a stereo
+    log). A log without truth (a real scan) keeps only the counts."""
+    tr = truths(log) if has_truth(log) else {}
     for r in rows:
-        paper, sensor = tr[r["frame"]]
+        r.update(iou_paper=None, iou_sensor=None, limit=None, paper_px=None, held=None)
+        t = tr.get(r["frame"])
         reg = r["region"]
-        P, S, L = paper & reg, sensor & reg, r["label"] & reg
-        u = r["units"]
-        n = int(u.max())
-        best = np.zeros_like(P)
-        if n:
-            sz = np.bincount(u.ravel(), minlength=n + 1)
-            tp = np.bincount(u.ravel(), weights=P.ravel(), minlength=n + 1)
-            best = np.isin(u, [g for g in range(1, n + 1) if tp[g] >= 0.5 * sz[g]])
-        r.update(iou_paper=iou(L, P), iou_sensor=iou(L, S), limit=iou(best & reg, P), paper_px=int(P.sum()),
-                 label_px=int(L.sum()))
+        L = r["label"] & reg
+        r["label_px"] = int(L.sum())
+        if t is not None:
+            reg = reg & t["scored"]
+            L = L & reg
+            r["label_px"] = int(L.sum())
+            for key in ("paper", "sensor"):
+                if t[key] is not None:
+                    r[f"iou_{key}"] = iou(L, t[key] & reg)
+            P = (t["paper"] if t["paper"] is not None else t["sensor"]) & reg
+            u = r["units"]
+            n = int(u.max())
+            best = np.zeros_like(P)
+            if n:
+                sz = np.bincount(u.ravel(), weights=reg.ravel(), minlength=n + 1)
+                tp = np.bincount(u.ravel(), weights=P.ravel(), minlength=n + 1)
+                best = np.isin(u, [g for g in range(1, n + 1) if sz[g] and tp[g] >= 0.5 * sz[g]])
+            r.update(limit=iou(best & reg, P), paper_px=int(P.sum()),
+                     held=float((P & (u > 0)).sum() / P.sum()) if P.any() else None)
         for key in ("region", "label", "units"):
             del r[key]
 
@@ -225,9 +268,58 @@ def accuracy(log: Path, db: Path | None) -> dict:
     return json.loads(p.stdout)
 
 
+REAL = Path(os.environ.get("ZCUT_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
+MIDDLEBURY = Path(os.environ.get("ZCUT_MIDDLEBURY", ROOT.parent / "shared" / "data" / "middlebury"))
+
+
+def kinect_log(work: Path) -> Path:
+    """``work/kinect.mcap``: the real organized Kinect-class scans (docs/labelling_real.md) recorded with
+    ``zcut record``, as bench_label_real.py records them (no truth, no part model, no bin)."""
+    from bench_label_real import real_inputs, record
+
+    if not REAL.is_dir():
+        raise SystemExit(f"error: --kinect: {REAL}: no such folder (set ZCUT_REAL_DATA; docs/real_data.md)")
+    log = work / "kinect.mcap"
+    if not log.exists():
+        pcds, skipped = real_inputs(REAL)
+        if skipped:
+            print(f"left out: {', '.join(skipped)}")
+        record(pcds, log)
+    return log
+
+
+def stereo_log(work: Path, scenes: list[str]) -> Path:
+    """``work/stereo_<scenes>.mcap``: Middlebury scenes turned into frames by ``zcut record-stereo`` (SGBM's
+    cloud, its errors against the structured-light truth on ``/ground_truth/outliers``; docs/real_data.md)."""
+    for sc in scenes:
+        if not (MIDDLEBURY / sc / "calib.txt").is_file():
+            raise SystemExit(f"error: --middlebury: {MIDDLEBURY / sc}: no Middlebury scene there (set ZCUT_MIDDLEBURY)")
+    log = work / f"stereo_{'_'.join(scenes)}.mcap"
+    if not log.exists():
+        cmd = [sys.executable, "-m", "cli", "record-stereo", *(str(MIDDLEBURY / sc) for sc in scenes), "-o", str(log)]
+        r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+        if r.returncode:
+            raise SystemExit(f"error: zcut record-stereo failed ({r.returncode}): {r.stderr.strip()[-400:]}")
+    return log
+
+
+def has_part_model(log: Path) -> bool:
+    from replay.logs.part_model import PART_MODEL_ATTACHMENT
+    from replay.logs.reader import LogReader
+
+    return any(name == PART_MODEL_ATTACHMENT for name, _, _ in LogReader(log).attachments())
+
+
+def fmt(v: float | None) -> str:
+    return "-" if v is None else f"{v:.3f}"
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--logs", required=True, help="comma-separated synthetic logs (zcut synth)")
+    ap.add_argument("--logs", default="", help="comma-separated synthetic logs (zcut synth)")
+    ap.add_argument("--kinect", action="store_true", help="also the real Kinect-class scans ($ZCUT_REAL_DATA; no truth)")
+    ap.add_argument("--middlebury", default="", help="also these Middlebury scenes, comma-separated ($ZCUT_MIDDLEBURY), "
+                    "as one log of zcut record-stereo (their real structured-light truth)")
     ap.add_argument("--modes", default="model,none", help="model (the log's part model), none (the fallback)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/zcut_bench_label_pageonly"))
     ap.add_argument("--viewport", default="1600x900")
@@ -236,7 +328,7 @@ def main() -> int:
     args = ap.parse_args()
     from playwright.sync_api import sync_playwright
 
-    logs = [Path(v) for v in args.logs.split(",")]
+    logs = [Path(v) for v in args.logs.split(",") if v]
     for lg in logs:
         if not lg.is_file():
             raise SystemExit(f"error: --logs: {lg}: no such file")
@@ -244,35 +336,64 @@ def main() -> int:
     if not set(modes) <= {"model", "none"}:
         raise SystemExit(f"error: --modes takes model and/or none, got {args.modes!r}")
     args.work.mkdir(parents=True, exist_ok=True)
+    if args.kinect:
+        logs.append(kinect_log(args.work))
+    if args.middlebury:
+        logs.append(stereo_log(args.work, args.middlebury.split(",")))
+    if not logs:
+        raise SystemExit("error: nothing to label: give --logs, --kinect or --middlebury")
     vp = tuple(int(v) for v in args.viewport.split("x"))
     rows, acc = [], []
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         for lg in logs:
-            for mode in modes:
+            modelled = has_part_model(lg)
+            lg_modes = modes if modelled else ["none"]  # a log without a part model has only the fallback
+            truth = has_truth(lg)
+            by_truth = None
+            for mode in lg_modes:
                 db = args.work / f"{lg.stem}_{mode}.sqlite"
                 for q in (db, db.with_name(db.name + "-wal"), db.with_name(db.name + "-shm")):
                     q.unlink(missing_ok=True)
                 got = run(lg, mode, db, browser, vp)
                 score(got, lg)
                 rows += got
-                if not args.no_accuracy and mode == "model":
-                    acc.append((lg, accuracy(lg, db), accuracy(lg, None)))
+                # accuracy from the labels: with the part model (the target), or the fallback where a log has none
+                if not args.no_accuracy and truth and (mode == "model" or not modelled):
+                    by_truth = by_truth or accuracy(lg, None)
+                    acc.append((lg, mode, accuracy(lg, db), by_truth))
         browser.close()
     print()
-    print("| log | part model | frame | inputs | IoU paper's truth | IoU sensor's truth | per-group limit (paper) | label px | truth px |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| log | part model | frame | inputs | IoU paper's truth | IoU sensor's truth | per-proposal limit | truth held | label px | truth px |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['log']} | {'yes' if r['mode'] == 'model' else 'no'} | {r['frame']} | {r['inputs']} | "
-              f"{r['iou_paper']:.3f} | {r['iou_sensor']:.3f} | {r['limit']:.3f} | {r['label_px']} | {r['paper_px']} |")
-    for lg, by_labels, by_truth in acc:
-        print(f"\naccuracy of {lg.name}: labels ({by_labels['truth']}) vs {by_truth['truth']}")
+              f"{fmt(r['iou_paper'])} | {fmt(r['iou_sensor'])} | {fmt(r['limit'])} | {fmt(r['held'])} | {r['label_px']} | {r['paper_px']} |")
+    print("\ninputs per frame, in the order the page served the frames (a first frame: target ≤ 60; after five: ≤ 20)")
+    for key in dict.fromkeys((r["log"], r["mode"]) for r in rows):
+        ins = [r["inputs"] for r in rows if (r["log"], r["mode"]) == key]
+        late = ins[5:]
+        print(f"  {key[0]} {key[1]}: {', '.join(map(str, ins))}; first {ins[0]}"
+              + (f"; after five: max {max(late)}" if late else "; fewer than six frames"))
+    falls = [r for r in rows if r["mode"] == "none"]
+    if falls:
+        print("\nthe fallback's groups: what the page gave each decision")
+        print("| log | frame | groups | outlier groups | with a gap | gap within 2× of 3τ | no surface below | "
+              "of those outliers (floating, above rim) | τ |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for r in falls:
+            if "groups" in r:
+                print(f"| {r['log']} | {r['frame']} | {r['groups']} | {r['outlier_groups']} | "
+                      f"{r['groups'] - r['no_surface']} | {r['near_threshold']} | {r['no_surface']} | "
+                      f"{r['no_surface_out']} | {r['note']} |")
+    for lg, mode, by_labels, by_truth in acc:
+        print(f"\naccuracy of {lg.name} ({mode}): labels ({by_labels['truth']}) vs {by_truth['truth']}")
         meths = list(by_truth["pooled"])
         fl = {m: by_labels["pooled"][m]["f1"] for m in meths}
         ft = {m: by_truth["pooled"][m]["f1"] for m in meths}
         rl = {m: i + 1 for i, m in enumerate(sorted(meths, key=lambda m: -fl[m]))}
         rt = {m: i + 1 for i, m in enumerate(sorted(meths, key=lambda m: -ft[m]))}
-        print("| method | F1 by labels | F1 by paper's truth | Δ | rank by labels | rank by truth |")
+        print("| method | F1 by labels | F1 by truth | Δ | rank by labels | rank by truth |")
         print("|---|---|---|---|---|---|")
         for m in sorted(meths, key=lambda m: rt[m]):
             print(f"| {m} | {fl[m]:.3f} | {ft[m]:.3f} | {fl[m] - ft[m]:+.3f} | {rl[m]} | {rt[m]} |")
@@ -280,7 +401,8 @@ def main() -> int:
               f"same ranking: {'yes' if rl == rt else 'no'}")
     if args.json is not None:
         args.json.write_text(json.dumps({"rows": rows, "accuracy": [
-            {"log": str(lg), "labels": a["pooled"], "truth": b["pooled"]} for lg, a, b in acc]}, indent=1, default=float))
+            {"log": str(lg), "mode": mode, "labels": a["pooled"], "truth": b["pooled"], "truth_name": b["truth"]}
+            for lg, mode, a, b in acc]}, indent=1, default=float))
     return 0
 
 
