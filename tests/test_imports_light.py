@@ -106,7 +106,7 @@ def test_zcut_names_load_their_module_alone() -> None:
 
 
 def test_zcut_names_are_their_modules_objects() -> None:
-    """Every name of ``zcut.__all__`` is the object of the module it comes from, whatever was imported
+    """Every name the package exports (its ``__all__``) is the object of the module it comes from, whatever was imported
     first; ``zcut.suspects`` stays the function once the subpackage is imported; submodules are
     attributes (``zcut.types`` is zcut's, not the standard library's); an unknown name is an
     AttributeError."""

@@ -4,8 +4,8 @@ No file I/O, no viewer, no database here: see ``replay`` and ``annotate`` for th
 
 The names below are imported from their modules when first used (PEP 562): ``import zcut.params``
 or ``from zcut import ZCutParams`` loads that module alone, not numba, SciPy and every kernel of the
-package (docs/performance.md, "Fixed costs"). ``zcut.X`` and ``from zcut import X`` give the same
-objects as before; ``zcut.suspects`` stays the function (the package ``zcut.suspects`` is in
+package (docs/performance.md, "Fixed costs"). A name read from the package or imported from it is the same
+object as before; ``zcut.suspects`` stays the function (the package ``zcut.suspects`` is in
 ``sys.modules``), as when this file imported everything.
 """
 
