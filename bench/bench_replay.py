@@ -39,6 +39,16 @@ frame (numba compilation, model caches):
   one frame in flight and with two, and for the tree DIR, alternating N times in subprocesses, medians
   and every run's figures, with the load average: on a shared machine the wall times are indicative
   only.
+- "Fixed costs" (``--startup --log LOG [--against DIR] [--repeats N]``, issue 32 item 2): ``zcut replay
+  LOG`` as a user runs it (``python -m cli``, a fresh process), with ``--frames 0:1`` and over all N
+  frames, for this tree and DIR alternating N times. The CPU s of a process (user + sys of all its
+  threads, interpreter start and teardown included, from ``os.wait4``) is F + n f for n frames: f =
+  (T(N) - T(1)) / (N - 1), F = T(1) - f is what the process spends besides its frames (the imports,
+  numba loading its cached kernels, opening the log, the bin model, the seed registration, the first
+  frame's extra cost), and F / T(N) is the share before the first frame (issue: <= 20 %). Also the
+  wall s until the first frame's progress line, ``zcut --help`` and ``zcut replay --help`` (CPU s),
+  the load average, and the ratio DIR / this tree. The child processes may write their .pyc files
+  (``PYTHONDONTWRITEBYTECODE`` is dropped for them: an installed zcut has its bytecode compiled).
 """
 
 from __future__ import annotations
@@ -276,6 +286,80 @@ def throughput_table(log: Path, against: Path | None, repeats: int) -> None:
         print("    per run (CPU, wall): " + ", ".join(f"{r['cpu_s']:.3f}/{r['wall_s']:.3f}" for r in rs))
 
 
+def _command_cost(tree: Path, argv: list[str]) -> dict[str, float]:
+    """``python -m cli ARGV`` in a fresh process with the code of ``tree``: CPU s (user + sys, all
+    threads, start to exit), wall s, wall s at the first frame's progress line (``[1/...] frame``),
+    and the standard output."""
+    import subprocess
+    import sys
+
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    env.pop("PYTHONDONTWRITEBYTECODE", None)  # an install has its bytecode compiled: so do these trees
+    t0 = time.perf_counter()
+    p = subprocess.Popen([sys.executable, "-m", "cli", *argv], cwd=tree, env=env, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    first = float("nan")
+    assert p.stderr is not None and p.stdout is not None
+    err = []
+    for line in p.stderr:
+        err.append(line)
+        if first != first and line.startswith("[1/"):
+            first = time.perf_counter() - t0
+    out = p.stdout.read()
+    _, status, usage = os.wait4(p.pid, 0)
+    wall = time.perf_counter() - t0
+    p.returncode = os.waitstatus_to_exitcode(status)
+    if p.returncode not in (0, 3):
+        raise SystemExit(f"{tree}: zcut {' '.join(argv)} failed ({p.returncode}):\n{''.join(err[-20:])}")
+    return {"cpu_s": usage.ru_utime + usage.ru_stime, "wall_s": wall, "first_wall_s": first, "stdout": out}
+
+
+def startup_costs(tree: Path, log: Path, n_frames: int) -> dict[str, float]:
+    """One measurement of the fixed costs of ``zcut replay LOG`` with ``tree``'s code (see the module
+    docstring, "Fixed costs"): T(1), T(N), f, F, F / T(N), the wall to the first frame, --help."""
+    one = _command_cost(tree, ["replay", str(log), "--frames", "0:1"])
+    every = _command_cost(tree, ["replay", str(log)])
+    f = (every["cpu_s"] - one["cpu_s"]) / max(n_frames - 1, 1)
+    fixed = one["cpu_s"] - f
+    return {"t1": one["cpu_s"], "tn": every["cpu_s"], "f": f, "fixed": fixed, "share": fixed / every["cpu_s"],
+            "first_wall": every["first_wall_s"], "wall": every["wall_s"],
+            "help": _command_cost(tree, ["--help"])["cpu_s"],
+            "replay_help": _command_cost(tree, ["replay", "--help"])["cpu_s"]}
+
+
+def startup_table(log: Path, against: Path | None, repeats: int) -> None:
+    """Print the fixed costs of ``zcut replay LOG`` (this tree and ``against``, alternating ``repeats``
+    times; medians, and every run's F and share)."""
+    reader = LogReader(log)
+    n = reader.n_frames
+    if n is None or n < 2:
+        raise SystemExit(f"{log}: --startup needs a log of at least 2 frames whose count is known")
+    trees = {"this tree": Path(__file__).resolve().parents[1]}
+    if against is not None:
+        trees["previous"] = against
+    got: dict[str, list[dict[str, float]]] = {k: [] for k in trees}
+    loads = []
+    for tree in trees.values():  # a first run each (its .pyc files written, the page cache warm): not counted
+        _command_cost(tree, ["replay", str(log), "--frames", "0:1"])
+    for _ in range(max(repeats, 1)):
+        for name, tree in trees.items():
+            loads.append(os.getloadavg()[0])
+            got[name].append(startup_costs(tree, log, n))
+    print(f"\nfixed costs of `zcut replay {log.name}` ({n} frames), CPU s of the whole process, medians of "
+          f"{repeats} alternating runs; load average {min(loads):.1f}-{max(loads):.1f} on {os.cpu_count()} cores")
+    keys = (("t1", "T(1)"), ("tn", f"T({n})"), ("f", "f/frame"), ("fixed", "F"), ("share", "F/T(N)"),
+            ("first_wall", "wall 1st"), ("wall", "wall"), ("help", "--help"), ("replay_help", "replay -h"))
+    print(f"  {'':12s}" + "".join(f" {h:>9s}" for _, h in keys))
+    med = {name: {k: statistics.median(r[k] for r in rs) for k, _ in keys} for name, rs in got.items()}
+    for name, m in med.items():
+        print(f"  {name:12s}" + "".join(f" {m[k]:9.3f}" for k, _ in keys))
+        print("    per run (F, share): " + ", ".join(f"{r['fixed']:.2f}/{r['share']:.2f}" for r in got[name]))
+    if against is not None:
+        a, b = med["previous"], med["this tree"]
+        print(f"  {'previous/this':12s}" + "".join(f" {a[k] / b[k] if b[k] else float('nan'):9.2f}" for k, _ in keys))
+    print("  (F = T(1) - f: what the process spends besides its frames; the issue asks F/T(N) <= 0.20)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=4)
@@ -293,6 +377,9 @@ def main() -> None:
     ap.add_argument("--throughput", action="store_true",
                     help="whole replays of --log (or the synthetic log), CPU and wall s per frame: this tree with "
                          "1 and 2 frames in flight, and --against's tree, alternating --repeats times")
+    ap.add_argument("--startup", action="store_true",
+                    help="the fixed costs of `zcut replay --log LOG` (share before the first frame), this tree and "
+                         "--against's, alternating --repeats times")
     ap.add_argument("--throughput-json", nargs=2, help=argparse.SUPPRESS)  # LOG IN_FLIGHT (0: default): one line
     ap.add_argument("--stage-json", nargs=2, help=argparse.SUPPRESS)  # LOG PLY|-: one JSON line
     ap.add_argument("--clock", default="cpu", choices=("cpu", "wall"), help=argparse.SUPPRESS)
@@ -311,6 +398,11 @@ def main() -> None:
 
         log_, n_ = args.throughput_json
         print(json.dumps(throughput(Path(log_), int(n_) or None)))
+        return
+    if args.startup:
+        if args.log is None:
+            raise SystemExit("--startup needs --log LOG (e.g. `zcut synth --parts zinc_nuts --frames 6 -o LOG`)")
+        startup_table(args.log, args.against, args.repeats)
         return
     if args.throughput:
         os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")

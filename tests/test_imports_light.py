@@ -52,6 +52,13 @@ def test_replay_without_outputs_loads_neither_rerun_nor_pyarrow(tmp_path: Path) 
     assert made.returncode == 0, made.stderr
     loaded = _loaded(_main("replay", str(log)))
     assert not {"rerun", "pyarrow", "pandas", "sklearn", "matplotlib"} & set(loaded), loaded
+    # nor the methods it does not run, nor SciPy's graphs (0.05 CPU-s); scipy.ndimage (0.15) is loaded by the
+    # bin check when it needs it, as on this tiny frame, not on the 1920 x 1200 ones of docs/performance.md
+    unused_parts = ("scipy.sparse.csgraph", "zcut.suspects", "zcut.components", "zcut.local_rules", "zcut.radius")
+    probe = (_main("replay", str(log))
+             + f"print(sorted(m for m in {unused_parts!r} if m in sys.modules), file=sys.__stderr__)\n")
+    unused = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=str(ROOT), timeout=300)
+    assert unused.returncode == 0 and unused.stderr.strip().splitlines()[-1] == "[]", unused.stderr[-2000:]
     # the replay registered the bin model with Open3D, without the Dash and Plotly its viewer imports
     assert "open3d" in loaded and not {"dash", "plotly"} & set(loaded), loaded
 
@@ -84,3 +91,46 @@ def test_open3d_imported_first_keeps_its_plotly_viewer() -> None:
             "import sys\n"
             "assert hasattr(sys.modules['open3d.visualization.draw_plotly'], 'Dash'), 'the stand-in took its place'\n")
     assert {"open3d", "dash"} <= set(_loaded(code))
+
+
+def test_zcut_names_load_their_module_alone() -> None:
+    """``from zcut import ZCutParams`` (and ``import zcut.errors``, which every layer's errors import)
+    loads neither numba nor SciPy: ``zcut/__init__.py`` imports each name from its module when it is
+    first used (docs/performance.md, "Fixed costs")."""
+    code = ("import sys\nimport zcut.errors\nfrom zcut import ZCutParams, ParameterError\n"
+            "assert ZCutParams.__module__ == 'zcut.params'\n"
+            "print(sorted(m for m in ('numba', 'scipy', 'cv2', 'zcut.cuts', 'zcut.suspects') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_zcut_names_are_their_modules_objects() -> None:
+    """Every name the package exports (its ``__all__``) is the object of the module it comes from, whatever was imported
+    first; ``zcut.suspects`` stays the function once the subpackage is imported; submodules are
+    attributes (``zcut.types`` is zcut's, not the standard library's); an unknown name is an
+    AttributeError."""
+    code = r'''
+import importlib, sys, types
+import zcut
+assert zcut.types.__name__ == "zcut.types", zcut.types
+import zcut.suspects.detectors
+from zcut import suspects
+assert isinstance(suspects, types.FunctionType) and suspects is zcut.suspects, suspects
+from zcut import *  # noqa: F403
+for name in zcut.__all__:
+    module = importlib.import_module("zcut." + zcut._EXPORTS[name])
+    assert getattr(zcut, name) is getattr(module, name), name
+    assert globals()[name] is getattr(module, name), name
+assert zcut.removal.__name__ == "zcut.removal"
+try:
+    zcut.no_such_name
+except AttributeError as e:
+    assert "no_such_name" in str(e), e
+else:
+    raise AssertionError("zcut.no_such_name")
+print("ok")
+'''
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "ok"

@@ -54,7 +54,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from .errors import InputShapeError, ParameterError, describe_array
 from .params import RemovalParams
@@ -388,6 +387,8 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         field: ResidualField | None = None
         fitted = False
         if beyond.any():  # beyond max_tolerance_mm: by clumps, bin if the surface around runs out to there
+            from scipy import ndimage  # here: a replay seldom needs it (0.15 CPU-s to load)
+
             clumps, _ = ndimage.label(_image(ring.shape, cand[beyond]), structure=np.ones((3, 3), bool))
             lab = clumps.reshape(-1)[cand[beyond]]
             near_reach = np.isfinite(around[beyond]) & (around[beyond] >= params.max_tolerance_mm - COHERENCE_MM)

@@ -69,7 +69,6 @@ from typing import Any
 
 import numba
 import numpy as np
-from scipy import ndimage
 
 from .cut_tree import (
     FLOOD_MAX_LEVELS,
@@ -247,6 +246,8 @@ def zcut_outliers_reference(height: FloatImage, *, step: float, max_depth: float
         return out
     valid, z_min, z_max = rng
     zt = np.where(valid, z, z_min)
+    from scipy import ndimage  # here: a replay never loads it (0.15 CPU-s; docs/performance.md)
+
     structure = ndimage.generate_binary_structure(2, 2 if connectivity == 8 else 1)
 
     def cut(k: int) -> tuple[np.ndarray, int]:

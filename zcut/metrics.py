@@ -20,7 +20,6 @@ import math
 from dataclasses import dataclass, fields
 
 import numpy as np
-from scipy import ndimage
 
 from .cloud import check_mask
 from .errors import InputShapeError, ParameterError, describe_array
@@ -420,6 +419,8 @@ class ScoredTruth:
         t_found = 2 * t_inside >= t_size
         t_single = t_size == 1
         # predicted components: correct iff >= 50 % of their pixels are in L (⇔ in L ∩ S: they lie in S)
+        from scipy import ndimage  # here: a replay never loads it (0.15 CPU-s; docs/performance.md)
+
         labels, n_pred = ndimage.label(ps, structure=_EIGHT)
         if n_pred:
             flat = labels.ravel()
@@ -538,6 +539,8 @@ def scored_truth(
     s = r if region is None else r & check_mask(region, name="region", shape=shape)
     k = None if kinds is None else _check_kinds(kinds, lab, n_kinds)
     truth = lab & s
+    from scipy import ndimage  # here: a replay never loads it (0.15 CPU-s; docs/performance.md)
+
     components, n = ndimage.label(truth, structure=_EIGHT)
     index = np.flatnonzero(truth)
     component = components.ravel()[index].astype(np.int64)
