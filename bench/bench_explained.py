@@ -1,7 +1,7 @@
 """Benchmark: the method ``explained`` against the paper's truth (issue 29 item 4).
 
 Run: ``.venv/bin/python bench/bench_explained.py [--size 960x600] [--kinds LIST] [--frames N] [--method]
-[--no-part-model [--no-fits]] [--no-rule] [--real DIR [--picture PNG]]``
+[--no-part-model [--no-fits]] [--no-rule] [--real DIR [--picture PNG]] [--proposals LOGS]``
 
 **The rule and the truth are one definition.** Per (generator, kind), frames synthesised with seeds
 used nowhere else (hand-made 9701.., ray-traced 9801..), the scene's true meshes standing in for the

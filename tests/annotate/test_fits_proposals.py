@@ -17,6 +17,8 @@ from replay.pipeline.explained import NAME, run_explained
 from replay.pipeline.stages import bin_zone
 from zcut import explained as ex
 
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def prepared(tmp_path_factory):
