@@ -2,10 +2,11 @@
 
 When the part's mesh is known (``zcut annotate --part-model FILE``, else the log's ``part_model.ply``
 attachment), a :class:`Fitter` thread runs the method ``explained``
-(:func:`replay.pipeline.explained.run_explained`: the part instances fitted in the zone, every zone
-pixel's distance to the nearest known surface — fitted instances, registered bin, table plane — and
-the pixels farther than k × Err from all of them) on every frame the catalogue prepared, in log
-order, the frame the page asks for first. The page is usable meanwhile: a frame not fitted yet is
+(:func:`replay.pipeline.explained.run_explained`: the part instances fitted in the zone, the
+distance of every pixel the page serves — the zone and the points above the rim, as
+docs/accuracy.md scores them — to the nearest known surface — fitted instances, registered bin,
+table plane — and the pixels farther than k × Err from all of them) on every frame the catalogue
+prepared, in log order, the frame the page asks for first. The page is usable meanwhile: a frame not fitted yet is
 answered with its status (``waiting``, ``fitting``), never by holding a worker.
 
 What a frame's fits give the page (:meth:`FrameFits.bundle`, a bundle of :mod:`annotate.payload`):
@@ -215,8 +216,9 @@ class Job:
 
 def fit_frame(frame: Frame, job: Job, config: Any, bin_model: BinModel | None) -> FrameFits:
     """Run ``explained`` on one prepared frame (its pipeline result's zone) and keep what the page needs."""
-    from replay.pipeline.explained import run_explained
+    from replay.pipeline.explained import NAME, run_explained
     from replay.pipeline.zone import BinLocation, Zone
+    from zcut import explained as ex
 
     H, W = np.shape(job.valid)
     t = time.process_time()
@@ -225,14 +227,17 @@ def fit_frame(frame: Frame, job: Job, config: Any, bin_model: BinModel | None) -
                          "the table would be no known surfaces)", (H, W))
     located = BinLocation(job.valid, None, job.registration, {}, 0.0, (), bin_model=bin_model)
     zone = Zone(located, job.removal, job.zone, np.zeros((0, 0)), np.asarray(job.removal.easy_outliers, bool), {}, ())
-    out, detail, warning = run_explained(frame, zone, config)
+    out, detail, warning = run_explained(frame, zone, config, judge_above_rim=True)
     seconds = time.process_time() - t
     if detail is None:
         return FrameFits(frame.index, "error", warning or "no fits", (H, W), seconds=seconds)
-    judged = job.zone & ~np.asarray(out, bool) & np.isfinite(detail.dist_mm)
+    # the zone the page serves: the filters' zone and the points above the rim (docs/accuracy.md)
+    served = (job.zone | np.asarray(job.removal.easy_outliers, bool)) & job.valid
+    un = np.asarray(out, bool) | (ex.unexplained(detail.dist_mm, detail.err_mm, config.bank[NAME].k) & served)
+    judged = served & ~un & np.isfinite(detail.dist_mm)
     code = np.where(judged, detail.surface, -1).ravel()
     fit_pix = np.flatnonzero(code >= 0)
-    un_pix = np.flatnonzero(np.asarray(out, bool).ravel())
+    un_pix = np.flatnonzero(un.ravel())
     fits = tuple({"err_mm": float(f.err_mm), "support": float(f.support), "pose": np.asarray(f.pose).tolist()}
                  for f in detail.fits)
     return FrameFits(frame.index, "ready", f"{len(fits)} fits, {un_pix.size} unexplained px", (H, W), fits,

@@ -1,7 +1,7 @@
 """Benchmark: the method ``explained`` against the paper's truth (issue 29 item 4).
 
 Run: ``.venv/bin/python bench/bench_explained.py [--size 960x600] [--kinds LIST] [--frames N] [--method]
-[--no-part-model [--no-fits]] [--no-rule] [--real DIR [--picture PNG]]``
+[--no-part-model [--no-fits]] [--no-rule] [--real DIR [--picture PNG]] [--proposals LOGS]``
 
 **The rule and the truth are one definition.** Per (generator, kind), frames synthesised with seeds
 used nowhere else (hand-made 9701.., ray-traced 9801..), the scene's true meshes standing in for the
@@ -28,6 +28,15 @@ model") and the z-cut, each scored as ``zcut accuracy`` scores (the zone and the
 rim, against ``/ground_truth/off_surface``): truth and flagged pixels, precision, recall, IoU, CPU s
 of the method (``process_time``). ``--real DIR``: the fallback on the real scans of DIR (no truth:
 the share it flags beside the z-cut's; ``--picture PNG`` saves the first one's depth with its flags).
+
+``--proposals LOG[,LOG...]``: what the labelling page proposes with the log's part model (the
+page's own :func:`annotate.fits.fit_frame` and :meth:`annotate.fits.FrameFits.bundle` on every frame
+of each log, the pipeline's zone as ``zcut annotate`` prepares it): the paper's truth inside the zone
+the page serves (the zone and the points above the rim), the share of it inside the proposals, where
+the rest went (in a fit's pixels; above the rim and not proposed; elsewhere: the bin, the table),
+the share of proposal pixels that are truth, the number of proposals and the CPU-s of the fits.
+The truth is read only to score, after the page's bundle is made. Run it with ``PYTHONPATH`` of
+another tree (``git archive``) for the before of a change, in the same session.
 """
 
 from __future__ import annotations
@@ -160,6 +169,43 @@ def real_check(path: Path) -> dict[str, Any]:
             "frame": frame}
 
 
+def proposals_check(log: Path) -> list[dict[str, Any]]:
+    """The page's proposals on every frame of ``log`` (module docstring, ``--proposals``)."""
+    from annotate.fits import Job, fit_frame
+    from annotate.payload import parse_bundle
+    from replay.logs import layout
+    from replay.options import PipelineOptions
+
+    session = PipelineOptions(methods="zcut,explained").open_session(log)
+    rows = []
+    for frame, r in session.results():
+        job = Job.of(r)
+        t = time.process_time()
+        ff = fit_frame(frame, job, session.config, session.prepared.model if session.prepared is not None else None)
+        cpu = time.process_time() - t
+        valid = np.asarray(r.valid, bool)
+        heights = np.where(valid, -1000.0 * frame.xyz[..., 2].astype(np.float64), np.nan)
+        header, arrays = parse_bundle(ff.bundle(heights_mm=heights, valid=valid, rejected=set(), header={}))
+        H, W = valid.shape
+        prop = np.asarray(arrays["proposals"], np.int64).reshape(H, W) > 0 if "proposals" in arrays else \
+            np.zeros((H, W), bool)
+        easy = np.asarray(job.removal.easy_outliers, bool) if job.removal is not None else np.zeros((H, W), bool)
+        served = (job.zone | easy) & valid
+        truth = frame.masks[layout.TRUTH_OFF_SURFACE] & served  # read only now, to score
+        in_fit = np.zeros(H * W, bool)
+        in_fit[ff.fit_pix] = True
+        in_fit = in_fit.reshape(H, W)
+        miss = truth & ~prop
+        n = max(int(truth.sum()), 1)
+        rows.append({"frame": frame.index, "truth": int(truth.sum()), "share": float((truth & prop).sum() / n),
+                     "in_fits": float((miss & in_fit).sum() / n), "above_rim": float((miss & easy & ~in_fit).sum() / n),
+                     "elsewhere": float((miss & ~easy & ~in_fit).sum() / n),
+                     "precision": float((truth & prop).sum() / max(int(prop.sum()), 1)), "prop_px": int(prop.sum()),
+                     "proposals": int(header.get("n_proposals", 0)), "fits": len(ff.fits), "cpu": cpu,
+                     "status": ff.status})
+    return rows
+
+
 def _picture(out: Path, frame: Any, mask: np.ndarray) -> None:
     """The scan's depth (grey, near bright) with the flagged pixels in red, saved as a PNG."""
     from PIL import Image
@@ -188,10 +234,24 @@ def main() -> None:
     ap.add_argument("--no-rule", action="store_true", help="leave out the true-meshes check")
     ap.add_argument("--real", type=Path, default=None, metavar="DIR",
                     help="the fallback on the real scans of DIR (*.pcd; no truth: the share it flags)")
+    ap.add_argument("--proposals", default=None, metavar="LOGS",
+                    help="the labelling page's proposals on every frame of these logs (comma-separated), against "
+                         "the paper's truth")
     ap.add_argument("--picture", type=Path, default=None, metavar="PNG",
                     help="with --real: save the first scan's depth with the flagged pixels in red")
     a = ap.parse_args()
     w, h = (int(v) for v in a.size.split("x"))
+    if a.proposals:
+        print("the page's proposals (part model of the log) against /ground_truth/off_surface in the zone the page "
+              "serves; missed truth: in a fit's pixels, above the rim, elsewhere (bin, table)")
+        print(f"{'log':<34} {'frame':>5} {'truth':>7} {'in props':>8} {'in fits':>7} {'a. rim':>6} {'else':>6} "
+              f"{'precision':>9} {'prop px':>7} {'props':>5} {'fits':>4} {'CPU s':>6}")
+        for log in a.proposals.split(","):
+            for rr in proposals_check(Path(log)):
+                print(f"{Path(log).name:<34} {rr['frame']:>5} {rr['truth']:>7} {rr['share']:>8.3f} {rr['in_fits']:>7.3f} "
+                      f"{rr['above_rim']:>6.3f} {rr['elsewhere']:>6.3f} {rr['precision']:>9.3f} {rr['prop_px']:>7} "
+                      f"{rr['proposals']:>5} {rr['fits']:>4} {rr['cpu']:>6.1f}", flush=True)
+        return
     if not a.no_rule:
         print(f"true meshes as fits, {w}x{h}; IoU with /ground_truth/off_surface (every valid pixel)")
         print(f"{'generator':<10} {'kind':<11} {'seed':>5} {'truth px':>8} {'IoU gen-Err':>11} {'IoU own-Err':>11} "

@@ -6,7 +6,9 @@ plane fitted to the pixels the removal labelled table. :mod:`zcut.explained` giv
 its distance to the nearest of them and Err; the method's outliers are the zone's pixels farther
 than ``k`` × Err (``[explained]`` section, :class:`zcut.params.ExplainedParams`).
 
-- **Part instances**: σ_s is the fit's residual (``PartFit.err_mm``).
+- **Part instances**: σ_s is the fit's residual measured robustly on the zone pixels it is the
+  nearest surface of, never above the residual the fit states (``PartFit.err_mm``, an RMS that a
+  shiny part's attached ghosts inflate): :func:`zcut.explained.fit_sigmas`.
 - **The bin**: the registered model cloud with its normals (the pipeline's bin model), posed by the
   registration; σ_s is the robust residual (:func:`zcut.explained.residual_sigma`) of up to 20,000 of
   the pixels the removal labelled bin.
@@ -182,9 +184,16 @@ def _sample(mask: np.ndarray, n: int) -> np.ndarray:
     return idx
 
 
-def run_explained(frame: Frame, zone: Zone, config: Any) -> tuple[np.ndarray, ExplainedDetail | None, str | None]:
+def run_explained(frame: Frame, zone: Zone, config: Any, *,
+                  judge_above_rim: bool = False) -> tuple[np.ndarray, ExplainedDetail | None, str | None]:
     """The method on one frame (module docstring): (outliers in the zone, detail, warning), the
-    fields of the ``MethodOutput`` its registry entry returns."""
+    fields of the ``MethodOutput`` its registry entry returns.
+
+    ``judge_above_rim``: the detail's distances, surfaces and Err also cover the points above the rim
+    (``zone.easy``), judged against the same known surfaces (the fits, found in the zone, the bin,
+    the table; not the local surface): the labelling page serves them (annotate/fits.py). The method's
+    outliers and everything in the zone are the same with and without it.
+    """
     from zcut import explained as ex
 
     p = config.bank[NAME]
@@ -219,7 +228,11 @@ def run_explained(frame: Frame, zone: Zone, config: Any) -> tuple[np.ndarray, Ex
         valid = np.asarray(np.isfinite(xyz).all(axis=2))
         local = ex.local_surface_distance(xyz, valid, where=zone.zone,
                                           params=ex.local_surface_params(footprint, zone.zone))
-    near = ex.nearest_surface(xyz, surfaces, where=zone.zone, within_mm=local)
+    judged = zone.zone | np.asarray(zone.easy, bool) if judge_above_rim else zone.zone
+    near = ex.nearest_surface(xyz, surfaces, where=judged, within_mm=local)
+    if fits:  # each fit's residual measured robustly on its zone pixels (ghosts inflate the stated RMS)
+        surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, surfaces.part_err_mm,
+                                                                           where=zone.zone))
     if local is not None:
         near = ex.with_local_surface(near, local)
         surfaces = dataclasses.replace(surfaces, local_err_mm=ex.local_sigma(

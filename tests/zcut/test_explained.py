@@ -85,6 +85,34 @@ def test_err_per_pixel_takes_its_surface_residual_and_footprint():
     assert np.isnan(err[0, 4])
 
 
+def test_fit_sigmas_are_robust_to_attached_ghosts_and_never_widen_the_band():
+    """Instance 0: a half-normal residual of σ 0.1 mm with 30 % ghosts 0.5-3 mm off (its RMS, what a fit
+    states, is ~1 mm): its robust σ is the noise's. Instance 1: too few pixels, keeps its stated value.
+    Instance 2: a stated residual below the measured one stays. Pixels outside ``where`` do not count."""
+    rng = np.random.default_rng(7)
+    n0 = 4000
+    d0 = np.abs(rng.normal(0.0, 0.1, n0))
+    d0[: int(0.3 * n0)] = rng.uniform(0.5, 3.0, int(0.3 * n0))
+    d2 = np.abs(rng.normal(0.0, 0.5, 500))
+    d = np.concatenate([d0, [0.05] * 5, d2, [50.0] * 300, [np.nan, np.inf]]).astype(np.float32)
+    code = np.concatenate([np.zeros(n0), np.ones(5), np.full(500, 2), np.zeros(300),
+                           [ex.SURFACE_NONE, ex.SURFACE_NONE]]).astype(np.int32)
+    where = np.ones(d.size, bool)
+    where[n0 + 505: n0 + 805] = False  # far points of instance 0 outside the judged pixels
+    near = ex.Nearest(d[None, :], code[None, :])
+    stated = [float(np.sqrt(np.mean(d0.astype(np.float64) ** 2))), 0.2, 0.3]
+    assert stated[0] > 0.9
+    sig = ex.fit_sigmas(near, stated, where=where[None, :])
+    assert 0.09 < sig[0] < 0.12 and sig[1] == 0.2 and sig[2] == 0.3
+    assert ex.fit_sigmas(near, stated, where=where[None, :], min_pixels=4)[1] < 0.2  # 5 pixels now enough
+    assert ex.fit_sigmas(near, stated)[0] >= sig[0]  # the 300 far points, within no gate, move the median a little
+    assert ex.fit_sigmas(ex.Nearest(np.full((2, 2), np.nan, np.float32), np.full((2, 2), -1, np.int32)), [0.4]) == [0.4]
+    with pytest.raises(InputShapeError, match="instance 2"):
+        ex.fit_sigmas(near, stated[:2])
+    with pytest.raises(InputShapeError, match="where"):
+        ex.fit_sigmas(near, stated, where=np.ones((2, 2), bool))
+
+
 def test_plane_fit_and_focal_length_from_the_cloud():
     rng = np.random.default_rng(1)
     n = np.array([0.1, -0.2, 1.0])
