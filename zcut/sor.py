@@ -272,7 +272,9 @@ def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarr
     run(_window.window_rows, H, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven)
     rows, cols = _window.unproven_pixels(valid, dbar, unproven)  # their dbar: minus the m-th squared distance
     if rows.size:
-        tree = _search.build_quadtree(tcount, tbox, tuv, P, M, use_cam)
+        def tree() -> tuple[np.ndarray, ...]:  # built only if the column search leaves pixels
+            return _search.build_quadtree(tcount, tbox, tuv, P, M, use_cam)
+
         _fallback(x, y, z, valid, rows, cols, -dbar[rows, cols], m, divisor, use_cam, tree, dbar, run)
     return dbar
 
@@ -310,15 +312,16 @@ def _column_stage(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray
 
 
 def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-              lim: np.ndarray, m: int, divisor: float, use_cam: bool, tree: tuple[np.ndarray, ...], dbar: np.ndarray,
-              run: Run) -> None:
-    """Columns, then a tile search for the unproven pixels left, then a KD-tree for those it could
-    not finish."""
+              lim: np.ndarray, m: int, divisor: float, use_cam: bool, make_tree: Callable[[], tuple[np.ndarray, ...]],
+              dbar: np.ndarray, run: Run) -> None:
+    """Columns, then a tile search for the unproven pixels left (over the quadtree ``make_tree()``
+    builds), then a KD-tree for those it could not finish."""
     if _USE_COLUMNS:
         done = _column_stage(x, y, z, valid, rows, cols, lim, m, divisor, dbar, run)
         if done.all():
             return
         rows, cols, lim = rows[~done], cols[~done], lim[~done]
+    tree = make_tree()
 
     def tile_search(rows: np.ndarray, cols: np.ndarray, lim: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         out, outcome, radius2 = np.zeros(rows.size), np.zeros(rows.size, np.uint8), np.full(rows.size, np.inf)
