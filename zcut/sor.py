@@ -31,8 +31,8 @@ and a search never has to look at more than m copies of a duplicated point.
    within all of them, the window is proven. Stages, cheapest first: a 3 × 3 window for whole
    rows at once (vectorized: the 8 neighbour distances sorted by a network, so any m <= 9 is a
    selection), a 5 × 5 window for what it leaves (the whole row, vectorized, when that is much),
-   then one pixel at a time, growing the window to the smallest w whose bound covers the current
-   m-th distance, up to 16.
+   then one pixel at a time, growing the window one ring at a time until its bound covers the
+   m-th distance found so far, up to 16.
 3. *Columns* (:mod:`zcut.columns`), when many pixels are unproven (one in ``_COLUMNS_MIN_SHARE``
    or more: tall parts standing on end, whose image neighbours are rarely 3D neighbours, and the
    flying pixels along their silhouettes). Each unproven pixel has an upper bound on its m-th

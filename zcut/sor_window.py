@@ -10,8 +10,8 @@ The argument is in the module docstring of :mod:`zcut.sor`. Three stages, cheape
 2. a 5 × 5 window for the pixels stage 1 left: the inner ring sorted, ring 2 merged into the 8
    smallest; for the whole row (vectorized like stage 1) when they are many, and for the rows
    after such a row straight away (re-checked every 8 rows), else for a list of pixels;
-3. one pixel at a time, the window growing to the smallest w whose bound covers the current m-th
-   distance, up to ``WINDOW_MAX``.
+3. one pixel at a time, the window growing one ring at a time until its bound covers the m-th
+   distance found so far, up to ``WINDOW_MAX``.
 
 Every kernel here is serial and releases the GIL; :mod:`zcut.sor` runs them over row ranges on
 threads.
