@@ -31,8 +31,8 @@ and a search never has to look at more than m copies of a duplicated point.
    within all of them, the window is proven. Stages, cheapest first: a 3 × 3 window for whole
    rows at once (vectorized: the 8 neighbour distances sorted by a network, so any m <= 9 is a
    selection), a 5 × 5 window for what it leaves (the whole row, vectorized, when that is much),
-   then one pixel at a time, growing the window to the smallest w whose bound covers the current
-   m-th distance, up to 16.
+   then one pixel at a time, growing the window one ring at a time until its bound covers the
+   m-th distance found so far, up to 16.
 3. *Columns* (:mod:`zcut.columns`), when many pixels are unproven (one in ``_COLUMNS_MIN_SHARE``
    or more: tall parts standing on end, whose image neighbours are rarely 3D neighbours, and the
    flying pixels along their silhouettes). Each unproven pixel has an upper bound on its m-th
@@ -272,7 +272,9 @@ def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarr
     run(_window.window_rows, H, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven)
     rows, cols = _window.unproven_pixels(valid, dbar, unproven)  # their dbar: minus the m-th squared distance
     if rows.size:
-        tree = _search.build_quadtree(tcount, tbox, tuv, P, M, use_cam)
+        def tree() -> tuple[np.ndarray, ...]:  # built only if the column search leaves pixels
+            return _search.build_quadtree(tcount, tbox, tuv, P, M, use_cam)
+
         _fallback(x, y, z, valid, rows, cols, -dbar[rows, cols], m, divisor, use_cam, tree, dbar, run)
     return dbar
 
@@ -310,15 +312,16 @@ def _column_stage(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray
 
 
 def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-              lim: np.ndarray, m: int, divisor: float, use_cam: bool, tree: tuple[np.ndarray, ...], dbar: np.ndarray,
-              run: Run) -> None:
-    """Columns, then a tile search for the unproven pixels left, then a KD-tree for those it could
-    not finish."""
+              lim: np.ndarray, m: int, divisor: float, use_cam: bool, make_tree: Callable[[], tuple[np.ndarray, ...]],
+              dbar: np.ndarray, run: Run) -> None:
+    """Columns, then a tile search for the unproven pixels left (over the quadtree ``make_tree()``
+    builds), then a KD-tree for those it could not finish."""
     if _USE_COLUMNS:
         done = _column_stage(x, y, z, valid, rows, cols, lim, m, divisor, dbar, run)
         if done.all():
             return
         rows, cols, lim = rows[~done], cols[~done], lim[~done]
+    tree = make_tree()
 
     def tile_search(rows: np.ndarray, cols: np.ndarray, lim: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         out, outcome, radius2 = np.zeros(rows.size), np.zeros(rows.size, np.uint8), np.full(rows.size, np.inf)

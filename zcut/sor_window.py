@@ -10,8 +10,8 @@ The argument is in the module docstring of :mod:`zcut.sor`. Three stages, cheape
 2. a 5 × 5 window for the pixels stage 1 left: the inner ring sorted, ring 2 merged into the 8
    smallest; for the whole row (vectorized like stage 1) when they are many, and for the rows
    after such a row straight away (re-checked every 8 rows), else for a list of pixels;
-3. one pixel at a time, the window growing to the smallest w whose bound covers the current m-th
-   distance, up to ``WINDOW_MAX``.
+3. one pixel at a time, the window growing one ring at a time until its bound covers the m-th
+   distance found so far, up to ``WINDOW_MAX``.
 
 Every kernel here is serial and releases the GIL; :mod:`zcut.sor` runs them over row ranges on
 threads.
@@ -506,10 +506,56 @@ def _scan_ring(best, r, c, w_old, w_new, H, W, x, y, z, xq, yq, zq):  # type: ig
     return n
 
 
+@nb.njit(cache=True, inline="always")
+def _scan_row_part(best, rr, c0, c1, x, y, z, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba kernel
+    # pixels (rr, c0..c1) into best: their smallest distance first (a branch-free reduction the
+    # compiler vectorizes), inserted one by one only if it is below the m-th found
+    lo = np.inf
+    for cc in range(c0, c1 + 1):
+        lo = min(lo, d2(xq, yq, zq, x[rr, cc], y[rr, cc], z[rr, cc]))
+    if lo < best[best.shape[0] - 1]:
+        for cc in range(c0, c1 + 1):
+            insert(best, d2(xq, yq, zq, x[rr, cc], y[rr, cc], z[rr, cc]))
+
+
+@nb.njit(cache=True, inline="always")
+def _scan_col_part(best, cc, r0, r1, x, y, z, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba kernel
+    # pixels (r0..r1, cc) into best, as _scan_row_part
+    lo = np.inf
+    for rr in range(r0, r1 + 1):
+        lo = min(lo, d2(xq, yq, zq, x[rr, cc], y[rr, cc], z[rr, cc]))
+    if lo < best[best.shape[0] - 1]:
+        for rr in range(r0, r1 + 1):
+            insert(best, d2(xq, yq, zq, x[rr, cc], y[rr, cc], z[rr, cc]))
+
+
+@nb.njit(cache=True, inline="always")
+def _scan_square(best, r, c, w, H, W, x, y, z, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba kernel
+    # add the pixels at Chebyshev distance exactly w >= 1 (the ring of the (2w + 1)² window): its
+    # top and bottom rows, then its left and right columns between them; invalid pixels hold +inf
+    c0 = max(0, c - w)
+    c1 = min(W - 1, c + w)
+    if r - w >= 0:
+        _scan_row_part(best, r - w, c0, c1, x, y, z, xq, yq, zq)
+    if r + w < H:
+        _scan_row_part(best, r + w, c0, c1, x, y, z, xq, yq, zq)
+    r0 = max(0, r - w + 1)
+    r1 = min(H - 1, r + w - 1)
+    if c - w >= 0:
+        _scan_col_part(best, c - w, r0, r1, x, y, z, xq, yq, zq)
+    if c + w < W:
+        _scan_col_part(best, c + w, r0, r1, x, y, z, xq, yq, zq)
+
+
 @nb.njit(cache=True)
 def _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor):  # type: ignore[no-untyped-def]  # numba kernel
     """One pixel with a growing window: its d̄ if proven, else minus the m-th smallest squared
-    distance found (-inf if the largest window held fewer than m valid pixels)."""
+    distance found (-inf if the largest window held fewer than m valid pixels).
+
+    The window grows one ring at a time, the bound checked after each against the m-th distance
+    found so far: on steep relief the first window's m-th distance is often much larger than the
+    final one (the image neighbours across a depth jump), and the window its bound would call for
+    much larger than the one that proves the final distance."""
     H, W = x.shape
     xq = x[r, c]
     yq = y[r, c]
@@ -531,31 +577,31 @@ def _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor):  
         return -dm2
     b = (r + BLOCK // 2) // BLOCK
     bc = (c + BLOCK // 2) // BLOCK
-    while True:
-        sb = _strips(r, c, w, H, W, b, bc, xq, yq, zq, R, C)
-        if dm2 <= sb * sb * KEEP:
-            cb = floor[b, bc]
-            if not dm2 <= cb * cb * KEEP:
-                cb = _corners(b, bc, xq, yq, zq, Q)
-            if dm2 <= cb * cb * KEEP:
-                return mean_of_sorted(best, divisor)
-            return -dm2
+    sb = _strips(r, c, w, H, W, b, bc, xq, yq, zq, R, C)
+    if not dm2 <= sb * sb * KEEP:
         if w >= wmax:
             return -dm2
-        # the smallest larger window whose bound covers the current m-th distance
-        w2 = w + 1
-        while True:
-            sb = _strips(r, c, w2, H, W, b, bc, xq, yq, zq, R, C)
-            if dm2 <= sb * sb * KEEP or w2 >= wmax:
-                break
-            w2 += 1
+        sb = _strips(r, c, wmax, H, W, b, bc, xq, yq, zq, R, C)
         if not dm2 <= sb * sb * KEEP:
-            return -dm2  # not even the largest window would do: leave it to the tiles
-        _scan_ring(best, r, c, w, w2, H, W, x, y, z, xq, yq, zq)
-        w = w2
-        dm2 = best[m - 1]
-        if dm2 == 0.0:
-            return mean_of_sorted(best, divisor)
+            return -dm2  # not even the largest window would do: leave it to the columns and tiles
+        # the bound at wmax covers dm2, and every smaller m-th distance found on the way
+        while True:
+            w += 1
+            _scan_square(best, r, c, w, H, W, x, y, z, xq, yq, zq)
+            dm2 = best[m - 1]
+            if dm2 == 0.0:
+                return mean_of_sorted(best, divisor)
+            if w >= wmax:
+                break
+            sb = _strips(r, c, w, H, W, b, bc, xq, yq, zq, R, C)
+            if dm2 <= sb * sb * KEEP:
+                break
+    cb = floor[b, bc]
+    if not dm2 <= cb * cb * KEEP:
+        cb = _corners(b, bc, xq, yq, zq, Q)
+    if dm2 <= cb * cb * KEEP:
+        return mean_of_sorted(best, divisor)
+    return -dm2
 
 
 # --------------------------------------------------------------------------------------------

@@ -133,6 +133,38 @@ def test_large_invalid_regions_and_steep_walls(seed: int, monkeypatch: pytest.Mo
     assert_as_oracle(xyz, np.isfinite(xyz[..., 2]) & (xyz[..., 2] < 0.79), ks=(4,))
 
 
+def relief_with_holes(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """A camera 1 m above a random height field: smooth bumps, flat-topped parts 40-200 mm tall with
+    vertical walls (their wall pixels' image neighbours are far in 3D: the window grows ring by ring
+    or gives up), blob-shaped and scattered invalid pixels; coordinates rounded to 1 mm so that
+    distances tie (at the m-th one too)."""
+    from scipy.ndimage import gaussian_filter
+
+    f = 60.0
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    height = 0.02 * gaussian_filter(rng.normal(size=(h, w)), 3.0)
+    for _ in range(int(rng.integers(3, 9))):
+        r0, c0 = rng.integers(0, h), rng.integers(0, w)
+        dr, dc = rng.integers(2, 10, size=2)
+        height[max(0, r0 - dr):r0 + dr, max(0, c0 - dc):c0 + dc] = rng.uniform(0.04, 0.2)
+    z = 1.0 - height
+    xyz = np.round(np.stack([(u - w / 2) / f * z, (v - h / 2) / f * z, z], axis=-1) / 1e-3) * 1e-3
+    field = gaussian_filter(rng.normal(size=(h, w)), 4.0)
+    xyz[field > np.quantile(field, rng.uniform(0.5, 0.9))] = np.nan  # large invalid regions
+    xyz[rng.random((h, w)) < rng.uniform(0.0, 0.3)] = np.nan  # and scattered ones
+    return xyz
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_fuzz_relief_with_holes_and_ties(seed: int) -> None:
+    # the growing window (ring by ring, its bound checked after each ring), the columns and the
+    # tiles on what escapes the 3 x 3 and 5 x 5 windows; d̄ and masks equal the brute-force oracle,
+    # ties included
+    rng = np.random.default_rng(7000 + seed)
+    xyz = relief_with_holes(rng, int(rng.integers(20, 48)), int(rng.integers(30, 62)))
+    assert_as_oracle(xyz, ks=(1, 4, 8), ratios=(0.5, 1.0))
+
+
 # ------------------------------------------------------------------------------------------------
 # the project's frames
 # ------------------------------------------------------------------------------------------------
