@@ -94,6 +94,9 @@ DIFF_CODES: dict[int, str] = {1: "B fixes", 2: "B breaks", 3: "both wrong", 4: "
 MAX_BLOBS_PER_FRAME = 50
 #: Frames per unit of work (whole chunks of one log), as ``zcut batch``'s.
 FRAMES_PER_UNIT = 8
+#: How a comparison opens its logs: each frame's true depth decoded from the chunk the pass reads anyway
+#: (the displacement classes: :func:`annotate.accuracy.displacement_mm`), not read from the log again.
+READER_OPTIONS = {"truth_depth": True}
 
 
 class CompareError(ZcutError, ValueError):
@@ -521,7 +524,7 @@ def _open_unit_log(path: Path, sha256: str, topic: str | None) -> tuple[Any, Fra
     from replay.pipeline.session import open_log
 
     def make() -> tuple[Any, Frame]:
-        reader, first, _ = open_log(path, topic=topic)
+        reader, first, _ = open_log(path, topic=topic, reader_options=READER_OPTIONS)
         return reader, first
 
     got: tuple[Any, Frame] = _kept(("log", str(path), sha256, topic), make)
@@ -1158,7 +1161,8 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
 
         plans = plan_logs([str(p) for p in opts.logs], config_file=None, overrides={}, topic=opts.topic,
                           frames_per_unit=opts.frames_per_unit, whole=False, progress=planning,
-                          bin_model=None if opts.bin_model is None else str(opts.bin_model), opened=opened)
+                          bin_model=None if opts.bin_model is None else str(opts.bin_model), opened=opened,
+                          reader_options=READER_OPTIONS)
         check_labels(None if opts.labels is None else str(opts.labels), opts.annotator, plans)
         if refused:
             raise refused[0]
