@@ -1398,7 +1398,7 @@ class _Assembler:
         entry.diff, entry.shared, entry.primaries, entry.part_kind = s.diff, s.shared, s.primaries, s.part_kind
         if s.resolved and plan.bin_model_warning:
             entry.notes.append(plan.bin_model_warning)
-        self.writer.log(plan.path)
+        self.writer.log(plan.path, sha256=plan.sha256)  # the planning's hash: the log is not read again for it
 
     def _unit(self, plan: LogPlan, u: WorkUnit, entry: _Log) -> None:
         from studies.compare_outputs import frame_view

@@ -128,10 +128,10 @@ class CompareWriter:
         self.seq = 0
         self.has_truth = has_truth
 
-    def log(self, path: Path) -> None:
-        """The frames that follow are of the log at ``path``."""
+    def log(self, path: Path, *, sha256: str | None = None) -> None:
+        """The frames that follow are of the log at ``path`` (``sha256``: its content hash, when known)."""
         if self.disagreement is not None:
-            self.disagreement.log(path)
+            self.disagreement.log(path, sha256=sha256)
 
     def start(self, spec_a: SideSpec, spec_b: SideSpec, diff: list[dict[str, Any]], *, has_truth: bool, primaries: tuple[str, str]) -> None:
         self.has_truth = has_truth
