@@ -88,8 +88,12 @@ def frame_view(frame: Frame, diff: np.ndarray) -> FrameView:
         if ok.any():
             lo, hi = float(z[ok].min()), float(z[ok].max())
             image[ok] = (255 * (hi - z[ok]) / max(hi - lo, 1e-9)).astype(np.uint8)
-    sel = (diff > 0) & np.isfinite(frame.xyz).all(axis=2)
-    return FrameView(jpeg, image, frame.xyz[sel].astype(np.float32), diff[sel])
+    # the set pixels of diff whose point is valid, in row-major order (the points of only those are read)
+    at = np.flatnonzero(diff)
+    r, c = np.divmod(at, diff.shape[1])
+    pts = frame.xyz[r, c]
+    ok = np.isfinite(pts).all(axis=1)
+    return FrameView(jpeg, image, pts[ok].astype(np.float32), diff.ravel()[at[ok]])
 
 
 def verdict_image(pred: np.ndarray, truth: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
