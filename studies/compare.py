@@ -614,8 +614,12 @@ def pixel_footprint_mm2(xyz: np.ndarray, intrinsics: Any) -> np.ndarray | None:
     None without a camera model."""
     if intrinsics is None or xyz.shape[:2] != (intrinsics.height, intrinsics.width):
         return None
-    z_mm = 1000.0 * xyz[..., 2].astype(np.float64)
-    return z_mm * z_mm / (float(intrinsics.fx) * float(intrinsics.fy))
+    # z_mm * z_mm / (fx * fy), in place: the same operations in the same order (the same bits)
+    out: np.ndarray = xyz[..., 2].astype(np.float64)
+    out *= 1000.0
+    np.multiply(out, out, out=out)
+    out /= float(intrinsics.fx) * float(intrinsics.fy)
+    return out
 
 
 def diff_image(mask_a: np.ndarray, mask_b: np.ndarray, where: np.ndarray,
@@ -743,7 +747,7 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
         if not m.any():
             continue
         lab, n = ndimage.label(m, structure=np.ones((3, 3), dtype=bool))
-        rows, cols = np.nonzero(lab)
+        rows, cols = np.nonzero(m)  # the labelled pixels, in the same (row-major) order as np.nonzero(lab)
         sides.append((who, lab, n, rows, cols, lab[rows, cols]))
     near = None
     if xyz is not None and sides:
@@ -771,8 +775,8 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
         c = np.bincount(ids, weights=cols, minlength=n + 1)[1:] / np.maximum(area, 1)
         mm2 = None
         if footprint is not None:
-            fp = np.where(np.isfinite(footprint), footprint, 0.0)
-            mm2 = np.bincount(ids, weights=fp[rows, cols], minlength=n + 1)[1:]
+            fp = footprint[rows, cols]  # only the blobs' pixels are read
+            mm2 = np.bincount(ids, weights=np.where(np.isfinite(fp), fp, 0.0), minlength=n + 1)[1:]
         if truth is not None:
             outl, scored = truth
             # B removed it alone: right where it is a true outlier; A removed it alone: B right where it is not

@@ -12,6 +12,7 @@ from scipy import ndimage
 
 import studies.compare as cmp
 from studies.compare import disagreement_blobs
+from zcut.cloud import Intrinsics
 
 
 def _brute_nearest(kept: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -119,8 +120,10 @@ def test_blobs_equal_those_of_the_whole_image_transform(rng, monkeypatch, tile, 
     monkeypatch.setattr(cmp, "_MARGIN_PX", margin)
     n = 0
     for a, b, where, xyz, truth in _cases(rng):
-        got = disagreement_blobs("l", 3, 7, a, b, where, truth=truth, xyz=xyz)
-        _same(got, reference_blobs("l", 3, 7, a, b, where, truth=truth, xyz=xyz))
+        fp = cmp.pixel_footprint_mm2(xyz, Intrinsics(fx=600.0, fy=610.0, cx=1.0, cy=2.0, width=xyz.shape[1],
+                                                      height=xyz.shape[0]))  # NaN where invalid
+        got = disagreement_blobs("l", 3, 7, a, b, where, truth=truth, footprint=fp, xyz=xyz)
+        _same(got, reference_blobs("l", 3, 7, a, b, where, truth=truth, footprint=fp, xyz=xyz))
         n += len(got)
     assert n > 1000
 
@@ -144,3 +147,16 @@ def test_blobs_of_real_scans_equal_the_whole_image_transform(real_data, monkeypa
                 got = disagreement_blobs("l", 0, 0, ma, mb, valid, xyz=xyz)
                 assert got, name
                 _same(got, reference_blobs("l", 0, 0, ma, mb, valid, xyz=xyz))
+
+
+def test_pixel_footprint_is_the_literal_formula_to_the_bit(rng):
+    """z² / (fx·fy) in mm², computed in place: the literal formula's bits (NaN where invalid); None without
+    a camera model or for another image size."""
+    xyz = _frame(rng, 50, 70, invalid=0.2, block=True)
+    k = Intrinsics(fx=1234.567, fy=1235.891, cx=35.0, cy=25.0, width=70, height=50)
+    z_mm = 1000.0 * xyz[..., 2].astype(np.float64)
+    want = z_mm * z_mm / (float(k.fx) * float(k.fy))
+    got = cmp.pixel_footprint_mm2(xyz, k)
+    assert got is not None and np.array_equal(got.view(np.int64), want.view(np.int64))
+    assert cmp.pixel_footprint_mm2(xyz, None) is None
+    assert cmp.pixel_footprint_mm2(xyz[:, :60], k) is None
