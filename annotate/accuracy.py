@@ -1105,7 +1105,25 @@ def _unexplained(frame: Any, r: Any) -> tuple[Mask, str] | None:
 def displacement_mm(log: Path, frame: Any) -> np.ndarray | None:
     """|Z − Z_GT| (mm) of every pixel of a frame from the log's ``/ground_truth/depth`` message of its
     stamp (NaN where either is unknown); None when that message cannot be read (the frame then has no
-    displacement classes, and the pooled report none)."""
+    displacement classes, and the pooled report none). A frame read with ``LogReader(truth_depth=True)``
+    carries that message already decoded (:attr:`~replay.logs.frame.Frame.truth_depth_m`): it is used,
+    the log is not read again; else the message is read from ``log``."""
+    depth = getattr(frame, "truth_depth_m", None)
+    if depth is None:
+        depth = _read_truth_depth(log, frame)
+        if depth is None:
+            return None
+    # |Z − Z_GT| · 1000 in float64, in place: the same operations in the same order (the same bits)
+    shift: np.ndarray = frame.xyz[..., 2].astype(np.float64)
+    shift -= depth
+    np.abs(shift, out=shift)
+    shift *= 1000.0
+    return shift
+
+
+def _read_truth_depth(log: Path, frame: Any) -> np.ndarray | None:
+    """The (H, W) float32 ``/ground_truth/depth`` of the frame's stamp read from the log (a view of the
+    message's bytes), None when there is no usable one."""
     from mcap.exceptions import McapError
     from mcap.reader import make_reader
 
@@ -1121,13 +1139,7 @@ def displacement_mm(log: Path, frame: Any) -> np.ndarray | None:
                 if (msg.stamp_ns != frame.stamp_ns or msg.encoding != layout.TRUTH_DEPTH_ENCODING or msg.is_bigendian
                         or (msg.height, msg.width) != frame.shape or len(msg.data) != 4 * msg.width * msg.height):
                     continue
-                depth = np.frombuffer(msg.data, dtype="<f4").reshape(msg.height, msg.width)  # read, not copied
-                # |Z − Z_GT| · 1000 in float64, in place: the same operations in the same order (the same bits)
-                shift: np.ndarray = frame.xyz[..., 2].astype(np.float64)
-                shift -= depth
-                np.abs(shift, out=shift)
-                shift *= 1000.0
-                return shift
+                return np.frombuffer(msg.data, dtype="<f4").reshape(msg.height, msg.width)  # read, not copied
     except (McapError, LogFormatError, ValueError, OSError, EOFError):
         return None
     return None

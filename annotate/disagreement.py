@@ -40,8 +40,8 @@ KEYS = ("logs", "log_sha256", "log_size", "primaries", "frame_log", "frame_index
 class DisagreementRecorder:
     """Collects the disagreement of a comparison frame by frame, then writes :data:`FILE`.
 
-    Each log's content hash is computed in a thread while its frames run (:meth:`log`), so that
-    ``zcut annotate`` can tell the log it is given is the one compared.
+    Each log's content hash (the one ``zcut compare``'s planning computed, else computed in a thread while
+    its frames run: :meth:`log`) lets ``zcut annotate`` tell the log it is given is the one compared.
     """
 
     def __init__(self, primaries: tuple[str, str] = ("", "")) -> None:
@@ -53,14 +53,17 @@ class DisagreementRecorder:
         self._pixels: list[np.ndarray] = []
         self._who: list[np.ndarray] = []
 
-    def log(self, path: str | os.PathLike[str]) -> None:
-        """The frames that follow are of the log at ``path``."""
+    def log(self, path: str | os.PathLike[str], *, sha256: str | None = None) -> None:
+        """The frames that follow are of the log at ``path``; ``sha256``: its content hash when the caller
+        has it (a study's planning hashed every log), else computed here in a thread."""
         from annotate.store import file_sha256
 
         p = Path(path)
         k = len(self._logs)
         self._logs.append((p.name, p.stat().st_size))
-        self._hashes.append("")
+        self._hashes.append(sha256 or "")
+        if sha256 is not None:
+            return
 
         def digest() -> None:
             self._hashes[k] = file_sha256(p)

@@ -94,6 +94,9 @@ DIFF_CODES: dict[int, str] = {1: "B fixes", 2: "B breaks", 3: "both wrong", 4: "
 MAX_BLOBS_PER_FRAME = 50
 #: Frames per unit of work (whole chunks of one log), as ``zcut batch``'s.
 FRAMES_PER_UNIT = 8
+#: How a comparison opens its logs: each frame's true depth decoded from the chunk the pass reads anyway
+#: (the displacement classes: :func:`annotate.accuracy.displacement_mm`), not read from the log again.
+READER_OPTIONS = {"truth_depth": True}
 
 
 class CompareError(ZcutError, ValueError):
@@ -521,7 +524,7 @@ def _open_unit_log(path: Path, sha256: str, topic: str | None) -> tuple[Any, Fra
     from replay.pipeline.session import open_log
 
     def make() -> tuple[Any, Frame]:
-        reader, first, _ = open_log(path, topic=topic)
+        reader, first, _ = open_log(path, topic=topic, reader_options=READER_OPTIONS)
         return reader, first
 
     got: tuple[Any, Frame] = _kept(("log", str(path), sha256, topic), make)
@@ -611,8 +614,12 @@ def pixel_footprint_mm2(xyz: np.ndarray, intrinsics: Any) -> np.ndarray | None:
     None without a camera model."""
     if intrinsics is None or xyz.shape[:2] != (intrinsics.height, intrinsics.width):
         return None
-    z_mm = 1000.0 * xyz[..., 2].astype(np.float64)
-    return z_mm * z_mm / (float(intrinsics.fx) * float(intrinsics.fy))
+    # z_mm * z_mm / (fx * fy), in place: the same operations in the same order (the same bits)
+    out: np.ndarray = xyz[..., 2].astype(np.float64)
+    out *= 1000.0
+    np.multiply(out, out, out=out)
+    out /= float(intrinsics.fx) * float(intrinsics.fy)
+    return out
 
 
 def diff_image(mask_a: np.ndarray, mask_b: np.ndarray, where: np.ndarray,
@@ -636,15 +643,90 @@ def diff_image(mask_a: np.ndarray, mask_b: np.ndarray, where: np.ndarray,
     return out
 
 
-def _nearest_kept(kept: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """(row, column) images: for every pixel, the nearest ``kept`` pixel in the image (the Euclidean
-    distance transform's nearest; its distances are not computed); None when nothing is kept."""
+#: The blobs' nearest kept pixels are searched in windows (:func:`_nearest_kept`): blobs are grouped by
+#: the tile of this side (px) their box starts in, and each group's window is its blobs' box widened by
+#: :data:`_MARGIN_PX` first (by more where that does not prove the answer).
+_TILE_PX = 128
+_MARGIN_PX = 8
+
+
+def _nearest_kept(rows: np.ndarray, cols: np.ndarray, boxes: list[tuple[int, int, int, int, np.ndarray]],
+                  kept_in: Any, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
+    """For the pixels ``(rows[i], cols[i])``: the kept pixel that the Euclidean feature transform of the
+    whole image (``scipy.ndimage.distance_transform_edt(~kept, return_indices=True)``) names nearest,
+    found in windows of the image; None when nothing is kept in the image.
+
+    ``boxes``: ``(r0, r1, c0, c1, idx)``, the pixels ``idx`` (indices into ``rows``) lie in rows
+    ``r0:r1`` and columns ``c0:c1``; ``kept_in(r0, r1, c0, c1)`` the kept mask of a window.
+
+    Why a window gives the whole image's answer. SciPy's transform (Maurer, Qi, Raghavan 2003;
+    ``ni_morphology.c``, ``_VoronoiFT``) names, among the kept pixels at the smallest distance, the
+    one of the smallest column, then of the smallest row: its first pass (along each column) keeps
+    the upper of two equally near pixels (it moves on only to a strictly nearer one); its second
+    (along each row) drops from the lower envelope only a column's candidate that is strictly
+    farther than two others everywhere, so never a nearest one, and keeps the leftmost of equally
+    near ones. Every distance it compares is a sum of squared integers, exact in float64. So the
+    answer is a function of the set of nearest kept pixels, the same on any window holding that set.
+    A window's answer q for a pixel p at squared distance d² is the whole image's when every pixel
+    outside the window is strictly farther than d from p: then no kept pixel outside is as near as q,
+    and the nearest set is the window's. That is checked for every pixel (its distance to the
+    window's edges, none on a side where the window reaches the image's border); a pixel that fails
+    is searched again in a window widened by more than d around it, where it passes. A window without
+    a kept pixel is widened until it has one, or is the whole image (then nothing is kept at all).
+    ``tests/studies/test_compare_blobs.py`` checks the rule against a brute-force search and the
+    result against the whole image's transform.
+    """
     from scipy import ndimage
 
-    if not kept.any():
-        return None
-    ri, ci = ndimage.distance_transform_edt(~kept, return_distances=False, return_indices=True)
-    return ri, ci
+    h, w = shape
+    far = h * h + w * w + 1  # farther than any two pixels of the image
+    qr = np.empty(rows.size, dtype=np.intp)
+    qc = np.empty(rows.size, dtype=np.intp)
+    todo = [(r0, r1, c0, c1, idx, _MARGIN_PX) for r0, r1, c0, c1, idx in boxes]
+    while todo:
+        r0, r1, c0, c1, idx, m = todo.pop()
+        a0, a1, b0, b1 = max(r0 - m, 0), min(r1 + m, h), max(c0 - m, 0), min(c1 + m, w)
+        kept = kept_in(a0, a1, b0, b1)
+        if not kept.any():
+            if (a0, a1, b0, b1) == (0, h, 0, w):
+                return None
+            todo.append((r0, r1, c0, c1, idx, 2 * m + 1))
+            continue
+        ri, ci = ndimage.distance_transform_edt(~kept, return_distances=False, return_indices=True)
+        pr, pc = rows[idx] - a0, cols[idx] - b0
+        gr, gc = ri[pr, pc].astype(np.intp), ci[pr, pc].astype(np.intp)
+        d2 = (gr - pr) ** 2 + (gc - pc) ** 2
+        edge = np.full(idx.size, far, dtype=np.intp)  # the nearest pixel outside the window, squared
+        for side, dist in ((a0 > 0, pr + 1), (a1 < h, a1 - a0 - pr), (b0 > 0, pc + 1), (b1 < w, b1 - b0 - pc)):
+            if side:
+                np.minimum(edge, dist * dist, out=edge)
+        ok = d2 < edge
+        qr[idx[ok]] = gr[ok] + a0
+        qc[idx[ok]] = gc[ok] + b0
+        if not ok.all():
+            bad = idx[~ok]
+            grow = int(np.ceil(np.sqrt(float(d2[~ok].max())))) + 1
+            todo.append((int(rows[bad].min()), int(rows[bad].max()) + 1, int(cols[bad].min()),
+                         int(cols[bad].max()) + 1, bad, grow))
+    return qr, qc
+
+
+def _blob_boxes(slices: list[Any], gid: np.ndarray, offset: int) -> list[tuple[int, int, int, int, np.ndarray]]:
+    """Windows of :func:`_nearest_kept` for one side's blobs: the blobs grouped by the tile their box
+    starts in (``slices``: :func:`scipy.ndimage.find_objects`; ``gid`` each pixel's blob, 0-based),
+    each group's box and its pixels (indices offset by ``offset``)."""
+    box = np.array([(s[0].start, s[0].stop, s[1].start, s[1].stop) for s in slices], dtype=np.int64).reshape(-1, 4)
+    keys, blob_group = np.unique((box[:, 0] // _TILE_PX) * (1 << 32) + box[:, 2] // _TILE_PX, return_inverse=True)
+    blob_group = blob_group.ravel()
+    by_group = np.argsort(blob_group, kind="stable")
+    first = np.searchsorted(blob_group[by_group], np.arange(keys.size))
+    lo = np.minimum.reduceat(box[by_group], first, axis=0)
+    hi = np.maximum.reduceat(box[by_group], first, axis=0)
+    group = blob_group[gid]
+    order = np.argsort(group, kind="stable") + offset
+    bounds = np.searchsorted(group, np.arange(keys.size + 1), sorter=order - offset)
+    return [(int(lo[g, 0]), int(hi[g, 1]), int(lo[g, 2]), int(hi[g, 3]), order[bounds[g]:bounds[g + 1]])
+            for g in range(keys.size)]
 
 
 def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, mask_b: np.ndarray,
@@ -653,27 +735,48 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
     """The 8-connected components of the pixels only A removed and of those only B removed (over
     ``where``), with area, centroid, with truth (``(outliers, scored)``) what B's choice did there,
     and with the frame's points ``xyz`` (metres, NaN invalid) its height above the local surface and
-    its distance to the nearest kept point (:class:`Blob`)."""
+    its distance to the nearest kept point (:class:`Blob`): the nearest pixel, in the image, that
+    neither side removed in ``where`` and whose point is valid, as the whole image's Euclidean feature
+    transform names it (found in windows around the blobs: :func:`_nearest_kept`)."""
     from scipy import ndimage
 
-    blobs: list[Blob] = []
-    near = None
-    if xyz is not None and ((mask_a ^ mask_b) & where).any():
-        kept = where & ~mask_a & ~mask_b & np.isfinite(xyz).all(axis=2)
-        near = _nearest_kept(kept)  # only the blobs' pixels and their nearest are read: no whole-frame copies
+    from zcut.removal import finite_xyz
+
+    sides = []
     for who, m in (("A", mask_a & ~mask_b & where), ("B", mask_b & ~mask_a & where)):
         if not m.any():
             continue
         lab, n = ndimage.label(m, structure=np.ones((3, 3), dtype=bool))
-        area = np.bincount(lab.ravel(), minlength=n + 1)[1:]
-        rows, cols = np.nonzero(lab)
-        ids = lab[rows, cols]
+        rows, cols = np.nonzero(m)  # the labelled pixels, in the same (row-major) order as np.nonzero(lab)
+        sides.append((who, lab, n, rows, cols, lab[rows, cols]))
+    near = None
+    if xyz is not None and sides:
+        boxes = []
+        offset = 0
+        for _, lab, _, rows, _, ids in sides:
+            boxes += _blob_boxes(ndimage.find_objects(lab), ids - 1, offset)
+            offset += rows.size
+        m = 2 * _MARGIN_PX
+        if sum((r1 - r0 + m) * (c1 - c0 + m) for r0, r1, c0, c1, _ in boxes) > mask_a.size // 2:
+            boxes = [(0, mask_a.shape[0], 0, mask_a.shape[1], np.arange(offset))]  # the windows would cover it
+
+        def kept_in(r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+            win = (slice(r0, r1), slice(c0, c1))
+            out: np.ndarray = where[win] & ~mask_a[win] & ~mask_b[win] & finite_xyz(xyz[win])
+            return out
+
+        near = _nearest_kept(np.concatenate([s[3] for s in sides]), np.concatenate([s[4] for s in sides]), boxes,
+                             kept_in, mask_a.shape)
+    blobs: list[Blob] = []
+    offset = 0
+    for who, _, n, rows, cols, ids in sides:
+        area = np.bincount(ids, minlength=n + 1)[1:]
         r = np.bincount(ids, weights=rows, minlength=n + 1)[1:] / np.maximum(area, 1)
         c = np.bincount(ids, weights=cols, minlength=n + 1)[1:] / np.maximum(area, 1)
         mm2 = None
         if footprint is not None:
-            fp = np.where(np.isfinite(footprint), footprint, 0.0)
-            mm2 = np.bincount(ids, weights=fp[rows, cols], minlength=n + 1)[1:]
+            fp = footprint[rows, cols]  # only the blobs' pixels are read
+            mm2 = np.bincount(ids, weights=np.where(np.isfinite(fp), fp, 0.0), minlength=n + 1)[1:]
         if truth is not None:
             outl, scored = truth
             # B removed it alone: right where it is a true outlier; A removed it alone: B right where it is not
@@ -683,8 +786,9 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
             breaks = np.bincount(ids, weights=bad[rows, cols], minlength=n + 1)[1:].astype(np.int64)
         height = part = None
         if near is not None and xyz is not None:
+            mine = slice(offset, offset + rows.size)
             p = 1000.0 * xyz[rows, cols].astype(np.float64)
-            q = 1000.0 * xyz[near[0][rows, cols], near[1][rows, cols]].astype(np.float64)
+            q = 1000.0 * xyz[near[0][mine], near[1][mine]].astype(np.float64)
             ok = np.isfinite(p).all(axis=1)
             h = np.where(ok, q[:, 2] - p[:, 2], 0.0)  # the camera looks along +z: nearer it is higher
             d = np.where(ok, np.linalg.norm(p - q, axis=1), np.inf)
@@ -694,6 +798,7 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
             part = np.full(n + 1, np.inf)
             np.minimum.at(part, ids, d)
             part = part[1:]
+        offset += rows.size
         for k in range(n):
             fx = bk = 0
             consequence = None
@@ -1060,7 +1165,8 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
 
         plans = plan_logs([str(p) for p in opts.logs], config_file=None, overrides={}, topic=opts.topic,
                           frames_per_unit=opts.frames_per_unit, whole=False, progress=planning,
-                          bin_model=None if opts.bin_model is None else str(opts.bin_model), opened=opened)
+                          bin_model=None if opts.bin_model is None else str(opts.bin_model), opened=opened,
+                          reader_options=READER_OPTIONS)
         check_labels(None if opts.labels is None else str(opts.labels), opts.annotator, plans)
         if refused:
             raise refused[0]
@@ -1296,7 +1402,7 @@ class _Assembler:
         entry.diff, entry.shared, entry.primaries, entry.part_kind = s.diff, s.shared, s.primaries, s.part_kind
         if s.resolved and plan.bin_model_warning:
             entry.notes.append(plan.bin_model_warning)
-        self.writer.log(plan.path)
+        self.writer.log(plan.path, sha256=plan.sha256)  # the planning's hash: the log is not read again for it
 
     def _unit(self, plan: LogPlan, u: WorkUnit, entry: _Log) -> None:
         from studies.compare_outputs import frame_view

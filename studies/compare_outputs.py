@@ -88,8 +88,12 @@ def frame_view(frame: Frame, diff: np.ndarray) -> FrameView:
         if ok.any():
             lo, hi = float(z[ok].min()), float(z[ok].max())
             image[ok] = (255 * (hi - z[ok]) / max(hi - lo, 1e-9)).astype(np.uint8)
-    sel = (diff > 0) & np.isfinite(frame.xyz).all(axis=2)
-    return FrameView(jpeg, image, frame.xyz[sel].astype(np.float32), diff[sel])
+    # the set pixels of diff whose point is valid, in row-major order (the points of only those are read)
+    at = np.flatnonzero(diff)
+    r, c = np.divmod(at, diff.shape[1])
+    pts = frame.xyz[r, c]
+    ok = np.isfinite(pts).all(axis=1)
+    return FrameView(jpeg, image, pts[ok].astype(np.float32), diff.ravel()[at[ok]])
 
 
 def verdict_image(pred: np.ndarray, truth: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
@@ -128,10 +132,10 @@ class CompareWriter:
         self.seq = 0
         self.has_truth = has_truth
 
-    def log(self, path: Path) -> None:
-        """The frames that follow are of the log at ``path``."""
+    def log(self, path: Path, *, sha256: str | None = None) -> None:
+        """The frames that follow are of the log at ``path`` (``sha256``: its content hash, when known)."""
         if self.disagreement is not None:
-            self.disagreement.log(path)
+            self.disagreement.log(path, sha256=sha256)
 
     def start(self, spec_a: SideSpec, spec_b: SideSpec, diff: list[dict[str, Any]], *, has_truth: bool, primaries: tuple[str, str]) -> None:
         self.has_truth = has_truth

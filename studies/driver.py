@@ -115,12 +115,16 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str
               frames_per_unit: int, whole: bool,
               progress: Callable[[int, int, Path], None] | None = None,
               bin_model: str | None = None,
-              opened: Callable[[LogPlan, Any, Any], None] | None = None) -> list[LogPlan]:
+              opened: Callable[[LogPlan, Any, Any], None] | None = None,
+              reader_options: dict[str, Any] | None = None) -> list[LogPlan]:
     """Every input log with its resolved config and units; a log that cannot be opened keeps its
     error (a warning and exit 3 at the end) unless no log at all can be used (an error). A log that
     gets no bin model (no ``bin_model``, no attachment of its own) keeps the warning that says so.
     ``opened(plan, reader, first)``: called with each usable log as opened here (its reader and first
-    readable frame), so that a caller needs not open it again (it must not raise)."""
+    readable frame), so that a caller needs not open it again (it must not raise). Each log is read
+    once for its hash and opened once (:func:`~replay.pipeline.session.open_log`, with
+    ``reader_options``: :class:`~replay.logs.reader.LogReader`'s keywords), its units split from that
+    reader's index."""
     from replay.pipeline import config as cfg
     from replay.pipeline.bin_model import bin_model_source
     from replay.pipeline.session import open_log
@@ -139,9 +143,11 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str
             continue
         try:
             plan.sha256 = file_sha256(path)
+            reader, first, plan.resolved = open_log(path, file_layer=file_layer, overrides=overrides, topic=topic,
+                                                    reader_options=reader_options)
+            # the units from the same reader: the log is opened (its first chunks decompressed) once
             plan.units, plan.n_frames = plan_log(path, sha256=plan.sha256, frames_per_unit=frames_per_unit,
-                                                 whole=whole, topic=topic)
-            reader, first, plan.resolved = open_log(path, file_layer=file_layer, overrides=overrides, topic=topic)
+                                                 whole=whole, topic=topic, reader=reader)
             plan.bin_model_warning = bin_model_source(reader, bin_model)[1]
             if opened is not None:
                 opened(plan, reader, first)

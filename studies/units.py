@@ -11,6 +11,7 @@ import errno
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from replay.errors import ConfigError
 
@@ -96,15 +97,18 @@ def expand_logs(inputs: list[str]) -> list[Path]:
 
 
 def plan_log(path: Path, *, sha256: str, frames_per_unit: int, whole: bool = False,
-             topic: str | None = None) -> tuple[list[WorkUnit], int | None]:
+             topic: str | None = None, reader: Any = None) -> tuple[list[WorkUnit], int | None]:
     """Split one log into units of whole chunks holding about ``frames_per_unit`` frames.
 
     Returns the units and the number of frames the log's summary counts (None if unknown).
     ``whole``: one unit for the log (per-log outputs such as a results MCAP need one writer).
+    ``reader``: the log already opened (a :class:`~replay.logs.reader.LogReader` of ``topic``), else it
+    is opened here.
     """
     from replay.logs.reader import LogReader
 
-    reader = LogReader(path, cloud_topic=topic)
+    if reader is None:
+        reader = LogReader(path, cloud_topic=topic)
     n = reader.n_frames
     ranges = None if whole else reader.chunk_frame_ranges()
     if not ranges:

@@ -37,6 +37,10 @@ class Frame:
         ``/ground_truth/outlier_kind``), as they are.
     has_points : bool
         False for a frame of a results file written without its cloud (``LogReader(cloudless=True)``).
+    truth_depth_m : (H, W) float32 ndarray or None
+        The log's ``/ground_truth/depth`` of this frame (camera z in metres of the first surface hit, NaN
+        where nothing is hit), a read-only view of the message's bytes, when the reader was asked for it
+        (``LogReader(truth_depth=True)``) and the log holds a usable one paired by stamp; else None.
     """
 
     xyz: np.ndarray
@@ -49,6 +53,7 @@ class Frame:
     masks: dict[str, np.ndarray] = field(default_factory=dict)
     codes: dict[str, np.ndarray] = field(default_factory=dict)
     has_points: bool = True
+    truth_depth_m: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:

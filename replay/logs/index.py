@@ -55,6 +55,9 @@ class LogIndex:
         meets them (the reader sees them).
     chunks : dict
         Chunks parsed while opening, by (offset, record length), handed to the first pass only.
+    depth_topic : str or None
+        A ``32FC1`` Image topic whose message of each frame's stamp the pass delivers in
+        :attr:`~replay.logs.frame.Frame.truth_depth_m` (``LogReader(truth_depth=True)``), else None.
     """
 
     path: Path
@@ -72,6 +75,7 @@ class LogIndex:
     open_damage: tuple[Damage, ...]
     metadata: dict[str, dict[str, str]]
     chunks: dict[tuple[int, int], list[tuple[int, object]]] = field(default_factory=dict)
+    depth_topic: str | None = None
 
     def open(self) -> McapFile:
         """The log opened for scanning (a context manager)."""

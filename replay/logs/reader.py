@@ -310,6 +310,12 @@ class LogReader:
         points (``Frame.has_points`` False, ``xyz`` a read-only all-NaN view) and carry their valid
         pixels in ``masks['/zcut/valid']``. Without it such a file is refused in one line saying how
         to get the cloud (for the commands that need the points).
+    truth_depth : bool
+        Deliver each frame's ``/ground_truth/depth`` (synthetic and stereo logs) in
+        :attr:`Frame.truth_depth_m <replay.logs.frame.Frame>`, paired by stamp like a mask, when the log
+        has that topic: decoded from the chunk the pass reads anyway (``zcut compare`` scores the
+        displacement classes with it). A frame whose depth message is missing or unusable (not a
+        little-endian ``32FC1`` Image of the cloud's size) has None there; it is not skipped for it.
 
     Attributes
     ----------
@@ -320,6 +326,8 @@ class LogReader:
     image_topic, info_topic : str or None
     mask_topics : list[str]
         mono8 Image topics of the cloud's size; delivered in :attr:`Frame.masks`.
+    depth_topic : str or None
+        ``/ground_truth/depth`` when ``truth_depth`` was asked and the log has it as an Image topic.
     metadata : dict[str, dict[str, str]]
         MCAP metadata records (from the summary; for a file without one, filled while iterating).
     n_frames : int or None
@@ -348,6 +356,7 @@ class LogReader:
         max_pixels: int = DEFAULT_MAX_PIXELS,
         max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
         cloudless: bool = False,
+        truth_depth: bool = False,
     ) -> None:
         check_caps(max_pixels, max_message_bytes)
         self.allow_cloudless = cloudless
@@ -372,6 +381,10 @@ class LogReader:
         # the chosen cloud topic has a decoded first message (_choose_topics refuses one without)
         self.first_shape: tuple[int, int] = cast(tuple[int, int], (t.height, t.width))
         self.intrinsics: Intrinsics | None = self._first_intrinsics()
+        depth = self.topics.get(layout.TRUTH_DEPTH)
+        self.depth_topic: str | None = (
+            layout.TRUTH_DEPTH if truth_depth and not self.cloudless and depth is not None
+            and depth.msg_type == rm.IMAGE and depth.message_encoding == "cdr" else None)
 
     def _mcap(self) -> McapFile:
         return open_mcap(self.path, self.max_message_bytes)
@@ -623,7 +636,7 @@ class LogReader:
             mask_topics=tuple(self.mask_topics), cloudless=self.cloudless, max_pixels=self.max_pixels,
             max_message_bytes=self.max_message_bytes, schemas=self._schemas, channels=self._channels,
             has_summary=self._has_summary, n_frames=self.n_frames, open_damage=self.open_damage,
-            metadata=self.metadata, chunks=chunks,
+            metadata=self.metadata, chunks=chunks, depth_topic=self.depth_topic,
         )
 
 

@@ -217,8 +217,10 @@ class FrameStream(Iterator[Frame]):
         self.start, self.stop = start, stop
         self._damage: list[Damage] = list(index.open_damage)
         self._companions = [t for t in (index.image_topic, index.info_topic) if t] + list(index.mask_topics)
-        self._want = {index.cloud_topic, *self._companions}
-        self._orphan_limit = 4 * len(self._companions) + 4
+        # what a frame waits for: its companions and, when asked, its true depth (never a reason to skip it)
+        self._waits = self._companions + ([index.depth_topic] if index.depth_topic else [])
+        self._want = {index.cloud_topic, *self._waits}
+        self._orphan_limit = 4 * len(self._waits) + 4
         self._pending: list[_Pending] = []
         self._orphans: list[tuple[int, str, _Part]] = []  # (stamp, topic, decoded)
         self._lost_parts: dict[str, set[int]] = {}  # companion topic -> log times of its lost messages
@@ -375,6 +377,9 @@ class FrameStream(Iterator[Frame]):
         its frame is skipped, whichever message of its topic and stamp came first."""
         topic = ch.topic
         r = self._r
+        if topic == r.depth_topic:
+            self._depth(rec, ch)
+            return
         where = f"{r.path.name}: topic {topic}, message at log time {stamp_text(rec.log_time)}"
         sc = self._schemas.get(ch.schema_id)
         expected = rm.CAMERAINFO if topic == r.info_topic else rm.IMAGE
@@ -398,6 +403,30 @@ class FrameStream(Iterator[Frame]):
         wrong = isinstance(msg, _WrongSchema)
         for p in self._pending:
             if p.stamp == msg.stamp_ns and (topic not in p.parts or wrong):
+                p.parts[topic] = msg
+                return
+        self._orphans.append((msg.stamp_ns, topic, msg))
+        if len(self._orphans) > self._orphan_limit:
+            self._orphans.pop(0)
+
+    def _depth(self, rec: Message, ch: Channel) -> None:
+        """A true depth image (``index.depth_topic``): given to the waiting cloud of its stamp, or kept for
+        a cloud still to come, when it is a little-endian ``32FC1`` Image whose data fills its grid. A
+        message that is not is passed over, neither damage nor a reason to skip a frame (the frame has no
+        true depth then, as when its log holds none)."""
+        sc = self._schemas.get(ch.schema_id)
+        if sc is None or sc.name != rm.IMAGE:
+            return
+        try:
+            msg = rm.decode_image(message_payload(rec.data, ch.topic, self._r.max_message_bytes), where=ch.topic)
+        except LogFormatError:
+            return
+        if (msg.encoding != layout.TRUTH_DEPTH_ENCODING or msg.is_bigendian
+                or len(msg.data) != 4 * msg.width * msg.height):
+            return
+        topic = ch.topic
+        for p in self._pending:
+            if p.stamp == msg.stamp_ns and topic not in p.parts:
                 p.parts[topic] = msg
                 return
         self._orphans.append((msg.stamp_ns, topic, msg))
@@ -455,9 +484,9 @@ class FrameStream(Iterator[Frame]):
         pending = self._pending
         if final or len(pending) > PAIRING_WINDOW:
             return True
-        if not self._companions:
+        if not self._waits:
             return True
-        return len(pending) > 1 and pending[0].complete(self._companions)
+        return len(pending) > 1 and pending[0].complete(self._waits)
 
     def _emit(self, final: bool) -> Iterator[Frame]:
         """Deliver the waiting frames that are due (or name why one cannot be)."""
@@ -568,10 +597,15 @@ class FrameStream(Iterator[Frame]):
                     masks[topic] = rm.image_to_mask(m, where=mwhere, max_pixels=r.max_pixels)
             except LogFormatError as e:
                 raise _Skip(_kind_of(e), str(e), topic) from None
+        depth = None
+        d = cast(rm.ImageMsg | None, parts.get(r.depth_topic) if r.depth_topic else None)
+        if d is not None and (d.height, d.width) == shape:  # _depth checked its encoding and size
+            depth = np.frombuffer(d.data, dtype="<f4").reshape(shape)  # read, not copied
+            depth.flags.writeable = False
         return Frame(
             xyz=xyz, rgb=rgb, stamp_ns=cloud.stamp_ns, frame_id=cloud.frame_id,
             intrinsics=intrinsics, topic=ctopic, index=idx, masks=masks, codes=codes,
-            has_points=not r.cloudless,
+            has_points=not r.cloudless, truth_depth_m=depth,
         )
 
 

@@ -92,3 +92,65 @@ def test_displacement_mm_is_the_recorded_depths_difference(data):
         assert np.array_equal(got, want, equal_nan=True), frame.index
         assert np.isfinite(got).sum() > 1000  # a frame of real depths, not all NaN
     assert displacement_mm(data / "missing.mcap", frames[0]) is None  # a log that cannot be read: no classes
+
+
+def test_the_reader_hands_each_frame_its_true_depth(data):
+    """``LogReader(truth_depth=True)`` (how compare opens its logs) delivers each frame's recorded depth,
+    the first frame (read at open) too; displacement_mm then takes it without reading the log (a path that
+    does not exist still gives the same bits) and without the option the frames carry none."""
+    import numpy as np
+
+    from annotate.accuracy import displacement_mm
+    from replay.pipeline.session import open_log
+    from replay.synth.truth_depth import read_truth_depth
+    from studies.compare import READER_OPTIONS
+
+    log = data / "rods.mcap"
+    depths = read_truth_depth(log)
+    reader, first, _ = open_log(log, reader_options=READER_OPTIONS)
+    frames = list(reader.frames(decoded=first))
+    assert frames[0] is first and len(frames) == 3
+    for frame in frames:
+        assert frame.truth_depth_m is not None and not frame.truth_depth_m.flags.writeable
+        assert np.array_equal(frame.truth_depth_m, depths[frame.stamp_ns], equal_nan=True)
+        want = np.abs(frame.xyz[..., 2].astype(np.float64) - depths[frame.stamp_ns]) * 1000.0
+        got = displacement_mm(data / "missing.mcap", frame)  # carried: the log is not read
+        assert got is not None and np.array_equal(got, want, equal_nan=True)
+    plain, _, _ = open_log(log)
+    assert all(f.truth_depth_m is None for f in plain.frames())
+
+
+@pytest.mark.parametrize("bad", ["wrong size", "another encoding", "missing"])
+def test_a_frame_with_an_unusable_true_depth_has_none_and_is_not_skipped(tmp_path, bad):
+    """A depth message of the wrong size or encoding, or none for a frame: that frame carries no depth
+    (no displacement classes, as before), no damage, every frame delivered; the others keep theirs."""
+    import numpy as np
+    from log_helpers import read_frames
+
+    from replay.logs import layout
+    from replay.logs import ros2_msgs as rm
+    from replay.logs.writer import LogWriter
+
+    rng = np.random.default_rng(71)
+    log = tmp_path / "depth.mcap"
+    h, w = 6, 8
+    depth = {}
+    with LogWriter(log) as wr:
+        for i in range(3):
+            stamp = 1_000 + i
+            xyz = rng.uniform(0.5, 1.0, (h, w, 3)).astype(np.float32)
+            wr.write_cloud(layout.CLOUD, xyz, stamp_ns=stamp, frame_id="cam")
+            depth[stamp] = xyz[..., 2] + np.float32(0.001)
+            if i != 1:
+                wr.write_depth(layout.TRUTH_DEPTH, depth[stamp], stamp_ns=stamp, frame_id="cam")
+            elif bad == "wrong size":
+                wr.write_depth(layout.TRUTH_DEPTH, depth[stamp][:, :-1].copy(), stamp_ns=stamp, frame_id="cam")
+            elif bad == "another encoding":  # millimetres as 16-bit integers
+                msg = rm.encode_image(stamp_ns=stamp, frame_id="cam", height=h, width=w, encoding="16UC1",
+                                      step=2 * w, data=(1000 * depth[stamp]).astype("<u2").tobytes())
+                wr._add(layout.TRUTH_DEPTH, rm.IMAGE, msg, stamp)
+    frames, damage = read_frames(log, truth_depth=True)
+    assert damage == [] and [f.index for f in frames] == [0, 1, 2]
+    assert frames[1].truth_depth_m is None
+    for f in (frames[0], frames[2]):
+        assert np.array_equal(f.truth_depth_m, depth[f.stamp_ns])
