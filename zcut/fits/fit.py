@@ -417,8 +417,9 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
         # the second pass: what no fit explains, segmented again; each region a partly visible instance
         seeds = [r for r in segment(xyz, np.flatnonzero(zv.reshape(-1) & ~explained), f_px=f, jump_mm=params.jump_mm,
                                     jump_px=params.jump_px, min_px=SEED_MIN_PX)]
-        seed_params = replace(params, max_err_mm=min(params.max_err_mm, params.seed_err_ratio * float(
-            np.median([e for _, e, _ in accepted]))), min_support=params.seed_min_support)
+        noise = max(float(np.median([e for _, e, _ in accepted])), params.err_floor_mm)
+        seed_params = replace(params, max_err_mm=min(params.max_err_mm, params.seed_err_ratio * noise),
+                              min_support=params.seed_min_support)
         for region in seeds:
             min_px = max(SEED_MIN_PX, int(np.ceil(params.seed_min_share * _projected_area(frame, region, model))))
             if len(region) >= min_px:

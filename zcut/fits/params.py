@@ -58,7 +58,8 @@ class FitParams:
         at the region's depth): smaller pieces of a part are too ambiguous to pose.
     seed_err_ratio : float
         A fit of the second pass is accepted only when its Err is at most this many times the
-        median Err of the first pass's fits (the frame's own noise; at most ``max_err_mm``): a small
+        median Err of the first pass's fits (the frame's own noise, at least ``err_floor_mm``; at most
+        ``max_err_mm``): a small
         piece fits many poses, and the wrong ones (or a fit of floating points) leave a larger residual.
     seed_min_support : float
         ... and when its support is at least this (``min_support`` for the first pass).
