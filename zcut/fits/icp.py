@@ -96,7 +96,7 @@ def shifted_poses(points: np.ndarray, rotations: list[np.ndarray], model: PartMo
         return []
     c = points.mean(axis=0)
     view = c / max(float(np.linalg.norm(c)), 1e-9)
-    out = []
+    out: list[np.ndarray] = []
     for R in rotations:
         facing = (model.probe_normals @ R.T) @ view < 0
         fs = model.probe_samples[facing]
