@@ -22,7 +22,12 @@ The method (issue 29 item 2; paper §2 defines the residual Err these fits give)
    ``min_support``, and it explains at least ``min_region_px`` pixels of its region. The pixels it explains
    leave the region; what is left is segmented again and fitted (touching parts), up to
    ``max_instances_per_region`` times.
-4. **Reassign pixels**: every zone pixel within k × max(Err, ``err_floor_mm``) of an accepted fit
+4. **Second pass** (``seed_shifts`` > 0): the zone's pixels no accepted fit took are segmented again;
+   each region of at least max(10, ``seed_min_share`` × a whole instance's projected area) pixels is
+   fitted as in 2-3 as a partly visible instance — its guesses also put ``seed_shifts`` spread points
+   of the model's facing side on its centroid (a piece's centroid is not the facing side's), no turns —
+   and accepted at Err ≤ ``seed_err_ratio`` × max(the first pass's median Err, ``err_floor_mm``).
+5. **Reassign pixels**: every zone pixel within k × max(Err, ``err_floor_mm``) of an accepted fit
    belongs to the nearest such fit.
 
 The fits read only the cloud, the zone, the mesh and the intrinsics (estimated from the organized
