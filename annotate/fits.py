@@ -359,8 +359,10 @@ class Fitter:
             return 0
         _, _, prepared = part_model(p.part_model, p.part_model_unit)
         xyz = np.asarray(self.points(index), np.float64) * 1000.0
+        # the click's window is fitted by the first pass alone (seed_shifts=0): it finds the instance clicked,
+        # not the other pieces in the window the frame's own second pass already judged
         found = fit_prepared(xyz, local, prepared, params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm,
-                                                                    min_support=p.fit_min_support))
+                                                                    min_support=p.fit_min_support, seed_shifts=0))
         if not found:
             return 0
         new_pix, new_of = [ff.fit_pix], [ff.fit_of]

@@ -22,7 +22,12 @@ The method (issue 29 item 2; paper §2 defines the residual Err these fits give)
    ``min_support``, and it explains at least ``min_region_px`` pixels of its region. The pixels it explains
    leave the region; what is left is segmented again and fitted (touching parts), up to
    ``max_instances_per_region`` times.
-4. **Reassign pixels**: every zone pixel within k × max(Err, ``err_floor_mm``) of an accepted fit
+4. **Second pass** (``seed_shifts`` > 0): the zone's pixels no accepted fit took are segmented again;
+   each region of at least max(10, ``seed_min_share`` × a whole instance's projected area) pixels is
+   fitted as in 2-3 as a partly visible instance — its guesses also put ``seed_shifts`` spread points
+   of the model's facing side on its centroid (a piece's centroid is not the facing side's), no turns —
+   and accepted at Err ≤ ``seed_err_ratio`` × max(the first pass's median Err, ``err_floor_mm``).
+5. **Reassign pixels**: every zone pixel within k × max(Err, ``err_floor_mm``) of an accepted fit
    belongs to the nearest such fit.
 
 The fits read only the cloud, the zone, the mesh and the intrinsics (estimated from the organized
@@ -31,13 +36,13 @@ cloud itself when not given): never a log's truth or the poses in its metadata.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from zcut.errors import InputShapeError, describe_array
 
-from .icp import icp, initial_poses, initial_rotations, pose_matrix
+from .icp import icp, initial_poses, initial_rotations, pose_matrix, shifted_poses
 from .kernels import edge_distances, guess_score, lower_bounds, surface_distances
 from .model import PartModel, prepare_model
 from .params import FitParams
@@ -309,14 +314,19 @@ def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
     return R
 
 
-def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> tuple[np.ndarray, float]:
+def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
+                 shifts: int = 0) -> tuple[np.ndarray, float]:
     """(pose, err) of one instance of a general model in the region's points.
 
     Every initial guess takes ``coarse_iterations`` ICP steps on an even subsample of
     ``COARSE_POINTS`` points; the best (most points within the score tolerance, plus the boundary
     points on the model's edges) and its turns by ``TURNS_DEG`` about the region's normal the same,
     and the best of all is refined on up to ``max_points`` points. A guess whose points nearly all
-    fit stops the search of the guesses."""
+    fit stops the search of the guesses.
+
+    ``shifts`` > 0 (the second pass, a region that may show only part of an instance): the guesses
+    also put ``shifts`` spread points of the model's facing side on the region's centroid
+    (:func:`zcut.fits.icp.shifted_poses`), and the turns are not tried."""
     sub = _subsample(flat, params.max_points)
     pts = frame.xyz.reshape(-1, 3)[sub]
     coarse = np.ascontiguousarray(pts[_subsample(np.arange(len(pts)), COARSE_POINTS)])
@@ -344,7 +354,11 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
         return score, inl, e_inl, T
 
     best = None
-    for T0 in initial_poses(pts, initial_rotations(pts, model), model):
+    rotations = initial_rotations(pts, model)
+    guesses = initial_poses(pts, rotations, model)
+    if shifts:
+        guesses += shifted_poses(pts, rotations, model, shifts)
+    for T0 in guesses:
         score, inl, e_inl, T = coarse_fit(T0)
         if best is None or score > best[0]:
             best = (score, T)
@@ -356,7 +370,7 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     c = pts.mean(axis=0)
     _, ax = np.linalg.eigh(np.cov((pts - c).T))
     T_best = best[1]
-    for deg in TURNS_DEG:
+    for deg in () if shifts else TURNS_DEG:
         Rt = _turn(ax[:, 0], np.radians(deg))
         T0 = T_best.copy()
         T0[:3, :3] = Rt @ T_best[:3, :3]
@@ -399,44 +413,87 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
     H, W = zv.shape
     accepted: list[tuple[np.ndarray, float, float]] = []
     known: list[tuple[np.ndarray, np.ndarray]] = []  # each fit's distances at its region's pixels
+    explained = np.zeros(H * W, bool)  # the pixels an accepted fit took from its region
     pending = segment(xyz, np.flatnonzero(zv), f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
                       min_px=params.min_region_px)
     for region in pending:
-        left = region
-        attempts = 0
-        tried = np.zeros(H * W, bool)  # seeds of patches already fitted in this region
-        while len(left) >= params.min_region_px and attempts < params.max_instances_per_region:
-            progress = False
-            many = model.sphere_radius is None and _holds_many(frame, left, model)
-            if many:
-                patch = _patch(frame, left, model, tried)
-                if patch is None:
-                    break
-                cands = [_fit_general(frame, patch, model, params)] if len(patch) >= params.min_region_px else []
-            else:
-                cands = _candidates(frame, left, model, params)
-            for T, err in cands:
-                attempts += 1
-                fit = _accept(frame, left, model, params, T, err)
-                if fit is None:
-                    continue
-                accepted.append(fit[0])
-                known.append(fit[2])
-                left = left[~fit[1]]
-                progress = True
-                if len(left) < params.min_region_px or attempts >= params.max_instances_per_region:
-                    break
-            if not progress:
-                if many:
-                    continue  # the next patch
-                break
-            parts = segment(xyz, left, f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
-                            min_px=params.min_region_px)
-            if not parts:
-                break
-            left = parts[0]
-            pending.extend(parts[1:])
+        pending.extend(_fit_region(frame, region, model, params, accepted, known, explained, shifts=0))
+    if params.seed_shifts > 0 and accepted:
+        # the second pass: what no fit explains, segmented again; each region a partly visible instance
+        seeds = [r for r in segment(xyz, np.flatnonzero(zv.reshape(-1) & ~explained), f_px=f, jump_mm=params.jump_mm,
+                                    jump_px=params.jump_px, min_px=SEED_MIN_PX)]
+        noise = max(float(np.median([e for _, e, _ in accepted])), params.err_floor_mm)
+        seed_params = replace(params, max_err_mm=min(params.max_err_mm, params.seed_err_ratio * noise),
+                              min_support=params.seed_min_support)
+        for region in seeds:
+            min_px = max(SEED_MIN_PX, int(np.ceil(params.seed_min_share * _projected_area(frame, region, model))))
+            if len(region) >= min_px:
+                seeds.extend(_fit_region(frame, region, model, seed_params, accepted, known, explained,
+                                         shifts=params.seed_shifts, min_px=min_px))
     return _assign(frame, model, accepted, params, known)
+
+
+#: The second pass never fits a region of fewer unexplained pixels than this (the labelling page's
+#: person decides proposals this small well: issue 29).
+SEED_MIN_PX = 10
+
+
+def _projected_area(frame: _Frame, flat: np.ndarray, model: PartModel) -> float:
+    """π (extent · f / z)² pixels, z the median depth of the pixels ``flat``: the area a whole
+    instance there covers at most."""
+    z = float(np.median(frame.xyz.reshape(-1, 3)[_subsample(flat, 500), 2]))
+    r = model.extent_mm * 0.5 * (frame.K[0] + frame.K[1]) / max(z, 1e-6)
+    return float(np.pi * r * r)
+
+
+def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: FitParams,
+                accepted: list[tuple[np.ndarray, float, float]], known: list[tuple[np.ndarray, np.ndarray]],
+                explained: np.ndarray, *, shifts: int, min_px: int | None = None) -> list[np.ndarray]:
+    """Fit the instances of one candidate region (module docstring, steps 2-3), appending each accepted
+    fit to ``accepted`` and ``known`` and marking its pixels in ``explained``; ``shifts``: see
+    :func:`_fit_general`; ``min_px``: the smallest region (and fit) taken, default ``min_region_px``.
+    Returns the further regions its leftovers split into, to fit the same way."""
+    min_px = params.min_region_px if min_px is None else min_px
+    H, W = frame.valid.shape
+    f = 0.5 * (frame.K[0] + frame.K[1])
+    more: list[np.ndarray] = []
+    left = region
+    attempts = 0
+    tried = np.zeros(H * W, bool)  # seeds of patches already fitted in this region
+    while len(left) >= min_px and attempts < params.max_instances_per_region:
+        progress = False
+        many = model.sphere_radius is None and _holds_many(frame, left, model)
+        if many:
+            patch = _patch(frame, left, model, tried)
+            if patch is None:
+                break
+            cands = ([_fit_general(frame, patch, model, params, shifts=shifts)]
+                     if len(patch) >= min_px else [])
+        else:
+            cands = _candidates(frame, left, model, params, shifts=shifts)
+        for T, err in cands:
+            attempts += 1
+            fit = _accept(frame, left, model, params, T, err, min_px)
+            if fit is None:
+                continue
+            accepted.append(fit[0])
+            known.append(fit[2])
+            explained[left[fit[1]]] = True
+            left = left[~fit[1]]
+            progress = True
+            if len(left) < min_px or attempts >= params.max_instances_per_region:
+                break
+        if not progress:
+            if many:
+                continue  # the next patch
+            break
+        parts = segment(frame.xyz, left, f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
+                        min_px=min_px)
+        if not parts:
+            break
+        left = parts[0]
+        more.extend(parts[1:])
+    return more
 
 
 def _holds_many(frame: _Frame, flat: np.ndarray, model: PartModel) -> bool:
@@ -469,10 +526,11 @@ def _patch(frame: _Frame, flat: np.ndarray, model: PartModel, tried: np.ndarray)
     return out
 
 
-def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> list[tuple[np.ndarray, float]]:
+def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
+                shifts: int = 0) -> list[tuple[np.ndarray, float]]:
     """The fits to try in a region: one per vote cluster for a sphere, the best one otherwise."""
     if model.sphere_radius is None:
-        return [_fit_general(frame, flat, model, params)]
+        return [_fit_general(frame, flat, model, params, shifts=shifts)]
     pts = frame.xyz.reshape(-1, 3)[flat]
     nrm = _normals_at(frame.xyz, flat)
     centres = vote_centres(pts, nrm, model.sphere_radius, min_votes=max(3, params.min_region_px // 4))
@@ -483,15 +541,18 @@ def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitPa
 
 
 def _accept(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams, T: np.ndarray,
-            err: float) -> tuple[tuple[np.ndarray, float, float], np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
+            err: float, min_px: int | None = None
+            ) -> tuple[tuple[np.ndarray, float, float], np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
     """((pose, err, support), the region's pixels it explains, the region's pixels of finite distance
-    and their distances) when the fit is accepted, else None."""
+    and their distances) when the fit is accepted (it explains at least ``min_px`` of them, default
+    ``min_region_px``), else None."""
+    min_px = params.min_region_px if min_px is None else min_px
     if not (np.isfinite(err) and err <= params.max_err_mm):
         return None
     tol = params.k * max(err, params.err_floor_mm)
     d = _model_distance(frame, T, model, flat, tol)
     near = d <= tol
-    if near.sum() < params.min_region_px:
+    if near.sum() < min_px:
         return None
     finite = np.isfinite(d)
     known = (flat[finite], d[finite])

@@ -19,7 +19,7 @@ import numpy as np
 from .kernels import icp_kernel
 from .model import PartModel
 
-__all__ = ["icp", "icp_reference", "initial_pose", "initial_poses", "initial_rotations", "pose_matrix"]
+__all__ = ["icp", "icp_reference", "initial_pose", "initial_poses", "initial_rotations", "pose_matrix", "shifted_poses"]
 
 
 #: The silhouette's edges act in the directions whose eigenvalue of the surface's (normalised)
@@ -85,6 +85,31 @@ def initial_poses(points: np.ndarray, rotations: list[np.ndarray], model: PartMo
     allm = model.probe_samples.mean(axis=0)
     front = np.where(counts[:, None] > 0, sums / np.maximum(counts, 1)[:, None], allm)
     return [pose_matrix(R, c - R @ f) for R, f in zip(Rs, front)]
+
+
+def shifted_poses(points: np.ndarray, rotations: list[np.ndarray], model: PartModel, n: int) -> list[np.ndarray]:
+    """For each rotation, ``n`` poses that put ``n`` spread camera-facing samples of the model (farthest
+    point sampling from the first facing one) on the points' centroid: the guesses of a region that
+    shows only part of an instance (a partly occluded part), whose centroid is not the centroid of the
+    model's whole facing side (:func:`initial_poses`) but may lie anywhere on it."""
+    if n < 1 or not rotations:
+        return []
+    c = points.mean(axis=0)
+    view = c / max(float(np.linalg.norm(c)), 1e-9)
+    out: list[np.ndarray] = []
+    for R in rotations:
+        facing = (model.probe_normals @ R.T) @ view < 0
+        fs = model.probe_samples[facing]
+        if not len(fs):
+            continue
+        sel = [0]
+        dmin = np.linalg.norm(fs - fs[0], axis=1)
+        for _ in range(min(n, len(fs)) - 1):
+            j = int(np.argmax(dmin))
+            sel.append(j)
+            dmin = np.minimum(dmin, np.linalg.norm(fs - fs[j], axis=1))
+        out.extend(pose_matrix(R, c - R @ fs[j]) for j in sel)
+    return out
 
 
 def _skew_rows(q: np.ndarray) -> np.ndarray:

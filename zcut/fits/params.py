@@ -47,6 +47,22 @@ class FitParams:
     sphere_tolerance : float
         The mesh is treated as a sphere (closed-form fits) when every vertex lies within this share
         of the mean radius from the vertices' centroid.
+    seed_shifts : int
+        The second pass (:func:`zcut.fits.fit_prepared`, step 4: the zone's pixels no fit of the
+        first pass explains, segmented again, each region fitted as a partly visible instance): the
+        guesses of a general part put this many spread points of the model's facing side on the
+        region's centroid, besides its whole facing side's centroid. 0: no second pass.
+    seed_min_share : float
+        The second pass fits a region of unexplained pixels only when it holds at least
+        ``min_region_px`` pixels and this share of the model's projected area (π (extent · f / z)²
+        at the region's depth): smaller pieces of a part are too ambiguous to pose.
+    seed_err_ratio : float
+        A fit of the second pass is accepted only when its Err is at most this many times the
+        median Err of the first pass's fits (the frame's own noise, at least ``err_floor_mm``; at most
+        ``max_err_mm``): a small
+        piece fits many poses, and the wrong ones (or a fit of floating points) leave a larger residual.
+    seed_min_support : float
+        ... and when its support is at least this (``min_support`` for the first pass).
     """
 
     jump_mm: float = 1.5
@@ -62,6 +78,10 @@ class FitParams:
     min_support: float = 0.5
     max_instances_per_region: int = 40
     sphere_tolerance: float = 0.01
+    seed_shifts: int = 4
+    seed_min_share: float = 0.025
+    seed_err_ratio: float = 1.5
+    seed_min_support: float = 0.5
 
     def __post_init__(self) -> None:
         _number(self, "jump_mm", gt=0)
@@ -77,3 +97,7 @@ class FitParams:
         _number(self, "min_support", ge=0, le=1)
         _number(self, "max_instances_per_region", ge=1, integer=True)
         _number(self, "sphere_tolerance", gt=0, le=0.5)
+        _number(self, "seed_shifts", ge=0, integer=True)
+        _number(self, "seed_min_share", ge=0, le=1)
+        _number(self, "seed_err_ratio", gt=0)
+        _number(self, "seed_min_support", ge=0, le=1)
