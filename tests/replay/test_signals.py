@@ -104,14 +104,47 @@ def test_a_signal_after_the_command_finished_keeps_its_status(log, sig):
     (where Python restores the default disposition) leaves the command's own exit status."""
     code = ("import os, signal, sys, time\n"
             f"sys.argv = ['zcut', 'topics', {str(log)!r}]\n"
-            "from cli.entry import run\n"
-            "status = run()\n"
+            "from cli.entry import command, end\n"
+            "status = command()\n"
             f"os.kill(os.getpid(), {int(sig)})\n"
             "time.sleep(0.2)\n"
-            "sys.exit(status)\n")
+            "end(status)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out
     assert "/camera/points" in out.stdout and "interrupted" not in out.stderr
+
+
+def test_the_end_of_the_process_waits_for_threads_and_runs_the_exit_handlers(tmp_path):
+    """The entry ends the process with ``os._exit`` once the command returned (cli/entry.py, "The end of
+    the process"), after what Python's finalisation does that anyone can see: a thread that is not a
+    daemon finishes its work, the ``atexit`` handlers and ``weakref.finalize`` clean-ups run (a
+    ``tempfile`` folder is removed), buffered output is flushed, and the status is the command's."""
+    code = ("import atexit, sys, tempfile, threading, time\n"
+            "import cli.main\n"
+            "from pathlib import Path\n"
+            f"out = Path({str(tmp_path)!r})\n"
+            "def main():\n"
+            "    def late():\n"
+            "        time.sleep(0.3)\n"
+            "        (out / 'thread').write_text('done')\n"
+            "    threading.Thread(target=late).start()\n"
+            "    atexit.register(lambda: (out / 'atexit').write_text('ran'))\n"
+            "    keep = tempfile.TemporaryDirectory(dir=out)\n"
+            "    (out / 'tmpname').write_text(keep.name)\n"
+            "    main.keep = keep\n"
+            "    sys.stdout.write('buffered, no newline')\n"
+            "    return 3\n"
+            "cli.main.main = main\n"
+            "sys.argv = ['zcut']\n"
+            "from cli.entry import run\n"
+            "run()\n"
+            "raise SystemExit('run() returned')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 3, out
+    assert out.stdout == "buffered, no newline" and out.stderr == ""
+    assert (tmp_path / "thread").read_text() == "done"
+    assert (tmp_path / "atexit").read_text() == "ran"
+    assert not Path((tmp_path / "tmpname").read_text()).exists()
 
 
 def test_an_error_the_interruption_caused_is_the_interruption():
