@@ -288,6 +288,9 @@ function fitCounts(fd) {  // the fits' proposals (decided as groups are) and the
   ent.forEach((e, k) => { if (e.src === 'u') { props++; if (st[k] && st[k] !== 'undecided') decided++; } });
   return { fits: (fd.fitEntries || []).length, rejected: (fd.fitEntries || []).filter((e) => e.rejected).length, props, decided };
 }
+// said where the counts are shown (their title): what "decided" counts, here and on the server alike
+const COUNTS_TITLE = 'a review group (or a proposal) is decided when at least half of its pixels are reviewed, by any ' +
+  'decision: accepting the proposals decides the groups whose pixels they mostly cover';
 function countsText(fd) {
   const c = groupCounts(fd), f = fitCounts(fd);
   return `${c.groups} groups · ${c.decided} decided` + (c.painted ? ` · ${c.painted} painted` : '') +
@@ -301,7 +304,7 @@ function rowClass(e, k, st) { return `cand ${st}${k === state.sel ? ' sel' : ''}
 // selects the section's next undecided entry (J does that for the whole list).
 const SECTION = { u: 'u', f: 'f', g: 'g', L: 'g' };
 function sectionText(fd, sec) {
-  if (sec === 'u') { const f = fitCounts(fd); return `proposals of the fits: ${f.props} · ${f.decided} decided · ${f.props - f.decided} undecided`; }
+  if (sec === 'u') { const f = fitCounts(fd); return `proposals: ${f.props} · ${f.decided} decided · ${f.props - f.decided} undecided`; }
   if (sec === 'f') { const f = fitCounts(fd); return `fits: ${f.fits}${f.rejected ? ` · ${f.rejected} rejected` : ''} (judged by looking; K rejects)`; }
   const c = groupCounts(fd);
   return `review groups: ${c.groups} · ${c.decided} decided · ${c.groups - c.decided} undecided` + (c.painted ? ` · ${c.painted} painted` : '');
@@ -317,7 +320,7 @@ function renderList() {
   const fd = state.cur, box = $('candlist');
   if (!fd) { box.innerHTML = ''; box.built = null; return; }
   const states = fd.states;
-  $('candcount').textContent = countsText(fd);
+  $('candcount').textContent = countsText(fd); $('candcount').title = COUNTS_TITLE;
   const b = box.built;
   if (b && b.fd === fd && b.prop === fd.prop && b.sort === state.sortKey && sameList(b.entries, fd.entries)) {
     fd.entries.forEach((e, k) => {  // the same rows: their state and selection
@@ -333,7 +336,7 @@ function renderList() {
       if (sections && !heads.has(sec)) {
         const h = document.createElement('div');
         h.className = 'sect'; h.dataset.sec = sec;
-        h.innerHTML = '<span></span><span class="jump">next undecided ▸</span>';
+        h.innerHTML = '<span></span><span class="jump">next ▸</span>';
         h.firstChild.textContent = sectionText(fd, sec);
         h.title = 'click: the next undecided entry of this section (J: of the whole list)';
         h.onclick = () => { window.zcut.inputs++; jumpUndecided(1, sec); };
@@ -1376,6 +1379,7 @@ function frameRow(index) { return state.frames.find((f) => f.index === index); }
 function updateStatus() {
   const fd = state.cur; if (!fd) return;
   const el = $('status');
+  el.title = COUNTS_TITLE;
   if (fd.nR >= fd.nValid) { el.textContent = 'frame reviewed ✓'; el.className = 'reviewed'; }
   else if (fd.nR > 0) {
     el.textContent = shadeUnreviewed(fd) ? `reviewed except ${fd.nValid - fd.nR} px (shaded)`

@@ -191,7 +191,7 @@ def test_header_panel_and_frame_list_count_the_same_things(spheres_log, tmp_path
             assert _counts(header) == _counts(panel) == ((n_g, dec_g), (n_u, n_u)), (header, panel)
             sections = page.evaluate("window.zcut.sections()")
             assert f"review groups: {n_g} · {dec_g} decided · {n_g - dec_g} undecided" in sections, sections
-            assert f"proposals of the fits: {n_u} · {n_u} decided · 0 undecided" in sections, sections
+            assert f"proposals: {n_u} · {n_u} decided · 0 undecided" in sections, sections
             li = page.text_content("#framelist li[data-index='0']")
             assert f"{n_g} groups" in li and f"{dec_g} dec." in li, li
             # the server's count of the saved label (groups with at least half of their pixels reviewed)
