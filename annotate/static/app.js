@@ -62,12 +62,13 @@ const state = {
   frames: [], order: [], orderBy: 'index', total: 0, done: false, target: null,
   cur: null, tool: 'select', brush: 8, sorMin: 5, sortKey: 'auto',
   showG: true, showZ: true, showS: false, showL: true, showH: false, showMini: true, riseMm: null, sessionLost: false,
+  showOv: true, showF: true,  // O: the whole overlay (masks, outlines, markers) on / off; 4: the fits' outlines
   zoom: 1, px: 0, py: 0, fitted: false, sel: -1, profile: null, conflictView: 'mine', turbo: null,
 };
 const cache = new Map();  // index -> Promise<frame>
 const loaded = new Map();  // index -> frame, once loaded (read synchronously when the page goes away)
 const CACHE_RADIUS = 2;
-window.zcut = { switchTimes: [], switchParts: [], acks: [], errors: [], loads: [], viewTimes: [], inputs: 0, pans: 0 };
+window.zcut = { switchTimes: [], switchParts: [], acks: [], errors: [], loads: [], viewTimes: [], drawTimes: [], inputs: 0, pans: 0 };
 
 const COL_L = rgba(255, 30, 60, 200), COL_Z = rgba(255, 170, 0, 150), COL_S = rgba(40, 150, 255, 140);
 const COL_ZS = rgba(190, 90, 255, 160), COL_UNREV = rgba(0, 0, 0, 150), COL_DIFF = rgba(255, 0, 255, 220);
@@ -81,8 +82,8 @@ const RGB = { accepted: [255, 30, 60], rejected: [95, 211, 141], g: [0, 230, 230
               L: [255, 77, 166], u: [255, 235, 0] };
 
 // ------------------------------------------------------------------ loading frames
-function flags() { return { showL: state.showL, showZ: state.showZ, showS: state.showS, showG: state.showG, sorMin: state.sorMin }; }
-function sameFlags(a, b) { return a && a.showL === b.showL && a.showZ === b.showZ && a.showS === b.showS && a.showG === b.showG && a.sorMin === b.sorMin; }
+function flags() { return { showL: state.showL, showZ: state.showZ, showS: state.showS, showG: state.showG, showF: state.showF, sorMin: state.sorMin }; }
+function sameFlags(a, b) { return a && a.showL === b.showL && a.showZ === b.showZ && a.showS === b.showS && a.showG === b.showG && a.showF === b.showF && a.sorMin === b.sorMin; }
 function viewKind() { return state.showH ? 'height' : 'rgb'; }
 
 function setLabel(fd, lab) {
@@ -287,55 +288,112 @@ function fitCounts(fd) {  // the fits' proposals (decided as groups are) and the
   ent.forEach((e, k) => { if (e.src === 'u') { props++; if (st[k] && st[k] !== 'undecided') decided++; } });
   return { fits: (fd.fitEntries || []).length, rejected: (fd.fitEntries || []).filter((e) => e.rejected).length, props, decided };
 }
+// said where the counts are shown (their title): what "decided" counts, here and on the server alike
+const COUNTS_TITLE = 'a review group (or a proposal) is decided when at least half of its pixels are reviewed, by any ' +
+  'decision: accepting the proposals decides the groups whose pixels they mostly cover';
 function countsText(fd) {
   const c = groupCounts(fd), f = fitCounts(fd);
   return `${c.groups} groups · ${c.decided} decided` + (c.painted ? ` · ${c.painted} painted` : '') +
     (f.fits ? ` · ${f.fits} fits${f.rejected ? ` (${f.rejected} rejected)` : ''} · ${f.props} proposals, ${f.decided} decided` : '');
 }
+function stText(e, st) {  // a row's decision column
+  return e.src === 'f' && e.rejected ? 'fit rejected' : st === 'accepted' ? 'outlier' : st === 'rejected' ? 'not outlier' : '·';
+}
+function rowClass(e, k, st) { return `cand ${st}${k === state.sel ? ' sel' : ''}${e.rejected ? ' fitrej' : ''}`; }
+// The list's sections (only when the fits add their own): a head row each, with its counts; a click on it
+// selects the section's next undecided entry (J does that for the whole list).
+const SECTION = { u: 'u', f: 'f', g: 'g', L: 'g' };
+function sectionText(fd, sec) {
+  if (sec === 'u') { const f = fitCounts(fd); return `proposals: ${f.props} · ${f.decided} decided · ${f.props - f.decided} undecided`; }
+  if (sec === 'f') { const f = fitCounts(fd); return `fits: ${f.fits}${f.rejected ? ` · ${f.rejected} rejected` : ''} (judged by looking; K rejects)`; }
+  const c = groupCounts(fd);
+  return `review groups: ${c.groups} · ${c.decided} decided · ${c.groups - c.decided} undecided` + (c.painted ? ` · ${c.painted} painted` : '');
+}
+function sameList(a, b) {
+  if (!a || !b || a.length !== b.length) return false;
+  for (let k = 0; k < a.length; k++) if (a[k] !== b[k]) return false;
+  return true;
+}
+// Every entry has its row (thousands on a ray-traced frame: the rows are built once per list and only their
+// state and selection are updated on a decision; the browser lays out only the rows in view).
 function renderList() {
   const fd = state.cur, box = $('candlist');
-  if (!fd) { box.innerHTML = ''; return; }
+  if (!fd) { box.innerHTML = ''; box.built = null; return; }
   const states = fd.states;
-  $('candcount').textContent = countsText(fd);
-  const frag = document.createDocumentFragment();
-  const MAX_ROWS = 800;
-  fd.entries.slice(0, MAX_ROWS).forEach((e, k) => {
-    const row = document.createElement('div');
-    row.className = `cand ${states[k]}${k === state.sel ? ' sel' : ''}`;
-    row.dataset.k = k;
-    const p = propP(fd, e), conf = confident(fd, e);
-    const prop = isNaN(p) ? '' : `${p >= 0.5 ? 'out' : 'in'} ${Math.round(100 * Math.max(p, 1 - p))} %`;
-    if (e.src === 'f' || e.src === 'u') { frag.appendChild(fitRow(fd, e, k, states[k])); return; }
-    const why = e.src === 'L' ? 'painted' : e.source + (e.also.length ? ` +${e.also.join(',')}` : '');
-    row.title = e.src === 'L' ? 'labelled by hand, no group covers it' :
-      `${e.source}: ${e.n} px, median gap to the local surface ${isNaN(e.gap) ? 'unknown (no surface below): judge by the 3D view / profile' : e.gap >= 0 ? e.gap.toFixed(2) + ' mm above it' : (-e.gap).toFixed(2) + ' mm below it'}` + (e.also.length ? `; also flagged by ${e.also.join(', ')}` : '');
-    row.innerHTML = `<span class="src ${e.src}">${why}</span><span>${e.n} px</span>` +
-      `<span class="gap${isNaN(e.gap) && e.src === 'g' ? ' unknown' : ''}"${isNaN(e.gap) && e.src === 'g' ? ` title="${GAP_UNKNOWN}"` : ''}>${e.src === 'g' ? gapText(e.gap) : ''}</span>` +
-      `<span class="agree${conf ? ' conf' : ''}">${prop}</span><span class="st">${
-        states[k] === 'accepted' ? 'outlier' : states[k] === 'rejected' ? 'not outlier' : '·'}</span>`;
-    row.onclick = () => { window.zcut.inputs++; select(k, { zoom: true }); };
-    frag.appendChild(row);
-  });
-  const head = document.createElement('div');
-  head.className = 'cand head';
-  head.innerHTML = '<span>why (detector)</span><span>size</span><span>gap to surface</span><span title="the assistant: outlier or inlier, confidence">assist.</span><span>decision</span>';
-  box.replaceChildren(head, frag);
-  const selRow = box.querySelector('.sel');
+  $('candcount').textContent = countsText(fd); $('candcount').title = COUNTS_TITLE;
+  const b = box.built;
+  if (b && b.fd === fd && b.prop === fd.prop && b.sort === state.sortKey && sameList(b.entries, fd.entries)) {
+    fd.entries.forEach((e, k) => {  // the same rows: their state and selection
+      const row = b.rows[k], cls = rowClass(e, k, states[k]);
+      if (row.className !== cls) { row.className = cls; row.querySelector('.st').textContent = stText(e, states[k]); }
+    });
+    for (const [sec, el] of b.heads) el.firstChild.textContent = sectionText(fd, sec);
+  } else {
+    const frag = document.createDocumentFragment(), rows = [], heads = new Map();
+    const sections = new Set(fd.entries.map((e) => SECTION[e.src] || 'g')).size > 1;
+    fd.entries.forEach((e, k) => {
+      const sec = SECTION[e.src] || 'g';
+      if (sections && !heads.has(sec)) {
+        const h = document.createElement('div');
+        h.className = 'sect'; h.dataset.sec = sec;
+        h.innerHTML = '<span></span><span class="jump">next ▸</span>';
+        h.firstChild.textContent = sectionText(fd, sec);
+        h.title = 'click: the next undecided entry of this section (J: of the whole list)';
+        h.onclick = () => { window.zcut.inputs++; jumpUndecided(1, sec); };
+        heads.set(sec, h); frag.appendChild(h);
+      }
+      const row = listRow(fd, e, k, states[k]);
+      rows.push(row); frag.appendChild(row);
+    });
+    const head = document.createElement('div');
+    head.className = 'cand head';
+    head.innerHTML = '<span>why (detector)</span><span>size</span><span>gap to surface</span><span title="the assistant: outlier or inlier, confidence">assist.</span><span>decision</span>';
+    box.replaceChildren(head, frag);
+    box.built = { fd, prop: fd.prop, sort: state.sortKey, entries: fd.entries.slice(), rows, heads };
+  }
+  const selRow = state.sel >= 0 ? box.built.rows[state.sel] : null;
   if (selRow) selRow.scrollIntoView({ block: 'nearest' });
   renderBulkHint(fd);
   updateInfo();  // the header and the frame list count what the panel counts
 }
+function listRow(fd, e, k, st) {
+  if (e.src === 'f' || e.src === 'u') return fitRow(fd, e, k, st);
+  const row = document.createElement('div');
+  row.className = rowClass(e, k, st);
+  row.dataset.k = k;
+  const p = propP(fd, e), conf = confident(fd, e);
+  const prop = isNaN(p) ? '' : `${p >= 0.5 ? 'out' : 'in'} ${Math.round(100 * Math.max(p, 1 - p))} %`;
+  const why = e.src === 'L' ? 'painted' : e.source + (e.also.length ? ` +${e.also.join(',')}` : '');
+  row.title = e.src === 'L' ? 'labelled by hand, no group covers it' :
+    `${e.source}: ${e.n} px, median gap to the local surface ${isNaN(e.gap) ? 'unknown (no surface below): judge by the 3D view / profile' : e.gap >= 0 ? e.gap.toFixed(2) + ' mm above it' : (-e.gap).toFixed(2) + ' mm below it'}` + (e.also.length ? `; also flagged by ${e.also.join(', ')}` : '');
+  row.innerHTML = `<span class="src ${e.src}">${why}</span><span>${e.n} px</span>` +
+    `<span class="gap${isNaN(e.gap) && e.src === 'g' ? ' unknown' : ''}"${isNaN(e.gap) && e.src === 'g' ? ` title="${GAP_UNKNOWN}"` : ''}>${e.src === 'g' ? gapText(e.gap) : ''}</span>` +
+    `<span class="agree${conf ? ' conf' : ''}">${prop}</span><span class="st">${stText(e, st)}</span>`;
+  row.onclick = () => { window.zcut.inputs++; select(+row.dataset.k, { zoom: true }); };
+  return row;
+}
+// J / Shift+J: the next / previous undecided entry of the list (of one section: a click on its head)
+function jumpUndecided(d, sec = null) {
+  const fd = state.cur; if (!fd || !fd.entries.length) return;
+  const n = fd.entries.length;
+  for (let s = 1; s <= n; s++) {
+    const k = ((state.sel < 0 ? (d > 0 ? -1 : 0) : state.sel) + d * s + 2 * n) % n, e = fd.entries[k];
+    if (e.src === 'f' || (sec && (SECTION[e.src] || 'g') !== sec)) continue;
+    if (fd.states[k] === 'undecided') { select(k, { zoom: true }); return; }
+  }
+  setSaveState(sec ? 'nothing undecided left in this section' : 'nothing undecided left in the list', 'saved');
+}
 
 function fitRow(fd, e, k, st) {  // a fit ('f') or a proposal of the fits ('u') in the list
   const row = document.createElement('div');
-  row.className = `cand ${st}${k === state.sel ? ' sel' : ''}${e.rejected ? ' fitrej' : ''}`;
+  row.className = rowClass(e, k, st);
   row.dataset.k = k;
   const k3 = fd.fits ? fd.fits.header.k : 3;
   if (e.src === 'f') {
     row.title = `fitted instance #${e.id}: explains ${e.n} px within ${k3} × Err; residual Err ${e.err.toFixed(3)} mm, ` +
       `${Math.round(100 * e.support)} % of its visible surface supported` + (e.rejected ? '; rejected (K takes it back)' : '; K rejects it');
     row.innerHTML = `<span class="src f">fit #${e.id}${e.seeded ? ' (seed)' : ''}</span><span>${e.n} px</span><span class="err">Err ${e.err.toFixed(2)} mm</span>` +
-      `<span>${Math.round(100 * e.support)} %</span><span class="st">${e.rejected ? 'fit rejected' : st === 'accepted' ? 'outlier' : st === 'rejected' ? 'not outlier' : '·'}</span>`;
+      `<span>${Math.round(100 * e.support)} %</span><span class="st">${stText(e, st)}</span>`;
   } else {
     const from = e.fromFit >= 0 ? `fit #${e.fromFit + 1} rej.` : 'unexplained';
     row.title = e.fromFit >= 0 ? `the pixels of rejected fit #${e.fromFit + 1}: decide them` :
@@ -343,9 +401,9 @@ function fitRow(fd, e, k, st) {  // a fit ('f') or a proposal of the fits ('u') 
       `(largest ${e.distMax.toFixed(2)} mm, Err ${e.err.toFixed(2)} mm)`;
     row.innerHTML = `<span class="src u">${from}</span><span>${e.n} px</span>` +
       `<span class="dist">${isNaN(e.dist) ? 'fit rejected' : `${e.dist.toFixed(1)} mm off`}</span><span></span>` +
-      `<span class="st">${st === 'accepted' ? 'outlier' : st === 'rejected' ? 'not outlier' : '·'}</span>`;
+      `<span class="st">${stText(e, st)}</span>`;
   }
-  row.onclick = () => { window.zcut.inputs++; select(k, { zoom: true }); };
+  row.onclick = () => { window.zcut.inputs++; select(+row.dataset.k, { zoom: true }); };
   return row;
 }
 
@@ -750,7 +808,8 @@ function renderOverlay(x0 = 0, y0 = 0, x1 = null, y1 = null) {
   const c = fd.conflict, cv = c && c.theirs ? state.conflictView : 'mine';
   const L = cv === 'theirs' ? c.theirs.L : fd.L, other = cv === 'diff' ? c.theirs.L : null;
   const sL = state.showL, sZ = state.showZ, sS = state.showS, sG = state.showG, sorMin = state.sorMin, gIds = fd.gIds;
-  const fits = fd.fits && fd.fits.fit_ids ? fd.fits : null, fIds = fits ? fits.fit_ids : null, uIds = fits ? fits.proposals : null;
+  const fits = fd.fits && fd.fits.fit_ids ? fd.fits : null, fIds = fits && state.showF ? fits.fit_ids : null;
+  const uIds = fits ? fits.proposals : null;
   const fx = fd.fitEntries || [];
   for (let y = y0; y < y1; y++) {
     let i = y * W + x0;
@@ -761,9 +820,13 @@ function renderOverlay(x0 = 0, y0 = 0, x1 = null, y1 = null) {
       else {
         const z = sZ && zIds[i] !== 0, s = sS && sIds[i] !== 0 && sSize[sIds[i]] >= sorMin;
         const f = fIds ? fIds[i] : 0;
-        if (uIds && uIds[i] !== 0) col = R[i] ? COL_GR : COL_U;
-        else if (f && ((x > 0 && fIds[i - 1] !== f) || (x < W - 1 && fIds[i + 1] !== f) ||  // a fit's outline
-                       (y > 0 && fIds[i - W] !== f) || (y < fd.H - 1 && fIds[i + W] !== f))) col = fx[f - 1] && fx[f - 1].rejected ? COL_FITX : COL_FIT;
+        if (uIds && uIds[i] !== 0) col = R[i] ? COL_UR : COL_U;  // a proposal's pixel: undecided, not outlier
+        // a fit's outline: its pixels next to a valid pixel not its own (not every hole's rim: on a ray-traced
+        // frame those made most of the pile lime)
+        else if (f && ((x > 0 && fIds[i - 1] !== f && valid[i - 1]) || (x < W - 1 && fIds[i + 1] !== f && valid[i + 1]) ||
+                       (y > 0 && fIds[i - W] !== f && valid[i - W]) || (y < fd.H - 1 && fIds[i + W] !== f && valid[i + W]))) {
+          col = fx[f - 1] && fx[f - 1].rejected ? COL_FITX : COL_FIT;
+        }
         else if (sG && gIds[i] !== 0) col = R[i] ? COL_GR : COL_G;
         else if (z) col = s ? COL_ZS : COL_Z; else if (s) col = COL_S;
         else if (shade && valid[i] && !R[i]) col = COL_UNREV;
@@ -772,6 +835,7 @@ function renderOverlay(x0 = 0, y0 = 0, x1 = null, y1 = null) {
     }
   }
   fd.octx.putImageData(fd.ovImg, 0, 0, x0, y0, x1 - x0, y1 - y0);
+  fd.ovVersion = (fd.ovVersion || 0) + 1;
 }
 
 let drawQueued = false;
@@ -782,6 +846,12 @@ function requestDraw() {
 }
 
 function draw() {
+  const t0 = performance.now();
+  drawFrame();
+  const z = window.zcut.drawTimes;
+  z.push(performance.now() - t0); if (z.length > 500) z.splice(0, z.length - 500);
+}
+function drawFrame() {
   const fd = state.cur;
   const dpr = window.devicePixelRatio || 1;
   const cw = Math.round(canvas.clientWidth * dpr), ch = Math.round(canvas.clientHeight * dpr);
@@ -794,7 +864,8 @@ function draw() {
   ctx.imageSmoothingEnabled = state.zoom < 1;
   ctx.drawImage(bitmapFor(fd), 0, 0);
   ctx.imageSmoothingEnabled = false;
-  ctx.drawImage(fd.ovCanvas || fd.ovBmp, 0, 0);
+  if (state.showOv) ctx.drawImage(fd.ovCanvas || fd.ovBmp, 0, 0);
+  drawOutlines(fd);
   // tool previews (image coordinates)
   ctx.lineWidth = 1.5 / state.zoom; ctx.strokeStyle = '#fff';
   if (drag && drag.kind === 'box') {
@@ -810,6 +881,10 @@ function draw() {
   // screen space: candidate markers (visible at any zoom), the profile line
   ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
   drawMarkers(fd);
+  if (!state.showOv) {  // the overlay hidden: the image as it is, and a word that it is hidden
+    ctx.font = '12px system-ui'; ctx.fillStyle = 'rgba(0,0,0,0.6)'; ctx.fillRect(6, 6, 150, 18);
+    ctx.fillStyle = '#fc6'; ctx.fillText('overlay hidden (O)', 12, 19);
+  }
   const pr = state.profile;
   if (pr) {
     const a = toScreen(pr.x0 + 0.5, pr.y0 + 0.5), b = toScreen(pr.x1 + 0.5, pr.y1 + 0.5);
@@ -826,17 +901,68 @@ function draw() {
 
 function toScreen(x, y) { return { x: state.px + x * state.zoom, y: state.py + y * state.zoom }; }
 
+// The proposal under the pointer (its outline and ring are drawn, as the selected entry's), or null.
+function hoverEntry(fd) {
+  if (!hover || !fd.propEntries || !fd.propEntries.length || !fd.fits || !fd.fits.proposals) return null;
+  const x = Math.floor(hover.x), y = Math.floor(hover.y);
+  if (x < 0 || y < 0 || x >= fd.W || y >= fd.H) return null;
+  const u = fd.fits.proposals[y * fd.W + x];
+  return u ? fd.propEntries[u - 1] || null : null;
+}
+function hoverFit(fd) { return hover && state.showOv ? fitAt(fd, hover.x, hover.y) : null; }  // outlined, as K takes it
+
+// The outline of an entry's pixels: the sides of its pixels that face a pixel not in it, as line segments
+// (image coordinates), computed once per entry.
+function outlineOf(fd, e) {
+  if (e.outline) return e.outline;
+  const W = fd.W, H = fd.H;
+  if (!fd.mark || fd.mark.length !== W * H) fd.mark = new Uint8Array(W * H);
+  const m = fd.mark, seg = [];
+  for (const i of e.pix) m[i] = 1;
+  for (const i of e.pix) {
+    const x = i % W, y = (i / W) | 0;
+    if (x === 0 || !m[i - 1]) seg.push(x, y, x, y + 1);
+    if (x === W - 1 || !m[i + 1]) seg.push(x + 1, y, x + 1, y + 1);
+    if (y === 0 || !m[i - W]) seg.push(x, y, x + 1, y);
+    if (y === H - 1 || !m[i + W]) seg.push(x, y + 1, x + 1, y + 1);
+  }
+  for (const i of e.pix) m[i] = 0;
+  e.outline = Float32Array.from(seg);
+  return e.outline;
+}
+function drawOutlines(fd) {  // image space: the selected entry's and the hovered proposal's pixels, outlined
+  if (!fd.entries) return;
+  const sel = state.sel >= 0 ? fd.entries[state.sel] : null, hov = state.showOv ? hoverEntry(fd) || hoverFit(fd) : null;
+  for (const e of hov && hov !== sel ? [hov, sel] : [sel]) {
+    if (!e || !e.pix || e.pix.length > 200000) continue;
+    const s = outlineOf(fd, e);
+    ctx.beginPath();
+    for (let k = 0; k < s.length; k += 4) { ctx.moveTo(s[k], s[k + 1]); ctx.lineTo(s[k + 2], s[k + 3]); }
+    ctx.lineWidth = 3 / state.zoom; ctx.strokeStyle = 'rgba(0,0,0,0.8)'; ctx.stroke();
+    ctx.lineWidth = 1.5 / state.zoom; ctx.strokeStyle = e === sel ? COL.sel : e.src === 'f' ? '#d8ff80' : '#ffe97a'; ctx.stroke();
+  }
+}
+
 function drawMarkers(fd) {
   if (!fd.entries) return;
   const vw = canvas.clientWidth, vh = canvas.clientHeight;
   const states = fd.states || [];
   const rank = { f: -1, s: 0, L: 1, g: 1, u: 2, z: 2 };  // z-cut drawn last (on top), the selected one after all
-  drawFitLabels(fd);
-  const order = fd.entries.map((e, k) => k).sort((a, b) => (a === state.sel) - (b === state.sel) ||
-    rank[fd.entries[a].src] - rank[fd.entries[b].src]);
+  const hov = state.showOv ? hoverEntry(fd) : null;
+  if (state.showOv) drawFitLabels(fd);
+  // a marker for each review group (and z-cut / SOR / painted entry); the fits' proposals have none but the
+  // hovered one's (their pixels are the tinted mask: thousands of rings would hide the pile); nothing but the
+  // selected entry's while the overlay is hidden (O)
+  const order = [];
+  fd.entries.forEach((e, k) => {
+    if (k === state.sel || e.src === 'f') return;  // a fit: its outline and Err label (drawFitLabels)
+    if (e.src === 'u' ? e === hov : state.showOv) order.push(k);
+  });
+  order.sort((a, b) => rank[fd.entries[a].src] - rank[fd.entries[b].src]);
+  if (state.sel >= 0 && state.sel < fd.entries.length) order.push(state.sel);
+  drawMarkers.drawn = order.map((k) => ({ src: fd.entries[k].src, id: fd.entries[k].id, sel: k === state.sel }));
   order.forEach((k) => {
     const e = fd.entries[k];
-    if (e.src === 'f' && k !== state.sel) return;  // a fit: its outline and Err label (drawFitLabels)
     // a ring of at least 7 px around a small cluster, a box around a large one: seen at any zoom
     const c = toScreen(e.cx, e.cy), p0 = toScreen(e.x0, e.y0), p1 = toScreen(e.x1, e.y1);
     const big = Math.max(p1.x - p0.x, p1.y - p0.y) > 24;
@@ -892,10 +1018,21 @@ function drawMinimap(fd) {
   g.setTransform(1, 0, 0, 1, 0, 0);
   const small = fd.small[viewKind()] || fd.small.rgb || fd.small.height;
   if (small) g.drawImage(small, 0, 0, mm.width, mm.height); else { g.fillStyle = '#000'; g.fillRect(0, 0, mm.width, mm.height); }
+  if (state.showOv) {  // the overlay, shrunk (once per change of it): where the proposals are, by state
+    const ov = fd.ovCanvas || fd.ovBmp;
+    if (ov && (!fd.ovSmall || fd.ovSmallAt !== fd.ovVersion || fd.ovSmall.width !== mm.width || fd.ovSmall.height !== mm.height)) {
+      if (!fd.ovSmall) fd.ovSmall = document.createElement('canvas');
+      fd.ovSmall.width = mm.width; fd.ovSmall.height = mm.height;
+      const sg = fd.ovSmall.getContext('2d');
+      sg.imageSmoothingEnabled = true; sg.drawImage(ov, 0, 0, mm.width, mm.height);
+      fd.ovSmallAt = fd.ovVersion;
+    }
+    if (ov) g.drawImage(fd.ovSmall, 0, 0);
+  }
   g.setTransform(dpr * w / fd.W, 0, 0, dpr * h / fd.H, 0, 0);
   const s = fd.W / w;
   (fd.entries || []).forEach((e, k) => {
-    if (e.src === 'f' && k !== state.sel) return;  // the fits are outlined in the view
+    if (k !== state.sel && (e.src === 'f' || e.src === 'u' || !state.showOv)) return;  // fits outlined, proposals tinted
     const st = (fd.states || [])[k] || 'undecided';
     g.fillStyle = k === state.sel ? COL.sel : st === 'undecided' ? COL[e.src] : COL[st];
     const r = (k === state.sel ? 3.5 : 2) * s;
@@ -1034,7 +1171,10 @@ function showFrameWarning(fd) {
 // the unexplained pixels (farther than k × Err from every known surface) are the proposals ('u' entries),
 // each with its distance to the nearest known surface. K rejects the selected fit (or the one under the
 // pointer): its pixels return to review as proposals of their own; K again takes the rejection back.
-const COL_FIT = rgba(170, 255, 0, 230), COL_FITX = rgba(255, 0, 255, 230), COL_U = rgba(255, 235, 0, 170);
+// The proposals are drawn as a per-pixel tint by state (no marker but the selected's and the hovered one's): undecided
+// yellow, outlier red (the labels' colour), not outlier green; translucent enough that the image reads through.
+const COL_FIT = rgba(170, 255, 0, 120), COL_FITX = rgba(255, 0, 255, 230), COL_U = rgba(255, 235, 0, 150);
+const COL_UR = rgba(95, 211, 141, 120);
 function parseFitsBundle(buf) {  // an uncompressed bundle of annotate/payload.py: sparse ids and tables
   const dv = new DataView(buf), n = dv.getUint32(0, true);
   const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
@@ -1239,6 +1379,7 @@ function frameRow(index) { return state.frames.find((f) => f.index === index); }
 function updateStatus() {
   const fd = state.cur; if (!fd) return;
   const el = $('status');
+  el.title = COUNTS_TITLE;
   if (fd.nR >= fd.nValid) { el.textContent = 'frame reviewed ✓'; el.className = 'reviewed'; }
   else if (fd.nR > 0) {
     el.textContent = shadeUnreviewed(fd) ? `reviewed except ${fd.nValid - fd.nR} px (shaded)`
@@ -1769,7 +1910,7 @@ window.zcut.state = () => {
   const e = state.sel >= 0 ? fd.entries[state.sel] : null;
   return { index: fd.index, rev: fd.rev, dirty: fd.dirty, saving: fd.saving, conflict: fd.conflict ? fd.conflict.latest : 0,
            nL, nR, nValid: fd.nValid, W: fd.W, H: fd.H, tool: state.tool, zoom: state.zoom, annotator: state.annotator,
-           brush: state.brush, view: state.showH ? 'height' : 'rgb', progress: $('progress').textContent,
+           brush: state.brush, view: state.showH ? 'height' : 'rgb', overlay: state.showOv, progress: $('progress').textContent,
            status: $('status').textContent, target: state.target, sel: state.sel, entries: fd.entries.length,
            states: fd.states ? fd.states.slice() : [], selected: e ? { src: e.src, id: e.id, n: e.n, cx: e.cx, cy: e.cy,
              gap: e.gap, x0: e.x0, y0: e.y0, x1: e.x1, y1: e.y1, screen: toScreen(e.cx, e.cy) } : null,
@@ -1796,6 +1937,24 @@ window.zcut.proposals = () => {
            n: fd.prop.p.length, out: out.map((e) => e.id), inl: inl.map((e) => e.id), model: fd.prop.model };
 };
 window.zcut.readout = () => $('readout').textContent;
+window.zcut.look = (x, y, zoom) => {  // centre image pixel (x, y) at a zoom, drawn now (the tests read the canvas)
+  state.zoom = zoom; state.px = canvas.clientWidth / 2 - (x + 0.5) * zoom; state.py = canvas.clientHeight / 2 - (y + 0.5) * zoom;
+  draw();
+};
+window.zcut.canvasPixel = (x, y) => {  // [r, g, b, a] the view shows inside image pixel (x, y) (off its centre:
+  const dpr = window.devicePixelRatio || 1, s = toScreen(x + 0.3, y + 0.3);  // a profile line runs through centres)
+  return Array.from(ctx.getImageData(Math.floor(s.x * dpr), Math.floor(s.y * dpr), 1, 1).data);
+};
+window.zcut.overlayColour = (name) => {  // an overlay colour as [r, g, b, a]
+  const c = { U: COL_U, UR: COL_UR, L: COL_L, G: COL_G, GR: COL_GR }[name];
+  return [c & 255, (c >>> 8) & 255, (c >>> 16) & 255, c >>> 24];
+};
+window.zcut.markers = () => drawMarkers.drawn;
+window.zcut.markerBoxes = () => {  // the boxes of the entries that have a marker (not the proposals, not the fits)
+  const fd = state.cur; if (!fd) return [];
+  return fd.entries.filter((e) => e.src !== 'u' && e.src !== 'f').map((e) => [e.x0, e.y0, e.x1, e.y1]);
+};
+window.zcut.sections = () => [...document.querySelectorAll('#candlist .sect')].map((h) => h.firstChild.textContent);
 window.zcut.fits = () => {
   const fd = state.cur; if (!fd || !fd.fits) return null;
   const h = fd.fits.header;
@@ -1924,6 +2083,10 @@ function setSorMin(v) {
   const fd = state.cur;
   if (fd) { refreshList(fd, true); renderOverlay(); requestDraw(); }
 }
+function setOverlay(on) {  // O: the whole overlay (masks, outlines, markers, Err labels) shown or hidden; nothing else changes
+  state.showOv = on; $('showOv').checked = on;
+  requestDraw();
+}
 function toggle(key) {
   state[key] = !state[key]; $(key).checked = state[key];
   if (state.cur) { refreshList(state.cur, true); renderOverlay(); }
@@ -1980,6 +2143,10 @@ window.addEventListener('keydown', (e) => {
     case '2': toggle('showS'); break;
     case '3': toggle('showL'); break;
     case 'h': case 'H': toggle('showH'); break;
+    case '4': toggle('showF'); break;
+    case 'o': case 'O': setOverlay(!state.showOv); break;
+    case 'j': jumpUndecided(1); break;
+    case 'J': jumpUndecided(-1); break;
     default: return;
   }
   window.zcut.inputs++;
@@ -1999,7 +2166,8 @@ for (const b of document.querySelectorAll('#tools button')) b.onclick = buttonAc
 $('brushsize').oninput = (e) => setBrush(+e.target.value);
 $('rise').oninput = (e) => setRise(+e.target.value);
 $('sormin').oninput = (e) => setSorMin(+e.target.value);
-for (const key of ['showG', 'showZ', 'showS', 'showL', 'showH']) $(key).onchange = () => { toggle(key); $(key).blur(); };
+for (const key of ['showG', 'showZ', 'showS', 'showL', 'showH', 'showF']) $(key).onchange = () => { toggle(key); $(key).blur(); };
+$('showOv').onchange = () => { setOverlay($('showOv').checked); $('showOv').blur(); };
 $('sortkey').onchange = (e) => { state.sortKey = e.target.value; e.target.blur(); if (state.cur) refreshList(state.cur, true); requestDraw(); };
 $('orderby').onchange = (e) => { setOrder(e.target.value); e.target.blur(); };
 $('prev').onclick = buttonAction(() => step(-1));
