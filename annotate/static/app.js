@@ -477,7 +477,7 @@ function acceptProposals() {  // Y: the assistant's confident proposals of the u
   if (!out.length && !inl.length) { setSaveState('no confident proposal left on this frame', 'saved'); return; }
   beginAction(fd);
   for (const [list, mode] of [[out, 'add'], [inl, 'erase']]) for (const e of list) {
-    for (const i of e.pix) setPixel(fd, i, mode);
+    for (const i of e.pix) if (!fd.R[i]) setPixel(fd, i, mode);  // as decideAll: decided pixels stay
     touch(e.x0, e.y0, e.x1, e.y1);
   }
   endAction(fd);
@@ -491,7 +491,9 @@ function decideAll(accept, proposalsOnly = false) {  // every undecided listed g
   beginAction(fd);
   fd.entries.forEach((e) => {
     if ((e.src !== 'u' && (proposalsOnly || e.src !== 'g')) || entryState(fd, e) !== 'undecided') return;
-    for (const i of e.pix) setPixel(fd, i, accept ? 'add' : 'erase');
+    // a bulk decision fills what no decision reached yet: the pixels another entry decided (a proposal
+    // taken as outliers inside a group left undecided) keep that decision
+    for (const i of e.pix) if (!fd.R[i]) setPixel(fd, i, accept ? 'add' : 'erase');
     touch(e.x0, e.y0, e.x1, e.y1);
   });
   endAction(fd);

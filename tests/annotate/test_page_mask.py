@@ -211,8 +211,8 @@ def test_header_panel_and_frame_list_count_the_same_things(spheres_log, tmp_path
 def test_a_fixed_input_sequence_saves_the_labels_its_decisions_define(spheres_log, tmp_path, browser):
     """Tab, A, R, J, A, a click on a review group's row, A, Shift+U, Shift+R: the saved label is what those
     decisions mean, computed here from the server's pixel sets (a decision takes an entry's valid pixels as a
-    whole; an entry is decided when at least half of its pixels are reviewed, accepted when half are
-    outliers): the drawing changed nothing of it."""
+    whole, a bulk one only those no decision reached yet; an entry is decided when at least half of its
+    pixels are reviewed, accepted when half are outliers): the drawing changed nothing of it."""
     db = tmp_path / "labels.sqlite"
     srv = _server(spheres_log, db)
     try:
@@ -231,8 +231,10 @@ def test_a_fixed_input_sequence_saves_the_labels_its_decisions_define(spheres_lo
         L = np.zeros(H * W, bool)
         R = np.zeros(H * W, bool)
 
-        def apply(p, accept):
+        def apply(p, accept, bulk=False):
             p = p[valid[p]]
+            if bulk:  # Shift+U / Shift+R fill only the pixels no decision reached yet
+                p = p[~R[p]]
             L[p] = accept
             R[p] = True
 
@@ -265,11 +267,14 @@ def test_a_fixed_input_sequence_saves_the_labels_its_decisions_define(spheres_lo
             page.keyboard.press("Shift+U")
             for e in entries:
                 if e["src"] == "u" and state(pix("u", e["id"])) == "undecided":
-                    apply(pix("u", e["id"]), True)
+                    apply(pix("u", e["id"]), True, bulk=True)
             page.keyboard.press("Shift+R")
+            kept = 0  # outliers Shift+U took inside the groups Shift+R rejects: they stay outliers
             for e in entries:
                 if e["src"] in ("u", "g") and state(pix(e["src"], e["id"])) == "undecided":
-                    apply(pix(e["src"], e["id"]), False)
+                    kept += int(L[pix(e["src"], e["id"])].sum())
+                    apply(pix(e["src"], e["id"]), False, bulk=True)
+            assert kept > 0  # the case this sequence is there for occurs on this frame
             wait_until(page, "window.zcut.unsaved().length === 0 && window.zcut.state().rev >= 1")
             wait_until(page, f"window.zcut.state().nL === {int(L.sum())}")
             assert not errors and not blocked
