@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -148,6 +149,36 @@ def table(rows: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+def pooled(rows: dict[str, dict]) -> str:
+    """The logs pooled by name with their seed left out (``rt_spheres_73402_960x600`` and ``..._73403_...``
+    pool as ``rt_spheres_960x600``): counts summed, window pixels per frame over all frames, the ranges of
+    where the windows lie and the mean CPU per frame."""
+    groups: dict[str, dict] = {}
+    for name, r in rows.items():
+        g = groups.setdefault(re.sub(r"_\d+(?=_|$)", "", name, count=1),
+                              {"frames": 0, "a_max": r["a_max"], "scores": {}, "where": {}})
+        g["frames"] += r["frames"]
+        for key, s in r["scores"].items():
+            c = g["scores"].setdefault(key, {"tp": 0, "fp": 0, "fn": 0})
+            for k in ("tp", "fp", "fn"):
+                c[k] += s[k]
+        for v, w in r["where"].items():
+            gw = g["where"].setdefault(v, {"window_px": 0.0, "top_above_pile_mm": [], "floor_above_pile_mm": [],
+                                           "k_top": [], "cpu_ms": 0.0})
+            gw["window_px"] += w["window_px_per_frame"] * r["frames"]
+            gw["cpu_ms"] += w["cpu_ms_per_frame"] * r["frames"]
+            for k in ("top_above_pile_mm", "floor_above_pile_mm", "k_top"):
+                gw[k] += w[k]
+    for g in groups.values():
+        for c in g["scores"].values():
+            tp, fp, fn = c["tp"], c["fp"], c["fn"]
+            c.update(P=ratio(tp, tp + fp), R=ratio(tp, tp + fn), F1=ratio(2 * tp, 2 * tp + fp + fn))
+        for gw in g["where"].values():
+            gw["window_px_per_frame"] = gw.pop("window_px") / g["frames"]
+            gw["cpu_ms_per_frame"] = gw.pop("cpu_ms") / g["frames"]
+    return table(groups)
+
+
 def real(faces: list[float], repeat: int) -> int:
     from replay.logs.pcd import read_pcd
     from zcut.params import ZCutParams
@@ -195,6 +226,8 @@ def main() -> int:
         rows[log.stem] = summarize(judge_log(log, faces, repeat=args.repeat))
         print(f"{log.name}: done", file=sys.stderr, flush=True)
     print(table(rows))
+    print()
+    print(pooled(rows))
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1, default=float))
     return 0
