@@ -2,7 +2,7 @@
 
 The paper's z-cut (:mod:`zcut.cuts`) cuts the height image at ``z_max - k * step`` for ``k = 1 ..
 K + 1``, ``K = floor(d_max / step)``, with ``z_max`` the highest valid point of the zone (paper eq. 2).
-One tall outlier sets ``z_max``: on the ray-traced shiny frames a ghost just under the rim, 63–87 mm
+One tall outlier sets ``z_max``: on the ray-traced shiny frames a ghost just under the rim, 63–92 mm
 above the pile, so the window of d_max = 30 mm holds only ghosts (docs/raytraced.md, "A robust top
 for the z-cut's window"). This variant measures d_max from a top of the pile that a few ghost
 pixels cannot set:
