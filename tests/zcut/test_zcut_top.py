@@ -57,6 +57,47 @@ def test_fast_equals_the_literal_loop_on_random_images(seed):
                   top_area=top_area, connectivity=connectivity)
 
 
+def _levels_oracle(h, step, top_area, connectivity):
+    """k_top from the cuts at the pixels' own levels only (the cuts change nowhere else): each pixel's
+    level found by bisection with the exact test ``z~ >= z_max - k * step``."""
+    from scipy import ndimage
+
+    valid = np.isfinite(h)
+    if not valid.any() or h.size < top_area:
+        return 0
+    z_min, z_max = float(h[valid].min()), float(h[valid].max())
+    zt = np.where(valid, h, z_min)
+
+    def level(v):
+        lo, hi = 0, 1
+        while not v >= z_max - hi * step:
+            hi *= 2
+        while lo < hi:
+            mid = (lo + hi) // 2
+            lo, hi = (lo, mid) if v >= z_max - mid * step else (mid + 1, hi)
+        return lo
+
+    structure = ndimage.generate_binary_structure(2, 2 if connectivity == 8 else 1)
+    for k in sorted({level(float(v)) for v in zt.ravel()}):
+        lab, n = ndimage.label(zt >= z_max - k * step, structure=structure)
+        if n and np.bincount(lab.ravel())[1:].max() >= top_area:
+            return k
+    return 0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_tiny_step_many_levels_apart(seed):
+    """Levels too many to count (the kernel's rounds grow past a counting sort and sort instead)."""
+    rng = np.random.default_rng(200 + seed)
+    h = rng.normal(size=(7, 9)) * 50
+    h[rng.random(h.shape) < 0.2] = np.nan
+    for step in (1e-4, 1e-9):
+        for top_area in (2.0, 5.0, 30.0):
+            assert pile_top_level(h, step=step, top_area=top_area) == _levels_oracle(h, step, top_area, 8)
+    assert pile_top_level(h, step=0.5, top_area=5.0) == pile_top_level_reference(h, step=0.5, top_area=5.0) \
+        == _levels_oracle(h, 0.5, 5.0, 8)
+
+
 @pytest.mark.parametrize("kind", ["all_nan", "empty", "one_pixel", "flat", "row", "column", "inf", "two_levels"])
 def test_nasty_inputs(kind):
     h = {
