@@ -23,9 +23,9 @@ pixels cannot set:
 So the variant is the paper's z-cut with ``K`` replaced by ``k_top + K``: with ``top_area <= 1``
 (``k_top = 0``) it is the paper's z-cut, bit for bit. :func:`zcut_top_outliers_reference` is the
 literal loop of both steps (``scipy.ndimage.label`` per cut) and the oracle of the tests;
-:func:`zcut_top_outliers` finds ``k_top`` with one union-find over the pixels in level order that
-stops at the first level holding a large enough component (:func:`pile_top_level`) and then runs the
-fast z-cut (:func:`zcut.cuts.zcut_outliers`) with a depth of exactly ``k_top + K`` levels.
+:func:`zcut_top_outliers` finds ``k_top`` with a union-find over the pixels in level order, gathered
+in rounds of doubling depth, that stops at the first level holding a large enough component
+(:func:`pile_top_level`) and then runs the fast z-cut (:func:`zcut.cuts.zcut_outliers`) with a depth of exactly ``k_top + K`` levels.
 :func:`find_clusters_top` is the stage view (:class:`TopCutResult`).
 """
 
