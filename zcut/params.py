@@ -274,6 +274,32 @@ REGISTRATION_METHODS = ("point_to_plane", "point_to_point")
 REMOVAL_MODES = ("robust", "paper")
 
 
+__all__ += ["ZCutTopParams"]
+
+
+@dataclass(frozen=True, slots=True)
+class ZCutTopParams:
+    """The z-cut with its window anchored on the pile's top (method ``zcut_top``, :mod:`zcut.cut_top`).
+
+    It runs the z-cut of :class:`ZCutParams` (Δd, d_max, μ_thr, connectivity: the ``zcut`` section)
+    with d_max measured from the pile's top instead of the zone's highest point: the highest cut
+    holding a connected component as large as ``top_faces`` of the part's largest faces.
+
+    Attributes
+    ----------
+    top_faces : float
+        The pile's top is the first cut, from the highest point down, holding a connected component
+        of at least ``top_faces · a_max`` pixels (a_max: the part's largest face, ``zcut.a_max_px``),
+        > 0. Default 1: a part's footprint; a cluster of ghosts smaller than a part cannot set it.
+    """
+
+    top_faces: float = 1.0
+
+    def __post_init__(self) -> None:
+        _number(self, "top_faces", gt=0)
+        object.__setattr__(self, "top_faces", float(self.top_faces))
+
+
 @dataclass(frozen=True, slots=True)
 class BinMaskParams:
     """The RGB bin footprint (:func:`zcut.binmask.bin_mask`, paper §5.1).

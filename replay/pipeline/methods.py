@@ -59,6 +59,7 @@ from zcut.params import (
     SuspectParams,
     WindowParams,
     ZCutParams,
+    ZCutTopParams,
 )
 
 #: The methods a config runs when it names none: the paper's filter and its comparison.
@@ -146,6 +147,17 @@ def _run_zcut(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
     from zcut.cuts import find_clusters
 
     cut = find_clusters(zone.height_mm, params=config.zcut)
+    return MethodOutput(cut.outliers & zone.zone, cut)
+
+
+def _run_zcut_top(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
+    from zcut.cut_top import find_clusters_top
+
+    a_max = config.zcut.a_max
+    if a_max is None:
+        return MethodOutput(np.zeros_like(zone.zone), warning="zcut_top needs the part's largest face: set "
+                            "zcut.a_max_px (or part = KIND) instead of zcut.max_area_px alone")
+    cut = find_clusters_top(zone.height_mm, params=config.zcut, top_area=config.zcut_top.top_faces * a_max)
     return MethodOutput(cut.outliers & zone.zone, cut)
 
 
@@ -281,6 +293,13 @@ def _warm_zcut() -> None:
     tree.counts([1.0, 3.0], [5.0, 20.0], truth=h > 1, scored=np.ones(h.shape, bool))
 
 
+def _warm_zcut_top() -> None:
+    from zcut.cut_top import find_clusters_top
+
+    h, _, _ = _tiny()
+    find_clusters_top(h, params=ZCutParams(step=0.2, max_depth=3.0, max_area=20.0), top_area=50.0)
+
+
 def _warm_sor() -> None:
     from zcut.sor import sor_outliers
 
@@ -373,6 +392,9 @@ BUILTIN: tuple[Method, ...] = (
     Method(name="explained", params=ExplainedParams, run=_run_explained,
            axes={"k": (2.0, 3.0, 5.0)},
            summary="the paper's §2: farther than k × Err from every known surface (part fits, bin, table)"),
+    Method(name="zcut_top", params=ZCutTopParams, run=_run_zcut_top, warmup=_warm_zcut_top,
+           axes={"top_faces": (0.25, 1.0, 4.0)},
+           summary="the z-cut (section zcut) with d_max measured from the pile's top, not from the highest point"),
 )
 _BUILTIN_MAP = types.MappingProxyType({m.name: m for m in BUILTIN})
 

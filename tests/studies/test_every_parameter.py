@@ -51,6 +51,7 @@ VALUES: dict[str, dict[str, str]] = {
     "stereo_lr": {"disp12_max_diff": "0"},
     "stereo_speckle": {"speckle_window": "400", "speckle_range": "1"},
     "stereo_texture": {"texture_threshold": "800"},
+    "zcut_top": {"top_faces": "20.0"},
     "explained": {"k": "1.0", "err_floor_mm": "3.0", "part_model": '"{part_mesh}"', "part_model_unit": '"m"',
                   "fit_max_err_mm": "0.01", "fit_min_support": "1.0"},
 }
@@ -59,7 +60,7 @@ VALUES: dict[str, dict[str, str]] = {
 OWN: dict[str, str] = {"explained": 'methods = ["zcut", "sor", "explained"]\n'}
 #: the sections of methods that run only when the methods list names them: their fields are set with
 #: every method named, and compared with the defaults of that same list
-BANK = ("radius", "cluster", "speckle", "window", "mixed_pixel", "suspects")
+BANK = ("radius", "cluster", "speckle", "window", "mixed_pixel", "suspects", "zcut_top")
 BANK_METHODS = 'methods = ["zcut", "sor", ' + ", ".join(f'"{m}"' for m in BANK) + "]\n"
 #: the bank's base values on this log (its defaults are for 1920 × 1200 frames: at 180 × 240 a pixel
 #: covers ~2.5 mm and the default radius, cluster and speckle flag the whole zone, which no single
