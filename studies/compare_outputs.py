@@ -7,7 +7,7 @@ units before them are done (each frame's comparison and images, :func:`frame_ima
 returned them: the recording's content of the frame too, :func:`frame_view`), streams the recording
 and the disagreement, and writes the tables and the page from the report. The page is the Jinja2 template
 ``studies/templates/compare.html`` (autoescaped; the sweep's stylesheet ``report.css``), its plots
-drawn with the sweep's matplotlib helpers (:mod:`studies.plots`).
+drawn as SVG in the sweep's plot style without matplotlib (:func:`studies.plots.svg_figure`).
 """
 
 from __future__ import annotations
@@ -234,53 +234,40 @@ def _signed(v: Any) -> str:
 
 
 def _plots(report: dict[str, Any]) -> list[dict[str, Any]]:
-    """The page's plots (PNG data URIs): per-frame F1 of A and B with ΔF1; the pooled figures with
-    their paired Δ and intervals."""
-    from studies.plots import _RC, _figure, _plot  # the sweep's figure helpers (same style)
+    """The page's plots (SVG data URIs, drawn without matplotlib in the sweep's plot style:
+    :func:`studies.plots.svg_figure`): per-frame F1 of A and B with ΔF1; the pooled figures with their
+    paired Δ and intervals."""
+    from studies.plots import SvgPanel, svg_figure
 
     out = []
     frames = [f for f in report["frames"] if f.get("scored")]
     pa, pb = report["a"]["primary"], report["b"]["primary"]
-    import matplotlib
-    from matplotlib.ticker import MaxNLocator
-
-    with matplotlib.rc_context(_RC):
-        if frames:
-            fig, axes = _figure(1, 2, width_in=9.0, height_in=3.2)
-            ax = axes[0][0]
-            x = np.arange(len(frames))
-            fa = [_f1_of(f["a"][pa]) for f in frames]
-            fb = [_f1_of(f["b"][pb]) for f in frames]
-            ax.plot(x, fa, "o-", color="#0072B2", label=f"A ({pa})", ms=3)
-            ax.plot(x, fb, "s-", color="#D55E00", label=f"B ({pb})", ms=3)
-            ax.set_xlabel("frame (in order)")
-            ax.set_ylabel("F1 per frame")
-            ax.legend(frameon=False)
-            ax = axes[0][1]
-            d = np.array(fb) - np.array(fa)
-            ax.bar(x, d, color=np.where(d >= 0, "#009E73", "#CC3311"))
-            ax.axhline(0, color="black", lw=0.8)
-            ax.set_xlabel("frame (in order)")
-            ax.set_ylabel("ΔF1 = B − A")
-            for a in axes[0]:
-                a.xaxis.set_major_locator(MaxNLocator(integer=True))
-            p = _plot("frames.png", "F1 per frame", "", fig)
-            out.append({"title": "F1 per frame, and B − A", "uri": _uri(p.png), "width": p.width_px})
-            v = report["verdict"]
-            fig, axes = _figure(1, 1, width_in=6.0, height_in=2.8)
-            ax = axes[0][0]
-            names = ["precision", "recall", "f1"]
-            for i, k in enumerate(names):
-                e = v["differences"][k]
-                lo, hi = e["ci"]
-                ax.plot([e["delta"]], [i], "o", color="#D55E00")
-                if lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi):
-                    ax.plot([lo, hi], [i, i], "-", color="#D55E00", lw=2)
-            ax.axvline(0, color="black", lw=0.8)
-            ax.set_yticks(range(3), ["ΔP", "ΔR", "ΔF1"])
-            ax.set_xlabel("B − A, pooled, with the 95 % paired interval")
-            p = _plot("deltas.png", "Paired differences", "", fig)
-            out.append({"title": "Paired differences (B − A)", "uri": _uri(p.png), "width": p.width_px})
+    if frames:
+        x = [float(i) for i in range(len(frames))]
+        fa = [_f1_of(f["a"][pa]) for f in frames]
+        fb = [_f1_of(f["b"][pb]) for f in frames]
+        per_frame = SvgPanel(lines=[(x, fa, "#0072B2", "o", 3.0, 1.5, f"A ({pa})"),
+                                    (x, fb, "#D55E00", "s", 3.0, 1.5, f"B ({pb})")],
+                             xlabel="frame (in order)", ylabel="F1 per frame", xinteger=True, legend=True)
+        d = [b - a for a, b in zip(fa, fb, strict=True)]
+        delta = SvgPanel(bars=[(xi, di, "#009E73" if di >= 0 else "#CC3311") for xi, di in zip(x, d, strict=True)],
+                         hlines=[(0.0, "black", 0.8)], xlabel="frame (in order)", ylabel="ΔF1 = B − A", xinteger=True)
+        svg = svg_figure([per_frame, delta], width_in=9.0, height_in=3.2)
+        out.append({"title": "F1 per frame, and B − A", "uri": _uri(svg), "width": 900})
+        v = report["verdict"]
+        lines = []
+        for i, k in enumerate(["precision", "recall", "f1"]):
+            e = v["differences"][k]
+            lo, hi = e["ci"]
+            dk = e["delta"]
+            if dk is not None:
+                lines.append(([float(dk)], [float(i)], "#D55E00", "o", 6.0, 1.5, ""))
+            if lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi):
+                lines.append(([float(lo), float(hi)], [float(i), float(i)], "#D55E00", "", 0.0, 2.0, ""))
+        pooled = SvgPanel(lines=lines, vlines=[(0.0, "black", 0.8)], yticks=([0.0, 1.0, 2.0], ["ΔP", "ΔR", "ΔF1"]),
+                          xlabel="B − A, pooled, with the 95 % paired interval")
+        svg = svg_figure([pooled], width_in=6.0, height_in=2.8)
+        out.append({"title": "Paired differences (B − A)", "uri": _uri(svg), "width": 600})
     return out
 
 
@@ -289,8 +276,8 @@ def _f1_of(e: dict[str, Any]) -> float:
     return 1.0 if den == 0 else 2 * e["tp"] / den
 
 
-def _uri(png: bytes) -> str:
-    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+def _uri(svg: str) -> str:
+    return "data:image/svg+xml;base64," + base64.b64encode(svg.encode("utf-8")).decode("ascii")
 
 
 def page_context(report: dict[str, Any]) -> dict[str, Any]:
