@@ -853,8 +853,9 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
 
 def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, pb: str, truth_src: Any,
                  intrinsics: Any, *, depth_log: Path | None = None,
-                 ) -> tuple[FrameCompare, np.ndarray, Any]:
-    """One frame's comparison, its difference image and its truth (``(outliers, scored)``, None without).
+                 ) -> tuple[FrameCompare, Any]:
+    """One frame's comparison and its truth (``(outliers, scored)``, None without; its images:
+    :func:`studies.compare_outputs.frame_images_bytes`).
     ``depth_log``: the log, when it has ``/ground_truth/depth``: the true outliers' displacement
     classes of each side's primary method, as ``zcut accuracy --by-displacement`` counts them."""
     from annotate.accuracy import displacement_mm, frame_accuracies
@@ -887,9 +888,8 @@ def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, 
                            for side, fx, m in (("a", fa, pa), ("b", fb, pb))}
     blobs = disagreement_blobs(log, frame.index, frame.stamp_ns, ma, mb, where, truth=truth, intrinsics=intrinsics,
                                xyz=frame.xyz)
-    diff = diff_image(ma, mb, where, truth)
     return (FrameCompare(log, frame.index, frame.stamp_ns, counts_a, counts_b, both, only_a, only_b, tuple(blobs),
-                         unscored, classes), diff, truth)
+                         unscored, classes), truth)
 
 
 # ------------------------------------------------------------------------------------ the verdict
@@ -1268,7 +1268,7 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
     import traceback
 
     from replay.logs import layout
-    from studies.compare_outputs import frame_images
+    from studies.compare_outputs import frame_images_bytes
     from studies.work import UnitResult
 
     t0, c0 = time.perf_counter(), time.process_time()
@@ -1307,10 +1307,10 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
                 if pa not in sa.preds or pb not in sb.preds:
                     raise CompareError(f"{path.name}: the primary methods {pa} (A) and {pb} (B) must be the same "
                                        "on every log")
-                fc, diff, truth = _score_frame(path.name, frame, sa, sb, pa, pb, truth_src, first.intrinsics,
-                                               depth_log=depth_log)
+                fc, truth = _score_frame(path.name, frame, sa, sb, pa, pb, truth_src, first.intrinsics,
+                                         depth_log=depth_log)
                 row["record"] = frame_to_json(fc)
-                row["images"] = frame_images(sa, sb, diff, truth, pa, pb, frame if opts.rrd else None).to_bytes()
+                row["images"] = frame_images_bytes(sa, sb, truth, pa, pb, frame if opts.rrd else None)
                 if fc.unscored is not None:
                     res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": fc.unscored})
                 res.frames += 1

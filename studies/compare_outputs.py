@@ -22,7 +22,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from replay.outputs import AtomicOutput, naming
-from studies.compare_records import FrameCompare, FrameImages, FrameView, SideFrame, SideSpec, count_f1
+from studies.compare_records import (
+    FrameCompare,
+    FrameImages,
+    FrameView,
+    SideFrame,
+    SideSpec,
+    count_f1,
+    sparse_images_bytes,
+)
 from studies.schemas import COMPARE_SUMMARY_COLUMNS, table_of
 
 if TYPE_CHECKING:
@@ -63,6 +71,57 @@ def frame_images(sa: SideFrame, sb: SideFrame, diff: np.ndarray, truth: tuple[np
                        diff, who, None if frame is None else frame_view(frame, diff))
 
 
+def frame_images_bytes(sa: SideFrame, sb: SideFrame, truth: tuple[np.ndarray, np.ndarray] | None, pa: str, pb: str,
+                       frame: Frame | None = None) -> bytes:
+    """``frame_images(sa, sb, diff_image(...), truth, pa, pb, frame).to_bytes()`` (the same bytes: the
+    images the writer reads back are the same), computed at the pixels of the two scored regions alone:
+    every image is 0 outside them (``truth``'s scored pixels lie inside them), so no whole-frame image
+    is made."""
+    where = sa.region | sb.region
+    at_w = np.flatnonzero(where)
+    ma, mb = sa.preds[pa].ravel()[at_w], sb.preds[pb].ravel()[at_w]
+    only_a, only_b = ma & ~mb, mb & ~ma
+    who = np.zeros(at_w.size, dtype=np.uint8)
+    who[only_a] = 1
+    who[only_b] = 2
+    t_at = None if truth is None else (truth[0].ravel()[at_w], truth[1].ravel()[at_w])
+    va = _verdict_at(ma & sa.region.ravel()[at_w], t_at)
+    vb = _verdict_at(mb & sb.region.ravel()[at_w], t_at)
+    diff = np.zeros(at_w.size, dtype=np.uint8)
+    if t_at is None:
+        diff[only_a] = 4
+        diff[only_b] = 5
+    else:
+        lab, scored = t_at
+        right_a = (ma == lab) & scored
+        right_b = (mb == lab) & scored
+        diff[~right_a & right_b] = 1
+        diff[right_a & ~right_b] = 2
+        diff[~right_a & ~right_b & scored] = 3
+    anyset = va | vb
+    anyset |= diff
+    anyset |= who
+    keep = np.flatnonzero(anyset)
+    view = None
+    if frame is not None:
+        on = diff != 0
+        view = _frame_view_at(frame, at_w[on], diff[on])
+    return sparse_images_bytes(sa.region.shape, at_w[keep], (va[keep], vb[keep], diff[keep], who[keep]), view)
+
+
+def _verdict_at(pred: np.ndarray, truth: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+    """:func:`verdict_image` at some pixels (``pred`` and ``truth`` (outliers, scored) given there)."""
+    out = np.zeros(pred.size, dtype=np.uint8)
+    if truth is None:
+        out[pred] = 4
+        return out
+    lab, scored = truth
+    out[pred & lab & scored] = 1
+    out[pred & ~lab & scored] = 2
+    out[~pred & lab & scored] = 3
+    return out
+
+
 #: JPEG quality of the recording's RGB image (as ``zcut replay``'s recording compresses it).
 JPEG_QUALITY = 85
 
@@ -71,6 +130,12 @@ def frame_view(frame: Frame, diff: np.ndarray) -> FrameView:
     """A frame's own content in the recording: its RGB image JPEG-encoded (the bytes Rerun's
     ``Image.compress(85)`` makes: Pillow, quality 85), or a gray height image without RGB (near is
     bright); the points where ``diff`` is set (the disagreement in 3D) with their codes."""
+    at = np.flatnonzero(diff)
+    return _frame_view_at(frame, at, diff.ravel()[at])
+
+
+def _frame_view_at(frame: Frame, at: np.ndarray, codes: np.ndarray) -> FrameView:
+    """:func:`frame_view` of the difference image set at the flat pixels ``at`` (ascending) to ``codes``."""
     from PIL import Image
 
     rgb = frame.rgb
@@ -89,11 +154,10 @@ def frame_view(frame: Frame, diff: np.ndarray) -> FrameView:
             lo, hi = float(z[ok].min()), float(z[ok].max())
             image[ok] = (255 * (hi - z[ok]) / max(hi - lo, 1e-9)).astype(np.uint8)
     # the set pixels of diff whose point is valid, in row-major order (the points of only those are read)
-    at = np.flatnonzero(diff)
-    r, c = np.divmod(at, diff.shape[1])
+    r, c = np.divmod(at, frame.xyz.shape[1])
     pts = frame.xyz[r, c]
     ok = np.isfinite(pts).all(axis=1)
-    return FrameView(jpeg, image, pts[ok].astype(np.float32), diff.ravel()[at[ok]])
+    return FrameView(jpeg, image, pts[ok].astype(np.float32), codes[ok])
 
 
 def verdict_image(pred: np.ndarray, truth: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
