@@ -1081,8 +1081,7 @@ def run(opts: CompareOptions) -> CompareResult:
     """
     from contextlib import ExitStack
 
-    from annotate.truth import check_region, check_truth, truth_of_log
-    from replay.logs.reader import LogReader
+    from annotate.truth import check_region, check_truth
 
     t_wall, t_cpu = time.perf_counter(), time.process_time()
     check_region(opts.region)
@@ -1094,12 +1093,9 @@ def run(opts: CompareOptions) -> CompareResult:
     for p in (*opts.logs, *(x for x in (opts.labels, opts.bin_model, opts.part_model) if x is not None)):
         if not Path(p).is_file():
             raise FileNotFoundError(2, "no such file", str(p))
-    if opts.truth is not None:  # the truth asked for is in every log, before anything is written
-        if opts.labels is not None:
-            raise CompareError(f"--truth {opts.truth} scores against the log's recorded truth, --labels against "
-                               "an annotator's: give one")
-        for p in opts.logs:
-            truth_of_log(opts.truth, LogReader(p, cloud_topic=opts.topic).mask_topics, p)
+    if opts.truth is not None and opts.labels is not None:
+        raise CompareError(f"--truth {opts.truth} scores against the log's recorded truth, --labels against "
+                           "an annotator's: give one")
     if opts.part_model is not None:  # a bad mesh is one line before anything runs
         from replay.pipeline.explained import part_model
 
@@ -1188,8 +1184,21 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
         refused: list[Exception] = []
         inline = isinstance(executor, InlineExecutor)
 
+        from annotate.truth import truth_of_log
+        from replay.logs.reader import LogReader
+
+        given = {Path(p).resolve(): p for p in opts.logs}  # a log named in an error as it was given
+
         def opened(plan: LogPlan, reader: Any, first: Frame) -> None:
-            if refused or not plan.units:
+            if refused:
+                return
+            if opts.truth is not None:  # the truth asked for is in every log, before anything is written
+                try:
+                    truth_of_log(opts.truth, reader.mask_topics, given.get(plan.path, plan.path))
+                except Exception as e:  # noqa: BLE001 - raised after the planning
+                    refused.append(e)
+                    return
+            if not plan.units:
                 return
             try:
                 sides[plan.sha256] = resolve_log(opts, spec_a, spec_b, plan.path, reader, first)
@@ -1206,6 +1215,11 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
         check_labels(None if opts.labels is None else str(opts.labels), opts.annotator, plans)
         if refused:
             raise refused[0]
+        if opts.truth is not None:  # a log the planning could not open: checked as it is given
+            for plan in plans:
+                if plan.error is not None:
+                    p = given.get(plan.path, plan.path)
+                    truth_of_log(opts.truth, LogReader(p, cloud_topic=opts.topic).mask_topics, p)
         for plan in plans:
             if plan.units:
                 plan.units = _limited(plan.units, opts.frames)
