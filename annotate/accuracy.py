@@ -322,7 +322,7 @@ def frame_accuracies(
     reviewed: Mask | None = None,
     kinds: np.ndarray | None = None,
     detectable: Mask | None = None,
-    displacement_mm: np.ndarray | None = None,
+    displacement_mm: np.ndarray | Displacement | None = None,
 ) -> list[FrameAccuracy]:
     """:func:`frame_accuracy` of several sides on one frame's truth, each side its ``(predictions,
     valid, region)``: equal, side by side, to ``[frame_accuracy(index, stamp_ns, predictions,
@@ -332,7 +332,8 @@ def frame_accuracies(
     comparison's A and B, ``zcut compare``): the truth is checked once and prepared once for the sides
     whose valid pixels and region are equal (sides that share their bin stages), and the 8-connected
     components of the true outliers and of each prediction are found among their pixels alone
-    (:func:`components8`), not by labelling the whole image."""
+    (:func:`components8`), not by labelling the whole image. ``displacement_mm`` may be a
+    :class:`Displacement`: it is then computed at the scored true outliers alone."""
     try:
         fast = _frame_accuracies(index, stamp_ns, sides, outliers, reviewed=reviewed, kinds=kinds,
                                  detectable=detectable, displacement_mm=displacement_mm)
@@ -341,6 +342,8 @@ def frame_accuracies(
     if fast is not None:
         return fast
     # something is off: frame_accuracy checks it and raises its own error (or scores it, if it can)
+    if isinstance(displacement_mm, Displacement):
+        displacement_mm = displacement_mm.image()
     return [frame_accuracy(index, stamp_ns, preds, outliers, reviewed=reviewed, valid=valid, region=region,
                            kinds=kinds, detectable=detectable, displacement_mm=displacement_mm)
             for preds, valid, region in sides]
@@ -352,7 +355,7 @@ def _is_mask(m: object, shape: tuple[int, ...]) -> bool:
 
 def _frame_accuracies(index: int, stamp_ns: int, sides: Sequence[tuple[Mapping[str, Mask], Mask, Mask]],
                       outliers: Mask, *, reviewed: Mask | None, kinds: np.ndarray | None, detectable: Mask | None,
-                      displacement_mm: np.ndarray | None) -> list[FrameAccuracy] | None:
+                      displacement_mm: np.ndarray | Displacement | None) -> list[FrameAccuracy] | None:
     """:func:`frame_accuracies` when every check :func:`frame_accuracy` makes passes (cheap whole-image
     checks); None when one would fail (the caller then lets :func:`frame_accuracy` raise)."""
     if not isinstance(outliers, np.ndarray) or outliers.ndim != 2 or outliers.dtype != np.bool_:
@@ -362,8 +365,11 @@ def _frame_accuracies(index: int, stamp_ns: int, sides: Sequence[tuple[Mapping[s
         return None
     if detectable is not None and not _is_mask(detectable, shape):
         return None
-    if displacement_mm is not None and (not isinstance(displacement_mm, np.ndarray)
-                                        or displacement_mm.shape != shape or displacement_mm.dtype.kind != "f"):
+    if isinstance(displacement_mm, Displacement):
+        if displacement_mm.shape != shape or displacement_mm.depth.shape != shape:
+            return None
+    elif displacement_mm is not None and (not isinstance(displacement_mm, np.ndarray)
+                                          or displacement_mm.shape != shape or displacement_mm.dtype.kind != "f"):
         return None
     kind_labelled = None
     if kinds is not None:
@@ -397,7 +403,12 @@ def _frame_accuracies(index: int, stamp_ns: int, sides: Sequence[tuple[Mapping[s
                              true_sizes=_read_only(np.bincount(component, minlength=n_true + 1).astype(np.int64)),
                              true_kind=None if kinds is None else _read_only(kinds.ravel()[index_t]),
                              kind_labelled=kind_labelled)
-            st_codes = (st, truth_classes(st, detectable=detectable, displacement_mm=displacement_mm))
+            if isinstance(displacement_mm, Displacement):  # read at the scored true outliers alone
+                codes = truth_classes(st, detectable=detectable)
+                codes["by_displacement"] = _displacement_codes(displacement_mm.at(st.true_index))
+            else:
+                codes = truth_classes(st, detectable=detectable, displacement_mm=displacement_mm)
+            st_codes = (st, codes)
             prepared.append((valid, region, *st_codes))
         st, codes = st_codes
         counts = {m: _sparse_counts(st, p) for m, p in preds.items()}
@@ -529,12 +540,16 @@ def truth_classes(scored: ScoredTruth, *, detectable: Mask | None = None,
         d = np.asarray(displacement_mm, dtype=np.float64)
         if d.shape != scored.shape:
             raise ParameterError(f"displacement_mm is {d.shape}, the truth {scored.shape}")
-        v = d.ravel()[scored.true_index]
-        bounds = np.array(list(DISPLACEMENT_CLASSES.values())[:-1])
-        code = (np.searchsorted(bounds, v, side="left") + 1).astype(np.uint8)
-        code[~np.isfinite(v)] = 0
-        out["by_displacement"] = code
+        out["by_displacement"] = _displacement_codes(d.ravel()[scored.true_index])
     return out
+
+
+def _displacement_codes(v: np.ndarray) -> np.ndarray:
+    """The ``by_displacement`` class codes of displacements ``v`` (float64 mm; 0 where not finite)."""
+    bounds = np.array(list(DISPLACEMENT_CLASSES.values())[:-1])
+    code = (np.searchsorted(bounds, v, side="left") + 1).astype(np.uint8)
+    code[~np.isfinite(v)] = 0
+    return code
 
 
 def _class_counts(codes: np.ndarray, hit: np.ndarray, n_classes: int) -> KindCounts:
@@ -1289,6 +1304,48 @@ def _unexplained(frame: Any, r: Any) -> tuple[Mask, str] | None:
     if NAME not in r.outliers or not isinstance(detail, ExplainedDetail):
         return None
     return r.outliers[NAME], detail.surface_model
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Displacement:
+    """|Z − Z_GT| (mm) of a frame's pixels (:func:`displacement_mm`'s image), computed only where it is
+    read (:func:`frame_accuracies` reads it at the scored true outliers): ``xyz`` the frame's points
+    (H, W, 3), ``depth`` its true depth (H, W) in metres."""
+
+    xyz: np.ndarray
+    depth: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.xyz.shape[0]), int(self.xyz.shape[1]))
+
+    def at(self, index: np.ndarray) -> np.ndarray:
+        """The displacement at the flat (row-major) pixels ``index``: the same operations on the same
+        values as :func:`displacement_mm` (the same float64 bits)."""
+        v: np.ndarray = self.xyz.reshape(-1, 3)[index, 2].astype(np.float64)
+        v -= self.depth.reshape(-1)[index]
+        np.abs(v, out=v)
+        v *= 1000.0
+        return v
+
+    def image(self) -> np.ndarray:
+        """The whole (H, W) image, as :func:`displacement_mm` gives it."""
+        shift: np.ndarray = self.xyz[..., 2].astype(np.float64)
+        shift -= self.depth
+        np.abs(shift, out=shift)
+        shift *= 1000.0
+        return shift
+
+
+def frame_displacement(log: Path, frame: Any) -> Displacement | None:
+    """:func:`displacement_mm` of a frame as a :class:`Displacement` (nothing computed yet); None when it
+    gives None."""
+    depth = getattr(frame, "truth_depth_m", None)
+    if depth is None:
+        depth = _read_truth_depth(log, frame)
+        if depth is None:
+            return None
+    return Displacement(frame.xyz, depth)
 
 
 def displacement_mm(log: Path, frame: Any) -> np.ndarray | None:

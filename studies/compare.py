@@ -858,7 +858,7 @@ def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, 
     :func:`studies.compare_outputs.frame_images_bytes`).
     ``depth_log``: the log, when it has ``/ground_truth/depth``: the true outliers' displacement
     classes of each side's primary method, as ``zcut accuracy --by-displacement`` counts them."""
-    from annotate.accuracy import displacement_mm, frame_accuracies
+    from annotate.accuracy import frame_accuracies, frame_displacement
 
     where = sa.region | sb.region
     ma, mb = sa.preds[pa], sb.preds[pb]
@@ -874,7 +874,7 @@ def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, 
         if isinstance(t, str):
             unscored = t
         else:
-            shift = displacement_mm(depth_log, frame) if depth_log is not None else None
+            shift = frame_displacement(depth_log, frame) if depth_log is not None else None  # read where scored
             # both sides in one pass: the truth prepared once when they share the zone (as two
             # frame_accuracy calls count them; tests/studies/test_compare_accuracy.py)
             fa, fb = frame_accuracies(frame.index, frame.stamp_ns, ((sa.preds, sa.valid, sa.region),

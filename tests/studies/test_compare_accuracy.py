@@ -190,3 +190,44 @@ def test_frame_accuracies_bad_input_raises_frame_accuracys_error():
         frame_accuracies(0, 0, [(p, valid, valid), ({"zcut": np.zeros((3, 3), bool)}, valid, valid)],
                          outliers & valid)
     assert "shape" in str(got.value)
+
+
+def test_displacement_read_where_scored_equals_the_whole_image():
+    """compare's displacement classes: |Z − Z_GT| computed at the scored true outliers alone
+    (`Displacement`) gives `displacement_mm`'s bits there and the same classes as two frame_accuracy calls
+    given the whole image; NaN points and NaN true depth in no class."""
+    from types import SimpleNamespace
+
+    from annotate.accuracy import displacement_mm, frame_displacement
+
+    rng = np.random.default_rng(31)
+    shape = (70, 90)
+    xyz = rng.random((*shape, 3)).astype(np.float32)
+    xyz[rng.random(shape) < 0.1] = np.nan
+    depth = (xyz[..., 2] + rng.normal(0.0, 0.02, shape)).astype(np.float32)
+    depth[rng.random(shape) < 0.05] = np.nan
+    frame = SimpleNamespace(xyz=xyz, truth_depth_m=depth)
+    lazy, whole = frame_displacement(None, frame), displacement_mm(None, frame)
+    assert lazy is not None and whole is not None
+    idx = np.flatnonzero(rng.random(shape) < 0.3)
+    assert np.array_equal(lazy.at(idx).view(np.int64), whole.ravel()[idx].view(np.int64))
+    assert np.array_equal(lazy.image().view(np.int64), whole.view(np.int64))
+    valid = np.isfinite(xyz).all(axis=2)
+    outliers, reviewed, kinds, detectable, _ = _truth(rng, shape, valid, 0.1)
+    zone = valid.copy()
+    zone[:, :10] = False
+    a = {"zcut": _pred(rng, outliers, 0.02, 0.6)}
+    b = {"zcut": _pred(rng, outliers, 0.05, 0.8)}
+    sides = [(a, valid, zone), (b, valid, zone)]
+    got = frame_accuracies(1, 2, sides, outliers, reviewed=reviewed, kinds=kinds, detectable=detectable,
+                           displacement_mm=lazy)
+    want = [frame_accuracy(1, 2, p, outliers, reviewed=reviewed, valid=v, region=g, kinds=kinds,
+                           detectable=detectable, displacement_mm=whole) for p, v, g in sides]
+    assert got == want and "by_displacement" in got[0].classes["zcut"]
+    assert sum(got[0].classes["zcut"]["by_displacement"].n) > 0
+    # bad input with it still raises frame_accuracy's error
+    with pytest.raises(ZcutError) as err:
+        frame_accuracies(1, 2, sides, outliers & ~reviewed | ~valid, displacement_mm=lazy)
+    with pytest.raises(ZcutError) as ref:
+        frame_accuracy(1, 2, a, outliers & ~reviewed | ~valid, valid=valid, region=zone, displacement_mm=whole)
+    assert str(err.value) == str(ref.value)
