@@ -25,7 +25,8 @@ cost and paths, summary.parquet, disagreement.npz).
 ``--vs-replay``: instead, the cost of a comparison against one replay of A on the same logs (the
 issue's target: at most 1.3 x when A and B share the bin stages), all in this process (numba's kernels
 warmed by a first run of each way, not measured), CPU time of the process (``time.process_time``,
-its threads included), alternating the ways ``--repeats`` times: ``zcut replay LOG --methods zcut``
+its threads included; the garbage left by the way before collected first, not counted), alternating the ways
+``--repeats`` times: ``zcut replay LOG --methods zcut``
 over every log (the table to a string, no outputs; then with ``--rrd``), the same of B
 (``--config RHO.toml``: z-cut at ρ_thr 0.035 and SOR), ``studies.compare.run`` with
 ``workers=0`` without ``.rrd`` and report, with the ``.rrd``, and the whole command (``.rrd`` and
@@ -42,6 +43,7 @@ own (start-up and imports counted, as ``report.html``'s plotting library was): `
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import resource
@@ -192,6 +194,7 @@ def vs_replay(d: Path, logs: list[str], args: argparse.Namespace) -> None:
     load = []
     for _ in range(args.repeats):
         for name, fn in ways.items():
+            gc.collect()  # the garbage of the way before is not charged to this one
             c0 = time.process_time()
             fn()
             cpu[name].append(time.process_time() - c0)
