@@ -3,7 +3,7 @@ code (the one-process comparison before it ran in units) measured in the same ru
 
 Run: ``.venv/bin/python bench/bench_compare_workers.py [--logs 3] [--frames 4] [--size 240x320]
 [--kinds rods,spheres,zinc_nuts] [--seed 10] [--repeats 2] [--dir DIR] [--old OLD_TREE] [--vs-replay]
-[--b-zcut-only]``
+[--b-zcut-only] [--processes]``
 
 Synthesises (once, cached in ``--dir``) ``--logs`` small synthetic logs (rods, spheres, …) of
 ``--frames`` frames, rechunked to a frame per chunk (a unit per frame with ``--frames-per-unit 1``),
@@ -25,7 +25,8 @@ cost and paths, summary.parquet, disagreement.npz).
 ``--vs-replay``: instead, the cost of a comparison against one replay of A on the same logs (the
 issue's target: at most 1.3 x when A and B share the bin stages), all in this process (numba's kernels
 warmed by a first run of each way, not measured), CPU time of the process (``time.process_time``,
-its threads included), alternating the ways ``--repeats`` times: ``zcut replay LOG --methods zcut``
+its threads included; the garbage left by the way before collected first, not counted), alternating the ways
+``--repeats`` times: ``zcut replay LOG --methods zcut``
 over every log (the table to a string, no outputs; then with ``--rrd``), the same of B
 (``--config RHO.toml``: z-cut at ρ_thr 0.035 and SOR), ``studies.compare.run`` with
 ``workers=0`` without ``.rrd`` and report, with the ``.rrd``, and the whole command (``.rrd`` and
@@ -33,11 +34,16 @@ over every log (the table to a string, no outputs; then with ``--rrd``), the sam
 (a unit's part holding the frame's content, or the writer reading the frame again from its log):
 CPU of making the content (JPEG, points) in the unit, of reading it back from the part, of reading
 and decoding the frame again, and the part's bytes with and without it.
+
+``--vs-replay --processes [--old OLD]``: the same target as users run it, each command in a process of its
+own (start-up and imports counted, as ``report.html``'s plotting library was): ``zcut replay`` against
+``zcut compare --workers 0`` without and with the recordings, this tree and the old one alternating.
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import resource
@@ -47,6 +53,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(HERE / "tests" / "studies"))
@@ -93,6 +100,8 @@ def main() -> None:
     ap.add_argument("--b-zcut-only", action="store_true",
                     help="B runs the z-cut alone (methods = [\"zcut\"]), as A; default: the default methods")
     ap.add_argument("--vs-replay", action="store_true", help="compare's cost against one replay of A, in process")
+    ap.add_argument("--processes", action="store_true",
+                    help="with --vs-replay: each way the whole command in a process of its own (start-up, imports)")
     args = ap.parse_args()
     from test_batch_ray import rechunk
 
@@ -110,6 +119,9 @@ def main() -> None:
             rechunk(whole, log, chunk_size=16 * 1024)
         logs.append(log.name)
     (d / "rho.toml").write_text(('methods = ["zcut"]\n' if args.b_zcut_only else "") + "[zcut]\nrho_thr = 0.035\n")
+    if args.vs_replay and args.processes:
+        vs_replay_processes(d, logs, args)
+        return
     if args.vs_replay:
         vs_replay(d, logs, args)
         return
@@ -182,6 +194,7 @@ def vs_replay(d: Path, logs: list[str], args: argparse.Namespace) -> None:
     load = []
     for _ in range(args.repeats):
         for name, fn in ways.items():
+            gc.collect()  # the garbage of the way before is not charged to this one
             c0 = time.process_time()
             fn()
             cpu[name].append(time.process_time() - c0)
@@ -195,6 +208,57 @@ def vs_replay(d: Path, logs: list[str], args: argparse.Namespace) -> None:
         print(f"{name:22s} CPU {c:6.2f} s ({', '.join(f'{x:.2f}' for x in cpu[name])}), {c / n:.3f} CPU-s/frame; "
               f"x{c / ref:.2f} of {'replay A --rrd' if '.rrd' in name else 'replay A'}")
     writer_cost(paths[0], d)
+
+
+def vs_replay_processes(d: Path, logs: list[str], args: argparse.Namespace) -> None:
+    """``--vs-replay --processes``: the commands as a user runs them, each in a process of its own (CPU of
+    the process and its children, ``resource.getrusage``: start-up and imports included), alternating
+    ``--repeats`` times after a warm run of each, this tree and (``--old``) the old one in turn:
+    ``zcut replay LOG --methods zcut`` per log, without outputs and with ``--rrd``; ``zcut compare LOGS
+    --a zcut --b rho.toml --workers 0``, with ``--no-rrd`` (its JSON, parquet and page) and with
+    ``compare.rrd``."""
+    out = d / "vs"
+    out.mkdir(exist_ok=True)
+    trees = {"": HERE, **({"old ": args.old} if args.old is not None else {})}
+
+    def replay(tree: Path, rrd: bool) -> float:
+        total = 0.0
+        for i, log in enumerate(logs):
+            extra = ["--rrd", str(out / f"replay{i}.rrd"), "--force"] if rrd else []
+            total += _run(["replay", log, "--methods", "zcut", *extra], tree=tree, cwd=d)[0]
+        return total
+
+    def compare(tree: Path, rrd: bool) -> float:
+        target = out / "compare_cli"
+        shutil.rmtree(target, ignore_errors=True)
+        extra = [] if rrd else ["--no-rrd"]
+        return _run(["compare", *logs, "--a", "zcut", "--b", "rho.toml", "--workers", "0", "-o", str(target), *extra],
+                    tree=tree, cwd=d)[0]
+
+    ways: dict[str, Any] = {}
+    for tag, tree in trees.items():
+        ways.update({f"{tag}zcut replay": lambda t=tree: replay(t, False),
+                     f"{tag}zcut compare --no-rrd": lambda t=tree: compare(t, False),
+                     f"{tag}zcut replay --rrd": lambda t=tree: replay(t, True),
+                     f"{tag}zcut compare": lambda t=tree: compare(t, True)})
+    for fn in ways.values():  # warm (numba's caches of each tree)
+        fn()
+    cpu: dict[str, list[float]] = {k: [] for k in ways}
+    load = []
+    for _ in range(args.repeats):
+        for name, fn in ways.items():
+            cpu[name].append(fn())
+            load.append(os.getloadavg()[0])
+    n = args.logs * args.frames
+    print(f"{args.logs} logs ({', '.join(logs)}) x {args.frames} frames of {args.size}, {args.repeats} runs each, "
+          f"a process each, load average {min(load):.1f}-{max(load):.1f} on {os.cpu_count()} cores")
+    for name in ways:
+        c = statistics.median(cpu[name])
+        tag = "old " if name.startswith("old ") else ""
+        ref_name = f"{tag}zcut replay --rrd" if name.endswith("zcut compare") else f"{tag}zcut replay"
+        ref = statistics.median(cpu[ref_name])
+        print(f"{name:26s} CPU {c:6.2f} s ({', '.join(f'{x:.2f}' for x in cpu[name])}), {c / n:.3f} CPU-s/frame; "
+              f"x{c / ref:.2f} of {ref_name}")
 
 
 def writer_cost(log: Path, d: Path) -> None:

@@ -711,11 +711,11 @@ def _nearest_kept(rows: np.ndarray, cols: np.ndarray, boxes: list[tuple[int, int
     return qr, qc
 
 
-def _blob_boxes(slices: list[Any], gid: np.ndarray, offset: int) -> list[tuple[int, int, int, int, np.ndarray]]:
+def _blob_boxes(box: np.ndarray, gid: np.ndarray, offset: int) -> list[tuple[int, int, int, int, np.ndarray]]:
     """Windows of :func:`_nearest_kept` for one side's blobs: the blobs grouped by the tile their box
-    starts in (``slices``: :func:`scipy.ndimage.find_objects`; ``gid`` each pixel's blob, 0-based),
-    each group's box and its pixels (indices offset by ``offset``)."""
-    box = np.array([(s[0].start, s[0].stop, s[1].start, s[1].stop) for s in slices], dtype=np.int64).reshape(-1, 4)
+    starts in (``box``: (n, 4) int64, each blob's rows ``box[:, 0]:box[:, 1]`` and columns
+    ``box[:, 2]:box[:, 3]``, as :func:`scipy.ndimage.find_objects` gives them; ``gid`` each pixel's blob,
+    0-based), each group's box and its pixels (indices offset by ``offset``)."""
     keys, blob_group = np.unique((box[:, 0] // _TILE_PX) * (1 << 32) + box[:, 2] // _TILE_PX, return_inverse=True)
     blob_group = blob_group.ravel()
     by_group = np.argsort(blob_group, kind="stable")
@@ -729,32 +729,64 @@ def _blob_boxes(slices: list[Any], gid: np.ndarray, offset: int) -> list[tuple[i
             for g in range(keys.size)]
 
 
+def _boxes_of(n: int, rows: np.ndarray, cols: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """(n, 4) int64: each component's ``(row0, row1, col0, col1)`` (ends exclusive) from its pixels
+    (``ids`` 1..n), the boxes of ``scipy.ndimage.find_objects``."""
+    box = np.empty((n, 4), dtype=np.int64)
+    box[:, 0] = box[:, 2] = np.iinfo(np.int64).max
+    box[:, 1] = box[:, 3] = -1
+    k = ids - 1
+    np.minimum.at(box[:, 0], k, rows)
+    np.maximum.at(box[:, 1], k, rows)
+    np.minimum.at(box[:, 2], k, cols)
+    np.maximum.at(box[:, 3], k, cols)
+    box[:, 1] += 1
+    box[:, 3] += 1
+    return box
+
+
+def _footprint_at(xyz: np.ndarray, intrinsics: Any, rows: np.ndarray, cols: np.ndarray) -> np.ndarray | None:
+    """:func:`pixel_footprint_mm2` at the pixels ``(rows, cols)`` alone (the same operations on the same
+    values: the same bits); None where it gives None."""
+    if intrinsics is None or xyz.shape[:2] != (intrinsics.height, intrinsics.width):
+        return None
+    out: np.ndarray = xyz[rows, cols, 2].astype(np.float64)
+    out *= 1000.0
+    np.multiply(out, out, out=out)
+    out /= float(intrinsics.fx) * float(intrinsics.fy)
+    return out
+
+
 def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, mask_b: np.ndarray,
                        where: np.ndarray, *, truth: tuple[np.ndarray, np.ndarray] | None = None,
-                       footprint: np.ndarray | None = None, xyz: np.ndarray | None = None) -> list[Blob]:
+                       footprint: np.ndarray | None = None, xyz: np.ndarray | None = None,
+                       intrinsics: Any = None) -> list[Blob]:
     """The 8-connected components of the pixels only A removed and of those only B removed (over
     ``where``), with area, centroid, with truth (``(outliers, scored)``) what B's choice did there,
     and with the frame's points ``xyz`` (metres, NaN invalid) its height above the local surface and
     its distance to the nearest kept point (:class:`Blob`): the nearest pixel, in the image, that
     neither side removed in ``where`` and whose point is valid, as the whole image's Euclidean feature
-    transform names it (found in windows around the blobs: :func:`_nearest_kept`)."""
-    from scipy import ndimage
-
+    transform names it (found in windows around the blobs: :func:`_nearest_kept`). The area in mm² is
+    the sum of ``footprint`` over a blob's pixels (:func:`pixel_footprint_mm2`), or, given the camera's
+    ``intrinsics`` instead, of the same figure computed at the blobs' pixels alone."""
+    from annotate.accuracy import components8
     from zcut.removal import finite_xyz
 
     sides = []
+    w = mask_a.shape[1]
     for who, m in (("A", mask_a & ~mask_b & where), ("B", mask_b & ~mask_a & where)):
-        if not m.any():
+        # the components as scipy.ndimage.label numbers them, found among the pixels (row-major) alone
+        n, at, ids = components8(m)
+        if n == 0:
             continue
-        lab, n = ndimage.label(m, structure=np.ones((3, 3), dtype=bool))
-        rows, cols = np.nonzero(m)  # the labelled pixels, in the same (row-major) order as np.nonzero(lab)
-        sides.append((who, lab, n, rows, cols, lab[rows, cols]))
+        rows, cols = np.divmod(at, w)
+        sides.append((who, n, rows, cols, ids))
     near = None
     if xyz is not None and sides:
         boxes = []
         offset = 0
-        for _, lab, _, rows, _, ids in sides:
-            boxes += _blob_boxes(ndimage.find_objects(lab), ids - 1, offset)
+        for _, n, rows, cols, ids in sides:
+            boxes += _blob_boxes(_boxes_of(n, rows, cols, ids), ids - 1, offset)
             offset += rows.size
         m = 2 * _MARGIN_PX
         if sum((r1 - r0 + m) * (c1 - c0 + m) for r0, r1, c0, c1, _ in boxes) > mask_a.size // 2:
@@ -765,17 +797,21 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
             out: np.ndarray = where[win] & ~mask_a[win] & ~mask_b[win] & finite_xyz(xyz[win])
             return out
 
-        near = _nearest_kept(np.concatenate([s[3] for s in sides]), np.concatenate([s[4] for s in sides]), boxes,
+        near = _nearest_kept(np.concatenate([s[2] for s in sides]), np.concatenate([s[3] for s in sides]), boxes,
                              kept_in, mask_a.shape)
     blobs: list[Blob] = []
     offset = 0
-    for who, _, n, rows, cols, ids in sides:
+    for who, n, rows, cols, ids in sides:
         area = np.bincount(ids, minlength=n + 1)[1:]
         r = np.bincount(ids, weights=rows, minlength=n + 1)[1:] / np.maximum(area, 1)
         c = np.bincount(ids, weights=cols, minlength=n + 1)[1:] / np.maximum(area, 1)
         mm2 = None
+        fp = None
         if footprint is not None:
             fp = footprint[rows, cols]  # only the blobs' pixels are read
+        elif intrinsics is not None and xyz is not None:
+            fp = _footprint_at(xyz, intrinsics, rows, cols)
+        if fp is not None:
             mm2 = np.bincount(ids, weights=np.where(np.isfinite(fp), fp, 0.0), minlength=n + 1)[1:]
         if truth is not None:
             outl, scored = truth
@@ -817,11 +853,12 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
 
 def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, pb: str, truth_src: Any,
                  intrinsics: Any, *, depth_log: Path | None = None,
-                 ) -> tuple[FrameCompare, np.ndarray, Any]:
-    """One frame's comparison, its difference image and its truth (``(outliers, scored)``, None without).
+                 ) -> tuple[FrameCompare, Any]:
+    """One frame's comparison and its truth (``(outliers, scored)``, None without; its images:
+    :func:`studies.compare_outputs.frame_images_bytes`).
     ``depth_log``: the log, when it has ``/ground_truth/depth``: the true outliers' displacement
     classes of each side's primary method, as ``zcut accuracy --by-displacement`` counts them."""
-    from annotate.accuracy import displacement_mm, frame_accuracy
+    from annotate.accuracy import frame_accuracies, frame_displacement
 
     where = sa.region | sb.region
     ma, mb = sa.preds[pa], sb.preds[pb]
@@ -837,23 +874,22 @@ def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, 
         if isinstance(t, str):
             unscored = t
         else:
-            shift = displacement_mm(depth_log, frame) if depth_log is not None else None
-            fa = frame_accuracy(frame.index, frame.stamp_ns, sa.preds, t.outliers, reviewed=t.reviewed,
-                                valid=sa.valid, region=sa.region, kinds=t.kind, displacement_mm=shift)
-            fb = frame_accuracy(frame.index, frame.stamp_ns, sb.preds, t.outliers, reviewed=t.reviewed,
-                                valid=sb.valid, region=sb.region, kinds=t.kind, displacement_mm=shift)
+            shift = frame_displacement(depth_log, frame) if depth_log is not None else None  # read where scored
+            # both sides in one pass: the truth prepared once when they share the zone (as two
+            # frame_accuracy calls count them; tests/studies/test_compare_accuracy.py)
+            fa, fb = frame_accuracies(frame.index, frame.stamp_ns, ((sa.preds, sa.valid, sa.region),
+                                                                     (sb.preds, sb.valid, sb.region)),
+                                      t.outliers, reviewed=t.reviewed, kinds=t.kind, displacement_mm=shift)
             counts_a, counts_b = fa.counts, fb.counts
             truth = (t.outliers, t.reviewed & where)
             if shift is not None:
                 classes = {side: {fam: {"n": list(k.n), "found": list(k.found)} for fam, k in fx.classes[m].items()
                                   if fam == "by_displacement"}
                            for side, fx, m in (("a", fa, pa), ("b", fb, pb))}
-    fp = pixel_footprint_mm2(frame.xyz, intrinsics)
-    blobs = disagreement_blobs(log, frame.index, frame.stamp_ns, ma, mb, where, truth=truth, footprint=fp,
+    blobs = disagreement_blobs(log, frame.index, frame.stamp_ns, ma, mb, where, truth=truth, intrinsics=intrinsics,
                                xyz=frame.xyz)
-    diff = diff_image(ma, mb, where, truth)
     return (FrameCompare(log, frame.index, frame.stamp_ns, counts_a, counts_b, both, only_a, only_b, tuple(blobs),
-                         unscored, classes), diff, truth)
+                         unscored, classes), truth)
 
 
 # ------------------------------------------------------------------------------------ the verdict
@@ -1045,8 +1081,7 @@ def run(opts: CompareOptions) -> CompareResult:
     """
     from contextlib import ExitStack
 
-    from annotate.truth import check_region, check_truth, truth_of_log
-    from replay.logs.reader import LogReader
+    from annotate.truth import check_region, check_truth
 
     t_wall, t_cpu = time.perf_counter(), time.process_time()
     check_region(opts.region)
@@ -1058,12 +1093,9 @@ def run(opts: CompareOptions) -> CompareResult:
     for p in (*opts.logs, *(x for x in (opts.labels, opts.bin_model, opts.part_model) if x is not None)):
         if not Path(p).is_file():
             raise FileNotFoundError(2, "no such file", str(p))
-    if opts.truth is not None:  # the truth asked for is in every log, before anything is written
-        if opts.labels is not None:
-            raise CompareError(f"--truth {opts.truth} scores against the log's recorded truth, --labels against "
-                               "an annotator's: give one")
-        for p in opts.logs:
-            truth_of_log(opts.truth, LogReader(p, cloud_topic=opts.topic).mask_topics, p)
+    if opts.truth is not None and opts.labels is not None:
+        raise CompareError(f"--truth {opts.truth} scores against the log's recorded truth, --labels against "
+                           "an annotator's: give one")
     if opts.part_model is not None:  # a bad mesh is one line before anything runs
         from replay.pipeline.explained import part_model
 
@@ -1152,8 +1184,21 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
         refused: list[Exception] = []
         inline = isinstance(executor, InlineExecutor)
 
+        from annotate.truth import truth_of_log
+        from replay.logs.reader import LogReader
+
+        given = {Path(p).resolve(): p for p in opts.logs}  # a log named in an error as it was given
+
         def opened(plan: LogPlan, reader: Any, first: Frame) -> None:
-            if refused or not plan.units:
+            if refused:
+                return
+            if opts.truth is not None:  # the truth asked for is in every log, before anything is written
+                try:
+                    truth_of_log(opts.truth, reader.mask_topics, given.get(plan.path, plan.path))
+                except Exception as e:  # noqa: BLE001 - raised after the planning
+                    refused.append(e)
+                    return
+            if not plan.units:
                 return
             try:
                 sides[plan.sha256] = resolve_log(opts, spec_a, spec_b, plan.path, reader, first)
@@ -1170,6 +1215,11 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
         check_labels(None if opts.labels is None else str(opts.labels), opts.annotator, plans)
         if refused:
             raise refused[0]
+        if opts.truth is not None:  # a log the planning could not open: checked as it is given
+            for plan in plans:
+                if plan.error is not None:
+                    p = given.get(plan.path, plan.path)
+                    truth_of_log(opts.truth, LogReader(p, cloud_topic=opts.topic).mask_topics, p)
         for plan in plans:
             if plan.units:
                 plan.units = _limited(plan.units, opts.frames)
@@ -1232,7 +1282,7 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
     import traceback
 
     from replay.logs import layout
-    from studies.compare_outputs import frame_images
+    from studies.compare_outputs import frame_images_bytes
     from studies.work import UnitResult
 
     t0, c0 = time.perf_counter(), time.process_time()
@@ -1271,10 +1321,10 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
                 if pa not in sa.preds or pb not in sb.preds:
                     raise CompareError(f"{path.name}: the primary methods {pa} (A) and {pb} (B) must be the same "
                                        "on every log")
-                fc, diff, truth = _score_frame(path.name, frame, sa, sb, pa, pb, truth_src, first.intrinsics,
-                                               depth_log=depth_log)
+                fc, truth = _score_frame(path.name, frame, sa, sb, pa, pb, truth_src, first.intrinsics,
+                                         depth_log=depth_log)
                 row["record"] = frame_to_json(fc)
-                row["images"] = frame_images(sa, sb, diff, truth, pa, pb, frame if opts.rrd else None).to_bytes()
+                row["images"] = frame_images_bytes(sa, sb, truth, pa, pb, frame if opts.rrd else None)
                 if fc.unscored is not None:
                     res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": fc.unscored})
                 res.frames += 1

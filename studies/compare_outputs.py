@@ -7,7 +7,7 @@ units before them are done (each frame's comparison and images, :func:`frame_ima
 returned them: the recording's content of the frame too, :func:`frame_view`), streams the recording
 and the disagreement, and writes the tables and the page from the report. The page is the Jinja2 template
 ``studies/templates/compare.html`` (autoescaped; the sweep's stylesheet ``report.css``), its plots
-drawn with the sweep's matplotlib helpers (:mod:`studies.plots`).
+drawn as SVG in the sweep's plot style without matplotlib (:func:`studies.plots.svg_figure`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from replay.outputs import AtomicOutput, naming
-from studies.compare_records import FrameCompare, FrameImages, FrameView, SideFrame, SideSpec, count_f1
+from studies.compare_records import (
+    FrameCompare,
+    FrameImages,
+    FrameView,
+    SideFrame,
+    SideSpec,
+    count_f1,
+    sparse_images_bytes,
+)
 from studies.schemas import COMPARE_SUMMARY_COLUMNS, table_of
 
 if TYPE_CHECKING:
@@ -63,6 +71,57 @@ def frame_images(sa: SideFrame, sb: SideFrame, diff: np.ndarray, truth: tuple[np
                        diff, who, None if frame is None else frame_view(frame, diff))
 
 
+def frame_images_bytes(sa: SideFrame, sb: SideFrame, truth: tuple[np.ndarray, np.ndarray] | None, pa: str, pb: str,
+                       frame: Frame | None = None) -> bytes:
+    """``frame_images(sa, sb, diff_image(...), truth, pa, pb, frame).to_bytes()`` (the same bytes: the
+    images the writer reads back are the same), computed at the pixels of the two scored regions alone:
+    every image is 0 outside them (``truth``'s scored pixels lie inside them), so no whole-frame image
+    is made."""
+    where = sa.region | sb.region
+    at_w = np.flatnonzero(where)
+    ma, mb = sa.preds[pa].ravel()[at_w], sb.preds[pb].ravel()[at_w]
+    only_a, only_b = ma & ~mb, mb & ~ma
+    who = np.zeros(at_w.size, dtype=np.uint8)
+    who[only_a] = 1
+    who[only_b] = 2
+    t_at = None if truth is None else (truth[0].ravel()[at_w], truth[1].ravel()[at_w])
+    va = _verdict_at(ma & sa.region.ravel()[at_w], t_at)
+    vb = _verdict_at(mb & sb.region.ravel()[at_w], t_at)
+    diff = np.zeros(at_w.size, dtype=np.uint8)
+    if t_at is None:
+        diff[only_a] = 4
+        diff[only_b] = 5
+    else:
+        lab, scored = t_at
+        right_a = (ma == lab) & scored
+        right_b = (mb == lab) & scored
+        diff[~right_a & right_b] = 1
+        diff[right_a & ~right_b] = 2
+        diff[~right_a & ~right_b & scored] = 3
+    anyset = va | vb
+    anyset |= diff
+    anyset |= who
+    keep = np.flatnonzero(anyset)
+    view = None
+    if frame is not None:
+        on = diff != 0
+        view = _frame_view_at(frame, at_w[on], diff[on])
+    return sparse_images_bytes(sa.region.shape, at_w[keep], (va[keep], vb[keep], diff[keep], who[keep]), view)
+
+
+def _verdict_at(pred: np.ndarray, truth: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+    """:func:`verdict_image` at some pixels (``pred`` and ``truth`` (outliers, scored) given there)."""
+    out = np.zeros(pred.size, dtype=np.uint8)
+    if truth is None:
+        out[pred] = 4
+        return out
+    lab, scored = truth
+    out[pred & lab & scored] = 1
+    out[pred & ~lab & scored] = 2
+    out[~pred & lab & scored] = 3
+    return out
+
+
 #: JPEG quality of the recording's RGB image (as ``zcut replay``'s recording compresses it).
 JPEG_QUALITY = 85
 
@@ -71,6 +130,12 @@ def frame_view(frame: Frame, diff: np.ndarray) -> FrameView:
     """A frame's own content in the recording: its RGB image JPEG-encoded (the bytes Rerun's
     ``Image.compress(85)`` makes: Pillow, quality 85), or a gray height image without RGB (near is
     bright); the points where ``diff`` is set (the disagreement in 3D) with their codes."""
+    at = np.flatnonzero(diff)
+    return _frame_view_at(frame, at, diff.ravel()[at])
+
+
+def _frame_view_at(frame: Frame, at: np.ndarray, codes: np.ndarray) -> FrameView:
+    """:func:`frame_view` of the difference image set at the flat pixels ``at`` (ascending) to ``codes``."""
     from PIL import Image
 
     rgb = frame.rgb
@@ -89,11 +154,10 @@ def frame_view(frame: Frame, diff: np.ndarray) -> FrameView:
             lo, hi = float(z[ok].min()), float(z[ok].max())
             image[ok] = (255 * (hi - z[ok]) / max(hi - lo, 1e-9)).astype(np.uint8)
     # the set pixels of diff whose point is valid, in row-major order (the points of only those are read)
-    at = np.flatnonzero(diff)
-    r, c = np.divmod(at, diff.shape[1])
+    r, c = np.divmod(at, frame.xyz.shape[1])
     pts = frame.xyz[r, c]
     ok = np.isfinite(pts).all(axis=1)
-    return FrameView(jpeg, image, pts[ok].astype(np.float32), diff.ravel()[at[ok]])
+    return FrameView(jpeg, image, pts[ok].astype(np.float32), codes[ok])
 
 
 def verdict_image(pred: np.ndarray, truth: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
@@ -234,53 +298,40 @@ def _signed(v: Any) -> str:
 
 
 def _plots(report: dict[str, Any]) -> list[dict[str, Any]]:
-    """The page's plots (PNG data URIs): per-frame F1 of A and B with ΔF1; the pooled figures with
-    their paired Δ and intervals."""
-    from studies.plots import _RC, _figure, _plot  # the sweep's figure helpers (same style)
+    """The page's plots (SVG data URIs, drawn without matplotlib in the sweep's plot style:
+    :func:`studies.plots.svg_figure`): per-frame F1 of A and B with ΔF1; the pooled figures with their
+    paired Δ and intervals."""
+    from studies.plots import SvgPanel, svg_figure
 
     out = []
     frames = [f for f in report["frames"] if f.get("scored")]
     pa, pb = report["a"]["primary"], report["b"]["primary"]
-    import matplotlib
-    from matplotlib.ticker import MaxNLocator
-
-    with matplotlib.rc_context(_RC):
-        if frames:
-            fig, axes = _figure(1, 2, width_in=9.0, height_in=3.2)
-            ax = axes[0][0]
-            x = np.arange(len(frames))
-            fa = [_f1_of(f["a"][pa]) for f in frames]
-            fb = [_f1_of(f["b"][pb]) for f in frames]
-            ax.plot(x, fa, "o-", color="#0072B2", label=f"A ({pa})", ms=3)
-            ax.plot(x, fb, "s-", color="#D55E00", label=f"B ({pb})", ms=3)
-            ax.set_xlabel("frame (in order)")
-            ax.set_ylabel("F1 per frame")
-            ax.legend(frameon=False)
-            ax = axes[0][1]
-            d = np.array(fb) - np.array(fa)
-            ax.bar(x, d, color=np.where(d >= 0, "#009E73", "#CC3311"))
-            ax.axhline(0, color="black", lw=0.8)
-            ax.set_xlabel("frame (in order)")
-            ax.set_ylabel("ΔF1 = B − A")
-            for a in axes[0]:
-                a.xaxis.set_major_locator(MaxNLocator(integer=True))
-            p = _plot("frames.png", "F1 per frame", "", fig)
-            out.append({"title": "F1 per frame, and B − A", "uri": _uri(p.png), "width": p.width_px})
-            v = report["verdict"]
-            fig, axes = _figure(1, 1, width_in=6.0, height_in=2.8)
-            ax = axes[0][0]
-            names = ["precision", "recall", "f1"]
-            for i, k in enumerate(names):
-                e = v["differences"][k]
-                lo, hi = e["ci"]
-                ax.plot([e["delta"]], [i], "o", color="#D55E00")
-                if lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi):
-                    ax.plot([lo, hi], [i, i], "-", color="#D55E00", lw=2)
-            ax.axvline(0, color="black", lw=0.8)
-            ax.set_yticks(range(3), ["ΔP", "ΔR", "ΔF1"])
-            ax.set_xlabel("B − A, pooled, with the 95 % paired interval")
-            p = _plot("deltas.png", "Paired differences", "", fig)
-            out.append({"title": "Paired differences (B − A)", "uri": _uri(p.png), "width": p.width_px})
+    if frames:
+        x = [float(i) for i in range(len(frames))]
+        fa = [_f1_of(f["a"][pa]) for f in frames]
+        fb = [_f1_of(f["b"][pb]) for f in frames]
+        per_frame = SvgPanel(lines=[(x, fa, "#0072B2", "o", 3.0, 1.5, f"A ({pa})"),
+                                    (x, fb, "#D55E00", "s", 3.0, 1.5, f"B ({pb})")],
+                             xlabel="frame (in order)", ylabel="F1 per frame", xinteger=True, legend=True)
+        d = [b - a for a, b in zip(fa, fb, strict=True)]
+        delta = SvgPanel(bars=[(xi, di, "#009E73" if di >= 0 else "#CC3311") for xi, di in zip(x, d, strict=True)],
+                         hlines=[(0.0, "black", 0.8)], xlabel="frame (in order)", ylabel="ΔF1 = B − A", xinteger=True)
+        svg = svg_figure([per_frame, delta], width_in=9.0, height_in=3.2)
+        out.append({"title": "F1 per frame, and B − A", "uri": _uri(svg), "width": 900})
+        v = report["verdict"]
+        lines = []
+        for i, k in enumerate(["precision", "recall", "f1"]):
+            e = v["differences"][k]
+            lo, hi = e["ci"]
+            dk = e["delta"]
+            if dk is not None:
+                lines.append(([float(dk)], [float(i)], "#D55E00", "o", 6.0, 1.5, ""))
+            if lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi):
+                lines.append(([float(lo), float(hi)], [float(i), float(i)], "#D55E00", "", 0.0, 2.0, ""))
+        pooled = SvgPanel(lines=lines, vlines=[(0.0, "black", 0.8)], yticks=([0.0, 1.0, 2.0], ["ΔP", "ΔR", "ΔF1"]),
+                          xlabel="B − A, pooled, with the 95 % paired interval")
+        svg = svg_figure([pooled], width_in=6.0, height_in=2.8)
+        out.append({"title": "Paired differences (B − A)", "uri": _uri(svg), "width": 600})
     return out
 
 
@@ -289,8 +340,8 @@ def _f1_of(e: dict[str, Any]) -> float:
     return 1.0 if den == 0 else 2 * e["tp"] / den
 
 
-def _uri(png: bytes) -> str:
-    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+def _uri(svg: str) -> str:
+    return "data:image/svg+xml;base64," + base64.b64encode(svg.encode("utf-8")).decode("ascii")
 
 
 def page_context(report: dict[str, Any]) -> dict[str, Any]:

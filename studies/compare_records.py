@@ -231,23 +231,12 @@ class FrameImages:
         set pixels only: ``shape`` (H, W), ``at`` the flat row-major indices (uint32, ascending) where any
         of the four is set, and each image's values there; with the view, its ``points``, ``point_ids``
         and ``jpeg`` or ``image``. Far cheaper than the dense images deflated (they are mostly zeros)."""
-        buf = io.BytesIO()
         images = (self.verdict_a, self.verdict_b, self.diff, self.who)
         anyset = self.verdict_a | self.verdict_b
         anyset |= self.diff
         anyset |= self.who
         at = np.flatnonzero(anyset)
-        arrays: dict[str, Any] = {"shape": np.array(self.diff.shape, dtype=np.int64), "at": at.astype(np.uint32)}
-        arrays.update({k: img.ravel()[at] for k, img in zip(_IMAGES, images, strict=True)})
-        if self.view is not None:
-            v = self.view
-            arrays.update({"points": v.points, "point_ids": v.point_ids})
-            if v.jpeg is not None:
-                arrays["jpeg"] = np.frombuffer(v.jpeg, dtype=np.uint8)
-            if v.image is not None:
-                arrays["image"] = v.image
-        np.savez(buf, **arrays)
-        return buf.getvalue()
+        return sparse_images_bytes(self.diff.shape, at, tuple(img.ravel()[at] for img in images), self.view)
 
     @classmethod
     def from_bytes(cls, data: bytes) -> FrameImages:
@@ -271,6 +260,24 @@ class FrameImages:
 
 #: The images of :class:`FrameImages`, in order.
 _IMAGES = ("verdict_a", "verdict_b", "diff", "who")
+
+
+def sparse_images_bytes(shape: tuple[int, ...], at: np.ndarray, values: tuple[np.ndarray, ...],
+                        view: FrameView | None) -> bytes:
+    """:meth:`FrameImages.to_bytes` of images given by their set pixels: ``at`` the flat row-major indices
+    (ascending) where any of the four images of :data:`_IMAGES` is set, ``values`` each image's values
+    there, in that order (the same bytes as the dense images give)."""
+    buf = io.BytesIO()
+    arrays: dict[str, Any] = {"shape": np.array(shape, dtype=np.int64), "at": at.astype(np.uint32)}
+    arrays.update(dict(zip(_IMAGES, values, strict=True)))
+    if view is not None:
+        arrays.update({"points": view.points, "point_ids": view.point_ids})
+        if view.jpeg is not None:
+            arrays["jpeg"] = np.frombuffer(view.jpeg, dtype=np.uint8)
+        if view.image is not None:
+            arrays["image"] = view.image
+    np.savez(buf, **arrays)
+    return buf.getvalue()
 
 
 @dataclass(frozen=True, slots=True)

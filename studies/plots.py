@@ -24,7 +24,7 @@ from __future__ import annotations
 import io
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -564,4 +564,308 @@ def make_plots(summary: SweepSummary | Mapping[str, Any]) -> list[Plot]:
             p = make()
             if p is not None:
                 out.append(p)
+    return out
+
+
+# ------------------------------------------------------------------------- SVG panels (no matplotlib)
+# ``zcut compare``'s page draws its two small plots as SVG text here, in the style above (matplotlib's
+# defaults and :data:`_RC`: DejaVu Sans, the same sizes, ticks, grid, margins and colours), without
+# matplotlib: importing it and rendering two figures cost the page 0.3-1 CPU-s (docs/compare.md, "Cost").
+
+_PT = _CSS_PX_PER_INCH / 72.0  # CSS px per point
+_TICK_PT, _TICK_PAD_PT, _LABEL_PAD_PT, _FIG_PAD_PX = 3.5, 3.5, 4.0, 0.04167 * _CSS_PX_PER_INCH
+_GRID = "#b0b0b0"
+_FONT = "DejaVu Sans, Bitstream Vera Sans, Arial, sans-serif"
+# DejaVu Sans advance widths (em) of the characters tick labels and legends use; others ~0.6 em
+_ADVANCE = {**dict.fromkeys("0123456789", 0.636), ".": 0.318, ",": 0.318, " ": 0.318, "−": 0.838, "-": 0.361,
+            "+": 0.838, "(": 0.39, ")": 0.39, "Δ": 0.684, "i": 0.278, "l": 0.278, "t": 0.392, "r": 0.411,
+            "f": 0.352, "j": 0.278, "m": 0.974, "w": 0.818, "A": 0.684, "B": 0.686, "F": 0.575, "P": 0.603,
+            "R": 0.695, "=": 0.838, "%": 0.95}
+
+
+def _text_px(text: str, size_pt: float) -> float:
+    """The width (CSS px) of ``text`` in DejaVu Sans at ``size_pt``."""
+    return sum(_ADVANCE.get(ch, 0.6) for ch in text) * size_pt * _PT
+
+
+@dataclass
+class SvgPanel:
+    """One panel (axes) of an SVG figure (:func:`svg_figure`), in data coordinates.
+
+    ``lines``: ``(xs, ys, colour, marker, marker_pt, width_pt, label)``, marker ``"o"``, ``"s"`` or
+    ``""``; non-finite points are left out. ``bars``: ``(x, height, colour)``, 0.8 wide from 0.
+    ``hlines`` / ``vlines``: ``(value, colour, width_pt)`` across the panel. ``xinteger``: integer
+    ticks on x (``MaxNLocator(integer=True)``). ``yticks``: fixed ``(values, labels)`` on y.
+    """
+
+    lines: list[tuple[list[float], list[float], str, str, float, float, str]] = field(default_factory=list)
+    bars: list[tuple[float, float, str]] = field(default_factory=list)
+    hlines: list[tuple[float, str, float]] = field(default_factory=list)
+    vlines: list[tuple[float, str, float]] = field(default_factory=list)
+    xlabel: str = ""
+    ylabel: str = ""
+    xinteger: bool = False
+    yticks: tuple[list[float], list[str]] | None = None
+    legend: bool = False
+
+
+def _scale_range(vmin: float, vmax: float, n: int) -> tuple[float, float]:
+    dv = abs(vmax - vmin)
+    meanv = (vmax + vmin) / 2
+    offset = 0.0 if abs(meanv) / dv < 100 else math.copysign(10 ** (math.log10(abs(meanv)) // 1), meanv)
+    return 10 ** (math.log10(dv / n) // 1), offset
+
+
+def _ticks(vmin: float, vmax: float, nbins: int, *, integer: bool) -> list[float]:
+    """matplotlib's ``MaxNLocator`` ticks of the view ``[vmin, vmax]`` (its ``_raw_ticks``): steps 1, 2,
+    2.5, 5, 10 (``AutoLocator``), or those of ``MaxNLocator(integer=True)`` (at most 10 bins)."""
+    if integer:
+        base = np.array([1, 1.5, 2, 2.5, 3, 4, 5, 6, 8, 10])
+        nbins = 10
+    else:
+        base = np.array([1, 2, 2.5, 5, 10])
+    steps = np.concatenate([0.1 * base[:-1], base, [10 * base[1]]])
+    scale, offset = _scale_range(vmin, vmax, nbins)
+    lo, hi = vmin - offset, vmax - offset
+    steps = steps * scale
+    if integer:
+        steps = steps[(steps < 1) | (np.abs(steps - np.round(steps)) < 0.001)]
+    raw = (hi - lo) / nbins
+    istep = int(np.nonzero(steps >= raw)[0][0])
+    ticks = np.zeros(0)
+    for step in steps[:istep + 1][::-1]:
+        if integer and math.floor(hi) - math.ceil(lo) >= 1:
+            step = max(1.0, step)
+        best = (lo // step) * step
+        d, m = divmod(lo - best, step)
+        low = d + 1 if abs(m / step - 1) < 1e-10 else d
+        d, m = divmod(hi - best, step)
+        high = d if abs(m / step) < 1e-10 else d + 1
+        ticks = np.arange(low, high + 1) * step + best
+        if int(((ticks <= hi) & (ticks >= lo)).sum()) >= 2:
+            break
+    return [float(t) for t in ticks + offset]
+
+
+def _tick_format(locs: list[float]) -> Callable[[float], str]:
+    """matplotlib's ``ScalarFormatter`` decimals for these ticks (the fewest that tell them apart), its
+    minus sign U+2212."""
+    arr = np.asarray(locs, dtype=float)
+    span = float(np.ptp(arr)) if arr.size > 1 else (abs(float(arr[0])) if arr.size else 1.0)
+    oom = math.floor(math.log10(span)) if span > 0 else 0
+    sig = max(0, 3 - oom)
+    thresh = 1e-3 * 10 ** oom
+    while sig >= 0 and arr.size and float(np.abs(arr - np.round(arr, decimals=sig)).max()) < thresh:
+        sig -= 1
+    sig = min(sig + 1, 8)
+
+    def fmt(v: float) -> str:
+        s = f"{v:.{sig}f}"
+        if float(s) == 0:
+            s = s.lstrip("-")
+        return s.replace("-", "−")
+
+    return fmt
+
+
+def _limits(values: list[float], sticky: list[float]) -> tuple[float, float]:
+    """The autoscaled view of data spanning ``values``: matplotlib's 5 % margins (``axes.[xy]margin``),
+    not past a sticky edge (a bar's 0) that bounds the data; a single value widened by 5 %."""
+    lo, hi = min(values), max(values)
+    if hi - lo <= 1e-15 * max(abs(lo), abs(hi), 1e-300):
+        lo, hi = (-0.05, 0.05) if lo == 0 else (lo - 0.05 * abs(lo), hi + 0.05 * abs(hi))
+    below = [s for s in sticky if s <= lo]
+    above = [s for s in sticky if s >= hi]
+    delta = (hi - lo) * 0.05
+    lo2, hi2 = lo - delta, hi + delta
+    if below:
+        lo2 = max(lo2, max(below))
+    if above:
+        hi2 = min(hi2, min(above))
+    return lo2, hi2
+
+
+def _esc(text: str) -> str:
+    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace("'", "&#39;")
+
+
+def _num_svg(v: float) -> str:
+    return f"{v:.2f}".rstrip("0").rstrip(".")
+
+
+def svg_figure(panels: list[SvgPanel], *, width_in: float, height_in: float) -> str:
+    """Side-by-side panels as one SVG document of ``width_in`` x ``height_in`` inches (100 CSS px an
+    inch, as the sweep's PNGs are shown), laid out as matplotlib's constrained layout lays them out
+    (equal panels, each with room for its tick labels and axis labels)."""
+    W, H = width_in * _CSS_PX_PER_INCH, height_in * _CSS_PX_PER_INCH
+    tick_font, label_font = float(_RC["xtick.labelsize"]), float(_RC["axes.labelsize"])
+    line_h_tick, line_h_label = tick_font * _PT * 1.17, label_font * _PT * 1.17
+    tick_out = (_TICK_PT + _TICK_PAD_PT) * _PT
+    views = []
+    for p in panels:
+        xs = [x for xs_, _, *_ in p.lines for x in xs_] + [b[0] + s for b in p.bars for s in (-0.4, 0.4)]
+        xs += [v[0] for v in p.vlines]
+        ys = [y for _, ys_, *_ in p.lines for y in ys_] + [h for b in p.bars for h in (0.0, b[1])]
+        ys += [v[0] for v in p.hlines]
+        xs = [x for x in xs if math.isfinite(x)] or [0.0, 1.0]
+        ys = [y for y in ys if math.isfinite(y)] or [0.0, 1.0]
+        views.append((_limits(xs, []), _limits(ys, [0.0] if p.bars else [])))
+    # the y tick labels' widths need the ticks, which need the panel's height: y first
+    bottom = _FIG_PAD_PX + tick_out + line_h_tick + _LABEL_PAD_PT * _PT + line_h_label
+    top = _FIG_PAD_PX + line_h_tick / 2
+    ax_h = H - top - bottom
+    yt: list[tuple[list[float], list[str]]] = []
+    lefts = []
+    for p, (_, (y0, y1)) in zip(panels, views, strict=True):
+        if p.yticks is not None:
+            vals, labels = p.yticks
+        else:
+            vals = _ticks(y0, y1, max(1, min(int(ax_h / _PT // (tick_font * 2)), 9)), integer=False)
+            f = _tick_format(vals)
+            labels = [f(v) for v in vals]
+        shown = [(v, s) for v, s in zip(vals, labels, strict=True) if y0 - 1e-12 <= v <= y1 + 1e-12]
+        yt.append(([v for v, _ in shown], [s for _, s in shown]))
+        widest = max((_text_px(s, tick_font) for _, s in shown), default=0.0)
+        lefts.append(tick_out + widest + (_LABEL_PAD_PT * _PT + line_h_label if p.ylabel else 0.0) + _FIG_PAD_PX)
+    # room right of each panel for its last x tick label's half where it sticks out (found in two passes)
+    rights = [_FIG_PAD_PX] * len(panels)
+    xts: list[list[tuple[float, str]]] = []
+    for _ in range(2):
+        ax_w = (W - sum(lefts) - sum(rights)) / len(panels)
+        xts = []
+        for i, (p, ((x0, x1), _)) in enumerate(zip(panels, views, strict=True)):
+            xv = _ticks(x0, x1, max(1, min(int(ax_w / _PT // (tick_font * 3)), 9)), integer=p.xinteger)
+            f = _tick_format(xv)
+            xts.append([(v, f(v)) for v in xv if x0 - 1e-12 <= v <= x1 + 1e-12])
+            v, s = xts[-1][-1] if xts[-1] else (x1, "")
+            rights[i] = _FIG_PAD_PX + max(0.0, _text_px(s, tick_font) / 2 - (x1 - v) / (x1 - x0) * ax_w)
+    out = [f"<svg xmlns='http://www.w3.org/2000/svg' width='{_num_svg(W)}' height='{_num_svg(H)}' "
+           f"viewBox='0 0 {_num_svg(W)} {_num_svg(H)}' font-family='{_FONT}'>",
+           f"<rect width='{_num_svg(W)}' height='{_num_svg(H)}' fill='white'/>"]
+    x_at = 0.0
+    for p, ((x0, x1), (y0, y1)), (yv, ylab), left, right, xt in zip(panels, views, yt, lefts, rights, xts,
+                                                                     strict=True):
+        ax_x = x_at + left
+        x_at = ax_x + ax_w + right
+
+        def px(x: float, x0: float = x0, x1: float = x1, ax_x: float = ax_x) -> float:
+            return ax_x + (x - x0) / (x1 - x0) * ax_w
+
+        def py(y: float, y0: float = y0, y1: float = y1) -> float:
+            return top + ax_h - (y - y0) / (y1 - y0) * ax_h
+
+        out.append(f"<clipPath id='c{len(out)}'><rect x='{_num_svg(ax_x)}' y='{_num_svg(top)}' "
+                   f"width='{_num_svg(ax_w)}' height='{_num_svg(ax_h)}'/></clipPath>")
+        clip = f"c{len(out) - 1}"
+        out.append(f"<g clip-path='url(#{clip})'>")
+        for x, h, colour in p.bars:  # patches below the grid (axes.axisbelow: "line")
+            ya, yb = sorted((py(0.0), py(h)))
+            out.append(f"<rect x='{_num_svg(px(x - 0.4))}' y='{_num_svg(ya)}' width='{_num_svg(px(x + 0.4) - px(x - 0.4))}' "
+                       f"height='{_num_svg(yb - ya)}' fill='{colour}'/>")
+        grid = f"stroke='{_GRID}' stroke-opacity='{_RC['grid.alpha']}' stroke-width='{_num_svg(_RC['grid.linewidth'] * _PT)}'"
+        for v, _ in xt:
+            out.append(f"<line x1='{_num_svg(px(v))}' x2='{_num_svg(px(v))}' y1='{_num_svg(top)}' "
+                       f"y2='{_num_svg(top + ax_h)}' {grid}/>")
+        for v in yv:
+            out.append(f"<line x1='{_num_svg(ax_x)}' x2='{_num_svg(ax_x + ax_w)}' y1='{_num_svg(py(v))}' "
+                       f"y2='{_num_svg(py(v))}' {grid}/>")
+        for v, colour, lw in p.hlines:
+            out.append(f"<line x1='{_num_svg(ax_x)}' x2='{_num_svg(ax_x + ax_w)}' y1='{_num_svg(py(v))}' "
+                       f"y2='{_num_svg(py(v))}' stroke='{colour}' stroke-width='{_num_svg(lw * _PT)}'/>")
+        for v, colour, lw in p.vlines:
+            out.append(f"<line x1='{_num_svg(px(v))}' x2='{_num_svg(px(v))}' y1='{_num_svg(top)}' "
+                       f"y2='{_num_svg(top + ax_h)}' stroke='{colour}' stroke-width='{_num_svg(lw * _PT)}'/>")
+        for xs_, ys_, colour, marker, ms, lw, _label in p.lines:
+            pts = [(px(x), py(y)) for x, y in zip(xs_, ys_, strict=True) if math.isfinite(x) and math.isfinite(y)]
+            if len(pts) > 1 and lw > 0:
+                out.append("<polyline fill='none' stroke-linejoin='round' stroke-linecap='square' "
+                           f"stroke='{colour}' stroke-width='{_num_svg(lw * _PT)}' points='"
+                           + " ".join(f"{_num_svg(a)},{_num_svg(b)}" for a, b in pts) + "'/>")
+            out += [_marker(marker, a, b, ms, colour) for a, b in pts if marker]
+        out.append("</g>")
+        # spines (left, bottom), ticks, tick labels, axis labels
+        spine = f"stroke='black' stroke-width='{_num_svg(0.8 * _PT)}'"
+        out.append(f"<line x1='{_num_svg(ax_x)}' x2='{_num_svg(ax_x)}' y1='{_num_svg(top)}' y2='{_num_svg(top + ax_h)}' "
+                   f"{spine} stroke-linecap='square'/>")
+        out.append(f"<line x1='{_num_svg(ax_x)}' x2='{_num_svg(ax_x + ax_w)}' y1='{_num_svg(top + ax_h)}' "
+                   f"y2='{_num_svg(top + ax_h)}' {spine} stroke-linecap='square'/>")
+        tick = _TICK_PT * _PT
+        for v, s in xt:
+            out.append(f"<line x1='{_num_svg(px(v))}' x2='{_num_svg(px(v))}' y1='{_num_svg(top + ax_h)}' "
+                       f"y2='{_num_svg(top + ax_h + tick)}' {spine}/>")
+            out.append(f"<text x='{_num_svg(px(v))}' y='{_num_svg(top + ax_h + tick_out + tick_font * _PT * 0.93)}' "
+                       f"font-size='{_num_svg(tick_font * _PT)}' text-anchor='middle'>{_esc(s)}</text>")
+        for v, s in zip(yv, ylab, strict=True):
+            out.append(f"<line x1='{_num_svg(ax_x - tick)}' x2='{_num_svg(ax_x)}' y1='{_num_svg(py(v))}' "
+                       f"y2='{_num_svg(py(v))}' {spine}/>")
+            out.append(f"<text x='{_num_svg(ax_x - tick_out)}' y='{_num_svg(py(v) + tick_font * _PT * 0.36)}' "
+                       f"font-size='{_num_svg(tick_font * _PT)}' text-anchor='end'>{_esc(s)}</text>")
+        if p.xlabel:
+            out.append(f"<text x='{_num_svg(ax_x + ax_w / 2)}' y='{_num_svg(H - _FIG_PAD_PX - line_h_label * 0.25)}' "
+                       f"font-size='{_num_svg(label_font * _PT)}' text-anchor='middle'>{_esc(p.xlabel)}</text>")
+        if p.ylabel:
+            widest = max((_text_px(s, tick_font) for s in ylab), default=0.0)
+            lx = ax_x - tick_out - widest - _LABEL_PAD_PT * _PT - line_h_label * 0.25
+            out.append(f"<text transform='translate({_num_svg(lx)},{_num_svg(top + ax_h / 2)}) rotate(-90)' "
+                       f"font-size='{_num_svg(label_font * _PT)}' text-anchor='middle'>{_esc(p.ylabel)}</text>")
+        if p.legend:
+            out += _legend(p, ax_x, top, ax_w, ax_h, px, py)
+    out.append("</svg>")
+    return "\n".join(out) + "\n"
+
+
+def _marker(marker: str, x: float, y: float, ms_pt: float, colour: str) -> str:
+    """A marker of ``ms_pt`` points (its edge 1 pt, matplotlib's ``lines.markeredgewidth``) at ``(x, y)``."""
+    r = ms_pt * _PT / 2
+    edge = f"fill='{colour}' stroke='{colour}' stroke-width='{_num_svg(_PT)}'"
+    if marker == "s":
+        return f"<rect x='{_num_svg(x - r)}' y='{_num_svg(y - r)}' width='{_num_svg(2 * r)}' height='{_num_svg(2 * r)}' {edge}/>"
+    return f"<circle cx='{_num_svg(x)}' cy='{_num_svg(y)}' r='{_num_svg(r)}' {edge}/>"
+
+
+def _legend(p: SvgPanel, ax_x: float, top: float, ax_w: float, ax_h: float, px: Callable[[float], float],
+            py: Callable[[float], float]) -> list[str]:
+    """The panel's legend without a frame, where matplotlib's ``loc="best"`` puts it: of its places in
+    its order, the first over the fewest data points and lines."""
+    entries = [(c, m, ms, lw, label) for _, _, c, m, ms, lw, label in p.lines if label]
+    if not entries:
+        return []
+    fs = float(_RC["legend.fontsize"])
+    em = fs * _PT
+    text_w = max(_text_px(e[4], fs) for e in entries)
+    row = em * 1.17
+    bw = (0.4 * 2 + 2.0 + 0.8) * em + text_w
+    bh = len(entries) * row + (len(entries) - 1) * 0.5 * em + 0.8 * em
+    pad = 0.5 * em
+    xl, xc, xr = ax_x + pad, ax_x + (ax_w - bw) / 2, ax_x + ax_w - pad - bw
+    yt_, yc, yb = top + pad, top + (ax_h - bh) / 2, top + ax_h - pad - bh
+    places = [(xr, yt_), (xl, yt_), (xl, yb), (xr, yb), (xr, yc), (xl, yc), (xr, yc), (xc, yb), (xc, yt_), (xc, yc)]
+    vertices: list[tuple[float, float]] = []
+    paths: list[list[tuple[float, float]]] = []
+    for xs_, ys_, *_ in p.lines:
+        pts = [(px(x), py(y)) for x, y in zip(xs_, ys_, strict=True) if math.isfinite(x) and math.isfinite(y)]
+        vertices += pts
+        paths.append([(a + (c - a) * t, b + (d - b) * t) for (a, b), (c, d) in zip(pts, pts[1:], strict=False)
+                      for t in np.linspace(0.0, 1.0, 41)])
+
+    def bad(place: tuple[float, float]) -> int:
+        """matplotlib's badness: the data vertices under the legend, and one per line crossing it."""
+        x, y = place
+
+        def inside(q: tuple[float, float]) -> bool:
+            return x <= q[0] <= x + bw and y <= q[1] <= y + bh
+
+        return sum(map(inside, vertices)) + sum(any(map(inside, path)) for path in paths)
+
+    x, y = min(places, key=bad)
+    out = []
+    for i, (colour, marker, ms, lw, label) in enumerate(entries):
+        cy = y + 0.4 * em + i * (row + 0.5 * em) + row / 2
+        hx = x + 0.4 * em
+        out.append(f"<line x1='{_num_svg(hx)}' x2='{_num_svg(hx + 2 * em)}' y1='{_num_svg(cy)}' y2='{_num_svg(cy)}' "
+                   f"stroke='{colour}' stroke-width='{_num_svg(lw * _PT)}'/>")
+        if marker:
+            out.append(_marker(marker, hx + em, cy, ms, colour))
+        out.append(f"<text x='{_num_svg(hx + 2.8 * em)}' y='{_num_svg(cy + em * 0.36)}' "
+                   f"font-size='{_num_svg(em)}'>{_esc(label)}</text>")
     return out

@@ -171,6 +171,23 @@ def test_bad_input_is_one_line(data, tmp_path, capsys, a, b, extra, message):
     assert not any((tmp_path / "x").glob("*.json"))
 
 
+def test_a_truth_a_log_lacks_is_one_line_before_anything_is_written(data, tmp_path, capsys):
+    """``--truth`` asked of logs one of which lacks it (checked on the planning's reader): one line naming
+    that log as given, exit 1, nothing written; the logs that have it compare."""
+    for logs in ((data / "notruth.mcap",), (data / "log.mcap", data / "notruth.mcap")):
+        rc, _, err = run_cli(capsys, "compare", *logs, "--a", "zcut", "--b", "sor", "--truth", "sensor", "-o",
+                             tmp_path / "t", "--no-rrd")
+        assert rc == 1, err
+        lines = err.strip().splitlines()
+        assert lines[-1] == (f"error: {data / 'notruth.mcap'} has no /ground_truth/outliers (--truth sensor): give "
+                             "human labels with --labels DB"), err
+        assert not (tmp_path / "t").exists() or not any((tmp_path / "t").iterdir())
+    rc, out, err = run_cli(capsys, "compare", data / "log.mcap", "--a", "zcut", "--b", "sor", "--truth", "sensor",
+                           "-o", tmp_path / "ok", "--no-rrd", "--json")
+    assert rc == 0, err
+    assert "sensor" in json.loads(out)["truth"]
+
+
 def test_existing_outputs_need_force(data, tmp_path, capsys):
     args = ("compare", data / "log.mcap", "--a", "zcut", "--b", "sor", "-o", tmp_path / "f", "--no-rrd")
     assert run_cli(capsys, *args)[0] == 0

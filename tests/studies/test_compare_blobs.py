@@ -120,10 +120,12 @@ def test_blobs_equal_those_of_the_whole_image_transform(rng, monkeypatch, tile, 
     monkeypatch.setattr(cmp, "_MARGIN_PX", margin)
     n = 0
     for a, b, where, xyz, truth in _cases(rng):
-        fp = cmp.pixel_footprint_mm2(xyz, Intrinsics(fx=600.0, fy=610.0, cx=1.0, cy=2.0, width=xyz.shape[1],
-                                                      height=xyz.shape[0]))  # NaN where invalid
+        k = Intrinsics(fx=600.0, fy=610.0, cx=1.0, cy=2.0, width=xyz.shape[1], height=xyz.shape[0])
+        fp = cmp.pixel_footprint_mm2(xyz, k)  # NaN where invalid
         got = disagreement_blobs("l", 3, 7, a, b, where, truth=truth, footprint=fp, xyz=xyz)
         _same(got, reference_blobs("l", 3, 7, a, b, where, truth=truth, footprint=fp, xyz=xyz))
+        # the footprint computed at the blobs' pixels alone (as compare does): the same areas, to the bit
+        assert disagreement_blobs("l", 3, 7, a, b, where, truth=truth, intrinsics=k, xyz=xyz) == got
         n += len(got)
     assert n > 1000
 

@@ -50,3 +50,37 @@ def test_a_part_written_with_dense_images_still_reads(rng):
     for got, want in zip((back.verdict_a, back.verdict_b, back.diff, back.who), (va, vb, diff, who), strict=True):
         assert np.array_equal(got, want)
     assert back.view is not None and back.view.jpeg is None and np.array_equal(back.view.image, gray)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_images_made_at_the_regions_pixels_equal_the_whole_frame_images(seed):
+    """The unit's images made at the scored regions' pixels alone (``frame_images_bytes``) are those of the
+    whole-frame images (``diff_image``, ``frame_images``): the same bytes, the same view; with and without
+    truth, regions of A and B that differ, invalid points, an RGB image or none."""
+    from types import SimpleNamespace
+
+    from studies.compare import diff_image
+    from studies.compare_outputs import frame_images, frame_images_bytes
+    from studies.compare_records import SideFrame
+
+    rng = np.random.default_rng(seed)
+    h, w = 47, 61
+    valid = rng.random((h, w)) > 0.1
+    valid[10:30, 5:25] = False
+    ra, rb = valid & (rng.random((h, w)) > 0.2), valid.copy()
+    rb[:, : w // 3] = False
+    for density in (0.0, 0.05, 0.5):
+        sa = SideFrame({"zcut": rng.random((h, w)) < density}, valid, ra)
+        sb = SideFrame({"zcut": rng.random((h, w)) < density, "sor": rng.random((h, w)) < 0.1}, valid, rb)
+        lab = (rng.random((h, w)) < 0.2) & valid
+        reviewed = valid & (rng.random((h, w)) > 0.3)
+        xyz = rng.random((h, w, 3)).astype(np.float32)
+        xyz[~valid] = np.nan
+        rgb = rng.integers(0, 255, (h, w, 3), dtype=np.uint8)
+        for truth in (None, (lab & reviewed, reviewed & (ra | rb))):
+            for pb in ("zcut", "sor"):
+                for frame in (None, SimpleNamespace(xyz=xyz, rgb=rgb), SimpleNamespace(xyz=xyz, rgb=None)):
+                    diff = diff_image(sa.preds["zcut"], sb.preds[pb], ra | rb, truth)
+                    want = frame_images(sa, sb, diff, truth, "zcut", pb, frame).to_bytes()
+                    got = frame_images_bytes(sa, sb, truth, "zcut", pb, frame)
+                    assert got == want
