@@ -383,3 +383,21 @@ def test_residual_kernel_equals_the_previous_kernel() -> None:
         want = ref._surface_residuals_previous(h, judged, tau=tau, jump=jump, min_below=mb)
         np.testing.assert_array_equal(got[0], want[0])
         assert np.array_equal(got[1], want[1], equal_nan=True)
+
+
+def test_local_height_kernel_equals_the_previous_kernel() -> None:
+    """Bit for bit, the sign of zero included (the median-of-five network leaves zeros to the
+    insertion): small fields of few levels (ties), NaN, -0.0, and 120 x 160."""
+    from zcut.suspects.noise import _local_height_kernel
+
+    rng = np.random.default_rng(25)
+    for t in range(600):
+        H, W = ((120, 160) if t % 50 == 0 else (int(rng.integers(0, 14)), int(rng.integers(0, 14))))
+        h = rng.integers(-3, 4, (H, W)).astype(np.float64) * float(rng.choice([1.0, 0.5, 1e-3]))
+        h[rng.random((H, W)) < float(rng.choice([0.0, 0.2, 0.6]))] = np.nan
+        if t % 3 == 0:
+            h[rng.random((H, W)) < 0.3] *= -0.0
+        got, want = np.empty((H, W)), np.empty((H, W))
+        _local_height_kernel(h, got)
+        ref._local_height_kernel_previous(h, want)
+        np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))

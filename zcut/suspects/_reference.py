@@ -312,6 +312,37 @@ def strength_classes_reference(primary: np.ndarray, strength: np.ndarray) -> np.
     return out
 
 
+@numba.njit(cache=True)
+def _local_height_kernel_previous(h, out):  # type: ignore[no-untyped-def]  # numba kernel
+    H, W = h.shape
+    v = np.empty(5)
+    for i in range(H):
+        for j in range(W):
+            x = h[i, j]
+            if not np.isfinite(x):
+                out[i, j] = np.nan
+                continue
+            # the pixel, then its neighbours E, W, S, N (the previous code's order: a stable sort of
+            # equal values keeps it)
+            v[0] = x
+            n = 1
+            for k in range(4):
+                i1 = i + (0, 0, 1, -1)[k]
+                j1 = j + (1, -1, 0, 0)[k]
+                if 0 <= i1 < H and 0 <= j1 < W:
+                    y = h[i1, j1]
+                    if np.isfinite(y):
+                        m = n
+                        while m > 0 and v[m - 1] > y:  # insertion: stable
+                            v[m] = v[m - 1]
+                            m -= 1
+                        v[m] = y
+                        n += 1
+            lo = v[(n - 1) // 2]
+            hi = v[n // 2]
+            out[i, j] = lo if n % 2 == 1 else 0.5 * (lo + hi)
+
+
 def local_height_reference(height: FloatImage) -> np.ndarray:
     """The median of each pixel's height and its 4 neighbours' (measured ones only; NaN where the
     pixel is not measured): the height at which to look up the noise of a pixel, so that a spike

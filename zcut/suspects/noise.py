@@ -53,32 +53,71 @@ def _second_differences(height: np.ndarray, judged: Mask) -> tuple[np.ndarray, n
     return np.abs(np.concatenate(vals)), np.concatenate(at)
 
 
+@numba.njit(cache=True, inline="always")
+def _insert(v, n, y):  # type: ignore[no-untyped-def]  # numba kernel
+    """Insert y into the sorted v[:n] after any equal values (a stable insertion); return n + 1."""
+    m = n
+    while m > 0 and v[m - 1] > y:
+        v[m] = v[m - 1]
+        m -= 1
+    v[m] = y
+    return n + 1
+
+
 @numba.njit(cache=True)
 def _local_height_kernel(h, out):  # type: ignore[no-untyped-def]  # numba kernel
     H, W = h.shape
     v = np.empty(5)
     for i in range(H):
+        inner_row = 0 < i < H - 1
         for j in range(W):
             x = h[i, j]
             if not np.isfinite(x):
                 out[i, j] = np.nan
                 continue
             # the pixel, then its neighbours E, W, S, N (the previous code's order: a stable sort of
-            # equal values keeps it)
+            # equal values keeps it); a pixel off the border has all four (no bounds checks)
             v[0] = x
             n = 1
-            for k in range(4):
-                i1 = i + (0, 0, 1, -1)[k]
-                j1 = j + (1, -1, 0, 0)[k]
-                if 0 <= i1 < H and 0 <= j1 < W:
-                    y = h[i1, j1]
-                    if np.isfinite(y):
-                        m = n
-                        while m > 0 and v[m - 1] > y:  # insertion: stable
-                            v[m] = v[m - 1]
-                            m -= 1
-                        v[m] = y
-                        n += 1
+            if inner_row and 0 < j < W - 1:
+                a = h[i, j + 1]
+                b = h[i, j - 1]
+                c = h[i + 1, j]
+                d = h[i - 1, j]
+                if np.isfinite(a) and np.isfinite(b) and np.isfinite(c) and np.isfinite(d):
+                    # five values: their middle one by a min / max network (one of the values, the
+                    # insertion's v[2]); a zero is left to the insertion (-0.0 and 0.0 tie there)
+                    e = x
+                    a, b = min(a, b), max(a, b)
+                    d, e = min(d, e), max(d, e)
+                    a, d = min(a, d), max(a, d)
+                    b, e = min(b, e), max(b, e)
+                    c, d = min(c, d), max(c, d)
+                    b, c = min(b, c), max(b, c)
+                    c, d = min(c, d), max(c, d)
+                    if c != 0.0:
+                        out[i, j] = c
+                        continue
+                y = h[i, j + 1]
+                if np.isfinite(y):
+                    n = _insert(v, n, y)
+                y = h[i, j - 1]
+                if np.isfinite(y):
+                    n = _insert(v, n, y)
+                y = h[i + 1, j]
+                if np.isfinite(y):
+                    n = _insert(v, n, y)
+                y = h[i - 1, j]
+                if np.isfinite(y):
+                    n = _insert(v, n, y)
+            else:
+                for k in range(4):
+                    i1 = i + (0, 0, 1, -1)[k]
+                    j1 = j + (1, -1, 0, 0)[k]
+                    if 0 <= i1 < H and 0 <= j1 < W:
+                        y = h[i1, j1]
+                        if np.isfinite(y):
+                            n = _insert(v, n, y)
             lo = v[(n - 1) // 2]
             hi = v[n // 2]
             out[i, j] = lo if n % 2 == 1 else 0.5 * (lo + hi)
