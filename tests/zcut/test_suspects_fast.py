@@ -401,3 +401,40 @@ def test_local_height_kernel_equals_the_previous_kernel() -> None:
         _local_height_kernel(h, got)
         ref._local_height_kernel_previous(h, want)
         np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
+
+
+def test_stable_argsort_equals_numpy() -> None:
+    from zcut.suspects.select import stable_argsort
+
+    rng = np.random.default_rng(26)
+    for t in range(400):
+        n = int(rng.integers(0, 3000))
+        x = [rng.normal(size=n), np.round(rng.normal(size=n) * 3) / 4, rng.integers(-2, 3, n) * 0.0,
+             -np.abs(rng.normal(size=n)) * 1e300, rng.integers(0, 3, n) * 5e-324][t % 5].astype(np.float64)
+        if n and t % 7 == 0:
+            x[rng.integers(0, n)] = np.inf
+        if n and t % 11 == 0:
+            x[rng.integers(0, n)] = -np.inf
+        if n and t % 13 == 0:
+            x[rng.integers(0, n)] = np.nan
+        if n and t % 5 == 2:
+            x[rng.random(n) < 0.5] *= -1.0  # -0.0 among 0.0
+        np.testing.assert_array_equal(stable_argsort(x), np.argsort(x, kind="stable"))
+
+
+def test_sampled_differences_in_two_sweeps_equal_the_eight() -> None:
+    from zcut.suspects.noise import _sampled_both, _sampled_differences
+
+    rng = np.random.default_rng(27)
+    for t in range(300):
+        h = random_heights(rng).astype(np.float64)
+        if t % 2:
+            h = np.round(h)
+        if t % 3 == 0:
+            h[rng.random(h.shape) < 0.5] = np.nan
+        judged = np.isfinite(h) & (rng.random(h.shape) < 0.8)
+        most = int(rng.choice([1, 2, 3, 7, 50, 200_000]))
+        got = _sampled_both(h, judged, most)
+        want = (*_sampled_differences(h, judged, 2, most), *_sampled_differences(h, judged, 1, most))
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g.view(np.int64), w.view(np.int64))

@@ -131,3 +131,48 @@ def median(x: np.ndarray) -> float:
     if n % 2:
         return float(b)
     return float((np.float64(a) + np.float64(b)) / 2.0)
+
+
+@numba.njit(cache=True)
+def _stable_argsort_kernel(x):  # type: ignore[no-untyped-def]  # numba kernel
+    n = x.size
+    keys = np.empty(n, np.int64)
+    bits = x.view(np.int64)
+    for i in range(n):
+        b = bits[i]
+        k = b if b >= 0 else b ^ 0x7FFFFFFFFFFFFFFF  # signed integers ordered as the floats
+        keys[i] = 0 if k == -1 else k  # -0.0 ties with 0.0, as in a comparison sort
+    order = np.arange(n)
+    tmp = np.empty(n, np.int64)
+    count = np.empty(257, np.int64)
+    for byte in range(8):
+        shift = 8 * byte
+        count[:] = 0
+        for i in range(n):
+            d = (keys[i] >> shift) & 0xFF
+            if byte == 7:
+                d ^= 0x80  # the sign byte: negative keys first
+            count[d + 1] += 1
+        if n and count.max() == n:  # every key has this byte: the pass keeps the order
+            continue
+        for d in range(256):
+            count[d + 1] += count[d]
+        for i in range(n):
+            o = order[i]
+            d = (keys[o] >> shift) & 0xFF
+            if byte == 7:
+                d ^= 0x80
+            tmp[count[d]] = o
+            count[d] += 1
+        order, tmp = tmp, order
+    return order
+
+
+def stable_argsort(x: np.ndarray) -> np.ndarray:
+    """``np.argsort(x, kind="stable")`` of a 1-D float64 array without NaN (an LSD radix sort of the
+    values' bits: equal values, -0.0 and 0.0 among them, keep their order)."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    if np.isnan(x).any():
+        return np.argsort(x, kind="stable")
+    order: np.ndarray = _stable_argsort_kernel(x)
+    return order
