@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy import ndimage
 
@@ -145,6 +146,36 @@ class SuspectResult:
         return (self.detectors & detector_bits([name])) > 0
 
 
+@numba.njit(cache=True)
+def _prepare_kernel(a, zone_in, easy_in, valid, zone, easy, h_all, context):  # type: ignore[no-untyped-def]  # numba kernel
+    H, W = valid.shape
+    for i in range(H):
+        for j in range(W):
+            z = a[i, j, 2]
+            v = np.isfinite(a[i, j, 0]) and np.isfinite(a[i, j, 1]) and np.isfinite(z)
+            e = easy_in[i, j]
+            valid[i, j] = v
+            zone[i, j] = zone_in[i, j] and v and not e
+            easy[i, j] = e and v
+            h = -1000.0 * np.float64(z) if v else np.nan
+            h_all[i, j] = h
+            context[i, j] = np.nan if (e and v) else h
+
+
+def _prepare(a: np.ndarray, zone: Mask, easy: Mask) -> tuple[Mask, Mask, Mask, np.ndarray, np.ndarray]:
+    """(valid, zone & valid & ~easy, easy & valid, every measured point's height -1000 z (NaN elsewhere),
+    the context: those heights but above the rim) in one sweep of the frame."""
+    if a.dtype not in (np.float32, np.float64):  # float16, longdouble: whole-frame numpy
+        valid = np.isfinite(a[..., 0]) & np.isfinite(a[..., 1]) & np.isfinite(a[..., 2])
+        h_all = np.where(valid, -1000.0 * a[..., 2].astype(np.float64), np.nan)
+        return valid, zone & valid & ~easy, easy & valid, h_all, np.where(easy & valid, np.nan, h_all)
+    H, W = zone.shape
+    out_valid, out_zone, out_easy = np.empty((H, W), bool), np.empty((H, W), bool), np.empty((H, W), bool)
+    h_all, context = np.empty((H, W)), np.empty((H, W))
+    _prepare_kernel(a, zone, easy, out_valid, out_zone, out_easy, h_all, context)
+    return out_valid, out_zone, out_easy, h_all, context
+
+
 def _sigma_and_tau_medians(sigma_px: np.ndarray, params: SuspectParams) -> tuple[float, float]:
     """The medians of σ̂ and of τ = max(min_residual_mm, noise_k · σ̂) over the zone (``sigma_px``: σ̂ there,
     not modified), from one selection: τ is a non-decreasing function of σ̂
@@ -227,11 +258,7 @@ def suspects(
         if (intrinsics.height, intrinsics.width) != (H, W):
             raise InputShapeError(f"intrinsics are for {intrinsics.height}x{intrinsics.width} images, "
                                   f"the frame is {H}x{W}")
-    valid = np.isfinite(a[..., 0]) & np.isfinite(a[..., 1]) & np.isfinite(a[..., 2])
-    zone = zone & valid & ~easy
-    easy = easy & valid
-    h_all = np.where(valid, -1000.0 * a[..., 2].astype(np.float64), np.nan)  # every measured point's height
-    context = np.where(easy, np.nan, h_all)
+    valid, zone, easy, h_all, context = _prepare(a, zone, easy)
     h_zcut = np.ascontiguousarray(h_img, dtype=np.float64)
 
     profile = noise_profile(context, zone)
