@@ -13,10 +13,11 @@ only around the pixels whose gap the edge-aware distance gives (a few % of the f
   on both sides of the bracket, and the closed form's own rounding (:func:`_smallest_eigvec`, well
   conditioned when the two smallest eigenvalues are apart, which is also checked) lies well inside
   it. Where a check fails (a patch on a line, one point, a tie of eigenvalues, anything not finite),
-  the closed form itself is evaluated. The median is then found exactly (:func:`_bracket_median`):
-  the patches whose bracket lies wholly below or above a narrow window around the brackets' median
-  are counted, only the others are solved in closed form, and the window is checked to hold the
-  middle ranks (else wider windows, and at last every patch solved).
+  the closed form itself is evaluated, as it is for a patch whose λ_min is at the rounding level (a
+  flat patch of quantized depth: no bracket would tell those apart). The median is then found
+  exactly (:func:`_gate_median`): it lies between the k-th smallest lower end and the k-th smallest
+  upper end of the brackets, the patches whose bracket lies wholly outside that window are counted,
+  and only the others are solved in closed form (2 of 1.66 M on a 1920 × 1200 zinc-nut frame).
 - **Surfaces on demand.** A patch's surface test (its rms, depth and incidence against the gate) and
   its plane are computed the first time a distance reads it (:class:`LazySurfaces`), with
   :func:`zcut.edge_surface._fit_at`: the same arithmetic as the whole-frame pass.
