@@ -34,7 +34,8 @@
    the whole call of the fast path of that tree against this one's, each in its own process (the
    same frames, written once to ``--work`` as .npy), alternating ``--rounds`` times; per frame the
    median CPU ms of ``--repeat`` calls of each round, and whether the two trees' results are equal
-   (mask, groups, detectors, gaps, residuals, group scores).
+   (mask, groups, detectors, gaps, residuals, group scores). Besides the frames of ``--speed``, one
+   with large invalid regions (the zinc-nut frame, its top half and a third of the rest unmeasured).
 """
 
 from __future__ import annotations
@@ -445,6 +446,15 @@ def run_against(work: Path, old: Path, sizes: list[tuple[int, int]], real: Path 
                 np.save(f, speed_frame(work, name, kind, sensor, q, seed, (H, W))[0])
             files.append(str(f))
             labels.append(f"{name} {W}x{H}")
+        # large invalid regions: the zinc-nut frame with its top half and a third of the rest unmeasured
+        f = work / f"speed_holes_{W}x{H}.npy"
+        if not f.exists():
+            xyz = np.load(work / f"speed_zinc_nuts_handmade_q0_s1_{W}x{H}.npy").copy()
+            xyz[: H // 2] = np.nan
+            xyz[np.random.default_rng(7).random((H, W)) < 0.3] = np.nan
+            np.save(f, xyz)
+        files.append(str(f))
+        labels.append(f"zinc_nuts holes {W}x{H}")
     if real is not None:
         for pcd in sorted(real.glob("*.pcd")):
             files.append(str(pcd))

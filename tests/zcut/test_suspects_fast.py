@@ -239,3 +239,202 @@ def test_fill_blobs_equal_the_previous_kernel() -> None:
         it = int(rng.choice([0, 1, 2, 5, 50]))
         np.testing.assert_array_equal(fill_blobs(seed, judged, valid, iterations=it),
                                       ref._fill_blobs_previous(seed, judged, valid, iterations=it))
+
+
+# --------------------------------------------------------------------------------------------
+# The second round (issue 32 item 5): brackets, lazy surfaces, bucket selection, residual kernel
+# --------------------------------------------------------------------------------------------
+
+
+def _fuzz_cloud(rng: np.random.Generator, H: int, W: int) -> np.ndarray:
+    """An organized cloud (mm) of a random height field: holes, NaN, ties (quantized depth), flat
+    patches, lines, single points."""
+    h = random_heights(rng, H, W).astype(np.float64)
+    if rng.random() < 0.4:
+        h = np.round(h * float(rng.choice([1.0, 4.0]))) / float(rng.choice([1.0, 4.0]))  # quantized: ties
+    if rng.random() < 0.3:
+        h[:, : W // 3] = 5.0  # a perfectly flat third
+    if rng.random() < 0.3:
+        h[rng.random(h.shape) < float(rng.choice([0.3, 0.7]))] = np.nan  # large invalid regions
+    yy, xx = np.mgrid[0:H, 0:W]
+    z = 600.0 - h
+    f = float(rng.choice([300.0, 600.0, 1200.0]))
+    return np.stack([(xx - W / 2) * z / f, (yy - H / 2) * z / f, z], axis=2)
+
+
+def test_order_pair_equals_partition() -> None:
+    from zcut.edge_surface import _median_of_temporary
+    from zcut.suspects.select import median, order_pair
+
+    rng = np.random.default_rng(21)
+    for t in range(400):
+        n = int(rng.integers(1, 3000))
+        kind = t % 6
+        if kind == 0:
+            x = rng.random(n)
+        elif kind == 1:  # many ties
+            x = rng.integers(0, 4, n) * 0.25
+        elif kind == 2:  # every exponent
+            x = np.abs(rng.normal(size=n)) * 10.0 ** rng.integers(-300, 300, n)
+        elif kind == 3:
+            x = np.full(n, 3.0)
+            x[rng.integers(0, n)] = np.inf
+        elif kind == 4:  # negative values: left to np.partition
+            x = rng.normal(size=n)
+        else:  # subnormals and zeros
+            x = rng.integers(0, 3, n) * 5e-324
+        if t % 7 == 0:
+            x[rng.integers(0, n)] = np.nan
+        if t % 11 == 0:
+            x[rng.integers(0, n)] = -0.0
+        a, b = median(x), _median_of_temporary(x.copy())
+        assert (np.isnan(a) and np.isnan(b)) or (a == b and np.signbit(a) == np.signbit(b)), (t, a, b)
+        if not np.isnan(x).any():
+            k = int(rng.integers(0, n))
+            k1 = min(k + 1, n - 1)
+            s = np.sort(x)
+            got = order_pair(x, k, k1)
+            assert got == (s[k], s[k1]) and np.signbit(got[0]) == np.signbit(s[k])
+
+
+def test_brackets_hold_the_closed_form_eigenvalue() -> None:
+    """Where :func:`_lambda_bracket` gives a bracket, the closed form's λ_min lies in it and whether its
+    normal is determined is as said: covariances of random patches, flat, tilted to grazing, on a line,
+    of one point, quantized, at every scale."""
+    from zcut.edge_surface import _smallest_eigvec
+    from zcut.suspects.surfaces import _lambda_bracket
+
+    rng = np.random.default_rng(22)
+    brackets = 0
+    for t in range(20000):
+        n = int(rng.integers(3, 10))
+        g = np.stack([rng.integers(-1, 2, n), rng.integers(-1, 2, n)], 1).astype(np.float64)
+        tilt = rng.normal(size=2) * float(rng.choice([0.0, 0.1, 1.0, 10.0, 100.0]))
+        p = np.column_stack([g, g @ tilt + rng.normal(size=n) * float(rng.choice([0.0, 1e-6, 1e-3, 0.05, 1.0]))])
+        if t % 5 == 0:
+            p[:, 2] = np.round(p[:, 2])  # quantized depth
+        if t % 13 == 0:
+            p[:, 1] = p[:, 0]  # a line
+        if t % 17 == 0:
+            p[:] = p[0]  # one point
+        p = p * 10.0 ** rng.uniform(-4, 4) + rng.normal(size=3) * float(rng.choice([0.0, 1e3]))
+        d = p - p.mean(axis=0)
+        c = [float(v) / n for v in (d[:, 0] @ d[:, 0], d[:, 0] @ d[:, 1], d[:, 0] @ d[:, 2], d[:, 1] @ d[:, 1],
+                                    d[:, 1] @ d[:, 2], d[:, 2] @ d[:, 2])]
+        ok, lo, hi, fitted = _lambda_bracket(*c)
+        if not ok:
+            continue
+        brackets += 1
+        lam, nx, _, _ = _smallest_eigvec(*c)
+        assert lo <= lam <= hi, (t, lo, lam, hi)
+        assert fitted == bool(np.isfinite(nx)), t
+    assert brackets > 2000  # the test exercises brackets (3,830 of these 20,000)
+
+
+def test_lazy_surfaces_equal_edge_surfaces_on_random_fields() -> None:
+    """The gate, every surface and every distance of :func:`lazy_surfaces` are
+    :func:`zcut.edge_surface.edge_surfaces`' bit for bit: random fields with holes, NaN, ties and flat
+    patches, small and 120 x 160."""
+    import math
+
+    from zcut.edge_surface import _median_of_temporary, _patch_gate_kernel, _reach_samples
+    from zcut.suspects.surfaces import lazy_surfaces
+
+    rng = np.random.default_rng(23)
+    for t in range(40):
+        H, W = ((120, 160) if t % 4 == 0 else (int(rng.integers(1, 40)), int(rng.integers(1, 40))))
+        a = _fuzz_cloud(rng, H, W)
+        valid = np.ascontiguousarray(np.isfinite(a).all(axis=2))
+        params = (EdgeSurfaceParams() if t % 3 else
+                  EdgeSurfaceParams(patch_radius_px=2, min_patch_px=10, max_incidence_deg=90, min_fit_mm=0.0))
+        old = edge_surfaces(a, valid, params=params)
+        new = lazy_surfaces(np.ascontiguousarray(a), valid, params)
+        # the gate: the previous pass's median of rms / z²
+        rms, z2, steep, ratios = np.empty((H, W)), np.empty((H, W)), np.empty((H, W), bool), np.empty(H * W)
+        step = _reach_samples(a, valid)
+        per_px = _median_of_temporary(step) if step.size else 0.0
+        tan = min(math.tan(math.radians(params.max_incidence_deg)), 1e6)
+        m = _patch_gate_kernel(a, valid, params.patch_radius_px, params.min_patch_px, per_px, tan, params.side_step_mm,
+                               math.cos(math.radians(params.max_incidence_deg)), rms, z2, steep, ratios)
+        assert new.n_fitted == m
+        if m:
+            gate = params.fit_k * _median_of_temporary(ratios[:m])
+            assert new._gate_k == gate or (np.isnan(gate) and np.isnan(new._gate_k))
+        where = rng.random((H, W)) < 0.1
+        assert np.array_equal(new.distance(where), old.distance(where), equal_nan=True)
+        assert np.array_equal(new.distance(), old.distance(), equal_nan=True)
+        np.testing.assert_array_equal(new.surface, old.surface)
+
+
+def test_residual_kernel_equals_the_previous_kernel() -> None:
+    from zcut.suspects import surface_residuals
+
+    rng = np.random.default_rng(24)
+    for t in range(80):
+        H, W = ((120, 160) if t % 8 == 0 else (int(rng.integers(0, 30)), int(rng.integers(0, 30))))
+        h = random_heights(rng, H, W).astype(np.float64)
+        if t % 3 == 0:
+            h[rng.random(h.shape) < 0.5] = np.nan
+        judged = rng.random((H, W)) < 0.9
+        tau = rng.choice([0.0, 0.125, 0.5]) if t % 2 else rng.choice([0.0, 0.125, 0.5, 1.0], size=(H, W))
+        jump = 0.25 if t % 5 else rng.choice([0.0, 0.25, 2.0], size=(H, W))
+        mb = int(rng.integers(1, 9))
+        got = surface_residuals(h, judged, tau=tau, jump=jump, min_below=mb)
+        want = ref._surface_residuals_previous(h, judged, tau=tau, jump=jump, min_below=mb)
+        np.testing.assert_array_equal(got[0], want[0])
+        assert np.array_equal(got[1], want[1], equal_nan=True)
+
+
+def test_local_height_kernel_equals_the_previous_kernel() -> None:
+    """Bit for bit, the sign of zero included (the median-of-five network leaves zeros to the
+    insertion): small fields of few levels (ties), NaN, -0.0, and 120 x 160."""
+    from zcut.suspects.noise import _local_height_kernel
+
+    rng = np.random.default_rng(25)
+    for t in range(600):
+        H, W = ((120, 160) if t % 50 == 0 else (int(rng.integers(0, 14)), int(rng.integers(0, 14))))
+        h = rng.integers(-3, 4, (H, W)).astype(np.float64) * float(rng.choice([1.0, 0.5, 1e-3]))
+        h[rng.random((H, W)) < float(rng.choice([0.0, 0.2, 0.6]))] = np.nan
+        if t % 3 == 0:
+            h[rng.random((H, W)) < 0.3] *= -0.0
+        got, want = np.empty((H, W)), np.empty((H, W))
+        _local_height_kernel(h, got)
+        ref._local_height_kernel_previous(h, want)
+        np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
+
+
+def test_stable_argsort_equals_numpy() -> None:
+    from zcut.suspects.select import stable_argsort
+
+    rng = np.random.default_rng(26)
+    for t in range(400):
+        n = int(rng.integers(0, 3000))
+        x = [rng.normal(size=n), np.round(rng.normal(size=n) * 3) / 4, rng.integers(-2, 3, n) * 0.0,
+             -np.abs(rng.normal(size=n)) * 1e300, rng.integers(0, 3, n) * 5e-324][t % 5].astype(np.float64)
+        if n and t % 7 == 0:
+            x[rng.integers(0, n)] = np.inf
+        if n and t % 11 == 0:
+            x[rng.integers(0, n)] = -np.inf
+        if n and t % 13 == 0:
+            x[rng.integers(0, n)] = np.nan
+        if n and t % 5 == 2:
+            x[rng.random(n) < 0.5] *= -1.0  # -0.0 among 0.0
+        np.testing.assert_array_equal(stable_argsort(x), np.argsort(x, kind="stable"))
+
+
+def test_sampled_differences_in_two_sweeps_equal_the_eight() -> None:
+    from zcut.suspects.noise import _sampled_both, _sampled_differences
+
+    rng = np.random.default_rng(27)
+    for t in range(300):
+        h = random_heights(rng).astype(np.float64)
+        if t % 2:
+            h = np.round(h)
+        if t % 3 == 0:
+            h[rng.random(h.shape) < 0.5] = np.nan
+        judged = np.isfinite(h) & (rng.random(h.shape) < 0.8)
+        most = int(rng.choice([1, 2, 3, 7, 50, 200_000]))
+        got = _sampled_both(h, judged, most)
+        want = (*_sampled_differences(h, judged, 2, most), *_sampled_differences(h, judged, 1, most))
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g.view(np.int64), w.view(np.int64))

@@ -21,7 +21,19 @@ from ..edge_surface import EdgeSurfaceParams, _check_args, _reach, _smallest_eig
 from ..errors import InputShapeError, ParameterError, describe_array
 from ..params import SuspectParams, ZCutParams
 from ..types import XYZ, FloatImage, Mask
-from .detectors import _DC, _DR, ABOVE_RIM, DETECTORS, FLOATING, RESIDUAL_UP, label_medians, shifted
+from .detectors import (
+    _DC,
+    _DR,
+    _OPP,
+    ABOVE_RIM,
+    DETECTORS,
+    FLOATING,
+    MIXED,
+    RESIDUAL_DOWN,
+    RESIDUAL_UP,
+    label_medians,
+    shifted,
+)
 from .floating import (
     FLOATING_CLEARANCE_SIGMAS,
     FLOATING_CLEARANCE_STEPS,
@@ -39,7 +51,7 @@ from .noise import (
     _robust_sigma,
     _second_differences,
 )
-from .residuals import FILL_MIN_NEIGHBOURS, _check_fill_args, surface_residuals
+from .residuals import FILL_MIN_NEIGHBOURS, _check_fill_args, _check_residual_args
 from .union import SuspectResult
 
 
@@ -165,6 +177,89 @@ def _fill_kernel(seed, judged, valid, iterations, min_nb):  # type: ignore[no-un
     return cur
 
 
+@numba.njit(cache=True)
+def _residual_kernel_previous(h, judged, taus, jumps, min_below, codes, best):  # type: ignore[no-untyped-def]  # numba kernel
+    H, W = h.shape
+    e = np.empty(8)
+    for i in range(H):
+        for j in range(W):
+            best[i, j] = np.nan
+            codes[i, j] = 0
+            if not judged[i, j]:
+                continue
+            hp = h[i, j]
+            if not np.isfinite(hp):
+                continue
+            n = 0
+            rmin = np.inf
+            eb = np.inf
+            emin = np.inf
+            emax = -np.inf
+            for k in range(8):
+                e[k] = np.nan
+                i2 = i + 2 * _DR[k]
+                j2 = j + 2 * _DC[k]
+                if i2 < 0 or i2 >= H or j2 < 0 or j2 >= W:
+                    continue
+                a1 = h[i + _DR[k], j + _DC[k]]
+                a2 = h[i2, j2]
+                if not (np.isfinite(a1) and np.isfinite(a2)):
+                    continue
+                ek = hp - (2.0 * a1 - a2)
+                e[k] = ek
+                n += 1
+                if abs(ek) < rmin:
+                    rmin = abs(ek)
+                    eb = ek
+                if ek < emin:
+                    emin = ek
+                if ek > emax:
+                    emax = ek
+            best[i, j] = eb
+            tau = taus[i, j]
+            jump = jumps[i, j]
+            if n == 0 or not rmin > tau:
+                continue
+            if emin > tau:
+                codes[i, j] = RESIDUAL_UP
+                continue
+            if emax < -tau:
+                if n >= min_below:
+                    codes[i, j] = RESIDUAL_DOWN
+                continue
+            between = False
+            for k in range(8):
+                if e[k] > tau and e[_OPP[k]] < -tau:
+                    between = True
+            if not between:
+                hi = -np.inf
+                lo = np.inf
+                for k in range(8):
+                    i1 = i + _DR[k]
+                    j1 = j + _DC[k]
+                    if i1 < 0 or i1 >= H or j1 < 0 or j1 >= W:
+                        continue
+                    d = h[i1, j1] - hp
+                    if np.isfinite(d):
+                        if d > hi:
+                            hi = d
+                        if d < lo:
+                            lo = d
+                between = hi > jump and lo < -jump
+            if between:
+                codes[i, j] = MIXED
+
+
+def _surface_residuals_previous(height: FloatImage, judged: Mask, *, tau: object, jump: object, min_below: int
+                                ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`zcut.suspects.surface_residuals` as it was (its kernel without the interior path)."""
+    h, judged, tau_a, jump_a, min_below = _check_residual_args(height, judged, tau, jump, min_below)
+    codes = np.zeros(h.shape, np.uint8)
+    best = np.empty(h.shape, np.float64)
+    _residual_kernel_previous(h, judged, tau_a, jump_a, min_below, codes, best)
+    return codes, best
+
+
 def _signed_edge_distance_reference(xyz_mm: XYZ, valid: Mask, *, params: EdgeSurfaceParams | None = None
                                     ) -> np.ndarray:
     """:func:`zcut.edge_surface.signed_edge_distance` as it was (its numba kernels, whole frame)."""
@@ -215,6 +310,37 @@ def strength_classes_reference(primary: np.ndarray, strength: np.ndarray) -> np.
         cls = np.searchsorted(np.asarray(STRENGTH_CLASSES), med, side="right").astype(np.int8)
         out[m] = cls[lab[m] - 1]
     return out
+
+
+@numba.njit(cache=True)
+def _local_height_kernel_previous(h, out):  # type: ignore[no-untyped-def]  # numba kernel
+    H, W = h.shape
+    v = np.empty(5)
+    for i in range(H):
+        for j in range(W):
+            x = h[i, j]
+            if not np.isfinite(x):
+                out[i, j] = np.nan
+                continue
+            # the pixel, then its neighbours E, W, S, N (the previous code's order: a stable sort of
+            # equal values keeps it)
+            v[0] = x
+            n = 1
+            for k in range(4):
+                i1 = i + (0, 0, 1, -1)[k]
+                j1 = j + (1, -1, 0, 0)[k]
+                if 0 <= i1 < H and 0 <= j1 < W:
+                    y = h[i1, j1]
+                    if np.isfinite(y):
+                        m = n
+                        while m > 0 and v[m - 1] > y:  # insertion: stable
+                            v[m] = v[m - 1]
+                            m -= 1
+                        v[m] = y
+                        n += 1
+            lo = v[(n - 1) // 2]
+            hi = v[n // 2]
+            out[i, j] = lo if n % 2 == 1 else 0.5 * (lo + hi)
 
 
 def local_height_reference(height: FloatImage) -> np.ndarray:
@@ -494,7 +620,8 @@ def suspects_reference(
     step = max(params.floating_step_mm, FLOATING_STEP_SIGMAS * sigma)
     a_max = params.a_max if params.a_max is not None else max(0.01 * H * W, 1.0)
 
-    codes, residual = surface_residuals(context, zone, tau=tau, jump=jump, min_below=params.below_min_directions)
+    codes, residual = _surface_residuals_previous(context, zone, tau=tau, jump=jump,
+                                                  min_below=params.below_min_directions)
     off = codes > 0
     if params.fill_iterations > 0:
         filled = _fill_blobs_previous(off, zone, valid & ~easy, iterations=params.fill_iterations)

@@ -185,6 +185,20 @@ def floating_evidence_reference(labels: Labels, valid: Mask, rough: Mask, height
     return _fractions(size, holes, edges, edges_valid, n_rough, lowest, highest_out)
 
 
+@numba.njit(cache=True)
+def _finite_range(h):  # type: ignore[no-untyped-def]  # numba kernel
+    """(min, max) of the finite values of h ((inf, -inf) when none), without a masked copy."""
+    lo = np.inf
+    hi = -np.inf
+    for v in h.ravel():
+        if np.isfinite(v):
+            if v < lo:
+                lo = v
+            if v > hi:
+                hi = v
+    return lo, hi
+
+
 def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: Mask, params: SuspectParams,
                         a_max: float, step: float, profile: NoiseProfile) -> tuple[Mask, np.ndarray]:
     """The floating detector: z-cut components over the zone's whole height range (see module notes).
@@ -193,11 +207,11 @@ def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: M
     pixels bordering their component (NaN elsewhere, or when none borders it).
     """
     hz = np.where(zone, height_mm, np.nan)
-    fin = np.isfinite(hz)
     gap = np.full(zone.shape, np.nan)
-    if not fin.any():
+    lo, hi = _finite_range(hz)
+    if not lo <= hi:  # no finite height in the zone
         return np.zeros(zone.shape, bool), gap
-    span = float(hz[fin].max() - hz[fin].min())
+    span = float(hi - lo)  # (a zero's sign may differ from hz[fin]'s max / min: the step and depth do not)
     step = max(step, span / (MAX_STAGE_LEVELS - 2))  # every level of the range within find_clusters' cap
     depth = span + step
     cut = find_clusters(hz, params=ZCutParams(step=step, max_depth=depth, max_area=params.floating_rho * a_max))

@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike
 
 from ..cloud import check_mask
 from ..types import FloatImage, Mask
+from .select import stable_argsort
 
 # the noise profile: bins of at least this many second differences, at most this many bins
 NOISE_MIN_SAMPLES = 2000
@@ -53,32 +54,71 @@ def _second_differences(height: np.ndarray, judged: Mask) -> tuple[np.ndarray, n
     return np.abs(np.concatenate(vals)), np.concatenate(at)
 
 
+@numba.njit(cache=True, inline="always")
+def _insert(v, n, y):  # type: ignore[no-untyped-def]  # numba kernel
+    """Insert y into the sorted v[:n] after any equal values (a stable insertion); return n + 1."""
+    m = n
+    while m > 0 and v[m - 1] > y:
+        v[m] = v[m - 1]
+        m -= 1
+    v[m] = y
+    return n + 1
+
+
 @numba.njit(cache=True)
 def _local_height_kernel(h, out):  # type: ignore[no-untyped-def]  # numba kernel
     H, W = h.shape
     v = np.empty(5)
     for i in range(H):
+        inner_row = 0 < i < H - 1
         for j in range(W):
             x = h[i, j]
             if not np.isfinite(x):
                 out[i, j] = np.nan
                 continue
             # the pixel, then its neighbours E, W, S, N (the previous code's order: a stable sort of
-            # equal values keeps it)
+            # equal values keeps it); a pixel off the border has all four (no bounds checks)
             v[0] = x
             n = 1
-            for k in range(4):
-                i1 = i + (0, 0, 1, -1)[k]
-                j1 = j + (1, -1, 0, 0)[k]
-                if 0 <= i1 < H and 0 <= j1 < W:
-                    y = h[i1, j1]
-                    if np.isfinite(y):
-                        m = n
-                        while m > 0 and v[m - 1] > y:  # insertion: stable
-                            v[m] = v[m - 1]
-                            m -= 1
-                        v[m] = y
-                        n += 1
+            if inner_row and 0 < j < W - 1:
+                a = h[i, j + 1]
+                b = h[i, j - 1]
+                c = h[i + 1, j]
+                d = h[i - 1, j]
+                if np.isfinite(a) and np.isfinite(b) and np.isfinite(c) and np.isfinite(d):
+                    # five values: their middle one by a min / max network (one of the values, the
+                    # insertion's v[2]); a zero is left to the insertion (-0.0 and 0.0 tie there)
+                    e = x
+                    a, b = min(a, b), max(a, b)
+                    d, e = min(d, e), max(d, e)
+                    a, d = min(a, d), max(a, d)
+                    b, e = min(b, e), max(b, e)
+                    c, d = min(c, d), max(c, d)
+                    b, c = min(b, c), max(b, c)
+                    c, d = min(c, d), max(c, d)
+                    if c != 0.0:
+                        out[i, j] = c
+                        continue
+                y = h[i, j + 1]
+                if np.isfinite(y):
+                    n = _insert(v, n, y)
+                y = h[i, j - 1]
+                if np.isfinite(y):
+                    n = _insert(v, n, y)
+                y = h[i + 1, j]
+                if np.isfinite(y):
+                    n = _insert(v, n, y)
+                y = h[i - 1, j]
+                if np.isfinite(y):
+                    n = _insert(v, n, y)
+            else:
+                for k in range(4):
+                    i1 = i + (0, 0, 1, -1)[k]
+                    j1 = j + (1, -1, 0, 0)[k]
+                    if 0 <= i1 < H and 0 <= j1 < W:
+                        y = h[i1, j1]
+                        if np.isfinite(y):
+                            n = _insert(v, n, y)
             lo = v[(n - 1) // 2]
             hi = v[n // 2]
             out[i, j] = lo if n % 2 == 1 else 0.5 * (lo + hi)
@@ -153,6 +193,115 @@ def _sampled_differences(h: np.ndarray, judged: np.ndarray, order: int, most: in
     at = np.empty(n)
     _differences_kernel(h, judged, order, stride, vals, at)
     return vals, at
+
+
+@numba.njit(cache=True)
+def _count_both(h, judged):  # type: ignore[no-untyped-def]  # numba kernel
+    """The counts of :func:`_differences_kernel` of order 2 and of order 1, each per axis (rows, then
+    columns), in one sweep of the frame."""
+    H, W = h.shape
+    c2r = 0
+    c2c = 0
+    c1r = 0
+    c1c = 0
+    for i in range(H):
+        for j in range(W):
+            x = h[i, j]
+            if j + 2 < W and judged[i, j + 1] and np.isfinite(x - 2.0 * h[i, j + 1] + h[i, j + 2]):
+                c2r += 1
+            if i + 2 < H and judged[i + 1, j] and np.isfinite(x - 2.0 * h[i + 1, j] + h[i + 2, j]):
+                c2c += 1
+            if judged[i, j]:
+                if j + 1 < W and np.isfinite(h[i, j + 1] - x):
+                    c1r += 1
+                if i + 1 < H and np.isfinite(h[i + 1, j] - x):
+                    c1c += 1
+    return c2r, c2c, c1r, c1c
+
+
+@numba.njit(cache=True)
+def _fill_both(h, judged, c2r, s2, v2, at2, c1r, s1, v1, at1):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_differences_kernel`'s samples of order 2 (every ``s2``-th) and of order 1 (every ``s1``-th)
+    in one sweep: the m-th difference (rows first, ``c2r`` / ``c1r`` of them, then columns) is taken
+    when m % stride == 0, at position m // stride (counted down: no division a pixel)."""
+    H, W = h.shape
+    # per stream (order 2 rows, columns; order 1 rows, columns): differences left until the next
+    # sample, and that sample's position
+    w2r = 0
+    k2r = 0
+    w2c = (s2 - c2r % s2) % s2
+    k2c = -(-c2r // s2)
+    w1r = 0
+    k1r = 0
+    w1c = (s1 - c1r % s1) % s1
+    k1c = -(-c1r // s1)
+    for i in range(H):
+        for j in range(W):
+            x = h[i, j]
+            if j + 2 < W and judged[i, j + 1]:
+                a = x
+                b = h[i, j + 1]
+                c = h[i, j + 2]
+                e = a - 2.0 * b + c
+                if np.isfinite(e):
+                    if w2r == 0:
+                        v2[k2r] = abs(e)
+                        lo = a if a < b else b
+                        hi = a if a > b else b
+                        hi = hi if hi < c else c
+                        at2[k2r] = lo if lo > hi else hi
+                        k2r += 1
+                        w2r = s2
+                    w2r -= 1
+            if i + 2 < H and judged[i + 1, j]:
+                a = x
+                b = h[i + 1, j]
+                c = h[i + 2, j]
+                e = a - 2.0 * b + c
+                if np.isfinite(e):
+                    if w2c == 0:
+                        v2[k2c] = abs(e)
+                        lo = a if a < b else b
+                        hi = a if a > b else b
+                        hi = hi if hi < c else c
+                        at2[k2c] = lo if lo > hi else hi
+                        k2c += 1
+                        w2c = s2
+                    w2c -= 1
+            if judged[i, j]:
+                if j + 1 < W:
+                    d = h[i, j + 1] - x
+                    if np.isfinite(d):
+                        if w1r == 0:
+                            v1[k1r] = abs(d)
+                            at1[k1r] = x
+                            k1r += 1
+                            w1r = s1
+                        w1r -= 1
+                if i + 1 < H:
+                    d = h[i + 1, j] - x
+                    if np.isfinite(d):
+                        if w1c == 0:
+                            v1[k1c] = abs(d)
+                            at1[k1c] = x
+                            k1c += 1
+                            w1c = s1
+                        w1c -= 1
+
+
+def _sampled_both(h: np.ndarray, judged: np.ndarray, most: int) -> tuple[np.ndarray, ...]:
+    """``_sampled_differences(h, judged, 2, most)`` and ``_sampled_differences(h, judged, 1, most)`` in two
+    sweeps of the frame instead of eight: (vals2, at2, vals1, at1)."""
+    c2r, c2c, c1r, c1c = _count_both(h, judged)
+    out = []
+    strides = []
+    for total in (c2r + c2c, c1r + c1c):
+        stride = -(-total // most) if total else 1
+        n = -(-total // stride) if total else 0
+        strides.append(stride)
+        out += [np.empty(n), np.empty(n)]
+    _fill_both(h, judged, c2r, strides[0], out[0], out[1], c1r, strides[1], out[2], out[3])
+    return tuple(out)
 
 
 def _robust_sigma(a: np.ndarray) -> float:
@@ -234,16 +383,15 @@ def noise_profile(height: FloatImage, judged: Mask) -> NoiseProfile:
     """
     judged = np.ascontiguousarray(check_mask(judged, name="judged", shape=np.shape(height)))
     h = np.ascontiguousarray(height, dtype=np.float64)
-    a, at = _sampled_differences(h, judged, 2, NOISE_MAX_SAMPLES)
+    a, at, d1, d1_at = _sampled_both(h, judged, NOISE_MAX_SAMPLES)
     if a.size == 0:
         return NoiseProfile(np.zeros(0), np.zeros(0), np.zeros(0))
-    order = np.argsort(at, kind="stable")
+    order = stable_argsort(at)  # np.argsort(at, kind="stable")
     a, at = a[order], at[order]
     bins = int(min(NOISE_MAX_BINS, max(1, a.size // NOISE_MIN_SAMPLES)))
     edges = np.linspace(0, a.size, bins + 1).astype(np.int64)
     heights = np.array([np.median(at[i:j]) for i, j in zip(edges[:-1], edges[1:])])
     sigmas = np.array([_robust_sigma(a[i:j]) for i, j in zip(edges[:-1], edges[1:])])
-    d1, d1_at = _sampled_differences(h, judged, 1, NOISE_MAX_SAMPLES)
     # a first difference belongs to the bin whose range of second-difference heights holds it
     upper = np.array([at[j - 1] for j in edges[1:]])
     which = np.minimum(np.searchsorted(upper, d1_at, side="left"), bins - 1)

@@ -5,11 +5,12 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy import ndimage
 
 from ..cloud import Intrinsics, check_mask, check_xyz
-from ..edge_surface import EdgeSurfaceParams, EdgeSurfaces, _edge_surfaces, edge_surfaces
+from ..edge_surface import EdgeSurfaceParams, _check_args
 from ..errors import InputShapeError, ParameterError, describe_array
 from ..params import SuspectParams
 from ..types import XYZ, FloatImage, Labels, Mask
@@ -19,6 +20,8 @@ from .gaps import local_gaps
 from .grouping import group_suspects
 from .noise import NoiseProfile, local_height, noise_profile
 from .residuals import fill_blobs, surface_residuals
+from .select import order_pair
+from .surfaces import LazySurfaces, lazy_surfaces
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,8 +96,8 @@ class SuspectResult:
         one side of an edge (:func:`zcut.edge_surface.signed_edge_distance`; mm, positive = toward
         the camera, NaN where unmeasured, +inf where no surface is near); else None. Measured on
         first access (the suspects need it only at the pixels whose gap it gives); until then the
-        result holds the frame's surfaces (:class:`zcut.edge_surface.EdgeSurfaces`: the frame in mm, which
-        patches are surfaces, the planes fitted so far; ~70 MB at 1920 × 1200, 170 MB before).
+        result holds the frame's surfaces (:class:`zcut.suspects.surfaces.LazySurfaces`: the frame in
+        mm, the frame's gate, the patches decided and the planes fitted so far; ~80 MB at 1920 × 1200).
     """
 
     mask: Mask
@@ -114,7 +117,7 @@ class SuspectResult:
     floating_step_mm: float
     merge_radius_px: np.ndarray
     _surface_mm: np.ndarray | None = None
-    _surfaces: EdgeSurfaces | None = dataclasses.field(default=None, repr=False, compare=False)
+    _surfaces: LazySurfaces | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def surface_mm(self) -> np.ndarray | None:
@@ -143,9 +146,39 @@ class SuspectResult:
         return (self.detectors & detector_bits([name])) > 0
 
 
+@numba.njit(cache=True)
+def _prepare_kernel(a, zone_in, easy_in, valid, zone, easy, h_all, context):  # type: ignore[no-untyped-def]  # numba kernel
+    H, W = valid.shape
+    for i in range(H):
+        for j in range(W):
+            z = a[i, j, 2]
+            v = np.isfinite(a[i, j, 0]) and np.isfinite(a[i, j, 1]) and np.isfinite(z)
+            e = easy_in[i, j]
+            valid[i, j] = v
+            zone[i, j] = zone_in[i, j] and v and not e
+            easy[i, j] = e and v
+            h = -1000.0 * np.float64(z) if v else np.nan
+            h_all[i, j] = h
+            context[i, j] = np.nan if (e and v) else h
+
+
+def _prepare(a: np.ndarray, zone: Mask, easy: Mask) -> tuple[Mask, Mask, Mask, np.ndarray, np.ndarray]:
+    """(valid, zone & valid & ~easy, easy & valid, every measured point's height -1000 z (NaN elsewhere),
+    the context: those heights but above the rim) in one sweep of the frame."""
+    if a.dtype not in (np.float32, np.float64):  # float16, longdouble: whole-frame numpy
+        valid = np.isfinite(a[..., 0]) & np.isfinite(a[..., 1]) & np.isfinite(a[..., 2])
+        h_all = np.where(valid, -1000.0 * a[..., 2].astype(np.float64), np.nan)
+        return valid, zone & valid & ~easy, easy & valid, h_all, np.where(easy & valid, np.nan, h_all)
+    H, W = zone.shape
+    out_valid, out_zone, out_easy = np.empty((H, W), bool), np.empty((H, W), bool), np.empty((H, W), bool)
+    h_all, context = np.empty((H, W)), np.empty((H, W))
+    _prepare_kernel(a, zone, easy, out_valid, out_zone, out_easy, h_all, context)
+    return out_valid, out_zone, out_easy, h_all, context
+
+
 def _sigma_and_tau_medians(sigma_px: np.ndarray, params: SuspectParams) -> tuple[float, float]:
     """The medians of σ̂ and of τ = max(min_residual_mm, noise_k · σ̂) over the zone (``sigma_px``: σ̂ there,
-    a temporary, partitioned in place), from one partition: τ is a non-decreasing function of σ̂
+    not modified), from one selection: τ is a non-decreasing function of σ̂
     (noise_k >= 0, IEEE products and maximum are monotone), so its middle order statistics are those
     of σ̂ mapped. The values of ``_median_of_temporary`` of each, NaN (both) when any σ̂ is NaN."""
     n = sigma_px.size
@@ -157,11 +190,9 @@ def _sigma_and_tau_medians(sigma_px: np.ndarray, params: SuspectParams) -> tuple
 
     h = n // 2
     if n % 2:
-        sigma_px.partition(h)
-        x = float(sigma_px[h])
+        x = order_pair(sigma_px, h, h)[0]
         return x, tau(x)
-    sigma_px.partition((h - 1, h))
-    a, b = float(sigma_px[h - 1]), float(sigma_px[h])
+    a, b = order_pair(sigma_px, h - 1, h)
     return (a + b) / 2.0, (tau(a) + tau(b)) / 2.0
 
 
@@ -227,11 +258,7 @@ def suspects(
         if (intrinsics.height, intrinsics.width) != (H, W):
             raise InputShapeError(f"intrinsics are for {intrinsics.height}x{intrinsics.width} images, "
                                   f"the frame is {H}x{W}")
-    valid = np.isfinite(a[..., 0]) & np.isfinite(a[..., 1]) & np.isfinite(a[..., 2])
-    zone = zone & valid & ~easy
-    easy = easy & valid
-    h_all = np.where(valid, -1000.0 * a[..., 2].astype(np.float64), np.nan)  # every measured point's height
-    context = np.where(easy, np.nan, h_all)
+    valid, zone, easy, h_all, context = _prepare(a, zone, easy)
     h_zcut = np.ascontiguousarray(h_img, dtype=np.float64)
 
     profile = noise_profile(context, zone)
@@ -269,8 +296,9 @@ def suspects(
         # the frame in mm (1000.0 * a.astype(np.float64) in one product); a float32 frame's valid
         # points stay finite in mm, so only a float64 one needs edge_surfaces' check
         a_mm = np.multiply(a, 1000.0, dtype=np.float64)
-        surfaces = _edge_surfaces(a_mm, np.ascontiguousarray(valid), edge_surface) if a.dtype == np.float32 \
-            else edge_surfaces(a_mm, valid, params=edge_surface)
+        if a.dtype != np.float32:
+            a_mm, _, _ = _check_args(a_mm, valid, edge_surface)
+        surfaces = lazy_surfaces(a_mm, np.ascontiguousarray(valid), edge_surface)
         surface_mm = surfaces.distance(by_residual)
         near = by_residual & np.isfinite(surface_mm)
         gap[near] = surface_mm[near]

@@ -1,0 +1,424 @@
+"""The edge-aware surfaces as the suspects use them: the frame's gate from brackets, the surfaces only where read.
+
+:func:`zcut.edge_surface.edge_surfaces` solves every patch's 3 × 3 eigenproblem (2.1 M closed-form
+solves per 1920 × 1200 frame, ~0.2 CPU-s of its ~0.3) for two things: the frame's gate (the median
+over every fitted patch of rms / z²) and which patches are surfaces. The suspects read the surfaces
+only around the pixels whose gap the edge-aware distance gives (a few % of the frame), so
+:func:`lazy_surfaces` gives the same surfaces, planes and distances bit for bit with less work:
+
+- **The gate's median from brackets.** Each patch's covariance is summed exactly as
+  :func:`zcut.edge_surface._fit_at` sums it (the same points, the same order, so the same matrix);
+  its smallest eigenvalue is then found by Newton's method on the characteristic polynomial from
+  below (a few multiply-adds, no ``acos`` / ``cos``) and bracketed: the polynomial's sign is checked
+  on both sides of the bracket, and the closed form's own rounding (:func:`_smallest_eigvec`, well
+  conditioned when the two smallest eigenvalues are apart, which is also checked) lies well inside
+  it. Where a check fails (a patch on a line, one point, a tie of eigenvalues, anything not finite),
+  the closed form itself is evaluated, as it is for a patch whose λ_min is at the rounding level (a
+  flat patch of quantized depth: no bracket would tell those apart). The median is then found
+  exactly (:func:`_gate_median`): it lies between the k-th smallest lower end and the k-th smallest
+  upper end of the brackets, the patches whose bracket lies wholly outside that window are counted,
+  and only the others are solved in closed form (2 of 1.66 M on a 1920 × 1200 zinc-nut frame).
+- **Surfaces on demand.** A patch's surface test (its rms, depth and incidence against the gate) and
+  its plane are computed the first time a distance reads it (:class:`LazySurfaces`), with
+  :func:`zcut.edge_surface._fit_at`: the same arithmetic as the whole-frame pass.
+
+``tests/zcut/test_suspects_fast.py`` checks the gate, the surfaces and the distances against
+:func:`zcut.edge_surface.edge_surfaces` on synthetic, ray-traced and real frames and random fields.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from ..edge_surface import EdgeSurfaceParams, _fit_at, _reach_samples, _smallest_eigvec
+from ..types import Mask
+from .select import median, order_pair
+
+# the brackets (tr: the covariance's trace). Newton's method stops when its step is at most
+# _NEWTON_TOL · tr (its error is then ~ step² / (λ2 - λ1), well below _CHECK · tr); the characteristic
+# polynomial's sign is checked at ± _CHECK · tr of its root, where |det| ~ _CHECK · tr · m exceeds 30 ×
+# its rounding (~ 6 ε tr³) when the minors' sum m of C - λI, ~ (λ2 - λ1)(λ3 - λ1), is at least
+# _MIN_MINORS · tr²; then the two smallest eigenvalues are at least _MIN_MINORS · tr apart and the
+# closed form's rounding is below ~5e-14 · tr (its acos is ill-conditioned only as they meet), so
+# the closed form's λ lies within ± _MARGIN · tr of Newton's root
+_NEWTON_TOL = 1e-7
+_NEWTON_MAX = 60
+_CHECK = 1e-12
+_MARGIN = 2e-12
+_MIN_MINORS = 0.04
+# λ_min below _TINY · tr: a bracket of ± _MARGIN · tr would not tell the ratios apart; solved directly
+_TINY = 1e-9
+# a patch is surely fitted (the closed form's normal determined) when m² / 3 (n0 >= m² / 3, its largest
+# cross product of rows of C - λI) exceeds _FITTED_SAFETY × the closed form's threshold 1e-9 · tr², and
+# surely not when m² (n0 <= m²) is below it / _FITTED_SAFETY
+_FITTED_SAFETY = 100.0
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")  # IEEE division, as _fit_at
+def _cov_at(xyz, valid, i, j, r, min_px, per_px, tan, floor, px, py, pz):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`zcut.edge_surface._fit_at` up to its eigenproblem: (n, mz, c00, c01, c02, c11, c12, c22), the
+    covariance divided by n as it is passed to :func:`_smallest_eigvec` (n < min_px: not fitted)."""
+    H, W = valid.shape
+    zq = xyz[i, j, 2]
+    reach = abs(zq) * per_px * tan
+    n = 0
+    sx = 0.0
+    sy = 0.0
+    sz = 0.0
+    for a in range(max(i - r, 0), min(i + r + 1, H)):
+        for b in range(max(j - r, 0), min(j + r + 1, W)):
+            if valid[a, b]:
+                z = xyz[a, b, 2]
+                if abs(z - zq) <= max(abs(a - i), abs(b - j)) * reach + floor:
+                    x = xyz[a, b, 0]
+                    y = xyz[a, b, 1]
+                    px[n] = x
+                    py[n] = y
+                    pz[n] = z
+                    n += 1
+                    sx += x
+                    sy += y
+                    sz += z
+    if n < min_px:
+        return n, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    mx = sx / n
+    my = sy / n
+    mz = sz / n
+    c00 = 0.0
+    c01 = 0.0
+    c02 = 0.0
+    c11 = 0.0
+    c12 = 0.0
+    c22 = 0.0
+    for k in range(n):
+        dx = px[k] - mx
+        dy = py[k] - my
+        dz = pz[k] - mz
+        c00 += dx * dx
+        c01 += dx * dy
+        c02 += dx * dz
+        c11 += dy * dy
+        c12 += dy * dz
+        c22 += dz * dz
+    return n, mz, c00 / n, c01 / n, c02 / n, c11 / n, c12 / n, c22 / n
+
+
+@numba.njit(cache=True, inline="always")
+def _charpoly(c00, c01, c02, c11, c12, c22, lam):  # type: ignore[no-untyped-def]  # numba kernel
+    """det(C - λI) and the sum of the principal 2 × 2 minors of C - λI (= -d det / dλ)."""
+    d0 = c00 - lam
+    d1 = c11 - lam
+    d2 = c22 - lam
+    m12 = d1 * d2 - c12 * c12
+    det = d0 * m12 - c01 * (c01 * d2 - c12 * c02) + c02 * (c01 * c12 - d1 * c02)
+    return det, m12 + (d0 * d2 - c02 * c02) + (d0 * d1 - c01 * c01)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _lambda_bracket(c00, c01, c02, c11, c12, c22):  # type: ignore[no-untyped-def]  # numba kernel
+    """(ok, lo, hi, fitted): a bracket [lo, hi] of the λ_min :func:`_smallest_eigvec` returns for this
+    matrix, and whether its normal is determined, when both are certain; ok = False otherwise."""
+    tr = c00 + c11 + c22
+    if not (np.isfinite(tr) and tr > 0.0):
+        return False, 0.0, 0.0, False
+    lam = -_CHECK * tr  # below λ_min (the covariance is positive semi-definite up to rounding)
+    m = 0.0
+    converged = False
+    for _ in range(_NEWTON_MAX):
+        det, m = _charpoly(c00, c01, c02, c11, c12, c22, lam)
+        if not m > 0.0:
+            break
+        step = det / m
+        lam += step
+        if lam < _TINY * tr:  # λ_min at the closed form's rounding (a flat patch of quantized depth): no bracket
+            break
+        if abs(step) <= _NEWTON_TOL * tr:
+            converged = True
+            break
+    if not converged:
+        return False, 0.0, 0.0, False
+    det_lo, _ = _charpoly(c00, c01, c02, c11, c12, c22, lam - _CHECK * tr)
+    det_hi, m = _charpoly(c00, c01, c02, c11, c12, c22, lam + _CHECK * tr)
+    # a root between, and λ_2 - λ_1 >= m / (λ_3 - λ_1) >= _MIN_MINORS · tr (λ_3 - λ_1 <= ~tr)
+    if not (det_lo > 0.0 and det_hi < 0.0 and m >= _MIN_MINORS * tr * tr):
+        return False, 0.0, 0.0, False
+    # the normal: the closed form's largest cross product n0 ~ m² · max_k v_k² lies in [m² / 3, m²]
+    need = 1e-9 * tr * tr
+    if m * m / 3.0 > _FITTED_SAFETY * need:
+        fitted = True
+    elif m * m < need / _FITTED_SAFETY:
+        fitted = False
+    else:
+        return False, 0.0, 0.0, False
+    return True, lam - _MARGIN * tr, lam + _MARGIN * tr, fitted
+
+
+@numba.njit(cache=True, error_model="numpy")  # IEEE division, as _patch_gate_kernel
+def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # type: ignore[no-untyped-def]  # numba kernel
+    """For every fitted patch with z² > 0, in raster order, a bracket [lo, hi] of its rms / z² as
+    :func:`zcut.edge_surface._patch_gate_kernel` computes it (lo = hi: solved in closed form here) and
+    its pixel (``at``, i * W + j). Returns their count, the count solved, and whether a ratio is NaN."""
+    H, W = valid.shape
+    side = (2 * r + 1) * (2 * r + 1)
+    px = np.empty(side)
+    py = np.empty(side)
+    pz = np.empty(side)
+    m = 0
+    solved = 0
+    nan = False
+    for i in range(H):
+        for j in range(W):
+            if not valid[i, j]:
+                continue
+            n, mz, c00, c01, c02, c11, c12, c22 = _cov_at(xyz, valid, i, j, r, min_px, per_px, tan, floor, px, py, pz)
+            if n < min_px:
+                continue
+            zz = mz ** 2
+            ok, l0, l1, fitted = _lambda_bracket(c00, c01, c02, c11, c12, c22)
+            if ok:
+                if not fitted or not zz > 0:
+                    continue
+                lo[m] = math.sqrt(max(l0, 0.0)) / zz
+                hi[m] = math.sqrt(max(l1, 0.0)) / zz
+                at[m] = i * W + j
+                m += 1
+                continue
+            solved += 1
+            lam, nx, _, _ = _smallest_eigvec(c00, c01, c02, c11, c12, c22)
+            if not np.isfinite(nx) or not zz > 0:
+                continue
+            v = math.sqrt(max(lam, 0.0)) / zz
+            if np.isnan(v):
+                nan = True
+            lo[m] = v
+            hi[m] = v
+            at[m] = i * W + j
+            m += 1
+    return m, solved, nan
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _window_exact(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at, a, b, vals):  # type: ignore[no-untyped-def]  # numba kernel
+    """Classify the ratios of :func:`_ratio_brackets` against the window [a, b]: (below, above, count
+    in it), by their brackets where these decide, else by their closed-form value (the values in the
+    window into ``vals``)."""
+    H, W = valid.shape
+    side = (2 * r + 1) * (2 * r + 1)
+    px = np.empty(side)
+    py = np.empty(side)
+    pz = np.empty(side)
+    below = 0
+    above = 0
+    inside = 0
+    for k in range(lo.size):
+        if hi[k] < a:
+            below += 1
+            continue
+        if lo[k] > b:
+            above += 1
+            continue
+        if lo[k] == hi[k]:
+            v = lo[k]
+        else:
+            i = at[k] // W
+            j = at[k] % W
+            _, mz, c00, c01, c02, c11, c12, c22 = _cov_at(xyz, valid, i, j, r, min_px, per_px, tan, floor, px, py, pz)
+            lam, _, _, _ = _smallest_eigvec(c00, c01, c02, c11, c12, c22)
+            v = math.sqrt(max(lam, 0.0)) / mz ** 2
+        if v < a:
+            below += 1
+        elif v > b:
+            above += 1
+        else:
+            vals[inside] = v
+            inside += 1
+    return below, above, inside
+
+
+def _gate_median(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: float, tan: float
+                 ) -> tuple[int, float]:
+    """(count, median) of the fitted patches' rms / z², the values :func:`zcut.edge_surface._edge_surfaces`
+    takes: the count and ``_median_of_temporary`` of its ratios."""
+    H, W = valid.shape
+    lo = np.empty(H * W)
+    hi = np.empty(H * W)
+    at = np.empty(H * W, np.int64)
+    r, min_px, floor = params.patch_radius_px, params.min_patch_px, params.side_step_mm
+    m, _, nan = _ratio_brackets(a, valid, r, min_px, per_px, tan, floor, lo, hi, at)
+    if m == 0:
+        return 0, float("nan")
+    if nan:
+        return m, float("nan")
+    lo, hi, at = lo[:m], hi[:m], at[:m]
+    h = m // 2
+    ranks = (h,) if m % 2 else (h - 1, h)
+    # the k-th ratio lies between the k-th smallest lower end and the k-th smallest upper end
+    wa = order_pair(lo, ranks[0], ranks[0])[0]
+    wb = order_pair(hi, ranks[-1], ranks[-1])[0]
+    vals = np.empty(m)
+    below, _, inside = _window_exact(a, valid, r, min_px, per_px, tan, floor, lo, hi, at, wa, wb, vals)
+    if not (below <= ranks[0] and ranks[-1] < below + inside):  # pragma: no cover - the brackets hold their ratios
+        raise AssertionError("the gate's window does not hold the median: a bracket missed its ratio")
+    a0, a1 = order_pair(vals[:inside], ranks[0] - below, ranks[-1] - below)
+    if m % 2:
+        return m, a1
+    return m, float((np.float64(a0) + np.float64(a1)) / 2.0)
+
+
+@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
+def _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, state, slot,  # type: ignore[no-untyped-def]  # numba kernel
+            planes, count, px, py, pz):
+    """Whether patch (a, b) is a surface (:func:`zcut.edge_surface._patch_gate_kernel` then
+    ``_surfaces_kernel``), and its plane into ``planes`` when it is; ``state``: 0 unknown, 1 surface,
+    2 not. Returns the planes array (grown when full)."""
+    state[a, b] = 2
+    if not valid[a, b]:
+        return planes
+    fitted, lam, mx, my, mz, nx, ny, nz = _fit_at(xyz, valid, a, b, r, min_px, per_px, tan, floor, px, py, pz)
+    if not fitted:
+        return planes
+    s = math.sqrt(max(lam, 0.0))
+    zz = mz ** 2
+    norm = math.sqrt(mx * mx + my * my + mz * mz)
+    cos_inc = abs(mx / norm * nx + my / norm * ny + mz / norm * nz)
+    steep = not cos_inc >= cos_max
+    ok = np.isfinite(s) and zz > 0 and s <= max(min_fit, gate_k * zz) and (any_angle or not steep)
+    if not ok:
+        return planes
+    state[a, b] = 1
+    t = count[0]
+    if t == planes.shape[0]:
+        grown = np.empty((2 * t + 64, 6))
+        grown[:t] = planes[:t]
+        planes = grown
+    planes[t, 0] = mx
+    planes[t, 1] = my
+    planes[t, 2] = mz
+    planes[t, 3] = nx
+    planes[t, 4] = ny
+    planes[t, 5] = nz
+    slot[a, b] = t
+    count[0] = t + 1
+    return planes
+
+
+@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
+def _nearest_lazy(xyz, valid, rows, cols, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle,  # type: ignore[no-untyped-def]  # numba kernel
+                  radius, max_radius, state, slot, planes, count, out):
+    """:func:`zcut.edge_surface._nearest_at` deciding each surface when first read (:func:`_decide`)."""
+    H, W = valid.shape
+    side = (2 * r + 1) * (2 * r + 1)
+    qx = np.empty(side)
+    qy = np.empty(side)
+    qz = np.empty(side)
+    for k in range(rows.size):
+        i = rows[k]
+        j = cols[k]
+        px = xyz[i, j, 0]
+        py = xyz[i, j, 1]
+        pz = xyz[i, j, 2]
+        R = radius
+        best = np.inf
+        signed = np.inf
+        while True:
+            for a in range(max(i - R, 0), min(i + R + 1, H)):
+                for b in range(max(j - R, 0), min(j + R + 1, W)):
+                    if abs(a - i) <= r and abs(b - j) <= r:
+                        continue
+                    if state[a, b] == 0:
+                        planes = _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max,
+                                         any_angle, state, slot, planes, count, qx, qy, qz)
+                    if state[a, b] != 1:
+                        continue
+                    t = slot[a, b]
+                    d = (planes[t, 3] * (px - planes[t, 0]) + planes[t, 4] * (py - planes[t, 1])
+                         + planes[t, 5] * (pz - planes[t, 2]))
+                    if abs(d) < best:
+                        best = abs(d)
+                        signed = d
+            if best < np.inf or R >= max_radius:
+                break
+            R = min(2 * R, max_radius)
+        out[k] = signed
+    return planes
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _decide_all(xyz, valid, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, state, slot,  # type: ignore[no-untyped-def]  # numba kernel
+                planes, count):
+    """:func:`_decide` of every patch not decided yet."""
+    H, W = valid.shape
+    side = (2 * r + 1) * (2 * r + 1)
+    qx = np.empty(side)
+    qy = np.empty(side)
+    qz = np.empty(side)
+    for a in range(H):
+        for b in range(W):
+            if state[a, b] == 0:
+                planes = _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle,
+                                 state, slot, planes, count, qx, qy, qz)
+    return planes
+
+
+class LazySurfaces:
+    """The surfaces of one frame (:func:`lazy_surfaces`), decided where a distance reads them.
+
+    :meth:`distance` is :meth:`zcut.edge_surface.EdgeSurfaces.distance`, the same values bit for bit."""
+
+    __slots__ = ("_xyz", "_valid", "_params", "_per_px", "_tan", "_gate_k", "_state", "_slot", "_planes", "_count",
+                 "n_fitted")
+
+    def __init__(self, xyz_mm: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: float, tan: float,
+                 gate_k: float, n_fitted: int) -> None:
+        self._xyz, self._valid, self._params = xyz_mm, valid, params
+        self._per_px, self._tan, self._gate_k = per_px, tan, gate_k
+        self.n_fitted = n_fitted  # fitted patches with z² > 0 (0: no patch is a surface)
+        # no ratio: no surface (as _edge_surfaces, which then leaves the mask empty)
+        self._state = np.full(valid.shape, 0 if n_fitted else 2, np.int8)
+        self._slot = np.full(valid.shape, -1, np.int32)
+        self._planes = np.empty((1024, 6))
+        self._count = np.zeros(1, np.int64)
+
+    @property
+    def surface(self) -> Mask:
+        """(H, W) bool: the patches that are surfaces (every patch decided)."""
+        p = self._params
+        self._planes = _decide_all(self._xyz, self._valid, p.patch_radius_px, p.min_patch_px, self._per_px, self._tan,
+                                   p.side_step_mm, self._gate_k, p.min_fit_mm,
+                                   math.cos(math.radians(p.max_incidence_deg)), p.max_incidence_deg >= 90.0,
+                                   self._state, self._slot, self._planes, self._count)
+        surface: Mask = self._state == 1
+        return surface
+
+    def _nearest(self, rows: np.ndarray, cols: np.ndarray, d: np.ndarray) -> None:
+        p = self._params
+        self._planes = _nearest_lazy(self._xyz, self._valid, rows, cols, p.patch_radius_px, p.min_patch_px,
+                                     self._per_px, self._tan, p.side_step_mm, self._gate_k, p.min_fit_mm,
+                                     math.cos(math.radians(p.max_incidence_deg)), p.max_incidence_deg >= 90.0,
+                                     p.search_radius_px, p.max_search_radius_px, self._state, self._slot,
+                                     self._planes, self._count, d)
+
+    def distance(self, where: Mask | None = None) -> np.ndarray:
+        """Signed distance (mm) of the valid pixels (of those in ``where`` too, when given) to the
+        nearest surface: :meth:`zcut.edge_surface.EdgeSurfaces.distance`'s values there, NaN elsewhere."""
+        at = self._valid if where is None else self._valid & where
+        rows, cols = np.nonzero(at)
+        d = np.empty(rows.size)
+        self._nearest(rows, cols, d)
+        out = np.full(at.shape, np.nan)
+        out[rows, cols] = d
+        return out
+
+
+def lazy_surfaces(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams) -> LazySurfaces:
+    """:func:`zcut.edge_surface._edge_surfaces` (``a`` C-contiguous float64 in mm, finite where ``valid``,
+    C-contiguous too) with the gate from brackets and the surfaces decided when read."""
+    step = _reach_samples(a, valid)
+    per_px = median(step) if step.size else 0.0  # 1 / f (_median_of_temporary's value)
+    del step
+    tan = min(math.tan(math.radians(params.max_incidence_deg)), 1e6)
+    m, gate = _gate_median(a, valid, params, per_px, tan)
+    return LazySurfaces(a, valid, params, per_px, tan, params.fit_k * gate if m else float("nan"), m)
