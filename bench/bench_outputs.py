@@ -15,6 +15,8 @@ file's MB per frame. ``--against
 DIR`` measures the sinks of the source tree DIR (the previous release: ``git -C /work/main archive HEAD |
 tar -x -C DIR``) on the same frames in subprocesses of the same run, ``--rounds`` times alternating with
 this tree's (medians of the rounds), and prints the ratios old / new.
+``--python-side`` measures only the recording's Python side (``viz.log_frame`` and ``viz.log_verdicts`` into a
+recording that drops its input), this tree's and ``--against``'s ``viz.py`` alternating in one process.
 ``--profile rrd`` prints the cProfile of this tree's Rerun writes (where the time goes). Several logs
 (e.g. a 640 x 480 and a 1920 x 1200 one) are measured one after the other, a table each; ``--outputs``
 picks the outputs measured (the Rerun recording alone: ``--outputs rrd``).
@@ -134,6 +136,68 @@ def measure(dump: Path, repeats: int, out_dir: Path, profile: str | None,
     return out
 
 
+def python_side(dump: Path, against: Path | None, rounds: int) -> None:
+    """CPU ms a frame of the recording's Python side alone (``viz.log_frame`` and ``viz.log_verdicts`` into a
+    recording that drops what it is given: the sink's numpy and the archetypes it builds, not Rerun's
+    encoding), this tree's ``replay/pipeline/viz.py`` and ``against``'s loaded side by side in one process
+    and alternated ``rounds`` times (medians): the frames, the truth's verdicts and the machine's load are
+    the same for both."""
+    import importlib.util
+
+    from annotate.judge import judge_for_log
+    from replay.logs.reader import LogReader
+    from replay.pipeline import viz
+
+    with open(dump, "rb") as f:
+        data = pickle.load(f)
+    info, pairs = data["info"], data["pairs"]
+    pairs = pairs[1:] or pairs
+    try:
+        judge = judge_for_log(data["log"], LogReader(data["log"]).mask_topics, info.config.methods)
+    except Exception:  # noqa: BLE001 - a log without truth: no verdicts
+        judge = None
+    verdicts = [None if judge is None else judge.judge(f, r) for f, r in pairs]
+    trees: dict[str, Any] = {"this tree": viz}
+    if against is not None:
+        spec = importlib.util.spec_from_file_location("viz_previous", against / "replay" / "pipeline" / "viz.py")
+        assert spec is not None and spec.loader is not None
+        old = importlib.util.module_from_spec(spec)
+        sys.modules["viz_previous"] = old  # its dataclasses look their module up
+        spec.loader.exec_module(old)
+        trees = {"previous": old, **trees}
+
+    class Dropped:
+        def log(self, *a: Any, **k: Any) -> None:
+            pass
+
+        def send_columns(self, *a: Any, **k: Any) -> None:
+            pass
+
+        def set_time(self, *a: Any, **k: Any) -> None:
+            pass
+
+    rec = Dropped()
+    step = info.config.zcut.step
+    got: dict[str, list[float]] = {k: [] for k in trees}
+    for r in range(max(rounds, 1)):
+        for name in list(trees) if r % 2 == 0 else list(trees)[::-1]:
+            m = trees[name]
+            opts = m.VizOptions()
+            c = time.thread_time()
+            for (frame, result), v in zip(pairs, verdicts):
+                m.log_frame(rec, frame, result, step_mm=step, opts=opts)
+                if v is not None:
+                    m.log_verdicts(rec, frame, v, judge.methods, opts)  # type: ignore[union-attr]  # v: a judge's
+            got[name].append((time.thread_time() - c) / len(pairs))
+    h, w = pairs[0][0].xyz.shape[:2]
+    med = {k: 1000 * statistics.median(v) for k, v in got.items()}
+    line = ", ".join(f"{k} {v:.2f}" for k, v in med.items())
+    ratio = f", previous / this {med['previous'] / med['this tree']:.2f}" if "previous" in med else ""
+    print(f"python side of the recording, {Path(data['log']).name} ({w}x{h}, {len(pairs)} frames"
+          f"{', verdicts' if judge is not None else ''}): CPU ms a frame, medians of {max(rounds, 1)} "
+          f"alternating rounds: {line}{ratio}")
+
+
 def measure_tree(tree: Path, dump: Path, repeats: int, profile: str | None,
                  outputs: tuple[str, ...] = OUTPUTS) -> dict[str, dict[str, float]]:
     """:func:`measure` with the code of the source tree ``tree``, in a subprocess."""
@@ -160,6 +224,9 @@ def main() -> None:
     ap.add_argument("--against", type=Path, help="source tree of the previous release, measured in the same run")
     ap.add_argument("--profile", choices=("rrd", "results"), help="cProfile this tree's writes of that output")
     ap.add_argument("--outputs", default=",".join(OUTPUTS), help=f"the outputs measured, of {','.join(OUTPUTS)}")
+    ap.add_argument("--python-side", action="store_true",
+                    help="only the recording's Python side (viz into a recording that drops its input), this tree's "
+                         "viz.py and --against's in one process, alternating --rounds times")
     ap.add_argument("--dump", type=Path, help="keep the captured frames in this file and reuse them when it exists "
                     "(one log only): the pipeline then runs once over several invocations")
     ap.add_argument("--measure-json", nargs=2, help=argparse.SUPPRESS)  # DUMP REPEATS: one JSON line
@@ -176,6 +243,14 @@ def main() -> None:
         ap.error("--log LOG.mcap is required (e.g. a 1920x1200 `zcut synth` log with its bin model)")
     if args.dump is not None and len(args.log) != 1:
         ap.error("--dump goes with one --log")
+    if args.python_side:
+        for log in args.log:
+            with tempfile.TemporaryDirectory(prefix="zcut_bench_outputs_") as d:
+                dump = Path(d) / "frames.pickle" if args.dump is None else args.dump
+                if args.dump is None or not dump.exists():
+                    capture(log, args.frames, dump)
+                python_side(dump, args.against, args.rounds)
+        return
     for log in args.log:
         bench_log(log, args, outputs)
 
