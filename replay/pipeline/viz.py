@@ -763,7 +763,7 @@ def log_clusters(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions)
     dtype = np.uint8 if n < 256 else np.uint16 if n < 65536 else np.uint32  # the smallest that holds every id
     # a block: the highest id in it; a pixel has an id > 0 only where the z-cut flags it (``outliers ==
     # clusters > 0``, zcut.cuts.CutResult), so the image is built from those pixels alone (no pass over
-    # the frame's int32 ids: 1.2 -> 0.5 ms a 1920 x 1200 frame)
+    # the frame's int32 ids: log_clusters 1.7 -> 1.0 ms a 1920 x 1200 frame)
     idx = np.flatnonzero(cut.outliers)
     ids = scatter_pool_max(cut.clusters.shape, idx, cut.clusters.ravel()[idx].astype(dtype), opts.overlay_scale)
     rec.log("image/clusters", _segmentation(ids))
@@ -814,16 +814,6 @@ def outlier_pixels(result: FrameResult) -> OutlierPixels:
     c += si.view(np.uint8)
     classes: np.ndarray = np.maximum(c, ei.view(np.uint8) * np.uint8(4), out=c)
     return OutlierPixels(idx, classes, zi, si, ei)
-
-
-def _outlier_classes(result: FrameResult) -> np.ndarray:
-    """(H, W) uint8: z-cut only 1, SOR only 2, both 3, above the rim 4 (wins); the whole-frame image of
-    :class:`OutlierPixels` (tests/replay/pipeline/test_viz_overlays.py checks the two agree)."""
-    s = _u8(result.sor_outliers)
-    c = _u8(result.zcut_outliers) + s
-    c += s
-    classes: np.ndarray = np.maximum(c, _u8(result.easy_outliers) * np.uint8(4), out=c)
-    return classes
 
 
 def scatter_pool_max(shape: tuple[int, int], idx: np.ndarray, values: np.ndarray, s: int) -> np.ndarray:
