@@ -25,7 +25,10 @@ All paths produce identical arrays (checked). Reported, best of ``--repeat`` int
 The load average is printed: on a shared machine the wall-time ratio depends on free cores.
 zstd decompression alone is ~50 of zcut's ~65 ms of CPU per frame, so the whole-log CPU ratio
 cannot reach 5x (~270 / 55 at best) with the same zstd library; only the wall ratio can.
-Usage: .venv/bin/python bench/bench_logread.py [--frames N] [--repeat R] [--scene noise|scene]
+(4) ``--split LOG [LOG ...]``: only where the CPU of reading existing logs goes (the whole read with its
+chunk readers, then without read-ahead under cProfile on the thread's clock: zstd, CRC, file reads, the
+x, y, z unpacking, the rest); docs/performance.md, "Rerun logging and reading (issue 32, items 1 and 3)".
+Usage: .venv/bin/python bench/bench_logread.py [--frames N] [--repeat R] [--scene noise|scene] [--split LOG ...]
 """
 
 from __future__ import annotations
@@ -178,12 +181,62 @@ def timed(fn, path: Path, n: int) -> tuple[float, float, object]:
     return (time.perf_counter() - t) / n, (time.process_time() - c) / n, out
 
 
+def split(log: Path, repeat: int) -> None:
+    """Where the CPU of reading ``log`` goes: the whole read (:meth:`LogReader.frames`, every thread: the
+    chunk readers' zstd and CRC included), median of ``repeat`` passes after a warm-up one; then the same
+    frames read with no read-ahead (the calling thread does everything) under cProfile on the thread's
+    CPU clock, split into zstd decompression, CRC-32, file reads, the x, y, z unpacking and the rest."""
+    import cProfile
+    import pstats
+    import statistics
+
+    from replay.logs.stream import FrameStream
+
+    reader = LogReader(log)
+    shape = (0, 0)
+    for f in reader.frames():  # warm-up: numba kernels, the page cache
+        shape = f.xyz.shape[:2]
+    whole = []
+    for _ in range(repeat):
+        c, n = time.process_time(), 0
+        for _f in reader.frames():
+            n += 1
+        whole.append((time.process_time() - c) / max(n, 1))
+    prof = cProfile.Profile(time.thread_time)
+    n, alone = 0, 0.0
+    for _ in range(repeat):
+        c = time.thread_time()
+        prof.enable()
+        for _f in FrameStream(reader.index(), prefetch=0):
+            n += 1
+        prof.disable()
+        alone += time.thread_time() - c
+    own = {f"{k[0]}:{k[2]}": v[2] for k, v in pstats.Stats(prof).stats.items()}
+
+    def ms(*names: str) -> float:
+        return 1e3 * sum(t for k, t in own.items() if any(nm in k for nm in names)) / max(n, 1)
+
+    zstd, crc = ms("ZstdDecompressionReader"), ms("crc32")
+    reads, unpack = ms("'read' of '_io.BufferedReader'"), ms("_unpack_words", "_unpack_xyz")
+    total = 1e3 * alone / max(n, 1)
+    print(f"{log.name} ({shape[1]}x{shape[0]}, {n // repeat} frames): whole read {1e3 * statistics.median(whole):.1f} "
+          f"CPU ms a frame (all threads, median of {repeat}); no read-ahead, the calling thread, profiled: "
+          f"{total:.1f} = zstd {zstd:.1f} + CRC {crc:.1f} + file reads {reads:.1f} + x, y, z unpack {unpack:.1f} "
+          f"+ the rest {total - zstd - crc - reads - unpack:.1f}; load average {os.getloadavg()[0]:.1f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--frames", type=int, default=12)  # opening the log counts: few frames weigh it more
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--scene", choices=("noise", "scene"), default="scene")
+    ap.add_argument("--split", type=Path, nargs="+", metavar="LOG",
+                    help="only where the CPU of reading these logs goes (zstd, CRC, reads, unpacking, the rest)")
     args = ap.parse_args()
+    if args.split:
+        for log in args.split:
+            split(log, args.repeat)
+        return
     load0 = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as d:
         warm = Path(d) / "warm.mcap"  # compile the numba kernels once, outside the timing

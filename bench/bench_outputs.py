@@ -2,23 +2,28 @@
 the Rerun recording (``--rrd``, default detail, with the truth's verdicts when the log has truth).
 
 Run: ``.venv/bin/python bench/bench_outputs.py --log LOG.mcap [LOG2.mcap ...] [--frames N] [--repeats R]
-[--rounds K] [--against OLD] [--outputs rrd,results,results+cloud] [--profile rrd|results]``
+[--rounds K] [--against OLD] [--outputs rrd,results,results+cloud] [--profile rrd|results] [--dump FRAMES.pickle]``
 
 The pipeline runs once on the log's first N frames (this tree) and its frames and results are kept
-(pickled to a temporary file). Then each output's sink is fed those same frames, ``--repeats`` times,
+(pickled to a temporary file, or to ``--dump``, which a later run reuses instead of running the pipeline
+again). Then each output's sink is fed those same frames, ``--repeats`` times,
 and for each output it prints the CPU ms per frame of its ``write`` (``time.process_time``: every thread
 of the process, so Rerun's own encoder threads count; median over frames and repeats, the first frame
-of each repeat excluded), the CPU ms of ``close`` per frame, and the file's MB per frame. ``--against
+of each repeat excluded), the calling thread's share of it ("(caller)", ``time.thread_time``: the sink's own
+Python and numpy; the rest is Rerun's encoder and writer threads), the CPU ms of ``close`` per frame, and the
+file's MB per frame. ``--against
 DIR`` measures the sinks of the source tree DIR (the previous release: ``git -C /work/main archive HEAD |
 tar -x -C DIR``) on the same frames in subprocesses of the same run, ``--rounds`` times alternating with
 this tree's (medians of the rounds), and prints the ratios old / new.
+``--python-side`` measures only the recording's Python side (``viz.log_frame`` and ``viz.log_verdicts`` into a
+recording that drops its input), this tree's and ``--against``'s ``viz.py`` alternating in one process.
 ``--profile rrd`` prints the cProfile of this tree's Rerun writes (where the time goes). Several logs
 (e.g. a 640 x 480 and a 1920 x 1200 one) are measured one after the other, a table each; ``--outputs``
 picks the outputs measured (the Rerun recording alone: ``--outputs rrd``).
 The machine is shared: CPU time, not wall time, is compared.
 
 Measured (issue 32, item 3: the recording at default detail, with the truth's verdicts): see
-docs/pipeline.md, "The recording (Rerun)".
+docs/performance.md, "Rerun logging and reading (issue 32, items 1 and 3)".
 """
 
 from __future__ import annotations
@@ -93,6 +98,7 @@ def measure(dump: Path, repeats: int, out_dir: Path, profile: str | None,
     out: dict[str, dict[str, float]] = {}
     for kind in outputs:
         writes: list[float] = []
+        mains: list[float] = []  # the calling thread's share of each write (the rest: Rerun's own threads)
         closes: list[float] = []
         size = 0.0
         prof = None
@@ -107,19 +113,20 @@ def measure(dump: Path, repeats: int, out_dir: Path, profile: str | None,
             for i, (frame, result) in enumerate(pairs):
                 if prof is not None:
                     prof.enable()
-                c = time.process_time()
+                c, m = time.process_time(), time.thread_time()
                 sink.write(frame, result)
-                dt = time.process_time() - c
+                dt, dm = time.process_time() - c, time.thread_time() - m
                 if prof is not None:
                     prof.disable()
                 if i > 0 or len(pairs) == 1:
                     writes.append(dt)
+                    mains.append(dm)
             c = time.process_time()
             sink.close(completed=True)
             closes.append((time.process_time() - c) / len(pairs))
             size = path.stat().st_size / 1e6 / len(pairs)
-        out[kind] = {"write_ms": 1000 * statistics.median(writes), "close_ms": 1000 * statistics.median(closes),
-                     "mb": size}
+        out[kind] = {"write_ms": 1000 * statistics.median(writes), "main_ms": 1000 * statistics.median(mains),
+                     "close_ms": 1000 * statistics.median(closes), "mb": size}
         if prof is not None:
             import pstats
 
@@ -127,6 +134,68 @@ def measure(dump: Path, repeats: int, out_dir: Path, profile: str | None,
     if judge is not None:
         judge.close()
     return out
+
+
+def python_side(dump: Path, against: Path | None, rounds: int) -> None:
+    """CPU ms a frame of the recording's Python side alone (``viz.log_frame`` and ``viz.log_verdicts`` into a
+    recording that drops what it is given: the sink's numpy and the archetypes it builds, not Rerun's
+    encoding), this tree's ``replay/pipeline/viz.py`` and ``against``'s loaded side by side in one process
+    and alternated ``rounds`` times (medians): the frames, the truth's verdicts and the machine's load are
+    the same for both."""
+    import importlib.util
+
+    from annotate.judge import judge_for_log
+    from replay.logs.reader import LogReader
+    from replay.pipeline import viz
+
+    with open(dump, "rb") as f:
+        data = pickle.load(f)
+    info, pairs = data["info"], data["pairs"]
+    pairs = pairs[1:] or pairs
+    try:
+        judge = judge_for_log(data["log"], LogReader(data["log"]).mask_topics, info.config.methods)
+    except Exception:  # noqa: BLE001 - a log without truth: no verdicts
+        judge = None
+    verdicts = [None if judge is None else judge.judge(f, r) for f, r in pairs]
+    trees: dict[str, Any] = {"this tree": viz}
+    if against is not None:
+        spec = importlib.util.spec_from_file_location("viz_previous", against / "replay" / "pipeline" / "viz.py")
+        assert spec is not None and spec.loader is not None
+        old = importlib.util.module_from_spec(spec)
+        sys.modules["viz_previous"] = old  # its dataclasses look their module up
+        spec.loader.exec_module(old)
+        trees = {"previous": old, **trees}
+
+    class Dropped:
+        def log(self, *a: Any, **k: Any) -> None:
+            pass
+
+        def send_columns(self, *a: Any, **k: Any) -> None:
+            pass
+
+        def set_time(self, *a: Any, **k: Any) -> None:
+            pass
+
+    rec = Dropped()
+    step = info.config.zcut.step
+    got: dict[str, list[float]] = {k: [] for k in trees}
+    for r in range(max(rounds, 1)):
+        for name in list(trees) if r % 2 == 0 else list(trees)[::-1]:
+            m = trees[name]
+            opts = m.VizOptions()
+            c = time.thread_time()
+            for (frame, result), v in zip(pairs, verdicts):
+                m.log_frame(rec, frame, result, step_mm=step, opts=opts)
+                if v is not None:
+                    m.log_verdicts(rec, frame, v, judge.methods, opts)  # type: ignore[union-attr]  # v: a judge's
+            got[name].append((time.thread_time() - c) / len(pairs))
+    h, w = pairs[0][0].xyz.shape[:2]
+    med = {k: 1000 * statistics.median(v) for k, v in got.items()}
+    line = ", ".join(f"{k} {v:.2f}" for k, v in med.items())
+    ratio = f", previous / this {med['previous'] / med['this tree']:.2f}" if "previous" in med else ""
+    print(f"python side of the recording, {Path(data['log']).name} ({w}x{h}, {len(pairs)} frames"
+          f"{', verdicts' if judge is not None else ''}): CPU ms a frame, medians of {max(rounds, 1)} "
+          f"alternating rounds: {line}{ratio}")
 
 
 def measure_tree(tree: Path, dump: Path, repeats: int, profile: str | None,
@@ -155,6 +224,11 @@ def main() -> None:
     ap.add_argument("--against", type=Path, help="source tree of the previous release, measured in the same run")
     ap.add_argument("--profile", choices=("rrd", "results"), help="cProfile this tree's writes of that output")
     ap.add_argument("--outputs", default=",".join(OUTPUTS), help=f"the outputs measured, of {','.join(OUTPUTS)}")
+    ap.add_argument("--python-side", action="store_true",
+                    help="only the recording's Python side (viz into a recording that drops its input), this tree's "
+                         "viz.py and --against's in one process, alternating --rounds times")
+    ap.add_argument("--dump", type=Path, help="keep the captured frames in this file and reuse them when it exists "
+                    "(one log only): the pipeline then runs once over several invocations")
     ap.add_argument("--measure-json", nargs=2, help=argparse.SUPPRESS)  # DUMP REPEATS: one JSON line
     args = ap.parse_args()
     outputs = tuple(o for o in OUTPUTS if o in args.outputs.split(","))
@@ -167,6 +241,16 @@ def main() -> None:
         return
     if args.log is None:
         ap.error("--log LOG.mcap is required (e.g. a 1920x1200 `zcut synth` log with its bin model)")
+    if args.dump is not None and len(args.log) != 1:
+        ap.error("--dump goes with one --log")
+    if args.python_side:
+        for log in args.log:
+            with tempfile.TemporaryDirectory(prefix="zcut_bench_outputs_") as d:
+                dump = Path(d) / "frames.pickle" if args.dump is None else args.dump
+                if args.dump is None or not dump.exists():
+                    capture(log, args.frames, dump)
+                python_side(dump, args.against, args.rounds)
+        return
     for log in args.log:
         bench_log(log, args, outputs)
 
@@ -174,8 +258,9 @@ def main() -> None:
 def bench_log(log: Path, args: argparse.Namespace, outputs: tuple[str, ...]) -> None:
     """Measure the outputs of one log (this tree, and ``--against``'s in the same run) and print its table."""
     with tempfile.TemporaryDirectory(prefix="zcut_bench_outputs_") as d:
-        dump = Path(d) / "frames.pickle"
-        capture(log, args.frames, dump)
+        dump = Path(d) / "frames.pickle" if args.dump is None else args.dump
+        if args.dump is None or not dump.exists():
+            capture(log, args.frames, dump)
         with open(dump, "rb") as f:
             pairs = pickle.load(f)["pairs"]
         h, w = pairs[0][0].xyz.shape[:2]
@@ -190,17 +275,19 @@ def bench_log(log: Path, args: argparse.Namespace, outputs: tuple[str, ...]) -> 
         new = _medians(news)
     print(f"\noutputs of {log.name}: {len(pairs)} frames of {w}x{h}; CPU ms per frame (medians of "
           f"{args.rounds} alternating rounds of {args.repeats} repeats, first frame of each excluded) and MB per frame")
-    head = f"  {'output':14s} {'write ms':>9s} {'close ms':>9s} {'MB':>7s}"
+    head = f"  {'output':14s} {'write ms':>9s} {'(caller)':>9s} {'close ms':>9s} {'MB':>7s}"
     if old is not None:
-        head += f" | {'prev write':>10s} {'prev close':>10s} {'prev MB':>8s} | {'write x':>8s} {'MB x':>6s}"
+        head += (f" | {'prev write':>10s} {'(caller)':>9s} {'prev close':>10s} {'prev MB':>8s} | {'write x':>8s}"
+                 f" {'caller x':>8s} {'MB x':>6s}")
     print(head)
     for kind in outputs:
         n = new[kind]
-        line = f"  {kind:14s} {n['write_ms']:9.1f} {n['close_ms']:9.1f} {n['mb']:7.3f}"
+        line = f"  {kind:14s} {n['write_ms']:9.1f} {n['main_ms']:9.1f} {n['close_ms']:9.1f} {n['mb']:7.3f}"
         if old is not None:
             o = old[kind]
-            line += (f" | {o['write_ms']:10.1f} {o['close_ms']:10.1f} {o['mb']:8.3f} | "
-                     f"{o['write_ms'] / max(n['write_ms'], 1e-9):8.2f} {o['mb'] / max(n['mb'], 1e-9):6.2f}")
+            line += (f" | {o['write_ms']:10.1f} {o['main_ms']:9.1f} {o['close_ms']:10.1f} {o['mb']:8.3f} | "
+                     f"{o['write_ms'] / max(n['write_ms'], 1e-9):8.2f} {o['main_ms'] / max(n['main_ms'], 1e-9):8.2f}"
+                     f" {o['mb'] / max(n['mb'], 1e-9):6.2f}")
         print(line)
 
 

@@ -33,12 +33,15 @@ frame (numba compilation, model caches):
   issue 32 item 4 asks for 0.75-1.25), and with ``--against DIR`` the previous tree's CPU ms and
   the ratio previous / this, measured in the same run. ``docs/performance.md`` holds the budget per
   stage and a run's figures.
-- "Whole replay" (``--throughput [--log LOG] [--against DIR] [--repeats N]``, issue 32, both cores):
+- "Whole replay" (``--throughput [--log LOG] [--against DIR] [--repeats N] [--outputs none,rrd,out,rrd+out]``,
+  issue 32, both cores):
   ``ReplaySession.run`` over the log's frames after a warm-up one (no outputs; the replay's own
   threads: the reader, the locator, frames in flight), CPU s and wall s per frame, for this tree with
   one frame in flight and with two, and for the tree DIR, alternating N times in subprocesses, medians
   and every run's figures, with the load average: on a shared machine the wall times are indicative
-  only.
+  only. ``--outputs rrd,out,rrd+out`` adds this tree with those outputs (``zcut replay``'s sinks in
+  their background thread, written to a temporary folder and closed), and every row says the frames/s
+  bound of two fully used cores, 2 / (CPU s a frame).
 - "Fixed costs" (``--startup --log LOG [--against DIR] [--repeats N]``, issue 32 item 2): ``zcut replay
   LOG`` as a user runs it (``python -m cli``, a fresh process), with ``--frames 0:1`` and over all N
   frames, for this tree and DIR alternating N times. The CPU s of a process (user + sys of all its
@@ -224,28 +227,44 @@ def stage_table(logs: dict[tuple[int, int], Path], cores: list[int], against: Pa
                 print(line)
 
 
-def throughput(log: Path, in_flight: int | None) -> dict[str, float]:
-    """CPU s and wall s per frame of a whole replay (``ReplaySession.run``, no sink: read, bin stages,
-    z-cut, SOR, metrics, with the replay's own threads) over frames 1.. after frame 0 as warm-up, the
-    log's own bin model; ``in_flight`` frames at once (None: the tree's default; a tree whose ``run``
-    has no such argument runs its own way)."""
+#: the outputs ``--throughput --outputs`` may replay with: none, the Rerun recording (``--rrd``), the results
+#: file (``--out``), both (as ``zcut replay`` writes them: one background sink thread)
+THROUGHPUT_OUTPUTS = ("none", "rrd", "out", "rrd+out")
+
+
+def throughput(log: Path, in_flight: int | None, outputs: str = "none") -> dict[str, float]:
+    """CPU s and wall s per frame of a whole replay (``ReplaySession.run``: read, bin stages, z-cut, SOR,
+    metrics, with the replay's own threads; ``outputs``: :data:`THROUGHPUT_OUTPUTS`, written to a temporary
+    folder by the sinks ``zcut replay --rrd/--out`` uses, closing them included) over frames 1.. after
+    frame 0 as warm-up, the log's own bin model; ``in_flight`` frames at once (None: the tree's default;
+    a tree whose ``run`` has no such argument runs its own way)."""
     import inspect
 
     from replay.pipeline.bin_model import bin_model_for
+    from replay.pipeline.sinks import ResultsSink
 
     session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
     kw = {}
     if in_flight is not None and "in_flight" in inspect.signature(session.run).parameters:
         kw["in_flight"] = in_flight
     session.run(frames=(0, 1), **kw)  # warm-up: numba kernels, the first chunk
-    t0, c0 = time.perf_counter(), time.process_time()
-    summary = session.run(frames=(1, None), **kw)
-    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    with tempfile.TemporaryDirectory(prefix="zcut_bench_throughput_") as d:
+        sinks: list = []
+        if "rrd" in outputs:
+            sinks.append(RerunSink(rrd=Path(d) / "out.rrd"))
+        if "out" in outputs:
+            sinks.append(ResultsSink(Path(d) / "results.mcap"))
+        t0, c0 = time.perf_counter(), time.process_time()
+        if sinks:
+            summary = session.run(BackgroundSinks(sinks), frames=(1, None), **kw)
+        else:  # no sink at all, as before --outputs
+            summary = session.run(frames=(1, None), **kw)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     n = max(len(summary.rows), 1)
     return {"cpu_s": cpu / n, "wall_s": wall / n, "frames": len(summary.rows)}
 
 
-def throughput_of_tree(tree: Path, log: Path, in_flight: int | None) -> dict[str, float]:
+def throughput_of_tree(tree: Path, log: Path, in_flight: int | None, outputs: str = "none") -> dict[str, float]:
     """:func:`throughput` with the code of the source tree ``tree``, in a subprocess."""
     import json
     import subprocess
@@ -253,35 +272,41 @@ def throughput_of_tree(tree: Path, log: Path, in_flight: int | None) -> dict[str
 
     env = dict(os.environ, PYTHONPATH=str(tree))
     env.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
-    out = subprocess.run([sys.executable, __file__, "--throughput-json", str(log), str(in_flight or 0)], env=env,
+    out = subprocess.run([sys.executable, __file__, "--throughput-json", str(log), str(in_flight or 0), outputs], env=env,
                          cwd=str(tree), check=True, capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
 
-def throughput_table(log: Path, against: Path | None, repeats: int) -> None:
+def throughput_table(log: Path, against: Path | None, repeats: int, outputs: tuple[str, ...] = ("none",)) -> None:
     """Print CPU s and wall s per frame of whole replays: this tree with one frame in flight and with
-    two, and the previous tree (``against``), alternating ``repeats`` times, medians."""
+    two, and the previous tree (``against``), alternating ``repeats`` times, medians; with ``outputs``
+    other than none, this tree (its default frames in flight) with each of them too, and the frames/s
+    bound of two fully used cores (2 / CPU s a frame)."""
     this_tree = Path(__file__).resolve().parents[1]
-    runs: dict[str, tuple[Path, int | None]] = {"this tree, 1 frame in flight": (this_tree, 1),
-                                               "this tree, 2 frames in flight": (this_tree, 2)}
+    runs: dict[str, tuple[Path, int | None, str]] = {"this tree, 1 frame in flight": (this_tree, 1, "none"),
+                                                    "this tree, 2 frames in flight": (this_tree, 2, "none")}
     if against is not None:
-        runs["previous tree"] = (against, None)
+        runs["previous tree"] = (against, None, "none")
+    for o in outputs:
+        if o != "none":
+            runs[f"this tree, --{o.replace('+', ' --')}"] = (this_tree, None, o)
     got: dict[str, list[dict[str, float]]] = {k: [] for k in runs}
     loads = []
     for _ in range(max(repeats, 1)):
-        for name, (tree, n) in runs.items():
+        for name, (tree, n, o) in runs.items():
             loads.append(os.getloadavg()[0])
-            got[name].append(throughput_of_tree(tree, log, n))
+            got[name].append(throughput_of_tree(tree, log, n, o))
     frames = int(next(iter(got.values()))[0]["frames"])
-    print(f"\nwhole replay of {log.name} ({frames} frames after a warm-up one, no outputs), medians of {repeats} "
+    print(f"\nwhole replay of {log.name} ({frames} frames after a warm-up one), medians of {repeats} "
           f"alternating runs; load average {min(loads):.1f}-{max(loads):.1f} on {os.cpu_count()} cores "
           "(wall times on a shared machine are indicative only)")
     base = statistics.median(r["cpu_s"] for r in got[next(iter(runs))])
     base_w = statistics.median(r["wall_s"] for r in got[next(iter(runs))])
-    print(f"  {'':32s} {'CPU s/frame':>12s} {'wall s/frame':>13s} {'frames/s':>9s} {'wall vs 1 in flight':>20s}")
+    print(f"  {'':32s} {'CPU s/frame':>12s} {'wall s/frame':>13s} {'frames/s':>9s} {'wall vs 1 in flight':>20s}"
+          f" {'2-core bound':>13s}")
     for name, rs in got.items():
         c, w = statistics.median(r["cpu_s"] for r in rs), statistics.median(r["wall_s"] for r in rs)
-        print(f"  {name:32s} {c:12.3f} {w:13.3f} {1 / w:9.2f} {base_w / w:20.2f}"
+        print(f"  {name:32s} {c:12.3f} {w:13.3f} {1 / w:9.2f} {base_w / w:20.2f} {2 / c:13.2f}"
               + ("" if name == next(iter(runs)) else f"   (CPU {c / base:.2f} x)"))
         print("    per run (CPU, wall): " + ", ".join(f"{r['cpu_s']:.3f}/{r['wall_s']:.3f}" for r in rs))
 
@@ -380,7 +405,9 @@ def main() -> None:
     ap.add_argument("--startup", action="store_true",
                     help="the fixed costs of `zcut replay --log LOG` (share before the first frame), this tree and "
                          "--against's, alternating --repeats times")
-    ap.add_argument("--throughput-json", nargs=2, help=argparse.SUPPRESS)  # LOG IN_FLIGHT (0: default): one line
+    ap.add_argument("--outputs", default="none",
+                    help=f"--throughput: also replay with these outputs, of {','.join(THROUGHPUT_OUTPUTS)} (default none)")
+    ap.add_argument("--throughput-json", nargs=3, help=argparse.SUPPRESS)  # LOG IN_FLIGHT (0: default) OUTPUTS: one line
     ap.add_argument("--stage-json", nargs=2, help=argparse.SUPPRESS)  # LOG PLY|-: one JSON line
     ap.add_argument("--clock", default="cpu", choices=("cpu", "wall"), help=argparse.SUPPRESS)
     ap.add_argument("--pin", type=int, help=argparse.SUPPRESS)  # cores the --stage-json process runs on
@@ -396,8 +423,8 @@ def main() -> None:
     if args.throughput_json:
         import json
 
-        log_, n_ = args.throughput_json
-        print(json.dumps(throughput(Path(log_), int(n_) or None)))
+        log_, n_, o_ = args.throughput_json
+        print(json.dumps(throughput(Path(log_), int(n_) or None, o_)))
         return
     if args.startup:
         if args.log is None:
@@ -407,7 +434,10 @@ def main() -> None:
     if args.throughput:
         os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")
         log = args.log if args.log is not None else prepare(Path(args.dir), args.kind, args.frames)[0]
-        throughput_table(log, args.against, args.repeats)
+        outs = tuple(o for o in args.outputs.split(",") if o)
+        if not set(outs) <= set(THROUGHPUT_OUTPUTS):
+            ap.error(f"--outputs: of {','.join(THROUGHPUT_OUTPUTS)}")
+        throughput_table(log, args.against, args.repeats, outs)
         return
     if args.table:
         os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")

@@ -208,3 +208,56 @@ def test_the_direct_jpeg_is_rerun_s_own():
     for a, b in zip(ours, theirs, strict=True):
         assert a.component_descriptor() == b.component_descriptor()
         assert a.as_arrow_array().equals(b.as_arrow_array())
+
+
+def _scatter_cases():
+    rng = np.random.default_rng(11)
+    for dt in (np.uint8, np.uint16):
+        for shape in ((4, 6), (5, 7), (1, 1), (1, 9), (30, 41), (64, 64)):
+            for density in (0.0, 0.02, 0.3, 1.0):
+                img = np.where(rng.random(shape) < density, rng.integers(1, 5, shape), 0).astype(dt)
+                for s in (1, 2, 3):
+                    yield img, s
+
+
+@pytest.mark.parametrize("img, s", list(_scatter_cases()))
+def test_scatter_pool_max_is_the_block_maximum_of_the_scattered_image(img, s):
+    idx = np.flatnonzero(img)
+    out = viz.scatter_pool_max(img.shape, idx, img.ravel()[idx], s)
+    assert out.dtype == img.dtype and np.array_equal(out, _block_max(img, s))
+
+
+def _outlier_masks():
+    rng = np.random.default_rng(12)
+    shape = (37, 52)
+    for pz, ps_, pe in ((0.05, 0.05, 0.02), (0.5, 0.5, 0.3), (0.0, 0.0, 0.0), (1.0, 1.0, 0.0), (1.0, 0.0, 1.0),
+                        (0.0, 0.2, 0.0)):
+        yield (rng.random(shape) < pz, rng.random(shape) < ps_, rng.random(shape) < pe)
+    z, s, e = (rng.random((60, 40)) < 0.2 for _ in range(3))
+    yield np.asfortranarray(z), s[:, ::-1], e  # views of other layouts
+
+
+@pytest.mark.parametrize("z, s, e", list(_outlier_masks()))
+def test_the_outlier_pixels_are_those_of_the_whole_frame_masks(z, s, e):
+    r = type("R", (), {"zcut_outliers": z, "sor_outliers": s, "easy_outliers": e})()
+    px = viz.outlier_pixels(r)
+    literal = np.where(e, 4, np.where(z & s, 3, np.where(z, 1, np.where(s, 2, 0)))).astype(np.uint8)
+    assert np.array_equal(px.idx, np.flatnonzero(z | s | e))
+    assert np.array_equal(px.classes, literal.ravel()[px.idx]) and px.classes.dtype == np.uint8
+    # the counts the recording logs, from these pixels alone
+    assert (np.count_nonzero(px.zcut), np.count_nonzero(px.sor), np.count_nonzero(px.zcut & px.sor),
+            np.count_nonzero(px.above_rim)) == (z.sum(), s.sum(), (z & s).sum(), e.sum())
+    for k in (1, 2):
+        assert np.array_equal(viz.scatter_pool_max(z.shape, px.idx, px.classes, k), _block_max(literal, k))
+
+
+def test_the_logged_counts_and_outlier_points_are_the_whole_frame_ones(both):
+    frame, r, _, default, full = both
+    literal = np.where(r.easy_outliers, 4, np.where(r.zcut_outliers & r.sor_outliers, 3,
+                                                    np.where(r.zcut_outliers, 1, np.where(r.sor_outliers, 2, 0))))
+    assert np.array_equal(full["/image/outliers"]["images"][0], literal)
+    assert np.array_equal(default["/image/outliers"]["images"][0], _block_max(literal.astype(np.uint8), 2))
+    any_ = r.zcut_outliers | r.sor_outliers | r.easy_outliers
+    for rec in (default, full):
+        (pts,) = rec["/world/outliers"]["points"]
+        assert np.array_equal(pts, frame.xyz[any_], equal_nan=True)
