@@ -334,12 +334,15 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
             row[3], row[4], row[5] = nx, ny, nz
             for u in range(6):
                 g[u] += row[u] * r
-                for w in range(6):
+                for w in range(u, 6):  # the upper triangle; the lower is the same products (mirrored below)
                     H[u, w] += row[u] * row[w]
             ssq += r * r
             n_used += 1
         if n_used < 6:
             break
+        for u in range(1, 6):
+            for w in range(u):
+                H[u, w] = H[w, u]
         if use_edges:
             He[:] = 0.0
             ge[:] = 0.0
