@@ -602,9 +602,15 @@ def _assign(frame: _Frame, model: PartModel, accepted: list[tuple[np.ndarray, fl
         take = (d <= tol) & (d < best[flat])
         best[flat[take]] = d[take]
         owner[flat[take]] = i
+    # each fit's pixels, ascending: the owned pixels grouped by owner in one stable sort (not a pass over
+    # the frame per fit)
+    taken = np.flatnonzero(owner >= 0)
+    by_owner = taken[np.argsort(owner[taken], kind="stable")].astype(np.int64)
+    counts = np.bincount(owner[taken], minlength=len(accepted))
+    ends = np.cumsum(counts)
     out = []
     for i, (T, err, support) in enumerate(accepted):
-        pix = np.flatnonzero(owner == i).astype(np.int64)
+        pix = by_owner[ends[i] - counts[i]:ends[i]].copy()
         out.append(PartFit(pose=T, err_mm=float(err), support=float(support), pixels=pix))
     return out
 
