@@ -43,7 +43,7 @@ import numpy as np
 from zcut.errors import InputShapeError, describe_array
 
 from .icp import EDGE_WEAK, icp, initial_poses, initial_rotations, pose_matrix, shifted_poses
-from .kernels import coarse_search, edge_distances, lower_bounds, surface_distances
+from .kernels import coarse_search, edge_distances, lower_bounds, surface_distances, window_rays
 from .model import PartModel, prepare_model
 from .params import FitParams
 from .segment import segment
@@ -189,17 +189,25 @@ def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float,
         return 0.0
     fx, fy, cx, cy = frame.K
     rs, cs = win
-    rr, cc = np.mgrid[rs, cs]
-    d = np.stack([(cc - cx) / fx, (rr - cy) / fy, np.ones(rr.shape)], axis=-1).reshape(-1, 3)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
     R, t = T[:3, :3], T[:3, 3]
+    # only the window's rays that meet the model's box grown by SUPPORT_BOX_MM (a cheap test of every
+    # ray in numba) are cast: the others miss the box the ray casts test (grown by 0.01 mm) and every
+    # triangle in it. The rays cast are computed as before, one by one: the same hits.
+    lo = model.vertices.min(axis=0) - SUPPORT_BOX_MM
+    hi = model.vertices.max(axis=0) + SUPPORT_BOX_MM
+    rr, cc = window_rays(rs.start, rs.stop, cs.start, cs.stop, fx, fy, cx, cy, np.ascontiguousarray(R),
+                         np.ascontiguousarray(t), lo, hi)
+    if not len(rr):
+        return 0.0
+    d = np.stack([(cc - cx) / fx, (rr - cy) / fy, np.ones(rr.shape)], axis=-1)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
     origin = np.broadcast_to(-R.T @ t, d.shape)
     hit = model.ray_depths(np.ascontiguousarray(origin), d @ R)
     predicted = np.isfinite(hit)
     if not predicted.any():
         return 0.0
-    pts = frame.xyz[rs, cs].reshape(-1, 3)[predicted]
-    pflat = (rr * frame.valid.shape[1] + cc).reshape(-1)[predicted]
+    pts = frame.xyz[rr[predicted], cc[predicted]]
+    pflat = (rr * frame.valid.shape[1] + cc)[predicted]
     ok = np.isfinite(pts).all(axis=1)
     rng = np.full(len(pts), np.nan)
     rng[ok] = np.linalg.norm(pts[ok], axis=1)
@@ -211,6 +219,11 @@ def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float,
     # a pixel without a measurement (a projector's shadow, a dropout) neither supports nor contradicts
     denom = int((ok & ~occluded).sum())
     return float(supported.sum() / denom) if denom else 0.0
+
+
+#: The support casts only the rays that meet the model's bounding box grown by this (mm): a margin far
+#: above the rounding of the cheap test, outside the 0.01 mm of the ray casts' own box test.
+SUPPORT_BOX_MM = 0.05
 
 
 #: At most this many of a sphere's points (an even subsample) fit its centre; the pixels it explains

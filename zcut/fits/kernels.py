@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["ModelIndex", "build_index", "coarse_search", "edge_distances", "guess_score", "icp_kernel", "lower_bounds", "surface_distances"]
+__all__ = ["ModelIndex", "build_index", "coarse_search", "edge_distances", "guess_score", "icp_kernel", "lower_bounds", "surface_distances", "window_rays"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -434,3 +434,41 @@ def coarse_search(points: np.ndarray, edge_points: np.ndarray, Rs: np.ndarray, t
         if inl >= stop_inl and e_inl >= stop_edge:
             break
     return best, best_R, best_t, best_score
+
+
+@numba.njit(cache=True, nogil=True)
+def window_rays(r0: int, r1: int, c0: int, c1: int, fx: float, fy: float, cx: float, cy: float, R: np.ndarray,
+                t: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols), row-major, of the pixels of the window [r0, r1) × [c0, c1) whose ray from the camera
+    meets the box [lo, hi] of the model posed by (R, t) (model -> camera; the box in the model frame):
+    the slab test per ray."""
+    ox = -(R[0, 0] * t[0] + R[1, 0] * t[1] + R[2, 0] * t[2])
+    oy = -(R[0, 1] * t[0] + R[1, 1] * t[1] + R[2, 1] * t[2])
+    oz = -(R[0, 2] * t[0] + R[1, 2] * t[1] + R[2, 2] * t[2])
+    o = (ox, oy, oz)
+    n = max(r1 - r0, 0) * max(c1 - c0, 0)
+    rows = np.empty(n, np.int64)
+    cols = np.empty(n, np.int64)
+    m = 0
+    for r in range(r0, r1):
+        v = (r - cy) / fy
+        for col in range(c0, c1):
+            u = (col - cx) / fx
+            dm = (R[0, 0] * u + R[1, 0] * v + R[2, 0], R[0, 1] * u + R[1, 1] * v + R[2, 1],
+                  R[0, 2] * u + R[1, 2] * v + R[2, 2])
+            near = 0.0
+            far = np.inf
+            for a in range(3):
+                if dm[a] == 0.0:
+                    if o[a] < lo[a] or o[a] > hi[a]:
+                        far = -1.0
+                    continue
+                t0 = (lo[a] - o[a]) / dm[a]
+                t1 = (hi[a] - o[a]) / dm[a]
+                near = max(near, min(t0, t1))
+                far = min(far, max(t0, t1))
+            if far >= near:
+                rows[m] = r
+                cols[m] = col
+                m += 1
+    return rows[:m], cols[:m]
