@@ -2,7 +2,8 @@
 
     PYTHONPATH=. .venv/bin/python bench/bench_fits.py [--set tune|report] [--size 960x600]
         [--kinds spheres,zinc_nuts,rods,black_nuts] [--sensors handmade,raytraced] [--json OUT]
-        [--param seed_shifts=0 ...]
+        [--param seed_shifts=0 ...] [--dump FITS.pkl]
+    PYTHONPATH=. .venv/bin/python bench/bench_fits.py --same OLD.pkl NEW.pkl
 
 Per frame (both generators, each kind, the seeds of the set: ``tune`` 2951-2952, the fits' knobs
 tuned on them; ``report`` 2971-2972, held out: used nowhere else, not even to tune) the fits get only what a log holds: the cloud (mm), the zone, the part
@@ -271,12 +272,20 @@ def main() -> None:
     ap.add_argument("--sensors", default="handmade,raytraced")
     ap.add_argument("--seeds", default=None, help="comma-separated seeds instead of the set's")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--dump", default=None, metavar="FILE.pkl",
+                    help="write every frame's fits (pose, Err, support, pixels) to FILE.pkl, keyed by "
+                         "(fits, sensor, kind, seed): two trees' fits compared to the bit with --same")
+    ap.add_argument("--same", nargs=2, default=None, metavar=("A.pkl", "B.pkl"),
+                    help="only compare two --dump files: per frame, whether the fits are identical to the bit")
     ap.add_argument("--before", action="store_true",
                     help="also the fits without their second pass (seed_shifts=0, the fits of 9831702 to the bit) "
                          "on each frame, just before")
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                     help="a FitParams field (e.g. seed_shifts=0: the fits without their second pass)")
     args = ap.parse_args()
+    if args.same:
+        _same(*args.same)
+        return
     w, h = (int(v) for v in args.size.split("x"))
     seeds = [int(s) for s in args.seeds.split(",")] if args.seeds else list(SEEDS[args.set])
     params = FitParams(**{k: type(getattr(FitParams(), k))(v) for k, v in (a.split("=") for a in args.param)})
@@ -284,6 +293,7 @@ def main() -> None:
     if args.before:  # the first pass alone, on the same frame, just before: the before of this run
         variants.insert(0, ("before", replace(params, seed_shifts=0)))
     rows = []
+    dumped: dict[tuple[str, str, str, int], list[tuple[np.ndarray, float, float, np.ndarray]]] = {}
     print(f"size {w}x{h}, seeds {seeds}; CPU seconds per frame (process_time, all threads)")
     print(f"{'fits':6s} {'sensor':9s} {'kind':10s} {'seed':>5s} {'inst':>4s} {'full':>4s} {'match':>5s} {'fits':>4s} "
           f"{'med mm':>7s} {'med deg':>7s} {'p90 mm':>7s} {'p90 deg':>7s} {'expl':>5s} {'Err':>5s} {'cpu s':>6s} "
@@ -309,9 +319,29 @@ def main() -> None:
                     s.update(sensor=sensor, kind=kind, seed=seed, cpu_s=cpu, prepare_s=prep, fits_run=label)
                     rows.append(s)
                     _row(s, label)
+                    dumped[(label, sensor, kind, seed)] = [(f.pose, f.err_mm, f.support, f.pixels) for f in fits]
+    if args.dump:
+        import pickle
+
+        with open(args.dump, "wb") as fh:
+            pickle.dump(dumped, fh)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=1)
+
+
+def _same(a: str, b: str) -> None:
+    """Print, per frame of two --dump files, whether their fits are the same to the bit."""
+    import pickle
+
+    with open(a, "rb") as fa, open(b, "rb") as fb:
+        da, db = pickle.load(fa), pickle.load(fb)
+    for key in sorted(set(da) | set(db), key=str):
+        fa_, fb_ = da.get(key), db.get(key)
+        same = (fa_ is not None and fb_ is not None and len(fa_) == len(fb_)
+                and all(np.array_equal(x[0], y[0]) and x[1] == y[1] and x[2] == y[2] and np.array_equal(x[3], y[3])
+                        for x, y in zip(fa_, fb_)))
+        print(" ".join(map(str, key)), "identical" if same else "DIFFERENT", flush=True)
 
 
 def _row(s: dict, label: str) -> None:  # type: ignore[type-arg]

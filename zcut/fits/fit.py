@@ -42,8 +42,8 @@ import numpy as np
 
 from zcut.errors import InputShapeError, describe_array
 
-from .icp import icp, initial_poses, initial_rotations, pose_matrix, shifted_poses
-from .kernels import edge_distances, guess_score, lower_bounds, surface_distances
+from .icp import EDGE_WEAK, icp, initial_poses, initial_rotations, pose_matrix, shifted_poses
+from .kernels import coarse_search, edge_distances, lower_bounds, surface_distances, window_rays
 from .model import PartModel, prepare_model
 from .params import FitParams
 from .segment import segment
@@ -189,17 +189,25 @@ def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float,
         return 0.0
     fx, fy, cx, cy = frame.K
     rs, cs = win
-    rr, cc = np.mgrid[rs, cs]
-    d = np.stack([(cc - cx) / fx, (rr - cy) / fy, np.ones(rr.shape)], axis=-1).reshape(-1, 3)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
     R, t = T[:3, :3], T[:3, 3]
+    # only the window's rays that meet the model's box grown by SUPPORT_BOX_MM (a cheap test of every
+    # ray in numba) are cast: the others miss the box the ray casts test (grown by 0.01 mm) and every
+    # triangle in it. The rays cast are computed as before, one by one: the same hits.
+    lo = model.vertices.min(axis=0) - SUPPORT_BOX_MM
+    hi = model.vertices.max(axis=0) + SUPPORT_BOX_MM
+    rr, cc = window_rays(rs.start, rs.stop, cs.start, cs.stop, fx, fy, cx, cy, np.ascontiguousarray(R),
+                         np.ascontiguousarray(t), lo, hi)
+    if not len(rr):
+        return 0.0
+    d = np.stack([(cc - cx) / fx, (rr - cy) / fy, np.ones(rr.shape)], axis=-1)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
     origin = np.broadcast_to(-R.T @ t, d.shape)
     hit = model.ray_depths(np.ascontiguousarray(origin), d @ R)
     predicted = np.isfinite(hit)
     if not predicted.any():
         return 0.0
-    pts = frame.xyz[rs, cs].reshape(-1, 3)[predicted]
-    pflat = (rr * frame.valid.shape[1] + cc).reshape(-1)[predicted]
+    pts = frame.xyz[rr[predicted], cc[predicted]]
+    pflat = (rr * frame.valid.shape[1] + cc)[predicted]
     ok = np.isfinite(pts).all(axis=1)
     rng = np.full(len(pts), np.nan)
     rng[ok] = np.linalg.norm(pts[ok], axis=1)
@@ -211,6 +219,11 @@ def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float,
     # a pixel without a measurement (a projector's shadow, a dropout) neither supports nor contradicts
     denom = int((ok & ~occluded).sum())
     return float(supported.sum() / denom) if denom else 0.0
+
+
+#: The support casts only the rays that meet the model's bounding box grown by this (mm): a margin far
+#: above the rounding of the cheap test, outside the 0.01 mm of the ray casts' own box test.
+SUPPORT_BOX_MM = 0.05
 
 
 #: At most this many of a sphere's points (an even subsample) fit its centre; the pixels it explains
@@ -303,6 +316,12 @@ def _edge_distances(model: PartModel, points: np.ndarray, T: np.ndarray) -> np.n
 #: At most this many of a region's points (and half as many of its boundary) score the initial guesses.
 COARSE_POINTS = 150
 
+#: A region's guesses stop at the first whose coarse fit has at least this share of its points within the
+#: score's tolerance and ...
+STOP_INL = 0.95
+#: ... this share of its boundary points on the model's sharp edges.
+STOP_EDGE = 0.7
+
 #: The turns (degrees) about the region's normal tried from the best initial guess (:func:`_fit_general`).
 TURNS_DEG = (-24.0, -16.0, -8.0, 8.0, 16.0, 24.0)
 
@@ -340,45 +359,59 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     opts = dict(gate_mm=params.gate_mm, k=params.k, floor_mm=params.err_floor_mm, edge_gate_mm=edge_gate)
 
     def coarse_fit(T0: np.ndarray) -> tuple[float, float, float, np.ndarray]:
+        # the model without a voxel index (not made by prepare_model): the same steps in Python
         T, _, _ = icp(coarse, model, T0, iterations=params.coarse_iterations, edge_points=coarse_e, **opts)
-        ix = model.index
-        if ix is not None:
-            inl, near, e_inl = guess_score(coarse, coarse_e, np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
-                                           score_tol, 1.5 * px_mm, ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n,
-                                           ix.seg_grid, ix.p0, ix.p1)
-        else:
-            d = _surface_distances(model, coarse, T)
-            inl, near = float(np.mean(d <= score_tol)), float(np.mean(np.minimum(d, score_tol))) / score_tol
-            e_inl = float(np.mean(_edge_distances(model, coarse_e, T) <= 1.5 * px_mm)) if len(coarse_e) else 1.0
+        d = _surface_distances(model, coarse, T)
+        inl, near = float(np.mean(d <= score_tol)), float(np.mean(np.minimum(d, score_tol))) / score_tol
+        e_inl = float(np.mean(_edge_distances(model, coarse_e, T) <= 1.5 * px_mm)) if len(coarse_e) else 1.0
         score = inl - 0.01 * near + (0.5 * e_inl if len(coarse_e) else 0.0)
         return score, inl, e_inl, T
 
-    best = None
+    def search(poses: list[np.ndarray], stop: bool) -> tuple[float, np.ndarray] | None:
+        """The best (score, pose) of the coarse ICP from each of ``poses`` (the first of equal scores),
+        stopping at a guess whose points nearly all fit when ``stop``."""
+        if not poses:
+            return None
+        ix = model.index
+        if ix is not None:  # every guess in one kernel call (:func:`zcut.fits.kernels.coarse_search`)
+            Ts = np.stack(poses)
+            i, R, t, score = coarse_search(coarse, coarse_e, np.ascontiguousarray(Ts[:, :3, :3]),
+                                           np.ascontiguousarray(Ts[:, :3, 3]), int(params.coarse_iterations),
+                                           float(params.gate_mm), float(params.k), float(params.err_floor_mm),
+                                           float(edge_gate), float(model.extent_mm), float(score_tol), 1.5 * px_mm,
+                                           ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid, ix.p0,
+                                           ix.p1, EDGE_WEAK, STOP_INL if stop else 2.0, STOP_EDGE)
+            return (float(score), pose_matrix(R, t)) if i >= 0 else None
+        found: tuple[float, np.ndarray] | None = None
+        for T0 in poses:
+            score, inl, e_inl, T = coarse_fit(T0)
+            if found is None or score > found[0]:
+                found = (score, T)
+            if stop and inl >= STOP_INL and e_inl >= STOP_EDGE:
+                break
+        return found
+
     rotations = initial_rotations(pts, model)
     guesses = initial_poses(pts, rotations, model)
     if shifts:
         guesses += shifted_poses(pts, rotations, model, shifts)
-    for T0 in guesses:
-        score, inl, e_inl, T = coarse_fit(T0)
-        if best is None or score > best[0]:
-            best = (score, T)
-        if inl >= 0.95 and e_inl >= 0.7:
-            break
+    best = search(guesses, stop=True)
     assert best is not None
     # the guesses turn 45° apart about the region's normal, the turn its surface leaves nearly free:
     # the best one's turns in between, about its own centroid, each refined the same way
     c = pts.mean(axis=0)
     _, ax = np.linalg.eigh(np.cov((pts - c).T))
     T_best = best[1]
+    turned = []
     for deg in () if shifts else TURNS_DEG:
         Rt = _turn(ax[:, 0], np.radians(deg))
         T0 = T_best.copy()
         T0[:3, :3] = Rt @ T_best[:3, :3]
         T0[:3, 3] = Rt @ (T_best[:3, 3] - c) + c
-        score, _, _, T = coarse_fit(T0)
-        if score > best[0]:
-            best = (score, T)
-    assert best is not None
+        turned.append(T0)
+    better = search(turned, stop=False)
+    if better is not None and better[0] > best[0]:
+        best = better
     T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,
                     **opts)
     gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
@@ -582,9 +615,15 @@ def _assign(frame: _Frame, model: PartModel, accepted: list[tuple[np.ndarray, fl
         take = (d <= tol) & (d < best[flat])
         best[flat[take]] = d[take]
         owner[flat[take]] = i
+    # each fit's pixels, ascending: the owned pixels grouped by owner in one stable sort (not a pass over
+    # the frame per fit)
+    taken = np.flatnonzero(owner >= 0)
+    by_owner = taken[np.argsort(owner[taken], kind="stable")].astype(np.int64)
+    counts = np.bincount(owner[taken], minlength=len(accepted))
+    ends = np.cumsum(counts)
     out = []
     for i, (T, err, support) in enumerate(accepted):
-        pix = np.flatnonzero(owner == i).astype(np.int64)
+        pix = by_owner[ends[i] - counts[i]:ends[i]].copy()
         out.append(PartFit(pose=T, err_mm=float(err), support=float(support), pixels=pix))
     return out
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["ModelIndex", "build_index", "edge_distances", "guess_score", "icp_kernel", "lower_bounds", "surface_distances"]
+__all__ = ["ModelIndex", "build_index", "coarse_search", "edge_distances", "guess_score", "icp_kernel", "lower_bounds", "surface_distances", "window_rays"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -30,11 +30,11 @@ class ModelIndex:
         The corner of voxel (0, 0, 0).
     h : float
         Voxel edge (mm).
-    tri_grid : (nx, ny, nz) int32
+    tri_grid : (nx, ny, nz) int16 (int32 beyond 32,767 triangles)
         Index of the triangle nearest each voxel's centre.
     a, b, c, n : (m, 3) float64
         The triangles' corners and unit outward normals.
-    seg_grid : (nx, ny, nz) int32
+    seg_grid : (nx, ny, nz) int16 (int32 beyond 32,767 segments)
         Index of the sharp-edge segment nearest each voxel's centre (-1: the model has none).
     p0, p1 : (e, 3) float64
         The sharp-edge segments' ends.
@@ -73,7 +73,8 @@ def build_index(v: np.ndarray, t: np.ndarray, normals: np.ndarray, seg0: np.ndar
     axes = [lo[i] + h_mm * (np.arange(dims[i]) + 0.5) for i in range(3)]
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     ans = scene.compute_closest_points(o3d.core.Tensor(centres.astype(np.float32)))  # type: ignore[attr-defined,call-overload]  # Open3D stub: dtype and device required
-    tri = ans["primitive_ids"].numpy().astype(np.int32).reshape(tuple(dims))
+    # int16 where the indices fit: half the memory the ICP's random lookups walk (the same matches)
+    tri = ans["primitive_ids"].numpy().astype(_index_dtype(len(t))).reshape(tuple(dims))
     closest = ans["points"].numpy().astype(np.float64)
     cdist = np.linalg.norm(closest - centres.astype(np.float32).astype(np.float64), axis=1).reshape(tuple(dims))
     if len(seg0):
@@ -86,14 +87,19 @@ def build_index(v: np.ndarray, t: np.ndarray, normals: np.ndarray, seg0: np.ndar
         s = np.concatenate([np.linspace(0.0, 1.0, k) for k in m])[:, None]
         pts = seg0[sid] + s * (seg1[sid] - seg0[sid])
         _, i = cKDTree(pts).query(centres, k=1)
-        seg = sid[i].astype(np.int32).reshape(tuple(dims))
+        seg = sid[i].astype(_index_dtype(len(seg0))).reshape(tuple(dims))
     else:
-        seg = np.full(tuple(dims), -1, np.int32)
+        seg = np.full(tuple(dims), -1, np.int16)
     a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
     return ModelIndex(origin=lo.astype(np.float64), h=float(h_mm), tri_grid=tri, a=a, b=b, c=c,
                       n=np.ascontiguousarray(normals, np.float64), seg_grid=seg,
                       p0=np.ascontiguousarray(seg0, np.float64), p1=np.ascontiguousarray(seg1, np.float64),
                       centre_dist=cdist, margin=float(margin_mm))
+
+
+def _index_dtype(count: int) -> type:
+    """int16 when ``count`` indices (and -1) fit in it, else int32."""
+    return np.int16 if count <= np.iinfo(np.int16).max else np.int32
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -328,12 +334,15 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
             row[3], row[4], row[5] = nx, ny, nz
             for u in range(6):
                 g[u] += row[u] * r
-                for w in range(6):
+                for w in range(u, 6):  # the upper triangle; the lower is the same products (mirrored below)
                     H[u, w] += row[u] * row[w]
             ssq += r * r
             n_used += 1
         if n_used < 6:
             break
+        for u in range(1, 6):
+            for w in range(u):
+                H[u, w] = H[w, u]
         if use_edges:
             He[:] = 0.0
             ge[:] = 0.0
@@ -394,3 +403,72 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
     U, _, Vt = np.linalg.svd(R)
     R = U @ Vt
     return R, t, rms, n_used
+
+
+@numba.njit(cache=True, nogil=True)
+def coarse_search(points: np.ndarray, edge_points: np.ndarray, Rs: np.ndarray, ts: np.ndarray, iterations: int,
+                  gate_mm: float, k: float, floor_mm: float, edge_gate_mm: float, extent: float, score_tol: float,
+                  edge_tol: float, origin: np.ndarray, h: float, grid: np.ndarray, a: np.ndarray, b: np.ndarray,
+                  c: np.ndarray, n: np.ndarray, seg_grid: np.ndarray, p0: np.ndarray, p1: np.ndarray, weak: float,
+                  stop_inl: float, stop_edge: float) -> tuple[int, np.ndarray, np.ndarray, float]:
+    """The coarse stage of a region's search in one call: from each guess (``Rs[i]``, ``ts[i]``) in turn,
+    ``iterations`` steps of :func:`icp_kernel`, scored by :func:`guess_score` as inl − 0.01 near + 0.5 e_inl
+    (the last term only with ``edge_points``); the first of the best scores wins. Stops after a guess
+    with inl >= ``stop_inl`` and e_inl >= ``stop_edge`` (``stop_inl`` > 1: never). (index of the best,
+    its R, its t, its score); index -1 without guesses."""
+    best = -1
+    best_score = -np.inf
+    best_R = np.eye(3)
+    best_t = np.zeros(3)
+    for i in range(len(Rs)):
+        R, t, _, _ = icp_kernel(points, Rs[i], ts[i], iterations, gate_mm, k, floor_mm, edge_points, edge_gate_mm,
+                                extent, origin, h, grid, a, b, c, n, seg_grid, p0, p1, weak)
+        inl, near, e_inl = guess_score(points, edge_points, R, t, score_tol, edge_tol, origin, h, grid, a, b, c, n,
+                                       seg_grid, p0, p1)
+        score = inl - 0.01 * near + (0.5 * e_inl if len(edge_points) else 0.0)
+        if best < 0 or score > best_score:
+            best = i
+            best_score = score
+            best_R = R
+            best_t = t
+        if inl >= stop_inl and e_inl >= stop_edge:
+            break
+    return best, best_R, best_t, best_score
+
+
+@numba.njit(cache=True, nogil=True)
+def window_rays(r0: int, r1: int, c0: int, c1: int, fx: float, fy: float, cx: float, cy: float, R: np.ndarray,
+                t: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols), row-major, of the pixels of the window [r0, r1) × [c0, c1) whose ray from the camera
+    meets the box [lo, hi] of the model posed by (R, t) (model -> camera; the box in the model frame):
+    the slab test per ray."""
+    ox = -(R[0, 0] * t[0] + R[1, 0] * t[1] + R[2, 0] * t[2])
+    oy = -(R[0, 1] * t[0] + R[1, 1] * t[1] + R[2, 1] * t[2])
+    oz = -(R[0, 2] * t[0] + R[1, 2] * t[1] + R[2, 2] * t[2])
+    o = (ox, oy, oz)
+    n = max(r1 - r0, 0) * max(c1 - c0, 0)
+    rows = np.empty(n, np.int64)
+    cols = np.empty(n, np.int64)
+    m = 0
+    for r in range(r0, r1):
+        v = (r - cy) / fy
+        for col in range(c0, c1):
+            u = (col - cx) / fx
+            dm = (R[0, 0] * u + R[1, 0] * v + R[2, 0], R[0, 1] * u + R[1, 1] * v + R[2, 1],
+                  R[0, 2] * u + R[1, 2] * v + R[2, 2])
+            near = 0.0
+            far = np.inf
+            for a in range(3):
+                if dm[a] == 0.0:
+                    if o[a] < lo[a] or o[a] > hi[a]:
+                        far = -1.0
+                    continue
+                t0 = (lo[a] - o[a]) / dm[a]
+                t1 = (hi[a] - o[a]) / dm[a]
+                near = max(near, min(t0, t1))
+                far = min(far, max(t0, t1))
+            if far >= near:
+                rows[m] = r
+                cols[m] = col
+                m += 1
+    return rows[:m], cols[:m]

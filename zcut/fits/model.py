@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 
 from zcut.errors import InputShapeError, ParameterError, describe_array
@@ -125,6 +126,33 @@ class PartModel:
 
 def _box_hits(origins: np.ndarray, directions: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Whether each ray may meet the box [lo, hi] grown by 0.01 mm (the slab test; a ray that misses it
+    misses every triangle inside it, also in the float32 of the ray casts): :func:`_box_hits_kernel`."""
+    return _box_hits_kernel(np.ascontiguousarray(origins, np.float64), np.ascontiguousarray(directions, np.float64),
+                            np.asarray(lo, np.float64) - 0.01, np.asarray(hi, np.float64) + 0.01)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _box_hits_kernel(origins: np.ndarray, directions: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The slab test per ray in IEEE arithmetic (1 / 0 = inf; a ray parallel to a slab starting on its
+    plane gives NaN there and leaves that slab free): :func:`_box_hits_reference`'s answers."""
+    out = np.empty(len(origins), np.bool_)
+    for i in range(len(origins)):
+        near = -np.inf
+        far = np.inf
+        for a in range(3):
+            inv = 1.0 / directions[i, a]
+            t0 = (lo[a] - origins[i, a]) * inv
+            t1 = (hi[a] - origins[i, a]) * inv
+            if np.isnan(t0) or np.isnan(t1):
+                continue
+            near = max(near, min(t0, t1))
+            far = min(far, max(t0, t1))
+        out[i] = far >= max(near, 0.0)
+    return out
+
+
+def _box_hits_reference(origins: np.ndarray, directions: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The slab test in NumPy (the oracle of :func:`_box_hits_kernel`): whether each ray may meet the box [lo, hi] grown by 0.01 mm (the slab test; a ray that misses it
     misses every triangle inside it, also in the float32 of the ray casts)."""
     lo = lo - 0.01
     hi = hi + 0.01

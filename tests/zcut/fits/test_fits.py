@@ -165,7 +165,11 @@ def test_the_model_index_matches_the_exact_distances_and_the_reference_icp():
 
     v, t = hex_nut_mesh()
     model = prepare_model(v, t)
-    assert model.index is not None and model.index.tri_grid.dtype == np.int32
+    from zcut.fits.kernels import _index_dtype
+
+    # int16 grids where the indices fit (half the memory the lookups walk), int32 beyond
+    assert model.index is not None and model.index.tri_grid.dtype == np.int16 and model.index.seg_grid.dtype == np.int16
+    assert _index_dtype(32767) is np.int16 and _index_dtype(32768) is np.int32
     rng = np.random.default_rng(5)
     q = model.samples[rng.choice(len(model.samples), 2000)] + rng.normal(0, 0.4, (2000, 3))
     exact = model.distance(q)

@@ -138,3 +138,127 @@ def test_vote_centres_walked_in_order_equal_the_argmax_loop():
         want = _vote_centres_reference(pts, nrm, 10.0, min_votes=10, max_votes=max_votes)
         assert len(got) == len(want) >= 4
         assert all(np.array_equal(a, b) for a, b in zip(got, want))
+
+
+def _region(xyz: np.ndarray, ids: np.ndarray, which: int) -> np.ndarray:
+    return xyz.reshape(-1, 3)[np.flatnonzero(ids.reshape(-1) == which)]
+
+
+def test_coarse_search_in_one_call_equals_the_loop_over_the_guesses():
+    """kernels.coarse_search gives the pose, score and winner of the previous Python loop (icp, then
+    guess_score, per guess; the first of equal scores; the early stop) to the bit."""
+    from zcut.fits.fit import _subsample
+    from zcut.fits.icp import EDGE_WEAK, icp, initial_poses, initial_rotations
+    from zcut.fits.kernels import coarse_search, guess_score
+
+    v, t, T, xyz, ids = _nut_scene()
+    model = prepare_model(v, t)
+    ix = model.index
+    assert ix is not None
+    pts = _region(xyz, ids, 1)
+    rng = np.random.default_rng(5)
+    pts = pts + rng.normal(0, 0.05, pts.shape)  # noise: the scores differ between guesses
+    coarse = np.ascontiguousarray(pts[_subsample(np.arange(len(pts)), 150)])
+    edge = np.ascontiguousarray(coarse[::7] + 0.2)
+    guesses = initial_poses(pts, initial_rotations(pts, model), model)
+    assert len(guesses) >= 4
+    opts = dict(gate_mm=4.0, k=3.0, floor_mm=0.1, edge_gate_mm=1.5)
+    for stop_inl, stop_edge, e in ((2.0, 0.7, edge), (0.5, 0.0, edge), (2.0, 0.7, np.zeros((0, 3)))):
+        best = None
+        for i, T0 in enumerate(guesses):
+            Tc, _, _ = icp(coarse, model, T0, iterations=4, edge_points=e, **opts)
+            inl, near, e_inl = guess_score(coarse, e, np.ascontiguousarray(Tc[:3, :3]), np.ascontiguousarray(Tc[:3, 3]),
+                                           1.0, 0.9, ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid,
+                                           ix.p0, ix.p1)
+            score = inl - 0.01 * near + (0.5 * e_inl if len(e) else 0.0)
+            if best is None or score > best[1]:
+                best = (i, score, Tc)
+            if inl >= stop_inl and e_inl >= stop_edge:
+                break
+        assert best is not None
+        Ts = np.stack(guesses)
+        i, R, tt, score = coarse_search(coarse, e, np.ascontiguousarray(Ts[:, :3, :3]), np.ascontiguousarray(Ts[:, :3, 3]),
+                                        4, 4.0, 3.0, 0.1, 1.5, float(model.extent_mm), 1.0, 0.9, ix.origin, ix.h,
+                                        ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid, ix.p0, ix.p1, EDGE_WEAK,
+                                        stop_inl, stop_edge)
+        assert i == best[0] and score == best[1]
+        assert np.array_equal(R, best[2][:3, :3]) and np.array_equal(tt, best[2][:3, 3])
+
+
+def test_the_slab_test_in_numba_equals_numpy():
+    from zcut.fits.model import _box_hits, _box_hits_reference
+
+    rng = np.random.default_rng(6)
+    lo, hi = np.array([-10.0, -8.0, -3.0]), np.array([10.0, 8.0, 3.0])
+    o = rng.uniform(-30, 30, (20000, 3))
+    d = rng.normal(size=(20000, 3))
+    d[:300, 0] = 0.0  # parallel to a slab, inside or outside it
+    d[300:400, :2] = 0.0
+    o[400:450, 2] = hi[2] + 0.01  # on a grown slab's plane, parallel to it: NaN, the slab left free
+    d[400:450, 2] = 0.0
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    got = _box_hits(o, d, lo, hi)
+    want = _box_hits_reference(o, d, lo, hi)
+    assert want.sum() > 1000 and (~want).sum() > 1000
+    assert np.array_equal(got, want)
+
+
+def _support_reference(frame, T, model, tol, known=None):  # type: ignore[no-untyped-def]
+    """The previous support: every ray of the window computed in NumPy and cast (through the box test)."""
+    from zcut.fits.fit import _model_distance, _window
+
+    win = _window(frame, T, model)
+    if win is None:
+        return 0.0
+    fx, fy, cx, cy = frame.K
+    rs, cs = win
+    rr, cc = np.mgrid[rs, cs]
+    d = np.stack([(cc - cx) / fx, (rr - cy) / fy, np.ones(rr.shape)], axis=-1).reshape(-1, 3)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    R, t = T[:3, :3], T[:3, 3]
+    origin = np.broadcast_to(-R.T @ t, d.shape)
+    hit = model.ray_depths(np.ascontiguousarray(origin), d @ R)
+    predicted = np.isfinite(hit)
+    if not predicted.any():
+        return 0.0
+    pts = frame.xyz[rs, cs].reshape(-1, 3)[predicted]
+    pflat = (rr * frame.valid.shape[1] + cc).reshape(-1)[predicted]
+    ok = np.isfinite(pts).all(axis=1)
+    rng = np.full(len(pts), np.nan)
+    rng[ok] = np.linalg.norm(pts[ok], axis=1)
+    dist = np.full(len(pts), np.inf)
+    dist[ok] = _model_distance(frame, T, model, pflat[ok], tol, known)
+    supported = dist <= tol
+    with np.errstate(invalid="ignore"):
+        occluded = ok & (rng < hit[predicted] - tol) & ~supported
+    denom = int((ok & ~occluded).sum())
+    return float(supported.sum() / denom) if denom else 0.0
+
+
+def test_the_support_casting_only_the_rays_near_the_box_equals_casting_the_window():
+    """kernels.window_rays keeps every ray the ray casts' own box test keeps: the support is the same
+    number, on the true poses, on poses moved off them and on a pose beside the image."""
+    from zcut.fits.fit import _Frame, _support
+    from zcut.fits.kernels import window_rays
+
+    v, t, T, xyz, ids = _nut_scene()
+    model = prepare_model(v, t)
+    valid = np.isfinite(xyz).all(axis=2)
+    frame = _Frame(xyz=xyz, valid=valid, zone=valid, K=K_TEST)
+    rng = np.random.default_rng(7)
+    T2 = pose(rotation((0, 1, 0.2), 140), (-20.0, 12.0, 310.0))
+    poses = [T, T2, pose(rotation((0, 0, 1), 30), (150.0, 0.0, 300.0))]
+    for _ in range(12):
+        Tm = (T if rng.random() < 0.5 else T2).copy()
+        Tm[:3, :3] = rotation(tuple(rng.normal(size=3)), rng.uniform(0, 40)) @ Tm[:3, :3]
+        Tm[:3, 3] += rng.normal(0, 2.0, 3)
+        poses.append(Tm)
+    kept = []
+    for Tp in poses:
+        for tol in (0.3, 1.0):
+            assert _support(frame, Tp, model, tol) == _support_reference(frame, Tp, model, tol)
+        lo, hi = v.min(axis=0) - 0.05, v.max(axis=0) + 0.05
+        rr, cc = window_rays(0, 240, 0, 320, *K_TEST, np.ascontiguousarray(Tp[:3, :3]), np.ascontiguousarray(Tp[:3, 3]),
+                             lo, hi)
+        kept.append(len(rr))
+    assert 0 < max(kept) < 0.2 * 240 * 320  # it spares rays
