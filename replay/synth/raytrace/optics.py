@@ -725,18 +725,59 @@ def triangulate(code: np.ndarray, K: Intrinsics, model: SensorModel) -> np.ndarr
     return np.where(z > 0, z, np.nan)
 
 
+def footprint_distance_mm(z_mm: np.ndarray, centre_mm: np.ndarray, sub_mm: np.ndarray) -> np.ndarray:
+    """|z - the nearest of the pixel's surfaces| along z (NaN where z is NaN): the truth rule's distance.
+
+    ``centre_mm`` the centre ray's camera z, ``sub_mm`` (S, ...) the sub-pixel rays', any shape alike.
+    """
+    d = np.abs(z_mm - centre_mm)
+    for s in sub_mm:
+        d = np.fmin(d, np.abs(z_mm - s))
+    return np.where(np.isfinite(z_mm), d, np.nan)
+
+
 @small_pages()
 def measure(rec: Received, K: Intrinsics, model: SensorModel, rng: np.random.Generator) -> Measured:
     """Decode and triangulate: (measured z, noise-free z, sigma_z, staged noise-free z, saturated).
 
     The staged depths decode the light of successively more paths: direct only (differences are
-    then sub-pixel mixing), plus the specular bounces, plus the glare; they attribute an error to
-    the physics that made it.
+    then sub-pixel mixing), plus the specular bounces (plus the glare: the measured light); they
+    attribute an error to the physics that made it, so they are decoded only where the noise-free
+    depth fails the truth rule (farther than ``outlier_sigmas`` noise sigmas from every surface
+    the pixel's footprint sees, :func:`footprint_distance_mm`) and NaN elsewhere: the pixels the
+    attribution judges, and per pixel the values of decoding whole images (``decode`` and
+    ``triangulate`` work pixel by pixel), for a third of the decoding.
     """
-    both = rec.direct.plus(rec.camera_bounce).add_in_place(rec.projector_bounce)
-    decoded = [decode(rec.direct, model), decode(both, model)]
-    decoded.append(decode(both.add_in_place(rec.glare), model))  # decoded already: its images may take the glare
-    return triangulate_decoded(decoded, K, model, rng)
+    staged = [rec.direct, rec.camera_bounce, rec.projector_bounce]
+    final = decode(rec.direct.plus(rec.camera_bounce).add_in_place(rec.projector_bounce).add_in_place(rec.glare),
+                   model)
+    z_meas, z_clean, sigma_z, _, saturated = triangulate_decoded([final], K, model, rng)
+    H, W = z_clean.shape
+    centre = rec.centre
+    z_true = np.where(centre.hit, centre.point[:, 2], np.nan)
+    sub = rec.sub_depth_mm.reshape(rec.sub_depth_mm.shape[0], -1)
+    with np.errstate(invalid="ignore"):
+        fails = np.flatnonzero(footprint_distance_mm(z_clean.reshape(-1), z_true, sub)
+                               > model.outlier_sigmas * sigma_z.reshape(-1))
+    # the stages at those pixels, summed as the whole images are: direct, then (direct + bounce) + photons
+    at = [Phasors(np.ascontiguousarray(p.z.reshape(p.z.shape[0], -1)[:, fails]), p.intensity.reshape(-1)[fails])
+          for p in staged]
+    cols = fails % W
+    depths = []
+    for ph in (at[0], at[0].plus(at[1]).add_in_place(at[2])):
+        img = np.full(H * W, np.nan)
+        img[fails] = triangulate_at(decode(ph, model).code, cols, K, model)
+        depths.append(img.reshape(H, W))
+    return z_meas, z_clean, sigma_z, depths, saturated
+
+
+def triangulate_at(code: np.ndarray, cols: np.ndarray, K: Intrinsics, model: SensorModel) -> np.ndarray:
+    """:func:`triangulate` of pixels in columns ``cols`` that decoded ``code`` (1-D alike): the same values."""
+    rx = (np.arange(K.width) - K.cx) / K.fx
+    xp = (code - model.projector_c_px[0]) / model.projector_f_px
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = model.baseline_mm / (rx[cols] - xp)
+    return np.where(z > 0, z, np.nan)
 
 
 #: What :func:`measure` returns: measured z, noise-free z, sigma_z, the staged noise-free depths, saturated.
