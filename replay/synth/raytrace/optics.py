@@ -62,6 +62,8 @@ EXPOSURE = np.pi / 2
 REFERENCE_MM = 500.0
 #: width (pixels at 1920 across) of the kernel that turns projector-side photons into irradiance
 PHOTON_SIGMA_PX = 3.0
+#: points lit per chunk of :func:`direct_light` (its per-point arrays of one chunk at a time)
+DIRECT_CHUNK = 1 << 18
 
 
 @contextlib.contextmanager
@@ -340,30 +342,35 @@ def direct_light(scene: TracedScene, model: SensorModel, hits: Hits, idx: np.nda
     radiance = np.zeros(k)
     code = np.full(k, np.nan)
     reflectance = np.full(k, np.nan)
-    sel = np.flatnonzero(ok)
-    if sel.size == 0:
-        return ok, radiance, code, reflectance
-    # shadow: the projector's ray toward the point must reach it first
-    rays = np.empty((sel.size, 6), np.float32)
-    kernels.shadow_rays(proj, wi, sel, rays)
-    t = scene.cast_t(rays).astype(np.float64)
-    sel = sel[t >= dist[sel] - 0.05]
-    del rays, t  # (k, 6) and (k,): not kept through the BRDF's arrays (a smaller peak, fewer page faults)
+    lit = np.flatnonzero(ok)
     ok[:] = False
-    ok[sel] = True
-    m = sel.size
-    cos_i, irradiance, cos_o, ch, exponent, pa2, code_s = (np.empty(m) for _ in range(7))
+    # in chunks of DIRECT_CHUNK points: the shadow rays, Open3D's answers and the BRDF's ten arrays of
+    # a chunk, not of all k points at once (a frame's peak memory, what its first frame pays in page
+    # faults); every value is a point's own, so the chunks change none
     wo = np.ascontiguousarray(wo, np.float64)
-    kernels.brdf_lobe(hits.point, hits.normal, hits.material, idx, sel, wi, dist, wo, scene.mat["roughness"], f_px,
-                      b, cx, REFERENCE_MM, cos_i, irradiance, cos_o, ch, exponent, pa2, code_s)
-    # numpy's own exp and power (SIMD) differ from the C library's in the last bit: these stay numpy
-    lobe = np.exp(exponent) / (pa2 * ch**4)
-    rad_s, f_s = np.empty(m), np.empty(m)
-    kernels.brdf_finish(hits.material, idx, sel, scene.mat["albedo"], scene.mat["specular"], lobe, cos_i, cos_o,
-                        irradiance, EXPOSURE, rad_s, f_s)
-    radiance[sel] = rad_s
-    code[sel] = code_s
-    reflectance[sel] = f_s
+    for c0 in range(0, lit.size, DIRECT_CHUNK):
+        sel = lit[c0:c0 + DIRECT_CHUNK]
+        # shadow: the projector's ray toward the point must reach it first
+        rays = np.empty((sel.size, 6), np.float32)
+        kernels.shadow_rays(proj, wi, sel, rays)
+        t = scene.cast_t(rays).astype(np.float64)
+        sel = sel[t >= dist[sel] - 0.05]
+        del rays, t
+        ok[sel] = True
+        m = sel.size
+        if m == 0:
+            continue
+        cos_i, irradiance, cos_o, ch, exponent, pa2, code_s = (np.empty(m) for _ in range(7))
+        kernels.brdf_lobe(hits.point, hits.normal, hits.material, idx, sel, wi, dist, wo, scene.mat["roughness"],
+                          f_px, b, cx, REFERENCE_MM, cos_i, irradiance, cos_o, ch, exponent, pa2, code_s)
+        # numpy's own exp and power (SIMD) differ from the C library's in the last bit: these stay numpy
+        lobe = np.exp(exponent) / (pa2 * ch**4)
+        rad_s, f_s = np.empty(m), np.empty(m)
+        kernels.brdf_finish(hits.material, idx, sel, scene.mat["albedo"], scene.mat["specular"], lobe, cos_i, cos_o,
+                            irradiance, EXPOSURE, rad_s, f_s)
+        radiance[sel] = rad_s
+        code[sel] = code_s
+        reflectance[sel] = f_s
     return ok, radiance, code, reflectance
 
 

@@ -28,9 +28,15 @@ def same(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
 
 
-@pytest.mark.parametrize(("kind", "seed"), [("spheres", 5), ("zinc_nuts", 6), ("rods", 7), ("black_nuts", 8)])
-def test_a_frame_is_the_reference_paths_frame(kind, seed, monkeypatch):
-    """The frame of the fast path has the bytes of the frame of the literal numpy tracer and decoder."""
+@pytest.mark.parametrize(("kind", "seed", "chunk"), [
+    ("spheres", 5, None), ("zinc_nuts", 6, None), ("rods", 7, None), ("black_nuts", 8, None),
+    ("spheres", 9, 1000), ("sprockets", 10, 333),
+])
+def test_a_frame_is_the_reference_paths_frame(kind, seed, chunk, monkeypatch):
+    """The frame of the fast path has the bytes of the frame of the literal numpy tracer and decoder
+    (``chunk``: the direct light lit in chunks of that many points, many per frame)."""
+    if chunk is not None:
+        monkeypatch.setattr(optics, "DIRECT_CHUNK", chunk)
     a = synthesize_raytraced_frame(kind=kind, seed=seed, size=SIZE, fill_mm=FILL)
     monkeypatch.setattr(optics, "trace", reference.trace_reference)
     monkeypatch.setattr(optics, "measure", reference.measure_reference)
