@@ -269,3 +269,30 @@ def test_isolated_points_are_the_reference(shape, seed):
             assert same(got, want), within
     if h * w > 100:
         assert isolated_points(xyz, within_mm=5.0).any() and not isolated_points(xyz, within_mm=5.0).all()
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 23), (23, 1), (2, 3), (40, 64)])
+@pytest.mark.parametrize("seed", range(3))
+def test_edge_pixels_are_the_reference(shape, seed):
+    """The edge test as a kernel against scipy's 3 x 3 filters: depth steps exactly at the threshold
+    and just beyond, misses (inf, NaN), parts and surfaces changing, thin images."""
+    rng = np.random.default_rng(seed)
+    z = 500.0 + rng.choice([0.0, 1.5, 1.5000001, 3.0, -1.5], shape)
+    z[rng.random(shape) < 0.1] = np.inf
+    z[rng.random(shape) < 0.05] = np.nan
+    part = rng.choice([0, 0, 0, 3, 7], shape).astype(np.int32)
+    label = rng.choice([1, 1, 1, 2], shape).astype(np.uint8)
+    for jump in (1.5, 0.0, 3.0):
+        want = reference.edge_pixels_reference(z, part, label, jump_mm=jump)
+        assert same(optics.edge_pixels(z, part, label, jump_mm=jump), want), jump
+    flat = optics.edge_pixels(np.full(shape, 500.0), np.zeros(shape, np.int32), np.ones(shape, np.uint8))
+    assert not flat.any()
+
+
+def test_edge_pixels_of_a_frame_are_the_reference(scenes):
+    K = default_intrinsics((60, 96))
+    h = scenes["sprockets"].cast(np.zeros(3), optics.pixel_directions(K))
+    z = np.where(h.hit, h.point[:, 2], np.inf).reshape(K.height, K.width)
+    a = optics.edge_pixels(z, h.part.reshape(z.shape), h.label.reshape(z.shape))
+    assert same(a, reference.edge_pixels_reference(z, h.part.reshape(z.shape), h.label.reshape(z.shape)))
+    assert a.any() and not a.all()
