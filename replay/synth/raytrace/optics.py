@@ -62,6 +62,8 @@ EXPOSURE = np.pi / 2
 REFERENCE_MM = 500.0
 #: width (pixels at 1920 across) of the kernel that turns projector-side photons into irradiance
 PHOTON_SIGMA_PX = 3.0
+#: points lit per chunk of :func:`direct_light` (its per-point arrays of one chunk at a time)
+DIRECT_CHUNK = 1 << 18
 
 
 @contextlib.contextmanager
@@ -340,30 +342,35 @@ def direct_light(scene: TracedScene, model: SensorModel, hits: Hits, idx: np.nda
     radiance = np.zeros(k)
     code = np.full(k, np.nan)
     reflectance = np.full(k, np.nan)
-    sel = np.flatnonzero(ok)
-    if sel.size == 0:
-        return ok, radiance, code, reflectance
-    # shadow: the projector's ray toward the point must reach it first
-    rays = np.empty((sel.size, 6), np.float32)
-    kernels.shadow_rays(proj, wi, sel, rays)
-    t = scene.cast_t(rays).astype(np.float64)
-    sel = sel[t >= dist[sel] - 0.05]
-    del rays, t  # (k, 6) and (k,): not kept through the BRDF's arrays (a smaller peak, fewer page faults)
+    lit = np.flatnonzero(ok)
     ok[:] = False
-    ok[sel] = True
-    m = sel.size
-    cos_i, irradiance, cos_o, ch, exponent, pa2, code_s = (np.empty(m) for _ in range(7))
+    # in chunks of DIRECT_CHUNK points: the shadow rays, Open3D's answers and the BRDF's ten arrays of
+    # a chunk, not of all k points at once (a frame's peak memory, what its first frame pays in page
+    # faults); every value is a point's own, so the chunks change none
     wo = np.ascontiguousarray(wo, np.float64)
-    kernels.brdf_lobe(hits.point, hits.normal, hits.material, idx, sel, wi, dist, wo, scene.mat["roughness"], f_px,
-                      b, cx, REFERENCE_MM, cos_i, irradiance, cos_o, ch, exponent, pa2, code_s)
-    # numpy's own exp and power (SIMD) differ from the C library's in the last bit: these stay numpy
-    lobe = np.exp(exponent) / (pa2 * ch**4)
-    rad_s, f_s = np.empty(m), np.empty(m)
-    kernels.brdf_finish(hits.material, idx, sel, scene.mat["albedo"], scene.mat["specular"], lobe, cos_i, cos_o,
-                        irradiance, EXPOSURE, rad_s, f_s)
-    radiance[sel] = rad_s
-    code[sel] = code_s
-    reflectance[sel] = f_s
+    for c0 in range(0, lit.size, DIRECT_CHUNK):
+        sel = lit[c0:c0 + DIRECT_CHUNK]
+        # shadow: the projector's ray toward the point must reach it first
+        rays = np.empty((sel.size, 6), np.float32)
+        kernels.shadow_rays(proj, wi, sel, rays)
+        t = scene.cast_t(rays).astype(np.float64)
+        sel = sel[t >= dist[sel] - 0.05]
+        del rays, t
+        ok[sel] = True
+        m = sel.size
+        if m == 0:
+            continue
+        cos_i, irradiance, cos_o, ch, exponent, pa2, code_s = (np.empty(m) for _ in range(7))
+        kernels.brdf_lobe(hits.point, hits.normal, hits.material, idx, sel, wi, dist, wo, scene.mat["roughness"],
+                          f_px, b, cx, REFERENCE_MM, cos_i, irradiance, cos_o, ch, exponent, pa2, code_s)
+        # numpy's own exp and power (SIMD) differ from the C library's in the last bit: these stay numpy
+        lobe = np.exp(exponent) / (pa2 * ch**4)
+        rad_s, f_s = np.empty(m), np.empty(m)
+        kernels.brdf_finish(hits.material, idx, sel, scene.mat["albedo"], scene.mat["specular"], lobe, cos_i, cos_o,
+                            irradiance, EXPOSURE, rad_s, f_s)
+        radiance[sel] = rad_s
+        code[sel] = code_s
+        reflectance[sel] = f_s
     return ok, radiance, code, reflectance
 
 
@@ -465,15 +472,15 @@ def pixel_directions(K: Intrinsics, du: float = 0.0, dv: float = 0.0, flat: np.n
 def edge_pixels(depth_mm: np.ndarray, part: np.ndarray, label: np.ndarray, *, jump_mm: float = 1.5) -> np.ndarray:
     """(H, W) bool: pixels whose 8-neighbourhood sees another part, another surface or a depth jump.
 
-    Only these can straddle two surfaces; the others are traced with their centre ray alone.
+    Only these can straddle two surfaces; the others are traced with their centre ray alone. A numba
+    kernel (:func:`.kernels.edge_pixels`) doing per pixel what ``reference.edge_pixels_reference``
+    does with scipy's 3 x 3 maximum and minimum filters: the same mask.
     """
-    z = np.where(np.isfinite(depth_mm), depth_mm, 1e9)
-    hi = ndimage.maximum_filter(z, size=3, mode="nearest")
-    lo = ndimage.minimum_filter(z, size=3, mode="nearest")
-    key = part.astype(np.int64) * 16 + label
-    khi = ndimage.maximum_filter(key, size=3, mode="nearest")
-    klo = ndimage.minimum_filter(key, size=3, mode="nearest")
-    return np.asarray((hi - lo > jump_mm) | (khi != klo))
+    z = np.ascontiguousarray(np.where(np.isfinite(depth_mm), depth_mm, 1e9), np.float64)
+    key = np.ascontiguousarray(part.astype(np.int64) * 16 + label)
+    out = np.empty(z.shape, bool)
+    kernels.edge_pixels(z, key, float(jump_mm), out)
+    return out
 
 
 @small_pages()
@@ -659,7 +666,11 @@ def _glare(ph: Phasors, K: Intrinsics, model: SensorModel) -> Phasors:
     sigma = model.glare_sigma_px * K.width / FULL_SIZE[1]
     spread = _blurred(ph, sigma)
     g = model.glare_share
-    return Phasors(g * (spread.z - ph.z), g * (spread.intensity - ph.intensity))
+    # g * (spread - ph), written into the spread's own images (the same ufuncs: the same bits)
+    z, intensity = spread.z, spread.intensity
+    np.multiply(g, np.subtract(z, ph.z, out=z), out=z)
+    np.multiply(g, np.subtract(intensity, ph.intensity, out=intensity), out=intensity)
+    return Phasors(z, intensity)
 
 
 @dataclass(frozen=True, slots=True)
@@ -725,18 +736,59 @@ def triangulate(code: np.ndarray, K: Intrinsics, model: SensorModel) -> np.ndarr
     return np.where(z > 0, z, np.nan)
 
 
+def footprint_distance_mm(z_mm: np.ndarray, centre_mm: np.ndarray, sub_mm: np.ndarray) -> np.ndarray:
+    """|z - the nearest of the pixel's surfaces| along z (NaN where z is NaN): the truth rule's distance.
+
+    ``centre_mm`` the centre ray's camera z, ``sub_mm`` (S, ...) the sub-pixel rays', any shape alike.
+    """
+    d = np.abs(z_mm - centre_mm)
+    for s in sub_mm:
+        d = np.fmin(d, np.abs(z_mm - s))
+    return np.where(np.isfinite(z_mm), d, np.nan)
+
+
 @small_pages()
 def measure(rec: Received, K: Intrinsics, model: SensorModel, rng: np.random.Generator) -> Measured:
     """Decode and triangulate: (measured z, noise-free z, sigma_z, staged noise-free z, saturated).
 
     The staged depths decode the light of successively more paths: direct only (differences are
-    then sub-pixel mixing), plus the specular bounces, plus the glare; they attribute an error to
-    the physics that made it.
+    then sub-pixel mixing), plus the specular bounces (plus the glare: the measured light); they
+    attribute an error to the physics that made it, so they are decoded only where the noise-free
+    depth fails the truth rule (farther than ``outlier_sigmas`` noise sigmas from every surface
+    the pixel's footprint sees, :func:`footprint_distance_mm`) and NaN elsewhere: the pixels the
+    attribution judges, and per pixel the values of decoding whole images (``decode`` and
+    ``triangulate`` work pixel by pixel), for a third of the decoding.
     """
-    both = rec.direct.plus(rec.camera_bounce).add_in_place(rec.projector_bounce)
-    decoded = [decode(rec.direct, model), decode(both, model)]
-    decoded.append(decode(both.add_in_place(rec.glare), model))  # decoded already: its images may take the glare
-    return triangulate_decoded(decoded, K, model, rng)
+    staged = [rec.direct, rec.camera_bounce, rec.projector_bounce]
+    final = decode(rec.direct.plus(rec.camera_bounce).add_in_place(rec.projector_bounce).add_in_place(rec.glare),
+                   model)
+    z_meas, z_clean, sigma_z, _, saturated = triangulate_decoded([final], K, model, rng)
+    H, W = z_clean.shape
+    centre = rec.centre
+    z_true = np.where(centre.hit, centre.point[:, 2], np.nan)
+    sub = rec.sub_depth_mm.reshape(rec.sub_depth_mm.shape[0], -1)
+    with np.errstate(invalid="ignore"):
+        fails = np.flatnonzero(footprint_distance_mm(z_clean.reshape(-1), z_true, sub)
+                               > model.outlier_sigmas * sigma_z.reshape(-1))
+    # the stages at those pixels, summed as the whole images are: direct, then (direct + bounce) + photons
+    at = [Phasors(np.ascontiguousarray(p.z.reshape(p.z.shape[0], -1)[:, fails]), p.intensity.reshape(-1)[fails])
+          for p in staged]
+    cols = fails % W
+    depths = []
+    for ph in (at[0], at[0].plus(at[1]).add_in_place(at[2])):
+        img = np.full(H * W, np.nan)
+        img[fails] = triangulate_at(decode(ph, model).code, cols, K, model)
+        depths.append(img.reshape(H, W))
+    return z_meas, z_clean, sigma_z, depths, saturated
+
+
+def triangulate_at(code: np.ndarray, cols: np.ndarray, K: Intrinsics, model: SensorModel) -> np.ndarray:
+    """:func:`triangulate` of pixels in columns ``cols`` that decoded ``code`` (1-D alike): the same values."""
+    rx = (np.arange(K.width) - K.cx) / K.fx
+    xp = (code - model.projector_c_px[0]) / model.projector_f_px
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = model.baseline_mm / (rx[cols] - xp)
+    return np.where(z > 0, z, np.nan)
 
 
 #: What :func:`measure` returns: measured z, noise-free z, sigma_z, the staged noise-free depths, saturated.

@@ -19,6 +19,7 @@ their physics is written once.
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 
 from replay.synth.raytrace.optics import (
     EXPOSURE,
@@ -33,12 +34,24 @@ from replay.synth.raytrace.optics import (
     camera_bounces,
     centre_rays,
     decode,
-    edge_pixels,
     projector_bounces,
     triangulate_decoded,
 )
 from replay.synth.raytrace.scene import Hits, TracedScene
 from zcut.cloud import Intrinsics
+
+
+def edge_pixels_reference(depth_mm: np.ndarray, part: np.ndarray, label: np.ndarray, *,
+                          jump_mm: float = 1.5) -> np.ndarray:
+    """:func:`optics.edge_pixels <replay.synth.raytrace.optics.edge_pixels>` with scipy's 3 x 3
+    maximum and minimum filters (its first version)."""
+    z = np.where(np.isfinite(depth_mm), depth_mm, 1e9)
+    hi = ndimage.maximum_filter(z, size=3, mode="nearest")
+    lo = ndimage.minimum_filter(z, size=3, mode="nearest")
+    key = part.astype(np.int64) * 16 + label
+    khi = ndimage.maximum_filter(key, size=3, mode="nearest")
+    klo = ndimage.minimum_filter(key, size=3, mode="nearest")
+    return np.asarray((hi - lo > jump_mm) | (khi != klo))
 
 
 def pixel_directions_reference(K: Intrinsics, du: float = 0.0, dv: float = 0.0) -> np.ndarray:
@@ -133,7 +146,7 @@ def trace_reference(scene: TracedScene, K: Intrinsics, model: SensorModel, rng: 
     direct, bounce, spec_light, centre, z_centre, sub_depth = centre_rays(scene, K, model, REFERENCE_OPS, d_centre)
     pix_list, dir_list, hit_list, w_list = [], [], [], []
     if S > 1:
-        edge = edge_pixels(z_centre, centre.part.reshape(H, W), centre.label.reshape(H, W)).ravel()
+        edge = edge_pixels_reference(z_centre, centre.part.reshape(H, W), centre.label.reshape(H, W)).ravel()
         plain = np.flatnonzero(~edge)
         pix_list.append(plain)
         dir_list.append(d_centre[plain])

@@ -141,14 +141,6 @@ def check_pile(pile: Pile, *, seed: int, index: int) -> Pile:
     return pile
 
 
-def _distance_to_surfaces(z_mm: np.ndarray, centre_mm: np.ndarray, sub_mm: np.ndarray) -> np.ndarray:
-    """|z - the nearest of the pixel's surfaces| along z (NaN where z is NaN)."""
-    d = np.abs(z_mm - centre_mm)
-    for s in sub_mm:
-        d = np.fmin(d, np.abs(z_mm - s))
-    return np.where(np.isfinite(z_mm), d, np.nan)
-
-
 @optics.kept_memory()
 @optics.small_pages()
 def synthesize_raytraced_frame(
@@ -225,15 +217,21 @@ def synthesize_raytraced_frame(
     z_true = np.where(centre.hit, centre.point[:, 2], np.nan).reshape(h, w)
     valid = np.isfinite(z_meas)
     thr = model.outlier_sigmas * sigma_z
-    err_final = _distance_to_surfaces(z_clean, z_true, rec.sub_depth_mm)
+    err_final = optics.footprint_distance_mm(z_clean, z_true, rec.sub_depth_mm)
     with np.errstate(invalid="ignore"):
         truth = valid & (err_final > thr)
-        wrong_direct = _distance_to_surfaces(staged[0], z_true, rec.sub_depth_mm) > thr
-        wrong_bounce = _distance_to_surfaces(staged[1], z_true, rec.sub_depth_mm) > thr
+    # the stages decoded only where the noise-free depth fails the rule (optics.measure): judged at the outliers
+    at = np.flatnonzero(truth)
+    sub_at = rec.sub_depth_mm.reshape(rec.sub_depth_mm.shape[0], -1)[:, at]
+    thr_at, z_true_at = thr.reshape(-1)[at], z_true.reshape(-1)[at]
+    with np.errstate(invalid="ignore"):
+        wrong_direct = optics.footprint_distance_mm(staged[0].reshape(-1)[at], z_true_at, sub_at) > thr_at
+        wrong_bounce = optics.footprint_distance_mm(staged[1].reshape(-1)[at], z_true_at, sub_at) > thr_at
     kind_img = np.zeros((h, w), np.uint8)
-    kind_img[truth] = OUTLIER_SATURATION_EDGE
-    kind_img[truth & wrong_bounce] = OUTLIER_INTERREFLECTION
-    kind_img[truth & wrong_direct] = OUTLIER_MIXED_PIXEL
+    kinds = np.full(at.size, OUTLIER_SATURATION_EDGE, np.uint8)
+    kinds[wrong_bounce] = OUTLIER_INTERREFLECTION
+    kinds[wrong_direct] = OUTLIER_MIXED_PIXEL
+    kind_img.reshape(-1)[at] = kinds
     with np.errstate(invalid="ignore"):
         kind_img[truth & (z_meas < CAMERA_HEIGHT_MM - BIN.height_mm)] = OUTLIER_ABOVE_RIM
     cpu["measure"] = time.process_time() - t0
@@ -255,7 +253,8 @@ def synthesize_raytraced_frame(
     t0 = time.process_time()
     xyz_mm = xyz.astype(np.float64) * 1000.0
     err = err_mm(xyz_mm[..., 2], np.where(np.isfinite(sigma_z), sigma_z, 0.0), K.fx)
-    off = off_surface(xyz_mm, err, scene.surfaces())
+    # the centre rays' hits lie on those triangles: most points are decided by them without a query
+    off = off_surface(xyz_mm, err, scene.surfaces(), on_surface=centre.point.reshape(h, w, 3))
     cpu["off_surface"] = time.process_time() - t0
     frame = Frame(
         xyz=xyz, rgb=rgb, stamp_ns=stamp_ns(seed, index), frame_id=FRAME_ID, intrinsics=K, topic=layout.CLOUD,

@@ -10,9 +10,12 @@ import importlib
 import numpy as np
 import pytest
 
+from replay.synth import surfaces as surfaces_mod
 from replay.synth.raytrace import optics, reference, synthesize_raytraced_frame
 from replay.synth.raytrace.optics import Phasors, SensorModel, kept_memory, small_pages
+from replay.synth.raytrace.pile import drop_parts, part_count
 from replay.synth.raytrace.scene import build_scene
+from replay.synth.raytrace.synthesize import raytrace_rng
 from replay.synth.sensor import default_intrinsics
 from replay.synth.synthesize import bin_pose_for, frame_rng
 
@@ -25,9 +28,15 @@ def same(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
 
 
-@pytest.mark.parametrize(("kind", "seed"), [("spheres", 5), ("zinc_nuts", 6), ("rods", 7), ("black_nuts", 8)])
-def test_a_frame_is_the_reference_paths_frame(kind, seed, monkeypatch):
-    """The frame of the fast path has the bytes of the frame of the literal numpy tracer and decoder."""
+@pytest.mark.parametrize(("kind", "seed", "chunk"), [
+    ("spheres", 5, None), ("zinc_nuts", 6, None), ("rods", 7, None), ("black_nuts", 8, None),
+    ("spheres", 9, 1000), ("sprockets", 10, 333),
+])
+def test_a_frame_is_the_reference_paths_frame(kind, seed, chunk, monkeypatch):
+    """The frame of the fast path has the bytes of the frame of the literal numpy tracer and decoder
+    (``chunk``: the direct light lit in chunks of that many points, many per frame)."""
+    if chunk is not None:
+        monkeypatch.setattr(optics, "DIRECT_CHUNK", chunk)
     a = synthesize_raytraced_frame(kind=kind, seed=seed, size=SIZE, fill_mm=FILL)
     monkeypatch.setattr(optics, "trace", reference.trace_reference)
     monkeypatch.setattr(optics, "measure", reference.measure_reference)
@@ -43,20 +52,96 @@ def test_a_frame_is_the_reference_paths_frame(kind, seed, monkeypatch):
         assert same(a.frame.codes[key], b.frame.codes[key]), key
 
 
-def test_measure_is_the_reference():
-    """Decoding sums the stages in place; the images it was given stay as they were."""
-    scene = build_scene(bin_pose_for(frame_rng(9, 0, empty=True), empty=True, index=0), None)
-    K = default_intrinsics(SIZE)
-    m = SensorModel()
-    rec = optics.trace(scene, K, m, np.random.default_rng(2))
+@pytest.mark.parametrize(("kind", "seed", "model"), [
+    (None, 9, SensorModel()), ("spheres", 5, SensorModel()), ("zinc_nuts", 6, SensorModel(bounces=2)),
+    ("rods", 7, SensorModel(min_contrast=0.5, min_signal=0.008)), ("sprockets", 8, SensorModel(samples=3)),
+])
+def test_measure_is_the_reference(kind, seed, model):
+    """Decoding sums the stages in place and decodes the attribution stages only where the noise-free
+    depth fails the truth rule: there they are the reference's whole-image values, NaN elsewhere;
+    the rest is the reference's; the images it was given stay as they were."""
+    pose = bin_pose_for(frame_rng(seed, 0, empty=kind is None), empty=kind is None, index=0)
+    pile = None
+    if kind is not None:
+        pile = drop_parts(kind, pose, raytrace_rng(seed, 0, empty=False), count=min(part_count(kind, FILL), 40))
+    scene = build_scene(pose, pile)
+    K = default_intrinsics((80, 128))
+    rec = optics.trace(scene, K, model, np.random.default_rng(2))
     before = [p.z.copy() for p in (rec.direct, rec.camera_bounce, rec.projector_bounce, rec.glare)]
-    a = optics.measure(rec, K, m, np.random.default_rng(3))
-    b = reference.measure_reference(rec, K, m, np.random.default_rng(3))
-    for x, y in zip(a[:3] + tuple(a[3]) + a[4:], b[:3] + tuple(b[3]) + b[4:]):
+    a = optics.measure(rec, K, model, np.random.default_rng(3))
+    b = reference.measure_reference(rec, K, model, np.random.default_rng(3))
+    for x, y in zip(a[:3] + a[4:], b[:3] + b[4:]):
         assert same(x, y)
     assert np.isfinite(a[0]).any()
+    z_true = np.where(rec.centre.hit, rec.centre.point[:, 2], np.nan).reshape(a[1].shape)
+    with np.errstate(invalid="ignore"):
+        fails = optics.footprint_distance_mm(b[1], z_true, rec.sub_depth_mm) > model.outlier_sigmas * b[2]
+    assert len(a[3]) == len(b[3]) == 2
+    for x, y in zip(a[3], b[3]):
+        assert same(x[fails], y[fails])
+        assert np.isnan(x[~fails]).all()
+    if kind is not None:  # shiny piles: outliers whose stages decode otherwise than the final light
+        assert fails.sum() > 20
+        assert (a[3][0][fails] != b[1][fails]).any()
     for p, z in zip((rec.direct, rec.camera_bounce, rec.projector_bounce, rec.glare), before):
         assert same(p.z, z)
+
+
+@pytest.mark.parametrize(("kind", "seed", "size"), [
+    ("spheres", 21, (120, 192)), ("zinc_nuts", 22, (120, 192)), ("rods", 23, (75, 120)),
+    ("black_screws", 24, (120, 192)), ("sprockets", 25, (75, 120)), (None, 26, (75, 120)),
+])
+def test_off_surface_with_the_centre_hits_is_the_mask_without(kind, seed, size, monkeypatch):
+    """The paper's truth decided by the centre rays' hits (``on_surface``) is the mask of the anchors
+    alone, over frames of every kind with their outliers, and with a third of the hits unknown (NaN)."""
+    from replay.synth import surfaces
+    from replay.synth.raytrace import synthesize as synth_mod
+
+    seen = []
+
+    def both(xyz_mm, err, surf, *, on_surface=None):
+        with_hits = surfaces.off_surface(xyz_mm, err, surf, on_surface=on_surface)
+        seen.append((with_hits, surfaces.off_surface(xyz_mm, err, surf)))
+        hits = on_surface.copy()
+        hits[::3] = np.nan  # no known point: decided as before
+        seen.append((surfaces.off_surface(xyz_mm, err, surf, on_surface=hits), seen[-1][1]))
+        return with_hits
+
+    monkeypatch.setattr(synth_mod, "off_surface", both)
+    rf = synthesize_raytraced_frame(kind=kind or "spheres", empty=kind is None, seed=seed, size=size,
+                                    fill_mm=None if kind is None else FILL)
+    assert len(seen) == 2
+    for got, want in seen:
+        assert same(got, want)
+    valid = np.isfinite(rf.frame.xyz).all(axis=2)
+    assert valid.sum() > 0.5 * valid.size
+    if kind in ("spheres", "zinc_nuts", "rods"):
+        assert rf.off_surface.any()  # shiny: a mask with outliers, not only the all-False one
+
+
+def test_off_surface_hints_on_a_box():
+    """On a box: a point decided by its known surface point, one at the threshold left to the query,
+    NaN hints, and a hint of the wrong shape refused."""
+    box_v = np.array([[x, y, z] for x in (0, 10) for y in (0, 10) for z in (100, 110)], float)
+    box_t = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    s = surfaces_mod.TrueSurfaces(box_v, box_t)
+    xyz = np.full((3, 4, 3), np.nan)
+    xyz[0, 0] = (5.0, 5.0, 100.0 - 0.2)  # 0.2 off the top face, within 0.3
+    xyz[0, 1] = (5.0, 5.0, 100.0 - 0.3 - 1e-3)  # beyond 3 x 0.1
+    xyz[0, 2] = (5.0, 5.0, 100.0 - 0.3 + 1e-3)  # within, but within the margin of its hint
+    xyz[1, 0] = (5.0, 5.0, 100.0 - 0.25)
+    xyz[2, 3] = (2.0, 3.0, 100.0 - 5.0)  # 5 above the box: far from everything
+    err = np.full((3, 4), 0.1)
+    hints = np.full((3, 4, 3), np.nan)
+    hints[0, :3] = (5.0, 5.0, 100.0)  # the points' own feet on the face
+    hints[2, 3] = (2.0, 3.0, 100.0)
+    plain = surfaces_mod.off_surface(xyz, err, s)
+    assert plain.tolist() == [[False, True, False, False], [False, False, False, False], [False, False, False, True]]
+    assert surfaces_mod.off_surface(xyz, err, s, on_surface=hints).tolist() == plain.tolist()
+    assert surfaces_mod.off_surface(xyz, err, s, on_surface=np.full_like(hints, np.nan)).tolist() == plain.tolist()
+    with pytest.raises(ValueError, match="on_surface must have the cloud's shape"):
+        surfaces_mod.off_surface(xyz, err, s, on_surface=hints[:2])
 
 
 def _paths(rng: np.random.Generator, n: int, shape: tuple[int, int], periods: tuple[float, ...]):

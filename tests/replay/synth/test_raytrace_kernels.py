@@ -122,9 +122,11 @@ def test_cast_of_nasty_rays(scenes):
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_direct_light_is_the_reference(scenes, seed):
+@pytest.mark.parametrize("chunk", [optics.DIRECT_CHUNK, 1, 37])
+def test_direct_light_is_the_reference(scenes, seed, chunk, monkeypatch):
     """On real hits, and on made-up points on the thresholds: the projector image's border, normals at
-    right angles to the light, a point at the projector, NaN points."""
+    right angles to the light, a point at the projector, NaN points; lit in one chunk and in many."""
+    monkeypatch.setattr(optics, "DIRECT_CHUNK", chunk)
     rng = np.random.default_rng(100 + seed)
     scene = scenes[KINDS[seed + 3]]
     m = SensorModel()
@@ -242,3 +244,55 @@ def test_a_made_up_part_scene_matches():
         b = reference.trace_reference(scene, K, SensorModel(), np.random.default_rng(0))
     assert same(a.direct.z, b.direct.z) and same(a.specular_light, b.specular_light)
     assert same(a.projector_bounce.z, b.projector_bounce.z)
+
+
+@pytest.mark.parametrize("shape", [(0, 0), (1, 1), (1, 17), (17, 1), (2, 2), (31, 45)])
+@pytest.mark.parametrize("seed", range(3))
+def test_isolated_points_are_the_reference(shape, seed):
+    """The camera's outlier filter as a kernel against its whole-array numpy: random clouds with holes,
+    neighbours exactly at the distance (3-4-0 and 0-0-5 steps of 5 mm), float32 input."""
+    from replay.synth.raytrace.camera_filters import isolated_points, isolated_points_reference
+
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    xyz = np.stack([np.tile(np.arange(w) * 3.0, (h, 1)), np.tile(np.arange(h)[:, None] * 4.0, (1, w)),
+                    np.full((h, w), 500.0)], axis=2)
+    xyz[..., 2] += rng.choice([0.0, 5.0, -5.0, 20.0, 4.999999, 5.000001], (h, w), p=[0.5, 0.1, 0.1, 0.1, 0.1, 0.1])
+    xyz[rng.random((h, w)) < 0.15] = np.nan
+    if h * w:
+        xyz.reshape(-1, 3)[rng.integers(0, h * w)] = (np.inf, 0.0, 500.0)
+    for within in (5.0, 1.0, 0.0, 25.0):
+        for cloud in (xyz, xyz.astype(np.float32), xyz[:, ::-1]):
+            with np.errstate(invalid="ignore"):
+                want = isolated_points_reference(cloud, within_mm=within)
+            got = isolated_points(cloud, within_mm=within)
+            assert same(got, want), within
+    if h * w > 100:
+        assert isolated_points(xyz, within_mm=5.0).any() and not isolated_points(xyz, within_mm=5.0).all()
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 23), (23, 1), (2, 3), (40, 64)])
+@pytest.mark.parametrize("seed", range(3))
+def test_edge_pixels_are_the_reference(shape, seed):
+    """The edge test as a kernel against scipy's 3 x 3 filters: depth steps exactly at the threshold
+    and just beyond, misses (inf, NaN), parts and surfaces changing, thin images."""
+    rng = np.random.default_rng(seed)
+    z = 500.0 + rng.choice([0.0, 1.5, 1.5000001, 3.0, -1.5], shape)
+    z[rng.random(shape) < 0.1] = np.inf
+    z[rng.random(shape) < 0.05] = np.nan
+    part = rng.choice([0, 0, 0, 3, 7], shape).astype(np.int32)
+    label = rng.choice([1, 1, 1, 2], shape).astype(np.uint8)
+    for jump in (1.5, 0.0, 3.0):
+        want = reference.edge_pixels_reference(z, part, label, jump_mm=jump)
+        assert same(optics.edge_pixels(z, part, label, jump_mm=jump), want), jump
+    flat = optics.edge_pixels(np.full(shape, 500.0), np.zeros(shape, np.int32), np.ones(shape, np.uint8))
+    assert not flat.any()
+
+
+def test_edge_pixels_of_a_frame_are_the_reference(scenes):
+    K = default_intrinsics((60, 96))
+    h = scenes["sprockets"].cast(np.zeros(3), optics.pixel_directions(K))
+    z = np.where(h.hit, h.point[:, 2], np.inf).reshape(K.height, K.width)
+    a = optics.edge_pixels(z, h.part.reshape(z.shape), h.label.reshape(z.shape))
+    assert same(a, reference.edge_pixels_reference(z, h.part.reshape(z.shape), h.label.reshape(z.shape)))
+    assert a.any() and not a.all()
