@@ -106,9 +106,9 @@ def rule_check(generator: str, kind: str, seed: int, size: tuple[int, int]) -> d
     own_err = ex.err_image(near, own_surfaces, c)
     own = ex.unexplained(near.dist_mm, own_err, ex.K_ERR)
     # the vetting of the fits (zcut.fit_vetting) with the true meshes as fits: none may be left out
-    from zcut.fit_vetting import explained_px, vet_fits, without_fits
+    from zcut.fit_vetting import explained_px, part_overlaps, vet_fits, without_fits
 
-    kept = vet_fits(parts, explained_px(near, own_err, len(parts), k=ex.K_ERR)).kept
+    kept = vet_fits(part_overlaps(parts), explained_px(near, own_err, len(parts), k=ex.K_ERR)).kept
     left, near_v = without_fits(xyz, near, own_surfaces, kept)
     vetted = ex.unexplained(near_v.dist_mm, ex.err_image(near_v, left, c), ex.K_ERR)
     return {"truth": float(truth.sum()), "iou_gen": _iou(gen, truth), "iou_own": _iou(own, truth), "cpu": cpu,
@@ -274,7 +274,7 @@ def vetting_check(log: Path) -> list[dict[str, Any]]:
     from replay.logs import layout
     from replay.options import PipelineOptions
     from replay.pipeline.explained import NAME, _bin_and_table, part_model, with_part_model
-    from zcut.fit_vetting import explained_px, vet_fits, without_fits
+    from zcut.fit_vetting import explained_px, instance_overlaps, vet_fits, without_fits
     from zcut.fits import FitParams, fit_prepared
 
     session = PipelineOptions(methods="zcut").open_session(log)
@@ -304,21 +304,25 @@ def vetting_check(log: Path) -> list[dict[str, Any]]:
     t0 = time.process_time()
     see = _see_through(xyz, job.valid, list(surfaces.parts), sigma, c, p.k, p.err_floor_mm)
     see_cpu = time.process_time() - t0
+    t0 = time.process_time()
+    overlaps = instance_overlaps(v, t, [f.pose for f in fits])
+    overlap_cpu = time.process_time() - t0
     candidates: list[tuple[str, Any]] = [("none", lambda: np.ones(len(fits), bool))]
     for th in (0.01, 0.05, 0.1, 0.2):
         candidates.append((f"overlap > {th:g}" + (" (rule)" if th == 0.05 else ""),
-                           lambda th=th: vet_fits(surfaces.parts, support_px, max_overlap=th).kept))
+                           lambda th=th: vet_fits(overlaps, support_px, max_overlap=th).kept))
     med = float(np.median(sigma)) if len(sigma) else 0.0
     candidates += [("residual > 3 x median", lambda: ~(sigma > 3.0 * med)),
                    ("support < 0.7", lambda: ~(stated_support < 0.7)),
                    ("see-through > 0.3", lambda: ~(see > 0.3)),
-                   ("rule + residual", lambda: vet_fits(surfaces.parts, support_px).kept & ~(sigma > 3.0 * med))]
+                   ("rule + residual", lambda: vet_fits(overlaps, support_px).kept & ~(sigma > 3.0 * med))]
     truth = frame.masks[layout.TRUTH_OFF_SURFACE] & served  # read only now, to score
     rows = []
     for name, rule in candidates:
         t0 = time.process_time()
         kept = np.asarray(rule(), bool)
-        cpu = time.process_time() - t0 + (see_cpu if "see" in name else 0.0)
+        cpu = time.process_time() - t0 + (see_cpu if "see" in name else 0.0) + (overlap_cpu if "rule" in name or
+                                                                                  "overlap" in name else 0.0)
         left, near2 = without_fits(xyz, near, surfaces, kept)
         left = dataclasses.replace(left, part_err_mm=ex.fit_sigmas(near2, left.part_err_mm, where=job.zone))
         un = ex.unexplained(near2.dist_mm, ex.err_image(near2, left, c, floor_mm=p.err_floor_mm), p.k) & served

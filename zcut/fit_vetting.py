@@ -165,26 +165,64 @@ def part_overlaps(parts: Sequence[tuple[np.ndarray, np.ndarray]], *,
     return np.asarray(out_pairs, np.int64), np.asarray(share, np.float64)
 
 
-def vet_fits(parts: Sequence[tuple[np.ndarray, np.ndarray]], support_px: np.ndarray, *,
-             max_overlap: float = MAX_OVERLAP, samples: int = INSIDE_SAMPLES) -> FitVetting:
+def instance_overlaps(vertices: np.ndarray, triangles: np.ndarray, poses: Sequence[np.ndarray], *,
+                      samples: int = INSIDE_SAMPLES) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`part_overlaps` of instances of one mesh at ``poses`` ((4, 4) model -> frame, rigid), the
+    same definition computed once in the model's frame: its inside samples drawn once, each ordered pair
+    (a, b) whose bounding spheres meet tests a's samples moved into b's model frame against the model."""
+    v = np.asarray(vertices, np.float64)
+    T = np.asarray(poses, np.float64).reshape(-1, 4, 4)
+    n = len(T)
+    empty = (np.zeros((0, 2), np.int64), np.zeros(0))
+    if n < 2:
+        return empty
+    inside = inside_samples(v, triangles, samples=samples)
+    if not len(inside):
+        return empty
+    centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    radius = float(np.linalg.norm(v - centre, axis=1).max())
+    c = T[:, :3, :3] @ centre + T[:, :3, 3]
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(c).query_pairs(2.0 * radius, output_type="ndarray")
+    if not len(pairs):
+        return empty
+    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    ordered = np.empty((2 * len(pairs), 2), np.int64)
+    ordered[0::2], ordered[1::2] = pairs, pairs[:, ::-1]
+    a, b = ordered[:, 0], ordered[:, 1]
+    R = np.einsum("pji,pjk->pik", T[b, :3, :3], T[a, :3, :3])  # R_b^T R_a
+    t = np.einsum("pji,pj->pi", T[b, :3, :3], T[a, :3, 3] - T[b, :3, 3])  # R_b^T (t_a - t_b)
+    q = np.einsum("pij,mj->pmi", R, inside) + t[:, None, :]
+    share = _inside(_scene(v, triangles), q.reshape(-1, 3)).reshape(len(ordered), -1).mean(axis=1)
+    return ordered, share.astype(np.float64)
+
+
+def vet_fits(overlaps: tuple[np.ndarray, np.ndarray], support_px: np.ndarray, *,
+             max_overlap: float = MAX_OVERLAP) -> FitVetting:
     """The fits kept as known surfaces (module docstring): ranked by ``support_px`` (more first; a tie
-    keeps the lower index first), a fit is vetted out when more than ``max_overlap`` of its volume
-    lies inside a kept fit ranked before it.
+    keeps the lower index first), a fit is vetted out when more than ``max_overlap`` of its volume, or of
+    the other's, lies inside a kept fit ranked before it.
 
     Parameters
     ----------
-    parts : sequence of (vertices (n, 3), triangles (m, 3))
-        The fitted instances' meshes, posed in one frame (mm).
+    overlaps : ((p, 2) int ndarray, (p,) float ndarray)
+        Ordered pairs of fits (i, j) and the share of i's volume inside j (:func:`part_overlaps`,
+        :func:`instance_overlaps`); a pair not listed does not overlap.
     support_px : (n,) int or float ndarray
-        Each fit's measured support: the pixels it explains.
+        Each fit's measured support: the pixels it explains (:func:`explained_px`).
     """
-    n = len(parts)
     s = np.asarray(support_px, np.float64)
-    if s.shape != (n,):
-        raise InputShapeError(f"support_px must be one value per fit ({n},), got {describe_array(s)}")
+    if s.ndim != 1:
+        raise InputShapeError(f"support_px must be one value per fit (n,), got {describe_array(s)}")
+    n = len(s)
+    pairs = np.asarray(overlaps[0], np.int64).reshape(-1, 2)
+    share = np.asarray(overlaps[1], np.float64).reshape(-1)
+    if len(share) != len(pairs) or (pairs.size and (pairs.min() < 0 or pairs.max() >= n)):
+        raise InputShapeError(f"overlaps must be pairs of the {n} fits and one share each, got "
+                              f"{describe_array(pairs)} and {describe_array(share)}")
     if not (np.isfinite(max_overlap) and 0 <= max_overlap < 1):
         raise ParameterError(f"max_overlap must be a share in [0, 1), got {max_overlap!r}")
-    pairs, share = part_overlaps(parts, samples=samples)
     # ordered pairs (a, b): share of a inside b; a pair conflicts when either share exceeds the threshold
     conflict: list[list[tuple[int, float]]] = [[] for _ in range(n)]
     for (a, b), v in zip(pairs.tolist(), share.tolist()):
@@ -252,5 +290,5 @@ def without_fits(xyz_mm: np.ndarray, nearest: Nearest, surfaces: KnownSurfaces,
     return left, Nearest(dist, code)
 
 
-__all__ = ["INSIDE_SAMPLES", "MAX_OVERLAP", "FitVetting", "explained_px", "inside_samples", "is_closed",
+__all__ = ["INSIDE_SAMPLES", "MAX_OVERLAP", "FitVetting", "explained_px", "inside_samples", "instance_overlaps", "is_closed",
            "part_overlaps", "vet_fits", "without_fits"]

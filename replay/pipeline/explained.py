@@ -204,7 +204,7 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *,
     outliers and everything in the zone are the same with and without it.
     """
     from zcut import explained as ex
-    from zcut.fit_vetting import explained_px, vet_fits, without_fits
+    from zcut.fit_vetting import explained_px, instance_overlaps, vet_fits, without_fits
 
     p = config.bank[NAME]
     rem = zone.removal
@@ -245,7 +245,8 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *,
         stated = surfaces.part_err_mm
         surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, stated, where=zone.zone))
         err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm)
-        kept = vet_fits(surfaces.parts, explained_px(near, err, len(fits), k=p.k, where=zone.zone)).kept
+        kept = vet_fits(instance_overlaps(v, t, [f.pose for f in fits]),
+                        explained_px(near, err, len(fits), k=p.k, where=zone.zone)).kept
         if not kept.all():  # the fits vetted out are no known surface: their pixels judged again
             vetted_out = tuple(f for f, k in zip(fits, kept) if not k)
             fits = tuple(f for f, k in zip(fits, kept) if k)

@@ -30,19 +30,19 @@ def test_a_duplicate_is_vetted_out_a_touching_part_kept():
     duplicate = _shift(true, (0.0, 0.0, -2.0))  # the same part, 2 mm toward the camera
     touching = _shift(true, (40.2, 0.0, 0.0))  # the next part, 0.2 mm away
     far = _shift(true, (0.0, 100.0, 0.0))
-    v = fv.vet_fits([true, duplicate, touching, far], np.array([1000, 300, 500, 10]))
+    v = fv.vet_fits(fv.part_overlaps([true, duplicate, touching, far]), np.array([1000, 300, 500, 10]))
     np.testing.assert_array_equal(v.kept, [True, False, True, True])
     assert v.by[1] == 0 and v.overlap[1] > 0.8 and v.overlap[0] == 0.0 and v.by[0] == -1
     np.testing.assert_array_equal(v.dropped, [1])
     # the ranking decides which of the two stays; a tie keeps the lower index
-    np.testing.assert_array_equal(fv.vet_fits([true, duplicate], np.array([300, 1000])).kept, [False, True])
-    np.testing.assert_array_equal(fv.vet_fits([true, duplicate], np.array([5, 5])).kept, [True, False])
+    np.testing.assert_array_equal(fv.vet_fits(fv.part_overlaps([true, duplicate]), np.array([300, 1000])).kept, [False, True])
+    np.testing.assert_array_equal(fv.vet_fits(fv.part_overlaps([true, duplicate]), np.array([5, 5])).kept, [True, False])
     # overlap: the share of the volume, both orders; boxes 2 mm apart along a 20 mm side share 90 %
     pairs, share = fv.part_overlaps([true, duplicate])
     np.testing.assert_array_equal(pairs, [[0, 1], [1, 0]])
     np.testing.assert_allclose(share, 0.9, atol=0.05)
     # a threshold above the overlap keeps both
-    assert fv.vet_fits([true, duplicate], np.array([2, 1]), max_overlap=0.95).kept.all()
+    assert fv.vet_fits(fv.part_overlaps([true, duplicate]), np.array([2, 1]), max_overlap=0.95).kept.all()
 
 
 def test_touching_parts_overlap_far_below_the_threshold():
@@ -50,7 +50,7 @@ def test_touching_parts_overlap_far_below_the_threshold():
     pressed = _shift(true, (39.7, 0.0, 0.0))  # fitted 0.3 mm into its neighbour
     _, share = fv.part_overlaps([true, pressed])
     assert share.max() < 0.2 * fv.MAX_OVERLAP
-    assert fv.vet_fits([true, pressed], np.array([1, 1])).kept.all()
+    assert fv.vet_fits(fv.part_overlaps([true, pressed]), np.array([1, 1])).kept.all()
 
 
 def test_an_open_mesh_has_no_inside_and_is_never_vetted_out():
@@ -61,18 +61,44 @@ def test_an_open_mesh_has_no_inside_and_is_never_vetted_out():
     opened = (v, t[:-2])
     assert fv.inside_samples(*opened).shape == (0, 3)
     assert len(fv.inside_samples(v, t)) == fv.INSIDE_SAMPLES
-    assert fv.vet_fits([opened, _shift(opened, (0.0, 0.0, -2.0))], np.array([2, 1])).kept.all()
-    assert fv.vet_fits([], np.zeros(0)).kept.shape == (0,)
+    assert fv.vet_fits(fv.part_overlaps([opened, _shift(opened, (0.0, 0.0, -2.0))]), np.array([2, 1])).kept.all()
+    assert fv.vet_fits(fv.part_overlaps([]), np.zeros(0)).kept.shape == (0,)
 
 
-@pytest.mark.parametrize("args, error, match", [
-    (([box_mesh(LO, HI)], np.array([1, 2])), InputShapeError, "one value per fit"),
-    (([box_mesh(LO, HI)], np.array([1])), ParameterError, "max_overlap"),
+@pytest.mark.parametrize("overlaps, support, kw, error, match", [
+    ((np.array([[0, 1]]), np.array([0.5])), np.ones((2, 1)), {}, InputShapeError, "one value per fit"),
+    ((np.array([[0, 2]]), np.array([0.5])), np.ones(2), {}, InputShapeError, "pairs of the 2 fits"),
+    ((np.array([[0, 1]]), np.array([0.5, 0.1])), np.ones(2), {}, InputShapeError, "one share each"),
+    ((np.array([[0, 1]]), np.array([0.5])), np.ones(2), {"max_overlap": 1.5}, ParameterError, "max_overlap"),
 ])
-def test_bad_inputs_are_one_line(args, error, match):
-    kw = {"max_overlap": 1.5} if error is ParameterError else {}
+def test_bad_inputs_are_one_line(overlaps, support, kw, error, match):
     with pytest.raises(error, match=match):
-        fv.vet_fits(*args, **kw)
+        fv.vet_fits(overlaps, support, **kw)
+
+
+def test_instances_of_one_mesh_overlap_as_posed_meshes_do():
+    """:func:`instance_overlaps` (one model, its poses) is :func:`part_overlaps` of the posed meshes: the
+    same pairs, the same shares within the sampling's error."""
+    rng = np.random.default_rng(5)
+    v, t = box_mesh(np.array([-10.0, -6.0, -3.0]), np.array([10.0, 6.0, 3.0]))
+    poses = []
+    for k in range(6):
+        a = rng.uniform(-np.pi, np.pi, 3)
+        Rx = np.array([[1, 0, 0], [0, np.cos(a[0]), -np.sin(a[0])], [0, np.sin(a[0]), np.cos(a[0])]])
+        Rz = np.array([[np.cos(a[2]), -np.sin(a[2]), 0], [np.sin(a[2]), np.cos(a[2]), 0], [0, 0, 1]])
+        T = np.eye(4)
+        T[:3, :3] = Rz @ Rx
+        T[:3, 3] = [6.0 * k, rng.uniform(-3, 3), 500.0 + rng.uniform(-3, 3)]
+        poses.append(T)
+    meshes = [(v @ T[:3, :3].T + T[:3, 3], t) for T in poses]
+    pa, sa = fv.instance_overlaps(v, t, poses)
+    pb, sb = fv.part_overlaps(meshes)
+    got, want = dict(zip(map(tuple, pa.tolist()), sa)), dict(zip(map(tuple, pb.tolist()), sb))
+    assert any(s > 0.1 for s in want.values())
+    for pair, s in want.items():
+        assert abs(got.get(pair, 0.0) - s) < 0.08, pair
+    for pair, s in got.items():
+        assert abs(want.get(pair, 0.0) - s) < 0.08, pair
 
 
 def _cloud() -> tuple[np.ndarray, np.ndarray]:
@@ -105,7 +131,7 @@ def test_a_fit_on_floating_points_is_vetted_out_and_its_points_proposed():
     assert not before[floating].any()  # the ghost fit explains them
     support = fv.explained_px(near, err, 2, k=ex.K_ERR)
     assert support[0] > 10 * support[1] > 0
-    vetting = fv.vet_fits(surfaces.parts, support)
+    vetting = fv.vet_fits(fv.part_overlaps(surfaces.parts), support)
     np.testing.assert_array_equal(vetting.kept, [True, False])
     left, near2 = fv.without_fits(xyz, near, surfaces, vetting.kept)
     assert len(left.parts) == 1 and left.part_err_mm == [0.3]
@@ -124,7 +150,7 @@ def test_a_correct_fit_alone_is_kept_and_nothing_changes():
                                 part_err_mm=[0.3, 0.2])
     near = ex.nearest_surface(xyz, surfaces)
     _, err = _judge(xyz, surfaces, near, ex.footprint_mm(xyz, 1000.0))
-    kept = fv.vet_fits(surfaces.parts, fv.explained_px(near, err, 2, k=ex.K_ERR)).kept
+    kept = fv.vet_fits(fv.part_overlaps(surfaces.parts), fv.explained_px(near, err, 2, k=ex.K_ERR)).kept
     assert kept.all()
     left, near2 = fv.without_fits(xyz, near, surfaces, kept)
     assert near2 is near and left.part_err_mm == [0.3, 0.2]
