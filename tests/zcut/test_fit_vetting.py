@@ -177,13 +177,13 @@ def test_the_method_leaves_out_overlapping_fits_and_judges_their_pixels_again(tm
     zone = bin_zone(frame, session.config, bin_model=session.prepared)
     _, d, _ = run_explained(frame, zone, session.config)
     assert d is not None and d.fits and d.vetted_out
-    kept = [(d.instance_mesh(i), d.triangles) for i in range(len(d.fits))]
-    _, share = fv.part_overlaps(kept)
+    poses = [f.pose for f in d.fits]
+    _, share = fv.instance_overlaps(d.vertices_mm, d.triangles, poses)
     assert share.size == 0 or share.max() <= fv.MAX_OVERLAP
     for f in d.vetted_out:
-        mesh = (d.vertices_mm @ f.pose[:3, :3].T + f.pose[:3, 3], d.triangles)
-        pairs, share = fv.part_overlaps([mesh, *kept])
+        pairs, share = fv.instance_overlaps(d.vertices_mm, d.triangles, [f.pose, *poses])
         assert share[(pairs == 0).any(axis=1)].max() > fv.MAX_OVERLAP  # its share in a kept fit, or that fit's in it
+    kept = [(d.instance_mesh(i), d.triangles) for i in range(len(d.fits))]
     xyz = frame.xyz.astype(np.float64) * 1000.0
     surfaces = ex.KnownSurfaces(parts=kept, part_err_mm=[f.err_mm for f in d.fits])
     assert zone.removal is not None and zone.located.registration is not None and zone.located.bin_model is not None
