@@ -240,7 +240,9 @@ def fit_frame(frame: Frame, job: Job, config: Any, bin_model: BinModel | None) -
     un_pix = np.flatnonzero(un.ravel())
     fits = tuple({"err_mm": float(f.err_mm), "support": float(f.support), "pose": np.asarray(f.pose).tolist()}
                  for f in detail.fits)
-    return FrameFits(frame.index, "ready", f"{len(fits)} fits, {un_pix.size} unexplained px", (H, W), fits,
+    vetted = f" ({len(detail.vetted_out)} vetted out: their solids overlap a better-supported fit's)" \
+        if detail.vetted_out else ""
+    return FrameFits(frame.index, "ready", f"{len(fits)} fits{vetted}, {un_pix.size} unexplained px", (H, W), fits,
                      fit_pix, code[fit_pix].astype(np.int32), un_pix,
                      detail.dist_mm.ravel()[un_pix].astype(np.float32), detail.err_mm.ravel()[un_pix].astype(np.float32),
                      seconds)

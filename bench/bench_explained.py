@@ -13,7 +13,9 @@ valid pixel judged by :mod:`zcut.explained`:
 - ``IoU own-Err``: the same with the Err the method estimates (:func:`zcut.explained.surface_sigmas`:
   each surface's robust residual, the pixel's footprint), as on a real scan, where no generator
   states the noise;
-- ``CPU s``: CPU seconds of the distances (:func:`zcut.explained.nearest_surface`) per frame.
+- ``CPU s``: CPU seconds of the distances (:func:`zcut.explained.nearest_surface`) per frame;
+- ``vetted out``: the true meshes the vetting of the fits (:mod:`zcut.fit_vetting`) leaves out (none
+  may be: true parts share no volume) and ``IoU own-Err vetted`` the IoU after it.
 
 ``--method``: also the whole method on a log of each (``zcut synth`` in a temporary folder; the
 part fits of :mod:`zcut.fits`, the registered bin, the table plane): precision, recall and IoU of its
@@ -37,6 +39,17 @@ the rest went (in a fit's pixels; above the rim and not proposed; elsewhere: the
 the share of proposal pixels that are truth, the number of proposals and the CPU-s of the fits.
 The truth is read only to score, after the page's bundle is made. Run it with ``PYTHONPATH`` of
 another tree (``git archive``) for the before of a change, in the same session.
+
+``--vetting LOG[,LOG...]``: the candidates for vetting the fits (:mod:`zcut.fit_vetting`;
+docs/labelling.md, "Vetting the fits") on the first frame of each log, from one set of fits (fitted
+once, as the page fits them), each judged as the page judges (the zone and the points above the rim):
+no vetting (the fits as they come), the volume overlap at several thresholds (the rule: 5 %), a
+robust residual above 3 × the frame's median one, a support below 0.7, a see-through share above 0.3
+(the share of the pixels where the fit is the first surface on the camera ray and is measured whose
+point lies farther than k × Err behind it: the camera saw through it), and the rule with the
+residual's. Per candidate: the fits left out, the paper's truth inside the proposals, the proposal
+pixels that are not truth, the proposals (groups, as the page joins them) and their precision; the
+CPU-s of the vetting.
 """
 
 from __future__ import annotations
@@ -90,8 +103,16 @@ def rule_check(generator: str, kind: str, seed: int, size: tuple[int, int]) -> d
     assert surfaces.table is not None
     own_surfaces = dataclasses.replace(surfaces, part_err_mm=sig, bin_err_mm=bin_sigma,
                                        table=dataclasses.replace(surfaces.table, residual_mm=table_sigma))
-    own = ex.unexplained(near.dist_mm, ex.err_image(near, own_surfaces, c), ex.K_ERR)
-    return {"truth": float(truth.sum()), "iou_gen": _iou(gen, truth), "iou_own": _iou(own, truth), "cpu": cpu}
+    own_err = ex.err_image(near, own_surfaces, c)
+    own = ex.unexplained(near.dist_mm, own_err, ex.K_ERR)
+    # the vetting of the fits (zcut.fit_vetting) with the true meshes as fits: none may be left out
+    from zcut.fit_vetting import explained_px, part_overlaps, vet_fits, without_fits
+
+    kept = vet_fits(part_overlaps(parts), explained_px(near, own_err, len(parts), k=ex.K_ERR)).kept
+    left, near_v = without_fits(xyz, near, own_surfaces, kept)
+    vetted = ex.unexplained(near_v.dist_mm, ex.err_image(near_v, left, c), ex.K_ERR)
+    return {"truth": float(truth.sum()), "iou_gen": _iou(gen, truth), "iou_own": _iou(own, truth), "cpu": cpu,
+            "out": int((~kept).sum()), "parts": len(parts), "iou_vetted": _iou(vetted, truth)}
 
 
 def _fallback_config(config: Any) -> Any:
@@ -206,6 +227,112 @@ def proposals_check(log: Path) -> list[dict[str, Any]]:
     return rows
 
 
+def _page_groups(un: np.ndarray) -> int:
+    """The number of proposals the page makes of these unexplained pixels (:data:`annotate.fits.JOIN_PX`)."""
+    from scipy import ndimage
+
+    from annotate.fits import JOIN_PX
+    from annotate.payload import EIGHT
+
+    if not un.any():
+        return 0
+    joined, _ = ndimage.label(ndimage.binary_dilation(un, EIGHT, iterations=JOIN_PX), structure=EIGHT)
+    return int(np.unique(joined[un]).size)
+
+
+def _see_through(xyz: np.ndarray, valid: np.ndarray, parts: list[tuple[np.ndarray, np.ndarray]], sigma: np.ndarray,
+                 footprint: np.ndarray, k: float, floor: float) -> np.ndarray:
+    """(n,) per fit: of the measured pixels where it is the first fitted surface on the camera ray, the
+    share whose point lies farther than k × Err behind it (the camera saw through it)."""
+    import open3d as o3d
+
+    n = len(parts)
+    scene = o3d.t.geometry.RaycastingScene()
+    for v, t in parts:
+        scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(v, np.float32)),  # type: ignore[call-overload]
+                            o3d.core.Tensor(np.ascontiguousarray(t, np.uint32)))  # type: ignore[call-overload]
+    p = xyz[valid]
+    rng = np.linalg.norm(p, axis=1)
+    rays = np.concatenate([np.zeros_like(p), p / rng[:, None]], axis=1).astype(np.float32)
+    ans = scene.cast_rays(o3d.core.Tensor(rays))  # type: ignore[call-overload]
+    th = ans["t_hit"].numpy().astype(np.float64)
+    gid = ans["geometry_ids"].numpy().astype(np.int64)
+    hit = np.isfinite(th)
+    g = np.where(hit, gid, n)
+    tol = k * np.maximum(floor, np.sqrt(np.asarray(sigma)[np.clip(gid, 0, n - 1)] ** 2 + 0.5 * footprint[valid] ** 2))
+    behind = hit & (rng > th + tol)
+    agree = hit & ~behind & (rng >= th - tol)
+    nb = np.bincount(g[behind], minlength=n + 1)[:n]
+    na = np.bincount(g[agree], minlength=n + 1)[:n]
+    out: np.ndarray = nb / np.maximum(nb + na, 1)
+    return out
+
+
+def vetting_check(log: Path) -> list[dict[str, Any]]:
+    """The vetting candidates on the first frame of ``log`` (module docstring, ``--vetting``)."""
+    from annotate.fits import Job
+    from replay.logs import layout
+    from replay.options import PipelineOptions
+    from replay.pipeline.explained import NAME, _bin_and_table, part_model, with_part_model
+    from zcut.fit_vetting import explained_px, instance_overlaps, vet_fits, without_fits
+    from zcut.fits import FitParams, fit_prepared
+
+    session = PipelineOptions(methods="zcut").open_session(log)
+    config = with_part_model(session.resolved, log).config
+    p = config.bank[NAME]
+    frame, r = next(iter(session.results()))
+    job = Job.of(r)
+    assert job.removal is not None and job.registration is not None and session.prepared is not None
+    v, t, prepared = part_model(p.part_model, p.part_model_unit)
+    xyz = frame.xyz.astype(np.float64) * 1000.0
+    K = frame.intrinsics
+    assert K is not None
+    fits = fit_prepared(xyz, job.zone, prepared, intrinsics=(K.fx, K.fy, K.cx, K.cy),
+                        params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm, min_support=p.fit_min_support))
+    easy = np.asarray(job.removal.easy_outliers, bool)
+    served = (job.zone | easy) & job.valid
+    surfaces = ex.KnownSurfaces(parts=[(v @ f.pose[:3, :3].T + f.pose[:3, 3], t) for f in fits],
+                                part_err_mm=[f.err_mm for f in fits])
+    surfaces = _bin_and_table(xyz, job.removal, job.registration, session.prepared.model, surfaces)
+    c = ex.footprint_mm(xyz, 0.5 * (K.fx + K.fy))
+    near = ex.nearest_surface(xyz, surfaces, where=served)
+    robust = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, surfaces.part_err_mm, where=job.zone))
+    err = ex.err_image(near, robust, c, floor_mm=p.err_floor_mm)
+    support_px = explained_px(near, err, len(fits), k=p.k, where=job.zone)
+    sigma = np.asarray(robust.part_err_mm)
+    stated_support = np.array([f.support for f in fits])
+    t0 = time.process_time()
+    see = _see_through(xyz, job.valid, list(surfaces.parts), sigma, c, p.k, p.err_floor_mm)
+    see_cpu = time.process_time() - t0
+    t0 = time.process_time()
+    overlaps = instance_overlaps(v, t, [f.pose for f in fits])
+    overlap_cpu = time.process_time() - t0
+    candidates: list[tuple[str, Any]] = [("none", lambda: np.ones(len(fits), bool))]
+    for th in (0.01, 0.05, 0.1, 0.2):
+        candidates.append((f"overlap > {th:g}" + (" (rule)" if th == 0.05 else ""),
+                           lambda th=th: vet_fits(overlaps, support_px, max_overlap=th).kept))
+    med = float(np.median(sigma)) if len(sigma) else 0.0
+    candidates += [("residual > 3 x median", lambda: ~(sigma > 3.0 * med)),
+                   ("support < 0.7", lambda: ~(stated_support < 0.7)),
+                   ("see-through > 0.3", lambda: ~(see > 0.3)),
+                   ("rule + residual", lambda: vet_fits(overlaps, support_px).kept & ~(sigma > 3.0 * med))]
+    truth = frame.masks[layout.TRUTH_OFF_SURFACE] & served  # read only now, to score
+    rows = []
+    for name, rule in candidates:
+        t0 = time.process_time()
+        kept = np.asarray(rule(), bool)
+        cpu = time.process_time() - t0 + (see_cpu if "see" in name else 0.0) + (overlap_cpu if "rule" in name or
+                                                                                  "overlap" in name else 0.0)
+        left, near2 = without_fits(xyz, near, surfaces, kept)
+        left = dataclasses.replace(left, part_err_mm=ex.fit_sigmas(near2, left.part_err_mm, where=job.zone))
+        un = ex.unexplained(near2.dist_mm, ex.err_image(near2, left, c, floor_mm=p.err_floor_mm), p.k) & served
+        rows.append({"candidate": name, "fits": len(fits), "out": int((~kept).sum()), "truth": int(truth.sum()),
+                     "share": float((truth & un).sum() / max(int(truth.sum()), 1)), "non_truth": int((un & ~truth).sum()),
+                     "proposals": _page_groups(un), "precision": float((truth & un).sum() / max(int(un.sum()), 1)),
+                     "cpu": cpu})
+    return rows
+
+
 def _picture(out: Path, frame: Any, mask: np.ndarray) -> None:
     """The scan's depth (grey, near bright) with the flagged pixels in red, saved as a PNG."""
     from PIL import Image
@@ -237,10 +364,24 @@ def main() -> None:
     ap.add_argument("--proposals", default=None, metavar="LOGS",
                     help="the labelling page's proposals on every frame of these logs (comma-separated), against "
                          "the paper's truth")
+    ap.add_argument("--vetting", default=None, metavar="LOGS",
+                    help="the candidates for vetting the fits on the first frame of these logs (comma-separated), "
+                         "against the paper's truth")
     ap.add_argument("--picture", type=Path, default=None, metavar="PNG",
                     help="with --real: save the first scan's depth with the flagged pixels in red")
     a = ap.parse_args()
     w, h = (int(v) for v in a.size.split("x"))
+    if a.vetting:
+        print("vetting the fits: the page's proposals with the fits each candidate keeps, against "
+              "/ground_truth/off_surface in the zone the page serves (one set of fits per log)")
+        print(f"{'log':<34} {'candidate':<24} {'fits':>4} {'out':>4} {'truth':>7} {'in props':>8} {'non-truth':>9} "
+              f"{'props':>6} {'precision':>9} {'CPU s':>6}")
+        for log in a.vetting.split(","):
+            for rr in vetting_check(Path(log)):
+                print(f"{Path(log).name:<34} {rr['candidate']:<24} {rr['fits']:>4} {rr['out']:>4} {rr['truth']:>7} "
+                      f"{rr['share']:>8.3f} {rr['non_truth']:>9} {rr['proposals']:>6} {rr['precision']:>9.3f} "
+                      f"{rr['cpu']:>6.2f}", flush=True)
+        return
     if a.proposals:
         print("the page's proposals (part model of the log) against /ground_truth/off_surface in the zone the page "
               "serves; missed truth: in a fit's pixels, above the rim, elsewhere (bin, table)")
@@ -255,7 +396,7 @@ def main() -> None:
     if not a.no_rule:
         print(f"true meshes as fits, {w}x{h}; IoU with /ground_truth/off_surface (every valid pixel)")
         print(f"{'generator':<10} {'kind':<11} {'seed':>5} {'truth px':>8} {'IoU gen-Err':>11} {'IoU own-Err':>11} "
-              f"{'CPU s':>6}")
+              f"{'CPU s':>6} {'vetted out':>10} {'IoU own-Err vetted':>18}")
         rows = []
         for g in a.generators.split(","):
             for k_i, kind in enumerate(a.kinds.split(",")):
@@ -264,7 +405,8 @@ def main() -> None:
                     r = rule_check(g, kind, seed, (h, w))
                     rows.append(r)
                     print(f"{g:<10} {kind:<11} {seed:>5} {r['truth']:>8.0f} {r['iou_gen']:>11.4f} "
-                          f"{r['iou_own']:>11.4f} {r['cpu']:>6.2f}", flush=True)
+                          f"{r['iou_own']:>11.4f} {r['cpu']:>6.2f} {r['out']:>4}/{r['parts']:<5} "
+                          f"{r['iou_vetted']:>18.4f}", flush=True)
         print(f"min IoU gen-Err {min(r['iou_gen'] for r in rows):.4f}, own-Err {min(r['iou_own'] for r in rows):.4f}")
     if a.method or a.no_part_model:
         fits = a.method or not a.no_fits

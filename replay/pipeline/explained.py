@@ -9,6 +9,11 @@ than ``k`` × Err (``[explained]`` section, :class:`zcut.params.ExplainedParams`
 - **Part instances**: σ_s is the fit's residual measured robustly on the zone pixels it is the
   nearest surface of, never above the residual the fit states (``PartFit.err_mm``, an RMS that a
   shiny part's attached ghosts inflate): :func:`zcut.explained.fit_sigmas`.
+- **Vetting** (:mod:`zcut.fit_vetting`): two parts never share volume. The fits are ranked by the
+  zone pixels each explains (its nearest-surface pixels within ``k`` × Err) and a fit whose solid
+  overlaps a better-ranked kept fit's by more than 5 % of its volume is left out: no known surface
+  (:attr:`ExplainedDetail.vetted_out`). The pixels whose nearest surface it was are judged again
+  against the surfaces left, and the kept fits' residuals are measured again.
 - **The bin**: the registered model cloud with its normals (the pipeline's bin model), posed by the
   registration; σ_s is the robust residual (:func:`zcut.explained.residual_sigma`) of up to 20,000 of
   the pixels the removal labelled bin.
@@ -96,6 +101,9 @@ class ExplainedDetail:
         :data:`LOCAL_SURFACE` (no part model: the edge-aware local surface, code ``SURFACE_LOCAL``).
     local_err_mm : float
         The local surface's residual σ (mm; NaN with part fits).
+    vetted_out : tuple of PartFit
+        The fits vetted out (:mod:`zcut.fit_vetting`: their solid overlaps a better-supported fit's):
+        no known surface, not in ``fits``.
     """
 
     fits: tuple[PartFit, ...]
@@ -107,6 +115,7 @@ class ExplainedDetail:
     unexplained: np.ndarray
     surface_model: str = "part fits"
     local_err_mm: float = float("nan")
+    vetted_out: tuple[PartFit, ...] = ()
 
     def instance_mesh(self, i: int) -> np.ndarray:
         """The vertices (n, 3) of fit ``i`` posed in the camera frame (mm)."""
@@ -195,6 +204,7 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *,
     outliers and everything in the zone are the same with and without it.
     """
     from zcut import explained as ex
+    from zcut.fit_vetting import explained_px, instance_overlaps, vet_fits, without_fits
 
     p = config.bank[NAME]
     rem = zone.removal
@@ -230,9 +240,19 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *,
                                           params=ex.local_surface_params(footprint, zone.zone))
     judged = zone.zone | np.asarray(zone.easy, bool) if judge_above_rim else zone.zone
     near = ex.nearest_surface(xyz, surfaces, where=judged, within_mm=local)
+    vetted_out: tuple[PartFit, ...] = ()
     if fits:  # each fit's residual measured robustly on its zone pixels (ghosts inflate the stated RMS)
-        surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, surfaces.part_err_mm,
-                                                                           where=zone.zone))
+        stated = surfaces.part_err_mm
+        surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, stated, where=zone.zone))
+        err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm)
+        kept = vet_fits(instance_overlaps(v, t, [f.pose for f in fits]),
+                        explained_px(near, err, len(fits), k=p.k, where=zone.zone)).kept
+        if not kept.all():  # the fits vetted out are no known surface: their pixels judged again
+            vetted_out = tuple(f for f, k in zip(fits, kept) if not k)
+            fits = tuple(f for f, k in zip(fits, kept) if k)
+            surfaces, near = without_fits(xyz, near, dataclasses.replace(surfaces, part_err_mm=stated), kept)
+            surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, surfaces.part_err_mm,
+                                                                               where=zone.zone))
     if local is not None:
         near = ex.with_local_surface(near, local)
         surfaces = dataclasses.replace(surfaces, local_err_mm=ex.local_sigma(
@@ -242,7 +262,8 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *,
     out = ex.unexplained(near.dist_mm, err, p.k) & zone.zone
     return out, ExplainedDetail(fits, v, t, near.dist_mm, near.surface, err, out,
                                 surface_model=PART_FITS if p.part_model else LOCAL_SURFACE,
-                                local_err_mm=surfaces.local_err_mm), warning
+                                local_err_mm=surfaces.local_err_mm, vetted_out=vetted_out), warning
+
 
 
 def _bin_and_table(xyz: np.ndarray, rem: Any, reg: Any, model: Any, surfaces: Any) -> Any:
