@@ -912,6 +912,10 @@ class ExplainedParams:
     fit_min_support : float
         ... and when at least this share of its predicted visible pixels is measured on it
         (``FitParams.min_support``). 0.5.
+    fit_max_overlap : float
+        Two parts never share volume: a fit whose solid overlaps a better-supported fit's by more than
+        this share of its volume is no known surface (:mod:`zcut.fit_vetting`; docs/labelling.md,
+        "Vetting the fits"). 0.05; 1 keeps every fit (no vetting).
     """
 
     k: float = 3.0
@@ -920,6 +924,7 @@ class ExplainedParams:
     part_model_unit: str = "mm"
     fit_max_err_mm: float = 1.5
     fit_min_support: float = 0.5
+    fit_max_overlap: float = 0.05
 
     def __post_init__(self) -> None:
         _number(self, "k", gt=0)
@@ -929,5 +934,6 @@ class ExplainedParams:
         _choice(self, "part_model_unit", PART_MODEL_UNITS)
         _number(self, "fit_max_err_mm", gt=0)
         _number(self, "fit_min_support", ge=0, le=1)
-        for name in ("k", "err_floor_mm", "fit_max_err_mm", "fit_min_support"):
+        _number(self, "fit_max_overlap", ge=0, le=1)
+        for name in ("k", "err_floor_mm", "fit_max_err_mm", "fit_min_support", "fit_max_overlap"):
             object.__setattr__(self, name, float(getattr(self, name)))

@@ -11,7 +11,7 @@ than ``k`` × Err (``[explained]`` section, :class:`zcut.params.ExplainedParams`
   shiny part's attached ghosts inflate): :func:`zcut.explained.fit_sigmas`.
 - **Vetting** (:mod:`zcut.fit_vetting`): two parts never share volume. The fits are ranked by the
   zone pixels each explains (its nearest-surface pixels within ``k`` × Err) and a fit whose solid
-  overlaps a better-ranked kept fit's by more than 5 % of its volume is left out: no known surface
+  overlaps a better-ranked kept fit's by more than ``fit_max_overlap`` (5 %) of its volume is left out: no known surface
   (:attr:`ExplainedDetail.vetted_out`). The pixels whose nearest surface it was are judged again
   against the surfaces left, and the kept fits' residuals are measured again.
 - **The bin**: the registered model cloud with its normals (the pipeline's bin model), posed by the
@@ -244,9 +244,12 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *,
     if fits:  # each fit's residual measured robustly on its zone pixels (ghosts inflate the stated RMS)
         stated = surfaces.part_err_mm
         surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, stated, where=zone.zone))
-        err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm)
-        kept = vet_fits(instance_overlaps(v, t, [f.pose for f in fits]),
-                        explained_px(near, err, len(fits), k=p.k, where=zone.zone)).kept
+        kept = np.ones(len(fits), bool)
+        if p.fit_max_overlap < 1:  # 1: every fit kept, no vetting
+            err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm)
+            kept = vet_fits(instance_overlaps(v, t, [f.pose for f in fits]),
+                            explained_px(near, err, len(fits), k=p.k, where=zone.zone),
+                            max_overlap=p.fit_max_overlap).kept
         if not kept.all():  # the fits vetted out are no known surface: their pixels judged again
             vetted_out = tuple(f for f, k in zip(fits, kept) if not k)
             fits = tuple(f for f, k in zip(fits, kept) if k)

@@ -53,7 +53,7 @@ VALUES: dict[str, dict[str, str]] = {
     "stereo_texture": {"texture_threshold": "800"},
     "zcut_top": {"top_faces": "20.0"},
     "explained": {"k": "1.0", "err_floor_mm": "3.0", "part_model": '"{part_mesh}"', "part_model_unit": '"m"',
-                  "fit_max_err_mm": "0.01", "fit_min_support": "1.0"},
+                  "fit_max_err_mm": "0.01", "fit_min_support": "1.0", "fit_max_overlap": "1.0"},
 }
 #: sections whose method runs with a methods list of its own (the base values are the defaults): its
 #: fields are compared with the defaults of that same list

@@ -191,3 +191,30 @@ def test_the_method_leaves_out_overlapping_fits_and_judges_their_pixels_again(tm
     full = ex.nearest_surface(xyz, surfaces, where=zone.zone)
     np.testing.assert_array_equal(d.dist_mm, full.dist_mm)
     np.testing.assert_array_equal(d.surface, full.surface)
+
+
+@pytest.mark.slow
+def test_a_max_overlap_of_one_keeps_every_fit(tmp_path):
+    """``[explained] fit_max_overlap = 1`` switches the vetting off: every fit stays a known surface and
+    the method's outliers are those of the same fits judged without it (one frame where the default
+    vets fits out)."""
+    import dataclasses
+
+    from cli_helpers import synth_log
+
+    from replay.options import PipelineOptions
+    from replay.pipeline.explained import run_explained
+    from replay.pipeline.stages import bin_zone
+
+    log = synth_log(tmp_path / "spheres.mcap", parts="spheres", frames=1, seed=9634, size="320x200")
+    session = PipelineOptions(methods="zcut,explained").open_session(log)
+    frame, _ = next(iter(session.results()))
+    zone = bin_zone(frame, session.config, bin_model=session.prepared)
+    on, d_on, _ = run_explained(frame, zone, session.config)
+    assert d_on is not None and d_on.vetted_out
+    p = dataclasses.replace(session.config.bank["explained"], fit_max_overlap=1.0)
+    config = dataclasses.replace(session.config, bank={**session.config.bank, "explained": p})
+    off, d_off, _ = run_explained(frame, zone, config)
+    assert d_off is not None and not d_off.vetted_out
+    assert len(d_off.fits) == len(d_on.fits) + len(d_on.vetted_out)
+    assert off.sum() < on.sum()  # the duplicates' bands explain points the vetting proposes
