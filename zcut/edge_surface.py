@@ -185,10 +185,11 @@ def _reach_samples(xyz, valid):  # type: ignore[no-untyped-def]  # numba kernel
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")  # IEEE division, as the numpy it replaces
-def _fit_at(xyz, valid, i, j, r, min_px, per_px, tan, floor, px, py, pz):  # type: ignore[no-untyped-def]  # numba kernel
-    """The plane of pixel (i, j)'s patch: (fitted, λ_min, mx, my, mz, nx, ny, nz), the normal facing the
-    camera; the arithmetic of :func:`zcut.suspects._reference._patch_kernel` (the previous kernel) in its
-    order, with the reach computed in place. ``px``, ``py``, ``pz``: scratch of (2r+1)² values."""
+def _patch_moments(xyz, valid, i, j, r, min_px, per_px, tan, floor, px, py, pz):  # type: ignore[no-untyped-def]  # numba kernel
+    """Pixel (i, j)'s patch (the pixels within its reach): (n, mx, my, mz, c00, c01, c02, c11, c12, c22),
+    its centroid and covariance divided by n as :func:`_smallest_eigvec` takes it (n < min_px: not fitted,
+    the rest 0). Shared by :func:`_fit_at` and the suspects' bracketed eigenvalues
+    (:mod:`zcut.suspects.surfaces`). ``px``, ``py``, ``pz``: scratch of (2r+1)² values."""
     H, W = valid.shape
     zq = xyz[i, j, 2]
     reach = abs(zq) * per_px * tan
@@ -211,7 +212,7 @@ def _fit_at(xyz, valid, i, j, r, min_px, per_px, tan, floor, px, py, pz):  # typ
                     sy += y
                     sz += z
     if n < min_px:
-        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        return n, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     mx = sx / n
     my = sy / n
     mz = sz / n
@@ -231,7 +232,19 @@ def _fit_at(xyz, valid, i, j, r, min_px, per_px, tan, floor, px, py, pz):  # typ
         c11 += dy * dy
         c12 += dy * dz
         c22 += dz * dz
-    lam, nx, ny, nz = _smallest_eigvec(c00 / n, c01 / n, c02 / n, c11 / n, c12 / n, c22 / n)
+    return n, mx, my, mz, c00 / n, c01 / n, c02 / n, c11 / n, c12 / n, c22 / n
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")  # IEEE division, as the numpy it replaces
+def _fit_at(xyz, valid, i, j, r, min_px, per_px, tan, floor, px, py, pz):  # type: ignore[no-untyped-def]  # numba kernel
+    """The plane of pixel (i, j)'s patch: (fitted, λ_min, mx, my, mz, nx, ny, nz), the normal facing the
+    camera; the arithmetic of :func:`zcut.suspects._reference._patch_kernel` (the previous kernel) in its
+    order, with the reach computed in place. ``px``, ``py``, ``pz``: scratch of (2r+1)² values."""
+    n, mx, my, mz, c00, c01, c02, c11, c12, c22 = _patch_moments(xyz, valid, i, j, r, min_px, per_px, tan, floor,
+                                                                 px, py, pz)
+    if n < min_px:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    lam, nx, ny, nz = _smallest_eigvec(c00, c01, c02, c11, c12, c22)
     if not np.isfinite(nx):
         return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     if nx * mx + ny * my + nz * mz > 0.0:  # face the camera at the origin

@@ -33,7 +33,7 @@ import math
 import numba
 import numpy as np
 
-from ..edge_surface import EdgeSurfaceParams, _fit_at, _reach_samples, _smallest_eigvec
+from ..edge_surface import EdgeSurfaceParams, _fit_at, _patch_moments, _reach_samples, _smallest_eigvec
 from ..types import Mask
 from .select import median, order_pair
 
@@ -61,49 +61,9 @@ _FITTED_SAFETY = 100.0
 def _cov_at(xyz, valid, i, j, r, min_px, per_px, tan, floor, px, py, pz):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`zcut.edge_surface._fit_at` up to its eigenproblem: (n, mz, c00, c01, c02, c11, c12, c22), the
     covariance divided by n as it is passed to :func:`_smallest_eigvec` (n < min_px: not fitted)."""
-    H, W = valid.shape
-    zq = xyz[i, j, 2]
-    reach = abs(zq) * per_px * tan
-    n = 0
-    sx = 0.0
-    sy = 0.0
-    sz = 0.0
-    for a in range(max(i - r, 0), min(i + r + 1, H)):
-        for b in range(max(j - r, 0), min(j + r + 1, W)):
-            if valid[a, b]:
-                z = xyz[a, b, 2]
-                if abs(z - zq) <= max(abs(a - i), abs(b - j)) * reach + floor:
-                    x = xyz[a, b, 0]
-                    y = xyz[a, b, 1]
-                    px[n] = x
-                    py[n] = y
-                    pz[n] = z
-                    n += 1
-                    sx += x
-                    sy += y
-                    sz += z
-    if n < min_px:
-        return n, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    mx = sx / n
-    my = sy / n
-    mz = sz / n
-    c00 = 0.0
-    c01 = 0.0
-    c02 = 0.0
-    c11 = 0.0
-    c12 = 0.0
-    c22 = 0.0
-    for k in range(n):
-        dx = px[k] - mx
-        dy = py[k] - my
-        dz = pz[k] - mz
-        c00 += dx * dx
-        c01 += dx * dy
-        c02 += dx * dz
-        c11 += dy * dy
-        c12 += dy * dz
-        c22 += dz * dz
-    return n, mz, c00 / n, c01 / n, c02 / n, c11 / n, c12 / n, c22 / n
+    n, _, _, mz, c00, c01, c02, c11, c12, c22 = _patch_moments(xyz, valid, i, j, r, min_px, per_px, tan, floor,
+                                                               px, py, pz)
+    return n, mz, c00, c01, c02, c11, c12, c22
 
 
 @numba.njit(cache=True, inline="always")
