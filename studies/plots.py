@@ -571,6 +571,8 @@ def make_plots(summary: SweepSummary | Mapping[str, Any]) -> list[Plot]:
 # ``zcut compare``'s page draws its two small plots as SVG text here, in the style above (matplotlib's
 # defaults and :data:`_RC`: DejaVu Sans, the same sizes, ticks, grid, margins and colours), without
 # matplotlib: importing it and rendering two figures cost the page 0.3-1 CPU-s (docs/compare.md, "Cost").
+# Its ticks, tick labels and autoscaled views are held to matplotlib's own on the same inputs by
+# tests/studies/test_plots_svg.py, so the sweep's PNGs and compare's SVGs cannot drift apart there.
 
 _PT = _CSS_PX_PER_INCH / 72.0  # CSS px per point
 _TICK_PT, _TICK_PAD_PT, _LABEL_PAD_PT, _FIG_PAD_PX = 3.5, 3.5, 4.0, 0.04167 * _CSS_PX_PER_INCH
