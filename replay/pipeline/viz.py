@@ -21,6 +21,8 @@ An explicit :class:`rerun.RecordingStream` is passed in (no global recording). E
 ``image/explained_distance``          its distance to the nearest known surface (mm, colour-mapped)
 ``world/explained/fits``              the fitted part instances in 3D, each labelled with its
                                       residual Err and support
+``world/explained/vetted_out``        the fits the vetting left out (their solid overlaps a
+                                      better-supported fit's: no known surface), in red
 ``zcut/cuts``                         the z-cuts: scrub the ``depth_um`` timeline (see below; the
                                       viewer opens on ``frame``, where the view shows every level)
 ``world/cloud``                       the cloud (every 4th pixel at default detail)
@@ -69,6 +71,9 @@ from zcut.bin_model import BinModel
 
 if TYPE_CHECKING:
     import subprocess
+
+    from replay.pipeline.explained import ExplainedDetail
+    from zcut.fits import PartFit
 
 #: the recording a sink logs to, for the annotations of modules that do not import Rerun themselves
 RecordingStream = rr.RecordingStream
@@ -880,19 +885,28 @@ def log_explained(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions
     dist = np.where(judged & np.isfinite(d.dist_mm), d.dist_mm, 0.0).astype(np.float32)
     rec.log("image/explained_distance", rr.DepthImage(dist, meter=1000.0, colormap="turbo"))
     rec.log("counts/explained_fits", rr.Scalars(float(len(d.fits))))
-    if not d.fits:
-        rec.log("world/explained/fits", rr.Clear(recursive=False))
+    rec.log("counts/explained_vetted_out", rr.Scalars(float(len(d.vetted_out))))
+    _log_instances(rec, d, d.fits, "fits", "labels", (60, 180, 75, 160), "fit")
+    _log_instances(rec, d, d.vetted_out, "vetted_out", "vetted_out_labels", (230, 25, 75, 110), "vetted out")
+
+
+def _log_instances(rec: rr.RecordingStream, d: ExplainedDetail, fits: tuple[PartFit, ...], mesh: str, labels: str,
+                   colour: tuple[int, int, int, int], what: str) -> None:
+    """Fitted instances as one mesh ``world/explained/{mesh}`` (metres) with a label at each centre; cleared
+    when there are none, so a frame without them shows none of the previous frame's."""
+    if not fits:
+        rec.log(f"world/explained/{mesh}", rr.Clear(recursive=False))
+        rec.log(f"world/explained/{labels}", rr.Clear(recursive=False))
         return
     n = len(d.vertices_mm)
-    verts = np.concatenate([d.instance_mesh(i) for i in range(len(d.fits))]) / 1000.0
-    tris = np.concatenate([d.triangles + i * n for i in range(len(d.fits))])
-    rec.log("world/explained/fits", rr.Mesh3D(vertex_positions=verts.astype(np.float32),
-                                              triangle_indices=tris.astype(np.uint32),
-                                              albedo_factor=(60, 180, 75, 160)))
-    centres = np.array([f.pose[:3, 3] for f in d.fits]) / 1000.0
-    labels = [f"fit {i}: Err {f.err_mm:.2f} mm, support {f.support:.2f}" for i, f in enumerate(d.fits)]
-    rec.log("world/explained/labels", rr.Points3D(centres.astype(np.float32), labels=labels,
-                                                  radii=rr.Radius.ui_points(2.0)))
+    verts = np.concatenate([d.vertices_mm @ f.pose[:3, :3].T + f.pose[:3, 3] for f in fits]) / 1000.0
+    tris = np.concatenate([d.triangles + i * n for i in range(len(fits))])
+    rec.log(f"world/explained/{mesh}", rr.Mesh3D(vertex_positions=verts.astype(np.float32),
+                                                 triangle_indices=tris.astype(np.uint32), albedo_factor=colour))
+    centres = np.array([f.pose[:3, 3] for f in fits]) / 1000.0
+    text = [f"{what} {i}: Err {f.err_mm:.2f} mm, support {f.support:.2f}" for i, f in enumerate(fits)]
+    rec.log(f"world/explained/{labels}", rr.Points3D(centres.astype(np.float32), labels=text,
+                                                     radii=rr.Radius.ui_points(2.0)))
 
 
 def log_cloud(rec: rr.RecordingStream, frame: Frame, opts: VizOptions) -> None:

@@ -158,3 +158,58 @@ def test_compare_runs_explained_with_the_logs_part_model(capsys, tmp_path, log):
     rc, out, err = run_cli(capsys, "compare", log, "--a", "zcut", "--b", "explained", "-o", tmp_path / "d",
                            "--no-rrd", "--part-model", bad)
     assert rc == 1 and err.startswith("error: ") and err.count("\n") == 1
+
+
+def test_the_recording_shows_the_fits_the_vetting_left_out(tmp_path):
+    """A fit the vetting left out is drawn apart from the kept ones (``world/explained/vetted_out``, with
+    its Err and support), counted per frame, and cleared on a frame that has none."""
+    import types
+
+    import rerun as rr
+
+    from replay.pipeline.explained import ExplainedDetail
+    from replay.pipeline.viz import log_explained
+    from zcut.fits import PartFit
+
+    verts = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0]], float)
+    tris = np.array([[0, 1, 2]], np.int64)
+    h, w = 4, 5
+    pose = np.eye(4)
+    pose[:3, 3] = (0, 0, 600)
+    kept = PartFit(pose, 0.12, 0.9, np.arange(3))
+    moved = pose.copy()
+    moved[0, 3] = 2.5
+    out = PartFit(moved, 0.31, 0.4, np.arange(3, 5))
+    img = np.zeros((h, w))
+
+    def detail(vetted: tuple[PartFit, ...]) -> types.SimpleNamespace:
+        d = ExplainedDetail((kept,), verts, tris, img, np.zeros((h, w), np.int64), img, np.zeros((h, w), bool),
+                            vetted_out=vetted)
+        return types.SimpleNamespace(details={"explained": d})
+
+    rrd = tmp_path / "v.rrd"
+    rec = rr.RecordingStream("zcut-test")
+    rec.save(str(rrd))
+    for i, vetted in enumerate([(out,), ()]):
+        rec.set_time("frame", sequence=i)
+        log_explained(rec, detail(vetted))
+    rec.flush()
+    rec.disconnect()
+    cols: dict[tuple[str, str], list] = {}
+    logged: set[tuple[str, int, str]] = set()  # (entity, frame, archetype): chunks come in no fixed order
+    for chunk in rr.chunk.RrdReader(str(rrd)).stream():
+        batch = chunk.to_record_batch()
+        if "frame" in batch.schema.names:
+            kinds = {n.split(":")[0] for n in batch.schema.names if ":" in n}
+            logged |= {(chunk.entity_path, f, k) for f in batch.column("frame").to_pylist() for k in kinds}
+        for name in batch.schema.names:
+            if name not in ("log_time", "rerun.controls.RowId"):
+                cols.setdefault((chunk.entity_path, name), []).extend(batch.column(name).to_pylist())
+    mesh = cols[("/world/explained/vetted_out", "Mesh3D:vertex_positions")]
+    assert len(mesh) == 1 and np.allclose(np.array(mesh[0]), (verts + moved[:3, 3]) / 1000.0, atol=1e-6)
+    assert cols[("/world/explained/vetted_out_labels", "Points3D:labels")] == [["vetted out 0: Err 0.31 mm, support 0.40"]]
+    assert cols[("/world/explained/labels", "Points3D:labels")] == [["fit 0: Err 0.12 mm, support 0.90"]] * 2
+    assert [v[0] for v in cols[("/counts/explained_vetted_out", "Scalars:scalars")]] == [1.0, 0.0]
+    # frame 1 has none: its mesh and labels are cleared, so the viewer does not keep frame 0's
+    assert {(f, k) for e, f, k in logged if e == "/world/explained/vetted_out"} == {(0, "Mesh3D"), (1, "Clear")}
+    assert {(f, k) for e, f, k in logged if e == "/world/explained/fits"} == {(0, "Mesh3D"), (1, "Mesh3D")}
