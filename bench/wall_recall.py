@@ -64,7 +64,7 @@ KINDS = ("zinc_nuts", "spheres")
 #: the seed of kind k is the generator's base + k
 ALL_KINDS = ("zinc_nuts", "spheres", "rods", "sprockets", "black_nuts", "black_screws")
 SEEDS = {"handmade": 7551, "raytraced": 9551}
-METHODS = ("zcut", "sor", "radius", "cluster", "speckle", "window", "mixed_pixel")
+METHODS = ("zcut", "zcut_top", "sor", "radius", "cluster", "speckle", "window", "mixed_pixel")
 NEAR_MM = 10.0
 TARGET = 0.05
 #: the truth the recalls count (``--truth``): the paper's (off every true surface by more than 3 Err,
