@@ -64,7 +64,8 @@ AXES: dict[str, dict[str, tuple]] = {
     "mixed_pixel": {"min_angle_deg": (2.0, 5.0, 8.0, 12.0, 20.0, 30.0, 45.0)},
 }
 #: zcut_top runs the z-cut of the ``zcut`` section with its window anchored on the top: its grid is its own
-#: axis (the registry's ``top_faces``) times the z-cut's grid above (keys ``zcut.FIELD``: another section's field).
+#: axis (the registry's ``top_faces``) times the z-cut's grid above, whose keys carry the section they set (the
+#: z-cut section's, a prefix and a dot before the field).
 AXES["zcut_top"] = {"top_faces": (0.25, 1.0, 4.0), **{f"zcut.{k}": v for k, v in AXES["zcut"].items()}}
 EDGE_AXIS = (0.0025, 0.005, 0.01, 0.02, 0.05, 0.1)
 SIZE_NAMES = ("1px", "2-9px", "10-99px", ">=100px")

@@ -186,9 +186,13 @@ def doc_tables(everything: list[dict]) -> str:
     out: list[str] = []
     for sensor in dict.fromkeys(e["sensor"] for e in everything):
         cells = [e for e in everything if e["sensor"] == sensor]
+        truths = list(dict.fromkeys(e["truth"] for e in cells))
+        cells.sort(key=lambda e: truths.index(e["truth"]))  # truth-major, kinds in their order
         names = [m for m in (*METHODS, *(f"{m} (fixed)" for m in FIXED))
                  if any(r["method"] == m for e in cells for r in e["rows"])]
-        head = [f"{sensor}, {e['truth']}: {e['kind']}" for e in cells]
+        gen = {"handmade": "hand-made", "raytraced": "ray-traced"}.get(sensor, sensor)
+        head = [(f"{gen}, {e['truth']}: " if i == 0 or cells[i - 1]["truth"] != e["truth"] else "")
+                + e["kind"].replace("_", " ") for i, e in enumerate(cells)]
         out += ["| method | " + " | ".join(head) + " |", "|---|" + "---|" * len(head)]
         for m in names:
             row = []
@@ -209,9 +213,9 @@ def doc_tables(everything: list[dict]) -> str:
                     iv = "" if math.isnan(r["anchor_lo"]) else f" [{r['anchor_lo']:+.2f}, {r['anchor_hi']:+.2f}]"
                     c += f"; vs `zcut (fixed)` {r['anchor_delta_f1']:+.2f}{iv}"
                 row.append(c.replace("-", "−"))
-            out.append(f"| `{m}` | " + " | ".join(row) + " |")
-        out += ["", "truth pixels in the report log's zone: " + ", ".join(
-            f"{h.split(', ', 1)[1]} {e['rows'][0]['truth_px']:,}" for h, e in zip(head, cells)), ""]
+            out.append(f"| `{m}`{' (baseline)' if m == 'zone' else ''} | " + " | ".join(row) + " |")
+        out += ["", f"{gen}: truth pixels in the report log's zone: " + ", ".join(
+            f"{e['truth']}: {e['kind']} {e['rows'][0]['truth_px']:,}" for e in cells), ""]
     return "\n".join(out)
 
 
