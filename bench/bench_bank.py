@@ -8,6 +8,8 @@ the real data folder (docs/real_data.md) at 640 x 480, and the steep-relief clas
             rho 0.07 of a_max = 3000 px): the time per frame every filter is held to
   <filter>  the filter's stage with its default parameters (zcut.params), and its ratio to the z-cut
             (<= 1.00: within the z-cut's time)
+  zcut_top  zcut.cut_top.zcut_top_outliers on the same height image with the same parameters, its
+            window anchored on the pile's top (top_area = 1 face = a_max, ZCutTopParams' default)
   Open3D    PointCloud.remove_radius_outlier(min_points, radius) on the valid points (float64), its
             ratio to the radius filter (how many times slower), and whether the masks are identical
   OpenCV    cv2.filterSpeckles on the int16 depth image in whole millimetres (0 = invalid); the
@@ -46,7 +48,7 @@ from bench_sor import (  # noqa: E402
 )
 
 A_MAX = 3000.0  # pixels of a part's largest face, for the z-cut's max_area
-FILTERS = ("radius", "cluster", "speckle", "window", "mixed_pixel")
+FILTERS = ("zcut_top", "radius", "cluster", "speckle", "window", "mixed_pixel")
 
 
 def synth_frame(seed: int):
@@ -149,11 +151,23 @@ def main() -> int:
     import cv2
 
     import zcut
-    from zcut.params import ClusterParams, MixedPixelParams, RadiusParams, SpeckleParams, WindowParams, ZCutParams
+    from zcut.cut_top import zcut_top_outliers
+    from zcut.params import (
+        ClusterParams,
+        MixedPixelParams,
+        RadiusParams,
+        SpeckleParams,
+        WindowParams,
+        ZCutParams,
+        ZCutTopParams,
+    )
 
     zp = ZCutParams.nominal(a_max=A_MAX)
     rp, cp, sp, wp, mp = RadiusParams(), ClusterParams(), SpeckleParams(), WindowParams(), MixedPixelParams()
+    tp = ZCutTopParams()
     stages = {
+        "zcut_top": lambda xyz, K: zcut_top_outliers(zcut.height_mm(xyz), step=zp.step, max_depth=zp.max_depth,
+                                                     max_area=zp.max_area, top_area=tp.top_faces * A_MAX),
         "radius": lambda xyz, K: zcut.radius_stage(xyz, params=rp),
         "cluster": lambda xyz, K: zcut.cluster_stage(xyz, params=cp, intrinsics=K),
         "speckle": lambda xyz, K: zcut.speckle_stage(xyz, params=sp),

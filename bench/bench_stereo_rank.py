@@ -47,8 +47,8 @@ if not DATA.is_dir():
     DATA = Path(os.environ.get("ZCUT_MIDDLEBURY", DATA))
 TUNE = ("Adirondack", "ArtL", "Motorcycle", "MotorcycleE", "Teddy")
 REPORT = ("Piano", "PianoL", "Playroom", "Playtable", "PlaytableP")
-METHODS = ("zcut", "sor", "radius", "cluster", "speckle", "window", "mixed_pixel", "stereo_uniqueness", "stereo_lr",
-           "stereo_speckle")
+METHODS = ("zcut", "zcut_top", "sor", "radius", "cluster", "speckle", "window", "mixed_pixel", "stereo_uniqueness",
+           "stereo_lr", "stereo_speckle")
 #: The matcher's post-filters among the methods: their grids are their registry axes, all recorded in the logs.
 POST = ("stereo_uniqueness", "stereo_lr", "stereo_speckle")
 #: The grid of each method: wider than the bank's default axes (studies.bank.default_axes()) — these scenes
@@ -63,6 +63,10 @@ AXES: dict[str, dict[str, tuple]] = {
     "window": {"min_inliers": (1, 3, 5, 7), "rel_tolerance": (0.001, 0.005, 0.02, 0.05)},
     "mixed_pixel": {"min_angle_deg": (2.0, 5.0, 8.0, 12.0, 20.0, 30.0, 45.0)},
 }
+#: zcut_top runs the z-cut of the ``zcut`` section with its window anchored on the top: its grid is its own
+#: axis (the registry's ``top_faces``) times the z-cut's grid above, whose keys carry the section they set (the
+#: z-cut section's, a prefix and a dot before the field).
+AXES["zcut_top"] = {"top_faces": (0.25, 1.0, 4.0), **{f"zcut.{k}": v for k, v in AXES["zcut"].items()}}
 EDGE_AXIS = (0.0025, 0.005, 0.01, 0.02, 0.05, 0.1)
 SIZE_NAMES = ("1px", "2-9px", "10-99px", ">=100px")
 class MatcherClock:
@@ -100,15 +104,20 @@ def sets_of(method: str, config) -> list[dict]:
     from replay.pipeline.methods import registry
 
     axes = dict(registry()[method].axes) if method in POST else AXES.get(method, {})
-    own = getattr(config, method)
     names = list(axes)
     out = [{}]  # {} = the config's own (default) set
     for combo in itertools.product(*(axes[n] for n in names)):
         d = dict(zip(names, combo))
-        if all(getattr(own, k) == v for k, v in d.items()):
+        if all(getattr(getattr(config, sec), f) == v for (sec, f), v in ((_field(method, k), v) for k, v in d.items())):
             continue
         out.append(d)
     return out
+
+
+def _field(method: str, key: str) -> tuple[str, str]:
+    """(section, field) of a grid key: ``FIELD`` is the method's own section's, ``SECTION.FIELD`` another's."""
+    sec, _, f = key.rpartition(".")
+    return (sec or method), f
 
 
 def edges(xyz: np.ndarray, r: float) -> np.ndarray:
@@ -163,7 +172,11 @@ def score(pred: np.ndarray, s: np.ndarray, lab: np.ndarray, code: np.ndarray, de
 
 
 def run_method(known, m, frame, zone, config, params):
-    c = config.replace(**{m: dataclasses.replace(getattr(config, m), **params)}) if params else config
+    by: dict[str, dict] = {}
+    for k, v in params.items():
+        sec, f = _field(m, k)
+        by.setdefault(sec, {})[f] = v
+    c = config.replace(**{s: dataclasses.replace(getattr(config, s), **d) for s, d in by.items()}) if by else config
     t = time.process_time()
     mask = known[m].run(frame, zone, c).outliers
     return mask | zone.easy, time.process_time() - t

@@ -9,7 +9,11 @@ runs every method over its grid on both logs (the z-cut's study points, SOR's, t
 scored region: the zone). Each method's set is the one of best pooled F1 on the tune log; it is then
 read, unchanged, from the report log's rows: every figure printed is out of sample. A trivial baseline,
 ``zone`` (flag every scored pixel: recall 1, precision the truth's share of the zone), is scored alike
-through the registry's plug-in switch (``ZCUT_METHODS``). Per method on the report frames: pooled
+through the registry's plug-in switch (``ZCUT_METHODS``). ``zcut_top`` (the z-cut with its window anchored on
+the pile's top, docs/filters.md) is swept over its own axis ``top_faces`` (0.25, 1, 4) with the z-cut's section
+at the log's nominal values (Δd 0.2 mm, d_max 30 mm, ρ_thr 0.07), while ``zcut`` picks among its 9 study points;
+beside the ranked rows, ``FIXED`` reads the z-cut at that nominal set and zcut_top at its default (1 face),
+sets fixed before this ranking, and pairs them (the anchoring's effect alone). Per method on the report frames: pooled
 precision, recall, F1, its rank, and the paired difference of F1 against the z-cut with its 95 %
 interval over frames (``zcut.paired``; coverage measured in docs/compare.md) and the frames won/lost.
 
@@ -17,7 +21,7 @@ Real stereo truth (sensor's truth only: no paper truth exists for those scenes) 
 ``bench/bench_stereo_rank.py``'s table; docs/filters.md sets the three side by side.
 
     PYTHONPATH=. .venv/bin/python bench/rank_truths.py [--kinds zinc_nuts,spheres] [--sensors handmade,raytraced]
-        [--size 480x300] [--frames 6] [--tune-seed 8101] [--report-seed 8201] [--out DIR] [--markdown]
+        [--size 480x300] [--frames 6] [--tune-seed 8101] [--report-seed 8201] [--out DIR] [--json FILE] [--doc]
 """
 
 from __future__ import annotations
@@ -36,9 +40,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-METHODS = ("zcut", "sor", "radius", "cluster", "speckle", "window", "mixed_pixel", "zone")
-GRIDS = ("radius=default", "cluster=default", "speckle=default", "window=default", "mixed_pixel=default",
-         "zone=default")
+METHODS = ("zcut", "zcut_top", "sor", "radius", "cluster", "speckle", "window", "mixed_pixel", "zone")
+#: Methods also read at a set fixed before this ranking (a piece of the sweep's set string that names it):
+#: the z-cut at the paper's nominal set (Δd 0.2 mm, d_max 30 mm, ρ_thr 0.07) and zcut_top at its default
+#: top_faces = 1 (chosen on seed 73401, docs/raytraced.md) on that same nominal z-cut: the two differ only by
+#: where the window starts, so their paired difference is the anchoring's alone.
+FIXED = {"zcut": "0.2|30.0|0.07|", "zcut_top": '{"top_faces": 1.0}'}
+GRIDS = ("zcut_top=default", "radius=default", "cluster=default", "speckle=default", "window=default",
+         "mixed_pixel=default", "zone=default")
 
 
 # ---------------------------------------------------------------- the trivial baseline, as a registry plug-in
@@ -124,14 +133,35 @@ def rank_one(tune: dict[str, np.ndarray], report: dict[str, np.ndarray]) -> list
         per_frame[m] = tuple(report[k][rsel][order] for k in ("tp", "fp", "fn"))  # type: ignore[assignment]
         p, r, f = pooled(*(float(x.sum()) for x in per_frame[m]))
         rows.append({"method": m, "set": best, "f1_tune": f1s[best], "precision": p, "recall": r, "f1": f,
-                     "frames": int(rsel.sum())})
+                     "frames": int(rsel.sum()), "truth_px": int(per_frame[m][0].sum() + per_frame[m][2].sum())})
     rows.sort(key=lambda x: -(x["f1"] if not math.isnan(x["f1"]) else -1))
     for k, row in enumerate(rows):
         row["rank"] = k + 1
+    # the methods at a set fixed beforehand (not chosen on the tune log): unranked rows beside the others
+    for m, tail in FIXED.items():
+        rsel = (report["method"] == m) & (np.char.find(report["set"], tail) >= 0)
+        if not rsel.any():
+            continue
+        order = np.argsort(report["frame"][rsel], kind="stable")
+        name = f"{m} (fixed)"
+        per_frame[name] = tuple(report[k][rsel][order] for k in ("tp", "fp", "fn"))  # type: ignore[assignment]
+        p, r, f = pooled(*(float(x.sum()) for x in per_frame[name]))
+        tsel = (tune["method"] == m) & (np.char.find(tune["set"], tail) >= 0)
+        f_tune = pooled(*(float(tune[k][tsel].sum()) for k in ("tp", "fp", "fn")))[2]
+        rows.append({"method": name, "set": str(report["set"][rsel][0]), "f1_tune": f_tune, "precision": p,
+                     "recall": r, "f1": f, "frames": int(rsel.sum()), "rank": "-",
+                     "truth_px": int(per_frame[name][0].sum() + per_frame[name][2].sum())})
+    for row in rows:
         if row["method"] != "zcut" and "zcut" in per_frame:
             d = paired_differences(per_frame["zcut"], per_frame[row["method"]])["f1"]
             o = frame_outcomes(per_frame["zcut"], per_frame[row["method"]])
             row.update(delta_f1=d.delta, lo=d.lo, hi=d.hi, wins=int((o > 0).sum()), losses=int((o < 0).sum()))
+    if "zcut (fixed)" in per_frame and "zcut_top (fixed)" in per_frame:  # the anchoring alone, paired
+        d = paired_differences(per_frame["zcut (fixed)"], per_frame["zcut_top (fixed)"])["f1"]
+        o = frame_outcomes(per_frame["zcut (fixed)"], per_frame["zcut_top (fixed)"])
+        next(r for r in rows if r["method"] == "zcut_top (fixed)").update(
+            anchor_delta_f1=d.delta, anchor_lo=d.lo, anchor_hi=d.hi, anchor_wins=int((o > 0).sum()),
+            anchor_losses=int((o < 0).sum()))
     return rows
 
 
@@ -149,6 +179,46 @@ def fmt(rows: list[dict], title: str) -> str:
     return "\n".join(out)
 
 
+def doc_tables(everything: list[dict]) -> str:
+    """docs/filters.md's tables: per generator, one row per method, one column per truth and kind; each cell
+    F1 on the report log, its rank (bold when first) and ΔF1 against the z-cut [95 %]; the truth's pixels
+    in the report log's zone below (read from the ``zone`` baseline: its recall is 1)."""
+    out: list[str] = []
+    for sensor in dict.fromkeys(e["sensor"] for e in everything):
+        cells = [e for e in everything if e["sensor"] == sensor]
+        truths = list(dict.fromkeys(e["truth"] for e in cells))
+        cells.sort(key=lambda e: truths.index(e["truth"]))  # truth-major, kinds in their order
+        names = [m for m in (*METHODS, *(f"{m} (fixed)" for m in FIXED))
+                 if any(r["method"] == m for e in cells for r in e["rows"])]
+        gen = {"handmade": "hand-made", "raytraced": "ray-traced"}.get(sensor, sensor)
+        head = [(f"{gen}, {e['truth']}: " if i == 0 or cells[i - 1]["truth"] != e["truth"] else "")
+                + e["kind"].replace("_", " ") for i, e in enumerate(cells)]
+        out += ["| method | " + " | ".join(head) + " |", "|---|" + "---|" * len(head)]
+        for m in names:
+            row = []
+            for e in cells:
+                r = next((x for x in e["rows"] if x["method"] == m), None)
+                if r is None:
+                    row.append("")
+                    continue
+                if math.isnan(r["recall"]):
+                    row.append("no truth")
+                    continue
+                c = f"{r['f1']:.2f} #{r['rank']}" if r["rank"] != "-" else f"{r['f1']:.2f}"
+                c = f"**{c}**" if r["rank"] == 1 else c
+                if "delta_f1" in r:
+                    iv = "" if math.isnan(r["lo"]) else f" [{r['lo']:+.2f}, {r['hi']:+.2f}]"
+                    c += f" {r['delta_f1']:+.2f}{iv}"
+                if "anchor_delta_f1" in r:
+                    iv = "" if math.isnan(r["anchor_lo"]) else f" [{r['anchor_lo']:+.2f}, {r['anchor_hi']:+.2f}]"
+                    c += f"; vs `zcut (fixed)` {r['anchor_delta_f1']:+.2f}{iv}"
+                row.append(c.replace("-", "−"))
+            out.append(f"| `{m}`{' (baseline)' if m == 'zone' else ''} | " + " | ".join(row) + " |")
+        out += ["", f"{gen}: truth pixels in the report log's zone: " + ", ".join(
+            f"{e['truth']}: {e['kind']} {e['rows'][0]['truth_px']:,}" for e in cells), ""]
+    return "\n".join(out)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--kinds", default="zinc_nuts,spheres")
@@ -160,6 +230,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--report-seed", type=int, default=8201)
     ap.add_argument("--out", type=Path, default=None, help="keep the logs and sweeps here (reused when present)")
     ap.add_argument("--json", type=Path, default=None, help="write every row here")
+    ap.add_argument("--doc", action="store_true", help="also print docs/filters.md's side-by-side tables")
     a = ap.parse_args(argv)
     os.environ["ZCUT_METHODS"] = f"{Path(__file__).stem}:ZONE"
     sys.path.insert(0, str(Path(__file__).resolve().parent))  # the plug-in is this module, by its name
@@ -179,6 +250,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"({sensor} {kind}: {time.process_time() - t0:.0f} CPU-s in this process)\n", flush=True)
     if a.json:
         a.json.write_text(json.dumps(everything, indent=1, default=float))
+    if a.doc:
+        print(doc_tables(everything))
     return 0
 
 

@@ -10,7 +10,7 @@ generators (``--sensor handmade`` / ``raytraced``), part kinds zinc nuts and sph
 ``--kinds``), on seeds no other study uses (hand-made 7551 + k, ray-traced 9551 + k, k the kind's
 index). Each frame runs the pipeline as ``zcut replay`` does with the log's exact bin model (the
 attachment ``zcut synth`` writes), at the registered pose and at the true pose, with the methods
-``zcut, sor`` and the filter bank at its defaults (``radius, cluster, speckle, window, mixed_pixel``).
+``zcut, zcut_top, sor`` and the filter bank at its defaults (``radius, cluster, speckle, window, mixed_pixel``).
 
 Per method: the recall of the true outliers (``--truth``: the paper's, ``/ground_truth/off_surface``, by
 default; ``--truth sensor``: ``/ground_truth/outliers``, the sensor's truth, which the first tables used) whose
@@ -64,7 +64,7 @@ KINDS = ("zinc_nuts", "spheres")
 #: the seed of kind k is the generator's base + k
 ALL_KINDS = ("zinc_nuts", "spheres", "rods", "sprockets", "black_nuts", "black_screws")
 SEEDS = {"handmade": 7551, "raytraced": 9551}
-METHODS = ("zcut", "sor", "radius", "cluster", "speckle", "window", "mixed_pixel")
+METHODS = ("zcut", "zcut_top", "sor", "radius", "cluster", "speckle", "window", "mixed_pixel")
 NEAR_MM = 10.0
 TARGET = 0.05
 #: the truth the recalls count (``--truth``): the paper's (off every true surface by more than 3 Err,
