@@ -185,7 +185,9 @@ class FrameFits:
 
         Only the fits whose box lies within :data:`REACH_MM` of those pixels' box are searched first; a
         pixel whose distance so found is not below the gap to the nearest box left out is searched again
-        among every fit left (a fit is never nearer than its box), so the result is the full search's.
+        among every fit left (a fit is never nearer than its box), so the result is the full search's (the
+        same pixels proposed; a distance may differ in its float32 last bit: Open3D's closest point found in
+        another tree).
 
         Parameters
         ----------
