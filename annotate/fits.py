@@ -138,9 +138,13 @@ class FrameFits:
     seconds : float
         CPU seconds the fits took.
     surfaces : KnownSurfaces or None
-        The known surfaces the distances were measured to: every fit with the residual σ its pixels'
-        Err came from, the registered bin, the table (what :meth:`remeasure` judges a rejected fit's
-        pixels against).
+        The known surfaces the distances were measured to but the fits (``parts`` empty): the registered
+        bin, the table. With ``part_mesh`` (the part's mesh in its own frame, mm: the arrays every frame
+        shares), each fit's pose and ``part_err_mm`` (the residual σ its pixels' Err came from), what
+        :meth:`remeasure` judges a rejected fit's pixels against (:meth:`known`): the fits are posed when
+        needed, not kept posed (a sphere's mesh posed 350 times is 22 MB a frame).
+    part_mesh : (vertices (n, 3), triangles (m, 3)) or None
+    part_err_mm : tuple of float
     f_px, floor_mm, k : float
         The focal length (pixels) the footprints came from, Err's floor (mm) and k: Err = max(floor,
         sqrt(σ² + c² / 2)), c = |z| / f_px.
@@ -159,6 +163,8 @@ class FrameFits:
     seconds: float = 0.0
     un_code: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     surfaces: KnownSurfaces | None = None
+    part_mesh: tuple[np.ndarray, np.ndarray] | None = None
+    part_err_mm: tuple[float, ...] = ()
     f_px: float = float("nan")
     floor_mm: float = 0.0
     k: float = 3.0
@@ -173,6 +179,21 @@ class FrameFits:
                 if float(np.linalg.norm(t - np.asarray(pos))) <= SAME_FIT_MM:
                     out.add(i)
         return out
+
+    def posed(self, fit: int) -> tuple[np.ndarray, np.ndarray]:
+        """Fit ``fit``'s mesh posed in the camera frame (mm): (vertices, triangles)."""
+        assert self.part_mesh is not None
+        v, t = self.part_mesh
+        T = np.asarray(self.fits[fit]["pose"], np.float64)
+        out: np.ndarray = v @ T[:3, :3].T + T[:3, 3]
+        return out, t
+
+    def known(self, fits: Sequence[int] | None = None) -> KnownSurfaces:
+        """The known surfaces with the ``fits`` given (default: every one) posed, in that order."""
+        assert self.surfaces is not None
+        ids = range(len(self.fits)) if fits is None else [int(i) for i in fits]
+        return dataclasses.replace(self.surfaces, parts=[self.posed(i) for i in ids],
+                                   part_err_mm=[self.part_err_mm[i] for i in ids])
 
     def position_mm(self, fit: int) -> tuple[float, float, float]:
         t = np.asarray(self.fits[fit]["pose"], np.float64)[:3, 3]
@@ -201,7 +222,7 @@ class FrameFits:
         n = len(self.fits)
         gone = np.zeros(n + 1, bool)  # the last entry: any code < 0 (bin, table, none)
         gone[[f for f in rejected if 0 <= f < n]] = True
-        if not gone.any() or self.surfaces is None:
+        if not gone.any() or self.surfaces is None or self.part_mesh is None:
             return Remeasured(np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros(0, np.float32),
                               np.zeros(0, np.float32), self.un_dist, self.un_err)
         # the pixels judged again: the rejected fits' own and the unexplained ones nearest to one of them
@@ -214,8 +235,13 @@ class FrameFits:
         gap = np.full(left.size, np.inf)
         if pix.size and left.size:
             lo, hi = pts.min(axis=0), pts.max(axis=0)
-            boxes = np.asarray([[np.min(self.surfaces.parts[i][0], axis=0), np.max(self.surfaces.parts[i][0], axis=0)]
-                                for i in left.tolist()])
+            v = self.part_mesh[0]
+            box = []
+            for i in left.tolist():  # each fit's posed mesh's box
+                T = np.asarray(self.fits[i]["pose"], np.float64)
+                c = v @ T[:3, :3].T + T[:3, 3]
+                box.append([c.min(axis=0), c.max(axis=0)])
+            boxes = np.asarray(box)
             gap = np.linalg.norm(np.maximum(0.0, np.maximum(boxes[:, 0] - hi, lo - boxes[:, 1])), axis=1)
         near = gap <= REACH_MM
         d, c, err = self._against(pix, src, rej, left[near], xyz_mm)
@@ -237,11 +263,9 @@ class FrameFits:
         from zcut import explained as ex
         from zcut.fit_vetting import without_fits
 
-        assert self.surfaces is not None
         H, W = self.shape
-        s = self.surfaces
         ids = [*(int(i) for i in rej), *(int(i) for i in use)]
-        sub = dataclasses.replace(s, parts=[s.parts[i] for i in ids], part_err_mm=[s.part_err_mm[i] for i in ids])
+        sub = self.known(ids)
         lut = np.full(len(self.fits), ex.SURFACE_NONE, np.int32)
         lut[rej] = np.arange(rej.size, dtype=np.int32)
         code = np.full(H * W, ex.SURFACE_NONE, np.int32)
@@ -275,7 +299,7 @@ class FrameFits:
         local &= flat_un.reshape(H, W)
         if local.sum() < 10:
             return self
-        v, t, prepared = part_model(p.part_model, p.part_model_unit)
+        _, _, prepared = part_model(p.part_model, p.part_model_unit)
         # the click's window is fitted by the first pass alone (seed_shifts=0): it finds the instance clicked,
         # not the other pieces in the window the frame's own second pass already judged
         found = fit_prepared(xyz_mm, local, prepared, params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm,
@@ -293,16 +317,13 @@ class FrameFits:
         keep = ~taken[self.un_pix]
         fits = self.fits + tuple({"err_mm": float(f.err_mm), "support": float(f.support),
                                   "pose": np.asarray(f.pose).tolist(), "seeded": True} for f in found)
-        surfaces = self.surfaces
-        if surfaces is not None:  # a seeded instance is a known surface too, its residual the one its fit states
-            posed = [(v @ np.asarray(f.pose)[:3, :3].T + np.asarray(f.pose)[:3, 3], t) for f in found]
-            surfaces = dataclasses.replace(surfaces, parts=[*surfaces.parts, *posed],
-                                           part_err_mm=[*surfaces.part_err_mm, *(float(f.err_mm) for f in found)])
+        # a seeded instance is a known surface too, its residual the one its fit states
+        sigmas = (*self.part_err_mm, *(float(f.err_mm) for f in found))
         pix, of = np.concatenate(new_pix), np.concatenate(new_of)
         order = np.argsort(pix, kind="stable")
         return dataclasses.replace(self, fits=fits, fit_pix=pix[order], fit_of=of[order], un_pix=self.un_pix[keep],
                                    un_dist=self.un_dist[keep], un_err=self.un_err[keep], un_code=self.un_code[keep],
-                                   surfaces=surfaces, message=f"{len(fits)} fits, {int(keep.sum())} unexplained px")
+                                   part_err_mm=sigmas, message=f"{len(fits)} fits, {int(keep.sum())} unexplained px")
 
     def bundle(self, *, heights_mm: np.ndarray | None, valid: np.ndarray | None, rejected: set[int],
                header: dict[str, Any], xyz_mm: np.ndarray | None = None) -> bytes:
@@ -436,8 +457,10 @@ def fit_frame(frame: Frame, job: Job, config: Any, bin_model: BinModel | None) -
     return FrameFits(frame.index, "ready", f"{len(fits)} fits{vetted}, {un_pix.size} unexplained px", (H, W), fits,
                      fit_pix, code[fit_pix].astype(np.int32), un_pix,
                      detail.dist_mm.ravel()[un_pix].astype(np.float32), detail.err_mm.ravel()[un_pix].astype(np.float32),
-                     seconds, detail.surface.ravel()[un_pix].astype(np.int32), surfaces, f_px, float(p.err_floor_mm),
-                     float(p.k))
+                     seconds, un_code=detail.surface.ravel()[un_pix].astype(np.int32),
+                     surfaces=dataclasses.replace(surfaces, parts=(), part_err_mm=()), f_px=f_px,
+                     floor_mm=float(p.err_floor_mm), k=float(p.k), part_mesh=(detail.vertices_mm, detail.triangles),
+                     part_err_mm=tuple(float(e) for e in surfaces.part_err_mm))
 
 
 def known_surfaces(frame: Frame, job: Job, detail: Any, bin_model: BinModel) -> tuple[KnownSurfaces, float]:

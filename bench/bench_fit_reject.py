@@ -91,15 +91,13 @@ def bench_log(path: str, *, n_fits: int, repeat: int) -> None:
     un = np.concatenate([ff.un_pix, gone])
     o = np.argsort(un)
     keep = [i for i in range(len(ff.fits)) if i != j]
-    s = ff.surfaces
-    assert s is not None
     missed = dataclasses.replace(
         ff, fits=ff.fits[:j] + ff.fits[j + 1:], fit_pix=ff.fit_pix[~mine],
         fit_of=np.where(ff.fit_of[~mine] > j, ff.fit_of[~mine] - 1, ff.fit_of[~mine]).astype(np.int32),
         un_pix=un[o], un_dist=np.concatenate([ff.un_dist, np.full(gone.size, 5.0, np.float32)])[o],
         un_err=np.concatenate([ff.un_err, np.full(gone.size, 0.5, np.float32)])[o],
         un_code=np.concatenate([ff.un_code, np.full(gone.size, ex.SURFACE_BIN, np.int32)])[o],
-        surfaces=dataclasses.replace(s, parts=[s.parts[i] for i in keep], part_err_mm=[s.part_err_mm[i] for i in keep]))
+        part_err_mm=tuple(ff.part_err_mm[i] for i in keep))
     y, x = np.divmod(gone, W)
     c = int(np.argmin((x - np.median(x)) ** 2 + (y - np.median(y)) ** 2))
     times = []

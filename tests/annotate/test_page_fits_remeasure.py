@@ -40,10 +40,7 @@ def fitted(tmp_path_factory):
 
 def _oracle(ff, xyz, rejected):
     """Every pixel whose nearest surface was a rejected fit, judged against all the surfaces left."""
-    n = len(ff.fits)
-    keep = [i for i in range(n) if i not in rejected]
-    s = ff.surfaces
-    left = dataclasses.replace(s, parts=[s.parts[i] for i in keep], part_err_mm=[s.part_err_mm[i] for i in keep])
+    left = ff.known([i for i in range(len(ff.fits)) if i not in rejected])
     H, W = ff.shape
     lost = np.zeros(H * W, bool)
     lost[ff.fit_pix[np.isin(ff.fit_of, sorted(rejected))]] = True
@@ -63,7 +60,11 @@ def test_the_surfaces_kept_give_the_methods_err_to_the_bit(fitted):
     err = ex.err_image(ex.Nearest(detail.dist_mm, detail.surface), surfaces, ex.footprint_mm(xyz, f_px),
                        floor_mm=ff.floor_mm)
     np.testing.assert_array_equal(err, detail.err_mm)
-    assert f_px == ff.f_px and len(ff.surfaces.parts) == len(ff.fits)
+    # and the frame's fits keep them: the bin and the table, the fits posed when needed
+    assert f_px == ff.f_px and not ff.surfaces.parts and len(ff.known().parts) == len(ff.fits)
+    kept = ex.err_image(ex.Nearest(detail.dist_mm, detail.surface), ff.known(), ex.footprint_mm(xyz, ff.f_px),
+                        floor_mm=ff.floor_mm)
+    np.testing.assert_array_equal(kept, detail.err_mm)
 
 
 @pytest.mark.parametrize("pick", ["largest", "smallest", "every third"])
@@ -139,21 +140,20 @@ def test_a_seeded_instance_is_a_surface_a_rejected_fit_is_judged_against(fitted)
     un = np.concatenate([ff.un_pix, gone])
     order = np.argsort(un)
     keep = [i for i in range(len(ff.fits)) if i != j]
-    s = ff.surfaces
     missed = dataclasses.replace(
         ff, fits=ff.fits[:j] + ff.fits[j + 1:], fit_pix=ff.fit_pix[~mine],
         fit_of=np.where(ff.fit_of[~mine] > j, ff.fit_of[~mine] - 1, ff.fit_of[~mine]).astype(np.int32),
         un_pix=un[order], un_dist=np.concatenate([ff.un_dist, np.full(gone.size, 5.0, np.float32)])[order],
         un_err=np.concatenate([ff.un_err, np.full(gone.size, 0.5, np.float32)])[order],
         un_code=np.concatenate([ff.un_code, np.full(gone.size, ex.SURFACE_BIN, np.int32)])[order],
-        surfaces=dataclasses.replace(s, parts=[s.parts[i] for i in keep], part_err_mm=[s.part_err_mm[i] for i in keep]))
+        part_err_mm=tuple(ff.part_err_mm[i] for i in keep))
     W = ff.shape[1]
     y, x = np.divmod(gone, W)
     c = int(np.argmin((x - np.median(x)) ** 2 + (y - np.median(y)) ** 2))
     seeded = missed.seeded(int(x[c]), int(y[c]), xyz, session.config)
     k = len(missed.fits)
-    assert len(seeded.fits) > k and seeded.fits[k]["seeded"] and len(seeded.surfaces.parts) == len(seeded.fits)
-    assert seeded.surfaces.part_err_mm[k] == seeded.fits[k]["err_mm"]
+    assert len(seeded.fits) > k and seeded.fits[k]["seeded"] and len(seeded.known().parts) == len(seeded.fits)
+    assert seeded.part_err_mm[k] == seeded.fits[k]["err_mm"] and seeded.part_err_mm[:k] == missed.part_err_mm
     got = np.isin(seeded.fit_of, list(range(k, len(seeded.fits))))
     assert got.sum() >= 0.8 * gone.size and not np.isin(seeded.fit_pix[got], seeded.un_pix).any()
     assert np.array_equal(np.sort(seeded.fit_pix), seeded.fit_pix)
