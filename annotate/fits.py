@@ -17,12 +17,24 @@ What a frame's fits give the page (:meth:`FrameFits.bundle`, a bundle of :mod:`a
 - ``proposals`` (sparse ids) and ``proposal_table`` (:data:`PROPOSAL_COLUMNS`): the review groups of
   the fits — the unexplained pixels, as groups of pixels within two pixels of each other, each with
   its distance to the nearest known surface (median and largest, mm), its Err and its heights; and
-  the pixels of every rejected fit, which return to review as groups of their own (``fit`` names the
-  rejected instance; they have no distance: the fit that explained them is no known surface any more).
+  the pixels of every rejected fit that no surface left explains, which return to review as groups
+  of their own (``fit`` names the rejected instance), with their distances like any unexplained one.
+
+**A rejected fit is no known surface** (:meth:`FrameFits.remeasure`): the pixels whose nearest surface
+it was — the pixels it explained and the unexplained ones nearest to it — are judged again against
+the surfaces left (the other fits, the bin, the table: :func:`zcut.fit_vetting.without_fits`), each
+with the Err of its new nearest surface (the surfaces keep the residuals measured with every fit:
+a rejection changes no other pixel). Those another surface explains within k × Err are not proposed;
+the rest are, with their distance to that surface. The result is a function of the set of rejected
+fits: taking a rejection back gives the bundle it had before, to the byte.
 
 A rejection is stored with the labels (:meth:`annotate.store.LabelStore.save_fit_decision`), with the
 fit's position: a fit found again at that position (within :data:`SAME_FIT_MM`) on a reopened page
-is the same fit.
+is the same fit. A seed (a person's Ctrl+click, :meth:`FrameFits.seeded`) is stored too
+(:meth:`annotate.store.LabelStore.save_fit_seed`: frame, annotator, pixel): the frame's fits as an
+annotator sees them are the background fits with that annotator's seeds applied in the order clicked
+(:meth:`Fitter.fits_for`), so a reloaded page and a restarted server show the same fits, and one
+annotator's seeds are not another's.
 """
 
 from __future__ import annotations
@@ -30,6 +42,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -43,6 +56,7 @@ if TYPE_CHECKING:
     from replay.logs.frame import Frame
     from replay.pipeline.stages import FrameResult
     from zcut.bin_model import BinModel
+    from zcut.explained import KnownSurfaces
     from zcut.registration import RegistrationResult
     from zcut.removal import RemovalResult
 
@@ -50,9 +64,11 @@ if TYPE_CHECKING:
 #: ``x0, y0, x1, y1`` their box (end exclusive), ``cx, cy`` their centroid; ``err_mm`` its residual
 #: (the paper's Err); ``support`` the share of its predicted visible pixels that measured points
 #: support; ``rejected`` 1 when the annotator rejected it; ``r00 .. t2`` its pose (model mm -> camera mm,
-#: rotation row-major then translation); ``seeded`` 1 for an instance found from a person's click (:meth:`Fitter.seed`).
+#: rotation row-major then translation); ``seeded`` 1 for an instance found from a person's click
+#: (:meth:`FrameFits.seeded`); ``proposed``: of a rejected fit's pixels, those no surface left explains
+#: (proposed again), else 0.
 FIT_COLUMNS = ("fit", "n", "x0", "y0", "x1", "y1", "cx", "cy", "err_mm", "support", "rejected",
-               "r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22", "t0", "t1", "t2", "seeded")
+               "r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22", "t0", "t1", "t2", "seeded", "proposed")
 #: Columns of the proposal table (float32): ``id`` (in ``proposals``), ``n``, box, centroid, heights
 #: and the gap to the surface around it as the candidate table's (:data:`annotate.payload.CANDIDATE_COLUMNS`);
 #: ``dist_mm``, ``dist_max_mm``: median and largest distance of its pixels to the nearest known surface;
@@ -65,8 +81,38 @@ JOIN_PX = 1
 SAME_FIT_MM = 2.0
 #: The half side (pixels) of the window a seed click refits, when the frame has no fits to size it by.
 SEED_WINDOW = 40
+#: A rejected fit's pixels are first judged against the fits whose box lies this close (mm) to theirs
+#: (:meth:`FrameFits.remeasure`; exact whatever its value: a pixel farther from those is searched again).
+REACH_MM = 30.0
+#: At most this many seeded states of frames (an annotator's seeds on a frame's fits) are kept in memory.
+SEEDED_KEPT = 64
 #: At most this many of the part model's surface samples go to the page's 3D view.
 MODEL_POINTS = 400
+
+
+@dataclass(frozen=True, slots=True)
+class Remeasured:
+    """What rejecting some fits changes (:meth:`FrameFits.remeasure`): their pixels judged again against
+    the surfaces left.
+
+    Attributes
+    ----------
+    pix : (r,) int64 ndarray
+        The rejected fits' pixels no surface left explains within k × Err (flat, increasing), with the
+        rejected fit they came from (``fit``), their distance to the nearest surface left and its Err (mm).
+    fit : (r,) int32 ndarray
+    dist, err : (r,) float32 ndarray
+    un_dist, un_err : (u,) float32 ndarray
+        The unexplained pixels' distances and Err with the rejected fits gone (the frame's own where
+        their nearest surface was another).
+    """
+
+    pix: np.ndarray
+    fit: np.ndarray
+    dist: np.ndarray
+    err: np.ndarray
+    un_dist: np.ndarray
+    un_err: np.ndarray
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,14 +127,27 @@ class FrameFits:
     message : str
     shape : (int, int)
     fits : tuple of dict
-        Per instance: ``err_mm``, ``support``, ``pose`` (4 x 4 list).
+        Per instance: ``err_mm``, ``support``, ``pose`` (4 x 4 list), ``seeded`` (found from a click).
     fit_pix, fit_of : (k,) int64, (k,) int32 ndarray
         The zone pixels a fit explains (flat indices, increasing) and which fit (0-based).
     un_pix : (u,) int64 ndarray
-        The unexplained pixels (flat, increasing), with ``un_dist`` and ``un_err`` (mm) there.
+        The unexplained pixels (flat, increasing), with ``un_dist`` and ``un_err`` (mm) there, and their
+        nearest surface's code (``un_code``: a fit's index, or a :mod:`zcut.explained` ``SURFACE_*``).
     un_dist, un_err : (u,) float32 ndarray
+    un_code : (u,) int32 ndarray
     seconds : float
         CPU seconds the fits took.
+    surfaces : KnownSurfaces or None
+        The known surfaces the distances were measured to but the fits (``parts`` empty): the registered
+        bin, the table. With ``part_mesh`` (the part's mesh in its own frame, mm: the arrays every frame
+        shares), each fit's pose and ``part_err_mm`` (the residual σ its pixels' Err came from), what
+        :meth:`remeasure` judges a rejected fit's pixels against (:meth:`known`): the fits are posed when
+        needed, not kept posed (a sphere's mesh posed 350 times is 22 MB a frame).
+    part_mesh : (vertices (n, 3), triangles (m, 3)) or None
+    part_err_mm : tuple of float
+    f_px, floor_mm, k : float
+        The focal length (pixels) the footprints came from, Err's floor (mm) and k: Err = max(floor,
+        sqrt(σ² + c² / 2)), c = |z| / f_px.
     """
 
     index: int
@@ -102,6 +161,13 @@ class FrameFits:
     un_dist: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     un_err: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     seconds: float = 0.0
+    un_code: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    surfaces: KnownSurfaces | None = None
+    part_mesh: tuple[np.ndarray, np.ndarray] | None = None
+    part_err_mm: tuple[float, ...] = ()
+    f_px: float = float("nan")
+    floor_mm: float = 0.0
+    k: float = 3.0
 
     def rejected(self, stored: dict[int, tuple[float, float, float]]) -> set[int]:
         """The fits a store's rejections (:meth:`annotate.store.LabelStore.rejected_fits`) name: same
@@ -114,14 +180,156 @@ class FrameFits:
                     out.add(i)
         return out
 
+    def posed(self, fit: int) -> tuple[np.ndarray, np.ndarray]:
+        """Fit ``fit``'s mesh posed in the camera frame (mm): (vertices, triangles)."""
+        assert self.part_mesh is not None
+        v, t = self.part_mesh
+        T = np.asarray(self.fits[fit]["pose"], np.float64)
+        out: np.ndarray = v @ T[:3, :3].T + T[:3, 3]
+        return out, t
+
+    def known(self, fits: Sequence[int] | None = None) -> KnownSurfaces:
+        """The known surfaces with the ``fits`` given (default: every one) posed, in that order."""
+        assert self.surfaces is not None
+        ids = range(len(self.fits)) if fits is None else [int(i) for i in fits]
+        return dataclasses.replace(self.surfaces, parts=[self.posed(i) for i in ids],
+                                   part_err_mm=[self.part_err_mm[i] for i in ids])
+
     def position_mm(self, fit: int) -> tuple[float, float, float]:
         t = np.asarray(self.fits[fit]["pose"], np.float64)[:3, 3]
         return float(t[0]), float(t[1]), float(t[2])
 
+    def remeasure(self, rejected: set[int], xyz_mm: np.ndarray) -> Remeasured:
+        """The pixels whose nearest surface was a ``rejected`` fit, judged again against the surfaces left
+        (module docstring): those of its explained pixels no surface left explains within k × Err, and
+        every unexplained pixel's distance and Err with the rejected fits gone.
+
+        Only the fits whose box lies within :data:`REACH_MM` of those pixels' box are searched first; a
+        pixel whose distance so found is not below the gap to the nearest box left out is searched again
+        among every fit left (a fit is never nearer than its box), so the result is the full search's (the
+        same pixels proposed; a distance may differ in its float32 last bit: Open3D's closest point found in
+        another tree).
+
+        Parameters
+        ----------
+        rejected : set of int
+            Fit indices (0-based).
+        xyz_mm : (H, W, 3) float64 ndarray
+            The frame's points (mm), as the fits measured them.
+        """
+        from zcut import explained as ex
+
+        n = len(self.fits)
+        gone = np.zeros(n + 1, bool)  # the last entry: any code < 0 (bin, table, none)
+        gone[[f for f in rejected if 0 <= f < n]] = True
+        if not gone.any() or self.surfaces is None or self.part_mesh is None:
+            return Remeasured(np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros(0, np.float32),
+                              np.zeros(0, np.float32), self.un_dist, self.un_err)
+        # the pixels judged again: the rejected fits' own and the unexplained ones nearest to one of them
+        mine = gone[np.where(self.fit_of >= 0, self.fit_of, n)]
+        un_lost = gone[np.where(self.un_code >= 0, self.un_code, n)]
+        pix = np.concatenate([self.fit_pix[mine], self.un_pix[un_lost]])
+        src = np.concatenate([self.fit_of[mine], self.un_code[un_lost]])
+        pts = np.asarray(xyz_mm, np.float64).reshape(-1, 3)[pix]
+        rej, left = np.flatnonzero(gone[:n]), np.flatnonzero(~gone[:n])
+        gap = np.full(left.size, np.inf)
+        if pix.size and left.size:
+            lo, hi = pts.min(axis=0), pts.max(axis=0)
+            v = self.part_mesh[0]
+            box = []
+            for i in left.tolist():  # each fit's posed mesh's box
+                T = np.asarray(self.fits[i]["pose"], np.float64)
+                c = v @ T[:3, :3].T + T[:3, 3]
+                box.append([c.min(axis=0), c.max(axis=0)])
+            boxes = np.asarray(box)
+            gap = np.linalg.norm(np.maximum(0.0, np.maximum(boxes[:, 0] - hi, lo - boxes[:, 1])), axis=1)
+        near = gap <= REACH_MM
+        d, c, err = self._against(pix, src, rej, left[near], xyz_mm)
+        far = ~(d < (float(gap[~near].min()) if (~near).any() else np.inf))
+        if far.any():
+            d[far], c[far], err[far] = self._against(pix[far], src[far], rej, left, xyz_mm)
+        m = int(mine.sum())
+        off = ex.unexplained(d[None, :m], err[None, :m], self.k)[0]
+        order = np.argsort(pix[:m][off], kind="stable")
+        un_dist, un_err = self.un_dist.copy(), self.un_err.copy()
+        un_dist[un_lost], un_err[un_lost] = d[m:], err[m:]
+        return Remeasured(pix[:m][off][order], self.fit_of[mine][off][order], d[:m][off][order].astype(np.float32),
+                          err[:m][off][order].astype(np.float32), un_dist, un_err)
+
+    def _against(self, pix: np.ndarray, src: np.ndarray, rej: np.ndarray, use: np.ndarray,
+                 xyz_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(distance, nearest surface's code, Err) of pixels ``pix`` (whose nearest was rejected fit ``src``)
+        judged against the fits ``use``, the bin and the table (:func:`zcut.fit_vetting.without_fits`)."""
+        from zcut import explained as ex
+        from zcut.fit_vetting import without_fits
+
+        H, W = self.shape
+        ids = [*(int(i) for i in rej), *(int(i) for i in use)]
+        sub = self.known(ids)
+        lut = np.full(len(self.fits), ex.SURFACE_NONE, np.int32)
+        lut[rej] = np.arange(rej.size, dtype=np.int32)
+        code = np.full(H * W, ex.SURFACE_NONE, np.int32)
+        code[pix] = lut[src]
+        kept = np.arange(len(ids)) >= rej.size
+        left, again = without_fits(xyz_mm, ex.Nearest(np.zeros((H, W), np.float32), code.reshape(H, W)), sub, kept)
+        d = again.dist_mm.ravel()[pix].astype(np.float32)
+        c = again.surface.ravel()[pix]
+        foot = np.abs(np.asarray(xyz_mm, np.float64).reshape(-1, 3)[pix, 2]) / self.f_px
+        err = ex.err_image(ex.Nearest(d[None], c[None]), left, foot[None], floor_mm=self.floor_mm)[0]
+        # the codes named in the full list of fits (the bin, the table and none as they are)
+        full = np.concatenate([np.asarray(use, np.int32), np.zeros(1, np.int32)])
+        return d, np.where(c >= 0, full[np.maximum(c, 0)], c).astype(np.int32), err.astype(np.float32)
+
+    def seeded(self, x: int, y: int, xyz_mm: np.ndarray, config: Any) -> FrameFits:
+        """These fits with the instances a click at pixel (``x``, ``y``) finds: the part is fitted again on
+        the unexplained pixels of a window around it (1.5 × the typical fit's side + 8 px, 16-200 px; else
+        :data:`SEED_WINDOW`); each instance found joins the fits (``seeded``, its residual the one its fit
+        states) and its pixels leave the proposals. ``self`` when none is found."""
+        from replay.pipeline.explained import NAME, part_model
+        from zcut.fits import FitParams, fit_prepared
+
+        H, W = self.shape
+        p = config.bank[NAME]
+        areas = np.bincount(self.fit_of, minlength=len(self.fits)) if len(self.fits) else np.zeros(0)
+        r = int(np.clip(1.5 * np.sqrt(np.median(areas)) + 8, 16, 200)) if areas.size else SEED_WINDOW
+        flat_un = np.zeros(H * W, bool)
+        flat_un[self.un_pix] = True
+        local = np.zeros((H, W), bool)
+        local[max(0, y - r):y + r + 1, max(0, x - r):x + r + 1] = True
+        local &= flat_un.reshape(H, W)
+        if local.sum() < 10:
+            return self
+        _, _, prepared = part_model(p.part_model, p.part_model_unit)
+        # the click's window is fitted by the first pass alone (seed_shifts=0): it finds the instance clicked,
+        # not the other pieces in the window the frame's own second pass already judged
+        found = fit_prepared(xyz_mm, local, prepared, params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm,
+                                                                       min_support=p.fit_min_support, seed_shifts=0))
+        if not found:
+            return self
+        new_pix, new_of = [self.fit_pix], [self.fit_of]
+        taken = np.zeros(H * W, bool)
+        for j, f in enumerate(found):
+            px = np.asarray(f.pixels, np.int64)
+            px = px[flat_un[px] & ~taken[px]]
+            taken[px] = True
+            new_pix.append(px)
+            new_of.append(np.full(px.size, len(self.fits) + j, np.int32))
+        keep = ~taken[self.un_pix]
+        fits = self.fits + tuple({"err_mm": float(f.err_mm), "support": float(f.support),
+                                  "pose": np.asarray(f.pose).tolist(), "seeded": True} for f in found)
+        # a seeded instance is a known surface too, its residual the one its fit states
+        sigmas = (*self.part_err_mm, *(float(f.err_mm) for f in found))
+        pix, of = np.concatenate(new_pix), np.concatenate(new_of)
+        order = np.argsort(pix, kind="stable")
+        return dataclasses.replace(self, fits=fits, fit_pix=pix[order], fit_of=of[order], un_pix=self.un_pix[keep],
+                                   un_dist=self.un_dist[keep], un_err=self.un_err[keep], un_code=self.un_code[keep],
+                                   part_err_mm=sigmas, message=f"{len(fits)} fits, {int(keep.sum())} unexplained px")
+
     def bundle(self, *, heights_mm: np.ndarray | None, valid: np.ndarray | None, rejected: set[int],
-               header: dict[str, Any]) -> bytes:
-        """The page's bundle of these fits with ``rejected`` fits' pixels returned to review (module
-        docstring); ``heights_mm`` and ``valid`` (H, W) give the proposals' heights and gaps."""
+               header: dict[str, Any], xyz_mm: np.ndarray | None = None) -> bytes:
+        """The page's bundle of these fits with ``rejected`` fits' pixels judged again (:meth:`remeasure`, on
+        ``xyz_mm``; without it they are not: every pixel of a rejected fit is proposed, with no distance);
+        ``heights_mm`` and ``valid`` (H, W) give the proposals' heights and gaps."""
         H, W = self.shape
         head = {**header, "status": self.status, "message": self.message, "height": H, "width": W,
                 "n_fits": len(self.fits), "n_rejected": len(rejected), "fit_columns": list(FIT_COLUMNS),
@@ -132,42 +340,43 @@ class FrameFits:
         flat_fit = np.zeros(H * W, np.int64)
         flat_fit[self.fit_pix] = self.fit_of + 1
         fit_ids = flat_fit.reshape(H, W)
-        # the proposals: unexplained pixels joined within JOIN_PX, then each rejected fit's pixels
-        flat_un = np.zeros(H * W, bool)
-        flat_un[self.un_pix] = True
-        un = flat_un.reshape(H, W)
+        if xyz_mm is not None:
+            again = self.remeasure(rejected, xyz_mm)
+        else:  # not judged again: every pixel of a rejected fit is proposed, with no distance
+            mine = np.isin(self.fit_of, sorted(rejected))
+            again = Remeasured(self.fit_pix[mine], self.fit_of[mine], np.full(int(mine.sum()), np.nan, np.float32),
+                               np.full(int(mine.sum()), np.nan, np.float32), self.un_dist, self.un_err)
+        # the proposals: unexplained pixels joined within JOIN_PX, then each rejected fit's pixels left unexplained
         ids = np.zeros((H, W), np.int64)
         n = 0
-        if un.any():
-            joined, n = ndimage.label(ndimage.binary_dilation(un, EIGHT, iterations=JOIN_PX), structure=EIGHT)
-            ids[un] = joined[un]
-            used = np.unique(ids[un])  # renumber 1..n (a dilated component always holds a pixel of its own)
-            lut = np.zeros(int(n) + 1, np.int64)
-            lut[used] = np.arange(1, used.size + 1)
-            ids = lut[ids]
-            n = int(used.size)
-        src_fit = [-1] * n
-        for f in sorted(rejected):
-            mine = (fit_ids == f + 1) & (ids == 0)
-            if not mine.any():
+        src_fit: list[int] = []
+        for f, px in [(-1, self.un_pix), *((f, again.pix[again.fit == f]) for f in sorted(rejected))]:
+            if not px.size:
                 continue
-            comp, m = ndimage.label(mine, structure=EIGHT)
-            ids[mine] = comp[mine] + n
-            n += int(m)
-            src_fit += [f] * int(m)
+            flat = np.zeros(H * W, bool)
+            flat[px] = True
+            m = flat.reshape(H, W)
+            joined, _ = ndimage.label(ndimage.binary_dilation(m, EIGHT, iterations=JOIN_PX), structure=EIGHT)
+            used, inv = np.unique(joined[m], return_inverse=True)  # renumbered in order (a dilated component
+            ids[m] = inv.reshape(-1) + 1 + n                          # always holds a pixel of its own)
+            n += int(used.size)
+            src_fit += [f] * int(used.size)
         table = np.zeros((n, len(PROPOSAL_COLUMNS)), np.float32)
         if n:
             st = _cluster_stats(ids, n, heights_mm, valid, np.zeros((H, W), bool))
-            g = ids.ravel()[self.un_pix]
+            allpix = np.concatenate([self.un_pix, again.pix])
+            g = ids.ravel()[allpix]
             dist_med = np.full(n, np.nan)
             dist_max = np.full(n, np.nan)
             err_med = np.full(n, np.nan)
             order = np.argsort(g, kind="stable")
-            gs, ds, es = g[order], self.un_dist[order].astype(np.float64), self.un_err[order].astype(np.float64)
+            gs = g[order]
+            ds = np.concatenate([again.un_dist, again.dist]).astype(np.float64)[order]
+            es = np.concatenate([again.un_err, again.err]).astype(np.float64)[order]
             bounds = np.searchsorted(gs, np.arange(1, n + 2))
             for j in range(n):
                 a, b = bounds[j], bounds[j + 1]
-                if b > a:
+                if b > a and not np.isnan(ds[a:b]).all():
                     d = ds[a:b]
                     d = d[np.isfinite(d)] if np.isfinite(d).any() else d
                     dist_med[j], dist_max[j] = float(np.median(d)), float(np.max(d))
@@ -184,7 +393,8 @@ class FrameFits:
                     "err_mm": np.array([f["err_mm"] for f in self.fits]),
                     "support": np.array([f["support"] for f in self.fits]),
                     "rejected": np.array([float(i in rejected) for i in range(n_fit)]),
-                    "seeded": np.array([float(bool(f.get("seeded"))) for f in self.fits])}
+                    "seeded": np.array([float(bool(f.get("seeded"))) for f in self.fits]),
+                    "proposed": np.bincount(again.fit, minlength=n_fit).astype(np.float64)}
             for r in range(3):
                 for c in range(3):
                     cols[f"r{r}{c}"] = poses[:, r, c]
@@ -228,12 +438,14 @@ def fit_frame(frame: Frame, job: Job, config: Any, bin_model: BinModel | None) -
     located = BinLocation(job.valid, None, job.registration, {}, 0.0, (), bin_model=bin_model)
     zone = Zone(located, job.removal, job.zone, np.zeros((0, 0)), np.asarray(job.removal.easy_outliers, bool), {}, ())
     out, detail, warning = run_explained(frame, zone, config, judge_above_rim=True)
-    seconds = time.process_time() - t
     if detail is None:
-        return FrameFits(frame.index, "error", warning or "no fits", (H, W), seconds=seconds)
+        return FrameFits(frame.index, "error", warning or "no fits", (H, W), seconds=time.process_time() - t)
+    p = config.bank[NAME]
+    surfaces, f_px = known_surfaces(frame, job, detail, bin_model)
+    seconds = time.process_time() - t
     # the zone the page serves: the filters' zone and the points above the rim (docs/accuracy.md)
     served = (job.zone | np.asarray(job.removal.easy_outliers, bool)) & job.valid
-    un = np.asarray(out, bool) | (ex.unexplained(detail.dist_mm, detail.err_mm, config.bank[NAME].k) & served)
+    un = np.asarray(out, bool) | (ex.unexplained(detail.dist_mm, detail.err_mm, p.k) & served)
     judged = served & ~un & np.isfinite(detail.dist_mm)
     code = np.where(judged, detail.surface, -1).ravel()
     fit_pix = np.flatnonzero(code >= 0)
@@ -245,7 +457,33 @@ def fit_frame(frame: Frame, job: Job, config: Any, bin_model: BinModel | None) -
     return FrameFits(frame.index, "ready", f"{len(fits)} fits{vetted}, {un_pix.size} unexplained px", (H, W), fits,
                      fit_pix, code[fit_pix].astype(np.int32), un_pix,
                      detail.dist_mm.ravel()[un_pix].astype(np.float32), detail.err_mm.ravel()[un_pix].astype(np.float32),
-                     seconds)
+                     seconds, un_code=detail.surface.ravel()[un_pix].astype(np.int32),
+                     surfaces=dataclasses.replace(surfaces, parts=(), part_err_mm=()), f_px=f_px,
+                     floor_mm=float(p.err_floor_mm), k=float(p.k), part_mesh=(detail.vertices_mm, detail.triangles),
+                     part_err_mm=tuple(float(e) for e in surfaces.part_err_mm))
+
+
+def known_surfaces(frame: Frame, job: Job, detail: Any, bin_model: BinModel) -> tuple[KnownSurfaces, float]:
+    """The known surfaces ``explained`` measured a frame's distances to (its :class:`ExplainedDetail`
+    ``detail``), and the focal length (pixels) of its footprints: the kept fits posed, each with the
+    robust residual of the pixels it is the nearest surface of
+    (:func:`zcut.explained.fit_sigmas`), the registered bin and the table plane as the method fits them
+    (``replay.pipeline.explained._bin_and_table``, called, not copied). ``err_image`` of the detail's
+    nearest surfaces with these gives the detail's Err to the bit (tests/annotate/test_page_fits_remeasure.py)."""
+    from replay.pipeline.explained import _bin_and_table
+    from zcut import explained as ex
+
+    xyz = frame.xyz.astype(np.float64) * 1000.0
+    v, t = detail.vertices_mm, detail.triangles
+    stated = [float(f.err_mm) for f in detail.fits]
+    surfaces = ex.KnownSurfaces(parts=[(v @ f.pose[:3, :3].T + f.pose[:3, 3], t) for f in detail.fits],
+                                part_err_mm=stated)
+    surfaces = _bin_and_table(xyz, job.removal, job.registration, bin_model, surfaces)
+    surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(ex.Nearest(detail.dist_mm, detail.surface),
+                                                                       stated, where=job.zone))
+    K = frame.intrinsics
+    f_px = 0.5 * (K.fx + K.fy) if K is not None and (K.height, K.width) == np.shape(job.zone) else ex.focal_px(xyz)
+    return surfaces, float(f_px)
 
 
 class Fitter:
@@ -265,6 +503,8 @@ class Fitter:
         self.model_points = model_points
         self.k = k
         self.results: dict[int, FrameFits] = {}
+        #: (index, seeds) -> (the fits they were applied to, the fits with them): :meth:`fits_for`
+        self._seeded: dict[tuple[int, tuple[tuple[int, int], ...]], tuple[FrameFits, FrameFits]] = {}
         self._pending: dict[int, tuple[Frame, Job]] = {}
         self._running: int | None = None
         self._wanted: int | None = None
@@ -336,54 +576,43 @@ class Fitter:
                 self._running = None
                 self._cond.notify_all()
 
-    def seed(self, index: int, x: int, y: int) -> int:
-        """Seed a missed instance at pixel (``x``, ``y``) of a fitted frame: the part is fitted again on the
-        unexplained pixels of a window around it (:data:`SEED_WINDOW`); each instance found joins the
-        frame's fits and its pixels leave the proposals. Returns how many were found (kept in memory:
-        not stored). Raises ValueError when the frame has no fits yet."""
-        from replay.pipeline.explained import NAME, part_model
-        from zcut.fits import FitParams, fit_prepared
-
+    def fits_for(self, index: int, seeds: Sequence[tuple[int, int]] = ()) -> FrameFits | None:
+        """The frame's fits as an annotator sees them: the background fits (None before they are ready)
+        with that annotator's ``seeds`` (pixels (x, y), in the order clicked) applied one after the other
+        (:meth:`FrameFits.seeded`; each step kept, so a new seed costs one refit)."""
         with self._cond:
             ff = self.results.get(index)
-        if ff is None or ff.status != "ready":
+        if ff is None or ff.status != "ready" or not seeds:
+            return ff
+        base, xyz = ff, None
+        for j in range(len(seeds)):
+            key = (index, tuple(seeds[:j + 1]))
+            with self._cond:
+                got = self._seeded.get(key)
+            if got is None or got[0] is not base:
+                if xyz is None:
+                    xyz = np.asarray(self.points(index), np.float64) * 1000.0
+                x, y = seeds[j]
+                nxt = ff.seeded(int(x), int(y), xyz, self.config)
+                with self._cond:
+                    while len(self._seeded) >= SEEDED_KEPT:  # the oldest out first
+                        self._seeded.pop(next(iter(self._seeded)))
+                    self._seeded[key] = (base, nxt)
+                ff = nxt
+            else:
+                ff = got[1]
+        return ff
+
+    def seed(self, index: int, seeds: Sequence[tuple[int, int]], x: int, y: int) -> tuple[FrameFits, int]:
+        """Seed a missed instance at pixel (``x``, ``y``) of a fitted frame on top of an annotator's earlier
+        ``seeds`` (:meth:`fits_for`): (the fits with it, how many instances it found). Raises ValueError
+        when the frame has no fits yet."""
+        before = self.fits_for(index, seeds)
+        if before is None or before.status != "ready":
             raise ValueError(f"frame {index} has no fits yet")
-        H, W = ff.shape
-        p = self.config.bank[NAME]
-        areas = np.bincount(ff.fit_of, minlength=len(ff.fits)) if len(ff.fits) else np.zeros(0)
-        r = int(np.clip(1.5 * np.sqrt(np.median(areas)) + 8, 16, 200)) if areas.size else SEED_WINDOW
-        flat_un = np.zeros(H * W, bool)
-        flat_un[ff.un_pix] = True
-        local = np.zeros((H, W), bool)
-        local[max(0, y - r):y + r + 1, max(0, x - r):x + r + 1] = True
-        local &= flat_un.reshape(H, W)
-        if local.sum() < 10:
-            return 0
-        _, _, prepared = part_model(p.part_model, p.part_model_unit)
-        xyz = np.asarray(self.points(index), np.float64) * 1000.0
-        # the click's window is fitted by the first pass alone (seed_shifts=0): it finds the instance clicked,
-        # not the other pieces in the window the frame's own second pass already judged
-        found = fit_prepared(xyz, local, prepared, params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm,
-                                                                    min_support=p.fit_min_support, seed_shifts=0))
-        if not found:
-            return 0
-        new_pix, new_of = [ff.fit_pix], [ff.fit_of]
-        taken = np.zeros(H * W, bool)
-        for j, f in enumerate(found):
-            px = np.asarray(f.pixels, np.int64)
-            px = px[flat_un[px] & ~taken[px]]
-            taken[px] = True
-            new_pix.append(px)
-            new_of.append(np.full(px.size, len(ff.fits) + j, np.int32))
-        keep = ~taken[ff.un_pix]
-        fits = ff.fits + tuple({"err_mm": float(f.err_mm), "support": float(f.support),
-                                "pose": np.asarray(f.pose).tolist(), "seeded": True} for f in found)
-        got = dataclasses.replace(ff, fits=fits, fit_pix=np.concatenate(new_pix), fit_of=np.concatenate(new_of),
-                                  un_pix=ff.un_pix[keep], un_dist=ff.un_dist[keep], un_err=ff.un_err[keep],
-                                  message=f"{len(fits)} fits, {int(keep.sum())} unexplained px")
-        with self._cond:
-            self.results[index] = got
-        return len(found)
+        after = self.fits_for(index, (*seeds, (int(x), int(y))))
+        assert after is not None
+        return after, len(after.fits) - len(before.fits)
 
     def wait(self, index: int, timeout: float) -> FrameFits | None:
         """Block until frame ``index`` is fitted (tests, tools); None on timeout."""

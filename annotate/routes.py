@@ -118,8 +118,9 @@ class Page:
     decided: dict[tuple[int, int], tuple[int, int]] = field(default_factory=dict)
     #: why the page shows no fits ("" when a part model is known: :mod:`annotate.fits`)
     fits_note: str = ""
-    #: (frame index, rejected fits) -> the fits bundle (:meth:`annotate.fits.FrameFits.bundle`)
-    fits_bundles: dict[tuple[int, frozenset[int]], bytes] = field(default_factory=dict)
+    #: (frame index, seeds, rejected fits) -> (the fits, their bundle: :meth:`annotate.fits.FrameFits.bundle`)
+    fits_bundles: dict[tuple[int, tuple[tuple[int, int], ...], frozenset[int]], tuple[Any, bytes]] = \
+        field(default_factory=dict)
 
     def announce(self, port: int | None) -> list[str]:
         """Register this server in the store; returns one line per other live server of the store."""
@@ -380,8 +381,9 @@ def api_assistant(page: Page, request: Request) -> Response:
 
 # --------------------------------------------------------------------------- part fits
 def fits_bundle(page: Page, sf: ServedFrame, rec: FrameRecord, who: str) -> bytes:
-    """The frame's fits as ``who`` judged them (:meth:`annotate.fits.FrameFits.bundle`), or their status
-    (``none``: no part model; ``waiting``, ``fitting``; ``error``) in a bundle without sections."""
+    """The frame's fits as ``who`` judged them (:meth:`annotate.fits.FrameFits.bundle`: that annotator's
+    seeds applied, :meth:`annotate.fits.Fitter.fits_for`, and rejected fits' pixels judged again), or their
+    status (``none``: no part model; ``waiting``, ``fitting``; ``error``) in a bundle without sections."""
     fitter = page.catalogue.fitter
     header: dict[str, Any] = {"index": sf.index}
     if fitter is None:
@@ -389,20 +391,25 @@ def fits_bundle(page: Page, sf: ServedFrame, rec: FrameRecord, who: str) -> byte
                             "width": sf.width}, [], compress=False)
     header.update({"k": fitter.k, "model": fitter.model_name, "model_points": fitter.model_points})
     fitter.want(sf.index)
-    status, ff = fitter.status(sf.index)
+    status, _ = fitter.status(sf.index)
+    seeds = page.store.fit_seeds(rec, annotator=who)
+    ff = fitter.fits_for(sf.index, seeds)
     if ff is None:
         return make_bundle({**header, "status": status, "height": sf.height, "width": sf.width,
                             "message": "fitting the part model…" if status == "fitting" else "waiting to be fitted…"},
                            [], compress=False)
     rejected = ff.rejected(page.store.rejected_fits(rec, annotator=who))
-    key = (sf.index, frozenset(rejected))
-    if key not in page.fits_bundles:
+    key = (sf.index, seeds, frozenset(rejected))
+    got = page.fits_bundles.get(key)
+    if got is None or got[0] is not ff:
         xyz = np.asarray(page.catalogue.geometry.points(sf.index))
         valid = np.isfinite(xyz).all(axis=2)
         while len(page.fits_bundles) >= 32:  # a few frames' worth, the oldest out first
             page.fits_bundles.pop(next(iter(page.fits_bundles)))
-        page.fits_bundles[key] = ff.bundle(heights_mm=height_mm(xyz), valid=valid, rejected=rejected, header=header)
-    return page.fits_bundles[key]
+        data = ff.bundle(heights_mm=height_mm(xyz), valid=valid, rejected=rejected, header=header,
+                         xyz_mm=xyz.astype(np.float64) * 1000.0 if rejected else None)
+        page.fits_bundles[key] = got = (ff, data)
+    return got[1]
 
 
 def api_fits(page: Page, request: Request) -> Response:
@@ -424,6 +431,9 @@ async def api_fit_put(page: Page, request: Request) -> Response:
     status, ff = (None, None) if fitter is None else fitter.status(sf.index)
     if ff is None or ff.status != "ready":
         raise BadRequest(409, f"frame {sf.index} has no fits to judge ({page.fits_note or status})")
+    assert fitter is not None
+    ff = await run_in_threadpool(fitter.fits_for, sf.index, page.store.fit_seeds(rec, annotator=who))
+    assert ff is not None
     if fit >= len(ff.fits):
         raise BadRequest(404, f"frame {sf.index} has {len(ff.fits)} fits, no fit {fit}")
 
@@ -437,7 +447,9 @@ async def api_fit_put(page: Page, request: Request) -> Response:
 
 async def api_fit_seed(page: Page, request: Request) -> Response:
     """``POST /api/frames/{index}/fits/seed`` ``{"x", "y"}``: seed a missed instance at that pixel
-    (:meth:`annotate.fits.Fitter.seed`); answers the new fits bundle, ``X-Zcut-Seeded`` how many were found."""
+    (:meth:`annotate.fits.Fitter.seed`, on the annotator's earlier seeds); a seed that found an instance is
+    stored (:meth:`annotate.store.LabelStore.save_fit_seed`); answers the new fits bundle,
+    ``X-Zcut-Seeded`` how many were found."""
     sf, rec = requested_frame(page, request)
     who = annotator_of(page, request)
     d = parse_json_body(await _read_body(request))
@@ -451,9 +463,9 @@ async def api_fit_seed(page: Page, request: Request) -> Response:
 
     def seed() -> tuple[int, bytes]:
         assert fitter is not None
-        n = fitter.seed(sf.index, x, y)
-        for key in [k for k in page.fits_bundles if k[0] == sf.index]:
-            del page.fits_bundles[key]
+        _, n = fitter.seed(sf.index, page.store.fit_seeds(rec, annotator=who), x, y)
+        if n:
+            page.store.save_fit_seed(rec, annotator=who, x=x, y=y, found=n)
         return n, fits_bundle(page, sf, rec, who)
 
     n, data = await run_in_threadpool(seed)

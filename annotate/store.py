@@ -65,7 +65,7 @@ import numpy as np
 
 from zcut.errors import InputShapeError, ZcutError, describe_array
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 BUSY_TIMEOUT_MS = 10_000
 #: Largest mask the store accepts (pixels), a guard against absurd shapes from a client.
 MAX_PIXELS = 64_000_000
@@ -158,6 +158,25 @@ MIGRATIONS: list[list[str]] = [
             created_ns INTEGER NOT NULL
         )""",
         "CREATE INDEX fit_decisions_frame ON fit_decisions (frame_id, annotator, fit, id DESC)",
+    ],
+    [
+        # the instances a person seeded on the page (Ctrl+click, docs/labelling.md, "Judging fits"): per
+        # (frame, annotator), in the order clicked; replayed on the frame's fits by a restarted server.
+        # ``found`` is how many instances the click found (a click that found none is not stored)
+        """CREATE TABLE fit_seeds (
+            id INTEGER PRIMARY KEY,
+            frame_id INTEGER NOT NULL REFERENCES frames(id),
+            annotator TEXT NOT NULL,
+            x INTEGER NOT NULL CHECK (x >= 0),
+            y INTEGER NOT NULL CHECK (y >= 0),
+            found INTEGER NOT NULL CHECK (found >= 1),
+            created_ns INTEGER NOT NULL
+        )""",
+        "CREATE INDEX fit_seeds_frame ON fit_seeds (frame_id, annotator, id)",
+        """CREATE TRIGGER fit_seeds_append_only_update BEFORE UPDATE ON fit_seeds
+            BEGIN SELECT RAISE(ABORT, 'fit seeds are append-only'); END""",
+        """CREATE TRIGGER fit_seeds_append_only_delete BEFORE DELETE ON fit_seeds
+            BEGIN SELECT RAISE(ABORT, 'fit seeds are append-only'); END""",
     ],
 ]
 
@@ -868,6 +887,24 @@ class LabelStore:
             " d.annotator = ? AND d.id = (SELECT MAX(id) FROM fit_decisions m WHERE m.frame_id = d.frame_id"
             " AND m.annotator = d.annotator AND m.fit = d.fit)", (frame.id, annotator))
         return {int(r[0]): (float(r[1]), float(r[2]), float(r[3])) for r in rows if r[4]}
+
+    def save_fit_seed(self, frame: FrameRecord, *, annotator: str, x: int, y: int, found: int) -> None:
+        """Append that ``annotator`` seeded a missed instance at pixel (``x``, ``y``) of the frame (a Ctrl+click
+        on the page) and that it found ``found`` >= 1 instances; :meth:`fit_seeds` gives them back in order."""
+        who = _check_annotator(annotator)
+        if not (isinstance(x, int) and isinstance(y, int) and 0 <= x < frame.width and 0 <= y < frame.height
+                and isinstance(found, int) and found >= 1):
+            raise LabelValidationError(f"a fit seed needs a pixel of the {frame.width}x{frame.height} frame and "
+                                       f"found >= 1, got ({x!r}, {y!r}), found {found!r}")
+        with self._write() as db:
+            db.execute("INSERT INTO fit_seeds (frame_id, annotator, x, y, found, created_ns) VALUES (?, ?, ?, ?, ?, ?)",
+                       (frame.id, who, x, y, found, time.time_ns()))
+
+    def fit_seeds(self, frame: FrameRecord, *, annotator: str) -> tuple[tuple[int, int], ...]:
+        """The pixels (x, y) where ``annotator`` seeded instances on the frame, in the order clicked."""
+        rows = self._query("SELECT x, y FROM fit_seeds WHERE frame_id = ? AND annotator = ? ORDER BY id",
+                           (frame.id, annotator))
+        return tuple((int(r[0]), int(r[1])) for r in rows)
 
     def label_count(self) -> int:
         """Number of label revisions in the store (all annotators, all revisions)."""

@@ -391,14 +391,15 @@ function fitRow(fd, e, k, st) {  // a fit ('f') or a proposal of the fits ('u') 
   const k3 = fd.fits ? fd.fits.header.k : 3;
   if (e.src === 'f') {
     row.title = `fitted instance #${e.id}: explains ${e.n} px within ${k3} × Err; residual Err ${e.err.toFixed(3)} mm, ` +
-      `${Math.round(100 * e.support)} % of its visible surface supported` + (e.rejected ? '; rejected (K takes it back)' : '; K rejects it');
+      `${Math.round(100 * e.support)} % of its visible surface supported` + (e.rejected ? `; rejected: ${e.proposed} of its ` +
+      `px proposed again, the others lie within ${k3} × Err of another known surface (K takes it back)` : '; K rejects it');
     row.innerHTML = `<span class="src f">fit #${e.id}${e.seeded ? ' (seed)' : ''}</span><span>${e.n} px</span><span class="err">Err ${e.err.toFixed(2)} mm</span>` +
       `<span>${Math.round(100 * e.support)} %</span><span class="st">${stText(e, st)}</span>`;
   } else {
     const from = e.fromFit >= 0 ? `fit #${e.fromFit + 1} rej.` : 'unexplained';
-    row.title = e.fromFit >= 0 ? `the pixels of rejected fit #${e.fromFit + 1}: decide them` :
-      `${e.n} px farther than ${k3} × Err from every known surface: median distance ${e.dist.toFixed(2)} mm ` +
-      `(largest ${e.distMax.toFixed(2)} mm, Err ${e.err.toFixed(2)} mm)`;
+    row.title = (e.fromFit >= 0 ? `${e.n} px of rejected fit #${e.fromFit + 1} farther than ${k3} × Err from every surface left` :
+      `${e.n} px farther than ${k3} × Err from every known surface`) + (isNaN(e.dist) ? '' :
+      `: median distance ${e.dist.toFixed(2)} mm (largest ${e.distMax.toFixed(2)} mm, Err ${e.err.toFixed(2)} mm)`);
     row.innerHTML = `<span class="src u">${from}</span><span>${e.n} px</span>` +
       `<span class="dist">${isNaN(e.dist) ? 'fit rejected' : `${e.dist.toFixed(1)} mm off`}</span><span></span>` +
       `<span class="st">${stText(e, st)}</span>`;
@@ -476,10 +477,7 @@ function acceptProposals() {  // Y: the assistant's confident proposals of the u
   const { out, inl } = proposalPlan(fd);
   if (!out.length && !inl.length) { setSaveState('no confident proposal left on this frame', 'saved'); return; }
   beginAction(fd);
-  for (const [list, mode] of [[out, 'add'], [inl, 'erase']]) for (const e of list) {
-    for (const i of e.pix) if (!fd.R[i]) setPixel(fd, i, mode);  // as decideAll: decided pixels stay
-    touch(e.x0, e.y0, e.x1, e.y1);
-  }
+  for (const [list, accept] of [[out, true], [inl, false]]) for (const e of list) fillEntry(fd, e, accept);
   endAction(fd);
   setSaveState(`took ${out.length + inl.length} proposals (${out.length} outlier, ${inl.length} not)`, 'saved');
   const k = nextUndecided(fd, -1);
@@ -491,12 +489,15 @@ function decideAll(accept, proposalsOnly = false) {  // every undecided listed g
   beginAction(fd);
   fd.entries.forEach((e) => {
     if ((e.src !== 'u' && (proposalsOnly || e.src !== 'g')) || entryState(fd, e) !== 'undecided') return;
-    // a bulk decision fills what no decision reached yet: the pixels another entry decided (a proposal
-    // taken as outliers inside a group left undecided) keep that decision
-    for (const i of e.pix) if (!fd.R[i]) setPixel(fd, i, accept ? 'add' : 'erase');
-    touch(e.x0, e.y0, e.x1, e.y1);
+    fillEntry(fd, e, accept);
   });
   endAction(fd);
+}
+// A bulk decision (Shift+A, Shift+R, Shift+U, Y) fills what no decision reached yet: the pixels another entry
+// decided (a proposal taken as outliers inside a group left undecided) keep that decision (setPixel's 'fill' modes).
+function fillEntry(fd, e, accept) {
+  for (const i of e.pix) setPixel(fd, i, accept ? 'fill-add' : 'fill-erase');
+  touch(e.x0, e.y0, e.x1, e.y1);
 }
 
 // ------------------------------------------------------------------ geometry tiles (exact points)
@@ -738,7 +739,8 @@ function drawProfile() {
   if (e && e.src === 'u') {
     info = (isNaN(e.dist) ? `the pixels of rejected fit #${e.fromFit + 1}` :
       `${e.dist.toFixed(2)} mm from the nearest known surface (median; largest ${e.distMax.toFixed(2)} mm; ` +
-      `${fd.fits.header.k} × Err = ${(fd.fits.header.k * e.err).toFixed(2)} mm)`) + ` · ${info}`;
+      `${fd.fits.header.k} × Err = ${(fd.fits.header.k * e.err).toFixed(2)} mm)` +
+      (e.fromFit >= 0 ? `, pixels of rejected fit #${e.fromFit + 1}` : '')) + ` · ${info}`;
   }
   $('profinfo').textContent = info;
 }
@@ -1119,7 +1121,8 @@ function readout() {
   if (fe) parts.push(`fit #${fe.id} (Err ${fe.err.toFixed(2)} mm${fe.rejected ? ', rejected' : ''})`);
   if (fd.fits && fd.fits.proposals && fd.fits.proposals[i]) {
     const pe = (fd.propEntries || [])[fd.fits.proposals[i] - 1];
-    if (pe) parts.push(isNaN(pe.dist) ? `proposal: rejected fit's pixels` : `unexplained: group ${pe.dist.toFixed(2)} mm off`);
+    if (pe) parts.push((pe.fromFit >= 0 ? `rejected fit #${pe.fromFit + 1}'s pixels` : 'unexplained') +
+      (isNaN(pe.dist) ? '' : `: group ${pe.dist.toFixed(2)} mm off`));
   }
   if (fd.zIds[i]) parts.push(`z-cut #${fd.zIds[i]}`);
   if (fd.sIds[i]) parts.push(`SOR #${fd.sIds[i]} (${fd.sSize[fd.sIds[i]]} px)`);
@@ -1172,7 +1175,9 @@ function showFrameWarning(fd) {
 // instance is outlined over the image with its residual Err, listed ('f' entries) and drawn in the 3D view;
 // the unexplained pixels (farther than k × Err from every known surface) are the proposals ('u' entries),
 // each with its distance to the nearest known surface. K rejects the selected fit (or the one under the
-// pointer): its pixels return to review as proposals of their own; K again takes the rejection back.
+// pointer): the server judges its pixels again against the surfaces left (the other fits, the bin, the table)
+// and those none explains return to review as proposals of their own, with their distance ("fit #n rej.",
+// "x.x mm off"); K again takes the rejection back (the server's answer is then the one it gave before).
 // The proposals are drawn as a per-pixel tint by state (no marker but the selected's and the hovered one's): undecided
 // yellow, outlier red (the labels' colour), not outlier green; translucent enough that the image reads through.
 const COL_FIT = rgba(170, 255, 0, 120), COL_FITX = rgba(255, 0, 255, 230), COL_U = rgba(255, 235, 0, 150);
@@ -1220,7 +1225,7 @@ function applyFits(fd, f) {
       const i = v('fit'), pose = ['r00', 'r01', 'r02', 't0', 'r10', 'r11', 'r12', 't1', 'r20', 'r21', 'r22', 't2'].map(v);
       fd.fitEntries.push({ src: 'f', id: i + 1, fit: i, n: v('n'), x0: v('x0'), y0: v('y0'), x1: v('x1'), y1: v('y1'),
         cx: v('cx'), cy: v('cy'), err: v('err_mm'), support: v('support'), rejected: v('rejected') > 0, pose,
-        seeded: v('seeded') > 0,
+        seeded: v('seeded') > 0, proposed: v('proposed'),
         hmin: NaN, hmax: NaN, below: NaN, gap: NaN, score: v('err_mm'), both: 0, also: [], pix: fpix(i + 1) });
     }
     for (const v of tableRows(f.proposal_table, h.proposal_columns)) {
@@ -1281,7 +1286,9 @@ async function rejectFit() {  // K: reject the selected fit (or the one under th
   if (!r.ok) { showError(`fit ${e.fit}: HTTP ${r.status}`); return; }
   const was = e.rejected;
   applyFits(fd, parseFitsBundle(await r.arrayBuffer()));
-  setSaveState(was ? `fit #${e.id} taken back` : `fit #${e.id} rejected`, 'saved');
+  const now = fd.fitEntries[e.fit];
+  setSaveState(was ? `fit #${e.id} taken back` : `fit #${e.id} rejected: ${now ? now.proposed : 0} of its ${e.n} px ` +
+    `proposed again (the others lie within ${fd.fits.header.k} × Err of another known surface)`, 'saved');
   const k = fd.entries.findIndex((x) => x.src === 'u' && x.fromFit === e.fit);
   if (!was && k >= 0) select(k, { zoom: true });
   else { const j = fd.entries.findIndex((x) => x.src === 'f' && x.fit === e.fit); if (j >= 0) select(j, { zoom: false }); }
@@ -1552,6 +1559,10 @@ function setPixel(fd, i, mode) {  // every decision reviews the pixel: L ⊆ R
     if (rbrushGroup >= 0 && fd.gIds[i] !== rbrushGroup) return;
     if (riseAt(fd, i) < riseThreshold(fd)) return;
     mode = mode === 'radd' ? 'add' : 'erase';
+  }
+  if (mode === 'fill-add' || mode === 'fill-erase') {  // a bulk decision (fillEntry): a reviewed pixel keeps its decision
+    if (fd.R[i]) return;
+    mode = mode === 'fill-add' ? 'add' : 'erase';
   }
   if (mode === 'add') { fd.L[i] = 1; fd.R[i] = 1; }
   else if (mode === 'erase') { fd.L[i] = 0; fd.R[i] = 1; }
@@ -1963,7 +1974,7 @@ window.zcut.fits = () => {
   return { status: h.status, message: h.message, n_fits: h.n_fits || 0, n_rejected: h.n_rejected || 0,
            n_proposals: h.n_proposals || 0, info: $('fitinfo').textContent,
            fits: (fd.fitEntries || []).map((e) => ({ fit: e.fit, n: e.n, err: e.err, rejected: e.rejected, seeded: e.seeded,
-                                                     cx: e.cx, cy: e.cy })),
+                                                     proposed: e.proposed, cx: e.cx, cy: e.cy })),
            proposals: (fd.propEntries || []).map((e) => ({ id: e.id, n: e.n, dist: e.dist, fromFit: e.fromFit, cx: e.cx, cy: e.cy })) };
 };
 window.zcut.unsaved = () => [...loaded.values()].filter((fd) => fd.dirty || fd.saving || fd.conflict).map((fd) => fd.index);

@@ -424,9 +424,62 @@ def test_a_version_1_store_is_migrated_and_keeps_its_labels(tmp_path, log_file, 
     db.commit()
     db.close()
     with LabelStore(path) as store:
-        assert store.schema_version == SCHEMA_VERSION == 4
+        assert store.schema_version == SCHEMA_VERSION == 5
         fr = store.frame(store.log_by_sha(file_sha256(log_file)), topic="/c", stamp_ns=5)
         assert np.array_equal(store.label(fr, annotator="ann").outliers, l1)
         assert store.save_label(fr, annotator="ann", outliers=l1, reviewed=r1, base_revision=1,
                                 client="tab-cccc3", client_seq=1) == 2
         assert store.register_server(log_sha256="0" * 64).id == 1
+
+
+def test_fit_seeds_are_kept_per_frame_and_annotator_in_order(tmp_path, store_frame):
+    store, log, fr = store_frame
+    other = store.add_frame(log, topic="/camera/points", stamp_ns=2_000, index=1, shape=SHAPE, valid=None)
+    store.save_fit_seed(fr, annotator="ann", x=16, y=0, found=1)
+    store.save_fit_seed(fr, annotator="bob", x=3, y=4, found=2)
+    store.save_fit_seed(fr, annotator="ann", x=0, y=11, found=1)
+    store.save_fit_seed(other, annotator="ann", x=5, y=5, found=1)
+    assert store.fit_seeds(fr, annotator="ann") == ((16, 0), (0, 11))
+    assert store.fit_seeds(fr, annotator="bob") == ((3, 4),)
+    assert store.fit_seeds(other, annotator="ann") == ((5, 5),)
+    assert store.fit_seeds(other, annotator="bob") == ()
+    store.close()
+    with LabelStore(tmp_path / "labels.sqlite") as again:  # reopened: the same, in the same order
+        fr2 = again.frames(again.logs()[0])[0]
+        assert again.fit_seeds(fr2, annotator="ann") == ((16, 0), (0, 11))
+    db = sqlite3.connect(tmp_path / "labels.sqlite")
+    with pytest.raises(sqlite3.IntegrityError, match="append-only"):
+        db.execute("DELETE FROM fit_seeds")
+    db.close()
+
+
+@pytest.mark.parametrize(("x", "y", "found"), [(17, 0, 1), (0, 12, 1), (-1, 0, 1), (0, 0, 0), (1.5, 0, 1), ("1", 0, 1)])
+def test_bad_fit_seeds_store_nothing(store_frame, x, y, found):
+    store, _, fr = store_frame
+    with pytest.raises(LabelValidationError, match="a fit seed needs a pixel of the 17x12 frame and found >= 1"):
+        store.save_fit_seed(fr, annotator="ann", x=x, y=y, found=found)
+    assert store.fit_seeds(fr, annotator="ann") == ()
+
+
+def test_a_version_4_store_gets_the_fit_seeds_and_keeps_its_fit_decisions(tmp_path, log_file, valid):
+    path = tmp_path / "v4.sqlite"
+    db = sqlite3.connect(path)
+    for version in MIGRATIONS[:4]:
+        for stmt in version:
+            db.execute(stmt)
+    db.execute("PRAGMA user_version = 4")
+    db.execute("INSERT INTO logs (sha256, name, size_bytes, added_ns) VALUES (?, 'scan.mcap', 1, 0)",
+               (file_sha256(log_file),))
+    db.execute("INSERT INTO frames (log_id, topic, stamp_ns, frame_index, height, width, valid)"
+               " VALUES (1, '/c', 5, 0, ?, ?, ?)", (*SHAPE, pack_mask(valid)))
+    db.execute("INSERT INTO fit_decisions (frame_id, annotator, fit, x_mm, y_mm, z_mm, rejected, created_ns)"
+               " VALUES (1, 'ann', 3, 1.0, 2.0, 700.0, 1, 0)")
+    db.commit()
+    db.close()
+    with LabelStore(path) as store:
+        assert store.schema_version == SCHEMA_VERSION == 5
+        fr = store.frame(store.log_by_sha(file_sha256(log_file)), topic="/c", stamp_ns=5)
+        assert store.rejected_fits(fr, annotator="ann") == {3: (1.0, 2.0, 700.0)}
+        assert store.fit_seeds(fr, annotator="ann") == ()
+        store.save_fit_seed(fr, annotator="ann", x=1, y=2, found=1)
+        assert store.fit_seeds(fr, annotator="ann") == ((1, 2),)
