@@ -269,7 +269,8 @@ def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarr
     w0 = _window.first_window(m, wmax)
     dbar = np.empty((H, W))
     unproven = np.zeros(H, dtype=np.int64)
-    run(_window.window_rows, H, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven)
+    run(_window.window_rows, H, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven,
+        _window.slots_for(m))
     rows, cols = _window.unproven_pixels(valid, dbar, unproven)  # their dbar: minus the m-th squared distance
     if rows.size:
         def tree() -> tuple[np.ndarray, ...]:  # built only if the column search leaves pixels
