@@ -30,9 +30,10 @@ and a search never has to look at more than m copies of a duplicated point.
    per-cell floor of their bound usually spares evaluating them). If the m-th distance found is
    within all of them, the window is proven. Stages, cheapest first: a 3 × 3 window for whole
    rows at once (vectorized: the 8 neighbour distances sorted by a network, so any m <= 9 is a
-   selection), a 5 × 5 window for what it leaves (the whole row, vectorized, when that is much),
-   then one pixel at a time, growing the window one ring at a time until its bound covers the
-   m-th distance found so far, up to 16.
+   selection; only the 4 smallest kept when m <= 5), a 5 × 5 window for what it leaves (the whole
+   row, vectorized, when that is much), then one pixel at a time, growing the window one ring at a
+   time until its bound covers the m-th distance found so far, up to 16 (a pixel the 5 × 5 window
+   left grows on from its smallest distances there: no pixel is measured twice).
 3. *Columns* (:mod:`zcut.columns`), when many pixels are unproven (one in ``_COLUMNS_MIN_SHARE``
    or more: tall parts standing on end, whose image neighbours are rarely 3D neighbours, and the
    flying pixels along their silhouettes). Each unproven pixel has an upper bound on its m-th

@@ -7,11 +7,13 @@ The argument is in the module docstring of :mod:`zcut.sor`. Three stages, cheape
 1. a 3 × 3 window for a whole row: the 8 neighbour distances sorted by a network, so any m <= 9
    is a selection, and the w = 1 bound is four plane evaluations -- straight-line code over
    chunks of columns copied into a scratch buffer, which the compiler vectorizes;
-2. a 5 × 5 window for the pixels stage 1 left: the inner ring sorted, ring 2 merged into the 8
-   smallest; for the whole row (vectorized like stage 1) when they are many, and for the rows
-   after such a row straight away (re-checked every 8 rows), else for a list of pixels;
+2. a 5 × 5 window for the pixels stage 1 left: the inner ring sorted, ring 2 merged into the
+   smallest (4 when m <= 5, else 8: :func:`slots_for`); for the whole row (vectorized like stage 1)
+   when they are many, and for the rows after such a row straight away (re-checked every 8 rows),
+   else for a list of pixels;
 3. one pixel at a time, the window growing one ring at a time until its bound covers the m-th
-   distance found so far, up to ``WINDOW_MAX``.
+   distance found so far, up to ``WINDOW_MAX``; a pixel stage 2 left starts from stage 2's
+   smallest distances and count at w = 2 (:func:`_grow_seeded`), the others from scratch.
 
 Every kernel here is serial and releases the GIL; :mod:`zcut.sor` runs them over row ranges on
 threads.
