@@ -29,9 +29,11 @@ and whether the result is identical: the "open3d" convention against Open3D's ow
 convention against the exact KD-tree reference of tests/reference/sor_reference.py (Open3D's time
 is the yardstick for both). With ``--against OLD_TREE`` (a source tree of the previous code, e.g.
 ``git archive COMMIT | tar -x -C OLD_TREE``; its numba kernels compile on its first run) the same
-cloud also goes through the previous code in a subprocess of the same run: its CPU time, the ratio
-previous / this, and whether its masks are this code's bit for bit. The load average is printed
-before and after. Targets: issue 12, >= 5x on every class and >= 10x on the pile; issue 32 item 7,
+cloud also goes through the previous code in a subprocess that lives for the whole run: every
+round times this code, the previous code and Open3D once each, alternately (the order of this and
+the previous code flips every round), so that a shared machine's load falls on both alike; the
+figures are the medians over the rounds, with the ratio previous / this, and whether the previous
+code's masks are this code's bit for bit. The load average is printed before and after. Targets: issue 12, >= 5x on every class and >= 10x on the pile; issue 32 item 7,
 >= 10x on every class in both conventions.
 
     .venv/bin/python bench/bench_sor.py [--repeat N] [--seed S] [--k K] [--std-ratio R]
@@ -40,8 +42,8 @@ before and after. Targets: issue 12, >= 5x on every class and >= 10x on the pile
 The SOR stage inside a replay: ``--stage LOG.mcap [--against OLD_TREE]`` runs the bin stages on
 every frame of the log (its own bin model, its config) and times the pipeline's SOR stage on the
 zone they leave (``replay.pipeline.zone.sor_on_zone``: the judged region, its crop, the filter;
-CPU ms, median of --repeat), with the previous tree's in a subprocess and whether its masks are
-this code's bit for bit.
+CPU ms, median of --repeat), with the previous tree's in a subprocess, alternately frame by frame
+and round by round as for the classes, and whether its masks are this code's bit for bit.
 """
 
 from __future__ import annotations
@@ -437,25 +439,67 @@ def time_both(xyz: np.ndarray, k: int, std_ratio: float, repeat: int) -> dict[st
             for c in ("pcl", "open3d")}
 
 
-def previous_run(tree: Path, cloud: Path, out: Path, k: int, std_ratio: float, repeat: int) -> dict[str, tuple[float, np.ndarray]]:
-    """:func:`time_both` with the zcut of the source tree ``tree``, in a subprocess (this file's
-    ``--previous-run`` mode) on the cloud saved in ``cloud``."""
-    import subprocess
+class Previous:
+    """The zcut of the source tree ``tree`` in a subprocess that lives for the whole run (this
+    file's ``--serve`` mode), asked for one timed call at a time, so that its calls and this
+    code's alternate."""
 
-    env = dict(os.environ, PYTHONPATH=str(tree))
-    subprocess.run([sys.executable, __file__, "--previous-run", str(cloud), str(out), "--k", str(k), "--std-ratio",
-                    str(std_ratio), "--repeat", str(repeat)], env=env, cwd=str(tree), check=True)
-    with np.load(out) as f:
-        return {c: (float(f[f"t_{c}"]), f[f"m_{c}"]) for c in ("pcl", "open3d")}
+    def __init__(self, tree: Path, scratch: Path) -> None:
+        import subprocess
+
+        self.scratch = scratch
+        self.proc = subprocess.Popen([sys.executable, __file__, "--serve"], env=dict(os.environ, PYTHONPATH=str(tree)),
+                                     cwd=str(tree), stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+
+    def ask(self, *words: object) -> str:
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.write(" ".join(map(str, words)) + "\n")
+        self.proc.stdin.flush()
+        answer = self.proc.stdout.readline()
+        if not answer.startswith("done"):
+            raise RuntimeError(f"the previous code's process failed on {words!r}: {answer!r}")
+        return answer
+
+    def cloud(self, cloud: Path, k: int, std_ratio: float) -> dict[str, tuple[float, np.ndarray]]:
+        """Convention -> (CPU s, mask) of one call of the previous sor_outliers on the saved cloud."""
+        out = self.scratch / "prev.npz"
+        self.ask("cloud", cloud, out, k, std_ratio)
+        with np.load(out) as f:
+            return {c: (float(f[f"t_{c}"]), f[f"m_{c}"]) for c in ("pcl", "open3d")}
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.ask("quit")
+            self.proc.wait()
 
 
-def _previous_main(cloud: str, out: str, k: int, std_ratio: float, repeat: int) -> int:
+def _serve() -> int:
+    """The previous code's side of :class:`Previous`: one command a line on stdin, "done" on stdout."""
     import zcut
 
     assert str(Path(zcut.__file__).resolve()).startswith(os.path.realpath(os.getcwd())), zcut.__file__
-    warm_up(k)
-    res = time_both(np.load(cloud), k, std_ratio, repeat)
-    np.savez(out, **{f"t_{c}": t for c, (t, _) in res.items()}, **{f"m_{c}": m for c, (_, m) in res.items()})
+    stage: list[tuple[object, ...]] = []
+    warmed: set[int] = set()
+    for line in sys.stdin:
+        words = line.split()
+        if words[0] == "quit":
+            print("done", flush=True)
+            return 0
+        if words[0] == "cloud":
+            cloud, out, k, std_ratio = words[1], words[2], int(words[3]), float(words[4])
+            if k not in warmed:
+                warm_up(k)
+                warmed.add(k)
+            res = time_both(np.load(cloud), k, std_ratio, 1)
+            np.savez(out, **{f"t_{c}": t for c, (t, _) in res.items()}, **{f"m_{c}": m for c, (_, m) in res.items()})
+        elif words[0] == "stage-open":
+            stage = stage_zones(Path(words[1]))
+            print(f"done {len(stage)}", flush=True)
+            continue
+        elif words[0] == "stage":
+            t, mask = time_stage(stage[int(words[1])])
+            np.savez(words[2], t=t, mask=mask)
+        print("done", flush=True)
     return 0
 
 
@@ -471,60 +515,74 @@ def open3d_outliers(pts: np.ndarray, valid: np.ndarray, k: int, std_ratio: float
     return t, out
 
 
-def stage_costs(log: Path, repeat: int) -> tuple[list[float], list[np.ndarray]]:
-    """CPU s (median of ``repeat``) and the mask of the pipeline's SOR stage on every frame of ``log``."""
+def stage_zones(log: Path) -> list[tuple[object, ...]]:
+    """(frame, zone, config) of every frame of ``log`` after the bin stages (its own bin model, its
+    config), ready for the pipeline's SOR stage."""
     from replay.pipeline import stages
     from replay.pipeline.bin_model import bin_model_for
     from replay.pipeline.session import ReplaySession
-    from replay.pipeline.zone import sor_on_zone
 
     warm_up(4)
     session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
-    times, masks = [], []
+    out: list[tuple[object, ...]] = []
     for frame in session.reader.frames():
         located = stages.locate_bin(frame, session.config, bin_model=session.prepared, seed=session.seed)
         zone = stages.bin_zone(frame, session.config, bin_model=session.prepared, located=located)
-        t, mask = cpu_median(lambda frame=frame, zone=zone: sor_on_zone(frame, zone, session.config), repeat)
-        times.append(t)
-        masks.append(np.asarray(mask))
-    return times, masks
+        out.append((frame, zone, session.config))
+    return out
 
 
-def _stage_previous_main(log: str, out: str, repeat: int) -> int:
-    import zcut
+def time_stage(item: tuple[object, ...]) -> tuple[float, np.ndarray]:
+    """CPU s and mask of one call of the pipeline's SOR stage (``sor_on_zone``) on a prepared frame."""
+    from replay.pipeline.zone import sor_on_zone
 
-    assert str(Path(zcut.__file__).resolve()).startswith(os.path.realpath(os.getcwd())), zcut.__file__
-    times, masks = stage_costs(Path(log), repeat)
-    np.savez(out, times=np.array(times), masks=np.array(masks))
-    return 0
+    frame, zone, config = item
+    t, mask = cpu_median(lambda: sor_on_zone(frame, zone, config), 1)  # type: ignore[arg-type]  # stage_zones' items
+    return t, np.asarray(mask)
 
 
 def stage_main(log: Path, against: Path | None, repeat: int) -> int:
-    """Print the SOR stage's CPU ms per frame of ``log``, this code and (``against``) the previous."""
-    import subprocess
+    """Print the SOR stage's CPU ms per frame of ``log``, this code and (``against``) the previous,
+    alternately (frame by frame, the order flipping every round); medians of ``repeat`` rounds."""
     import tempfile
 
-    print(f"SOR stage of {log}: CPU ms (all threads), median of {repeat}; load average {load_average()}"
-          + (f"; previous code: {against}" if against else ""), flush=True)
-    times, masks = stage_costs(log, repeat)
-    prev_t: list[float] = []
-    prev_m: list[np.ndarray] = []
-    if against is not None:
-        with tempfile.TemporaryDirectory(prefix="bench-sor-") as d:
-            out = Path(d) / "prev.npz"
-            subprocess.run([sys.executable, __file__, "--stage-previous", str(log), str(out), "--repeat", str(repeat)],
-                           env=dict(os.environ, PYTHONPATH=str(against)), cwd=str(against), check=True)
-            with np.load(out) as f:
-                prev_t, prev_m = list(f["times"]), list(f["masks"])
-    print(f"{'frame':>5s} {'outliers':>10s} {'this ms':>8s}" + (f" {'prev ms':>8s} {'prev/this':>9s} same" if prev_t else ""))
-    for i, (t, m) in enumerate(zip(times, masks, strict=True)):
+    print(f"SOR stage of {log}: CPU ms (all threads), median of {repeat} rounds; load average {load_average()}"
+          + (f"; previous code: {against}, alternately" if against else ""), flush=True)
+    zones = stage_zones(log)
+    scratch = tempfile.TemporaryDirectory(prefix="bench-sor-")
+    prev = Previous(against, Path(scratch.name)) if against is not None else None
+    if prev is not None:
+        prev.ask("stage-open", log)
+    times: list[list[float]] = [[] for _ in zones]
+    prev_t: list[list[float]] = [[] for _ in zones]
+    masks: list[np.ndarray] = [np.zeros(0, bool)] * len(zones)
+    prev_m: list[np.ndarray] = [np.zeros(0, bool)] * len(zones)
+    for rnd in range(repeat):
+        for i, item in enumerate(zones):
+            for who in (("this", "prev") if rnd % 2 == 0 else ("prev", "this")):
+                if who == "this":
+                    t, masks[i] = time_stage(item)
+                    times[i].append(t)
+                elif prev is not None:
+                    out = Path(scratch.name) / "stage.npz"
+                    prev.ask("stage", i, out)
+                    with np.load(out) as f:
+                        prev_t[i].append(float(f["t"]))
+                        prev_m[i] = f["mask"]
+    if prev is not None:
+        prev.close()
+    scratch.cleanup()
+    med = [float(np.median(t)) for t in times]
+    pmed = [float(np.median(t)) for t in prev_t] if prev is not None else []
+    print(f"{'frame':>5s} {'outliers':>10s} {'this ms':>8s}" + (f" {'prev ms':>8s} {'prev/this':>9s} same" if pmed else ""))
+    for i, (t, m) in enumerate(zip(med, masks, strict=True)):
         line = f"{i:5d} {int(m.sum()):10d} {1000 * t:8.1f}"
-        if prev_t:
-            line += f" {1000 * prev_t[i]:8.1f} {prev_t[i] / t:8.2f}x {'yes' if np.array_equal(m, prev_m[i]) else 'NO'}"
+        if pmed:
+            line += f" {1000 * pmed[i]:8.1f} {pmed[i] / t:8.2f}x {'yes' if np.array_equal(m, prev_m[i]) else 'NO'}"
         print(line)
-    line = f"{'median':>5s} {'':10s} {1000 * float(np.median(times)):8.1f}"
-    if prev_t:
-        line += f" {1000 * float(np.median(prev_t)):8.1f} {float(np.median(prev_t)) / float(np.median(times)):8.2f}x"
+    line = f"{'median':>5s} {'':10s} {1000 * float(np.median(med)):8.1f}"
+    if pmed:
+        line += f" {1000 * float(np.median(pmed)):8.1f} {float(np.median(pmed)) / float(np.median(med)):8.2f}x"
     print(line)
     print(f"load average at the end: {load_average()}")
     return 0
@@ -549,15 +607,12 @@ def main() -> int:
                         help="also time the previous code of this source tree on every cloud, and compare its masks")
     parser.add_argument("--stage", metavar="LOG", type=Path,
                         help="time the pipeline's SOR stage on every frame of this log instead of the classes")
-    parser.add_argument("--previous-run", nargs=2, metavar=("CLOUD_NPY", "OUT_NPZ"), help=argparse.SUPPRESS)
-    parser.add_argument("--stage-previous", nargs=2, metavar=("LOG", "OUT_NPZ"), help=argparse.SUPPRESS)
+    parser.add_argument("--serve", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
 
     configure_process()
-    if args.previous_run:
-        return _previous_main(*args.previous_run, args.k, args.std_ratio, args.repeat)
-    if args.stage_previous:
-        return _stage_previous_main(*args.stage_previous, args.repeat)
+    if args.serve:
+        return _serve()
     if args.stage:
         return stage_main(args.stage, args.against, args.repeat)
     import tempfile
@@ -575,7 +630,8 @@ def main() -> int:
     warm_up(args.k)
     print(f"k={args.k} std_ratio={args.std_ratio} repeat={args.repeat} seed={args.seed}, {os.cpu_count()} cores, "
           f"zcut on {numba.config.NUMBA_NUM_THREADS} threads; CPU s = process time of all threads, median of "
-          f"{args.repeat}; load average {load_average()}" + (f"; previous code: {args.against}" if args.against else ""))
+          f"{args.repeat} rounds; load average {load_average()}"
+          + (f"; previous code: {args.against}, alternately" if args.against else ""))
     header = f"{'class':26s} {'conv':6s} {'H x W':>11s} {'n valid':>9s} {'zcut s':>8s} {'Open3D s':>9s} {'ratio':>7s}"
     if args.against:
         header += f" {'prev s':>8s} {'prev/this':>9s} {'same as prev':>12s}"
@@ -588,6 +644,7 @@ def main() -> int:
     if REAL_DATA_PROBLEM is not None:
         print(f"WARNING: no real-data class will run: {REAL_DATA_PROBLEM}", file=sys.stderr, flush=True)
     scratch = tempfile.TemporaryDirectory(prefix="bench-sor-")
+    previous = Previous(args.against, Path(scratch.name)) if args.against else None
     for name, make in classes.items():
         xyz = make()
         if isinstance(xyz, str):
@@ -597,14 +654,8 @@ def main() -> int:
         ran.append(name)
         valid = np.isfinite(xyz).all(axis=2)
         pts = np.ascontiguousarray(xyz[valid], dtype=np.float64)
-        t_o3d, want_o3d = open3d_outliers(pts, valid, args.k, args.std_ratio, args.repeat)
-        mine = time_both(xyz, args.k, args.std_ratio, args.repeat)
-        prev = None
-        if args.against:
-            cloud = Path(scratch.name) / "cloud.npy"
-            np.save(cloud, xyz)
-            prev = previous_run(args.against, cloud, Path(scratch.name) / "prev.npz", args.k, args.std_ratio,
-                                args.repeat)
+        t_o3d, want_o3d, mine, prev = alternate(xyz, pts, valid, args.k, args.std_ratio, args.repeat, previous,
+                                                Path(scratch.name))
         for convention in ("pcl", "open3d"):
             t, got = mine[convention]
             if convention == "open3d":
@@ -622,11 +673,43 @@ def main() -> int:
                 as_prev = "yes" if np.array_equal(got, m_prev) else f"NO ({int((got != m_prev).sum())} px)"
                 line += f" {t_prev:8.3f} {t_prev / t:8.2f}x {as_prev:>12s}"
             print(f"{line}  {same}", flush=True)
+    if previous is not None:
+        previous.close()
     scratch.cleanup()
     for line in summary(ran, skipped, worst, real_problem=REAL_DATA_PROBLEM):
         print(line)
     print(f"load average at the end: {load_average()}")
     return 0
+
+
+def alternate(xyz: np.ndarray, pts: np.ndarray, valid: np.ndarray, k: int, std_ratio: float, rounds: int,
+              previous: Previous | None, scratch: Path) -> tuple[float, np.ndarray, dict[str, tuple[float, np.ndarray]],
+                                                                 dict[str, tuple[float, np.ndarray]] | None]:
+    """Open3D, this code and (``previous``) the previous code once each per round, this and the
+    previous in an order that flips every round; the medians over the rounds and the last masks:
+    (Open3D s, Open3D's mask, this code's {convention: (s, mask)}, the previous code's or None)."""
+    cloud = scratch / "cloud.npy"
+    if previous is not None:
+        np.save(cloud, xyz)
+    t_o3d: list[float] = []
+    want_o3d = np.zeros(0, bool)
+    mine: dict[str, list[tuple[float, np.ndarray]]] = {"pcl": [], "open3d": []}
+    prev: dict[str, list[tuple[float, np.ndarray]]] = {"pcl": [], "open3d": []}
+    for rnd in range(rounds):
+        t, want_o3d = open3d_outliers(pts, valid, k, std_ratio, 1)
+        t_o3d.append(t)
+        for who in (("this", "prev") if rnd % 2 == 0 else ("prev", "this")):
+            if who == "this":
+                for c, res in time_both(xyz, k, std_ratio, 1).items():
+                    mine[c].append(res)
+            elif previous is not None:
+                for c, res in previous.cloud(cloud, k, std_ratio).items():
+                    prev[c].append(res)
+
+    def med(runs: dict[str, list[tuple[float, np.ndarray]]]) -> dict[str, tuple[float, np.ndarray]]:
+        return {c: (float(np.median([t for t, _ in r])), r[-1][1]) for c, r in runs.items()}
+
+    return float(np.median(t_o3d)), want_o3d, med(mine), med(prev) if previous is not None else None
 
 
 def is_real(name: str) -> bool:

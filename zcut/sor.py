@@ -30,9 +30,10 @@ and a search never has to look at more than m copies of a duplicated point.
    per-cell floor of their bound usually spares evaluating them). If the m-th distance found is
    within all of them, the window is proven. Stages, cheapest first: a 3 × 3 window for whole
    rows at once (vectorized: the 8 neighbour distances sorted by a network, so any m <= 9 is a
-   selection), a 5 × 5 window for what it leaves (the whole row, vectorized, when that is much),
-   then one pixel at a time, growing the window one ring at a time until its bound covers the
-   m-th distance found so far, up to 16.
+   selection; only the 4 smallest kept when m <= 5), a 5 × 5 window for what it leaves (the whole
+   row, vectorized, when that is much), then one pixel at a time, growing the window one ring at a
+   time until its bound covers the m-th distance found so far, up to 16 (a pixel the 5 × 5 window
+   left grows on from its smallest distances there: no pixel is measured twice).
 3. *Columns* (:mod:`zcut.columns`), when many pixels are unproven (one in ``_COLUMNS_MIN_SHARE``
    or more: tall parts standing on end, whose image neighbours are rarely 3D neighbours, and the
    flying pixels along their silhouettes). Each unproven pixel has an upper bound on its m-th
@@ -269,7 +270,8 @@ def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarr
     w0 = _window.first_window(m, wmax)
     dbar = np.empty((H, W))
     unproven = np.zeros(H, dtype=np.int64)
-    run(_window.window_rows, H, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven)
+    run(_window.window_rows, H, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven,
+        _window.slots_for(m))
     rows, cols = _window.unproven_pixels(valid, dbar, unproven)  # their dbar: minus the m-th squared distance
     if rows.size:
         def tree() -> tuple[np.ndarray, ...]:  # built only if the column search leaves pixels

@@ -7,11 +7,13 @@ The argument is in the module docstring of :mod:`zcut.sor`. Three stages, cheape
 1. a 3 × 3 window for a whole row: the 8 neighbour distances sorted by a network, so any m <= 9
    is a selection, and the w = 1 bound is four plane evaluations -- straight-line code over
    chunks of columns copied into a scratch buffer, which the compiler vectorizes;
-2. a 5 × 5 window for the pixels stage 1 left: the inner ring sorted, ring 2 merged into the 8
-   smallest; for the whole row (vectorized like stage 1) when they are many, and for the rows
-   after such a row straight away (re-checked every 8 rows), else for a list of pixels;
+2. a 5 × 5 window for the pixels stage 1 left: the inner ring sorted, ring 2 merged into the
+   smallest (4 when m <= 5, else 8: :func:`slots_for`); for the whole row (vectorized like stage 1)
+   when they are many, and for the rows after such a row straight away (re-checked every 8 rows),
+   else for a list of pixels;
 3. one pixel at a time, the window growing one ring at a time until its bound covers the m-th
-   distance found so far, up to ``WINDOW_MAX``.
+   distance found so far, up to ``WINDOW_MAX``; a pixel stage 2 left starts from stage 2's
+   smallest distances and count at w = 2 (:func:`_grow_seeded`), the others from scratch.
 
 Every kernel here is serial and releases the GIL; :mod:`zcut.sor` runs them over row ranges on
 threads.
@@ -23,7 +25,7 @@ import numba as nb
 import numpy as np
 from llvmlite import ir
 from numba.core import types
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
 
 from .sor_camera import BLOCK, KEEP, plane_bound, plane_bound_at
 
@@ -149,6 +151,105 @@ def _pick(m, divisor, s1, s2, s3, s4, s5, s6, s7, s8):  # type: ignore[no-untype
     return dm2, sm / divisor
 
 
+# The row stages keep the S smallest neighbour distances of a pixel as a tuple of S floats: S = 4
+# when m <= 5 (the paper's k = 4 in both conventions), else 8. The helpers below are specialized
+# on the tuple's length at compile time, so that the 4-slot kernels carry no work for slots they
+# never read (half the compare-exchanges of the 5 x 5 window, half the slots kept between passes).
+SLOTS_SMALL = 4
+
+
+def slots_for(m: int) -> tuple[float, ...]:
+    """The empty slot tuple (all +inf) of the row stages for m: 4 slots when m <= 5, else 8."""
+    return (np.inf,) * (SLOTS_SMALL if m <= SLOTS_SMALL + 1 else 8)
+
+
+def _keep(s: tuple[float, ...], v: float) -> tuple[float, ...]:  # a stub: numba compiles the overload below
+    """Insert v into the ascending slots s, dropping the largest, without branches."""
+    raise NotImplementedError
+
+
+@overload(_keep, inline="always")
+def _keep_overload(s, v):  # type: ignore[no-untyped-def]  # numba typing function
+    if s.count == 4:
+        def keep4(s, v):  # type: ignore[no-untyped-def]  # numba kernel
+            s1, s2, s3, s4 = s
+            return min(s1, v), min(s2, max(s1, v)), min(s3, max(s2, v)), min(s4, max(s3, v))
+        return keep4
+
+    def keep8(s, v):  # type: ignore[no-untyped-def]  # numba kernel
+        return _keep8(s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], v)
+    return keep8
+
+
+def _first(s8: tuple[float, ...], like: tuple[float, ...]) -> tuple[float, ...]:  # a stub: numba compiles the overload
+    """The first len(like) of the 8-tuple s8."""
+    raise NotImplementedError
+
+
+@overload(_first, inline="always")
+def _first_overload(s8, like):  # type: ignore[no-untyped-def]  # numba typing function
+    if like.count == 4:
+        return lambda s8, like: (s8[0], s8[1], s8[2], s8[3])
+    return lambda s8, like: s8
+
+
+def _pick_slots(m: int, divisor: float, s: tuple[float, ...]) -> tuple[float, float]:  # a stub: see the overload
+    """:func:`_pick` of the slots s (m <= len(s) + 1)."""
+    raise NotImplementedError
+
+
+@overload(_pick_slots, inline="always")
+def _pick_slots_overload(m, divisor, s):  # type: ignore[no-untyped-def]  # numba typing function
+    if s.count == 4:
+        def pick4(m, divisor, s):  # type: ignore[no-untyped-def]  # numba kernel
+            s1, s2, s3, s4 = s
+            dm2 = 0.0
+            dm2 = s1 if m == 2 else dm2
+            dm2 = s2 if m == 3 else dm2
+            dm2 = s3 if m == 4 else dm2
+            dm2 = s4 if m == 5 else dm2
+            sm = 0.0
+            sm += _sqrt(s1) if m >= 2 else 0.0  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+            sm += _sqrt(s2) if m >= 3 else 0.0  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+            sm += _sqrt(s3) if m >= 4 else 0.0  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+            sm += _sqrt(s4) if m >= 5 else 0.0  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+            return dm2, sm / divisor
+        return pick4
+    return lambda m, divisor, s: _pick(m, divisor, s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7])
+
+
+def _store(buf: np.ndarray, o: int, i: int, s: tuple[float, ...]) -> None:  # a stub: see the overload
+    """buf[o + j * CH + i] = s[j] for every slot j."""
+    raise NotImplementedError
+
+
+@overload(_store, inline="always")
+def _store_overload(buf, o, i, s):  # type: ignore[no-untyped-def]  # numba typing function
+    if s.count == 4:
+        def store4(buf, o, i, s):  # type: ignore[no-untyped-def]  # numba kernel
+            buf[o + i], buf[o + CH + i], buf[o + 2 * CH + i], buf[o + 3 * CH + i] = s
+        return store4
+
+    def store8(buf, o, i, s):  # type: ignore[no-untyped-def]  # numba kernel
+        buf[o + i], buf[o + CH + i], buf[o + 2 * CH + i], buf[o + 3 * CH + i] = s[0], s[1], s[2], s[3]
+        buf[o + 4 * CH + i], buf[o + 5 * CH + i], buf[o + 6 * CH + i], buf[o + 7 * CH + i] = s[4], s[5], s[6], s[7]
+    return store8
+
+
+def _load(buf: np.ndarray, o: int, i: int, like: tuple[float, ...]) -> tuple[float, ...]:  # a stub: see the overload
+    """The slots buf[o + j * CH + i], as many as ``like`` has."""
+    raise NotImplementedError
+
+
+@overload(_load, inline="always")
+def _load_overload(buf, o, i, like):  # type: ignore[no-untyped-def]  # numba typing function
+    if like.count == 4:
+        return lambda buf, o, i, like: (buf[o + i], buf[o + CH + i], buf[o + 2 * CH + i], buf[o + 3 * CH + i])
+    return lambda buf, o, i, like: (buf[o + i], buf[o + CH + i], buf[o + 2 * CH + i], buf[o + 3 * CH + i],
+                                    buf[o + 4 * CH + i], buf[o + 5 * CH + i], buf[o + 6 * CH + i],
+                                    buf[o + 7 * CH + i])
+
+
 @nb.njit(cache=True, inline="always")
 def _inner8(xq, yq, zq, x, y, z, r, c):  # type: ignore[no-untyped-def]  # numba kernel
     # the 8 distances of the 3 x 3 window, sorted (2D indexing: one base pointer per plane keeps
@@ -245,8 +346,9 @@ def _chunk_plane(buf, o, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba k
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _chunk_3x3(buf, n, m, divisor, use_cam):  # type: ignore[no-untyped-def]  # numba kernel
-    """Query columns 0..n-1 of the chunk with a 3 x 3 window: d̄ where proven, else NaN."""
+def _chunk_3x3(buf, n, m, divisor, use_cam, init):  # type: ignore[no-untyped-def]  # numba kernel
+    """Query columns 0..n-1 of the chunk with a 3 x 3 window: d̄ where proven, else NaN.
+    ``init``: the slot tuple (:func:`slots_for`)."""
     for i in range(n):
         j = i + 1
         a0, a1, a2 = _X1 + j, _X1 + _S1 + j, _X1 + 2 * _S1 + j
@@ -255,7 +357,7 @@ def _chunk_3x3(buf, n, m, divisor, use_cam):  # type: ignore[no-untyped-def]  # 
         xq = buf[a1]
         yq = buf[b1]
         zq = buf[e1]
-        s1, s2, s3, s4, s5, s6, s7, s8 = _sort8(
+        sl = _first(_sort8(
             d2(xq, yq, zq, buf[a0 - 1], buf[b0 - 1], buf[e0 - 1]),
             d2(xq, yq, zq, buf[a0], buf[b0], buf[e0]),
             d2(xq, yq, zq, buf[a0 + 1], buf[b0 + 1], buf[e0 + 1]),
@@ -264,11 +366,11 @@ def _chunk_3x3(buf, n, m, divisor, use_cam):  # type: ignore[no-untyped-def]  # 
             d2(xq, yq, zq, buf[a2 - 1], buf[b2 - 1], buf[e2 - 1]),
             d2(xq, yq, zq, buf[a2], buf[b2], buf[e2]),
             d2(xq, yq, zq, buf[a2 + 1], buf[b2 + 1], buf[e2 + 1]),
-        )
+        ), init)
         count = (1 + np.int64(buf[a0 - 1] < np.inf) + np.int64(buf[a0] < np.inf) + np.int64(buf[a0 + 1] < np.inf)
                  + np.int64(buf[a1 - 1] < np.inf) + np.int64(buf[a1 + 1] < np.inf)
                  + np.int64(buf[a2 - 1] < np.inf) + np.int64(buf[a2] < np.inf) + np.int64(buf[a2 + 1] < np.inf))
-        dm2, mean = _pick(m, divisor, s1, s2, s3, s4, s5, s6, s7, s8)
+        dm2, mean = _pick_slots(m, divisor, sl)
         sb = min(min(_chunk_plane(buf, _T1 + i, xq, yq, zq), _chunk_plane(buf, _T1 + 4 * CH + i, xq, yq, zq)),
                  min(_chunk_plane(buf, _T1 + 8 * CH + i, xq, yq, zq), _chunk_plane(buf, _T1 + 12 * CH + i, xq, yq, zq)))
         fl = buf[_T1 + 16 * CH + i]
@@ -278,12 +380,14 @@ def _chunk_3x3(buf, n, m, divisor, use_cam):  # type: ignore[no-untyped-def]  # 
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _chunk_5x5(buf, n, m, divisor, use_cam):  # type: ignore[no-untyped-def]  # numba kernel
-    """Query columns 0..n-1 of the chunk with a 5 x 5 window: d̄ where proven, else NaN.
+def _chunk_5x5(buf, n, m, divisor, use_cam, init):  # type: ignore[no-untyped-def]  # numba kernel
+    """Query columns 0..n-1 of the chunk with a 5 x 5 window: d̄ where proven, else NaN; the slots
+    (``init``'s length, :func:`slots_for`) and the count of valid pixels stay in the buffer at _K2
+    for the pixels left to the growing window.
 
-    Three loops (the inner ring sorted, then ring 2 in two halves, with the 8 smallest and the
-    count kept in the buffer between them): in one loop the compiler's dependence analysis would
-    have more memory accesses than it examines, and would not vectorize it.
+    Three loops (the inner ring sorted, then ring 2 in two halves, with the slots and the count
+    kept in the buffer between them): in one loop the compiler's dependence analysis would have
+    more memory accesses than it examines, and would not vectorize it.
     """
     dy = _Y2 - _X2
     dz = _Z2 - _X2
@@ -293,7 +397,7 @@ def _chunk_5x5(buf, n, m, divisor, use_cam):  # type: ignore[no-untyped-def]  # 
         xq = buf[r2]
         yq = buf[r2 + dy]
         zq = buf[r2 + dz]
-        s1, s2, s3, s4, s5, s6, s7, s8 = _sort8(
+        sl = _first(_sort8(
             d2(xq, yq, zq, buf[r1 - 1], buf[r1 - 1 + dy], buf[r1 - 1 + dz]),
             d2(xq, yq, zq, buf[r1], buf[r1 + dy], buf[r1 + dz]),
             d2(xq, yq, zq, buf[r1 + 1], buf[r1 + 1 + dy], buf[r1 + 1 + dz]),
@@ -302,12 +406,11 @@ def _chunk_5x5(buf, n, m, divisor, use_cam):  # type: ignore[no-untyped-def]  # 
             d2(xq, yq, zq, buf[r3 - 1], buf[r3 - 1 + dy], buf[r3 - 1 + dz]),
             d2(xq, yq, zq, buf[r3], buf[r3 + dy], buf[r3 + dz]),
             d2(xq, yq, zq, buf[r3 + 1], buf[r3 + 1 + dy], buf[r3 + 1 + dz]),
-        )
+        ), init)
         count = (1 + np.int64(buf[r1 - 1] < np.inf) + np.int64(buf[r1] < np.inf) + np.int64(buf[r1 + 1] < np.inf)
                  + np.int64(buf[r2 - 1] < np.inf) + np.int64(buf[r2 + 1] < np.inf)
                  + np.int64(buf[r3 - 1] < np.inf) + np.int64(buf[r3] < np.inf) + np.int64(buf[r3 + 1] < np.inf))
-        buf[_K2 + i], buf[_K2 + CH + i], buf[_K2 + 2 * CH + i], buf[_K2 + 3 * CH + i] = s1, s2, s3, s4
-        buf[_K2 + 4 * CH + i], buf[_K2 + 5 * CH + i], buf[_K2 + 6 * CH + i], buf[_K2 + 7 * CH + i] = s5, s6, s7, s8
+        _store(buf, _K2, i, sl)
         buf[_K2 + 8 * CH + i] = np.float64(count)
     for i in range(n):
         j = i + 2
@@ -315,21 +418,19 @@ def _chunk_5x5(buf, n, m, divisor, use_cam):  # type: ignore[no-untyped-def]  # 
         xq = buf[r2]
         yq = buf[r2 + dy]
         zq = buf[r2 + dz]
-        s1, s2, s3, s4 = buf[_K2 + i], buf[_K2 + CH + i], buf[_K2 + 2 * CH + i], buf[_K2 + 3 * CH + i]
-        s5, s6, s7, s8 = buf[_K2 + 4 * CH + i], buf[_K2 + 5 * CH + i], buf[_K2 + 6 * CH + i], buf[_K2 + 7 * CH + i]
+        sl = _load(buf, _K2, i, init)
         count = np.int64(buf[_K2 + 8 * CH + i])
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r0 - 2], buf[r0 - 2 + dy], buf[r0 - 2 + dz]))
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r0 - 1], buf[r0 - 1 + dy], buf[r0 - 1 + dz]))
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r0], buf[r0 + dy], buf[r0 + dz]))
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r0 + 1], buf[r0 + 1 + dy], buf[r0 + 1 + dz]))
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r0 + 2], buf[r0 + 2 + dy], buf[r0 + 2 + dz]))
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r4 - 2], buf[r4 - 2 + dy], buf[r4 - 2 + dz]))
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r4 - 1], buf[r4 - 1 + dy], buf[r4 - 1 + dz]))
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r4], buf[r4 + dy], buf[r4 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r0 - 2], buf[r0 - 2 + dy], buf[r0 - 2 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r0 - 1], buf[r0 - 1 + dy], buf[r0 - 1 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r0], buf[r0 + dy], buf[r0 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r0 + 1], buf[r0 + 1 + dy], buf[r0 + 1 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r0 + 2], buf[r0 + 2 + dy], buf[r0 + 2 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r4 - 2], buf[r4 - 2 + dy], buf[r4 - 2 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r4 - 1], buf[r4 - 1 + dy], buf[r4 - 1 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r4], buf[r4 + dy], buf[r4 + dz]))
         count += (np.int64(buf[r0 - 2] < np.inf) + np.int64(buf[r0 - 1] < np.inf) + np.int64(buf[r0] < np.inf) + np.int64(buf[r0 + 1] < np.inf)
                   + np.int64(buf[r0 + 2] < np.inf) + np.int64(buf[r4 - 2] < np.inf) + np.int64(buf[r4 - 1] < np.inf) + np.int64(buf[r4] < np.inf))
-        buf[_K2 + i], buf[_K2 + CH + i], buf[_K2 + 2 * CH + i], buf[_K2 + 3 * CH + i] = s1, s2, s3, s4
-        buf[_K2 + 4 * CH + i], buf[_K2 + 5 * CH + i], buf[_K2 + 6 * CH + i], buf[_K2 + 7 * CH + i] = s5, s6, s7, s8
+        _store(buf, _K2, i, sl)
         buf[_K2 + 8 * CH + i] = np.float64(count)
     for i in range(n):
         j = i + 2
@@ -337,20 +438,21 @@ def _chunk_5x5(buf, n, m, divisor, use_cam):  # type: ignore[no-untyped-def]  # 
         xq = buf[r2]
         yq = buf[r2 + dy]
         zq = buf[r2 + dz]
-        s1, s2, s3, s4 = buf[_K2 + i], buf[_K2 + CH + i], buf[_K2 + 2 * CH + i], buf[_K2 + 3 * CH + i]
-        s5, s6, s7, s8 = buf[_K2 + 4 * CH + i], buf[_K2 + 5 * CH + i], buf[_K2 + 6 * CH + i], buf[_K2 + 7 * CH + i]
+        sl = _load(buf, _K2, i, init)
         count = np.int64(buf[_K2 + 8 * CH + i])
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r4 + 1], buf[r4 + 1 + dy], buf[r4 + 1 + dz]))
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r4 + 2], buf[r4 + 2 + dy], buf[r4 + 2 + dz]))
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r1 - 2], buf[r1 - 2 + dy], buf[r1 - 2 + dz]))
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r1 + 2], buf[r1 + 2 + dy], buf[r1 + 2 + dz]))
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r2 - 2], buf[r2 - 2 + dy], buf[r2 - 2 + dz]))
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r2 + 2], buf[r2 + 2 + dy], buf[r2 + 2 + dz]))
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r3 - 2], buf[r3 - 2 + dy], buf[r3 - 2 + dz]))
-        s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8, d2(xq, yq, zq, buf[r3 + 2], buf[r3 + 2 + dy], buf[r3 + 2 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r4 + 1], buf[r4 + 1 + dy], buf[r4 + 1 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r4 + 2], buf[r4 + 2 + dy], buf[r4 + 2 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r1 - 2], buf[r1 - 2 + dy], buf[r1 - 2 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r1 + 2], buf[r1 + 2 + dy], buf[r1 + 2 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r2 - 2], buf[r2 - 2 + dy], buf[r2 - 2 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r2 + 2], buf[r2 + 2 + dy], buf[r2 + 2 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r3 - 2], buf[r3 - 2 + dy], buf[r3 - 2 + dz]))
+        sl = _keep(sl, d2(xq, yq, zq, buf[r3 + 2], buf[r3 + 2 + dy], buf[r3 + 2 + dz]))
         count += (np.int64(buf[r4 + 1] < np.inf) + np.int64(buf[r4 + 2] < np.inf) + np.int64(buf[r1 - 2] < np.inf) + np.int64(buf[r1 + 2] < np.inf)
                   + np.int64(buf[r2 - 2] < np.inf) + np.int64(buf[r2 + 2] < np.inf) + np.int64(buf[r3 - 2] < np.inf) + np.int64(buf[r3 + 2] < np.inf))
-        dm2, mean = _pick(m, divisor, s1, s2, s3, s4, s5, s6, s7, s8)
+        _store(buf, _K2, i, sl)
+        buf[_K2 + 8 * CH + i] = np.float64(count)
+        dm2, mean = _pick_slots(m, divisor, sl)
         sb = min(min(_chunk_plane(buf, _T2 + i, xq, yq, zq), _chunk_plane(buf, _T2 + 4 * CH + i, xq, yq, zq)),
                  min(_chunk_plane(buf, _T2 + 8 * CH + i, xq, yq, zq), _chunk_plane(buf, _T2 + 12 * CH + i, xq, yq, zq)))
         fl = buf[_T2 + 16 * CH + i]
@@ -408,15 +510,19 @@ def _fill_chunk(buf, w, r, c0, n, x, y, z, Rb, C, floor, b, use_cam):  # type: i
 
 
 @nb.njit(cache=True)
-def _row_stage(buf, w, r, x, y, z, valid, first, last, m, divisor, use_cam, Rb, C, floor, b, dbar, merge=True):  # type: ignore[no-untyped-def]  # numba kernel
+def _row_stage(buf, w, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor, b, dbar, merge, init,  # type: ignore[no-untyped-def]  # numba kernel
+               best, wmax):
     # stage 1 (w = 1: columns 2 .. W - 3) or stage 2 (w = 2: columns 3 .. W - 4, only where
     # stage 1 left NaN if merge, else all) of row r, over its valid columns first .. last: chunks
     # of at most CH columns, each starting at a valid pixel and ending before a run of more than
-    # _GAP invalid ones (the columns between chunks are invalid: their dbar is left as it is)
+    # _GAP invalid ones (the columns between chunks are invalid: their dbar is left as it is).
+    # Stage 2 hands the pixels it leaves straight to the growing window, from its 5 x 5 window's
+    # slots (written: d̄, or minus the m-th squared distance found): stage 3 skips them.
     W = x.shape[1]
     c = max(w + 1, first)
     end = min(W - w - 2, last)
     oo = 3 * (2 * w + 1) * (CH + 2 * w) + 17 * CH
+    Rb = R[b]
     while c <= end:
         if not valid[r, c]:
             c += 1
@@ -432,53 +538,56 @@ def _row_stage(buf, w, r, x, y, z, valid, first, last, m, divisor, use_cam, Rb, 
         c = lastv + 1
         _fill_chunk(buf, w, r, c0, n, x, y, z, Rb, C, floor, b, use_cam)
         if w == 1:
-            _chunk_3x3(buf, n, m, divisor, use_cam)
+            _chunk_3x3(buf, n, m, divisor, use_cam, init)
             for i in range(n):
                 dbar[r, c0 + i] = buf[oo + i]
         else:
-            _chunk_5x5(buf, n, m, divisor, use_cam)
-            if merge:
-                for i in range(n):
-                    old = dbar[r, c0 + i]
-                    dbar[r, c0 + i] = buf[oo + i] if np.isnan(old) else old
-            else:
-                for i in range(n):
-                    dbar[r, c0 + i] = buf[oo + i]
+            _chunk_5x5(buf, n, m, divisor, use_cam, init)
+            for i in range(n):
+                cc = c0 + i
+                if merge and not np.isnan(dbar[r, cc]):
+                    continue
+                v = buf[oo + i]
+                if np.isnan(v) and valid[r, cc]:
+                    v = _grow_seeded(r, cc, best, _load(buf, _K2, i, init), np.int64(buf[_K2 + 8 * CH + i]), x, y, z,
+                                     m, divisor, wmax, use_cam, R, C, Q, floor)
+                dbar[r, cc] = v
 
 
 # --------------------------------------------------------------------------------------------
 # stage 2: 5 x 5 for a list of pixels of a row
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True, error_model="numpy")
-def _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, floor, b, dbar):  # type: ignore[no-untyped-def]  # numba kernel
+def _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, Q, floor, b, dbar, init, best, wmax):  # type: ignore[no-untyped-def]  # numba kernel
     """The pixels (r, cols[:n]), 2 <= r < H - 2, 3 <= c < W - 3, with a 5 x 5 window and the
-    w = 2 bound (inner ring sorted by the network, ring 2 merged into the 8 smallest). Writes d̄
-    where proven; the others are left as they are."""
+    w = 2 bound (inner ring sorted by the network, ring 2 merged into the slots). Writes d̄ where
+    proven; the others go on to the growing window from there (d̄, or minus the m-th squared
+    distance found)."""
     H, W = x.shape
     for j in range(n):
         c = cols[j]
         xq = x[r, c]
         yq = y[r, c]
         zq = z[r, c]
-        s1, s2, s3, s4, s5, s6, s7, s8 = _inner8(xq, yq, zq, x, y, z, r, c)
+        sl = _first(_inner8(xq, yq, zq, x, y, z, r, c), init)
         count = 1 + _count8(x, r, c)
         for k in range(16):
             rr = r + _RING2[k, 0]
             cc = c + _RING2[k, 1]
-            s1, s2, s3, s4, s5, s6, s7, s8 = _keep8(s1, s2, s3, s4, s5, s6, s7, s8,
-                                                    d2(xq, yq, zq, x[rr, cc], y[rr, cc], z[rr, cc]))
+            sl = _keep(sl, d2(xq, yq, zq, x[rr, cc], y[rr, cc], z[rr, cc]))
             count += np.int64(x[rr, cc] < np.inf)
-        if count < m:
-            continue
-        dm2, mean = _pick(m, divisor, s1, s2, s3, s4, s5, s6, s7, s8)
-        proven = dm2 == 0.0
-        if use_cam and not proven:
-            bc = (c + BLOCK // 2) // BLOCK
-            sb = _strips(r, c, 2, H, W, b, bc, xq, yq, zq, R, C)
-            fl = floor[b, bc]
-            proven = (dm2 <= sb * sb * KEEP) and (dm2 <= fl * fl * KEEP)
-        if proven:
-            dbar[r, c] = mean
+        if count >= m:
+            dm2, mean = _pick_slots(m, divisor, sl)
+            proven = dm2 == 0.0
+            if use_cam and not proven:
+                bc = (c + BLOCK // 2) // BLOCK
+                sb = _strips(r, c, 2, H, W, b, bc, xq, yq, zq, R, C)
+                fl = floor[b, bc]
+                proven = (dm2 <= sb * sb * KEEP) and (dm2 <= fl * fl * KEEP)
+            if proven:
+                dbar[r, c] = mean
+                continue
+        dbar[r, c] = _grow_seeded(r, c, best, sl, count, x, y, z, m, divisor, wmax, use_cam, R, C, Q, floor)
 
 
 # --------------------------------------------------------------------------------------------
@@ -564,7 +673,29 @@ def _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor):  
     for i in range(1, m):
         best[i] = np.inf
     count = 1 + _scan_ring(best, r, c, 0, w0, H, W, x, y, z, xq, yq, zq)
-    w = w0
+    return _grow_from(r, c, best, count, w0, x, y, z, m, divisor, wmax, use_cam, R, C, Q, floor)
+
+
+@nb.njit(cache=True)
+def _grow_seeded(r, c, best, sl, count, x, y, z, m, divisor, wmax, use_cam, R, C, Q, floor):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_grow` of an interior pixel (2 <= r < H - 2, 2 <= c < W - 2) from its 5 x 5 window
+    as the row stages left it: ``sl`` its smallest neighbour distances (ascending slots, at least
+    m - 1 of them), ``count`` its valid pixels, the pixel itself included (the same candidates,
+    hence the same state, as :func:`_grow` scanning rings 1 and 2: none is measured twice)."""
+    best[0] = 0.0
+    for i in range(1, m):
+        best[i] = sl[i - 1]
+    return _grow_from(r, c, best, count, 2, x, y, z, m, divisor, wmax, use_cam, R, C, Q, floor)
+
+
+@nb.njit(cache=True)
+def _grow_from(r, c, best, count, w, x, y, z, m, divisor, wmax, use_cam, R, C, Q, floor):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_grow` once the window of half-width w is scanned into ``best`` (its m smallest
+    squared distances, the pixel's own 0 first) and ``count`` (its valid pixels)."""
+    H, W = x.shape
+    xq = x[r, c]
+    yq = y[r, c]
+    zq = z[r, c]
     while count < m and w < wmax:
         count += _scan_ring(best, r, c, w, w + 1, H, W, x, y, z, xq, yq, zq)
         w += 1
@@ -616,8 +747,9 @@ def first_window(m: int, wmax: int) -> int:
 
 
 @nb.njit(cache=True, nogil=True)
-def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven):  # type: ignore[no-untyped-def]  # numba kernel
-    """Rows r0..r1-1 of the window phase; ``span[r]`` = the first and last valid column of row r.
+def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven, init):  # type: ignore[no-untyped-def]  # numba kernel
+    """Rows r0..r1-1 of the window phase; ``span[r]`` = the first and last valid column of row r;
+    ``init`` = :func:`slots_for` (m).
 
     Writes into dbar (H, W): d̄ >= 0 where proven; at the other valid pixels minus the m-th
     smallest squared distance found in the window (an upper bound on the true one is its
@@ -641,11 +773,12 @@ def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, 
         if w0 == 1 and 0 < r < H - 1 and W >= 5:
             five = 2 <= r < H - 2 and wmax >= 2 and W >= 7
             if five and sparse and r % 8:  # straight to 5 x 5 (the same d̄ where both prove it)
-                _row_stage(buf, 2, r, x, y, z, valid, first, last, m, divisor, use_cam, R[b], C, floor, b, dbar,
-                           False)
+                _row_stage(buf, 2, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor, b, dbar,
+                           False, init, best, wmax)
                 lo, hi = 3, W - 4
             else:
-                _row_stage(buf, 1, r, x, y, z, valid, first, last, m, divisor, use_cam, R[b], C, floor, b, dbar)
+                _row_stage(buf, 1, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor, b, dbar,
+                           True, init, best, wmax)
                 lo, hi = 2, W - 3
                 if five:  # what it left, with a 5 x 5 window
                     n = 0
@@ -654,14 +787,16 @@ def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, 
                         n += valid[r, c] & np.isnan(dbar[r, c])
                     sparse = 8 * n > last - first + 1
                     if sparse:  # many: the whole row, vectorized
-                        _row_stage(buf, 2, r, x, y, z, valid, first, last, m, divisor, use_cam, R[b], C, floor, b,
-                                   dbar)
+                        _row_stage(buf, 2, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor, b,
+                                   dbar, True, init, best, wmax)
                     elif n:
-                        _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, floor, b, dbar)
+                        _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, Q, floor, b, dbar, init, best,
+                                  wmax)
         n = 0
         for c in range(first, last + 1):
-            if valid[r, c] and not (lo <= c <= hi and not np.isnan(dbar[r, c])):
-                dbar[r, c] = _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor)
+            if valid[r, c]:
+                if not (lo <= c <= hi and not np.isnan(dbar[r, c])):
+                    dbar[r, c] = _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor)
                 n += dbar[r, c] < 0.0
         unproven[r] = n
 

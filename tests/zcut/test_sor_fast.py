@@ -165,6 +165,29 @@ def test_fuzz_relief_with_holes_and_ties(seed: int) -> None:
     assert_as_oracle(xyz, ks=(1, 4, 8), ratios=(0.5, 1.0))
 
 
+def test_slots_follow_m() -> None:
+    # 4 slots while m - 1 <= 4 (k = 4 in both conventions), 8 up to m = 9; beyond, no row stage
+    assert [len(sor_window.slots_for(m)) for m in range(1, 10)] == [4] * 5 + [8] * 4
+    assert sor_window.first_window(9, 16) == 1 and sor_window.first_window(10, 16) == 2
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_five_by_five_hands_its_slots_to_the_growing_window(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    # tall parts on end (the 5 x 5 window leaves their side pixels to the growing window), in a
+    # band of rows with half of the pixels invalid (the whole-row 5 x 5 stage and the rows that go
+    # straight to it) and a band without (the 5 x 5 stage over a list of pixels); k from 1 to 9
+    # covers 4 and 8 slots in both conventions (m = k + 1 or k) and m = 10 (no row stage); with
+    # the growing window capped at w = 2 (the hand-off gives up at once) and at w = 3
+    rng = np.random.default_rng(seed)
+    xyz = bank_clouds.steep(rng, 72, 90)
+    xyz[:30][rng.random((30, 90)) < 0.5] = np.nan
+    xyz[50:53, 10:80] = np.nan  # a large invalid region across the list rows
+    assert_as_oracle(xyz, ks=(1, 3, 4, 5, 8, 9), ratios=(1.0,))
+    for wmax in (2, 3):
+        monkeypatch.setattr(sor_module, "_WINDOW_MAX", wmax)
+        assert_as_oracle(xyz, ks=(4, 5), ratios=(1.0,))
+
+
 # ------------------------------------------------------------------------------------------------
 # the project's frames
 # ------------------------------------------------------------------------------------------------
