@@ -572,9 +572,14 @@ def icp_open3d(source: np.ndarray, points: np.ndarray, normals: np.ndarray | Non
 
 
 def _with_debug_log(call: Callable[[], _T], marker: str) -> tuple[_T, int]:
-    """Run ``call()`` with Open3D's debug log written to a temporary file; (its result, the log's
-    lines containing ``marker``)."""
+    """Run ``call()`` with Open3D's debug log on; (its result, the log's lines containing ``marker``).
+
+    Open3D's Python module prints its log through Python's ``sys.stdout`` (caught here in a string)
+    and its C++ library through the process's standard output (redirected to a temporary file for
+    the call): both are read."""
+    import contextlib
     import ctypes
+    import io
     import os
     import sys
     import tempfile
@@ -585,16 +590,18 @@ def _with_debug_log(call: Callable[[], _T], marker: str) -> tuple[_T, int]:
     sys.stdout.flush()
     saved = os.dup(1)
     level = o3d.utility.get_verbosity_level()
+    text = io.StringIO()
     with tempfile.TemporaryFile(mode="w+b") as f:
         try:
             os.dup2(f.fileno(), 1)
             o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Debug)
-            out = call()
+            with contextlib.redirect_stdout(text):
+                out = call()
         finally:
             o3d.utility.set_verbosity_level(level)
             libc.fflush(None)
             os.dup2(saved, 1)
             os.close(saved)
         f.seek(0)
-        text = f.read().decode(errors="replace")
-    return out, text.count(marker)
+        native = f.read().decode(errors="replace")
+    return out, text.getvalue().count(marker) + native.count(marker)
