@@ -445,38 +445,74 @@ def _is_identity(T: np.ndarray) -> bool:
 
 
 @numba.njit(cache=True, nogil=True)
-def _icp_kernel(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
-                start: np.ndarray, gpts: np.ndarray, gnrm: np.ndarray, gorder: np.ndarray, max_distance: float,
-                max_iteration: int, relative_fitness: float, relative_rmse: float, point_to_plane: bool,
-                out: np.ndarray) -> tuple[float, float, int, int]:
-    """Open3D's ``RegistrationICP`` loop; the pose into ``out``; ``(fitness, rmse, iterations, n)``."""
+def _icp_start(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
+               start: np.ndarray, gpts: np.ndarray, gorder: np.ndarray, max_distance: float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+                          int, float, float]:
+    """The start of Open3D's ``RegistrationICP`` loop: the source moved by ``init`` (unless it is the
+    identity), its correspondences: ``(pcd, search order, pose, state, n, fitness, rmse)``."""
     pcd = source.copy()
-    T = init.copy()
     if not _is_identity(init):
         _transform_rows(init, pcd)
     m = pcd.shape[0]
-    src = np.empty(m, np.int64)
-    dst = np.empty(m, np.int64)
-    best = np.empty(m)
-    near = np.empty(m, np.int64)
+    state = (np.empty(m), np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.int64))
     order = _cell_order(pcd, origin, cell, nx, ny, nz)
-    state = (best, near, src, dst)
     n, e2 = _correspond(pcd, order, origin, cell, nx, ny, nz, start, gpts, gorder, max_distance, *state)
-    fit = n / m if n else 0.0
-    rmse = math.sqrt(e2 / n) if n else 0.0
+    return pcd, order, init.copy(), state, n, n / m if n else 0.0, math.sqrt(e2 / n) if n else 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _icp_step(U: np.ndarray, T: np.ndarray, pcd: np.ndarray, order: np.ndarray, origin: np.ndarray, cell: float,
+              nx: int, ny: int, nz: int, start: np.ndarray, gpts: np.ndarray, gorder: np.ndarray,
+              max_distance: float, state: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+              ) -> tuple[np.ndarray, int, float, float]:
+    """One iteration after its update ``U``: the pose ``U T``, the source moved by ``U``, its new
+    correspondences: ``(pose, n, fitness, rmse)``."""
+    T = _matmul4(U, T)
+    _transform_rows(U, pcd)
+    n, e2 = _correspond(pcd, order, origin, cell, nx, ny, nz, start, gpts, gorder, max_distance, *state)
+    m = pcd.shape[0]
+    return T, n, n / m if n else 0.0, math.sqrt(e2 / n) if n else 0.0
+
+
+# Two kernels, one per estimation, so that numba loads only the one used (a process that registers
+# point-to-plane never loads the SVD of point-to-point).
+@numba.njit(cache=True, nogil=True)
+def _icp_plane(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
+               start: np.ndarray, gpts: np.ndarray, gnrm: np.ndarray, gorder: np.ndarray, max_distance: float,
+               max_iteration: int, relative_fitness: float, relative_rmse: float, out: np.ndarray
+               ) -> tuple[float, float, int, int]:
+    """Open3D's ``RegistrationICP`` loop, point-to-plane; the pose into ``out``; ``(fitness, rmse,
+    iterations, n)``."""
+    pcd, order, T, state, n, fit, rmse = _icp_start(source, init, origin, cell, nx, ny, nz, start, gpts, gorder,
+                                                    max_distance)
     its = 0
     for _ in range(max_iteration):
         its += 1
-        if point_to_plane:
-            U = _point_to_plane(pcd, gpts, gnrm, src, dst, n)
-        else:
-            U = _point_to_point(pcd, gpts, src, dst, n)
-        T = _matmul4(U, T)
-        _transform_rows(U, pcd)
+        U = _point_to_plane(pcd, gpts, gnrm, state[2], state[3], n)
         fit0, rmse0 = fit, rmse
-        n, e2 = _correspond(pcd, order, origin, cell, nx, ny, nz, start, gpts, gorder, max_distance, *state)
-        fit = n / m if n else 0.0
-        rmse = math.sqrt(e2 / n) if n else 0.0
+        T, n, fit, rmse = _icp_step(U, T, pcd, order, origin, cell, nx, ny, nz, start, gpts, gorder, max_distance,
+                                    state)
+        if abs(fit0 - fit) < relative_fitness and abs(rmse0 - rmse) < relative_rmse:
+            break
+    out[:, :] = T
+    return fit, rmse, its, n
+
+
+@numba.njit(cache=True, nogil=True)
+def _icp_point(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
+               start: np.ndarray, gpts: np.ndarray, gorder: np.ndarray, max_distance: float, max_iteration: int,
+               relative_fitness: float, relative_rmse: float, out: np.ndarray) -> tuple[float, float, int, int]:
+    """:func:`_icp_plane` with the point-to-point update."""
+    pcd, order, T, state, n, fit, rmse = _icp_start(source, init, origin, cell, nx, ny, nz, start, gpts, gorder,
+                                                    max_distance)
+    its = 0
+    for _ in range(max_iteration):
+        its += 1
+        U = _point_to_point(pcd, gpts, state[2], state[3], n)
+        fit0, rmse0 = fit, rmse
+        T, n, fit, rmse = _icp_step(U, T, pcd, order, origin, cell, nx, ny, nz, start, gpts, gorder, max_distance,
+                                    state)
         if abs(fit0 - fit) < relative_fitness and abs(rmse0 - rmse) < relative_rmse:
             break
     out[:, :] = T
@@ -535,9 +571,12 @@ def icp(source: np.ndarray, grid: IcpGrid, *, max_distance: float, init: np.ndar
         raise ParameterError("icp: point-to-plane needs the target's normals (the grid was built without)")
     out = np.empty((4, 4))
     nx, ny, nz = (int(v) for v in grid.dims)
-    fit, rmse, its, n = _icp_kernel(s, T0, grid.origin, grid.cell, nx, ny, nz, grid.start, grid.points,
-                                    grid.normals, grid.order, float(max_distance), int(max_iteration),
-                                    float(relative_fitness), float(relative_rmse), bool(point_to_plane), out)
+    args = (s, T0, grid.origin, grid.cell, nx, ny, nz, grid.start, grid.points)
+    tail = (grid.order, float(max_distance), int(max_iteration), float(relative_fitness), float(relative_rmse), out)
+    if point_to_plane:
+        fit, rmse, its, n = _icp_plane(*args, grid.normals, *tail)
+    else:
+        fit, rmse, its, n = _icp_point(*args, *tail)
     return IcpOutcome(out, float(fit), float(rmse), int(its), int(n))
 
 
