@@ -41,12 +41,13 @@ import numpy as np
 from .bin_model import BinModel
 from .cloud import Intrinsics
 from .errors import InputShapeError, ParameterError, describe_array
-from .icp_fast import IcpGrid, build_grid, icp
 from .params import RegistrationParams
 
 if TYPE_CHECKING:
     import open3d as o3d
     from scipy.spatial import cKDTree
+
+    from .icp_fast import IcpGrid
 
 __all__ = [
     "PIXEL_REACH",
@@ -265,6 +266,8 @@ class IcpModel:
 
 
 def _grid_of(pc: o3d.geometry.PointCloud, radius_m: float) -> IcpGrid:
+    from .icp_fast import build_grid  # numba's kernels, loaded where used
+
     return build_grid(np.asarray(pc.points, dtype=np.float64),
                       np.asarray(pc.normals, dtype=np.float64) if pc.has_normals() else None, radius=radius_m)
 
@@ -442,6 +445,8 @@ def register_bin(
         ``converged`` False, with the reason, when too few points, the bin fitness is below
         ``params.min_fitness`` or the RMSE above ``params.max_rmse_mm``.
     """
+    from .icp_fast import icp
+
     params = model.params if params is None else params
     if (params.voxel_mm, params.max_correspondence_mm) != (model.params.voxel_mm, model.params.max_correspondence_mm):
         raise ParameterError("register_bin: params must keep the voxel and correspondence distance the model was "
