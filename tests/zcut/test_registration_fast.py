@@ -251,3 +251,17 @@ def test_bad_input_is_a_clear_error():
         icp(np.full((2, 3), np.inf), grid, max_distance=0.01, init=np.eye(4), point_to_plane=False, max_iteration=3)
     with pytest.raises(ParameterError, match="max_iteration must be an integer >= 0"):
         icp(pts, grid, max_distance=0.01, init=np.eye(4), point_to_plane=False, max_iteration=-1)
+
+
+def test_the_guess_percentiles_are_numpys_by_axis():
+    """_top_and_centre takes each column's percentiles in one call: the values of the per-axis calls."""
+    from zcut.registration import _top_and_centre
+
+    rng = np.random.default_rng(4)
+    for k in range(100):
+        p = rng.normal(size=(int(rng.integers(1, 3000)), 3)) * rng.uniform(0.01, 10)
+        if k % 3 == 0:
+            p = np.round(p, 2)  # ties
+        lo, hi = np.percentile(p, 1, axis=0), np.percentile(p[:, :2], 99, axis=0)
+        centre, top = _top_and_centre(p)
+        assert np.array_equal(centre, 0.5 * (lo[:2] + hi)) and top == float(lo[2])
