@@ -15,11 +15,14 @@ to the next would: a warm start) and prints, per frame, its CPU ms against the s
 lies from the replay's (translation of the bin origin in mm, rotation in degrees) and whether the removal at
 that pose gives the same masks and height image as at the replay's pose.
 
-``--own-icp`` also runs the fine pass as a plain numpy point-to-plane ICP written after Open3D 0.20's
-``registration_icp`` (correspondences from the prepared model's KD-tree, built once, instead of the tree Open3D
-builds on every call; the same Jacobian, update and stopping rule) and prints how far its pose lies from
-Open3D's, their fitness, RMSE and iterations, and both CPU times: the measure of whether such a step could
-replace Open3D's (a prototype, not used by the pipeline).
+``--against-open3d`` also registers every frame as the replay does (the seed pose's fine pass when it still
+fits, else coarse then fine) a second time with Open3D's ``registration_icp`` (``register_bin(...,
+reference=True)``), the two alternating in which runs first, and prints per frame how far the poses lie apart
+(largest entry of the difference, relative to the largest entry), the fitness and RMSE of both, the iterations of
+both passes (Open3D's counted from its debug log, :func:`zcut.icp_fast.icp_open3d`), whether the removal at the two
+poses gives the same masks (table, easy outliers, bin points, zone), height image and tolerance, and both CPU ms;
+then a summary line (largest relative pose difference, frames whose iterations or masks differ, medians of the
+CPU ms).
 
 ``--icp-repeats N`` (default 6) also runs the fine ICP N times on the same frame and input and prints
 how many distinct poses came back and the removal results they give (Open3D's ICP reduces over
@@ -51,65 +54,44 @@ from zcut.binmask import bin_mask, bin_pixels  # noqa: E402
 from zcut.registration import pose_fitness, prepare_target, register_bin  # noqa: E402
 
 
-def _euler(x: np.ndarray) -> np.ndarray:
-    """Open3D's ``TransformVector6dToMatrix4d``: Rz(x[2]) Ry(x[1]) Rx(x[0]), translation x[3:]."""
-    ca, sa, cb, sb, cc, sc = np.cos(x[0]), np.sin(x[0]), np.cos(x[1]), np.sin(x[1]), np.cos(x[2]), np.sin(x[2])
-    U = np.eye(4)
-    U[:3, :3] = (np.array([[cc, -sc, 0], [sc, cc, 0], [0, 0, 1]]) @ np.array([[cb, 0, sb], [0, 1, 0], [-sb, 0, cb]])
-                 @ np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]]))
-    U[:3, 3] = x[3:]
-    return U
+def replay_registration(pm: Any, target: Any, seed: Any, c: Any, *, reference: bool) -> Any:
+    """The registration ``replay.pipeline.stages.locate_bin`` runs on a prepared target (the seed pose's fine
+    pass when its fitness still holds, else the full coarse and fine one), with ``reference`` passed on."""
+    init = seed.T_cam_bin if seed.converged and c.seed_from_first_frame else None
+    if init is not None:
+        f0 = pose_fitness(pm.icp, target, init, max_correspondence_m=c.fine_correspondence_m)
+        if f0 >= stages.SEED_FITNESS_KEPT * seed.fitness:
+            r = register_bin(pm.icp, target, params=c, init=init, coarse=False, reference=reference)
+            if r.converged:
+                return r
+    return register_bin(pm.icp, target, params=c, reference=reference)
 
 
-def own_icp(src: np.ndarray, icp: Any, dist: float, T: np.ndarray, max_iterations: int
-            ) -> tuple[np.ndarray, float, float, int]:
-    """Point-to-plane ICP as Open3D 0.20's ``registration_icp`` runs it, on the prepared model's KD-tree:
-    ``(T, fitness, rmse, iterations)``."""
-    pts, nrm = np.asarray(icp.fine.points), np.asarray(icp.fine.normals)
-    pcd = src @ T[:3, :3].T + T[:3, 3]
+def open3d_iterations(pm: Any, target: Any, c: Any, reg: Any) -> tuple[int, ...]:
+    """Open3D's iterations of each pass of ``reg`` (a reference registration), from its debug log: the passes
+    run again from ``reg.T_init`` as :func:`register_bin` runs them."""
+    from zcut.icp_fast import icp_open3d
+    from zcut.registration import voxel_down
 
-    def correspond(pcd: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
-        d, j = icp.tree.query(pcd, k=1, distance_upper_bound=dist)
-        ok = np.isfinite(d)
-        n = int(ok.sum())
-        return ok, j, n / len(pcd), float(np.sqrt((d[ok] ** 2).sum() / n)) if n else 0.0
-
-    ok, j, fit, rmse = correspond(pcd)
-    its = 0
-    for _ in range(max_iterations):
-        its += 1
-        vs, vt, nt = pcd[ok], pts[j[ok]], nrm[j[ok]]
-        r = np.einsum("ij,ij->i", vs - vt, nt)
-        J = np.concatenate([np.cross(vs, nt), nt], axis=1)
-        U = _euler(np.linalg.solve(J.T @ J, -(J.T @ r)))
-        T = U @ T
-        pcd = pcd @ U[:3, :3].T + U[:3, 3]
-        fit0, rmse0 = fit, rmse
-        ok, j, fit, rmse = correspond(pcd)
-        if abs(fit0 - fit) < 1e-6 and abs(rmse0 - rmse) < 1e-6:  # Open3D's relative_fitness, relative_rmse
-            break
-    return T, fit, rmse, its
+    T = np.linalg.inv(reg.T_init)
+    passes = [(target.cloud, pm.icp.fine, c.fine_correspondence_m)]
+    if len(reg.iterations) == 2:
+        passes.insert(0, (voxel_down(target.cloud, 2.0 * c.voxel_m, "the target"), pm.icp.coarse,
+                          c.max_correspondence_m))
+    its = []
+    for s_pc, d_pc, dist in passes:
+        o = icp_open3d(np.asarray(s_pc.points), np.asarray(d_pc.points), np.asarray(d_pc.normals), max_distance=dist,
+                       init=T, point_to_plane=c.method == "point_to_plane", max_iteration=int(c.max_iterations),
+                       count_iterations=True)
+        its.append(o.iterations)
+        T = o.transformation
+    return tuple(its)
 
 
-def own_against_open3d(icp: Any, target: Any, c: Any, T_seed: np.ndarray) -> str:
-    """The fine pass from ``T_seed`` by Open3D and by :func:`own_icp`: their poses' difference and CPU times."""
-    import open3d as o3d
-
-    reg = o3d.pipelines.registration
-    T0 = np.linalg.inv(T_seed)
-    t0 = time.process_time()
-    ref = reg.registration_icp(target.cloud, icp.fine, c.fine_correspondence_m, T0,
-                               reg.TransformationEstimationPointToPlane(),
-                               reg.ICPConvergenceCriteria(max_iteration=int(c.max_iterations)))
-    t1 = time.process_time()
-    T, fit, rmse, its = own_icp(np.asarray(target.cloud.points), icp, c.fine_correspondence_m, T0,
-                                int(c.max_iterations))
-    t2 = time.process_time()
-    Tr = np.asarray(ref.transformation)
-    return (f"own ICP off Open3D's by {1000 * np.abs(T[:3, 3] - Tr[:3, 3]).max():.1e} mm (rotation entries "
-            f"{np.abs(T[:3, :3] - Tr[:3, :3]).max():.1e}); fitness {fit - ref.fitness:+.1e}, RMSE "
-            f"{rmse - ref.inlier_rmse:+.1e} m; {its} iterations; Open3D {1000 * (t1 - t0):.1f} ms, own "
-            f"{1000 * (t2 - t1):.1f} ms")
+def same_removal(a: Any, b: Any) -> tuple[bool, bool, bool]:
+    """(masks, height image, tolerance) of two removals equal."""
+    masks = all(np.array_equal(getattr(a, f), getattr(b, f)) for f in ("table", "easy_outliers", "bin_points", "zone"))
+    return masks, bool(np.array_equal(a.height_mm, b.height_mm, equal_nan=True)), a.tolerance_mm == b.tolerance_mm
 
 
 def main() -> None:
@@ -117,7 +99,8 @@ def main() -> None:
     ap.add_argument("log", type=Path)
     ap.add_argument("--icp-repeats", type=int, default=6)
     ap.add_argument("--warm", action="store_true", help="also the fine ICP from the previous frame's pose")
-    ap.add_argument("--own-icp", action="store_true", help="also a numpy point-to-plane ICP against Open3D's")
+    ap.add_argument("--against-open3d", action="store_true",
+                    help="also the replay's registration by Open3D (reference=True): poses, iterations, masks, CPU")
     args = ap.parse_args()
     session = ReplaySession.open(args.log, choose_bin_model=lambda reader: bin_model_for(reader, None))
     cfg, pm = session.config, session.prepared
@@ -127,6 +110,7 @@ def main() -> None:
     distinct: list[str] = []
     warm: list[str] = []
     own: list[str] = []
+    worst_rel, differ_its, differ_masks = 0.0, 0, 0
     previous: np.ndarray | None = None
 
     def timed(name: str, f: Callable[..., Any], *a: Any, **k: Any) -> Any:
@@ -162,15 +146,35 @@ def main() -> None:
                 same = all(np.array_equal(getattr(rem, f), getattr(rem_w, f), equal_nan=True)
                            for f in ("table", "easy_outliers", "bin_points", "zone"))
                 cos = np.clip((np.trace(T[:3, :3].T @ Tw[:3, :3]) - 1) / 2, -1.0, 1.0)
-                warm.append(f"frame {i}: warm {1000 * times['registration: fine ICP, warm start'][-1]:.1f} ms, seed "
-                            f"{1000 * times['registration: fine ICP'][-1]:.1f} ms; pose off the replay's by "
+                seed_its = register_bin(pm.icp, target, params=c, init=session.seed.T_cam_bin, coarse=False).iterations
+                warm.append(f"frame {i}: warm {1000 * times['registration: fine ICP, warm start'][-1]:.1f} ms "
+                            f"({w.iterations[0]} iterations), seed {1000 * times['registration: fine ICP'][-1]:.1f} ms "
+                            f"({seed_its[0]} iterations); pose off the replay's by "
                             f"{1000 * np.linalg.norm(Tw[:3, 3] - T[:3, 3]):.2e} mm, {np.degrees(np.arccos(cos)):.1e} deg; "
                             f"masks {'the same' if same else 'DIFFER'}, height image "
                             f"{'the same' if np.array_equal(rem.height_mm, rem_w.height_mm, equal_nan=True) else 'differs'}, "
                             f"converged {w.converged}")
             previous = T
-            if args.own_icp:
-                own.append(f"frame {i}: " + own_against_open3d(pm.icp, target, c, session.seed.T_cam_bin))
+            if args.against_open3d:
+                runs = [("registration: replay's, new ICP", False), ("registration: replay's, Open3D", True)]
+                out = {ref: timed(name, replay_registration, pm, target, session.seed, c, reference=ref)
+                       for name, ref in (runs if i % 2 == 0 else runs[::-1])}
+                new, o3d_reg = out[False], out[True]
+                rel = float(np.abs(new.T_cam_bin - o3d_reg.T_cam_bin).max() / np.abs(o3d_reg.T_cam_bin).max())
+                worst_rel = max(worst_rel, rel)
+                o3d_its = open3d_iterations(pm, target, c, o3d_reg)
+                differ_its += o3d_its != new.iterations
+                same = same_removal(rm.remove_table_and_bin(a, loc.bin_mask.mask, index=index, T_cam_bin=new.T_cam_bin,
+                                                            ring=loc.ring),
+                                    rm.remove_table_and_bin(a, loc.bin_mask.mask, index=index,
+                                                            T_cam_bin=o3d_reg.T_cam_bin, ring=loc.ring))
+                differ_masks += not same[0]
+                own.append(f"frame {i}: pose off Open3D's by {rel:.1e} (relative); fitness {new.fitness:.4f} / "
+                           f"{o3d_reg.fitness:.4f}, icp fitness {new.icp_fitness:.6f} / {o3d_reg.icp_fitness:.6f}, RMSE "
+                           f"{new.inlier_rmse * 1000:.9f} / {o3d_reg.inlier_rmse * 1000:.9f} mm; iterations "
+                           f"{new.iterations} / {o3d_its}; masks {'the same' if same[0] else 'DIFFER'}, height image "
+                           f"{'the same' if same[1] else 'differs'}, tolerance {'the same' if same[2] else 'differs'}; "
+                           f"CPU {1000 * times[runs[0][0]][-1]:.1f} / {1000 * times[runs[1][0]][-1]:.1f} ms")
             timed("removal: frame_tolerance", rm.frame_tolerance, a, loc.ring, index, T)
             flat = rm._ring_sample(a, loc.ring)
             nb = rm._ring_neighbours(a.shape[:2], loc.ring, flat, 4)
@@ -220,6 +224,12 @@ def main() -> None:
         print(f"  {name:36s} {1000 * statistics.median(v):7.1f}  (min {1000 * min(v):6.1f})")
     for line in distinct + warm + own:
         print(" ", line)
+    if args.against_open3d:
+        new_ms = 1000 * statistics.median(times["registration: replay's, new ICP"])
+        o3d_ms = 1000 * statistics.median(times["registration: replay's, Open3D"])
+        print(f"  against Open3D: largest relative pose difference {worst_rel:.1e}; frames whose iterations differ "
+              f"{differ_its}, whose masks differ {differ_masks}, of {len(own)}; CPU ms (median, all frames) "
+              f"{new_ms:.1f} new, {o3d_ms:.1f} Open3D ({o3d_ms / new_ms:.2f} x)")
 
 
 if __name__ == "__main__":

@@ -21,7 +21,9 @@ the log carries (``zcut.synth.poses``: translation of the model's centre in mm, 
 degrees), and the CPU time of each (target selection + preparation + ICP + fitness; median of
 ``--repeats``), with the ratio after/before. ``before`` runs today's ``register_bin``, so its time
 includes the bin fitness too (the ``fit s`` column: about a millisecond), which the old code did
-not compute. Then a deliberately wrong start: the true pose moved
+not compute. ``CPU o3d s`` times the ``after`` registration by Open3D's own ICP (``register_bin(...,
+reference=True)``, the oracle of the default :mod:`zcut.icp_fast` kernel) and ``dT`` is the largest entry of
+the difference of the two poses. Then a deliberately wrong start: the true pose moved
 5 cm and turned 20 degrees, refined by the fine pass only (as when the previous frame's pose
 seeds a moved bin): its bin fitness, whether it is reported as converged, and its reason.
 
@@ -131,6 +133,8 @@ def measure(icp, params: RegistrationParams, frame, bm, T_true: np.ndarray, on_p
     ra, ta = timed(lambda: register_bin(icp, target_from(xyz, select_after(bm, xyz, args.ring_frac), params, K)),
                    args.repeats)
     tgt_a, tgt_b = target_from(xyz, sel_a, params, K), target_from(xyz, sel_b, params, K)
+    ro, to = timed(lambda: register_bin(icp, target_from(xyz, select_after(bm, xyz, args.ring_frac), params, K),
+                                        reference=True), args.repeats)
     dist = params.fine_correspondence_m
     _, tf = timed(lambda: pose_fitness(icp, tgt_a, ra.T_cam_bin, max_correspondence_m=dist), args.repeats)
     rw = register_bin(icp, tgt_a, init=wrong_start(T_true), coarse=False)
@@ -147,6 +151,9 @@ def measure(icp, params: RegistrationParams, frame, bm, T_true: np.ndarray, on_p
         "cpu_before": tb,
         "cpu_after": ta,
         "cpu_fitness": tf,
+        "cpu_open3d": to,
+        "dT": float(np.abs(ra.T_cam_bin - ro.T_cam_bin).max()),
+        "iterations": ra.iterations,
         "converged": ra.converged,
         "reason": ra.reason,
         "wrong_fitness": rw.fitness,
@@ -183,7 +190,8 @@ def main() -> None:
     print()
     head = (f"{'kind':13s} {'frm':>3s} | {'fit bef':>7s} {'fit aft':>7s} {'new@bef':>7s} {'icp aft':>7s} | "
             f"{'parts bef':>9s} {'parts aft':>9s} | {'err bef mm/deg':>15s} {'err aft mm/deg':>15s} | "
-            f"{'CPU bef s':>9s} {'CPU aft s':>9s} {'ratio':>5s} {'fit s':>6s} | wrong start: fitness, converged")
+            f"{'CPU bef s':>9s} {'CPU aft s':>9s} {'ratio':>5s} {'fit s':>6s} {'CPU o3d s':>9s} {'dT':>7s} {'its':>7s} | "
+            f"wrong start: fitness, converged")
     print(head)
     print("-" * len(head))
     rows = []
@@ -205,7 +213,8 @@ def main() -> None:
                   f"{row['new_at_before']:7.3f} {row['icp_after']:7.3f} | {row['parts_before']:9.3f} "
                   f"{row['parts_after']:9.3f} | {eb[0]:7.3f}/{eb[1]:6.4f} {ea[0]:7.3f}/{ea[1]:6.4f} | "
                   f"{row['cpu_before']:9.3f} {row['cpu_after']:9.3f} {row['cpu_after'] / row['cpu_before']:5.2f} "
-                  f"{row['cpu_fitness']:6.4f} | {row['wrong_fitness']:.3f}, {row['wrong_converged']}"
+                  f"{row['cpu_fitness']:6.4f} {row['cpu_open3d']:9.3f} {row['dT']:7.1e} "
+                  f"{'/'.join(map(str, row['iterations'])):>7s} | {row['wrong_fitness']:.3f}, {row['wrong_converged']}"
                   + ("" if row["converged"] else f"   AFTER NOT CONVERGED: {row['reason']}"), flush=True)
     print()
     print("per kind (mean over frames):")
@@ -224,6 +233,9 @@ def main() -> None:
     wrong_ok = all(not r["wrong_converged"] for r in rows)
     print()
     print(f"after: fitness >= 0.95 and converged on every frame: {ok}; min {min(r['fit_after'] for r in rows):.3f}")
+    print(f"the after registration by Open3D's ICP (reference=True): largest pose difference "
+          f"{max(r['dT'] for r in rows):.1e}; CPU s (median) {statistics.median(r['cpu_open3d'] for r in rows):.3f} "
+          f"against {statistics.median(r['cpu_after'] for r in rows):.3f}")
     print(f"wrong start (5 cm, 20 deg, fine pass only): never converged: {wrong_ok}; "
           f"max fitness {max(r['wrong_fitness'] for r in rows):.3f}; e.g. reason: {rows[0]['wrong_reason']}")
 

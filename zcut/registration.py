@@ -33,7 +33,7 @@ the lower walls, so a wall point the frame does not show proves nothing.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -46,6 +46,8 @@ from .params import RegistrationParams
 if TYPE_CHECKING:
     import open3d as o3d
     from scipy.spatial import cKDTree
+
+    from .icp_fast import IcpGrid
 
 __all__ = [
     "PIXEL_REACH",
@@ -106,6 +108,9 @@ class RegistrationResult:
         every target point that is not bin (parts in the target), whatever the pose.
     n_rim : int
         Model rim points in the camera's view at ``T_cam_bin``: the denominator of ``fitness``.
+    iterations : tuple of int
+        ICP iterations of each pass run (coarse, fine; the fine only without the coarse pass); -1
+        for a pass that Open3D ran (``reference=True``, which does not say); empty when not run.
     """
 
     T_cam_bin: np.ndarray
@@ -118,6 +123,7 @@ class RegistrationResult:
     T_init: np.ndarray
     icp_fitness: float
     n_rim: int
+    iterations: tuple[int, ...] = ()
 
 
 def _check_points(p: np.ndarray, name: str) -> np.ndarray:
@@ -137,10 +143,14 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def _top_and_centre(p: np.ndarray) -> tuple[np.ndarray, float]:
-    """(x, y) centre of the 1..99 % bounding box and the 1st percentile of z (the top)."""
-    lo = np.percentile(p, 1, axis=0)
-    hi = np.percentile(p[:, :2], 99, axis=0)
-    return 0.5 * (lo[:2] + hi), float(lo[2])
+    """(x, y) centre of the 1..99 % bounding box and the 1st percentile of z (the top).
+
+    One ``np.percentile`` call per column with both percentiles (one partition of the column for
+    both): the same values as ``np.percentile(p, 1, axis=0)`` and ``np.percentile(p[:, :2], 99,
+    axis=0)``, in 1.9 instead of 3.2 CPU ms on a 1920 x 1200 frame's ~100k bin points."""
+    x = np.percentile(p[:, 0], [1, 99])
+    y = np.percentile(p[:, 1], [1, 99])
+    return 0.5 * (np.array([x[0], y[0]]) + np.array([x[1], y[1]])), float(np.percentile(p[:, 2], 1))
 
 
 def initial_guess(model: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -236,6 +246,10 @@ class IcpModel:
     up : (3,) float64 ndarray
         The model's up direction (unit vector, bin frame): the mean normal of its horizontal
         surfaces, pointing to the camera side (-z in a camera-like frame).
+    fine_grid, coarse_grid : zcut.icp_fast.IcpGrid
+        The points and normals of ``fine`` and ``coarse`` sorted into cells as wide as the fine and
+        the coarse correspondence distance: the search structures of :func:`register_bin`'s ICP,
+        built here once (a few ms) rather than by every call. Derived, not passed.
     """
 
     points: np.ndarray
@@ -246,6 +260,20 @@ class IcpModel:
     params: RegistrationParams
     rim: np.ndarray
     up: np.ndarray
+    fine_grid: IcpGrid = field(init=False, repr=False, compare=False)
+    coarse_grid: IcpGrid = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        p = self.params
+        object.__setattr__(self, "fine_grid", _grid_of(self.fine, p.fine_correspondence_m))
+        object.__setattr__(self, "coarse_grid", _grid_of(self.coarse, p.max_correspondence_m))
+
+
+def _grid_of(pc: o3d.geometry.PointCloud, radius_m: float) -> IcpGrid:
+    from .icp_fast import build_grid  # numba's kernels, loaded where used
+
+    return build_grid(np.asarray(pc.points, dtype=np.float64),
+                      np.asarray(pc.normals, dtype=np.float64) if pc.has_normals() else None, radius=radius_m)
 
 
 def rim_points(points: np.ndarray, normals: np.ndarray, *, band_m: float = RIM_BAND_MM / 1000.0,
@@ -385,6 +413,7 @@ def register_bin(
     init: np.ndarray | None = None,
     coarse: bool = True,
     min_points: int = 50,
+    reference: bool = False,
 ) -> RegistrationResult:
     """ICP-register a prepared bin model to the prepared bin points of a frame.
 
@@ -408,6 +437,11 @@ def register_bin(
         Run the coarse pass (skip it when ``init`` is already close, e.g. the previous frame's pose).
     min_points : int
         Fewer model or target points than this after downsampling: not run, reported as failed.
+    reference : bool
+        Run Open3D's ``registration_icp`` (the oracle the tests hold the default to) instead of
+        :func:`zcut.icp_fast.icp`, which runs the same iterations on the model's grids built once
+        (``model.fine_grid``, ``model.coarse_grid``) rather than a KD-tree of the model per call:
+        the same pose within ~1e-15 (Open3D's own calls differ by as much), the same iterations.
 
     Returns
     -------
@@ -415,7 +449,7 @@ def register_bin(
         ``converged`` False, with the reason, when too few points, the bin fitness is below
         ``params.min_fitness`` or the RMSE above ``params.max_rmse_mm``.
     """
-    import open3d as o3d
+    from .icp_fast import icp
 
     params = model.params if params is None else params
     if (params.voxel_mm, params.max_correspondence_mm) != (model.params.voxel_mm, model.params.max_correspondence_mm):
@@ -437,25 +471,26 @@ def register_bin(
             T0.copy(), 0.0, float("nan"), False,
             f"too few points (model {n_m}, target {n_t}, need {min_points})", n_m, n_t, T0.copy(), 0.0, 0,
         )
-    est: o3d.pipelines.registration.TransformationEstimation
-    if params.method == "point_to_plane":
-        est = o3d.pipelines.registration.TransformationEstimationPointToPlane()
-    else:
-        est = o3d.pipelines.registration.TransformationEstimationPointToPoint()
-    crit = o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=int(params.max_iterations))
     T = np.linalg.inv(T0)  # frame -> model
-    reg = None
-    passes = [(src, dst, params.fine_correspondence_m)]
+    passes = [(src, dst, model.fine_grid, params.fine_correspondence_m)]
     if coarse:
         src_c = voxel_down(src, 2.0 * params.voxel_m, "the target") if params.voxel_m > 0 else src
-        passes.insert(0, (src_c, model.coarse, params.max_correspondence_m))
-    for s_pc, d_pc, dist in passes:
-        reg = o3d.pipelines.registration.registration_icp(s_pc, d_pc, dist, T, est, crit)
-        T = np.asarray(reg.transformation, dtype=np.float64).copy()
-    assert reg is not None
+        passes.insert(0, (src_c, model.coarse, model.coarse_grid, params.max_correspondence_m))
+    point_to_plane = params.method == "point_to_plane"
+    iterations = []
+    fit = inlier_rmse = 0.0
+    for s_pc, d_pc, grid, dist in passes:
+        if reference:
+            fit, inlier_rmse, T = _open3d_pass(s_pc, d_pc, dist, T, point_to_plane, int(params.max_iterations))
+            iterations.append(-1)
+        else:
+            out = icp(np.asarray(s_pc.points), grid, max_distance=dist, init=T, point_to_plane=point_to_plane,
+                      max_iteration=int(params.max_iterations))
+            fit, inlier_rmse, T = out.fitness, out.inlier_rmse, out.transformation
+            iterations.append(out.iterations)
     T_cam_bin = np.linalg.inv(T)
-    icp_fitness = float(reg.fitness)
-    rmse = float(reg.inlier_rmse) if icp_fitness > 0 else float("nan")
+    icp_fitness = float(fit)
+    rmse = float(inlier_rmse) if icp_fitness > 0 else float("nan")
     fitness, n_rim = _rim_fitness(model, target, T_cam_bin, params.fine_correspondence_m)
     reasons = []
     if n_rim == 0:
@@ -466,7 +501,19 @@ def register_bin(
     if not (rmse <= params.max_rmse_m):
         reasons.append(f"RMSE {rmse * 1000:.2f} mm > {params.max_rmse_mm:g} mm")
     return RegistrationResult(T_cam_bin, fitness, rmse, not reasons, "; ".join(reasons), n_m, n_t, T0.copy(),
-                              icp_fitness, n_rim)
+                              icp_fitness, n_rim, tuple(iterations))
+
+
+def _open3d_pass(src: o3d.geometry.PointCloud, dst: o3d.geometry.PointCloud, dist: float, T: np.ndarray,
+                 point_to_plane: bool, max_iterations: int) -> tuple[float, float, np.ndarray]:
+    """One ICP pass by Open3D's ``registration_icp``: (fitness, inlier RMSE, source -> target)."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    est: o3d.pipelines.registration.TransformationEstimation
+    est = reg.TransformationEstimationPointToPlane() if point_to_plane else reg.TransformationEstimationPointToPoint()
+    r = reg.registration_icp(src, dst, dist, T, est, reg.ICPConvergenceCriteria(max_iteration=max_iterations))
+    return float(r.fitness), float(r.inlier_rmse), np.asarray(r.transformation, dtype=np.float64).copy()
 
 
 def _in_view(points: np.ndarray, K: Intrinsics) -> np.ndarray:

@@ -1,0 +1,267 @@
+"""zcut.icp_fast: the ICP on the model's grid built once, held to Open3D's ``registration_icp`` (the
+oracle, run in the same test on the same input): the pose within 1e-12, the same correspondences,
+fitness and iterations, on a synthetic filled bin (both methods, starts near and far), on real Kinect
+scans, and on degenerate input (a plane only, no correspondence, no point, exact ties)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pipeline_scene as ps
+import pytest
+
+from zcut.binmask import bin_mask, bin_pixels
+from zcut.errors import InputShapeError, ParameterError
+from zcut.icp_fast import MAX_GRID_CELLS, _correspond, _ldlt_solve, build_grid, icp, icp_open3d
+from zcut.params import RegistrationParams
+from zcut.registration import prepare_icp_model, prepare_target, register_bin
+
+REAL = Path("/work/shared/data/real")
+filled = pytest.fixture(scope="module")(ps.filled_bin_scene)
+model = pytest.fixture(scope="module")(ps.shifted_bin_model)
+
+
+def _turn(deg_xyz: tuple[float, float, float], t: tuple[float, float, float]) -> np.ndarray:
+    a, b, c = np.radians(deg_xyz)
+    Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    Ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    Rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
+    T = np.eye(4)
+    T[:3, :3] = Rz @ Ry @ Rx
+    T[:3, 3] = t
+    return T
+
+
+def _same_as_open3d(src: np.ndarray, pts: np.ndarray, nrm: np.ndarray | None, *, dist: float, init: np.ndarray,
+                    point_to_plane: bool, max_iteration: int = 30, grid_radius: float | None = None) -> None:
+    """icp against Open3D's registration_icp on one input: pose, correspondences, fitness, RMSE,
+    iterations."""
+    grid = build_grid(pts, nrm, radius=dist if grid_radius is None else grid_radius)
+    ours = icp(src, grid, max_distance=dist, init=init, point_to_plane=point_to_plane, max_iteration=max_iteration)
+    ref = icp_open3d(src, pts, nrm, max_distance=dist, init=init, point_to_plane=point_to_plane,
+                     max_iteration=max_iteration, count_iterations=True)
+    scale = max(1.0, float(np.abs(ref.transformation).max()))
+    assert np.abs(ours.transformation - ref.transformation).max() <= 1e-12 * scale
+    assert ours.iterations == ref.iterations
+    assert ours.n_correspondences == ref.n_correspondences
+    assert ours.fitness == ref.fitness  # the same count over the same number of points
+    assert ours.inlier_rmse == pytest.approx(ref.inlier_rmse, rel=1e-12, abs=1e-15)
+    # deterministic: the same bits again
+    again = icp(src, grid, max_distance=dist, init=init, point_to_plane=point_to_plane, max_iteration=max_iteration)
+    assert np.array_equal(again.transformation, ours.transformation) and again.inlier_rmse == ours.inlier_rmse
+
+
+@pytest.fixture(scope="module")
+def bin_case(filled, model):
+    """The filled bin's bin pixels, prepared, and the model prepared for 1 mm voxels."""
+    frame, _ = filled
+    p = RegistrationParams(voxel_mm=1.0)
+    icp_model = prepare_icp_model(model, p)
+    target = prepare_target(frame.xyz[bin_pixels(bin_mask(frame.rgb), frame.xyz)].astype(np.float64),
+                            voxel_m=p.voxel_m, intrinsics=frame.intrinsics)
+    return icp_model, target
+
+
+@pytest.mark.parametrize("point_to_plane", [True, False])
+@pytest.mark.parametrize("start", ["guess", "off 4 mm 1 deg", "off 12 mm 3 deg"])
+def test_icp_is_open3ds_on_a_filled_bin(bin_case, point_to_plane, start):
+    icp_model, target = bin_case
+    reg = register_bin(icp_model, target, coarse=False)  # the translation-only guess, inverted below
+    T0 = np.linalg.inv(reg.T_init)
+    if start != "guess":
+        mm, deg = (4.0, 1.0) if start.startswith("off 4") else (12.0, 3.0)
+        T0 = _turn((0.3 * deg, -0.5 * deg, deg), (mm / 1000, -0.5 * mm / 1000, 0.3 * mm / 1000)) @ T0
+    src = np.asarray(target.cloud.points)
+    fine = icp_model.fine
+    nrm = np.asarray(fine.normals)
+    for dist in (icp_model.params.fine_correspondence_m, icp_model.params.max_correspondence_m):
+        _same_as_open3d(src, np.asarray(fine.points), nrm, dist=dist, init=T0, point_to_plane=point_to_plane,
+                        grid_radius=icp_model.params.max_correspondence_m)
+
+
+@pytest.mark.parametrize("method", ["point_to_plane", "point_to_point"])
+def test_register_bin_is_its_open3d_reference(bin_case, method):
+    icp_model, target = bin_case
+    p = RegistrationParams(voxel_mm=1.0, method=method)
+    for coarse in (True, False):
+        new = register_bin(icp_model, target, params=p, coarse=coarse)
+        ref = register_bin(icp_model, target, params=p, coarse=coarse, reference=True)
+        assert np.abs(new.T_cam_bin - ref.T_cam_bin).max() <= 1e-12
+        assert new.fitness == ref.fitness and new.n_rim == ref.n_rim and new.converged == ref.converged
+        assert new.icp_fitness == ref.icp_fitness
+        assert new.inlier_rmse == pytest.approx(ref.inlier_rmse, rel=1e-12)
+        assert len(new.iterations) == (2 if coarse else 1) and all(1 <= i <= 30 for i in new.iterations)
+        assert ref.iterations == (-1,) * len(new.iterations)
+
+
+def test_icp_keeps_the_grids_the_model_was_prepared_with(bin_case):
+    icp_model, _ = bin_case
+    p = icp_model.params
+    assert icp_model.fine_grid.radius == p.fine_correspondence_m
+    assert icp_model.coarse_grid.radius == p.max_correspondence_m
+    assert len(icp_model.fine_grid.points) == len(icp_model.fine.points)
+    # the grid holds the model's own points and normals, reordered
+    order = icp_model.fine_grid.order
+    assert np.array_equal(icp_model.fine_grid.points, np.asarray(icp_model.fine.points)[order])
+    assert np.array_equal(icp_model.fine_grid.normals, np.asarray(icp_model.fine.normals)[order])
+
+
+def _real_cloud(name: str) -> np.ndarray:
+    from replay.logs.pcd import read_pcd
+
+    xyz = read_pcd(REAL / name).xyz.reshape(-1, 3).astype(np.float64)
+    return xyz[np.isfinite(xyz).all(axis=1)]
+
+
+@pytest.mark.parametrize("name", ["mosd_test16.pcd", "milk_cartoon_all_small_clorox.pcd"])
+@pytest.mark.parametrize("point_to_plane", [True, False])
+def test_icp_is_open3ds_on_real_kinect_scans(name, point_to_plane):
+    """No bin here: a real scene registered to itself, moved (the geometry and the sensor's noise, its
+    flying pixels and holes are real)."""
+    import open3d as o3d
+
+    if not (REAL / name).is_file():
+        pytest.skip(f"{name} not in {REAL}")
+    xyz = _real_cloud(name)
+    model_pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz)).voxel_down_sample(0.005)
+    model_pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.02, max_nn=30))
+    src = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz[::3])).voxel_down_sample(0.008).points)
+    init = _turn((0.5, -0.8, 1.5), (0.006, -0.004, 0.01))
+    _same_as_open3d(src, np.asarray(model_pc.points), np.asarray(model_pc.normals), dist=0.02, init=init,
+                    point_to_plane=point_to_plane)
+
+
+def test_icp_on_a_plane_only_leaves_the_free_directions_alone():
+    """Point-to-plane on a flat model: the in-plane moves and the turn about the normal are not
+    constrained; JᵀJ has zero pivots there and Eigen's LDLT gives them 0, as here."""
+    g = np.arange(-20, 21) * 0.003
+    X, Y = np.meshgrid(g, g)
+    pts = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, 0.5)])
+    nrm = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    src = pts[::2] + [0.0011, -0.0007, 0.002]
+    _same_as_open3d(src, pts, nrm, dist=0.005, init=np.eye(4), point_to_plane=True)
+    out = icp(src, build_grid(pts, nrm, radius=0.005), max_distance=0.005, init=np.eye(4), point_to_plane=True,
+              max_iteration=30)
+    assert out.transformation[2, 3] == pytest.approx(-0.002, abs=1e-12)
+    assert abs(out.transformation[0, 3]) < 1e-15 and abs(out.transformation[1, 3]) < 1e-15
+
+
+def test_icp_without_correspondences_or_points_returns_the_start():
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(0, 0.1, (500, 3))
+    nrm = np.tile([0.0, 0.0, 1.0], (500, 1))
+    grid = build_grid(pts, nrm, radius=0.01)
+    init = _turn((1, 2, 3), (0.001, 0.002, 0.003))
+    far = pts[:50] + [5.0, 0.0, 0.0]
+    _same_as_open3d(far, pts, nrm, dist=0.01, init=init, point_to_plane=True)
+    out = icp(far, grid, max_distance=0.01, init=init, point_to_plane=True, max_iteration=30)
+    assert out.iterations == 1 and out.fitness == 0.0 and out.inlier_rmse == 0.0 and out.n_correspondences == 0
+    assert np.array_equal(out.transformation, init)
+    empty = icp(np.zeros((0, 3)), grid, max_distance=0.01, init=init, point_to_plane=False, max_iteration=30)
+    assert empty.fitness == 0.0 and np.array_equal(empty.transformation, init)
+    # an empty model: nothing to correspond to
+    none = icp(far, build_grid(np.zeros((0, 3)), None, radius=0.01), max_distance=0.01, init=init,
+               point_to_plane=False, max_iteration=5)
+    assert none.n_correspondences == 0 and np.array_equal(none.transformation, init)
+
+
+def _brute(pcd: np.ndarray, pts: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per source point: the model index of its nearest point below r (ties: the lowest), else -1,
+    and that squared distance, summed as nanoflann sums it."""
+    d = pcd[:, None, :] - pts[None, :, :]
+    d2 = d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2]
+    j = np.argmin(d2, axis=1)  # the first minimum: the lowest index
+    best = d2[np.arange(len(pcd)), j]
+    return np.where(best < r * r, j, -1), best
+
+
+@pytest.mark.parametrize("case", ["random", "lattice ties", "cell faces", "huge extent"])
+def test_correspondences_are_the_exact_nearest_within_the_distance(case):
+    rng = np.random.default_rng(11)
+    r = 0.004
+    if case == "random":
+        pts = rng.uniform(-0.05, 0.05, (3000, 3))
+        pcd = rng.uniform(-0.06, 0.06, (2000, 3))
+    elif case == "lattice ties":  # queries at the midpoints of a lattice: exact ties everywhere
+        g = np.arange(10) * 0.002
+        pts = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+        pts = pts[rng.permutation(len(pts))]
+        pcd = pts[:400] + [0.001, 0.0, 0.0]
+    elif case == "cell faces":  # queries exactly on the grid's cell faces and at distance r
+        pts = rng.uniform(0, 0.05, (2000, 3))
+        cell = build_grid(pts, None, radius=r).cell
+        pcd = pts.min(axis=0) + cell * rng.integers(-2, 14, (1500, 3)).astype(np.float64)
+        pcd = np.concatenate([pcd, pts[:300] + [r, 0.0, 0.0], pts[300:400] + [0.0, np.nextafter(r, 0), 0.0]])
+    else:  # an extent that the dense table cannot hold at the distance: wider cells, same answers
+        pts = np.concatenate([rng.uniform(0, 0.05, (1000, 3)), [[200.0, 300.0, 100.0]]])
+        pcd = np.concatenate([rng.uniform(-0.01, 0.06, (1000, 3)), [[200.0, 300.0, 100.003]]])
+    grid = build_grid(pts, None, radius=r)
+    if case == "huge extent":
+        assert grid.cell > 2 * r and np.prod(grid.dims) <= MAX_GRID_CELLS
+    m = len(pcd)
+    near, best, src, dst = np.empty(m, np.int64), np.empty(m), np.empty(m, np.int64), np.empty(m, np.int64)
+    order = np.random.default_rng(5).permutation(m)
+    n, err2 = _correspond(pcd, order, grid.origin, grid.cell, *(int(v) for v in grid.dims), grid.start,
+                          grid.points, grid.order, r, best, near, src, dst)
+    want_j, want_d2 = _brute(pcd, pts, r)
+    got = np.full(m, -1)
+    got[src[:n]] = grid.order[dst[:n]]
+    assert np.array_equal(got, want_j)
+    assert n == np.count_nonzero(want_j >= 0) and n > 0
+    assert err2 == pytest.approx(float(want_d2[want_j >= 0].sum()), rel=1e-12)
+    if case == "lattice ties":
+        assert n == len(pcd)
+
+
+def test_ldlt_is_eigens_on_definite_and_singular_matrices():
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        J = rng.normal(size=(40, 6))
+        A, b = J.T @ J, rng.normal(size=6)
+        assert np.allclose(_ldlt_solve(A, b), np.linalg.solve(A, b), rtol=1e-10, atol=1e-12)
+    # zero rows and columns (unconstrained directions): their components are 0
+    A = np.zeros((6, 6))
+    A[np.ix_([0, 1, 5], [0, 1, 5])] = [[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]]
+    b = np.array([1.0, 2.0, 7.0, 7.0, 7.0, 3.0])
+    x = _ldlt_solve(A, b)
+    assert np.all(x[2:5] == 0.0)
+    assert np.allclose(x[[0, 1, 5]], np.linalg.solve(A[np.ix_([0, 1, 5], [0, 1, 5])], b[[0, 1, 5]]))
+    assert np.array_equal(_ldlt_solve(np.zeros((6, 6)), b), np.zeros(6))
+
+
+def test_bad_input_is_a_clear_error():
+    pts = np.zeros((10, 3))
+    with pytest.raises(InputShapeError, match=r"points must be an \(N, 3\)"):
+        build_grid(np.zeros((10, 2)), None, radius=0.01)
+    with pytest.raises(InputShapeError, match="finite"):
+        build_grid(np.full((3, 3), np.nan), None, radius=0.01)
+    with pytest.raises(ParameterError, match="radius must be a finite number > 0"):
+        build_grid(pts, None, radius=0.0)
+    with pytest.raises(InputShapeError, match="normals must match"):
+        build_grid(pts, np.zeros((9, 3)), radius=0.01)
+    grid = build_grid(pts, None, radius=0.01)
+    with pytest.raises(ParameterError, match="exceeds the grid's radius"):
+        icp(pts, grid, max_distance=0.02, init=np.eye(4), point_to_plane=False, max_iteration=3)
+    with pytest.raises(ParameterError, match="needs the target's normals"):
+        icp(pts, grid, max_distance=0.01, init=np.eye(4), point_to_plane=True, max_iteration=3)
+    with pytest.raises(InputShapeError, match=r"init must be a finite \(4, 4\)"):
+        icp(pts, grid, max_distance=0.01, init=np.eye(3), point_to_plane=False, max_iteration=3)
+    with pytest.raises(InputShapeError, match="source points must be finite"):
+        icp(np.full((2, 3), np.inf), grid, max_distance=0.01, init=np.eye(4), point_to_plane=False, max_iteration=3)
+    with pytest.raises(ParameterError, match="max_iteration must be an integer >= 0"):
+        icp(pts, grid, max_distance=0.01, init=np.eye(4), point_to_plane=False, max_iteration=-1)
+
+
+def test_the_guess_percentiles_are_numpys_by_axis():
+    """_top_and_centre takes each column's percentiles in one call: the values of the per-axis calls."""
+    from zcut.registration import _top_and_centre
+
+    rng = np.random.default_rng(4)
+    for k in range(100):
+        p = rng.normal(size=(int(rng.integers(1, 3000)), 3)) * rng.uniform(0.01, 10)
+        if k % 3 == 0:
+            p = np.round(p, 2)  # ties
+        lo, hi = np.percentile(p, 1, axis=0), np.percentile(p[:, :2], 99, axis=0)
+        centre, top = _top_and_centre(p)
+        assert np.array_equal(centre, 0.5 * (lo[:2] + hi)) and top == float(lo[2])

@@ -1,0 +1,646 @@
+"""ICP on a model kept across frames: Open3D 0.20's ``registration_icp`` with a prebuilt cell grid.
+
+:func:`zcut.registration.register_bin` aligns a frame's bin points (the *source*) to the bin model
+(the *target*), so the structure the correspondences are searched in is the model's, the same for
+every frame of a replay. Open3D's ``registration_icp`` builds a KD-tree of its target on every call
+(6.2 of the 12.6-15.8 CPU ms of a one-iteration call on the 28,920-point fine model); here the
+model's points are sorted once into a grid of cells at least the correspondence distance wide
+(:func:`build_grid`), and the iterations run in one numba kernel (:func:`icp`).
+
+What is Open3D's and kept as it is (Open3D 0.20, ``pipelines/registration/Registration.cpp``,
+``TransformationEstimation.cpp``, ``utility/Eigen.cpp``, ``geometry/KDTreeFlann.cpp``):
+
+- the source is transformed by ``init`` unless ``init`` is the identity to Eigen's ``isIdentity``
+  (1e-12), then by each update in turn (never recomputed from the accumulated pose), each point as
+  Eigen multiplies a 4 x 4 matrix by ``(x, y, z, 1)``; the pose is ``update @ pose``;
+- a source point's correspondence is its nearest model point when the squared distance, summed as
+  nanoflann sums it (``(dx² + dy²) + dz²``), is below ``max_distance²`` (``SearchHybrid`` with one
+  neighbour: ``lower_bound`` on the squared radius keeps only distances strictly below it);
+  correspondences in source order; ``fitness`` = correspondences / source points, ``inlier_rmse`` =
+  sqrt(sum of squared distances / correspondences), both 0 without correspondences;
+- point-to-plane: per correspondence r = (vs - vt)·nt and J = (vs × nt, nt), JᵀJ and Jᵀr summed with
+  weight 1 (the L2 loss), solved by Eigen's pivoting LDLT (pivots of magnitude below the smallest
+  normal double give a zero component) for -Jᵀr, the 6-vector x turned into Rz(x2) Ry(x1) Rx(x0)
+  through quaternions as Eigen's ``AngleAxisd`` products, translation x[3:]; no correspondence: the
+  identity;
+- point-to-point: Eigen's ``umeyama`` without scaling (the SVD of the cross-covariance, the last
+  singular direction flipped when det U det V < 0);
+- ``max_iteration`` iterations at most; after each, stop when both the fitness and the RMSE moved by
+  less than ``relative_fitness`` and ``relative_rmse`` (absolute differences, despite the names).
+
+What differs, within rounding: Open3D reduces its sums over threads (TBB) in an order that varies
+from call to call (its poses differ by up to ~1e-16 between calls), Eigen's LDLT, SVD and small
+products may round differently from the loops here, and an exact tie between two model points
+at the same distance goes to the lower model index here, to nanoflann's traversal order there. This
+kernel is serial and deterministic: the same input gives the same bits. The reference is kept:
+:func:`icp_open3d` runs Open3D's own ``registration_icp`` on the same input and counts its iterations.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TypeVar
+
+import numba
+import numpy as np
+
+from .errors import InputShapeError, ParameterError, describe_array
+
+_T = TypeVar("_T")
+
+__all__ = ["MAX_GRID_CELLS", "IcpGrid", "IcpOutcome", "build_grid", "icp", "icp_open3d"]
+
+#: Largest number of cells of a grid's dense start table; a model whose extent would need more at
+#: the correspondence distance gets wider cells (still exact: a cell only has to be at least as wide
+#: as the distance).
+MAX_GRID_CELLS = 1 << 24
+#: A cell is this much wider than the distance, so that rounding in ``(x - origin) / cell`` cannot
+#: put a point within the distance two cells away.
+_CELL_MARGIN = 1.0 + 1e-6
+
+
+@dataclass(frozen=True, slots=True)
+class IcpGrid:
+    """A model's points sorted into cubic cells, for correspondence searches within ``radius``.
+
+    Attributes
+    ----------
+    radius : float
+        The largest correspondence distance the grid answers (metres).
+    cell : float
+        Cell width (metres), at least ``radius``.
+    origin : (3,) float64 ndarray
+        Corner of cell (0, 0, 0).
+    dims : (3,) int64 ndarray
+        Cells along x, y, z; cell (i, j, k) is number ``(i * ny + j) * nz + k``.
+    start : (nx * ny * nz + 1,) int64 ndarray
+        The points of cell c are rows ``start[c]:start[c + 1]`` of ``points``.
+    points, normals : (N, 3) float64 ndarray
+        The model's points and normals (zeros when it has none), sorted by cell.
+    order : (N,) int64 ndarray
+        Each sorted row's index in the model as given.
+    """
+
+    radius: float
+    cell: float
+    origin: np.ndarray
+    dims: np.ndarray
+    start: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    order: np.ndarray
+    has_normals: bool
+
+
+@dataclass(frozen=True, slots=True)
+class IcpOutcome:
+    """What one ICP run gives (Open3D's ``RegistrationResult`` and the iterations it ran).
+
+    Attributes
+    ----------
+    transformation : (4, 4) float64 ndarray
+        Source frame -> target frame.
+    fitness : float
+        Share of the source points with a correspondence at the final pose.
+    inlier_rmse : float
+        RMSE of the correspondences' distances at the final pose (metres); 0 without any.
+    iterations : int
+        Updates computed (1 .. ``max_iteration``).
+    n_correspondences : int
+    """
+
+    transformation: np.ndarray
+    fitness: float
+    inlier_rmse: float
+    iterations: int
+    n_correspondences: int
+
+
+def build_grid(points: np.ndarray, normals: np.ndarray | None, *, radius: float) -> IcpGrid:
+    """Sort a model's points into cells at least ``radius`` wide (once per model and distance).
+
+    Parameters
+    ----------
+    points : (N, 3) float ndarray
+        Finite model points (metres).
+    normals : (N, 3) float ndarray or None
+        Their normals (point-to-plane needs them).
+    radius : float
+        The largest correspondence distance the grid will be asked for (metres, > 0).
+
+    Returns
+    -------
+    IcpGrid
+    """
+    p = np.ascontiguousarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InputShapeError(f"points must be an (N, 3) float array, got {describe_array(p)}")
+    if not np.isfinite(p).all():
+        raise InputShapeError("points must be finite")
+    if normals is None:
+        n = np.zeros_like(p)
+    else:
+        n = np.ascontiguousarray(normals, dtype=np.float64)
+        if n.shape != p.shape:
+            raise InputShapeError(f"normals must match points {p.shape}, got {describe_array(n)}")
+    if not (math.isfinite(radius) and radius > 0):
+        raise ParameterError(f"build_grid: radius must be a finite number > 0, got {radius!r}")
+    cell = radius * _CELL_MARGIN
+    if len(p) == 0:
+        origin, dims = np.zeros(3), np.zeros(3, np.int64)
+        return IcpGrid(float(radius), cell, origin, dims, np.zeros(1, np.int64), p, n, np.zeros(0, np.int64),
+                       normals is not None)
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    extent = hi - lo
+    while np.prod(np.floor(extent / cell) + 1.0) > MAX_GRID_CELLS:
+        cell *= 2.0
+    dims = (np.floor(extent / cell) + 1).astype(np.int64)
+    ijk = np.minimum(np.floor((p - lo) / cell).astype(np.int64), dims - 1)
+    lin = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+    order = np.argsort(lin, kind="stable")
+    start = np.zeros(int(np.prod(dims)) + 1, np.int64)
+    np.cumsum(np.bincount(lin, minlength=len(start) - 1), out=start[1:])
+    return IcpGrid(float(radius), float(cell), lo.astype(np.float64), dims, start,
+                   np.ascontiguousarray(p[order]), np.ascontiguousarray(n[order]), order.astype(np.int64),
+                   normals is not None)
+
+
+# --------------------------------------------------------------------------------------- kernel
+@numba.njit(cache=True, nogil=True)
+def _transform_rows(T: np.ndarray, pcd: np.ndarray) -> None:
+    """``pcd <- T (x, y, z, 1)`` row by row, summed as Eigen sums a 4 x 4 matrix times a 4-vector
+    (column by column); the homogeneous coordinate is 1 for finite points."""
+    for i in range(pcd.shape[0]):
+        x, y, z = pcd[i, 0], pcd[i, 1], pcd[i, 2]
+        w = T[3, 0] * x + T[3, 1] * y + T[3, 2] * z + T[3, 3]
+        for r in range(3):
+            pcd[i, r] = (T[r, 0] * x + T[r, 1] * y + T[r, 2] * z + T[r, 3]) / w
+
+
+@numba.njit(cache=True, nogil=True)
+def _matmul4(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    C = np.empty((4, 4))
+    for r in range(4):
+        for c in range(4):
+            C[r, c] = A[r, 0] * B[0, c] + A[r, 1] * B[1, c] + A[r, 2] * B[2, c] + A[r, 3] * B[3, c]
+    return C
+
+
+@numba.njit(cache=True, nogil=True)
+def _cell_order(pcd: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int) -> np.ndarray:
+    """The source rows sorted by the grid cell they fall in (rows outside the grid last): searched
+    in this order, consecutive queries read the same cells (Open3D's voxel grid gives its points in
+    hash order). Only the order of the searches changes: each answer is the same."""
+    m = pcd.shape[0]
+    key = np.empty(m, np.int64)
+    for i in range(m):
+        fx = math.floor((pcd[i, 0] - origin[0]) / cell)
+        fy = math.floor((pcd[i, 1] - origin[1]) / cell)
+        fz = math.floor((pcd[i, 2] - origin[2]) / cell)
+        k = nx * ny * nz
+        if 0.0 <= fx < nx and 0.0 <= fy < ny and 0.0 <= fz < nz:
+            k = (int(fx) * ny + int(fy)) * nz + int(fz)
+        key[i] = k
+    return np.argsort(key)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _d2(x: float, y: float, z: float, gpts: np.ndarray, k: int) -> float:
+    """Squared distance as nanoflann's L2 adaptor sums it for 3 dimensions: (dx² + dy²) + dz²."""
+    dx = x - gpts[k, 0]
+    dy = y - gpts[k, 1]
+    dz = z - gpts[k, 2]
+    return dx * dx + dy * dy + dz * dz
+
+
+@numba.njit(cache=True, nogil=True)
+def _correspond(pcd: np.ndarray, order: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
+                start: np.ndarray, gpts: np.ndarray, gorder: np.ndarray, max_distance: float, best: np.ndarray,
+                near: np.ndarray, src: np.ndarray, dst: np.ndarray) -> tuple[int, float]:
+    """Each source point's nearest grid point with a squared distance below ``max_distance²`` (ties:
+    the lowest model index), searched in the 27 cells around it: ``src[:n]`` and ``dst[:n]`` (grid
+    rows), in source order; ``(n, sum of the squared distances in that order)``. The points are
+    searched in ``order`` (any permutation: the answers do not depend on it)."""
+    r2 = max_distance * max_distance
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for i in order:
+        x, y, z = pcd[i, 0], pcd[i, 1], pcd[i, 2]
+        near[i] = -1
+        fx, fy, fz = math.floor((x - ox) / cell), math.floor((y - oy) / cell), math.floor((z - oz) / cell)
+        if not (-1.0 <= fx <= nx and -1.0 <= fy <= ny and -1.0 <= fz <= nz):
+            continue
+        ix, iy, iz = int(fx), int(fy), int(fz)
+        z0, z1 = max(iz - 1, 0), min(iz + 1, nz - 1)
+        b = r2
+        bj = -1
+        for ax in range(max(ix - 1, 0), min(ix + 1, nx - 1) + 1):
+            for ay in range(max(iy - 1, 0), min(iy + 1, ny - 1) + 1):
+                base = (ax * ny + ay) * nz
+                for k in range(start[base + z0], start[base + z1 + 1]):
+                    d2 = _d2(x, y, z, gpts, k)
+                    if d2 < b or (d2 == b and bj >= 0 and gorder[k] < gorder[bj]):
+                        b = d2
+                        bj = k
+        if bj >= 0:
+            near[i] = bj
+            best[i] = b
+    n = 0
+    error2 = 0.0
+    for i in range(pcd.shape[0]):  # in source order, as Open3D lists (and sums) them
+        j = near[i]
+        if j >= 0:
+            src[n] = i
+            dst[n] = j
+            n += 1
+            error2 += best[i]
+    return n, error2
+
+
+@numba.njit(cache=True, nogil=True)
+def _ldlt_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Eigen's ``A.ldlt().solve(b)`` for a symmetric (n, n) ``A`` read from its lower triangle:
+    the largest remaining diagonal entry as pivot, components whose pivot is below the smallest
+    normal double set to zero."""
+    n = A.shape[0]
+    m = A.copy()
+    perm = np.empty(n, np.int64)
+    temp = np.zeros(n)
+    for k in range(n):
+        big = k
+        for i in range(k + 1, n):
+            if abs(m[i, i]) > abs(m[big, big]):
+                big = i
+        perm[k] = big
+        if big != k:
+            s = n - big - 1
+            for j in range(k):
+                m[k, j], m[big, j] = m[big, j], m[k, j]
+            for j in range(s):
+                m[big + 1 + j, k], m[big + 1 + j, big] = m[big + 1 + j, big], m[big + 1 + j, k]
+            m[k, k], m[big, big] = m[big, big], m[k, k]
+            for i in range(k + 1, big):
+                tmp = m[i, k]
+                m[i, k] = m[big, i]
+                m[big, i] = tmp
+        rs = n - k - 1
+        if k > 0:
+            for j in range(k):
+                temp[j] = m[j, j] * m[k, j]
+            acc = 0.0
+            for j in range(k):
+                acc += m[k, j] * temp[j]
+            m[k, k] -= acc
+            for i in range(k + 1, n):
+                acc = 0.0
+                for j in range(k):
+                    acc += m[i, j] * temp[j]
+                m[i, k] -= acc
+        akk = m[k, k]
+        if k == 0 and not abs(akk) > 0.0:
+            return np.zeros(n)  # a zero matrix: Eigen's solution is zero
+        if rs > 0 and abs(akk) > 0.0:
+            for i in range(k + 1, n):
+                m[i, k] /= akk
+    x = b.copy()
+    for k in range(n):  # x = P b
+        if perm[k] != k:
+            x[k], x[perm[k]] = x[perm[k]], x[k]
+    for i in range(n):  # L (unit lower) forward
+        acc = x[i]
+        for j in range(i):
+            acc -= m[i, j] * x[j]
+        x[i] = acc
+    tiny = 2.2250738585072014e-308
+    for i in range(n):
+        x[i] = x[i] / m[i, i] if abs(m[i, i]) > tiny else 0.0
+    for i in range(n - 1, -1, -1):  # L^T backward
+        acc = x[i]
+        for j in range(i + 1, n):
+            acc -= m[j, i] * x[j]
+        x[i] = acc
+    for k in range(n - 1, -1, -1):  # P^T
+        if perm[k] != k:
+            x[k], x[perm[k]] = x[perm[k]], x[k]
+    return x
+
+
+@numba.njit(cache=True, nogil=True)
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Quaternion product (w, x, y, z) as Eigen writes it."""
+    return np.array([
+        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+        a[0] * b[2] + a[2] * b[0] + a[3] * b[1] - a[1] * b[3],
+        a[0] * b[3] + a[3] * b[0] + a[1] * b[2] - a[2] * b[1],
+    ])
+
+
+@numba.njit(cache=True, nogil=True)
+def _vector6_to_matrix(x: np.ndarray) -> np.ndarray:
+    """Open3D's ``TransformVector6dToMatrix4d``: AngleAxis(x2, z) AngleAxis(x1, y) AngleAxis(x0, x)
+    as quaternions, then Eigen's quaternion-to-matrix; translation x[3:]."""
+    qz = np.array([math.cos(0.5 * x[2]), 0.0, 0.0, math.sin(0.5 * x[2])])
+    qy = np.array([math.cos(0.5 * x[1]), 0.0, math.sin(0.5 * x[1]), 0.0])
+    qx = np.array([math.cos(0.5 * x[0]), math.sin(0.5 * x[0]), 0.0, 0.0])
+    q = _qmul(_qmul(qz, qy), qx)
+    w, a, b, c = q[0], q[1], q[2], q[3]
+    tx, ty, tz = 2.0 * a, 2.0 * b, 2.0 * c
+    twx, twy, twz = tx * w, ty * w, tz * w
+    txx, txy, txz = tx * a, ty * a, tz * a
+    tyy, tyz, tzz = ty * b, tz * b, tz * c
+    U = np.eye(4)
+    U[0, 0] = 1.0 - (tyy + tzz)
+    U[0, 1] = txy - twz
+    U[0, 2] = txz + twy
+    U[1, 0] = txy + twz
+    U[1, 1] = 1.0 - (txx + tzz)
+    U[1, 2] = tyz - twx
+    U[2, 0] = txz - twy
+    U[2, 1] = tyz + twx
+    U[2, 2] = 1.0 - (txx + tyy)
+    U[0, 3], U[1, 3], U[2, 3] = x[3], x[4], x[5]
+    return U
+
+
+@numba.njit(cache=True, nogil=True)
+def _point_to_plane(pcd: np.ndarray, gpts: np.ndarray, gnrm: np.ndarray, src: np.ndarray, dst: np.ndarray,
+                    n: int) -> np.ndarray:
+    """The update of ``TransformationEstimationPointToPlane::ComputeTransformation``."""
+    if n == 0:
+        return np.eye(4)
+    JTJ = np.zeros((6, 6))
+    JTr = np.zeros(6)
+    J = np.empty(6)
+    for c in range(n):
+        i, j = src[c], dst[c]
+        s0, s1, s2 = pcd[i, 0], pcd[i, 1], pcd[i, 2]
+        n0, n1, n2 = gnrm[j, 0], gnrm[j, 1], gnrm[j, 2]
+        r = (s0 - gpts[j, 0]) * n0 + (s1 - gpts[j, 1]) * n1 + (s2 - gpts[j, 2]) * n2
+        J[0] = s1 * n2 - s2 * n1
+        J[1] = s2 * n0 - s0 * n2
+        J[2] = s0 * n1 - s1 * n0
+        J[3], J[4], J[5] = n0, n1, n2
+        for a in range(6):
+            ja = J[a]
+            JTr[a] += ja * r
+            for b in range(a, 6):
+                JTJ[a, b] += ja * J[b]
+    for a in range(6):  # J[a] J[b] == J[b] J[a] exactly: the full sums' lower half, bit for bit
+        for b in range(a):
+            JTJ[a, b] = JTJ[b, a]
+    return _vector6_to_matrix(_ldlt_solve(JTJ, -JTr))
+
+
+@numba.njit(cache=True, nogil=True)
+def _point_to_point(pcd: np.ndarray, gpts: np.ndarray, src: np.ndarray, dst: np.ndarray, n: int) -> np.ndarray:
+    """The update of ``TransformationEstimationPointToPoint::ComputeTransformation`` (Eigen's
+    ``umeyama`` without scaling)."""
+    if n == 0:
+        return np.eye(4)
+    ms = np.zeros(3)
+    md = np.zeros(3)
+    for c in range(n):
+        for a in range(3):
+            ms[a] += pcd[src[c], a]
+            md[a] += gpts[dst[c], a]
+    inv = 1.0 / n
+    for a in range(3):
+        ms[a] *= inv
+        md[a] *= inv
+    sigma = np.zeros((3, 3))
+    for c in range(n):
+        for a in range(3):
+            da = gpts[dst[c], a] - md[a]
+            for b in range(3):
+                sigma[a, b] += da * (pcd[src[c], b] - ms[b])
+    for a in range(3):
+        for b in range(3):
+            sigma[a, b] *= inv
+    u, _, vt = np.linalg.svd(sigma)
+    s = np.ones(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        s[2] = -1.0
+    R = (u * s) @ vt
+    U = np.eye(4)
+    for a in range(3):
+        for b in range(3):
+            U[a, b] = R[a, b]
+        U[a, 3] = md[a] - (R[a, 0] * ms[0] + R[a, 1] * ms[1] + R[a, 2] * ms[2])
+    return U
+
+
+@numba.njit(cache=True, nogil=True)
+def _is_identity(T: np.ndarray) -> bool:
+    """Eigen's ``isIdentity()`` (precision 1e-12)."""
+    for r in range(4):
+        for c in range(4):
+            if r == c:
+                if not abs(T[r, c] - 1.0) <= 1e-12 * min(abs(T[r, c]), 1.0):
+                    return False
+            elif not abs(T[r, c]) <= 1e-12:
+                return False
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def _icp_start(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
+               start: np.ndarray, gpts: np.ndarray, gorder: np.ndarray, max_distance: float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+                          int, float, float]:
+    """The start of Open3D's ``RegistrationICP`` loop: the source moved by ``init`` (unless it is the
+    identity), its correspondences: ``(pcd, search order, pose, state, n, fitness, rmse)``."""
+    pcd = source.copy()
+    if not _is_identity(init):
+        _transform_rows(init, pcd)
+    m = pcd.shape[0]
+    state = (np.empty(m), np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.int64))
+    order = _cell_order(pcd, origin, cell, nx, ny, nz)
+    n, e2 = _correspond(pcd, order, origin, cell, nx, ny, nz, start, gpts, gorder, max_distance, *state)
+    return pcd, order, init.copy(), state, n, n / m if n else 0.0, math.sqrt(e2 / n) if n else 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _icp_step(U: np.ndarray, T: np.ndarray, pcd: np.ndarray, order: np.ndarray, origin: np.ndarray, cell: float,
+              nx: int, ny: int, nz: int, start: np.ndarray, gpts: np.ndarray, gorder: np.ndarray,
+              max_distance: float, state: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+              ) -> tuple[np.ndarray, int, float, float]:
+    """One iteration after its update ``U``: the pose ``U T``, the source moved by ``U``, its new
+    correspondences: ``(pose, n, fitness, rmse)``."""
+    T = _matmul4(U, T)
+    _transform_rows(U, pcd)
+    n, e2 = _correspond(pcd, order, origin, cell, nx, ny, nz, start, gpts, gorder, max_distance, *state)
+    m = pcd.shape[0]
+    return T, n, n / m if n else 0.0, math.sqrt(e2 / n) if n else 0.0
+
+
+# Two kernels, one per estimation, so that numba loads only the one used (a process that registers
+# point-to-plane never loads the SVD of point-to-point).
+@numba.njit(cache=True, nogil=True)
+def _icp_plane(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
+               start: np.ndarray, gpts: np.ndarray, gnrm: np.ndarray, gorder: np.ndarray, max_distance: float,
+               max_iteration: int, relative_fitness: float, relative_rmse: float, out: np.ndarray
+               ) -> tuple[float, float, int, int]:
+    """Open3D's ``RegistrationICP`` loop, point-to-plane; the pose into ``out``; ``(fitness, rmse,
+    iterations, n)``."""
+    pcd, order, T, state, n, fit, rmse = _icp_start(source, init, origin, cell, nx, ny, nz, start, gpts, gorder,
+                                                    max_distance)
+    its = 0
+    for _ in range(max_iteration):
+        its += 1
+        U = _point_to_plane(pcd, gpts, gnrm, state[2], state[3], n)
+        fit0, rmse0 = fit, rmse
+        T, n, fit, rmse = _icp_step(U, T, pcd, order, origin, cell, nx, ny, nz, start, gpts, gorder, max_distance,
+                                    state)
+        if abs(fit0 - fit) < relative_fitness and abs(rmse0 - rmse) < relative_rmse:
+            break
+    out[:, :] = T
+    return fit, rmse, its, n
+
+
+@numba.njit(cache=True, nogil=True)
+def _icp_point(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
+               start: np.ndarray, gpts: np.ndarray, gorder: np.ndarray, max_distance: float, max_iteration: int,
+               relative_fitness: float, relative_rmse: float, out: np.ndarray) -> tuple[float, float, int, int]:
+    """:func:`_icp_plane` with the point-to-point update."""
+    pcd, order, T, state, n, fit, rmse = _icp_start(source, init, origin, cell, nx, ny, nz, start, gpts, gorder,
+                                                    max_distance)
+    its = 0
+    for _ in range(max_iteration):
+        its += 1
+        U = _point_to_point(pcd, gpts, state[2], state[3], n)
+        fit0, rmse0 = fit, rmse
+        T, n, fit, rmse = _icp_step(U, T, pcd, order, origin, cell, nx, ny, nz, start, gpts, gorder, max_distance,
+                                    state)
+        if abs(fit0 - fit) < relative_fitness and abs(rmse0 - rmse) < relative_rmse:
+            break
+    out[:, :] = T
+    return fit, rmse, its, n
+
+
+def _check_icp_args(source: np.ndarray, init: np.ndarray, max_distance: float, max_iteration: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    s = np.ascontiguousarray(source, dtype=np.float64)
+    if s.ndim != 2 or s.shape[1] != 3:
+        raise InputShapeError(f"source must be an (N, 3) float array, got {describe_array(s)}")
+    if not np.isfinite(s).all():
+        raise InputShapeError("source points must be finite")
+    T0 = np.ascontiguousarray(init, dtype=np.float64)
+    if T0.shape != (4, 4) or not np.isfinite(T0).all():
+        raise InputShapeError(f"init must be a finite (4, 4) array, got {describe_array(T0)}")
+    if not (math.isfinite(max_distance) and max_distance > 0):
+        raise ParameterError(f"icp: max_distance must be a finite number > 0, got {max_distance!r}")
+    if int(max_iteration) != max_iteration or max_iteration < 0:
+        raise ParameterError(f"icp: max_iteration must be an integer >= 0, got {max_iteration!r}")
+    return s, T0
+
+
+def icp(source: np.ndarray, grid: IcpGrid, *, max_distance: float, init: np.ndarray, point_to_plane: bool,
+        max_iteration: int, relative_fitness: float = 1e-6, relative_rmse: float = 1e-6) -> IcpOutcome:
+    """Open3D's ``registration_icp(source, target, max_distance, init, estimation, criteria)`` with
+    the target's search structure built beforehand (:func:`build_grid`).
+
+    Parameters
+    ----------
+    source : (N, 3) float ndarray
+        Finite source points (e.g. a frame's downsampled bin points); none: no correspondence,
+        ``init`` returned after one iteration, as Open3D does.
+    grid : IcpGrid
+        The target's (the model's), built for a radius of at least ``max_distance``; with normals
+        for point-to-plane.
+    max_distance : float
+        Correspondence distance (metres).
+    init : (4, 4) float ndarray
+        Initial source -> target transform.
+    point_to_plane : bool
+        Point-to-plane (Open3D's ``TransformationEstimationPointToPlane``), else point-to-point
+        (``TransformationEstimationPointToPoint()``).
+    max_iteration : int
+    relative_fitness, relative_rmse : float
+        Open3D's ``ICPConvergenceCriteria`` (its defaults).
+
+    Returns
+    -------
+    IcpOutcome
+    """
+    s, T0 = _check_icp_args(source, init, max_distance, max_iteration)
+    if max_distance > grid.radius:
+        raise ParameterError(f"icp: max_distance {max_distance!r} exceeds the grid's radius {grid.radius!r}")
+    if point_to_plane and not grid.has_normals:
+        raise ParameterError("icp: point-to-plane needs the target's normals (the grid was built without)")
+    out = np.empty((4, 4))
+    nx, ny, nz = (int(v) for v in grid.dims)
+    args = (s, T0, grid.origin, grid.cell, nx, ny, nz, grid.start, grid.points)
+    tail = (grid.order, float(max_distance), int(max_iteration), float(relative_fitness), float(relative_rmse), out)
+    if point_to_plane:
+        fit, rmse, its, n = _icp_plane(*args, grid.normals, *tail)
+    else:
+        fit, rmse, its, n = _icp_point(*args, *tail)
+    return IcpOutcome(out, float(fit), float(rmse), int(its), int(n))
+
+
+def icp_open3d(source: np.ndarray, points: np.ndarray, normals: np.ndarray | None, *, max_distance: float,
+               init: np.ndarray, point_to_plane: bool, max_iteration: int, count_iterations: bool = False
+               ) -> IcpOutcome:
+    """The reference: Open3D's own ``registration_icp`` on the same input as :func:`icp`.
+
+    ``count_iterations`` reads the iterations from Open3D's debug log (one line per iteration,
+    written to the process's standard output, which is redirected to a file for the call); without
+    it ``iterations`` is -1. ``n_correspondences`` is Open3D's ``correspondence_set``'s length.
+    """
+    import open3d as o3d
+
+    s, T0 = _check_icp_args(source, init, max_distance, max_iteration)
+    reg = o3d.pipelines.registration
+    src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(s))
+    dst = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, np.float64)))
+    if normals is not None:
+        dst.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals, np.float64))
+    est = (reg.TransformationEstimationPointToPlane() if point_to_plane
+           else reg.TransformationEstimationPointToPoint())
+    crit = reg.ICPConvergenceCriteria(max_iteration=int(max_iteration))
+    if not count_iterations:
+        r = reg.registration_icp(src, dst, float(max_distance), T0, est, crit)
+        its = -1
+    else:
+        r, its = _with_debug_log(lambda: reg.registration_icp(src, dst, float(max_distance), T0, est, crit),
+                                 "ICP Iteration #")
+    return IcpOutcome(np.asarray(r.transformation, dtype=np.float64).copy(), float(r.fitness),
+                      float(r.inlier_rmse), its, len(r.correspondence_set))
+
+
+def _with_debug_log(call: Callable[[], _T], marker: str) -> tuple[_T, int]:
+    """Run ``call()`` with Open3D's debug log on; (its result, the log's lines containing ``marker``).
+
+    Open3D's Python module prints its log through Python's ``sys.stdout`` (caught here in a string)
+    and its C++ library through the process's standard output (redirected to a temporary file for
+    the call): both are read."""
+    import contextlib
+    import ctypes
+    import io
+    import os
+    import sys
+    import tempfile
+
+    import open3d as o3d
+
+    libc = ctypes.CDLL(None)
+    sys.stdout.flush()
+    saved = os.dup(1)
+    level = o3d.utility.get_verbosity_level()
+    text = io.StringIO()
+    with tempfile.TemporaryFile(mode="w+b") as f:
+        try:
+            os.dup2(f.fileno(), 1)
+            o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Debug)
+            with contextlib.redirect_stdout(text):
+                out = call()
+        finally:
+            o3d.utility.set_verbosity_level(level)
+            libc.fflush(None)
+            os.dup2(saved, 1)
+            os.close(saved)
+        f.seek(0)
+        native = f.read().decode(errors="replace")
+    return out, text.getvalue().count(marker) + native.count(marker)
