@@ -508,14 +508,8 @@ def _sparse_counts(st: ScoredTruth, predicted: Mask) -> AccuracyCounts:
     """``st.counts(predicted)`` (the same counts), the prediction's components found among its pixels
     (:func:`components8`); ``st.true_component`` may number the truth's components in any order."""
     hit = predicted.ravel()[st.true_index]  # P at the pixels of L ∩ S
-    n_true = int(st.true_index.size)
-    tp = int(np.count_nonzero(hit))
     n_pred, index_p, comp_p = components8(predicted & st.scored)
-    fp = int(index_p.size) - tp
-    t_size = st.true_sizes[1:]
-    t_inside = np.bincount(st.true_component[hit], minlength=t_size.size + 1)[1:]
-    t_found = 2 * t_inside >= t_size
-    t_single = t_size == 1
+    fp = int(index_p.size) - int(np.count_nonzero(hit))
     if n_pred:
         p_size = np.bincount(comp_p, minlength=n_pred + 1)[1:]
         # the true pixels P holds lie in P ∩ S: their components
@@ -523,26 +517,7 @@ def _sparse_counts(st: ScoredTruth, predicted: Mask) -> AccuracyCounts:
         p_inside = np.bincount(comp_p[at], minlength=n_pred + 1)[1:]
     else:
         p_size = p_inside = np.zeros(0, dtype=np.int64)
-    p_correct = 2 * p_inside >= p_size
-    p_single = p_size == 1
-    kinds = None
-    if st.true_kind is not None and st.kind_labelled is not None:
-        n_kinds = len(st.kind_labelled)
-        n = np.bincount(st.true_kind, minlength=n_kinds + 1)[1:]
-        found = np.bincount(st.true_kind[hit], minlength=n_kinds + 1)[1:]
-        kinds = KindCounts(st.kind_labelled, tuple(int(v) for v in n), tuple(int(v) for v in found))
-    return AccuracyCounts(
-        tp=tp, fp=fp, fn=n_true - tp,
-        true_clusters=int(np.count_nonzero(~t_single)),
-        true_clusters_found=int(np.count_nonzero(t_found & ~t_single)),
-        pred_clusters=int(np.count_nonzero(~p_single)),
-        pred_clusters_correct=int(np.count_nonzero(p_correct & ~p_single)),
-        true_singletons=int(np.count_nonzero(t_single)),
-        true_singletons_found=int(np.count_nonzero(t_found & t_single)),
-        pred_singletons=int(np.count_nonzero(p_single)),
-        pred_singletons_correct=int(np.count_nonzero(p_correct & p_single)),
-        kinds=kinds,
-    )
+    return st.counts_of(hit, fp, p_size, p_inside)
 
 
 def truth_classes(scored: ScoredTruth, *, detectable: Mask | None = None,

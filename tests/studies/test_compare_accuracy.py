@@ -231,3 +231,28 @@ def test_displacement_read_where_scored_equals_the_whole_image():
     with pytest.raises(ZcutError) as ref:
         frame_accuracy(1, 2, a, outliers & ~reviewed | ~valid, valid=valid, region=zone, displacement_mm=whole)
     assert str(err.value) == str(ref.value)
+
+
+@pytest.mark.parametrize("seed", [4, 5])
+def test_sparse_counts_equal_scored_truth_counts(seed):
+    """The one-pass scoring's counts of a prediction (its components among its pixels, ``_sparse_counts``)
+    are ``zcut.metrics.ScoredTruth.counts`` (the whole image labelled): both end in ``ScoredTruth.counts_of``;
+    with kinds, a region, large invalid parts, and a real scan's edges as the prediction."""
+    from annotate.accuracy import _sparse_counts
+    from zcut.metrics import scored_truth
+
+    rng = np.random.default_rng(seed)
+    shape = (70, 110)
+    valid = rng.random(shape) > 0.05
+    valid[10:50, 30:80] = False
+    outliers, reviewed, kinds, _, _ = _truth(rng, shape, valid, 0.1)
+    region = np.zeros(shape, dtype=bool)
+    region[5:65, 5:105] = True
+    st = scored_truth(outliers, reviewed=reviewed, valid=valid, region=region, kinds=kinds, n_kinds=N_KINDS)
+    preds = [_pred(rng, outliers, share, keep) for share, keep in ((0.0, 1.0), (0.02, 0.6), (0.3, 0.2), (0.0, 0.0))]
+    for p in [*preds, np.ones(shape, dtype=bool), ~valid]:
+        assert _sparse_counts(st, p) == st.counts(p)
+    for _, v, edges in _real_masks()[:2]:
+        st = scored_truth(edges, valid=v, region=v)
+        for p in (edges, v & (rng.random(v.shape) < 0.01), np.roll(edges, 1, axis=1)):
+            assert _sparse_counts(st, p) == st.counts(p)
