@@ -1199,7 +1199,9 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
                 print(f"zcut: reading {n} logs: {i + 1}/{n} {path.name}", file=sys.stderr, flush=True)
 
         # each log opened once: the planning's reader resolves the sides (their errors raised after the
-        # planning, as before); in this process (--workers 0) the first log's unit takes it too
+        # planning, as before); in this process (--workers 0) the units of the first _MAX_KEPT // 2 logs take
+        # it too (half the kept entries: each log's runner, kept beside its reader, must not push out the
+        # reader of a log whose units are still to come)
         sides: dict[str, LogSides] = {}
         refused: list[Exception] = []
         inline = isinstance(executor, InlineExecutor)
@@ -1225,7 +1227,7 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
             except Exception as e:  # noqa: BLE001 - raised after the planning, as when the sides were resolved then
                 refused.append(e)
                 return
-            if inline and not _KEPT:
+            if inline and sum(k[0] == "log" for k in _KEPT) < _MAX_KEPT // 2:
                 _kept(("log", str(plan.path), plan.sha256, opts.topic), lambda: (reader, first))
 
         plans = plan_logs([str(p) for p in opts.logs], config_file=None, overrides={}, topic=opts.topic,
