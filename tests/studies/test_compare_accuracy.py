@@ -11,7 +11,14 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from annotate.accuracy import N_KINDS, _frame_accuracies, components8, frame_accuracies, frame_accuracy
+from annotate.accuracy import (
+    N_KINDS,
+    _frame_accuracies,
+    _label_sparse8,
+    components8,
+    frame_accuracies,
+    frame_accuracy,
+)
 from zcut.errors import ZcutError
 
 REAL = Path("/work/shared/data/real")
@@ -32,6 +39,9 @@ def _same_components(mask: np.ndarray) -> None:
     rn, ridx, rlab = _reference(mask)
     assert n == rn and np.array_equal(idx, ridx) and np.array_equal(lab, rlab)
     assert lab.dtype == np.int64
+    # the union-find kernel at any density (components8 takes it below _SPARSE_SHARE, ndimage.label above)
+    k, klab = _label_sparse8(ridx.astype(np.int64), mask.shape[1])
+    assert k == rn and np.array_equal(klab, rlab) and klab.dtype == np.int64
 
 
 def _real_masks() -> list[tuple[str, np.ndarray, np.ndarray]]:
@@ -56,6 +66,9 @@ def test_components_equal_ndimage_label_random(density):
     rng = np.random.default_rng(int(density * 1e4))
     for shape in ((1, 1), (1, 40), (40, 1), (7, 9), (64, 80), (300, 257)):
         _same_components(rng.random(shape) < density)
+    # blobs (dilated specks: many pixels a component, merges from the row above and across it)
+    specks = rng.random((200, 311)) < density / 8
+    _same_components(ndimage.binary_dilation(specks, structure=EIGHT, iterations=2))
 
 
 def test_components_do_not_wrap_across_rows_and_edge_cases():
