@@ -393,7 +393,7 @@ def _frame_accuracies(index: int, stamp_ns: int, sides: Sequence[tuple[Mapping[s
                         None)
         if st_codes is None:
             r = valid if reviewed is None else reviewed
-            if reviewed is not None and np.count_nonzero(reviewed & ~valid):
+            if reviewed is not None and reviewed is not valid and np.count_nonzero(reviewed & ~valid):
                 return None  # R ⊄ valid
             if np.count_nonzero(outliers & ~r):
                 return None  # L ⊄ R
