@@ -480,10 +480,17 @@ def _check_differ(spec_a: SideSpec, spec_b: SideSpec, ca: PipelineConfig | None,
         raise CompareError(f"--a {spec_a.name}, --b {spec_b.name} on {log.name}: {e}") from None
 
 
-def _side_of_result(result: Any, methods: tuple[str, ...], region_name: str) -> SideFrame:
+def _side_of_result(result: Any, methods: tuple[str, ...], region_name: str, *, other: SideFrame | None = None,
+                    ) -> SideFrame:
+    """One side of a frame from its pipeline result; ``other``: the other side's, whose scored region
+    this side takes as it is (the same array) when both judged the same zone (A and B share their bin
+    stages: the same zone and removal objects), rather than a copy of it."""
     from annotate.truth import method_predictions, scored_region
 
-    return SideFrame(method_predictions(result, methods), result.valid, scored_region(result, region_name), result)
+    o = other.result if other is not None else None
+    same = o is not None and o.zone is result.zone and o.removal is result.removal and o.valid is result.valid
+    region = other.region if same and other is not None else scored_region(result, region_name)
+    return SideFrame(method_predictions(result, methods), result.valid, region, result)
 
 
 def _side_of_masks(frame: Frame, masks: dict[str, np.ndarray] | None, held: tuple[str, ...], region_name: str,
@@ -562,8 +569,8 @@ def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, pat
         it = runner.frames(frames)
         try:
             for frame, ra, rb in it:
-                yield (frame, _side_of_result(ra, runner.a.methods, region),
-                       _side_of_result(rb, runner.b.methods, region))
+                sa = _side_of_result(ra, runner.a.methods, region)
+                yield frame, sa, _side_of_result(rb, runner.b.methods, region, other=sa)
         finally:
             it.close()
             lost += runner.stream.damage
@@ -814,12 +821,12 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
         if fp is not None:
             mm2 = np.bincount(ids, weights=np.where(np.isfinite(fp), fp, 0.0), minlength=n + 1)[1:]
         if truth is not None:
-            outl, scored = truth
+            outl, scored = truth[0][rows, cols], truth[1][rows, cols]  # read at the blobs' pixels alone
             # B removed it alone: right where it is a true outlier; A removed it alone: B right where it is not
             good = (outl if who == "B" else ~outl) & scored
             bad = (~outl if who == "B" else outl) & scored
-            fixes = np.bincount(ids, weights=good[rows, cols], minlength=n + 1)[1:].astype(np.int64)
-            breaks = np.bincount(ids, weights=bad[rows, cols], minlength=n + 1)[1:].astype(np.int64)
+            fixes = np.bincount(ids, weights=good, minlength=n + 1)[1:].astype(np.int64)
+            breaks = np.bincount(ids, weights=bad, minlength=n + 1)[1:].astype(np.int64)
         height = part = None
         if near is not None and xyz is not None:
             mine = slice(offset, offset + rows.size)
@@ -851,20 +858,33 @@ def disagreement_blobs(log: str, index: int, stamp_ns: int, mask_a: np.ndarray, 
     return blobs
 
 
+def scored_union(sa: SideFrame, sb: SideFrame) -> np.ndarray:
+    """(H, W) bool: the union of the two sides' scored regions, where the comparison looks (the region
+    itself, not a copy, when both sides have the same one: treat it as read-only)."""
+    if sa.region is sb.region:
+        return sa.region
+    out: np.ndarray = sa.region | sb.region
+    return out
+
+
 def _score_frame(log: str, frame: Frame, sa: SideFrame, sb: SideFrame, pa: str, pb: str, truth_src: Any,
-                 intrinsics: Any, *, depth_log: Path | None = None,
+                 intrinsics: Any, *, depth_log: Path | None = None, where: np.ndarray | None = None,
                  ) -> tuple[FrameCompare, Any]:
     """One frame's comparison and its truth (``(outliers, scored)``, None without; its images:
     :func:`studies.compare_outputs.frame_images_bytes`).
     ``depth_log``: the log, when it has ``/ground_truth/depth``: the true outliers' displacement
-    classes of each side's primary method, as ``zcut accuracy --by-displacement`` counts them."""
+    classes of each side's primary method, as ``zcut accuracy --by-displacement`` counts them.
+    ``where``: :func:`scored_union` of the two sides, when the caller has it."""
     from annotate.accuracy import frame_accuracies, frame_displacement
 
-    where = sa.region | sb.region
+    if where is None:
+        where = scored_union(sa, sb)
     ma, mb = sa.preds[pa], sb.preds[pb]
-    both = int(np.count_nonzero(ma & mb & where))
-    only_a = int(np.count_nonzero(ma & ~mb & where))
-    only_b = int(np.count_nonzero(mb & ~ma & where))
+    in_a, in_b = ma & where, mb & where
+    n_a, n_b = int(np.count_nonzero(in_a)), int(np.count_nonzero(in_b))
+    in_a &= in_b
+    both = int(np.count_nonzero(in_a))
+    only_a, only_b = n_a - both, n_b - both
     counts_a = counts_b = None
     unscored = None
     truth = None
@@ -1179,7 +1199,9 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
                 print(f"zcut: reading {n} logs: {i + 1}/{n} {path.name}", file=sys.stderr, flush=True)
 
         # each log opened once: the planning's reader resolves the sides (their errors raised after the
-        # planning, as before); in this process (--workers 0) the first log's unit takes it too
+        # planning, as before); in this process (--workers 0) the units of the first _MAX_KEPT // 2 logs take
+        # it too (half the kept entries: each log's runner, kept beside its reader, must not push out the
+        # reader of a log whose units are still to come)
         sides: dict[str, LogSides] = {}
         refused: list[Exception] = []
         inline = isinstance(executor, InlineExecutor)
@@ -1205,7 +1227,7 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
             except Exception as e:  # noqa: BLE001 - raised after the planning, as when the sides were resolved then
                 refused.append(e)
                 return
-            if inline and not _KEPT:
+            if inline and sum(k[0] == "log" for k in _KEPT) < _MAX_KEPT // 2:
                 _kept(("log", str(plan.path), plan.sha256, opts.topic), lambda: (reader, first))
 
         plans = plan_logs([str(p) for p in opts.logs], config_file=None, overrides={}, topic=opts.topic,
@@ -1321,10 +1343,11 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
                 if pa not in sa.preds or pb not in sb.preds:
                     raise CompareError(f"{path.name}: the primary methods {pa} (A) and {pb} (B) must be the same "
                                        "on every log")
+                where = scored_union(sa, sb)
                 fc, truth = _score_frame(path.name, frame, sa, sb, pa, pb, truth_src, first.intrinsics,
-                                         depth_log=depth_log)
+                                         depth_log=depth_log, where=where)
                 row["record"] = frame_to_json(fc)
-                row["images"] = frame_images_bytes(sa, sb, truth, pa, pb, frame if opts.rrd else None)
+                row["images"] = frame_images_bytes(sa, sb, truth, pa, pb, frame if opts.rrd else None, where=where)
                 if fc.unscored is not None:
                     res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": fc.unscored})
                 res.frames += 1

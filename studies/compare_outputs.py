@@ -72,14 +72,23 @@ def frame_images(sa: SideFrame, sb: SideFrame, diff: np.ndarray, truth: tuple[np
 
 
 def frame_images_bytes(sa: SideFrame, sb: SideFrame, truth: tuple[np.ndarray, np.ndarray] | None, pa: str, pb: str,
-                       frame: Frame | None = None) -> bytes:
+                       frame: Frame | None = None, *, where: np.ndarray | None = None) -> bytes:
     """``frame_images(sa, sb, diff_image(...), truth, pa, pb, frame).to_bytes()`` (the same bytes: the
-    images the writer reads back are the same), computed at the pixels of the two scored regions alone:
-    every image is 0 outside them (``truth``'s scored pixels lie inside them), so no whole-frame image
-    is made."""
-    where = sa.region | sb.region
-    at_w = np.flatnonzero(where)
-    ma, mb = sa.preds[pa].ravel()[at_w], sb.preds[pb].ravel()[at_w]
+    images the writer reads back are the same), computed at the pixels that can be set alone: every
+    image is 0 outside the two scored regions (``truth``'s scored pixels lie inside them), and inside
+    them 0 where neither side removed the pixel and it is not a scored true outlier (a verdict is TP,
+    FP or FN only there; B's choice differs from A's, or both are wrong, only there; ``who`` is set
+    only where one side removed it). So no whole-frame image is made, nor one of the whole region.
+    ``where``: ``sa.region | sb.region``, when the caller has it."""
+    if where is None:
+        where = sa.region | sb.region
+    ma, mb = sa.preds[pa], sb.preds[pb]
+    cand = ma | mb
+    if truth is not None:
+        cand |= truth[0] & truth[1]
+    cand &= where
+    at_w = np.flatnonzero(cand)
+    ma, mb = ma.ravel()[at_w], mb.ravel()[at_w]
     only_a, only_b = ma & ~mb, mb & ~ma
     who = np.zeros(at_w.size, dtype=np.uint8)
     who[only_a] = 1

@@ -409,15 +409,8 @@ class ScoredTruth:
         """
         p = check_mask(predicted, name="predicted", shape=self.shape)
         hit = p.ravel()[self.true_index]  # P at the pixels of L ∩ S
-        n_true = int(self.true_index.size)
-        tp = int(np.count_nonzero(hit))
         ps = p & self.scored
-        fp = int(np.count_nonzero(ps)) - tp
-        # true components: found iff >= 50 % of their pixels are in P
-        t_size = self.true_sizes[1:]
-        t_inside = np.bincount(self.true_component[hit], minlength=t_size.size + 1)[1:]
-        t_found = 2 * t_inside >= t_size
-        t_single = t_size == 1
+        fp = int(np.count_nonzero(ps)) - int(np.count_nonzero(hit))
         # predicted components: correct iff >= 50 % of their pixels are in L (⇔ in L ∩ S: they lie in S)
         from scipy import ndimage  # here: a replay never loads it (0.15 CPU-s; docs/performance.md)
 
@@ -428,6 +421,34 @@ class ScoredTruth:
             p_inside = np.bincount(flat[self.true_index], minlength=n_pred + 1)[1:]
         else:
             p_size = p_inside = np.zeros(0, dtype=np.int64)
+        return self.counts_of(hit, fp, p_size, p_inside)
+
+    def counts_of(self, hit: np.ndarray, fp: int, p_size: np.ndarray, p_inside: np.ndarray) -> AccuracyCounts:
+        """The counts of one prediction P given where it lies; :meth:`counts` finds these by labelling
+        the image, ``annotate.accuracy.frame_accuracies`` among P's pixels alone.
+
+        Parameters
+        ----------
+        hit : (n_true,) bool ndarray
+            P at the pixels of L ∩ S (:attr:`true_index`).
+        fp : int
+            |P ∩ S ∖ L|.
+        p_size, p_inside : (n_pred,) int ndarray
+            Pixels of each 8-connected component of P ∩ S (any order), and how many of them lie in L.
+
+        Returns
+        -------
+        AccuracyCounts
+            With ``kinds`` when the truth has kinds.
+        """
+        n_true = int(self.true_index.size)
+        tp = int(np.count_nonzero(hit))
+        # true components: found iff >= 50 % of their pixels are in P
+        t_size = self.true_sizes[1:]
+        t_inside = np.bincount(self.true_component[hit], minlength=t_size.size + 1)[1:]
+        t_found = 2 * t_inside >= t_size
+        t_single = t_size == 1
+        # predicted components: correct iff >= 50 % of their pixels are in L
         p_correct = 2 * p_inside >= p_size
         p_single = p_size == 1
         kinds = None

@@ -11,7 +11,14 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from annotate.accuracy import N_KINDS, _frame_accuracies, components8, frame_accuracies, frame_accuracy
+from annotate.accuracy import (
+    N_KINDS,
+    _frame_accuracies,
+    _label_sparse8,
+    components8,
+    frame_accuracies,
+    frame_accuracy,
+)
 from zcut.errors import ZcutError
 
 REAL = Path("/work/shared/data/real")
@@ -32,6 +39,9 @@ def _same_components(mask: np.ndarray) -> None:
     rn, ridx, rlab = _reference(mask)
     assert n == rn and np.array_equal(idx, ridx) and np.array_equal(lab, rlab)
     assert lab.dtype == np.int64
+    # the union-find kernel at any density (components8 takes it below _SPARSE_SHARE, ndimage.label above)
+    k, klab = _label_sparse8(ridx.astype(np.int64), mask.shape[1])
+    assert k == rn and np.array_equal(klab, rlab) and klab.dtype == np.int64
 
 
 def _real_masks() -> list[tuple[str, np.ndarray, np.ndarray]]:
@@ -56,6 +66,9 @@ def test_components_equal_ndimage_label_random(density):
     rng = np.random.default_rng(int(density * 1e4))
     for shape in ((1, 1), (1, 40), (40, 1), (7, 9), (64, 80), (300, 257)):
         _same_components(rng.random(shape) < density)
+    # blobs (dilated specks: many pixels a component, merges from the row above and across it)
+    specks = rng.random((200, 311)) < density / 8
+    _same_components(ndimage.binary_dilation(specks, structure=EIGHT, iterations=2))
 
 
 def test_components_do_not_wrap_across_rows_and_edge_cases():
@@ -231,3 +244,28 @@ def test_displacement_read_where_scored_equals_the_whole_image():
     with pytest.raises(ZcutError) as ref:
         frame_accuracy(1, 2, a, outliers & ~reviewed | ~valid, valid=valid, region=zone, displacement_mm=whole)
     assert str(err.value) == str(ref.value)
+
+
+@pytest.mark.parametrize("seed", [4, 5])
+def test_sparse_counts_equal_scored_truth_counts(seed):
+    """The one-pass scoring's counts of a prediction (its components among its pixels, ``_sparse_counts``)
+    are ``zcut.metrics.ScoredTruth.counts`` (the whole image labelled): both end in ``ScoredTruth.counts_of``;
+    with kinds, a region, large invalid parts, and a real scan's edges as the prediction."""
+    from annotate.accuracy import _sparse_counts
+    from zcut.metrics import scored_truth
+
+    rng = np.random.default_rng(seed)
+    shape = (70, 110)
+    valid = rng.random(shape) > 0.05
+    valid[10:50, 30:80] = False
+    outliers, reviewed, kinds, _, _ = _truth(rng, shape, valid, 0.1)
+    region = np.zeros(shape, dtype=bool)
+    region[5:65, 5:105] = True
+    st = scored_truth(outliers, reviewed=reviewed, valid=valid, region=region, kinds=kinds, n_kinds=N_KINDS)
+    preds = [_pred(rng, outliers, share, keep) for share, keep in ((0.0, 1.0), (0.02, 0.6), (0.3, 0.2), (0.0, 0.0))]
+    for p in [*preds, np.ones(shape, dtype=bool), ~valid]:
+        assert _sparse_counts(st, p) == st.counts(p)
+    for _, v, edges in _real_masks()[:2]:
+        st = scored_truth(edges, valid=v, region=v)
+        for p in (edges, v & (rng.random(v.shape) < 0.01), np.roll(edges, 1, axis=1)):
+            assert _sparse_counts(st, p) == st.counts(p)

@@ -56,10 +56,11 @@ def test_a_part_written_with_dense_images_still_reads(rng):
 def test_images_made_at_the_regions_pixels_equal_the_whole_frame_images(seed):
     """The unit's images made at the scored regions' pixels alone (``frame_images_bytes``) are those of the
     whole-frame images (``diff_image``, ``frame_images``): the same bytes, the same view; with and without
-    truth, regions of A and B that differ, invalid points, an RGB image or none."""
+    truth (its outliers also outside the scored pixels), regions of A and B that differ or are one array,
+    invalid points, an RGB image or none."""
     from types import SimpleNamespace
 
-    from studies.compare import diff_image
+    from studies.compare import diff_image, scored_union
     from studies.compare_outputs import frame_images, frame_images_bytes
     from studies.compare_records import SideFrame
 
@@ -77,10 +78,17 @@ def test_images_made_at_the_regions_pixels_equal_the_whole_frame_images(seed):
         xyz = rng.random((h, w, 3)).astype(np.float32)
         xyz[~valid] = np.nan
         rgb = rng.integers(0, 255, (h, w, 3), dtype=np.uint8)
-        for truth in (None, (lab & reviewed, reviewed & (ra | rb))):
+        for truth in (None, (lab & reviewed, reviewed & (ra | rb)), (lab, reviewed & ra)):
             for pb in ("zcut", "sor"):
                 for frame in (None, SimpleNamespace(xyz=xyz, rgb=rgb), SimpleNamespace(xyz=xyz, rgb=None)):
                     diff = diff_image(sa.preds["zcut"], sb.preds[pb], ra | rb, truth)
                     want = frame_images(sa, sb, diff, truth, "zcut", pb, frame).to_bytes()
                     got = frame_images_bytes(sa, sb, truth, "zcut", pb, frame)
                     assert got == want
+                    assert frame_images_bytes(sa, sb, truth, "zcut", pb, frame, where=ra | rb) == want
+        same = SideFrame(sb.preds, valid, ra)  # B judged A's zone: one region array (scored_union gives it back)
+        assert scored_union(sa, same) is ra
+        for truth in (None, (lab & reviewed, reviewed & ra)):
+            diff = diff_image(sa.preds["zcut"], same.preds["zcut"], ra, truth)
+            want = frame_images(sa, same, diff, truth, "zcut", "zcut", None).to_bytes()
+            assert frame_images_bytes(sa, same, truth, "zcut", "zcut", None, where=scored_union(sa, same)) == want

@@ -292,6 +292,27 @@ def test_scored_truth_scores_many_predictions() -> None:
         truth.scored = region  # type: ignore[misc]
 
 
+def test_counts_of_is_counts_given_the_components_in_any_order() -> None:
+    """``ScoredTruth.counts`` and ``annotate.accuracy``'s one-pass scoring both end in ``counts_of``: given
+    where P lies (P at the true pixels, its false positives, its components' sizes and true pixels), in
+    whatever order the components come, the counts are those of ``counts``."""
+    from scipy import ndimage
+
+    region = np.ones_like(LABELS)
+    region[5] = False
+    truth = scored_truth(LABELS, region=region, kinds=KINDS, n_kinds=5)
+    rng = np.random.default_rng(11)
+    for p in [PREDICTED, LABELS, np.zeros_like(LABELS), *(rng.random(LABELS.shape) < 0.3 for _ in range(8))]:
+        ps = p & truth.scored
+        lab, n = ndimage.label(ps, structure=np.ones((3, 3), dtype=bool))
+        size = np.bincount(lab[ps], minlength=n + 1)[1:]
+        inside = np.bincount(lab.ravel()[truth.true_index], minlength=n + 1)[1:]
+        hit = p.ravel()[truth.true_index]
+        fp = int(np.count_nonzero(ps)) - int(np.count_nonzero(hit))
+        order = rng.permutation(n)
+        assert truth.counts_of(hit, fp, size[order], inside[order]) == truth.counts(p)
+
+
 def test_nothing_to_find_gives_nan_rates() -> None:
     empty = np.zeros((3, 3), dtype=bool)
     got = accuracy_counts(empty, empty)
