@@ -142,8 +142,9 @@ def locate_bin(
     """Bin mask and registration of one frame (the first stages of :func:`run_frame`).
 
     No numba-parallel kernels run here (OpenCV, Open3D, scipy and the registration's serial numba ICP,
-    which releases the GIL: :mod:`zcut.icp_fast`), so that this may run in another thread while :func:`run_frame` finishes another frame. The result depends on this frame and the
-    seed only (no other frame), so frames may be processed in any order or split.
+    which releases the GIL: :mod:`zcut.icp_fast`), so that this may run in another thread while
+    :func:`run_frame` finishes another frame. The result depends on this frame and the seed only (no
+    other frame), so frames may be processed in any order or split.
 
     Parameters
     ----------
