@@ -33,7 +33,15 @@ import math
 import numba
 import numpy as np
 
-from ..edge_surface import EdgeSurfaceParams, _fit_at, _patch_moments, _reach_samples, _smallest_eigvec
+from ..edge_surface import (
+    EdgeSurfaceParams,
+    _decide,
+    _grown,
+    _nearest_search,
+    _patch_moments,
+    _reach_samples,
+    _smallest_eigvec,
+)
 from ..types import Mask
 from .select import median, order_pair
 
@@ -228,88 +236,10 @@ def _gate_median(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: 
     return m, float((np.float64(a0) + np.float64(a1)) / 2.0)
 
 
-@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
-def _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, state, slot,  # type: ignore[no-untyped-def]  # numba kernel
-            planes, count, px, py, pz):
-    """Whether patch (a, b) is a surface (:func:`zcut.edge_surface._patch_gate_kernel` then
-    ``_surfaces_kernel``), and its plane into ``planes`` when it is; ``state``: 0 unknown, 1 surface,
-    2 not. Returns the planes array (grown when full)."""
-    state[a, b] = 2
-    if not valid[a, b]:
-        return planes
-    fitted, lam, mx, my, mz, nx, ny, nz = _fit_at(xyz, valid, a, b, r, min_px, per_px, tan, floor, px, py, pz)
-    if not fitted:
-        return planes
-    s = math.sqrt(max(lam, 0.0))
-    zz = mz ** 2
-    norm = math.sqrt(mx * mx + my * my + mz * mz)
-    cos_inc = abs(mx / norm * nx + my / norm * ny + mz / norm * nz)
-    steep = not cos_inc >= cos_max
-    ok = np.isfinite(s) and zz > 0 and s <= max(min_fit, gate_k * zz) and (any_angle or not steep)
-    if not ok:
-        return planes
-    state[a, b] = 1
-    t = count[0]
-    if t == planes.shape[0]:
-        grown = np.empty((2 * t + 64, 6))
-        grown[:t] = planes[:t]
-        planes = grown
-    planes[t, 0] = mx
-    planes[t, 1] = my
-    planes[t, 2] = mz
-    planes[t, 3] = nx
-    planes[t, 4] = ny
-    planes[t, 5] = nz
-    slot[a, b] = t
-    count[0] = t + 1
-    return planes
-
-
-@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
-def _nearest_lazy(xyz, valid, rows, cols, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle,  # type: ignore[no-untyped-def]  # numba kernel
-                  radius, max_radius, state, slot, planes, count, out):
-    """:func:`zcut.edge_surface._nearest_at` deciding each surface when first read (:func:`_decide`)."""
-    H, W = valid.shape
-    side = (2 * r + 1) * (2 * r + 1)
-    qx = np.empty(side)
-    qy = np.empty(side)
-    qz = np.empty(side)
-    for k in range(rows.size):
-        i = rows[k]
-        j = cols[k]
-        px = xyz[i, j, 0]
-        py = xyz[i, j, 1]
-        pz = xyz[i, j, 2]
-        R = radius
-        best = np.inf
-        signed = np.inf
-        while True:
-            for a in range(max(i - R, 0), min(i + R + 1, H)):
-                for b in range(max(j - R, 0), min(j + R + 1, W)):
-                    if abs(a - i) <= r and abs(b - j) <= r:
-                        continue
-                    if state[a, b] == 0:
-                        planes = _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max,
-                                         any_angle, state, slot, planes, count, qx, qy, qz)
-                    if state[a, b] != 1:
-                        continue
-                    t = slot[a, b]
-                    d = (planes[t, 3] * (px - planes[t, 0]) + planes[t, 4] * (py - planes[t, 1])
-                         + planes[t, 5] * (pz - planes[t, 2]))
-                    if abs(d) < best:
-                        best = abs(d)
-                        signed = d
-            if best < np.inf or R >= max_radius:
-                break
-            R = min(2 * R, max_radius)
-        out[k] = signed
-    return planes
-
-
 @numba.njit(cache=True, error_model="numpy")
-def _decide_all(xyz, valid, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, state, slot,  # type: ignore[no-untyped-def]  # numba kernel
-                planes, count):
-    """:func:`_decide` of every patch not decided yet."""
+def _decide_all(xyz, valid, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, slot, planes, count):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`zcut.edge_surface._decide` of every patch not decided yet (``slot`` -1). Returns ``planes``
+    (grown when it filled up)."""
     H, W = valid.shape
     side = (2 * r + 1) * (2 * r + 1)
     qx = np.empty(side)
@@ -317,9 +247,11 @@ def _decide_all(xyz, valid, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_
     qz = np.empty(side)
     for a in range(H):
         for b in range(W):
-            if state[a, b] == 0:
-                planes = _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle,
-                                 state, slot, planes, count, qx, qy, qz)
+            if slot[a, b] == -1:
+                if count[0] == planes.shape[0]:
+                    planes = _grown(planes, count[0])
+                _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, slot,
+                        planes, count, qx, qy, qz)
     return planes
 
 
@@ -328,7 +260,7 @@ class LazySurfaces:
 
     :meth:`distance` is :meth:`zcut.edge_surface.EdgeSurfaces.distance`, the same values bit for bit."""
 
-    __slots__ = ("_xyz", "_valid", "_params", "_per_px", "_tan", "_gate_k", "_state", "_slot", "_planes", "_count",
+    __slots__ = ("_xyz", "_valid", "_params", "_per_px", "_tan", "_gate_k", "_slot", "_planes", "_count",
                  "n_fitted")
 
     def __init__(self, xyz_mm: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: float, tan: float,
@@ -337,8 +269,8 @@ class LazySurfaces:
         self._per_px, self._tan, self._gate_k = per_px, tan, gate_k
         self.n_fitted = n_fitted  # fitted patches with z² > 0 (0: no patch is a surface)
         # no ratio: no surface (as _edge_surfaces, which then leaves the mask empty)
-        self._state = np.full(valid.shape, 0 if n_fitted else 2, np.int8)
-        self._slot = np.full(valid.shape, -1, np.int32)
+        # per patch: -1 not decided yet, -2 no surface, else the row of its plane in _planes
+        self._slot = np.full(valid.shape, -1 if n_fitted else -2, np.int32)
         self._planes = np.empty((1024, 6))
         self._count = np.zeros(1, np.int64)
 
@@ -349,17 +281,17 @@ class LazySurfaces:
         self._planes = _decide_all(self._xyz, self._valid, p.patch_radius_px, p.min_patch_px, self._per_px, self._tan,
                                    p.side_step_mm, self._gate_k, p.min_fit_mm,
                                    math.cos(math.radians(p.max_incidence_deg)), p.max_incidence_deg >= 90.0,
-                                   self._state, self._slot, self._planes, self._count)
-        surface: Mask = self._state == 1
+                                   self._slot, self._planes, self._count)
+        surface: Mask = self._slot >= 0
         return surface
 
     def _nearest(self, rows: np.ndarray, cols: np.ndarray, d: np.ndarray) -> None:
         p = self._params
-        self._planes = _nearest_lazy(self._xyz, self._valid, rows, cols, p.patch_radius_px, p.min_patch_px,
-                                     self._per_px, self._tan, p.side_step_mm, self._gate_k, p.min_fit_mm,
-                                     math.cos(math.radians(p.max_incidence_deg)), p.max_incidence_deg >= 90.0,
-                                     p.search_radius_px, p.max_search_radius_px, self._state, self._slot,
-                                     self._planes, self._count, d)
+        self._planes = _nearest_search(self._xyz, self._valid, rows, cols, p.patch_radius_px, p.min_patch_px,
+                                       self._per_px, self._tan, p.side_step_mm, True, self._gate_k, p.min_fit_mm,
+                                       math.cos(math.radians(p.max_incidence_deg)), p.max_incidence_deg >= 90.0,
+                                       p.search_radius_px, p.max_search_radius_px, self._slot, self._planes,
+                                       self._count, d)
 
     def distance(self, where: Mask | None = None) -> np.ndarray:
         """Signed distance (mm) of the valid pixels (of those in ``where`` too, when given) to the
