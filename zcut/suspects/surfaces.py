@@ -294,8 +294,9 @@ def _gate_median(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: 
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _decide_all(xyz, valid, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, slot, planes, count):  # type: ignore[no-untyped-def]  # numba kernel
-    """:func:`zcut.edge_surface._decide` of every patch not decided yet (``slot`` -1). Returns ``planes``
+def _decide_all(xyz, valid, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, state, slot, planes,  # type: ignore[no-untyped-def]  # numba kernel
+                count):
+    """:func:`zcut.edge_surface._decide` of every patch not decided yet (``state`` 2). Returns ``planes``
     (grown when it filled up)."""
     H, W = valid.shape
     side = (2 * r + 1) * (2 * r + 1)
@@ -304,11 +305,11 @@ def _decide_all(xyz, valid, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_
     qz = np.empty(side)
     for a in range(H):
         for b in range(W):
-            if slot[a, b] == -1:
+            if state[a, b] == 2:
                 if count[0] == planes.shape[0]:
-                    planes = _grown(planes, count[0])
-                _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, slot,
-                        planes, count, qx, qy, qz)
+                    planes = _grown(planes, count[0], 1)
+                _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, state,
+                        slot, planes, count, qx, qy, qz)
     return planes
 
 
@@ -317,7 +318,7 @@ class LazySurfaces:
 
     :meth:`distance` is :meth:`zcut.edge_surface.EdgeSurfaces.distance`, the same values bit for bit."""
 
-    __slots__ = ("_xyz", "_valid", "_params", "_per_px", "_tan", "_gate_k", "_slot", "_planes", "_count",
+    __slots__ = ("_xyz", "_valid", "_params", "_per_px", "_tan", "_gate_k", "_state", "_slot", "_planes", "_count",
                  "n_fitted")
 
     def __init__(self, xyz_mm: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: float, tan: float,
@@ -326,8 +327,9 @@ class LazySurfaces:
         self._per_px, self._tan, self._gate_k = per_px, tan, gate_k
         self.n_fitted = n_fitted  # fitted patches with z² > 0 (0: no patch is a surface)
         # no ratio: no surface (as _edge_surfaces, which then leaves the mask empty)
-        # per patch: -1 not decided yet, -2 no surface, else the row of its plane in _planes
-        self._slot = np.full(valid.shape, -1 if n_fitted else -2, np.int32)
+        # per patch: 2 not decided yet, 1 a surface, 0 not (zcut.edge_surface._nearest_search)
+        self._state = np.full(valid.shape, 2 if n_fitted else 0, np.int8)
+        self._slot = np.full(valid.shape, -1, np.int32)
         self._planes = np.empty((1024, 6))
         self._count = np.zeros(1, np.int64)
 
@@ -338,17 +340,17 @@ class LazySurfaces:
         self._planes = _decide_all(self._xyz, self._valid, p.patch_radius_px, p.min_patch_px, self._per_px, self._tan,
                                    p.side_step_mm, self._gate_k, p.min_fit_mm,
                                    math.cos(math.radians(p.max_incidence_deg)), p.max_incidence_deg >= 90.0,
-                                   self._slot, self._planes, self._count)
-        surface: Mask = self._slot >= 0
+                                   self._state, self._slot, self._planes, self._count)
+        surface: Mask = self._state == 1
         return surface
 
     def _nearest(self, rows: np.ndarray, cols: np.ndarray, d: np.ndarray) -> None:
         p = self._params
         self._planes = _nearest_search(self._xyz, self._valid, rows, cols, p.patch_radius_px, p.min_patch_px,
-                                       self._per_px, self._tan, p.side_step_mm, True, self._gate_k, p.min_fit_mm,
+                                       self._per_px, self._tan, p.side_step_mm, self._gate_k, p.min_fit_mm,
                                        math.cos(math.radians(p.max_incidence_deg)), p.max_incidence_deg >= 90.0,
-                                       p.search_radius_px, p.max_search_radius_px, self._slot, self._planes,
-                                       self._count, d)
+                                       p.search_radius_px, p.max_search_radius_px, self._state, self._slot,
+                                       self._planes, self._count, d)
 
     def distance(self, where: Mask | None = None) -> np.ndarray:
         """Signed distance (mm) of the valid pixels (of those in ``where`` too, when given) to the
