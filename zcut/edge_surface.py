@@ -330,21 +330,83 @@ def _fit_surfaces(xyz, valid, surface, r, min_px, per_px, tan, floor, slot, plan
 
 
 @numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
-def _nearest_at(xyz, valid, rows, cols, surface, r, min_px, per_px, tan, floor, radius, max_radius, slot, planes,  # type: ignore[no-untyped-def]  # numba kernel
-                count, out):
+def _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, state, slot, planes,  # type: ignore[no-untyped-def]  # numba kernel
+            count, px, py, pz):
+    """Whether patch (a, b) is a surface (:func:`_patch_gate_kernel` then :func:`_surfaces_kernel`, for one
+    patch: the suspects' lazy surfaces, :mod:`zcut.suspects.surfaces`): ``state[a, b]`` 1 and its plane
+    into ``planes`` (which has room for one more, :func:`_grown`), its row into ``slot[a, b]``, when it
+    is; ``state[a, b]`` 0 when not. Returns ``state[a, b]``."""
+    state[a, b] = 0
+    if not valid[a, b]:
+        return 0
+    fitted, lam, mx, my, mz, nx, ny, nz = _fit_at(xyz, valid, a, b, r, min_px, per_px, tan, floor, px, py, pz)
+    if not fitted:
+        return 0
+    s = math.sqrt(max(lam, 0.0))
+    zz = mz ** 2
+    norm = math.sqrt(mx * mx + my * my + mz * mz)
+    cos_inc = abs(mx / norm * nx + my / norm * ny + mz / norm * nz)
+    steep = not cos_inc >= cos_max
+    ok = np.isfinite(s) and zz > 0 and s <= max(min_fit, gate_k * zz) and (any_angle or not steep)
+    if not ok:
+        return 0
+    t = count[0]
+    planes[t, 0] = mx
+    planes[t, 1] = my
+    planes[t, 2] = mz
+    planes[t, 3] = nx
+    planes[t, 4] = ny
+    planes[t, 5] = nz
+    slot[a, b] = t
+    count[0] = t + 1
+    state[a, b] = 1
+    return 1
+
+
+@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
+def _fit_once(xyz, valid, a, b, r, min_px, per_px, tan, floor, px, py, pz, slot, planes, count):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_fit_into` as a call of its own: the search's rare first read, kept out of its inner loop
+    (inlined there, it cost the loop 10-25 % on 1920 x 1200 frames)."""
+    return _fit_into(xyz, valid, a, b, r, min_px, per_px, tan, floor, px, py, pz, slot, planes, count)
+
+
+@numba.njit(cache=True)
+def _grown(planes, t, more):  # type: ignore[no-untyped-def]  # numba kernel
+    """``planes`` (``t`` rows filled) with room for at least ``more`` rows more: its rows in an array of
+    max(2 t + 64, t + more)."""
+    grown = np.empty((max(2 * t + 64, t + more), 6))
+    grown[:t] = planes[:t]
+    return grown
+
+
+@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
+def _nearest_search(xyz, valid, rows, cols, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, radius,  # type: ignore[no-untyped-def]  # numba kernel
+                    max_radius, state, slot, planes, count, out):
     """:func:`zcut.suspects._reference._nearest_kernel` (the previous kernel) at the pixels (rows[k], cols[k])
-    only: out[k]; the planes of the surfaces it reads are fitted when first read (:func:`_fit_into`)."""
-    H, W = surface.shape
+    only: out[k]. ``state`` per patch: 1 a surface, 0 not, 2 not decided yet; ``slot``: the row of a
+    surface's plane in ``planes``, -1 when not fitted yet. What a patch's first read does follows:
+
+    - a surface not fitted yet (:class:`EdgeSurfaces`, where every patch is decided: ``state`` is the
+      surface mask as int8): its plane is fitted (:func:`_fit_into`);
+    - a patch not decided yet (the suspects' lazy surfaces, :mod:`zcut.suspects.surfaces`): it is tested
+      against the gate ``gate_k``, ``min_fit``, ``cos_max``, ``any_angle`` (:func:`_decide`, which keeps
+      a surface's plane).
+
+    Returns ``planes`` (grown when it filled up)."""
+    H, W = valid.shape
     side = (2 * r + 1) * (2 * r + 1)
     qx = np.empty(side)
     qy = np.empty(side)
     qz = np.empty(side)
+    ring = (2 * max_radius + 1) * (2 * max_radius + 1)  # the most patches one pixel's search reads
     for k in range(rows.size):
         i = rows[k]
         j = cols[k]
         px = xyz[i, j, 0]
         py = xyz[i, j, 1]
         pz = xyz[i, j, 2]
+        if count[0] + ring > planes.shape[0]:  # room for every plane this pixel's search may add
+            planes = _grown(planes, count[0], ring)
         R = radius
         best = np.inf
         signed = np.inf
@@ -353,11 +415,17 @@ def _nearest_at(xyz, valid, rows, cols, surface, r, min_px, per_px, tan, floor, 
                 for b in range(max(j - R, 0), min(j + R + 1, W)):
                     if abs(a - i) <= r and abs(b - j) <= r:
                         continue
-                    if not surface[a, b]:
-                        continue
+                    s = state[a, b]
+                    if s != 1:
+                        if s == 0:
+                            continue
+                        # not decided yet
+                        if _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max,
+                                   any_angle, state, slot, planes, count, qx, qy, qz) != 1:
+                            continue
                     t = slot[a, b]
-                    if t < 0:
-                        t = _fit_into(xyz, valid, a, b, r, min_px, per_px, tan, floor, qx, qy, qz, slot, planes, count)
+                    if t < 0:  # a surface not fitted yet
+                        t = _fit_once(xyz, valid, a, b, r, min_px, per_px, tan, floor, qx, qy, qz, slot, planes, count)
                     d = (planes[t, 3] * (px - planes[t, 0]) + planes[t, 4] * (py - planes[t, 1])
                          + planes[t, 5] * (pz - planes[t, 2]))
                     if abs(d) < best:
@@ -367,6 +435,7 @@ def _nearest_at(xyz, valid, rows, cols, surface, r, min_px, per_px, tan, floor, 
                 break
             R = min(2 * R, max_radius)
         out[k] = signed
+    return planes
 
 
 def _median_of_temporary(x: np.ndarray) -> float:
@@ -481,9 +550,11 @@ class EdgeSurfaces:
         rows, cols = np.nonzero(at)
         d = np.empty(rows.size)
         p = self._params
-        _nearest_at(self._xyz, self._valid, rows, cols, self.surface, p.patch_radius_px, p.min_patch_px, self._per_px,
-                    self._tan, p.side_step_mm, p.search_radius_px, p.max_search_radius_px, self._slot,
-                    self._planes, self._count, d)
+        # the surface mask's bytes as the search's state (1 a surface, 0 not; never 2: nothing to decide)
+        self._planes = _nearest_search(self._xyz, self._valid, rows, cols, p.patch_radius_px, p.min_patch_px,
+                                       self._per_px, self._tan, p.side_step_mm, 0.0, 0.0, 0.0, False,
+                                       p.search_radius_px, p.max_search_radius_px, self.surface.view(np.int8),
+                                       self._slot, self._planes, self._count, d)
         out = np.full(at.shape, np.nan)
         out[rows, cols] = d
         return out

@@ -298,14 +298,15 @@ def test_order_pair_equals_partition() -> None:
 
 
 def test_brackets_hold_the_closed_form_eigenvalue() -> None:
-    """Where :func:`_lambda_bracket` gives a bracket, the closed form's λ_min lies in it and whether its
-    normal is determined is as said: covariances of random patches, flat, tilted to grazing, on a line,
+    """Where :func:`_lambda_bracket` (or :func:`_newton_fixed` then :func:`_certified`, the whole-frame
+    pass's way) gives a bracket, the closed form's λ_min lies in it and whether its normal is determined
+    is as said: covariances of random patches, flat, tilted to grazing, on a line,
     of one point, quantized, at every scale."""
     from zcut.edge_surface import _smallest_eigvec
-    from zcut.suspects.surfaces import _lambda_bracket
+    from zcut.suspects.surfaces import _certified, _lambda_bracket, _newton_fixed
 
     rng = np.random.default_rng(22)
-    brackets = 0
+    brackets = certified = 0
     for t in range(20000):
         n = int(rng.integers(3, 10))
         g = np.stack([rng.integers(-1, 2, n), rng.integers(-1, 2, n)], 1).astype(np.float64)
@@ -321,14 +322,26 @@ def test_brackets_hold_the_closed_form_eigenvalue() -> None:
         d = p - p.mean(axis=0)
         c = [float(v) / n for v in (d[:, 0] @ d[:, 0], d[:, 0] @ d[:, 1], d[:, 0] @ d[:, 2], d[:, 1] @ d[:, 1],
                                     d[:, 1] @ d[:, 2], d[:, 2] @ d[:, 2])]
-        ok, lo, hi, fitted = _lambda_bracket(*c)
-        if not ok:
-            continue
-        brackets += 1
         lam, nx, _, _ = _smallest_eigvec(*c)
-        assert lo <= lam <= hi, (t, lo, lam, hi)
-        assert fitted == bool(np.isfinite(nx)), t
+        ok, lo, hi, fitted = _lambda_bracket(*c)
+        if ok:
+            brackets += 1
+            assert lo <= lam <= hi, (t, lo, lam, hi)
+            assert fitted == bool(np.isfinite(nx)), t
+        # the whole-frame pass's way: a fixed number of Newton steps from below, then the checks; they
+        # hold wherever below λ_min the steps stopped (also after fewer steps, or set back)
+        sane, tr, lam_fixed = _newton_fixed(*c)
+        if not sane:
+            continue
+        for back in (0.0, 1e-13, 1e-12, 1e-9, 1e-6, 1e-3):
+            ok, lo, hi, fitted = _certified(*c, tr, lam_fixed - back * tr)
+            if not ok:
+                continue
+            certified += 1
+            assert lo <= lam <= hi, (t, back, lo, lam, hi)
+            assert fitted == bool(np.isfinite(nx)), (t, back)
     assert brackets > 2000  # the test exercises brackets (3,830 of these 20,000)
+    assert certified > 4000  # (5,985 of the 20,000 patches × 6 starts)
 
 
 def test_lazy_surfaces_equal_edge_surfaces_on_random_fields() -> None:

@@ -9,10 +9,11 @@ only around the pixels whose gap the edge-aware distance gives (a few % of the f
 - **The gate's median from brackets.** Each patch's covariance is summed exactly as
   :func:`zcut.edge_surface._fit_at` sums it (the same points, the same order, so the same matrix);
   its smallest eigenvalue is then found by Newton's method on the characteristic polynomial from
-  below (a few multiply-adds, no ``acos`` / ``cos``) and bracketed: the polynomial's sign is checked
-  on both sides of the bracket, and the closed form's own rounding (:func:`_smallest_eigvec`, well
-  conditioned when the two smallest eigenvalues are apart, which is also checked) lies well inside
-  it. Where a check fails (a patch on a line, one point, a tie of eigenvalues, anything not finite),
+  below (a few multiply-adds, no ``acos`` / ``cos``; a row's patches take three steps each without a
+  branch, so the processor overlaps their divisions, and only those the checks then reject iterate
+  further) and bracketed: the polynomial's sign is checked on both sides of the bracket, and the
+  closed form's own rounding (:func:`_smallest_eigvec`, well conditioned when the two smallest
+  eigenvalues are apart, which is also checked) lies well inside it. Where a check fails (a patch on a line, one point, a tie of eigenvalues, anything not finite),
   the closed form itself is evaluated, as it is for a patch whose λ_min is at the rounding level (a
   flat patch of quantized depth: no bracket would tell those apart). The median is then found
   exactly (:func:`_gate_median`): it lies between the k-th smallest lower end and the k-th smallest
@@ -33,7 +34,15 @@ import math
 import numba
 import numpy as np
 
-from ..edge_surface import EdgeSurfaceParams, _fit_at, _patch_moments, _reach_samples, _smallest_eigvec
+from ..edge_surface import (
+    EdgeSurfaceParams,
+    _decide,
+    _grown,
+    _nearest_search,
+    _patch_moments,
+    _reach_samples,
+    _smallest_eigvec,
+)
 from ..types import Mask
 from .select import median, order_pair
 
@@ -55,6 +64,9 @@ _TINY = 1e-9
 # cross product of rows of C - λI) exceeds _FITTED_SAFETY × the closed form's threshold 1e-9 · tr², and
 # surely not when m² (n0 <= m²) is below it / _FITTED_SAFETY
 _FITTED_SAFETY = 100.0
+# the fixed Newton steps of the whole-frame pass (:func:`_newton_fixed`): 3 bring 97 % of a zinc-nut
+# frame's patches within the check; the others take :func:`_lambda_bracket`'s loop
+_FIXED_STEPS = 3
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")  # IEEE division, as _fit_at
@@ -75,6 +87,29 @@ def _charpoly(c00, c01, c02, c11, c12, c22, lam):  # type: ignore[no-untyped-def
     m12 = d1 * d2 - c12 * c12
     det = d0 * m12 - c01 * (c01 * d2 - c12 * c02) + c02 * (c01 * c12 - d1 * c02)
     return det, m12 + (d0 * d2 - c02 * c02) + (d0 * d1 - c01 * c01)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _certified(c00, c01, c02, c11, c12, c22, tr, lam):  # type: ignore[no-untyped-def]  # numba kernel
+    """(ok, lo, hi, fitted) of :func:`_lambda_bracket` for ``lam``, a value Newton's method reached from below
+    λ_min: the bracket [lo, hi] and whether the normal is determined when the checks make both certain;
+    ok = False otherwise. The checks hold wherever ``lam`` lies: a sign change of the characteristic
+    polynomial within ± _CHECK · tr of it (a wrong sign through rounding only within ~3e-14 · tr of an
+    end, inside the margin) with its minors' sum m >= _MIN_MINORS · tr² (a lone root, λ_min's)."""
+    det_lo, _ = _charpoly(c00, c01, c02, c11, c12, c22, lam - _CHECK * tr)
+    det_hi, m = _charpoly(c00, c01, c02, c11, c12, c22, lam + _CHECK * tr)
+    # a root between, and λ_2 - λ_1 >= m / (λ_3 - λ_1) >= _MIN_MINORS · tr (λ_3 - λ_1 <= ~tr)
+    if not (det_lo > 0.0 and det_hi < 0.0 and m >= _MIN_MINORS * tr * tr):
+        return False, 0.0, 0.0, False
+    # the normal: the closed form's largest cross product n0 ~ m² · max_k v_k² lies in [m² / 3, m²]
+    need = 1e-9 * tr * tr
+    if m * m / 3.0 > _FITTED_SAFETY * need:
+        fitted = True
+    elif m * m < need / _FITTED_SAFETY:
+        fitted = False
+    else:
+        return False, 0.0, 0.0, False
+    return True, lam - _MARGIN * tr, lam + _MARGIN * tr, fitted
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -100,50 +135,80 @@ def _lambda_bracket(c00, c01, c02, c11, c12, c22):  # type: ignore[no-untyped-de
             break
     if not converged:
         return False, 0.0, 0.0, False
-    det_lo, _ = _charpoly(c00, c01, c02, c11, c12, c22, lam - _CHECK * tr)
-    det_hi, m = _charpoly(c00, c01, c02, c11, c12, c22, lam + _CHECK * tr)
-    # a root between, and λ_2 - λ_1 >= m / (λ_3 - λ_1) >= _MIN_MINORS · tr (λ_3 - λ_1 <= ~tr)
-    if not (det_lo > 0.0 and det_hi < 0.0 and m >= _MIN_MINORS * tr * tr):
-        return False, 0.0, 0.0, False
-    # the normal: the closed form's largest cross product n0 ~ m² · max_k v_k² lies in [m² / 3, m²]
-    need = 1e-9 * tr * tr
-    if m * m / 3.0 > _FITTED_SAFETY * need:
-        fitted = True
-    elif m * m < need / _FITTED_SAFETY:
-        fitted = False
-    else:
-        return False, 0.0, 0.0, False
-    return True, lam - _MARGIN * tr, lam + _MARGIN * tr, fitted
+    return _certified(c00, c01, c02, c11, c12, c22, tr, lam)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _newton_fixed(c00, c01, c02, c11, c12, c22):  # type: ignore[no-untyped-def]  # numba kernel
+    """(sane, tr, lam): _FIXED_STEPS steps of :func:`_lambda_bracket`'s Newton's method, without a branch
+    (the row's patches then overlap in the processor); ``sane``: every step had m > 0, the trace is
+    finite and positive, and λ_min is not at the rounding level (>= _TINY · tr), else ``lam`` is not to
+    be used (:func:`_lambda_bracket` decides)."""
+    tr = c00 + c11 + c22
+    lam = -_CHECK * tr
+    sane = np.isfinite(tr) & (tr > 0.0)
+    for _ in range(_FIXED_STEPS):
+        det, m = _charpoly(c00, c01, c02, c11, c12, c22, lam)
+        sane = sane & (m > 0.0)
+        lam += det / m
+    return sane & (lam >= _TINY * tr), tr, lam
 
 
 @numba.njit(cache=True, error_model="numpy")  # IEEE division, as _patch_gate_kernel
 def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # type: ignore[no-untyped-def]  # numba kernel
     """For every fitted patch with z² > 0, in raster order, a bracket [lo, hi] of its rms / z² as
     :func:`zcut.edge_surface._patch_gate_kernel` computes it (lo = hi: solved in closed form here) and
-    its pixel (``at``, i * W + j). Returns their count, the count solved, and whether a ratio is NaN."""
+    its pixel (``at``, i * W + j). Returns their count, the count solved, and whether a ratio is NaN.
+
+    A row at a time: its patches' covariances, then :func:`_newton_fixed` of each (no branch: the
+    processor overlaps the patches' divisions), then each one's bracket certified
+    (:func:`_certified`), or :func:`_lambda_bracket` then the closed form where that fails."""
     H, W = valid.shape
     side = (2 * r + 1) * (2 * r + 1)
     px = np.empty(side)
     py = np.empty(side)
     pz = np.empty(side)
+    cov = np.empty((7, W))  # the row's patches: c00, c01, c02, c11, c12, c22, mz
+    col = np.empty(W, np.int64)
+    good = np.empty(W, np.bool_)
+    trs = np.empty(W)
+    lams = np.empty(W)
     m = 0
     solved = 0
     nan = False
     for i in range(H):
+        k = 0
         for j in range(W):
             if not valid[i, j]:
                 continue
             n, mz, c00, c01, c02, c11, c12, c22 = _cov_at(xyz, valid, i, j, r, min_px, per_px, tan, floor, px, py, pz)
             if n < min_px:
                 continue
-            zz = mz ** 2
-            ok, l0, l1, fitted = _lambda_bracket(c00, c01, c02, c11, c12, c22)
+            cov[0, k] = c00
+            cov[1, k] = c01
+            cov[2, k] = c02
+            cov[3, k] = c11
+            cov[4, k] = c12
+            cov[5, k] = c22
+            cov[6, k] = mz
+            col[k] = j
+            k += 1
+        for q in range(k):
+            good[q], trs[q], lams[q] = _newton_fixed(cov[0, q], cov[1, q], cov[2, q], cov[3, q], cov[4, q], cov[5, q])
+        for q in range(k):
+            c00, c01, c02, c11, c12, c22 = cov[0, q], cov[1, q], cov[2, q], cov[3, q], cov[4, q], cov[5, q]
+            zz = cov[6, q] ** 2
+            ok = False
+            if good[q]:
+                ok, l0, l1, fitted = _certified(c00, c01, c02, c11, c12, c22, trs[q], lams[q])
+            if not ok:
+                ok, l0, l1, fitted = _lambda_bracket(c00, c01, c02, c11, c12, c22)
             if ok:
                 if not fitted or not zz > 0:
                     continue
                 lo[m] = math.sqrt(max(l0, 0.0)) / zz
                 hi[m] = math.sqrt(max(l1, 0.0)) / zz
-                at[m] = i * W + j
+                at[m] = i * W + col[q]
                 m += 1
                 continue
             solved += 1
@@ -155,7 +220,7 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
                 nan = True
             lo[m] = v
             hi[m] = v
-            at[m] = i * W + j
+            at[m] = i * W + col[q]
             m += 1
     return m, solved, nan
 
@@ -228,88 +293,11 @@ def _gate_median(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: 
     return m, float((np.float64(a0) + np.float64(a1)) / 2.0)
 
 
-@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
-def _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, state, slot,  # type: ignore[no-untyped-def]  # numba kernel
-            planes, count, px, py, pz):
-    """Whether patch (a, b) is a surface (:func:`zcut.edge_surface._patch_gate_kernel` then
-    ``_surfaces_kernel``), and its plane into ``planes`` when it is; ``state``: 0 unknown, 1 surface,
-    2 not. Returns the planes array (grown when full)."""
-    state[a, b] = 2
-    if not valid[a, b]:
-        return planes
-    fitted, lam, mx, my, mz, nx, ny, nz = _fit_at(xyz, valid, a, b, r, min_px, per_px, tan, floor, px, py, pz)
-    if not fitted:
-        return planes
-    s = math.sqrt(max(lam, 0.0))
-    zz = mz ** 2
-    norm = math.sqrt(mx * mx + my * my + mz * mz)
-    cos_inc = abs(mx / norm * nx + my / norm * ny + mz / norm * nz)
-    steep = not cos_inc >= cos_max
-    ok = np.isfinite(s) and zz > 0 and s <= max(min_fit, gate_k * zz) and (any_angle or not steep)
-    if not ok:
-        return planes
-    state[a, b] = 1
-    t = count[0]
-    if t == planes.shape[0]:
-        grown = np.empty((2 * t + 64, 6))
-        grown[:t] = planes[:t]
-        planes = grown
-    planes[t, 0] = mx
-    planes[t, 1] = my
-    planes[t, 2] = mz
-    planes[t, 3] = nx
-    planes[t, 4] = ny
-    planes[t, 5] = nz
-    slot[a, b] = t
-    count[0] = t + 1
-    return planes
-
-
-@numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
-def _nearest_lazy(xyz, valid, rows, cols, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle,  # type: ignore[no-untyped-def]  # numba kernel
-                  radius, max_radius, state, slot, planes, count, out):
-    """:func:`zcut.edge_surface._nearest_at` deciding each surface when first read (:func:`_decide`)."""
-    H, W = valid.shape
-    side = (2 * r + 1) * (2 * r + 1)
-    qx = np.empty(side)
-    qy = np.empty(side)
-    qz = np.empty(side)
-    for k in range(rows.size):
-        i = rows[k]
-        j = cols[k]
-        px = xyz[i, j, 0]
-        py = xyz[i, j, 1]
-        pz = xyz[i, j, 2]
-        R = radius
-        best = np.inf
-        signed = np.inf
-        while True:
-            for a in range(max(i - R, 0), min(i + R + 1, H)):
-                for b in range(max(j - R, 0), min(j + R + 1, W)):
-                    if abs(a - i) <= r and abs(b - j) <= r:
-                        continue
-                    if state[a, b] == 0:
-                        planes = _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max,
-                                         any_angle, state, slot, planes, count, qx, qy, qz)
-                    if state[a, b] != 1:
-                        continue
-                    t = slot[a, b]
-                    d = (planes[t, 3] * (px - planes[t, 0]) + planes[t, 4] * (py - planes[t, 1])
-                         + planes[t, 5] * (pz - planes[t, 2]))
-                    if abs(d) < best:
-                        best = abs(d)
-                        signed = d
-            if best < np.inf or R >= max_radius:
-                break
-            R = min(2 * R, max_radius)
-        out[k] = signed
-    return planes
-
-
 @numba.njit(cache=True, error_model="numpy")
-def _decide_all(xyz, valid, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, state, slot,  # type: ignore[no-untyped-def]  # numba kernel
-                planes, count):
-    """:func:`_decide` of every patch not decided yet."""
+def _decide_all(xyz, valid, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, state, slot, planes,  # type: ignore[no-untyped-def]  # numba kernel
+                count):
+    """:func:`zcut.edge_surface._decide` of every patch not decided yet (``state`` 2). Returns ``planes``
+    (grown when it filled up)."""
     H, W = valid.shape
     side = (2 * r + 1) * (2 * r + 1)
     qx = np.empty(side)
@@ -317,9 +305,11 @@ def _decide_all(xyz, valid, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_
     qz = np.empty(side)
     for a in range(H):
         for b in range(W):
-            if state[a, b] == 0:
-                planes = _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle,
-                                 state, slot, planes, count, qx, qy, qz)
+            if state[a, b] == 2:
+                if count[0] == planes.shape[0]:
+                    planes = _grown(planes, count[0], 1)
+                _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, state,
+                        slot, planes, count, qx, qy, qz)
     return planes
 
 
@@ -337,7 +327,8 @@ class LazySurfaces:
         self._per_px, self._tan, self._gate_k = per_px, tan, gate_k
         self.n_fitted = n_fitted  # fitted patches with z² > 0 (0: no patch is a surface)
         # no ratio: no surface (as _edge_surfaces, which then leaves the mask empty)
-        self._state = np.full(valid.shape, 0 if n_fitted else 2, np.int8)
+        # per patch: 2 not decided yet, 1 a surface, 0 not (zcut.edge_surface._nearest_search)
+        self._state = np.full(valid.shape, 2 if n_fitted else 0, np.int8)
         self._slot = np.full(valid.shape, -1, np.int32)
         self._planes = np.empty((1024, 6))
         self._count = np.zeros(1, np.int64)
@@ -355,11 +346,11 @@ class LazySurfaces:
 
     def _nearest(self, rows: np.ndarray, cols: np.ndarray, d: np.ndarray) -> None:
         p = self._params
-        self._planes = _nearest_lazy(self._xyz, self._valid, rows, cols, p.patch_radius_px, p.min_patch_px,
-                                     self._per_px, self._tan, p.side_step_mm, self._gate_k, p.min_fit_mm,
-                                     math.cos(math.radians(p.max_incidence_deg)), p.max_incidence_deg >= 90.0,
-                                     p.search_radius_px, p.max_search_radius_px, self._state, self._slot,
-                                     self._planes, self._count, d)
+        self._planes = _nearest_search(self._xyz, self._valid, rows, cols, p.patch_radius_px, p.min_patch_px,
+                                       self._per_px, self._tan, p.side_step_mm, self._gate_k, p.min_fit_mm,
+                                       math.cos(math.radians(p.max_incidence_deg)), p.max_incidence_deg >= 90.0,
+                                       p.search_radius_px, p.max_search_radius_px, self._state, self._slot,
+                                       self._planes, self._count, d)
 
     def distance(self, where: Mask | None = None) -> np.ndarray:
         """Signed distance (mm) of the valid pixels (of those in ``where`` too, when given) to the
