@@ -56,6 +56,11 @@ class PartModel:
         computed once per model.
     front_probe : (p, 3), (p, 3) float64 ndarrays
         An even subsample of ``samples`` and ``normals`` for the initial translations.
+    inside : (q, 3) float64 ndarray
+        Points drawn uniformly inside the solid (:func:`zcut.fit_vetting.inside_samples`, the samples the
+        vetting of the fits draws: the same overlaps), none when the mesh is not closed: two fits whose
+        solids share more than :attr:`FitParams.max_overlap <zcut.fits.FitParams>` of either's volume
+        are not both accepted (:meth:`contains`).
     """
 
     vertices: np.ndarray
@@ -73,6 +78,7 @@ class PartModel:
     guesses: np.ndarray
     probe_samples: np.ndarray
     probe_normals: np.ndarray
+    inside: np.ndarray
     _scene: Any = field(repr=False)
     _tree: Any = field(repr=False)
     _edge_tree: Any = field(repr=False)
@@ -109,6 +115,20 @@ class PartModel:
         t: np.ndarray = self._scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
         out[hits] = t.astype(np.float64)
         return out
+
+    def contains(self, points_model: np.ndarray) -> np.ndarray:
+        """(n,) bool: whether each of ``points_model`` (model frame) lies inside the solid (a sphere: the
+        closed form; else Open3D's occupancy, by ray parity, of the float32 points as the vetting tests them)."""
+        p = np.asarray(points_model, np.float64).reshape(-1, 3)
+        if len(p) == 0:
+            return np.zeros(0, bool)
+        if self.sphere_radius is not None:
+            out: np.ndarray = np.linalg.norm(p - self.centroid, axis=1) <= self.sphere_radius
+            return out
+        import open3d as o3d
+
+        occ: np.ndarray = self._scene.compute_occupancy(o3d.core.Tensor(np.ascontiguousarray(p, np.float32))).numpy()  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
+        return occ > 0
 
     def nearest_edges(self, points_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(distance, index into ``edges``) of the nearest edge point of each point (model frame)."""
@@ -435,8 +455,10 @@ def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tole
     else:
         sym, cont, index = np.eye(3)[None], None, None
     probe = slice(None, None, max(1, n_samples // 2000))
+    from zcut.fit_vetting import inside_samples
+
     return PartModel(vertices=v, triangles=t, centroid=centroid, sphere_radius=sphere, samples=samples,
                      normals=normals, axes=axes, extent_mm=extent, symmetries=sym, continuous_axis=cont,
                      edges=edges, index=index, guesses=_guess_templates(axes, sym, cont),
-                     probe_samples=samples[probe], probe_normals=normals[probe],
+                     probe_samples=samples[probe], probe_normals=normals[probe], inside=inside_samples(v, t),
                      _scene=scene, _tree=tree, _edge_tree=edge_tree)
