@@ -565,8 +565,8 @@ class _Claims:
             t = Tj[:3, :3].T @ (T[:3, 3] - Tj[:3, 3])
             batch.append(q @ R.T + t)  # the candidate's samples in j's frame
             batch.append((q - t) @ R)  # j's samples in the candidate's frame
-        share = m.contains(np.concatenate(batch)).reshape(len(near), 2, len(q)).mean(axis=2)
-        return [int(j) for j, sh in zip(near, share) if sh.max() > self.params.max_overlap]
+        share = m.contains(np.concatenate(batch)).reshape(len(near), 2, len(q)).mean(axis=2).max(axis=1)
+        return [int(j) for j, sh in zip(near, share) if sh > self.params.max_overlap]
 
     def better(self, err: float, known: tuple[np.ndarray, np.ndarray], j: int) -> bool:
         """Whether a candidate (``err``, its distances ``known``) explains more zone pixels than the accepted
@@ -644,6 +644,14 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
             progress = True
             if len(left) < min_px or attempts >= params.max_instances_per_region:
                 break
+        if not progress and claims is not None:
+            # a candidate refused for its overlap with a better fit: that fit's pixels leave the region
+            # (its part is fitted), the rest is fitted on (other parts of it; the old fits accepted the
+            # duplicate and fitted on the rest)
+            free = ~claims.claimed(left)
+            if not free.all():
+                left = left[free]
+                progress = True
         if not progress:
             if many:
                 continue  # the next patch
