@@ -43,7 +43,7 @@ from replay.synth.log import part_model_attachment
 from replay.synth.sensor import CAMERA_HEIGHT_MM
 from zcut.fits import FitParams, fit_prepared, pose_error, prepare_model
 
-SEEDS = {"tune": (2951, 2952), "report": (2971, 2972)}
+SEEDS = {"tune": (2951, 2952), "report": (2971, 2972), "tune6": (8531, 2951), "report6": (8541, 2971)}
 _C = np.diag([1.0, -1.0, -1.0])
 LABEL_PART = 5
 
@@ -181,7 +181,8 @@ def score(truth: Truth, fits: list, model, zone: np.ndarray) -> dict[str, float]
         explained[f.pixels] = True
     on_top = np.isin(ids, top + 1) & valid & ~truth.off
     found = _found(truth, fits, model)
-    return {**proposals(truth, fits, model, zone, ids, found),
+    return {**proposals(truth, fits, model, zone, ids, found), **duplicates(truth, fits, model),
+        **vetted_proposals(truth, fits, model, zone),
         "found": int(found.sum()), "visible": int((seen_valid >= VISIBLE_PX).sum()),
         "found_visible": int(found[seen_valid >= VISIBLE_PX].sum()),
         "instances": n, "fully_visible": len(full), "matched": matched, "fits": len(fits),
@@ -213,6 +214,58 @@ def _found(truth: Truth, fits: list, model) -> np.ndarray:  # type: ignore[no-un
         ci = T[:3, :3] @ c + T[:3, 3]
         out[i] = float(np.min(np.linalg.norm(fit_c - ci, axis=1))) <= 0.5 * model.extent_mm
     return out
+
+
+def duplicates(truth: Truth, fits: list, model) -> dict[str, float]:  # type: ignore[no-untyped-def,type-arg]
+    """Each fit's nearest instance (posed centroids): ``nomatch`` = fits farther than half the part's extent
+    from every instance's centroid; of the others, ``dups`` = those whose instance has a nearer fit (the
+    fits beyond the first of an instance); ``per_inst`` = matched fits per instance with a fit."""
+    c = model.centroid
+    if not fits:
+        return {"dups": 0, "nomatch": 0, "per_inst": float("nan")}
+    fit_c = np.array([f.pose[:3, :3] @ c + f.pose[:3, 3] for f in fits]).reshape(-1, 3)
+    inst_c = np.array([T[:3, :3] @ c + T[:3, 3] for T in truth.poses]).reshape(-1, 3)
+    d = np.linalg.norm(fit_c[:, None, :] - inst_c[None, :, :], axis=2)
+    nearest = np.argmin(d, axis=1)
+    ok = d[np.arange(len(fits)), nearest] <= 0.5 * model.extent_mm
+    per = np.bincount(nearest[ok], minlength=len(inst_c))
+    return {"dups": int((per[per > 1] - 1).sum()), "nomatch": int((~ok).sum()),
+            "per_inst": float(ok.sum() / max(int((per > 0).sum()), 1))}
+
+
+def vetted_proposals(truth: Truth, fits: list, model, zone: np.ndarray) -> dict[str, float]:  # type: ignore[no-untyped-def,type-arg]
+    """The proposals as ``explained`` makes them in the pipeline (``replay/pipeline/explained.py``): each fit's
+    robust residual (``zcut.explained.fit_sigmas``), the vetting (``zcut.fit_vetting``: a fit whose solid
+    overlaps a better-ranked kept fit's by > 5 % is no known surface), the residuals measured again; the
+    parts as the only known surfaces (the zone's pixels on the bin and the table count as explained, as in
+    :func:`proposals`). ``T in vet``: the share of the paper's truth in the zone inside them; ``non-T vet``:
+    their pixels that are not truth; ``vetted``: the fits vetted out."""
+    import dataclasses
+
+    from zcut import explained as ex
+    from zcut.fit_vetting import MAX_OVERLAP, explained_px, instance_overlaps, vet_fits, without_fits
+
+    v, t = model.vertices, model.triangles
+    stated = [f.err_mm for f in fits]
+    surfaces = ex.KnownSurfaces(parts=[(v @ f.pose[:3, :3].T + f.pose[:3, 3], t) for f in fits], part_err_mm=stated)
+    foot = ex.footprint_mm(truth.xyz_mm, 0.5 * (truth.K[0] + truth.K[1]))
+    near = ex.nearest_surface(truth.xyz_mm, surfaces, where=zone)
+    robust = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, stated, where=zone))
+    vetted = 0
+    if fits:
+        err = ex.err_image(near, robust, foot, floor_mm=0.1)
+        kept = vet_fits(instance_overlaps(v, t, [f.pose for f in fits]),
+                        explained_px(near, err, len(fits), k=3.0, where=zone), max_overlap=MAX_OVERLAP).kept
+        vetted = int((~kept).sum())
+        if not kept.all():
+            robust, near = without_fits(truth.xyz_mm, near, surfaces, kept)
+            robust = dataclasses.replace(robust, part_err_mm=ex.fit_sigmas(near, robust.part_err_mm, where=zone))
+    err = ex.err_image(near, robust, foot, floor_mm=0.1)
+    on_other = ~((truth.label == LABEL_PART) | truth.off)
+    un = ex.unexplained(near.dist_mm, err) & zone & ~on_other
+    tz = truth.off & zone
+    return {"truth_in_vetted": float((un & tz).sum() / tz.sum()) if tz.any() else float("nan"),
+            "nontruth_vetted_px": int((un & ~truth.off).sum()), "vetted": vetted}
 
 
 def proposals(truth: Truth, fits: list, model, zone: np.ndarray, ids: np.ndarray,  # type: ignore[no-untyped-def,type-arg]
@@ -278,8 +331,8 @@ def main() -> None:
     ap.add_argument("--same", nargs=2, default=None, metavar=("A.pkl", "B.pkl"),
                     help="only compare two --dump files: per frame, whether the fits are identical to the bit")
     ap.add_argument("--before", action="store_true",
-                    help="also the fits without their second pass (seed_shifts=0, the fits of 9831702 to the bit) "
-                         "on each frame, just before")
+                    help="also the fits without the sixth round's claims (claim=false: the fifth round's fits to "
+                         "the bit) on each frame, just before")
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                     help="a FitParams field (e.g. seed_shifts=0: the fits without their second pass)")
     args = ap.parse_args()
@@ -288,17 +341,18 @@ def main() -> None:
         return
     w, h = (int(v) for v in args.size.split("x"))
     seeds = [int(s) for s in args.seeds.split(",")] if args.seeds else list(SEEDS[args.set])
-    params = FitParams(**{k: type(getattr(FitParams(), k))(v) for k, v in (a.split("=") for a in args.param)})
+    params = FitParams(**{k: _value(getattr(FitParams(), k), v) for k, v in (a.split("=") for a in args.param)})
     variants = [("after", params)]
-    if args.before:  # the first pass alone, on the same frame, just before: the before of this run
-        variants.insert(0, ("before", replace(params, seed_shifts=0)))
+    if args.before:  # the fits without the sixth round's claims, on the same frame, just before
+        variants.insert(0, ("before", replace(params, claim=False)))
     rows = []
     dumped: dict[tuple[str, str, str, int], list[tuple[np.ndarray, float, float, np.ndarray]]] = {}
     print(f"size {w}x{h}, seeds {seeds}; CPU seconds per frame (process_time, all threads)")
     print(f"{'fits':6s} {'sensor':9s} {'kind':10s} {'seed':>5s} {'inst':>4s} {'full':>4s} {'match':>5s} {'fits':>4s} "
           f"{'med mm':>7s} {'med deg':>7s} {'p90 mm':>7s} {'p90 deg':>7s} {'expl':>5s} {'Err':>5s} {'cpu s':>6s} "
           f"{'prep s':>6s} {'found':>7s} {'prop':>6s} {'<10 T':>5s} {'>=10':>6s} {'>=10 T':>6s} {'T in':>5s} "
-          f"{'big: found/missed/none px':>25s}")
+          f"{'big: found/missed/none px':>25s} {'dups':>4s} {'nomat':>5s} {'f/inst':>6s} {'vetd':>4s} {'Tin vet':>7s} "
+          f"{'nonT vet':>8s}")
     for sensor in args.sensors.split(","):
         for kind in args.kinds.split(","):
             data = part_model_attachment(kind, raytraced=sensor == "raytraced")[PART_MODEL_ATTACHMENT][1]
@@ -330,6 +384,15 @@ def main() -> None:
             json.dump(rows, fh, indent=1)
 
 
+def _value(default: object, text: str) -> object:
+    """``text`` as the type of the field's ``default`` (a bool from true/false/1/0)."""
+    if isinstance(default, bool):
+        if text.lower() not in ("true", "false", "1", "0"):
+            raise SystemExit(f"--param: {text!r} is not true or false")
+        return text.lower() in ("true", "1")
+    return type(default)(text)
+
+
 def _same(a: str, b: str) -> None:
     """Print, per frame of two --dump files, whether their fits are the same to the bit."""
     import pickle
@@ -352,7 +415,8 @@ def _row(s: dict, label: str) -> None:  # type: ignore[type-arg]
           f"{s['median_err_mm']:5.3f} {cpu:6.2f} {prep:6.2f} {s['found_visible']:3d}/{s['visible']:<3d} "
           f"{s['prop_px']:6d} {s['truth_in_small']:5.2f} {s['prop_big_px']:6d} {s['truth_in_big']:6.2f} "
           f"{s['truth_in_proposals']:5.2f} {s['big_nontruth_found_px']:8d}/{s['big_nontruth_missed_px']:d}/"
-          f"{s['big_nontruth_nopart_px']:d}", flush=True)
+          f"{s['big_nontruth_nopart_px']:d} {s['dups']:4d} {s['nomatch']:5d} {s['per_inst']:6.3f} {s['vetted']:4d} "
+          f"{s['truth_in_vetted']:7.3f} {s['nontruth_vetted_px']:8d}", flush=True)
 
 
 if __name__ == "__main__":

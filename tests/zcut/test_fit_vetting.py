@@ -160,12 +160,24 @@ def test_a_correct_fit_alone_is_kept_and_nothing_changes():
         fv.explained_px(near, err, 0, k=3.0)
 
 
+def _overlapping_fits(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """The fits as before docs/fits.md's sixth round (``FitParams.claim=False``: duplicates, which the
+    fitting itself no longer makes), so the method has overlapping fits to vet."""
+    import functools
+
+    import zcut.fits
+
+    monkeypatch.setattr(zcut.fits, "FitParams", functools.partial(zcut.fits.FitParams, claim=False))
+
+
 @pytest.mark.slow
-def test_the_method_leaves_out_overlapping_fits_and_judges_their_pixels_again(tmp_path):
+def test_the_method_leaves_out_overlapping_fits_and_judges_their_pixels_again(tmp_path, monkeypatch):
     """``explained`` on a real log (hand-made spheres, 320 × 200): no two fits it keeps share more than
     the threshold of their volume, each fit it left out overlaps a kept one, and its distances are those
     of the kept fits, the bin and the table computed from scratch."""
     from cli_helpers import synth_log
+
+    _overlapping_fits(monkeypatch)
 
     from replay.options import PipelineOptions
     from replay.pipeline.explained import _bin_and_table, run_explained
@@ -194,13 +206,15 @@ def test_the_method_leaves_out_overlapping_fits_and_judges_their_pixels_again(tm
 
 
 @pytest.mark.slow
-def test_a_max_overlap_of_one_keeps_every_fit(tmp_path):
+def test_a_max_overlap_of_one_keeps_every_fit(tmp_path, monkeypatch):
     """``[explained] fit_max_overlap = 1`` switches the vetting off: every fit stays a known surface and
     the method's outliers are those of the same fits judged without it (one frame where the default
     vets fits out)."""
     import dataclasses
 
     from cli_helpers import synth_log
+
+    _overlapping_fits(monkeypatch)
 
     from replay.options import PipelineOptions
     from replay.pipeline.explained import run_explained

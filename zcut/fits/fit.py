@@ -37,6 +37,7 @@ cloud itself when not given): never a log's truth or the poses in its metadata.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TypeVar
 
 import numpy as np
 
@@ -445,25 +446,144 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
     f = 0.5 * (K[0] + K[1])
     H, W = zv.shape
     accepted: list[tuple[np.ndarray, float, float]] = []
-    known: list[tuple[np.ndarray, np.ndarray]] = []  # each fit's distances at its region's pixels
-    explained = np.zeros(H * W, bool)  # the pixels an accepted fit took from its region
+    known: list[tuple[np.ndarray, np.ndarray]] = []  # each fit's distances at its region's (window's) pixels
+    # the pixels an accepted fit took from its region (params.claim: every zone pixel it explains)
+    explained = np.zeros(H * W, bool)
+    claims = _Claims(model, params, H * W) if params.claim else None
     pending = segment(xyz, np.flatnonzero(zv), f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
                       min_px=params.min_region_px)
     for region in pending:
-        pending.extend(_fit_region(frame, region, model, params, accepted, known, explained, shifts=0))
+        pending.extend(_fit_region(frame, region, model, params, accepted, known, explained, shifts=0,
+                                   claims=claims))
+    if claims is not None:  # a replaced fit is no fit; the pixels no live fit claims are unexplained
+        accepted, known = _alive(accepted, claims), _alive(known, claims)
+        explained = claims.count > 0
     if params.seed_shifts > 0 and accepted:
         # the second pass: what no fit explains, segmented again; each region a partly visible instance
         seeds = [r for r in segment(xyz, np.flatnonzero(zv.reshape(-1) & ~explained), f_px=f, jump_mm=params.jump_mm,
                                     jump_px=params.jump_px, min_px=SEED_MIN_PX)]
         noise = max(float(np.median([e for _, e, _ in accepted])), params.err_floor_mm)
+        if claims is not None:  # the live fits, renumbered as in accepted
+            claims = _Claims.of(claims)
         seed_params = replace(params, max_err_mm=min(params.max_err_mm, params.seed_err_ratio * noise),
                               min_support=params.seed_min_support)
-        for region in seeds:
-            min_px = max(SEED_MIN_PX, int(np.ceil(params.seed_min_share * _projected_area(frame, region, model))))
-            if len(region) >= min_px:
-                seeds.extend(_fit_region(frame, region, model, seed_params, accepted, known, explained,
-                                         shifts=params.seed_shifts, min_px=min_px))
+        for piece in seeds:
+            todo = _unclaimed(piece, claims, SEED_MIN_PX)
+            if todo is None:
+                continue
+            min_px = max(SEED_MIN_PX, int(np.ceil(params.seed_min_share * _projected_area(frame, todo, model))))
+            if len(todo) >= min_px:
+                seeds.extend(_fit_region(frame, todo, model, seed_params, accepted, known, explained,
+                                         shifts=params.seed_shifts, min_px=min_px, claims=claims))
+    if claims is not None:
+        accepted, known = _alive(accepted, claims), _alive(known, claims)
     return _assign(frame, model, accepted, params, known)
+
+
+_T = TypeVar("_T")
+
+
+def _alive(items: list[_T], claims: _Claims) -> list[_T]:
+    return [x for x, ok in zip(items, claims.alive) if ok]
+
+
+class _Claims:
+    """What the accepted fits hold (``FitParams.claim``): the zone pixels each explains in its window (a
+    pixel is claimed while a live fit claims it) and their solids, against which a candidate's volume
+    overlap is measured on the model's inside samples. A candidate that overlaps accepted fits replaces
+    them when it is better than each (:meth:`better`), else it is refused; a replaced fit is dead: its
+    claims are released and it is no fit."""
+
+    def __init__(self, model: PartModel, params: FitParams, size: int) -> None:
+        self.model = model
+        self.params = params
+        self.count = np.zeros(size, np.int32)
+        self.poses: list[np.ndarray] = []
+        self.errs: list[float] = []
+        self.known: list[tuple[np.ndarray, np.ndarray]] = []
+        self.pixels: list[np.ndarray] = []
+        self.alive: list[bool] = []
+        self.centres = np.zeros((0, 3))
+
+    @classmethod
+    def of(cls, other: _Claims) -> _Claims:
+        """The live fits of ``other`` alone, renumbered in their order (the accepted list without the dead)."""
+        out = cls(other.model, other.params, len(other.count))
+        out.count = other.count
+        keep = [i for i, ok in enumerate(other.alive) if ok]
+        out.poses = [other.poses[i] for i in keep]
+        out.errs = [other.errs[i] for i in keep]
+        out.known = [other.known[i] for i in keep]
+        out.pixels = [other.pixels[i] for i in keep]
+        out.alive = [True] * len(keep)
+        out.centres = other.centres[keep].reshape(-1, 3)
+        return out
+
+    def claimed(self, flat: np.ndarray) -> np.ndarray:
+        """Whether each pixel is claimed: within k × max(Err, floor) of a live fit."""
+        out: np.ndarray = self.count[flat] > 0
+        return out
+
+    def _tol(self, err: float) -> float:
+        return self.params.k * max(err, self.params.err_floor_mm)
+
+    def add(self, T: np.ndarray, err: float, known: tuple[np.ndarray, np.ndarray]) -> None:
+        """Accept the fit (pose ``T``, ``err``, its distances ``known`` at its window's and region's pixels)."""
+        kf, kd = known
+        pix = kf[kd <= self._tol(err)]
+        self.count[pix] += 1
+        self.poses.append(T)
+        self.errs.append(err)
+        self.known.append(known)
+        self.pixels.append(pix)
+        self.alive.append(True)
+        c = T[:3, :3] @ self.model.centroid + T[:3, 3]
+        self.centres = np.vstack([self.centres, c[None]])
+
+    def kill(self, j: int) -> None:
+        self.count[self.pixels[j]] -= 1
+        self.alive[j] = False
+        self.centres[j] = np.inf
+
+    def overlapping(self, T: np.ndarray) -> list[int]:
+        """The live accepted fits whose solid shares more than ``max_overlap`` of its volume with the solid
+        posed at ``T``, or of whose volume that solid holds as much (the vetting's measure: the share of
+        one's inside samples inside the other; only the fits whose centres lie within twice the model's
+        extent can overlap)."""
+        m = self.model
+        q = m.inside
+        if not len(self.poses) or not len(q) or self.params.max_overlap >= 1:
+            return []
+        c = T[:3, :3] @ m.centroid + T[:3, 3]
+        near = np.flatnonzero(np.linalg.norm(self.centres - c, axis=1) < 2.0 * m.extent_mm)
+        if not len(near):
+            return []
+        batch = []
+        for j in near:
+            Tj = self.poses[int(j)]
+            R = Tj[:3, :3].T @ T[:3, :3]  # the candidate's frame -> j's
+            t = Tj[:3, :3].T @ (T[:3, 3] - Tj[:3, 3])
+            batch.append(q @ R.T + t)  # the candidate's samples in j's frame
+            batch.append((q - t) @ R)  # j's samples in the candidate's frame
+        share = m.contains(np.concatenate(batch)).reshape(len(near), 2, len(q)).mean(axis=2).max(axis=1)
+        return [int(j) for j, sh in zip(near, share) if sh > self.params.max_overlap]
+
+    def better(self, err: float, known: tuple[np.ndarray, np.ndarray], j: int) -> bool:
+        """Whether a candidate (``err``, its distances ``known``) explains more zone pixels than the accepted
+        fit ``j`` within one tolerance, k × max(the smaller Err, floor): of two fits of one part the one
+        closer to it explains more at the noise of the better one."""
+        tol = self._tol(min(err, self.errs[j]))
+        return int((known[1] <= tol).sum()) > int((self.known[j][1] <= tol).sum())
+
+
+def _unclaimed(region: np.ndarray, claims: _Claims | None, min_px: int) -> np.ndarray | None:
+    """``region`` (of the second pass), or None when accepted fits claimed all but fewer than ``min_px`` of
+    its pixels (``claims`` None: never). The first pass fits every region whole: a fit claiming a region's
+    pixels may be a wrong fit of a piece of its part (its Err inflated, its band as wide as the part),
+    which the region's own fit then replaces."""
+    if claims is None or int((~claims.claimed(region)).sum()) >= min_px:
+        return region
+    return None
 
 
 #: The second pass never fits a region of fewer unexplained pixels than this (the labelling page's
@@ -481,11 +601,13 @@ def _projected_area(frame: _Frame, flat: np.ndarray, model: PartModel) -> float:
 
 def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: FitParams,
                 accepted: list[tuple[np.ndarray, float, float]], known: list[tuple[np.ndarray, np.ndarray]],
-                explained: np.ndarray, *, shifts: int, min_px: int | None = None) -> list[np.ndarray]:
+                explained: np.ndarray, *, shifts: int, min_px: int | None = None,
+                claims: _Claims | None = None) -> list[np.ndarray]:
     """Fit the instances of one candidate region (module docstring, steps 2-3), appending each accepted
     fit to ``accepted`` and ``known`` and marking its pixels in ``explained``; ``shifts``: see
-    :func:`_fit_general`; ``min_px``: the smallest region (and fit) taken, default ``min_region_px``.
-    Returns the further regions its leftovers split into, to fit the same way."""
+    :func:`_fit_general`; ``min_px``: the smallest region (and fit) taken, default ``min_region_px``;
+    ``claims``: ``FitParams.claim`` (:class:`_Claims`). Returns the further regions its leftovers split
+    into, to fit the same way."""
     min_px = params.min_region_px if min_px is None else min_px
     H, W = frame.valid.shape
     f = 0.5 * (frame.K[0] + frame.K[1])
@@ -504,18 +626,32 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
                      if len(patch) >= min_px else [])
         else:
             cands = _candidates(frame, left, model, params, shifts=shifts)
+            if claims is not None and len(cands) > 1:
+                cands = _ranked(frame, left, model, params, cands)
         for T, err in cands:
             attempts += 1
-            fit = _accept(frame, left, model, params, T, err, min_px)
+            fit = _accept(frame, left, model, params, T, err, min_px, claims)
             if fit is None:
                 continue
             accepted.append(fit[0])
             known.append(fit[2])
             explained[left[fit[1]]] = True
+            if claims is not None:
+                for j in fit[3]:  # the accepted fits it replaces
+                    claims.kill(j)
+                claims.add(T, err, fit[2])
             left = left[~fit[1]]
             progress = True
             if len(left) < min_px or attempts >= params.max_instances_per_region:
                 break
+        if not progress and claims is not None:
+            # a candidate refused for its overlap with a better fit: that fit's pixels leave the region
+            # (its part is fitted), the rest is fitted on (other parts of it; the old fits accepted the
+            # duplicate and fitted on the rest)
+            free = ~claims.claimed(left)
+            if not free.all():
+                left = left[free]
+                progress = True
         if not progress:
             if many:
                 continue  # the next patch
@@ -573,15 +709,46 @@ def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitPa
     return [_fit_sphere(frame, flat, model, params, c) for c in centres[: params.max_instances_per_region]]
 
 
+def _ranked(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
+            cands: list[tuple[np.ndarray, float]]) -> list[tuple[np.ndarray, float]]:
+    """``cands`` (a sphere region's, one per vote cluster) in order of the region's points each explains
+    within one tolerance, k × max(the smallest Err of them, floor), most first (ties: their order): a
+    candidate a few millimetres off its ball, on its ghosts or its fringe, explains fewer at the noise
+    of the best one and is tried after it (then refused by its overlap with it, ``FitParams.claim``)."""
+    errs = [e for _, e in cands if np.isfinite(e)]
+    if not errs:
+        return cands
+    tol = params.k * max(min(errs), params.err_floor_mm)
+    pts = frame.xyz.reshape(-1, 3)[flat]
+    counts = [int((_near_distances(model, pts, T, tol) <= tol).sum()) if np.isfinite(e) else -1 for T, e in cands]
+    return [cands[i] for i in np.argsort(-np.asarray(counts), kind="stable")]
+
+
+def _window_flat(frame: _Frame, T: np.ndarray, model: PartModel) -> np.ndarray:
+    """The zone pixels (flat, ascending) of the posed model's window (:func:`_window`)."""
+    win = _window(frame, T, model)
+    if win is None:
+        return np.zeros(0, np.int64)
+    W = frame.valid.shape[1]
+    rr, cc = np.mgrid[win]
+    flat = (rr * W + cc).reshape(-1)
+    out: np.ndarray = flat[frame.zone.reshape(-1)[flat]]
+    return out
+
+
 def _accept(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams, T: np.ndarray,
-            err: float, min_px: int | None = None
-            ) -> tuple[tuple[np.ndarray, float, float], np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
+            err: float, min_px: int | None = None, claims: _Claims | None = None
+            ) -> tuple[tuple[np.ndarray, float, float], np.ndarray, tuple[np.ndarray, np.ndarray], list[int]] | None:
     """((pose, err, support), the region's pixels it explains, the region's pixels of finite distance
     and their distances) when the fit is accepted (it explains at least ``min_px`` of them, default
-    ``min_region_px``), else None."""
+    ``min_region_px``), else None; the last item: the accepted fits it replaces. With ``claims``
+    (``FitParams.claim``): a fit whose solid overlaps accepted ones is refused unless it is better than each
+    (:meth:`_Claims.better`; it then replaces them), and the known distances cover its window's zone pixels
+    too (sorted)."""
     min_px = params.min_region_px if min_px is None else min_px
     if not (np.isfinite(err) and err <= params.max_err_mm):
         return None
+    rivals = claims.overlapping(T) if claims is not None else []
     tol = params.k * max(err, params.err_floor_mm)
     d = _model_distance(frame, T, model, flat, tol)
     near = d <= tol
@@ -589,10 +756,20 @@ def _accept(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams
         return None
     finite = np.isfinite(d)
     known = (flat[finite], d[finite])
+    if claims is not None:  # the window's other zone pixels: the claim, the support and the assignment
+        wf = _window_flat(frame, T, model)
+        wf = wf[~np.isin(wf, flat, assume_unique=True)]
+        wd = _model_distance(frame, T, model, wf, tol)
+        kf = np.concatenate([flat, wf])  # inf kept: the assignment asks for every window pixel again
+        kd = np.concatenate([d, wd])
+        order = np.argsort(kf, kind="stable")
+        known = (kf[order], kd[order])
     support = _support(frame, T, model, tol, known)
     if support < params.min_support:
         return None
-    return (T, err, support), near, known
+    if claims is not None and not all(claims.better(err, known, j) for j in rivals):
+        return None
+    return (T, err, support), near, known, rivals
 
 
 def _assign(frame: _Frame, model: PartModel, accepted: list[tuple[np.ndarray, float, float]],

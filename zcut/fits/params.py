@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from zcut.params import _number  # the house's range check (its message names FitParams.field)
+from zcut.params import _boolean, _number  # the house's checks (their messages name FitParams.field)
 
 __all__ = ["FitParams"]
 
@@ -63,6 +63,17 @@ class FitParams:
         piece fits many poses, and the wrong ones (or a fit of floating points) leave a larger residual.
     seed_min_support : float
         ... and when its support is at least this (``min_support`` for the first pass).
+    claim : bool
+        True (the default): no duplicates (docs/fits.md, "Sixth round"). An accepted fit **claims** every
+        zone pixel within k × max(Err, floor) of it in its window, not only those of its region: a region
+        (or a leftover, or a region of the second pass) is fitted on its pixels no fit claimed; a
+        candidate whose solid shares more than ``max_overlap`` of its volume, or of an accepted fit's,
+        with an accepted fit's is not accepted; a sphere region's candidates are tried in order of the
+        region's points each explains within a common tolerance. False: the fits of the fifth round,
+        to the bit.
+    max_overlap : float
+        See ``claim``: the share (0..1) of a solid's volume another may hold (the vetting's
+        :data:`zcut.fit_vetting.MAX_OVERLAP`, measured on the same inside samples).
     """
 
     jump_mm: float = 1.5
@@ -82,6 +93,8 @@ class FitParams:
     seed_min_share: float = 0.025
     seed_err_ratio: float = 1.5
     seed_min_support: float = 0.5
+    claim: bool = True
+    max_overlap: float = 0.05
 
     def __post_init__(self) -> None:
         _number(self, "jump_mm", gt=0)
@@ -101,3 +114,5 @@ class FitParams:
         _number(self, "seed_min_share", ge=0, le=1)
         _number(self, "seed_err_ratio", gt=0)
         _number(self, "seed_min_support", ge=0, le=1)
+        _boolean(self, "claim")
+        _number(self, "max_overlap", ge=0, le=1)

@@ -1,0 +1,154 @@
+"""zcut.fits without duplicates (``FitParams.claim``, docs/fits.md "Sixth round"): a part whose pixels fall
+into two candidate regions gets one fit, not one per region; ``claim=False`` gives the fifth round's
+fits to the bit (literal digests of the previous tree's fits, 04e9ee3)."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+from fit_scenes import K_TEST, hex_nut_mesh, icosphere, pose, render, rotation
+
+from zcut.errors import ParameterError
+from zcut.fits import FitParams, PartFit, fit_parts, fit_prepared, pose_error, prepare_model
+
+
+def _bar() -> tuple[np.ndarray, np.ndarray]:
+    """A box 2.4 mm wide, 80 mm long, 10 mm deep: a rod lying across a part, in front of it."""
+    v = np.array([[x, y, z] for x in (-1.2, 1.2) for y in (-40.0, 40.0) for z in (-5.0, 5.0)])
+    t = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],
+                  [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    return v, t
+
+
+def _split_scene(part: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(xyz, zone, vertices, triangles, true pose): one part with a bar across its middle 20 mm in front
+    of it; the zone is the part's pixels, in two regions (the bar's shadow splits them)."""
+    v, t = hex_nut_mesh() if part == "nut" else icosphere(10.0, 4)
+    T = pose(rotation((1, 0.2, 0), 35) @ rotation((0, 0, 1), 10), (0, 0, 300)) if part == "nut" else \
+        pose(np.eye(3), (0, 0, 300))
+    bv, bt = _bar()
+    xyz, ids = render([(v, t, T), (bv, bt, pose(np.eye(3), (0, 0, 280)))], floor_z_mm=320)
+    return xyz, ids == 1, v, t, T
+
+
+@pytest.mark.parametrize("part", ["nut", "sphere"])
+def test_a_part_split_into_two_regions_gets_one_fit(part):  # type: ignore[no-untyped-def]
+    """The old fits fitted each region of the part, the same pose twice (two fits 0.01 mm apart, each
+    explaining the other's band); the fit of the second region now overlaps the first's solid and
+    explains no more pixels: it is refused, and the one fit explains both regions."""
+    from zcut.fits.segment import segment
+
+    xyz, zone, v, t, T = _split_scene(part)
+    regions = segment(xyz, np.flatnonzero(zone), f_px=500.0, jump_mm=1.5, jump_px=3.0, min_px=40)
+    assert len(regions) == 2  # the cause: one part, two candidate regions
+    old = fit_parts(xyz, zone, v, t, intrinsics=K_TEST, params=FitParams(claim=False))
+    assert len(old) == 2
+    fits = fit_parts(xyz, zone, v, t, intrinsics=K_TEST)
+    assert len(fits) == 1
+    dt, da = pose_error(fits[0].pose, T, prepare_model(v, t))
+    assert dt < 0.05 and da < 0.5
+    explained = np.zeros(zone.size, bool)
+    explained[fits[0].pixels] = True
+    assert explained[zone.reshape(-1)].mean() > 0.99
+
+
+def test_a_better_fit_replaces_an_accepted_one_it_overlaps():
+    """Of two fits of one part the one that explains more pixels within the smaller Err's band stays,
+    whichever came first: a nut posed 2 mm off accepted first is replaced by the true one."""
+    from zcut.fits.fit import _Claims, _Frame, _model_distance, _window_flat
+
+    xyz, zone, v, t, T = _split_scene("nut")
+    model = prepare_model(v, t)
+    params = FitParams()
+    frame = _Frame(xyz=xyz, valid=np.isfinite(xyz).all(axis=2), zone=zone, K=K_TEST)
+    off = T.copy()
+    off[:3, 3] += (2.0, 0.0, 0.0)
+    claims = _Claims(model, params, zone.size)
+
+    def known(P: np.ndarray, err: float) -> tuple[np.ndarray, np.ndarray]:
+        flat = _window_flat(frame, P, model)
+        return flat, _model_distance(frame, P, model, flat, params.k * max(err, params.err_floor_mm))
+
+    claims.add(off, 0.8, known(off, 0.8))
+    assert claims.overlapping(T) == [0]
+    assert claims.better(0.01, known(T, 0.01), 0)
+    claims.add(T, 0.01, known(T, 0.01))
+    assert not claims.better(0.8, known(off, 0.8), 1)  # and not the other way round
+    claims.kill(0)
+    assert claims.alive == [False, True] and claims.overlapping(off) == [1]
+    far = T.copy()
+    far[:3, 3] += (30.0, 0.0, 0.0)  # a nut 30 mm away shares no volume
+    assert claims.overlapping(far) == []
+
+
+def test_the_second_pass_still_finds_the_partly_hidden_nut_and_the_first_pass_is_unchanged():
+    """The scene of test_fits.py's second-pass test (a plate hides most of nut B): with the claims the
+    same two fits, A's pose identical to the first pass alone."""
+    v, t = hex_nut_mesh()
+    model = prepare_model(v, t)
+    A = pose(rotation((1, 0.3, 0), 20), (45, -20, 300))
+    B = pose(rotation((-0.736, -0.163, -0.482), 42.67), (15, 10, 305))
+    plate = (np.array([[19.0, -300, 0], [-281, -300, 0], [-281, 300, 0], [19.0, 300, 0]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    xyz, ids = render([(v, t, A), (v, t, B), (*plate, pose(np.eye(3), (0, 0, 285)))], floor_z_mm=330)
+    zone = (ids == 1) | (ids == 2)
+    first = fit_prepared(xyz, zone, model, intrinsics=K_TEST, params=FitParams(seed_shifts=0))
+    fits = fit_prepared(xyz, zone, model, intrinsics=K_TEST)
+    assert len(first) == 1 and len(fits) == 2 and np.array_equal(first[0].pose, fits[0].pose)
+    dt, da = pose_error(fits[1].pose, B, model)
+    assert dt < 0.05 and da < 0.5
+
+
+def _digest(fits: list[PartFit]) -> list[tuple[str, str, int, str]]:
+    return [(repr(f.err_mm), repr(f.support), len(f.pixels),
+             hashlib.sha256(f.pose.tobytes() + f.pixels.tobytes()).hexdigest()[:16]) for f in fits]
+
+
+#: the previous tree's fits (04e9ee3, before the claims) of the scenes below: (Err, support, pixels,
+#: sha256 of the pose's and the pixels' bytes)
+OLD = {
+    "nut_bar": [("0.003355316663737067", "1.0", 704, "6509f18147e223ab"),
+                ("0.011730312967017351", "1.0", 140, "21f7dfa4d0725e97")],
+    "sphere_bar": [("0.002459028877839308", "1.0", 368, "683efdb8c7f532f3"),
+                   ("0.00245902887783928", "1.0", 368, "f6194bfad00587c7")],
+    "three_nuts": [("0.03431945405904475", "0.99830220713073", 571, "4b9d8a2003ddec99"),
+                   ("0.041885454236681025", "0.9888178913738019", 609, "f0c7c84bb83d8e68"),
+                   ("0.0023746373531194982", "0.9970972423802612", 687, "0ef6e057ca57f628")],
+    "occluded": [("0.0005808641656576825", "1.0", 782, "a6b40bed0adc077e"),
+                 ("0.0012059554261382925", "1.0", 175, "6e285c29d0cfb9d3")],
+}
+
+
+def test_claim_false_gives_the_previous_fits_to_the_bit():
+    off = FitParams(claim=False)
+    v, t = hex_nut_mesh()
+    for part in ("nut", "sphere"):
+        xyz, zone, pv, pt, _ = _split_scene(part)
+        assert _digest(fit_parts(xyz, zone, pv, pt, intrinsics=K_TEST, params=off)) == OLD[f"{part}_bar"]
+    truths = [pose(rotation((1, 0, 0), a) @ rotation((0, 0, 1), b), (1.0, y, 300.0))
+              for y, a, b in ((-18.3, 6.0, 3.0), (0.0, -5.0, -2.0), (18.3, 7.0, 1.0))]
+    xyz, ids = render([(v, t, T) for T in truths], floor_z_mm=330)
+    assert _digest(fit_parts(xyz, ids > 0, v, t, intrinsics=K_TEST, params=off)) == OLD["three_nuts"]
+    A = pose(rotation((1, 0.3, 0), 20), (45, -20, 300))
+    B = pose(rotation((-0.736, -0.163, -0.482), 42.67), (15, 10, 305))
+    plate = (np.array([[19.0, -300, 0], [-281, -300, 0], [-281, 300, 0], [19.0, 300, 0]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    xyz, ids = render([(v, t, A), (v, t, B), (*plate, pose(np.eye(3), (0, 0, 285)))], floor_z_mm=330)
+    fits = fit_parts(xyz, (ids == 1) | (ids == 2), v, t, intrinsics=K_TEST, params=off)
+    assert _digest(fits) == OLD["occluded"]
+
+
+def test_the_claim_params_say_what_is_wrong():
+    with pytest.raises(ParameterError, match="claim"):
+        FitParams(claim=1)  # type: ignore[arg-type]
+    with pytest.raises(ParameterError, match="max_overlap"):
+        FitParams(max_overlap=1.5)
+
+
+def test_the_model_knows_its_inside():
+    v, t = hex_nut_mesh()
+    m = prepare_model(v, t)
+    assert len(m.inside) == 400 and m.contains(m.inside).mean() > 0.97  # the voxels: a 64th of the box
+    assert not m.contains(np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0]])).any()  # the bore, far away
+    s = prepare_model(*icosphere(10.0, 4))
+    assert s.contains(s.centroid[None]).all() and not s.contains(s.centroid[None] + 10.5).any()
