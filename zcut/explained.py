@@ -301,11 +301,12 @@ def footprint_mm(xyz_mm: np.ndarray, f_px: float) -> np.ndarray:
 
 
 def err_image(nearest: Nearest, surfaces: KnownSurfaces, footprint: np.ndarray, *, floor_mm: float = 0.0,
-              default_sigma_mm: float = 0.0) -> np.ndarray:
+              default_sigma_mm: float = 0.0, where: np.ndarray | None = None) -> np.ndarray:
     """(H, W) Err of each judged pixel: ``max(floor, sqrt(σ_s² + c²/2))``, σ_s the residual of its
     nearest surface (:meth:`KnownSurfaces.sigma`; a surface whose residual is unknown and a pixel no
     surface explains take the largest known one, else ``default_sigma_mm``), c its footprint
-    (:func:`footprint_mm`). NaN where not judged."""
+    (:func:`footprint_mm`). NaN where not judged, and outside ``where`` (default: everywhere judged;
+    the values inside are those of the whole image)."""
     code = nearest.surface
     n = len(surfaces.parts)
     codes = [*range(n), SURFACE_BIN, SURFACE_TABLE, SURFACE_LOCAL]
@@ -313,14 +314,26 @@ def err_image(nearest: Nearest, surfaces: KnownSurfaces, footprint: np.ndarray, 
     fallback = max(known) if known else float(default_sigma_mm)
     lut = np.array([fallback if not np.isfinite(surfaces.sigma(c)) else surfaces.sigma(c) for c in codes]
                    + [fallback])  # the last entry: SURFACE_NONE
+    if where is not None:
+        if np.shape(where) != np.shape(code):
+            raise InputShapeError(f"where must be {np.shape(code)} bool, got {describe_array(where)}")
+        sel = np.flatnonzero(np.asarray(where, bool).ravel() & ~np.isnan(np.asarray(nearest.dist_mm).ravel()))
+        out = np.full(np.shape(code), np.nan)
+        c_sel = np.asarray(code).ravel()[sel]
+        idx = np.where(c_sel >= 0, c_sel, np.select([c_sel == SURFACE_BIN, c_sel == SURFACE_TABLE,
+                                                     c_sel == SURFACE_LOCAL], [n, n + 1, n + 2], n + 3))
+        sigma = lut[idx]
+        f = np.asarray(footprint, np.float64).ravel()[sel]
+        out.ravel()[sel] = np.maximum(float(floor_mm), np.sqrt(sigma * sigma + 0.5 * f * f))
+        return out
     idx = np.where(code >= 0, code, np.where(code == SURFACE_BIN, n, np.where(code == SURFACE_TABLE, n + 1,
                                                                               np.where(code == SURFACE_LOCAL, n + 2,
                                                                                        n + 3))))
     sigma = lut[idx]
     c = np.asarray(footprint, np.float64)
     err = np.maximum(float(floor_mm), np.sqrt(sigma * sigma + 0.5 * c * c))
-    out: np.ndarray = np.where(np.isnan(nearest.dist_mm), np.nan, err)
-    return out
+    result: np.ndarray = np.where(np.isnan(nearest.dist_mm), np.nan, err)
+    return result
 
 
 def unexplained(dist: np.ndarray, err: np.ndarray, k: float = K_ERR) -> np.ndarray:

@@ -246,7 +246,8 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *,
         surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, stated, where=zone.zone))
         kept = np.ones(len(fits), bool)
         if p.fit_max_overlap < 1:  # 1: every fit kept, no vetting
-            err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm)
+            # Err where the ranking reads it (the zone's pixels a fit is nearest to): the whole image once, below
+            err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm, where=zone.zone & (near.surface >= 0))
             kept = vet_fits(instance_overlaps(v, t, [f.pose for f in fits]),
                             explained_px(near, err, len(fits), k=p.k, where=zone.zone),
                             max_overlap=p.fit_max_overlap).kept

@@ -85,6 +85,30 @@ def test_err_per_pixel_takes_its_surface_residual_and_footprint():
     assert np.isnan(err[0, 4])
 
 
+def test_err_image_where_gives_the_whole_images_values_there():
+    """``where`` computes Err on some pixels only (the vetting's ranking reads it on the zone's part
+    pixels; the method computes the whole image once): the same values there, NaN elsewhere."""
+    rng = np.random.default_rng(4)
+    surfaces = ex.KnownSurfaces(parts=[_box(np.zeros(3), np.ones(3))] * 3, part_err_mm=[0.3, float("nan"), 0.12],
+                                bin_err_mm=0.2, table=ex.Plane(np.array([0.0, 0.0, 1.0]), 0.0, 0.1),
+                                local_err_mm=0.4)
+    codes = np.array([0, 1, 2, ex.SURFACE_TABLE, ex.SURFACE_BIN, ex.SURFACE_LOCAL, ex.SURFACE_NONE], np.int32)
+    code = rng.choice(codes, (40, 50)).astype(np.int32)
+    dist = rng.uniform(0.0, 3.0, (40, 50)).astype(np.float32)
+    dist[rng.random((40, 50)) < 0.1] = np.nan
+    dist[code == ex.SURFACE_NONE] = np.inf
+    near = ex.Nearest(dist, code)
+    c = rng.uniform(0.1, 0.8, (40, 50))
+    full = ex.err_image(near, surfaces, c, floor_mm=0.15)
+    where = rng.random((40, 50)) < 0.5
+    part = ex.err_image(near, surfaces, c, floor_mm=0.15, where=where)
+    inside = where & ~np.isnan(dist)
+    np.testing.assert_array_equal(part[inside], full[inside])
+    assert np.isnan(part[~inside]).all() and np.isfinite(full[inside]).all()
+    with pytest.raises(InputShapeError, match="where must be"):
+        ex.err_image(near, surfaces, c, where=where[:, :3])
+
+
 def test_fit_sigmas_are_robust_to_attached_ghosts_and_never_widen_the_band():
     """Instance 0: a half-normal residual of σ 0.1 mm with 30 % ghosts 0.5-3 mm off (its RMS, what a fit
     states, is ~1 mm): its robust σ is the noise's. Instance 1: too few pixels, keeps its stated value.

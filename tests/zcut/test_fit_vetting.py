@@ -187,7 +187,7 @@ def test_the_method_leaves_out_overlapping_fits_and_judges_their_pixels_again(tm
     session = PipelineOptions(methods="zcut,explained").open_session(log)
     frame, _ = next(iter(session.results()))
     zone = bin_zone(frame, session.config, bin_model=session.prepared)
-    _, d, _ = run_explained(frame, zone, session.config)
+    out, d, _ = run_explained(frame, zone, session.config)
     assert d is not None and d.fits and d.vetted_out
     poses = [f.pose for f in d.fits]
     _, share = fv.instance_overlaps(d.vertices_mm, d.triangles, poses)
@@ -203,6 +203,15 @@ def test_the_method_leaves_out_overlapping_fits_and_judges_their_pixels_again(tm
     full = ex.nearest_surface(xyz, surfaces, where=zone.zone)
     np.testing.assert_array_equal(d.dist_mm, full.dist_mm)
     np.testing.assert_array_equal(d.surface, full.surface)
+    # Err and the outliers (the method computes the whole Err image once, after the vetting) are those of
+    # the kept fits, the bin and the table judged from scratch
+    p = session.config.bank["explained"]
+    scratch = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(full, surfaces.part_err_mm, where=zone.zone))
+    K = frame.intrinsics
+    assert K is not None
+    err = ex.err_image(full, scratch, ex.footprint_mm(xyz, 0.5 * (K.fx + K.fy)), floor_mm=p.err_floor_mm)
+    np.testing.assert_array_equal(d.err_mm, err)
+    np.testing.assert_array_equal(out, ex.unexplained(full.dist_mm, err, p.k) & zone.zone)
 
 
 @pytest.mark.slow
