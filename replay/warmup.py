@@ -59,13 +59,6 @@ def _pipeline(d: Path) -> None:
     model, _ = build_bin_model(LogReader(empty).frames())
     for bm in (model, None):
         ReplaySession.open(log, bin_model=bm).run()
-    import numpy as np
-
-    from annotate.accuracy import components8
-
-    sparse = np.zeros((16, 16), dtype=bool)
-    sparse[3, 4] = sparse[4, 5] = True
-    components8(sparse)  # the scoring's sparse labelling (accuracy, compare), a kernel of its own
 
 
 def _raytraced(d: Path) -> None:
