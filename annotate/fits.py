@@ -468,9 +468,9 @@ def known_surfaces(frame: Frame, job: Job, detail: Any, bin_model: BinModel) -> 
     ``detail``), and the focal length (pixels) of its footprints: the kept fits posed, each with the
     robust residual of the pixels it is the nearest surface of
     (:func:`zcut.explained.fit_sigmas`), the registered bin and the table plane as the method fits them
-    (``replay.pipeline.explained._bin_and_table``, called, not copied). ``err_image`` of the detail's
+    (``replay.pipeline.explained.bin_and_table_surfaces``, called, not copied). ``err_image`` of the detail's
     nearest surfaces with these gives the detail's Err to the bit (tests/annotate/test_page_fits_remeasure.py)."""
-    from replay.pipeline.explained import _bin_and_table
+    from replay.pipeline.explained import bin_and_table_surfaces
     from zcut import explained as ex
 
     xyz = frame.xyz.astype(np.float64) * 1000.0
@@ -478,7 +478,7 @@ def known_surfaces(frame: Frame, job: Job, detail: Any, bin_model: BinModel) -> 
     stated = [float(f.err_mm) for f in detail.fits]
     surfaces = ex.KnownSurfaces(parts=[(v @ f.pose[:3, :3].T + f.pose[:3, 3], t) for f in detail.fits],
                                 part_err_mm=stated)
-    surfaces = _bin_and_table(xyz, job.removal, job.registration, bin_model, surfaces)
+    surfaces = bin_and_table_surfaces(xyz, job.removal, job.registration, bin_model, surfaces)
     surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(ex.Nearest(detail.dist_mm, detail.surface),
                                                                        stated, where=job.zone))
     K = frame.intrinsics

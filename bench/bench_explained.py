@@ -273,7 +273,7 @@ def vetting_check(log: Path) -> list[dict[str, Any]]:
     from annotate.fits import Job
     from replay.logs import layout
     from replay.options import PipelineOptions
-    from replay.pipeline.explained import NAME, _bin_and_table, part_model, with_part_model
+    from replay.pipeline.explained import NAME, bin_and_table_surfaces, part_model, with_part_model
     from zcut.fit_vetting import explained_px, instance_overlaps, vet_fits, without_fits
     from zcut.fits import FitParams, fit_prepared
 
@@ -293,7 +293,7 @@ def vetting_check(log: Path) -> list[dict[str, Any]]:
     served = (job.zone | easy) & job.valid
     surfaces = ex.KnownSurfaces(parts=[(v @ f.pose[:3, :3].T + f.pose[:3, 3], t) for f in fits],
                                 part_err_mm=[f.err_mm for f in fits])
-    surfaces = _bin_and_table(xyz, job.removal, job.registration, session.prepared.model, surfaces)
+    surfaces = bin_and_table_surfaces(xyz, job.removal, job.registration, session.prepared.model, surfaces)
     c = ex.footprint_mm(xyz, 0.5 * (K.fx + K.fy))
     near = ex.nearest_surface(xyz, surfaces, where=served)
     robust = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, surfaces.part_err_mm, where=job.zone))

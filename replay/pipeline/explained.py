@@ -229,7 +229,7 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *,
                                 part_err_mm=[f.err_mm for f in fits])
     if bin_stages:
         assert rem is not None and reg is not None and model is not None
-        surfaces = _bin_and_table(xyz, rem, reg, model, surfaces)
+        surfaces = bin_and_table_surfaces(xyz, rem, reg, model, surfaces)
     warning = None
     f_px = 0.5 * (K.fx + K.fy) if intr is not None and K is not None else ex.focal_px(xyz)
     footprint = ex.footprint_mm(xyz, f_px)
@@ -270,7 +270,7 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *,
 
 
 
-def _bin_and_table(xyz: np.ndarray, rem: Any, reg: Any, model: Any, surfaces: Any) -> Any:
+def bin_and_table_surfaces(xyz: np.ndarray, rem: Any, reg: Any, model: Any, surfaces: Any) -> Any:
     """``surfaces`` with the registered bin model (its residual measured on up to :data:`SAMPLE_PX`
     of the removal's bin pixels) and the table plane fitted to up to as many of its table pixels."""
     from zcut import explained as ex

@@ -180,7 +180,7 @@ def test_the_method_leaves_out_overlapping_fits_and_judges_their_pixels_again(tm
     _overlapping_fits(monkeypatch)
 
     from replay.options import PipelineOptions
-    from replay.pipeline.explained import _bin_and_table, run_explained
+    from replay.pipeline.explained import bin_and_table_surfaces, run_explained
     from replay.pipeline.stages import bin_zone
 
     log = synth_log(tmp_path / "spheres.mcap", parts="spheres", frames=1, seed=9634, size="320x200")
@@ -199,7 +199,7 @@ def test_the_method_leaves_out_overlapping_fits_and_judges_their_pixels_again(tm
     xyz = frame.xyz.astype(np.float64) * 1000.0
     surfaces = ex.KnownSurfaces(parts=kept, part_err_mm=[f.err_mm for f in d.fits])
     assert zone.removal is not None and zone.located.registration is not None and zone.located.bin_model is not None
-    surfaces = _bin_and_table(xyz, zone.removal, zone.located.registration, zone.located.bin_model, surfaces)
+    surfaces = bin_and_table_surfaces(xyz, zone.removal, zone.located.registration, zone.located.bin_model, surfaces)
     full = ex.nearest_surface(xyz, surfaces, where=zone.zone)
     np.testing.assert_array_equal(d.dist_mm, full.dist_mm)
     np.testing.assert_array_equal(d.surface, full.surface)
