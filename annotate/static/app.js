@@ -1936,6 +1936,10 @@ window.zcut.labelOutside = (id) => {  // outlier pixels (L) not in review group 
   return n;
 };
 window.zcut.profileAxis = () => drawProfile.axis || null;
+window.zcut.pixelState = (x, y) => {  // the decision on image pixel (x, y) and the review group it is in (0: none)
+  const fd = state.cur, i = y * fd.W + x;
+  return { L: fd.L[i], R: fd.R[i], group: fd.gIds[i], valid: fd.valid[i] };
+};
 window.zcut.entries = () => {
   const fd = state.cur; if (!fd) return [];
   return fd.entries.map((e, k) => ({ src: e.src, id: e.id, n: e.n, cx: e.cx, cy: e.cy, gap: e.gap, both: e.both,
