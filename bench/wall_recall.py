@@ -51,8 +51,9 @@ from replay.logs import layout  # noqa: E402
 from replay.logs.reader import LogReader  # noqa: E402
 from replay.pipeline.bin_model import bin_model_for  # noqa: E402
 from replay.pipeline.config import cli_layer  # noqa: E402
+from replay.pipeline.explained import run_explained  # noqa: E402
 from replay.pipeline.session import ReplaySession, true_poses_of  # noqa: E402
-from replay.pipeline.stages import locate_bin, run_frame  # noqa: E402
+from replay.pipeline.stages import bin_zone, judge_zone, locate_bin, run_frame  # noqa: E402
 from replay.presets import BIN  # noqa: E402
 from replay.synth.scene import lean_walls, wall_distance_mm  # noqa: E402
 from replay.synth.sensor import CAMERA_HEIGHT_MM  # noqa: E402
@@ -65,6 +66,10 @@ KINDS = ("zinc_nuts", "spheres")
 ALL_KINDS = ("zinc_nuts", "spheres", "rods", "sprockets", "black_nuts", "black_screws")
 SEEDS = {"handmade": 7551, "raytraced": 9551}
 METHODS = ("zcut", "zcut_top", "sor", "radius", "cluster", "speckle", "window", "mixed_pixel", "explained")
+#: ``explained`` with the removal's bin pixels judged too (``run_explained(judge_removed_bin=True)``): not a
+#: method of the registry, computed on the same zone beside the run
+EXPLAINED_BIN = "explained+bin"
+SCORED = (*METHODS, EXPLAINED_BIN)
 NEAR_MM = 10.0
 TARGET = 0.05
 #: the truth the recalls count (``--truth``): the paper's (off every true surface by more than 3 Err,
@@ -121,11 +126,16 @@ def frame_rows(frame, session, T_true, pm_nostraggler, cfg_nostraggler, surface=
     for pose, lo in poses:
         if pose not in poses_wanted:
             continue
-        r = run_frame(frame, cfg, bin_model=pm, located=lo)
+        z = bin_zone(frame, cfg, bin_model=pm, located=lo)
+        r = judge_zone(frame, z, cfg, t_start=time.perf_counter())
         r0 = run_frame(frame, cfg_nostraggler, bin_model=pm_nostraggler, located=lo)
         valid = r.valid
         rem, rem0 = r.removal, r0.removal
         binp = rem.bin_points if rem is not None else np.zeros_like(valid)
+        ex_bin, _, _ = run_explained(frame, z, cfg, judge_removed_bin=True)
+        outs = {**r.outliers, EXPLAINED_BIN: ex_bin | z.easy}
+        # the zone's outliers are the same with and without judging the removal's bin pixels
+        assert np.array_equal(outs[EXPLAINED_BIN] & ~binp, r.outliers["explained"]), "explained+bin moved the zone"
         binp0 = rem0.bin_points if rem0 is not None else np.zeros_like(valid)
         table = rem.table if rem is not None else np.zeros_like(valid)
         for truth_name, topic in TRUTHS.items():  # both truths from the same run of the pipeline
@@ -134,7 +144,7 @@ def frame_rows(frame, session, T_true, pm_nostraggler, cfg_nostraggler, surface=
             row_outside = int((truth_all & valid & ~inside).sum())
             near = truth & (dist <= NEAR_MM)
             far = truth & ~(dist <= NEAR_MM)
-            fa = frame_accuracy(frame.index, frame.stamp_ns, {m: r.outliers[m] for m in METHODS}, truth_all & valid,
+            fa = frame_accuracy(frame.index, frame.stamp_ns, {m: outs[m] for m in SCORED}, truth_all & valid,
                                 valid=valid, region=scored_region(r, "zone"))
             row = {"pose": pose, "truth": truth_name, "frame": frame.index, "flagged": bool(r.bin_flagged),
                    "check_reason": "" if r.bin_check is None else r.bin_check.reason[:200],
@@ -142,7 +152,10 @@ def frame_rows(frame, session, T_true, pm_nostraggler, cfg_nostraggler, surface=
                    "radius": None if rem is None else float(rem.radius_mm),
                    "pose_err_mm": (None if loc.registration is None else
                                    float(np.linalg.norm(loc.registration.T_cam_bin[:3, 3] - T_true[:3, 3]) * 1000)),
-                   "n": {}, "found": {}, "zone_counts": {}, "outside_bin": row_outside}
+                   "n": {}, "found": {}, "zone_counts": {}, "outside_bin": row_outside,
+                   # what judging the removal's bin pixels adds: its flags there, true (this truth) and all
+                   "bin_judged": [int((outs[EXPLAINED_BIN] & binp & truth_all).sum()),
+                                  int((outs[EXPLAINED_BIN] & binp).sum()), int(binp.sum())]}
             for name, sel in (("near", near), ("far", far)):
                 row["n"][name] = int(sel.sum())
                 row[f"bin_{name}"] = int((sel & binp).sum())
@@ -158,14 +171,17 @@ def frame_rows(frame, session, T_true, pm_nostraggler, cfg_nostraggler, surface=
                     codes, cnt = np.unique(kinds[lost], return_counts=True)
                     row[f"bin_kinds_{name}"] = {layout.OUTLIER_KINDS.get(int(c), str(c)): int(n)
                                                 for c, n in zip(codes, cnt)}
-                for m in METHODS:
-                    row["found"].setdefault(m, {})[name] = int((sel & r.outliers[m]).sum())
+                for m in SCORED:
+                    row["found"].setdefault(m, {})[name] = int((sel & outs[m]).sum())
                     if kinds is not None:
                         by = row.setdefault("found_by_kind", {}).setdefault(m, {}).setdefault(name, {})
                         for c in np.unique(kinds[sel]):
                             k = layout.OUTLIER_KINDS.get(int(c), str(c))
-                            by[k] = [int((sel & r.outliers[m] & (kinds == c)).sum()), int((sel & (kinds == c)).sum())]
-                row[f"explained_{name}"] = explained_misses(frame, r, lo, sel, binp, binp0, table, cfg.bank["explained"])
+                            by[k] = [int((sel & outs[m] & (kinds == c)).sum()), int((sel & (kinds == c)).sum())]
+                row[f"explained_{name}"] = explained_misses(frame, r, lo, sel, binp, binp0, table, cfg.bank["explained"],
+                                                            r.outliers["explained"])
+                row[f"explained_bin_{name}"] = explained_misses(frame, r, lo, sel, binp, binp0, table,
+                                                                cfg.bank["explained"], outs[EXPLAINED_BIN])
             # what the bin check counted as bin left behind (hand-made: the synthesis's surface labels)
             off = r.bin_check.offending if r.bin_check is not None else None
             if off is not None and off.any():
@@ -179,7 +195,7 @@ def frame_rows(frame, session, T_true, pm_nostraggler, cfg_nostraggler, surface=
             lost_near = near & binp
             row["lost_near_dist_mm"] = ([float(x) for x in np.percentile(dist[lost_near], [10, 50, 90])]
                                         if lost_near.any() else [])
-            for m in METHODS:
+            for m in SCORED:
                 c = fa.counts[m]
                 row["zone_counts"][m] = [c.tp, c.fp, c.fn]
             rows.append(row)
@@ -187,7 +203,7 @@ def frame_rows(frame, session, T_true, pm_nostraggler, cfg_nostraggler, surface=
 
 
 def explained_misses(frame, r, lo, sel: np.ndarray, binp: np.ndarray, binp0: np.ndarray, table: np.ndarray,
-                     p) -> dict:
+                     p, flagged: np.ndarray) -> dict:
     """Where the true outliers ``sel`` went that ``explained`` did not flag, and, for all of ``sel``, how
     far they lie from the registered bin model in units of the bin's own Err (what ``explained`` would
     say of them judged against the bin alone).
@@ -204,7 +220,7 @@ def explained_misses(frame, r, lo, sel: np.ndarray, binp: np.ndarray, binp0: np.
     from zcut import explained as ex
 
     out: dict = {}
-    found = r.outliers[NAME] & sel
+    found = flagged & sel
     miss = sel & ~found
     det = r.details.get(NAME)
     out["found"] = int(found.sum())
@@ -252,7 +268,7 @@ def explained_misses(frame, r, lo, sel: np.ndarray, binp: np.ndarray, binp0: np.
 
 def study(d: Path, sensor: str, pile: str, kind: str, size: str, frames: int) -> list[dict]:
     seed = SEEDS[sensor] + ALL_KINDS.index(kind)
-    cache = d / f"rows_{sensor}_{pile}_{kind}_{size}_{frames}f_{seed}_{'_'.join(POSES)}_both.json"
+    cache = d / f"rows_{sensor}_{pile}_{kind}_{size}_{frames}f_{seed}_{'_'.join(POSES)}_both3.json"
     if cache.is_file():
         return json.loads(cache.read_text())
     log = log_path(d, sensor, pile, kind, size, frames)
@@ -466,7 +482,7 @@ def recall_table(rows: list[dict], pose: str) -> list[str]:
             continue
         nn = sum(r["n"]["near"] for r in sel)
         nf = sum(r["n"]["far"] for r in sel)
-        for m in METHODS:
+        for m in SCORED:
             fn_ = sum(r["found"][m]["near"] for r in sel)
             ff = sum(r["found"][m]["far"] for r in sel)
             rn, rf = _rec(fn_, nn), _rec(ff, nf)
@@ -486,19 +502,20 @@ def recall_table(rows: list[dict], pose: str) -> list[str]:
 
 def explained_table(rows: list[dict], pose: str) -> list[str]:
     """``explained`` and the removal, per truth: near / elsewhere recall, the removal's share."""
-    out = ["| truth | generator | pile | near: n | `explained` near: recall | elsewhere: n | `explained` elsewhere: recall | "
+    out = ["| truth | generator | pile | method | near: n | near: recall | elsewhere: n | elsewhere: recall | "
            f"Δ | within {TARGET:g} | the removal alone (kept for the methods): near / elsewhere | "
            "near labelled bin by the removal (straggler pass) | their distance to the bin model mm p10/p50/p90 | "
-           "in the bin's Err p10/p50/p90 | σ_bin mm; the bin's Err at the near outliers, median mm | zone F1 |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for truth in TRUTHS:
+           "in the bin's Err p10/p50/p90 | σ_bin mm; the bin's Err at the near outliers, median mm | zone F1 | "
+           "the removal's bin pixels it flags: true / false outliers |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for truth, m in ((t, m) for t in TRUTHS for m in ("explained", EXPLAINED_BIN)):
         for sensor, pile in sorted({(r["sensor"], r["pile"]) for r in rows}, key=lambda k: (k[0], k[1] != "walls")):
             sel = [r for r in rows if (r["truth"], r["sensor"], r["pile"], r["pose"]) == (truth, sensor, pile, pose)]
             if not sel:
                 continue
             nn, nf = sum(r["n"]["near"] for r in sel), sum(r["n"]["far"] for r in sel)
-            rn = _rec(sum(r["found"]["explained"]["near"] for r in sel), nn)
-            rf = _rec(sum(r["found"]["explained"]["far"] for r in sel), nf)
+            rn = _rec(sum(r["found"][m]["near"] for r in sel), nn)
+            rf = _rec(sum(r["found"][m]["far"] for r in sel), nf)
             kn, kf = _rec(sum(r["kept_near"] for r in sel), nn), _rec(sum(r["kept_far"] for r in sel), nf)
             e = [r["explained_near"] for r in sel]
             dd = "; ".join("/".join(f"{x:.1f}" for x in x_["removed_bin_mm"]) for x_ in e if x_.get("removed_bin_mm"))
@@ -506,12 +523,14 @@ def explained_table(rows: list[dict], pose: str) -> list[str]:
                            if x_.get("removed_bin_in_err"))
             sig = ", ".join(f"{x_['bin_sigma_mm']:.3f}" for x_ in e if "bin_sigma_mm" in x_)
             em = ", ".join(f"{x_['bin_err_mm_p50']:.2f}" for x_ in e if "bin_err_mm_p50" in x_)
-            c = np.sum([r["zone_counts"]["explained"] for r in sel], axis=0)
+            c = np.sum([r["zone_counts"][m] for r in sel], axis=0)
             f1 = 2 * c[0] / max(2 * c[0] + c[1] + c[2], 1)
-            out.append(f"| {truth} | {sensor} | {pile} | {nn} | {_f(rn)} | {nf} | {_f(rf)} | {_f(rn - rf, '+.3f')} | "
+            bj = np.sum([r["bin_judged"] for r in sel], axis=0) if m == EXPLAINED_BIN else None
+            extra = "–" if bj is None else f"{bj[1]} of {bj[2]}: {bj[0]} true, {bj[1] - bj[0]} false"
+            out.append(f"| {truth} | {sensor} | {pile} | `{m}` | {nn} | {_f(rn)} | {nf} | {_f(rf)} | {_f(rn - rf, '+.3f')} | "
                        f"{'yes' if abs(rn - rf) <= TARGET else '**no**'} | {_f(kn)} / {_f(kf)} | "
                        f"{sum(r['bin_near'] for r in sel)} ({sum(r['bin_straggler_near'] for r in sel)}) | "
-                       f"{dd or '–'} | {de or '–'} | {sig}; {em} | {f1:.3f} |")
+                       f"{dd or '–'} | {de or '–'} | {sig}; {em} | {f1:.3f} | {extra} |")
     return out
 
 
@@ -520,22 +539,23 @@ MISS_CLASSES = ("found", "bin", "table", "zone_part", "zone_bin", "zone_table", 
 
 def explained_misses_table(rows: list[dict], pose: str) -> list[str]:
     """Where ``explained``'s misses went, near and elsewhere, per truth."""
-    out = ["| truth | generator | pile | where | n | found | labelled bin by the removal (straggler) | labelled table | "
-           "in the zone, within k Err of a part fit | … of the bin | … of the table | … of none (unexplained? no: "
-           "not judged) | other | of all n: within k Err of the bin alone | of the zone misses: distance to the bin "
+    out = ["| truth | generator | pile | method | where | n | found | missed: labelled bin by the removal (straggler) | "
+           "labelled table | "
+           "in the zone, within k Err of a part fit | … of the bin | … of the table | … of no surface | "
+           "other | of all n: within k Err of the bin alone | of the zone misses: distance to the bin "
            "in its Err p10/p50/p90 per frame |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for truth in TRUTHS:
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for truth, m in ((t, m) for t in TRUTHS for m in ("explained", EXPLAINED_BIN)):
         for sensor, pile in sorted({(r["sensor"], r["pile"]) for r in rows}, key=lambda k: (k[0], k[1] != "walls")):
             sel = [r for r in rows if (r["truth"], r["sensor"], r["pile"], r["pose"]) == (truth, sensor, pile, pose)]
             if not sel:
                 continue
             for name in ("near", "far"):
-                e = [r[f"explained_{name}"] for r in sel]
+                e = [r[f"explained_{name}" if m == "explained" else f"explained_bin_{name}"] for r in sel]
                 t = {k: sum(x.get(k, 0) for x in e) for k in (*MISS_CLASSES, "bin_straggler", "n", "bin_explains")}
                 dz = "; ".join("/".join(f"{v:.1f}" for v in x["d_bin_in_err_missed_zone"]) for x in e
                                if x.get("d_bin_in_err_missed_zone"))
-                out.append(f"| {truth} | {sensor} | {pile} | {'near' if name == 'near' else 'elsewhere'} | {t['n']} | "
+                out.append(f"| {truth} | {sensor} | {pile} | `{m}` | {'near' if name == 'near' else 'elsewhere'} | {t['n']} | "
                            f"{t['found']} | {t['bin']} ({t['bin_straggler']}) | {t['table']} | {t['zone_part']} | "
                            f"{t['zone_bin']} | {t['zone_table']} | {t['zone_none']} | {t['other']} | "
                            f"{t['bin_explains']} | {dz or '–'} |")
