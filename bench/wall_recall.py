@@ -12,6 +12,15 @@ index). Each frame runs the pipeline as ``zcut replay`` does with the log's exac
 attachment ``zcut synth`` writes), at the registered pose and at the true pose, with the methods
 ``zcut, zcut_top, sor`` and the filter bank at its defaults (``radius, cluster, speckle, window, mixed_pixel``).
 
+``explained`` (the paper's definition, docs/filters.md "Explained") runs with the log's part model, and
+beside it ``explained+bin``: the same run with ``judge_removed_bin=True`` (the pixels the removal labelled
+bin judged too, against the bin model at its own Err, the fits and the table; the zone's outliers
+identical, asserted on every frame). Both truths are scored from one run of the pipeline; the tables
+"`explained` and the removal" and "Where `explained`'s misses went" give, per truth, its near and
+elsewhere recall, what the removal alone keeps, the near outliers it labelled bin and their distance to
+the bin model (mm and in the bin's Err), and each miss's class: labelled bin, labelled table, or judged in
+the zone and within k × Err of a part fit, the bin or the table.
+
 Per method: the recall of the true outliers (``--truth``: the paper's, ``/ground_truth/off_surface``, by
 default; ``--truth sensor``: ``/ground_truth/outliers``, the sensor's truth, which the first tables used) whose
 measured point lies within 10 mm (3D) of an inner wall face of the bin (:func:`replay.synth.scene.wall_distance_mm`,
@@ -24,6 +33,7 @@ zone (the code path of ``zcut accuracy``).
 
     .venv/bin/python bench/wall_recall.py                       # 480x300, 2 frames per kind, both generators
     .venv/bin/python bench/wall_recall.py --sensors handmade --frames 3
+    .venv/bin/python bench/wall_recall.py --piles walls --poses registered --seeds handmade:7571,raytraced:9571
 
 Logs and results are cached in ``--dir`` (default /tmp/zcut_wall_recall); the tables are printed as
 Markdown (docs/bin_robustness.md, "Piles leaning on the walls").
