@@ -193,8 +193,8 @@ def _sample(mask: np.ndarray, n: int) -> np.ndarray:
     return idx
 
 
-def run_explained(frame: Frame, zone: Zone, config: Any, *,
-                  judge_above_rim: bool = False) -> tuple[np.ndarray, ExplainedDetail | None, str | None]:
+def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: bool = False,
+                  judge_removed_bin: bool = False) -> tuple[np.ndarray, ExplainedDetail | None, str | None]:
     """The method on one frame (module docstring): (outliers in the zone, detail, warning), the
     fields of the ``MethodOutput`` its registry entry returns.
 
@@ -202,6 +202,13 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *,
     (``zone.easy``), judged against the same known surfaces (the fits, found in the zone, the bin,
     the table; not the local surface): the labelling page serves them (annotate/fits.py). The method's
     outliers and everything in the zone are the same with and without it.
+
+    ``judge_removed_bin``: with a part model, the pixels the removal labelled bin are judged too, against
+    the same known surfaces (:func:`removed_bin_judged`): those farther than ``k`` × Err from all of them —
+    the bin model at the bin's own Err, the fits, the table — are outliers as well, outside the zone (the
+    paper's definition does not drop a point because the removal's tolerance took it: issue 31,
+    docs/bin_robustness.md, "piles leaning on the walls — `explained`"). Everything in the zone is the
+    same with and without it.
     """
     from zcut import explained as ex
     from zcut.fit_vetting import explained_px, instance_overlaps, vet_fits, without_fits
@@ -264,10 +271,29 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *,
         warning = FALLBACK_WARNING if bin_stages else FALLBACK_ALONE_WARNING
     err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm)
     out = ex.unexplained(near.dist_mm, err, p.k) & zone.zone
+    if judge_removed_bin and p.part_model:
+        assert rem is not None
+        near, err, out = removed_bin_judged(xyz, rem.bin_points & ~judged, surfaces, footprint, near, err, out, p)
     return out, ExplainedDetail(fits, v, t, near.dist_mm, near.surface, err, out,
                                 surface_model=PART_FITS if p.part_model else LOCAL_SURFACE,
                                 local_err_mm=surfaces.local_err_mm, vetted_out=vetted_out), warning
 
+
+
+def removed_bin_judged(xyz: np.ndarray, where: np.ndarray, surfaces: Any, footprint: np.ndarray, near: Any,
+                       err: np.ndarray, out: np.ndarray, p: Any) -> tuple[Any, np.ndarray, np.ndarray]:
+    """``near``, ``err`` and ``out`` with the pixels ``where`` (the removal's bin pixels) judged as the zone's
+    are: their nearest known surface and distance, their Err (that surface's residual and the pixel's
+    footprint) and, farther than ``p.k`` × Err from every surface, unexplained."""
+    from zcut import explained as ex
+
+    if not np.asarray(where).any():
+        return near, err, out
+    nb = ex.nearest_surface(xyz, surfaces, where=where)
+    eb = ex.err_image(nb, surfaces, footprint, floor_mm=p.err_floor_mm)
+    w = ~np.isnan(nb.dist_mm)
+    near = ex.Nearest(np.where(w, nb.dist_mm, near.dist_mm), np.where(w, nb.surface, near.surface))
+    return near, np.where(w, eb, err), out | ex.unexplained(nb.dist_mm, eb, p.k)
 
 
 def bin_and_table_surfaces(xyz: np.ndarray, rem: Any, reg: Any, model: Any, surfaces: Any) -> Any:

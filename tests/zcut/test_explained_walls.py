@@ -1,0 +1,124 @@
+"""``explained`` judges the pixels the removal labelled bin (``run_explained(judge_removed_bin=True)``):
+a point in front of a wall farther than k × Err from the bin model is an outlier by the paper's
+definition even when the removal's tolerance (τ plus the straggler pass's margin) took it as bin
+(issue 31; docs/bin_robustness.md, "Issue 31: piles leaning on the walls — `explained`").
+
+A real log (``zcut synth --pile walls``, hand-made spheres at 480 × 300, where 3 × the bin's Err is
+below τ plus the straggler margin) with one wall pixel moved along the wall's inward normal, the whole
+pipeline run on the moved frame: the removal still labels it bin; ``explained`` flags it only when it
+judges the removal's bin pixels, and only when it lies beyond k × Err (not at half of it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from zcut import explained as ex
+
+SIZE = "480x300"
+
+
+@pytest.fixture(scope="module")
+def walls(tmp_path_factory):
+    from cli.main import main
+    from replay.options import PipelineOptions
+    from replay.pipeline.stages import bin_zone
+
+    log = tmp_path_factory.mktemp("walls") / "spheres_walls.mcap"
+    assert main(["synth", "-o", str(log), "--parts", "spheres", "--frames", "1", "--seed", "9643", "--size", SIZE,
+                 "--pile", "walls"]) == 0
+    session = PipelineOptions(methods="zcut,explained").open_session(log)
+    frame, _ = next(iter(session.results()))
+    zone = bin_zone(frame, session.config, bin_model=session.prepared)
+    return session, frame, zone
+
+
+def _wall_pixel(frame, zone, session):
+    """A wall pixel the removal labelled bin with its 8 neighbours, away from the ring and the rim: its
+    (row, col), its inward unit normal (camera frame) and its Err against the bin (mm)."""
+    from replay.pipeline.explained import bin_and_table_surfaces
+
+    rem, reg, model = zone.removal, zone.located.registration, zone.located.bin_model
+    assert rem is not None and reg is not None and model is not None and model.normals is not None
+    xyz = frame.xyz.astype(np.float64) * 1000.0
+    s = bin_and_table_surfaces(xyz, rem, reg, model, ex.KnownSurfaces())
+    T = np.asarray(reg.T_cam_bin, np.float64)
+    pts = 1000.0 * (model.points @ T[:3, :3].T) + 1000.0 * T[:3, 3]
+    nrm = model.normals @ T[:3, :3].T
+    centre = pts.mean(axis=0)
+    b = rem.bin_points
+    inner = b.copy()
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            inner[1:-1, 1:-1] &= b[1 + dr:b.shape[0] - 1 + dr, 1 + dc:b.shape[1] - 1 + dc]
+    inner[[0, -1], :] = inner[:, [0, -1]] = False
+    if zone.located.ring is not None:
+        inner &= ~zone.located.ring
+    from scipy.spatial import cKDTree
+
+    rows, cols = np.nonzero(inner)
+    _, j = cKDTree(pts).query(xyz[rows, cols], k=1)
+    n = nrm[j]
+    on_wall = np.abs(n @ (T[:3, :3] @ np.array([0.0, 0.0, 1.0]))) < 0.2  # the normal across the bin's axis
+    assert on_wall.sum() > 100
+    i = np.flatnonzero(on_wall)[on_wall.sum() // 2]
+    r, c = int(rows[i]), int(cols[i])
+    n_in = n[i] * np.sign(np.dot(centre - xyz[r, c], n[i]))
+    K = frame.intrinsics
+    assert K is not None
+    foot = abs(xyz[r, c, 2]) / (0.5 * (K.fx + K.fy))
+    p = session.config.bank["explained"]
+    err = max(p.err_floor_mm, float(np.sqrt(s.bin_err_mm ** 2 + 0.5 * foot ** 2)))
+    return (r, c), n_in, err
+
+
+def _moved(frame, rc, n_in, d_mm):
+    xyz = frame.xyz.copy()
+    xyz[rc] = xyz[rc] + (d_mm / 1000.0) * n_in.astype(np.float32)
+    return dataclasses.replace(frame, xyz=xyz)
+
+
+@pytest.mark.slow
+def test_a_point_the_removal_took_beyond_k_err_of_the_wall_is_unexplained(walls):
+    from replay.pipeline.explained import run_explained
+    from replay.pipeline.stages import bin_zone
+
+    session, frame, zone = walls
+    rc, n_in, err = _wall_pixel(frame, zone, session)
+    p = session.config.bank["explained"]
+    assert zone.removal is not None
+    reach = zone.removal.tolerance_mm + session.config.removal.straggler_mm
+    assert p.k * err + 0.3 < reach, f"3 Err {p.k * err:.2f} mm is not below the removal's reach {reach:.2f} mm"
+    for d_mm, beyond in ((0.5 * (p.k * err + reach), True), (0.5 * p.k * err, False)):
+        moved = _moved(frame, rc, n_in, d_mm)
+        z = bin_zone(moved, session.config, bin_model=session.prepared)
+        assert z.removal is not None and z.removal.bin_points[rc], "the removal no longer labels the point bin"
+        plain, _, _ = run_explained(moved, z, session.config)
+        judged, d, _ = run_explained(moved, z, session.config, judge_removed_bin=True)
+        assert not plain[rc]  # the removal took it: never judged
+        assert judged[rc] == beyond, (d_mm, err)
+        # the zone's outliers are the same; what it adds is the removal's bin pixels beyond k × Err
+        np.testing.assert_array_equal(judged & z.zone, plain)
+        added = judged & ~z.zone
+        assert not (added & ~z.removal.bin_points).any()
+        assert d is not None
+        assert (d.dist_mm[added] > p.k * d.err_mm[added]).all()
+        assert np.array_equal(d.unexplained, judged)
+        # the point's distance is the one to the bin model
+        assert d.surface[rc] == ex.SURFACE_BIN and abs(d.dist_mm[rc] - d_mm) < 0.1
+
+
+@pytest.mark.slow
+def test_without_a_part_model_the_removals_bin_pixels_are_not_judged(walls):
+    """The local surface (no part model) is measured in the zone only: the flag changes nothing."""
+    from replay.pipeline.explained import run_explained
+
+    session, frame, zone = walls
+    p = dataclasses.replace(session.config.bank["explained"], part_model="")
+    config = dataclasses.replace(session.config, bank={**session.config.bank, "explained": p})
+    plain, _, _ = run_explained(frame, zone, config)
+    judged, _, _ = run_explained(frame, zone, config, judge_removed_bin=True)
+    np.testing.assert_array_equal(judged, plain)
