@@ -163,11 +163,14 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str
     return plans
 
 
-def check_labels(labels: str | None, annotator: str | None, plans: list[LogPlan]) -> None:
+def check_labels(labels: str | None, annotator: str | None, plans: list[LogPlan], *,
+                 labelled: bool = False) -> None:
     """Refuse before any work what every unit's :class:`annotate.truth.LabelTruth` would refuse (an
     annotator who did not label a log, or none named where a log has several), with ``zcut
     accuracy``'s words: a usage error (exit 1), not a failed unit per log (exit 3). The logs are
-    looked up by the content hash the planning computed (not hashed again)."""
+    looked up by the content hash the planning computed (not hashed again). ``labelled``: each log
+    must itself be in the store (``zcut compare``, whose inputs are logs, never results files: a log the
+    store does not hold would be scored against another log's labels of the same stamps)."""
     if labels is None:
         return
     from annotate.store import LabelStore
@@ -179,6 +182,10 @@ def check_labels(labels: str | None, annotator: str | None, plans: list[LogPlan]
             if not p.units:
                 continue
             log = store.log_by_sha(p.sha256)
+            if labelled and log is None:
+                held = ", ".join(r.name for r in store.logs()) or "none"
+                raise ParameterError(f"--labels {labels}: no labels of {p.path.name} (its content is not in the "
+                                     f"store; labelled logs: {held})")
             known = store.annotators(log) if log is not None else store.annotators()
             if annotator is not None and annotator not in known:
                 raise ParameterError(f"--annotator {annotator!r}: no labels by them in {labels} "
