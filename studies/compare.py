@@ -1209,6 +1209,7 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
         inline = opts.workers == 0 and opts.ray is None  # make_executor's InlineExecutor
 
         from annotate.truth import truth_of_log
+        from replay.logs.identity import log_identity
         from replay.logs.reader import LogReader
 
         given = {Path(p).resolve(): p for p in opts.logs}  # a log named in an error as it was given
@@ -1235,7 +1236,7 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
         plans = plan_logs([str(p) for p in opts.logs], config_file=None, overrides={}, topic=opts.topic,
                           frames_per_unit=opts.frames_per_unit, whole=False, progress=planning,
                           bin_model=None if opts.bin_model is None else str(opts.bin_model), opened=opened,
-                          reader_options=READER_OPTIONS)
+                          reader_options=READER_OPTIONS, identify=log_identity)
         check_labels(None if opts.labels is None else str(opts.labels), opts.annotator, plans, labelled=True)
         if refused:
             raise refused[0]
