@@ -4,7 +4,9 @@ change the comparison's verdict, so the page lists only them as review groups.
 
 The file is a NumPy ``.npz`` (no pickled objects) of flat arrays:
 
-- ``logs`` (L,) str, ``log_sha256`` (L,) str, ``log_size`` (L,) int64: the compared logs, in order;
+- ``logs`` (L,) str, ``log_sha256`` (L,) str, ``log_size`` (L,) int64: the compared logs, in order (``log_sha256``:
+  the identity ``zcut compare``'s planning gave each, :func:`replay.logs.identity.log_identity`; in a file
+  written before it, the SHA-256 of every byte);
 - ``primaries`` (2,) str: the methods of A and B compared;
 - ``frame_log`` (N,) int64 (into ``logs``), ``frame_index`` (N,) int64, ``frame_stamp_ns`` (N,) int64,
   ``frame_shape`` (N, 2) int64: every compared frame, disagreement or none;
@@ -149,6 +151,7 @@ def load(folder: str | os.PathLike[str], log: str | os.PathLike[str]) -> Disagre
         comparison of other logs.
     """
     from annotate.store import file_sha256
+    from replay.logs.identity import log_identity
 
     d = Path(folder)
     what = f"--disagreement {d}"
@@ -164,8 +167,14 @@ def load(folder: str | os.PathLike[str], log: str | os.PathLike[str]) -> Disagre
     except (OSError, ValueError, KeyError, EOFError, TypeError, AttributeError, zipfile.BadZipFile) as e:
         raise ParameterError(f"{what}: {FILE} does not read ({str(e).splitlines()[0] if str(e) else type(e).__name__})"
                              ) from None
-    digest = file_sha256(log)
-    mine = [i for i, s in enumerate(arrays["log_sha256"].tolist()) if s == digest]
+    # the log's identity as zcut compare's planning computed it (replay.logs.identity), else (a comparison
+    # written before it, a log without an index) the SHA-256 of every byte
+    stored = arrays["log_sha256"].tolist()
+    digest = log_identity(log)
+    mine = [i for i, s in enumerate(stored) if s == digest]
+    if not mine:
+        digest = file_sha256(log)
+        mine = [i for i, s in enumerate(stored) if s == digest]
     if not mine:
         names = ", ".join(str(n) for n in arrays["logs"].tolist()) or "no log"
         raise ParameterError(f"{what}: that comparison is of {names}, not of {Path(log).name} (its content differs)")

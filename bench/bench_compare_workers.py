@@ -27,7 +27,8 @@ issue's target: at most 1.3 x when A and B share the bin stages), all in this pr
 warmed by a first run of each way, not measured), CPU time of the process (``time.process_time``,
 its threads included; the garbage left by the way before collected first, not counted), alternating the ways
 ``--repeats`` times (each comparison's run also against the replay run of the same repeat: the issue's
-target holds run by run, not only in the medians): ``zcut replay LOG --methods zcut``
+target holds run by run, not only in the medians; every run's ratio is printed, and the same by user CPU
+alone, without the kernel's time: page faults): ``zcut replay LOG --methods zcut``
 over every log (the table to a string, no outputs; then with ``--rrd``), the same of B
 (``--config RHO.toml``: z-cut at ρ_thr 0.035 and SOR), ``studies.compare.run`` with
 ``workers=0`` without ``.rrd`` and report, with the ``.rrd``, and the whole command (``.rrd`` and
@@ -192,13 +193,15 @@ def vs_replay(d: Path, logs: list[str], args: argparse.Namespace) -> None:
     for fn in ways.values():  # warm
         fn()
     cpu: dict[str, list[float]] = {k: [] for k in ways}
+    user: dict[str, list[float]] = {k: [] for k in ways}
     load = []
     for _ in range(args.repeats):
         for name, fn in ways.items():
             gc.collect()  # the garbage of the way before is not charged to this one
-            c0 = time.process_time()
+            c0, u0 = time.process_time(), resource.getrusage(resource.RUSAGE_SELF).ru_utime
             fn()
             cpu[name].append(time.process_time() - c0)
+            user[name].append(resource.getrusage(resource.RUSAGE_SELF).ru_utime - u0)
             load.append(os.getloadavg()[0])
     n = args.logs * args.frames
     print(f"{args.logs} logs ({', '.join(logs)}) x {args.frames} frames of {args.size}, {args.repeats} runs each, "
@@ -212,6 +215,9 @@ def vs_replay(d: Path, logs: list[str], args: argparse.Namespace) -> None:
         if name.startswith("compare"):  # each run against the replay run just before it in the same repeat
             each = [x / r for x, r in zip(cpu[name], cpu[ref_name], strict=True)]
             line += f"; run by run x{min(each):.2f}-{max(each):.2f}, {sum(e <= 1.3 for e in each)}/{len(each)} <= 1.3"
+            users = [x / r for x, r in zip(user[name], user[ref_name], strict=True)]
+            line += (f"\n{'':24s}every run: {', '.join(f'{e:.2f}' for e in each)}; user CPU alone: "
+                     f"{', '.join(f'{e:.2f}' for e in users)}")
         print(line)
     writer_cost(paths[0], d)
 

@@ -1188,11 +1188,13 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
     from annotate.disagreement import FILE as DISAGREEMENT
     from replay.outputs import OutputPlan, naming
     from studies.driver import Progress, check_labels, meta_of, plan_logs, start_units
-    from studies.executors import InlineExecutor, make_executor
+    from studies.executors import make_executor
     from studies.parts import PARTS, PartStore
     from studies.work import Job
 
-    executor = make_executor(workers=opts.workers, ray=opts.ray)  # an unreachable cluster fails here
+    # the executor is made once every input is checked (a Ray cluster is connected to then, local workers
+    # start when the units run): bad input is one line before anything starts
+    executor: Executor | None = None
     try:
         def planning(i: int, n: int, path: Path) -> None:
             if n > 5 and (i % 20 == 0 or i == n - 1):
@@ -1204,9 +1206,10 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
         # reader of a log whose units are still to come)
         sides: dict[str, LogSides] = {}
         refused: list[Exception] = []
-        inline = isinstance(executor, InlineExecutor)
+        inline = opts.workers == 0 and opts.ray is None  # make_executor's InlineExecutor
 
         from annotate.truth import truth_of_log
+        from replay.logs.identity import log_identity
         from replay.logs.reader import LogReader
 
         given = {Path(p).resolve(): p for p in opts.logs}  # a log named in an error as it was given
@@ -1233,8 +1236,8 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
         plans = plan_logs([str(p) for p in opts.logs], config_file=None, overrides={}, topic=opts.topic,
                           frames_per_unit=opts.frames_per_unit, whole=False, progress=planning,
                           bin_model=None if opts.bin_model is None else str(opts.bin_model), opened=opened,
-                          reader_options=READER_OPTIONS)
-        check_labels(None if opts.labels is None else str(opts.labels), opts.annotator, plans)
+                          reader_options=READER_OPTIONS, identify=log_identity)
+        check_labels(None if opts.labels is None else str(opts.labels), opts.annotator, plans, labelled=True)
         if refused:
             raise refused[0]
         if opts.truth is not None:  # a log the planning could not open: checked as it is given
@@ -1248,6 +1251,7 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
         usable = {p.sha256 for p in plans if p.units}
         sides = {sha: s for sha, s in sides.items() if sha in usable}
         primaries = next(sides[p.sha256].primaries for p in plans if p.sha256 in sides)
+        executor = make_executor(workers=opts.workers, ray=opts.ray)  # an unreachable cluster fails here
         out = Path(opts.out)
         out.parent.mkdir(parents=True, exist_ok=True)
         store = stack.enter_context(PartStore(out, _identity(opts, spec_a, spec_b, plans, sides),
@@ -1290,8 +1294,10 @@ def _run(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, stack: ExitSt
             executor.close()
         progress.finish()
     finally:
-        executor.close()
+        if executor is not None:
+            executor.close()
         _KEPT.clear()  # what the units kept when they ran in this process (--workers 0)
+    assert executor is not None
     return writer.finish(results, executor, t_wall, t_cpu)
 
 

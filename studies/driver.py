@@ -10,7 +10,6 @@ Named steps, shared by ``zcut batch`` and ``zcut sweep``::
 
 from __future__ import annotations
 
-import hashlib
 import os
 import sys
 import time
@@ -19,6 +18,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Protocol
 
 from replay.errors import ConfigError
+from replay.logs.identity import file_sha256
 from replay.options import PipelineOptions
 from replay.pipeline.config import Resolved, config_sha256
 from studies.units import WorkUnit, broken_link, expand_logs, plan_log
@@ -82,7 +82,8 @@ class LogPlan:
     """One input log: its identity, resolved config and units (or why it cannot be used)."""
 
     path: Path
-    sha256: str = ""
+    sha256: str = ""  # its identity: the SHA-256 of its bytes, or what plan_logs' identify says
+    content_hashed: bool = True  # sha256 is the SHA-256 of every byte (a label store's key of the log)
     n_frames: int | None = None
     resolved: Resolved | None = None
     bin_model_warning: str | None = None  # no bin model for this log (bin_model_source's warning)
@@ -103,12 +104,6 @@ class LogPlan:
         return cfg.to_toml(self.resolved.config, header=f"zcut resolved config for {self.path.name}")
 
 
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while b := f.read(1 << 22):
-            h.update(b)
-    return h.hexdigest()
 
 
 def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str, Any], topic: str | None,
@@ -116,7 +111,8 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str
               progress: Callable[[int, int, Path], None] | None = None,
               bin_model: str | None = None,
               opened: Callable[[LogPlan, Any, Any], None] | None = None,
-              reader_options: dict[str, Any] | None = None) -> list[LogPlan]:
+              reader_options: dict[str, Any] | None = None,
+              identify: Callable[[Path], str] | None = None) -> list[LogPlan]:
     """Every input log with its resolved config and units; a log that cannot be opened keeps its
     error (a warning and exit 3 at the end) unless no log at all can be used (an error). A log that
     gets no bin model (no ``bin_model``, no attachment of its own) keeps the warning that says so.
@@ -124,7 +120,9 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str
     readable frame), so that a caller needs not open it again (it must not raise). Each log is read
     once for its hash and opened once (:func:`~replay.pipeline.session.open_log`, with
     ``reader_options``: :class:`~replay.logs.reader.LogReader`'s keywords), its units split from that
-    reader's index."""
+    reader's index. ``identify``: what identifies a log (its units, a resumed study's check that it did
+    not change): by default the SHA-256 of every byte; ``zcut compare`` passes
+    :func:`replay.logs.identity.log_identity` (the MCAP summary and CRCs, without reading every byte)."""
     from replay.pipeline import config as cfg
     from replay.pipeline.bin_model import bin_model_source
     from replay.pipeline.session import open_log
@@ -142,7 +140,8 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str
             plans.append(plan)
             continue
         try:
-            plan.sha256 = file_sha256(path)
+            plan.sha256 = (identify or file_sha256)(path)
+            plan.content_hashed = identify is None
             reader, first, plan.resolved = open_log(path, file_layer=file_layer, overrides=overrides, topic=topic,
                                                     reader_options=reader_options)
             # the units from the same reader: the log is opened (its first chunks decompressed) once
@@ -163,14 +162,19 @@ def plan_logs(inputs: list[str], *, config_file: str | None, overrides: dict[str
     return plans
 
 
-def check_labels(labels: str | None, annotator: str | None, plans: list[LogPlan]) -> None:
+def check_labels(labels: str | None, annotator: str | None, plans: list[LogPlan], *,
+                 labelled: bool = False) -> None:
     """Refuse before any work what every unit's :class:`annotate.truth.LabelTruth` would refuse (an
     annotator who did not label a log, or none named where a log has several), with ``zcut
     accuracy``'s words: a usage error (exit 1), not a failed unit per log (exit 3). The logs are
-    looked up by the content hash the planning computed (not hashed again)."""
+    looked up by the content hash the planning computed (not hashed again; hashed here where the planning
+    identified them otherwise: ``plan_logs``' ``identify``). ``labelled``: each log
+    must itself be in the store (``zcut compare``, whose inputs are logs, never results files: a log the
+    store does not hold would be scored against another log's labels of the same stamps)."""
     if labels is None:
         return
     from annotate.store import LabelStore
+    from annotate.store import file_sha256 as content_sha256  # kept for the units' LabelTruth in this process
     from zcut.errors import ParameterError
 
     store = LabelStore(Path(labels), read_only=True)
@@ -178,7 +182,11 @@ def check_labels(labels: str | None, annotator: str | None, plans: list[LogPlan]
         for p in plans:
             if not p.units:
                 continue
-            log = store.log_by_sha(p.sha256)
+            log = store.log_by_sha(p.sha256 if p.content_hashed else content_sha256(p.path))
+            if labelled and log is None:
+                held = ", ".join(r.name for r in store.logs()) or "none"
+                raise ParameterError(f"--labels {labels}: no labels of {p.path.name} (its content is not in the "
+                                     f"store; labelled logs: {held})")
             known = store.annotators(log) if log is not None else store.annotators()
             if annotator is not None and annotator not in known:
                 raise ParameterError(f"--annotator {annotator!r}: no labels by them in {labels} "

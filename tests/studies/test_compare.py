@@ -188,6 +188,55 @@ def test_a_truth_a_log_lacks_is_one_line_before_anything_is_written(data, tmp_pa
     assert "sensor" in json.loads(out)["truth"]
 
 
+@pytest.fixture(scope="module")
+def other_labels(data):
+    """A label store that holds labels of other.mcap only (frames of the same stamps as log.mcap's)."""
+    from annotate_helpers import added_frames
+
+    from annotate.store import LabelStore
+
+    db = data / "other_labels.sqlite"
+    if not db.exists():
+        with LabelStore(db) as s:
+            for rec, fr, valid in added_frames(s, s.add_log(data / "other.mcap"), data / "other.mcap"):
+                s.save_label(rec, annotator="ann", outliers=np.zeros(fr.shape, bool), reviewed=valid,
+                             base_revision=0)
+    return db
+
+
+@pytest.mark.parametrize(("log", "a", "b", "extra", "message"), [
+    ("log.mcap", "zcut", "zcut", (), "they differ in nothing"),
+    ("log.mcap", "other.results.mcap", "zcut", (), "the results of other.mcap, not of log.mcap"),
+    ("notruth.mcap", "zcut", "sor", ("--truth", "sensor"), "notruth.mcap has no /ground_truth/outliers (--truth sensor)"),
+    ("notruth.mcap", "zcut", "sor", ("--truth", "paper", "--ray", "127.0.0.1:1"),
+     "notruth.mcap has no /ground_truth/off_surface (--truth paper)"),
+    ("log.mcap", "zcut", "sor", ("--labels", "other_labels.sqlite"),
+     "no labels of log.mcap (its content is not in the store; labelled logs: other.mcap)"),
+])
+def test_bad_input_is_one_line_before_anything_starts(data, other_labels, tmp_path, capsys, monkeypatch, log, a, b,
+                                                      extra, message):
+    """Issue 33, Deliver 1: configs that differ in nothing, a results file of another log, a truth the log
+    lacks, labels of another log: one line, exit 1, before the executor is made (no worker started, no
+    Ray cluster connected to: an unreachable one is not even reached) and before DIR is created."""
+    from studies import executors
+
+    made = []
+    real = executors.make_executor
+    monkeypatch.setattr(executors, "make_executor", lambda **kw: made.append(kw) or real(**kw))
+
+    def arg(x: str) -> str:
+        return str(data / x) if x.endswith((".toml", ".mcap", ".sqlite")) else x
+
+    workers = () if "--ray" in extra else ("--workers", "1")
+    rc, _, err = run_cli(capsys, "compare", data / log, "--a", arg(a), "--b", arg(b), "-o", tmp_path / "x",
+                         *workers, *(arg(x) for x in extra))
+    assert rc == 1, err
+    lines = [ln for ln in err.strip().splitlines() if not ln.startswith("zcut: compiling")]
+    assert len(lines) == 1 and lines[0].startswith("error: ") and message in lines[0], err
+    assert made == []  # nothing started
+    assert not (tmp_path / "x").exists()  # nothing left
+
+
 def test_existing_outputs_need_force(data, tmp_path, capsys):
     args = ("compare", data / "log.mcap", "--a", "zcut", "--b", "sor", "-o", tmp_path / "f", "--no-rrd")
     assert run_cli(capsys, *args)[0] == 0

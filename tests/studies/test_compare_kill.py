@@ -46,7 +46,9 @@ def _kill_after_the_first_part(data, out, sig: signal.Signals) -> tuple[int, str
                          stderr=subprocess.PIPE)
     try:
         deadline = time.monotonic() + 300
-        while not list((out / "parts").glob("*.json")):
+        # a finished part: not the temporary it is written to (``.KEY.xxxxxxxx.partial.json``, which the glob
+        # matches too: a SIGTERM sent then found no part done, the rerun's 1 <= done failed)
+        while not [q for q in (out / "parts").glob("*.json") if not q.name.startswith(".")]:
             assert p.poll() is None and time.monotonic() < deadline, p.stderr.read().decode(errors="replace")
             time.sleep(0.01)
         p.send_signal(sig)
