@@ -223,7 +223,8 @@ class LabelTruth:
     db : path
         The label store (``zcut annotate``'s SQLite file).
     log : path
-        The log (found in the store by its content hash; a results file is matched by stamp).
+        The log (found in the store by its content hash; a results file is matched by stamp, a log the
+        store does not hold is a :class:`ParameterError`).
     annotator : str, optional
         Whose labels; needed when the log has several annotators.
     """
@@ -236,6 +237,13 @@ class LabelTruth:
             raise FileNotFoundError(2, "no such file", str(db))
         self.store = LabelStore(self.db, read_only=True)
         self.log = self.store.log_by_sha(file_sha256(log))
+        if self.log is None and not is_results_file(log):
+            # only a results file (whose bytes are not the labelled log's) is matched by stamp: a log the store
+            # does not hold would be scored against another log's labels of the same stamps
+            held = ", ".join(r.name for r in self.store.logs()) or "none"
+            self.close()
+            raise ParameterError(f"--labels {db}: no labels of {Path(log).name} (its content is not in the store; "
+                                 f"labelled logs: {held})")
         known = self.store.annotators(self.log) if self.log is not None else self.store.annotators()
         if annotator is not None:
             if annotator not in known:
@@ -275,6 +283,17 @@ class LabelTruth:
 
     def close(self) -> None:
         self.store.close()
+
+
+def is_results_file(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a results file of ``zcut replay --out`` (its ``zcut.results`` metadata)."""
+    from replay.logs.reader import inspect_log
+    from zcut.errors import ZcutError
+
+    try:
+        return layout.RESULTS_METADATA in inspect_log(path).metadata
+    except (OSError, ZcutError):  # not MCAP, unreadable: the replay of it says what is wrong
+        return False
 
 
 def method_predictions(result: FrameResult, methods: Iterable[str]) -> dict[str, np.ndarray]:

@@ -168,13 +168,15 @@ def check_labels(labels: str | None, annotator: str | None, plans: list[LogPlan]
     annotator who did not label a log, or none named where a log has several), with ``zcut
     accuracy``'s words: a usage error (exit 1), not a failed unit per log (exit 3). The logs are
     looked up by the content hash the planning computed (not hashed again; hashed here where the planning
-    identified them otherwise: ``plan_logs``' ``identify``). ``labelled``: each log
-    must itself be in the store (``zcut compare``, whose inputs are logs, never results files: a log the
-    store does not hold would be scored against another log's labels of the same stamps)."""
+    identified them otherwise: ``plan_logs``' ``identify``). A log the store
+    does not hold is refused (it would be scored against another log's labels of the same stamps); a results
+    file is matched by stamp, unless ``labelled`` (``zcut compare``, whose inputs are logs, never results
+    files)."""
     if labels is None:
         return
     from annotate.store import LabelStore
     from annotate.store import file_sha256 as content_sha256  # kept for the units' LabelTruth in this process
+    from annotate.truth import is_results_file
     from zcut.errors import ParameterError
 
     store = LabelStore(Path(labels), read_only=True)
@@ -183,7 +185,7 @@ def check_labels(labels: str | None, annotator: str | None, plans: list[LogPlan]
             if not p.units:
                 continue
             log = store.log_by_sha(p.sha256 if p.content_hashed else content_sha256(p.path))
-            if labelled and log is None:
+            if log is None and (labelled or not is_results_file(p.path)):
                 held = ", ".join(r.name for r in store.logs()) or "none"
                 raise ParameterError(f"--labels {labels}: no labels of {p.path.name} (its content is not in the "
                                      f"store; labelled logs: {held})")

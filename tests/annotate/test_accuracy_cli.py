@@ -198,7 +198,7 @@ def test_errors(spike_log, tmp_path, capsys):
     empty = tmp_path / "empty.sqlite"
     LabelStore(empty).close()
     assert main(["accuracy", str(log), "--labels", str(empty)]) == 1
-    assert "0 annotators" in capsys.readouterr().err
+    assert "no labels of scan.mcap (its content is not in the store; labelled logs: none)" in capsys.readouterr().err
 
 
 def test_labels_list_export_import(spike_log, tmp_path, capsys):
@@ -277,3 +277,22 @@ def test_unscored_frames_are_listed_once(spike_log, tmp_path, capsys):
     text = cap.out + cap.err
     assert text.count("not labelled") == 1, text
     assert "unscored: 1 frame\n  frame 1 (stamp_ns 1100000000): not labelled" in cap.out
+
+
+def test_a_log_the_store_does_not_hold_is_one_line_not_another_logs_labels(spike_log, tmp_path, capsys):
+    """A log whose frames have the stamps of a labelled log but other content was scored against that log's
+    labels (the stamp fallback is for results files): now one line naming the logs the store holds."""
+    log, truths = spike_log
+    db = tmp_path / "labels.sqlite"
+    valid = [np.isfinite(fr.xyz).all(axis=2) for fr in LogReader(log).frames()]
+    _label_store(db, log, {"ann": {0: (truths[0] & valid[0], valid[0])}})
+    other = tmp_path / "other.mcap"
+    write_spike_log(other, frames=3, seed=5)  # the same stamps, other points
+    assert [f.stamp_ns for f in LogReader(other).frames()] == [f.stamp_ns for f in LogReader(log).frames()]
+    capsys.readouterr()
+    assert main(["accuracy", str(other), "--labels", str(db)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no labels of other.mcap" in err[0] and "scan.mcap" in err[0], err
+    assert main(["batch", str(other), "--labels", str(db), "-o", str(tmp_path / "b"), "--workers", "0"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert any("no labels of other.mcap" in e for e in err), err
