@@ -154,14 +154,134 @@ def _newton_fixed(c00, c01, c02, c11, c12, c22):  # type: ignore[no-untyped-def]
     return sane & (lam >= _TINY * tr), tr, lam
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _row_certified(k, cov, ok, lo, hi, fitted):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_newton_fixed` then :func:`_certified` of the row's first ``k`` patches (``cov``: their c00, c01,
+    c02, c11, c12, c22 by row), without a branch, so that the processor runs neighbouring patches in its
+    vector lanes: ``ok[q]`` where both would give a bracket, and then ``lo``, ``hi``, ``fitted`` theirs (the
+    same arithmetic; the other entries hold whatever, the caller takes :func:`_lambda_bracket`'s way)."""
+    for q in range(k):
+        c00, c01, c02, c11, c12, c22 = cov[0, q], cov[1, q], cov[2, q], cov[3, q], cov[4, q], cov[5, q]
+        tr = c00 + c11 + c22
+        lam = -_CHECK * tr
+        sane = np.isfinite(tr) & (tr > 0.0)
+        for _ in range(_FIXED_STEPS):
+            det, m = _charpoly(c00, c01, c02, c11, c12, c22, lam)
+            sane = sane & (m > 0.0)
+            lam += det / m
+        sane = sane & (lam >= _TINY * tr)
+        det_lo, _ = _charpoly(c00, c01, c02, c11, c12, c22, lam - _CHECK * tr)
+        det_hi, m = _charpoly(c00, c01, c02, c11, c12, c22, lam + _CHECK * tr)
+        need = 1e-9 * tr * tr
+        yes = m * m / 3.0 > _FITTED_SAFETY * need
+        no = m * m < need / _FITTED_SAFETY
+        ok[q] = sane & (det_lo > 0.0) & (det_hi < 0.0) & (m >= _MIN_MINORS * tr * tr) & (yes | no)
+        fitted[q] = yes
+        lo[q] = lam - _MARGIN * tr
+        hi[q] = lam + _MARGIN * tr
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _planar_row(xyz, valid, a, s, X, Y, Z, V):  # type: ignore[no-untyped-def]  # numba kernel
+    """Row ``a`` of the frame into slot ``s`` of the row ring: its x, y, z and valid flags, each contiguous."""
+    for b in range(valid.shape[1]):
+        X[s, b] = xyz[a, b, 0]
+        Y[s, b] = xyz[a, b, 1]
+        Z[s, b] = xyz[a, b, 2]
+        V[s, b] = valid[a, b]
+
+
+@numba.njit(cache=True, error_model="numpy")  # IEEE division (n = 0 gives NaN here, then is skipped)
+def _row_moments(i, r, per_px, tan, floor, W, X, Y, Z, V, zq, reach, sel, nn, mx, my, mz, c0, c1, c2, c3, c4, c5):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`zcut.edge_surface._patch_moments` of the patches of row ``i`` at columns r .. W - r - 1 (entry
+    t: column r + t), all at once so that the processor runs neighbouring patches in its vector lanes: n
+    (as a float), the centroid and the covariance divided by n, whatever n (the caller skips n < min_px).
+
+    The same arithmetic in the same order: a point not in the patch (not valid, or beyond its centre's
+    reach) adds +0.0 to each sum instead of being skipped, and that changes no sum, which starts at +0.0
+    and so never is -0.0 (x + +0.0 = x for every x but -0.0). ``X``, ``Y``, ``Z``, ``V``: the ring of
+    2r + 1 rows (:func:`_planar_row`, row a in slot a % (2r + 1)); ``sel``: scratch of (2r + 1)² × W."""
+    L = 2 * r + 1
+    cs = i % L
+    m = W - 2 * r
+    zc = Z[cs, r:W - r]
+    for t in range(m):
+        z = zc[t]
+        zq[t] = z
+        reach[t] = abs(z) * per_px * tan
+        nn[t] = 0.0
+        mx[t] = 0.0
+        my[t] = 0.0
+        mz[t] = 0.0
+    k = 0
+    for da in range(-r, r + 1):
+        s = (i + da) % L
+        for db in range(-r, r + 1):
+            cheb = float(max(abs(da), abs(db)))
+            xs = X[s, r + db:W - r + db]
+            ys = Y[s, r + db:W - r + db]
+            zs = Z[s, r + db:W - r + db]
+            vs = V[s, r + db:W - r + db]
+            sk = sel[k]
+            for t in range(m):
+                z = zs[t]
+                ok = vs[t] & (abs(z - zq[t]) <= cheb * reach[t] + floor)
+                sk[t] = ok
+                nn[t] += 1.0 if ok else 0.0
+                mx[t] += xs[t] if ok else 0.0
+                my[t] += ys[t] if ok else 0.0
+                mz[t] += z if ok else 0.0
+            k += 1
+    for t in range(m):
+        n = nn[t]
+        mx[t] = mx[t] / n
+        my[t] = my[t] / n
+        mz[t] = mz[t] / n
+        c0[t] = 0.0
+        c1[t] = 0.0
+        c2[t] = 0.0
+        c3[t] = 0.0
+        c4[t] = 0.0
+        c5[t] = 0.0
+    k = 0
+    for da in range(-r, r + 1):
+        s = (i + da) % L
+        for db in range(-r, r + 1):
+            xs = X[s, r + db:W - r + db]
+            ys = Y[s, r + db:W - r + db]
+            zs = Z[s, r + db:W - r + db]
+            sk = sel[k]
+            for t in range(m):
+                ok = sk[t]
+                dx = xs[t] - mx[t]
+                dy = ys[t] - my[t]
+                dz = zs[t] - mz[t]
+                c0[t] += dx * dx if ok else 0.0
+                c1[t] += dx * dy if ok else 0.0
+                c2[t] += dx * dz if ok else 0.0
+                c3[t] += dy * dy if ok else 0.0
+                c4[t] += dy * dz if ok else 0.0
+                c5[t] += dz * dz if ok else 0.0
+            k += 1
+    for t in range(m):
+        n = nn[t]
+        c0[t] = c0[t] / n
+        c1[t] = c1[t] / n
+        c2[t] = c2[t] / n
+        c3[t] = c3[t] / n
+        c4[t] = c4[t] / n
+        c5[t] = c5[t] / n
+
+
 @numba.njit(cache=True, error_model="numpy")  # IEEE division, as _patch_gate_kernel
 def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # type: ignore[no-untyped-def]  # numba kernel
     """For every fitted patch with z² > 0, in raster order, a bracket [lo, hi] of its rms / z² as
     :func:`zcut.edge_surface._patch_gate_kernel` computes it (lo = hi: solved in closed form here) and
     its pixel (``at``, i * W + j). Returns their count, the count solved, and whether a ratio is NaN.
 
-    A row at a time: its patches' covariances, then :func:`_newton_fixed` of each (no branch: the
-    processor overlaps the patches' divisions), then each one's bracket certified
+    A row at a time: its patches' covariances (:func:`_row_moments` for the columns r or more from the
+    border of the rows r or more from it, :func:`_cov_at` for the others), then :func:`_newton_fixed` of
+    each (no branch: the processor overlaps the patches' divisions), then each one's bracket certified
     (:func:`_certified`), or :func:`_lambda_bracket` then the closed form where that fails."""
     H, W = valid.shape
     side = (2 * r + 1) * (2 * r + 1)
@@ -171,19 +291,50 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
     cov = np.empty((7, W))  # the row's patches: c00, c01, c02, c11, c12, c22, mz
     col = np.empty(W, np.int64)
     good = np.empty(W, np.bool_)
-    trs = np.empty(W)
-    lams = np.empty(W)
+    los = np.empty(W)
+    his = np.empty(W)
+    fits = np.empty(W, np.bool_)
+    # the vector path's row ring and per-column scratch (entry t: column r + t)
+    L = 2 * r + 1
+    vec = H > 2 * r and W > 2 * r
+    X = np.empty((L, W))
+    Y = np.empty((L, W))
+    Z = np.empty((L, W))
+    V = np.zeros((L, W), np.bool_)
+    sel = np.empty((side, W), np.bool_)
+    zq = np.empty(W)
+    reach = np.empty(W)
+    nn = np.empty(W)
+    mx = np.empty(W)
+    my = np.empty(W)
+    mzs = np.empty(W)
+    rc = np.empty((6, W))
+    if vec:
+        for a in range(2 * r):
+            _planar_row(xyz, valid, a, a % L, X, Y, Z, V)
     m = 0
     solved = 0
     nan = False
     for i in range(H):
+        inner = vec and r <= i < H - r
+        if inner:
+            _planar_row(xyz, valid, i + r, (i + r) % L, X, Y, Z, V)
+            _row_moments(i, r, per_px, tan, floor, W, X, Y, Z, V, zq, reach, sel, nn, mx, my, mzs,
+                         rc[0], rc[1], rc[2], rc[3], rc[4], rc[5])
         k = 0
         for j in range(W):
             if not valid[i, j]:
                 continue
-            n, mz, c00, c01, c02, c11, c12, c22 = _cov_at(xyz, valid, i, j, r, min_px, per_px, tan, floor, px, py, pz)
-            if n < min_px:
-                continue
+            if inner and r <= j < W - r:
+                t = j - r
+                if nn[t] < min_px:
+                    continue
+                c00, c01, c02, c11, c12, c22, mz = rc[0, t], rc[1, t], rc[2, t], rc[3, t], rc[4, t], rc[5, t], mzs[t]
+            else:
+                n, mz, c00, c01, c02, c11, c12, c22 = _cov_at(xyz, valid, i, j, r, min_px, per_px, tan, floor,
+                                                              px, py, pz)
+                if n < min_px:
+                    continue
             cov[0, k] = c00
             cov[1, k] = c01
             cov[2, k] = c02
@@ -193,14 +344,11 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
             cov[6, k] = mz
             col[k] = j
             k += 1
-        for q in range(k):
-            good[q], trs[q], lams[q] = _newton_fixed(cov[0, q], cov[1, q], cov[2, q], cov[3, q], cov[4, q], cov[5, q])
+        _row_certified(k, cov, good, los, his, fits)
         for q in range(k):
             c00, c01, c02, c11, c12, c22 = cov[0, q], cov[1, q], cov[2, q], cov[3, q], cov[4, q], cov[5, q]
             zz = cov[6, q] ** 2
-            ok = False
-            if good[q]:
-                ok, l0, l1, fitted = _certified(c00, c01, c02, c11, c12, c22, trs[q], lams[q])
+            ok, l0, l1, fitted = good[q], los[q], his[q], fits[q]
             if not ok:
                 ok, l0, l1, fitted = _lambda_bracket(c00, c01, c02, c11, c12, c22)
             if ok:
