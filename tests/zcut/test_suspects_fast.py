@@ -331,15 +331,18 @@ def test_brackets_hold_the_closed_form_eigenvalue() -> None:
         # the whole-frame pass's way: a fixed number of Newton steps from below, then the checks; they
         # hold wherever below λ_min the steps stopped (also after fewer steps, or set back)
         sane, tr, lam_fixed = _newton_fixed(*c)
+        zz = float(rng.choice([1.0, 0.25, 4e4]))
         row = (np.zeros(1, bool), np.zeros(1), np.zeros(1), np.zeros(1, bool))
-        _row_certified(1, np.array(c).reshape(6, 1), *row)  # the whole-frame pass's branchless form of both
+        # the whole-frame pass's branchless form of both, with the ratios' bracket
+        _row_certified(1, *(np.array([v]) for v in c), np.array([np.sqrt(zz)]), *row)
         if not sane:
             assert not row[0][0], t
             continue
         ok, lo, hi, fitted = _certified(*c, tr, lam_fixed)
         assert bool(row[0][0]) == ok, t
         if ok:
-            assert (row[1][0], row[2][0], bool(row[3][0])) == (lo, hi, fitted), t
+            assert bool(row[3][0]) == fitted, t
+            assert (row[1][0], row[2][0]) == (np.sqrt(max(lo, 0.0)) / zz, np.sqrt(max(hi, 0.0)) / zz), t
         for back in (0.0, 1e-13, 1e-12, 1e-9, 1e-6, 1e-3):
             ok, lo, hi, fitted = _certified(*c, tr, lam_fixed - back * tr)
             if not ok:

@@ -155,13 +155,15 @@ def _newton_fixed(c00, c01, c02, c11, c12, c22):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _row_certified(k, cov, ok, lo, hi, fitted):  # type: ignore[no-untyped-def]  # numba kernel
-    """:func:`_newton_fixed` then :func:`_certified` of the row's first ``k`` patches (``cov``: their c00, c01,
-    c02, c11, c12, c22 by row), without a branch, so that the processor runs neighbouring patches in its
-    vector lanes: ``ok[q]`` where both would give a bracket, and then ``lo``, ``hi``, ``fitted`` theirs (the
-    same arithmetic; the other entries hold whatever, the caller takes :func:`_lambda_bracket`'s way)."""
+def _row_certified(k, c0, c1, c2, c3, c4, c5, mz, ok, rlo, rhi, fitted):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_newton_fixed` then :func:`_certified` of the first ``k`` patches of a row (their covariance
+    entries c00, c01, c02, c11, c12, c22 and centroid depths ``mz``), without a branch, so that the
+    processor runs neighbouring patches in its vector lanes: ``ok[q]`` where both would give a bracket
+    [l0, l1], and then ``fitted`` theirs and the bracket of the ratio rms / z² as :func:`_ratio_brackets`
+    takes it, sqrt(max(l0, 0)) / z² and sqrt(max(l1, 0)) / z² (``rlo``, ``rhi``: the same arithmetic; the
+    other entries hold whatever, the caller takes :func:`_lambda_bracket`'s way)."""
     for q in range(k):
-        c00, c01, c02, c11, c12, c22 = cov[0, q], cov[1, q], cov[2, q], cov[3, q], cov[4, q], cov[5, q]
+        c00, c01, c02, c11, c12, c22 = c0[q], c1[q], c2[q], c3[q], c4[q], c5[q]
         tr = c00 + c11 + c22
         lam = -_CHECK * tr
         sane = np.isfinite(tr) & (tr > 0.0)
@@ -177,8 +179,9 @@ def _row_certified(k, cov, ok, lo, hi, fitted):  # type: ignore[no-untyped-def] 
         no = m * m < need / _FITTED_SAFETY
         ok[q] = sane & (det_lo > 0.0) & (det_hi < 0.0) & (m >= _MIN_MINORS * tr * tr) & (yes | no)
         fitted[q] = yes
-        lo[q] = lam - _MARGIN * tr
-        hi[q] = lam + _MARGIN * tr
+        zz = mz[q] ** 2
+        rlo[q] = math.sqrt(max(lam - _MARGIN * tr, 0.0)) / zz
+        rhi[q] = math.sqrt(max(lam + _MARGIN * tr, 0.0)) / zz
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -273,27 +276,48 @@ def _row_moments(i, r, per_px, tan, floor, W, X, Y, Z, V, zq, reach, sel, nn, mx
         c5[t] = c5[t] / n
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _keep_patch(c00, c01, c02, c11, c12, c22, zz, ok, l0, l1, fitted, rlo, rhi, pos, lo, hi, at, m):  # type: ignore[no-untyped-def]  # numba kernel
+    """One fitted patch of :func:`_ratio_brackets` (covariance, z², and what certifying it gave: ``ok``,
+    [l0, l1], ``fitted``, the ratio's bracket [rlo, rhi] when ``ok``): its ratio's bracket into lo[m],
+    hi[m], at[m] = ``pos`` when it has one (:func:`_lambda_bracket` where the certificate failed, the
+    closed form where that fails too). Returns (m, solved: 1 when the closed form was evaluated, nan)."""
+    if not ok:
+        ok, l0, l1, fitted = _lambda_bracket(c00, c01, c02, c11, c12, c22)
+        rlo = math.sqrt(max(l0, 0.0)) / zz
+        rhi = math.sqrt(max(l1, 0.0)) / zz
+    if ok:
+        if not fitted or not zz > 0:
+            return m, 0, False
+        lo[m] = rlo
+        hi[m] = rhi
+        at[m] = pos
+        return m + 1, 0, False
+    lam, nx, _, _ = _smallest_eigvec(c00, c01, c02, c11, c12, c22)
+    if not np.isfinite(nx) or not zz > 0:
+        return m, 1, False
+    v = math.sqrt(max(lam, 0.0)) / zz
+    lo[m] = v
+    hi[m] = v
+    at[m] = pos
+    return m + 1, 1, bool(np.isnan(v))
+
+
 @numba.njit(cache=True, error_model="numpy")  # IEEE division, as _patch_gate_kernel
 def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # type: ignore[no-untyped-def]  # numba kernel
     """For every fitted patch with z² > 0, in raster order, a bracket [lo, hi] of its rms / z² as
     :func:`zcut.edge_surface._patch_gate_kernel` computes it (lo = hi: solved in closed form here) and
     its pixel (``at``, i * W + j). Returns their count, the count solved, and whether a ratio is NaN.
 
-    A row at a time: its patches' covariances (:func:`_row_moments` for the columns r or more from the
-    border of the rows r or more from it, :func:`_cov_at` for the others), then :func:`_newton_fixed` of
-    each (no branch: the processor overlaps the patches' divisions), then each one's bracket certified
-    (:func:`_certified`), or :func:`_lambda_bracket` then the closed form where that fails."""
+    A patch r or more from the border: a row's patches at once in vector lanes, their covariances
+    (:func:`_row_moments`), then :func:`_row_certified` (Newton's fixed steps and the checks); the
+    patches nearer the border, :func:`_cov_at`, :func:`_newton_fixed` and :func:`_certified` one by one.
+    Then each (:func:`_keep_patch`) where certifying failed, :func:`_lambda_bracket`, then the closed form."""
     H, W = valid.shape
     side = (2 * r + 1) * (2 * r + 1)
     px = np.empty(side)
     py = np.empty(side)
     pz = np.empty(side)
-    cov = np.empty((7, W))  # the row's patches: c00, c01, c02, c11, c12, c22, mz
-    col = np.empty(W, np.int64)
-    good = np.empty(W, np.bool_)
-    los = np.empty(W)
-    his = np.empty(W)
-    fits = np.empty(W, np.bool_)
     # the vector path's row ring and per-column scratch (entry t: column r + t)
     L = 2 * r + 1
     vec = H > 2 * r and W > 2 * r
@@ -309,6 +333,10 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
     my = np.empty(W)
     mzs = np.empty(W)
     rc = np.empty((6, W))
+    good = np.empty(W, np.bool_)
+    fits = np.empty(W, np.bool_)
+    rlos = np.empty(W)
+    rhis = np.empty(W)
     if vec:
         for a in range(2 * r):
             _planar_row(xyz, valid, a, a % L, X, Y, Z, V)
@@ -321,7 +349,7 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
             _planar_row(xyz, valid, i + r, (i + r) % L, X, Y, Z, V)
             _row_moments(i, r, per_px, tan, floor, W, X, Y, Z, V, zq, reach, sel, nn, mx, my, mzs,
                          rc[0], rc[1], rc[2], rc[3], rc[4], rc[5])
-        k = 0
+            _row_certified(W - 2 * r, rc[0], rc[1], rc[2], rc[3], rc[4], rc[5], mzs, good, rlos, rhis, fits)
         for j in range(W):
             if not valid[i, j]:
                 continue
@@ -329,47 +357,30 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
                 t = j - r
                 if nn[t] < min_px:
                     continue
-                c00, c01, c02, c11, c12, c22, mz = rc[0, t], rc[1, t], rc[2, t], rc[3, t], rc[4, t], rc[5, t], mzs[t]
+                if good[t]:  # certified: the bracket is the row's (_keep_patch's first case, inline)
+                    if fits[t] and mzs[t] ** 2 > 0:
+                        lo[m] = rlos[t]
+                        hi[m] = rhis[t]
+                        at[m] = i * W + j
+                        m += 1
+                    continue
+                m, sv, nv = _keep_patch(rc[0, t], rc[1, t], rc[2, t], rc[3, t], rc[4, t], rc[5, t], mzs[t] ** 2,
+                                        good[t], 0.0, 0.0, fits[t], rlos[t], rhis[t], i * W + j, lo, hi, at, m)
             else:
                 n, mz, c00, c01, c02, c11, c12, c22 = _cov_at(xyz, valid, i, j, r, min_px, per_px, tan, floor,
                                                               px, py, pz)
                 if n < min_px:
                     continue
-            cov[0, k] = c00
-            cov[1, k] = c01
-            cov[2, k] = c02
-            cov[3, k] = c11
-            cov[4, k] = c12
-            cov[5, k] = c22
-            cov[6, k] = mz
-            col[k] = j
-            k += 1
-        _row_certified(k, cov, good, los, his, fits)
-        for q in range(k):
-            c00, c01, c02, c11, c12, c22 = cov[0, q], cov[1, q], cov[2, q], cov[3, q], cov[4, q], cov[5, q]
-            zz = cov[6, q] ** 2
-            ok, l0, l1, fitted = good[q], los[q], his[q], fits[q]
-            if not ok:
-                ok, l0, l1, fitted = _lambda_bracket(c00, c01, c02, c11, c12, c22)
-            if ok:
-                if not fitted or not zz > 0:
-                    continue
-                lo[m] = math.sqrt(max(l0, 0.0)) / zz
-                hi[m] = math.sqrt(max(l1, 0.0)) / zz
-                at[m] = i * W + col[q]
-                m += 1
-                continue
-            solved += 1
-            lam, nx, _, _ = _smallest_eigvec(c00, c01, c02, c11, c12, c22)
-            if not np.isfinite(nx) or not zz > 0:
-                continue
-            v = math.sqrt(max(lam, 0.0)) / zz
-            if np.isnan(v):
-                nan = True
-            lo[m] = v
-            hi[m] = v
-            at[m] = i * W + col[q]
-            m += 1
+                zz = mz ** 2
+                ok, l0, l1, fitted = False, 0.0, 0.0, False
+                sane, tr, lam = _newton_fixed(c00, c01, c02, c11, c12, c22)
+                if sane:
+                    ok, l0, l1, fitted = _certified(c00, c01, c02, c11, c12, c22, tr, lam)
+                m, sv, nv = _keep_patch(c00, c01, c02, c11, c12, c22, zz, ok, l0, l1, fitted,
+                                        math.sqrt(max(l0, 0.0)) / zz, math.sqrt(max(l1, 0.0)) / zz, i * W + j,
+                                        lo, hi, at, m)
+            solved += sv
+            nan = nan or nv
     return m, solved, nan
 
 
