@@ -309,10 +309,11 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
     :func:`zcut.edge_surface._patch_gate_kernel` computes it (lo = hi: solved in closed form here) and
     its pixel (``at``, i * W + j). Returns their count, the count solved, and whether a ratio is NaN.
 
-    A patch r or more from the border: a row's patches at once in vector lanes, their covariances
-    (:func:`_row_moments`), then :func:`_row_certified` (Newton's fixed steps and the checks); the
-    patches nearer the border, :func:`_cov_at`, :func:`_newton_fixed` and :func:`_certified` one by one.
-    Then each (:func:`_keep_patch`) where certifying failed, :func:`_lambda_bracket`, then the closed form."""
+    A row at least half measured, r or more from the border: its patches at once in vector lanes, their
+    covariances (:func:`_row_moments`), then :func:`_row_certified` (Newton's fixed steps and the checks),
+    and its 2r columns nearer the border one by one. The other rows: their fitted patches' covariances
+    one by one (:func:`_cov_at`), compacted, then :func:`_row_certified`. Where certifying failed
+    (:func:`_keep_patch`): :func:`_lambda_bracket`, then the closed form."""
     H, W = valid.shape
     side = (2 * r + 1) * (2 * r + 1)
     px = np.empty(side)
@@ -337,6 +338,8 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
     fits = np.empty(W, np.bool_)
     rlos = np.empty(W)
     rhis = np.empty(W)
+    cov = np.empty((7, W))  # the other rows' fitted patches: c00, c01, c02, c11, c12, c22, mz
+    col = np.empty(W, np.int64)
     if vec:
         for a in range(2 * r):
             _planar_row(xyz, valid, a, a % L, X, Y, Z, V)
@@ -344,41 +347,80 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
     solved = 0
     nan = False
     for i in range(H):
-        inner = vec and r <= i < H - r
-        if inner:
+        inner = False
+        if vec and r <= i < H - r:
             _planar_row(xyz, valid, i + r, (i + r) % L, X, Y, Z, V)
+            nvalid = 0
+            for j in range(W):
+                nvalid += valid[i, j]
+            # the lanes compute every column, the other way only the fitted patches: a row mostly
+            # unmeasured takes the latter (the same values either way; measured on the bench's frame with
+            # large invalid regions, 40 CPU ms either way, where a row of lanes everywhere took 69)
+            inner = 2 * nvalid >= W
+        if inner:
             _row_moments(i, r, per_px, tan, floor, W, X, Y, Z, V, zq, reach, sel, nn, mx, my, mzs,
                          rc[0], rc[1], rc[2], rc[3], rc[4], rc[5])
             _row_certified(W - 2 * r, rc[0], rc[1], rc[2], rc[3], rc[4], rc[5], mzs, good, rlos, rhis, fits)
+            for j in range(W):
+                if not valid[i, j]:
+                    continue
+                if r <= j < W - r:
+                    t = j - r
+                    if nn[t] < min_px:
+                        continue
+                    if good[t]:  # certified: the bracket is the row's (_keep_patch's first case, inline)
+                        if fits[t] and mzs[t] ** 2 > 0:
+                            lo[m] = rlos[t]
+                            hi[m] = rhis[t]
+                            at[m] = i * W + j
+                            m += 1
+                        continue
+                    m, sv, nv = _keep_patch(rc[0, t], rc[1, t], rc[2, t], rc[3, t], rc[4, t], rc[5, t], mzs[t] ** 2,
+                                            False, 0.0, 0.0, False, 0.0, 0.0, i * W + j, lo, hi, at, m)
+                else:  # the columns near the border, one by one
+                    n, mz, c00, c01, c02, c11, c12, c22 = _cov_at(xyz, valid, i, j, r, min_px, per_px, tan, floor,
+                                                                  px, py, pz)
+                    if n < min_px:
+                        continue
+                    zz = mz ** 2
+                    ok, l0, l1, fitted = False, 0.0, 0.0, False
+                    sane, tr, lam = _newton_fixed(c00, c01, c02, c11, c12, c22)
+                    if sane:
+                        ok, l0, l1, fitted = _certified(c00, c01, c02, c11, c12, c22, tr, lam)
+                    m, sv, nv = _keep_patch(c00, c01, c02, c11, c12, c22, zz, ok, l0, l1, fitted,
+                                            math.sqrt(max(l0, 0.0)) / zz, math.sqrt(max(l1, 0.0)) / zz, i * W + j,
+                                            lo, hi, at, m)
+                solved += sv
+                nan = nan or nv
+            continue
+        # the other rows: the fitted patches' covariances one by one, compacted, then certified in lanes
+        k = 0
         for j in range(W):
             if not valid[i, j]:
                 continue
-            if inner and r <= j < W - r:
-                t = j - r
-                if nn[t] < min_px:
-                    continue
-                if good[t]:  # certified: the bracket is the row's (_keep_patch's first case, inline)
-                    if fits[t] and mzs[t] ** 2 > 0:
-                        lo[m] = rlos[t]
-                        hi[m] = rhis[t]
-                        at[m] = i * W + j
-                        m += 1
-                    continue
-                m, sv, nv = _keep_patch(rc[0, t], rc[1, t], rc[2, t], rc[3, t], rc[4, t], rc[5, t], mzs[t] ** 2,
-                                        good[t], 0.0, 0.0, fits[t], rlos[t], rhis[t], i * W + j, lo, hi, at, m)
-            else:
-                n, mz, c00, c01, c02, c11, c12, c22 = _cov_at(xyz, valid, i, j, r, min_px, per_px, tan, floor,
-                                                              px, py, pz)
-                if n < min_px:
-                    continue
-                zz = mz ** 2
-                ok, l0, l1, fitted = False, 0.0, 0.0, False
-                sane, tr, lam = _newton_fixed(c00, c01, c02, c11, c12, c22)
-                if sane:
-                    ok, l0, l1, fitted = _certified(c00, c01, c02, c11, c12, c22, tr, lam)
-                m, sv, nv = _keep_patch(c00, c01, c02, c11, c12, c22, zz, ok, l0, l1, fitted,
-                                        math.sqrt(max(l0, 0.0)) / zz, math.sqrt(max(l1, 0.0)) / zz, i * W + j,
-                                        lo, hi, at, m)
+            n, mz, c00, c01, c02, c11, c12, c22 = _cov_at(xyz, valid, i, j, r, min_px, per_px, tan, floor, px, py, pz)
+            if n < min_px:
+                continue
+            cov[0, k] = c00
+            cov[1, k] = c01
+            cov[2, k] = c02
+            cov[3, k] = c11
+            cov[4, k] = c12
+            cov[5, k] = c22
+            cov[6, k] = mz
+            col[k] = j
+            k += 1
+        _row_certified(k, cov[0], cov[1], cov[2], cov[3], cov[4], cov[5], cov[6], good, rlos, rhis, fits)
+        for q in range(k):
+            if good[q]:
+                if fits[q] and cov[6, q] ** 2 > 0:
+                    lo[m] = rlos[q]
+                    hi[m] = rhis[q]
+                    at[m] = i * W + col[q]
+                    m += 1
+                continue
+            m, sv, nv = _keep_patch(cov[0, q], cov[1, q], cov[2, q], cov[3, q], cov[4, q], cov[5, q], cov[6, q] ** 2,
+                                    False, 0.0, 0.0, False, 0.0, 0.0, i * W + col[q], lo, hi, at, m)
             solved += sv
             nan = nan or nv
     return m, solved, nan
