@@ -10,8 +10,8 @@ only around the pixels whose gap the edge-aware distance gives (a few % of the f
   :func:`zcut.edge_surface._fit_at` sums it (the same points, the same order, so the same matrix);
   its smallest eigenvalue is then found by Newton's method on the characteristic polynomial from
   below (a few multiply-adds, no ``acos`` / ``cos``; a row's patches take three steps each without a
-  branch, so the processor overlaps their divisions, and only those the checks then reject iterate
-  further) and bracketed: the polynomial's sign is checked on both sides of the bracket, and the
+  branch, in the processor's vector lanes, as do their covariances, and only those the checks then
+  reject iterate further) and bracketed: the polynomial's sign is checked on both sides of the bracket, and the
   closed form's own rounding (:func:`_smallest_eigvec`, well conditioned when the two smallest
   eigenvalues are apart, which is also checked) lies well inside it. Where a check fails (a patch on a line, one point, a tie of eigenvalues, anything not finite),
   the closed form itself is evaluated, as it is for a patch whose λ_min is at the rounding level (a
