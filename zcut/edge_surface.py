@@ -298,11 +298,11 @@ def _surfaces_kernel(rms, z2, steep, min_fit, gate_k, any_angle, ok):  # type: i
                         and (any_angle or not steep[i, j]))
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")  # IEEE division, as the numpy it replaces
-def _fit_into(xyz, valid, a, b, r, min_px, per_px, tan, floor, px, py, pz, slot, planes, count):  # type: ignore[no-untyped-def]  # numba kernel
-    """Append the plane of surface (a, b) (:func:`_fit_at`: centroid, normal) to ``planes`` (``count[0]``
-    of them so far), its row in ``slot[a, b]``; return the row."""
-    _, _, mx, my, mz, nx, ny, nz = _fit_at(xyz, valid, a, b, r, min_px, per_px, tan, floor, px, py, pz)
+@numba.njit(cache=True, inline="always")
+def _append_plane(planes, slot, count, a, b, mx, my, mz, nx, ny, nz):  # type: ignore[no-untyped-def]  # numba kernel
+    """Append the plane of surface (a, b) (centroid, normal) to ``planes`` (``count[0]`` rows so far; room
+    for one more), its row into ``slot[a, b]``; return the row. :func:`_fit_into` and :func:`_decide`
+    both keep a plane this way."""
     s = count[0]
     planes[s, 0] = mx
     planes[s, 1] = my
@@ -313,6 +313,14 @@ def _fit_into(xyz, valid, a, b, r, min_px, per_px, tan, floor, px, py, pz, slot,
     slot[a, b] = s
     count[0] = s + 1
     return s
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")  # IEEE division, as the numpy it replaces
+def _fit_into(xyz, valid, a, b, r, min_px, per_px, tan, floor, px, py, pz, slot, planes, count):  # type: ignore[no-untyped-def]  # numba kernel
+    """Append the plane of surface (a, b) (:func:`_fit_at`: centroid, normal) to ``planes`` (``count[0]``
+    of them so far), its row in ``slot[a, b]``; return the row."""
+    _, _, mx, my, mz, nx, ny, nz = _fit_at(xyz, valid, a, b, r, min_px, per_px, tan, floor, px, py, pz)
+    return _append_plane(planes, slot, count, a, b, mx, my, mz, nx, ny, nz)
 
 
 @numba.njit(cache=True, error_model="numpy")  # IEEE division, as the numpy it replaces
@@ -350,15 +358,7 @@ def _decide(xyz, valid, a, b, r, min_px, per_px, tan, floor, gate_k, min_fit, co
     ok = np.isfinite(s) and zz > 0 and s <= max(min_fit, gate_k * zz) and (any_angle or not steep)
     if not ok:
         return 0
-    t = count[0]
-    planes[t, 0] = mx
-    planes[t, 1] = my
-    planes[t, 2] = mz
-    planes[t, 3] = nx
-    planes[t, 4] = ny
-    planes[t, 5] = nz
-    slot[a, b] = t
-    count[0] = t + 1
+    _append_plane(planes, slot, count, a, b, mx, my, mz, nx, ny, nz)
     state[a, b] = 1
     return 1
 

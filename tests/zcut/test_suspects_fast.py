@@ -303,7 +303,7 @@ def test_brackets_hold_the_closed_form_eigenvalue() -> None:
     is as said: covariances of random patches, flat, tilted to grazing, on a line,
     of one point, quantized, at every scale."""
     from zcut.edge_surface import _smallest_eigvec
-    from zcut.suspects.surfaces import _certified, _lambda_bracket, _newton_fixed
+    from zcut.suspects.surfaces import _certified, _lambda_bracket, _newton_fixed, _row_certified
 
     rng = np.random.default_rng(22)
     brackets = certified = 0
@@ -331,8 +331,18 @@ def test_brackets_hold_the_closed_form_eigenvalue() -> None:
         # the whole-frame pass's way: a fixed number of Newton steps from below, then the checks; they
         # hold wherever below λ_min the steps stopped (also after fewer steps, or set back)
         sane, tr, lam_fixed = _newton_fixed(*c)
+        zz = float(rng.choice([1.0, 0.25, 4e4]))
+        row = (np.zeros(1, bool), np.zeros(1), np.zeros(1), np.zeros(1, bool))
+        # the whole-frame pass's branchless form of both, with the ratios' bracket
+        _row_certified(1, *(np.array([v]) for v in c), np.array([np.sqrt(zz)]), *row)
         if not sane:
+            assert not row[0][0], t
             continue
+        ok, lo, hi, fitted = _certified(*c, tr, lam_fixed)
+        assert bool(row[0][0]) == ok, t
+        if ok:
+            assert bool(row[3][0]) == fitted, t
+            assert (row[1][0], row[2][0]) == (np.sqrt(max(lo, 0.0)) / zz, np.sqrt(max(hi, 0.0)) / zz), t
         for back in (0.0, 1e-13, 1e-12, 1e-9, 1e-6, 1e-3):
             ok, lo, hi, fitted = _certified(*c, tr, lam_fixed - back * tr)
             if not ok:
@@ -342,6 +352,57 @@ def test_brackets_hold_the_closed_form_eigenvalue() -> None:
             assert fitted == bool(np.isfinite(nx)), (t, back)
     assert brackets > 2000  # the test exercises brackets (3,830 of these 20,000)
     assert certified > 4000  # (5,985 of the 20,000 patches × 6 starts)
+
+
+def test_row_moments_equal_the_patch_moments() -> None:
+    """:func:`_row_moments` (a row's patches in vector lanes, points not in a patch adding +0.0) gives
+    :func:`zcut.edge_surface._patch_moments`' count, centroid depth and covariance bit for bit, signs
+    of zero included: random fields with holes, ties, flat regions, -0.0 coordinates, pixels finite
+    but not valid, patch radii 1-3."""
+    import math
+
+    from zcut.edge_surface import _patch_moments
+    from zcut.suspects.surfaces import _planar_row, _row_moments
+
+    rng = np.random.default_rng(31)
+    compared = 0
+    for t in range(60):
+        H, W = int(rng.integers(3, 40)), int(rng.integers(3, 60))
+        r = int(rng.integers(1, 4))
+        a = _fuzz_cloud(rng, H, W)
+        if t % 3 == 0:
+            a[..., 0][a[..., 0] == 0.0] = -0.0
+            a[rng.random((H, W)) < 0.1, int(rng.integers(0, 3))] = -0.0
+        valid = np.isfinite(a).all(axis=2)
+        if t % 4 == 1:
+            valid &= rng.random((H, W)) < 0.8  # finite points left out
+        valid = np.ascontiguousarray(valid)
+        a = np.ascontiguousarray(a)
+        per_px, tan = float(rng.choice([0.0, 1e-3, 2e-3])), math.tan(math.radians(float(rng.choice([45, 80, 89.9]))))
+        floor = float(rng.choice([0.0, 0.5, 1.0]))
+        L, side = 2 * r + 1, (2 * r + 1) ** 2
+        X, Y, Z, V = np.empty((L, W)), np.empty((L, W)), np.empty((L, W)), np.zeros((L, W), bool)
+        sel = np.empty((side, W), bool)
+        scratch = [np.empty(W) for _ in range(12)]
+        if H <= 2 * r or W <= 2 * r:
+            continue
+        for i0 in range(2 * r):
+            _planar_row(a, valid, i0, i0 % L, X, Y, Z, V)
+        px, py, pz = np.empty(side), np.empty(side), np.empty(side)
+        for i in range(r, H - r):
+            _planar_row(a, valid, i + r, (i + r) % L, X, Y, Z, V)
+            _row_moments(i, r, per_px, tan, floor, W, X, Y, Z, V, *scratch[:2], sel, *scratch[2:])
+            nn, mz, cs = scratch[2], scratch[5], scratch[6:]
+            for j in range(r, W - r):
+                want = _patch_moments(a, valid, i, j, r, 1, per_px, tan, floor, px, py, pz)
+                assert nn[j - r] == want[0], (t, i, j)
+                if want[0] == 0:
+                    continue
+                got = np.array([mz[j - r]] + [c[j - r] for c in cs])
+                exp = np.array([want[3]] + list(want[4:]))
+                assert np.array_equal(got.view(np.int64), exp.view(np.int64)), (t, i, j, got, exp)
+                compared += 1
+    assert compared > 5000
 
 
 def test_lazy_surfaces_equal_edge_surfaces_on_random_fields() -> None:
