@@ -494,9 +494,20 @@ def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, 
     z0 = -1 if (fz - ck) * cell <= reach else 0
     z1 = 1 if (ck + 1 - fz) * cell <= reach else 0
     skip2 = r2 * (1.0 + 1e-9) + 1e-18
-    for dx in range(x0, x1 + 1):
-        for dy in range(y0, y1 + 1):
-            for dz in range(z0, z1 + 1):
+    # the point's own cell first, then along each axis the offsets 0, -1, +1: a point that passes is found
+    # sooner (whichever is found, the answer is the same; the next pixels try it first as their hint)
+    for kx in range(3):
+        dx = -kx if kx < 2 else 1
+        if dx < x0 or dx > x1:
+            continue
+        for ky in range(3):
+            dy = -ky if ky < 2 else 1
+            if dy < y0 or dy > y1:
+                continue
+            for kz in range(3):
+                dz = -kz if kz < 2 else 1
+                if dz < z0 or dz > z1:
+                    continue
                 c = ((ci + dx) * dims[1] + (cj + dy)) * dims[2] + (ck + dz)
                 if start[c] == start[c + 1]:
                     continue
