@@ -221,3 +221,30 @@ def test_the_checks_candidates_equal_numpy(logs):
     ones = np.ones((2, 3), bool)
     assert same(ones, ~ones, ones, h32, -5e-8)[1] == 6
     assert same(ones, ~ones, ones, h32.astype(np.float64), -5e-8)[1] == 0
+
+
+def test_nearest_points_equal_the_tree(logs):
+    """The residuals' nearest-point query (the cell grid, each search starting from the previous row's
+    nearest point; the tree where the two could differ) against the model's KD-tree, distances and points
+    bit for bit: ring pixels in image order, random points in and around the model, points on cell faces,
+    the model's own points (distance 0, ties) and points jittered off them, in blocks and alone."""
+    from zcut.removal import _nearest_points
+
+    rng = np.random.default_rng(11)
+    for log, (model, params, frames) in logs.items():
+        index = prepare_removal_index(model, params)
+        g, ub = index.nearest, params.max_tolerance_mm / 1000.0
+        xyz, _, ring, T = frames[0]
+        pts = xyz[ring].astype(np.float64)
+        ring_pts = (pts - T[:3, 3]) @ T[:3, :3]
+        lo, hi = g.origin, g.origin + g.dims * g.cell
+        own = model.points[rng.choice(len(model.points), 500)]
+        cases = {"ring": ring_pts, "random": rng.uniform(lo - 0.02, hi + 0.02, (3000, 3)),
+                 "faces": np.round((ring_pts[:800] - g.origin) / g.cell) * g.cell + g.origin,
+                 "model": own, "jitter": own + rng.normal(0, 1e-3, own.shape), "one": ring_pts[:1],
+                 "reversed": ring_pts[::-1]}
+        for name, q in cases.items():
+            q = np.ascontiguousarray(q)
+            d, j = _nearest_points(q, index)
+            d_t, j_t = index.tree.query(q, k=1, distance_upper_bound=ub)
+            assert np.array_equal(d, d_t) and np.array_equal(j, j_t), f"{log} {name}"
