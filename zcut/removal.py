@@ -1357,6 +1357,82 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
     return Tolerance(float(tau), q, len(res), n_coh, float(reach))
 
 
+@numba.njit(cache=True, nogil=True)
+def _sample_ring(a, ring, max_px):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """:func:`_ring_sample`, its pixels' four ring neighbours (:func:`_ring_neighbours`) and the sorted distinct
+    pixels of both (what the fast :func:`_coherent` queries), in three passes over the ring: ``(flat, want,
+    own_at, nb_at)`` with ``want[own_at] == flat`` and ``want[nb_at[i, k]]`` the k-th neighbour of ``flat[i]``
+    (-1: none), the positions ``np.searchsorted(want, ...)`` gives."""
+    H, W = ring.shape
+    rf = ring.reshape(-1)
+    n = 0
+    for q in range(H * W):
+        if rf[q]:
+            n += 1
+    step = max(1, -(-n // max_px))
+    flat = np.empty((n + step - 1) // step, np.int64)
+    m = 0
+    k = 0
+    for q in range(H * W):
+        if rf[q]:
+            if k % step == 0:
+                r = q // W
+                c = q - r * W
+                if np.isfinite(a[r, c, 0]) and np.isfinite(a[r, c, 1]) and np.isfinite(a[r, c, 2]):
+                    flat[m] = q
+                    m += 1
+            k += 1
+    flat = flat[:m]
+    nb = np.full((m, 4), -1, np.int64)
+    mark = np.zeros(H * W, np.bool_)
+    lo = H * W
+    hi = -1
+    for i in range(m):
+        q = flat[i]
+        r = q // W
+        c = q - r * W
+        mark[q] = True
+        for j in range(4):  # _N4: up, down, left, right
+            rr = r - 1 if j == 0 else (r + 1 if j == 1 else r)
+            cc = c - 1 if j == 2 else (c + 1 if j == 3 else c)
+            if 0 <= rr < H and 0 <= cc < W and rf[rr * W + cc]:
+                f = rr * W + cc
+                nb[i, j] = f
+                mark[f] = True
+        lo = min(lo, max(q - W, 0))
+        hi = max(hi, min(q + W, H * W - 1))
+    pos = np.empty(H * W, np.int64)
+    want = np.empty(5 * m, np.int64)
+    w = 0
+    for q in range(lo, hi + 1):
+        if mark[q]:
+            pos[q] = w
+            want[w] = q
+            w += 1
+    own_at = np.empty(m, np.int64)
+    nb_at = np.full((m, 4), -1, np.int64)
+    for i in range(m):
+        own_at[i] = pos[flat[i]]
+        for j in range(4):
+            if nb[i, j] >= 0:
+                nb_at[i, j] = pos[nb[i, j]]
+    return flat, want[:w], own_at, nb_at
+
+
+@numba.njit(cache=True, nogil=True)
+def _own_and_neighbours(res, own_at, nb_at):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``(res[own_at], nbr)`` with ``nbr[i, k] = res[nb_at[i, k]]``, NaN where ``nb_at`` is -1."""
+    m, K = nb_at.shape
+    own = np.empty(m)
+    nbr = np.full((m, K), np.nan)
+    for i in range(m):
+        own[i] = res[own_at[i]]
+        for k in range(K):
+            if nb_at[i, k] >= 0:
+                nbr[i, k] = res[nb_at[i, k]]
+    return own, nbr
+
+
 def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -> Tolerance:
     """:func:`frame_tolerance`'s fast path (``tolerance_mm`` not fixed): one sample, one query of the tree."""
     p = index.params
@@ -1367,9 +1443,17 @@ def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -
     ring_a = np.asarray(ring, dtype=bool)
     if ring_a.shape != a.shape[:2]:
         raise InputShapeError(f"ring must be an {a.shape[:2]} bool array, got {describe_array(ring_a)}")
-    flat = _ring_sample(a, ring_a)
-    res, around, coherent, queried = _coherent(a, flat, _ring_neighbours(a.shape[:2], ring_a, flat, 4), index, T,
-                                               reference=False)
+    if a.dtype in (np.float32, np.float64) and a.ndim == 3 and a.shape[2] == 3:
+        flat, want, own_at, nb_at = _sample_ring(a, np.ascontiguousarray(ring_a), MAX_RESIDUAL_PX)
+        queried = _query(a, want, index, T)
+        res, nbr = _own_and_neighbours(queried.residual_mm, own_at, nb_at)
+        around = _around_median(nbr)
+        with np.errstate(invalid="ignore"):
+            coherent = np.isfinite(res) & (np.abs(res - around) <= COHERENCE_MM)
+    else:  # the arrays the kernels do not take
+        flat = _ring_sample(a, ring_a)
+        res, around, coherent, queried = _coherent(a, flat, _ring_neighbours(a.shape[:2], ring_a, flat, 4), index, T,
+                                                   reference=False)
     surface = _Surface(a, ring, index, T.copy(), res, around, coherent)
     if len(res) == 0:
         return Tolerance(max(p.max_tolerance_mm, lo), float("nan"), 0, surface=surface)
