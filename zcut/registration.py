@@ -397,7 +397,7 @@ def subsampled_points(xyz: np.ndarray, pixels: np.ndarray, *, step: int) -> np.n
         raise ParameterError(f"subsampled_points: step must be an integer >= 1, got {step!r}")
     if a.dtype not in (np.float32, np.float64):
         return a[::step, ::step][m[::step, ::step]].astype(np.float64)
-    return _subsampled(a, m, int(step))  # type: ignore[no-any-return]
+    return _subsampled(a, m, int(step))
 
 
 @dataclass(frozen=True, slots=True)
