@@ -1,7 +1,8 @@
 """Benchmark: full replay (bin mask, ICP, removal, z-cut, SOR, metrics) on 1920 x 1200 synthetic frames.
 
 Run: ``.venv/bin/python bench/bench_replay.py [--frames N] [--kind KIND] [--dir DIR] [--stages] [--against OLD]``
-(or ``--stages-only --log LOG.mcap [--against OLD]`` for the cost per stage of an existing log)
+(or ``--stages-only --log LOG.mcap [--against OLD]`` for the cost per stage of an existing log, and
+``--bin-stages --log LOG.mcap --against OLD [--repeats N]`` for its bin stages alone, the two trees alternating)
 
 Synthesises (once, cached in ``--dir``) a log of N filled-bin frames and five empty-bin scans at
 the sensor's full size, builds the bin model, then replays the log three ways, each after a warm-up
@@ -119,9 +120,12 @@ def timed_replay(log: Path, model, *, rrd: Path | None = None) -> tuple[float, f
 STAGES = ("read", "bin_mask", "registration", "removal", "zcut", "sor", "metrics", "total")
 
 
-def stage_costs(log: Path, ply: Path | None, *, clock: str = "cpu") -> dict[str, float]:
+def stage_costs(log: Path, ply: Path | None, *, clock: str = "cpu", bin_only: bool = False) -> dict[str, float]:
     """CPU ms (``clock`` "cpu") or wall ms ("wall") per frame of every stage (medians over frames 1..;
-    frame 0 warms up), stages run serially; the bin model ``ply``, else the log's own."""
+    frame 0 warms up), stages run serially; the bin model ``ply``, else the log's own. ``bin_only``: the bin
+    stages only (``stages.bin_zone``: bin mask, registration, removal and its check; no method runs, the
+    other stages read 0 and ``total`` is the read and the bin stages), with BLAS on one thread as the replay
+    runs it."""
     import types
 
     from replay.pipeline import stages
@@ -137,15 +141,24 @@ def stage_costs(log: Path, ply: Path | None, *, clock: str = "cpu") -> dict[str,
     rows: list[dict[str, float]] = []
     height = width = 0
     frames = session.reader.frames()
+    if bin_only:  # BLAS on one thread, as ReplaySession.run has it (a multi-threaded BLAS spins in small products)
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=1, user_api="blas")
     while True:
         t = now()
         frame = next(frames, None)
         read = now() - t
         if frame is None:
             break
+        t = now()
         located = stages.locate_bin(frame, session.config, bin_model=session.prepared, seed=session.seed)
-        r = stages.run_frame(frame, session.config, bin_model=session.prepared, located=located)
-        rows.append({"read": read, **r.timings, "total": read + r.timings["total"]})
+        if bin_only:
+            z = stages.bin_zone(frame, session.config, bin_model=session.prepared, located=located)
+            rows.append({"read": read, **z.timings, "total": read + now() - t})
+        else:
+            r = stages.run_frame(frame, session.config, bin_model=session.prepared, located=located)
+            rows.append({"read": read, **r.timings, "total": read + r.timings["total"]})
         height, width = frame.xyz.shape[:2]
     rows = rows[1:] or rows
     return ({k: 1000 * statistics.median(row.get(k, 0.0) for row in rows) for k in STAGES}
@@ -168,7 +181,7 @@ def print_stage_table(new: dict[str, float], old: dict[str, float] | None) -> No
 
 
 def stage_costs_of_tree(tree: Path, log: Path, ply: Path | None, *, cores: int | None = None,
-                        clock: str = "cpu") -> dict[str, float]:
+                        clock: str = "cpu", bin_only: bool = False) -> dict[str, float]:
     """:func:`stage_costs` with the code of the source tree ``tree`` (a subprocess; this script's own
     copy of the function runs against that tree's modules), pinned to ``cores`` cores (numba runs as
     many threads) when given."""
@@ -182,6 +195,8 @@ def stage_costs_of_tree(tree: Path, log: Path, ply: Path | None, *, cores: int |
     if cores is not None:
         env["NUMBA_NUM_THREADS"] = str(cores)
         extra = ["--pin", str(cores)]
+    if bin_only:
+        extra.append("--bin-stages")
     out = subprocess.run([sys.executable, __file__, "--stage-json", str(log), str(ply or "-"), "--clock", clock,
                           *extra], env=env, cwd=str(tree), check=True, capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
@@ -225,6 +240,45 @@ def stage_table(logs: dict[tuple[int, int], Path], cores: list[int], against: Pa
                     o = got["old"][k]
                     line += f" {o:13.1f} {o / c if c else float('nan'):14.2f}"
                 print(line)
+
+
+BIN_STAGES = ("bin_mask", "registration", "removal")
+
+
+def bin_stage_table(log: Path, ply: Path | None, against: Path | None, repeats: int) -> None:
+    """Print the bin stages' CPU ms per frame (medians over the frames after a warm-up one) of this tree and
+    ``against``'s, alternating ``repeats`` times (one subprocess each), the medians of the runs, every run's
+    figures and the ratio previous / this, and the CPU ms per Mpx."""
+    this_tree = Path(__file__).resolve().parents[1]
+    trees = {"this tree": this_tree} | ({"previous": against} if against is not None else {})
+    runs: dict[str, list[dict[str, float]]] = {k: [] for k in trees}
+    loads = []
+    for _ in range(max(repeats, 1)):
+        for name, tree in trees.items():
+            loads.append(os.getloadavg()[0])
+            runs[name].append(stage_costs_of_tree(tree, log, ply, bin_only=True))
+    first = runs["this tree"][0]
+    mpx = first["width"] * first["height"] / 1e6
+    print(f"\nbin stages of {log.name} ({int(first['width'])}x{int(first['height'])}, {int(first['frames'])} frames "
+          f"after a warm-up one), CPU ms per frame, medians of {repeats} alternating runs; load average "
+          f"{min(loads):.1f}-{max(loads):.1f} on {os.cpu_count()} cores")
+    med = {name: {k: statistics.median(r[k] for r in rs) for k in BIN_STAGES} for name, rs in runs.items()}
+    for name in trees:
+        med[name]["bin stages"] = sum(med[name][k] for k in BIN_STAGES)
+    head = f"  {'stage':13s} {'this tree':>10s} {'ms/Mpx':>8s}"
+    if against is not None:
+        head += f" {'previous':>10s} {'previous/this':>14s}"
+    print(head)
+    for k in (*BIN_STAGES, "bin stages"):
+        c = med["this tree"][k]
+        line = f"  {k:13s} {c:10.1f} {c / mpx:8.1f}"
+        if against is not None:
+            o = med["previous"][k]
+            line += f" {o:10.1f} {o / c if c else float('nan'):14.2f}"
+        print(line)
+    for name, rs in runs.items():
+        print(f"  {name} per run (bin mask/registration/removal): "
+              + ", ".join("/".join(f"{r[k]:.1f}" for k in BIN_STAGES) for r in rs))
 
 
 #: the outputs ``--throughput --outputs`` may replay with: none, the Rerun recording (``--rrd``), the results
@@ -411,6 +465,9 @@ def main() -> None:
     ap.add_argument("--stage-json", nargs=2, help=argparse.SUPPRESS)  # LOG PLY|-: one JSON line
     ap.add_argument("--clock", default="cpu", choices=("cpu", "wall"), help=argparse.SUPPRESS)
     ap.add_argument("--pin", type=int, help=argparse.SUPPRESS)  # cores the --stage-json process runs on
+    ap.add_argument("--bin-stages", action="store_true",
+                    help="--stages-only: the bin stages only (bin mask, registration, removal), this tree and --against's "
+                         "alternating --repeats times (each a subprocess), medians and every run's figures")
     args = ap.parse_args()
     if args.stage_json:
         import json
@@ -418,7 +475,8 @@ def main() -> None:
         if args.pin:
             os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: args.pin])
         log_, ply_ = args.stage_json
-        print(json.dumps(stage_costs(Path(log_), None if ply_ == "-" else Path(ply_), clock=args.clock)))
+        print(json.dumps(stage_costs(Path(log_), None if ply_ == "-" else Path(ply_), clock=args.clock,
+                                     bin_only=args.bin_stages)))
         return
     if args.throughput_json:
         import json
@@ -446,10 +504,14 @@ def main() -> None:
         stage_table(logs, [int(c) for c in args.cores.split(",")], args.against)
         return
     d = Path(args.dir)
-    if args.log is not None and args.stages_only:
+    if args.log is not None and (args.stages_only or args.bin_stages):
         log, ply = args.log, None
     else:
         log, ply = prepare(d, args.kind, args.frames)
+    if args.bin_stages:
+        os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")
+        bin_stage_table(log, ply, args.against, args.repeats)
+        return
     if args.stages or args.stages_only or args.against:
         os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")
         old = stage_costs_of_tree(args.against, log, ply) if args.against else None

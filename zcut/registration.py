@@ -36,6 +36,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 
 from .bin_model import BinModel
@@ -62,6 +63,7 @@ __all__ = [
     "prepare_target",
     "register_bin",
     "rim_points",
+    "subsampled_points",
     "transform_points",
 ]
 
@@ -350,6 +352,52 @@ def prepare_icp_model(model: BinModel, params: RegistrationParams, *,
     tree = cKDTree(fine_points)
     rim, up = rim_points(fine_points, np.asarray(fine.normals, dtype=np.float64), band_m=rim_band_mm / 1000.0)
     return IcpModel(m, _top_and_centre(m) if len(m) else None, fine, coarse, tree, params, rim, up)
+
+
+@numba.njit(cache=True, nogil=True)
+def _subsampled(xyz, pixels, step):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    H, W = pixels.shape
+    n = 0
+    for r in range(0, H, step):
+        for c in range(0, W, step):
+            if pixels[r, c]:
+                n += 1
+    out = np.empty((n, 3))
+    n = 0
+    for r in range(0, H, step):
+        for c in range(0, W, step):
+            if pixels[r, c]:
+                out[n, 0] = np.float64(xyz[r, c, 0])
+                out[n, 1] = np.float64(xyz[r, c, 1])
+                out[n, 2] = np.float64(xyz[r, c, 2])
+                n += 1
+    return out
+
+
+def subsampled_points(xyz: np.ndarray, pixels: np.ndarray, *, step: int) -> np.ndarray:
+    """The points of the ``pixels`` of every ``step``-th row and column, as float64: ``xyz[::step,
+    ::step][pixels[::step, ::step]].astype(np.float64)`` (the same rows in the same order) in one serial pass
+    (numpy's strided boolean index and cast: 2.6 CPU ms on a 1920 x 1200 frame's ring at step 2).
+
+    Parameters
+    ----------
+    xyz : (H, W, 3) float ndarray
+    pixels : (H, W) bool ndarray
+    step : int >= 1
+
+    Returns
+    -------
+    (M, 3) float64 ndarray
+    """
+    a, m = np.asarray(xyz), np.asarray(pixels)
+    if a.ndim != 3 or a.shape[2] != 3 or m.shape != a.shape[:2] or m.dtype != np.bool_:
+        raise InputShapeError(f"xyz must be an (H, W, 3) array and pixels an (H, W) bool array of its size, got "
+                              f"{describe_array(a)} and {describe_array(m)}")
+    if int(step) != step or step < 1:
+        raise ParameterError(f"subsampled_points: step must be an integer >= 1, got {step!r}")
+    if a.dtype not in (np.float32, np.float64):
+        return a[::step, ::step][m[::step, ::step]].astype(np.float64)
+    return _subsampled(a, m, int(step))
 
 
 @dataclass(frozen=True, slots=True)

@@ -494,9 +494,20 @@ def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, 
     z0 = -1 if (fz - ck) * cell <= reach else 0
     z1 = 1 if (ck + 1 - fz) * cell <= reach else 0
     skip2 = r2 * (1.0 + 1e-9) + 1e-18
-    for dx in range(x0, x1 + 1):
-        for dy in range(y0, y1 + 1):
-            for dz in range(z0, z1 + 1):
+    # the point's own cell first, then along each axis the offsets 0, -1, +1: a point that passes is found
+    # sooner (whichever is found, the answer is the same; the next pixels try it first as their hint)
+    for kx in range(3):
+        dx = -kx if kx < 2 else 1
+        if dx < x0 or dx > x1:
+            continue
+        for ky in range(3):
+            dy = -ky if ky < 2 else 1
+            if dy < y0 or dy > y1:
+                continue
+            for kz in range(3):
+                dz = -kz if kz < 2 else 1
+                if dz < z0 or dz > z1:
+                    continue
                 c = ((ci + dx) * dims[1] + (cj + dy)) * dims[2] + (ck + dz)
                 if start[c] == start[c + 1]:
                     continue
@@ -723,6 +734,36 @@ def _straggler_codes(a: np.ndarray, code: np.ndarray, R: np.ndarray, t: np.ndarr
     _straggler_rest(a, code, first, neighbours, STRAGGLER_PASSES, R, t, *grid)
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _scan_cells(px, py, pz, start, pts, dims, a0, a1, b0, b1, c0, c1, best, second, jb):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """The points of the cells [a0, a1] x [b0, b1] x [c0, c1] (clipped to the grid) into the running
+    ``(best, second, jb)`` of :func:`_nearest_grid` (squared distances, the best point's sorted row)."""
+    z0 = max(c0, 0)
+    z1 = min(c1, dims[2] - 1)
+    if z0 > z1:
+        return best, second, jb
+    for a in range(max(a0, 0), min(a1, dims[0] - 1) + 1):
+        for b in range(max(b0, 0), min(b1, dims[1] - 1) + 1):
+            base = (a * dims[1] + b) * dims[2]
+            for j in range(start[base + z0], start[base + z1 + 1]):
+                dx = pts[j, 0] - px
+                dy = pts[j, 1] - py
+                dz = pts[j, 2] - pz
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 < best:
+                    second = best
+                    best = d2
+                    jb = j
+                elif d2 < second:
+                    second = d2
+    return best, second, jb
+
+
+#: :func:`_nearest_grid` runs its rows in blocks of this many, in order within a block (each row's search
+#: starts from the previous row's nearest point).
+_NEAREST_BLOCK = 64
+
+
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _nearest_grid(p, origin, cell, dims, start, pts, empty_to, order, ub):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """Nearest model point of each row of ``p`` (M, 3) within ``ub`` as ``cKDTree.query`` finds it.
@@ -731,9 +772,18 @@ def _nearest_grid(p, origin, cell, dims, start, pts, empty_to, order, ub):  # ty
     three squared differences summed in order; +inf when no point lies within ``ub``), the point (the
     model's index, ``order``; ``len(order)`` for none, as the tree says) and whether the answer may differ from the tree's (another point within a
     relative 1e-9 of the same distance, or the distance within that of ``ub``: the tree's visiting
-    order or its pruning's rounding could decide; those rows are left to the tree). The cells are
-    searched shell by shell around the point's, from the first that holds a point (``empty_to``), until
-    the next shell lies farther than the best.
+    order or its pruning's rounding could decide; those rows are left to the tree).
+
+    Rows come in blocks of :data:`_NEAREST_BLOCK`; within a block each search starts from the previous
+    row's nearest point (the pixels of a ring, in image order, lie a fraction of a cell apart): at squared
+    distance b0 from the row's point, every point at most as near, and every one within a relative 1e-9 of
+    the best (all that ``unsure`` looks at), lies within sqrt(b0) (with a relative 4e-9 and 1 pm of margin
+    for the rounding of the cell indices), so only the cells that ball reaches along each axis are searched
+    (4-8 of the 27 around the point: 6.6 -> 4.4 CPU ms on 45k ring pixels at 640 x 480, 12.9 -> 9.9 on
+    96k at 1920 x 1200). Without a previous point, with a ball wider than a cell, or when it finds nothing
+    at most as near, the cells are searched shell by shell around the point's, from the first that holds a
+    point (``empty_to``), until the next shell lies farther than the best. Both give the same ``best``
+    and, for ``unsure``, the same answer to "is the second within a relative 1e-9 of it".
     """
     M = p.shape[0]
     d_out = np.full(M, np.inf)
@@ -741,53 +791,71 @@ def _nearest_grid(p, origin, cell, dims, start, pts, empty_to, order, ub):  # ty
     unsure = np.zeros(M, np.bool_)
     ub2 = ub * ub
     K = int(np.ceil(ub / cell)) + 2
-    for i in numba.prange(M):
-        px = p[i, 0]
-        py = p[i, 1]
-        pz = p[i, 2]
-        ci = int(np.floor((px - origin[0]) / cell))
-        cj = int(np.floor((py - origin[1]) / cell))
-        ck = int(np.floor((pz - origin[2]) / cell))
-        best = np.inf
-        second = np.inf
-        jb = -1
-        k0 = 0  # the shells nearer than the nearest occupied cell are empty
-        if 0 <= ci < dims[0] and 0 <= cj < dims[1] and 0 <= ck < dims[2]:
-            k0 = min(int(empty_to[(ci * dims[1] + cj) * dims[2] + ck]), K + 1)
-        for k in range(k0, K + 1):
-            if k >= 2:
-                gap = (k - 1) * cell * (1.0 - 1e-9)  # every cell of shell k lies at least this far
-                g2 = gap * gap
-                if g2 > ub2 * (1.0 + 1e-6) or g2 > best * (1.0 + 1e-6):
-                    break
-            for a in range(ci - k, ci + k + 1):
-                if a < 0 or a >= dims[0]:
-                    continue
-                for b in range(cj - k, cj + k + 1):
-                    if b < 0 or b >= dims[1]:
-                        continue
-                    edge = a == ci - k or a == ci + k or b == cj - k or b == cj + k
-                    step = 1 if edge else 2 * k
-                    c3 = ck - k
-                    while c3 <= ck + k:
-                        if 0 <= c3 < dims[2]:
-                            c = (a * dims[1] + b) * dims[2] + c3
-                            for j in range(start[c], start[c + 1]):
-                                dx = pts[j, 0] - px
-                                dy = pts[j, 1] - py
-                                dz = pts[j, 2] - pz
-                                d2 = dx * dx + dy * dy + dz * dz
-                                if d2 < best:
-                                    second = best
-                                    best = d2
-                                    jb = j
-                                elif d2 < second:
-                                    second = d2
-                        c3 += step if step > 0 else 1
-        if best < ub2:
-            d_out[i] = np.sqrt(best)
-            j_out[i] = order[jb]
-        unsure[i] = best < np.inf and (second <= best * (1.0 + 1e-9) or abs(best - ub2) <= ub2 * 1e-9)
+    for blk in numba.prange((M + _NEAREST_BLOCK - 1) // _NEAREST_BLOCK):
+        hint = -1
+        for i in range(blk * _NEAREST_BLOCK, min(M, (blk + 1) * _NEAREST_BLOCK)):
+            px = p[i, 0]
+            py = p[i, 1]
+            pz = p[i, 2]
+            fx = (px - origin[0]) / cell
+            fy = (py - origin[1]) / cell
+            fz = (pz - origin[2]) / cell
+            ci = int(np.floor(fx))
+            cj = int(np.floor(fy))
+            ck = int(np.floor(fz))
+            inside = 0 <= ci < dims[0] and 0 <= cj < dims[1] and 0 <= ck < dims[2]
+            best = np.inf
+            second = np.inf
+            jb = -1
+            done = False
+            if hint >= 0 and inside:
+                hx = pts[hint, 0] - px
+                hy = pts[hint, 1] - py
+                hz = pts[hint, 2] - pz
+                b0 = hx * hx + hy * hy + hz * hz
+                rb = np.sqrt(b0 * (1.0 + 4e-9)) * (1.0 + 1e-9) + 1e-12
+                if rb < cell:  # the ball reaches the neighbouring cells at most
+                    best, second, jb = _scan_cells(
+                        px, py, pz, start, pts, dims,
+                        ci - 1 if (fx - ci) * cell <= rb else ci, ci + 1 if (ci + 1 - fx) * cell <= rb else ci,
+                        cj - 1 if (fy - cj) * cell <= rb else cj, cj + 1 if (cj + 1 - fy) * cell <= rb else cj,
+                        ck - 1 if (fz - ck) * cell <= rb else ck, ck + 1 if (ck + 1 - fz) * cell <= rb else ck,
+                        best, second, jb)
+                    done = best <= b0
+            if not done:
+                best = np.inf
+                second = np.inf
+                jb = -1
+                k0 = 0  # the shells nearer than the nearest occupied cell are empty
+                if inside:
+                    k0 = min(int(empty_to[(ci * dims[1] + cj) * dims[2] + ck]), K + 1)
+                for k in range(k0, K + 1):
+                    if k >= 2:
+                        gap = (k - 1) * cell * (1.0 - 1e-9)  # every cell of shell k lies at least this far
+                        g2 = gap * gap
+                        if g2 > ub2 * (1.0 + 1e-6) or g2 > best * (1.0 + 1e-6):
+                            break
+                    for a in range(ci - k, ci + k + 1):
+                        if a < 0 or a >= dims[0]:
+                            continue
+                        for b in range(cj - k, cj + k + 1):
+                            if b < 0 or b >= dims[1]:
+                                continue
+                            if a == ci - k or a == ci + k or b == cj - k or b == cj + k:  # the shell's whole column
+                                best, second, jb = _scan_cells(px, py, pz, start, pts, dims, a, a, b, b, ck - k,
+                                                               ck + k, best, second, jb)
+                            else:  # its two ends
+                                best, second, jb = _scan_cells(px, py, pz, start, pts, dims, a, a, b, b, ck - k,
+                                                               ck - k, best, second, jb)
+                                if k > 0:
+                                    best, second, jb = _scan_cells(px, py, pz, start, pts, dims, a, a, b, b, ck + k,
+                                                                   ck + k, best, second, jb)
+            if jb >= 0:
+                hint = jb
+            if best < ub2:
+                d_out[i] = np.sqrt(best)
+                j_out[i] = order[jb]
+            unsure[i] = best < np.inf and (second <= best * (1.0 + 1e-9) or abs(best - ub2) <= ub2 * 1e-9)
     return d_out, j_out, unsure
 
 
@@ -1289,6 +1357,82 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
     return Tolerance(float(tau), q, len(res), n_coh, float(reach))
 
 
+@numba.njit(cache=True, nogil=True)
+def _sample_ring(a, ring, max_px):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """:func:`_ring_sample`, its pixels' four ring neighbours (:func:`_ring_neighbours`) and the sorted distinct
+    pixels of both (what the fast :func:`_coherent` queries), in three passes over the ring: ``(flat, want,
+    own_at, nb_at)`` with ``want[own_at] == flat`` and ``want[nb_at[i, k]]`` the k-th neighbour of ``flat[i]``
+    (-1: none), the positions ``np.searchsorted(want, ...)`` gives."""
+    H, W = ring.shape
+    rf = ring.reshape(-1)
+    n = 0
+    for q in range(H * W):
+        if rf[q]:
+            n += 1
+    step = max(1, -(-n // max_px))
+    flat = np.empty((n + step - 1) // step, np.int64)
+    m = 0
+    k = 0
+    for q in range(H * W):
+        if rf[q]:
+            if k % step == 0:
+                r = q // W
+                c = q - r * W
+                if np.isfinite(a[r, c, 0]) and np.isfinite(a[r, c, 1]) and np.isfinite(a[r, c, 2]):
+                    flat[m] = q
+                    m += 1
+            k += 1
+    flat = flat[:m]
+    nb = np.full((m, 4), -1, np.int64)
+    mark = np.zeros(H * W, np.bool_)
+    lo = H * W
+    hi = -1
+    for i in range(m):
+        q = flat[i]
+        r = q // W
+        c = q - r * W
+        mark[q] = True
+        for j in range(4):  # _N4: up, down, left, right
+            rr = r - 1 if j == 0 else (r + 1 if j == 1 else r)
+            cc = c - 1 if j == 2 else (c + 1 if j == 3 else c)
+            if 0 <= rr < H and 0 <= cc < W and rf[rr * W + cc]:
+                f = rr * W + cc
+                nb[i, j] = f
+                mark[f] = True
+        lo = min(lo, max(q - W, 0))
+        hi = max(hi, min(q + W, H * W - 1))
+    pos = np.empty(H * W, np.int64)
+    want = np.empty(5 * m, np.int64)
+    w = 0
+    for q in range(lo, hi + 1):
+        if mark[q]:
+            pos[q] = w
+            want[w] = q
+            w += 1
+    own_at = np.empty(m, np.int64)
+    nb_at = np.full((m, 4), -1, np.int64)
+    for i in range(m):
+        own_at[i] = pos[flat[i]]
+        for j in range(4):
+            if nb[i, j] >= 0:
+                nb_at[i, j] = pos[nb[i, j]]
+    return flat, want[:w], own_at, nb_at
+
+
+@numba.njit(cache=True, nogil=True)
+def _own_and_neighbours(res, own_at, nb_at):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``(res[own_at], nbr)`` with ``nbr[i, k] = res[nb_at[i, k]]``, NaN where ``nb_at`` is -1."""
+    m, K = nb_at.shape
+    own = np.empty(m)
+    nbr = np.full((m, K), np.nan)
+    for i in range(m):
+        own[i] = res[own_at[i]]
+        for k in range(K):
+            if nb_at[i, k] >= 0:
+                nbr[i, k] = res[nb_at[i, k]]
+    return own, nbr
+
+
 def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -> Tolerance:
     """:func:`frame_tolerance`'s fast path (``tolerance_mm`` not fixed): one sample, one query of the tree."""
     p = index.params
@@ -1299,9 +1443,17 @@ def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -
     ring_a = np.asarray(ring, dtype=bool)
     if ring_a.shape != a.shape[:2]:
         raise InputShapeError(f"ring must be an {a.shape[:2]} bool array, got {describe_array(ring_a)}")
-    flat = _ring_sample(a, ring_a)
-    res, around, coherent, queried = _coherent(a, flat, _ring_neighbours(a.shape[:2], ring_a, flat, 4), index, T,
-                                               reference=False)
+    if a.dtype in (np.float32, np.float64) and a.ndim == 3 and a.shape[2] == 3:
+        flat, want, own_at, nb_at = _sample_ring(a, np.ascontiguousarray(ring_a), MAX_RESIDUAL_PX)
+        queried = _query(a, want, index, T)
+        res, nbr = _own_and_neighbours(queried.residual_mm, own_at, nb_at)
+        around = _around_median(nbr)
+        with np.errstate(invalid="ignore"):
+            coherent = np.isfinite(res) & (np.abs(res - around) <= COHERENCE_MM)
+    else:  # the arrays the kernels do not take
+        flat = _ring_sample(a, ring_a)
+        res, around, coherent, queried = _coherent(a, flat, _ring_neighbours(a.shape[:2], ring_a, flat, 4), index, T,
+                                                   reference=False)
     surface = _Surface(a, ring, index, T.copy(), res, around, coherent)
     if len(res) == 0:
         return Tolerance(max(p.max_tolerance_mm, lo), float("nan"), 0, surface=surface)

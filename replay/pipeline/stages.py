@@ -27,7 +27,7 @@ from zcut.cuts import CutResult
 from zcut.errors import InputShapeError, ParameterError, ZcutError
 from zcut.metrics import RelativeMetrics, relative_metrics
 from zcut.prepared_model import PreparedBinModel
-from zcut.registration import RegistrationResult, pose_fitness, prepare_target, register_bin
+from zcut.registration import RegistrationResult, pose_fitness, prepare_target, register_bin, subsampled_points
 from zcut.removal import RemovalResult, finite_xyz, remove_table_and_bin
 
 STAGES = ("bin_mask", "registration", "removal", "zcut", "sor", "metrics")
@@ -193,9 +193,9 @@ def locate_bin(
         # the bin itself (rim and upper walls), not the shiny parts as bright as its plastic
         pixels = bin_pixels(bm, xyz, ring_frac=c.ring_frac)
         # the ICP downsamples to voxel_mm anyway: a regular subgrid of at most ~150k pixels is enough
-        s = max(1, int(np.ceil(np.sqrt(pixels.sum() / REGISTRATION_MAX_POINTS))))
+        s = max(1, int(np.ceil(np.sqrt(np.count_nonzero(pixels) / REGISTRATION_MAX_POINTS))))
         try:
-            target = prepare_target(xyz[::s, ::s][pixels[::s, ::s]].astype(np.float64), voxel_m=c.voxel_m,
+            target = prepare_target(subsampled_points(xyz, pixels, step=s), voxel_m=c.voxel_m,
                                     intrinsics=frame.intrinsics)
         except InputShapeError as e:  # e.g. garbage coordinates no voxel grid can hold
             failure = f"bin registration impossible ({e}): bin stages skipped, z-cut on the whole frame"

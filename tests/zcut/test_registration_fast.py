@@ -265,3 +265,42 @@ def test_the_guess_percentiles_are_numpys_by_axis():
         lo, hi = np.percentile(p, 1, axis=0), np.percentile(p[:, :2], 99, axis=0)
         centre, top = _top_and_centre(p)
         assert np.array_equal(centre, 0.5 * (lo[:2] + hi)) and top == float(lo[2])
+
+
+def test_subsampled_points_are_numpys_strided_index(filled):
+    """The registration's target points (``locate_bin``'s subgrid of the bin pixels) in one pass: the rows and
+    order of ``xyz[::s, ::s][pixels[::s, ::s]].astype(np.float64)``, on the filled bin's frame and ring and on
+    random frames with NaN, float32 and float64, odd sizes, 1 x N, empty."""
+    from zcut.registration import subsampled_points
+
+    def same(xyz, pixels, step):
+        got = subsampled_points(xyz, pixels, step=step)
+        want = xyz[::step, ::step][pixels[::step, ::step]].astype(np.float64)
+        assert got.dtype == np.float64 and np.array_equal(got, want, equal_nan=True), (xyz.shape, step)
+
+    frame, _ = filled
+    ring = bin_pixels(bin_mask(frame.rgb), frame.xyz)
+    rng = np.random.default_rng(17)
+    for step in (1, 2, 3, 5):
+        same(frame.xyz, ring, step)
+        for shape in ((37, 53), (1, 40), (40, 1), (0, 5), (1, 1)):
+            xyz = rng.normal(size=(*shape, 3))
+            xyz[rng.random(shape) < 0.2, 1] = np.nan
+            pixels = rng.random(shape) < 0.4
+            same(xyz, pixels, step)
+            same(xyz.astype(np.float32), pixels, step)
+    same(rng.normal(size=(9, 8, 3)).astype(np.float16), np.ones((9, 8), bool), 2)  # numpy's own path
+
+
+@pytest.mark.parametrize(("xyz", "pixels", "step", "error", "match"), [
+    (np.zeros((4, 5, 3)), np.zeros((4, 4), bool), 1, InputShapeError, "pixels an"),
+    (np.zeros((4, 5)), np.zeros((4, 5), bool), 1, InputShapeError, r"\(H, W, 3\)"),
+    (np.zeros((4, 5, 3)), np.zeros((4, 5), np.uint8), 1, InputShapeError, "bool"),
+    (np.zeros((4, 5, 3)), np.zeros((4, 5), bool), 0, ParameterError, "step"),
+    (np.zeros((4, 5, 3)), np.zeros((4, 5), bool), 1.5, ParameterError, "step"),
+])
+def test_subsampled_points_bad_input(xyz, pixels, step, error, match):
+    from zcut.registration import subsampled_points
+
+    with pytest.raises(error, match=match):
+        subsampled_points(xyz, pixels, step=step)

@@ -179,3 +179,72 @@ def test_the_check_reads_the_removals_residuals(logs):
 
 def test_params_cover_both_modes():
     assert RemovalParams().robust and not RemovalParams(mode="paper").robust
+
+
+def test_the_checks_candidates_equal_numpy(logs):
+    """The bin check's candidates and counts (two kernel passes) against the numpy expressions they replace,
+    on the removals of every log and on nasty inputs: NaN and float32 heights, values exactly on the
+    threshold, no zone, an empty ring, a 1 x N image."""
+    from zcut.bin_check import _candidates, _candidates_numpy
+
+    def same(ring, easy, zone, h, band):
+        a, b = _candidates(ring, easy, zone, h, band), _candidates_numpy(ring, easy, zone, h, band)
+        assert np.array_equal(a[0], b[0]) and a[1:] == b[1:], (a[1:], b[1:])
+        return b
+
+    for model, params, frames in logs.values():
+        index = prepare_removal_index(model, params)
+        for xyz, fp, ring, T in frames:
+            rem = remove_table_and_bin(xyz, fp, index=index, T_cam_bin=T, ring=ring)
+            for band in (0.0, 2.0, 10.0, 1e9):
+                same(ring, rem.easy_outliers, rem.zone, rem.height_mm, band)
+            same(ring, rem.easy_outliers, np.zeros_like(rem.zone), rem.height_mm, 10.0)
+            same(np.zeros_like(ring), rem.easy_outliers, rem.zone, rem.height_mm, 10.0)
+            h = rem.height_mm.copy()
+            top = float(np.max(h[rem.zone]))
+            ring_zone = np.argwhere(ring & rem.zone)
+            if len(ring_zone):  # a ring pixel exactly on the threshold
+                r, c = ring_zone[0]
+                h[r, c] = top - 3.0
+            got = same(ring, rem.easy_outliers, rem.zone, h, 3.0)
+            assert len(ring_zone) == 0 or got[0][r, c]
+            same(ring, rem.easy_outliers, rem.zone, h.astype(np.float32), 3.0)  # compared in float32, as numpy does
+            nan = h.copy()
+            nan.reshape(-1)[np.flatnonzero(rem.zone)[:: 7]] = np.nan  # a NaN in the zone: np.max says NaN, no zone candidate
+            same(ring, rem.easy_outliers, rem.zone, nan, 3.0)
+    rng = np.random.default_rng(7)
+    for shape in ((1, 50), (50, 1), (1, 1), (0, 4)):
+        masks = [rng.random(shape) < 0.5 for _ in range(3)]
+        same(*masks, rng.normal(size=shape), 0.5)
+    # a threshold (1 + 5e-8) that float32 rounds onto the heights (1.0): numpy compares in float32, so all count
+    h32 = np.full((2, 3), np.float32(1.0))
+    ones = np.ones((2, 3), bool)
+    assert same(ones, ~ones, ones, h32, -5e-8)[1] == 6
+    assert same(ones, ~ones, ones, h32.astype(np.float64), -5e-8)[1] == 0
+
+
+def test_nearest_points_equal_the_tree(logs):
+    """The residuals' nearest-point query (the cell grid, each search starting from the previous row's
+    nearest point; the tree where the two could differ) against the model's KD-tree, distances and points
+    bit for bit: ring pixels in image order, random points in and around the model, points on cell faces,
+    the model's own points (distance 0, ties) and points jittered off them, in blocks and alone."""
+    from zcut.removal import _nearest_points
+
+    rng = np.random.default_rng(11)
+    for log, (model, params, frames) in logs.items():
+        index = prepare_removal_index(model, params)
+        g, ub = index.nearest, params.max_tolerance_mm / 1000.0
+        xyz, _, ring, T = frames[0]
+        pts = xyz[ring].astype(np.float64)
+        ring_pts = (pts - T[:3, 3]) @ T[:3, :3]
+        lo, hi = g.origin, g.origin + g.dims * g.cell
+        own = model.points[rng.choice(len(model.points), 500)]
+        cases = {"ring": ring_pts, "random": rng.uniform(lo - 0.02, hi + 0.02, (3000, 3)),
+                 "faces": np.round((ring_pts[:800] - g.origin) / g.cell) * g.cell + g.origin,
+                 "model": own, "jitter": own + rng.normal(0, 1e-3, own.shape), "one": ring_pts[:1],
+                 "reversed": ring_pts[::-1]}
+        for name, q in cases.items():
+            q = np.ascontiguousarray(q)
+            d, j = _nearest_points(q, index)
+            d_t, j_t = index.tree.query(q, k=1, distance_upper_bound=ub)
+            assert np.array_equal(d, d_t) and np.array_equal(j, j_t), f"{log} {name}"
