@@ -21,8 +21,9 @@ unexplained.
 instance's inside samples that lie inside another instance of the same part, looked up in the part's
 occupancy grid (``OCCUPANCY_VOXELS`` a side of its box; a sphere: the closed form). The fitting
 (:mod:`zcut.fits`, ``FitParams.claim``) refuses a candidate by it and :func:`instance_overlaps` vets by it,
-on the same samples and the same grid (:func:`solid_of`, built once per mesh): the two can no longer
-disagree near a face by a voxel. The vetting stays the guard for fits the fitting did not make (instances
+on the same samples and the same grid (:func:`solid_of`, built once per mesh: the prepared model's
+``PartModel.solid``, passed to :func:`instance_overlaps`): the two can no longer disagree near a face by a
+voxel. The vetting stays the guard for fits the fitting did not make (instances
 a person seeded, a results file).
 
 **Volume overlap of different meshes** (:func:`part_overlaps`): each part mesh is sampled inside by ``samples`` points
@@ -196,22 +197,13 @@ def surface_centroid(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return out
 
 
-_SOLIDS: dict[tuple[bytes, float, int], Solid] = {}
-
-
 def solid_of(vertices: np.ndarray, triangles: np.ndarray, *, sphere_tolerance: float = SPHERE_TOLERANCE,
              samples: int = INSIDE_SAMPLES) -> Solid:
-    """The :class:`Solid` of a mesh (model frame, mm), built once per mesh (the last few are kept: the
-    fitting's :func:`zcut.fits.prepare_model` and the vetting's :func:`instance_overlaps` of one log share
-    it)."""
-    import hashlib
-
+    """The :class:`Solid` of a mesh (model frame, mm): build it once per mesh and pass it on (the prepared
+    model's, :attr:`zcut.fits.PartModel.solid`, is the one its fits were made with; ``instance_overlaps``
+    builds one when given none)."""
     v = np.ascontiguousarray(vertices, np.float64)
     t = np.ascontiguousarray(triangles, np.int64)
-    key = (hashlib.sha1(v.tobytes() + b"|" + t.tobytes()).digest(), float(sphere_tolerance), int(samples))
-    got = _SOLIDS.get(key)
-    if got is not None:
-        return got
     inside = inside_samples(v, t, samples=samples)
     ball = None
     occupancy = None
@@ -229,11 +221,7 @@ def solid_of(vertices: np.ndarray, triangles: np.ndarray, *, sphere_tolerance: f
         axes = [lo[a] + h[a] * (np.arange(OCCUPANCY_VOXELS) + 0.5) for a in range(3)]
         centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
         occupancy = (lo, h, _inside(_scene(v, t), centres).reshape((OCCUPANCY_VOXELS,) * 3))
-    out = Solid(inside=inside, occupancy=occupancy, ball=ball)
-    if len(_SOLIDS) >= 8:
-        _SOLIDS.pop(next(iter(_SOLIDS)))
-    _SOLIDS[key] = out
-    return out
+    return Solid(inside=inside, occupancy=occupancy, ball=ball)
 
 
 def pose_overlaps(solid: Solid, Ta: np.ndarray, Tb: np.ndarray) -> np.ndarray:
@@ -290,7 +278,8 @@ def part_overlaps(parts: Sequence[tuple[np.ndarray, np.ndarray]], *,
 def instance_overlaps(vertices: np.ndarray, triangles: np.ndarray, poses: Sequence[np.ndarray], *,
                       samples: int = INSIDE_SAMPLES, solid: Solid | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The volume overlaps of instances of one mesh at ``poses`` ((4, 4) model -> frame, rigid) by the
-    fitting's rule (:func:`pose_overlaps` on the mesh's :class:`Solid`, default :func:`solid_of`): its
+    fitting's rule (:func:`pose_overlaps` on the mesh's :class:`Solid`: ``solid``, the prepared model's, or
+    :func:`solid_of` the mesh, built here): its
     inside samples drawn once, each ordered pair (a, b) whose bounding spheres meet tests a's samples moved
     into b's model frame against the model's occupancy (a ball: the closed form). The same pairs and, within
     a voxel near a face, the same shares as :func:`part_overlaps` of the posed meshes."""

@@ -201,7 +201,10 @@ def test_the_fitting_and_the_vetting_measure_overlap_by_one_rule():
 
     v, t = hex_nut_mesh()
     model = prepare_model(v, t)
-    assert fv.solid_of(v, t) is model.solid and model.occupancy is not None
+    built = fv.solid_of(v, t)
+    assert model.occupancy is not None and built.occupancy is not None and built.ball is None
+    np.testing.assert_array_equal(built.inside, model.inside)
+    np.testing.assert_array_equal(built.occupancy[2], model.occupancy[2])
     rng = np.random.default_rng(11)
     base = pose(rotation((1, 0.2, 0), 30), (0, 0, 300))
     poses = [base]
@@ -211,7 +214,8 @@ def test_the_fitting_and_the_vetting_measure_overlap_by_one_rule():
         T[:3, :3] = rotation((float(ax[0]), float(ax[1]), float(ax[2])), float(rng.uniform(0, 60))) @ base[:3, :3]
         T[:3, 3] = base[:3, 3] + rng.uniform(-14, 14, 3)
         poses.append(T)
-    pairs, share = fv.instance_overlaps(v, t, poses)
+    pairs, share = fv.instance_overlaps(v, t, poses, solid=model.solid)
+    assert np.array_equal(fv.instance_overlaps(v, t, poses)[1], share)  # the mesh's own solid: the same
     worst = np.zeros(len(poses))
     for (a, b), s in zip(pairs.tolist(), share.tolist()):
         if 0 in (a, b):
