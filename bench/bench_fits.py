@@ -156,7 +156,15 @@ def instance_ids(truth: Truth) -> tuple[np.ndarray, np.ndarray]:
     return ids, alone
 
 
-def score(truth: Truth, fits: list, model, zone: np.ndarray) -> dict[str, float]:  # type: ignore[no-untyped-def,type-arg]
+#: --no-proposals: the proposals' columns (the slowest of the scoring) left out
+NAN_PROPOSALS: dict[str, float] = {k: float("nan") for k in ("truth_in_small", "truth_in_big", "truth_in_proposals",
+                                                             "truth_in_vetted")}
+NAN_PROPOSALS.update({k: -1 for k in ("prop_px", "prop_small_px", "prop_big_px", "prop_big_n", "big_nontruth_found_px",
+                                      "big_nontruth_missed_px", "big_nontruth_nopart_px", "nontruth_vetted_px", "vetted")})
+
+
+def score(truth: Truth, fits: list, model, zone: np.ndarray,  # type: ignore[no-untyped-def,type-arg]
+          with_proposals: bool = True) -> dict[str, float]:
     ids, alone = instance_ids(truth)
     n = len(truth.poses)
     valid = np.isfinite(truth.xyz_mm).all(axis=2)
@@ -186,8 +194,9 @@ def score(truth: Truth, fits: list, model, zone: np.ndarray) -> dict[str, float]
         explained[f.pixels] = True
     on_top = np.isin(ids, top + 1) & valid & ~truth.off
     found = _found(truth, fits, model)
-    return {**proposals(truth, fits, model, zone, ids, found), **duplicates(truth, fits, model),
-        **vetted_proposals(truth, fits, model, zone),
+    props = ({**proposals(truth, fits, model, zone, ids, found), **vetted_proposals(truth, fits, model, zone)}
+             if with_proposals else dict(NAN_PROPOSALS))
+    return {**props, **duplicates(truth, fits, model),
         "found": int(found.sum()), "visible": int((seen_valid >= VISIBLE_PX).sum()),
         "found_visible": int(found[seen_valid >= VISIBLE_PX].sum()),
         "instances": n, "fully_visible": len(full), "matched": matched, "fits": len(fits),
@@ -413,6 +422,7 @@ def main() -> None:
                          "the bit) on each frame, just before")
     ap.add_argument("--cache", default=None, metavar="DIR", help="keep the synthesized frames in DIR")
     ap.add_argument("--phases", action="store_true", help="also where each frame's CPU goes (a second fit)")
+    ap.add_argument("--no-proposals", action="store_true", help="score the fits only, not the proposals")
     ap.add_argument("--repeat", type=int, default=1, help="fit each frame this many times (CPU: the smallest)")
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                     help="a FitParams field (e.g. seed_shifts=0: the fits without their second pass)")
@@ -453,7 +463,7 @@ def main() -> None:
                         fits = fit_prepared(truth.xyz_mm, zone, model, intrinsics=truth.K, params=p)
                         cpus.append(time.process_time() - c0)
                     cpu = min(cpus)
-                    s = score(truth, fits, model, zone)
+                    s = score(truth, fits, model, zone, with_proposals=not args.no_proposals)
                     s.update(sensor=sensor, kind=kind, seed=seed, cpu_s=cpu, cpu_all=cpus, prepare_s=prep,
                              fits_run=label)
                     if args.phases:
