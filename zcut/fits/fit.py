@@ -445,11 +445,14 @@ def _early_refusal(claims: _Claims, model: PartModel, pts: np.ndarray, n_px: int
     within ``tol`` of ``T`` are fewer than ``EARLY_SHARE`` × the pixels the smallest of them claims (a
     duplicate of a fitted part, a wrong pose of a piece: the fine fit would explain fewer pixels than the
     fit it overlaps, and be refused)."""
-    rivals = claims.overlapping(T)
-    if not rivals:
+    near = claims.near(T)
+    if not len(near):
         return False
-    inl = float(np.mean(_surface_distances(model, pts, T) <= tol))
-    return n_px * inl < EARLY_SHARE * min(len(claims.pixels[j]) for j in rivals)
+    explains = n_px * float(np.mean(_surface_distances(model, pts, T) <= tol))
+    if explains >= EARLY_SHARE * max(len(claims.pixels[int(j)]) for j in near):
+        return False  # not below the share of any fit it may overlap: the overlap test is not needed
+    rivals = claims.overlapping(T)
+    return bool(rivals) and explains < EARLY_SHARE * min(len(claims.pixels[j]) for j in rivals)
 
 
 def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intrinsics: Intrinsics | None = None,
@@ -581,10 +584,7 @@ class _Claims:
         one's inside samples inside the other; only the fits whose centres lie within twice the model's
         extent can overlap)."""
         m = self.model
-        if not len(self.poses) or not len(m.inside) or self.params.max_overlap >= 1:
-            return []
-        c = T[:3, :3] @ m.centroid + T[:3, 3]
-        near = np.flatnonzero(np.linalg.norm(self.centres - c, axis=1) < 2.0 * m.extent_mm)
+        near = self.near(T)
         if not len(near):
             return []
         Tc = np.broadcast_to(T, (len(near), 4, 4))
@@ -592,6 +592,16 @@ class _Claims:
         # the vetting's rule (zcut.fit_vetting.pose_overlaps): the candidate's samples in each fit, and back
         share = np.maximum(pose_overlaps(m.solid, Tc, Tn), pose_overlaps(m.solid, Tn, Tc))
         return [int(j) for j, sh in zip(near, share) if sh > self.params.max_overlap]
+
+    def near(self, T: np.ndarray) -> np.ndarray:
+        """The live accepted fits (indices) whose solid may overlap the solid posed at ``T``: their centres
+        lie within twice the model's extent (none when overlaps are not tested)."""
+        m = self.model
+        if not len(self.poses) or not len(m.inside) or self.params.max_overlap >= 1:
+            return np.zeros(0, np.int64)
+        c = T[:3, :3] @ m.centroid + T[:3, 3]
+        out: np.ndarray = np.flatnonzero(np.linalg.norm(self.centres - c, axis=1) < 2.0 * m.extent_mm)
+        return out
 
     def better(self, err: float, known: tuple[np.ndarray, np.ndarray], j: int) -> bool:
         """Whether a candidate (``err``, its distances ``known``) explains more zone pixels than the accepted
