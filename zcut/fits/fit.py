@@ -349,11 +349,11 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     also put ``shifts`` spread points of the model's facing side on the region's centroid
     (:func:`zcut.fits.icp.shifted_poses`), and the turns are not tried.
 
-    ``claims`` (``FitParams.claim``): a candidate whose coarse pose overlaps live accepted fits
-    (:meth:`_Claims.overlapping`) and whose region's points within the score's tolerance of that pose,
-    scaled to the region's pixels, are fewer than ``EARLY_SHARE`` × the pixels one of them claims is not
-    refined: Err inf (refused), the fine ICP, its Err and its acceptance not spent (docs/fits.md,
-    "Seventh round")."""
+    ``claims`` (``FitParams.claim``) with ``EARLY_SHARE`` > 0 (default 0: off): a candidate whose coarse
+    pose overlaps live accepted fits (:meth:`_Claims.overlapping`) and whose region's points within the
+    score's tolerance of that pose, scaled to the region's pixels, are fewer than ``EARLY_SHARE`` × the
+    pixels one of them claims is not refined: Err inf (refused), the fine ICP, its Err and its acceptance
+    not spent (docs/fits.md, "Seventh round": measured and not kept)."""
     sub = _subsample(flat, params.max_points)
     pts = frame.xyz.reshape(-1, 3)[sub]
     coarse = np.ascontiguousarray(pts[_subsample(np.arange(len(pts)), COARSE_POINTS)])
@@ -432,10 +432,11 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
 
 
 #: :func:`_fit_general` does not refine a candidate whose coarse pose overlaps a live accepted fit and
-#: explains fewer than this share of the pixels that fit claims (tuned on seed 8531, hand-made zinc and
-#: black nuts at 1920 × 1200: of the candidates it stops 0.7 % would have been accepted or would have
-#: replaced the fit, at 0.35 2 %).
-EARLY_SHARE = 0.25
+#: explains fewer than this share of the pixels that fit claims; 0: off (the default). Measured and not
+#: kept (docs/fits.md, "Seventh round"): at 0.25 (tuned on seed 8531, hand-made nuts: 5 of the 170-180
+#: candidates it stopped a frame would have been accepted or would have replaced the fit) the held-out
+#: ray-traced zinc nuts lost 13 of 200 instances found for 5 % of their CPU.
+EARLY_SHARE = 0.0
 
 
 def _early_refusal(claims: _Claims, model: PartModel, pts: np.ndarray, n_px: int, T: np.ndarray,
@@ -445,6 +446,8 @@ def _early_refusal(claims: _Claims, model: PartModel, pts: np.ndarray, n_px: int
     within ``tol`` of ``T`` are fewer than ``EARLY_SHARE`` × the pixels the smallest of them claims (a
     duplicate of a fitted part, a wrong pose of a piece: the fine fit would explain fewer pixels than the
     fit it overlaps, and be refused)."""
+    if EARLY_SHARE <= 0:
+        return False
     near = claims.near(T)
     if not len(near):
         return False

@@ -155,7 +155,7 @@ def test_the_model_knows_its_inside():
 
 
 def test_a_candidate_that_will_be_refused_is_not_refined(monkeypatch):
-    """Seventh round (docs/fits.md): the bar 5 mm off the nut's middle splits it into 717 and 128 px; the
+    """Seventh round (docs/fits.md; ``EARLY_SHARE`` = 0.25, off by default): the bar 5 mm off the nut's middle splits it into 717 and 128 px; the
     small region is a piece of the fitted part, its coarse pose overlaps the fit and explains fewer pixels
     than a quarter of those the fit claims, so its fine ICP is never run, and the fits are those the full
     refinement gives (it would have been refused). Two halves (the bar in the middle) are both refined."""
@@ -170,6 +170,7 @@ def test_a_candidate_that_will_be_refused_is_not_refined(monkeypatch):
     regions = segment(xyz, np.flatnonzero(zone), f_px=500.0, jump_mm=1.5, jump_px=3.0, min_px=40)
     assert [len(r) for r in regions] == [717, 128]
     model = prepare_model(v, t)
+    monkeypatch.setattr(F, "EARLY_SHARE", 0.25)  # off by default (docs/fits.md, "Seventh round")
     runs: list[int] = []
     icp = F.icp
 
