@@ -2,7 +2,7 @@
 
     PYTHONPATH=. .venv/bin/python bench/bench_fits.py [--set tune|report] [--size 960x600]
         [--kinds spheres,zinc_nuts,rods,black_nuts] [--sensors handmade,raytraced] [--json OUT]
-        [--param seed_shifts=0 ...] [--dump FITS.pkl]
+        [--param seed_shifts=0 ...] [--dump FITS.pkl] [--cache DIR] [--phases] [--repeat N]
     PYTHONPATH=. .venv/bin/python bench/bench_fits.py --same OLD.pkl NEW.pkl
 
 Per frame (both generators, each kind, the seeds of the set: ``tune`` 2951-2952, the fits' knobs
@@ -22,7 +22,11 @@ regenerated from the seed, then scores the fits — only to score them:
   pixels of the instances at least half visible that lie in some fit's ``pixels`` (within
   3 × max(Err, floor) of a fitted instance).
 - **CPU-s per frame**: ``time.process_time`` of ``fit_prepared`` (all threads); preparing the model
-  (once per log) is reported apart.
+  (once per log) is reported apart. ``--repeat N`` fits each frame N times (the CPU column: the smallest,
+  all of them in the JSON); ``--phases`` fits it once more with each step wrapped in a CPU timer and
+  prints where the time goes (:func:`phase_times`; the wrappers cost a few per cent; inclusive times, a
+  step inside another counts in both); ``--cache DIR`` keeps the synthesized frames there (two trees'
+  fits on the same frames: run this script with ``PYTHONPATH`` at each tree).
 
 The instances' true poses: hand-made parts are ``[R · Rz(phase), centre]`` (the hexagon's random phase
 about the part's axis; the model carries phase 0) in the world, ray-traced ones ``[R, t]`` of the
@@ -32,6 +36,7 @@ pile; the world -> camera map is (x, −y, 580 − z).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import time
 from dataclasses import dataclass, replace
@@ -151,7 +156,15 @@ def instance_ids(truth: Truth) -> tuple[np.ndarray, np.ndarray]:
     return ids, alone
 
 
-def score(truth: Truth, fits: list, model, zone: np.ndarray) -> dict[str, float]:  # type: ignore[no-untyped-def,type-arg]
+#: --no-proposals: the proposals' columns (the slowest of the scoring) left out
+NAN_PROPOSALS: dict[str, float] = {k: float("nan") for k in ("truth_in_small", "truth_in_big", "truth_in_proposals",
+                                                             "truth_in_vetted")}
+NAN_PROPOSALS.update({k: -1 for k in ("prop_px", "prop_small_px", "prop_big_px", "prop_big_n", "big_nontruth_found_px",
+                                      "big_nontruth_missed_px", "big_nontruth_nopart_px", "nontruth_vetted_px", "vetted")})
+
+
+def score(truth: Truth, fits: list, model, zone: np.ndarray,  # type: ignore[no-untyped-def,type-arg]
+          with_proposals: bool = True) -> dict[str, float]:
     ids, alone = instance_ids(truth)
     n = len(truth.poses)
     valid = np.isfinite(truth.xyz_mm).all(axis=2)
@@ -181,8 +194,9 @@ def score(truth: Truth, fits: list, model, zone: np.ndarray) -> dict[str, float]
         explained[f.pixels] = True
     on_top = np.isin(ids, top + 1) & valid & ~truth.off
     found = _found(truth, fits, model)
-    return {**proposals(truth, fits, model, zone, ids, found), **duplicates(truth, fits, model),
-        **vetted_proposals(truth, fits, model, zone),
+    props = ({**proposals(truth, fits, model, zone, ids, found), **vetted_proposals(truth, fits, model, zone)}
+             if with_proposals else dict(NAN_PROPOSALS))
+    return {**props, **duplicates(truth, fits, model),
         "found": int(found.sum()), "visible": int((seen_valid >= VISIBLE_PX).sum()),
         "found_visible": int(found[seen_valid >= VISIBLE_PX].sum()),
         "instances": n, "fully_visible": len(full), "matched": matched, "fits": len(fits),
@@ -317,6 +331,79 @@ def proposals(truth: Truth, fits: list, model, zone: np.ndarray, ids: np.ndarray
             "big_nontruth_nopart_px": int((inst == 0).sum())}
 
 
+#: (label, attribute of zcut.fits.fit) of the steps --phases times; a step the tree lacks is left out
+PHASES = (("segmentation", "segment"), ("python per region", "_holds_many"), ("python per region", "_patch"),
+          ("python per region", "_occluding_boundary"), ("global guess", "initial_rotations"),
+          ("global guess", "initial_poses"), ("global guess", "shifted_poses"), ("coarse ICP", "coarse_search"),
+          ("fine ICP", "icp"), ("early overlap test", "_early_refusal"), ("acceptance", "_accept"),
+          ("  of it: support", "_support"), ("sphere fits", "_fit_sphere"), ("sphere votes", "vote_centres"),
+          ("assignment", "_assign"), ("candidates (whole)", "_fit_general"))
+
+
+def phase_times(run):  # type: ignore[no-untyped-def]
+    """Call ``run()`` with the steps of :data:`PHASES`, the claims' overlap test and the second pass
+    (``_fit_region`` with shifts) wrapped in ``time.process_time`` timers: ({label: CPU-s}, {label: calls})."""
+    import collections
+
+    import zcut.fits.fit as F
+
+    spent: dict[str, float] = collections.defaultdict(float)
+    calls: collections.Counter[str] = collections.Counter()
+    saved = []
+
+    def wrap(owner, name, label, pick=None):  # type: ignore[no-untyped-def]
+        f = getattr(owner, name, None)
+        if f is None:
+            return
+
+        def timed(*a, **k):  # type: ignore[no-untyped-def]
+            lab = label if pick is None else pick(a, k)
+            if lab is None:
+                return f(*a, **k)
+            c = time.process_time()
+            try:
+                return f(*a, **k)
+            finally:
+                spent[lab] += time.process_time() - c
+                calls[lab] += 1
+
+        saved.append((owner, name, f))
+        setattr(owner, name, timed)
+
+    for label, name in PHASES:
+        wrap(F, name, label)
+    claims = getattr(F, "_Claims", None)
+    if claims is not None:
+        wrap(claims, "overlapping", "overlap tests")
+    wrap(F, "_fit_region", "second pass (whole)", lambda a, k: "second pass (whole)" if k.get("shifts") else None)
+    try:
+        c0 = time.process_time()
+        run()
+        spent["total"] = time.process_time() - c0
+    finally:
+        for owner, name, f in reversed(saved):
+            setattr(owner, name, f)
+    return dict(spent), dict(calls)
+
+
+def _frame(sensor: str, kind: str, seed: int, size: tuple[int, int], cache: str | None) -> Truth:
+    """The scene of the frame, synthesized or read back from ``cache`` (written there the first time)."""
+    import os
+    import pickle
+
+    path = None if cache is None else os.path.join(cache, f"{sensor}_{kind}_{seed}_{size[1]}x{size[0]}.pkl")
+    if path is not None and os.path.exists(path):
+        with open(path, "rb") as fh:
+            got = pickle.load(fh)
+        return got if isinstance(got, Truth) else Truth(**(got if isinstance(got, dict) else vars(got)))
+    truth = handmade(kind, seed, size) if sensor == "handmade" else raytraced(kind, seed, size)
+    if path is not None:
+        os.makedirs(cache, exist_ok=True)
+        with open(path, "wb") as fh:
+            pickle.dump(vars(truth), fh)
+    return truth
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--set", choices=tuple(SEEDS), default="report")
@@ -333,6 +420,10 @@ def main() -> None:
     ap.add_argument("--before", action="store_true",
                     help="also the fits without the sixth round's claims (claim=false: the fifth round's fits to "
                          "the bit) on each frame, just before")
+    ap.add_argument("--cache", default=None, metavar="DIR", help="keep the synthesized frames in DIR")
+    ap.add_argument("--phases", action="store_true", help="also where each frame's CPU goes (a second fit)")
+    ap.add_argument("--no-proposals", action="store_true", help="score the fits only, not the proposals")
+    ap.add_argument("--repeat", type=int, default=1, help="fit each frame this many times (CPU: the smallest)")
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                     help="a FitParams field (e.g. seed_shifts=0: the fits without their second pass)")
     args = ap.parse_args()
@@ -362,15 +453,26 @@ def main() -> None:
             model = prepare_model(pm.vertices * scale, pm.triangles, sphere_tolerance=params.sphere_tolerance)
             prep = time.process_time() - c0
             for seed in seeds:
-                truth = handmade(kind, seed, (h, w)) if sensor == "handmade" else raytraced(kind, seed, (h, w))
+                truth = _frame(sensor, kind, seed, (h, w), args.cache)
                 valid = np.isfinite(truth.xyz_mm).all(axis=2)
                 zone = valid & ((truth.label == LABEL_PART) | truth.outliers | truth.off)
                 for label, p in variants:
-                    c0 = time.process_time()
-                    fits = fit_prepared(truth.xyz_mm, zone, model, intrinsics=truth.K, params=p)
-                    cpu = time.process_time() - c0
-                    s = score(truth, fits, model, zone)
-                    s.update(sensor=sensor, kind=kind, seed=seed, cpu_s=cpu, prepare_s=prep, fits_run=label)
+                    cpus = []
+                    for _ in range(max(1, args.repeat)):
+                        c0 = time.process_time()
+                        fits = fit_prepared(truth.xyz_mm, zone, model, intrinsics=truth.K, params=p)
+                        cpus.append(time.process_time() - c0)
+                    cpu = min(cpus)
+                    s = score(truth, fits, model, zone, with_proposals=not args.no_proposals)
+                    s.update(sensor=sensor, kind=kind, seed=seed, cpu_s=cpu, cpu_all=cpus, prepare_s=prep,
+                             fits_run=label)
+                    if args.phases:
+                        spent, calls = phase_times(functools.partial(fit_prepared, truth.xyz_mm, zone, model,
+                                                                     intrinsics=truth.K, params=p))
+                        s.update(phases=spent, phase_calls=calls)
+                        print("   phases (CPU-s, calls): " + ", ".join(
+                            f"{k} {v:.2f}" + (f" ({calls[k]})" if k in calls else "")
+                            for k, v in sorted(spent.items(), key=lambda kv: -kv[1])), flush=True)
                     rows.append(s)
                     _row(s, label)
                     dumped[(label, sensor, kind, seed)] = [(f.pose, f.err_mm, f.support, f.pixels) for f in fits]

@@ -17,7 +17,16 @@ against the surfaces left (:func:`replay.pipeline.explained.run_explained`), so 
 on its part are explained by the part's kept fit and the off-surface points it hid become
 unexplained.
 
-**Volume overlap** (:func:`part_overlaps`): each part mesh is sampled inside by ``samples`` points
+**One rule for the fitting and the vetting** (:class:`Solid`, :func:`pose_overlaps`): the share of one
+instance's inside samples that lie inside another instance of the same part, looked up in the part's
+occupancy grid (``OCCUPANCY_VOXELS`` a side of its box; a sphere: the closed form). The fitting
+(:mod:`zcut.fits`, ``FitParams.claim``) refuses a candidate by it and :func:`instance_overlaps` vets by it,
+on the same samples and the same grid (:func:`solid_of`, built once per mesh: the prepared model's
+``PartModel.solid``, passed to :func:`instance_overlaps`): the two can no longer disagree near a face by a
+voxel. The vetting stays the guard for fits the fitting did not make (instances
+a person seeded, a results file).
+
+**Volume overlap of different meshes** (:func:`part_overlaps`): each part mesh is sampled inside by ``samples`` points
 drawn uniformly (Open3D's ``RaycastingScene.compute_occupancy``, ray parity: the mesh must
 be closed — every edge shared by exactly two triangles once coincident vertices are welded; a mesh
 that is not closed has no inside and its fits are never vetted out, :func:`is_closed`); the overlap of fit i with fit j is the share of i's
@@ -44,6 +53,11 @@ from .explained import SURFACE_NONE, KnownSurfaces, Nearest, nearest_surface, un
 MAX_OVERLAP = 0.05
 #: this many points drawn inside each part measure the overlaps
 INSIDE_SAMPLES = 400
+#: :attr:`Solid.occupancy`: voxels a side of the mesh's bounding box
+OCCUPANCY_VOXELS = 64
+#: a mesh whose vertices and faces' centres all lie within this share of the vertices' mean distance from the
+#: surface's centroid is a ball (:attr:`Solid.ball`; ``FitParams.sphere_tolerance``'s default)
+SPHERE_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True, slots=True)
@@ -131,6 +145,102 @@ def inside_samples(vertices: np.ndarray, triangles: np.ndarray, *, samples: int 
     return out
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class Solid:
+    """The inside of a part mesh (its model frame, mm), as the fitting and the vetting measure overlaps.
+
+    Attributes
+    ----------
+    inside : (q, 3) float64 ndarray
+        Points drawn uniformly inside the solid (:func:`inside_samples`); none when the mesh is not closed.
+    occupancy : (origin (3,), voxel (3,), (n, n, n) bool ndarray) or None
+        Whether each voxel centre of the bounding box (``OCCUPANCY_VOXELS`` a side) lies inside the solid
+        (Open3D's occupancy, once); None when the mesh is not closed or is a ball.
+    ball : (centre (3,), radius) or None
+        The mesh is a ball (``SPHERE_TOLERANCE``; the fits' sphere): inside is the closed form.
+    """
+
+    inside: np.ndarray
+    occupancy: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+    ball: tuple[np.ndarray, float] | None
+
+    def contains(self, points_model: np.ndarray) -> np.ndarray:
+        """(n,) bool: whether each of ``points_model`` (model frame) lies inside the solid (a ball: the closed
+        form; else the voxel of ``occupancy`` it falls in, at the voxel's resolution: a 64th of the box; a
+        mesh that is not closed contains nothing)."""
+        p = np.asarray(points_model, np.float64).reshape(-1, 3)
+        if len(p) == 0:
+            return np.zeros(0, bool)
+        if self.ball is not None:
+            out: np.ndarray = np.linalg.norm(p - self.ball[0], axis=1) <= self.ball[1]
+            return out
+        if self.occupancy is None:
+            return np.zeros(len(p), bool)
+        origin, h, grid = self.occupancy
+        ijk = np.floor((p - origin) / h).astype(np.int64)
+        inside = ((ijk >= 0) & (ijk < np.asarray(grid.shape))).all(axis=1)
+        res = np.zeros(len(p), bool)
+        i = ijk[inside]
+        res[inside] = grid[i[:, 0], i[:, 1], i[:, 2]]
+        return res
+
+
+def surface_centroid(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """The area-weighted centroid of a mesh's surface (its triangles of positive area)."""
+    v = np.asarray(vertices, np.float64)
+    t = np.asarray(triangles, np.int64)
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    keep = area > 0
+    a, b, c, area = a[keep], b[keep], c[keep], area[keep]
+    out: np.ndarray = ((a + b + c) / 3.0 * area[:, None]).sum(axis=0) / area.sum()
+    return out
+
+
+def solid_of(vertices: np.ndarray, triangles: np.ndarray, *, sphere_tolerance: float = SPHERE_TOLERANCE,
+             samples: int = INSIDE_SAMPLES) -> Solid:
+    """The :class:`Solid` of a mesh (model frame, mm): build it once per mesh and pass it on (the prepared
+    model's, :attr:`zcut.fits.PartModel.solid`, is the one its fits were made with; ``instance_overlaps``
+    builds one when given none)."""
+    v = np.ascontiguousarray(vertices, np.float64)
+    t = np.ascontiguousarray(triangles, np.int64)
+    inside = inside_samples(v, t, samples=samples)
+    ball = None
+    occupancy = None
+    if len(v) and len(t):
+        # a ball: its vertices and its faces' centres at one radius (a box's corners alone are)
+        centre = surface_centroid(v, t)
+        r = np.linalg.norm(v - centre, axis=1)
+        rc = np.linalg.norm(v[t].mean(axis=1) - centre, axis=1)
+        tol = sphere_tolerance * float(r.mean())
+        if float(np.abs(r - r.mean()).max()) <= tol and float(np.abs(rc - r.mean()).max()) <= tol:
+            ball = (centre, float(r.mean()))
+    if ball is None and is_closed(v, t):
+        lo, hi = v.min(axis=0), v.max(axis=0)
+        h = (hi - lo) / OCCUPANCY_VOXELS
+        axes = [lo[a] + h[a] * (np.arange(OCCUPANCY_VOXELS) + 0.5) for a in range(3)]
+        centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        occupancy = (lo, h, _inside(_scene(v, t), centres).reshape((OCCUPANCY_VOXELS,) * 3))
+    return Solid(inside=inside, occupancy=occupancy, ball=ball)
+
+
+def pose_overlaps(solid: Solid, Ta: np.ndarray, Tb: np.ndarray) -> np.ndarray:
+    """(n,) the share of the solid posed at ``Ta[i]``'s inside samples that lie inside the solid posed at
+    ``Tb[i]`` ((n, 4, 4) model -> frame, rigid): the one overlap rule of the fitting and the vetting (module
+    docstring)."""
+    Ta = np.asarray(Ta, np.float64).reshape(-1, 4, 4)
+    Tb = np.asarray(Tb, np.float64).reshape(-1, 4, 4)
+    q = solid.inside
+    if not len(Ta) or not len(q):
+        return np.zeros(len(Ta))
+    Rb_T = Tb[:, :3, :3].transpose(0, 2, 1)
+    R = Rb_T @ Ta[:, :3, :3]  # R_b^T R_a
+    t = (Rb_T @ (Ta[:, :3, 3] - Tb[:, :3, 3])[:, :, None])[:, :, 0]  # R_b^T (t_a - t_b)
+    moved = q @ R.transpose(0, 2, 1) + t[:, None, :]  # a's samples in b's model frame
+    out: np.ndarray = solid.contains(moved.reshape(-1, 3)).reshape(len(Ta), len(q)).mean(axis=1)
+    return out
+
+
 def part_overlaps(parts: Sequence[tuple[np.ndarray, np.ndarray]], *,
                   samples: int = INSIDE_SAMPLES) -> tuple[np.ndarray, np.ndarray]:
     """The volume overlaps of posed part meshes: ((p, 2) int64 ordered pairs (i, j), (p,) share of
@@ -166,18 +276,21 @@ def part_overlaps(parts: Sequence[tuple[np.ndarray, np.ndarray]], *,
 
 
 def instance_overlaps(vertices: np.ndarray, triangles: np.ndarray, poses: Sequence[np.ndarray], *,
-                      samples: int = INSIDE_SAMPLES) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`part_overlaps` of instances of one mesh at ``poses`` ((4, 4) model -> frame, rigid), the
-    same definition computed once in the model's frame: its inside samples drawn once, each ordered pair
-    (a, b) whose bounding spheres meet tests a's samples moved into b's model frame against the model."""
+                      samples: int = INSIDE_SAMPLES, solid: Solid | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The volume overlaps of instances of one mesh at ``poses`` ((4, 4) model -> frame, rigid) by the
+    fitting's rule (:func:`pose_overlaps` on the mesh's :class:`Solid`: ``solid``, the prepared model's, or
+    :func:`solid_of` the mesh, built here): its
+    inside samples drawn once, each ordered pair (a, b) whose bounding spheres meet tests a's samples moved
+    into b's model frame against the model's occupancy (a ball: the closed form). The same pairs and, within
+    a voxel near a face, the same shares as :func:`part_overlaps` of the posed meshes."""
     v = np.asarray(vertices, np.float64)
     T = np.asarray(poses, np.float64).reshape(-1, 4, 4)
     n = len(T)
     empty = (np.zeros((0, 2), np.int64), np.zeros(0))
     if n < 2:
         return empty
-    inside = inside_samples(v, triangles, samples=samples)
-    if not len(inside):
+    solid = solid_of(v, triangles, samples=samples) if solid is None else solid
+    if not len(solid.inside):
         return empty
     centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
     radius = float(np.linalg.norm(v - centre, axis=1).max())
@@ -190,11 +303,7 @@ def instance_overlaps(vertices: np.ndarray, triangles: np.ndarray, poses: Sequen
     pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
     ordered = np.empty((2 * len(pairs), 2), np.int64)
     ordered[0::2], ordered[1::2] = pairs, pairs[:, ::-1]
-    a, b = ordered[:, 0], ordered[:, 1]
-    R = np.einsum("pji,pjk->pik", T[b, :3, :3], T[a, :3, :3])  # R_b^T R_a
-    t = np.einsum("pji,pj->pi", T[b, :3, :3], T[a, :3, 3] - T[b, :3, 3])  # R_b^T (t_a - t_b)
-    q = np.einsum("pij,mj->pmi", R, inside) + t[:, None, :]
-    share = _inside(_scene(v, triangles), q.reshape(-1, 3)).reshape(len(ordered), -1).mean(axis=1)
+    share = pose_overlaps(solid, T[ordered[:, 0]], T[ordered[:, 1]])
     return ordered, share.astype(np.float64)
 
 
@@ -290,5 +399,6 @@ def without_fits(xyz_mm: np.ndarray, nearest: Nearest, surfaces: KnownSurfaces,
     return left, Nearest(dist, code)
 
 
-__all__ = ["INSIDE_SAMPLES", "MAX_OVERLAP", "FitVetting", "explained_px", "inside_samples", "instance_overlaps", "is_closed",
-           "part_overlaps", "vet_fits", "without_fits"]
+__all__ = ["INSIDE_SAMPLES", "MAX_OVERLAP", "OCCUPANCY_VOXELS", "SPHERE_TOLERANCE", "FitVetting", "Solid", "explained_px",
+           "inside_samples", "instance_overlaps", "is_closed", "part_overlaps", "pose_overlaps", "solid_of",
+           "surface_centroid", "vet_fits", "without_fits"]

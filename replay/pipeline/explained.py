@@ -225,10 +225,12 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
     intr = None if K is None or (K.height, K.width) != zone.zone.shape else (K.fx, K.fy, K.cx, K.cy)
     fits: tuple[PartFit, ...] = ()
     v, t = np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    solid = None  # the prepared model's inside: the vetting measures overlap as its fitting did
     if p.part_model:
         from zcut.fits import FitParams, fit_prepared
 
         v, t, prepared = part_model(p.part_model, p.part_model_unit)
+        solid = prepared.solid
         fits = tuple(fit_prepared(xyz, zone.zone, prepared, intrinsics=intr,
                                   params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm,
                                                    min_support=p.fit_min_support)))
@@ -255,7 +257,7 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
         if p.fit_max_overlap < 1:  # 1: every fit kept, no vetting
             # Err where the ranking reads it (the zone's pixels a fit is nearest to): the whole image once, below
             err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm, where=zone.zone & (near.surface >= 0))
-            kept = vet_fits(instance_overlaps(v, t, [f.pose for f in fits]),
+            kept = vet_fits(instance_overlaps(v, t, [f.pose for f in fits], solid=solid),
                             explained_px(near, err, len(fits), k=p.k, where=zone.zone),
                             max_overlap=p.fit_max_overlap).kept
         if not kept.all():  # the fits vetted out are no known surface: their pixels judged again

@@ -16,6 +16,7 @@ import numba
 import numpy as np
 
 from zcut.errors import InputShapeError, ParameterError, describe_array
+from zcut.fit_vetting import Solid
 
 from .kernels import ModelIndex, build_index
 
@@ -56,15 +57,12 @@ class PartModel:
         computed once per model.
     front_probe : (p, 3), (p, 3) float64 ndarrays
         An even subsample of ``samples`` and ``normals`` for the initial translations.
-    inside : (q, 3) float64 ndarray
-        Points drawn uniformly inside the solid (:func:`zcut.fit_vetting.inside_samples`, the samples the
-        vetting of the fits draws), none when the mesh is not closed: two fits whose solids share more
-        than :attr:`FitParams.max_overlap <zcut.fits.FitParams>` of either's volume are not both
-        accepted (:meth:`contains`).
-    occupancy : (origin (3,), voxel (3,), (nx, ny, nz) bool ndarray) or None
-        Whether each voxel centre of the bounding box (``OCCUPANCY_VOXELS`` a side) lies inside the solid
-        (Open3D's occupancy, once): :meth:`contains` of a general model looks points up there (a call
-        of Open3D's occupancy per candidate cost more than the fits under load: its threads).
+    solid : zcut.fit_vetting.Solid
+        The inside of the mesh (:func:`zcut.fit_vetting.solid_of`: points drawn inside it and its
+        occupancy grid, a ball's closed form), the one the vetting of the fits measures overlaps on: two
+        fits whose solids share more than :attr:`FitParams.max_overlap <zcut.fits.FitParams>` of either's
+        volume are not both accepted (:func:`zcut.fit_vetting.pose_overlaps`). ``inside``,
+        ``occupancy`` and :meth:`contains` are its.
     """
 
     vertices: np.ndarray
@@ -82,8 +80,7 @@ class PartModel:
     guesses: np.ndarray
     probe_samples: np.ndarray
     probe_normals: np.ndarray
-    inside: np.ndarray
-    occupancy: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+    solid: Solid
     _scene: Any = field(repr=False)
     _tree: Any = field(repr=False)
     _edge_tree: Any = field(repr=False)
@@ -121,25 +118,21 @@ class PartModel:
         out[hits] = t.astype(np.float64)
         return out
 
+    @property
+    def inside(self) -> np.ndarray:
+        """(q, 3) points drawn uniformly inside the solid (:attr:`solid`), none when the mesh is not closed."""
+        return self.solid.inside
+
+    @property
+    def occupancy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The solid's occupancy grid (:attr:`zcut.fit_vetting.Solid.occupancy`)."""
+        return self.solid.occupancy
+
     def contains(self, points_model: np.ndarray) -> np.ndarray:
-        """(n,) bool: whether each of ``points_model`` (model frame) lies inside the solid (a sphere: the
-        closed form; else the voxel of ``occupancy`` it falls in: at the voxel's resolution, a 64th of the
-        box)."""
-        p = np.asarray(points_model, np.float64).reshape(-1, 3)
-        if len(p) == 0:
-            return np.zeros(0, bool)
-        if self.sphere_radius is not None:
-            out: np.ndarray = np.linalg.norm(p - self.centroid, axis=1) <= self.sphere_radius
-            return out
-        if self.occupancy is None:
-            return np.zeros(len(p), bool)
-        origin, h, grid = self.occupancy
-        ijk = np.floor((p - origin) / h).astype(np.int64)
-        inside = ((ijk >= 0) & (ijk < np.asarray(grid.shape))).all(axis=1)
-        res = np.zeros(len(p), bool)
-        i = ijk[inside]
-        res[inside] = grid[i[:, 0], i[:, 1], i[:, 2]]
-        return res
+        """(n,) bool: whether each of ``points_model`` (model frame) lies inside the solid
+        (:meth:`zcut.fit_vetting.Solid.contains`: a sphere in closed form, else at the occupancy grid's
+        resolution, a 64th of the box)."""
+        return self.solid.contains(points_model)
 
     def nearest_edges(self, points_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(distance, index into ``edges``) of the nearest edge point of each point (model frame)."""
@@ -429,10 +422,6 @@ def _guess_templates(axes: np.ndarray, sym: np.ndarray, cont: np.ndarray | None)
     return np.stack(kept)
 
 
-#: :attr:`PartModel.occupancy`: voxels a side of the box
-OCCUPANCY_VOXELS = 64
-
-
 def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tolerance: float = 0.01,
                   n_samples: int = 20000, index_margin_mm: float = 6.0, index_voxels: int = 1_000_000) -> PartModel:
     """Check and prepare a part mesh; raise :class:`~zcut.errors.ParameterError` (one line) when it
@@ -470,22 +459,13 @@ def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tole
     else:
         sym, cont, index = np.eye(3)[None], None, None
     probe = slice(None, None, max(1, n_samples // 2000))
-    from zcut.fit_vetting import inside_samples, is_closed
+    from zcut.fit_vetting import solid_of
 
-    occupancy = None
-    if scene is not None and is_closed(v, t):
-        lo, hi = v.min(axis=0), v.max(axis=0)
-        h_occ = (hi - lo) / OCCUPANCY_VOXELS
-        axes_c = [lo[a] + h_occ[a] * (np.arange(OCCUPANCY_VOXELS) + 0.5) for a in range(3)]
-        centres = np.stack(np.meshgrid(*axes_c, indexing="ij"), axis=-1).reshape(-1, 3)
-        import open3d as o3d
-
-        occ = scene.compute_occupancy(o3d.core.Tensor(centres.astype(np.float32))).numpy() > 0  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
-        occupancy = (lo, h_occ, occ.reshape((OCCUPANCY_VOXELS,) * 3))
+    # the vetting's solid of the same mesh (the one overlap rule): a ball when this is a sphere
+    solid = solid_of(v, t, sphere_tolerance=sphere_tolerance)
 
     return PartModel(vertices=v, triangles=t, centroid=centroid, sphere_radius=sphere, samples=samples,
                      normals=normals, axes=axes, extent_mm=extent, symmetries=sym, continuous_axis=cont,
                      edges=edges, index=index, guesses=_guess_templates(axes, sym, cont),
-                     probe_samples=samples[probe], probe_normals=normals[probe], inside=inside_samples(v, t),
-                     occupancy=occupancy,
+                     probe_samples=samples[probe], probe_normals=normals[probe], solid=solid,
                      _scene=scene, _tree=tree, _edge_tree=edge_tree)
