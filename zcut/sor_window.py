@@ -315,19 +315,26 @@ def _corners(b, bc, xq, yq, zq, Q):  # type: ignore[no-untyped-def]  # numba ker
 # compiler can then prove that the stores do not alias the loads and vectorizes the loop (with
 # the planes and the cloud as separate arrays it would need a run-time check per input row, and
 # gives up). Layout for a chunk of CH query columns c0 .. c0 + CH - 1 and a window of half-width w:
-# x, y, z of the rows r - w .. r + w at columns c0 - w .. c0 + CH - 1 + w; then 17 fields per
-# query column (the right and left row-band planes at c ± (w + 1), the column band's planes for
-# the rows r ± (w + 1), the corner floor); then the output.
+# x, y, z of the rows r - w .. r + w at columns c0 - w .. c0 + CH - 1 + w; then the fields per
+# query column: the right and left row-band planes at c ± (w + 1) (8), and for the 5 x 5 stage
+# the column band's planes for the rows r ± (w + 1) and the corner floor (9 more); then the
+# output. The 3 x 3 stage does not copy those 9, which are constant over a column band: its
+# kernel runs over one band's columns at a time and takes them as scalars (:func:`_band_consts`).
 CH = 256
 _GAP = 8  # invalid columns in a row that end a chunk of the row stages
+
+
+def _fields(w: int) -> int:
+    """Fields per query column in the scratch buffer: 8 for the 3 x 3 stage, 17 for the 5 x 5."""
+    return 8 if w == 1 else 17
 
 
 def _layout(w: int) -> tuple[int, int, int, int, int, int]:
     span = CH + 2 * w                 # columns of one input row
     rows = 2 * w + 1
     ox, oy, oz = 0, rows * span, 2 * rows * span
-    ot = 3 * rows * span              # 17 fields of CH
-    oo = ot + 17 * CH                 # output
+    ot = 3 * rows * span              # _fields(w) fields of CH
+    oo = ot + _fields(w) * CH         # output
     return span, ox, oy, oz, ot, oo + CH
 
 
@@ -345,10 +352,19 @@ def _chunk_plane(buf, o, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba k
     return max(buf[o] * xq + buf[o + CH] * yq + buf[o + 2 * CH] * zq + buf[o + 3 * CH], 0.0) * KEEP
 
 
+@nb.njit(cache=True, inline="always")
+def _plane_at(xq, yq, zq, p0, p1, p2, p3):  # type: ignore[no-untyped-def]  # numba kernel
+    # plane_bound of the plane (p0, p1, p2, p3), its terms in the order of _chunk_plane
+    return max(p0 * xq + p1 * yq + p2 * zq + p3, 0.0) * KEEP
+
+
 @nb.njit(cache=True, error_model="numpy")
-def _chunk_3x3(buf, n, m, divisor, use_cam, init):  # type: ignore[no-untyped-def]  # numba kernel
-    """Query columns 0..n-1 of the chunk with a 3 x 3 window: d̄ where proven, else NaN.
-    ``init``: the slot tuple (:func:`slots_for`)."""
+def _chunk_3x3(buf, n, m, divisor, use_cam, init, cb):  # type: ignore[no-untyped-def]  # numba kernel
+    """Query columns 0..n-1 of ``buf`` (a view of the scratch buffer from the first of them, all in
+    one column band) with a 3 x 3 window: d̄ where proven, else NaN. ``init``: the slot tuple
+    (:func:`slots_for`); ``cb``: the column band's planes below and above the window and the
+    corner floor (:func:`_band_consts`)."""
+    pb0, pb1, pb2, pb3, pa0, pa1, pa2, pa3, fl = cb  # below, above (names not used for offsets below)
     for i in range(n):
         j = i + 1
         a0, a1, a2 = _X1 + j, _X1 + _S1 + j, _X1 + 2 * _S1 + j
@@ -372,11 +388,10 @@ def _chunk_3x3(buf, n, m, divisor, use_cam, init):  # type: ignore[no-untyped-de
                  + np.int64(buf[a2 - 1] < np.inf) + np.int64(buf[a2] < np.inf) + np.int64(buf[a2 + 1] < np.inf))
         dm2, mean = _pick_slots(m, divisor, sl)
         sb = min(min(_chunk_plane(buf, _T1 + i, xq, yq, zq), _chunk_plane(buf, _T1 + 4 * CH + i, xq, yq, zq)),
-                 min(_chunk_plane(buf, _T1 + 8 * CH + i, xq, yq, zq), _chunk_plane(buf, _T1 + 12 * CH + i, xq, yq, zq)))
-        fl = buf[_T1 + 16 * CH + i]
+                 min(_plane_at(xq, yq, zq, pb0, pb1, pb2, pb3), _plane_at(xq, yq, zq, pa0, pa1, pa2, pa3)))
         proven = (dm2 == 0.0) | (use_cam & (dm2 <= sb * sb * KEEP) & (dm2 <= fl * fl * KEEP))
         ok = (xq < np.inf) & (count >= m) & proven
-        buf[_T1 + 17 * CH + i] = mean if ok else np.nan
+        buf[_T1 + 8 * CH + i] = mean if ok else np.nan
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -482,7 +497,7 @@ def _fill_chunk(buf, w, r, c0, n, x, y, z, Rb, C, floor, b, use_cam):  # type: i
             buf[o + j] = zr[j]
     ot = 3 * rows * span
     if not use_cam:
-        buf[ot:ot + 17 * CH] = 0.0
+        buf[ot:ot + (8 if w == 1 else 17) * CH] = 0.0
         return
     for f in range(4):  # row band: columns right of the window, then left of it
         right = Rb[f, c0 + w + 1:c0 + w + 1 + n]
@@ -493,6 +508,8 @@ def _fill_chunk(buf, w, r, c0, n, x, y, z, Rb, C, floor, b, use_cam):  # type: i
         o = ot + (4 + f) * CH
         for i in range(n):
             buf[o + i] = left[i]
+    if w == 1:
+        return  # the 3 x 3 stage takes what is constant over a column band as scalars
     below = r + w + 1 < H  # column bands: rows below / above the window (a constant per band)
     above = r - w - 1 >= 0
     bc = (c0 + BLOCK // 2) // BLOCK
@@ -509,6 +526,26 @@ def _fill_chunk(buf, w, r, c0, n, x, y, z, Rb, C, floor, b, use_cam):  # type: i
         bc += 1
 
 
+@nb.njit(cache=True, inline="always")
+def _band_consts(C, floor, b, bc, r, w, H, use_cam):  # type: ignore[no-untyped-def]  # numba kernel
+    # what is constant over the columns of column band bc for row r and a window of half-width w:
+    # the planes of the band's rows below and above the window (an infinite bound where there are
+    # none) and the corner floor of the band cell (b, bc); zeros without camera bounds
+    if not use_cam:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    rb = r + w + 1
+    ra = r - w - 1
+    if rb < H:
+        b0, b1, b2, b3 = C[bc, 0, rb], C[bc, 1, rb], C[bc, 2, rb], C[bc, 3, rb]
+    else:
+        b0, b1, b2, b3 = 0.0, 0.0, 0.0, np.inf
+    if ra >= 0:
+        a0, a1, a2, a3 = C[bc, 4, ra], C[bc, 5, ra], C[bc, 6, ra], C[bc, 7, ra]
+    else:
+        a0, a1, a2, a3 = 0.0, 0.0, 0.0, np.inf
+    return b0, b1, b2, b3, a0, a1, a2, a3, floor[b, bc]
+
+
 @nb.njit(cache=True)
 def _row_stage(buf, w, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor, b, dbar, merge, init,  # type: ignore[no-untyped-def]  # numba kernel
                best, wmax):
@@ -518,10 +555,10 @@ def _row_stage(buf, w, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C
     # _GAP invalid ones (the columns between chunks are invalid: their dbar is left as it is).
     # Stage 2 hands the pixels it leaves straight to the growing window, from its 5 x 5 window's
     # slots (written: d̄, or minus the m-th squared distance found): stage 3 skips them.
-    W = x.shape[1]
+    H, W = x.shape
     c = max(w + 1, first)
     end = min(W - w - 2, last)
-    oo = 3 * (2 * w + 1) * (CH + 2 * w) + 17 * CH
+    oo = 3 * (2 * w + 1) * (CH + 2 * w) + (8 if w == 1 else 17) * CH
     Rb = R[b]
     while c <= end:
         if not valid[r, c]:
@@ -538,7 +575,15 @@ def _row_stage(buf, w, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C
         c = lastv + 1
         _fill_chunk(buf, w, r, c0, n, x, y, z, Rb, C, floor, b, use_cam)
         if w == 1:
-            _chunk_3x3(buf, n, m, divisor, use_cam, init)
+            bc = (c0 + BLOCK // 2) // BLOCK
+            i0 = 0
+            while i0 < n:  # one column band at a time: its planes and floor are constants
+                i1 = min(n, BLOCK * bc + BLOCK // 2 - c0)
+                # (a view from the band's first column: offsets >= 0 at compile time, so no
+                # wrap-around test, and the loop vectorizes)
+                _chunk_3x3(buf[i0:], i1 - i0, m, divisor, use_cam, init, _band_consts(C, floor, b, bc, r, w, H, use_cam))
+                i0 = i1
+                bc += 1
             for i in range(n):
                 dbar[r, c0 + i] = buf[oo + i]
         else:

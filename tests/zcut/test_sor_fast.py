@@ -289,3 +289,71 @@ def test_degenerate_inputs(convention: str) -> None:
             assert_as_oracle(cloud, ks=(4,), conventions=(convention,))
         else:
             assert not sor_outliers(cloud, k=4, convention=convention).any(), name
+
+
+# ------------------------------------------------------------------------------------------------
+# the 3 x 3 kernel: what is constant over a column band comes as scalars
+# ------------------------------------------------------------------------------------------------
+def _plane_bound(p: np.ndarray, q: np.ndarray) -> float:
+    return max(p[0] * q[0] + p[1] * q[1] + p[2] * q[2] + p[3], 0.0) * sor_window.KEEP
+
+
+@pytest.mark.parametrize("m", [2, 4, 5, 6, 7])  # 4 slots up to m = 5, 8 beyond
+def test_three_by_three_kernel_against_a_literal_transcription(m: int) -> None:
+    # _chunk_3x3 on a scratch buffer of random coordinates (some invalid, some duplicated) and
+    # random planes, with the column band's planes below and above the window and the corner floor
+    # as scalars: d̄ where the window is proven, NaN elsewhere, as a per-pixel loop computes it
+    # (the strip bound the smallest of the four planes' bounds, the floor's bound, the count)
+    rng = np.random.default_rng(40 + m)
+    CH = sor_window.CH
+    S, X, Y, Z, T = sor_window._S1, sor_window._X1, sor_window._Y1, sor_window._Z1, sor_window._T1
+    n = CH - 3
+    buf = np.full(sor_window.SCRATCH, np.nan)
+    row, col = np.mgrid[0:3, 0:n + 2]
+    pts = np.stack([0.01 * col, 0.01 * row, np.full((3, n + 2), 0.5)], axis=-1) + rng.uniform(0.0, 0.02, (3, n + 2, 3))
+    pts[rng.random((3, n + 2)) < 0.05] = np.inf
+    pts[1, 10:14] = pts[0, 10]  # duplicates: m distances of 0 for some m
+    pts[2, 9:16] = pts[0, 10]
+    for k in range(3):
+        buf[X + k * S:X + k * S + n + 2] = pts[k, :, 0]
+        buf[Y + k * S:Y + k * S + n + 2] = pts[k, :, 1]
+        buf[Z + k * S:Z + k * S + n + 2] = pts[k, :, 2]
+
+    def random_plane(q: np.ndarray) -> np.ndarray:  # a bound of 0.005 to 0.06 at q, larger or smaller nearby
+        normal = rng.normal(size=3)
+        normal /= np.linalg.norm(normal)
+        return np.append(normal, -normal @ np.where(np.isfinite(q), q, 0.0) + rng.uniform(0.005, 0.06))
+
+    right = np.array([random_plane(pts[1, i + 1]) for i in range(n)])
+    left = np.array([random_plane(pts[1, i + 1]) for i in range(n)])
+    for f in range(4):
+        buf[T + f * CH:T + f * CH + n] = right[:, f]
+        buf[T + (4 + f) * CH:T + (4 + f) * CH + n] = left[:, f]
+    below = np.array([0.0, 0.0, 1.0, -0.5 + 0.01])  # bounds of 0.01 to 0.03: often the decisive ones
+    above = np.array([0.0, 0.0, -1.0, 0.52 + 0.01])
+    floor = 0.9
+    divisor = float(m - 1)
+    init = sor_window.slots_for(m)
+    sor_window._chunk_3x3(buf, n, m, divisor, True, init, (*below, *above, floor))
+    got = buf[T + 8 * CH:T + 8 * CH + n]
+    want = np.full(n, np.nan)
+    for i in range(n):
+        q = pts[1, i + 1]
+        if not q[0] < np.inf:
+            continue
+        nbrs = [pts[k, i + j] for k in range(3) for j in range(3) if (k, j) != (1, 1)]
+        d2 = sorted(((q[0] - p[0]) * (q[0] - p[0]) + (q[1] - p[1]) * (q[1] - p[1])) + (q[2] - p[2]) * (q[2] - p[2])
+                    for p in nbrs)
+        count = 1 + sum(bool(p[0] < np.inf) for p in nbrs)
+        if count < m:
+            continue
+        dm2 = d2[m - 2] if m >= 2 else 0.0
+        sb = min(min(_plane_bound(right[i], q), _plane_bound(left[i], q)),
+                 min(_plane_bound(below, q), _plane_bound(above, q)))
+        if dm2 == 0.0 or (dm2 <= sb * sb * sor_window.KEEP and dm2 <= floor * floor * sor_window.KEEP):
+            s = 0.0
+            for v in d2[:m - 1]:
+                s += math.sqrt(v)
+            want[i] = s / divisor
+    np.testing.assert_array_equal(got, want)
+    assert np.count_nonzero(want > 0.0) >= 10 and np.count_nonzero(np.isnan(want)) >= 20  # both outcomes
