@@ -44,6 +44,7 @@ NEARER_MM = 2.0
 MAX_NEARER = 0.2
 
 _EIGHT = np.ones((3, 3), bool)
+_EIGHT.flags.writeable = False
 
 
 def nearer_share(z_mm: np.ndarray, valid: np.ndarray, pixels: np.ndarray, *, ring_px: int = RING_PX,
