@@ -25,7 +25,15 @@ into one log with ``zcut record-stereo``, whose truth is the matcher's errors ag
 disparity (``/ground_truth/outliers``; ``/ground_truth/unknown`` left out of the scores). A log without a part
 model runs the fallback only, and its accuracy is scored from the fallback's labels.
 
+``--diagnose LOGS`` (no browser): the rule with a part model emulated on the page's own bundle
+(:func:`annotate.fits.fit_frame`, :meth:`annotate.fits.FrameFits.bundle`: the rows' distances and Err), its
+label's pixels that are not the paper's truth broken down by cause — instances no fit matches, fitted
+instances off their fit (the fit's pose, or Err below the truth's), other fits, the bin, the table, depth
+edges — and the truth it misses (docs/labelling.md, "Third round: what the label holds beside the truth").
+The scene's true meshes are rebuilt from the log's ``zcut.synth`` record, read only to score.
+
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --logs A.mcap,B.mcap [--modes model,none]
+    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap,B.mcap [--json F]
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --kinect --middlebury Teddy,Piano
 """
 
