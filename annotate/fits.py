@@ -454,6 +454,8 @@ def fit_frame(frame: Frame, job: Job, config: Any, bin_model: BinModel | None) -
                  for f in detail.fits)
     vetted = f" ({len(detail.vetted_out)} vetted out: their solids overlap a better-supported fit's)" \
         if detail.vetted_out else ""
+    if detail.top_pieces:
+        vetted += f" ({detail.top_pieces} found again on unexplained pieces on top of the pile)"
     return FrameFits(frame.index, "ready", f"{len(fits)} fits{vetted}, {un_pix.size} unexplained px", (H, W), fits,
                      fit_pix, code[fit_pix].astype(np.int32), un_pix,
                      detail.dist_mm.ravel()[un_pix].astype(np.float32), detail.err_mm.ravel()[un_pix].astype(np.float32),

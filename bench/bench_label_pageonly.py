@@ -25,7 +25,15 @@ into one log with ``zcut record-stereo``, whose truth is the matcher's errors ag
 disparity (``/ground_truth/outliers``; ``/ground_truth/unknown`` left out of the scores). A log without a part
 model runs the fallback only, and its accuracy is scored from the fallback's labels.
 
+``--diagnose LOGS`` (no browser): the rule with a part model emulated on the page's own bundle
+(:func:`annotate.fits.fit_frame`, :meth:`annotate.fits.FrameFits.bundle`: the rows' distances and Err), its
+label's pixels that are not the paper's truth broken down by cause — instances no fit matches, fitted
+instances off their fit (the fit's pose, or Err below the truth's), other fits, the bin, the table, depth
+edges — and the truth it misses (docs/labelling.md, "Third round: what the label holds beside the truth").
+The scene's true meshes are rebuilt from the log's ``zcut.synth`` record, read only to score.
+
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --logs A.mcap,B.mcap [--modes model,none]
+    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap,B.mcap [--json F]
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --kinect --middlebury Teddy,Piano
 """
 
@@ -310,6 +318,186 @@ def has_part_model(log: Path) -> bool:
     return any(name == PART_MODEL_ATTACHMENT for name, _, _ in LogReader(log).attachments())
 
 
+# --------------------------------------------------------------------------------------------------------------
+# --diagnose: the person's rule emulated on the page's own bundle (no browser), its label's pixels by cause
+
+
+def _emulated_person(ff, xyz_mm: np.ndarray, heights: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+                                                                                                   dict]:
+    """(label, proposal ids) the rule of docs/labelling.md gives on the fits ``ff`` (:class:`annotate.fits.FrameFits`),
+    read from the same bundle the page draws: the fits whose Err (the fit table's) exceeds :data:`REJECT` × the
+    median the fits line shows are rejected and their first proposal rejected; every other proposal is an outlier
+    unless its median distance is not above k × its Err."""
+    from annotate.payload import parse_bundle
+
+    H, W = valid.shape
+    errs = sorted(float(f["err_mm"]) for f in ff.fits)
+    med = errs[len(errs) >> 1] if errs else float("nan")
+    rejected = {i for i, f in enumerate(ff.fits) if float(f["err_mm"]) > REJECT * med}
+    header, arrays = parse_bundle(ff.bundle(heights_mm=heights, valid=valid, rejected=rejected, header={},
+                                            xyz_mm=xyz_mm))
+    cols = header["proposal_columns"]
+    table = np.asarray(arrays["proposal_table"]).reshape(-1, len(cols)) if "proposal_table" in arrays else \
+        np.zeros((0, len(cols)))
+    ids = np.asarray(arrays["proposals"], np.int64).reshape(H, W) if "proposals" in arrays else np.zeros((H, W), np.int64)
+    col = {c: table[:, i].astype(np.float64) for i, c in enumerate(cols)}
+    out = np.ones(len(table) + 1, bool)
+    out[0] = False
+    seen: set[int] = set()
+    for j in range(len(table)):
+        f = int(col["fit"][j])
+        if f >= 0 and f not in seen:  # K's proposal, selected at once: R
+            seen.add(f)
+            out[j + 1] = False
+            continue
+        d, e = col["dist_mm"][j], col["err_mm"][j]
+        if not np.isnan(d) and not d > ff.k * e:
+            out[j + 1] = False
+    return out[ids], ids, {"rejected_fits": len(rejected), "proposals": len(table),
+                           "accepted": int(out[1:].sum()), "median_err": med}
+
+
+def _true_surfaces(log: Path, frame):  # type: ignore[no-untyped-def]
+    """The scene's true surfaces (tests/explained_helpers.py) of a synthetic frame, rebuilt from the log's
+    ``zcut.synth`` record (kind, seed, size, generator): read only to score."""
+    from types import SimpleNamespace
+
+    from explained_helpers import handmade_true_surfaces, raytraced_true_surfaces
+
+    from replay.logs import layout
+    from replay.logs.reader import LogReader
+
+    meta = LogReader(log).metadata[layout.SYNTH_METADATA]
+    kind, seed = meta["part_kind"], int(meta["seed"])
+    size = (int(meta["height"]), int(meta["width"]))
+    if meta.get("sensor") == "raytraced":
+        from replay.synth.raytrace import synthesize as rs
+        from replay.synth.synthesize import bin_pose_for, frame_rng
+
+        pose = bin_pose_for(frame_rng(seed, frame.index, empty=False), empty=False, index=frame.index)
+        rng = rs.raytrace_rng(seed, frame.index, empty=False)
+        fill = float(rng.uniform(*rs.FILL_RANGE_MM))
+        heap = rs.drop_parts(kind, pose, rng, count=min(rs.part_count(kind, fill), rs.MAX_PARTS))
+        return raytraced_true_surfaces(SimpleNamespace(pile=heap), seed=seed, index=frame.index)  # type: ignore[arg-type]
+    from replay.synth.synthesize import synthesize_frame
+
+    sf = synthesize_frame(kind=kind, seed=seed, index=frame.index, size=size)
+    return handmade_true_surfaces(sf)
+
+
+def diagnose(log: Path) -> list[dict]:
+    """The person's label on every frame of ``log`` (the rule emulated on the page's bundle) broken down by cause,
+    the truth read only to score: label pixels that are truth; label pixels that are not, by the true surface
+    they lie on — an instance no fit matches (its centre within a quarter of the part's size of no fit's), a
+    fitted instance (farther than k × Err from its fit: the true surface within k × the page's Err — the fit's
+    pose is off; not — the page's Err is below the truth's; and of those, at a depth edge), the bin or table;
+    the truth the proposals miss (in a fit's pixels; elsewhere) and the truth in proposals the rule rejected."""
+    from annotate.fits import Job, fit_frame
+    from replay.options import PipelineOptions
+
+    session = PipelineOptions(methods="zcut,explained").open_session(log)
+    rows = []
+    for frame, r in session.results():
+        job = Job.of(r)
+        t = time.process_time()
+        ff = fit_frame(frame, job, session.config, session.prepared.model if session.prepared is not None else None)
+        rows.append(diagnose_frame(log, frame, job, ff, time.process_time() - t))
+        print(json.dumps(rows[-1], indent=1, default=float), flush=True)
+    return rows
+
+
+def diagnose_frame(log: Path, frame, job, ff, cpu: float) -> dict:  # type: ignore[no-untyped-def]
+    """:func:`diagnose` on one frame's fits ``ff`` (:func:`annotate.fits.fit_frame` of ``frame`` and ``job``)."""
+    from replay.logs import layout
+    from zcut import explained as ex
+
+    if True:
+        valid = np.asarray(job.valid, bool)
+        H, W = valid.shape
+        xyz = frame.xyz.astype(np.float64) * 1000.0
+        heights = np.where(valid, -1000.0 * frame.xyz[..., 2].astype(np.float64), np.nan)
+        label, ids, how = _emulated_person(ff, xyz, heights, valid)
+        easy = np.asarray(job.removal.easy_outliers, bool) if job.removal is not None else np.zeros((H, W), bool)
+        served = (np.asarray(job.zone, bool) | easy) & valid
+        label &= served
+        # ---- the truth, read only from here on
+        truth = frame.masks[layout.TRUTH_OFF_SURFACE] & served
+        parts, true_s = _true_surfaces(log, frame)
+        near_t = ex.nearest_surface(xyz, true_s, where=served)
+        tcode, tdist = near_t.surface, near_t.dist_mm.astype(np.float64)
+        assert ff.part_mesh is not None
+        v0 = ff.part_mesh[0]
+        size = float(np.linalg.norm(v0.max(axis=0) - v0.min(axis=0)))
+        fit_c = np.array([ff.posed(i)[0].mean(axis=0) for i in range(len(ff.fits))]).reshape(-1, 3)
+        true_c = np.array([v.mean(axis=0) for v, _ in parts]).reshape(-1, 3)
+        if len(fit_c) and len(true_c):
+            dd = np.linalg.norm(true_c[:, None, :] - fit_c[None, :, :], axis=2)
+            matched = dd.min(axis=1) <= 0.25 * size
+            match_of = np.where(matched, dd.argmin(axis=1), -1)
+        else:
+            matched, match_of = np.zeros(len(true_c), bool), np.full(len(true_c), -1)
+        # each pixel's distance to the page's nearest known surface and its Err (the un_* of the unexplained)
+        pdist = np.full(H * W, np.nan)
+        perr = np.full(H * W, np.nan)
+        pcode = np.full(H * W, -9, np.int64)
+        pdist[ff.un_pix], perr[ff.un_pix], pcode[ff.un_pix] = ff.un_dist, ff.un_err, ff.un_code
+        pdist, perr, pcode = pdist.reshape(H, W), perr.reshape(H, W), pcode.reshape(H, W)
+        zz = np.where(valid, xyz[..., 2], np.nan)
+        jump = np.zeros((H, W), bool)  # a depth edge: a neighbour (8) invalid or more than 10 footprints off
+        pad = np.pad(zz, 1, constant_values=np.nan)
+        tol = 10.0 * np.abs(zz) / ff.f_px
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dy or dx:
+                    with np.errstate(invalid="ignore"):
+                        jump |= ~(np.abs(pad[1 + dy:1 + dy + H, 1 + dx:1 + dx + W] - zz) <= tol)
+        jump &= valid
+        non = label & ~truth
+        on_part = non & (tcode >= 0)
+        inst = np.where(tcode >= 0, tcode, 0)
+        unfitted = on_part & ~matched[inst]
+        fitted = on_part & matched[inst]
+        own = fitted & (pcode == match_of[inst])
+        true_ok = tdist <= ff.k * perr  # the true surface lies within k x the page's Err: the fit's pose is off
+        vis = np.bincount(tcode[served & (tcode >= 0)].ravel(), minlength=len(parts))
+        full = float(np.percentile(vis[vis > 0], 90)) if (vis > 0).any() else 1.0
+        miss = truth & (ids == 0)
+        fitpix = np.zeros(H * W, bool)
+        fitpix[ff.fit_pix] = True
+        fitpix = fitpix.reshape(H, W)
+        un_inst = np.flatnonzero(~matched & (vis > 0))
+        row = {"log": log.name, "frame": frame.index, "cpu_fits": round(cpu, 1), **how,
+               "fits": len(ff.fits), "parts": len(parts), "parts_seen": int((vis > 0).sum()),
+               "parts_unfitted_seen": int(un_inst.size),
+               "unfitted_visible_share_median": float(np.median(vis[un_inst] / full)) if un_inst.size else None,
+               "unfitted_px_in_label_share": float(unfitted.sum() / max(int(vis[un_inst].sum()), 1)),
+               "truth": int(truth.sum()), "label": int(label.sum()), "label_truth": int((label & truth).sum()),
+               "iou": iou(label, truth),
+               "non_truth": int(non.sum()),
+               "non: unfitted instance": int(unfitted.sum()),
+               "non: fitted inst, nearest is its fit, pose off (true surf within k Err)": int((own & true_ok).sum()),
+               "non: fitted inst, nearest is its fit, Err < truth's": int((own & ~true_ok).sum()),
+               "  of those at a depth edge": int((own & jump).sum()),
+               "non: fitted inst, nearest is another surface": int((fitted & ~own).sum()),
+               "non: bin": int((non & (tcode == ex.SURFACE_BIN)).sum()),
+               "non: table": int((non & (tcode == ex.SURFACE_TABLE)).sum()),
+               "non: at a depth edge (all)": int((non & jump).sum()),
+               "truth missed: in a fit's pixels": int((miss & fitpix).sum()),
+               "truth missed: elsewhere": int((miss & ~fitpix).sum()),
+               "truth in rejected proposals": int((truth & (ids > 0) & ~label).sum())}
+        # the accepted proposals that are mostly not truth: how many and how large
+        n = int(ids.max())
+        if n:
+            sz = np.bincount(ids.ravel(), weights=label.ravel(), minlength=n + 1)
+            tp = np.bincount(ids.ravel(), weights=(label & truth).ravel(), minlength=n + 1)
+            bad = (sz > 0) & (tp < 0.5 * sz)
+            bad[0] = False
+            row["accepted mostly non-truth: proposals"] = int(bad.sum())
+            row["accepted mostly non-truth: px"] = int(sz[bad].sum())
+            row["  of which in proposals >= 50 px"] = int(sz[bad & (sz >= 50)].sum())
+    return row
+
+
 def fmt(v: float | None) -> str:
     return "-" if v is None else f"{v:.3f}"
 
@@ -325,7 +513,14 @@ def main() -> int:
     ap.add_argument("--viewport", default="1600x900")
     ap.add_argument("--no-accuracy", action="store_true", help="skip zcut accuracy from the labels")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
+    ap.add_argument("--diagnose", default="", metavar="LOGS",
+                    help="no browser: the rule emulated on the page's bundle of each log, its label broken down by cause")
     args = ap.parse_args()
+    if args.diagnose:
+        got = [r for lg in args.diagnose.split(",") if lg for r in diagnose(Path(lg))]
+        if args.json is not None:
+            args.json.write_text(json.dumps(got, indent=1, default=float))
+        return 0
     from playwright.sync_api import sync_playwright
 
     logs = [Path(v) for v in args.logs.split(",") if v]

@@ -14,6 +14,10 @@ than ``k`` × Err (``[explained]`` section, :class:`zcut.params.ExplainedParams`
   overlaps a better-ranked kept fit's by more than ``fit_max_overlap`` (5 %) of its volume is left out: no known surface
   (:attr:`ExplainedDetail.vetted_out`). The pixels whose nearest surface it was are judged again
   against the surfaces left, and the kept fits' residuals are measured again.
+- **Missed instances on top** (:mod:`zcut.top_pieces`, :data:`TOP_PIECES`): after the vetting, the zone's
+  unexplained pieces are fitted again; an instance found there joins the fits when it lies on top of what
+  surrounds it (a piece framed by nearer surfaces is left out) and overlaps no fit's solid; the pixels it is
+  nearer to take it and the residuals are measured again (:attr:`ExplainedDetail.top_pieces`).
 - **The bin**: the registered model cloud with its normals (the pipeline's bin model), posed by the
   registration; σ_s is the robust residual (:func:`zcut.explained.residual_sigma`) of up to 20,000 of
   the pixels the removal labelled bin.
@@ -76,6 +80,9 @@ FALLBACK_ALONE_WARNING = (f"{NAME}: no part model and no bin stages: every pixel
                           "local surface alone")
 #: at most this many of the removal's bin (table) pixels measure the bin's residual (fit the table)
 SAMPLE_PX = 20_000
+#: fit the part again on the unexplained pieces that lie on top of the pile (:mod:`zcut.top_pieces`;
+#: docs/labelling.md, "Third round: what the label holds beside the truth"); False: the fits as found
+TOP_PIECES = True
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,6 +111,9 @@ class ExplainedDetail:
     vetted_out : tuple of PartFit
         The fits vetted out (:mod:`zcut.fit_vetting`: their solid overlaps a better-supported fit's):
         no known surface, not in ``fits``.
+    top_pieces : int
+        How many of ``fits`` (the last ones) were found on the unexplained pieces on top of the pile
+        (:mod:`zcut.top_pieces`).
     """
 
     fits: tuple[PartFit, ...]
@@ -116,6 +126,7 @@ class ExplainedDetail:
     surface_model: str = "part fits"
     local_err_mm: float = float("nan")
     vetted_out: tuple[PartFit, ...] = ()
+    top_pieces: int = 0
 
     def instance_mesh(self, i: int) -> np.ndarray:
         """The vertices (n, 3) of fit ``i`` posed in the camera frame (mm)."""
@@ -266,6 +277,10 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
             surfaces, near = without_fits(xyz, near, dataclasses.replace(surfaces, part_err_mm=stated), kept)
             surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, surfaces.part_err_mm,
                                                                                where=zone.zone))
+    top = 0
+    if p.part_model and TOP_PIECES:  # the unexplained pieces on top of the pile fitted again (zcut.top_pieces)
+        fits, surfaces, near, top = _with_top_pieces(xyz, zone, near, surfaces, fits, v, t, prepared, intr, footprint,
+                                                     judged, p)
     if local is not None:
         near = ex.with_local_surface(near, local)
         surfaces = dataclasses.replace(surfaces, local_err_mm=ex.local_sigma(
@@ -278,7 +293,56 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
         near, err, out = removed_bin_judged(xyz, rem.bin_points & ~judged, surfaces, footprint, near, err, out, p)
     return out, ExplainedDetail(fits, v, t, near.dist_mm, near.surface, err, out,
                                 surface_model=PART_FITS if p.part_model else LOCAL_SURFACE,
-                                local_err_mm=surfaces.local_err_mm, vetted_out=vetted_out), warning
+                                local_err_mm=surfaces.local_err_mm, vetted_out=vetted_out, top_pieces=top), warning
+
+
+def _with_top_pieces(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: tuple[PartFit, ...], v: np.ndarray,
+                     t: np.ndarray, prepared: Any, intr: Any, footprint: np.ndarray, judged: np.ndarray,
+                     p: Any) -> tuple[tuple[PartFit, ...], Any, Any, int]:
+    """(fits, surfaces, nearest, how many were added) with the instances :func:`zcut.top_pieces.top_pieces` finds on
+    the zone's unexplained pieces: a found instance whose solid overlaps a fit's by more than ``fit_max_overlap``
+    is left out; the judged pixels a new instance is nearer to than their nearest surface take it (exact: a pixel
+    farther from a new instance's box than from its nearest surface keeps it), and every fit's residual is
+    measured again (:func:`zcut.explained.fit_sigmas`, from the residuals the fits state)."""
+    from zcut import explained as ex
+    from zcut.fit_vetting import instance_overlaps, vet_fits
+    from zcut.fits import FitParams
+    from zcut.top_pieces import top_pieces
+
+    err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm, where=zone.zone)
+    un = ex.unexplained(near.dist_mm, err, p.k) & zone.zone
+    more = top_pieces(xyz, un, prepared, intrinsics=intr,
+                      params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm, min_support=p.fit_min_support))
+    if more and fits and p.fit_max_overlap < 1:
+        n = len(fits)
+        support = np.concatenate([np.full(n, np.inf), np.asarray([len(f.pixels) for f in more], np.float64)])
+        kept = vet_fits(instance_overlaps(v, t, [f.pose for f in (*fits, *more)]), support,
+                        max_overlap=p.fit_max_overlap).kept[n:]
+        more = [f for f, k in zip(more, kept) if k]
+    if not more:
+        return fits, surfaces, near, 0
+    posed = [(v @ f.pose[:3, :3].T + f.pose[:3, 3], t) for f in more]
+    d = np.asarray(near.dist_mm, np.float64)
+    cand = judged & np.isfinite(xyz).all(axis=2) & ~(d <= 0.0)
+    pts = xyz[cand]
+    dc = d[cand]
+    hit = np.zeros(len(pts), bool)
+    for pv, _ in posed:  # a pixel can be nearer to an instance only when it is nearer to its box
+        gap = np.linalg.norm(np.maximum(0.0, np.maximum(pv.min(axis=0) - pts, pts - pv.max(axis=0))), axis=1)
+        hit |= ~(gap >= dc)  # NaN (not judged) and inf (no surface): searched
+    where = np.zeros(cand.shape, bool)
+    where.reshape(-1)[np.flatnonzero(cand.ravel())[hit]] = True
+    add = ex.nearest_surface(xyz, ex.KnownSurfaces(parts=posed, part_err_mm=[f.err_mm for f in more]), where=where)
+    with np.errstate(invalid="ignore"):
+        closer = where & (add.dist_mm < near.dist_mm)
+    n = len(fits)
+    near = ex.Nearest(np.where(closer, add.dist_mm, near.dist_mm).astype(np.float32),
+                      np.where(closer, add.surface + n, near.surface).astype(np.int32))
+    fits = (*fits, *more)
+    stated = [float(f.err_mm) for f in fits]
+    surfaces = dataclasses.replace(surfaces, parts=[*surfaces.parts, *posed], part_err_mm=stated)
+    surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, stated, where=zone.zone))
+    return fits, surfaces, near, len(more)
 
 
 

@@ -103,11 +103,6 @@ UNCHANGED: dict[str, str] = {
                                      "threshold <= 1 flags a frame",
     "explained.part_model_unit": "it states the unit of a mesh file given as explained.part_model; the log's own "
                                  "part_model.ply, used when none is given, states its unit in its header",
-    "explained.fit_max_overlap": "the fitting itself no longer accepts fits whose solids overlap (zcut.fits' claims, "
-                                 "docs/fits.md, 'Sixth round: duplicates'): on this log no pair of fits shares "
-                                 "volume, so the vetting drops none at any threshold; "
-                                 "tests/zcut/test_fit_vetting.py checks the threshold on overlapping fits "
-                                 "(fitted with claim=False) through the method",
 }
 #: fields that change only the registration's figures (fitness, RMSE) on this log, not a mask: only the
 #: commands that report those figures (replay's table, batch's frames.parquet) show them
