@@ -316,7 +316,7 @@ def _with_top_pieces(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits
     if more and fits and p.fit_max_overlap < 1:
         n = len(fits)
         support = np.concatenate([np.full(n, np.inf), np.asarray([len(f.pixels) for f in more], np.float64)])
-        kept = vet_fits(instance_overlaps(v, t, [f.pose for f in (*fits, *more)]), support,
+        kept = vet_fits(instance_overlaps(v, t, [f.pose for f in (*fits, *more)], solid=prepared.solid), support,
                         max_overlap=p.fit_max_overlap).kept[n:]
         more = [f for f, k in zip(more, kept) if k]
     if not more:
