@@ -1,10 +1,10 @@
 """The part model prepared for fitting: checked, classified (sphere or general), sampled.
 
-A mesh whose vertices all lie at one radius from their centroid (within ``sphere_tolerance`` of it)
-is a **sphere**: its instances are fitted in closed form (:mod:`zcut.fits.sphere`). Any other mesh
-is fitted by initial guesses and ICP (:mod:`zcut.fits.icp`) against area-weighted samples of its
-surface (points with their face normals) and the exact point-to-triangle distances of an Open3D
-``RaycastingScene`` built once on the mesh in its own frame.
+A mesh whose vertices and faces' centres all lie at one radius from their centroid (within
+``sphere_tolerance`` of it; a box's corners alone do) is a **sphere**: its instances are fitted in closed
+form (:mod:`zcut.fits.sphere`). Any other mesh is fitted by initial guesses and ICP (:mod:`zcut.fits.icp`)
+against area-weighted samples of its surface (points with their face normals) and the exact
+point-to-triangle distances of an Open3D ``RaycastingScene`` built once on the mesh in its own frame.
 """
 
 from __future__ import annotations
@@ -436,7 +436,12 @@ def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tole
     samples, normals, centroid = _sample_surface(v, t, n_samples)
     r = np.linalg.norm(v - centroid, axis=1)
     extent = float(r.max())
-    sphere = float(r.mean()) if float(np.abs(r - r.mean()).max()) <= sphere_tolerance * float(r.mean()) else None
+    # a sphere: its vertices and its faces' centres at one radius (a box's corners alone are: the same rule as
+    # the vetting's solid, zcut.fit_vetting.solid_of)
+    rc = np.linalg.norm(v[t].mean(axis=1) - centroid, axis=1)
+    tol = sphere_tolerance * float(r.mean())
+    sphere = float(r.mean()) if max(float(np.abs(r - r.mean()).max()), float(np.abs(rc - r.mean()).max())) <= tol \
+        else None
     cov = np.cov((samples - centroid).T)
     w, axes = np.linalg.eigh(cov)
     axes = axes[:, ::-1]

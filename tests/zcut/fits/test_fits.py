@@ -273,3 +273,26 @@ def test_the_second_pass_params_say_what_is_wrong():
         FitParams(seed_min_share=1.5)
     with pytest.raises(ParameterError, match="seed_err_ratio"):
         FitParams(seed_err_ratio=0)
+
+
+def _box(a: float, b: float, c: float) -> tuple[np.ndarray, np.ndarray]:
+    """A closed box a × b × c (mm) about the origin, 8 vertices, 12 outward triangles."""
+    v = np.array([[x, y, z] for x in (-a / 2, a / 2) for y in (-b / 2, b / 2) for z in (-c / 2, c / 2)], np.float64)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    t = np.array([tri for q in quads for tri in ((q[0], q[1], q[2]), (q[0], q[2], q[3]))], np.int64)
+    return v, t
+
+
+def test_a_box_is_no_sphere_though_its_corners_lie_at_one_radius():
+    """A cube's 8 corners lie at one radius from its centre: the fitting classified it as a sphere and fitted
+    its instances as balls. A sphere's faces' centres lie at that radius too; the fitting and the vetting's
+    solid (the one overlap rule) now say the same."""
+    cube = _box(20.0, 20.0, 20.0)
+    model = prepare_model(*cube)
+    assert model.sphere_radius is None and model.solid.ball is None
+    ball = icosphere(10.0, 3)
+    model = prepare_model(*ball)
+    assert model.sphere_radius == pytest.approx(10.0, rel=1e-6) and model.solid.ball is not None
+    nut = hex_nut_mesh()
+    model = prepare_model(*nut)
+    assert model.sphere_radius is None and model.solid.ball is None
