@@ -205,7 +205,9 @@ def _run_units(options: BatchOptions, stack: ExitStack, overrides: dict[str, Any
     from studies.parts import PartStore
     from studies.work import run_batch_unit
 
-    executor = make_executor(workers=options.workers, ray=options.ray)  # an unreachable cluster fails here
+    # the executor is made once every input is checked (a Ray cluster is connected to then): bad input is one
+    # line before anything starts
+    executor: Executor | None = None
     try:
         err = sys.stderr
 
@@ -226,6 +228,7 @@ def _run_units(options: BatchOptions, stack: ExitStack, overrides: dict[str, Any
         ident = study_options(options, overrides) | {"results": options.results, "rrd": options.rrd}
         if options.results_cloud:  # only then: a study begun before the option keeps its identity
             ident["results_cloud"] = True
+        executor = make_executor(workers=options.workers, ray=options.ray)  # an unreachable cluster fails here
         store = stack.enter_context(PartStore(options.out, identity("batch", ident, plans),
                                               start_afresh=options.force))
         units, todo = start_units(plans, store, what="", executor=executor)
@@ -236,5 +239,6 @@ def _run_units(options: BatchOptions, stack: ExitStack, overrides: dict[str, Any
         results = execute(units, job, run_batch_unit, executor, store, progress=progress)
         progress.finish()
     finally:
-        executor.close()
+        if executor is not None:
+            executor.close()
     return store, plans, results, executor

@@ -42,6 +42,7 @@ if TYPE_CHECKING:
     from replay.pipeline.config import PipelineConfig
     from replay.pipeline.session import ReplaySession
     from replay.pipeline.zone import Zone
+    from studies.executors import Executor
     from studies.units import WorkUnit
     from studies.validate import FrameCounts, Validation
     from studies.work import TruthSource
@@ -496,7 +497,9 @@ def _run_units(options: SweepOptions, stack: ExitStack, logs: list[str], overrid
     from studies.parts import PartStore
     from studies.sweep_run import Scaled
 
-    executor = make_executor(workers=options.workers, ray=options.ray)
+    # the executor is made once every input is checked (a Ray cluster is connected to then): bad input is one
+    # line before anything starts
+    executor: Executor | None = None
     try:
         plans = plan_logs(logs, config_file=options.pipeline.config, overrides=overrides, topic=options.pipeline.topic,
                           frames_per_unit=options.frames_per_unit, whole=False, bin_model=options.pipeline.bin_model)
@@ -506,14 +509,15 @@ def _run_units(options: SweepOptions, stack: ExitStack, logs: list[str], overrid
                          study_points=options.study_points)
         bank = make_bank_grid(bank_axes, base)
         ident = study_options(options, overrides) | {"grid": grid.as_dict()} | ({"bank": bank} if bank else {})
-        store = stack.enter_context(PartStore(options.out, identity("sweep", ident, plans),
-                                              start_afresh=options.force))
         with_sor = base.sor.enabled and "sor" in base.base_methods
         n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if with_sor else 0)
         n_bank = n_bank_sets(bank)
         if n_sets + n_bank > options.max_points and not options.force:
             raise ConfigError(f"the grid has {n_sets + n_bank} parameter sets (more than {options.max_points}): "
                               "narrow it, or use --force")
+        executor = make_executor(workers=options.workers, ray=options.ray)  # an unreachable cluster fails here
+        store = stack.enter_context(PartStore(options.out, identity("sweep", ident, plans),
+                                              start_afresh=options.force))
         units, todo = start_units(plans, store, executor=executor,
                                   what=f"{n_sets + n_bank} parameter sets ({grid.n_zcut} z-cut, {n_sets - grid.n_zcut} "
                                        f"SOR{f', {n_bank} of the filter bank' if n_bank else ''}), ")
@@ -523,7 +527,8 @@ def _run_units(options: SweepOptions, stack: ExitStack, logs: list[str], overrid
         results = execute(units, job, run_sweep_unit, executor, store, progress=Scaled(progress, per_frame))
         progress.finish()
     finally:
-        executor.close()
+        if executor is not None:
+            executor.close()
     return plans, store, grid, bank, results
 
 
