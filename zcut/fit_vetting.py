@@ -200,8 +200,8 @@ def surface_centroid(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
 def solid_of(vertices: np.ndarray, triangles: np.ndarray, *, sphere_tolerance: float = SPHERE_TOLERANCE,
              samples: int = INSIDE_SAMPLES) -> Solid:
     """The :class:`Solid` of a mesh (model frame, mm): build it once per mesh and pass it on (the prepared
-    model's, :attr:`zcut.fits.PartModel.solid`, is the one its fits were made with; ``instance_overlaps``
-    builds one when given none)."""
+    model's, :attr:`PartModel.solid <zcut.fits.PartModel>`, is the one its fits were made with;
+    ``instance_overlaps`` builds one when given none)."""
     v = np.ascontiguousarray(vertices, np.float64)
     t = np.ascontiguousarray(triangles, np.int64)
     inside = inside_samples(v, t, samples=samples)
