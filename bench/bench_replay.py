@@ -124,7 +124,7 @@ def stage_costs(log: Path, ply: Path | None, *, clock: str = "cpu", bin_only: bo
     """CPU ms (``clock`` "cpu") or wall ms ("wall") per frame of every stage (medians over frames 1..;
     frame 0 warms up), stages run serially; the bin model ``ply``, else the log's own. ``bin_only``: the bin
     stages only (``stages.bin_zone``: bin mask, registration, removal and its check; no method runs, the
-    other stages read 0 and ``total`` is the read and the bin stages), with BLAS on one thread as the replay
+    other stages read 0 and ``total`` is the read and the bin stages). BLAS runs on one thread, as the replay
     runs it."""
     import types
 
@@ -141,10 +141,11 @@ def stage_costs(log: Path, ply: Path | None, *, clock: str = "cpu", bin_only: bo
     rows: list[dict[str, float]] = []
     height = width = 0
     frames = session.reader.frames()
-    if bin_only:  # BLAS on one thread, as ReplaySession.run has it (a multi-threaded BLAS spins in small products)
-        from threadpoolctl import threadpool_limits
+    # BLAS on one thread, as ReplaySession.run has it (a multi-threaded BLAS spins in small products: without the
+    # limit the removal's figures here were inflated, h/regrem)
+    from threadpoolctl import threadpool_limits
 
-        threadpool_limits(limits=1, user_api="blas")
+    threadpool_limits(limits=1, user_api="blas")
     while True:
         t = now()
         frame = next(frames, None)
