@@ -46,7 +46,6 @@ Design
 
 from __future__ import annotations
 
-import hashlib
 import os
 import socket
 import sqlite3
@@ -298,26 +297,23 @@ _DIGESTS: dict[tuple[int, int, int, int], str] = {}
 
 
 def file_sha256(path: str | os.PathLike[str], *, chunk_bytes: int = 1 << 20) -> str:
-    """Hex sha256 of a file's bytes, read in chunks (never the whole file in memory). A file hashed
+    """Hex sha256 of a file's bytes (:func:`replay.logs.identity.sha256_of_stream`). A file hashed
     before in this process, unchanged since (same device, inode, size and modification time, taken
     from the open file, and older than 2 s when hashed), is not read again (``zcut annotate --disagreement`` checks the log's hash,
     and the session hashes it too)."""
-    h = hashlib.sha256()
+    from replay.logs.identity import sha256_of_stream
+
     with open(path, "rb") as f:
         st = os.fstat(f.fileno())
         key = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
         if key in _DIGESTS:
             return _DIGESTS[key]
-        while True:
-            b = f.read(chunk_bytes)
-            if not b:
-                break
-            h.update(b)
+        digest = sha256_of_stream(f, chunk_bytes=chunk_bytes)
         # kept only when not changed while read, and last modified over 2 s ago: file times tick
         # coarsely (a few ms), so a file rewritten at the same size within a tick keeps its mtime
         if os.fstat(f.fileno()).st_mtime_ns == key[3] and time.time_ns() - key[3] > 2_000_000_000:
-            _DIGESTS[key] = h.hexdigest()
-    return h.hexdigest()
+            _DIGESTS[key] = digest
+    return digest
 
 
 def pack_mask(mask: np.ndarray) -> bytes:

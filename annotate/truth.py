@@ -285,13 +285,27 @@ class LabelTruth:
         self.store.close()
 
 
-def is_results_file(path: str | os.PathLike[str]) -> bool:
-    """Whether ``path`` is a results file of ``zcut replay --out`` (its ``zcut.results`` metadata)."""
+def results_metadata(path: str | os.PathLike[str]) -> dict[str, str] | None:
+    """The ``zcut.results`` metadata of a results file of ``zcut replay --out`` (its ``source`` log,
+    its ``config_toml``), or None for a log that is not one.
+
+    Raises
+    ------
+    OSError, ZcutError
+        The file cannot be read as MCAP.
+    """
     from replay.logs.reader import inspect_log
+
+    meta = inspect_log(path).metadata.get(layout.RESULTS_METADATA)
+    return None if meta is None else dict(meta)
+
+
+def is_results_file(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a results file of ``zcut replay --out`` (:func:`results_metadata`)."""
     from zcut.errors import ZcutError
 
     try:
-        return layout.RESULTS_METADATA in inspect_log(path).metadata
+        return results_metadata(path) is not None
     except (OSError, ZcutError):  # not MCAP, unreadable: the replay of it says what is wrong
         return False
 

@@ -87,11 +87,10 @@ class SweepResult:
 
 def source_of_results(path: Path) -> Path | None:
     """The source log a results file names (beside it), when it is one; the path itself otherwise."""
-    from replay.logs import layout
-    from replay.logs.reader import inspect_log
+    from annotate.truth import results_metadata
 
-    meta = inspect_log(path).metadata.get(layout.RESULTS_METADATA)
-    if not meta:
+    meta = results_metadata(path)
+    if meta is None:
         return path
     src = path.parent / meta.get("source", "")
     return src if meta.get("source") and src.is_file() and src != path else None

@@ -30,9 +30,9 @@ import hashlib
 import io
 import os
 import struct
-from typing import Any
+from typing import Any, BinaryIO
 
-__all__ = ["IDENTITY_VERSION", "file_sha256", "log_identity"]
+__all__ = ["IDENTITY_VERSION", "file_sha256", "log_identity", "sha256_of_stream"]
 
 #: Hashed first: another recipe is another identity.
 IDENTITY_VERSION = b"zcut-log-identity-1"
@@ -44,13 +44,19 @@ _CHUNK_HEAD = 1 + 8 + 8 + 8 + 8 + 4  # opcode, length, start and end time, uncom
 _OP_DATA_END, _OP_CHUNK, _OP_ATTACHMENT, _OP_METADATA = 0x0F, 0x06, 0x09, 0x0C
 
 
+def sha256_of_stream(f: BinaryIO, *, chunk_bytes: int = 1 << 22) -> str:
+    """Hex SHA-256 of the bytes of an open binary file from its position to its end, read in pieces of
+    ``chunk_bytes`` (never the whole file in memory)."""
+    h = hashlib.sha256()
+    while b := f.read(chunk_bytes):
+        h.update(b)
+    return h.hexdigest()
+
+
 def file_sha256(path: str | os.PathLike[str]) -> str:
     """Hex SHA-256 of every byte of the file (read in 4 MB pieces)."""
-    h = hashlib.sha256()
     with open(path, "rb") as f:
-        while b := f.read(1 << 22):
-            h.update(b)
-    return h.hexdigest()
+        return sha256_of_stream(f)
 
 
 def log_identity(path: str | os.PathLike[str]) -> str:
