@@ -278,7 +278,8 @@ def suspects(
         filled = fill_blobs(off, zone, valid & ~easy, iterations=params.fill_iterations)
         codes[filled & ~off] = RESIDUAL_UP
     rough = zone & ~(np.abs(residual) <= tau)  # in the zone: inf (no continuation) is rough
-    floating, floating_gap = floating_components(h_zcut, zone, valid & ~easy, rough, params, a_max, step, profile)
+    floating, floating_at, floating_gap = floating_components(h_zcut, zone, valid & ~easy, rough, params, a_max,
+                                                              step, profile)
     codes[floating] |= FLOATING
     codes[easy] |= ABOVE_RIM
     mask = codes > 0
@@ -288,11 +289,11 @@ def suspects(
     # nearest surface fitted on one side of an edge; a blob's or an above-rim pixel's, to the local
     # surface around it
     by_residual = off & ((codes & (FLOATING | ABOVE_RIM)) == 0) & np.isfinite(residual)
-    by_border = floating & ~easy
+    # (a floating pixel is in the zone, never above the rim: its gap is the one over its component's border)
     gap = local_gaps(h_all,
-                     mask & ~by_residual & ~by_border, valid & ~mask)
+                     mask & ~by_residual & ~floating, valid & ~mask)
     gap[by_residual] = residual[by_residual]
-    gap[by_border] = floating_gap[by_border]
+    np.put(gap, floating_at, floating_gap)
     surfaces = None
     if edge_surface is not None:  # a pixel off the surface with a surface near: its distance to the nearest one
         # the frame in mm: 1000.0 * a.astype(np.float64), the product in place (numpy's casting loop of
