@@ -115,3 +115,42 @@ def test_reach_median_of_the_real_scans_and_empty(real_data) -> None:
         assert reach_median(a, valid) == _old(a, valid), pcd.name
     a = np.full((40, 50, 3), np.nan)
     assert reach_median(a, np.zeros((40, 50), bool)) == 0.0
+
+
+def test_fused_passes_equal_the_numpy_they_replace() -> None:
+    """suspects()' one-pass kernels (τ and the jump, rough, the grouping's strength, the lookup's
+    nan_to_num) against the numpy they replace, on values with NaN, ±inf, ±0 and ties."""
+    union = importlib.import_module("zcut.suspects.union")
+    rng = np.random.default_rng(41)
+    special = np.array([np.nan, np.inf, -np.inf, 0.0, -0.0, 0.1, 0.5, 2.0, 1e308, 5e-324])
+    for _ in range(20):
+        shape = (int(rng.integers(1, 30)), int(rng.integers(1, 30)))
+
+        def field(shape: tuple[int, int] = shape) -> np.ndarray:
+            x = rng.normal(0, 1, shape) * float(rng.choice([0.01, 1.0, 100.0]))
+            pick = rng.random(shape) < 0.3
+            x[pick] = rng.choice(special, int(pick.sum()))
+            return x
+
+        sigma, residual, gap = field(), field(), field()
+        k, min_res, jump_mm = float(rng.choice([0.0, 5.0, 1e300])), float(rng.choice([0.5, 0.1])), 2.0
+        tau, jump = np.empty(shape), np.empty(shape)
+        union._thresholds(sigma, k, min_res, jump_mm, tau, jump)
+        with np.errstate(over="ignore", invalid="ignore"):
+            ks = k * sigma
+        assert np.array_equal(tau, np.maximum(min_res, ks), equal_nan=True)
+        assert np.array_equal(jump, np.maximum(jump_mm, ks), equal_nan=True)
+        tau = np.where(rng.random(shape) < 0.2, field(), tau)
+        zone = rng.random(shape) < 0.7
+        rough = np.empty(shape, bool)
+        union._rough(zone, residual, tau, rough)
+        np.testing.assert_array_equal(rough, zone & ~(np.abs(residual) <= tau))
+        strength = np.empty(shape)
+        union._gap_ratio(gap, tau, min_res, strength)
+        with np.errstate(all="ignore"):
+            want = np.abs(gap) / np.where(np.isfinite(tau) & (tau > 0), tau, min_res)
+        assert np.array_equal(strength, want, equal_nan=True)
+        h = field()
+        want = np.nan_to_num(h, nan=-3.5)
+        union._nan_to_num(h, -3.5)
+        np.testing.assert_array_equal(h, want)
