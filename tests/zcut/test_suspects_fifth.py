@@ -90,6 +90,7 @@ def test_reach_median_equals_the_median_of_the_samples(monkeypatch) -> None:
     (every 16th) lie elsewhere than the rest (the window misses: every sample is stored, as before)."""
     calls = []
     monkeypatch.setattr(surfaces, "_reach_samples", lambda a, v: calls.append(1) or _reach_samples(a, v))
+    monkeypatch.setattr(surfaces, "_FRESH_BYTES", 0)  # the window at every size (by default above 2 M pixels)
     rng = np.random.default_rng(31)
     for t in range(40):
         H, W = ((int(rng.integers(1, 10)), int(rng.integers(1, 10))) if t % 4 == 0
@@ -106,13 +107,16 @@ def test_reach_median_equals_the_median_of_the_samples(monkeypatch) -> None:
     assert 0 < len(calls) < 40  # some took the window, some every sample
 
 
-def test_reach_median_of_the_real_scans_and_empty(real_data) -> None:
+def test_reach_median_of_the_real_scans_and_empty(real_data, monkeypatch) -> None:
     from replay.logs.pcd import read_pcd
 
     for pcd in sorted(real_data.glob("*.pcd")):
         a = read_pcd(pcd).xyz.astype(np.float64) * 1000.0
         valid = np.ascontiguousarray(np.isfinite(a).all(axis=2))
         assert reach_median(a, valid) == _old(a, valid), pcd.name
+        with monkeypatch.context() as m:
+            m.setattr(surfaces, "_FRESH_BYTES", 0)
+            assert reach_median(a, valid) == _old(a, valid), pcd.name
     a = np.full((40, 50, 3), np.nan)
     assert reach_median(a, np.zeros((40, 50), bool)) == 0.0
 

@@ -281,21 +281,6 @@ def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.nd
     return out
 
 
-@numba.njit(cache=True)
-def _primary(codes, n_bits, out):  # type: ignore[no-untyped-def]  # numba kernel
-    """Each pixel's lowest set bit among the first ``n_bits`` of its code (-1: none), in one pass."""
-    c = codes.reshape(-1)
-    o = out.reshape(-1)
-    for q in range(c.size):
-        v = c[q]
-        p = -1
-        for i in range(n_bits):
-            if (v >> i) & 1:
-                p = i
-                break
-        o[q] = p
-
-
 def group_suspects(codes: np.ndarray, strength: np.ndarray, params: SuspectParams
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Group labels (unordered), each group's primary detector, and the merge radius of each detector.
@@ -309,8 +294,9 @@ def group_suspects(codes: np.ndarray, strength: np.ndarray, params: SuspectParam
     detector across classes: groups stay compact regions a person can zoom to, a large blob stays
     alone, specks near each other join.
     """
-    primary = np.empty(codes.shape, np.int8)
-    _primary(np.ascontiguousarray(codes), len(DETECTORS), primary)  # the first detector in DETECTORS wins
+    primary = np.full(codes.shape, -1, np.int8)
+    for i in reversed(range(len(DETECTORS))):  # the first detector in DETECTORS wins
+        primary[(codes >> i) & 1 > 0] = i
     index = np.full(codes.shape, -1, np.int32)  # the components' work image, left all -1 by each use
     cls = strength_classes(primary, strength, _index=index)
     n_cls = len(STRENGTH_CLASSES) + 1
