@@ -36,6 +36,10 @@
    median CPU ms of ``--repeat`` calls of each round, and whether the two trees' results are equal
    (mask, groups, detectors, gaps, residuals, group scores). Besides the frames of ``--speed``, one
    with large invalid regions (the zinc-nut frame, its top half and a third of the rest unmeasured).
+7. ``--speed --against OLD_TREE --parts``: the parts the fifth round changed (docs/performance.md,
+   "Suspects ... fifth round"), ``OLD_TREE``'s code loaded beside this tree's in one process,
+   alternating, outputs checked equal, on the .npy frames of ``--work`` (made by 6) and the scans of
+   ``--real``.
 """
 
 from __future__ import annotations
@@ -478,6 +482,99 @@ def run_against(work: Path, old: Path, sizes: list[tuple[int, int]], real: Path 
               f"{np.median(o) / np.median(n):7.2f} {'yes' if same else 'NO'}", flush=True)
 
 
+def run_parts(work: Path, old: Path, real: Path | None, repeat: int) -> None:
+    """--parts: the parts the fifth round changed, the previous tree's code (``old``'s
+    zcut/suspects/floating.py loaded beside this tree's, as a module of this ``zcut.suspects``) against
+    this tree's in one process, alternating, after checking their outputs equal: the floating detector,
+    the reach's median, the thresholds' numpy (τ, the jump, rough, |gap| / τ_px) against the kernels."""
+    import importlib
+    import importlib.util
+
+    from replay.logs.pcd import read_pcd
+    from zcut.edge_surface import _reach_samples
+    from zcut.suspects import noise_profile
+    from zcut.suspects.noise import local_height
+    from zcut.suspects.select import median
+
+    spec = importlib.util.spec_from_file_location("zcut.suspects._old_floating",
+                                                  old / "zcut" / "suspects" / "floating.py")
+    assert spec is not None and spec.loader is not None
+    fl_old = importlib.util.module_from_spec(spec)
+    fl_old.__package__ = "zcut.suspects"
+    spec.loader.exec_module(fl_old)
+    fl_new = importlib.import_module("zcut.suspects.floating")
+    surfaces = importlib.import_module("zcut.suspects.surfaces")
+    union = importlib.import_module("zcut.suspects.union")
+
+    def ab(fo, fn) -> tuple[float, float]:
+        fo()
+        fn()
+        to, tn = [], []
+        for _ in range(repeat):
+            c0 = time.process_time()
+            fo()
+            to.append(time.process_time() - c0)
+            c0 = time.process_time()
+            fn()
+            tn.append(time.process_time() - c0)
+        return 1000.0 * float(np.median(to)), 1000.0 * float(np.median(tn))
+
+    files = sorted(work.glob("speed_*.npy")) + (sorted(real.glob("*.pcd")) if real is not None else [])
+    print(f"CPU ms, old = {old} / new = this tree, one process, alternating, median of {repeat}")
+    print(f"{'frame':40s} {'floating':>15s} {'reach median':>15s} {'thresholds':>15s}")
+    params = SuspectParams()
+    for path in files:
+        xyz = read_pcd(path).xyz if path.suffix == ".pcd" else np.load(path)
+        H, W = xyz.shape[:2]
+        valid = np.isfinite(xyz).all(axis=2)
+        h = np.ascontiguousarray(-1000.0 * xyz[..., 2].astype(np.float64))
+        h[~valid] = np.nan
+        zone = valid.copy()
+        profile = noise_profile(h, zone)
+        sigma_px = profile.sigma_at(local_height(h))
+        rng = np.random.default_rng(0)
+        rough = zone & (rng.random(zone.shape) < 0.05)
+        step = max(params.floating_step_mm, float(np.median(sigma_px[zone])))
+        args = (h, zone, valid, rough, params, 0.01 * H * W, step, profile)
+        mo, go = fl_old.floating_components(*args)
+        mn, at, gn = fl_new.floating_components(*args)
+        if not (np.array_equal(mo, mn) and np.array_equal(np.flatnonzero(mo), at)
+                and np.array_equal(go.ravel()[at], gn, equal_nan=True)):
+            raise SystemExit(f"{path.name}: the floating detectors differ")
+        cells = [ab(lambda args=args: fl_old.floating_components(*args),
+                    lambda args=args: fl_new.floating_components(*args))]
+        a = xyz.astype(np.float64) * 1000.0
+
+        def reach_old(a=a, valid=valid) -> float:
+            samples = _reach_samples(a, valid)
+            return median(samples) if samples.size else 0.0
+
+        if reach_old() != surfaces.reach_median(a, valid):
+            raise SystemExit(f"{path.name}: the reach's medians differ")
+        cells.append(ab(reach_old, lambda a=a, valid=valid: surfaces.reach_median(a, valid)))
+        residual, gap = rng.normal(0, 1, zone.shape), rng.normal(0, 1, zone.shape)
+
+        def thr_old(sigma_px=sigma_px, zone=zone, residual=residual, gap=gap) -> tuple[np.ndarray, ...]:
+            tau = params.noise_k * sigma_px
+            np.maximum(params.min_residual_mm, tau, out=tau)
+            jump = params.noise_k * sigma_px
+            np.maximum(params.jump_mm, jump, out=jump)
+            tau_px = np.where(np.isfinite(tau) & (tau > 0), tau, params.min_residual_mm)
+            return tau, jump, zone & ~(np.abs(residual) <= tau), np.abs(gap) / tau_px
+
+        def thr_new(sigma_px=sigma_px, zone=zone, residual=residual, gap=gap, H=H, W=W) -> tuple[np.ndarray, ...]:
+            tau, jump, rough, strength = np.empty((H, W)), np.empty((H, W)), np.empty((H, W), bool), np.empty((H, W))
+            union._thresholds(sigma_px, params.noise_k, params.min_residual_mm, params.jump_mm, tau, jump)
+            union._rough(zone, residual, tau, rough)
+            union._gap_ratio(gap, tau, params.min_residual_mm, strength)
+            return tau, jump, rough, strength
+
+        if not all(np.array_equal(x, y) for x, y in zip(thr_old(), thr_new())):
+            raise SystemExit(f"{path.name}: the thresholds differ")
+        cells.append(ab(thr_old, thr_new))
+        print(f"{path.stem[:40]:40s} " + " ".join(f"{o:7.1f}/{n:7.1f}" for o, n in cells), flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, default=Path("/tmp/zcut_bench_suspects"))
@@ -494,9 +591,14 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3, help="--speed: calls per frame and path (median)")
     ap.add_argument("--against", type=Path, help="--speed: another tree's fast path against this one's")
     ap.add_argument("--rounds", type=int, default=2, help="--against: alternating rounds")
+    ap.add_argument("--parts", action="store_true",
+                    help="--against: the fifth round's parts, old / new in one process (frames of --work)")
     args = ap.parse_args()
     if args.speed:
         sizes = [tuple(int(v) for v in s.split("x"))[::-1] for s in args.sizes.split(",")]
+        if args.against is not None and args.parts:
+            run_parts(args.work, args.against, args.real, args.repeat)
+            return
         if args.against is not None:
             run_against(args.work, args.against, sizes, args.real, args.repeat, args.rounds)  # type: ignore[arg-type]
             return

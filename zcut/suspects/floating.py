@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from scipy import ndimage
 
 from ..cloud import check_mask
 from ..cuts import MAX_STAGE_LEVELS, find_clusters
@@ -65,7 +64,12 @@ def _evidence_kernel(labels, valid, rough, height, n):  # type: ignore[no-untype
                     if np.isfinite(hq) and hq > highest_out[c]:
                         highest_out[c] = hq
             elif not valid[i, j]:
-                # an unmeasured pixel is a hole of the component holding most of its neighbours
+                # an unmeasured pixel is a hole of the component holding most of its neighbours; most
+                # have no component around them (one look at the 8 labels, no counting: the same result)
+                if 0 < i < H - 1 and 0 < j < W - 1:
+                    if (labels[i - 1, j - 1] | labels[i - 1, j] | labels[i - 1, j + 1] | labels[i, j - 1]
+                            | labels[i, j + 1] | labels[i + 1, j - 1] | labels[i + 1, j] | labels[i + 1, j + 1]) == 0:
+                        continue
                 best = 0
                 bc = 0
                 for k in range(8):
@@ -186,57 +190,119 @@ def floating_evidence_reference(labels: Labels, valid: Mask, rough: Mask, height
 
 
 @numba.njit(cache=True)
-def _finite_range(h):  # type: ignore[no-untyped-def]  # numba kernel
-    """(min, max) of the finite values of h ((inf, -inf) when none), without a masked copy."""
+def _zone_heights(h, zone, hz):  # type: ignore[no-untyped-def]  # numba kernel
+    """hz = the heights in the zone, NaN elsewhere (``np.where(zone, h, nan)``), and (min, max) of its
+    finite values ((inf, -inf) when none; a tie keeps the first in raster order, as a scan of hz would)."""
+    H, W = h.shape
     lo = np.inf
     hi = -np.inf
-    for v in h.ravel():
-        if np.isfinite(v):
-            if v < lo:
-                lo = v
-            if v > hi:
-                hi = v
+    for i in range(H):
+        for j in range(W):
+            v = h[i, j] if zone[i, j] else np.nan
+            hz[i, j] = v
+            if np.isfinite(v):
+                if v < lo:
+                    lo = v
+                if v > hi:
+                    hi = v
     return lo, hi
 
 
+@numba.njit(cache=True)
+def _kept_ring(lab, keep, zone, valid, h, n_max, mask):  # type: ignore[no-untyped-def]  # numba kernel
+    """The kept components' pixels (``mask`` = keep[lab] & zone; their flat indices in raster order, at
+    most ``n_max``) and the measured pixels bordering them (valid, finite h, not kept, with a kept pixel
+    among their 8 neighbours: the largest such label, as a 3 × 3 maximum filter of the kept labels
+    gives it), in raster order: (kept indices, ring labels, ring heights)."""
+    H, W = lab.shape
+    idx = np.empty(n_max, np.int64)
+    n = 0
+    r0 = H
+    r1 = -1
+    for i in range(H):
+        for j in range(W):
+            c = lab[i, j]
+            k = keep[c] and zone[i, j]
+            mask[i, j] = k
+            if k:
+                idx[n] = i * W + j
+                n += 1
+                if r0 == H:
+                    r0 = i
+                r1 = i
+    cap = max(1024, 2 * n)
+    rl = np.empty(cap, np.int64)
+    rh = np.empty(cap)
+    m = 0
+    for i in range(max(r0 - 1, 0), min(r1 + 2, H)):
+        for j in range(W):
+            if mask[i, j] or not valid[i, j]:
+                continue
+            v = h[i, j]
+            if not np.isfinite(v):
+                continue
+            if 0 < i < H - 1 and 0 < j < W - 1 and not (
+                    mask[i - 1, j - 1] | mask[i - 1, j] | mask[i - 1, j + 1] | mask[i, j - 1] | mask[i, j + 1]
+                    | mask[i + 1, j - 1] | mask[i + 1, j] | mask[i + 1, j + 1]):
+                continue  # no kept neighbour (most pixels: one look at the 8 flags)
+            best = 0
+            for a in range(max(i - 1, 0), min(i + 2, H)):
+                for b in range(max(j - 1, 0), min(j + 2, W)):
+                    if mask[a, b] and lab[a, b] > best:
+                        best = lab[a, b]
+            if best == 0:
+                continue
+            if m == cap:
+                cap *= 2
+                rl2 = np.empty(cap, np.int64)
+                rh2 = np.empty(cap)
+                rl2[:m] = rl[:m]
+                rh2[:m] = rh[:m]
+                rl = rl2
+                rh = rh2
+            rl[m] = best
+            rh[m] = v
+            m += 1
+    return idx[:n], rl[:m], rh[:m]
+
+
 def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: Mask, params: SuspectParams,
-                        a_max: float, step: float, profile: NoiseProfile) -> tuple[Mask, np.ndarray]:
+                        a_max: float, step: float, profile: NoiseProfile) -> tuple[Mask, np.ndarray, np.ndarray]:
     """The floating detector: z-cut components over the zone's whole height range (see module notes).
 
-    Returns the mask and, on its pixels, their gap (mm) over the median height of the measured
-    pixels bordering their component (NaN elsewhere, or when none borders it).
+    ``height_mm`` C-contiguous float64. Returns the mask, the flat indices of its pixels (raster order)
+    and there their gap (mm) over the median height of the measured pixels bordering their component
+    (NaN when none borders it). Without frame-sized temporaries but the zone's heights and the mask.
     """
-    hz = np.where(zone, height_mm, np.nan)
-    gap = np.full(zone.shape, np.nan)
-    lo, hi = _finite_range(hz)
+    H, W = zone.shape
+    hz = np.empty((H, W))
+    lo, hi = _zone_heights(height_mm, zone, hz)
+    none = (np.zeros(zone.shape, bool), np.zeros(0, np.int64), np.zeros(0))
     if not lo <= hi:  # no finite height in the zone
-        return np.zeros(zone.shape, bool), gap
+        return none
     span = float(hi - lo)  # (a zero's sign may differ from hz[fin]'s max / min: the step and depth do not)
     step = max(step, span / (MAX_STAGE_LEVELS - 2))  # every level of the range within find_clusters' cap
     depth = span + step
     cut = find_clusters(hz, params=ZCutParams(step=step, max_depth=depth, max_area=params.floating_rho * a_max))
-    if cut.n_clusters == 0:
-        return np.zeros(zone.shape, bool), gap
-    holes, rough_frac, ring, clearance = floating_evidence(cut.clusters, valid, rough, hz)
-    lab = cut.clusters
-    flat = lab.ravel()
-    inside = flat > 0
-    lowest = np.full(cut.n_clusters + 1, np.inf)
-    np.minimum.at(lowest, flat[inside], hz.ravel()[inside])
+    n = cut.n_clusters
+    if n == 0:
+        return none
+    lab = cut.clusters  # int32, 1..n, C-contiguous (find_clusters' own array)
+    size, holes_n, edges, edges_valid, n_rough, lowest, highest_out = _evidence_kernel(
+        lab, np.ascontiguousarray(valid), np.ascontiguousarray(rough), hz, n)
+    holes, rough_frac, ring, clearance = _fractions(size, holes_n, edges, edges_valid, n_rough, lowest, highest_out)
+    # the lowest height of each component (np.minimum.at's value: a tie of -0.0 and 0.0 may keep the other
+    # zero, which σ̂(height) and the step there do not tell apart)
     lowest = lowest[1:]
     clear = clearance > np.maximum(FLOATING_CLEARANCE_SIGMAS * profile.sigma_at(lowest),
                                    FLOATING_CLEARANCE_STEPS * profile.step_at(lowest))
     keep = clear & ((cut.areas < params.plain_rho * a_max) | (holes >= params.evidence_holes)
                     | (rough_frac >= params.evidence_inconsistent) | (ring >= params.evidence_ring_valid))
-    mask = np.concatenate([[False], keep])[lab] & zone
-    if mask.any():
-        rows = np.flatnonzero(mask.any(axis=1))
-        cols = np.flatnonzero(mask.any(axis=0))
-        box = (slice(max(int(rows[0]) - 1, 0), int(rows[-1]) + 2), slice(max(int(cols[0]) - 1, 0), int(cols[-1]) + 2))
-        m, h = mask[box], height_mm[box]  # the components and the pixels bordering them
-        kept = np.where(m, lab[box], 0)
-        border = ndimage.maximum_filter(kept, size=3, mode="constant")
-        border = np.where((kept == 0) & valid[box] & np.isfinite(h), border, 0)  # measured, outside
-        ring_h = label_medians(h, border, cut.n_clusters)
-        gap[box][m] = hz[box][m] - np.concatenate([[np.nan], ring_h])[kept[m]]
-    return mask, gap
+    mask = np.empty((H, W), bool)
+    idx, ring_lab, ring_h = _kept_ring(lab, np.concatenate([[False], keep]), zone, valid, height_mm,
+                                       int(cut.areas.sum()), mask)
+    if idx.size == 0:
+        return mask, idx, np.zeros(0)
+    ring_med = label_medians(ring_h, ring_lab, n)
+    gap = hz.ravel()[idx] - np.concatenate([[np.nan], ring_med])[lab.ravel()[idx]]
+    return mask, idx, gap

@@ -176,6 +176,73 @@ def _prepare(a: np.ndarray, zone: Mask, easy: Mask) -> tuple[Mask, Mask, Mask, n
     return out_valid, out_zone, out_easy, h_all, context
 
 
+@numba.njit(cache=True, inline="always")
+def _np_maximum(a, b):  # type: ignore[no-untyped-def]  # numba kernel
+    """``np.maximum(a, b)`` of two doubles: NaN if either is, else the larger, ``a`` on a tie (-0.0, 0.0)."""
+    if a != a or b != b:
+        return a + b
+    return a if a >= b else b
+
+
+@numba.njit(cache=True)
+def _nan_to_num(a, nan):  # type: ignore[no-untyped-def]  # numba kernel
+    """``np.nan_to_num(a, nan=nan)`` in place (±inf to the largest finite doubles)."""
+    big = np.finfo(np.float64).max
+    f = a.reshape(-1)
+    for q in range(f.size):
+        x = f[q]
+        if x != x:
+            f[q] = nan
+        elif x == np.inf:
+            f[q] = big
+        elif x == -np.inf:
+            f[q] = -big
+
+
+def _sigma_px(profile: NoiseProfile, context: np.ndarray) -> np.ndarray:
+    """``profile.sigma_at(local_height(context))`` without the lookup's copy of the local heights."""
+    lh = local_height(context)
+    if profile.heights_mm.size == 0:
+        return np.zeros(lh.shape)
+    _nan_to_num(lh, float(profile.heights_mm[0]))
+    out: np.ndarray = np.interp(lh, profile.heights_mm, profile.sigma_mm)
+    return out
+
+
+@numba.njit(cache=True)
+def _thresholds(sigma_px, k, min_residual, jump_mm, tau, jump):  # type: ignore[no-untyped-def]  # numba kernel
+    """τ = np.maximum(min_residual, k · σ̂) and the jump np.maximum(jump_mm, k · σ̂) of every pixel, one pass."""
+    s = sigma_px.reshape(-1)
+    t = tau.reshape(-1)
+    u = jump.reshape(-1)
+    for q in range(s.size):
+        x = k * s[q]
+        t[q] = _np_maximum(min_residual, x)
+        u[q] = _np_maximum(jump_mm, x)
+
+
+@numba.njit(cache=True, error_model="numpy")  # IEEE division
+def _rough(zone, residual, tau, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """zone & ~(|residual| <= τ): in the zone, off the surface or without a continuation (inf, NaN)."""
+    z = zone.reshape(-1)
+    r = residual.reshape(-1)
+    t = tau.reshape(-1)
+    o = out.reshape(-1)
+    for q in range(z.size):
+        o[q] = z[q] and not abs(r[q]) <= t[q]
+
+
+@numba.njit(cache=True, error_model="numpy")  # IEEE division
+def _gap_ratio(gap, tau, min_residual, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """|gap| / τ_px, τ_px = τ where finite and > 0, else min_residual (the grouping's strength)."""
+    g = gap.reshape(-1)
+    t = tau.reshape(-1)
+    o = out.reshape(-1)
+    for q in range(g.size):
+        x = t[q]
+        o[q] = abs(g[q]) / (x if np.isfinite(x) and x > 0 else min_residual)
+
+
 def _sigma_and_tau_medians(sigma_px: np.ndarray, params: SuspectParams) -> tuple[float, float]:
     """The medians of σ̂ and of τ = max(min_residual_mm, noise_k · σ̂) over the zone (``sigma_px``: σ̂ there,
     not modified), from one selection: τ is a non-decreasing function of σ̂
@@ -262,13 +329,12 @@ def suspects(
     h_zcut = np.ascontiguousarray(h_img, dtype=np.float64)
 
     profile = noise_profile(context, zone)
-    sigma_px = profile.sigma_at(local_height(context))
-    tau = params.noise_k * sigma_px
-    np.maximum(params.min_residual_mm, tau, out=tau)  # in place: one frame-sized array fewer to fault in
+    sigma_px = _sigma_px(profile, context)  # profile.sigma_at(local_height(context))
+    sigma_px = np.ascontiguousarray(sigma_px, dtype=np.float64)
+    tau, jump = np.empty((H, W)), np.empty((H, W))
+    _thresholds(sigma_px, params.noise_k, params.min_residual_mm, params.jump_mm, tau, jump)
     sigma, threshold = (_sigma_and_tau_medians(sigma_px[zone], params) if zone.any()
                         else (0.0, float(params.min_residual_mm)))
-    jump = params.noise_k * sigma_px
-    np.maximum(params.jump_mm, jump, out=jump)
     step = max(params.floating_step_mm, FLOATING_STEP_SIGMAS * sigma)
     a_max = params.a_max if params.a_max is not None else max(0.01 * H * W, 1.0)
 
@@ -277,8 +343,10 @@ def suspects(
     if params.fill_iterations > 0:
         filled = fill_blobs(off, zone, valid & ~easy, iterations=params.fill_iterations)
         codes[filled & ~off] = RESIDUAL_UP
-    rough = zone & ~(np.abs(residual) <= tau)  # in the zone: inf (no continuation) is rough
-    floating, floating_gap = floating_components(h_zcut, zone, valid & ~easy, rough, params, a_max, step, profile)
+    rough = np.empty((H, W), bool)
+    _rough(zone, residual, tau, rough)  # in the zone: inf (no continuation) is rough
+    floating, floating_at, floating_gap = floating_components(h_zcut, zone, valid & ~easy, rough, params, a_max,
+                                                              step, profile)
     codes[floating] |= FLOATING
     codes[easy] |= ABOVE_RIM
     mask = codes > 0
@@ -288,11 +356,11 @@ def suspects(
     # nearest surface fitted on one side of an edge; a blob's or an above-rim pixel's, to the local
     # surface around it
     by_residual = off & ((codes & (FLOATING | ABOVE_RIM)) == 0) & np.isfinite(residual)
-    by_border = floating & ~easy
+    # (a floating pixel is in the zone, never above the rim: its gap is the one over its component's border)
     gap = local_gaps(h_all,
-                     mask & ~by_residual & ~by_border, valid & ~mask)
+                     mask & ~by_residual & ~floating, valid & ~mask)
     gap[by_residual] = residual[by_residual]
-    gap[by_border] = floating_gap[by_border]
+    np.put(gap, floating_at, floating_gap)
     surfaces = None
     if edge_surface is not None:  # a pixel off the surface with a surface near: its distance to the nearest one
         # the frame in mm: 1000.0 * a.astype(np.float64), the product in place (numpy's casting loop of
@@ -306,8 +374,9 @@ def suspects(
         surface_mm = surfaces.distance(by_residual)
         near = by_residual & np.isfinite(surface_mm)
         gap[near] = surface_mm[near]
-    tau_px = np.where(np.isfinite(tau) & (tau > 0), tau, params.min_residual_mm)
-    groups, primary, radii = group_suspects(codes, np.abs(gap) / tau_px, params)
+    strength = np.empty((H, W))
+    _gap_ratio(gap, tau, params.min_residual_mm, strength)
+    groups, primary, radii = group_suspects(codes, strength, params)
     n = int(primary.size)
     size = np.bincount(groups.ravel(), minlength=n + 1)[1:].astype(np.int64)
     g_flat = groups.ravel()
