@@ -118,3 +118,15 @@ def test_the_command_line_keeps_opencv_threads_from_spinning(given: str | None, 
             "print(' '.join(os.environ[n] for n in OPENCV_NO_SPIN))")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     assert out.split() == [expected, "0"]
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+@pytest.mark.parametrize(("given", "expected"), [(None, "True"), ("4", "False")])
+def test_the_command_line_gives_its_threads_one_malloc_arena_unless_the_user_chose(given: str | None,
+                                                                                 expected: str) -> None:
+    env = {k: v for k, v in os.environ.items() if k != "MALLOC_ARENA_MAX"}
+    if given is not None:
+        env["MALLOC_ARENA_MAX"] = given
+    code = "from replay.process import one_malloc_arena\nprint(one_malloc_arena())"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert out.strip() == expected
