@@ -40,7 +40,7 @@ frame (numba compilation, model caches):
   threads: the reader, the locator, frames in flight), CPU s and wall s per frame, for this tree with
   one frame in flight and with two, and for the tree DIR, alternating N times in subprocesses, medians
   and every run's figures, with the load average: on a shared machine the wall times are indicative
-  only. ``--outputs rrd,out,rrd+out`` adds this tree with those outputs (``zcut replay``'s sinks in
+  only. ``--outputs rrd,out,rrd+out`` adds this tree (and DIR) with those outputs (``zcut replay``'s sinks in
   their background thread, written to a temporary folder and closed), and every row says the frames/s
   bound of two fully used cores, 2 / (CPU s a frame).
   The measuring children set their process up as ``zcut replay`` does (``replay.process.configure_process``
@@ -474,6 +474,8 @@ def throughput_table(log: Path, against: Path | None, repeats: int, outputs: tup
     for o in outputs:
         if o != "none":
             runs[f"this tree, --{o.replace('+', ' --')}"] = (this_tree, None, o)
+            if against is not None:
+                runs[f"previous, --{o.replace('+', ' --')}"] = (against, None, o)
     got: dict[str, list[dict[str, float]]] = {k: [] for k in runs}
     loads = []
     for _ in range(max(repeats, 1)):
