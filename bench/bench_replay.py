@@ -40,9 +40,16 @@ frame (numba compilation, model caches):
   threads: the reader, the locator, frames in flight), CPU s and wall s per frame, for this tree with
   one frame in flight and with two, and for the tree DIR, alternating N times in subprocesses, medians
   and every run's figures, with the load average: on a shared machine the wall times are indicative
-  only. ``--outputs rrd,out,rrd+out`` adds this tree with those outputs (``zcut replay``'s sinks in
+  only. ``--outputs rrd,out,rrd+out`` adds this tree (and DIR) with those outputs (``zcut replay``'s sinks in
   their background thread, written to a temporary folder and closed), and every row says the frames/s
   bound of two fully used cores, 2 / (CPU s a frame).
+  The measuring children set their process up as ``zcut replay`` does (``replay.process.configure_process``
+  of their tree). ``--warm-passes N``: N whole passes over the log's frames before the measured one (the
+  same session), so that a short log is measured as a long log's later frames (buffers reused).
+- "Threads" (``--threads --log LOG [--against DIR] [--repeats N] [--warm-passes N]``): where a whole replay's
+  CPU goes, per thread (the reader, the chunk readers, the locator, the main thread, SOR's, the native
+  threads of numba, OpenCV and OpenBLAS): user and system CPU ms and minor page faults per frame, from
+  ``/proc/self/task``, this tree and DIR alternating (docs/performance.md, "The replay outside its stages").
 - "Fixed costs" (``--startup --log LOG [--against DIR] [--repeats N]``, issue 32 item 2): ``zcut replay
   LOG`` as a user runs it (``python -m cli``, a fresh process), with ``--frames 0:1`` and over all N
   frames, for this tree and DIR alternating N times. The CPU s of a process (user + sys of all its
@@ -60,9 +67,17 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
+
+if "--throughput-json" in sys.argv or "--threads-json" in sys.argv:
+    # a measuring child of a whole replay: the process set up as `zcut replay` sets it up, before numba, OpenCV
+    # and Open3D load (the tree's own replay.process.configure_process)
+    from replay.process import configure_process
+
+    configure_process()
 
 from replay.logs.reader import LogReader
 from replay.pipeline.bin_model import build_bin_model, load_bin_model, save_bin_model
@@ -287,6 +302,118 @@ def bin_stage_table(log: Path, ply: Path | None, against: Path | None, repeats: 
 THROUGHPUT_OUTPUTS = ("none", "rrd", "out", "rrd+out")
 
 
+#: ``--warm-passes N`` (passed to the measuring children as this variable): whole passes over frames 1.. of the
+#: same session before the measured one, so that a short log is measured as a long log's later frames are
+WARM_PASSES_VARIABLE = "ZCUT_BENCH_WARM_PASSES"
+
+
+def warm_passes() -> int:
+    return int(os.environ.get(WARM_PASSES_VARIABLE, "0") or 0)
+
+
+def thread_accounting(log: Path, in_flight: int | None) -> dict[str, object]:
+    """Where the CPU of a whole replay goes, per thread (``--threads``): ``ReplaySession.run`` over frames 1..
+    after frame 0 (and ``--warm-passes``), no outputs, every thread's user and system CPU ms and minor page
+    faults per frame from ``/proc/self/task/*/stat`` (sampled every 20 ms, so a thread that ends is counted up
+    to its last sample), grouped by thread name (numba's, OpenCV's and OpenBLAS's threads are not Python's:
+    ``native``), and the process's own figures (``getrusage``)."""
+    import inspect
+    import resource
+    import threading
+
+    from replay.pipeline.bin_model import bin_model_for
+
+    session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
+    kw = {}
+    if in_flight is not None and "in_flight" in inspect.signature(session.run).parameters:
+        kw["in_flight"] = in_flight
+    session.run(frames=(0, 1), **kw)
+    for _ in range(warm_passes()):
+        session.run(frames=(1, None), **kw)
+    hz = os.sysconf("SC_CLK_TCK")
+    seen: dict[int, tuple[str, float, float, int]] = {}
+
+    def sample() -> None:
+        names = {t.native_id: t.name for t in threading.enumerate()}
+        for tid in os.listdir("/proc/self/task"):
+            try:
+                with open(f"/proc/self/task/{tid}/stat") as f:
+                    st = f.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            old = seen.get(int(tid))
+            name = names.get(int(tid)) or (old[0] if old else "native")
+            seen[int(tid)] = (name, int(st[11]) / hz, int(st[12]) / hz, int(st[7]))
+
+    stop = threading.Event()
+
+    def sampler() -> None:
+        while not stop.wait(0.02):
+            sample()
+
+    sample()
+    base = dict(seen)
+    ru0 = resource.getrusage(resource.RUSAGE_SELF)
+    th = threading.Thread(target=sampler, name="bench-sampler", daemon=True)
+    th.start()
+    c0 = time.process_time()
+    summary = session.run(frames=(1, None), **kw)
+    cpu = time.process_time() - c0
+    sample()
+    stop.set()
+    th.join()
+    ru1 = resource.getrusage(resource.RUSAGE_SELF)
+    n = max(len(summary.rows), 1)
+    groups: dict[str, list[float]] = {}
+    for tid, (name, u, sy, fl) in seen.items():
+        if name == "bench-sampler":
+            continue
+        b = base.get(tid, (name, 0.0, 0.0, 0))
+        key = name.split("_")[0].rstrip("0123456789-") if "_" in name else name.rstrip("0123456789-")
+        g = groups.setdefault(key, [0.0, 0.0, 0.0, 0.0])
+        g[0] += 1000 * (u - b[1]) / n
+        g[1] += 1000 * (sy - b[2]) / n
+        g[2] += (fl - b[3]) / n
+        g[3] += 1
+    return {"frames": len(summary.rows), "cpu_ms": 1000 * cpu / n,
+            "user_ms": 1000 * (ru1.ru_utime - ru0.ru_utime) / n, "sys_ms": 1000 * (ru1.ru_stime - ru0.ru_stime) / n,
+            "minflt": (ru1.ru_minflt - ru0.ru_minflt) / n, "threads": groups}
+
+
+def thread_table(log: Path, against: Path | None, repeats: int) -> None:
+    """Print :func:`thread_accounting` of this tree and ``against``'s, alternating ``repeats`` times (one
+    subprocess each), the medians per thread group."""
+    import json
+    import subprocess
+
+    this_tree = Path(__file__).resolve().parents[1]
+    trees = {"this tree": this_tree} | ({"previous": against} if against is not None else {})
+    got: dict[str, list[dict]] = {k: [] for k in trees}
+    loads = []
+    for _ in range(max(repeats, 1)):
+        for name, tree in trees.items():
+            loads.append(os.getloadavg()[0])
+            env = dict(os.environ, PYTHONPATH=str(tree))
+            out = subprocess.run([sys.executable, __file__, "--threads-json", str(log)], env=env, cwd=str(tree),
+                                 check=True, capture_output=True, text=True).stdout
+            got[name].append(json.loads(out.strip().splitlines()[-1]))
+    print(f"\nwhere a whole replay's CPU goes, per thread, {log.name} ({got['this tree'][0]['frames']} frames after a "
+          f"warm-up one, {warm_passes()} warm pass(es)); medians of {repeats} alternating runs, CPU ms per frame "
+          f"(user + sys) and minor page faults per frame; load average {min(loads):.1f}-{max(loads):.1f} on "
+          f"{os.cpu_count()} cores")
+    groups = sorted({g for rs in got.values() for r in rs for g in r["threads"]})
+    med = {name: {g: [statistics.median(r["threads"].get(g, [0, 0, 0, 0])[i] for r in rs) for i in range(3)]
+                  for g in groups} for name, rs in got.items()}
+    head = f"  {'thread':20s}" + "".join(f" {name + ' user/sys/faults':>32s}" for name in trees)
+    print(head)
+    for g in sorted(groups, key=lambda g: -sum(med["this tree"][g][:2])):
+        print(f"  {g:20s}" + "".join(f" {med[name][g][0]:10.1f} {med[name][g][1]:10.1f} {med[name][g][2]:10.0f}"
+                                     for name in trees))
+    for k, label in (("user_ms", "process user"), ("sys_ms", "process sys"), ("minflt", "minor faults"),
+                     ("cpu_ms", "process CPU")):
+        print(f"  {label:20s}" + "".join(f" {statistics.median(r[k] for r in got[name]):32.1f}" for name in trees))
+
+
 def throughput(log: Path, in_flight: int | None, outputs: str = "none") -> dict[str, float]:
     """CPU s and wall s per frame of a whole replay (``ReplaySession.run``: read, bin stages, z-cut, SOR,
     metrics, with the replay's own threads; ``outputs``: :data:`THROUGHPUT_OUTPUTS`, written to a temporary
@@ -303,6 +430,8 @@ def throughput(log: Path, in_flight: int | None, outputs: str = "none") -> dict[
     if in_flight is not None and "in_flight" in inspect.signature(session.run).parameters:
         kw["in_flight"] = in_flight
     session.run(frames=(0, 1), **kw)  # warm-up: numba kernels, the first chunk
+    for _ in range(warm_passes()):  # steady state: the buffers of a long log's later frames
+        session.run(frames=(1, None), **kw)
     with tempfile.TemporaryDirectory(prefix="zcut_bench_throughput_") as d:
         sinks: list = []
         if "rrd" in outputs:
@@ -345,6 +474,8 @@ def throughput_table(log: Path, against: Path | None, repeats: int, outputs: tup
     for o in outputs:
         if o != "none":
             runs[f"this tree, --{o.replace('+', ' --')}"] = (this_tree, None, o)
+            if against is not None:
+                runs[f"previous, --{o.replace('+', ' --')}"] = (against, None, o)
     got: dict[str, list[dict[str, float]]] = {k: [] for k in runs}
     loads = []
     for _ in range(max(repeats, 1)):
@@ -463,6 +594,13 @@ def main() -> None:
     ap.add_argument("--outputs", default="none",
                     help=f"--throughput: also replay with these outputs, of {','.join(THROUGHPUT_OUTPUTS)} (default none)")
     ap.add_argument("--throughput-json", nargs=3, help=argparse.SUPPRESS)  # LOG IN_FLIGHT (0: default) OUTPUTS: one line
+    ap.add_argument("--threads", action="store_true",
+                    help="where a whole replay of --log spends its CPU, per thread (user, system, page faults), this "
+                         "tree and --against's alternating --repeats times")
+    ap.add_argument("--threads-json", nargs=1, help=argparse.SUPPRESS)  # LOG: one JSON line
+    ap.add_argument("--warm-passes", type=int, default=0,
+                    help="--throughput, --threads: whole passes over the log before the measured one (a short log "
+                         "measured as a long log's later frames; default 0)")
     ap.add_argument("--stage-json", nargs=2, help=argparse.SUPPRESS)  # LOG PLY|-: one JSON line
     ap.add_argument("--clock", default="cpu", choices=("cpu", "wall"), help=argparse.SUPPRESS)
     ap.add_argument("--pin", type=int, help=argparse.SUPPRESS)  # cores the --stage-json process runs on
@@ -478,6 +616,18 @@ def main() -> None:
         log_, ply_ = args.stage_json
         print(json.dumps(stage_costs(Path(log_), None if ply_ == "-" else Path(ply_), clock=args.clock,
                                      bin_only=args.bin_stages)))
+        return
+    if args.warm_passes:
+        os.environ[WARM_PASSES_VARIABLE] = str(args.warm_passes)  # the measuring children read it
+    if args.threads_json:
+        import json
+
+        print(json.dumps(thread_accounting(Path(args.threads_json[0]), None)))
+        return
+    if args.threads:
+        if args.log is None:
+            raise SystemExit("--threads needs --log LOG")
+        thread_table(args.log, args.against, args.repeats)
         return
     if args.throughput_json:
         import json

@@ -168,12 +168,47 @@ def interrupted_by(error: BaseException, state: InterruptState | None = None) ->
     return None
 
 
+#: OpenCV's settings of how long its thread pool spins waiting (read when cv2 loads); :func:`configure_process`
+#: sets them to 0 unless the user set them
+OPENCV_NO_SPIN = ("OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER", "OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN")
+
+
+#: glibc's ``mallopt`` parameter for the most malloc arenas the threads of a process may have
+_M_ARENA_MAX = -8
+
+
+def one_malloc_arena() -> bool:
+    """Let every thread allocate from glibc's main arena (``mallopt(M_ARENA_MAX, 1)``), unless the user set
+    ``MALLOC_ARENA_MAX``; True when set (glibc only, and only for arenas not made yet: call it before
+    threads start).
+
+    A replay's threads (the reader, the locator, SOR's, numba's) allocate frame-sized arrays. In arenas
+    of their own (heaps of at most 64 MB each) the heaps that a frame's arrays filled are given back to
+    the kernel when the frame is freed, and the next frame faults them in again (3,700-4,300 minor faults,
+    40-60 system CPU ms a 1920 x 1200 frame at load 20); the main arena keeps freed memory for reuse
+    (106 faults, 9-15 ms; docs/performance.md, "The replay outside its stages").
+    """
+    if "MALLOC_ARENA_MAX" in os.environ or not sys.platform.startswith("linux"):
+        return False
+    import ctypes
+
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):  # not glibc
+        return False
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    mallopt.restype = ctypes.c_int
+    return bool(mallopt(_M_ARENA_MAX, 1))
+
+
 def configure_process() -> None:
     """Process-wide settings that belong to the command line, not to the library.
 
     numba's own workqueue threads unless the user chose a layer: OpenMP workers spin after each
     parallel region and steal the CPU on a busy machine (measured 2-3x slower here), and an old TBB
-    shipped by other wheels makes numba warn when it probes the "tbb" layer.
+    shipped by other wheels makes numba warn when it probes the "tbb" layer. OpenCV's pool threads do
+    not spin either (:data:`OPENCV_NO_SPIN`; the bin mask's calls left one of them yielding the CPU
+    ~1,900 times a frame). Every thread allocates from one malloc arena (:func:`one_malloc_arena`).
     """
     if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
         os.environ["NUMBA_THREADING_LAYER_PRIORITY"] = "workqueue omp tbb"
@@ -181,6 +216,12 @@ def configure_process() -> None:
             import numba
 
             numba.config.THREADING_LAYER_PRIORITY = ["workqueue", "omp", "tbb"]  # type: ignore[attr-defined]  # set at import
+    # OpenCV's pool threads spin (sched_yield) for 2000 rounds after every parallel call before they sleep,
+    # and its calling thread 10000 rounds for them: read when cv2 loads, so set before (docs/performance.md,
+    # "The replay outside its stages"); the same results, the threads only wait differently
+    for name in OPENCV_NO_SPIN:
+        os.environ.setdefault(name, "0")
+    one_malloc_arena()
     # a recording that cannot be written is reported in zcut's one line, naming the output; Rerun's
     # own log lines (Rust's format, on stderr) would repeat it, many lines long
     os.environ.setdefault("RUST_LOG", "off")

@@ -17,13 +17,13 @@ from mcap.records import Channel, Schema
 
 from replay.logs.damage import Damage
 from replay.logs.files import CHUNK_SLACK_BYTES
-from replay.logs.mcap_scan import McapFile, _Bad
+from replay.logs.mcap_scan import BufferPool, McapFile, _Bad
 
 
-def open_mcap(path: Path, max_message_bytes: int) -> McapFile:
+def open_mcap(path: Path, max_message_bytes: int, pool: BufferPool | None = None) -> McapFile:
     """The log opened for scanning, a chunk capped at ``max_message_bytes`` plus
-    :data:`~replay.logs.files.CHUNK_SLACK_BYTES` uncompressed."""
-    return McapFile(path, max_chunk_bytes=max_message_bytes + CHUNK_SLACK_BYTES)
+    :data:`~replay.logs.files.CHUNK_SLACK_BYTES` uncompressed; its buffers from ``pool`` when given."""
+    return McapFile(path, max_chunk_bytes=max_message_bytes + CHUNK_SLACK_BYTES, pool=pool)
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,6 +58,9 @@ class LogIndex:
     depth_topic : str or None
         A ``32FC1`` Image topic whose message of each frame's stamp the pass delivers in
         :attr:`~replay.logs.frame.Frame.truth_depth_m` (``LogReader(truth_depth=True)``), else None.
+    pool : BufferPool or None
+        The reader's buffers (its chunks' and its frames' images), shared by its passes; None: each
+        pass its own.
     """
 
     path: Path
@@ -76,10 +79,11 @@ class LogIndex:
     metadata: dict[str, dict[str, str]]
     chunks: dict[tuple[int, int], list[tuple[int, object]]] = field(default_factory=dict)
     depth_topic: str | None = None
+    pool: BufferPool | None = None
 
     def open(self) -> McapFile:
         """The log opened for scanning (a context manager)."""
-        return open_mcap(self.path, self.max_message_bytes)
+        return open_mcap(self.path, self.max_message_bytes, self.pool)
 
     def _cloud_counts(self, mf: McapFile) -> Iterator[tuple[int, int] | None]:
         """(chunk offset, clouds in it) per chunk of the summary's chunk index, in file order, read

@@ -131,6 +131,21 @@ class BufferPool:
         weakref.finalize(out, self._release, base).atexit = False
         return out
 
+    def array(self, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
+        """An uninitialised array of ``shape`` and ``dtype`` (a frame's decoded image) whose memory goes
+        back to the pool once it and every array made from it are gone.
+
+        The array is a view of a memoryview of a pooled buffer: numpy keeps that memoryview (not the
+        pooled array, which is never handed out) as the base of every slice, view or reshape of it, so
+        the buffer is released only after the last of them. A reused buffer is not written to by the
+        kernel again (no page faults, docs/performance.md "The replay outside its stages").
+        """
+        dt = np.dtype(dtype)
+        n = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
+        if n < self.MIN_BYTES:
+            return np.empty(shape, dtype=dt)
+        return np.frombuffer(memoryview(self.get(n)), dtype=dt).reshape(shape)  # type: ignore[arg-type]  # an ndarray is a buffer
+
     def _release(self, base: np.ndarray) -> None:
         with self._lock:
             if self._closed:
@@ -319,6 +334,10 @@ class McapFile:
     max_chunk_bytes : int
         Largest record, uncompressed chunk or summary section read into memory; larger ones are
         damage (the scan goes on at the next chunk).
+    pool : BufferPool, optional
+        Where the chunks' buffers come from and go back to: a :class:`~replay.logs.reader.LogReader`'s,
+        shared by every pass over the log (a second pass reuses the first one's memory), and left open
+        by :meth:`close`; else a pool of this file's own, closed with it.
 
     Raises
     ------
@@ -326,11 +345,14 @@ class McapFile:
         Not a regular file, not MCAP, or a damaged header record.
     """
 
-    def __init__(self, path: str | Path, *, max_chunk_bytes: int = MAX_CHUNK_BYTES) -> None:
+    def __init__(self, path: str | Path, *, max_chunk_bytes: int = MAX_CHUNK_BYTES,
+                 pool: BufferPool | None = None) -> None:
         self.path = Path(path)
         self.max_chunk_bytes = int(max_chunk_bytes)
         self._f, self.size = open_input(self.path, "an MCAP log")
-        self.pool = BufferPool()
+        #: the buffers of this file's chunks: ``pool`` (a reader's, kept across its passes) or its own
+        self.pool = BufferPool() if pool is None else pool
+        self._own_pool = pool is None
         head = self._f.read(8)
         if head != MAGIC:
             self._f.close()
@@ -361,7 +383,8 @@ class McapFile:
 
     def close(self) -> None:
         self._f.close()
-        self.pool.close()
+        if self._own_pool:
+            self.pool.close()
 
     def __enter__(self) -> McapFile:
         return self

@@ -58,6 +58,7 @@ from replay.logs.mcap_scan import (
     OP_MESSAGE,
     OP_METADATA,
     OP_SCHEMA,
+    BufferPool,
     Lost,
     McapFile,
     _Bad,
@@ -221,13 +222,14 @@ class LogInfo:
 
 def inspect_log(
     path: str | os.PathLike[str], *, keep_chunks: bool = False,
-    max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
+    max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES, pool: BufferPool | None = None,
 ) -> LogInfo:
     """List the topics of an MCAP log with the size of their first decodable message (no topic
     choice).
 
     With ``keep_chunks``, :attr:`LogInfo.chunks` keeps the chunks read to find the first messages
-    (up to :data:`KEEP_PEEKED_BYTES`) for a following scan. ``max_message_bytes`` caps a message
+    (up to :data:`KEEP_PEEKED_BYTES`) for a following scan; ``pool``: where their buffers come from
+    (the reader's, so that they go back to the pool its passes use). ``max_message_bytes`` caps a message
     (and, plus a slack of :data:`~replay.logs.files.CHUNK_SLACK_BYTES`, a chunk). Raises
     :class:`LogFormatError` if the file is not a regular file or not MCAP.
     """
@@ -237,7 +239,7 @@ def inspect_log(
     notes: list[str] = []
     damage: list[Damage] = []
     start_ns = end_ns = None
-    with McapFile(path, max_chunk_bytes=max_message_bytes + CHUNK_SLACK_BYTES) as mf:
+    with McapFile(path, max_chunk_bytes=max_message_bytes + CHUNK_SLACK_BYTES, pool=pool) as mf:
         if mf.summary_damage:
             notes.append(mf.summary_damage.text)
             damage.append(mf.summary_damage)
@@ -359,11 +361,14 @@ class LogReader:
         truth_depth: bool = False,
     ) -> None:
         check_caps(max_pixels, max_message_bytes)
+        #: the buffers of every pass over this log: its chunks (read, decompressed) and its frames'
+        #: decoded images, reused once a frame is gone (fresh ones cost their page faults every frame)
+        self.pool = BufferPool()
         self.allow_cloudless = cloudless
         #: a results file written without its cloud, its frames driven by ``/zcut/valid`` (see ``cloudless``)
         self.cloudless = False
         self.max_pixels, self.max_message_bytes = max_pixels, max_message_bytes
-        info = inspect_log(path, keep_chunks=True, max_message_bytes=max_message_bytes)
+        info = inspect_log(path, keep_chunks=True, max_message_bytes=max_message_bytes, pool=self.pool)
         self._chunks = info.chunks  # for the first frames() scan
         #: damage found at open (a damaged summary or metadata record): every pass starts with it
         self.open_damage: tuple[Damage, ...] = tuple(info.damage)
@@ -387,7 +392,7 @@ class LogReader:
             and depth.msg_type == rm.IMAGE and depth.message_encoding == "cdr" else None)
 
     def _mcap(self) -> McapFile:
-        return open_mcap(self.path, self.max_message_bytes)
+        return open_mcap(self.path, self.max_message_bytes, self.pool)
 
     def _first_intrinsics(self) -> Intrinsics | None:
         if self.info_topic is None:
@@ -636,7 +641,7 @@ class LogReader:
             mask_topics=tuple(self.mask_topics), cloudless=self.cloudless, max_pixels=self.max_pixels,
             max_message_bytes=self.max_message_bytes, schemas=self._schemas, channels=self._channels,
             has_summary=self._has_summary, n_frames=self.n_frames, open_damage=self.open_damage,
-            metadata=self.metadata, chunks=chunks, depth_topic=self.depth_topic,
+            metadata=self.metadata, chunks=chunks, depth_topic=self.depth_topic, pool=self.pool,
         )
 
 

@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import struct
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numba
 import numpy as np
@@ -457,6 +458,11 @@ XYZRGBA_FIELDS = (
 XYZ_FIELDS = XYZRGBA_FIELDS[:3]
 
 
+#: Makes an uninitialised output array from ``(shape, dtype)``: ``np.empty``, or a pool's
+#: (:meth:`replay.logs.mcap_scan.BufferPool.array`: a reader decodes its frames into reused memory)
+Alloc = Callable[[tuple[int, ...], Any], np.ndarray]
+
+
 def check_grid(h: int, w: int, max_pixels: int | None, *, what: str, where: str) -> None:
     """Raise :class:`~replay.errors.OverCapError` (a :class:`LogFormatError`) if an ``h`` x ``w`` grid
     exceeds ``max_pixels`` (None: no cap)."""
@@ -467,12 +473,12 @@ def check_grid(h: int, w: int, max_pixels: int | None, *, what: str, where: str)
 
 
 def cloud_to_arrays(
-    msg: CloudMsg, *, where: str, max_pixels: int | None = None
+    msg: CloudMsg, *, where: str, max_pixels: int | None = None, alloc: Alloc = np.empty,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """View a ``PointCloud2`` as arrays.
 
     The size is checked against the bytes present and ``max_pixels`` before the output arrays
-    are allocated.
+    are allocated (by ``alloc``; every element is written).
 
     Parameters
     ----------
@@ -538,8 +544,8 @@ def cloud_to_arrays(
             names.append("c")
             formats.append(bo + "u4")  # FLOAT32-packed colour is the same 4 bytes
             offsets.append(color.offset)
-    xyz = np.empty((h, w, 3), dtype=np.float32)
-    rgb = np.empty((h, w, 3), dtype=np.uint8) if color is not None else None
+    xyz = alloc((h, w, 3), np.float32)
+    rgb = alloc((h, w, 3), np.uint8) if color is not None else None
     words_ok = (
         not msg.is_bigendian and sys.byteorder == "little" and coord_types == {FLOAT32}
         and step % 4 == 0 and row_step % 4 == 0 and all(o % 4 == 0 for o in offsets)
@@ -731,26 +737,30 @@ def _image_pixels(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -
     )
 
 
-def image_to_rgb(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -> np.ndarray:
+def image_to_rgb(msg: ImageMsg, *, where: str, max_pixels: int | None = None, alloc: Alloc = np.empty) -> np.ndarray:
     """(H, W, 3) uint8 RGB copy of an rgb8/bgr8/rgba8/bgra8/mono8 ``Image`` (step padding dropped;
-    H x W checked against the bytes present and ``max_pixels`` first)."""
+    H x W checked against the bytes present and ``max_pixels`` first), written into ``alloc``'s array."""
     px = _image_pixels(msg, where=where, max_pixels=max_pixels)
     enc = msg.encoding
+    out = alloc((msg.height, msg.width, 3), np.uint8)  # a copy even for rgb8: never pin the chunk buffer
     if enc == "mono8":
-        return np.repeat(px, 3, axis=2)
-    if enc in ("bgr8", "bgra8"):
-        return np.ascontiguousarray(px[..., 2::-1])
-    return np.array(px[..., :3], order="C")  # a copy even for rgb8: never pin the chunk buffer
+        np.copyto(out, px)  # the one channel repeated
+    elif enc in ("bgr8", "bgra8"):
+        np.copyto(out, px[..., 2::-1])
+    else:
+        np.copyto(out, px[..., :3])
+    return out
 
 
-def image_to_mask(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -> np.ndarray:
-    """(H, W) bool of a mask ``Image``: ``mono8`` (nonzero, 255 as zcut wrote it, -> True) or zcut's
-    bit-packed ``mono1`` (:data:`PACKED_MASK_ENCODING`; set bits -> True)."""
+def image_to_mask(msg: ImageMsg, *, where: str, max_pixels: int | None = None, alloc: Alloc = np.empty) -> np.ndarray:
+    """(H, W) bool of a mask ``Image``: ``mono8`` (nonzero, 255 as zcut wrote it, -> True; into
+    ``alloc``'s array) or zcut's bit-packed ``mono1`` (:data:`PACKED_MASK_ENCODING`; set bits -> True)."""
     if msg.encoding == PACKED_MASK_ENCODING:
         return _packed_mask(msg, where=where, max_pixels=max_pixels)
     if msg.encoding != "mono8":
         raise LogFormatError(f"{where}: a mask must be a mono8 or {PACKED_MASK_ENCODING} Image, got '{msg.encoding}'")
-    mask: np.ndarray = _image_pixels(msg, where=where, max_pixels=max_pixels)[..., 0] != 0
+    px = _image_pixels(msg, where=where, max_pixels=max_pixels)[..., 0]
+    mask: np.ndarray = np.not_equal(px, 0, out=alloc(px.shape, np.bool_))
     return mask
 
 
@@ -781,11 +791,15 @@ def mask_to_packed(mask: np.ndarray) -> np.ndarray:
     return np.packbits(np.ascontiguousarray(mask, dtype=np.bool_), axis=1)
 
 
-def image_to_codes(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -> np.ndarray:
-    """(H, W) uint8 of a mono8 ``Image`` whose values are codes (e.g. an outlier-kind image)."""
+def image_to_codes(msg: ImageMsg, *, where: str, max_pixels: int | None = None, alloc: Alloc = np.empty) -> np.ndarray:
+    """(H, W) uint8 of a mono8 ``Image`` whose values are codes (e.g. an outlier-kind image), a copy
+    (into ``alloc``'s array)."""
     if msg.encoding != "mono8":
         raise LogFormatError(f"{where}: a code image must be a mono8 Image, got '{msg.encoding}'")
-    return np.ascontiguousarray(_image_pixels(msg, where=where, max_pixels=max_pixels)[..., 0])
+    px = _image_pixels(msg, where=where, max_pixels=max_pixels)[..., 0]
+    out = alloc(px.shape, np.uint8)
+    np.copyto(out, px)
+    return out
 
 
 def camera_info_to_intrinsics(msg: CameraInfoMsg, *, where: str) -> Intrinsics:

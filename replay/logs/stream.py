@@ -236,6 +236,8 @@ class FrameStream(Iterator[Frame]):
         # a chunk of unknown content was lost after this frame: its record, until a sequence gap says more
         self._unknown_loss: list[Damage] = []
         self._decoded = decoded
+        # a frame's images are decoded into the reader's pooled memory (reused once a frame is gone)
+        self._alloc: rm.Alloc = index.pool.array if index.pool is not None else np.empty
         self._prefetch = PREFETCH if prefetch is None else prefetch
         self._gen = self._scan()
 
@@ -557,7 +559,7 @@ class FrameStream(Iterator[Frame]):
                 # with an Image paired the frame's colours are the image's (below, or the frame is
                 # skipped): the cloud's own colour field is not decoded, only x, y, z
                 xyz, rgb = rm.cloud_to_arrays(cloud if img is None else without_colour(cloud), where=where,
-                                              max_pixels=r.max_pixels)
+                                              max_pixels=r.max_pixels, alloc=self._alloc)
         except LogFormatError as e:
             raise _Skip(_kind_of(e), str(e), ctopic) from None
         if img is not None:
@@ -567,7 +569,7 @@ class FrameStream(Iterator[Frame]):
                             f"{iwhere}: image is {img.height}x{img.width} but its cloud ({ctopic}, "
                             f"message {idx}) is {shape[0]}x{shape[1]}", r.image_topic)
             try:
-                rgb = rm.image_to_rgb(img, where=iwhere, max_pixels=r.max_pixels)
+                rgb = rm.image_to_rgb(img, where=iwhere, max_pixels=r.max_pixels, alloc=self._alloc)
             except LogFormatError as e:
                 raise _Skip(_kind_of(e), str(e), r.image_topic) from None
         intrinsics: Intrinsics | None = None
@@ -592,9 +594,9 @@ class FrameStream(Iterator[Frame]):
                             f"{mwhere}: mask is {m.height}x{m.width} but its cloud is {shape[0]}x{shape[1]}", topic)
             try:
                 if topic in layout.CODE_TOPICS:
-                    codes[topic] = rm.image_to_codes(m, where=mwhere, max_pixels=r.max_pixels)
+                    codes[topic] = rm.image_to_codes(m, where=mwhere, max_pixels=r.max_pixels, alloc=self._alloc)
                 else:
-                    masks[topic] = rm.image_to_mask(m, where=mwhere, max_pixels=r.max_pixels)
+                    masks[topic] = rm.image_to_mask(m, where=mwhere, max_pixels=r.max_pixels, alloc=self._alloc)
             except LogFormatError as e:
                 raise _Skip(_kind_of(e), str(e), topic) from None
         depth = None

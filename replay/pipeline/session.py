@@ -94,10 +94,14 @@ class FrameRow:
         err_mm = err_deg = math.nan
         if true_pose is not None and reg is not None:
             err_mm, err_deg = pose_error(reg.T_cam_bin, true_pose)
+        zcut, sor = result.outliers["zcut"], result.outliers.get("sor")
+        # np.count_nonzero: the same counts as .sum() of a bool image, without its int64 pass (4-5 ms a
+        # 1920 x 1200 frame); no all-False images for a SOR or a removal that did not run
         return cls(
-            index=result.index, stamp_ns=result.stamp_ns, valid_px=int(result.valid.sum()),
-            zcut=int(result.zcut_outliers.sum()), sor=int(result.sor_outliers.sum()),
-            both=int(result.both_outliers.sum()), above_rim=int(result.easy_outliers.sum()),
+            index=result.index, stamp_ns=result.stamp_ns, valid_px=int(np.count_nonzero(result.valid)),
+            zcut=int(np.count_nonzero(zcut)), sor=int(np.count_nonzero(sor)) if sor is not None else 0,
+            both=int(np.count_nonzero(zcut & sor)) if sor is not None else 0,
+            above_rim=int(np.count_nonzero(result.removal.easy_outliers)) if result.removal is not None else 0,
             clusters=result.cut.n_clusters, alpha=float(m.alpha), beta_sor=float(m.beta1),
             beta_zcut=float(m.beta2),
             fitness=float(reg.fitness) if reg is not None else math.nan,
