@@ -653,18 +653,30 @@ class TargetPoints:
     cloud : open3d.geometry.PointCloud
         Downsampled at ``voxel_m``.
     voxel_m : float
-    tree : scipy.spatial.cKDTree
-        Over the points of ``cloud``: where :func:`pose_fitness` looks for the rim.
     intrinsics : Intrinsics or None
         The camera's: model rim points outside its image are out of view and not scored. None:
         every rim point is scored.
+    tree : scipy.spatial.cKDTree
+        Over the points of ``cloud``, built on first use (:func:`pose_fitness` searches a cell grid
+        of them instead, :func:`_confirmed`, with the same answers). Derived, not passed.
     """
 
     points: np.ndarray
     cloud: o3d.geometry.PointCloud
     voxel_m: float
-    tree: cKDTree
     intrinsics: Intrinsics | None
+    _tree: cKDTree | None = field(default=None, init=False, repr=False, compare=False)
+
+    @property
+    def tree(self) -> cKDTree:
+        if self._tree is None:
+            from scipy.spatial import cKDTree
+
+            # an unbalanced tree without shrunk boxes builds in half the time; its nearest distances are the same
+            object.__setattr__(self, "_tree", cKDTree(np.asarray(self.cloud.points, dtype=np.float64),
+                                                      balanced_tree=False, compact_nodes=False))
+        assert self._tree is not None  # built above
+        return self._tree
 
 
 def prepare_target(target: np.ndarray, *, voxel_m: float, intrinsics: Intrinsics | None = None) -> TargetPoints:
@@ -684,15 +696,11 @@ def prepare_target(target: np.ndarray, *, voxel_m: float, intrinsics: Intrinsics
     -------
     TargetPoints
     """
-    from scipy.spatial import cKDTree
-
     t = _check_points(target, "target")
     if intrinsics is not None and not isinstance(intrinsics, Intrinsics):
         raise InputShapeError(f"intrinsics must be a zcut.cloud.Intrinsics or None, got {type(intrinsics).__name__}")
     cloud = _cloud_of(voxel_down_points(t, voxel_m)) if voxel_m > 0 else _cloud(t, 0.0)
-    # an unbalanced tree without shrunk boxes builds in half the time; its nearest distances are the same
-    tree = cKDTree(np.asarray(cloud.points, dtype=np.float64), balanced_tree=False, compact_nodes=False)
-    return TargetPoints(t, cloud, float(voxel_m), tree, intrinsics)
+    return TargetPoints(t, cloud, float(voxel_m), intrinsics)
 
 
 def register_bin(
@@ -830,15 +838,105 @@ def _rim_fitness(model: IcpModel, target: TargetPoints, T_cam_bin: np.ndarray,
         rim = rim[_in_view(rim, K)]
     if len(rim) == 0:
         return 0.0, 0
-    if target.tree.n == 0:
+    pts = np.asarray(target.cloud.points, dtype=np.float64)
+    if len(pts) == 0:
         return 0.0, len(rim)
     if K is None:
         reach = np.full(len(rim), max_distance_m)
     else:
         # a frame sampled coarser than the distance cannot confirm it: allow the pixel's footprint
         reach = np.maximum(max_distance_m, PIXEL_REACH * rim[:, 2] / min(K.fx, K.fy))
-    d, _ = target.tree.query(rim, k=1, distance_upper_bound=float(reach.max()))
-    return float(np.count_nonzero(d <= reach)) / len(rim), len(rim)
+    # cKDTree(pts).query(rim, k=1, distance_upper_bound=reach.max()) and d <= reach, counted (_confirmed)
+    return float(_confirmed(np.ascontiguousarray(rim), reach, float(reach.max()), pts)) / len(rim), len(rim)
+
+
+@numba.njit(cache=True, nogil=True)
+def _confirmed(rim, reach, ub, pts):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """How many rim points have a nearest point of ``pts`` within their ``reach``, as cKDTree answers
+    ``query(rim, k=1, distance_upper_bound=ub)`` and ``d <= reach`` counts it (``ub`` >= every reach).
+
+    cKDTree keeps a point whose squared distance, summed (dx² + dy²) + dz², is below ub²; d is the
+    square root of the least. So a rim point counts iff some point has d2 < ub² and sqrt(d2) <= its
+    reach (the least d2 then does too): the search stops at the first such point, its own grid cell
+    first (where it usually is), in cells ``ub`` wide (hashed: a frame's bin spans ~10^6 of them)."""
+    m = pts.shape[0]
+    cell = ub * (1.0 + 1e-6)  # rounding in (x - origin) / cell cannot put a point within ub two cells away
+    ox, oy, oz = pts[0, 0], pts[0, 1], pts[0, 2]
+    for i in range(m):
+        ox = min(ox, pts[i, 0])
+        oy = min(oy, pts[i, 1])
+        oz = min(oz, pts[i, 2])
+    size = 16
+    while size < 2 * m:
+        size *= 2
+    table = np.full(size, -1, np.int64)
+    keys = np.empty((m, 3), np.int64)
+    cell_of = np.empty(m, np.int64)
+    counts = np.zeros(m + 1, np.int64)
+    k = 0
+    for i in range(m):
+        ix = np.int64(math.floor((pts[i, 0] - ox) / cell))
+        iy = np.int64(math.floor((pts[i, 1] - oy) / cell))
+        iz = np.int64(math.floor((pts[i, 2] - oz) / cell))
+        slot = _voxel_slot(ix, iy, iz, size)
+        while True:
+            j = table[slot]
+            if j < 0:
+                table[slot] = k
+                keys[k, 0], keys[k, 1], keys[k, 2] = ix, iy, iz
+                j = k
+                k += 1
+                break
+            if keys[j, 0] == ix and keys[j, 1] == iy and keys[j, 2] == iz:
+                break
+            slot = (slot + 1) & (size - 1)
+        cell_of[i] = j
+        counts[j + 1] += 1
+    for j in range(k):
+        counts[j + 1] += counts[j]
+    fill = counts[:k].copy()
+    members = np.empty(m, np.int64)
+    for i in range(m):
+        members[fill[cell_of[i]]] = i
+        fill[cell_of[i]] += 1
+    ub2 = ub * ub
+    n = 0
+    for r in range(rim.shape[0]):
+        x, y, z = rim[r, 0], rim[r, 1], rim[r, 2]
+        fx = math.floor((x - ox) / cell)
+        fy = math.floor((y - oy) / cell)
+        fz = math.floor((z - oz) / cell)
+        if not (-2.0 < fx < 2.0**62 and -2.0 < fy < 2.0**62 and -2.0 < fz < 2.0**62):
+            continue  # no cell of the points within reach
+        cx, cy, cz = np.int64(fx), np.int64(fy), np.int64(fz)
+        rr = reach[r]
+        hit = False
+        for t in range(27):
+            # the own cell first (t = 0 is offset (0, 0, 0)), then the other 26
+            ax = cx + (t // 9 + 1) % 3 - 1
+            ay = cy + (t // 3 + 1) % 3 - 1
+            az = cz + (t + 1) % 3 - 1
+            slot = _voxel_slot(ax, ay, az, size)
+            j = table[slot]
+            while j >= 0 and not (keys[j, 0] == ax and keys[j, 1] == ay and keys[j, 2] == az):
+                slot = (slot + 1) & (size - 1)
+                j = table[slot]
+            if j < 0:
+                continue
+            for q in range(counts[j], counts[j + 1]):
+                p = members[q]
+                dx = x - pts[p, 0]
+                dy = y - pts[p, 1]
+                dz = z - pts[p, 2]
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 < ub2 and math.sqrt(d2) <= rr:
+                    hit = True
+                    break
+            if hit:
+                break
+        if hit:
+            n += 1
+    return n
 
 
 def pose_fitness(model: IcpModel, target: TargetPoints, T_cam_bin: np.ndarray, *,
