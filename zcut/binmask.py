@@ -295,17 +295,16 @@ def _largest_distance(g, row_max, order):  # type: ignore[no-untyped-def]  # num
 
 
 @numba.njit(cache=True, nogil=True)
-def _ring_bounded(g, vmax, walls, xyz, r0, c0, out):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """out = walls & (squared distance to the nearest zero <= vmax) & finite(xyz) on the crop at
+def _ring_bounded(g, vin, vout, walls, xyz, r0, c0, out):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """out = walls & (squared distance to the nearest zero <= vin) & finite(xyz) on the crop at
     (r0, c0), from the column distances ``g``: in the ring when the vertical or the horizontal
-    distance is within reach; out of it when no column within reach has its zero within reach;
-    else by the exact squared distance over the columns within reach."""
+    distance is within reach; out of it when no column within reach of ``vout`` has its zero within
+    that reach; else by the exact squared distance over those columns. Returns the number of bright
+    pixels with a finite point whose squared distance lies in (vin, vout]: those the two bounds do
+    not decide (0 when ``vin == vout``); it stops at the first (``out`` then incomplete)."""
     m, n = g.shape
-    reach = int(np.sqrt(vmax))
-    while (reach + 1) * (reach + 1) <= vmax:
-        reach += 1
-    while reach * reach > vmax:
-        reach -= 1
+    r_in = _isqrt_floor(vin)
+    reach = _isqrt_floor(vout)
     far = 1 << 40
     zero_left = np.empty(n, np.int64)
     near_left = np.empty(n, np.int64)
@@ -334,16 +333,40 @@ def _ring_bounded(g, vmax, walls, xyz, r0, c0, out):  # type: ignore[no-untyped-
                 nr = c
             if not wr[c]:
                 continue
-            inside = x <= reach or min(c - zero_left[c], zr - c) <= reach
+            inside = x <= r_in or min(c - zero_left[c], zr - c) <= r_in
             if not inside and min(c - near_left[c], nr - c) <= reach:
-                best = vmax + 1
-                for p in range(max(c - reach, 0), min(c + reach, n - 1) + 1):
-                    y = np.int64(gr[p])
-                    best = min(best, y * y + (p - c) * (p - c))
-                inside = best <= vmax
+                # the columns within reach, nearest first: the first within vin decides (the order
+                # changes no minimum)
+                best = vout + 1
+                lo, hi = max(c - reach, 0), min(c + reach, n - 1)
+                for d in range(reach + 1):
+                    dd = d * d
+                    if c - d >= lo:
+                        y = np.int64(gr[c - d])
+                        best = min(best, y * y + dd)
+                    if c + d <= hi:
+                        y = np.int64(gr[c + d])
+                        best = min(best, y * y + dd)
+                    if best <= vin:
+                        break
+                inside = best <= vin
+                if not inside and best <= vout and xr[c, 0] * 0 + xr[c, 1] * 0 + xr[c, 2] * 0 == 0:
+                    return 1
             if inside:
                 # 0 * v is 0 for a finite v, NaN for an infinite or NaN one
                 orow[c] = xr[c, 0] * 0 + xr[c, 1] * 0 + xr[c, 2] * 0 == 0
+    return 0
+
+
+@numba.njit(cache=True, nogil=True)
+def _isqrt_floor(v):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """The largest integer whose square is <= v (v >= 0)."""
+    r = int(np.sqrt(v))
+    while (r + 1) * (r + 1) <= v:
+        r += 1
+    while r * r > v:
+        r -= 1
+    return r
 
 
 #: The bounded distance transform of :func:`bin_pixels` stands for OpenCV's precise one where that
@@ -358,10 +381,57 @@ _EXACT_MIN_PX = 1 << 14
 _EXACT_MAX_W = 1447
 
 
+#: Where OpenCV runs Intel IPP's transform instead (one thread, or a small crop), its distances are
+#: not the exact ones but within this relative error of them (measured: at most 1.23e-7, i.e. 1 or 2
+#: float32 ulps, on every pixel of synthetic, ray-traced and random footprints; tests/zcut/
+#: test_binmask_fast.py checks it on each). :func:`bin_pixels` takes the exact transform's ring there
+#: only when no bright pixel's distance lies within this error of the threshold (nor the threshold
+#: within it of its own value, through the largest distance); else it calls OpenCV.
+_IPP_REL_ERROR = 2.0**-21
+
+
+def _bounded_shape(shape: tuple[int, int]) -> bool:
+    """May the bounded transform stand for OpenCV's on a crop this shape, exactly or within
+    :data:`_IPP_REL_ERROR` (see above)?"""
+    m, n = shape
+    return n <= _EXACT_MAX_W and m * m + n * n < (1 << 24)
+
+
 def _exact_opencv(shape: tuple[int, int]) -> bool:
     """Is OpenCV's precise distance transform of a crop this shape the exact one (see above)?"""
     m, n = shape
-    return m * n >= _EXACT_MIN_PX and n <= _EXACT_MAX_W and m * m + n * n < (1 << 24) and cv2.getNumThreads() > 1
+    return m * n >= _EXACT_MIN_PX and _bounded_shape(shape) and cv2.getNumThreads() > 1
+
+
+def _ring_threshold(largest: float, ring_frac: float, min_ring_px: float) -> np.float32:
+    """The ring's threshold of :func:`bin_pixels_reference` (compared in float32) for the largest
+    distance ``largest``."""
+    return np.float32(max(float(ring_frac) * float(largest), float(min_ring_px)))
+
+
+def _vmax_below(t: float) -> int:
+    """The largest integer V whose float32 square root is <= ``t`` (a float64 bound)."""
+    cap = 1 << 25
+    v = min(int(np.floor(t * t)), cap)
+    while v < cap and float(np.sqrt(np.float32(v + 1))) <= t:
+        v += 1
+    while v >= 0 and float(np.sqrt(np.float32(v))) > t:
+        v -= 1
+    return v
+
+
+def _near_bounds(largest: np.float32, ring_frac: float, min_ring_px: float) -> tuple[int, int]:
+    """(vin, vout) where OpenCV's distances are IPP's, within :data:`_IPP_REL_ERROR` of the exact
+    ones: a squared distance up to vin is in the ring whatever IPP's rounding, one above vout out of
+    it. ``largest`` is the exact transform's largest distance; IPP's is within the error of it."""
+    e = _IPP_REL_ERROR
+    lo = float(_ring_threshold(float(largest) * (1.0 - e), ring_frac, min_ring_px))
+    hi = float(_ring_threshold(float(largest) * (1.0 + e), ring_frac, min_ring_px))
+    # float32 of the products above rounds: one more float32 ulp on each side
+    lo = float(np.nextafter(np.float32(lo), np.float32(-np.inf)))
+    hi = float(np.nextafter(np.float32(hi), np.float32(np.inf)))
+    # a squared distance of 0 is 0 in IPP too, never above the threshold (>= 0)
+    return max(_vmax_below(lo / (1.0 + e)), 0), max(_vmax_below(hi / (1.0 - e)), 0)
 
 
 def _vmax(thr: np.float32) -> int:
@@ -519,14 +589,18 @@ def bin_pixels(result: BinMaskResult, xyz: XYZ, *, ring_frac: float = 0.2, min_r
     fp = np.ascontiguousarray(result.mask[r0:r1, c0:c1], dtype=np.uint8)
     walls = np.ascontiguousarray(walls).view(np.uint8)
     all_in = bool(fp.all())
-    if not all_in and _exact_opencv(fp.shape):
+    if not all_in and _bounded_shape(fp.shape):
         # the bounded transform: the largest distance from the few rows that can hold it, the ring's
         # distances only where the bounds do not decide
         g, row_max = _column_distances(fp)
         largest = _largest_distance(g, row_max, np.argsort(-row_max, kind="stable"))
-        thr = np.float32(max(float(ring_frac) * float(largest), float(min_ring_px)))
-        _ring_bounded(g, _vmax(thr), walls, a, r0, c0, out.view(np.uint8))
-        return out
+        if _exact_opencv(fp.shape):
+            vin = vout = _vmax(_ring_threshold(largest, ring_frac, min_ring_px))
+        else:  # OpenCV would run IPP's transform (one thread, or a small crop): its ring where no pixel is near
+            vin, vout = _near_bounds(largest, ring_frac, min_ring_px)
+        if _ring_bounded(g, vin, vout, walls, a, r0, c0, out.view(np.uint8)) == 0:
+            return out
+        out[:] = False  # a pixel within IPP's rounding of the threshold: OpenCV's own transform decides
     dist: np.ndarray
     if all_in:
         dist = np.zeros((1, 1), np.float32)
@@ -534,7 +608,7 @@ def bin_pixels(result: BinMaskResult, xyz: XYZ, *, ring_frac: float = 0.2, min_r
     else:
         dist = cv2.distanceTransform(fp, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
         # `dist <= thr` of the oracle compares in float32 (NumPy casts a Python float to the array's type)
-        thr = np.float32(max(float(ring_frac) * float(dist.max()), float(min_ring_px)))
+        thr = _ring_threshold(float(dist.max()), ring_frac, min_ring_px)
     _ring(dist, thr, walls, a, r0, r1, c0, c1, all_in, out.view(np.uint8))
     return out
 

@@ -246,3 +246,96 @@ def test_the_target_is_prepared_as_before():
         d_new, _ = t.tree.query(q, k=1, distance_upper_bound=0.01)
         d_old, _ = cKDTree(np.asarray(t.cloud.points)).query(q, k=1, distance_upper_bound=0.01)
         assert d_new.tobytes() == d_old.tobytes()
+
+
+@pytest.fixture
+def one_opencv_thread():
+    """OpenCV on one thread, as on a one-core machine: its precise distance transform is Intel IPP's there,
+    within a float32 ulp or two of the exact one, not the exact one."""
+    n = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    yield
+    cv2.setNumThreads(n)
+
+
+def _exact_distances(fp: np.ndarray) -> np.ndarray:
+    """float32 square roots of the exact squared distances to the nearest zero (scipy's EDT)."""
+    from scipy import ndimage
+
+    e2 = np.rint(ndimage.distance_transform_edt(fp) ** 2).astype(np.int64)
+    return np.sqrt(e2.astype(np.float32))
+
+
+def test_one_opencv_thread_ipps_distances_are_within_the_bound(one_opencv_thread):
+    from zcut.binmask import _IPP_REL_ERROR
+
+    rng = np.random.default_rng(6)
+    worst = 0.0
+    n = 0
+    for m in _footprints(rng):
+        fp = np.pad(m.astype(np.uint8), 1)[:m.shape[0] + 1, :m.shape[1] + 1]
+        if fp.all() or not fp.any():
+            continue
+        got = cv2.distanceTransform(fp, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        exact = _exact_distances(fp)
+        rel = np.abs(got.astype(np.float64) - exact) / np.maximum(exact, 1.0)
+        worst = max(worst, float(rel.max()))
+        n += 1
+    assert n >= 25
+    # bin_pixels relies on this bound (with a margin of 4 x what was measured on the replay's frames)
+    assert worst <= _IPP_REL_ERROR / 4, worst
+
+
+def test_one_opencv_thread_bounded_transform_on_random_footprints(one_opencv_thread):
+    rng = np.random.default_rng(7)
+    n = 0
+    for m in _footprints(rng):
+        if not m.any():
+            continue
+        rows, cols = np.nonzero(m)
+        bbox = (int(rows.min()), int(cols.min()), int(rows.max()) + 1, int(cols.max()) + 1)
+        walls = m & (rng.random(m.shape) < 0.7)
+        r = BinMaskResult(m, walls, True, int(m.sum()), 1, (rows.mean(), cols.mean()), bbox, True)
+        xyz = np.ones((*m.shape, 3), np.float32)
+        xyz[rng.random(m.shape) < 0.05] = np.nan
+        for frac, least in ((0.2, 10.0), (0.07, 0.0), (0.6, 1.0), (1.0, 0.0), (0.01, 10.0)):
+            got = bin_pixels(r, xyz, ring_frac=frac, min_ring_px=least)
+            assert np.array_equal(got, bin_pixels_reference(r, xyz, ring_frac=frac, min_ring_px=least)), (m.shape, frac)
+        n += 1
+    assert n >= 25
+
+
+@pytest.mark.parametrize("kind, seed, size", [("zinc_nuts", 12, (480, 640)), ("spheres", 31, (800, 1280)),
+                                              ("black_nuts", 17, (300, 480))])
+def test_one_opencv_thread_synthetic_frames(one_opencv_thread, kind, seed, size):
+    from replay.synth.synthesize import synthesize_frame
+
+    f = synthesize_frame(kind=kind, seed=seed, index=1, size=size).frame
+    r = bin_mask(f.rgb)
+    assert r.found
+    assert_same_pixels(r, f.xyz)
+    xyz = f.xyz.copy()
+    xyz[:, : size[1] // 3] = np.nan  # a large invalid region
+    assert_same_pixels(r, xyz)
+
+
+def test_one_opencv_thread_a_pixel_at_the_threshold_is_left_to_opencv(one_opencv_thread):
+    """A bright pixel exactly 10 px from the border with min_ring_px = 10: IPP may put it at 10 plus or
+    minus an ulp, so the bounds do not decide it and OpenCV's transform does."""
+    from zcut.binmask import _column_distances, _largest_distance, _near_bounds, _ring_bounded
+
+    h, w = 300, 400
+    m = np.zeros((h, w), bool)
+    m[40:260, 50:350] = True
+    r = BinMaskResult(m, m.copy(), True, int(m.sum()), 1, (150.0, 200.0), (40, 50, 260, 350), True)
+    xyz = np.ones((h, w, 3), np.float32)
+    fp = np.ascontiguousarray(m[39:261, 49:351], dtype=np.uint8)
+    g, row_max = _column_distances(fp)
+    largest = _largest_distance(g, row_max, np.argsort(-row_max, kind="stable"))
+    vin, vout = _near_bounds(largest, 0.01, 10.0)
+    assert vin < 100 <= vout
+    out = np.zeros((h, w), np.uint8)
+    assert _ring_bounded(g, vin, vout, m.view(np.uint8), xyz, 39, 49, out) == 1
+    for frac, least in ((0.01, 10.0), (0.2, 10.0)):
+        want = bin_pixels_reference(r, xyz, ring_frac=frac, min_ring_px=least)
+        assert np.array_equal(bin_pixels(r, xyz, ring_frac=frac, min_ring_px=least), want)

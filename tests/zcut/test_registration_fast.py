@@ -304,3 +304,62 @@ def test_subsampled_points_bad_input(xyz, pixels, step, error, match):
 
     with pytest.raises(error, match=match):
         subsampled_points(xyz, pixels, step=step)
+
+
+def _kdtree_confirmed(rim: np.ndarray, reach: np.ndarray, pts: np.ndarray) -> int:
+    """The bin fitness's count as it was computed: a cKDTree of the target, queried up to the largest reach."""
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(pts, balanced_tree=False, compact_nodes=False).query(rim, k=1,
+                                                                         distance_upper_bound=float(reach.max()))
+    return int(np.count_nonzero(d <= reach))
+
+
+def test_the_rim_count_is_the_kdtrees():
+    """zcut.registration._confirmed (a hashed cell grid, first hit) against the cKDTree it replaced: random
+    clouds, points and rim on a 1 mm lattice (distances exactly at the reach), per-point reaches, a rim far off."""
+    from zcut.registration import _confirmed
+
+    rng = np.random.default_rng(71)
+    for t in range(120):
+        m, r = int(rng.integers(1, 6000)), int(rng.integers(1, 2500))
+        pts = rng.normal(0.0, float(rng.choice([0.01, 0.1, 0.3])), (m, 3)) + (0.0, 0.0, 0.8)
+        rim = pts[rng.integers(0, m, r)] + rng.normal(0.0, float(rng.choice([0.0005, 0.003, 0.02])), (r, 3))
+        if t % 3 == 0:
+            pts, rim = np.round(pts / 0.001) * 0.001, np.round(rim / 0.001) * 0.001
+        base = float(rng.choice([0.001, 0.003, 10.0 / 3000.0, 0.01]))
+        reach = np.maximum(base, rng.uniform(0.0, 2.0 * base, r)) if t % 2 else np.full(r, base)
+        got = _confirmed(np.ascontiguousarray(rim), reach, float(reach.max()), np.ascontiguousarray(pts))
+        assert got == _kdtree_confirmed(rim, reach, pts), t
+    far = np.array([[50.0, 50.0, 50.0], [-1e300, 0.0, 0.0]])
+    assert _confirmed(far, np.full(2, 0.003), 0.003, np.zeros((3, 3))) == 0
+
+
+def test_the_bin_fitness_of_a_frame_is_the_kdtrees(filled, model):
+    """pose_fitness at the registered pose and at poses off by up to a centimetre and 2 degrees, with and
+    without the camera's intrinsics: the count of the cKDTree of the target's points (TargetPoints.tree,
+    still that tree)."""
+    from zcut.registration import PIXEL_REACH, _in_view, pose_fitness, transform_points
+
+    frame, _ = filled
+    params = RegistrationParams(voxel_mm=1.0)
+    m = prepare_icp_model(model, params)
+    pixels = bin_pixels(bin_mask(frame.rgb), frame.xyz)
+    for K in (frame.intrinsics, None):
+        target = prepare_target(frame.xyz[pixels], voxel_m=params.voxel_m, intrinsics=K)
+        pts = np.asarray(target.cloud.points)
+        assert target.tree.n == len(pts)
+        T_reg = register_bin(m, target).T_cam_bin
+        fits = []
+        for T in (T_reg, T_reg @ _turn((0.0, 0.0, 1.0), (0.004, -0.002, 0.0)),
+                  T_reg @ _turn((2.0, 0.0, 0.0), (0.0, 0.01, 0.003))):
+            rim = transform_points(T, m.rim)
+            if K is not None:
+                rim = rim[_in_view(rim, K)]
+                reach = np.maximum(params.fine_correspondence_m, PIXEL_REACH * rim[:, 2] / min(K.fx, K.fy))
+            else:
+                reach = np.full(len(rim), params.fine_correspondence_m)
+            want = _kdtree_confirmed(rim, reach, pts) / len(rim)
+            fits.append(pose_fitness(m, target, T, max_correspondence_m=params.fine_correspondence_m))
+            assert fits[-1] == want
+        assert fits[0] > 0.9 > min(fits[1:])  # the poses tried are told apart
