@@ -349,6 +349,9 @@ class PairRunner:
                     done_b["zcut"] = cuts[1]
                 res_b = judge_zone(frame, zone_b, self.b, t_start=t1, done=done_b)
                 yield frame, res_a, res_b
+                # this frame's arrays freed before the next frame's are made: the allocator hands their
+                # memory to the next frame (fresh pages are page faults: system time)
+                del frame, future, loc_a, loc_b, zone_a, zone_b, found, done_a, done_b, res_a, res_b, cuts
         finally:
             located.close()
 
@@ -612,6 +615,7 @@ def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, pat
             for frame, ra, rb in it:
                 sa = _side_of_result(ra, runner.a.methods, region)
                 yield frame, sa, _side_of_result(rb, runner.b.methods, region, other=sa)
+                del frame, ra, rb, sa  # freed before the next frame (PairRunner._frames)
         finally:
             it.close()
             lost += runner.stream.damage
@@ -1398,6 +1402,7 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
                 if fc.unscored is not None:
                     res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": fc.unscored})
                 res.frames += 1
+                del frame, sa, sb, where, fc, truth  # freed before the next frame (PairRunner._frames)
         finally:
             it.close()
             res.damage = list(lost)
