@@ -218,6 +218,17 @@ def shared_methods(a: PipelineConfig, b: PipelineConfig) -> tuple[str, ...]:
                  and all(getattr(a, s) == getattr(b, s) for s in _method_sections(m)))
 
 
+def shares_cut_tree(a: PipelineConfig, b: PipelineConfig) -> bool:
+    """Both configs run the z-cut and its tree is the same (the same Δd, number of cuts and connectivity:
+    :class:`zcut.cuts.StageTree`); their ``max_area`` (ρ_thr) or ``a_max`` may differ."""
+    from replay.pipeline.methods import registry
+
+    za, zb = a.zcut, b.zcut
+    builtin = registry()["zcut"].run.__module__ == "replay.pipeline.methods"
+    return (builtin and "zcut" in a.base_methods and "zcut" in b.base_methods and za.step == zb.step
+            and za.n_levels == zb.n_levels and za.connectivity == zb.connectivity)
+
+
 def same_bin_stages(a: PipelineConfig, b: PipelineConfig) -> bool:
     return all(getattr(a, s) == getattr(b, s) for s in BIN_SECTIONS)
 
@@ -288,6 +299,11 @@ class PairRunner:
                                                                                 first)
         self.shared = shared_methods(self.a, self.b) if self.same_zone else ()
         self.runs: Counter[str] = Counter() if runs is None else runs
+        #: A's and B's z-cuts differ only in what re-tags one tree (:func:`shares_cut_tree`): B's is
+        #: answered from A's tree (:class:`zcut.cuts.StageTree`), the same result as its own.
+        self.share_tree = self.same_zone and "zcut" not in self.shared and shares_cut_tree(self.a, self.b)
+        #: The z-cut trees built, when :attr:`share_tree` (one a frame).
+        self.trees = 0
 
     def frames(self, frames: tuple[int, int | None]) -> Generator[tuple[Any, Any, Any], None, None]:
         """``(frame, result_a, result_b)`` of every readable frame; the stream (for its damage) is
@@ -317,7 +333,9 @@ class PairRunner:
                     zone_b = bin_zone(frame, self.b, bin_model=sb.prepared, located=loc_b)
                     self.runs["bin_zone"] += 1
                 timings: dict[str, float] = {}
-                found = run_methods(frame, zone_a, self.a, timings=timings, warnings=[])
+                cuts = self._shared_cuts(zone_a) if self.share_tree else None
+                found = run_methods(frame, zone_a, self.a, timings=timings, warnings=[],
+                                    done=None if cuts is None else {"zcut": cuts[0]})
                 for m in found:
                     self.runs[f"method:{m}"] += 1
                 done_a = {m: (found[m], timings[m]) for m in found}
@@ -326,11 +344,37 @@ class PairRunner:
                 done_b = {m: done_a[m] for m in self.shared}
                 for m in self.b.base_methods:
                     if m not in done_b:
-                        self.runs[f"method:{m}"] += 1
+                        self.runs[f"method:{m}"] += 1  # B's z-cut from A's tree too: its own answer
+                if cuts is not None:
+                    done_b["zcut"] = cuts[1]
                 res_b = judge_zone(frame, zone_b, self.b, t_start=t1, done=done_b)
                 yield frame, res_a, res_b
+                # this frame's arrays freed before the next frame's are made: the allocator hands their
+                # memory to the next frame (fresh pages are page faults: system time)
+                del frame, future, loc_a, loc_b, zone_a, zone_b, found, done_a, done_b, res_a, res_b, cuts
         finally:
             located.close()
+
+    def _shared_cuts(self, zone: Any) -> tuple[tuple[Any, float], tuple[Any, float]] | None:
+        """A's and B's z-cut outputs on one zone from one tree (``{"zcut": (output, seconds)}`` of
+        :func:`~replay.pipeline.stages.run_methods`'s ``done``, as the method ``zcut`` makes them:
+        :func:`zcut.cuts.find_clusters` masked by the zone); None when the z-cut refuses the zone (each
+        side then runs it and reports the refusal as a replay does)."""
+        from replay.pipeline.methods import MethodOutput
+        from zcut.cuts import StageTree
+
+        t0 = time.perf_counter()
+        try:
+            tree = StageTree(zone.height_mm, params=self.a.zcut)
+            cut_a = tree.answer(self.a.zcut)
+            t1 = time.perf_counter()
+            cut_b = tree.answer(self.b.zcut)
+        except ZcutError:
+            return None
+        t2 = time.perf_counter()
+        self.trees += tree.trees
+        return ((MethodOutput(cut_a.outliers & zone.zone, cut_a), t1 - t0),
+                (MethodOutput(cut_b.outliers & zone.zone, cut_b), t2 - t1))
 
 
 # ------------------------------------------------------------------------------------ one log
@@ -571,6 +615,7 @@ def _frames_of_log(opts: CompareOptions, spec_a: SideSpec, spec_b: SideSpec, pat
             for frame, ra, rb in it:
                 sa = _side_of_result(ra, runner.a.methods, region)
                 yield frame, sa, _side_of_result(rb, runner.b.methods, region, other=sa)
+                del frame, ra, rb, sa  # freed before the next frame (PairRunner._frames)
         finally:
             it.close()
             lost += runner.stream.damage
@@ -1357,6 +1402,7 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
                 if fc.unscored is not None:
                     res.unscored.append({"index": frame.index, "stamp_ns": frame.stamp_ns, "reason": fc.unscored})
                 res.frames += 1
+                del frame, sa, sb, where, fc, truth  # freed before the next frame (PairRunner._frames)
         finally:
             it.close()
             res.damage = list(lost)

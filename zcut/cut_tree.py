@@ -1027,6 +1027,17 @@ flood_core = _flood_kernel(False)
 flood_core_left_out = _flood_kernel(True)
 
 
+@numba.njit(cache=True, nogil=True)
+def retag(node_b, node_size, node_parent, K, max_area, tagged):  # type: ignore[no-untyped-def]  # numba kernel
+    """The tags of :func:`_close` for another ``max_area`` on the same tree (``tagged`` written): a node
+    ends at its parent's birth level (``K + 2``: a root), ``K`` the tree's (``k_eff``). The tree itself
+    (nodes, sizes, parents, closing order) does not depend on ``max_area``."""
+    for a in range(node_b.size):
+        pa = node_parent[a]
+        e = node_b[pa] if pa >= 0 else K + 2
+        tagged[a] = max(node_b[a], 1) <= min(K, e - 2) and node_size[a] < max_area
+
+
 @numba.njit(cache=True)
 def node_image(order, first, n):  # type: ignore[no-untyped-def]  # numba kernel
     """Node image of the union-find kernel: first[t] is the node holding pixel order[t]."""

@@ -17,7 +17,10 @@ Two implementations with the identical result for every input:
 :func:`find_clusters` runs the same pass and returns the stage view (:class:`CutResult`): the
 clusters, their areas and levels, and the component count of every cut. Its ``kernel`` argument
 picks the tree kernel explicitly (the tests run every input through both). One tree answers every
-``(max_depth, max_area)`` pair at once: :mod:`zcut.cut_grid`.
+``(max_depth, max_area)`` pair at once: :mod:`zcut.cut_grid` (masks and counts). :class:`StageTree` and
+:func:`find_clusters_many` answer :func:`find_clusters` itself, bit for bit, for every parameter set of
+the same ``step``, ``K`` and ``connectivity`` from one flood tree (``max_area`` only re-tags its nodes,
+``a_max`` only scales ``rho``): ``zcut compare`` uses it when A's and B's z-cuts differ only there.
 
 Notation (docs/filters.md): ``z~`` is the height with invalid pixels set to ``z_min``; the cut at level
 ``k`` is ``S_k = {z~ >= z_max - k * step}`` with the threshold computed in float64 with an integer
@@ -64,6 +67,7 @@ from __future__ import annotations
 
 import math
 import operator
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -89,6 +93,7 @@ from .cut_tree import (
     pixel_levels,
     pruned_outlier_mask,
     qlevel,
+    retag,
     union_find_tree,
 )
 from .errors import InputShapeError, ParameterError, describe_array
@@ -98,7 +103,9 @@ from .types import FloatImage, Labels, Mask
 __all__ = [
     "KERNELS",
     "CutResult",
+    "StageTree",
     "find_clusters",
+    "find_clusters_many",
     "n_levels",
     "zcut_outliers",
     "zcut_outliers_reference",
@@ -328,6 +335,7 @@ class _Flood:
     pix: np.ndarray
     own: np.ndarray
     node_b: np.ndarray
+    node_size: np.ndarray
     node_parent: np.ndarray
     tagged: np.ndarray
     fin: np.ndarray
@@ -355,9 +363,9 @@ def _flood(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step:
                          own, levels, want))
     lab = np.empty(n, np.int32)
     pix, own = pix[:m], own[:m]
-    node_b, _, node_parent, tagged, fin = flood_core(st, start, pix, W, np.int64(k_eff), np.int64(top),
-                                                     connectivity == 8, float(max_area), lab)
-    return _Flood(lab, pix, own, node_b, node_parent, tagged, fin)
+    node_b, node_size, node_parent, tagged, fin = flood_core(st, start, pix, W, np.int64(k_eff), np.int64(top),
+                                                             connectivity == 8, float(max_area), lab)
+    return _Flood(lab, pix, own, node_b, node_size, node_parent, tagged, fin)
 
 
 def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step: float, K: int,
@@ -514,40 +522,152 @@ def find_clusters(height: FloatImage, *, params: ZCutParams, kernel: str = "auto
     CutResult
         ``result.outliers`` equals :func:`zcut_outliers` with the same parameters.
     """
+    return StageTree(height, params=params, kernel=kernel).answer(params)
+
+
+def _stage_params(params: object) -> tuple[float, float, int, int]:
+    """``(step, max_area, connectivity, K)`` of a :func:`find_clusters` parameter set, checked."""
     if not isinstance(params, ZCutParams):
         raise ParameterError(f"params must be a ZCutParams, got {type(params).__name__}")
-    z = _check_height(height)
     step, max_depth, max_area, connectivity = _check_params(
         params.step, params.max_depth, params.max_area, params.connectivity
     )
-    kernel = _check_kernel(kernel)
     K = n_levels(step, max_depth)
     if K > MAX_STAGE_LEVELS:
         raise ParameterError(
             f"max_depth / step gives {K} levels, more than find_clusters supports "
             f"({MAX_STAGE_LEVELS}); use zcut_outliers or a larger step"
         )
-    K = max(K, 0)
-    H, W = z.shape
-    outliers = np.zeros((H, W), dtype=bool)
-    clusters = np.zeros((H, W), dtype=np.int32)
-    counts = np.zeros(K + 1, dtype=np.int64)
-    empty_i64 = np.zeros(0, dtype=np.int64)
-    n, z_min, z_max, seg_max = _finite_range(z)
-    if n == 0:
-        return CutResult(outliers, clusters, empty_i64, np.zeros(0), np.zeros(0, np.int32),
-                         counts, np.full((H, W), -1, dtype=np.int16), math.nan, math.nan, K)
-    if kernel != "union-find":
-        pixel_level = np.empty((H, W), dtype=np.int16)
+    return step, max_area, connectivity, max(K, 0)
+
+
+class StageTree:
+    """The component tree of one height image's cuts, built once, answering :func:`find_clusters` for
+    every parameter set that shares it.
+
+    The tree (its nodes, their sizes, birth levels, parents, the pixel levels and the per-level
+    component counts) depends on the heights, ``step``, ``K`` (:func:`n_levels` of ``max_depth``) and
+    ``connectivity`` only; ``max_area`` decides which nodes are tagged (:func:`zcut.cut_tree.retag`, the
+    flood's own rule) and ``a_max`` only ``rho``. :meth:`answer` gives, for any parameter set, exactly
+    what :func:`find_clusters` gives (which is :meth:`answer` of a tree of its own): from this tree when
+    :meth:`shares` (the clusters read out again with that set's tags), else from a tree of its own.
+
+    The answers share one ``pixel_level`` array (read-only by every consumer: the same values for every
+    set of the tree); each has its own masks, labels and counts.
+
+    Parameters
+    ----------
+    height : (H, W) float ndarray
+        Larger = higher; NaN = invalid.
+    params : ZCutParams
+        A parameter set whose ``step``, ``max_depth`` and ``connectivity`` the tree is built for
+        (its ``max_area`` is the first answer's).
+    kernel : {"auto", "flood", "union-find"}
+        As :func:`find_clusters`'s. With the union-find (``"union-find"``, or ``"auto"`` beyond
+        ``FLOOD_MAX_LEVELS`` levels) the tree is not kept: every answer is a tree of its own.
+    """
+
+    __slots__ = ("_z", "_n", "_z_min", "_z_max", "_seg_max", "_kernel", "_key", "_max_area", "_flood",
+                 "_pixel_level", "_counts", "_tagged", "trees")
+
+    def __init__(self, height: FloatImage, *, params: ZCutParams, kernel: str = "auto") -> None:
+        if not isinstance(params, ZCutParams):  # the checks in find_clusters' order
+            raise ParameterError(f"params must be a ZCutParams, got {type(params).__name__}")
+        z = _check_height(height)
+        _check_params(params.step, params.max_depth, params.max_area, params.connectivity)
+        self._kernel = _check_kernel(kernel)
+        step, max_area, connectivity, K = _stage_params(params)
+        self._z = z
+        self._key = (step, K, connectivity)
+        self._max_area = max_area
+        n, z_min, z_max, seg_max = _finite_range(z)
+        self._n, self._z_min, self._z_max, self._seg_max = n, z_min, z_max, seg_max
+        self._flood: _Flood | None = None
+        self._pixel_level: np.ndarray | None = None
+        self._counts: np.ndarray | None = None
+        self._tagged: dict[float, np.ndarray] = {}
+        #: Trees built (1 here; +1 for each :meth:`answer` of a set that does not share this one).
+        self.trees = 0
+        if n == 0 or self._kernel == "union-find":
+            return
+        pixel_level = np.empty(z.shape, dtype=np.int16)
         tree = _flood(z, seg_max, z_min, z_max, step, K, max_area, connectivity, pixel_level)
+        self.trees = 1
+        if tree is None:
+            return
+        counts = np.zeros(K + 1, dtype=np.int64)
+        level_counts(tree.node_b, tree.node_parent, counts)
+        self._flood, self._pixel_level, self._counts = tree, pixel_level, counts
+        self._tagged[max_area] = tree.tagged
+
+    def shares(self, params: ZCutParams) -> bool:
+        """True when :meth:`answer` reads ``params`` out of this tree (the same ``step``, ``K`` and
+        ``connectivity``, and a flood tree was built); else it builds one of its own."""
+        step, _, connectivity, K = _stage_params(params)
+        return (step, K, connectivity) == self._key and (self._flood is not None or self._n == 0)
+
+    def answer(self, params: ZCutParams) -> CutResult:
+        """:func:`find_clusters` ``(height, params=params, kernel=kernel)``, bit for bit."""
+        step, max_area, connectivity, K = _stage_params(params)
+        z = self._z
+        H, W = z.shape
+        if (step, K, connectivity) != self._key:
+            self.trees += 1
+            return StageTree(z, params=params, kernel=self._kernel).answer(params)
+        outliers = np.zeros((H, W), dtype=bool)
+        clusters = np.zeros((H, W), dtype=np.int32)
+        empty_i64 = np.zeros(0, dtype=np.int64)
+        if self._n == 0:
+            return CutResult(outliers, clusters, empty_i64, np.zeros(0), np.zeros(0, np.int32),
+                             np.zeros(K + 1, dtype=np.int64), np.full((H, W), -1, dtype=np.int16), math.nan,
+                             math.nan, K)
+        tree = self._flood
         if tree is not None:
-            level_counts(tree.node_b, tree.node_parent, counts)
+            assert self._counts is not None and self._pixel_level is not None
+            tagged = self._tagged.get(max_area)
+            if tagged is None:
+                tagged = np.empty(tree.node_b.size, np.bool_)
+                k_eff, _ = _levels(self._z_min, self._z_max, step, K)
+                retag(tree.node_b, tree.node_size, tree.node_parent, np.int64(k_eff), float(max_area), tagged)
+                self._tagged[max_area] = tagged
             tops, areas = empty_i64, empty_i64
             if K >= 1:
                 tops, areas = listed_cluster_labels(tree.lab, tree.pix, tree.own, tree.fin, tree.node_parent,
-                                                    tree.tagged, clusters.reshape(-1), outliers.reshape(-1))
+                                                    tagged, clusters.reshape(-1), outliers.reshape(-1))
             return _result(params, outliers, clusters, areas, np.maximum(tree.node_b[tops], 1).astype(np.int32),
-                           counts, pixel_level, z_max, z_min, K)
+                           self._counts.copy(), self._pixel_level, self._z_max, self._z_min, K)
+        if self._kernel != "union-find":
+            self.trees += 1  # the flood did not apply: the union-find's tree, built for this answer
+        return _union_find_answer(z, params, self._z_min, self._z_max, step, K, max_area, connectivity,
+                                  self._kernel)
+
+
+def find_clusters_many(height: FloatImage, *, params: Iterable[ZCutParams], kernel: str = "auto"
+                       ) -> list[CutResult]:
+    """:func:`find_clusters` of every parameter set in ``params``, in order, each bit for bit as its own
+    call, with one component tree per distinct ``(step, K, connectivity)`` (:class:`StageTree`): sets
+    that differ only in ``max_area`` or ``a_max`` share it."""
+    sets = list(params)
+    for p in sets:
+        _stage_params(p)
+    trees: list[StageTree] = []
+    out = []
+    for p in sets:
+        tree = next((t for t in trees if t.shares(p)), None)
+        if tree is None:
+            tree = StageTree(height, params=p, kernel=kernel)
+            trees.append(tree)
+        out.append(tree.answer(p))
+    return out
+
+
+def _union_find_answer(z: np.ndarray, params: ZCutParams, z_min: float, z_max: float, step: float, K: int,
+                       max_area: float, connectivity: int, kernel: str) -> CutResult:
+    """:func:`find_clusters` by :func:`_tree` (the union-find, or the full-image flood)."""
+    H, W = z.shape
+    clusters = np.zeros((H, W), dtype=np.int32)
+    counts = np.zeros(K + 1, dtype=np.int64)
+    empty_i64 = np.zeros(0, dtype=np.int64)
     pixel_level = np.full((H, W), -1, dtype=np.int16)
     valid = np.isfinite(z)
     q, k_eff, lab, node_b, _, node_parent, tagged, fin = _tree(
@@ -563,6 +683,7 @@ def find_clusters(height: FloatImage, *, params: ZCutParams, kernel: str = "auto
         outliers = clusters > 0
     else:
         tops = empty_i64
+        outliers = np.zeros((H, W), dtype=bool)
     areas = np.bincount(clusters.ravel(), minlength=tops.size + 1)[1:].astype(np.int64)
     levels = np.maximum(node_b[tops], 1).astype(np.int32)
     return _result(params, outliers, clusters, areas, levels, counts, pixel_level, z_max, z_min, K)

@@ -313,3 +313,71 @@ def test_per_class_figures_equal_accuracys(data, tmp_path, capsys):
             assert e["delta"] == pytest.approx(e["b"] - e["a"])
     page = (tmp_path / "c" / "report.html").read_text()
     assert "Per class of the truth" in page and "kind floating" in page
+
+
+def test_a_shared_cut_tree_gives_the_masks_and_clusters_of_two_replays(data):
+    """A = the paper's z-cut, B = ρ_thr 0.035: the same Δd, cuts and connectivity, so B's z-cut is read out
+    of A's tree (one tree a frame), and every side's z-cut result is that of its own replay, bit for bit."""
+    from replay.pipeline.bin_model import bin_model_for
+    from replay.pipeline.session import ReplaySession, open_log
+    from studies.compare import PairRunner
+
+    log = data / "log.mcap"
+    sa = ReplaySession.open(log, overrides={"methods": ["zcut"]}, choose_bin_model=lambda r: bin_model_for(r, None))
+    sb = ReplaySession.open(log, config_file=data / "rho.toml", choose_bin_model=lambda r: bin_model_for(r, None))
+    assert sa.resolved.config.zcut.max_area != sb.resolved.config.zcut.max_area
+    reader, first, _ = open_log(log)
+    runner = PairRunner(log, reader, first, sa.resolved, sb.resolved, sa.bin_model)
+    assert runner.share_tree and runner.shared == ()
+    pairs = list(runner.frames((0, None)))
+    assert runner.trees == FRAMES
+    assert runner.runs["method:zcut"] == 2 * FRAMES  # each side's z-cut answered, from one tree
+    tagged = 0
+    for (_, ra, rb), (_, xa), (_, xb) in zip(pairs, sa.results(), sb.results(), strict=True):
+        for got, alone in ((ra, xa), (rb, xb)):
+            assert got.outliers.keys() == alone.outliers.keys()
+            for m in got.outliers:
+                assert np.array_equal(got.outliers[m], alone.outliers[m])
+            for name in ("outliers", "clusters", "areas", "rho", "levels", "level_counts", "pixel_level"):
+                x, y = getattr(got.cut, name), getattr(alone.cut, name)
+                assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=True), name
+        tagged += int(ra.cut.outliers.sum()) + int(rb.cut.outliers.sum())
+    assert tagged > 0
+
+
+def test_a_shared_cut_tree_gives_the_same_outputs(data, tmp_path, monkeypatch):
+    """compare.json, summary.parquet and disagreement.npz of a comparison whose B reads A's tree equal
+    those of the same comparison with a tree for each side (as before the tree was shared)."""
+    import studies.compare as compare
+    from studies.compare import CompareOptions, run
+
+    log = data / "log.mcap"
+
+    def outputs(out):
+        rep = json.loads((out / "compare.json").read_text())
+        for k in ("cost", "outputs"):
+            rep.pop(k)
+        with np.load(out / "disagreement.npz") as z:
+            npz = {k: z[k].tolist() for k in z.files}
+        return (json.dumps(rep, sort_keys=True).replace(str(out), "OUT"),
+                pq.read_table(out / "summary.parquet").to_pylist(), npz)
+
+    trees = []
+    real = compare.PairRunner._shared_cuts
+
+    def spy(self, zone):
+        got = real(self, zone)
+        trees.append(got is not None)
+        return got
+
+    monkeypatch.setattr(compare.PairRunner, "_shared_cuts", spy)
+    opts = dict(logs=(log,), a="zcut", b=str(data / "rho.toml"), rrd=False, report=False, workers=0)
+    run(CompareOptions(**opts, out=tmp_path / "shared"))
+    shared = outputs(tmp_path / "shared")
+    assert trees == [True] * FRAMES
+    monkeypatch.setattr(compare, "shares_cut_tree", lambda a, b: False)
+    run(CompareOptions(**opts, out=tmp_path / "alone"))
+    alone = outputs(tmp_path / "alone")
+    assert len(trees) == FRAMES  # no tree shared the second time
+    assert shared == alone
+    assert json.loads(shared[0])["frames"] and any(f["only_a"] for f in json.loads(shared[0])["frames"])
