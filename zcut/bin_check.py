@@ -66,8 +66,10 @@ from .removal import (
     RemovalResult,
     coherent_residuals,
     far_share,
+    fit_residual_field,
     surface_residuals,
 )
+from .removal import field_design as _design
 from .types import XYZ, Mask
 
 __all__ = ["BinCheck", "ResidualField", "check_bin_removal", "failed_bin_check", "residual_field", "signed_residuals"]
@@ -123,10 +125,6 @@ class BinCheck:
     off_surface: int = 0
 
 
-#: The residual field's fit is trimmed this many times (each keeps the rows within 3 robust sigmas).
-FIELD_TRIMS = 3
-#: ... and needs at least this many certain bin pixels with a model point within ``max_tolerance_mm``.
-FIELD_MIN_PX = 50
 #: The model covers a pixel when one of its points is seen within this many pixel pitches of the
 #: pixel's line of sight (a model built from scans at the frame's size has about one point per pixel).
 COVER_PITCHES = 2.0
@@ -183,7 +181,7 @@ class ResidualField:
     A pose off by a translation ``t`` and a small turn ``ω`` moves a bin point ``p`` by ``t + ω × p``, a
     model scaled by ``1 + s`` by ``s p``: the point's signed residual along the model's normal ``n`` is
     ``n·t + ω·(p × n) + s n·p``, seven numbers for the whole bin, fitted (least squares, trimmed to
-    3 robust sigmas :data:`FIELD_TRIMS` times) to the certain bin pixels' signed residuals (a regular
+    3 robust sigmas :data:`zcut.removal.FIELD_TRIMS` times) to the certain bin pixels' signed residuals (a regular
     subsample of at most :data:`zcut.removal.MAX_RESIDUAL_PX`). A bin pixel the removal left behind —
     the tail of a pose error the tolerance did not cover, a wall where the model has a hole — lies on
     that field; the face of a part leaning on a wall, a few millimetres in front of it, does not.
@@ -264,16 +262,10 @@ class ResidualField:
             return ~(np.abs(e) > COHERENCE_MM)
 
 
-def _design(p: np.ndarray, n: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """(M, 7): the field's columns ``n``, ``(p - centre) × n``, ``n·(p - centre)``."""
-    q = p - centre
-    return np.concatenate([n, np.cross(q, n), np.einsum("ij,ij->i", n, q)[:, None]], axis=1)
-
-
 def residual_field(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray) -> ResidualField | None:
     """The :class:`ResidualField` of a frame's certain bin pixels ``ring`` at the registered pose.
 
-    None when the model has no normals, when fewer than :data:`FIELD_MIN_PX` of the pixels have a model
+    None when the model has no normals, when fewer than :data:`zcut.removal.FIELD_MIN_PX` of the pixels have a model
     point within ``max_tolerance_mm``, or when the fit's misfit is too wide to tell a surface
     ``COHERENCE_MM`` off the bin's (3 robust sigmas beyond it): the residuals then form no such field —
     a pose several millimetres off, whose nearest model points lie on the wrong faces (the inner wall's
@@ -283,26 +275,11 @@ def residual_field(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndar
     T = np.asarray(T_cam_bin, dtype=np.float64)
     flat = np.flatnonzero(np.asarray(ring, dtype=bool))
     flat = flat[:: max(1, -(-len(flat) // MAX_RESIDUAL_PX))]
-    r, p, n = signed_residuals(a, flat, index, T)
-    use = np.isfinite(r)
-    if np.count_nonzero(use) < FIELD_MIN_PX:
+    fit = fit_residual_field(*signed_residuals(a, flat, index, T))
+    if fit is None:
         return None
-    r, p, n = r[use], p[use], n[use]
-    centre = p.mean(axis=0)
-    A = _design(p, n, centre)
-    keep = np.ones(len(r), bool)
-    coef = np.zeros(7)
-    sigma = 0.0
-    for _ in range(FIELD_TRIMS + 1):
-        coef = np.linalg.lstsq(A[keep], r[keep], rcond=None)[0]
-        e = r - A @ coef
-        sigma = 1.4826 * float(np.median(np.abs(e[keep] - np.median(e[keep]))))
-        keep = np.abs(e) <= max(3.0 * sigma, 1e-4)
-        if np.count_nonzero(keep) < FIELD_MIN_PX:
-            return None
-    if 3000.0 * sigma > COHERENCE_MM:
-        return None
-    return ResidualField(coef, centre, 1000.0 * sigma, int(np.count_nonzero(keep)), index, T)
+    coef, centre, sigma, kept = fit
+    return ResidualField(coef, centre, 1000.0 * sigma, kept, index, T)
 
 
 def _image(shape: tuple[int, ...], flat: np.ndarray) -> Mask:

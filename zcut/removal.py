@@ -18,8 +18,9 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
 - ``"robust"`` (default): δ is replaced by a tolerance τ measured on the frame
   (:func:`frame_tolerance`): the distances of the frame's certain bin pixels (the rim and upper
   walls the registration used) to the registered model, the ``residual_quantile`` percentile of
-  those coherent with their neighbours' (a sensor's ghosts are not: :func:`coherent_residuals`)
-  plus ``residual_margin_mm``, within ``[min_tolerance_mm, max_tolerance_mm]``. A point within τ of
+  those coherent with their neighbours' (a sensor's ghosts are not: :func:`coherent_residuals`) and
+  on the registered bin's residual field (the faces of parts leaning on a wall are not:
+  :func:`fit_residual_field`) plus ``residual_margin_mm``, within ``[min_tolerance_mm, max_tolerance_mm]``. A point within τ of
   the model is bin before it can be an easy outlier (a tilted pose lifts one end of the real rim
   above the model's rim plus the offset). The test's search radius (a model point that near, then
   the point within τ of it along its normal) is measured on the same pixels: their distances to the
@@ -909,6 +910,11 @@ MIN_COHERENT_SHARE = 0.5
 #: that far (a pose or a model far off; the ray-traced ghost clusters are about 1 % of the certain
 #: bin pixels on sphere frames). The bin check flags such a frame.
 MAX_FAR_SHARE = 0.2
+#: The residual field's fit (:func:`fit_residual_field`) is trimmed this many times (each keeps the rows
+#: within 3 robust sigmas).
+FIELD_TRIMS = 3
+#: ... and needs at least this many certain bin pixels with a model point within ``max_tolerance_mm``.
+FIELD_MIN_PX = 50
 _N4 = ((-1, 0), (1, 0), (0, -1), (0, 1))
 _N8 = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
 
@@ -942,6 +948,10 @@ class Tolerance:
         residuals are these distances already).
     surface : optional
         The fast path's :func:`surface_residuals` of the frame (None from the reference or a fixed τ).
+    n_off_field : int
+        Of the coherent pixels, those left out of the percentile because they and the surface their ring
+        neighbours form lie off the registered bin's residual field (:func:`off_field`: the faces of parts
+        leaning on a wall); 0 when the field could not be fitted.
     """
 
     tolerance_mm: float
@@ -950,6 +960,7 @@ class Tolerance:
     n_coherent: int = 0
     reach_mm: float = float("nan")
     surface: _Surface | None = None
+    n_off_field: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -1137,6 +1148,10 @@ class _Queried:
     p_bin: np.ndarray
     residual_mm: np.ndarray
     nearest_mm: np.ndarray
+    #: the signed residual (m, along the nearest model point's normal; NaN: none within reach, no
+    #: normals or not finite) and that point's index (-1: none)
+    signed_m: np.ndarray | None = None
+    nearest_j: np.ndarray | None = None
 
 
 def _query(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) -> _Queried:
@@ -1144,9 +1159,11 @@ def _query(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) 
     out = np.full(len(flat), np.inf)
     near = np.full(len(flat), np.inf)
     p_all = np.full((len(flat), 3), np.nan)
+    signed = np.full(len(flat), np.nan)
+    j_all = np.full(len(flat), -1, np.int64)
     model = index.model
     if len(flat) == 0 or len(model.points) == 0:
-        return _Queried(flat, p_all, out, near)
+        return _Queried(flat, p_all, out, near, signed, j_all)
     pts, ok = _gather_finite(a, flat)
     p_bin = (pts - T[:3, 3]) @ T[:3, :3]  # numpy's product, as the reference's: the same rounding
     p_all[ok] = p_bin
@@ -1157,10 +1174,17 @@ def _query(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) 
         r[found] = d[found]
     else:
         diff, nrm = _residual_parts(p_bin, j, model.points, model.normals)
-        r[found] = np.abs(np.einsum("ij,ij->i", diff, nrm))
+        e = np.einsum("ij,ij->i", diff, nrm)
+        r[found] = np.abs(e)
+        s = np.full(len(p_bin), np.nan)
+        s[found] = e
+        signed[ok] = s
+    jj = np.full(len(p_bin), -1, np.int64)
+    jj[found] = j[found]
+    j_all[ok] = jj
     out[ok] = r * 1000.0
     near[ok] = d * 1000.0
-    return _Queried(flat, p_all, out, near)
+    return _Queried(flat, p_all, out, near, signed, j_all)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1251,6 +1275,128 @@ def far_share(residuals: np.ndarray, around: np.ndarray) -> float:
     return float(np.mean(np.isinf(residuals) & np.isinf(around))) if len(residuals) else 0.0
 
 
+def field_design(p: np.ndarray, n: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """(M, 7): the residual field's columns ``n``, ``(p - centre) × n``, ``n·(p - centre)`` at points ``p``
+    (bin frame, m) with the normals ``n`` of their nearest model points (:func:`fit_residual_field`)."""
+    q = p - centre
+    return np.concatenate([n, np.cross(q, n), np.einsum("ij,ij->i", n, q)[:, None]], axis=1)
+
+
+def fit_residual_field(r: np.ndarray, p: np.ndarray, n: np.ndarray, *,
+                       normal_equations: bool = False) -> tuple[np.ndarray, np.ndarray, float, int] | None:
+    """The residual field a small pose error and a model of a slightly different size make over the bin,
+    fitted to signed residuals: ``(coef, centre, sigma_m, n_kept)`` or None.
+
+    A pose off by a translation ``t`` and a small turn ``ω`` moves a bin point ``p`` by ``t + ω × p``, a model
+    scaled by ``1 + s`` by ``s p``: the point's signed residual along the model's normal ``n`` is
+    ``n·t + ω·(p × n) + s n·p`` (:func:`field_design`), seven numbers fitted by least squares trimmed to
+    3 robust sigmas :data:`FIELD_TRIMS` times. ``r`` (M,): the signed residuals (m; NaN rows: no model point
+    within reach, left out), ``p`` (M, 3) the points in the bin frame (m), ``n`` (M, 3) their nearest model
+    points' normals. ``sigma_m``: the robust scale (1.4826 × MAD) of the kept rows' misfit. None when fewer
+    than :data:`FIELD_MIN_PX` rows are finite or kept, or when 3 sigmas exceed :data:`COHERENCE_MM` (no such
+    field: a pose several millimetres off, whose nearest model points lie on the wrong faces).
+    :func:`zcut.bin_check.residual_field` and :func:`frame_tolerance` use it; ``normal_equations``: each least
+    squares solved from its 7 x 7 normal equations instead of ``np.linalg.lstsq`` (the tolerance's: a fifth of
+    the CPU on 15,000 pixels, the same field to rounding; the bin check keeps ``lstsq``).
+    """
+    use = np.isfinite(r)
+    if np.count_nonzero(use) < FIELD_MIN_PX:
+        return None
+    r, p, n = r[use], p[use], n[use]
+    centre = p.mean(axis=0)
+    A = field_design(p, n, centre)
+    keep = np.ones(len(r), bool)
+    coef = np.zeros(7)
+    sigma = 0.0
+    for _ in range(FIELD_TRIMS + 1):
+        if normal_equations:
+            Ak = A[keep]
+            try:
+                coef = np.linalg.solve(Ak.T @ Ak, Ak.T @ r[keep])
+            except np.linalg.LinAlgError:  # a degenerate ring (one face): the minimum-norm solution
+                coef = np.linalg.lstsq(Ak, r[keep], rcond=None)[0]
+        else:
+            coef = np.linalg.lstsq(A[keep], r[keep], rcond=None)[0]
+        e = r - A @ coef
+        sigma = 1.4826 * float(np.median(np.abs(e[keep] - np.median(e[keep]))))
+        keep = np.abs(e) <= max(3.0 * sigma, 1e-4)
+        if np.count_nonzero(keep) < FIELD_MIN_PX:
+            return None
+    if 3000.0 * sigma > COHERENCE_MM:
+        return None
+    return coef, centre, sigma, int(np.count_nonzero(keep))
+
+
+def _off_field(signed_m: np.ndarray, p_bin: np.ndarray, nearest_j: np.ndarray, own_at: np.ndarray,
+               nb_at: np.ndarray, coherent: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
+    """(M,) bool, of the measured pixels (``own_at``: their positions among the queried ones, whose signed
+    residuals, bin-frame points and nearest model points are ``signed_m``, ``p_bin``, ``nearest_j``;
+    ``nb_at``: their ring neighbours' positions, -1: none): the coherent ones that lie off the registered bin's
+    residual field (:func:`fit_residual_field`, fitted to the measured pixels) by more than
+    :data:`COHERENCE_MM` and whose ring neighbours' misfits have a median beyond it too: a surface of its own
+    in front of (or behind) the bin's, not the bin's noise. All False without normals or a field."""
+    m = len(own_at)
+    off = np.zeros(m, bool)
+    if normals is None or m == 0:
+        return off
+    j_own = nearest_j[own_at]
+    has_own = j_own >= 0
+    n_own = np.full((m, 3), np.nan)
+    n_own[has_own] = normals[j_own[has_own]]
+    fit = fit_residual_field(signed_m[own_at], p_bin[own_at], n_own, normal_equations=True)
+    if fit is None:
+        return off
+    coef, centre, _, _ = fit
+
+    def misfit_mm(at: np.ndarray) -> np.ndarray:  # of the queried pixels ``at`` (NaN: no residual)
+        out = np.full(len(at), np.nan)
+        j = nearest_j[at]
+        ok = j >= 0
+        q = at[ok]
+        out[ok] = 1000.0 * (signed_m[q] - field_design(p_bin[q], normals[j[ok]], centre) @ coef)
+        return out
+
+    own = misfit_mm(own_at)
+    with np.errstate(invalid="ignore"):
+        cand = np.flatnonzero(coherent & (np.abs(own) > COHERENCE_MM))
+    if len(cand) == 0:
+        return off
+    nb = nb_at[cand]  # only the candidates' neighbours are looked at
+    nbr = np.full(nb.shape, np.nan)
+    nbr[nb >= 0] = misfit_mm(nb[nb >= 0])
+    around = _around_median(nbr)
+    with np.errstate(invalid="ignore"):
+        off[cand] = np.abs(around) > COHERENCE_MM
+    return off
+
+
+def _signed_ref(a: np.ndarray, flat: np.ndarray, index: RemovalIndex,
+                T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The reference's ``(signed_m, p_bin, nearest_j)`` of the pixels ``flat`` (:class:`_Queried`'s), from the
+    model's KD-tree."""
+    signed = np.full(len(flat), np.nan)
+    p_all = np.full((len(flat), 3), np.nan)
+    j_all = np.full(len(flat), -1, np.int64)
+    model = index.model
+    if len(flat) == 0 or len(model.points) == 0 or model.normals is None:
+        return signed, p_all, j_all
+    pts = a.reshape(-1, 3)[flat].astype(np.float64)
+    ok = np.isfinite(pts).all(axis=1)
+    p_bin = (pts[ok] - T[:3, 3]) @ T[:3, :3]
+    p_all[ok] = p_bin
+    tree = index.tree
+    assert tree is not None  # prepare_removal_index builds it in both modes
+    d, j = tree.query(p_bin, k=1, distance_upper_bound=index.params.max_tolerance_mm / 1000.0)
+    found = np.isfinite(d)
+    s = np.full(len(p_bin), np.nan)
+    s[found] = np.einsum("ij,ij->i", p_bin[found] - model.points[j[found]], model.normals[j[found]])
+    signed[ok] = s
+    jj = np.full(len(p_bin), -1, np.int64)
+    jj[found] = j[found]
+    j_all[ok] = jj
+    return signed, p_all, j_all
+
+
 def surface_residuals(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray, *,
                       removal: RemovalResult | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`coherent_residuals` of a regular subsample of at most :data:`MAX_RESIDUAL_PX` certain bin
@@ -1319,7 +1465,14 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
     rim tilted) and the sensor's noise, both smooth over the surface; a sensor's ghosts (points
     floating above the rim, mixed pixels along its edges) are not coherent with their neighbours
     and do not count, however many: on ray-traced shiny frames they made the plain percentile
-    infinite and τ its maximum. When fewer than :data:`MIN_COHERENT_SHARE` of the measured pixels are
+    infinite and τ its maximum. Nor do the faces of parts leaning on an upper wall, which lie among the
+    certain bin pixels, coherent with each other, a few millimetres in front of the wall: a coherent pixel
+    whose signed residual lies more than :data:`COHERENCE_MM` off the residual field a pose error and a
+    model's scale make over the bin (:func:`fit_residual_field`, fitted to the same pixels), and whose ring
+    neighbours' misfits have their median beyond it too (a surface of its own, not the wall's noise tail),
+    is left out (:attr:`Tolerance.n_off_field`; on hand-made walls piles such faces were 1-2 % of the ring
+    and raised τ to 3.5-5.2 mm at a correct pose, docs/bin_robustness.md). Without normals, or when no field
+    fits (3 robust sigmas beyond :data:`COHERENCE_MM`: a pose far off), nothing is left out. When fewer than :data:`MIN_COHERENT_SHARE` of the measured pixels are
     coherent, or more than :data:`MAX_FAR_SHARE` lie beyond ``max_tolerance_mm`` among neighbours
     that do too (:func:`far_share`: a pose far off), the
     percentile of all of them is taken, as before; with no pixel to measure τ is the maximum.
@@ -1342,19 +1495,29 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
         return Tolerance(max(p.max_tolerance_mm, lo), float("nan"), 0)
     n_coh = int(np.count_nonzero(coherent))
     surface = n_coh and n_coh >= MIN_COHERENT_SHARE * len(res) and far_share(res, around) <= MAX_FAR_SHARE
-    use = res[coherent] if surface else res
+    a = np.asarray(xyz)
+    ring_a = np.asarray(ring, dtype=bool)
+    T = np.asarray(T_cam_bin, dtype=np.float64)
+    flat = _ring_sample(a, ring_a)
+    off = np.zeros(len(res), bool)
+    if surface:  # the coherent pixels off the bin's residual field are no bin (parts leaning on a wall)
+        nb = _ring_neighbours(a.shape[:2], ring_a, flat, 4)
+        want = np.unique(np.concatenate([flat, nb[nb >= 0]]))
+        nb_at = np.where(nb >= 0, np.searchsorted(want, np.where(nb >= 0, nb, 0)), -1)
+        off = _off_field(*_signed_ref(a, want, index, T), np.searchsorted(want, flat), nb_at, coherent,
+                         index.model.normals)
+    keep = coherent & ~off
+    use = res[keep] if surface else res
     q = float(np.percentile(use, p.residual_quantile, method="higher"))
     tau = min(max(q + p.residual_margin_mm, lo), max(p.max_tolerance_mm, lo)) if np.isfinite(q) \
         else max(p.max_tolerance_mm, lo)
     reach = float("nan")
     if index.model.normals is not None:
         # the same pixels, the same percentile and margin, for the test's other extent: its radius
-        flat = _ring_sample(np.asarray(xyz), np.asarray(ring, dtype=bool))
-        near = _nearest_mm(np.asarray(xyz), flat[coherent] if surface else flat, index,
-                           np.asarray(T_cam_bin, dtype=np.float64))
+        near = _nearest_mm(a, flat[keep] if surface else flat, index, T)
         q_near = float(np.percentile(near, p.residual_quantile, method="higher"))
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
-    return Tolerance(float(tau), q, len(res), n_coh, float(reach))
+    return Tolerance(float(tau), q, len(res), n_coh, float(reach), n_off_field=int(np.count_nonzero(off)))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1452,23 +1615,32 @@ def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -
             coherent = np.isfinite(res) & (np.abs(res - around) <= COHERENCE_MM)
     else:  # the arrays the kernels do not take
         flat = _ring_sample(a, ring_a)
-        res, around, coherent, queried = _coherent(a, flat, _ring_neighbours(a.shape[:2], ring_a, flat, 4), index, T,
-                                                   reference=False)
+        nb = _ring_neighbours(a.shape[:2], ring_a, flat, 4)
+        res, around, coherent, queried = _coherent(a, flat, nb, index, T, reference=False)
+        own_at = np.searchsorted(queried.flat, flat)
+        nb_at = np.where(nb >= 0, np.searchsorted(queried.flat, np.where(nb >= 0, nb, 0)), -1)
     surface = _Surface(a, ring, index, T.copy(), res, around, coherent)
     if len(res) == 0:
         return Tolerance(max(p.max_tolerance_mm, lo), float("nan"), 0, surface=surface)
     n_coh = int(np.count_nonzero(coherent))
     use_coherent = n_coh and n_coh >= MIN_COHERENT_SHARE * len(res) and far_share(res, around) <= MAX_FAR_SHARE
-    use = res[coherent] if use_coherent else res
+    off = np.zeros(len(res), bool)
+    if use_coherent and queried.signed_m is not None and queried.nearest_j is not None:
+        # the coherent pixels off the bin's residual field are no bin (parts leaning on a wall)
+        off = _off_field(queried.signed_m, queried.p_bin, queried.nearest_j, own_at, nb_at, coherent,
+                         index.model.normals)
+    keep = coherent & ~off
+    use = res[keep] if use_coherent else res
     q = float(np.percentile(use, p.residual_quantile, method="higher"))
     tau = min(max(q + p.residual_margin_mm, lo), max(p.max_tolerance_mm, lo)) if np.isfinite(q) \
         else max(p.max_tolerance_mm, lo)
     reach = float("nan")
     if index.model.normals is not None:
-        near = _nearest_again(a, flat[coherent] if use_coherent else flat, index, T, queried)
+        near = _nearest_again(a, flat[keep] if use_coherent else flat, index, T, queried)
         q_near = float(np.percentile(near, p.residual_quantile, method="higher"))
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
-    return Tolerance(float(tau), q, len(res), n_coh, float(reach), surface=surface)
+    return Tolerance(float(tau), q, len(res), n_coh, float(reach), surface=surface,
+                     n_off_field=int(np.count_nonzero(off)))
 
 
 def check_removal_args(

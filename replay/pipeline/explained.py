@@ -214,8 +214,8 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
     the table; not the local surface): the labelling page serves them (annotate/fits.py). The method's
     outliers and everything in the zone are the same with and without it.
 
-    ``judge_removed_bin``: with a part model, the pixels the removal labelled bin are judged too, against
-    the same known surfaces (:func:`removed_bin_judged`): those farther than ``k`` × Err from all of them —
+    ``judge_removed_bin``: with a part model, the pixels the removal labelled bin are judged too, in the same
+    search as the zone's, against the same known surfaces: those farther than ``k`` × Err from all of them —
     the bin model at the bin's own Err, the fits, the table — are outliers as well, outside the zone (the
     paper's definition does not drop a point because the removal's tolerance took it: issue 31,
     docs/bin_robustness.md, "piles leaning on the walls — `explained`"). Everything in the zone is the
@@ -259,19 +259,27 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
         local = ex.local_surface_distance(xyz, valid, where=zone.zone,
                                           params=ex.local_surface_params(footprint, zone.zone))
     judged = zone.zone | np.asarray(zone.easy, bool) if judge_above_rim else zone.zone
+    scored = zone.zone  # where the method's outliers may lie
+    if judge_removed_bin and p.part_model:  # the removal's bin pixels judged in the same search
+        assert rem is not None
+        scored = zone.zone | (rem.bin_points & ~judged)
+        judged = judged | scored
     near = ex.nearest_surface(xyz, surfaces, where=judged, within_mm=local)
     vetted_out: tuple[PartFit, ...] = ()
+    zone_err: np.ndarray | None = None  # the zone's Err image, while it holds for ``surfaces`` and ``near``
     if fits:  # each fit's residual measured robustly on its zone pixels (ghosts inflate the stated RMS)
         stated = surfaces.part_err_mm
         surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, stated, where=zone.zone))
         kept = np.ones(len(fits), bool)
         if p.fit_max_overlap < 1:  # 1: every fit kept, no vetting
-            # Err where the ranking reads it (the zone's pixels a fit is nearest to): the whole image once, below
-            err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm, where=zone.zone & (near.surface >= 0))
+            # Err over the zone: the ranking reads it where a fit is nearest, the missed instances on top
+            # (below) over the whole zone when no fit is vetted out
+            zone_err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm, where=zone.zone)
             kept = vet_fits(instance_overlaps(v, t, [f.pose for f in fits], solid=solid),
-                            explained_px(near, err, len(fits), k=p.k, where=zone.zone),
+                            explained_px(near, zone_err, len(fits), k=p.k, where=zone.zone),
                             max_overlap=p.fit_max_overlap).kept
         if not kept.all():  # the fits vetted out are no known surface: their pixels judged again
+            zone_err = None
             vetted_out = tuple(f for f, k in zip(fits, kept) if not k)
             fits = tuple(f for f, k in zip(fits, kept) if k)
             surfaces, near = without_fits(xyz, near, dataclasses.replace(surfaces, part_err_mm=stated), kept)
@@ -280,17 +288,14 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
     top = 0
     if p.part_model and TOP_PIECES:  # the unexplained pieces on top of the pile fitted again (zcut.top_pieces)
         fits, surfaces, near, top = _with_top_pieces(xyz, zone, near, surfaces, fits, v, t, prepared, intr, footprint,
-                                                     judged, p)
+                                                     judged, p, zone_err=zone_err)
     if local is not None:
         near = ex.with_local_surface(near, local)
         surfaces = dataclasses.replace(surfaces, local_err_mm=ex.local_sigma(
             near.dist_mm[near.surface == ex.SURFACE_LOCAL]))
         warning = FALLBACK_WARNING if bin_stages else FALLBACK_ALONE_WARNING
     err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm)
-    out = ex.unexplained(near.dist_mm, err, p.k) & zone.zone
-    if judge_removed_bin and p.part_model:
-        assert rem is not None
-        near, err, out = removed_bin_judged(xyz, rem.bin_points & ~judged, surfaces, footprint, near, err, out, p)
+    out = ex.unexplained(near.dist_mm, err, p.k) & scored
     return out, ExplainedDetail(fits, v, t, near.dist_mm, near.surface, err, out,
                                 surface_model=PART_FITS if p.part_model else LOCAL_SURFACE,
                                 local_err_mm=surfaces.local_err_mm, vetted_out=vetted_out, top_pieces=top), warning
@@ -298,18 +303,21 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
 
 def _with_top_pieces(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: tuple[PartFit, ...], v: np.ndarray,
                      t: np.ndarray, prepared: Any, intr: Any, footprint: np.ndarray, judged: np.ndarray,
-                     p: Any) -> tuple[tuple[PartFit, ...], Any, Any, int]:
+                     p: Any, *, zone_err: np.ndarray | None = None) -> tuple[tuple[PartFit, ...], Any, Any, int]:
     """(fits, surfaces, nearest, how many were added) with the instances :func:`zcut.top_pieces.top_pieces` finds on
     the zone's unexplained pieces: a found instance whose solid overlaps a fit's by more than ``fit_max_overlap``
     is left out; the judged pixels a new instance is nearer to than their nearest surface take it (exact: a pixel
     farther from a new instance's box than from its nearest surface keeps it), and every fit's residual is
-    measured again (:func:`zcut.explained.fit_sigmas`, from the residuals the fits state)."""
+    measured again (:func:`zcut.explained.fit_sigmas`, from the residuals the fits state). ``zone_err``: the zone's
+    Err image of ``near`` and ``surfaces`` when the caller has it (the vetting's, when it left every fit in),
+    else it is computed."""
     from zcut import explained as ex
     from zcut.fit_vetting import instance_overlaps, vet_fits
     from zcut.fits import FitParams
     from zcut.top_pieces import top_pieces
 
-    err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm, where=zone.zone)
+    err = zone_err if zone_err is not None else ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm,
+                                                             where=zone.zone)
     un = ex.unexplained(near.dist_mm, err, p.k) & zone.zone
     more = top_pieces(xyz, un, prepared, intrinsics=intr,
                       params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm, min_support=p.fit_min_support))
@@ -344,22 +352,6 @@ def _with_top_pieces(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits
     surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, stated, where=zone.zone))
     return fits, surfaces, near, len(more)
 
-
-
-def removed_bin_judged(xyz: np.ndarray, where: np.ndarray, surfaces: Any, footprint: np.ndarray, near: Any,
-                       err: np.ndarray, out: np.ndarray, p: Any) -> tuple[Any, np.ndarray, np.ndarray]:
-    """``near``, ``err`` and ``out`` with the pixels ``where`` (the removal's bin pixels) judged as the zone's
-    are: their nearest known surface and distance, their Err (that surface's residual and the pixel's
-    footprint) and, farther than ``p.k`` × Err from every surface, unexplained."""
-    from zcut import explained as ex
-
-    if not np.asarray(where).any():
-        return near, err, out
-    nb = ex.nearest_surface(xyz, surfaces, where=where)
-    eb = ex.err_image(nb, surfaces, footprint, floor_mm=p.err_floor_mm)
-    w = ~np.isnan(nb.dist_mm)
-    near = ex.Nearest(np.where(w, nb.dist_mm, near.dist_mm), np.where(w, nb.surface, near.surface))
-    return near, np.where(w, eb, err), out | ex.unexplained(nb.dist_mm, eb, p.k)
 
 
 def bin_and_table_surfaces(xyz: np.ndarray, rem: Any, reg: Any, model: Any, surfaces: Any) -> Any:

@@ -122,3 +122,74 @@ def test_without_a_part_model_the_removals_bin_pixels_are_not_judged(walls):
     plain, _, _ = run_explained(frame, zone, config)
     judged, _, _ = run_explained(frame, zone, config, judge_removed_bin=True)
     np.testing.assert_array_equal(judged, plain)
+
+
+@pytest.mark.slow
+def test_one_search_judges_the_removals_bin_pixels_as_the_merge_did(walls, monkeypatch):
+    """The removal's bin pixels are judged in the zone's own search (the judged set widened, the outliers
+    masked with the zone and those pixels): the same outliers, distances, surfaces and Err as the previous
+    implementation, a second search over them with the final surfaces merged into the zone's images (its
+    body transcribed here as the oracle)."""
+    from replay.pipeline.explained import run_explained
+
+    session, frame, zone = walls
+    config = session.config
+    p = config.bank["explained"]
+    assert zone.removal is not None
+    real = ex.err_image
+    calls = []
+
+    def spy(nearest, surfaces, footprint, **kw):
+        calls.append((nearest, surfaces, footprint, kw))
+        return real(nearest, surfaces, footprint, **kw)
+
+    monkeypatch.setattr(ex, "err_image", spy)
+    plain, d0, _ = run_explained(frame, zone, config)
+    near, surfaces, foot, kw = calls[-1]  # the final Err image: the final nearest surfaces and known surfaces
+    assert kw.get("where") is None and np.array_equal(near.dist_mm, d0.dist_mm, equal_nan=True)
+    monkeypatch.setattr(ex, "err_image", real)
+    judged, d, _ = run_explained(frame, zone, config, judge_removed_bin=True)
+    # the previous removed_bin_judged
+    xyz = frame.xyz.astype(np.float64) * 1000.0
+    where = zone.removal.bin_points & ~zone.zone
+    nb = ex.nearest_surface(xyz, surfaces, where=where)
+    eb = real(nb, surfaces, foot, floor_mm=p.err_floor_mm)
+    w = ~np.isnan(nb.dist_mm)
+    assert w.sum() > 10_000
+    assert d is not None
+    np.testing.assert_array_equal(d.dist_mm, np.where(w, nb.dist_mm, near.dist_mm))
+    np.testing.assert_array_equal(d.surface, np.where(w, nb.surface, near.surface))
+    np.testing.assert_array_equal(d.err_mm, np.where(w, eb, d0.err_mm))
+    np.testing.assert_array_equal(judged, plain | ex.unexplained(nb.dist_mm, eb, p.k))
+    assert (judged & ~zone.zone).any() or not ex.unexplained(nb.dist_mm, eb, p.k).any()
+
+
+@pytest.mark.slow
+def test_the_missed_instances_on_top_reuse_the_vettings_err(walls, monkeypatch):
+    """When the vetting leaves every fit in, the missed instances on top read its Err image of the zone
+    instead of computing it again: the same outputs as with it computed again."""
+    from replay.pipeline import explained as pe
+
+    session, frame, zone = walls
+    real = pe._with_top_pieces
+    given = []
+
+    def again(*args, zone_err=None, **kw):  # the image computed again, as before
+        given.append(zone_err)
+        return real(*args, **kw)
+
+    def reuse(*args, zone_err=None, **kw):
+        given.append(zone_err)
+        return real(*args, zone_err=zone_err, **kw)
+
+    outs = []
+    for wrapper in (reuse, again):
+        monkeypatch.setattr(pe, "_with_top_pieces", wrapper)
+        outs.append(pe.run_explained(frame, zone, session.config, judge_removed_bin=True))
+    assert given[0] is not None  # no fit vetted out on this frame: the vetting's image was passed in
+    (o1, d1, _), (o2, d2, _) = outs
+    assert d1 is not None and d2 is not None and len(d1.fits) > 0
+    np.testing.assert_array_equal(o1, o2)
+    for a, b in ((d1.dist_mm, d2.dist_mm), (d1.surface, d2.surface), (d1.err_mm, d2.err_mm)):
+        np.testing.assert_array_equal(a, b)
+    assert d1.top_pieces == d2.top_pieces and len(d1.fits) == len(d2.fits)
