@@ -336,7 +336,7 @@ def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
 
 
 def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
-                 shifts: int = 0, claims: _Claims | None = None) -> tuple[np.ndarray, float]:
+                 shifts: int = 0) -> tuple[np.ndarray, float]:
     """(pose, err) of one instance of a general model in the region's points.
 
     Every initial guess takes ``coarse_iterations`` ICP steps on an even subsample of
@@ -347,13 +347,7 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
 
     ``shifts`` > 0 (the second pass, a region that may show only part of an instance): the guesses
     also put ``shifts`` spread points of the model's facing side on the region's centroid
-    (:func:`zcut.fits.icp.shifted_poses`), and the turns are not tried.
-
-    ``claims`` (``FitParams.claim``) with ``EARLY_SHARE`` > 0 (default 0: off): a candidate whose coarse
-    pose overlaps live accepted fits (:meth:`_Claims.overlapping`) and whose region's points within the
-    score's tolerance of that pose, scaled to the region's pixels, are fewer than ``EARLY_SHARE`` × the
-    pixels one of them claims is not refined: Err inf (refused), the fine ICP, its Err and its acceptance
-    not spent (docs/fits.md, "Seventh round": measured and not kept)."""
+    (:func:`zcut.fits.icp.shifted_poses`), and the turns are not tried."""
     sub = _subsample(flat, params.max_points)
     pts = frame.xyz.reshape(-1, 3)[sub]
     coarse = np.ascontiguousarray(pts[_subsample(np.arange(len(pts)), COARSE_POINTS)])
@@ -420,8 +414,6 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     better = search(turned, stop=False)
     if better is not None and better[0] > best[0]:
         best = better
-    if claims is not None and _early_refusal(claims, model, pts, len(flat), best[1], score_tol):
-        return best[1], np.inf
     T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,
                     **opts)
     gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
@@ -429,33 +421,6 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     inl_mask = d <= gate
     err = float(np.sqrt(np.mean(d[inl_mask] ** 2))) if inl_mask.any() else np.inf
     return T, err
-
-
-#: :func:`_fit_general` does not refine a candidate whose coarse pose overlaps a live accepted fit and
-#: explains fewer than this share of the pixels that fit claims; 0: off (the default). Measured and not
-#: kept (docs/fits.md, "Seventh round"): at 0.25 (tuned on seed 8531, hand-made nuts: 5 of the 170-180
-#: candidates it stopped a frame would have been accepted or would have replaced the fit) the held-out
-#: ray-traced zinc nuts lost 13 of 200 instances found for 5 % of their CPU.
-EARLY_SHARE = 0.0
-
-
-def _early_refusal(claims: _Claims, model: PartModel, pts: np.ndarray, n_px: int, T: np.ndarray,
-                   tol: float) -> bool:
-    """Whether a candidate at its coarse pose ``T`` is refused before its fine ICP (:func:`_fit_general`):
-    it overlaps live accepted fits, and its region's ``n_px`` pixels times the share of its points ``pts``
-    within ``tol`` of ``T`` are fewer than ``EARLY_SHARE`` × the pixels the smallest of them claims (a
-    duplicate of a fitted part, a wrong pose of a piece: the fine fit would explain fewer pixels than the
-    fit it overlaps, and be refused)."""
-    if EARLY_SHARE <= 0:
-        return False
-    near = claims.near(T)
-    if not len(near):
-        return False
-    explains = n_px * float(np.mean(_surface_distances(model, pts, T) <= tol))
-    if explains >= EARLY_SHARE * max(len(claims.pixels[int(j)]) for j in near):
-        return False  # not below the share of any fit it may overlap: the overlap test is not needed
-    rivals = claims.overlapping(T)
-    return bool(rivals) and explains < EARLY_SHARE * min(len(claims.pixels[j]) for j in rivals)
 
 
 def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intrinsics: Intrinsics | None = None,
@@ -660,10 +625,10 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
             patch = _patch(frame, left, model, tried)
             if patch is None:
                 break
-            cands = ([_fit_general(frame, patch, model, params, shifts=shifts, claims=claims)]
+            cands = ([_fit_general(frame, patch, model, params, shifts=shifts)]
                      if len(patch) >= min_px else [])
         else:
-            cands = _candidates(frame, left, model, params, shifts=shifts, claims=claims)
+            cands = _candidates(frame, left, model, params, shifts=shifts)
             if claims is not None and len(cands) > 1:
                 cands = _ranked(frame, left, model, params, cands)
         for T, err in cands:
@@ -734,11 +699,10 @@ def _patch(frame: _Frame, flat: np.ndarray, model: PartModel, tried: np.ndarray)
 
 
 def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
-                shifts: int = 0, claims: _Claims | None = None) -> list[tuple[np.ndarray, float]]:
-    """The fits to try in a region: one per vote cluster for a sphere, the best one otherwise
-    (``claims``: see :func:`_fit_general`)."""
+                shifts: int = 0) -> list[tuple[np.ndarray, float]]:
+    """The fits to try in a region: one per vote cluster for a sphere, the best one otherwise."""
     if model.sphere_radius is None:
-        return [_fit_general(frame, flat, model, params, shifts=shifts, claims=claims)]
+        return [_fit_general(frame, flat, model, params, shifts=shifts)]
     pts = frame.xyz.reshape(-1, 3)[flat]
     nrm = _normals_at(frame.xyz, flat)
     centres = vote_centres(pts, nrm, model.sphere_radius, min_votes=max(3, params.min_region_px // 4))
