@@ -420,7 +420,36 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     d = _near_distances(model, pts, T, gate)
     inl_mask = d <= gate
     err = float(np.sqrt(np.mean(d[inl_mask] ** 2))) if inl_mask.any() else np.inf
+    if params.fine_points > 0 and np.isfinite(err):
+        T, err = _fine(frame, flat, pts, epts, model, params, opts, T, err)
     return T, err
+
+
+def _fine(frame: _Frame, flat: np.ndarray, pts: np.ndarray, epts: np.ndarray, model: PartModel, params: FitParams,
+          opts: dict[str, float], T: np.ndarray, err: float) -> tuple[np.ndarray, float]:
+    """The last refinement of a candidate's pose (``FitParams.fine_points``, docs/fits.md "Eighth round"): the
+    ICP again from ``T`` on up to ``fine_points`` of the region's points (an even subsample of all of them, not
+    of the ``max_points`` the search used) that lie within k × max(``err``, floor) of the posed model — trimmed:
+    a neighbour's or a ghost's points farther off take no part — with the gate at that band from the start.
+    The refined pose is kept when its Err, measured as before on the search's points ``pts``, is at most
+    ``FINE_KEEP`` × ``err`` (the refinement minimises over more points, the Err is measured on fewer)."""
+    allp = frame.xyz.reshape(-1, 3)[flat]
+    tol = params.k * max(err, params.err_floor_mm)
+    use = allp[_surface_distances(model, allp, T) <= tol]
+    use = use[_subsample(np.arange(len(use)), params.fine_points)]
+    if len(use) < 20:
+        return T, err
+    T2, rms, _ = icp(use, model, T, iterations=params.icp_iterations, edge_points=epts,
+                     **{**opts, "gate_mm": tol})
+    gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
+    d = _near_distances(model, pts, T2, gate)
+    inl = d <= gate
+    err2 = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else np.inf
+    return (T2, err2) if err2 <= FINE_KEEP * err else (T, err)
+
+
+#: :func:`_fine` keeps the refined pose when its Err is at most this many times the search's.
+FINE_KEEP = 1.1
 
 
 def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intrinsics: Intrinsics | None = None,
@@ -456,6 +485,15 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
     for region in pending:
         pending.extend(_fit_region(frame, region, model, params, accepted, known, explained, shifts=0,
                                    claims=claims))
+    if claims is not None and params.first_err_ratio > 0 and accepted:
+        # a fit of the first pass whose Err is far above the frame's (a pose between two parts, or pulled by a
+        # neighbour's face or ghosts) is no fit: its claims are released and its pixels fitted again by the
+        # second pass (docs/fits.md, "Eighth round")
+        live = [e for (_, e, _), ok in zip(accepted, claims.alive) if ok]
+        lim = params.first_err_ratio * max(float(np.median(live)), params.err_floor_mm)
+        for j, (_, e, _) in enumerate(accepted):
+            if claims.alive[j] and e > lim:
+                claims.kill(j)
     if claims is not None:  # a replaced fit is no fit; the pixels no live fit claims are unexplained
         accepted, known = _alive(accepted, claims), _alive(known, claims)
         explained = claims.count > 0
