@@ -485,14 +485,16 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
     for region in pending:
         pending.extend(_fit_region(frame, region, model, params, accepted, known, explained, shifts=0,
                                    claims=claims))
+    held: list[tuple[tuple[np.ndarray, float, float], tuple[np.ndarray, np.ndarray]]] = []
     if claims is not None and params.first_err_ratio > 0 and accepted:
         # a fit of the first pass whose Err is far above the frame's (a pose between two parts, or pulled by a
-        # neighbour's face or ghosts) is no fit: its claims are released and its pixels fitted again by the
-        # second pass (docs/fits.md, "Eighth round")
+        # neighbour's face or ghosts) is held back: its claims are released and its pixels fitted again by the
+        # second pass; it comes back after it when no fit then overlaps it (docs/fits.md, "Eighth round")
         live = [e for (_, e, _), ok in zip(accepted, claims.alive) if ok]
         lim = params.first_err_ratio * max(float(np.median(live)), params.err_floor_mm)
         for j, (_, e, _) in enumerate(accepted):
             if claims.alive[j] and e > lim:
+                held.append((accepted[j], known[j]))
                 claims.kill(j)
     if claims is not None:  # a replaced fit is no fit; the pixels no live fit claims are unexplained
         accepted, known = _alive(accepted, claims), _alive(known, claims)
@@ -514,6 +516,13 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
             if len(todo) >= min_px:
                 seeds.extend(_fit_region(frame, todo, model, seed_params, accepted, known, explained,
                                          shifts=params.seed_shifts, min_px=min_px, claims=claims))
+    if claims is not None and held:
+        claims = _Claims.of(claims) if len(claims.alive) != len(accepted) else claims
+        for fit, kn in held:  # the held-back fits no fit of the second pass overlaps: the best the frame has there
+            if not claims.overlapping(fit[0]):
+                accepted.append(fit)
+                known.append(kn)
+                claims.add(fit[0], fit[1], kn)
     if claims is not None:
         accepted, known = _alive(accepted, claims), _alive(known, claims)
     return _assign(frame, model, accepted, params, known)
