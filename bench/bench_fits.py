@@ -335,7 +335,7 @@ def proposals(truth: Truth, fits: list, model, zone: np.ndarray, ids: np.ndarray
 PHASES = (("segmentation", "segment"), ("python per region", "_holds_many"), ("python per region", "_patch"),
           ("python per region", "_occluding_boundary"), ("global guess", "initial_rotations"),
           ("global guess", "initial_poses"), ("global guess", "shifted_poses"), ("coarse ICP", "coarse_search"),
-          ("fine ICP", "icp"), ("early overlap test", "_early_refusal"), ("acceptance", "_accept"),
+          ("fine ICP", "icp"), ("acceptance", "_accept"),
           ("  of it: support", "_support"), ("sphere fits", "_fit_sphere"), ("sphere votes", "vote_centres"),
           ("assignment", "_assign"), ("candidates (whole)", "_fit_general"))
 

@@ -336,7 +336,7 @@ def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
 
 
 def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
-                 shifts: int = 0, claims: _Claims | None = None) -> tuple[np.ndarray, float]:
+                 shifts: int = 0) -> tuple[np.ndarray, float]:
     """(pose, err) of one instance of a general model in the region's points.
 
     Every initial guess takes ``coarse_iterations`` ICP steps on an even subsample of
@@ -347,13 +347,7 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
 
     ``shifts`` > 0 (the second pass, a region that may show only part of an instance): the guesses
     also put ``shifts`` spread points of the model's facing side on the region's centroid
-    (:func:`zcut.fits.icp.shifted_poses`), and the turns are not tried.
-
-    ``claims`` (``FitParams.claim``) with ``EARLY_SHARE`` > 0 (default 0: off): a candidate whose coarse
-    pose overlaps live accepted fits (:meth:`_Claims.overlapping`) and whose region's points within the
-    score's tolerance of that pose, scaled to the region's pixels, are fewer than ``EARLY_SHARE`` × the
-    pixels one of them claims is not refined: Err inf (refused), the fine ICP, its Err and its acceptance
-    not spent (docs/fits.md, "Seventh round": measured and not kept)."""
+    (:func:`zcut.fits.icp.shifted_poses`), and the turns are not tried."""
     sub = _subsample(flat, params.max_points)
     pts = frame.xyz.reshape(-1, 3)[sub]
     coarse = np.ascontiguousarray(pts[_subsample(np.arange(len(pts)), COARSE_POINTS)])
@@ -420,42 +414,42 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     better = search(turned, stop=False)
     if better is not None and better[0] > best[0]:
         best = better
-    if claims is not None and _early_refusal(claims, model, pts, len(flat), best[1], score_tol):
-        return best[1], np.inf
     T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,
                     **opts)
     gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
     d = _near_distances(model, pts, T, gate)
     inl_mask = d <= gate
     err = float(np.sqrt(np.mean(d[inl_mask] ** 2))) if inl_mask.any() else np.inf
+    if params.fine_points > 0 and np.isfinite(err):
+        T, err = _fine(frame, flat, pts, epts, model, params, opts, T, err)
     return T, err
 
 
-#: :func:`_fit_general` does not refine a candidate whose coarse pose overlaps a live accepted fit and
-#: explains fewer than this share of the pixels that fit claims; 0: off (the default). Measured and not
-#: kept (docs/fits.md, "Seventh round"): at 0.25 (tuned on seed 8531, hand-made nuts: 5 of the 170-180
-#: candidates it stopped a frame would have been accepted or would have replaced the fit) the held-out
-#: ray-traced zinc nuts lost 13 of 200 instances found for 5 % of their CPU.
-EARLY_SHARE = 0.0
+def _fine(frame: _Frame, flat: np.ndarray, pts: np.ndarray, epts: np.ndarray, model: PartModel, params: FitParams,
+          opts: dict[str, float], T: np.ndarray, err: float) -> tuple[np.ndarray, float]:
+    """The last refinement of a candidate's pose (``FitParams.fine_points``, docs/fits.md "Eighth round"): the
+    ICP again from ``T`` on up to ``fine_points`` of the region's points (an even subsample of all of them, not
+    of the ``max_points`` the search used) that lie within k × max(``err``, floor) of the posed model — trimmed:
+    a neighbour's or a ghost's points farther off take no part — with the gate at that band from the start.
+    The refined pose is kept when its Err, measured as before on the search's points ``pts``, is at most
+    ``FINE_KEEP`` × ``err`` (the refinement minimises over more points, the Err is measured on fewer)."""
+    allp = frame.xyz.reshape(-1, 3)[flat]
+    tol = params.k * max(err, params.err_floor_mm)
+    use = allp[_surface_distances(model, allp, T) <= tol]
+    use = use[_subsample(np.arange(len(use)), params.fine_points)]
+    if len(use) < 20:
+        return T, err
+    T2, rms, _ = icp(use, model, T, iterations=params.icp_iterations, edge_points=epts,
+                     **{**opts, "gate_mm": tol})
+    gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
+    d = _near_distances(model, pts, T2, gate)
+    inl = d <= gate
+    err2 = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else np.inf
+    return (T2, err2) if err2 <= FINE_KEEP * err else (T, err)
 
 
-def _early_refusal(claims: _Claims, model: PartModel, pts: np.ndarray, n_px: int, T: np.ndarray,
-                   tol: float) -> bool:
-    """Whether a candidate at its coarse pose ``T`` is refused before its fine ICP (:func:`_fit_general`):
-    it overlaps live accepted fits, and its region's ``n_px`` pixels times the share of its points ``pts``
-    within ``tol`` of ``T`` are fewer than ``EARLY_SHARE`` × the pixels the smallest of them claims (a
-    duplicate of a fitted part, a wrong pose of a piece: the fine fit would explain fewer pixels than the
-    fit it overlaps, and be refused)."""
-    if EARLY_SHARE <= 0:
-        return False
-    near = claims.near(T)
-    if not len(near):
-        return False
-    explains = n_px * float(np.mean(_surface_distances(model, pts, T) <= tol))
-    if explains >= EARLY_SHARE * max(len(claims.pixels[int(j)]) for j in near):
-        return False  # not below the share of any fit it may overlap: the overlap test is not needed
-    rivals = claims.overlapping(T)
-    return bool(rivals) and explains < EARLY_SHARE * min(len(claims.pixels[j]) for j in rivals)
+#: :func:`_fine` keeps the refined pose when its Err is at most this many times the search's.
+FINE_KEEP = 1.1
 
 
 def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intrinsics: Intrinsics | None = None,
@@ -491,6 +485,17 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
     for region in pending:
         pending.extend(_fit_region(frame, region, model, params, accepted, known, explained, shifts=0,
                                    claims=claims))
+    held: list[tuple[tuple[np.ndarray, float, float], tuple[np.ndarray, np.ndarray]]] = []
+    if claims is not None and params.first_err_ratio > 0 and accepted:
+        # a fit of the first pass whose Err is far above the frame's (a pose between two parts, or pulled by a
+        # neighbour's face or ghosts) is held back: its claims are released and its pixels fitted again by the
+        # second pass; it comes back after it when no fit then overlaps it (docs/fits.md, "Eighth round")
+        live = [e for (_, e, _), ok in zip(accepted, claims.alive) if ok]
+        lim = params.first_err_ratio * max(float(np.median(live)), params.err_floor_mm)
+        for j, (_, e, _) in enumerate(accepted):
+            if claims.alive[j] and e > lim:
+                held.append((accepted[j], known[j]))
+                claims.kill(j)
     if claims is not None:  # a replaced fit is no fit; the pixels no live fit claims are unexplained
         accepted, known = _alive(accepted, claims), _alive(known, claims)
         explained = claims.count > 0
@@ -511,6 +516,13 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
             if len(todo) >= min_px:
                 seeds.extend(_fit_region(frame, todo, model, seed_params, accepted, known, explained,
                                          shifts=params.seed_shifts, min_px=min_px, claims=claims))
+    if claims is not None and held:
+        claims = _Claims.of(claims) if len(claims.alive) != len(accepted) else claims
+        for fit, kn in held:  # the held-back fits no fit of the second pass overlaps: the best the frame has there
+            if not claims.overlapping(fit[0]):
+                accepted.append(fit)
+                known.append(kn)
+                claims.add(fit[0], fit[1], kn)
     if claims is not None:
         accepted, known = _alive(accepted, claims), _alive(known, claims)
     return _assign(frame, model, accepted, params, known)
@@ -660,10 +672,10 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
             patch = _patch(frame, left, model, tried)
             if patch is None:
                 break
-            cands = ([_fit_general(frame, patch, model, params, shifts=shifts, claims=claims)]
+            cands = ([_fit_general(frame, patch, model, params, shifts=shifts)]
                      if len(patch) >= min_px else [])
         else:
-            cands = _candidates(frame, left, model, params, shifts=shifts, claims=claims)
+            cands = _candidates(frame, left, model, params, shifts=shifts)
             if claims is not None and len(cands) > 1:
                 cands = _ranked(frame, left, model, params, cands)
         for T, err in cands:
@@ -734,11 +746,10 @@ def _patch(frame: _Frame, flat: np.ndarray, model: PartModel, tried: np.ndarray)
 
 
 def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
-                shifts: int = 0, claims: _Claims | None = None) -> list[tuple[np.ndarray, float]]:
-    """The fits to try in a region: one per vote cluster for a sphere, the best one otherwise
-    (``claims``: see :func:`_fit_general`)."""
+                shifts: int = 0) -> list[tuple[np.ndarray, float]]:
+    """The fits to try in a region: one per vote cluster for a sphere, the best one otherwise."""
     if model.sphere_radius is None:
-        return [_fit_general(frame, flat, model, params, shifts=shifts, claims=claims)]
+        return [_fit_general(frame, flat, model, params, shifts=shifts)]
     pts = frame.xyz.reshape(-1, 3)[flat]
     nrm = _normals_at(frame.xyz, flat)
     centres = vote_centres(pts, nrm, model.sphere_radius, min_votes=max(3, params.min_region_px // 4))

@@ -69,11 +69,21 @@ class FitParams:
         (or a leftover, or a region of the second pass) is fitted on its pixels no fit claimed; a
         candidate whose solid shares more than ``max_overlap`` of its volume, or of an accepted fit's,
         with an accepted fit's is not accepted; a sphere region's candidates are tried in order of the
-        region's points each explains within a common tolerance. False: the fits of the fifth round,
-        to the bit.
+        region's points each explains within a common tolerance. False (with ``fine_points`` 0): the fits
+        of the fifth round, to the bit.
     max_overlap : float
         See ``claim``: the share (0..1) of a solid's volume another may hold (the vetting's
         :data:`zcut.fit_vetting.MAX_OVERLAP`, measured on the same inside samples).
+    first_err_ratio : float
+        With ``claim``: after the first pass, a fit whose Err exceeds this many times the median Err of the
+        first pass's live fits (at least ``err_floor_mm``) is dropped — a pose between two parts, or pulled
+        by a neighbour's face or ghosts, whose wide band claimed a part's pixels and whose solid refused that
+        part's own fit — and its pixels are fitted again by the second pass (docs/fits.md, "Eighth round").
+        0: off (the seventh round's fits).
+    fine_points : int
+        A general part's pose is refined last on up to this many of its region's points within k × Err of
+        it (trimmed; all of them, not the ``max_points`` of the search) and kept when its Err does not grow
+        (docs/fits.md, "Eighth round"). 0: off.
     """
 
     jump_mm: float = 1.5
@@ -95,6 +105,8 @@ class FitParams:
     seed_min_support: float = 0.5
     claim: bool = True
     max_overlap: float = 0.05
+    first_err_ratio: float = 3.0
+    fine_points: int = 3000
 
     def __post_init__(self) -> None:
         _number(self, "jump_mm", gt=0)
@@ -116,3 +128,5 @@ class FitParams:
         _number(self, "seed_min_support", ge=0, le=1)
         _boolean(self, "claim")
         _number(self, "max_overlap", ge=0, le=1)
+        _number(self, "first_err_ratio", ge=0)
+        _number(self, "fine_points", ge=0, integer=True)
