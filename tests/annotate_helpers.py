@@ -267,7 +267,11 @@ class ServerProcess:
         if self.url is None:
             self.kill()
             raise RuntimeError(f"server did not start: {''.join(lines)} {''.join(self.stderr_lines)}")
-        self._wait_ready()
+        try:
+            self._wait_ready()
+        except BaseException:  # a server that never got ready is not left running (it outlived a failed test)
+            self.kill()
+            raise
 
     def _wait_ready(self, timeout=300.0) -> None:  # generous: a loaded machine prepares slowly
         import httpx
