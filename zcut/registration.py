@@ -219,6 +219,20 @@ def _voxel_slot(ix, iy, iz, size):  # type: ignore[no-untyped-def]  # numba kern
     return np.int64((h >> np.uint64(32)) & np.uint64(size - 1))
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _find_slot(table, keys, ix, iy, iz):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """The slot of voxel ``(ix, iy, iz)`` in an open-addressing ``table`` (a power of two slots, each -1 or
+    a row of ``keys``): where it is, or the empty slot (-1) where it would go (linear probing from
+    :func:`_voxel_slot`). The voxel pass and the fitness's cell grid both look up and insert with it."""
+    size = table.shape[0]
+    slot = _voxel_slot(ix, iy, iz, size)
+    while True:
+        j = table[slot]
+        if j < 0 or (keys[j, 0] == ix and keys[j, 1] == iy and keys[j, 2] == iz):
+            return slot
+        slot = (slot + 1) & (size - 1)
+
+
 @numba.njit(cache=True, nogil=True)
 def _voxel_table(keys, k, size):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """An open-addressing table (``size`` slots, a power of two) of the first ``k`` voxel keys."""
@@ -236,7 +250,6 @@ def _voxel_pass(points, i, vmin, voxel, table, keys, sums, counts, k, j):  # typ
     """:func:`_voxel_ids`' loop from point ``i`` with ``k`` voxels so far (``j`` the previous point's):
     ``(the point it stopped at, k, j)``; it stops before a new voxel that does not fit."""
     n = points.shape[0]
-    size = table.shape[0]
     cap = keys.shape[0]
     while i < n:
         x, y, z = points[i, 0], points[i, 1], points[i, 2]
@@ -244,20 +257,15 @@ def _voxel_pass(points, i, vmin, voxel, table, keys, sums, counts, k, j):  # typ
         iy = np.int64(math.floor((y - vmin[1]) / voxel))
         iz = np.int64(math.floor((z - vmin[2]) / voxel))
         if not (j >= 0 and keys[j, 0] == ix and keys[j, 1] == iy and keys[j, 2] == iz):
-            slot = _voxel_slot(ix, iy, iz, size)
-            while True:
-                j = table[slot]
-                if j < 0:
-                    if k == cap:
-                        return i, k, -1
-                    table[slot] = k
-                    keys[k, 0], keys[k, 1], keys[k, 2] = ix, iy, iz
-                    j = k
-                    k += 1
-                    break
-                if keys[j, 0] == ix and keys[j, 1] == iy and keys[j, 2] == iz:
-                    break
-                slot = (slot + 1) & (size - 1)
+            slot = _find_slot(table, keys, ix, iy, iz)
+            j = table[slot]
+            if j < 0:
+                if k == cap:
+                    return i, k, -1
+                table[slot] = k
+                keys[k, 0], keys[k, 1], keys[k, 2] = ix, iy, iz
+                j = k
+                k += 1
         sums[j, 0] += x
         sums[j, 1] += y
         sums[j, 2] += z
@@ -878,18 +886,13 @@ def _confirmed(rim, reach, ub, pts):  # type: ignore[no-untyped-def]  # numba ke
         ix = np.int64(math.floor((pts[i, 0] - ox) / cell))
         iy = np.int64(math.floor((pts[i, 1] - oy) / cell))
         iz = np.int64(math.floor((pts[i, 2] - oz) / cell))
-        slot = _voxel_slot(ix, iy, iz, size)
-        while True:
-            j = table[slot]
-            if j < 0:
-                table[slot] = k
-                keys[k, 0], keys[k, 1], keys[k, 2] = ix, iy, iz
-                j = k
-                k += 1
-                break
-            if keys[j, 0] == ix and keys[j, 1] == iy and keys[j, 2] == iz:
-                break
-            slot = (slot + 1) & (size - 1)
+        slot = _find_slot(table, keys, ix, iy, iz)
+        j = table[slot]
+        if j < 0:
+            table[slot] = k
+            keys[k, 0], keys[k, 1], keys[k, 2] = ix, iy, iz
+            j = k
+            k += 1
         cell_of[i] = j
         counts[j + 1] += 1
     for j in range(k):
@@ -916,11 +919,7 @@ def _confirmed(rim, reach, ub, pts):  # type: ignore[no-untyped-def]  # numba ke
             ax = cx + (t // 9 + 1) % 3 - 1
             ay = cy + (t // 3 + 1) % 3 - 1
             az = cz + (t + 1) % 3 - 1
-            slot = _voxel_slot(ax, ay, az, size)
-            j = table[slot]
-            while j >= 0 and not (keys[j, 0] == ax and keys[j, 1] == ay and keys[j, 2] == az):
-                slot = (slot + 1) & (size - 1)
-                j = table[slot]
+            j = table[_find_slot(table, keys, ax, ay, az)]
             if j < 0:
                 continue
             for q in range(counts[j], counts[j + 1]):
