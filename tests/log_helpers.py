@@ -60,3 +60,28 @@ def without_truth(src: Path, dest: Path) -> None:
         for f in reader.frames():
             f.masks.clear()
             w.write_frame(f)
+
+
+def decoded_in_full(path: Path) -> tuple[dict[int, tuple[np.ndarray, np.ndarray | None]], dict[int, np.ndarray]]:
+    """The log's clouds and images decoded message by message into fresh arrays, the oracle of the
+    reader's fast decoding: (stamp -> (xyz, the cloud's own colours or None), stamp -> the Image's rgb)."""
+    from replay.logs import ros2_msgs as rm
+    from replay.logs.mcap_scan import OP_CHANNEL, OP_MESSAGE, McapFile
+    from replay.logs.reader import LogReader
+    from replay.logs.stream import message_payload
+
+    reader = LogReader(path)
+    clouds: dict[int, tuple[np.ndarray, np.ndarray | None]] = {}
+    images: dict[int, np.ndarray] = {}
+    topics: dict[int, str] = {}
+    with McapFile(path) as mf:
+        for op, rec in mf.records([], prefetch=0):
+            if op == OP_CHANNEL:
+                topics[rec.id] = rec.topic
+            elif op == OP_MESSAGE and topics.get(rec.channel_id) == reader.cloud_topic:
+                msg = rm.decode_cloud(message_payload(rec.data, "cloud"))
+                clouds[msg.stamp_ns] = rm.cloud_to_arrays(msg, where="cloud")
+            elif op == OP_MESSAGE and reader.image_topic and topics.get(rec.channel_id) == reader.image_topic:
+                img = rm.decode_image(message_payload(rec.data, "image"))
+                images[img.stamp_ns] = rm.image_to_rgb(img, where="image")
+    return clouds, images

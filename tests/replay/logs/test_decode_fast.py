@@ -13,13 +13,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from log_helpers import decoded_in_full
 
 from replay.logs import layout
 from replay.logs import ros2_msgs as rm
 from replay.logs.frame import Frame
-from replay.logs.mcap_scan import OP_CHANNEL, OP_MESSAGE, McapFile
 from replay.logs.reader import LogReader
-from replay.logs.stream import message_payload, without_colour
+from replay.logs.stream import without_colour
 from replay.logs.writer import LogWriter
 from replay.synth.log import write_synthetic_log
 
@@ -33,21 +33,7 @@ def synthetic(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _oracle(path: Path) -> dict[int, tuple[np.ndarray, np.ndarray | None]]:
     """stamp -> (xyz, rgb) decoded in full: every field of the cloud, then the Image's colours when the
     log has one of that stamp."""
-    reader = LogReader(path)
-    clouds: dict[int, tuple[np.ndarray, np.ndarray | None]] = {}
-    images: dict[int, np.ndarray] = {}
-    topics: dict[int, str] = {}
-    with McapFile(path) as mf:
-        for op, rec in mf.records([], prefetch=0):
-            if op == OP_CHANNEL:
-                topics[rec.id] = rec.topic
-            elif op == OP_MESSAGE and topics.get(rec.channel_id) == reader.cloud_topic:
-                msg = rm.decode_cloud(message_payload(rec.data, "cloud"))
-                xyz, rgb = rm.cloud_to_arrays(msg, where="cloud")
-                clouds[msg.stamp_ns] = (xyz, rgb)
-            elif op == OP_MESSAGE and reader.image_topic and topics.get(rec.channel_id) == reader.image_topic:
-                img = rm.decode_image(message_payload(rec.data, "image"))
-                images[img.stamp_ns] = rm.image_to_rgb(img, where="image")
+    clouds, images = decoded_in_full(path)
     return {s: (xyz, images.get(s, rgb)) for s, (xyz, rgb) in clouds.items()}
 
 

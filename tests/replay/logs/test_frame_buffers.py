@@ -17,12 +17,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from log_helpers import decoded_in_full
 
-from replay.logs import ros2_msgs as rm
 from replay.logs.frame import Frame
-from replay.logs.mcap_scan import OP_CHANNEL, OP_MESSAGE, BufferPool, McapFile
+from replay.logs.mcap_scan import BufferPool
 from replay.logs.reader import LogReader
-from replay.logs.stream import message_payload
 from replay.synth.log import write_synthetic_log
 
 
@@ -35,17 +34,7 @@ def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _fresh(path: Path) -> dict[int, np.ndarray]:
     """stamp -> xyz decoded into a fresh array (``np.empty``), message by message."""
-    reader = LogReader(path)
-    out: dict[int, np.ndarray] = {}
-    topics: dict[int, str] = {}
-    with McapFile(path) as mf:
-        for op, rec in mf.records([], prefetch=0):
-            if op == OP_CHANNEL:
-                topics[rec.id] = rec.topic
-            elif op == OP_MESSAGE and topics.get(rec.channel_id) == reader.cloud_topic:
-                msg = rm.decode_cloud(message_payload(rec.data, "cloud"))
-                out[msg.stamp_ns] = rm.cloud_to_arrays(msg, where="cloud")[0]
-    return out
+    return {s: xyz for s, (xyz, _) in decoded_in_full(path)[0].items()}
 
 
 def _same(f: Frame, xyz: np.ndarray) -> bool:
