@@ -170,9 +170,9 @@ SEGMENT = 64
 
 
 @numba.njit(cache=True, nogil=True)
-def finite_range(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
-    """(count, min, max) of the finite heights of z (H, W), and in ``seg_max`` (H, ceil(W /
-    SEGMENT)) the largest finite height of each row segment of SEGMENT pixels (-inf: none)."""
+def _finite_range_float(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`finite_range` by float comparisons (a scalar loop: the comparisons with NaN keep LLVM
+    from vectorising it); its fallback when an extreme is a zero (both signs compare equal)."""
     H, W = z.shape
     n = 0
     lo = np.inf
@@ -202,6 +202,62 @@ def finite_range(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
             lo = s_lo if s_lo < lo else lo
             hi = s_hi if s_hi > hi else hi
     return n, lo, hi
+
+
+#: :func:`finite_range`'s integer keys: the bits of a float64 with the sign's complement below the
+#: sign bit flipped, so that the keys of non-NaN floats order as the floats (-0.0 just below +0.0).
+_LOW_BITS = np.int64(0x7FFFFFFFFFFFFFFF)
+_EXP_BITS = np.int64(0x7FF0000000000000)  # all set: an infinity or a NaN
+_NEG_INF_BITS = np.int64(-0x10000000000000)  # the bits of -inf
+_KEY_MIN = np.int64(-0x7FFFFFFFFFFFFFFF - 1)
+_KEY_MAX = np.int64(0x7FFFFFFFFFFFFFFF)
+
+
+@numba.njit(cache=True, nogil=True)
+def finite_range(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
+    """(count, min, max) of the finite heights of z (H, W, C-contiguous), and in ``seg_max`` (H,
+    ceil(W / SEGMENT)) the largest finite height of each row segment of SEGMENT pixels (-inf: none).
+
+    On the bits, as integers: a height is finite iff its exponent bits are not all set, and the key
+    ``bits ^ ((bits >> 63) & 0x7FF...F)`` orders the finite heights as the floats do. Integer
+    extremes have no NaN to respect, so LLVM vectorises the loop (the float comparisons' is scalar:
+    1.4 ms a 1920 x 1200 frame, ~0.7 ms so). The keys tell -0.0 below +0.0, which the floats do not:
+    when an extreme is a zero, the extremes are taken again by :func:`_finite_range_float` (the
+    first of equal extremes in raster order, as :func:`zcut.cuts._finite_min_max`)."""
+    H, W = z.shape
+    zi = z.reshape(-1).view(np.int64)
+    si = seg_max.reshape(-1).view(np.int64)
+    n_seg = seg_max.shape[1]
+    n = 0
+    lo = _KEY_MAX
+    hi = _KEY_MIN
+    for r in range(H):
+        row = r * W
+        for c0 in range(0, W, SEGMENT):
+            c1 = min(c0 + SEGMENT, W)
+            s_n = 0
+            s_lo = _KEY_MAX
+            s_hi = _KEY_MIN
+            for j in range(c1 - c0):
+                b = zi[np.uint64(row + c0 + j)]  # (an unsigned index: no wrap-around test, no gather)
+                f = (b & _EXP_BITS) != _EXP_BITS
+                k = b ^ ((b >> 63) & _LOW_BITS)
+                s_n += f
+                s_hi = max(s_hi, k if f else _KEY_MIN)
+                s_lo = min(s_lo, k if f else _KEY_MAX)
+            n += s_n
+            si[r * n_seg + c0 // SEGMENT] = s_hi ^ ((s_hi >> 63) & _LOW_BITS) if s_n > 0 else _NEG_INF_BITS
+            lo = min(lo, s_lo)
+            hi = max(hi, s_hi)
+    if n == 0:
+        return n, np.inf, -np.inf
+    bounds = np.empty(2, np.int64)
+    bounds[0] = lo ^ ((lo >> 63) & _LOW_BITS)
+    bounds[1] = hi ^ ((hi >> 63) & _LOW_BITS)
+    v = bounds.view(np.float64)
+    if v[0] == 0.0 or v[1] == 0.0:
+        return _finite_range_float(z, seg_max)
+    return n, v[0], v[1]
 
 
 @numba.njit(cache=True, nogil=True)
