@@ -552,8 +552,9 @@ class StageTree:
     what :func:`find_clusters` gives (which is :meth:`answer` of a tree of its own): from this tree when
     :meth:`shares` (the clusters read out again with that set's tags), else from a tree of its own.
 
-    The answers share one ``pixel_level`` array (read-only by every consumer: the same values for every
-    set of the tree); each has its own masks, labels and counts.
+    The answers share one ``pixel_level`` array, made read-only (``setflags(write=False)``: the same
+    values for every set of the tree; a caller that wants to change it copies it); each has its own
+    masks, labels and counts.
 
     Parameters
     ----------
@@ -597,6 +598,7 @@ class StageTree:
             return
         counts = np.zeros(K + 1, dtype=np.int64)
         level_counts(tree.node_b, tree.node_parent, counts)
+        pixel_level.setflags(write=False)  # shared by every answer: no caller may change another's
         self._flood, self._pixel_level, self._counts = tree, pixel_level, counts
         self._tagged[max_area] = tree.tagged
 
