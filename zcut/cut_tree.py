@@ -344,7 +344,8 @@ def _unite(gpar, ra, b):  # type: ignore[no-untyped-def]  # numba kernel
 
 
 @numba.njit(cache=True, nogil=True)
-def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt):  # type: ignore[no-untyped-def]  # numba kernel
+def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt,  # type: ignore[no-untyped-def]  # numba kernel
+                  share=0.5, trial=False):
     """:func:`flood_levels` without ``own`` and ``pixel_level``, labelling on the way the *gentle
     components*: the components of the pixels in the cuts where two neighbours are joined when
     their levels differ by at most 1.
@@ -361,10 +362,12 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
     each label). Returns (m, number of labels, labelled).
 
     Once ``check`` pixels in the cuts are labelled (at the end of that row), it looks whether the
-    labelling pays: if fewer than half of them lie in sets of ``max_area`` pixels or more (few
-    gentle edges: quantised depths, steep relief; the flood would then visit most pixels anyway),
-    it labels no further and returns labelled = False (the levels and ``pix`` are complete; the
-    labels are not)."""
+    labelling pays: if fewer than ``share`` (half) of them lie in sets of ``max_area`` pixels or more
+    (few gentle edges: quantised depths, steep relief; the flood would then visit most pixels
+    anyway), it labels no further and returns labelled = False (the levels and ``pix`` are complete;
+    the labels are not). With ``trial`` it returns there at once (the levels and ``pix`` incomplete
+    too): the caller labels again another way (:func:`zcut.cuts._pruned_outliers`: the 4-connected
+    gentle components first, the 8-connected ones when those do not pay)."""
     H, W = z.shape
     Wp = W + 2
     inv_step = 1.0 / step
@@ -380,7 +383,9 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
     for r in range(H):
         if labelling and not checked and m >= check:
             checked = True
-            labelling = _labelling_pays(gpar, gcnt, nl, m, max_area)
+            labelling = _labelling_pays(gpar, gcnt, nl, m, max_area, share)
+            if trial and not labelling:
+                return m, nl, labelling  # a trial: the caller labels again another way
         base = (r + 1) * Wp
         st[base] = -1
         st[base + W + 1] = -1
@@ -455,8 +460,8 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
 
 
 @numba.njit(cache=True, nogil=True)
-def _labelling_pays(gpar, gcnt, nl, m, max_area):  # type: ignore[no-untyped-def]  # numba kernel
-    """At least half of the m pixels labelled so far lie in sets of max_area pixels or more."""
+def _labelling_pays(gpar, gcnt, nl, m, max_area, share):  # type: ignore[no-untyped-def]  # numba kernel
+    """At least ``share`` of the m pixels labelled so far lie in sets of max_area pixels or more."""
     size = np.zeros(nl, np.int64)
     for i in range(nl):
         r = gpar[gpar[i]]  # (flattening is a valid union-find step: labels in creation order)
@@ -466,7 +471,7 @@ def _labelling_pays(gpar, gcnt, nl, m, max_area):  # type: ignore[no-untyped-def
     for i in range(nl):
         if size[gpar[i]] >= max_area:
             big += gcnt[i]
-    return 2 * big >= m
+    return big >= share * m
 
 
 @numba.njit(cache=True, nogil=True)
@@ -492,11 +497,14 @@ def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled):  # 
         gpar[i] = r
         if r != i:
             gcnt[r] += gcnt[i]  # the root's count is final once every label is flattened
+    small = np.empty(nl, np.bool_)  # per label: one load a pixel below, not two dependent ones
+    for i in range(nl):
+        small[i] = gcnt[gpar[i]] < max_area
     keep = 0
     for t in range(m):
         p = pix[t]
         lv = np.int64(st[p])
-        if gcnt[gpar[gl[p]]] < max_area:
+        if small[gl[p]]:
             pix[keep] = p
             keep += 1
             start[lv + 1] += 1
