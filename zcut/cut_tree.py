@@ -170,9 +170,9 @@ SEGMENT = 64
 
 
 @numba.njit(cache=True, nogil=True)
-def finite_range(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
-    """(count, min, max) of the finite heights of z (H, W), and in ``seg_max`` (H, ceil(W /
-    SEGMENT)) the largest finite height of each row segment of SEGMENT pixels (-inf: none)."""
+def _finite_range_float(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`finite_range` by float comparisons (a scalar loop: the comparisons with NaN keep LLVM
+    from vectorising it); its fallback when an extreme is a zero (both signs compare equal)."""
     H, W = z.shape
     n = 0
     lo = np.inf
@@ -202,6 +202,62 @@ def finite_range(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
             lo = s_lo if s_lo < lo else lo
             hi = s_hi if s_hi > hi else hi
     return n, lo, hi
+
+
+#: :func:`finite_range`'s integer keys: the bits of a float64 with the sign's complement below the
+#: sign bit flipped, so that the keys of non-NaN floats order as the floats (-0.0 just below +0.0).
+_LOW_BITS = np.int64(0x7FFFFFFFFFFFFFFF)
+_EXP_BITS = np.int64(0x7FF0000000000000)  # all set: an infinity or a NaN
+_NEG_INF_BITS = np.int64(-0x10000000000000)  # the bits of -inf
+_KEY_MIN = np.int64(-0x7FFFFFFFFFFFFFFF - 1)
+_KEY_MAX = np.int64(0x7FFFFFFFFFFFFFFF)
+
+
+@numba.njit(cache=True, nogil=True)
+def finite_range(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
+    """(count, min, max) of the finite heights of z (H, W, C-contiguous), and in ``seg_max`` (H,
+    ceil(W / SEGMENT)) the largest finite height of each row segment of SEGMENT pixels (-inf: none).
+
+    On the bits, as integers: a height is finite iff its exponent bits are not all set, and the key
+    ``bits ^ ((bits >> 63) & 0x7FF...F)`` orders the finite heights as the floats do. Integer
+    extremes have no NaN to respect, so LLVM vectorises the loop (the float comparisons' is scalar:
+    1.4 ms a 1920 x 1200 frame, ~0.7 ms so). The keys tell -0.0 below +0.0, which the floats do not:
+    when an extreme is a zero, the extremes are taken again by :func:`_finite_range_float` (the
+    first of equal extremes in raster order, as :func:`zcut.cuts._finite_min_max`)."""
+    H, W = z.shape
+    zi = z.reshape(-1).view(np.int64)
+    si = seg_max.reshape(-1).view(np.int64)
+    n_seg = seg_max.shape[1]
+    n = 0
+    lo = _KEY_MAX
+    hi = _KEY_MIN
+    for r in range(H):
+        row = r * W
+        for c0 in range(0, W, SEGMENT):
+            c1 = min(c0 + SEGMENT, W)
+            s_n = 0
+            s_lo = _KEY_MAX
+            s_hi = _KEY_MIN
+            for j in range(c1 - c0):
+                b = zi[np.uint64(row + c0 + j)]  # (an unsigned index: no wrap-around test, no gather)
+                f = (b & _EXP_BITS) != _EXP_BITS
+                k = b ^ ((b >> 63) & _LOW_BITS)
+                s_n += f
+                s_hi = max(s_hi, k if f else _KEY_MIN)
+                s_lo = min(s_lo, k if f else _KEY_MAX)
+            n += s_n
+            si[r * n_seg + c0 // SEGMENT] = s_hi ^ ((s_hi >> 63) & _LOW_BITS) if s_n > 0 else _NEG_INF_BITS
+            lo = min(lo, s_lo)
+            hi = max(hi, s_hi)
+    if n == 0:
+        return n, np.inf, -np.inf
+    bounds = np.empty(2, np.int64)
+    bounds[0] = lo ^ ((lo >> 63) & _LOW_BITS)
+    bounds[1] = hi ^ ((hi >> 63) & _LOW_BITS)
+    v = bounds.view(np.float64)
+    if v[0] == 0.0 or v[1] == 0.0:
+        return _finite_range_float(z, seg_max)
+    return n, v[0], v[1]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -288,7 +344,8 @@ def _unite(gpar, ra, b):  # type: ignore[no-untyped-def]  # numba kernel
 
 
 @numba.njit(cache=True, nogil=True)
-def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt):  # type: ignore[no-untyped-def]  # numba kernel
+def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt,  # type: ignore[no-untyped-def]  # numba kernel
+                  share=0.5, trial=False):
     """:func:`flood_levels` without ``own`` and ``pixel_level``, labelling on the way the *gentle
     components*: the components of the pixels in the cuts where two neighbours are joined when
     their levels differ by at most 1.
@@ -305,10 +362,12 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
     each label). Returns (m, number of labels, labelled).
 
     Once ``check`` pixels in the cuts are labelled (at the end of that row), it looks whether the
-    labelling pays: if fewer than half of them lie in sets of ``max_area`` pixels or more (few
-    gentle edges: quantised depths, steep relief; the flood would then visit most pixels anyway),
-    it labels no further and returns labelled = False (the levels and ``pix`` are complete; the
-    labels are not)."""
+    labelling pays: if fewer than ``share`` (half) of them lie in sets of ``max_area`` pixels or more
+    (few gentle edges: quantised depths, steep relief; the flood would then visit most pixels
+    anyway), it labels no further and returns labelled = False (the levels and ``pix`` are complete;
+    the labels are not). With ``trial`` it returns there at once (the levels and ``pix`` incomplete
+    too): the caller labels again another way (:func:`zcut.cuts._pruned_outliers`: the 4-connected
+    gentle components first, the 8-connected ones when those do not pay)."""
     H, W = z.shape
     Wp = W + 2
     inv_step = 1.0 / step
@@ -324,7 +383,9 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
     for r in range(H):
         if labelling and not checked and m >= check:
             checked = True
-            labelling = _labelling_pays(gpar, gcnt, nl, m, max_area)
+            labelling = _labelling_pays(gpar, gcnt, nl, m, max_area, share)
+            if trial and not labelling:
+                return m, nl, labelling  # a trial: the caller labels again another way
         base = (r + 1) * Wp
         st[base] = -1
         st[base + W + 1] = -1
@@ -399,8 +460,8 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
 
 
 @numba.njit(cache=True, nogil=True)
-def _labelling_pays(gpar, gcnt, nl, m, max_area):  # type: ignore[no-untyped-def]  # numba kernel
-    """At least half of the m pixels labelled so far lie in sets of max_area pixels or more."""
+def _labelling_pays(gpar, gcnt, nl, m, max_area, share):  # type: ignore[no-untyped-def]  # numba kernel
+    """At least ``share`` of the m pixels labelled so far lie in sets of max_area pixels or more."""
     size = np.zeros(nl, np.int64)
     for i in range(nl):
         r = gpar[gpar[i]]  # (flattening is a valid union-find step: labels in creation order)
@@ -410,7 +471,7 @@ def _labelling_pays(gpar, gcnt, nl, m, max_area):  # type: ignore[no-untyped-def
     for i in range(nl):
         if size[gpar[i]] >= max_area:
             big += gcnt[i]
-    return 2 * big >= m
+    return big >= share * m
 
 
 @numba.njit(cache=True, nogil=True)
@@ -436,11 +497,14 @@ def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled):  # 
         gpar[i] = r
         if r != i:
             gcnt[r] += gcnt[i]  # the root's count is final once every label is flattened
+    small = np.empty(nl, np.bool_)  # per label: one load a pixel below, not two dependent ones
+    for i in range(nl):
+        small[i] = gcnt[gpar[i]] < max_area
     keep = 0
     for t in range(m):
         p = pix[t]
         lv = np.int64(st[p])
-        if gcnt[gpar[gl[p]]] < max_area:
+        if small[gl[p]]:
             pix[keep] = p
             keep += 1
             start[lv + 1] += 1

@@ -236,9 +236,10 @@ def terraces(rng: np.random.Generator, H: int, W: int, step: float) -> np.ndarra
 
 
 def pruned_counts(z: np.ndarray, *, step: float, max_depth: float, max_area: float, connectivity: int,
-                  check: int = 2**40) -> tuple[int, int]:
+                  check: int = 2**40, gentle: int | None = None) -> tuple[int, int]:
     """(pixels in the cuts, pixels kept by gentle_prune) of z, from the kernels themselves (labelling
-    every pixel unless ``check`` says when to look whether it pays)."""
+    every pixel unless ``check`` says when to look whether it pays; ``gentle``: the labelling's
+    connectivity, the z-cut's by default)."""
     from zcut.cut_tree import gentle_levels, gentle_prune
     from zcut.cuts import _levels
 
@@ -249,14 +250,14 @@ def pruned_counts(z: np.ndarray, *, step: float, max_depth: float, max_area: flo
     size = (H + 2) * (W + 2)
     st, gl = np.empty(size, np.int16), np.empty(size, np.int32)
     pix, gpar, gcnt = (np.empty(H * W, np.int32) for _ in range(3))
-    m, nl, labelled = gentle_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top), connectivity == 8,
-                                    max_area, np.int64(check), st, pix, gl, gpar, gcnt)
+    m, nl, labelled = gentle_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top),
+                                    (gentle or connectivity) == 8, max_area, np.int64(check), st, pix, gl, gpar, gcnt)
     keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, np.zeros(top + 2, np.int64), labelled)
     return int(m), int(keep)
 
 
 def pruned_outliers(z: np.ndarray, *, step: float, max_depth: float, max_area: float, connectivity: int = 8,
-                    check: int = 2**40) -> np.ndarray:
+                    check: int = 2**40, gentle: int | str = "auto") -> np.ndarray:
     """zcut_outliers through the pruned flood whatever the frame's size (zcut_outliers itself floods
     frames of fewer than PRUNE_MIN pixels in the cuts whole); ``check``: when the labelling looks
     whether it pays (default: never, every pixel labelled)."""
@@ -268,12 +269,18 @@ def pruned_outliers(z: np.ndarray, *, step: float, max_depth: float, max_area: f
     n, lo, hi, seg = _finite_range(z)
     if n == 0 or K < 1:
         return out
-    done = _pruned_outliers(z, seg, lo, hi, step, K, max_area, connectivity, out, minimum=0, check=check)
+    done = _pruned_outliers(z, seg, lo, hi, step, K, max_area, connectivity, out, minimum=0, check=check,
+                            gentle=gentle)
     if max_area > z.size:  # no gentle component can reach max_area: the whole flood's path
         assert not done
         return zcut_outliers(z, step=step, max_depth=max_depth, max_area=max_area, connectivity=connectivity)
     assert done
     return out
+
+
+#: The gentle components the prune may label, by the z-cut's connectivity ("auto": a trial of the
+#: 4-connected ones, then the 8-connected ones when those do not pay).
+GENTLE: dict[int | float, tuple[int | str, ...]] = {8: ("auto", 4, 8), 4: ("auto", 4)}
 
 
 @pytest.mark.parametrize("seed", range(12))
@@ -290,11 +297,13 @@ def test_pruned_flood_on_terraces(seed: int) -> None:
             for max_depth in (0.5, 1.0, 2.0, 10.0):
                 params = dict(step=step, max_depth=max_depth, max_area=max_area, connectivity=conn)
                 want = check(z, reference=max_area in (5.0, 60.0), **params)
-                for when in (2**40, 1, 60):
-                    np.testing.assert_array_equal(pruned_outliers(z, check=when, **params), want)
+                for gentle in GENTLE[conn]:
+                    for when in (2**40, 1, 60):
+                        np.testing.assert_array_equal(pruned_outliers(z, check=when, gentle=gentle, **params), want)
                 if np.isfinite(z).any():
-                    m, keep = pruned_counts(z, **params)
-                    pruned += m - keep
+                    for g in {4, conn}:
+                        m, keep = pruned_counts(z, gentle=g, **params)
+                        pruned += m - keep
     assert pruned > 0  # the left-out pixels (and their levels at the kept ones' borders) were exercised
 
 
@@ -311,8 +320,9 @@ def test_pruned_flood_on_random_fields(seed: int) -> None:
                    dict(step=0.25, max_depth=1000.0, max_area=200.0)):
         want = zcut_outliers_reference(z, **params)
         np.testing.assert_array_equal(previous_outliers(z, **params), want)
-        for when in (2**40, 1):
-            np.testing.assert_array_equal(pruned_outliers(z, check=when, **params), want)
+        for gentle in GENTLE[params.get("connectivity", 8)]:
+            for when in (2**40, 1):
+                np.testing.assert_array_equal(pruned_outliers(z, check=when, gentle=gentle, **params), want)
 
 
 def test_pruned_flood_keeps_few_pixels_of_the_pile() -> None:
@@ -332,4 +342,44 @@ def test_pruned_flood_keeps_few_pixels_of_the_pile() -> None:
     want = previous_outliers(z, **NOMINAL)
     assert want.any()
     np.testing.assert_array_equal(pruned_outliers(z, **NOMINAL), want)
+    m4, keep4 = pruned_counts(z, step=0.2, max_depth=30.0, max_area=210.0, connectivity=8, gentle=4)
+    assert m4 == m and keep <= keep4 < m / 2  # the 4-connected components: subsets of the 8-connected ones
+    for gentle in ("auto", 4, 8):
+        np.testing.assert_array_equal(pruned_outliers(z, gentle=gentle, **NOMINAL), want)
     np.testing.assert_array_equal(zcut_outliers(z, **NOMINAL), want)
+
+
+def test_the_4_connected_trial_gives_way_on_noisy_relief() -> None:
+    """On the benchmark's dense frame (half of the edges gentle, at random) the 4-connected gentle
+    components do not pay at the check, so the trial stops there and the 8-connected ones are labelled
+    (most pixels left out); every way gives the whole flood's mask."""
+    import sys
+    from pathlib import Path
+
+    from zcut.cut_tree import gentle_levels
+    from zcut.cuts import PRUNE_CHECK, _levels
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+    try:
+        from bench_zcut import dense_frame
+    finally:
+        sys.path.pop(0)
+    z = np.ascontiguousarray(dense_frame()[:240, :640])
+    H, W = z.shape
+    n, lo, hi, seg = _finite_range(z)
+    k_eff, top = _levels(lo, hi, 0.2, n_levels(0.2, 30.0))
+    size = (H + 2) * (W + 2)
+    st, gl = np.empty(size, np.int16), np.empty(size, np.int32)
+    pix, gpar, gcnt = (np.empty(H * W, np.int32) for _ in range(3))
+    check_at = np.int64(max(PRUNE_CHECK, 8 * W))
+    args = (z, seg, lo, hi, 0.2, np.int64(k_eff + 2), np.int64(top))
+    m4, _, paid4 = gentle_levels(*args, False, 210.0, check_at, st, pix, gl, gpar, gcnt, 0.5, True)
+    assert not paid4 and check_at <= m4 < H * W  # stopped at the check
+    m8, _, paid8 = gentle_levels(*args, True, 210.0, check_at, st, pix, gl, gpar, gcnt, 0.5, True)
+    assert paid8 and m8 == H * W
+    m, keep = pruned_counts(z, step=0.2, max_depth=30.0, max_area=210.0, connectivity=8, check=int(check_at))
+    assert m == H * W and keep < m / 5
+    want = previous_outliers(z, **NOMINAL)
+    assert want.any()
+    for gentle in ("auto", 4, 8):
+        np.testing.assert_array_equal(pruned_outliers(z, gentle=gentle, check=int(check_at), **NOMINAL), want)

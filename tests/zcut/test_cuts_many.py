@@ -162,3 +162,30 @@ def test_bad_input_is_find_clusters_error() -> None:
     with pytest.raises(ParameterError, match="more than find_clusters supports"):
         StageTree(np.zeros((2, 2)), params=good).answer(ZCutParams(step=1e-6, max_depth=1.0, max_area=5))
     assert find_clusters_many(np.zeros((2, 2)), params=()) == []
+
+
+def test_a_caller_cannot_corrupt_another_answer() -> None:
+    """The answers of one tree share its ``pixel_level``: it is read-only, so a caller writing into
+    its answer gets an error and the other answers (and later ones) keep their levels; the masks,
+    labels and counts are each answer's own."""
+    rng = np.random.default_rng(8)
+    z = bumpy(rng, 40, 90, 0.5)
+    a = ZCutParams(step=0.5, max_depth=4.0, max_area=30.0)
+    b = ZCutParams(step=0.5, max_depth=4.0, max_area=6.0)
+    tree = StageTree(z, params=a)
+    first, second = tree.answer(a), tree.answer(b)
+    assert np.shares_memory(first.pixel_level, second.pixel_level)  # shared, as documented
+    levels = second.pixel_level.copy()
+    with pytest.raises(ValueError, match="read-only"):
+        first.pixel_level[0, 0] = 99
+    with pytest.raises(ValueError, match="read-only"):
+        first.pixel_level.fill(-1)
+    first.outliers[:] = True  # the answer's own arrays: writable, and nobody else's
+    first.clusters[:] = 7
+    first.level_counts[:] = 0
+    np.testing.assert_array_equal(second.pixel_level, levels)
+    same_result(second, find_clusters(z, params=b))
+    same_result(tree.answer(a), find_clusters(z, params=a))
+    for got, p in zip(find_clusters_many(z, params=(a, b)), (a, b), strict=True):
+        assert not got.pixel_level.flags.writeable
+        same_result(got, find_clusters(z, params=p))
