@@ -97,8 +97,14 @@ def _sort_by_slab(xs, ys, zs, s, e, z0, inv, tx, ty, tz, counts):  # type: ignor
 
 
 @nb.njit(cache=True, nogil=True)
-def _column_starts(X, Y, Z, x0, y0, inv, nx, marked):  # type: ignore[no-untyped-def]  # numba kernel
-    # start[k] .. start[k + 1] - 1: the entries of column k before merging (its valid points)
+def build_columns(X, Y, Z, x0, y0, z0, inv, nx, marked):  # type: ignore[no-untyped-def]  # numba kernel
+    """The valid points (all three of X, Y, Z finite; (H, W) planes of any float type and layout)
+    of the marked columns, column by column, ordered by slab (``cell(z, z0, inv)``: cubes of the
+    column's width), consecutive identical points merged.
+
+    Returns ``(start, xs, ys, zs, mult, ks)``: column k holds entries start[k] .. start[k + 1] - 1,
+    ``ks`` their slabs.
+    """
     H, W = X.shape
     ncol = marked.shape[0]
     start = np.zeros(ncol + 1, np.int64)
@@ -111,16 +117,9 @@ def _column_starts(X, Y, Z, x0, y0, inv, nx, marked):  # type: ignore[no-untyped
                     start[k + 1] += 1
     for k in range(ncol):
         start[k + 1] += start[k]
-    return start
-
-
-@nb.njit(cache=True, nogil=True)
-def _fill_columns(X, Y, Z, x0, y0, z0, inv, nx, marked, start, xs, ys, zs, mult, ks):  # type: ignore[no-untyped-def]  # numba kernel
-    # the entries into xs, ys, zs, mult, ks (each at least start[-1] long), start rewritten for
-    # the merged entries; returns their number
-    H, W = X.shape
-    ncol = marked.shape[0]
     fill = start[:ncol].copy()
+    n = start[ncol]
+    xs, ys, zs = np.empty(n), np.empty(n), np.empty(n)
     for r in range(H):
         xr, yr, zr = X[r], Y[r], Z[r]
         for c in range(W):
@@ -137,6 +136,7 @@ def _fill_columns(X, Y, Z, x0, y0, z0, inv, nx, marked, start, xs, ys, zs, mult,
         longest = max(longest, start[k + 1] - start[k])
     tx, ty, tz = np.empty(longest), np.empty(longest), np.empty(longest)
     counts = np.empty(longest + 1, np.int64)
+    mult = np.ones(n, np.int64)
     out = 0
     for k in range(ncol):
         s, e = start[k], start[k + 1]
@@ -154,53 +154,10 @@ def _fill_columns(X, Y, Z, x0, y0, z0, inv, nx, marked, start, xs, ys, zs, mult,
             xs[out], ys[out], zs[out], mult[out] = x, y, z, m
             out += 1
     start[ncol] = out
+    ks = np.empty(out, np.int64)
     for j in range(out):
         ks[j] = cell(zs[j], z0, inv)
-    return out
-
-
-class ColumnWork:
-    """Buffers of :func:`build_columns` kept from one call to the next (in one thread).
-
-    A full frame's columns are five arrays of tens of MB; made fresh every call, they cost a page
-    fault per 4 KiB each time (glibc hands freed blocks that large back to the system), which was a
-    fifth of a steep frame's SOR. The buffers grow to the largest call seen (plus an eighth) and
-    are made again when a call needs less than a quarter of them. The columns a call returns are
-    views of them: valid until the next call with the same work.
-    """
-
-    def __init__(self) -> None:
-        self._bufs: tuple[np.ndarray, ...] | None = None
-
-    def take(self, n: int) -> tuple[np.ndarray, ...]:
-        """xs, ys, zs (float64), mult, ks (int64), each at least n long."""
-        size = 0 if self._bufs is None else self._bufs[0].size
-        if size < n or 4 * n < size:
-            cap = n + n // 8
-            self._bufs = (np.empty(cap), np.empty(cap), np.empty(cap), np.empty(cap, np.int64),
-                          np.empty(cap, np.int64))
-        assert self._bufs is not None
-        return self._bufs
-
-
-def build_columns(X: np.ndarray, Y: np.ndarray, Z: np.ndarray, x0: float, y0: float, z0: float, inv: float, nx: int,
-                  marked: np.ndarray, work: ColumnWork | None = None) -> tuple[np.ndarray, ...]:
-    """The valid points (all three of X, Y, Z finite; (H, W) planes of any float type and layout)
-    of the marked columns, column by column, ordered by slab (``cell(z, z0, inv)``: cubes of the
-    column's width), consecutive identical points merged.
-
-    Returns ``(start, xs, ys, zs, mult, ks)``: column k holds entries start[k] .. start[k + 1] - 1,
-    ``ks`` their slabs. With ``work``, the arrays other than ``start`` are views of its buffers
-    (:class:`ColumnWork`), else fresh.
-    """
-    start = _column_starts(X, Y, Z, x0, y0, inv, nx, marked)
-    n = int(start[-1])
-    if work is None:
-        xs, ys, zs, mult, ks = np.empty(n), np.empty(n), np.empty(n), np.empty(n, np.int64), np.empty(n, np.int64)
-    else:
-        xs, ys, zs, mult, ks = work.take(n)
-    out = _fill_columns(X, Y, Z, x0, y0, z0, inv, nx, marked, start, xs, ys, zs, mult, ks)
-    return start, xs[:out], ys[:out], zs[:out], mult[:out], ks[:out]
+    return start, xs[:out], ys[:out], zs[:out], mult[:out], ks
 
 
 @nb.njit(cache=True, nogil=True, inline="always")

@@ -74,7 +74,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import threading
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -107,14 +106,6 @@ _COLUMNS_PER_POINT = 8             # largest column grid, per valid point
 _COLUMN_SCAN = 1024                # entries a column search may scan per query, on average
 
 Run = Callable[..., None]
-_WORK = threading.local()          # per thread: the column search's buffers (columns.ColumnWork), kept between calls
-
-
-def _column_work() -> _columns.ColumnWork:
-    work = getattr(_WORK, "columns", None)
-    if work is None:
-        work = _WORK.columns = _columns.ColumnWork()
-    return work
 
 
 # --------------------------------------------------------------------------------------------
@@ -314,7 +305,7 @@ def _column_stage(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray
     # so never among its m nearest) are filled
     marked = np.zeros(nx * ny, dtype=bool)
     _columns.mark_columns(x[rows, cols], y[rows, cols], np.where(eligible, rad, -1.0), x0, y0, inv, nx, ny, marked)
-    columns = _columns.build_columns(x, y, z, x0, y0, z0, inv, nx, marked, _column_work())
+    columns = _columns.build_columns(x, y, z, x0, y0, z0, inv, nx, marked)
     out = np.zeros(rows.size)
     run(_search.column_queries, rows.size, x, y, z, rows, cols, lim, eligible, m, divisor, int(_COLUMN_SCAN),
         columns, x0, y0, z0, inv, nx, ny, out, done)

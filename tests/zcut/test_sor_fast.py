@@ -357,34 +357,3 @@ def test_three_by_three_kernel_against_a_literal_transcription(m: int) -> None:
             want[i] = s / divisor
     np.testing.assert_array_equal(got, want)
     assert np.count_nonzero(want > 0.0) >= 10 and np.count_nonzero(np.isnan(want)) >= 20  # both outcomes
-
-
-# ------------------------------------------------------------------------------------------------
-# the column search's buffers, kept from one call to the next
-# ------------------------------------------------------------------------------------------------
-def test_column_buffers_kept_between_calls(monkeypatch: pytest.MonkeyPatch) -> None:
-    # build_columns into a ColumnWork equals a fresh build whatever the work held before (a larger
-    # cloud, then a smaller one, then one that needs new buffers: quantized points, duplicates);
-    # SOR calls in a row that reuse the work give the oracle's d̄ each time
-    from zcut import columns
-
-    rng = np.random.default_rng(41)
-    work = columns.ColumnWork()
-    for h, w, q, inv in ((90, 160, 0.05, 4.0), (40, 60, 0.2, 1.0), (30, 50, 0.01, 3.0), (160, 240, 0.02, 2.0)):
-        pts = np.round(rng.normal(size=(h, w, 3)) / q) * q
-        pts[rng.random((h, w)) < 0.2] = np.nan
-        X, Y, Z = pts[..., 0], pts[..., 1], pts[..., 2]
-        lo = np.nanmin(pts.reshape(-1, 3), axis=0)
-        nx = int(np.floor((np.nanmax(X) - lo[0]) * inv)) + 1
-        ny = int(np.floor((np.nanmax(Y) - lo[1]) * inv)) + 1
-        marked = rng.random(nx * ny) < 0.8
-        fresh = columns.build_columns(X, Y, Z, lo[0], lo[1], lo[2], inv, nx, marked)
-        kept = columns.build_columns(X, Y, Z, lo[0], lo[1], lo[2], inv, nx, marked, work)
-        assert int(fresh[0][-1]) < int(np.isfinite(pts).all(axis=2).sum())  # duplicates were merged
-        for a, b in zip(fresh, kept, strict=True):
-            assert a.dtype == b.dtype
-            np.testing.assert_array_equal(a, b)
-    monkeypatch.setattr(sor_module, "_COLUMNS_MIN_SHARE", 1 << 40)
-    for seed, (h, w) in ((5, (120, 200)), (6, (60, 90)), (7, (100, 150))):
-        xyz = bank_clouds.steep(np.random.default_rng(seed), h, w)
-        assert_as_oracle(xyz, ks=(4,), conventions=("pcl",))
