@@ -1,8 +1,8 @@
 """The ``zcut`` console script: the one composition root.
 
-It imports every command of ``cli/commands/`` explicitly (each a module with ``add_arguments(parser)`` and
+It names every command of ``cli/commands/`` (each a module with ``add_arguments(parser)`` and
 ``run(args) -> int``, importing its heavy dependencies inside ``run`` so that ``zcut --help`` stays
-fast), sets the process-wide settings a command line owns (the numba threading layer), and is the
+fast) and imports the module of the command a command line runs, none for ``zcut --help``, sets the process-wide settings a command line owns (the numba threading layer), and is the
 only place that turns errors into messages and exit codes (docs/cli.md): 0 success, 1 user error (one
 line on stderr, no traceback), 3 finished with data loss, 130 / 143 interrupted by SIGINT / SIGTERM
 (one line; see :mod:`replay.process`). ``zcut.errors`` is imported inside :func:`main`, after the
@@ -19,21 +19,9 @@ import os
 import signal
 import sys
 from collections.abc import Iterator, Sequence
+from types import ModuleType
 from typing import TYPE_CHECKING, Any, NoReturn, TextIO
 
-from cli.commands import accuracy as accuracy_cmd
-from cli.commands import annotate as annotate_cmd
-from cli.commands import batch as batch_cmd
-from cli.commands import bin_model as bin_model_cmd
-from cli.commands import compare as compare_cmd
-from cli.commands import demo as demo_cmd
-from cli.commands import labels as labels_cmd
-from cli.commands import record as record_cmd
-from cli.commands import record_stereo as record_stereo_cmd
-from cli.commands import replay as replay_cmd
-from cli.commands import sweep as sweep_cmd
-from cli.commands import synth as synth_cmd
-from cli.commands import topics as topics_cmd
 from replay.process import (  # noqa: F401
     EXIT_DATA_LOSS,
     EXIT_OK,
@@ -48,22 +36,83 @@ from replay.process import (  # noqa: F401
 if TYPE_CHECKING:
     from replay.process import InterruptState
 
-# name -> (module, one-line help). Order is the order shown by --help.
+# name -> (module of cli/commands/, one-line help). Order is the order shown by --help. A command's module is
+# imported when its parser is built (:func:`command_module`): `zcut --help` imports none of them.
 COMMANDS = {
-    "demo": (demo_cmd, "the whole job on the bundled synthetic sample: replay, .rrd, true accuracy"),
-    "record": (record_cmd, "turn organized .ply/.pcd files (or folders of them) into a ROS 2 MCAP log"),
-    "record-stereo": (record_stereo_cmd, "turn rectified stereo pairs with ground truth (Middlebury layout) into a log"),
-    "topics": (topics_cmd, "show what a log holds and which topics zcut would use"),
-    "synth": (synth_cmd, "synthesise a bin-picking log (six part kinds, empty bin) with exact ground-truth outliers"),
-    "replay": (replay_cmd, "run the pipeline (bin removal, z-cut, SOR) on a log; log every stage to Rerun"),
-    "bin-model": (bin_model_cmd, "build the bin model (PLY) from empty-bin scans, or import a CAD/PLY model"),
-    "accuracy": (accuracy_cmd, "true accuracy of z-cut, SOR, union, intersection against labels or ground truth"),
-    "annotate": (annotate_cmd, "label true outliers in a local web page (127.0.0.1, token in the URL)"),
-    "labels": (labels_cmd, "list, export (MCAP) and import human labels of a label store"),
-    "sweep": (sweep_cmd, "parameter study of the z-cut and SOR scored by true accuracy; tuned parameters, report"),
-    "batch": (batch_cmd, "replay many logs on all cores (or a Ray cluster): one table of every frame, scored"),
-    "compare": (compare_cmd, "two configs, methods or results files on the same frames: paired verdict, .rrd, report"),
+    "demo": ("demo", "the whole job on the bundled synthetic sample: replay, .rrd, true accuracy"),
+    "record": ("record", "turn organized .ply/.pcd files (or folders of them) into a ROS 2 MCAP log"),
+    "record-stereo": ("record_stereo", "turn rectified stereo pairs with ground truth (Middlebury layout) into a log"),
+    "topics": ("topics", "show what a log holds and which topics zcut would use"),
+    "synth": ("synth", "synthesise a bin-picking log (six part kinds, empty bin) with exact ground-truth outliers"),
+    "replay": ("replay", "run the pipeline (bin removal, z-cut, SOR) on a log; log every stage to Rerun"),
+    "bin-model": ("bin_model", "build the bin model (PLY) from empty-bin scans, or import a CAD/PLY model"),
+    "accuracy": ("accuracy", "true accuracy of z-cut, SOR, union, intersection against labels or ground truth"),
+    "annotate": ("annotate", "label true outliers in a local web page (127.0.0.1, token in the URL)"),
+    "labels": ("labels", "list, export (MCAP) and import human labels of a label store"),
+    "sweep": ("sweep", "parameter study of the z-cut and SOR scored by true accuracy; tuned parameters, report"),
+    "batch": ("batch", "replay many logs on all cores (or a Ray cluster): one table of every frame, scored"),
+    "compare": ("compare", "two configs, methods or results files on the same frames: paired verdict, .rrd, report"),
 }
+
+
+def command_module(name: str) -> ModuleType:
+    """The module of ``cli/commands/`` that implements command ``name`` (a key of :data:`COMMANDS`),
+    imported now: each command's own, explicitly (tests/test_layout.py), and only the one that runs."""
+    match COMMANDS[name][0]:
+        case "demo":
+            from cli.commands import demo
+
+            return demo
+        case "record":
+            from cli.commands import record
+
+            return record
+        case "record_stereo":
+            from cli.commands import record_stereo
+
+            return record_stereo
+        case "topics":
+            from cli.commands import topics
+
+            return topics
+        case "synth":
+            from cli.commands import synth
+
+            return synth
+        case "replay":
+            from cli.commands import replay
+
+            return replay
+        case "bin_model":
+            from cli.commands import bin_model
+
+            return bin_model
+        case "accuracy":
+            from cli.commands import accuracy
+
+            return accuracy
+        case "annotate":
+            from cli.commands import annotate
+
+            return annotate
+        case "labels":
+            from cli.commands import labels
+
+            return labels
+        case "sweep":
+            from cli.commands import sweep
+
+            return sweep
+        case "batch":
+            from cli.commands import batch
+
+            return batch
+        case "compare":
+            from cli.commands import compare
+
+            return compare
+        case other:  # pragma: no cover - a COMMANDS entry without its case here
+            raise AssertionError(f"no module for command {other!r}")
 
 
 def version() -> str:
@@ -125,11 +174,11 @@ def build_parser(command: str | None = None, *, only: bool = False) -> _Parser:
     )
     parser.add_argument("--version", action=_Version)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for name, (module, help_text) in COMMANDS.items():
+    for name, (_, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         if not only or name == command:
-            module.add_arguments(p)
-        p.set_defaults(_module=module)
+            command_module(name).add_arguments(p)
+        p.set_defaults(_command=name)
     if command in COMMANDS:
         parser.command_prog = f"zcut {command}"
     return parser
@@ -197,7 +246,7 @@ def _main(argv: list[str] | None, interrupts: InterruptState) -> int:
     words = sys.argv[1:] if argv is None else argv
     parser = build_parser(command_of(words), only=True)
     args = parser.parse_args(argv)
-    if getattr(args, "_module", None) is None:
+    if getattr(args, "_command", None) is None:
         parser.print_help()
         return EXIT_USER_ERROR if argv is None and len(sys.argv) <= 1 else EXIT_OK
     announce_compilation(args)
@@ -206,7 +255,7 @@ def _main(argv: list[str] | None, interrupts: InterruptState) -> int:
         print(f"error: {problem}", file=sys.stderr)
         return EXIT_USER_ERROR
     try:
-        status = int(args._module.run(args) or 0)
+        status = int(command_module(args._command).run(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, not at exit
         return status
     except Exception as e:

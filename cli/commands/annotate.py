@@ -28,18 +28,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_pipeline_options(p)
 
 
-def add_gate_option(p: argparse.ArgumentParser) -> None:
-    from annotate.assistant import GATE
+#: :data:`annotate.assistant.GATE`, for the help text: that module loads numba and the labelling features
+#: (0.5 CPU-s), which ``--help`` does not need; ``tests/cli/test_startup.py`` checks that the two agree
+GATE_HELP = 0.9
 
-    p.add_argument("--assistant-gate", type=float, default=GATE, metavar="A",
+
+def add_gate_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--assistant-gate", type=float, default=None, metavar="A",
                    help="the assistant pre-fills its proposals (Y takes them) only when it agrees with your labels "
-                        f"on at least this share of the held-out groups (default {GATE})")
+                        f"on at least this share of the held-out groups (default {GATE_HELP})")
 
 
 def check_gate(args: argparse.Namespace) -> float:
+    """``--assistant-gate``, checked; :data:`annotate.assistant.GATE` when it was not given."""
     from zcut.errors import ParameterError
 
     g = args.assistant_gate
+    if g is None:
+        from annotate.assistant import GATE
+
+        g = GATE
     if not (0.0 <= g <= 1.0):
         raise ParameterError(f"--assistant-gate must be in 0..1, got {g}")
     return float(g)

@@ -38,13 +38,11 @@ import os
 import types
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from replay.errors import ConfigError
-from replay.logs.frame import Frame
-from replay.pipeline.zone import Zone, sor_on_zone, zone_crop
 from zcut.params import (
     ClusterParams,
     ExplainedParams,
@@ -61,6 +59,10 @@ from zcut.params import (
     ZCutParams,
     ZCutTopParams,
 )
+
+if TYPE_CHECKING:  # the registry is read by every command's parser: it loads no numba, OpenCV nor Open3D
+    from replay.logs.frame import Frame
+    from replay.pipeline.zone import Zone
 
 #: The methods a config runs when it names none: the paper's filter and its comparison.
 DEFAULT_METHODS: tuple[str, ...] = ("zcut", "sor")
@@ -162,6 +164,8 @@ def _run_zcut_top(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
 
 
 def _run_sor(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
+    from replay.pipeline.zone import sor_on_zone
+
     if not config.sor.enabled:
         return MethodOutput(np.zeros_like(zone.zone), warning="SOR disabled (sor.enabled = false)")
     return MethodOutput(sor_on_zone(frame, zone, config))
@@ -172,6 +176,7 @@ def _in_zone(zone: Zone, mask: np.ndarray) -> MethodOutput:
 
 
 def _run_radius(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
+    from replay.pipeline.zone import zone_crop
     from zcut.radius import radius_stage
 
     out = np.zeros_like(zone.zone)

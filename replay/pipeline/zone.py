@@ -10,18 +10,18 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from replay.logs.frame import Frame
-from zcut.bin_check import BinCheck
-from zcut.bin_model import BinModel
-from zcut.binmask import BinMaskResult
-from zcut.params import SorParams, ZCutParams
-from zcut.registration import RegistrationResult
-from zcut.removal import RemovalResult
-from zcut.sor import sor_outliers
+if TYPE_CHECKING:  # the records' field types only: importing this module loads no numba, OpenCV nor Open3D
+    from replay.logs.frame import Frame
+    from zcut.bin_check import BinCheck
+    from zcut.bin_model import BinModel
+    from zcut.binmask import BinMaskResult
+    from zcut.params import SorParams, ZCutParams
+    from zcut.registration import RegistrationResult
+    from zcut.removal import RemovalResult
 
 
 class SorConfig(Protocol):
@@ -119,6 +119,8 @@ def zone_box(zone: np.ndarray) -> tuple[slice, slice] | None:
 def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, **kw: Any) -> np.ndarray:
     """(H, W) bool: SOR outliers among the zone's points only (as on the frame with the rest set to
     NaN: SOR's ``mask`` on the zone's bounding box, no masked copy)."""
+    from zcut.sor import sor_outliers  # numba's kernels, loaded where used
+
     out = np.zeros_like(zone)
     if whole:
         return np.asarray(sor_outliers(xyz, **kw) & zone)
