@@ -198,11 +198,11 @@ def test_correspondences_are_the_exact_nearest_within_the_distance(case):
         pcd = np.concatenate([rng.uniform(-0.01, 0.06, (1000, 3)), [[200.0, 300.0, 100.003]]])
     grid = build_grid(pts, None, radius=r)
     if case == "huge extent":
-        assert grid.cell > 2 * r and np.prod(grid.dims) <= MAX_GRID_CELLS
+        assert grid.cell > 2 * r and np.prod(grid.dims + 2) <= MAX_GRID_CELLS
     m = len(pcd)
     near, best, src, dst = np.empty(m, np.int64), np.empty(m), np.empty(m, np.int64), np.empty(m, np.int64)
     order = np.random.default_rng(5).permutation(m)
-    n, err2 = _correspond(pcd, order, grid.origin, grid.cell, *(int(v) for v in grid.dims), grid.start,
+    n, err2 = _correspond(pcd, order, grid.origin, grid.cell, *(int(v) for v in grid.dims), grid.near_start, grid.near,
                           grid.points, grid.order, r, best, near, src, dst)
     want_j, want_d2 = _brute(pcd, pts, r)
     got = np.full(m, -1)
@@ -212,6 +212,27 @@ def test_correspondences_are_the_exact_nearest_within_the_distance(case):
     assert err2 == pytest.approx(float(want_d2[want_j >= 0].sum()), rel=1e-12)
     if case == "lattice ties":
         assert n == len(pcd)
+
+
+@pytest.mark.parametrize("shape", ["bin", "plane", "one cell"])
+def test_the_neighbour_lists_are_the_27_cells_around(shape):
+    """Each padded cell's list holds the rows of the cells around it, clipped to the grid, each once."""
+    rng = np.random.default_rng(8)
+    if shape == "bin":
+        pts = rng.uniform(0, 0.04, (1500, 3)) * [1.0, 0.7, 0.4]
+    elif shape == "plane":
+        pts = np.c_[rng.uniform(0, 0.05, (800, 2)), np.zeros(800)]
+    else:
+        pts = rng.uniform(0, 0.001, (20, 3))
+    grid = build_grid(pts, None, radius=0.004)
+    nx, ny, nz = (int(v) for v in grid.dims)
+    ijk = np.minimum(np.floor((grid.points - grid.origin) / grid.cell).astype(int), grid.dims - 1)
+    assert len(grid.near) == 27 * len(pts) and len(grid.near_start) == (nx + 2) * (ny + 2) * (nz + 2) + 1
+    for a, b, c in np.ndindex(nx + 2, ny + 2, nz + 2):
+        q = (a * (ny + 2) + b) * (nz + 2) + c
+        got = grid.near[grid.near_start[q]:grid.near_start[q + 1]]
+        want = np.flatnonzero((np.abs(ijk - [a - 1, b - 1, c - 1]) <= 1).all(axis=1))
+        assert np.array_equal(np.sort(got), want)
 
 
 def test_ldlt_is_eigens_on_definite_and_singular_matrices():
