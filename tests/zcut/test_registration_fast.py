@@ -275,17 +275,43 @@ def test_bad_input_is_a_clear_error():
 
 
 def test_the_guess_percentiles_are_numpys_by_axis():
-    """_top_and_centre takes each column's percentiles in one call: the values of the per-axis calls."""
+    """_top_and_centre's percentiles (order statistics of a sampled bracket, NumPy's interpolation) are
+    the values of the per-axis np.percentile calls, bit for bit: sizes either side of the sampled path,
+    ties, sorted and reversed columns (the sample then brackets nothing useful), halves of one value,
+    zeros (NumPy's own call), a frame's bin points."""
     from zcut.registration import _top_and_centre
 
     rng = np.random.default_rng(4)
-    for k in range(100):
-        p = rng.normal(size=(int(rng.integers(1, 3000)), 3)) * rng.uniform(0.01, 10)
-        if k % 3 == 0:
+    for k in range(150):
+        n = int(rng.choice([1, 2, 3, 50, 3000, 4096, 4097, 9001, 45_000, 104_000]))
+        p = rng.normal(size=(n, 3)) * rng.uniform(0.01, 10) + rng.normal(size=3)
+        kind = k % 6
+        if kind == 1:
             p = np.round(p, 2)  # ties
+        elif kind == 2:
+            p = np.sort(p, axis=0)
+        elif kind == 3:
+            p = np.ascontiguousarray(np.sort(p, axis=0)[::-1])
+        elif kind == 4:
+            p[: n // 2, 0], p[:, 2] = -3.0, 0.7
+        elif kind == 5:
+            p[rng.random(n) < 0.3] = 0.0  # zeros, also at the ranks taken
         lo, hi = np.percentile(p, 1, axis=0), np.percentile(p[:, :2], 99, axis=0)
         centre, top = _top_and_centre(p)
-        assert np.array_equal(centre, 0.5 * (lo[:2] + hi)) and top == float(lo[2])
+        assert centre.tobytes() == (0.5 * (lo[:2] + hi)).tobytes() and np.float64(top).tobytes() == lo[2].tobytes()
+
+
+def test_the_guess_of_a_frame_is_numpys(filled):
+    from zcut.registration import _top_and_centre
+
+    frame, _ = filled
+    pts = frame.xyz[np.isfinite(frame.xyz).all(axis=2)].astype(np.float64)
+    ring = pts[bin_pixels(bin_mask(frame.rgb), frame.xyz)[np.isfinite(frame.xyz).all(axis=2)]]
+    assert len(pts) > 4096  # the sampled path
+    for p in (pts, pts[::7], ring):
+        lo, hi = np.percentile(p, 1, axis=0), np.percentile(p[:, :2], 99, axis=0)
+        centre, top = _top_and_centre(p)
+        assert centre.tobytes() == (0.5 * (lo[:2] + hi)).tobytes() and np.float64(top).tobytes() == lo[2].tobytes()
 
 
 def test_subsampled_points_are_numpys_strided_index(filled):
