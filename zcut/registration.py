@@ -435,7 +435,12 @@ def _unordered_map_order(keys, buckets):  # type: ignore[no-untyped-def]  # numb
     open3d::utility::hash_eigen>`` after inserting ``keys`` in their order (unique keys): each new
     node goes to the front of its bucket, or to the front of the list when its bucket is empty; the
     table grows to the next count of ``buckets`` when an insertion would exceed the current one, the
-    nodes relinked in list order (``_Hashtable::_M_insert_bucket_begin``, ``_M_rehash_aux``)."""
+    nodes relinked in list order (``_Hashtable::_M_insert_bucket_begin``, ``_M_rehash_aux``).
+
+    The rehash and the insertion link a node the same way, written twice on purpose: one helper for both
+    (``inline="always"`` or not, tracking the head's bucket or taking its hash again) gave the same order
+    in 2.0-2.8 x the time (0.10 -> 0.21-0.28 CPU ms on a frame's ~7k voxels, 3.5 -> 5.0 on 100k; both
+    kernels in one process, docs/performance.md "Registration, round of 2026-12-05b")."""
     k = keys.shape[0]
     code = np.empty(k, np.uint64)
     for i in range(k):  # hash_eigen: seed ^= hash<int>(v) + 0x9e3779b9 + (seed << 6) + (seed >> 2)
