@@ -203,7 +203,7 @@ def test_correspondences_are_the_exact_nearest_within_the_distance(case):
     near, best, src, dst = np.empty(m, np.int64), np.empty(m), np.empty(m, np.int64), np.empty(m, np.int64)
     order = np.random.default_rng(5).permutation(m)
     n, err2 = _correspond(pcd, order, grid.origin, grid.cell, *(int(v) for v in grid.dims), grid.near_start, grid.near,
-                          grid.points, grid.order, r, best, near, src, dst)
+                          grid.near_dist, grid.points, grid.order, r, best, near, src, dst)
     want_j, want_d2 = _brute(pcd, pts, r)
     got = np.full(m, -1)
     got[src[:n]] = grid.order[dst[:n]]
@@ -216,7 +216,8 @@ def test_correspondences_are_the_exact_nearest_within_the_distance(case):
 
 @pytest.mark.parametrize("shape", ["bin", "plane", "one cell"])
 def test_the_neighbour_lists_are_the_27_cells_around(shape):
-    """Each padded cell's list holds the rows of the cells around it, clipped to the grid, each once."""
+    """Each padded cell's list holds the rows of the cells around it, clipped to the grid, each once, in
+    increasing distance to the cell's centre."""
     rng = np.random.default_rng(8)
     if shape == "bin":
         pts = rng.uniform(0, 0.04, (1500, 3)) * [1.0, 0.7, 0.4]
@@ -233,6 +234,10 @@ def test_the_neighbour_lists_are_the_27_cells_around(shape):
         got = grid.near[grid.near_start[q]:grid.near_start[q + 1]]
         want = np.flatnonzero((np.abs(ijk - [a - 1, b - 1, c - 1]) <= 1).all(axis=1))
         assert np.array_equal(np.sort(got), want)
+        dist = grid.near_dist[grid.near_start[q]:grid.near_start[q + 1]]
+        centre = grid.origin + (np.array([a, b, c]) - 0.5) * grid.cell
+        assert np.all(np.diff(dist) >= 0) and np.allclose(dist, np.linalg.norm(grid.points[got] - centre, axis=1),
+                                                          rtol=1e-14, atol=0)
 
 
 def test_ldlt_is_eigens_on_definite_and_singular_matrices():
