@@ -28,6 +28,14 @@ the difference of the two poses. Then a deliberately wrong start: the true pose 
 seeds a moved bin): its bin fitness, whether it is reported as converged, and its reason.
 
 The replay's budget is about 0.5 CPU-s per 1920 x 1200 frame for every stage together.
+
+``--pieces LOG [--against TREE] [--repeats N]``: where the registration stage of a replay spends its CPU
+on each frame of LOG after the first (the seed), piece by piece as ``locate_bin`` runs them (the ring
+``bin_pixels``, the subgrid's gather, ``prepare_target``, the seed pose's fitness, ``register_bin`` on the
+path the stage took, and within it the translation guess, the coarse voxel grid, the two ICP passes and
+the bin fitness), each the least of N runs, medians over the frames; with ``--against`` the same in a
+subprocess on that source tree's code (e.g. ``git archive OLD | tar -x -C /tmp/old``), side by side.
+OpenCV runs on one thread (the one-core case); pin the process (``taskset -c 0``) for one core.
 """
 
 from __future__ import annotations
@@ -162,8 +170,106 @@ def measure(icp, params: RegistrationParams, frame, bm, T_true: np.ndarray, on_p
     }
 
 
+PIECES = ("bin_pixels", "gather", "prepare_target", "seed_fitness", "register_bin", "  guess", "  voxel_coarse",
+          "  icp_coarse", "  icp_fine", "  bin_fitness", "locate_bin")
+
+
+def pieces_of_log(log: Path, repeats: int) -> dict[str, float]:
+    """The medians over the frames after the first of each piece's least CPU ms of ``repeats`` runs
+    (:data:`PIECES`; ``locate_bin`` is the whole call: the bin mask, the valid points and the registration)."""
+    import cv2
+
+    from replay.pipeline import stages
+    from replay.pipeline.bin_model import bin_model_for
+    from replay.pipeline.session import ReplaySession
+    from zcut.icp_fast import icp as icp_pass
+    from zcut.registration import _cloud_of, _guess, _rim_fitness, subsampled_points, voxel_down_points
+
+    cv2.setNumThreads(1)
+    session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
+    cfg, prepared = session.config, session.prepared
+    assert prepared is not None, f"{log} has no bin model"
+    c, model = cfg.registration, prepared.icp
+    got: dict[str, list[float]] = {k: [] for k in PIECES}
+
+    def least(key, fn):  # type: ignore[no-untyped-def]
+        best, out = float("inf"), None
+        for _ in range(repeats):
+            t = time.process_time()
+            out = fn()
+            best = min(best, time.process_time() - t)
+        got[key].append(1000 * best)
+        return out
+
+    def one_frame(frame, seed):  # type: ignore[no-untyped-def]
+        loc = least("locate_bin", lambda: stages.locate_bin(frame, cfg, bin_model=prepared, seed=seed))
+        xyz, bm = frame.xyz, loc.bin_mask
+        px = least("bin_pixels", lambda: bin_pixels(bm, xyz, ring_frac=c.ring_frac))
+        step = max(1, int(np.ceil(np.sqrt(np.count_nonzero(px) / stages.REGISTRATION_MAX_POINTS))))
+        pts = least("gather", lambda: subsampled_points(xyz, px, step=step))
+        tgt = least("prepare_target", lambda: prepare_target(pts, voxel_m=c.voxel_m, intrinsics=frame.intrinsics))
+        least("seed_fitness", lambda: pose_fitness(model, tgt, seed.T_cam_bin,
+                                                    max_correspondence_m=c.fine_correspondence_m))
+        src = np.asarray(tgt.cloud.points)
+        if len(loc.registration.iterations) == 1:  # the seed pose, refined by the fine pass
+            reg = least("register_bin", lambda: register_bin(model, tgt, params=c, init=seed.T_cam_bin, coarse=False))
+            T = np.linalg.inv(seed.T_cam_bin)
+            for k in ("  guess", "  voxel_coarse", "  icp_coarse"):
+                got[k].append(0.0)
+        else:
+            reg = least("register_bin", lambda: register_bin(model, tgt, params=c))
+            T0 = least("  guess", lambda: _guess(model.top_centre, tgt.points))
+            coarse = least("  voxel_coarse", lambda: _cloud_of(voxel_down_points(src, 2.0 * c.voxel_m)))
+            out = least("  icp_coarse", lambda: icp_pass(np.asarray(coarse.points), model.coarse_grid,
+                                                         max_distance=c.max_correspondence_m, init=np.linalg.inv(T0),
+                                                         point_to_plane=True, max_iteration=int(c.max_iterations)))
+            T = out.transformation
+        least("  icp_fine", lambda: icp_pass(src, model.fine_grid, max_distance=c.fine_correspondence_m, init=T,
+                                             point_to_plane=True, max_iteration=int(c.max_iterations)))
+        least("  bin_fitness", lambda: _rim_fitness(model, tgt, reg.T_cam_bin, c.fine_correspondence_m))
+
+    first = None
+    for i, frame in enumerate(session.reader.frames()):
+        if i == 0:
+            first = stages.locate_bin(frame, cfg, bin_model=prepared).registration
+        else:
+            one_frame(frame, first)
+    out_ = {k: float(statistics.median(v)) for k, v in got.items()}
+    out_["frames"] = float(len(got["locate_bin"]))
+    return out_
+
+
+def pieces_table(log: Path, against: Path | None, repeats: int) -> None:
+    """Print :func:`pieces_of_log` of this tree and of ``against`` (subprocesses, this tree's first)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    trees = {"this tree": Path(__file__).resolve().parents[1]} | ({"previous": against} if against else {})
+    res = {}
+    loads = []
+    for name, tree in trees.items():
+        loads.append(os.getloadavg()[0])
+        env = dict(os.environ, PYTHONPATH=str(tree))
+        out = subprocess.run([sys.executable, __file__, "--pieces-json", str(log), "--repeats", str(repeats)],
+                             env=env, cwd=str(tree), check=True, capture_output=True, text=True).stdout
+        res[name] = json.loads(out.strip().splitlines()[-1])
+    print(f"registration of {log.name}, {int(res['this tree']['frames'])} frames after the seed, CPU ms per frame "
+          f"(medians of each frame's least of {repeats}); load average {min(loads):.1f}-{max(loads):.1f}")
+    print(f"  {'piece':16s} " + " ".join(f"{n:>10s}" for n in trees) + ("  previous/this" if against else ""))
+    for k in PIECES:
+        line = f"  {k:16s} " + " ".join(f"{res[n][k]:10.2f}" for n in trees)
+        if against and res["this tree"][k] > 0:
+            line += f"  {res['previous'][k] / res['this tree'][k]:13.2f}"
+        print(line)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--pieces", type=Path, help="a log (with its bin model): the registration stage piece by piece")
+    ap.add_argument("--pieces-json", type=Path, help=argparse.SUPPRESS)
+    ap.add_argument("--against", type=Path, help="--pieces: a source tree measured alongside")
     ap.add_argument("--size", default="1200x1920", type=parse_size, help="HxW (default 1200x1920)")
     ap.add_argument("--frames", type=int, default=3)
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per frame and method; medians")
@@ -172,6 +278,14 @@ def main() -> None:
     ap.add_argument("--quantize-mm", type=float, default=0.0, help="depth step of the filled scans (0: continuous)")
     ap.add_argument("--dir", default=str(Path(tempfile.gettempdir()) / "zcut_bench_registration"))
     args = ap.parse_args()
+    if args.pieces_json is not None:
+        import json
+
+        print(json.dumps(pieces_of_log(args.pieces_json, args.repeats)))
+        return
+    if args.pieces is not None:
+        pieces_table(args.pieces, args.against, args.repeats)
+        return
     size = args.size
     empty, logs = prepare_logs(Path(args.dir), size, args.frames, args.quantize_mm)
 

@@ -81,6 +81,18 @@ class IcpGrid:
         The model's points and normals (zeros when it has none), sorted by cell.
     order : (N,) int64 ndarray
         Each sorted row's index in the model as given.
+    has_normals : bool
+    near_start : ((nx + 2) * (ny + 2) * (nz + 2) + 1,) int64 ndarray
+        The grid padded by one cell on every side: the rows of ``points`` in the 27 cells around padded
+        cell (i, j, k) (that is, around cell (i - 1, j - 1, k - 1), clipped to the grid) are
+        ``near[near_start[c]:near_start[c + 1]]`` for ``c = (i * (ny + 2) + j) * (nz + 2) + k``.
+    near : (27 N,) int32 ndarray
+        Those rows, cell after cell (a search reads one run instead of nine), each cell's in increasing
+        order of their distance to the cell's centre (padded cell (i, j, k): ``origin + (i - 0.5, j - 0.5,
+        k - 0.5) * cell``).
+    near_dist : (27 N,) float64 ndarray
+        Those distances: a search stops at the first row farther from the centre than the query is plus
+        its best distance so far (the triangle inequality; :func:`_correspond`).
     """
 
     radius: float
@@ -92,6 +104,9 @@ class IcpGrid:
     normals: np.ndarray
     order: np.ndarray
     has_normals: bool
+    near_start: np.ndarray
+    near: np.ndarray
+    near_dist: np.ndarray
 
 
 @dataclass(frozen=True, slots=True)
@@ -151,10 +166,11 @@ def build_grid(points: np.ndarray, normals: np.ndarray | None, *, radius: float)
     if len(p) == 0:
         origin, dims = np.zeros(3), np.zeros(3, np.int64)
         return IcpGrid(float(radius), cell, origin, dims, np.zeros(1, np.int64), p, n, np.zeros(0, np.int64),
-                       normals is not None)
+                       normals is not None, np.zeros(28, np.int64), np.zeros(0, np.int32), np.zeros(0))
     lo, hi = p.min(axis=0), p.max(axis=0)
     extent = hi - lo
-    while np.prod(np.floor(extent / cell) + 1.0) > MAX_GRID_CELLS:
+    # the padded grid of the neighbour lists too (wider cells change no answer, only the runs read)
+    while np.prod(np.floor(extent / cell) + 3.0) > MAX_GRID_CELLS:
         cell *= 2.0
     dims = (np.floor(extent / cell) + 1).astype(np.int64)
     ijk = np.minimum(np.floor((p - lo) / cell).astype(np.int64), dims - 1)
@@ -162,9 +178,89 @@ def build_grid(points: np.ndarray, normals: np.ndarray | None, *, radius: float)
     order = np.argsort(lin, kind="stable")
     start = np.zeros(int(np.prod(dims)) + 1, np.int64)
     np.cumsum(np.bincount(lin, minlength=len(start) - 1), out=start[1:])
-    return IcpGrid(float(radius), float(cell), lo.astype(np.float64), dims, start,
-                   np.ascontiguousarray(p[order]), np.ascontiguousarray(n[order]), order.astype(np.int64),
-                   normals is not None)
+    gpts = np.ascontiguousarray(p[order])
+    origin = lo.astype(np.float64)
+    near_start, near, near_dist = _neighbour_lists(start, int(dims[0]), int(dims[1]), int(dims[2]), gpts, origin,
+                                                   float(cell))
+    return IcpGrid(float(radius), float(cell), origin, dims, start, gpts, np.ascontiguousarray(n[order]),
+                   order.astype(np.int64), normals is not None, near_start, near, near_dist)
+
+
+@numba.njit(cache=True, nogil=True)
+def _neighbour_lists(start: np.ndarray, nx: int, ny: int, nz: int, gpts: np.ndarray, origin: np.ndarray, cell: float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:attr:`IcpGrid.near_start`, :attr:`IcpGrid.near` and :attr:`IcpGrid.near_dist` from the cells'
+    ``start``: per padded cell, the rows of the (up to) 9 columns of 3 cells around it, sorted by their
+    distance to the cell's centre (insertion sort: a cell lists a few dozen)."""
+    py, pz = ny + 2, nz + 2
+    cells = (nx + 2) * py * pz
+    # each padded cell's count, summed separably: over z, then y, then x (3 cells each, clipped)
+    sz = np.zeros((nx, ny, pz), np.int64)
+    for x in range(nx):
+        for y in range(ny):
+            base = (x * ny + y) * nz
+            for c in range(pz):
+                z0, z1 = max(c - 2, 0), min(c, nz - 1)
+                if z0 <= z1:
+                    sz[x, y, c] = start[base + z1 + 1] - start[base + z0]
+    syz = np.zeros((nx, py, pz), np.int64)
+    for x in range(nx):
+        for b in range(py):
+            for y in range(max(b - 2, 0), min(b, ny - 1) + 1):
+                for c in range(pz):
+                    syz[x, b, c] += sz[x, y, c]
+    near_start = np.zeros(cells + 1, np.int64)
+    for a in range(nx + 2):
+        for x in range(max(a - 2, 0), min(a, nx - 1) + 1):
+            for b in range(py):
+                q = (a * py + b) * pz + 1
+                for c in range(pz):
+                    near_start[q + c] += syz[x, b, c]
+    for q in range(cells):
+        near_start[q + 1] += near_start[q]
+    near = np.empty(near_start[cells], np.int32)
+    w = 0
+    for a in range(nx + 2):
+        for b in range(py):
+            for c in range(pz):
+                q = (a * py + b) * pz + c
+                if near_start[q + 1] == near_start[q]:
+                    continue
+                z0, z1 = max(c - 2, 0), min(c, nz - 1)
+                for ax in range(max(a - 2, 0), min(a, nx - 1) + 1):
+                    for ay in range(max(b - 2, 0), min(b, ny - 1) + 1):
+                        base = (ax * ny + ay) * nz
+                        for k in range(start[base + z0], start[base + z1 + 1]):
+                            near[w] = k
+                            w += 1
+    near_dist = np.empty(near.shape[0])
+    for a in range(nx + 2):
+        cx = origin[0] + (a - 0.5) * cell
+        for b in range(py):
+            cy = origin[1] + (b - 0.5) * cell
+            for c in range(pz):
+                q = (a * py + b) * pz + c
+                s0, s1 = near_start[q], near_start[q + 1]
+                if s1 == s0:
+                    continue
+                cz = origin[2] + (c - 0.5) * cell
+                for t in range(s0, s1):
+                    k = near[t]
+                    dx = gpts[k, 0] - cx
+                    dy = gpts[k, 1] - cy
+                    dz = gpts[k, 2] - cz
+                    near_dist[t] = math.sqrt(dx * dx + dy * dy + dz * dz)
+                for t in range(s0 + 1, s1):
+                    d = near_dist[t]
+                    k = near[t]
+                    u = t - 1
+                    while u >= s0 and near_dist[u] > d:
+                        near_dist[u + 1] = near_dist[u]
+                        near[u + 1] = near[u]
+                        u -= 1
+                    near_dist[u + 1] = d
+                    near[u + 1] = k
+    return near_start, near, near_dist
 
 
 # --------------------------------------------------------------------------------------- kernel
@@ -189,21 +285,30 @@ def _matmul4(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _cell_order(pcd: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int) -> np.ndarray:
-    """The source rows sorted by the grid cell they fall in (rows outside the grid last): searched
-    in this order, consecutive queries read the same cells (Open3D's voxel grid gives its points in
-    hash order). Only the order of the searches changes: each answer is the same."""
+def _cell_order(pcd: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int) -> np.ndarray:
+    """The source rows grouped by the grid column (x, y cell) they fall in, in row order within each
+    (rows outside the grid's columns last; a counting sort): searched in this order, consecutive queries
+    read the same cells (Open3D's voxel grid gives its points in hash order). Only the order of the
+    searches changes: each answer is the same."""
     m = pcd.shape[0]
+    outside = nx * ny
     key = np.empty(m, np.int64)
+    first = np.zeros(outside + 2, np.int64)
     for i in range(m):
         fx = math.floor((pcd[i, 0] - origin[0]) / cell)
         fy = math.floor((pcd[i, 1] - origin[1]) / cell)
-        fz = math.floor((pcd[i, 2] - origin[2]) / cell)
-        k = nx * ny * nz
-        if 0.0 <= fx < nx and 0.0 <= fy < ny and 0.0 <= fz < nz:
-            k = (int(fx) * ny + int(fy)) * nz + int(fz)
+        k = outside
+        if 0.0 <= fx < nx and 0.0 <= fy < ny:
+            k = int(fx) * ny + int(fy)
         key[i] = k
-    return np.argsort(key)
+        first[k + 1] += 1
+    for k in range(outside + 1):
+        first[k + 1] += first[k]
+    order = np.empty(m, np.int64)
+    for i in range(m):
+        order[first[key[i]]] = i
+        first[key[i]] += 1
+    return order
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -215,16 +320,33 @@ def _d2(x: float, y: float, z: float, gpts: np.ndarray, k: int) -> float:
     return dx * dx + dy * dy + dz * dz
 
 
+#: A search stops at a row whose distance to the cell's centre exceeds the query's plus its best so far by
+#: more than this share (and :func:`_correspond`'s absolute margin): rounding in those distances (a few
+#: float64 ulps) cannot then skip a row at or below the best squared distance, a tie included.
+_REACH_SLACK = 1e-9
+
+
 @numba.njit(cache=True, nogil=True)
 def _correspond(pcd: np.ndarray, order: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
-                start: np.ndarray, gpts: np.ndarray, gorder: np.ndarray, max_distance: float, best: np.ndarray,
-                near: np.ndarray, src: np.ndarray, dst: np.ndarray) -> tuple[int, float]:
+                near_start: np.ndarray, near_rows: np.ndarray, near_dist: np.ndarray, gpts: np.ndarray,
+                gorder: np.ndarray, max_distance: float, best: np.ndarray, near: np.ndarray, src: np.ndarray,
+                dst: np.ndarray) -> tuple[int, float]:
     """Each source point's nearest grid point with a squared distance below ``max_distance²`` (ties:
     the lowest model index), searched in the 27 cells around it: ``src[:n]`` and ``dst[:n]`` (grid
     rows), in source order; ``(n, sum of the squared distances in that order)``. The points are
-    searched in ``order`` (any permutation: the answers do not depend on it)."""
+    searched in ``order`` (any permutation: the answers do not depend on it).
+
+    The 27 cells' rows are listed together in increasing distance to the cell's centre c
+    (:attr:`IcpGrid.near`): a row p with |p - c| > |q - c| + (best distance so far) is farther from the
+    query q than the best (|q - p| >= |p - c| - |q - c|), and so is every row after it: the search
+    stops there, with a slack for rounding (:data:`_REACH_SLACK`, and an absolute margin for
+    coordinates far from zero). The answer is the least (squared distance, model index) of the 27
+    cells' rows either way."""
     r2 = max_distance * max_distance
     ox, oy, oz = origin[0], origin[1], origin[2]
+    py, pz = ny + 2, nz + 2
+    slack = 1.0 + _REACH_SLACK
+    margin = _REACH_SLACK * (abs(ox) + abs(oy) + abs(oz) + cell * (nx + ny + nz + 6))
     for i in order:
         x, y, z = pcd[i, 0], pcd[i, 1], pcd[i, 2]
         near[i] = -1
@@ -232,17 +354,23 @@ def _correspond(pcd: np.ndarray, order: np.ndarray, origin: np.ndarray, cell: fl
         if not (-1.0 <= fx <= nx and -1.0 <= fy <= ny and -1.0 <= fz <= nz):
             continue
         ix, iy, iz = int(fx), int(fy), int(fz)
-        z0, z1 = max(iz - 1, 0), min(iz + 1, nz - 1)
+        c = ((ix + 1) * py + iy + 1) * pz + iz + 1
+        ex = x - (ox + (ix + 0.5) * cell)
+        ey = y - (oy + (iy + 0.5) * cell)
+        ez = z - (oz + (iz + 0.5) * cell)
+        dq = math.sqrt(ex * ex + ey * ey + ez * ez)
         b = r2
         bj = -1
-        for ax in range(max(ix - 1, 0), min(ix + 1, nx - 1) + 1):
-            for ay in range(max(iy - 1, 0), min(iy + 1, ny - 1) + 1):
-                base = (ax * ny + ay) * nz
-                for k in range(start[base + z0], start[base + z1 + 1]):
-                    d2 = _d2(x, y, z, gpts, k)
-                    if d2 < b or (d2 == b and bj >= 0 and gorder[k] < gorder[bj]):
-                        b = d2
-                        bj = k
+        reach = (max_distance + dq) * slack + margin
+        for q in range(near_start[c], near_start[c + 1]):
+            if near_dist[q] > reach:
+                break
+            k = int(near_rows[q])
+            d2 = _d2(x, y, z, gpts, k)
+            if d2 < b or (d2 == b and bj >= 0 and gorder[k] < gorder[bj]):
+                b = d2
+                bj = k
+                reach = (math.sqrt(b) + dq) * slack + margin
         if bj >= 0:
             near[i] = bj
             best[i] = b
@@ -446,7 +574,8 @@ def _is_identity(T: np.ndarray) -> bool:
 
 @numba.njit(cache=True, nogil=True)
 def _icp_start(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
-               start: np.ndarray, gpts: np.ndarray, gorder: np.ndarray, max_distance: float
+               near_start: np.ndarray, near_rows: np.ndarray, near_dist: np.ndarray,
+               gpts: np.ndarray, gorder: np.ndarray, max_distance: float
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
                           int, float, float]:
     """The start of Open3D's ``RegistrationICP`` loop: the source moved by ``init`` (unless it is the
@@ -456,21 +585,23 @@ def _icp_start(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: f
         _transform_rows(init, pcd)
     m = pcd.shape[0]
     state = (np.empty(m), np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.int64))
-    order = _cell_order(pcd, origin, cell, nx, ny, nz)
-    n, e2 = _correspond(pcd, order, origin, cell, nx, ny, nz, start, gpts, gorder, max_distance, *state)
+    order = _cell_order(pcd, origin, cell, nx, ny)
+    n, e2 = _correspond(pcd, order, origin, cell, nx, ny, nz, near_start, near_rows, near_dist, gpts, gorder,
+                        max_distance, *state)
     return pcd, order, init.copy(), state, n, n / m if n else 0.0, math.sqrt(e2 / n) if n else 0.0
 
 
 @numba.njit(cache=True, nogil=True)
 def _icp_step(U: np.ndarray, T: np.ndarray, pcd: np.ndarray, order: np.ndarray, origin: np.ndarray, cell: float,
-              nx: int, ny: int, nz: int, start: np.ndarray, gpts: np.ndarray, gorder: np.ndarray,
-              max_distance: float, state: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-              ) -> tuple[np.ndarray, int, float, float]:
+              nx: int, ny: int, nz: int, near_start: np.ndarray, near_rows: np.ndarray, near_dist: np.ndarray,
+              gpts: np.ndarray, gorder: np.ndarray, max_distance: float,
+              state: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, int, float, float]:
     """One iteration after its update ``U``: the pose ``U T``, the source moved by ``U``, its new
     correspondences: ``(pose, n, fitness, rmse)``."""
     T = _matmul4(U, T)
     _transform_rows(U, pcd)
-    n, e2 = _correspond(pcd, order, origin, cell, nx, ny, nz, start, gpts, gorder, max_distance, *state)
+    n, e2 = _correspond(pcd, order, origin, cell, nx, ny, nz, near_start, near_rows, near_dist, gpts, gorder,
+                        max_distance, *state)
     m = pcd.shape[0]
     return T, n, n / m if n else 0.0, math.sqrt(e2 / n) if n else 0.0
 
@@ -481,15 +612,16 @@ def _icp_step(U: np.ndarray, T: np.ndarray, pcd: np.ndarray, order: np.ndarray, 
 # costs 3.3-4.8 x: numba calls it through a pointer, without inlining.)
 @numba.njit(cache=True, nogil=True, inline="always")
 def _icp_loop(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
-              start: np.ndarray, gpts: np.ndarray, gnrm: np.ndarray, gorder: np.ndarray, max_distance: float,
-              max_iteration: int, relative_fitness: float, relative_rmse: float, out: np.ndarray,
+              near_start: np.ndarray, near_rows: np.ndarray, near_dist: np.ndarray,
+              gpts: np.ndarray, gnrm: np.ndarray, gorder: np.ndarray,
+              max_distance: float, max_iteration: int, relative_fitness: float, relative_rmse: float, out: np.ndarray,
               point_to_plane: bool) -> tuple[float, float, int, int]:
     """Open3D's ``RegistrationICP`` loop; the pose into ``out``; ``(fitness, rmse, iterations, n)``.
     ``point_to_plane``: the update of ``TransformationEstimationPointToPlane`` (``gnrm`` the model's
     normals), else of ``TransformationEstimationPointToPoint`` (``gnrm`` not read). Called with a
     constant ``point_to_plane`` only (:func:`_icp_plane`, :func:`_icp_point`)."""
-    pcd, order, T, state, n, fit, rmse = _icp_start(source, init, origin, cell, nx, ny, nz, start, gpts, gorder,
-                                                    max_distance)
+    pcd, order, T, state, n, fit, rmse = _icp_start(source, init, origin, cell, nx, ny, nz, near_start, near_rows,
+                                                    near_dist, gpts, gorder, max_distance)
     its = 0
     for _ in range(max_iteration):
         its += 1
@@ -498,8 +630,8 @@ def _icp_loop(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: fl
         else:
             U = _point_to_point(pcd, gpts, state[2], state[3], n)
         fit0, rmse0 = fit, rmse
-        T, n, fit, rmse = _icp_step(U, T, pcd, order, origin, cell, nx, ny, nz, start, gpts, gorder, max_distance,
-                                    state)
+        T, n, fit, rmse = _icp_step(U, T, pcd, order, origin, cell, nx, ny, nz, near_start, near_rows, near_dist, gpts,
+                                    gorder, max_distance, state)
         if abs(fit0 - fit) < relative_fitness and abs(rmse0 - rmse) < relative_rmse:
             break
     out[:, :] = T
@@ -508,21 +640,24 @@ def _icp_loop(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: fl
 
 @numba.njit(cache=True, nogil=True)
 def _icp_plane(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
-               start: np.ndarray, gpts: np.ndarray, gnrm: np.ndarray, gorder: np.ndarray, max_distance: float,
-               max_iteration: int, relative_fitness: float, relative_rmse: float, out: np.ndarray
+               near_start: np.ndarray, near_rows: np.ndarray, near_dist: np.ndarray,
+               gpts: np.ndarray, gnrm: np.ndarray, gorder: np.ndarray,
+               max_distance: float, max_iteration: int, relative_fitness: float, relative_rmse: float, out: np.ndarray
                ) -> tuple[float, float, int, int]:
     """:func:`_icp_loop`, point-to-plane."""
-    return _icp_loop(source, init, origin, cell, nx, ny, nz, start, gpts, gnrm, gorder, max_distance, max_iteration,
-                     relative_fitness, relative_rmse, out, True)
+    return _icp_loop(source, init, origin, cell, nx, ny, nz, near_start, near_rows, near_dist, gpts, gnrm, gorder,
+                     max_distance, max_iteration, relative_fitness, relative_rmse, out, True)
 
 
 @numba.njit(cache=True, nogil=True)
 def _icp_point(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
-               start: np.ndarray, gpts: np.ndarray, gorder: np.ndarray, max_distance: float, max_iteration: int,
-               relative_fitness: float, relative_rmse: float, out: np.ndarray) -> tuple[float, float, int, int]:
+               near_start: np.ndarray, near_rows: np.ndarray, near_dist: np.ndarray,
+               gpts: np.ndarray, gorder: np.ndarray, max_distance: float,
+               max_iteration: int, relative_fitness: float, relative_rmse: float, out: np.ndarray
+               ) -> tuple[float, float, int, int]:
     """:func:`_icp_loop`, point-to-point (no normals: ``gpts`` stands in for them, unread)."""
-    return _icp_loop(source, init, origin, cell, nx, ny, nz, start, gpts, gpts, gorder, max_distance, max_iteration,
-                     relative_fitness, relative_rmse, out, False)
+    return _icp_loop(source, init, origin, cell, nx, ny, nz, near_start, near_rows, near_dist, gpts, gpts, gorder,
+                     max_distance, max_iteration, relative_fitness, relative_rmse, out, False)
 
 
 def _check_icp_args(source: np.ndarray, init: np.ndarray, max_distance: float, max_iteration: int
@@ -577,7 +712,7 @@ def icp(source: np.ndarray, grid: IcpGrid, *, max_distance: float, init: np.ndar
         raise ParameterError("icp: point-to-plane needs the target's normals (the grid was built without)")
     out = np.empty((4, 4))
     nx, ny, nz = (int(v) for v in grid.dims)
-    args = (s, T0, grid.origin, grid.cell, nx, ny, nz, grid.start, grid.points)
+    args = (s, T0, grid.origin, grid.cell, nx, ny, nz, grid.near_start, grid.near, grid.near_dist, grid.points)
     tail = (grid.order, float(max_distance), int(max_iteration), float(relative_fitness), float(relative_rmse), out)
     if point_to_plane:
         fit, rmse, its, n = _icp_plane(*args, grid.normals, *tail)

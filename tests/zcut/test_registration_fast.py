@@ -198,12 +198,12 @@ def test_correspondences_are_the_exact_nearest_within_the_distance(case):
         pcd = np.concatenate([rng.uniform(-0.01, 0.06, (1000, 3)), [[200.0, 300.0, 100.003]]])
     grid = build_grid(pts, None, radius=r)
     if case == "huge extent":
-        assert grid.cell > 2 * r and np.prod(grid.dims) <= MAX_GRID_CELLS
+        assert grid.cell > 2 * r and np.prod(grid.dims + 2) <= MAX_GRID_CELLS
     m = len(pcd)
     near, best, src, dst = np.empty(m, np.int64), np.empty(m), np.empty(m, np.int64), np.empty(m, np.int64)
     order = np.random.default_rng(5).permutation(m)
-    n, err2 = _correspond(pcd, order, grid.origin, grid.cell, *(int(v) for v in grid.dims), grid.start,
-                          grid.points, grid.order, r, best, near, src, dst)
+    n, err2 = _correspond(pcd, order, grid.origin, grid.cell, *(int(v) for v in grid.dims), grid.near_start, grid.near,
+                          grid.near_dist, grid.points, grid.order, r, best, near, src, dst)
     want_j, want_d2 = _brute(pcd, pts, r)
     got = np.full(m, -1)
     got[src[:n]] = grid.order[dst[:n]]
@@ -212,6 +212,32 @@ def test_correspondences_are_the_exact_nearest_within_the_distance(case):
     assert err2 == pytest.approx(float(want_d2[want_j >= 0].sum()), rel=1e-12)
     if case == "lattice ties":
         assert n == len(pcd)
+
+
+@pytest.mark.parametrize("shape", ["bin", "plane", "one cell"])
+def test_the_neighbour_lists_are_the_27_cells_around(shape):
+    """Each padded cell's list holds the rows of the cells around it, clipped to the grid, each once, in
+    increasing distance to the cell's centre."""
+    rng = np.random.default_rng(8)
+    if shape == "bin":
+        pts = rng.uniform(0, 0.04, (1500, 3)) * [1.0, 0.7, 0.4]
+    elif shape == "plane":
+        pts = np.c_[rng.uniform(0, 0.05, (800, 2)), np.zeros(800)]
+    else:
+        pts = rng.uniform(0, 0.001, (20, 3))
+    grid = build_grid(pts, None, radius=0.004)
+    nx, ny, nz = (int(v) for v in grid.dims)
+    ijk = np.minimum(np.floor((grid.points - grid.origin) / grid.cell).astype(int), grid.dims - 1)
+    assert len(grid.near) == 27 * len(pts) and len(grid.near_start) == (nx + 2) * (ny + 2) * (nz + 2) + 1
+    for a, b, c in np.ndindex(nx + 2, ny + 2, nz + 2):
+        q = (a * (ny + 2) + b) * (nz + 2) + c
+        got = grid.near[grid.near_start[q]:grid.near_start[q + 1]]
+        want = np.flatnonzero((np.abs(ijk - [a - 1, b - 1, c - 1]) <= 1).all(axis=1))
+        assert np.array_equal(np.sort(got), want)
+        dist = grid.near_dist[grid.near_start[q]:grid.near_start[q + 1]]
+        centre = grid.origin + (np.array([a, b, c]) - 0.5) * grid.cell
+        assert np.all(np.diff(dist) >= 0) and np.allclose(dist, np.linalg.norm(grid.points[got] - centre, axis=1),
+                                                          rtol=1e-14, atol=0)
 
 
 def test_ldlt_is_eigens_on_definite_and_singular_matrices():
@@ -254,17 +280,43 @@ def test_bad_input_is_a_clear_error():
 
 
 def test_the_guess_percentiles_are_numpys_by_axis():
-    """_top_and_centre takes each column's percentiles in one call: the values of the per-axis calls."""
+    """_top_and_centre's percentiles (order statistics of a sampled bracket, NumPy's interpolation) are
+    the values of the per-axis np.percentile calls, bit for bit: sizes either side of the sampled path,
+    ties, sorted and reversed columns (the sample then brackets nothing useful), halves of one value,
+    zeros (NumPy's own call), a frame's bin points."""
     from zcut.registration import _top_and_centre
 
     rng = np.random.default_rng(4)
-    for k in range(100):
-        p = rng.normal(size=(int(rng.integers(1, 3000)), 3)) * rng.uniform(0.01, 10)
-        if k % 3 == 0:
+    for k in range(150):
+        n = int(rng.choice([1, 2, 3, 50, 3000, 4096, 4097, 9001, 45_000, 104_000]))
+        p = rng.normal(size=(n, 3)) * rng.uniform(0.01, 10) + rng.normal(size=3)
+        kind = k % 6
+        if kind == 1:
             p = np.round(p, 2)  # ties
+        elif kind == 2:
+            p = np.sort(p, axis=0)
+        elif kind == 3:
+            p = np.ascontiguousarray(np.sort(p, axis=0)[::-1])
+        elif kind == 4:
+            p[: n // 2, 0], p[:, 2] = -3.0, 0.7
+        elif kind == 5:
+            p[rng.random(n) < 0.3] = 0.0  # zeros, also at the ranks taken
         lo, hi = np.percentile(p, 1, axis=0), np.percentile(p[:, :2], 99, axis=0)
         centre, top = _top_and_centre(p)
-        assert np.array_equal(centre, 0.5 * (lo[:2] + hi)) and top == float(lo[2])
+        assert centre.tobytes() == (0.5 * (lo[:2] + hi)).tobytes() and np.float64(top).tobytes() == lo[2].tobytes()
+
+
+def test_the_guess_of_a_frame_is_numpys(filled):
+    from zcut.registration import _top_and_centre
+
+    frame, _ = filled
+    pts = frame.xyz[np.isfinite(frame.xyz).all(axis=2)].astype(np.float64)
+    ring = pts[bin_pixels(bin_mask(frame.rgb), frame.xyz)[np.isfinite(frame.xyz).all(axis=2)]]
+    assert len(pts) > 4096  # the sampled path
+    for p in (pts, pts[::7], ring):
+        lo, hi = np.percentile(p, 1, axis=0), np.percentile(p[:, :2], 99, axis=0)
+        centre, top = _top_and_centre(p)
+        assert centre.tobytes() == (0.5 * (lo[:2] + hi)).tobytes() and np.float64(top).tobytes() == lo[2].tobytes()
 
 
 def test_subsampled_points_are_numpys_strided_index(filled):
