@@ -1400,7 +1400,8 @@ def _off_field_fast(q: _Queried, own_at: np.ndarray, nb_at: np.ndarray, coherent
     """:func:`_off_field` of the fast path (the same answer, the reference keeps :func:`_off_field`): the
     design matrix built once, by :func:`_fit_field`, whose last misfit is the measured pixels' own (the
     reference builds it again for them, :func:`field_design` on the same rows); the fit's selections, centre,
-    cross products and medians in kernels. 6.0 -> 2.1 CPU ms on 15k measured pixels at 640 x 480."""
+    cross products and medians in kernels: 6.7 -> 3.3 CPU ms on 15k measured pixels at 640 x 480, 9.1 -> 4.6 on 20k
+    at 1920 x 1200."""
     m = len(own_at)
     off = np.zeros(m, bool)
     if normals is None or m == 0 or q.signed_m is None or q.nearest_j is None:
