@@ -195,10 +195,11 @@ def main() -> None:
                 straggler_m = p.straggler_m + delta_m
                 grid = (*rm._grid_args(gs), gs.ijk, gs.busy, gs.box, float(straggler_m),
                         float(max(r_bin + p.straggler_m, straggler_m)), planes)
-                first = np.empty(code.shape, np.uint8)
+                n = code.size
+                buf = np.zeros(n + (-n % 8), np.uint8)  # as zcut.removal._straggler_codes pads it
                 timed("removal: straggler first pass", rm._straggler_first, a, code, int(p.straggler_neighbours),
-                      R, t, *grid, first)
-                timed("removal: straggler later passes", rm._straggler_rest, a, code, first,
+                      R, t, *grid, buf[:n].reshape(code.shape))
+                timed("removal: straggler later passes", rm._straggler_rest, a, code, buf.view(np.uint64),
                       int(p.straggler_neighbours), rm.STRAGGLER_PASSES, R, t, *grid)
             masks = [np.empty(code.shape, bool) for _ in range(5)]
             timed("removal: finish (masks, heights)", rm._finish_codes, a, code, True, float(rem.floor_m),

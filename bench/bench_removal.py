@@ -19,9 +19,11 @@ over frames and repeats, the ratio previous / fast and the cost per Mpx. ``--log
 logs (with their bin model) instead, at their own size.
 
 ``--against OLD_TREE`` (a source tree of an earlier commit, e.g. ``git archive COMMIT | tar -x -C OLD_TREE``)
-also times that tree's fast path (its ``zcut`` imported as ``zcut_prev``, on the same prepared index and
-frames, alternating with this tree's), checks it gives the same results bit for bit, and prints its ratio
-to this tree's (``prev/new``). ``--holes`` measures the frames with large invalid regions instead: their
+also times that tree's fast path and its stage (its ``zcut`` imported as ``zcut_prev``, on the same prepared
+index and frames, alternating with this tree's), checks they give the same results bit for bit (the classes,
+heights and cloud; the bin check's count, flag, reason, ghosts, off-surface count and pixels), and prints
+their ratios to this tree's (``prev/new``). Its numba cache then names ``zcut_prev``: delete OLD_TREE's
+``*.nbi``/``*.nbc`` before importing it as ``zcut`` (``bench_replay.py --against``). ``--holes`` measures the frames with large invalid regions instead: their
 left half and every 7th row set to NaN after locating (the same footprint, ring and pose).
 """
 
@@ -67,8 +69,9 @@ def located_frames(log: Path, frames: int):
     return s, out
 
 
-def previous_removal(tree: Path) -> Callable[..., Any]:
-    """The ``remove_table_and_bin`` of the source tree ``tree`` (its ``zcut`` imported as ``zcut_prev``)."""
+def previous_removal(tree: Path) -> tuple[Callable[..., Any], Callable[..., Any]]:
+    """The ``remove_table_and_bin`` and ``check_bin_removal`` of the source tree ``tree`` (its ``zcut`` imported
+    as ``zcut_prev``)."""
     spec = importlib.util.spec_from_file_location("zcut_prev", tree / "zcut" / "__init__.py",
                                                   submodule_search_locations=[str(tree / "zcut")])
     if spec is None or spec.loader is None:
@@ -76,9 +79,10 @@ def previous_removal(tree: Path) -> Callable[..., Any]:
     module = importlib.util.module_from_spec(spec)
     sys.modules["zcut_prev"] = module
     spec.loader.exec_module(module)
+    from zcut_prev.bin_check import check_bin_removal as prev_check  # type: ignore[import-not-found]
     from zcut_prev.removal import remove_table_and_bin as prev  # type: ignore[import-not-found]
 
-    return prev  # type: ignore[no-any-return]
+    return prev, prev_check
 
 
 def with_holes(xyz: np.ndarray) -> np.ndarray:
@@ -89,7 +93,7 @@ def with_holes(xyz: np.ndarray) -> np.ndarray:
     return a
 
 
-def measure(log: Path, frames: int, repeats: int, prev: Callable[..., Any] | None = None,
+def measure(log: Path, frames: int, repeats: int, prev: tuple[Callable[..., Any], Callable[..., Any]] | None = None,
             holes: bool = False) -> dict[str, float]:
     s, located = located_frames(log, frames)
     if holes:
@@ -97,7 +101,7 @@ def measure(log: Path, frames: int, repeats: int, prev: Callable[..., Any] | Non
     assert s.prepared is not None
     index, params, band = s.prepared.removal, s.config.removal, s.config.zcut.max_depth
     times: dict[str, list[float]] = {"removal old": [], "removal new": [], "stage old": [], "stage new": [],
-                                     "removal prev": []}
+                                     "removal prev": [], "stage prev": []}
 
     def stage(xyz, fp, ring, T, reference: bool) -> tuple[float, float]:
         t0 = time.process_time()
@@ -112,9 +116,17 @@ def measure(log: Path, frames: int, repeats: int, prev: Callable[..., Any] | Non
         for f in FIELDS:
             if not np.array_equal(getattr(old, f), getattr(new, f), equal_nan=True):
                 raise SystemExit(f"{log.name}: the fast removal's {f} differs from the previous one's")
-            if prev is not None and not np.array_equal(getattr(prev(xyz, fp, index=index, T_cam_bin=T, ring=ring), f),
+            if prev is not None and not np.array_equal(getattr(prev[0](xyz, fp, index=index, T_cam_bin=T, ring=ring), f),
                                                        getattr(new, f), equal_nan=True):
                 raise SystemExit(f"{log.name}: the removal's {f} differs from the previous tree's")
+        if prev is not None:  # the bin check's verdict too
+            c_new = check_bin_removal(new, ring, params=params, band_mm=band, xyz=xyz, index=index, T_cam_bin=T)
+            c_prev = prev[1](prev[0](xyz, fp, index=index, T_cam_bin=T, ring=ring), ring, params=params, band_mm=band,
+                             xyz=xyz, index=index, T_cam_bin=T)
+            if (c_new.value, c_new.flagged, c_new.reason, c_new.ghosts, c_new.off_surface) != \
+                    (c_prev.value, c_prev.flagged, c_prev.reason, c_prev.ghosts, c_prev.off_surface) \
+                    or not np.array_equal(c_new.offending, c_prev.offending):
+                raise SystemExit(f"{log.name}: the bin check differs from the previous tree's")
     for _ in range(repeats):
         for xyz, fp, ring, T in located:
             for ref in (True, False):
@@ -123,8 +135,11 @@ def measure(log: Path, frames: int, repeats: int, prev: Callable[..., Any] | Non
                 times["stage old" if ref else "stage new"].append(st)
             if prev is not None:
                 t0 = time.process_time()
-                prev(xyz, fp, index=index, T_cam_bin=T, ring=ring)
-                times["removal prev"].append(time.process_time() - t0)
+                rem = prev[0](xyz, fp, index=index, T_cam_bin=T, ring=ring)
+                t1 = time.process_time()
+                prev[1](rem, ring, params=params, band_mm=band, xyz=xyz, index=index, T_cam_bin=T)
+                times["removal prev"].append(t1 - t0)
+                times["stage prev"].append(time.process_time() - t0)
     h, w = located[0][0].shape[:2]
     return {k: 1000 * statistics.median(v) for k, v in times.items() if v} | {"mpx": h * w / 1e6, "w": w, "h": h,
                                                                          "frames": len(located)}
@@ -167,8 +182,8 @@ def main() -> None:
         for what in ("removal", "stage"):
             o, n = r[f"{what} old"], r[f"{what} new"]
             extra = ""
-            if prev is not None and what == "removal":
-                extra = f" {r['removal prev']:8.1f} {r['removal prev'] / n:8.2f}"
+            if prev is not None:
+                extra = f" {r[what + ' prev']:8.1f} {r[what + ' prev'] / n:8.2f}"
             print(f"  {log.name[:32]:32s} {int(r['w']):>5d}x{int(r['h']):<4d} {what:8s} {o:8.1f} {n:8.1f} "
                   f"{o / n:8.2f} {o / r['mpx']:8.1f} {n / r['mpx']:8.1f}" + extra, flush=True)
 

@@ -53,6 +53,8 @@ def logs(tmp_path_factory):
     for kind, seed in (("zinc_nuts", 3), ("rods", 5), ("spheres", 9), ("sprockets", 11)):
         made[f"{kind}-{seed}"] = _inputs(write_synthetic_log(d / f"{kind}.mcap", kind=kind, frames=2, seed=seed,
                                                              size=SIZE))
+    made["spheres-walls"] = _inputs(write_synthetic_log(d / "walls.mcap", kind="spheres", frames=2, seed=13, size=SIZE,
+                                                        pile="walls"))
     made["raytraced"] = _inputs(write_raytraced_log(d / "rt.mcap", kind="zinc_nuts", frames=1, seed=4, size=(120, 160)))
     return made
 
@@ -150,8 +152,8 @@ def test_residuals_equal_reference(logs):
         index = prepare_removal_index(model, params)
         for xyz, _, ring, T in frames:
             fast, ref = frame_tolerance(xyz, ring, index, T), frame_tolerance(xyz, ring, index, T, reference=True)
-            assert (fast.tolerance_mm, fast.n_pixels, fast.n_coherent) == (ref.tolerance_mm, ref.n_pixels,
-                                                                             ref.n_coherent), log
+            assert (fast.tolerance_mm, fast.n_pixels, fast.n_coherent, fast.n_off_field) == \
+                (ref.tolerance_mm, ref.n_pixels, ref.n_coherent, ref.n_off_field), log
             assert np.array_equal([fast.residual_mm, fast.reach_mm], [ref.residual_mm, ref.reach_mm], equal_nan=True)
             pixels = np.flatnonzero(ring | np.roll(ring, 3, axis=1))[::3]
             for a, b in zip(coherent_residuals(xyz, ring, pixels, index, T),
@@ -248,3 +250,88 @@ def test_nearest_points_equal_the_tree(logs):
             d, j = _nearest_points(q, index)
             d_t, j_t = index.tree.query(q, k=1, distance_upper_bound=ub)
             assert np.array_equal(d, d_t) and np.array_equal(j, j_t), f"{log} {name}"
+
+
+def test_the_field_fit_equals_the_reference(logs):
+    """The tolerance's residual field (:func:`zcut.removal._fit_field`, kernels around numpy's products) and the
+    pixels it leaves out (:func:`zcut.removal._off_field_fast`) against :func:`fit_residual_field` and
+    :func:`zcut.removal._off_field`, bit for bit: on every log's measured pixels, and with blocks of them moved
+    1.5-6 mm off the field (parts leaning on a wall: many left out), on a subsample too small to fit, and
+    without normals."""
+    from zcut.removal import (
+        COHERENCE_MM,
+        MAX_RESIDUAL_PX,
+        _around_median,
+        _field_inputs,
+        _fit_field,
+        _off_field,
+        _off_field_fast,
+        _own_and_neighbours,
+        _query,
+        _sample_ring,
+        fit_residual_field,
+    )
+
+    rng = np.random.default_rng(5)
+    n_off = 0
+    for log, (model, params, frames) in logs.items():
+        index = prepare_removal_index(model, params)
+        for xyz, _, ring, T in frames:
+            flat, want, own_at, nb_at = _sample_ring(xyz, ring, MAX_RESIDUAL_PX)
+            q0 = _query(xyz, want, index, T)
+            for shift in (None, 1.5, 6.0):
+                q = q0
+                if shift is not None:  # blocks of the measured pixels' residuals moved off the field
+                    signed = q.signed_m.copy()
+                    blocks = rng.choice(len(signed), max(1, len(signed) // 200), replace=False)
+                    for b in blocks:
+                        signed[b: b + 40] += shift / 1000.0
+                    q = dataclasses.replace(q, signed_m=signed, residual_mm=np.abs(signed) * 1000.0)
+                res, nbr = _own_and_neighbours(q.residual_mm, own_at, nb_at)
+                with np.errstate(invalid="ignore"):
+                    coherent = np.isfinite(res) & (np.abs(res - _around_median(nbr)) <= COHERENCE_MM)
+                for normals in (model.normals, None):
+                    fast = _off_field_fast(q, own_at, nb_at, coherent, normals)
+                    ref = _off_field(q.signed_m, q.p_bin, q.nearest_j, own_at, nb_at, coherent, normals)
+                    assert np.array_equal(fast, ref), (log, shift)
+                    n_off += int(np.count_nonzero(fast))
+                rows, r, p, n = _field_inputs(q.signed_m, q.p_bin, q.nearest_j, own_at, model.normals)
+                for k in (len(r), 49, 60):  # all, too few to fit, just enough
+                    got = _fit_field(r[:k], p[:k], n[:k])
+                    want_fit = fit_residual_field(r[:k], p[:k], n[:k], normal_equations=True)
+                    assert (got is None) == (want_fit is None), (log, shift, k)
+                    if got is not None and want_fit is not None:
+                        coef, centre, _, _ = want_fit
+                        assert np.array_equal(got[0], coef) and np.array_equal(got[1], centre), (log, shift, k)
+    assert n_off > 100  # the moved blocks were left out
+
+
+def test_the_ring_sample_equals_numpy():
+    """The tolerance's sample, its ring neighbours and the queried pixels with their positions
+    (:func:`zcut.removal._sample_ring`: the ring read a word at a time, five sorted lists merged) against the
+    reference's numpy expressions (:func:`_ring_sample`, :func:`_ring_neighbours`, ``np.unique``,
+    ``np.searchsorted``): random rings of every density on images whose pixel count is and is not a multiple
+    of 8, with NaN and infinite points, every pixel sampled or every few, a 1 x N and an N x 1 image, an empty
+    ring, a ring slice that is not contiguous."""
+    from zcut.removal import _ring_neighbours, _ring_sample, _sample_ring
+
+    rng = np.random.default_rng(3)
+    cases = []
+    for _ in range(150):
+        h, w = int(rng.integers(1, 40)), int(rng.integers(1, 50))
+        xyz = rng.normal(size=(h, w, 3)).astype(np.float32 if rng.random() < 0.5 else np.float64)
+        xyz[rng.random((h, w)) < 0.2 * rng.random()] = np.nan
+        xyz[rng.random((h, w)) < 0.02, 2] = np.inf
+        cases.append((xyz, rng.random((h, w)) < rng.random(), int(rng.integers(1, 200))))
+    big = rng.normal(size=(64, 96, 3))
+    cases += [(big, np.zeros((64, 96), bool), 50), (big, np.ones((64, 96), bool), 10**6),
+              (big[:, :7], (rng.random((64, 96)) < 0.5)[:, :7], 40)]
+    for xyz, ring, max_px in cases:
+        flat, want, own_at, nb_at = _sample_ring(xyz, ring, max_px)
+        ref_flat = _ring_sample(xyz, ring, max_px)
+        nb = _ring_neighbours(xyz.shape[:2], ring, ref_flat, 4)
+        ref_want = np.unique(np.concatenate([ref_flat, nb[nb >= 0]]))
+        assert np.array_equal(flat, ref_flat) and np.array_equal(want, ref_want)
+        assert np.array_equal(own_at, np.searchsorted(ref_want, ref_flat))
+        assert np.array_equal(nb_at, np.where(nb >= 0, np.searchsorted(ref_want, np.where(nb >= 0, nb, 0)), -1))
+
