@@ -278,17 +278,22 @@ def _occluding_boundary(frame: _Frame, flat: np.ndarray, jump_mm: float) -> np.n
     """The pixels of the region whose 4-neighbour outside it is missing or lies farther than
     ``jump_mm`` behind: where the region's own silhouette is seen (not where something occludes it)."""
     H, W = frame.valid.shape
-    inside = np.zeros(H * W, bool)
-    inside[flat] = True
     z = frame.xyz[..., 2].reshape(-1)
     valid = frame.valid.reshape(-1)
     r, c = np.divmod(flat, W)
+    if not len(flat):
+        return flat[:0]
+    # the region's membership on its bounding box grown by a pixel (not on the whole frame: a region is small)
+    r0, c0 = max(int(r.min()) - 1, 0), max(int(c.min()) - 1, 0)
+    bw = min(int(c.max()) + 2, W) - c0
+    inside = np.zeros((min(int(r.max()) + 2, H) - r0) * bw, bool)
+    inside[(r - r0) * bw + (c - c0)] = True
     edge = np.zeros(len(flat), bool)
     for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
         rr, cc = r + dr, c + dc
         ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
         nb = np.where(ok, rr * W + cc, 0)
-        out = ok & ~inside[nb]
+        out = ok & ~inside[np.where(ok, (rr - r0) * bw + (cc - c0), 0)]
         far = ~valid[nb] | (z[nb] > z[flat] + jump_mm)
         edge |= out & far
     return flat[edge]
@@ -664,11 +669,13 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
     more: list[np.ndarray] = []
     left = region
     attempts = 0
-    tried = np.zeros(H * W, bool)  # seeds of patches already fitted in this region
+    tried: np.ndarray | None = None  # seeds of patches already fitted in this region (made when first needed)
     while len(left) >= min_px and attempts < params.max_instances_per_region:
         progress = False
         many = model.sphere_radius is None and _holds_many(frame, left, model)
         if many:
+            if tried is None:
+                tried = np.zeros(H * W, bool)
             patch = _patch(frame, left, model, tried)
             if patch is None:
                 break
@@ -720,7 +727,24 @@ def _holds_many(frame: _Frame, flat: np.ndarray, model: PartModel) -> bool:
     1.3 × the model's extent from their centroid."""
     pts = frame.xyz.reshape(-1, 3)[_subsample(flat, 2000)]
     r = np.linalg.norm(pts - pts.mean(axis=0), axis=1)
-    return bool(np.percentile(r, 98) > 1.3 * model.extent_mm)
+    return _percentile_above(r, 98.0, 1.3 * model.extent_mm)
+
+
+def _percentile_above(r: np.ndarray, q: float, thr: float) -> bool:
+    """``np.percentile(r, q) > thr`` for finite ``r`` (not empty), without sorting when counts decide it: the
+    percentile interpolates between the sorted values s[i] and s[i + 1], i = floor(q / 100 (n − 1)), so s[i − 1]
+    clearly above ``thr`` says yes and s[i + 2] clearly below says no (a neighbour more each way: an index
+    rounded the other way changes neither; the margin, 1e-9 × |thr| + 1e-12, lies far above the rounding of the
+    interpolation); otherwise NumPy's percentile decides."""
+    n = len(r)
+    i = int(np.floor(q / 100.0 * (n - 1)))
+    margin = 1e-9 * abs(thr) + 1e-12
+    lo, hi = max(i - 1, 0), min(i + 2, n - 1)
+    if n and int(np.count_nonzero(r > thr + margin)) >= n - lo:  # s[lo] > thr + margin
+        return True
+    if n and int(np.count_nonzero(r > thr - margin)) < n - hi:  # s[hi] <= thr - margin
+        return False
+    return bool(np.percentile(r, q) > thr)
 
 
 def _patch(frame: _Frame, flat: np.ndarray, model: PartModel, tried: np.ndarray) -> np.ndarray | None:

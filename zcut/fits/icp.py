@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import icp_kernel
+from .kernels import farthest_points, icp_kernel
 from .model import PartModel
 
 __all__ = ["icp", "icp_reference", "initial_pose", "initial_poses", "initial_rotations", "pose_matrix", "shifted_poses"]
@@ -102,12 +102,7 @@ def shifted_poses(points: np.ndarray, rotations: list[np.ndarray], model: PartMo
         fs = model.probe_samples[facing]
         if not len(fs):
             continue
-        sel = [0]
-        dmin = np.linalg.norm(fs - fs[0], axis=1)
-        for _ in range(min(n, len(fs)) - 1):
-            j = int(np.argmax(dmin))
-            sel.append(j)
-            dmin = np.minimum(dmin, np.linalg.norm(fs - fs[j], axis=1))
+        sel = farthest_points(np.ascontiguousarray(fs), min(n, len(fs)))  # the NumPy loop's indices, one call
         out.extend(pose_matrix(R, c - R @ fs[j]) for j in sel)
     return out
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["ModelIndex", "build_index", "coarse_search", "edge_distances", "guess_score", "icp_kernel", "lower_bounds", "surface_distances", "window_rays"]
+__all__ = ["ModelIndex", "build_index", "coarse_search", "edge_distances", "farthest_points", "guess_score", "icp_kernel", "lower_bounds", "surface_distances", "window_rays"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -282,6 +282,36 @@ def _rodrigues(w0: float, w1: float, w2: float) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
+def _stiff(H: np.ndarray, weak: float) -> bool:
+    """Whether every eigenvalue of the symmetric positive semi-definite 6 × 6 ``H`` is surely at least ``weak`` ×
+    its largest, so that :func:`numpy.linalg.eigh` would find no eigenvalue below ``weak`` × its largest (the
+    ICP's edges then act in no direction: the eigen-decomposition is not needed). A Cholesky factorisation of
+    H − 2 ``weak`` trace(H) I that meets no pivot <= 0: the trace bounds the largest eigenvalue, the factor 2 is a
+    margin orders of magnitude above the rounding of both the factorisation and LAPACK's eigenvalues (~1e-15
+    × trace). False whenever in doubt (a NaN, a pivot <= 0): the caller then decomposes as before."""
+    tr = 0.0
+    for u in range(6):
+        tr += H[u, u]
+    if not tr > 0.0 or not weak < 0.5:
+        return False
+    mu = 2.0 * weak * tr
+    L = np.zeros((6, 6))
+    for j in range(6):
+        d = H[j, j] - mu
+        for m in range(j):
+            d -= L[j, m] * L[j, m]
+        if not d > 1e-12 * tr:
+            return False
+        L[j, j] = np.sqrt(d)
+        for i in range(j + 1, 6):
+            v = H[i, j]
+            for m in range(j):
+                v -= L[i, m] * L[j, m]
+            L[i, j] = v / L[j, j]
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
 def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: int, gate_mm: float, k: float,
                floor_mm: float, edge_points: np.ndarray, edge_gate_mm: float, extent: float, origin: np.ndarray,
                h: float, grid: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, n: np.ndarray,
@@ -304,10 +334,7 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
     g = np.zeros(6)
     He = np.zeros((6, 6))
     ge = np.zeros(6)
-    row = np.zeros(6)
-    J = np.zeros((3, 6))
-    J[0, 3] = J[1, 4] = J[2, 5] = 1.0
-    res = np.zeros(3)
+    sc0, sc1, sc2 = scale[0], scale[1], scale[2]
     for _ in range(iterations):
         H[:] = 0.0
         g[:] = 0.0
@@ -317,6 +344,15 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
         camz = -(R[0, 2] * t[0] + R[1, 2] * t[1] + R[2, 2] * t[2])
         ssq = 0.0
         n_used = 0
+        # the normal matrix's upper triangle and the gradient in scalars (registers, not an array's memory):
+        # each entry's products added in the points' order, as the loop over an array added them
+        g0 = g1 = g2 = g3 = g4 = g5 = 0.0
+        h00 = h01 = h02 = h03 = h04 = h05 = 0.0
+        h11 = h12 = h13 = h14 = h15 = 0.0
+        h22 = h23 = h24 = h25 = 0.0
+        h33 = h34 = h35 = 0.0
+        h44 = h45 = 0.0
+        h55 = 0.0
         for i in range(len(points)):
             px, py, pz = points[i, 0] - t[0], points[i, 1] - t[1], points[i, 2] - t[2]
             qx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
@@ -328,24 +364,40 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
             nx, ny, nz = n[j, 0], n[j, 1], n[j, 2]
             if nx * (camx - cx) + ny * (camy - cy) + nz * (camz - cz) <= 0.0:
                 continue
-            row[0] = (qy * nz - qz * ny) / scale[0]
-            row[1] = (qz * nx - qx * nz) / scale[1]
-            row[2] = (qx * ny - qy * nx) / scale[2]
-            row[3], row[4], row[5] = nx, ny, nz
-            for u in range(6):
-                g[u] += row[u] * r
-                for w in range(u, 6):  # the upper triangle; the lower is the same products (mirrored below)
-                    H[u, w] += row[u] * row[w]
+            r0 = (qy * nz - qz * ny) / sc0
+            r1 = (qz * nx - qx * nz) / sc1
+            r2 = (qx * ny - qy * nx) / sc2
+            r3, r4, r5 = nx, ny, nz
+            g0, h00, h01, h02, h03, h04, h05 = (
+                g0 + r0 * r, h00 + r0 * r0, h01 + r0 * r1, h02 + r0 * r2, h03 + r0 * r3, h04 + r0 * r4, h05 + r0 * r5)
+            g1, h11, h12, h13, h14, h15 = (
+                g1 + r1 * r, h11 + r1 * r1, h12 + r1 * r2, h13 + r1 * r3, h14 + r1 * r4, h15 + r1 * r5)
+            g2, h22, h23, h24, h25 = (
+                g2 + r2 * r, h22 + r2 * r2, h23 + r2 * r3, h24 + r2 * r4, h25 + r2 * r5)
+            g3, h33, h34, h35 = (
+                g3 + r3 * r, h33 + r3 * r3, h34 + r3 * r4, h35 + r3 * r5)
+            g4, h44, h45 = (
+                g4 + r4 * r, h44 + r4 * r4, h45 + r4 * r5)
+            g5, h55 = (
+                g5 + r5 * r, h55 + r5 * r5)
             ssq += r * r
             n_used += 1
         if n_used < 6:
             break
+        H[0, 0], H[0, 1], H[0, 2], H[0, 3], H[0, 4], H[0, 5] = h00, h01, h02, h03, h04, h05
+        H[1, 1], H[1, 2], H[1, 3], H[1, 4], H[1, 5] = h11, h12, h13, h14, h15
+        H[2, 2], H[2, 3], H[2, 4], H[2, 5] = h22, h23, h24, h25
+        H[3, 3], H[3, 4], H[3, 5] = h33, h34, h35
+        H[4, 4], H[4, 5] = h44, h45
+        H[5, 5] = h55
+        g[0], g[1], g[2], g[3], g[4], g[5] = g0, g1, g2, g3, g4, g5
         for u in range(1, 6):
             for w in range(u):
                 H[u, w] = H[w, u]
         if use_edges:
-            He[:] = 0.0
-            ge[:] = 0.0
+            ge0 = ge1 = ge2 = ge3 = ge4 = ge5 = 0.0
+            he00 = he01 = he02 = he04 = he05 = he10 = he11 = he12 = he13 = he15 = he20 = he21 = 0.0
+            he22 = he23 = he24 = he31 = he32 = he33 = he40 = he42 = he44 = he50 = he51 = he55 = 0.0
             ne = 0
             egate = max(edge_gate_mm, min(gate, 2.0 * edge_gate_mm))
             s3 = edge_gate_mm / 3.0
@@ -363,21 +415,87 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
                 if js < 0 or not ds < gate:
                     continue
                 w2 = 1.0 / (1.0 + (de / s3) ** 2)
-                # rows of d(q + w x q + tau)/d(w, tau) = [-[q]x, I], scaled (J reused, no allocation)
-                J[0, 1], J[0, 2] = qz / scale[1], -qy / scale[2]
-                J[1, 0], J[1, 2] = -qz / scale[0], qx / scale[2]
-                J[2, 0], J[2, 1] = qy / scale[0], -qx / scale[1]
-                res[0], res[1], res[2] = qx - ex, qy - ey, qz - ez
-                for m in range(3):
-                    for u in range(6):
-                        ju = w2 * J[m, u]
-                        if ju == 0.0:
-                            continue
-                        ge[u] += ju * res[m]
-                        for w in range(6):
-                            He[u, w] += ju * J[m, w]
+                # rows m of J = d(q + w x q + tau)/d(w, tau) = [-[q]x, I], scaled: jmu its entries off the
+                # zeros (row m: 1 at column 3 + m); He[u, w] += w2 J[m, u] J[m, w] and ge[u] += w2 J[m, u] res[m]
+                # for m = 0, 1, 2 in turn, the entries without a zero factor (adding a product of 0 changes no
+                # sum: the sums start at +0 and never become -0)
+                j01, j02 = qz / sc1, -qy / sc2
+                j10, j12 = -qz / sc0, qx / sc2
+                j20, j21 = qy / sc0, -qx / sc1
+                res0, res1, res2 = qx - ex, qy - ey, qz - ez
+                ju = w2 * j01
+                ge1 += ju * res0
+                he11 += ju * j01
+                he12 += ju * j02
+                he13 += ju * 1.0
+                ju = w2 * j02
+                ge2 += ju * res0
+                he21 += ju * j01
+                he22 += ju * j02
+                he23 += ju * 1.0
+                ju = w2 * 1.0
+                ge3 += ju * res0
+                he31 += ju * j01
+                he32 += ju * j02
+                he33 += ju * 1.0
+                ju = w2 * j10
+                ge0 += ju * res1
+                he00 += ju * j10
+                he02 += ju * j12
+                he04 += ju * 1.0
+                ju = w2 * j12
+                ge2 += ju * res1
+                he20 += ju * j10
+                he22 += ju * j12
+                he24 += ju * 1.0
+                ju = w2 * 1.0
+                ge4 += ju * res1
+                he40 += ju * j10
+                he42 += ju * j12
+                he44 += ju * 1.0
+                ju = w2 * j20
+                ge0 += ju * res2
+                he00 += ju * j20
+                he01 += ju * j21
+                he05 += ju * 1.0
+                ju = w2 * j21
+                ge1 += ju * res2
+                he10 += ju * j20
+                he11 += ju * j21
+                he15 += ju * 1.0
+                ju = w2 * 1.0
+                ge5 += ju * res2
+                he50 += ju * j20
+                he51 += ju * j21
+                he55 += ju * 1.0
                 ne += 1
-            if ne >= 3:
+            He[:] = 0.0
+            He[0, 0] = he00
+            He[0, 1] = he01
+            He[0, 2] = he02
+            He[0, 4] = he04
+            He[0, 5] = he05
+            He[1, 0] = he10
+            He[1, 1] = he11
+            He[1, 2] = he12
+            He[1, 3] = he13
+            He[1, 5] = he15
+            He[2, 0] = he20
+            He[2, 1] = he21
+            He[2, 2] = he22
+            He[2, 3] = he23
+            He[2, 4] = he24
+            He[3, 1] = he31
+            He[3, 2] = he32
+            He[3, 3] = he33
+            He[4, 0] = he40
+            He[4, 2] = he42
+            He[4, 4] = he44
+            He[5, 0] = he50
+            He[5, 1] = he51
+            He[5, 5] = he55
+            ge[0], ge[1], ge[2], ge[3], ge[4], ge[5] = ge0, ge1, ge2, ge3, ge4, ge5
+            if ne >= 3 and not _stiff(H, weak):
                 ev, V = np.linalg.eigh(H)
                 top = max(ev.max(), 1e-300)
                 P = np.zeros((6, 6))
@@ -434,6 +552,31 @@ def coarse_search(points: np.ndarray, edge_points: np.ndarray, Rs: np.ndarray, t
         if inl >= stop_inl and e_inl >= stop_edge:
             break
     return best, best_R, best_t, best_score
+
+
+@numba.njit(cache=True, nogil=True)
+def farthest_points(points: np.ndarray, count: int) -> np.ndarray:
+    """Indices of ``count`` (>= 1) of ``points`` (m >= 1, 3) by farthest point sampling from the first: each next
+    one the first of the largest distance to those taken. The arithmetic of the NumPy loop it replaces
+    (:func:`zcut.fits.icp.shifted_poses`): ``np.linalg.norm(points - points[j], axis=1)`` is
+    sqrt((dx² + dy²) + dz²) and ``np.argmax`` the first largest, so the same indices."""
+    m = len(points)
+    out = np.empty(count, np.int64)
+    out[0] = 0
+    dmin = np.empty(m)
+    for i in range(m):
+        dx, dy, dz = points[i, 0] - points[0, 0], points[i, 1] - points[0, 1], points[i, 2] - points[0, 2]
+        dmin[i] = np.sqrt(dx * dx + dy * dy + dz * dz)
+    for s in range(1, count):
+        j = 0
+        for i in range(1, m):
+            if dmin[i] > dmin[j]:
+                j = i
+        out[s] = j
+        for i in range(m):
+            dx, dy, dz = points[i, 0] - points[j, 0], points[i, 1] - points[j, 1], points[i, 2] - points[j, 2]
+            dmin[i] = min(dmin[i], np.sqrt(dx * dx + dy * dy + dz * dz))
+    return out
 
 
 @numba.njit(cache=True, nogil=True)

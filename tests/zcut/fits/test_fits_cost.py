@@ -262,3 +262,135 @@ def test_the_support_casting_only_the_rays_near_the_box_equals_casting_the_windo
                              lo, hi)
         kept.append(len(rr))
     assert 0 < max(kept) < 0.2 * 240 * 320  # it spares rays
+
+
+def test_the_icp_kernel_equals_the_previous_kernel_to_the_bit():
+    """The ninth round's kernel (normal matrices in scalars, the eigen-decomposition skipped when
+    kernels._stiff proves no weak direction) gives the previous kernel's pose, rms and count to the bit
+    (tests/zcut/fits/kernel_reference.py), from poses near and far, with and without the silhouette's
+    points, on a nut seen near head-on (weak directions: the decomposition runs) and one turned away."""
+    from kernel_reference import icp_kernel_reference
+
+    from zcut.fits.fit import _Frame, _occluding_boundary
+    from zcut.fits.icp import EDGE_WEAK
+    from zcut.fits.kernels import _stiff, icp_kernel
+
+    v, t, T, xyz, ids = _nut_scene()
+    model = prepare_model(v, t)
+    ix = model.index
+    assert ix is not None
+    rng = np.random.default_rng(11)
+    noisy = xyz + rng.normal(0, 0.05, xyz.shape)
+    valid = np.isfinite(noisy).all(axis=2)
+    frame = _Frame(xyz=noisy, valid=valid, zone=valid & (ids > 0), K=K_TEST)
+    T2 = pose(rotation((0, 1, 0.2), 140), (-20.0, 12.0, 310.0))
+    checked = 0
+    for which, Tt in ((1, T), (2, T2)):
+        flat = np.flatnonzero((ids.reshape(-1) == which) & valid.reshape(-1))
+        pts = np.ascontiguousarray(noisy.reshape(-1, 3)[flat])
+        edge = np.ascontiguousarray(noisy.reshape(-1, 3)[_occluding_boundary(frame, flat, 1.5)])
+        assert len(pts) > 200 and len(edge) > 20
+        for e in (edge, np.zeros((0, 3))):
+            for axis, deg, shift, its in (((0, 0, 1), 3, (0.3, -0.2, 0.1), 30), ((1, 0.2, 0), 12, (1.5, 1.0, -0.5), 30),
+                                          ((0.3, 1, 0), 35, (3.0, -2.0, 1.0), 4), ((0, 0, 1), 0.5, (0, 0, 0), 30)):
+                T0 = Tt @ pose(rotation(axis, deg), shift)
+                args = (pts, np.ascontiguousarray(T0[:3, :3]), np.ascontiguousarray(T0[:3, 3]), its, 4.0, 3.0, 0.1, e,
+                        1.5, float(model.extent_mm), ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid,
+                        ix.p0, ix.p1, EDGE_WEAK)
+                got, want = icp_kernel(*args), icp_kernel_reference(*args)
+                assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+                assert got[2] == want[2] or (np.isnan(got[2]) and np.isnan(want[2]))
+                assert got[3] == want[3]
+                checked += 1
+    assert checked == 16
+    # the proof it rests on: _stiff says yes only when LAPACK finds no eigenvalue below weak x the largest, and
+    # it does say yes (a well-conditioned matrix) and no (a nearly singular one, a NaN)
+    said = [0, 0]
+    for i in range(3000):
+        A = rng.normal(size=(6, 6 + i % 4)) * rng.uniform(0.01, 10, 6)[:, None]
+        H = A @ A.T
+        if i % 3 == 0:
+            H[:, 5] *= 1e-3
+            H[5, :] *= 1e-3
+        ev = np.linalg.eigvalsh(H)
+        s = _stiff(H, EDGE_WEAK)
+        said[int(s)] += 1
+        if s:
+            assert ev.min() >= EDGE_WEAK * ev.max()
+    assert said[0] > 100 and said[1] > 100
+    assert not _stiff(np.full((6, 6), np.nan), EDGE_WEAK) and not _stiff(np.zeros((6, 6)), EDGE_WEAK)
+    assert not _stiff(np.eye(6), 0.6)
+
+
+def test_farthest_points_in_numba_equal_the_numpy_loop():
+    """kernels.farthest_points gives the indices of the previous loop of zcut.fits.icp.shifted_poses (ties
+    and repeated points included)."""
+    from zcut.fits.kernels import farthest_points
+
+    def reference(fs: np.ndarray, n: int) -> list[int]:
+        sel = [0]
+        dmin = np.linalg.norm(fs - fs[0], axis=1)
+        for _ in range(min(n, len(fs)) - 1):
+            j = int(np.argmax(dmin))
+            sel.append(j)
+            dmin = np.minimum(dmin, np.linalg.norm(fs - fs[j], axis=1))
+        return sel
+
+    rng = np.random.default_rng(2)
+    for trial in range(2000):
+        m = int(rng.integers(1, 120))
+        fs = rng.normal(size=(m, 3)) * rng.uniform(0.1, 30)
+        if trial % 3 == 0:
+            fs = np.round(fs)  # ties and repeated points
+        n = int(rng.integers(1, 9))
+        assert list(farthest_points(np.ascontiguousarray(fs), min(n, m))) == reference(fs, n)
+
+
+def test_the_percentile_test_by_counts_equals_numpy():
+    """fit._percentile_above answers np.percentile(r, q) > thr, also at and one ulp off the percentile itself."""
+    from zcut.fits.fit import _percentile_above
+
+    rng = np.random.default_rng(4)
+    for trial in range(5000):
+        n = int(rng.integers(1, 400))
+        r = rng.random(n) * 10
+        if trial % 3 == 0:
+            r = np.round(r, 1)
+        p = float(np.percentile(r, 98))
+        for thr in (p, float(np.nextafter(p, 0)), float(np.nextafter(p, 20)), float(rng.random() * 10)):
+            assert _percentile_above(r, 98.0, thr) == bool(np.percentile(r, 98) > thr)
+
+
+def test_the_occluding_boundary_on_the_regions_box_equals_the_whole_frame():
+    """fit._occluding_boundary (the region's membership on its box) gives the previous whole-frame answer,
+    regions at the frame's borders and corners included."""
+    from zcut.fits.fit import _Frame, _occluding_boundary
+
+    def reference(frame: _Frame, flat: np.ndarray, jump_mm: float) -> np.ndarray:
+        H, W = frame.valid.shape
+        inside = np.zeros(H * W, bool)
+        inside[flat] = True
+        z = frame.xyz[..., 2].reshape(-1)
+        valid = frame.valid.reshape(-1)
+        r, c = np.divmod(flat, W)
+        edge = np.zeros(len(flat), bool)
+        for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+            rr, cc = r + dr, c + dc
+            ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+            nb = np.where(ok, rr * W + cc, 0)
+            edge |= ok & ~inside[nb] & (~valid[nb] | (z[nb] > z[flat] + jump_mm))
+        return flat[edge]
+
+    rng = np.random.default_rng(6)
+    H, W = 40, 56
+    xyz = np.stack([rng.normal(size=(H, W)), rng.normal(size=(H, W)), 300 + rng.normal(0, 3, (H, W))], axis=-1)
+    xyz[rng.random((H, W)) < 0.1] = np.nan
+    valid = np.isfinite(xyz).all(axis=2)
+    frame = _Frame(xyz=xyz, valid=valid, zone=valid, K=K_TEST)
+    for trial in range(300):
+        r0, c0 = int(rng.integers(0, H)), int(rng.integers(0, W))
+        r1, c1 = int(rng.integers(r0, H)) + 1, int(rng.integers(c0, W)) + 1
+        box = np.zeros((H, W), bool)
+        box[r0:r1, c0:c1] = rng.random((r1 - r0, c1 - c0)) < (0.5 if trial % 2 else 1.0)
+        flat = np.flatnonzero(box.reshape(-1) & valid.reshape(-1))
+        assert np.array_equal(_occluding_boundary(frame, flat, 1.5), reference(frame, flat, 1.5))
