@@ -24,8 +24,10 @@ from annotate.store import (
 from replay.logs import layout
 
 
-def export_labels(store: LabelStore, log: LogRecord, path: str | os.PathLike[str], *, annotator: str) -> int:
-    """Write an annotator's current labels of a log to MCAP.
+def export_labels(store: LabelStore, log: LogRecord, path: str | os.PathLike[str], *, annotator: str,
+                  bag_name: str | None = None) -> int:
+    """Write an annotator's current labels of a log to MCAP (``bag_name``: the file name its ``rosbag2``
+    record names, when ``path`` is a temporary renamed into place; default ``path``'s name).
 
     Returns
     -------
@@ -45,7 +47,7 @@ def export_labels(store: LabelStore, log: LogRecord, path: str | os.PathLike[str
             "schema_version": str(SCHEMA_VERSION),
         }
     }
-    with LogWriter(path, metadata=meta) as w:
+    with LogWriter(path, metadata=meta, bag_name=bag_name) as w:
         for fr, lab in pairs:
             w.write_mask(layout.LABEL_OUTLIERS, lab.outliers, stamp_ns=fr.stamp_ns, frame_id=fr.frame_id)
             w.write_mask(layout.LABEL_REVIEWED, lab.reviewed, stamp_ns=fr.stamp_ns, frame_id=fr.frame_id)

@@ -147,7 +147,7 @@ def _run(args: argparse.Namespace) -> int:
         from replay.outputs import AtomicOutput
 
         with AtomicOutput(args.out) as out:
-            n = export_labels(store, log, out.temp, annotator=who)
+            n = export_labels(store, log, out.temp, annotator=who, bag_name=Path(args.out).name)
         print(f"wrote {n} labelled frame(s) by {who} to {args.out}")
         return 0
 

@@ -155,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
                                               load_part_mesh(args.part_model, unit=args.part_model_unit))
     meta = {"zcut.record": {"sources": "\n".join(str(f) for f in files), "unit": args.unit}}
     with OutputPlan(inputs, force=args.force) as plan, AtomicOutput(plan.add(out, "the log")) as target:
-        with LogWriter(target.temp, metadata=meta, attachments=attachments) as w:
+        with LogWriter(target.temp, metadata=meta, attachments=attachments, bag_name=out.name) as w:
             for i, f in enumerate(files):
                 cloud = read_pcd(f) if f.suffix.lower() == ".pcd" else read_ply(f, shape=shape)
                 xyz = cloud.xyz

@@ -211,7 +211,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.output)
     inputs: list[str | os.PathLike[str]] = [v for s in scenes for v in s.sources.values()]
     with OutputPlan(inputs, force=args.force) as plan, AtomicOutput(plan.add(out, "the log")) as target:
-        with LogWriter(target.temp, metadata=meta) as w:
+        with LogWriter(target.temp, metadata=meta, bag_name=out.name) as w:
             for i, (scene, p) in enumerate(zip(scenes, params)):
                 t0 = time.process_time()
                 disp = match(scene.left, scene.right, p)

@@ -432,7 +432,7 @@ class ResultsSink:
         self._file = AtomicOutput(self.path)
         try:
             with naming(self.path, self._file.temp):
-                self._writer = LogWriter(self._file.temp, metadata=meta)
+                self._writer = LogWriter(self._file.temp, metadata=meta, bag_name=self.path.name)
         except BaseException:
             self._file.abort()
             raise

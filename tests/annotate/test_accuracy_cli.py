@@ -210,6 +210,13 @@ def test_labels_list_export_import(spike_log, tmp_path, capsys):
     out = tmp_path / "ann.mcap"
     assert main(["labels", "export", str(log), "--db", str(db), "-o", str(out)]) == 0
     assert "wrote 2 labelled frame(s) by ann" in capsys.readouterr().out
+    # its rosbag2 record names the file, not the temporary it was written to
+    from mcap.reader import make_reader
+
+    with open(out, "rb") as f:
+        bag = next(dict(m.metadata)["serialized_metadata"] for m in make_reader(f).iter_metadata()
+                   if m.name == "rosbag2")
+    assert "partial" not in bag and "relative_file_paths:\n    - ann.mcap\n" in bag
     # the export is an MCAP with mono8 /labels/outliers and /labels/reviewed, stamped like the clouds
     from annotate.label_files import read_label_masks
 
