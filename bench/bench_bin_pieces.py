@@ -71,12 +71,12 @@ def open3d_iterations(pm: Any, target: Any, c: Any, reg: Any) -> tuple[int, ...]
     """Open3D's iterations of each pass of ``reg`` (a reference registration), from its debug log: the passes
     run again from ``reg.T_init`` as :func:`register_bin` runs them."""
     from zcut.icp_fast import icp_open3d
-    from zcut.registration import voxel_down
+    from zcut.registration import to_open3d, voxel_down
 
     T = np.linalg.inv(reg.T_init)
     passes = [(target.cloud, pm.icp.fine, c.fine_correspondence_m)]
     if len(reg.iterations) == 2:
-        passes.insert(0, (voxel_down(target.cloud, 2.0 * c.voxel_m, "the target"), pm.icp.coarse,
+        passes.insert(0, (voxel_down(to_open3d(target.cloud), 2.0 * c.voxel_m, "the target"), pm.icp.coarse,
                           c.max_correspondence_m))
     its = []
     for s_pc, d_pc, dist in passes:

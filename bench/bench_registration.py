@@ -183,7 +183,7 @@ def pieces_of_log(log: Path, repeats: int) -> dict[str, float]:
     from replay.pipeline.bin_model import bin_model_for
     from replay.pipeline.session import ReplaySession
     from zcut.icp_fast import icp as icp_pass
-    from zcut.registration import _cloud_of, _guess, _rim_fitness, subsampled_points, voxel_down_points
+    from zcut.registration import _guess, _rim_fitness, subsampled_points, voxel_down_points
 
     cv2.setNumThreads(1)
     session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
@@ -219,8 +219,8 @@ def pieces_of_log(log: Path, repeats: int) -> dict[str, float]:
         else:
             reg = least("register_bin", lambda: register_bin(model, tgt, params=c))
             T0 = least("  guess", lambda: _guess(model.top_centre, tgt.points))
-            coarse = least("  voxel_coarse", lambda: _cloud_of(voxel_down_points(src, 2.0 * c.voxel_m)))
-            out = least("  icp_coarse", lambda: icp_pass(np.asarray(coarse.points), model.coarse_grid,
+            coarse = least("  voxel_coarse", lambda: voxel_down_points(src, 2.0 * c.voxel_m))
+            out = least("  icp_coarse", lambda: icp_pass(coarse, model.coarse_grid,
                                                          max_distance=c.max_correspondence_m, init=np.linalg.inv(T0),
                                                          point_to_plane=True, max_iteration=int(c.max_iterations)))
             T = out.transformation

@@ -45,7 +45,10 @@ def test_help_loads_no_heavy_library(argv: tuple[str, ...]) -> None:
     assert _loaded(_main(*argv)) == []
 
 
-def test_replay_without_outputs_loads_neither_rerun_nor_pyarrow(tmp_path: Path) -> None:
+def test_replay_without_outputs_loads_neither_rerun_nor_pyarrow(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # an empty bin model cache: the first replay prepares the model, with Open3D (a replay whose prepared model
+    # comes from the cache loads no Open3D at all: tests/cli/test_startup.py)
+    monkeypatch.setenv("ZCUT_CACHE", str(tmp_path / "cache"))
     log = tmp_path / "small.mcap"
     made = subprocess.run([sys.executable, "-m", "cli", "synth", "-o", str(log), "--size", "64x48"],
                           capture_output=True, text=True, cwd=str(ROOT), timeout=600)
@@ -59,7 +62,7 @@ def test_replay_without_outputs_loads_neither_rerun_nor_pyarrow(tmp_path: Path) 
              + f"print(sorted(m for m in {unused_parts!r} if m in sys.modules), file=sys.__stderr__)\n")
     unused = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=str(ROOT), timeout=300)
     assert unused.returncode == 0 and unused.stderr.strip().splitlines()[-1] == "[]", unused.stderr[-2000:]
-    # the replay registered the bin model with Open3D, without the Dash and Plotly its viewer imports
+    # the replay prepared the bin model with Open3D, without the Dash and Plotly its viewer imports
     assert "open3d" in loaded and not {"dash", "plotly"} & set(loaded), loaded
 
 

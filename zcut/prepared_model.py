@@ -8,8 +8,8 @@ parameters, into a frozen :class:`PreparedBinModel` that the caller passes to th
 ``.removal``): no module-level cache, nothing shared between threads but read-only arrays.
 
 :func:`prepared_arrays` and :func:`prepared_from_arrays` turn a prepared model into named arrays and
-back, bit for bit (the Open3D clouds from their points and normals, the KD-trees from their own
-state, not rebuilt), so that ``replay`` can keep it in a cache file keyed by the model's content
+back, bit for bit (the clouds from their points and normals, the KD-trees from their own
+state, not rebuilt; no Open3D: a replay whose prepared model comes from the cache never imports it), so that ``replay`` can keep it in a cache file keyed by the model's content
 (:func:`replay.pipeline.bin_model.prepared_bin_model`): preparing a 365k-point model costs ~0.8
 CPU-s, loading it back ~0.05.
 """
@@ -23,11 +23,10 @@ import numpy as np
 
 from .bin_model import BinModel
 from .params import RegistrationParams, RemovalParams
-from .registration import IcpModel, prepare_icp_model
+from .registration import IcpModel, Points, prepare_icp_model
 from .removal import RemovalIndex, _ModelIndex, prepare_removal_index
 
 if TYPE_CHECKING:
-    import open3d as o3d
     from scipy.spatial import cKDTree
 
 __all__ = ["PreparedBinModel", "prepare_bin_model", "prepared_arrays", "prepared_from_arrays"]
@@ -94,21 +93,18 @@ def _tree_of(a: dict[str, np.ndarray], prefix: str) -> cKDTree:
     return tree
 
 
-def _cloud_arrays(pc: o3d.geometry.PointCloud, prefix: str, out: dict[str, np.ndarray]) -> bool:
-    """A downsampled model cloud's points and normals; False when it holds more (colours, covariances)."""
-    if pc.has_colors() or pc.has_covariances() or not pc.has_normals():
+def _cloud_arrays(pc: Points, prefix: str, out: dict[str, np.ndarray]) -> bool:
+    """A downsampled model cloud's points and normals; False when it has no normals (an empty model's)."""
+    if not pc.has_normals():
         return False
-    out[f"{prefix}.points"] = np.asarray(pc.points, dtype=np.float64).copy()
-    out[f"{prefix}.normals"] = np.asarray(pc.normals, dtype=np.float64).copy()
+    assert pc.normals is not None  # has_normals
+    out[f"{prefix}.points"] = pc.points.copy()
+    out[f"{prefix}.normals"] = pc.normals.copy()
     return True
 
 
-def _cloud_of(a: dict[str, np.ndarray], prefix: str) -> o3d.geometry.PointCloud:
-    import open3d as o3d
-
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(a[f"{prefix}.points"])))
-    pc.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(a[f"{prefix}.normals"]))
-    return pc
+def _cloud_of(a: dict[str, np.ndarray], prefix: str) -> Points:
+    return Points(a[f"{prefix}.points"], a[f"{prefix}.normals"])
 
 
 def _index_arrays(ix: _ModelIndex, prefix: str, out: dict[str, np.ndarray]) -> None:
@@ -144,7 +140,7 @@ def _index_of(a: dict[str, np.ndarray], prefix: str) -> _ModelIndex:
 
 def prepared_arrays(prepared: PreparedBinModel) -> dict[str, np.ndarray] | None:
     """Every array of ``prepared`` by name (the model's too), for :func:`prepared_from_arrays`; None
-    when it holds something this form does not keep (a periodic KD-tree, coloured clouds)."""
+    when it holds something this form does not keep (a periodic KD-tree, a cloud without normals)."""
     icp, rem, model = prepared.icp, prepared.removal, prepared.model
     out: dict[str, np.ndarray] = {"model.points": model.points, "model.spacing": np.array([model.spacing_m])}
     if model.normals is not None:

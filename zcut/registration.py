@@ -56,6 +56,7 @@ __all__ = [
     "RIM_BAND_MM",
     "RIM_MAX_TILT_DEG",
     "IcpModel",
+    "Points",
     "RegistrationResult",
     "TargetPoints",
     "initial_guess",
@@ -65,6 +66,7 @@ __all__ = [
     "register_bin",
     "rim_points",
     "subsampled_points",
+    "to_open3d",
     "transform_points",
 ]
 
@@ -591,28 +593,68 @@ def voxel_down_points(points: np.ndarray, voxel_m: float, what: str = "the targe
     half = np.full(3, voxel_m) * 0.5
     keys, sums, counts = _voxel_ids(p, lo - half, float(voxel_m))
     if len(keys) >= _LIBSTDCXX_BUCKETS[-1]:  # pragma: no cover - more voxels than the table follows
-        return np.asarray(voxel_down(_cloud_of(p), voxel_m, what).points, dtype=np.float64)
+        return np.asarray(voxel_down(to_open3d(Points(p)), voxel_m, what).points, dtype=np.float64)
     order = _unordered_map_order(keys, np.array(_LIBSTDCXX_BUCKETS, np.int64))
     return _averages(sums, counts, order)
 
 
-def _cloud_of(points: np.ndarray) -> o3d.geometry.PointCloud:
+@dataclass(frozen=True, slots=True)
+class Points:
+    """A point cloud as plain arrays: what registration keeps of a cloud between calls (the frame's
+    downsampled bin points, the model's downsampled copies). Open3D's ``PointCloud`` is built from it
+    only where Open3D computes something (:func:`to_open3d`): importing Open3D costs ~0.3 CPU-s a
+    process, and a replay whose prepared bin model comes from its cache calls none of it.
+
+    Attributes
+    ----------
+    points : (N, 3) float64 ndarray
+        C order (made so, without a copy when it already is).
+    normals : (N, 3) float64 ndarray or None
+        C order.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        p = np.ascontiguousarray(self.points, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise InputShapeError(f"Points.points must be an (N, 3) float array, got {describe_array(p)}")
+        object.__setattr__(self, "points", p)
+        if self.normals is not None:
+            n = np.ascontiguousarray(self.normals, dtype=np.float64)
+            if n.shape != p.shape:
+                raise InputShapeError(f"Points.normals must match points {p.shape}, got {describe_array(n)}")
+            object.__setattr__(self, "normals", n)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def has_normals(self) -> bool:
+        """Open3D's ``PointCloud.has_normals()``: normals for a non-empty cloud."""
+        return self.normals is not None and len(self.points) > 0
+
+
+def to_open3d(cloud: Points) -> o3d.geometry.PointCloud:
+    """An Open3D ``PointCloud`` of ``cloud``'s points (and normals): the only place registration imports
+    Open3D for a cloud, on the paths that run Open3D (its ICP, its voxel grid beyond
+    :func:`voxel_down_points`' table, normal estimation)."""
     import open3d as o3d
 
-    return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-
-
-def _cloud(points: np.ndarray, voxel_m: float, what: str = "the target") -> o3d.geometry.PointCloud:
-    import open3d as o3d
-
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    if voxel_m > 0:
-        pc = voxel_down(pc, voxel_m, what)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.points))
+    if cloud.normals is not None:
+        pc.normals = o3d.utility.Vector3dVector(cloud.normals)
     return pc
 
 
+def _points_of(pc: o3d.geometry.PointCloud) -> Points:
+    """The arrays of an Open3D cloud (copied out of it)."""
+    points = np.asarray(pc.points, dtype=np.float64).copy()
+    return Points(points, np.asarray(pc.normals, dtype=np.float64).copy() if pc.has_normals() else None)
+
+
 def _model_cloud(model: np.ndarray, normals: np.ndarray | None, voxel_m: float,
-                 normal_radius: float) -> o3d.geometry.PointCloud:
+                 normal_radius: float) -> Points:
     """The downsampled model with unit normals (estimated when the model has none)."""
     import open3d as o3d
 
@@ -625,7 +667,7 @@ def _model_cloud(model: np.ndarray, normals: np.ndarray | None, voxel_m: float,
         pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normal_radius, max_nn=30))
     else:
         pc.normalize_normals()
-    return pc
+    return _points_of(pc)
 
 
 @dataclass(frozen=True, slots=True)
@@ -638,7 +680,7 @@ class IcpModel:
         The model's points (bin frame, metres).
     top_centre : ((2,) float64 ndarray, float)
         The model's (x, y) centre and top z, for :func:`initial_guess` (None for an empty model).
-    fine, coarse : open3d.geometry.PointCloud
+    fine, coarse : Points
         Downsampled at the voxel (fine pass) and twice the voxel (coarse pass), with unit normals.
     tree : scipy.spatial.cKDTree
         Over the points of ``fine``.
@@ -656,8 +698,8 @@ class IcpModel:
 
     points: np.ndarray
     top_centre: tuple[np.ndarray, float] | None
-    fine: o3d.geometry.PointCloud
-    coarse: o3d.geometry.PointCloud
+    fine: Points
+    coarse: Points
     tree: cKDTree
     params: RegistrationParams
     rim: np.ndarray
@@ -671,11 +713,10 @@ class IcpModel:
         object.__setattr__(self, "coarse_grid", _grid_of(self.coarse, p.max_correspondence_m))
 
 
-def _grid_of(pc: o3d.geometry.PointCloud, radius_m: float) -> IcpGrid:
+def _grid_of(pc: Points, radius_m: float) -> IcpGrid:
     from .icp_fast import build_grid  # numba's kernels, loaded where used
 
-    return build_grid(np.asarray(pc.points, dtype=np.float64),
-                      np.asarray(pc.normals, dtype=np.float64) if pc.has_normals() else None, radius=radius_m)
+    return build_grid(pc.points, pc.normals if pc.has_normals() else None, radius=radius_m)
 
 
 def rim_points(points: np.ndarray, normals: np.ndarray, *, band_m: float = RIM_BAND_MM / 1000.0,
@@ -748,9 +789,10 @@ def prepare_icp_model(model: BinModel, params: RegistrationParams, *,
     normal_radius = max(3.0 * voxel, 2.0 * params.max_correspondence_m / 3.0)
     fine = _model_cloud(m, model.normals, voxel, normal_radius)
     coarse = _model_cloud(m, model.normals, 2.0 * voxel, 2.0 * normal_radius) if voxel > 0 else fine
-    fine_points = np.asarray(fine.points, dtype=np.float64)
+    fine_points = fine.points
     tree = cKDTree(fine_points)
-    rim, up = rim_points(fine_points, np.asarray(fine.normals, dtype=np.float64), band_m=rim_band_mm / 1000.0)
+    rim, up = rim_points(fine_points, fine.normals if fine.normals is not None else np.empty((0, 3)),
+                         band_m=rim_band_mm / 1000.0)
     return IcpModel(m, _top_and_centre(m) if len(m) else None, fine, coarse, tree, params, rim, up)
 
 
@@ -808,7 +850,7 @@ class TargetPoints:
     ----------
     points : (M, 3) float64 ndarray
         The finite target points (camera frame, metres).
-    cloud : open3d.geometry.PointCloud
+    cloud : Points
         Downsampled at ``voxel_m``.
     voxel_m : float
     intrinsics : Intrinsics or None
@@ -820,7 +862,7 @@ class TargetPoints:
     """
 
     points: np.ndarray
-    cloud: o3d.geometry.PointCloud
+    cloud: Points
     voxel_m: float
     intrinsics: Intrinsics | None
     _tree: cKDTree | None = field(default=None, init=False, repr=False, compare=False)
@@ -831,7 +873,7 @@ class TargetPoints:
             from scipy.spatial import cKDTree
 
             # an unbalanced tree without shrunk boxes builds in half the time; its nearest distances are the same
-            object.__setattr__(self, "_tree", cKDTree(np.asarray(self.cloud.points, dtype=np.float64),
+            object.__setattr__(self, "_tree", cKDTree(self.cloud.points,
                                                       balanced_tree=False, compact_nodes=False))
         assert self._tree is not None  # built above
         return self._tree
@@ -857,7 +899,7 @@ def prepare_target(target: np.ndarray, *, voxel_m: float, intrinsics: Intrinsics
     t = _check_points(target, "target")
     if intrinsics is not None and not isinstance(intrinsics, Intrinsics):
         raise InputShapeError(f"intrinsics must be a zcut.cloud.Intrinsics or None, got {type(intrinsics).__name__}")
-    cloud = _cloud_of(voxel_down_points(t, voxel_m)) if voxel_m > 0 else _cloud(t, 0.0)
+    cloud = Points(voxel_down_points(t, voxel_m) if voxel_m > 0 else t)
     return TargetPoints(t, cloud, float(voxel_m), intrinsics)
 
 
@@ -933,9 +975,9 @@ def register_bin(
         if params.voxel_m <= 0:
             src_c = src
         elif reference:
-            src_c = voxel_down(src, 2.0 * params.voxel_m, "the target")
+            src_c = _points_of(voxel_down(to_open3d(src), 2.0 * params.voxel_m, "the target"))
         else:  # Open3D's voxel grid, bit for bit and in its order (voxel_down_points)
-            src_c = _cloud_of(voxel_down_points(np.asarray(src.points), 2.0 * params.voxel_m))
+            src_c = Points(voxel_down_points(src.points, 2.0 * params.voxel_m))
         passes.insert(0, (src_c, model.coarse, model.coarse_grid, params.max_correspondence_m))
     point_to_plane = params.method == "point_to_plane"
     iterations = []
@@ -945,7 +987,7 @@ def register_bin(
             fit, inlier_rmse, T = _open3d_pass(s_pc, d_pc, dist, T, point_to_plane, int(params.max_iterations))
             iterations.append(-1)
         else:
-            out = icp(np.asarray(s_pc.points), grid, max_distance=dist, init=T, point_to_plane=point_to_plane,
+            out = icp(s_pc.points, grid, max_distance=dist, init=T, point_to_plane=point_to_plane,
                       max_iteration=int(params.max_iterations))
             fit, inlier_rmse, T = out.fitness, out.inlier_rmse, out.transformation
             iterations.append(out.iterations)
@@ -965,7 +1007,7 @@ def register_bin(
                               icp_fitness, n_rim, tuple(iterations))
 
 
-def _open3d_pass(src: o3d.geometry.PointCloud, dst: o3d.geometry.PointCloud, dist: float, T: np.ndarray,
+def _open3d_pass(src: Points, dst: Points, dist: float, T: np.ndarray,
                  point_to_plane: bool, max_iterations: int) -> tuple[float, float, np.ndarray]:
     """One ICP pass by Open3D's ``registration_icp``: (fitness, inlier RMSE, source -> target)."""
     import open3d as o3d
@@ -973,7 +1015,7 @@ def _open3d_pass(src: o3d.geometry.PointCloud, dst: o3d.geometry.PointCloud, dis
     reg = o3d.pipelines.registration
     est: o3d.pipelines.registration.TransformationEstimation
     est = reg.TransformationEstimationPointToPlane() if point_to_plane else reg.TransformationEstimationPointToPoint()
-    r = reg.registration_icp(src, dst, dist, T, est, reg.ICPConvergenceCriteria(max_iteration=max_iterations))
+    r = reg.registration_icp(to_open3d(src), to_open3d(dst), dist, T, est, reg.ICPConvergenceCriteria(max_iteration=max_iterations))
     return float(r.fitness), float(r.inlier_rmse), np.asarray(r.transformation, dtype=np.float64).copy()
 
 
@@ -996,7 +1038,7 @@ def _rim_fitness(model: IcpModel, target: TargetPoints, T_cam_bin: np.ndarray,
         rim = rim[_in_view(rim, K)]
     if len(rim) == 0:
         return 0.0, 0
-    pts = np.asarray(target.cloud.points, dtype=np.float64)
+    pts = target.cloud.points
     if len(pts) == 0:
         return 0.0, len(rim)
     if K is None:

@@ -10,6 +10,7 @@ interpreter and reads ``sys.modules`` at its end; the test suite spawns hundreds
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
@@ -86,6 +87,32 @@ def test_a_plugged_in_method_is_listed_by_a_fresh_parser() -> None:
             "print(' '.join(buf.getvalue().split()))\n")
     _, out = _fresh(code, env=env)
     assert "toy_for_help" in out, out
+
+
+def _frames(out: str) -> list[dict[str, object]]:
+    """The per-frame figures of a ``zcut replay --json`` run, without their wall time."""
+    frames = json.loads(out)["frames"]
+    return [{k: v for k, v in f.items() if k != "time_s"} for f in frames]
+
+
+def test_a_replay_with_its_prepared_model_cached_never_imports_open3d(tmp_path: Path) -> None:
+    """Open3D (~0.3 CPU-s to import) computes only when a bin model is prepared (its voxel grid with
+    normals, normal estimation) or on the ICP's reference path: a replay whose prepared model comes from
+    the cache keeps every cloud as arrays (:class:`zcut.registration.Points`) and gives the same figures
+    (docs/performance.md, "Open3D out of the replay, round of 2026-12-05")."""
+    from replay.synth.log import write_synthetic_log
+
+    log = tmp_path / "nuts.mcap"
+    write_synthetic_log(log, kind="zinc_nuts", frames=3, seed=23, size=(200, 320))
+    env = dict(os.environ, ZCUT_CACHE=str(tmp_path / "cache"))
+    first, out_first = _fresh(_main("replay", str(log), "--json"), env=env)
+    assert "open3d" in first, first  # the model was prepared (and cached) by this run, with Open3D
+    again, out_again = _fresh(_main("replay", str(log), "--json"), env=env)
+    assert "open3d" not in again, again
+    assert {"numba", "scipy"} <= set(again)  # a run that did run the pipeline
+    frames = _frames(out_again)
+    assert len(frames) == 3 and all(f["fitness"] >= 0.9 and not f["warnings"] for f in frames), frames
+    assert frames == _frames(out_first)
 
 
 def test_the_gate_in_the_help_is_the_assistants() -> None:

@@ -21,6 +21,7 @@ from zcut.registration import (
     prepare_target,
     register_bin,
     rim_points,
+    to_open3d,
     transform_points,
 )
 
@@ -202,7 +203,8 @@ def test_icp_fitness_is_open3ds_at_the_final_pose(filled, model):
     p = RegistrationParams(voxel_mm=1.0)
     icp, tgt = prepare_icp_model(model, p), prepare_target(target, voxel_m=p.voxel_m)
     r = register_bin(icp, tgt)
-    want = o3d.pipelines.registration.evaluate_registration(tgt.cloud, icp.fine, p.fine_correspondence_m,
+    want = o3d.pipelines.registration.evaluate_registration(to_open3d(tgt.cloud), to_open3d(icp.fine),
+                                                            p.fine_correspondence_m,
                                                             np.linalg.inv(r.T_cam_bin))
     assert r.icp_fitness == pytest.approx(want.fitness, abs=1e-9)
     assert r.inlier_rmse == pytest.approx(want.inlier_rmse, rel=1e-6)
