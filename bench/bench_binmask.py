@@ -55,12 +55,15 @@ def _old_check_points(p: np.ndarray, name: str) -> np.ndarray:
 
 
 def old_prepare_target(target: np.ndarray, *, voxel_m: float, intrinsics: Any = None) -> TargetPoints:
-    """``zcut.registration.prepare_target`` before this change (balanced KD-tree)."""
-    from scipy.spatial import cKDTree
-
+    """``zcut.registration.prepare_target`` before this change: the row-wise finite test and Open3D's own
+    voxel grid (the same points as ``voxel_down_points``; tests/zcut/test_registration_voxels.py)."""
     t = _old_check_points(target, "target")
-    cloud = registration._cloud(t, voxel_m)
-    return TargetPoints(t, cloud, float(voxel_m), cKDTree(np.asarray(cloud.points, dtype=np.float64)), intrinsics)
+    if voxel_m > 0:
+        down = registration.voxel_down(registration.to_open3d(registration.Points(t)), voxel_m, "the target")
+        cloud = registration.Points(np.asarray(down.points, dtype=np.float64))
+    else:
+        cloud = registration.Points(t)
+    return TargetPoints(t, cloud, float(voxel_m), intrinsics)
 
 
 VARIANTS: dict[str, dict[str, Callable[..., Any]]] = {
