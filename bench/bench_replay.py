@@ -546,11 +546,12 @@ def startup_costs(tree: Path, log: Path, n_frames: int) -> dict[str, float]:
 #: The libraries a replay of a log with a bin model cannot do without, and numba's target context,
 #: in a process that runs no zcut code (but the command line's process settings and one cached kernel,
 #: the reader's, on a tiny cloud): the floor of F, which no import placement moves. The 40-odd
-#: other cached kernels of a frame (~5 ms each) come on top.
+#: other cached kernels of a frame (~5 ms each) come on top. Not Open3D: a replay whose prepared bin
+#: model comes from its cache no longer imports it (docs/performance.md, "Open3D out of the replay").
 FLOOR_CODE = """
 from replay.process import configure_process
 configure_process()
-import numpy as np, scipy.spatial, cv2, open3d, numba
+import numpy as np, scipy.spatial, cv2, numba
 from replay.logs import ros2_msgs
 words = np.zeros((2, 2, 4), np.uint32)
 ros2_msgs._unpack_words(words, 0, 1, 2, np.empty((2, 2, 3), np.float32))
@@ -589,7 +590,7 @@ def startup_table(log: Path, against: Path | None, repeats: int) -> None:
         a, b = med["previous"], med["this tree"]
         print(f"  {'previous/this':12s}" + "".join(f" {a[k] / b[k] if b[k] else float('nan'):9.2f}" for k, _ in keys))
     print("  (F = T(1) - f: what the process spends besides its frames; the issue asks F/T(N) <= 0.20; floor: a\n"
-          "  process importing NumPy, numba, SciPy's KD-tree, OpenCV and Open3D and loading one cached kernel)")
+          "  process importing NumPy, numba, SciPy's KD-tree and OpenCV and loading one cached kernel)")
     floor = statistics.median(r["floor"] for rs in got.values() for r in rs)
     m = med["this tree"]
     print(f"  the floor's share of T({n}) were the rest of F gone: {floor / (m['tn'] - m['fixed'] + floor):.2f}")
