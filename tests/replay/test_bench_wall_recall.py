@@ -64,8 +64,8 @@ def test_miss_classes(bench, mesh_mm, err_fit, d_in_err, cls):
 
 
 def test_fits_table_counts_each_class_and_splits_fits_by_wall(bench):
-    fit = {"mesh_mean_mm": 0.2, "mesh_max_mm": 0.4, "sigma_mm": 0.5, "truth_err_p50_mm": 1.0, "wall_mm": 3.0,
-           "misses": 2}
+    fit = {"mesh_mean_mm": 0.2, "mesh_max_mm": 0.4, "sigma_mm": 0.5, "err_p50_mm": 1.2, "truth_err_p50_mm": 1.0,
+           "wall_mm": 3.0, "misses": 2}
     off = {**fit, "mesh_mean_mm": 2.0, "wall_mm": 30.0, "misses": 1}
     pts = [{"fit": 0, "err_fit_mm": 1.0, "err_true_mm": 1.0, "d_true_in_err": 3.5},
            {"fit": 0, "err_fit_mm": 2.0, "err_true_mm": 1.0, "d_true_in_err": 5.0},
@@ -76,6 +76,6 @@ def test_fits_table_counts_each_class_and_splits_fits_by_wall(bench):
     total = next(line for line in table if line.startswith("| all |")).split(" | ")
     assert total[5:9] == ["1 (33%)", "1 (33%)", "1 (33%)", "0 (0%)"]
     wall = next(line for line in table if line.startswith("| beside a wall")).split(" | ")
-    assert wall[1:4] == ["1", "0.20 (0.20)", "0"]
+    assert wall[1:6] == ["1", "0.20 (0.20)", "0", "0.50", "1.20"]
     far = next(line for line in table if line.startswith("| elsewhere")).split(" | ")
     assert far[1:4] == ["1", "2.00 (2.00)", "1"]
