@@ -485,9 +485,12 @@ def fits_table(rows: list[dict]) -> list[str]:
                + " | ".join(f"{cls.count(k)} ({cls.count(k) / max(n, 1):.0%})" for k in MISS_KINDS) + " | | | |")
     out += ["", f"| fits | n | pose error mean mm p50 (p90) | off (> {FIT_OFF_MM:g} mm) | σ mm p50 | "
             "its Err / the truth's Err on its pixels, p50 | with a near-wall miss |", "|---|---:|---|---:|---|---|---:|"]
-    allf = [f for r in rows for f in r["fits"]]
-    for name, sel in ((f"beside a wall (≤ {NEAR_MM:g} mm)", [f for f in allf if f["wall_mm"] <= NEAR_MM]),
-                      ("elsewhere", [f for f in allf if not f["wall_mm"] <= NEAR_MM])):
+    groups = []
+    for kind in ("all", *sorted({r["kind"] for r in rows})):
+        allf = [f for r in rows if kind in ("all", r["kind"]) for f in r["fits"]]
+        groups += [(f"{kind}, beside a wall (≤ {NEAR_MM:g} mm)", [f for f in allf if f["wall_mm"] <= NEAR_MM]),
+                   (f"{kind}, elsewhere", [f for f in allf if not f["wall_mm"] <= NEAR_MM])]
+    for name, sel in groups:
         if not sel:
             continue
         pe = np.array([f["mesh_mean_mm"] for f in sel])

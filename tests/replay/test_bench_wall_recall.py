@@ -75,7 +75,8 @@ def test_fits_table_counts_each_class_and_splits_fits_by_wall(bench):
     table = bench.fits_table(rows)
     total = next(line for line in table if line.startswith("| all |")).split(" | ")
     assert total[5:9] == ["1 (33%)", "1 (33%)", "1 (33%)", "0 (0%)"]
-    wall = next(line for line in table if line.startswith("| beside a wall")).split(" | ")
+    wall = next(line for line in table if line.startswith("| all, beside a wall")).split(" | ")
     assert wall[1:6] == ["1", "0.20 (0.20)", "0", "0.50", "1.20"]
-    far = next(line for line in table if line.startswith("| elsewhere")).split(" | ")
+    far = next(line for line in table if line.startswith("| all, elsewhere")).split(" | ")
     assert far[1:4] == ["1", "2.00 (2.00)", "1"]
+    assert any(line.startswith("| spheres, elsewhere | 1 |") for line in table)
