@@ -31,9 +31,18 @@ those, labelled bin only by the straggler pass: gone when the same frame runs wi
 Beside them: whether the bin check fired, τ and the search radius, and each method's F1 over the
 zone (the code path of ``zcut accuracy``).
 
+The headline (printed first) is item 2's reading: the share of the true outliers the removal leaves in the zone or
+above the rim (not labelled bin nor table) near a wall against elsewhere, per truth, with every method's recall Δ
+beside it (docs/bin_robustness.md, "which reading, held-out seeds"). ``--model scans``: a bin model built by
+``zcut bin-model`` from 2 empty scans of the same generator and size instead of the log's exact one. ``--fits``:
+`explained`'s near-wall misses on the ray-traced logs taken apart (:func:`fits_rows`: each frame ray-traced again
+for its true surfaces, the truth's Err and the parts' true poses, used for scoring only).
+
     .venv/bin/python bench/wall_recall.py                       # 480x300, 2 frames per kind, both generators
     .venv/bin/python bench/wall_recall.py --sensors handmade --frames 3
     .venv/bin/python bench/wall_recall.py --piles walls --poses registered --seeds handmade:7571,raytraced:9571
+    .venv/bin/python bench/wall_recall.py --piles walls --poses registered --seeds handmade:7601,raytraced:9601 --model scans
+    .venv/bin/python bench/wall_recall.py --fits --piles walls --seeds raytraced:9601
 
 Logs and results are cached in ``--dir`` (default /tmp/zcut_wall_recall); the tables are printed as
 Markdown (docs/bin_robustness.md, "Piles leaning on the walls").
