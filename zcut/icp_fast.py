@@ -498,23 +498,76 @@ def _point_to_plane(pcd: np.ndarray, gpts: np.ndarray, gnrm: np.ndarray, src: np
     """The update of ``TransformationEstimationPointToPlane::ComputeTransformation``."""
     if n == 0:
         return np.eye(4)
-    JTJ = np.zeros((6, 6))
-    JTr = np.zeros(6)
-    J = np.empty(6)
+    # the 21 sums of the upper half of JᵀJ and the 6 of Jᵀr in scalars (registers, not a 6 x 6 array in
+    # memory), each summed over the correspondences in the same order: the same bits
+    h00 = h01 = h02 = h03 = h04 = h05 = h11 = h12 = h13 = h14 = h15 = 0.0
+    h22 = h23 = h24 = h25 = h33 = h34 = h35 = h44 = h45 = h55 = 0.0
+    g0 = g1 = g2 = g3 = g4 = g5 = 0.0
     for c in range(n):
         i, j = src[c], dst[c]
         s0, s1, s2 = pcd[i, 0], pcd[i, 1], pcd[i, 2]
         n0, n1, n2 = gnrm[j, 0], gnrm[j, 1], gnrm[j, 2]
         r = (s0 - gpts[j, 0]) * n0 + (s1 - gpts[j, 1]) * n1 + (s2 - gpts[j, 2]) * n2
-        J[0] = s1 * n2 - s2 * n1
-        J[1] = s2 * n0 - s0 * n2
-        J[2] = s0 * n1 - s1 * n0
-        J[3], J[4], J[5] = n0, n1, n2
-        for a in range(6):
-            ja = J[a]
-            JTr[a] += ja * r
-            for b in range(a, 6):
-                JTJ[a, b] += ja * J[b]
+        j0 = s1 * n2 - s2 * n1
+        j1 = s2 * n0 - s0 * n2
+        j2 = s0 * n1 - s1 * n0
+        j3, j4, j5 = n0, n1, n2
+        g0 += j0 * r
+        g1 += j1 * r
+        g2 += j2 * r
+        g3 += j3 * r
+        g4 += j4 * r
+        g5 += j5 * r
+        h00 += j0 * j0
+        h01 += j0 * j1
+        h02 += j0 * j2
+        h03 += j0 * j3
+        h04 += j0 * j4
+        h05 += j0 * j5
+        h11 += j1 * j1
+        h12 += j1 * j2
+        h13 += j1 * j3
+        h14 += j1 * j4
+        h15 += j1 * j5
+        h22 += j2 * j2
+        h23 += j2 * j3
+        h24 += j2 * j4
+        h25 += j2 * j5
+        h33 += j3 * j3
+        h34 += j3 * j4
+        h35 += j3 * j5
+        h44 += j4 * j4
+        h45 += j4 * j5
+        h55 += j5 * j5
+    JTJ = np.empty((6, 6))
+    JTr = np.empty(6)
+    JTr[0] = g0
+    JTr[1] = g1
+    JTr[2] = g2
+    JTr[3] = g3
+    JTr[4] = g4
+    JTr[5] = g5
+    JTJ[0, 0] = h00
+    JTJ[0, 1] = h01
+    JTJ[0, 2] = h02
+    JTJ[0, 3] = h03
+    JTJ[0, 4] = h04
+    JTJ[0, 5] = h05
+    JTJ[1, 1] = h11
+    JTJ[1, 2] = h12
+    JTJ[1, 3] = h13
+    JTJ[1, 4] = h14
+    JTJ[1, 5] = h15
+    JTJ[2, 2] = h22
+    JTJ[2, 3] = h23
+    JTJ[2, 4] = h24
+    JTJ[2, 5] = h25
+    JTJ[3, 3] = h33
+    JTJ[3, 4] = h34
+    JTJ[3, 5] = h35
+    JTJ[4, 4] = h44
+    JTJ[4, 5] = h45
+    JTJ[5, 5] = h55
     for a in range(6):  # J[a] J[b] == J[b] J[a] exactly: the full sums' lower half, bit for bit
         for b in range(a):
             JTJ[a, b] = JTJ[b, a]
