@@ -341,16 +341,24 @@ def _correspond(pcd: np.ndarray, order: np.ndarray, origin: np.ndarray, cell: fl
     query q than the best (|q - p| >= |p - c| - |q - c|), and so is every row after it: the search
     stops there, with a slack for rounding (:data:`_REACH_SLACK`, and an absolute margin for
     coordinates far from zero). The answer is the least (squared distance, model index) of the 27
-    cells' rows either way."""
+    cells' rows either way.
+
+    A query's cell is ``floor((x - origin) * (1 / cell))``, a product instead of :func:`build_grid`'s
+    quotient: the two differ by a few ulps of the cell index, far less than the cell's margin over the
+    distance (``cell = radius (1 + 1e-6)``), so a model point within the distance is still in one of the
+    27 cells, and one of a query skipped as outside the padded grid is not within it; the centre the
+    bound is measured from is that of the cell used, as the lists' distances are. Only which cell's list
+    is read may change, never the answer."""
     r2 = max_distance * max_distance
     ox, oy, oz = origin[0], origin[1], origin[2]
     py, pz = ny + 2, nz + 2
     slack = 1.0 + _REACH_SLACK
     margin = _REACH_SLACK * (abs(ox) + abs(oy) + abs(oz) + cell * (nx + ny + nz + 6))
+    inv = 1.0 / cell
     for i in order:
         x, y, z = pcd[i, 0], pcd[i, 1], pcd[i, 2]
         near[i] = -1
-        fx, fy, fz = math.floor((x - ox) / cell), math.floor((y - oy) / cell), math.floor((z - oz) / cell)
+        fx, fy, fz = math.floor((x - ox) * inv), math.floor((y - oy) * inv), math.floor((z - oz) * inv)
         if not (-1.0 <= fx <= nx and -1.0 <= fy <= ny and -1.0 <= fz <= nz):
             continue
         ix, iy, iz = int(fx), int(fy), int(fz)
