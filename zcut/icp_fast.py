@@ -267,12 +267,18 @@ def _neighbour_lists(start: np.ndarray, nx: int, ny: int, nz: int, gpts: np.ndar
 @numba.njit(cache=True, nogil=True)
 def _transform_rows(T: np.ndarray, pcd: np.ndarray) -> None:
     """``pcd <- T (x, y, z, 1)`` row by row, summed as Eigen sums a 4 x 4 matrix times a 4-vector
-    (column by column); the homogeneous coordinate is 1 for finite points."""
+    (column by column); the homogeneous coordinate is 1 for finite points. Where w is exactly 1 (every
+    finite point under a rigid transform: 0 x = ±0, the sum 1) the division by it is exact and left out
+    (the same bits, without 3 divisions a point)."""
     for i in range(pcd.shape[0]):
         x, y, z = pcd[i, 0], pcd[i, 1], pcd[i, 2]
         w = T[3, 0] * x + T[3, 1] * y + T[3, 2] * z + T[3, 3]
-        for r in range(3):
-            pcd[i, r] = (T[r, 0] * x + T[r, 1] * y + T[r, 2] * z + T[r, 3]) / w
+        if w == 1.0:
+            for r in range(3):
+                pcd[i, r] = T[r, 0] * x + T[r, 1] * y + T[r, 2] * z + T[r, 3]
+        else:
+            for r in range(3):
+                pcd[i, r] = (T[r, 0] * x + T[r, 1] * y + T[r, 2] * z + T[r, 3]) / w
 
 
 @numba.njit(cache=True, nogil=True)

@@ -191,3 +191,35 @@ def test_query_cells_by_a_product_keep_the_exact_nearest():
     assert n == int(hit.sum())
     assert np.array_equal(state[2][:n], np.flatnonzero(hit))
     assert np.array_equal(grid.order[state[3][:n]], best[hit])
+
+
+def _transform_rows_literal(T: np.ndarray, pcd: np.ndarray) -> np.ndarray:
+    """Eigen's 4 x 4 times (x, y, z, 1), then the division by w, in Python floats."""
+    out = np.empty_like(pcd)
+    for i, (x, y, z) in enumerate(pcd.tolist()):
+        w = float(T[3, 0]) * x + float(T[3, 1]) * y + float(T[3, 2]) * z + float(T[3, 3])
+        for r in range(3):
+            out[i, r] = (float(T[r, 0]) * x + float(T[r, 1]) * y + float(T[r, 2]) * z + float(T[r, 3])) / w
+    return out
+
+
+@pytest.mark.parametrize("case", ["rigid", "projective", "huge coordinates"])
+def test_transform_rows_is_the_division_form(case):
+    from zcut.icp_fast import _transform_rows
+
+    rng = np.random.default_rng(6311)
+    for t in range(20):
+        T = _turn(rng.normal(0.0, 20.0, 3), rng.normal(0.0, 0.5, 3))
+        pcd = rng.normal(0.0, 0.5, (500, 3))
+        if case == "projective":
+            T[3] = rng.normal(0.0, 0.1, 4) + (0.0, 0.0, 0.0, 1.0)
+            T[3, :3][t % 3] = 0.0
+        elif case == "huge coordinates":  # some rows overflow to inf: w is NaN there, as in the division form
+            pcd[::7] *= 1e300
+            pcd[2::7] = 1e308
+            pcd[1::11] = 0.0
+        got = pcd.copy()
+        with np.errstate(over="ignore", invalid="ignore"):
+            want = _transform_rows_literal(T, pcd)
+        _transform_rows(T, got)
+        assert got.tobytes() == want.tobytes(), t
