@@ -36,6 +36,10 @@ path the stage took, and within it the translation guess, the coarse voxel grid,
 the bin fitness), each the least of N runs, medians over the frames; with ``--against`` the same in a
 subprocess on that source tree's code (e.g. ``git archive OLD | tar -x -C /tmp/old``), side by side.
 OpenCV runs on one thread (the one-core case); pin the process (``taskset -c 0``) for one core.
+
+``--alternate LOG... --against TREE [--repeats N]``: the bin mask and the registration of each frame after the
+first as ``locate_bin`` runs them, by this tree's ``zcut`` and by TREE's (imported as another package from a copy),
+alternating N times a frame in one process, after comparing every result bit for bit (:func:`alternate`).
 """
 
 from __future__ import annotations
@@ -265,11 +269,106 @@ def pieces_table(log: Path, against: Path | None, repeats: int) -> None:
         print(line)
 
 
+def _tree_as(tree: Path, name: str):  # type: ignore[no-untyped-def]
+    """``tree``'s ``zcut`` package imported as ``name`` (a copy in a temporary directory, without numba's
+    cache files, which are keyed by the module's name): the two trees' kernels side by side in one process."""
+    import importlib
+    import shutil
+    import sys
+
+    root = Path(tempfile.mkdtemp(prefix="zcut_against_"))
+    shutil.copytree(tree / "zcut", root / name, ignore=shutil.ignore_patterns("*.nbi", "*.nbc", "__pycache__"))
+    sys.path.insert(0, str(root))
+    return importlib.import_module(name)
+
+
+def alternate(logs: list[Path], against: Path, repeats: int) -> None:
+    """The bin mask and the registration of every frame after the first, as ``locate_bin`` runs them (the
+    valid points, ``bin_mask``, ``bin_pixels``, the subgrid, ``prepare_target``, the seed pose's fitness, the
+    fine pass from it and the full registration when it does not hold), by this tree's ``zcut`` and by
+    ``against``'s, alternating ``repeats`` times a frame; every result compared bit for bit first (the masks,
+    the ring, the seed fitness, the pose, T_init, fitness, RMSE, counts, iterations, reason). CPU ms a frame,
+    medians over the frames and runs."""
+    import dataclasses
+    import importlib
+    import os
+
+    import cv2
+
+    from replay.pipeline import stages
+    from replay.pipeline.bin_model import bin_model_for
+    from replay.pipeline.session import ReplaySession
+
+    cv2.setNumThreads(1)
+    _tree_as(against, "zcut_against")
+    trees = {}
+    for label, pkg in (("this", "zcut"), ("previous", "zcut_against")):
+        trees[label] = {m: importlib.import_module(f"{pkg}.{m}") for m in ("registration", "binmask", "removal",
+                                                                          "params", "cloud")}
+
+    def same_type(obj, mods):  # type: ignore[no-untyped-def]  # a frozen dataclass rebuilt from that tree's class
+        cls = getattr(mods["params" if "Params" in type(obj).__name__ else "cloud"], type(obj).__name__)
+        return cls(**{f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)})
+
+    for log in logs:
+        session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
+        cfg, prepared = session.config, session.prepared
+        assert prepared is not None, f"{log} has no bin model"
+        c, model = cfg.registration, prepared.icp
+        frames = list(session.reader.frames())
+
+        def run(mods, f, seed, cfg=cfg, c=c, model=model):  # type: ignore[no-untyped-def]
+            R, B = mods["registration"], mods["binmask"]
+            valid = mods["removal"].finite_xyz(f.xyz)
+            bm = B.bin_mask(f.rgb, params=same_type(cfg.bin_mask, mods))
+            px = B.bin_pixels(bm, f.xyz, ring_frac=c.ring_frac)
+            step = max(1, int(np.ceil(np.sqrt(np.count_nonzero(px) / stages.REGISTRATION_MAX_POINTS))))
+            K = None if f.intrinsics is None else same_type(f.intrinsics, mods)
+            tgt = R.prepare_target(R.subsampled_points(f.xyz, px, step=step), voxel_m=c.voxel_m, intrinsics=K)
+            reg, f0 = None, None
+            if seed is not None:
+                f0 = R.pose_fitness(model, tgt, seed.T_cam_bin, max_correspondence_m=c.fine_correspondence_m)
+                if f0 >= stages.SEED_FITNESS_KEPT * seed.fitness:
+                    reg = R.register_bin(model, tgt, params=c, init=seed.T_cam_bin, coarse=False)
+                    reg = reg if reg.converged else None
+            if reg is None:
+                reg = R.register_bin(model, tgt, params=c)
+            return valid, bm, px, f0, reg
+
+        seed = run(trees["this"], frames[0], None)[4]
+        times: dict[str, list[float]] = {k: [] for k in trees}
+        loads = [os.getloadavg()[0]]
+        for f in frames[1:]:
+            got = {k: run(mods, f, seed) for k, mods in trees.items()}
+            a, b = got["this"], got["previous"]
+            assert np.array_equal(a[0], b[0]) and np.array_equal(a[2], b[2]) and a[3] == b[3], f.index
+            for name in ("mask", "walls", "found", "area_px", "bbox_rc"):
+                assert np.array_equal(getattr(a[1], name), getattr(b[1], name)), (f.index, name)
+            ra, rb = a[4], b[4]
+            assert ra.T_cam_bin.tobytes() == rb.T_cam_bin.tobytes() and ra.T_init.tobytes() == rb.T_init.tobytes()
+            for name in ("fitness", "inlier_rmse", "converged", "reason", "n_model", "n_target", "icp_fitness",
+                         "n_rim", "iterations"):
+                x, y = getattr(ra, name), getattr(rb, name)
+                assert x == y or (x != x and y != y), (f.index, name, x, y)
+            for r in range(repeats):
+                for k in (("this", "previous") if r % 2 == 0 else ("previous", "this")):
+                    t = time.process_time()
+                    run(trees[k], f, seed)
+                    times[k].append(1000 * (time.process_time() - t))
+        loads.append(os.getloadavg()[0])
+        this, prev = statistics.median(times["this"]), statistics.median(times["previous"])
+        print(f"{log.name}: {len(frames) - 1} frames after the seed, every result identical; bin mask + registration "
+              f"CPU ms a frame (medians of {repeats} alternating runs a frame): previous {prev:.2f}, this {this:.2f}, "
+              f"previous / this {prev / this:.3f}; load {min(loads):.1f}-{max(loads):.1f}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pieces", type=Path, help="a log (with its bin model): the registration stage piece by piece")
     ap.add_argument("--pieces-json", type=Path, help=argparse.SUPPRESS)
-    ap.add_argument("--against", type=Path, help="--pieces: a source tree measured alongside")
+    ap.add_argument("--against", type=Path, help="--pieces, --alternate: a source tree measured alongside")
+    ap.add_argument("--alternate", type=Path, nargs="+", help="logs: the bin mask and registration of this tree and "
+                    "--against's, alternating in one process, every result compared bit for bit")
     ap.add_argument("--size", default="1200x1920", type=parse_size, help="HxW (default 1200x1920)")
     ap.add_argument("--frames", type=int, default=3)
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per frame and method; medians")
@@ -285,6 +384,11 @@ def main() -> None:
         return
     if args.pieces is not None:
         pieces_table(args.pieces, args.against, args.repeats)
+        return
+    if args.alternate:
+        if args.against is None:
+            ap.error("--alternate needs --against TREE")
+        alternate(args.alternate, args.against, args.repeats)
         return
     size = args.size
     empty, logs = prepare_logs(Path(args.dir), size, args.frames, args.quantize_mm)

@@ -267,12 +267,18 @@ def _neighbour_lists(start: np.ndarray, nx: int, ny: int, nz: int, gpts: np.ndar
 @numba.njit(cache=True, nogil=True)
 def _transform_rows(T: np.ndarray, pcd: np.ndarray) -> None:
     """``pcd <- T (x, y, z, 1)`` row by row, summed as Eigen sums a 4 x 4 matrix times a 4-vector
-    (column by column); the homogeneous coordinate is 1 for finite points."""
+    (column by column); the homogeneous coordinate is 1 for finite points. Where w is exactly 1 (every
+    finite point under a rigid transform: 0 x = ±0, the sum 1) the division by it is exact and left out
+    (the same bits, without 3 divisions a point)."""
     for i in range(pcd.shape[0]):
         x, y, z = pcd[i, 0], pcd[i, 1], pcd[i, 2]
         w = T[3, 0] * x + T[3, 1] * y + T[3, 2] * z + T[3, 3]
-        for r in range(3):
-            pcd[i, r] = (T[r, 0] * x + T[r, 1] * y + T[r, 2] * z + T[r, 3]) / w
+        if w == 1.0:
+            for r in range(3):
+                pcd[i, r] = T[r, 0] * x + T[r, 1] * y + T[r, 2] * z + T[r, 3]
+        else:
+            for r in range(3):
+                pcd[i, r] = (T[r, 0] * x + T[r, 1] * y + T[r, 2] * z + T[r, 3]) / w
 
 
 @numba.njit(cache=True, nogil=True)
@@ -341,16 +347,24 @@ def _correspond(pcd: np.ndarray, order: np.ndarray, origin: np.ndarray, cell: fl
     query q than the best (|q - p| >= |p - c| - |q - c|), and so is every row after it: the search
     stops there, with a slack for rounding (:data:`_REACH_SLACK`, and an absolute margin for
     coordinates far from zero). The answer is the least (squared distance, model index) of the 27
-    cells' rows either way."""
+    cells' rows either way.
+
+    A query's cell is ``floor((x - origin) * (1 / cell))``, a product instead of :func:`build_grid`'s
+    quotient: the two differ by a few ulps of the cell index, far less than the cell's margin over the
+    distance (``cell = radius (1 + 1e-6)``), so a model point within the distance is still in one of the
+    27 cells, and one of a query skipped as outside the padded grid is not within it; the centre the
+    bound is measured from is that of the cell used, as the lists' distances are. Only which cell's list
+    is read may change, never the answer."""
     r2 = max_distance * max_distance
     ox, oy, oz = origin[0], origin[1], origin[2]
     py, pz = ny + 2, nz + 2
     slack = 1.0 + _REACH_SLACK
     margin = _REACH_SLACK * (abs(ox) + abs(oy) + abs(oz) + cell * (nx + ny + nz + 6))
+    inv = 1.0 / cell
     for i in order:
         x, y, z = pcd[i, 0], pcd[i, 1], pcd[i, 2]
         near[i] = -1
-        fx, fy, fz = math.floor((x - ox) / cell), math.floor((y - oy) / cell), math.floor((z - oz) / cell)
+        fx, fy, fz = math.floor((x - ox) * inv), math.floor((y - oy) * inv), math.floor((z - oz) * inv)
         if not (-1.0 <= fx <= nx and -1.0 <= fy <= ny and -1.0 <= fz <= nz):
             continue
         ix, iy, iz = int(fx), int(fy), int(fz)
@@ -498,23 +512,76 @@ def _point_to_plane(pcd: np.ndarray, gpts: np.ndarray, gnrm: np.ndarray, src: np
     """The update of ``TransformationEstimationPointToPlane::ComputeTransformation``."""
     if n == 0:
         return np.eye(4)
-    JTJ = np.zeros((6, 6))
-    JTr = np.zeros(6)
-    J = np.empty(6)
+    # the 21 sums of the upper half of JᵀJ and the 6 of Jᵀr in scalars (registers, not a 6 x 6 array in
+    # memory), each summed over the correspondences in the same order: the same bits
+    h00 = h01 = h02 = h03 = h04 = h05 = h11 = h12 = h13 = h14 = h15 = 0.0
+    h22 = h23 = h24 = h25 = h33 = h34 = h35 = h44 = h45 = h55 = 0.0
+    g0 = g1 = g2 = g3 = g4 = g5 = 0.0
     for c in range(n):
         i, j = src[c], dst[c]
         s0, s1, s2 = pcd[i, 0], pcd[i, 1], pcd[i, 2]
         n0, n1, n2 = gnrm[j, 0], gnrm[j, 1], gnrm[j, 2]
         r = (s0 - gpts[j, 0]) * n0 + (s1 - gpts[j, 1]) * n1 + (s2 - gpts[j, 2]) * n2
-        J[0] = s1 * n2 - s2 * n1
-        J[1] = s2 * n0 - s0 * n2
-        J[2] = s0 * n1 - s1 * n0
-        J[3], J[4], J[5] = n0, n1, n2
-        for a in range(6):
-            ja = J[a]
-            JTr[a] += ja * r
-            for b in range(a, 6):
-                JTJ[a, b] += ja * J[b]
+        j0 = s1 * n2 - s2 * n1
+        j1 = s2 * n0 - s0 * n2
+        j2 = s0 * n1 - s1 * n0
+        j3, j4, j5 = n0, n1, n2
+        g0 += j0 * r
+        g1 += j1 * r
+        g2 += j2 * r
+        g3 += j3 * r
+        g4 += j4 * r
+        g5 += j5 * r
+        h00 += j0 * j0
+        h01 += j0 * j1
+        h02 += j0 * j2
+        h03 += j0 * j3
+        h04 += j0 * j4
+        h05 += j0 * j5
+        h11 += j1 * j1
+        h12 += j1 * j2
+        h13 += j1 * j3
+        h14 += j1 * j4
+        h15 += j1 * j5
+        h22 += j2 * j2
+        h23 += j2 * j3
+        h24 += j2 * j4
+        h25 += j2 * j5
+        h33 += j3 * j3
+        h34 += j3 * j4
+        h35 += j3 * j5
+        h44 += j4 * j4
+        h45 += j4 * j5
+        h55 += j5 * j5
+    JTJ = np.empty((6, 6))
+    JTr = np.empty(6)
+    JTr[0] = g0
+    JTr[1] = g1
+    JTr[2] = g2
+    JTr[3] = g3
+    JTr[4] = g4
+    JTr[5] = g5
+    JTJ[0, 0] = h00
+    JTJ[0, 1] = h01
+    JTJ[0, 2] = h02
+    JTJ[0, 3] = h03
+    JTJ[0, 4] = h04
+    JTJ[0, 5] = h05
+    JTJ[1, 1] = h11
+    JTJ[1, 2] = h12
+    JTJ[1, 3] = h13
+    JTJ[1, 4] = h14
+    JTJ[1, 5] = h15
+    JTJ[2, 2] = h22
+    JTJ[2, 3] = h23
+    JTJ[2, 4] = h24
+    JTJ[2, 5] = h25
+    JTJ[3, 3] = h33
+    JTJ[3, 4] = h34
+    JTJ[3, 5] = h35
+    JTJ[4, 4] = h44
+    JTJ[4, 5] = h45
+    JTJ[5, 5] = h55
     for a in range(6):  # J[a] J[b] == J[b] J[a] exactly: the full sums' lower half, bit for bit
         for b in range(a):
             JTJ[a, b] = JTJ[b, a]

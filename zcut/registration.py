@@ -859,6 +859,10 @@ class TargetPoints:
     tree : scipy.spatial.cKDTree
         Over the points of ``cloud``, built on first use (:func:`pose_fitness` searches a cell grid
         of them instead, :func:`_confirmed`, with the same answers). Derived, not passed.
+
+    The cell grid :func:`pose_fitness` searches is built on its first call and kept for the next ones
+    (a frame's seed check and its final fitness), rebuilt only when a call needs wider cells
+    (:func:`_cells_for`).
     """
 
     points: np.ndarray
@@ -866,6 +870,7 @@ class TargetPoints:
     voxel_m: float
     intrinsics: Intrinsics | None
     _tree: cKDTree | None = field(default=None, init=False, repr=False, compare=False)
+    _cells: _CellGrid | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def tree(self) -> cKDTree:
@@ -1034,33 +1039,81 @@ def _rim_fitness(model: IcpModel, target: TargetPoints, T_cam_bin: np.ndarray,
     """(bin fitness, rim points scored) of a pose; see :func:`pose_fitness`."""
     rim = transform_points(T_cam_bin, model.rim)
     K = target.intrinsics
-    if K is not None:
-        rim = rim[_in_view(rim, K)]
+    if K is None:
+        reach = np.full(len(rim), max_distance_m)
+    else:
+        # the rim in view (_in_view) and, since a frame sampled coarser than the distance cannot confirm
+        # it, each point's reach: the distance or PIXEL_REACH pixel footprints at its depth
+        rim, reach = _rim_in_view(rim, float(K.fx), float(K.fy), float(K.cx), float(K.cy), float(K.width),
+                                  float(K.height), float(max_distance_m), min(K.fx, K.fy))
     if len(rim) == 0:
         return 0.0, 0
     pts = target.cloud.points
     if len(pts) == 0:
         return 0.0, len(rim)
-    if K is None:
-        reach = np.full(len(rim), max_distance_m)
-    else:
-        # a frame sampled coarser than the distance cannot confirm it: allow the pixel's footprint
-        reach = np.maximum(max_distance_m, PIXEL_REACH * rim[:, 2] / min(K.fx, K.fy))
     # cKDTree(pts).query(rim, k=1, distance_upper_bound=reach.max()) and d <= reach, counted (_confirmed)
-    return float(_confirmed(np.ascontiguousarray(rim), reach, float(reach.max()), pts)) / len(rim), len(rim)
+    ub = float(reach.max())
+    cells = _cells_for(target, ub)
+    return float(_confirmed_in(np.ascontiguousarray(rim), reach, ub, pts, *cells)) / len(rim), len(rim)
 
 
 @numba.njit(cache=True, nogil=True)
-def _confirmed(rim, reach, ub, pts):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """How many rim points have a nearest point of ``pts`` within their ``reach``, as cKDTree answers
-    ``query(rim, k=1, distance_upper_bound=ub)`` and ``d <= reach`` counts it (``ub`` >= every reach).
+def _rim_in_view(rim, fx, fy, cx, cy, width, height, max_distance, f_min):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``(rim[_in_view(rim, K)], np.maximum(max_distance, PIXEL_REACH * z / f_min))`` of those rows, in one
+    pass and in :func:`_in_view`'s and that expression's float64 operations (the same bits)."""
+    n = rim.shape[0]
+    keep = np.empty(n, np.int64)
+    k = 0
+    for i in range(n):
+        z = rim[i, 2]
+        front = z > 0
+        zs = z if front else 1.0
+        u = fx * rim[i, 0] / zs + cx
+        v = fy * rim[i, 1] / zs + cy
+        if front and u >= -0.5 and u < width - 0.5 and v >= -0.5 and v < height - 0.5:
+            keep[k] = i
+            k += 1
+    out = np.empty((k, 3))
+    reach = np.empty(k)
+    for j in range(k):
+        i = keep[j]
+        out[j, 0], out[j, 1], out[j, 2] = rim[i, 0], rim[i, 1], rim[i, 2]
+        r = PIXEL_REACH * rim[i, 2] / f_min
+        reach[j] = r if r > max_distance else max_distance
+    return out, reach
 
-    cKDTree keeps a point whose squared distance, summed (dx² + dy²) + dz², is below ub²; d is the
-    square root of the least. So a rim point counts iff some point has d2 < ub² and sqrt(d2) <= its
-    reach (the least d2 then does too): the search stops at the first such point, its own grid cell
-    first (where it usually is), in cells ``ub`` wide (hashed: a frame's bin spans ~10^6 of them)."""
+
+#: A cell grid of a target's points (:func:`_cell_grid`): (cell width, origin, table, keys, start, members).
+_CellGrid = tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+#: The kept grid's cells are this much wider than the first call needs, so that the next call's reach (a
+#: pose a little deeper) usually fits them; wider cells change no count, only the points a search reads.
+_CELL_HEADROOM = 1.02
+
+
+def _cells_for(target: TargetPoints, ub: float) -> _CellGrid:
+    """The target's cell grid (:attr:`TargetPoints._cells`) with cells at least ``ub (1 + 1e-6)`` wide:
+    the kept one, or a new one kept instead."""
+    cells = target._cells
+    if cells is None or not cells[0] >= ub * (1.0 + 1e-6):
+        cells = (ub * (1.0 + 1e-6) * _CELL_HEADROOM, *_cell_grid(target.cloud.points, ub * (1.0 + 1e-6) * _CELL_HEADROOM))
+        object.__setattr__(target, "_cells", cells)
+    return cells
+
+
+def _confirmed(rim: np.ndarray, reach: np.ndarray, ub: float, pts: np.ndarray) -> int:
+    """How many rim points have a nearest point of ``pts`` within their ``reach``, as cKDTree answers
+    ``query(rim, k=1, distance_upper_bound=ub)`` and ``d <= reach`` counts it (``ub`` >= every reach):
+    :func:`_confirmed_in` on a grid of cells ``ub (1 + 1e-6)`` wide."""
+    cell = ub * (1.0 + 1e-6)
+    return int(_confirmed_in(rim, reach, ub, pts, cell, *_cell_grid(pts, cell)))
+
+
+@numba.njit(cache=True, nogil=True)
+def _cell_grid(pts, cell):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``pts`` (M >= 1, 3) in a hashed grid of cells ``cell`` wide from their least coordinates:
+    ``(origin (3,), table, keys (K, 3), start (K + 1,), members (M,))``, the points of cell ``table[slot]``
+    (:func:`_find_slot`) being ``members[start[j]:start[j + 1]]``, in point order."""
     m = pts.shape[0]
-    cell = ub * (1.0 + 1e-6)  # rounding in (x - origin) / cell cannot put a point within ub two cells away
     ox, oy, oz = pts[0, 0], pts[0, 1], pts[0, 2]
     for i in range(m):
         ox = min(ox, pts[i, 0])
@@ -1094,6 +1147,23 @@ def _confirmed(rim, reach, ub, pts):  # type: ignore[no-untyped-def]  # numba ke
     for i in range(m):
         members[fill[cell_of[i]]] = i
         fill[cell_of[i]] += 1
+    origin = np.empty(3)
+    origin[0], origin[1], origin[2] = ox, oy, oz
+    return origin, table, keys, counts, members
+
+
+@numba.njit(cache=True, nogil=True)
+def _confirmed_in(rim, reach, ub, pts, cell, origin, table, keys, counts, members):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """:func:`_confirmed` in a grid of ``pts`` (:func:`_cell_grid`) with cells ``cell`` >= ``ub (1 + 1e-6)``
+    wide.
+
+    cKDTree keeps a point whose squared distance, summed (dx² + dy²) + dz², is below ub²; d is the
+    square root of the least. So a rim point counts iff some point has d2 < ub² and sqrt(d2) <= its
+    reach (the least d2 then does too): the search stops at the first such point, its own grid cell
+    first (where it usually is), in cells at least ``ub`` wide (hashed: a frame's bin spans ~10^6 of
+    them); the margin of 1e-6 keeps rounding in (x - origin) / cell from putting a point within ub two
+    cells away. Any such width gives the same count."""
+    ox, oy, oz = origin[0], origin[1], origin[2]
     ub2 = ub * ub
     n = 0
     for r in range(rim.shape[0]):

@@ -189,9 +189,9 @@ def _footprints(rng: np.random.Generator):
             yield m
 
 
-def test_the_bounded_distance_transform_on_random_footprints():
-    rng = np.random.default_rng(3)
-    n = 0
+def _footprint_cases(rng: np.random.Generator):
+    """Each footprint of :func:`_footprints` (the empty ones left out) as ``bin_mask`` would report it, its
+    walls 70 % of its pixels, and a cloud of ones with 5 % NaN: ``(result, xyz)``."""
     for m in _footprints(rng):
         if not m.any():
             continue
@@ -201,9 +201,27 @@ def test_the_bounded_distance_transform_on_random_footprints():
         r = BinMaskResult(m, walls, True, int(m.sum()), 1, (rows.mean(), cols.mean()), bbox, True)
         xyz = np.ones((*m.shape, 3), np.float32)
         xyz[rng.random(m.shape) < 0.05] = np.nan
-        for frac, least in ((0.2, 10.0), (0.07, 0.0), (0.6, 1.0), (1.0, 0.0)):
+        yield r, xyz
+
+
+@pytest.fixture(params=["default", "one"])
+def opencv_threads(request):
+    """OpenCV on its default threads, then on one (a one-core machine: its precise transform is IPP's)."""
+    n = cv2.getNumThreads()
+    if request.param == "one":
+        cv2.setNumThreads(1)
+    yield request.param
+    cv2.setNumThreads(n)
+
+
+def test_the_bounded_distance_transform_on_random_footprints(opencv_threads):
+    rng = np.random.default_rng({"default": 3, "one": 7}[opencv_threads])
+    n = 0
+    for r, xyz in _footprint_cases(rng):
+        for frac, least in ((0.2, 10.0), (0.07, 0.0), (0.6, 1.0), (1.0, 0.0), (0.01, 10.0)):
             got = bin_pixels(r, xyz, ring_frac=frac, min_ring_px=least)
-            assert np.array_equal(got, bin_pixels_reference(r, xyz, ring_frac=frac, min_ring_px=least)), (m.shape, frac)
+            want = bin_pixels_reference(r, xyz, ring_frac=frac, min_ring_px=least)
+            assert np.array_equal(got, want), (r.mask.shape, frac)
         n += 1
     assert n >= 25
 
@@ -284,25 +302,6 @@ def test_one_opencv_thread_ipps_distances_are_within_the_bound(one_opencv_thread
     assert n >= 25
     # bin_pixels relies on this bound (with a margin of 4 x what was measured on the replay's frames)
     assert worst <= _IPP_REL_ERROR / 4, worst
-
-
-def test_one_opencv_thread_bounded_transform_on_random_footprints(one_opencv_thread):
-    rng = np.random.default_rng(7)
-    n = 0
-    for m in _footprints(rng):
-        if not m.any():
-            continue
-        rows, cols = np.nonzero(m)
-        bbox = (int(rows.min()), int(cols.min()), int(rows.max()) + 1, int(cols.max()) + 1)
-        walls = m & (rng.random(m.shape) < 0.7)
-        r = BinMaskResult(m, walls, True, int(m.sum()), 1, (rows.mean(), cols.mean()), bbox, True)
-        xyz = np.ones((*m.shape, 3), np.float32)
-        xyz[rng.random(m.shape) < 0.05] = np.nan
-        for frac, least in ((0.2, 10.0), (0.07, 0.0), (0.6, 1.0), (1.0, 0.0), (0.01, 10.0)):
-            got = bin_pixels(r, xyz, ring_frac=frac, min_ring_px=least)
-            assert np.array_equal(got, bin_pixels_reference(r, xyz, ring_frac=frac, min_ring_px=least)), (m.shape, frac)
-        n += 1
-    assert n >= 25
 
 
 @pytest.mark.parametrize("kind, seed, size", [("zinc_nuts", 12, (480, 640)), ("spheres", 31, (800, 1280)),
