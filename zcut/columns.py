@@ -96,7 +96,8 @@ def _sort_by_slab(xs, ys, zs, s, e, z0, inv, tx, ty, tz, counts):  # type: ignor
         xs[s + t], ys[s + t], zs[s + t] = tx[t], ty[t], tz[t]
 
 
-def build_columns(X, Y, Z, x0, y0, z0, inv, nx, marked):  # type: ignore[no-untyped-def]  # numba arrays
+def build_columns(X: np.ndarray, Y: np.ndarray, Z: np.ndarray, x0: float, y0: float, z0: float, inv: float, nx: int,
+                  marked: np.ndarray) -> tuple[np.ndarray, ...]:
     """The valid points (all three of X, Y, Z finite; (H, W) planes of any float type and layout)
     of the marked columns, column by column, ordered by slab (``cell(z, z0, inv)``: cubes of the
     column's width), consecutive identical points merged.

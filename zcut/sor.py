@@ -85,9 +85,9 @@ from . import columns as _columns
 from . import sor_camera as _camera
 from . import sor_search as _search
 from . import sor_window as _window
-from .sor_workspace import SorWorkspace, thread_workspace
 from .cloud import check_mask, check_xyz
 from .errors import InputShapeError, ParameterError, describe_array
+from .sor_workspace import SorWorkspace, thread_workspace
 from .types import XYZ, Mask
 
 __all__ = ["CONVENTIONS", "SorWorkspace", "sor_mean_distances", "sor_outliers", "sor_outliers_from_distances",
