@@ -68,6 +68,13 @@ not what the box does.
 The kernels are serial numba functions that release the GIL, run over ranges of rows or pixels on
 a thread pool that lives for one call (see :func:`_workers`); importing or calling this module
 changes no process-wide setting.
+
+Every full-frame temporary of a call (the planes, the valid mask, d̄ before it is copied out, the
+block statistics, the band tables, the statistics' terms, the columns) is taken from the calling
+thread's :class:`zcut.sor_workspace.SorWorkspace`, kept between calls so that a call does not
+fault a fresh ~190 MB in at 1920 × 1200 (see that module: one per thread, grown to the largest
+frame seen, ``thread_workspace().release()`` frees it, ``thread_workspace().max_bytes`` bounds it).
+What a call returns (d̄, the masks) is always a new array.
 """
 
 from __future__ import annotations
