@@ -66,8 +66,8 @@ reach. A top-of-pile region scattered over its bounding box thus costs about wha
 not what the box does.
 
 The kernels are serial numba functions that release the GIL, run over ranges of rows or pixels on
-a thread pool that lives for one call (see :func:`_workers`); importing or calling this module
-changes no process-wide setting.
+the calling thread's pool (see :func:`_workers`); importing or calling this module changes no
+process-wide setting.
 
 Every full-frame temporary of a call (the planes, the valid mask, d̄ before it is copied out, the
 block statistics, the band tables, the statistics' terms, the columns) is taken from the calling
@@ -82,7 +82,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import wait
 from contextlib import contextmanager
 
 import numba as nb
@@ -224,9 +224,10 @@ def _prepare(xyz: XYZ, run: Run, ws: SorWorkspace, mask: Mask | None = None) -> 
 # threads
 # --------------------------------------------------------------------------------------------
 @contextmanager
-def _workers() -> Iterator[Run]:
+def _workers(ws: SorWorkspace) -> Iterator[Run]:
     """``run(kernel, n, *args)`` calls ``kernel(i0, i1, *args)`` over chunks of range(n), on
-    ``numba.config.NUMBA_NUM_THREADS`` threads (the cores, or the NUMBA_NUM_THREADS variable).
+    ``numba.config.NUMBA_NUM_THREADS`` threads (the cores, or the NUMBA_NUM_THREADS variable): the
+    pool the workspace ``ws`` keeps from call to call.
 
     The kernels are serial numba functions that release the GIL: numba's own ``parallel=True``
     compiled this module several times slower, and not starting numba's threading layer leaves
@@ -236,16 +237,17 @@ def _workers() -> Iterator[Run]:
     if n_threads <= 1:
         yield lambda kernel, n, *args: kernel(0, n, *args) if n else None
         return
-    with ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="zcut-sor") as pool:
+    pool = ws.pool(n_threads)
 
-        def run(kernel: Callable[..., None], n: int, *args: object) -> None:
-            n_chunks = min(n, 8 * n_threads)
-            edges = [n * i // n_chunks for i in range(n_chunks + 1)] if n else []
-            jobs = [pool.submit(kernel, i0, i1, *args) for i0, i1 in itertools.pairwise(edges) if i1 > i0]
-            for job in jobs:
-                job.result()
+    def run(kernel: Callable[..., None], n: int, *args: object) -> None:
+        n_chunks = min(n, 8 * n_threads)
+        edges = [n * i // n_chunks for i in range(n_chunks + 1)] if n else []
+        jobs = [pool.submit(kernel, i0, i1, *args) for i0, i1 in itertools.pairwise(edges) if i1 > i0]
+        wait(jobs)  # all of them, even when one fails: none may write into the workspace after the call
+        for job in jobs:
+            job.result()
 
-        yield run
+    yield run
 
 
 # --------------------------------------------------------------------------------------------
@@ -443,7 +445,7 @@ def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl", mask: M
         search needs, the mean is over all the valid points there are (Open3D's behaviour).
     """
     k, _ = _check_params(k, 1.0, convention)
-    with _workers() as run, thread_workspace().call() as ws:
+    with thread_workspace().call() as ws, _workers(ws) as run:
         x, y, z, valid, amax, span = _prepare(xyz, run, ws, mask)
         dbar = np.full(valid.shape, np.nan)  # the caller's: never a workspace array
         n = int(valid.sum())
@@ -553,7 +555,7 @@ def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: st
     sor_outliers_from_distances : every threshold of a sweep from one d̄ computation.
     """
     k, ratio = _check_params(k, std_ratio, convention)
-    with _workers() as run, thread_workspace().call() as ws:
+    with thread_workspace().call() as ws, _workers(ws) as run:
         x, y, z, valid, amax, span = _prepare(xyz, run, ws, mask)
         n = int(valid.sum())
         if n < k + 1:

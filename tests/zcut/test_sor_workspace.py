@@ -212,3 +212,15 @@ def test_two_threads_at_once_equal_one_thread() -> None:
     for t in threads:
         t.join()
     assert not errors
+
+
+def test_the_pool_is_kept_between_calls_and_stopped_by_release() -> None:
+    ws = SorWorkspace()
+    pool = ws.pool(2)
+    assert ws.pool(2) is pool and pool.submit(lambda: 7).result() == 7
+    assert ws.pool(3) is not pool  # another number of threads: a new pool
+    ws.release()
+    assert ws.pool(2) is not pool
+    ws.release()
+    with pytest.raises(RuntimeError, match="shutdown"):
+        pool.submit(lambda: 7)
