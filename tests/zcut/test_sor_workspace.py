@@ -126,12 +126,21 @@ def expected(xyz: np.ndarray, n: int, k: int, convention: str, method: str) -> t
     return want, outliers_from_mean_distances_reference(want, k=k, std_ratio=1.0, convention=convention)
 
 
-@pytest.mark.parametrize("columns", [False, True], ids=["default", "columns-forced"])
+SEARCH_PATHS = {  # the unproven pixels through each search (each takes its arrays from the workspace)
+    "default": {},
+    "columns": {"_COLUMNS_MIN_SHARE": 1 << 40},
+    "tiles": {"_USE_COLUMNS": False},
+    "kdtree": {"_USE_COLUMNS": False, "_TILE_SCAN_CAP": 0},
+    "no-camera": {"_USE_CAMERA": False, "_WINDOW_MAX": 2},
+}
+
+
+@pytest.mark.parametrize("path", list(SEARCH_PATHS))
 @pytest.mark.parametrize("convention", ["pcl", "open3d"])
-def test_growing_and_shrinking_clouds_equal_the_reference(convention: str, columns: bool,
+def test_growing_and_shrinking_clouds_equal_the_reference(convention: str, path: str,
                                                           monkeypatch: pytest.MonkeyPatch) -> None:
-    if columns:  # every unproven pixel through the column search (its arrays come from the workspace)
-        monkeypatch.setattr(sor_module, "_COLUMNS_MIN_SHARE", 1 << 40)
+    for name, value in SEARCH_PATHS[path].items():
+        monkeypatch.setattr(sor_module, name, value)
     ws = thread_workspace()
     clouds = cloud_sequence()
     wants = {}
