@@ -39,6 +39,12 @@ code's masks are this code's bit for bit. The load average is printed before and
     .venv/bin/python bench/bench_sor.py [--repeat N] [--seed S] [--k K] [--std-ratio R]
                                         [--classes pile,walls,...] [--no-reference] [--against OLD_TREE]
 
+Page faults a call: ``--faults row`` (calls in a row) or ``--faults open3d`` (Open3D's filter
+between the calls, as in the classes' rounds) prints, per class and convention, the medians over
+--repeat calls (after a first one) of the CPU ms, the system ms and the minor page faults
+(``resource.getrusage``) of one ``sor_outliers`` call, the caller keeping every mask; for one thread
+prefix ``NUMBA_NUM_THREADS=1``, for the previous code run this file with ``PYTHONPATH=OLD_TREE``.
+
 The SOR stage inside a replay: ``--stage LOG.mcap [--against OLD_TREE]`` runs the bin stages on
 every frame of the log (its own bin model, its config) and times the pipeline's SOR stage on the
 zone they leave (``replay.pipeline.zone.sor_on_zone``: the judged region, its crop, the filter;
@@ -588,6 +594,44 @@ def stage_main(log: Path, against: Path | None, repeat: int) -> int:
     return 0
 
 
+def faults_main(classes: dict[str, object], k: int, std_ratio: float, repeat: int, between: str) -> int:
+    """Per class and convention: medians of CPU ms, system ms and minor page faults of a call."""
+    import resource
+
+    import numba
+
+    import zcut
+    from zcut.sor import sor_outliers
+
+    warm_up(k)
+    print(f"zcut {Path(zcut.__file__).parent}, {numba.config.NUMBA_NUM_THREADS} threads, "
+          f"{'Open3D between the calls' if between == 'open3d' else 'calls in a row'}, medians of {repeat} calls "
+          f"after a first one; load average {load_average()}")
+    print(f"{'class':26s} {'conv':6s} {'CPU ms':>8s} {'sys ms':>7s} {'faults':>8s}  (faults: min-max)")
+    for name, make in classes.items():
+        xyz = make()
+        if isinstance(xyz, str):
+            print(f"{name:26s} (skipped: {xyz})")
+            continue
+        valid = np.isfinite(xyz).all(axis=2)
+        pts = np.ascontiguousarray(xyz[valid], dtype=np.float64)
+        kept = []  # the caller keeps its masks
+        for convention in ("pcl", "open3d"):
+            rows = []
+            for _ in range(repeat + 1):
+                if between == "open3d":
+                    open3d_outliers(pts, valid, k, std_ratio, 1)
+                r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.process_time()
+                kept.append(sor_outliers(xyz, k=k, std_ratio=std_ratio, convention=convention))
+                t1, r1 = time.process_time(), resource.getrusage(resource.RUSAGE_SELF)
+                rows.append(((t1 - t0) * 1e3, (r1.ru_stime - r0.ru_stime) * 1e3, r1.ru_minflt - r0.ru_minflt))
+            cpu, sys_ms, faults = np.median(np.array(rows[1:]), axis=0)
+            lo, hi = min(r[2] for r in rows[1:]), max(r[2] for r in rows[1:])
+            print(f"{name:26s} {convention:6s} {cpu:8.1f} {sys_ms:7.1f} {faults:8.0f}  ({lo}-{hi})", flush=True)
+    print(f"load average at the end: {load_average()}")
+    return 0
+
+
 def load_average() -> str:
     try:
         return " ".join(f"{v:.1f}" for v in os.getloadavg())
@@ -607,6 +651,8 @@ def main() -> int:
                         help="also time the previous code of this source tree on every cloud, and compare its masks")
     parser.add_argument("--stage", metavar="LOG", type=Path,
                         help="time the pipeline's SOR stage on every frame of this log instead of the classes")
+    parser.add_argument("--faults", choices=("row", "open3d"),
+                        help="print CPU ms, system ms and page faults a call (calls in a row, or Open3D between them)")
     parser.add_argument("--serve", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
 
@@ -615,6 +661,12 @@ def main() -> int:
         return _serve()
     if args.stage:
         return stage_main(args.stage, args.against, args.repeat)
+    if args.faults:
+        chosen = cloud_classes(args.seed)
+        wanted = [c for c in args.classes.split(",") if c]
+        if wanted:
+            chosen = {name: f for name, f in chosen.items() if any(name.startswith(w) for w in wanted)}
+        return faults_main(chosen, args.k, args.std_ratio, args.repeat, args.faults)
     import tempfile
 
     import numba

@@ -96,18 +96,30 @@ def _sort_by_slab(xs, ys, zs, s, e, z0, inv, tx, ty, tz, counts):  # type: ignor
         xs[s + t], ys[s + t], zs[s + t] = tx[t], ty[t], tz[t]
 
 
-@nb.njit(cache=True, nogil=True)
-def build_columns(X, Y, Z, x0, y0, z0, inv, nx, marked):  # type: ignore[no-untyped-def]  # numba kernel
+def build_columns(X: np.ndarray, Y: np.ndarray, Z: np.ndarray, x0: float, y0: float, z0: float, inv: float, nx: int,
+                  marked: np.ndarray) -> tuple[np.ndarray, ...]:
     """The valid points (all three of X, Y, Z finite; (H, W) planes of any float type and layout)
     of the marked columns, column by column, ordered by slab (``cell(z, z0, inv)``: cubes of the
     column's width), consecutive identical points merged.
 
     Returns ``(start, xs, ys, zs, mult, ks)``: column k holds entries start[k] .. start[k + 1] - 1,
-    ``ks`` their slabs.
+    ``ks`` their slabs. (:func:`count_columns` then :func:`fill_columns` into arrays of its own.)
     """
+    ncol = marked.shape[0]
+    start = np.empty(ncol + 1, np.int64)
+    n = count_columns(X, Y, Z, x0, y0, inv, nx, marked, start)
+    xs, ys, zs, mult, ks = np.empty(n), np.empty(n), np.empty(n), np.empty(n, np.int64), np.empty(n, np.int64)
+    out = fill_columns(X, Y, Z, x0, y0, z0, inv, nx, marked, start, np.empty(ncol, np.int64), xs, ys, zs, mult, ks)
+    return start, xs[:out], ys[:out], zs[:out], mult[:out], ks[:out]
+
+
+@nb.njit(cache=True, nogil=True)
+def count_columns(X, Y, Z, x0, y0, inv, nx, marked, start):  # type: ignore[no-untyped-def]  # numba kernel
+    """start (ncol + 1) := the first entry of each marked column before merging (a prefix sum of
+    their valid points' counts); returns the number of those points."""
     H, W = X.shape
     ncol = marked.shape[0]
-    start = np.zeros(ncol + 1, np.int64)
+    start[:] = 0
     for r in range(H):
         xr, yr, zr = X[r], Y[r], Z[r]
         for c in range(W):
@@ -117,9 +129,17 @@ def build_columns(X, Y, Z, x0, y0, z0, inv, nx, marked):  # type: ignore[no-unty
                     start[k + 1] += 1
     for k in range(ncol):
         start[k + 1] += start[k]
-    fill = start[:ncol].copy()
-    n = start[ncol]
-    xs, ys, zs = np.empty(n), np.empty(n), np.empty(n)
+    return start[ncol]
+
+
+@nb.njit(cache=True, nogil=True)
+def fill_columns(X, Y, Z, x0, y0, z0, inv, nx, marked, start, fill, xs, ys, zs, mult, ks):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`build_columns` into given arrays: ``start`` as :func:`count_columns` left it (made
+    the entries' starts), ``fill`` scratch of ncol, xs, ys, zs, mult, ks of at least
+    ``start[ncol]`` entries. Returns the number of entries (the first that many are the columns)."""
+    H, W = X.shape
+    ncol = marked.shape[0]
+    fill[:] = start[:ncol]
     for r in range(H):
         xr, yr, zr = X[r], Y[r], Z[r]
         for c in range(W):
@@ -136,7 +156,6 @@ def build_columns(X, Y, Z, x0, y0, z0, inv, nx, marked):  # type: ignore[no-unty
         longest = max(longest, start[k + 1] - start[k])
     tx, ty, tz = np.empty(longest), np.empty(longest), np.empty(longest)
     counts = np.empty(longest + 1, np.int64)
-    mult = np.ones(n, np.int64)
     out = 0
     for k in range(ncol):
         s, e = start[k], start[k + 1]
@@ -154,10 +173,9 @@ def build_columns(X, Y, Z, x0, y0, z0, inv, nx, marked):  # type: ignore[no-unty
             xs[out], ys[out], zs[out], mult[out] = x, y, z, m
             out += 1
     start[ncol] = out
-    ks = np.empty(out, np.int64)
     for j in range(out):
         ks[j] = cell(zs[j], z0, inv)
-    return start, xs[:out], ys[:out], zs[:out], mult[:out], ks
+    return out
 
 
 @nb.njit(cache=True, nogil=True, inline="always")

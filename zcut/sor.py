@@ -66,8 +66,15 @@ reach. A top-of-pile region scattered over its bounding box thus costs about wha
 not what the box does.
 
 The kernels are serial numba functions that release the GIL, run over ranges of rows or pixels on
-a thread pool that lives for one call (see :func:`_workers`); importing or calling this module
-changes no process-wide setting.
+the calling thread's pool (see :func:`_workers`); importing or calling this module changes no
+process-wide setting.
+
+Every full-frame temporary of a call (the planes, the valid mask, d̄ before it is copied out, the
+block statistics, the band tables, the statistics' terms, the columns) is taken from the calling
+thread's :class:`zcut.sor_workspace.SorWorkspace`, kept between calls so that a call does not
+fault a fresh ~190 MB in at 1920 × 1200 (see that module: one per thread, grown to the largest
+frame seen, ``thread_workspace().release()`` frees it, ``thread_workspace().max_bytes`` bounds it).
+What a call returns (d̄, the masks) is always a new array.
 """
 
 from __future__ import annotations
@@ -75,7 +82,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import wait
 from contextlib import contextmanager
 
 import numba as nb
@@ -87,9 +94,11 @@ from . import sor_search as _search
 from . import sor_window as _window
 from .cloud import check_mask, check_xyz
 from .errors import InputShapeError, ParameterError, describe_array
+from .sor_workspace import SorWorkspace, thread_workspace
 from .types import XYZ, Mask
 
-__all__ = ["CONVENTIONS", "sor_mean_distances", "sor_outliers", "sor_outliers_from_distances"]
+__all__ = ["CONVENTIONS", "SorWorkspace", "sor_mean_distances", "sor_outliers", "sor_outliers_from_distances",
+           "thread_workspace"]
 
 CONVENTIONS = ("pcl", "open3d")
 
@@ -188,8 +197,8 @@ _NO_MASK = np.ones((1, 1), dtype=bool)
 _NO_MASK.setflags(write=False)
 
 
-def _prepare(xyz: XYZ, run: Run, mask: Mask | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                                      np.ndarray, np.ndarray]:
+def _prepare(xyz: XYZ, run: Run, ws: SorWorkspace, mask: Mask | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                                      np.ndarray, np.ndarray, np.ndarray]:
     """float64 x, y, z planes (+inf where invalid), the valid mask, max |coordinate| per axis, and
     per row the first and last valid column (H, 2) (first > last: the row has none).
 
@@ -203,10 +212,10 @@ def _prepare(xyz: XYZ, run: Run, mask: Mask | None = None) -> tuple[np.ndarray, 
         a = np.ascontiguousarray(a)
     else:
         mask = check_mask(mask, name="mask", shape=(H, W))
-    x, y, z = np.empty((H, W)), np.empty((H, W)), np.empty((H, W))
-    valid = np.empty((H, W), dtype=bool)
-    rowmax = np.zeros((H, 3))
-    span = np.empty((H, 2), dtype=np.int64)
+    x, y, z = ws.empty("x", (H, W)), ws.empty("y", (H, W)), ws.empty("z", (H, W))
+    valid = ws.empty("valid", (H, W), bool)
+    rowmax = ws.full("rowmax", (H, 3), 0.0)
+    span = ws.empty("span", (H, 2), np.int64)
     run(_split_rows, H, a, _NO_MASK if mask is None else mask, mask is not None, x, y, z, valid, rowmax, span)
     return x, y, z, valid, rowmax.max(axis=0, initial=0.0), span
 
@@ -215,9 +224,10 @@ def _prepare(xyz: XYZ, run: Run, mask: Mask | None = None) -> tuple[np.ndarray, 
 # threads
 # --------------------------------------------------------------------------------------------
 @contextmanager
-def _workers() -> Iterator[Run]:
+def _workers(ws: SorWorkspace) -> Iterator[Run]:
     """``run(kernel, n, *args)`` calls ``kernel(i0, i1, *args)`` over chunks of range(n), on
-    ``numba.config.NUMBA_NUM_THREADS`` threads (the cores, or the NUMBA_NUM_THREADS variable).
+    ``numba.config.NUMBA_NUM_THREADS`` threads (the cores, or the NUMBA_NUM_THREADS variable): the
+    pool the workspace ``ws`` keeps from call to call.
 
     The kernels are serial numba functions that release the GIL: numba's own ``parallel=True``
     compiled this module several times slower, and not starting numba's threading layer leaves
@@ -227,49 +237,51 @@ def _workers() -> Iterator[Run]:
     if n_threads <= 1:
         yield lambda kernel, n, *args: kernel(0, n, *args) if n else None
         return
-    with ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="zcut-sor") as pool:
+    pool = ws.pool(n_threads)
 
-        def run(kernel: Callable[..., None], n: int, *args: object) -> None:
-            n_chunks = min(n, 8 * n_threads)
-            edges = [n * i // n_chunks for i in range(n_chunks + 1)] if n else []
-            jobs = [pool.submit(kernel, i0, i1, *args) for i0, i1 in itertools.pairwise(edges) if i1 > i0]
-            for job in jobs:
-                job.result()
+    def run(kernel: Callable[..., None], n: int, *args: object) -> None:
+        n_chunks = min(n, 8 * n_threads)
+        edges = [n * i // n_chunks for i in range(n_chunks + 1)] if n else []
+        jobs = [pool.submit(kernel, i0, i1, *args) for i0, i1 in itertools.pairwise(edges) if i1 > i0]
+        wait(jobs)  # all of them, even when one fails: none may write into the workspace after the call
+        for job in jobs:
+            job.result()
 
-        yield run
+    yield run
 
 
 # --------------------------------------------------------------------------------------------
 # the search
 # --------------------------------------------------------------------------------------------
 def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, span: np.ndarray, amax: np.ndarray,
-                    m: int, divisor: float, run: Run) -> np.ndarray:
+                    m: int, divisor: float, run: Run, ws: SorWorkspace) -> np.ndarray:
     """(H, W) d̄ over the m smallest squared distances (self included); anything where invalid.
-    ``span``: per row the first and last valid column (:func:`_prepare`)."""
+    ``span``: per row the first and last valid column (:func:`_prepare`). The result is an array
+    of the workspace ``ws``, like every full-frame temporary of the search."""
     H, W = valid.shape
     P = _camera.fit_camera(x, y, z, valid) if _USE_CAMERA else None
     use_cam = P is not None
     S = _camera.camera_scale(P, amax) if P is not None else 1.0
     if P is None:
         P = np.zeros((3, 4))
-    stats = _camera.new_stats(H, W)
+    stats = _camera.new_stats(H, W, ws)
     run(_camera.block_rows, stats[0].shape[0], x, y, z, valid, span, P, S, use_cam, *stats)
     rowU, colV, tcount, tbox, tuv, bad = stats
     use_cam = use_cam and not bad.any()  # some depth not safely positive: no camera bounds
     M = float(amax.max())
     if use_cam:
-        R = _camera.band_tables(rowU, P, 0, M)
-        C = _camera.band_tables(colV, P, 1, M)
+        R = _camera.band_tables(rowU, P, 0, M, ws.empty("R", (rowU.shape[0] + 1, 8, W)))
+        C = _camera.band_tables(colV, P, 1, M, ws.empty("C", (colV.shape[0] + 1, 8, H)))
         Q, floor = _camera.corner_tables(tuv, P, S, M)
     else:  # placeholders of the right shapes (the row stage reads them, then ignores them)
-        R = np.zeros((rowU.shape[0] + 1, 8, W))
-        C = np.zeros((colV.shape[0] + 1, 8, H))
+        R = ws.full("R", (rowU.shape[0] + 1, 8, W), 0.0)
+        C = ws.full("C", (colV.shape[0] + 1, 8, H), 0.0)
         Q = np.zeros((rowU.shape[0] + 1, colV.shape[0] + 1, 4, 8))
         floor = np.zeros(Q.shape[:2])
     wmax = int(min(max(_WINDOW_MAX, 1), _window.WINDOW_MAX))
     w0 = _window.first_window(m, wmax)
-    dbar = np.empty((H, W))
-    unproven = np.zeros(H, dtype=np.int64)
+    dbar = ws.empty("dbar", (H, W))
+    unproven = ws.full("unproven", (H,), 0, np.int64)
     run(_window.window_rows, H, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven,
         _window.slots_for(m))
     rows, cols = _window.unproven_pixels(valid, dbar, unproven)  # their dbar: minus the m-th squared distance
@@ -277,12 +289,12 @@ def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarr
         def tree() -> tuple[np.ndarray, ...]:  # built only if the column search leaves pixels
             return _search.build_quadtree(tcount, tbox, tuv, P, M, use_cam)
 
-        _fallback(x, y, z, valid, rows, cols, -dbar[rows, cols], m, divisor, use_cam, tree, dbar, run)
+        _fallback(x, y, z, valid, rows, cols, -dbar[rows, cols], m, divisor, use_cam, tree, dbar, run, ws)
     return dbar
 
 
 def _column_stage(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                  lim: np.ndarray, m: int, divisor: float, dbar: np.ndarray, run: Run) -> np.ndarray:
+                  lim: np.ndarray, m: int, divisor: float, dbar: np.ndarray, run: Run, ws: SorWorkspace) -> np.ndarray:
     """k-nearest search in columns (:mod:`zcut.columns`) for the unproven pixels with a finite
     bound ``lim``, when they are many (tall parts on end, flying pixels everywhere: the tile search
     would measure whole tiles for each). Writes their d̄ into dbar; returns which it settled."""
@@ -303,9 +315,15 @@ def _column_stage(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray
     nx, ny = int(nx), int(ny)
     # only the columns a query's ball can reach (a point outside them is farther than its bound,
     # so never among its m nearest) are filled
-    marked = np.zeros(nx * ny, dtype=bool)
+    marked = ws.full("marked", (nx * ny,), False, bool)
     _columns.mark_columns(x[rows, cols], y[rows, cols], np.where(eligible, rad, -1.0), x0, y0, inv, nx, ny, marked)
-    columns = _columns.build_columns(x, y, z, x0, y0, z0, inv, nx, marked)
+    start = ws.empty("col_start", (nx * ny + 1,), np.int64)
+    n = int(_columns.count_columns(x, y, z, x0, y0, inv, nx, marked, start))
+    xs, ys, zs = ws.empty("col_x", (n,)), ws.empty("col_y", (n,)), ws.empty("col_z", (n,))
+    mult, ks = ws.empty("col_mult", (n,), np.int64), ws.empty("col_slab", (n,), np.int64)
+    n = int(_columns.fill_columns(x, y, z, x0, y0, z0, inv, nx, marked, start, ws.empty("col_fill", (nx * ny,), np.int64),
+                                  xs, ys, zs, mult, ks))
+    columns = (start, xs[:n], ys[:n], zs[:n], mult[:n], ks[:n])
     out = np.zeros(rows.size)
     run(_search.column_queries, rows.size, x, y, z, rows, cols, lim, eligible, m, divisor, int(_COLUMN_SCAN),
         columns, x0, y0, z0, inv, nx, ny, out, done)
@@ -315,11 +333,11 @@ def _column_stage(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray
 
 def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, rows: np.ndarray, cols: np.ndarray,
               lim: np.ndarray, m: int, divisor: float, use_cam: bool, make_tree: Callable[[], tuple[np.ndarray, ...]],
-              dbar: np.ndarray, run: Run) -> None:
+              dbar: np.ndarray, run: Run, ws: SorWorkspace) -> None:
     """Columns, then a tile search for the unproven pixels left (over the quadtree ``make_tree()``
     builds), then a KD-tree for those it could not finish."""
     if _USE_COLUMNS:
-        done = _column_stage(x, y, z, valid, rows, cols, lim, m, divisor, dbar, run)
+        done = _column_stage(x, y, z, valid, rows, cols, lim, m, divisor, dbar, run, ws)
         if done.all():
             return
         rows, cols, lim = rows[~done], cols[~done], lim[~done]
@@ -367,14 +385,14 @@ def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, ro
 # statistics
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True)
-def _outlier_masks(dbar, valid, n, ratios, open3d):  # type: ignore[no-untyped-def]  # numba kernel
+def _outlier_masks(dbar, valid, n, ratios, open3d, terms):  # type: ignore[no-untyped-def]  # numba kernel
     # pcl: d̄ > mean + ratio * std, sample std (n - 1), sequential sums in row-major order.
     # open3d (PointCloud::RemoveStatisticalOutliers): the sums run over d̄ > 0 only but divide by
     # the count of ALL points; inlier iff 0 < d̄ < threshold (strict).
     # The summed values are first gathered in order without branches (valid pixels at random
-    # would make a branch mispredict), then summed: the same values in the same order.
+    # would make a branch mispredict) into ``terms`` (n + 1 entries: every pixel after the last
+    # summed one writes terms[k], k = its count), then summed: the same values in the same order.
     H, W = valid.shape
-    terms = np.empty(int(n) + 1)  # + 1: every pixel after the last summed one writes terms[k], k = its count
     k = 0
     for r in range(H):
         for c in range(W):
@@ -427,9 +445,9 @@ def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl", mask: M
         search needs, the mean is over all the valid points there are (Open3D's behaviour).
     """
     k, _ = _check_params(k, 1.0, convention)
-    with _workers() as run:
-        x, y, z, valid, amax, span = _prepare(xyz, run, mask)
-        dbar = np.full(valid.shape, np.nan)
+    with thread_workspace().call() as ws, _workers(ws) as run:
+        x, y, z, valid, amax, span = _prepare(xyz, run, ws, mask)
+        dbar = np.full(valid.shape, np.nan)  # the caller's: never a workspace array
         n = int(valid.sum())
         if n == 0:
             return dbar
@@ -441,7 +459,7 @@ def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl", mask: M
             if divisor == 0.0:
                 dbar[valid] = 0.0
                 return dbar
-        dbar[valid] = _mean_distances(x, y, z, valid, span, amax, m, divisor, run)[valid]
+        np.copyto(dbar, _mean_distances(x, y, z, valid, span, amax, m, divisor, run, ws), where=valid)
     return dbar
 
 
@@ -486,11 +504,13 @@ def sor_outliers_from_distances(
     ratios = np.array([_check_ratio(s, "every std_ratio") for s in std_ratios], dtype=np.float64)
     k, _ = _check_params(k, 1.0, convention)
     d = np.ascontiguousarray(d, dtype=np.float64)
-    valid = ~np.isnan(d)
-    n = int(valid.sum())
-    if n < k + 1 or ratios.size == 0:
-        return np.zeros((ratios.size, *d.shape), dtype=bool)
-    return _outlier_masks(d, valid, float(n), ratios, convention == "open3d")
+    with thread_workspace().call() as ws:
+        valid = np.isnan(d, out=ws.empty("valid", d.shape, bool))
+        np.logical_not(valid, out=valid)
+        n = int(np.count_nonzero(valid))
+        if n < k + 1 or ratios.size == 0:
+            return np.zeros((ratios.size, *d.shape), dtype=bool)
+        return _outlier_masks(d, valid, float(n), ratios, convention == "open3d", ws.empty("terms", (n + 1,)))
 
 
 def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: str = "pcl",
@@ -535,11 +555,13 @@ def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: st
     sor_outliers_from_distances : every threshold of a sweep from one d̄ computation.
     """
     k, ratio = _check_params(k, std_ratio, convention)
-    with _workers() as run:
-        x, y, z, valid, amax, span = _prepare(xyz, run, mask)
+    with thread_workspace().call() as ws, _workers(ws) as run:
+        x, y, z, valid, amax, span = _prepare(xyz, run, ws, mask)
         n = int(valid.sum())
         if n < k + 1:
             return np.zeros(valid.shape, dtype=bool)
         m = k + 1 if convention == "pcl" else k
-        dbar = _mean_distances(x, y, z, valid, span, amax, m, float(k), run)
-    return _outlier_masks(dbar, valid, float(n), np.array([ratio]), convention == "open3d")[0]
+        dbar = _mean_distances(x, y, z, valid, span, amax, m, float(k), run, ws)
+        # the masks are made by the kernel: the caller's, never workspace arrays
+        return _outlier_masks(dbar, valid, float(n), np.array([ratio]), convention == "open3d",
+                              ws.empty("terms", (n + 1,)))[0]

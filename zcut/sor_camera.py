@@ -21,6 +21,8 @@ import math
 import numba as nb
 import numpy as np
 
+from .sor_workspace import SorWorkspace
+
 BLOCK = 32       # pixels per block edge; a band is two blocks and starts every block
 TILE = 8         # pixels per tile edge (the leaves of the fallback's quadtree)
 EPS = 1e-12      # relative margin of every camera bound
@@ -207,23 +209,24 @@ def plane_bound_at(tab, k, j, xq, yq, zq):  # type: ignore[no-untyped-def]  # nu
 # --------------------------------------------------------------------------------------------
 # one pass over the pixels: per-block U and V extremes, per-tile boxes
 # --------------------------------------------------------------------------------------------
-def new_stats(H: int, W: int) -> tuple[np.ndarray, ...]:
+def new_stats(H: int, W: int, ws: SorWorkspace | None = None) -> tuple[np.ndarray, ...]:
     """Arrays filled by :func:`block_rows`: rowU (row blocks, W, 2) [min U_lo, max U_hi], colV
     (column blocks, H, 2) [min V_lo, max V_hi], tile count, tile box (x, y, z lo, x, y, z hi),
     tile [min U_lo, max U_hi, min V_lo, max V_hi, min depth], and per row block "some depth not
-    safely positive"."""
+    safely positive". ``ws``: taken from that workspace (else new)."""
+    ws = SorWorkspace(max_bytes=0) if ws is None else ws
     nrb, ncb = -(-H // BLOCK), -(-W // BLOCK)
     th, tw = -(-H // TILE), -(-W // TILE)
-    rowU = np.empty((nrb, W, 2))
+    rowU = ws.empty("rowU", (nrb, W, 2))
     rowU[..., 0], rowU[..., 1] = np.inf, -np.inf
-    colV = np.empty((ncb, H, 2))
+    colV = ws.empty("colV", (ncb, H, 2))
     colV[..., 0], colV[..., 1] = np.inf, -np.inf
-    tcount = np.zeros((th, tw), np.int64)
-    tbox = np.empty((th, tw, 6))
+    tcount = ws.full("tcount", (th, tw), 0, np.int64)
+    tbox = ws.empty("tbox", (th, tw, 6))
     tbox[..., :3], tbox[..., 3:] = np.inf, -np.inf
-    tuv = np.empty((th, tw, 5))
+    tuv = ws.empty("tuv", (th, tw, 5))
     tuv[..., 0::2], tuv[..., 1::2] = np.inf, -np.inf
-    bad = np.zeros(nrb, np.bool_)
+    bad = ws.full("bad", (nrb,), False, np.bool_)
     return rowU, colV, tcount, tbox, tuv, bad
 
 
@@ -347,15 +350,14 @@ def block_rows(b0, b1, x, y, z, valid, span, P, S, use_cam, rowU, colV, tcount, 
 # tables
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True)
-def band_tables(blocks, P, i, M):  # type: ignore[no-untyped-def]  # numba kernel
+def band_tables(blocks, P, i, M, out):  # type: ignore[no-untyped-def]  # numba kernel
     """Band planes from per-block extremes (rowU with i = 0, or colV with i = 1).
 
     ``blocks`` is (n_blocks, L, 2); band b covers blocks b - 1 and b. Returns (n_blocks + 1, 8,
-    L): fields 0..3 the plane of the band's points at positions >= j (their U_i >= the suffix
-    minimum), fields 4..7 that of the points at positions <= j (U_i <= the prefix maximum).
+    L) in ``out``: fields 0..3 the plane of the band's points at positions >= j (their U_i >= the
+    suffix minimum), fields 4..7 that of the points at positions <= j (U_i <= the prefix maximum).
     """
     nblk, L = blocks.shape[0], blocks.shape[1]
-    out = np.empty((nblk + 1, 8, L))
     pl = np.empty(4)
     for b in range(nblk + 1):
         run = np.inf

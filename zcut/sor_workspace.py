@@ -1,0 +1,134 @@
+"""Scratch arrays of :mod:`zcut.sor` kept between calls, one workspace per thread.
+
+Why: a call on a 1920 × 1200 frame needs about a dozen full-frame temporaries (the float64 x, y, z
+planes, the valid mask, d̄, the band tables, the statistics' terms, the columns: ~18 MB each, ~190
+MB in all). Made fresh each call, glibc hands such blocks back to the kernel when they are freed
+and the next call faults every page in again (≈ 2–3 µs per 4 KiB page: up to a quarter of a call,
+docs/performance.md). A workspace keeps them: a call takes its arrays by name, sized for its frame.
+
+Rules (where this module's work stops):
+
+- One workspace per thread (:func:`thread_workspace`): two calls in two threads never share a
+  buffer. A call that finds its thread's workspace busy (re-entry) works in a fresh one.
+- An array a call takes is valid until the call ends; nothing a call returns to its caller is a
+  workspace array or a view of one (:mod:`zcut.sor` copies d̄ and makes the masks fresh).
+- An array grows to the largest size asked (by at least a quarter, so that a run of slightly
+  growing crops does not reallocate every call) and never shrinks by itself: a thread that ran
+  a full frame holds ~190 MB until :meth:`SorWorkspace.release` is called, or for good with
+  ``max_bytes``: after a call, a workspace holding more than ``max_bytes`` drops everything
+  (``max_bytes = 0``: nothing is kept between calls, the behaviour before workspaces).
+- Taken arrays are uninitialized (like ``np.empty``); :meth:`SorWorkspace.full` fills.
+- The workspace also keeps the thread pool a call runs its kernels on (:meth:`SorWorkspace.pool`:
+  starting one per call cost ≈ 0.4 CPU ms); ``max_bytes`` leaves it, :meth:`SorWorkspace.release`
+  stops it, and it ends by itself when the workspace is dropped with its thread.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+
+import numpy as np
+from numpy.typing import DTypeLike
+
+__all__ = ["SorWorkspace", "thread_workspace"]
+
+
+class SorWorkspace:
+    """Named scratch arrays reused across calls (see the module docstring).
+
+    Parameters
+    ----------
+    max_bytes : int, optional
+        After a call, everything is dropped when the workspace holds more than this; None (the
+        default): keep everything until :meth:`release`.
+    """
+
+    __slots__ = ("_arrays", "_busy", "_pool", "_threads", "max_bytes")
+
+    def __init__(self, max_bytes: int | None = None) -> None:
+        self.max_bytes = max_bytes
+        self._arrays: dict[str, np.ndarray] = {}
+        self._busy = False
+        self._pool: ThreadPoolExecutor | None = None
+        self._threads = 0
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held between calls."""
+        return sum(a.nbytes for a in self._arrays.values())
+
+    def release(self) -> None:
+        """Drop every array (they are freed once no call uses them) and stop the thread pool."""
+        self._arrays.clear()
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def pool(self, n_threads: int) -> ThreadPoolExecutor:
+        """A pool of ``n_threads`` worker threads, the same from call to call (a new one when the
+        number changes)."""
+        if self._pool is None or self._threads != n_threads:
+            if self._pool is not None:
+                self._pool.shutdown()
+            self._pool = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="zcut-sor")
+            self._threads = n_threads
+        return self._pool
+
+    def empty(self, name: str, shape: tuple[int, ...], dtype: DTypeLike = np.float64) -> np.ndarray:
+        """A C-contiguous uninitialized array ``shape`` of ``dtype``, the one ``name`` names.
+
+        The array is the previous one of that name when it is large enough, else a new one that
+        replaces it; two names never share memory."""
+        kind = np.dtype(dtype)
+        size = math.prod(shape)
+        held = self._arrays.get(name)
+        if held is None or held.dtype != kind or held.size < size:
+            grown = 0 if held is None or held.dtype != kind else held.size + held.size // 4
+            self._arrays.pop(name, None)  # freed before its successor is made
+            held = np.empty(max(size, grown), kind)
+            self._arrays[name] = held
+        return held[:size].reshape(shape)
+
+    def full(self, name: str, shape: tuple[int, ...], value: object, dtype: DTypeLike = np.float64) -> np.ndarray:
+        """:meth:`empty`, every element set to ``value``."""
+        out = self.empty(name, shape, dtype)
+        out.fill(value)
+        return out
+
+    @contextmanager
+    def call(self) -> Iterator[SorWorkspace]:
+        """This workspace for one call (a fresh one that keeps nothing if it is in use), bounded
+        by ``max_bytes`` when the call ends."""
+        if self._busy:
+            fresh = SorWorkspace(max_bytes=0)
+            try:
+                yield fresh
+            finally:
+                fresh.release()
+            return
+        self._busy = True
+        try:
+            yield self
+        finally:
+            self._busy = False
+            if self.max_bytes is not None and self.nbytes > self.max_bytes:
+                self._arrays.clear()
+
+
+_LOCAL = threading.local()
+
+
+def thread_workspace() -> SorWorkspace:
+    """The calling thread's workspace (made on first use, dropped with the thread).
+
+    ``thread_workspace().release()`` frees what a thread holds; ``thread_workspace().max_bytes =
+    n`` bounds what it keeps between calls."""
+    ws: SorWorkspace | None = getattr(_LOCAL, "workspace", None)
+    if ws is None:
+        ws = SorWorkspace()
+        _LOCAL.workspace = ws
+    return ws
