@@ -335,7 +335,7 @@ def _rays_within(rays: np.ndarray, mine: np.ndarray, ub: float) -> np.ndarray:
         return state == 1
     from scipy.spatial import cKDTree
 
-    return np.isfinite(cKDTree(rays).query(mine, k=1, distance_upper_bound=ub)[0])  # type: ignore[no-any-return]
+    return np.isfinite(cKDTree(rays).query(mine, k=1, distance_upper_bound=ub)[0])
 
 
 @numba.njit(cache=True, nogil=True)
