@@ -33,7 +33,7 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numba
@@ -89,6 +89,9 @@ class RemovalResult:
     surface : optional
         The ring's residuals :func:`frame_tolerance` measured (:func:`surface_residuals` returns them
         for the same ring, model and pose instead of measuring again); None when not measured.
+    zone_top : optional
+        The zone's highest height, found while the height image was written (the bin check reads it for
+        these ``zone`` and ``height_mm`` arrays instead of scanning them again); None from the reference.
     """
 
     table: Mask
@@ -104,6 +107,7 @@ class RemovalResult:
     residual_mm: float = float("nan")
     radius_mm: float = float("nan")
     surface: _Surface | None = None
+    zone_top: _ZoneTop | None = field(default=None, repr=False, compare=False)
 
     @property
     def labelled(self) -> Mask:
@@ -697,9 +701,14 @@ def _grow_codes(new, code, neighbours):  # type: ignore[no-untyped-def]  # numba
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _finish_codes(a, code, plane, floor, up, z_far, valid, table, easy, binp, zone, height, xyz_out):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """:func:`_finish` from the class codes, writing the five class masks too."""
+    """:func:`_finish` from the class codes, writing the five class masks too; returns the zone's highest height
+    row by row, ``(seen, nan, top)`` (H,) each, as :func:`zcut.bin_check._zone_top` scans it (:func:`_zone_top_of`)."""
     H, W = code.shape
+    seen = np.zeros(H, np.bool_)
+    nan = np.zeros(H, np.bool_)
+    top = np.full(H, -np.inf)
     for r in numba.prange(H):
+        m = -np.inf
         for c in range(W):
             k = code[r, c]
             valid[r, c] = k != _INVALID
@@ -720,7 +729,38 @@ def _finish_codes(a, code, plane, floor, up, z_far, valid, table, easy, binp, zo
                 height[r, c] = -1000.0 * zf
                 xyz_out[r, c, 2] = np.float32(zf)
             else:
-                height[r, c] = -1000.0 * np.float64(a[r, c, 2])
+                v = -1000.0 * np.float64(a[r, c, 2])
+                height[r, c] = v
+                if k == _OPEN or k == _TRIED:  # the zone: its top, as _zone_top takes it
+                    seen[r] = True
+                    if np.isnan(v):
+                        nan[r] = True
+                    elif v > m:
+                        m = v
+        top[r] = m
+    return seen, nan, top
+
+
+@numba.njit(cache=True, nogil=True)
+def _zone_top_of(seen, nan, top):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``(any zone pixel, the zone's highest height)`` from the rows' (NaN when some zone pixel's height is NaN, as
+    ``np.max``): the rows' maxima taken in order, the first of equal ones kept."""
+    best = -np.inf
+    for r in range(top.shape[0]):
+        if top[r] > best:
+            best = top[r]
+    return seen.any(), (np.nan if nan.any() else best)
+
+
+@dataclass(frozen=True, slots=True)
+class _ZoneTop:
+    """The zone's highest height as the fast removal wrote it (:func:`_finish_codes`), for the bin check: valid for
+    these very ``zone`` and ``height`` arrays (a result rebuilt with others measures again)."""
+
+    zone: Mask
+    height: np.ndarray
+    seen: bool
+    top: float
 
 
 def _straggler_codes(a: np.ndarray, code: np.ndarray, R: np.ndarray, t: np.ndarray, index: _ModelIndex, *,
@@ -2072,9 +2112,11 @@ def remove_table_and_bin(
         valid, table, easy, binp, zone = (np.empty(shape, bool) for _ in range(5))
         height = np.empty(shape, np.float64)
         xyz_out = np.empty(a.shape, np.float32)
-        _finish_codes(a, code, plane, float(floor), up, float(z_far), valid, table, easy, binp, zone, height, xyz_out)
+        rows = _finish_codes(a, code, plane, float(floor), up, float(z_far), valid, table, easy, binp, zone, height,
+                             xyz_out)
+        seen, top = _zone_top_of(*rows)
         return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up, delta_m * 1000.0, residual_mm,
-                             r_bin * 1000.0, surface)
+                             r_bin * 1000.0, surface, _ZoneTop(zone, height, bool(seen), float(top)))
     valid, table, easy, binp = (np.zeros(shape, bool) for _ in range(4))
     _classify(a, fp, R, t, index.rim_b + p.rim_offset_m, delta_m > 0, p.robust, *_grid_args(index.bin),
               float(delta_m), float(r_bin), planes, valid, table, easy, binp)

@@ -4,6 +4,8 @@
 - :func:`zcut.bin_check._pixel_pitch` (one kernel) against :func:`zcut.bin_check._pixel_pitch_numpy`;
 - :func:`zcut.removal.fit_residual_field` (kernels) against ``reference=True`` (numpy, as first written);
 - :func:`zcut.removal.surface_nearest` (the removal's query reused) against the tree's query;
+- :func:`zcut.bin_check._clumps` (a union-find over the pixels) against ``ndimage.label`` of the whole image;
+- :attr:`zcut.removal.RemovalResult.zone_top` against :func:`zcut.bin_check._zone_top`;
 - the whole check against the previous one: the same pieces swapped back for the literal ones, the removal's
   measured surface dropped, on frames with parts leaning on a wall, a model with a gap, large invalid regions
   and degenerate frames.
@@ -16,6 +18,7 @@ import functools
 
 import numpy as np
 import pytest
+from scipy import ndimage
 from scipy.spatial import cKDTree
 from test_bin_check import BAND_MM, filled, model, on_inner_wall, pose, rim_block  # noqa: F401  # fixtures
 
@@ -34,6 +37,13 @@ from zcut.removal import (
 def _tree_within(rays: np.ndarray, mine: np.ndarray, ub: float) -> np.ndarray:
     """What the check did before: a KD-tree of the rays, a nearest query bounded by ``ub``."""
     return np.isfinite(cKDTree(rays).query(mine, k=1, distance_upper_bound=ub)[0])
+
+
+def _ndimage_clumps(flat: np.ndarray, h: int, w: int) -> np.ndarray:
+    """What the check did before: ``ndimage.label`` of the whole image, read at the pixels."""
+    img = np.zeros(h * w, bool)
+    img[flat] = True
+    return ndimage.label(img.reshape(h, w), structure=np.ones((3, 3), bool))[0].reshape(-1)[flat]
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -190,6 +200,45 @@ def test_surface_nearest_is_the_trees_query(model, filled):  # noqa: F811  # the
     assert surface_nearest(dataclasses.replace(rem, surface=None), index, flat, p) is None
 
 
+def test_clumps_are_ndimage_labels():
+    rng = np.random.default_rng(23)
+    for t in range(300):
+        h, w = int(rng.integers(1, 70)), int(rng.integers(1, 70))
+        img = rng.random((h, w)) < float(rng.choice([0.0, 0.01, 0.1, 0.3, 0.5, 0.7, 1.0]))
+        if t % 10 == 0:  # a diagonal line: 8-connected, one clump
+            img[:] = False
+            k = np.arange(min(h, w))
+            img[k, k] = True
+        flat = np.flatnonzero(img)
+        want = ndimage.label(img, structure=np.ones((3, 3), bool))[0].reshape(-1)[flat]
+        assert np.array_equal(bc._clumps(flat, h, w), want), t
+
+
+def test_the_removals_zone_top_is_the_checks(model, filled):  # noqa: F811  # the fixtures
+    xyz, fp, ring = filled
+    index = prepare_removal_index(model, RemovalParams())
+    holes = xyz.copy()
+    holes[:, : xyz.shape[1] // 2] = np.nan
+    holes[::7] = np.nan
+    for a in (xyz, holes, np.full_like(xyz, np.nan), xyz[:1, :1], xyz[:0]):
+        f, g = fp[: a.shape[0], : a.shape[1]], ring[: a.shape[0], : a.shape[1]]
+        rem = remove_table_and_bin(a, f, index=index, T_cam_bin=pose(), ring=g)
+        seen, top = bc._zone_top(rem.zone, rem.height_mm)
+        assert rem.zone_top is not None and rem.zone_top.seen == bool(seen)
+        assert np.array_equal(rem.zone_top.top, top, equal_nan=True) and np.signbit(rem.zone_top.top) == np.signbit(top)
+        assert remove_table_and_bin(a, f, index=index, T_cam_bin=pose(), ring=g, reference=True).zone_top is None
+    # a result rebuilt with another zone or height image is measured again: a zone pixel raised to the top
+    rem = remove_table_and_bin(xyz, fp, index=index, T_cam_bin=pose(), ring=ring)
+    height = rem.height_mm.copy()
+    height[rem.zone] += 5.0
+    p = RemovalParams()
+    again = bc.check_bin_removal(dataclasses.replace(rem, height_mm=height, zone_top=None), ring, params=p,
+                                 band_mm=BAND_MM)
+    rebuilt = bc.check_bin_removal(dataclasses.replace(rem, height_mm=height), ring, params=p, band_mm=BAND_MM)
+    assert (rebuilt.value, rebuilt.reason) == (again.value, again.reason)
+    assert np.array_equal(rebuilt.offending, again.offending)
+
+
 @pytest.fixture
 def previous_check(monkeypatch):
     """``check_bin_removal`` as the previous tree ran it: the literal pieces, every residual queried again."""
@@ -199,7 +248,8 @@ def previous_check(monkeypatch):
             m.setattr(bc, "_pixel_pitch", bc._pixel_pitch_numpy)
             m.setattr(bc, "fit_residual_field", functools.partial(fit_residual_field, reference=True))
             m.setattr(bc, "surface_nearest", lambda *a: None)
-            return bc.check_bin_removal(dataclasses.replace(rem, surface=None), *args, **kw)
+            m.setattr(bc, "_clumps", _ndimage_clumps)
+            return bc.check_bin_removal(dataclasses.replace(rem, surface=None, zone_top=None), *args, **kw)
     return check
 
 
