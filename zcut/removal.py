@@ -700,8 +700,9 @@ def _grow_codes(new, code, neighbours):  # type: ignore[no-untyped-def]  # numba
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _finish_codes(a, code, plane, floor, up, z_far, valid, table, easy, binp, zone, height, xyz_out):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """:func:`_finish` from the class codes, writing the five class masks too; returns the zone's highest height
+def _finish_codes(a, code, plane, floor, up, z_far, table, easy, binp, zone, height, xyz_out):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """:func:`_finish` from the class codes, writing the four class masks too (the valid pixels, their union, are
+    not kept: not written); returns the zone's highest height
     row by row, ``(seen, nan, top)`` (H,) each, as :func:`zcut.bin_check._zone_top` scans it (:func:`_zone_top_of`)."""
     H, W = code.shape
     seen = np.zeros(H, np.bool_)
@@ -711,7 +712,6 @@ def _finish_codes(a, code, plane, floor, up, z_far, valid, table, easy, binp, zo
         m = -np.inf
         for c in range(W):
             k = code[r, c]
-            valid[r, c] = k != _INVALID
             table[r, c] = k == _TABLE
             easy[r, c] = k == _EASY
             binp[r, c] = k == _BIN
@@ -2109,11 +2109,10 @@ def remove_table_and_bin(
         z_far = np.nan
         if not plane:  # a bin seen from the side: fall back to the farthest point
             z_far = float(np.nanmax(a[..., 2][code != _INVALID])) if (code != _INVALID).any() else np.nan
-        valid, table, easy, binp, zone = (np.empty(shape, bool) for _ in range(5))
+        table, easy, binp, zone = (np.empty(shape, bool) for _ in range(4))
         height = np.empty(shape, np.float64)
         xyz_out = np.empty(a.shape, np.float32)
-        rows = _finish_codes(a, code, plane, float(floor), up, float(z_far), valid, table, easy, binp, zone, height,
-                             xyz_out)
+        rows = _finish_codes(a, code, plane, float(floor), up, float(z_far), table, easy, binp, zone, height, xyz_out)
         seen, top = _zone_top_of(*rows)
         return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up, delta_m * 1000.0, residual_mm,
                              r_bin * 1000.0, surface, _ZoneTop(zone, height, bool(seen), float(top)))
