@@ -176,6 +176,22 @@ def _pitch_distances(v, i):  # type: ignore[no-untyped-def]  # numba kernel  # p
     return out[:m]
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # a zero row divides as numpy does: NaN
+def _unit_rows(v):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """(N, 3) float64: ``v / np.linalg.norm(v, axis=1, keepdims=True)`` of an (N, 3) float64 array, the same values
+    (numpy's norm sums the three squares in order, then takes the root; ~2 -> ~0.3 CPU ms on a model's 65k rows)."""
+    out = np.empty_like(v)
+    for i in range(v.shape[0]):
+        x = v[i, 0]
+        y = v[i, 1]
+        z = v[i, 2]
+        n = np.sqrt(x * x + y * y + z * z)
+        out[i, 0] = x / n
+        out[i, 1] = y / n
+        out[i, 2] = z / n
+    return out
+
+
 def _pixel_pitch_numpy(a: np.ndarray) -> float:
     """:func:`_pixel_pitch` in numpy, as first written (the tests' oracle, and any input the kernel does not
     take)."""
@@ -299,7 +315,7 @@ class ResidualField:
         if not ok.any() or len(model.points) == 0:
             return out
         cam = model.points @ self.T[:3, :3].T + self.T[:3, 3]
-        rays = cam / np.linalg.norm(cam, axis=1, keepdims=True)
+        rays = _unit_rows(np.ascontiguousarray(cam, dtype=np.float64))  # cam / np.linalg.norm(cam, axis=1), bit for bit
         mine = pts[ok] / np.linalg.norm(pts[ok], axis=1, keepdims=True)
         out[ok] = _rays_within(rays, mine, COVER_PITCHES * _pixel_pitch(a))
         return out

@@ -151,6 +151,18 @@ def test_pixel_pitch_and_rays_on_the_real_clouds(real_data):
         assert np.array_equal(bc._rays_within(rays, mine, 2.0 * want), _tree_within(rays, mine, 2.0 * want)), path.name
 
 
+def test_unit_rows_equal_numpy(real_data):
+    rng = np.random.default_rng(31)
+    clouds = [rng.normal(size=(n, 3)) * s for n in (0, 1, 7, 100_000) for s in (1e-3, 1.0, 1e3)]
+    clouds.append(np.array([[0.0, 0.0, 0.0], [1e-200, 0.0, 0.0], [1e200, 1e200, 1.0], [-0.0, 3.0, 4.0]]))
+    clouds += [read_pcd(p).xyz.reshape(-1, 3).astype(np.float64) for p in sorted(real_data.glob("*.pcd"))[:3]]
+    for v in clouds:
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore", under="ignore"):
+            want = v / np.linalg.norm(v, axis=1, keepdims=True)
+        got = bc._unit_rows(np.ascontiguousarray(v))
+        assert got.tobytes() == want.tobytes() or np.array_equal(got, want, equal_nan=True), v.shape
+
+
 def test_fit_residual_field_equals_numpy():
     rng = np.random.default_rng(9)
     fitted = 0
