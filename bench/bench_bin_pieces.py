@@ -201,7 +201,7 @@ def main() -> None:
                       R, t, *grid, buf[:n].reshape(code.shape))
                 timed("removal: straggler later passes", rm._straggler_rest, a, code, buf.view(np.uint64),
                       int(p.straggler_neighbours), rm.STRAGGLER_PASSES, R, t, *grid)
-            masks = [np.empty(code.shape, bool) for _ in range(5)]
+            masks = [np.empty(code.shape, bool) for _ in range(4)]
             timed("removal: finish (masks, heights)", rm._finish_codes, a, code, True, float(rem.floor_m),
                   rem.up_cam, float("nan"), *masks, np.empty(code.shape), np.empty(a.shape, np.float32))
             rim_in_view = min(loc.registration.n_rim / len(pm.icp.rim), 1.0) if len(pm.icp.rim) else 0.0

@@ -13,7 +13,8 @@ replay session limits it: a multi-threaded BLAS spins ~30 CPU-ms in the residual
 - ``stage``: the replay's removal stage, the removal then :func:`zcut.bin_check.check_bin_removal` (which
   reads the frame tolerance's residuals from the fast removal instead of measuring them again).
 
-It checks that both give the same classes, height image and cloud bit for bit, and prints CPU ms per
+It checks that both give the same classes, height image and cloud bit for bit (and τ, the percentile it came from,
+the bin test's radius, the rim, floor and up direction), and prints CPU ms per
 frame (``time.process_time``, all threads: the machine is shared, wall time is not compared), medians
 over frames and repeats, the ratio previous / fast and the cost per Mpx. ``--log`` measures existing
 logs (with their bin model) instead, at their own size.
@@ -21,7 +22,7 @@ logs (with their bin model) instead, at their own size.
 ``--against OLD_TREE`` (a source tree of an earlier commit, e.g. ``git archive COMMIT | tar -x -C OLD_TREE``)
 also times that tree's fast path and its stage (its ``zcut`` imported as ``zcut_prev``, on the same prepared
 index and frames, alternating with this tree's), checks they give the same results bit for bit (the classes,
-heights and cloud; the bin check's count, flag, reason, ghosts, off-surface count and pixels), and prints
+heights, cloud and those scalars; the bin check's count, flag, reason, ghosts, off-surface count and pixels), and prints
 their ratios to this tree's (``prev/new``). Its numba cache then names ``zcut_prev``: delete OLD_TREE's
 ``*.nbi``/``*.nbc`` before importing it as ``zcut`` (``bench_replay.py --against``). ``--holes`` measures the frames with large invalid regions instead: their
 left half and every 7th row set to NaN after locating (the same footprint, ring and pose).
@@ -53,6 +54,8 @@ from zcut.bin_check import check_bin_removal  # noqa: E402
 from zcut.removal import remove_table_and_bin  # noqa: E402
 
 FIELDS = ("table", "easy_outliers", "bin_points", "zone", "height_mm", "xyz")
+#: ... and the scalars: τ, the percentile it came from, the bin test's radius (the tolerance's reach), the rim, floor, up
+SCALARS = ("tolerance_mm", "residual_mm", "radius_mm", "rim_m", "floor_m", "up_cam")
 
 
 def located_frames(log: Path, frames: int):
@@ -113,16 +116,15 @@ def measure(log: Path, frames: int, repeats: int, prev: tuple[Callable[..., Any]
     for xyz, fp, ring, T in located:  # warm-up (numba) and the bit-for-bit check
         old = remove_table_and_bin(xyz, fp, index=index, T_cam_bin=T, ring=ring, reference=True)
         new = remove_table_and_bin(xyz, fp, index=index, T_cam_bin=T, ring=ring)
-        for f in FIELDS:
+        was = prev[0](xyz, fp, index=index, T_cam_bin=T, ring=ring) if prev is not None else None
+        for f in FIELDS + SCALARS:
             if not np.array_equal(getattr(old, f), getattr(new, f), equal_nan=True):
                 raise SystemExit(f"{log.name}: the fast removal's {f} differs from the previous one's")
-            if prev is not None and not np.array_equal(getattr(prev[0](xyz, fp, index=index, T_cam_bin=T, ring=ring), f),
-                                                       getattr(new, f), equal_nan=True):
+            if was is not None and not np.array_equal(getattr(was, f), getattr(new, f), equal_nan=True):
                 raise SystemExit(f"{log.name}: the removal's {f} differs from the previous tree's")
         if prev is not None:  # the bin check's verdict too
             c_new = check_bin_removal(new, ring, params=params, band_mm=band, xyz=xyz, index=index, T_cam_bin=T)
-            c_prev = prev[1](prev[0](xyz, fp, index=index, T_cam_bin=T, ring=ring), ring, params=params, band_mm=band,
-                             xyz=xyz, index=index, T_cam_bin=T)
+            c_prev = prev[1](was, ring, params=params, band_mm=band, xyz=xyz, index=index, T_cam_bin=T)
             if (c_new.value, c_new.flagged, c_new.reason, c_new.ghosts, c_new.off_surface) != \
                     (c_prev.value, c_prev.flagged, c_prev.reason, c_prev.ghosts, c_prev.off_surface) \
                     or not np.array_equal(c_new.offending, c_prev.offending):

@@ -64,9 +64,11 @@ from .removal import (
     MAX_RESIDUAL_PX,
     RemovalIndex,
     RemovalResult,
+    _ZoneTop,
     coherent_residuals,
     far_share,
     fit_residual_field,
+    surface_nearest,
     surface_residuals,
 )
 from .removal import field_design as _design
@@ -132,7 +134,67 @@ COVER_PITCHES = 2.0
 
 def _pixel_pitch(a: np.ndarray) -> float:
     """The angle (radians) between the lines of sight of neighbouring pixels of the organized cloud ``a``
-    (the median over a sample of horizontally adjacent pixels with finite points)."""
+    (the median over a sample of horizontally adjacent pixels with finite points). The distances are
+    :func:`_pitch_distances`' (numpy's on float32 or float64 input, :func:`_pixel_pitch_numpy`: the same
+    values, 3.8 -> ~0.5 CPU ms on 20k pairs)."""
+    v = a.reshape(-1, 3)
+    if v.dtype not in (np.float32, np.float64):
+        return _pixel_pitch_numpy(a)
+    w = a.shape[1]
+    i = np.arange(0, len(v) - 1, max(1, len(v) // 20_000))
+    i = i[(i % w) < w - 1]
+    d = _pitch_distances(np.ascontiguousarray(v), i)
+    if len(d) == 0:
+        return float("inf")
+    return float(np.median(d))
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # a zero point divides as numpy does: NaN
+def _pitch_distances(v, i):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``np.linalg.norm(p - q, axis=1)`` of the pairs ``v[i]``, ``v[i + 1]`` (float64) whose six coordinates are
+    finite, each point divided by its ``np.linalg.norm`` first, as :func:`_pixel_pitch_numpy` computes them
+    (its ``add.reduce`` over three values sums them in order; products, quotients and roots are IEEE's)."""
+    out = np.empty(i.shape[0])
+    m = 0
+    for k in range(i.shape[0]):
+        px = np.float64(v[i[k], 0])
+        py = np.float64(v[i[k], 1])
+        pz = np.float64(v[i[k], 2])
+        qx = np.float64(v[i[k] + 1, 0])
+        qy = np.float64(v[i[k] + 1, 1])
+        qz = np.float64(v[i[k] + 1, 2])
+        if not (np.isfinite(px) and np.isfinite(py) and np.isfinite(pz) and np.isfinite(qx) and np.isfinite(qy)
+                and np.isfinite(qz)):
+            continue
+        npn = np.sqrt(px * px + py * py + pz * pz)
+        nqn = np.sqrt(qx * qx + qy * qy + qz * qz)
+        dx = px / npn - qx / nqn
+        dy = py / npn - qy / nqn
+        dz = pz / npn - qz / nqn
+        out[m] = np.sqrt(dx * dx + dy * dy + dz * dz)
+        m += 1
+    return out[:m]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # a zero row divides as numpy does: NaN
+def _unit_rows(v):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """(N, 3) float64: ``v / np.linalg.norm(v, axis=1, keepdims=True)`` of an (N, 3) float64 array, the same values
+    (numpy's norm sums the three squares in order, then takes the root; ~2 -> ~0.3 CPU ms on a model's 65k rows)."""
+    out = np.empty_like(v)
+    for i in range(v.shape[0]):
+        x = v[i, 0]
+        y = v[i, 1]
+        z = v[i, 2]
+        n = np.sqrt(x * x + y * y + z * z)
+        out[i, 0] = x / n
+        out[i, 1] = y / n
+        out[i, 2] = z / n
+    return out
+
+
+def _pixel_pitch_numpy(a: np.ndarray) -> float:
+    """:func:`_pixel_pitch` in numpy, as first written (the tests' oracle, and any input the kernel does not
+    take)."""
     v = a.reshape(-1, 3).astype(np.float64)
     w = a.shape[1]
     i = np.arange(0, len(v) - 1, max(1, len(v) // 20_000))
@@ -146,12 +208,14 @@ def _pixel_pitch(a: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(p - q, axis=1)))
 
 
-def signed_residuals(xyz: XYZ, pixels: np.ndarray, index: RemovalIndex,
-                     T_cam_bin: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def signed_residuals(xyz: XYZ, pixels: np.ndarray, index: RemovalIndex, T_cam_bin: np.ndarray, *,
+                     removal: RemovalResult | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(r, p, n)`` of the flat ``pixels``: the signed distance (m) of each point to the tangent plane of
     its nearest model point, along that point's normal (NaN where the point is not finite or no model
     point lies within ``max_tolerance_mm``), the point in the bin frame (m) and that normal (NaN rows).
-    All NaN when the model has no normals."""
+    All NaN when the model has no normals. ``removal``: the frame's removal; the nearest model points of the
+    pixels its frame tolerance queried are read from it (:func:`zcut.removal.surface_nearest`), not queried
+    again (the same points)."""
     a = np.asarray(xyz)
     flat = np.asarray(pixels, dtype=np.int64)
     T = np.asarray(T_cam_bin, dtype=np.float64)
@@ -165,9 +229,14 @@ def signed_residuals(xyz: XYZ, pixels: np.ndarray, index: RemovalIndex,
     pts = a.reshape(-1, 3)[flat].astype(np.float64)
     ok = np.isfinite(pts).all(axis=1)
     p[ok] = (pts[ok] - T[:3, 3]) @ T[:3, :3]
-    d, j = index.tree.query(p[ok], k=1, distance_upper_bound=index.params.max_tolerance_mm / 1000.0)
-    found = np.flatnonzero(ok)[np.isfinite(d)]
-    jj = j[np.isfinite(d)]
+    known = surface_nearest(removal, index, flat[ok], p[ok])
+    if known is None:
+        d, j = index.tree.query(p[ok], k=1, distance_upper_bound=index.params.max_tolerance_mm / 1000.0)
+        hit = np.isfinite(d)
+    else:
+        j, hit = known, known >= 0
+    found = np.flatnonzero(ok)[hit]
+    jj = j[hit]
     n[found] = model.normals[jj]
     r[found] = np.einsum("ij,ij->i", p[found] - model.points[jj], n[found])
     return r, p, n
@@ -245,13 +314,10 @@ class ResidualField:
         ok = np.isfinite(pts).all(axis=1)
         if not ok.any() or len(model.points) == 0:
             return out
-        from scipy.spatial import cKDTree
-
         cam = model.points @ self.T[:3, :3].T + self.T[:3, 3]
-        rays = cam / np.linalg.norm(cam, axis=1, keepdims=True)
+        rays = _unit_rows(np.ascontiguousarray(cam, dtype=np.float64))  # cam / np.linalg.norm(cam, axis=1), bit for bit
         mine = pts[ok] / np.linalg.norm(pts[ok], axis=1, keepdims=True)
-        hit = cKDTree(rays).query(mine, k=1, distance_upper_bound=COVER_PITCHES * _pixel_pitch(a))[0]
-        out[ok] = np.isfinite(hit)
+        out[ok] = _rays_within(rays, mine, COVER_PITCHES * _pixel_pitch(a))
         return out
 
     def fits(self, xyz: XYZ, pixels: np.ndarray) -> np.ndarray:
@@ -262,8 +328,110 @@ class ResidualField:
             return ~(np.abs(e) > COHERENCE_MM)
 
 
-def residual_field(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray) -> ResidualField | None:
+def _rays_within(rays: np.ndarray, mine: np.ndarray, ub: float) -> np.ndarray:
+    """(M,) bool: a row of ``rays`` (N, 3) lies within ``ub`` of each row of ``mine`` (M, 3), as
+    ``np.isfinite(cKDTree(rays).query(mine, k=1, distance_upper_bound=ub)[0])`` says it (that tree's test: the
+    squared distance, summed over x, y, z in that order, below ``ub * ub``), from a grid of the rays' x and y
+    (:func:`_rays_grid`: cells at least ``ub`` wide, the 3 x 3 around each query; a frame's model is
+    ~65k points at 640 x 480, whose tree took ~15 CPU ms to build for a few hundred queries). A query whose
+    nearest squared distance lies within a relative 1e-9 of ``ub * ub`` (where the tree's pruning, summed in
+    another order, might round the other way), and any input with a non-finite value, goes to the tree."""
+    rays = np.ascontiguousarray(rays, dtype=np.float64)
+    mine = np.ascontiguousarray(mine, dtype=np.float64)
+    if len(mine) == 0:
+        return np.zeros(0, bool)
+    if len(rays) and np.isfinite(ub) and ub > 0 and np.isfinite(rays).all() and np.isfinite(mine).all():
+        ub2 = ub * ub
+        state = _rays_grid(rays, mine, ub, ub2 * (1.0 - 1e-9), ub2 * (1.0 + 1e-9))
+        if (state < 2).all():
+            return state == 1
+        from scipy.spatial import cKDTree
+
+        unsure = state == 2
+        state[unsure] = np.isfinite(cKDTree(rays).query(mine[unsure], k=1, distance_upper_bound=ub)[0])
+        return state == 1
+    from scipy.spatial import cKDTree
+
+    return np.isfinite(cKDTree(rays).query(mine, k=1, distance_upper_bound=ub)[0])
+
+
+@numba.njit(cache=True, nogil=True)
+def _rays_grid(rays, mine, ub, lo2, hi2):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """Per row of ``mine``: 1 when a row of ``rays`` lies at a squared distance below ``lo2`` (summed as the
+    tree sums it), 0 when none lies below ``hi2``, 2 otherwise (unsure). A ray within ``ub`` of a query differs
+    from it by less than ``ub`` in x and in y: the rays are binned by x and y in square cells at least ``ub``
+    wide (wider when the rays' extent would need more cells than four per ray), and the 3 x 3 cells around the
+    query's are searched."""
+    n = rays.shape[0]
+    x0 = rays[0, 0]
+    x1 = x0
+    y0 = rays[0, 1]
+    y1 = y0
+    for i in range(n):
+        x0 = min(x0, rays[i, 0])
+        x1 = max(x1, rays[i, 0])
+        y0 = min(y0, rays[i, 1])
+        y1 = max(y1, rays[i, 1])
+    cell = 1.01 * ub
+    cell = max(cell, np.sqrt((x1 - x0) * (y1 - y0) / (4.0 * n + 16.0)))
+    nx = int((x1 - x0) / cell) + 1
+    ny = int((y1 - y0) / cell) + 1
+    key = np.empty(n, np.int64)
+    start = np.zeros(nx * ny + 1, np.int64)
+    for i in range(n):
+        k = min(int((rays[i, 0] - x0) / cell), nx - 1) * ny + min(int((rays[i, 1] - y0) / cell), ny - 1)
+        key[i] = k
+        start[k + 1] += 1
+    for k in range(nx * ny):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        order[fill[key[i]]] = i
+        fill[key[i]] += 1
+    m = mine.shape[0]
+    out = np.zeros(m, np.int8)
+    for q in range(m):
+        mx = mine[q, 0]
+        my = mine[q, 1]
+        mz = mine[q, 2]
+        fx = (mx - x0) / cell
+        fy = (my - y0) / cell
+        if fx < -1.0 or fy < -1.0 or fx >= nx + 1.0 or fy >= ny + 1.0:
+            continue  # farther than a cell from every ray in x or y
+        cx = int(np.floor(fx))
+        cy = int(np.floor(fy))
+        state = 0
+        for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
+            for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
+                k = gx * ny + gy
+                for s in range(start[k], start[k + 1]):
+                    i = order[s]
+                    d = rays[i, 0] - mx
+                    d2 = d * d
+                    d = rays[i, 1] - my
+                    d2 = d2 + d * d
+                    d = rays[i, 2] - mz
+                    d2 = d2 + d * d
+                    if d2 < lo2:
+                        state = 1
+                        break
+                    if d2 < hi2:
+                        state = 2
+                if state == 1:
+                    break
+            if state == 1:
+                break
+        out[q] = state
+    return out
+
+
+def residual_field(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray, *,
+                   removal: RemovalResult | None = None) -> ResidualField | None:
     """The :class:`ResidualField` of a frame's certain bin pixels ``ring`` at the registered pose.
+
+    ``removal``: the frame's removal, whose frame tolerance queried the same sample of ``ring`` (its nearest
+    model points are read from it, :func:`signed_residuals`: the same field).
 
     None when the model has no normals, when fewer than :data:`zcut.removal.FIELD_MIN_PX` of the pixels have a model
     point within ``max_tolerance_mm``, or when the fit's misfit is too wide to tell a surface
@@ -275,16 +443,56 @@ def residual_field(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndar
     T = np.asarray(T_cam_bin, dtype=np.float64)
     flat = np.flatnonzero(np.asarray(ring, dtype=bool))
     flat = flat[:: max(1, -(-len(flat) // MAX_RESIDUAL_PX))]
-    fit = fit_residual_field(*signed_residuals(a, flat, index, T))
+    fit = fit_residual_field(*signed_residuals(a, flat, index, T, removal=removal))
     if fit is None:
         return None
     coef, centre, sigma, kept = fit
     return ResidualField(coef, centre, 1000.0 * sigma, kept, index, T)
 
 
-def _image(shape: tuple[int, ...], flat: np.ndarray) -> Mask:
-    out = np.zeros(shape, dtype=bool)
-    out.reshape(-1)[flat] = True
+@numba.njit(cache=True, nogil=True, inline="always")
+def _root(parent, x):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """The root of ``x`` in the union-find ``parent``, halving the path on the way."""
+    while parent[x] != x:
+        parent[x] = parent[parent[x]]
+        x = parent[x]
+    return x
+
+
+@numba.njit(cache=True, nogil=True)
+def _clumps(flat, H, W):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """(M,) int64: the 8-connected clump of each of the pixels ``flat`` (sorted flat indices of an H x W image),
+    numbered from 1 in the order of their first pixel: the labels ``ndimage.label(image, np.ones((3, 3)))`` gives
+    those pixels (the check used it on the whole frame: 5-6 CPU ms at 1920 x 1200 for a few hundred pixels), from a
+    union-find over the pixels themselves (each joined to its neighbours before it in raster order, found by
+    binary search)."""
+    m = flat.shape[0]
+    parent = np.arange(m)
+    for i in range(m):
+        q = flat[i]
+        r = q // W
+        c = q - r * W
+        for k in range(4):  # the neighbours before it: up-left, up, up-right, left
+            rr = r - 1 if k < 3 else r
+            cc = c - 1 + k if k < 3 else c - 1
+            if rr < 0 or cc < 0 or cc >= W:
+                continue
+            t = rr * W + cc
+            j = np.searchsorted(flat[:i], t)
+            if j < i and flat[j] == t:  # join the two clumps under the smaller root (each root its clump's first pixel)
+                a = _root(parent, i)
+                b = _root(parent, j)
+                if a != b:
+                    parent[max(a, b)] = min(a, b)
+    out = np.empty(m, np.int64)
+    name = np.zeros(m, np.int64)
+    n = 0
+    for i in range(m):
+        a = _root(parent, i)
+        if name[a] == 0:
+            n += 1
+            name[a] = n
+        out[i] = name[a]
     return out
 
 
@@ -347,16 +555,20 @@ def _offending(ring, easy, zone, h, has_zone, threshold, out):  # type: ignore[n
     return counts
 
 
-def _candidates(ring: Mask, easy: Mask, zone: Mask, h: np.ndarray, band_mm: float) -> tuple[Mask, int, int]:
+def _candidates(ring: Mask, easy: Mask, zone: Mask, h: np.ndarray, band_mm: float,
+                known: _ZoneTop | None = None) -> tuple[Mask, int, int]:
     """The check's candidates, ``ring & easy | ring & zone & (h >= top - band_mm)`` with ``top`` the zone's
     highest height, their count and that of the ring's pixels with a finite height: two passes over the
-    frame (the masks, the zone's boolean index and the counts in numpy were nine: 5.7 CPU ms at 1920 x 1200)."""
+    frame (the masks, the zone's boolean index and the counts in numpy were nine: 5.7 CPU ms at 1920 x 1200);
+    one when the removal found the top as it wrote these very ``zone`` and ``h`` (``known``,
+    :attr:`RemovalResult.zone_top`: 1.5-2 CPU ms less at 1920 x 1200)."""
     h = np.asarray(h)
     easy, zone = np.asarray(easy), np.asarray(zone)
     if h.dtype not in (np.float32, np.float64) or easy.dtype != np.bool_ or zone.dtype != np.bool_ \
             or not h.shape == easy.shape == zone.shape == ring.shape:
         return _candidates_numpy(ring, easy, zone, h, band_mm)
-    has_zone, top = _zone_top(np.ascontiguousarray(zone), np.ascontiguousarray(h))
+    has_zone, top = _zone_top(np.ascontiguousarray(zone), np.ascontiguousarray(h)) if known is None \
+        or known.zone is not zone or known.height is not h else (known.seen, known.top)
     out = np.empty(ring.shape, bool)
     # numpy compares the heights with the Python float in their own type (NEP 50): so does the kernel
     threshold = h.dtype.type(float(top) - band_mm)
@@ -416,7 +628,7 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         raise ParameterError("check_bin_removal: xyz, index and T_cam_bin go together")
     zone = removal.zone
     h = removal.height_mm
-    offending, n_offending, n_ring = _candidates(ring, removal.easy_outliers, zone, h, float(band_mm))
+    offending, n_offending, n_ring = _candidates(ring, removal.easy_outliers, zone, h, float(band_mm), removal.zone_top)
     ghosts = 0
     off_surface = 0
     far = 0.0
@@ -437,17 +649,14 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         field: ResidualField | None = None
         fitted = False
         if beyond.any():  # beyond max_tolerance_mm: by clumps, bin if the surface around runs out to there
-            from scipy import ndimage  # here: a replay seldom needs it (0.15 CPU-s to load)
-
-            clumps, _ = ndimage.label(_image(ring.shape, cand[beyond]), structure=np.ones((3, 3), bool))
-            lab = clumps.reshape(-1)[cand[beyond]]
+            lab = _clumps(cand[beyond], ring.shape[0], ring.shape[1])
             near_reach = np.isfinite(around[beyond]) & (around[beyond] >= params.max_tolerance_mm - COHERENCE_MM)
             runs_out = np.bincount(lab, near_reach, int(lab.max()) + 1) > 0
             ghost[beyond] = ~runs_out[lab]
             if runs_out.any():
                 # ... and when the bin's surface reaches that far there: the residual field says so (a part's
                 # face curving away from a wall runs out to max_tolerance_mm too, where the field is ~0)
-                field, fitted = residual_field(a, ring, index, T_cam_bin), True
+                field, fitted = residual_field(a, ring, index, T_cam_bin, removal=removal), True
                 if field is not None:
                     reach = np.abs(field.predicted_mm(a, cand[beyond])) >= params.max_tolerance_mm - COHERENCE_MM
                     reach |= ~field.modelled(a, cand[beyond])  # over a gap of the model
@@ -460,7 +669,7 @@ def check_bin_removal(removal: RemovalResult, ring: Mask, *, params: RemovalPara
         test = ~ghost & np.isfinite(own)
         if test.any():
             if not fitted:
-                field = residual_field(a, ring, index, T_cam_bin)
+                field = residual_field(a, ring, index, T_cam_bin, removal=removal)
             if field is not None:
                 at = np.flatnonzero(test)
                 miss = ~field.fits(a, cand[at])

@@ -33,7 +33,7 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numba
@@ -89,6 +89,9 @@ class RemovalResult:
     surface : optional
         The ring's residuals :func:`frame_tolerance` measured (:func:`surface_residuals` returns them
         for the same ring, model and pose instead of measuring again); None when not measured.
+    zone_top : optional
+        The zone's highest height, found while the height image was written (the bin check reads it for
+        these ``zone`` and ``height_mm`` arrays instead of scanning them again); None from the reference.
     """
 
     table: Mask
@@ -104,6 +107,7 @@ class RemovalResult:
     residual_mm: float = float("nan")
     radius_mm: float = float("nan")
     surface: _Surface | None = None
+    zone_top: _ZoneTop | None = field(default=None, repr=False, compare=False)
 
     @property
     def labelled(self) -> Mask:
@@ -696,13 +700,18 @@ def _grow_codes(new, code, neighbours):  # type: ignore[no-untyped-def]  # numba
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _finish_codes(a, code, plane, floor, up, z_far, valid, table, easy, binp, zone, height, xyz_out):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """:func:`_finish` from the class codes, writing the five class masks too."""
+def _finish_codes(a, code, plane, floor, up, z_far, table, easy, binp, zone, height, xyz_out):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """:func:`_finish` from the class codes, writing the four class masks too (the valid pixels, their union, are
+    not kept: not written); returns the zone's highest height
+    row by row, ``(seen, nan, top)`` (H,) each, as :func:`zcut.bin_check._zone_top` scans it (:func:`_zone_top_of`)."""
     H, W = code.shape
+    seen = np.zeros(H, np.bool_)
+    nan = np.zeros(H, np.bool_)
+    top = np.full(H, -np.inf)
     for r in numba.prange(H):
+        m = -np.inf
         for c in range(W):
             k = code[r, c]
-            valid[r, c] = k != _INVALID
             table[r, c] = k == _TABLE
             easy[r, c] = k == _EASY
             binp[r, c] = k == _BIN
@@ -720,7 +729,38 @@ def _finish_codes(a, code, plane, floor, up, z_far, valid, table, easy, binp, zo
                 height[r, c] = -1000.0 * zf
                 xyz_out[r, c, 2] = np.float32(zf)
             else:
-                height[r, c] = -1000.0 * np.float64(a[r, c, 2])
+                v = -1000.0 * np.float64(a[r, c, 2])
+                height[r, c] = v
+                if k == _OPEN or k == _TRIED:  # the zone: its top, as _zone_top takes it
+                    seen[r] = True
+                    if np.isnan(v):
+                        nan[r] = True
+                    elif v > m:
+                        m = v
+        top[r] = m
+    return seen, nan, top
+
+
+@numba.njit(cache=True, nogil=True)
+def _zone_top_of(seen, nan, top):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``(any zone pixel, the zone's highest height)`` from the rows' (NaN when some zone pixel's height is NaN, as
+    ``np.max``): the rows' maxima taken in order, the first of equal ones kept."""
+    best = -np.inf
+    for r in range(top.shape[0]):
+        if top[r] > best:
+            best = top[r]
+    return seen.any(), (np.nan if nan.any() else best)
+
+
+@dataclass(frozen=True, slots=True)
+class _ZoneTop:
+    """The zone's highest height as the fast removal wrote it (:func:`_finish_codes`), for the bin check: valid for
+    these very ``zone`` and ``height`` arrays (a result rebuilt with others measures again)."""
+
+    zone: Mask
+    height: np.ndarray
+    seen: bool
+    top: float
 
 
 def _straggler_codes(a: np.ndarray, code: np.ndarray, R: np.ndarray, t: np.ndarray, index: _ModelIndex, *,
@@ -969,6 +1009,9 @@ class _Surface:
     residuals: np.ndarray
     around: np.ndarray
     coherent: np.ndarray
+    #: the tree's query of the sample and its ring neighbours (the bin check's residual field reads its nearest
+    #: model points, :func:`surface_nearest`)
+    queried: _Queried | None = None
 
 
 def _nearest_mm(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) -> np.ndarray:
@@ -1307,8 +1350,8 @@ def field_design(p: np.ndarray, n: np.ndarray, centre: np.ndarray) -> np.ndarray
     return np.concatenate([n, np.cross(q, n), np.einsum("ij,ij->i", n, q)[:, None]], axis=1)
 
 
-def fit_residual_field(r: np.ndarray, p: np.ndarray, n: np.ndarray, *,
-                       normal_equations: bool = False) -> tuple[np.ndarray, np.ndarray, float, int] | None:
+def fit_residual_field(r: np.ndarray, p: np.ndarray, n: np.ndarray, *, normal_equations: bool = False,
+                       reference: bool = False) -> tuple[np.ndarray, np.ndarray, float, int] | None:
     """The residual field a small pose error and a model of a slightly different size make over the bin,
     fitted to signed residuals: ``(coef, centre, sigma_m, n_kept)`` or None.
 
@@ -1322,12 +1365,18 @@ def fit_residual_field(r: np.ndarray, p: np.ndarray, n: np.ndarray, *,
     field: a pose several millimetres off, whose nearest model points lie on the wrong faces).
     :func:`zcut.bin_check.residual_field` and :func:`frame_tolerance` use it; ``normal_equations``: each least
     squares solved from its 7 x 7 normal equations instead of ``np.linalg.lstsq`` (the tolerance's: a fifth of
-    the CPU on 15,000 pixels, the same field to rounding; the bin check keeps ``lstsq``).
+    the CPU on 15,000 pixels, the same field to rounding; the bin check keeps ``lstsq``). ``reference``: numpy
+    throughout, as first written (the tests' oracle); else the selections, the centre, the design matrix's
+    cross products and the trims' medians run in kernels (:func:`_fit_field`'s), numpy keeping the least squares
+    and the products a BLAS sums: the same numbers (a 20k-pixel fit, ``lstsq``: ~10 -> ~5 CPU ms).
     """
     use = np.isfinite(r)
     if np.count_nonzero(use) < FIELD_MIN_PX:
         return None
     r, p, n = r[use], p[use], n[use]
+    if not reference and r.dtype == p.dtype == n.dtype == np.float64 and r.ndim == 1 \
+            and p.shape == n.shape == (len(r), 3):
+        return _fit_field_trimmed(r, p, n, normal_equations=normal_equations)
     centre = p.mean(axis=0)
     A = field_design(p, n, centre)
     keep = np.ones(len(r), bool)
@@ -1368,7 +1417,7 @@ def _off_field(signed_m: np.ndarray, p_bin: np.ndarray, nearest_j: np.ndarray, o
     has_own = j_own >= 0
     n_own = np.full((m, 3), np.nan)
     n_own[has_own] = normals[j_own[has_own]]
-    fit = fit_residual_field(signed_m[own_at], p_bin[own_at], n_own, normal_equations=True)
+    fit = fit_residual_field(signed_m[own_at], p_bin[own_at], n_own, normal_equations=True, reference=True)
     if fit is None:
         return off
     coef, centre, _, _ = fit
@@ -1563,6 +1612,35 @@ def _fit_field(r: np.ndarray, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray,
     return coef, centre, e
 
 
+def _fit_field_trimmed(r: np.ndarray, p: np.ndarray, n: np.ndarray, *,
+                       normal_equations: bool) -> tuple[np.ndarray, np.ndarray, float, int] | None:
+    """:func:`fit_residual_field`'s loop on its finite float64 rows (at least :data:`FIELD_MIN_PX`), the selections,
+    the centre, the cross products and the medians in :func:`_fit_field`'s kernels."""
+    centre = _column_means(p)
+    q = p - centre
+    A = _design_columns(n, q, np.einsum("ij,ij->i", n, q))
+    keep = np.ones(len(r), bool)
+    coef = np.zeros(7)
+    sigma = 0.0
+    kept = len(r)
+    for _ in range(FIELD_TRIMS + 1):
+        Ak, rk = _kept_rows(A, r, keep)
+        if normal_equations:
+            try:
+                coef = np.linalg.solve(Ak.T @ Ak, Ak.T @ rk)
+            except np.linalg.LinAlgError:  # a degenerate ring (one face): the minimum-norm solution
+                coef = np.linalg.lstsq(Ak, rk, rcond=None)[0]
+        else:
+            coef = np.linalg.lstsq(Ak, rk, rcond=None)[0]
+        e = r - A @ coef
+        sigma, keep, kept = _trimmed(e, keep)
+        if kept < FIELD_MIN_PX:
+            return None
+    if 3000.0 * sigma > COHERENCE_MM:
+        return None
+    return coef, centre, float(sigma), int(kept)
+
+
 def _signed_ref(a: np.ndarray, flat: np.ndarray, index: RemovalIndex,
                 T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The reference's ``(signed_m, p_bin, nearest_j)`` of the pixels ``flat`` (:class:`_Queried`'s), from the
@@ -1603,6 +1681,47 @@ def surface_residuals(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.n
     if s is not None and s.xyz is xyz and s.ring is ring and s.index is index and np.array_equal(s.T, T_cam_bin):
         return s.residuals, s.around, s.coherent
     return _measured(xyz, ring, index, T_cam_bin, coherence=True)
+
+
+def surface_nearest(removal: RemovalResult | None, index: RemovalIndex, pixels: np.ndarray,
+                    p_bin: np.ndarray) -> np.ndarray | None:
+    """(M,) int64: the nearest model point within ``max_tolerance_mm`` (-1: none) of each of ``pixels`` (flat,
+    each with a finite point) whose bin-frame points are ``p_bin`` (M, 3), what ``index.tree.query(p_bin, k=1,
+    distance_upper_bound=max_tolerance)`` names, read from the query :func:`frame_tolerance` made with this
+    ``index`` (:attr:`RemovalResult.surface`) where it queried the same pixel at the very same point (the answer
+    depends on nothing else; a matrix product's rounding may differ with the batch: those rows, and pixels it
+    did not query, are queried again, :func:`_nearest_points`). None when the removal did not measure with
+    ``index``."""
+    s = removal.surface if removal is not None else None
+    if s is None or s.queried is None or s.queried.nearest_j is None or s.index is not index:
+        return None
+    q = s.queried
+    flat = np.asarray(pixels, dtype=np.int64)
+    p = np.ascontiguousarray(p_bin, dtype=np.float64)
+    if len(q.flat) == 0 or len(flat) == 0:
+        return None
+    at = np.minimum(np.searchsorted(q.flat, flat), len(q.flat) - 1)
+    j, same = _same_nearest(p, at, flat, q.flat, q.p_bin, q.nearest_j)
+    if not same.all():
+        d, jj = _nearest_points(p[~same], index)
+        j[~same] = np.where(np.isfinite(d), jj, -1)
+    return j
+
+
+@numba.njit(cache=True, nogil=True)
+def _same_nearest(p_bin, at, flat, q_flat, q_p, q_j):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``(q_j[at], same)``: the queried nearest points of the rows ``at`` and whether the pixel queried there is
+    ``flat``'s with the very point ``p_bin`` (all three coordinates equal); -1 where not."""
+    n = at.shape[0]
+    j = np.full(n, -1, np.int64)
+    same = np.empty(n, np.bool_)
+    for i in range(n):
+        k = at[i]
+        same[i] = (q_flat[k] == flat[i] and p_bin[i, 0] == q_p[k, 0] and p_bin[i, 1] == q_p[k, 1]
+                   and p_bin[i, 2] == q_p[k, 2])
+        if same[i]:
+            j[i] = q_j[k]
+    return j, same
 
 
 def bin_residuals_mm(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndarray) -> np.ndarray:
@@ -1837,7 +1956,7 @@ def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -
         res, around, coherent, queried = _coherent(a, flat, nb, index, T, reference=False)
         own_at = np.searchsorted(queried.flat, flat)
         nb_at = np.where(nb >= 0, np.searchsorted(queried.flat, np.where(nb >= 0, nb, 0)), -1)
-    surface = _Surface(a, ring, index, T.copy(), res, around, coherent)
+    surface = _Surface(a, ring, index, T.copy(), res, around, coherent, queried)
     if len(res) == 0:
         return Tolerance(max(p.max_tolerance_mm, lo), float("nan"), 0, surface=surface)
     n_coh = int(np.count_nonzero(coherent))
@@ -1990,12 +2109,13 @@ def remove_table_and_bin(
         z_far = np.nan
         if not plane:  # a bin seen from the side: fall back to the farthest point
             z_far = float(np.nanmax(a[..., 2][code != _INVALID])) if (code != _INVALID).any() else np.nan
-        valid, table, easy, binp, zone = (np.empty(shape, bool) for _ in range(5))
+        table, easy, binp, zone = (np.empty(shape, bool) for _ in range(4))
         height = np.empty(shape, np.float64)
         xyz_out = np.empty(a.shape, np.float32)
-        _finish_codes(a, code, plane, float(floor), up, float(z_far), valid, table, easy, binp, zone, height, xyz_out)
+        rows = _finish_codes(a, code, plane, float(floor), up, float(z_far), table, easy, binp, zone, height, xyz_out)
+        seen, top = _zone_top_of(*rows)
         return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up, delta_m * 1000.0, residual_mm,
-                             r_bin * 1000.0, surface)
+                             r_bin * 1000.0, surface, _ZoneTop(zone, height, bool(seen), float(top)))
     valid, table, easy, binp = (np.zeros(shape, bool) for _ in range(4))
     _classify(a, fp, R, t, index.rim_b + p.rim_offset_m, delta_m > 0, p.robust, *_grid_args(index.bin),
               float(delta_m), float(r_bin), planes, valid, table, easy, binp)
