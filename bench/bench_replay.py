@@ -198,26 +198,40 @@ def print_stage_table(new: dict[str, float], old: dict[str, float] | None) -> No
         print(line)
 
 
+#: the measuring children's modes (this script run with the code of another tree): one JSON line each
+CHILD_MODES = ("--stage-json", "--throughput-json", "--threads-json")
+
+
+def child_json(tree: Path, mode: str, *args: str, env: dict[str, str] | None = None) -> dict:
+    """Run this script as a measuring child with the code of the source tree ``tree`` (its ``PYTHONPATH`` and
+    working folder; numba's workqueue threads, as ``zcut`` chooses them) in ``mode`` (:data:`CHILD_MODES`) with
+    ``args``, ``env`` added to its environment; returns the JSON object of the last line it printed
+    (:func:`child_main` prints it)."""
+    import json
+    import subprocess
+
+    assert mode in CHILD_MODES
+    full = dict(os.environ, PYTHONPATH=str(tree), **(env or {}))
+    full.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
+    out = subprocess.run([sys.executable, __file__, mode, *args], env=full, cwd=str(tree), check=True,
+                         capture_output=True, text=True).stdout
+    result: dict = json.loads(out.strip().splitlines()[-1])
+    return result
+
+
 def stage_costs_of_tree(tree: Path, log: Path, ply: Path | None, *, cores: int | None = None,
                         clock: str = "cpu", bin_only: bool = False) -> dict[str, float]:
     """:func:`stage_costs` with the code of the source tree ``tree`` (a subprocess; this script's own
     copy of the function runs against that tree's modules), pinned to ``cores`` cores (numba runs as
     many threads) when given."""
-    import json
-    import subprocess
-    import sys
-
-    env = dict(os.environ, PYTHONPATH=str(tree))
-    env.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
-    extra = []
+    extra = ["--clock", clock]
+    env = {}
     if cores is not None:
         env["NUMBA_NUM_THREADS"] = str(cores)
-        extra = ["--pin", str(cores)]
+        extra += ["--pin", str(cores)]
     if bin_only:
         extra.append("--bin-stages")
-    out = subprocess.run([sys.executable, __file__, "--stage-json", str(log), str(ply or "-"), "--clock", clock,
-                          *extra], env=env, cwd=str(tree), check=True, capture_output=True, text=True).stdout
-    return json.loads(out.strip().splitlines()[-1])
+    return child_json(tree, "--stage-json", str(log), str(ply or "-"), *extra, env=env)
 
 
 def stage_table(logs: dict[tuple[int, int], Path], cores: list[int], against: Path | None) -> None:
@@ -385,9 +399,6 @@ def thread_accounting(log: Path, in_flight: int | None) -> dict[str, object]:
 def thread_table(log: Path, against: Path | None, repeats: int) -> None:
     """Print :func:`thread_accounting` of this tree and ``against``'s, alternating ``repeats`` times (one
     subprocess each), the medians per thread group."""
-    import json
-    import subprocess
-
     this_tree = Path(__file__).resolve().parents[1]
     trees = {"this tree": this_tree} | ({"previous": against} if against is not None else {})
     got: dict[str, list[dict]] = {k: [] for k in trees}
@@ -395,10 +406,7 @@ def thread_table(log: Path, against: Path | None, repeats: int) -> None:
     for _ in range(max(repeats, 1)):
         for name, tree in trees.items():
             loads.append(os.getloadavg()[0])
-            env = dict(os.environ, PYTHONPATH=str(tree))
-            out = subprocess.run([sys.executable, __file__, "--threads-json", str(log)], env=env, cwd=str(tree),
-                                 check=True, capture_output=True, text=True).stdout
-            got[name].append(json.loads(out.strip().splitlines()[-1]))
+            got[name].append(child_json(tree, "--threads-json", str(log)))
     print(f"\nwhere a whole replay's CPU goes, per thread, {log.name} ({got['this tree'][0]['frames']} frames after a "
           f"warm-up one, {warm_passes()} warm pass(es)); medians of {repeats} alternating runs, CPU ms per frame "
           f"(user + sys) and minor page faults per frame; load average {min(loads):.1f}-{max(loads):.1f} on "
@@ -452,15 +460,7 @@ def throughput(log: Path, in_flight: int | None, outputs: str = "none") -> dict[
 
 def throughput_of_tree(tree: Path, log: Path, in_flight: int | None, outputs: str = "none") -> dict[str, float]:
     """:func:`throughput` with the code of the source tree ``tree``, in a subprocess."""
-    import json
-    import subprocess
-    import sys
-
-    env = dict(os.environ, PYTHONPATH=str(tree))
-    env.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
-    out = subprocess.run([sys.executable, __file__, "--throughput-json", str(log), str(in_flight or 0), outputs], env=env,
-                         cwd=str(tree), check=True, capture_output=True, text=True).stdout
-    return json.loads(out.strip().splitlines()[-1])
+    return child_json(tree, "--throughput-json", str(log), str(in_flight or 0), outputs)
 
 
 def throughput_table(log: Path, against: Path | None, repeats: int, outputs: tuple[str, ...] = ("none",)) -> None:
@@ -596,6 +596,23 @@ def startup_table(log: Path, against: Path | None, repeats: int) -> None:
     print(f"  the floor's share of T({n}) were the rest of F gone: {floor / (m['tn'] - m['fixed'] + floor):.2f}")
 
 
+def child_main(args: argparse.Namespace) -> None:
+    """A measuring child (:func:`child_json` launched it): its one measurement, printed as one JSON line."""
+    import json
+
+    if args.stage_json:
+        if args.pin:
+            os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: args.pin])
+        log_, ply_ = args.stage_json
+        got = stage_costs(Path(log_), None if ply_ == "-" else Path(ply_), clock=args.clock, bin_only=args.bin_stages)
+    elif args.threads_json:
+        got = thread_accounting(Path(args.threads_json[0]), None)
+    else:
+        log_, n_, o_ = args.throughput_json
+        got = throughput(Path(log_), int(n_) or None, o_)
+    print(json.dumps(got))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=4)
@@ -633,32 +650,15 @@ def main() -> None:
                     help="--stages-only: the bin stages only (bin mask, registration, removal), this tree and --against's "
                          "alternating --repeats times (each a subprocess), medians and every run's figures")
     args = ap.parse_args()
-    if args.stage_json:
-        import json
-
-        if args.pin:
-            os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: args.pin])
-        log_, ply_ = args.stage_json
-        print(json.dumps(stage_costs(Path(log_), None if ply_ == "-" else Path(ply_), clock=args.clock,
-                                     bin_only=args.bin_stages)))
-        return
     if args.warm_passes:
         os.environ[WARM_PASSES_VARIABLE] = str(args.warm_passes)  # the measuring children read it
-    if args.threads_json:
-        import json
-
-        print(json.dumps(thread_accounting(Path(args.threads_json[0]), None)))
+    if args.stage_json or args.threads_json or args.throughput_json:
+        child_main(args)
         return
     if args.threads:
         if args.log is None:
             raise SystemExit("--threads needs --log LOG")
         thread_table(args.log, args.against, args.repeats)
-        return
-    if args.throughput_json:
-        import json
-
-        log_, n_, o_ = args.throughput_json
-        print(json.dumps(throughput(Path(log_), int(n_) or None, o_)))
         return
     if args.startup:
         if args.log is None:

@@ -7,9 +7,8 @@ code.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-
-import numpy as np
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,26 +44,26 @@ class PartKind:
 # (head s = 18, k = 7.5), M16 rod 80 mm long, 20 mm balls, ANSI-40 20-tooth plate sprocket
 # (88 mm outside, 7 mm thick, 16 mm bore).
 HEX_S_MM, HEX_M_MM, NUT_BORE_MM = 18.0, 10.8, 10.5
-HEX_AREA_MM2 = np.sqrt(3.0) / 2.0 * HEX_S_MM**2
+HEX_AREA_MM2 = math.sqrt(3.0) / 2.0 * HEX_S_MM**2
 SPROCKET_R_ROOT_MM, SPROCKET_R_TIP_MM, SPROCKET_TEETH, SPROCKET_T_MM, SPROCKET_BORE_MM = 38.0, 44.0, 20, 7.0, 8.0
 
 PART_KINDS: dict[str, PartKind] = {
-    "spheres": PartKind("spheres", "metal spheres", 20.0, np.pi * 10.0**2, True, 10.0),
+    "spheres": PartKind("spheres", "metal spheres", 20.0, math.pi * 10.0**2, True, 10.0),
     "zinc_nuts": PartKind(
-        "zinc_nuts", "M12 zinc nuts", HEX_M_MM, HEX_AREA_MM2 - np.pi * (NUT_BORE_MM / 2) ** 2, True, 12.0
+        "zinc_nuts", "M12 zinc nuts", HEX_M_MM, HEX_AREA_MM2 - math.pi * (NUT_BORE_MM / 2) ** 2, True, 12.0
     ),
     "rods": PartKind("rods", "M16 metal rods", 16.0, 16.0 * 80.0, True, 41.0),
     "black_screws": PartKind(
-        "black_screws", "M12 black screws", HEX_S_MM, 12.0 * 40.0 + 7.5 * HEX_S_MM * 2 / np.sqrt(3.0), False, 25.5
+        "black_screws", "M12 black screws", HEX_S_MM, 12.0 * 40.0 + 7.5 * HEX_S_MM * 2 / math.sqrt(3.0), False, 25.5
     ),
     "black_nuts": PartKind(
-        "black_nuts", "M12 black nuts", HEX_M_MM, HEX_AREA_MM2 - np.pi * (NUT_BORE_MM / 2) ** 2, False, 12.0
+        "black_nuts", "M12 black nuts", HEX_M_MM, HEX_AREA_MM2 - math.pi * (NUT_BORE_MM / 2) ** 2, False, 12.0
     ),
     "sprockets": PartKind(
         "sprockets",
         "sprockets",
         SPROCKET_T_MM,
-        np.pi * (SPROCKET_R_ROOT_MM**2 - SPROCKET_BORE_MM**2) + SPROCKET_TEETH * 0.5 * (6.0 + 2.5) * 6.0,
+        math.pi * (SPROCKET_R_ROOT_MM**2 - SPROCKET_BORE_MM**2) + SPROCKET_TEETH * 0.5 * (6.0 + 2.5) * 6.0,
         True,
         44.5,
     ),
@@ -103,7 +102,7 @@ class BinGeometry:
     @property
     def floor_half(self) -> tuple[float, float]:
         """Half sizes of the flat inner floor."""
-        inset = (self.height_mm - self.floor_mm) * np.tan(np.radians(self.draft_deg))
+        inset = (self.height_mm - self.floor_mm) * math.tan(math.radians(self.draft_deg))
         lx, ly = self.inner_top_half
         return lx - inset, ly - inset
 

@@ -31,6 +31,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
+from typing import Any
 
 EXIT_OK = 0
 EXIT_USER_ERROR = 1
@@ -173,8 +174,30 @@ def interrupted_by(error: BaseException, state: InterruptState | None = None) ->
 OPENCV_NO_SPIN = ("OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER", "OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN")
 
 
-#: glibc's ``mallopt`` parameter for the most malloc arenas the threads of a process may have
-_M_ARENA_MAX = -8
+#: glibc's ``mallopt`` parameters: the most malloc arenas the threads of a process may have, the free bytes at
+#: the top of the heap beyond which they are given back to the kernel, the most chunks served by ``mmap``
+_M_ARENA_MAX, _M_TRIM_THRESHOLD, _M_MMAP_MAX = -8, -1, -4
+
+#: the environment variables by which a user tunes glibc's malloc: :func:`keep_freed_memory` then leaves it be
+MALLOC_VARIABLES = ("MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_MAX_", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TOP_PAD_")
+
+#: the free bytes at the top of the heap kept by :func:`keep_freed_memory` (the most ``mallopt`` takes: an int)
+KEPT_FREE_BYTES = 2**31 - 1
+
+
+def _mallopt() -> Any:
+    """glibc's ``mallopt`` (``int mallopt(int, int)``), or None (not Linux, not glibc)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    import ctypes
+
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):  # not glibc
+        return None
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    mallopt.restype = ctypes.c_int
+    return mallopt
 
 
 def one_malloc_arena() -> bool:
@@ -188,17 +211,27 @@ def one_malloc_arena() -> bool:
     40-60 system CPU ms a 1920 x 1200 frame at load 20); the main arena keeps freed memory for reuse
     (106 faults, 9-15 ms; docs/performance.md, "The replay outside its stages").
     """
-    if "MALLOC_ARENA_MAX" in os.environ or not sys.platform.startswith("linux"):
-        return False
-    import ctypes
+    mallopt = None if "MALLOC_ARENA_MAX" in os.environ else _mallopt()
+    return mallopt is not None and bool(mallopt(_M_ARENA_MAX, 1))
 
-    try:
-        mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):  # not glibc
-        return False
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-    mallopt.restype = ctypes.c_int
-    return bool(mallopt(_M_ARENA_MAX, 1))
+
+def keep_freed_memory() -> bool:
+    """Keep the memory a frame frees for the next frame (glibc's main arena): no ``mmap`` for large
+    allocations (``mallopt(M_MMAP_MAX, 0)``) and no trimming of the heap's top below
+    :data:`KEPT_FREE_BYTES` (``M_TRIM_THRESHOLD``), unless the user tunes malloc (:data:`MALLOC_VARIABLES`,
+    ``glibc.malloc`` in ``GLIBC_TUNABLES``). True when set (glibc only).
+
+    By default glibc serves an allocation above its ``mmap`` threshold (which it raises as such chunks are
+    freed, up to 32 MB) with fresh pages and unmaps them at ``free``, and it gives the top of the heap back
+    when more than twice that is free there: which happens depends on the order in which a replay's threads
+    allocate and free a frame's arrays, so a whole replay faulted 400-1,400 pages a frame back in (the
+    kernel zeroing each: 10-21 system CPU ms a 1920 x 1200 frame) where the same stages run one after the
+    other faulted 2 (docs/performance.md, "The replay outside its stages, round of 2026-12-05c"). A
+    process so set keeps its largest heap until it ends, as a replay's does anyway (its frames are alike).
+    """
+    tuned = any(v in os.environ for v in MALLOC_VARIABLES) or "glibc.malloc." in os.environ.get("GLIBC_TUNABLES", "")
+    mallopt = None if tuned else _mallopt()
+    return mallopt is not None and bool(mallopt(_M_MMAP_MAX, 0)) and bool(mallopt(_M_TRIM_THRESHOLD, KEPT_FREE_BYTES))
 
 
 def configure_process() -> None:
@@ -208,7 +241,8 @@ def configure_process() -> None:
     parallel region and steal the CPU on a busy machine (measured 2-3x slower here), and an old TBB
     shipped by other wheels makes numba warn when it probes the "tbb" layer. OpenCV's pool threads do
     not spin either (:data:`OPENCV_NO_SPIN`; the bin mask's calls left one of them yielding the CPU
-    ~1,900 times a frame). Every thread allocates from one malloc arena (:func:`one_malloc_arena`).
+    ~1,900 times a frame). Every thread allocates from one malloc arena (:func:`one_malloc_arena`), and the
+    memory a frame frees is kept for the next (:func:`keep_freed_memory`).
     """
     if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
         os.environ["NUMBA_THREADING_LAYER_PRIORITY"] = "workqueue omp tbb"
@@ -222,6 +256,7 @@ def configure_process() -> None:
     for name in OPENCV_NO_SPIN:
         os.environ.setdefault(name, "0")
     one_malloc_arena()
+    keep_freed_memory()
     # a recording that cannot be written is reported in zcut's one line, naming the output; Rerun's
     # own log lines (Rust's format, on stderr) would repeat it, many lines long
     os.environ.setdefault("RUST_LOG", "off")

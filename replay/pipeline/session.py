@@ -234,30 +234,35 @@ def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Generator[Frame, N
     """Iterate ``frames`` in a background thread, up to ``depth`` frames ahead of the consumer.
 
     Decoding the next frame (zstd and the cloud unpacking release the GIL) then overlaps the
-    pipeline on the current one. Exceptions of the iterator are raised to the consumer where they
-    happened in the sequence; closing this generator (or an exception in the consumer, once the
-    caller closes it) stops and joins the thread and closes ``frames``.
+    pipeline on the current one. At most ``depth`` frames are read and not yet taken: the thread
+    reads the next one once the consumer has taken one (a queue of ``depth`` frames alone would let
+    it hold one more, read and waiting for room: a 1920 x 1200 frame's arrays and chunks, ~100 MB
+    more memory to fault in, for no gain when the consumer takes a frame every ~100 ms and one is
+    read in ~10). Exceptions of the iterator are raised to the consumer where they happened in the
+    sequence; closing this generator (or an exception in the consumer, once the caller closes it)
+    stops and joins the thread and closes ``frames``.
     """
-    q: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=depth)  # (kind, frame or exception or None)
+    q: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()  # (kind, frame or exception or None)
+    room = threading.Semaphore(depth)  # frames the thread may read before the consumer takes one
     stop = threading.Event()
 
-    def put(item: tuple[str, Any]) -> bool:
+    def wait_for_room() -> bool:
         while not stop.is_set():
-            try:
-                q.put(item, timeout=0.05)
-                return True
-            except queue.Full:
-                continue
+            if room.acquire(timeout=0.05):
+                return not stop.is_set()
         return False
 
     def produce() -> None:
         try:
-            for f in frames:
-                if not put(("frame", f)):
+            while wait_for_room():
+                try:
+                    f = next(frames)
+                except StopIteration:
+                    q.put(("end", None))
                     return
-            put(("end", None))
+                q.put(("frame", f))
         except BaseException as e:  # noqa: BLE001 - handed to the consumer, raised there
-            put(("error", e))
+            q.put(("error", e))
         finally:
             close = getattr(frames, "close", None)
             if close is not None:
@@ -269,6 +274,7 @@ def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Generator[Frame, N
         while True:
             kind, item = q.get()
             if kind == "frame":
+                room.release()  # taken: the thread may read the next one
                 yield item
             elif kind == "error":
                 raise item
@@ -276,12 +282,11 @@ def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Generator[Frame, N
                 return
     finally:
         stop.set()
+        room.release()  # wake a thread waiting for room
         while worker.is_alive():
-            try:  # unblock a producer waiting on a full queue
-                q.get_nowait()
-            except queue.Empty:
-                pass
             worker.join(timeout=0.05)
+        while not q.empty():  # frames read and never taken
+            q.get_nowait()
 
 
 
@@ -626,6 +631,9 @@ class ReplaySession:
                     summary.rows.append(row)
                     if on_frame is not None:
                         on_frame(frame, result, row)
+                    # not held while the next frame is computed: its arrays (~100 MB at 1920 x 1200) are
+                    # reused by the next one's, not added to them (unless a sink or on_frame keeps them)
+                    del frame, result
             finally:
                 results.close()
             completed = True

@@ -119,3 +119,53 @@ def test_the_command_line_gives_its_threads_one_malloc_arena_unless_the_user_cho
     code = "from replay.process import one_malloc_arena\nprint(one_malloc_arena())"
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     assert out.strip() == expected
+
+
+_GLIBC = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+
+
+@_GLIBC
+@pytest.mark.parametrize(("given", "expected"), [
+    ({}, "True"), ({"MALLOC_MMAP_THRESHOLD_": "1048576"}, "False"), ({"MALLOC_TRIM_THRESHOLD_": "0"}, "False"),
+    ({"GLIBC_TUNABLES": "glibc.malloc.mmap_max=8"}, "False"), ({"GLIBC_TUNABLES": "glibc.rtld.nns=4"}, "True"),
+])
+def test_the_command_line_keeps_freed_memory_unless_the_user_tunes_malloc(given: dict[str, str],
+                                                                          expected: str) -> None:
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("MALLOC_", "GLIBC_TUNABLES"))} | given
+    code = "from replay.process import keep_freed_memory\nprint(keep_freed_memory())"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert out.strip() == expected
+
+
+#: a process that allocates, fills and frees a 48 MB array (more than glibc's largest dynamic mmap threshold,
+#: as a 1920 x 1200 frame's float64 (H, W, 3) image is) five times and prints the minor page faults of each
+_REFAULTS = """
+import resource, sys
+import numpy as np
+if sys.argv[1] == "configured":
+    from replay.process import configure_process
+    configure_process()
+faults = []
+for _ in range(5):
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    a = np.empty(48 << 20, np.uint8)
+    a.fill(1)
+    del a
+    faults.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+print(*faults)
+"""
+
+
+@_GLIBC
+def test_memory_a_frame_frees_is_reused_without_faulting_it_in_again() -> None:
+    """With the command line's settings the later arrays reuse the first one's pages; by glibc's defaults
+    each is mapped afresh (12,288 pages of 4 KB, or 24 huge pages where NumPy asks for them)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("MALLOC_", "GLIBC_TUNABLES"))}
+    got = {}
+    for how in ("configured", "default"):
+        out = subprocess.run([sys.executable, "-c", _REFAULTS, how], env=env, capture_output=True, text=True,
+                             check=True).stdout
+        got[how] = [int(v) for v in out.split()]
+    first, later = got["configured"][0], got["configured"][1:]
+    assert first >= 20 and max(later) <= 2, got  # the first array's pages are faulted in once, then reused
+    assert min(got["default"][1:]) >= 20, got  # glibc's defaults: every array faulted in again
