@@ -84,6 +84,10 @@ class FitParams:
         A general part's pose is refined last on up to this many of its region's points within k × Err of
         it (trimmed; all of them, not the ``max_points`` of the search) and kept when its Err does not grow
         (docs/fits.md, "Eighth round"). 0: off.
+    early_share : float
+        With ``claim``: a general part's candidate whose coarse pose overlaps a live fit and explains fewer of its
+        region's points than this share of the pixels that fit claims is refused before its fine ICP and last
+        refinement (docs/fits.md, "Tenth round"). 0: off.
     """
 
     jump_mm: float = 1.5
@@ -107,6 +111,7 @@ class FitParams:
     max_overlap: float = 0.05
     first_err_ratio: float = 3.0
     fine_points: int = 3000
+    early_share: float = 0.1
 
     def __post_init__(self) -> None:
         _number(self, "jump_mm", gt=0)
@@ -130,3 +135,4 @@ class FitParams:
         _number(self, "max_overlap", ge=0, le=1)
         _number(self, "first_err_ratio", ge=0)
         _number(self, "fine_points", ge=0, integer=True)
+        _number(self, "early_share", ge=0)

@@ -13,8 +13,8 @@ from fit_scenes import K_TEST, hex_nut_mesh, pose, render, rotation
 from zcut.errors import ParameterError
 from zcut.fits import FitParams, PartFit, fit_prepared, pose_error, prepare_model
 
-#: the seventh round's fits: neither step
-SEVENTH = FitParams(first_err_ratio=0.0, fine_points=0)
+#: the seventh round's fits: neither step (nor the tenth round's early refusal)
+SEVENTH = FitParams(first_err_ratio=0.0, fine_points=0, early_share=0.0)
 
 
 def _plate(w: float, h: float) -> tuple[np.ndarray, np.ndarray]:
