@@ -87,7 +87,8 @@ class FitParams:
     early_share : float
         With ``claim``: a general part's candidate whose coarse pose overlaps a live fit and explains fewer of its
         region's points than this share of the pixels that fit claims is refused before its fine ICP and last
-        refinement (docs/fits.md, "Tenth round"). 0: off.
+        refinement (docs/fits.md, "Tenth round"). 0 (the default): off; 0.1 saves 0–13 % of a frame's CPU and
+        lost 3 of 215 instances on a held-out ray-traced zinc-nut frame.
     """
 
     jump_mm: float = 1.5
@@ -111,7 +112,7 @@ class FitParams:
     max_overlap: float = 0.05
     first_err_ratio: float = 3.0
     fine_points: int = 3000
-    early_share: float = 0.1
+    early_share: float = 0.0
 
     def __post_init__(self) -> None:
         _number(self, "jump_mm", gt=0)

@@ -116,4 +116,4 @@ def test_the_early_refusal_leaves_degenerate_frames_alone():
 def test_the_early_share_says_what_is_wrong():
     with pytest.raises(ParameterError, match="early_share"):
         FitParams(early_share=-0.1)
-    assert FitParams().early_share == 0.1
+    assert FitParams().early_share == 0.0
