@@ -41,7 +41,7 @@ def test_a_candidate_that_clearly_loses_to_a_fit_it_overlaps_is_refused_early():
     v, t = hex_nut_mesh()
     model = prepare_model(v, t)
     xyz, zone = _nut_scene()
-    params = FitParams()
+    params = FitParams(early_share=0.1)  # the share the tenth round measured (off by default)
     fits = fit_prepared(xyz, zone, model, intrinsics=K_TEST, params=params)
     assert len(fits) == 1
     frame = _frame(xyz, zone)
@@ -64,7 +64,7 @@ def test_an_early_refusal_spends_no_fine_icp(monkeypatch):  # type: ignore[no-un
     v, t = hex_nut_mesh()
     model = prepare_model(v, t)
     xyz, zone = _nut_scene()
-    params = FitParams()
+    params = FitParams(early_share=0.1)  # on (off by default)
     fit = fit_prepared(xyz, zone, model, intrinsics=K_TEST, params=params)[0]
     frame = _frame(xyz, zone)
     claims = _claims_of(model, params, xyz, fit)
@@ -110,7 +110,7 @@ def test_the_early_refusal_leaves_degenerate_frames_alone():
     one = np.zeros_like(zone)
     one[120, 160] = True
     for x, z in ((xyz, np.zeros_like(zone)), (nan, zone), (xyz, one), (xyz[:0], zone[:0])):
-        assert fit_prepared(x, z, model, intrinsics=K_TEST) == []
+        assert fit_prepared(x, z, model, intrinsics=K_TEST, params=FitParams(early_share=0.1)) == []
 
 
 def test_the_early_share_says_what_is_wrong():
