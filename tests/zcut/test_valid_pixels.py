@@ -1,4 +1,4 @@
-"""``stages.valid_pixels`` (the bin locator's valid mask, one kernel pass) equals ``zcut.removal.finite_xyz``
+"""``zcut.removal.valid_pixels`` (the bin locator's valid mask, one kernel pass) equals ``zcut.removal.finite_xyz``
 (its literal reference) bit for bit, on every kind of cloud a frame can hold."""
 
 from __future__ import annotations
@@ -9,8 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from replay.pipeline.stages import valid_pixels
-from zcut.removal import finite_xyz
+from zcut.removal import finite_xyz, valid_pixels
 
 _SPECIAL = (np.nan, np.inf, -np.inf, 0.0, -0.0, 1e-45, 3.4e38, -1.0)
 
