@@ -43,8 +43,9 @@ frame (numba compilation, model caches):
   only. ``--outputs rrd,out,rrd+out`` adds this tree (and DIR) with those outputs (``zcut replay``'s sinks in
   their background thread, written to a temporary folder and closed), and every row says the frames/s
   bound of two fully used cores, 2 / (CPU s a frame).
-  The measuring children set their process up as ``zcut replay`` does (``replay.process.configure_process``
-  of their tree). ``--warm-passes N``: N whole passes over the log's frames before the measured one (the
+  The measuring children (these, ``--threads`` and the stage table's) set their process up as ``zcut replay``
+  does (``replay.process.configure_process`` of their tree: its malloc settings decide how many pages a stage
+  faults in). ``--warm-passes N``: N whole passes over the log's frames before the measured one (the
   same session), so that a short log is measured as a long log's later frames (buffers reused).
 - "Threads" (``--threads --log LOG [--against DIR] [--repeats N] [--warm-passes N]``): where a whole replay's
   CPU goes, per thread (the reader, the chunk readers, the locator, the main thread, SOR's, the native
@@ -74,9 +75,9 @@ import tempfile
 import time
 from pathlib import Path
 
-if "--throughput-json" in sys.argv or "--threads-json" in sys.argv:
-    # a measuring child of a whole replay: the process set up as `zcut replay` sets it up, before numba, OpenCV
-    # and Open3D load (the tree's own replay.process.configure_process)
+if "--throughput-json" in sys.argv or "--threads-json" in sys.argv or "--stage-json" in sys.argv:
+    # a measuring child (a whole replay, its threads, or the stage table): the process set up as `zcut replay`
+    # sets it up, before numba, OpenCV and Open3D load (the tree's own replay.process.configure_process)
     from replay.process import configure_process
 
     configure_process()

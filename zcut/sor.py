@@ -71,9 +71,10 @@ process-wide setting.
 
 Every full-frame temporary of a call (the planes, the valid mask, d̄ before it is copied out, the
 block statistics, the band tables, the statistics' terms, the columns) is taken from the calling
-thread's :class:`zcut.sor_workspace.SorWorkspace`, kept between calls so that a call does not
-fault a fresh ~190 MB in at 1920 × 1200 (see that module: one per thread, grown to the largest
-frame seen, ``thread_workspace().release()`` frees it, ``thread_workspace().max_bytes`` bounds it).
+thread's :class:`zcut.sor_workspace.SorWorkspace` (see that module: one per thread). By default it keeps
+nothing between calls (``zcut.sor_workspace.KEPT_BYTES``: in a replay, where the process keeps the heap it
+freed, ~190 MB held for SOR alone cost the other stages more than it saved); ``thread_workspace().max_bytes =
+None`` keeps them, grown to the largest frame seen, until ``thread_workspace().release()``.
 What a call returns (d̄, the masks) is always a new array.
 """
 

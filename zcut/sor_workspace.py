@@ -13,10 +13,10 @@ Rules (where this module's work stops):
 - An array a call takes is valid until the call ends; nothing a call returns to its caller is a
   workspace array or a view of one (:mod:`zcut.sor` copies d̄ and makes the masks fresh).
 - An array grows to the largest size asked (by at least a quarter, so that a run of slightly
-  growing crops does not reallocate every call) and never shrinks by itself: a thread that ran
-  a full frame holds ~190 MB until :meth:`SorWorkspace.release` is called, or for good with
-  ``max_bytes``: after a call, a workspace holding more than ``max_bytes`` drops everything
-  (``max_bytes = 0``: nothing is kept between calls, the behaviour before workspaces).
+  growing crops does not reallocate every call) and never shrinks by itself; after a call, a
+  workspace holding more than ``max_bytes`` drops everything. A thread's workspace is made with
+  :data:`KEPT_BYTES` (0: nothing is kept between calls, the behaviour before workspaces);
+  ``max_bytes = None`` keeps everything (~190 MB for a full frame) until :meth:`SorWorkspace.release`.
 - Taken arrays are uninitialized (like ``np.empty``); :meth:`SorWorkspace.full` fills.
 - The workspace also keeps the thread pool a call runs its kernels on (:meth:`SorWorkspace.pool`:
   starting one per call cost ≈ 0.4 CPU ms); ``max_bytes`` leaves it, :meth:`SorWorkspace.release`
@@ -121,6 +121,13 @@ class SorWorkspace:
 
 _LOCAL = threading.local()
 
+#: what a thread's workspace keeps between calls unless told otherwise (its ``max_bytes``): nothing. Measured in
+#: the replay (docs/performance.md, SOR round of 2026-12-05c, "the lead's decision"): ~190 MB kept per thread
+#: moved the page faults into the z-cut's temporaries (its stage 8 -> 21-34 CPU ms a 1920 x 1200 frame, system
+#: time) and a whole replay cost 0.239 against 0.225 CPU-s a frame without it; a process that runs SOR alone in a
+#: loop may keep them (``thread_workspace().max_bytes = None``).
+KEPT_BYTES: int | None = 0
+
 
 def thread_workspace() -> SorWorkspace:
     """The calling thread's workspace (made on first use, dropped with the thread).
@@ -129,6 +136,6 @@ def thread_workspace() -> SorWorkspace:
     n`` bounds what it keeps between calls."""
     ws: SorWorkspace | None = getattr(_LOCAL, "workspace", None)
     if ws is None:
-        ws = SorWorkspace()
+        ws = SorWorkspace(max_bytes=KEPT_BYTES)
         _LOCAL.workspace = ws
     return ws

@@ -20,7 +20,7 @@ from reference.sor_reference import mean_distances_reference, outliers_from_mean
 
 import zcut.sor as sor_module
 from zcut.sor import sor_mean_distances, sor_outliers, sor_outliers_from_distances
-from zcut.sor_workspace import SorWorkspace, thread_workspace
+from zcut.sor_workspace import KEPT_BYTES, SorWorkspace, thread_workspace
 
 
 # ------------------------------------------------------------------------------------------------
@@ -142,6 +142,7 @@ def test_growing_and_shrinking_clouds_equal_the_reference(convention: str, path:
     for name, value in SEARCH_PATHS[path].items():
         monkeypatch.setattr(sor_module, name, value)
     ws = thread_workspace()
+    monkeypatch.setattr(ws, "max_bytes", None)  # kept between calls (not the default): poisoned between them
     clouds = cloud_sequence()
     wants = {}
     for name, xyz, mask in clouds:
@@ -195,7 +196,7 @@ def test_a_reused_workspace_equals_a_fresh_one(max_bytes: int | None) -> None:
                     np.testing.assert_array_equal(sor_outliers(xyz, k=4, convention=c), mask)
         assert (ws.nbytes == 0) == (max_bytes == 0)
     finally:
-        ws.max_bytes = None
+        ws.max_bytes = KEPT_BYTES
 
 
 def test_two_threads_at_once_equal_one_thread() -> None:
