@@ -145,3 +145,16 @@ def prepared(model, config):
     from zcut.prepared_model import prepare_bin_model
 
     return prepare_bin_model(model, registration=config.registration, removal=config.removal)
+
+
+def turned_pose(deg_xyz, t) -> np.ndarray:
+    """4 x 4 rigid pose: rotations about x, then y, then z by ``deg_xyz`` degrees (R = Rz @ Ry @ Rx), then the
+    translation ``t`` (the registration tests' perturbed and true poses)."""
+    a, b, c = np.radians(deg_xyz)
+    Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    Ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    Rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
+    T = np.eye(4)
+    T[:3, :3] = Rz @ Ry @ Rx
+    T[:3, 3] = t
+    return T

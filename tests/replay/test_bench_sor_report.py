@@ -3,23 +3,13 @@ synthetic classes only "smallest" (issue 35 #25)."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
-
-ROOT = Path(__file__).resolve().parents[2]
+from bench_helpers import bench_module
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_sor_under_test", ROOT / "bench" / "bench_sor.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    yield mod
-    del sys.modules[spec.name]
+    yield from bench_module("bench_sor.py")
 
 
 def test_the_real_data_beside_the_checkout_is_found_without_the_variable(bench, tmp_path):

@@ -3,23 +3,13 @@ per truth) and the classes of `explained`'s near-wall misses (issue 31 item 2, d
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
-
-ROOT = Path(__file__).resolve().parents[2]
+from bench_helpers import bench_module
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("wall_recall_under_test", ROOT / "bench" / "wall_recall.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    yield mod
-    del sys.modules[spec.name]
+    yield from bench_module("wall_recall.py")
 
 
 def _row(bench, truth, *, n, kept, found):

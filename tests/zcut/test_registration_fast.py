@@ -22,17 +22,6 @@ filled = pytest.fixture(scope="module")(ps.filled_bin_scene)
 model = pytest.fixture(scope="module")(ps.shifted_bin_model)
 
 
-def _turn(deg_xyz: tuple[float, float, float], t: tuple[float, float, float]) -> np.ndarray:
-    a, b, c = np.radians(deg_xyz)
-    Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
-    Ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
-    Rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
-    T = np.eye(4)
-    T[:3, :3] = Rz @ Ry @ Rx
-    T[:3, 3] = t
-    return T
-
-
 def _same_as_open3d(src: np.ndarray, pts: np.ndarray, nrm: np.ndarray | None, *, dist: float, init: np.ndarray,
                     point_to_plane: bool, max_iteration: int = 30, grid_radius: float | None = None) -> None:
     """icp against Open3D's registration_icp on one input: pose, correspondences, fitness, RMSE,
@@ -71,7 +60,7 @@ def test_icp_is_open3ds_on_a_filled_bin(bin_case, point_to_plane, start):
     T0 = np.linalg.inv(reg.T_init)
     if start != "guess":
         mm, deg = (4.0, 1.0) if start.startswith("off 4") else (12.0, 3.0)
-        T0 = _turn((0.3 * deg, -0.5 * deg, deg), (mm / 1000, -0.5 * mm / 1000, 0.3 * mm / 1000)) @ T0
+        T0 = ps.turned_pose((0.3 * deg, -0.5 * deg, deg), (mm / 1000, -0.5 * mm / 1000, 0.3 * mm / 1000)) @ T0
     src = np.asarray(target.cloud.points)
     fine = icp_model.fine
     nrm = np.asarray(fine.normals)
@@ -127,7 +116,7 @@ def test_icp_is_open3ds_on_real_kinect_scans(name, point_to_plane):
     model_pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz)).voxel_down_sample(0.005)
     model_pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.02, max_nn=30))
     src = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz[::3])).voxel_down_sample(0.008).points)
-    init = _turn((0.5, -0.8, 1.5), (0.006, -0.004, 0.01))
+    init = ps.turned_pose((0.5, -0.8, 1.5), (0.006, -0.004, 0.01))
     _same_as_open3d(src, np.asarray(model_pc.points), np.asarray(model_pc.normals), dist=0.02, init=init,
                     point_to_plane=point_to_plane)
 
@@ -152,7 +141,7 @@ def test_icp_without_correspondences_or_points_returns_the_start():
     pts = rng.uniform(0, 0.1, (500, 3))
     nrm = np.tile([0.0, 0.0, 1.0], (500, 1))
     grid = build_grid(pts, nrm, radius=0.01)
-    init = _turn((1, 2, 3), (0.001, 0.002, 0.003))
+    init = ps.turned_pose((1, 2, 3), (0.001, 0.002, 0.003))
     far = pts[:50] + [5.0, 0.0, 0.0]
     _same_as_open3d(far, pts, nrm, dist=0.01, init=init, point_to_plane=True)
     out = icp(far, grid, max_distance=0.01, init=init, point_to_plane=True, max_iteration=30)
@@ -403,8 +392,8 @@ def test_the_bin_fitness_of_a_frame_is_the_kdtrees(filled, model):
         assert target.tree.n == len(pts)
         T_reg = register_bin(m, target).T_cam_bin
         fits = []
-        for T in (T_reg, T_reg @ _turn((0.0, 0.0, 1.0), (0.004, -0.002, 0.0)),
-                  T_reg @ _turn((2.0, 0.0, 0.0), (0.0, 0.01, 0.003))):
+        for T in (T_reg, T_reg @ ps.turned_pose((0.0, 0.0, 1.0), (0.004, -0.002, 0.0)),
+                  T_reg @ ps.turned_pose((2.0, 0.0, 0.0), (0.0, 0.01, 0.003))):
             rim = transform_points(T, m.rim)
             if K is not None:
                 rim = rim[_in_view(rim, K)]

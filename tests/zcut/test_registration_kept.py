@@ -99,7 +99,7 @@ def test_the_kept_cell_grid_answers_as_a_fresh_one(filled, model):
         T_reg = register_bin(m, target).T_cam_bin
         widths = []
         for dist in (0.0033, 0.0033, 0.001, 0.02, 0.0005, 0.0034, 0.02):
-            T = T_reg @ _turn(rng.normal(0.0, 0.5, 3), rng.normal(0.0, 0.002, 3))
+            T = T_reg @ ps.turned_pose(rng.normal(0.0, 0.5, 3), rng.normal(0.0, 0.002, 3))
             got = pose_fitness(m, target, T, max_correspondence_m=dist)
             fresh = prepare_target(frame.xyz[pixels], voxel_m=params.voxel_m, intrinsics=K)
             assert got == pose_fitness(m, fresh, T, max_correspondence_m=dist)
@@ -109,17 +109,6 @@ def test_the_kept_cell_grid_answers_as_a_fresh_one(filled, model):
             widths.append(cells[0])
         assert widths[0] == widths[1] == widths[2]  # kept: the same or a narrower reach
         assert widths[3] > widths[2] and widths[3] == widths[4] == widths[5] == widths[6]  # rebuilt once, wider
-
-
-def _turn(deg_xyz: np.ndarray, t: np.ndarray) -> np.ndarray:
-    a, b, c = np.radians(deg_xyz)
-    Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
-    Ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
-    Rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
-    T = np.eye(4)
-    T[:3, :3] = Rz @ Ry @ Rx
-    T[:3, 3] = t
-    return T
 
 
 def _point_to_plane_literal(pcd, gpts, gnrm, src, dst, n) -> np.ndarray:  # type: ignore[no-untyped-def]
@@ -209,7 +198,7 @@ def test_transform_rows_is_the_division_form(case):
 
     rng = np.random.default_rng(6311)
     for t in range(20):
-        T = _turn(rng.normal(0.0, 20.0, 3), rng.normal(0.0, 0.5, 3))
+        T = ps.turned_pose(rng.normal(0.0, 20.0, 3), rng.normal(0.0, 0.5, 3))
         pcd = rng.normal(0.0, 0.5, (500, 3))
         if case == "projective":
             T[3] = rng.normal(0.0, 0.1, 4) + (0.0, 0.0, 0.0, 1.0)
