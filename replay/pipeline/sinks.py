@@ -322,6 +322,11 @@ class RerunSink:
 
     def __init__(self, *, rrd: str | Path | None = None, spawn: bool = False, connect: str | None = None,
                  full_detail: bool = False) -> None:
+        # Rerun and pyarrow load here (~0.2-0.3 CPU-s, once a process), when the command plans its outputs
+        # before it opens the log, not in :meth:`start`, which runs when the frames do: a replay's frames do
+        # not wait for them (docs/performance.md, "The outputs, round of 2026-12-05d")
+        from replay.pipeline import viz  # noqa: F401
+
         self.rrd = None if rrd is None else Path(rrd)
         self.spawn, self.connect, self.full_detail = spawn, connect, full_detail
         self._rec: RecordingStream | None = None
@@ -416,6 +421,8 @@ class ResultsSink:
     """
 
     def __init__(self, path: str | Path, *, cloud: bool = False) -> None:
+        from replay.logs import writer  # noqa: F401  # the MCAP writer and zstd load with the sink, as Rerun does
+
         self.path = Path(path)
         self.cloud = cloud
         self._file: AtomicOutput | None = None

@@ -454,8 +454,18 @@ def rrd_problem(path: str) -> str | None:
 
 
 def _ctx(classes: Iterable[tuple[int, str, tuple[int, int, int]]]) -> rr.AnnotationContext:
-    return rr.AnnotationContext([rr.AnnotationInfo(id=0, label="none", color=(0, 0, 0, 0))]
-                                + [rr.AnnotationInfo(id=i, label=name, color=col) for i, name, col in classes])
+    """The context of a class table: 0 "none" (transparent), then each ``(id, label, (r, g, b))`` opaque.
+
+    Built in Arrow (:func:`_contexts_arrow`): the same component as ``rr.AnnotationContext([rr.AnnotationInfo(
+    id=0, label="none", color=(0, 0, 0, 0)), rr.AnnotationInfo(id=i, label=name, color=col), ...])``
+    (tests/replay/pipeline/test_sinks_readback.py), without the SDK's converter, whose first call imports
+    ``pyarrow.compute`` (~30 CPU ms a recording, before its first frame)."""
+    table = list(classes)
+    ids = np.array([0] + [i for i, _, _ in table], np.int64)
+    labels: list[str | None] = ["none"] + [name for _, name, _ in table]
+    rgb = np.array([(0, 0, 0)] + [col for _, _, col in table], np.uint8).reshape(-1, 3)
+    alpha = np.array([0] + [255] * len(table), np.uint32)
+    return rr.AnnotationContext(_contexts_arrow(ids, labels, _rgba32(rgb, alpha), np.array([0, len(ids)])))
 
 
 def log_static(rec: rr.RecordingStream, *, config_toml: str, notes: tuple[str, ...] = (),
@@ -866,10 +876,12 @@ EXPLAINED_CLASSES = ((1, "part fit", (60, 180, 75)), (2, "bin", (0, 120, 255)), 
 def log_explained(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions = VizOptions()) -> None:
     """The method ``explained``'s stage (when it ran): the nearest known surface of each zone pixel
     and the unexplained ones, the distance image, the fitted instances in 3D (metres, as the cloud)."""
+    d = result.details.get("explained")
+    if d is None:  # the method did not run: its modules are not loaded for nothing
+        return
     from replay.pipeline.explained import ExplainedDetail
     from zcut.explained import SURFACE_BIN, SURFACE_LOCAL, SURFACE_TABLE
 
-    d = result.details.get("explained")
     if not isinstance(d, ExplainedDetail):
         return
     cls = np.zeros(d.surface.shape, np.uint8)
