@@ -462,7 +462,7 @@ def _ctx(classes: Iterable[tuple[int, str, tuple[int, int, int]]]) -> rr.Annotat
     ``pyarrow.compute`` (~30 CPU ms a recording, before its first frame)."""
     table = list(classes)
     ids = np.array([0] + [i for i, _, _ in table], np.int64)
-    labels: list[str | None] = ["none"] + [name for _, name, _ in table]
+    labels: list[str | None] = ["none", *(name for _, name, _ in table)]
     rgb = np.array([(0, 0, 0)] + [col for _, _, col in table], np.uint8).reshape(-1, 3)
     alpha = np.array([0] + [255] * len(table), np.uint32)
     return rr.AnnotationContext(_contexts_arrow(ids, labels, _rgba32(rgb, alpha), np.array([0, len(ids)])))
