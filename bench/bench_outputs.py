@@ -10,8 +10,9 @@ again). Then each output's sink is fed those same frames, ``--repeats`` times,
 and for each output it prints the CPU ms per frame of its ``write`` (``time.process_time``: every thread
 of the process, so Rerun's own encoder threads count; median over frames and repeats, the first frame
 of each repeat excluded), the calling thread's share of it ("(caller)", ``time.thread_time``: the sink's own
-Python and numpy; the rest is Rerun's encoder and writer threads), the CPU ms of ``close`` per frame, and the
-file's MB per frame. ``--against
+Python and numpy; the rest is Rerun's encoder and writer threads), the CPU ms of ``close`` per frame, the
+file's MB per frame, and "open ms": the CPU ms of making and starting the process's first sink of the output
+(once a process: the libraries the sink loads, Rerun and pyarrow for the recording, included). ``--against
 DIR`` measures the sinks of the source tree DIR (the previous release: ``git -C /work/main archive HEAD |
 tar -x -C DIR``) on the same frames in subprocesses of the same run, ``--rounds`` times alternating with
 this tree's (medians of the rounds), and prints the ratios old / new.
@@ -100,16 +101,20 @@ def measure(dump: Path, repeats: int, out_dir: Path, profile: str | None,
         writes: list[float] = []
         mains: list[float] = []  # the calling thread's share of each write (the rest: Rerun's own threads)
         closes: list[float] = []
+        opened = float("nan")  # CPU s of making and starting the first sink of the process (its imports included)
         size = 0.0
         prof = None
         if profile is not None and kind.startswith(profile) and kind != "results+cloud":
             import cProfile
 
             prof = cProfile.Profile()
-        for _ in range(repeats):
+        for rep in range(repeats):
             path = out_dir / (kind.replace("+", "_") + (".rrd" if kind == "rrd" else ".mcap"))
+            c = time.process_time()
             sink = _sink(kind, path)
             sink.start(dataclasses.replace(info, judge=judge if kind == "rrd" else None))
+            if rep == 0:
+                opened = time.process_time() - c
             for i, (frame, result) in enumerate(pairs):
                 if prof is not None:
                     prof.enable()
@@ -126,7 +131,7 @@ def measure(dump: Path, repeats: int, out_dir: Path, profile: str | None,
             closes.append((time.process_time() - c) / len(pairs))
             size = path.stat().st_size / 1e6 / len(pairs)
         out[kind] = {"write_ms": 1000 * statistics.median(writes), "main_ms": 1000 * statistics.median(mains),
-                     "close_ms": 1000 * statistics.median(closes), "mb": size}
+                     "close_ms": 1000 * statistics.median(closes), "mb": size, "open_ms": 1000 * opened}
         if prof is not None:
             import pstats
 
@@ -275,19 +280,20 @@ def bench_log(log: Path, args: argparse.Namespace, outputs: tuple[str, ...]) -> 
         new = _medians(news)
     print(f"\noutputs of {log.name}: {len(pairs)} frames of {w}x{h}; CPU ms per frame (medians of "
           f"{args.rounds} alternating rounds of {args.repeats} repeats, first frame of each excluded) and MB per frame")
-    head = f"  {'output':14s} {'write ms':>9s} {'(caller)':>9s} {'close ms':>9s} {'MB':>7s}"
+    head = f"  {'output':14s} {'write ms':>9s} {'(caller)':>9s} {'close ms':>9s} {'MB':>7s} {'open ms':>8s}"
     if old is not None:
         head += (f" | {'prev write':>10s} {'(caller)':>9s} {'prev close':>10s} {'prev MB':>8s} | {'write x':>8s}"
                  f" {'caller x':>8s} {'MB x':>6s}")
     print(head)
     for kind in outputs:
         n = new[kind]
-        line = f"  {kind:14s} {n['write_ms']:9.1f} {n['main_ms']:9.1f} {n['close_ms']:9.1f} {n['mb']:7.3f}"
+        line = (f"  {kind:14s} {n['write_ms']:9.1f} {n['main_ms']:9.1f} {n['close_ms']:9.1f} {n['mb']:7.3f}"
+                f" {n.get('open_ms', float('nan')):8.1f}")
         if old is not None:
             o = old[kind]
             line += (f" | {o['write_ms']:10.1f} {o['main_ms']:9.1f} {o['close_ms']:10.1f} {o['mb']:8.3f} | "
                      f"{o['write_ms'] / max(n['write_ms'], 1e-9):8.2f} {o['main_ms'] / max(n['main_ms'], 1e-9):8.2f}"
-                     f" {o['mb'] / max(n['mb'], 1e-9):6.2f}")
+                     f" {o['mb'] / max(n['mb'], 1e-9):6.2f} | prev open {o.get('open_ms', float('nan')):.1f}")
         print(line)
 
 
