@@ -27,6 +27,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Generator, Iterator, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -192,11 +193,34 @@ def parse_frames(text: str | None) -> tuple[int, int | None]:
     return start, stop
 
 
-#: Held while a frame's bin stages run (:meth:`ReplaySession.results` with two frames in flight): the
-#: removal and the bin check run numba's ``parallel=True`` kernels, and numba's default "workqueue"
-#: threading layer (the one ``zcut`` chooses) aborts the process when two threads launch such kernels at
-#: once. The other stages run serial kernels (and SOR its own threads), free to overlap.
+#: Held while a frame's bin stages run (:meth:`ReplaySession.results` with two frames in flight) when numba's
+#: threading layer is its "workqueue" (:func:`parallel_kernels`): the removal and the bin check run numba's
+#: ``parallel=True`` kernels, and that layer aborts the process when two threads launch such kernels at once.
+#: OpenMP's layer (the one ``zcut`` chooses, ``replay.process.THREADING_LAYER_PRIORITY``) and TBB's take them
+#: from any thread: then nothing is held and two frames' bin stages overlap. The other stages run serial kernels
+#: (and SOR its own threads), free to overlap under any layer.
 PARALLEL_KERNELS = threading.Lock()
+
+#: numba's threading layers whose parallel kernels two threads may launch at once
+THREADSAFE_LAYERS = frozenset({"omp", "tbb"})
+
+
+def _threadsafe_layer() -> bool | None:
+    """Whether numba's threading layer takes parallel kernels from two threads at once: True or False once a
+    parallel kernel has run in this process (the layer is chosen then), else None."""
+    import numba
+
+    try:
+        return numba.threading_layer() in THREADSAFE_LAYERS  # type: ignore[attr-defined]  # numba exports it untyped
+    except ValueError:  # no parallel kernel has run yet
+        return None
+
+
+def parallel_kernels() -> AbstractContextManager[object]:
+    """What a frame worker holds while its bin stages run: :data:`PARALLEL_KERNELS` unless numba's layer is known
+    to take parallel kernels from two threads at once (:data:`THREADSAFE_LAYERS`; until the first parallel kernel
+    has run the layer is not known, and the lock is held)."""
+    return nullcontext() if _threadsafe_layer() else PARALLEL_KERNELS
 
 
 #: The variable that sets :func:`frames_in_flight` (a whole number >= 1).
@@ -565,10 +589,10 @@ class ReplaySession:
 
     def _frame_result(self, frame: Frame, config: cfg.PipelineConfig, future: Future[BinLocation]) -> FrameResult:
         """:func:`run_frame` of one frame as a worker of :meth:`results` runs it: its bin stages (the
-        removal and the bin check run numba's ``parallel=True`` kernels) under :data:`PARALLEL_KERNELS`,
+        removal and the bin check run numba's ``parallel=True`` kernels) under :func:`parallel_kernels`,
         its methods (serial kernels, SOR's own threads) beside the other frame's."""
         location = future.result()
-        with PARALLEL_KERNELS:
+        with parallel_kernels():
             t_start = time.perf_counter()  # the frame's own work: not the wait for the other frame's kernels
             z = bin_zone(frame, config, bin_model=self.prepared, located=location)
         return judge_zone(frame, z, config, t_start=t_start)
