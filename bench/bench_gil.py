@@ -7,7 +7,8 @@ runs them: the read, then ``locate_bin``'s pieces, the removal and its check, ev
 while a probe thread sleeps 0.2 ms at a time, again and again. Waking from a sleep, the probe must take the GIL
 back: while another thread holds it (Python code, or a C call that does not release it) the probe waits, so
 the time by which its sleeps overshoot, beyond the overshoot of an idle process (measured first, the
-``baseline``), is time during which the GIL was held by someone else. Each overshoot is credited to the stage
+``baseline``) and less the time the probe waited for a core (``/proc/thread-self/schedstat``: the machine's
+load, not the GIL), is time during which the GIL was held by someone else. Each overshoot is credited to the stage
 whose window (wall clock, in the main thread) it falls in; the reader's own threads (the chunks' and the
 records') are counted with the stage that runs meanwhile, mostly the read.
 
@@ -15,8 +16,9 @@ What it prints, per stage: wall ms a frame, GIL-held ms a frame (medians over th
 Two frames in flight on two cores can overlap only what does not hold the GIL: the whole replay's GIL-held
 ms a frame bounds its frames/s at 1000 / (GIL-held ms) whatever the cores. The process is set up as
 ``zcut replay`` sets it up (``replay.process.configure_process``). The probe's own wake-ups cost the stages
-a little (a Python stage must hand the GIL over every switch interval); on a loaded machine the probe also
-waits for a core now and then (the baseline says how much): read the figures as an attribution, not a clock.
+a little (a Python stage must hand the GIL over every switch interval); on a loaded machine a thread
+that holds the GIL may itself wait for a core meanwhile (counted as held): read the figures as an attribution,
+not a clock.
 """
 
 from __future__ import annotations
@@ -47,19 +49,30 @@ PIECES = ("valid_pixels", "bin_mask", "bin_pixels", "subsampled_points", "prepar
 
 
 class Probe:
-    """The probe thread: its sleeps' start and end times (perf_counter)."""
+    """The probe thread: its sleeps' start and end times (perf_counter) and durations less its waits for a core."""
 
     def __init__(self) -> None:
-        self.events: list[tuple[float, float]] = []
+        self.events: list[tuple[float, float, float]] = []  # start, end, duration less the wait for a core
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="gil-probe", daemon=True)
 
     def _run(self) -> None:
-        sleep, now, add = time.sleep, time.perf_counter, self.events.append
-        while not self._stop.is_set():
-            t0 = now()
-            sleep(SLEEP_S)
-            add((t0, now()))
+        import os
+
+        sleep, now, add, pread = time.sleep, time.perf_counter, self.events.append, os.pread
+        fd = os.open("/proc/thread-self/schedstat", os.O_RDONLY)  # run ns, runqueue wait ns, slices
+        try:
+            queued = int(pread(fd, 128, 0).split()[1])
+            while not self._stop.is_set():
+                t0 = now()
+                sleep(SLEEP_S)
+                t1 = now()
+                q = int(pread(fd, 128, 0).split()[1])
+                # the time spent waiting for a core (the machine's load), not for the GIL, taken off the sleep
+                add((t0, t1, t1 - t0 - (q - queued) * 1e-9))
+                queued = q
+        finally:
+            os.close(fd)
 
     def __enter__(self) -> Probe:
         self._thread.start()
@@ -72,7 +85,7 @@ class Probe:
     def held(self, t0: float, t1: float, baseline: float) -> float:
         """Seconds of GIL held by others within [t0, t1]: the overshoots beyond ``baseline`` of the sleeps
         that end in it."""
-        return sum(max(0.0, (b - a) - SLEEP_S - baseline) for a, b in self.events if t0 <= b < t1)
+        return sum(max(0.0, d - SLEEP_S - baseline) for a, b, d in self.events if t0 <= b < t1)
 
 
 def windows_of(log: Path) -> tuple[list[dict[str, list[tuple[float, float]]]], float, Probe]:
@@ -103,7 +116,7 @@ def windows_of(log: Path) -> tuple[list[dict[str, list[tuple[float, float]]]], f
         time.sleep(0.5)
         t_idle = time.perf_counter()
         time.sleep(1.0)
-        idle = [(b - a) - SLEEP_S for a, b in probe.events if a >= t_idle]
+        idle = [d - SLEEP_S for a, b, d in probe.events if a >= t_idle]
         baseline = statistics.median(idle) if idle else 0.0
         while True:
             current = {}

@@ -12,8 +12,8 @@ located once: the run delivers the same object (and takes over the chunks read a
 location is the seed's (every other frame's registration starts from that pose).
 :meth:`ReplaySession.results` yields ``(frame, result)`` for a frame range, in log order, reading the
 next frame in a background thread (:func:`prefetched`), locating the bin of the next frames in another
-and, when asked (:func:`frames_in_flight`), computing two frames at once (their bin stages one at a
-time, :data:`PARALLEL_KERNELS`);
+and computing two frames at once (:func:`frames_in_flight`: by default where numba's threading layer lets
+two frames' bin stages overlap; under its workqueue layer they run one at a time, :data:`PARALLEL_KERNELS`);
 :meth:`ReplaySession.run` feeds them to a sink (:mod:`replay.pipeline.sinks`) and returns a
 :class:`ReplaySummary`. Library code: it never prints; commands pass an ``on_frame`` callback.
 """
@@ -228,12 +228,8 @@ FRAMES_IN_FLIGHT_VARIABLE = "ZCUT_FRAMES_IN_FLIGHT"
 
 
 def frames_in_flight() -> int:
-    """Frames :meth:`ReplaySession.results` computes at once by default: ``$ZCUT_FRAMES_IN_FLIGHT``, else 1.
-
-    One by default: on the shared 2-core machine of the last measurement (docs/performance.md, "Two
-    frames in flight") two frames in flight cost 10-30 % more CPU a frame and gave no wall gain; set
-    the variable to 2 where two quiet cores are free (at most the cores numba uses,
-    ``NUMBA_NUM_THREADS``, which a study worker sets to its share of them).
+    """Frames :meth:`ReplaySession.results` computes at once by default: ``$ZCUT_FRAMES_IN_FLIGHT``, else
+    :func:`default_frames_in_flight`.
 
     Raises
     ------
@@ -244,7 +240,7 @@ def frames_in_flight() -> int:
 
     text = os.environ.get(FRAMES_IN_FLIGHT_VARIABLE, "").strip()
     if not text:
-        return 1
+        return default_frames_in_flight()
     try:
         n = int(text)
     except ValueError:
@@ -252,6 +248,31 @@ def frames_in_flight() -> int:
     if n < 1:
         raise ConfigError(f"{FRAMES_IN_FLIGHT_VARIABLE} must be a whole number >= 1, got {text!r}")
     return n
+
+
+def default_frames_in_flight() -> int:
+    """2 where numba runs at least two threads (``NUMBA_NUM_THREADS``: the cores, or a study worker's share of
+    them) under a threading layer that takes parallel kernels from two threads at once (OpenMP's, the one the
+    command line chooses, or TBB's), else 1.
+
+    Under such a layer two frames' bin stages overlap; one frame alone keeps ~1.4 of two quiet cores busy
+    (docs/performance.md, "Both cores busy"). Under numba's workqueue layer the bin stages of two frames run one
+    at a time (:data:`PARALLEL_KERNELS`) and two frames in flight cost 10-30 % more CPU a frame for no wall gain
+    that was measured (docs/performance.md, "Two frames in flight"): 1. Before the first parallel kernel the layer
+    is not chosen yet: it is predicted from numba's settings (``NUMBA_THREADING_LAYER``, else the first of
+    ``NUMBA_THREADING_LAYER_PRIORITY``).
+    """
+    import numba
+
+    if int(numba.config.NUMBA_NUM_THREADS) < 2:  # type: ignore[attr-defined]  # numba.config sets it at import
+        return 1
+    safe = _threadsafe_layer()
+    if safe is None:
+        chosen = str(numba.config.THREADING_LAYER)  # type: ignore[attr-defined]  # numba.config sets it at import
+        if chosen == "default":
+            chosen = str(numba.config.THREADING_LAYER_PRIORITY[0])  # type: ignore[attr-defined]  # (also set at import)
+        safe = chosen in THREADSAFE_LAYERS or chosen == "threadsafe"
+    return 2 if safe else 1
 
 
 def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Generator[Frame, None, None]:
@@ -538,10 +559,11 @@ class ReplaySession:
         ``config``: run another config than the resolved one (it must keep the resolved registration
         and removal parameters, which the bin model was prepared with).
 
-        ``in_flight``: frames computed at once (default :func:`frames_in_flight`: 1, or
-        ``$ZCUT_FRAMES_IN_FLIGHT``). With 2, frame k + 1 runs in a second worker while frame k
-        finishes (each frame's result depends on that frame alone: see :attr:`seed`), so the removal
-        of one frame overlaps the z-cut and SOR of the other and both cores stay busy; the results are
+        ``in_flight``: frames computed at once (default :func:`frames_in_flight`: ``$ZCUT_FRAMES_IN_FLIGHT``,
+        else 2 under numba's OpenMP layer on two or more cores, else 1). With 2, frame k + 1 runs in a second
+        worker while frame k finishes (each frame's result depends on that frame alone: see :attr:`seed`), so
+        one frame's stages overlap the other's (under numba's workqueue layer all but the bin stages,
+        :func:`parallel_kernels`) and both cores stay busy; the results are
         the same bit for bit and come in the same order. A frame whose computation raises raises here
         after the frames before it; an error of the reader, after the frames read before it.
         """

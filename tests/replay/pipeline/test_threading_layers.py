@@ -132,10 +132,12 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
                 xyz[: h // 2] = np.nan
             elif k == 3:  # nothing valid
                 xyz[:] = np.nan
-            elif k == 4:  # one valid pixel
-                keep = xyz[h // 2, wd // 2].copy()
+            elif k == 4:  # one valid pixel (the middle one of the valid pixels, in the bin)
+                rows, cols = np.nonzero(np.isfinite(xyz).all(axis=2))
+                r, c = rows[len(rows) // 2], cols[len(rows) // 2]
+                keep = xyz[r, c].copy()
                 xyz[:] = np.nan
-                xyz[h // 2, wd // 2] = keep
+                xyz[r, c] = keep
             w.write_frame(Frame(xyz=xyz, rgb=f.rgb, stamp_ns=f.stamp_ns + k, frame_id=f.frame_id,
                                 intrinsics=f.intrinsics, topic=f.topic, index=k, masks=f.masks))
     out["holes"] = holes
@@ -202,3 +204,52 @@ def test_the_parallel_kernels_on_degenerate_shapes_whatever_the_threads(layer):
     for n, *rest in got["out"]:
         per_n.setdefault(n, []).append(rest)
     assert per_n[1] == per_n[2] == per_n[3] and len(per_n[1]) == 6
+
+
+#: the layer, the default frames in flight before and after a parallel kernel ran, and what a frame worker holds
+_DEFAULTS = r'''
+import json
+from replay.process import configure_process
+configure_process()
+import numba
+import numpy as np
+from replay.pipeline import session
+from zcut import bin_check
+
+before = session.default_frames_in_flight()
+a = np.zeros((4, 4), np.bool_)
+bin_check._zone_top(a, np.zeros((4, 4)))  # a parallel kernel: the layer is chosen
+print(json.dumps({"layer": numba.threading_layer(), "before": before, "after": session.frames_in_flight(),
+                  "holds_lock": session.parallel_kernels() is session.PARALLEL_KERNELS}))
+'''
+
+
+@pytest.mark.parametrize(("env", "layer", "in_flight", "holds_lock"), [
+    ({"NUMBA_NUM_THREADS": "2"}, "omp", 2, False),
+    ({"NUMBA_NUM_THREADS": "1"}, "omp", 1, False),  # a study worker's share of one core
+    ({"NUMBA_NUM_THREADS": "2", "NUMBA_THREADING_LAYER": "workqueue"}, "workqueue", 1, True),
+    ({"NUMBA_NUM_THREADS": "2", "NUMBA_THREADING_LAYER_PRIORITY": "workqueue omp tbb"}, "workqueue", 1, True),
+    ({"NUMBA_NUM_THREADS": "2", "ZCUT_FRAMES_IN_FLIGHT": "3"}, "omp", 3, False),
+])
+def test_the_command_lines_layer_and_frames_in_flight(env, layer, in_flight, holds_lock):
+    full = {k: v for k, v in os.environ.items()
+            if not k.startswith(("NUMBA_THREADING", "NUMBA_NUM_THREADS", "ZCUT_FRAMES_IN_FLIGHT"))}
+    full.update(PYTHONPATH=str(ROOT), **env)
+    out = subprocess.run([sys.executable, "-c", _DEFAULTS], env=full, cwd=ROOT, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-3000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got == {"layer": layer, "before": min(in_flight, 2), "after": in_flight, "holds_lock": holds_lock}
+
+
+@pytest.mark.parametrize(("given", "expected"), [({}, ["PASSIVE", "0", "omp workqueue tbb"]),
+                                                 ({"OMP_WAIT_POLICY": "ACTIVE", "GOMP_SPINCOUNT": "10",
+                                                   "NUMBA_THREADING_LAYER": "workqueue"}, ["ACTIVE", "10", "-"])])
+def test_openmp_workers_do_not_spin_unless_the_user_says(given, expected):
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith(("NUMBA_THREADING", "OMP_WAIT_POLICY", "GOMP_SPINCOUNT"))}
+    env.update(PYTHONPATH=str(ROOT), **given)
+    code = ("import os\nfrom replay.process import configure_process\nconfigure_process()\n"
+            "print('|'.join(os.environ.get(n, '-') for n in ('OMP_WAIT_POLICY', 'GOMP_SPINCOUNT',"
+            " 'NUMBA_THREADING_LAYER_PRIORITY')))")
+    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.strip().split("|") == expected
