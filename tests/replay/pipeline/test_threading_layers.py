@@ -60,7 +60,11 @@ for frame, r in session.results(in_flight=int(sys.argv[2])):
     out.append({"index": frame.index, "images": digest, "counts": counts, "bin_check": repr(row.bin_check),
                 "warnings": list(r.warnings),
                 "pose": np.asarray(reg.T_cam_bin, float).ravel().tolist() if reg is not None else None})
-print(json.dumps({"layer": numba.threading_layer(), "threads": numba.get_num_threads(), "frames": out}))
+try:
+    layer = numba.threading_layer()
+except ValueError:  # no parallel kernel ran (a log without the bin stages)
+    layer = None
+print(json.dumps({"layer": layer, "threads": numba.get_num_threads(), "frames": out}))
 '''
 
 
@@ -97,11 +101,11 @@ def _same(a: dict[str, Any], b: dict[str, Any]) -> None:
 def _check_layers(log: Path, runs: list[tuple[str, int, int | None]]) -> dict[str, Any]:
     """The previous layer's one-frame-at-a-time replay against each of ``runs`` (layer, in flight, threads)."""
     oracle = _replay(log, layer="workqueue", in_flight=1)
-    assert oracle["layer"] == "workqueue"
+    assert oracle["layer"] in ("workqueue", None)
     for layer, in_flight, threads in runs:
         got = _replay(log, layer=layer, in_flight=in_flight, threads=threads)
-        if layer == "default":
-            assert got["layer"] == "omp"  # configure_process's choice (libgomp ships with numba's wheel's system)
+        if layer == "default" and oracle["layer"] is not None:
+            assert got["layer"] == "omp"  # configure_process's choice
         if threads is not None:
             assert got["threads"] == threads
         _same(oracle, got)
@@ -159,7 +163,7 @@ def test_invalid_regions_an_empty_frame_and_one_pixel(logs):
     assert [f["counts"][0] for f in oracle["frames"]][3:5] == [0, 1]  # the all-invalid and the one-pixel frame
 
 
-def test_a_real_kinect_log(real_data):
+def test_a_real_kinect_log(real_data):  # no bin model: no parallel kernel runs, the frames in flight differ
     _check_layers(real_data / "mosd_clutter_kinect_ros2.mcap", [("default", 2, None), ("omp", 1, 1), ("omp", 2, 3)])
 
 
