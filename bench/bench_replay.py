@@ -42,7 +42,11 @@ frame (numba compilation, model caches):
   and every run's figures, with the load average: on a shared machine the wall times are indicative
   only. ``--outputs rrd,out,rrd+out`` adds this tree (and DIR) with those outputs (``zcut replay``'s sinks in
   their background thread, written to a temporary folder and closed), and every row says the frames/s
-  bound of two fully used cores, 2 / (CPU s a frame).
+  bound of two fully used cores, 2 / (CPU s a frame). This tree's children run under the numba threading
+  layer its ``configure_process`` chooses (``--layers workqueue``: also under that layer, the one chosen before
+  the round of 2026-12-05d, 1 and 2 frames in flight), the previous tree's under workqueue; every row says its
+  layer, the busiest thread's CPU s a frame (``/proc/self/task``, sampled at each frame) and the bound of two
+  quiet cores, 1 / max(CPU s a frame / 2, the busiest thread's).
   The measuring children (these, ``--threads`` and the stage table's) set their process up as ``zcut replay``
   does (``replay.process.configure_process`` of their tree: its malloc settings decide how many pages a stage
   faults in). ``--warm-passes N``: N whole passes over the log's frames before the measured one (the
