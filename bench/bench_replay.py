@@ -42,7 +42,11 @@ frame (numba compilation, model caches):
   and every run's figures, with the load average: on a shared machine the wall times are indicative
   only. ``--outputs rrd,out,rrd+out`` adds this tree (and DIR) with those outputs (``zcut replay``'s sinks in
   their background thread, written to a temporary folder and closed), and every row says the frames/s
-  bound of two fully used cores, 2 / (CPU s a frame).
+  bound of two fully used cores, 2 / (CPU s a frame). This tree's children run under the numba threading
+  layer its ``configure_process`` chooses (``--layers workqueue``: also under that layer, the one chosen before
+  the round of 2026-12-05d, 1 and 2 frames in flight), the previous tree's under workqueue; every row says its
+  layer, the busiest thread's CPU s a frame (``/proc/self/task``, sampled at each frame) and the bound of two
+  quiet cores, 1 / max(CPU s a frame / 2, the busiest thread's).
   The measuring children (these, ``--threads`` and the stage table's) set their process up as ``zcut replay``
   does (``replay.process.configure_process`` of their tree: its malloc settings decide how many pages a stage
   faults in). ``--warm-passes N``: N whole passes over the log's frames before the measured one (the
@@ -203,17 +207,24 @@ def print_stage_table(new: dict[str, float], old: dict[str, float] | None) -> No
 CHILD_MODES = ("--stage-json", "--throughput-json", "--threads-json")
 
 
-def child_json(tree: Path, mode: str, *args: str, env: dict[str, str] | None = None) -> dict:
+def child_json(tree: Path, mode: str, *args: str, env: dict[str, str] | None = None, layer: str | None = None) -> dict:
     """Run this script as a measuring child with the code of the source tree ``tree`` (its ``PYTHONPATH`` and
-    working folder; numba's workqueue threads, as ``zcut`` chooses them) in ``mode`` (:data:`CHILD_MODES`) with
-    ``args``, ``env`` added to its environment; returns the JSON object of the last line it printed
-    (:func:`child_main` prints it)."""
+    working folder; numba's workqueue threads, as ``zcut`` chose them before the round of 2026-12-05d) in ``mode``
+    (:data:`CHILD_MODES`) with ``args``, ``env`` added to its environment; returns the JSON object of the last
+    line it printed (:func:`child_main` prints it). ``layer``: numba's threading layer instead, "default" for the
+    one the tree's ``configure_process`` chooses."""
     import json
     import subprocess
 
     assert mode in CHILD_MODES
     full = dict(os.environ, PYTHONPATH=str(tree), **(env or {}))
-    full.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
+    if layer is None:
+        full.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` set it
+    else:
+        for name in ("NUMBA_THREADING_LAYER", "NUMBA_THREADING_LAYER_PRIORITY"):
+            full.pop(name, None)
+        if layer != "default":
+            full["NUMBA_THREADING_LAYER"] = layer
     out = subprocess.run([sys.executable, __file__, mode, *args], env=full, cwd=str(tree), check=True,
                          capture_output=True, text=True).stdout
     result: dict = json.loads(out.strip().splitlines()[-1])
@@ -443,48 +454,102 @@ def throughput(log: Path, in_flight: int | None, outputs: str = "none") -> dict[
     session.run(frames=(0, 1), **kw)  # warm-up: numba kernels, the first chunk
     for _ in range(warm_passes()):  # steady state: the buffers of a long log's later frames
         session.run(frames=(1, None), **kw)
+    import numba
+
+    clock = _ThreadClock()
     with tempfile.TemporaryDirectory(prefix="zcut_bench_throughput_") as d:
         sinks: list = []
         if "rrd" in outputs:
             sinks.append(RerunSink(rrd=Path(d) / "out.rrd"))
         if "out" in outputs:
             sinks.append(ResultsSink(Path(d) / "results.mcap"))
+        clock.sample()
         t0, c0 = time.perf_counter(), time.process_time()
         if sinks:
-            summary = session.run(BackgroundSinks(sinks), frames=(1, None), **kw)
+            summary = session.run(BackgroundSinks(sinks), frames=(1, None), on_frame=clock.on_frame, **kw)
         else:  # no sink at all, as before --outputs
-            summary = session.run(frames=(1, None), **kw)
+            summary = session.run(frames=(1, None), on_frame=clock.on_frame, **kw)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     n = max(len(summary.rows), 1)
-    return {"cpu_s": cpu / n, "wall_s": wall / n, "frames": len(summary.rows)}
+    busy = clock.busiest(n)
+    return {"cpu_s": cpu / n, "wall_s": wall / n, "frames": len(summary.rows), "layer": numba.threading_layer(),
+            "busiest_s": busy[1], "busiest": busy[0]}
 
 
-def throughput_of_tree(tree: Path, log: Path, in_flight: int | None, outputs: str = "none") -> dict[str, float]:
-    """:func:`throughput` with the code of the source tree ``tree``, in a subprocess."""
-    return child_json(tree, "--throughput-json", str(log), str(in_flight or 0), outputs)
+class _ThreadClock:
+    """Every thread's CPU s (user + system, ``/proc/self/task``), sampled before a run and at each of its frames
+    (``on_frame``, in the calling thread: no sampler thread of its own whose CPU the process time would count).
+    A thread that ends between two frames is counted up to the frame before."""
+
+    def __init__(self) -> None:
+        self.hz = os.sysconf("SC_CLK_TCK")
+        self.base: dict[int, tuple[str, float]] | None = None
+        self.seen: dict[int, tuple[str, float]] = {}
+
+    def sample(self) -> None:
+        import threading
+
+        names = {t.native_id: t.name for t in threading.enumerate()}
+        for tid in os.listdir("/proc/self/task"):
+            try:
+                with open(f"/proc/self/task/{tid}/stat") as f:
+                    st = f.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            old = self.seen.get(int(tid))
+            self.seen[int(tid)] = (names.get(int(tid)) or (old[0] if old else "native"), (int(st[11]) + int(st[12])) / self.hz)
+        if self.base is None:
+            self.base = dict(self.seen)
+
+    def on_frame(self, *args: object) -> None:
+        self.sample()
+
+    def busiest(self, n: int) -> tuple[str, float]:
+        """The thread that was busiest during the run: its name and CPU s a frame (``n`` frames)."""
+        base = self.base or {}
+        name, most = "", 0.0
+        for tid, (nm, c) in self.seen.items():
+            used = (c - base.get(tid, (nm, 0.0))[1]) / n
+            if used > most:
+                name, most = nm, used
+        return name, most
 
 
-def throughput_table(log: Path, against: Path | None, repeats: int, outputs: tuple[str, ...] = ("none",)) -> None:
+def throughput_of_tree(tree: Path, log: Path, in_flight: int | None, outputs: str = "none",
+                       layer: str | None = None) -> dict[str, float]:
+    """:func:`throughput` with the code of the source tree ``tree``, in a subprocess (``layer``: :func:`child_json`)."""
+    return child_json(tree, "--throughput-json", str(log), str(in_flight or 0), outputs, layer=layer)
+
+
+def throughput_table(log: Path, against: Path | None, repeats: int, outputs: tuple[str, ...] = ("none",),
+                     layers: tuple[str, ...] = ()) -> None:
     """Print CPU s and wall s per frame of whole replays: this tree with one frame in flight and with
-    two, and the previous tree (``against``), alternating ``repeats`` times, medians; with ``outputs``
-    other than none, this tree (its default frames in flight) with each of them too, and the frames/s
-    bound of two fully used cores (2 / CPU s a frame)."""
+    two (numba's threading layer its ``configure_process`` chooses), and the previous tree (``against``),
+    alternating ``repeats`` times, medians; with ``layers`` (e.g. workqueue, the previous layer), this tree under
+    each of them with one and two frames in flight too; with ``outputs`` other than none, this tree (its default
+    frames in flight) with each of them too. Every row says the frames/s bound of two fully used cores
+    (2 / CPU s a frame), the busiest thread's CPU s a frame and the bound of two quiet cores, 1 / max(CPU s / 2,
+    the busiest thread's): no thread can go faster than its own work."""
     this_tree = Path(__file__).resolve().parents[1]
-    runs: dict[str, tuple[Path, int | None, str]] = {"this tree, 1 frame in flight": (this_tree, 1, "none"),
-                                                    "this tree, 2 frames in flight": (this_tree, 2, "none")}
+    runs: dict[str, tuple[Path, int | None, str, str | None]] = {
+        "this tree, 1 frame in flight": (this_tree, 1, "none", "default"),
+        "this tree, 2 frames in flight": (this_tree, 2, "none", "default")}
+    for layer in layers:
+        runs[f"this tree, {layer}, 1 in flight"] = (this_tree, 1, "none", layer)
+        runs[f"this tree, {layer}, 2 in flight"] = (this_tree, 2, "none", layer)
     if against is not None:
-        runs["previous tree"] = (against, None, "none")
+        runs["previous tree"] = (against, None, "none", None)
     for o in outputs:
         if o != "none":
-            runs[f"this tree, --{o.replace('+', ' --')}"] = (this_tree, None, o)
+            runs[f"this tree, --{o.replace('+', ' --')}"] = (this_tree, None, o, "default")
             if against is not None:
-                runs[f"previous, --{o.replace('+', ' --')}"] = (against, None, o)
-    got: dict[str, list[dict[str, float]]] = {k: [] for k in runs}
+                runs[f"previous, --{o.replace('+', ' --')}"] = (against, None, o, None)
+    got: dict[str, list[dict]] = {k: [] for k in runs}
     loads = []
     for _ in range(max(repeats, 1)):
-        for name, (tree, n, o) in runs.items():
+        for name, (tree, n, o, layer) in runs.items():
             loads.append(os.getloadavg()[0])
-            got[name].append(throughput_of_tree(tree, log, n, o))
+            got[name].append(throughput_of_tree(tree, log, n, o, layer))
     frames = int(next(iter(got.values()))[0]["frames"])
     print(f"\nwhole replay of {log.name} ({frames} frames after a warm-up one), medians of {repeats} "
           f"alternating runs; load average {min(loads):.1f}-{max(loads):.1f} on {os.cpu_count()} cores "
@@ -492,12 +557,17 @@ def throughput_table(log: Path, against: Path | None, repeats: int, outputs: tup
     base = statistics.median(r["cpu_s"] for r in got[next(iter(runs))])
     base_w = statistics.median(r["wall_s"] for r in got[next(iter(runs))])
     print(f"  {'':32s} {'CPU s/frame':>12s} {'wall s/frame':>13s} {'frames/s':>9s} {'wall vs 1 in flight':>20s}"
-          f" {'2-core bound':>13s}")
+          f" {'2-core bound':>13s} {'layer':>10s} {'busiest s/frame':>16s} {'quiet bound':>12s}")
     for name, rs in got.items():
         c, w = statistics.median(r["cpu_s"] for r in rs), statistics.median(r["wall_s"] for r in rs)
-        print(f"  {name:32s} {c:12.3f} {w:13.3f} {1 / w:9.2f} {base_w / w:20.2f} {2 / c:13.2f}"
+        b = statistics.median(r.get("busiest_s", float("nan")) for r in rs)
+        layer = "/".join(sorted({str(r.get("layer", "?")) for r in rs}))
+        print(f"  {name:32s} {c:12.3f} {w:13.3f} {1 / w:9.2f} {base_w / w:20.2f} {2 / c:13.2f} {layer:>10s}"
+              f" {b:16.3f} {1 / max(c / 2, b):12.2f}"
               + ("" if name == next(iter(runs)) else f"   (CPU {c / base:.2f} x)"))
-        print("    per run (CPU, wall): " + ", ".join(f"{r['cpu_s']:.3f}/{r['wall_s']:.3f}" for r in rs))
+        print("    per run (CPU, wall, busiest thread): "
+              + ", ".join(f"{r['cpu_s']:.3f}/{r['wall_s']:.3f}/{r.get('busiest', '?')} {r.get('busiest_s', 0):.3f}"
+                          for r in rs))
 
 
 def _command_cost(tree: Path, argv: list[str], *, code: str | None = None) -> dict[str, float]:
@@ -636,6 +706,9 @@ def main() -> None:
                          "--against's, alternating --repeats times")
     ap.add_argument("--outputs", default="none",
                     help=f"--throughput: also replay with these outputs, of {','.join(THROUGHPUT_OUTPUTS)} (default none)")
+    ap.add_argument("--layers", default="",
+                    help="--throughput: also this tree under these numba threading layers, 1 and 2 frames in flight "
+                         "(e.g. workqueue, the layer before the round of 2026-12-05d)")
     ap.add_argument("--throughput-json", nargs=3, help=argparse.SUPPRESS)  # LOG IN_FLIGHT (0: default) OUTPUTS: one line
     ap.add_argument("--threads", action="store_true",
                     help="where a whole replay of --log spends its CPU, per thread (user, system, page faults), this "
@@ -666,13 +739,12 @@ def main() -> None:
             raise SystemExit("--startup needs --log LOG (e.g. `zcut synth --parts zinc_nuts --frames 6 -o LOG`)")
         startup_table(args.log, args.against, args.repeats)
         return
-    if args.throughput:
-        os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")
+    if args.throughput:  # (each child gets its layer: throughput_table)
         log = args.log if args.log is not None else prepare(Path(args.dir), args.kind, args.frames)[0]
         outs = tuple(o for o in args.outputs.split(",") if o)
         if not set(outs) <= set(THROUGHPUT_OUTPUTS):
             ap.error(f"--outputs: of {','.join(THROUGHPUT_OUTPUTS)}")
-        throughput_table(log, args.against, args.repeats, outs)
+        throughput_table(log, args.against, args.repeats, outs, tuple(v for v in args.layers.split(",") if v))
         return
     if args.table:
         os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")

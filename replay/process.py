@@ -169,6 +169,21 @@ def interrupted_by(error: BaseException, state: InterruptState | None = None) ->
     return None
 
 
+#: numba's threading layers in the order :func:`configure_process` asks for them: OpenMP's (GNU libgomp, with
+#: :data:`OPENMP_NO_SPIN`), whose parallel kernels two threads may launch at once (two frames in flight run their
+#: bin stages side by side), else numba's own workqueue, which aborts the process when two threads do
+#: (``replay.pipeline.session.PARALLEL_KERNELS`` then runs them one at a time). TBB last: an old TBB shipped by
+#: other wheels makes numba warn when it probes it. The previous choice, workqueue first: set
+#: ``NUMBA_THREADING_LAYER=workqueue`` (docs/performance.md, "Both cores busy").
+THREADING_LAYER_PRIORITY = ("omp", "workqueue", "tbb")
+
+#: GNU OpenMP's settings (read when libgomp loads): its idle workers sleep at once instead of spinning
+#: (by default for up to ~300,000 rounds after every parallel region: on a shared machine they stole the CPU,
+#: 2-3 x slower here, which is why workqueue was chosen before). :func:`configure_process` sets them unless the
+#: user did; the same results, the threads only wait differently.
+OPENMP_NO_SPIN = {"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": "0"}
+
+
 #: OpenCV's settings of how long its thread pool spins waiting (read when cv2 loads); :func:`configure_process`
 #: sets them to 0 unless the user set them
 OPENCV_NO_SPIN = ("OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER", "OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN")
@@ -237,19 +252,22 @@ def keep_freed_memory() -> bool:
 def configure_process() -> None:
     """Process-wide settings that belong to the command line, not to the library.
 
-    numba's own workqueue threads unless the user chose a layer: OpenMP workers spin after each
-    parallel region and steal the CPU on a busy machine (measured 2-3x slower here), and an old TBB
-    shipped by other wheels makes numba warn when it probes the "tbb" layer. OpenCV's pool threads do
+    numba's threading layer (:data:`THREADING_LAYER_PRIORITY`) unless the user chose one
+    (``NUMBA_THREADING_LAYER`` or ``NUMBA_THREADING_LAYER_PRIORITY``; ``NUMBA_THREADING_LAYER=workqueue``
+    is the previous choice), and OpenMP's workers set not to spin (:data:`OPENMP_NO_SPIN`). OpenCV's pool threads do
     not spin either (:data:`OPENCV_NO_SPIN`; the bin mask's calls left one of them yielding the CPU
     ~1,900 times a frame). Every thread allocates from one malloc arena (:func:`one_malloc_arena`), and the
     memory a frame frees is kept for the next (:func:`keep_freed_memory`).
     """
     if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
-        os.environ["NUMBA_THREADING_LAYER_PRIORITY"] = "workqueue omp tbb"
+        os.environ["NUMBA_THREADING_LAYER_PRIORITY"] = " ".join(THREADING_LAYER_PRIORITY)
         if "numba" in sys.modules:  # numba read its config at import: set it there too
             import numba
 
-            numba.config.THREADING_LAYER_PRIORITY = ["workqueue", "omp", "tbb"]  # type: ignore[attr-defined]  # set at import
+            numba.config.THREADING_LAYER_PRIORITY = list(THREADING_LAYER_PRIORITY)  # type: ignore[attr-defined]  # set at import
+    # read when libgomp loads (numba loads it at the first parallel kernel): set before
+    for name, value in OPENMP_NO_SPIN.items():
+        os.environ.setdefault(name, value)
     # OpenCV's pool threads spin (sched_yield) for 2000 rounds after every parallel call before they sleep,
     # and its calling thread 10000 rounds for them: read when cv2 loads, so set before (docs/performance.md,
     # "The replay outside its stages"); the same results, the threads only wait differently

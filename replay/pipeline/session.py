@@ -12,8 +12,8 @@ located once: the run delivers the same object (and takes over the chunks read a
 location is the seed's (every other frame's registration starts from that pose).
 :meth:`ReplaySession.results` yields ``(frame, result)`` for a frame range, in log order, reading the
 next frame in a background thread (:func:`prefetched`), locating the bin of the next frames in another
-and, when asked (:func:`frames_in_flight`), computing two frames at once (their bin stages one at a
-time, :data:`PARALLEL_KERNELS`);
+and computing two frames at once (:func:`frames_in_flight`: by default where numba's threading layer lets
+two frames' bin stages overlap; under its workqueue layer they run one at a time, :data:`PARALLEL_KERNELS`);
 :meth:`ReplaySession.run` feeds them to a sink (:mod:`replay.pipeline.sinks`) and returns a
 :class:`ReplaySummary`. Library code: it never prints; commands pass an ``on_frame`` callback.
 """
@@ -27,6 +27,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Generator, Iterator, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -192,11 +193,34 @@ def parse_frames(text: str | None) -> tuple[int, int | None]:
     return start, stop
 
 
-#: Held while a frame's bin stages run (:meth:`ReplaySession.results` with two frames in flight): the
-#: removal and the bin check run numba's ``parallel=True`` kernels, and numba's default "workqueue"
-#: threading layer (the one ``zcut`` chooses) aborts the process when two threads launch such kernels at
-#: once. The other stages run serial kernels (and SOR its own threads), free to overlap.
+#: Held while a frame's bin stages run (:meth:`ReplaySession.results` with two frames in flight) when numba's
+#: threading layer is its "workqueue" (:func:`parallel_kernels`): the removal and the bin check run numba's
+#: ``parallel=True`` kernels, and that layer aborts the process when two threads launch such kernels at once.
+#: OpenMP's layer (the one ``zcut`` chooses, ``replay.process.THREADING_LAYER_PRIORITY``) and TBB's take them
+#: from any thread: then nothing is held and two frames' bin stages overlap. The other stages run serial kernels
+#: (and SOR its own threads), free to overlap under any layer.
 PARALLEL_KERNELS = threading.Lock()
+
+#: numba's threading layers whose parallel kernels two threads may launch at once
+THREADSAFE_LAYERS = frozenset({"omp", "tbb"})
+
+
+def _threadsafe_layer() -> bool | None:
+    """Whether numba's threading layer takes parallel kernels from two threads at once: True or False once a
+    parallel kernel has run in this process (the layer is chosen then), else None."""
+    import numba
+
+    try:
+        return numba.threading_layer() in THREADSAFE_LAYERS  # type: ignore[attr-defined]  # numba exports it untyped
+    except ValueError:  # no parallel kernel has run yet
+        return None
+
+
+def parallel_kernels() -> AbstractContextManager[object]:
+    """What a frame worker holds while its bin stages run: :data:`PARALLEL_KERNELS` unless numba's layer is known
+    to take parallel kernels from two threads at once (:data:`THREADSAFE_LAYERS`; until the first parallel kernel
+    has run the layer is not known, and the lock is held)."""
+    return nullcontext() if _threadsafe_layer() else PARALLEL_KERNELS
 
 
 #: The variable that sets :func:`frames_in_flight` (a whole number >= 1).
@@ -204,12 +228,8 @@ FRAMES_IN_FLIGHT_VARIABLE = "ZCUT_FRAMES_IN_FLIGHT"
 
 
 def frames_in_flight() -> int:
-    """Frames :meth:`ReplaySession.results` computes at once by default: ``$ZCUT_FRAMES_IN_FLIGHT``, else 1.
-
-    One by default: on the shared 2-core machine of the last measurement (docs/performance.md, "Two
-    frames in flight") two frames in flight cost 10-30 % more CPU a frame and gave no wall gain; set
-    the variable to 2 where two quiet cores are free (at most the cores numba uses,
-    ``NUMBA_NUM_THREADS``, which a study worker sets to its share of them).
+    """Frames :meth:`ReplaySession.results` computes at once by default: ``$ZCUT_FRAMES_IN_FLIGHT``, else
+    :func:`default_frames_in_flight`.
 
     Raises
     ------
@@ -220,7 +240,7 @@ def frames_in_flight() -> int:
 
     text = os.environ.get(FRAMES_IN_FLIGHT_VARIABLE, "").strip()
     if not text:
-        return 1
+        return default_frames_in_flight()
     try:
         n = int(text)
     except ValueError:
@@ -228,6 +248,31 @@ def frames_in_flight() -> int:
     if n < 1:
         raise ConfigError(f"{FRAMES_IN_FLIGHT_VARIABLE} must be a whole number >= 1, got {text!r}")
     return n
+
+
+def default_frames_in_flight() -> int:
+    """2 where numba runs at least two threads (``NUMBA_NUM_THREADS``: the cores, or a study worker's share of
+    them) under a threading layer that takes parallel kernels from two threads at once (OpenMP's, the one the
+    command line chooses, or TBB's), else 1.
+
+    Under such a layer two frames' bin stages overlap; one frame alone keeps ~1.4 of two quiet cores busy
+    (docs/performance.md, "Both cores busy"). Under numba's workqueue layer the bin stages of two frames run one
+    at a time (:data:`PARALLEL_KERNELS`) and two frames in flight cost 10-30 % more CPU a frame for no wall gain
+    that was measured (docs/performance.md, "Two frames in flight"): 1. Before the first parallel kernel the layer
+    is not chosen yet: it is predicted from numba's settings (``NUMBA_THREADING_LAYER``, else the first of
+    ``NUMBA_THREADING_LAYER_PRIORITY``).
+    """
+    import numba
+
+    if int(numba.config.NUMBA_NUM_THREADS) < 2:  # type: ignore[attr-defined]  # numba.config sets it at import
+        return 1
+    safe = _threadsafe_layer()
+    if safe is None:
+        chosen = str(numba.config.THREADING_LAYER)  # type: ignore[attr-defined]  # numba.config sets it at import
+        if chosen == "default":
+            chosen = str(numba.config.THREADING_LAYER_PRIORITY[0])  # type: ignore[attr-defined]  # (also set at import)
+        safe = chosen in THREADSAFE_LAYERS or chosen == "threadsafe"
+    return 2 if safe else 1
 
 
 def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Generator[Frame, None, None]:
@@ -514,10 +559,11 @@ class ReplaySession:
         ``config``: run another config than the resolved one (it must keep the resolved registration
         and removal parameters, which the bin model was prepared with).
 
-        ``in_flight``: frames computed at once (default :func:`frames_in_flight`: 1, or
-        ``$ZCUT_FRAMES_IN_FLIGHT``). With 2, frame k + 1 runs in a second worker while frame k
-        finishes (each frame's result depends on that frame alone: see :attr:`seed`), so the removal
-        of one frame overlaps the z-cut and SOR of the other and both cores stay busy; the results are
+        ``in_flight``: frames computed at once (default :func:`frames_in_flight`: ``$ZCUT_FRAMES_IN_FLIGHT``,
+        else 2 under numba's OpenMP layer on two or more cores, else 1). With 2, frame k + 1 runs in a second
+        worker while frame k finishes (each frame's result depends on that frame alone: see :attr:`seed`), so
+        one frame's stages overlap the other's (under numba's workqueue layer all but the bin stages,
+        :func:`parallel_kernels`) and both cores stay busy; the results are
         the same bit for bit and come in the same order. A frame whose computation raises raises here
         after the frames before it; an error of the reader, after the frames read before it.
         """
@@ -565,10 +611,10 @@ class ReplaySession:
 
     def _frame_result(self, frame: Frame, config: cfg.PipelineConfig, future: Future[BinLocation]) -> FrameResult:
         """:func:`run_frame` of one frame as a worker of :meth:`results` runs it: its bin stages (the
-        removal and the bin check run numba's ``parallel=True`` kernels) under :data:`PARALLEL_KERNELS`,
+        removal and the bin check run numba's ``parallel=True`` kernels) under :func:`parallel_kernels`,
         its methods (serial kernels, SOR's own threads) beside the other frame's."""
         location = future.result()
-        with PARALLEL_KERNELS:
+        with parallel_kernels():
             t_start = time.perf_counter()  # the frame's own work: not the wait for the other frame's kernels
             z = bin_zone(frame, config, bin_model=self.prepared, located=location)
         return judge_zone(frame, z, config, t_start=t_start)

@@ -245,12 +245,18 @@ def test_a_frame_that_fails_raises_after_the_frames_before_it(logs, tmp_path, mo
     assert got == [0, 1]
 
 
-def test_the_default_is_one_frame_unless_the_variable_says(logs, tmp_path, monkeypatch):
+def test_the_default_is_the_layers_unless_the_variable_says(logs, tmp_path, monkeypatch):
+    """Unset, the layer's default (:func:`default_frames_in_flight`: 1 under the suite's workqueue layer, 2 under
+    OpenMP's on two cores, tests/replay/pipeline/test_threading_layers.py); set, the variable's."""
+    import numba
+
     from replay.errors import ConfigError
-    from replay.pipeline.session import frames_in_flight
+    from replay.pipeline.session import default_frames_in_flight, frames_in_flight
 
     monkeypatch.delenv("ZCUT_FRAMES_IN_FLIGHT", raising=False)
-    assert frames_in_flight() == 1
+    assert frames_in_flight() == default_frames_in_flight()
+    if numba.config.THREADING_LAYER_PRIORITY[0] == "workqueue" and numba.config.THREADING_LAYER == "default":
+        assert frames_in_flight() == 1
     monkeypatch.setenv("ZCUT_FRAMES_IN_FLIGHT", "2")
     assert frames_in_flight() == 2
     sink = _Recorder()
