@@ -53,8 +53,14 @@ def _session(log: Path) -> ReplaySession:
 
 def method_rows(log: Path) -> list[dict[str, Any]]:
     """The method on every frame of ``log`` (module docstring, ``--logs``)."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from wall_recall import NEAR_MM, wall_mm
+
+    from replay.pipeline.session import true_poses_of
+
     session = _session(log)
     cfg, pm = session.config, session.prepared
+    poses = true_poses_of(session.reader.metadata)
     rows = []
     for frame in session.reader.frames():
         loc = locate_bin(frame, cfg, bin_model=pm, seed=session.seed)
@@ -65,6 +71,12 @@ def method_rows(log: Path) -> list[dict[str, Any]]:
         assert det is not None
         valid = np.isfinite(frame.xyz).all(axis=2)
         truth = frame.masks[layout.TRUTH_OFF_SURFACE] & valid & z.zone
+        # beside the walls (bench/wall_recall.py's reading: the truth over the bin's opening, every valid pixel, the
+        # method's mask = its zone outliers and the points above the rim; 10 mm of an inner wall face, true bin pose)
+        dist, inside = wall_mm(frame.xyz, poses[frame.stamp_ns])
+        t_all = frame.masks[layout.TRUTH_OFF_SURFACE] & valid & inside
+        flagged = out | z.easy
+        near, far = t_all & (dist <= NEAR_MM), t_all & ~(dist <= NEAR_MM)
         behind = tuple(getattr(det, "vetted_behind", ()))
         on_nothing = [float(truth.reshape(-1)[f.pixels].mean()) if len(f.pixels) else float("nan") for f in behind]
         tp, fp = int((out & truth).sum()), int((out & ~truth).sum())
@@ -76,6 +88,9 @@ def method_rows(log: Path) -> list[dict[str, Any]]:
                      "zone": int(z.zone.sum()), "truth": int(truth.sum()), "tp": tp, "fp": fp,
                      "precision": tp / max(tp + fp, 1), "recall": tp / max(int(truth.sum()), 1),
                      "explained_share": 1.0 - float(out.sum()) / max(int(z.zone.sum()), 1), "cpu": cpu,
+                     "near": int(near.sum()), "near_found": int((near & flagged).sum()), "far": int(far.sum()),
+                     "far_found": int((far & flagged).sum()),
+                     "near_missed_part": int((near & ~flagged & z.zone & (det.surface >= 0)).sum()),
                      "digest": digest})
         print(f"  {log.name} frame {frame.index} done ({cpu:.1f} CPU-s)", flush=True)
     return rows
@@ -153,6 +168,18 @@ def main() -> int:
         print("\n| log | frame | fits | out: overlap | out: behind (on no true surface) | truth share of their pixels | "
               "zone px | truth | TP | FP | precision | recall | explained share | CPU-s | digest |")
         print("|---|---:|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|")
+        print("\n| log | frame | near-wall truth | found | missed (a part fit explains) | elsewhere truth | found |")
+        print("|---|---:|---:|---:|---:|---:|---:|")
+        for r in rows:
+            print(f"| {r['log']} | {r['frame']} | {r['near']} | {r['near_found']} | {r['near'] - r['near_found']} "
+                  f"({r['near_missed_part']}) | {r['far']} | {r['far_found']} |")
+        tot = {k: sum(r[k] for r in rows) for k in ("near", "near_found", "far", "far_found", "tp", "fp",
+                                                    "behind_out", "behind_on_nothing", "overlap_out")}
+        rn, rf = tot["near_found"] / max(tot["near"], 1), tot["far_found"] / max(tot["far"], 1)
+        print(f"\nall: near {tot['near_found']}/{tot['near']} = {rn:.4f}, elsewhere {tot['far_found']}/{tot['far']} = "
+              f"{rf:.4f}, delta {rn - rf:+.4f}; zone precision {tot['tp'] / max(tot['tp'] + tot['fp'], 1):.4f} "
+              f"(TP {tot['tp']}, FP {tot['fp']}); out behind {tot['behind_out']} (on no true surface "
+              f"{tot['behind_on_nothing']}), out by overlap {tot['overlap_out']}")
         for r in rows:
             shares = ", ".join(f"{s:.2f}" for s in r["behind_truth_share"]) or "–"
             print(f"| {r['log']} | {r['frame']} | {r['fits']} | {r['overlap_out']} | {r['behind_out']} "

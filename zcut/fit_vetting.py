@@ -17,6 +17,15 @@ against the surfaces left (:func:`replay.pipeline.explained.run_explained`), so 
 on its part are explained by the part's kept fit and the off-surface points it hid become
 unexplained.
 
+**A part never lies behind the bin or the table** (:func:`behind_shares`; docs/labelling.md, "Fifth round: fits
+of ghosts beside the walls"): the share of a fit's inside samples that lie farther than ``BEHIND_ERRS`` of the bin's
+Err behind the registered bin model (the nearest model sample within ``BEHIND_SEARCH_MM``, its normal turned towards
+the camera) or beyond the table plane. A fit more than ``MAX_BEHIND`` of whose volume lies there is vetted out first:
+it is no part, and it takes no part in the overlap rule (it suppresses no other fit). On piles leaning on the walls
+the interreflections between the pile and a wall make ghost points behind the wall's face, and the fitting fits
+parts to them; the rule reads only the registered bin model, its measured residual, the table plane and the fit's
+solid — never the truth. Without the bin stages (no model) nothing is behind anything.
+
 **One rule for the fitting and the vetting** (:class:`Solid`, :func:`pose_overlaps`): the share of one
 instance's inside samples that lie inside another instance of the same part, looked up in the part's
 occupancy grid (``OCCUPANCY_VOXELS`` a side of its box; a sphere: the closed form). The fitting

@@ -285,7 +285,7 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
                       if bin_stages and solid is not None and np.isfinite(f_px) else None)
             vetting = vet_fits(instance_overlaps(v, t, [f.pose for f in fits], solid=solid),
                                explained_px(near, zone_err, len(fits), k=p.k, where=zone.zone),
-                               max_overlap=p.fit_max_overlap, behind=behind)
+                               max_overlap=p.fit_max_overlap, behind=behind, max_behind=MAX_BEHIND)
             kept = vetting.kept
             vetted_behind = tuple(f for f, b in zip(fits, vetting.behind) if b > MAX_BEHIND)
         if not kept.all():  # the fits vetted out are no known surface: their pixels judged again
@@ -341,7 +341,7 @@ def _with_top_pieces(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits
         if fits or (behind is not None and (behind > MAX_BEHIND).any()):
             support = np.concatenate([np.full(n, np.inf), np.asarray([len(f.pixels) for f in more], np.float64)])
             kept = vet_fits(instance_overlaps(v, t, [f.pose for f in (*fits, *more)], solid=prepared.solid), support,
-                            max_overlap=p.fit_max_overlap, behind=behind).kept[n:]
+                            max_overlap=p.fit_max_overlap, behind=behind, max_behind=MAX_BEHIND).kept[n:]
             more = [f for f, k in zip(more, kept) if k]
     if not more:
         return fits, surfaces, near, 0
