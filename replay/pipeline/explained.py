@@ -12,11 +12,15 @@ than ``k`` × Err (``[explained]`` section, :class:`zcut.params.ExplainedParams`
 - **Vetting** (:mod:`zcut.fit_vetting`): two parts never share volume. The fits are ranked by the
   zone pixels each explains (its nearest-surface pixels within ``k`` × Err) and a fit whose solid
   overlaps a better-ranked kept fit's by more than ``fit_max_overlap`` (5 %) of its volume is left out: no known surface
-  (:attr:`ExplainedDetail.vetted_out`). The pixels whose nearest surface it was are judged again
+  (:attr:`ExplainedDetail.vetted_out`). Before that, a fit more than ``MAX_BEHIND`` of whose solid lies
+  behind the registered bin model or the table plane (:func:`zcut.fit_vetting.behind_shares`: a part never
+  lies inside the bin's walls or below its floor) is left out and suppresses no other fit
+  (:attr:`ExplainedDetail.vetted_behind`). The pixels whose nearest surface it was are judged again
   against the surfaces left, and the kept fits' residuals are measured again.
 - **Missed instances on top** (:mod:`zcut.top_pieces`, :data:`TOP_PIECES`): after the vetting, the zone's
   unexplained pieces are fitted again; an instance found there joins the fits when it lies on top of what
-  surrounds it (a piece framed by nearer surfaces is left out) and overlaps no fit's solid; the pixels it is
+  surrounds it (a piece framed by nearer surfaces is left out), overlaps no fit's solid and lies behind neither
+  the bin nor the table; the pixels it is
   nearer to take it and the residuals are measured again (:attr:`ExplainedDetail.top_pieces`).
 - **The bin**: the registered model cloud with its normals (the pipeline's bin model), posed by the
   registration; σ_s is the robust residual (:func:`zcut.explained.residual_sigma`) of up to 20,000 of

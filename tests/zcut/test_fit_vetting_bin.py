@@ -66,19 +66,20 @@ def test_a_box_crossing_the_wall_lies_behind_it_one_beside_it_does_not():
     solid, _ = _box_solid([-10, -10, -10], [10, 10, 10])
     T = np.eye(4)
     poses = []
-    for x in (56.0, 49.8, 20.0):  # centre 4 mm short of the wall (crossing it by 6 mm), touching it, far
+    for x in (62.0, 49.8, 20.0):  # crossing the wall by 12 mm, touching it, far
         P = T.copy()
         P[:3, 3] = [x, 0.0, 585.0]
         poses.append(P)
     share = fv.behind_shares(solid, poses, s, f_px=F_PX)
-    want = (66.0 - (60.0 + _at(585.0))) / 20.0
+    # behind: beyond k Err of the wall and within k Err + the search band of its samples
+    want = (min(72.0, 60.0 + _at(585.0) + fv.BEHIND_SEARCH_MM) - (60.0 + _at(585.0))) / 20.0
     assert abs(share[0] - want) < 0.06 and share[0] > fv.MAX_BEHIND
     np.testing.assert_array_equal(share[1:], [0.0, 0.0])
 
 
 def test_beyond_the_search_radius_the_bin_says_nothing_the_table_does():
     s = _floor_and_wall()
-    solid, eye = _box_solid([-10, -10, 640], [10, 10, 660])  # 40-60 mm below the floor: no sample within 10 mm
+    solid, eye = _box_solid([-10, -10, 640], [10, 10, 660])  # 40-60 mm below the floor: beyond the search band
     assert fv.behind_shares(solid, [eye], s, f_px=F_PX)[0] == 0.0
     table = ex.Plane(np.array([0.0, 0.0, 1.0]), 650.0, residual_mm=0.2)
     with_table = ex.KnownSurfaces(bin_points=s.bin_points, bin_err_mm=SIGMA, table=table)
