@@ -99,11 +99,12 @@ def method_rows(log: Path) -> list[dict[str, Any]]:
 def true_parts(log: Path, reader: LogReader, index: int, size: tuple[int, int]) -> list[tuple[np.ndarray, np.ndarray]]:
     """The true part meshes of frame ``index`` of ``log`` (camera frame, mm), rebuilt from its synthesis record."""
     meta = reader.metadata["zcut.synth"]
-    seed, kind, pile = int(meta["seed"]), meta["parts"], meta.get("pile", "floor")
+    seed, kind = int(meta["seed"]), meta["part_kind"]
+    pile = "walls" if "pile_walls" in meta else "floor"
     sys.path.insert(0, str(ROOT / "tests"))
     from explained_helpers import handmade_true_surfaces
 
-    if meta.get("sensor", "handmade") != "raytraced":
+    if "raytrace" not in meta.get("generator", ""):
         from replay.synth.synthesize import synthesize_frame
 
         return handmade_true_surfaces(synthesize_frame(kind=kind, seed=seed, index=index, size=size, pile=pile))[0]
