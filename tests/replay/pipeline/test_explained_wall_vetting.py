@@ -73,7 +73,9 @@ def test_a_fit_pushed_through_the_wall_lies_behind_it_in_place_it_does_not(walls
     pushed = poses.copy()
     pushed[:, :3, 3] = pts[j] - depth[:, None] * nrm[j]
     moved = fv.behind_shares(prepared.solid, pushed, s, f_px=f_px, floor_mm=p.err_floor_mm)
-    assert (moved > fv.MAX_BEHIND).mean() > 0.9, moved
+    # the band behind the walls is BEHIND_SEARCH_MM deep: a nut across it lies in it by half or more; below the floor,
+    # the table's side takes the rest
+    assert np.median(moved) > fv.MAX_BEHIND and (moved > 0.3).mean() > 0.9, moved
 
 
 @pytest.mark.slow
