@@ -17,6 +17,15 @@ against the surfaces left (:func:`replay.pipeline.explained.run_explained`), so 
 on its part are explained by the part's kept fit and the off-surface points it hid become
 unexplained.
 
+**A part never lies behind the bin or the table** (:func:`behind_shares`; docs/labelling.md, "Fifth round: fits
+of ghosts beside the walls"): the share of a fit's inside samples that lie farther than ``BEHIND_ERRS`` of the bin's
+Err behind the registered bin model (the nearest model sample within ``BEHIND_SEARCH_MM``, its normal turned towards
+the camera) or beyond the table plane. A fit more than ``MAX_BEHIND`` of whose volume lies there is vetted out first:
+it is no part, and it takes no part in the overlap rule (it suppresses no other fit). On piles leaning on the walls
+the interreflections between the pile and a wall make ghost points behind the wall's face, and the fitting fits
+parts to them; the rule reads only the registered bin model, its measured residual, the table plane and the fit's
+solid — never the truth. Without the bin stages (no model) nothing is behind anything.
+
 **One rule for the fitting and the vetting** (:class:`Solid`, :func:`pose_overlaps`): the share of one
 instance's inside samples that lie inside another instance of the same part, looked up in the part's
 occupancy grid (``OCCUPANCY_VOXELS`` a side of its box; a sphere: the closed form). The fitting
@@ -53,6 +62,17 @@ from .explained import SURFACE_NONE, KnownSurfaces, Nearest, nearest_surface, un
 MAX_OVERLAP = 0.05
 #: this many points drawn inside each part measure the overlaps
 INSIDE_SAMPLES = 400
+#: a fit is vetted out when more than this share of its volume lies behind the registered bin or the table
+#: (:func:`behind_shares`; chosen on the walls piles of seeds 9601 / 9621 and 7601 / 7621 and checked on the floor
+#: piles of seed 8571: docs/labelling.md, "Fifth round"; 15 % vetted out mis-posed fits of parts sunk into the floor)
+MAX_BEHIND = 0.5
+#: behind: farther than this many of the bin's (the table's) Err behind its surface (3 and 5 vetted out mis-posed
+#: fits of real parts near the floor, whose pixels then cost precision: the same docs section)
+BEHIND_ERRS = 8.0
+#: a point is judged against the bin model only when a model sample lies within its tolerance (``BEHIND_ERRS`` of
+#: the bin's Err) plus this (mm): the band behind the bin's inner faces; beyond it (a point the sampled surface does
+#: not reach) the table alone judges it
+BEHIND_SEARCH_MM = 10.0
 #: :attr:`Solid.occupancy`: voxels a side of the mesh's bounding box
 OCCUPANCY_VOXELS = 64
 #: a mesh whose vertices and faces' centres all lie within this share of the vertices' mean distance from the
@@ -72,11 +92,15 @@ class FitVetting:
         The largest share of the fit's volume inside a better-ranked kept fit (0 when none).
     by : (n,) int64 ndarray
         That kept fit's index (-1 when none).
+    behind : (n,) float64 ndarray
+        The share of the fit's volume behind the registered bin or the table (:func:`behind_shares`; 0 when not
+        measured): above ``max_behind`` the fit is vetted out whatever its overlaps (``by`` is then -1).
     """
 
     kept: np.ndarray
     overlap: np.ndarray
     by: np.ndarray
+    behind: np.ndarray
 
     @property
     def dropped(self) -> np.ndarray:
@@ -307,11 +331,59 @@ def instance_overlaps(vertices: np.ndarray, triangles: np.ndarray, poses: Sequen
     return ordered, share.astype(np.float64)
 
 
+def behind_shares(solid: Solid, poses: Sequence[np.ndarray], surfaces: KnownSurfaces, *, f_px: float,
+                  k: float = BEHIND_ERRS, floor_mm: float = 0.0, search_mm: float = BEHIND_SEARCH_MM) -> np.ndarray:
+    """(n,) the share of the solid posed at each of ``poses`` ((4, 4) model -> camera frame, mm, rigid) that lies
+    behind the registered bin or below the table: **a part never lies inside the bin's walls or below its floor**.
+
+    An inside sample (:attr:`Solid.inside`) at p is behind the bin when the nearest sample q of the bin model
+    (``surfaces.bin_points``: points and unit normals turned towards the camera, as the pipeline's model is) lies
+    within ``k`` × Err + ``search_mm`` of it and (p − q) · n < −``k`` × the bin's Err at p (``max(floor_mm, sqrt(σ_bin² + c²/2))``, c =
+    |z| / ``f_px`` the footprint at p's depth, σ_bin = ``surfaces.bin_err_mm``; 0 when unknown); behind the table when
+    it lies farther than ``k`` × the table's Err (its ``residual_mm``, the same footprint) beyond the plane, away from
+    the camera. The shares are 0 without a bin model and a table, and for a mesh that is not closed (no inside)."""
+    T = np.asarray(poses, np.float64).reshape(-1, 4, 4)
+    q = solid.inside
+    if not len(T) or not len(q) or (surfaces.bin_points is None and surfaces.table is None):
+        return np.zeros(len(T))
+    if not (np.isfinite(f_px) and f_px > 0):
+        raise ParameterError(f"the focal length must be a positive number of pixels, got {f_px!r}")
+    p = (q @ T[:, :3, :3].transpose(0, 2, 1) + T[:, None, :3, 3]).reshape(-1, 3)  # (n × q, 3) camera frame
+    c = np.abs(p[:, 2]) / float(f_px)
+    behind = np.zeros(len(p), bool)
+
+    def err(sigma: float) -> np.ndarray:
+        s = sigma if np.isfinite(sigma) else 0.0
+        out: np.ndarray = np.maximum(float(floor_mm), np.sqrt(s * s + 0.5 * c * c))
+        return out
+
+    if surfaces.bin_points is not None and len(surfaces.bin_points[0]):
+        from scipy.spatial import cKDTree
+
+        pts, nrm = (np.asarray(a, np.float64) for a in surfaces.bin_points)
+        tol = k * err(float(surfaces.bin_err_mm))
+        e, j = cKDTree(pts).query(p, k=1, distance_upper_bound=float(tol.max()) + float(search_mm))
+        near = e <= tol + float(search_mm)
+        j = np.where(near, j, 0)
+        signed = np.einsum("ij,ij->i", p - pts[j], nrm[j])
+        behind |= near & (signed < -tol)
+    if surfaces.table is not None:  # the camera (the origin) lies on the side where normal · p − offset has −offset's sign
+        t = surfaces.table
+        away = 1.0 if float(t.offset) > 0 else -1.0
+        beyond = away * (p @ np.asarray(t.normal, np.float64) - float(t.offset))
+        behind |= beyond > k * err(float(t.residual_mm))
+    out: np.ndarray = behind.reshape(len(T), len(q)).mean(axis=1)
+    return out
+
+
 def vet_fits(overlaps: tuple[np.ndarray, np.ndarray], support_px: np.ndarray, *,
-             max_overlap: float = MAX_OVERLAP) -> FitVetting:
-    """The fits kept as known surfaces (module docstring): ranked by ``support_px`` (more first; a tie
-    keeps the lower index first), a fit is vetted out when more than ``max_overlap`` of its volume, or of
-    the other's, lies inside a kept fit ranked before it.
+             max_overlap: float = MAX_OVERLAP, behind: np.ndarray | None = None,
+             max_behind: float = MAX_BEHIND) -> FitVetting:
+    """The fits kept as known surfaces (module docstring): a fit more than ``max_behind`` of whose volume lies
+    behind the bin or the table (``behind``, :func:`behind_shares`; None: none) is vetted out first, and takes no
+    part in the rest; the others ranked by ``support_px`` (more first; a tie keeps the lower index first), a fit is
+    vetted out when more than ``max_overlap`` of its volume, or of the other's, lies inside a kept fit ranked
+    before it.
 
     Parameters
     ----------
@@ -332,6 +404,12 @@ def vet_fits(overlaps: tuple[np.ndarray, np.ndarray], support_px: np.ndarray, *,
                               f"{describe_array(pairs)} and {describe_array(share)}")
     if not (np.isfinite(max_overlap) and 0 <= max_overlap < 1):
         raise ParameterError(f"max_overlap must be a share in [0, 1), got {max_overlap!r}")
+    if not (np.isfinite(max_behind) and 0 <= max_behind < 1):
+        raise ParameterError(f"max_behind must be a share in [0, 1), got {max_behind!r}")
+    shares = np.zeros(n) if behind is None else np.asarray(behind, np.float64)
+    if shares.shape != (n,):
+        raise InputShapeError(f"behind must be one share per fit ({n},), got {describe_array(shares)}")
+    wall = shares > max_behind  # no part: out first, and it suppresses nothing
     # ordered pairs (a, b): share of a inside b; a pair conflicts when either share exceeds the threshold
     conflict: list[list[tuple[int, float]]] = [[] for _ in range(n)]
     for (a, b), v in zip(pairs.tolist(), share.tolist()):
@@ -343,12 +421,14 @@ def vet_fits(overlaps: tuple[np.ndarray, np.ndarray], support_px: np.ndarray, *,
     overlap = np.zeros(n)
     by = np.full(n, -1, np.int64)
     for i in order:
+        if wall[i]:
+            continue
         worst = max(((v, j) for j, v in conflict[i] if kept[j]), default=None)
         if worst is None:
             kept[i] = True
         else:
             overlap[i], by[i] = worst
-    return FitVetting(kept, overlap, by)
+    return FitVetting(kept, overlap, by, shares.copy())
 
 
 def explained_px(nearest: Nearest, err: np.ndarray, n_parts: int, *, k: float,
@@ -399,6 +479,6 @@ def without_fits(xyz_mm: np.ndarray, nearest: Nearest, surfaces: KnownSurfaces,
     return left, Nearest(dist, code)
 
 
-__all__ = ["INSIDE_SAMPLES", "MAX_OVERLAP", "OCCUPANCY_VOXELS", "SPHERE_TOLERANCE", "FitVetting", "Solid", "explained_px",
+__all__ = ["BEHIND_ERRS", "BEHIND_SEARCH_MM", "INSIDE_SAMPLES", "MAX_BEHIND", "MAX_OVERLAP", "OCCUPANCY_VOXELS", "SPHERE_TOLERANCE", "FitVetting", "Solid", "behind_shares", "explained_px",
            "inside_samples", "instance_overlaps", "is_closed", "part_overlaps", "pose_overlaps", "solid_of",
            "surface_centroid", "vet_fits", "without_fits"]

@@ -12,11 +12,15 @@ than ``k`` × Err (``[explained]`` section, :class:`zcut.params.ExplainedParams`
 - **Vetting** (:mod:`zcut.fit_vetting`): two parts never share volume. The fits are ranked by the
   zone pixels each explains (its nearest-surface pixels within ``k`` × Err) and a fit whose solid
   overlaps a better-ranked kept fit's by more than ``fit_max_overlap`` (5 %) of its volume is left out: no known surface
-  (:attr:`ExplainedDetail.vetted_out`). The pixels whose nearest surface it was are judged again
+  (:attr:`ExplainedDetail.vetted_out`). Before that, a fit more than ``MAX_BEHIND`` of whose solid lies
+  behind the registered bin model or the table plane (:func:`zcut.fit_vetting.behind_shares`: a part never
+  lies inside the bin's walls or below its floor) is left out and suppresses no other fit
+  (:attr:`ExplainedDetail.vetted_behind`). The pixels whose nearest surface it was are judged again
   against the surfaces left, and the kept fits' residuals are measured again.
 - **Missed instances on top** (:mod:`zcut.top_pieces`, :data:`TOP_PIECES`): after the vetting, the zone's
   unexplained pieces are fitted again; an instance found there joins the fits when it lies on top of what
-  surrounds it (a piece framed by nearer surfaces is left out) and overlaps no fit's solid; the pixels it is
+  surrounds it (a piece framed by nearer surfaces is left out), overlaps no fit's solid and lies behind neither
+  the bin nor the table; the pixels it is
   nearer to take it and the residuals are measured again (:attr:`ExplainedDetail.top_pieces`).
 - **The bin**: the registered model cloud with its normals (the pipeline's bin model), posed by the
   registration; σ_s is the robust residual (:func:`zcut.explained.residual_sigma`) of up to 20,000 of
@@ -109,8 +113,11 @@ class ExplainedDetail:
     local_err_mm : float
         The local surface's residual σ (mm; NaN with part fits).
     vetted_out : tuple of PartFit
-        The fits vetted out (:mod:`zcut.fit_vetting`: their solid overlaps a better-supported fit's):
-        no known surface, not in ``fits``.
+        The fits vetted out (:mod:`zcut.fit_vetting`: their solid overlaps a better-supported fit's, or lies
+        behind the bin or the table): no known surface, not in ``fits``.
+    vetted_behind : tuple of PartFit
+        Those of ``vetted_out`` that lie behind the registered bin or the table
+        (:func:`zcut.fit_vetting.behind_shares` above ``MAX_BEHIND``).
     top_pieces : int
         How many of ``fits`` (the last ones) were found on the unexplained pieces on top of the pile
         (:mod:`zcut.top_pieces`).
@@ -127,6 +134,7 @@ class ExplainedDetail:
     local_err_mm: float = float("nan")
     vetted_out: tuple[PartFit, ...] = ()
     top_pieces: int = 0
+    vetted_behind: tuple[PartFit, ...] = ()
 
     def instance_mesh(self, i: int) -> np.ndarray:
         """The vertices (n, 3) of fit ``i`` posed in the camera frame (mm)."""
@@ -222,7 +230,7 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
     same with and without it.
     """
     from zcut import explained as ex
-    from zcut.fit_vetting import explained_px, instance_overlaps, vet_fits, without_fits
+    from zcut.fit_vetting import MAX_BEHIND, behind_shares, explained_px, instance_overlaps, vet_fits, without_fits
 
     p = config.bank[NAME]
     rem = zone.removal
@@ -266,6 +274,7 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
         judged = judged | scored
     near = ex.nearest_surface(xyz, surfaces, where=judged, within_mm=local)
     vetted_out: tuple[PartFit, ...] = ()
+    vetted_behind: tuple[PartFit, ...] = ()
     zone_err: np.ndarray | None = None  # the zone's Err image, while it holds for ``surfaces`` and ``near``
     if fits:  # each fit's residual measured robustly on its zone pixels (ghosts inflate the stated RMS)
         stated = surfaces.part_err_mm
@@ -275,9 +284,14 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
             # Err over the zone: the ranking reads it where a fit is nearest, the missed instances on top
             # (below) over the whole zone when no fit is vetted out
             zone_err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm, where=zone.zone)
-            kept = vet_fits(instance_overlaps(v, t, [f.pose for f in fits], solid=solid),
-                            explained_px(near, zone_err, len(fits), k=p.k, where=zone.zone),
-                            max_overlap=p.fit_max_overlap).kept
+            # a part never lies behind the bin or the table (the registered model, the table plane)
+            behind = (behind_shares(solid, [f.pose for f in fits], surfaces, f_px=f_px, floor_mm=p.err_floor_mm)
+                      if bin_stages and solid is not None and np.isfinite(f_px) else None)
+            vetting = vet_fits(instance_overlaps(v, t, [f.pose for f in fits], solid=solid),
+                               explained_px(near, zone_err, len(fits), k=p.k, where=zone.zone),
+                               max_overlap=p.fit_max_overlap, behind=behind, max_behind=MAX_BEHIND)
+            kept = vetting.kept
+            vetted_behind = tuple(f for f, b in zip(fits, vetting.behind) if b > MAX_BEHIND)
         if not kept.all():  # the fits vetted out are no known surface: their pixels judged again
             zone_err = None
             vetted_out = tuple(f for f, k in zip(fits, kept) if not k)
@@ -298,7 +312,8 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
     out = ex.unexplained(near.dist_mm, err, p.k) & scored
     return out, ExplainedDetail(fits, v, t, near.dist_mm, near.surface, err, out,
                                 surface_model=PART_FITS if p.part_model else LOCAL_SURFACE,
-                                local_err_mm=surfaces.local_err_mm, vetted_out=vetted_out, top_pieces=top), warning
+                                local_err_mm=surfaces.local_err_mm, vetted_out=vetted_out, top_pieces=top,
+                                vetted_behind=vetted_behind), warning
 
 
 def _with_top_pieces(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: tuple[PartFit, ...], v: np.ndarray,
@@ -312,7 +327,7 @@ def _with_top_pieces(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits
     Err image of ``near`` and ``surfaces`` when the caller has it (the vetting's, when it left every fit in),
     else it is computed."""
     from zcut import explained as ex
-    from zcut.fit_vetting import instance_overlaps, vet_fits
+    from zcut.fit_vetting import MAX_BEHIND, behind_shares, instance_overlaps, vet_fits
     from zcut.fits import FitParams
     from zcut.top_pieces import top_pieces
 
@@ -321,12 +336,17 @@ def _with_top_pieces(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits
     un = ex.unexplained(near.dist_mm, err, p.k) & zone.zone
     more = top_pieces(xyz, un, prepared, intrinsics=intr,
                       params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm, min_support=p.fit_min_support))
-    if more and fits and p.fit_max_overlap < 1:
+    if more and p.fit_max_overlap < 1:  # a found instance that lies behind the bin or overlaps a fit is left out
         n = len(fits)
-        support = np.concatenate([np.full(n, np.inf), np.asarray([len(f.pixels) for f in more], np.float64)])
-        kept = vet_fits(instance_overlaps(v, t, [f.pose for f in (*fits, *more)], solid=prepared.solid), support,
-                        max_overlap=p.fit_max_overlap).kept[n:]
-        more = [f for f, k in zip(more, kept) if k]
+        f_px = 0.5 * (intr[0] + intr[1]) if intr is not None else ex.focal_px(xyz)
+        behind = (np.concatenate([np.zeros(n), behind_shares(prepared.solid, [f.pose for f in more], surfaces, f_px=f_px,
+                                                              floor_mm=p.err_floor_mm)])
+                  if surfaces.bin_points is not None and np.isfinite(f_px) else None)
+        if fits or (behind is not None and (behind > MAX_BEHIND).any()):
+            support = np.concatenate([np.full(n, np.inf), np.asarray([len(f.pixels) for f in more], np.float64)])
+            kept = vet_fits(instance_overlaps(v, t, [f.pose for f in (*fits, *more)], solid=prepared.solid), support,
+                            max_overlap=p.fit_max_overlap, behind=behind, max_behind=MAX_BEHIND).kept[n:]
+            more = [f for f, k in zip(more, kept) if k]
     if not more:
         return fits, surfaces, near, 0
     posed = [(v @ f.pose[:3, :3].T + f.pose[:3, 3], t) for f in more]
