@@ -458,15 +458,24 @@ def _fine(frame: _Frame, flat: np.ndarray, pts: np.ndarray, epts: np.ndarray, mo
     of the ``max_points`` the search used) that lie within k × max(``err``, floor) of the posed model — trimmed:
     a neighbour's or a ghost's points farther off take no part — with the gate at that band from the start.
     The refined pose is kept when its Err, measured as before on the search's points ``pts``, is at most
-    ``FINE_KEEP`` × ``err`` (the refinement minimises over more points, the Err is measured on fewer)."""
+    ``FINE_KEEP`` × ``err`` (the refinement minimises over more points, the Err is measured on fewer).
+
+    ``FitParams.fine_window`` (docs/fits.md, "Eleventh round"): the points are those of the region **and of the
+    zone in the posed model's window** within that band — a region holds a median 75 % of a fully visible
+    ray-traced nut's pixels, the rest cut off by the segmentation, a patch or a neighbour's claims — and
+    ``FitParams.fine_robust`` > 0 weighs them by Tukey's biweight of their distance at ``fine_robust`` ×
+    max(``err``, floor) (the ICP kernel's ``robust_mm``): a mixed pixel or a ghost inside the band pulls less."""
+    if params.fine_window:
+        flat = np.union1d(flat, _window_flat(frame, T, model))
     allp = frame.xyz.reshape(-1, 3)[flat]
     tol = params.k * max(err, params.err_floor_mm)
     use = allp[_surface_distances(model, allp, T) <= tol]
     use = use[_subsample(np.arange(len(use)), params.fine_points)]
     if len(use) < 20:
         return T, err
+    robust = params.fine_robust * max(err, params.err_floor_mm)
     T2, rms, _ = icp(use, model, T, iterations=params.icp_iterations, edge_points=epts,
-                     **{**opts, "gate_mm": tol})
+                     **{**opts, "gate_mm": tol}, robust_mm=robust)
     gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
     d = _near_distances(model, pts, T2, gate)
     inl = d <= gate

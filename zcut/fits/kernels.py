@@ -315,12 +315,18 @@ def _stiff(H: np.ndarray, weak: float) -> bool:
 def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: int, gate_mm: float, k: float,
                floor_mm: float, edge_points: np.ndarray, edge_gate_mm: float, extent: float, origin: np.ndarray,
                h: float, grid: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, n: np.ndarray,
-               seg_grid: np.ndarray, p0: np.ndarray, p1: np.ndarray, weak: float) -> tuple[np.ndarray, np.ndarray, float, int]:
+               seg_grid: np.ndarray, p0: np.ndarray, p1: np.ndarray, weak: float,
+               robust_mm: float = 0.0) -> tuple[np.ndarray, np.ndarray, float, int]:
     """Point-to-plane ICP of ``points`` (camera frame) from (R0, t0) (model -> camera): the steps of
     :func:`zcut.fits.icp.icp` (surface matches gated and facing the camera, the occluding boundary's
     ``edge_points`` matched to the sharp edges in the directions the surface leaves free — those of
     eigenvalue below ``weak`` × the largest of the surface's normal matrix — Cauchy weights) with the
-    index's correspondences. (R, t, rms of the last step's matches, their number)."""
+    index's correspondences. (R, t, rms of the last step's matches, their number).
+
+    ``robust_mm`` > 0: each surface match is weighted by Tukey's biweight of its distance d at that scale,
+    (1 − (d / ``robust_mm``)²)², and none beyond it (re-weighted at every step: the last refinement's
+    M-estimate, ``FitParams.fine_robust``); the rms stays the unweighted one of the matches. 0: no weights
+    (the steps before, to the bit)."""
     R = R0.copy()
     t = t0.copy()
     gate = gate_mm
@@ -368,6 +374,14 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
             r1 = (qz * nx - qx * nz) / sc1
             r2 = (qx * ny - qy * nx) / sc2
             r3, r4, r5 = nx, ny, nz
+            ssq += r * r
+            n_used += 1
+            if robust_mm > 0.0:  # the rows and the residual times sqrt(w): H += w J Jᵀ, g += w J r
+                u = d / robust_mm
+                if not u < 1.0:
+                    continue
+                sw = 1.0 - u * u
+                r0, r1, r2, r3, r4, r5, r = r0 * sw, r1 * sw, r2 * sw, r3 * sw, r4 * sw, r5 * sw, r * sw
             g0, h00, h01, h02, h03, h04, h05 = (
                 g0 + r0 * r, h00 + r0 * r0, h01 + r0 * r1, h02 + r0 * r2, h03 + r0 * r3, h04 + r0 * r4, h05 + r0 * r5)
             g1, h11, h12, h13, h14, h15 = (
@@ -380,8 +394,6 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
                 g4 + r4 * r, h44 + r4 * r4, h45 + r4 * r5)
             g5, h55 = (
                 g5 + r5 * r, h55 + r5 * r5)
-            ssq += r * r
-            n_used += 1
         if n_used < 6:
             break
         H[0, 0], H[0, 1], H[0, 2], H[0, 3], H[0, 4], H[0, 5] = h00, h01, h02, h03, h04, h05
