@@ -204,6 +204,64 @@ def surface_distances(points: np.ndarray, R: np.ndarray, t: np.ndarray, origin: 
 
 
 @numba.njit(cache=True, nogil=True)
+def window_band(xyz: np.ndarray, zone: np.ndarray, region: np.ndarray, r0: int, r1: int, c0: int, c1: int, W: int,
+                R: np.ndarray, t: np.ndarray, tol: float, origin: np.ndarray, h: float, grid: np.ndarray,
+                a: np.ndarray, b: np.ndarray, c: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """The points (camera frame) of the zone's pixels in the window (rows ``r0:r1``, columns ``c0:c1`` of an image
+    ``W`` wide) and of the ``region``'s pixels (flat, ascending) outside it whose distance to the model posed
+    (R, t) (:func:`surface_distances`) is at most ``tol``, in ascending flat order: the last refinement's points
+    (``FitParams.fine_window``) in one pass, without the window's index arrays, their union and their gathers.
+    ``xyz`` (H·W, 3), ``zone`` (H·W,) bool."""
+    inv_h = 1.0 / h
+    slack = 0.8660254037844386 * h
+    out = np.empty((max(r1 - r0, 0) * max(c1 - c0, 0) + len(region), 3))
+    m = 0
+    k = 0  # the next region pixel
+    nreg = len(region)
+    for r in range(r0, r1 + 1):
+        # the region's pixels before this window row (outside the window: rows above, or columns left of it)
+        lim = r * W + c0 if r < r1 else zone.shape[0]
+        while k < nreg and region[k] < lim:
+            f = region[k]
+            k += 1
+            rr, cc = f // W, f % W
+            if r0 <= rr < r1 and c0 <= cc < c1:
+                continue  # a window pixel: walked below
+            m = _band_point(xyz, f, R, t, tol, origin, inv_h, slack, grid, a, b, c, n, out, m)
+        if r == r1:
+            break
+        for cc in range(c0, c1):
+            f = r * W + cc
+            if zone[f]:
+                m = _band_point(xyz, f, R, t, tol, origin, inv_h, slack, grid, a, b, c, n, out, m)
+        # the region's pixels right of the window on this row
+        lim = (r + 1) * W
+        while k < nreg and region[k] < lim:
+            f = region[k]
+            k += 1
+            if r0 <= f // W < r1 and c0 <= f % W < c1:
+                continue
+            m = _band_point(xyz, f, R, t, tol, origin, inv_h, slack, grid, a, b, c, n, out, m)
+    return out[:m]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _band_point(xyz: np.ndarray, f: int, R: np.ndarray, t: np.ndarray, tol: float, origin: np.ndarray, inv_h: float,
+                slack: float, grid: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, n: np.ndarray,
+                out: np.ndarray, m: int) -> int:
+    """Append the point of pixel ``f`` to ``out[m]`` when it lies within ``tol`` of the posed model; the new count."""
+    px, py, pz = xyz[f, 0] - t[0], xyz[f, 1] - t[1], xyz[f, 2] - t[2]
+    qx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
+    qy = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
+    qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
+    _, d, _, _, _, _ = _match(qx, qy, qz, origin, inv_h, slack, grid, a, b, c, n)
+    if d <= tol:
+        out[m, 0], out[m, 1], out[m, 2] = xyz[f, 0], xyz[f, 1], xyz[f, 2]
+        return m + 1
+    return m
+
+
+@numba.njit(cache=True, nogil=True)
 def edge_distances(points: np.ndarray, R: np.ndarray, t: np.ndarray, origin: np.ndarray, h: float,
                    grid: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
     """Distance (mm) of each camera-frame point to the posed model's sharp edges; inf outside the grid."""
