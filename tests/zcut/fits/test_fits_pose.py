@@ -109,9 +109,10 @@ def test_the_last_refinement_on_the_window_uses_the_parts_pixels_outside_its_reg
 def test_a_ray_traced_nut_has_its_twelve_symmetries_not_the_closures_cap():
     """The ray-traced nut's mesh: 12 rotations that map its vertices onto themselves (before: 48, the closure
     of half-turns 2° off refined on the samples); the hand-made nut's 12 unchanged; each is a group."""
+    from scipy.spatial import cKDTree
+
     from replay.logs.part_model import PART_MODEL_ATTACHMENT, read_part_model_bytes
     from replay.synth.log import part_model_attachment
-    from scipy.spatial import cKDTree
 
     for raytraced in (True, False):
         pm = read_part_model_bytes(part_model_attachment("zinc_nuts", raytraced=raytraced)[PART_MODEL_ATTACHMENT][1])
