@@ -153,3 +153,26 @@ def test_degenerate_frames_give_no_fits_with_the_new_refinement():
 def test_the_eleventh_round_params_say_what_is_wrong(field: str, value: object) -> None:
     with pytest.raises(ParameterError, match=field):
         FitParams(**{field: value})  # type: ignore[arg-type]
+
+
+def test_the_band_in_one_kernel_walk_equals_the_union_and_gathers():
+    """``kernels.window_band`` (via ``_band_points``) gives the points of the union of the region and the window's
+    zone pixels within the band, in the same order, to the bit: regions inside, across and outside the window,
+    empty, and a pose whose window is off the image."""
+    v, t = hex_nut_mesh()
+    model = prepare_model(v, t)
+    xyz, ids = render([(v, t, NUT), (v, t, pose(rotation((0, 1, 0), 70), (25, 10, 305)))], floor_z_mm=330)
+    xyz = xyz + np.random.default_rng(4).normal(0, 0.05, xyz.shape)
+    frame = _frame(xyz, ids > 0)
+    flat = np.flatnonzero(frame.zone.reshape(-1))
+    rng = np.random.default_rng(8)
+    far = pose(np.eye(3), (0, 0, -50))  # behind the camera: no window
+    for T in (NUT, NUT @ pose(rotation((1, 0, 0), 3), (0.5, 0, 0)), far):
+        for region in (flat, flat[ids.reshape(-1)[flat] == 2], np.sort(rng.choice(flat, 300, replace=False)),
+                       flat[:0]):
+            for tol in (0.15, 1.0):
+                got = F._band_points(frame, region, model, T, tol, window=True)
+                union = np.union1d(region, F._window_flat(frame, T, model))
+                allp = xyz.reshape(-1, 3)[union]
+                want = allp[F._surface_distances(model, allp, T) <= tol]
+                assert np.array_equal(got, want)
