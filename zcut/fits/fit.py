@@ -45,7 +45,7 @@ from zcut.errors import InputShapeError, describe_array
 from zcut.fit_vetting import pose_overlaps
 
 from .icp import EDGE_WEAK, icp, initial_poses, initial_rotations, pose_matrix, shifted_poses
-from .kernels import coarse_search, edge_distances, lower_bounds, surface_distances, window_rays
+from .kernels import coarse_search, edge_distances, lower_bounds, surface_distances, window_band, window_rays
 from .model import PartModel, prepare_model
 from .params import FitParams
 from .segment import segment
@@ -458,20 +458,46 @@ def _fine(frame: _Frame, flat: np.ndarray, pts: np.ndarray, epts: np.ndarray, mo
     of the ``max_points`` the search used) that lie within k × max(``err``, floor) of the posed model — trimmed:
     a neighbour's or a ghost's points farther off take no part — with the gate at that band from the start.
     The refined pose is kept when its Err, measured as before on the search's points ``pts``, is at most
-    ``FINE_KEEP`` × ``err`` (the refinement minimises over more points, the Err is measured on fewer)."""
-    allp = frame.xyz.reshape(-1, 3)[flat]
+    ``FINE_KEEP`` × ``err`` (the refinement minimises over more points, the Err is measured on fewer).
+
+    ``FitParams.fine_window`` (docs/fits.md, "Eleventh round"): the points are those of the region **and of the
+    zone in the posed model's window** within that band — a region holds a median 75 % of a fully visible
+    ray-traced nut's pixels, the rest cut off by the segmentation, a patch or a neighbour's claims — and
+    ``FitParams.fine_robust`` > 0 weighs them by Tukey's biweight of their distance at ``fine_robust`` ×
+    max(``err``, floor) (the ICP kernel's ``robust_mm``): a mixed pixel or a ghost inside the band pulls less."""
     tol = params.k * max(err, params.err_floor_mm)
-    use = allp[_surface_distances(model, allp, T) <= tol]
+    use = _band_points(frame, flat, model, T, tol, window=params.fine_window)
     use = use[_subsample(np.arange(len(use)), params.fine_points)]
     if len(use) < 20:
         return T, err
+    robust = params.fine_robust * max(err, params.err_floor_mm)
     T2, rms, _ = icp(use, model, T, iterations=params.icp_iterations, edge_points=epts,
-                     **{**opts, "gate_mm": tol})
+                     **{**opts, "gate_mm": tol}, robust_mm=robust)
     gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
     d = _near_distances(model, pts, T2, gate)
     inl = d <= gate
     err2 = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else np.inf
     return (T2, err2) if err2 <= FINE_KEEP * err else (T, err)
+
+
+def _band_points(frame: _Frame, flat: np.ndarray, model: PartModel, T: np.ndarray, tol: float, *,
+                 window: bool) -> np.ndarray:
+    """(m, 3) the points of the pixels ``flat`` (ascending) — with ``window``, and of the zone's pixels in the posed
+    model's window (:func:`_window`) — within ``tol`` of the model posed at ``T``, in ascending flat order: one
+    kernel walk (:func:`zcut.fits.kernels.window_band`) for a model with a voxel index."""
+    ix = model.index
+    if not window or ix is None:
+        if window:
+            flat = np.union1d(flat, _window_flat(frame, T, model))
+        allp = frame.xyz.reshape(-1, 3)[flat]
+        out: np.ndarray = allp[_surface_distances(model, allp, T) <= tol]
+        return out
+    win = _window(frame, T, model)
+    (r0, r1), (c0, c1) = ((0, 0), (0, 0)) if win is None else ((win[0].start, win[0].stop), (win[1].start, win[1].stop))
+    out = window_band(frame.xyz.reshape(-1, 3), frame.zone.reshape(-1), np.ascontiguousarray(flat, np.int64), r0, r1,
+                      c0, c1, frame.valid.shape[1], np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
+                      float(tol), ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n)
+    return out
 
 
 #: :func:`_fine` keeps the refined pose when its Err is at most this many times the search's.

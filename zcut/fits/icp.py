@@ -120,31 +120,35 @@ def _skew_rows(q: np.ndarray) -> np.ndarray:
 
 def icp(points: np.ndarray, model: PartModel, T0: np.ndarray, *, iterations: int, gate_mm: float,
         k: float, floor_mm: float, edge_points: np.ndarray | None = None,
-        edge_gate_mm: float = 1.0) -> tuple[np.ndarray, float, int]:
+        edge_gate_mm: float = 1.0, robust_mm: float = 0.0) -> tuple[np.ndarray, float, int]:
     """Refine ``T0`` (model -> camera) on ``points`` (n, 3), camera frame: :func:`icp_reference`'s
     steps in one kernel (:func:`zcut.fits.kernels.icp_kernel`), the correspondences through the
     model's voxel index (the model without one: :func:`icp_reference`)."""
     ix = model.index
     if ix is None:
         return icp_reference(points, model, T0, iterations=iterations, gate_mm=gate_mm, k=k, floor_mm=floor_mm,
-                             edge_points=edge_points, edge_gate_mm=edge_gate_mm)
+                             edge_points=edge_points, edge_gate_mm=edge_gate_mm, robust_mm=robust_mm)
     e = np.zeros((0, 3)) if edge_points is None else np.ascontiguousarray(edge_points, np.float64)
     R, t, rms, n = icp_kernel(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(T0[:3, :3], np.float64),
                               np.ascontiguousarray(T0[:3, 3], np.float64), int(iterations), float(gate_mm), float(k),
                               float(floor_mm), e, float(edge_gate_mm), float(model.extent_mm), ix.origin, ix.h,
-                              ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid, ix.p0, ix.p1, EDGE_WEAK)
+                              ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid, ix.p0, ix.p1, EDGE_WEAK,
+                              float(robust_mm))
     return pose_matrix(R, t), float(rms), int(n)
 
 
 def icp_reference(points: np.ndarray, model: PartModel, T0: np.ndarray, *, iterations: int, gate_mm: float,
                   k: float, floor_mm: float, edge_points: np.ndarray | None = None,
-                  edge_gate_mm: float = 1.0) -> tuple[np.ndarray, float, int]:
+                  edge_gate_mm: float = 1.0, robust_mm: float = 0.0) -> tuple[np.ndarray, float, int]:
     """Refine ``T0`` (model -> camera) on ``points`` (n, 3), camera frame (the matches: the nearest of
     the model's surface samples, a k-d tree query per step).
 
     ``edge_points`` (camera frame): points on the region's occluding boundary, matched point to point
     to the model's sharp edges (:attr:`PartModel.edges`) within ``edge_gate_mm``; they hold what the
     surface alone leaves free (a flat face seen head-on: its turn about its normal, its slide).
+
+    ``robust_mm`` > 0: the surface matches weighted by Tukey's biweight of their distance at that scale
+    (none beyond it), re-weighted at every step; the rms stays unweighted. 0: no weights.
 
     Returns
     -------
@@ -176,8 +180,13 @@ def icp_reference(points: np.ndarray, model: PartModel, T0: np.ndarray, *, itera
         r = np.einsum("ij,ij->i", qu - mu, nu)
         A = np.c_[np.cross(qu, nu), nu]
         An = A / scale  # normalised unknowns xn = (extent · ω, τ)
-        Hn = An.T @ An
-        gn = An.T @ r
+        if robust_mm > 0:  # Tukey's biweight of the distance: rows and residuals times sqrt(w)
+            sw = np.clip(1.0 - (d[use] / robust_mm) ** 2, 0.0, None)
+            Hn = (An * sw[:, None]).T @ (An * sw[:, None])
+            gn = (An * sw[:, None]).T @ (r * sw)
+        else:
+            Hn = An.T @ An
+            gn = An.T @ r
         if use_edges:
             assert edge_points is not None
             qe = (edge_points - t) @ R

@@ -204,6 +204,64 @@ def surface_distances(points: np.ndarray, R: np.ndarray, t: np.ndarray, origin: 
 
 
 @numba.njit(cache=True, nogil=True)
+def window_band(xyz: np.ndarray, zone: np.ndarray, region: np.ndarray, r0: int, r1: int, c0: int, c1: int, W: int,
+                R: np.ndarray, t: np.ndarray, tol: float, origin: np.ndarray, h: float, grid: np.ndarray,
+                a: np.ndarray, b: np.ndarray, c: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """The points (camera frame) of the zone's pixels in the window (rows ``r0:r1``, columns ``c0:c1`` of an image
+    ``W`` wide) and of the ``region``'s pixels (flat, ascending) outside it whose distance to the model posed
+    (R, t) (:func:`surface_distances`) is at most ``tol``, in ascending flat order: the last refinement's points
+    (``FitParams.fine_window``) in one pass, without the window's index arrays, their union and their gathers.
+    ``xyz`` (H·W, 3), ``zone`` (H·W,) bool."""
+    inv_h = 1.0 / h
+    slack = 0.8660254037844386 * h
+    out = np.empty((max(r1 - r0, 0) * max(c1 - c0, 0) + len(region), 3))
+    m = 0
+    k = 0  # the next region pixel
+    nreg = len(region)
+    for r in range(r0, r1 + 1):
+        # the region's pixels before this window row (outside the window: rows above, or columns left of it)
+        lim = r * W + c0 if r < r1 else zone.shape[0]
+        while k < nreg and region[k] < lim:
+            f = region[k]
+            k += 1
+            rr, cc = f // W, f % W
+            if r0 <= rr < r1 and c0 <= cc < c1:
+                continue  # a window pixel: walked below
+            m = _band_point(xyz, f, R, t, tol, origin, inv_h, slack, grid, a, b, c, n, out, m)
+        if r == r1:
+            break
+        for cc in range(c0, c1):
+            f = r * W + cc
+            if zone[f]:
+                m = _band_point(xyz, f, R, t, tol, origin, inv_h, slack, grid, a, b, c, n, out, m)
+        # the region's pixels right of the window on this row
+        lim = (r + 1) * W
+        while k < nreg and region[k] < lim:
+            f = region[k]
+            k += 1
+            if r0 <= f // W < r1 and c0 <= f % W < c1:
+                continue
+            m = _band_point(xyz, f, R, t, tol, origin, inv_h, slack, grid, a, b, c, n, out, m)
+    return out[:m]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _band_point(xyz: np.ndarray, f: int, R: np.ndarray, t: np.ndarray, tol: float, origin: np.ndarray, inv_h: float,
+                slack: float, grid: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, n: np.ndarray,
+                out: np.ndarray, m: int) -> int:
+    """Append the point of pixel ``f`` to ``out[m]`` when it lies within ``tol`` of the posed model; the new count."""
+    px, py, pz = xyz[f, 0] - t[0], xyz[f, 1] - t[1], xyz[f, 2] - t[2]
+    qx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
+    qy = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
+    qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
+    _, d, _, _, _, _ = _match(qx, qy, qz, origin, inv_h, slack, grid, a, b, c, n)
+    if d <= tol:
+        out[m, 0], out[m, 1], out[m, 2] = xyz[f, 0], xyz[f, 1], xyz[f, 2]
+        return m + 1
+    return m
+
+
+@numba.njit(cache=True, nogil=True)
 def edge_distances(points: np.ndarray, R: np.ndarray, t: np.ndarray, origin: np.ndarray, h: float,
                    grid: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
     """Distance (mm) of each camera-frame point to the posed model's sharp edges; inf outside the grid."""
@@ -315,12 +373,18 @@ def _stiff(H: np.ndarray, weak: float) -> bool:
 def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: int, gate_mm: float, k: float,
                floor_mm: float, edge_points: np.ndarray, edge_gate_mm: float, extent: float, origin: np.ndarray,
                h: float, grid: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, n: np.ndarray,
-               seg_grid: np.ndarray, p0: np.ndarray, p1: np.ndarray, weak: float) -> tuple[np.ndarray, np.ndarray, float, int]:
+               seg_grid: np.ndarray, p0: np.ndarray, p1: np.ndarray, weak: float,
+               robust_mm: float = 0.0) -> tuple[np.ndarray, np.ndarray, float, int]:
     """Point-to-plane ICP of ``points`` (camera frame) from (R0, t0) (model -> camera): the steps of
     :func:`zcut.fits.icp.icp` (surface matches gated and facing the camera, the occluding boundary's
     ``edge_points`` matched to the sharp edges in the directions the surface leaves free — those of
     eigenvalue below ``weak`` × the largest of the surface's normal matrix — Cauchy weights) with the
-    index's correspondences. (R, t, rms of the last step's matches, their number)."""
+    index's correspondences. (R, t, rms of the last step's matches, their number).
+
+    ``robust_mm`` > 0: each surface match is weighted by Tukey's biweight of its distance d at that scale,
+    (1 − (d / ``robust_mm``)²)², and none beyond it (re-weighted at every step: the last refinement's
+    M-estimate, ``FitParams.fine_robust``); the rms stays the unweighted one of the matches. 0: no weights
+    (the steps before, to the bit)."""
     R = R0.copy()
     t = t0.copy()
     gate = gate_mm
@@ -368,6 +432,14 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
             r1 = (qz * nx - qx * nz) / sc1
             r2 = (qx * ny - qy * nx) / sc2
             r3, r4, r5 = nx, ny, nz
+            ssq += r * r
+            n_used += 1
+            if robust_mm > 0.0:  # the rows and the residual times sqrt(w): H += w J Jᵀ, g += w J r
+                u = d / robust_mm
+                if not u < 1.0:
+                    continue
+                sw = 1.0 - u * u
+                r0, r1, r2, r3, r4, r5, r = r0 * sw, r1 * sw, r2 * sw, r3 * sw, r4 * sw, r5 * sw, r * sw
             g0, h00, h01, h02, h03, h04, h05 = (
                 g0 + r0 * r, h00 + r0 * r0, h01 + r0 * r1, h02 + r0 * r2, h03 + r0 * r3, h04 + r0 * r4, h05 + r0 * r5)
             g1, h11, h12, h13, h14, h15 = (
@@ -380,8 +452,6 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
                 g4 + r4 * r, h44 + r4 * r4, h45 + r4 * r5)
             g5, h55 = (
                 g5 + r5 * r, h55 + r5 * r5)
-            ssq += r * r
-            n_used += 1
         if n_used < 6:
             break
         H[0, 0], H[0, 1], H[0, 2], H[0, 3], H[0, 4], H[0, 5] = h00, h01, h02, h03, h04, h05

@@ -315,6 +315,15 @@ def _refine_symmetry(R: np.ndarray, points: np.ndarray, centroid: np.ndarray, tr
     return R, float(np.sqrt(np.mean(d * d)))
 
 
+#: Two symmetries of a part (at most 12-fold about an axis: 30° apart at least) lie farther apart than this (degrees).
+MERGE_DEG = 10.0
+
+
+def _angle_deg(R: np.ndarray) -> float:
+    """The angle of the rotation ``R`` in degrees."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
 def _symmetries(samples: np.ndarray, vertices: np.ndarray, centroid: np.ndarray, axes: np.ndarray, tree: Any,
                 tol: float) -> tuple[np.ndarray, np.ndarray | None]:
     """Rotations about the principal axes (n-fold, n = 2..12, and continuous) and the half-turns
@@ -348,16 +357,24 @@ def _symmetries(samples: np.ndarray, vertices: np.ndarray, centroid: np.ndarray,
             if _maps_onto_itself(R, probe, centroid, tree, tol):
                 found.append(R)
     exact = 1e-4 * float(np.linalg.norm(vertices - centroid, axis=1).max())
-    refined = []
+    refined: list[tuple[np.ndarray, bool]] = []  # (rotation, maps the vertices onto themselves)
     for R in found:
         Rv, rms = _refine_symmetry(R, vertices, centroid, vtree)
         if rms <= exact:
             R = Rv
         elif cont is None:
             R, _ = _refine_symmetry(R, samples[:: max(1, len(samples) // 4000)], centroid, tree, samples)
-        refined.append(R)
+        refined.append((R, rms <= exact))
+    # a rotation refined on the samples only is no symmetry of its own when it lies within MERGE_DEG of an exact
+    # one or of one taken before it: a half-turn about an axis 2° off a ray-traced nut's own passed the samples'
+    # tolerance, and the products of such made 36 false symmetries (48, the closure's cap, not 12)
+    taken: list[np.ndarray] = []
+    exacts = [R for R, ok in refined if ok]
+    for R, ok in refined:
+        if ok or not any(_angle_deg(G.T @ R) < MERGE_DEG for G in exacts + taken):
+            taken.append(R)
     group: list[np.ndarray] = []
-    for R in refined:
+    for R in taken:
         if not any(np.abs(R - G).max() < 1e-3 for G in group):
             group.append(R)
     changed = True

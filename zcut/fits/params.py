@@ -89,6 +89,13 @@ class FitParams:
         region's points than this share of the pixels that fit claims is refused before its fine ICP and last
         refinement (docs/fits.md, "Tenth round"). 0 (the default): off; 0.1 saves 0–13 % of a frame's CPU and
         lost 3 of 215 instances on a held-out ray-traced zinc-nut frame.
+    fine_window : bool
+        True (the default): the last refinement (``fine_points``) takes the zone's points in the posed model's
+        window within k × Err of it, not only its region's (docs/fits.md, "Eleventh round"). False, with
+        ``fine_robust`` 0: the tenth round's fits.
+    fine_robust : float
+        The last refinement weighs its points by Tukey's biweight of their distance at this many times
+        max(Err, ``err_floor_mm``) (none beyond it); 0: unweighted (the tenth round's).
     """
 
     jump_mm: float = 1.5
@@ -113,6 +120,8 @@ class FitParams:
     first_err_ratio: float = 3.0
     fine_points: int = 3000
     early_share: float = 0.0
+    fine_window: bool = True
+    fine_robust: float = 3.0
 
     def __post_init__(self) -> None:
         _number(self, "jump_mm", gt=0)
@@ -137,3 +146,5 @@ class FitParams:
         _number(self, "first_err_ratio", ge=0)
         _number(self, "fine_points", ge=0, integer=True)
         _number(self, "early_share", ge=0)
+        _boolean(self, "fine_window")
+        _number(self, "fine_robust", ge=0)

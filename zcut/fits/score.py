@@ -4,14 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model import PartModel
+from .model import PartModel, _angle_deg
 
 __all__ = ["pose_error"]
-
-
-def _angle_deg(R: np.ndarray) -> float:
-    c = (float(np.trace(R)) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
 def pose_error(T_fit: np.ndarray, T_true: np.ndarray, model: PartModel) -> tuple[float, float]:
