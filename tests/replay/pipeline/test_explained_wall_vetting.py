@@ -106,8 +106,10 @@ def test_the_method_with_the_rule_is_its_kept_fits_from_scratch_and_without_it_w
     kept = [(d.instance_mesh(i), d.triangles) for i in range(len(d.fits))]
     surfaces = dataclasses.replace(s, parts=kept, part_err_mm=[f.err_mm for f in d.fits])
     full = ex.nearest_surface(xyz, surfaces, where=zone.zone)
-    np.testing.assert_array_equal(d.dist_mm, full.dist_mm)
+    # the nearest surfaces exactly; the distances to within float32 rounding: a top piece the method found is
+    # measured on its own pixels (zcut.top_pieces), not in one search among all (as tests/zcut/test_explained_top_pieces.py)
     np.testing.assert_array_equal(d.surface, full.surface)
+    np.testing.assert_allclose(d.dist_mm, full.dist_mm, rtol=0, atol=1e-4)
     # the rule switched off (no fit behind anything): the same fits, distances, Err and outliers when it vetted none
     monkeypatch.setattr(fv, "behind_shares", lambda solid, poses, *a, **k: np.zeros(len(poses)))
     out0, d0, _ = run_explained(frame, zone, session.config)
