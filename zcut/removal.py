@@ -26,7 +26,13 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
   the point within τ of it along its normal) is measured on the same pixels: their distances to the
   nearest model point (:attr:`Tolerance.reach_mm`; a model built from a few low-resolution scans
   is sampled more coarsely than ``1.5 × spacing_m`` says). The straggler test reaches
-  ``straggler_mm`` beyond both: τ + ``straggler_mm`` along the normal, the radius + ``straggler_mm``.
+  ``straggler_mm`` beyond both: τ + ``straggler_mm`` along the normal, the radius + ``straggler_mm``; but no
+  farther than 3 of the bin's Err along the normal (the paper's §2: a point farther than 3 Err from the fitted
+  model is an outlier), Err = max(0.05 mm, √(σ_bin² + c²/2)) with σ_bin the bin's noise scale the residual field's
+  fit measures (:attr:`Tolerance.sigma_mm`) and c the pixel's footprint (z / f, :func:`pixel_angle`):
+  :func:`straggler_bound_m`. Without that fit (no normals, a pose far off, a fixed τ) the bound is not known and
+  not applied. On hand-made walls piles every near-wall true outlier the removal took was a straggler 3.1-4.2
+  bin Errs from the model (docs/bin_robustness.md).
   With a right pose τ stays near 1 mm (the sensor's noise); a pose 2 mm off raises it to about
   3 mm, and the removal follows the registration instead of failing on it.
 """
@@ -52,6 +58,13 @@ if TYPE_CHECKING:
 BIN_UP = np.array([0.0, 0.0, -1.0])
 BIN_UP.setflags(write=False)
 STRAGGLER_PASSES = 8
+#: The straggler test's bound (issue 31 item 2): a straggler lies within this many of the bin's Err of the model
+#: (the paper's §2: a point farther than 3 Err from the fitted model is an outlier, so not bin) ...
+STRAGGLER_ERRS = 3.0
+#: ... the Err being ``max(STRAGGLER_ERR_FLOOR_MM, sqrt(σ_bin² + c² / 2))`` (c the pixel's footprint; the floor
+#: is ``explained``'s, ``ExplainedParams.err_floor_mm``): :func:`straggler_bound_m`
+STRAGGLER_ERR_FLOOR_MM = 0.05
+_STRAGGLER_ERR_FLOOR_M = STRAGGLER_ERR_FLOOR_MM / 1000.0
 
 
 def finite_xyz(xyz: XYZ) -> Mask:
@@ -344,6 +357,18 @@ def _to_bin(a, r, c, R, t):  # type: ignore[no-untyped-def]  # numba kernel  # p
             dx * R[0, 2] + dy * R[1, 2] + dz * R[2, 2])
 
 
+@numba.njit(cache=True, inline="always")
+def _straggler_delta(z, delta, s2, rad):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """The straggler test's distance bound at a pixel of camera depth ``z`` (m): :func:`straggler_bound_m` with
+    ``s2`` = σ_bin² (m²; negative: unknown, ``delta`` as it is) and ``rad`` the pixel's angle, the same operations
+    in the same order."""
+    if s2 < 0.0:
+        return delta
+    c = abs(np.float64(z)) * rad
+    err = max(_STRAGGLER_ERR_FLOOR_M, np.sqrt(s2 + 0.5 * c * c))
+    return min(delta, STRAGGLER_ERRS * err)
+
+
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _classify(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm, off, delta,  # type: ignore[no-untyped-def]  # numba kernel
               radius, planes, valid, table, easy, binp):  # pragma: no cover - numba
@@ -397,15 +422,17 @@ def _straggler_start(valid, table, binp, easy, fp, neighbours, lab, open_, cand)
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _test_pixels(a, flat, R, t, origin, cell, dims, start, pts, nrm, off, delta, radius,  # type: ignore[no-untyped-def]  # numba kernel
-                 planes):  # pragma: no cover - numba
-    """(M,) bool: the pixels ``flat`` (row-major indices) are within ``delta`` of the model."""
+                 planes, s2, rad):  # pragma: no cover - numba
+    """(M,) bool: the pixels ``flat`` (row-major indices) are within ``delta`` of the model, ``delta`` bounded at
+    each pixel by :func:`_straggler_delta` (``s2`` < 0: not bounded)."""
     W = a.shape[1]
     ok = np.zeros(flat.shape[0], np.bool_)
     for i in numba.prange(flat.shape[0]):
         r = flat[i] // W
         c = flat[i] - r * W
         px, py, pz = _to_bin(a, r, c, R, t)
-        ok[i] = _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radius, planes)
+        d = _straggler_delta(a[r, c, 2], delta, s2, rad)
+        ok[i] = _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, d, radius, planes)
     return ok
 
 
@@ -607,14 +634,15 @@ def _labelled_around(code, r, c, H, W):  # type: ignore[no-untyped-def]  # numba
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,  # type: ignore[no-untyped-def]  # numba kernel
-                     planes, first):  # pragma: no cover - numba
+                     planes, s2, rad, first):  # pragma: no cover - numba
     """The straggler test's first pass in one pass over the frame: ``first`` (uint8) is 1 at
     :func:`_straggler_start`'s candidates (open pixels with >= ``neighbours`` labelled ones) that fail the test,
     2 at those that pass, 0 elsewhere. ``code`` is only read: every candidate is judged on the labels before
     the pass, as the reference's first pass judges them. The counts are :func:`_labelled_around`'s, as sums
     of three column sums of the row and its two neighbours (an open pixel is not labelled itself), each of the
     row's three loops free of branches but the last, over its few candidates: so they vectorize (a branch per
-    pixel on its class, or per neighbour, cost 6.3 of the pass's 9.4 CPU ms at 1920 x 1200; now 0.6)."""
+    pixel on its class, or per neighbour, cost 6.3 of the pass's 9.4 CPU ms at 1920 x 1200; now 0.6). ``delta`` is
+    bounded at each pixel by :func:`_straggler_delta` (``s2``, ``rad``)."""
     H, W = code.shape
     for r in numba.prange(H):
         col = np.zeros(W + 2, np.uint8)  # col[c + 1]: labelled pixels of column c in rows r-1..r+1
@@ -628,8 +656,8 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
         for c in range(W):
             if first[r, c]:
                 px, py, pz = _to_bin(a, r, c, R, t)
-                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,
-                               planes, hint)
+                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,
+                               _straggler_delta(a[r, c, 2], delta, s2, rad), radius, planes, hint)
                 if j >= 0:
                     first[r, c] = 2
                     hint = j
@@ -637,7 +665,7 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
 
 @numba.njit(cache=True, nogil=True)
 def _straggler_rest(a, code, words, neighbours, passes, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,  # type: ignore[no-untyped-def]  # numba kernel
-                    delta, radius, planes):  # pragma: no cover - numba
+                    delta, radius, planes, s2, rad):  # pragma: no cover - numba
     """The first pass's outcome (``first``) into ``code``, then the passes after it (up to ``passes`` in
     all), each testing the open neighbours of the pixels the previous one labelled (serial: a few
     pixels each; a parallel launch would cost more than them). ``words``: ``first`` as 64-bit words (eight
@@ -674,8 +702,8 @@ def _straggler_rest(a, code, words, neighbours, passes, R, t, origin, cell, dims
             r = q // W
             c = q - r * W
             px, py, pz = _to_bin(a, r, c, R, t)
-            j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius, planes,
-                           hint)
+            j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,
+                           _straggler_delta(a[r, c, 2], delta, s2, rad), radius, planes, hint)
             if j >= 0:
                 ok[i] = True
                 hint = j
@@ -783,10 +811,12 @@ class _ZoneTop:
 
 
 def _straggler_codes(a: np.ndarray, code: np.ndarray, R: np.ndarray, t: np.ndarray, index: _ModelIndex, *,
-                     straggler_m: float, radius_m: float, planes: bool, neighbours: int) -> None:
+                     straggler_m: float, radius_m: float, planes: bool, neighbours: int,
+                     bound: tuple[float, float]) -> None:
     """:func:`_straggler_passes` on the class codes (in place): the same passes, each testing only the open
     neighbours of the pixels the previous one labelled."""
-    grid = (*_grid_args(index), index.ijk, index.busy, index.box, float(straggler_m), float(radius_m), planes)
+    grid = (*_grid_args(index), index.ijk, index.busy, index.box, float(straggler_m), float(radius_m), planes,
+            *bound)
     n = code.size
     buf = np.empty(n + (-n % 8), np.uint8)  # ``first``, padded to whole 64-bit words
     buf[n:] = 0
@@ -919,7 +949,7 @@ def _grid_args(index: _ModelIndex) -> tuple[np.ndarray, float, np.ndarray, np.nd
 
 def _straggler_passes(a: np.ndarray, binp: Mask, lab: np.ndarray, open_: Mask, R: np.ndarray,
                       t: np.ndarray, index: _ModelIndex, *, straggler_m: float, radius_m: float,
-                      planes: bool, neighbours: int, first: Mask) -> None:
+                      planes: bool, neighbours: int, first: Mask, bound: tuple[float, float]) -> None:
     """Grow ``binp`` (in place) along the noisy bin surface, see ``straggler_m``.
 
     ``lab`` (uint8: table, bin or invalid) and ``open_`` (allowed, not bin, not yet tried) are
@@ -936,7 +966,7 @@ def _straggler_passes(a: np.ndarray, binp: Mask, lab: np.ndarray, open_: Mask, R
         if cand.size == 0:
             break
         open_f[cand] = False
-        near = _test_pixels(a, cand, R, t, *grid, float(straggler_m), float(radius_m), planes)
+        near = _test_pixels(a, cand, R, t, *grid, float(straggler_m), float(radius_m), planes, *bound)
         new = cand[near]
         if new.size == 0:
             break
@@ -1005,6 +1035,15 @@ class Tolerance:
         Of the coherent pixels, those left out of the percentile because they and the surface their ring
         neighbours form lie off the registered bin's residual field (:func:`off_field`: the faces of parts
         leaning on a wall); 0 when the field could not be fitted.
+    sigma_mm : float
+        The bin's noise scale: the robust scale (1.4826 × MAD) of the kept pixels' misfit to that residual field
+        (``sigma_m`` of :func:`fit_residual_field`, in mm); NaN when no field was fitted (no normals, too few
+        pixels, a pose far off, τ from its fallback or fixed). With :attr:`pixel_rad` it bounds the straggler test
+        at 3 × the bin's Err (:func:`straggler_bound_m`).
+    pixel_rad : float
+        The angle one pixel subtends (rad, 1 / f, f the focal length in pixels): a pixel's footprint at depth z is
+        ``z * pixel_rad`` (:func:`pixel_angle`, from the measured pixels and their neighbours); NaN when
+        :attr:`sigma_mm` is (not measured) or no pair of neighbours gives it.
     """
 
     tolerance_mm: float
@@ -1014,6 +1053,8 @@ class Tolerance:
     reach_mm: float = float("nan")
     surface: _Surface | None = None
     n_off_field: int = 0
+    sigma_mm: float = float("nan")
+    pixel_rad: float = float("nan")
 
 
 @dataclass(frozen=True, slots=True)
@@ -1421,25 +1462,27 @@ def fit_residual_field(r: np.ndarray, p: np.ndarray, n: np.ndarray, *, normal_eq
 
 
 def _off_field(signed_m: np.ndarray, p_bin: np.ndarray, nearest_j: np.ndarray, own_at: np.ndarray,
-               nb_at: np.ndarray, coherent: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
+               nb_at: np.ndarray, coherent: np.ndarray, normals: np.ndarray | None) -> tuple[np.ndarray, float]:
     """(M,) bool, of the measured pixels (``own_at``: their positions among the queried ones, whose signed
     residuals, bin-frame points and nearest model points are ``signed_m``, ``p_bin``, ``nearest_j``;
     ``nb_at``: their ring neighbours' positions, -1: none): the coherent ones that lie off the registered bin's
     residual field (:func:`fit_residual_field`, fitted to the measured pixels) by more than
     :data:`COHERENCE_MM` and whose ring neighbours' misfits have a median beyond it too: a surface of its own
-    in front of (or behind) the bin's, not the bin's noise. All False without normals or a field."""
+    in front of (or behind) the bin's, not the bin's noise. All False without normals or a field. With it, the
+    field's robust scale (``sigma_m`` of :func:`fit_residual_field`, m; NaN without a field): the bin's noise
+    scale, which bounds the straggler test (:func:`straggler_bound_m`)."""
     m = len(own_at)
     off = np.zeros(m, bool)
     if normals is None or m == 0:
-        return off
+        return off, float("nan")
     j_own = nearest_j[own_at]
     has_own = j_own >= 0
     n_own = np.full((m, 3), np.nan)
     n_own[has_own] = normals[j_own[has_own]]
     fit = fit_residual_field(signed_m[own_at], p_bin[own_at], n_own, normal_equations=True, reference=True)
     if fit is None:
-        return off
-    coef, centre, _, _ = fit
+        return off, float("nan")
+    coef, centre, sigma, _ = fit
 
     def misfit_mm(at: np.ndarray) -> np.ndarray:  # of the queried pixels ``at`` (NaN: no residual)
         out = np.full(len(at), np.nan)
@@ -1453,18 +1496,18 @@ def _off_field(signed_m: np.ndarray, p_bin: np.ndarray, nearest_j: np.ndarray, o
     with np.errstate(invalid="ignore"):
         cand = np.flatnonzero(coherent & (np.abs(own) > COHERENCE_MM))
     if len(cand) == 0:
-        return off
+        return off, float(sigma)
     nb = nb_at[cand]  # only the candidates' neighbours are looked at
     nbr = np.full(nb.shape, np.nan)
     nbr[nb >= 0] = misfit_mm(nb[nb >= 0])
     around = _around_median(nbr)
     with np.errstate(invalid="ignore"):
         off[cand] = np.abs(around) > COHERENCE_MM
-    return off
+    return off, float(sigma)
 
 
 def _off_field_fast(q: _Queried, own_at: np.ndarray, nb_at: np.ndarray, coherent: np.ndarray,
-                    normals: np.ndarray | None) -> np.ndarray:
+                    normals: np.ndarray | None) -> tuple[np.ndarray, float]:
     """:func:`_off_field` of the fast path (the same answer, the reference keeps :func:`_off_field`): the
     design matrix built once, by :func:`_fit_field`, whose last misfit is the measured pixels' own (the
     reference builds it again for them, :func:`field_design` on the same rows); the fit's selections, centre,
@@ -1473,12 +1516,12 @@ def _off_field_fast(q: _Queried, own_at: np.ndarray, nb_at: np.ndarray, coherent
     m = len(own_at)
     off = np.zeros(m, bool)
     if normals is None or m == 0 or q.signed_m is None or q.nearest_j is None:
-        return off
+        return off, float("nan")
     rows, r, p, n = _field_inputs(q.signed_m, q.p_bin, q.nearest_j, own_at, np.ascontiguousarray(normals))
     fit = _fit_field(r, p, n)
     if fit is None:
-        return off
-    coef, centre, e = fit
+        return off, float("nan")
+    coef, centre, e, sigma = fit
     # the reference's misfit_mm(own_at): the rows with a model point are those with a signed residual
     # (``rows``), its design matrix the fit's, row for row: the same products, the same misfit
     own = np.full(m, np.nan)
@@ -1486,7 +1529,7 @@ def _off_field_fast(q: _Queried, own_at: np.ndarray, nb_at: np.ndarray, coherent
     with np.errstate(invalid="ignore"):
         cand = np.flatnonzero(coherent & (np.abs(own) > COHERENCE_MM))
     if len(cand) == 0:
-        return off
+        return off, sigma
     nb = nb_at[cand]
     nbr = np.full(nb.shape, np.nan)
     at = nb[nb >= 0]
@@ -1498,7 +1541,7 @@ def _off_field_fast(q: _Queried, own_at: np.ndarray, nb_at: np.ndarray, coherent
     around = _around_median(nbr)
     with np.errstate(invalid="ignore"):
         off[cand] = np.abs(around) > COHERENCE_MM
-    return off
+    return off, sigma
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1603,9 +1646,9 @@ def _trimmed(e, keep):  # type: ignore[no-untyped-def]  # numba kernel  # pragma
     return sigma, out, n
 
 
-def _fit_field(r: np.ndarray, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def _fit_field(r: np.ndarray, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
     """:func:`fit_residual_field` with ``normal_equations`` of finite rows ``r``, ``p``, ``n``: ``(coef, centre,
-    e)`` (``e`` the last misfit, ``r - A @ coef``) or None, the same numbers: numpy keeps the products a BLAS
+    e, sigma_m)`` (``e`` the last misfit, ``r - A @ coef``) or None, the same numbers: numpy keeps the products a BLAS
     sums (``A.T @ A``, ``A.T @ r``, ``A @ coef``), the solve and the einsum; the rest runs in kernels."""
     if len(r) < FIELD_MIN_PX:
         return None
@@ -1628,7 +1671,7 @@ def _fit_field(r: np.ndarray, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray,
             return None
     if 3000.0 * sigma > COHERENCE_MM:
         return None
-    return coef, centre, e
+    return coef, centre, e, float(sigma)
 
 
 def _fit_field_trimmed(r: np.ndarray, p: np.ndarray, n: np.ndarray, *,
@@ -1831,12 +1874,13 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
     T = np.asarray(T_cam_bin, dtype=np.float64)
     flat = _ring_sample(a, ring_a)
     off = np.zeros(len(res), bool)
+    sigma_m = float("nan")
     if surface:  # the coherent pixels off the bin's residual field are no bin (parts leaning on a wall)
         nb = _ring_neighbours(a.shape[:2], ring_a, flat, 4)
         want = np.unique(np.concatenate([flat, nb[nb >= 0]]))
         nb_at = np.where(nb >= 0, np.searchsorted(want, np.where(nb >= 0, nb, 0)), -1)
-        off = _off_field(*_signed_ref(a, want, index, T), np.searchsorted(want, flat), nb_at, coherent,
-                         index.model.normals)
+        off, sigma_m = _off_field(*_signed_ref(a, want, index, T), np.searchsorted(want, flat), nb_at, coherent,
+                                  index.model.normals)
     keep = coherent & ~off
     use = res[keep] if surface else res
     q = float(np.percentile(use, p.residual_quantile, method="higher"))
@@ -1848,7 +1892,43 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
         near = _nearest_mm(a, flat[keep] if surface else flat, index, T)
         q_near = float(np.percentile(near, p.residual_quantile, method="higher"))
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
-    return Tolerance(float(tau), q, len(res), n_coh, float(reach), n_off_field=int(np.count_nonzero(off)))
+    rad = pixel_angle(a, flat) if np.isfinite(sigma_m) else float("nan")
+    return Tolerance(float(tau), q, len(res), n_coh, float(reach), n_off_field=int(np.count_nonzero(off)),
+                     sigma_mm=1000.0 * sigma_m, pixel_rad=rad)
+
+
+def pixel_angle(a: np.ndarray, flat: np.ndarray) -> float:
+    """The angle one pixel subtends (rad, 1 / f), read off the organized cloud ``a`` at the pixels ``flat``: the
+    median of ``|Δ(x / z)|`` to each pixel's right neighbour and ``|Δ(y / z)|`` to the one below (both finite, z
+    not 0, the step not 0; a pinhole cloud's x / z is (u - cx) / fx whatever the depth); NaN when no pair gives it.
+    A pixel's footprint at depth z (the Err's c, docs/bin_robustness.md) is ``z * pixel_angle``."""
+    if len(flat) == 0:
+        return float("nan")
+    h, w = a.shape[:2]
+    f = a.reshape(-1, 3)
+    rows, cols = np.divmod(np.asarray(flat, np.int64), w)
+    steps = []
+    for axis, ok, nxt in ((0, cols + 1 < w, flat + 1), (1, rows + 1 < h, flat + w)):
+        p, q = f[flat[ok]].astype(np.float64), f[nxt[ok]].astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d = np.abs(q[:, axis] / q[:, 2] - p[:, axis] / p[:, 2])
+        steps.append(d[np.isfinite(d) & (d > 0)])
+    step = np.concatenate(steps)
+    return float(np.median(step)) if step.size else float("nan")
+
+
+def straggler_bound_m(z_m: np.ndarray, sigma_m: float, pixel_rad: float, straggler_m: float) -> np.ndarray:
+    """The straggler test's distance bound (m) at pixels of depth ``z_m`` (camera z, m):
+    ``min(straggler_m, STRAGGLER_ERRS × max(STRAGGLER_ERR_FLOOR_MM, sqrt(σ_bin² + c² / 2)))``, c = ``|z| ×
+    pixel_rad`` the pixel's footprint, σ_bin = ``sigma_m`` (:attr:`Tolerance.sigma_mm`); ``straggler_m`` (τ +
+    ``straggler_mm`` in the robust mode) where σ_bin or the pixel's angle is unknown (NaN). The kernels compute the
+    same numbers, in the same order (:func:`_straggler_delta`)."""
+    z = np.abs(np.asarray(z_m, np.float64))
+    if not (np.isfinite(sigma_m) and np.isfinite(pixel_rad)):
+        return np.full(z.shape, float(straggler_m))
+    c = z * pixel_rad
+    err = np.maximum(_STRAGGLER_ERR_FLOOR_M, np.sqrt(sigma_m * sigma_m + 0.5 * c * c))
+    return np.minimum(float(straggler_m), STRAGGLER_ERRS * err)
 
 
 def _sample_ring(a: np.ndarray, ring: Mask, max_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -1981,9 +2061,10 @@ def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -
     n_coh = int(np.count_nonzero(coherent))
     use_coherent = n_coh and n_coh >= MIN_COHERENT_SHARE * len(res) and far_share(res, around) <= MAX_FAR_SHARE
     off = np.zeros(len(res), bool)
+    sigma_m = float("nan")
     if use_coherent and queried.signed_m is not None and queried.nearest_j is not None:
         # the coherent pixels off the bin's residual field are no bin (parts leaning on a wall)
-        off = _off_field_fast(queried, own_at, nb_at, coherent, index.model.normals)
+        off, sigma_m = _off_field_fast(queried, own_at, nb_at, coherent, index.model.normals)
     keep = coherent & ~off
     use = res[keep] if use_coherent else res
     q = float(np.percentile(use, p.residual_quantile, method="higher"))
@@ -1995,8 +2076,9 @@ def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -
                               index, T, queried)
         q_near = float(np.percentile(near, p.residual_quantile, method="higher"))
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
+    rad = pixel_angle(a, flat) if np.isfinite(sigma_m) else float("nan")
     return Tolerance(float(tau), q, len(res), n_coh, float(reach), surface=surface,
-                     n_off_field=int(np.count_nonzero(off)))
+                     n_off_field=int(np.count_nonzero(off)), sigma_mm=1000.0 * sigma_m, pixel_rad=rad)
 
 
 def check_removal_args(
@@ -2058,7 +2140,9 @@ def remove_table_and_bin(
         move the z-cut's z_max up to the rim; 0: off). ``mode``: ``"paper"`` uses δ as given;
         ``"robust"`` replaces it by the frame's tolerance (:func:`frame_tolerance`), tests it before
         the rim (a point within τ of the model is bin, not an easy outlier) and lets the
-        stragglers reach ``straggler_mm`` beyond τ and beyond the search radius.
+        stragglers reach ``straggler_mm`` beyond τ and beyond the search radius, but along the normal no
+        farther than 3 of the bin's Err at the pixel where the frame measured the bin's noise scale
+        (:func:`straggler_bound_m`).
     T_cam_bin : (4, 4) float ndarray, optional
         The registered pose of the model.
     ring : (H, W) bool ndarray, optional
@@ -2095,6 +2179,7 @@ def remove_table_and_bin(
     planes = index.model.normals is not None
     residual_mm = float("nan")
     surface: _Surface | None = None
+    bound = (-1.0, 0.0)  # (σ_bin² m², the pixel's angle): the stragglers' bound at 3 Err; σ² < 0: none
     if p.robust:
         if ring is not None:
             tol = frame_tolerance(a, ring, index, T, reference=reference)
@@ -2103,6 +2188,9 @@ def remove_table_and_bin(
             tol = Tolerance(max(p.tolerance_mm if p.tolerance_mm is not None else p.max_tolerance_mm, p.delta_mm),
                             float("nan"), 0)
         delta_m, residual_mm = tol.tolerance_mm / 1000.0, tol.residual_mm
+        sigma_m = tol.sigma_mm / 1000.0
+        if np.isfinite(sigma_m) and np.isfinite(tol.pixel_rad):
+            bound = (sigma_m * sigma_m, tol.pixel_rad)
         radius_m = _radius(p, index.model.spacing_m, delta_m)
         straggler_m = p.straggler_m + delta_m if p.straggler_m > 0 else 0.0
         r_str = max(radius_m, straggler_m)
@@ -2124,7 +2212,7 @@ def remove_table_and_bin(
         if index.straggler is not None:
             r_s = r_str if planes else straggler_m
             _straggler_codes(a, code, R, t, index.straggler, straggler_m=straggler_m,
-                             radius_m=r_s, planes=planes, neighbours=int(p.straggler_neighbours))
+                             radius_m=r_s, planes=planes, neighbours=int(p.straggler_neighbours), bound=bound)
         z_far = np.nan
         if not plane:  # a bin seen from the side: fall back to the farthest point
             z_far = float(np.nanmax(a[..., 2][code != _INVALID])) if (code != _INVALID).any() else np.nan
@@ -2145,7 +2233,7 @@ def remove_table_and_bin(
         _straggler_start(valid, table, binp, easy, fp, int(p.straggler_neighbours), lab, open_, first)
         _straggler_passes(a, binp, lab, open_, R, t, index.straggler,
                           straggler_m=straggler_m, radius_m=r_str, planes=planes,
-                          neighbours=int(p.straggler_neighbours), first=first)
+                          neighbours=int(p.straggler_neighbours), first=first, bound=bound)
     labelled = table | easy | binp
     zone = valid & ~labelled
     z_far = np.nan

@@ -154,7 +154,9 @@ def test_residuals_equal_reference(logs):
             fast, ref = frame_tolerance(xyz, ring, index, T), frame_tolerance(xyz, ring, index, T, reference=True)
             assert (fast.tolerance_mm, fast.n_pixels, fast.n_coherent, fast.n_off_field) == \
                 (ref.tolerance_mm, ref.n_pixels, ref.n_coherent, ref.n_off_field), log
-            assert np.array_equal([fast.residual_mm, fast.reach_mm], [ref.residual_mm, ref.reach_mm], equal_nan=True)
+            assert np.array_equal([fast.residual_mm, fast.reach_mm, fast.sigma_mm, fast.pixel_rad],
+                                  [ref.residual_mm, ref.reach_mm, ref.sigma_mm, ref.pixel_rad], equal_nan=True)
+            assert np.isfinite(fast.sigma_mm) and np.isfinite(fast.pixel_rad), log  # the stragglers' bound is known
             pixels = np.flatnonzero(ring | np.roll(ring, 3, axis=1))[::3]
             for a, b in zip(coherent_residuals(xyz, ring, pixels, index, T),
                             coherent_residuals(xyz, ring, pixels, index, T, reference=True), strict=True):
@@ -291,9 +293,11 @@ def test_the_field_fit_equals_the_reference(logs):
                 with np.errstate(invalid="ignore"):
                     coherent = np.isfinite(res) & (np.abs(res - _around_median(nbr)) <= COHERENCE_MM)
                 for normals in (model.normals, None):
-                    fast = _off_field_fast(q, own_at, nb_at, coherent, normals)
-                    ref = _off_field(q.signed_m, q.p_bin, q.nearest_j, own_at, nb_at, coherent, normals)
+                    fast, sigma_fast = _off_field_fast(q, own_at, nb_at, coherent, normals)
+                    ref, sigma_ref = _off_field(q.signed_m, q.p_bin, q.nearest_j, own_at, nb_at, coherent, normals)
                     assert np.array_equal(fast, ref), (log, shift)
+                    assert np.array_equal(sigma_fast, sigma_ref, equal_nan=True), (log, shift)
+                    assert np.isfinite(sigma_fast) == (normals is not None), (log, shift)  # the bin's noise scale
                     n_off += int(np.count_nonzero(fast))
                 rows, r, p, n = _field_inputs(q.signed_m, q.p_bin, q.nearest_j, own_at, model.normals)
                 for k in (len(r), 49, 60):  # all, too few to fit, just enough
@@ -301,8 +305,9 @@ def test_the_field_fit_equals_the_reference(logs):
                     want_fit = fit_residual_field(r[:k], p[:k], n[:k], normal_equations=True, reference=True)
                     assert (got is None) == (want_fit is None), (log, shift, k)
                     if got is not None and want_fit is not None:
-                        coef, centre, _, _ = want_fit
+                        coef, centre, sigma, _ = want_fit
                         assert np.array_equal(got[0], coef) and np.array_equal(got[1], centre), (log, shift, k)
+                        assert got[3] == sigma, (log, shift, k)
     assert n_off > 100  # the moved blocks were left out
 
 
