@@ -998,7 +998,7 @@ def straggler_table(rows: list[dict]) -> list[str]:
 
 def method_f1_table(rows: list[dict]) -> list[str]:
     """Every method's F1 over the zone (:func:`straggler_rows`' counts, pooled) and its near / elsewhere recall Δ."""
-    methods = sorted({m for r in rows for m in r["zone_counts"]})
+    methods = [m for m in (*METHODS, "intersection", "union") if all(m in r["found_near"] for r in rows)]
     out = ["| generator | pile | " + " | ".join(f"`{m}` F1 (recall Δ)" for m in methods) + " |",
            "|---|---|" + "---|" * len(methods)]
     for sensor, pile in sorted({(r["sensor"], r["pile"]) for r in rows}):
@@ -1075,7 +1075,10 @@ def main() -> int:
             for pile in args.piles.split(","):
                 for kind in args.kinds.split(","):
                     rows += straggler_rows(d, sensor, pile, kind, args.size, args.frames)
-        (d / f"stragglers_{'_'.join(f'{k}{v}' for k, v in SEEDS.items())}_{MODEL}.json").write_text(json.dumps(rows))
+        from zcut import removal as rm
+
+        tree = "bound" if hasattr(rm, "straggler_bound_m") else "previous"
+        (d / f"stragglers_{'_'.join(f'{k}{v}' for k, v in SEEDS.items())}_{MODEL}_{tree}.json").write_text(json.dumps(rows))
         print("\n### The straggler pass bounded by 3 bin Errs: what the removal keeps (registered pose)\n")
         print("\n".join(straggler_table(rows)))
         print("\n### Every method over the zone: F1 (near − elsewhere recall) (registered pose)\n")
