@@ -28,9 +28,9 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
   is sampled more coarsely than ``1.5 × spacing_m`` says). The straggler test reaches
   ``straggler_mm`` beyond both: τ + ``straggler_mm`` along the normal, the radius + ``straggler_mm``; but no
   farther than 3 of the bin's Err along the normal (the paper's §2: a point farther than 3 Err from the fitted
-  model is an outlier), Err = max(0.05 mm, √(σ_bin² + c²/2)) with σ_bin the bin's noise scale the residual field's
-  fit measures (:attr:`Tolerance.sigma_mm`) and c the pixel's footprint (z / f, :func:`pixel_angle`):
-  :func:`straggler_bound_m`. Without that fit (no normals, a pose far off, a fixed τ) the bound is not known and
+  model is an outlier), Err = max(0.05 mm, √(σ_bin² + c²/2)) with σ_bin the residual scale of the pixels τ is
+  measured on (:func:`bin_sigma_m`, :attr:`Tolerance.sigma_mm`) and c the pixel's footprint (z / f,
+  :func:`pixel_angle`): :func:`straggler_bound_m`. Without a measured τ (fixed, no ring) the bound is not known and
   not applied. On hand-made walls piles every near-wall true outlier the removal took was a straggler 3.1-4.2
   bin Errs from the model (docs/bin_robustness.md).
   With a right pose τ stays near 1 mm (the sensor's noise); a pose 2 mm off raises it to about
@@ -1036,10 +1036,10 @@ class Tolerance:
         neighbours form lie off the registered bin's residual field (:func:`off_field`: the faces of parts
         leaning on a wall); 0 when the field could not be fitted.
     sigma_mm : float
-        The bin's noise scale: the robust scale (1.4826 × MAD) of the kept pixels' misfit to that residual field
-        (``sigma_m`` of :func:`fit_residual_field`, in mm); NaN when no field was fitted (no normals, too few
-        pixels, a pose far off, τ from its fallback or fixed). With :attr:`pixel_rad` it bounds the straggler test
-        at 3 × the bin's Err (:func:`straggler_bound_m`).
+        σ_bin, the bin's residual scale: 1.4826 × the median of the residuals τ's percentile was taken over
+        (:func:`bin_sigma_m`, in mm); NaN when τ was not measured (fixed, no ring pixel). With :attr:`pixel_rad`
+        it bounds the straggler test at 3 × the bin's Err (:func:`straggler_bound_m`); +inf (no bound) when most
+        of the pixels have no model point within ``max_tolerance_mm``.
     pixel_rad : float
         The angle one pixel subtends (rad, 1 / f, f the focal length in pixels): a pixel's footprint at depth z is
         ``z * pixel_rad`` (:func:`pixel_angle`, from the measured pixels and their neighbours); NaN when
@@ -1462,27 +1462,25 @@ def fit_residual_field(r: np.ndarray, p: np.ndarray, n: np.ndarray, *, normal_eq
 
 
 def _off_field(signed_m: np.ndarray, p_bin: np.ndarray, nearest_j: np.ndarray, own_at: np.ndarray,
-               nb_at: np.ndarray, coherent: np.ndarray, normals: np.ndarray | None) -> tuple[np.ndarray, float]:
+               nb_at: np.ndarray, coherent: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
     """(M,) bool, of the measured pixels (``own_at``: their positions among the queried ones, whose signed
     residuals, bin-frame points and nearest model points are ``signed_m``, ``p_bin``, ``nearest_j``;
     ``nb_at``: their ring neighbours' positions, -1: none): the coherent ones that lie off the registered bin's
     residual field (:func:`fit_residual_field`, fitted to the measured pixels) by more than
     :data:`COHERENCE_MM` and whose ring neighbours' misfits have a median beyond it too: a surface of its own
-    in front of (or behind) the bin's, not the bin's noise. All False without normals or a field. With it, the
-    field's robust scale (``sigma_m`` of :func:`fit_residual_field`, m; NaN without a field): the bin's noise
-    scale, which bounds the straggler test (:func:`straggler_bound_m`)."""
+    in front of (or behind) the bin's, not the bin's noise. All False without normals or a field."""
     m = len(own_at)
     off = np.zeros(m, bool)
     if normals is None or m == 0:
-        return off, float("nan")
+        return off
     j_own = nearest_j[own_at]
     has_own = j_own >= 0
     n_own = np.full((m, 3), np.nan)
     n_own[has_own] = normals[j_own[has_own]]
     fit = fit_residual_field(signed_m[own_at], p_bin[own_at], n_own, normal_equations=True, reference=True)
     if fit is None:
-        return off, float("nan")
-    coef, centre, sigma, _ = fit
+        return off
+    coef, centre, _, _ = fit
 
     def misfit_mm(at: np.ndarray) -> np.ndarray:  # of the queried pixels ``at`` (NaN: no residual)
         out = np.full(len(at), np.nan)
@@ -1496,18 +1494,18 @@ def _off_field(signed_m: np.ndarray, p_bin: np.ndarray, nearest_j: np.ndarray, o
     with np.errstate(invalid="ignore"):
         cand = np.flatnonzero(coherent & (np.abs(own) > COHERENCE_MM))
     if len(cand) == 0:
-        return off, float(sigma)
+        return off
     nb = nb_at[cand]  # only the candidates' neighbours are looked at
     nbr = np.full(nb.shape, np.nan)
     nbr[nb >= 0] = misfit_mm(nb[nb >= 0])
     around = _around_median(nbr)
     with np.errstate(invalid="ignore"):
         off[cand] = np.abs(around) > COHERENCE_MM
-    return off, float(sigma)
+    return off
 
 
 def _off_field_fast(q: _Queried, own_at: np.ndarray, nb_at: np.ndarray, coherent: np.ndarray,
-                    normals: np.ndarray | None) -> tuple[np.ndarray, float]:
+                    normals: np.ndarray | None) -> np.ndarray:
     """:func:`_off_field` of the fast path (the same answer, the reference keeps :func:`_off_field`): the
     design matrix built once, by :func:`_fit_field`, whose last misfit is the measured pixels' own (the
     reference builds it again for them, :func:`field_design` on the same rows); the fit's selections, centre,
@@ -1516,12 +1514,12 @@ def _off_field_fast(q: _Queried, own_at: np.ndarray, nb_at: np.ndarray, coherent
     m = len(own_at)
     off = np.zeros(m, bool)
     if normals is None or m == 0 or q.signed_m is None or q.nearest_j is None:
-        return off, float("nan")
+        return off
     rows, r, p, n = _field_inputs(q.signed_m, q.p_bin, q.nearest_j, own_at, np.ascontiguousarray(normals))
     fit = _fit_field(r, p, n)
     if fit is None:
-        return off, float("nan")
-    coef, centre, e, sigma = fit
+        return off
+    coef, centre, e = fit
     # the reference's misfit_mm(own_at): the rows with a model point are those with a signed residual
     # (``rows``), its design matrix the fit's, row for row: the same products, the same misfit
     own = np.full(m, np.nan)
@@ -1529,7 +1527,7 @@ def _off_field_fast(q: _Queried, own_at: np.ndarray, nb_at: np.ndarray, coherent
     with np.errstate(invalid="ignore"):
         cand = np.flatnonzero(coherent & (np.abs(own) > COHERENCE_MM))
     if len(cand) == 0:
-        return off, sigma
+        return off
     nb = nb_at[cand]
     nbr = np.full(nb.shape, np.nan)
     at = nb[nb >= 0]
@@ -1541,7 +1539,7 @@ def _off_field_fast(q: _Queried, own_at: np.ndarray, nb_at: np.ndarray, coherent
     around = _around_median(nbr)
     with np.errstate(invalid="ignore"):
         off[cand] = np.abs(around) > COHERENCE_MM
-    return off, sigma
+    return off
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1646,9 +1644,9 @@ def _trimmed(e, keep):  # type: ignore[no-untyped-def]  # numba kernel  # pragma
     return sigma, out, n
 
 
-def _fit_field(r: np.ndarray, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
+def _fit_field(r: np.ndarray, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """:func:`fit_residual_field` with ``normal_equations`` of finite rows ``r``, ``p``, ``n``: ``(coef, centre,
-    e, sigma_m)`` (``e`` the last misfit, ``r - A @ coef``) or None, the same numbers: numpy keeps the products a BLAS
+    e)`` (``e`` the last misfit, ``r - A @ coef``) or None, the same numbers: numpy keeps the products a BLAS
     sums (``A.T @ A``, ``A.T @ r``, ``A @ coef``), the solve and the einsum; the rest runs in kernels."""
     if len(r) < FIELD_MIN_PX:
         return None
@@ -1671,7 +1669,7 @@ def _fit_field(r: np.ndarray, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray,
             return None
     if 3000.0 * sigma > COHERENCE_MM:
         return None
-    return coef, centre, e, float(sigma)
+    return coef, centre, e
 
 
 def _fit_field_trimmed(r: np.ndarray, p: np.ndarray, n: np.ndarray, *,
@@ -1874,13 +1872,12 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
     T = np.asarray(T_cam_bin, dtype=np.float64)
     flat = _ring_sample(a, ring_a)
     off = np.zeros(len(res), bool)
-    sigma_m = float("nan")
     if surface:  # the coherent pixels off the bin's residual field are no bin (parts leaning on a wall)
         nb = _ring_neighbours(a.shape[:2], ring_a, flat, 4)
         want = np.unique(np.concatenate([flat, nb[nb >= 0]]))
         nb_at = np.where(nb >= 0, np.searchsorted(want, np.where(nb >= 0, nb, 0)), -1)
-        off, sigma_m = _off_field(*_signed_ref(a, want, index, T), np.searchsorted(want, flat), nb_at, coherent,
-                                  index.model.normals)
+        off = _off_field(*_signed_ref(a, want, index, T), np.searchsorted(want, flat), nb_at, coherent,
+                         index.model.normals)
     keep = coherent & ~off
     use = res[keep] if surface else res
     q = float(np.percentile(use, p.residual_quantile, method="higher"))
@@ -1892,9 +1889,19 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
         near = _nearest_mm(a, flat[keep] if surface else flat, index, T)
         q_near = float(np.percentile(near, p.residual_quantile, method="higher"))
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
+    sigma_m = bin_sigma_m(use)
     rad = pixel_angle(a, flat) if np.isfinite(sigma_m) else float("nan")
     return Tolerance(float(tau), q, len(res), n_coh, float(reach), n_off_field=int(np.count_nonzero(off)),
                      sigma_mm=1000.0 * sigma_m, pixel_rad=rad)
+
+
+def bin_sigma_m(residuals_mm: np.ndarray) -> float:
+    """The bin's residual scale σ_bin (m) from the residuals (mm) τ's percentile was taken over: 1.4826 × their
+    median (a normal residual's |d| has median 0.6745 σ), as ``explained`` measures the bin's
+    (``zcut.explained.residual_sigma``, on the removal's bin pixels; here on the certain bin pixels, before the
+    removal). It holds the pose's and the model's misfit where they show, as the residuals do. NaN with no
+    residual; +inf when more than half of them are (no model point within ``max_tolerance_mm``)."""
+    return 1.4826 * float(np.median(residuals_mm)) / 1000.0 if len(residuals_mm) else float("nan")
 
 
 def pixel_angle(a: np.ndarray, flat: np.ndarray) -> float:
@@ -2061,10 +2068,9 @@ def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -
     n_coh = int(np.count_nonzero(coherent))
     use_coherent = n_coh and n_coh >= MIN_COHERENT_SHARE * len(res) and far_share(res, around) <= MAX_FAR_SHARE
     off = np.zeros(len(res), bool)
-    sigma_m = float("nan")
     if use_coherent and queried.signed_m is not None and queried.nearest_j is not None:
         # the coherent pixels off the bin's residual field are no bin (parts leaning on a wall)
-        off, sigma_m = _off_field_fast(queried, own_at, nb_at, coherent, index.model.normals)
+        off = _off_field_fast(queried, own_at, nb_at, coherent, index.model.normals)
     keep = coherent & ~off
     use = res[keep] if use_coherent else res
     q = float(np.percentile(use, p.residual_quantile, method="higher"))
@@ -2076,6 +2082,7 @@ def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -
                               index, T, queried)
         q_near = float(np.percentile(near, p.residual_quantile, method="higher"))
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
+    sigma_m = bin_sigma_m(use)
     rad = pixel_angle(a, flat) if np.isfinite(sigma_m) else float("nan")
     return Tolerance(float(tau), q, len(res), n_coh, float(reach), surface=surface,
                      n_off_field=int(np.count_nonzero(off)), sigma_mm=1000.0 * sigma_m, pixel_rad=rad)

@@ -169,9 +169,9 @@ def test_robust_removal_equals_the_reference_with_its_tolerance(noisy, model, kw
         radius = max(radius, tol.reach_mm / 1000.0)
         r_str = max(radius + p.straggler_m, straggler)
     assert fast.radius_mm == pytest.approx(1000.0 * radius if normals else tau)
-    # the stragglers' bound at 3 of the bin's Err: known where the residual field was fitted (normals, τ measured)
+    # the stragglers' bound at 3 of the bin's Err: known where τ was measured
     err = (tol.sigma_mm / 1000.0, tol.pixel_rad) if np.isfinite(tol.sigma_mm) else None
-    assert err is None or (normals and p.tolerance_mm is None)
+    assert (err is not None) == (p.tolerance_mm is None)
     with np.errstate(invalid="ignore"):
         ref = remove_table_and_bin_reference(
             xyz, fp, model=m, T_cam_bin=T, delta_m=d, rim_offset_m=p.rim_offset_m,

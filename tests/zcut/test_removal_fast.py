@@ -293,11 +293,9 @@ def test_the_field_fit_equals_the_reference(logs):
                 with np.errstate(invalid="ignore"):
                     coherent = np.isfinite(res) & (np.abs(res - _around_median(nbr)) <= COHERENCE_MM)
                 for normals in (model.normals, None):
-                    fast, sigma_fast = _off_field_fast(q, own_at, nb_at, coherent, normals)
-                    ref, sigma_ref = _off_field(q.signed_m, q.p_bin, q.nearest_j, own_at, nb_at, coherent, normals)
+                    fast = _off_field_fast(q, own_at, nb_at, coherent, normals)
+                    ref = _off_field(q.signed_m, q.p_bin, q.nearest_j, own_at, nb_at, coherent, normals)
                     assert np.array_equal(fast, ref), (log, shift)
-                    assert np.array_equal(sigma_fast, sigma_ref, equal_nan=True), (log, shift)
-                    assert np.isfinite(sigma_fast) == (normals is not None), (log, shift)  # the bin's noise scale
                     n_off += int(np.count_nonzero(fast))
                 rows, r, p, n = _field_inputs(q.signed_m, q.p_bin, q.nearest_j, own_at, model.normals)
                 for k in (len(r), 49, 60):  # all, too few to fit, just enough
@@ -305,9 +303,8 @@ def test_the_field_fit_equals_the_reference(logs):
                     want_fit = fit_residual_field(r[:k], p[:k], n[:k], normal_equations=True, reference=True)
                     assert (got is None) == (want_fit is None), (log, shift, k)
                     if got is not None and want_fit is not None:
-                        coef, centre, sigma, _ = want_fit
+                        coef, centre, _, _ = want_fit
                         assert np.array_equal(got[0], coef) and np.array_equal(got[1], centre), (log, shift, k)
-                        assert got[3] == sigma, (log, shift, k)
     assert n_off > 100  # the moved blocks were left out
 
 
