@@ -2148,7 +2148,7 @@ def remove_table_and_bin(
         ``"robust"`` replaces it by the frame's tolerance (:func:`frame_tolerance`), tests it before
         the rim (a point within τ of the model is bin, not an easy outlier) and lets the
         stragglers reach ``straggler_mm`` beyond τ and beyond the search radius, but along the normal no
-        farther than 3 of the bin's Err at the pixel where the frame measured the bin's noise scale
+        farther than 3 of the bin's Err at the pixel where the frame measured the bin's residual scale
         (:func:`straggler_bound_m`).
     T_cam_bin : (4, 4) float ndarray, optional
         The registered pose of the model.
