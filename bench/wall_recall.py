@@ -100,6 +100,8 @@ POSES = ("registered", "true")
 #: the bin model (``--model``): the log's exact one, or one ``zcut bin-model`` builds from EMPTY_SCANS empty scans
 #: of the same generator and size (``zcut synth --empty``, seed: the generator's base seed + EMPTY_SEED_OFFSET)
 MODEL = "exact"
+#: ``--stragglers``: the bound's variant (``RemovalParams.straggler_bound``, off by default) the rows measure
+BOUND = "local"
 EMPTY_SCANS = 2
 EMPTY_SEED_OFFSET = 10
 
@@ -895,6 +897,9 @@ def straggler_rows(d: Path, sensor: str, pile: str, kind: str, size: str, frames
     session = ReplaySession.open(log, bin_model=model, overrides=cli_layer(methods=",".join(METHODS)))
     cfg, pm = session.config, session.prepared
     assert pm is not None
+    if bounded and hasattr(cfg.removal, "straggler_bound"):  # the bound is a switch (off by default): --bound
+        cfg = dataclasses.replace(cfg, removal=dataclasses.replace(cfg.removal, straggler_bound=BOUND))
+        pm = prepare_bin_model(session.bin_model, registration=cfg.registration, removal=cfg.removal)
     pm0 = prepare_bin_model(session.bin_model, registration=cfg.registration,
                             removal=dataclasses.replace(cfg.removal, straggler_mm=0.0))
     poses = true_poses_of(session.reader.metadata)
@@ -1015,7 +1020,7 @@ def method_f1_table(rows: list[dict]) -> list[str]:
 
 
 def main() -> int:
-    global TRUTH, POSES, MODEL
+    global TRUTH, POSES, MODEL, BOUND
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sensors", default="handmade,raytraced")
     ap.add_argument("--piles", default="walls,floor")
@@ -1037,11 +1042,14 @@ def main() -> int:
     ap.add_argument("--model", choices=("exact", "scans"), default=MODEL,
                     help=f"the bin model: the log's exact one (default) or one built from {EMPTY_SCANS} empty scans "
                          f"(seed: the generator's base seed + {EMPTY_SEED_OFFSET})")
+    ap.add_argument("--bound", choices=("local", "global"), default=BOUND,
+                    help="--stragglers: the straggler bound's variant measured (RemovalParams.straggler_bound)")
     ap.add_argument("--truth", choices=sorted(TRUTHS), default=TRUTH,
                     help="the truth the recalls count: the paper's (default, /ground_truth/off_surface) or the "
                          "sensor's (/ground_truth/outliers)")
     args = ap.parse_args()
     TRUTH = args.truth
+    BOUND = args.bound
     MODEL = args.model
     POSES = tuple(p for p in ("registered", "true") if p in args.poses.split(","))
     for item in args.seeds.split(","):

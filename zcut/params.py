@@ -425,7 +425,8 @@ class RemovalParams:
         Robust mode: a straggler is bin only within 3 of the bin's Err of the model
         (:func:`zcut.removal.straggler_bound_m`), the Err's σ_bin the residual scale of the certain bin pixels
         around it (``"local"``: their tiles, never below the frame's) or of the frame's (``"global"``);
-        ``"off"``: τ + ``straggler_mm``, no bound.
+        ``"off"`` (default): τ + ``straggler_mm``, no bound — both bounds keep every near-wall outlier on the
+        walls piles but cost the z-cut's F1 with a model off the bin by about 1 mm (docs/bin_robustness.md).
     mode : {"robust", "paper"}
         ``"paper"``: the paper's §5.2 rule as written, δ = ``delta_mm`` (0.1 mm), which removes the
         bin only when the registration is right to about a tenth of a millimetre. ``"robust"``
@@ -459,7 +460,7 @@ class RemovalParams:
     search_radius_mm: float | None = None
     straggler_mm: float = 2.0
     straggler_neighbours: int = 3
-    straggler_bound: str = "local"
+    straggler_bound: str = "off"
     mode: str = "robust"
     tolerance_mm: float | None = None
     residual_quantile: float = 99.0

@@ -26,11 +26,13 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
   the point within τ of it along its normal) is measured on the same pixels: their distances to the
   nearest model point (:attr:`Tolerance.reach_mm`; a model built from a few low-resolution scans
   is sampled more coarsely than ``1.5 × spacing_m`` says). The straggler test reaches
-  ``straggler_mm`` beyond both: τ + ``straggler_mm`` along the normal, the radius + ``straggler_mm``; but no
+  ``straggler_mm`` beyond both: τ + ``straggler_mm`` along the normal, the radius + ``straggler_mm``; with
+  ``RemovalParams.straggler_bound`` on (off by default: it costs the z-cut's F1 under a model ~1 mm off the bin), no
   farther than 3 of the bin's Err along the normal (the paper's §2: a point farther than 3 Err from the fitted
   model is an outlier), Err = max(0.05 mm, √(σ_bin² + c²/2)) with σ_bin the residual scale of the pixels τ is
   measured on (:func:`bin_sigma_m`, :attr:`Tolerance.sigma_mm`) and c the pixel's footprint (z / f,
-  :func:`pixel_angle`): :func:`straggler_bound_m`. Without a measured τ (fixed, no ring) the bound is not known and
+  :func:`pixel_angle`; ``"local"``: σ_bin of the measured pixels around the straggler, :func:`local_sigma_mm`):
+  :func:`straggler_bound_m`. Without a measured τ (fixed, no ring) the bound is not known and
   not applied. On hand-made walls piles every near-wall true outlier the removal took was a straggler 3.1-4.2
   bin Errs from the model (docs/bin_robustness.md).
   With a right pose τ stays near 1 mm (the sensor's noise); a pose 2 mm off raises it to about
@@ -2202,9 +2204,9 @@ def remove_table_and_bin(
         move the z-cut's z_max up to the rim; 0: off). ``mode``: ``"paper"`` uses δ as given;
         ``"robust"`` replaces it by the frame's tolerance (:func:`frame_tolerance`), tests it before
         the rim (a point within τ of the model is bin, not an easy outlier) and lets the
-        stragglers reach ``straggler_mm`` beyond τ and beyond the search radius, but along the normal no
-        farther than 3 of the bin's Err at the pixel where the frame measured the bin's residual scale
-        (:func:`straggler_bound_m`).
+        stragglers reach ``straggler_mm`` beyond τ and beyond the search radius; with ``straggler_bound`` on
+        (off by default), along the normal no farther than 3 of the bin's Err at the pixel where the frame
+        measured the bin's residual scale (:func:`straggler_bound_m`).
     T_cam_bin : (4, 4) float ndarray, optional
         The registered pose of the model.
     ring : (H, W) bool ndarray, optional

@@ -5,9 +5,9 @@ definition even when the removal's tolerance (τ plus the straggler pass's margi
 
 A real log (``zcut synth --pile walls``, hand-made spheres at 480 × 300, where 3 × the bin's Err is
 below τ plus the straggler margin) with one wall pixel moved along the wall's inward normal, the whole
-pipeline run on the moved frame: a removal whose tolerance reaches τ plus the straggler margin (fixed: the
-straggler pass itself stops at 3 of the bin's Err since issue 31 item 2's bound, and leaves such a point in
-the zone) labels it bin; ``explained`` flags it only when it judges the removal's bin pixels, and only when
+pipeline run on the moved frame: a removal whose tolerance reaches τ plus the straggler margin (fixed: with
+issue 31 item 2's bound on, ``straggler_bound``, the straggler pass itself stops at 3 of the bin's Err and leaves
+such a point in the zone) labels it bin; ``explained`` flags it only when it judges the removal's bin pixels, and only when
 it lies beyond k × Err (not at half of it).
 """
 
@@ -95,10 +95,14 @@ def test_a_point_the_removal_took_beyond_k_err_of_the_wall_is_unexplained(walls)
     assert zone.removal is not None
     reach = zone.removal.tolerance_mm + session.config.removal.straggler_mm
     assert p.k * err + 0.3 < reach, f"3 Err {p.k * err:.2f} mm is not below the removal's reach {reach:.2f} mm"
-    # the default removal's straggler pass stops at 3 of the bin's Err: the point beyond stays in the zone
+    # with the bound on, the straggler pass stops at 3 of the bin's Err: the point beyond stays in the zone
     far = _moved(frame, rc, n_in, 0.5 * (p.k * err + reach))
-    z0 = bin_zone(far, session.config, bin_model=session.prepared)
-    assert z0.removal is not None and z0.zone[rc]
+    for which, kept in (("local", True), ("global", True), ("off", False)):
+        rp = dataclasses.replace(session.config.removal, straggler_bound=which)
+        z0 = bin_zone(far, dataclasses.replace(session.config, removal=rp),
+                      bin_model=prepare_bin_model(session.bin_model, registration=session.config.registration,
+                                                  removal=rp))
+        assert z0.removal is not None and z0.zone[rc] == kept, which
     # a removal whose tolerance reaches τ + straggler_mm (fixed) takes it
     config = dataclasses.replace(session.config, removal=dataclasses.replace(session.config.removal, tolerance_mm=reach))
     prepared = prepare_bin_model(session.bin_model, registration=config.registration, removal=config.removal)

@@ -142,8 +142,8 @@ def _ring(xyz):
     {"residual_quantile": 50.0, "residual_margin_mm": 0.0, "min_tolerance_mm": 0.0},
     {"max_tolerance_mm": 1.5, "straggler_neighbours": 5},
     {"search_radius_mm": 6.0, "rim_offset_mm": 0.0},
+    {"straggler_bound": "local"},
     {"straggler_bound": "global"},
-    {"straggler_bound": "off"},
 ])
 @pytest.mark.parametrize("angle", [0.0, 2.0])
 @pytest.mark.parametrize("normals", [True, False])

@@ -62,8 +62,8 @@ def logs(tmp_path_factory):
 PARAMS = {
     "robust": {},
     "robust-no-stragglers": {"straggler_mm": 0.0},
+    "robust-local-bound": {"straggler_bound": "local"},
     "robust-global-bound": {"straggler_bound": "global"},
-    "robust-no-bound": {"straggler_bound": "off"},
     "paper": {"mode": "paper"},
     "paper-stragglers": {"mode": "paper", "straggler_mm": 2.0, "straggler_neighbours": 3},
     "paper-no-stragglers": {"mode": "paper", "straggler_mm": 0.0},

@@ -41,6 +41,7 @@ from zcut.removal import (
 )
 
 H, W = 300, 480
+LOCAL = RemovalParams(straggler_bound="local")  # the bound is off by default
 KIND, SEED = "spheres", 31
 FIELDS = ("table", "easy_outliers", "bin_points", "zone", "height_mm", "xyz")
 
@@ -59,7 +60,7 @@ def scene(tmp_path_factory):
     surface = synthesize_frame(kind=KIND, seed=SEED, index=0, size=(H, W)).surface
     T = loc.registration.T_cam_bin
     model = s.prepared.model
-    rem = remove_table_and_bin(frame.xyz, loc.bin_mask.mask, index=prepare_removal_index(model, RemovalParams()),
+    rem = remove_table_and_bin(frame.xyz, loc.bin_mask.mask, index=prepare_removal_index(model, LOCAL),
                                T_cam_bin=T, ring=loc.ring)
     wall = (surface == LABEL_WALL) & rem.bin_points
     inner = wall.copy()
@@ -115,7 +116,7 @@ def _assert_same(a, b):
 
 def test_stragglers_beyond_three_errs_stay_in_the_zone(scene):
     xyz, fp, ring, T, model, f, picks = scene
-    p = RemovalParams()
+    p = LOCAL
     index = prepare_removal_index(model, p)
     tol = frame_tolerance(xyz, ring, index, T)  # the ring (rim, upper walls) holds no pick: τ as with them moved
     assert np.isfinite(tol.sigma_mm) and 0.01 < tol.sigma_mm < 0.5
@@ -148,6 +149,10 @@ def test_stragglers_beyond_three_errs_stay_in_the_zone(scene):
     no_pass = prepare_removal_index(model, dataclasses.replace(p, straggler_mm=0.0))
     plain = remove_table_and_bin(moved, fp, index=no_pass, T_cam_bin=T, ring=ring)
     assert (got.bin_points & ~plain.bin_points).sum() > inside.sum()
+
+
+def test_the_bound_is_off_by_default():
+    assert RemovalParams().straggler_bound == "off"
 
 
 @pytest.mark.parametrize("which", ["global", "off"])
@@ -210,7 +215,7 @@ def test_the_bounded_pass_equals_the_reference_on_invalid_and_degenerate_frames(
     """Large invalid regions and degenerate frames: the fast path, its ``reference=True`` path and the literal
     reference agree (the bound is known when the ring measures a field, else not applied)."""
     xyz, fp, ring, T, model, f, picks = scene
-    p = RemovalParams()
+    p = LOCAL
     index = prepare_removal_index(model, p)
     a = _moved(xyz, T, model, picks, np.full(len(picks), 0.003))
     if case == "half NaN":
