@@ -76,6 +76,10 @@ BANK_BASE: dict[str, dict[str, str]] = {
 
 #: fields that cannot change the result on this log, and why (a reason, never a silence)
 UNCHANGED: dict[str, str] = {
+    "removal.straggler_bound": "no straggler of this small log lies beyond 3 of the bin's Err (the bound gives no "
+                               "pixel back); tests/zcut/test_removal_straggler_bound.py moves wall pixels beyond it "
+                               "and checks each setting's result, the removal's parameters reaching every command as "
+                               "one RemovalParams",
     "registration.seed_from_first_frame": "the synthetic bin does not move between frames: frame 0's pose is the "
                                           "seed itself, and frame 1, registered from scratch or from frame 0's "
                                           "pose, converges to the same pose (fitness and RMSE equal to 9 digits); "
