@@ -1055,6 +1055,9 @@ class Tolerance:
         The angle one pixel subtends (rad, 1 / f, f the focal length in pixels): a pixel's footprint at depth z is
         ``z * pixel_rad`` (:func:`pixel_angle`, from the measured pixels and their neighbours); NaN when
         :attr:`sigma_mm` is (not measured) or no pair of neighbours gives it.
+    sigma_tiles_mm : (ceil(H / 32), ceil(W / 32)) float ndarray or None
+        σ_bin by tile (:func:`local_sigma_mm`), measured only when ``RemovalParams.straggler_bound`` is
+        ``"local"`` (None otherwise).
     """
 
     tolerance_mm: float
@@ -1903,7 +1906,8 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
     sigma_m = bin_sigma_m(use)
     rad = pixel_angle(a, flat) if np.isfinite(sigma_m) else float("nan")
-    tiles = local_sigma_mm(a.shape[:2], flat[keep] if surface else flat, use, sigma_m)
+    tiles = local_sigma_mm(a.shape[:2], flat[keep] if surface else flat, use, sigma_m) \
+        if p.straggler_bound == "local" else None  # 17 CPU ms at 1920 x 1200: only when the bound reads them
     return Tolerance(float(tau), q, len(res), n_coh, float(reach), n_off_field=int(np.count_nonzero(off)),
                      sigma_mm=1000.0 * sigma_m, pixel_rad=rad, sigma_tiles_mm=tiles)
 
@@ -2139,7 +2143,8 @@ def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
     sigma_m = bin_sigma_m(use)
     rad = pixel_angle(a, flat) if np.isfinite(sigma_m) else float("nan")
-    tiles = local_sigma_mm(a.shape[:2], flat[keep] if use_coherent else flat, use, sigma_m)
+    tiles = local_sigma_mm(a.shape[:2], flat[keep] if use_coherent else flat, use, sigma_m) \
+        if p.straggler_bound == "local" else None
     return Tolerance(float(tau), q, len(res), n_coh, float(reach), surface=surface,
                      n_off_field=int(np.count_nonzero(off)), sigma_mm=1000.0 * sigma_m, pixel_rad=rad,
                      sigma_tiles_mm=tiles)
