@@ -571,6 +571,7 @@ def cpu_seconds() -> float:
 
 
 def main() -> int:
+    global MODES
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", choices=tuple(SEEDS), default="report")
     ap.add_argument("--frames", type=int, default=3)
@@ -580,7 +581,10 @@ def main() -> int:
     ap.add_argument("--out", default=None, help="the report (default docs/bin_robustness.md for --seeds report, "
                                                 "else DIR/bin_robustness.md)")
     ap.add_argument("--rerun", action="store_true", help="recompute the results even when DIR holds them")
+    ap.add_argument("--modes", default=",".join(MODES),
+                    help="the removal modes to run (default paper,robust; robust alone: a change of the robust mode)")
     args = ap.parse_args()
+    MODES = tuple(m for m in ("paper", "robust") if m in args.modes.split(","))
     d = Path(args.dir or f"/tmp/zcut_bin_robustness_{args.seeds}{'' if args.sensor == 'handmade' else '_' + args.sensor}")
     w, h = (int(v) for v in args.size.split("x"))
     t0 = time.perf_counter()

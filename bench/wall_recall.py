@@ -100,6 +100,8 @@ POSES = ("registered", "true")
 #: the bin model (``--model``): the log's exact one, or one ``zcut bin-model`` builds from EMPTY_SCANS empty scans
 #: of the same generator and size (``zcut synth --empty``, seed: the generator's base seed + EMPTY_SEED_OFFSET)
 MODEL = "exact"
+#: ``--stragglers``: the bound's variant (``RemovalParams.straggler_bound``, off by default) the rows measure
+BOUND = "local"
 EMPTY_SCANS = 2
 EMPTY_SEED_OFFSET = 10
 
@@ -874,8 +876,151 @@ def cpu_seconds() -> float:
     return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
+# ---- the straggler pass bounded by 3 of the bin's Err (issue 31 item 2, round 2026-12-05d) ------------------
+
+
+def straggler_rows(d: Path, sensor: str, pile: str, kind: str, size: str, frames: int) -> list[dict]:
+    """``--stragglers``: per frame (registered pose, the truth of ``--truth``) what the removal keeps near a wall /
+    elsewhere (:func:`headline_table`'s counts), the near outliers the straggler pass alone took, the bin's noise
+    scale and the pixel's angle the bound read (:attr:`zcut.removal.Tolerance.sigma_mm`, ``pixel_rad``), and, in a
+    tree with the bound, the same removal with the bound off (the previous rule: the pixel's angle unknown) and the
+    pixels the bound gave back to the zone: by surface (hand-made: the synthesis's labels) and flagged by each
+    method (one :func:`run_frame` with every method, as :func:`study`'s). Each method's zone counts (F1) come from
+    the same run. Run in a tree without the bound (the file copied into a ``git archive`` of it) it gives that
+    tree's counts: the bound's columns are left out."""
+    from zcut import removal as rm
+
+    bounded = hasattr(rm, "straggler_bound_m")
+    seed = SEEDS[sensor] + ALL_KINDS.index(kind)
+    log = log_path(d, sensor, pile, kind, size, frames)
+    model = bin_model_of(d, log, sensor, size)
+    session = ReplaySession.open(log, bin_model=model, overrides=cli_layer(methods=",".join(METHODS)))
+    cfg, pm = session.config, session.prepared
+    assert pm is not None
+    if bounded and hasattr(cfg.removal, "straggler_bound"):  # the bound is a switch (off by default): --bound
+        cfg = dataclasses.replace(cfg, removal=dataclasses.replace(cfg.removal, straggler_bound=BOUND))
+        pm = prepare_bin_model(session.bin_model, registration=cfg.registration, removal=cfg.removal)
+    pm0 = prepare_bin_model(session.bin_model, registration=cfg.registration,
+                            removal=dataclasses.replace(cfg.removal, straggler_mm=0.0))
+    poses = true_poses_of(session.reader.metadata)
+    rows = []
+    for frame in session.reader.frames():
+        T_true = poses[frame.stamp_ns]
+        loc = locate_bin(frame, cfg, bin_model=pm, seed=session.seed)
+        reg = loc.registration
+        assert reg is not None and loc.bin_mask is not None
+        fp, args = loc.bin_mask.mask, {"T_cam_bin": reg.T_cam_bin, "ring": loc.ring}
+        r = run_frame(frame, cfg, bin_model=pm, located=loc)
+        rem = r.removal
+        assert rem is not None
+        rem0 = rm.remove_table_and_bin(frame.xyz, fp, index=pm0.removal, **args)
+        dist, inside = wall_mm(frame.xyz, T_true)
+        truth_all = frame.masks[TRUTHS[TRUTH]]
+        truth = truth_all & r.valid & inside
+        near, far = truth & (dist <= NEAR_MM), truth & ~(dist <= NEAR_MM)
+        strag = rem.bin_points & ~rem0.bin_points
+        fa = frame_accuracy(frame.index, frame.stamp_ns, dict(r.outliers), truth_all & r.valid, valid=r.valid,
+                            region=scored_region(r, "zone"))
+        row: dict = {"sensor": sensor, "pile": pile, "kind": kind, "seed": seed, "frame": frame.index,
+                     "tau": float(rem.tolerance_mm), "strag_px": int(strag.sum()), "bin_px": int(rem.bin_points.sum()),
+                     "zone_counts": {m: [c.tp, c.fp, c.fn] for m, c in fa.counts.items()}}
+        for name, sel in (("near", near), ("far", far)):
+            row[f"n_{name}"] = int(sel.sum())
+            row[f"kept_{name}"] = int((sel & (rem.zone | rem.easy_outliers)).sum())
+            row[f"strag_{name}"] = int((sel & strag).sum())
+            row[f"found_{name}"] = {m: int((sel & v).sum()) for m, v in r.outliers.items()}
+        if bounded:
+            tol = rm.frame_tolerance(frame.xyz, loc.ring, pm.removal, reg.T_cam_bin)
+            row["sigma_mm"], row["pixel_rad"] = tol.sigma_mm, tol.pixel_rad
+            angle = rm.pixel_angle
+            rm.pixel_angle = lambda a, flat: float("nan")  # the angle unknown: no bound, the previous rule
+            try:
+                prev = rm.remove_table_and_bin(frame.xyz, fp, index=pm.removal, **args)
+            finally:
+                rm.pixel_angle = angle
+            assert not (rem.bin_points & ~prev.bin_points).any(), "the bound only gives pixels back"
+            back = prev.bin_points & ~rem.bin_points
+            for name, sel in (("near", near), ("far", far)):
+                row[f"prev_kept_{name}"] = int((sel & (prev.zone | prev.easy_outliers)).sum())
+                row[f"prev_strag_{name}"] = int((sel & prev.bin_points & ~rem0.bin_points).sum())
+            row["back_px"], row["back_true"] = int(back.sum()), int((back & truth_all).sum())
+            row["back_flagged"] = {m: int((v & back).sum()) for m, v in r.outliers.items()}
+            if sensor == "handmade":  # what the pixels are, from the synthesis itself
+                h, w = frame.xyz.shape[:2]
+                surface = synthesize_frame(kind=kind, seed=seed, index=frame.index, size=(h, w), pile=pile).surface
+                lab, cnt = np.unique(surface[back], return_counts=True)
+                row["back_surface"] = {LABELS.get(int(c), str(c)): int(n) for c, n in zip(lab, cnt, strict=True)}
+                lab, cnt = np.unique(surface[strag], return_counts=True)
+                row["strag_surface"] = {LABELS.get(int(c), str(c)): int(n) for c, n in zip(lab, cnt, strict=True)}
+                own = back & np.isin(surface, (2, 3, 4))  # floor, wall, rim: the bin's own pixels
+                row["back_bin_flagged"] = {m: int((v & own).sum()) for m, v in r.outliers.items()}
+        rows.append(row)
+        print(f"  {sensor} {pile} {kind} frame {frame.index} done", flush=True)
+    return rows
+
+
+def straggler_table(rows: list[dict]) -> list[str]:
+    """The headline per generator (:func:`straggler_rows`): the removal's keep rate near / elsewhere with the
+    previous rule and with the bound, the near outliers the straggler pass took, the pixels the bound gave back."""
+    def sums(sel, k):
+        return sum(r[k] for r in sel)
+
+    def surf(sel, k):
+        out: dict = {}
+        for r in sel:
+            for s, n in r.get(k, {}).items():
+                out[s] = out.get(s, 0) + n
+        return ", ".join(f"{s} {n}" for s, n in sorted(out.items())) or "–"
+
+    out = ["| generator | pile | frames | near: n | elsewhere: n | the removal keeps, previous rule: near / elsewhere "
+           "(Δ) | with the bound (Δ) | within 0.05 | near taken by the straggler pass: previous → bound | τ mm | "
+           "σ_bin mm | pixels given back (true outliers) | … by surface | … flagged by a method (most) | "
+           "the straggler pass's pixels with the bound, by surface |",
+           "|---|---|---:|---:|---:|---|---|---|---|---|---|---|---|---|---|"]
+    for sensor, pile in sorted({(r["sensor"], r["pile"]) for r in rows}):
+        sel = [r for r in rows if (r["sensor"], r["pile"]) == (sensor, pile)]
+        nn, nf = sums(sel, "n_near"), sums(sel, "n_far")
+        kn, kf = _rec(sums(sel, "kept_near"), nn), _rec(sums(sel, "kept_far"), nf)
+        bounded = all("sigma_mm" in r for r in sel)
+        prev = (f"{_f(_rec(sums(sel, 'prev_kept_near'), nn))} / {_f(_rec(sums(sel, 'prev_kept_far'), nf))} "
+                f"({_rec(sums(sel, 'prev_kept_near'), nn) - _rec(sums(sel, 'prev_kept_far'), nf):+.4f})"
+                if bounded else "–")
+        flagged: dict = {}
+        for r in sel:
+            for m, n in r.get("back_flagged", {}).items():
+                flagged[m] = flagged.get(m, 0) + n
+        top = ", ".join(f"{m} {n}" for m, n in sorted(flagged.items(), key=lambda x: -x[1])[:4]) or "–"
+        out.append(
+            f"| {sensor} | {pile} | {len(sel)} | {nn} | {nf} | {prev} | {_f(kn)} / {_f(kf)} ({kn - kf:+.4f}) | "
+            f"{'yes' if abs(kn - kf) <= TARGET else '**no**'} | "
+            f"{sums(sel, 'prev_strag_near') if bounded else '–'} → {sums(sel, 'strag_near')} | "
+            f"{', '.join(format(r['tau'], '.2f') for r in sel)} | "
+            f"{', '.join(format(r['sigma_mm'], '.3f') for r in sel) if bounded else '–'} | "
+            f"{sums(sel, 'back_px') if bounded else '–'} ({sums(sel, 'back_true') if bounded else '–'}) | "
+            f"{surf(sel, 'back_surface')} | {top} | {surf(sel, 'strag_surface')} |")
+    return out
+
+
+def method_f1_table(rows: list[dict]) -> list[str]:
+    """Every method's F1 over the zone (:func:`straggler_rows`' counts, pooled) and its near / elsewhere recall Δ."""
+    methods = [m for m in (*METHODS, "intersection", "union") if all(m in r["found_near"] for r in rows)]
+    out = ["| generator | pile | " + " | ".join(f"`{m}` F1 (recall Δ)" for m in methods) + " |",
+           "|---|---|" + "---|" * len(methods)]
+    for sensor, pile in sorted({(r["sensor"], r["pile"]) for r in rows}):
+        sel = [r for r in rows if (r["sensor"], r["pile"]) == (sensor, pile)]
+        cells = []
+        for m in methods:
+            tp, fp, fn = (sum(r["zone_counts"][m][i] for r in sel) for i in range(3))
+            f1 = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else float("nan")
+            nn, nf = sum(r["n_near"] for r in sel), sum(r["n_far"] for r in sel)
+            d_ = _rec(sum(r["found_near"][m] for r in sel), nn) - _rec(sum(r["found_far"][m] for r in sel), nf)
+            cells.append(f"{f1:.3f} ({d_:+.3f})")
+        out.append(f"| {sensor} | {pile} | " + " | ".join(cells) + " |")
+    return out
+
+
 def main() -> int:
-    global TRUTH, POSES, MODEL
+    global TRUTH, POSES, MODEL, BOUND
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sensors", default="handmade,raytraced")
     ap.add_argument("--piles", default="walls,floor")
@@ -885,6 +1030,9 @@ def main() -> int:
     ap.add_argument("--dir", default="/tmp/zcut_wall_recall")
     ap.add_argument("--side", action="store_true", help="only the side test's table (issue 31 item 2)")
     ap.add_argument("--check", action="store_true", help="only the bin check's flags (issue 31 item 1)")
+    ap.add_argument("--stragglers", action="store_true",
+                    help="only the removal's keep rate with the straggler pass bounded by 3 bin Errs and the "
+                         "previous rule, and what the bound gave back (registered pose; issue 31 item 2)")
     ap.add_argument("--fits", action="store_true",
                     help="only `explained`'s near-wall misses on the ray-traced logs, taken apart (registered pose)")
     ap.add_argument("--seeds", default=",".join(f"{k}:{v}" for k, v in SEEDS.items()),
@@ -894,11 +1042,14 @@ def main() -> int:
     ap.add_argument("--model", choices=("exact", "scans"), default=MODEL,
                     help=f"the bin model: the log's exact one (default) or one built from {EMPTY_SCANS} empty scans "
                          f"(seed: the generator's base seed + {EMPTY_SEED_OFFSET})")
+    ap.add_argument("--bound", choices=("local", "global"), default=BOUND,
+                    help="--stragglers: the straggler bound's variant measured (RemovalParams.straggler_bound)")
     ap.add_argument("--truth", choices=sorted(TRUTHS), default=TRUTH,
                     help="the truth the recalls count: the paper's (default, /ground_truth/off_surface) or the "
                          "sensor's (/ground_truth/outliers)")
     args = ap.parse_args()
     TRUTH = args.truth
+    BOUND = args.bound
     MODEL = args.model
     POSES = tuple(p for p in ("registered", "true") if p in args.poses.split(","))
     for item in args.seeds.split(","):
@@ -925,6 +1076,21 @@ def main() -> int:
         for r in rows:
             if r["flagged"]:
                 print(f"- flagged: {r['sensor']} {r['pile']} {r['kind']} frame {r['frame']} {r['pose']}: {r['reason']}")
+        print(f"\n{time.perf_counter() - t0:.0f} s, {cpu_seconds():.0f} CPU-s")
+        return 0
+    if args.stragglers:
+        for sensor in args.sensors.split(","):
+            for pile in args.piles.split(","):
+                for kind in args.kinds.split(","):
+                    rows += straggler_rows(d, sensor, pile, kind, args.size, args.frames)
+        from zcut import removal as rm
+
+        tree = "bound" if hasattr(rm, "straggler_bound_m") else "previous"
+        (d / f"stragglers_{'_'.join(f'{k}{v}' for k, v in SEEDS.items())}_{MODEL}_{tree}.json").write_text(json.dumps(rows))
+        print("\n### The straggler pass bounded by 3 bin Errs: what the removal keeps (registered pose)\n")
+        print("\n".join(straggler_table(rows)))
+        print("\n### Every method over the zone: F1 (near − elsewhere recall) (registered pose)\n")
+        print("\n".join(method_f1_table(rows)))
         print(f"\n{time.perf_counter() - t0:.0f} s, {cpu_seconds():.0f} CPU-s")
         return 0
     if args.fits:

@@ -272,6 +272,7 @@ SOR_REGIONS = ("top", "zone")
 REGISTRATION_METHODS = ("point_to_plane", "point_to_point")
 #: The bin removal's modes: the paper's rule as written, or the one that tolerates a real registration.
 REMOVAL_MODES = ("robust", "paper")
+STRAGGLER_BOUNDS = ("local", "global", "off")
 
 
 __all__ += ["ZCutTopParams"]
@@ -420,6 +421,12 @@ class RemovalParams:
         added to the tolerance.
     straggler_neighbours : int
         Labelled neighbours (of 8) a straggler needs.
+    straggler_bound : {"local", "global", "off"}
+        Robust mode: a straggler is bin only within 3 of the bin's Err of the model
+        (:func:`zcut.removal.straggler_bound_m`), the Err's σ_bin the residual scale of the certain bin pixels
+        around it (``"local"``: their tiles, never below the frame's) or of the frame's (``"global"``);
+        ``"off"`` (default): τ + ``straggler_mm``, no bound — both bounds keep every near-wall outlier on the
+        walls piles but cost the z-cut's F1 with a model off the bin by about 1 mm (docs/bin_robustness.md).
     mode : {"robust", "paper"}
         ``"paper"``: the paper's §5.2 rule as written, δ = ``delta_mm`` (0.1 mm), which removes the
         bin only when the registration is right to about a tenth of a millimetre. ``"robust"``
@@ -453,6 +460,7 @@ class RemovalParams:
     search_radius_mm: float | None = None
     straggler_mm: float = 2.0
     straggler_neighbours: int = 3
+    straggler_bound: str = "off"
     mode: str = "robust"
     tolerance_mm: float | None = None
     residual_quantile: float = 99.0
@@ -470,6 +478,7 @@ class RemovalParams:
         _number(self, "straggler_mm", ge=0)
         _number(self, "straggler_neighbours", ge=0, le=8, integer=True)
         _choice(self, "mode", REMOVAL_MODES)
+        _choice(self, "straggler_bound", STRAGGLER_BOUNDS)
         _number(self, "tolerance_mm", ge=0, optional=True)
         _number(self, "residual_quantile", gt=0, le=100)
         _number(self, "residual_margin_mm", ge=0)

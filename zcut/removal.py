@@ -26,7 +26,15 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
   the point within τ of it along its normal) is measured on the same pixels: their distances to the
   nearest model point (:attr:`Tolerance.reach_mm`; a model built from a few low-resolution scans
   is sampled more coarsely than ``1.5 × spacing_m`` says). The straggler test reaches
-  ``straggler_mm`` beyond both: τ + ``straggler_mm`` along the normal, the radius + ``straggler_mm``.
+  ``straggler_mm`` beyond both: τ + ``straggler_mm`` along the normal, the radius + ``straggler_mm``; with
+  ``RemovalParams.straggler_bound`` on (off by default: it costs the z-cut's F1 under a model ~1 mm off the bin), no
+  farther than 3 of the bin's Err along the normal (the paper's §2: a point farther than 3 Err from the fitted
+  model is an outlier), Err = max(0.05 mm, √(σ_bin² + c²/2)) with σ_bin the residual scale of the pixels τ is
+  measured on (:func:`bin_sigma_m`, :attr:`Tolerance.sigma_mm`) and c the pixel's footprint (z / f,
+  :func:`pixel_angle`; ``"local"``: σ_bin of the measured pixels around the straggler, :func:`local_sigma_mm`):
+  :func:`straggler_bound_m`. Without a measured τ (fixed, no ring) the bound is not known and
+  not applied. On hand-made walls piles every near-wall true outlier the removal took was a straggler 3.1-4.2
+  bin Errs from the model (docs/bin_robustness.md).
   With a right pose τ stays near 1 mm (the sensor's noise); a pose 2 mm off raises it to about
   3 mm, and the removal follows the registration instead of failing on it.
 """
@@ -52,6 +60,21 @@ if TYPE_CHECKING:
 BIN_UP = np.array([0.0, 0.0, -1.0])
 BIN_UP.setflags(write=False)
 STRAGGLER_PASSES = 8
+#: The straggler test's bound (issue 31 item 2): a straggler lies within this many of the bin's Err of the model
+#: (the paper's §2: a point farther than 3 Err from the fitted model is an outlier, so not bin) ...
+STRAGGLER_ERRS = 3.0
+#: ... the Err being ``max(STRAGGLER_ERR_FLOOR_MM, sqrt(σ_bin² + c² / 2))`` (c the pixel's footprint; the floor
+#: is ``explained``'s, ``ExplainedParams.err_floor_mm``): :func:`straggler_bound_m`
+STRAGGLER_ERR_FLOOR_MM = 0.05
+_STRAGGLER_ERR_FLOOR_M = STRAGGLER_ERR_FLOOR_MM / 1000.0
+#: ``RemovalParams.straggler_bound == "local"``: σ_bin of a pixel's Err is that of the measured pixels in its tile of
+#: this many pixels square and the eight around it (a window of 3 × 32 px) ...
+STRAGGLER_TILE_PX = 32
+#: ... when they are at least this many, and never below the frame's (:func:`local_sigma_mm`)
+STRAGGLER_TILE_MIN = 16
+_NO_BOUND = np.full((1, 1), -1.0)  # the kernels' σ_bin² tiles when the bound is off
+_NO_BOUND.setflags(write=False)
+_ONE_TILE = 1 << 30  # the kernels' tile size when one σ_bin holds for the frame
 
 
 def finite_xyz(xyz: XYZ) -> Mask:
@@ -344,6 +367,18 @@ def _to_bin(a, r, c, R, t):  # type: ignore[no-untyped-def]  # numba kernel  # p
             dx * R[0, 2] + dy * R[1, 2] + dz * R[2, 2])
 
 
+@numba.njit(cache=True, inline="always")
+def _straggler_delta(z, delta, s2, rad):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """The straggler test's distance bound at a pixel of camera depth ``z`` (m): :func:`straggler_bound_m` with
+    ``s2`` = σ_bin² (m²; negative: unknown, ``delta`` as it is) and ``rad`` the pixel's angle, the same operations
+    in the same order."""
+    if s2 < 0.0:
+        return delta
+    c = abs(np.float64(z)) * rad
+    err = max(_STRAGGLER_ERR_FLOOR_M, np.sqrt(s2 + 0.5 * c * c))
+    return min(delta, STRAGGLER_ERRS * err)
+
+
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _classify(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm, off, delta,  # type: ignore[no-untyped-def]  # numba kernel
               radius, planes, valid, table, easy, binp):  # pragma: no cover - numba
@@ -397,15 +432,18 @@ def _straggler_start(valid, table, binp, easy, fp, neighbours, lab, open_, cand)
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _test_pixels(a, flat, R, t, origin, cell, dims, start, pts, nrm, off, delta, radius,  # type: ignore[no-untyped-def]  # numba kernel
-                 planes):  # pragma: no cover - numba
-    """(M,) bool: the pixels ``flat`` (row-major indices) are within ``delta`` of the model."""
+                 planes, s2g, tile, rad):  # pragma: no cover - numba
+    """(M,) bool: the pixels ``flat`` (row-major indices) are within ``delta`` of the model, ``delta`` bounded at
+    each pixel by :func:`_straggler_delta` with the σ_bin² of its tile (``s2g[r // tile, c // tile]``; < 0: not
+    bounded)."""
     W = a.shape[1]
     ok = np.zeros(flat.shape[0], np.bool_)
     for i in numba.prange(flat.shape[0]):
         r = flat[i] // W
         c = flat[i] - r * W
         px, py, pz = _to_bin(a, r, c, R, t)
-        ok[i] = _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radius, planes)
+        d = _straggler_delta(a[r, c, 2], delta, s2g[r // tile, c // tile], rad)
+        ok[i] = _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, d, radius, planes)
     return ok
 
 
@@ -607,14 +645,15 @@ def _labelled_around(code, r, c, H, W):  # type: ignore[no-untyped-def]  # numba
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,  # type: ignore[no-untyped-def]  # numba kernel
-                     planes, first):  # pragma: no cover - numba
+                     planes, s2g, tile, rad, first):  # pragma: no cover - numba
     """The straggler test's first pass in one pass over the frame: ``first`` (uint8) is 1 at
     :func:`_straggler_start`'s candidates (open pixels with >= ``neighbours`` labelled ones) that fail the test,
     2 at those that pass, 0 elsewhere. ``code`` is only read: every candidate is judged on the labels before
     the pass, as the reference's first pass judges them. The counts are :func:`_labelled_around`'s, as sums
     of three column sums of the row and its two neighbours (an open pixel is not labelled itself), each of the
     row's three loops free of branches but the last, over its few candidates: so they vectorize (a branch per
-    pixel on its class, or per neighbour, cost 6.3 of the pass's 9.4 CPU ms at 1920 x 1200; now 0.6)."""
+    pixel on its class, or per neighbour, cost 6.3 of the pass's 9.4 CPU ms at 1920 x 1200; now 0.6). ``delta`` is
+    bounded at each pixel by :func:`_straggler_delta` (the tile's ``s2g``, ``rad``)."""
     H, W = code.shape
     for r in numba.prange(H):
         col = np.zeros(W + 2, np.uint8)  # col[c + 1]: labelled pixels of column c in rows r-1..r+1
@@ -628,8 +667,8 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
         for c in range(W):
             if first[r, c]:
                 px, py, pz = _to_bin(a, r, c, R, t)
-                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,
-                               planes, hint)
+                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,
+                               _straggler_delta(a[r, c, 2], delta, s2g[r // tile, c // tile], rad), radius, planes, hint)
                 if j >= 0:
                     first[r, c] = 2
                     hint = j
@@ -637,7 +676,7 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
 
 @numba.njit(cache=True, nogil=True)
 def _straggler_rest(a, code, words, neighbours, passes, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,  # type: ignore[no-untyped-def]  # numba kernel
-                    delta, radius, planes):  # pragma: no cover - numba
+                    delta, radius, planes, s2g, tile, rad):  # pragma: no cover - numba
     """The first pass's outcome (``first``) into ``code``, then the passes after it (up to ``passes`` in
     all), each testing the open neighbours of the pixels the previous one labelled (serial: a few
     pixels each; a parallel launch would cost more than them). ``words``: ``first`` as 64-bit words (eight
@@ -674,8 +713,8 @@ def _straggler_rest(a, code, words, neighbours, passes, R, t, origin, cell, dims
             r = q // W
             c = q - r * W
             px, py, pz = _to_bin(a, r, c, R, t)
-            j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius, planes,
-                           hint)
+            j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,
+                           _straggler_delta(a[r, c, 2], delta, s2g[r // tile, c // tile], rad), radius, planes, hint)
             if j >= 0:
                 ok[i] = True
                 hint = j
@@ -783,10 +822,12 @@ class _ZoneTop:
 
 
 def _straggler_codes(a: np.ndarray, code: np.ndarray, R: np.ndarray, t: np.ndarray, index: _ModelIndex, *,
-                     straggler_m: float, radius_m: float, planes: bool, neighbours: int) -> None:
+                     straggler_m: float, radius_m: float, planes: bool, neighbours: int,
+                     bound: tuple[np.ndarray, int, float]) -> None:
     """:func:`_straggler_passes` on the class codes (in place): the same passes, each testing only the open
     neighbours of the pixels the previous one labelled."""
-    grid = (*_grid_args(index), index.ijk, index.busy, index.box, float(straggler_m), float(radius_m), planes)
+    grid = (*_grid_args(index), index.ijk, index.busy, index.box, float(straggler_m), float(radius_m), planes,
+            *bound)
     n = code.size
     buf = np.empty(n + (-n % 8), np.uint8)  # ``first``, padded to whole 64-bit words
     buf[n:] = 0
@@ -919,7 +960,7 @@ def _grid_args(index: _ModelIndex) -> tuple[np.ndarray, float, np.ndarray, np.nd
 
 def _straggler_passes(a: np.ndarray, binp: Mask, lab: np.ndarray, open_: Mask, R: np.ndarray,
                       t: np.ndarray, index: _ModelIndex, *, straggler_m: float, radius_m: float,
-                      planes: bool, neighbours: int, first: Mask) -> None:
+                      planes: bool, neighbours: int, first: Mask, bound: tuple[np.ndarray, int, float]) -> None:
     """Grow ``binp`` (in place) along the noisy bin surface, see ``straggler_m``.
 
     ``lab`` (uint8: table, bin or invalid) and ``open_`` (allowed, not bin, not yet tried) are
@@ -936,7 +977,7 @@ def _straggler_passes(a: np.ndarray, binp: Mask, lab: np.ndarray, open_: Mask, R
         if cand.size == 0:
             break
         open_f[cand] = False
-        near = _test_pixels(a, cand, R, t, *grid, float(straggler_m), float(radius_m), planes)
+        near = _test_pixels(a, cand, R, t, *grid, float(straggler_m), float(radius_m), planes, *bound)
         new = cand[near]
         if new.size == 0:
             break
@@ -1005,6 +1046,18 @@ class Tolerance:
         Of the coherent pixels, those left out of the percentile because they and the surface their ring
         neighbours form lie off the registered bin's residual field (:func:`off_field`: the faces of parts
         leaning on a wall); 0 when the field could not be fitted.
+    sigma_mm : float
+        σ_bin, the bin's residual scale: 1.4826 × the median of the residuals τ's percentile was taken over
+        (:func:`bin_sigma_m`, in mm); NaN when τ was not measured (fixed, no ring pixel). With :attr:`pixel_rad`
+        it bounds the straggler test at 3 × the bin's Err (:func:`straggler_bound_m`); +inf (no bound) when most
+        of the pixels have no model point within ``max_tolerance_mm``.
+    pixel_rad : float
+        The angle one pixel subtends (rad, 1 / f, f the focal length in pixels): a pixel's footprint at depth z is
+        ``z * pixel_rad`` (:func:`pixel_angle`, from the measured pixels and their neighbours); NaN when
+        :attr:`sigma_mm` is (not measured) or no pair of neighbours gives it.
+    sigma_tiles_mm : (ceil(H / 32), ceil(W / 32)) float ndarray or None
+        σ_bin by tile (:func:`local_sigma_mm`), measured only when ``RemovalParams.straggler_bound`` is
+        ``"local"`` (None otherwise).
     """
 
     tolerance_mm: float
@@ -1014,6 +1067,9 @@ class Tolerance:
     reach_mm: float = float("nan")
     surface: _Surface | None = None
     n_off_field: int = 0
+    sigma_mm: float = float("nan")
+    pixel_rad: float = float("nan")
+    sigma_tiles_mm: np.ndarray | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True, slots=True)
@@ -1848,7 +1904,97 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
         near = _nearest_mm(a, flat[keep] if surface else flat, index, T)
         q_near = float(np.percentile(near, p.residual_quantile, method="higher"))
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
-    return Tolerance(float(tau), q, len(res), n_coh, float(reach), n_off_field=int(np.count_nonzero(off)))
+    sigma_m = bin_sigma_m(use)
+    rad = pixel_angle(a, flat) if np.isfinite(sigma_m) else float("nan")
+    tiles = local_sigma_mm(a.shape[:2], flat[keep] if surface else flat, use, sigma_m) \
+        if p.straggler_bound == "local" else None  # 17 CPU ms at 1920 x 1200: only when the bound reads them
+    return Tolerance(float(tau), q, len(res), n_coh, float(reach), n_off_field=int(np.count_nonzero(off)),
+                     sigma_mm=1000.0 * sigma_m, pixel_rad=rad, sigma_tiles_mm=tiles)
+
+
+def bin_sigma_m(residuals_mm: np.ndarray) -> float:
+    """The bin's residual scale σ_bin (m) from the residuals (mm) τ's percentile was taken over: 1.4826 × their
+    median (a normal residual's |d| has median 0.6745 σ), as ``explained`` measures the bin's
+    (``zcut.explained.residual_sigma``, on the removal's bin pixels; here on the certain bin pixels, before the
+    removal). It holds the pose's and the model's misfit where they show, as the residuals do. NaN with no
+    residual; +inf when more than half of them are (no model point within ``max_tolerance_mm``)."""
+    return 1.4826 * float(np.median(residuals_mm)) / 1000.0 if len(residuals_mm) else float("nan")
+
+
+def local_sigma_mm(shape: tuple[int, ...], pixels: np.ndarray, residuals_mm: np.ndarray, sigma_m: float) -> np.ndarray:
+    """σ_bin by tile (mm; :data:`STRAGGLER_TILE_PX` square tiles over an image of ``shape``): 1.4826 × the median
+    of the residuals (mm) of the measured ``pixels`` (flat indices) in the tile and the eight around it, where
+    they are at least :data:`STRAGGLER_TILE_MIN`, never below the frame's ``sigma_m`` (m; :func:`bin_sigma_m`);
+    the frame's elsewhere. Where the model lies off the bin (a model a little small, a scan's gap) the bin's own
+    pixels there show it, and a straggler's bound there widens to what they show (the median of an even count:
+    the mean of the two middle ones, as ``np.median``)."""
+    h, w = int(shape[0]), int(shape[1])
+    th, tw = -(-h // STRAGGLER_TILE_PX), -(-w // STRAGGLER_TILE_PX)
+    out = np.full(th * tw, 1000.0 * sigma_m)
+    if len(pixels) == 0 or np.isnan(sigma_m):
+        return out.reshape(th, tw)
+    order = np.argsort(np.asarray(residuals_mm, np.float64), kind="stable")
+    res = np.asarray(residuals_mm, np.float64)[order]
+    r, c = np.divmod(np.asarray(pixels, np.int64)[order], w)
+    ty = (r // STRAGGLER_TILE_PX)[:, None] + np.repeat(np.arange(-1, 2), 3)[None, :]  # (N, 9): the tiles around
+    tx = (c // STRAGGLER_TILE_PX)[:, None] + np.tile(np.arange(-1, 2), 3)[None, :]
+    ok = ((ty >= 0) & (ty < th) & (tx >= 0) & (tx < tw)).reshape(-1)
+    key = (ty * tw + tx).reshape(-1)[ok]
+    val = np.repeat(res, 9)[ok]  # in each tile's run the residuals stay sorted (a stable sort of the keys)
+    at = np.argsort(key, kind="stable")
+    key, val = key[at], val[at]
+    n = np.bincount(key, minlength=th * tw)
+    start = np.cumsum(n) - n
+    have = n >= STRAGGLER_TILE_MIN
+    med = 0.5 * (val[start[have] + (n[have] - 1) // 2] + val[start[have] + n[have] // 2])
+    out[have] = np.maximum(out[have], 1.4826 * med)
+    return out.reshape(th, tw)
+
+
+def pixel_sigma_m(tol: Tolerance, shape: tuple[int, ...], *, local: bool = True) -> np.ndarray:
+    """σ_bin (m) at every pixel of an image of ``shape`` as the straggler bound reads it: the tile's
+    (:attr:`Tolerance.sigma_tiles_mm`) or, ``local`` False or no tiles, the frame's (:attr:`Tolerance.sigma_mm`)."""
+    h, w = int(shape[0]), int(shape[1])
+    if not local or tol.sigma_tiles_mm is None:
+        return np.full((h, w), tol.sigma_mm / 1000.0)
+    sm = tol.sigma_tiles_mm / 1000.0
+    return sm[np.arange(h)[:, None] // STRAGGLER_TILE_PX, np.arange(w)[None, :] // STRAGGLER_TILE_PX]
+
+
+def pixel_angle(a: np.ndarray, flat: np.ndarray) -> float:
+    """The angle one pixel subtends (rad, 1 / f), read off the organized cloud ``a`` at the pixels ``flat``: the
+    median of ``|Δ(x / z)|`` to each pixel's right neighbour and ``|Δ(y / z)|`` to the one below (both finite, z
+    not 0, the step not 0; a pinhole cloud's x / z is (u - cx) / fx whatever the depth); NaN when no pair gives it.
+    A pixel's footprint at depth z (the Err's c, docs/bin_robustness.md) is ``z * pixel_angle``."""
+    if len(flat) == 0:
+        return float("nan")
+    h, w = a.shape[:2]
+    f = a.reshape(-1, 3)
+    rows, cols = np.divmod(np.asarray(flat, np.int64), w)
+    steps = []
+    for axis, ok, nxt in ((0, cols + 1 < w, flat + 1), (1, rows + 1 < h, flat + w)):
+        p, q = f[flat[ok]].astype(np.float64), f[nxt[ok]].astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d = np.abs(q[:, axis] / q[:, 2] - p[:, axis] / p[:, 2])
+        steps.append(d[np.isfinite(d) & (d > 0)])
+    step = np.concatenate(steps)
+    return float(np.median(step)) if step.size else float("nan")
+
+
+def straggler_bound_m(z_m: np.ndarray, sigma_m: float | np.ndarray, pixel_rad: float,
+                      straggler_m: float) -> np.ndarray:
+    """The straggler test's distance bound (m) at pixels of depth ``z_m`` (camera z, m):
+    ``min(straggler_m, STRAGGLER_ERRS × max(STRAGGLER_ERR_FLOOR_MM, sqrt(σ_bin² + c² / 2)))``, c = ``|z| ×
+    pixel_rad`` the pixel's footprint, σ_bin = ``sigma_m`` (:attr:`Tolerance.sigma_mm`); ``straggler_m`` (τ +
+    ``straggler_mm`` in the robust mode) where σ_bin or the pixel's angle is unknown (NaN). The kernels compute the
+    same numbers, in the same order (:func:`_straggler_delta`); ``sigma_m`` one for all or one per pixel
+    (:func:`pixel_sigma_m`)."""
+    z = np.abs(np.asarray(z_m, np.float64))
+    if np.isnan(sigma_m).any() or not np.isfinite(pixel_rad):
+        return np.full(z.shape, float(straggler_m))
+    c = z * pixel_rad
+    err = np.maximum(_STRAGGLER_ERR_FLOOR_M, np.sqrt(sigma_m * sigma_m + 0.5 * c * c))
+    return np.minimum(float(straggler_m), STRAGGLER_ERRS * err)
 
 
 def _sample_ring(a: np.ndarray, ring: Mask, max_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -1995,8 +2141,13 @@ def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -
                               index, T, queried)
         q_near = float(np.percentile(near, p.residual_quantile, method="higher"))
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
+    sigma_m = bin_sigma_m(use)
+    rad = pixel_angle(a, flat) if np.isfinite(sigma_m) else float("nan")
+    tiles = local_sigma_mm(a.shape[:2], flat[keep] if use_coherent else flat, use, sigma_m) \
+        if p.straggler_bound == "local" else None
     return Tolerance(float(tau), q, len(res), n_coh, float(reach), surface=surface,
-                     n_off_field=int(np.count_nonzero(off)))
+                     n_off_field=int(np.count_nonzero(off)), sigma_mm=1000.0 * sigma_m, pixel_rad=rad,
+                     sigma_tiles_mm=tiles)
 
 
 def check_removal_args(
@@ -2058,7 +2209,9 @@ def remove_table_and_bin(
         move the z-cut's z_max up to the rim; 0: off). ``mode``: ``"paper"`` uses δ as given;
         ``"robust"`` replaces it by the frame's tolerance (:func:`frame_tolerance`), tests it before
         the rim (a point within τ of the model is bin, not an easy outlier) and lets the
-        stragglers reach ``straggler_mm`` beyond τ and beyond the search radius.
+        stragglers reach ``straggler_mm`` beyond τ and beyond the search radius; with ``straggler_bound`` on
+        (off by default), along the normal no farther than 3 of the bin's Err at the pixel where the frame
+        measured the bin's residual scale (:func:`straggler_bound_m`).
     T_cam_bin : (4, 4) float ndarray, optional
         The registered pose of the model.
     ring : (H, W) bool ndarray, optional
@@ -2095,6 +2248,8 @@ def remove_table_and_bin(
     planes = index.model.normals is not None
     residual_mm = float("nan")
     surface: _Surface | None = None
+    # the stragglers' bound at 3 Err: (σ_bin² m² by tile, the tile's size, the pixel's angle); σ² < 0: none
+    bound: tuple[np.ndarray, int, float] = (_NO_BOUND, _ONE_TILE, 0.0)
     if p.robust:
         if ring is not None:
             tol = frame_tolerance(a, ring, index, T, reference=reference)
@@ -2103,6 +2258,13 @@ def remove_table_and_bin(
             tol = Tolerance(max(p.tolerance_mm if p.tolerance_mm is not None else p.max_tolerance_mm, p.delta_mm),
                             float("nan"), 0)
         delta_m, residual_mm = tol.tolerance_mm / 1000.0, tol.residual_mm
+        sigma_m = tol.sigma_mm / 1000.0
+        if p.straggler_bound != "off" and np.isfinite(sigma_m) and np.isfinite(tol.pixel_rad):
+            if p.straggler_bound == "local" and tol.sigma_tiles_mm is not None:
+                sm, tile = tol.sigma_tiles_mm / 1000.0, STRAGGLER_TILE_PX
+            else:
+                sm, tile = np.full((1, 1), sigma_m), _ONE_TILE
+            bound = (np.ascontiguousarray(sm * sm), tile, float(tol.pixel_rad))
         radius_m = _radius(p, index.model.spacing_m, delta_m)
         straggler_m = p.straggler_m + delta_m if p.straggler_m > 0 else 0.0
         r_str = max(radius_m, straggler_m)
@@ -2124,7 +2286,7 @@ def remove_table_and_bin(
         if index.straggler is not None:
             r_s = r_str if planes else straggler_m
             _straggler_codes(a, code, R, t, index.straggler, straggler_m=straggler_m,
-                             radius_m=r_s, planes=planes, neighbours=int(p.straggler_neighbours))
+                             radius_m=r_s, planes=planes, neighbours=int(p.straggler_neighbours), bound=bound)
         z_far = np.nan
         if not plane:  # a bin seen from the side: fall back to the farthest point
             z_far = float(np.nanmax(a[..., 2][code != _INVALID])) if (code != _INVALID).any() else np.nan
@@ -2145,7 +2307,7 @@ def remove_table_and_bin(
         _straggler_start(valid, table, binp, easy, fp, int(p.straggler_neighbours), lab, open_, first)
         _straggler_passes(a, binp, lab, open_, R, t, index.straggler,
                           straggler_m=straggler_m, radius_m=r_str, planes=planes,
-                          neighbours=int(p.straggler_neighbours), first=first)
+                          neighbours=int(p.straggler_neighbours), first=first, bound=bound)
     labelled = table | easy | binp
     zone = valid & ~labelled
     z_far = np.nan

@@ -3,7 +3,8 @@
 A verbatim copy of ``zcut.removal.remove_table_and_bin`` before it became fused numba kernels
 (commit 9af0131): the fast version must give the same classes, height image and cloud. One
 addition since: ``bin_first`` (the robust mode's order: a point near the model is bin before it
-can be an easy outlier), written as literally as the rest.
+can be an easy outlier), written as literally as the rest; and ``straggler_err`` (issue 31 item 2:
+the stragglers' distance bounded at each pixel by 3 of the bin's Err, ``zcut.removal.straggler_bound_m``).
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) 
 
 @numba.njit(parallel=True, cache=True)
 def _grid_test(P, origin, cell, dims, start, order, pts, nrm, off, delta, radius, planes):  # pragma: no cover - numba
-    """(M,) bool: some model point within ``radius`` passes (plane distance, or distance, <= delta)."""
+    """(M,) bool: some model point within ``radius`` passes (plane distance, or distance, <= delta[i])."""
     M = P.shape[0]
     ok = np.zeros(M, np.bool_)
     r2 = radius * radius
@@ -96,7 +97,7 @@ def _grid_test(P, origin, cell, dims, start, order, pts, nrm, off, delta, radius
                             d = abs(nrm[j, 0] * px + nrm[j, 1] * py + nrm[j, 2] * pz - off[j])
                         else:
                             d = np.sqrt(d2)
-                        if d <= delta:
+                        if d <= delta[i]:
                             found = True
                             break
                     if found:
@@ -110,8 +111,8 @@ def _grid_test(P, origin, cell, dims, start, order, pts, nrm, off, delta, radius
 
 
 def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | None, *,
-                delta_m: float, radius_m: float) -> np.ndarray:
-    """(M,) bool: points within ``delta_m`` of the model surface.
+                delta_m: float | np.ndarray, radius_m: float) -> np.ndarray:
+    """(M,) bool: points within ``delta_m`` (one for all, or (M,): one per point) of the model surface.
 
     ``points`` and ``model`` in the same frame. With normals: some model point within ``radius_m``
     has its tangent plane within ``delta_m`` of the point; without: some model point lies within
@@ -121,11 +122,11 @@ def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | Non
     if len(points) == 0 or len(model) == 0:
         return np.zeros(len(points), bool)
     planes = normals is not None
-    radius = radius_m if planes else delta_m
+    radius = radius_m if planes else float(np.max(delta_m))  # per point: the farthest
     index = _model_index(model, normals, radius)
     return _grid_test(np.ascontiguousarray(points, np.float64), index.origin, index.cell, index.dims,
                       index.start, index.order, index.points, index.normals, index.offsets,
-                      float(delta_m), float(radius), planes)
+                      np.broadcast_to(np.asarray(delta_m, np.float64), (len(points),)).copy(), float(radius), planes)
 
 
 _OFFSETS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
@@ -133,8 +134,9 @@ _OFFSETS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0
 
 def _straggler_passes(binp: Mask, table: Mask, valid: Mask, allowed: Mask, rows: np.ndarray,
                       cols: np.ndarray, p_bin: np.ndarray, model: BinModel, *, straggler_m: float,
-                      radius_m: float, neighbours: int) -> None:
-    """Grow ``binp`` (in place) along the noisy bin surface, see ``straggler_m``.
+                      radius_m: float, neighbours: int, bound_m: np.ndarray) -> None:
+    """Grow ``binp`` (in place) along the noisy bin surface, see ``straggler_m``; a pixel's distance
+    bound is ``bound_m`` there ((H, W) metres).
 
     Pass 1 looks at every allowed pixel; later passes only at the neighbours of the pixels the
     previous pass labelled (no other pixel's count of labelled neighbours changed, and a pixel
@@ -155,7 +157,7 @@ def _straggler_passes(binp: Mask, table: Mask, valid: Mask, allowed: Mask, rows:
         if cand.size == 0:
             break
         tried[cand] = True
-        near = _near_model(p_bin[index_f[cand]], model.points, model.normals, delta_m=straggler_m,
+        near = _near_model(p_bin[index_f[cand]], model.points, model.normals, delta_m=bound_m.reshape(-1)[cand],
                            radius_m=radius_m)
         new = cand[near]
         if new.size == 0:
@@ -192,11 +194,15 @@ def remove_table_and_bin_reference(
     straggler_neighbours: int = 5,
     bin_first: bool = False,
     straggler_radius_m: float | None = None,
+    straggler_err: tuple[float | np.ndarray, float] | None = None,
 ) -> RemovalResult:
     """The removal as it was before the fused numba kernels (:func:`zcut.removal.remove_table_and_bin`
     has the same contract and parameters); kept to prove the fast path bit for bit.
     ``straggler_radius_m``: the stragglers' search radius (default the larger of the search radius
-    and ``straggler_m``; the robust mode's measured radius gives its stragglers ``straggler_mm`` more)."""
+    and ``straggler_m``; the robust mode's measured radius gives its stragglers ``straggler_mm`` more).
+    ``straggler_err``: ``(σ_bin m, one or (H, W), the pixel's angle rad)``: a straggler is bin only within
+    min(``straggler_m``, 3 × max(0.05 mm, √(σ_bin² + c²/2))) of the model, c = |z| × the angle the
+    pixel's footprint (the robust mode's bound at 3 of the bin's Err); None: ``straggler_m``."""
     a, fp = check_removal_args(
         xyz, footprint, model=model, T_cam_bin=T_cam_bin, delta_m=delta_m, rim_offset_m=rim_offset_m,
         straggler_m=straggler_m, straggler_neighbours=straggler_neighbours,
@@ -241,10 +247,16 @@ def remove_table_and_bin_reference(
                 near = _near_model(p_bin[rest], model.points, model.normals, delta_m=delta_m, radius_m=radius)
                 binp[rows[rest[near]], cols[rest[near]]] = True
         if straggler_m > 0:
+            bound = np.full(z64.shape, straggler_m)
+            if straggler_err is not None:
+                sigma, angle = straggler_err
+                c = np.abs(z64) * angle  # the pixel's footprint (m)
+                err = np.maximum(5e-5, np.sqrt(sigma * sigma + 0.5 * c * c))  # the bin's Err, at least 0.05 mm
+                bound = np.minimum(straggler_m, 3.0 * err)
             _straggler_passes(binp, table, valid, inside & ~easy, rows, cols, p_bin, model,
                               straggler_m=straggler_m,
                               radius_m=max(radius, straggler_m) if straggler_radius_m is None else straggler_radius_m,
-                              neighbours=int(straggler_neighbours))
+                              neighbours=int(straggler_neighbours), bound_m=bound)
         # floor plane {q : q . up = floor}: z at (x, y) solves x*ux + y*uy + z*uz = floor
         if abs(up[2]) > 1e-6:
             x64 = a[..., 0].astype(np.float64)

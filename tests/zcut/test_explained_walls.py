@@ -5,8 +5,10 @@ definition even when the removal's tolerance (τ plus the straggler pass's margi
 
 A real log (``zcut synth --pile walls``, hand-made spheres at 480 × 300, where 3 × the bin's Err is
 below τ plus the straggler margin) with one wall pixel moved along the wall's inward normal, the whole
-pipeline run on the moved frame: the removal still labels it bin; ``explained`` flags it only when it
-judges the removal's bin pixels, and only when it lies beyond k × Err (not at half of it).
+pipeline run on the moved frame: a removal whose tolerance reaches τ plus the straggler margin (fixed: with
+issue 31 item 2's bound on, ``straggler_bound``, the straggler pass itself stops at 3 of the bin's Err and leaves
+such a point in the zone) labels it bin; ``explained`` flags it only when it judges the removal's bin pixels, and only when
+it lies beyond k × Err (not at half of it).
 """
 
 from __future__ import annotations
@@ -85,6 +87,7 @@ def _moved(frame, rc, n_in, d_mm):
 def test_a_point_the_removal_took_beyond_k_err_of_the_wall_is_unexplained(walls):
     from replay.pipeline.explained import run_explained
     from replay.pipeline.stages import bin_zone
+    from zcut.prepared_model import prepare_bin_model
 
     session, frame, zone = walls
     rc, n_in, err = _wall_pixel(frame, zone, session)
@@ -92,12 +95,23 @@ def test_a_point_the_removal_took_beyond_k_err_of_the_wall_is_unexplained(walls)
     assert zone.removal is not None
     reach = zone.removal.tolerance_mm + session.config.removal.straggler_mm
     assert p.k * err + 0.3 < reach, f"3 Err {p.k * err:.2f} mm is not below the removal's reach {reach:.2f} mm"
+    # with the bound on, the straggler pass stops at 3 of the bin's Err: the point beyond stays in the zone
+    far = _moved(frame, rc, n_in, 0.5 * (p.k * err + reach))
+    for which, kept in (("local", True), ("global", True), ("off", False)):
+        rp = dataclasses.replace(session.config.removal, straggler_bound=which)
+        z0 = bin_zone(far, dataclasses.replace(session.config, removal=rp),
+                      bin_model=prepare_bin_model(session.bin_model, registration=session.config.registration,
+                                                  removal=rp))
+        assert z0.removal is not None and z0.zone[rc] == kept, which
+    # a removal whose tolerance reaches τ + straggler_mm (fixed) takes it
+    config = dataclasses.replace(session.config, removal=dataclasses.replace(session.config.removal, tolerance_mm=reach))
+    prepared = prepare_bin_model(session.bin_model, registration=config.registration, removal=config.removal)
     for d_mm, beyond in ((0.5 * (p.k * err + reach), True), (0.5 * p.k * err, False)):
         moved = _moved(frame, rc, n_in, d_mm)
-        z = bin_zone(moved, session.config, bin_model=session.prepared)
+        z = bin_zone(moved, config, bin_model=prepared)
         assert z.removal is not None and z.removal.bin_points[rc], "the removal no longer labels the point bin"
-        plain, _, _ = run_explained(moved, z, session.config)
-        judged, d, _ = run_explained(moved, z, session.config, judge_removed_bin=True)
+        plain, _, _ = run_explained(moved, z, config)
+        judged, d, _ = run_explained(moved, z, config, judge_removed_bin=True)
         assert not plain[rc]  # the removal took it: never judged
         assert judged[rc] == beyond, (d_mm, err)
         # the zone's outliers are the same; what it adds is the removal's bin pixels beyond k × Err
