@@ -358,20 +358,10 @@ def thread_accounting(log: Path, in_flight: int | None) -> dict[str, object]:
     session.run(frames=(0, 1), **kw)
     for _ in range(warm_passes()):
         session.run(frames=(1, None), **kw)
-    hz = os.sysconf("SC_CLK_TCK")
     seen: dict[int, tuple[str, float, float, int]] = {}
 
     def sample() -> None:
-        names = {t.native_id: t.name for t in threading.enumerate()}
-        for tid in os.listdir("/proc/self/task"):
-            try:
-                with open(f"/proc/self/task/{tid}/stat") as f:
-                    st = f.read().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            old = seen.get(int(tid))
-            name = names.get(int(tid)) or (old[0] if old else "native")
-            seen[int(tid)] = (name, int(st[11]) / hz, int(st[12]) / hz, int(st[7]))
+        seen.update(thread_stats(seen))
 
     stop = threading.Event()
 
@@ -476,28 +466,38 @@ def throughput(log: Path, in_flight: int | None, outputs: str = "none") -> dict[
             "busiest_s": busy[1], "busiest": busy[0]}
 
 
+def thread_stats(known: dict[int, tuple]) -> dict[int, tuple[str, float, float, int]]:
+    """Every thread of this process now (``/proc/self/task/*/stat``): its name, user and system CPU s and minor
+    page faults. Python's threads by their name; a thread Python does not know (numba's, OpenCV's, OpenBLAS's)
+    keeps the name ``known`` gave it, else ``native``. A thread that ended while it was read is left out."""
+    import threading
+
+    hz = os.sysconf("SC_CLK_TCK")
+    names = {t.native_id: t.name for t in threading.enumerate()}
+    out: dict[int, tuple[str, float, float, int]] = {}
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{tid}/stat") as f:
+                st = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        old = known.get(int(tid))
+        out[int(tid)] = (names.get(int(tid)) or (old[0] if old else "native"), int(st[11]) / hz, int(st[12]) / hz,
+                         int(st[7]))
+    return out
+
+
 class _ThreadClock:
     """Every thread's CPU s (user + system, ``/proc/self/task``), sampled before a run and at each of its frames
     (``on_frame``, in the calling thread: no sampler thread of its own whose CPU the process time would count).
     A thread that ends between two frames is counted up to the frame before."""
 
     def __init__(self) -> None:
-        self.hz = os.sysconf("SC_CLK_TCK")
         self.base: dict[int, tuple[str, float]] | None = None
         self.seen: dict[int, tuple[str, float]] = {}
 
     def sample(self) -> None:
-        import threading
-
-        names = {t.native_id: t.name for t in threading.enumerate()}
-        for tid in os.listdir("/proc/self/task"):
-            try:
-                with open(f"/proc/self/task/{tid}/stat") as f:
-                    st = f.read().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            old = self.seen.get(int(tid))
-            self.seen[int(tid)] = (names.get(int(tid)) or (old[0] if old else "native"), (int(st[11]) + int(st[12])) / self.hz)
+        self.seen.update({tid: (name, u + sy) for tid, (name, u, sy, _) in thread_stats(self.seen).items()})
         if self.base is None:
             self.base = dict(self.seen)
 

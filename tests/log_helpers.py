@@ -85,3 +85,30 @@ def decoded_in_full(path: Path) -> tuple[dict[int, tuple[np.ndarray, np.ndarray 
                 img = rm.decode_image(message_payload(rec.data, "image"))
                 images[img.stamp_ns] = rm.image_to_rgb(img, where="image")
     return clouds, images
+
+
+def rrd_rows(path: str | Path, *, static: bool = False) -> dict[str, list[str]]:
+    """Every row of a recording (.rrd) by entity, sorted: its timelines and components as JSON (not its row ids,
+    log times or the recording's properties, which differ from run to run); ``static``: each row's static flag
+    too."""
+    import json
+
+    import pyarrow as pa
+    import rerun as rr
+
+    out: dict[str, list[str]] = {}
+    for chunk in rr.chunk.RrdReader(str(path)).stream():
+        if chunk.entity_path == "/__properties":
+            continue
+        rb = chunk.to_record_batch()
+        cols = {}
+        for n in rb.schema.names:
+            if "rowid" in n.lower().replace("_", "") or n == "log_time":
+                continue
+            c = rb.column(n)
+            cols[n] = (c.cast(pa.int64()) if pa.types.is_timestamp(c.type) else c).to_pylist()
+        flag = {"static": chunk.is_static} if static else {}
+        out.setdefault(chunk.entity_path, []).extend(
+            json.dumps({**flag, **{n: v[i] for n, v in cols.items()}}, sort_keys=True, default=str)
+            for i in range(rb.num_rows))
+    return {k: sorted(v) for k, v in out.items()}

@@ -13,6 +13,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from cli_helpers import run_cli
+from log_helpers import rrd_rows
 from test_batch_ray import rechunk
 
 from cli.main import main
@@ -57,25 +58,8 @@ def _same_outputs(x, y) -> None:
 
 
 def _rrd_content(path) -> dict[str, list[str]]:
-    """Every row of the recording by entity, its timelines and components (not its row ids, log times or
-    the recording's start time, which differ from run to run)."""
-    import pyarrow as pa
-    import rerun as rr
-
-    out: dict[str, list[str]] = {}
-    for chunk in rr.chunk.RrdReader(str(path)).stream():
-        if chunk.entity_path == "/__properties":
-            continue
-        rb = chunk.to_record_batch()
-        cols = {}
-        for n in rb.schema.names:
-            if "rowid" in n.lower().replace("_", "") or n == "log_time":
-                continue
-            c = rb.column(n)
-            cols[n] = (c.cast(pa.int64()) if pa.types.is_timestamp(c.type) else c).to_pylist()
-        out.setdefault(chunk.entity_path, []).extend(
-            json.dumps({n: v[i] for n, v in cols.items()}, sort_keys=True, default=str) for i in range(rb.num_rows))
-    return {k: sorted(v) for k, v in out.items()}
+    """Every row of the recording by entity (:func:`log_helpers.rrd_rows`)."""
+    return rrd_rows(path)
 
 
 def _rrd_rows(path) -> dict[str, int]:

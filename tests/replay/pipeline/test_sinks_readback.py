@@ -8,14 +8,13 @@ message of the results file (its masks and codes, byte for byte) read back equal
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from pathlib import Path
 
-import pyarrow as pa
 import pytest
 import rerun as rr
+from log_helpers import rrd_rows as log_rrd_rows
 from mcap.reader import make_reader
 
 from replay.logs import layout
@@ -76,23 +75,8 @@ class InOrder:
 
 
 def rrd_rows(path) -> dict[str, list[str]]:
-    """Every row of a recording by entity: its static flag, timelines and components (not its row ids, log
-    times or the recording's properties, which differ from run to run), sorted."""
-    out: dict[str, list[str]] = {}
-    for chunk in rr.chunk.RrdReader(str(path)).stream():
-        if chunk.entity_path == "/__properties":
-            continue
-        rb = chunk.to_record_batch()
-        cols = {}
-        for n in rb.schema.names:
-            if "rowid" in n.lower().replace("_", "") or n == "log_time":
-                continue
-            c = rb.column(n)
-            cols[n] = (c.cast(pa.int64()) if pa.types.is_timestamp(c.type) else c).to_pylist()
-        out.setdefault(chunk.entity_path, []).extend(
-            json.dumps({"static": chunk.is_static, **{n: v[i] for n, v in cols.items()}}, sort_keys=True, default=str)
-            for i in range(rb.num_rows))
-    return {k: sorted(v) for k, v in out.items()}
+    """The recording's rows by entity, each with its static flag (:func:`log_helpers.rrd_rows`)."""
+    return log_rrd_rows(path, static=True)
 
 
 def results_messages(path) -> list[tuple[str, int, bytes]]:

@@ -8,7 +8,7 @@ import hashlib
 
 import numpy as np
 import pytest
-from fit_scenes import K_TEST, hex_nut_mesh, pose, render, rotation
+from fit_scenes import K_TEST, hand_made_nut_frame, hex_nut_mesh, pose, render, rotation
 
 import zcut.fits.fit as F
 from zcut.errors import ParameterError
@@ -88,18 +88,9 @@ NINTH = (237, "4dbc0d09d81ceaae")
 
 
 def test_early_share_zero_gives_the_ninth_rounds_fits_to_the_bit():
-    from replay.logs.part_model import PART_MODEL_ATTACHMENT, read_part_model_bytes
-    from replay.synth import synthesize_frame
-    from replay.synth.log import part_model_attachment
-
-    sf = synthesize_frame(kind="zinc_nuts", seed=5, size=(300, 480))
-    xyz = sf.frame.xyz.astype(np.float64) * 1000.0
-    zone = np.isfinite(xyz).all(axis=2) & ((sf.surface == 5) | sf.truth | sf.off_surface)
-    pm = read_part_model_bytes(part_model_attachment("zinc_nuts", raytraced=False)[PART_MODEL_ATTACHMENT][1])
-    model = prepare_model(pm.vertices * (1000.0 if pm.unit == "m" else 1.0), pm.triangles)
-    K = sf.frame.intrinsics
-    fits = fit_prepared(xyz, zone, model, intrinsics=(K.fx, K.fy, K.cx, K.cy), params=FitParams(early_share=0.0, fine_window=False,
-                                                                                   fine_robust=0.0))
+    xyz, zone, model, K = hand_made_nut_frame()
+    fits = fit_prepared(xyz, zone, model, intrinsics=K,
+                        params=FitParams(early_share=0.0, fine_window=False, fine_robust=0.0))
     assert (len(fits), _digest(fits)) == NINTH  # the eleventh round's last refinement off (docs/fits.md)
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from fit_scenes import K_TEST, hex_nut_mesh, pose, render, rotation
+from fit_scenes import K_TEST, hand_made_nut_frame, hex_nut_mesh, pose, render, rotation
 from test_fits_early import NINTH, _digest
 
 import zcut.fits.fit as F
@@ -22,24 +22,12 @@ def _frame(xyz: np.ndarray, zone: np.ndarray) -> F._Frame:
     return F._Frame(xyz=xyz, valid=valid, zone=zone & valid, K=K_TEST)
 
 
-def _hand_made_frame() -> tuple[np.ndarray, np.ndarray, object, tuple[float, float, float, float]]:
-    from replay.logs.part_model import PART_MODEL_ATTACHMENT, read_part_model_bytes
-    from replay.synth import synthesize_frame
-    from replay.synth.log import part_model_attachment
-
-    sf = synthesize_frame(kind="zinc_nuts", seed=5, size=(300, 480))
-    xyz = sf.frame.xyz.astype(np.float64) * 1000.0
-    zone = np.isfinite(xyz).all(axis=2) & ((sf.surface == 5) | sf.truth | sf.off_surface)
-    pm = read_part_model_bytes(part_model_attachment("zinc_nuts", raytraced=False)[PART_MODEL_ATTACHMENT][1])
-    model = prepare_model(pm.vertices * (1000.0 if pm.unit == "m" else 1.0), pm.triangles)
-    K = sf.frame.intrinsics
-    return xyz, zone, model, (K.fx, K.fy, K.cx, K.cy)
 
 
 def test_without_the_window_and_the_weights_the_fits_are_the_previous_trees_to_the_bit():
     """``fine_window=False, fine_robust=0``: the tenth round's fits (its defaults) to the bit; the new defaults
     change them (the same frame, a literal digest of the previous tree)."""
-    xyz, zone, model, K = _hand_made_frame()
+    xyz, zone, model, K = hand_made_nut_frame()
     old = fit_prepared(xyz, zone, model, intrinsics=K, params=FitParams(fine_window=False, fine_robust=0.0))
     assert (len(old), _digest(old)) == NINTH
     new = fit_prepared(xyz, zone, model, intrinsics=K)
