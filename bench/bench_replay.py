@@ -462,8 +462,17 @@ def throughput(log: Path, in_flight: int | None, outputs: str = "none") -> dict[
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     n = max(len(summary.rows), 1)
     busy = clock.busiest(n)
-    return {"cpu_s": cpu / n, "wall_s": wall / n, "frames": len(summary.rows), "layer": numba.threading_layer(),
+    return {"cpu_s": cpu / n, "wall_s": wall / n, "frames": len(summary.rows), "layer": _layer_run(numba),
             "busiest_s": busy[1], "busiest": busy[0]}
+
+
+def _layer_run(numba: object) -> str:
+    """numba's threading layer, or "none" when no parallel kernel ran (a log without the bin stages, e.g. the
+    real Kinect log: numba then has no layer to name)."""
+    try:
+        return str(numba.threading_layer())  # type: ignore[attr-defined]
+    except ValueError:
+        return "none"
 
 
 def thread_stats(known: dict[int, tuple]) -> dict[int, tuple[str, float, float, int]]:
