@@ -22,12 +22,13 @@ Timelines: ``frame`` (the comparison's frame number, over every log in order) an
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
+
+from replay.pipeline.rerun_arrow import class_context
 
 if TYPE_CHECKING:
     from replay.pipeline.sinks import RrdFile
@@ -36,11 +37,6 @@ VERDICT_CLASSES = ((1, "TP", (0, 170, 0)), (2, "FP", (230, 30, 30)), (3, "FN (mi
                    (4, "removed", (220, 20, 220)))
 DIFF_CLASSES = ((1, "B fixes", (0, 200, 0)), (2, "B breaks", (230, 0, 0)), (3, "both wrong", (150, 150, 150)),
                 (4, "removed only by A", (255, 140, 0)), (5, "removed only by B", (30, 144, 255)))
-
-
-def _ctx(classes: Iterable[tuple[int, str, tuple[int, int, int]]]) -> rr.AnnotationContext:
-    return rr.AnnotationContext([rr.AnnotationInfo(id=0, label="none", color=(0, 0, 0, 0))]
-                                + [rr.AnnotationInfo(id=i, label=n, color=c) for i, n, c in classes])
 
 
 def compare_blueprint(label_a: str, label_b: str) -> rrb.Blueprint:
@@ -88,9 +84,9 @@ class CompareRecording:
         rrd.save(self.rec, compare_blueprint(label_a, label_b))
         self.rec.log("diff/config", rr.TextDocument(config_markdown, media_type=rr.MediaType.MARKDOWN), static=True)
         for p in ("a/verdict", "b/verdict"):
-            self.rec.log(p, _ctx(VERDICT_CLASSES), static=True)
+            self.rec.log(p, class_context(VERDICT_CLASSES), static=True)
         for p in ("diff/consequence", "diff/points"):
-            self.rec.log(p, _ctx(DIFF_CLASSES), static=True)
+            self.rec.log(p, class_context(DIFF_CLASSES), static=True)
         self.rec.log("diff/points", rr.ViewCoordinates.RDF, static=True)
         for path, name, colour in (("a/scalars", "A", (0, 114, 178)), ("b/scalars", "B", (213, 94, 0))):
             for k in ("precision", "recall", "f1"):

@@ -65,6 +65,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from replay.logs.frame import Frame
+from replay.pipeline.rerun_arrow import class_context, contexts_arrow, rgba32
 from replay.pipeline.stages import FrameResult
 from replay.pipeline.verdicts import MethodVerdict
 from zcut.bin_model import BinModel
@@ -453,31 +454,16 @@ def rrd_problem(path: str) -> str | None:
     return None
 
 
-def _ctx(classes: Iterable[tuple[int, str, tuple[int, int, int]]]) -> rr.AnnotationContext:
-    """The context of a class table: 0 "none" (transparent), then each ``(id, label, (r, g, b))`` opaque.
-
-    Built in Arrow (:func:`_contexts_arrow`): the same component as ``rr.AnnotationContext([rr.AnnotationInfo(
-    id=0, label="none", color=(0, 0, 0, 0)), rr.AnnotationInfo(id=i, label=name, color=col), ...])``
-    (tests/replay/pipeline/test_sinks_readback.py), without the SDK's converter, whose first call imports
-    ``pyarrow.compute`` (~30 CPU ms a recording, before its first frame)."""
-    table = list(classes)
-    ids = np.array([0] + [i for i, _, _ in table], np.int64)
-    labels: list[str | None] = ["none", *(name for _, name, _ in table)]
-    rgb = np.array([(0, 0, 0)] + [col for _, _, col in table], np.uint8).reshape(-1, 3)
-    alpha = np.array([0] + [255] * len(table), np.uint32)
-    return rr.AnnotationContext(_contexts_arrow(ids, labels, _rgba32(rgb, alpha), np.array([0, len(ids)])))
-
-
 def log_static(rec: rr.RecordingStream, *, config_toml: str, notes: tuple[str, ...] = (),
                bin_model: BinModel | None = None, source: str = "", opts: VizOptions = VizOptions()) -> None:
     """Things that do not change per frame: annotation contexts, the overlays' scale (``opts``: those
     of :func:`log_frame`), axes, the config, the bin model."""
-    rec.log("image/outliers", _ctx(OUTLIER_CLASSES), static=True)
-    rec.log("image/removal", _ctx(REMOVAL_CLASSES), static=True)
-    rec.log("image/bin_mask", _ctx(BIN_MASK_CLASSES), static=True)
-    rec.log("image/bin_check", _ctx(BIN_CHECK_CLASSES), static=True)
-    rec.log("world/outliers", _ctx(OUTLIER_CLASSES), static=True)
-    rec.log("image/methods", _ctx(METHOD_CLASSES), static=True)
+    rec.log("image/outliers", class_context(OUTLIER_CLASSES), static=True)
+    rec.log("image/removal", class_context(REMOVAL_CLASSES), static=True)
+    rec.log("image/bin_mask", class_context(BIN_MASK_CLASSES), static=True)
+    rec.log("image/bin_check", class_context(BIN_CHECK_CLASSES), static=True)
+    rec.log("world/outliers", class_context(OUTLIER_CLASSES), static=True)
+    rec.log("image/methods", class_context(METHOD_CLASSES), static=True)
     log_overlay_scale(rec, OVERLAYS, opts)
     rec.log("world", rr.ViewCoordinates.RDF, static=True)
     head = f"# zcut replay\n\n{source}\n\n{TIMELINES_HINT}\n\n" if source else f"# zcut replay\n\n{TIMELINES_HINT}\n\n"
@@ -637,50 +623,6 @@ def _level_colours(n: int) -> np.ndarray:
     return np.stack([r, g, b], axis=1)[:n]
 
 
-def _rgba32(rgb: np.ndarray, alpha: int | np.ndarray = 255) -> np.ndarray:
-    """(n, 3) uint8 -> (n,) uint32 packed 0xRRGGBBAA (Rerun's colour layout; no per-value Python)."""
-    c = np.asarray(rgb).astype(np.uint32)
-    return (c[:, 0] << 24) | (c[:, 1] << 16) | (c[:, 2] << 8) | np.asarray(alpha, np.uint32)
-
-
-_CTX_TYPE = rr.components.AnnotationContextBatch._ARROW_DATATYPE
-_ELEM_TYPE = _CTX_TYPE.value_type
-_DESC_TYPE = _ELEM_TYPE.field("class_description").type
-_INFO_TYPE = _DESC_TYPE.field("info").type
-
-
-def _contexts_arrow(ids: np.ndarray, labels: list[str | None], colours: np.ndarray,
-                    offsets: np.ndarray) -> pa.Array:
-    """AnnotationContexts built directly in Arrow (``rr.AnnotationInfo`` costs ~75 µs per class).
-
-    Parameters
-    ----------
-    ids : (n,) integer ndarray
-        Class ids of all contexts, concatenated.
-    labels : list of n str or None
-    colours : (n,) uint32 ndarray
-        Packed RGBA colours.
-    offsets : (m + 1,) integer ndarray
-        Context j holds entries ``offsets[j] .. offsets[j + 1]``.
-
-    Returns
-    -------
-    pyarrow.Array
-        m rows of Rerun's AnnotationContext component type.
-    """
-    n = len(ids)
-    id16 = pa.array(np.asarray(ids, np.uint16), pa.uint16())
-    info = pa.StructArray.from_arrays([id16, pa.array(labels, pa.string()), pa.array(colours, pa.uint32())],
-                                      fields=list(_INFO_TYPE))
-    no_offsets = pa.array(np.zeros(n + 1, np.int32))
-    kp = [pa.ListArray.from_arrays(no_offsets, pa.array([], _DESC_TYPE.field(name).type.value_type),
-                                   type=_DESC_TYPE.field(name).type)
-          for name in ("keypoint_annotations", "keypoint_connections")]
-    desc = pa.StructArray.from_arrays([info, *kp], fields=list(_DESC_TYPE))
-    elem = pa.StructArray.from_arrays([id16, desc], fields=list(_ELEM_TYPE))
-    return pa.ListArray.from_arrays(pa.array(np.asarray(offsets, np.int32)), elem, type=_CTX_TYPE)
-
-
 def scrub_levels(n_levels: int, opts: VizOptions) -> tuple[int, list[int]]:
     """(m, levels): the cut levels shown on the depth timeline, every m-th of 0 .. K + 1 and K + 1.
 
@@ -748,20 +690,20 @@ def _cut_contexts(n_levels: int, m: int, levels: tuple[int, ...]) -> pa.Array:
     """One context per shown level k (classes 1 .. q + 1 coloured, the rest hidden), built in Arrow
     in one go and reused by every frame with the same K."""
     n_cls = (n_levels + 1 + m - 1) // m + 1  # classes 1 .. n_cls
-    colours = np.concatenate([[0], _rgba32(_level_colours(n_cls))])  # class id -> colour (0 hidden)
+    colours = np.concatenate([[0], rgba32(_level_colours(n_cls))])  # class id -> colour (0 hidden)
     names = [None] + [f"levels <= {min(c * m, n_levels + 1)}" for c in range(n_cls)]
     q = np.array([(k + m - 1) // m for k in levels])
     ids = np.tile(np.arange(n_cls + 1), len(levels))
     shown = (ids >= 1) & (ids <= np.repeat(q, n_cls + 1) + 1)
     labels = [names[i] if v else None for i, v in zip(ids.tolist(), shown.tolist())]
-    return _contexts_arrow(ids, labels, np.where(shown, colours[ids], 0).astype(np.uint32),
+    return contexts_arrow(ids, labels, np.where(shown, colours[ids], 0).astype(np.uint32),
                            np.arange(len(levels) + 1) * (n_cls + 1))
 
 
 @functools.lru_cache(maxsize=1)
 def _cluster_palette(n: int) -> np.ndarray:
     """(n,) uint32: random bright colours for cluster ids 1 .. n (fixed seed: stable across frames)."""
-    return _rgba32(np.random.default_rng(7).integers(60, 256, size=(n, 3)))
+    return rgba32(np.random.default_rng(7).integers(60, 256, size=(n, 3)))
 
 
 def log_clusters(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions) -> None:
@@ -773,7 +715,7 @@ def log_clusters(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions)
     labels = [None] + [f"cluster {i + 1}: {a} px, level {lv}" + (f", ρ {r:.3f}" if np.isfinite(r) else "")
                        for i, (a, lv, r) in enumerate(zip(areas, levels, rho))]
     colours = np.concatenate([[0], _cluster_palette(max(int(opts.max_cluster_labels), 1))[:k]]).astype(np.uint32)
-    ctx = _contexts_arrow(np.arange(k + 1), labels, colours, np.array([0, k + 1]))
+    ctx = contexts_arrow(np.arange(k + 1), labels, colours, np.array([0, k + 1]))
     rec.log("image/clusters", rr.AnnotationContext(ctx))
     dtype = np.uint8 if n < 256 else np.uint16 if n < 65536 else np.uint32  # the smallest that holds every id
     # a block: the highest id in it; a pixel has an id > 0 only where the z-cut flags it (``outliers ==
@@ -891,7 +833,7 @@ def log_explained(rec: rr.RecordingStream, result: FrameResult, opts: VizOptions
     cls[judged & (d.surface == SURFACE_TABLE)] = 3
     cls[judged & (d.surface == SURFACE_LOCAL)] = 5  # no part model: the edge-aware local surface
     cls[d.unexplained] = 4
-    rec.log("image/explained", _ctx(EXPLAINED_CLASSES))
+    rec.log("image/explained", class_context(EXPLAINED_CLASSES))
     log_overlay_scale(rec, ("image/explained",), opts)
     rec.log("image/explained", _segmentation(pool_max(cls, opts.overlay_scale), opacity=0.6))
     dist = np.where(judged & np.isfinite(d.dist_mm), d.dist_mm, 0.0).astype(np.float32)
@@ -933,7 +875,7 @@ def log_cloud(rec: rr.RecordingStream, frame: Frame, opts: VizOptions) -> None:
     if not good.all():
         xyz = xyz[good]
         colours = None if colours is None else colours[good]
-    rec.log("world/cloud", rr.Points3D(xyz, colors=None if colours is None else _rgba32(colours),
+    rec.log("world/cloud", rr.Points3D(xyz, colors=None if colours is None else rgba32(colours),
                                        radii=rr.Radius.ui_points(1.0)))
 
 
@@ -977,9 +919,9 @@ def log_verdicts_static(rec: rr.RecordingStream, judged: Iterable[str], *, sourc
     """The verdicts' classes (one context for the images, one for the points), the images' scale
     (``opts``: those of :func:`log_verdicts`), their series' names and colours, and what the frames
     are scored against."""
-    rec.log("image/verdicts", _ctx(VERDICT_CLASSES), static=True)
+    rec.log("image/verdicts", class_context(VERDICT_CLASSES), static=True)
     log_overlay_scale(rec, ("image/verdicts",), opts)
-    rec.log("world/verdicts", _ctx(VERDICT_CLASSES), static=True)
+    rec.log("world/verdicts", class_context(VERDICT_CLASSES), static=True)
     for m in judged:
         rec.log(f"accuracy/{m}/precision", rr.SeriesLines(names=f"{m} precision"), static=True)
         rec.log(f"accuracy/{m}/recall", rr.SeriesLines(names=f"{m} recall"), static=True)

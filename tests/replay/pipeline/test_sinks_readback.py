@@ -19,7 +19,7 @@ from mcap.reader import make_reader
 
 from replay.logs import layout
 from replay.logs import ros2_msgs as rm
-from replay.pipeline import viz
+from replay.pipeline import compare_viz, rerun_arrow, viz
 from replay.pipeline.bin_model import bin_model_for
 from replay.pipeline.session import ReplaySession
 from replay.pipeline.sinks import BackgroundSinks, FrameSink, RerunSink, ResultsSink
@@ -30,15 +30,17 @@ TABLES = ("OUTLIER_CLASSES", "REMOVAL_CLASSES", "METHOD_CLASSES", "BIN_MASK_CLAS
 
 
 def sdk_ctx(classes):
-    """The previous ``viz._ctx``: the SDK's own converter."""
+    """The SDK's own converter, which ``rerun_arrow.class_context`` replaces."""
     return rr.AnnotationContext([rr.AnnotationInfo(id=0, label="none", color=(0, 0, 0, 0))]
                                 + [rr.AnnotationInfo(id=i, label=name, color=col) for i, name, col in classes])
 
 
-@pytest.mark.parametrize("table", TABLES)
+@pytest.mark.parametrize("table", [(viz, t) for t in TABLES]
+                         + [(compare_viz, "VERDICT_CLASSES"), (compare_viz, "DIFF_CLASSES")],
+                         ids=lambda t: f"{t[0].__name__.rsplit('.', 1)[1]}.{t[1]}")
 def test_a_class_table_context_is_the_sdks(table):
-    classes = getattr(viz, table)
-    ours, theirs = viz._ctx(classes).as_component_batches(), sdk_ctx(classes).as_component_batches()
+    classes = getattr(*table)
+    ours, theirs = rerun_arrow.class_context(classes).as_component_batches(), sdk_ctx(classes).as_component_batches()
     assert len(ours) == len(theirs) == 1
     a, b = ours[0].as_arrow_array(), theirs[0].as_arrow_array()
     assert a.type == b.type
@@ -48,7 +50,7 @@ def test_a_class_table_context_is_the_sdks(table):
 
 def test_an_empty_and_a_one_class_table():
     for classes in ((), ((7, "seven", (1, 2, 3)),)):
-        assert viz._ctx(classes).as_component_batches()[0].as_arrow_array().equals(
+        assert rerun_arrow.class_context(classes).as_component_batches()[0].as_arrow_array().equals(
             sdk_ctx(classes).as_component_batches()[0].as_arrow_array())
 
 
@@ -111,7 +113,7 @@ def written(request, tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:
         for way in ("previous", "now"):
             if way == "previous":
-                mp.setattr(viz, "_ctx", sdk_ctx)
+                mp.setattr(viz, "class_context", sdk_ctx)
             else:
                 mp.undo()
             paths = (d / f"{way}.rrd", d / f"{way}.mcap")
@@ -142,6 +144,21 @@ def test_the_results_file_reads_back_the_same(written):
     masks = [rm.image_to_mask(rm.decode_image(data, where="x"), where="x")
              for topic, _, data in now if topic == layout.ZCUT_OUTLIERS]
     assert len(masks) == 2 and all(m.shape == (240, 384) for m in masks)
+
+
+def test_a_compare_recording_does_not_load_pyarrow_compute(tmp_path):
+    """``zcut compare``'s recording logs its class tables, images, points and series without the SDK's
+    converter that imports ``pyarrow.compute`` (the previous ``compare_viz`` did: ~30 CPU ms a process)."""
+    code = ("import sys\nimport numpy as np\nfrom replay.pipeline.sinks import RrdFile\n"
+            "from replay.pipeline.compare_viz import CompareRecording\n"
+            f"rrd = RrdFile({str(tmp_path / 'c.rrd')!r})\n"
+            "rec = CompareRecording(rrd, label_a='A', label_b='B', config_markdown='x')\n"
+            "v = np.zeros((4, 5), np.uint8)\n"
+            "rec.frame(0, 0, jpeg=None, image=v, points=np.zeros((2, 3), np.float32), point_ids=np.ones(2, np.uint8),\n"
+            "          verdict_a=v, verdict_b=v, diff=v, scalars={'a/scalars/f1': 0.5})\n"
+            "print('pyarrow.compute' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), timeout=300)
+    assert out.returncode == 0 and out.stdout.strip() == "False", out.stderr
 
 
 def test_a_rerun_sink_loads_rerun_when_it_is_made():
