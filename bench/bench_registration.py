@@ -39,7 +39,9 @@ OpenCV runs on one thread (the one-core case); pin the process (``taskset -c 0``
 
 ``--alternate LOG... --against TREE [--repeats N]``: the bin mask and the registration of each frame after the
 first as ``locate_bin`` runs them, by this tree's ``zcut`` and by TREE's (imported as another package from a copy),
-alternating N times a frame in one process, after comparing every result bit for bit (:func:`alternate`).
+alternating N times a frame in one process, after comparing every result bit for bit (:func:`alternate`). The seed
+check is each tree's own: ``pose_fitness_at_least`` where the tree has it, else ``pose_fitness`` compared with the
+threshold; the two trees' answers must agree.
 """
 
 from __future__ import annotations
@@ -325,15 +327,20 @@ def alternate(logs: list[Path], against: Path, repeats: int) -> None:
             step = max(1, int(np.ceil(np.sqrt(np.count_nonzero(px) / stages.REGISTRATION_MAX_POINTS))))
             K = None if f.intrinsics is None else same_type(f.intrinsics, mods)
             tgt = R.prepare_target(R.subsampled_points(f.xyz, px, step=step), voxel_m=c.voxel_m, intrinsics=K)
-            reg, f0 = None, None
+            reg, holds = None, None
             if seed is not None:
-                f0 = R.pose_fitness(model, tgt, seed.T_cam_bin, max_correspondence_m=c.fine_correspondence_m)
-                if f0 >= stages.SEED_FITNESS_KEPT * seed.fitness:
+                kept = stages.SEED_FITNESS_KEPT * seed.fitness
+                if hasattr(R, "pose_fitness_at_least"):  # the seed check counted until decided (h/px3)
+                    holds = R.pose_fitness_at_least(model, tgt, seed.T_cam_bin,
+                                                    max_correspondence_m=c.fine_correspondence_m, fitness=kept)
+                else:
+                    holds = R.pose_fitness(model, tgt, seed.T_cam_bin, max_correspondence_m=c.fine_correspondence_m) >= kept
+                if holds:
                     reg = R.register_bin(model, tgt, params=c, init=seed.T_cam_bin, coarse=False)
                     reg = reg if reg.converged else None
             if reg is None:
                 reg = R.register_bin(model, tgt, params=c)
-            return valid, bm, px, f0, reg
+            return valid, bm, px, holds, reg
 
         seed = run(trees["this"], frames[0], None)[4]
         times: dict[str, list[float]] = {k: [] for k in trees}

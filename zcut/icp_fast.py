@@ -401,6 +401,108 @@ def _correspond(pcd: np.ndarray, order: np.ndarray, origin: np.ndarray, cell: fl
 
 
 @numba.njit(cache=True, nogil=True)
+def _correspond_kept(pcd: np.ndarray, order: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
+                     near_start: np.ndarray, near_rows: np.ndarray, near_dist: np.ndarray, gpts: np.ndarray,
+                     gorder: np.ndarray, max_distance: float, best: np.ndarray, near: np.ndarray, src: np.ndarray,
+                     dst: np.ndarray, gap: np.ndarray, moved: np.ndarray, search_all: bool) -> tuple[int, float]:
+    """:func:`_correspond`'s answers (the same ``src[:n]``, ``dst[:n]``, ``n`` and sum, bit for bit), without
+    searching again for a source point whose nearest model point cannot have changed since its last search.
+
+    A search also bounds the distance to every other model point: it goes on past the nearest (distance d1)
+    until the second nearest is found (d2, or the correspondence distance when there is none within it: rows
+    past the search's end are farther by the triangle inequality, :func:`_correspond`'s argument, and points
+    outside the 27 cells lie more than a cell away). ``gap[i]`` keeps d2 - d1 (-1 when the point had no
+    correspondence) and ``moved[i]`` the distance the point has moved since (:func:`_transform_moved`, rounded
+    up). While ``gap[i] > 2 moved[i]`` (with :data:`_REACH_SLACK` and the absolute margin), the old nearest is
+    still the strictly nearest model point, by more than rounding can blur: its squared distance, computed as
+    the search computes it, is the answer when below ``max_distance²``, and there is no correspondence
+    otherwise (every other point is farther still). A tie (d2 = d1) is never kept. ``search_all``: search every
+    point (the first pass of a run). In the fine pass of a frame's registration ~95 % of the queries after the
+    first pass are answered so."""
+    r2 = max_distance * max_distance
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    py, pz = ny + 2, nz + 2
+    slack = 1.0 + _REACH_SLACK
+    margin = _REACH_SLACK * (abs(ox) + abs(oy) + abs(oz) + cell * (nx + ny + nz + 6))
+    inv = 1.0 / cell
+    for i in order:
+        x, y, z = pcd[i, 0], pcd[i, 1], pcd[i, 2]
+        j = near[i]
+        if not search_all and j >= 0 and gap[i] > 2.0 * moved[i] * slack + 2.0 * margin:
+            d2 = _d2(x, y, z, gpts, j)
+            if d2 < r2:
+                best[i] = d2
+            else:  # the nearest moved out of reach, and every other point is farther
+                near[i] = -1
+                gap[i] = -1.0
+            continue
+        near[i] = -1
+        gap[i] = -1.0
+        moved[i] = 0.0
+        fx, fy, fz = math.floor((x - ox) * inv), math.floor((y - oy) * inv), math.floor((z - oz) * inv)
+        if not (-1.0 <= fx <= nx and -1.0 <= fy <= ny and -1.0 <= fz <= nz):
+            continue
+        ix, iy, iz = int(fx), int(fy), int(fz)
+        c = ((ix + 1) * py + iy + 1) * pz + iz + 1
+        ex = x - (ox + (ix + 0.5) * cell)
+        ey = y - (oy + (iy + 0.5) * cell)
+        ez = z - (oz + (iz + 0.5) * cell)
+        dq = math.sqrt(ex * ex + ey * ey + ez * ez)
+        b = r2
+        b2 = r2  # the least squared distance of the rows read but the best (r2 when none is below it)
+        bj = -1
+        reach = (max_distance + dq) * slack + margin
+        for q in range(near_start[c], near_start[c + 1]):
+            if near_dist[q] > reach:
+                break
+            k = int(near_rows[q])
+            d2 = _d2(x, y, z, gpts, k)
+            if d2 < b or (d2 == b and bj >= 0 and gorder[k] < gorder[bj]):
+                b2 = b
+                b = d2
+                bj = k
+            elif d2 < b2:
+                b2 = d2
+            else:
+                continue
+            reach = (math.sqrt(b2) + dq) * slack + margin
+        if bj >= 0:
+            near[i] = bj
+            best[i] = b
+            gap[i] = math.sqrt(b2) - math.sqrt(b)
+    n = 0
+    error2 = 0.0
+    for i in range(pcd.shape[0]):  # in source order, as Open3D lists (and sums) them
+        j = near[i]
+        if j >= 0:
+            src[n] = i
+            dst[n] = j
+            n += 1
+            error2 += best[i]
+    return n, error2
+
+
+@numba.njit(cache=True, nogil=True)
+def _transform_moved(T: np.ndarray, pcd: np.ndarray, moved: np.ndarray) -> None:
+    """:func:`_transform_rows` (the same bits), adding to ``moved[i]`` how far row i moved, rounded up (the
+    computed distance times 1 + :data:`_REACH_SLACK`, far more than its rounding and the sum's)."""
+    up = 1.0 + _REACH_SLACK
+    for i in range(pcd.shape[0]):
+        x, y, z = pcd[i, 0], pcd[i, 1], pcd[i, 2]
+        w = T[3, 0] * x + T[3, 1] * y + T[3, 2] * z + T[3, 3]
+        if w == 1.0:
+            for r in range(3):
+                pcd[i, r] = T[r, 0] * x + T[r, 1] * y + T[r, 2] * z + T[r, 3]
+        else:
+            for r in range(3):
+                pcd[i, r] = (T[r, 0] * x + T[r, 1] * y + T[r, 2] * z + T[r, 3]) / w
+        dx = pcd[i, 0] - x
+        dy = pcd[i, 1] - y
+        dz = pcd[i, 2] - z
+        moved[i] += math.sqrt(dx * dx + dy * dy + dz * dz) * up
+
+
+@numba.njit(cache=True, nogil=True)
 def _ldlt_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Eigen's ``A.ldlt().solve(b)`` for a symmetric (n, n) ``A`` read from its lower triangle:
     the largest remaining diagonal entry as pivot, components whose pivot is below the smallest
@@ -643,18 +745,20 @@ def _is_identity(T: np.ndarray) -> bool:
 def _icp_start(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
                near_start: np.ndarray, near_rows: np.ndarray, near_dist: np.ndarray,
                gpts: np.ndarray, gorder: np.ndarray, max_distance: float
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-                          int, float, float]:
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                          tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray], int, float,
+                          float]:
     """The start of Open3D's ``RegistrationICP`` loop: the source moved by ``init`` (unless it is the
     identity), its correspondences: ``(pcd, search order, pose, state, n, fitness, rmse)``."""
     pcd = source.copy()
     if not _is_identity(init):
         _transform_rows(init, pcd)
     m = pcd.shape[0]
-    state = (np.empty(m), np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.int64))
+    state = (np.empty(m), np.full(m, -1, np.int64), np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m),
+             np.zeros(m))
     order = _cell_order(pcd, origin, cell, nx, ny)
-    n, e2 = _correspond(pcd, order, origin, cell, nx, ny, nz, near_start, near_rows, near_dist, gpts, gorder,
-                        max_distance, *state)
+    n, e2 = _correspond_kept(pcd, order, origin, cell, nx, ny, nz, near_start, near_rows, near_dist, gpts, gorder,
+                             max_distance, *state, True)
     return pcd, order, init.copy(), state, n, n / m if n else 0.0, math.sqrt(e2 / n) if n else 0.0
 
 
@@ -662,13 +766,14 @@ def _icp_start(source: np.ndarray, init: np.ndarray, origin: np.ndarray, cell: f
 def _icp_step(U: np.ndarray, T: np.ndarray, pcd: np.ndarray, order: np.ndarray, origin: np.ndarray, cell: float,
               nx: int, ny: int, nz: int, near_start: np.ndarray, near_rows: np.ndarray, near_dist: np.ndarray,
               gpts: np.ndarray, gorder: np.ndarray, max_distance: float,
-              state: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, int, float, float]:
+              state: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+              ) -> tuple[np.ndarray, int, float, float]:
     """One iteration after its update ``U``: the pose ``U T``, the source moved by ``U``, its new
     correspondences: ``(pose, n, fitness, rmse)``."""
     T = _matmul4(U, T)
-    _transform_rows(U, pcd)
-    n, e2 = _correspond(pcd, order, origin, cell, nx, ny, nz, near_start, near_rows, near_dist, gpts, gorder,
-                        max_distance, *state)
+    _transform_moved(U, pcd, state[5])
+    n, e2 = _correspond_kept(pcd, order, origin, cell, nx, ny, nz, near_start, near_rows, near_dist, gpts, gorder,
+                             max_distance, *state, False)
     m = pcd.shape[0]
     return T, n, n / m if n else 0.0, math.sqrt(e2 / n) if n else 0.0
 

@@ -61,6 +61,7 @@ __all__ = [
     "TargetPoints",
     "initial_guess",
     "pose_fitness",
+    "pose_fitness_at_least",
     "prepare_icp_model",
     "prepare_target",
     "register_bin",
@@ -202,7 +203,8 @@ def _order_pairs(p, cols, ks):  # type: ignore[no-untyped-def]  # numba kernel  
     the rows counts the values below each bracket and another keeps those inside; a quickselect of the
     kept ones finds the rank, the least after it the next. A bracket that misses (it cannot on any but
     contrived orders) sorts the whole column instead. The values are exact order statistics whatever the
-    way (equal values are equal)."""
+    way (equal values are equal). The three columns are copied out once, so that the passes read contiguous
+    values (0.46 -> 0.39 CPU ms on a 640 x 480 frame's 45k bin points, 0.96 -> 0.72 on 104k)."""
     n = p.shape[0]
     m = ks.shape[0]
     out = np.empty((m, 2))
@@ -211,6 +213,11 @@ def _order_pairs(p, cols, ks):  # type: ignore[no-untyped-def]  # numba kernel  
             a = _sorted_column(p, cols[j])
             out[j, 0], out[j, 1] = a[ks[j]], a[ks[j] + 1]
         return out
+    colv = np.empty((3, n))  # the columns, each contiguous
+    for i in range(n):
+        colv[0, i] = p[i, 0]
+        colv[1, i] = p[i, 1]
+        colv[2, i] = p[i, 2]
     step = n // _SAMPLE
     lo = np.empty(m)
     hi = np.empty(m)
@@ -218,7 +225,7 @@ def _order_pairs(p, cols, ks):  # type: ignore[no-untyped-def]  # numba kernel  
     for j in range(m):
         if j == 0 or cols[j] != cols[j - 1]:  # one sorted sample per column
             for i in range(_SAMPLE):
-                sample[i] = p[i * step, cols[j]]
+                sample[i] = colv[cols[j], i * step]
             sample.sort()
         q = (ks[j] + 1.0) / n
         r = q * _SAMPLE
@@ -230,10 +237,11 @@ def _order_pairs(p, cols, ks):  # type: ignore[no-untyped-def]  # numba kernel  
     first = np.zeros(m + 1, np.int64)
     for j in range(m):  # branch-free counts, one column at a time
         c, lj, hj = cols[j], lo[j], hi[j]
+        col = colv[c]
         nb = 0
         nk = 0
         for i in range(n):
-            v = p[i, c]
+            v = col[i]
             nb += v < lj
             nk += (v >= lj) & (v <= hj)
         below[j] = nb
@@ -247,9 +255,10 @@ def _order_pairs(p, cols, ks):  # type: ignore[no-untyped-def]  # numba kernel  
     buf = np.empty(first[m])
     for j in range(m):
         c, lj, hj = cols[j], lo[j], hi[j]
+        col = colv[c]
         w = first[j]
         for i in range(n):
-            v = p[i, c]
+            v = col[i]
             if lj <= v <= hj:
                 buf[w] = v
                 w += 1
@@ -1034,18 +1043,26 @@ def _in_view(points: np.ndarray, K: Intrinsics) -> np.ndarray:
     return front & (u >= -0.5) & (u < K.width - 0.5) & (v >= -0.5) & (v < K.height - 0.5)
 
 
-def _rim_fitness(model: IcpModel, target: TargetPoints, T_cam_bin: np.ndarray,
-                 max_distance_m: float) -> tuple[float, int]:
-    """(bin fitness, rim points scored) of a pose; see :func:`pose_fitness`."""
+def _rim_reach(model: IcpModel, target: TargetPoints, T_cam_bin: np.ndarray,
+               max_distance_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The rim of ``model`` placed at ``T_cam_bin``, those of its points :func:`pose_fitness` scores (in the
+    camera's view when the target has intrinsics) and each one's reach: ``(rim (R, 3), reach (R,))``."""
     rim = transform_points(T_cam_bin, model.rim)
     K = target.intrinsics
     if K is None:
-        reach = np.full(len(rim), max_distance_m)
-    else:
-        # the rim in view (_in_view) and, since a frame sampled coarser than the distance cannot confirm
-        # it, each point's reach: the distance or PIXEL_REACH pixel footprints at its depth
-        rim, reach = _rim_in_view(rim, float(K.fx), float(K.fy), float(K.cx), float(K.cy), float(K.width),
-                                  float(K.height), float(max_distance_m), min(K.fx, K.fy))
+        return rim, np.full(len(rim), max_distance_m)
+    # the rim in view (_in_view) and, since a frame sampled coarser than the distance cannot confirm
+    # it, each point's reach: the distance or PIXEL_REACH pixel footprints at its depth
+    out: tuple[np.ndarray, np.ndarray] = _rim_in_view(rim, float(K.fx), float(K.fy), float(K.cx), float(K.cy),
+                                                      float(K.width), float(K.height), float(max_distance_m),
+                                                      min(K.fx, K.fy))
+    return out
+
+
+def _rim_fitness(model: IcpModel, target: TargetPoints, T_cam_bin: np.ndarray,
+                 max_distance_m: float) -> tuple[float, int]:
+    """(bin fitness, rim points scored) of a pose; see :func:`pose_fitness`."""
+    rim, reach = _rim_reach(model, target, T_cam_bin, max_distance_m)
     if len(rim) == 0:
         return 0.0, 0
     pts = target.cloud.points
@@ -1055,6 +1072,58 @@ def _rim_fitness(model: IcpModel, target: TargetPoints, T_cam_bin: np.ndarray,
     ub = float(reach.max())
     cells = _cells_for(target, ub)
     return float(_confirmed_in(np.ascontiguousarray(rim), reach, ub, pts, *cells)) / len(rim), len(rim)
+
+
+def _least_count(n: int, fitness: float) -> int:
+    """The least count k in 0..n with ``float(k) / n >= fitness`` (the bin fitness of k confirmed rim points of
+    n, as :func:`_rim_fitness` divides), n + 1 when none (``fitness`` above 1, or NaN). ``n`` >= 1."""
+    if math.isnan(fitness) or fitness > 1.0:
+        return n + 1
+    if fitness <= 0.0:
+        return 0
+    k = min(max(int(math.ceil(fitness * n)), 0), n)  # within one of the answer: the product rounds
+    while k > 0 and float(k - 1) / n >= fitness:
+        k -= 1
+    while k <= n and not float(k) / n >= fitness:
+        k += 1
+    return k
+
+
+def pose_fitness_at_least(model: IcpModel, target: TargetPoints, T_cam_bin: np.ndarray, *,
+                          max_correspondence_m: float, fitness: float) -> bool:
+    """``pose_fitness(model, target, T_cam_bin, max_correspondence_m=...) >= fitness``, exactly, counting the rim
+    points only until the answer is decided: as soon as enough of them are confirmed, or too many are not
+    (:func:`_confirmed_reaches`). The pipeline asks it whether the seed pose still holds on a frame
+    (``replay.pipeline.stages.locate_bin``): on a moved bin a third of the rim settles it, and the rim points
+    the frame does not confirm are those whose search reads all 27 cells around them.
+
+    Parameters
+    ----------
+    model : IcpModel
+    target : TargetPoints
+    T_cam_bin : (4, 4) float ndarray
+    max_correspondence_m : float
+    fitness : float
+        The bin fitness asked for.
+
+    Returns
+    -------
+    bool
+    """
+    T = np.asarray(T_cam_bin, dtype=np.float64)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise InputShapeError(f"T_cam_bin must be a finite (4, 4) array, got {describe_array(T)}")
+    want = float(fitness)
+    rim, reach = _rim_reach(model, target, T, float(max_correspondence_m))
+    pts = target.cloud.points
+    if len(rim) == 0 or len(pts) == 0:
+        return 0.0 >= want  # pose_fitness is 0 there
+    need = _least_count(len(rim), want)
+    if need == 0 or need > len(rim):
+        return need == 0
+    ub = float(reach.max())
+    cells = _cells_for(target, ub)  # the grid the final fitness reuses, as pose_fitness keeps it
+    return bool(_confirmed_reaches(np.ascontiguousarray(rim), reach, ub, pts, *cells, need))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1152,6 +1221,36 @@ def _cell_grid(pts, cell):  # type: ignore[no-untyped-def]  # numba kernel  # pr
     return origin, table, keys, counts, members
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _rim_point_confirmed(x, y, z, rr, ub2, ox, oy, oz, pts, cell, table, keys, counts, members):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """Has the rim point (x, y, z) a point of ``pts`` with d2 < ``ub2`` and sqrt(d2) <= ``rr``? The search of
+    :func:`_confirmed_in` for one point (its own grid cell first, then the other 26; the first such point
+    ends it)."""
+    fx = math.floor((x - ox) / cell)
+    fy = math.floor((y - oy) / cell)
+    fz = math.floor((z - oz) / cell)
+    if not (-2.0 < fx < 2.0**62 and -2.0 < fy < 2.0**62 and -2.0 < fz < 2.0**62):
+        return False  # no cell of the points within reach
+    cx, cy, cz = np.int64(fx), np.int64(fy), np.int64(fz)
+    for t in range(27):
+        # the own cell first (t = 0 is offset (0, 0, 0)), then the other 26
+        ax = cx + (t // 9 + 1) % 3 - 1
+        ay = cy + (t // 3 + 1) % 3 - 1
+        az = cz + (t + 1) % 3 - 1
+        j = table[_find_slot(table, keys, ax, ay, az)]
+        if j < 0:
+            continue
+        for q in range(counts[j], counts[j + 1]):
+            p = members[q]
+            dx = x - pts[p, 0]
+            dy = y - pts[p, 1]
+            dz = z - pts[p, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 < ub2 and math.sqrt(d2) <= rr:
+                return True
+    return False
+
+
 @numba.njit(cache=True, nogil=True)
 def _confirmed_in(rim, reach, ub, pts, cell, origin, table, keys, counts, members):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """:func:`_confirmed` in a grid of ``pts`` (:func:`_cell_grid`) with cells ``cell`` >= ``ub (1 + 1e-6)``
@@ -1162,42 +1261,34 @@ def _confirmed_in(rim, reach, ub, pts, cell, origin, table, keys, counts, member
     reach (the least d2 then does too): the search stops at the first such point, its own grid cell
     first (where it usually is), in cells at least ``ub`` wide (hashed: a frame's bin spans ~10^6 of
     them); the margin of 1e-6 keeps rounding in (x - origin) / cell from putting a point within ub two
-    cells away. Any such width gives the same count."""
+    cells away. Any such width gives the same count (:func:`_rim_point_confirmed`)."""
     ox, oy, oz = origin[0], origin[1], origin[2]
     ub2 = ub * ub
     n = 0
     for r in range(rim.shape[0]):
-        x, y, z = rim[r, 0], rim[r, 1], rim[r, 2]
-        fx = math.floor((x - ox) / cell)
-        fy = math.floor((y - oy) / cell)
-        fz = math.floor((z - oz) / cell)
-        if not (-2.0 < fx < 2.0**62 and -2.0 < fy < 2.0**62 and -2.0 < fz < 2.0**62):
-            continue  # no cell of the points within reach
-        cx, cy, cz = np.int64(fx), np.int64(fy), np.int64(fz)
-        rr = reach[r]
-        hit = False
-        for t in range(27):
-            # the own cell first (t = 0 is offset (0, 0, 0)), then the other 26
-            ax = cx + (t // 9 + 1) % 3 - 1
-            ay = cy + (t // 3 + 1) % 3 - 1
-            az = cz + (t + 1) % 3 - 1
-            j = table[_find_slot(table, keys, ax, ay, az)]
-            if j < 0:
-                continue
-            for q in range(counts[j], counts[j + 1]):
-                p = members[q]
-                dx = x - pts[p, 0]
-                dy = y - pts[p, 1]
-                dz = z - pts[p, 2]
-                d2 = dx * dx + dy * dy + dz * dz
-                if d2 < ub2 and math.sqrt(d2) <= rr:
-                    hit = True
-                    break
-            if hit:
-                break
-        if hit:
+        if _rim_point_confirmed(rim[r, 0], rim[r, 1], rim[r, 2], reach[r], ub2, ox, oy, oz, pts, cell, table, keys,
+                                counts, members):
             n += 1
     return n
+
+
+@numba.njit(cache=True, nogil=True)
+def _confirmed_reaches(rim, reach, ub, pts, cell, origin, table, keys, counts, members, need):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``_confirmed_in(rim, ...) >= need`` (1 <= ``need`` <= len(rim)), the rim points searched in the same
+    order until the answer is decided: ``need`` confirmed (True), or more than ``len(rim) - need`` not (False)."""
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    ub2 = ub * ub
+    spare = rim.shape[0] - need  # the rim points that may go unconfirmed
+    n = 0
+    for r in range(rim.shape[0]):
+        if _rim_point_confirmed(rim[r, 0], rim[r, 1], rim[r, 2], reach[r], ub2, ox, oy, oz, pts, cell, table, keys,
+                                counts, members):
+            n += 1
+            if n >= need:
+                return True
+        elif r + 1 - n > spare:
+            return False
+    return n >= need
 
 
 def pose_fitness(model: IcpModel, target: TargetPoints, T_cam_bin: np.ndarray, *,

@@ -27,7 +27,13 @@ from zcut.cuts import CutResult
 from zcut.errors import InputShapeError, ParameterError, ZcutError
 from zcut.metrics import RelativeMetrics, relative_metrics
 from zcut.prepared_model import PreparedBinModel
-from zcut.registration import RegistrationResult, pose_fitness, prepare_target, register_bin, subsampled_points
+from zcut.registration import (
+    RegistrationResult,
+    pose_fitness_at_least,
+    prepare_target,
+    register_bin,
+    subsampled_points,
+)
 from zcut.removal import RemovalResult, remove_table_and_bin, valid_pixels
 
 STAGES = ("bin_mask", "registration", "removal", "zcut", "sor", "metrics")
@@ -205,9 +211,10 @@ def locate_bin(
         reg = None
         if init is not None:
             assert seed is not None  # init is its pose
-            # a static bin: the seed pose needs only the fine pass (a moved bin: the full one)
-            f0 = pose_fitness(bin_model.icp, target, init, max_correspondence_m=c.fine_correspondence_m)
-            if f0 >= SEED_FITNESS_KEPT * seed.fitness:
+            # a static bin: the seed pose needs only the fine pass (a moved bin: the full one); whether its
+            # fitness still holds is all the stage needs (counted until that is decided)
+            if pose_fitness_at_least(bin_model.icp, target, init, max_correspondence_m=c.fine_correspondence_m,
+                                     fitness=SEED_FITNESS_KEPT * seed.fitness):
                 reg = register_bin(bin_model.icp, target, params=c, init=init, coarse=False)
                 if not reg.converged:
                     reg = None
