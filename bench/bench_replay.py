@@ -44,17 +44,26 @@ frame (numba compilation, model caches):
   their background thread, written to a temporary folder and closed), and every row says the frames/s
   bound of two fully used cores, 2 / (CPU s a frame). This tree's children run under the numba threading
   layer its ``configure_process`` chooses (``--layers workqueue``: also under that layer, the one chosen before
-  the round of 2026-12-05d, 1 and 2 frames in flight), the previous tree's under workqueue; every row says its
+  the round of 2026-12-05d, 1 and 2 frames in flight), and so do the previous tree's, 1 and 2 frames in flight
+  (before the round of 2026-12-05e: under workqueue, its default number); every row says its
   layer, the busiest thread's CPU s a frame (``/proc/self/task``, sampled at each frame) and the bound of two
   quiet cores, 1 / max(CPU s a frame / 2, the busiest thread's).
   The measuring children (these, ``--threads`` and the stage table's) set their process up as ``zcut replay``
   does (``replay.process.configure_process`` of their tree: its malloc settings decide how many pages a stage
   faults in). ``--warm-passes N``: N whole passes over the log's frames before the measured one (the
   same session), so that a short log is measured as a long log's later frames (buffers reused).
-- "Threads" (``--threads --log LOG [--against DIR] [--repeats N] [--warm-passes N]``): where a whole replay's
-  CPU goes, per thread (the reader, the chunk readers, the locator, the main thread, SOR's, the native
-  threads of numba, OpenCV and OpenBLAS): user and system CPU ms and minor page faults per frame, from
-  ``/proc/self/task``, this tree and DIR alternating (docs/performance.md, "The replay outside its stages").
+- "Threads" (``--threads --log LOG [--against DIR] [--repeats N] [--warm-passes N] [--in-flight N]``): where a
+  whole replay's CPU goes, per thread (the reader, the chunk readers, the locator, the main thread, SOR's, the
+  native threads of numba, OpenCV and OpenBLAS): user and system CPU ms and minor page faults per frame, from
+  ``/proc/self/task``, this tree and DIR alternating, each under its own threading layer, N frames in flight
+  (default: each tree's own default) (docs/performance.md, "The replay outside its stages"); and where they
+  wait (docs/performance.md, "Where the last core-fraction waits"): a tracer thread samples, every 5 ms, every
+  thread's run time and run-queue wait (``schedstat``), its state and, for Python's threads, the place in zcut's
+  code it is at (``sys._current_frames``), so that each thread group's wall splits into running, waiting for a
+  core and off the CPU, the last by place (a queue, a future, a lock, a kernel's line: blocked there on the GIL
+  or a native wait); the frames' pieces in time (read, locate, bin stages, methods, delivery); and what the run
+  implies for two quiet cores (:func:`quiet_estimate`: each 50 ms of the run did its work with the threads
+  ready then, at most two at a time).
 - "Fixed costs" (``--startup --log LOG [--against DIR] [--repeats N]``, issue 32 item 2): ``zcut replay
   LOG`` as a user runs it (``python -m cli``, a fresh process), with ``--frames 0:1`` and over all N
   frames, for this tree and DIR alternating N times. The CPU s of a process (user + sys of all its
@@ -806,8 +815,8 @@ def throughput_of_tree(tree: Path, log: Path, in_flight: int | None, outputs: st
 
 def throughput_table(log: Path, against: Path | None, repeats: int, outputs: tuple[str, ...] = ("none",),
                      layers: tuple[str, ...] = ()) -> None:
-    """Print CPU s and wall s per frame of whole replays: this tree with one frame in flight and with
-    two (numba's threading layer its ``configure_process`` chooses), and the previous tree (``against``),
+    """Print CPU s and wall s per frame of whole replays: this tree and the previous tree (``against``) with one
+    frame in flight and with two (numba's threading layer each tree's ``configure_process`` chooses),
     alternating ``repeats`` times, medians; with ``layers`` (e.g. workqueue, the previous layer), this tree under
     each of them with one and two frames in flight too; with ``outputs`` other than none, this tree (its default
     frames in flight) with each of them too. Every row says the frames/s bound of two fully used cores
@@ -820,13 +829,14 @@ def throughput_table(log: Path, against: Path | None, repeats: int, outputs: tup
     for layer in layers:
         runs[f"this tree, {layer}, 1 in flight"] = (this_tree, 1, "none", layer)
         runs[f"this tree, {layer}, 2 in flight"] = (this_tree, 2, "none", layer)
-    if against is not None:
-        runs["previous tree"] = (against, None, "none", None)
+    if against is not None:  # under the layer its own configure_process chooses, as `zcut replay` runs it
+        runs["previous tree, 1 frame in flight"] = (against, 1, "none", "default")
+        runs["previous tree, 2 frames in flight"] = (against, 2, "none", "default")
     for o in outputs:
         if o != "none":
             runs[f"this tree, --{o.replace('+', ' --')}"] = (this_tree, None, o, "default")
             if against is not None:
-                runs[f"previous, --{o.replace('+', ' --')}"] = (against, None, o, None)
+                runs[f"previous, --{o.replace('+', ' --')}"] = (against, None, o, "default")
     got: dict[str, list[dict]] = {k: [] for k in runs}
     loads = []
     for _ in range(max(repeats, 1)):

@@ -83,8 +83,15 @@ _FIRST_BUF = 16 << 20
 #: pseudo opcode yielded by :meth:`McapFile.records` after a lost chunk: a :class:`Lost`
 OP_LOST = 0x100
 #: Chunks read ahead of the caller by :meth:`McapFile.records` (one worker thread each, at most
-#: the number of CPUs), and the most uncompressed bytes they may hold beyond the first.
-PREFETCH = 2
+#: the number of CPUs), and the most uncompressed bytes they may hold beyond the first. Four: a frame's
+#: chunks of a log that splits each frame's topics over a few chunks (a synthetic 1920 x 1200 log: the
+#: cloud's 37 MB, 30 ms of zstd, then the image's, the masks', the kind codes' and depth's, 10 ms in all),
+#: so that while one thread decompresses a cloud's chunk the others decompress the chunks after it, the
+#: next cloud's among them (a frame is delivered once the next cloud has been read). With two, the second
+#: thread idled while the first decompressed a cloud and the next cloud's chunk waited for it: the start
+#: of a pass read its first frame ~25 ms later with one core idle (docs/performance.md, "Where the last
+#: core-fraction waits").
+PREFETCH = 4
 PREFETCH_BYTES = 256 << 20
 _OP_NOTE = -1  # internal: a damage record queued among the records
 
