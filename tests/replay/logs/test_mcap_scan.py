@@ -17,6 +17,7 @@ from replay.errors import LogFormatError
 from replay.logs.frame import Frame
 from replay.logs.mcap_scan import BufferPool, McapFile
 from replay.logs.reader import LogReader
+from replay.logs.stream import FrameStream
 from replay.logs.writer import LogWriter
 
 pytestmark = pytest.mark.timeout(120)
@@ -89,6 +90,8 @@ def test_read_ahead_changes_nothing(log, tmp_path, monkeypatch):
         plain = _scan(p, prefetch=0)
         assert _scan(p, prefetch=1) == plain
         assert _scan(p, prefetch=3) == plain
+        assert _scan(p) == plain  # the default, ms.PREFETCH chunks ahead
+        assert _scan(p, prefetch=2 * ms.PREFETCH) == plain
         monkeypatch.setattr(ms, "PREFETCH_BYTES", 0)  # budget: never more than one chunk ahead
         assert _scan(p, prefetch=3) == plain
         monkeypatch.undo()
@@ -128,6 +131,33 @@ def test_chunks_kept_from_opening_give_the_same_frames(log, tmp_path):
         got = _frames(p)
         if got[0] != "error":
             assert got[0] == got[1], f"mutant {i}"
+
+
+def test_frames_read_ahead_or_not_are_the_same(log, tmp_path):
+    """A frame stream with the chunks read ahead (the default, :data:`~replay.logs.mcap_scan.PREFETCH`) delivers
+    the same frames and damage as one that reads every chunk in its own thread, from the start and from a later
+    frame, on the log and its damaged mutants (the cloud before the range read for its stamp)."""
+    assert ms.PREFETCH >= 4  # a frame's chunks ahead (docs/performance.md, "Where the last core-fraction waits")
+
+    def frames(path, start, prefetch):  # type: ignore[no-untyped-def]
+        try:
+            r = LogReader(path)
+            stream = FrameStream(r.index(first_pass=False), start=start, prefetch=prefetch)
+            got = [(f.index, f.stamp_ns, f.xyz.tobytes(), None if f.rgb is None else f.rgb.tobytes(),
+                    {k: m.tobytes() for k, m in f.masks.items()}) for f in stream]
+            return got, stream.damage
+        except LogFormatError as e:
+            return "error", type(e).__name__, str(e)
+
+    raw = log.read_bytes()
+    paths = [log]
+    for i, (_, data) in enumerate(mutations(raw, np.random.default_rng(17), 20)):
+        paths.append(tmp_path / f"r{i}.mcap")
+        paths[-1].write_bytes(data)
+    for path in paths:
+        for start in (0, 2):
+            assert frames(path, start, None) == frames(path, start, 0), (path.name, start)
+    assert len(frames(log, 0, None)[0]) == 5
 
 
 def test_frames_own_their_memory(log):
