@@ -352,7 +352,7 @@ def warm_passes() -> int:
 #: the sampling period of ``--threads``' wait tracer, s
 TRACE_PERIOD_S = 0.005
 
-#: the folders whose code names where a Python thread is (:func:`_where`)
+#: the folders whose code names where a Python thread is (:func:`_where`; not their tests')
 _OWN_CODE = (f"{os.sep}replay{os.sep}", f"{os.sep}zcut{os.sep}")
 
 
@@ -378,8 +378,11 @@ def _where(frame: Any) -> str:
     def name(g: Any) -> str:
         return f"{Path(g.f_code.co_filename).name}:{g.f_code.co_name}:{g.f_lineno}"
 
+    def own(path: str) -> bool:
+        return any(p in path for p in _OWN_CODE) and f"{os.sep}tests{os.sep}" not in path
+
     f = frame
-    while f is not None and not any(p in f.f_code.co_filename for p in _OWN_CODE):
+    while f is not None and not own(f.f_code.co_filename):
         f = f.f_back
     if f is None:
         return name(frame)
