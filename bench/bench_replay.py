@@ -44,17 +44,26 @@ frame (numba compilation, model caches):
   their background thread, written to a temporary folder and closed), and every row says the frames/s
   bound of two fully used cores, 2 / (CPU s a frame). This tree's children run under the numba threading
   layer its ``configure_process`` chooses (``--layers workqueue``: also under that layer, the one chosen before
-  the round of 2026-12-05d, 1 and 2 frames in flight), the previous tree's under workqueue; every row says its
+  the round of 2026-12-05d, 1 and 2 frames in flight), and so do the previous tree's, 1 and 2 frames in flight
+  (before the round of 2026-12-05e: under workqueue, its default number); every row says its
   layer, the busiest thread's CPU s a frame (``/proc/self/task``, sampled at each frame) and the bound of two
   quiet cores, 1 / max(CPU s a frame / 2, the busiest thread's).
   The measuring children (these, ``--threads`` and the stage table's) set their process up as ``zcut replay``
   does (``replay.process.configure_process`` of their tree: its malloc settings decide how many pages a stage
   faults in). ``--warm-passes N``: N whole passes over the log's frames before the measured one (the
   same session), so that a short log is measured as a long log's later frames (buffers reused).
-- "Threads" (``--threads --log LOG [--against DIR] [--repeats N] [--warm-passes N]``): where a whole replay's
-  CPU goes, per thread (the reader, the chunk readers, the locator, the main thread, SOR's, the native
-  threads of numba, OpenCV and OpenBLAS): user and system CPU ms and minor page faults per frame, from
-  ``/proc/self/task``, this tree and DIR alternating (docs/performance.md, "The replay outside its stages").
+- "Threads" (``--threads --log LOG [--against DIR] [--repeats N] [--warm-passes N] [--in-flight N]``): where a
+  whole replay's CPU goes, per thread (the reader, the chunk readers, the locator, the main thread, SOR's, the
+  native threads of numba, OpenCV and OpenBLAS): user and system CPU ms and minor page faults per frame, from
+  ``/proc/self/task``, this tree and DIR alternating, each under its own threading layer, N frames in flight
+  (default: each tree's own default) (docs/performance.md, "The replay outside its stages"); and where they
+  wait (docs/performance.md, "Where the last core-fraction waits"): a tracer thread samples, every 5 ms, every
+  thread's run time and run-queue wait (``schedstat``), its state and, for Python's threads, the place in zcut's
+  code it is at (``sys._current_frames``), so that each thread group's wall splits into running, waiting for a
+  core and off the CPU, the last by place (a queue, a future, a lock, a kernel's line: blocked there on the GIL
+  or a native wait); the frames' pieces in time (read, locate, bin stages, methods, delivery); and what the run
+  implies for two quiet cores (:func:`quiet_estimate`: each 50 ms of the run did its work with the threads
+  ready then, at most two at a time).
 - "Fixed costs" (``--startup --log LOG [--against DIR] [--repeats N]``, issue 32 item 2): ``zcut replay
   LOG`` as a user runs it (``python -m cli``, a fresh process), with ``--frames 0:1`` and over all N
   frames, for this tree and DIR alternating N times. The CPU s of a process (user + sys of all its
@@ -78,6 +87,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 if "--throughput-json" in sys.argv or "--threads-json" in sys.argv or "--stage-json" in sys.argv:
     # a measuring child (a whole replay, its threads, or the stage table): the process set up as `zcut replay`
@@ -339,15 +349,214 @@ def warm_passes() -> int:
     return int(os.environ.get(WARM_PASSES_VARIABLE, "0") or 0)
 
 
+#: the sampling period of ``--threads``' wait tracer, s
+TRACE_PERIOD_S = 0.005
+
+#: the folders whose code names where a Python thread is (:func:`_where`; not their tests')
+_OWN_CODE = (f"{os.sep}replay{os.sep}", f"{os.sep}zcut{os.sep}")
+
+
+def _schedstat(tid: int) -> tuple[int, int, bool] | None:
+    """(ns run, ns waited on a run queue, whether it is ready to run now: running or waiting for a core) of a
+    thread of this process (``/proc/self/task/TID/schedstat`` and ``stat``)."""
+    try:
+        with open(f"/proc/self/task/{tid}/schedstat", "rb") as f:
+            run, queued, _ = f.read().split()
+        with open(f"/proc/self/task/{tid}/stat", "rb") as f:
+            state = f.read().rsplit(b")", 1)[1].split(None, 1)[0]
+    except (OSError, ValueError, IndexError):
+        return None
+    return int(run), int(queued), state == b"R"
+
+
+def _where(frame: Any) -> str:
+    """Where a Python thread is: the innermost frame of zcut's own code (``file:function:line`` and the line's
+    text) and, when the innermost frame is another module's (a wait of ``threading``, ``queue``,
+    ``concurrent.futures``), that frame's function; a thread in no code of zcut's, its innermost frame."""
+    import linecache
+
+    def name(g: Any) -> str:
+        return f"{Path(g.f_code.co_filename).name}:{g.f_code.co_name}:{g.f_lineno}"
+
+    def own(path: str) -> bool:
+        return any(p in path for p in _OWN_CODE) and f"{os.sep}tests{os.sep}" not in path
+
+    f = frame
+    while f is not None and not own(f.f_code.co_filename):
+        f = f.f_back
+    if f is None:
+        return name(frame)
+    out = f"{name(f)} `{linecache.getline(f.f_code.co_filename, f.f_lineno).strip()[:56]}`"
+    return out if frame is f else f"{out} <- {frame.f_code.co_name}"
+
+
+def _group(name: str) -> str:
+    """A thread's group: its name without the pool's number (``zcut-frame_0`` -> ``zcut-frame``)."""
+    return name.split("_")[0].rstrip("0123456789-") if "_" in name else name.rstrip("0123456789-")
+
+
+class _WaitTracer:
+    """Where a whole replay's threads wait (``--threads``): a thread of its own samples, every
+    :data:`TRACE_PERIOD_S`, every thread's run time and run-queue wait (``schedstat``, ns) and, for Python's
+    threads, where it is (:func:`_where`; a thread Python does not know, numba's, OpenCV's, OpenBLAS's, is
+    ``native``). Each sample's interval is credited to the place the thread was at its start: per thread and
+    place, the wall s it ran, waited for a core, and was off the CPU (blocked: on a queue, a lock, a future,
+    the GIL, a native barrier). Every fourth sample also reads :func:`thread_stats` (user, system CPU and page
+    faults, so that a thread that ends during the run is counted up to its last sample)."""
+
+    def __init__(self) -> None:
+        import threading
+
+        self.names: dict[int, str] = {}
+        self.last: dict[int, tuple[int, int]] = {}
+        self.where: dict[int, str] = {}
+        #: tid -> place -> [run s, run-queue s, off-CPU s]
+        self.spent: dict[int, dict[str, list[float]]] = {}
+        #: per sample: its end (s from the start), the run time of every thread but the tracer's (CPU s) and the
+        #: threads ready to run at its end (running or waiting for a core: the run's parallelism then)
+        self.busy: list[tuple[float, float, float]] = []
+        self.seen: dict[int, tuple[str, float, float, int]] = {}
+        self.t0 = 0.0
+        self._t = 0.0
+        self._n = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="bench-sampler", daemon=True)
+        self.own_tid = -1
+
+    def start(self) -> None:
+        self.t0 = self._t = time.perf_counter()
+        self._sample(first=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        self._sample()
+
+    def _run(self) -> None:
+        import threading
+
+        self.own_tid = threading.get_native_id()
+        while not self._stop.wait(TRACE_PERIOD_S):
+            self._sample()
+
+    def _sample(self, first: bool = False) -> None:
+        import threading
+
+        if self._n % 4 == 0:
+            self.seen.update(thread_stats(self.seen))
+        self._n += 1
+        now = time.perf_counter()
+        dt, self._t = now - self._t, now
+        was = dict(self.where)
+        frames = sys._current_frames()
+        for th in threading.enumerate():
+            if th.native_id is not None:
+                self.names[th.native_id] = th.name
+                fr = frames.get(th.ident or -1)
+                if fr is not None:
+                    self.where[th.native_id] = _where(fr)
+        del frames
+        ran, ready = 0.0, 0
+        for tid in map(int, os.listdir("/proc/self/task")):
+            got = _schedstat(tid)
+            if got is None:
+                continue
+            old = self.last.get(tid)
+            self.last[tid] = got
+            if first or tid == self.own_tid:
+                continue
+            if old is None:  # a thread new since the last sample: its run time, no off-CPU time known
+                run_s, queued_s, off_s = got[0] / 1e9, got[1] / 1e9, 0.0
+            else:
+                run_s, queued_s = (got[0] - old[0]) / 1e9, (got[1] - old[1]) / 1e9
+                off_s = max(dt - run_s - queued_s, 0.0)
+            ran += run_s
+            ready += got[2]
+            acc = self.spent.setdefault(tid, {}).setdefault(was.get(tid, self.where.get(tid, "native")), [0.0] * 3)
+            acc[0] += run_s
+            acc[1] += queued_s
+            acc[2] += off_s
+        if not first and dt > 0:
+            self.busy.append((now - self.t0, ran, ready))
+
+    def places(self, n: int, wall_s: float) -> dict[str, dict[str, object]]:
+        """Per thread group: its threads, the share of the wall it ran, waited for a core and was off the CPU
+        (summed over its threads), and its off-CPU ms a frame by place (the largest first)."""
+        out: dict[str, dict[str, object]] = {}
+        for tid, by_place in self.spent.items():
+            name = self.names.get(tid) or self.seen.get(tid, ("native",))[0]
+            if name == "bench-sampler":
+                continue
+            g = out.setdefault(_group(name), {"threads": 0, "run": 0.0, "queued": 0.0, "off": 0.0, "places": {}})
+            g["threads"] = int(g["threads"]) + 1  # type: ignore[call-overload]
+            for place, (run_s, queued_s, off_s) in by_place.items():
+                g["run"] = float(g["run"]) + run_s / wall_s  # type: ignore[arg-type]
+                g["queued"] = float(g["queued"]) + queued_s / wall_s  # type: ignore[arg-type]
+                g["off"] = float(g["off"]) + off_s / wall_s  # type: ignore[arg-type]
+                p = g["places"].setdefault(place, [0.0, 0.0])  # type: ignore[union-attr]
+                p[0] += 1000 * run_s / n
+                p[1] += 1000 * off_s / n
+        return out
+
+
+def _frame_events(session: Any, t0: list[float]) -> list[tuple[int, str, str, float, float]]:
+    """Record, in a measuring child, when each frame's pieces of a replay start and end: (frame index, piece,
+    thread, start s, end s) from ``t0[0]``, appended to the list returned. The session module's names are
+    wrapped (the reader's next frame, ``locate_bin``, ``bin_zone``, ``judge_zone``, ``run_frame``, a frame
+    worker's whole ``_frame_result``): the same functions, timed."""
+    import functools
+    import threading
+
+    from replay.pipeline import session as sm
+
+    events: list[tuple[int, str, str, float, float]] = []
+
+    def timed(piece: str, fn: Any, index_of: Any) -> Any:
+        @functools.wraps(fn)
+        def run(*a: Any, **kw: Any) -> Any:
+            s = time.perf_counter()
+            try:
+                return fn(*a, **kw)
+            finally:
+                events.append((index_of(a), piece, threading.current_thread().name, s - t0[0],
+                               time.perf_counter() - t0[0]))
+        return run
+
+    first = lambda a: a[0].index  # noqa: E731 - the frame is the first argument
+    for piece in ("locate_bin", "bin_zone", "judge_zone", "run_frame"):
+        if hasattr(sm, piece):
+            setattr(sm, piece, timed(piece, getattr(sm, piece), first))
+    if hasattr(sm.ReplaySession, "_frame_result"):
+        sm.ReplaySession._frame_result = timed("frame worker", sm.ReplaySession._frame_result,  # type: ignore[method-assign]
+                                               lambda a: a[1].index)
+    prefetched = sm.prefetched
+
+    def read_timed(frames: Any, **kw: Any) -> Any:
+        def reading() -> Any:
+            while True:
+                s = time.perf_counter()
+                f = next(frames, None)
+                if f is None:
+                    return
+                events.append((f.index, "read", threading.current_thread().name, s - t0[0],
+                               time.perf_counter() - t0[0]))
+                yield f
+        return prefetched(reading(), **kw)
+
+    sm.prefetched = read_timed  # type: ignore[assignment]
+    return events
+
+
 def thread_accounting(log: Path, in_flight: int | None) -> dict[str, object]:
-    """Where the CPU of a whole replay goes, per thread (``--threads``): ``ReplaySession.run`` over frames 1..
-    after frame 0 (and ``--warm-passes``), no outputs, every thread's user and system CPU ms and minor page
-    faults per frame from ``/proc/self/task/*/stat`` (sampled every 20 ms, so a thread that ends is counted up
-    to its last sample), grouped by thread name (numba's, OpenCV's and OpenBLAS's threads are not Python's:
-    ``native``), and the process's own figures (``getrusage``)."""
+    """Where the CPU of a whole replay goes, per thread, and where its threads wait (``--threads``):
+    ``ReplaySession.run`` over frames 1.. after frame 0 (and ``--warm-passes``), no outputs, ``in_flight`` frames
+    at once (None: the tree's default); every thread's user and system CPU ms and minor page faults per frame
+    from ``/proc/self/task/*/stat``, grouped by thread name (numba's, OpenCV's and OpenBLAS's threads are not
+    Python's: ``native``), the process's own figures (``getrusage``), and :class:`_WaitTracer`'s shares and
+    places, the cores busy over the run, and the frames' pieces in time (:func:`_frame_events`)."""
     import inspect
     import resource
-    import threading
 
     from replay.pipeline.bin_model import bin_model_for
 
@@ -358,49 +567,83 @@ def thread_accounting(log: Path, in_flight: int | None) -> dict[str, object]:
     session.run(frames=(0, 1), **kw)
     for _ in range(warm_passes()):
         session.run(frames=(1, None), **kw)
-    seen: dict[int, tuple[str, float, float, int]] = {}
-
-    def sample() -> None:
-        seen.update(thread_stats(seen))
-
-    stop = threading.Event()
-
-    def sampler() -> None:
-        while not stop.wait(0.02):
-            sample()
-
-    sample()
-    base = dict(seen)
+    t0 = [0.0]
+    events = _frame_events(session, t0)
+    delivered: list[tuple[int, float]] = []
+    tracer = _WaitTracer()
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
-    th = threading.Thread(target=sampler, name="bench-sampler", daemon=True)
-    th.start()
+    tracer.start()
+    base = dict(tracer.seen)
+    t0[0] = tracer.t0
     c0 = time.process_time()
-    summary = session.run(frames=(1, None), **kw)
+    summary = session.run(frames=(1, None),
+                          on_frame=lambda f, r, row: delivered.append((f.index, time.perf_counter() - t0[0])), **kw)
     cpu = time.process_time() - c0
-    sample()
-    stop.set()
-    th.join()
+    wall = time.perf_counter() - t0[0]
+    tracer.stop()
     ru1 = resource.getrusage(resource.RUSAGE_SELF)
     n = max(len(summary.rows), 1)
     groups: dict[str, list[float]] = {}
-    for tid, (name, u, sy, fl) in seen.items():
-        if name == "bench-sampler":
-            continue
+    sampler_ms = 0.0
+    for tid, (name, u, sy, fl) in tracer.seen.items():
         b = base.get(tid, (name, 0.0, 0.0, 0))
-        key = name.split("_")[0].rstrip("0123456789-") if "_" in name else name.rstrip("0123456789-")
-        g = groups.setdefault(key, [0.0, 0.0, 0.0, 0.0])
+        if name == "bench-sampler":
+            sampler_ms = 1000 * (u + sy - b[1] - b[2]) / n
+            continue
+        g = groups.setdefault(_group(name), [0.0, 0.0, 0.0, 0.0])
         g[0] += 1000 * (u - b[1]) / n
         g[1] += 1000 * (sy - b[2]) / n
         g[2] += (fl - b[3]) / n
         g[3] += 1
-    return {"frames": len(summary.rows), "cpu_ms": 1000 * cpu / n,
+    return {"frames": len(summary.rows), "cpu_ms": 1000 * cpu / n, "wall_ms": 1000 * wall / n,
             "user_ms": 1000 * (ru1.ru_utime - ru0.ru_utime) / n, "sys_ms": 1000 * (ru1.ru_stime - ru0.ru_stime) / n,
-            "minflt": (ru1.ru_minflt - ru0.ru_minflt) / n, "threads": groups}
+            "minflt": (ru1.ru_minflt - ru0.ru_minflt) / n, "threads": groups, "sampler_ms": sampler_ms,
+            "places": tracer.places(n, wall), "events": events, "delivered": delivered,
+            "in_flight": in_flight or 0, "layer": _layer_run(__import__("numba")),
+            "quiet": quiet_estimate(tracer.busy, delivered), "samples": tracer.busy}
 
 
-def thread_table(log: Path, against: Path | None, repeats: int) -> None:
-    """Print :func:`thread_accounting` of this tree and ``against``'s, alternating ``repeats`` times (one
-    subprocess each), the medians per thread group."""
+def quiet_estimate(samples: list[tuple[float, float, float]], delivered: list[tuple[int, float]],
+                   cores: int = 2, window: int = 10) -> dict[str, object]:
+    """What a traced run (:class:`_WaitTracer`'s samples) implies for ``cores`` quiet cores.
+
+    In each ``window`` of samples the run did its CPU s of work with, on average, D of the process's threads
+    ready to run (running, or waiting for a core: the parallelism the run had then; the state of every thread
+    at each sample). On quiet cores that work takes CPU s / min(D, ``cores``): a loaded machine stretches the
+    run, not the order of its work. Summed over the windows, that is the run's wall on quiet cores if its pieces
+    overlap as they did here (an estimate: on quiet cores the threads keep another pace relative to each
+    other). Returns the estimated wall ms a frame, cores busy, the share of that wall with fewer than ``cores``
+    threads ready, and the estimated delivery time of each frame (ms from the start)."""
+    quiet, short, work = 0.0, 0.0, 0.0
+    at: list[tuple[float, float]] = [(0.0, 0.0)]  # (window end here, the same on quiet cores), s
+    for i in range(0, len(samples), window):
+        part = samples[i : i + window]
+        ran = sum(r for _, r, _ in part)
+        ready = sum(d for _, _, d in part) / len(part)
+        q = ran / min(max(ready, 1.0), cores)
+        quiet += q
+        work += ran
+        if ready < cores:
+            short += q
+        at.append((part[-1][0], quiet))
+
+    def quiet_at(t: float) -> float:
+        for (t0, q0), (t1, q1) in zip(at, at[1:]):
+            if t <= t1:
+                return q0 + (q1 - q0) * ((t - t0) / (t1 - t0) if t1 > t0 else 1.0)
+        return at[-1][1]
+
+    n = max(len(delivered), 1)
+    return {"wall_ms": 1000 * quiet / n, "cores_busy": work / quiet if quiet else float("nan"),
+            "short_share": short / quiet if quiet else float("nan"),
+            "delivered_ms": [(i, 1000 * quiet_at(t)) for i, t in delivered]}
+
+
+def thread_table(log: Path, against: Path | None, repeats: int, in_flight: int | None = None) -> None:
+    """Print :func:`thread_accounting` of this tree and ``against``'s (each under the numba threading layer its
+    own ``configure_process`` chooses, ``in_flight`` frames at once, None: its default), alternating ``repeats``
+    times (one subprocess each), the medians per thread group; then, per tree, where each thread group waits
+    (the medians of its wall shares, its places of the last run) and the last run's frames in time."""
     this_tree = Path(__file__).resolve().parents[1]
     trees = {"this tree": this_tree} | ({"previous": against} if against is not None else {})
     got: dict[str, list[dict]] = {k: [] for k in trees}
@@ -408,9 +651,10 @@ def thread_table(log: Path, against: Path | None, repeats: int) -> None:
     for _ in range(max(repeats, 1)):
         for name, tree in trees.items():
             loads.append(os.getloadavg()[0])
-            got[name].append(child_json(tree, "--threads-json", str(log)))
+            got[name].append(child_json(tree, "--threads-json", str(log), str(in_flight or 0), layer="default"))
     print(f"\nwhere a whole replay's CPU goes, per thread, {log.name} ({got['this tree'][0]['frames']} frames after a "
-          f"warm-up one, {warm_passes()} warm pass(es)); medians of {repeats} alternating runs, CPU ms per frame "
+          f"warm-up one, {warm_passes()} warm pass(es), {in_flight or 'the default number of'} frame(s) in flight, "
+          f"layer {got['this tree'][0].get('layer')}); medians of {repeats} alternating runs, CPU ms per frame "
           f"(user + sys) and minor page faults per frame; load average {min(loads):.1f}-{max(loads):.1f} on "
           f"{os.cpu_count()} cores")
     groups = sorted({g for rs in got.values() for r in rs for g in r["threads"]})
@@ -422,8 +666,50 @@ def thread_table(log: Path, against: Path | None, repeats: int) -> None:
         print(f"  {g:20s}" + "".join(f" {med[name][g][0]:10.1f} {med[name][g][1]:10.1f} {med[name][g][2]:10.0f}"
                                      for name in trees))
     for k, label in (("user_ms", "process user"), ("sys_ms", "process sys"), ("minflt", "minor faults"),
-                     ("cpu_ms", "process CPU")):
-        print(f"  {label:20s}" + "".join(f" {statistics.median(r[k] for r in got[name]):32.1f}" for name in trees))
+                     ("cpu_ms", "process CPU"), ("wall_ms", "wall"), ("sampler_ms", "(the tracer's own CPU)")):
+        print(f"  {label:20s}" + "".join(f" {statistics.median(r.get(k, 0.0) for r in got[name]):32.1f}"
+                                         for name in trees))
+    for name, rs in got.items():
+        print_waits(name, rs)
+
+
+def print_waits(name: str, runs: list[dict]) -> None:
+    """Where each thread group of ``runs`` (one tree's :func:`thread_accounting`) ran and waited: the medians of
+    its wall shares (summed over its threads: 1.00 = one thread busy all the run), the cores busy, and the last
+    run's places off the CPU (ms a frame) and frames in time."""
+    print(f"\n  {name}: cores busy (CPU / wall) " + ", ".join(f"{r['cpu_ms'] / r['wall_ms']:.2f}" for r in runs))
+    print(f"  on {os.cpu_count()} quiet cores, were the pieces to overlap as here (quiet_estimate): wall ms a frame "
+          + ", ".join(f"{r['quiet']['wall_ms']:.1f}" for r in runs) + "; cores busy "
+          + ", ".join(f"{r['quiet']['cores_busy']:.2f}" for r in runs) + "; share of that wall with fewer threads "
+          "ready than cores " + ", ".join(f"{r['quiet']['short_share']:.2f}" for r in runs))
+    print("  the frames' delivery on quiet cores (estimated ms from the start), the last run: "
+          + ", ".join(f"{i}: {t:.0f}" for i, t in runs[-1]["quiet"]["delivered_ms"]))
+    print(f"  {'thread group':20s} {'threads':>7s} {'running':>8s} {'run queue':>10s} {'off CPU':>8s}   (ms a frame "
+          "summed over the group's threads, schedstat; medians)")
+    groups = sorted({g for r in runs for g in r["places"]}, key=lambda g: -statistics.median(
+        r["places"].get(g, {}).get("run", 0.0) for r in runs))
+    for g in groups:
+        vals = [r["places"].get(g, {"threads": 0, "run": 0.0, "queued": 0.0, "off": 0.0}) | {"wall": r["wall_ms"]}
+                for r in runs]
+        print(f"  {g:20s} {statistics.median(v['threads'] for v in vals):7.0f} "
+              + " ".join(f"{statistics.median(v[k] * v['wall'] for v in vals):{w}.1f}"
+                         for k, w in (("run", 8), ("queued", 10), ("off", 8))))
+    print(f"  {'all':20s} {'':7s} " + f"{statistics.median(sum(g['run'] for g in r['places'].values()) * r['wall_ms'] for r in runs):8.1f}")
+    last = runs[-1]
+    print("  the last run's places, ms a frame running / off the CPU (each group's places above 2 ms):")
+    for g in groups:
+        places = last["places"].get(g, {}).get("places", {})
+        for place, (run_ms, off_ms) in sorted(places.items(), key=lambda kv: -(kv[1][0] + kv[1][1])):
+            if run_ms + off_ms >= 2.0:
+                print(f"    {g:18s} {run_ms:7.1f} {off_ms:7.1f}  {place}")
+    print("  the last run's frames in time (ms from the run's start: piece start-end [thread]):")
+    by_frame: dict[int, list] = {}
+    for idx, piece, thread, s, e in last["events"]:
+        by_frame.setdefault(idx, []).append((s, e, piece, thread))
+    done = dict((i, t) for i, t in last["delivered"])
+    for idx in sorted(by_frame):
+        parts = "  ".join(f"{piece} {1000 * s:.0f}-{1000 * e:.0f} [{thread}]" for s, e, piece, thread in sorted(by_frame[idx]))
+        print(f"    frame {idx}: {parts}  delivered {1000 * done.get(idx, float('nan')):.0f}")
 
 
 def throughput(log: Path, in_flight: int | None, outputs: str = "none") -> dict[str, float]:
@@ -532,8 +818,8 @@ def throughput_of_tree(tree: Path, log: Path, in_flight: int | None, outputs: st
 
 def throughput_table(log: Path, against: Path | None, repeats: int, outputs: tuple[str, ...] = ("none",),
                      layers: tuple[str, ...] = ()) -> None:
-    """Print CPU s and wall s per frame of whole replays: this tree with one frame in flight and with
-    two (numba's threading layer its ``configure_process`` chooses), and the previous tree (``against``),
+    """Print CPU s and wall s per frame of whole replays: this tree and the previous tree (``against``) with one
+    frame in flight and with two (numba's threading layer each tree's ``configure_process`` chooses),
     alternating ``repeats`` times, medians; with ``layers`` (e.g. workqueue, the previous layer), this tree under
     each of them with one and two frames in flight too; with ``outputs`` other than none, this tree (its default
     frames in flight) with each of them too. Every row says the frames/s bound of two fully used cores
@@ -546,13 +832,14 @@ def throughput_table(log: Path, against: Path | None, repeats: int, outputs: tup
     for layer in layers:
         runs[f"this tree, {layer}, 1 in flight"] = (this_tree, 1, "none", layer)
         runs[f"this tree, {layer}, 2 in flight"] = (this_tree, 2, "none", layer)
-    if against is not None:
-        runs["previous tree"] = (against, None, "none", None)
+    if against is not None:  # under the layer its own configure_process chooses, as `zcut replay` runs it
+        runs["previous tree, 1 frame in flight"] = (against, 1, "none", "default")
+        runs["previous tree, 2 frames in flight"] = (against, 2, "none", "default")
     for o in outputs:
         if o != "none":
             runs[f"this tree, --{o.replace('+', ' --')}"] = (this_tree, None, o, "default")
             if against is not None:
-                runs[f"previous, --{o.replace('+', ' --')}"] = (against, None, o, None)
+                runs[f"previous, --{o.replace('+', ' --')}"] = (against, None, o, "default")
     got: dict[str, list[dict]] = {k: [] for k in runs}
     loads = []
     for _ in range(max(repeats, 1)):
@@ -686,7 +973,8 @@ def child_main(args: argparse.Namespace) -> None:
         log_, ply_ = args.stage_json
         got = stage_costs(Path(log_), None if ply_ == "-" else Path(ply_), clock=args.clock, bin_only=args.bin_stages)
     elif args.threads_json:
-        got = thread_accounting(Path(args.threads_json[0]), None)
+        log_, n_ = args.threads_json
+        got = thread_accounting(Path(log_), int(n_) or None)
     else:
         log_, n_, o_ = args.throughput_json
         got = throughput(Path(log_), int(n_) or None, o_)
@@ -722,7 +1010,9 @@ def main() -> None:
     ap.add_argument("--threads", action="store_true",
                     help="where a whole replay of --log spends its CPU, per thread (user, system, page faults), this "
                          "tree and --against's alternating --repeats times")
-    ap.add_argument("--threads-json", nargs=1, help=argparse.SUPPRESS)  # LOG: one JSON line
+    ap.add_argument("--threads-json", nargs=2, help=argparse.SUPPRESS)  # LOG IN_FLIGHT (0: default): one JSON line
+    ap.add_argument("--in-flight", type=int, default=0,
+                    help="--threads: frames in flight (default 0: each tree's own default)")
     ap.add_argument("--warm-passes", type=int, default=0,
                     help="--throughput, --threads: whole passes over the log before the measured one (a short log "
                          "measured as a long log's later frames; default 0)")
@@ -741,7 +1031,7 @@ def main() -> None:
     if args.threads:
         if args.log is None:
             raise SystemExit("--threads needs --log LOG")
-        thread_table(args.log, args.against, args.repeats)
+        thread_table(args.log, args.against, args.repeats, args.in_flight or None)
         return
     if args.startup:
         if args.log is None:

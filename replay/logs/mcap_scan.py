@@ -83,8 +83,15 @@ _FIRST_BUF = 16 << 20
 #: pseudo opcode yielded by :meth:`McapFile.records` after a lost chunk: a :class:`Lost`
 OP_LOST = 0x100
 #: Chunks read ahead of the caller by :meth:`McapFile.records` (one worker thread each, at most
-#: the number of CPUs), and the most uncompressed bytes they may hold beyond the first.
-PREFETCH = 2
+#: the number of CPUs), and the most uncompressed bytes they may hold beyond the first. Four: a frame's
+#: chunks of a log that splits each frame's topics over a few chunks (a synthetic 1920 x 1200 log: the
+#: cloud's 37 MB, 30 ms of zstd, then the image's, the masks', the kind codes' and depth's, 10 ms in all),
+#: so that while one thread decompresses a cloud's chunk the others decompress the chunks after it, the
+#: next cloud's among them (a frame is delivered once the next cloud has been read). With two, the second
+#: thread idled while the first decompressed a cloud and the next cloud's chunk waited for it: the start
+#: of a pass read its first frame ~25 ms later with one core idle (docs/performance.md, "Where the last
+#: core-fraction waits").
+PREFETCH = 4
 PREFETCH_BYTES = 256 << 20
 _OP_NOTE = -1  # internal: a damage record queued among the records
 
@@ -570,7 +577,7 @@ class McapFile:
     # ------------------------------------------------------------------ scanning
     def records(
         self, damage: list[Damage], *, prefetch: int = PREFETCH, start_offset: int | None = None,
-        cached: dict[tuple[int, int], list[tuple[int, object]]] | None = None,
+        cached: dict[tuple[int, int], list[tuple[int, object]]] | None = None, ahead_until: int | None = None,
     ) -> Iterator[tuple[int, object]]:
         """Yield (opcode, parsed record) for Schema, Channel, Message and Metadata records in file
         order, chunk contents included.
@@ -582,7 +589,9 @@ class McapFile:
         are read, decompressed and CRC-checked ahead in worker threads, overlapping with the
         caller's work; 0 does all of it in the calling thread. ``cached`` maps (offset, record
         length) of chunks already parsed by :meth:`chunk_records_at` to their records (used instead
-        of reading them again; entries are removed as they are used).
+        of reading them again; entries are removed as they are used). ``ahead_until``: a chunk that starts
+        after this byte is not read ahead but in the calling thread when the caller comes to it (a pass
+        that ends before it, e.g. a frame range, never reads it); the records are the same.
         """
         queue: deque[tuple[int, int, object, int]] = deque()
         workers = max(1, min(prefetch, os.cpu_count() or 1))
@@ -597,11 +606,11 @@ class McapFile:
                 if op == OP_CHUNK:
                     key = (pos, body.length if isinstance(body, _ChunkRef) else len(body))
                     job: object = cached.pop(key, None) if cached else None  # None: not kept
-                    if job is None and pool is not None:
+                    if job is None and pool is not None and (ahead_until is None or pos <= ahead_until):
                         job = pool.submit(self._chunk_at, body)  # type: ignore[arg-type]  # lazy: a _ChunkRef
                         size = min(body.usize, self.max_chunk_bytes)  # type: ignore[union-attr]  # lazy: a _ChunkRef
                     elif job is None:
-                        job = body
+                        job = body  # read when the caller comes to it (a _ChunkRef when lazy)
                 else:
                     job = body
                 queue.append((pos, op, job, size))
@@ -641,6 +650,8 @@ class McapFile:
                     recs = job.result()
                 elif isinstance(job, list):
                     recs = job
+                elif isinstance(job, _ChunkRef):  # not read ahead (past ``ahead_until``)
+                    recs = self._chunk_at(job)
                 else:
                     recs = self._chunk_records(job)  # type: ignore[arg-type]  # the op names the job's type
             else:

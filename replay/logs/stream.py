@@ -231,6 +231,10 @@ class FrameStream(Iterator[Frame]):
         self._stopped = False  # left the scan before the end of the log
         # seek: begin at the chunk holding cloud start - PAIRING_WINDOW (companions may precede)
         self._begin, self._next_index = index.seek(max(0, start - PAIRING_WINDOW)) if start > 0 else (None, 0)
+        # and no chunk past the one holding cloud stop + 1 is read ahead: the pass has ended by then (its last
+        # frame is due once the next cloud has been read, or the window after it is full), unless a frame
+        # still waits, and then those chunks are read as it comes to them
+        self._ahead_until = index.seek(stop + 1)[0] if stop is not None and stop >= start else None
         # sequence numbers find clouds lost without a trace when there is no intact summary
         self._seq = _Sequences(enabled=not index.has_summary and self._begin is None)
         # a chunk of unknown content was lost after this frame: its record, until a sequence gap says more
@@ -272,7 +276,7 @@ class FrameStream(Iterator[Frame]):
             if self._begin is not None:  # chunks before the seek target are never reached
                 cached = {k: v for k, v in cached.items() if k[0] >= self._begin}
             for op, rec in mf.records(self._damage, prefetch=self._prefetch, start_offset=self._begin,
-                                      cached=cached):  # the op names the record's type
+                                      cached=cached, ahead_until=self._ahead_until):  # the op names the record's type
                 if op == OP_MESSAGE:
                     yield from self._message(cast(Message, rec))
                     if self._stopped:

@@ -17,6 +17,7 @@ from replay.errors import LogFormatError
 from replay.logs.frame import Frame
 from replay.logs.mcap_scan import BufferPool, McapFile
 from replay.logs.reader import LogReader
+from replay.logs.stream import FrameStream
 from replay.logs.writer import LogWriter
 
 pytestmark = pytest.mark.timeout(120)
@@ -89,6 +90,8 @@ def test_read_ahead_changes_nothing(log, tmp_path, monkeypatch):
         plain = _scan(p, prefetch=0)
         assert _scan(p, prefetch=1) == plain
         assert _scan(p, prefetch=3) == plain
+        assert _scan(p) == plain  # the default, ms.PREFETCH chunks ahead
+        assert _scan(p, prefetch=2 * ms.PREFETCH) == plain
         monkeypatch.setattr(ms, "PREFETCH_BYTES", 0)  # budget: never more than one chunk ahead
         assert _scan(p, prefetch=3) == plain
         monkeypatch.undo()
@@ -128,6 +131,57 @@ def test_chunks_kept_from_opening_give_the_same_frames(log, tmp_path):
         got = _frames(p)
         if got[0] != "error":
             assert got[0] == got[1], f"mutant {i}"
+
+
+def test_frames_read_ahead_or_not_are_the_same(log, tmp_path):
+    """A frame stream with the chunks read ahead (the default, :data:`~replay.logs.mcap_scan.PREFETCH`) delivers
+    the same frames and damage as one that reads every chunk in its own thread, from the start and from a later
+    frame, to the end or over a range (no chunk past the one of the cloud after the range is read ahead), on the
+    log and its damaged mutants (the clouds before and after the range read for their stamps)."""
+    assert ms.PREFETCH >= 4  # a frame's chunks ahead (docs/performance.md, "Where the last core-fraction waits")
+
+    def frames(path, start, stop, prefetch):  # type: ignore[no-untyped-def]
+        try:
+            r = LogReader(path)
+            stream = FrameStream(r.index(first_pass=False), start=start, stop=stop, prefetch=prefetch)
+            got = [(f.index, f.stamp_ns, f.xyz.tobytes(), None if f.rgb is None else f.rgb.tobytes(),
+                    {k: m.tobytes() for k, m in f.masks.items()}) for f in stream]
+            return got, stream.damage
+        except LogFormatError as e:
+            return "error", type(e).__name__, str(e)
+
+    raw = log.read_bytes()
+    paths = [log]
+    for i, (_, data) in enumerate(mutations(raw, np.random.default_rng(17), 20)):
+        paths.append(tmp_path / f"r{i}.mcap")
+        paths[-1].write_bytes(data)
+    for path in paths:
+        for start, stop in ((0, None), (2, None), (0, 1), (1, 3), (3, 4), (2, 2)):
+            assert frames(path, start, stop, None) == frames(path, start, stop, 0), (path.name, start, stop)
+    assert len(frames(log, 0, None, None)[0]) == 5 and len(frames(log, 1, 3, None)[0]) == 2
+
+
+def test_a_range_reads_ahead_no_chunk_past_the_cloud_after_it(log, monkeypatch):
+    """Over frames 0-1 of a log of five, no chunk past the one holding cloud 3 is read (cloud 2 is read for the
+    pairing, and the pass ends at cloud 3 at the latest: the window of frame 1 is then full); to the end every
+    chunk is."""
+    read: list[int] = []
+    chunk_at = McapFile._chunk_at
+
+    def counted(self, ref):  # type: ignore[no-untyped-def]
+        read.append(ref.offset)
+        return chunk_at(self, ref)
+
+    monkeypatch.setattr(McapFile, "_chunk_at", counted)
+    r = LogReader(log)
+    index = r.index(first_pass=False)
+    bound = index.seek(3)[0]
+    assert bound is not None
+    assert [f.index for f in FrameStream(index, start=0, stop=2)] == [0, 1]
+    assert read and max(read) <= bound
+    read.clear()
+    assert len(list(FrameStream(r.index(first_pass=False)))) == 5
+    assert max(read) > bound
 
 
 def test_frames_own_their_memory(log):
