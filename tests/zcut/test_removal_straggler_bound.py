@@ -343,7 +343,7 @@ def test_local_offset_by_tile():
     """The model's local offset by tile: the median signed residual of the tile and the eight around it, the scale
     1.4826 × the median distance to it; the frame's where fewer than STRAGGLER_TILE_MIN; equal to the literal
     reference on random residuals (NaN among them, ties, even and odd counts)."""
-    h, w, t = 100, 160, STRAGGLER_TILE_PX
+    h, w = 100, 160
     flat = np.arange(h * w)
     cols = flat % w
     res = np.where(cols < 48, 1.0, -0.1)  # the model 1 mm off over a band 1.5 tiles wide
