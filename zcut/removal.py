@@ -32,7 +32,10 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
   model is an outlier), Err = max(0.05 mm, √(σ_bin² + c²/2)) with σ_bin the residual scale of the pixels τ is
   measured on (:func:`bin_sigma_m`, :attr:`Tolerance.sigma_mm`) and c the pixel's footprint (z / f,
   :func:`pixel_angle`; ``"local"``: σ_bin of the measured pixels around the straggler, :func:`local_sigma_mm`):
-  :func:`straggler_bound_m`. Without a measured τ (fixed, no ring) the bound is not known and
+  :func:`straggler_bound_m`; ``"offset"``: the same 3 Err, not about the model but about the model's local offset
+  (the median of the measured pixels' signed residuals around the straggler, σ_bin their scale about it,
+  :func:`local_offset_mm`: a model a little small lies off the bin by an offset that grows along the walls), the
+  straggler also within τ + ``straggler_mm`` of the model. Without a measured τ (fixed, no ring) the bound is not known and
   not applied. On hand-made walls piles every near-wall true outlier the removal took was a straggler 3.1-4.2
   bin Errs from the model (docs/bin_robustness.md).
   With a right pose τ stays near 1 mm (the sensor's noise); a pose 2 mm off raises it to about
