@@ -589,7 +589,7 @@ def main() -> int:
     ap.add_argument("--modes", default=",".join(MODES),
                     help="the removal modes to run (default paper,robust; robust alone: a change of the robust mode)")
     ap.add_argument("--bound", default=None,
-                    help="the straggler bound (RemovalParams.straggler_bound: off, global, local, offset; default: its "
+                    help="the straggler bound (RemovalParams.straggler_bound: off, global, local; default: its "
                          "default)")
     args = ap.parse_args()
     BOUND_KW = {} if args.bound is None else {"straggler_bound": args.bound}

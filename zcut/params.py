@@ -272,7 +272,7 @@ SOR_REGIONS = ("top", "zone")
 REGISTRATION_METHODS = ("point_to_plane", "point_to_point")
 #: The bin removal's modes: the paper's rule as written, or the one that tolerates a real registration.
 REMOVAL_MODES = ("robust", "paper")
-STRAGGLER_BOUNDS = ("local", "global", "offset", "off")
+STRAGGLER_BOUNDS = ("local", "global", "off")
 
 
 __all__ += ["ZCutTopParams"]
@@ -421,12 +421,10 @@ class RemovalParams:
         added to the tolerance.
     straggler_neighbours : int
         Labelled neighbours (of 8) a straggler needs.
-    straggler_bound : {"local", "global", "offset", "off"}
+    straggler_bound : {"local", "global", "off"}
         Robust mode: a straggler is bin only within 3 of the bin's Err of the model
         (:func:`zcut.removal.straggler_bound_m`), the Err's σ_bin the residual scale of the certain bin pixels
         around it (``"local"``: their tiles, never below the frame's) or of the frame's (``"global"``);
-        ``"offset"``: within 3 Err of the model's local offset, the median of the signed residuals of the certain
-        bin pixels around it, σ_bin their scale about it (:func:`zcut.removal.local_offset_mm`);
         ``"off"`` (default): τ + ``straggler_mm``, no bound — both bounds keep every near-wall outlier on the
         walls piles but cost the z-cut's F1 with a model off the bin by about 1 mm (docs/bin_robustness.md).
     mode : {"robust", "paper"}

@@ -32,10 +32,7 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
   model is an outlier), Err = max(0.05 mm, √(σ_bin² + c²/2)) with σ_bin the residual scale of the pixels τ is
   measured on (:func:`bin_sigma_m`, :attr:`Tolerance.sigma_mm`) and c the pixel's footprint (z / f,
   :func:`pixel_angle`; ``"local"``: σ_bin of the measured pixels around the straggler, :func:`local_sigma_mm`):
-  :func:`straggler_bound_m`; ``"offset"``: the same 3 Err, not about the model but about the model's local offset
-  (the median of the measured pixels' signed residuals around the straggler, σ_bin their scale about it,
-  :func:`local_offset_mm`: a model a little small lies off the bin by an offset that grows along the walls), the
-  straggler also within τ + ``straggler_mm`` of the model. Without a measured τ (fixed, no ring) the bound is not known and
+  :func:`straggler_bound_m`. Without a measured τ (fixed, no ring) the bound is not known and
   not applied. On hand-made walls piles every near-wall true outlier the removal took was a straggler 3.1-4.2
   bin Errs from the model (docs/bin_robustness.md).
   With a right pose τ stays near 1 mm (the sensor's noise); a pose 2 mm off raises it to about
@@ -77,12 +74,7 @@ STRAGGLER_TILE_PX = 32
 STRAGGLER_TILE_MIN = 16
 _NO_BOUND = np.full((1, 1), -1.0)  # the kernels' σ_bin² tiles when the bound is off
 _NO_BOUND.setflags(write=False)
-_NO_OFFSET = np.zeros((1, 1))  # the kernels' offset tiles when the bound is not "offset"
-_NO_OFFSET.setflags(write=False)
 _ONE_TILE = 1 << 30  # the kernels' tile size when one σ_bin holds for the frame
-#: the straggler kernels' bound: (σ_bin² m² by tile, the model's offset m by tile, the tile's size, the pixel's angle,
-#: whether the window is centred on the offset: ``"offset"``)
-_Bound = tuple[np.ndarray, np.ndarray, int, float, bool]
 
 
 def finite_xyz(xyz: XYZ) -> Mask:
@@ -329,9 +321,8 @@ def _reach(f, ci, cell, reach):  # type: ignore[no-untyped-def]  # numba kernel 
 
 
 @numba.njit(cache=True, inline="always")
-def _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radius, planes, o, b):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """Some model point within ``radius`` of (px, py, pz) passes (plane distance, or distance, <= delta, and the
-    signed plane distance, or the distance, within ``b`` of ``o``: :func:`_passes`).
+def _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radius, planes):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """Some model point within ``radius`` of (px, py, pz) passes (plane distance, or distance, <= delta).
 
     Only the neighbouring cells that the radius reaches are searched (a cell's points lie within
     its bounds up to rounding; the 1 nm margin covers it).
@@ -356,21 +347,13 @@ def _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radiu
                     d2 = ex * ex + ey * ey + ez * ez
                     if d2 > r2:
                         continue
-                    if _passes(px, py, pz, nrm, off, j, d2, delta, planes, o, b):
+                    if planes:
+                        d = abs(nrm[j, 0] * px + nrm[j, 1] * py + nrm[j, 2] * pz - off[j])
+                    else:
+                        d = np.sqrt(d2)
+                    if d <= delta:
                         return True
     return False
-
-
-@numba.njit(cache=True, inline="always")
-def _passes(px, py, pz, nrm, off, j, d2, delta, planes, o, b):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """Model point ``j`` (at squared distance ``d2``) passes: its plane's signed distance s (without normals the
-    distance) within ``delta`` of 0 and within ``b`` of ``o`` (the straggler bound ``"offset"``: the model's local
-    offset ± 3 Err; else ``o`` 0 and ``b`` +inf, which every finite s passes)."""
-    if planes:
-        s = nrm[j, 0] * px + nrm[j, 1] * py + nrm[j, 2] * pz - off[j]
-    else:
-        s = np.sqrt(d2)
-    return abs(s) <= delta and abs(s - o) <= b
 
 
 @numba.njit(cache=True, inline="always")
@@ -385,18 +368,15 @@ def _to_bin(a, r, c, R, t):  # type: ignore[no-untyped-def]  # numba kernel  # p
 
 
 @numba.njit(cache=True, inline="always")
-def _straggler_delta(z, delta, s2, o, centred, rad):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """The straggler test's window at a pixel of camera depth ``z`` (m), ``(delta', o, b)`` for :func:`_passes`:
-    :func:`straggler_bound_m` with ``s2`` = σ_bin² (m²; negative: unknown, ``delta`` as it is) and ``rad`` the
-    pixel's angle, the same operations in the same order, as ``delta'`` (``o`` 0, ``b`` +inf); ``centred`` (the
-    bound ``"offset"``): ``delta`` as it is and the 3 Err as ``b`` about the model's local offset ``o`` (m)."""
+def _straggler_delta(z, delta, s2, rad):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """The straggler test's distance bound at a pixel of camera depth ``z`` (m): :func:`straggler_bound_m` with
+    ``s2`` = σ_bin² (m²; negative: unknown, ``delta`` as it is) and ``rad`` the pixel's angle, the same operations
+    in the same order."""
     if s2 < 0.0:
-        return delta, 0.0, np.inf
+        return delta
     c = abs(np.float64(z)) * rad
     err = max(_STRAGGLER_ERR_FLOOR_M, np.sqrt(s2 + 0.5 * c * c))
-    if centred:
-        return delta, o, STRAGGLER_ERRS * err
-    return min(delta, STRAGGLER_ERRS * err), 0.0, np.inf
+    return min(delta, STRAGGLER_ERRS * err)
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
@@ -418,7 +398,7 @@ def _classify(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, dims, 
             px, py, pz = _to_bin(a, r, c, R, t)
             if bin_first:
                 if test_bin and _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta, radius,
-                                          planes, 0.0, np.inf):
+                                          planes):
                     binp[r, c] = True
                 elif -pz > easy_above:
                     easy[r, c] = True
@@ -426,7 +406,7 @@ def _classify(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, dims, 
                 easy[r, c] = True
             elif test_bin:
                 binp[r, c] = _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, delta,
-                                       radius, planes, 0.0, np.inf)
+                                       radius, planes)
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
@@ -452,19 +432,18 @@ def _straggler_start(valid, table, binp, easy, fp, neighbours, lab, open_, cand)
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _test_pixels(a, flat, R, t, origin, cell, dims, start, pts, nrm, off, delta, radius,  # type: ignore[no-untyped-def]  # numba kernel
-                 planes, s2g, og, tile, rad, centred):  # pragma: no cover - numba
+                 planes, s2g, tile, rad):  # pragma: no cover - numba
     """(M,) bool: the pixels ``flat`` (row-major indices) are within ``delta`` of the model, ``delta`` bounded at
     each pixel by :func:`_straggler_delta` with the σ_bin² of its tile (``s2g[r // tile, c // tile]``; < 0: not
-    bounded) and, ``centred``, its tile's offset ``og``."""
+    bounded)."""
     W = a.shape[1]
     ok = np.zeros(flat.shape[0], np.bool_)
     for i in numba.prange(flat.shape[0]):
         r = flat[i] // W
         c = flat[i] - r * W
         px, py, pz = _to_bin(a, r, c, R, t)
-        d, o, b = _straggler_delta(a[r, c, 2], delta, s2g[r // tile, c // tile], og[r // tile, c // tile], centred,
-                                   rad)
-        ok[i] = _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, d, radius, planes, o, b)
+        d = _straggler_delta(a[r, c, 2], delta, s2g[r // tile, c // tile], rad)
+        ok[i] = _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, d, radius, planes)
     return ok
 
 
@@ -542,7 +521,7 @@ _INVALID, _TABLE, _EASY, _BIN, _OPEN, _TRIED = 0, 1, 2, 3, 4, 5
 
 
 @numba.njit(cache=True, inline="always")
-def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius, planes, hint, o, b):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius, planes, hint):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """:func:`_near_one` as an index: a model point that passes (-1: none), the same answer.
 
     ``hint`` (a point that passed for a nearby pixel, or -1) is tried first, before any cell arithmetic:
@@ -559,8 +538,13 @@ def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, 
         ey = py - pts[hint, 1]
         ez = pz - pts[hint, 2]
         d2 = ex * ex + ey * ey + ez * ez
-        if d2 <= r2 and _passes(px, py, pz, nrm, off, hint, d2, delta, planes, o, b):
-            return hint
+        if d2 <= r2:
+            if planes:
+                d = abs(nrm[hint, 0] * px + nrm[hint, 1] * py + nrm[hint, 2] * pz - off[hint])
+            else:
+                d = np.sqrt(d2)
+            if d <= delta:
+                return hint
     fx, fy, fz, ci, cj, ck = _cell_of(px, py, pz, origin, cell)
     if ci < 1 or cj < 1 or ck < 1 or ci > dims[0] - 2 or cj > dims[1] - 2 or ck > dims[2] - 2:
         return -1
@@ -600,7 +584,11 @@ def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, 
                     d2 = ex * ex + ey * ey + ez * ez
                     if d2 > r2:
                         continue
-                    if _passes(px, py, pz, nrm, off, j, d2, delta, planes, o, b):
+                    if planes:
+                        d = abs(nrm[j, 0] * px + nrm[j, 1] * py + nrm[j, 2] * pz - off[j])
+                    else:
+                        d = np.sqrt(d2)
+                    if d <= delta:
                         return j
     return -1
 
@@ -625,7 +613,7 @@ def _classify_codes(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, 
                 j = -1
                 if test_bin:
                     j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta,
-                                   radius, planes, hint, 0.0, np.inf)
+                                   radius, planes, hint)
                 if j >= 0:
                     k = _BIN
                     hint = j
@@ -635,7 +623,7 @@ def _classify_codes(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, 
                 k = _EASY
             elif test_bin:
                 j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,
-                               planes, hint, 0.0, np.inf)
+                               planes, hint)
                 if j >= 0:
                     k = _BIN
                     hint = j
@@ -657,7 +645,7 @@ def _labelled_around(code, r, c, H, W):  # type: ignore[no-untyped-def]  # numba
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,  # type: ignore[no-untyped-def]  # numba kernel
-                     planes, s2g, og, tile, rad, centred, first):  # pragma: no cover - numba
+                     planes, s2g, tile, rad, first):  # pragma: no cover - numba
     """The straggler test's first pass in one pass over the frame: ``first`` (uint8) is 1 at
     :func:`_straggler_start`'s candidates (open pixels with >= ``neighbours`` labelled ones) that fail the test,
     2 at those that pass, 0 elsewhere. ``code`` is only read: every candidate is judged on the labels before
@@ -665,7 +653,7 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
     of three column sums of the row and its two neighbours (an open pixel is not labelled itself), each of the
     row's three loops free of branches but the last, over its few candidates: so they vectorize (a branch per
     pixel on its class, or per neighbour, cost 6.3 of the pass's 9.4 CPU ms at 1920 x 1200; now 0.6). ``delta`` is
-    bounded at each pixel by :func:`_straggler_delta` (the tile's ``s2g`` and ``og``, ``rad``, ``centred``)."""
+    bounded at each pixel by :func:`_straggler_delta` (the tile's ``s2g``, ``rad``)."""
     H, W = code.shape
     for r in numba.prange(H):
         col = np.zeros(W + 2, np.uint8)  # col[c + 1]: labelled pixels of column c in rows r-1..r+1
@@ -679,10 +667,8 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
         for c in range(W):
             if first[r, c]:
                 px, py, pz = _to_bin(a, r, c, R, t)
-                d, o, b = _straggler_delta(a[r, c, 2], delta, s2g[r // tile, c // tile], og[r // tile, c // tile],
-                                           centred, rad)
-                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, d, radius, planes,
-                               hint, o, b)
+                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,
+                               _straggler_delta(a[r, c, 2], delta, s2g[r // tile, c // tile], rad), radius, planes, hint)
                 if j >= 0:
                     first[r, c] = 2
                     hint = j
@@ -690,7 +676,7 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
 
 @numba.njit(cache=True, nogil=True)
 def _straggler_rest(a, code, words, neighbours, passes, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,  # type: ignore[no-untyped-def]  # numba kernel
-                    delta, radius, planes, s2g, og, tile, rad, centred):  # pragma: no cover - numba
+                    delta, radius, planes, s2g, tile, rad):  # pragma: no cover - numba
     """The first pass's outcome (``first``) into ``code``, then the passes after it (up to ``passes`` in
     all), each testing the open neighbours of the pixels the previous one labelled (serial: a few
     pixels each; a parallel launch would cost more than them). ``words``: ``first`` as 64-bit words (eight
@@ -727,10 +713,8 @@ def _straggler_rest(a, code, words, neighbours, passes, R, t, origin, cell, dims
             r = q // W
             c = q - r * W
             px, py, pz = _to_bin(a, r, c, R, t)
-            d, o, b = _straggler_delta(a[r, c, 2], delta, s2g[r // tile, c // tile], og[r // tile, c // tile],
-                                       centred, rad)
-            j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, d, radius, planes,
-                           hint, o, b)
+            j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,
+                           _straggler_delta(a[r, c, 2], delta, s2g[r // tile, c // tile], rad), radius, planes, hint)
             if j >= 0:
                 ok[i] = True
                 hint = j
@@ -839,7 +823,7 @@ class _ZoneTop:
 
 def _straggler_codes(a: np.ndarray, code: np.ndarray, R: np.ndarray, t: np.ndarray, index: _ModelIndex, *,
                      straggler_m: float, radius_m: float, planes: bool, neighbours: int,
-                     bound: _Bound) -> None:
+                     bound: tuple[np.ndarray, int, float]) -> None:
     """:func:`_straggler_passes` on the class codes (in place): the same passes, each testing only the open
     neighbours of the pixels the previous one labelled."""
     grid = (*_grid_args(index), index.ijk, index.busy, index.box, float(straggler_m), float(radius_m), planes,
@@ -976,7 +960,7 @@ def _grid_args(index: _ModelIndex) -> tuple[np.ndarray, float, np.ndarray, np.nd
 
 def _straggler_passes(a: np.ndarray, binp: Mask, lab: np.ndarray, open_: Mask, R: np.ndarray,
                       t: np.ndarray, index: _ModelIndex, *, straggler_m: float, radius_m: float,
-                      planes: bool, neighbours: int, first: Mask, bound: _Bound) -> None:
+                      planes: bool, neighbours: int, first: Mask, bound: tuple[np.ndarray, int, float]) -> None:
     """Grow ``binp`` (in place) along the noisy bin surface, see ``straggler_m``.
 
     ``lab`` (uint8: table, bin or invalid) and ``open_`` (allowed, not bin, not yet tried) are
@@ -1072,12 +1056,8 @@ class Tolerance:
         ``z * pixel_rad`` (:func:`pixel_angle`, from the measured pixels and their neighbours); NaN when
         :attr:`sigma_mm` is (not measured) or no pair of neighbours gives it.
     sigma_tiles_mm : (ceil(H / 32), ceil(W / 32)) float ndarray or None
-        σ_bin by tile, measured only when ``RemovalParams.straggler_bound`` is ``"local"`` (:func:`local_sigma_mm`)
-        or ``"offset"`` (the scale about :attr:`offset_tiles_mm`, :func:`local_offset_mm`); None otherwise.
-    offset_tiles_mm : (ceil(H / 32), ceil(W / 32)) float ndarray or None
-        ``"offset"``: the model's local offset by tile (mm, the median signed residual, :func:`local_offset_mm`);
-        None otherwise, or when no measured pixel has a signed residual (a model without normals: then the bound
-        is ``"global"``'s).
+        σ_bin by tile (:func:`local_sigma_mm`), measured only when ``RemovalParams.straggler_bound`` is
+        ``"local"`` (None otherwise).
     """
 
     tolerance_mm: float
@@ -1090,7 +1070,6 @@ class Tolerance:
     sigma_mm: float = float("nan")
     pixel_rad: float = float("nan")
     sigma_tiles_mm: np.ndarray | None = field(default=None, compare=False)
-    offset_tiles_mm: np.ndarray | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True, slots=True)
@@ -1927,17 +1906,10 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
     sigma_m = bin_sigma_m(use)
     rad = pixel_angle(a, flat) if np.isfinite(sigma_m) else float("nan")
-    used = flat[keep] if surface else flat
-    tiles = local_sigma_mm(a.shape[:2], used, use, sigma_m) \
+    tiles = local_sigma_mm(a.shape[:2], flat[keep] if surface else flat, use, sigma_m) \
         if p.straggler_bound == "local" else None  # 17 CPU ms at 1920 x 1200: only when the bound reads them
-    offsets = None
-    if p.straggler_bound == "offset":  # the signed residuals of the same pixels, from the tree
-        nb = _ring_neighbours(a.shape[:2], ring_a, flat, 4)
-        want = np.unique(np.concatenate([flat, nb[nb >= 0]]))
-        signed = _signed_ref(a, want, index, T)[0][np.searchsorted(want, used)]
-        offsets, tiles = _offset_tiles(a.shape[:2], used, 1000.0 * signed)
     return Tolerance(float(tau), q, len(res), n_coh, float(reach), n_off_field=int(np.count_nonzero(off)),
-                     sigma_mm=1000.0 * sigma_m, pixel_rad=rad, sigma_tiles_mm=tiles, offset_tiles_mm=offsets)
+                     sigma_mm=1000.0 * sigma_m, pixel_rad=rad, sigma_tiles_mm=tiles)
 
 
 def bin_sigma_m(residuals_mm: np.ndarray) -> float:
@@ -1977,88 +1949,6 @@ def local_sigma_mm(shape: tuple[int, ...], pixels: np.ndarray, residuals_mm: np.
     med = 0.5 * (val[start[have] + (n[have] - 1) // 2] + val[start[have] + n[have] // 2])
     out[have] = np.maximum(out[have], 1.4826 * med)
     return out.reshape(th, tw)
-
-
-def local_offset_mm(shape: tuple[int, ...], pixels: np.ndarray, signed_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The model's local offset and the bin's scale about it, by tile (mm; :data:`STRAGGLER_TILE_PX` square tiles
-    over an image of ``shape``): ``(centre, sigma)``, the median of the finite signed residuals (mm, along the model's
-    normal) of the measured ``pixels`` (flat indices) in the tile and the eight around it and 1.4826 × the median of
-    their distances to it (the MAD), where they are at least :data:`STRAGGLER_TILE_MIN`; elsewhere the frame's (the
-    same two of all of them); NaN with none. A model a little small lies off the bin by an offset that grows along
-    the walls (docs/bin_robustness.md): the bin's own pixels there show it, their scale about it stays the noise's.
-    The medians of even counts are the mean of the two middle ones, as ``np.median``'s."""
-    h, w = int(shape[0]), int(shape[1])
-    th, tw = -(-h // STRAGGLER_TILE_PX), -(-w // STRAGGLER_TILE_PX)
-    s = np.asarray(signed_mm, np.float64)
-    fin = np.isfinite(s)
-    s, px = s[fin], np.asarray(pixels, np.int64)[fin]
-    if len(s) == 0:
-        return np.full((th, tw), np.nan), np.full((th, tw), np.nan)
-    g = float(np.median(s))
-    centre = np.full(th * tw, g)
-    sigma = np.full(th * tw, 1.4826 * float(np.median(np.abs(s - g))))
-    order = np.argsort(s, kind="stable")
-    s = s[order]
-    r, c = np.divmod(px[order], w)
-    ty = (r // STRAGGLER_TILE_PX)[:, None] + np.repeat(np.arange(-1, 2), 3)[None, :]  # (N, 9): the tiles around
-    tx = (c // STRAGGLER_TILE_PX)[:, None] + np.tile(np.arange(-1, 2), 3)[None, :]
-    ok = ((ty >= 0) & (ty < th) & (tx >= 0) & (tx < tw)).reshape(-1)
-    key = (ty * tw + tx).reshape(-1)[ok]
-    val = np.repeat(s, 9)[ok]
-    at = np.argsort(key, kind="stable")  # in each tile's run the residuals stay sorted
-    key, val = key[at], val[at]
-    n = np.bincount(key, minlength=th * tw)
-    start = np.cumsum(n) - n
-    _run_centres(val, start, n, STRAGGLER_TILE_MIN, centre, sigma)
-    return centre.reshape(th, tw), sigma.reshape(th, tw)
-
-
-@numba.njit(cache=True, nogil=True)
-def _run_centres(val, start, n, min_n, centre, sigma):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """For each run ``val[start[k]:start[k] + n[k]]`` (sorted) of at least ``min_n``: its median into ``centre[k]``
-    and 1.4826 × the median of its distances to it into ``sigma[k]``. The distances of a sorted run to its median
-    fall towards the median and rise after it: the k-th smallest is found by merging the two sides."""
-    for k in range(n.shape[0]):
-        m = n[k]
-        if m < min_n:
-            continue
-        v = val[start[k]:start[k] + m]
-        med = 0.5 * (v[(m - 1) // 2] + v[m // 2])
-        # the distances in increasing order: the left side (below the median) from its end, the right from its start
-        i = m // 2 - 1 if m % 2 == 0 else (m - 1) // 2 - 1
-        j = m // 2 if m % 2 == 0 else (m - 1) // 2
-        lo = -1.0
-        hi = -1.0
-        for q in range(m // 2 + 1):  # the (m - 1) // 2-th and m // 2-th smallest distances
-            if i >= 0 and (j >= m or med - v[i] <= v[j] - med):
-                d = med - v[i]
-                i -= 1
-            else:
-                d = v[j] - med
-                j += 1
-            if q == (m - 1) // 2:
-                lo = d
-            if q == m // 2:
-                hi = d
-        centre[k] = med
-        sigma[k] = 1.4826 * (0.5 * (lo + hi))
-
-
-def _offset_tiles(shape: tuple[int, ...], pixels: np.ndarray, signed_mm: np.ndarray) \
-        -> tuple[np.ndarray | None, np.ndarray | None]:
-    """:func:`local_offset_mm`, ``(None, None)`` when no pixel has a signed residual (then the bound is global's)."""
-    centre, sigma = local_offset_mm(shape, pixels, signed_mm)
-    return (None, None) if np.isnan(centre).all() else (centre, sigma)
-
-
-def pixel_offset_m(tol: Tolerance, shape: tuple[int, ...]) -> np.ndarray:
-    """The model's local offset (m) at every pixel of an image of ``shape`` as the ``"offset"`` bound reads it: its
-    tile's (:attr:`Tolerance.offset_tiles_mm`); 0 without tiles."""
-    h, w = int(shape[0]), int(shape[1])
-    if tol.offset_tiles_mm is None:
-        return np.zeros((h, w))
-    om = tol.offset_tiles_mm / 1000.0
-    return om[np.arange(h)[:, None] // STRAGGLER_TILE_PX, np.arange(w)[None, :] // STRAGGLER_TILE_PX]
 
 
 def pixel_sigma_m(tol: Tolerance, shape: tuple[int, ...], *, local: bool = True) -> np.ndarray:
@@ -2253,15 +2143,11 @@ def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
     sigma_m = bin_sigma_m(use)
     rad = pixel_angle(a, flat) if np.isfinite(sigma_m) else float("nan")
-    used = flat[keep] if use_coherent else flat
-    tiles = local_sigma_mm(a.shape[:2], used, use, sigma_m) if p.straggler_bound == "local" else None
-    offsets = None
-    if p.straggler_bound == "offset" and queried.signed_m is not None:  # the signed residuals of the same pixels
-        offsets, tiles = _offset_tiles(a.shape[:2], used,
-                                       1000.0 * queried.signed_m[own_at[keep] if use_coherent else own_at])
+    tiles = local_sigma_mm(a.shape[:2], flat[keep] if use_coherent else flat, use, sigma_m) \
+        if p.straggler_bound == "local" else None
     return Tolerance(float(tau), q, len(res), n_coh, float(reach), surface=surface,
                      n_off_field=int(np.count_nonzero(off)), sigma_mm=1000.0 * sigma_m, pixel_rad=rad,
-                     sigma_tiles_mm=tiles, offset_tiles_mm=offsets)
+                     sigma_tiles_mm=tiles)
 
 
 def check_removal_args(
@@ -2362,8 +2248,8 @@ def remove_table_and_bin(
     planes = index.model.normals is not None
     residual_mm = float("nan")
     surface: _Surface | None = None
-    # the stragglers' bound at 3 Err (_Bound); σ² < 0: none
-    bound: _Bound = (_NO_BOUND, _NO_OFFSET, _ONE_TILE, 0.0, False)
+    # the stragglers' bound at 3 Err: (σ_bin² m² by tile, the tile's size, the pixel's angle); σ² < 0: none
+    bound: tuple[np.ndarray, int, float] = (_NO_BOUND, _ONE_TILE, 0.0)
     if p.robust:
         if ring is not None:
             tol = frame_tolerance(a, ring, index, T, reference=reference)
@@ -2374,14 +2260,11 @@ def remove_table_and_bin(
         delta_m, residual_mm = tol.tolerance_mm / 1000.0, tol.residual_mm
         sigma_m = tol.sigma_mm / 1000.0
         if p.straggler_bound != "off" and np.isfinite(sigma_m) and np.isfinite(tol.pixel_rad):
-            og, centred = _NO_OFFSET, False
-            if p.straggler_bound in ("local", "offset") and tol.sigma_tiles_mm is not None:
+            if p.straggler_bound == "local" and tol.sigma_tiles_mm is not None:
                 sm, tile = tol.sigma_tiles_mm / 1000.0, STRAGGLER_TILE_PX
-                if tol.offset_tiles_mm is not None:  # "offset" with signed residuals (a model with normals)
-                    og, centred = np.ascontiguousarray(tol.offset_tiles_mm / 1000.0), True
             else:
                 sm, tile = np.full((1, 1), sigma_m), _ONE_TILE
-            bound = (np.ascontiguousarray(sm * sm), og, tile, float(tol.pixel_rad), centred)
+            bound = (np.ascontiguousarray(sm * sm), tile, float(tol.pixel_rad))
         radius_m = _radius(p, index.model.spacing_m, delta_m)
         straggler_m = p.straggler_m + delta_m if p.straggler_m > 0 else 0.0
         r_str = max(radius_m, straggler_m)

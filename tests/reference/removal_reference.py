@@ -3,10 +3,8 @@
 A verbatim copy of ``zcut.removal.remove_table_and_bin`` before it became fused numba kernels
 (commit 9af0131): the fast version must give the same classes, height image and cloud. One
 addition since: ``bin_first`` (the robust mode's order: a point near the model is bin before it
-can be an easy outlier), written as literally as the rest; ``straggler_err`` (issue 31 item 2:
-the stragglers' distance bounded at each pixel by 3 of the bin's Err, ``zcut.removal.straggler_bound_m``); and
-``straggler_offset`` (the bound ``"offset"``: within 3 Err of the model's local offset instead, whose tiles
-:func:`local_offset_reference` measures as literally).
+can be an easy outlier), written as literally as the rest; and ``straggler_err`` (issue 31 item 2:
+the stragglers' distance bounded at each pixel by 3 of the bin's Err, ``zcut.removal.straggler_bound_m``).
 """
 
 from __future__ import annotations
@@ -67,9 +65,8 @@ def _model_index(points: np.ndarray, normals: np.ndarray | None, radius: float) 
 
 
 @numba.njit(parallel=True, cache=True)
-def _grid_test(P, origin, cell, dims, start, order, pts, nrm, off, delta, radius, planes, centre, band):  # pragma: no cover - numba
-    """(M,) bool: some model point within ``radius`` passes (plane distance, or distance, <= delta[i], and the
-    signed plane distance, or the distance, within band[i] of centre[i])."""
+def _grid_test(P, origin, cell, dims, start, order, pts, nrm, off, delta, radius, planes):  # pragma: no cover - numba
+    """(M,) bool: some model point within ``radius`` passes (plane distance, or distance, <= delta[i])."""
     M = P.shape[0]
     ok = np.zeros(M, np.bool_)
     r2 = radius * radius
@@ -97,10 +94,10 @@ def _grid_test(P, origin, cell, dims, start, order, pts, nrm, off, delta, radius
                         if d2 > r2:
                             continue
                         if planes:
-                            s = nrm[j, 0] * px + nrm[j, 1] * py + nrm[j, 2] * pz - off[j]
+                            d = abs(nrm[j, 0] * px + nrm[j, 1] * py + nrm[j, 2] * pz - off[j])
                         else:
-                            s = np.sqrt(d2)
-                        if abs(s) <= delta[i] and abs(s - centre[i]) <= band[i]:
+                            d = np.sqrt(d2)
+                        if d <= delta[i]:
                             found = True
                             break
                     if found:
@@ -114,10 +111,8 @@ def _grid_test(P, origin, cell, dims, start, order, pts, nrm, off, delta, radius
 
 
 def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | None, *,
-                delta_m: float | np.ndarray, radius_m: float, centre_m: np.ndarray | None = None,
-                band_m: np.ndarray | None = None) -> np.ndarray:
-    """(M,) bool: points within ``delta_m`` (one for all, or (M,): one per point) of the model surface, and (given)
-    within ``band_m`` of ``centre_m`` ((M,) each: the signed distance, or without normals the distance).
+                delta_m: float | np.ndarray, radius_m: float) -> np.ndarray:
+    """(M,) bool: points within ``delta_m`` (one for all, or (M,): one per point) of the model surface.
 
     ``points`` and ``model`` in the same frame. With normals: some model point within ``radius_m``
     has its tangent plane within ``delta_m`` of the point; without: some model point lies within
@@ -129,12 +124,9 @@ def _near_model(points: np.ndarray, model: np.ndarray, normals: np.ndarray | Non
     planes = normals is not None
     radius = radius_m if planes else float(np.max(delta_m))  # per point: the farthest
     index = _model_index(model, normals, radius)
-    m = len(points)
     return _grid_test(np.ascontiguousarray(points, np.float64), index.origin, index.cell, index.dims,
                       index.start, index.order, index.points, index.normals, index.offsets,
-                      np.broadcast_to(np.asarray(delta_m, np.float64), (m,)).copy(), float(radius), planes,
-                      np.zeros(m) if centre_m is None else np.ascontiguousarray(centre_m, np.float64),
-                      np.full(m, np.inf) if band_m is None else np.ascontiguousarray(band_m, np.float64))
+                      np.broadcast_to(np.asarray(delta_m, np.float64), (len(points),)).copy(), float(radius), planes)
 
 
 _OFFSETS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
@@ -142,10 +134,9 @@ _OFFSETS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0
 
 def _straggler_passes(binp: Mask, table: Mask, valid: Mask, allowed: Mask, rows: np.ndarray,
                       cols: np.ndarray, p_bin: np.ndarray, model: BinModel, *, straggler_m: float,
-                      radius_m: float, neighbours: int, bound_m: np.ndarray, centre_m: np.ndarray,
-                      band_m: np.ndarray) -> None:
+                      radius_m: float, neighbours: int, bound_m: np.ndarray) -> None:
     """Grow ``binp`` (in place) along the noisy bin surface, see ``straggler_m``; a pixel's distance
-    bound is ``bound_m`` there ((H, W) metres), and its signed distance within ``band_m`` of ``centre_m``.
+    bound is ``bound_m`` there ((H, W) metres).
 
     Pass 1 looks at every allowed pixel; later passes only at the neighbours of the pixels the
     previous pass labelled (no other pixel's count of labelled neighbours changed, and a pixel
@@ -167,7 +158,7 @@ def _straggler_passes(binp: Mask, table: Mask, valid: Mask, allowed: Mask, rows:
             break
         tried[cand] = True
         near = _near_model(p_bin[index_f[cand]], model.points, model.normals, delta_m=bound_m.reshape(-1)[cand],
-                           radius_m=radius_m, centre_m=centre_m.reshape(-1)[cand], band_m=band_m.reshape(-1)[cand])
+                           radius_m=radius_m)
         new = cand[near]
         if new.size == 0:
             break
@@ -204,7 +195,6 @@ def remove_table_and_bin_reference(
     bin_first: bool = False,
     straggler_radius_m: float | None = None,
     straggler_err: tuple[float | np.ndarray, float] | None = None,
-    straggler_offset: float | np.ndarray | None = None,
 ) -> RemovalResult:
     """The removal as it was before the fused numba kernels (:func:`zcut.removal.remove_table_and_bin`
     has the same contract and parameters); kept to prove the fast path bit for bit.
@@ -212,9 +202,7 @@ def remove_table_and_bin_reference(
     and ``straggler_m``; the robust mode's measured radius gives its stragglers ``straggler_mm`` more).
     ``straggler_err``: ``(σ_bin m, one or (H, W), the pixel's angle rad)``: a straggler is bin only within
     min(``straggler_m``, 3 × max(0.05 mm, √(σ_bin² + c²/2))) of the model, c = |z| × the angle the
-    pixel's footprint (the robust mode's bound at 3 of the bin's Err); None: ``straggler_m``.
-    ``straggler_offset`` (m, one or (H, W); with ``straggler_err``): the bound ``"offset"``: a straggler is bin only
-    within ``straggler_m`` of the model and within 3 × that Err of this offset along the model's normal (signed)."""
+    pixel's footprint (the robust mode's bound at 3 of the bin's Err); None: ``straggler_m``."""
     a, fp = check_removal_args(
         xyz, footprint, model=model, T_cam_bin=T_cam_bin, delta_m=delta_m, rim_offset_m=rim_offset_m,
         straggler_m=straggler_m, straggler_neighbours=straggler_neighbours,
@@ -260,20 +248,15 @@ def remove_table_and_bin_reference(
                 binp[rows[rest[near]], cols[rest[near]]] = True
         if straggler_m > 0:
             bound = np.full(z64.shape, straggler_m)
-            centre, band = np.zeros(z64.shape), np.full(z64.shape, np.inf)
             if straggler_err is not None:
                 sigma, angle = straggler_err
                 c = np.abs(z64) * angle  # the pixel's footprint (m)
                 err = np.maximum(5e-5, np.sqrt(sigma * sigma + 0.5 * c * c))  # the bin's Err, at least 0.05 mm
-                if straggler_offset is None:
-                    bound = np.minimum(straggler_m, 3.0 * err)
-                else:  # within 3 Err of the model's local offset
-                    centre = np.broadcast_to(np.asarray(straggler_offset, np.float64), z64.shape)
-                    band = 3.0 * err
+                bound = np.minimum(straggler_m, 3.0 * err)
             _straggler_passes(binp, table, valid, inside & ~easy, rows, cols, p_bin, model,
                               straggler_m=straggler_m,
                               radius_m=max(radius, straggler_m) if straggler_radius_m is None else straggler_radius_m,
-                              neighbours=int(straggler_neighbours), bound_m=bound, centre_m=centre, band_m=band)
+                              neighbours=int(straggler_neighbours), bound_m=bound)
         # floor plane {q : q . up = floor}: z at (x, y) solves x*ux + y*uy + z*uz = floor
         if abs(up[2]) > 1e-6:
             x64 = a[..., 0].astype(np.float64)
@@ -290,26 +273,3 @@ def remove_table_and_bin_reference(
     xyz_out[..., 2] = np.where(labelled, zfloor, xyz_out[..., 2]).astype(np.float32)
     tol = float("nan") if model is None else delta_m * 1000.0
     return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up, tol)
-
-
-def local_offset_reference(shape: tuple[int, int], pixels: np.ndarray, signed_mm: np.ndarray,
-                           tile: int, min_n: int) -> tuple[np.ndarray, np.ndarray]:
-    """``zcut.removal.local_offset_mm`` written literally: for each ``tile``-pixel tile, the finite signed residuals
-    (mm) of the ``pixels`` in it and the eight tiles around it; with at least ``min_n`` of them their median and
-    1.4826 × the median of their distances to it, else those of all the finite ones (NaN: none)."""
-    h, w = shape
-    th, tw = -(-h // tile), -(-w // tile)
-    s = np.asarray(signed_mm, np.float64)
-    fin = np.isfinite(s)
-    s, r, c = s[fin], np.asarray(pixels)[fin] // w, np.asarray(pixels)[fin] % w
-    centre, sigma = np.full((th, tw), np.nan), np.full((th, tw), np.nan)
-    if len(s) == 0:
-        return centre, sigma
-    g = np.median(s)
-    for i in range(th):
-        for j in range(tw):
-            inside = (np.abs(r // tile - i) <= 1) & (np.abs(c // tile - j) <= 1)
-            v = s[inside] if inside.sum() >= min_n else s
-            centre[i, j] = np.median(v) if inside.sum() >= min_n else g
-            sigma[i, j] = 1.4826 * np.median(np.abs(v - centre[i, j]))
-    return centre, sigma

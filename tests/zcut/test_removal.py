@@ -144,7 +144,6 @@ def _ring(xyz):
     {"search_radius_mm": 6.0, "rim_offset_mm": 0.0},
     {"straggler_bound": "local"},
     {"straggler_bound": "global"},
-    {"straggler_bound": "offset"},
 ])
 @pytest.mark.parametrize("angle", [0.0, 2.0])
 @pytest.mark.parametrize("normals", [True, False])
@@ -152,7 +151,7 @@ def test_robust_removal_equals_the_reference_with_its_tolerance(noisy, model, kw
     """The robust mode is the literal rule with δ = the frame's τ, the search radius at least the
     frame's measured reach (a model with normals, no radius given), the bin test first and the
     stragglers at τ + straggler_mm, searching straggler_mm beyond a measured radius."""
-    from zcut.removal import _radius, frame_tolerance, pixel_offset_m, pixel_sigma_m
+    from zcut.removal import _radius, frame_tolerance, pixel_sigma_m
 
     xyz, fp = noisy
     m = model if normals else BinModel(model.points, None, model.spacing_m)
@@ -175,19 +174,14 @@ def test_robust_removal_equals_the_reference_with_its_tolerance(noisy, model, kw
     # the stragglers' bound at 3 of the bin's Err: known where τ was measured (and most of its pixels have a model
     # point within max_tolerance_mm: not so with a max of 1.5 mm on this 1 mm-noise scene)
     known = np.isfinite(tol.sigma_mm) and np.isfinite(tol.pixel_rad)
-    # σ_bin by tile (about the model's local offset with "offset"), or the frame's
-    sigma = pixel_sigma_m(tol, xyz.shape[:2], local=p.straggler_bound in ("local", "offset"))
+    sigma = pixel_sigma_m(tol, xyz.shape[:2], local=p.straggler_bound == "local")  # σ_bin by tile, or the frame's
     err = (sigma, tol.pixel_rad) if known and p.straggler_bound != "off" else None
-    # "offset": the window about the model's local offset, measured from signed residuals (a model with normals;
-    # without, the bound is "global"'s)
-    assert (tol.offset_tiles_mm is not None) == (p.straggler_bound == "offset" and normals)
-    offset = pixel_offset_m(tol, xyz.shape[:2]) if err is not None and tol.offset_tiles_mm is not None else None
     assert known == (p.tolerance_mm is None and p.max_tolerance_mm > 1.5)
     with np.errstate(invalid="ignore"):
         ref = remove_table_and_bin_reference(
             xyz, fp, model=m, T_cam_bin=T, delta_m=d, rim_offset_m=p.rim_offset_m,
             search_radius_m=radius, straggler_m=straggler, straggler_radius_m=r_str,
-            straggler_neighbours=p.straggler_neighbours, bin_first=True, straggler_err=err, straggler_offset=offset)
+            straggler_neighbours=p.straggler_neighbours, bin_first=True, straggler_err=err)
     _assert_same(fast, ref)
     assert fast.bin_points.sum() > 0.05 * fp.sum()
 

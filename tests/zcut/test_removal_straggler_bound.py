@@ -15,7 +15,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from reference.removal_reference import local_offset_reference, remove_table_and_bin_reference
+from reference.removal_reference import remove_table_and_bin_reference
 
 from replay.pipeline import stages
 from replay.pipeline.bin_model import bin_model_for
@@ -23,7 +23,6 @@ from replay.pipeline.session import ReplaySession
 from replay.synth.log import write_synthetic_log
 from replay.synth.scene import LABEL_WALL
 from replay.synth.synthesize import synthesize_frame
-from zcut.bin_model import BinModel
 from zcut.params import RemovalParams
 from zcut.removal import (
     STRAGGLER_ERR_FLOOR_MM,
@@ -33,10 +32,8 @@ from zcut.removal import (
     _radius,
     bin_sigma_m,
     frame_tolerance,
-    local_offset_mm,
     local_sigma_mm,
     pixel_angle,
-    pixel_offset_m,
     pixel_sigma_m,
     prepare_removal_index,
     remove_table_and_bin,
@@ -103,14 +100,12 @@ def _reference(xyz, fp, model, T, p, tol, *, bounded: bool):
     d = tol.tolerance_mm / 1000.0
     radius = max(_radius(p, model.spacing_m, d), tol.reach_mm / 1000.0)
     straggler = p.straggler_m + d
-    # σ_bin by tile (about the model's local offset with "offset"), or the frame's
-    sigma = pixel_sigma_m(tol, xyz.shape[:2], local=p.straggler_bound in ("local", "offset"))
+    sigma = pixel_sigma_m(tol, xyz.shape[:2], local=p.straggler_bound == "local")  # σ_bin by tile, or the frame's
     err = (sigma, tol.pixel_rad) if bounded and p.straggler_bound != "off" else None
-    offset = pixel_offset_m(tol, xyz.shape[:2]) if err is not None and tol.offset_tiles_mm is not None else None
     return remove_table_and_bin_reference(
         xyz, fp, model=model, T_cam_bin=T, delta_m=d, rim_offset_m=p.rim_offset_m, search_radius_m=radius,
         straggler_m=straggler, straggler_radius_m=max(radius + p.straggler_m, straggler),
-        straggler_neighbours=p.straggler_neighbours, bin_first=True, straggler_err=err, straggler_offset=offset)
+        straggler_neighbours=p.straggler_neighbours, bin_first=True, straggler_err=err)
 
 
 def _assert_same(a, b):
@@ -160,11 +155,10 @@ def test_the_bound_is_off_by_default():
     assert RemovalParams().straggler_bound == "off"
 
 
-@pytest.mark.parametrize("which", ["global", "offset", "off"])
+@pytest.mark.parametrize("which", ["global", "off"])
 def test_the_switch(scene, which):
     """``RemovalParams.straggler_bound``: "global" bounds every straggler by the frame's σ_bin, "off" is the previous
-    rule (τ + ``straggler_mm``: every moved pick is bin); "offset" (the log's own model: offsets near 0) keeps them in
-    the zone as "global" does; fast = its reference path = the literal reference."""
+    rule (τ + ``straggler_mm``: every moved pick is bin); fast = its reference path = the literal reference."""
     xyz, fp, ring, T, model, f, picks = scene
     p = RemovalParams(straggler_bound=which)
     index = prepare_removal_index(model, p)
@@ -280,95 +274,3 @@ def test_sigma_is_the_residual_scale_of_taus_pixels():
     assert bin_sigma_m(np.array([0.1, 0.2, 0.3])) == 1.4826 * 0.2 / 1000.0
     assert np.isnan(bin_sigma_m(np.zeros(0)))
     assert bin_sigma_m(np.array([0.1, np.inf, np.inf])) == np.inf
-
-
-def _moved_signed(xyz, T, model, picks, signed_m):
-    """``xyz`` with each pick moved along its ray to the signed distance ``signed_m`` from the tangent plane of its
-    nearest model point (along that point's normal, as the removal measures it)."""
-    from scipy.spatial import cKDTree
-
-    out = xyz.copy()
-    R, t = T[:3, :3], T[:3, 3]
-    tree = cKDTree(model.points)
-    for (r, c), s in zip(picks, signed_m, strict=True):
-        p = xyz[r, c].astype(np.float64)
-        ray = p / np.linalg.norm(p)
-        q = (p - t) @ R
-        _, j = tree.query(q)
-        n, m = model.normals[j], model.points[j]
-        step = (s - n @ (q - m)) / (n @ (ray @ R))
-        out[r, c] = (p + step * ray).astype(np.float32)
-    return out
-
-
-def test_the_offset_bound_follows_a_model_off_the_bin(scene):
-    """A model 1 % small (scaled about its centre): it lies off the bin by an offset that grows along the walls. The
-    "offset" bound centres each straggler's window on its tile's offset: a pick moved to half a window beyond the
-    offset (away from the model, within τ + 2 mm) is bin, one moved 1.2 windows back towards and through the model
-    stays in the zone; fast = its reference path = the literal reference."""
-    xyz, fp, ring, T, model, f, picks = scene
-    centre = 0.5 * (model.points.min(axis=0) + model.points.max(axis=0))
-    small = BinModel(centre + 0.99 * (model.points - centre), model.normals, model.spacing_m)
-    p = RemovalParams(straggler_bound="offset")
-    index = prepare_removal_index(small, p)
-    tol = frame_tolerance(xyz, ring, index, T)
-    assert tol.offset_tiles_mm is not None and tol.sigma_tiles_mm is not None
-    assert np.ptp(tol.offset_tiles_mm) > 1.0  # the offset varies across the image by more than a millimetre
-    tau, reach = tol.tolerance_mm / 1000.0, tol.tolerance_mm / 1000.0 + p.straggler_m
-    o = pixel_offset_m(tol, xyz.shape[:2])[picks[:, 0], picks[:, 1]]
-    z = xyz[picks[:, 0], picks[:, 1], 2].astype(np.float64)
-    sigma = pixel_sigma_m(tol, xyz.shape[:2])[picks[:, 0], picks[:, 1]]
-    band = STRAGGLER_ERRS * np.maximum(STRAGGLER_ERR_FLOOR_MM / 1000.0,
-                                       np.sqrt(sigma * sigma + 0.5 * (z * tol.pixel_rad) ** 2))
-    side = np.where(o >= 0, 1.0, -1.0)
-    s_in, s_out = o + side * 0.5 * band, o - side * 1.2 * band
-    ok_in = (np.abs(s_in) > tau + 2e-4) & (np.abs(s_in) < reach - 2e-4)  # stragglers: beyond τ, within its reach
-    ok_out = (np.abs(s_out) > tau + 2e-4) & (np.abs(s_out) < reach - 2e-4)
-    inside = np.arange(len(picks)) % 2 == 0
-    use = np.where(inside, ok_in, ok_out)
-    assert (use & inside).sum() >= 10 and (use & ~inside).sum() >= 10, (int((use & inside).sum()), int((use & ~inside).sum()))
-    sel = picks[use]
-    moved = _moved_signed(xyz, T, small, sel, np.where(inside, s_in, s_out)[use])
-    got = remove_table_and_bin(moved, fp, index=index, T_cam_bin=T, ring=ring)
-    again = frame_tolerance(moved, ring, index, T)  # a few picks lie in the ring: τ moves by hundredths of a micron
-    assert got.tolerance_mm == again.tolerance_mm and abs(again.tolerance_mm - tol.tolerance_mm) < 1e-3
-    _assert_same(got, remove_table_and_bin(moved, fp, index=index, T_cam_bin=T, ring=ring, reference=True))
-    _assert_same(got, _reference(moved, fp, small, T, p, again, bounded=True))
-    took = got.bin_points[sel[:, 0], sel[:, 1]]
-    assert took[inside[use]].mean() >= 0.85, f"{int((~took[inside[use]]).sum())} of {int(inside[use].sum())}"
-    assert (~took[~inside[use]]).mean() >= 0.85, f"{int(took[~inside[use]].sum())} of {int((~inside[use]).sum())}"
-
-
-def test_local_offset_by_tile():
-    """The model's local offset by tile: the median signed residual of the tile and the eight around it, the scale
-    1.4826 × the median distance to it; the frame's where fewer than STRAGGLER_TILE_MIN; equal to the literal
-    reference on random residuals (NaN among them, ties, even and odd counts)."""
-    h, w = 100, 160
-    flat = np.arange(h * w)
-    cols = flat % w
-    res = np.where(cols < 48, 1.0, -0.1)  # the model 1 mm off over a band 1.5 tiles wide
-    centre, sigma = local_offset_mm((h, w), flat, res)
-    assert centre.shape == sigma.shape == (4, 5)
-    np.testing.assert_array_equal(centre[:, 0], 1.0)  # columns 0-63: 48 of 64 at 1 mm
-    np.testing.assert_array_equal(centre[:, 1], 0.5 * (1.0 - 0.1))  # 0-95: half and half
-    np.testing.assert_array_equal(centre[:, 2:], -0.1)
-    np.testing.assert_array_equal(sigma[:, 0], 0.0)  # three quarters at the median: their distance 0
-    np.testing.assert_array_equal(sigma[:, 1], 1.4826 * 0.55)
-    few = flat[(cols >= 140) & (flat // w < 3)][: STRAGGLER_TILE_MIN - 1]
-    centre, sigma = local_offset_mm((h, w), few, np.arange(len(few), dtype=float))
-    np.testing.assert_array_equal(centre, 7.0)  # too few for a tile: the frame's median and MAD
-    np.testing.assert_array_equal(sigma, 1.4826 * 4.0)
-    assert np.isnan(local_offset_mm((h, w), flat[:5], np.full(5, np.nan))[0]).all()  # no signed residual
-    rng = np.random.default_rng(7)
-    for n, shape in ((3000, (h, w)), (400, (h, w)), (60, (50, 70)), (1, (10, 10)), (0, (33, 65))):
-        pix = rng.choice(shape[0] * shape[1], size=n, replace=False)
-        signed = np.round(rng.normal(0.2, 0.5, n), 1)  # ties
-        signed[rng.random(n) < 0.1] = np.nan
-        got = local_offset_mm(shape, pix, signed)
-        want = local_offset_reference(shape, pix, signed, STRAGGLER_TILE_PX, STRAGGLER_TILE_MIN)
-        for a, b in zip(got, want, strict=True):
-            assert np.array_equal(a, b, equal_nan=True), (n, shape)
-    tol = dataclasses.replace(_tol(), offset_tiles_mm=local_offset_mm((h, w), flat, res)[0])
-    got = pixel_offset_m(tol, (h, w))
-    assert got[5, 10] == 1.0 / 1000.0 and got[99, 150] == -0.1 / 1000.0
-    np.testing.assert_array_equal(pixel_offset_m(_tol(), (h, w)), 0.0)
