@@ -233,7 +233,7 @@ def configs(session):
     """(config, prepared model) per removal mode, everything else as resolved for the log."""
     out = {}
     for mode in MODES:
-        rp = RemovalParams(mode=mode)
+        rp = RemovalParams(mode=mode, **BOUND_KW)
         cfg = dataclasses.replace(session.config, removal=rp)
         out[mode] = (cfg, prepare_bin_model(session.bin_model, registration=cfg.registration, removal=rp))
     return out
@@ -304,7 +304,8 @@ def cross_check(logs, models, rows, d: Path) -> list[str]:
     notes = []
     for mode in MODES:
         cfg = d / f"removal_{mode}.toml"
-        cfg.write_text(f'[removal]\nmode = "{mode}"\n')
+        cfg.write_text(f'[removal]\nmode = "{mode}"\n'
+                       + "".join(f'{k} = "{v}"\n' for k, v in BOUND_KW.items()))
         for kind in KINDS:
             # the bench scores the sensor's truth (/ground_truth/outliers); accuracy's default is the paper's
             out = json.loads(zcut("accuracy", logs[kind], "--bin-model", models["scans"], "--config", cfg,
@@ -570,8 +571,12 @@ def cpu_seconds() -> float:
     return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
+#: ``--bound``: the straggler bound the robust mode runs with (``RemovalParams.straggler_bound``; empty: its default)
+BOUND_KW: dict[str, str] = {}
+
+
 def main() -> int:
-    global MODES
+    global MODES, BOUND_KW
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", choices=tuple(SEEDS), default="report")
     ap.add_argument("--frames", type=int, default=3)
@@ -583,7 +588,11 @@ def main() -> int:
     ap.add_argument("--rerun", action="store_true", help="recompute the results even when DIR holds them")
     ap.add_argument("--modes", default=",".join(MODES),
                     help="the removal modes to run (default paper,robust; robust alone: a change of the robust mode)")
+    ap.add_argument("--bound", default=None,
+                    help="the straggler bound (RemovalParams.straggler_bound: off, global, local; default: its "
+                         "default)")
     args = ap.parse_args()
+    BOUND_KW = {} if args.bound is None else {"straggler_bound": args.bound}
     MODES = tuple(m for m in ("paper", "robust") if m in args.modes.split(","))
     d = Path(args.dir or f"/tmp/zcut_bin_robustness_{args.seeds}{'' if args.sensor == 'handmade' else '_' + args.sensor}")
     w, h = (int(v) for v in args.size.split("x"))
