@@ -36,7 +36,10 @@ and a search never has to look at more than m copies of a duplicated point.
    left grows on from its smallest distances there: no pixel is measured twice).
 3. *Columns* (:mod:`zcut.columns`), when many pixels are unproven (one in ``_COLUMNS_MIN_SHARE``
    or more: tall parts standing on end, whose image neighbours are rarely 3D neighbours, and the
-   flying pixels along their silhouettes). Each unproven pixel has an upper bound on its m-th
+   flying pixels along their silhouettes) and a tile search (4.) of a sample of them says that
+   searching them all by tiles would measure more pixels than building the columns reads (more
+   than ``_COLUMNS_COST`` per valid point; scattered invalid pixels leave many pixels unproven
+   that the tile search settles cheaply). Each unproven pixel has an upper bound on its m-th
    distance (the m-th found in its window): a k-nearest search visits x-y columns (square cells a
    quarter of the median bound wide, points ordered by depth slab) ring by ring around its own,
    the search radius shrinking to the m-th distance found. Its cost depends on the points near the
