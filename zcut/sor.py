@@ -113,7 +113,8 @@ _TILE_SCAN_CAP = 2048              # pixels one tile search may measure before t
 _MARK_MAX_TILES = 4096             # tiles one pixel may need before the KD-tree takes every point
 _SAMPLE = 256                      # unproven pixels tried first to tell an unorganized cloud
 _USE_COLUMNS = True                # search the unproven pixels with a known bound in columns first ...
-_COLUMNS_MIN_SHARE = 200           # ... when at least one valid pixel in this many is unproven
+_COLUMNS_MIN_SHARE = 1000          # ... when at least one valid pixel in this many is unproven (a floor: the sample
+                                   # below decides; tall parts on end leave one in 180-220)
 _COLUMNS_COST = 3.0                # ... and a tile search of them would measure more than this many pixels per
                                    # valid point (estimated from _SAMPLE of them; 0: columns whenever the share holds)
 _COLUMN_WIDTH = 0.25               # column width, times the median bound of the unproven pixels
