@@ -36,7 +36,10 @@ and a search never has to look at more than m copies of a duplicated point.
    left grows on from its smallest distances there: no pixel is measured twice).
 3. *Columns* (:mod:`zcut.columns`), when many pixels are unproven (one in ``_COLUMNS_MIN_SHARE``
    or more: tall parts standing on end, whose image neighbours are rarely 3D neighbours, and the
-   flying pixels along their silhouettes). Each unproven pixel has an upper bound on its m-th
+   flying pixels along their silhouettes) and a tile search (4.) of a sample of them says that
+   searching them all by tiles would measure more pixels than building the columns reads (more
+   than ``_COLUMNS_COST`` per valid point; scattered invalid pixels leave many pixels unproven
+   that the tile search settles cheaply). Each unproven pixel has an upper bound on its m-th
    distance (the m-th found in its window): a k-nearest search visits x-y columns (square cells a
    quarter of the median bound wide, points ordered by depth slab) ring by ring around its own,
    the search radius shrinking to the m-th distance found. Its cost depends on the points near the
@@ -110,7 +113,10 @@ _TILE_SCAN_CAP = 2048              # pixels one tile search may measure before t
 _MARK_MAX_TILES = 4096             # tiles one pixel may need before the KD-tree takes every point
 _SAMPLE = 256                      # unproven pixels tried first to tell an unorganized cloud
 _USE_COLUMNS = True                # search the unproven pixels with a known bound in columns first ...
-_COLUMNS_MIN_SHARE = 200           # ... when at least one valid pixel in this many is unproven
+_COLUMNS_MIN_SHARE = 1000          # ... when at least one valid pixel in this many is unproven (a floor: the sample
+                                   # below decides; tall parts on end leave one in 180-220)
+_COLUMNS_COST = 3.0                # ... and a tile search of them would measure more than this many pixels per
+                                   # valid point (estimated from _SAMPLE of them; 0: columns whenever the share holds)
 _COLUMN_WIDTH = 0.25               # column width, times the median bound of the unproven pixels
 _COLUMNS_PER_POINT = 8             # largest column grid, per valid point
 _COLUMN_SCAN = 1024                # entries a column search may scan per query, on average
@@ -287,7 +293,7 @@ def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarr
         _window.slots_for(m))
     rows, cols = _window.unproven_pixels(valid, dbar, unproven)  # their dbar: minus the m-th squared distance
     if rows.size:
-        def tree() -> tuple[np.ndarray, ...]:  # built only if the column search leaves pixels
+        def tree() -> tuple[np.ndarray, ...]:  # built only when a tile search runs
             return _search.build_quadtree(tcount, tbox, tuv, P, M, use_cam)
 
         _fallback(x, y, z, valid, rows, cols, -dbar[rows, cols], m, divisor, use_cam, tree, dbar, run, ws)
@@ -295,15 +301,16 @@ def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarr
 
 
 def _column_stage(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                  lim: np.ndarray, m: int, divisor: float, dbar: np.ndarray, run: Run, ws: SorWorkspace) -> np.ndarray:
+                  lim: np.ndarray, m: int, divisor: float, dbar: np.ndarray, run: Run, ws: SorWorkspace,
+                  n_valid: int) -> np.ndarray:
     """k-nearest search in columns (:mod:`zcut.columns`) for the unproven pixels with a finite
-    bound ``lim``, when they are many (tall parts on end, flying pixels everywhere: the tile search
-    would measure whole tiles for each). Writes their d̄ into dbar; returns which it settled."""
+    bound ``lim`` (:func:`_fallback` calls it when they are many and the tile search would measure
+    many pixels for each: tall parts on end, flying pixels everywhere). ``n_valid``: the valid
+    pixels. Writes their d̄ into dbar; returns which it settled."""
     done = np.zeros(rows.size, dtype=bool)
-    n_valid = int(np.count_nonzero(valid))
     rad = np.sqrt(lim)
     eligible = np.isfinite(rad) & (rad > 0.0)
-    if rows.size * _COLUMNS_MIN_SHARE < n_valid or not eligible.any():
+    if not eligible.any():
         return done
     width = float(np.median(rad[eligible])) * _COLUMN_WIDTH
     x0, x1, y0, y1, z0, z1 = _search.valid_range(x, y, z, valid)
@@ -336,19 +343,46 @@ def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, ro
               lim: np.ndarray, m: int, divisor: float, use_cam: bool, make_tree: Callable[[], tuple[np.ndarray, ...]],
               dbar: np.ndarray, run: Run, ws: SorWorkspace) -> None:
     """Columns, then a tile search for the unproven pixels left (over the quadtree ``make_tree()``
-    builds), then a KD-tree for those it could not finish."""
-    if _USE_COLUMNS:
-        done = _column_stage(x, y, z, valid, rows, cols, lim, m, divisor, dbar, run, ws)
-        if done.all():
-            return
-        rows, cols, lim = rows[~done], cols[~done], lim[~done]
-    tree = make_tree()
+    builds), then a KD-tree for those it could not finish.
 
-    def tile_search(rows: np.ndarray, cols: np.ndarray, lim: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    The columns are built when the unproven pixels are many (one valid pixel in
+    ``_COLUMNS_MIN_SHARE`` or more) and a tile search of ``_SAMPLE`` of them, evenly spread,
+    measures more than ``_COLUMNS_COST`` pixels per valid point when scaled to all of them: building
+    the columns reads every valid point, which pays only when the tile searches would read more
+    (tall parts on end: ≈ 800 pixels a search; scattered invalid pixels: ≈ 160, and the columns
+    cost more than the searches). The sample's results are kept. Every path is exact: the choice
+    changes the time, never d̄."""
+    tree: tuple[np.ndarray, ...] | None = None
+
+    def tile_search(rows: np.ndarray, cols: np.ndarray,
+                    lim: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        nonlocal tree
+        if tree is None:
+            tree = make_tree()
         out, outcome, radius2 = np.zeros(rows.size), np.zeros(rows.size, np.uint8), np.full(rows.size, np.inf)
+        measured = np.zeros(rows.size, np.int64)
         run(_search.tile_queries, rows.size, x, y, z, valid, rows, cols, lim, m, divisor, int(_TILE_SCAN_CAP),
-            use_cam, tree, out, outcome, radius2)
-        return out, outcome, radius2
+            use_cam, tree, out, outcome, radius2, measured)
+        return out, outcome, radius2, measured
+
+    n_valid = int(np.count_nonzero(valid))
+    if _USE_COLUMNS and rows.size * _COLUMNS_MIN_SHARE >= n_valid:
+        use_columns = True
+        if _COLUMNS_COST > 0.0:  # would the tile search read more than the column build does?
+            pick = np.unique(np.linspace(0, rows.size - 1, min(_SAMPLE, rows.size)).astype(np.int64))
+            out, outcome, _, measured = tile_search(rows[pick], cols[pick], lim[pick])
+            use_columns = float(measured.mean()) * rows.size > _COLUMNS_COST * n_valid
+            found = np.zeros(rows.size, dtype=bool)
+            found[pick] = outcome == _search.FOUND
+            dbar[rows[found], cols[found]] = out[outcome == _search.FOUND]
+            rows, cols, lim = rows[~found], cols[~found], lim[~found]
+            if not rows.size:
+                return
+        if use_columns:
+            done = _column_stage(x, y, z, valid, rows, cols, lim, m, divisor, dbar, run, ws, n_valid)
+            if done.all():
+                return
+            rows, cols, lim = rows[~done], cols[~done], lim[~done]
 
     def kd_search(pts: np.ndarray, rows: np.ndarray, cols: np.ndarray, lim: np.ndarray) -> None:
         kd = _search.kd_build(pts)
@@ -358,11 +392,12 @@ def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, ro
 
     if rows.size > max(4 * _SAMPLE, valid.size // 8):  # not organized at all? then every tile search would hit the cap
         pick = np.linspace(0, rows.size - 1, _SAMPLE).astype(np.int64)
-        _, outcome, _ = tile_search(rows[pick], cols[pick], lim[pick])
+        _, outcome, _, _ = tile_search(rows[pick], cols[pick], lim[pick])
         if 2 * np.count_nonzero(outcome != _search.FOUND) > pick.size:
             kd_search(_search.gather_valid(x, y, z, valid), rows, cols, lim)
             return
-    out, outcome, radius2 = tile_search(rows, cols, lim)
+    out, outcome, radius2, _ = tile_search(rows, cols, lim)
+    assert tree is not None
     done = outcome == _search.FOUND
     dbar[rows[done], cols[done]] = out[done]
     if done.all():

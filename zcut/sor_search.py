@@ -255,17 +255,20 @@ def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree):  # type
 
 
 @nb.njit(cache=True, nogil=True)
-def tile_queries(q0, q1, x, y, z, valid, qr, qc, qlim, m, divisor, cap, use_cam, tree, out, outcome, radius2):  # type: ignore[no-untyped-def]  # numba kernel
+def tile_queries(q0, q1, x, y, z, valid, qr, qc, qlim, m, divisor, cap, use_cam, tree, out, outcome, radius2,  # type: ignore[no-untyped-def]  # numba kernel
+                 measured):
     """Exact d̄ of the query pixels q0..q1-1 by the quadtree, measuring at most ``cap`` pixels each.
 
     ``qlim`` is an upper bound on each one's m-th smallest squared distance (inf if unknown).
     Writes out (d̄) and outcome FOUND, or outcome NEEDS_KD / NEEDS_KD_ALL and radius2 (a possibly
-    smaller upper bound than qlim, inf if unknown).
+    smaller upper bound than qlim, inf if unknown); measured = the pixels each one measured (the
+    search's cost).
     """
     best = np.empty(m)
     for q in range(q0, q1):
         lim = qlim[q]
         found, aborted = _tile_query(qr[q], qc[q], lim, best, x, y, z, valid, m, cap, use_cam, tree)
+        measured[q] = found
         if not aborted:
             out[q] = mean_of_sorted(best, divisor)
             outcome[q] = FOUND

@@ -150,10 +150,10 @@ SEARCH_PATHS = {
     "kdtree": {"_TILE_SCAN_CAP": 0},  # KD-tree over the tiles within each pixel's radius
     "kdtree-all": {"_TILE_SCAN_CAP": 0, "_MARK_MAX_TILES": 0},  # KD-tree over all valid points
     "unorganized": {"_TILE_SCAN_CAP": 0, "_SAMPLE": 2},  # the sample says "not organized"
-    "columns": {"_COLUMNS_MIN_SHARE": 1 << 40},  # every unproven pixel with a bound by the columns
-    "columns-narrow": {"_COLUMNS_MIN_SHARE": 1 << 40, "_COLUMN_WIDTH": 0.01},  # many rings
-    "columns-then-tiles": {"_COLUMNS_MIN_SHARE": 1 << 40, "_COLUMN_SCAN": 3},  # the budget runs out
-    "columns-no-camera": {"_COLUMNS_MIN_SHARE": 1 << 40, "_USE_CAMERA": False, "_WINDOW_MAX": 2},
+    "columns": {"_COLUMNS_MIN_SHARE": 1 << 40, "_COLUMNS_COST": 0.0},  # every unproven pixel with a bound by the columns
+    "columns-narrow": {"_COLUMNS_MIN_SHARE": 1 << 40, "_COLUMNS_COST": 0.0, "_COLUMN_WIDTH": 0.01},  # many rings
+    "columns-then-tiles": {"_COLUMNS_MIN_SHARE": 1 << 40, "_COLUMNS_COST": 0.0, "_COLUMN_SCAN": 3},  # the budget runs out
+    "columns-no-camera": {"_COLUMNS_MIN_SHARE": 1 << 40, "_COLUMNS_COST": 0.0, "_USE_CAMERA": False, "_WINDOW_MAX": 2},
 }
 
 
@@ -214,6 +214,48 @@ def test_steep_relief_uses_the_columns(convention: str, monkeypatch: pytest.Monk
     if convention == "open3d":
         np.testing.assert_array_equal(sor_outliers(xyz, k=4, convention="open3d"),
                                       open3d_outliers(xyz, k=4, std_ratio=1.0))
+
+
+@pytest.mark.parametrize("convention", ["pcl", "open3d"])
+def test_a_sampled_tile_search_chooses_the_columns(convention: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    # many unproven pixels (one valid pixel in _COLUMNS_MIN_SHARE or more) in both clouds: a tile
+    # search of _SAMPLE of them, whose results are kept, says whether the columns pay; whatever it
+    # says, d̄ is the reference's
+    from bank_clouds import steep
+
+    rng = np.random.default_rng(14)
+    tall = with_holes(rng, steep(rng, 240, 320), 0.02).astype(np.float32)
+    rng = np.random.default_rng(5)
+    scattered = with_holes(rng, pinhole(rng, 240, 320, f=400.0, flying=0.01), 0.3)
+    column_rows: list[int] = []
+    unproven: list[int] = []
+    stage, fallback = sor_module._column_stage, sor_module._fallback
+
+    def spy_columns(*args, **kwargs):
+        column_rows.append(int(args[4].size))
+        return stage(*args, **kwargs)
+
+    def spy_fallback(*args, **kwargs):
+        unproven.append(int(args[4].size))
+        return fallback(*args, **kwargs)
+
+    monkeypatch.setattr(sor_module, "_column_stage", spy_columns)
+    monkeypatch.setattr(sor_module, "_fallback", spy_fallback)
+    monkeypatch.setattr(sor_module, "_SAMPLE", 32)
+    for xyz in (tall, scattered):
+        want = mean_distances_reference(xyz, k=4, convention=convention, method="kdtree")
+        for cost, columns in ((0.0, "all"), (1e9, "none"), (sor_module._COLUMNS_COST, "sampled")):
+            monkeypatch.setattr(sor_module, "_COLUMNS_COST", cost)
+            column_rows.clear()
+            unproven.clear()
+            np.testing.assert_array_equal(sor_mean_distances(xyz, k=4, convention=convention), want)
+            assert len(unproven) == 1 and unproven[0] * sor_module._COLUMNS_MIN_SHARE >= np.isfinite(xyz).all(-1).sum()
+            if columns == "all":  # no sample: every unproven pixel goes to the columns
+                assert column_rows == unproven
+            elif columns == "none":
+                assert column_rows == []
+            elif xyz is tall or column_rows:  # the tall parts need them; the sample's found pixels are not searched again
+                assert len(column_rows) == 1 and unproven[0] - 32 <= column_rows[0] < unproven[0]
 
 
 @pytest.mark.parametrize("invalid", [0.3, 0.5, 0.7])

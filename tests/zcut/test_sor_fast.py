@@ -128,6 +128,7 @@ def test_large_invalid_regions_and_steep_walls(seed: int, monkeypatch: pytest.Mo
     xyz[field > np.quantile(field, 0.5)] = np.nan
     assert_as_oracle(xyz, ks=(4, 8))
     monkeypatch.setattr(sor_module, "_COLUMNS_MIN_SHARE", 1 << 40)
+    monkeypatch.setattr(sor_module, "_COLUMNS_COST", 0.0)
     monkeypatch.setattr(sor_module, "_COLUMN_WIDTH", 0.05)
     assert_as_oracle(xyz, ks=(4,))
     assert_as_oracle(xyz, np.isfinite(xyz[..., 2]) & (xyz[..., 2] < 0.79), ks=(4,))

@@ -128,7 +128,7 @@ def expected(xyz: np.ndarray, n: int, k: int, convention: str, method: str) -> t
 
 SEARCH_PATHS = {  # the unproven pixels through each search (each takes its arrays from the workspace)
     "default": {},
-    "columns": {"_COLUMNS_MIN_SHARE": 1 << 40},
+    "columns": {"_COLUMNS_MIN_SHARE": 1 << 40, "_COLUMNS_COST": 0.0},
     "tiles": {"_USE_COLUMNS": False},
     "kdtree": {"_USE_COLUMNS": False, "_TILE_SCAN_CAP": 0},
     "no-camera": {"_USE_CAMERA": False, "_WINDOW_MAX": 2},
