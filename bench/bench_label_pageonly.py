@@ -62,6 +62,9 @@ from page_helpers import get_bundle, open_page, wait_until  # noqa: E402
 BANK = "zcut,sor,radius,cluster,speckle,window,mixed_pixel"
 K = 3.0  # the paper's k; the page shows its own (the fits line), which the person reads
 REJECT = 10.0  # K rejects a fit whose Err exceeds REJECT × the frame's median Err (docs/labelling.md: tuned on seed 7731)
+#: ``--large-px N``: the rule's variant that also rejects every proposal of N pixels or more (its row's "N px": a part
+#: surface the fits missed); None, the rule as written. Chosen on the tuning seed 7751 (docs/labelling.md, "Sixth round").
+LARGE_PX: int | None = None
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -126,7 +129,8 @@ def person_with_model(page) -> dict:
     for _ in range(10_000):
         entries = page.evaluate("window.zcut.entries()")
         j = next((i for i, e in enumerate(entries) if e["src"] == "u" and e["state"] == "undecided"
-                  and e["dist"] is not None and not math.isnan(e["dist"]) and not e["dist"] > k * e["err"]), None)
+                  and e["dist"] is not None and not math.isnan(e["dist"])
+                  and (not e["dist"] > k * e["err"] or (LARGE_PX is not None and e["n"] >= LARGE_PX))), None)
         if j is None:
             break
         click_row(page, j)
@@ -330,7 +334,7 @@ def _emulated_person(ff, xyz_mm: np.ndarray, heights: np.ndarray, valid: np.ndar
     """(label, proposal ids) the rule of docs/labelling.md gives on the fits ``ff`` (:class:`annotate.fits.FrameFits`),
     read from the same bundle the page draws: the fits whose Err (the fit table's) exceeds :data:`REJECT` × the
     median the fits line shows are rejected and their first proposal rejected; every other proposal is an outlier
-    unless its median distance is not above k × its Err."""
+    unless its median distance is not above k × its Err (or, with :data:`LARGE_PX`, it has that many pixels or more)."""
     from annotate.payload import parse_bundle
 
     H, W = valid.shape
@@ -354,7 +358,7 @@ def _emulated_person(ff, xyz_mm: np.ndarray, heights: np.ndarray, valid: np.ndar
             out[j + 1] = False
             continue
         d, e = col["dist_mm"][j], col["err_mm"][j]
-        if not np.isnan(d) and not d > ff.k * e:
+        if not np.isnan(d) and (not d > ff.k * e or (LARGE_PX is not None and col["n"][j] >= LARGE_PX)):
             out[j + 1] = False
     return out[ids], ids, {"rejected_fits": len(rejected), "proposals": len(table),
                            "accepted": int(out[1:].sum()), "median_err": med}
@@ -553,6 +557,8 @@ def main() -> int:
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
     ap.add_argument("--diagnose", default="", metavar="LOGS",
                     help="no browser: the rule emulated on the page's bundle of each log, its label broken down by cause")
+    ap.add_argument("--large-px", type=int, default=None, metavar="N",
+                    help="the rule's variant: also reject every proposal of N px or more (default: the rule as written)")
     ap.add_argument("--compare", default="", metavar="BEFORE,AFTER",
                     help="two --diagnose --json files (two trees, the same logs): one table, before -> after")
     args = ap.parse_args()
@@ -562,6 +568,8 @@ def main() -> int:
             raise SystemExit(f"error: --compare takes BEFORE.json,AFTER.json, got {args.compare!r}")
         print("\n".join(compare(*(json.loads(f.read_text()) for f in files))))
         return 0
+    global LARGE_PX
+    LARGE_PX = args.large_px
     if args.diagnose:
         got = [r for lg in args.diagnose.split(",") if lg for r in diagnose(Path(lg))]
         if args.json is not None:
