@@ -55,7 +55,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "bench")]  # bench/: page_helpers when imported as a module
 from annotate_helpers import CHROMIUM, CHROMIUM_ARGS, LiveServer  # noqa: E402
 from page_helpers import get_bundle, open_page, wait_until  # noqa: E402
 
