@@ -31,9 +31,12 @@ label's pixels that are not the paper's truth broken down by cause — instances
 instances off their fit (the fit's pose, or Err below the truth's), other fits, the bin, the table, depth
 edges — and the truth it misses (docs/labelling.md, "Third round: what the label holds beside the truth").
 The scene's true meshes are rebuilt from the log's ``zcut.synth`` record, read only to score.
+``--compare BEFORE.json,AFTER.json`` prints two ``--diagnose --json`` files (two trees, the same logs) as one
+table, before → after, and the largest cause of each log's wrong pixels in the after file.
 
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --logs A.mcap,B.mcap [--modes model,none]
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap,B.mcap [--json F]
+    cd WORKTREE && .venv/bin/python bench/bench_label_pageonly.py --compare BEFORE.json,AFTER.json
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --kinect --middlebury Teddy,Piano
 """
 
@@ -52,13 +55,16 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "bench")]  # bench/: page_helpers when imported as a module
 from annotate_helpers import CHROMIUM, CHROMIUM_ARGS, LiveServer  # noqa: E402
 from page_helpers import get_bundle, open_page, wait_until  # noqa: E402
 
 BANK = "zcut,sor,radius,cluster,speckle,window,mixed_pixel"
 K = 3.0  # the paper's k; the page shows its own (the fits line), which the person reads
 REJECT = 10.0  # K rejects a fit whose Err exceeds REJECT × the frame's median Err (docs/labelling.md: tuned on seed 7731)
+#: ``--large-px N``: the rule's variant that also rejects every proposal of N pixels or more (its row's "N px": a part
+#: surface the fits missed); None, the rule as written. Chosen on the tuning seed 7751 (docs/labelling.md, "Sixth round").
+LARGE_PX: int | None = None
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -123,7 +129,8 @@ def person_with_model(page) -> dict:
     for _ in range(10_000):
         entries = page.evaluate("window.zcut.entries()")
         j = next((i for i, e in enumerate(entries) if e["src"] == "u" and e["state"] == "undecided"
-                  and e["dist"] is not None and not math.isnan(e["dist"]) and not e["dist"] > k * e["err"]), None)
+                  and e["dist"] is not None and not math.isnan(e["dist"])
+                  and (not e["dist"] > k * e["err"] or (LARGE_PX is not None and e["n"] >= LARGE_PX))), None)
         if j is None:
             break
         click_row(page, j)
@@ -327,7 +334,7 @@ def _emulated_person(ff, xyz_mm: np.ndarray, heights: np.ndarray, valid: np.ndar
     """(label, proposal ids) the rule of docs/labelling.md gives on the fits ``ff`` (:class:`annotate.fits.FrameFits`),
     read from the same bundle the page draws: the fits whose Err (the fit table's) exceeds :data:`REJECT` × the
     median the fits line shows are rejected and their first proposal rejected; every other proposal is an outlier
-    unless its median distance is not above k × its Err."""
+    unless its median distance is not above k × its Err (or, with :data:`LARGE_PX`, it has that many pixels or more)."""
     from annotate.payload import parse_bundle
 
     H, W = valid.shape
@@ -351,7 +358,7 @@ def _emulated_person(ff, xyz_mm: np.ndarray, heights: np.ndarray, valid: np.ndar
             out[j + 1] = False
             continue
         d, e = col["dist_mm"][j], col["err_mm"][j]
-        if not np.isnan(d) and not d > ff.k * e:
+        if not np.isnan(d) and (not d > ff.k * e or (LARGE_PX is not None and col["n"][j] >= LARGE_PX)):
             out[j + 1] = False
     return out[ids], ids, {"rejected_fits": len(rejected), "proposals": len(table),
                            "accepted": int(out[1:].sum()), "median_err": med}
@@ -502,6 +509,41 @@ def fmt(v: float | None) -> str:
     return "-" if v is None else f"{v:.3f}"
 
 
+#: The causes of a label's pixels that are not the paper's truth, as :func:`diagnose_frame` names them (disjoint;
+#: with the bin and the table they add up to ``non_truth``), and the short name a table gives each.
+CAUSES = {"non: unfitted instance": "unfitted instances",
+          "non: fitted inst, nearest is its fit, pose off (true surf within k Err)": "pose off",
+          "non: fitted inst, nearest is its fit, Err < truth's": "Err < truth's",
+          "non: fitted inst, nearest is another surface": "another surface"}
+MISSED_IN_FITS = "truth missed: in a fit's pixels"
+
+
+def compare(before: list[dict], after: list[dict]) -> list[str]:
+    """Markdown lines: the rows of two ``--diagnose`` runs (the same logs and frames, two trees) before → after,
+    the third round's columns, and per log the largest cause of the label's pixels that are not truth."""
+    def arrow(a: dict, b: dict, key: str, f: str = "{:,}") -> str:
+        return f"{f.format(a[key])} → {f.format(b[key])}"
+
+    keyed = {(r["log"], r["frame"]): r for r in before}
+    out = ["| log | frame | fits | IoU paper | label px | of it truth | not truth | on unfitted instances (instances) | "
+           "pose off | Err < truth's | another surface | truth missed in a fit's pixels | CPU-s of the page's fits |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    largest = []
+    for b in after:
+        a = keyed.get((b["log"], b["frame"]))
+        if a is None:
+            raise SystemExit(f"error: --compare: {b['log']} frame {b['frame']} is not in the before file")
+        out.append(f"| {b['log']} | {b['frame']} | {arrow(a, b, 'fits')} | {arrow(a, b, 'iou', '{:.3f}')} | "
+                   f"{arrow(a, b, 'label')} | {arrow(a, b, 'label_truth')} | {arrow(a, b, 'non_truth')} | "
+                   f"{arrow(a, b, 'non: unfitted instance')} ({arrow(a, b, 'parts_unfitted_seen')}) | "
+                   + " | ".join(arrow(a, b, k) for k in list(CAUSES)[1:])
+                   + f" | {arrow(a, b, MISSED_IN_FITS)} | {arrow(a, b, 'cpu_fits', '{:.1f}')} |")
+        top = max(CAUSES, key=lambda k: b[k])
+        largest.append(f"{b['log']} frame {b['frame']}: {CAUSES[top]}, {b[top]:,} of {b['non_truth']:,} px not truth "
+                       f"({b[top] / max(b['non_truth'], 1):.0%})")
+    return [*out, "", "largest cause (after):", *(f"  {v}" for v in largest)]
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--logs", default="", help="comma-separated synthetic logs (zcut synth)")
@@ -515,7 +557,19 @@ def main() -> int:
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
     ap.add_argument("--diagnose", default="", metavar="LOGS",
                     help="no browser: the rule emulated on the page's bundle of each log, its label broken down by cause")
+    ap.add_argument("--large-px", type=int, default=None, metavar="N",
+                    help="the rule's variant: also reject every proposal of N px or more (default: the rule as written)")
+    ap.add_argument("--compare", default="", metavar="BEFORE,AFTER",
+                    help="two --diagnose --json files (two trees, the same logs): one table, before -> after")
     args = ap.parse_args()
+    if args.compare:
+        files = [Path(v) for v in args.compare.split(",")]
+        if len(files) != 2:
+            raise SystemExit(f"error: --compare takes BEFORE.json,AFTER.json, got {args.compare!r}")
+        print("\n".join(compare(*(json.loads(f.read_text()) for f in files))))
+        return 0
+    global LARGE_PX
+    LARGE_PX = args.large_px
     if args.diagnose:
         got = [r for lg in args.diagnose.split(",") if lg for r in diagnose(Path(lg))]
         if args.json is not None:

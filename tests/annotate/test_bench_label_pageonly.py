@@ -1,0 +1,40 @@
+"""bench/bench_label_pageonly.py's --compare: two --diagnose runs as one cause table, before -> after."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from types import ModuleType
+
+import pytest
+from bench_helpers import bench_module
+
+
+@pytest.fixture(scope="module")
+def bench() -> Iterator[ModuleType]:
+    yield from bench_module("bench_label_pageonly.py")
+
+
+def _row(bench: ModuleType, log: str, *, iou: float, causes: tuple[int, int, int, int], cpu: float) -> dict:
+    row = {"log": log, "frame": 0, "fits": 300, "iou": iou, "label": 2 * sum(causes) + 10, "label_truth": sum(causes) + 10,
+           "non_truth": sum(causes), "parts_unfitted_seen": 7, bench.MISSED_IN_FITS: 5, "cpu_fits": cpu}
+    row.update(zip(bench.CAUSES, causes))
+    return row
+
+
+def test_compare_prints_before_arrow_after_and_the_largest_cause(bench):
+    before = [_row(bench, "a.mcap", iou=0.452, causes=(7475, 1954, 1301, 464), cpu=9.5),
+              _row(bench, "b.mcap", iou=0.739, causes=(808, 59, 1401, 22), cpu=7.4)]
+    after = [_row(bench, "b.mcap", iou=0.739, causes=(808, 59, 1401, 22), cpu=7.4),
+             _row(bench, "a.mcap", iou=0.455, causes=(7667, 1917, 1299, 631), cpu=10.4)]
+    lines = bench.compare(before, after)
+    assert lines[0].startswith("| log | frame | fits | IoU paper |") and lines[1].count("|") == lines[0].count("|")
+    a = next(v for v in lines if v.startswith("| a.mcap | 0 |"))  # matched by log and frame, not by order
+    assert "| 0.452 → 0.455 |" in a and "| 7,475 → 7,667 (7 → 7) |" in a and "| 464 → 631 |" in a and "| 9.5 → 10.4 |" in a
+    assert a.count("|") == lines[0].count("|")
+    assert "  a.mcap frame 0: unfitted instances, 7,667 of 11,514 px not truth (67%)" in lines
+    assert "  b.mcap frame 0: Err < truth's, 1,401 of 2,290 px not truth (61%)" in lines
+
+
+def test_compare_refuses_a_frame_missing_before(bench):
+    with pytest.raises(SystemExit, match="c.mcap frame 0 is not in the before file"):
+        bench.compare([], [_row(bench, "c.mcap", iou=0.5, causes=(1, 2, 3, 4), cpu=1.0)])
