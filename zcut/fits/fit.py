@@ -45,7 +45,7 @@ from zcut.errors import InputShapeError, describe_array
 from zcut.fit_vetting import pose_overlaps
 
 from .icp import EDGE_WEAK, icp, initial_poses, initial_rotations, pose_matrix, shifted_poses
-from .kernels import coarse_search, edge_distances, lower_bounds, surface_distances, window_band, window_rays
+from .kernels import axis_band, coarse_search, edge_distances, lower_bounds, surface_distances, window_band, window_rays
 from .model import PartModel, prepare_model
 from .params import FitParams
 from .segment import segment
@@ -439,8 +439,10 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
 #: :func:`_slide`: a part is elongated when its vertices span at least this many times as much along their
 #: principal axis as across it (a rod: 80 mm against 16)
 SLIDE_ELONGATION = 2.0
-#: ... the shifts along its axis tried, this far apart (mm)
+#: ... the shifts along its axis tried, this far apart (mm); a shift is refused when the shifted model explains
+#: fewer than this share of the search's points the fit explains in place
 SLIDE_STEP_MM = 0.25
+SLIDE_KEEP = 0.8
 
 
 def _slide_axis(model: PartModel) -> tuple[np.ndarray, float, float, float] | None:
@@ -468,7 +470,8 @@ def _slide(frame: _Frame, flat: np.ndarray, pts: np.ndarray, epts: np.ndarray, m
     radius (+ k × Err) of its posed axis are moved along the axis to the model's centre; those then within
     k × max(Err, floor) of it lie on the part's side, extended. The shift (every :data:`SLIDE_STEP_MM` up to the
     model's extent) whose axial span holds the most of them wins (ties: the smallest); when it holds at least
-    ``min_region_px`` more than the fit's own place, the pose is shifted, refined from there and kept when its
+    ``min_region_px`` more than the fit's own place and still explains :data:`SLIDE_KEEP` of the search's points
+    ``pts`` the fit explains in place, the pose is shifted, refined from there and kept when its
     Err, measured on the search's points ``pts``, is at most ``FINE_KEEP`` × ``err``. The counts take the side as
     the same all along (a prism or a cylinder); the ends' faces are not counted."""
     axis = _slide_axis(model)
@@ -477,18 +480,16 @@ def _slide(frame: _Frame, flat: np.ndarray, pts: np.ndarray, epts: np.ndarray, m
         return T, err
     u, radial, lo, hi = axis
     tol = params.k * max(err, params.err_floor_mm)
-    W = frame.valid.shape[1]
-    rr, cc = np.mgrid[win]
-    wf = (rr * W + cc).reshape(-1)
-    wf = wf[frame.zone.reshape(-1)[wf]]
-    q = (frame.xyz.reshape(-1, 3)[wf] - T[:3, 3]) @ T[:3, :3] - model.centroid  # the model's frame, from its centre
-    along = q @ u
-    mid = q - np.outer(along, u)
-    keep = (np.linalg.norm(mid, axis=1) <= radial + tol) & (np.abs(along) <= 2.0 * model.extent_mm)
-    if int(keep.sum()) < params.min_region_px:
+    # the model's frame, from its centre (one kernel walk of the grown window)
+    q = axis_band(frame.xyz.reshape(-1, 3), frame.zone.reshape(-1), win[0].start, win[0].stop, win[1].start,
+                  win[1].stop, frame.valid.shape[1], np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
+                  np.ascontiguousarray(model.centroid, np.float64), np.ascontiguousarray(u), radial + tol,
+                  2.0 * model.extent_mm)
+    if len(q) < params.min_region_px:
         return T, err
-    side = np.ascontiguousarray(mid[keep] + model.centroid)
-    on = np.sort(along[keep][_surface_distances(model, side, np.eye(4)) <= tol])
+    along = q @ u
+    side = np.ascontiguousarray(q - np.outer(along, u) + model.centroid)
+    on = np.sort(along[_surface_distances(model, side, np.eye(4)) <= tol])
     n = int(model.extent_mm // SLIDE_STEP_MM)
     shifts = np.arange(-n, n + 1) * SLIDE_STEP_MM
     counts = np.searchsorted(on, shifts + hi + tol, "right") - np.searchsorted(on, shifts + lo - tol, "left")
@@ -499,8 +500,8 @@ def _slide(frame: _Frame, flat: np.ndarray, pts: np.ndarray, epts: np.ndarray, m
     Ts[:3, 3] = T[:3, 3] + T[:3, :3] @ (shifts[i] * u)
     d = _near_distances(model, pts, Ts, tol)
     inl = d <= tol
-    if not inl.any():
-        return T, err
+    if int(inl.sum()) < SLIDE_KEEP * int((_near_distances(model, pts, T, tol) <= tol).sum()) or not inl.any():
+        return T, err  # a slide onto another part on the axis's line, off the region it fits
     err_s = float(np.sqrt(np.mean(d[inl] ** 2)))
     if params.fine_points > 0:
         Ts, err_s = _fine(frame, flat, pts, epts, model, params, opts, Ts, err_s)

@@ -97,9 +97,9 @@ class FitParams:
         The last refinement weighs its points by Tukey's biweight of their distance at this many times
         max(Err, ``err_floor_mm``) (none beyond it); 0: unweighted (the tenth round's).
     slide : bool
-        True (the default): an elongated part's pose (a rod: its vertices span twice as much along their principal
+        True: an elongated part's pose (a rod: its vertices span twice as much along their principal
         axis as across it) is slid along its posed axis to where it explains the most zone pixels and refined there
-        (docs/fits.md, "Twelfth round"); other parts are not touched. False: the eleventh round's fits.
+        (docs/fits.md, "Twelfth round"); other parts are not touched. False (the default): the eleventh round's fits.
     """
 
     jump_mm: float = 1.5
@@ -126,7 +126,7 @@ class FitParams:
     early_share: float = 0.0
     fine_window: bool = True
     fine_robust: float = 3.0
-    slide: bool = True
+    slide: bool = False
 
     def __post_init__(self) -> None:
         _number(self, "jump_mm", gt=0)

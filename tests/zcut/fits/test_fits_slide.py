@@ -15,6 +15,7 @@ from zcut.fits import FitParams, PartFit, fit_prepared, pose_error, prepare_mode
 
 #: a rod lying tilted, its axis (model x) about 40° off the image's rows
 ROD = pose(rotation((0, 0, 1), 40) @ rotation((1, 0, 0), 20), (4, -2, 420))
+SLIDE = FitParams(slide=True)
 
 
 def _digest(fits: list[PartFit]) -> str:
@@ -51,7 +52,9 @@ def test_without_the_slide_the_rods_fits_are_the_eleventh_rounds_to_the_bit():
     xyz, zone, model, K = _hand_made_rod_frame()
     old = fit_prepared(xyz, zone, model, intrinsics=K, params=FitParams(slide=False))
     assert (len(old), _digest(old)) == ELEVENTH_RODS
-    new = fit_prepared(xyz, zone, model, intrinsics=K)
+    default = fit_prepared(xyz, zone, model, intrinsics=K)
+    assert (len(default), _digest(default)) == ELEVENTH_RODS  # off by default (docs/fits.md, "Twelfth round")
+    new = fit_prepared(xyz, zone, model, intrinsics=K, params=SLIDE)
     assert _digest(new) != ELEVENTH_RODS[1]
     assert all(f.err_mm <= FitParams().max_err_mm and f.support >= 0.5 for f in new)
 
@@ -60,7 +63,7 @@ def test_the_slide_leaves_a_nuts_fits_alone():
     """A nut is not elongated: no slide, the same fits to the bit with it on or off."""
     xyz, zone, model, K = hand_made_nut_frame()
     assert F._slide_axis(model) is None  # type: ignore[arg-type]
-    on = fit_prepared(xyz, zone, model, intrinsics=K)
+    on = fit_prepared(xyz, zone, model, intrinsics=K, params=SLIDE)
     off = fit_prepared(xyz, zone, model, intrinsics=K, params=FitParams(slide=False))
     assert (len(on), _digest(on)) == (len(off), _digest(off))
 
@@ -89,11 +92,11 @@ def test_a_rod_fit_slid_along_its_axis_comes_back_to_the_rod(shift_mm: float) ->
     region = flat[cols <= np.percentile(cols, 33)]
     pts = frame.xyz.reshape(-1, 3)[region]
     opts = dict(gate_mm=4.0, k=3.0, floor_mm=0.1, edge_gate_mm=1.0)
-    T, err = F._slide(frame, region, pts, np.zeros((0, 3)), model, FitParams(), opts, T0, 0.05)  # type: ignore[arg-type]
+    T, err = F._slide(frame, region, pts, np.zeros((0, 3)), model, SLIDE, opts, T0, 0.05)  # type: ignore[arg-type]
     assert pose_error(T0, ROD, model)[0] > abs(shift_mm) - 0.5  # type: ignore[arg-type]
     assert pose_error(T, ROD, model)[0] < 0.5 and np.isfinite(err)  # type: ignore[arg-type]
     # at its place already: unchanged
-    T1, e1 = F._slide(frame, region, pts, np.zeros((0, 3)), model, FitParams(), opts, T, err)  # type: ignore[arg-type]
+    T1, e1 = F._slide(frame, region, pts, np.zeros((0, 3)), model, SLIDE, opts, T, err)  # type: ignore[arg-type]
     assert T1 is T and e1 == err
 
 
@@ -105,7 +108,7 @@ def test_two_crossing_rods_are_each_fitted_in_place():
     xyz, ids = render([(v, t, ROD), (v, t, below)], floor_z_mm=460)
     xyz = xyz + np.random.default_rng(5).normal(0, 0.03, xyz.shape)
     zone = ids > 0
-    fits = fit_prepared(xyz, zone, model, intrinsics=K_TEST)
+    fits = fit_prepared(xyz, zone, model, intrinsics=K_TEST, params=SLIDE)
     for T in (ROD, below):
         assert min(pose_error(f.pose, T, model)[0] for f in fits) < 1.0
 
@@ -119,11 +122,11 @@ def test_degenerate_frames_give_no_fits_with_the_slide():
     one = np.zeros_like(zone)
     one[120, 160] = True
     for x, z in ((xyz, np.zeros_like(zone)), (nan, zone), (xyz, one), (xyz[:0], zone[:0]), (xyz[:1, :1], zone[:1, :1])):
-        assert fit_prepared(x, z, model, intrinsics=K_TEST) == []
+        assert fit_prepared(x, z, model, intrinsics=K_TEST, params=SLIDE) == []
     # half the rod NaN (a dropout): still one fit, near the truth
     holed = xyz.copy()
     holed[:, : int(np.median(np.nonzero(zone)[1]))] = np.nan
-    fits = fit_prepared(holed, zone, model, intrinsics=K_TEST)
+    fits = fit_prepared(holed, zone, model, intrinsics=K_TEST, params=SLIDE)
     assert len(fits) == 1 and pose_error(fits[0].pose, ROD, model)[1] < 1.0
 
 
