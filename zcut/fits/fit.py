@@ -45,7 +45,7 @@ from zcut.errors import InputShapeError, describe_array
 from zcut.fit_vetting import pose_overlaps
 
 from .icp import EDGE_WEAK, icp, initial_poses, initial_rotations, pose_matrix, shifted_poses
-from .kernels import coarse_search, edge_distances, lower_bounds, surface_distances, window_band, window_rays
+from .kernels import axis_band, coarse_search, edge_distances, lower_bounds, surface_distances, window_band, window_rays
 from .model import PartModel, prepare_model
 from .params import FitParams
 from .segment import segment
@@ -130,15 +130,16 @@ class _Frame:
     K: Intrinsics
 
 
-def _window(frame: _Frame, T: np.ndarray, model: PartModel) -> tuple[slice, slice] | None:
+def _window(frame: _Frame, T: np.ndarray, model: PartModel, grow: float = 1.0) -> tuple[slice, slice] | None:
     fx, fy, cx, cy = frame.K
     H, W = frame.valid.shape
     c = T[:3, :3] @ model.centroid + T[:3, 3]
-    z = c[2] - model.extent_mm
+    reach = grow * model.extent_mm
+    z = c[2] - reach
     if z <= 1e-6:
         return None
-    ru = fx * model.extent_mm / z + 2
-    rv = fy * model.extent_mm / z + 2
+    ru = fx * reach / z + 2
+    rv = fy * reach / z + 2
     u, v = fx * c[0] / c[2] + cx, fy * c[1] / c[2] + cy
     c0, c1 = max(int(np.floor(u - ru)), 0), min(int(np.ceil(u + ru)) + 1, W)
     r0, r1 = max(int(np.floor(v - rv)), 0), min(int(np.ceil(v + rv)) + 1, H)
@@ -430,7 +431,81 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     err = float(np.sqrt(np.mean(d[inl_mask] ** 2))) if inl_mask.any() else np.inf
     if params.fine_points > 0 and np.isfinite(err):
         T, err = _fine(frame, flat, pts, epts, model, params, opts, T, err)
+    if params.slide and np.isfinite(err):
+        T, err = _slide(frame, flat, pts, epts, model, params, opts, T, err)
     return T, err
+
+
+#: :func:`_slide`: a part is elongated when its vertices span at least this many times as much along their
+#: principal axis as across it (a rod: 80 mm against 16)
+SLIDE_ELONGATION = 2.0
+#: ... the shifts along its axis tried, this far apart (mm); a shift is refused when the shifted model explains
+#: fewer than this share of the search's points the fit explains in place
+SLIDE_STEP_MM = 0.25
+SLIDE_KEEP = 0.8
+
+
+def _slide_axis(model: PartModel) -> tuple[np.ndarray, float, float, float] | None:
+    """(the unit principal axis u of an elongated model's vertices (model frame), their largest distance from the
+    line through the centroid along u, their smallest and largest coordinate along u from the centroid), or None
+    when the model is not elongated (:data:`SLIDE_ELONGATION`)."""
+    v = model.vertices - model.centroid
+    _, ax = np.linalg.eigh(np.cov(v.T))
+    span = np.ptp(v @ ax, axis=0)
+    if span[2] < SLIDE_ELONGATION * max(span[0], span[1]):
+        return None
+    u = ax[:, 2]
+    along = v @ u
+    return u, float(np.linalg.norm(v - np.outer(along, u), axis=1).max()), float(along.min()), float(along.max())
+
+
+def _slide(frame: _Frame, flat: np.ndarray, pts: np.ndarray, epts: np.ndarray, model: PartModel, params: FitParams,
+           opts: dict[str, float], T: np.ndarray, err: float) -> tuple[np.ndarray, float]:
+    """An elongated part's pose slid along its axis to where it explains the most zone pixels
+    (``FitParams.slide``, docs/fits.md "Twelfth round"), then refined (:func:`_fine`).
+
+    Along a rod's axis its side leaves the pose free: the ICP keeps the guess's axial place (the centroid of its
+    region, often a piece of the rod a crossing one cuts off), and the ends' edges lie beyond the edge gate. The
+    zone's pixels within twice the model's extent of its centre (the window grown twice) and within the model's
+    radius (+ k × Err) of its posed axis are moved along the axis to the model's centre; those then within
+    k × max(Err, floor) of it lie on the part's side, extended. The shift (every :data:`SLIDE_STEP_MM` up to the
+    model's extent) whose axial span holds the most of them wins (ties: the smallest); when it holds at least
+    ``min_region_px`` more than the fit's own place and still explains :data:`SLIDE_KEEP` of the search's points
+    ``pts`` the fit explains in place, the pose is shifted, refined from there and kept when its
+    Err, measured on the search's points ``pts``, is at most ``FINE_KEEP`` × ``err``. The counts take the side as
+    the same all along (a prism or a cylinder); the ends' faces are not counted."""
+    axis = _slide_axis(model)
+    win = None if axis is None else _window(frame, T, model, grow=2.0)
+    if axis is None or win is None:
+        return T, err
+    u, radial, lo, hi = axis
+    tol = params.k * max(err, params.err_floor_mm)
+    # the model's frame, from its centre (one kernel walk of the grown window)
+    q = axis_band(frame.xyz.reshape(-1, 3), frame.zone.reshape(-1), win[0].start, win[0].stop, win[1].start,
+                  win[1].stop, frame.valid.shape[1], np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
+                  np.ascontiguousarray(model.centroid, np.float64), np.ascontiguousarray(u), radial + tol,
+                  2.0 * model.extent_mm)
+    if len(q) < params.min_region_px:
+        return T, err
+    along = q @ u
+    side = np.ascontiguousarray(q - np.outer(along, u) + model.centroid)
+    on = np.sort(along[_surface_distances(model, side, np.eye(4)) <= tol])
+    n = int(model.extent_mm // SLIDE_STEP_MM)
+    shifts = np.arange(-n, n + 1) * SLIDE_STEP_MM
+    counts = np.searchsorted(on, shifts + hi + tol, "right") - np.searchsorted(on, shifts + lo - tol, "left")
+    i = int(np.lexsort((np.abs(shifts), -counts))[0])
+    if i == n or counts[i] < counts[n] + params.min_region_px:
+        return T, err
+    Ts = T.copy()
+    Ts[:3, 3] = T[:3, 3] + T[:3, :3] @ (shifts[i] * u)
+    d = _near_distances(model, pts, Ts, tol)
+    inl = d <= tol
+    if int(inl.sum()) < SLIDE_KEEP * int((_near_distances(model, pts, T, tol) <= tol).sum()) or not inl.any():
+        return T, err  # a slide onto another part on the axis's line, off the region it fits
+    err_s = float(np.sqrt(np.mean(d[inl] ** 2)))
+    if params.fine_points > 0:
+        Ts, err_s = _fine(frame, flat, pts, epts, model, params, opts, Ts, err_s)
+    return (Ts, err_s) if err_s <= FINE_KEEP * err else (T, err)
 
 
 def _loses_early(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams, T: np.ndarray,

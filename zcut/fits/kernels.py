@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["ModelIndex", "build_index", "coarse_search", "edge_distances", "farthest_points", "guess_score", "icp_kernel", "lower_bounds", "surface_distances", "window_rays"]
+__all__ = ["ModelIndex", "axis_band", "build_index", "coarse_search", "edge_distances", "farthest_points", "guess_score", "icp_kernel", "lower_bounds", "surface_distances", "window_rays"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -242,6 +242,35 @@ def window_band(xyz: np.ndarray, zone: np.ndarray, region: np.ndarray, r0: int, 
             if r0 <= f // W < r1 and c0 <= f % W < c1:
                 continue
             m = _band_point(xyz, f, R, t, tol, origin, inv_h, slack, grid, a, b, c, n, out, m)
+    return out[:m]
+
+
+@numba.njit(cache=True, nogil=True)
+def axis_band(xyz: np.ndarray, zone: np.ndarray, r0: int, r1: int, c0: int, c1: int, W: int, R: np.ndarray,
+              t: np.ndarray, centre: np.ndarray, u: np.ndarray, radial: float, reach: float) -> np.ndarray:
+    """(m, 3) the zone's pixels of the window (rows ``r0:r1``, columns ``c0:c1`` of an image ``W`` wide) in the
+    model's frame of the pose (R, t), less ``centre``, that lie within ``radial`` of the line through ``centre``
+    along the unit ``u`` and within ``reach`` of ``centre`` along it, in ascending flat order (``zcut.fits.fit._slide``).
+    ``xyz`` (H·W, 3), ``zone`` (H·W,) bool."""
+    out = np.empty((max(r1 - r0, 0) * max(c1 - c0, 0), 3))
+    m = 0
+    r2 = radial * radial
+    for r in range(r0, r1):
+        for cc in range(c0, c1):
+            f = r * W + cc
+            if not zone[f]:
+                continue
+            px, py, pz = xyz[f, 0] - t[0], xyz[f, 1] - t[1], xyz[f, 2] - t[2]
+            qx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz - centre[0]
+            qy = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz - centre[1]
+            qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz - centre[2]
+            a = qx * u[0] + qy * u[1] + qz * u[2]
+            if abs(a) > reach:
+                continue
+            mx, my, mz = qx - a * u[0], qy - a * u[1], qz - a * u[2]
+            if mx * mx + my * my + mz * mz <= r2:
+                out[m, 0], out[m, 1], out[m, 2] = qx, qy, qz
+                m += 1
     return out[:m]
 
 

@@ -96,6 +96,10 @@ class FitParams:
     fine_robust : float
         The last refinement weighs its points by Tukey's biweight of their distance at this many times
         max(Err, ``err_floor_mm``) (none beyond it); 0: unweighted (the tenth round's).
+    slide : bool
+        True: an elongated part's pose (a rod: its vertices span twice as much along their principal
+        axis as across it) is slid along its posed axis to where it explains the most zone pixels and refined there
+        (docs/fits.md, "Twelfth round"); other parts are not touched. False (the default): the eleventh round's fits.
     """
 
     jump_mm: float = 1.5
@@ -122,6 +126,7 @@ class FitParams:
     early_share: float = 0.0
     fine_window: bool = True
     fine_robust: float = 3.0
+    slide: bool = False
 
     def __post_init__(self) -> None:
         _number(self, "jump_mm", gt=0)
@@ -148,3 +153,4 @@ class FitParams:
         _number(self, "early_share", ge=0)
         _boolean(self, "fine_window")
         _number(self, "fine_robust", ge=0)
+        _boolean(self, "slide")
