@@ -20,13 +20,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from threadpoolctl import threadpool_limits
+os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
 
-from replay.pipeline import stages
-from replay.pipeline.bin_model import bin_model_for
-from replay.pipeline.session import ReplaySession
-from zcut import removal as rm
+import numpy as np  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
+
+from replay.pipeline import stages  # noqa: E402
+from replay.pipeline.bin_model import bin_model_for  # noqa: E402
+from replay.pipeline.session import ReplaySession  # noqa: E402
+from zcut import removal as rm  # noqa: E402
 
 
 def old_pixel_angle(old: Path) -> Any:
