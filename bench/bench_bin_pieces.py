@@ -175,7 +175,7 @@ def main() -> None:
                            f"{new.iterations} / {o3d_its}; masks {'the same' if same[0] else 'DIFFER'}, height image "
                            f"{'the same' if same[1] else 'differs'}, tolerance {'the same' if same[2] else 'differs'}; "
                            f"CPU {1000 * times[runs[0][0]][-1]:.1f} / {1000 * times[runs[1][0]][-1]:.1f} ms")
-            timed("removal: frame_tolerance", rm.frame_tolerance, a, loc.ring, index, T)
+            tol = timed("removal: frame_tolerance", rm.frame_tolerance, a, loc.ring, index, T)
             flat = rm._ring_sample(a, loc.ring)
             nb = rm._ring_neighbours(a.shape[:2], loc.ring, flat, 4)
             mark = np.zeros(a.shape[0] * a.shape[1], bool)
@@ -193,8 +193,10 @@ def main() -> None:
             if index.straggler is not None:
                 gs = index.straggler
                 straggler_m = p.straggler_m + delta_m
+                # the bound's (σ_bin², the pixel's angle) as the removal passes them (none when off or not known)
                 grid = (*rm._grid_args(gs), gs.ijk, gs.busy, gs.box, float(straggler_m),
-                        float(max(r_bin + p.straggler_m, straggler_m)), planes)
+                        float(max(r_bin + p.straggler_m, straggler_m)), planes,
+                        *(rm.straggler_bound_args(p, tol) if p.robust else rm._NO_BOUND))
                 n = code.size
                 buf = np.zeros(n + (-n % 8), np.uint8)  # as zcut.removal._straggler_codes pads it
                 timed("removal: straggler first pass", rm._straggler_first, a, code, int(p.straggler_neighbours),

@@ -101,7 +101,7 @@ POSES = ("registered", "true")
 #: of the same generator and size (``zcut synth --empty``, seed: the generator's base seed + EMPTY_SEED_OFFSET)
 MODEL = "exact"
 #: ``--stragglers``: the bound's variant (``RemovalParams.straggler_bound``, off by default) the rows measure
-BOUND = "local"
+BOUND = "global"
 EMPTY_SCANS = 2
 EMPTY_SEED_OFFSET = 10
 
@@ -1042,8 +1042,9 @@ def main() -> int:
     ap.add_argument("--model", choices=("exact", "scans"), default=MODEL,
                     help=f"the bin model: the log's exact one (default) or one built from {EMPTY_SCANS} empty scans "
                          f"(seed: the generator's base seed + {EMPTY_SEED_OFFSET})")
-    ap.add_argument("--bound", choices=("local", "global"), default=BOUND,
-                    help="--stragglers: the straggler bound's variant measured (RemovalParams.straggler_bound)")
+    ap.add_argument("--bound", choices=("global",), default=BOUND,
+                    help="--stragglers: the straggler bound's variant measured (RemovalParams.straggler_bound; "
+                         "\"local\" was removed, issue 31 item 2)")
     ap.add_argument("--truth", choices=sorted(TRUTHS), default=TRUTH,
                     help="the truth the recalls count: the paper's (default, /ground_truth/off_surface) or the "
                          "sensor's (/ground_truth/outliers)")

@@ -31,8 +31,7 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
   farther than 3 of the bin's Err along the normal (the paper's §2: a point farther than 3 Err from the fitted
   model is an outlier), Err = max(0.05 mm, √(σ_bin² + c²/2)) with σ_bin the residual scale of the pixels τ is
   measured on (:func:`bin_sigma_m`, :attr:`Tolerance.sigma_mm`) and c the pixel's footprint (z / f,
-  :func:`pixel_angle`; ``"local"``: σ_bin of the measured pixels around the straggler, :func:`local_sigma_mm`):
-  :func:`straggler_bound_m`. Without a measured τ (fixed, no ring) the bound is not known and
+  :func:`pixel_angle`): :func:`straggler_bound_m`. Without a measured τ (fixed, no ring) the bound is not known and
   not applied. On hand-made walls piles every near-wall true outlier the removal took was a straggler 3.1-4.2
   bin Errs from the model (docs/bin_robustness.md).
   With a right pose τ stays near 1 mm (the sensor's noise); a pose 2 mm off raises it to about
@@ -67,14 +66,7 @@ STRAGGLER_ERRS = 3.0
 #: is ``explained``'s, ``ExplainedParams.err_floor_mm``): :func:`straggler_bound_m`
 STRAGGLER_ERR_FLOOR_MM = 0.05
 _STRAGGLER_ERR_FLOOR_M = STRAGGLER_ERR_FLOOR_MM / 1000.0
-#: ``RemovalParams.straggler_bound == "local"``: σ_bin of a pixel's Err is that of the measured pixels in its tile of
-#: this many pixels square and the eight around it (a window of 3 × 32 px) ...
-STRAGGLER_TILE_PX = 32
-#: ... when they are at least this many, and never below the frame's (:func:`local_sigma_mm`)
-STRAGGLER_TILE_MIN = 16
-_NO_BOUND = np.full((1, 1), -1.0)  # the kernels' σ_bin² tiles when the bound is off
-_NO_BOUND.setflags(write=False)
-_ONE_TILE = 1 << 30  # the kernels' tile size when one σ_bin holds for the frame
+_NO_BOUND = (-1.0, 0.0)  # the kernels' (σ_bin², the pixel's angle) when the bound is off: σ_bin² < 0
 
 
 def finite_xyz(xyz: XYZ) -> Mask:
@@ -432,17 +424,16 @@ def _straggler_start(valid, table, binp, easy, fp, neighbours, lab, open_, cand)
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _test_pixels(a, flat, R, t, origin, cell, dims, start, pts, nrm, off, delta, radius,  # type: ignore[no-untyped-def]  # numba kernel
-                 planes, s2g, tile, rad):  # pragma: no cover - numba
+                 planes, s2, rad):  # pragma: no cover - numba
     """(M,) bool: the pixels ``flat`` (row-major indices) are within ``delta`` of the model, ``delta`` bounded at
-    each pixel by :func:`_straggler_delta` with the σ_bin² of its tile (``s2g[r // tile, c // tile]``; < 0: not
-    bounded)."""
+    each pixel by :func:`_straggler_delta` with the frame's σ_bin² ``s2`` (< 0: not bounded)."""
     W = a.shape[1]
     ok = np.zeros(flat.shape[0], np.bool_)
     for i in numba.prange(flat.shape[0]):
         r = flat[i] // W
         c = flat[i] - r * W
         px, py, pz = _to_bin(a, r, c, R, t)
-        d = _straggler_delta(a[r, c, 2], delta, s2g[r // tile, c // tile], rad)
+        d = _straggler_delta(a[r, c, 2], delta, s2, rad)
         ok[i] = _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, d, radius, planes)
     return ok
 
@@ -645,7 +636,7 @@ def _labelled_around(code, r, c, H, W):  # type: ignore[no-untyped-def]  # numba
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,  # type: ignore[no-untyped-def]  # numba kernel
-                     planes, s2g, tile, rad, first):  # pragma: no cover - numba
+                     planes, s2, rad, first):  # pragma: no cover - numba
     """The straggler test's first pass in one pass over the frame: ``first`` (uint8) is 1 at
     :func:`_straggler_start`'s candidates (open pixels with >= ``neighbours`` labelled ones) that fail the test,
     2 at those that pass, 0 elsewhere. ``code`` is only read: every candidate is judged on the labels before
@@ -653,7 +644,7 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
     of three column sums of the row and its two neighbours (an open pixel is not labelled itself), each of the
     row's three loops free of branches but the last, over its few candidates: so they vectorize (a branch per
     pixel on its class, or per neighbour, cost 6.3 of the pass's 9.4 CPU ms at 1920 x 1200; now 0.6). ``delta`` is
-    bounded at each pixel by :func:`_straggler_delta` (the tile's ``s2g``, ``rad``)."""
+    bounded at each pixel by :func:`_straggler_delta` (``s2``, ``rad``)."""
     H, W = code.shape
     for r in numba.prange(H):
         col = np.zeros(W + 2, np.uint8)  # col[c + 1]: labelled pixels of column c in rows r-1..r+1
@@ -668,7 +659,7 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
             if first[r, c]:
                 px, py, pz = _to_bin(a, r, c, R, t)
                 j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,
-                               _straggler_delta(a[r, c, 2], delta, s2g[r // tile, c // tile], rad), radius, planes, hint)
+                               _straggler_delta(a[r, c, 2], delta, s2, rad), radius, planes, hint)
                 if j >= 0:
                     first[r, c] = 2
                     hint = j
@@ -676,7 +667,7 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
 
 @numba.njit(cache=True, nogil=True)
 def _straggler_rest(a, code, words, neighbours, passes, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,  # type: ignore[no-untyped-def]  # numba kernel
-                    delta, radius, planes, s2g, tile, rad):  # pragma: no cover - numba
+                    delta, radius, planes, s2, rad):  # pragma: no cover - numba
     """The first pass's outcome (``first``) into ``code``, then the passes after it (up to ``passes`` in
     all), each testing the open neighbours of the pixels the previous one labelled (serial: a few
     pixels each; a parallel launch would cost more than them). ``words``: ``first`` as 64-bit words (eight
@@ -714,7 +705,7 @@ def _straggler_rest(a, code, words, neighbours, passes, R, t, origin, cell, dims
             c = q - r * W
             px, py, pz = _to_bin(a, r, c, R, t)
             j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,
-                           _straggler_delta(a[r, c, 2], delta, s2g[r // tile, c // tile], rad), radius, planes, hint)
+                           _straggler_delta(a[r, c, 2], delta, s2, rad), radius, planes, hint)
             if j >= 0:
                 ok[i] = True
                 hint = j
@@ -823,7 +814,7 @@ class _ZoneTop:
 
 def _straggler_codes(a: np.ndarray, code: np.ndarray, R: np.ndarray, t: np.ndarray, index: _ModelIndex, *,
                      straggler_m: float, radius_m: float, planes: bool, neighbours: int,
-                     bound: tuple[np.ndarray, int, float]) -> None:
+                     bound: tuple[float, float]) -> None:
     """:func:`_straggler_passes` on the class codes (in place): the same passes, each testing only the open
     neighbours of the pixels the previous one labelled."""
     grid = (*_grid_args(index), index.ijk, index.busy, index.box, float(straggler_m), float(radius_m), planes,
@@ -960,7 +951,7 @@ def _grid_args(index: _ModelIndex) -> tuple[np.ndarray, float, np.ndarray, np.nd
 
 def _straggler_passes(a: np.ndarray, binp: Mask, lab: np.ndarray, open_: Mask, R: np.ndarray,
                       t: np.ndarray, index: _ModelIndex, *, straggler_m: float, radius_m: float,
-                      planes: bool, neighbours: int, first: Mask, bound: tuple[np.ndarray, int, float]) -> None:
+                      planes: bool, neighbours: int, first: Mask, bound: tuple[float, float]) -> None:
     """Grow ``binp`` (in place) along the noisy bin surface, see ``straggler_m``.
 
     ``lab`` (uint8: table, bin or invalid) and ``open_`` (allowed, not bin, not yet tried) are
@@ -1055,9 +1046,6 @@ class Tolerance:
         The angle one pixel subtends (rad, 1 / f, f the focal length in pixels): a pixel's footprint at depth z is
         ``z * pixel_rad`` (:func:`pixel_angle`, from the measured pixels and their neighbours); NaN when
         :attr:`sigma_mm` is (not measured) or no pair of neighbours gives it.
-    sigma_tiles_mm : (ceil(H / 32), ceil(W / 32)) float ndarray or None
-        σ_bin by tile (:func:`local_sigma_mm`), measured only when ``RemovalParams.straggler_bound`` is
-        ``"local"`` (None otherwise).
     """
 
     tolerance_mm: float
@@ -1069,7 +1057,6 @@ class Tolerance:
     n_off_field: int = 0
     sigma_mm: float = float("nan")
     pixel_rad: float = float("nan")
-    sigma_tiles_mm: np.ndarray | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True, slots=True)
@@ -1906,10 +1893,8 @@ def frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.nda
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
     sigma_m = bin_sigma_m(use)
     rad = pixel_angle(a, flat) if np.isfinite(sigma_m) else float("nan")
-    tiles = local_sigma_mm(a.shape[:2], flat[keep] if surface else flat, use, sigma_m) \
-        if p.straggler_bound == "local" else None  # 17 CPU ms at 1920 x 1200: only when the bound reads them
     return Tolerance(float(tau), q, len(res), n_coh, float(reach), n_off_field=int(np.count_nonzero(off)),
-                     sigma_mm=1000.0 * sigma_m, pixel_rad=rad, sigma_tiles_mm=tiles)
+                     sigma_mm=1000.0 * sigma_m, pixel_rad=rad)
 
 
 def bin_sigma_m(residuals_mm: np.ndarray) -> float:
@@ -1921,46 +1906,6 @@ def bin_sigma_m(residuals_mm: np.ndarray) -> float:
     return 1.4826 * float(np.median(residuals_mm)) / 1000.0 if len(residuals_mm) else float("nan")
 
 
-def local_sigma_mm(shape: tuple[int, ...], pixels: np.ndarray, residuals_mm: np.ndarray, sigma_m: float) -> np.ndarray:
-    """σ_bin by tile (mm; :data:`STRAGGLER_TILE_PX` square tiles over an image of ``shape``): 1.4826 × the median
-    of the residuals (mm) of the measured ``pixels`` (flat indices) in the tile and the eight around it, where
-    they are at least :data:`STRAGGLER_TILE_MIN`, never below the frame's ``sigma_m`` (m; :func:`bin_sigma_m`);
-    the frame's elsewhere. Where the model lies off the bin (a model a little small, a scan's gap) the bin's own
-    pixels there show it, and a straggler's bound there widens to what they show (the median of an even count:
-    the mean of the two middle ones, as ``np.median``)."""
-    h, w = int(shape[0]), int(shape[1])
-    th, tw = -(-h // STRAGGLER_TILE_PX), -(-w // STRAGGLER_TILE_PX)
-    out = np.full(th * tw, 1000.0 * sigma_m)
-    if len(pixels) == 0 or np.isnan(sigma_m):
-        return out.reshape(th, tw)
-    order = np.argsort(np.asarray(residuals_mm, np.float64), kind="stable")
-    res = np.asarray(residuals_mm, np.float64)[order]
-    r, c = np.divmod(np.asarray(pixels, np.int64)[order], w)
-    ty = (r // STRAGGLER_TILE_PX)[:, None] + np.repeat(np.arange(-1, 2), 3)[None, :]  # (N, 9): the tiles around
-    tx = (c // STRAGGLER_TILE_PX)[:, None] + np.tile(np.arange(-1, 2), 3)[None, :]
-    ok = ((ty >= 0) & (ty < th) & (tx >= 0) & (tx < tw)).reshape(-1)
-    key = (ty * tw + tx).reshape(-1)[ok]
-    val = np.repeat(res, 9)[ok]  # in each tile's run the residuals stay sorted (a stable sort of the keys)
-    at = np.argsort(key, kind="stable")
-    key, val = key[at], val[at]
-    n = np.bincount(key, minlength=th * tw)
-    start = np.cumsum(n) - n
-    have = n >= STRAGGLER_TILE_MIN
-    med = 0.5 * (val[start[have] + (n[have] - 1) // 2] + val[start[have] + n[have] // 2])
-    out[have] = np.maximum(out[have], 1.4826 * med)
-    return out.reshape(th, tw)
-
-
-def pixel_sigma_m(tol: Tolerance, shape: tuple[int, ...], *, local: bool = True) -> np.ndarray:
-    """σ_bin (m) at every pixel of an image of ``shape`` as the straggler bound reads it: the tile's
-    (:attr:`Tolerance.sigma_tiles_mm`) or, ``local`` False or no tiles, the frame's (:attr:`Tolerance.sigma_mm`)."""
-    h, w = int(shape[0]), int(shape[1])
-    if not local or tol.sigma_tiles_mm is None:
-        return np.full((h, w), tol.sigma_mm / 1000.0)
-    sm = tol.sigma_tiles_mm / 1000.0
-    return sm[np.arange(h)[:, None] // STRAGGLER_TILE_PX, np.arange(w)[None, :] // STRAGGLER_TILE_PX]
-
-
 def pixel_angle(a: np.ndarray, flat: np.ndarray) -> float:
     """The angle one pixel subtends (rad, 1 / f), read off the organized cloud ``a`` at the pixels ``flat``: the
     median of ``|Δ(x / z)|`` to each pixel's right neighbour and ``|Δ(y / z)|`` to the one below (both finite, z
@@ -1968,6 +1913,16 @@ def pixel_angle(a: np.ndarray, flat: np.ndarray) -> float:
     A pixel's footprint at depth z (the Err's c, docs/bin_robustness.md) is ``z * pixel_angle``."""
     if len(flat) == 0:
         return float("nan")
+    if a.ndim == 3 and a.shape[2] == 3 and a.dtype in (np.float32, np.float64):
+        step = _pixel_steps(a, np.asarray(flat, np.int64))  # the numpy version's 1.1 CPU ms of 1.7 at 640 x 480
+    else:  # the arrays the kernel does not take
+        step = _pixel_steps_numpy(a, flat)
+    return float(np.median(step)) if step.size else float("nan")
+
+
+def _pixel_steps_numpy(a: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """:func:`pixel_angle`'s steps (the right neighbours' ``|Δ(x / z)|``, then the lower ones' ``|Δ(y / z)|``,
+    finite and not 0) in numpy: :func:`_pixel_steps`'s reference."""
     h, w = a.shape[:2]
     f = a.reshape(-1, 3)
     rows, cols = np.divmod(np.asarray(flat, np.int64), w)
@@ -1977,20 +1932,56 @@ def pixel_angle(a: np.ndarray, flat: np.ndarray) -> float:
         with np.errstate(invalid="ignore", divide="ignore"):
             d = np.abs(q[:, axis] / q[:, 2] - p[:, axis] / p[:, 2])
         steps.append(d[np.isfinite(d) & (d > 0)])
-    step = np.concatenate(steps)
-    return float(np.median(step)) if step.size else float("nan")
+    return np.concatenate(steps)
 
 
-def straggler_bound_m(z_m: np.ndarray, sigma_m: float | np.ndarray, pixel_rad: float,
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _pixel_steps(a, flat):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """:func:`_pixel_steps_numpy` in one kernel: the same float64 operations on the same pairs, in the same
+    order (a division by 0 gives inf or NaN, as numpy's; those steps are left out)."""
+    H, W = a.shape[0], a.shape[1]
+    m = flat.shape[0]
+    out = np.empty(2 * m)
+    n = 0
+    for axis in range(2):
+        for i in range(m):
+            r = flat[i] // W
+            c = flat[i] - r * W
+            if axis == 0:
+                if c + 1 >= W:
+                    continue
+                r2, c2 = r, c + 1
+            else:
+                if r + 1 >= H:
+                    continue
+                r2, c2 = r + 1, c
+            d = abs(np.float64(a[r2, c2, axis]) / np.float64(a[r2, c2, 2])
+                    - np.float64(a[r, c, axis]) / np.float64(a[r, c, 2]))
+            if np.isfinite(d) and d > 0:
+                out[n] = d
+                n += 1
+    return out[:n]
+
+
+def straggler_bound_args(p: RemovalParams, tol: Tolerance) -> tuple[float, float]:
+    """The straggler kernels' bound arguments ``(σ_bin² m², the pixel's angle rad)`` for the robust removal of a frame
+    with tolerance ``tol``: :data:`_NO_BOUND` (σ_bin² < 0, the test's distance as it is) when
+    ``p.straggler_bound`` is ``"off"`` or σ_bin or the angle is not known (:func:`straggler_bound_m`)."""
+    sigma_m = tol.sigma_mm / 1000.0
+    if p.straggler_bound == "off" or not (np.isfinite(sigma_m) and np.isfinite(tol.pixel_rad)):
+        return _NO_BOUND
+    return (sigma_m * sigma_m, float(tol.pixel_rad))
+
+
+def straggler_bound_m(z_m: np.ndarray, sigma_m: float, pixel_rad: float,
                       straggler_m: float) -> np.ndarray:
     """The straggler test's distance bound (m) at pixels of depth ``z_m`` (camera z, m):
     ``min(straggler_m, STRAGGLER_ERRS × max(STRAGGLER_ERR_FLOOR_MM, sqrt(σ_bin² + c² / 2)))``, c = ``|z| ×
     pixel_rad`` the pixel's footprint, σ_bin = ``sigma_m`` (:attr:`Tolerance.sigma_mm`); ``straggler_m`` (τ +
     ``straggler_mm`` in the robust mode) where σ_bin or the pixel's angle is unknown (NaN). The kernels compute the
-    same numbers, in the same order (:func:`_straggler_delta`); ``sigma_m`` one for all or one per pixel
-    (:func:`pixel_sigma_m`)."""
+    same numbers, in the same order (:func:`_straggler_delta`)."""
     z = np.abs(np.asarray(z_m, np.float64))
-    if np.isnan(sigma_m).any() or not np.isfinite(pixel_rad):
+    if np.isnan(sigma_m) or not np.isfinite(pixel_rad):
         return np.full(z.shape, float(straggler_m))
     c = z * pixel_rad
     err = np.maximum(_STRAGGLER_ERR_FLOOR_M, np.sqrt(sigma_m * sigma_m + 0.5 * c * c))
@@ -2143,11 +2134,8 @@ def _frame_tolerance(xyz: XYZ, ring: Mask, index: RemovalIndex, T: np.ndarray) -
         reach = min(q_near + p.residual_margin_mm, p.max_tolerance_mm) if np.isfinite(q_near) else p.max_tolerance_mm
     sigma_m = bin_sigma_m(use)
     rad = pixel_angle(a, flat) if np.isfinite(sigma_m) else float("nan")
-    tiles = local_sigma_mm(a.shape[:2], flat[keep] if use_coherent else flat, use, sigma_m) \
-        if p.straggler_bound == "local" else None
     return Tolerance(float(tau), q, len(res), n_coh, float(reach), surface=surface,
-                     n_off_field=int(np.count_nonzero(off)), sigma_mm=1000.0 * sigma_m, pixel_rad=rad,
-                     sigma_tiles_mm=tiles)
+                     n_off_field=int(np.count_nonzero(off)), sigma_mm=1000.0 * sigma_m, pixel_rad=rad)
 
 
 def check_removal_args(
@@ -2248,8 +2236,8 @@ def remove_table_and_bin(
     planes = index.model.normals is not None
     residual_mm = float("nan")
     surface: _Surface | None = None
-    # the stragglers' bound at 3 Err: (σ_bin² m² by tile, the tile's size, the pixel's angle); σ² < 0: none
-    bound: tuple[np.ndarray, int, float] = (_NO_BOUND, _ONE_TILE, 0.0)
+    # the stragglers' bound at 3 Err: (σ_bin² m², the pixel's angle); σ² < 0: none
+    bound = _NO_BOUND
     if p.robust:
         if ring is not None:
             tol = frame_tolerance(a, ring, index, T, reference=reference)
@@ -2258,13 +2246,7 @@ def remove_table_and_bin(
             tol = Tolerance(max(p.tolerance_mm if p.tolerance_mm is not None else p.max_tolerance_mm, p.delta_mm),
                             float("nan"), 0)
         delta_m, residual_mm = tol.tolerance_mm / 1000.0, tol.residual_mm
-        sigma_m = tol.sigma_mm / 1000.0
-        if p.straggler_bound != "off" and np.isfinite(sigma_m) and np.isfinite(tol.pixel_rad):
-            if p.straggler_bound == "local" and tol.sigma_tiles_mm is not None:
-                sm, tile = tol.sigma_tiles_mm / 1000.0, STRAGGLER_TILE_PX
-            else:
-                sm, tile = np.full((1, 1), sigma_m), _ONE_TILE
-            bound = (np.ascontiguousarray(sm * sm), tile, float(tol.pixel_rad))
+        bound = straggler_bound_args(p, tol)
         radius_m = _radius(p, index.model.spacing_m, delta_m)
         straggler_m = p.straggler_m + delta_m if p.straggler_m > 0 else 0.0
         r_str = max(radius_m, straggler_m)

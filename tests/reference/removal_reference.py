@@ -194,13 +194,13 @@ def remove_table_and_bin_reference(
     straggler_neighbours: int = 5,
     bin_first: bool = False,
     straggler_radius_m: float | None = None,
-    straggler_err: tuple[float | np.ndarray, float] | None = None,
+    straggler_err: tuple[float, float] | None = None,
 ) -> RemovalResult:
     """The removal as it was before the fused numba kernels (:func:`zcut.removal.remove_table_and_bin`
     has the same contract and parameters); kept to prove the fast path bit for bit.
     ``straggler_radius_m``: the stragglers' search radius (default the larger of the search radius
     and ``straggler_m``; the robust mode's measured radius gives its stragglers ``straggler_mm`` more).
-    ``straggler_err``: ``(σ_bin m, one or (H, W), the pixel's angle rad)``: a straggler is bin only within
+    ``straggler_err``: ``(σ_bin m, the pixel's angle rad)``: a straggler is bin only within
     min(``straggler_m``, 3 × max(0.05 mm, √(σ_bin² + c²/2))) of the model, c = |z| × the angle the
     pixel's footprint (the robust mode's bound at 3 of the bin's Err); None: ``straggler_m``."""
     a, fp = check_removal_args(

@@ -35,7 +35,7 @@ VALUES: dict[str, dict[str, str]] = {
                      "max_iterations": "1", "min_fitness": "1.0", "max_rmse_mm": "0.0001", "ring_frac": "1.0",
                      "seed_from_first_frame": "false"},
     "removal": {"delta_mm": "10.0", "rim_offset_mm": "60.0", "search_radius_mm": "10.0", "straggler_mm": "0.0",
-                "straggler_neighbours": "8", "straggler_bound": '"local"', "mode": '"paper"', "tolerance_mm": "6.0", "residual_quantile": "50.0",
+                "straggler_neighbours": "8", "straggler_bound": '"global"', "mode": '"paper"', "tolerance_mm": "6.0", "residual_quantile": "50.0",
                 "residual_margin_mm": "4.0", "min_tolerance_mm": "5.0", "max_tolerance_mm": "1.0",
                 "check_threshold_px": "1000000.0", "check_min_ring_px": "1000000", "check_min_rim_in_view": "1.0"},
     "radius": {"radius_mm": "6.0", "min_points": "2"},

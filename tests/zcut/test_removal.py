@@ -142,7 +142,6 @@ def _ring(xyz):
     {"residual_quantile": 50.0, "residual_margin_mm": 0.0, "min_tolerance_mm": 0.0},
     {"max_tolerance_mm": 1.5, "straggler_neighbours": 5},
     {"search_radius_mm": 6.0, "rim_offset_mm": 0.0},
-    {"straggler_bound": "local"},
     {"straggler_bound": "global"},
 ])
 @pytest.mark.parametrize("angle", [0.0, 2.0])
@@ -151,7 +150,7 @@ def test_robust_removal_equals_the_reference_with_its_tolerance(noisy, model, kw
     """The robust mode is the literal rule with δ = the frame's τ, the search radius at least the
     frame's measured reach (a model with normals, no radius given), the bin test first and the
     stragglers at τ + straggler_mm, searching straggler_mm beyond a measured radius."""
-    from zcut.removal import _radius, frame_tolerance, pixel_sigma_m
+    from zcut.removal import _radius, frame_tolerance
 
     xyz, fp = noisy
     m = model if normals else BinModel(model.points, None, model.spacing_m)
@@ -174,8 +173,7 @@ def test_robust_removal_equals_the_reference_with_its_tolerance(noisy, model, kw
     # the stragglers' bound at 3 of the bin's Err: known where τ was measured (and most of its pixels have a model
     # point within max_tolerance_mm: not so with a max of 1.5 mm on this 1 mm-noise scene)
     known = np.isfinite(tol.sigma_mm) and np.isfinite(tol.pixel_rad)
-    sigma = pixel_sigma_m(tol, xyz.shape[:2], local=p.straggler_bound == "local")  # σ_bin by tile, or the frame's
-    err = (sigma, tol.pixel_rad) if known and p.straggler_bound != "off" else None
+    err = (tol.sigma_mm / 1000.0, tol.pixel_rad) if known and p.straggler_bound != "off" else None
     assert known == (p.tolerance_mm is None and p.max_tolerance_mm > 1.5)
     with np.errstate(invalid="ignore"):
         ref = remove_table_and_bin_reference(

@@ -27,21 +27,17 @@ from zcut.params import RemovalParams
 from zcut.removal import (
     STRAGGLER_ERR_FLOOR_MM,
     STRAGGLER_ERRS,
-    STRAGGLER_TILE_MIN,
-    STRAGGLER_TILE_PX,
     _radius,
     bin_sigma_m,
     frame_tolerance,
-    local_sigma_mm,
     pixel_angle,
-    pixel_sigma_m,
     prepare_removal_index,
     remove_table_and_bin,
     straggler_bound_m,
 )
 
 H, W = 300, 480
-LOCAL = RemovalParams(straggler_bound="local")  # the bound is off by default
+BOUND = RemovalParams(straggler_bound="global")  # the bound is off by default
 KIND, SEED = "spheres", 31
 FIELDS = ("table", "easy_outliers", "bin_points", "zone", "height_mm", "xyz")
 
@@ -60,7 +56,7 @@ def scene(tmp_path_factory):
     surface = synthesize_frame(kind=KIND, seed=SEED, index=0, size=(H, W)).surface
     T = loc.registration.T_cam_bin
     model = s.prepared.model
-    rem = remove_table_and_bin(frame.xyz, loc.bin_mask.mask, index=prepare_removal_index(model, LOCAL),
+    rem = remove_table_and_bin(frame.xyz, loc.bin_mask.mask, index=prepare_removal_index(model, BOUND),
                                T_cam_bin=T, ring=loc.ring)
     wall = (surface == LABEL_WALL) & rem.bin_points
     inner = wall.copy()
@@ -100,8 +96,7 @@ def _reference(xyz, fp, model, T, p, tol, *, bounded: bool):
     d = tol.tolerance_mm / 1000.0
     radius = max(_radius(p, model.spacing_m, d), tol.reach_mm / 1000.0)
     straggler = p.straggler_m + d
-    sigma = pixel_sigma_m(tol, xyz.shape[:2], local=p.straggler_bound == "local")  # σ_bin by tile, or the frame's
-    err = (sigma, tol.pixel_rad) if bounded and p.straggler_bound != "off" else None
+    err = (tol.sigma_mm / 1000.0, tol.pixel_rad) if bounded and p.straggler_bound != "off" else None
     return remove_table_and_bin_reference(
         xyz, fp, model=model, T_cam_bin=T, delta_m=d, rim_offset_m=p.rim_offset_m, search_radius_m=radius,
         straggler_m=straggler, straggler_radius_m=max(radius + p.straggler_m, straggler),
@@ -116,16 +111,14 @@ def _assert_same(a, b):
 
 def test_stragglers_beyond_three_errs_stay_in_the_zone(scene):
     xyz, fp, ring, T, model, f, picks = scene
-    p = LOCAL
+    p = BOUND
     index = prepare_removal_index(model, p)
     tol = frame_tolerance(xyz, ring, index, T)  # the ring (rim, upper walls) holds no pick: τ as with them moved
     assert np.isfinite(tol.sigma_mm) and 0.01 < tol.sigma_mm < 0.5
     assert tol.pixel_rad == pytest.approx(1.0 / f, rel=1e-5)
     tau = tol.tolerance_mm / 1000.0
     z = xyz[picks[:, 0], picks[:, 1], 2].astype(np.float64)
-    sigma = pixel_sigma_m(tol, xyz.shape[:2])[picks[:, 0], picks[:, 1]]  # the picks' tiles: σ_bin there
-    assert (sigma >= tol.sigma_mm / 1000.0).all()
-    bound = straggler_bound_m(z, sigma, tol.pixel_rad, tau + p.straggler_m)
+    bound = straggler_bound_m(z, tol.sigma_mm / 1000.0, tol.pixel_rad, tau + p.straggler_m)
     reach = tau + p.straggler_m
     assert (bound > tau + 3e-4).all() and (bound < reach - 3e-4).all()  # the bound lies between τ and τ + 2 mm
     # half the picks moved between τ and the bound (the bin's own stragglers), half between it and τ + 2 mm
@@ -177,45 +170,12 @@ def test_the_switch(scene, which):
         assert (~taken).mean() >= 0.85
 
 
-def test_local_sigma_by_tile():
-    """σ_bin by tile: 1.4826 × the median residual of the tile and the eight around it, floored by the frame's;
-    the frame's where fewer than STRAGGLER_TILE_MIN pixels were measured."""
-    h, w, t = 100, 160, STRAGGLER_TILE_PX
-    flat = np.arange(h * w)
-    cols = flat % w
-    res = np.where(cols < 48, 1.0, 0.1)  # a band where the model is 1 mm off, 1.5 tiles wide
-    glob = bin_sigma_m(res)
-    tiles = local_sigma_mm((h, w), flat, res, glob)
-    assert tiles.shape == (-(-h // t), -(-w // t)) == (4, 5)
-    np.testing.assert_array_equal(tiles[:, 0], 1.4826 * 1.0)  # the window over columns 0-63: 48 of 64 at 1 mm
-    np.testing.assert_array_equal(tiles[:, 1], 1.4826 * 0.55)  # 0-95: half and half, the two middle ones' mean
-    np.testing.assert_array_equal(tiles[:, 2:], 1000.0 * glob)  # the band's 0.1 mm: the frame's (0.1483 mm)
-    assert 1000.0 * glob == pytest.approx(1.4826 * 0.1)
-    few = flat[(cols >= 140) & (flat // w < 3)][: STRAGGLER_TILE_MIN - 1]  # only these measured in the corner
-    tiles = local_sigma_mm((h, w), few, np.full(len(few), 5.0), 1e-4)
-    np.testing.assert_array_equal(tiles, 0.1)  # too few for a tile of their own
-    tiles = local_sigma_mm((h, w), flat[:STRAGGLER_TILE_MIN], np.full(STRAGGLER_TILE_MIN, np.inf), 1e-4)
-    assert tiles[0, 0] == tiles[1, 1] == np.inf and tiles[2, 2] == 0.1  # no model point near: no bound there
-    assert np.isnan(local_sigma_mm((h, w), flat[:0], res[:0], float("nan"))).all()
-    # the pixels' σ (m): their tiles'
-    tol = dataclasses.replace(_tol(), sigma_mm=1000.0 * glob, sigma_tiles_mm=local_sigma_mm((h, w), flat, res, glob))
-    got = pixel_sigma_m(tol, (h, w))
-    assert got[5, 10] == 1.4826 * 1.0 / 1000.0 and got[99, 40] == 1.4826 * 0.55 / 1000.0
-    np.testing.assert_array_equal(pixel_sigma_m(tol, (h, w), local=False), glob)
-
-
-def _tol():
-    from zcut.removal import Tolerance
-
-    return Tolerance(1.5, 0.5, 10)
-
-
 @pytest.mark.parametrize("case", ["half NaN", "bands", "all NaN", "one pixel"])
 def test_the_bounded_pass_equals_the_reference_on_invalid_and_degenerate_frames(scene, case):
     """Large invalid regions and degenerate frames: the fast path, its ``reference=True`` path and the literal
     reference agree (the bound is known when the ring measures a field, else not applied)."""
     xyz, fp, ring, T, model, f, picks = scene
-    p = LOCAL
+    p = BOUND
     index = prepare_removal_index(model, p)
     a = _moved(xyz, T, model, picks, np.full(len(picks), 0.003))
     if case == "half NaN":
