@@ -67,6 +67,11 @@ class InterruptState:
 
     def __init__(self) -> None:
         self.signals: list[int] = []
+        #: an Interrupted was raised for the first signal (later ones are counted, not raised)
+        self.raised = False
+        #: :func:`interrupts_deferred` blocks running, and whether a signal waits for their end
+        self.deferring = 0
+        self.pending = False
 
     @property
     def signum(self) -> int | None:
@@ -104,12 +109,15 @@ def interrupts_unwind() -> Iterator[InterruptState]:
     if threading.current_thread() is not threading.main_thread():
         yield state
         return
-    raised = [False]
-
     def handler(signum: int, frame: FrameType | None) -> None:
         state.signals.append(signum)
-        if not raised[0]:
-            raised[0] = True
+        if not state.raised and state.deferring:  # raised when the deferring block ends
+            state.pending = True
+            if len(state.signals) >= 3:
+                os._exit(128 + state.signals[0])
+            return
+        if not state.raised:
+            state.raised = True
             raise Interrupted(signum)
         if len(state.signals) >= 3:  # a clean-up that hangs: leave now (a later run removes the leftovers)
             os._exit(128 + state.signals[0])
@@ -127,11 +135,11 @@ def interrupts_unwind() -> Iterator[InterruptState]:
         # go on. Deliver the same signal again from a thread once this hook has returned, so that it
         # raises at the main thread's next ordinary line instead.
         e = unraisable.exc_value
-        if not (isinstance(e, Interrupted) and raised[0] and state.signals):
+        if not (isinstance(e, Interrupted) and state.raised and state.signals):
             previous_hook(unraisable)
             return
         in_hook[0] = True
-        raised[0] = False
+        state.raised = False
         state.signals.pop()
         threading.Thread(target=redeliver, args=(e.signum,), name="zcut-redeliver", daemon=True).start()
         in_hook[0] = False
@@ -147,6 +155,32 @@ def interrupts_unwind() -> Iterator[InterruptState]:
         sys.unraisablehook = previous_hook
         for s, h in previous.items():
             signal.signal(s, h)
+
+
+@contextmanager
+def interrupts_deferred() -> Iterator[None]:
+    """Inside :func:`interrupts_unwind`, a signal that comes while this block runs waits for its end:
+    :class:`Interrupted` is raised when the block has finished, not in its middle.
+
+    For a library object whose construction an exception must not cut in two: Rerun's
+    ``RecordingStream.__init__`` interrupted before it set its native half leaves an object whose
+    ``__del__`` prints a traceback after the one-line "interrupted". A third signal still ends the
+    process at once. Outside an :func:`interrupts_unwind` block, or outside the main thread, this does
+    nothing."""
+    state = _active[-1] if _active and threading.current_thread() is threading.main_thread() else None
+    if state is None:
+        yield
+        return
+    state.deferring += 1
+    try:
+        yield
+    finally:
+        state.deferring -= 1
+    if not state.deferring and state.pending:
+        state.pending = False
+        if not state.raised and sys.exc_info()[1] is None:
+            state.raised = True
+            raise Interrupted(state.signals[0])
 
 
 def interrupted_by(error: BaseException, state: InterruptState | None = None) -> int | None:

@@ -29,6 +29,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from replay.pipeline.rerun_arrow import class_context
+from replay.process import interrupts_deferred
 
 if TYPE_CHECKING:
     from replay.pipeline.sinks import RrdFile
@@ -80,7 +81,8 @@ class CompareRecording:
     """
 
     def __init__(self, rrd: RrdFile, *, label_a: str, label_b: str, config_markdown: str) -> None:
-        self.rec = rr.RecordingStream("zcut-compare", make_default=False, make_thread_default=False)
+        with interrupts_deferred():  # (see replay.pipeline.viz.new_recording)
+            self.rec = rr.RecordingStream("zcut-compare", make_default=False, make_thread_default=False)
         rrd.save(self.rec, compare_blueprint(label_a, label_b))
         self.rec.log("diff/config", rr.TextDocument(config_markdown, media_type=rr.MediaType.MARKDOWN), static=True)
         for p in ("a/verdict", "b/verdict"):

@@ -68,6 +68,7 @@ from replay.logs.frame import Frame
 from replay.pipeline.rerun_arrow import class_context, contexts_arrow, rgba32
 from replay.pipeline.stages import FrameResult
 from replay.pipeline.verdicts import MethodVerdict
+from replay.process import interrupts_deferred
 from zcut.bin_model import BinModel
 
 if TYPE_CHECKING:
@@ -216,9 +217,15 @@ def log_overlay_scale(rec: rr.RecordingStream, entities: Iterable[str], opts: Vi
 
 
 def new_recording(*, application_id: str = "zcut", recording_id: str | None = None) -> rr.RecordingStream:
-    """A recording stream that is nobody's global default."""
-    return rr.RecordingStream(application_id, recording_id=recording_id, make_default=False,
-                              make_thread_default=False)
+    """A recording stream that is nobody's global default.
+
+    Made with the interruptions deferred (:func:`replay.process.interrupts_deferred`): a signal inside
+    the SDK's constructor would leave a stream without its native half, whose ``__del__`` prints a
+    traceback after the one-line "interrupted"."""
+    with interrupts_deferred():
+        rec = rr.RecordingStream(application_id, recording_id=recording_id, make_default=False,
+                                 make_thread_default=False)
+    return rec
 
 
 #: The timeline the viewer opens on: the frames (on ``depth_um`` at 0 the z-cuts view is empty and a

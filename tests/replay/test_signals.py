@@ -246,3 +246,65 @@ def test_a_signal_a_library_swallowed_still_publishes_nothing(tmp_path):
         out.temp.write_bytes(b"x")
         out.commit()
     assert target.read_bytes() == b"x"
+
+
+def test_a_signal_inside_a_deferred_block_raises_when_the_block_ends():
+    """``interrupts_deferred``: the block finishes, then Interrupted is raised once; outside a command's
+    block it does nothing; an exception of the block itself is not replaced."""
+    from replay.process import interrupts_deferred, interrupts_unwind
+
+    steps = []
+    with pytest.raises(Interrupted) as caught:
+        with interrupts_unwind() as state:
+            with interrupts_deferred():
+                with interrupts_deferred():  # nested: the outer end raises
+                    signal.raise_signal(signal.SIGHUP)
+                    for _ in range(1000):  # the handler runs here and must not raise
+                        pass
+                    steps.append("inner done")
+                steps.append("outer done")
+            steps.append("after")
+    assert steps == ["inner done", "outer done"]
+    assert caught.value.signum == signal.SIGHUP and state.signals == [signal.SIGHUP]
+    assert not state.pending and state.raised
+
+    with interrupts_deferred():  # no command block: nothing
+        steps.append("outside")
+    with pytest.raises(ValueError):
+        with interrupts_unwind() as state:
+            with interrupts_deferred():
+                signal.raise_signal(signal.SIGHUP)
+                for _ in range(1000):
+                    pass
+                raise ValueError("the block's own error")
+    assert state.signals == [signal.SIGHUP] and interrupted_by(ValueError(), state) == 128 + signal.SIGHUP
+
+
+def test_a_signal_inside_rerun_s_constructor_leaves_no_traceback():
+    """CI: a SIGHUP that landed inside ``rr.RecordingStream.__init__`` (the sink is made before the log
+    opens) left a stream without its native half, whose ``__del__`` printed an AttributeError after
+    'interrupted (SIGHUP)'. The signal now waits for the constructor: the stream is whole, and nothing
+    is printed."""
+    code = (
+        "import os, signal, gc\n"
+        "import rerun as rr\n"
+        "from replay.pipeline import viz\n"
+        "from replay.process import Interrupted, interrupts_unwind\n"
+        "real = rr.RecordingStream.__init__\n"
+        "def init(self, *a, **k):\n"
+        "    os.kill(os.getpid(), signal.SIGHUP)\n"
+        "    for _ in range(1000): pass\n"
+        "    real(self, *a, **k)\n"
+        "rr.RecordingStream.__init__ = init\n"
+        "try:\n"
+        "    with interrupts_unwind() as state:\n"
+        "        viz.new_recording()\n"
+        "        print('not interrupted')\n"
+        "except Interrupted as e:\n"
+        "    print('interrupted', e.signum)\n"
+        "gc.collect()\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out
+    assert out.stdout.strip() == f"interrupted {int(signal.SIGHUP)}", out
+    assert "Exception ignored" not in out.stderr and "Traceback" not in out.stderr, out.stderr
