@@ -333,6 +333,23 @@ _REACH_SLACK = 1e-9
 
 
 @numba.njit(cache=True, nogil=True)
+def _pairs(m: int, near: np.ndarray, best: np.ndarray, src: np.ndarray,
+           dst: np.ndarray) -> tuple[int, float]:  # pragma: no cover - numba
+    """The correspondences found among the first ``m`` sources (``near[i] >= 0``) written to ``src`` / ``dst`` in source order, as Open3D
+    lists (and sums) them; returns their count and the sum of their squared distances ``best``."""
+    n = 0
+    error2 = 0.0
+    for i in range(m):
+        j = near[i]
+        if j >= 0:
+            src[n] = i
+            dst[n] = j
+            n += 1
+            error2 += best[i]
+    return n, error2
+
+
+@numba.njit(cache=True, nogil=True)
 def _correspond(pcd: np.ndarray, order: np.ndarray, origin: np.ndarray, cell: float, nx: int, ny: int, nz: int,
                 near_start: np.ndarray, near_rows: np.ndarray, near_dist: np.ndarray, gpts: np.ndarray,
                 gorder: np.ndarray, max_distance: float, best: np.ndarray, near: np.ndarray, src: np.ndarray,
@@ -388,16 +405,7 @@ def _correspond(pcd: np.ndarray, order: np.ndarray, origin: np.ndarray, cell: fl
         if bj >= 0:
             near[i] = bj
             best[i] = b
-    n = 0
-    error2 = 0.0
-    for i in range(pcd.shape[0]):  # in source order, as Open3D lists (and sums) them
-        j = near[i]
-        if j >= 0:
-            src[n] = i
-            dst[n] = j
-            n += 1
-            error2 += best[i]
-    return n, error2
+    return _pairs(pcd.shape[0], near, best, src, dst)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -470,16 +478,7 @@ def _correspond_kept(pcd: np.ndarray, order: np.ndarray, origin: np.ndarray, cel
             near[i] = bj
             best[i] = b
             gap[i] = math.sqrt(b2) - math.sqrt(b)
-    n = 0
-    error2 = 0.0
-    for i in range(pcd.shape[0]):  # in source order, as Open3D lists (and sums) them
-        j = near[i]
-        if j >= 0:
-            src[n] = i
-            dst[n] = j
-            n += 1
-            error2 += best[i]
-    return n, error2
+    return _pairs(pcd.shape[0], near, best, src, dst)
 
 
 @numba.njit(cache=True, nogil=True)

@@ -1089,6 +1089,14 @@ def _least_count(n: int, fitness: float) -> int:
     return k
 
 
+def _finite_pose(T_cam_bin: np.ndarray) -> np.ndarray:
+    """``T_cam_bin`` as a (4, 4) float64 array; a one-line error when it is not a finite one."""
+    T = np.asarray(T_cam_bin, dtype=np.float64)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise InputShapeError(f"T_cam_bin must be a finite (4, 4) array, got {describe_array(T)}")
+    return T
+
+
 def pose_fitness_at_least(model: IcpModel, target: TargetPoints, T_cam_bin: np.ndarray, *,
                           max_correspondence_m: float, fitness: float) -> bool:
     """``pose_fitness(model, target, T_cam_bin, max_correspondence_m=...) >= fitness``, exactly, counting the rim
@@ -1110,9 +1118,7 @@ def pose_fitness_at_least(model: IcpModel, target: TargetPoints, T_cam_bin: np.n
     -------
     bool
     """
-    T = np.asarray(T_cam_bin, dtype=np.float64)
-    if T.shape != (4, 4) or not np.isfinite(T).all():
-        raise InputShapeError(f"T_cam_bin must be a finite (4, 4) array, got {describe_array(T)}")
+    T = _finite_pose(T_cam_bin)
     want = float(fitness)
     rim, reach = _rim_reach(model, target, T, float(max_correspondence_m))
     pts = target.cloud.points
@@ -1313,7 +1319,5 @@ def pose_fitness(model: IcpModel, target: TargetPoints, T_cam_bin: np.ndarray, *
     -------
     float in [0, 1]
     """
-    T = np.asarray(T_cam_bin, dtype=np.float64)
-    if T.shape != (4, 4) or not np.isfinite(T).all():
-        raise InputShapeError(f"T_cam_bin must be a finite (4, 4) array, got {describe_array(T)}")
+    T = _finite_pose(T_cam_bin)
     return _rim_fitness(model, target, T, float(max_correspondence_m))[0]
