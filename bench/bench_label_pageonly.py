@@ -31,6 +31,8 @@ label's pixels that are not the paper's truth broken down by cause — instances
 instances off their fit (the fit's pose, or Err below the truth's), other fits, the bin, the table, depth
 edges — and the truth it misses (docs/labelling.md, "Third round: what the label holds beside the truth").
 The scene's true meshes are rebuilt from the log's ``zcut.synth`` record, read only to score.
+``--sigma-cap C`` (either mode) judges each fit's pixels with its residual capped at C × the frame's median
+(:data:`annotate.fits.SIGMA_CAP`; off by default: docs/labelling.md, "Seventh round").
 ``--compare BEFORE.json,AFTER.json`` prints two ``--diagnose --json`` files (two trees, the same logs) as one
 table, before → after, and the largest cause of each log's wrong pixels in the after file.
 
@@ -559,6 +561,9 @@ def main() -> int:
                     help="no browser: the rule emulated on the page's bundle of each log, its label broken down by cause")
     ap.add_argument("--large-px", type=int, default=None, metavar="N",
                     help="the rule's variant: also reject every proposal of N px or more (default: the rule as written)")
+    ap.add_argument("--sigma-cap", type=float, default=None, metavar="C",
+                    help="the page's variant: judge each fit's pixels with its residual capped at C x the frame's "
+                    "median (annotate.fits.SIGMA_CAP; default: off, every fit's own)")
     ap.add_argument("--compare", default="", metavar="BEFORE,AFTER",
                     help="two --diagnose --json files (two trees, the same logs): one table, before -> after")
     args = ap.parse_args()
@@ -570,6 +575,10 @@ def main() -> int:
         return 0
     global LARGE_PX
     LARGE_PX = args.large_px
+    if args.sigma_cap is not None:
+        import annotate.fits
+
+        annotate.fits.SIGMA_CAP = args.sigma_cap
     if args.diagnose:
         got = [r for lg in args.diagnose.split(",") if lg for r in diagnose(Path(lg))]
         if args.json is not None:
