@@ -31,6 +31,10 @@ label's pixels that are not the paper's truth broken down by cause — instances
 instances off their fit (the fit's pose, or Err below the truth's), other fits, the bin, the table, depth
 edges — and the truth it misses (docs/labelling.md, "Third round: what the label holds beside the truth").
 The scene's true meshes are rebuilt from the log's ``zcut.synth`` record, read only to score.
+``--ring-below N`` (``--diagnose`` only) also rejects the proposals of N px or more that nothing around them lies
+2 mm below (:func:`below_around`: a cue from the cloud alone, not shown on the page).
+``--sigma-cap C`` (either mode) judges each fit's pixels with its residual capped at C × the frame's median
+(:data:`annotate.fits.SIGMA_CAP`; off by default: docs/labelling.md, "Seventh round").
 ``--compare BEFORE.json,AFTER.json`` prints two ``--diagnose --json`` files (two trees, the same logs) as one
 table, before → after, and the largest cause of each log's wrong pixels in the after file.
 
@@ -65,6 +69,12 @@ REJECT = 10.0  # K rejects a fit whose Err exceeds REJECT × the frame's median 
 #: ``--large-px N``: the rule's variant that also rejects every proposal of N pixels or more (its row's "N px": a part
 #: surface the fits missed); None, the rule as written. Chosen on the tuning seed 7751 (docs/labelling.md, "Sixth round").
 LARGE_PX: int | None = None
+#: ``--ring-below N`` (``--diagnose`` only: the page does not show it): the variant that also rejects every proposal
+#: of N pixels or more that nothing around it lies below — no valid pixel beside it more than :data:`BELOW_MM`
+#: farther from the camera than its median depth (a surface patch framed by what occludes it, not one floating
+#: off what lies below it). None, the rule as written (docs/labelling.md, "Seventh round").
+RING_BELOW: int | None = None
+BELOW_MM = 2.0
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -348,6 +358,7 @@ def _emulated_person(ff, xyz_mm: np.ndarray, heights: np.ndarray, valid: np.ndar
         np.zeros((0, len(cols)))
     ids = np.asarray(arrays["proposals"], np.int64).reshape(H, W) if "proposals" in arrays else np.zeros((H, W), np.int64)
     col = {c: table[:, i].astype(np.float64) for i, c in enumerate(cols)}
+    below = below_around(ids, len(table), xyz_mm[..., 2], valid) if RING_BELOW is not None else None
     out = np.ones(len(table) + 1, bool)
     out[0] = False
     seen: set[int] = set()
@@ -360,8 +371,36 @@ def _emulated_person(ff, xyz_mm: np.ndarray, heights: np.ndarray, valid: np.ndar
         d, e = col["dist_mm"][j], col["err_mm"][j]
         if not np.isnan(d) and (not d > ff.k * e or (LARGE_PX is not None and col["n"][j] >= LARGE_PX)):
             out[j + 1] = False
+        elif below is not None and RING_BELOW is not None and col["n"][j] >= RING_BELOW and not below[j + 1]:
+            out[j + 1] = False
     return out[ids], ids, {"rejected_fits": len(rejected), "proposals": len(table),
                            "accepted": int(out[1:].sum()), "median_err": med}
+
+
+def below_around(ids: np.ndarray, n: int, z_mm: np.ndarray, valid: np.ndarray, *, drop_mm: float = BELOW_MM
+                 ) -> np.ndarray:
+    """(n + 1,) bool: proposal j (of the id image ``ids``, 0 none) has a valid 8-neighbour not its own lying more
+    than ``drop_mm`` farther from the camera (``z_mm``, the depth) than its median depth. Reads the cloud only."""
+    from scipy import ndimage
+
+    out = np.zeros(n + 1, bool)
+    if not n:
+        return out
+    z = np.where(valid, z_mm, np.nan)
+    med = np.zeros(n + 1)
+    med[1:] = ndimage.median(np.nan_to_num(z), ids, index=np.arange(1, n + 1))
+    H, W = ids.shape
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if not (dy or dx):
+                continue
+            a = ids[max(0, -dy):H - max(0, dy), max(0, -dx):W - max(0, dx)]
+            zb = z[max(0, dy):H - max(0, -dy), max(0, dx):W - max(0, -dx)]
+            b = ids[max(0, dy):H - max(0, -dy), max(0, dx):W - max(0, -dx)]
+            with np.errstate(invalid="ignore"):
+                hit = (a > 0) & (b != a) & (zb > med[a] + drop_mm)
+            out[np.unique(a[hit])] = True
+    return out
 
 
 def _true_surfaces(log: Path, frame):  # type: ignore[no-untyped-def]
@@ -559,6 +598,12 @@ def main() -> int:
                     help="no browser: the rule emulated on the page's bundle of each log, its label broken down by cause")
     ap.add_argument("--large-px", type=int, default=None, metavar="N",
                     help="the rule's variant: also reject every proposal of N px or more (default: the rule as written)")
+    ap.add_argument("--ring-below", type=int, default=None, metavar="N",
+                    help="with --diagnose: also reject every proposal of N px or more that nothing around it lies "
+                    f"{BELOW_MM:g} mm below (the cue measured in docs/labelling.md, 'Seventh round'; default: off)")
+    ap.add_argument("--sigma-cap", type=float, default=None, metavar="C",
+                    help="the page's variant: judge each fit's pixels with its residual capped at C x the frame's "
+                    "median (annotate.fits.SIGMA_CAP; default: off, every fit's own)")
     ap.add_argument("--compare", default="", metavar="BEFORE,AFTER",
                     help="two --diagnose --json files (two trees, the same logs): one table, before -> after")
     args = ap.parse_args()
@@ -568,8 +613,15 @@ def main() -> int:
             raise SystemExit(f"error: --compare takes BEFORE.json,AFTER.json, got {args.compare!r}")
         print("\n".join(compare(*(json.loads(f.read_text()) for f in files))))
         return 0
-    global LARGE_PX
+    global LARGE_PX, RING_BELOW
     LARGE_PX = args.large_px
+    RING_BELOW = args.ring_below
+    if RING_BELOW is not None and not args.diagnose:
+        raise SystemExit("error: --ring-below is a --diagnose variant (the page does not show the cue)")
+    if args.sigma_cap is not None:
+        import annotate.fits
+
+        annotate.fits.SIGMA_CAP = args.sigma_cap
     if args.diagnose:
         got = [r for lg in args.diagnose.split(",") if lg for r in diagnose(Path(lg))]
         if args.json is not None:

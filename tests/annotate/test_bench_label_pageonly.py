@@ -38,3 +38,26 @@ def test_compare_prints_before_arrow_after_and_the_largest_cause(bench):
 def test_compare_refuses_a_frame_missing_before(bench):
     with pytest.raises(SystemExit, match="c.mcap frame 0 is not in the before file"):
         bench.compare([], [_row(bench, "c.mcap", iou=0.5, causes=(1, 2, 3, 4), cpu=1.0)])
+
+
+def test_below_around_flags_a_patch_with_something_lower_beside_it(bench):
+    """--ring-below's cue: a proposal has a valid neighbour (not its own) more than 2 mm farther from the camera than
+    its median depth; invalid neighbours and its own pixels never count."""
+    import numpy as np
+
+    z = np.full((6, 8), 500.0)
+    ids = np.zeros((6, 8), np.int64)
+    ids[1:3, 1:3] = 1  # a patch level with all around it
+    ids[1:3, 5:7] = 2  # a patch with one pixel beside it 2.5 mm farther
+    z[3, 7] = 502.5
+    ids[4, 0] = 3  # a single pixel whose only pixel far below is invalid
+    valid = np.ones((6, 8), bool)
+    valid[5, 0] = False
+    z[5, 0] = 900.0
+    got = bench.below_around(ids, 3, z, valid)
+    assert got.tolist() == [False, False, True, False]
+    z[1, 1] = 497.0  # the patch's own pixels never count, whatever their depth
+    assert bench.below_around(ids, 3, z, valid).tolist() == [False, False, True, False]
+    assert bench.below_around(np.zeros((2, 2), np.int64), 0, np.zeros((2, 2)), np.ones((2, 2), bool)).tolist() == [False]
+    z[0, 0] = 502.1  # exactly beyond 2 mm beside proposal 1 (median 500)
+    assert bench.below_around(ids, 3, z, valid).tolist() == [False, True, True, False]
