@@ -148,3 +148,25 @@ def test_degenerate_frames_give_no_fits_with_the_split():
 def test_the_thirteenth_round_param_says_what_is_wrong(value: object) -> None:
     with pytest.raises(ParameterError, match="split_refused"):
         FitParams(split_refused=value)  # type: ignore[arg-type]
+
+
+#: the twelfth round's fits (846dad4, its defaults) on a real cloud: docs/real_data.md's
+#: ``table_scene_mug_stereo_textured.pcd``, rows 100-300 x columns 200-440 in mm, the whole valid crop as zone,
+#: the hand-made nut model, intrinsics estimated from the cloud
+TWELFTH_REAL = (144, "9bb38886d2093b60")
+
+
+def test_a_real_cloud_without_the_split_is_the_twelfth_rounds_and_with_it_every_fit_acceptable(real_data):  # type: ignore[no-untyped-def]
+    from replay.logs.part_model import PART_MODEL_ATTACHMENT, read_part_model_bytes
+    from replay.logs.pcd import read_pcd
+    from replay.synth.log import part_model_attachment
+
+    xyz = read_pcd(real_data / "table_scene_mug_stereo_textured.pcd").xyz.astype(np.float64)[100:300, 200:440] * 1000.0
+    zone = np.isfinite(xyz).all(axis=2)
+    pm = read_part_model_bytes(part_model_attachment("zinc_nuts", raytraced=False)[PART_MODEL_ATTACHMENT][1])
+    model = prepare_model(pm.vertices * (1000.0 if pm.unit == "m" else 1.0), pm.triangles)
+    off = fit_prepared(xyz, zone, model)
+    assert (len(off), _digest(off)) == TWELFTH_REAL
+    on = fit_prepared(xyz, zone, model, params=SPLIT)
+    assert len(on) >= len(off)
+    assert all(f.err_mm <= SPLIT.max_err_mm and f.support >= SPLIT.min_support for f in on)
