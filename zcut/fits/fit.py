@@ -864,7 +864,7 @@ def _lobes(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
 
     One instance's points lie within the model's extent of its centroid: a region whose points span more than
     ``split_refused`` × twice the extent along their principal axis (between the :data:`SPLIT_PERCENTILE`-th
-    percentiles) holds two or more parts. It is cut into k = ceil(span / (2 × extent)) lobes (at least 2): k-means
+    percentiles) holds two or more parts (at ``split_refused`` ≥ 1; below it, likely). It is cut into k = ceil(span / (2 × extent)) lobes (at least 2): k-means
     of its points seeded evenly along the axis (:data:`SPLIT_STEPS` Lloyd steps on an even subsample, every point
     then to its nearest centre), each lobe segmented again; the pieces of at least ``min_px`` pixels are returned.
     Reads only the cloud, the zone and the mesh."""

@@ -102,9 +102,10 @@ class FitParams:
         (docs/fits.md, "Twelfth round"); other parts are not touched. False (the default): the eleventh round's fits.
     split_refused : float
         > 0: a region whose whole fit is refused and whose points span more than ``split_refused`` × twice the
-        model's extent along their principal axis (one instance spans at most twice its extent: it holds two or more
-        touching parts) is split into lobes about as wide as an instance and each lobe is fitted (docs/fits.md,
-        "Thirteenth round"). 0 (the default): off, the twelfth round's fits.
+        model's extent along their principal axis is split into lobes about as wide as an instance and each lobe is
+        fitted (docs/fits.md, "Thirteenth round"). One instance spans at most twice its extent: at 1 or more the
+        region holds two or more parts; below 1 (0.75 was tried) it likely does. 0 (the default): off, the twelfth
+        round's fits.
     """
 
     jump_mm: float = 1.5
