@@ -834,7 +834,14 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
         if not progress:
             if many:
                 continue  # the next patch
-            break
+            lobes = _lobes(frame, left, model, params, min_px) if params.split_refused > 0 else None
+            if not lobes:
+                break
+            # refused whole, and wider than one instance: its lobes are fitted one by one (docs/fits.md,
+            # "Thirteenth round")
+            left = lobes[0]
+            more.extend(lobes[1:])
+            continue
         parts = segment(frame.xyz, left, f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
                         min_px=min_px)
         if not parts:
@@ -842,6 +849,53 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
         left = parts[0]
         more.extend(parts[1:])
     return more
+
+
+#: :func:`_lobes`: the span of a region's points along their principal axis is measured between these percentiles
+#: (a stray pixel or a ghost does not widen it)
+SPLIT_PERCENTILE = 1.0
+#: ... and its lobes take this many Lloyd steps from their seeds
+SPLIT_STEPS = 8
+
+
+def _lobes(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams, min_px: int) -> list[np.ndarray]:
+    """The lobes of a region whose whole fit was refused (``FitParams.split_refused``), largest first, or [] when it
+    is no wider than one instance.
+
+    One instance's points lie within the model's extent of its centroid: a region whose points span more than
+    ``split_refused`` × twice the extent along their principal axis (between the :data:`SPLIT_PERCENTILE`-th
+    percentiles) holds two or more parts (at ``split_refused`` ≥ 1; below it, likely). It is cut into k = ceil(span / (2 × extent)) lobes (at least 2): k-means
+    of its points seeded evenly along the axis (:data:`SPLIT_STEPS` Lloyd steps on an even subsample, every point
+    then to its nearest centre), each lobe segmented again; the pieces of at least ``min_px`` pixels are returned.
+    Reads only the cloud, the zone and the mesh."""
+    sub = frame.xyz.reshape(-1, 3)[_subsample(flat, 2000)]
+    if len(sub) < 2:
+        return []
+    c = sub.mean(axis=0)
+    _, ax = np.linalg.eigh(np.cov((sub - c).T))
+    a = (sub - c) @ ax[:, 2]
+    lo, hi = np.percentile(a, [SPLIT_PERCENTILE, 100.0 - SPLIT_PERCENTILE])
+    span = float(hi - lo)
+    width = 2.0 * model.extent_mm
+    if not span > params.split_refused * width:
+        return []
+    k = max(2, int(np.ceil(span / width)))
+    centres = c + np.outer(lo + (np.arange(k) + 0.5) * span / k, ax[:, 2])
+    for _ in range(SPLIT_STEPS):
+        near = np.argmin(((sub[:, None, :] - centres[None]) ** 2).sum(axis=2), axis=1)
+        for j in range(k):
+            if (near == j).any():
+                centres[j] = sub[near == j].mean(axis=0)
+    pts = frame.xyz.reshape(-1, 3)[flat]
+    near = np.argmin(((pts[:, None, :] - centres[None]) ** 2).sum(axis=2), axis=1)
+    f = 0.5 * (frame.K[0] + frame.K[1])
+    out: list[np.ndarray] = []
+    for j in range(k):
+        out.extend(segment(frame.xyz, flat[near == j], f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
+                           min_px=min_px))
+    if len(out) < 2:
+        return []  # one piece: nothing split
+    return sorted(out, key=len, reverse=True)
 
 
 def _holds_many(frame: _Frame, flat: np.ndarray, model: PartModel) -> bool:

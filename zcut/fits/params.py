@@ -100,6 +100,12 @@ class FitParams:
         True: an elongated part's pose (a rod: its vertices span twice as much along their principal
         axis as across it) is slid along its posed axis to where it explains the most zone pixels and refined there
         (docs/fits.md, "Twelfth round"); other parts are not touched. False (the default): the eleventh round's fits.
+    split_refused : float
+        > 0: a region whose whole fit is refused and whose points span more than ``split_refused`` × twice the
+        model's extent along their principal axis is split into lobes about as wide as an instance and each lobe is
+        fitted (docs/fits.md, "Thirteenth round"). One instance spans at most twice its extent: at 1 or more the
+        region holds two or more parts; below 1 (0.75 was tried) it likely does. 0 (the default): off, the twelfth
+        round's fits.
     """
 
     jump_mm: float = 1.5
@@ -127,6 +133,7 @@ class FitParams:
     fine_window: bool = True
     fine_robust: float = 3.0
     slide: bool = False
+    split_refused: float = 0.0
 
     def __post_init__(self) -> None:
         _number(self, "jump_mm", gt=0)
@@ -154,3 +161,4 @@ class FitParams:
         _boolean(self, "fine_window")
         _number(self, "fine_robust", ge=0)
         _boolean(self, "slide")
+        _number(self, "split_refused", ge=0)
