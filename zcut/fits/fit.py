@@ -899,8 +899,8 @@ def _lobes(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
 
 
 def _holds_many(frame: _Frame, flat: np.ndarray, model: PartModel) -> bool:
-    """Whether the region spreads farther than one instance can: 98 % of its points farther than
-    1.3 × the model's extent from their centroid."""
+    """Whether the region spreads farther than one instance can: the 98th percentile of its points' distances
+    to their centroid (2 % of them lie farther) above 1.3 × the model's extent."""
     pts = frame.xyz.reshape(-1, 3)[_subsample(flat, 2000)]
     r = np.linalg.norm(pts - pts.mean(axis=0), axis=1)
     return _percentile_above(r, 98.0, 1.3 * model.extent_mm)
