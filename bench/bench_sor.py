@@ -39,6 +39,11 @@ code's masks are this code's bit for bit. The load average is printed before and
     .venv/bin/python bench/bench_sor.py [--repeat N] [--seed S] [--k K] [--std-ratio R]
                                         [--classes pile,walls,...] [--no-reference] [--against OLD_TREE]
 
+Where the time of a call goes: ``--phases`` prints, per class and convention, the medians over --repeat
+calls (after a first one) of the CPU ms of the call, of every kernel it runs on its threads and of the
+steps around them (the camera fit, the tables, the fallback searches, the outlier masks), timed by
+wrapping them in this process; for one thread prefix ``NUMBA_NUM_THREADS=1``.
+
 Page faults a call: ``--faults row`` (calls in a row) or ``--faults open3d`` (Open3D's filter
 between the calls, as in the classes' rounds) prints, per class and convention, the medians over
 --repeat calls (after a first one) of the CPU ms, the system ms and the minor page faults
@@ -632,6 +637,75 @@ def faults_main(classes: dict[str, object], k: int, std_ratio: float, repeat: in
     return 0
 
 
+def phases_main(classes: dict[str, object], k: int, std_ratio: float, repeat: int) -> int:
+    """Per class and convention: where the CPU time of a ``sor_outliers`` call goes (medians of
+    --repeat calls after a first one, CPU ms of all threads): every kernel the call runs on its
+    threads (``run: NAME``, see ``zcut.sor._workers``) and the steps around them, timed by wrapping
+    them in this process. The steps nest (``_mean_distances`` holds the window phase and the fallback,
+    ``_fallback`` the tile and column searches), so the column does not add up."""
+    import collections
+    import contextlib
+
+    import numba
+
+    import zcut
+    import zcut.sor as sor
+    from zcut import sor_camera, sor_search, sor_window
+
+    spent: collections.defaultdict[str, float] = collections.defaultdict(float)
+
+    def timed(module: object, name: str) -> None:
+        fn = getattr(module, name)
+
+        def wrapper(*args: object, **kw: object) -> object:
+            t0 = time.process_time()
+            try:
+                return fn(*args, **kw)
+            finally:
+                spent[name] += time.process_time() - t0
+
+        setattr(module, name, wrapper)
+
+    workers = sor._workers
+
+    @contextlib.contextmanager
+    def timed_workers(ws):
+        with workers(ws) as run:
+            def timed_run(kernel, n, *args):
+                t0 = time.process_time()
+                run(kernel, n, *args)
+                spent["run: " + getattr(kernel, "__name__", repr(kernel))] += time.process_time() - t0
+
+            yield timed_run
+
+    sor._workers = timed_workers
+    for module, name in ((sor, "_prepare"), (sor, "_mean_distances"), (sor, "_fallback"), (sor, "_column_stage"),
+                         (sor, "_outlier_masks"), (sor_camera, "fit_camera"), (sor_camera, "band_tables"),
+                         (sor_camera, "corner_tables"), (sor_window, "unproven_pixels"), (sor_search, "build_quadtree")):
+        timed(module, name)
+    warm_up(k)
+    print(f"zcut {Path(zcut.__file__).parent}, {numba.config.NUMBA_NUM_THREADS} threads, CPU ms of a sor_outliers "
+          f"call and of its parts, medians of {repeat} calls after a first one; load average {load_average()}")
+    for name, make in classes.items():
+        xyz = make()
+        if isinstance(xyz, str):
+            print(f"{name:26s} (skipped: {xyz})")
+            continue
+        for convention in ("pcl", "open3d"):
+            rows = []
+            for _ in range(repeat + 1):
+                spent.clear()
+                t0 = time.process_time()
+                sor.sor_outliers(xyz, k=k, std_ratio=std_ratio, convention=convention)
+                rows.append({"call": time.process_time() - t0, **spent})
+            rows = rows[1:]
+            keys = sorted(set().union(*rows), key=lambda key: -float(np.median([r.get(key, 0.0) for r in rows])))
+            parts = ", ".join(f"{key} {1e3 * float(np.median([r.get(key, 0.0) for r in rows])):.1f}" for key in keys)
+            print(f"{name:26s} {convention:6s} {parts}", flush=True)
+    print(f"load average at the end: {load_average()}")
+    return 0
+
+
 def load_average() -> str:
     try:
         return " ".join(f"{v:.1f}" for v in os.getloadavg())
@@ -653,6 +727,8 @@ def main() -> int:
                         help="time the pipeline's SOR stage on every frame of this log instead of the classes")
     parser.add_argument("--faults", choices=("row", "open3d"),
                         help="print CPU ms, system ms and page faults a call (calls in a row, or Open3D between them)")
+    parser.add_argument("--phases", action="store_true",
+                        help="print where the CPU time of a call goes, per kernel and step (no Open3D)")
     parser.add_argument("--serve", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
 
@@ -661,6 +737,12 @@ def main() -> int:
         return _serve()
     if args.stage:
         return stage_main(args.stage, args.against, args.repeat)
+    if args.phases:
+        chosen = cloud_classes(args.seed)
+        wanted = [c for c in args.classes.split(",") if c]
+        if wanted:
+            chosen = {name: f for name, f in chosen.items() if any(name.startswith(w) for w in wanted)}
+        return phases_main(chosen, args.k, args.std_ratio, args.repeat)
     if args.faults:
         chosen = cloud_classes(args.seed)
         wanted = [c for c in args.classes.split(",") if c]

@@ -31,9 +31,14 @@ and a search never has to look at more than m copies of a duplicated point.
    within all of them, the window is proven. Stages, cheapest first: a 3 × 3 window for whole
    rows at once (vectorized: the 8 neighbour distances sorted by a network, so any m <= 9 is a
    selection; only the 4 smallest kept when m <= 5), a 5 × 5 window for what it leaves (the whole
-   row, vectorized, when that is much), then one pixel at a time, growing the window one ring at a
-   time until its bound covers the m-th distance found so far, up to 16 (a pixel the 5 × 5 window
-   left grows on from its smallest distances there: no pixel is measured twice).
+   row, vectorized, when that is much), then one pixel at a time, growing the window until its
+   bound covers the m-th distance found so far, up to 16 (a pixel the 5 × 5 window left grows on
+   from its smallest distances there: no pixel is measured twice). The window need not be square:
+   the strips right and left of it are bounded through U (they depend only on its half-width in
+   columns), those below and above it through V (only on its half-width in rows), so once it holds
+   m valid pixels it grows, a column or a row on each side at a time, only in the direction whose
+   strips do not yet cover the m-th distance; any window with both half-widths <= 16 lies inside
+   both bands, which is all the cover needs.
 3. *Columns* (:mod:`zcut.columns`), when many pixels are unproven (one in ``_COLUMNS_MIN_SHARE``
    or more: tall parts standing on end, whose image neighbours are rarely 3D neighbours, and the
    flying pixels along their silhouettes) and a tile search (4.) of a sample of them says that

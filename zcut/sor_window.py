@@ -11,9 +11,12 @@ The argument is in the module docstring of :mod:`zcut.sor`. Three stages, cheape
    smallest (4 when m <= 5, else 8: :func:`slots_for`); for the whole row (vectorized like stage 1)
    when they are many, and for the rows after such a row straight away (re-checked every 8 rows),
    else for a list of pixels;
-3. one pixel at a time, the window growing one ring at a time until its bound covers the m-th
-   distance found so far, up to ``WINDOW_MAX``; a pixel stage 2 left starts from stage 2's
-   smallest distances and count at w = 2 (:func:`_grow_seeded`), the others from scratch.
+3. one pixel at a time, the window growing until its bound covers the m-th distance found so far,
+   up to ``WINDOW_MAX``; a pixel stage 2 left starts from stage 2's smallest distances and count at
+   w = 2 (:func:`_grow_seeded`), the others from scratch. Once it holds m valid pixels the window
+   grows by a column on each side while the strips right and left of it (U) do not cover the m-th
+   distance, by a row above and below while those below and above it (V) do not
+   (:func:`_grow_from`).
 
 Every kernel here is serial and releases the GIL; :mod:`zcut.sor` runs them over row ranges on
 threads.
@@ -295,6 +298,30 @@ def _strips(r, c, w, H, W, b, bc, xq, yq, zq, R, C):  # type: ignore[no-untyped-
 
 
 @nb.njit(cache=True, inline="always")
+def _strips_u(r, c, wc, W, b, xq, yq, zq, R):  # type: ignore[no-untyped-def]  # numba kernel
+    # the rows of the pixel's row band right and left of a window of half-width wc in columns
+    # (the U half of _strips)
+    s = np.inf
+    if c + wc + 1 < W:
+        s = min(s, plane_bound_at(R[b], 0, c + wc + 1, xq, yq, zq))
+    if c - wc - 1 >= 0:
+        s = min(s, plane_bound_at(R[b], 4, c - wc - 1, xq, yq, zq))
+    return s
+
+
+@nb.njit(cache=True, inline="always")
+def _strips_v(r, c, wr, H, bc, xq, yq, zq, C):  # type: ignore[no-untyped-def]  # numba kernel
+    # the columns of the pixel's column band below and above a window of half-width wr in rows
+    # (the V half of _strips)
+    s = np.inf
+    if r + wr + 1 < H:
+        s = min(s, plane_bound_at(C[bc], 0, r + wr + 1, xq, yq, zq))
+    if r - wr - 1 >= 0:
+        s = min(s, plane_bound_at(C[bc], 4, r - wr - 1, xq, yq, zq))
+    return s
+
+
+@nb.njit(cache=True, inline="always")
 def _corners(b, bc, xq, yq, zq, Q):  # type: ignore[no-untyped-def]  # numba kernel
     # the four regions outside both bands of the pixel (at least 17 px away in rows and columns):
     # each lies in two half-spaces, so the larger bound holds
@@ -568,8 +595,7 @@ def _row_stage(buf, w, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C
         lastv = c
         c += 1
         while c <= end and c - c0 < CH and c - lastv <= _GAP:
-            if valid[r, c]:
-                lastv = c
+            lastv = c if valid[r, c] else lastv  # a select, not a branch (valid pixels at random)
             c += 1
         n = lastv - c0 + 1
         c = lastv + 1
@@ -588,15 +614,15 @@ def _row_stage(buf, w, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C
                 dbar[r, c0 + i] = buf[oo + i]
         else:
             _chunk_5x5(buf, n, m, divisor, use_cam, init)
-            for i in range(n):
+            for i in range(n):  # branches only where a pixel grows (valid pixels at random in sparse clouds)
                 cc = c0 + i
-                if merge and not np.isnan(dbar[r, cc]):
-                    continue
+                old = dbar[r, cc]
+                keep = merge & ~np.isnan(old)
                 v = buf[oo + i]
-                if np.isnan(v) and valid[r, cc]:
+                if valid[r, cc] & np.isnan(v) & ~keep:
                     v = _grow_seeded(r, cc, best, _load(buf, _K2, i, init), np.int64(buf[_K2 + 8 * CH + i]), x, y, z,
                                      m, divisor, wmax, use_cam, R, C, Q, floor)
-                dbar[r, cc] = v
+                dbar[r, cc] = old if keep else v
 
 
 # --------------------------------------------------------------------------------------------
@@ -683,33 +709,15 @@ def _scan_col_part(best, cc, r0, r1, x, y, z, xq, yq, zq):  # type: ignore[no-un
             insert(best, d2(xq, yq, zq, x[rr, cc], y[rr, cc], z[rr, cc]))
 
 
-@nb.njit(cache=True, inline="always")
-def _scan_square(best, r, c, w, H, W, x, y, z, xq, yq, zq):  # type: ignore[no-untyped-def]  # numba kernel
-    # add the pixels at Chebyshev distance exactly w >= 1 (the ring of the (2w + 1)² window): its
-    # top and bottom rows, then its left and right columns between them; invalid pixels hold +inf
-    c0 = max(0, c - w)
-    c1 = min(W - 1, c + w)
-    if r - w >= 0:
-        _scan_row_part(best, r - w, c0, c1, x, y, z, xq, yq, zq)
-    if r + w < H:
-        _scan_row_part(best, r + w, c0, c1, x, y, z, xq, yq, zq)
-    r0 = max(0, r - w + 1)
-    r1 = min(H - 1, r + w - 1)
-    if c - w >= 0:
-        _scan_col_part(best, c - w, r0, r1, x, y, z, xq, yq, zq)
-    if c + w < W:
-        _scan_col_part(best, c + w, r0, r1, x, y, z, xq, yq, zq)
-
-
 @nb.njit(cache=True)
 def _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor):  # type: ignore[no-untyped-def]  # numba kernel
     """One pixel with a growing window: its d̄ if proven, else minus the m-th smallest squared
     distance found (-inf if the largest window held fewer than m valid pixels).
 
-    The window grows one ring at a time, the bound checked after each against the m-th distance
+    The window grows a step at a time, the bound checked after each against the m-th distance
     found so far: on steep relief the first window's m-th distance is often much larger than the
     final one (the image neighbours across a depth jump), and the window its bound would call for
-    much larger than the one that proves the final distance."""
+    much larger than the one that proves the final distance (see :func:`_grow_from`)."""
     H, W = x.shape
     xq = x[r, c]
     yq = y[r, c]
@@ -736,7 +744,17 @@ def _grow_seeded(r, c, best, sl, count, x, y, z, m, divisor, wmax, use_cam, R, C
 @nb.njit(cache=True)
 def _grow_from(r, c, best, count, w, x, y, z, m, divisor, wmax, use_cam, R, C, Q, floor):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`_grow` once the window of half-width w is scanned into ``best`` (its m smallest
-    squared distances, the pixel's own 0 first) and ``count`` (its valid pixels)."""
+    squared distances, the pixel's own 0 first) and ``count`` (its valid pixels).
+
+    Until it holds m valid pixels the window grows ring by ring. Then it grows in rows and columns
+    separately (half-widths wr, wc): the strips right and left of a window are bounded through U at
+    columns c ± (wc + 1), those below and above through V at rows r ± (wr + 1) (:func:`_strips_u`,
+    :func:`_strips_v`), so each half-width grows only while its own strips do not cover the m-th
+    distance found so far. Lens distortion bends the rows or the columns within a band and weakens
+    one of the two bounds: two short columns (or rows) a step instead of a whole ring. Every window
+    with wr, wc <= ``WINDOW_MAX`` lies inside the pixel's row and column band, so the cover of the
+    proof (strips, corners) holds for it as for a square one; the result never depends on the
+    window, only which pixels are proven here does."""
     H, W = x.shape
     xq = x[r, c]
     yq = y[r, c]
@@ -753,25 +771,52 @@ def _grow_from(r, c, best, count, w, x, y, z, m, divisor, wmax, use_cam, R, C, Q
         return -dm2
     b = (r + BLOCK // 2) // BLOCK
     bc = (c + BLOCK // 2) // BLOCK
-    sb = _strips(r, c, w, H, W, b, bc, xq, yq, zq, R, C)
-    if not dm2 <= sb * sb * KEEP:
+    su = _strips_u(r, c, w, W, b, xq, yq, zq, R)
+    sv = _strips_v(r, c, w, H, bc, xq, yq, zq, C)
+    if not (dm2 <= su * su * KEEP and dm2 <= sv * sv * KEEP):
         if w >= wmax:
             return -dm2
         sb = _strips(r, c, wmax, H, W, b, bc, xq, yq, zq, R, C)
         if not dm2 <= sb * sb * KEEP:
             return -dm2  # not even the largest window would do: leave it to the columns and tiles
-        # the bound at wmax covers dm2, and every smaller m-th distance found on the way
+        # the bound at wmax covers dm2, and every smaller m-th distance found on the way. The
+        # window grows only in the direction whose strips do not cover dm2 yet: wc (columns) while
+        # the row band's strips right and left of it (U) do not, wr (rows) while the column band's
+        # strips below and above it (V) do not (lens distortion bends the rows or the columns, and
+        # weakens one of the two: the window then grows by two short columns or rows a step, not
+        # by a whole ring). Any (wr, wc) <= wmax is a window of the same proof (see zcut.sor).
+        wr = w
+        wc = w
         while True:
-            w += 1
-            _scan_square(best, r, c, w, H, W, x, y, z, xq, yq, zq)
+            grow_c = not dm2 <= su * su * KEEP
+            grow_r = not dm2 <= sv * sv * KEEP
+            if not (grow_c or grow_r):
+                break
+            if (grow_c and wc >= wmax) or (grow_r and wr >= wmax):
+                return -dm2  # (not reached: the bounds at wmax cover every dm2 found on the way)
+            if grow_c:
+                wc += 1
+                r0 = max(0, r - wr)
+                r1 = min(H - 1, r + wr)
+                if c - wc >= 0:
+                    _scan_col_part(best, c - wc, r0, r1, x, y, z, xq, yq, zq)
+                if c + wc < W:
+                    _scan_col_part(best, c + wc, r0, r1, x, y, z, xq, yq, zq)
+            if grow_r:
+                wr += 1
+                c0 = max(0, c - wc)
+                c1 = min(W - 1, c + wc)
+                if r - wr >= 0:
+                    _scan_row_part(best, r - wr, c0, c1, x, y, z, xq, yq, zq)
+                if r + wr < H:
+                    _scan_row_part(best, r + wr, c0, c1, x, y, z, xq, yq, zq)
             dm2 = best[m - 1]
             if dm2 == 0.0:
                 return mean_of_sorted(best, divisor)
-            if w >= wmax:
-                break
-            sb = _strips(r, c, w, H, W, b, bc, xq, yq, zq, R, C)
-            if dm2 <= sb * sb * KEEP:
-                break
+            if grow_c:
+                su = _strips_u(r, c, wc, W, b, xq, yq, zq, R)
+            if grow_r:
+                sv = _strips_v(r, c, wr, H, bc, xq, yq, zq, C)
     cb = floor[b, bc]
     if not dm2 <= cb * cb * KEEP:
         cb = _corners(b, bc, xq, yq, zq, Q)
@@ -838,11 +883,11 @@ def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, 
                         _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, Q, floor, b, dbar, init, best,
                                   wmax)
         n = 0
-        for c in range(first, last + 1):
-            if valid[r, c]:
-                if not (lo <= c <= hi and not np.isnan(dbar[r, c])):
-                    dbar[r, c] = _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor)
-                n += dbar[r, c] < 0.0
+        for c in range(first, last + 1):  # branches only where a pixel grows, as in _row_stage
+            ok = valid[r, c]
+            if ok & ~((lo <= c) & (c <= hi) & ~np.isnan(dbar[r, c])):
+                dbar[r, c] = _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor)
+            n += ok & (dbar[r, c] < 0.0)
         unproven[r] = n
 
 

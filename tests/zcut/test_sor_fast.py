@@ -358,3 +358,41 @@ def test_three_by_three_kernel_against_a_literal_transcription(m: int) -> None:
             want[i] = s / divisor
     np.testing.assert_array_equal(got, want)
     assert np.count_nonzero(want > 0.0) >= 10 and np.count_nonzero(np.isnan(want)) >= 20  # both outcomes
+
+
+# ------------------------------------------------------------------------------------------------
+# the growing window grows in rows and columns separately
+# ------------------------------------------------------------------------------------------------
+def distorted(rng: np.random.Generator, h: int, w: int, *, k1: float) -> np.ndarray:
+    """:func:`camera`'s surface seen through a lens with radial distortion k1: each pixel's ray is
+    bent by (1 + k1 r²), so rows and columns curve across a band and weaken one of the two strip
+    bounds (U near the left and right edges, V near the top and bottom), the case the separate
+    half-widths of ``sor_window._grow_from`` are for."""
+    return bent(bank_clouds.pinhole(rng, h, w, f=0.5 * max(h, w), flying=0.01), k1)  # r <= 1.2 at the corners
+
+
+def bent(xyz: np.ndarray, k1: float) -> np.ndarray:
+    """Every ray x / z, y / z of ``xyz`` times (1 + k1 r²), r² = (x / z)² + (y / z)²; NaN stays NaN."""
+    z = xyz[..., 2]
+    with np.errstate(invalid="ignore"):
+        xn, yn = xyz[..., 0] / z, xyz[..., 1] / z
+    bend = 1.0 + k1 * (xn * xn + yn * yn)
+    return np.stack([xn * bend * z, yn * bend * z, z], axis=-1)
+
+
+@pytest.mark.parametrize(("seed", "k1"), [(41, 0.05), (42, 0.15), (43, -0.08)])
+def test_distorted_clouds_grow_in_rows_and_columns(seed: int, k1: float, monkeypatch: pytest.MonkeyPatch) -> None:
+    # two frames of 3 x 4 bands: with barrel and pincushion distortion, a band of scattered invalid
+    # pixels (the whole-row 5 x 5 stage hands its pixels on), a large invalid region and a depth step;
+    # k = 1, 4, 6 (4 and 8 slots, m up to 7) in both conventions; the window capped at 3, 5 and 16
+    # (a half-width that reaches the cap gives the pixel up to the columns and tiles)
+    rng = np.random.default_rng(seed)
+    xyz = distorted(rng, 150, 230, k1=k1)
+    xyz[100:120][rng.random((20, 230)) < 0.5] = np.nan
+    xyz[20:60, 150:200] = np.nan
+    assert_as_oracle(xyz, ks=(1, 4, 6), ratios=(1.0, 2.0))
+    for wmax in (3, 5):
+        monkeypatch.setattr(sor_module, "_WINDOW_MAX", wmax)
+        assert_as_oracle(xyz, ks=(4,), ratios=(1.0,))
+    monkeypatch.undo()
+    assert_as_oracle(bent(bank_clouds.steep(rng, 96, 140), 4.0 * k1), ks=(4,), ratios=(1.0,))  # tall parts on end
