@@ -64,6 +64,7 @@ __all__ = [
     "qlevel",
     "taggable_forest",
     "union_find_tree",
+    "uphill_prune",
 ]
 
 # --------------------------------------------------------------------------------------------
@@ -511,6 +512,74 @@ def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled):  # 
         else:
             st[p] = OUTSIDE - lv
     return keep
+
+
+@numba.njit(cache=True, nogil=True)
+def uphill_prune(st, pix, keep, W, conn8, top, start, stack):  # type: ignore[no-untyped-def]  # numba kernel
+    """Leave out, of the ``keep`` pixels :func:`gentle_prune` kept (``pix[:keep]``), those that lie
+    *below* a left-out pixel: the same rule as there (they are in no tagged node), applied again.
+
+    A tagged node C is a component of the cuts k and k + 1, so every neighbour of a pixel p of C
+    whose level is at most ``level(p) + 1`` (<= k + 1) lies in C. Hence a pixel with such a
+    neighbour in no tagged node is in no tagged node either, and neither is a pixel at level
+    ``top`` (= K + 1: not in the cut at K). The left-out pixels (``st <= OUTSIDE``) are in no
+    tagged node; one sweep over the kept pixels in raster order leaves out each one that has a
+    left-out neighbour of level <= its level + 1 (or lies at ``top``), and from each one left out
+    a depth-first walk leaves out at once every kept neighbour that it lies within one level
+    below of, and so on (``stack``: ``keep`` int32 slots): the closure of the rule in one sweep.
+
+    Marks the pixels left out ``OUTSIDE - level`` in ``st``, compacts ``pix`` to those kept,
+    recounts ``start`` (zeroed here; ``start[lv + 1]``); returns the number kept. Neighbours: the
+    z-cut's (``conn8``)."""
+    Wp = W + 2
+    if conn8:
+        offs = np.array([-Wp - 1, -Wp, -Wp + 1, -1, 1, Wp - 1, Wp, Wp + 1])
+    else:
+        offs = np.array([-Wp, -1, 1, Wp])
+    ne = offs.size
+    for t in range(keep):
+        p = pix[t]
+        q = np.int64(st[p])
+        if q < 0:  # left out by a walk already
+            continue
+        out = q >= top
+        if not out:
+            for u in range(8):
+                if u >= ne:
+                    break
+                s = np.int64(st[p + offs[u]])
+                # a left-out neighbour (st <= OUTSIDE) of level OUTSIDE - s <= q + 1
+                if s <= OUTSIDE and s >= OUTSIDE - 1 - q:
+                    out = True
+                    break
+        if not out:
+            continue
+        st[p] = OUTSIDE - q
+        stack[0] = p
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            x = stack[sp]
+            qx = OUTSIDE - np.int64(st[x])
+            for u in range(8):
+                if u >= ne:
+                    break
+                y = x + offs[u]
+                s = np.int64(st[y])
+                if s >= 0 and qx <= s + 1:  # a kept neighbour lying within one level below x
+                    st[y] = OUTSIDE - s
+                    stack[sp] = y
+                    sp += 1
+    start[:] = 0
+    n = 0
+    for t in range(keep):
+        p = pix[t]
+        q = np.int64(st[p])
+        if q >= 0:
+            pix[n] = p
+            n += 1
+            start[q + 1] += 1
+    return n
 
 
 @numba.njit(cache=True, nogil=True)
