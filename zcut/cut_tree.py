@@ -344,6 +344,35 @@ def _unite(gpar, ra, b):  # type: ignore[no-untyped-def]  # numba kernel
     return rb
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _segment_levels(zf, st, row, base, c0, c1, z_min, z_max, step, inv_step, hi, thr, top):  # type: ignore[no-untyped-def]  # numba kernel
+    """``st[base + c]`` for c in [c0, c1): the level of the pixel ``zf[row + c]`` in the cuts (<=
+    ``top``), -1 outside them (an invalid pixel stands at ``z_min``). Without a branch, so LLVM
+    vectorises it: the guess ``k = floor((z_max - zt) / step)`` (clamped, so that the conversion
+    is defined) and the exact comparisons with the cuts k - 1, k and k + 1 give the level (k when
+    the pixel is in the cut k and not in k - 1, k + 1 when it is in k + 1 and not in k, as
+    :func:`_qlevel_guess`); where neither holds, the segment is levelled again by :func:`qlevel`."""
+    gmax = np.float64(top + 1)
+    bad = False
+    for c in range(c0, c1):
+        v = zf[np.uint64(row + c)]  # (an unsigned index: no wrap-around test)
+        zt = v if (v - v) == 0.0 else z_min  # (v - v) == 0: finite
+        g = min(max((z_max - zt) * inv_step, 0.0), gmax)
+        k = np.int64(g)
+        in0 = zt >= z_max - k * step
+        inm = zt >= z_max - (k - 1) * step
+        inp = zt >= z_max - (k + 1) * step
+        ok = (in0 & ((k == 0) | (not inm))) | ((not in0) & inp)
+        incut = zt >= thr
+        st[np.uint64(base + c)] = (k + (not in0)) if incut else -1
+        bad |= incut & (not ok)
+    if bad:
+        for c in range(c0, c1):
+            v = zf[row + c]
+            zt = v if np.isfinite(v) else z_min
+            st[base + c] = _qlevel_guess(zt, z_max, step, inv_step, hi) if zt >= thr else -1
+
+
 @numba.njit(cache=True, nogil=True)
 def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt,  # type: ignore[no-untyped-def]  # numba kernel
                   share=0.5, trial=False):
@@ -374,6 +403,7 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
     inv_step = 1.0 / step
     thr = z_max - top * step
     skip = z_min < thr  # invalid pixels (at z_min) are outside the cuts: segments may be skipped
+    zf = z.reshape(-1)
     for c in range(Wp):
         st[c] = -1
         st[(H + 1) * Wp + c] = -1
@@ -398,16 +428,13 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                 st[base + 1 + c0:base + 1 + c1] = -1
                 qw = -1  # type: ignore[assignment]  # numba kernel: an int64 local
                 continue
+            _segment_levels(zf, st, r * W, base + 1, c0, c1, z_min, z_max, step, inv_step, hi, thr, top)
             for c in range(c0, c1):
                 p = base + 1 + c
-                v = z[r, c]
-                zt = v if np.isfinite(v) else z_min
-                if not zt >= thr:
-                    st[p] = -1
+                lv = np.int64(st[p])
+                if lv < 0:
                     qw = -1  # type: ignore[assignment]  # numba kernel: an int64 local
                     continue
-                lv = _qlevel_guess(zt, z_max, step, inv_step, hi)
-                st[p] = lv
                 pix[m] = p
                 m += 1
                 if not labelling:
