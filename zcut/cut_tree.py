@@ -64,7 +64,6 @@ __all__ = [
     "qlevel",
     "taggable_forest",
     "union_find_tree",
-    "uphill_prune",
 ]
 
 # --------------------------------------------------------------------------------------------
@@ -503,11 +502,14 @@ def _labelling_pays(gpar, gcnt, nl, m, max_area, share):  # type: ignore[no-unty
 
 
 @numba.njit(cache=True, nogil=True)
-def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled):  # type: ignore[no-untyped-def]  # numba kernel
+def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, W, conn8, top):  # type: ignore[no-untyped-def]  # numba kernel
     """Keep in ``pix`` only the pixels of the gentle components (:func:`gentle_levels`) of fewer
-    than ``max_area`` pixels, count them per level in ``start`` (zeroed; ``start[lv + 1]``, as
-    :func:`flood_core` wants), and mark the others ``OUTSIDE - level`` in ``st``. Returns the
-    number kept. Without ``labelled`` (:func:`gentle_levels` gave up) every pixel is kept.
+    than ``max_area`` pixels that do not lie below a pixel left out (:func:`_uphill`), count them
+    per level in ``start`` (zeroed; ``start[lv + 1]``, as :func:`flood_core` wants), and mark the
+    others ``OUTSIDE - level`` in ``st``. Returns the number kept. Without ``labelled``
+    (:func:`gentle_levels` gave up) every pixel is kept. ``W``: the image's width; ``conn8``: the
+    z-cut's connectivity; ``top``: the deepest level in the cuts (K + 1); ``gpar`` is used as
+    scratch once the sets are read.
 
     Why the flood over the kept pixels gives the outliers of the whole tree: a tagged node C is a
     component of two cuts k, k + 1, so every neighbour of C has a level >= k + 2 and no gentle
@@ -515,7 +517,8 @@ def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled):  # 
     pixels hold every tagged node, and each one is also a component of the same cuts among the
     kept pixels; conversely a node of the kept pixels' tree is a component of the whole cut at
     level k unless it touches a left-out pixel of level <= k, which :func:`flood_core` accounts
-    for. The tagged nodes, as pixel sets, are the same in both trees."""
+    for. The tagged nodes, as pixel sets, are the same in both trees. The argument needs only
+    that no left-out pixel lies in a tagged node, so :func:`_uphill` may leave out more."""
     if not labelled:
         for t in range(m):
             start[np.int64(st[pix[t]]) + 1] += 1
@@ -529,22 +532,30 @@ def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled):  # 
     for i in range(nl):
         small[i] = gcnt[gpar[i]] < max_area
     keep = 0
-    for t in range(m):
+    for t in range(m):  # no branch: the kept pixels' slots are written either way
         p = pix[t]
         lv = np.int64(st[p])
-        if small[gl[p]]:
-            pix[keep] = p
-            keep += 1
-            start[lv + 1] += 1
-        else:
-            st[p] = OUTSIDE - lv
-    return keep
+        k = small[gl[p]]
+        pix[keep] = p
+        keep += k
+        st[p] = lv if k else OUTSIDE - lv
+    keep = _uphill(st, pix, keep, W, conn8, top, gpar)
+    start[:] = 0
+    n = 0
+    for t in range(keep):
+        p = pix[t]
+        q = np.int64(st[p])
+        if q >= 0:
+            pix[n] = p
+            n += 1
+            start[q + 1] += 1
+    return n
 
 
-@numba.njit(cache=True, nogil=True)
-def uphill_prune(st, pix, keep, W, conn8, top, start, stack):  # type: ignore[no-untyped-def]  # numba kernel
-    """Leave out, of the ``keep`` pixels :func:`gentle_prune` kept (``pix[:keep]``), those that lie
-    *below* a left-out pixel: the same rule as there (they are in no tagged node), applied again.
+@numba.njit(cache=True, nogil=True, inline="always")
+def _uphill(st, pix, keep, W, conn8, top, stack):  # type: ignore[no-untyped-def]  # numba kernel
+    """Leave out (mark ``OUTSIDE - level`` in ``st``), of the ``keep`` pixels kept so far
+    (``pix[:keep]``), those that lie *below* a left-out pixel; returns ``keep`` (``pix`` unchanged).
 
     A tagged node C is a component of the cuts k and k + 1, so every neighbour of a pixel p of C
     whose level is at most ``level(p) + 1`` (<= k + 1) lies in C. Hence a pixel with such a
@@ -554,10 +565,7 @@ def uphill_prune(st, pix, keep, W, conn8, top, start, stack):  # type: ignore[no
     left-out neighbour of level <= its level + 1 (or lies at ``top``), and from each one left out
     a depth-first walk leaves out at once every kept neighbour that it lies within one level
     below of, and so on (``stack``: ``keep`` int32 slots): the closure of the rule in one sweep.
-
-    Marks the pixels left out ``OUTSIDE - level`` in ``st``, compacts ``pix`` to those kept,
-    recounts ``start`` (zeroed here; ``start[lv + 1]``); returns the number kept. Neighbours: the
-    z-cut's (``conn8``)."""
+    Neighbours: the z-cut's (``conn8``)."""
     Wp = W + 2
     if conn8:
         offs = np.array([-Wp - 1, -Wp, -Wp + 1, -1, 1, Wp - 1, Wp, Wp + 1])
@@ -571,7 +579,7 @@ def uphill_prune(st, pix, keep, W, conn8, top, start, stack):  # type: ignore[no
             continue
         out = q >= top
         if not out:
-            for u in range(8):
+            for u in range(8):  # (a constant trip count: unrolled)
                 if u >= ne:
                     break
                 s = np.int64(st[p + offs[u]])
@@ -597,16 +605,7 @@ def uphill_prune(st, pix, keep, W, conn8, top, start, stack):  # type: ignore[no
                     st[y] = OUTSIDE - s
                     stack[sp] = y
                     sp += 1
-    start[:] = 0
-    n = 0
-    for t in range(keep):
-        p = pix[t]
-        q = np.int64(st[p])
-        if q >= 0:
-            pix[n] = p
-            n += 1
-            start[q + 1] += 1
-    return n
+    return keep
 
 
 @numba.njit(cache=True, nogil=True)

@@ -103,7 +103,6 @@ from .cut_tree import (
     qlevel,
     retag,
     union_find_tree,
-    uphill_prune,
 )
 from .errors import InputShapeError, ParameterError, describe_array
 from .params import _K_CAP, ZCutParams, n_levels
@@ -417,9 +416,8 @@ def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: fl
     else:
         m, nl, labelled = gentle_levels(*args, conn8 and gentle == 8, *rest)
     start = np.zeros(top + 2, np.int64)
-    keep = int(gentle_prune(st, pix, m, gl, gpar, gcnt, nl, float(max_area), start, labelled))
-    if labelled:
-        keep = int(uphill_prune(st, pix, keep, W, conn8, np.int64(top), start, gpar))
+    keep = int(gentle_prune(st, pix, m, gl, gpar, gcnt, nl, float(max_area), start, labelled, W, conn8,
+                            np.int64(top)))
     pix = pix[:keep]
     lab = gl  # the labels are read; the flood writes its node image over them at the kept pixels
     _, _, node_parent, tagged, fin = flood_core_left_out(st, start, pix, W, np.int64(k_eff), np.int64(top), conn8,
