@@ -279,6 +279,7 @@ def flood_levels(z, seg_max, z_min, z_max, step, hi, top, K, st, start, pix, own
     inv_step = 1.0 / step
     thr = z_max - top * step
     skip = z_min < thr  # invalid pixels (at z_min) are outside the cuts: segments may be skipped
+    zf = z.reshape(-1)
     for c in range(Wp):
         st[c] = -1
         st[(H + 1) * Wp + c] = -1
@@ -296,25 +297,20 @@ def flood_levels(z, seg_max, z_min, z_max, step, hi, top, K, st, start, pix, own
                 if want_levels:
                     pixel_level[r, c0:c1] = -1
                 continue
+            _segment_levels(zf, st, r * W, base + 1, c0, c1, z_min, z_max, step, inv_step, hi, thr, top)
             for c in range(c0, c1):
-                v = z[r, c]
-                ok = np.isfinite(v)
-                zt = v if ok else z_min
                 p = base + 1 + c
-                if zt >= thr:
-                    lv = _qlevel_guess(zt, z_max, step, inv_step, hi)
-                    st[p] = lv
+                lv = np.int64(st[p])
+                if lv >= 0:
                     start[lv + 1] += 1
                     pix[m] = p
                     o = r * W + c
-                    own[m] = o if ok else -1 - o
+                    own[m] = o if np.isfinite(z[r, c]) else -1 - o
                     m += 1
                     if want_levels:
                         pixel_level[r, c] = lv if lv <= K + 1 else -1
-                else:
-                    st[p] = -1
-                    if want_levels:
-                        pixel_level[r, c] = -1
+                elif want_levels:
+                    pixel_level[r, c] = -1
     return m
 
 
