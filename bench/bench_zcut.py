@@ -30,7 +30,8 @@ max_area = 0.07 * a_max (a_max = 3000 px):
 Prints the times, the ratio reference / fast and checks that the masks are identical.
 ``--passes`` also prints where ``zcut_outliers``' CPU time goes (the extremes pass, the level pass with
 the gentle components — the 4-connected ones as a trial, then the 8-connected ones when those do not
-pay, as ``zcut_outliers`` — the prune, the flood of the kept pixels, the read-out) beside the floor of
+pay, as ``zcut_outliers`` — the prune: the large gentle components and the pixels below them left out, the
+flood of the kept pixels, the read-out) beside the floor of
 reading the heights and writing a mask.
 CPU time (process_time) is the figure to quote on a shared machine.
 """
@@ -183,7 +184,7 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
         return tuple(a.copy() for a in state) + (np.zeros(top + 2, np.int64),)
 
     def prune(a: tuple) -> int:
-        return gentle_prune(a[0], a[1], m, gl, a[2], a[3], nl, max_area, a[4], labelled)
+        return gentle_prune(a[0], a[1], m, gl, a[2], a[3], nl, max_area, a[4], labelled, Wz, True, np.int64(top))
 
     a = prune_inputs()
     keep = int(prune(a))
@@ -198,7 +199,7 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
         "floor (read heights, write a mask)": timed(lambda: (z.sum(), np.zeros(z.shape, bool).fill(False)), repeat)[1],
         "extremes pass": timed(lambda: _finite_range(z), repeat)[1],
         "level pass + gentle components": timed(levels, repeat)[1],
-        "prune": timed_on(prune_inputs, prune, repeat),
+        "prune (gentle + uphill)": timed_on(prune_inputs, prune, repeat),
         "flood": timed_on(lambda: (st_kept.copy(), start.copy()), flood, repeat),
         "read-out": timed(lambda: pruned_outlier_mask(z, lab, kept, fin, node_parent, tagged,
                                                       np.zeros(z.size, bool)), repeat)[1],

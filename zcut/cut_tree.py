@@ -343,8 +343,8 @@ def _unite(gpar, ra, b):  # type: ignore[no-untyped-def]  # numba kernel
 def _segment_levels(zf, st, row, base, c0, c1, z_min, z_max, step, inv_step, hi, thr, top):  # type: ignore[no-untyped-def]  # numba kernel
     """``st[base + c]`` for c in [c0, c1): the level of the pixel ``zf[row + c]`` in the cuts (<=
     ``top``), -1 outside them (an invalid pixel stands at ``z_min``). Without a branch, so LLVM
-    vectorises it: the guess ``k = floor((z_max - zt) / step)`` (clamped, so that the conversion
-    is defined) and the exact comparisons with the cuts k - 1, k and k + 1 give the level (k when
+    vectorises it: the guess ``k = floor((z_max - zt) / step)`` (clamped to [0, top + 1], so that
+    the conversion is defined) and the exact comparisons with the cuts k - 1, k and k + 1 give the level (k when
     the pixel is in the cut k and not in k - 1, k + 1 when it is in k + 1 and not in k, as
     :func:`_qlevel_guess`); where neither holds, the segment is levelled again by :func:`qlevel`."""
     gmax = np.float64(top + 1)
@@ -352,7 +352,9 @@ def _segment_levels(zf, st, row, base, c0, c1, z_min, z_max, step, inv_step, hi,
     for c in range(c0, c1):
         v = zf[np.uint64(row + c)]  # (an unsigned index: no wrap-around test)
         zt = v if (v - v) == 0.0 else z_min  # (v - v) == 0: finite
-        g = min(max((z_max - zt) * inv_step, 0.0), gmax)
+        g = (z_max - zt) * inv_step
+        g = g if g < gmax else gmax
+        g = g if g > 0.0 else 0.0  # (NaN too: 0 * inf with a subnormal step)
         k = np.int64(g)
         in0 = zt >= z_max - k * step
         inm = zt >= z_max - (k - 1) * step
