@@ -372,7 +372,7 @@ def _segment_levels(zf, st, row, base, c0, c1, z_min, z_max, step, inv_step, hi,
 
 @numba.njit(cache=True, nogil=True)
 def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt,  # type: ignore[no-untyped-def]  # numba kernel
-                  share=0.5, trial=False):
+                  share=0.5, trial=False, wr=0, wc=0, wh=-1, ww=-1):
     """:func:`flood_levels` without ``own`` and ``pixel_level``, labelling on the way the *gentle
     components*: the components of the pixels in the cuts where two neighbours are joined when
     their levels differ by at most 1.
@@ -394,8 +394,15 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
     anyway), it labels no further and returns labelled = False (the levels and ``pix`` are complete;
     the labels are not). With ``trial`` it returns there at once (the levels and ``pix`` incomplete
     too): the caller labels again another way (:func:`zcut.cuts._pruned_outliers`: the 4-connected
-    gentle components first, the 8-connected ones when those do not pay)."""
-    H, W = z.shape
+    gentle components first, the 8-connected ones when those do not pay).
+
+    ``wr, wc, wh, ww``: the window of z worked on, rows ``wr .. wr + wh - 1`` and columns ``wc .. wc
+    + ww - 1`` (``wc`` a multiple of SEGMENT; ``wh, ww`` = -1: the whole frame); ``st``, ``gl`` and
+    the indices in ``pix`` are then the window's (padded: ``(wh + 2) * (ww + 2)``). No pixel in the
+    cuts may lie outside it."""
+    ZW = z.shape[1]
+    H = z.shape[0] if wh < 0 else wh
+    W = ZW if ww < 0 else ww
     Wp = W + 2
     inv_step = 1.0 / step
     thr = z_max - top * step
@@ -421,11 +428,12 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
         lw = np.int64(-1)
         for c0 in range(0, W, SEGMENT):
             c1 = min(c0 + SEGMENT, W)
-            if skip and not seg_max[r, c0 // SEGMENT] >= thr:
+            if skip and not seg_max[wr + r, (wc + c0) // SEGMENT] >= thr:
                 st[base + 1 + c0:base + 1 + c1] = -1
                 qw = -1  # type: ignore[assignment]  # numba kernel: an int64 local
                 continue
-            _segment_levels(zf, st, r * W, base + 1, c0, c1, z_min, z_max, step, inv_step, hi, thr, top)
+            _segment_levels(zf, st, (wr + r) * ZW + wc, base + 1, c0, c1, z_min, z_max, step, inv_step, hi, thr,
+                            top)
             for c in range(c0, c1):
                 p = base + 1 + c
                 lv = np.int64(st[p])
@@ -607,11 +615,14 @@ def _uphill(st, pix, keep, W, conn8, top, stack):  # type: ignore[no-untyped-def
 
 
 @numba.njit(cache=True, nogil=True)
-def pruned_outlier_mask(z, lab, pix, fin, node_parent, tagged, out):  # type: ignore[no-untyped-def]  # numba kernel
+def pruned_outlier_mask(z, lab, pix, fin, node_parent, tagged, out, wr=0, wc=0, ww=-1):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`listed_outlier_mask` over the pixels kept by :func:`gentle_prune` (``out`` (H * W,
-    zeroed); the flat index and the validity of a pixel are found from its padded index)."""
+    zeroed); the flat index and the validity of a pixel are found from its padded index in the
+    window of :func:`gentle_levels`: rows from ``wr``, columns ``wc .. wc + ww - 1``, -1: the
+    whole width)."""
     outer = _outermost(fin, node_parent, tagged)
-    W = z.shape[1]
+    ZW = z.shape[1]
+    W = ZW if ww < 0 else ww
     Wp = W + 2
     inv = 1.0 / Wp
     zf = z.reshape(-1)
@@ -621,7 +632,7 @@ def pruned_outlier_mask(z, lab, pix, fin, node_parent, tagged, out):  # type: ig
             # the row p // Wp by a product: (p + 0.5) / Wp lies >= 0.5 / Wp from an integer and p
             # < 2**31, far more than the product's rounding error
             rp = np.int64((p + 0.5) * inv)
-            o = p - Wp - 1 - 2 * (rp - 1)
+            o = (wr + rp - 1) * ZW + wc + (p - rp * Wp - 1)
             if np.isfinite(zf[o]):
                 out[o] = True
 

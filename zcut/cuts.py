@@ -395,34 +395,49 @@ def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: fl
     if check is None:
         check = max(PRUNE_CHECK, PRUNE_CHECK_ROWS * W)
     thr = z_max - top * step
-    if z_min < thr and int(np.count_nonzero(seg_max >= thr)) * SEGMENT < minimum:
-        return False  # too few pixels in the cuts (an upper bound) for the labelling to pay
+    wr, wc, wh, ww = 0, 0, H, W  # the window of the pixels in the cuts
+    bound = H * W  # ... and their number, at most
+    if z_min < thr:  # (invalid pixels stand at z_min: outside the cuts, the segments may be skipped)
+        read = seg_max >= thr
+        bound = int(np.count_nonzero(read)) * SEGMENT
+        if bound < minimum:
+            return False  # too few pixels in the cuts for the labelling to pay
+        rows = np.flatnonzero(read.any(axis=1))
+        cols = np.flatnonzero(read.any(axis=0))
+        wr, wh = int(rows[0]), int(rows[-1]) + 1 - int(rows[0])
+        wc = int(cols[0]) * SEGMENT
+        ww = min((int(cols[-1]) + 1) * SEGMENT, W) - wc
+        bound = min(bound, wh * ww)
+    # the scratch arrays sized by the window, not the frame: fewer pages to write and, once freed, to
+    # fault in again at the next call (the pile: 18 % of the frame; docs/performance.md)
+    n = (wh + 2) * (ww + 2)
     st = np.empty(n, np.int16)
-    pix = np.empty(H * W, np.int32)
     gl = np.empty(n, np.int32)
-    gpar = np.empty(H * W, np.int32)
-    gcnt = np.empty(H * W, np.int32)
+    pix = np.empty(bound, np.int32)
+    gpar = np.empty(bound, np.int32)
+    gcnt = np.empty(bound, np.int32)
     conn8 = connectivity == 8
     if gentle not in ("auto", 4, connectivity):
         raise ParameterError(f"gentle must be 'auto', 4 or the connectivity ({connectivity}), got {gentle!r}")
     args = (z, seg_max, z_min, z_max, step, np.int64(k_eff + 2), np.int64(top))
     rest = (float(max_area), np.int64(check), st, pix, gl, gpar, gcnt)
+    window = (wr, wc, wh, ww)
     if conn8 and gentle == "auto":
         # the 4-connected gentle components first (module notes): a trial that stops at the check
         # when they do not pay (they do not percolate on noisy relief), then the 8-connected ones
-        m, nl, labelled = gentle_levels(*args, False, *rest, 0.5, True)
+        m, nl, labelled = gentle_levels(*args, False, *rest, 0.5, True, *window)
         if not labelled:
-            m, nl, labelled = gentle_levels(*args, True, *rest)
+            m, nl, labelled = gentle_levels(*args, True, *rest, 0.5, False, *window)
     else:
-        m, nl, labelled = gentle_levels(*args, conn8 and gentle == 8, *rest)
+        m, nl, labelled = gentle_levels(*args, conn8 and gentle == 8, *rest, 0.5, False, *window)
     start = np.zeros(top + 2, np.int64)
-    keep = int(gentle_prune(st, pix, m, gl, gpar, gcnt, nl, float(max_area), start, labelled, W, conn8,
+    keep = int(gentle_prune(st, pix, m, gl, gpar, gcnt, nl, float(max_area), start, labelled, ww, conn8,
                             np.int64(top)))
     pix = pix[:keep]
     lab = gl  # the labels are read; the flood writes its node image over them at the kept pixels
-    _, _, node_parent, tagged, fin = flood_core_left_out(st, start, pix, W, np.int64(k_eff), np.int64(top), conn8,
+    _, _, node_parent, tagged, fin = flood_core_left_out(st, start, pix, ww, np.int64(k_eff), np.int64(top), conn8,
                                                          float(max_area), lab)
-    pruned_outlier_mask(z, lab, pix, fin, node_parent, tagged, out.reshape(-1))
+    pruned_outlier_mask(z, lab, pix, fin, node_parent, tagged, out.reshape(-1), wr, wc, ww)
     return True
 
 

@@ -249,3 +249,26 @@ def test_degenerate_through_the_pruned_flood(case: str) -> None:
                 continue
             np.testing.assert_array_equal(pruned_outliers(z, gentle=gentle, **params), want)
         check(z, **params)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_window_of_the_pixels_in_the_cuts(seed: int) -> None:
+    """The pruned flood works on the rows and segment columns that hold pixels in the cuts: pixels in the
+    cuts at the window's four edges, in the frame's last (short) segment, in its first and last rows, and
+    invalid holes inside and around it."""
+    from zcut.cut_tree import SEGMENT
+
+    rng = np.random.default_rng(9000 + seed)
+    H, W = 40, 4 * SEGMENT + 9
+    z = np.full((H, W), -100.0)  # far below the cuts
+    r0, r1 = int(rng.integers(0, 10)), int(rng.integers(30, H + 1))
+    c0, c1 = int(rng.integers(0, 2 * SEGMENT)), int(rng.integers(2 * SEGMENT + 1, W + 1))
+    z[r0:r1, c0:c1] = bumpy(rng, r1 - r0, c1 - c0, 0.5)[:, :]
+    z[rng.random(z.shape) < 0.05] = np.nan
+    z[r0, c0], z[r1 - 1, c1 - 1] = np.nan, np.inf
+    for params in (dict(step=0.5, max_depth=3.0, max_area=20.0), dict(step=0.5, max_depth=8.0, max_area=6.0,
+                                                                      connectivity=4)):
+        want = zcut_outliers_reference(z, **params)
+        for gentle in ("auto", 4, int(params.get("connectivity", 8))):
+            np.testing.assert_array_equal(pruned_outliers(z, gentle=gentle, **params), want)
+        np.testing.assert_array_equal(pruned_outliers(z.T.copy(), **params), zcut_outliers_reference(z.T, **params))
