@@ -55,6 +55,14 @@ the first ``PRUNE_CHECK`` pixels (``PRUNE_CHECK_ROWS`` rows' worth) when fewer t
 lie in large gentle components (quantised depths: the real Kinect clouds at Δd 0.2 mm keep 69–100
 % of their pixels), it labels no further and the flood visits every pixel, as before.
 
+The prune then leaves out more by the same argument (:func:`zcut.cut_tree.gentle_prune`): every
+neighbour of a pixel p of a tagged node C whose level is at most ``level(p) + 1`` lies in C (C's
+outer neighbours are at ``k + 2`` or deeper), so a kept pixel with a left-out neighbour of such a
+level is in no tagged node either, nor is a pixel at level ``K + 1``; one sweep with depth-first
+walks takes the closure (*uphill* pixels: on the pile 30,422 kept pixels become 4,454, on the dense
+frame 123,419 become 60,785). The pruned path works on the window of rows and segment columns that
+hold pixels in the cuts, its scratch arrays sized by it.
+
 With 8-connectivity the labelling first tries the *4-connected* gentle components: each lies inside
 an 8-connected one, so a pixel of one of ``max_area`` pixels or more is in no tagged node either
 (any set of such pixels may be left out). They cost less to label (two neighbours before a pixel,
@@ -376,6 +384,25 @@ def _flood(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step:
     return _Flood(lab, pix, own, node_b, node_size, node_parent, tagged, fin)
 
 
+def _window(seg_max: np.ndarray, z_min: float, thr: float, H: int, W: int) -> tuple[tuple[int, int, int, int], int]:
+    """The window of :func:`zcut.cut_tree.gentle_levels` that holds every pixel in the cuts (heights >=
+    ``thr``): ``(row, column, height, width)``, the column a multiple of SEGMENT, from the row segments
+    whose largest height (``seg_max``) is in the cuts; and the number of pixels in the cuts, at most. The
+    whole frame when the invalid pixels (at ``z_min``) are in the cuts; an empty window when no pixel is."""
+    if not z_min < thr:
+        return (0, 0, H, W), H * W
+    read = seg_max >= thr
+    bound = int(np.count_nonzero(read)) * SEGMENT
+    if bound == 0:
+        return (0, 0, 0, 0), 0
+    rows = np.flatnonzero(read.any(axis=1))
+    cols = np.flatnonzero(read.any(axis=0))
+    wr, wh = int(rows[0]), int(rows[-1]) + 1 - int(rows[0])
+    wc = int(cols[0]) * SEGMENT
+    ww = min((int(cols[-1]) + 1) * SEGMENT, W) - wc
+    return (wr, wc, wh, ww), min(bound, wh * ww)
+
+
 def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step: float, K: int,
                      max_area: float, connectivity: int, out: np.ndarray, *, minimum: int = PRUNE_MIN,
                      check: int | None = None, gentle: int | str = "auto") -> bool:
@@ -395,19 +422,9 @@ def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: fl
     if check is None:
         check = max(PRUNE_CHECK, PRUNE_CHECK_ROWS * W)
     thr = z_max - top * step
-    wr, wc, wh, ww = 0, 0, H, W  # the window of the pixels in the cuts
-    bound = H * W  # ... and their number, at most
-    if z_min < thr:  # (invalid pixels stand at z_min: outside the cuts, the segments may be skipped)
-        read = seg_max >= thr
-        bound = int(np.count_nonzero(read)) * SEGMENT
-        if bound < minimum:
-            return False  # too few pixels in the cuts for the labelling to pay
-        rows = np.flatnonzero(read.any(axis=1))
-        cols = np.flatnonzero(read.any(axis=0))
-        wr, wh = int(rows[0]), int(rows[-1]) + 1 - int(rows[0])
-        wc = int(cols[0]) * SEGMENT
-        ww = min((int(cols[-1]) + 1) * SEGMENT, W) - wc
-        bound = min(bound, wh * ww)
+    (wr, wc, wh, ww), bound = _window(seg_max, z_min, thr, H, W)
+    if z_min < thr and bound < minimum:
+        return False  # too few pixels in the cuts (an upper bound) for the labelling to pay
     # the scratch arrays sized by the window, not the frame: fewer pages to write and, once freed, to
     # fault in again at the next call (the pile: 18 % of the frame; docs/performance.md)
     n = (wh + 2) * (ww + 2)
