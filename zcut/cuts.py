@@ -384,23 +384,17 @@ def _flood(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step:
     return _Flood(lab, pix, own, node_b, node_size, node_parent, tagged, fin)
 
 
-def _window(seg_max: np.ndarray, z_min: float, thr: float, H: int, W: int) -> tuple[tuple[int, int, int, int], int]:
-    """The window of :func:`zcut.cut_tree.gentle_levels` that holds every pixel in the cuts (heights >=
-    ``thr``): ``(row, column, height, width)``, the column a multiple of SEGMENT, from the row segments
-    whose largest height (``seg_max``) is in the cuts; and the number of pixels in the cuts, at most. The
-    whole frame when the invalid pixels (at ``z_min``) are in the cuts; an empty window when no pixel is."""
-    if not z_min < thr:
-        return (0, 0, H, W), H * W
-    read = seg_max >= thr
-    bound = int(np.count_nonzero(read)) * SEGMENT
-    if bound == 0:
-        return (0, 0, 0, 0), 0
+def _window(read: np.ndarray, H: int, W: int) -> tuple[int, int, int, int]:
+    """The window of :func:`zcut.cut_tree.gentle_levels` that holds every pixel in the cuts: ``(row,
+    column, height, width)``, the column a multiple of SEGMENT, from ``read`` (H, n_segments), the row
+    segments whose largest height is in the cuts (the invalid pixels outside them); empty when none is."""
     rows = np.flatnonzero(read.any(axis=1))
+    if rows.size == 0:
+        return 0, 0, 0, 0
     cols = np.flatnonzero(read.any(axis=0))
     wr, wh = int(rows[0]), int(rows[-1]) + 1 - int(rows[0])
     wc = int(cols[0]) * SEGMENT
-    ww = min((int(cols[-1]) + 1) * SEGMENT, W) - wc
-    return (wr, wc, wh, ww), min(bound, wh * ww)
+    return wr, wc, wh, min((int(cols[-1]) + 1) * SEGMENT, W) - wc
 
 
 def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step: float, K: int,
@@ -422,9 +416,15 @@ def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: fl
     if check is None:
         check = max(PRUNE_CHECK, PRUNE_CHECK_ROWS * W)
     thr = z_max - top * step
-    (wr, wc, wh, ww), bound = _window(seg_max, z_min, thr, H, W)
-    if z_min < thr and bound < minimum:
-        return False  # too few pixels in the cuts (an upper bound) for the labelling to pay
+    wr, wc, wh, ww = 0, 0, H, W  # the window of the pixels in the cuts
+    bound = H * W  # ... and their number, at most
+    if z_min < thr:  # (invalid pixels stand at z_min: outside the cuts, the segments may be skipped)
+        read = seg_max >= thr
+        bound = int(np.count_nonzero(read)) * SEGMENT
+        if bound < minimum:
+            return False  # too few pixels in the cuts for the labelling to pay
+        wr, wc, wh, ww = _window(read, H, W)
+        bound = min(bound, wh * ww)
     # the scratch arrays sized by the window, not the frame: fewer pages to write and, once freed, to
     # fault in again at the next call (the pile: 18 % of the frame; docs/performance.md)
     n = (wh + 2) * (ww + 2)
