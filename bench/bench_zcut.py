@@ -30,7 +30,8 @@ max_area = 0.07 * a_max (a_max = 3000 px):
 Prints the times, the ratio reference / fast and checks that the masks are identical.
 ``--passes`` also prints where ``zcut_outliers``' CPU time goes (the extremes pass, the level pass with
 the gentle components — the 4-connected ones as a trial, then the 8-connected ones when those do not
-pay, as ``zcut_outliers`` — the prune, the flood of the kept pixels, the read-out) beside the floor of
+pay, as ``zcut_outliers`` — the prune: the large gentle components and the pixels below them left out, the
+flood of the kept pixels, the read-out) beside the floor of
 reading the heights and writing a mask.
 CPU time (process_time) is the figure to quote on a shared machine.
 """
@@ -156,7 +157,7 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
     size: ``zcut_outliers`` floods frames of fewer than ``PRUNE_MIN`` pixels in the cuts whole), and of
     the floor; each pass timed on fresh copies of what it writes (the copies made outside the timing)."""
     from zcut.cut_tree import flood_core_left_out, gentle_levels, gentle_prune, pruned_outlier_mask
-    from zcut.cuts import PRUNE_CHECK, PRUNE_CHECK_ROWS, _finite_range, _levels
+    from zcut.cuts import PRUNE_CHECK, PRUNE_CHECK_ROWS, _finite_range, _levels, _window
     from zcut.params import n_levels
 
     step, max_area = params["step"], float(params["max_area"])
@@ -164,17 +165,19 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
     n, lo, hi, seg = _finite_range(z)
     k_eff, top = _levels(lo, hi, step, K)
     Hz, Wz = z.shape
-    size = (Hz + 2) * (Wz + 2)
+    thr = hi - top * step  # as zcut_outliers: the window of the pixels in the cuts
+    window, bound = ((0, 0, Hz, Wz), Hz * Wz) if not lo < thr else (_window(seg >= thr, Hz, Wz), Hz * Wz)
+    size = (window[2] + 2) * (window[3] + 2)
     st, gl = np.empty(size, np.int16), np.empty(size, np.int32)
-    pix, gpar, gcnt = (np.empty(Hz * Wz, np.int32) for _ in range(3))
+    pix, gpar, gcnt = (np.empty(bound, np.int32) for _ in range(3))
 
     def levels() -> tuple:
         # as zcut_outliers: the 4-connected gentle components as a trial, the 8-connected ones when
         # those do not pay at the check
         args = (z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top))
         rest = (max_area, np.int64(max(PRUNE_CHECK, PRUNE_CHECK_ROWS * Wz)), st, pix, gl, gpar, gcnt)
-        out = gentle_levels(*args, False, *rest, 0.5, True)
-        return (*out, 4) if out[2] else (*gentle_levels(*args, True, *rest), 8)
+        out = gentle_levels(*args, False, *rest, 0.5, True, *window)
+        return (*out, 4) if out[2] else (*gentle_levels(*args, True, *rest, 0.5, False, *window), 8)
 
     m, nl, labelled, gentle = levels()
     state = (st.copy(), pix.copy(), gpar.copy(), gcnt.copy())
@@ -183,7 +186,8 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
         return tuple(a.copy() for a in state) + (np.zeros(top + 2, np.int64),)
 
     def prune(a: tuple) -> int:
-        return gentle_prune(a[0], a[1], m, gl, a[2], a[3], nl, max_area, a[4], labelled)
+        return gentle_prune(a[0], a[1], m, gl, a[2], a[3], nl, max_area, a[4], labelled, window[3], True,
+                            np.int64(top))
 
     a = prune_inputs()
     keep = int(prune(a))
@@ -191,17 +195,18 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
     lab = gl.copy()
 
     def flood(b: tuple) -> tuple:
-        return flood_core_left_out(b[0], b[1], kept, Wz, np.int64(k_eff), np.int64(top), True, max_area, lab)
+        return flood_core_left_out(b[0], b[1], kept, window[3], np.int64(k_eff), np.int64(top), True, max_area, lab)
 
     _, _, node_parent, tagged, fin = flood((st_kept.copy(), start.copy()))
     res = {
         "floor (read heights, write a mask)": timed(lambda: (z.sum(), np.zeros(z.shape, bool).fill(False)), repeat)[1],
         "extremes pass": timed(lambda: _finite_range(z), repeat)[1],
         "level pass + gentle components": timed(levels, repeat)[1],
-        "prune": timed_on(prune_inputs, prune, repeat),
+        "prune (gentle + uphill)": timed_on(prune_inputs, prune, repeat),
         "flood": timed_on(lambda: (st_kept.copy(), start.copy()), flood, repeat),
         "read-out": timed(lambda: pruned_outlier_mask(z, lab, kept, fin, node_parent, tagged,
-                                                      np.zeros(z.size, bool)), repeat)[1],
+                                                      np.zeros(z.size, bool), window[0], window[1], window[3]),
+                          repeat)[1],
     }
     res["pixels in the cuts"] = float(m)
     res["pixels flooded"] = float(keep)

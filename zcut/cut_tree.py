@@ -279,6 +279,7 @@ def flood_levels(z, seg_max, z_min, z_max, step, hi, top, K, st, start, pix, own
     inv_step = 1.0 / step
     thr = z_max - top * step
     skip = z_min < thr  # invalid pixels (at z_min) are outside the cuts: segments may be skipped
+    zf = z.reshape(-1)
     for c in range(Wp):
         st[c] = -1
         st[(H + 1) * Wp + c] = -1
@@ -296,25 +297,20 @@ def flood_levels(z, seg_max, z_min, z_max, step, hi, top, K, st, start, pix, own
                 if want_levels:
                     pixel_level[r, c0:c1] = -1
                 continue
+            _segment_levels(zf, st, r * W, base + 1, c0, c1, z_min, z_max, step, inv_step, hi, thr, top)
             for c in range(c0, c1):
-                v = z[r, c]
-                ok = np.isfinite(v)
-                zt = v if ok else z_min
                 p = base + 1 + c
-                if zt >= thr:
-                    lv = _qlevel_guess(zt, z_max, step, inv_step, hi)
-                    st[p] = lv
+                lv = np.int64(st[p])
+                if lv >= 0:
                     start[lv + 1] += 1
                     pix[m] = p
                     o = r * W + c
-                    own[m] = o if ok else -1 - o
+                    own[m] = o if np.isfinite(z[r, c]) else -1 - o
                     m += 1
                     if want_levels:
                         pixel_level[r, c] = lv if lv <= K + 1 else -1
-                else:
-                    st[p] = -1
-                    if want_levels:
-                        pixel_level[r, c] = -1
+                elif want_levels:
+                    pixel_level[r, c] = -1
     return m
 
 
@@ -343,9 +339,40 @@ def _unite(gpar, ra, b):  # type: ignore[no-untyped-def]  # numba kernel
     return rb
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _segment_levels(zf, st, row, base, c0, c1, z_min, z_max, step, inv_step, hi, thr, top):  # type: ignore[no-untyped-def]  # numba kernel
+    """``st[base + c]`` for c in [c0, c1): the level of the pixel ``zf[row + c]`` in the cuts (<=
+    ``top``), -1 outside them (an invalid pixel stands at ``z_min``). Without a branch, so LLVM
+    vectorises it: the guess ``k = floor((z_max - zt) / step)`` (clamped to [0, top + 1], so that
+    the conversion is defined) and the exact comparisons with the cuts k - 1, k and k + 1 give the level (k when
+    the pixel is in the cut k and not in k - 1, k + 1 when it is in k + 1 and not in k, as
+    :func:`_qlevel_guess`); where neither holds, the segment is levelled again by :func:`qlevel`."""
+    gmax = np.float64(top + 1)
+    bad = False
+    for c in range(c0, c1):
+        v = zf[np.uint64(row + c)]  # (an unsigned index: no wrap-around test)
+        zt = v if (v - v) == 0.0 else z_min  # (v - v) == 0: finite
+        g = (z_max - zt) * inv_step
+        g = g if g < gmax else gmax
+        g = g if g > 0.0 else 0.0  # (NaN too: 0 * inf with a subnormal step)
+        k = np.int64(g)
+        in0 = zt >= z_max - k * step
+        inm = zt >= z_max - (k - 1) * step
+        inp = zt >= z_max - (k + 1) * step
+        ok = (in0 & ((k == 0) | (not inm))) | ((not in0) & inp)
+        incut = zt >= thr
+        st[np.uint64(base + c)] = (k + (not in0)) if incut else -1
+        bad |= incut & (not ok)
+    if bad:
+        for c in range(c0, c1):
+            v = zf[row + c]
+            zt = v if np.isfinite(v) else z_min
+            st[base + c] = _qlevel_guess(zt, z_max, step, inv_step, hi) if zt >= thr else -1
+
+
 @numba.njit(cache=True, nogil=True)
 def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt,  # type: ignore[no-untyped-def]  # numba kernel
-                  share=0.5, trial=False):
+                  share=0.5, trial=False, wr=0, wc=0, wh=-1, ww=-1):
     """:func:`flood_levels` without ``own`` and ``pixel_level``, labelling on the way the *gentle
     components*: the components of the pixels in the cuts where two neighbours are joined when
     their levels differ by at most 1.
@@ -367,12 +394,20 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
     anyway), it labels no further and returns labelled = False (the levels and ``pix`` are complete;
     the labels are not). With ``trial`` it returns there at once (the levels and ``pix`` incomplete
     too): the caller labels again another way (:func:`zcut.cuts._pruned_outliers`: the 4-connected
-    gentle components first, the 8-connected ones when those do not pay)."""
-    H, W = z.shape
+    gentle components first, the 8-connected ones when those do not pay).
+
+    ``wr, wc, wh, ww``: the window of z worked on, rows ``wr .. wr + wh - 1`` and columns ``wc .. wc
+    + ww - 1`` (``wc`` a multiple of SEGMENT; ``wh, ww`` = -1: the whole frame); ``st``, ``gl`` and
+    the indices in ``pix`` are then the window's (padded: ``(wh + 2) * (ww + 2)``). No pixel in the
+    cuts may lie outside it."""
+    ZW = z.shape[1]
+    H = z.shape[0] if wh < 0 else wh
+    W = ZW if ww < 0 else ww
     Wp = W + 2
     inv_step = 1.0 / step
     thr = z_max - top * step
     skip = z_min < thr  # invalid pixels (at z_min) are outside the cuts: segments may be skipped
+    zf = z.reshape(-1)
     for c in range(Wp):
         st[c] = -1
         st[(H + 1) * Wp + c] = -1
@@ -393,20 +428,18 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
         lw = np.int64(-1)
         for c0 in range(0, W, SEGMENT):
             c1 = min(c0 + SEGMENT, W)
-            if skip and not seg_max[r, c0 // SEGMENT] >= thr:
+            if skip and not seg_max[wr + r, (wc + c0) // SEGMENT] >= thr:
                 st[base + 1 + c0:base + 1 + c1] = -1
                 qw = -1  # type: ignore[assignment]  # numba kernel: an int64 local
                 continue
+            _segment_levels(zf, st, (wr + r) * ZW + wc, base + 1, c0, c1, z_min, z_max, step, inv_step, hi, thr,
+                            top)
             for c in range(c0, c1):
                 p = base + 1 + c
-                v = z[r, c]
-                zt = v if np.isfinite(v) else z_min
-                if not zt >= thr:
-                    st[p] = -1
+                lv = np.int64(st[p])
+                if lv < 0:
                     qw = -1  # type: ignore[assignment]  # numba kernel: an int64 local
                     continue
-                lv = _qlevel_guess(zt, z_max, step, inv_step, hi)
-                st[p] = lv
                 pix[m] = p
                 m += 1
                 if not labelling:
@@ -475,11 +508,14 @@ def _labelling_pays(gpar, gcnt, nl, m, max_area, share):  # type: ignore[no-unty
 
 
 @numba.njit(cache=True, nogil=True)
-def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled):  # type: ignore[no-untyped-def]  # numba kernel
+def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, W, conn8, top):  # type: ignore[no-untyped-def]  # numba kernel
     """Keep in ``pix`` only the pixels of the gentle components (:func:`gentle_levels`) of fewer
-    than ``max_area`` pixels, count them per level in ``start`` (zeroed; ``start[lv + 1]``, as
-    :func:`flood_core` wants), and mark the others ``OUTSIDE - level`` in ``st``. Returns the
-    number kept. Without ``labelled`` (:func:`gentle_levels` gave up) every pixel is kept.
+    than ``max_area`` pixels that do not lie below a pixel left out (:func:`_uphill`), count them
+    per level in ``start`` (zeroed; ``start[lv + 1]``, as :func:`flood_core` wants), and mark the
+    others ``OUTSIDE - level`` in ``st``. Returns the number kept. Without ``labelled``
+    (:func:`gentle_levels` gave up) every pixel is kept. ``W``: the image's width; ``conn8``: the
+    z-cut's connectivity; ``top``: the deepest level in the cuts (K + 1); ``gpar`` is used as
+    scratch once the sets are read.
 
     Why the flood over the kept pixels gives the outliers of the whole tree: a tagged node C is a
     component of two cuts k, k + 1, so every neighbour of C has a level >= k + 2 and no gentle
@@ -487,7 +523,8 @@ def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled):  # 
     pixels hold every tagged node, and each one is also a component of the same cuts among the
     kept pixels; conversely a node of the kept pixels' tree is a component of the whole cut at
     level k unless it touches a left-out pixel of level <= k, which :func:`flood_core` accounts
-    for. The tagged nodes, as pixel sets, are the same in both trees."""
+    for. The tagged nodes, as pixel sets, are the same in both trees. The argument needs only
+    that no left-out pixel lies in a tagged node, so :func:`_uphill` may leave out more."""
     if not labelled:
         for t in range(m):
             start[np.int64(st[pix[t]]) + 1] += 1
@@ -501,24 +538,91 @@ def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled):  # 
     for i in range(nl):
         small[i] = gcnt[gpar[i]] < max_area
     keep = 0
-    for t in range(m):
+    for t in range(m):  # no branch: the kept pixels' slots are written either way
         p = pix[t]
         lv = np.int64(st[p])
-        if small[gl[p]]:
-            pix[keep] = p
-            keep += 1
-            start[lv + 1] += 1
-        else:
-            st[p] = OUTSIDE - lv
+        k = small[gl[p]]
+        pix[keep] = p
+        keep += k
+        st[p] = lv if k else OUTSIDE - lv
+    keep = _uphill(st, pix, keep, W, conn8, top, gpar)
+    start[:] = 0
+    n = 0
+    for t in range(keep):
+        p = pix[t]
+        q = np.int64(st[p])
+        if q >= 0:
+            pix[n] = p
+            n += 1
+            start[q + 1] += 1
+    return n
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _uphill(st, pix, keep, W, conn8, top, stack):  # type: ignore[no-untyped-def]  # numba kernel
+    """Leave out (mark ``OUTSIDE - level`` in ``st``), of the ``keep`` pixels kept so far
+    (``pix[:keep]``), those that lie *below* a left-out pixel; returns ``keep`` (``pix`` unchanged).
+
+    A tagged node C is a component of the cuts k and k + 1, so every neighbour of a pixel p of C
+    whose level is at most ``level(p) + 1`` (<= k + 1) lies in C. Hence a pixel with such a
+    neighbour in no tagged node is in no tagged node either, and neither is a pixel at level
+    ``top`` (= K + 1: not in the cut at K). The left-out pixels (``st <= OUTSIDE``) are in no
+    tagged node; one sweep over the kept pixels in raster order leaves out each one that has a
+    left-out neighbour of level <= its level + 1 (or lies at ``top``), and from each one left out
+    a depth-first walk leaves out at once every kept neighbour that it lies within one level
+    below of, and so on (``stack``: ``keep`` int32 slots): the closure of the rule in one sweep.
+    Neighbours: the z-cut's (``conn8``)."""
+    Wp = W + 2
+    if conn8:
+        offs = np.array([-Wp - 1, -Wp, -Wp + 1, -1, 1, Wp - 1, Wp, Wp + 1])
+    else:
+        offs = np.array([-Wp, -1, 1, Wp])
+    ne = offs.size
+    for t in range(keep):
+        p = pix[t]
+        q = np.int64(st[p])
+        if q < 0:  # left out by a walk already
+            continue
+        out = q >= top
+        if not out:
+            for u in range(8):  # (a constant trip count: unrolled)
+                if u >= ne:
+                    break
+                s = np.int64(st[p + offs[u]])
+                # a left-out neighbour (st <= OUTSIDE) of level OUTSIDE - s <= q + 1
+                if s <= OUTSIDE and s >= OUTSIDE - 1 - q:
+                    out = True
+                    break
+        if not out:
+            continue
+        st[p] = OUTSIDE - q
+        stack[0] = p
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            x = stack[sp]
+            qx = OUTSIDE - np.int64(st[x])
+            for u in range(8):
+                if u >= ne:
+                    break
+                y = x + offs[u]
+                s = np.int64(st[y])
+                if s >= 0 and qx <= s + 1:  # a kept neighbour lying within one level below x
+                    st[y] = OUTSIDE - s
+                    stack[sp] = y
+                    sp += 1
     return keep
 
 
 @numba.njit(cache=True, nogil=True)
-def pruned_outlier_mask(z, lab, pix, fin, node_parent, tagged, out):  # type: ignore[no-untyped-def]  # numba kernel
+def pruned_outlier_mask(z, lab, pix, fin, node_parent, tagged, out, wr=0, wc=0, ww=-1):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`listed_outlier_mask` over the pixels kept by :func:`gentle_prune` (``out`` (H * W,
-    zeroed); the flat index and the validity of a pixel are found from its padded index)."""
+    zeroed); the flat index and the validity of a pixel are found from its padded index in the
+    window of :func:`gentle_levels`: rows from ``wr``, columns ``wc .. wc + ww - 1``, -1: the
+    whole width)."""
     outer = _outermost(fin, node_parent, tagged)
-    W = z.shape[1]
+    ZW = z.shape[1]
+    W = ZW if ww < 0 else ww
     Wp = W + 2
     inv = 1.0 / Wp
     zf = z.reshape(-1)
@@ -528,7 +632,7 @@ def pruned_outlier_mask(z, lab, pix, fin, node_parent, tagged, out):  # type: ig
             # the row p // Wp by a product: (p + 0.5) / Wp lies >= 0.5 / Wp from an integer and p
             # < 2**31, far more than the product's rounding error
             rp = np.int64((p + 0.5) * inv)
-            o = p - Wp - 1 - 2 * (rp - 1)
+            o = (wr + rp - 1) * ZW + wc + (p - rp * Wp - 1)
             if np.isfinite(zf[o]):
                 out[o] = True
 

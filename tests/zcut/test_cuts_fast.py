@@ -252,7 +252,8 @@ def pruned_counts(z: np.ndarray, *, step: float, max_depth: float, max_area: flo
     pix, gpar, gcnt = (np.empty(H * W, np.int32) for _ in range(3))
     m, nl, labelled = gentle_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top),
                                     (gentle or connectivity) == 8, max_area, np.int64(check), st, pix, gl, gpar, gcnt)
-    keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, np.zeros(top + 2, np.int64), labelled)
+    keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, np.zeros(top + 2, np.int64), labelled, W,
+                        connectivity == 8, np.int64(top))
     return int(m), int(keep)
 
 
