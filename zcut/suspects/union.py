@@ -210,10 +210,14 @@ def _nan_to_num(a, nan):  # type: ignore[no-untyped-def]  # numba kernel
 @numba.njit(cache=True, error_model="numpy")  # IEEE division
 def _interp_in_place(a, xp, fp):  # type: ignore[no-untyped-def]  # numba kernel
     """``a[:] = np.interp(np.nan_to_num(a, nan=xp[0]), xp, fp)`` (``xp`` non-decreasing, at least one entry),
-    numpy's arithmetic: j the last index with xp[j] <= x (what numpy's ``binary_search_with_guess`` finds); fp[0] left of xp[0], fp[-1] from xp[-1] on and where xp[j] == x, else
-    slope · (x - xp[j]) + fp[j] with the slope (fp[j+1] - fp[j]) / (xp[j+1] - xp[j]), and where that is NaN,
-    slope · (x - xp[j+1]) + fp[j+1], and fp[j] where that is NaN too and fp[j] == fp[j+1]. One entry:
-    fp[0] everywhere."""
+    numpy's arithmetic: j the last index with xp[j] <= x (what numpy's ``binary_search_with_guess`` finds);
+    fp[0] left of xp[0], fp[-1] from xp[-1] on and where xp[j] == x, else slope · (x - xp[j]) + fp[j] with
+    the slope (fp[j+1] - fp[j]) / (xp[j+1] - xp[j]), and where that is NaN, slope · (x - xp[j+1]) + fp[j+1],
+    and fp[j] where that is NaN too and fp[j] == fp[j+1]. One entry: fp[0] everywhere.
+
+    A block of values at a time: their j counted without a branch (for xp[0] <= x < xp[-1], j is the count
+    of xp[1 .. n-2] <= x), a compare per height and value in the processor's vector lanes (the local heights
+    of neighbouring pixels jump between bins: a search per value mispredicts), then each value's case."""
     big = np.finfo(np.float64).max
     n = xp.size
     f = a.reshape(-1)
@@ -222,40 +226,44 @@ def _interp_in_place(a, xp, fp):  # type: ignore[no-untyped-def]  # numba kernel
         slopes[k] = (fp[k + 1] - fp[k]) / (xp[k + 1] - xp[k])
     lo = xp[0]
     hi = xp[n - 1]
-    for q in range(f.size):
-        x = f[q]
-        if x != x:
-            x = lo
-        elif x == np.inf:
-            x = big
-        elif x == -np.inf:
-            x = -big
-        if n == 1 or x < lo:
-            f[q] = fp[0]
-            continue
-        if x >= hi:
-            # x > xp[-1]: fp[-1]; x == xp[-1]: j = n - 1, fp[n - 1]
-            f[q] = fp[n - 1]
-            continue
-        # xp[0] <= x < xp[-1]: the j with xp[j] <= x < xp[j + 1] (the last xp[j] <= x), by a bisection of
-        # fixed steps without a branch (the heights of neighbouring pixels jump between bins: a search
-        # from the previous j mispredicts)
-        j = 0
-        m = n
-        while m > 1:
-            half = m >> 1
-            j = j + half if xp[j + half] <= x else j
-            m -= half
-        if xp[j] == x:
-            f[q] = fp[j]
-            continue
-        sl = slopes[j]
-        v = sl * (x - xp[j]) + fp[j]
-        if v != v:
-            v = sl * (x - xp[j + 1]) + fp[j + 1]
-            if v != v and fp[j] == fp[j + 1]:
-                v = fp[j]
-        f[q] = v
+    B = 1024
+    xb = np.empty(B)
+    jb = np.empty(B, np.int64)
+    for s0 in range(0, f.size, B):
+        m = min(B, f.size - s0)
+        for t in range(m):
+            x = f[s0 + t]
+            if x != x:
+                x = lo
+            elif x == np.inf:
+                x = big
+            elif x == -np.inf:
+                x = -big
+            xb[t] = x
+            jb[t] = 0
+        for k in range(1, n - 1):
+            xk = xp[k]
+            for t in range(m):
+                jb[t] += xk <= xb[t]
+        for t in range(m):
+            x = xb[t]
+            if n == 1 or x < lo:
+                f[s0 + t] = fp[0]
+                continue
+            if x >= hi:  # x > xp[-1]: fp[-1]; x == xp[-1]: j = n - 1, fp[n - 1]
+                f[s0 + t] = fp[n - 1]
+                continue
+            j = jb[t]
+            if xp[j] == x:
+                f[s0 + t] = fp[j]
+                continue
+            sl = slopes[j]
+            v = sl * (x - xp[j]) + fp[j]
+            if v != v:
+                v = sl * (x - xp[j + 1]) + fp[j + 1]
+                if v != v and fp[j] == fp[j + 1]:
+                    v = fp[j]
+            f[s0 + t] = v
 
 
 def _sigma_px(profile: NoiseProfile, context: np.ndarray) -> np.ndarray:
