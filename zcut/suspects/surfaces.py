@@ -692,6 +692,14 @@ class LazySurfaces:
                                        p.search_radius_px, p.max_search_radius_px, self._state, self._slot,
                                        self._planes, self._count, d)
 
+    def distance_at(self, flat: np.ndarray) -> np.ndarray:
+        """:meth:`distance` at the valid pixels of flat indices ``flat`` (increasing), as an array of theirs
+        (the same values, read in the same order, without the frame of NaN around them)."""
+        rows, cols = np.divmod(np.asarray(flat, np.int64), self._valid.shape[1])
+        d = np.empty(rows.size)
+        self._nearest(rows, cols, d)
+        return d
+
     def distance(self, where: Mask | None = None) -> np.ndarray:
         """Signed distance (mm) of the valid pixels (of those in ``where`` too, when given) to the
         nearest surface: :meth:`zcut.edge_surface.EdgeSurfaces.distance`'s values there, NaN elsewhere."""

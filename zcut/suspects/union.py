@@ -7,7 +7,6 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from scipy import ndimage
 
 from ..cloud import Intrinsics, check_mask, check_xyz
 from ..edge_surface import EdgeSurfaceParams, _check_args
@@ -16,7 +15,7 @@ from ..params import SuspectParams
 from ..types import XYZ, FloatImage, Labels, Mask
 from .detectors import ABOVE_RIM, DETECTORS, FLOATING, RESIDUAL_UP, detector_bits, detector_names, label_medians
 from .floating import FLOATING_STEP_SIGMAS, floating_components
-from .gaps import local_gaps
+from .gaps import GAP_MAX_RADIUS, GAP_MIN_PIXELS, _gap_kernel
 from .grouping import group_suspects
 from .noise import NoiseProfile, local_height, noise_profile
 from .residuals import fill_blobs, surface_residuals
@@ -162,6 +161,15 @@ def _prepare_kernel(a, zone_in, easy_in, valid, zone, easy, h_all, context):  # 
             context[i, j] = np.nan if (e and v) else h
 
 
+@numba.njit(cache=True)
+def _frame_mm(a, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """``out = a.astype(np.float64) * 1000.0`` (the same products, NaN's too) in one pass."""
+    f = a.reshape(-1)
+    o = out.reshape(-1)
+    for q in range(f.size):
+        o[q] = np.float64(f[q]) * 1000.0
+
+
 def _prepare(a: np.ndarray, zone: Mask, easy: Mask) -> tuple[Mask, Mask, Mask, np.ndarray, np.ndarray]:
     """(valid, zone & valid & ~easy, easy & valid, every measured point's height -1000 z (NaN elsewhere),
     the context: those heights but above the rim) in one sweep of the frame."""
@@ -199,14 +207,78 @@ def _nan_to_num(a, nan):  # type: ignore[no-untyped-def]  # numba kernel
             f[q] = -big
 
 
+@numba.njit(cache=True, error_model="numpy")  # IEEE division
+def _interp_in_place(a, xp, fp):  # type: ignore[no-untyped-def]  # numba kernel
+    """``a[:] = np.interp(np.nan_to_num(a, nan=xp[0]), xp, fp)`` (``xp`` non-decreasing, at least one entry),
+    numpy's arithmetic: j the last index with xp[j] <= x (what numpy's ``binary_search_with_guess`` finds);
+    fp[0] left of xp[0], fp[-1] from xp[-1] on and where xp[j] == x, else slope · (x - xp[j]) + fp[j] with
+    the slope (fp[j+1] - fp[j]) / (xp[j+1] - xp[j]), and where that is NaN, slope · (x - xp[j+1]) + fp[j+1],
+    and fp[j] where that is NaN too and fp[j] == fp[j+1]. One entry: fp[0] everywhere.
+
+    A block of values at a time: their j counted without a branch (for xp[0] <= x < xp[-1], j is the count
+    of xp[1 .. n-2] <= x), a compare per height and value in the processor's vector lanes (the local heights
+    of neighbouring pixels jump between bins: a search per value mispredicts), then each value's case."""
+    big = np.finfo(np.float64).max
+    n = xp.size
+    f = a.reshape(-1)
+    slopes = np.empty(max(n - 1, 0))
+    for k in range(n - 1):
+        slopes[k] = (fp[k + 1] - fp[k]) / (xp[k + 1] - xp[k])
+    lo = xp[0]
+    hi = xp[n - 1]
+    B = 1024
+    xb = np.empty(B)
+    jb = np.empty(B, np.int64)
+    for s0 in range(0, f.size, B):
+        m = min(B, f.size - s0)
+        for t in range(m):
+            x = f[s0 + t]
+            if x != x:
+                x = lo
+            elif x == np.inf:
+                x = big
+            elif x == -np.inf:
+                x = -big
+            xb[t] = x
+            jb[t] = 0
+        for k in range(1, n - 1):
+            xk = xp[k]
+            for t in range(m):
+                jb[t] += xk <= xb[t]
+        for t in range(m):
+            x = xb[t]
+            if n == 1 or x < lo:
+                f[s0 + t] = fp[0]
+                continue
+            if x >= hi:  # x > xp[-1]: fp[-1]; x == xp[-1]: j = n - 1, fp[n - 1]
+                f[s0 + t] = fp[n - 1]
+                continue
+            j = jb[t]
+            if xp[j] == x:
+                f[s0 + t] = fp[j]
+                continue
+            sl = slopes[j]
+            v = sl * (x - xp[j]) + fp[j]
+            if v != v:
+                v = sl * (x - xp[j + 1]) + fp[j + 1]
+                if v != v and fp[j] == fp[j + 1]:
+                    v = fp[j]
+            f[s0 + t] = v
+
+
 def _sigma_px(profile: NoiseProfile, context: np.ndarray) -> np.ndarray:
-    """``profile.sigma_at(local_height(context))`` without the lookup's copy of the local heights."""
+    """``profile.sigma_at(local_height(context))``, the lookup in place of the local heights."""
     lh = local_height(context)
     if profile.heights_mm.size == 0:
         return np.zeros(lh.shape)
-    _nan_to_num(lh, float(profile.heights_mm[0]))
-    out: np.ndarray = np.interp(lh, profile.heights_mm, profile.sigma_mm)
-    return out
+    xp = np.ascontiguousarray(profile.heights_mm, np.float64)
+    fp = np.ascontiguousarray(profile.sigma_mm, np.float64)
+    if not (np.isfinite(xp).all() and (xp[1:] >= xp[:-1]).all()):  # not a profile's heights: numpy's lookup
+        _nan_to_num(lh, float(xp[0]))
+        out: np.ndarray = np.interp(lh, xp, fp)
+        return out
+    _interp_in_place(lh, xp, fp)
+    return lh
 
 
 @numba.njit(cache=True)
@@ -241,6 +313,99 @@ def _gap_ratio(gap, tau, min_residual, out):  # type: ignore[no-untyped-def]  # 
     for q in range(g.size):
         x = t[q]
         o[q] = abs(g[q]) / (x if np.isfinite(x) and x > 0 else min_residual)
+
+
+@numba.njit(cache=True)
+def _codes_and_masks(codes, off, filled, floating, easy, residual, valid, h, mask, by_residual, gap_at, surface):  # type: ignore[no-untyped-def]  # numba kernel
+    """One pass of what ``suspects()`` did with whole-frame numpy between the detectors and the gaps:
+    ``codes[filled & ~off] = RESIDUAL_UP``, ``codes[floating] |= FLOATING``, ``codes[easy] |= ABOVE_RIM``,
+    ``mask = codes > 0``, ``by_residual = off & (codes & (FLOATING | ABOVE_RIM) == 0) & isfinite(residual)``,
+    :func:`local_gaps`' suspects ``mask & ~by_residual & ~floating`` and its surface ``valid & ~mask &
+    isfinite(h)``. Returns the count of ``by_residual``."""
+    c_ = codes.reshape(-1)
+    o_ = off.reshape(-1)
+    f_ = filled.reshape(-1)
+    fl = floating.reshape(-1)
+    e_ = easy.reshape(-1)
+    r_ = residual.reshape(-1)
+    v_ = valid.reshape(-1)
+    h_ = h.reshape(-1)
+    m_ = mask.reshape(-1)
+    b_ = by_residual.reshape(-1)
+    g_ = gap_at.reshape(-1)
+    s_ = surface.reshape(-1)
+    n = 0
+    for q in range(c_.size):
+        c = c_[q]
+        if f_[q] and not o_[q]:
+            c = RESIDUAL_UP
+        if fl[q]:
+            c |= FLOATING
+        if e_[q]:
+            c |= ABOVE_RIM
+        c_[q] = c
+        m = c > 0
+        m_[q] = m
+        b = o_[q] and (c & (FLOATING | ABOVE_RIM)) == 0 and np.isfinite(r_[q])
+        b_[q] = b
+        n += b
+        g_[q] = m and not b and not fl[q]
+        s_[q] = v_[q] and not m and np.isfinite(h_[q])
+    return n
+
+
+@numba.njit(cache=True)
+def _residual_gaps(by_residual, residual, gap, n):  # type: ignore[no-untyped-def]  # numba kernel
+    """``gap[by_residual] = residual[by_residual]``; returns the flat indices of ``by_residual`` (``n`` of them,
+    raster order)."""
+    b_ = by_residual.reshape(-1)
+    r_ = residual.reshape(-1)
+    g_ = gap.reshape(-1)
+    idx = np.empty(n, np.int64)
+    k = 0
+    for q in range(b_.size):
+        if b_[q]:
+            g_[q] = r_[q]
+            idx[k] = q
+            k += 1
+    return idx
+
+
+@numba.njit(cache=True)
+def _group_tables(groups, codes, n):  # type: ignore[no-untyped-def]  # numba kernel
+    """Per group 1..n of ``groups``: its size (``np.bincount``), the OR of its pixels' codes, its bounding
+    box (row0, col0, row1, col1, as ``ndimage.find_objects``; every label has pixels); and the flat indices
+    of the grouped pixels in raster order."""
+    H, W = groups.shape
+    size = np.zeros(n, np.int64)
+    bits = np.zeros(n, np.uint8)
+    bbox = np.empty((n, 4), np.int32)
+    for g in range(n):
+        bbox[g, 0] = H
+        bbox[g, 1] = W
+        bbox[g, 2] = 0
+        bbox[g, 3] = 0
+    m = 0
+    for i in range(H):
+        for j in range(W):
+            if groups[i, j] > 0:
+                m += 1
+    idx = np.empty(m, np.int64)
+    m = 0
+    for i in range(H):
+        for j in range(W):
+            g = groups[i, j] - 1
+            if g < 0:
+                continue
+            idx[m] = i * W + j
+            m += 1
+            size[g] += 1
+            bits[g] |= codes[i, j]
+            bbox[g, 0] = min(bbox[g, 0], i)
+            bbox[g, 1] = min(bbox[g, 1], j)
+            bbox[g, 2] = max(bbox[g, 2], i + 1)
+            bbox[g, 3] = max(bbox[g, 3], j + 1)
+    return size, bits, bbox, idx
 
 
 def _sigma_and_tau_medians(sigma_px: np.ndarray, params: SuspectParams) -> tuple[float, float]:
@@ -340,63 +505,60 @@ def suspects(
 
     codes, residual = surface_residuals(context, zone, tau=tau, jump=jump, min_below=params.below_min_directions)
     off = codes > 0
-    if params.fill_iterations > 0:
-        filled = fill_blobs(off, zone, valid & ~easy, iterations=params.fill_iterations)
-        codes[filled & ~off] = RESIDUAL_UP
+    judged_ctx = valid & ~easy
+    filled = (fill_blobs(off, zone, judged_ctx, iterations=params.fill_iterations) if params.fill_iterations > 0
+              else off)
     rough = np.empty((H, W), bool)
     _rough(zone, residual, tau, rough)  # in the zone: inf (no continuation) is rough
-    floating, floating_at, floating_gap = floating_components(h_zcut, zone, valid & ~easy, rough, params, a_max,
+    floating, floating_at, floating_gap = floating_components(h_zcut, zone, judged_ctx, rough, params, a_max,
                                                               step, profile)
-    codes[floating] |= FLOATING
-    codes[easy] |= ABOVE_RIM
-    mask = codes > 0
 
-    # gaps: a floating pixel's over the measured pixels bordering its component; a pixel off the
-    # surface, its residual (to the nearest continuation) or, with edge_surface, its distance to the
-    # nearest surface fitted on one side of an edge; a blob's or an above-rim pixel's, to the local
-    # surface around it
-    by_residual = off & ((codes & (FLOATING | ABOVE_RIM)) == 0) & np.isfinite(residual)
-    # (a floating pixel is in the zone, never above the rim: its gap is the one over its component's border)
-    gap = local_gaps(h_all,
-                     mask & ~by_residual & ~floating, valid & ~mask)
-    gap[by_residual] = residual[by_residual]
+    # the codes, and the gaps: a floating pixel's over the measured pixels bordering its component; a
+    # pixel off the surface, its residual (to the nearest continuation) or, with edge_surface, its distance
+    # to the nearest surface fitted on one side of an edge; a blob's or an above-rim pixel's, to the local
+    # surface around it (a floating pixel is in the zone, never above the rim: its gap is the one over its
+    # component's border)
+    mask, by_residual = np.empty((H, W), bool), np.empty((H, W), bool)
+    gap_at, surface_px = np.empty((H, W), bool), np.empty((H, W), bool)
+    n_res = _codes_and_masks(codes, off, filled, floating, easy, residual, valid, h_all, mask, by_residual, gap_at,
+                             surface_px)
+    gap = np.empty((H, W))
+    _gap_kernel(h_all, gap_at, surface_px, GAP_MIN_PIXELS, GAP_MAX_RADIUS, gap)  # local_gaps(h_all, ...)
+    at_res = _residual_gaps(by_residual, residual, gap, n_res)
     np.put(gap, floating_at, floating_gap)
     surfaces = None
     if edge_surface is not None:  # a pixel off the surface with a surface near: its distance to the nearest one
-        # the frame in mm: 1000.0 * a.astype(np.float64), the product in place (numpy's casting loop of
-        # np.multiply(a, 1000.0, dtype=np.float64) took 3 x as long); a float32 frame's valid points stay
-        # finite in mm, so only a float64 one needs edge_surfaces' check
-        a_mm = a.astype(np.float64)
-        np.multiply(a_mm, 1000.0, out=a_mm)
+        # the frame in mm: a.astype(np.float64) * 1000.0, in one pass (numpy's casting loop of
+        # np.multiply(a, 1000.0, dtype=np.float64) took 3 x as long as a copy then the product in place,
+        # which take two); a float32 frame's valid points stay finite in mm, so only a float64 one needs
+        # edge_surfaces' check
+        a_mm = np.empty(a.shape)
+        if a.dtype in (np.float32, np.float64) and a.flags.c_contiguous:
+            _frame_mm(a, a_mm)  # one pass
+        else:
+            a_mm[...] = a
+            np.multiply(a_mm, 1000.0, out=a_mm)
         if a.dtype != np.float32:
             a_mm, _, _ = _check_args(a_mm, valid, edge_surface)
         surfaces = lazy_surfaces(a_mm, np.ascontiguousarray(valid), edge_surface)
-        surface_mm = surfaces.distance(by_residual)
-        near = by_residual & np.isfinite(surface_mm)
-        gap[near] = surface_mm[near]
+        d = surfaces.distance_at(at_res)  # by_residual is in the zone, so measured
+        near = np.isfinite(d)
+        gap.ravel()[at_res[near]] = d[near]
     strength = np.empty((H, W))
     _gap_ratio(gap, tau, params.min_residual_mm, strength)
     groups, primary, radii = group_suspects(codes, strength, params)
     n = int(primary.size)
-    size = np.bincount(groups.ravel(), minlength=n + 1)[1:].astype(np.int64)
-    g_flat = groups.ravel()
-    in_group = np.flatnonzero(g_flat)
-    g_of, c_of = g_flat[in_group], codes.ravel()[in_group]
-    bits = np.zeros(n, np.uint8)  # the OR of the codes of each group's pixels, bit by bit
-    for b in range(len(DETECTORS)):
-        bits |= ((np.bincount(g_of, weights=(c_of >> b) & 1, minlength=n + 1)[1:] > 0) << b).astype(np.uint8)
+    size, bits, bbox, in_group = _group_tables(groups, codes, n)
     if n:
-        g_gap = label_medians(gap, groups, n)
-        boxes = ndimage.find_objects(groups, max_label=n)
-        bbox = np.array([[s[0].start, s[1].start, s[0].stop, s[1].stop] for s in boxes], np.int32)
+        g_gap = label_medians(gap.ravel()[in_group], groups.ravel()[in_group], n)
     else:
         g_gap = np.zeros(0)
-        bbox = np.zeros((0, 4), np.int32)
     score = np.sqrt(size) * np.nan_to_num(np.abs(g_gap), nan=0.0)
     order = np.lexsort((np.arange(n), -size, -score))  # score, then size, then first found
     rank = np.zeros(n + 1, np.int32)
     rank[order + 1] = np.arange(1, n + 1, dtype=np.int32)
-    groups = rank[groups]
+    g_flat = groups.reshape(-1)
+    g_flat[in_group] = rank[g_flat[in_group]]
     return SuspectResult(
         mask=mask, groups=groups, detectors=codes, gap_mm=gap, residual_mm=residual,
         group_detectors=bits[order], group_primary=primary[order], group_size=size[order],
