@@ -1042,7 +1042,7 @@ def main() -> int:
     ap.add_argument("--model", choices=("exact", "scans"), default=MODEL,
                     help=f"the bin model: the log's exact one (default) or one built from {EMPTY_SCANS} empty scans "
                          f"(seed: the generator's base seed + {EMPTY_SEED_OFFSET})")
-    ap.add_argument("--bound", choices=("global",), default=BOUND,
+    ap.add_argument("--bound", choices=("global", "below_rim"), default=BOUND,
                     help="--stragglers: the straggler bound's variant measured (RemovalParams.straggler_bound; "
                          "\"local\" was removed, issue 31 item 2)")
     ap.add_argument("--truth", choices=sorted(TRUTHS), default=TRUTH,
