@@ -27,7 +27,7 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
   nearest model point (:attr:`Tolerance.reach_mm`; a model built from a few low-resolution scans
   is sampled more coarsely than ``1.5 × spacing_m`` says). The straggler test reaches
   ``straggler_mm`` beyond both: τ + ``straggler_mm`` along the normal, the radius + ``straggler_mm``; with
-  ``RemovalParams.straggler_bound`` on (off by default: it costs the z-cut's F1 under a model ~1 mm off the bin), no
+  ``RemovalParams.straggler_bound`` on (``"below_rim"`` by default, below the rim's band; ``"global"`` everywhere), no
   farther than 3 of the bin's Err along the normal (the paper's §2: a point farther than 3 Err from the fitted
   model is an outlier), Err = max(0.05 mm, √(σ_bin² + c²/2)) with σ_bin the residual scale of the pixels τ is
   measured on (:func:`bin_sigma_m`, :attr:`Tolerance.sigma_mm`) and c the pixel's footprint (z / f,
@@ -2222,7 +2222,7 @@ def remove_table_and_bin(
         ``"robust"`` replaces it by the frame's tolerance (:func:`frame_tolerance`), tests it before
         the rim (a point within τ of the model is bin, not an easy outlier) and lets the
         stragglers reach ``straggler_mm`` beyond τ and beyond the search radius; with ``straggler_bound`` on
-        (off by default), along the normal no farther than 3 of the bin's Err at the pixel where the frame
+        (``"below_rim"``, the default: below the rim's band), along the normal no farther than 3 of the bin's Err at the pixel where the frame
         measured the bin's residual scale (:func:`straggler_bound_m`; ``"below_rim"``: only below the rim's
         band, :func:`straggler_top_m`).
     T_cam_bin : (4, 4) float ndarray, optional

@@ -37,7 +37,7 @@ from zcut.removal import (
 )
 
 H, W = 300, 480
-BOUND = RemovalParams(straggler_bound="global")  # the bound is off by default
+BOUND = RemovalParams(straggler_bound="global")  # the bound everywhere (the default bounds below the rim's band)
 KIND, SEED = "spheres", 31
 FIELDS = ("table", "easy_outliers", "bin_points", "zone", "height_mm", "xyz")
 
@@ -159,8 +159,8 @@ def test_stragglers_beyond_three_errs_stay_in_the_zone(scene):
     assert (got.bin_points & ~plain.bin_points).sum() > inside.sum()
 
 
-def test_the_bound_is_off_by_default():
-    assert RemovalParams().straggler_bound == "off"
+def test_the_bound_applies_below_the_rims_band_by_default():
+    assert RemovalParams().straggler_bound == "below_rim"
 
 
 @pytest.mark.parametrize("which", ["global", "below_rim", "off"])
