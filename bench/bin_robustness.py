@@ -588,8 +588,8 @@ def main() -> int:
     ap.add_argument("--rerun", action="store_true", help="recompute the results even when DIR holds them")
     ap.add_argument("--modes", default=",".join(MODES),
                     help="the removal modes to run (default paper,robust; robust alone: a change of the robust mode)")
-    ap.add_argument("--bound", choices=("off", "global"), default=None,
-                    help="the straggler bound (RemovalParams.straggler_bound: off, global; default: its default)")
+    ap.add_argument("--bound", choices=("off", "global", "below_rim"), default=None,
+                    help="the straggler bound (RemovalParams.straggler_bound: off, global, below_rim; default: its default)")
     args = ap.parse_args()
     BOUND_KW = {} if args.bound is None else {"straggler_bound": args.bound}
     MODES = tuple(m for m in ("paper", "robust") if m in args.modes.split(","))

@@ -100,8 +100,8 @@ POSES = ("registered", "true")
 #: the bin model (``--model``): the log's exact one, or one ``zcut bin-model`` builds from EMPTY_SCANS empty scans
 #: of the same generator and size (``zcut synth --empty``, seed: the generator's base seed + EMPTY_SEED_OFFSET)
 MODEL = "exact"
-#: ``--stragglers``: the bound's variant (``RemovalParams.straggler_bound``, off by default) the rows measure
-BOUND = "global"
+#: ``--stragglers``: the bound's variant (``RemovalParams.straggler_bound``, ``"below_rim"`` by default) the rows measure
+BOUND = "below_rim"
 EMPTY_SCANS = 2
 EMPTY_SEED_OFFSET = 10
 
@@ -897,7 +897,7 @@ def straggler_rows(d: Path, sensor: str, pile: str, kind: str, size: str, frames
     session = ReplaySession.open(log, bin_model=model, overrides=cli_layer(methods=",".join(METHODS)))
     cfg, pm = session.config, session.prepared
     assert pm is not None
-    if bounded and hasattr(cfg.removal, "straggler_bound"):  # the bound is a switch (off by default): --bound
+    if bounded and hasattr(cfg.removal, "straggler_bound"):  # the bound is a switch: --bound
         cfg = dataclasses.replace(cfg, removal=dataclasses.replace(cfg.removal, straggler_bound=BOUND))
         pm = prepare_bin_model(session.bin_model, registration=cfg.registration, removal=cfg.removal)
     pm0 = prepare_bin_model(session.bin_model, registration=cfg.registration,
@@ -1042,7 +1042,7 @@ def main() -> int:
     ap.add_argument("--model", choices=("exact", "scans"), default=MODEL,
                     help=f"the bin model: the log's exact one (default) or one built from {EMPTY_SCANS} empty scans "
                          f"(seed: the generator's base seed + {EMPTY_SEED_OFFSET})")
-    ap.add_argument("--bound", choices=("global",), default=BOUND,
+    ap.add_argument("--bound", choices=("global", "below_rim"), default=BOUND,
                     help="--stragglers: the straggler bound's variant measured (RemovalParams.straggler_bound; "
                          "\"local\" was removed, issue 31 item 2)")
     ap.add_argument("--truth", choices=sorted(TRUTHS), default=TRUTH,

@@ -272,7 +272,7 @@ SOR_REGIONS = ("top", "zone")
 REGISTRATION_METHODS = ("point_to_plane", "point_to_point")
 #: The bin removal's modes: the paper's rule as written, or the one that tolerates a real registration.
 REMOVAL_MODES = ("robust", "paper")
-STRAGGLER_BOUNDS = ("global", "off")
+STRAGGLER_BOUNDS = ("below_rim", "global", "off")
 
 
 __all__ += ["ZCutTopParams"]
@@ -421,11 +421,14 @@ class RemovalParams:
         added to the tolerance.
     straggler_neighbours : int
         Labelled neighbours (of 8) a straggler needs.
-    straggler_bound : {"global", "off"}
+    straggler_bound : {"below_rim", "global", "off"}
         Robust mode: ``"global"``: a straggler is bin only within 3 of the bin's Err of the model
         (:func:`zcut.removal.straggler_bound_m`), the Err's σ_bin the residual scale of the frame's certain bin
-        pixels; ``"off"`` (default): τ + ``straggler_mm``, no bound — the bound keeps every near-wall outlier on
-        the walls piles but costs the z-cut's F1 with a model off the bin by about 1 mm (docs/bin_robustness.md).
+        pixels — it keeps every near-wall outlier on the walls piles but costs the z-cut's F1 with a model off the
+        bin by about 1 mm, whose rim pixels it leaves in the zone; ``"below_rim"`` (default): the same bound, but
+        not within ``rim_offset_mm`` of the model's rim height (the rim's band: there a straggler reaches τ +
+        ``straggler_mm`` as with ``"off"``), which keeps both (docs/bin_robustness.md); ``"off"``: τ +
+        ``straggler_mm``, no bound.
     mode : {"robust", "paper"}
         ``"paper"``: the paper's §5.2 rule as written, δ = ``delta_mm`` (0.1 mm), which removes the
         bin only when the registration is right to about a tenth of a millimetre. ``"robust"``
@@ -459,7 +462,7 @@ class RemovalParams:
     search_radius_mm: float | None = None
     straggler_mm: float = 2.0
     straggler_neighbours: int = 3
-    straggler_bound: str = "off"
+    straggler_bound: str = "below_rim"
     mode: str = "robust"
     tolerance_mm: float | None = None
     residual_quantile: float = 99.0

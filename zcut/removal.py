@@ -27,13 +27,16 @@ Two modes (``RemovalParams.mode``, described in ``docs/pipeline.md``, "Bin remov
   nearest model point (:attr:`Tolerance.reach_mm`; a model built from a few low-resolution scans
   is sampled more coarsely than ``1.5 × spacing_m`` says). The straggler test reaches
   ``straggler_mm`` beyond both: τ + ``straggler_mm`` along the normal, the radius + ``straggler_mm``; with
-  ``RemovalParams.straggler_bound`` on (off by default: it costs the z-cut's F1 under a model ~1 mm off the bin), no
+  ``RemovalParams.straggler_bound`` on (``"below_rim"`` by default, below the rim's band; ``"global"`` everywhere), no
   farther than 3 of the bin's Err along the normal (the paper's §2: a point farther than 3 Err from the fitted
   model is an outlier), Err = max(0.05 mm, √(σ_bin² + c²/2)) with σ_bin the residual scale of the pixels τ is
   measured on (:func:`bin_sigma_m`, :attr:`Tolerance.sigma_mm`) and c the pixel's footprint (z / f,
   :func:`pixel_angle`): :func:`straggler_bound_m`. Without a measured τ (fixed, no ring) the bound is not known and
   not applied. On hand-made walls piles every near-wall true outlier the removal took was a straggler 3.1-4.2
-  bin Errs from the model (docs/bin_robustness.md).
+  bin Errs from the model (docs/bin_robustness.md). ``straggler_bound = "below_rim"`` applies the bound only below
+  the rim's band, ``rim_offset_mm`` under the model's rim height (:func:`straggler_top_m`): a model off the bin
+  leaves rim pixels 2-4 mm under the rim beyond 3 Err, while the near-wall outliers the pass took lay 45 mm or
+  more below it.
   With a right pose τ stays near 1 mm (the sensor's noise); a pose 2 mm off raises it to about
   3 mm, and the removal follows the registration instead of failing on it.
 """
@@ -66,7 +69,9 @@ STRAGGLER_ERRS = 3.0
 #: is ``explained``'s, ``ExplainedParams.err_floor_mm``): :func:`straggler_bound_m`
 STRAGGLER_ERR_FLOOR_MM = 0.05
 _STRAGGLER_ERR_FLOOR_M = STRAGGLER_ERR_FLOOR_MM / 1000.0
-_NO_BOUND = (-1.0, 0.0)  # the kernels' (σ_bin², the pixel's angle) when the bound is off: σ_bin² < 0
+#: the kernels' (σ_bin², the pixel's angle, the height above which no straggler is bounded) when the bound is off:
+#: σ_bin² < 0
+_NO_BOUND = (-1.0, 0.0, np.inf)
 
 
 def finite_xyz(xyz: XYZ) -> Mask:
@@ -360,11 +365,12 @@ def _to_bin(a, r, c, R, t):  # type: ignore[no-untyped-def]  # numba kernel  # p
 
 
 @numba.njit(cache=True, inline="always")
-def _straggler_delta(z, delta, s2, rad):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """The straggler test's distance bound at a pixel of camera depth ``z`` (m): :func:`straggler_bound_m` with
-    ``s2`` = σ_bin² (m²; negative: unknown, ``delta`` as it is) and ``rad`` the pixel's angle, the same operations
-    in the same order."""
-    if s2 < 0.0:
+def _straggler_delta(z, h, delta, s2, rad, top):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """The straggler test's distance bound at a pixel of camera depth ``z`` (m) and height ``h`` (m, bin frame):
+    :func:`straggler_bound_m` with ``s2`` = σ_bin² (m²; negative: unknown, ``delta`` as it is), ``rad`` the pixel's
+    angle and ``top`` the height above which no straggler is bounded (``delta`` as it is), the same operations in
+    the same order."""
+    if s2 < 0.0 or h > top:
         return delta
     c = abs(np.float64(z)) * rad
     err = max(_STRAGGLER_ERR_FLOOR_M, np.sqrt(s2 + 0.5 * c * c))
@@ -424,16 +430,16 @@ def _straggler_start(valid, table, binp, easy, fp, neighbours, lab, open_, cand)
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _test_pixels(a, flat, R, t, origin, cell, dims, start, pts, nrm, off, delta, radius,  # type: ignore[no-untyped-def]  # numba kernel
-                 planes, s2, rad):  # pragma: no cover - numba
+                 planes, s2, rad, top):  # pragma: no cover - numba
     """(M,) bool: the pixels ``flat`` (row-major indices) are within ``delta`` of the model, ``delta`` bounded at
-    each pixel by :func:`_straggler_delta` with the frame's σ_bin² ``s2`` (< 0: not bounded)."""
+    each pixel by :func:`_straggler_delta` with the frame's σ_bin² ``s2`` (< 0: not bounded) below ``top``."""
     W = a.shape[1]
     ok = np.zeros(flat.shape[0], np.bool_)
     for i in numba.prange(flat.shape[0]):
         r = flat[i] // W
         c = flat[i] - r * W
         px, py, pz = _to_bin(a, r, c, R, t)
-        d = _straggler_delta(a[r, c, 2], delta, s2, rad)
+        d = _straggler_delta(a[r, c, 2], -pz, delta, s2, rad, top)
         ok[i] = _near_one(px, py, pz, origin, cell, dims, start, pts, nrm, off, d, radius, planes)
     return ok
 
@@ -636,7 +642,7 @@ def _labelled_around(code, r, c, H, W):  # type: ignore[no-untyped-def]  # numba
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,  # type: ignore[no-untyped-def]  # numba kernel
-                     planes, s2, rad, first):  # pragma: no cover - numba
+                     planes, s2, rad, top, first):  # pragma: no cover - numba
     """The straggler test's first pass in one pass over the frame: ``first`` (uint8) is 1 at
     :func:`_straggler_start`'s candidates (open pixels with >= ``neighbours`` labelled ones) that fail the test,
     2 at those that pass, 0 elsewhere. ``code`` is only read: every candidate is judged on the labels before
@@ -644,7 +650,7 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
     of three column sums of the row and its two neighbours (an open pixel is not labelled itself), each of the
     row's three loops free of branches but the last, over its few candidates: so they vectorize (a branch per
     pixel on its class, or per neighbour, cost 6.3 of the pass's 9.4 CPU ms at 1920 x 1200; now 0.6). ``delta`` is
-    bounded at each pixel by :func:`_straggler_delta` (``s2``, ``rad``)."""
+    bounded at each pixel by :func:`_straggler_delta` (``s2``, ``rad``, ``top``)."""
     H, W = code.shape
     for r in numba.prange(H):
         col = np.zeros(W + 2, np.uint8)  # col[c + 1]: labelled pixels of column c in rows r-1..r+1
@@ -659,7 +665,7 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
             if first[r, c]:
                 px, py, pz = _to_bin(a, r, c, R, t)
                 j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,
-                               _straggler_delta(a[r, c, 2], delta, s2, rad), radius, planes, hint)
+                               _straggler_delta(a[r, c, 2], -pz, delta, s2, rad, top), radius, planes, hint)
                 if j >= 0:
                     first[r, c] = 2
                     hint = j
@@ -667,7 +673,7 @@ def _straggler_first(a, code, neighbours, R, t, origin, cell, dims, start, pts, 
 
 @numba.njit(cache=True, nogil=True)
 def _straggler_rest(a, code, words, neighbours, passes, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,  # type: ignore[no-untyped-def]  # numba kernel
-                    delta, radius, planes, s2, rad):  # pragma: no cover - numba
+                    delta, radius, planes, s2, rad, top):  # pragma: no cover - numba
     """The first pass's outcome (``first``) into ``code``, then the passes after it (up to ``passes`` in
     all), each testing the open neighbours of the pixels the previous one labelled (serial: a few
     pixels each; a parallel launch would cost more than them). ``words``: ``first`` as 64-bit words (eight
@@ -705,7 +711,7 @@ def _straggler_rest(a, code, words, neighbours, passes, R, t, origin, cell, dims
             c = q - r * W
             px, py, pz = _to_bin(a, r, c, R, t)
             j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,
-                           _straggler_delta(a[r, c, 2], delta, s2, rad), radius, planes, hint)
+                           _straggler_delta(a[r, c, 2], -pz, delta, s2, rad, top), radius, planes, hint)
             if j >= 0:
                 ok[i] = True
                 hint = j
@@ -814,7 +820,7 @@ class _ZoneTop:
 
 def _straggler_codes(a: np.ndarray, code: np.ndarray, R: np.ndarray, t: np.ndarray, index: _ModelIndex, *,
                      straggler_m: float, radius_m: float, planes: bool, neighbours: int,
-                     bound: tuple[float, float]) -> None:
+                     bound: tuple[float, float, float]) -> None:
     """:func:`_straggler_passes` on the class codes (in place): the same passes, each testing only the open
     neighbours of the pixels the previous one labelled."""
     grid = (*_grid_args(index), index.ijk, index.busy, index.box, float(straggler_m), float(radius_m), planes,
@@ -951,7 +957,7 @@ def _grid_args(index: _ModelIndex) -> tuple[np.ndarray, float, np.ndarray, np.nd
 
 def _straggler_passes(a: np.ndarray, binp: Mask, lab: np.ndarray, open_: Mask, R: np.ndarray,
                       t: np.ndarray, index: _ModelIndex, *, straggler_m: float, radius_m: float,
-                      planes: bool, neighbours: int, first: Mask, bound: tuple[float, float]) -> None:
+                      planes: bool, neighbours: int, first: Mask, bound: tuple[float, float, float]) -> None:
     """Grow ``binp`` (in place) along the noisy bin surface, see ``straggler_m``.
 
     ``lab`` (uint8: table, bin or invalid) and ``open_`` (allowed, not bin, not yet tried) are
@@ -1963,29 +1969,47 @@ def _pixel_steps(a, flat):  # type: ignore[no-untyped-def]  # numba kernel  # pr
     return out[:n]
 
 
-def straggler_bound_args(p: RemovalParams, tol: Tolerance) -> tuple[float, float]:
-    """The straggler kernels' bound arguments ``(σ_bin² m², the pixel's angle rad)`` for the robust removal of a frame
-    with tolerance ``tol``: :data:`_NO_BOUND` (σ_bin² < 0, the test's distance as it is) when
-    ``p.straggler_bound`` is ``"off"`` or σ_bin or the angle is not known (:func:`straggler_bound_m`)."""
+def straggler_bound_args(p: RemovalParams, tol: Tolerance, rim_b: float = np.inf) -> tuple[float, float, float]:
+    """The straggler kernels' bound arguments ``(σ_bin² m², the pixel's angle rad, top m)`` for the robust removal of a
+    frame with tolerance ``tol``: :data:`_NO_BOUND` (σ_bin² < 0, the test's distance as it is) when
+    ``p.straggler_bound`` is ``"off"`` or σ_bin or the angle is not known (:func:`straggler_bound_m`). ``top``, the
+    height (bin frame) above which a straggler is not bounded: +inf for ``"global"``, :func:`straggler_top_m` of the
+    model's rim height ``rim_b`` (:attr:`RemovalIndex.rim_b`) for ``"below_rim"``."""
     sigma_m = tol.sigma_mm / 1000.0
     if p.straggler_bound == "off" or not (np.isfinite(sigma_m) and np.isfinite(tol.pixel_rad)):
         return _NO_BOUND
-    return (sigma_m * sigma_m, float(tol.pixel_rad))
+    return (sigma_m * sigma_m, float(tol.pixel_rad), straggler_top_m(p, rim_b))
+
+
+def straggler_top_m(p: RemovalParams, rim_b: float) -> float:
+    """The height (bin frame, m) above which the straggler bound does not apply: with ``"below_rim"`` the bottom of
+    the rim's band, ``rim_b - rim_offset_m`` (the band the easy-outlier test draws above the rim, drawn below it);
+    +inf otherwise (no pixel above it). A model 0.5 % small, or one scan's, leaves rim pixels 2-4 mm below the rim
+    beyond 3 of the bin's Err while every near-wall outlier the pass took lay 45 mm or more below it
+    (docs/bin_robustness.md)."""
+    if p.straggler_bound == "below_rim":
+        return float(rim_b) - p.rim_offset_m
+    return float(np.inf)
 
 
 def straggler_bound_m(z_m: np.ndarray, sigma_m: float, pixel_rad: float,
-                      straggler_m: float) -> np.ndarray:
+                      straggler_m: float, *, height_m: np.ndarray | None = None,
+                      top_m: float = np.inf) -> np.ndarray:
     """The straggler test's distance bound (m) at pixels of depth ``z_m`` (camera z, m):
     ``min(straggler_m, STRAGGLER_ERRS × max(STRAGGLER_ERR_FLOOR_MM, sqrt(σ_bin² + c² / 2)))``, c = ``|z| ×
     pixel_rad`` the pixel's footprint, σ_bin = ``sigma_m`` (:attr:`Tolerance.sigma_mm`); ``straggler_m`` (τ +
-    ``straggler_mm`` in the robust mode) where σ_bin or the pixel's angle is unknown (NaN). The kernels compute the
-    same numbers, in the same order (:func:`_straggler_delta`)."""
+    ``straggler_mm`` in the robust mode) where σ_bin or the pixel's angle is unknown (NaN), and at the pixels whose
+    ``height_m`` (bin frame, m; ``z_m``'s shape) lies above ``top_m`` (:func:`straggler_top_m`). The kernels compute
+    the same numbers, in the same order (:func:`_straggler_delta`)."""
     z = np.abs(np.asarray(z_m, np.float64))
     if np.isnan(sigma_m) or not np.isfinite(pixel_rad):
         return np.full(z.shape, float(straggler_m))
     c = z * pixel_rad
     err = np.maximum(_STRAGGLER_ERR_FLOOR_M, np.sqrt(sigma_m * sigma_m + 0.5 * c * c))
-    return np.minimum(float(straggler_m), STRAGGLER_ERRS * err)
+    out = np.minimum(float(straggler_m), STRAGGLER_ERRS * err)
+    if height_m is not None:
+        out = np.where(np.asarray(height_m, np.float64) > top_m, float(straggler_m), out)
+    return out
 
 
 def _sample_ring(a: np.ndarray, ring: Mask, max_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -2198,8 +2222,9 @@ def remove_table_and_bin(
         ``"robust"`` replaces it by the frame's tolerance (:func:`frame_tolerance`), tests it before
         the rim (a point within τ of the model is bin, not an easy outlier) and lets the
         stragglers reach ``straggler_mm`` beyond τ and beyond the search radius; with ``straggler_bound`` on
-        (off by default), along the normal no farther than 3 of the bin's Err at the pixel where the frame
-        measured the bin's residual scale (:func:`straggler_bound_m`).
+        (``"below_rim"``, the default: below the rim's band), along the normal no farther than 3 of the bin's Err at the pixel where the frame
+        measured the bin's residual scale (:func:`straggler_bound_m`; ``"below_rim"``: only below the rim's
+        band, :func:`straggler_top_m`).
     T_cam_bin : (4, 4) float ndarray, optional
         The registered pose of the model.
     ring : (H, W) bool ndarray, optional
@@ -2246,7 +2271,7 @@ def remove_table_and_bin(
             tol = Tolerance(max(p.tolerance_mm if p.tolerance_mm is not None else p.max_tolerance_mm, p.delta_mm),
                             float("nan"), 0)
         delta_m, residual_mm = tol.tolerance_mm / 1000.0, tol.residual_mm
-        bound = straggler_bound_args(p, tol)
+        bound = straggler_bound_args(p, tol, index.rim_b)
         radius_m = _radius(p, index.model.spacing_m, delta_m)
         straggler_m = p.straggler_m + delta_m if p.straggler_m > 0 else 0.0
         r_str = max(radius_m, straggler_m)

@@ -4,7 +4,8 @@ A verbatim copy of ``zcut.removal.remove_table_and_bin`` before it became fused 
 (commit 9af0131): the fast version must give the same classes, height image and cloud. One
 addition since: ``bin_first`` (the robust mode's order: a point near the model is bin before it
 can be an easy outlier), written as literally as the rest; and ``straggler_err`` (issue 31 item 2:
-the stragglers' distance bounded at each pixel by 3 of the bin's Err, ``zcut.removal.straggler_bound_m``).
+the stragglers' distance bounded at each pixel by 3 of the bin's Err, ``zcut.removal.straggler_bound_m``), with
+``straggler_top_m`` (the height above which no straggler is bounded: the ``"below_rim"`` bound).
 """
 
 from __future__ import annotations
@@ -195,6 +196,7 @@ def remove_table_and_bin_reference(
     bin_first: bool = False,
     straggler_radius_m: float | None = None,
     straggler_err: tuple[float, float] | None = None,
+    straggler_top_m: float = np.inf,
 ) -> RemovalResult:
     """The removal as it was before the fused numba kernels (:func:`zcut.removal.remove_table_and_bin`
     has the same contract and parameters); kept to prove the fast path bit for bit.
@@ -202,7 +204,9 @@ def remove_table_and_bin_reference(
     and ``straggler_m``; the robust mode's measured radius gives its stragglers ``straggler_mm`` more).
     ``straggler_err``: ``(σ_bin m, the pixel's angle rad)``: a straggler is bin only within
     min(``straggler_m``, 3 × max(0.05 mm, √(σ_bin² + c²/2))) of the model, c = |z| × the angle the
-    pixel's footprint (the robust mode's bound at 3 of the bin's Err); None: ``straggler_m``."""
+    pixel's footprint (the robust mode's bound at 3 of the bin's Err); None: ``straggler_m``.
+    ``straggler_top_m``: with ``straggler_err``, a pixel higher than this (its height -z in the bin frame, m) is not
+    bounded (``straggler_m``); +inf: every pixel is."""
     a, fp = check_removal_args(
         xyz, footprint, model=model, T_cam_bin=T_cam_bin, delta_m=delta_m, rim_offset_m=rim_offset_m,
         straggler_m=straggler_m, straggler_neighbours=straggler_neighbours,
@@ -253,6 +257,9 @@ def remove_table_and_bin_reference(
                 c = np.abs(z64) * angle  # the pixel's footprint (m)
                 err = np.maximum(5e-5, np.sqrt(sigma * sigma + 0.5 * c * c))  # the bin's Err, at least 0.05 mm
                 bound = np.minimum(straggler_m, 3.0 * err)
+                height = np.full(z64.shape, -np.inf)
+                height[rows, cols] = h  # -z in the bin frame, the pixels in the footprint
+                bound = np.where(height > straggler_top_m, straggler_m, bound)
             _straggler_passes(binp, table, valid, inside & ~easy, rows, cols, p_bin, model,
                               straggler_m=straggler_m,
                               radius_m=max(radius, straggler_m) if straggler_radius_m is None else straggler_radius_m,

@@ -97,7 +97,7 @@ def test_a_point_the_removal_took_beyond_k_err_of_the_wall_is_unexplained(walls)
     assert p.k * err + 0.3 < reach, f"3 Err {p.k * err:.2f} mm is not below the removal's reach {reach:.2f} mm"
     # with the bound on, the straggler pass stops at 3 of the bin's Err: the point beyond stays in the zone
     far = _moved(frame, rc, n_in, 0.5 * (p.k * err + reach))
-    for which, kept in (("global", True), ("off", False)):
+    for which, kept in (("global", True), ("below_rim", True), ("off", False)):  # the pixel lies below the rim band
         rp = dataclasses.replace(session.config.removal, straggler_bound=which)
         z0 = bin_zone(far, dataclasses.replace(session.config, removal=rp),
                       bin_model=prepare_bin_model(session.bin_model, registration=session.config.registration,

@@ -143,6 +143,9 @@ def _ring(xyz):
     {"max_tolerance_mm": 1.5, "straggler_neighbours": 5},
     {"search_radius_mm": 6.0, "rim_offset_mm": 0.0},
     {"straggler_bound": "global"},
+    {"straggler_bound": "below_rim"},
+    # the rim's band reaching 40 mm down the walls: unbounded there, bounded below
+    {"straggler_bound": "below_rim", "rim_offset_mm": 40.0},
 ])
 @pytest.mark.parametrize("angle", [0.0, 2.0])
 @pytest.mark.parametrize("normals", [True, False])
@@ -175,11 +178,13 @@ def test_robust_removal_equals_the_reference_with_its_tolerance(noisy, model, kw
     known = np.isfinite(tol.sigma_mm) and np.isfinite(tol.pixel_rad)
     err = (tol.sigma_mm / 1000.0, tol.pixel_rad) if known and p.straggler_bound != "off" else None
     assert known == (p.tolerance_mm is None and p.max_tolerance_mm > 1.5)
+    # "below_rim": no bound above the rim's band, rim_offset_mm below the model's rim (99.5th percentile of -z)
+    top = np.percentile(-m.points[:, 2], 99.5) - p.rim_offset_m if p.straggler_bound == "below_rim" else np.inf
     with np.errstate(invalid="ignore"):
         ref = remove_table_and_bin_reference(
             xyz, fp, model=m, T_cam_bin=T, delta_m=d, rim_offset_m=p.rim_offset_m,
             search_radius_m=radius, straggler_m=straggler, straggler_radius_m=r_str,
-            straggler_neighbours=p.straggler_neighbours, bin_first=True, straggler_err=err)
+            straggler_neighbours=p.straggler_neighbours, bin_first=True, straggler_err=err, straggler_top_m=top)
     _assert_same(fast, ref)
     assert fast.bin_points.sum() > 0.05 * fp.sum()
 

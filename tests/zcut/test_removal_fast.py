@@ -63,6 +63,9 @@ PARAMS = {
     "robust": {},
     "robust-no-stragglers": {"straggler_mm": 0.0},
     "robust-global-bound": {"straggler_bound": "global"},
+    "robust-below-rim-bound": {"straggler_bound": "below_rim"},
+    # the rim's band 40 mm deep: the walls' upper stragglers unbounded, the lower ones bounded
+    "robust-below-rim-deep": {"straggler_bound": "below_rim", "rim_offset_mm": 40.0},
     "paper": {"mode": "paper"},
     "paper-stragglers": {"mode": "paper", "straggler_mm": 2.0, "straggler_neighbours": 3},
     "paper-no-stragglers": {"mode": "paper", "straggler_mm": 0.0},
@@ -109,9 +112,10 @@ def test_fast_equals_reference_with_a_model_without_normals(logs, extra):
             assert fast.bin_points.any()
 
 
-def test_fast_equals_reference_with_large_invalid_regions(logs):
+@pytest.mark.parametrize("bound", [{}, {"straggler_bound": "below_rim", "rim_offset_mm": 40.0}])
+def test_fast_equals_reference_with_large_invalid_regions(logs, bound):
     model, params, frames = logs["zinc_nuts-3"]
-    index = prepare_removal_index(model, params)
+    index = prepare_removal_index(model, dataclasses.replace(params, **bound))
     xyz, fp, ring, T = frames[0]
     rng = np.random.default_rng(2)
     for holes in ("left half", "bands", "speckle"):

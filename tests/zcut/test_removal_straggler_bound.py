@@ -37,7 +37,7 @@ from zcut.removal import (
 )
 
 H, W = 300, 480
-BOUND = RemovalParams(straggler_bound="global")  # the bound is off by default
+BOUND = RemovalParams(straggler_bound="global")  # the bound everywhere (the default bounds below the rim's band)
 KIND, SEED = "spheres", 31
 FIELDS = ("table", "easy_outliers", "bin_points", "zone", "height_mm", "xyz")
 
@@ -100,7 +100,22 @@ def _reference(xyz, fp, model, T, p, tol, *, bounded: bool):
     return remove_table_and_bin_reference(
         xyz, fp, model=model, T_cam_bin=T, delta_m=d, rim_offset_m=p.rim_offset_m, search_radius_m=radius,
         straggler_m=straggler, straggler_radius_m=max(radius + p.straggler_m, straggler),
-        straggler_neighbours=p.straggler_neighbours, bin_first=True, straggler_err=err)
+        straggler_neighbours=p.straggler_neighbours, bin_first=True, straggler_err=err,
+        straggler_top_m=_top(model, p))
+
+
+def _top(model, p):
+    """The height (bin frame, m) above which "below_rim" bounds no straggler: the model's rim (the 99.5th percentile
+    of its -z) less ``rim_offset_mm``; +inf for the other settings."""
+    if p.straggler_bound != "below_rim":
+        return np.inf
+    return float(np.percentile(-model.points[:, 2], 99.5)) - p.rim_offset_m
+
+
+def _heights(xyz, T, picks):
+    """The picks' heights (-z in the bin frame, m)."""
+    p = xyz[picks[:, 0], picks[:, 1]].astype(np.float64)
+    return -((p - T[:3, 3]) @ T[:3, :3])[:, 2]
 
 
 def _assert_same(a, b):
@@ -144,11 +159,11 @@ def test_stragglers_beyond_three_errs_stay_in_the_zone(scene):
     assert (got.bin_points & ~plain.bin_points).sum() > inside.sum()
 
 
-def test_the_bound_is_off_by_default():
-    assert RemovalParams().straggler_bound == "off"
+def test_the_bound_applies_below_the_rims_band_by_default():
+    assert RemovalParams().straggler_bound == "below_rim"
 
 
-@pytest.mark.parametrize("which", ["global", "off"])
+@pytest.mark.parametrize("which", ["global", "below_rim", "off"])
 def test_the_switch(scene, which):
     """``RemovalParams.straggler_bound``: "global" bounds every straggler by the frame's σ_bin, "off" is the previous
     rule (τ + ``straggler_mm``: every moved pick is bin); fast = its reference path = the literal reference."""
@@ -166,16 +181,51 @@ def test_the_switch(scene, which):
     taken = got.bin_points[picks[:, 0], picks[:, 1]]
     if which == "off":
         assert taken.all()
-    else:
+    elif which == "global":
         assert (~taken).mean() >= 0.85
+    else:  # "below_rim": the picks in the rim's band (5 mm) are bin as with "off", the others bounded as "global"
+        above = _heights(moved, T, picks) > _top(model, p)
+        assert taken[above].all() and above.sum() < 0.5 * len(picks)
+        assert (~taken[~above]).mean() >= 0.85
 
 
+def test_below_rim_bounds_only_below_the_rims_band(scene):
+    """``"below_rim"`` with the band ``rim_offset_mm`` reaching half-way down the picks: the picks beyond the frame's
+    bound above the band's bottom are bin (τ + ``straggler_mm``, as ``"off"``), those below it stay in the zone (as
+    ``"global"``); fast = its reference path = the literal reference."""
+    xyz, fp, ring, T, model, f, picks = scene
+    base = prepare_removal_index(model, RemovalParams())
+    h = _heights(xyz, T, picks)
+    p = RemovalParams(straggler_bound="below_rim", rim_offset_mm=float(1000.0 * (base.rim_b - np.median(h))))
+    index = prepare_removal_index(model, p)
+    tol = frame_tolerance(xyz, ring, index, T)
+    tau = tol.tolerance_mm / 1000.0
+    z = xyz[picks[:, 0], picks[:, 1], 2].astype(np.float64)
+    bound = straggler_bound_m(z, tol.sigma_mm / 1000.0, tol.pixel_rad, tau + p.straggler_m)
+    moved = _moved(xyz, T, model, picks, 0.5 * (bound + tau + p.straggler_m))  # beyond the frame's bound
+    got = remove_table_and_bin(moved, fp, index=index, T_cam_bin=T, ring=ring)
+    _assert_same(got, remove_table_and_bin(moved, fp, index=index, T_cam_bin=T, ring=ring, reference=True))
+    _assert_same(got, _reference(moved, fp, model, T, p, tol, bounded=True))
+    top = _top(model, p)
+    assert top == pytest.approx(index.rim_b - p.rim_offset_m, abs=1e-12)
+    above = _heights(moved, T, picks) > top
+    assert 0.3 < above.mean() < 0.7
+    taken = got.bin_points[picks[:, 0], picks[:, 1]]
+    assert taken[above].all()
+    assert (~taken[~above]).mean() >= 0.85
+    # the bound's own formula, per pixel: straggler_m above the band, the frame's bound below it
+    np.testing.assert_array_equal(
+        straggler_bound_m(z, tol.sigma_mm / 1000.0, tol.pixel_rad, tau + p.straggler_m, height_m=h, top_m=top),
+        np.where(h > top, tau + p.straggler_m, bound))
+
+
+@pytest.mark.parametrize("p", [BOUND, RemovalParams(straggler_bound="below_rim", rim_offset_mm=40.0)],
+                         ids=["global", "below_rim"])
 @pytest.mark.parametrize("case", ["half NaN", "bands", "all NaN", "one pixel"])
-def test_the_bounded_pass_equals_the_reference_on_invalid_and_degenerate_frames(scene, case):
+def test_the_bounded_pass_equals_the_reference_on_invalid_and_degenerate_frames(scene, case, p):
     """Large invalid regions and degenerate frames: the fast path, its ``reference=True`` path and the literal
     reference agree (the bound is known when the ring measures a field, else not applied)."""
     xyz, fp, ring, T, model, f, picks = scene
-    p = BOUND
     index = prepare_removal_index(model, p)
     a = _moved(xyz, T, model, picks, np.full(len(picks), 0.003))
     if case == "half NaN":
