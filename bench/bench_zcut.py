@@ -33,6 +33,10 @@ the gentle components — the 4-connected ones as a trial, then the 8-connected 
 pay, as ``zcut_outliers`` — the prune: the large gentle components and the pixels below them left out, the
 flood of the kept pixels, the read-out) beside the floor of
 reading the heights and writing a mask.
+``--faults`` also prints ``find_clusters``' minor page faults, system ms and CPU ms a call (medians, this
+tree, each result dropped before the next call); with ``--against``, the old tree's faults a call in its
+own process. (Not with ``--alternate``: both trees share one heap there, and the allocator keeps for the
+old tree's arrays what the new tree's block left it.)
 CPU time (process_time) is the figure to quote on a shared machine.
 """
 
@@ -41,6 +45,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -226,6 +231,22 @@ def timed_on(prepare, fn, repeat: int) -> float:
     return statistics.median(cpu)
 
 
+def faults(fn, repeat: int) -> tuple[float, float, float]:
+    """Median minor page faults, system CPU ms and CPU ms (process_time) of ``repeat`` calls of ``fn``, the
+    result dropped before the next call (as the replay drops a frame's): a full-frame array freed and
+    allocated again is faulted in page by page unless the allocator kept it (docs/performance.md)."""
+    flt, sys_ms, cpu = [], [], []
+    for _ in range(repeat):
+        u0, c0 = resource.getrusage(resource.RUSAGE_SELF), time.process_time()
+        out = fn()
+        c1, u1 = time.process_time(), resource.getrusage(resource.RUSAGE_SELF)
+        del out
+        flt.append(u1.ru_minflt - u0.ru_minflt)
+        sys_ms.append((u1.ru_stime - u0.ru_stime) * 1e3)
+        cpu.append((c1 - c0) * 1e3)
+    return statistics.median(flt), statistics.median(sys_ms), statistics.median(cpu)
+
+
 def timed(fn, repeat: int) -> tuple[float, float, np.ndarray]:
     """Median wall-clock and median CPU time (process_time: less disturbed by other processes
     on a shared machine) of ``repeat`` calls, and the last result."""
@@ -240,7 +261,7 @@ def timed(fn, repeat: int) -> tuple[float, float, np.ndarray]:
 
 
 _OLD_SNIPPET = """
-import json, statistics, sys, time
+import json, resource, statistics, sys, time
 import numpy as np
 from zcut.cuts import find_clusters, zcut_outliers
 from zcut.params import ZCutParams
@@ -251,13 +272,17 @@ res = {}
 for name in frames.split(","):
     z = np.load(out + "/" + name + ".npy")
     find_clusters(z, params=zp)
-    cpu = {"zcut_outliers": [], "find_clusters": []}
+    cpu = {"zcut_outliers": [], "find_clusters": [], "find_clusters_faults": []}
     for _ in range(repeat):
         for key, fn in (("zcut_outliers", lambda: zcut_outliers(z, **params)),
                         ("find_clusters", lambda: find_clusters(z, params=zp))):
+            f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
             c0 = time.process_time()
             m = fn()
             cpu[key].append(time.process_time() - c0)
+            if key == "find_clusters":
+                cpu["find_clusters_faults"].append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
+            del m
     np.save(out + "/" + name + ".old.npy", zcut_outliers(z, **params))
     res[name] = {k: statistics.median(v) for k, v in cpu.items()}
 print(json.dumps(res))
@@ -334,6 +359,8 @@ def main() -> int:
     ap.add_argument("--synth", action="store_true", help="add zinc: a synthetic 1920 x 1200 zinc-nut frame")
     ap.add_argument("--frames", default=None, help="comma-separated frame names to run (default: all)")
     ap.add_argument("--passes", action="store_true", help="print the CPU time of each pass of zcut_outliers")
+    ap.add_argument("--faults", action="store_true",
+                    help="print find_clusters' page faults, system and CPU ms a call (this tree, in this process)")
     args = ap.parse_args()
 
     params = dict(step=NOMINAL_STEP_MM, max_depth=NOMINAL_MAX_DEPTH_MM,
@@ -385,6 +412,9 @@ def main() -> int:
             for what, ms in passes(z, params, args.repeat_fast).items():
                 print(f"    {what:36s} {ms:10.0f}" if what.startswith(("pixels", "gentle")) else
                       f"    {what:36s} {ms * 1e3:7.2f} ms cpu")
+        if args.faults:
+            f, s_ms, c_ms = faults(lambda z=z, zp=zp: find_clusters(z, params=zp), args.repeat_fast)
+            print(f"    find_clusters: {f:6.0f} page faults, system {s_ms:5.2f} ms, cpu {c_ms:6.2f} ms a call (medians)")
         if name in old:
             c_stage = timed(lambda z=z, zp=zp: find_clusters(z, params=zp), args.repeat_fast)[1]
             same_old = bool(np.array_equal(old_masks[name], m_fast))
@@ -393,6 +423,7 @@ def main() -> int:
             print(f"    against {args.against}: zcut_outliers cpu {o['zcut_outliers'] * 1e3:7.1f} -> {c_fast * 1e3:7.1f} ms "
                   f"({o['zcut_outliers'] / c_fast:4.1f}x), find_clusters cpu {o['find_clusters'] * 1e3:7.1f} -> "
                   f"{c_stage * 1e3:7.1f} ms ({o['find_clusters'] / c_stage:4.1f}x); identical: {same_old}")
+            print(f"        the old tree's find_clusters: {o['find_clusters_faults']:.0f} page faults a call (its own process)")
     return 0 if ok else 1
 
 

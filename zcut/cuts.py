@@ -357,6 +357,17 @@ class _Flood:
     fin: np.ndarray
 
 
+def _flood_scratch(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_flood`'s frame-sized arrays (``n`` padded pixels): ``st`` (n,) int16, ``pix``, ``own``,
+    ``lab`` (n,) int32, views of one block, for the reason :func:`_scratch` gives (glibc keeps a freed
+    block in the heap for the next call once one that large was freed: no page faults a call). The
+    block lives as long as a view of it (the :class:`_Flood` keeps ``lab``, ``pix`` and ``own``)."""
+    n_pad = -(-n // 32) * 32  # (each array starts on a 64-byte boundary of the block)
+    block = np.empty(14 * n_pad, np.uint8)
+    pix, own, lab = (block[4 * n_pad * i:4 * n_pad * (i + 1)].view(np.int32)[:n] for i in range(3))
+    return block[12 * n_pad:].view(np.int16)[:n], pix, own, lab
+
+
 def _flood(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step: float, K: int, max_area: float,
            connectivity: int, pixel_level: np.ndarray | None = None) -> _Flood | None:
     """The flood kernel's tree without the full-image passes of :func:`_tree` (no valid mask, no
@@ -369,15 +380,12 @@ def _flood(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step:
     n = (H + 2) * (W + 2)
     if top >= FLOOD_MAX_LEVELS or n >= 2**31 - 1:
         return None
-    st = np.empty(n, np.int16)
+    st, pix, own, lab = _flood_scratch(n)
     start = np.zeros(top + 2, np.int64)
-    pix = np.empty(n, np.int32)
-    own = np.empty(n, np.int32)
     want = pixel_level is not None
     levels = pixel_level if pixel_level is not None else np.empty((1, 1), np.int16)
     m = int(flood_levels(z, seg_max, z_min, z_max, step, np.int64(k_eff + 2), np.int64(top), np.int64(K), st, start, pix,
                          own, levels, want))
-    lab = np.empty(n, np.int32)
     pix, own = pix[:m], own[:m]
     node_b, node_size, node_parent, tagged, fin = flood_core(st, start, pix, W, np.int64(k_eff), np.int64(top),
                                                              connectivity == 8, float(max_area), lab)

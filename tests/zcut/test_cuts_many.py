@@ -14,7 +14,7 @@ from test_cuts_fast import bumpy, height_mm, same_result
 
 from zcut import ZCutParams, find_clusters, zcut_outliers_reference
 from zcut.cut_tree import SEGMENT, retag
-from zcut.cuts import StageTree, _finite_range, _flood, _levels, find_clusters_many
+from zcut.cuts import StageTree, _finite_range, _flood, _flood_scratch, _levels, find_clusters_many
 from zcut.errors import InputShapeError, ParameterError
 from zcut.params import n_levels
 
@@ -189,3 +189,35 @@ def test_a_caller_cannot_corrupt_another_answer() -> None:
     for got, p in zip(find_clusters_many(z, params=(a, b)), (a, b), strict=True):
         assert not got.pixel_level.flags.writeable
         same_result(got, find_clusters(z, params=p))
+
+
+def test_trees_kept_alive_do_not_share_scratch() -> None:
+    """The flood's frame-sized arrays are views of one block a call (``zcut.cuts._flood_scratch``):
+    disjoint, and never reused by another call while a tree (or an answer) still holds them. Trees of
+    two part kinds, a frame with a large invalid region and a degenerate one, built and dropped in
+    between, answer as their own fresh calls."""
+    from replay.synth import synthesize_frame
+
+    views = _flood_scratch(1000)
+    assert [v.size for v in views] == [1000] * 4 and [v.dtype for v in views] == [np.int16] + [np.int32] * 3
+    for i, a in enumerate(views):
+        for b in views[i + 1:]:
+            assert not np.shares_memory(a, b)
+    rng = np.random.default_rng(57)
+    frames = [height_mm(synthesize_frame(kind=kind, seed=seed, size=(90, 150)).frame.xyz)
+              for kind, seed in (("zinc_nuts", 58), ("rods", 59))]
+    holes = bumpy(rng, 90, 150, 0.2)
+    holes[20:70, 30:110] = np.nan
+    frames += [holes, np.full((1, 1), 3.0)]
+    p = ZCutParams(0.2, 30.0, 210.0, a_max=3000.0)
+    q = ZCutParams(0.2, 30.0, 40.0, a_max=3000.0)  # shares each tree
+    want = [(find_clusters(z, params=p), find_clusters(z, params=q)) for z in frames]
+    trees = [StageTree(z, params=p) for z in frames]
+    first = [t.answer(p) for t in trees]
+    for z in frames[::-1]:  # more calls, their blocks freed, while the trees live
+        find_clusters(z, params=p)
+        find_clusters_many(z, params=(p, q))
+    for t, got, (wp, wq) in zip(trees, first, want, strict=True):
+        same_result(got, wp)
+        same_result(t.answer(q), wq)
+        same_result(t.answer(p), wp)
