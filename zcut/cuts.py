@@ -357,15 +357,21 @@ class _Flood:
     fin: np.ndarray
 
 
+def _one_block(*parts: tuple[type, int]) -> list[np.ndarray]:
+    """Arrays of the given dtypes and lengths, in this order, as views of one block, each starting on a 64-byte
+    boundary: a call's scratch freed as one block stays in glibc's heap for the next call (:func:`_scratch`)."""
+    sizes = [-(-np.dtype(t).itemsize * k // 64) * 64 for t, k in parts]
+    block = np.empty(max(sum(sizes), 1), np.uint8)
+    ends = np.cumsum([0, *sizes])
+    return [block[int(a):int(a) + np.dtype(t).itemsize * k].view(t) for (t, k), a in zip(parts, ends[:-1], strict=True)]
+
+
 def _flood_scratch(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_flood`'s frame-sized arrays (``n`` padded pixels): ``st`` (n,) int16, ``pix``, ``own``,
-    ``lab`` (n,) int32, views of one block, for the reason :func:`_scratch` gives (glibc keeps a freed
-    block in the heap for the next call once one that large was freed: no page faults a call). The
-    block lives as long as a view of it (the :class:`_Flood` keeps ``lab``, ``pix`` and ``own``)."""
-    n_pad = -(-n // 32) * 32  # (each array starts on a 64-byte boundary of the block)
-    block = np.empty(14 * n_pad, np.uint8)
-    pix, own, lab = (block[4 * n_pad * i:4 * n_pad * (i + 1)].view(np.int32)[:n] for i in range(3))
-    return block[12 * n_pad:].view(np.int16)[:n], pix, own, lab
+    ``lab`` (n,) int32, views of one block (:func:`_one_block`). The block lives as long as a view of it (the
+    :class:`_Flood` keeps ``lab``, ``pix`` and ``own``)."""
+    pix, own, lab, st = _one_block((np.int32, n), (np.int32, n), (np.int32, n), (np.int16, n))
+    return st, pix, own, lab
 
 
 def _flood(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step: float, K: int, max_area: float,
@@ -412,13 +418,9 @@ def _scratch(n: int, bound: int) -> tuple[np.ndarray, ...]:
     raises its mmap and trim thresholds to the largest block freed, so that a call's scratch, freed, stays in
     the heap for the next call instead of going back to the system to be faulted in again page by page (the
     pile: ~690 faults a call, ~1.5 µs each, with five arrays; none with one block; docs/performance.md)."""
-    n_pad = -(-n // 32) * 32  # (each array starts on a 64-byte boundary of the block)
-    b_pad = -(-bound // 16) * 16
-    block = np.empty(4 * n_pad + 12 * b_pad + 2 * n_pad, np.uint8)
-    ends = np.cumsum([0, 4 * n_pad, 4 * b_pad, 4 * b_pad, 4 * b_pad, 2 * n_pad])
-    part = [block[int(a):int(b)] for a, b in zip(ends[:-1], ends[1:], strict=True)]
-    gl, pix, gpar, gcnt = (part[i].view(np.int32)[:size] for i, size in enumerate((n, bound, bound, bound)))
-    return part[4].view(np.int16)[:n], gl, pix, gpar, gcnt
+    gl, pix, gpar, gcnt, st = _one_block((np.int32, n), (np.int32, bound), (np.int32, bound), (np.int32, bound),
+                                         (np.int16, n))
+    return st, gl, pix, gpar, gcnt
 
 
 def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step: float, K: int,
