@@ -235,8 +235,9 @@ def test_the_checks_candidates_equal_numpy(logs):
 def test_nearest_points_equal_the_tree(logs):
     """The residuals' nearest-point query (the cell grid, each search starting from the previous row's
     nearest point; the tree where the two could differ) against the model's KD-tree, distances and points
-    bit for bit: ring pixels in image order, random points in and around the model, points on cell faces,
-    the model's own points (distance 0, ties) and points jittered off them, in blocks and alone."""
+    bit for bit: ring pixels in image order, shuffled and every 7th, random points in and around the model, points
+    on cell faces and corners, the model's own points (distance 0, ties) and points jittered off them, in blocks and
+    alone."""
     from zcut.removal import _nearest_points
 
     rng = np.random.default_rng(11)
@@ -251,7 +252,10 @@ def test_nearest_points_equal_the_tree(logs):
         cases = {"ring": ring_pts, "random": rng.uniform(lo - 0.02, hi + 0.02, (3000, 3)),
                  "faces": np.round((ring_pts[:800] - g.origin) / g.cell) * g.cell + g.origin,
                  "model": own, "jitter": own + rng.normal(0, 1e-3, own.shape), "one": ring_pts[:1],
-                 "reversed": ring_pts[::-1]}
+                 "reversed": ring_pts[::-1],
+                 # rows whose previous row's point lies too far: the row's own cell bounds the search
+                 "shuffled": ring_pts[rng.permutation(len(ring_pts))], "every 7th": ring_pts[::7],
+                 "cell corners": np.floor((own - g.origin) / g.cell) * g.cell + g.origin}
         for name, q in cases.items():
             q = np.ascontiguousarray(q)
             d, j = _nearest_points(q, index)

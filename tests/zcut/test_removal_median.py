@@ -143,3 +143,19 @@ def test_the_trims_equal_numbas_medians(n):
             want = _trimmed_numba_median(e, keep)
             assert np.float64(got[0]).tobytes() == np.float64(want[0]).tobytes()
             assert np.array_equal(got[1], want[1]) and got[2] == want[2]
+
+
+def test_the_median_of_residuals_and_steps_is_numpys():
+    """:func:`zcut.removal._median_of` (σ_bin's and the pixel angle's median) against ``np.median``: float64 with
+    infinities (residuals beyond reach), float32, NaN (numpy's), and the sizes of a frame's sample."""
+    from zcut.removal import _median_of, bin_sigma_m
+
+    rng = np.random.default_rng(6)
+    for n in (1, 2, 7, 4096, 15_226, 20_000, 40_001):
+        r = np.abs(rng.standard_normal(n))
+        for x in (r, np.where(rng.random(n) < 0.2, np.inf, r), np.where(rng.random(n) < 0.7, np.inf, r),
+                  r.astype(np.float32), np.where(rng.random(n) < 0.01, np.nan, r)):
+            want = float(np.median(x))
+            got = _median_of(x)
+            assert (np.isnan(got) and np.isnan(want)) or np.float64(got).tobytes() == np.float64(want).tobytes()
+        assert bin_sigma_m(r) == 1.4826 * float(np.median(r)) / 1000.0

@@ -163,40 +163,20 @@ def test_the_bound_applies_below_the_rims_band_by_default():
     assert RemovalParams().straggler_bound == "below_rim"
 
 
-@pytest.mark.parametrize("which", ["global", "below_rim", "off"])
-def test_the_switch(scene, which):
+@pytest.mark.parametrize("case", ["global", "below_rim", "off", "below_rim half-way"])
+def test_the_switch(scene, case):
     """``RemovalParams.straggler_bound``: "global" bounds every straggler by the frame's σ_bin, "off" is the previous
-    rule (τ + ``straggler_mm``: every moved pick is bin); fast = its reference path = the literal reference."""
+    rule (τ + ``straggler_mm``: every moved pick is bin), "below_rim" bounds those below the rim's band only; with
+    the band ``rim_offset_mm`` reaching half-way down the picks ("below_rim half-way"), the picks beyond the frame's
+    bound above the band's bottom are bin (τ + ``straggler_mm``, as "off"), those below it stay in the zone (as
+    "global"). Fast = its reference path = the literal reference."""
     xyz, fp, ring, T, model, f, picks = scene
-    p = RemovalParams(straggler_bound=which)
-    index = prepare_removal_index(model, p)
-    tol = frame_tolerance(xyz, ring, index, T)
-    tau = tol.tolerance_mm / 1000.0
-    z = xyz[picks[:, 0], picks[:, 1], 2].astype(np.float64)
-    bound = straggler_bound_m(z, tol.sigma_mm / 1000.0, tol.pixel_rad, tau + p.straggler_m)
-    moved = _moved(xyz, T, model, picks, 0.5 * (bound + tau + p.straggler_m))  # beyond the frame's bound
-    got = remove_table_and_bin(moved, fp, index=index, T_cam_bin=T, ring=ring)
-    _assert_same(got, remove_table_and_bin(moved, fp, index=index, T_cam_bin=T, ring=ring, reference=True))
-    _assert_same(got, _reference(moved, fp, model, T, p, tol, bounded=True))
-    taken = got.bin_points[picks[:, 0], picks[:, 1]]
-    if which == "off":
-        assert taken.all()
-    elif which == "global":
-        assert (~taken).mean() >= 0.85
-    else:  # "below_rim": the picks in the rim's band (5 mm) are bin as with "off", the others bounded as "global"
-        above = _heights(moved, T, picks) > _top(model, p)
-        assert taken[above].all() and above.sum() < 0.5 * len(picks)
-        assert (~taken[~above]).mean() >= 0.85
-
-
-def test_below_rim_bounds_only_below_the_rims_band(scene):
-    """``"below_rim"`` with the band ``rim_offset_mm`` reaching half-way down the picks: the picks beyond the frame's
-    bound above the band's bottom are bin (τ + ``straggler_mm``, as ``"off"``), those below it stay in the zone (as
-    ``"global"``); fast = its reference path = the literal reference."""
-    xyz, fp, ring, T, model, f, picks = scene
-    base = prepare_removal_index(model, RemovalParams())
     h = _heights(xyz, T, picks)
-    p = RemovalParams(straggler_bound="below_rim", rim_offset_mm=float(1000.0 * (base.rim_b - np.median(h))))
+    if case == "below_rim half-way":
+        base = prepare_removal_index(model, RemovalParams())
+        p = RemovalParams(straggler_bound="below_rim", rim_offset_mm=float(1000.0 * (base.rim_b - np.median(h))))
+    else:
+        p = RemovalParams(straggler_bound=case)
     index = prepare_removal_index(model, p)
     tol = frame_tolerance(xyz, ring, index, T)
     tau = tol.tolerance_mm / 1000.0
@@ -206,13 +186,23 @@ def test_below_rim_bounds_only_below_the_rims_band(scene):
     got = remove_table_and_bin(moved, fp, index=index, T_cam_bin=T, ring=ring)
     _assert_same(got, remove_table_and_bin(moved, fp, index=index, T_cam_bin=T, ring=ring, reference=True))
     _assert_same(got, _reference(moved, fp, model, T, p, tol, bounded=True))
-    top = _top(model, p)
-    assert top == pytest.approx(index.rim_b - p.rim_offset_m, abs=1e-12)
-    above = _heights(moved, T, picks) > top
-    assert 0.3 < above.mean() < 0.7
     taken = got.bin_points[picks[:, 0], picks[:, 1]]
+    if case == "off":
+        assert taken.all()
+        return
+    if case == "global":
+        assert (~taken).mean() >= 0.85
+        return
+    # "below_rim": the picks in the rim's band are bin as with "off", the others bounded as "global"
+    top = _top(model, p)
+    above = _heights(moved, T, picks) > top
     assert taken[above].all()
     assert (~taken[~above]).mean() >= 0.85
+    if case == "below_rim":  # the default band (5 mm) holds less than half of the picks
+        assert above.sum() < 0.5 * len(picks)
+        return
+    assert top == pytest.approx(index.rim_b - p.rim_offset_m, abs=1e-12)
+    assert 0.3 < above.mean() < 0.7
     # the bound's own formula, per pixel: straggler_m above the band, the frame's bound below it
     np.testing.assert_array_equal(
         straggler_bound_m(z, tol.sigma_mm / 1000.0, tol.pixel_rad, tau + p.straggler_m, height_m=h, top_m=top),
