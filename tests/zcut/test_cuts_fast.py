@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 import pytest
+from gentle_state import gentle_labelled
 
 from zcut import ZCutParams, find_clusters, zcut_outliers, zcut_outliers_reference
 from zcut.cut_tree import SEGMENT, outlier_mask
@@ -240,21 +241,9 @@ def pruned_counts(z: np.ndarray, *, step: float, max_depth: float, max_area: flo
     """(pixels in the cuts, pixels kept by gentle_prune) of z, from the kernels themselves (labelling
     every pixel unless ``check`` says when to look whether it pays; ``gentle``: the labelling's
     connectivity, the z-cut's by default)."""
-    from zcut.cut_tree import gentle_levels, gentle_prune
-    from zcut.cuts import _levels
-
-    z = np.ascontiguousarray(z, dtype=np.float64)
-    H, W = z.shape
-    n, lo, hi, seg = _finite_range(z)
-    k_eff, top = _levels(lo, hi, step, n_levels(step, max_depth))
-    size = (H + 2) * (W + 2)
-    st, gl = np.empty(size, np.int16), np.empty(size, np.int32)
-    pix, gpar, gcnt = (np.empty(H * W, np.int32) for _ in range(3))
-    m, nl, labelled = gentle_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top),
-                                    (gentle or connectivity) == 8, max_area, np.int64(check), st, pix, gl, gpar, gcnt)
-    keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, np.zeros(top + 2, np.int64), labelled, W,
-                        connectivity == 8, np.int64(top))
-    return int(m), int(keep)
+    state = gentle_labelled(z, step=step, max_depth=max_depth, max_area=max_area, gentle=gentle or connectivity,
+                            check=check)
+    return state.m, state.prune(max_area=max_area, connectivity=connectivity)
 
 
 def pruned_outliers(z: np.ndarray, *, step: float, max_depth: float, max_area: float, connectivity: int = 8,
