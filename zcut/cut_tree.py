@@ -407,7 +407,7 @@ def _gentle_codes(st, b, c0, c1, Wp, codes):  # type: ignore[no-untyped-def]  # 
 
 @numba.njit(cache=True, nogil=True)
 def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt,  # type: ignore[no-untyped-def]  # numba kernel
-                  share=0.5, trial=False, wr=0, wc=0, wh=-1, ww=-1):
+                  share=0.5, wr=0, wc=0, wh=-1, ww=-1):
     """:func:`flood_levels` without ``own`` and ``pixel_level``, labelling on the way the *gentle
     components*: the components of the pixels in the cuts where two neighbours are joined when
     their levels differ by at most 1.
@@ -430,9 +430,7 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
     labelling pays: if fewer than ``share`` (half) of them lie in sets of ``max_area`` pixels or more
     (few gentle edges: quantised depths, steep relief; the flood would then visit most pixels
     anyway), it labels no further and returns labelled = False (the levels and ``pix`` are complete;
-    the labels are not). With ``trial`` it returns there at once (the levels and ``pix`` incomplete
-    too): the caller labels again another way (:func:`zcut.cuts._pruned_outliers`: the 4-connected
-    gentle components first, the 8-connected ones when those do not pay).
+    the labels are not).
 
     ``wr, wc, wh, ww``: the window of z worked on, rows ``wr .. wr + wh - 1`` and columns ``wc .. wc
     + ww - 1`` (``wc`` a multiple of SEGMENT; ``wh, ww`` = -1: the whole frame); ``st``, ``gl`` and
@@ -458,8 +456,6 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
         if labelling and not checked and m >= check:
             checked = True
             labelling = _labelling_pays(gpar, gcnt, nl, m, max_area, share)
-            if trial and not labelling:
-                return m, nl, labelling  # a trial: the caller labels again another way
         base = (r + 1) * Wp
         st[base] = -1
         st[base + W + 1] = -1
