@@ -29,10 +29,10 @@ max_area = 0.07 * a_max (a_max = 3000 px):
 
 Prints the times, the ratio reference / fast and checks that the masks are identical.
 ``--passes`` also prints where ``zcut_outliers``' CPU time goes (the extremes pass, the level pass with
-the gentle components — the 4-connected ones as a trial, then the 8-connected ones when those do not
-pay, as ``zcut_outliers`` — the prune: the large gentle components and the pixels below them left out, the
+the gentle components of the z-cut's connectivity, as ``zcut_outliers``, the prune: the large gentle components and the pixels below them left out, the
 flood of the kept pixels, the read-out) beside the floor of
 reading the heights and writing a mask.
+``--held-out pile:21,dense:31,...`` adds frames of those kinds at seeds the default frames do not use.
 ``--faults`` also prints ``find_clusters``' minor page faults, system ms and CPU ms a call (medians, this
 tree, each result dropped before the next call); with ``--against``, the old tree's faults a call in its
 own process. (Not with ``--alternate``: both trees share one heap there, and the allocator keeps for the
@@ -177,12 +177,10 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
     pix, gpar, gcnt = (np.empty(bound, np.int32) for _ in range(3))
 
     def levels() -> tuple:
-        # as zcut_outliers: the 4-connected gentle components as a trial, the 8-connected ones when
-        # those do not pay at the check
+        # as zcut_outliers: the 8-connected gentle components (the z-cut's connectivity)
         args = (z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top))
         rest = (max_area, np.int64(max(PRUNE_CHECK, PRUNE_CHECK_ROWS * Wz)), st, pix, gl, gpar, gcnt)
-        out = gentle_levels(*args, False, *rest, 0.5, True, *window)
-        return (*out, 4) if out[2] else (*gentle_levels(*args, True, *rest, 0.5, False, *window), 8)
+        return (*gentle_levels(*args, True, *rest, 0.5, *window), 8)
 
     m, nl, labelled, gentle = levels()
     state = (st.copy(), pix.copy(), gpar.copy(), gcnt.copy())
@@ -358,6 +356,8 @@ def main() -> int:
     ap.add_argument("--real", type=Path, default=None, help="the folder of the real clouds (adds kinect16, mug)")
     ap.add_argument("--synth", action="store_true", help="add zinc: a synthetic 1920 x 1200 zinc-nut frame")
     ap.add_argument("--frames", default=None, help="comma-separated frame names to run (default: all)")
+    ap.add_argument("--held-out", default=None, metavar="KIND:SEED,...",
+                    help="add frames of the kinds pile, dense, holes, zinc at other seeds (e.g. pile:21,dense:31)")
     ap.add_argument("--passes", action="store_true", help="print the CPU time of each pass of zcut_outliers")
     ap.add_argument("--faults", action="store_true",
                     help="print find_clusters' page faults, system and CPU ms a call (this tree, in this process)")
@@ -375,6 +375,11 @@ def main() -> int:
         frames["zinc"] = synth_frame()
     if args.real is not None:
         frames.update(real_frames(args.real))
+    if args.held_out is not None:
+        kinds = {"pile": pile_frame, "dense": dense_frame, "holes": holes_frame, "zinc": synth_frame}
+        for item in args.held_out.split(","):
+            kind, seed = item.split(":")
+            frames[f"{kind}{seed}"] = kinds[kind](int(seed))
     if args.frames is not None:
         frames = {k: v for k, v in frames.items() if k in args.frames.split(",")}
     if args.alternate:

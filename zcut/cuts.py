@@ -59,17 +59,16 @@ The prune then leaves out more by the same argument (:func:`zcut.cut_tree.gentle
 neighbour of a pixel p of a tagged node C whose level is at most ``level(p) + 1`` lies in C (C's
 outer neighbours are at ``k + 2`` or deeper), so a kept pixel with a left-out neighbour of such a
 level is in no tagged node either, nor is a pixel at level ``K + 1``; one sweep with depth-first
-walks takes the closure (*uphill* pixels: on the pile 30,422 kept pixels become 4,454, on the dense
+walks takes the closure (*uphill* pixels: on the pile 16,739 kept pixels become 4,454, on the dense
 frame 123,419 become 60,785). The pruned path works on the window of rows and segment columns that
 hold pixels in the cuts, its scratch arrays sized by it.
 
-With 8-connectivity the labelling first tries the *4-connected* gentle components: each lies inside
-an 8-connected one, so a pixel of one of ``max_area`` pixels or more is in no tagged node either
-(any set of such pixels may be left out). They cost less to label (two neighbours before a pixel,
-not four) and leave more pixels to the flood (the pile: 30,422 of 117,023 against 16,739), which
-pays on smooth relief; on noisy relief (the dense frame: half the edges gentle, the 4-connected
-lattice at its percolation threshold) they do not pay at the check, and the labelling starts again
-with the 8-connected ones (the trial cost: ``PRUNE_CHECK_ROWS`` rows).
+The gentle components are those of the z-cut's connectivity. With 8-connectivity the *4-connected*
+ones would do too (each lies inside an 8-connected one, so a pixel of one of ``max_area`` pixels or
+more is in no tagged node either: any set of such pixels may be left out; ``_pruned_outliers``'
+``gentle=4``), but since the 8-connected scan reads precomputed gentle-edge codes
+(:func:`zcut.cut_tree.gentle_levels`) it costs no more than the 4-connected one and leaves fewer
+pixels to the prune (the pile: 16,739 of 117,023 against 30,422), so they are not tried first any more.
 
 With the flood (the default), :func:`zcut_outliers` and :func:`find_clusters` build the tree
 straight from the heights (:func:`_flood`): one pass finds the extremes and the largest height of
@@ -431,9 +430,8 @@ def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: fl
     False when it does not apply (too many levels or pixels, or fewer than ``minimum`` in the cuts:
     nothing written). ``check``: when the labelling looks whether it pays (default: at
     ``PRUNE_CHECK`` pixels and ``PRUNE_CHECK_ROWS`` rows' worth). ``gentle``: the connectivity of
-    the gentle components labelled: 4, the z-cut's ``connectivity``, or ``"auto"``: with 8, the
-    4-connected ones as a trial, the 8-connected ones when those do not pay at the check (module
-    notes)."""
+    the gentle components labelled: 4, the z-cut's ``connectivity``, or ``"auto"``: the
+    z-cut's ``connectivity`` (module notes)."""
     k_eff, top = _levels(z_min, z_max, step, K)
     H, W = z.shape
     n = (H + 2) * (W + 2)
@@ -458,14 +456,7 @@ def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: fl
     args = (z, seg_max, z_min, z_max, step, np.int64(k_eff + 2), np.int64(top))
     rest = (float(max_area), np.int64(check), st, pix, gl, gpar, gcnt)
     window = (wr, wc, wh, ww)
-    if conn8 and gentle == "auto":
-        # the 4-connected gentle components first (module notes): a trial that stops at the check
-        # when they do not pay (they do not percolate on noisy relief), then the 8-connected ones
-        m, nl, labelled = gentle_levels(*args, False, *rest, 0.5, True, *window)
-        if not labelled:
-            m, nl, labelled = gentle_levels(*args, True, *rest, 0.5, False, *window)
-    else:
-        m, nl, labelled = gentle_levels(*args, conn8 and gentle == 8, *rest, 0.5, False, *window)
+    m, nl, labelled = gentle_levels(*args, conn8 and gentle != 4, *rest, 0.5, *window)
     start = np.zeros(top + 2, np.int64)
     keep = int(gentle_prune(st, pix, m, gl, gpar, gcnt, nl, float(max_area), start, labelled, ww, conn8,
                             np.int64(top)))

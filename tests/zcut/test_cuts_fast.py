@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 import pytest
+from gentle_state import gentle_labelled
 
 from zcut import ZCutParams, find_clusters, zcut_outliers, zcut_outliers_reference
 from zcut.cut_tree import SEGMENT, outlier_mask
@@ -240,21 +241,9 @@ def pruned_counts(z: np.ndarray, *, step: float, max_depth: float, max_area: flo
     """(pixels in the cuts, pixels kept by gentle_prune) of z, from the kernels themselves (labelling
     every pixel unless ``check`` says when to look whether it pays; ``gentle``: the labelling's
     connectivity, the z-cut's by default)."""
-    from zcut.cut_tree import gentle_levels, gentle_prune
-    from zcut.cuts import _levels
-
-    z = np.ascontiguousarray(z, dtype=np.float64)
-    H, W = z.shape
-    n, lo, hi, seg = _finite_range(z)
-    k_eff, top = _levels(lo, hi, step, n_levels(step, max_depth))
-    size = (H + 2) * (W + 2)
-    st, gl = np.empty(size, np.int16), np.empty(size, np.int32)
-    pix, gpar, gcnt = (np.empty(H * W, np.int32) for _ in range(3))
-    m, nl, labelled = gentle_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top),
-                                    (gentle or connectivity) == 8, max_area, np.int64(check), st, pix, gl, gpar, gcnt)
-    keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, np.zeros(top + 2, np.int64), labelled, W,
-                        connectivity == 8, np.int64(top))
-    return int(m), int(keep)
+    state = gentle_labelled(z, step=step, max_depth=max_depth, max_area=max_area, gentle=gentle or connectivity,
+                            check=check)
+    return state.m, state.prune(max_area=max_area, connectivity=connectivity)
 
 
 def pruned_outliers(z: np.ndarray, *, step: float, max_depth: float, max_area: float, connectivity: int = 8,
@@ -279,8 +268,8 @@ def pruned_outliers(z: np.ndarray, *, step: float, max_depth: float, max_area: f
     return out
 
 
-#: The gentle components the prune may label, by the z-cut's connectivity ("auto": a trial of the
-#: 4-connected ones, then the 8-connected ones when those do not pay).
+#: The gentle components the prune may label, by the z-cut's connectivity ("auto": the z-cut's own; the
+#: 4-connected ones are subsets of the 8-connected ones, so they may serve an 8-connected z-cut too).
 GENTLE: dict[int | float, tuple[int | str, ...]] = {8: ("auto", 4, 8), 4: ("auto", 4)}
 
 
@@ -350,15 +339,14 @@ def test_pruned_flood_keeps_few_pixels_of_the_pile() -> None:
     np.testing.assert_array_equal(zcut_outliers(z, **NOMINAL), want)
 
 
-def test_the_4_connected_trial_gives_way_on_noisy_relief() -> None:
+def test_the_4_connected_components_do_not_pay_on_noisy_relief() -> None:
     """On the benchmark's dense frame (half of the edges gentle, at random) the 4-connected gentle
-    components do not pay at the check, so the trial stops there and the 8-connected ones are labelled
-    (most pixels left out); every way gives the whole flood's mask."""
+    components do not pay at the check (the labelling stops there, the levels and the pixel list go on
+    to the end), the 8-connected ones do (most pixels left out); every way gives the whole flood's mask."""
     import sys
     from pathlib import Path
 
-    from zcut.cut_tree import gentle_levels
-    from zcut.cuts import PRUNE_CHECK, _levels
+    from zcut.cuts import PRUNE_CHECK
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
     try:
@@ -367,18 +355,13 @@ def test_the_4_connected_trial_gives_way_on_noisy_relief() -> None:
         sys.path.pop(0)
     z = np.ascontiguousarray(dense_frame()[:240, :640])
     H, W = z.shape
-    n, lo, hi, seg = _finite_range(z)
-    k_eff, top = _levels(lo, hi, 0.2, n_levels(0.2, 30.0))
-    size = (H + 2) * (W + 2)
-    st, gl = np.empty(size, np.int16), np.empty(size, np.int32)
-    pix, gpar, gcnt = (np.empty(H * W, np.int32) for _ in range(3))
-    check_at = np.int64(max(PRUNE_CHECK, 8 * W))
-    args = (z, seg, lo, hi, 0.2, np.int64(k_eff + 2), np.int64(top))
-    m4, _, paid4 = gentle_levels(*args, False, 210.0, check_at, st, pix, gl, gpar, gcnt, 0.5, True)
-    assert not paid4 and check_at <= m4 < H * W  # stopped at the check
-    m8, _, paid8 = gentle_levels(*args, True, 210.0, check_at, st, pix, gl, gpar, gcnt, 0.5, True)
-    assert paid8 and m8 == H * W
-    m, keep = pruned_counts(z, step=0.2, max_depth=30.0, max_area=210.0, connectivity=8, check=int(check_at))
+    check_at = max(PRUNE_CHECK, 8 * W)
+    four = gentle_labelled(z, step=0.2, max_depth=30.0, max_area=210.0, gentle=4, check=check_at)
+    assert not four.labelled and four.m == H * W  # stopped labelling at the check, not levelling
+    assert four.nl < 10 * W  # the labels of the first rows only
+    eight = gentle_labelled(z, step=0.2, max_depth=30.0, max_area=210.0, gentle=8, check=check_at)
+    assert eight.labelled and eight.m == H * W
+    m, keep = pruned_counts(z, step=0.2, max_depth=30.0, max_area=210.0, connectivity=8, check=check_at)
     assert m == H * W and keep < m / 5
     want = previous_outliers(z, **NOMINAL)
     assert want.any()

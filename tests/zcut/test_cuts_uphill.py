@@ -12,10 +12,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from gentle_state import gentle_labelled
 from test_cuts_fast import bumpy, check, height_mm, previous_outliers, pruned_outliers, terraces
 
 from zcut import ZCutParams, find_clusters, zcut_outliers, zcut_outliers_reference
-from zcut.cut_tree import OUTSIDE, gentle_levels, gentle_prune, qlevel
+from zcut.cut_tree import OUTSIDE, gentle_levels, qlevel
 from zcut.cuts import _finite_range, _levels
 from zcut.params import n_levels
 
@@ -36,23 +37,14 @@ def prune_state(z: np.ndarray, *, step: float, max_depth: float, max_area: float
     """The kernels' own state after the level pass (every pixel labelled, gentle components of connectivity
     ``gentle``) and the prune: ``(levels (H, W), left out (H, W), pixels in the cuts, kept, top)``; the
     levels -1 outside the cuts."""
-    z = np.ascontiguousarray(z, dtype=np.float64)
-    H, W = z.shape
-    n, lo, hi, seg = _finite_range(z)
-    k_eff, top = _levels(lo, hi, step, n_levels(step, max_depth))
-    size = (H + 2) * (W + 2)
-    st, gl = np.empty(size, np.int16), np.empty(size, np.int32)
-    pix, gpar, gcnt = (np.empty(H * W, np.int32) for _ in range(3))
-    m, nl, labelled = gentle_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top), gentle == 8,
-                                    max_area, np.int64(2**40), st, pix, gl, gpar, gcnt)
-    assert labelled
-    levels = st.reshape(H + 2, W + 2)[1:-1, 1:-1].astype(np.int64)
-    keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, np.zeros(top + 2, np.int64), labelled, W,
-                        connectivity == 8, np.int64(top))
-    after = st.reshape(H + 2, W + 2)[1:-1, 1:-1].astype(np.int64)
+    state = gentle_labelled(z, step=step, max_depth=max_depth, max_area=max_area, gentle=gentle)
+    assert state.labelled
+    levels = state.levels()
+    keep = state.prune(max_area=max_area, connectivity=connectivity)
+    after = state.levels()
     left_out = after <= OUTSIDE
     assert np.array_equal(np.where(left_out, OUTSIDE - after, after), levels)  # the levels kept in the marks
-    return levels, left_out, int(m), int(keep), int(top)
+    return levels, left_out, state.m, keep, state.top
 
 
 # ------------------------------------------------------------------------------------------------
@@ -97,6 +89,59 @@ def test_segment_levels_are_qlevels_on_the_thresholds(seed: int) -> None:
         assert m == int((want >= 0).sum())
         if top < 4096:  # the whole path too
             check(z, step=step, max_depth=max_depth, max_area=6.0)
+
+
+def guess_fails(z: np.ndarray, *, z_min: float, z_max: float, step: float, top: int) -> np.ndarray:
+    """(H, W) bool: the pixels in the cuts whose level neither the guess k = floor((z_max - z) / step) nor k + 1
+    is (zcut.cut_tree._segment_levels' test, in numpy): where the segment must be levelled again by qlevel."""
+    zt = np.where(np.isfinite(z), z, z_min)
+    k = np.clip((z_max - zt) * (1.0 / step), 0.0, float(top + 1)).astype(np.int64)
+    in0 = zt >= z_max - k * step
+    inm = zt >= z_max - (k - 1) * step
+    inp = zt >= z_max - (k + 1) * step
+    ok = (in0 & ((k == 0) | ~inm)) | (~in0 & inp)
+    return (zt >= z_max - top * step) & ~ok
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_segment_levels_fall_back_to_qlevel_when_the_guess_is_off(seed: int) -> None:
+    """Heights of 2**60 and a step of 1 (or 3, or 0.75): the cuts' thresholds z_max - k * step round to the
+    float64 grid (an ulp of 128 or 256), so many k share a threshold and the guess floor((z_max - z) / step) is
+    off by far more than one level, both ways. Those segments must be levelled again by qlevel: the levels of
+    the level pass (gentle_levels' st), find_clusters' pixel_level and the masks are qlevel's and the literal
+    loop's. (With the fallback's test or its call removed, the levels of the pixels it catches go wrong.)"""
+    rng = np.random.default_rng(7100 + seed)
+    H, W = 7, 2 * 64 + 9
+    z_max = float(2**60) * float(rng.choice([1.0, -1.0, 0.5]))
+    step = float(rng.choice([1.0, 3.0, 0.75]))
+    z = z_max - np.floor(rng.uniform(0.0, 1500.0, (H, W))) * step
+    z[0, 0] = z_max
+    z[rng.random((H, W)) < 0.05] = np.nan
+    z[:, 64:128] = z_max - 2000.0 * step  # a segment below every cut (not read again)
+    z[3, 70] = z_max  # ... but one pixel in: the segment is read
+    max_depth = 1200.0 * step
+    K = n_levels(step, max_depth)
+    n, lo, hi, seg = _finite_range(z)
+    k_eff, top = _levels(lo, hi, step, K)
+    assert top < 4096
+    fails = guess_fails(z, z_min=lo, z_max=hi, step=step, top=top)
+    assert fails.sum() > H * W // 4  # the fallback is reached, on most segments
+    want = np.full((H, W), -1, np.int64)
+    for r in range(H):
+        for c in range(W):
+            zt = z[r, c] if np.isfinite(z[r, c]) else lo
+            if zt >= hi - top * step:
+                want[r, c] = qlevel(zt, hi, step, np.int64(k_eff + 2))
+    for gentle in (4, 8):
+        state = gentle_labelled(z, step=step, max_depth=max_depth, max_area=6.0, gentle=gentle)
+        np.testing.assert_array_equal(state.levels(), want)
+    pixel_level = np.where(want <= K + 1, want, -1)
+    result = find_clusters(z, params=ZCutParams(step, max_depth, 6.0))
+    np.testing.assert_array_equal(result.pixel_level, pixel_level)
+    for max_area in (3.0, 40.0):
+        np.testing.assert_array_equal(pruned_outliers(z, step=step, max_depth=max_depth, max_area=max_area),
+                                      zcut_outliers_reference(z, step=step, max_depth=max_depth, max_area=max_area))
+        check(z, reference=False, step=step, max_depth=max_depth, max_area=max_area)
 
 
 def test_segment_levels_with_a_subnormal_step() -> None:
