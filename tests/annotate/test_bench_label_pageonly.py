@@ -61,3 +61,36 @@ def test_below_around_flags_a_patch_with_something_lower_beside_it(bench):
     assert bench.below_around(np.zeros((2, 2), np.int64), 0, np.zeros((2, 2)), np.ones((2, 2), bool)).tolist() == [False]
     z[0, 0] = 502.1  # exactly beyond 2 mm beside proposal 1 (median 500)
     assert bench.below_around(ids, 3, z, valid).tolist() == [False, True, True, False]
+
+
+def _list(rows: list[tuple[int, float, float, float, int]]) -> dict:
+    """A proposal list as bench.proposals_of gives it: (n, cx, cy, dist_mm, fit) per row."""
+    import numpy as np
+
+    n, cx, cy, dist, fit = (np.array(c, np.float64) for c in zip(*rows))
+    return {"id": np.arange(1, len(rows) + 1, dtype=np.float64), "n": n, "cx": cx, "cy": cy, "dist_mm": dist, "fit": fit}
+
+
+def test_next_seed_takes_the_largest_at_its_centre_pixel_once(bench):
+    """--seed-px's choice: the largest proposal of at least N px, clicked at the pixel holding its centre (floor),
+    never a pixel clicked before, never a rejected fit's pixels; None when none is left."""
+    nan = float("nan")
+    col = _list([(40, 10.9, 3.2, 5.0, -1), (700, 100.5, 50.99, 2.0, -1), (900, 7.0, 8.0, nan, 3), (120, 0.2, 0.7, 9.0, -1)])
+    assert bench.next_seed(col, [], 30) == (100, 50, 700)  # the rejected fit's 900 px are no candidate
+    assert bench.next_seed(col, [(100, 50)], 30) == (0, 0, 120)
+    assert bench.next_seed(col, [(100, 50), (0, 0)], 30) == (10, 3, 40)
+    assert bench.next_seed(col, [(100, 50), (0, 0)], 41) is None  # below N
+    assert bench.next_seed(col, [(100, 50), (0, 0), (10, 3)], 1) is None
+    assert bench.next_seed({k: v[:0] for k, v in col.items()}, [], 1) is None  # an empty list
+
+
+def test_next_seed_breaks_ties_as_the_page_lists_proposals(bench):
+    """Among equal sizes the first in the list: the page lists proposals farthest first (one with no distance first
+    of all), then by row, then by column of their centres."""
+    nan = float("nan")
+    col = _list([(50, 1.0, 1.0, 3.0, -1), (50, 9.0, 2.0, 8.0, -1), (50, 3.0, 2.0, 8.0, -1), (50, 4.0, 4.0, nan, -1),
+                 (50, 5.0, 0.5, 8.0, -1)])
+    got = []
+    while (s := bench.next_seed(col, [p[:2] for p in got], 50)) is not None:
+        got.append(s)
+    assert [p[:2] for p in got] == [(4, 4), (5, 0), (3, 2), (9, 2), (1, 1)]
