@@ -39,8 +39,8 @@ The scene's true meshes are rebuilt from the log's ``zcut.synth`` record, read o
 the largest first, re-reading the list after each seed (:func:`seed_steps`; docs/labelling.md, "Eighth round"): in
 the browser real Ctrl+clicks, in ``--diagnose`` the same :meth:`annotate.fits.FrameFits.seeded` the page's Ctrl+click
 reaches, and there the rule as written is scored from the same fits in the same run (``--json F`` writes it to F, the
-variant to ``F.seedN.json``). Both modes save each label they score as ``WORK/<log>_f<frame>_<variant>.npy``
-(``--work``) so that the browser's label can be checked against the emulated one to the pixel.
+variant to ``F.seedN.json``). Both modes save each label with a part model as
+``WORK/<log stem>_f<frame>_<variant>_<emulated|browser>.npy`` (``--work``; :func:`label_file`) so that the browser's label can be checked against the emulated one to the pixel.
 ``--compare BEFORE.json,AFTER.json`` prints two ``--diagnose --json`` files (two trees, the same logs) as one
 table, before → after, and the largest cause of each log's wrong pixels in the after file.
 
@@ -127,9 +127,9 @@ def click_row(page, k: int) -> None:
 
 
 def person_with_model(page) -> dict:
-    """docs/labelling.md's rule with a part model: K (and R) the fits whose Err exceeds 10 × the median Err
-    the fits line shows; R the proposals whose shown distance is not above k × their shown Err; Shift+U;
-    Enter."""
+    """docs/labelling.md's rule with a part model: with :data:`SEED_PX`, first the variant's Ctrl+clicks
+    (:func:`seed_in_browser`); K (and R) the fits whose Err exceeds 10 × the median Err the fits line shows; R the
+    proposals whose shown distance is not above k × their shown Err; Shift+U; Enter."""
     wait_until(page, "window.zcut.fits() && ['ready', 'none', 'error'].includes(window.zcut.fits().status)",
                timeout_s=1800)
     f = page.evaluate("window.zcut.fits()")
@@ -287,7 +287,6 @@ def run(log: Path, mode: str, db: Path, browser, viewport, work: Path) -> list[d
             r["label"] = lab.get("outliers", np.zeros(r["region"].shape, bool))
             if with_model:
                 np.save(label_file(work, log, r["frame"], variant_name(), "browser"), r["label"])
-            if with_model:
                 import httpx
 
                 from annotate.payload import parse_bundle
