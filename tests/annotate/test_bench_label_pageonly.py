@@ -94,3 +94,34 @@ def test_next_seed_breaks_ties_as_the_page_lists_proposals(bench):
     while (s := bench.next_seed(col, [p[:2] for p in got], 50)) is not None:
         got.append(s)
     assert [p[:2] for p in got] == [(4, 4), (5, 0), (3, 2), (9, 2), (1, 1)]
+
+
+class _Fits:
+    """A stand-in for annotate.fits.FrameFits in seed_steps: its proposals (n, cx, cy), and which centre pixels a
+    click finds an instance at (that proposal leaves; a click that finds nothing returns the same object)."""
+
+    def __init__(self, props: list[tuple[int, float, float]], finds: set[tuple[int, int]]) -> None:
+        self.props, self.finds, self.fits = props, finds, ()
+
+    def seeded(self, x: int, y: int, xyz_mm, config) -> _Fits:
+        if (x, y) not in self.finds:
+            return self
+        return _Fits([p for p in self.props if (int(p[1]), int(p[2])) != (x, y)], self.finds)
+
+
+def test_seed_steps_clicks_largest_first_reads_again_after_a_find_and_a_larger_n_is_a_prefix(bench, monkeypatch):
+    reads = []
+
+    def proposals_of(ff, xyz_mm, heights, valid, rejected):
+        reads.append(len(ff.props))
+        return _list([(n, cx, cy, 1.0, -1) for n, cx, cy in ff.props]), None
+
+    monkeypatch.setattr(bench, "proposals_of", proposals_of)
+    ff = _Fits([(50, 1.5, 1.5), (900, 7.2, 3.9), (300, 4.0, 4.0), (20, 9.0, 9.0)], finds={(7, 3), (1, 1)})
+    steps = list(bench.seed_steps(ff, None, None, None, None, 30))
+    assert [s.clicked for s in steps] == [(), ((7, 3),), ((7, 3), (4, 4)), ((7, 3), (4, 4), (1, 1))]
+    assert [s.found for s in steps] == [0, 1, 1, 2] and [s.next_px for s in steps] == [900, 300, 50, 0]
+    assert reads == [4, 3, 2]  # the list is read once, then after each click that found an instance
+    assert steps[-1].ff.props == [(300, 4.0, 4.0), (20, 9.0, 9.0)]
+    big = list(bench.seed_steps(ff, None, None, None, None, 100))
+    assert [s.clicked for s in big] == [s.clicked for s in steps[:3]] and big[-1].next_px == 0
