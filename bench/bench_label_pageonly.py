@@ -35,11 +35,18 @@ The scene's true meshes are rebuilt from the log's ``zcut.synth`` record, read o
 2 mm below (:func:`below_around`: a cue from the cloud alone, not shown on the page).
 ``--sigma-cap C`` (either mode) judges each fit's pixels with its residual capped at C × the frame's median
 (:data:`annotate.fits.SIGMA_CAP`; off by default: docs/labelling.md, "Seventh round").
+``--seed-px N`` (either mode) is the rule's variant that first Ctrl+clicks every proposal of N px or more at its centre,
+the largest first, re-reading the list after each seed (:func:`seed_steps`; docs/labelling.md, "Eighth round"): in
+the browser real Ctrl+clicks, in ``--diagnose`` the same :meth:`annotate.fits.FrameFits.seeded` the page's Ctrl+click
+reaches, and there the rule as written is scored from the same fits in the same run (``--json F`` writes it to F, the
+variant to ``F.seedN.json``). Both modes save each label with a part model as
+``WORK/<log stem>_f<frame>_<variant>_<emulated|browser>.npy`` (``--work``; :func:`label_file`) so that the browser's label can be checked against the emulated one to the pixel.
 ``--compare BEFORE.json,AFTER.json`` prints two ``--diagnose --json`` files (two trees, the same logs) as one
 table, before → after, and the largest cause of each log's wrong pixels in the after file.
 
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --logs A.mcap,B.mcap [--modes model,none]
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap,B.mcap [--json F]
+    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap,B.mcap --seed-px N --json F
     cd WORKTREE && .venv/bin/python bench/bench_label_pageonly.py --compare BEFORE.json,AFTER.json
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --kinect --middlebury Teddy,Piano
 """
@@ -54,7 +61,10 @@ import re
 import subprocess
 import sys
 import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -75,6 +85,10 @@ LARGE_PX: int | None = None
 #: off what lies below it). None, the rule as written (docs/labelling.md, "Seventh round").
 RING_BELOW: int | None = None
 BELOW_MM = 2.0
+#: ``--seed-px N``: the rule's variant that, before every other decision, Ctrl+clicks each proposal of N pixels or more
+#: at its centre pixel, the largest first, reading the list again after each seed (a pixel is clicked once). None, the
+#: rule as written (docs/labelling.md, "Eighth round").
+SEED_PX: int | None = None
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -113,14 +127,16 @@ def click_row(page, k: int) -> None:
 
 
 def person_with_model(page) -> dict:
-    """docs/labelling.md's rule with a part model: K (and R) the fits whose Err exceeds 10 × the median Err
-    the fits line shows; R the proposals whose shown distance is not above k × their shown Err; Shift+U;
-    Enter."""
+    """docs/labelling.md's rule with a part model: with :data:`SEED_PX`, first the variant's Ctrl+clicks
+    (:func:`seed_in_browser`); K (and R) the fits whose Err exceeds 10 × the median Err the fits line shows; R the
+    proposals whose shown distance is not above k × their shown Err; Shift+U; Enter."""
     wait_until(page, "window.zcut.fits() && ['ready', 'none', 'error'].includes(window.zcut.fits().status)",
                timeout_s=1800)
     f = page.evaluate("window.zcut.fits()")
     if f["status"] != "ready":
         return {"note": f"no fits: {f['message']}", "rejected_fits": 0, "exceptions": 0}
+    seeds = seed_in_browser(page) if SEED_PX is not None else {}
+    f = page.evaluate("window.zcut.fits()")
     m = re.search(r"median Err ([0-9.]+) mm", f["info"])
     km = re.search(r"([0-9.]+) × Err", f["info"])
     k = float(km.group(1)) if km else K
@@ -147,7 +163,41 @@ def person_with_model(page) -> dict:
         page.keyboard.press("r")
         exceptions += 1
     page.keyboard.press("Shift+U")
-    return {"note": "", "rejected_fits": rejected, "exceptions": exceptions, "median_err": med}
+    return {"note": "", "rejected_fits": rejected, "exceptions": exceptions, "median_err": med, **seeds}
+
+
+def seed_in_browser(page) -> dict:
+    """The variant's seeds (:data:`SEED_PX`), by real Ctrl+clicks: while the list holds an undecided proposal of
+    ``SEED_PX`` px or more whose centre pixel was not clicked yet, the largest (the first in the list's order among
+    equals) has its row clicked (the page centres the view on it) and the pixel holding its centre Ctrl+clicked;
+    the bench waits for the page's answer ("seeded n fits" or "no instance found at the click")."""
+    clicked: list[tuple[int, int]] = []
+    found = 0
+    for _ in range(10_000):
+        entries = page.evaluate("window.zcut.entries()")
+        cand = [(i, e) for i, e in enumerate(entries) if e["src"] == "u" and e["state"] == "undecided"
+                and e["fromFit"] < 0 and e["n"] >= SEED_PX and centre_pixel(e["cx"], e["cy"]) not in clicked]
+        if not cand:
+            break
+        j, e = max(cand, key=lambda t: (t[1]["n"], -t[0]))
+        click_row(page, j)
+        x, y = centre_pixel(e["cx"], e["cy"])
+        clicked.append((x, y))
+        at = page.evaluate(f"window.zcut.imageToClient({x}, {y})")
+        with page.expect_response(lambda r: r.url.endswith("/fits/seed")) as resp:
+            page.keyboard.down("Control")
+            page.mouse.click(at["x"], at["y"])
+            page.keyboard.up("Control")
+        n = int(resp.value.headers.get("x-zcut-seeded", "0"))
+        found += n > 0
+        wait_until(page, "!document.getElementById('savestate').textContent.startsWith('fitting at the click')")
+    return {"seeds_clicked": len(clicked), "seeds_found": found, "seed_pixels": clicked}
+
+
+def centre_pixel(cx: float, cy: float) -> tuple[int, int]:
+    """The image pixel (x, y) holding a row's centre (``cx``, ``cy``): the one a Ctrl+click at the centre of the view
+    the row click centred hits."""
+    return int(math.floor(cx)), int(math.floor(cy))
 
 
 def person_without_model(page) -> dict:
@@ -206,7 +256,7 @@ def serve(log: Path, db: Path, annotator: str, with_model: bool) -> LiveServer:
         server.fitter_for = orig
 
 
-def run(log: Path, mode: str, db: Path, browser, viewport) -> list[dict]:
+def run(log: Path, mode: str, db: Path, browser, viewport, work: Path) -> list[dict]:
     with_model = mode == "model"
     t0 = time.process_time()
     srv = serve(log, db, "page", with_model)
@@ -222,7 +272,7 @@ def run(log: Path, mode: str, db: Path, browser, viewport) -> list[dict]:
             got = person_with_model(page) if with_model else person_without_model(page)
             finish(page)
             got["inputs"] = page.evaluate("window.zcut.inputs") - in0
-            rows.append({"log": log.name, "mode": mode, "frame": index, **got})
+            rows.append({"log": log.name, "mode": mode, "variant": variant_name(), "frame": index, **got})
             print(f"  {log.name} {mode} frame {index}: {got['inputs']} inputs {got}", flush=True)
             if k + 1 < n:
                 wait_until(page, f"window.zcut.state().index !== {index}")
@@ -236,6 +286,7 @@ def run(log: Path, mode: str, db: Path, browser, viewport) -> list[dict]:
             _, lab = get_bundle(srv.base, srv.token, r["frame"], "label")
             r["label"] = lab.get("outliers", np.zeros(r["region"].shape, bool))
             if with_model:
+                np.save(label_file(work, log, r["frame"], variant_name(), "browser"), r["label"])
                 import httpx
 
                 from annotate.payload import parse_bundle
@@ -345,23 +396,16 @@ def _emulated_person(ff, xyz_mm: np.ndarray, heights: np.ndarray, valid: np.ndar
     read from the same bundle the page draws: the fits whose Err (the fit table's) exceeds :data:`REJECT` × the
     median the fits line shows are rejected and their first proposal rejected; every other proposal is an outlier
     unless its median distance is not above k × its Err (or, with :data:`LARGE_PX`, it has that many pixels or more)."""
-    from annotate.payload import parse_bundle
-
-    H, W = valid.shape
     errs = sorted(float(f["err_mm"]) for f in ff.fits)
     med = errs[len(errs) >> 1] if errs else float("nan")
     rejected = {i for i, f in enumerate(ff.fits) if float(f["err_mm"]) > REJECT * med}
-    header, arrays = parse_bundle(ff.bundle(heights_mm=heights, valid=valid, rejected=rejected, header={},
-                                            xyz_mm=xyz_mm))
-    cols = header["proposal_columns"]
-    table = np.asarray(arrays["proposal_table"]).reshape(-1, len(cols)) if "proposal_table" in arrays else \
-        np.zeros((0, len(cols)))
-    ids = np.asarray(arrays["proposals"], np.int64).reshape(H, W) if "proposals" in arrays else np.zeros((H, W), np.int64)
-    col = {c: table[:, i].astype(np.float64) for i, c in enumerate(cols)}
+    col, ids = proposals_of(ff, xyz_mm, heights, valid, rejected)
+    table = col["id"]
     below = below_around(ids, len(table), xyz_mm[..., 2], valid) if RING_BELOW is not None else None
     out = np.ones(len(table) + 1, bool)
     out[0] = False
     seen: set[int] = set()
+    exceptions = 0
     for j in range(len(table)):
         f = int(col["fit"][j])
         if f >= 0 and f not in seen:  # K's proposal, selected at once: R
@@ -371,10 +415,95 @@ def _emulated_person(ff, xyz_mm: np.ndarray, heights: np.ndarray, valid: np.ndar
         d, e = col["dist_mm"][j], col["err_mm"][j]
         if not np.isnan(d) and (not d > ff.k * e or (LARGE_PX is not None and col["n"][j] >= LARGE_PX)):
             out[j + 1] = False
+            exceptions += 1
         elif below is not None and RING_BELOW is not None and col["n"][j] >= RING_BELOW and not below[j + 1]:
             out[j + 1] = False
+            exceptions += 1
+    # the rule's inputs: Shift+U and Enter, a row click, K and R per rejected fit, a row click and R per exception
     return out[ids], ids, {"rejected_fits": len(rejected), "proposals": len(table),
-                           "accepted": int(out[1:].sum()), "median_err": med}
+                           "accepted": int(out[1:].sum()), "median_err": med,
+                           "inputs": 2 + 3 * len(rejected) + 2 * exceptions}
+
+
+def proposals_of(ff, xyz_mm: np.ndarray, heights: np.ndarray, valid: np.ndarray,  # type: ignore[no-untyped-def]
+                 rejected: set[int]) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The proposals the page draws from the fits ``ff`` with ``rejected`` fits (:meth:`annotate.fits.FrameFits.bundle`,
+    parsed as the page parses it): their table's columns (:data:`annotate.fits.PROPOSAL_COLUMNS`, float64 of the
+    bundle's float32) and their (H, W) id image (0 none, j + 1 the table's row j)."""
+    from annotate.payload import parse_bundle
+
+    H, W = valid.shape
+    header, arrays = parse_bundle(ff.bundle(heights_mm=heights, valid=valid, rejected=rejected, header={},
+                                            xyz_mm=xyz_mm))
+    cols = header["proposal_columns"]
+    table = np.asarray(arrays["proposal_table"]).reshape(-1, len(cols)) if "proposal_table" in arrays else \
+        np.zeros((0, len(cols)))
+    ids = np.asarray(arrays["proposals"], np.int64).reshape(H, W) if "proposals" in arrays else np.zeros((H, W), np.int64)
+    return {c: table[:, i].astype(np.float64) for i, c in enumerate(cols)}, ids
+
+
+def next_seed(col: dict[str, np.ndarray], clicked: Sequence[tuple[int, int]], min_px: int) -> tuple[int, int, int] | None:
+    """The proposal the variant Ctrl+clicks next on the list ``col`` (:func:`proposals_of`, nothing decided yet):
+    the largest undecided one of ``min_px`` px or more, not from a rejected fit, whose centre pixel is not in
+    ``clicked``, the first in the list's order among equals (the page lists proposals farthest first, one with no
+    distance first of all, then by ``cy``, then ``cx``): (x, y, its px), or None."""
+    n = col["n"]
+    if not n.size:
+        return None
+    far = np.where(np.isnan(col["dist_mm"]), 1e3, col["dist_mm"])  # the page's score: 1e6 + dist, no distance 1e3
+    done = set(clicked)
+    for j in np.lexsort((col["cx"], col["cy"], -far, -n)):
+        if n[j] < min_px:
+            return None
+        x, y = centre_pixel(col["cx"][j], col["cy"][j])
+        if col["fit"][j] < 0 and (x, y) not in done:
+            return x, y, int(n[j])
+    return None
+
+
+@dataclass(frozen=True)
+class SeedStep:
+    """One state of :func:`seed_steps`: the fits after the seeds so far, the pixels clicked (in order), how many
+    of those clicks found an instance, the CPU-s of the refits (:meth:`annotate.fits.FrameFits.seeded`) and of the
+    list's re-reads (:meth:`annotate.fits.FrameFits.bundle`) so far, and the size of the proposal the next click
+    would take (0: none left)."""
+
+    ff: Any
+    clicked: tuple[tuple[int, int], ...]
+    found: int
+    cpu_refit: float
+    cpu_reread: float
+    next_px: int
+
+
+def seed_steps(ff, xyz_mm: np.ndarray, heights: np.ndarray, valid: np.ndarray, config: Any,  # type: ignore[no-untyped-def]
+               min_px: int) -> Iterator[SeedStep]:
+    """The variant's seeds emulated (:data:`SEED_PX`): the state before the first click, then after each Ctrl+click
+    of :func:`next_seed` on the list re-read after every seed that found an instance (one that found nothing leaves
+    the fits, so the list, as they were), through the same :meth:`annotate.fits.FrameFits.seeded` the page's
+    Ctrl+click reaches (:meth:`annotate.fits.Fitter.seed`). The clicks of a larger ``min_px`` are a prefix of a
+    smaller one's: a run stops where the next proposal is below its ``min_px``."""
+    clicked: list[tuple[int, int]] = []
+    found, cpu_refit, cpu_reread = 0, 0.0, 0.0
+    t = time.process_time()
+    col, _ = proposals_of(ff, xyz_mm, heights, valid, set())
+    cpu_reread += time.process_time() - t
+    while True:
+        nxt = next_seed(col, clicked, min_px)
+        yield SeedStep(ff, tuple(clicked), found, cpu_refit, cpu_reread, 0 if nxt is None else nxt[2])
+        if nxt is None:
+            return
+        x, y, _ = nxt
+        clicked.append((x, y))
+        t = time.process_time()
+        got = ff.seeded(x, y, xyz_mm, config)
+        cpu_refit += time.process_time() - t
+        if got is not ff:
+            found += 1
+            ff = got
+            t = time.process_time()
+            col, _ = proposals_of(ff, xyz_mm, heights, valid, set())
+            cpu_reread += time.process_time() - t
 
 
 def below_around(ids: np.ndarray, n: int, z_mm: np.ndarray, valid: np.ndarray, *, drop_mm: float = BELOW_MM
@@ -431,38 +560,73 @@ def _true_surfaces(log: Path, frame):  # type: ignore[no-untyped-def]
     return handmade_true_surfaces(sf)
 
 
-def diagnose(log: Path) -> list[dict]:
+def diagnose(log: Path, work: Path) -> tuple[list[dict], list[dict]]:
     """The person's label on every frame of ``log`` (the rule emulated on the page's bundle) broken down by cause,
     the truth read only to score: label pixels that are truth; label pixels that are not, by the true surface
     they lie on — an instance no fit matches (its centre within a quarter of the part's size of no fit's), a
     fitted instance (farther than k × Err from its fit: the true surface within k × the page's Err — the fit's
     pose is off; not — the page's Err is below the truth's; and of those, at a depth edge), the bin or table;
-    the truth the proposals miss (in a fit's pixels; elsewhere) and the truth in proposals the rule rejected."""
+    the truth the proposals miss (in a fit's pixels; elsewhere) and the truth in proposals the rule rejected.
+    Returns the rows of the rule as written and, with :data:`SEED_PX`, those of the variant from the same fits (its
+    seeds applied by :func:`seed_steps`; else no rows). Each label is saved in ``work`` (:func:`label_file`)."""
     from annotate.fits import Job, fit_frame
     from replay.options import PipelineOptions
 
     session = PipelineOptions(methods="zcut,explained").open_session(log)
-    rows = []
+    rows, seeded = [], []
     for frame, r in session.results():
         job = Job.of(r)
         t = time.process_time()
         ff = fit_frame(frame, job, session.config, session.prepared.model if session.prepared is not None else None)
-        rows.append(diagnose_frame(log, frame, job, ff, time.process_time() - t))
+        cpu = time.process_time() - t
+        rows.append(diagnose_frame(log, frame, job, ff, cpu, work=work))
         print(json.dumps(rows[-1], indent=1, default=float), flush=True)
-    return rows
+        if SEED_PX is not None:
+            valid, xyz, heights = frame_arrays(frame, job)
+            *_, last = seed_steps(ff, xyz, heights, valid, session.config, SEED_PX)
+            seeded.append(diagnose_frame(log, frame, job, last.ff, cpu, work=work, seeds=last))
+            print(json.dumps(seeded[-1], indent=1, default=float), flush=True)
+    return rows, seeded
 
 
-def diagnose_frame(log: Path, frame, job, ff, cpu: float) -> dict:  # type: ignore[no-untyped-def]
-    """:func:`diagnose` on one frame's fits ``ff`` (:func:`annotate.fits.fit_frame` of ``frame`` and ``job``)."""
+def frame_arrays(frame, job) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
+    """(valid (H, W) bool, xyz (H, W, 3) mm float64, heights (H, W) mm) of a frame as the page's fits read them."""
+    valid = np.asarray(job.valid, bool)
+    xyz = frame.xyz.astype(np.float64) * 1000.0
+    heights = np.where(valid, -1000.0 * frame.xyz[..., 2].astype(np.float64), np.nan)
+    return valid, xyz, heights
+
+
+def variant_name() -> str:
+    """The rule as the options set it: ``rule`` (as written) or ``seed<N>`` (``--seed-px N``)."""
+    return "rule" if SEED_PX is None else f"seed{SEED_PX}"
+
+
+def label_file(work: Path, log: Path, frame: int, variant: str, how: str) -> Path:
+    """Where a scored label is saved: ``WORK/<log stem>_f<frame>_<variant>_<how>.npy`` (how: ``emulated`` or
+    ``browser``), to check the browser's label against the emulated one to the pixel."""
+    return work / f"{log.stem}_f{frame}_{variant}_{how}.npy"
+
+
+def diagnose_frame(log: Path, frame, job, ff, cpu: float, *, work: Path,  # type: ignore[no-untyped-def]
+                   seeds: SeedStep | None = None) -> dict:
+    """:func:`diagnose` on one frame's fits ``ff`` (:func:`annotate.fits.fit_frame` of ``frame`` and ``job``; with
+    ``seeds``, their last step's fits: the variant's)."""
     from replay.logs import layout
     from zcut import explained as ex
 
     if True:
-        valid = np.asarray(job.valid, bool)
+        valid, xyz, heights = frame_arrays(frame, job)
         H, W = valid.shape
-        xyz = frame.xyz.astype(np.float64) * 1000.0
-        heights = np.where(valid, -1000.0 * frame.xyz[..., 2].astype(np.float64), np.nan)
         label, ids, how = _emulated_person(ff, xyz, heights, valid)
+        variant = "rule" if seeds is None else f"seed{SEED_PX}"
+        work.mkdir(parents=True, exist_ok=True)
+        np.save(label_file(work, log, frame.index, variant, "emulated"), label)
+        if seeds is not None:
+            how = {**how, "inputs": how["inputs"] + 2 * len(seeds.clicked), "seeds_clicked": len(seeds.clicked),
+                   "seeds_found": seeds.found, "seed_pixels": list(seeds.clicked),
+                   "cpu_seed_refits": round(seeds.cpu_refit, 2), "cpu_seed_rereads": round(seeds.cpu_reread, 2)}
+            cpu += seeds.cpu_refit
         easy = np.asarray(job.removal.easy_outliers, bool) if job.removal is not None else np.zeros((H, W), bool)
         served = (np.asarray(job.zone, bool) | easy) & valid
         label &= served
@@ -512,7 +676,15 @@ def diagnose_frame(log: Path, frame, job, ff, cpu: float) -> dict:  # type: igno
         fitpix[ff.fit_pix] = True
         fitpix = fitpix.reshape(H, W)
         un_inst = np.flatnonzero(~matched & (vis > 0))
-        row = {"log": log.name, "frame": frame.index, "cpu_fits": round(cpu, 1), **how,
+        sensor = frame.masks.get(layout.TRUTH_OUTLIERS)
+        P = np.asarray(truth, bool)
+        sz = np.bincount(ids.ravel(), weights=served.ravel(), minlength=int(ids.max()) + 1)
+        tp = np.bincount(ids.ravel(), weights=P.ravel(), minlength=int(ids.max()) + 1)
+        majority = (sz > 0) & (tp >= 0.5 * sz)
+        majority[0] = False
+        row = {"log": log.name, "frame": frame.index, "variant": variant, "cpu_fits": round(cpu, 1), **how,
+               "iou_sensor": None if sensor is None else iou(label, sensor & served),
+               "limit": iou(majority[ids] & served, P), "held": float((P & (ids > 0)).sum() / max(int(P.sum()), 1)),
                "fits": len(ff.fits), "parts": len(parts), "parts_seen": int((vis > 0).sum()),
                "parts_unfitted_seen": int(un_inst.size),
                "unfitted_visible_share_median": float(np.median(vis[un_inst] / full)) if un_inst.size else None,
@@ -601,6 +773,9 @@ def main() -> int:
     ap.add_argument("--ring-below", type=int, default=None, metavar="N",
                     help="with --diagnose: also reject every proposal of N px or more that nothing around it lies "
                     f"{BELOW_MM:g} mm below (the cue measured in docs/labelling.md, 'Seventh round'; default: off)")
+    ap.add_argument("--seed-px", type=int, default=None, metavar="N",
+                    help="the rule's variant: first Ctrl+click every proposal of N px or more at its centre, the largest "
+                    "first (docs/labelling.md, 'Eighth round'; default: the rule as written, no seeds)")
     ap.add_argument("--sigma-cap", type=float, default=None, metavar="C",
                     help="the page's variant: judge each fit's pixels with its residual capped at C x the frame's "
                     "median (annotate.fits.SIGMA_CAP; default: off, every fit's own)")
@@ -613,9 +788,12 @@ def main() -> int:
             raise SystemExit(f"error: --compare takes BEFORE.json,AFTER.json, got {args.compare!r}")
         print("\n".join(compare(*(json.loads(f.read_text()) for f in files))))
         return 0
-    global LARGE_PX, RING_BELOW
+    global LARGE_PX, RING_BELOW, SEED_PX
     LARGE_PX = args.large_px
     RING_BELOW = args.ring_below
+    SEED_PX = args.seed_px
+    if SEED_PX is not None and SEED_PX < 1:
+        raise SystemExit(f"error: --seed-px takes a size of at least 1 px, got {SEED_PX}")
     if RING_BELOW is not None and not args.diagnose:
         raise SystemExit("error: --ring-below is a --diagnose variant (the page does not show the cue)")
     if args.sigma_cap is not None:
@@ -623,9 +801,18 @@ def main() -> int:
 
         annotate.fits.SIGMA_CAP = args.sigma_cap
     if args.diagnose:
-        got = [r for lg in args.diagnose.split(",") if lg for r in diagnose(Path(lg))]
+        rule, seeded = [], []
+        for lg in args.diagnose.split(","):
+            if lg:
+                a, b = diagnose(Path(lg), args.work)
+                rule += a
+                seeded += b
         if args.json is not None:
-            args.json.write_text(json.dumps(got, indent=1, default=float))
+            args.json.write_text(json.dumps(rule, indent=1, default=float))
+            if SEED_PX is not None:
+                other = args.json.with_suffix(f".seed{SEED_PX}.json")
+                other.write_text(json.dumps(seeded, indent=1, default=float))
+                print(f"the rule as written: {args.json}; --seed-px {SEED_PX}: {other} (--compare {args.json},{other})")
         return 0
     from playwright.sync_api import sync_playwright
 
@@ -656,7 +843,7 @@ def main() -> int:
                 db = args.work / f"{lg.stem}_{mode}.sqlite"
                 for q in (db, db.with_name(db.name + "-wal"), db.with_name(db.name + "-shm")):
                     q.unlink(missing_ok=True)
-                got = run(lg, mode, db, browser, vp)
+                got = run(lg, mode, db, browser, vp, args.work)
                 score(got, lg)
                 rows += got
                 # accuracy from the labels: with the part model (the target), or the fallback where a log has none

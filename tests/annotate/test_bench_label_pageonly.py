@@ -61,3 +61,67 @@ def test_below_around_flags_a_patch_with_something_lower_beside_it(bench):
     assert bench.below_around(np.zeros((2, 2), np.int64), 0, np.zeros((2, 2)), np.ones((2, 2), bool)).tolist() == [False]
     z[0, 0] = 502.1  # exactly beyond 2 mm beside proposal 1 (median 500)
     assert bench.below_around(ids, 3, z, valid).tolist() == [False, True, True, False]
+
+
+def _list(rows: list[tuple[int, float, float, float, int]]) -> dict:
+    """A proposal list as bench.proposals_of gives it: (n, cx, cy, dist_mm, fit) per row."""
+    import numpy as np
+
+    n, cx, cy, dist, fit = (np.array(c, np.float64) for c in zip(*rows))
+    return {"id": np.arange(1, len(rows) + 1, dtype=np.float64), "n": n, "cx": cx, "cy": cy, "dist_mm": dist, "fit": fit}
+
+
+def test_next_seed_takes_the_largest_at_its_centre_pixel_once(bench):
+    """--seed-px's choice: the largest proposal of at least N px, clicked at the pixel holding its centre (floor),
+    never a pixel clicked before, never a rejected fit's pixels; None when none is left."""
+    nan = float("nan")
+    col = _list([(40, 10.9, 3.2, 5.0, -1), (700, 100.5, 50.99, 2.0, -1), (900, 7.0, 8.0, nan, 3), (120, 0.2, 0.7, 9.0, -1)])
+    assert bench.next_seed(col, [], 30) == (100, 50, 700)  # the rejected fit's 900 px are no candidate
+    assert bench.next_seed(col, [(100, 50)], 30) == (0, 0, 120)
+    assert bench.next_seed(col, [(100, 50), (0, 0)], 30) == (10, 3, 40)
+    assert bench.next_seed(col, [(100, 50), (0, 0)], 41) is None  # below N
+    assert bench.next_seed(col, [(100, 50), (0, 0), (10, 3)], 1) is None
+    assert bench.next_seed({k: v[:0] for k, v in col.items()}, [], 1) is None  # an empty list
+
+
+def test_next_seed_breaks_ties_as_the_page_lists_proposals(bench):
+    """Among equal sizes the first in the list: the page lists proposals farthest first (one with no distance first
+    of all), then by row, then by column of their centres."""
+    nan = float("nan")
+    col = _list([(50, 1.0, 1.0, 3.0, -1), (50, 9.0, 2.0, 8.0, -1), (50, 3.0, 2.0, 8.0, -1), (50, 4.0, 4.0, nan, -1),
+                 (50, 5.0, 0.5, 8.0, -1)])
+    got = []
+    while (s := bench.next_seed(col, [p[:2] for p in got], 50)) is not None:
+        got.append(s)
+    assert [p[:2] for p in got] == [(4, 4), (5, 0), (3, 2), (9, 2), (1, 1)]
+
+
+class _Fits:
+    """A stand-in for annotate.fits.FrameFits in seed_steps: its proposals (n, cx, cy), and which centre pixels a
+    click finds an instance at (that proposal leaves; a click that finds nothing returns the same object)."""
+
+    def __init__(self, props: list[tuple[int, float, float]], finds: set[tuple[int, int]]) -> None:
+        self.props, self.finds, self.fits = props, finds, ()
+
+    def seeded(self, x: int, y: int, xyz_mm, config) -> _Fits:
+        if (x, y) not in self.finds:
+            return self
+        return _Fits([p for p in self.props if (int(p[1]), int(p[2])) != (x, y)], self.finds)
+
+
+def test_seed_steps_clicks_largest_first_reads_again_after_a_find_and_a_larger_n_is_a_prefix(bench, monkeypatch):
+    reads = []
+
+    def proposals_of(ff, xyz_mm, heights, valid, rejected):
+        reads.append(len(ff.props))
+        return _list([(n, cx, cy, 1.0, -1) for n, cx, cy in ff.props]), None
+
+    monkeypatch.setattr(bench, "proposals_of", proposals_of)
+    ff = _Fits([(50, 1.5, 1.5), (900, 7.2, 3.9), (300, 4.0, 4.0), (20, 9.0, 9.0)], finds={(7, 3), (1, 1)})
+    steps = list(bench.seed_steps(ff, None, None, None, None, 30))
+    assert [s.clicked for s in steps] == [(), ((7, 3),), ((7, 3), (4, 4)), ((7, 3), (4, 4), (1, 1))]
+    assert [s.found for s in steps] == [0, 1, 1, 2] and [s.next_px for s in steps] == [900, 300, 50, 0]
+    assert reads == [4, 3, 2]  # the list is read once, then after each click that found an instance
+    assert steps[-1].ff.props == [(300, 4.0, 4.0), (20, 9.0, 9.0)]
+    big = list(bench.seed_steps(ff, None, None, None, None, 100))
+    assert [s.clicked for s in big] == [s.clicked for s in steps[:3]] and big[-1].next_px == 0
