@@ -464,3 +464,44 @@ def test_folded_strips_equal_the_four_term_chain_with_nan_and_signed_zero_bounds
         seen["tie"] += int(np.count_nonzero((u == v) & np.isfinite(u)))
         seen["no term"] += int(np.count_nonzero(~exists.any(axis=1)))
     assert min(seen.values()) >= 20, seen  # every case the fold could differ on was driven
+
+
+# ------------------------------------------------------------------------------------------------
+# the statistics: two sequential sums in row-major order, gathered a row at a time
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("open3d", [False, True])
+@pytest.mark.parametrize("shape", [(1, 2), (1, 9), (9, 1), (37, 53), (120, 301)])  # n >= 2 (callers: n >= k + 1)
+def test_outlier_masks_sum_in_row_major_order(open3d: bool, shape: tuple[int, int]) -> None:
+    # random d̄ over several decades (so the order of the additions shows in the last bits), with
+    # zeros (open3d leaves them out of its sums), invalid pixels holding NaN, +inf, negatives or
+    # garbage, whole invalid rows and a fully valid one; against a literal loop
+    rng = np.random.default_rng(7 + sum(shape) + open3d)
+    H, W = shape
+    dbar = np.exp(rng.uniform(-12.0, 2.0, shape))
+    dbar[rng.random(shape) < 0.1] = 0.0
+    valid = rng.random(shape) < 0.6
+    valid[H // 3] = False
+    valid[-1] = True
+    junk = rng.choice(np.array([np.nan, np.inf, -1.0, 5.0]), shape)
+    dbar = np.where(valid, dbar, junk)
+    n = float(np.count_nonzero(valid))
+    ratios = np.array([0.25, 1.0, 3.0])
+    got = sor_module._outlier_masks(dbar, valid, n, ratios, open3d)
+    got_mean, got_std = sor_module._mean_std(dbar, valid, n, open3d)
+    terms = [float(d) for d, ok in zip(dbar.ravel(), valid.ravel()) if ok and (not open3d or d > 0.0)]
+    s = 0.0
+    for t in terms:
+        s = s + t
+    mean = s / n
+    sq = 0.0
+    for t in terms:
+        sq = sq + (t - mean) * (t - mean)
+    std = math.sqrt(sq / (n - 1))
+    assert (got_mean, got_std) == (mean, std)  # bit for bit (no NaN here: n >= 2, finite terms)
+    if len(terms) > 1000:  # another order of the same additions would show
+        assert float(np.sum(terms)) != s
+    with np.errstate(invalid="ignore"):
+        for i, ratio in enumerate(ratios):
+            thr = mean + ratio * std
+            want = valid & ~((dbar > 0.0) & (dbar < thr)) if open3d else valid & (dbar > thr)
+            np.testing.assert_array_equal(got[i], want)
