@@ -78,7 +78,7 @@ the calling thread's pool (see :func:`_workers`); importing or calling this modu
 process-wide setting.
 
 Every full-frame temporary of a call (the planes, the valid mask, d̄ before it is copied out, the
-block statistics, the band tables, the statistics' terms, the columns) is taken from the calling
+block statistics, the band tables, the columns) is taken from the calling
 thread's :class:`zcut.sor_workspace.SorWorkspace` (see that module: one per thread). By default it keeps
 nothing between calls (``zcut.sor_workspace.KEPT_BYTES``: in a replay, where the process keeps the heap it
 freed, ~190 MB held for SOR alone cost the other stages more than it saved); ``thread_workspace().max_bytes =
