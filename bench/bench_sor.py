@@ -650,7 +650,7 @@ def phases_main(classes: dict[str, object], k: int, std_ratio: float, repeat: in
 
     import zcut
     import zcut.sor as sor
-    from zcut import sor_camera, sor_search, sor_window
+    from zcut import columns, sor_camera, sor_search, sor_window
 
     spent: collections.defaultdict[str, float] = collections.defaultdict(float)
 
@@ -681,7 +681,9 @@ def phases_main(classes: dict[str, object], k: int, std_ratio: float, repeat: in
     sor._workers = timed_workers
     for module, name in ((sor, "_prepare"), (sor, "_mean_distances"), (sor, "_fallback"), (sor, "_column_stage"),
                          (sor, "_outlier_masks"), (sor_camera, "fit_camera"), (sor_camera, "band_tables"),
-                         (sor_camera, "corner_tables"), (sor_window, "unproven_pixels"), (sor_search, "build_quadtree")):
+                         (sor_camera, "corner_tables"), (sor_window, "unproven_pixels"), (sor_search, "build_quadtree"),
+                         (sor_search, "valid_range"), (columns, "mark_columns"), (columns, "count_columns"),
+                         (columns, "fill_columns")):
         timed(module, name)
     warm_up(k)
     print(f"zcut {Path(zcut.__file__).parent}, {numba.config.NUMBA_NUM_THREADS} threads, CPU ms of a sor_outliers "

@@ -78,7 +78,7 @@ the calling thread's pool (see :func:`_workers`); importing or calling this modu
 process-wide setting.
 
 Every full-frame temporary of a call (the planes, the valid mask, d̄ before it is copied out, the
-block statistics, the band tables, the statistics' terms, the columns) is taken from the calling
+block statistics, the band tables, the columns) is taken from the calling
 thread's :class:`zcut.sor_workspace.SorWorkspace` (see that module: one per thread). By default it keeps
 nothing between calls (``zcut.sor_workspace.KEPT_BYTES``: in a replay, where the process keeps the heap it
 freed, ~190 MB held for SOR alone cost the other stages more than it saved); ``thread_workspace().max_bytes =
@@ -425,29 +425,48 @@ def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, ro
 # --------------------------------------------------------------------------------------------
 # statistics
 # --------------------------------------------------------------------------------------------
+@nb.njit(cache=True, inline="always")
+def _row_terms(dbar, valid, open3d, r, row):  # type: ignore[no-untyped-def]  # numba kernel
+    # the summed values of row r, in order, into row (W + 1 entries: every pixel after the last
+    # summed one writes row[k], k = its count, without a branch: valid pixels at random would make
+    # one mispredict); returns their count
+    k = 0
+    for c in range(valid.shape[1]):
+        d = dbar[r, c]
+        row[k] = d
+        k += valid[r, c] & ((not open3d) | (d > 0.0))
+    return k
+
+
 @nb.njit(cache=True)
-def _outlier_masks(dbar, valid, n, ratios, open3d, terms):  # type: ignore[no-untyped-def]  # numba kernel
+def _mean_std(dbar, valid, n, open3d):  # type: ignore[no-untyped-def]  # numba kernel
+    # mean and std of the statistics (see _outlier_masks): each sum one accumulator over the summed
+    # values in row-major order, gathered a row at a time into a row buffer (:func:`_row_terms`)
+    # and then added: the same values added in the same order as over one gathered array of all
+    # of them (what this did before: an 18 MB array a 1920 x 1200 frame, faulted in afresh each
+    # call), hence the same sums bit for bit
+    row = np.empty(valid.shape[1] + 1)
+    s = 0.0
+    for r in range(valid.shape[0]):
+        k = _row_terms(dbar, valid, open3d, r, row)
+        for i in range(k):
+            s = s + row[i]
+    mean = s / n
+    sq = 0.0
+    for r in range(valid.shape[0]):
+        k = _row_terms(dbar, valid, open3d, r, row)
+        for i in range(k):
+            sq = sq + (row[i] - mean) * (row[i] - mean)
+    return mean, math.sqrt(sq / (n - 1))
+
+
+@nb.njit(cache=True)
+def _outlier_masks(dbar, valid, n, ratios, open3d):  # type: ignore[no-untyped-def]  # numba kernel
     # pcl: d̄ > mean + ratio * std, sample std (n - 1), sequential sums in row-major order.
     # open3d (PointCloud::RemoveStatisticalOutliers): the sums run over d̄ > 0 only but divide by
     # the count of ALL points; inlier iff 0 < d̄ < threshold (strict).
-    # The summed values are first gathered in order without branches (valid pixels at random
-    # would make a branch mispredict) into ``terms`` (n + 1 entries: every pixel after the last
-    # summed one writes terms[k], k = its count), then summed: the same values in the same order.
     H, W = valid.shape
-    k = 0
-    for r in range(H):
-        for c in range(W):
-            d = dbar[r, c]
-            terms[k] = d
-            k += valid[r, c] & ((not open3d) | (d > 0.0))
-    s = 0.0
-    for i in range(k):
-        s = s + terms[i]
-    mean = s / n
-    sq = 0.0
-    for i in range(k):
-        sq = sq + (terms[i] - mean) * (terms[i] - mean)
-    std = math.sqrt(sq / (n - 1))
+    mean, std = _mean_std(dbar, valid, n, open3d)
     out = np.empty((ratios.shape[0], H, W), np.bool_)
     for i in range(ratios.shape[0]):
         thr = mean + ratios[i] * std
@@ -551,7 +570,7 @@ def sor_outliers_from_distances(
         n = int(np.count_nonzero(valid))
         if n < k + 1 or ratios.size == 0:
             return np.zeros((ratios.size, *d.shape), dtype=bool)
-        return _outlier_masks(d, valid, float(n), ratios, convention == "open3d", ws.empty("terms", (n + 1,)))
+        return _outlier_masks(d, valid, float(n), ratios, convention == "open3d")
 
 
 def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: str = "pcl",
@@ -604,5 +623,4 @@ def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: st
         m = k + 1 if convention == "pcl" else k
         dbar = _mean_distances(x, y, z, valid, span, amax, m, float(k), run, ws)
         # the masks are made by the kernel: the caller's, never workspace arrays
-        return _outlier_masks(dbar, valid, float(n), np.array([ratio]), convention == "open3d",
-                              ws.empty("terms", (n + 1,)))[0]
+        return _outlier_masks(dbar, valid, float(n), np.array([ratio]), convention == "open3d")[0]

@@ -283,18 +283,14 @@ def _count8(x, r, c):  # type: ignore[no-untyped-def]  # numba kernel
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True, inline="always")
 def _strips(r, c, w, H, W, b, bc, xq, yq, zq, R, C):  # type: ignore[no-untyped-def]  # numba kernel
-    # the rows of the pixel's row band right and left of the window, the columns of its column
-    # band below and above it
-    s = np.inf
-    if c + w + 1 < W:
-        s = min(s, plane_bound_at(R[b], 0, c + w + 1, xq, yq, zq))
-    if c - w - 1 >= 0:
-        s = min(s, plane_bound_at(R[b], 4, c - w - 1, xq, yq, zq))
-    if r + w + 1 < H:
-        s = min(s, plane_bound_at(C[bc], 0, r + w + 1, xq, yq, zq))
-    if r - w - 1 >= 0:
-        s = min(s, plane_bound_at(C[bc], 4, r - w - 1, xq, yq, zq))
-    return s
+    # the rows of the pixel's row band right and left of the window (U), the columns of its column
+    # band below and above it (V). Folded from the two halves, and bit for bit the four-term chain
+    # min(min(min(min(inf, u+), u-), v+), v-) it replaces: numba's min(acc, v) is `v if v < acc
+    # else acc`, so from inf a NaN bound is never taken and each chain keeps the first of its
+    # smallest values (-0.0 and 0.0 included); min(su, sv) then keeps su unless sv is strictly
+    # smaller, which is the chain's answer (tests/zcut/test_sor_fast.py drives NaN, -0.0, inf
+    # bounds through both).
+    return min(_strips_u(r, c, w, W, b, xq, yq, zq, R), _strips_v(r, c, w, H, bc, xq, yq, zq, C))
 
 
 @nb.njit(cache=True, inline="always")

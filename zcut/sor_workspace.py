@@ -1,8 +1,8 @@
 """Scratch arrays of :mod:`zcut.sor` kept between calls, one workspace per thread.
 
 Why: a call on a 1920 × 1200 frame needs about a dozen full-frame temporaries (the float64 x, y, z
-planes, the valid mask, d̄, the band tables, the statistics' terms, the columns: ~18 MB each, ~190
-MB in all). Made fresh each call, glibc hands such blocks back to the kernel when they are freed
+planes, the valid mask, d̄, the band tables, the columns: ~18 MB each, ~170 MB in all; the
+statistics' terms were one more until 2026-12-05h, now summed a row at a time). Made fresh each call, glibc hands such blocks back to the kernel when they are freed
 and the next call faults every page in again (≈ 2–3 µs per 4 KiB page: up to a quarter of a call,
 docs/performance.md). A workspace keeps them: a call takes its arrays by name, sized for its frame.
 
@@ -16,7 +16,7 @@ Rules (where this module's work stops):
   growing crops does not reallocate every call) and never shrinks by itself; after a call, a
   workspace holding more than ``max_bytes`` drops everything. A thread's workspace is made with
   :data:`KEPT_BYTES` (0: nothing is kept between calls, the behaviour before workspaces);
-  ``max_bytes = None`` keeps everything (~190 MB for a full frame) until :meth:`SorWorkspace.release`.
+  ``max_bytes = None`` keeps everything (~170 MB for a full frame) until :meth:`SorWorkspace.release`.
 - Taken arrays are uninitialized (like ``np.empty``); :meth:`SorWorkspace.full` fills.
 - The workspace also keeps the thread pool a call runs its kernels on (:meth:`SorWorkspace.pool`:
   starting one per call cost ≈ 0.4 CPU ms); ``max_bytes`` leaves it, :meth:`SorWorkspace.release`

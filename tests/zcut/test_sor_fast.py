@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 
 import bank_clouds
+import numba
 import numpy as np
 import open3d as o3d
 import pytest
@@ -25,6 +26,7 @@ from reference.sor_reference import mean_distances_reference, sor_outliers_refer
 import zcut.sor as sor_module
 from zcut import sor_window
 from zcut.sor import sor_mean_distances, sor_outliers
+from zcut.sor_camera import plane_bound_at
 
 
 def open3d_outliers(xyz: np.ndarray, *, k: int, std_ratio: float) -> np.ndarray:
@@ -396,3 +398,110 @@ def test_distorted_clouds_grow_in_rows_and_columns(seed: int, k1: float, monkeyp
         assert_as_oracle(xyz, ks=(4,), ratios=(1.0,))
     monkeypatch.undo()
     assert_as_oracle(bent(bank_clouds.steep(rng, 96, 140), 4.0 * k1), ks=(4,), ratios=(1.0,))  # tall parts on end
+
+
+
+# ------------------------------------------------------------------------------------------------
+# _strips is its two halves, _strips_u and _strips_v, folded: bit for bit the four-term chain
+# ------------------------------------------------------------------------------------------------
+@numba.njit
+def _strips_chain(r, c, w, H, W, b, bc, xq, yq, zq, R, C, terms):  # type: ignore[no-untyped-def]  # numba kernel
+    # the four-term chain _strips was before it was folded, transcribed; terms := the four bounds
+    # (NaN where the strip is outside the image)
+    terms[:] = np.nan
+    s = np.inf
+    if c + w + 1 < W:
+        terms[0] = plane_bound_at(R[b], 0, c + w + 1, xq, yq, zq)
+        s = min(s, terms[0])
+    if c - w - 1 >= 0:
+        terms[1] = plane_bound_at(R[b], 4, c - w - 1, xq, yq, zq)
+        s = min(s, terms[1])
+    if r + w + 1 < H:
+        terms[2] = plane_bound_at(C[bc], 0, r + w + 1, xq, yq, zq)
+        s = min(s, terms[2])
+    if r - w - 1 >= 0:
+        terms[3] = plane_bound_at(C[bc], 4, r - w - 1, xq, yq, zq)
+        s = min(s, terms[3])
+    return s
+
+
+@numba.njit
+def _strips_both(rs, cs, ws, qs, R, C, H, W, b, bc, out, terms):  # type: ignore[no-untyped-def]  # numba kernel
+    for i in range(rs.shape[0]):
+        out[i, 0] = sor_window._strips(rs[i], cs[i], ws[i], H, W, b, bc, qs[i, 0], qs[i, 1], qs[i, 2], R, C)
+        out[i, 1] = _strips_chain(rs[i], cs[i], ws[i], H, W, b, bc, qs[i, 0], qs[i, 1], qs[i, 2], R, C, terms[i])
+
+
+def test_folded_strips_equal_the_four_term_chain_with_nan_and_signed_zero_bounds() -> None:
+    # bound tables whose planes give NaN (0 * inf, inf - inf), +inf, 0.0 and -0.0 (a plane through
+    # the query: numba's max(-0.0, 0.0) is -0.0) and ties between the U and the V bounds, at pixels
+    # near every border (0 to 4 of the terms exist); the results compared as bit patterns
+    rng = np.random.default_rng(20261205)
+    H, W, b, bc = 24, 30, 1, 1
+    special = np.array([np.nan, np.inf, -np.inf, 0.0, -0.0, 1.0, 0.5])
+    n = 20_000
+    rs, cs, ws = rng.integers(0, H, n), rng.integers(0, W, n), rng.integers(1, 17, n)
+    qs = np.where(rng.random((n, 3)) < 0.5, rng.choice(np.array([0.0, -0.0, 1.0, 0.25, np.inf]), (n, 3)),
+                  rng.uniform(-1.0, 1.0, (n, 3)))
+    seen = {"nan term": 0, "-0.0 result": 0, "tie": 0, "no term": 0}
+    for _ in range(4):  # fresh tables a round: random planes with special values sprinkled in
+        R = rng.normal(size=(3, 8, W))
+        C = rng.normal(size=(3, 8, H))
+        for tab in (R, C):
+            pick = rng.random(tab.shape) < 0.3
+            tab[pick] = rng.choice(special, int(pick.sum()))
+        C[bc, :, ::3] = 0.0  # planes 0 x + 0 y + 0 z + 0: a bound of -0.0 or 0.0, ties between U and V
+        R[b, :, ::4] = 0.0
+        C[bc, 3, ::3] = -0.0
+        out, terms = np.empty((n, 2)), np.empty((n, 4))
+        _strips_both(rs, cs, ws, qs, R, C, H, W, b, bc, out, terms)
+        assert np.array_equal(out[:, 0].view(np.uint64), out[:, 1].view(np.uint64))
+        exists = np.array([cs + ws + 1 < W, cs - ws - 1 >= 0, rs + ws + 1 < H, rs - ws - 1 >= 0]).T
+        u = np.where(exists[:, :2], terms[:, :2], np.inf).min(axis=1)
+        v = np.where(exists[:, 2:], terms[:, 2:], np.inf).min(axis=1)
+        seen["nan term"] += int(np.count_nonzero((np.isnan(terms) & exists).any(axis=1)))
+        seen["-0.0 result"] += int(np.count_nonzero((out[:, 0] == 0.0) & np.signbit(out[:, 0])))
+        seen["tie"] += int(np.count_nonzero((u == v) & np.isfinite(u)))
+        seen["no term"] += int(np.count_nonzero(~exists.any(axis=1)))
+    assert min(seen.values()) >= 20, seen  # every case the fold could differ on was driven
+
+
+# ------------------------------------------------------------------------------------------------
+# the statistics: two sequential sums in row-major order, gathered a row at a time
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("open3d", [False, True])
+@pytest.mark.parametrize("shape", [(1, 2), (1, 9), (9, 1), (37, 53), (120, 301)])  # n >= 2 (callers: n >= k + 1)
+def test_outlier_masks_sum_in_row_major_order(open3d: bool, shape: tuple[int, int]) -> None:
+    # random d̄ over several decades (so the order of the additions shows in the last bits), with
+    # zeros (open3d leaves them out of its sums), invalid pixels holding NaN, +inf, negatives or
+    # garbage, whole invalid rows and a fully valid one; against a literal loop
+    rng = np.random.default_rng(7 + sum(shape) + open3d)
+    H, W = shape
+    dbar = np.exp(rng.uniform(-12.0, 2.0, shape))
+    dbar[rng.random(shape) < 0.1] = 0.0
+    valid = rng.random(shape) < 0.6
+    valid[H // 3] = False
+    valid[-1] = True
+    junk = rng.choice(np.array([np.nan, np.inf, -1.0, 5.0]), shape)
+    dbar = np.where(valid, dbar, junk)
+    n = float(np.count_nonzero(valid))
+    ratios = np.array([0.25, 1.0, 3.0])
+    got = sor_module._outlier_masks(dbar, valid, n, ratios, open3d)
+    got_mean, got_std = sor_module._mean_std(dbar, valid, n, open3d)
+    terms = [float(d) for d, ok in zip(dbar.ravel(), valid.ravel()) if ok and (not open3d or d > 0.0)]
+    s = 0.0
+    for t in terms:
+        s = s + t
+    mean = s / n
+    sq = 0.0
+    for t in terms:
+        sq = sq + (t - mean) * (t - mean)
+    std = math.sqrt(sq / (n - 1))
+    assert (got_mean, got_std) == (mean, std)  # bit for bit (no NaN here: n >= 2, finite terms)
+    if len(terms) > 1000:  # another order of the same additions would show
+        assert float(np.sum(terms)) != s
+    with np.errstate(invalid="ignore"):
+        for i, ratio in enumerate(ratios):
+            thr = mean + ratio * std
+            want = valid & ~((dbar > 0.0) & (dbar < thr)) if open3d else valid & (dbar > thr)
+            np.testing.assert_array_equal(got[i], want)
