@@ -37,6 +37,22 @@ SPARSE_MAX_RADIUS = 16
 
 
 @numba.njit(cache=True)
+def _union(parent, x, y):  # type: ignore[no-untyped-def]  # numba kernel
+    """Join the sets of ``x`` and ``y`` in ``parent`` (halving paths); the smaller root is the root, so a
+    set's root is its smallest member whatever the order of the unions."""
+    while parent[x] != x:
+        parent[x] = parent[parent[x]]
+        x = parent[x]
+    while parent[y] != y:
+        parent[y] = parent[parent[y]]
+        y = parent[y]
+    if x < y:
+        parent[y] = x
+    elif y < x:
+        parent[x] = y
+
+
+@numba.njit(cache=True)
 def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`_components` of the pixels ``flat`` (raster order, one kind) without growing a mask.
 
@@ -50,32 +66,39 @@ def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # nu
     m = flat.size
     parent = np.arange(m)
     reach = 2 * r + 1
+    rows = np.empty(m, np.int64)  # the pixels' rows and columns, one division each
+    cols = np.empty(m, np.int64)
     for k in range(m):
         i = flat[k] // W
-        j = flat[k] % W
+        j = flat[k] - i * W
+        rows[k] = i
+        cols[k] = j
         index[i, j] = k
     for k in range(m):
-        i = flat[k] // W
-        j = flat[k] % W
-        for a in range(max(i - reach, 0), i + 1):
-            b1 = min(j + reach + 1, W) if a < i else j
-            for b in range(max(j - reach, 0), b1):
+        i = rows[k]
+        j = cols[k]
+        a0 = max(i - reach, 0)  # the window: rows a0 .. i - 1, columns b0 .. j + reach
+        b0 = max(j - reach, 0)
+        if k > 0 and rows[k - 1] == i and j - cols[k - 1] <= reach:
+            # the previous pixel of the row is in the window: joined to it, k needs only the part of its
+            # window the previous pixel's lacks (columns right of that window, in the rows above; in k's
+            # row nothing lies between them), the rest being joined to the previous pixel already
+            b0 = cols[k - 1] + reach + 1
+            _union(parent, k, k - 1)
+        # (otherwise no pixel lies in k's row left of it within the window: the previous pixel is farther)
+        if i > 0 and index[i - 1, j] >= 0:
+            # the pixel above is in the window, and so is all its window but for the columns right of k
+            # in the row above (they come after it in raster order)
+            _union(parent, k, index[i - 1, j])
+            a0 = i - 1
+            b0 = max(b0, j + 1)
+        for a in range(a0, i):
+            for b in range(b0, min(j + reach + 1, W)):
                 q = index[a, b]
-                if q >= 0:  # union: the smaller index is the root (a component's root is its first pixel)
-                    x = k
-                    while parent[x] != x:
-                        parent[x] = parent[parent[x]]
-                        x = parent[x]
-                    y = q
-                    while parent[y] != y:
-                        parent[y] = parent[parent[y]]
-                        y = parent[y]
-                    if x < y:
-                        parent[y] = x
-                    elif y < x:
-                        parent[x] = y
+                if q >= 0:
+                    _union(parent, k, q)
     for k in range(m):
-        index[flat[k] // W, flat[k] % W] = -1
+        index[rows[k], cols[k]] = -1
     root = np.empty(m, np.int64)
     for k in range(m):
         x = k
@@ -85,14 +108,14 @@ def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # nu
     # pixels in raster order: a root is its component's first pixel, so its row is the top one
     top_row = np.empty(m, np.int64)
     for k in range(m):
-        top_row[k] = flat[root[k]] // W
+        top_row[k] = rows[root[k]]
     left = np.full(m, np.iinfo(np.int64).max)
     for k in range(m):
-        i = flat[k] // W
+        i = rows[k]
         x = root[k]
         r0 = max(top_row[k] - r, 0)
         if i <= r0 + r:
-            left[x] = min(left[x], flat[k] % W)
+            left[x] = min(left[x], cols[k])
     roots = np.empty(m, np.int64)
     n = 0
     for k in range(m):
@@ -103,7 +126,7 @@ def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # nu
     key = np.empty(n, np.int64)
     for g in range(n):
         x = roots[g]
-        key[g] = max(flat[x] // W - r, 0) * (W + 1) + max(left[x] - r, 0)
+        key[g] = max(rows[x] - r, 0) * (W + 1) + max(left[x] - r, 0)
     order = np.argsort(key)
     rank = np.empty(m, np.int64)
     for g in range(n):
@@ -117,8 +140,8 @@ def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # nu
     for k in range(m):
         g = rank[root[k]]
         labels[k] = g
-        i = flat[k] // W
-        j = flat[k] % W
+        i = rows[k]
+        j = cols[k]
         boxes[g - 1, 0] = min(boxes[g - 1, 0], i)
         boxes[g - 1, 1] = min(boxes[g - 1, 1], j)
         boxes[g - 1, 2] = max(boxes[g - 1, 2], i + 1)
