@@ -478,7 +478,35 @@ def _merge_compact(boxes: np.ndarray, kind: np.ndarray, max_groups: int) -> np.n
     return rep
 
 
-def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.ndarray | None = None) -> np.ndarray:
+@numba.njit(cache=True)
+def _primary_and_suspects(codes, n_det, primary):  # type: ignore[no-untyped-def]  # numba kernel
+    """``primary`` (int8, ``codes``' shape) gets each pixel's first detector (the lowest of the bits 0 ..
+    n_det - 1 set in ``codes``; -1 for none), in one pass for the loop of masked writes it replaces; returns
+    the flat indices of the pixels with one, in raster order (``np.flatnonzero(primary >= 0)``)."""
+    c = codes.reshape(-1)
+    pr = primary.reshape(-1)
+    bits = (1 << n_det) - 1
+    first = np.full(bits + 1, -1, np.int8)  # the lowest bit set of each combination of the detectors' bits
+    for v in range(bits, 0, -1):
+        for i in range(n_det - 1, -1, -1):
+            if (v >> i) & 1:
+                first[v] = i
+    n = 0
+    for p in range(c.size):
+        v = c[p] & bits
+        pr[p] = first[v]
+        n += v != 0
+    sus = np.empty(n, np.int64)
+    k = 0
+    for p in range(c.size):
+        if pr[p] >= 0:
+            sus[k] = p
+            k += 1
+    return sus
+
+
+def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.ndarray | None = None,
+                     _sus: np.ndarray | None = None) -> np.ndarray:
     """The strength class of each suspect pixel (0, 1, 2; -1 where ``primary`` is -1).
 
     Per detector, the 8-connected components of its pixels take the median of their pixels'
@@ -495,7 +523,7 @@ def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.nd
     primary = np.asarray(primary)
     out = np.full(primary.shape, -1, np.int8)
     flat_p = primary.reshape(-1)
-    sus = np.flatnonzero(flat_p >= 0)
+    sus = np.flatnonzero(flat_p >= 0) if _sus is None else _sus
     if sus.size == 0:
         return out
     det = flat_p[sus]
@@ -529,16 +557,15 @@ def group_suspects(codes: np.ndarray, strength: np.ndarray, params: SuspectParam
     detector across classes: groups stay compact regions a person can zoom to, a large blob stays
     alone, specks near each other join.
     """
-    primary = np.full(codes.shape, -1, np.int8)
-    for i in reversed(range(len(DETECTORS))):  # the first detector in DETECTORS wins
-        primary[(codes >> i) & 1 > 0] = i
+    primary = np.empty(codes.shape, np.int8)  # the first detector in DETECTORS wins
+    # the suspects' flat indices in raster order
+    sus = _primary_and_suspects(np.ascontiguousarray(codes), len(DETECTORS), primary)
     index = np.full(codes.shape, -1, np.int32)  # the components' work image, left all -1 by each use
-    cls = strength_classes(primary, strength, _index=index)
+    cls = strength_classes(primary, strength, _index=index, _sus=sus)
     n_cls = len(STRENGTH_CLASSES) + 1
     radii = np.full(len(DETECTORS), params.merge_radius_px, np.int64)
     limit = max(codes.shape)
     # the suspects' flat indices by detector and class, each in raster order
-    sus = np.flatnonzero(primary.ravel() >= 0)
     fine_of = primary.ravel()[sus].astype(np.int64) * n_cls + cls.ravel()[sus]
     by_kind = np.argsort(fine_of, kind="stable")
     ends = np.searchsorted(fine_of[by_kind], np.arange(len(DETECTORS) * n_cls + 1), side="left")
