@@ -1,6 +1,8 @@
 """The suspects' seventh round (issue 32, item 5): the grouping's merge with listed neighbours and a tournament
-tree gives the reference agglomeration's groups bit for bit, whatever the length of the lists (the whole call
-against ``suspects_reference``: tests/zcut/test_suspects_fast.py)."""
+tree gives the reference agglomeration's groups bit for bit, whatever the length of the lists; the components
+that skip the part of a window the previous pixel and the pixel above have scanned are the grown mask's; the
+first detector of each pixel in one pass is the masked writes' (the whole call against ``suspects_reference``:
+tests/zcut/test_suspects_fast.py)."""
 
 from __future__ import annotations
 
@@ -8,8 +10,9 @@ import importlib
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
-from zcut.suspects.grouping import NEAR, _merge_compact, _merge_kernel
+from zcut.suspects.grouping import NEAR, _kind_components, _merge_compact, _merge_kernel, _primary_and_suspects
 
 ref = importlib.import_module("zcut.suspects._reference")
 
@@ -62,3 +65,44 @@ def test_listed_merge_of_degenerate_inputs(case: str) -> None:
     for near in (1, NEAR):
         got = _merge_kernel(boxes.astype(np.int64), kind.astype(np.int64), m, near)
         np.testing.assert_array_equal(got, ref._merge_compact_reference(boxes, kind, m))
+
+
+def test_components_of_runs_and_columns_equal_the_grown_mask_labels() -> None:
+    """Masks of long runs, full columns, solid blocks, stripes a pixel apart and sparse noise, for radii 0 to
+    16 (a previous pixel of the row in the window or beyond it, the pixel above set or not)."""
+    rng = np.random.default_rng(78)
+    for case in range(160):
+        H, W = int(rng.integers(1, 50)), int(rng.integers(1, 50))
+        m = rng.random((H, W)) < float(rng.choice([0.01, 0.1, 0.5, 0.9, 1.0]))
+        if case % 4 == 1:
+            m[:, rng.integers(0, W, 3)] = True
+        elif case % 4 == 2:
+            m[rng.integers(0, H, 2), :] = True
+        elif case % 4 == 3:
+            m[:, ::int(rng.integers(2, 5))] = False
+        r = int(rng.choice([0, 1, 2, 3, 5, 8, 16]))
+        lab, n = ref._components_reference(m, r)
+        flat = np.flatnonzero(m)
+        got, n2, boxes = _kind_components(flat, m.shape, r, np.full(m.shape, -1, np.int32))
+        assert n2 == n
+        np.testing.assert_array_equal(got, lab.ravel()[flat])
+        want = [[s[0].start, s[1].start, s[0].stop, s[1].stop] for s in ndimage.find_objects(lab, max_label=n)]
+        np.testing.assert_array_equal(boxes, np.array(want, np.int64).reshape(-1, 4))
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.int8, np.int16, np.uint16, np.int32, np.int64])
+def test_primary_and_suspects_equal_the_masked_writes(dtype: type) -> None:
+    """Any code, bits above the detectors' and negative ones too, empty frames."""
+    rng = np.random.default_rng(79)
+    info = np.iinfo(dtype)
+    for _ in range(40):
+        H, W = int(rng.integers(0, 30)), int(rng.integers(0, 30))
+        codes = rng.integers(info.min, info.max, (H, W), dtype=dtype, endpoint=True)
+        codes[rng.random((H, W)) < 0.5] = 0
+        want = np.full(codes.shape, -1, np.int8)
+        for i in reversed(range(5)):
+            want[(codes >> i) & 1 > 0] = i
+        got = np.empty(codes.shape, np.int8)
+        sus = _primary_and_suspects(codes, 5, got)
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(sus, np.flatnonzero(want.ravel() >= 0))
