@@ -12,7 +12,16 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from zcut.suspects.grouping import NEAR, _kind_components, _merge_compact, _merge_kernel, _primary_and_suspects
+from zcut.suspects.detectors import label_medians
+from zcut.suspects.grouping import (
+    NEAR,
+    STRENGTH_CLASSES,
+    _kind_components,
+    _label_classes,
+    _merge_compact,
+    _merge_kernel,
+    _primary_and_suspects,
+)
 
 ref = importlib.import_module("zcut.suspects._reference")
 
@@ -106,3 +115,19 @@ def test_primary_and_suspects_equal_the_masked_writes(dtype: type) -> None:
         sus = _primary_and_suspects(codes, 5, got)
         np.testing.assert_array_equal(got, want)
         np.testing.assert_array_equal(sus, np.flatnonzero(want.ravel() >= 0))
+
+
+def test_label_classes_equal_the_searched_medians() -> None:
+    """Values on the bounds and medians that fall on them (the mean of two), ±0, NaN, ±inf, labels 0 (not
+    counted) and labels with no finite value."""
+    rng = np.random.default_rng(80)
+    bounds = np.asarray(STRENGTH_CLASSES, np.float64)
+    pool = np.array([0.0, -0.0, 1.5, 2.0, 2.5, 7.0, 8.0, 9.0, np.nan, np.inf, -np.inf, 1e308])
+    for _ in range(400):
+        m = int(rng.integers(0, 80))
+        n = int(rng.integers(1, 12))
+        values = pool[rng.integers(0, pool.size, m)] if rng.random() < 0.6 else rng.random(m) * 12
+        labels = rng.integers(0, n + 1, m)
+        with np.errstate(over="ignore"):  # the mean of two values of 1e308
+            want = np.searchsorted(bounds, label_medians(values, labels, n), side="right").astype(np.int8)
+        np.testing.assert_array_equal(_label_classes(values, labels, n, bounds), want)

@@ -10,7 +10,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..params import SuspectParams
-from .detectors import DETECTORS, label_medians
+from .detectors import DETECTORS
 
 # grouping: a detector with more components than this is pre-merged with a larger radius first
 MAX_NODES = 1500
@@ -505,6 +505,44 @@ def _primary_and_suspects(codes, n_det, primary):  # type: ignore[no-untyped-def
     return sus
 
 
+@numba.njit(cache=True)
+def _label_classes(values, labels, n, bounds):  # type: ignore[no-untyped-def]  # numba kernel
+    """``np.searchsorted(bounds, label_medians(values, labels, n), side="right")`` as int8: for each label
+    1..n, how many of the increasing ``bounds`` the median of its finite values reaches (all of them for
+    a label with none: NaN sorts last). Each label's values are sorted on their own (a counting sort by
+    label, then ``np.sort``) instead of one lexsort of all: the same values in the same order but for the
+    sign of a zero, which no median compared with the bounds can tell.
+    """
+    count = np.zeros(n + 1, np.int64)
+    for k in range(values.size):
+        if labels[k] > 0 and np.isfinite(values[k]):
+            count[labels[k]] += 1
+    start = np.zeros(n + 2, np.int64)
+    for g in range(1, n + 1):
+        start[g + 1] = start[g] + count[g]
+    buf = np.empty(start[n + 1])
+    at = start.copy()
+    for k in range(values.size):
+        if labels[k] > 0 and np.isfinite(values[k]):
+            buf[at[labels[k]]] = values[k]
+            at[labels[k]] += 1
+    out = np.empty(n, np.int8)
+    for g in range(1, n + 1):
+        c = count[g]
+        if c == 0:
+            out[g - 1] = bounds.size
+            continue
+        seg = np.sort(buf[start[g]:start[g] + c])
+        lo = (c - 1) // 2
+        hi = c // 2
+        med = seg[lo] if lo == hi else 0.5 * (seg[lo] + seg[hi])
+        k = 0
+        while k < bounds.size and bounds[k] <= med:
+            k += 1
+        out[g - 1] = k
+    return out
+
+
 def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.ndarray | None = None,
                      _sus: np.ndarray | None = None) -> np.ndarray:
     """The strength class of each suspect pixel (0, 1, 2; -1 where ``primary`` is -1).
@@ -538,8 +576,7 @@ def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.nd
         if sel.size == 0:
             continue
         lab, n, _ = _kind_components(sus[sel], primary.shape, 0, index)  # ndimage.label's 8-connected components
-        med = label_medians(s[sel], lab, n)
-        cls = np.searchsorted(np.asarray(STRENGTH_CLASSES), med, side="right").astype(np.int8)
+        cls = _label_classes(s[sel], lab, n, np.asarray(STRENGTH_CLASSES, np.float64))  # of the medians
         flat_out[sus[sel]] = cls[lab - 1]
     return out
 
