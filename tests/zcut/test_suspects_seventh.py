@@ -131,3 +131,30 @@ def test_label_classes_equal_the_searched_medians() -> None:
         with np.errstate(over="ignore"):  # the mean of two values of 1e308
             want = np.searchsorted(bounds, label_medians(values, labels, n), side="right").astype(np.int8)
         np.testing.assert_array_equal(_label_classes(values, labels, n, bounds), want)
+
+
+def test_robust_sigma_of_one_partition_equals_numpy_median_and_quantile() -> None:
+    """Every count from 1 (odd and even, the quantile's fraction below, at and above 0.5), ties, zeros only,
+    heavy tails, NaN, inf and values whose sums overflow (those go to numpy)."""
+    noise = importlib.import_module("zcut.suspects.noise")
+    rng = np.random.default_rng(81)
+    for case in range(6000):
+        n = int(rng.integers(1, 40)) if case % 2 else int(rng.integers(1, 5000))
+        kind = case % 6
+        if kind == 0:
+            a = np.abs(rng.normal(0, 1, n))
+        elif kind == 1:
+            a = np.round(np.abs(rng.normal(0, 3, n)))
+        elif kind == 2:
+            a = rng.integers(0, 3, n) * 0.5
+        elif kind == 3:
+            a = np.abs(rng.standard_cauchy(n))
+        elif kind == 4:
+            a = np.abs(rng.normal(0, 1, n))
+            a[rng.integers(0, n, 2)] = rng.choice([np.nan, np.inf, 1e308])
+        else:
+            a = rng.uniform(0.9e308, 1.7e308, n)  # finite; the mean of two overflows
+        with np.errstate(over="ignore", invalid="ignore"):
+            got = noise._robust_sigma_one_partition(a)
+            want = noise._robust_sigma(a)
+        assert got == want or (np.isnan(got) and np.isnan(want)), (case, n, got, want)
