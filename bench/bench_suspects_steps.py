@@ -59,6 +59,8 @@ STEPS = (
     ("suspects.union", "_gap_ratio", None),
     ("suspects.union", "group_suspects", None),
     ("suspects.grouping", "strength_classes", "group_suspects"),
+    ("suspects.grouping", "_kind_components", "group_suspects"),
+    ("suspects.grouping", "_merge_compact", "group_suspects"),
     ("suspects.union", "_group_tables", None),
     ("suspects.union", "label_medians", None),
 )

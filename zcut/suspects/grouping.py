@@ -10,7 +10,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..params import SuspectParams
-from .detectors import DETECTORS, label_medians
+from .detectors import DETECTORS
 
 # grouping: a detector with more components than this is pre-merged with a larger radius first
 MAX_NODES = 1500
@@ -37,6 +37,22 @@ SPARSE_MAX_RADIUS = 16
 
 
 @numba.njit(cache=True)
+def _union(parent, x, y):  # type: ignore[no-untyped-def]  # numba kernel
+    """Join the sets of ``x`` and ``y`` in ``parent`` (halving paths); the smaller root is the root, so a
+    set's root is its smallest member whatever the order of the unions."""
+    while parent[x] != x:
+        parent[x] = parent[parent[x]]
+        x = parent[x]
+    while parent[y] != y:
+        parent[y] = parent[parent[y]]
+        y = parent[y]
+    if x < y:
+        parent[y] = x
+    elif y < x:
+        parent[x] = y
+
+
+@numba.njit(cache=True)
 def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`_components` of the pixels ``flat`` (raster order, one kind) without growing a mask.
 
@@ -50,32 +66,39 @@ def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # nu
     m = flat.size
     parent = np.arange(m)
     reach = 2 * r + 1
+    rows = np.empty(m, np.int64)  # the pixels' rows and columns, one division each
+    cols = np.empty(m, np.int64)
     for k in range(m):
         i = flat[k] // W
-        j = flat[k] % W
+        j = flat[k] - i * W
+        rows[k] = i
+        cols[k] = j
         index[i, j] = k
     for k in range(m):
-        i = flat[k] // W
-        j = flat[k] % W
-        for a in range(max(i - reach, 0), i + 1):
-            b1 = min(j + reach + 1, W) if a < i else j
-            for b in range(max(j - reach, 0), b1):
+        i = rows[k]
+        j = cols[k]
+        a0 = max(i - reach, 0)  # the window: rows a0 .. i - 1, columns b0 .. j + reach
+        b0 = max(j - reach, 0)
+        if k > 0 and rows[k - 1] == i and j - cols[k - 1] <= reach:
+            # the previous pixel of the row is in the window: joined to it, k needs only the part of its
+            # window the previous pixel's lacks (columns right of that window, in the rows above; in k's
+            # row nothing lies between them), the rest being joined to the previous pixel already
+            b0 = cols[k - 1] + reach + 1
+            _union(parent, k, k - 1)
+        # (otherwise no pixel lies in k's row left of it within the window: the previous pixel is farther)
+        if i > 0 and index[i - 1, j] >= 0:
+            # the pixel above is in the window, and so is all its window but for the columns right of k
+            # in the row above (they come after it in raster order)
+            _union(parent, k, index[i - 1, j])
+            a0 = i - 1
+            b0 = max(b0, j + 1)
+        for a in range(a0, i):
+            for b in range(b0, min(j + reach + 1, W)):
                 q = index[a, b]
-                if q >= 0:  # union: the smaller index is the root (a component's root is its first pixel)
-                    x = k
-                    while parent[x] != x:
-                        parent[x] = parent[parent[x]]
-                        x = parent[x]
-                    y = q
-                    while parent[y] != y:
-                        parent[y] = parent[parent[y]]
-                        y = parent[y]
-                    if x < y:
-                        parent[y] = x
-                    elif y < x:
-                        parent[x] = y
+                if q >= 0:
+                    _union(parent, k, q)
     for k in range(m):
-        index[flat[k] // W, flat[k] % W] = -1
+        index[rows[k], cols[k]] = -1
     root = np.empty(m, np.int64)
     for k in range(m):
         x = k
@@ -85,14 +108,14 @@ def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # nu
     # pixels in raster order: a root is its component's first pixel, so its row is the top one
     top_row = np.empty(m, np.int64)
     for k in range(m):
-        top_row[k] = flat[root[k]] // W
+        top_row[k] = rows[root[k]]
     left = np.full(m, np.iinfo(np.int64).max)
     for k in range(m):
-        i = flat[k] // W
+        i = rows[k]
         x = root[k]
         r0 = max(top_row[k] - r, 0)
         if i <= r0 + r:
-            left[x] = min(left[x], flat[k] % W)
+            left[x] = min(left[x], cols[k])
     roots = np.empty(m, np.int64)
     n = 0
     for k in range(m):
@@ -103,7 +126,7 @@ def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # nu
     key = np.empty(n, np.int64)
     for g in range(n):
         x = roots[g]
-        key[g] = max(flat[x] // W - r, 0) * (W + 1) + max(left[x] - r, 0)
+        key[g] = max(rows[x] - r, 0) * (W + 1) + max(left[x] - r, 0)
     order = np.argsort(key)
     rank = np.empty(m, np.int64)
     for g in range(n):
@@ -117,8 +140,8 @@ def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # nu
     for k in range(m):
         g = rank[root[k]]
         labels[k] = g
-        i = flat[k] // W
-        j = flat[k] % W
+        i = rows[k]
+        j = cols[k]
         boxes[g - 1, 0] = min(boxes[g - 1, 0], i)
         boxes[g - 1, 1] = min(boxes[g - 1, 1], j)
         boxes[g - 1, 2] = max(boxes[g - 1, 2], i + 1)
@@ -146,17 +169,40 @@ def _kind_components(flat: np.ndarray, shape: tuple[int, int], r: int, index: np
     return lab[rows - r0, cols - c0].astype(np.int64), n, boxes
 
 
+# the merge keeps, per box, its NEAR nearest boxes of its kind (by united diagonal, then index) as they were
+# when last listed: refreshing a box whose partner merged reads that list, not the whole kind
+NEAR = 8
+# the squared diagonal of a dead box with any other (a living pair's is smaller)
+FAR = np.int64(1) << 61
+
+
 @numba.njit(cache=True)
-def _merge_kernel(boxes, kind, max_groups):  # type: ignore[no-untyped-def]  # numba kernel
-    """:func:`_merge_compact` (see there); distances compared as squared integer diagonals, whose
-    order is the order of their square roots (the previous code's ``np.hypot``), and each box only
-    with the boxes of its kind (in increasing index: the lowest index on ties, as ``np.argmin``)."""
+def _merge_kernel(boxes, kind, max_groups, near):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_merge_compact` (see there) with ``near`` listed neighbours a box.
+
+    Distances are compared as squared integer diagonals, whose order is the order of their square roots
+    (the reference's ``np.hypot``), and each box only with the boxes of its kind; a box's partner is its
+    nearest one, the lowest index on ties (``np.argmin`` of its row), and the merge taken is the pair of
+    the box with the smallest (distance, index) (``np.argmin`` of the partners' distances).
+
+    Why the lists give the same partners as a scan of the kind: a box only grows (when it takes in its
+    partner) or dies, so the distance between two living boxes never decreases. A box's list holds the
+    ``near`` smallest keys (distance, index) of its kind's other living boxes when it was listed, and
+    ``lim`` the largest of them: every box left out had a larger key then, and has one still. So when
+    the smallest current key on the list is at most ``lim`` it is the smallest of the kind; otherwise
+    (or when every listed box died) the box is listed again from a scan of its kind. A list that held
+    every other box of the kind needs no bound. The merged box is listed afresh (all its distances
+    changed); a box whose partner was neither of the pair keeps it: its other distances only grew or
+    went, so the reference's update of the rows against the merged box never changes a partner.
+    The next pair is the root of a tournament tree over (distance, index); the groups are followed to
+    their representative through the merges (each merge joins the higher index into the lower).
+    """
     n = boxes.shape[0]
-    rep = np.arange(n)
-    alive = np.ones(n, np.bool_)
     inf = np.iinfo(np.int64).max
     best = np.full(n, inf)
     partner = np.zeros(n, np.int64)  # a box with no partner: 0, as np.argmin of a row of inf
+    alive = np.ones(n, np.bool_)
+    joined = np.arange(n)  # the box each merged box went into
     r0 = boxes[:, 0].copy()
     c0 = boxes[:, 1].copy()
     r1 = boxes[:, 2].copy()
@@ -173,31 +219,210 @@ def _merge_kernel(boxes, kind, max_groups):  # type: ignore[no-untyped-def]  # n
             start[by_kind[q]] = s
             stop[by_kind[q]] = e
         s = e
+    near = max(near, 1)
+    listed = np.empty((n, near), np.int64)  # each box's listed neighbours, by key when listed
+    listed_d = np.empty((n, near), np.int64)
+    n_listed = np.zeros(n, np.int64)
+    whole = np.zeros(n, np.bool_)  # the list held every other living box of the kind
+    lim_d = np.zeros(n, np.int64)  # the largest key listed
+    lim_k = np.zeros(n, np.int64)
+
+    # the boxes again in by_kind's order, for list_anew's scan in vector lanes; a dead box's is FAR's
+    # (coordinates of pixels are far inside +-2^29, so a living pair's squared diagonal is below 2^61)
+    far = np.int64(1) << 29
+    pos = np.empty(n, np.int64)
+    for q in range(n):
+        pos[by_kind[q]] = q
+    kr0 = r0[by_kind]
+    kc0 = c0[by_kind]
+    kr1 = r1[by_kind]
+    kc1 = c1[by_kind]
+    dist = np.empty(n, np.int64)
+
+    def list_anew(i):  # type: ignore[no-untyped-def]
+        s0 = start[i]
+        s1 = stop[i]
+        a0 = r0[i]
+        b0 = c0[i]
+        a1 = r1[i]
+        b1 = c1[i]
+        for q in range(s0, s1):
+            dr = max(kr1[q], a1) - min(kr0[q], a0)
+            dc = max(kc1[q], b1) - min(kc0[q], b0)
+            dist[q] = dr * dr + dc * dc
+        dist[pos[i]] = FAR
+        m = 0
+        seen = 0
+        bar = FAR  # a box enters the list below it: any living one while the list is short
+        for q in range(s0, s1):
+            d = dist[q]
+            if d >= FAR:
+                continue  # i itself, or dead
+            seen += 1
+            if d >= bar:
+                continue  # not below the last listed key (its index is larger: a larger key on ties)
+            if m == near:
+                p = m - 1
+            else:
+                p = m
+                m += 1
+            while p > 0 and listed_d[i, p - 1] > d:
+                listed_d[i, p] = listed_d[i, p - 1]
+                listed[i, p] = listed[i, p - 1]
+                p -= 1
+            listed_d[i, p] = d
+            listed[i, p] = by_kind[q]
+            if m == near:
+                bar = listed_d[i, m - 1]
+        n_listed[i] = m
+        whole[i] = seen <= near
+        if m > 0:
+            best[i] = listed_d[i, 0]
+            partner[i] = listed[i, 0]
+            lim_d[i] = listed_d[i, m - 1]
+            lim_k[i] = listed[i, m - 1]
+        else:
+            best[i] = inf
+            partner[i] = 0
 
     def refresh(i):  # type: ignore[no-untyped-def]
         b = inf
         bj = 0
-        for q in range(start[i], stop[i]):
-            k = by_kind[q]
-            if k == i or not alive[k]:
+        found = False
+        for t in range(n_listed[i]):
+            k = listed[i, t]
+            if not alive[k]:
                 continue
             dr = max(r1[k], r1[i]) - min(r0[k], r0[i])
             dc = max(c1[k], c1[i]) - min(c0[k], c0[i])
             d = dr * dr + dc * dc
-            if d < b:
+            if not found or d < b or (d == b and k < bj):
                 b = d
                 bj = k
-        best[i] = b
-        partner[i] = bj
+                found = True
+        if whole[i] or (found and (b < lim_d[i] or (b == lim_d[i] and bj <= lim_k[i]))):
+            best[i] = b
+            partner[i] = bj
+        else:
+            list_anew(i)  # type: ignore[no-untyped-call]  # numba closure
 
+    stamp = np.full(n, -1, np.int64)
+    new_d = np.empty(near, np.int64)
+    new_k = np.empty(near, np.int64)  # relist_merged's work
+
+    def relist_merged(a, b):  # type: ignore[no-untyped-def]
+        # a (just grown) and b (just died): a's list is the nearest of both lists, as keys now; a box on
+        # neither had keys above both bounds then, and larger ones now (a contains both boxes)
+        stamp[a] = b  # b marks the boxes met in this merge (b dies in it: no later merge has it)
+        m = 0
+        dropped = False
+        whole_ab = whole[a] or whole[b]
+        if lim_d[b] > lim_d[a] or (lim_d[b] == lim_d[a] and lim_k[b] > lim_k[a]):
+            bound_d = lim_d[b]
+            bound_k = lim_k[b]
+        else:
+            bound_d = lim_d[a]
+            bound_k = lim_k[a]
+        for src in (a, b):
+            for t in range(n_listed[src]):
+                k = listed[src, t]
+                if not alive[k] or stamp[k] == b:
+                    continue
+                stamp[k] = b
+                dr = max(r1[k], r1[a]) - min(r0[k], r0[a])
+                dc = max(c1[k], c1[a]) - min(c0[k], c0[a])
+                d = dr * dr + dc * dc
+                if m == near:
+                    dropped = True
+                    if d > new_d[m - 1] or (d == new_d[m - 1] and k > new_k[m - 1]):
+                        continue
+                    p = m - 1
+                else:
+                    p = m
+                    m += 1
+                while p > 0 and (new_d[p - 1] > d or (new_d[p - 1] == d and new_k[p - 1] > k)):
+                    new_d[p] = new_d[p - 1]
+                    new_k[p] = new_k[p - 1]
+                    p -= 1
+                new_d[p] = d
+                new_k[p] = k
+        for t in range(m):
+            listed_d[a, t] = new_d[t]
+            listed[a, t] = new_k[t]
+        n_listed[a] = m
+        whole[a] = whole_ab and not dropped
+        if whole_ab:
+            bound_d = inf
+            bound_k = inf
+        if dropped and (new_d[m - 1] < bound_d or (new_d[m - 1] == bound_d and new_k[m - 1] < bound_k)):
+            bound_d = new_d[m - 1]
+            bound_k = new_k[m - 1]
+        lim_d[a] = bound_d
+        lim_k[a] = bound_k
+        if m > 0 and (whole[a] or new_d[0] < bound_d or (new_d[0] == bound_d and new_k[0] <= bound_k)):
+            best[a] = new_d[0]
+            partner[a] = new_k[0]
+        elif m == 0 and whole[a]:
+            best[a] = inf
+            partner[a] = 0
+        else:
+            list_anew(a)  # type: ignore[no-untyped-call]  # numba closure
+
+    # the tournament tree: tree[1] is the box of the smallest (best, index); leaves past n hold -1
+    size = 1
+    while size < n:
+        size *= 2
+    tree = np.full(2 * size, -1, np.int64)
+
+    def first(x, y):  # type: ignore[no-untyped-def]
+        if y < 0:
+            return x
+        if x < 0:
+            return y
+        if best[y] < best[x] or (best[y] == best[x] and y < x):
+            return y
+        return x
+
+    def update(i):  # type: ignore[no-untyped-def]
+        v = (size + i) // 2
+        while v >= 1:
+            tree[v] = first(tree[2 * v], tree[2 * v + 1])  # type: ignore[no-untyped-call]  # numba closure
+            v //= 2
+
+    # the boxes whose partner is p: a list through nxt / prv from head[p]
+    head = np.full(n, -1, np.int64)
+    nxt = np.full(n, -1, np.int64)
+    prv = np.full(n, -1, np.int64)
+    linked = np.full(n, -1, np.int64)  # the partner each box is linked under
+
+    def relink(k):  # type: ignore[no-untyped-def]
+        p = partner[k]
+        if linked[k] == p:
+            return
+        if linked[k] >= 0:
+            if prv[k] >= 0:
+                nxt[prv[k]] = nxt[k]
+            else:
+                head[linked[k]] = nxt[k]
+            if nxt[k] >= 0:
+                prv[nxt[k]] = prv[k]
+        prv[k] = -1
+        nxt[k] = head[p]
+        if head[p] >= 0:
+            prv[head[p]] = k
+        head[p] = k
+        linked[k] = p
+
+    todo = np.empty(n, np.int64)
     for i in range(n):
-        refresh(i)  # type: ignore[no-untyped-call]  # numba closure
+        list_anew(i)  # type: ignore[no-untyped-call]  # numba closure
+        relink(i)  # type: ignore[no-untyped-call]  # numba closure
+        tree[size + i] = i
+    for v in range(size - 1, 0, -1):
+        tree[v] = first(tree[2 * v], tree[2 * v + 1])  # type: ignore[no-untyped-call]  # numba closure
     count = n
-    while count > max_groups:
-        i = 0
-        for k in range(1, n):
-            if best[k] < best[i]:
-                i = k
+    while count > max_groups and n > 0:
+        i = tree[1]
         if best[i] == inf:
             break  # one group per kind left
         j = partner[i]
@@ -208,27 +433,37 @@ def _merge_kernel(boxes, kind, max_groups):  # type: ignore[no-untyped-def]  # n
         r1[a] = max(r1[a], r1[b])
         c1[a] = max(c1[a], c1[b])
         alive[b] = False
+        kr0[pos[a]] = r0[a]
+        kc0[pos[a]] = c0[a]
+        kr1[pos[a]] = r1[a]
+        kc1[pos[a]] = c1[a]
+        kr0[pos[b]] = -far
+        kc0[pos[b]] = -far
+        kr1[pos[b]] = far
+        kc1[pos[b]] = far
         best[b] = inf
-        for k in range(n):
-            if rep[k] == b:
-                rep[k] = a
+        joined[b] = a
+        update(b)  # type: ignore[no-untyped-call]  # numba closure
         count -= 1
-        for q in range(start[a], stop[a]):
-            k = by_kind[q]
-            if k == a or not alive[k]:
-                continue
-            dr = max(r1[k], r1[a]) - min(r0[k], r0[a])
-            dc = max(c1[k], c1[a]) - min(c0[k], c0[a])
-            d = dr * dr + dc * dc
-            if d < best[k]:
-                best[k] = d
-                partner[k] = a
-        # the boxes whose partner was a or b (boxes of other kinds keep theirs: their rows did not change)
-        for q in range(start[a], stop[a]):
-            k = by_kind[q]
-            if alive[k] and (partner[k] == a or partner[k] == b):
-                refresh(k)  # type: ignore[no-untyped-call]  # numba closure
-        refresh(a)  # type: ignore[no-untyped-call]  # numba closure
+        m = 0
+        for p in (a, b):  # the living boxes whose partner was a or b (those of a box without one: no matter)
+            k = head[p]
+            while k >= 0:
+                if k != a and alive[k]:
+                    todo[m] = k
+                    m += 1
+                k = nxt[k]
+        for t in range(m):
+            k = todo[t]
+            refresh(k)  # type: ignore[no-untyped-call]  # numba closure
+            relink(k)  # type: ignore[no-untyped-call]  # numba closure
+            update(k)  # type: ignore[no-untyped-call]  # numba closure
+        relist_merged(a, b)  # type: ignore[no-untyped-call]  # numba closure
+        relink(a)  # type: ignore[no-untyped-call]  # numba closure
+        update(a)  # type: ignore[no-untyped-call]  # numba closure
+    rep = np.empty(n, np.int64)
+    for k in range(n):  # joined[k] <= k: the representatives of the lower boxes are known
+        rep[k] = k if joined[k] == k else rep[joined[k]]
     return rep
 
 
@@ -239,11 +474,77 @@ def _merge_compact(boxes: np.ndarray, kind: np.ndarray, max_groups: int) -> np.n
     Returns the group of each box as the index of its representative box.
     """
     rep: np.ndarray = _merge_kernel(np.ascontiguousarray(boxes, dtype=np.int64),
-                                    np.ascontiguousarray(kind, dtype=np.int64), int(max_groups))
+                                    np.ascontiguousarray(kind, dtype=np.int64), int(max_groups), NEAR)
     return rep
 
 
-def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.ndarray | None = None) -> np.ndarray:
+@numba.njit(cache=True)
+def _primary_and_suspects(codes, n_det, primary):  # type: ignore[no-untyped-def]  # numba kernel
+    """``primary`` (int8, ``codes``' shape) gets each pixel's first detector (the lowest of the bits 0 ..
+    n_det - 1 set in ``codes``; -1 for none), in one pass for the loop of masked writes it replaces; returns
+    the flat indices of the pixels with one, in raster order (``np.flatnonzero(primary >= 0)``)."""
+    c = codes.reshape(-1)
+    pr = primary.reshape(-1)
+    bits = (1 << n_det) - 1
+    first = np.full(bits + 1, -1, np.int8)  # the lowest bit set of each combination of the detectors' bits
+    for v in range(bits, 0, -1):
+        for i in range(n_det - 1, -1, -1):
+            if (v >> i) & 1:
+                first[v] = i
+    n = 0
+    for p in range(c.size):
+        v = c[p] & bits
+        pr[p] = first[v]
+        n += v != 0
+    sus = np.empty(n, np.int64)
+    k = 0
+    for p in range(c.size):
+        if pr[p] >= 0:
+            sus[k] = p
+            k += 1
+    return sus
+
+
+@numba.njit(cache=True)
+def _label_classes(values, labels, n, bounds):  # type: ignore[no-untyped-def]  # numba kernel
+    """``np.searchsorted(bounds, label_medians(values, labels, n), side="right")`` as int8: for each label
+    1..n, how many of the increasing ``bounds`` the median of its finite values reaches (all of them for
+    a label with none: NaN sorts last). Each label's values are sorted on their own (a counting sort by
+    label, then ``np.sort``) instead of one lexsort of all: the same values in the same order but for the
+    sign of a zero, which no median compared with the bounds can tell.
+    """
+    count = np.zeros(n + 1, np.int64)
+    for k in range(values.size):
+        if labels[k] > 0 and np.isfinite(values[k]):
+            count[labels[k]] += 1
+    start = np.zeros(n + 2, np.int64)
+    for g in range(1, n + 1):
+        start[g + 1] = start[g] + count[g]
+    buf = np.empty(start[n + 1])
+    at = start.copy()
+    for k in range(values.size):
+        if labels[k] > 0 and np.isfinite(values[k]):
+            buf[at[labels[k]]] = values[k]
+            at[labels[k]] += 1
+    out = np.empty(n, np.int8)
+    for g in range(1, n + 1):
+        c = count[g]
+        if c == 0:
+            out[g - 1] = bounds.size
+            continue
+        seg = np.sort(buf[start[g]:start[g] + c])
+        lo = (c - 1) // 2
+        hi = c // 2
+        med = seg[lo] if lo == hi else 0.5 * (seg[lo] + seg[hi])
+        k = 0
+        while k < bounds.size and bounds[k] <= med:
+            k += 1
+        out[g - 1] = k
+    return out
+
+
+def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.ndarray | None = None,
+                     _sus: np.ndarray | None = None) -> np.ndarray:
     """The strength class of each suspect pixel (0, 1, 2; -1 where ``primary`` is -1).
 
     Per detector, the 8-connected components of its pixels take the median of their pixels'
@@ -260,7 +561,7 @@ def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.nd
     primary = np.asarray(primary)
     out = np.full(primary.shape, -1, np.int8)
     flat_p = primary.reshape(-1)
-    sus = np.flatnonzero(flat_p >= 0)
+    sus = np.flatnonzero(flat_p >= 0) if _sus is None else _sus
     if sus.size == 0:
         return out
     det = flat_p[sus]
@@ -275,8 +576,7 @@ def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.nd
         if sel.size == 0:
             continue
         lab, n, _ = _kind_components(sus[sel], primary.shape, 0, index)  # ndimage.label's 8-connected components
-        med = label_medians(s[sel], lab, n)
-        cls = np.searchsorted(np.asarray(STRENGTH_CLASSES), med, side="right").astype(np.int8)
+        cls = _label_classes(s[sel], lab, n, np.asarray(STRENGTH_CLASSES, np.float64))  # of the medians
         flat_out[sus[sel]] = cls[lab - 1]
     return out
 
@@ -294,16 +594,15 @@ def group_suspects(codes: np.ndarray, strength: np.ndarray, params: SuspectParam
     detector across classes: groups stay compact regions a person can zoom to, a large blob stays
     alone, specks near each other join.
     """
-    primary = np.full(codes.shape, -1, np.int8)
-    for i in reversed(range(len(DETECTORS))):  # the first detector in DETECTORS wins
-        primary[(codes >> i) & 1 > 0] = i
+    primary = np.empty(codes.shape, np.int8)  # the first detector in DETECTORS wins
+    # the suspects' flat indices in raster order
+    sus = _primary_and_suspects(np.ascontiguousarray(codes), len(DETECTORS), primary)
     index = np.full(codes.shape, -1, np.int32)  # the components' work image, left all -1 by each use
-    cls = strength_classes(primary, strength, _index=index)
+    cls = strength_classes(primary, strength, _index=index, _sus=sus)
     n_cls = len(STRENGTH_CLASSES) + 1
     radii = np.full(len(DETECTORS), params.merge_radius_px, np.int64)
     limit = max(codes.shape)
     # the suspects' flat indices by detector and class, each in raster order
-    sus = np.flatnonzero(primary.ravel() >= 0)
     fine_of = primary.ravel()[sus].astype(np.int64) * n_cls + cls.ravel()[sus]
     by_kind = np.argsort(fine_of, kind="stable")
     ends = np.searchsorted(fine_of[by_kind], np.arange(len(DETECTORS) * n_cls + 1), side="left")
