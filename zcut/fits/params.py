@@ -110,8 +110,9 @@ class FitParams:
         > 0: a region (of either pass, or a leftover) holding fewer pixels than this share of the model's projected
         area π (extent · f / z)² at its depth **and** whose points lie within ``skip_plane_mm`` (RMS) of their best
         plane is not fitted (docs/fits.md, "Fourteenth round"): a small flat patch — a ghost, a sliver of a face or of
-        the floor between parts — whose whole fit is nearly always refused. Reads only the cloud, the zone and the
-        mesh. 0 (the default): off, the thirteenth round's fits.
+        the floor between parts — whose fit is nearly always refused or lands on no part. Reads only the cloud, the
+        zone and the mesh. 0 (the default): off, the thirteenth round's fits; 0.03 (with 0.12 mm) saved no measurable
+        CPU and lost 3 of 295 instances on a held-out hand-made black-nut frame.
     skip_plane_mm : float
         See ``skip_share``.
     """
