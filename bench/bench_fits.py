@@ -337,7 +337,7 @@ PHASES = (("segmentation", "segment"), ("python per region", "_holds_many"), ("p
           ("global guess", "initial_poses"), ("global guess", "shifted_poses"), ("coarse ICP", "coarse_search"),
           ("fine ICP", "icp"), ("acceptance", "_accept"),
           ("  of it: support", "_support"), ("sphere fits", "_fit_sphere"), ("sphere votes", "vote_centres"),
-          ("assignment", "_assign"), ("candidates (whole)", "_fit_general"))
+          ("assignment", "_assign"), ("candidates (whole)", "_fit_general"), ("flat-patch check", "_flat_patch"))
 
 
 def phase_times(run):  # type: ignore[no-untyped-def]

@@ -399,7 +399,11 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
                 break
         return found
 
-    rotations = initial_rotations(pts, model)
+    # the points' principal axes, once: the guesses' rotations and the turns' axis (the same arithmetic as
+    # initial_rotations' own, so the same bits)
+    c = pts.mean(axis=0)
+    _, ax = np.linalg.eigh(np.cov((pts - c).T))
+    rotations = initial_rotations(pts, model, axes=ax)
     guesses = initial_poses(pts, rotations, model)
     if shifts:
         guesses += shifted_poses(pts, rotations, model, shifts)
@@ -407,8 +411,6 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     assert best is not None
     # the guesses turn 45° apart about the region's normal, the turn its surface leaves nearly free:
     # the best one's turns in between, about its own centroid, each refined the same way
-    c = pts.mean(axis=0)
-    _, ax = np.linalg.eigh(np.cov((pts - c).T))
     T_best = best[1]
     turned = []
     for deg in () if shifts else TURNS_DEG:
@@ -786,6 +788,8 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
     ``claims``: ``FitParams.claim`` (:class:`_Claims`). Returns the further regions its leftovers split
     into, to fit the same way."""
     min_px = params.min_region_px if min_px is None else min_px
+    if params.skip_share > 0 and _flat_patch(frame, region, model, params):
+        return []  # a small flat patch: no part's fit (docs/fits.md, "Fourteenth round")
     H, W = frame.valid.shape
     f = 0.5 * (frame.K[0] + frame.K[1])
     more: list[np.ndarray] = []
@@ -896,6 +900,21 @@ def _lobes(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
     if len(out) < 2:
         return []  # one piece: nothing split
     return sorted(out, key=len, reverse=True)
+
+
+def _flat_patch(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> bool:
+    """Whether a region is a small flat patch not worth a fit (``FitParams.skip_share``): fewer pixels than
+    ``skip_share`` × the model's projected area at its depth (:func:`_projected_area`) and its points within
+    ``skip_plane_mm`` of their best plane (the square root of the smallest eigenvalue of their covariance: the RMS
+    distance to the plane through their centroid, on an even subsample of 2,000). Reads only the cloud, the zone
+    and the mesh."""
+    if len(flat) >= params.skip_share * _projected_area(frame, flat, model):
+        return False
+    pts = frame.xyz.reshape(-1, 3)[_subsample(flat, 2000)]
+    if len(pts) < 3:
+        return True  # no plane to measure: nothing a fit could pose either
+    w = np.linalg.eigvalsh(np.cov((pts - pts.mean(axis=0)).T))
+    return bool(np.sqrt(max(float(w[0]), 0.0)) < params.skip_plane_mm)
 
 
 def _holds_many(frame: _Frame, flat: np.ndarray, model: PartModel) -> bool:

@@ -47,14 +47,18 @@ def _rodrigues(w: np.ndarray) -> np.ndarray:
     return R
 
 
-def initial_rotations(points: np.ndarray, model: PartModel) -> list[np.ndarray]:
+def initial_rotations(points: np.ndarray, model: PartModel, *, axes: np.ndarray | None = None) -> list[np.ndarray]:
     """Rotations (model -> camera) aligning the model's principal axes with the points', one per
     class of equivalent ones under the model's symmetries; those that put the model's least-variance
     axis on the points' (a part lying as it shows itself) first (the classes are the model's own,
-    computed once: :attr:`PartModel.guesses`)."""
-    c = points.mean(axis=0)
-    w, ax = np.linalg.eigh(np.cov((points - c).T))
-    ax = ax[:, ::-1]
+    computed once: :attr:`PartModel.guesses`).
+
+    ``axes``: the points' principal axes as the caller already has them, ``np.linalg.eigh(np.cov((points -
+    points.mean(axis=0)).T))[1]`` (ascending variance; not modified), else computed here the same way."""
+    if axes is None:
+        c = points.mean(axis=0)
+        _, axes = np.linalg.eigh(np.cov((points - c).T))
+    ax = axes[:, ::-1].copy()
     if np.linalg.det(ax) < 0:
         ax[:, 2] = -ax[:, 2]
     return list(np.einsum("ij,kjl->kil", ax, model.guesses))
