@@ -171,7 +171,7 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
     k_eff, top = _levels(lo, hi, step, K)
     Hz, Wz = z.shape
     thr = hi - top * step  # as zcut_outliers: the window of the pixels in the cuts
-    window, bound = ((0, 0, Hz, Wz), Hz * Wz) if not lo < thr else (_window(seg >= thr, Hz, Wz), Hz * Wz)
+    window, bound = ((0, 0, Hz, Wz), Hz * Wz) if not lo < thr else (_window(seg, thr, Wz)[:4], Hz * Wz)
     size = (window[2] + 2) * (window[3] + 2)
     st, gl = np.empty(size, np.int16), np.empty(size, np.int32)
     pix, gpar, gcnt = (np.empty(bound, np.int32) for _ in range(3))

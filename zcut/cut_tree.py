@@ -62,6 +62,7 @@ __all__ = [
     "pixel_levels",
     "pruned_outlier_mask",
     "qlevel",
+    "segments_in_cuts",
     "taggable_forest",
     "union_find_tree",
 ]
@@ -196,7 +197,7 @@ def _finite_range_float(z, seg_max):  # type: ignore[no-untyped-def]  # numba ke
                     if np.isfinite(v):
                         s_lo = v if v < s_lo else s_lo
                         s_hi = v if v > s_hi else s_hi
-            n += s_n
+            n += s_n > 0
             seg_max[r, c0 // SEGMENT] = s_hi
             # strict comparisons: the first of equal extremes in raster order, as _finite_min_max
             lo = s_lo if s_lo < lo else lo
@@ -215,13 +216,16 @@ _KEY_MAX = np.int64(0x7FFFFFFFFFFFFFFF)
 
 @numba.njit(cache=True, nogil=True)
 def finite_range(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
-    """(count, min, max) of the finite heights of z (H, W, C-contiguous), and in ``seg_max`` (H,
-    ceil(W / SEGMENT)) the largest finite height of each row segment of SEGMENT pixels (-inf: none).
+    """(n, min, max) of the finite heights of z (H, W, C-contiguous), n the number of row segments
+    holding one (0: no finite height), and in ``seg_max`` (H, ceil(W / SEGMENT)) the largest finite
+    height of each row segment of SEGMENT pixels (-inf: none). (n counted segments, not heights: one
+    accumulator fewer in the vector loop, whose three reductions a segment were a third of its time;
+    the callers want only whether n is 0.)
 
     On the bits, as integers: a height is finite iff its exponent bits are not all set, and the key
     ``bits ^ ((bits >> 63) & 0x7FF...F)`` orders the finite heights as the floats do. Integer
     extremes have no NaN to respect, so LLVM vectorises the loop (the float comparisons' is scalar:
-    1.4 ms a 1920 x 1200 frame, ~0.7 ms so). The keys tell -0.0 below +0.0, which the floats do not:
+    1.4 ms a 1920 x 1200 frame, ~0.6 ms so). The keys tell -0.0 below +0.0, which the floats do not:
     when an extreme is a zero, the extremes are taken again by :func:`_finite_range_float` (the
     first of equal extremes in raster order, as :func:`zcut.cuts._finite_min_max`)."""
     H, W = z.shape
@@ -235,18 +239,17 @@ def finite_range(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
         row = r * W
         for c0 in range(0, W, SEGMENT):
             c1 = min(c0 + SEGMENT, W)
-            s_n = 0
             s_lo = _KEY_MAX
             s_hi = _KEY_MIN
             for j in range(c1 - c0):
                 b = zi[np.uint64(row + c0 + j)]  # (an unsigned index: no wrap-around test, no gather)
                 f = (b & _EXP_BITS) != _EXP_BITS
                 k = b ^ ((b >> 63) & _LOW_BITS)
-                s_n += f
                 s_hi = max(s_hi, k if f else _KEY_MIN)
                 s_lo = min(s_lo, k if f else _KEY_MAX)
-            n += s_n
-            si[r * n_seg + c0 // SEGMENT] = s_hi ^ ((s_hi >> 63) & _LOW_BITS) if s_n > 0 else _NEG_INF_BITS
+            some = s_hi != _KEY_MIN  # (_KEY_MIN, _KEY_MAX: the keys of NaNs, of no finite height)
+            n += some
+            si[r * n_seg + c0 // SEGMENT] = s_hi ^ ((s_hi >> 63) & _LOW_BITS) if some else _NEG_INF_BITS
             lo = min(lo, s_lo)
             hi = max(hi, s_hi)
     if n == 0:
@@ -258,6 +261,33 @@ def finite_range(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
     if v[0] == 0.0 or v[1] == 0.0:
         return _finite_range_float(z, seg_max)
     return n, v[0], v[1]
+
+
+@numba.njit(cache=True, nogil=True)
+def segments_in_cuts(seg_max, thr):  # type: ignore[no-untyped-def]  # numba kernel
+    """The row segments whose largest height (``seg_max``, :func:`finite_range`'s) is in the cuts (``>=
+    thr``): (their number, first row, last row + 1, first segment, last segment + 1); (0, 0, 0, 0, 0) when
+    none is. One pass over ``seg_max`` (36,000 segments at 1920 x 1200) instead of four numpy passes."""
+    H, n_seg = seg_max.shape
+    n = 0
+    r0, r1, s0, s1 = H, 0, n_seg, 0
+    for r in range(H):
+        row_n = 0
+        first, last = n_seg, 0
+        for s in range(n_seg):
+            if seg_max[r, s] >= thr:
+                row_n += 1
+                first = min(first, s)
+                last = s + 1
+        if row_n > 0:
+            n += row_n
+            r0 = min(r0, r)
+            r1 = r + 1
+            s0 = min(s0, first)
+            s1 = max(s1, last)
+    if n == 0:
+        return 0, 0, 0, 0, 0
+    return n, r0, r1, s0, s1
 
 
 @numba.njit(cache=True, nogil=True)

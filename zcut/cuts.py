@@ -108,6 +108,7 @@ from .cut_tree import (
     pixel_levels,
     pruned_outlier_mask,
     qlevel,
+    segments_in_cuts,
     retag,
     union_find_tree,
 )
@@ -246,7 +247,8 @@ def _finite_min_max(z):  # type: ignore[no-untyped-def]  # numba kernel
 
 def _finite_range(z: np.ndarray) -> tuple[int, float, float, np.ndarray]:
     """:func:`_finite_min_max` with the largest finite height of every row segment
-    (:func:`zcut.cut_tree.finite_range`), in one pass."""
+    (:func:`zcut.cut_tree.finite_range`), in one pass; the count is of the row segments holding a
+    finite height, not of the heights (0 all the same when none is)."""
     seg_max = np.empty((z.shape[0], -(-z.shape[1] // SEGMENT)))
     n, lo, hi = finite_range(z, seg_max)
     return int(n), float(lo), float(hi), seg_max
@@ -397,17 +399,16 @@ def _flood(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step:
     return _Flood(lab, pix, own, node_b, node_size, node_parent, tagged, fin)
 
 
-def _window(read: np.ndarray, H: int, W: int) -> tuple[int, int, int, int]:
+def _window(seg_max: np.ndarray, thr: float, W: int) -> tuple[int, int, int, int, int]:
     """The window of :func:`zcut.cut_tree.gentle_levels` that holds every pixel in the cuts: ``(row,
-    column, height, width)``, the column a multiple of SEGMENT, from ``read`` (H, n_segments), the row
-    segments whose largest height is in the cuts (the invalid pixels outside them); empty when none is."""
-    rows = np.flatnonzero(read.any(axis=1))
-    if rows.size == 0:
-        return 0, 0, 0, 0
-    cols = np.flatnonzero(read.any(axis=0))
-    wr, wh = int(rows[0]), int(rows[-1]) + 1 - int(rows[0])
-    wc = int(cols[0]) * SEGMENT
-    return wr, wc, wh, min((int(cols[-1]) + 1) * SEGMENT, W) - wc
+    column, height, width)``, the column a multiple of SEGMENT, and the number of row segments whose
+    largest height (``seg_max``, :func:`_finite_range`'s) is in the cuts (``>= thr``; the invalid pixels
+    outside them: :func:`zcut.cut_tree.segments_in_cuts`); an empty window when none is."""
+    n, r0, r1, s0, s1 = segments_in_cuts(seg_max, float(thr))
+    if n == 0:
+        return 0, 0, 0, 0, 0
+    wc = int(s0) * SEGMENT
+    return int(r0), wc, int(r1) - int(r0), min(int(s1) * SEGMENT, W) - wc, int(n)
 
 
 def _scratch(n: int, bound: int) -> tuple[np.ndarray, ...]:
@@ -443,11 +444,10 @@ def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: fl
     wr, wc, wh, ww = 0, 0, H, W  # the window of the pixels in the cuts
     bound = H * W  # ... and their number, at most
     if z_min < thr:  # (invalid pixels stand at z_min: outside the cuts, the segments may be skipped)
-        read = seg_max >= thr
-        bound = int(np.count_nonzero(read)) * SEGMENT
+        wr, wc, wh, ww, n_read = _window(seg_max, thr, W)
+        bound = n_read * SEGMENT
         if bound < minimum:
             return False  # too few pixels in the cuts for the labelling to pay
-        wr, wc, wh, ww = _window(read, H, W)
         bound = min(bound, wh * ww)
     st, gl, pix, gpar, gcnt = _scratch((wh + 2) * (ww + 2), bound)
     conn8 = connectivity == 8

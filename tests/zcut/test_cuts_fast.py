@@ -13,7 +13,7 @@ from gentle_state import gentle_labelled
 
 from zcut import ZCutParams, find_clusters, zcut_outliers, zcut_outliers_reference
 from zcut.cut_tree import SEGMENT, outlier_mask
-from zcut.cuts import CutResult, _finite_min_max, _finite_range, _tree
+from zcut.cuts import CutResult, _finite_min_max, _finite_range, _tree, _window
 from zcut.params import n_levels
 
 NOMINAL = dict(step=0.2, max_depth=30.0, max_area=210.0)
@@ -184,15 +184,33 @@ def test_degenerate(case: str) -> None:
         check(z, **params)
 
 
+def _segments_holding_a_finite_height(z: np.ndarray) -> int:
+    return sum(bool(np.isfinite(z[r, j:j + SEGMENT]).any()) for r in range(z.shape[0]) for j in range(0, z.shape[1], SEGMENT))
+
+
 def test_finite_range_equals_the_min_max() -> None:
+    """The extremes and every segment's largest height; the count is of the segments holding a finite
+    height (0 exactly when :func:`_finite_min_max` counts none), with the integer keys and with their
+    fallback for zero extremes (the last shapes), with segments all NaN, all infinite and a mix."""
     rng = np.random.default_rng(3)
-    for shape in ((0, 4), (3, 0), (1, 1), (7, SEGMENT), (5, 3 * SEGMENT + 1)):
+    for shape, zero in (((0, 4), False), ((3, 0), False), ((1, 1), False), ((7, SEGMENT), False),
+                        ((5, 3 * SEGMENT + 1), False), ((6, 2 * SEGMENT + 5), True), ((4, 3), True)):
         z = rng.normal(size=shape)
         z[rng.random(shape) < 0.3] = np.nan
         if z.size > 4:
             z.flat[1], z.flat[3] = np.inf, -np.inf
+        if shape[1] > SEGMENT:
+            z[1, :SEGMENT] = np.nan  # a segment of NaN only
+            z[2, SEGMENT:2 * SEGMENT] = np.where(np.arange(SEGMENT) % 2, np.inf, -np.inf)  # of infinities only
+            z[3, :] = np.nan  # a whole row
+        if zero and z.size:
+            z[np.isfinite(z)] = np.abs(z[np.isfinite(z)])
+            z.flat[int(np.flatnonzero(np.isfinite(z))[-1])] = -0.0  # the smallest height a zero
         n, lo, hi, seg = _finite_range(z)
-        assert (n, lo, hi) == tuple(_finite_min_max(z))
+        m, lo_ref, hi_ref = _finite_min_max(z)
+        assert (lo, hi) == (lo_ref, hi_ref) and [np.signbit(lo), np.signbit(hi)] == [np.signbit(lo_ref),
+                                                                                      np.signbit(hi_ref)]
+        assert n == _segments_holding_a_finite_height(z) and (n == 0) == (m == 0)
         for r in range(shape[0]):
             for j in range(seg.shape[1]):
                 part = z[r, j * SEGMENT:(j + 1) * SEGMENT]
@@ -200,6 +218,31 @@ def test_finite_range_equals_the_min_max() -> None:
                 assert seg[r, j] == (part.max() if part.size else -np.inf)
     z = np.array([[-0.0, 0.0, 0.0, -0.0]])  # the first of equal extremes, as before
     assert [np.signbit(v) for v in _finite_range(z)[1:3]] == [np.signbit(v) for v in _finite_min_max(z)[1:]]
+    assert _finite_range(np.full((3, 2 * SEGMENT), np.inf))[:3] == (0, np.inf, -np.inf)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_window_holds_the_segments_in_the_cuts(seed: int) -> None:
+    """:func:`zcut.cuts._window` (one kernel pass over the segments' largest heights) against numpy's
+    passes over the boolean image of the segments in the cuts, thresholds on, above and below a segment's
+    largest height, none and every segment in the cuts included."""
+    rng = np.random.default_rng(400 + seed)
+    H, W = int(rng.integers(1, 40)), int(rng.integers(1, 6 * SEGMENT))
+    z = rng.normal(size=(H, W))
+    z[rng.random((H, W)) < 0.2 * seed] = np.nan
+    _, _, _, seg = _finite_range(z)
+    finite = seg[np.isfinite(seg)]
+    for thr in [-np.inf, np.inf, 10.0, -10.0, *rng.choice(finite, size=min(5, finite.size), replace=False),
+                *(np.nextafter(finite[:2], np.inf))]:
+        read = seg >= thr
+        got = _window(seg, float(thr), W)
+        assert got[4] == np.count_nonzero(read)
+        if not read.any():
+            assert got == (0, 0, 0, 0, 0)
+            continue
+        rows, cols = np.flatnonzero(read.any(axis=1)), np.flatnonzero(read.any(axis=0))
+        wc = int(cols[0]) * SEGMENT
+        assert got[:4] == (int(rows[0]), wc, int(rows[-1]) + 1 - int(rows[0]), min((int(cols[-1]) + 1) * SEGMENT, W) - wc)
 
 
 def test_bench_frames_at_nominal_parameters() -> None:
