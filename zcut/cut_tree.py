@@ -247,11 +247,14 @@ def finite_range(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
                 k = b ^ ((b >> 63) & _LOW_BITS)
                 s_hi = max(s_hi, k if f else _KEY_MIN)
                 s_lo = min(s_lo, k if f else _KEY_MAX)
-            some = s_hi != _KEY_MIN  # (_KEY_MIN, _KEY_MAX: the keys of NaNs, of no finite height)
-            n += some
-            si[r * n_seg + c0 // SEGMENT] = s_hi ^ ((s_hi >> 63) & _LOW_BITS) if some else _NEG_INF_BITS
+            si[r * n_seg + c0 // SEGMENT] = s_hi  # the key: its float below (a test here stops the vectors)
             lo = min(lo, s_lo)
             hi = max(hi, s_hi)
+    for i in range(si.size):  # (_KEY_MIN: the key of a NaN, of no finite height)
+        k = si[i]
+        some = k != _KEY_MIN
+        n += some
+        si[i] = k ^ ((k >> 63) & _LOW_BITS) if some else _NEG_INF_BITS
     if n == 0:
         return n, np.inf, -np.inf
     bounds = np.empty(2, np.int64)
