@@ -435,6 +435,19 @@ class NoiseProfile:
         return self._at(self.step_mm, height)
 
 
+def _sorted_median(s: np.ndarray) -> float:
+    """``np.median`` of a non-empty sorted slice: its middle value, or the mean of the two middle ones as
+    ``np.mean`` takes it ((a + b) / 2). ``np.median`` itself when a middle value is 0 (which zero
+    ``np.partition`` places there is its own) or when the slice holds NaN (sorted last)."""
+    n = s.size
+    h = n // 2
+    a = float(s[h - 1]) if n % 2 == 0 else float(s[h])
+    b = float(s[h])
+    if a == 0.0 or b == 0.0 or np.isnan(s[-1]):
+        return float(np.median(s))
+    return b if n % 2 else (a + b) / 2.0
+
+
 def noise_profile(height: FloatImage, judged: Mask) -> NoiseProfile:
     """σ̂ and the depth step as functions of height, measured on the frame itself.
 
@@ -455,7 +468,7 @@ def noise_profile(height: FloatImage, judged: Mask) -> NoiseProfile:
     a, at = a[order], at[order]
     bins = int(min(NOISE_MAX_BINS, max(1, a.size // NOISE_MIN_SAMPLES)))
     edges = np.linspace(0, a.size, bins + 1).astype(np.int64)
-    heights = np.array([np.median(at[i:j]) for i, j in zip(edges[:-1], edges[1:])])
+    heights = np.array([_sorted_median(at[i:j]) for i, j in zip(edges[:-1], edges[1:])])
     sigmas = np.array([_robust_sigma_one_partition(a[i:j]) for i, j in zip(edges[:-1], edges[1:])])
     # a first difference belongs to the bin whose range of second-difference heights holds it
     upper = np.array([at[j - 1] for j in edges[1:]])
