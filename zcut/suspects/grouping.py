@@ -60,51 +60,69 @@ def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # nu
     Chebyshev distance 2r + 1 of the next (their grown squares touch or overlap); ``ndimage.label``
     numbers the components by their first grown pixel in raster order: row max(top - r, 0), column
     max(c - r, 0) for c the leftmost column among the pixels whose square reaches that row.
-    ``index`` is an (H, W) int32 image of -1, left so. Returns the label (1..n) of each pixel, n and
+    ``index`` (an (H, W) int32 image of -1) is not used: the pixels are joined run by run. Returns the label (1..n) of each pixel, n and
     the (n, 4) bounding boxes (row0, col0, row1, col1; ends exclusive) of the labels' pixels.
     """
     m = flat.size
-    parent = np.arange(m)
     reach = 2 * r + 1
     rows = np.empty(m, np.int64)  # the pixels' rows and columns, one division each
     cols = np.empty(m, np.int64)
     for k in range(m):
         i = flat[k] // W
-        j = flat[k] - i * W
         rows[k] = i
-        cols[k] = j
-        index[i, j] = k
+        cols[k] = flat[k] - i * W
+    # runs: the pixels of a row each within ``reach`` columns of the previous one (one component). Two
+    # runs at most ``reach`` rows apart touch when their column spans are within ``reach``: a pixel of one
+    # then lies in the other's span or at its end, within reach / 2 of the other's pixels
+    run_of = np.empty(m, np.int64)
+    first = np.empty(m, np.int64)  # per run: its first pixel, row, first and last columns
+    run_row = np.empty(m, np.int64)
+    c0 = np.empty(m, np.int64)
+    c1 = np.empty(m, np.int64)
+    nr = 0
     for k in range(m):
-        i = rows[k]
-        j = cols[k]
-        a0 = max(i - reach, 0)  # the window: rows a0 .. i - 1, columns b0 .. j + reach
-        b0 = max(j - reach, 0)
-        if k > 0 and rows[k - 1] == i and j - cols[k - 1] <= reach:
-            # the previous pixel of the row is in the window: joined to it, k needs only the part of its
-            # window the previous pixel's lacks (columns right of that window, in the rows above; in k's
-            # row nothing lies between them), the rest being joined to the previous pixel already
-            b0 = cols[k - 1] + reach + 1
-            _union(parent, k, k - 1)
-        # (otherwise no pixel lies in k's row left of it within the window: the previous pixel is farther)
-        if i > 0 and index[i - 1, j] >= 0:
-            # the pixel above is in the window, and so is all its window but for the columns right of k
-            # in the row above (they come after it in raster order)
-            _union(parent, k, index[i - 1, j])
-            a0 = i - 1
-            b0 = max(b0, j + 1)
-        for a in range(a0, i):
-            for b in range(b0, min(j + reach + 1, W)):
-                q = index[a, b]
-                if q >= 0:
-                    _union(parent, k, q)
-    for k in range(m):
-        index[rows[k], cols[k]] = -1
+        if k > 0 and rows[k - 1] == rows[k] and cols[k] - cols[k - 1] <= reach:
+            c1[nr - 1] = cols[k]
+        else:
+            first[nr] = k
+            run_row[nr] = rows[k]
+            c0[nr] = cols[k]
+            c1[nr] = cols[k]
+            nr += 1
+        run_of[k] = nr - 1
+    H = rows[m - 1] + 1 if m else 0
+    start = np.zeros(H, np.int64)  # each row's runs: start .. end - 1 (none: 0 .. -1)
+    end = np.zeros(H, np.int64)
+    for q in range(nr):
+        if q == 0 or run_row[q] != run_row[q - 1]:
+            start[run_row[q]] = q
+        end[run_row[q]] = q + 1
+    parent = np.arange(nr)
+    at = np.empty(reach + 1, np.int64)  # per row above: the first run not left of the current run's reach
+    row = -1
+    for q in range(nr):
+        i = run_row[q]
+        if i != row:  # a new row: its runs come left to right, so each row above is read once from its start
+            row = i
+            for d in range(1, min(reach, i) + 1):
+                at[d] = start[i - d]
+        lo = c0[q] - reach
+        hi = c1[q] + reach
+        for d in range(1, min(reach, i) + 1):
+            p = at[d]
+            e = end[i - d]
+            while p < e and c1[p] < lo:
+                p += 1
+            at[d] = p
+            while p < e and c0[p] <= hi:
+                _union(parent, q, p)
+                p += 1
     root = np.empty(m, np.int64)
     for k in range(m):
-        x = k
+        x = run_of[k]
         while parent[x] != x:
             x = parent[x]
-        root[k] = x
+        root[k] = first[x]  # the smallest run is the first in raster order: its first pixel the smallest
     # pixels in raster order: a root is its component's first pixel, so its row is the top one
     top_row = np.empty(m, np.int64)
     for k in range(m):
