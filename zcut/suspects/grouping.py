@@ -117,53 +117,51 @@ def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # nu
             while p < e and c0[p] <= hi:
                 _union(parent, q, p)
                 p += 1
-    root = np.empty(m, np.int64)
-    for k in range(m):
-        x = run_of[k]
+    root = np.empty(nr, np.int64)  # per run: its component's root run, the first in raster order
+    for q in range(nr):
+        x = q
         while parent[x] != x:
             x = parent[x]
-        root[k] = first[x]  # the smallest run is the first in raster order: its first pixel the smallest
-    # pixels in raster order: a root is its component's first pixel, so its row is the top one
-    top_row = np.empty(m, np.int64)
-    for k in range(m):
-        top_row[k] = rows[root[k]]
-    left = np.full(m, np.iinfo(np.int64).max)
-    for k in range(m):
-        i = rows[k]
-        x = root[k]
-        r0 = max(top_row[k] - r, 0)
-        if i <= r0 + r:
-            left[x] = min(left[x], cols[k])
-    roots = np.empty(m, np.int64)
+        root[q] = x
+    # the root run's row is the component's top one; the leftmost column of the rows the grown first row
+    # reaches (r0 .. r0 + r) is the least first column of their runs
+    left = np.full(nr, np.iinfo(np.int64).max)
+    for q in range(nr):
+        x = root[q]
+        r0 = max(run_row[x] - r, 0)
+        if run_row[q] <= r0 + r:
+            left[x] = min(left[x], c0[q])
+    roots = np.empty(nr, np.int64)
     n = 0
-    for k in range(m):
-        if root[k] == k:
-            roots[n] = k
+    for q in range(nr):
+        if root[q] == q:
+            roots[n] = q
             n += 1
     roots = roots[:n]
     key = np.empty(n, np.int64)
     for g in range(n):
         x = roots[g]
-        key[g] = max(rows[x] - r, 0) * (W + 1) + max(left[x] - r, 0)
+        key[g] = max(run_row[x] - r, 0) * (W + 1) + max(left[x] - r, 0)
     order = np.argsort(key)
-    rank = np.empty(m, np.int64)
+    rank = np.empty(nr, np.int64)
     for g in range(n):
         rank[roots[order[g]]] = g + 1
-    labels = np.empty(m, np.int64)
     boxes = np.empty((n, 4), np.int64)
     boxes[:, 0] = np.iinfo(np.int64).max
     boxes[:, 1] = np.iinfo(np.int64).max
     boxes[:, 2] = -1
     boxes[:, 3] = -1
-    for k in range(m):
-        g = rank[root[k]]
-        labels[k] = g
-        i = rows[k]
-        j = cols[k]
+    for q in range(nr):
+        g = rank[root[q]]
+        rank[q] = g  # a run's label (its root's rank is set first: the root comes first)
+        i = run_row[q]
         boxes[g - 1, 0] = min(boxes[g - 1, 0], i)
-        boxes[g - 1, 1] = min(boxes[g - 1, 1], j)
+        boxes[g - 1, 1] = min(boxes[g - 1, 1], c0[q])
         boxes[g - 1, 2] = max(boxes[g - 1, 2], i + 1)
-        boxes[g - 1, 3] = max(boxes[g - 1, 3], j + 1)
+        boxes[g - 1, 3] = max(boxes[g - 1, 3], c1[q] + 1)
+    labels = np.empty(m, np.int64)
+    for k in range(m):
+        labels[k] = rank[run_of[k]]
     return labels, n, boxes
 
 
