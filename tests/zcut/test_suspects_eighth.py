@@ -132,3 +132,24 @@ def test_sorted_median_equals_numpy_median() -> None:
             got = np.float64(_sorted_median(x))
             want = np.median(x)
             assert got.tobytes() == np.float64(want).tobytes(), (x, got, want)
+
+
+@pytest.mark.parametrize("near", [1, 3, 8])
+def test_merge_first_lists_by_rows_equal_the_reference(near: int) -> None:
+    """The first lists scan out from each box's top row: boxes in bands of equal top rows, tall boxes whose
+    diagonals tie, kinds far apart in rows, and boxes upside down (r1 < r0: the scan of the kind instead)."""
+    from zcut.suspects.grouping import _merge_kernel
+
+    rng = np.random.default_rng(804 + near)
+    for case in range(90):
+        n = int(rng.integers(1, 200))
+        r0 = rng.integers(0, 6, n) * int(rng.choice([1, 20])) if case % 3 == 0 else rng.integers(0, 400, n)
+        c0 = rng.integers(0, 400, n)
+        boxes = np.stack([r0, c0, r0 + rng.integers(1, int(rng.choice([2, 60])), n),
+                          c0 + rng.integers(1, 10, n)], 1).astype(np.int64)
+        if case % 5 == 4:
+            boxes[rng.integers(0, n), 2] -= 100  # upside down
+        kind = rng.integers(0, int(rng.integers(1, 4)), n).astype(np.int64)
+        m = int(rng.integers(1, n + 1))
+        np.testing.assert_array_equal(_merge_kernel(boxes, kind, m, near),
+                                      ref._merge_compact_reference(boxes, kind, m), err_msg=f"case {case}")

@@ -429,9 +429,74 @@ def _merge_kernel(boxes, kind, max_groups, near):  # type: ignore[no-untyped-def
         head[p] = k
         linked[k] = p
 
+    # the first lists, every box alive: each kind's boxes by top row, a box's scan going out from its place
+    # both ways until the rows alone put a box's diagonal above the list's last key (r1 >= r0: the
+    # united box of boxes whose top rows are g apart is at least g high); boxes with r1 < r0: a scan of
+    # the kind. A box with a key equal to the last one and a lower index enters: the scan stops above it
+    by_row = by_kind.copy()
+    s = 0
+    while s < n:
+        e = stop[by_kind[s]]
+        seg = by_kind[s:e]
+        by_row[s:e] = seg[np.argsort(r0[seg], kind="mergesort")]
+        s = e
+    place = np.empty(n, np.int64)
+    for q in range(n):
+        place[by_row[q]] = q
+    rows_bound = True
+    for q in range(n):
+        if r1[q] < r0[q]:
+            rows_bound = False
+
+    def list_first(i):  # type: ignore[no-untyped-def]
+        s0 = start[i]
+        s1 = stop[i]
+        a0 = r0[i]
+        b0 = c0[i]
+        a1 = r1[i]
+        b1 = c1[i]
+        m = 0
+        for step in (-1, 1):
+            q = place[i] + step
+            while s0 <= q < s1:
+                k = by_row[q]
+                q += step
+                g = r0[k] - a0 if step > 0 else a0 - r0[k]
+                if m == near and g * g > listed_d[i, m - 1]:
+                    break
+                dr = max(r1[k], a1) - min(r0[k], a0)
+                dc = max(c1[k], b1) - min(c0[k], b0)
+                d = dr * dr + dc * dc
+                if m == near:
+                    if d > listed_d[i, m - 1] or (d == listed_d[i, m - 1] and k > listed[i, m - 1]):
+                        continue
+                    p = m - 1
+                else:
+                    p = m
+                    m += 1
+                while p > 0 and (listed_d[i, p - 1] > d or (listed_d[i, p - 1] == d and listed[i, p - 1] > k)):
+                    listed_d[i, p] = listed_d[i, p - 1]
+                    listed[i, p] = listed[i, p - 1]
+                    p -= 1
+                listed_d[i, p] = d
+                listed[i, p] = k
+        n_listed[i] = m
+        whole[i] = s1 - s0 - 1 <= near
+        if m > 0:
+            best[i] = listed_d[i, 0]
+            partner[i] = listed[i, 0]
+            lim_d[i] = listed_d[i, m - 1]
+            lim_k[i] = listed[i, m - 1]
+        else:
+            best[i] = inf
+            partner[i] = 0
+
     todo = np.empty(n, np.int64)
     for i in range(n):
-        list_anew(i)  # type: ignore[no-untyped-call]  # numba closure
+        if rows_bound:
+            list_first(i)  # type: ignore[no-untyped-call]  # numba closure
+        else:
+            list_anew(i)  # type: ignore[no-untyped-call]  # numba closure
         relink(i)  # type: ignore[no-untyped-call]  # numba closure
         tree[size + i] = i
     for v in range(size - 1, 0, -1):
