@@ -53,14 +53,14 @@ def _union(parent, x, y):  # type: ignore[no-untyped-def]  # numba kernel
 
 
 @numba.njit(cache=True)
-def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # numba kernel
+def _sparse_components(flat, W, r):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`_components` of the pixels ``flat`` (raster order, one kind) without growing a mask.
 
     Two pixels are in one component of the grown mask when a chain of them joins them, each within
     Chebyshev distance 2r + 1 of the next (their grown squares touch or overlap); ``ndimage.label``
     numbers the components by their first grown pixel in raster order: row max(top - r, 0), column
     max(c - r, 0) for c the leftmost column among the pixels whose square reaches that row.
-    ``index`` (an (H, W) int32 image of -1) is not used: the pixels are joined run by run. Returns the label (1..n) of each pixel, n and
+    The pixels are joined run by run. Returns the label (1..n) of each pixel, n and
     the (n, 4) bounding boxes (row0, col0, row1, col1; ends exclusive) of the labels' pixels.
     """
     m = flat.size
@@ -165,14 +165,13 @@ def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # nu
     return labels, n, boxes
 
 
-def _kind_components(flat: np.ndarray, shape: tuple[int, int], r: int, index: np.ndarray
-                     ) -> tuple[np.ndarray, int, np.ndarray]:
+def _kind_components(flat: np.ndarray, shape: tuple[int, int], r: int) -> tuple[np.ndarray, int, np.ndarray]:
     """Labels (1..n, per pixel of ``flat``), n and bounding boxes of :func:`_components` of the
     pixels ``flat`` (flat indices in raster order)."""
     if flat.size == 0:
         return np.zeros(0, np.int64), 0, np.zeros((0, 4), np.int64)
     if r <= SPARSE_MAX_RADIUS:
-        labels, n, boxes = _sparse_components(flat, shape[1], r, index)
+        labels, n, boxes = _sparse_components(flat, shape[1], r)
         return labels, int(n), boxes
     rows, cols = np.divmod(flat, shape[1])
     r0, r1 = max(int(rows.min()) - r, 0), min(int(rows.max()) + r + 1, shape[0])
@@ -624,8 +623,7 @@ def _label_classes(values, labels, n, bounds):  # type: ignore[no-untyped-def]  
     return out
 
 
-def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.ndarray | None = None,
-                     _sus: np.ndarray | None = None) -> np.ndarray:
+def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _sus: np.ndarray | None = None) -> np.ndarray:
     """The strength class of each suspect pixel (0, 1, 2; -1 where ``primary`` is -1).
 
     Per detector, the 8-connected components of its pixels take the median of their pixels'
@@ -650,13 +648,12 @@ def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.nd
     ends = np.searchsorted(det[by_det], np.arange(len(DETECTORS) + 1), side="left")
     s = np.asarray(strength, np.float64).reshape(-1)[sus]
     s = np.where(np.isfinite(s), s, np.inf)
-    index = np.full(primary.shape, -1, np.int32) if _index is None else _index
     flat_out = out.reshape(-1)
     for i in range(len(DETECTORS)):
         sel = by_det[ends[i]:ends[i + 1]]
         if sel.size == 0:
             continue
-        lab, n, _ = _kind_components(sus[sel], primary.shape, 0, index)  # ndimage.label's 8-connected components
+        lab, n, _ = _kind_components(sus[sel], primary.shape, 0)  # ndimage.label's 8-connected components
         cls = _label_classes(s[sel], lab, n, np.asarray(STRENGTH_CLASSES, np.float64))  # of the medians
         flat_out[sus[sel]] = cls[lab - 1]
     return out
@@ -678,8 +675,7 @@ def group_suspects(codes: np.ndarray, strength: np.ndarray, params: SuspectParam
     primary = np.empty(codes.shape, np.int8)  # the first detector in DETECTORS wins
     # the suspects' flat indices in raster order
     sus = _primary_and_suspects(np.ascontiguousarray(codes), len(DETECTORS), primary)
-    index = np.full(codes.shape, -1, np.int32)  # the components' work image, left all -1 by each use
-    cls = strength_classes(primary, strength, _index=index, _sus=sus)
+    cls = strength_classes(primary, strength, _sus=sus)
     n_cls = len(STRENGTH_CLASSES) + 1
     radii = np.full(len(DETECTORS), params.merge_radius_px, np.int64)
     limit = max(codes.shape)
@@ -694,10 +690,10 @@ def group_suspects(codes: np.ndarray, strength: np.ndarray, params: SuspectParam
             f = i * n_cls + c
             flat = sus[by_kind[ends[f]:ends[f + 1]]]
             r = int(params.merge_radius_px)
-            lab, n, bx = _kind_components(flat, codes.shape, r, index)
+            lab, n, bx = _kind_components(flat, codes.shape, r)
             while n > MAX_NODES and r < limit:
                 r = min(2 * r + 1, limit)
-                lab, n, bx = _kind_components(flat, codes.shape, r, index)
+                lab, n, bx = _kind_components(flat, codes.shape, r)
             radii[i] = max(radii[i], r)
             per.append((flat, lab, n, bx))
             fine.append(f)
