@@ -36,6 +36,8 @@ import numpy as np
 STEPS = (
     ("suspects.union", "_prepare", None),
     ("suspects.union", "noise_profile", None),
+    ("suspects.noise", "_sampled_both", "noise_profile"),
+    ("suspects.noise", "stable_argsort", "noise_profile"),
     ("suspects.union", "_sigma_px", None),
     ("suspects.union", "_thresholds", None),
     ("suspects.union", "_sigma_and_tau_medians", None),

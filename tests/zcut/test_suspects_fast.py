@@ -219,7 +219,7 @@ def test_sparse_components_equal_the_grown_mask_labels() -> None:
         r = int(rng.choice([0, 1, 2, 3, 7, 20]))
         lab, n = ref._components_reference(m, r)
         flat = np.flatnonzero(m)
-        got, n2, boxes = _kind_components(flat, m.shape, r, np.full(m.shape, -1, np.int32))
+        got, n2, boxes = _kind_components(flat, m.shape, r)
         assert n2 == n
         np.testing.assert_array_equal(got, lab.ravel()[flat])
         from scipy import ndimage

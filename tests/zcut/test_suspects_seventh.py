@@ -92,7 +92,7 @@ def test_components_of_runs_and_columns_equal_the_grown_mask_labels() -> None:
         r = int(rng.choice([0, 1, 2, 3, 5, 8, 16]))
         lab, n = ref._components_reference(m, r)
         flat = np.flatnonzero(m)
-        got, n2, boxes = _kind_components(flat, m.shape, r, np.full(m.shape, -1, np.int32))
+        got, n2, boxes = _kind_components(flat, m.shape, r)
         assert n2 == n
         np.testing.assert_array_equal(got, lab.ravel()[flat])
         want = [[s[0].start, s[1].start, s[0].stop, s[1].stop] for s in ndimage.find_objects(lab, max_label=n)]

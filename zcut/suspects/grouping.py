@@ -53,110 +53,125 @@ def _union(parent, x, y):  # type: ignore[no-untyped-def]  # numba kernel
 
 
 @numba.njit(cache=True)
-def _sparse_components(flat, W, r, index):  # type: ignore[no-untyped-def]  # numba kernel
+def _sparse_components(flat, W, r):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`_components` of the pixels ``flat`` (raster order, one kind) without growing a mask.
 
     Two pixels are in one component of the grown mask when a chain of them joins them, each within
     Chebyshev distance 2r + 1 of the next (their grown squares touch or overlap); ``ndimage.label``
     numbers the components by their first grown pixel in raster order: row max(top - r, 0), column
     max(c - r, 0) for c the leftmost column among the pixels whose square reaches that row.
-    ``index`` is an (H, W) int32 image of -1, left so. Returns the label (1..n) of each pixel, n and
+    The pixels are joined run by run. Returns the label (1..n) of each pixel, n and
     the (n, 4) bounding boxes (row0, col0, row1, col1; ends exclusive) of the labels' pixels.
     """
     m = flat.size
-    parent = np.arange(m)
     reach = 2 * r + 1
     rows = np.empty(m, np.int64)  # the pixels' rows and columns, one division each
     cols = np.empty(m, np.int64)
     for k in range(m):
         i = flat[k] // W
-        j = flat[k] - i * W
         rows[k] = i
-        cols[k] = j
-        index[i, j] = k
+        cols[k] = flat[k] - i * W
+    # runs: the pixels of a row each within ``reach`` columns of the previous one (one component). Two
+    # runs at most ``reach`` rows apart touch when their column spans are within ``reach``: a pixel of one
+    # then lies in the other's span or at its end, within reach / 2 of the other's pixels
+    run_of = np.empty(m, np.int64)
+    first = np.empty(m, np.int64)  # per run: its first pixel, row, first and last columns
+    run_row = np.empty(m, np.int64)
+    c0 = np.empty(m, np.int64)
+    c1 = np.empty(m, np.int64)
+    nr = 0
     for k in range(m):
-        i = rows[k]
-        j = cols[k]
-        a0 = max(i - reach, 0)  # the window: rows a0 .. i - 1, columns b0 .. j + reach
-        b0 = max(j - reach, 0)
-        if k > 0 and rows[k - 1] == i and j - cols[k - 1] <= reach:
-            # the previous pixel of the row is in the window: joined to it, k needs only the part of its
-            # window the previous pixel's lacks (columns right of that window, in the rows above; in k's
-            # row nothing lies between them), the rest being joined to the previous pixel already
-            b0 = cols[k - 1] + reach + 1
-            _union(parent, k, k - 1)
-        # (otherwise no pixel lies in k's row left of it within the window: the previous pixel is farther)
-        if i > 0 and index[i - 1, j] >= 0:
-            # the pixel above is in the window, and so is all its window but for the columns right of k
-            # in the row above (they come after it in raster order)
-            _union(parent, k, index[i - 1, j])
-            a0 = i - 1
-            b0 = max(b0, j + 1)
-        for a in range(a0, i):
-            for b in range(b0, min(j + reach + 1, W)):
-                q = index[a, b]
-                if q >= 0:
-                    _union(parent, k, q)
-    for k in range(m):
-        index[rows[k], cols[k]] = -1
-    root = np.empty(m, np.int64)
-    for k in range(m):
-        x = k
+        if k > 0 and rows[k - 1] == rows[k] and cols[k] - cols[k - 1] <= reach:
+            c1[nr - 1] = cols[k]
+        else:
+            first[nr] = k
+            run_row[nr] = rows[k]
+            c0[nr] = cols[k]
+            c1[nr] = cols[k]
+            nr += 1
+        run_of[k] = nr - 1
+    H = rows[m - 1] + 1 if m else 0
+    start = np.zeros(H, np.int64)  # each row's runs: start .. end - 1 (none: 0 .. -1)
+    end = np.zeros(H, np.int64)
+    for q in range(nr):
+        if q == 0 or run_row[q] != run_row[q - 1]:
+            start[run_row[q]] = q
+        end[run_row[q]] = q + 1
+    parent = np.arange(nr)
+    at = np.empty(reach + 1, np.int64)  # per row above: the first run not left of the current run's reach
+    row = -1
+    for q in range(nr):
+        i = run_row[q]
+        if i != row:  # a new row: its runs come left to right, so each row above is read once from its start
+            row = i
+            for d in range(1, min(reach, i) + 1):
+                at[d] = start[i - d]
+        lo = c0[q] - reach
+        hi = c1[q] + reach
+        for d in range(1, min(reach, i) + 1):
+            p = at[d]
+            e = end[i - d]
+            while p < e and c1[p] < lo:
+                p += 1
+            at[d] = p
+            while p < e and c0[p] <= hi:
+                _union(parent, q, p)
+                p += 1
+    root = np.empty(nr, np.int64)  # per run: its component's root run, the first in raster order
+    for q in range(nr):
+        x = q
         while parent[x] != x:
             x = parent[x]
-        root[k] = x
-    # pixels in raster order: a root is its component's first pixel, so its row is the top one
-    top_row = np.empty(m, np.int64)
-    for k in range(m):
-        top_row[k] = rows[root[k]]
-    left = np.full(m, np.iinfo(np.int64).max)
-    for k in range(m):
-        i = rows[k]
-        x = root[k]
-        r0 = max(top_row[k] - r, 0)
-        if i <= r0 + r:
-            left[x] = min(left[x], cols[k])
-    roots = np.empty(m, np.int64)
+        root[q] = x
+    # the root run's row is the component's top one; the leftmost column of the rows the grown first row
+    # reaches (r0 .. r0 + r) is the least first column of their runs
+    left = np.full(nr, np.iinfo(np.int64).max)
+    for q in range(nr):
+        x = root[q]
+        r0 = max(run_row[x] - r, 0)
+        if run_row[q] <= r0 + r:
+            left[x] = min(left[x], c0[q])
+    roots = np.empty(nr, np.int64)
     n = 0
-    for k in range(m):
-        if root[k] == k:
-            roots[n] = k
+    for q in range(nr):
+        if root[q] == q:
+            roots[n] = q
             n += 1
     roots = roots[:n]
     key = np.empty(n, np.int64)
     for g in range(n):
         x = roots[g]
-        key[g] = max(rows[x] - r, 0) * (W + 1) + max(left[x] - r, 0)
+        key[g] = max(run_row[x] - r, 0) * (W + 1) + max(left[x] - r, 0)
     order = np.argsort(key)
-    rank = np.empty(m, np.int64)
+    rank = np.empty(nr, np.int64)
     for g in range(n):
         rank[roots[order[g]]] = g + 1
-    labels = np.empty(m, np.int64)
     boxes = np.empty((n, 4), np.int64)
     boxes[:, 0] = np.iinfo(np.int64).max
     boxes[:, 1] = np.iinfo(np.int64).max
     boxes[:, 2] = -1
     boxes[:, 3] = -1
-    for k in range(m):
-        g = rank[root[k]]
-        labels[k] = g
-        i = rows[k]
-        j = cols[k]
+    for q in range(nr):
+        g = rank[root[q]]
+        rank[q] = g  # a run's label (its root's rank is set first: the root comes first)
+        i = run_row[q]
         boxes[g - 1, 0] = min(boxes[g - 1, 0], i)
-        boxes[g - 1, 1] = min(boxes[g - 1, 1], j)
+        boxes[g - 1, 1] = min(boxes[g - 1, 1], c0[q])
         boxes[g - 1, 2] = max(boxes[g - 1, 2], i + 1)
-        boxes[g - 1, 3] = max(boxes[g - 1, 3], j + 1)
+        boxes[g - 1, 3] = max(boxes[g - 1, 3], c1[q] + 1)
+    labels = np.empty(m, np.int64)
+    for k in range(m):
+        labels[k] = rank[run_of[k]]
     return labels, n, boxes
 
 
-def _kind_components(flat: np.ndarray, shape: tuple[int, int], r: int, index: np.ndarray
-                     ) -> tuple[np.ndarray, int, np.ndarray]:
+def _kind_components(flat: np.ndarray, shape: tuple[int, int], r: int) -> tuple[np.ndarray, int, np.ndarray]:
     """Labels (1..n, per pixel of ``flat``), n and bounding boxes of :func:`_components` of the
     pixels ``flat`` (flat indices in raster order)."""
     if flat.size == 0:
         return np.zeros(0, np.int64), 0, np.zeros((0, 4), np.int64)
     if r <= SPARSE_MAX_RADIUS:
-        labels, n, boxes = _sparse_components(flat, shape[1], r, index)
+        labels, n, boxes = _sparse_components(flat, shape[1], r)
         return labels, int(n), boxes
     rows, cols = np.divmod(flat, shape[1])
     r0, r1 = max(int(rows.min()) - r, 0), min(int(rows.max()) + r + 1, shape[0])
@@ -413,9 +428,74 @@ def _merge_kernel(boxes, kind, max_groups, near):  # type: ignore[no-untyped-def
         head[p] = k
         linked[k] = p
 
+    # the first lists, every box alive: each kind's boxes by top row, a box's scan going out from its place
+    # both ways until the rows alone put a box's diagonal above the list's last key (r1 >= r0: the
+    # united box of boxes whose top rows are g apart is at least g high); boxes with r1 < r0: a scan of
+    # the kind. A box with a key equal to the last one and a lower index enters: the scan stops above it
+    by_row = by_kind.copy()
+    s = 0
+    while s < n:
+        e = stop[by_kind[s]]
+        seg = by_kind[s:e]
+        by_row[s:e] = seg[np.argsort(r0[seg], kind="mergesort")]
+        s = e
+    place = np.empty(n, np.int64)
+    for q in range(n):
+        place[by_row[q]] = q
+    rows_bound = True
+    for q in range(n):
+        if r1[q] < r0[q]:
+            rows_bound = False
+
+    def list_first(i):  # type: ignore[no-untyped-def]
+        s0 = start[i]
+        s1 = stop[i]
+        a0 = r0[i]
+        b0 = c0[i]
+        a1 = r1[i]
+        b1 = c1[i]
+        m = 0
+        for step in (-1, 1):
+            q = place[i] + step
+            while s0 <= q < s1:
+                k = by_row[q]
+                q += step
+                g = r0[k] - a0 if step > 0 else a0 - r0[k]
+                if m == near and g * g > listed_d[i, m - 1]:
+                    break
+                dr = max(r1[k], a1) - min(r0[k], a0)
+                dc = max(c1[k], b1) - min(c0[k], b0)
+                d = dr * dr + dc * dc
+                if m == near:
+                    if d > listed_d[i, m - 1] or (d == listed_d[i, m - 1] and k > listed[i, m - 1]):
+                        continue
+                    p = m - 1
+                else:
+                    p = m
+                    m += 1
+                while p > 0 and (listed_d[i, p - 1] > d or (listed_d[i, p - 1] == d and listed[i, p - 1] > k)):
+                    listed_d[i, p] = listed_d[i, p - 1]
+                    listed[i, p] = listed[i, p - 1]
+                    p -= 1
+                listed_d[i, p] = d
+                listed[i, p] = k
+        n_listed[i] = m
+        whole[i] = s1 - s0 - 1 <= near
+        if m > 0:
+            best[i] = listed_d[i, 0]
+            partner[i] = listed[i, 0]
+            lim_d[i] = listed_d[i, m - 1]
+            lim_k[i] = listed[i, m - 1]
+        else:
+            best[i] = inf
+            partner[i] = 0
+
     todo = np.empty(n, np.int64)
     for i in range(n):
-        list_anew(i)  # type: ignore[no-untyped-call]  # numba closure
+        if rows_bound:
+            list_first(i)  # type: ignore[no-untyped-call]  # numba closure
+        else:
+            list_anew(i)  # type: ignore[no-untyped-call]  # numba closure
         relink(i)  # type: ignore[no-untyped-call]  # numba closure
         tree[size + i] = i
     for v in range(size - 1, 0, -1):
@@ -543,8 +623,7 @@ def _label_classes(values, labels, n, bounds):  # type: ignore[no-untyped-def]  
     return out
 
 
-def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.ndarray | None = None,
-                     _sus: np.ndarray | None = None) -> np.ndarray:
+def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _sus: np.ndarray | None = None) -> np.ndarray:
     """The strength class of each suspect pixel (0, 1, 2; -1 where ``primary`` is -1).
 
     Per detector, the 8-connected components of its pixels take the median of their pixels'
@@ -569,13 +648,12 @@ def strength_classes(primary: np.ndarray, strength: np.ndarray, *, _index: np.nd
     ends = np.searchsorted(det[by_det], np.arange(len(DETECTORS) + 1), side="left")
     s = np.asarray(strength, np.float64).reshape(-1)[sus]
     s = np.where(np.isfinite(s), s, np.inf)
-    index = np.full(primary.shape, -1, np.int32) if _index is None else _index
     flat_out = out.reshape(-1)
     for i in range(len(DETECTORS)):
         sel = by_det[ends[i]:ends[i + 1]]
         if sel.size == 0:
             continue
-        lab, n, _ = _kind_components(sus[sel], primary.shape, 0, index)  # ndimage.label's 8-connected components
+        lab, n, _ = _kind_components(sus[sel], primary.shape, 0)  # ndimage.label's 8-connected components
         cls = _label_classes(s[sel], lab, n, np.asarray(STRENGTH_CLASSES, np.float64))  # of the medians
         flat_out[sus[sel]] = cls[lab - 1]
     return out
@@ -597,8 +675,7 @@ def group_suspects(codes: np.ndarray, strength: np.ndarray, params: SuspectParam
     primary = np.empty(codes.shape, np.int8)  # the first detector in DETECTORS wins
     # the suspects' flat indices in raster order
     sus = _primary_and_suspects(np.ascontiguousarray(codes), len(DETECTORS), primary)
-    index = np.full(codes.shape, -1, np.int32)  # the components' work image, left all -1 by each use
-    cls = strength_classes(primary, strength, _index=index, _sus=sus)
+    cls = strength_classes(primary, strength, _sus=sus)
     n_cls = len(STRENGTH_CLASSES) + 1
     radii = np.full(len(DETECTORS), params.merge_radius_px, np.int64)
     limit = max(codes.shape)
@@ -613,10 +690,10 @@ def group_suspects(codes: np.ndarray, strength: np.ndarray, params: SuspectParam
             f = i * n_cls + c
             flat = sus[by_kind[ends[f]:ends[f + 1]]]
             r = int(params.merge_radius_px)
-            lab, n, bx = _kind_components(flat, codes.shape, r, index)
+            lab, n, bx = _kind_components(flat, codes.shape, r)
             while n > MAX_NODES and r < limit:
                 r = min(2 * r + 1, limit)
-                lab, n, bx = _kind_components(flat, codes.shape, r, index)
+                lab, n, bx = _kind_components(flat, codes.shape, r)
             radii[i] = max(radii[i], r)
             per.append((flat, lab, n, bx))
             fine.append(f)

@@ -220,13 +220,25 @@ def _count_both(h, judged):  # type: ignore[no-untyped-def]  # numba kernel
 
 
 @numba.njit(cache=True)
+def _positions(ok, m, pos):  # type: ignore[no-untyped-def]  # numba kernel
+    """``pos`` begins with the indices of the flags set among ``ok[:m]``, in order (branch-free)."""
+    k = 0
+    for j in range(m):
+        pos[k] = j
+        k += ok[j]
+
+
+@numba.njit(cache=True)
 def _fill_both(h, judged, c2r, s2, v2, at2, c1r, s1, v1, at1):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`_differences_kernel`'s samples of order 2 (every ``s2``-th) and of order 1 (every ``s1``-th)
     in one sweep: the m-th difference (rows first, ``c2r`` / ``c1r`` of them, then columns) is taken
-    when m % stride == 0, at position m // stride (counted down: no division a pixel)."""
+    when m % stride == 0, at position m // stride. Per row and stream, a branch-free pass lists the
+    columns of its finite differences (``pos``); the samples are then every stride-th of that list, from
+    the stream's offset ``w`` (the differences left until its next sample)."""
     H, W = h.shape
-    # per stream (order 2 rows, columns; order 1 rows, columns): differences left until the next
-    # sample, and that sample's position
+    pos = np.empty(W + 1, np.int64)
+    ok = np.empty(W + 1, np.bool_)
+    # per stream (order 2 rows, columns; order 1 rows, columns): the offset and the next sample's position
     w2r = 0
     k2r = 0
     w2c = (s2 - c2r % s2) % s2
@@ -236,57 +248,87 @@ def _fill_both(h, judged, c2r, s2, v2, at2, c1r, s1, v1, at1):  # type: ignore[n
     w1c = (s1 - c1r % s1) % s1
     k1c = -(-c1r // s1)
     for i in range(H):
-        for j in range(W):
-            x = h[i, j]
-            if j + 2 < W and judged[i, j + 1]:
-                a = x
-                b = h[i, j + 1]
-                c = h[i, j + 2]
-                e = a - 2.0 * b + c
-                if np.isfinite(e):
-                    if w2r == 0:
-                        v2[k2r] = abs(e)
-                        lo = a if a < b else b
-                        hi = a if a > b else b
-                        hi = hi if hi < c else c
-                        at2[k2r] = lo if lo > hi else hi
-                        k2r += 1
-                        w2r = s2
-                    w2r -= 1
-            if i + 2 < H and judged[i + 1, j]:
-                a = x
+        n = 0
+        for j in range(W - 2):
+            f = judged[i, j + 1] & np.isfinite(h[i, j] - 2.0 * h[i, j + 1] + h[i, j + 2])
+            ok[j] = f
+            n += f
+        full = n == W - 2  # every difference of the row: the list is the identity
+        if not full:
+            _positions(ok, W - 2, pos)
+        t = w2r
+        while t < n:
+            j = t if full else pos[t]
+            a = h[i, j]
+            b = h[i, j + 1]
+            c = h[i, j + 2]
+            v2[k2r] = abs(a - 2.0 * b + c)
+            # the median of three as numpy's minimum / maximum take it (the second on ties)
+            lo = a if a < b else b
+            hi = a if a > b else b
+            hi = hi if hi < c else c
+            at2[k2r] = lo if lo > hi else hi
+            k2r += 1
+            t += s2
+        w2r = t - n
+        if i + 2 < H:
+            n = 0
+            for j in range(W):
+                f = judged[i + 1, j] & np.isfinite(h[i, j] - 2.0 * h[i + 1, j] + h[i + 2, j])
+                ok[j] = f
+                n += f
+            full = n == W  # every difference of the row: the list is the identity
+            if not full:
+                _positions(ok, W, pos)
+            t = w2c
+            while t < n:
+                j = t if full else pos[t]
+                a = h[i, j]
                 b = h[i + 1, j]
                 c = h[i + 2, j]
-                e = a - 2.0 * b + c
-                if np.isfinite(e):
-                    if w2c == 0:
-                        v2[k2c] = abs(e)
-                        lo = a if a < b else b
-                        hi = a if a > b else b
-                        hi = hi if hi < c else c
-                        at2[k2c] = lo if lo > hi else hi
-                        k2c += 1
-                        w2c = s2
-                    w2c -= 1
-            if judged[i, j]:
-                if j + 1 < W:
-                    d = h[i, j + 1] - x
-                    if np.isfinite(d):
-                        if w1r == 0:
-                            v1[k1r] = abs(d)
-                            at1[k1r] = x
-                            k1r += 1
-                            w1r = s1
-                        w1r -= 1
-                if i + 1 < H:
-                    d = h[i + 1, j] - x
-                    if np.isfinite(d):
-                        if w1c == 0:
-                            v1[k1c] = abs(d)
-                            at1[k1c] = x
-                            k1c += 1
-                            w1c = s1
-                        w1c -= 1
+                v2[k2c] = abs(a - 2.0 * b + c)
+                lo = a if a < b else b
+                hi = a if a > b else b
+                hi = hi if hi < c else c
+                at2[k2c] = lo if lo > hi else hi
+                k2c += 1
+                t += s2
+            w2c = t - n
+        n = 0
+        for j in range(W - 1):
+            f = judged[i, j] & np.isfinite(h[i, j + 1] - h[i, j])
+            ok[j] = f
+            n += f
+        full = n == W - 1  # every difference of the row: the list is the identity
+        if not full:
+            _positions(ok, W - 1, pos)
+        t = w1r
+        while t < n:
+            j = t if full else pos[t]
+            x = h[i, j]
+            v1[k1r] = abs(h[i, j + 1] - x)
+            at1[k1r] = x
+            k1r += 1
+            t += s1
+        w1r = t - n
+        if i + 1 < H:
+            n = 0
+            for j in range(W):
+                f = judged[i, j] & np.isfinite(h[i + 1, j] - h[i, j])
+                ok[j] = f
+                n += f
+            full = n == W  # every difference of the row: the list is the identity
+            if not full:
+                _positions(ok, W, pos)
+            t = w1c
+            while t < n:
+                j = t if full else pos[t]
+                x = h[i, j]
+                v1[k1c] = abs(h[i + 1, j] - x)
+                at1[k1c] = x
+                k1c += 1
+                t += s1
+            w1c = t - n
 
 
 def _sampled_both(h: np.ndarray, judged: np.ndarray, most: int) -> tuple[np.ndarray, ...]:
@@ -393,6 +435,19 @@ class NoiseProfile:
         return self._at(self.step_mm, height)
 
 
+def _sorted_median(s: np.ndarray) -> float:
+    """``np.median`` of a non-empty sorted slice: its middle value, or the mean of the two middle ones as
+    ``np.mean`` takes it ((a + b) / 2). ``np.median`` itself when a middle value is 0 (which zero
+    ``np.partition`` places there is its own) or when the slice holds NaN (sorted last)."""
+    n = s.size
+    h = n // 2
+    a = float(s[h - 1]) if n % 2 == 0 else float(s[h])
+    b = float(s[h])
+    if a == 0.0 or b == 0.0 or np.isnan(s[-1]):
+        return float(np.median(s))
+    return b if n % 2 else (a + b) / 2.0
+
+
 def noise_profile(height: FloatImage, judged: Mask) -> NoiseProfile:
     """σ̂ and the depth step as functions of height, measured on the frame itself.
 
@@ -413,7 +468,7 @@ def noise_profile(height: FloatImage, judged: Mask) -> NoiseProfile:
     a, at = a[order], at[order]
     bins = int(min(NOISE_MAX_BINS, max(1, a.size // NOISE_MIN_SAMPLES)))
     edges = np.linspace(0, a.size, bins + 1).astype(np.int64)
-    heights = np.array([np.median(at[i:j]) for i, j in zip(edges[:-1], edges[1:])])
+    heights = np.array([_sorted_median(at[i:j]) for i, j in zip(edges[:-1], edges[1:])])
     sigmas = np.array([_robust_sigma_one_partition(a[i:j]) for i, j in zip(edges[:-1], edges[1:])])
     # a first difference belongs to the bin whose range of second-difference heights holds it
     upper = np.array([at[j - 1] for j in edges[1:]])

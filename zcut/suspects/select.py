@@ -133,38 +133,56 @@ def median(x: np.ndarray) -> float:
     return float((np.float64(a) + np.float64(b)) / 2.0)
 
 
+# the radix sort's digits: 11 bits (2048 buckets), six passes over the 64 bits of a key
+RADIX_BITS = 11
+RADIX_PASSES = 6
+
+
 @numba.njit(cache=True)
 def _stable_argsort_kernel(x):  # type: ignore[no-untyped-def]  # numba kernel
+    """LSD radix sort of the keys (the values' bits as signed integers ordered as the floats, -0.0 made
+    0): one pass counts every digit's buckets; each digit then moves the keys with their indices (read
+    in order), a digit whose keys all fall in one bucket being skipped."""
     n = x.size
     keys = np.empty(n, np.int64)
     bits = x.view(np.int64)
+    nb = 1 << RADIX_BITS
+    mask = nb - 1
+    top = 64 - RADIX_BITS * (RADIX_PASSES - 1)  # the last digit's bits, the sign's among them
+    count = np.zeros((RADIX_PASSES, nb + 1), np.int64)
     for i in range(n):
         b = bits[i]
         k = b if b >= 0 else b ^ 0x7FFFFFFFFFFFFFFF  # signed integers ordered as the floats
-        keys[i] = 0 if k == -1 else k  # -0.0 ties with 0.0, as in a comparison sort
+        k = 0 if k == -1 else k  # -0.0 ties with 0.0, as in a comparison sort
+        keys[i] = k
+        for p in range(RADIX_PASSES - 1):
+            count[p, ((k >> (RADIX_BITS * p)) & mask) + 1] += 1
+        # the last digit: the sign bit flipped, negative keys first
+        count[RADIX_PASSES - 1, (((k >> (RADIX_BITS * (RADIX_PASSES - 1))) & ((1 << top) - 1))
+                                 ^ (1 << (top - 1))) + 1] += 1
     order = np.arange(n)
     tmp = np.empty(n, np.int64)
-    count = np.empty(257, np.int64)
-    for byte in range(8):
-        shift = 8 * byte
-        count[:] = 0
-        for i in range(n):
-            d = (keys[i] >> shift) & 0xFF
-            if byte == 7:
-                d ^= 0x80  # the sign byte: negative keys first
-            count[d + 1] += 1
-        if n and count.max() == n:  # every key has this byte: the pass keeps the order
+    tmp_keys = np.empty(n, np.int64)
+    for p in range(RADIX_PASSES):
+        shift = RADIX_BITS * p
+        last = p == RADIX_PASSES - 1
+        c = count[p]
+        if n and c.max() == n:  # every key has this digit: the pass keeps the order
             continue
-        for d in range(256):
-            count[d + 1] += count[d]
+        for d in range(nb):
+            c[d + 1] += c[d]
         for i in range(n):
-            o = order[i]
-            d = (keys[o] >> shift) & 0xFF
-            if byte == 7:
-                d ^= 0x80
-            tmp[count[d]] = o
-            count[d] += 1
+            k = keys[i]
+            if last:
+                d = ((k >> shift) & ((1 << top) - 1)) ^ (1 << (top - 1))
+            else:
+                d = (k >> shift) & mask
+            j = c[d]
+            tmp[j] = order[i]
+            tmp_keys[j] = k
+            c[d] = j + 1
         order, tmp = tmp, order
+        keys, tmp_keys = tmp_keys, keys
     return order
 
 
