@@ -47,6 +47,19 @@ def prune_state(z: np.ndarray, *, step: float, max_depth: float, max_area: float
     return levels, left_out, state.m, keep, state.top
 
 
+def literal_levels(z: np.ndarray, lo: float, hi: float, step: float, k_eff: int, top: int) -> np.ndarray:
+    """Each pixel's level by ``qlevel``, one pixel at a time (a non-finite height read as ``lo``); -1 for the pixels
+    below the top ``top`` levels, which the level pass leaves out."""
+    H, W = z.shape
+    want = np.full((H, W), -1, np.int64)
+    for r in range(H):
+        for c in range(W):
+            zt = z[r, c] if np.isfinite(z[r, c]) else lo
+            if zt >= hi - top * step:
+                want[r, c] = qlevel(zt, hi, step, np.int64(k_eff + 2))
+    return want
+
+
 # ------------------------------------------------------------------------------------------------
 # the levels of a segment: qlevel's, bit for bit
 # ------------------------------------------------------------------------------------------------
@@ -78,12 +91,7 @@ def test_segment_levels_are_qlevels_on_the_thresholds(seed: int) -> None:
         m, _, _ = gentle_levels(z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top), True, 10.0,
                                 np.int64(2**40), st, pix, gl, gpar, gcnt)
         got = st.reshape(H + 2, W + 2)
-        want = np.full((H, W), -1, np.int64)
-        for r in range(H):
-            for c in range(W):
-                zt = z[r, c] if np.isfinite(z[r, c]) else lo
-                if zt >= hi - top * step:
-                    want[r, c] = qlevel(zt, hi, step, np.int64(k_eff + 2))
+        want = literal_levels(z, lo, hi, step, k_eff, top)
         np.testing.assert_array_equal(got[1:-1, 1:-1], want)
         assert (got[0] == -1).all() and (got[-1] == -1).all() and (got[:, 0] == -1).all() and (got[:, -1] == -1).all()
         assert m == int((want >= 0).sum())
@@ -126,12 +134,7 @@ def test_segment_levels_fall_back_to_qlevel_when_the_guess_is_off(seed: int) -> 
     assert top < 4096
     fails = guess_fails(z, z_min=lo, z_max=hi, step=step, top=top)
     assert fails.sum() > H * W // 4  # the fallback is reached, on most segments
-    want = np.full((H, W), -1, np.int64)
-    for r in range(H):
-        for c in range(W):
-            zt = z[r, c] if np.isfinite(z[r, c]) else lo
-            if zt >= hi - top * step:
-                want[r, c] = qlevel(zt, hi, step, np.int64(k_eff + 2))
+    want = literal_levels(z, lo, hi, step, k_eff, top)
     for gentle in (4, 8):
         state = gentle_labelled(z, step=step, max_depth=max_depth, max_area=6.0, gentle=gentle)
         np.testing.assert_array_equal(state.levels(), want)

@@ -9,23 +9,13 @@ import importlib
 
 import numpy as np
 import pytest
-from scipy import ndimage
+from components_check import check_components
 
-from zcut.suspects.grouping import _kind_components
 from zcut.suspects.noise import _sampled_both, _sampled_differences, _sorted_median
 from zcut.suspects.select import stable_argsort
 
 ref = importlib.import_module("zcut.suspects._reference")
 
-
-def _check_components(m: np.ndarray, r: int) -> None:
-    lab, n = ref._components_reference(m, r)
-    flat = np.flatnonzero(m)
-    got, n2, boxes = _kind_components(flat, m.shape, r)
-    assert n2 == n
-    np.testing.assert_array_equal(got, lab.ravel()[flat])
-    want = [[s[0].start, s[1].start, s[0].stop, s[1].stop] for s in ndimage.find_objects(lab, max_label=n)]
-    np.testing.assert_array_equal(boxes, np.array(want, np.int64).reshape(-1, 4))
 
 
 @pytest.mark.parametrize("r", [0, 1, 2, 3, 7, 16])
@@ -59,14 +49,14 @@ def test_components_of_runs_at_the_reach_equal_the_grown_mask_labels(r: int) -> 
             m &= rng.random((H, W)) < 0.85
         else:
             m = rng.random((H, W)) < float(rng.choice([0.005, 0.05, 0.3, 1.0]))
-        _check_components(m, r)
+        check_components(m, r)
 
 
 def test_components_of_degenerate_masks() -> None:
     for m in (np.ones((1, 1), bool), np.zeros((3, 3), bool), np.ones((1, 50), bool),
               np.ones((50, 1), bool), np.eye(7, dtype=bool), np.eye(7, dtype=bool)[::-1]):
         for r in (0, 1, 3):
-            _check_components(m, r)
+            check_components(m, r)
 
 
 def test_noise_samples_from_row_lists_equal_the_eight_sweeps() -> None:

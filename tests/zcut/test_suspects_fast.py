@@ -12,6 +12,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from components_check import check_components
 from test_suspects import random_heights, scene
 
 from replay.logs.pcd import read_pcd
@@ -210,21 +211,13 @@ def test_merge_compact_equals_the_previous_code() -> None:
 
 def test_sparse_components_equal_the_grown_mask_labels() -> None:
     """The components linked pixel to pixel are the grown mask's, numbered as ``ndimage.label`` does."""
-    from zcut.suspects.grouping import _kind_components
 
     rng = np.random.default_rng(8)
     for _ in range(80):
         H, W = int(rng.integers(1, 60)), int(rng.integers(1, 60))
         m = rng.random((H, W)) < float(rng.choice([0.002, 0.02, 0.1, 0.5]))
         r = int(rng.choice([0, 1, 2, 3, 7, 20]))
-        lab, n = ref._components_reference(m, r)
-        flat = np.flatnonzero(m)
-        got, n2, boxes = _kind_components(flat, m.shape, r)
-        assert n2 == n
-        np.testing.assert_array_equal(got, lab.ravel()[flat])
-        from scipy import ndimage
-        want = [[s[0].start, s[1].start, s[0].stop, s[1].stop] for s in ndimage.find_objects(lab, max_label=n)]
-        np.testing.assert_array_equal(boxes, np.array(want, np.int64).reshape(-1, 4))
+        check_components(m, r)
 
 
 def test_fill_blobs_equal_the_previous_kernel() -> None:

@@ -10,13 +10,12 @@ import importlib
 
 import numpy as np
 import pytest
-from scipy import ndimage
+from components_check import check_components
 
 from zcut.suspects.detectors import label_medians
 from zcut.suspects.grouping import (
     NEAR,
     STRENGTH_CLASSES,
-    _kind_components,
     _label_classes,
     _merge_compact,
     _merge_kernel,
@@ -90,13 +89,7 @@ def test_components_of_runs_and_columns_equal_the_grown_mask_labels() -> None:
         elif case % 4 == 3:
             m[:, ::int(rng.integers(2, 5))] = False
         r = int(rng.choice([0, 1, 2, 3, 5, 8, 16]))
-        lab, n = ref._components_reference(m, r)
-        flat = np.flatnonzero(m)
-        got, n2, boxes = _kind_components(flat, m.shape, r)
-        assert n2 == n
-        np.testing.assert_array_equal(got, lab.ravel()[flat])
-        want = [[s[0].start, s[1].start, s[0].stop, s[1].stop] for s in ndimage.find_objects(lab, max_label=n)]
-        np.testing.assert_array_equal(boxes, np.array(want, np.int64).reshape(-1, 4))
+        check_components(m, r)
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.int8, np.int16, np.uint16, np.int32, np.int64])

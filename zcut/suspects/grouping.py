@@ -254,6 +254,19 @@ def _merge_kernel(boxes, kind, max_groups, near):  # type: ignore[no-untyped-def
     kc1 = c1[by_kind]
     dist = np.empty(n, np.int64)
 
+    def settle(i, m, is_whole):  # type: ignore[no-untyped-def]
+        """Box i's list of m: whether it holds every box of its kind, its best partner and the list's last key."""
+        n_listed[i] = m
+        whole[i] = is_whole
+        if m > 0:
+            best[i] = listed_d[i, 0]
+            partner[i] = listed[i, 0]
+            lim_d[i] = listed_d[i, m - 1]
+            lim_k[i] = listed[i, m - 1]
+        else:
+            best[i] = inf
+            partner[i] = 0
+
     def list_anew(i):  # type: ignore[no-untyped-def]
         s0 = start[i]
         s1 = stop[i]
@@ -289,16 +302,7 @@ def _merge_kernel(boxes, kind, max_groups, near):  # type: ignore[no-untyped-def
             listed[i, p] = by_kind[q]
             if m == near:
                 bar = listed_d[i, m - 1]
-        n_listed[i] = m
-        whole[i] = seen <= near
-        if m > 0:
-            best[i] = listed_d[i, 0]
-            partner[i] = listed[i, 0]
-            lim_d[i] = listed_d[i, m - 1]
-            lim_k[i] = listed[i, m - 1]
-        else:
-            best[i] = inf
-            partner[i] = 0
+        settle(i, m, seen <= near)
 
     def refresh(i):  # type: ignore[no-untyped-def]
         b = inf
@@ -479,16 +483,7 @@ def _merge_kernel(boxes, kind, max_groups, near):  # type: ignore[no-untyped-def
                     p -= 1
                 listed_d[i, p] = d
                 listed[i, p] = k
-        n_listed[i] = m
-        whole[i] = s1 - s0 - 1 <= near
-        if m > 0:
-            best[i] = listed_d[i, 0]
-            partner[i] = listed[i, 0]
-            lim_d[i] = listed_d[i, m - 1]
-            lim_k[i] = listed[i, m - 1]
-        else:
-            best[i] = inf
-            partner[i] = 0
+        settle(i, m, s1 - s0 - 1 <= near)
 
     todo = np.empty(n, np.int64)
     for i in range(n):
