@@ -108,8 +108,8 @@ from .cut_tree import (
     pixel_levels,
     pruned_outlier_mask,
     qlevel,
-    segments_in_cuts,
     retag,
+    segments_in_cuts,
     union_find_tree,
 )
 from .errors import InputShapeError, ParameterError, describe_array

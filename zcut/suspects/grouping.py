@@ -302,7 +302,7 @@ def _merge_kernel(boxes, kind, max_groups, near):  # type: ignore[no-untyped-def
             listed[i, p] = by_kind[q]
             if m == near:
                 bar = listed_d[i, m - 1]
-        settle(i, m, seen <= near)
+        settle(i, m, seen <= near)  # type: ignore[no-untyped-call]  # numba closure
 
     def refresh(i):  # type: ignore[no-untyped-def]
         b = inf
@@ -483,7 +483,7 @@ def _merge_kernel(boxes, kind, max_groups, near):  # type: ignore[no-untyped-def
                     p -= 1
                 listed_d[i, p] = d
                 listed[i, p] = k
-        settle(i, m, s1 - s0 - 1 <= near)
+        settle(i, m, s1 - s0 - 1 <= near)  # type: ignore[no-untyped-call]  # numba closure
 
     todo = np.empty(n, np.int64)
     for i in range(n):
