@@ -534,7 +534,7 @@ class Fitter:
         self.model_points = model_points
         self.k = k
         self.results: dict[int, FrameFits] = {}
-        #: (index, seeds) -> (the fits they were applied to, the fits with them): :meth:`fits_for`
+        #: (index, seeds) -> (the background fits they were applied to, the fits with them): :meth:`fits_for`
         self._seeded: dict[tuple[int, tuple[tuple[int, int], ...]], tuple[FrameFits, FrameFits]] = {}
         self._pending: dict[int, tuple[Frame, Job]] = {}
         self._running: int | None = None
@@ -610,28 +610,33 @@ class Fitter:
     def fits_for(self, index: int, seeds: Sequence[tuple[int, int]] = ()) -> FrameFits | None:
         """The frame's fits as an annotator sees them: the background fits (None before they are ready)
         with that annotator's ``seeds`` (pixels (x, y), in the order clicked) applied one after the other
-        (:meth:`FrameFits.seeded`; each step kept, so a new seed costs one refit)."""
+        (:meth:`FrameFits.seeded`). Each step is kept (:data:`SEEDED_KEPT` of them, the least recently used
+        out first) and the walk starts from the longest kept prefix of ``seeds``, so a new seed costs one
+        refit however many came before it."""
         with self._cond:
-            ff = self.results.get(index)
-        if ff is None or ff.status != "ready" or not seeds:
-            return ff
-        base, xyz = ff, None
-        for j in range(len(seeds)):
-            key = (index, tuple(seeds[:j + 1]))
-            with self._cond:
+            root = self.results.get(index)
+        if root is None or root.status != "ready" or not seeds:
+            return root
+        seeds = [(int(x), int(y)) for x, y in seeds]
+        ff, start = root, 0
+        with self._cond:
+            for j in range(len(seeds), 0, -1):  # the longest prefix kept, applied to these background fits
+                key = (index, tuple(seeds[:j]))
                 got = self._seeded.get(key)
-            if got is None or got[0] is not base:
-                if xyz is None:
-                    xyz = np.asarray(self.points(index), np.float64) * 1000.0
-                x, y = seeds[j]
-                nxt = ff.seeded(int(x), int(y), xyz, self.config)
-                with self._cond:
-                    while len(self._seeded) >= SEEDED_KEPT:  # the oldest out first
-                        self._seeded.pop(next(iter(self._seeded)))
-                    self._seeded[key] = (base, nxt)
-                ff = nxt
-            else:
-                ff = got[1]
+                if got is not None and got[0] is root:
+                    self._seeded[key] = self._seeded.pop(key)  # the most recently used last
+                    ff, start = got[1], j
+                    break
+        xyz = None
+        for j in range(start, len(seeds)):
+            if xyz is None:
+                xyz = np.asarray(self.points(index), np.float64) * 1000.0
+            x, y = seeds[j]
+            ff = ff.seeded(x, y, xyz, self.config)
+            with self._cond:
+                while len(self._seeded) >= SEEDED_KEPT:  # the least recently used out first
+                    self._seeded.pop(next(iter(self._seeded)))
+                self._seeded[(index, tuple(seeds[:j + 1]))] = (root, ff)
         return ff
 
     def seed(self, index: int, seeds: Sequence[tuple[int, int]], x: int, y: int) -> tuple[FrameFits, int]:
