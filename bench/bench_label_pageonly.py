@@ -41,12 +41,15 @@ the browser real Ctrl+clicks, in ``--diagnose`` the same :meth:`annotate.fits.Fr
 reaches, and there the rule as written is scored from the same fits in the same run (``--json F`` writes it to F, the
 variant to ``F.seedN.json``). Both modes save each label with a part model as
 ``WORK/<log stem>_f<frame>_<variant>_<emulated|browser>.npy`` (``--work``; :func:`label_file`) so that the browser's label can be checked against the emulated one to the pixel.
+``--config TOML`` (``--diagnose`` only) prepares the frames with that pipeline config file instead of the defaults (e.g.
+``[removal] straggler_bound = "off"``: the zone of the seventh round's tree; docs/labelling.md, "Ninth round").
 ``--compare BEFORE.json,AFTER.json`` prints two ``--diagnose --json`` files (two trees, the same logs) as one
 table, before → after, and the largest cause of each log's wrong pixels in the after file.
 
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --logs A.mcap,B.mcap [--modes model,none]
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap,B.mcap [--json F]
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap,B.mcap --seed-px N --json F
+    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap --config OFF.toml --json F
     cd WORKTREE && .venv/bin/python bench/bench_label_pageonly.py --compare BEFORE.json,AFTER.json
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --kinect --middlebury Teddy,Piano
 """
@@ -89,6 +92,9 @@ BELOW_MM = 2.0
 #: at its centre pixel, the largest first, reading the list again after each seed (a pixel is clicked once). None, the
 #: rule as written (docs/labelling.md, "Eighth round").
 SEED_PX: int | None = None
+#: ``--config TOML`` (``--diagnose`` only): the pipeline config file the frames are prepared with (its zone, bin removal
+#: and fits' parameters, e.g. ``[removal] straggler_bound = "off"``); None, the defaults (docs/labelling.md, "Ninth round").
+CONFIG: Path | None = None
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -570,9 +576,8 @@ def diagnose(log: Path, work: Path) -> tuple[list[dict], list[dict]]:
     Returns the rows of the rule as written and, with :data:`SEED_PX`, those of the variant from the same fits (its
     seeds applied by :func:`seed_steps`; else no rows). Each label is saved in ``work`` (:func:`label_file`)."""
     from annotate.fits import Job, fit_frame
-    from replay.options import PipelineOptions
 
-    session = PipelineOptions(methods="zcut,explained").open_session(log)
+    session = pipeline_options().open_session(log)
     rows, seeded = [], []
     for frame, r in session.results():
         job = Job.of(r)
@@ -587,6 +592,15 @@ def diagnose(log: Path, work: Path) -> tuple[list[dict], list[dict]]:
             seeded.append(diagnose_frame(log, frame, job, last.ff, cpu, work=work, seeds=last))
             print(json.dumps(seeded[-1], indent=1, default=float), flush=True)
     return rows, seeded
+
+
+def pipeline_options() -> Any:
+    """The :class:`replay.options.PipelineOptions` ``--diagnose`` prepares each frame with: the z-cut and
+    ``explained`` (the zone, the bin stages and the fits the page's server runs), with :data:`CONFIG`'s pipeline
+    config file where ``--config`` gives one."""
+    from replay.options import PipelineOptions
+
+    return PipelineOptions(methods="zcut,explained", config=None if CONFIG is None else str(CONFIG))
 
 
 def frame_arrays(frame, job) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
@@ -683,6 +697,7 @@ def diagnose_frame(log: Path, frame, job, ff, cpu: float, *, work: Path,  # type
         majority = (sz > 0) & (tp >= 0.5 * sz)
         majority[0] = False
         row = {"log": log.name, "frame": frame.index, "variant": variant, "cpu_fits": round(cpu, 1), **how,
+               "config": None if CONFIG is None else str(CONFIG), "served": int(served.sum()),
                "iou_sensor": None if sensor is None else iou(label, sensor & served),
                "limit": iou(majority[ids] & served, P), "held": float((P & (ids > 0)).sum() / max(int(P.sum()), 1)),
                "fits": len(ff.fits), "parts": len(parts), "parts_seen": int((vis > 0).sum()),
@@ -779,6 +794,9 @@ def main() -> int:
     ap.add_argument("--sigma-cap", type=float, default=None, metavar="C",
                     help="the page's variant: judge each fit's pixels with its residual capped at C x the frame's "
                     "median (annotate.fits.SIGMA_CAP; default: off, every fit's own)")
+    ap.add_argument("--config", type=Path, default=None, metavar="TOML",
+                    help="with --diagnose: prepare the frames with this pipeline config (e.g. [removal] "
+                    "straggler_bound = \"off\"; default: the defaults)")
     ap.add_argument("--compare", default="", metavar="BEFORE,AFTER",
                     help="two --diagnose --json files (two trees, the same logs): one table, before -> after")
     args = ap.parse_args()
@@ -788,7 +806,7 @@ def main() -> int:
             raise SystemExit(f"error: --compare takes BEFORE.json,AFTER.json, got {args.compare!r}")
         print("\n".join(compare(*(json.loads(f.read_text()) for f in files))))
         return 0
-    global LARGE_PX, RING_BELOW, SEED_PX
+    global LARGE_PX, RING_BELOW, SEED_PX, CONFIG
     LARGE_PX = args.large_px
     RING_BELOW = args.ring_below
     SEED_PX = args.seed_px
@@ -796,6 +814,12 @@ def main() -> int:
         raise SystemExit(f"error: --seed-px takes a size of at least 1 px, got {SEED_PX}")
     if RING_BELOW is not None and not args.diagnose:
         raise SystemExit("error: --ring-below is a --diagnose variant (the page does not show the cue)")
+    if args.config is not None:
+        if not args.diagnose:
+            raise SystemExit("error: --config is a --diagnose option (the browser's page serves the defaults)")
+        if not args.config.is_file():
+            raise SystemExit(f"error: --config: {args.config}: no such file")
+        CONFIG = args.config
     if args.sigma_cap is not None:
         import annotate.fits
 

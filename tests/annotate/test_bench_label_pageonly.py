@@ -125,3 +125,29 @@ def test_seed_steps_clicks_largest_first_reads_again_after_a_find_and_a_larger_n
     assert steps[-1].ff.props == [(300, 4.0, 4.0), (20, 9.0, 9.0)]
     big = list(bench.seed_steps(ff, None, None, None, None, 100))
     assert [s.clicked for s in big] == [s.clicked for s in steps[:3]] and big[-1].next_px == 0
+
+
+def test_config_reaches_the_diagnosed_session(bench, monkeypatch, tmp_path):
+    """--config: the pipeline config file --diagnose prepares the frames with (the zone's bin removal here), and
+    none gives the defaults."""
+    from replay.synth.log import write_synthetic_log
+
+    log = write_synthetic_log(tmp_path / "s.mcap", kind="zinc_nuts", frames=1, seed=5, size=(120, 192))
+    toml = tmp_path / "off.toml"
+    toml.write_text('[removal]\nstraggler_bound = "off"\n')
+    monkeypatch.setattr(bench, "CONFIG", None)
+    assert bench.pipeline_options().open_session(log).config.removal.straggler_bound == "below_rim"
+    monkeypatch.setattr(bench, "CONFIG", toml)
+    opts = bench.pipeline_options()
+    assert opts.methods == "zcut,explained" and opts.config == str(toml)
+    assert opts.open_session(log).config.removal.straggler_bound == "off"
+
+
+@pytest.mark.parametrize(("argv", "match"), [
+    (["--config", "X.toml", "--logs", "a.mcap"], "--config is a --diagnose option"),
+    (["--config", "/nonexistent/x.toml", "--diagnose", "a.mcap"], "--config: /nonexistent/x.toml: no such file"),
+])
+def test_config_refused(bench, monkeypatch, argv, match):
+    monkeypatch.setattr("sys.argv", ["bench_label_pageonly.py", *argv])
+    with pytest.raises(SystemExit, match=match):
+        bench.main()
