@@ -45,6 +45,7 @@ __all__ = [
     "OUTSIDE",
     "SEGMENT",
     "cluster_labels",
+    "cuts_window",
     "finite_range",
     "flood_core",
     "flood_core_left_out",
@@ -61,6 +62,8 @@ __all__ = [
     "outlier_mask",
     "pixel_levels",
     "pruned_outlier_mask",
+    "pruned_outliers",
+    "pruned_scratch",
     "qlevel",
     "segments_in_cuts",
     "taggable_forest",
@@ -1301,6 +1304,80 @@ def _flood_kernel(left_out: bool) -> Any:
 
 flood_core = _flood_kernel(False)
 flood_core_left_out = _flood_kernel(True)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _aligned(nbytes):  # type: ignore[no-untyped-def]  # numba kernel
+    """``nbytes`` rounded up to a multiple of 64 (a cache line)."""
+    return (nbytes + 63) // 64 * 64
+
+
+@numba.njit(cache=True, nogil=True)
+def pruned_scratch(n, bound):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`pruned_outliers`' scratch arrays, sized by the window (``n`` padded pixels; the pile's window is
+    18 % of the frame) and by the ``bound`` on the pixels in the cuts, not by the frame: ``st`` (n,) int16,
+    ``gl`` (n,) int32, ``pix``, ``gpar``, ``gcnt`` (bound,) int32, all views of one block, each on a 64-byte
+    boundary. One block, not five arrays: glibc raises its mmap and trim thresholds to the largest block
+    freed, so that a call's scratch, freed, stays in the heap for the next call instead of going back to
+    the system to be faulted in again page by page (the pile: ~690 faults a call, ~1.5 µs each, with five
+    arrays; none with one block; docs/performance.md)."""
+    a_pix = _aligned(4 * n)
+    a_par = a_pix + _aligned(4 * bound)
+    a_cnt = a_par + _aligned(4 * bound)
+    a_st = a_cnt + _aligned(4 * bound)
+    block = np.empty(max(a_st + _aligned(2 * n), 1), np.uint8)
+    gl = block[:4 * n].view(np.int32)
+    pix = block[a_pix:a_pix + 4 * bound].view(np.int32)
+    gpar = block[a_par:a_par + 4 * bound].view(np.int32)
+    gcnt = block[a_cnt:a_cnt + 4 * bound].view(np.int32)
+    st = block[a_st:a_st + 2 * n].view(np.int16)
+    return st, gl, pix, gpar, gcnt
+
+
+@numba.njit(cache=True, nogil=True)
+def cuts_window(seg_max, thr, W):  # type: ignore[no-untyped-def]  # numba kernel
+    """The window that holds every pixel in the cuts (``>= thr``; the invalid pixels outside them), from
+    the segments' largest heights (``seg_max``, :func:`finite_range`'s; :func:`segments_in_cuts`): ``(row,
+    column, height, width, segments)``, the column a multiple of SEGMENT, segments the number of row
+    segments in the cuts; all 0 when none is."""
+    n, r0, r1, s0, s1 = segments_in_cuts(seg_max, thr)
+    if n == 0:
+        return 0, 0, 0, 0, 0
+    wc = s0 * SEGMENT
+    return r0, wc, r1 - r0, min(s1 * SEGMENT, W) - wc, n
+
+
+@numba.njit(cache=True, nogil=True)
+def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check, minimum, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """The outlier mask of the flood over the pixels of the small gentle components only, into ``out``
+    ((H * W,) bool, zeroed), in one call: the window of the pixels in the cuts (:func:`cuts_window`), the
+    scratch (:func:`pruned_scratch`), :func:`gentle_levels` (gentle components 8-connected if ``gentle8``,
+    else 4-connected), :func:`gentle_prune`, :func:`flood_core_left_out` and :func:`pruned_outlier_mask`,
+    as :func:`zcut.cuts._pruned_outliers` called them one by one before (the same arrays, the same order:
+    the same result; ~0.25 ms of the pile's 3 fewer, docs/performance.md). False when fewer than
+    ``minimum`` pixels may lie in the cuts (counted by row segments: nothing written). ``k_eff`` and
+    ``top``: :func:`zcut.cuts._levels`'; ``top`` below ``FLOOD_MAX_LEVELS``, the padded frame below
+    2**31 pixels and ``max_area`` at most the frame's pixels (the caller checks them)."""
+    H, W = z.shape
+    thr = z_max - top * step
+    wr, wc, wh, ww = 0, 0, H, W  # the window of the pixels in the cuts
+    bound = H * W  # ... and their number, at most
+    if z_min < thr:  # (invalid pixels stand at z_min: outside the cuts, the segments may be skipped)
+        wr, wc, wh, ww, n_read = cuts_window(seg_max, thr, W)
+        bound = n_read * SEGMENT
+        if bound < minimum:
+            return False  # too few pixels in the cuts for the labelling to pay
+        bound = min(bound, wh * ww)
+    st, gl, pix, gpar, gcnt = pruned_scratch((wh + 2) * (ww + 2), bound)
+    m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check, st,
+                                    pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww)
+    start = np.zeros(top + 2, np.int64)
+    keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top)
+    kept = pix[:keep]
+    # the labels are read; the flood writes its node image over them at the kept pixels
+    _, _, node_parent, tagged, fin = flood_core_left_out(st, start, kept, ww, k_eff, top, conn8, max_area, gl)
+    pruned_outlier_mask(z, gl, kept, fin, node_parent, tagged, out, wr, wc, ww)
+    return True
 
 
 @numba.njit(cache=True, nogil=True)
