@@ -61,7 +61,8 @@ outer neighbours are at ``k + 2`` or deeper), so a kept pixel with a left-out ne
 level is in no tagged node either, nor is a pixel at level ``K + 1``; one sweep with depth-first
 walks takes the closure (*uphill* pixels: on the pile 16,739 kept pixels become 4,454, on the dense
 frame 123,419 become 60,785). The pruned path works on the window of rows and segment columns that
-hold pixels in the cuts, its scratch arrays sized by it.
+hold pixels in the cuts, its scratch arrays sized by it, in one kernel call from the window to the mask
+(:func:`zcut.cut_tree.pruned_outliers`).
 
 The gentle components are those of the z-cut's connectivity. With 8-connectivity the *4-connected*
 ones would do too (each lies inside an 8-connected one, so a pixel of one of ``max_area`` pixels or
