@@ -1,7 +1,7 @@
 """z-cut: the pruned flood in one kernel call (zcut.cut_tree.pruned_outliers) and the gentle-edge codes in float32
 lanes (zcut.cut_tree._gentle_codes), against the integer tests the codes stood for, the passes called one by one
 as zcut.cuts._pruned_outliers called them before, the whole tree's flood (find_clusters) and the literal loop:
-held-out piles at full size (seeds 22 to 26, the dearer ones), large invalid regions and degenerate frames."""
+held-out piles at full size (seeds 22 to 26), large invalid regions and degenerate frames."""
 
 from __future__ import annotations
 
@@ -143,7 +143,7 @@ def one_call(z: np.ndarray, *, step: float, max_depth: float, max_area: float, c
 
 @pytest.mark.parametrize("seed", [22, 23, 24, 25, 26])
 def test_held_out_piles_at_full_size(seed: int) -> None:
-    """The 1920 x 1200 piles at the seeds that cost most (more pixels in the cuts than the bench's pile):
+    """The 1920 x 1200 piles at seeds the bench does not use (22 to 25 hold more pixels in the cuts than its pile):
     zcut_outliers (the one call) equals the passes called one by one and the whole tree's flood."""
     pile_frame, _ = bench_kinds()
     z = pile_frame(seed)
