@@ -162,7 +162,7 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
     size: ``zcut_outliers`` floods frames of fewer than ``PRUNE_MIN`` pixels in the cuts whole), and of
     the floor; each pass timed on fresh copies of what it writes (the copies made outside the timing)."""
     from zcut.cut_tree import flood_core_left_out, gentle_levels, gentle_prune, pruned_outlier_mask
-    from zcut.cuts import PRUNE_CHECK, PRUNE_CHECK_ROWS, _finite_range, _levels, _window
+    from zcut.cuts import PRUNE_CHECK, PRUNE_CHECK_ROWS, _finite_range, _levels, _scratch, _window
     from zcut.params import n_levels
 
     step, max_area = params["step"], float(params["max_area"])
@@ -172,9 +172,7 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
     Hz, Wz = z.shape
     thr = hi - top * step  # as zcut_outliers: the window of the pixels in the cuts
     window, bound = ((0, 0, Hz, Wz), Hz * Wz) if not lo < thr else (_window(seg, thr, Wz)[:4], Hz * Wz)
-    size = (window[2] + 2) * (window[3] + 2)
-    st, gl = np.empty(size, np.int16), np.empty(size, np.int32)
-    pix, gpar, gcnt = (np.empty(bound, np.int32) for _ in range(3))
+    st, gl, pix, gpar, gcnt = _scratch((window[2] + 2) * (window[3] + 2), bound)
 
     def levels() -> tuple:
         # as zcut_outliers: the 8-connected gentle components (the z-cut's connectivity)

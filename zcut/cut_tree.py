@@ -45,6 +45,7 @@ __all__ = [
     "OUTSIDE",
     "SEGMENT",
     "cluster_labels",
+    "cuts_window",
     "finite_range",
     "flood_core",
     "flood_core_left_out",
@@ -61,6 +62,8 @@ __all__ = [
     "outlier_mask",
     "pixel_levels",
     "pruned_outlier_mask",
+    "pruned_outliers",
+    "pruned_scratch",
     "qlevel",
     "segments_in_cuts",
     "taggable_forest",
@@ -408,6 +411,9 @@ def _segment_levels(zf, st, row, base, c0, c1, z_min, z_max, step, inv_step, hi,
 _GW, _GNE, _GNW, _GN, _UNW, _UNE, _UW, _IN_CUTS = 1, 2, 4, 8, 16, 32, 64, 128
 
 
+_F0, _F1 = np.float32(0.0), np.float32(1.0)
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
 def _gentle_codes(st, b, c0, c1, Wp, codes):  # type: ignore[no-untyped-def]  # numba kernel
     """``codes[c]`` for c in [c0, c1): what the 8-connected scan of :func:`gentle_levels` needs to know of the
@@ -415,27 +421,33 @@ def _gentle_codes(st, b, c0, c1, Wp, codes):  # type: ignore[no-untyped-def]  # 
     ``_GW .. _GN`` a gentle edge to that neighbour (both in the cuts, levels within 1), ``_UNW, _UNE, _UW``
     the neighbour's set is united with the label taken (from N, else NW, else NE, else W) unless a gentle
     edge joins the two neighbours already (N touches NW, NE and W; NW touches W; NE and W do not touch, nor
-    NW and NE), ``_IN_CUTS``. Integer lanes without a branch (unsigned indices: no wrap-around test), so
-    LLVM vectorises it: "within 1" is ``(a - b + 1) as unsigned <= 2``, "in the cuts" the sign bit clear."""
+    NW and NE), ``_IN_CUTS``. Without a branch (unsigned indices: no wrap-around test), so LLVM vectorises
+    it, in float32 lanes: numba widens every integer operation to 64 bits (8 lanes of a 512-bit vector) but
+    keeps float32 (16 lanes); the levels, -1 or 0 .. ``top`` < ``FLOOD_MAX_LEVELS``, and their differences
+    are exact in float32, so "in the cuts" (``>= 0``) and "within 1" (``|a - b| <= 1``) are the integer
+    tests, and the code, a sum of distinct powers of two below 256, is exact too (the pile's codes
+    ~0.07 ms faster than on 64-bit integer lanes, docs/performance.md)."""
     for c in range(c0, c1):
         p = b + c
-        lv = np.int32(st[np.uint64(p)])
-        qw = np.int32(st[np.uint64(p - 1)])
-        qn = np.int32(st[np.uint64(p - Wp)])
-        qnw = np.int32(st[np.uint64(p - Wp - 1)])
-        qne = np.int32(st[np.uint64(p - Wp + 1)])
-        inc = (np.uint32(lv) >> 31) ^ 1
-        gw = inc & ((np.uint32(qw) >> 31) ^ 1) & np.uint32(np.uint32(qw - lv + 1) <= 2)
-        gn = inc & ((np.uint32(qn) >> 31) ^ 1) & np.uint32(np.uint32(qn - lv + 1) <= 2)
-        gnw = inc & ((np.uint32(qnw) >> 31) ^ 1) & np.uint32(np.uint32(qnw - lv + 1) <= 2)
-        gne = inc & ((np.uint32(qne) >> 31) ^ 1) & np.uint32(np.uint32(qne - lv + 1) <= 2)
-        ngn = gn ^ 1
-        unw = gn & gnw & np.uint32(np.uint32(qnw - qn + 1) > 2)
-        une = gne & ((gn & np.uint32(np.uint32(qne - qn + 1) > 2)) | (ngn & gnw))
-        uw = gw & ((gn & np.uint32(np.uint32(qw - qn + 1) > 2)) | (ngn & gnw & np.uint32(np.uint32(qw - qnw + 1) > 2))
-                   | (ngn & (gnw ^ 1) & gne))
-        codes[np.uint64(c)] = np.uint8(gw | (gne << 1) | (gnw << 2) | (gn << 3) | (unw << 4) | (une << 5) | (uw << 6)
-                                       | (inc << 7))
+        lv = np.float32(st[np.uint64(p)])
+        qw = np.float32(st[np.uint64(p - 1)])
+        qn = np.float32(st[np.uint64(p - Wp)])
+        qnw = np.float32(st[np.uint64(p - Wp - 1)])
+        qne = np.float32(st[np.uint64(p - Wp + 1)])
+        inc = lv >= _F0
+        gw = inc & (qw >= _F0) & (abs(qw - lv) <= _F1)
+        gn = inc & (qn >= _F0) & (abs(qn - lv) <= _F1)
+        gnw = inc & (qnw >= _F0) & (abs(qnw - lv) <= _F1)
+        gne = inc & (qne >= _F0) & (abs(qne - lv) <= _F1)
+        ngn = not gn
+        unw = gn & gnw & (abs(qnw - qn) > _F1)
+        une = gne & ((gn & (abs(qne - qn) > _F1)) | (ngn & gnw))
+        uw = gw & ((gn & (abs(qw - qn) > _F1)) | (ngn & gnw & (abs(qw - qnw) > _F1)) | (ngn & (not gnw) & gne))
+        code = (np.float32(gw) * np.float32(_GW) + np.float32(gne) * np.float32(_GNE)
+                + np.float32(gnw) * np.float32(_GNW) + np.float32(gn) * np.float32(_GN)
+                + np.float32(unw) * np.float32(_UNW) + np.float32(une) * np.float32(_UNE)
+                + np.float32(uw) * np.float32(_UW) + np.float32(inc) * np.float32(_IN_CUTS))
+        codes[np.uint64(c)] = np.uint8(np.int32(code))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1301,6 +1313,80 @@ def _flood_kernel(left_out: bool) -> Any:
 
 flood_core = _flood_kernel(False)
 flood_core_left_out = _flood_kernel(True)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _aligned(nbytes):  # type: ignore[no-untyped-def]  # numba kernel
+    """``nbytes`` rounded up to a multiple of 64 (a cache line)."""
+    return (nbytes + 63) // 64 * 64
+
+
+@numba.njit(cache=True, nogil=True)
+def pruned_scratch(n, bound):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`pruned_outliers`' scratch arrays, sized by the window (``n`` padded pixels; the pile's window is
+    18 % of the frame) and by the ``bound`` on the pixels in the cuts, not by the frame: ``st`` (n,) int16,
+    ``gl`` (n,) int32, ``pix``, ``gpar``, ``gcnt`` (bound,) int32, all views of one block, each on a 64-byte
+    boundary. One block, not five arrays: glibc raises its mmap and trim thresholds to the largest block
+    freed, so that a call's scratch, freed, stays in the heap for the next call instead of going back to
+    the system to be faulted in again page by page (the pile: ~690 faults a call, ~1.5 µs each, with five
+    arrays; none with one block; docs/performance.md)."""
+    a_pix = _aligned(4 * n)
+    a_par = a_pix + _aligned(4 * bound)
+    a_cnt = a_par + _aligned(4 * bound)
+    a_st = a_cnt + _aligned(4 * bound)
+    block = np.empty(max(a_st + _aligned(2 * n), 1), np.uint8)
+    gl = block[:4 * n].view(np.int32)
+    pix = block[a_pix:a_pix + 4 * bound].view(np.int32)
+    gpar = block[a_par:a_par + 4 * bound].view(np.int32)
+    gcnt = block[a_cnt:a_cnt + 4 * bound].view(np.int32)
+    st = block[a_st:a_st + 2 * n].view(np.int16)
+    return st, gl, pix, gpar, gcnt
+
+
+@numba.njit(cache=True, nogil=True)
+def cuts_window(seg_max, thr, W):  # type: ignore[no-untyped-def]  # numba kernel
+    """The window that holds every pixel in the cuts (``>= thr``; the invalid pixels outside them), from
+    the segments' largest heights (``seg_max``, :func:`finite_range`'s; :func:`segments_in_cuts`): ``(row,
+    column, height, width, segments)``, the column a multiple of SEGMENT, segments the number of row
+    segments in the cuts; all 0 when none is."""
+    n, r0, r1, s0, s1 = segments_in_cuts(seg_max, thr)
+    if n == 0:
+        return 0, 0, 0, 0, 0
+    wc = s0 * SEGMENT
+    return r0, wc, r1 - r0, min(s1 * SEGMENT, W) - wc, n
+
+
+@numba.njit(cache=True, nogil=True)
+def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check, minimum, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """The outlier mask of the flood over the pixels of the small gentle components only, into ``out``
+    ((H * W,) bool, zeroed), in one call: the window of the pixels in the cuts (:func:`cuts_window`), the
+    scratch (:func:`pruned_scratch`), :func:`gentle_levels` (gentle components 8-connected if ``gentle8``,
+    else 4-connected), :func:`gentle_prune`, :func:`flood_core_left_out` and :func:`pruned_outlier_mask`,
+    as :func:`zcut.cuts._pruned_outliers` called them one by one before (the same arrays, the same order:
+    the same result; ~0.25 ms of the pile's 3 fewer, docs/performance.md). False when fewer than
+    ``minimum`` pixels may lie in the cuts (counted by row segments: nothing written). ``k_eff`` and
+    ``top``: :func:`zcut.cuts._levels`'; ``top`` below ``FLOOD_MAX_LEVELS``, the padded frame below
+    2**31 pixels and ``max_area`` at most the frame's pixels (the caller checks them)."""
+    H, W = z.shape
+    thr = z_max - top * step
+    wr, wc, wh, ww = 0, 0, H, W  # the window of the pixels in the cuts
+    bound = H * W  # ... and their number, at most
+    if z_min < thr:  # (invalid pixels stand at z_min: outside the cuts, the segments may be skipped)
+        wr, wc, wh, ww, n_read = cuts_window(seg_max, thr, W)
+        bound = n_read * SEGMENT
+        if bound < minimum:
+            return False  # too few pixels in the cuts for the labelling to pay
+        bound = min(bound, wh * ww)
+    st, gl, pix, gpar, gcnt = pruned_scratch((wh + 2) * (ww + 2), bound)
+    m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check, st,
+                                    pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww)
+    start = np.zeros(top + 2, np.int64)
+    keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top)
+    kept = pix[:keep]
+    # the labels are read; the flood writes its node image over them at the kept pixels
+    _, _, node_parent, tagged, fin = flood_core_left_out(st, start, kept, ww, k_eff, top, conn8, max_area, gl)
+    pruned_outlier_mask(z, gl, kept, fin, node_parent, tagged, out, wr, wc, ww)
+    return True
 
 
 @numba.njit(cache=True, nogil=True)

@@ -61,7 +61,8 @@ outer neighbours are at ``k + 2`` or deeper), so a kept pixel with a left-out ne
 level is in no tagged node either, nor is a pixel at level ``K + 1``; one sweep with depth-first
 walks takes the closure (*uphill* pixels: on the pile 16,739 kept pixels become 4,454, on the dense
 frame 123,419 become 60,785). The pruned path works on the window of rows and segment columns that
-hold pixels in the cuts, its scratch arrays sized by it.
+hold pixels in the cuts, its scratch arrays sized by it, in one kernel call from the window to the mask
+(:func:`zcut.cut_tree.pruned_outliers`).
 
 The gentle components are those of the z-cut's connectivity. With 8-connectivity the *4-connected*
 ones would do too (each lies inside an 8-connected one, so a pixel of one of ``max_area`` pixels or
@@ -93,23 +94,21 @@ from .cut_tree import (
     FLOOD_MAX_LEVELS,
     SEGMENT,
     cluster_labels,
+    cuts_window,
     finite_range,
     flood_core,
-    flood_core_left_out,
     flood_levels,
     flood_tree,
-    gentle_levels,
-    gentle_prune,
     level_counts,
     listed_cluster_labels,
     listed_outlier_mask,
     node_image,
     outlier_mask,
     pixel_levels,
-    pruned_outlier_mask,
+    pruned_outliers,
+    pruned_scratch,
     qlevel,
     retag,
-    segments_in_cuts,
     union_find_tree,
 )
 from .errors import InputShapeError, ParameterError, describe_array
@@ -403,24 +402,18 @@ def _window(seg_max: np.ndarray, thr: float, W: int) -> tuple[int, int, int, int
     """The window of :func:`zcut.cut_tree.gentle_levels` that holds every pixel in the cuts: ``(row,
     column, height, width)``, the column a multiple of SEGMENT, and the number of row segments whose
     largest height (``seg_max``, :func:`_finite_range`'s) is in the cuts (``>= thr``; the invalid pixels
-    outside them: :func:`zcut.cut_tree.segments_in_cuts`); an empty window when none is."""
-    n, r0, r1, s0, s1 = segments_in_cuts(seg_max, float(thr))
-    if n == 0:
-        return 0, 0, 0, 0, 0
-    wc = int(s0) * SEGMENT
-    return int(r0), wc, int(r1) - int(r0), min(int(s1) * SEGMENT, W) - wc, int(n)
+    outside them: :func:`zcut.cut_tree.cuts_window`, which :func:`zcut.cut_tree.pruned_outliers` calls);
+    an empty window when none is."""
+    wr, wc, wh, ww, n = cuts_window(seg_max, float(thr), W)
+    return int(wr), int(wc), int(wh), int(ww), int(n)
 
 
 def _scratch(n: int, bound: int) -> tuple[np.ndarray, ...]:
-    """The pruned flood's scratch arrays, sized by the window (``n`` padded pixels; the pile's window is 18 %
-    of the frame) and by the ``bound`` on the pixels in the cuts, not by the frame: ``st`` (n,) int16, ``gl`` (n,)
-    int32, ``pix``, ``gpar``, ``gcnt`` (bound,) int32, all views of one block. One block, not five arrays: glibc
-    raises its mmap and trim thresholds to the largest block freed, so that a call's scratch, freed, stays in
-    the heap for the next call instead of going back to the system to be faulted in again page by page (the
-    pile: ~690 faults a call, ~1.5 µs each, with five arrays; none with one block; docs/performance.md)."""
-    gl, pix, gpar, gcnt, st = _one_block((np.int32, n), (np.int32, bound), (np.int32, bound), (np.int32, bound),
-                                         (np.int16, n))
-    return st, gl, pix, gpar, gcnt
+    """The pruned flood's scratch arrays (``st, gl, pix, gpar, gcnt``: :func:`zcut.cut_tree.pruned_scratch`,
+    one block sized by the window's ``n`` padded pixels and the ``bound`` on the pixels in the cuts), as
+    :func:`zcut.cut_tree.pruned_outliers` allocates them in its call; for the passes timed one by one
+    (``bench/bench_zcut.py --passes``)."""
+    return tuple(pruned_scratch(np.int64(n), np.int64(bound)))
 
 
 def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step: float, K: int,
@@ -432,40 +425,21 @@ def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: fl
     nothing written). ``check``: when the labelling looks whether it pays (default: at
     ``PRUNE_CHECK`` pixels and ``PRUNE_CHECK_ROWS`` rows' worth). ``gentle``: the connectivity of
     the gentle components labelled: 4, the z-cut's ``connectivity``, or ``"auto"``: the
-    z-cut's ``connectivity`` (module notes)."""
+    z-cut's ``connectivity`` (module notes). The window, the scratch, the labelling, the prune, the
+    flood and the read-out are one kernel call (:func:`zcut.cut_tree.pruned_outliers`)."""
     k_eff, top = _levels(z_min, z_max, step, K)
     H, W = z.shape
     n = (H + 2) * (W + 2)
     if top >= FLOOD_MAX_LEVELS or n >= 2**31 - 1 or not max_area <= H * W:
         return False  # (no gentle component reaches max_area: nothing would be left out)
-    if check is None:
-        check = max(PRUNE_CHECK, PRUNE_CHECK_ROWS * W)
-    thr = z_max - top * step
-    wr, wc, wh, ww = 0, 0, H, W  # the window of the pixels in the cuts
-    bound = H * W  # ... and their number, at most
-    if z_min < thr:  # (invalid pixels stand at z_min: outside the cuts, the segments may be skipped)
-        wr, wc, wh, ww, n_read = _window(seg_max, thr, W)
-        bound = n_read * SEGMENT
-        if bound < minimum:
-            return False  # too few pixels in the cuts for the labelling to pay
-        bound = min(bound, wh * ww)
-    st, gl, pix, gpar, gcnt = _scratch((wh + 2) * (ww + 2), bound)
-    conn8 = connectivity == 8
     if gentle not in ("auto", 4, connectivity):
         raise ParameterError(f"gentle must be 'auto', 4 or the connectivity ({connectivity}), got {gentle!r}")
-    args = (z, seg_max, z_min, z_max, step, np.int64(k_eff + 2), np.int64(top))
-    rest = (float(max_area), np.int64(check), st, pix, gl, gpar, gcnt)
-    window = (wr, wc, wh, ww)
-    m, nl, labelled = gentle_levels(*args, conn8 and gentle != 4, *rest, 0.5, *window)
-    start = np.zeros(top + 2, np.int64)
-    keep = int(gentle_prune(st, pix, m, gl, gpar, gcnt, nl, float(max_area), start, labelled, ww, conn8,
-                            np.int64(top)))
-    pix = pix[:keep]
-    lab = gl  # the labels are read; the flood writes its node image over them at the kept pixels
-    _, _, node_parent, tagged, fin = flood_core_left_out(st, start, pix, ww, np.int64(k_eff), np.int64(top), conn8,
-                                                         float(max_area), lab)
-    pruned_outlier_mask(z, lab, pix, fin, node_parent, tagged, out.reshape(-1), wr, wc, ww)
-    return True
+    if check is None:
+        check = max(PRUNE_CHECK, PRUNE_CHECK_ROWS * W)
+    conn8 = connectivity == 8
+    return bool(pruned_outliers(z, seg_max, z_min, z_max, step, np.int64(k_eff), np.int64(top), conn8,
+                                conn8 and gentle != 4, float(max_area), np.int64(check), np.int64(minimum),
+                                out.reshape(-1)))
 
 
 def zcut_outliers(
