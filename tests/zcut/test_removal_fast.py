@@ -236,8 +236,9 @@ def test_nearest_points_equal_the_tree(logs):
     """The residuals' nearest-point query (the cell grid, each search starting from the previous row's
     nearest point; the tree where the two could differ) against the model's KD-tree, distances and points
     bit for bit: ring pixels in image order, shuffled and every 7th, random points in and around the model, points
-    on cell faces and corners, the model's own points (distance 0, ties) and points jittered off them, in blocks and
-    alone."""
+    on cell faces, corners and middles, the model's own points (distance 0, ties) and points jittered off them or
+    half a cell off (the faces of the 2 x 2 x 2 block that answers most rows), points in the grid's outer cells, in
+    blocks and alone."""
     from zcut.removal import _nearest_points
 
     rng = np.random.default_rng(11)
@@ -255,7 +256,15 @@ def test_nearest_points_equal_the_tree(logs):
                  "reversed": ring_pts[::-1],
                  # rows whose previous row's point lies too far: the row's own cell bounds the search
                  "shuffled": ring_pts[rng.permutation(len(ring_pts))], "every 7th": ring_pts[::7],
-                 "cell corners": np.floor((own - g.origin) / g.cell) * g.cell + g.origin}
+                 "cell corners": np.floor((own - g.origin) / g.cell) * g.cell + g.origin,
+                 # the block of 2 x 2 x 2 cells: points half-way across a cell (where the block's side switches),
+                 # its faces a nearest distance away, and the grid's outer cells (no block there)
+                 "cell middles": (np.floor((ring_pts[:800] - g.origin) / g.cell) + 0.5) * g.cell + g.origin,
+                 "block faces": own + rng.choice([-1.0, 1.0], own.shape) * (g.cell / 2 - 1e-13),
+                 "outer cells": g.origin + g.cell * (rng.uniform(0, 1, (600, 3)) + np.where(
+                     rng.random((600, 3)) < 0.5, 0.0, g.dims - 1.0) * (rng.random((600, 3)) < 0.7)),
+                 "next to outer cells": g.origin + g.cell * (rng.uniform(0, 1, (600, 3)) + np.where(
+                     rng.random((600, 3)) < 0.5, 1.0, g.dims - 2.0))}
         for name, q in cases.items():
             q = np.ascontiguousarray(q)
             d, j = _nearest_points(q, index)
