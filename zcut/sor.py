@@ -81,8 +81,11 @@ Every full-frame temporary of a call (the planes, the valid mask, d̄ before it 
 block statistics, the band tables, the columns) is taken from the calling
 thread's :class:`zcut.sor_workspace.SorWorkspace` (see that module: one per thread). By default it keeps
 nothing between calls (``zcut.sor_workspace.KEPT_BYTES``: in a replay, where the process keeps the heap it
-freed, ~190 MB held for SOR alone cost the other stages more than it saved); ``thread_workspace().max_bytes =
-None`` keeps them, grown to the largest frame seen, until ``thread_workspace().release()``.
+freed, ~190 MB held for SOR alone cost the other stages more than it saved) but the column search's arrays
+(``zcut.sor_workspace.KEPT_NAMES``, up to ``KEPT_NAMES_BYTES`` = 128 MiB a thread; above that they are freed
+after the call like the rest): ~85 MB on a frame of tall parts on end, faulted in afresh each call when they
+were made fresh. ``thread_workspace().max_bytes = None`` keeps everything, grown to the largest frame seen,
+until ``thread_workspace().release()``, which frees the column arrays too.
 What a call returns (d̄, the masks) is always a new array.
 """
 

@@ -17,6 +17,10 @@ Rules (where this module's work stops):
   workspace holding more than ``max_bytes`` drops everything. A thread's workspace is made with
   :data:`KEPT_BYTES` (0: nothing is kept between calls, the behaviour before workspaces);
   ``max_bytes = None`` keeps everything (~170 MB for a full frame) until :meth:`SorWorkspace.release`.
+- The exception: the arrays named in ``keep`` (a thread's workspace: :data:`KEPT_NAMES`, the column search's)
+  stay after a call whatever ``max_bytes`` says, as long as they hold at most ``keep_bytes`` together
+  (:data:`KEPT_NAMES_BYTES`, 128 MiB); above that they are dropped with the rest, as before.
+  :meth:`SorWorkspace.release` drops them too.
 - Taken arrays are uninitialized (like ``np.empty``); :meth:`SorWorkspace.full` fills.
 - The workspace also keeps the thread pool a call runs its kernels on (:meth:`SorWorkspace.pool`:
   starting one per call cost ≈ 0.4 CPU ms); ``max_bytes`` leaves it, :meth:`SorWorkspace.release`
@@ -45,12 +49,18 @@ class SorWorkspace:
     max_bytes : int, optional
         After a call, everything is dropped when the workspace holds more than this; None (the
         default): keep everything until :meth:`release`.
+    keep : frozenset of str
+        Names of arrays kept after a call even when the rest is dropped, ...
+    keep_bytes : int
+        ... as long as they hold at most this many bytes together (else they are dropped too).
     """
 
-    __slots__ = ("_arrays", "_busy", "_pool", "_threads", "max_bytes")
+    __slots__ = ("_arrays", "_busy", "_pool", "_threads", "keep", "keep_bytes", "max_bytes")
 
-    def __init__(self, max_bytes: int | None = None) -> None:
+    def __init__(self, max_bytes: int | None = None, *, keep: frozenset[str] = frozenset(), keep_bytes: int = 0) -> None:
         self.max_bytes = max_bytes
+        self.keep = keep
+        self.keep_bytes = keep_bytes
         self._arrays: dict[str, np.ndarray] = {}
         self._busy = False
         self._pool: ThreadPoolExecutor | None = None
@@ -60,6 +70,16 @@ class SorWorkspace:
     def nbytes(self) -> int:
         """Bytes held between calls."""
         return sum(a.nbytes for a in self._arrays.values())
+
+    def _bound(self) -> None:
+        # after a call: over max_bytes, drop everything but the kept names, and those too when
+        # they hold more than keep_bytes together
+        if self.max_bytes is None or self.nbytes <= self.max_bytes:
+            return
+        kept = {name: a for name, a in self._arrays.items() if name in self.keep}
+        self._arrays.clear()
+        if sum(a.nbytes for a in kept.values()) <= self.keep_bytes:
+            self._arrays.update(kept)
 
     def release(self) -> None:
         """Drop every array (they are freed once no call uses them) and stop the thread pool."""
@@ -115,8 +135,7 @@ class SorWorkspace:
             yield self
         finally:
             self._busy = False
-            if self.max_bytes is not None and self.nbytes > self.max_bytes:
-                self._arrays.clear()
+            self._bound()
 
 
 _LOCAL = threading.local()
@@ -128,6 +147,14 @@ _LOCAL = threading.local()
 #: loop may keep them (``thread_workspace().max_bytes = None``).
 KEPT_BYTES: int | None = 0
 
+#: ... except the column search's arrays (``zcut.sor._column_stage``: the columns' entries, their starts, the marked
+#: columns), kept between calls while they hold at most :data:`KEPT_NAMES_BYTES` together (above that, freed after
+#: the call like the rest). They are made only on frames with many pixels the image windows leave (tall parts on
+#: end: ~85 MB on a 1920 x 1200 frame of the bench's ``steep``), and made fresh each call they were faulted in
+#: afresh (docs/performance.md, SOR round of 2026-12-06a).
+KEPT_NAMES = frozenset({"col_x", "col_y", "col_z", "col_mult", "col_slab", "col_start", "col_fill", "marked"})
+KEPT_NAMES_BYTES = 128 << 20
+
 
 def thread_workspace() -> SorWorkspace:
     """The calling thread's workspace (made on first use, dropped with the thread).
@@ -136,6 +163,6 @@ def thread_workspace() -> SorWorkspace:
     n`` bounds what it keeps between calls."""
     ws: SorWorkspace | None = getattr(_LOCAL, "workspace", None)
     if ws is None:
-        ws = SorWorkspace(max_bytes=KEPT_BYTES)
+        ws = SorWorkspace(max_bytes=KEPT_BYTES, keep=KEPT_NAMES, keep_bytes=KEPT_NAMES_BYTES)
         _LOCAL.workspace = ws
     return ws

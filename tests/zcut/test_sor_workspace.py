@@ -6,7 +6,9 @@ small, one pixel, empty, all-NaN, large NaN regions, with and without ``mask``, 
 forced) run through one workspace gives what a fresh workspace gives and what the reference gives,
 also when every array the workspace holds is overwritten with garbage between calls (nothing is
 read before the call writes it); the returned d̄ and masks never share memory with the workspace;
-two threads running at once give what one gives; ``release`` and ``max_bytes`` free what is held.
+two threads running at once give what one gives; ``release`` and ``max_bytes`` free what is held,
+except the column search's arrays (``KEPT_NAMES``), kept up to ``KEPT_NAMES_BYTES`` by default and
+poisoned between calls like the rest.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from reference.sor_reference import mean_distances_reference, outliers_from_mean
 
 import zcut.sor as sor_module
 from zcut.sor import sor_mean_distances, sor_outliers, sor_outliers_from_distances
-from zcut.sor_workspace import KEPT_BYTES, SorWorkspace, thread_workspace
+from zcut.sor_workspace import KEPT_BYTES, KEPT_NAMES, KEPT_NAMES_BYTES, SorWorkspace, thread_workspace
 
 
 # ------------------------------------------------------------------------------------------------
@@ -56,6 +58,31 @@ def test_max_bytes_bounds_what_is_kept_and_busy_workspaces_are_not_shared() -> N
     with ws.call() as inner:
         inner.empty("big", (2000,), np.uint8)
     assert ws.nbytes == 0  # over the bound: dropped when the call ended
+
+
+def test_kept_names_outlive_max_bytes_up_to_their_bound() -> None:
+    ws = SorWorkspace(max_bytes=0, keep=frozenset({"a", "b"}), keep_bytes=1000)
+    with ws.call() as inner:
+        a = inner.empty("a", (600,), np.uint8)
+        inner.empty("b", (400,), np.uint8)
+        inner.empty("other", (10,), np.uint8)
+    assert sorted(ws._arrays) == ["a", "b"] and ws.nbytes == 1000  # at the bound: kept, the rest dropped
+    with ws.call() as inner:
+        assert np.shares_memory(inner.empty("a", (500,), np.uint8), a)  # the kept one is reused
+    assert ws.nbytes == 1000  # within max_bytes? no (0), but only kept names are held
+    with ws.call() as inner:
+        inner.empty("a", (601,), np.uint8)  # the kept names now hold more than keep_bytes
+    assert ws.nbytes == 0  # dropped with the rest, as without the exception
+    with ws.call() as inner:
+        inner.empty("b", (10,), np.uint8)
+    ws.release()
+    assert ws.nbytes == 0  # release drops the kept names too
+    unbounded = SorWorkspace(max_bytes=None, keep=frozenset({"a"}), keep_bytes=0)
+    with unbounded.call() as inner:
+        inner.empty("a", (10,), np.uint8)
+        inner.empty("other", (10,), np.uint8)
+    assert unbounded.nbytes == 20  # max_bytes None keeps everything, whatever keep_bytes says
+    assert thread_workspace().keep == KEPT_NAMES and thread_workspace().keep_bytes == KEPT_NAMES_BYTES == 128 << 20
 
 
 def test_each_thread_has_its_own_workspace() -> None:
@@ -194,9 +221,39 @@ def test_a_reused_workspace_equals_a_fresh_one(max_bytes: int | None) -> None:
                 for c, (dbar, mask) in want.items():
                     np.testing.assert_array_equal(sor_mean_distances(xyz, k=4, convention=c), dbar)
                     np.testing.assert_array_equal(sor_outliers(xyz, k=4, convention=c), mask)
-        assert (ws.nbytes == 0) == (max_bytes == 0)
+        if max_bytes == 0:  # at most the column search's arrays stay (these frames are well under their bound)
+            assert set(ws._arrays) <= KEPT_NAMES
+        else:
+            assert not set(ws._arrays) <= KEPT_NAMES
     finally:
         ws.max_bytes = KEPT_BYTES
+
+
+@pytest.mark.parametrize("convention", ["pcl", "open3d"])
+def test_the_kept_column_arrays_change_nothing(convention: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    # the default workspace (KEPT_BYTES: nothing kept but the column search's arrays), the column search
+    # forced, clouds that grow and shrink, what it keeps poisoned between calls: what a fresh workspace gives
+    monkeypatch.setattr(sor_module, "_COLUMNS_MIN_SHARE", 1 << 40)
+    monkeypatch.setattr(sor_module, "_COLUMNS_COST", 0.0)
+    ws = thread_workspace()
+    assert ws.max_bytes == KEPT_BYTES == 0
+    clouds = cloud_sequence()
+    fresh = {}
+    for name, xyz, mask in clouds:
+        ws.release()
+        fresh[name] = sor_mean_distances(xyz, k=4, convention=convention, mask=mask)
+    held = set()
+    for name, xyz, mask in clouds + clouds[::-1]:
+        poison(ws)
+        dbar = sor_mean_distances(xyz, k=4, convention=convention, mask=mask)
+        np.testing.assert_array_equal(dbar, fresh[name], err_msg=name)
+        assert set(ws._arrays) <= KEPT_NAMES, name
+        assert not any(np.shares_memory(dbar, a) for a in ws._arrays.values()), name
+        held |= set(ws._arrays)
+    assert held == KEPT_NAMES  # the column search ran and kept every one of its arrays
+    monkeypatch.setattr(ws, "keep_bytes", 0)  # over the bound: dropped after the call, as before
+    np.testing.assert_array_equal(sor_mean_distances(clouds[2][1], k=4, convention=convention), fresh["steep"])
+    assert ws.nbytes == 0
 
 
 def test_two_threads_at_once_equal_one_thread() -> None:
