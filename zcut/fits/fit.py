@@ -358,7 +358,8 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     ``COARSE_POINTS`` points; the best (most points within the score tolerance, plus the boundary
     points on the model's edges) and its turns by ``TURNS_DEG`` about the region's normal the same,
     and the best of all is refined on up to ``max_points`` points. A guess whose points nearly all
-    fit stops the search of the guesses.
+    fit stops the search of the guesses. ``FitParams.coarse_keep`` > 0 (off by default, docs/fits.md "Fifteenth
+    round"): the guesses are screened by ``screen_iterations`` steps first and only the best ``coarse_keep`` searched.
 
     ``shifts`` > 0 (the second pass, a region that may show only part of an instance): the guesses
     also put ``shifts`` spread points of the model's facing side on the region's centroid
