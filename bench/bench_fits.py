@@ -518,7 +518,8 @@ def main() -> None:
                                 continue
                             g, pos, rank = (np.asarray(c) for c in zip(*v))
                             print(f"   guesses, pass {k}: {len(v)} searches, {int(np.median(g))} guesses (median); "
-                                  f"the chosen one's position median {np.median(pos):.0f}, p90 {np.percentile(pos, 90):.0f}"
+                                  f"the chosen one's position median {np.median(pos):.0f}, p90 {np.percentile(pos, 90):.0f}, "
+                                  f"< 4 {np.mean(pos < 4):.2f}"
                                   f"; the best one's rank by the {p.screen_iterations}-step screen ≤ 1/2/4/8: "
                                   + "/".join(f"{np.mean(rank <= q):.2f}" for q in (1, 2, 4, 8)), flush=True)
                     rows.append(s)
