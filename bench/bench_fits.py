@@ -2,7 +2,7 @@
 
     PYTHONPATH=. .venv/bin/python bench/bench_fits.py [--set tune|report] [--size 960x600]
         [--kinds spheres,zinc_nuts,rods,black_nuts] [--sensors handmade,raytraced] [--json OUT]
-        [--param seed_shifts=0 ...] [--dump FITS.pkl] [--cache DIR] [--phases] [--repeat N]
+        [--param seed_shifts=0 ...] [--dump FITS.pkl] [--cache DIR] [--phases] [--guesses] [--repeat N]
     PYTHONPATH=. .venv/bin/python bench/bench_fits.py --same OLD.pkl NEW.pkl
 
 Per frame (both generators, each kind, the seeds of the set: ``tune`` 2951-2952, the fits' knobs
@@ -386,6 +386,39 @@ def phase_times(run):  # type: ignore[no-untyped-def]
     return dict(spent), dict(calls)
 
 
+def guess_ranks(run, screen_iterations: int = 1):  # type: ignore[no-untyped-def]
+    """Call ``run()`` with the coarse search of a general part's guesses wrapped: each guess is also searched alone
+    (its own score after ``coarse_iterations`` steps, and after ``screen_iterations``: the screening of
+    ``FitParams.coarse_keep``). {pass: [(guesses, position of the chosen guess in their order, rank of the guess of
+    the best score among the screening's scores)]}; pass 1 the first pass, 2 the second (more guesses: the shifts).
+    The second searches of each guess cost as much again as the coarse search (not timed)."""
+    import zcut.fits.fit as F
+
+    real = F.coarse_search
+    out: dict[int, list[tuple[int, int, int]]] = {1: [], 2: []}
+    n_first = [0]
+
+    def wrapped(points, edge, Rs, ts, iterations, *rest):  # type: ignore[no-untyped-def]
+        got = real(points, edge, Rs, ts, iterations, *rest)
+        if rest[-2] > 1.0:  # the turns (no stop): not guesses
+            return got
+        alone = rest[:-2] + (2.0, rest[-1])
+        full = [real(points, edge, Rs[i:i + 1], ts[i:i + 1], iterations, *alone)[3] for i in range(len(Rs))]
+        short = [real(points, edge, Rs[i:i + 1], ts[i:i + 1], screen_iterations, *alone)[3] for i in range(len(Rs))]
+        best = int(np.argmax(full))
+        rank = 1 + int(np.flatnonzero(np.argsort(-np.asarray(short), kind="stable") == best)[0])
+        n_first[0] = n_first[0] or len(Rs)
+        out[1 if len(Rs) <= n_first[0] else 2].append((len(Rs), int(got[0]), rank))
+        return got
+
+    F.coarse_search = wrapped
+    try:
+        run()
+    finally:
+        F.coarse_search = real
+    return out
+
+
 def _frame(sensor: str, kind: str, seed: int, size: tuple[int, int], cache: str | None) -> Truth:
     """The scene of the frame, synthesized or read back from ``cache`` (written there the first time)."""
     import os
@@ -422,6 +455,9 @@ def main() -> None:
                          "the bit) on each frame, just before")
     ap.add_argument("--cache", default=None, metavar="DIR", help="keep the synthesized frames in DIR")
     ap.add_argument("--phases", action="store_true", help="also where each frame's CPU goes (a second fit)")
+    ap.add_argument("--guesses", action="store_true",
+                    help="also, per pass, how many guesses a region's search tries and where its winner ranks (a "
+                         "second fit: guess_ranks)")
     ap.add_argument("--no-proposals", action="store_true", help="score the fits only, not the proposals")
     ap.add_argument("--repeat", type=int, default=1, help="fit each frame this many times (CPU: the smallest)")
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
@@ -473,6 +509,19 @@ def main() -> None:
                         print("   phases (CPU-s, calls): " + ", ".join(
                             f"{k} {v:.2f}" + (f" ({calls[k]})" if k in calls else "")
                             for k, v in sorted(spent.items(), key=lambda kv: -kv[1])), flush=True)
+                    if args.guesses:
+                        ranks = guess_ranks(functools.partial(fit_prepared, truth.xyz_mm, zone, model,
+                                                              intrinsics=truth.K, params=p), p.screen_iterations)
+                        s.update(guesses={k: v for k, v in ranks.items()})
+                        for k, v in ranks.items():
+                            if not v:
+                                continue
+                            g, pos, rank = (np.asarray(c) for c in zip(*v))
+                            print(f"   guesses, pass {k}: {len(v)} searches, {int(np.median(g))} guesses (median); "
+                                  f"the chosen one's position median {np.median(pos):.0f}, p90 {np.percentile(pos, 90):.0f}, "
+                                  f"< 4 {np.mean(pos < 4):.2f}"
+                                  f"; the best one's rank by the {p.screen_iterations}-step screen ≤ 1/2/4/8: "
+                                  + "/".join(f"{np.mean(rank <= q):.2f}" for q in (1, 2, 4, 8)), flush=True)
                     rows.append(s)
                     _row(s, label)
                     dumped[(label, sensor, kind, seed)] = [(f.pose, f.err_mm, f.support, f.pixels) for f in fits]

@@ -45,7 +45,16 @@ from zcut.errors import InputShapeError, describe_array
 from zcut.fit_vetting import pose_overlaps
 
 from .icp import EDGE_WEAK, icp, initial_poses, initial_rotations, pose_matrix, shifted_poses
-from .kernels import axis_band, coarse_search, edge_distances, lower_bounds, surface_distances, window_band, window_rays
+from .kernels import (
+    axis_band,
+    coarse_scores,
+    coarse_search,
+    edge_distances,
+    lower_bounds,
+    surface_distances,
+    window_band,
+    window_rays,
+)
 from .model import PartModel, prepare_model
 from .params import FitParams
 from .segment import segment
@@ -349,7 +358,8 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     ``COARSE_POINTS`` points; the best (most points within the score tolerance, plus the boundary
     points on the model's edges) and its turns by ``TURNS_DEG`` about the region's normal the same,
     and the best of all is refined on up to ``max_points`` points. A guess whose points nearly all
-    fit stops the search of the guesses.
+    fit stops the search of the guesses. ``FitParams.coarse_keep`` > 0 (off by default, docs/fits.md "Fifteenth
+    round"): the guesses are screened by ``screen_iterations`` steps first and only the best ``coarse_keep`` searched.
 
     ``shifts`` > 0 (the second pass, a region that may show only part of an instance): the guesses
     also put ``shifts`` spread points of the model's facing side on the region's centroid
@@ -366,9 +376,9 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     score_tol = max(params.k * params.err_floor_mm, params.gate_mm / 4)
     opts = dict(gate_mm=params.gate_mm, k=params.k, floor_mm=params.err_floor_mm, edge_gate_mm=edge_gate)
 
-    def coarse_fit(T0: np.ndarray) -> tuple[float, float, float, np.ndarray]:
+    def coarse_fit(T0: np.ndarray, iterations: int) -> tuple[float, float, float, np.ndarray]:
         # the model without a voxel index (not made by prepare_model): the same steps in Python
-        T, _, _ = icp(coarse, model, T0, iterations=params.coarse_iterations, edge_points=coarse_e, **opts)
+        T, _, _ = icp(coarse, model, T0, iterations=iterations, edge_points=coarse_e, **opts)
         d = _surface_distances(model, coarse, T)
         inl, near = float(np.mean(d <= score_tol)), float(np.mean(np.minimum(d, score_tol))) / score_tol
         e_inl = float(np.mean(_edge_distances(model, coarse_e, T) <= 1.5 * px_mm)) if len(coarse_e) else 1.0
@@ -381,6 +391,8 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
         if not poses:
             return None
         ix = model.index
+        if stop and 0 < params.coarse_keep < len(poses):
+            poses = [poses[i] for i in screen(poses)]
         if ix is not None:  # every guess in one kernel call (:func:`zcut.fits.kernels.coarse_search`)
             Ts = np.stack(poses)
             i, R, t, score = coarse_search(coarse, coarse_e, np.ascontiguousarray(Ts[:, :3, :3]),
@@ -392,12 +404,29 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
             return (float(score), pose_matrix(R, t)) if i >= 0 else None
         found: tuple[float, np.ndarray] | None = None
         for T0 in poses:
-            score, inl, e_inl, T = coarse_fit(T0)
+            score, inl, e_inl, T = coarse_fit(T0, params.coarse_iterations)
             if found is None or score > found[0]:
                 found = (score, T)
             if stop and inl >= STOP_INL and e_inl >= STOP_EDGE:
                 break
         return found
+
+    def screen(poses: list[np.ndarray]) -> np.ndarray:
+        """The ``coarse_keep`` guesses of the best score after ``screen_iterations`` coarse ICP steps, best
+        first (ties: their order)."""
+        ix = model.index
+        if ix is not None:
+            Ts = np.stack(poses)
+            scores = coarse_scores(coarse, coarse_e, np.ascontiguousarray(Ts[:, :3, :3]),
+                                   np.ascontiguousarray(Ts[:, :3, 3]), int(params.screen_iterations),
+                                   float(params.gate_mm), float(params.k), float(params.err_floor_mm),
+                                   float(edge_gate), float(model.extent_mm), float(score_tol), 1.5 * px_mm,
+                                   ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid, ix.p0, ix.p1,
+                                   EDGE_WEAK)
+        else:
+            scores = np.array([coarse_fit(T0, params.screen_iterations)[0] for T0 in poses])
+        keep: np.ndarray = np.argsort(-scores, kind="stable")[: params.coarse_keep]
+        return keep
 
     # the points' principal axes, once: the guesses' rotations and the turns' axis (the same arithmetic as
     # initial_rotations' own, so the same bits)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["ModelIndex", "axis_band", "build_index", "coarse_search", "edge_distances", "farthest_points", "guess_score", "icp_kernel", "lower_bounds", "surface_distances", "window_rays"]
+__all__ = ["ModelIndex", "axis_band", "build_index", "coarse_scores", "coarse_search", "edge_distances", "farthest_points", "guess_score", "icp_kernel", "lower_bounds", "surface_distances", "window_rays"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -651,6 +651,24 @@ def coarse_search(points: np.ndarray, edge_points: np.ndarray, Rs: np.ndarray, t
         if inl >= stop_inl and e_inl >= stop_edge:
             break
     return best, best_R, best_t, best_score
+
+
+@numba.njit(cache=True, nogil=True)
+def coarse_scores(points: np.ndarray, edge_points: np.ndarray, Rs: np.ndarray, ts: np.ndarray, iterations: int,
+                  gate_mm: float, k: float, floor_mm: float, edge_gate_mm: float, extent: float, score_tol: float,
+                  edge_tol: float, origin: np.ndarray, h: float, grid: np.ndarray, a: np.ndarray, b: np.ndarray,
+                  c: np.ndarray, n: np.ndarray, seg_grid: np.ndarray, p0: np.ndarray, p1: np.ndarray,
+                  weak: float) -> np.ndarray:
+    """The score :func:`coarse_search` gives each guess (``Rs[i]``, ``ts[i]``) after ``iterations`` steps of
+    :func:`icp_kernel`, every guess (no stop): the screening of ``FitParams.coarse_keep``. (m,) float64."""
+    out = np.empty(len(Rs))
+    for i in range(len(Rs)):
+        R, t, _, _ = icp_kernel(points, Rs[i], ts[i], iterations, gate_mm, k, floor_mm, edge_points, edge_gate_mm,
+                                extent, origin, h, grid, a, b, c, n, seg_grid, p0, p1, weak)
+        inl, near, e_inl = guess_score(points, edge_points, R, t, score_tol, edge_tol, origin, h, grid, a, b, c, n,
+                                       seg_grid, p0, p1)
+        out[i] = inl - 0.01 * near + (0.5 * e_inl if len(edge_points) else 0.0)
+    return out
 
 
 @numba.njit(cache=True, nogil=True)

@@ -115,6 +115,13 @@ class FitParams:
         CPU and lost 3 of 295 instances on a held-out hand-made black-nut frame.
     skip_plane_mm : float
         See ``skip_share``.
+    coarse_keep : int
+        > 0: a general part's initial guesses (more than ``coarse_keep`` of them) are screened first — each takes
+        ``screen_iterations`` coarse ICP steps and is scored as the coarse search scores — and only the
+        ``coarse_keep`` best, best first, take the coarse search proper (docs/fits.md, "Fifteenth round"); the turns
+        are not screened. 0 (the default): off, every guess searched in its order (the fourteenth round's fits).
+    screen_iterations : int
+        See ``coarse_keep``.
     """
 
     jump_mm: float = 1.5
@@ -145,6 +152,8 @@ class FitParams:
     split_refused: float = 0.0
     skip_share: float = 0.0
     skip_plane_mm: float = 0.15
+    coarse_keep: int = 0
+    screen_iterations: int = 1
 
     def __post_init__(self) -> None:
         _number(self, "jump_mm", gt=0)
@@ -175,3 +184,5 @@ class FitParams:
         _number(self, "split_refused", ge=0)
         _number(self, "skip_share", ge=0, le=1)
         _number(self, "skip_plane_mm", ge=0)
+        _number(self, "coarse_keep", ge=0, integer=True)
+        _number(self, "screen_iterations", ge=1, integer=True)

@@ -70,16 +70,9 @@ def icosphere(radius: float, level: int = 3) -> tuple[np.ndarray, np.ndarray]:
 
 def hand_made_nut_frame() -> tuple[np.ndarray, np.ndarray, object, tuple[float, float, float, float]]:
     """A hand-made zinc-nut frame (seed 5, 300 × 480) in mm, its zone (the parts and the truths), the prepared nut
-    model and the intrinsics."""
-    from replay.logs.part_model import PART_MODEL_ATTACHMENT, read_part_model_bytes
-    from replay.synth import synthesize_frame
-    from replay.synth.log import part_model_attachment
-    from zcut.fits import prepare_model
+    model and the intrinsics (:func:`fit_digests.hand_made`)."""
+    from fit_digests import hand_made
 
-    sf = synthesize_frame(kind="zinc_nuts", seed=5, size=(300, 480))
-    xyz = sf.frame.xyz.astype(np.float64) * 1000.0
-    zone = np.isfinite(xyz).all(axis=2) & ((sf.surface == 5) | sf.truth | sf.off_surface)
-    pm = read_part_model_bytes(part_model_attachment("zinc_nuts", raytraced=False)[PART_MODEL_ATTACHMENT][1])
-    model = prepare_model(pm.vertices * (1000.0 if pm.unit == "m" else 1.0), pm.triangles)
-    K = sf.frame.intrinsics
-    return xyz, zone, model, (K.fx, K.fy, K.cx, K.cy)
+    xyz, zone, model, K = hand_made("zinc_nuts")
+    assert K is not None
+    return xyz, zone, model, K

@@ -4,19 +4,18 @@ default: ``zcut.fits.fit._flat_patch``)."""
 
 from __future__ import annotations
 
-import hashlib
-
 import numpy as np
 import pytest
+from fit_digests import digest, hand_made, holed, real_crop
 from fit_scenes import K_TEST, hex_nut_mesh, pose, render, rotation
 
 import zcut.fits.fit as F
 from zcut.errors import ParameterError
-from zcut.fits import FitParams, PartFit, fit_prepared, prepare_model
+from zcut.fits import FitParams, fit_prepared, prepare_model
 from zcut.fits.icp import initial_rotations
 
 #: the thirteenth round's fits (the previous tree, c94bf05, its defaults) of hand-made frames (seed 5, 300 × 480,
-#: ``_hand_made``) of four kinds, whole and with columns 100-259 NaN: (number of fits, sha256 of poses and pixels)
+#: ``fit_digests.hand_made``) of four kinds, whole and with columns 100-259 NaN: (number of fits, sha256 of poses and pixels)
 THIRTEENTH = {
     ("zinc_nuts", False): (241, "69e99f80fb6eefa4"), ("zinc_nuts", True): (98, "8a3f1eb7b7bfafa5"),
     ("spheres", False): (295, "b143b7f869121cda"), ("spheres", True): (142, "58513c887e33144f"),
@@ -28,46 +27,19 @@ THIRTEENTH = {
 THIRTEENTH_REAL = (144, "9bb38886d2093b60")
 
 
-def _digest(fits: list[PartFit]) -> str:
-    return hashlib.sha256(b"".join(f.pose.tobytes() + f.pixels.tobytes() for f in fits)).hexdigest()[:16]
-
-
-def _hand_made(kind: str) -> tuple[np.ndarray, np.ndarray, object, tuple[float, float, float, float]]:
-    from replay.logs.part_model import PART_MODEL_ATTACHMENT, read_part_model_bytes
-    from replay.synth import synthesize_frame
-    from replay.synth.log import part_model_attachment
-
-    sf = synthesize_frame(kind=kind, seed=5, size=(300, 480))
-    xyz = sf.frame.xyz.astype(np.float64) * 1000.0
-    zone = np.isfinite(xyz).all(axis=2) & ((sf.surface == 5) | sf.truth | sf.off_surface)
-    pm = read_part_model_bytes(part_model_attachment(kind, raytraced=False)[PART_MODEL_ATTACHMENT][1])
-    model = prepare_model(pm.vertices * (1000.0 if pm.unit == "m" else 1.0), pm.triangles)
-    K = sf.frame.intrinsics
-    return xyz, zone, model, (K.fx, K.fy, K.cx, K.cy)
-
-
 @pytest.mark.parametrize("kind", ["zinc_nuts", "spheres", "rods", "black_nuts"])
 def test_the_defaults_are_the_thirteenth_rounds_fits_to_the_bit(kind: str) -> None:
-    xyz, zone, model, K = _hand_made(kind)
+    xyz, zone, model, K = hand_made(kind)
     fits = fit_prepared(xyz, zone, model, intrinsics=K)  # type: ignore[arg-type]
-    assert (len(fits), _digest(fits)) == THIRTEENTH[(kind, False)]
-    holed = xyz.copy()
-    holed[:, 100:260] = np.nan  # a third of the frame invalid
-    fits = fit_prepared(holed, zone, model, intrinsics=K)  # type: ignore[arg-type]
-    assert (len(fits), _digest(fits)) == THIRTEENTH[(kind, True)]
+    assert (len(fits), digest(fits)) == THIRTEENTH[(kind, False)]
+    fits = fit_prepared(holed(xyz), zone, model, intrinsics=K)  # type: ignore[arg-type]  # a third of it invalid
+    assert (len(fits), digest(fits)) == THIRTEENTH[(kind, True)]
 
 
 def test_a_real_cloud_is_the_thirteenth_rounds_to_the_bit(real_data):  # type: ignore[no-untyped-def]
-    from replay.logs.part_model import PART_MODEL_ATTACHMENT, read_part_model_bytes
-    from replay.logs.pcd import read_pcd
-    from replay.synth.log import part_model_attachment
-
-    xyz = read_pcd(real_data / "table_scene_mug_stereo_textured.pcd").xyz.astype(np.float64)[100:300, 200:440] * 1000.0
-    zone = np.isfinite(xyz).all(axis=2)
-    pm = read_part_model_bytes(part_model_attachment("zinc_nuts", raytraced=False)[PART_MODEL_ATTACHMENT][1])
-    model = prepare_model(pm.vertices * (1000.0 if pm.unit == "m" else 1.0), pm.triangles)
-    fits = fit_prepared(xyz, zone, model)
-    assert (len(fits), _digest(fits)) == THIRTEENTH_REAL
+    xyz, zone, model, _ = real_crop(real_data)
+    fits = fit_prepared(xyz, zone, model)  # type: ignore[arg-type]
+    assert (len(fits), digest(fits)) == THIRTEENTH_REAL
 
 
 def test_initial_rotations_with_the_callers_axes_are_its_own_and_leave_them_alone(rng: np.random.Generator) -> None:

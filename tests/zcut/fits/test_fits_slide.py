@@ -3,23 +3,18 @@ it explains the most zone pixels (``FitParams.slide``, ``zcut.fits.fit._slide``)
 
 from __future__ import annotations
 
-import hashlib
-
 import numpy as np
 import pytest
+from fit_digests import digest, hand_made
 from fit_scenes import K_TEST, hand_made_nut_frame, hex_nut_mesh, pose, render, rotation
 
 import zcut.fits.fit as F
 from zcut.errors import ParameterError
-from zcut.fits import FitParams, PartFit, fit_prepared, pose_error, prepare_model
+from zcut.fits import FitParams, fit_prepared, pose_error, prepare_model
 
 #: a rod lying tilted, its axis (model x) about 40° off the image's rows
 ROD = pose(rotation((0, 0, 1), 40) @ rotation((1, 0, 0), 20), (4, -2, 420))
 SLIDE = FitParams(slide=True)
-
-
-def _digest(fits: list[PartFit]) -> str:
-    return hashlib.sha256(b"".join(f.pose.tobytes() + f.pixels.tobytes() for f in fits)).hexdigest()[:16]
 
 
 def _rod_mesh() -> tuple[np.ndarray, np.ndarray]:
@@ -28,34 +23,19 @@ def _rod_mesh() -> tuple[np.ndarray, np.ndarray]:
     return kind_model_mesh("rods")
 
 
-def _hand_made_rod_frame() -> tuple[np.ndarray, np.ndarray, object, tuple[float, float, float, float]]:
-    """A hand-made rod frame (seed 5, 300 × 480) in mm, its zone, the prepared rod model and the intrinsics."""
-    from replay.logs.part_model import PART_MODEL_ATTACHMENT, read_part_model_bytes
-    from replay.synth import synthesize_frame
-    from replay.synth.log import part_model_attachment
-
-    sf = synthesize_frame(kind="rods", seed=5, size=(300, 480))
-    xyz = sf.frame.xyz.astype(np.float64) * 1000.0
-    zone = np.isfinite(xyz).all(axis=2) & ((sf.surface == 5) | sf.truth | sf.off_surface)
-    pm = read_part_model_bytes(part_model_attachment("rods", raytraced=False)[PART_MODEL_ATTACHMENT][1])
-    model = prepare_model(pm.vertices * (1000.0 if pm.unit == "m" else 1.0), pm.triangles)
-    K = sf.frame.intrinsics
-    return xyz, zone, model, (K.fx, K.fy, K.cx, K.cy)
-
-
 #: the eleventh round's fits (the previous tree, e7420cc, its defaults) of the hand-made rod frame above:
 #: (number of fits, sha256 of their poses and pixels)
 ELEVENTH_RODS = (63, "113628a00abbafe2")
 
 
 def test_without_the_slide_the_rods_fits_are_the_eleventh_rounds_to_the_bit():
-    xyz, zone, model, K = _hand_made_rod_frame()
+    xyz, zone, model, K = hand_made("rods")
     old = fit_prepared(xyz, zone, model, intrinsics=K, params=FitParams(slide=False))
-    assert (len(old), _digest(old)) == ELEVENTH_RODS
+    assert (len(old), digest(old)) == ELEVENTH_RODS
     default = fit_prepared(xyz, zone, model, intrinsics=K)
-    assert (len(default), _digest(default)) == ELEVENTH_RODS  # off by default (docs/fits.md, "Twelfth round")
+    assert (len(default), digest(default)) == ELEVENTH_RODS  # off by default (docs/fits.md, "Twelfth round")
     new = fit_prepared(xyz, zone, model, intrinsics=K, params=SLIDE)
-    assert _digest(new) != ELEVENTH_RODS[1]
+    assert digest(new) != ELEVENTH_RODS[1]
     assert all(f.err_mm <= FitParams().max_err_mm and f.support >= 0.5 for f in new)
 
 
@@ -65,7 +45,7 @@ def test_the_slide_leaves_a_nuts_fits_alone():
     assert F._slide_axis(model) is None  # type: ignore[arg-type]
     on = fit_prepared(xyz, zone, model, intrinsics=K, params=SLIDE)
     off = fit_prepared(xyz, zone, model, intrinsics=K, params=FitParams(slide=False))
-    assert (len(on), _digest(on)) == (len(off), _digest(off))
+    assert (len(on), digest(on)) == (len(off), digest(off))
 
 
 def _rod_frame(seed: int) -> tuple[F._Frame, object, np.ndarray]:

@@ -4,16 +4,15 @@ points span more than one instance can is split into lobes, each fitted (``FitPa
 
 from __future__ import annotations
 
-import hashlib
-
 import numpy as np
 import pytest
+from fit_digests import digest, real_crop
 from fit_scenes import K_TEST, hand_made_nut_frame, hex_nut_mesh, pose, render, rotation
 
 import zcut.fits.fit as F
 from zcut.errors import ParameterError
 from zcut.fit_vetting import pose_overlaps
-from zcut.fits import FitParams, PartFit, fit_prepared, pose_error, prepare_model
+from zcut.fits import FitParams, fit_prepared, pose_error, prepare_model
 
 SPLIT = FitParams(split_refused=0.75)
 
@@ -22,18 +21,14 @@ SPLIT = FitParams(split_refused=0.75)
 TWELFTH_NUTS = (241, "69e99f80fb6eefa4")
 
 
-def _digest(fits: list[PartFit]) -> str:
-    return hashlib.sha256(b"".join(f.pose.tobytes() + f.pixels.tobytes() for f in fits)).hexdigest()[:16]
-
-
 def test_without_the_split_the_nuts_fits_are_the_twelfth_rounds_to_the_bit():
     xyz, zone, model, K = hand_made_nut_frame()
     default = fit_prepared(xyz, zone, model, intrinsics=K)
-    assert (len(default), _digest(default)) == TWELFTH_NUTS  # off by default (docs/fits.md, "Thirteenth round")
+    assert (len(default), digest(default)) == TWELFTH_NUTS  # off by default (docs/fits.md, "Thirteenth round")
     off = fit_prepared(xyz, zone, model, intrinsics=K, params=FitParams(split_refused=0.0))
-    assert (len(off), _digest(off)) == TWELFTH_NUTS
+    assert (len(off), digest(off)) == TWELFTH_NUTS
     on = fit_prepared(xyz, zone, model, intrinsics=K, params=SPLIT)
-    assert _digest(on) != TWELFTH_NUTS[1]
+    assert digest(on) != TWELFTH_NUTS[1]
     # the split adds fits; every one is acceptable and no two share more than max_overlap of a solid
     assert len(on) >= len(default)
     assert all(f.err_mm <= SPLIT.max_err_mm and f.support >= SPLIT.min_support for f in on)
@@ -157,16 +152,9 @@ TWELFTH_REAL = (144, "9bb38886d2093b60")
 
 
 def test_a_real_cloud_without_the_split_is_the_twelfth_rounds_and_with_it_every_fit_acceptable(real_data):  # type: ignore[no-untyped-def]
-    from replay.logs.part_model import PART_MODEL_ATTACHMENT, read_part_model_bytes
-    from replay.logs.pcd import read_pcd
-    from replay.synth.log import part_model_attachment
-
-    xyz = read_pcd(real_data / "table_scene_mug_stereo_textured.pcd").xyz.astype(np.float64)[100:300, 200:440] * 1000.0
-    zone = np.isfinite(xyz).all(axis=2)
-    pm = read_part_model_bytes(part_model_attachment("zinc_nuts", raytraced=False)[PART_MODEL_ATTACHMENT][1])
-    model = prepare_model(pm.vertices * (1000.0 if pm.unit == "m" else 1.0), pm.triangles)
-    off = fit_prepared(xyz, zone, model)
-    assert (len(off), _digest(off)) == TWELFTH_REAL
-    on = fit_prepared(xyz, zone, model, params=SPLIT)
+    xyz, zone, model, _ = real_crop(real_data)
+    off = fit_prepared(xyz, zone, model)  # type: ignore[arg-type]
+    assert (len(off), digest(off)) == TWELFTH_REAL
+    on = fit_prepared(xyz, zone, model, params=SPLIT)  # type: ignore[arg-type]
     assert len(on) >= len(off)
     assert all(f.err_mm <= SPLIT.max_err_mm and f.support >= SPLIT.min_support for f in on)

@@ -1,0 +1,69 @@
+"""The set-up of the fits' literal digest tests, in one place (test_fits_skip, test_fits_split, test_fits_slide and
+test_fits_budget): the frames they fit, the prepared models and the digest a list of fits is compared by.
+
+A round that must keep the fits to the bit records the previous tree's ``(len(fits), digest(fits))`` of these frames
+as literals and asserts them."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+
+from zcut.fits import PartFit, prepare_model
+
+#: a frame in mm, its zone, the prepared part model and the intrinsics (fx, fy, cx, cy) or None (estimated)
+Scene = tuple[np.ndarray, np.ndarray, object, "tuple[float, float, float, float] | None"]
+
+#: the hand-made frames' seed and size (rows, columns)
+HAND_MADE_SEED = 5
+HAND_MADE_SIZE = (300, 480)
+#: :func:`holed`: these columns are made invalid (a third of the hand-made frame)
+HOLE_COLUMNS = slice(100, 260)
+#: :func:`real_crop`: the crop of docs/real_data.md's ``table_scene_mug_stereo_textured.pcd`` (rows, columns)
+REAL_CLOUD = "table_scene_mug_stereo_textured.pcd"
+REAL_CROP = (slice(100, 300), slice(200, 440))
+
+
+def digest(fits: list[PartFit]) -> str:
+    """The first 16 hex digits of the sha256 of every fit's pose and pixels, in their order."""
+    return hashlib.sha256(b"".join(f.pose.tobytes() + f.pixels.tobytes() for f in fits)).hexdigest()[:16]
+
+
+def part_model(kind: str) -> object:
+    """The prepared hand-made model of ``kind`` (the log's part-model attachment, in mm)."""
+    from replay.logs.part_model import PART_MODEL_ATTACHMENT, read_part_model_bytes
+    from replay.synth.log import part_model_attachment
+
+    pm = read_part_model_bytes(part_model_attachment(kind, raytraced=False)[PART_MODEL_ATTACHMENT][1])
+    return prepare_model(pm.vertices * (1000.0 if pm.unit == "m" else 1.0), pm.triangles)
+
+
+def hand_made(kind: str) -> Scene:
+    """A hand-made frame of ``kind`` (:data:`HAND_MADE_SEED`, :data:`HAND_MADE_SIZE`) in mm, its zone (the parts and
+    the truths), the prepared model and the intrinsics."""
+    from replay.synth import synthesize_frame
+
+    sf = synthesize_frame(kind=kind, seed=HAND_MADE_SEED, size=HAND_MADE_SIZE)
+    xyz = sf.frame.xyz.astype(np.float64) * 1000.0
+    zone = np.isfinite(xyz).all(axis=2) & ((sf.surface == 5) | sf.truth | sf.off_surface)
+    K = sf.frame.intrinsics
+    return xyz, zone, part_model(kind), (K.fx, K.fy, K.cx, K.cy)
+
+
+def holed(xyz: np.ndarray) -> np.ndarray:
+    """A copy of ``xyz`` with the :data:`HOLE_COLUMNS` NaN (a large invalid region)."""
+    out = xyz.copy()
+    out[:, HOLE_COLUMNS] = np.nan
+    return out
+
+
+def real_crop(real_data: Path) -> Scene:
+    """The crop :data:`REAL_CROP` of the real cloud :data:`REAL_CLOUD` in mm, its whole valid part as zone, the
+    hand-made nut model and no intrinsics (the fits estimate them from the cloud)."""
+    from replay.logs.pcd import read_pcd
+
+    rows, cols = REAL_CROP
+    xyz = read_pcd(real_data / REAL_CLOUD).xyz.astype(np.float64)[rows, cols] * 1000.0
+    return xyz, np.isfinite(xyz).all(axis=2), part_model("zinc_nuts"), None
