@@ -276,6 +276,85 @@ def _row_moments(i, r, per_px, tan, floor, W, X, Y, Z, V, zq, reach, sel, nn, mx
         c5[t] = c5[t] / n
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _point_sums(v, x, y, z, zq, limit, n, sx, sy, sz):  # type: ignore[no-untyped-def]  # numba kernel
+    """One point of :func:`_row_moments_r1`'s first pass: (in the patch, n, Σx, Σy, Σz) after it."""
+    ok = v & (abs(z - zq) <= limit)
+    return ok, n + (1.0 if ok else 0.0), sx + (x if ok else 0.0), sy + (y if ok else 0.0), sz + (z if ok else 0.0)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _point_products(ok, x, y, z, mx, my, mz, c0, c1, c2, c3, c4, c5):  # type: ignore[no-untyped-def]  # numba kernel
+    """One point of :func:`_row_moments_r1`'s second pass: the six sums of products after it."""
+    dx = x - mx
+    dy = y - my
+    dz = z - mz
+    return (c0 + (dx * dx if ok else 0.0), c1 + (dx * dy if ok else 0.0), c2 + (dx * dz if ok else 0.0),
+            c3 + (dy * dy if ok else 0.0), c4 + (dy * dz if ok else 0.0), c5 + (dz * dz if ok else 0.0))
+
+
+@numba.njit(cache=True, error_model="numpy")  # IEEE division, as _row_moments
+def _row_moments_r1(i, per_px, tan, floor, W, X, Y, Z, V, nn, mz, c0, c1, c2, c3, c4, c5):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_row_moments` for r = 1 (the default patch): n, the centroid depth and the covariance of
+    each patch of row ``i`` (entry t: column t + 1), its nine points unrolled, every sum held in a
+    register (the general kernel keeps its sums in arrays, one pass over the row per point).
+
+    The same arithmetic in the same order: the points in rows i - 1, i, i + 1 and, in each, columns
+    t, t + 1, t + 2 (the general kernel's order of (da, db)), each sum starting at +0.0, a point not
+    in the patch adding +0.0, and the reach's bound cheb · reach + floor with cheb 1.0 or 0.0 (the
+    centre), as the general kernel computes it."""
+    sa = (i - 1) % 3
+    sb = i % 3
+    sc = (i + 1) % 3
+    xa, ya, za, va = X[sa], Y[sa], Z[sa], V[sa]
+    xb, yb, zb, vb = X[sb], Y[sb], Z[sb], V[sb]
+    xc, yc, zc, vc = X[sc], Y[sc], Z[sc], V[sc]
+    for t in range(W - 2):
+        zq = zb[t + 1]
+        reach = abs(zq) * per_px * tan
+        side = 1.0 * reach + floor
+        centre = 0.0 * reach + floor
+        n = 0.0
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        k0, n, sx, sy, sz = _point_sums(va[t], xa[t], ya[t], za[t], zq, side, n, sx, sy, sz)
+        k1, n, sx, sy, sz = _point_sums(va[t + 1], xa[t + 1], ya[t + 1], za[t + 1], zq, side, n, sx, sy, sz)
+        k2, n, sx, sy, sz = _point_sums(va[t + 2], xa[t + 2], ya[t + 2], za[t + 2], zq, side, n, sx, sy, sz)
+        k3, n, sx, sy, sz = _point_sums(vb[t], xb[t], yb[t], zb[t], zq, side, n, sx, sy, sz)
+        k4, n, sx, sy, sz = _point_sums(vb[t + 1], xb[t + 1], yb[t + 1], zb[t + 1], zq, centre, n, sx, sy, sz)
+        k5, n, sx, sy, sz = _point_sums(vb[t + 2], xb[t + 2], yb[t + 2], zb[t + 2], zq, side, n, sx, sy, sz)
+        k6, n, sx, sy, sz = _point_sums(vc[t], xc[t], yc[t], zc[t], zq, side, n, sx, sy, sz)
+        k7, n, sx, sy, sz = _point_sums(vc[t + 1], xc[t + 1], yc[t + 1], zc[t + 1], zq, side, n, sx, sy, sz)
+        k8, n, sx, sy, sz = _point_sums(vc[t + 2], xc[t + 2], yc[t + 2], zc[t + 2], zq, side, n, sx, sy, sz)
+        mx = sx / n
+        my = sy / n
+        m = sz / n
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        s3 = 0.0
+        s4 = 0.0
+        s5 = 0.0
+        s0, s1, s2, s3, s4, s5 = _point_products(k0, xa[t], ya[t], za[t], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k1, xa[t + 1], ya[t + 1], za[t + 1], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k2, xa[t + 2], ya[t + 2], za[t + 2], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k3, xb[t], yb[t], zb[t], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k4, xb[t + 1], yb[t + 1], zb[t + 1], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k5, xb[t + 2], yb[t + 2], zb[t + 2], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k6, xc[t], yc[t], zc[t], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k7, xc[t + 1], yc[t + 1], zc[t + 1], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k8, xc[t + 2], yc[t + 2], zc[t + 2], mx, my, m, s0, s1, s2, s3, s4, s5)
+        nn[t] = n
+        mz[t] = m
+        c0[t] = s0 / n
+        c1[t] = s1 / n
+        c2[t] = s2 / n
+        c3[t] = s3 / n
+        c4[t] = s4 / n
+        c5[t] = s5 / n
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _keep_patch(c00, c01, c02, c11, c12, c22, zz, ok, l0, l1, fitted, rlo, rhi, pos, lo, hi, at, m):  # type: ignore[no-untyped-def]  # numba kernel
     """One fitted patch of :func:`_ratio_brackets` (covariance, z², and what certifying it gave: ``ok``,
@@ -358,8 +437,11 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
             # large invalid regions, 40 CPU ms either way, where a row of lanes everywhere took 69)
             inner = 2 * nvalid >= W
         if inner:
-            _row_moments(i, r, per_px, tan, floor, W, X, Y, Z, V, zq, reach, sel, nn, mx, my, mzs,
-                         rc[0], rc[1], rc[2], rc[3], rc[4], rc[5])
+            if r == 1:
+                _row_moments_r1(i, per_px, tan, floor, W, X, Y, Z, V, nn, mzs, rc[0], rc[1], rc[2], rc[3], rc[4], rc[5])
+            else:
+                _row_moments(i, r, per_px, tan, floor, W, X, Y, Z, V, zq, reach, sel, nn, mx, my, mzs,
+                             rc[0], rc[1], rc[2], rc[3], rc[4], rc[5])
             _row_certified(W - 2 * r, rc[0], rc[1], rc[2], rc[3], rc[4], rc[5], mzs, good, rlos, rhis, fits)
             for j in range(W):
                 if not valid[i, j]:
