@@ -477,7 +477,8 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
     covariances (:func:`_row_moments`), then :func:`_row_certified` (Newton's fixed steps and the checks),
     and its 2r columns nearer the border one by one. The other rows: their fitted patches' covariances
     one by one (:func:`_cov_at`), compacted, then :func:`_row_certified`. Where certifying failed
-    (:func:`_keep_patch`): :func:`_lambda_bracket`, then the closed form."""
+    (:func:`_row_settle` for a row's, :func:`_keep_patch` for the border's): :func:`_lambda_bracket`, then the
+    closed form (:func:`_bracket_or_solve`, with the memo of its values)."""
     H, W = valid.shape
     side = (2 * r + 1) * (2 * r + 1)
     px = np.empty(side)
