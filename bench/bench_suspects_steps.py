@@ -56,6 +56,8 @@ STEPS = (
     ("suspects.union", "lazy_surfaces", None),
     ("suspects.surfaces", "reach_median", "lazy_surfaces"),
     ("suspects.surfaces", "_gate_median", "lazy_surfaces"),
+    ("suspects.surfaces", "_ratio_brackets", "_gate_median"),
+    ("suspects.surfaces", "_window_exact", "_gate_median"),
     ("suspects.surfaces", "LazySurfaces.distance", None),
     ("suspects.surfaces", "LazySurfaces.distance_at", None),
     ("suspects.union", "_gap_ratio", None),

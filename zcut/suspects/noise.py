@@ -228,13 +228,55 @@ def _positions(ok, m, pos):  # type: ignore[no-untyped-def]  # numba kernel
         k += ok[j]
 
 
+@numba.njit(cache=True, inline="always")
+def _stream(order, x0, x1, x2, jd, n_cols, ok, pos, stride, w, k, vals, at):  # type: ignore[no-untyped-def]  # numba kernel
+    """One row of one stream of :func:`_fill_both`: the differences of order ``order`` (2: x0 - 2 x1 + x2,
+    judged where ``jd``; 1: x1 - x0, judged where ``jd``, ``x2`` unused) at entries 0 .. n_cols - 1 of
+    the views ``x0``, ``x1``, ``x2`` (the row and its neighbours along the stream's axis). A branch-free
+    pass flags the finite judged ones (``ok``) and lists their entries (``pos``, unless all are); the
+    samples are every ``stride``-th of that list from the stream's offset ``w``, written at ``k`` on.
+    Returns the stream's (w, k) after the row. Inlined at each of the four streams' calls, so that
+    ``order`` is a constant there and each call compiles to its own loop."""
+    n = 0
+    for j in range(n_cols):
+        if order == 2:
+            f = jd[j] & np.isfinite(x0[j] - 2.0 * x1[j] + x2[j])
+        else:
+            f = jd[j] & np.isfinite(x1[j] - x0[j])
+        ok[j] = f
+        n += f
+    full = n == n_cols  # every difference of the row: the list is the identity
+    if not full:
+        _positions(ok, n_cols, pos)
+    t = w
+    while t < n:
+        j = t if full else pos[t]
+        if order == 2:
+            a = x0[j]
+            b = x1[j]
+            c = x2[j]
+            vals[k] = abs(a - 2.0 * b + c)
+            # the median of three as numpy's minimum / maximum take it (the second on ties)
+            lo = a if a < b else b
+            hi = a if a > b else b
+            hi = hi if hi < c else c
+            at[k] = lo if lo > hi else hi
+        else:
+            x = x0[j]
+            vals[k] = abs(x1[j] - x)
+            at[k] = x
+        k += 1
+        t += stride
+    return t - n, k
+
+
 @numba.njit(cache=True)
 def _fill_both(h, judged, c2r, s2, v2, at2, c1r, s1, v1, at1):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`_differences_kernel`'s samples of order 2 (every ``s2``-th) and of order 1 (every ``s1``-th)
     in one sweep: the m-th difference (rows first, ``c2r`` / ``c1r`` of them, then columns) is taken
-    when m % stride == 0, at position m // stride. Per row and stream, a branch-free pass lists the
-    columns of its finite differences (``pos``); the samples are then every stride-th of that list, from
-    the stream's offset ``w`` (the differences left until its next sample)."""
+    when m % stride == 0, at position m // stride. Per row, four streams (:func:`_stream`): order 2
+    along the row and down the column, then order 1 likewise, each with its offset ``w`` (the
+    differences left until its next sample) and its next sample's position ``k``."""
     H, W = h.shape
     pos = np.empty(W + 1, np.int64)
     ok = np.empty(W + 1, np.bool_)
@@ -248,87 +290,13 @@ def _fill_both(h, judged, c2r, s2, v2, at2, c1r, s1, v1, at1):  # type: ignore[n
     w1c = (s1 - c1r % s1) % s1
     k1c = -(-c1r // s1)
     for i in range(H):
-        n = 0
-        for j in range(W - 2):
-            f = judged[i, j + 1] & np.isfinite(h[i, j] - 2.0 * h[i, j + 1] + h[i, j + 2])
-            ok[j] = f
-            n += f
-        full = n == W - 2  # every difference of the row: the list is the identity
-        if not full:
-            _positions(ok, W - 2, pos)
-        t = w2r
-        while t < n:
-            j = t if full else pos[t]
-            a = h[i, j]
-            b = h[i, j + 1]
-            c = h[i, j + 2]
-            v2[k2r] = abs(a - 2.0 * b + c)
-            # the median of three as numpy's minimum / maximum take it (the second on ties)
-            lo = a if a < b else b
-            hi = a if a > b else b
-            hi = hi if hi < c else c
-            at2[k2r] = lo if lo > hi else hi
-            k2r += 1
-            t += s2
-        w2r = t - n
+        row = h[i]
+        w2r, k2r = _stream(2, row, row[1:], row[2:], judged[i, 1:], W - 2, ok, pos, s2, w2r, k2r, v2, at2)
         if i + 2 < H:
-            n = 0
-            for j in range(W):
-                f = judged[i + 1, j] & np.isfinite(h[i, j] - 2.0 * h[i + 1, j] + h[i + 2, j])
-                ok[j] = f
-                n += f
-            full = n == W  # every difference of the row: the list is the identity
-            if not full:
-                _positions(ok, W, pos)
-            t = w2c
-            while t < n:
-                j = t if full else pos[t]
-                a = h[i, j]
-                b = h[i + 1, j]
-                c = h[i + 2, j]
-                v2[k2c] = abs(a - 2.0 * b + c)
-                lo = a if a < b else b
-                hi = a if a > b else b
-                hi = hi if hi < c else c
-                at2[k2c] = lo if lo > hi else hi
-                k2c += 1
-                t += s2
-            w2c = t - n
-        n = 0
-        for j in range(W - 1):
-            f = judged[i, j] & np.isfinite(h[i, j + 1] - h[i, j])
-            ok[j] = f
-            n += f
-        full = n == W - 1  # every difference of the row: the list is the identity
-        if not full:
-            _positions(ok, W - 1, pos)
-        t = w1r
-        while t < n:
-            j = t if full else pos[t]
-            x = h[i, j]
-            v1[k1r] = abs(h[i, j + 1] - x)
-            at1[k1r] = x
-            k1r += 1
-            t += s1
-        w1r = t - n
+            w2c, k2c = _stream(2, row, h[i + 1], h[i + 2], judged[i + 1], W, ok, pos, s2, w2c, k2c, v2, at2)
+        w1r, k1r = _stream(1, row, row[1:], row, judged[i], W - 1, ok, pos, s1, w1r, k1r, v1, at1)
         if i + 1 < H:
-            n = 0
-            for j in range(W):
-                f = judged[i, j] & np.isfinite(h[i + 1, j] - h[i, j])
-                ok[j] = f
-                n += f
-            full = n == W  # every difference of the row: the list is the identity
-            if not full:
-                _positions(ok, W, pos)
-            t = w1c
-            while t < n:
-                j = t if full else pos[t]
-                x = h[i, j]
-                v1[k1c] = abs(h[i + 1, j] - x)
-                at1[k1c] = x
-                k1c += 1
-                t += s1
-            w1c = t - n
+            w1c, k1c = _stream(1, row, h[i + 1], row, judged[i], W, ok, pos, s1, w1c, k1c, v1, at1)
 
 
 def _sampled_both(h: np.ndarray, judged: np.ndarray, most: int) -> tuple[np.ndarray, ...]:

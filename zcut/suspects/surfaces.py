@@ -9,7 +9,7 @@ only around the pixels whose gap the edge-aware distance gives (a few % of the f
 - **The gate's median from brackets.** Each patch's covariance is summed exactly as
   :func:`zcut.edge_surface._fit_at` sums it (the same points, the same order, so the same matrix);
   its smallest eigenvalue is then found by Newton's method on the characteristic polynomial from
-  below (a few multiply-adds, no ``acos`` / ``cos``; a row's patches take three steps each without a
+  below (a few multiply-adds, no ``acos`` / ``cos``; a row's patches take four steps each without a
   branch, in the processor's vector lanes, as do their covariances, and only those the checks then
   reject iterate further) and bracketed: the polynomial's sign is checked on both sides of the bracket, and the
   closed form's own rounding (:func:`_smallest_eigvec`, well conditioned when the two smallest
@@ -64,9 +64,15 @@ _TINY = 1e-9
 # cross product of rows of C - λI) exceeds _FITTED_SAFETY × the closed form's threshold 1e-9 · tr², and
 # surely not when m² (n0 <= m²) is below it / _FITTED_SAFETY
 _FITTED_SAFETY = 100.0
-# the fixed Newton steps of the whole-frame pass (:func:`_newton_fixed`): 3 bring 97 % of a zinc-nut
-# frame's patches within the check; the others take :func:`_lambda_bracket`'s loop
-_FIXED_STEPS = 3
+# the fixed Newton steps of the whole-frame pass (:func:`_newton_fixed`): the others take :func:`_lambda_bracket`'s
+# loop. Patches left to it, of 1.71 M fitted on the bench's black nuts / 1.86 M ray-traced: 76 k / 321 k with
+# 3 steps, 24 k / 93 k with 4, 9 k / 49 k with 5; the gate's CPU ms, 3 → 4 steps: ray-traced 95 → 81, the
+# real Kinect scans 17-26 → 11-19, the hand-made frames within ±2 %; 5 steps were no faster than 4
+_FIXED_STEPS = 4
+# the memo of the closed form's values (:func:`_keep_patch`): 2^_MEMO_BITS slots, a direct-mapped table
+# (measured on the bench's quantized spheres: 96 % of the closed-form patches found with 4,096 slots)
+_MEMO_BITS = 12
+_MEMO_MIX = np.uint64(0x9E3779B97F4A7C15)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")  # IEEE division, as _fit_at
@@ -276,14 +282,144 @@ def _row_moments(i, r, per_px, tan, floor, W, X, Y, Z, V, zq, reach, sel, nn, mx
         c5[t] = c5[t] / n
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _point_sums(v, x, y, z, zq, limit, n, sx, sy, sz):  # type: ignore[no-untyped-def]  # numba kernel
+    """One point of :func:`_row_moments_r1`'s first pass: (in the patch, n, Σx, Σy, Σz) after it."""
+    ok = v & (abs(z - zq) <= limit)
+    return ok, n + (1.0 if ok else 0.0), sx + (x if ok else 0.0), sy + (y if ok else 0.0), sz + (z if ok else 0.0)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _point_products(ok, x, y, z, mx, my, mz, c0, c1, c2, c3, c4, c5):  # type: ignore[no-untyped-def]  # numba kernel
+    """One point of :func:`_row_moments_r1`'s second pass: the six sums of products after it."""
+    dx = x - mx
+    dy = y - my
+    dz = z - mz
+    return (c0 + (dx * dx if ok else 0.0), c1 + (dx * dy if ok else 0.0), c2 + (dx * dz if ok else 0.0),
+            c3 + (dy * dy if ok else 0.0), c4 + (dy * dz if ok else 0.0), c5 + (dz * dz if ok else 0.0))
+
+
+@numba.njit(cache=True, error_model="numpy")  # IEEE division, as _row_moments
+def _row_moments_r1(i, per_px, tan, floor, W, X, Y, Z, V, nn, mz, c0, c1, c2, c3, c4, c5):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_row_moments` for r = 1 (the default patch): n, the centroid depth and the covariance of
+    each patch of row ``i`` (entry t: column t + 1), its nine points unrolled, every sum held in a
+    register (the general kernel keeps its sums in arrays, one pass over the row per point).
+
+    The same arithmetic in the same order: the points in rows i - 1, i, i + 1 and, in each, columns
+    t, t + 1, t + 2 (the general kernel's order of (da, db)), each sum starting at +0.0, a point not
+    in the patch adding +0.0, and the reach's bound cheb · reach + floor with cheb 1.0 or 0.0 (the
+    centre), as the general kernel computes it."""
+    sa = (i - 1) % 3
+    sb = i % 3
+    sc = (i + 1) % 3
+    xa, ya, za, va = X[sa], Y[sa], Z[sa], V[sa]
+    xb, yb, zb, vb = X[sb], Y[sb], Z[sb], V[sb]
+    xc, yc, zc, vc = X[sc], Y[sc], Z[sc], V[sc]
+    for t in range(W - 2):
+        zq = zb[t + 1]
+        reach = abs(zq) * per_px * tan
+        side = 1.0 * reach + floor
+        centre = 0.0 * reach + floor
+        n = 0.0
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        k0, n, sx, sy, sz = _point_sums(va[t], xa[t], ya[t], za[t], zq, side, n, sx, sy, sz)
+        k1, n, sx, sy, sz = _point_sums(va[t + 1], xa[t + 1], ya[t + 1], za[t + 1], zq, side, n, sx, sy, sz)
+        k2, n, sx, sy, sz = _point_sums(va[t + 2], xa[t + 2], ya[t + 2], za[t + 2], zq, side, n, sx, sy, sz)
+        k3, n, sx, sy, sz = _point_sums(vb[t], xb[t], yb[t], zb[t], zq, side, n, sx, sy, sz)
+        k4, n, sx, sy, sz = _point_sums(vb[t + 1], xb[t + 1], yb[t + 1], zb[t + 1], zq, centre, n, sx, sy, sz)
+        k5, n, sx, sy, sz = _point_sums(vb[t + 2], xb[t + 2], yb[t + 2], zb[t + 2], zq, side, n, sx, sy, sz)
+        k6, n, sx, sy, sz = _point_sums(vc[t], xc[t], yc[t], zc[t], zq, side, n, sx, sy, sz)
+        k7, n, sx, sy, sz = _point_sums(vc[t + 1], xc[t + 1], yc[t + 1], zc[t + 1], zq, side, n, sx, sy, sz)
+        k8, n, sx, sy, sz = _point_sums(vc[t + 2], xc[t + 2], yc[t + 2], zc[t + 2], zq, side, n, sx, sy, sz)
+        mx = sx / n
+        my = sy / n
+        m = sz / n
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        s3 = 0.0
+        s4 = 0.0
+        s5 = 0.0
+        s0, s1, s2, s3, s4, s5 = _point_products(k0, xa[t], ya[t], za[t], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k1, xa[t + 1], ya[t + 1], za[t + 1], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k2, xa[t + 2], ya[t + 2], za[t + 2], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k3, xb[t], yb[t], zb[t], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k4, xb[t + 1], yb[t + 1], zb[t + 1], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k5, xb[t + 2], yb[t + 2], zb[t + 2], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k6, xc[t], yc[t], zc[t], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k7, xc[t + 1], yc[t + 1], zc[t + 1], mx, my, m, s0, s1, s2, s3, s4, s5)
+        s0, s1, s2, s3, s4, s5 = _point_products(k8, xc[t + 2], yc[t + 2], zc[t + 2], mx, my, m, s0, s1, s2, s3, s4, s5)
+        nn[t] = n
+        mz[t] = m
+        c0[t] = s0 / n
+        c1[t] = s1 / n
+        c2[t] = s2 / n
+        c3[t] = s3 / n
+        c4[t] = s4 / n
+        c5[t] = s5 / n
+
+
+@numba.njit(cache=True, inline="always")
+def _memo_slot(c00, c01, c02, c11, c12, c22, key, bits):  # type: ignore[no-untyped-def]  # numba kernel
+    """The covariance's bits into ``bits`` (a uint64 view of ``key``) and its slot in the memo of
+    :func:`_keep_patch` (a multiplicative hash of the six words, its top _MEMO_BITS bits)."""
+    key[0] = c00
+    key[1] = c01
+    key[2] = c02
+    key[3] = c11
+    key[4] = c12
+    key[5] = c22
+    h = np.uint64(0)
+    for q in range(6):
+        h = (h ^ bits[q]) * _MEMO_MIX
+    h = (h ^ (h >> np.uint64(29))) * _MEMO_MIX
+    return int(h >> np.uint64(64 - _MEMO_BITS))
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _bracket_or_solve(c00, c01, c02, c11, c12, c22, memo):  # type: ignore[no-untyped-def]  # numba kernel
+    """(ok, l0, l1, fitted, λ_min, normal determined): :func:`_lambda_bracket`'s bracket when it gives one
+    (ok), else the closed form's values, from the memo when this covariance is in it (a covariance is
+    put there only after :func:`_lambda_bracket` failed for it, and both depend on its bits alone)."""
+    ok, l0, l1, fitted = _lambda_bracket(c00, c01, c02, c11, c12, c22)
+    if ok:
+        return True, l0, l1, fitted, 0.0, False
+    words, values, key, bits = memo
+    slot = _memo_slot(c00, c01, c02, c11, c12, c22, key, bits)
+    hit = words[slot, 6] == 1
+    for q in range(6):
+        hit = hit and words[slot, q] == bits[q]
+    if hit:
+        return False, l0, l1, fitted, values[slot, 0], values[slot, 1] == 1.0
+    lam, nx, _, _ = _smallest_eigvec(c00, c01, c02, c11, c12, c22)
+    det = bool(np.isfinite(nx))
+    for q in range(6):
+        words[slot, q] = bits[q]
+    words[slot, 6] = 1
+    values[slot, 0] = lam
+    values[slot, 1] = 1.0 if det else 0.0
+    return False, l0, l1, fitted, lam, det
+
+
 @numba.njit(cache=True, error_model="numpy")
-def _keep_patch(c00, c01, c02, c11, c12, c22, zz, ok, l0, l1, fitted, rlo, rhi, pos, lo, hi, at, m):  # type: ignore[no-untyped-def]  # numba kernel
+def _keep_patch(c00, c01, c02, c11, c12, c22, zz, ok, l0, l1, fitted, rlo, rhi, pos, lo, hi, at, m, memo):  # type: ignore[no-untyped-def]  # numba kernel
     """One fitted patch of :func:`_ratio_brackets` (covariance, z², and what certifying it gave: ``ok``,
     [l0, l1], ``fitted``, the ratio's bracket [rlo, rhi] when ``ok``): its ratio's bracket into lo[m],
     hi[m], at[m] = ``pos`` when it has one (:func:`_lambda_bracket` where the certificate failed, the
-    closed form where that fails too). Returns (m, solved: 1 when the closed form was evaluated, nan)."""
+    closed form where that fails too). Returns (m, solved: 1 when the closed form's value was taken, nan).
+
+    ``memo`` = (words, values, key, bits): the closed form's (λ_min, normal determined) of the last
+    covariances it was evaluated for, one per slot of :func:`_memo_slot` (``words[s, :6]`` the
+    covariance's bits, ``words[s, 6]`` 1 when the slot is filled). Both functions depend on the
+    covariance's bits alone, so a covariance found there (the same six words) gives the values they
+    would: :func:`_lambda_bracket` failed for it, and the closed form returned these. A frame of
+    quantized depth repeats a few flat patches' covariances (the bench's spheres: 1.16 M of 1.86 M
+    patches at the rounding level, 36,395 distinct covariances)."""
+    lam, det = 0.0, False
     if not ok:
-        ok, l0, l1, fitted = _lambda_bracket(c00, c01, c02, c11, c12, c22)
+        ok, l0, l1, fitted, lam, det = _bracket_or_solve(c00, c01, c02, c11, c12, c22, memo)
         rlo = math.sqrt(max(l0, 0.0)) / zz
         rhi = math.sqrt(max(l1, 0.0)) / zz
     if ok:
@@ -293,14 +429,42 @@ def _keep_patch(c00, c01, c02, c11, c12, c22, zz, ok, l0, l1, fitted, rlo, rhi, 
         hi[m] = rhi
         at[m] = pos
         return m + 1, 0, False
-    lam, nx, _, _ = _smallest_eigvec(c00, c01, c02, c11, c12, c22)
-    if not np.isfinite(nx) or not zz > 0:
+    if not det or not zz > 0:
         return m, 1, False
     v = math.sqrt(max(lam, 0.0)) / zz
     lo[m] = v
     hi[m] = v
     at[m] = pos
     return m + 1, 1, bool(np.isnan(v))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _row_settle(k, idx, c0, c1, c2, c3, c4, c5, mz, good, rlo, rhi, fitted, memo):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_keep_patch`'s way for the row's patches idx[:k] whose certificate failed (entries of
+    :func:`_row_certified`'s arrays): :func:`_lambda_bracket`'s bracket, else the closed form's value
+    (from the memo when there), into ``rlo``, ``rhi`` and ``fitted`` (the normal determined), and
+    ``good`` set, so that the row's loop takes them as certified. One call a row, the loop apart
+    from the row's: the one-by-one work stays out of the row's loop. Returns (solved, nan: a kept
+    ratio is NaN), as :func:`_keep_patch` counts them."""
+    solved = 0
+    nan = False
+    for u in range(k):
+        q = idx[u]
+        zz = mz[q] ** 2
+        ok, l0, l1, fit, lam, det = _bracket_or_solve(c0[q], c1[q], c2[q], c3[q], c4[q], c5[q], memo)
+        good[q] = True
+        if ok:
+            fitted[q] = fit
+            rlo[q] = math.sqrt(max(l0, 0.0)) / zz
+            rhi[q] = math.sqrt(max(l1, 0.0)) / zz
+            continue
+        solved += 1
+        fitted[q] = det
+        v = math.sqrt(max(lam, 0.0)) / zz
+        rlo[q] = v
+        rhi[q] = v
+        nan = nan or (det and zz > 0 and np.isnan(v))
+    return solved, nan
 
 
 @numba.njit(cache=True, error_model="numpy")  # IEEE division, as _patch_gate_kernel
@@ -313,7 +477,8 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
     covariances (:func:`_row_moments`), then :func:`_row_certified` (Newton's fixed steps and the checks),
     and its 2r columns nearer the border one by one. The other rows: their fitted patches' covariances
     one by one (:func:`_cov_at`), compacted, then :func:`_row_certified`. Where certifying failed
-    (:func:`_keep_patch`): :func:`_lambda_bracket`, then the closed form."""
+    (:func:`_row_settle` for a row's, :func:`_keep_patch` for the border's): :func:`_lambda_bracket`, then the
+    closed form (:func:`_bracket_or_solve`, with the memo of its values)."""
     H, W = valid.shape
     side = (2 * r + 1) * (2 * r + 1)
     px = np.empty(side)
@@ -340,6 +505,9 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
     rhis = np.empty(W)
     cov = np.empty((7, W))  # the other rows' fitted patches: c00, c01, c02, c11, c12, c22, mz
     col = np.empty(W, np.int64)
+    todo = np.empty(W, np.int64)
+    key = np.empty(6)
+    memo = (np.zeros((1 << _MEMO_BITS, 7), np.uint64), np.empty((1 << _MEMO_BITS, 2)), key, key.view(np.uint64))
     if vec:
         for a in range(2 * r):
             _planar_row(xyz, valid, a, a % L, X, Y, Z, V)
@@ -358,9 +526,19 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
             # large invalid regions, 40 CPU ms either way, where a row of lanes everywhere took 69)
             inner = 2 * nvalid >= W
         if inner:
-            _row_moments(i, r, per_px, tan, floor, W, X, Y, Z, V, zq, reach, sel, nn, mx, my, mzs,
-                         rc[0], rc[1], rc[2], rc[3], rc[4], rc[5])
+            if r == 1:
+                _row_moments_r1(i, per_px, tan, floor, W, X, Y, Z, V, nn, mzs, rc[0], rc[1], rc[2], rc[3], rc[4], rc[5])
+            else:
+                _row_moments(i, r, per_px, tan, floor, W, X, Y, Z, V, zq, reach, sel, nn, mx, my, mzs,
+                             rc[0], rc[1], rc[2], rc[3], rc[4], rc[5])
             _row_certified(W - 2 * r, rc[0], rc[1], rc[2], rc[3], rc[4], rc[5], mzs, good, rlos, rhis, fits)
+            k = 0
+            for t in range(W - 2 * r):  # the fitted patches the certificate failed, listed without a branch
+                col[k] = t
+                k += (not good[t]) & valid[i, r + t] & (nn[t] >= min_px)
+            sv, nv = _row_settle(k, col, rc[0], rc[1], rc[2], rc[3], rc[4], rc[5], mzs, good, rlos, rhis, fits, memo)
+            solved += sv
+            nan = nan or nv
             for j in range(W):
                 if not valid[i, j]:
                     continue
@@ -368,15 +546,12 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
                     t = j - r
                     if nn[t] < min_px:
                         continue
-                    if good[t]:  # certified: the bracket is the row's (_keep_patch's first case, inline)
-                        if fits[t] and mzs[t] ** 2 > 0:
-                            lo[m] = rlos[t]
-                            hi[m] = rhis[t]
-                            at[m] = i * W + j
-                            m += 1
-                        continue
-                    m, sv, nv = _keep_patch(rc[0, t], rc[1, t], rc[2, t], rc[3, t], rc[4, t], rc[5, t], mzs[t] ** 2,
-                                            False, 0.0, 0.0, False, 0.0, 0.0, i * W + j, lo, hi, at, m)
+                    # certified or settled: the row's bracket or value (_keep_patch's way, inline)
+                    if fits[t] and mzs[t] ** 2 > 0:
+                        lo[m] = rlos[t]
+                        hi[m] = rhis[t]
+                        at[m] = i * W + j
+                        m += 1
                 else:  # the columns near the border, one by one
                     n, mz, c00, c01, c02, c11, c12, c22 = _cov_at(xyz, valid, i, j, r, min_px, per_px, tan, floor,
                                                                   px, py, pz)
@@ -389,9 +564,9 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
                         ok, l0, l1, fitted = _certified(c00, c01, c02, c11, c12, c22, tr, lam)
                     m, sv, nv = _keep_patch(c00, c01, c02, c11, c12, c22, zz, ok, l0, l1, fitted,
                                             math.sqrt(max(l0, 0.0)) / zz, math.sqrt(max(l1, 0.0)) / zz, i * W + j,
-                                            lo, hi, at, m)
-                solved += sv
-                nan = nan or nv
+                                            lo, hi, at, m, memo)
+                    solved += sv
+                    nan = nan or nv
             continue
         # the other rows: the fitted patches' covariances one by one, compacted, then certified in lanes
         k = 0
@@ -411,18 +586,21 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
             col[k] = j
             k += 1
         _row_certified(k, cov[0], cov[1], cov[2], cov[3], cov[4], cov[5], cov[6], good, rlos, rhis, fits)
+        n_bad = 0
         for q in range(k):
-            if good[q]:
-                if fits[q] and cov[6, q] ** 2 > 0:
-                    lo[m] = rlos[q]
-                    hi[m] = rhis[q]
-                    at[m] = i * W + col[q]
-                    m += 1
-                continue
-            m, sv, nv = _keep_patch(cov[0, q], cov[1, q], cov[2, q], cov[3, q], cov[4, q], cov[5, q], cov[6, q] ** 2,
-                                    False, 0.0, 0.0, False, 0.0, 0.0, i * W + col[q], lo, hi, at, m)
-            solved += sv
-            nan = nan or nv
+            if not good[q]:
+                todo[n_bad] = q
+                n_bad += 1
+        sv, nv = _row_settle(n_bad, todo, cov[0], cov[1], cov[2], cov[3], cov[4], cov[5], cov[6], good, rlos, rhis, fits,
+                             memo)
+        solved += sv
+        nan = nan or nv
+        for q in range(k):
+            if fits[q] and cov[6, q] ** 2 > 0:
+                lo[m] = rlos[q]
+                hi[m] = rhis[q]
+                at[m] = i * W + col[q]
+                m += 1
     return m, solved, nan
 
 
@@ -440,11 +618,12 @@ def _window_exact(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at, a, b, v
     above = 0
     inside = 0
     for k in range(lo.size):
-        if hi[k] < a:
-            below += 1
-            continue
-        if lo[k] > b:
-            above += 1
+        # counted without a branch (a bracket is below the window about half the time, at random)
+        under = hi[k] < a
+        over = lo[k] > b
+        below += under
+        above += over
+        if under | over:
             continue
         if lo[k] == hi[k]:
             v = lo[k]
