@@ -5,22 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from fit_digests import digest, hand_made, holed, real_crop
+from fit_digests import DEFAULTS, DEFAULTS_REAL, digest, hand_made, holed, real_crop
 from fit_scenes import K_TEST, hex_nut_mesh, pose, render, rotation
 
 from zcut.errors import ParameterError
 from zcut.fits import FitParams, fit_prepared, pose_error, prepare_model
-
-#: the fourteenth round's fits (the previous tree, 7c53c8b, its defaults) of ``fit_digests.hand_made`` frames of four
-#: kinds, whole and ``holed``: (number of fits, digest)
-FOURTEENTH = {
-    ("zinc_nuts", False): (241, "69e99f80fb6eefa4"), ("zinc_nuts", True): (98, "8a3f1eb7b7bfafa5"),
-    ("spheres", False): (295, "b143b7f869121cda"), ("spheres", True): (142, "58513c887e33144f"),
-    ("rods", False): (63, "113628a00abbafe2"), ("rods", True): (28, "d4a0e6d4940cb641"),
-    ("black_nuts", False): (283, "c20e2821993b94cf"), ("black_nuts", True): (133, "74c8704c38d609f7"),
-}
-#: ... and of ``fit_digests.real_crop``
-FOURTEENTH_REAL = (144, "9bb38886d2093b60")
 
 KEEP = FitParams(coarse_keep=3)
 
@@ -30,22 +19,22 @@ def test_without_the_screening_the_fits_are_the_fourteenth_rounds_to_the_bit(kin
     xyz, zone, model, K = hand_made(kind)
     for p in (FitParams(coarse_keep=0), FitParams(coarse_keep=0, screen_iterations=3)):
         fits = fit_prepared(xyz, zone, model, intrinsics=K, params=p)  # type: ignore[arg-type]
-        assert (len(fits), digest(fits)) == FOURTEENTH[(kind, False)]
+        assert (len(fits), digest(fits)) == DEFAULTS[(kind, False)]
     fits = fit_prepared(holed(xyz), zone, model, intrinsics=K, params=FitParams(coarse_keep=0))  # type: ignore[arg-type]
-    assert (len(fits), digest(fits)) == FOURTEENTH[(kind, True)]
+    assert (len(fits), digest(fits)) == DEFAULTS[(kind, True)]
 
 
 def test_without_the_screening_a_real_cloud_is_the_fourteenth_rounds_to_the_bit(real_data):  # type: ignore[no-untyped-def]
     xyz, zone, model, _ = real_crop(real_data)
     fits = fit_prepared(xyz, zone, model, params=FitParams(coarse_keep=0))  # type: ignore[arg-type]
-    assert (len(fits), digest(fits)) == FOURTEENTH_REAL
+    assert (len(fits), digest(fits)) == DEFAULTS_REAL
 
 
 def test_spheres_are_not_screened() -> None:
     """A sphere is fitted in closed form: no guesses, the same fits with the screening on."""
     xyz, zone, model, K = hand_made("spheres")
     fits = fit_prepared(holed(xyz), zone, model, intrinsics=K, params=KEEP)  # type: ignore[arg-type]
-    assert (len(fits), digest(fits)) == FOURTEENTH[("spheres", True)]
+    assert (len(fits), digest(fits)) == DEFAULTS[("spheres", True)]
 
 
 def test_keeping_every_guess_is_no_screening() -> None:
@@ -54,7 +43,7 @@ def test_keeping_every_guess_is_no_screening() -> None:
     xyz, zone, model, K = hand_made("zinc_nuts")
     xyz = holed(xyz)
     fits = fit_prepared(xyz, zone, model, intrinsics=K, params=FitParams(coarse_keep=10_000))  # type: ignore[arg-type]
-    assert (len(fits), digest(fits)) == FOURTEENTH[("zinc_nuts", True)]
+    assert (len(fits), digest(fits)) == DEFAULTS[("zinc_nuts", True)]
 
 
 @pytest.mark.parametrize("kind", ["zinc_nuts", "black_nuts", "rods"])
@@ -65,10 +54,10 @@ def test_screened_fits_are_acceptable(kind: str) -> None:
     xyz, zone, model, K = hand_made(kind)
     for frame, holes in ((xyz, False), (holed(xyz), True)):
         fits = fit_prepared(frame, zone, model, intrinsics=K, params=KEEP)  # type: ignore[arg-type]
-        assert digest(fits) != FOURTEENTH[(kind, holes)][1]  # the screening changes fits
+        assert digest(fits) != DEFAULTS[(kind, holes)][1]  # the screening changes fits
         assert all(np.isfinite(f.err_mm) and f.err_mm <= KEEP.max_err_mm and f.support >= KEEP.seed_min_support
                    for f in fits)
-        assert 0.85 * FOURTEENTH[(kind, holes)][0] <= len(fits) <= 1.05 * FOURTEENTH[(kind, holes)][0]
+        assert 0.85 * DEFAULTS[(kind, holes)][0] <= len(fits) <= 1.05 * DEFAULTS[(kind, holes)][0]
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from fit_digests import digest, hand_made, holed, real_crop
+from fit_digests import DEFAULTS, DEFAULTS_REAL, digest, hand_made, holed, real_crop
 from fit_scenes import K_TEST, hex_nut_mesh, pose, render, rotation
 
 import zcut.fits.fit as F
@@ -14,32 +14,20 @@ from zcut.errors import ParameterError
 from zcut.fits import FitParams, fit_prepared, prepare_model
 from zcut.fits.icp import initial_rotations
 
-#: the thirteenth round's fits (the previous tree, c94bf05, its defaults) of hand-made frames (seed 5, 300 × 480,
-#: ``fit_digests.hand_made``) of four kinds, whole and with columns 100-259 NaN: (number of fits, sha256 of poses and pixels)
-THIRTEENTH = {
-    ("zinc_nuts", False): (241, "69e99f80fb6eefa4"), ("zinc_nuts", True): (98, "8a3f1eb7b7bfafa5"),
-    ("spheres", False): (295, "b143b7f869121cda"), ("spheres", True): (142, "58513c887e33144f"),
-    ("rods", False): (63, "113628a00abbafe2"), ("rods", True): (28, "d4a0e6d4940cb641"),
-    ("black_nuts", False): (283, "c20e2821993b94cf"), ("black_nuts", True): (133, "74c8704c38d609f7"),
-}
-#: ... and on a real cloud: docs/real_data.md's ``table_scene_mug_stereo_textured.pcd``, rows 100-300 x columns
-#: 200-440 in mm, the whole valid crop as zone, the hand-made nut model, intrinsics estimated from the cloud
-THIRTEENTH_REAL = (144, "9bb38886d2093b60")
-
 
 @pytest.mark.parametrize("kind", ["zinc_nuts", "spheres", "rods", "black_nuts"])
 def test_the_defaults_are_the_thirteenth_rounds_fits_to_the_bit(kind: str) -> None:
     xyz, zone, model, K = hand_made(kind)
     fits = fit_prepared(xyz, zone, model, intrinsics=K)  # type: ignore[arg-type]
-    assert (len(fits), digest(fits)) == THIRTEENTH[(kind, False)]
+    assert (len(fits), digest(fits)) == DEFAULTS[(kind, False)]
     fits = fit_prepared(holed(xyz), zone, model, intrinsics=K)  # type: ignore[arg-type]  # a third of it invalid
-    assert (len(fits), digest(fits)) == THIRTEENTH[(kind, True)]
+    assert (len(fits), digest(fits)) == DEFAULTS[(kind, True)]
 
 
 def test_a_real_cloud_is_the_thirteenth_rounds_to_the_bit(real_data):  # type: ignore[no-untyped-def]
     xyz, zone, model, _ = real_crop(real_data)
     fits = fit_prepared(xyz, zone, model)  # type: ignore[arg-type]
-    assert (len(fits), digest(fits)) == THIRTEENTH_REAL
+    assert (len(fits), digest(fits)) == DEFAULTS_REAL
 
 
 def test_initial_rotations_with_the_callers_axes_are_its_own_and_leave_them_alone(rng: np.random.Generator) -> None:

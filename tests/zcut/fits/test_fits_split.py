@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from fit_digests import digest, real_crop
+from fit_digests import DEFAULTS, DEFAULTS_REAL, digest, real_crop
 from fit_scenes import K_TEST, hand_made_nut_frame, hex_nut_mesh, pose, render, rotation
 
 import zcut.fits.fit as F
@@ -17,8 +17,8 @@ from zcut.fits import FitParams, fit_prepared, pose_error, prepare_model
 SPLIT = FitParams(split_refused=0.75)
 
 #: the twelfth round's fits (the previous tree, 846dad4, its defaults) of the hand-made nut frame
-#: (``fit_scenes.hand_made_nut_frame``): (number of fits, sha256 of their poses and pixels)
-TWELFTH_NUTS = (241, "69e99f80fb6eefa4")
+#: (``fit_scenes.hand_made_nut_frame``, ``fit_digests.hand_made("zinc_nuts")``)
+TWELFTH_NUTS = DEFAULTS[("zinc_nuts", False)]
 
 
 def test_without_the_split_the_nuts_fits_are_the_twelfth_rounds_to_the_bit():
@@ -145,10 +145,8 @@ def test_the_thirteenth_round_param_says_what_is_wrong(value: object) -> None:
         FitParams(split_refused=value)  # type: ignore[arg-type]
 
 
-#: the twelfth round's fits (846dad4, its defaults) on a real cloud: docs/real_data.md's
-#: ``table_scene_mug_stereo_textured.pcd``, rows 100-300 x columns 200-440 in mm, the whole valid crop as zone,
-#: the hand-made nut model, intrinsics estimated from the cloud
-TWELFTH_REAL = (144, "9bb38886d2093b60")
+#: the twelfth round's fits (846dad4, its defaults) on ``fit_digests.real_crop``
+TWELFTH_REAL = DEFAULTS_REAL
 
 
 def test_a_real_cloud_without_the_split_is_the_twelfth_rounds_and_with_it_every_fit_acceptable(real_data):  # type: ignore[no-untyped-def]
