@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 
-from replay.process import raise_if_interrupted
+from replay.process import interrupts_deferred, raise_if_interrupted
 from zcut.errors import ZcutError
 
 __all__ = ["AtomicOutput", "OutputBusyError", "OutputError", "OutputLock", "OutputPlan", "config_path_for",
@@ -425,6 +425,18 @@ class AtomicOutput:
         self.path = Path(path)
         self.done = False
         self._fd: int | None = None
+        try:
+            # a signal waits for the temporary and its lock to be whole: one that cut in after the file was
+            # made left it, and its lock held by this process's open descriptor, so that no clean-up of
+            # this process could remove it (a study's folder kept a temporary after SIGTERM)
+            with interrupts_deferred():
+                self._create()
+        except BaseException:
+            if self._fd is not None:  # made, then the signal raised at the block's end: nothing is left
+                self.abort()
+            raise
+
+    def _create(self) -> None:
         folder = self.path.parent if str(self.path.parent) else Path(".")
         stem, suffix = _temp_parts(self.path)
         for _ in range(100):
@@ -439,11 +451,11 @@ class AtomicOutput:
         else:  # pragma: no cover
             raise OutputError(f"{self.path}: no free temporary name beside it")
         self.temp = tmp
+        self._fd = fd
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:  # pragma: no cover - a file system without locks: the temporary is still unique
             pass
-        self._fd = fd
 
     def _close_fd(self) -> None:
         fd, self._fd = self._fd, None

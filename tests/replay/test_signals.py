@@ -308,3 +308,36 @@ def test_a_signal_inside_rerun_s_constructor_leaves_no_traceback():
     assert out.returncode == 0, out
     assert out.stdout.strip() == f"interrupted {int(signal.SIGHUP)}", out
     assert "Exception ignored" not in out.stderr and "Traceback" not in out.stderr, out.stderr
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_a_signal_while_an_output_makes_its_temporary_leaves_nothing_locked(tmp_path, monkeypatch, sig):
+    """A signal that lands just after the temporary file was made (its handler runs when ``os.open``
+    returns): the temporary and its lock are made whole first, then the interruption is raised and the
+    temporary removed. It used to be left behind with its lock held by this process's open descriptor,
+    so no clean-up of the same process could remove it (a batch's parts folder kept one after SIGTERM)."""
+    import os as os_module
+
+    import replay.outputs as outputs
+    from replay.process import interrupts_unwind
+
+    real_open = os_module.open
+    made: list[int] = []
+
+    def open_then_signal(path, flags, *args):  # type: ignore[no-untyped-def]
+        fd = real_open(path, flags, *args)
+        if ".partial" in str(path):
+            made.append(fd)
+            signal.raise_signal(sig)  # the handler runs here, before the caller has the descriptor
+        return fd
+
+    monkeypatch.setattr(outputs.os, "open", open_then_signal)
+    with pytest.raises(Interrupted) as caught:
+        with interrupts_unwind():
+            outputs.AtomicOutput(tmp_path / "part.parquet")
+    monkeypatch.undo()
+    assert caught.value.signum == sig and len(made) == 1
+    assert list(tmp_path.iterdir()) == []  # no temporary left
+    with pytest.raises(OSError):
+        os_module.fstat(made[0])  # and its descriptor (which held the lock) closed
+    assert outputs.remove_stale_temporaries_in(tmp_path) == []
