@@ -3,8 +3,9 @@ their own (for the Ray tests and ``bench/bench_batch.py``).
 
 Ray rewrites 127.0.0.1 to the machine's interface address, and test traffic must stay on loopback.
 So the cluster runs inside ``unshare --net --pid --fork --mount-proc``: loopback is the only
-network interface there (checked), the PID namespace confines ``ray stop`` (which otherwise stops
-every Ray process of the machine) and guarantees the cleanup: when the namespace's first process
+network interface there (checked), the PID namespace confines the cluster's stop (a SIGKILL to
+every process in it, where ``ray stop`` would stop every Ray process of the machine) and guarantees
+the cleanup: when the namespace's first process
 exits, or is killed with its ``unshare`` (``--kill-child``; ``unshare`` itself is killed when its
 caller dies or times out), the kernel kills every process left in it. The cluster's files go to a temporary folder of its own (not the shared ``/tmp/ray``),
 removed afterwards.
@@ -19,7 +20,7 @@ Outside (the caller)::
 
 Inside (``python ray_in_netns.py SPEC.json``, run by :func:`run_with_ray_cluster`): bring ``lo``
 up, check it is the only interface, ``ray start --head --node-ip-address 127.0.0.1``, run each
-command in turn with ``RAY_ADDRESS`` set, ``ray stop``, write the results as JSON.
+command in turn with ``RAY_ADDRESS`` set, kill the cluster (:func:`_stop_cluster`), write the results as JSON.
 """
 
 from __future__ import annotations
@@ -219,6 +220,33 @@ def run_measured(argv: list[str], *, env: dict | None = None, cwd: str | None = 
             "procs": procs}
 
 
+def _stop_cluster(ray_bin: str, env: dict) -> None:
+    """Kill every process of the namespace but this one, and reap them.
+
+    This process is the namespace's PID 1 (``unshare --pid --fork``): the daemons ``ray start`` leaves
+    behind are its children once ``ray start`` exits, and ``kill(-1, SIGKILL)`` reaches exactly the
+    processes of its PID namespace. ``ray stop --force`` sends the same SIGKILLs, then waits for the
+    processes to be gone; here they stay zombies until PID 1 reaps them, so it waited out its whole grace
+    period (three rounds of 16 / 3 + 2 s: ~22 s of sleep a run). Outside a PID namespace of its own (never,
+    when run by :func:`run_with_ray_cluster`) this falls back to ``ray stop --force``."""
+    import signal
+
+    if os.getpid() != 1:
+        subprocess.run([ray_bin, "stop", "--force"], check=False, capture_output=True, env=env, timeout=120)
+        return
+    try:
+        os.kill(-1, signal.SIGKILL)  # from PID 1: every other process of this PID namespace
+    except ProcessLookupError:  # none left
+        return
+    while True:
+        try:
+            os.waitpid(-1, 0)
+        except ChildProcessError:  # all reaped
+            return
+        except InterruptedError:
+            continue
+
+
 def _inside(spec_path: str) -> int:
     spec = json.loads(Path(spec_path).read_text())
     interfaces = _loopback_up()
@@ -246,9 +274,8 @@ def _inside(spec_path: str) -> int:
             res["children_cpu_s"] = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
             results.append(res)
     finally:
-        # confined to this PID namespace (--mount-proc); whatever survives dies with it
         t = time.perf_counter()
-        subprocess.run([ray_bin, "stop", "--force"], check=False, capture_output=True, env=env, timeout=120)
+        _stop_cluster(ray_bin, env)
         ray_stop_s = time.perf_counter() - t
     Path(spec["out"]).write_text(json.dumps({"ray_start_s": ray_start_s, "ray_stop_s": ray_stop_s,
                                              "interfaces": interfaces,
