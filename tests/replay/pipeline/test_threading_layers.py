@@ -4,7 +4,9 @@ results bit for bit (every mask, label image, height image and count) under Open
 frame in flight or two, and whatever the number of numba threads (the parallel kernels split the rows among
 them: a kernel whose result depended on the split would show here).
 
-The layer is chosen once per process, so every run is a subprocess set up as ``zcut replay`` sets itself up.
+The layer is chosen once per process, so every run is a subprocess set up as ``zcut replay`` sets itself up;
+one subprocess per (layer, frames in flight, threads) replays every log that setting is checked on, one after
+the other (the real log, which runs no parallel kernel, first: the layer is read after each log).
 Classes of log: synthetic zinc nuts and spheres (the bin stages on), frames with large invalid regions, an
 all-invalid frame and a frame with one valid pixel, and the real Kinect log (no bin). The parallel kernels are
 also driven alone on empty, 1 x 1 and 1 x N images.
@@ -30,8 +32,9 @@ from replay.synth.log import write_synthetic_log
 
 ROOT = Path(__file__).resolve().parents[3]
 
-#: a replay of argv[1] with argv[2] frames in flight; per frame its index, a digest of every mask, label and
-#: height image, the row's counts, the bin check's figure and the registration's pose
+#: replays of argv[2:] in turn with argv[1] frames in flight; per log the layer after it, and per frame its index,
+#: a digest of every mask, label and height image, the row's counts, the bin check's figure and the registration's
+#: pose
 _REPLAY = r'''
 import hashlib, json, sys
 from replay.process import configure_process
@@ -42,45 +45,50 @@ import numpy as np
 from replay.pipeline.bin_model import bin_model_for
 from replay.pipeline.session import FrameRow, ReplaySession
 
-session = ReplaySession.open(Path(sys.argv[1]), choose_bin_model=lambda r: bin_model_for(r, None))
-out = []
-for frame, r in session.results(in_flight=int(sys.argv[2])):
-    images = {"valid": r.valid, "zone": r.zone, "easy": r.easy_outliers, "clusters": r.cut.clusters,
-              "height": r.height_mm, **{"outliers." + m: o for m, o in r.outliers.items()}}
-    if r.bin_mask is not None:
-        images["bin_mask"] = r.bin_mask.mask
-    if r.removal is not None:
-        images.update(table=r.removal.table, bin_points=r.removal.bin_points, removal_height=r.removal.height_mm,
-                      removal_xyz=r.removal.xyz)
-    digest = {k: hashlib.sha256(str(v.dtype).encode() + str(v.shape).encode() + np.ascontiguousarray(v).tobytes())
-              .hexdigest() for k, v in images.items()}
-    row = FrameRow.of(r)
-    counts = [row.valid_px, row.zcut, row.sor, row.both, row.above_rim, row.clusters, row.others, row.bin_flagged]
-    reg = r.registration
-    out.append({"index": frame.index, "images": digest, "counts": counts, "bin_check": repr(row.bin_check),
-                "warnings": list(r.warnings),
-                "pose": np.asarray(reg.T_cam_bin, float).ravel().tolist() if reg is not None else None})
-try:
-    layer = numba.threading_layer()
-except ValueError:  # no parallel kernel ran (a log without the bin stages)
-    layer = None
-print(json.dumps({"layer": layer, "threads": numba.get_num_threads(), "frames": out}))
+logs = []
+for log in sys.argv[2:]:
+    session = ReplaySession.open(Path(log), choose_bin_model=lambda r: bin_model_for(r, None))
+    out = []
+    for frame, r in session.results(in_flight=int(sys.argv[1])):
+        images = {"valid": r.valid, "zone": r.zone, "easy": r.easy_outliers, "clusters": r.cut.clusters,
+                  "height": r.height_mm, **{"outliers." + m: o for m, o in r.outliers.items()}}
+        if r.bin_mask is not None:
+            images["bin_mask"] = r.bin_mask.mask
+        if r.removal is not None:
+            images.update(table=r.removal.table, bin_points=r.removal.bin_points, removal_height=r.removal.height_mm,
+                          removal_xyz=r.removal.xyz)
+        digest = {k: hashlib.sha256(str(v.dtype).encode() + str(v.shape).encode() + np.ascontiguousarray(v).tobytes())
+                  .hexdigest() for k, v in images.items()}
+        row = FrameRow.of(r)
+        counts = [row.valid_px, row.zcut, row.sor, row.both, row.above_rim, row.clusters, row.others, row.bin_flagged]
+        reg = r.registration
+        out.append({"index": frame.index, "images": digest, "counts": counts, "bin_check": repr(row.bin_check),
+                    "warnings": list(r.warnings),
+                    "pose": np.asarray(reg.T_cam_bin, float).ravel().tolist() if reg is not None else None})
+    try:
+        layer = numba.threading_layer()
+    except ValueError:  # no parallel kernel ran yet (a log without the bin stages)
+        layer = None
+    logs.append({"layer": layer, "threads": numba.get_num_threads(), "frames": out})
+print(json.dumps(logs))
 '''
 
 
-def _replay(log: Path, *, layer: str, in_flight: int, threads: int | None = None) -> dict[str, Any]:
-    """The digest of a replay of ``log`` in a process whose numba threading layer is ``layer`` ("default":
-    ``configure_process``'s choice) and whose numba runs ``threads`` threads (None: one per core)."""
+def _replay(logs: list[Path], *, layer: str, in_flight: int, threads: int | None = None) -> list[dict[str, Any]]:
+    """The digests of replays of ``logs``, one after the other, in a process whose numba threading layer is
+    ``layer`` ("default": ``configure_process``'s choice) and whose numba runs ``threads`` threads (None: one
+    per core)."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_THREADING", "NUMBA_NUM_THREADS"))}
     env["PYTHONPATH"] = str(ROOT)
     if layer != "default":
         env["NUMBA_THREADING_LAYER"] = layer
     if threads is not None:
         env["NUMBA_NUM_THREADS"] = str(threads)
-    out = subprocess.run([sys.executable, "-c", _REPLAY, str(log), str(in_flight)], env=env, cwd=ROOT,
+    out = subprocess.run([sys.executable, "-c", _REPLAY, str(in_flight), *map(str, logs)], env=env, cwd=ROOT,
                          capture_output=True, text=True)
     assert out.returncode == 0, out.stderr[-3000:]
-    got: dict[str, Any] = json.loads(out.stdout.strip().splitlines()[-1])
+    got: list[dict[str, Any]] = json.loads(out.stdout.strip().splitlines()[-1])
+    assert len(got) == len(logs)
     return got
 
 
@@ -98,12 +106,22 @@ def _same(a: dict[str, Any], b: dict[str, Any]) -> None:
             assert np.allclose(x["pose"], y["pose"], rtol=0.0, atol=1e-12), i
 
 
-def _check_layers(log: Path, runs: list[tuple[str, int, int | None]]) -> dict[str, Any]:
-    """The previous layer's one-frame-at-a-time replay against each of ``runs`` (layer, in flight, threads)."""
-    oracle = _replay(log, layer="workqueue", in_flight=1)
+#: the oracle: the previous layer, one frame at a time
+ORACLE = ("workqueue", 1, None)
+ALL_RUNS = [("default", 1, None), ("default", 2, None), ("omp", 2, 1), ("omp", 1, 3), ("omp", 2, 3)]
+#: the runs (layer, in flight, threads) each class of log is checked with, against the oracle
+RUNS = {"zinc_nuts": ALL_RUNS, "spheres": ALL_RUNS,
+        "holes": [("default", 2, None), ("omp", 1, 1), ("omp", 2, 3)],
+        "real": [("default", 2, None), ("omp", 1, 1), ("omp", 2, 3)]}
+
+
+def _check_layers(replays: dict[tuple[tuple[str, int, int | None], str], dict[str, Any]], kind: str) -> dict[str, Any]:
+    """The oracle's replay of log ``kind`` against each of its runs (:data:`RUNS`)."""
+    assert (ORACLE, kind) in replays, f"no replay of the {kind} log"
+    oracle = replays[(ORACLE, kind)]
     assert oracle["layer"] in ("workqueue", None)
-    for layer, in_flight, threads in runs:
-        got = _replay(log, layer=layer, in_flight=in_flight, threads=threads)
+    for layer, in_flight, threads in RUNS[kind]:
+        got = replays[((layer, in_flight, threads), kind)]
         if layer == "default" and oracle["layer"] is not None:
             assert got["layer"] == "omp"  # configure_process's choice
         if threads is not None:
@@ -148,23 +166,46 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return out
 
 
-ALL_RUNS = [("default", 1, None), ("default", 2, None), ("omp", 2, 1), ("omp", 1, 3), ("omp", 2, 3)]
+@pytest.fixture(scope="module")
+def replays(logs: dict[str, Path]) -> dict[tuple[tuple[str, int, int | None], str], dict[str, Any]]:
+    """(run, kind of log) -> its replay's digests: the oracle and every run of :data:`RUNS`, one subprocess per
+    run for all the logs it is checked on (the real Kinect log first, when the real data is here:
+    ``test_a_real_kinect_log`` asks for it, and skips or fails without it as every real-data test does)."""
+    import conftest
+
+    paths = dict(logs)
+    real = conftest.REAL_DATA / "mosd_clutter_kinect_ros2.mcap"
+    if real.is_file():
+        paths["real"] = real
+    kinds = ["real", "zinc_nuts", "spheres", "holes"]  # the real log first: no parallel kernel runs before it
+    wanted: dict[tuple[str, int, int | None], list[str]] = {}
+    for kind in kinds:
+        if kind in paths:
+            for run in (ORACLE, *RUNS[kind]):
+                wanted.setdefault(run, []).append(kind)
+    out = {}
+    for run, these in wanted.items():
+        layer, in_flight, threads = run
+        for kind, got in zip(these, _replay([paths[k] for k in these], layer=layer, in_flight=in_flight,
+                                            threads=threads)):
+            out[(run, kind)] = got
+    return out
 
 
 @pytest.mark.parametrize("kind", ["zinc_nuts", "spheres"])
-def test_openmp_gives_the_workqueue_results_in_flight_and_thread_counts(logs, kind):
-    oracle = _check_layers(logs[kind], ALL_RUNS)
+def test_openmp_gives_the_workqueue_results_in_flight_and_thread_counts(replays, kind):
+    oracle = _check_layers(replays, kind)
     assert any(f["counts"][1] for f in oracle["frames"])  # z-cut outliers found
     assert all("bin_points" in f["images"] for f in oracle["frames"])  # the bin stages ran
 
 
-def test_invalid_regions_an_empty_frame_and_one_pixel(logs):
-    oracle = _check_layers(logs["holes"], [("default", 2, None), ("omp", 1, 1), ("omp", 2, 3)])
+def test_invalid_regions_an_empty_frame_and_one_pixel(replays):
+    oracle = _check_layers(replays, "holes")
     assert [f["counts"][0] for f in oracle["frames"]][3:5] == [0, 1]  # the all-invalid and the one-pixel frame
 
 
-def test_a_real_kinect_log(real_data):  # no bin model: no parallel kernel runs, the frames in flight differ
-    _check_layers(real_data / "mosd_clutter_kinect_ros2.mcap", [("default", 2, None), ("omp", 1, 1), ("omp", 2, 3)])
+def test_a_real_kinect_log(real_data, replays):  # no bin model: no parallel kernel runs, the frames in flight differ
+    _check_layers(replays, "real")
 
 
 #: the parallel kernels of the bin check alone, on degenerate shapes, under each thread count of argv[1:]
