@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 from ray_in_netns import ADDRESS
-from test_batch_ray import _ok, _zcut, rechunk
+from test_batch_ray import _ok, _zcut, rechunk, zcut_here
 from test_compare_workers import _rrd_rows, _same_outputs
 
 ZCUT = str(Path(sys.executable).with_name("zcut"))
@@ -26,8 +26,8 @@ def prepare_compare(d: Path) -> tuple[dict, list[dict]]:
     """Two small synthetic logs of a frame per chunk; the comparison in one process; the commands for
     the Ray cluster: the comparison in units of one frame, and an unreachable address."""
     for name, parts, seed in (("a", "rods", 1), ("b", "spheres", 2)):
-        _ok(_zcut("synth", "-o", f"{name}_whole.mcap", "--parts", parts, "--frames", "3", "--seed", str(seed),
-                  "--size", "120x160", cwd=d))
+        zcut_here("synth", "-o", d / f"{name}_whole.mcap", "--parts", parts, "--frames", "3", "--seed", str(seed),
+                  "--size", "120x160")
         rechunk(d / f"{name}_whole.mcap", d / f"{name}.mcap", chunk_size=16 * 1024)
     (d / "rho.toml").write_text("[zcut]\nrho_thr = 0.035\n")
     args = ["compare", "a.mcap", "b.mcap", "--a", "zcut", "--b", "rho.toml", "--frames-per-unit", "1"]
