@@ -248,7 +248,7 @@ def test_unreachable_address_is_a_one_line_error_before_any_work(runs, case, pat
 @pytest.fixture(scope="module")
 def tiny_log(tmp_path_factory) -> Path:
     d = tmp_path_factory.mktemp("tiny")
-    _ok(_zcut("synth", "-o", "a.mcap", "--frames", "1", "--size", "40x30", cwd=d))
+    zcut_here("synth", "-o", d / "a.mcap", "--frames", "1", "--size", "40x30")
     return d / "a.mcap"
 
 
