@@ -25,15 +25,26 @@ SIZE = "480x300"
 SEED = 9173  # used by no other test
 
 
-@pytest.fixture(scope="module")
-def spheres_log(tmp_path_factory):
+def _spheres(d, frames: int):
     from cli.main import main
 
-    d = tmp_path_factory.mktemp("fits")
     log = d / "spheres.mcap"
-    assert main(["synth", "-o", str(log), "--parts", "spheres", "--frames", "2", "--seed", str(SEED),
+    assert main(["synth", "-o", str(log), "--parts", "spheres", "--frames", str(frames), "--seed", str(SEED),
                  "--size", SIZE]) == 0
     return log
+
+
+@pytest.fixture(scope="module")
+def spheres_log(tmp_path_factory):
+    """One frame: the tests that judge fits use frame 0 only (its cloud, bin and part model are a longer log's
+    frame 0, bit for bit); every server prepared and fitted a second frame for nothing."""
+    return _spheres(tmp_path_factory.mktemp("fits"), 1)
+
+
+@pytest.fixture(scope="module")
+def spheres_log2(tmp_path_factory):
+    """Two frames: frame 1 stays unfitted while the page is used."""
+    return _spheres(tmp_path_factory.mktemp("fits2"), 2)
 
 
 def _server(log, db, **kw):
@@ -135,10 +146,10 @@ def test_fits_are_shown_rejected_with_one_key_and_remembered(spheres_log, tmp_pa
         srv.stop()
 
 
-def test_the_page_is_usable_while_fitting(spheres_log, tmp_path, browser):
+def test_the_page_is_usable_while_fitting(spheres_log2, tmp_path, browser):
     """The fits never hold the page: a frame not fitted yet says "fitting…" and its review groups are
     decided as before."""
-    srv = _server(spheres_log, tmp_path / "labels.sqlite")
+    srv = _server(spheres_log2, tmp_path / "labels.sqlite")
     try:
         srv.page.catalogue.fitter.stop()  # no frame is fitted from now on: frame 1 stays "waiting"
         assert srv.page.catalogue.wait_until_done(300)
