@@ -93,12 +93,15 @@ import numpy as np
 from .cut_tree import (
     FLOOD_MAX_LEVELS,
     SEGMENT,
+    SHALLOW_LEVELS,
     cluster_labels,
     cuts_window,
     finite_range,
     flood_core,
+    flood_core_deep,
     flood_levels,
     flood_tree,
+    flood_whole,
     level_counts,
     listed_cluster_labels,
     listed_outlier_mask,
@@ -393,8 +396,10 @@ def _flood(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step:
     m = int(flood_levels(z, seg_max, z_min, z_max, step, np.int64(k_eff + 2), np.int64(top), np.int64(K), st, start, pix,
                          own, levels, want))
     pix, own = pix[:m], own[:m]
-    node_b, node_size, node_parent, tagged, fin = flood_core(st, start, pix, W, np.int64(k_eff), np.int64(top),
-                                                             connectivity == 8, float(max_area), lab)
+    # every pixel in the cuts: the deepest level's pixels (the invalid ones among them) are not flooded
+    core = flood_whole if m == H * W else flood_core if top < SHALLOW_LEVELS else flood_core_deep
+    node_b, node_size, node_parent, tagged, fin = core(st, start, pix, W, np.int64(k_eff), np.int64(top),
+                                                       connectivity == 8, float(max_area), lab)
     return _Flood(lab, pix, own, node_b, node_size, node_parent, tagged, fin)
 
 
@@ -430,7 +435,7 @@ def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: fl
     k_eff, top = _levels(z_min, z_max, step, K)
     H, W = z.shape
     n = (H + 2) * (W + 2)
-    if top >= FLOOD_MAX_LEVELS or n >= 2**31 - 1 or not max_area <= H * W:
+    if top >= SHALLOW_LEVELS or n >= 2**31 - 1 or not max_area <= H * W:
         return False  # (no gentle component reaches max_area: nothing would be left out)
     if gentle not in ("auto", 4, connectivity):
         raise ParameterError(f"gentle must be 'auto', 4 or the connectivity ({connectivity}), got {gentle!r}")
