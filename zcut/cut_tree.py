@@ -11,11 +11,12 @@ Building the tree
   (exact float64 comparisons).
 - :func:`pixel_levels` — that level for every pixel, into the padded level image ``q``.
 - :func:`flood_tree` — the tree by flooding with a bucket queue over the levels (the default, up
-  to ``FLOOD_MAX_LEVELS`` levels).
+  to ``FLOOD_MAX_LEVELS`` levels; :func:`flood_core_deep` from ``SHALLOW_LEVELS`` on).
 - :func:`finite_range`, :func:`flood_levels`, :func:`flood_core` — the flood's fast path of
   :func:`zcut.cuts.zcut_outliers` and :func:`zcut.cuts.find_clusters`: one pass for the extremes
   (and the largest height of each row segment), one for the levels of the pixels in the cuts only
-  (a segment wholly below the lowest cut is not read again), then the flood over those pixels.
+  (a segment wholly below the lowest cut is not read again), then the flood over those pixels
+  (:func:`flood_whole` when they are every pixel of the frame: the deepest level not flooded).
 - :func:`union_find_tree` — the same tree by union-find over the pixels sorted by level (any
   number of levels); :func:`node_image` turns its output into the flood's node image.
 
@@ -426,7 +427,7 @@ def _gentle_codes(st, b, c0, c1, Wp, codes):  # type: ignore[no-untyped-def]  # 
     edge joins the two neighbours already (N touches NW, NE and W; NW touches W; NE and W do not touch, nor
     NW and NE), ``_IN_CUTS``. Without a branch (unsigned indices: no wrap-around test), so LLVM vectorises
     it, in float32 lanes: numba widens every integer operation to 64 bits (8 lanes of a 512-bit vector) but
-    keeps float32 (16 lanes); the levels, -1 or 0 .. ``top`` < ``FLOOD_MAX_LEVELS``, and their differences
+    keeps float32 (16 lanes); the levels, -1 or 0 .. ``top`` < ``SHALLOW_LEVELS``, and their differences
     are exact in float32, so "in the cuts" (``>= 0``) and "within 1" (``|a - b| <= 1``) are the integer
     tests, and the code, a sum of distinct powers of two below 256, is exact too (the pile's codes
     ~0.07 ms faster than on 64-bit integer lanes, docs/performance.md)."""
@@ -1130,15 +1131,15 @@ def _bit_next3(occ, mid, summ, lv):  # type: ignore[no-untyped-def]  # numba ker
         y = mid[v] >> np.uint64((w & 63) + 1)
         if y != 0:
             w2 = w + 1 + np.int64(trailing_zeros(y))  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
-            return w2 * 64 + np.int64(trailing_zeros(occ[w2]))  # type: ignore[call-arg]  # numba intrinsic
+            return w2 * 64 + np.int64(trailing_zeros(occ[w2]))
     if v >= 7:
         return np.int64(-1)
     y = summ >> np.uint64(v + 1)
     if y == 0:
         return np.int64(-1)
     v2 = v + 1 + np.int64(trailing_zeros(y))  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
-    w2 = v2 * 64 + np.int64(trailing_zeros(mid[v2]))  # type: ignore[call-arg]  # numba intrinsic
-    return w2 * 64 + np.int64(trailing_zeros(occ[w2]))  # type: ignore[call-arg]  # numba intrinsic
+    w2 = v2 * 64 + np.int64(trailing_zeros(mid[v2]))
+    return w2 * 64 + np.int64(trailing_zeros(occ[w2]))
 
 
 @numba.njit(cache=True, inline="always")
@@ -1207,7 +1208,6 @@ def _flood_kernel(left_out: bool, deep: bool = False) -> Any:
     bit_next = _bit_next3 if deep else _bit_next2
     n_occ = FLOOD_MAX_LEVELS // 64 if deep else SHALLOW_LEVELS // 64
 
-    @numba.njit(cache=True, nogil=True)
     def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore[no-untyped-def]  # numba kernel
         """The flood of :func:`flood_tree` from its prepared state: ``st`` (padded, int16) the level
         of each pixel in the cuts and -1 elsewhere (the border included), ``start[lv + 1]`` the
@@ -1392,7 +1392,13 @@ def _flood_kernel(left_out: bool, deep: bool = False) -> Any:
         return (node_b[:n_nodes], node_size[:n_nodes], node_parent[:n_nodes], tagged[:n_nodes],
                 fin[:n_fin])
 
-    return flood_core
+    # a name of its own for each variant: numba names a compiled function (its symbol, its cache files) by its
+    # module, qualified name, argument types and a per-process counter; the variants share the other three, so
+    # two compiled in different processes (then loaded from the caches) could get one symbol and the wrong one
+    # be called (in bench_zcut.py --alternate a "NULL descr" error when the previous tree's was loaded beside)
+    name = "flood_core" + ("_left_out" if left_out else "") + ("_deep" if deep else "")
+    flood_core.__name__ = flood_core.__qualname__ = name
+    return numba.njit(cache=True, nogil=True)(flood_core)
 
 
 flood_core = _flood_kernel(False)
@@ -1510,7 +1516,7 @@ def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, 
     as :func:`zcut.cuts._pruned_outliers` called them one by one before (the same arrays, the same order:
     the same result; ~0.25 ms of the pile's 3 fewer, docs/performance.md). False when fewer than
     ``minimum`` pixels may lie in the cuts (counted by row segments: nothing written). ``k_eff`` and
-    ``top``: :func:`zcut.cuts._levels`'; ``top`` below ``FLOOD_MAX_LEVELS``, the padded frame below
+    ``top``: :func:`zcut.cuts._levels`'; ``top`` below ``SHALLOW_LEVELS``, the padded frame below
     2**31 pixels and ``max_area`` at most the frame's pixels (the caller checks them)."""
     H, W = z.shape
     thr = z_max - top * step

@@ -10,9 +10,11 @@ Two implementations with the identical result for every input:
   component that neither gains a pixel nor merges between levels ``k`` and ``k + 1`` is exactly a
   pair of identical clusters of the paper. Two numba kernels build the same tree: a flood with a
   bucket queue over the levels (Nistér & Stewénius, "Linear time maximally stable extremal
-  regions", ECCV 2008; linear, cache-friendly; used below ``FLOOD_MAX_LEVELS`` levels, i.e. any
-  practical ``max_depth / step``) and, beyond, a union-find over the pixels sorted by level
-  (:mod:`zcut.cut_tree` holds the kernels).
+  regions", ECCV 2008; linear, cache-friendly; used below ``FLOOD_MAX_LEVELS`` (32768) levels, i.e. any
+  practical ``max_depth / step`` and every level count :func:`find_clusters` takes) and, beyond, a
+  union-find over the pixels sorted by level (:mod:`zcut.cut_tree` holds the kernels). When every pixel
+  of the frame is in the cuts (the suspects' floating detector cuts the zone's whole height range), the
+  flood leaves the deepest level out (:func:`zcut.cut_tree.flood_whole`: one component, the root).
 
 :func:`find_clusters` runs the same pass and returns the stage view (:class:`CutResult`): the
 clusters, their areas and levels, and the component count of every cut. Its ``kernel`` argument
@@ -607,8 +609,8 @@ class StageTree:
         A parameter set whose ``step``, ``max_depth`` and ``connectivity`` the tree is built for
         (its ``max_area`` is the first answer's).
     kernel : {"auto", "flood", "union-find"}
-        As :func:`find_clusters`'s. With the union-find (``"union-find"``, or ``"auto"`` beyond
-        ``FLOOD_MAX_LEVELS`` levels) the tree is not kept: every answer is a tree of its own.
+        As :func:`find_clusters`'s. With the union-find (``"union-find"``; ``"auto"`` floods every level
+        count :func:`find_clusters` takes) the tree is not kept: every answer is a tree of its own.
     """
 
     __slots__ = ("_z", "_n", "_z_min", "_z_max", "_seg_max", "_kernel", "_key", "_max_area", "_flood",
