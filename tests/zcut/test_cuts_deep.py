@@ -283,3 +283,22 @@ def test_many_sets_share_the_whole_tree() -> None:
 def test_level_limits() -> None:
     assert SHALLOW_LEVELS == 4096 and FLOOD_MAX_LEVELS == 32768
     assert n_levels(1.0, 32766.0) == 32766
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_whole_frame_with_the_deepest_level_at_the_last_cut(seed: int) -> None:
+    """Every pixel in the cuts with z_min exactly at level K + 1 (the last cut, ``top``: the deepest level is
+    past K, the root never tagged, the regions ending at K + 1) or at K (the root at K), on integer heights."""
+    rng = np.random.default_rng(70 + seed)
+    K = int(rng.integers(3, 40))
+    for depth_levels in (K + 1, K):
+        z = rng.integers(0, depth_levels + 1, (17, 23)).astype(np.float64)
+        z[rng.random(z.shape) < 0.2] = np.nan
+        z[0, 0], z[16, 22] = float(depth_levels), 0.0  # the range: exactly depth_levels levels
+        z[4:8, 4:9] = max(depth_levels - 3.0, 0.0)
+        z[5:7, 5:8] = float(depth_levels)  # a cluster at the top, 3 levels above its ring
+        for max_area in (2.0, 7.0, 50.0, math.inf):
+            for conn in (8, 4):
+                p = ZCutParams(step=1.0, max_depth=float(K), max_area=max_area, connectivity=conn)
+                assert whole(z, p)
+                check_all(z, p)
