@@ -39,7 +39,11 @@ from typing import Any
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import cgutils
+from numba.core import types as nbtypes
 from numba.cpython.unsafe.numbers import trailing_zeros
+from numba.extending import intrinsic
 
 __all__ = [
     "FLOOD_MAX_LEVELS",
@@ -1034,6 +1038,32 @@ def union_find_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-d
 # regions", ECCV 2008): the default for up to FLOOD_MAX_LEVELS levels
 # --------------------------------------------------------------------------------------------
 
+@intrinsic
+def _prefetch(typingctx, arr, idx):  # type: ignore[no-untyped-def]  # numba intrinsic
+    """``llvm.prefetch`` of ``arr[idx]`` (read, high locality): a hint, no effect on any value; the
+    flood's buckets pop pixels queued long before, far apart in the frame (:func:`flood_core`)."""
+    sig = nbtypes.void(arr, idx)
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]  # numba intrinsic
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1]], wraparound=False,
+                                       boundscheck=False)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0")
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+#: How far down its bucket :func:`flood_core` prefetches a queued pixel's neighbourhood (its rows in ``st``
+#: and its slot in ``lab``) as it pops one.
+PREFETCH_AHEAD = 8
+
+
 #: Levels 0 .. top with top < this go to :func:`flood_tree` (its bucket queue finds the lowest
 #: non-empty level in a bit map of 64 x 64 levels, or beyond ``SHALLOW_LEVELS`` in one of 8 x 64 x 64
 #: levels: :func:`flood_core_deep`); more levels go to the union-find :func:`union_find_tree`. (``st``
@@ -1332,6 +1362,14 @@ def _flood_kernel(left_out: bool, deep: bool = False) -> Any:
                 if ftop > sbeg:
                     ftop -= 1
                     p = bucket[ftop]
+                    if not left_out and ftop - PREFETCH_AHEAD >= sbeg:
+                        # a pixel popped soon after (or later: pixels queued on top come first), queued long
+                        # before, far from p: its rows and its node slot fetched while p is done
+                        pf = bucket[ftop - PREFETCH_AHEAD]
+                        _prefetch(st, pf - Wp)
+                        _prefetch(st, pf)
+                        _prefetch(st, pf + Wp)
+                        _prefetch(lab, pf)
                     e = -1 - np.int64(st[p])  # type: ignore[assignment]  # numba kernel: an int64 local
                     if e == 0:  # first visit (else p resumes after a descent)
                         lab[p] = node
