@@ -1038,8 +1038,7 @@ def union_find_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-d
 # regions", ECCV 2008): the default for up to FLOOD_MAX_LEVELS levels
 # --------------------------------------------------------------------------------------------
 
-@intrinsic
-def _prefetch(typingctx, arr, idx):  # type: ignore[no-untyped-def]  # numba intrinsic
+def _prefetch_intrinsic(typingctx, arr, idx):  # type: ignore[no-untyped-def]  # numba intrinsic
     """``llvm.prefetch`` of ``arr[idx]`` (read, high locality): a hint, no effect on any value; the
     flood's buckets pop pixels queued long before, far apart in the frame (:func:`flood_core`)."""
     sig = nbtypes.void(arr, idx)
@@ -1047,17 +1046,19 @@ def _prefetch(typingctx, arr, idx):  # type: ignore[no-untyped-def]  # numba int
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]  # numba intrinsic
         aryty = signature.args[0]
         ary = context.make_array(aryty)(context, builder, args[0])
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1]], wraparound=False,
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1]], wraparound=False,  # type: ignore[no-untyped-call]
                                        boundscheck=False)
         i8p = ir.IntType(8).as_pointer()
         i32 = ir.IntType(32)
-        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
-                                            "llvm.prefetch.p0")
+        fn = cgutils.get_or_insert_function(  # type: ignore[no-untyped-call]
+            builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), "llvm.prefetch.p0")
         builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
         return context.get_dummy_value()
 
     return sig, codegen
 
+
+_prefetch: Any = intrinsic(_prefetch_intrinsic)
 
 #: How far down its bucket :func:`flood_core` prefetches a queued pixel's neighbourhood (its rows in ``st``
 #: and its slot in ``lab``) as it pops one.
