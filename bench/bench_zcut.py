@@ -33,6 +33,9 @@ the gentle components of the z-cut's connectivity, as ``zcut_outliers``, the pru
 flood of the kept pixels, the read-out) beside the floor of
 reading the heights and writing a mask.
 ``--held-out pile:21,dense:31,...`` adds frames of those kinds at seeds the default frames do not use.
+``--suspects-call DIR`` times instead the ``find_clusters`` call of the suspects' floating detector (its
+arguments captured on the xyz frames of DIR: a step of 0.1 mm over the zone's whole height range, 1,200–17,000
+levels, every pixel in the cuts), this tree alone or, with ``--against``, alternating with the old tree.
 ``--faults`` also prints ``find_clusters``' minor page faults, system ms and CPU ms a call (medians, this
 tree, each result dropped before the next call); with ``--against``, the old tree's faults a call in its
 own process. (Not with ``--alternate``: both trees share one heap there, and the allocator keeps for the
@@ -299,10 +302,9 @@ def time_old_tree(tree: Path, frames: dict[str, np.ndarray], params: dict, repea
     return times, masks
 
 
-def alternate(tree: Path, frames: dict[str, np.ndarray], params: dict, repeat: int) -> bool:
-    """``--alternate``: the old tree's and this tree's ``zcut_outliers`` and ``find_clusters`` in this
-    one process, calls alternating (the old package imported first and kept as module objects, then
-    this one); prints median CPU ms and the ratios, returns whether every result is identical."""
+def old_modules(tree: Path):  # type: ignore[no-untyped-def]
+    """The old tree's ``zcut.cuts`` and ``zcut.params``, imported first and kept as module objects (this tree's
+    ``zcut`` modules put back in ``sys.modules`` after)."""
     import importlib
 
     here = {k: v for k, v in sys.modules.items() if k == "zcut" or k.startswith("zcut.")}
@@ -319,6 +321,14 @@ def alternate(tree: Path, frames: dict[str, np.ndarray], params: dict, repeat: i
         sys.modules.update(here)
     if not str(old_cuts.__file__).startswith(str(tree.resolve())) and not str(old_cuts.__file__).startswith(str(tree)):
         raise SystemExit(f"--alternate: {tree} did not provide zcut (got {old_cuts.__file__})")
+    return old_cuts, old_params
+
+
+def alternate(tree: Path, frames: dict[str, np.ndarray], params: dict, repeat: int) -> bool:
+    """``--alternate``: the old tree's and this tree's ``zcut_outliers`` and ``find_clusters`` in this
+    one process, calls alternating (the old package imported first and kept as module objects, then
+    this one); prints median CPU ms and the ratios, returns whether every result is identical."""
+    old_cuts, old_params = old_modules(tree)
     zp_old = old_params.ZCutParams(params["step"], params["max_depth"], params["max_area"])
     zp_new = ZCutParams(params["step"], params["max_depth"], params["max_area"])
     calls = {
@@ -344,6 +354,84 @@ def alternate(tree: Path, frames: dict[str, np.ndarray], params: dict, repeat: i
     return ok
 
 
+def suspects_calls(folder: Path, pattern: str) -> dict[str, tuple[np.ndarray, ZCutParams]]:
+    """The arguments of the ``find_clusters`` call of :func:`zcut.suspects.suspects`' floating detector (a fine
+    step over the zone's whole height range: every pixel in the cuts) on the xyz frames (.npy, H x W x 3, metres)
+    of ``folder`` (``bench/bench_suspects.py --speed --against`` writes them), captured by a spy on the
+    detector's module (the labelling page's call: ``edge_surface=EdgeSurfaceParams()``, zone = the valid pixels)."""
+    import importlib
+
+    from zcut.edge_surface import EdgeSurfaceParams
+    from zcut.params import SuspectParams
+    from zcut.suspects import suspects
+
+    floating = importlib.import_module("zcut.suspects.floating")
+    real = floating.find_clusters
+    got: list[tuple[np.ndarray, ZCutParams]] = []
+
+    def spy(h: np.ndarray, *, params: ZCutParams):  # type: ignore[no-untyped-def]
+        got.append((h.copy(), params))
+        return real(h, params=params)
+
+    out = {}
+    floating.find_clusters = spy
+    try:
+        for f in sorted(folder.glob(pattern)):
+            xyz = np.load(f)
+            h = -1000.0 * xyz[..., 2].astype(np.float64)
+            zone = np.isfinite(xyz).all(axis=2)
+            got.clear()
+            suspects(xyz, h, zone, params=SuspectParams(), edge_surface=EdgeSurfaceParams())
+            name = f.stem.removeprefix("speed_").removesuffix(f"_{xyz.shape[1]}x{xyz.shape[0]}")
+            out[name] = got[0]
+    finally:
+        floating.find_clusters = real
+    return out
+
+
+def same_stage(a, b) -> bool:  # type: ignore[no-untyped-def]
+    """Every field of two CutResults equal bit for bit (NaN = NaN in rho)."""
+    return (all(np.array_equal(getattr(a, f), getattr(b, f)) and getattr(a, f).dtype == getattr(b, f).dtype
+                for f in ("outliers", "clusters", "areas", "levels", "level_counts", "pixel_level"))
+            and np.array_equal(a.rho, b.rho, equal_nan=True)
+            and np.array([a.z_max, a.z_min]).tobytes() == np.array([b.z_max, b.z_min]).tobytes()
+            and a.n_levels == b.n_levels)
+
+
+def suspects_bench(folder: Path, pattern: str, tree: Path | None, repeat: int) -> bool:
+    """``--suspects-call``: the suspects' ``find_clusters`` on each frame of ``folder``: this tree's CPU ms
+    (median of ``repeat``) with its levels, pixels and clusters; with ``--against``, the old tree's calls
+    alternating in this process, the ratio, and whether every field is identical."""
+    calls = suspects_calls(folder, pattern)
+    old = old_modules(tree) if tree is not None else None
+    print(f"the suspects' find_clusters (median CPU ms of {repeat} calls{', alternating' if old else ''}; "
+          f"load average {' '.join(f'{v:.1f}' for v in os.getloadavg())}):")
+    ok = True
+    for name, (hz, p) in calls.items():
+        fns = {"new": lambda hz=hz, p=p: find_clusters(hz, params=p)}
+        if old is not None:
+            p_old = old[1].ZCutParams(step=p.step, max_depth=p.max_depth, max_area=p.max_area,
+                                      connectivity=p.connectivity, a_max=p.a_max)
+            fns = {"old": lambda hz=hz, p=p_old: old[0].find_clusters(hz, params=p), **fns}
+        res = {k: fn() for k, fn in fns.items()}
+        same = same_stage(res["old"], res["new"]) if old is not None else True
+        ok &= same
+        cpu: dict[str, list[float]] = {k: [] for k in fns}
+        for _ in range(repeat):
+            for k, fn in fns.items():
+                c0 = time.process_time()
+                fn()
+                cpu[k].append(time.process_time() - c0)
+        m = {k: statistics.median(v) * 1e3 for k, v in cpu.items()}
+        r = res["new"]
+        head = f"    {name:36s} {p.n_levels:6d} levels, {np.isfinite(hz).mean():5.1%} valid, {r.n_clusters:6d} clusters:"
+        if old is not None:
+            print(f"{head} {m['old']:7.1f} -> {m['new']:7.1f} ms ({m['old'] / m['new']:4.2f}x); identical: {same}")
+        else:
+            print(f"{head} {m['new']:7.1f} ms")
+    return ok
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat-fast", type=int, default=7)
@@ -359,7 +447,13 @@ def main() -> int:
     ap.add_argument("--passes", action="store_true", help="print the CPU time of each pass of zcut_outliers")
     ap.add_argument("--faults", action="store_true",
                     help="print find_clusters' page faults, system and CPU ms a call (this tree, in this process)")
+    ap.add_argument("--suspects-call", type=Path, default=None, metavar="DIR",
+                    help="time the suspects' find_clusters call on the xyz frames (.npy) of DIR instead "
+                         "(bench/bench_suspects.py --speed --against writes them); with --against, alternating")
+    ap.add_argument("--suspects-frames", default="speed_*.npy", help="with --suspects-call: the frames' glob")
     args = ap.parse_args()
+    if args.suspects_call is not None:
+        return 0 if suspects_bench(args.suspects_call, args.suspects_frames, args.against, args.repeat_fast) else 1
 
     params = dict(step=NOMINAL_STEP_MM, max_depth=NOMINAL_MAX_DEPTH_MM,
                   max_area=NOMINAL_RHO_THR * A_MAX)

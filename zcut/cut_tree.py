@@ -11,11 +11,12 @@ Building the tree
   (exact float64 comparisons).
 - :func:`pixel_levels` — that level for every pixel, into the padded level image ``q``.
 - :func:`flood_tree` — the tree by flooding with a bucket queue over the levels (the default, up
-  to ``FLOOD_MAX_LEVELS`` levels).
+  to ``FLOOD_MAX_LEVELS`` levels; :func:`flood_core_deep` from ``SHALLOW_LEVELS`` on).
 - :func:`finite_range`, :func:`flood_levels`, :func:`flood_core` — the flood's fast path of
   :func:`zcut.cuts.zcut_outliers` and :func:`zcut.cuts.find_clusters`: one pass for the extremes
   (and the largest height of each row segment), one for the levels of the pixels in the cuts only
-  (a segment wholly below the lowest cut is not read again), then the flood over those pixels.
+  (a segment wholly below the lowest cut is not read again), then the flood over those pixels
+  (:func:`flood_whole` when they are every pixel of the frame: the deepest level not flooded).
 - :func:`union_find_tree` — the same tree by union-find over the pixels sorted by level (any
   number of levels); :func:`node_image` turns its output into the flood's node image.
 
@@ -38,17 +39,24 @@ from typing import Any
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import cgutils
+from numba.core import types as nbtypes
 from numba.cpython.unsafe.numbers import trailing_zeros
+from numba.extending import intrinsic
 
 __all__ = [
     "FLOOD_MAX_LEVELS",
     "OUTSIDE",
     "SEGMENT",
+    "SHALLOW_LEVELS",
     "cluster_labels",
     "cuts_window",
     "finite_range",
     "flood_core",
+    "flood_core_deep",
     "flood_core_left_out",
+    "flood_whole",
     "flood_levels",
     "flood_tree",
     "forest_mask",
@@ -423,7 +431,7 @@ def _gentle_codes(st, b, c0, c1, Wp, codes):  # type: ignore[no-untyped-def]  # 
     edge joins the two neighbours already (N touches NW, NE and W; NW touches W; NE and W do not touch, nor
     NW and NE), ``_IN_CUTS``. Without a branch (unsigned indices: no wrap-around test), so LLVM vectorises
     it, in float32 lanes: numba widens every integer operation to 64 bits (8 lanes of a 512-bit vector) but
-    keeps float32 (16 lanes); the levels, -1 or 0 .. ``top`` < ``FLOOD_MAX_LEVELS``, and their differences
+    keeps float32 (16 lanes); the levels, -1 or 0 .. ``top`` < ``SHALLOW_LEVELS``, and their differences
     are exact in float32, so "in the cuts" (``>= 0``) and "within 1" (``|a - b| <= 1``) are the integer
     tests, and the code, a sum of distinct powers of two below 256, is exact too (the pile's codes
     ~0.07 ms faster than on 64-bit integer lanes, docs/performance.md)."""
@@ -1030,9 +1038,42 @@ def union_find_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-d
 # regions", ECCV 2008): the default for up to FLOOD_MAX_LEVELS levels
 # --------------------------------------------------------------------------------------------
 
+def _prefetch_intrinsic(typingctx, arr, idx):  # type: ignore[no-untyped-def]  # numba intrinsic
+    """``llvm.prefetch`` of ``arr[idx]`` (read, high locality): a hint, no effect on any value; the
+    flood's buckets pop pixels queued long before, far apart in the frame (:func:`flood_core`)."""
+    sig = nbtypes.void(arr, idx)
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]  # numba intrinsic
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1]], wraparound=False,  # type: ignore[no-untyped-call]
+                                       boundscheck=False)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(  # type: ignore[no-untyped-call]
+            builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), "llvm.prefetch.p0")
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+_prefetch: Any = intrinsic(_prefetch_intrinsic)
+
+#: How far down its bucket :func:`flood_core` prefetches a queued pixel's neighbourhood (its rows in ``st``
+#: and its slot in ``lab``) as it pops one.
+PREFETCH_AHEAD = 8
+
+
 #: Levels 0 .. top with top < this go to :func:`flood_tree` (its bucket queue finds the lowest
-#: non-empty level in a 64 x 64 bit map); more levels go to the union-find :func:`union_find_tree`.
-FLOOD_MAX_LEVELS = 4096
+#: non-empty level in a bit map of 64 x 64 levels, or beyond ``SHALLOW_LEVELS`` in one of 8 x 64 x 64
+#: levels: :func:`flood_core_deep`); more levels go to the union-find :func:`union_find_tree`. (``st``
+#: is int16: the levels 0 .. 32767 fit.)
+FLOOD_MAX_LEVELS = 32768
+#: Levels 0 .. top with top < this flood with the two-tier bit map (:func:`flood_core`); more with the
+#: three-tier one (:func:`flood_core_deep`). The pruned flood (:func:`pruned_outliers`) takes fewer
+#: than this only (its ``OUTSIDE - level`` marks and float32 codes are checked up to it).
+SHALLOW_LEVELS = 4096
 _U1 = np.uint64(1)
 
 
@@ -1065,6 +1106,70 @@ def _bit_next(occ, summ, lv):  # type: ignore[no-untyped-def]  # numba kernel
     if y == 0:
         return np.int64(-1)
     w2 = w + 1 + np.int64(trailing_zeros(y))  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+    return w2 * 64 + np.int64(trailing_zeros(occ[w2]))
+
+
+@numba.njit(cache=True, inline="always")
+def _bit_set2(occ, mid, summ, lv):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_bit_set` with the deep map's signature (``mid`` unused)."""
+    return _bit_set(occ, summ, lv)
+
+
+@numba.njit(cache=True, inline="always")
+def _bit_clear2(occ, mid, summ, lv):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_bit_clear` with the deep map's signature (``mid`` unused)."""
+    return _bit_clear(occ, summ, lv)
+
+
+@numba.njit(cache=True, inline="always")
+def _bit_next2(occ, mid, summ, lv):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_bit_next` with the deep map's signature (``mid`` unused)."""
+    return _bit_next(occ, summ, lv)
+
+
+@numba.njit(cache=True, inline="always")
+def _bit_set3(occ, mid, summ, lv):  # type: ignore[no-untyped-def]  # numba kernel
+    """The three-tier map (:func:`flood_core_deep`): bit lv of ``occ`` (512 words), bit w of ``mid`` (8
+    words: ``occ[w] != 0``), bit v of ``summ`` (``mid[v] != 0``, returned)."""
+    w = lv >> 6
+    v = w >> 6
+    occ[w] |= _U1 << np.uint64(lv & 63)
+    mid[v] |= _U1 << np.uint64(w & 63)
+    return summ | (_U1 << np.uint64(v))
+
+
+@numba.njit(cache=True, inline="always")
+def _bit_clear3(occ, mid, summ, lv):  # type: ignore[no-untyped-def]  # numba kernel
+    w = lv >> 6
+    occ[w] &= ~(_U1 << np.uint64(lv & 63))
+    if occ[w] == 0:
+        v = w >> 6
+        mid[v] &= ~(_U1 << np.uint64(w & 63))
+        if mid[v] == 0:
+            return summ & ~(_U1 << np.uint64(v))
+    return summ
+
+
+@numba.njit(cache=True, inline="always")
+def _bit_next3(occ, mid, summ, lv):  # type: ignore[no-untyped-def]  # numba kernel
+    """Lowest set level >= lv of the three-tier map, or -1."""
+    w = lv >> 6
+    x = occ[w] >> np.uint64(lv & 63)
+    if x != 0:
+        return lv + np.int64(trailing_zeros(x))  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+    v = w >> 6
+    if (w & 63) != 63:  # (a shift by 64 is undefined)
+        y = mid[v] >> np.uint64((w & 63) + 1)
+        if y != 0:
+            w2 = w + 1 + np.int64(trailing_zeros(y))  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+            return w2 * 64 + np.int64(trailing_zeros(occ[w2]))
+    if v >= 7:
+        return np.int64(-1)
+    y = summ >> np.uint64(v + 1)
+    if y == 0:
+        return np.int64(-1)
+    v2 = v + 1 + np.int64(trailing_zeros(y))  # type: ignore[call-arg]  # numba intrinsic: numba passes the typing context
+    w2 = v2 * 64 + np.int64(trailing_zeros(mid[v2]))
     return w2 * 64 + np.int64(trailing_zeros(occ[w2]))
 
 
@@ -1115,16 +1220,25 @@ def flood_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-def]  
         else:
             st[i] = -1
             lab[i] = -1
-    node_b, node_size, node_parent, tagged, fin = flood_core(st, start, pix[:m], W, K, top, conn8, max_area, lab)
+    if top < SHALLOW_LEVELS:
+        node_b, node_size, node_parent, tagged, fin = flood_core(st, start, pix[:m], W, K, top, conn8, max_area, lab)
+    else:
+        node_b, node_size, node_parent, tagged, fin = flood_core_deep(st, start, pix[:m], W, K, top, conn8, max_area,
+                                                                      lab)
     return lab, node_b, node_size, node_parent, tagged, fin
 
 
-def _flood_kernel(left_out: bool) -> Any:
+def _flood_kernel(left_out: bool, deep: bool = False) -> Any:
     """:func:`flood_core` (``left_out`` False) or :func:`flood_core_left_out` (True: ``st`` may hold
     left-out pixels, whose levels end the nodes they touch; a check the whole tree's flood need not
-    pay in its innermost loop). The flag is a constant of the compiled kernel."""
+    pay in its innermost loop), or with ``deep`` :func:`flood_core_deep` (the bucket queue's bit map
+    in three tiers: up to ``FLOOD_MAX_LEVELS`` levels, not ``SHALLOW_LEVELS``). The flags are
+    constants of the compiled kernel."""
+    bit_set = _bit_set3 if deep else _bit_set2
+    bit_clear = _bit_clear3 if deep else _bit_clear2
+    bit_next = _bit_next3 if deep else _bit_next2
+    n_occ = FLOOD_MAX_LEVELS // 64 if deep else SHALLOW_LEVELS // 64
 
-    @numba.njit(cache=True, nogil=True)
     def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore[no-untyped-def]  # numba kernel
         """The flood of :func:`flood_tree` from its prepared state: ``st`` (padded, int16) the level
         of each pixel in the cuts and -1 elsewhere (the border included), ``start[lv + 1]`` the
@@ -1143,8 +1257,9 @@ def _flood_kernel(left_out: bool) -> Any:
         m = start[nlev]
         fill = start[:nlev].copy()  # bucket lv = bucket[start[lv]:fill[lv]], a stack
         bucket = np.empty(m, np.int32)  # a pixel is queued at most once at a time, at its level
-        occ = np.zeros(64, np.uint64)  # bit lv: bucket lv non-empty
-        summ = np.uint64(0)  # bit w: occ[w] != 0
+        occ = np.zeros(n_occ, np.uint64)  # bit lv: bucket lv non-empty
+        mid = np.zeros(8, np.uint64)  # (deep) bit w: occ[w] != 0
+        summ = np.uint64(0)  # bit w: occ[w] != 0 (deep: bit v: mid[v] != 0)
         stk_lv = np.empty(nlev + 1, np.int64)
         stk_area = np.empty(nlev + 1, np.int64)
         stk_node = np.empty(nlev + 1, np.int32)
@@ -1210,7 +1325,7 @@ def _flood_kernel(left_out: bool) -> Any:
                         bucket[slot] = nb
                         fill[qn] = slot + 1
                         if slot == start[qn]:
-                            summ = _bit_set(occ, summ, qn)
+                            summ = bit_set(occ, mid, summ, qn)
                         continue
                     d = u
                     dq = qn
@@ -1223,9 +1338,9 @@ def _flood_kernel(left_out: bool) -> Any:
                         ftop += 1
                     fill[cur] = ftop
                     if ftop > sbeg:
-                        summ = _bit_set(occ, summ, cur)
+                        summ = bit_set(occ, mid, summ, cur)
                     else:
-                        summ = _bit_clear(occ, summ, cur)
+                        summ = bit_clear(occ, mid, summ, cur)
                     stk_area[sp - 1] = area
                     if left_out:
                         stk_lm[sp - 1] = lmn
@@ -1248,17 +1363,25 @@ def _flood_kernel(left_out: bool) -> Any:
                 if ftop > sbeg:
                     ftop -= 1
                     p = bucket[ftop]
+                    if not left_out and ftop - PREFETCH_AHEAD >= sbeg:
+                        # a pixel popped soon after (or later: pixels queued on top come first), queued long
+                        # before, far from p: its rows and its node slot fetched while p is done
+                        pf = bucket[ftop - PREFETCH_AHEAD]
+                        _prefetch(st, pf - Wp)
+                        _prefetch(st, pf)
+                        _prefetch(st, pf + Wp)
+                        _prefetch(lab, pf)
                     e = -1 - np.int64(st[p])  # type: ignore[assignment]  # numba kernel: an int64 local
                     if e == 0:  # first visit (else p resumes after a descent)
                         lab[p] = node
                         area += 1
                     continue
                 fill[cur] = ftop
-                summ = _bit_clear(occ, summ, cur)
+                summ = bit_clear(occ, mid, summ, cur)
                 stk_area[sp - 1] = area
                 if left_out:
                     stk_lm[sp - 1] = lmn
-                lv = _bit_next(occ, summ, cur)
+                lv = bit_next(occ, mid, summ, cur)
                 if lv < 0:
                     break
                 # rising: close the components below lv
@@ -1308,11 +1431,78 @@ def _flood_kernel(left_out: bool) -> Any:
         return (node_b[:n_nodes], node_size[:n_nodes], node_parent[:n_nodes], tagged[:n_nodes],
                 fin[:n_fin])
 
-    return flood_core
+    # a name of its own for each variant: numba names a compiled function (its symbol, its cache files) by its
+    # module, qualified name, argument types and a per-process counter; the variants share the other three, so
+    # two compiled in different processes (then loaded from the caches) could get one symbol and the wrong one
+    # be called (in bench_zcut.py --alternate a "NULL descr" error when the previous tree's was loaded beside)
+    name = "flood_core" + ("_left_out" if left_out else "") + ("_deep" if deep else "")
+    flood_core.__name__ = flood_core.__qualname__ = name
+    return numba.njit(cache=True, nogil=True)(flood_core)
 
 
 flood_core = _flood_kernel(False)
 flood_core_left_out = _flood_kernel(True)
+flood_core_deep = _flood_kernel(False, True)
+
+
+@numba.njit(cache=True, nogil=True)
+def flood_whole(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`flood_core` (:func:`flood_core_deep` from ``SHALLOW_LEVELS`` levels on) when *every* pixel of
+    the frame is in the cuts (``pix`` lists them all), without flooding the pixels of the deepest level.
+
+    The same arguments and results, the same tree: the cut at the deepest level ``qd`` holds every pixel
+    of the frame, one component (the pixel grid is connected), so the tree's one root is born at ``qd``
+    with every pixel, and its children are the components of the cut at ``qd - 1``, each ending at ``qd``.
+    Those are what the flood gives over the pixels above ``qd`` (the ones at ``qd`` marked seen in
+    ``st``): each region's last node, closed as a root, gets the root as its parent and is tagged again
+    with ``e = qd``; the root is added last in ``fin``, and ``lab`` at the pixels of ``qd`` is the root.
+    The invalid pixels all stand at ``z_min``, at ``qd``: on the suspects' whole-range z-cut (every pixel in
+    the cuts) 15-75 % of a frame is not flooded (docs/performance.md). Node numbers differ from
+    :func:`flood_core`'s; no read-out depends on them (clusters are numbered in raster order)."""
+    qd = top
+    while qd > 0 and start[qd + 1] == 0:  # start: the counts per level (start[lv + 1])
+        qd -= 1
+    m = pix.size
+    for t in range(m):
+        p = pix[t]
+        if st[p] == qd:
+            st[p] = -1  # seen: never flooded, never queued
+            lab[p] = -1
+    start[qd + 1] = 0
+    if top < SHALLOW_LEVELS:
+        node_b, node_size, node_parent, tagged, fin = flood_core(st, start, pix, W, K, top, conn8, max_area, lab)
+    else:
+        node_b, node_size, node_parent, tagged, fin = flood_core_deep(st, start, pix, W, K, top, conn8, max_area,
+                                                                      lab)
+    n = node_b.size
+    root = n
+    b2 = np.empty(n + 1, np.int64)
+    size2 = np.empty(n + 1, np.int64)
+    parent2 = np.empty(n + 1, np.int32)
+    tagged2 = np.empty(n + 1, np.bool_)
+    fin2 = np.empty(n + 1, np.int32)
+    end = min(K, qd - 2)
+    for a in range(n):
+        b2[a] = node_b[a]
+        size2[a] = node_size[a]
+        pa = node_parent[a]
+        if pa < 0:  # a region's last node: a component of the cut at qd - 1, ending at qd
+            parent2[a] = root
+            tagged2[a] = max(node_b[a], 1) <= end and node_size[a] < max_area
+        else:
+            parent2[a] = pa
+            tagged2[a] = tagged[a]
+        fin2[a] = fin[a]
+    b2[root] = qd
+    size2[root] = m
+    parent2[root] = -1
+    tagged2[root] = max(qd, 1) <= K and m < max_area  # (e = K + 2: the root lives to the end)
+    fin2[n] = root
+    for t in range(m):
+        p = pix[t]
+        if lab[p] < 0:
+            lab[p] = root
+    return b2, size2, parent2, tagged2, fin2
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -1365,7 +1555,7 @@ def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, 
     as :func:`zcut.cuts._pruned_outliers` called them one by one before (the same arrays, the same order:
     the same result; ~0.25 ms of the pile's 3 fewer, docs/performance.md). False when fewer than
     ``minimum`` pixels may lie in the cuts (counted by row segments: nothing written). ``k_eff`` and
-    ``top``: :func:`zcut.cuts._levels`'; ``top`` below ``FLOOD_MAX_LEVELS``, the padded frame below
+    ``top``: :func:`zcut.cuts._levels`'; ``top`` below ``SHALLOW_LEVELS``, the padded frame below
     2**31 pixels and ``max_area`` at most the frame's pixels (the caller checks them)."""
     H, W = z.shape
     thr = z_max - top * step

@@ -10,9 +10,11 @@ Two implementations with the identical result for every input:
   component that neither gains a pixel nor merges between levels ``k`` and ``k + 1`` is exactly a
   pair of identical clusters of the paper. Two numba kernels build the same tree: a flood with a
   bucket queue over the levels (Nistér & Stewénius, "Linear time maximally stable extremal
-  regions", ECCV 2008; linear, cache-friendly; used below ``FLOOD_MAX_LEVELS`` levels, i.e. any
-  practical ``max_depth / step``) and, beyond, a union-find over the pixels sorted by level
-  (:mod:`zcut.cut_tree` holds the kernels).
+  regions", ECCV 2008; linear, cache-friendly; used below ``FLOOD_MAX_LEVELS`` (32768) levels, i.e. any
+  practical ``max_depth / step`` and every level count :func:`find_clusters` takes) and, beyond, a
+  union-find over the pixels sorted by level (:mod:`zcut.cut_tree` holds the kernels). When every pixel
+  of the frame is in the cuts (the suspects' floating detector cuts the zone's whole height range), the
+  flood leaves the deepest level out (:func:`zcut.cut_tree.flood_whole`: one component, the root).
 
 :func:`find_clusters` runs the same pass and returns the stage view (:class:`CutResult`): the
 clusters, their areas and levels, and the component count of every cut. Its ``kernel`` argument
@@ -93,12 +95,15 @@ import numpy as np
 from .cut_tree import (
     FLOOD_MAX_LEVELS,
     SEGMENT,
+    SHALLOW_LEVELS,
     cluster_labels,
     cuts_window,
     finite_range,
     flood_core,
+    flood_core_deep,
     flood_levels,
     flood_tree,
+    flood_whole,
     level_counts,
     listed_cluster_labels,
     listed_outlier_mask,
@@ -393,8 +398,10 @@ def _flood(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step:
     m = int(flood_levels(z, seg_max, z_min, z_max, step, np.int64(k_eff + 2), np.int64(top), np.int64(K), st, start, pix,
                          own, levels, want))
     pix, own = pix[:m], own[:m]
-    node_b, node_size, node_parent, tagged, fin = flood_core(st, start, pix, W, np.int64(k_eff), np.int64(top),
-                                                             connectivity == 8, float(max_area), lab)
+    # every pixel in the cuts: the deepest level's pixels (the invalid ones among them) are not flooded
+    core = flood_whole if m == H * W else flood_core if top < SHALLOW_LEVELS else flood_core_deep
+    node_b, node_size, node_parent, tagged, fin = core(st, start, pix, W, np.int64(k_eff), np.int64(top),
+                                                       connectivity == 8, float(max_area), lab)
     return _Flood(lab, pix, own, node_b, node_size, node_parent, tagged, fin)
 
 
@@ -430,7 +437,7 @@ def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: fl
     k_eff, top = _levels(z_min, z_max, step, K)
     H, W = z.shape
     n = (H + 2) * (W + 2)
-    if top >= FLOOD_MAX_LEVELS or n >= 2**31 - 1 or not max_area <= H * W:
+    if top >= SHALLOW_LEVELS or n >= 2**31 - 1 or not max_area <= H * W:
         return False  # (no gentle component reaches max_area: nothing would be left out)
     if gentle not in ("auto", 4, connectivity):
         raise ParameterError(f"gentle must be 'auto', 4 or the connectivity ({connectivity}), got {gentle!r}")
@@ -602,8 +609,8 @@ class StageTree:
         A parameter set whose ``step``, ``max_depth`` and ``connectivity`` the tree is built for
         (its ``max_area`` is the first answer's).
     kernel : {"auto", "flood", "union-find"}
-        As :func:`find_clusters`'s. With the union-find (``"union-find"``, or ``"auto"`` beyond
-        ``FLOOD_MAX_LEVELS`` levels) the tree is not kept: every answer is a tree of its own.
+        As :func:`find_clusters`'s. With the union-find (``"union-find"``; ``"auto"`` floods every level
+        count :func:`find_clusters` takes) the tree is not kept: every answer is a tree of its own.
     """
 
     __slots__ = ("_z", "_n", "_z_min", "_z_max", "_seg_max", "_kernel", "_key", "_max_area", "_flood",

@@ -278,8 +278,8 @@ BAD_BUILD = [
     (np.zeros((2, 2)), dict(connectivity=6), ParameterError, r"connectivity .*got 6"),
     (np.zeros((2, 2)), dict(kernel="fast"), ParameterError, r"kernel must be one of .*got 'fast'"),
     (np.zeros((2, 2)), dict(kernel=None), ParameterError, r"kernel must be one of .*got None"),
-    (np.array([[0.0, 5000.0]]), dict(step=1.0, max_depth=1e4, kernel="flood"), ParameterError,
-     r"kernel 'flood' builds trees of fewer than 4096 levels, this one needs 5003"),
+    (np.array([[0.0, 40000.0]]), dict(step=1.0, max_depth=1e5, kernel="flood"), ParameterError,
+     r"kernel 'flood' builds trees of fewer than 32768 levels, this one needs 40003"),
 ]
 
 

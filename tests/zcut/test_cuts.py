@@ -21,7 +21,7 @@ from zcut import (
     zcut_outliers_reference,
 )
 from zcut.cut_grid import zcut_tree
-from zcut.cut_tree import FLOOD_MAX_LEVELS
+from zcut.cut_tree import FLOOD_MAX_LEVELS, SHALLOW_LEVELS
 from zcut.cuts import KERNELS, n_levels
 
 STEPS = (0.2, 0.25, 0.3, 0.5, 1.0, 0.1)
@@ -221,31 +221,52 @@ def test_very_many_levels_use_the_sort_path() -> None:
     assert not out.any()
 
 
-@pytest.mark.parametrize("n_levels_above", [-1, 0, 1])
-def test_kernels_meet_at_the_level_limit(n_levels_above: int) -> None:
-    """Around FLOOD_MAX_LEVELS levels (the flood's bucket queue fills all its 64 x 64 bits
-    just below; the union-find takes over at the limit): both agree with the reference."""
-    rng = np.random.default_rng(5 + n_levels_above)
-    step = 1.0
-    K = FLOOD_MAX_LEVELS - 2 + n_levels_above  # levels 0 .. K + 1 take part
-    z = rng.integers(0, K + 3, (7, 9)).astype(np.float64) * step
+def _limit_frame(K: int, seed: int) -> np.ndarray:
+    """A 7 x 9 frame whose levels 0 .. K + 1 take part (z_min at level K + 2, beyond the cuts), with a
+    pair floating near the top and a NaN block (step 1)."""
+    rng = np.random.default_rng(seed)
+    z = rng.integers(0, K + 3, (7, 9)).astype(np.float64)
     z[0, 0], z[6, 8] = K + 2, 0.0  # the full range: z_min at level K + 2 (beyond the cuts)
     z[6, 6:8] = 1.0  # level K + 1, the last one of the cuts
     z[3:5, 3:5] = np.nan
     z[1, 1:3] = K + 1.5  # a pair floating near the top
+    return z
+
+
+@pytest.mark.parametrize("n_levels_above", [-1, 0, 1])
+def test_kernels_meet_at_the_queue_switch(n_levels_above: int) -> None:
+    """Around SHALLOW_LEVELS levels (the flood's two-tier bucket map fills all its 64 x 64 bits just
+    below; the three-tier map takes over at the limit): every kernel agrees with the reference."""
+    K = SHALLOW_LEVELS - 2 + n_levels_above  # levels 0 .. K + 1 take part
+    z = _limit_frame(K, 5 + n_levels_above)
     for conn in (8, 4):
-        params = dict(step=step, max_depth=K * step, max_area=3, connectivity=conn)
+        params = dict(step=1.0, max_depth=float(K), max_area=3, connectivity=conn)
         ref = zcut_outliers_reference(z, **params)
         assert ref.any()
         np.testing.assert_array_equal(zcut_outliers(z, **params), ref)
         for kernel in KERNELS:
-            if kernel == "flood" and n_levels_above > 0:  # levels 0 .. 4096: too many to flood
-                with pytest.raises(ParameterError, match=r"kernel 'flood' .*fewer than 4096 levels"):
-                    find_clusters(z, params=ZCutParams(step, K * step, 3, connectivity=conn), kernel=kernel)
-                continue
-            res = find_clusters(z, params=ZCutParams(step, K * step, 3, connectivity=conn), kernel=kernel)
+            res = find_clusters(z, params=ZCutParams(1.0, float(K), 3, connectivity=conn), kernel=kernel)
             np.testing.assert_array_equal(res.outliers, ref)
             np.testing.assert_array_equal(kernel_outliers(z, kernel, **params), ref)
+
+
+@pytest.mark.parametrize("n_levels_above", [-1, 0, 1])
+def test_kernels_meet_at_the_level_limit(n_levels_above: int) -> None:
+    """Around FLOOD_MAX_LEVELS levels (the three-tier map fills all its 8 x 64 x 64 bits just below; the
+    union-find takes over at the limit): both agree with the reference (zcut_outliers and the tree view:
+    find_clusters takes fewer levels, MAX_STAGE_LEVELS)."""
+    K = FLOOD_MAX_LEVELS - 2 + n_levels_above  # levels 0 .. K + 1 take part
+    z = _limit_frame(K, 5 + n_levels_above)
+    params = dict(step=1.0, max_depth=float(K), max_area=3, connectivity=8)
+    ref = zcut_outliers_reference(z, **params)
+    assert ref.any()
+    np.testing.assert_array_equal(zcut_outliers(z, **params), ref)
+    for kernel in KERNELS:
+        if kernel == "flood" and n_levels_above > 0:  # levels 0 .. 32768: too many to flood
+            with pytest.raises(ParameterError, match=r"kernel 'flood' .*fewer than 32768 levels"):
+                kernel_outliers(z, kernel, **params)
+            continue
+        np.testing.assert_array_equal(kernel_outliers(z, kernel, **params), ref)
 
 
 def test_int32_levels() -> None:

@@ -13,7 +13,7 @@ import pytest
 from test_cuts_fast import bumpy, height_mm, same_result
 
 from zcut import ZCutParams, find_clusters, zcut_outliers_reference
-from zcut.cut_tree import SEGMENT, retag
+from zcut.cut_tree import SEGMENT, SHALLOW_LEVELS, retag
 from zcut.cuts import StageTree, _finite_range, _flood, _flood_scratch, _levels, find_clusters_many
 from zcut.errors import InputShapeError, ParameterError
 from zcut.params import n_levels
@@ -138,17 +138,23 @@ def test_degenerate(case: str) -> None:
     check_many(z, 1.0, 0.0, 4.0)  # K = 0: no cluster
 
 
-def test_many_levels_fall_back_to_the_union_find() -> None:
-    """Beyond the flood's levels the tree is the union-find's, not kept: each set gets its own, the
-    same answers."""
+def test_many_levels_share_the_deep_flood() -> None:
+    """6,000 levels (beyond the two-tier bucket map, SHALLOW_LEVELS: the flood's three-tier map; every level
+    count find_clusters takes floods) share the flood's tree; with the union-find the tree is not kept:
+    each set gets its own. The same answers."""
     rng = np.random.default_rng(4)
     z = bumpy(rng, 30, 70, 0.5) * 400.0
     a = ZCutParams(step=0.01, max_depth=60.0, max_area=20.0)
     b = ZCutParams(step=0.01, max_depth=60.0, max_area=5.0)
+    assert a.n_levels > SHALLOW_LEVELS
     tree = StageTree(z, params=a)
-    assert not tree.shares(b)
+    assert tree.shares(b)
+    assert not StageTree(z, params=a, kernel="union-find").shares(b)
     for got, p in zip(find_clusters_many(z, params=(a, b)), (a, b), strict=True):
         same_result(got, find_clusters(z, params=p))
+        same_result(got, find_clusters(z, params=p, kernel="union-find"))
+    tree.answer(b)
+    assert tree.trees == 1
 
 
 def test_bad_input_is_find_clusters_error() -> None:

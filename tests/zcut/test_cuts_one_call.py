@@ -14,7 +14,7 @@ import pytest
 
 from zcut import ZCutParams, find_clusters, zcut_outliers, zcut_outliers_reference
 from zcut.cut_tree import (
-    FLOOD_MAX_LEVELS,
+    SHALLOW_LEVELS,
     _gentle_codes,
     cuts_window,
     flood_core_left_out,
@@ -59,9 +59,9 @@ def integer_codes(st: np.ndarray, b: int, c0: int, c1: int, Wp: int) -> np.ndarr
 
 def test_gentle_codes_equal_the_integer_tests() -> None:
     """Every combination of five levels among -1 .. 3 (the pixel and its W, N, NW, NE neighbours), then random
-    ones up to the largest level the flood takes (FLOOD_MAX_LEVELS - 1) and near it: the float32 codes are the
+    ones up to the largest level the pruned flood takes (SHALLOW_LEVELS - 1) and near it: the float32 codes are the
     integer tests' (levels and differences are exact in float32)."""
-    top = FLOOD_MAX_LEVELS - 1
+    top = SHALLOW_LEVELS - 1
     combos = np.array(list(itertools.product(range(-1, 4), repeat=5)), np.int16)
     rng = np.random.default_rng(1212)
     big = rng.integers(-1, top + 1, (4000, 5)).astype(np.int16)
@@ -100,7 +100,7 @@ def steps_outliers(z: np.ndarray, *, step: float, max_depth: float, max_area: fl
         return None
     k_eff, top = _levels(lo, hi, step, K)
     H, W = z.shape
-    if top >= FLOOD_MAX_LEVELS or not max_area <= H * W:
+    if top >= SHALLOW_LEVELS or not max_area <= H * W:
         return None
     thr = hi - top * step
     wr, wc, wh, ww, bound = 0, 0, H, W, H * W
