@@ -88,11 +88,6 @@ REACH_MM = 30.0
 SEEDED_KEPT = 64
 #: At most this many of the part model's surface samples go to the page's 3D view.
 MODEL_POINTS = 400
-#: When set, the page judges a fit's pixels with its residual σ taken at most this many times the frame's median fit
-#: σ (:func:`capped_sigmas`), so that a loose fit's wide k × Err band explains no more than that around it; None (the
-#: default): every fit's own σ, as ``explained`` judges. Measured at 3 and not kept: more of the paper's truth
-#: proposed, more part surface too (docs/labelling.md, "Seventh round"; ``bench_label_pageonly.py --sigma-cap``).
-SIGMA_CAP: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -447,20 +442,10 @@ def fit_frame(frame: Frame, job: Job, config: Any, bin_model: BinModel | None) -
         return FrameFits(frame.index, "error", warning or "no fits", (H, W), seconds=time.process_time() - t)
     p = config.bank[NAME]
     surfaces, f_px = known_surfaces(frame, job, detail, bin_model)
-    sigmas, n_capped = capped_sigmas(surfaces.part_err_mm, SIGMA_CAP)
-    err_mm = np.asarray(detail.err_mm, np.float64)
-    if n_capped:  # the Err of the pixels nearest to a capped fit, from its capped σ (elsewhere the method's, to the bit)
-        page = dataclasses.replace(surfaces, part_err_mm=list(sigmas))
-        xyz = frame.xyz.astype(np.float64) * 1000.0
-        low = np.asarray(sigmas) < np.asarray(surfaces.part_err_mm, np.float64)
-        code = np.asarray(detail.surface)
-        hit = (code >= 0) & low[np.maximum(code, 0)] if low.size else np.zeros(code.shape, bool)
-        err_mm = np.where(hit, ex.err_image(ex.Nearest(detail.dist_mm, detail.surface), page, ex.footprint_mm(xyz, f_px),
-                                            floor_mm=float(p.err_floor_mm), where=hit), err_mm)
     seconds = time.process_time() - t
     # the zone the page serves: the filters' zone and the points above the rim (docs/accuracy.md)
     served = (job.zone | np.asarray(job.removal.easy_outliers, bool)) & job.valid
-    un = np.asarray(out, bool) | (ex.unexplained(detail.dist_mm, err_mm, p.k) & served)
+    un = np.asarray(out, bool) | (ex.unexplained(detail.dist_mm, detail.err_mm, p.k) & served)
     judged = served & ~un & np.isfinite(detail.dist_mm)
     code = np.where(judged, detail.surface, -1).ravel()
     fit_pix = np.flatnonzero(code >= 0)
@@ -471,27 +456,13 @@ def fit_frame(frame: Frame, job: Job, config: Any, bin_model: BinModel | None) -
         if detail.vetted_out else ""
     if detail.top_pieces:
         vetted += f" ({detail.top_pieces} found again on unexplained pieces on top of the pile)"
-    if n_capped:
-        vetted += f" ({n_capped} judged with their residual capped at {SIGMA_CAP:g} × the median fit's)"
     return FrameFits(frame.index, "ready", f"{len(fits)} fits{vetted}, {un_pix.size} unexplained px", (H, W), fits,
                      fit_pix, code[fit_pix].astype(np.int32), un_pix,
-                     detail.dist_mm.ravel()[un_pix].astype(np.float32), err_mm.ravel()[un_pix].astype(np.float32),
+                     detail.dist_mm.ravel()[un_pix].astype(np.float32), detail.err_mm.ravel()[un_pix].astype(np.float32),
                      seconds, un_code=detail.surface.ravel()[un_pix].astype(np.int32),
                      surfaces=dataclasses.replace(surfaces, parts=(), part_err_mm=()), f_px=f_px,
                      floor_mm=float(p.err_floor_mm), k=float(p.k), part_mesh=(detail.vertices_mm, detail.triangles),
-                     part_err_mm=sigmas)
-
-
-def capped_sigmas(sigmas_mm: Sequence[float], cap: float | None) -> tuple[tuple[float, ...], int]:
-    """The fits' residuals σ (mm) as the page judges their pixels: each at most ``cap`` × their median (``cap``
-    None: as given), and how many were lowered. A fit whose residual is several times its neighbours' is loose
-    (misposed, or fitted on a part's ghosts), and its k × Err band would explain the off-surface points around it."""
-    s = np.asarray(sigmas_mm, np.float64)
-    if cap is None or not s.size:
-        return tuple(float(v) for v in s), 0
-    top = float(cap) * float(np.median(s))
-    out = np.minimum(s, top)
-    return tuple(float(v) for v in out), int((out < s).sum())
+                     part_err_mm=tuple(float(e) for e in surfaces.part_err_mm))
 
 
 def known_surfaces(frame: Frame, job: Job, detail: Any, bin_model: BinModel) -> tuple[KnownSurfaces, float]:

@@ -2,7 +2,7 @@
 
     PYTHONPATH=. .venv/bin/python bench/bench_fits.py [--set tune|report] [--size 960x600]
         [--kinds spheres,zinc_nuts,rods,black_nuts] [--sensors handmade,raytraced] [--json OUT]
-        [--param seed_shifts=0 ...] [--dump FITS.pkl] [--cache DIR] [--phases] [--guesses] [--repeat N]
+        [--param seed_shifts=0 ...] [--dump FITS.pkl] [--cache DIR] [--phases] [--guesses [--screen-steps N]] [--repeat N]
     PYTHONPATH=. .venv/bin/python bench/bench_fits.py --same OLD.pkl NEW.pkl
 
 Per frame (both generators, each kind, the seeds of the set: ``tune`` 2951-2952, the fits' knobs
@@ -337,7 +337,7 @@ PHASES = (("segmentation", "segment"), ("python per region", "_holds_many"), ("p
           ("global guess", "initial_poses"), ("global guess", "shifted_poses"), ("coarse ICP", "coarse_search"),
           ("fine ICP", "icp"), ("acceptance", "_accept"),
           ("  of it: support", "_support"), ("sphere fits", "_fit_sphere"), ("sphere votes", "vote_centres"),
-          ("assignment", "_assign"), ("candidates (whole)", "_fit_general"), ("flat-patch check", "_flat_patch"))
+          ("assignment", "_assign"), ("candidates (whole)", "_fit_general"))
 
 
 def phase_times(run):  # type: ignore[no-untyped-def]
@@ -388,9 +388,9 @@ def phase_times(run):  # type: ignore[no-untyped-def]
 
 def guess_ranks(run, screen_iterations: int = 1):  # type: ignore[no-untyped-def]
     """Call ``run()`` with the coarse search of a general part's guesses wrapped: each guess is also searched alone
-    (its own score after ``coarse_iterations`` steps, and after ``screen_iterations``: the screening of
-    ``FitParams.coarse_keep``). {pass: [(guesses, position of the chosen guess in their order, rank of the guess of
-    the best score among the screening's scores)]}; pass 1 the first pass, 2 the second (more guesses: the shifts).
+    (its own score after ``coarse_iterations`` steps, and after ``screen_iterations``: a short screen of the guesses,
+    docs/fits.md "Fifteenth round"). {pass: [(guesses, position of the chosen guess in their order, rank of the guess
+    of the best score among the screen's scores)]}; pass 1 the first pass, 2 the second (more guesses: the shifts).
     The second searches of each guess cost as much again as the coarse search (not timed)."""
     import zcut.fits.fit as F
 
@@ -458,6 +458,8 @@ def main() -> None:
     ap.add_argument("--guesses", action="store_true",
                     help="also, per pass, how many guesses a region's search tries and where its winner ranks (a "
                          "second fit: guess_ranks)")
+    ap.add_argument("--screen-steps", type=int, default=1, metavar="N",
+                    help="with --guesses: the winner's rank among the guesses' scores after N coarse ICP steps")
     ap.add_argument("--no-proposals", action="store_true", help="score the fits only, not the proposals")
     ap.add_argument("--repeat", type=int, default=1, help="fit each frame this many times (CPU: the smallest)")
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
@@ -511,7 +513,7 @@ def main() -> None:
                             for k, v in sorted(spent.items(), key=lambda kv: -kv[1])), flush=True)
                     if args.guesses:
                         ranks = guess_ranks(functools.partial(fit_prepared, truth.xyz_mm, zone, model,
-                                                              intrinsics=truth.K, params=p), p.screen_iterations)
+                                                              intrinsics=truth.K, params=p), args.screen_steps)
                         s.update(guesses={k: v for k, v in ranks.items()})
                         for k, v in ranks.items():
                             if not v:
@@ -520,7 +522,7 @@ def main() -> None:
                             print(f"   guesses, pass {k}: {len(v)} searches, {int(np.median(g))} guesses (median); "
                                   f"the chosen one's position median {np.median(pos):.0f}, p90 {np.percentile(pos, 90):.0f}, "
                                   f"< 4 {np.mean(pos < 4):.2f}"
-                                  f"; the best one's rank by the {p.screen_iterations}-step screen ≤ 1/2/4/8: "
+                                  f"; the best one's rank by the {args.screen_steps}-step screen ≤ 1/2/4/8: "
                                   + "/".join(f"{np.mean(rank <= q):.2f}" for q in (1, 2, 4, 8)), flush=True)
                     rows.append(s)
                     _row(s, label)

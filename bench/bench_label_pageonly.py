@@ -33,8 +33,6 @@ edges — and the truth it misses (docs/labelling.md, "Third round: what the lab
 The scene's true meshes are rebuilt from the log's ``zcut.synth`` record, read only to score.
 ``--ring-below N`` (``--diagnose`` only) also rejects the proposals of N px or more that nothing around them lies
 2 mm below (:func:`below_around`: a cue from the cloud alone, not shown on the page).
-``--sigma-cap C`` (either mode) judges each fit's pixels with its residual capped at C × the frame's median
-(:data:`annotate.fits.SIGMA_CAP`; off by default: docs/labelling.md, "Seventh round").
 ``--seed-px N`` (either mode) is the rule's variant that first Ctrl+clicks every proposal of N px or more at its centre,
 the largest first, re-reading the list after each seed (:func:`seed_steps`; docs/labelling.md, "Eighth round"): in
 the browser real Ctrl+clicks, in ``--diagnose`` the same :meth:`annotate.fits.FrameFits.seeded` the page's Ctrl+click
@@ -791,9 +789,6 @@ def main() -> int:
     ap.add_argument("--seed-px", type=int, default=None, metavar="N",
                     help="the rule's variant: first Ctrl+click every proposal of N px or more at its centre, the largest "
                     "first (docs/labelling.md, 'Eighth round'; default: the rule as written, no seeds)")
-    ap.add_argument("--sigma-cap", type=float, default=None, metavar="C",
-                    help="the page's variant: judge each fit's pixels with its residual capped at C x the frame's "
-                    "median (annotate.fits.SIGMA_CAP; default: off, every fit's own)")
     ap.add_argument("--config", type=Path, default=None, metavar="TOML",
                     help="with --diagnose: prepare the frames with this pipeline config (e.g. [removal] "
                     "straggler_bound = \"off\"; default: the defaults)")
@@ -820,10 +815,6 @@ def main() -> int:
         if not args.config.is_file():
             raise SystemExit(f"error: --config: {args.config}: no such file")
         CONFIG = args.config
-    if args.sigma_cap is not None:
-        import annotate.fits
-
-        annotate.fits.SIGMA_CAP = args.sigma_cap
     if args.diagnose:
         rule, seeded = [], []
         for lg in args.diagnose.split(","):

@@ -7,13 +7,10 @@ own :func:`annotate.fits.fit_frame` and bundle.
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
-import annotate.fits as fits_module
-from annotate.fits import Job, capped_sigmas, fit_frame, known_surfaces
+from annotate.fits import Job, fit_frame
 from annotate.payload import parse_bundle
 from replay.options import PipelineOptions
 from replay.pipeline.explained import NAME, run_explained
@@ -35,12 +32,11 @@ def prepared(tmp_path_factory):
     return session, frame, result
 
 
-def test_proposals_hold_the_unexplained_points_above_the_rim(prepared, monkeypatch):
+def test_proposals_hold_the_unexplained_points_above_the_rim(prepared):
     session, frame, r = prepared
     job = Job.of(r)
     easy = np.asarray(job.removal.easy_outliers, bool)
     assert easy.sum() > 100 and not (easy & job.zone).any()
-    monkeypatch.setattr(fits_module, "SIGMA_CAP", None)  # every fit judged with its own residual, as the method
     ff = fit_frame(frame, job, session.config, session.prepared.model)
     assert ff.status == "ready", ff.message
     H, W = ff.shape
@@ -111,52 +107,3 @@ def test_the_fits_residuals_are_measured_robustly_never_above_the_stated(handmad
                                np.asarray(robust)[d.surface[part]][d.err_mm[part] > floor], rtol=1e-9, atol=1e-9)
     assert (np.asarray(robust) < stated).any()
 
-
-def test_a_loose_fit_is_judged_with_its_residual_capped(handmade, monkeypatch):
-    """The page judges a fit's pixels with its residual σ at most :data:`annotate.fits.SIGMA_CAP` × the frame's
-    median (docs/labelling.md, "Seventh round"): the proposals are the method's outliers and the pixels within
-    k × Err of a capped fit but farther than k × its capped Err; every other pixel's distance and Err are the
-    method's, to the bit. (Hand-made spheres at 320 × 200; the cap is lowered to 1.2 here so that several fits of
-    this small frame are capped.)"""
-    session, frame, r = handmade
-    monkeypatch.setattr(fits_module, "SIGMA_CAP", 1.2)
-    job = Job.of(r)
-    ff = fit_frame(frame, job, session.config, session.prepared.model)
-    zone = bin_zone(frame, session.config, bin_model=session.prepared)
-    out, detail, _ = run_explained(frame, zone, session.config, judge_above_rim=True)
-    assert detail is not None
-    surfaces, f_px = known_surfaces(frame, job, detail, session.prepared.model)
-    sig, n_capped = capped_sigmas(surfaces.part_err_mm, fits_module.SIGMA_CAP)
-    assert n_capped > 0, "this frame has no loose fit: the test checks nothing"
-    assert ff.part_err_mm == sig and f"{n_capped} judged with their residual capped at 1.2 ×" in ff.message
-    xyz = frame.xyz.astype(np.float64) * 1000.0
-    page = dataclasses.replace(surfaces, part_err_mm=list(sig))
-    err = ex.err_image(ex.Nearest(detail.dist_mm, detail.surface), page, ex.footprint_mm(xyz, f_px),
-                       floor_mm=ff.floor_mm)
-    H, W = ff.shape
-    served = (job.zone | np.asarray(job.removal.easy_outliers, bool)) & job.valid
-    want = np.asarray(out, bool) | (ex.unexplained(detail.dist_mm, err, ff.k) & served)
-    un = np.zeros(H * W, bool)
-    un[ff.un_pix] = True
-    np.testing.assert_array_equal(un.reshape(H, W), want)
-    old = np.asarray(out, bool) | (ex.unexplained(detail.dist_mm, detail.err_mm, ff.k) & served)
-    assert (want & ~old).any() and not (old & ~want).any()
-    np.testing.assert_array_equal(ff.un_err, err.ravel()[ff.un_pix].astype(np.float32))
-    np.testing.assert_array_equal(ff.un_dist, detail.dist_mm.ravel()[ff.un_pix].astype(np.float32))
-    # the Err of the pixels nearest to a fit not capped, the bin or the table: the method's, to the bit
-    capped = np.flatnonzero(np.asarray(sig) < np.asarray(surfaces.part_err_mm))
-    other = served & ~np.isin(detail.surface, capped) & np.isfinite(detail.dist_mm)
-    np.testing.assert_array_equal(err[other], detail.err_mm[other])
-
-
-@pytest.mark.parametrize(("sigmas", "cap", "want", "n"), [
-    ([0.1, 0.1, 0.2, 0.9], 3.0, [0.1, 0.1, 0.2, 0.45], 1),  # median 0.15: 0.45 at most
-    ([0.1, 0.1, 0.2, 0.9], None, [0.1, 0.1, 0.2, 0.9], 0),
-    ([0.3], 3.0, [0.3], 0),
-    ([], 3.0, [], 0),
-    ([0.2, 0.6, 0.6], 3.0, [0.2, 0.6, 0.6], 0),  # exactly on the cap: kept
-])
-def test_capped_sigmas(sigmas, cap, want, n):
-    got, k = capped_sigmas(sigmas, cap)
-    np.testing.assert_allclose(got, want, rtol=1e-12)
-    assert k == n and isinstance(got, tuple)

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from cli_helpers import synth_log
 
-from annotate.fits import FIT_COLUMNS, PROPOSAL_COLUMNS, SIGMA_CAP, Job, capped_sigmas, fit_frame, known_surfaces
+from annotate.fits import FIT_COLUMNS, PROPOSAL_COLUMNS, Job, fit_frame, known_surfaces
 from annotate.payload import parse_bundle
 from replay.options import PipelineOptions
 from replay.pipeline.explained import run_explained
@@ -64,14 +64,8 @@ def test_the_surfaces_kept_give_the_methods_err_to_the_bit(fitted):
     assert f_px == ff.f_px and not ff.surfaces.parts and len(ff.known().parts) == len(ff.fits)
     kept = ex.err_image(ex.Nearest(detail.dist_mm, detail.surface), ff.known(), ex.footprint_mm(xyz, ff.f_px),
                         floor_mm=ff.floor_mm)
-    # with the loose fits' residuals capped as the page judges them (SIGMA_CAP; the method's Err elsewhere)
-    sig, _ = capped_sigmas(surfaces.part_err_mm, SIGMA_CAP)
-    assert ff.part_err_mm == sig
-    page = dataclasses.replace(surfaces, part_err_mm=list(sig))
-    np.testing.assert_array_equal(kept, ex.err_image(ex.Nearest(detail.dist_mm, detail.surface), page,
-                                                     ex.footprint_mm(xyz, f_px), floor_mm=ff.floor_mm))
-    loose = np.isin(detail.surface, np.flatnonzero(np.asarray(sig) < np.asarray(surfaces.part_err_mm)))
-    np.testing.assert_array_equal(kept[~loose], detail.err_mm[~loose])
+    assert ff.part_err_mm == tuple(float(e) for e in surfaces.part_err_mm)  # every fit judged with its own residual
+    np.testing.assert_array_equal(kept, detail.err_mm)
 
 
 @pytest.mark.parametrize("pick", ["largest", "smallest", "every third"])

@@ -45,16 +45,7 @@ from zcut.errors import InputShapeError, describe_array
 from zcut.fit_vetting import pose_overlaps
 
 from .icp import EDGE_WEAK, icp, initial_poses, initial_rotations, pose_matrix, shifted_poses
-from .kernels import (
-    axis_band,
-    coarse_scores,
-    coarse_search,
-    edge_distances,
-    lower_bounds,
-    surface_distances,
-    window_band,
-    window_rays,
-)
+from .kernels import coarse_search, edge_distances, lower_bounds, surface_distances, window_band, window_rays
 from .model import PartModel, prepare_model
 from .params import FitParams
 from .segment import segment
@@ -139,16 +130,15 @@ class _Frame:
     K: Intrinsics
 
 
-def _window(frame: _Frame, T: np.ndarray, model: PartModel, grow: float = 1.0) -> tuple[slice, slice] | None:
+def _window(frame: _Frame, T: np.ndarray, model: PartModel) -> tuple[slice, slice] | None:
     fx, fy, cx, cy = frame.K
     H, W = frame.valid.shape
     c = T[:3, :3] @ model.centroid + T[:3, 3]
-    reach = grow * model.extent_mm
-    z = c[2] - reach
+    z = c[2] - model.extent_mm
     if z <= 1e-6:
         return None
-    ru = fx * reach / z + 2
-    rv = fy * reach / z + 2
+    ru = fx * model.extent_mm / z + 2
+    rv = fy * model.extent_mm / z + 2
     u, v = fx * c[0] / c[2] + cx, fy * c[1] / c[2] + cy
     c0, c1 = max(int(np.floor(u - ru)), 0), min(int(np.ceil(u + ru)) + 1, W)
     r0, r1 = max(int(np.floor(v - rv)), 0), min(int(np.ceil(v + rv)) + 1, H)
@@ -358,8 +348,7 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     ``COARSE_POINTS`` points; the best (most points within the score tolerance, plus the boundary
     points on the model's edges) and its turns by ``TURNS_DEG`` about the region's normal the same,
     and the best of all is refined on up to ``max_points`` points. A guess whose points nearly all
-    fit stops the search of the guesses. ``FitParams.coarse_keep`` > 0 (off by default, docs/fits.md "Fifteenth
-    round"): the guesses are screened by ``screen_iterations`` steps first and only the best ``coarse_keep`` searched.
+    fit stops the search of the guesses.
 
     ``shifts`` > 0 (the second pass, a region that may show only part of an instance): the guesses
     also put ``shifts`` spread points of the model's facing side on the region's centroid
@@ -376,9 +365,9 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     score_tol = max(params.k * params.err_floor_mm, params.gate_mm / 4)
     opts = dict(gate_mm=params.gate_mm, k=params.k, floor_mm=params.err_floor_mm, edge_gate_mm=edge_gate)
 
-    def coarse_fit(T0: np.ndarray, iterations: int) -> tuple[float, float, float, np.ndarray]:
+    def coarse_fit(T0: np.ndarray) -> tuple[float, float, float, np.ndarray]:
         # the model without a voxel index (not made by prepare_model): the same steps in Python
-        T, _, _ = icp(coarse, model, T0, iterations=iterations, edge_points=coarse_e, **opts)
+        T, _, _ = icp(coarse, model, T0, iterations=params.coarse_iterations, edge_points=coarse_e, **opts)
         d = _surface_distances(model, coarse, T)
         inl, near = float(np.mean(d <= score_tol)), float(np.mean(np.minimum(d, score_tol))) / score_tol
         e_inl = float(np.mean(_edge_distances(model, coarse_e, T) <= 1.5 * px_mm)) if len(coarse_e) else 1.0
@@ -391,8 +380,6 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
         if not poses:
             return None
         ix = model.index
-        if stop and 0 < params.coarse_keep < len(poses):
-            poses = [poses[i] for i in screen(poses)]
         if ix is not None:  # every guess in one kernel call (:func:`zcut.fits.kernels.coarse_search`)
             Ts = np.stack(poses)
             i, R, t, score = coarse_search(coarse, coarse_e, np.ascontiguousarray(Ts[:, :3, :3]),
@@ -404,29 +391,12 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
             return (float(score), pose_matrix(R, t)) if i >= 0 else None
         found: tuple[float, np.ndarray] | None = None
         for T0 in poses:
-            score, inl, e_inl, T = coarse_fit(T0, params.coarse_iterations)
+            score, inl, e_inl, T = coarse_fit(T0)
             if found is None or score > found[0]:
                 found = (score, T)
             if stop and inl >= STOP_INL and e_inl >= STOP_EDGE:
                 break
         return found
-
-    def screen(poses: list[np.ndarray]) -> np.ndarray:
-        """The ``coarse_keep`` guesses of the best score after ``screen_iterations`` coarse ICP steps, best
-        first (ties: their order)."""
-        ix = model.index
-        if ix is not None:
-            Ts = np.stack(poses)
-            scores = coarse_scores(coarse, coarse_e, np.ascontiguousarray(Ts[:, :3, :3]),
-                                   np.ascontiguousarray(Ts[:, :3, 3]), int(params.screen_iterations),
-                                   float(params.gate_mm), float(params.k), float(params.err_floor_mm),
-                                   float(edge_gate), float(model.extent_mm), float(score_tol), 1.5 * px_mm,
-                                   ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid, ix.p0, ix.p1,
-                                   EDGE_WEAK)
-        else:
-            scores = np.array([coarse_fit(T0, params.screen_iterations)[0] for T0 in poses])
-        keep: np.ndarray = np.argsort(-scores, kind="stable")[: params.coarse_keep]
-        return keep
 
     # the points' principal axes, once: the guesses' rotations and the turns' axis (the same arithmetic as
     # initial_rotations' own, so the same bits)
@@ -462,81 +432,7 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     err = float(np.sqrt(np.mean(d[inl_mask] ** 2))) if inl_mask.any() else np.inf
     if params.fine_points > 0 and np.isfinite(err):
         T, err = _fine(frame, flat, pts, epts, model, params, opts, T, err)
-    if params.slide and np.isfinite(err):
-        T, err = _slide(frame, flat, pts, epts, model, params, opts, T, err)
     return T, err
-
-
-#: :func:`_slide`: a part is elongated when its vertices span at least this many times as much along their
-#: principal axis as across it (a rod: 80 mm against 16)
-SLIDE_ELONGATION = 2.0
-#: ... the shifts along its axis tried, this far apart (mm); a shift is refused when the shifted model explains
-#: fewer than this share of the search's points the fit explains in place
-SLIDE_STEP_MM = 0.25
-SLIDE_KEEP = 0.8
-
-
-def _slide_axis(model: PartModel) -> tuple[np.ndarray, float, float, float] | None:
-    """(the unit principal axis u of an elongated model's vertices (model frame), their largest distance from the
-    line through the centroid along u, their smallest and largest coordinate along u from the centroid), or None
-    when the model is not elongated (:data:`SLIDE_ELONGATION`)."""
-    v = model.vertices - model.centroid
-    _, ax = np.linalg.eigh(np.cov(v.T))
-    span = np.ptp(v @ ax, axis=0)
-    if span[2] < SLIDE_ELONGATION * max(span[0], span[1]):
-        return None
-    u = ax[:, 2]
-    along = v @ u
-    return u, float(np.linalg.norm(v - np.outer(along, u), axis=1).max()), float(along.min()), float(along.max())
-
-
-def _slide(frame: _Frame, flat: np.ndarray, pts: np.ndarray, epts: np.ndarray, model: PartModel, params: FitParams,
-           opts: dict[str, float], T: np.ndarray, err: float) -> tuple[np.ndarray, float]:
-    """An elongated part's pose slid along its axis to where it explains the most zone pixels
-    (``FitParams.slide``, docs/fits.md "Twelfth round"), then refined (:func:`_fine`).
-
-    Along a rod's axis its side leaves the pose free: the ICP keeps the guess's axial place (the centroid of its
-    region, often a piece of the rod a crossing one cuts off), and the ends' edges lie beyond the edge gate. The
-    zone's pixels within twice the model's extent of its centre (the window grown twice) and within the model's
-    radius (+ k × Err) of its posed axis are moved along the axis to the model's centre; those then within
-    k × max(Err, floor) of it lie on the part's side, extended. The shift (every :data:`SLIDE_STEP_MM` up to the
-    model's extent) whose axial span holds the most of them wins (ties: the smallest); when it holds at least
-    ``min_region_px`` more than the fit's own place and still explains :data:`SLIDE_KEEP` of the search's points
-    ``pts`` the fit explains in place, the pose is shifted, refined from there and kept when its
-    Err, measured on the search's points ``pts``, is at most ``FINE_KEEP`` × ``err``. The counts take the side as
-    the same all along (a prism or a cylinder); the ends' faces are not counted."""
-    axis = _slide_axis(model)
-    win = None if axis is None else _window(frame, T, model, grow=2.0)
-    if axis is None or win is None:
-        return T, err
-    u, radial, lo, hi = axis
-    tol = params.k * max(err, params.err_floor_mm)
-    # the model's frame, from its centre (one kernel walk of the grown window)
-    q = axis_band(frame.xyz.reshape(-1, 3), frame.zone.reshape(-1), win[0].start, win[0].stop, win[1].start,
-                  win[1].stop, frame.valid.shape[1], np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
-                  np.ascontiguousarray(model.centroid, np.float64), np.ascontiguousarray(u), radial + tol,
-                  2.0 * model.extent_mm)
-    if len(q) < params.min_region_px:
-        return T, err
-    along = q @ u
-    side = np.ascontiguousarray(q - np.outer(along, u) + model.centroid)
-    on = np.sort(along[_surface_distances(model, side, np.eye(4)) <= tol])
-    n = int(model.extent_mm // SLIDE_STEP_MM)
-    shifts = np.arange(-n, n + 1) * SLIDE_STEP_MM
-    counts = np.searchsorted(on, shifts + hi + tol, "right") - np.searchsorted(on, shifts + lo - tol, "left")
-    i = int(np.lexsort((np.abs(shifts), -counts))[0])
-    if i == n or counts[i] < counts[n] + params.min_region_px:
-        return T, err
-    Ts = T.copy()
-    Ts[:3, 3] = T[:3, 3] + T[:3, :3] @ (shifts[i] * u)
-    d = _near_distances(model, pts, Ts, tol)
-    inl = d <= tol
-    if int(inl.sum()) < SLIDE_KEEP * int((_near_distances(model, pts, T, tol) <= tol).sum()) or not inl.any():
-        return T, err  # a slide onto another part on the axis's line, off the region it fits
-    err_s = float(np.sqrt(np.mean(d[inl] ** 2)))
-    if params.fine_points > 0:
-        Ts, err_s = _fine(frame, flat, pts, epts, model, params, opts, Ts, err_s)
-    return (Ts, err_s) if err_s <= FINE_KEEP * err else (T, err)
 
 
 def _loses_early(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams, T: np.ndarray,
@@ -817,8 +713,6 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
     ``claims``: ``FitParams.claim`` (:class:`_Claims`). Returns the further regions its leftovers split
     into, to fit the same way."""
     min_px = params.min_region_px if min_px is None else min_px
-    if params.skip_share > 0 and _flat_patch(frame, region, model, params):
-        return []  # a small flat patch: no part's fit (docs/fits.md, "Fourteenth round")
     H, W = frame.valid.shape
     f = 0.5 * (frame.K[0] + frame.K[1])
     more: list[np.ndarray] = []
@@ -867,14 +761,7 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
         if not progress:
             if many:
                 continue  # the next patch
-            lobes = _lobes(frame, left, model, params, min_px) if params.split_refused > 0 else None
-            if not lobes:
-                break
-            # refused whole, and wider than one instance: its lobes are fitted one by one (docs/fits.md,
-            # "Thirteenth round")
-            left = lobes[0]
-            more.extend(lobes[1:])
-            continue
+            break
         parts = segment(frame.xyz, left, f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
                         min_px=min_px)
         if not parts:
@@ -882,68 +769,6 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
         left = parts[0]
         more.extend(parts[1:])
     return more
-
-
-#: :func:`_lobes`: the span of a region's points along their principal axis is measured between these percentiles
-#: (a stray pixel or a ghost does not widen it)
-SPLIT_PERCENTILE = 1.0
-#: ... and its lobes take this many Lloyd steps from their seeds
-SPLIT_STEPS = 8
-
-
-def _lobes(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams, min_px: int) -> list[np.ndarray]:
-    """The lobes of a region whose whole fit was refused (``FitParams.split_refused``), largest first, or [] when it
-    is no wider than one instance.
-
-    One instance's points lie within the model's extent of its centroid: a region whose points span more than
-    ``split_refused`` × twice the extent along their principal axis (between the :data:`SPLIT_PERCENTILE`-th
-    percentiles) holds two or more parts (at ``split_refused`` ≥ 1; below it, likely). It is cut into k = ceil(span / (2 × extent)) lobes (at least 2): k-means
-    of its points seeded evenly along the axis (:data:`SPLIT_STEPS` Lloyd steps on an even subsample, every point
-    then to its nearest centre), each lobe segmented again; the pieces of at least ``min_px`` pixels are returned.
-    Reads only the cloud, the zone and the mesh."""
-    sub = frame.xyz.reshape(-1, 3)[_subsample(flat, 2000)]
-    if len(sub) < 2:
-        return []
-    c = sub.mean(axis=0)
-    _, ax = np.linalg.eigh(np.cov((sub - c).T))
-    a = (sub - c) @ ax[:, 2]
-    lo, hi = np.percentile(a, [SPLIT_PERCENTILE, 100.0 - SPLIT_PERCENTILE])
-    span = float(hi - lo)
-    width = 2.0 * model.extent_mm
-    if not span > params.split_refused * width:
-        return []
-    k = max(2, int(np.ceil(span / width)))
-    centres = c + np.outer(lo + (np.arange(k) + 0.5) * span / k, ax[:, 2])
-    for _ in range(SPLIT_STEPS):
-        near = np.argmin(((sub[:, None, :] - centres[None]) ** 2).sum(axis=2), axis=1)
-        for j in range(k):
-            if (near == j).any():
-                centres[j] = sub[near == j].mean(axis=0)
-    pts = frame.xyz.reshape(-1, 3)[flat]
-    near = np.argmin(((pts[:, None, :] - centres[None]) ** 2).sum(axis=2), axis=1)
-    f = 0.5 * (frame.K[0] + frame.K[1])
-    out: list[np.ndarray] = []
-    for j in range(k):
-        out.extend(segment(frame.xyz, flat[near == j], f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
-                           min_px=min_px))
-    if len(out) < 2:
-        return []  # one piece: nothing split
-    return sorted(out, key=len, reverse=True)
-
-
-def _flat_patch(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams) -> bool:
-    """Whether a region is a small flat patch not worth a fit (``FitParams.skip_share``): fewer pixels than
-    ``skip_share`` × the model's projected area at its depth (:func:`_projected_area`) and its points within
-    ``skip_plane_mm`` of their best plane (the square root of the smallest eigenvalue of their covariance: the RMS
-    distance to the plane through their centroid, on an even subsample of 2,000). Reads only the cloud, the zone
-    and the mesh."""
-    if len(flat) >= params.skip_share * _projected_area(frame, flat, model):
-        return False
-    pts = frame.xyz.reshape(-1, 3)[_subsample(flat, 2000)]
-    if len(pts) < 3:
-        return True  # no plane to measure: nothing a fit could pose either
-    w = np.linalg.eigvalsh(np.cov((pts - pts.mean(axis=0)).T))
-    return bool(np.sqrt(max(float(w[0]), 0.0)) < params.skip_plane_mm)
 
 
 def _holds_many(frame: _Frame, flat: np.ndarray, model: PartModel) -> bool:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["ModelIndex", "axis_band", "build_index", "coarse_scores", "coarse_search", "edge_distances", "farthest_points", "guess_score", "icp_kernel", "lower_bounds", "surface_distances", "window_rays"]
+__all__ = ["ModelIndex", "build_index", "coarse_search", "edge_distances", "farthest_points", "guess_score", "icp_kernel", "lower_bounds", "surface_distances", "window_rays"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -242,35 +242,6 @@ def window_band(xyz: np.ndarray, zone: np.ndarray, region: np.ndarray, r0: int, 
             if r0 <= f // W < r1 and c0 <= f % W < c1:
                 continue
             m = _band_point(xyz, f, R, t, tol, origin, inv_h, slack, grid, a, b, c, n, out, m)
-    return out[:m]
-
-
-@numba.njit(cache=True, nogil=True)
-def axis_band(xyz: np.ndarray, zone: np.ndarray, r0: int, r1: int, c0: int, c1: int, W: int, R: np.ndarray,
-              t: np.ndarray, centre: np.ndarray, u: np.ndarray, radial: float, reach: float) -> np.ndarray:
-    """(m, 3) the zone's pixels of the window (rows ``r0:r1``, columns ``c0:c1`` of an image ``W`` wide) in the
-    model's frame of the pose (R, t), less ``centre``, that lie within ``radial`` of the line through ``centre``
-    along the unit ``u`` and within ``reach`` of ``centre`` along it, in ascending flat order (``zcut.fits.fit._slide``).
-    ``xyz`` (H·W, 3), ``zone`` (H·W,) bool."""
-    out = np.empty((max(r1 - r0, 0) * max(c1 - c0, 0), 3))
-    m = 0
-    r2 = radial * radial
-    for r in range(r0, r1):
-        for cc in range(c0, c1):
-            f = r * W + cc
-            if not zone[f]:
-                continue
-            px, py, pz = xyz[f, 0] - t[0], xyz[f, 1] - t[1], xyz[f, 2] - t[2]
-            qx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz - centre[0]
-            qy = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz - centre[1]
-            qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz - centre[2]
-            a = qx * u[0] + qy * u[1] + qz * u[2]
-            if abs(a) > reach:
-                continue
-            mx, my, mz = qx - a * u[0], qy - a * u[1], qz - a * u[2]
-            if mx * mx + my * my + mz * mz <= r2:
-                out[m, 0], out[m, 1], out[m, 2] = qx, qy, qz
-                m += 1
     return out[:m]
 
 
@@ -651,24 +622,6 @@ def coarse_search(points: np.ndarray, edge_points: np.ndarray, Rs: np.ndarray, t
         if inl >= stop_inl and e_inl >= stop_edge:
             break
     return best, best_R, best_t, best_score
-
-
-@numba.njit(cache=True, nogil=True)
-def coarse_scores(points: np.ndarray, edge_points: np.ndarray, Rs: np.ndarray, ts: np.ndarray, iterations: int,
-                  gate_mm: float, k: float, floor_mm: float, edge_gate_mm: float, extent: float, score_tol: float,
-                  edge_tol: float, origin: np.ndarray, h: float, grid: np.ndarray, a: np.ndarray, b: np.ndarray,
-                  c: np.ndarray, n: np.ndarray, seg_grid: np.ndarray, p0: np.ndarray, p1: np.ndarray,
-                  weak: float) -> np.ndarray:
-    """The score :func:`coarse_search` gives each guess (``Rs[i]``, ``ts[i]``) after ``iterations`` steps of
-    :func:`icp_kernel`, every guess (no stop): the screening of ``FitParams.coarse_keep``. (m,) float64."""
-    out = np.empty(len(Rs))
-    for i in range(len(Rs)):
-        R, t, _, _ = icp_kernel(points, Rs[i], ts[i], iterations, gate_mm, k, floor_mm, edge_points, edge_gate_mm,
-                                extent, origin, h, grid, a, b, c, n, seg_grid, p0, p1, weak)
-        inl, near, e_inl = guess_score(points, edge_points, R, t, score_tol, edge_tol, origin, h, grid, a, b, c, n,
-                                       seg_grid, p0, p1)
-        out[i] = inl - 0.01 * near + (0.5 * e_inl if len(edge_points) else 0.0)
-    return out
 
 
 @numba.njit(cache=True, nogil=True)

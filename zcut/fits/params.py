@@ -96,32 +96,6 @@ class FitParams:
     fine_robust : float
         The last refinement weighs its points by Tukey's biweight of their distance at this many times
         max(Err, ``err_floor_mm``) (none beyond it); 0: unweighted (the tenth round's).
-    slide : bool
-        True: an elongated part's pose (a rod: its vertices span twice as much along their principal
-        axis as across it) is slid along its posed axis to where it explains the most zone pixels and refined there
-        (docs/fits.md, "Twelfth round"); other parts are not touched. False (the default): the eleventh round's fits.
-    split_refused : float
-        > 0: a region whose whole fit is refused and whose points span more than ``split_refused`` × twice the
-        model's extent along their principal axis is split into lobes about as wide as an instance and each lobe is
-        fitted (docs/fits.md, "Thirteenth round"). One instance spans at most twice its extent: at 1 or more the
-        region holds two or more parts; below 1 (0.75 was tried) it likely does. 0 (the default): off, the twelfth
-        round's fits.
-    skip_share : float
-        > 0: a region (of either pass, or a leftover) holding fewer pixels than this share of the model's projected
-        area π (extent · f / z)² at its depth **and** whose points lie within ``skip_plane_mm`` (RMS) of their best
-        plane is not fitted (docs/fits.md, "Fourteenth round"): a small flat patch — a ghost, a sliver of a face or of
-        the floor between parts — whose fit is nearly always refused or lands on no part. Reads only the cloud, the
-        zone and the mesh. 0 (the default): off, the thirteenth round's fits; 0.03 (with 0.12 mm) saved no measurable
-        CPU and lost 3 of 295 instances on a held-out hand-made black-nut frame.
-    skip_plane_mm : float
-        See ``skip_share``.
-    coarse_keep : int
-        > 0: a general part's initial guesses (more than ``coarse_keep`` of them) are screened first — each takes
-        ``screen_iterations`` coarse ICP steps and is scored as the coarse search scores — and only the
-        ``coarse_keep`` best, best first, take the coarse search proper (docs/fits.md, "Fifteenth round"); the turns
-        are not screened. 0 (the default): off, every guess searched in its order (the fourteenth round's fits).
-    screen_iterations : int
-        See ``coarse_keep``.
     """
 
     jump_mm: float = 1.5
@@ -148,12 +122,6 @@ class FitParams:
     early_share: float = 0.0
     fine_window: bool = True
     fine_robust: float = 3.0
-    slide: bool = False
-    split_refused: float = 0.0
-    skip_share: float = 0.0
-    skip_plane_mm: float = 0.15
-    coarse_keep: int = 0
-    screen_iterations: int = 1
 
     def __post_init__(self) -> None:
         _number(self, "jump_mm", gt=0)
@@ -180,9 +148,3 @@ class FitParams:
         _number(self, "early_share", ge=0)
         _boolean(self, "fine_window")
         _number(self, "fine_robust", ge=0)
-        _boolean(self, "slide")
-        _number(self, "split_refused", ge=0)
-        _number(self, "skip_share", ge=0, le=1)
-        _number(self, "skip_plane_mm", ge=0)
-        _number(self, "coarse_keep", ge=0, integer=True)
-        _number(self, "screen_iterations", ge=1, integer=True)

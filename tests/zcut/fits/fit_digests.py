@@ -1,5 +1,5 @@
-"""The set-up of the fits' literal digest tests, in one place (test_fits_skip, test_fits_split, test_fits_slide and
-test_fits_budget): the frames they fit, the prepared models and the digest a list of fits is compared by.
+"""The set-up the fits' tests share, in one place: the frames of the literal digest tests (test_fits_defaults), the
+prepared models, the digest a list of fits is compared by, and the degenerate frames (:func:`degenerate_frames`).
 
 A round that must keep the fits to the bit records the previous tree's ``(len(fits), digest(fits))`` of these frames
 as literals and asserts them."""
@@ -27,10 +27,9 @@ REAL_CROP = (slice(100, 300), slice(200, 440))
 
 
 #: The defaults' fits of the :func:`hand_made` frames of four kinds, whole (False) and :func:`holed` (True):
-#: (number of fits, :func:`digest`). Every round that kept the fits to the bit asserted these, and each switch that
-#: is off by default must give them: the rods' since the eleventh round's tree (e7420cc), the zinc nuts' since the
-#: twelfth's (846dad4), all eight since the thirteenth's (c94bf05). A round that changes the defaults' fits records
-#: the new ones here.
+#: (number of fits, :func:`digest`). Every round that kept the fits to the bit asserted these: the rods' since the
+#: eleventh round's tree (e7420cc), the zinc nuts' since the twelfth's (846dad4), all eight since the thirteenth's
+#: (c94bf05). A round that changes the defaults' fits records the new ones here.
 DEFAULTS = {
     ("zinc_nuts", False): (241, "69e99f80fb6eefa4"), ("zinc_nuts", True): (98, "8a3f1eb7b7bfafa5"),
     ("spheres", False): (295, "b143b7f869121cda"), ("spheres", True): (142, "58513c887e33144f"),
@@ -39,6 +38,7 @@ DEFAULTS = {
 }
 #: ... and of :func:`real_crop` (the hand-made nut model), since the twelfth round's tree
 DEFAULTS_REAL = (144, "9bb38886d2093b60")
+
 
 def digest(fits: list[PartFit]) -> str:
     """The first 16 hex digits of the sha256 of every fit's pose and pixels, in their order."""
@@ -71,6 +71,16 @@ def holed(xyz: np.ndarray) -> np.ndarray:
     out = xyz.copy()
     out[:, HOLE_COLUMNS] = np.nan
     return out
+
+
+def degenerate_frames(xyz: np.ndarray, zone: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The degenerate frames made from a rendered frame ``xyz`` (H, W, 3) and its ``zone`` (H, W): (cloud, zone) of an
+    empty zone, a cloud all NaN, a zone of one pixel (row 120, column 160), a 0 × W and a 1 × 1 frame. The fits of
+    each are none."""
+    one = np.zeros_like(zone)
+    one[120, 160] = True
+    return [(xyz, np.zeros_like(zone)), (np.full_like(xyz, np.nan), zone), (xyz, one), (xyz[:0], zone[:0]),
+            (xyz[:1, :1], zone[:1, :1])]
 
 
 def real_crop(real_data: Path) -> Scene:

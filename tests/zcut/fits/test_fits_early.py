@@ -8,6 +8,7 @@ import hashlib
 
 import numpy as np
 import pytest
+from fit_digests import degenerate_frames
 from fit_scenes import K_TEST, hand_made_nut_frame, hex_nut_mesh, pose, render, rotation
 
 import zcut.fits.fit as F
@@ -98,10 +99,7 @@ def test_the_early_refusal_leaves_degenerate_frames_alone():
     v, t = hex_nut_mesh()
     model = prepare_model(v, t)
     xyz, zone = _nut_scene()
-    nan = np.full_like(xyz, np.nan)
-    one = np.zeros_like(zone)
-    one[120, 160] = True
-    for x, z in ((xyz, np.zeros_like(zone)), (nan, zone), (xyz, one), (xyz[:0], zone[:0])):
+    for x, z in degenerate_frames(xyz, zone):
         assert fit_prepared(x, z, model, intrinsics=K_TEST, params=FitParams(early_share=0.1)) == []
 
 
