@@ -146,8 +146,36 @@ def test_config_reaches_the_diagnosed_session(bench, monkeypatch, tmp_path):
 @pytest.mark.parametrize(("argv", "match"), [
     (["--config", "X.toml", "--logs", "a.mcap"], "--config is a --diagnose option"),
     (["--config", "/nonexistent/x.toml", "--diagnose", "a.mcap"], "--config: /nonexistent/x.toml: no such file"),
+    (["--without-put-back", "--logs", "a.mcap"], "--without-put-back is a --diagnose variant"),
+    (["--without-put-back", "--diagnose", "a.mcap", "--seed-px", "100"], "--without-put-back is a --diagnose variant"),
 ])
 def test_config_refused(bench, monkeypatch, argv, match):
     monkeypatch.setattr("sys.argv", ["bench_label_pageonly.py", *argv])
     with pytest.raises(SystemExit, match=match):
         bench.main()
+
+
+def test_missed_causes_gives_each_missed_truth_pixel_one_cause(bench):
+    """A 1 x 12 frame: fit 0's band is half truth (a displaced patch), fit 1's is not; the missed truth pixels in fit
+    1's band are split by their true distance against k x the page's Err and by the instance the fit stands for."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    H, W = 1, 12
+    ff = SimpleNamespace(fits=[{}, {}], fit_pix=np.array([0, 1, 2, 3, 4, 5, 6, 7, 10, 11]),
+                         fit_of=np.array([0, 0, 1, 1, 1, 1, 1, 1, 1, 1]),
+                         un_pix=np.array([9]), part_err_mm=(0.1, 0.1), f_px=1000.0, floor_mm=0.0, k=3.0)
+    truth = np.array([[1, 0, 1, 1, 1, 0, 0, 0, 1, 1, 0, 0]], bool)  # fit 1's band: 3 of 8 truth
+    miss = truth.copy()
+    fitpix = np.zeros((H, W), bool)
+    fitpix.ravel()[ff.fit_pix] = True
+    xyz = np.zeros((H, W, 3))
+    xyz[..., 2] = 100.0  # footprint 0.1 mm: Err = sqrt(0.01 + 0.005) = 0.1225 mm, k x Err = 0.367 mm
+    tdist = np.array([[5.0, 0, 0.2, 1.0, 1.0, 0, 0, 0, 0, 5.0, 0, 0]])
+    tcode = np.array([[0, 0, 1, 1, 2, 1, 1, 1, -3, 2, 1, 1]])  # pixel 4 lies on instance 2, which no fit stands for
+    match_of = np.array([0, 1, -1])
+    got = bench.missed_causes(ff, miss, truth, fitpix, tcode, tdist, match_of, xyz, np.zeros((H, W), np.int64))
+    assert got == {"missed: displaced patch": 1, "missed: Err above": 1, "missed: misposed": 1,
+                   "missed: other instance": 1, "missed: bin or table": 1, "missed: other": 1, "missed": 6}
+    assert sum(got[k] for k in bench.MISSED) == got["missed"]
