@@ -41,10 +41,7 @@ variant to ``F.seedN.json``). Both modes save each label with a part model as
 ``WORK/<log stem>_f<frame>_<variant>_<emulated|browser>.npy`` (``--work``; :func:`label_file`) so that the browser's label can be checked against the emulated one to the pixel.
 ``--config TOML`` (``--diagnose`` only) prepares the frames with that pipeline config file instead of the defaults (e.g.
 ``[removal] straggler_bound = "off"``: the zone of the seventh round's tree; docs/labelling.md, "Ninth round").
-``--without-put-back`` (``--diagnose`` only) fits each frame again with ``explained``'s fits searching the zone without the
-pixels the removal's straggler bound gave back to it (:data:`replay.pipeline.explained.FITS_WITHOUT_PUT_BACK`) and scores
-that too, from the same pipeline run (``--json F`` writes it to ``F.noputback.json``; docs/labelling.md, "Tenth round").
-Each row also splits the truth the proposals miss by cause (:func:`missed_causes`).
+Each ``--diagnose`` row also splits the truth the proposals miss by cause (:func:`missed_causes`).
 ``--compare BEFORE.json,AFTER.json`` prints two ``--diagnose --json`` files (two trees, the same logs) as one
 table, before → after, and the largest cause of each log's wrong pixels in the after file.
 
@@ -52,7 +49,6 @@ table, before → after, and the largest cause of each log's wrong pixels in the
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap,B.mcap [--json F]
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap,B.mcap --seed-px N --json F
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap --config OFF.toml --json F
-    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap --without-put-back --json F
     cd WORKTREE && .venv/bin/python bench/bench_label_pageonly.py --compare BEFORE.json,AFTER.json
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --kinect --middlebury Teddy,Piano
 """
@@ -98,11 +94,6 @@ SEED_PX: int | None = None
 #: ``--config TOML`` (``--diagnose`` only): the pipeline config file the frames are prepared with (its zone, bin removal
 #: and fits' parameters, e.g. ``[removal] straggler_bound = "off"``); None, the defaults (docs/labelling.md, "Ninth round").
 CONFIG: Path | None = None
-#: ``--without-put-back`` (``--diagnose`` only): also fit each frame again with ``explained``'s fits searching the zone
-#: without the pixels the removal's straggler bound gave back to it
-#: (:data:`replay.pipeline.explained.FITS_WITHOUT_PUT_BACK`), scored from the same pipeline run after the fits as they
-#: are (docs/labelling.md, "Tenth round")
-WITHOUT_PUT_BACK = False
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -582,8 +573,7 @@ def diagnose(log: Path, work: Path) -> tuple[list[dict], list[dict]]:
     pose is off; not — the page's Err is below the truth's; and of those, at a depth edge), the bin or table;
     the truth the proposals miss (in a fit's pixels; elsewhere) and the truth in proposals the rule rejected.
     Returns the rows of the rule as written and, with :data:`SEED_PX`, those of the variant from the same fits (its
-    seeds applied by :func:`seed_steps`), with :data:`WITHOUT_PUT_BACK` those of the fits without the put-back
-    pixels (fitted again); else no rows. Each label is saved in ``work`` (:func:`label_file`)."""
+    seeds applied by :func:`seed_steps`; else no rows). Each label is saved in ``work`` (:func:`label_file`)."""
     from annotate.fits import Job, fit_frame
 
     session = pipeline_options().open_session(log)
@@ -595,19 +585,6 @@ def diagnose(log: Path, work: Path) -> tuple[list[dict], list[dict]]:
         cpu = time.process_time() - t
         rows.append(diagnose_frame(log, frame, job, ff, cpu, work=work))
         print(json.dumps(rows[-1], indent=1, default=float), flush=True)
-        if WITHOUT_PUT_BACK:
-            import replay.pipeline.explained as pe
-
-            pe.FITS_WITHOUT_PUT_BACK = True
-            try:
-                t = time.process_time()
-                ff2 = fit_frame(frame, job, session.config,
-                                session.prepared.model if session.prepared is not None else None)
-                cpu2 = time.process_time() - t
-            finally:
-                pe.FITS_WITHOUT_PUT_BACK = False
-            seeded.append(diagnose_frame(log, frame, job, ff2, cpu2, work=work, variant="noputback"))
-            print(json.dumps(seeded[-1], indent=1, default=float), flush=True)
         if SEED_PX is not None:
             valid, xyz, heights = frame_arrays(frame, job)
             *_, last = seed_steps(ff, xyz, heights, valid, session.config, SEED_PX)
@@ -645,7 +622,7 @@ def label_file(work: Path, log: Path, frame: int, variant: str, how: str) -> Pat
 
 
 def diagnose_frame(log: Path, frame, job, ff, cpu: float, *, work: Path,  # type: ignore[no-untyped-def]
-                   seeds: SeedStep | None = None, variant: str | None = None) -> dict:
+                   seeds: SeedStep | None = None) -> dict:
     """:func:`diagnose` on one frame's fits ``ff`` (:func:`annotate.fits.fit_frame` of ``frame`` and ``job``; with
     ``seeds``, their last step's fits: the variant's)."""
     from replay.logs import layout
@@ -655,7 +632,7 @@ def diagnose_frame(log: Path, frame, job, ff, cpu: float, *, work: Path,  # type
         valid, xyz, heights = frame_arrays(frame, job)
         H, W = valid.shape
         label, ids, how = _emulated_person(ff, xyz, heights, valid)
-        variant = variant or ("rule" if seeds is None else f"seed{SEED_PX}")
+        variant = "rule" if seeds is None else f"seed{SEED_PX}"
         work.mkdir(parents=True, exist_ok=True)
         np.save(label_file(work, log, frame.index, variant, "emulated"), label)
         if seeds is not None:
@@ -864,9 +841,6 @@ def main() -> int:
     ap.add_argument("--config", type=Path, default=None, metavar="TOML",
                     help="with --diagnose: prepare the frames with this pipeline config (e.g. [removal] "
                     "straggler_bound = \"off\"; default: the defaults)")
-    ap.add_argument("--without-put-back", action="store_true",
-                    help="with --diagnose: also fit each frame again without the pixels the straggler bound gave back "
-                    "to the zone (docs/labelling.md, 'Tenth round'), scored from the same run (--json F: F.noputback.json)")
     ap.add_argument("--compare", default="", metavar="BEFORE,AFTER",
                     help="two --diagnose --json files (two trees, the same logs): one table, before -> after")
     args = ap.parse_args()
@@ -876,10 +850,7 @@ def main() -> int:
             raise SystemExit(f"error: --compare takes BEFORE.json,AFTER.json, got {args.compare!r}")
         print("\n".join(compare(*(json.loads(f.read_text()) for f in files))))
         return 0
-    global LARGE_PX, RING_BELOW, SEED_PX, CONFIG, WITHOUT_PUT_BACK
-    WITHOUT_PUT_BACK = args.without_put_back
-    if WITHOUT_PUT_BACK and (not args.diagnose or args.seed_px is not None):
-        raise SystemExit("error: --without-put-back is a --diagnose variant, not with --seed-px")
+    global LARGE_PX, RING_BELOW, SEED_PX, CONFIG
     LARGE_PX = args.large_px
     RING_BELOW = args.ring_below
     SEED_PX = args.seed_px
@@ -906,10 +877,6 @@ def main() -> int:
                 other = args.json.with_suffix(f".seed{SEED_PX}.json")
                 other.write_text(json.dumps(seeded, indent=1, default=float))
                 print(f"the rule as written: {args.json}; --seed-px {SEED_PX}: {other} (--compare {args.json},{other})")
-            if WITHOUT_PUT_BACK:
-                other = args.json.with_suffix(".noputback.json")
-                other.write_text(json.dumps(seeded, indent=1, default=float))
-                print(f"the fits as they are: {args.json}; --without-put-back: {other} (--compare {args.json},{other})")
         return 0
     from playwright.sync_api import sync_playwright
 

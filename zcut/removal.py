@@ -2526,58 +2526,6 @@ def remove_table_and_bin(
                          r_bin * 1000.0)
 
 
-def unbounded_stragglers(xyz: XYZ, result: RemovalResult, index: RemovalIndex, T_cam_bin: np.ndarray) -> Mask:
-    """(H, W) bool: the zone pixels of ``result`` the straggler test would label bin without its bound — the pixels
-    ``RemovalParams.straggler_bound`` gives back to the zone (read-only: ``result`` is not changed).
-
-    The straggler passes (:data:`STRAGGLER_PASSES`, the same test at τ + ``straggler_mm`` along the normal and the
-    removal's radius + ``straggler_mm``) run again from ``result``'s labels with the bound off; the zone pixels they
-    label are returned. Starting from the bounded labels, not from the classification, the passes can reach a few
-    pixels farther or nearer than an unbounded removal's would (measured in docs/labelling.md, "Tenth round").
-    All False when the bound is off or unknown, the mode is not robust or there is no straggler test.
-
-    Parameters
-    ----------
-    xyz : (H, W, 3) float ndarray
-        The cloud the removal labelled (metres).
-    result : RemovalResult
-        :func:`remove_table_and_bin` of ``xyz`` with ``index`` and ``T_cam_bin`` (its ``tolerance_mm`` and
-        ``radius_mm`` are the frame's τ and radius).
-    index : RemovalIndex
-    T_cam_bin : (4, 4) float ndarray
-    """
-    p = index.params
-    zone = np.asarray(result.zone, bool)
-    out = np.zeros(zone.shape, bool)
-    if (index.straggler is None or not p.robust or p.straggler_bound == "off" or not zone.any()
-            or not (np.isfinite(result.tolerance_mm) and np.isfinite(result.radius_mm))):
-        return out
-    a = np.ascontiguousarray(np.asarray(xyz))
-    T = np.asarray(T_cam_bin, dtype=np.float64)
-    R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
-    planes = index.model.normals is not None
-    delta_m = result.tolerance_mm / 1000.0
-    straggler_m = p.straggler_m + delta_m
-    radius_m = result.radius_mm / 1000.0
-    if not planes:
-        r_s = straggler_m
-    elif p.search_radius_mm is None:  # the removal's radius + straggler_mm (the measured reach's case)
-        r_s = max(radius_m + p.straggler_m, straggler_m)
-    else:
-        r_s = max(radius_m, straggler_m)
-    table = np.ascontiguousarray(result.table)
-    binp = np.array(result.bin_points, dtype=bool, order="C")
-    easy = np.ascontiguousarray(result.easy_outliers)
-    valid = table | easy | binp | zone
-    lab = np.empty(zone.shape, np.uint8)
-    open_, first = np.empty(zone.shape, bool), np.empty(zone.shape, bool)
-    _straggler_start(valid, table, binp, easy, ~table, int(p.straggler_neighbours), lab, open_, first)
-    _straggler_passes(a, binp, lab, open_, R, t, index.straggler, straggler_m=straggler_m, radius_m=r_s,
-                      planes=planes, neighbours=int(p.straggler_neighbours), first=first, bound=_NO_BOUND)
-    out = binp & zone
-    return out
-
-
 def _remove_table(a: np.ndarray, fp: Mask) -> RemovalResult:
     """Without a model: only the table is removed; the floor is the farthest valid point."""
     z64 = a[..., 2].astype(np.float64)

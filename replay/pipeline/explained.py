@@ -87,10 +87,6 @@ SAMPLE_PX = 20_000
 #: fit the part again on the unexplained pieces that lie on top of the pile (:mod:`zcut.top_pieces`;
 #: docs/labelling.md, "Third round: what the label holds beside the truth"); False: the fits as found
 TOP_PIECES = True
-#: fit the part model (and the missed instances on top) on the zone without the pixels the removal's straggler bound
-#: gave back to it (:func:`fit_region`; docs/labelling.md, "Tenth round"): every zone pixel is still judged against
-#: the fits, the bin and the table. False (today's): the fits search the whole zone
-FITS_WITHOUT_PUT_BACK = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -247,9 +243,6 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
     K = frame.intrinsics
     intr = None if K is None or (K.height, K.width) != zone.zone.shape else (K.fx, K.fy, K.cx, K.cy)
     fits: tuple[PartFit, ...] = ()
-    region = zone.zone  # where the fits search
-    if p.part_model and FITS_WITHOUT_PUT_BACK and bin_stages:
-        region = fit_region(frame, zone, config)
     v, t = np.zeros((0, 3)), np.zeros((0, 3), np.int64)
     solid = None  # the prepared model's inside: the vetting measures overlap as its fitting did
     if p.part_model:
@@ -257,7 +250,7 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
 
         v, t, prepared = part_model(p.part_model, p.part_model_unit)
         solid = prepared.solid
-        fits = tuple(fit_prepared(xyz, region, prepared, intrinsics=intr,
+        fits = tuple(fit_prepared(xyz, zone.zone, prepared, intrinsics=intr,
                                   params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm,
                                                    min_support=p.fit_min_support)))
     surfaces = ex.KnownSurfaces(parts=[(v @ f.pose[:3, :3].T + f.pose[:3, 3], t) for f in fits],
@@ -309,7 +302,7 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
     top = 0
     if p.part_model and TOP_PIECES:  # the unexplained pieces on top of the pile fitted again (zcut.top_pieces)
         fits, surfaces, near, top = _with_top_pieces(xyz, zone, near, surfaces, fits, v, t, prepared, intr, footprint,
-                                                     judged, p, zone_err=zone_err, region=region)
+                                                     judged, p, zone_err=zone_err)
     if local is not None:
         near = ex.with_local_surface(near, local)
         surfaces = dataclasses.replace(surfaces, local_err_mm=ex.local_sigma(
@@ -325,16 +318,14 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
 
 def _with_top_pieces(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: tuple[PartFit, ...], v: np.ndarray,
                      t: np.ndarray, prepared: Any, intr: Any, footprint: np.ndarray, judged: np.ndarray,
-                     p: Any, *, zone_err: np.ndarray | None = None,
-                     region: np.ndarray | None = None) -> tuple[tuple[PartFit, ...], Any, Any, int]:
+                     p: Any, *, zone_err: np.ndarray | None = None) -> tuple[tuple[PartFit, ...], Any, Any, int]:
     """(fits, surfaces, nearest, how many were added) with the instances :func:`zcut.top_pieces.top_pieces` finds on
     the zone's unexplained pieces: a found instance whose solid overlaps a fit's by more than ``fit_max_overlap``
     is left out; the judged pixels a new instance is nearer to than their nearest surface take it (exact: a pixel
     farther from a new instance's box than from its nearest surface keeps it), and every fit's residual is
     measured again (:func:`zcut.explained.fit_sigmas`, from the residuals the fits state). ``zone_err``: the zone's
     Err image of ``near`` and ``surfaces`` when the caller has it (the vetting's, when it left every fit in),
-    else it is computed. ``region``: where the pieces are searched (the zone's unexplained pixels in it; default the
-    zone, :func:`fit_region`)."""
+    else it is computed."""
     from zcut import explained as ex
     from zcut.fit_vetting import MAX_BEHIND, behind_shares, instance_overlaps, vet_fits
     from zcut.fits import FitParams
@@ -342,7 +333,7 @@ def _with_top_pieces(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits
 
     err = zone_err if zone_err is not None else ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm,
                                                              where=zone.zone)
-    un = ex.unexplained(near.dist_mm, err, p.k) & (zone.zone if region is None else region)
+    un = ex.unexplained(near.dist_mm, err, p.k) & zone.zone
     more = top_pieces(xyz, un, prepared, intrinsics=intr,
                       params=FitParams(k=p.k, max_err_mm=p.fit_max_err_mm, min_support=p.fit_min_support))
     if more and p.fit_max_overlap < 1:  # a found instance that lies behind the bin or overlaps a fit is left out
@@ -381,27 +372,6 @@ def _with_top_pieces(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits
     surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, stated, where=zone.zone))
     return fits, surfaces, near, len(more)
 
-
-
-_INDEX: list[Any] = []  # [(bin model, removal params, RemovalIndex)]: the last one prepared by fit_region
-
-
-def fit_region(frame: Frame, zone: Zone, config: Any) -> np.ndarray:
-    """(H, W) bool: the zone without the pixels the removal's straggler bound gave back to it
-    (:func:`zcut.removal.unbounded_stragglers`: the stragglers the test would label bin without its bound; on the
-    ray-traced zinc nuts the bin floor's noise tail and the lower sides of nuts lying on the floor,
-    docs/labelling.md, "Ninth round"). The zone as it is without the bin stages or a converged registration."""
-    from zcut.removal import prepare_removal_index, unbounded_stragglers
-
-    rem, reg, model = zone.removal, zone.located.registration, zone.located.bin_model
-    if rem is None or reg is None or model is None or not getattr(reg, "converged", True):
-        return np.asarray(zone.zone, bool)
-    params = config.removal
-    if not (_INDEX and _INDEX[0][0] is model and _INDEX[0][1] == params):
-        _INDEX[:] = [(model, params, prepare_removal_index(model, params))]
-    put_back = unbounded_stragglers(frame.xyz, rem, _INDEX[0][2], reg.T_cam_bin)
-    out: np.ndarray = np.asarray(zone.zone, bool) & ~put_back
-    return out
 
 
 def bin_and_table_surfaces(xyz: np.ndarray, rem: Any, reg: Any, model: Any, surfaces: Any) -> Any:

@@ -146,8 +146,6 @@ def test_config_reaches_the_diagnosed_session(bench, monkeypatch, tmp_path):
 @pytest.mark.parametrize(("argv", "match"), [
     (["--config", "X.toml", "--logs", "a.mcap"], "--config is a --diagnose option"),
     (["--config", "/nonexistent/x.toml", "--diagnose", "a.mcap"], "--config: /nonexistent/x.toml: no such file"),
-    (["--without-put-back", "--logs", "a.mcap"], "--without-put-back is a --diagnose variant"),
-    (["--without-put-back", "--diagnose", "a.mcap", "--seed-px", "100"], "--without-put-back is a --diagnose variant"),
 ])
 def test_config_refused(bench, monkeypatch, argv, match):
     monkeypatch.setattr("sys.argv", ["bench_label_pageonly.py", *argv])
