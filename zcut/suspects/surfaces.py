@@ -30,6 +30,7 @@ only around the pixels whose gap the edge-aware distance gives (a few % of the f
 from __future__ import annotations
 
 import math
+import threading
 
 import numba
 import numpy as np
@@ -43,6 +44,7 @@ from ..edge_surface import (
     _reach_samples,
     _smallest_eigvec,
 )
+from ..sor_workspace import SorWorkspace
 from ..types import Mask
 from .select import median, order_pair
 
@@ -782,14 +784,38 @@ def reach_median(a: np.ndarray, valid: Mask) -> float:
     return median(step) if step.size else 0.0
 
 
+#: the gate's arrays (:func:`_gate_median`: the brackets' ends and pixels, H · W each, ~55 MB at 1920 × 1200) are
+#: kept between calls, one workspace per thread (:func:`gate_workspace`): made fresh each call, their pages were
+#: faulted in afresh every call (docs/performance.md, the suspects' tenth round)
+_GATE = threading.local()
+
+
+def gate_workspace() -> SorWorkspace:
+    """The calling thread's workspace of :func:`_gate_median`'s arrays (made on first use, dropped with the
+    thread; it keeps the arrays of the largest frame seen until ``gate_workspace().release()``, or what
+    ``gate_workspace().max_bytes`` allows). A call that finds it in use (re-entry) works in fresh arrays."""
+    ws: SorWorkspace | None = getattr(_GATE, "workspace", None)
+    if ws is None:
+        ws = SorWorkspace(max_bytes=None)
+        _GATE.workspace = ws
+    return ws
+
+
 def _gate_median(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: float, tan: float
                  ) -> tuple[int, float]:
     """(count, median) of the fitted patches' rms / z², the values :func:`zcut.edge_surface._edge_surfaces`
     takes: the count and ``_median_of_temporary`` of its ratios."""
+    with gate_workspace().call() as ws:
+        return _gate_median_in(a, valid, params, per_px, tan, ws)
+
+
+def _gate_median_in(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: float, tan: float,
+                    ws: SorWorkspace) -> tuple[int, float]:
+    """:func:`_gate_median` with its arrays taken from ``ws`` (nothing returned is one of them)."""
     H, W = valid.shape
-    lo = np.empty(H * W)
-    hi = np.empty(H * W)
-    at = np.empty(H * W, np.int64)
+    lo = ws.empty("gate_lo", (H * W,))
+    hi = ws.empty("gate_hi", (H * W,))
+    at = ws.empty("gate_at", (H * W,), np.int64)
     r, min_px, floor = params.patch_radius_px, params.min_patch_px, params.side_step_mm
     m, _, nan = _ratio_brackets(a, valid, r, min_px, per_px, tan, floor, lo, hi, at)
     if m == 0:
@@ -802,7 +828,7 @@ def _gate_median(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: 
     # the k-th ratio lies between the k-th smallest lower end and the k-th smallest upper end
     wa = order_pair(lo, ranks[0], ranks[0])[0]
     wb = order_pair(hi, ranks[-1], ranks[-1])[0]
-    vals = np.empty(m)
+    vals = ws.empty("gate_vals", (m,))  # only the first `inside` entries are written (few pages)
     below, _, inside = _window_exact(a, valid, r, min_px, per_px, tan, floor, lo, hi, at, wa, wb, vals)
     if not (below <= ranks[0] and ranks[-1] < below + inside):  # pragma: no cover - the brackets hold their ratios
         raise AssertionError("the gate's window does not hold the median: a bracket missed its ratio")
