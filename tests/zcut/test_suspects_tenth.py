@@ -1,0 +1,110 @@
+"""The suspects' tenth round (issue 32, item 5): the gate's arrays come from a workspace kept per thread
+(:func:`zcut.suspects.surfaces.gate_workspace`); its (count, median) stay the whole-frame pass's whatever
+the workspace held before (a larger frame, a smaller one, none), on re-entry and in two threads at once
+(the whole call against ``suspects_reference``: tests/zcut/test_suspects_fast.py)."""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+from test_suspects_ninth import _quantized_frame
+
+from zcut.edge_surface import EdgeSurfaceParams, _median_of_temporary, _patch_gate_kernel, _reach_samples
+from zcut.suspects.surfaces import _gate_median, gate_workspace
+
+
+def _bits(x: float) -> int:
+    return int(np.float64(x).view(np.int64))
+
+
+def _frames() -> list[np.ndarray]:
+    """Frames of several sizes, in an order that grows and shrinks the workspace's arrays: quantized and
+    smooth depth, rows mostly unmeasured, a third of the pixels gone, all NaN, one pixel, 0 × 0."""
+    rng = np.random.default_rng(1001)
+    out = []
+    for H, W, step in ((120, 200, 1.0), (30, 40, 0.5), (150, 260, 1e-9), (1, 1, 1.0), (60, 90, 4.0)):
+        out.append(_quantized_frame(rng, H, W, step))
+    holes = _quantized_frame(rng, 100, 140, 1.0)
+    holes[rng.random(holes.shape[:2]) < 0.33] = np.nan
+    out.append(holes)
+    out.append(np.full((20, 30, 3), np.nan))
+    out.append(np.empty((0, 0, 3)))
+    out.append(_quantized_frame(rng, 140, 230, 0.5))
+    return [np.ascontiguousarray(a) for a in out]
+
+
+def _want(a: np.ndarray, params: EdgeSurfaceParams) -> tuple[int, float, float, float]:
+    """(count, median, per_px, tan) of the whole-frame pass (``_patch_gate_kernel``, ``_median_of_temporary``)."""
+    H, W = a.shape[:2]
+    valid = np.ascontiguousarray(np.isfinite(a).all(axis=2))
+    samples = _reach_samples(a, valid)
+    per_px = _median_of_temporary(samples) if samples.size else 0.0
+    tan = min(math.tan(math.radians(params.max_incidence_deg)), 1e6)
+    rms, z2, steep, ratios = np.empty((H, W)), np.empty((H, W)), np.empty((H, W), bool), np.empty(H * W)
+    m = _patch_gate_kernel(a, valid, params.patch_radius_px, params.min_patch_px, per_px, tan, params.side_step_mm,
+                           math.cos(math.radians(params.max_incidence_deg)), rms, z2, steep, ratios)
+    return m, (_median_of_temporary(ratios[:m]) if m else float("nan")), per_px, tan
+
+
+def _check(a: np.ndarray, params: EdgeSurfaceParams, want: tuple[int, float, float, float]) -> None:
+    valid = np.ascontiguousarray(np.isfinite(a).all(axis=2))
+    m, med, per_px, tan = want
+    got = _gate_median(a, valid, params, per_px, tan)
+    assert got[0] == m, (a.shape, got, m)
+    assert (math.isnan(got[1]) and math.isnan(med)) or _bits(got[1]) == _bits(med), (a.shape, got, med)
+
+
+def test_gate_median_with_the_workspace_equals_the_whole_frame_pass() -> None:
+    """Frame after frame in one thread (the workspace keeping the largest arrays, then grown), again after
+    :meth:`release`, and on re-entry (a call while the thread's workspace is in use works in fresh
+    arrays): the whole-frame pass's (count, median) every time; the workspace keeps the arrays between
+    calls and drops them on release."""
+    params = EdgeSurfaceParams()
+    frames = _frames()
+    wants = [_want(a, params) for a in frames]
+    ws = gate_workspace()
+    ws.release()
+    for a, want in zip(frames, wants, strict=True):
+        _check(a, params, want)
+    big = max(a.shape[0] * a.shape[1] for a in frames)
+    assert ws.nbytes >= 3 * 8 * big  # lo, hi, at of the largest frame, kept
+    assert gate_workspace() is ws
+    ws.release()
+    assert ws.nbytes == 0
+    for a, want in zip(frames[::-1], wants[::-1], strict=True):
+        _check(a, params, want)
+    with ws.call():  # the thread's workspace busy: the gate works in a fresh one
+        for a, want in zip(frames, wants, strict=True):
+            _check(a, params, want)
+
+
+def test_gate_median_in_two_threads_at_once() -> None:
+    """Two threads calling the gate over the frames at once, each with its own workspace: the whole-frame
+    pass's (count, median) in both."""
+    params = EdgeSurfaceParams()
+    frames = _frames()
+    wants = [_want(a, params) for a in frames]
+    errors: list[BaseException] = []
+    spaces: list[object] = []
+    start = threading.Barrier(2)
+
+    def run(order: list[int]) -> None:
+        try:
+            start.wait()
+            for _ in range(3):
+                for q in order:
+                    _check(frames[q], params, wants[q])
+            spaces.append(gate_workspace())
+        except BaseException as e:  # noqa: BLE001  (re-raised in the test's thread)
+            errors.append(e)
+
+    idx = list(range(len(frames)))
+    threads = [threading.Thread(target=run, args=(o,)) for o in (idx, idx[::-1])]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    assert len(spaces) == 2 and spaces[0] is not spaces[1] and spaces[0] is not gate_workspace()
