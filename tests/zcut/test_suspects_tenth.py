@@ -1,7 +1,8 @@
 """The suspects' tenth round (issue 32, item 5): the gate's arrays come from a workspace kept per thread
 (:func:`zcut.suspects.surfaces.gate_workspace`); its (count, median) stay the whole-frame pass's whatever
 the workspace held before (a larger frame, a smaller one, none), on re-entry and in two threads at once
-(the whole call against ``suspects_reference``: tests/zcut/test_suspects_fast.py)."""
+(the whole call against ``suspects_reference``: tests/zcut/test_suspects_fast.py); the row's settling
+(:func:`zcut.suspects.surfaces._row_settle`, the memo written out) is :func:`_bracket_or_solve`'s."""
 
 from __future__ import annotations
 
@@ -9,10 +10,11 @@ import math
 import threading
 
 import numpy as np
+from suspects_helpers import patch_covariances
 from test_suspects_ninth import _quantized_frame
 
 from zcut.edge_surface import EdgeSurfaceParams, _median_of_temporary, _patch_gate_kernel, _reach_samples
-from zcut.suspects.surfaces import _gate_median, gate_workspace
+from zcut.suspects.surfaces import _MEMO_BITS, _bracket_or_solve, _gate_median, _row_settle, gate_workspace
 
 
 def _bits(x: float) -> int:
@@ -108,3 +110,67 @@ def test_gate_median_in_two_threads_at_once() -> None:
         t.join()
     assert not errors, errors
     assert len(spaces) == 2 and spaces[0] is not spaces[1] and spaces[0] is not gate_workspace()
+
+
+def _memo() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    key = np.empty(6)
+    return np.zeros((1 << _MEMO_BITS, 7), np.uint64), np.empty((1 << _MEMO_BITS, 2)), key, key.view(np.uint64)
+
+
+def _ratio(lam: float, zz: float) -> float:
+    """sqrt(max(λ, 0)) / z² with IEEE division (z² = 0: ±inf or NaN), as the kernels compute it."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return float(np.float64(math.sqrt(max(lam, 0.0))) / np.float64(zz))
+
+
+def test_row_settle_equals_bracket_or_solve() -> None:
+    """:func:`_row_settle` gives, patch by patch, what :func:`_bracket_or_solve` gives (its bracket, else the
+    closed form's value, from the memo or not) turned into the ratio's bracket as :func:`_keep_patch` turns
+    it, bit for bit; the counts of solved patches and the NaN flag likewise; and it leaves the memo as
+    :func:`_bracket_or_solve` leaves it. Rows of covariances drawn with repeats (memo hits), more distinct
+    ones than slots, +0.0 / -0.0 entries, NaN and infinite entries, z² of 0 and NaN; the row's other
+    entries untouched."""
+    rng = np.random.default_rng(1002)
+    base = np.array(list(patch_covariances(rng, 6000, tilts=(0.0, 0.1, 1.0, 100.0), noises=(0.0, 0.0, 1e-6, 1e-3, 1.0),
+                                           quantized_every=2, decades=3, negative_zero_every=7)))
+    odd = base[:60].copy()
+    odd[::2, 2] = np.nan
+    odd[1::2, 4] = np.inf
+    pool = np.concatenate([base, odd])
+    mine, theirs = _memo(), _memo()
+    settled = solved_total = 0
+    for row in range(300):
+        W = int(rng.integers(1, 200))
+        cov = pool[rng.integers(0, pool.shape[0] if row % 3 else 200, W)]  # every third row: few distinct ones
+        mz = rng.choice([1.0, 0.5, 600.0, 0.0, np.nan], W, p=[0.3, 0.3, 0.36, 0.02, 0.02])
+        k = int(rng.integers(0, W + 1))
+        idx = np.sort(rng.choice(W, k, replace=False)).astype(np.int64)
+        c = [np.ascontiguousarray(cov[:, q]) for q in range(6)]
+        good, fitted = np.zeros(W, bool), rng.random(W) < 0.5
+        rlo, rhi = rng.random(W), rng.random(W)
+        before = (good.copy(), fitted.copy(), rlo.copy(), rhi.copy())
+        solved, nan = _row_settle(k, idx, *c, mz, good, rlo, rhi, fitted, mine)
+        want_solved, want_nan = 0, False
+        for q in idx:
+            zz = mz[q] ** 2
+            ok, l0, l1, fit, lam, det = _bracket_or_solve(*(float(v) for v in cov[q]), theirs)
+            if ok:
+                want = (fit, _ratio(l0, zz), _ratio(l1, zz))
+            else:
+                want_solved += 1
+                v = _ratio(lam, zz)
+                want = (det, v, v)
+                want_nan = want_nan or (det and zz > 0 and math.isnan(v))
+            assert good[q] and fitted[q] == want[0], (row, q)
+            assert _bits(rlo[q]) == _bits(want[1]) and _bits(rhi[q]) == _bits(want[2]), (row, q, rlo[q], want)
+        rest = np.ones(W, bool)
+        rest[idx] = False
+        for got, was in zip((good, fitted, rlo, rhi), before, strict=True):
+            assert np.array_equal(got[rest], was[rest]), row
+        assert (solved, nan) == (want_solved, want_nan), row
+        filled = theirs[0][:, 6] == 1
+        assert np.array_equal(mine[0], theirs[0])
+        assert np.array_equal(mine[1][filled].view(np.int64), theirs[1][filled].view(np.int64))
+        settled += k
+        solved_total += solved
+    assert settled > 12000 and solved_total > 3000, (settled, solved_total)
