@@ -1,7 +1,9 @@
 """The suspects' tenth round (issue 32, item 5): the gate's arrays come from a workspace kept per thread
 (:func:`zcut.suspects.surfaces.gate_workspace`); its (count, median) stay the whole-frame pass's whatever
 the workspace held before (a larger frame, a smaller one, none), on re-entry and in two threads at once
-(the whole call against ``suspects_reference``: tests/zcut/test_suspects_fast.py); the row's settling
+and so do :func:`zcut.suspects.suspects`' scratch images (:func:`zcut.suspects.union.scratch_workspace`: the
+whole call against ``suspects_reference`` whatever the workspaces held; the other frames:
+tests/zcut/test_suspects_fast.py); the row's settling
 (:func:`zcut.suspects.surfaces._row_settle`, the memo written out) is :func:`_bracket_or_solve`'s."""
 
 from __future__ import annotations
@@ -11,10 +13,14 @@ import threading
 
 import numpy as np
 from suspects_helpers import patch_covariances
+from test_suspects_fast import assert_same
 from test_suspects_ninth import _quantized_frame
 
 from zcut.edge_surface import EdgeSurfaceParams, _median_of_temporary, _patch_gate_kernel, _reach_samples
+from zcut.params import SuspectParams
+from zcut.suspects import suspects, suspects_reference
 from zcut.suspects.surfaces import _MEMO_BITS, _bracket_or_solve, _gate_median, _row_settle, gate_workspace
+from zcut.suspects.union import scratch_workspace
 
 
 def _bits(x: float) -> int:
@@ -174,3 +180,50 @@ def test_row_settle_equals_bracket_or_solve() -> None:
         settled += k
         solved_total += solved
     assert settled > 12000 and solved_total > 3000, (settled, solved_total)
+
+
+def test_suspects_with_kept_workspaces_equal_the_reference() -> None:
+    """The whole call, frame after frame in one thread (the scratch and gate workspaces grown and kept
+    across sizes, then released), on re-entry, and in two threads at once: every field equal to
+    ``suspects_reference``'s; nothing the call returns shares memory with a kept image."""
+    rng = np.random.default_rng(1003)
+    frames = [_quantized_frame(rng, 60, 90, 1.0), _quantized_frame(rng, 20, 30, 0.5), _quantized_frame(rng, 1, 1, 1.0),
+              np.full((8, 12, 3), np.nan), _quantized_frame(rng, 70, 110, 1e-9)]
+    frames[1][rng.random(frames[1].shape[:2]) < 0.4] = np.nan
+    inputs = []
+    for f in frames:
+        xyz = np.ascontiguousarray(f / 1000.0)
+        h = -1000.0 * xyz[..., 2]
+        inputs.append((xyz, h, np.isfinite(xyz).all(axis=2)))
+    params, es = SuspectParams(), EdgeSurfaceParams()
+    wants = [suspects_reference(x, h, z, params=params, edge_surface=es) for x, h, z in inputs]
+
+    def run_all(order: list[int]) -> None:
+        for q in order:
+            x, h, z = inputs[q]
+            got = suspects(x, h, z, params=params, edge_surface=es)
+            assert_same(got, wants[q])
+            kept = [a for a in scratch_workspace()._arrays.values()] + [a for a in gate_workspace()._arrays.values()]
+            for name in ("mask", "groups", "detectors", "gap_mm", "residual_mm"):
+                assert not any(np.shares_memory(getattr(got, name), a) for a in kept), name
+
+    order = list(range(len(inputs)))
+    run_all(order + order[::-1])
+    assert scratch_workspace().nbytes >= 3 * 8 * 70 * 110
+    scratch_workspace().release()
+    with scratch_workspace().call(), gate_workspace().call():  # both busy: fresh arrays
+        run_all(order)
+    errors: list[BaseException] = []
+
+    def thread(o: list[int]) -> None:
+        try:
+            run_all(o)
+        except BaseException as e:  # noqa: BLE001  (re-raised in the test's thread)
+            errors.append(e)
+
+    threads = [threading.Thread(target=thread, args=(o,)) for o in (order * 2, order[::-1] * 2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
