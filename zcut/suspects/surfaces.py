@@ -450,8 +450,8 @@ def _row_settle(k, idx, c0, c1, c2, c3, c4, c5, mz, good, rlo, rhi, fitted, memo
     ratio is NaN), as :func:`_keep_patch` counts them.
 
     :func:`_bracket_or_solve` written out, the memo's arrays unpacked once a row: called per patch (an inline
-    function given the memo's arrays), each patch took and released a reference to each of its four arrays
-    (atomic operations: ~15 CPU ms of the bench's quantized spheres, 1.16 M patches settled). The same
+    function given the memo's arrays, most likely a reference taken and released per array and patch) it cost
+    ~15 CPU ms more on the bench's quantized spheres (1.16 M patches settled). The same
     table, slots (:func:`_memo_slot`'s hash) and entries; ``tests/zcut/test_suspects_tenth.py`` checks the two
     against each other."""
     solved = 0
