@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 import pytest
 from components_check import check_components
+from suspects_helpers import patch_covariances
 from test_suspects import random_heights, scene
 
 from replay.logs.pcd import read_pcd
@@ -300,21 +301,8 @@ def test_brackets_hold_the_closed_form_eigenvalue() -> None:
 
     rng = np.random.default_rng(22)
     brackets = certified = 0
-    for t in range(20000):
-        n = int(rng.integers(3, 10))
-        g = np.stack([rng.integers(-1, 2, n), rng.integers(-1, 2, n)], 1).astype(np.float64)
-        tilt = rng.normal(size=2) * float(rng.choice([0.0, 0.1, 1.0, 10.0, 100.0]))
-        p = np.column_stack([g, g @ tilt + rng.normal(size=n) * float(rng.choice([0.0, 1e-6, 1e-3, 0.05, 1.0]))])
-        if t % 5 == 0:
-            p[:, 2] = np.round(p[:, 2])  # quantized depth
-        if t % 13 == 0:
-            p[:, 1] = p[:, 0]  # a line
-        if t % 17 == 0:
-            p[:] = p[0]  # one point
-        p = p * 10.0 ** rng.uniform(-4, 4) + rng.normal(size=3) * float(rng.choice([0.0, 1e3]))
-        d = p - p.mean(axis=0)
-        c = [float(v) / n for v in (d[:, 0] @ d[:, 0], d[:, 0] @ d[:, 1], d[:, 0] @ d[:, 2], d[:, 1] @ d[:, 1],
-                                    d[:, 1] @ d[:, 2], d[:, 2] @ d[:, 2])]
+    for t, c in enumerate(patch_covariances(rng, 20000, tilts=(0.0, 0.1, 1.0, 10.0, 100.0),
+                                            noises=(0.0, 1e-6, 1e-3, 0.05, 1.0), quantized_every=5, decades=4)):
         lam, nx, _, _ = _smallest_eigvec(*c)
         ok, lo, hi, fitted = _lambda_bracket(*c)
         if ok:

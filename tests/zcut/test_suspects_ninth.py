@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 import pytest
+from suspects_helpers import patch_covariances
 from test_suspects_fast import _fuzz_cloud
 
 from zcut.edge_surface import (
@@ -87,24 +88,9 @@ def test_row_moments_r1_equal_the_general_kernel() -> None:
 def _covariances(rng: np.random.Generator, n: int) -> np.ndarray:
     """Covariances (n, 6) as the gate computes them: 3 × 3 patches of random, flat, quantized, tilted
     to grazing, on a line, of one point, at every scale, with -0.0 entries now and then."""
-    out = np.empty((n, 6))
-    for t in range(n):
-        k = int(rng.integers(3, 10))
-        g = np.stack([rng.integers(-1, 2, k), rng.integers(-1, 2, k)], 1).astype(np.float64)
-        tilt = rng.normal(size=2) * float(rng.choice([0.0, 0.1, 1.0, 100.0]))
-        p = np.column_stack([g, g @ tilt + rng.normal(size=k) * float(rng.choice([0.0, 0.0, 1e-6, 1e-3, 1.0]))])
-        if t % 3 == 0:
-            p[:, 2] = np.round(p[:, 2])  # quantized depth
-        if t % 13 == 0:
-            p[:, 1] = p[:, 0]  # a line
-        if t % 17 == 0:
-            p[:] = p[0]  # one point
-        p = p * 10.0 ** rng.uniform(-3, 3) + rng.normal(size=3) * float(rng.choice([0.0, 1e3]))
-        d = p - p.mean(axis=0)
-        out[t] = [(d[:, a] @ d[:, b]) / k for a, b in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))]
-        if t % 7 == 0:
-            out[t][out[t] == 0.0] = -0.0
-    return out
+    return np.array(list(patch_covariances(rng, n, tilts=(0.0, 0.1, 1.0, 100.0), noises=(0.0, 0.0, 1e-6, 1e-3, 1.0),
+                                           quantized_every=3, decades=3, negative_zero_every=7)),
+                    dtype=np.float64).reshape(n, 6)
 
 
 def test_memo_gives_the_closed_form() -> None:

@@ -30,6 +30,7 @@ only around the pixels whose gap the edge-aware distance gives (a few % of the f
 from __future__ import annotations
 
 import math
+import threading
 
 import numba
 import numpy as np
@@ -43,6 +44,7 @@ from ..edge_surface import (
     _reach_samples,
     _smallest_eigvec,
 )
+from ..sor_workspace import SorWorkspace
 from ..types import Mask
 from .select import median, order_pair
 
@@ -445,19 +447,54 @@ def _row_settle(k, idx, c0, c1, c2, c3, c4, c5, mz, good, rlo, rhi, fitted, memo
     (from the memo when there), into ``rlo``, ``rhi`` and ``fitted`` (the normal determined), and
     ``good`` set, so that the row's loop takes them as certified. One call a row, the loop apart
     from the row's: the one-by-one work stays out of the row's loop. Returns (solved, nan: a kept
-    ratio is NaN), as :func:`_keep_patch` counts them."""
+    ratio is NaN), as :func:`_keep_patch` counts them.
+
+    :func:`_bracket_or_solve` written out, the memo's arrays unpacked once a row: called per patch (an inline
+    function given the memo's arrays, most likely a reference taken and released per array and patch) it cost
+    ~15 CPU ms more on the bench's quantized spheres (1.16 M patches settled). The same
+    table, slots (:func:`_memo_slot`'s hash) and entries; ``tests/zcut/test_suspects_tenth.py`` checks the two
+    against each other."""
     solved = 0
     nan = False
+    words, values, key, bits = memo
     for u in range(k):
         q = idx[u]
         zz = mz[q] ** 2
-        ok, l0, l1, fit, lam, det = _bracket_or_solve(c0[q], c1[q], c2[q], c3[q], c4[q], c5[q], memo)
+        c00, c01, c02, c11, c12, c22 = c0[q], c1[q], c2[q], c3[q], c4[q], c5[q]
+        ok, l0, l1, fit = _lambda_bracket(c00, c01, c02, c11, c12, c22)
         good[q] = True
         if ok:
             fitted[q] = fit
             rlo[q] = math.sqrt(max(l0, 0.0)) / zz
             rhi[q] = math.sqrt(max(l1, 0.0)) / zz
             continue
+        # _memo_slot
+        key[0] = c00
+        key[1] = c01
+        key[2] = c02
+        key[3] = c11
+        key[4] = c12
+        key[5] = c22
+        h = np.uint64(0)
+        for w in range(6):
+            h = (h ^ bits[w]) * _MEMO_MIX
+        h = (h ^ (h >> np.uint64(29))) * _MEMO_MIX
+        slot = int(h >> np.uint64(64 - _MEMO_BITS))
+        # the memo's entry, else the closed form's values (into the memo)
+        hit = words[slot, 6] == 1
+        for w in range(6):
+            hit = hit and words[slot, w] == bits[w]
+        if hit:
+            lam = values[slot, 0]
+            det = values[slot, 1] == 1.0
+        else:
+            lam, nx, _, _ = _smallest_eigvec(c00, c01, c02, c11, c12, c22)
+            det = bool(np.isfinite(nx))
+            for w in range(6):
+                words[slot, w] = bits[w]
+            words[slot, 6] = 1
+            values[slot, 0] = lam
+            values[slot, 1] = 1.0 if det else 0.0
         solved += 1
         fitted[q] = det
         v = math.sqrt(max(lam, 0.0)) / zz
@@ -782,14 +819,38 @@ def reach_median(a: np.ndarray, valid: Mask) -> float:
     return median(step) if step.size else 0.0
 
 
+#: the gate's arrays (:func:`_gate_median`: the brackets' ends and pixels, H · W each, ~55 MB at 1920 × 1200) are
+#: kept between calls, one workspace per thread (:func:`gate_workspace`): made fresh each call, their pages were
+#: faulted in afresh every call (docs/performance.md, the suspects' tenth round)
+_GATE = threading.local()
+
+
+def gate_workspace() -> SorWorkspace:
+    """The calling thread's workspace of :func:`_gate_median`'s arrays (made on first use, dropped with the
+    thread; it keeps the arrays of the largest frame seen until ``gate_workspace().release()``, or what
+    ``gate_workspace().max_bytes`` allows). A call that finds it in use (re-entry) works in fresh arrays."""
+    ws: SorWorkspace | None = getattr(_GATE, "workspace", None)
+    if ws is None:
+        ws = SorWorkspace(max_bytes=None)
+        _GATE.workspace = ws
+    return ws
+
+
 def _gate_median(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: float, tan: float
                  ) -> tuple[int, float]:
     """(count, median) of the fitted patches' rms / z², the values :func:`zcut.edge_surface._edge_surfaces`
     takes: the count and ``_median_of_temporary`` of its ratios."""
+    with gate_workspace().call() as ws:
+        return _gate_median_in(a, valid, params, per_px, tan, ws)
+
+
+def _gate_median_in(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: float, tan: float,
+                    ws: SorWorkspace) -> tuple[int, float]:
+    """:func:`_gate_median` with its arrays taken from ``ws`` (nothing returned is one of them)."""
     H, W = valid.shape
-    lo = np.empty(H * W)
-    hi = np.empty(H * W)
-    at = np.empty(H * W, np.int64)
+    lo = ws.empty("gate_lo", (H * W,))
+    hi = ws.empty("gate_hi", (H * W,))
+    at = ws.empty("gate_at", (H * W,), np.int64)
     r, min_px, floor = params.patch_radius_px, params.min_patch_px, params.side_step_mm
     m, _, nan = _ratio_brackets(a, valid, r, min_px, per_px, tan, floor, lo, hi, at)
     if m == 0:
@@ -802,7 +863,7 @@ def _gate_median(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: 
     # the k-th ratio lies between the k-th smallest lower end and the k-th smallest upper end
     wa = order_pair(lo, ranks[0], ranks[0])[0]
     wb = order_pair(hi, ranks[-1], ranks[-1])[0]
-    vals = np.empty(m)
+    vals = ws.empty("gate_vals", (m,))  # only the first `inside` entries are written (few pages)
     below, _, inside = _window_exact(a, valid, r, min_px, per_px, tan, floor, lo, hi, at, wa, wb, vals)
     if not (below <= ranks[0] and ranks[-1] < below + inside):  # pragma: no cover - the brackets hold their ratios
         raise AssertionError("the gate's window does not hold the median: a bracket missed its ratio")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import threading
 from dataclasses import dataclass
 
 import numba
@@ -12,6 +13,7 @@ from ..cloud import Intrinsics, check_mask, check_xyz
 from ..edge_surface import EdgeSurfaceParams, _check_args
 from ..errors import InputShapeError, ParameterError, describe_array
 from ..params import SuspectParams
+from ..sor_workspace import SorWorkspace
 from ..types import XYZ, FloatImage, Labels, Mask
 from .detectors import ABOVE_RIM, DETECTORS, FLOATING, RESIDUAL_UP, detector_bits, detector_names, label_medians
 from .floating import FLOATING_STEP_SIGMAS, floating_components
@@ -490,13 +492,38 @@ def suspects(
         if (intrinsics.height, intrinsics.width) != (H, W):
             raise InputShapeError(f"intrinsics are for {intrinsics.height}x{intrinsics.width} images, "
                                   f"the frame is {H}x{W}")
+    with scratch_workspace().call() as ws:
+        return _suspects(a, h_img, zone, easy, params, edge_surface, ws)
+
+
+#: the call's scratch images (τ, the jump, the grouping's strength: H · W doubles each, ~55 MB at 1920 × 1200), kept
+#: between calls, one workspace per thread (:func:`scratch_workspace`): made fresh each call, their pages were
+#: faulted in afresh (docs/performance.md, the suspects' tenth round)
+_SCRATCH = threading.local()
+
+
+def scratch_workspace() -> SorWorkspace:
+    """The calling thread's workspace of :func:`suspects`' scratch images (made on first use, dropped with the
+    thread; it keeps the images of the largest frame seen until ``scratch_workspace().release()``). A call
+    that finds it in use works in fresh arrays. Nothing a call returns is one of them."""
+    ws: SorWorkspace | None = getattr(_SCRATCH, "workspace", None)
+    if ws is None:
+        ws = SorWorkspace(max_bytes=None)
+        _SCRATCH.workspace = ws
+    return ws
+
+
+def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: SuspectParams,
+              edge_surface: EdgeSurfaceParams | None, ws: SorWorkspace) -> SuspectResult:
+    """:func:`suspects` after its checks, its scratch images taken from ``ws``."""
+    H, W = zone.shape
     valid, zone, easy, h_all, context = _prepare(a, zone, easy)
     h_zcut = np.ascontiguousarray(h_img, dtype=np.float64)
 
     profile = noise_profile(context, zone)
     sigma_px = _sigma_px(profile, context)  # profile.sigma_at(local_height(context))
     sigma_px = np.ascontiguousarray(sigma_px, dtype=np.float64)
-    tau, jump = np.empty((H, W)), np.empty((H, W))
+    tau, jump = ws.empty("tau", (H, W)), ws.empty("jump", (H, W))
     _thresholds(sigma_px, params.noise_k, params.min_residual_mm, params.jump_mm, tau, jump)
     sigma, threshold = (_sigma_and_tau_medians(sigma_px[zone], params) if zone.any()
                         else (0.0, float(params.min_residual_mm)))
@@ -544,7 +571,7 @@ def suspects(
         d = surfaces.distance_at(at_res)  # by_residual is in the zone, so measured
         near = np.isfinite(d)
         gap.ravel()[at_res[near]] = d[near]
-    strength = np.empty((H, W))
+    strength = ws.empty("strength", (H, W))
     _gap_ratio(gap, tau, params.min_residual_mm, strength)
     groups, primary, radii = group_suspects(codes, strength, params)
     n = int(primary.size)
