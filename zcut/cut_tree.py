@@ -39,11 +39,7 @@ from typing import Any
 
 import numba
 import numpy as np
-from llvmlite import ir
-from numba.core import cgutils
-from numba.core import types as nbtypes
 from numba.cpython.unsafe.numbers import trailing_zeros
-from numba.extending import intrinsic
 
 __all__ = [
     "FLOOD_MAX_LEVELS",
@@ -1038,33 +1034,6 @@ def union_find_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-d
 # regions", ECCV 2008): the default for up to FLOOD_MAX_LEVELS levels
 # --------------------------------------------------------------------------------------------
 
-def _prefetch_intrinsic(typingctx, arr, idx):  # type: ignore[no-untyped-def]  # numba intrinsic
-    """``llvm.prefetch`` of ``arr[idx]`` (read, high locality): a hint, no effect on any value; the
-    flood's buckets pop pixels queued long before, far apart in the frame (:func:`flood_core`)."""
-    sig = nbtypes.void(arr, idx)
-
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]  # numba intrinsic
-        aryty = signature.args[0]
-        ary = context.make_array(aryty)(context, builder, args[0])
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1]], wraparound=False,  # type: ignore[no-untyped-call]
-                                       boundscheck=False)
-        i8p = ir.IntType(8).as_pointer()
-        i32 = ir.IntType(32)
-        fn = cgutils.get_or_insert_function(  # type: ignore[no-untyped-call]
-            builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), "llvm.prefetch.p0")
-        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-_prefetch: Any = intrinsic(_prefetch_intrinsic)
-
-#: How far down its bucket :func:`flood_core` prefetches a queued pixel's neighbourhood (its rows in ``st``
-#: and its slot in ``lab``) as it pops one.
-PREFETCH_AHEAD = 8
-
-
 #: Levels 0 .. top with top < this go to :func:`flood_tree` (its bucket queue finds the lowest
 #: non-empty level in a bit map of 64 x 64 levels, or beyond ``SHALLOW_LEVELS`` in one of 8 x 64 x 64
 #: levels: :func:`flood_core_deep`); more levels go to the union-find :func:`union_find_tree`. (``st``
@@ -1174,6 +1143,30 @@ def _bit_next3(occ, mid, summ, lv):  # type: ignore[no-untyped-def]  # numba ker
 
 
 @numba.njit(cache=True, inline="always")
+def _map_set(occ, mid, summ, lv, deep):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_bit_set3` with ``deep``, else :func:`_bit_set2` (``deep`` a constant of the calling kernel)."""
+    if deep:
+        return _bit_set3(occ, mid, summ, lv)
+    return _bit_set2(occ, mid, summ, lv)
+
+
+@numba.njit(cache=True, inline="always")
+def _map_clear(occ, mid, summ, lv, deep):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_bit_clear3` with ``deep``, else :func:`_bit_clear2`."""
+    if deep:
+        return _bit_clear3(occ, mid, summ, lv)
+    return _bit_clear2(occ, mid, summ, lv)
+
+
+@numba.njit(cache=True, inline="always")
+def _map_next(occ, mid, summ, lv, deep):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_bit_next3` with ``deep``, else :func:`_bit_next2`."""
+    if deep:
+        return _bit_next3(occ, mid, summ, lv)
+    return _bit_next2(occ, mid, summ, lv)
+
+
+@numba.njit(cache=True, inline="always")
 def _close(a, size, parent, e, K, max_area, node_b, node_size, node_parent, tagged, fin, n_fin):  # type: ignore[no-untyped-def]  # numba kernel
     """Node a (a component of the cut at its level node_b[a]) ends: it next changes at level e
     (K + 2: never); parent is the node it becomes part of (-1: none). Returns n_fin + 1."""
@@ -1234,9 +1227,9 @@ def _flood_kernel(left_out: bool, deep: bool = False) -> Any:
     pay in its innermost loop), or with ``deep`` :func:`flood_core_deep` (the bucket queue's bit map
     in three tiers: up to ``FLOOD_MAX_LEVELS`` levels, not ``SHALLOW_LEVELS``). The flags are
     constants of the compiled kernel."""
-    bit_set = _bit_set3 if deep else _bit_set2
-    bit_clear = _bit_clear3 if deep else _bit_clear2
-    bit_next = _bit_next3 if deep else _bit_next2
+    # the bit map's functions are chosen inside the kernel by the constant ``deep`` (:func:`_map_set` ...), not
+    # captured here: a closure over dispatchers pickles differently in every process, so numba's cache (keyed by the
+    # closure's bytes) missed on every start and the kernel was compiled anew in each process (~2 CPU-s)
     n_occ = FLOOD_MAX_LEVELS // 64 if deep else SHALLOW_LEVELS // 64
 
     def flood_core(st, start, pix, W, K, top, conn8, max_area, lab):  # type: ignore[no-untyped-def]  # numba kernel
@@ -1325,7 +1318,7 @@ def _flood_kernel(left_out: bool, deep: bool = False) -> Any:
                         bucket[slot] = nb
                         fill[qn] = slot + 1
                         if slot == start[qn]:
-                            summ = bit_set(occ, mid, summ, qn)
+                            summ = _map_set(occ, mid, summ, qn, deep)
                         continue
                     d = u
                     dq = qn
@@ -1338,9 +1331,9 @@ def _flood_kernel(left_out: bool, deep: bool = False) -> Any:
                         ftop += 1
                     fill[cur] = ftop
                     if ftop > sbeg:
-                        summ = bit_set(occ, mid, summ, cur)
+                        summ = _map_set(occ, mid, summ, cur, deep)
                     else:
-                        summ = bit_clear(occ, mid, summ, cur)
+                        summ = _map_clear(occ, mid, summ, cur, deep)
                     stk_area[sp - 1] = area
                     if left_out:
                         stk_lm[sp - 1] = lmn
@@ -1363,25 +1356,17 @@ def _flood_kernel(left_out: bool, deep: bool = False) -> Any:
                 if ftop > sbeg:
                     ftop -= 1
                     p = bucket[ftop]
-                    if not left_out and ftop - PREFETCH_AHEAD >= sbeg:
-                        # a pixel popped soon after (or later: pixels queued on top come first), queued long
-                        # before, far from p: its rows and its node slot fetched while p is done
-                        pf = bucket[ftop - PREFETCH_AHEAD]
-                        _prefetch(st, pf - Wp)
-                        _prefetch(st, pf)
-                        _prefetch(st, pf + Wp)
-                        _prefetch(lab, pf)
                     e = -1 - np.int64(st[p])  # type: ignore[assignment]  # numba kernel: an int64 local
                     if e == 0:  # first visit (else p resumes after a descent)
                         lab[p] = node
                         area += 1
                     continue
                 fill[cur] = ftop
-                summ = bit_clear(occ, mid, summ, cur)
+                summ = _map_clear(occ, mid, summ, cur, deep)
                 stk_area[sp - 1] = area
                 if left_out:
                     stk_lm[sp - 1] = lmn
-                lv = bit_next(occ, mid, summ, cur)
+                lv = _map_next(occ, mid, summ, cur, deep)
                 if lv < 0:
                     break
                 # rising: close the components below lv

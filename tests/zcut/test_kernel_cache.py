@@ -1,0 +1,57 @@
+"""The z-cut's numba kernels load from their cache in a fresh process: a kernel whose cache always
+misses is compiled anew by every ``zcut`` process (~2 CPU-s for the flood), which no timing test sees.
+Seen in round 2026-12-06b: the flood's variants captured the bit map's dispatchers in their closure,
+and numba keys a closure's cache entry by the closure's pickled bytes, which differ in every process."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+SCRIPT = r"""
+import json, sys
+import numpy as np
+import numba
+from numba.core.dispatcher import Dispatcher
+from zcut.cuts import find_clusters, zcut_outliers
+from zcut.params import ZCutParams
+
+rng = np.random.default_rng(5)
+h = rng.normal(0.0, 5.0, (60, 80)).cumsum(0)
+find_clusters(h, params=ZCutParams(step=1.0, max_depth=20.0, max_area=400))          # few levels
+find_clusters(h, params=ZCutParams(step=0.01, max_depth=60.0, max_area=400))          # past SHALLOW_LEVELS: the deep flood
+zcut_outliers(h, step=1.0, max_depth=20.0, max_area=400)                             # the pruned path
+h[10:30, 20:50] = np.nan
+find_clusters(h, params=ZCutParams(step=1.0, max_depth=20.0, max_area=400))          # with invalid pixels
+
+stats = {}
+for name, mod in list(sys.modules.items()):
+    if not name.startswith("zcut"):
+        continue
+    for attr, obj in list(vars(mod).items()):
+        if isinstance(obj, Dispatcher) and obj.signatures and getattr(obj, "_cache", None) is not None:
+            s = obj.stats
+            stats[f"{name}.{attr}"] = [sum(s.cache_hits.values()), sum(s.cache_misses.values())]
+print(json.dumps(stats))
+"""
+
+
+def _run() -> dict[str, list[int]]:
+    out = subprocess.run([sys.executable, "-c", SCRIPT], cwd=ROOT, capture_output=True, text=True, timeout=600,
+                         env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
+    assert out.returncode == 0, out.stderr[-3000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_the_cuts_kernels_load_from_the_cache_in_a_second_process():
+    _run()  # the first process may compile (a fresh checkout) and writes the caches
+    stats = _run()
+    flood = {k: v for k, v in stats.items() if "flood_core" in k}
+    assert set(flood) >= {"zcut.cut_tree.flood_core", "zcut.cut_tree.flood_core_deep"}, sorted(stats)
+    missed = {k: v for k, v in stats.items() if v[1]}
+    assert missed == {}, f"compiled again in a second process (cache hits, misses): {missed}"
+    assert all(v[0] for v in flood.values()), flood
