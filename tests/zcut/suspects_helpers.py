@@ -1,11 +1,14 @@
 """Random patch covariances for the suspects' gate tests (tests/zcut/test_suspects_fast.py,
-tests/zcut/test_suspects_ninth.py): one generator, each test's rates and scales as arguments."""
+tests/zcut/test_suspects_ninth.py): one generator, each test's rates and scales as arguments; and the gate's
+whole-frame pass, the oracle of its median (test_suspects_ninth.py, test_suspects_tenth.py)."""
 
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 
 import numpy as np
+
+from zcut.edge_surface import EdgeSurfaceParams
 
 
 def patch_covariances(rng: np.random.Generator, n: int, *, tilts: Sequence[float], noises: Sequence[float],
@@ -37,3 +40,21 @@ def patch_covariances(rng: np.random.Generator, n: int, *, tilts: Sequence[float
         if negative_zero_every is not None and t % negative_zero_every == 0:
             c = [-0.0 if v == 0.0 else v for v in c]
         yield c
+
+
+def whole_frame_gate(a: np.ndarray, params: EdgeSurfaceParams) -> tuple[int, float, float, float]:
+    """(count, median, per_px, tan) of the gate's whole-frame pass (``_patch_gate_kernel``,
+    ``_median_of_temporary``): the oracle of ``_gate_median`` (test_suspects_ninth, test_suspects_tenth)."""
+    import math
+
+    from zcut.edge_surface import _median_of_temporary, _patch_gate_kernel, _reach_samples
+
+    H, W = a.shape[:2]
+    valid = np.ascontiguousarray(np.isfinite(a).all(axis=2))
+    samples = _reach_samples(a, valid)
+    per_px = _median_of_temporary(samples) if samples.size else 0.0
+    tan = min(math.tan(math.radians(params.max_incidence_deg)), 1e6)
+    rms, z2, steep, ratios = np.empty((H, W)), np.empty((H, W)), np.empty((H, W), bool), np.empty(H * W)
+    m = _patch_gate_kernel(a, valid, params.patch_radius_px, params.min_patch_px, per_px, tan, params.side_step_mm,
+                           math.cos(math.radians(params.max_incidence_deg)), rms, z2, steep, ratios)
+    return m, (_median_of_temporary(ratios[:m]) if m else float("nan")), per_px, tan

@@ -10,15 +10,12 @@ import math
 
 import numpy as np
 import pytest
-from suspects_helpers import patch_covariances
+from suspects_helpers import patch_covariances, whole_frame_gate
 from test_suspects_fast import _fuzz_cloud
 
 from zcut.edge_surface import (
     EdgeSurfaceParams,
-    _median_of_temporary,
-    _patch_gate_kernel,
     _patch_moments,
-    _reach_samples,
     _smallest_eigvec,
 )
 from zcut.suspects.surfaces import (
@@ -159,14 +156,8 @@ def test_gate_median_on_quantized_frames_equals_the_whole_frame_pass(step: float
         H, W = a.shape[:2]
         valid = np.ascontiguousarray(np.isfinite(a).all(axis=2))
         params = EdgeSurfaceParams()
-        samples = _reach_samples(a, valid)
-        per_px = _median_of_temporary(samples) if samples.size else 0.0
-        tan = min(math.tan(math.radians(params.max_incidence_deg)), 1e6)
-        rms, z2, steep, ratios = np.empty((H, W)), np.empty((H, W)), np.empty((H, W), bool), np.empty(H * W)
-        m = _patch_gate_kernel(a, valid, params.patch_radius_px, params.min_patch_px, per_px, tan, params.side_step_mm,
-                               math.cos(math.radians(params.max_incidence_deg)), rms, z2, steep, ratios)
+        m, want, per_px, tan = whole_frame_gate(a, params)
         got = _gate_median(a, valid, params, per_px, tan)
-        want = _median_of_temporary(ratios[:m])
         assert got[0] == m and _bits(got[1]) == _bits(want), (t, got, m, want)
         lo, hi, at = np.empty(H * W), np.empty(H * W), np.empty(H * W, np.int64)
         k, solved, _ = _ratio_brackets(a, valid, 1, params.min_patch_px, per_px, tan, params.side_step_mm, lo, hi, at)

@@ -12,11 +12,11 @@ import math
 import threading
 
 import numpy as np
-from suspects_helpers import patch_covariances
+from suspects_helpers import patch_covariances, whole_frame_gate
 from test_suspects_fast import assert_same
 from test_suspects_ninth import _quantized_frame
 
-from zcut.edge_surface import EdgeSurfaceParams, _median_of_temporary, _patch_gate_kernel, _reach_samples
+from zcut.edge_surface import EdgeSurfaceParams
 from zcut.params import SuspectParams
 from zcut.suspects import suspects, suspects_reference
 from zcut.suspects.surfaces import _MEMO_BITS, _bracket_or_solve, _gate_median, _row_settle, gate_workspace
@@ -43,17 +43,7 @@ def _frames() -> list[np.ndarray]:
     return [np.ascontiguousarray(a) for a in out]
 
 
-def _want(a: np.ndarray, params: EdgeSurfaceParams) -> tuple[int, float, float, float]:
-    """(count, median, per_px, tan) of the whole-frame pass (``_patch_gate_kernel``, ``_median_of_temporary``)."""
-    H, W = a.shape[:2]
-    valid = np.ascontiguousarray(np.isfinite(a).all(axis=2))
-    samples = _reach_samples(a, valid)
-    per_px = _median_of_temporary(samples) if samples.size else 0.0
-    tan = min(math.tan(math.radians(params.max_incidence_deg)), 1e6)
-    rms, z2, steep, ratios = np.empty((H, W)), np.empty((H, W)), np.empty((H, W), bool), np.empty(H * W)
-    m = _patch_gate_kernel(a, valid, params.patch_radius_px, params.min_patch_px, per_px, tan, params.side_step_mm,
-                           math.cos(math.radians(params.max_incidence_deg)), rms, z2, steep, ratios)
-    return m, (_median_of_temporary(ratios[:m]) if m else float("nan")), per_px, tan
+_want = whole_frame_gate
 
 
 def _check(a: np.ndarray, params: EdgeSurfaceParams, want: tuple[int, float, float, float]) -> None:
