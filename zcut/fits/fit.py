@@ -341,7 +341,7 @@ def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
 
 
 def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
-                 shifts: int = 0, claims: _Claims | None = None) -> tuple[np.ndarray, float]:
+                 shifts: int = 0) -> tuple[np.ndarray, float]:
     """(pose, err) of one instance of a general model in the region's points.
 
     Every initial guess takes ``coarse_iterations`` ICP steps on an even subsample of
@@ -421,9 +421,6 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     better = search(turned, stop=False)
     if better is not None and better[0] > best[0]:
         best = better
-    if claims is not None and params.early_share > 0 and _loses_early(frame, flat, model, params, best[1], claims,
-                                                                       score_tol):
-        return best[1], np.inf  # refused before its fine ICP: it loses to a fit it overlaps
     T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,
                     **opts)
     gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
@@ -433,24 +430,6 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     if params.fine_points > 0 and np.isfinite(err):
         T, err = _fine(frame, flat, pts, epts, model, params, opts, T, err)
     return T, err
-
-
-def _loses_early(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams, T: np.ndarray,
-                 claims: _Claims, score_tol: float) -> bool:
-    """Whether a candidate's coarse pose ``T`` already loses to a live fit it overlaps
-    (``FitParams.early_share``): the region's points within the coarse score's tolerance of it (or the fit's own
-    band, the wider) are fewer than ``early_share`` × the pixels that fit claims. A clear loss only: the coarse
-    pose is a few steps of ICP on 150 points, the fine one explains more."""
-    rivals = claims.overlapping(T)
-    if not rivals:
-        return False
-    pts = frame.xyz.reshape(-1, 3)[flat]
-    d = _surface_distances(model, pts, T)
-    for j in rivals:
-        tol = max(score_tol, claims._tol(claims.errs[j]))
-        if int((d <= tol).sum()) < params.early_share * len(claims.pixels[j]):
-            return True
-    return False
 
 
 def _fine(frame: _Frame, flat: np.ndarray, pts: np.ndarray, epts: np.ndarray, model: PartModel, params: FitParams,
@@ -728,10 +707,10 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
             patch = _patch(frame, left, model, tried)
             if patch is None:
                 break
-            cands = ([_fit_general(frame, patch, model, params, shifts=shifts, claims=claims)]
+            cands = ([_fit_general(frame, patch, model, params, shifts=shifts)]
                      if len(patch) >= min_px else [])
         else:
-            cands = _candidates(frame, left, model, params, shifts=shifts, claims=claims)
+            cands = _candidates(frame, left, model, params, shifts=shifts)
             if claims is not None and len(cands) > 1:
                 cands = _ranked(frame, left, model, params, cands)
         for T, err in cands:
@@ -819,10 +798,10 @@ def _patch(frame: _Frame, flat: np.ndarray, model: PartModel, tried: np.ndarray)
 
 
 def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
-                shifts: int = 0, claims: _Claims | None = None) -> list[tuple[np.ndarray, float]]:
+                shifts: int = 0) -> list[tuple[np.ndarray, float]]:
     """The fits to try in a region: one per vote cluster for a sphere, the best one otherwise."""
     if model.sphere_radius is None:
-        return [_fit_general(frame, flat, model, params, shifts=shifts, claims=claims)]
+        return [_fit_general(frame, flat, model, params, shifts=shifts)]
     pts = frame.xyz.reshape(-1, 3)[flat]
     nrm = _normals_at(frame.xyz, flat)
     centres = vote_centres(pts, nrm, model.sphere_radius, min_votes=max(3, params.min_region_px // 4))
