@@ -45,7 +45,16 @@ from zcut.errors import InputShapeError, describe_array
 from zcut.fit_vetting import pose_overlaps
 
 from .icp import EDGE_WEAK, icp, initial_poses, initial_rotations, pose_matrix, shifted_poses
-from .kernels import coarse_search, edge_distances, lower_bounds, surface_distances, window_band, window_rays
+from .kernels import (
+    coarse_search,
+    edge_distances,
+    lower_bounds,
+    occluding_boundary,
+    surface_distances,
+    window_band,
+    window_pixels,
+    window_rays,
+)
 from .model import PartModel, prepare_model
 from .params import FitParams
 from .segment import segment
@@ -276,7 +285,16 @@ def _subsample(flat: np.ndarray, n: int) -> np.ndarray:
 
 def _occluding_boundary(frame: _Frame, flat: np.ndarray, jump_mm: float) -> np.ndarray:
     """The pixels of the region whose 4-neighbour outside it is missing or lies farther than
-    ``jump_mm`` behind: where the region's own silhouette is seen (not where something occludes it)."""
+    ``jump_mm`` behind: where the region's own silhouette is seen (not where something occludes it). One kernel
+    walk (:func:`zcut.fits.kernels.occluding_boundary`), the pixels of :func:`_occluding_boundary_reference`."""
+    H, W = frame.valid.shape
+    out: np.ndarray = occluding_boundary(frame.xyz.reshape(-1, 3), frame.valid.reshape(-1),
+                                         np.ascontiguousarray(flat, np.int64), H, W, float(jump_mm))
+    return out
+
+
+def _occluding_boundary_reference(frame: _Frame, flat: np.ndarray, jump_mm: float) -> np.ndarray:
+    """:func:`_occluding_boundary` in NumPy (the rounds before 2026-12-06c)."""
     H, W = frame.valid.shape
     z = frame.xyz[..., 2].reshape(-1)
     valid = frame.valid.reshape(-1)
@@ -826,8 +844,22 @@ def _ranked(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams
     return [cands[i] for i in np.argsort(-np.asarray(counts), kind="stable")]
 
 
-def _window_flat(frame: _Frame, T: np.ndarray, model: PartModel) -> np.ndarray:
-    """The zone pixels (flat, ascending) of the posed model's window (:func:`_window`)."""
+def _window_flat(frame: _Frame, T: np.ndarray, model: PartModel, outside: np.ndarray | None = None) -> np.ndarray:
+    """The zone pixels (flat, ascending) of the posed model's window (:func:`_window`), those of ``outside`` (flat,
+    ascending) left out: one kernel walk (:func:`zcut.fits.kernels.window_pixels`)."""
+    win = _window(frame, T, model)
+    if win is None:
+        return np.zeros(0, np.int64)
+    region = np.zeros(0, np.int64) if outside is None else np.ascontiguousarray(outside, np.int64)
+    if len(region) > 1 and not bool(np.all(region[1:] > region[:-1])):  # the walk needs it ascending
+        region = np.unique(region)
+    out: np.ndarray = window_pixels(frame.zone.reshape(-1), region, win[0].start, win[0].stop, win[1].start,
+                                    win[1].stop, frame.valid.shape[1])
+    return out
+
+
+def _window_flat_reference(frame: _Frame, T: np.ndarray, model: PartModel) -> np.ndarray:
+    """:func:`_window_flat` in NumPy (the rounds before 2026-12-06c)."""
     win = _window(frame, T, model)
     if win is None:
         return np.zeros(0, np.int64)
@@ -859,8 +891,7 @@ def _accept(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams
     finite = np.isfinite(d)
     known = (flat[finite], d[finite])
     if claims is not None:  # the window's other zone pixels: the claim, the support and the assignment
-        wf = _window_flat(frame, T, model)
-        wf = wf[~np.isin(wf, flat, assume_unique=True)]
+        wf = _window_flat(frame, T, model, outside=flat)  # the window's other zone pixels
         wd = _model_distance(frame, T, model, wf, tol)
         kf = np.concatenate([flat, wf])  # inf kept: the assignment asks for every window pixel again
         kd = np.concatenate([d, wd])
