@@ -44,7 +44,7 @@ import numpy as np
 from zcut.errors import InputShapeError, describe_array
 from zcut.fit_vetting import pose_overlaps
 
-from .icp import EDGE_WEAK, icp, initial_poses, initial_rotations, pose_matrix, shifted_poses
+from .icp import EDGE_WEAK, guess_translations, icp, initial_rotations, pose_matrix, shifted_guesses
 from .kernels import (
     coarse_search,
     edge_distances,
@@ -392,24 +392,22 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
         score = inl - 0.01 * near + (0.5 * e_inl if len(coarse_e) else 0.0)
         return score, inl, e_inl, T
 
-    def search(poses: list[np.ndarray], stop: bool) -> tuple[float, np.ndarray] | None:
-        """The best (score, pose) of the coarse ICP from each of ``poses`` (the first of equal scores),
-        stopping at a guess whose points nearly all fit when ``stop``."""
-        if not poses:
+    def search(Rs: np.ndarray, ts: np.ndarray, stop: bool) -> tuple[float, np.ndarray] | None:
+        """The best (score, pose) of the coarse ICP from each of the poses (``Rs`` (k, 3, 3), ``ts`` (k, 3),
+        C-contiguous; the first of equal scores), stopping at a guess whose points nearly all fit when ``stop``."""
+        if not len(Rs):
             return None
         ix = model.index
         if ix is not None:  # every guess in one kernel call (:func:`zcut.fits.kernels.coarse_search`)
-            Ts = np.stack(poses)
-            i, R, t, score = coarse_search(coarse, coarse_e, np.ascontiguousarray(Ts[:, :3, :3]),
-                                           np.ascontiguousarray(Ts[:, :3, 3]), int(params.coarse_iterations),
+            i, R, t, score = coarse_search(coarse, coarse_e, Rs, ts, int(params.coarse_iterations),
                                            float(params.gate_mm), float(params.k), float(params.err_floor_mm),
                                            float(edge_gate), float(model.extent_mm), float(score_tol), 1.5 * px_mm,
                                            ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid, ix.p0,
                                            ix.p1, EDGE_WEAK, STOP_INL if stop else 2.0, STOP_EDGE)
             return (float(score), pose_matrix(R, t)) if i >= 0 else None
         found: tuple[float, np.ndarray] | None = None
-        for T0 in poses:
-            score, inl, e_inl, T = coarse_fit(T0)
+        for R0, t0 in zip(Rs, ts):
+            score, inl, e_inl, T = coarse_fit(pose_matrix(R0, t0))
             if found is None or score > found[0]:
                 found = (score, T)
             if stop and inl >= STOP_INL and e_inl >= STOP_EDGE:
@@ -420,23 +418,26 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     # initial_rotations' own, so the same bits)
     c = pts.mean(axis=0)
     _, ax = np.linalg.eigh(np.cov((pts - c).T))
-    rotations = initial_rotations(pts, model, axes=ax)
-    guesses = initial_poses(pts, rotations, model)
+    # the guesses as (rotations, translations) arrays, not a 4 × 4 matrix each (initial_poses' and shifted_poses'
+    # arithmetic: the same bits)
+    Rs = np.stack(initial_rotations(pts, model, axes=ax))
+    ts = guess_translations(pts, Rs, model)
     if shifts:
-        guesses += shifted_poses(pts, rotations, model, shifts)
-    best = search(guesses, stop=True)
+        Rsh, tsh = shifted_guesses(pts, Rs, model, shifts)
+        Rs, ts = np.concatenate([Rs, Rsh]), np.concatenate([ts, tsh])
+    best = search(Rs, ts, stop=True)
     assert best is not None
     # the guesses turn 45° apart about the region's normal, the turn its surface leaves nearly free:
     # the best one's turns in between, about its own centroid, each refined the same way
     T_best = best[1]
-    turned = []
-    for deg in () if shifts else TURNS_DEG:
+    turns = () if shifts else TURNS_DEG
+    Rt_all = np.empty((len(turns), 3, 3))
+    tt_all = np.empty((len(turns), 3))
+    for m, deg in enumerate(turns):
         Rt = _turn(ax[:, 0], np.radians(deg))
-        T0 = T_best.copy()
-        T0[:3, :3] = Rt @ T_best[:3, :3]
-        T0[:3, 3] = Rt @ (T_best[:3, 3] - c) + c
-        turned.append(T0)
-    better = search(turned, stop=False)
+        Rt_all[m] = Rt @ T_best[:3, :3]
+        tt_all[m] = Rt @ (T_best[:3, 3] - c) + c
+    better = search(Rt_all, tt_all, stop=False)
     if better is not None and better[0] > best[0]:
         best = better
     T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,

@@ -88,3 +88,34 @@ class _Model:
     def __init__(self, extent_mm: float) -> None:
         self.extent_mm = extent_mm
         self.centroid = np.zeros(3)
+
+
+def test_the_guesses_as_arrays_are_the_poses_of_initial_poses_and_shifted_poses():
+    """``guess_translations`` and ``shifted_guesses`` (the search's guesses without a 4 × 4 matrix each) give the
+    rotations and translations of ``initial_poses`` and ``shifted_poses`` to the bit, on regions of a nut's and
+    a rod-like box's points seen from many poses."""
+    from fit_scenes import hex_nut_mesh
+
+    from zcut.fits import prepare_model
+    from zcut.fits.icp import guess_translations, initial_poses, initial_rotations, shifted_guesses, shifted_poses
+
+    rng = np.random.default_rng(29)
+    v, t = hex_nut_mesh()
+    box_v = np.array([[x, y, z] for x in (0, 40) for y in (0, 6) for z in (0, 6)], float)
+    box_t = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],
+                      [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    for model in (prepare_model(v, t), prepare_model(box_v, box_t)):
+        for _ in range(40):
+            pts = rng.normal(0, 1, (int(rng.integers(5, 400)), 3)) * rng.uniform(0.5, 12, 3) + (
+                rng.normal(0, 40), rng.normal(0, 40), rng.uniform(200, 600))
+            rotations = initial_rotations(pts, model)
+            Rs = np.stack(rotations)
+            ref = np.stack(initial_poses(pts, rotations, model))
+            assert np.array_equal(guess_translations(pts, Rs, model), ref[:, :3, 3])
+            for n in (0, 1, 4):
+                Rsh, tsh = shifted_guesses(pts, Rs, model, n)
+                poses = shifted_poses(pts, rotations, model, n)
+                assert len(Rsh) == len(tsh) == len(poses)
+                if poses:
+                    ref = np.stack(poses)
+                    assert np.array_equal(Rsh, ref[:, :3, :3]) and np.array_equal(tsh, ref[:, :3, 3])
