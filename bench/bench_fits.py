@@ -334,7 +334,8 @@ def proposals(truth: Truth, fits: list, model, zone: np.ndarray, ids: np.ndarray
 #: (label, attribute of zcut.fits.fit) of the steps --phases times; a step the tree lacks is left out
 PHASES = (("segmentation", "segment"), ("python per region", "_holds_many"), ("python per region", "_patch"),
           ("python per region", "_occluding_boundary"), ("global guess", "initial_rotations"),
-          ("global guess", "initial_poses"), ("global guess", "shifted_poses"), ("coarse ICP", "coarse_search"),
+          ("global guess", "initial_poses"), ("global guess", "shifted_poses"), ("global guess", "guess_translations"),
+          ("global guess", "shifted_guesses"), ("coarse ICP", "coarse_search"),
           ("fine ICP", "icp"), ("acceptance", "_accept"),
           ("  of it: support", "_support"), ("sphere fits", "_fit_sphere"), ("sphere votes", "vote_centres"),
           ("assignment", "_assign"), ("candidates (whole)", "_fit_general"))

@@ -44,8 +44,17 @@ import numpy as np
 from zcut.errors import InputShapeError, describe_array
 from zcut.fit_vetting import pose_overlaps
 
-from .icp import EDGE_WEAK, icp, initial_poses, initial_rotations, pose_matrix, shifted_poses
-from .kernels import coarse_search, edge_distances, lower_bounds, surface_distances, window_band, window_rays
+from .icp import EDGE_WEAK, guess_translations, icp, initial_rotations, pose_matrix, shifted_guesses
+from .kernels import (
+    coarse_search,
+    edge_distances,
+    lower_bounds,
+    occluding_boundary,
+    surface_distances,
+    window_band,
+    window_pixels,
+    window_rays,
+)
 from .model import PartModel, prepare_model
 from .params import FitParams
 from .segment import segment
@@ -276,7 +285,16 @@ def _subsample(flat: np.ndarray, n: int) -> np.ndarray:
 
 def _occluding_boundary(frame: _Frame, flat: np.ndarray, jump_mm: float) -> np.ndarray:
     """The pixels of the region whose 4-neighbour outside it is missing or lies farther than
-    ``jump_mm`` behind: where the region's own silhouette is seen (not where something occludes it)."""
+    ``jump_mm`` behind: where the region's own silhouette is seen (not where something occludes it). One kernel
+    walk (:func:`zcut.fits.kernels.occluding_boundary`), the pixels of :func:`_occluding_boundary_reference`."""
+    H, W = frame.valid.shape
+    out: np.ndarray = occluding_boundary(frame.xyz.reshape(-1, 3), frame.valid.reshape(-1),
+                                         np.ascontiguousarray(flat, np.int64), H, W, float(jump_mm))
+    return out
+
+
+def _occluding_boundary_reference(frame: _Frame, flat: np.ndarray, jump_mm: float) -> np.ndarray:
+    """:func:`_occluding_boundary` in NumPy (the rounds before 2026-12-06c)."""
     H, W = frame.valid.shape
     z = frame.xyz[..., 2].reshape(-1)
     valid = frame.valid.reshape(-1)
@@ -341,7 +359,7 @@ def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
 
 
 def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
-                 shifts: int = 0, claims: _Claims | None = None) -> tuple[np.ndarray, float]:
+                 shifts: int = 0) -> tuple[np.ndarray, float]:
     """(pose, err) of one instance of a general model in the region's points.
 
     Every initial guess takes ``coarse_iterations`` ICP steps on an even subsample of
@@ -374,24 +392,22 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
         score = inl - 0.01 * near + (0.5 * e_inl if len(coarse_e) else 0.0)
         return score, inl, e_inl, T
 
-    def search(poses: list[np.ndarray], stop: bool) -> tuple[float, np.ndarray] | None:
-        """The best (score, pose) of the coarse ICP from each of ``poses`` (the first of equal scores),
-        stopping at a guess whose points nearly all fit when ``stop``."""
-        if not poses:
+    def search(Rs: np.ndarray, ts: np.ndarray, stop: bool) -> tuple[float, np.ndarray] | None:
+        """The best (score, pose) of the coarse ICP from each of the poses (``Rs`` (k, 3, 3), ``ts`` (k, 3),
+        C-contiguous; the first of equal scores), stopping at a guess whose points nearly all fit when ``stop``."""
+        if not len(Rs):
             return None
         ix = model.index
         if ix is not None:  # every guess in one kernel call (:func:`zcut.fits.kernels.coarse_search`)
-            Ts = np.stack(poses)
-            i, R, t, score = coarse_search(coarse, coarse_e, np.ascontiguousarray(Ts[:, :3, :3]),
-                                           np.ascontiguousarray(Ts[:, :3, 3]), int(params.coarse_iterations),
+            i, R, t, score = coarse_search(coarse, coarse_e, Rs, ts, int(params.coarse_iterations),
                                            float(params.gate_mm), float(params.k), float(params.err_floor_mm),
                                            float(edge_gate), float(model.extent_mm), float(score_tol), 1.5 * px_mm,
                                            ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid, ix.p0,
                                            ix.p1, EDGE_WEAK, STOP_INL if stop else 2.0, STOP_EDGE)
             return (float(score), pose_matrix(R, t)) if i >= 0 else None
         found: tuple[float, np.ndarray] | None = None
-        for T0 in poses:
-            score, inl, e_inl, T = coarse_fit(T0)
+        for R0, t0 in zip(Rs, ts):
+            score, inl, e_inl, T = coarse_fit(pose_matrix(R0, t0))
             if found is None or score > found[0]:
                 found = (score, T)
             if stop and inl >= STOP_INL and e_inl >= STOP_EDGE:
@@ -402,28 +418,28 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     # initial_rotations' own, so the same bits)
     c = pts.mean(axis=0)
     _, ax = np.linalg.eigh(np.cov((pts - c).T))
-    rotations = initial_rotations(pts, model, axes=ax)
-    guesses = initial_poses(pts, rotations, model)
+    # the guesses as (rotations, translations) arrays, not a 4 × 4 matrix each (initial_poses' and shifted_poses'
+    # arithmetic: the same bits)
+    Rs = np.stack(initial_rotations(pts, model, axes=ax))
+    ts = guess_translations(pts, Rs, model)
     if shifts:
-        guesses += shifted_poses(pts, rotations, model, shifts)
-    best = search(guesses, stop=True)
+        Rsh, tsh = shifted_guesses(pts, Rs, model, shifts)
+        Rs, ts = np.concatenate([Rs, Rsh]), np.concatenate([ts, tsh])
+    best = search(Rs, ts, stop=True)
     assert best is not None
     # the guesses turn 45° apart about the region's normal, the turn its surface leaves nearly free:
     # the best one's turns in between, about its own centroid, each refined the same way
     T_best = best[1]
-    turned = []
-    for deg in () if shifts else TURNS_DEG:
+    turns = () if shifts else TURNS_DEG
+    Rt_all = np.empty((len(turns), 3, 3))
+    tt_all = np.empty((len(turns), 3))
+    for m, deg in enumerate(turns):
         Rt = _turn(ax[:, 0], np.radians(deg))
-        T0 = T_best.copy()
-        T0[:3, :3] = Rt @ T_best[:3, :3]
-        T0[:3, 3] = Rt @ (T_best[:3, 3] - c) + c
-        turned.append(T0)
-    better = search(turned, stop=False)
+        Rt_all[m] = Rt @ T_best[:3, :3]
+        tt_all[m] = Rt @ (T_best[:3, 3] - c) + c
+    better = search(Rt_all, tt_all, stop=False)
     if better is not None and better[0] > best[0]:
         best = better
-    if claims is not None and params.early_share > 0 and _loses_early(frame, flat, model, params, best[1], claims,
-                                                                       score_tol):
-        return best[1], np.inf  # refused before its fine ICP: it loses to a fit it overlaps
     T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,
                     **opts)
     gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
@@ -433,24 +449,6 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     if params.fine_points > 0 and np.isfinite(err):
         T, err = _fine(frame, flat, pts, epts, model, params, opts, T, err)
     return T, err
-
-
-def _loses_early(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams, T: np.ndarray,
-                 claims: _Claims, score_tol: float) -> bool:
-    """Whether a candidate's coarse pose ``T`` already loses to a live fit it overlaps
-    (``FitParams.early_share``): the region's points within the coarse score's tolerance of it (or the fit's own
-    band, the wider) are fewer than ``early_share`` × the pixels that fit claims. A clear loss only: the coarse
-    pose is a few steps of ICP on 150 points, the fine one explains more."""
-    rivals = claims.overlapping(T)
-    if not rivals:
-        return False
-    pts = frame.xyz.reshape(-1, 3)[flat]
-    d = _surface_distances(model, pts, T)
-    for j in rivals:
-        tol = max(score_tol, claims._tol(claims.errs[j]))
-        if int((d <= tol).sum()) < params.early_share * len(claims.pixels[j]):
-            return True
-    return False
 
 
 def _fine(frame: _Frame, flat: np.ndarray, pts: np.ndarray, epts: np.ndarray, model: PartModel, params: FitParams,
@@ -728,10 +726,10 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
             patch = _patch(frame, left, model, tried)
             if patch is None:
                 break
-            cands = ([_fit_general(frame, patch, model, params, shifts=shifts, claims=claims)]
+            cands = ([_fit_general(frame, patch, model, params, shifts=shifts)]
                      if len(patch) >= min_px else [])
         else:
-            cands = _candidates(frame, left, model, params, shifts=shifts, claims=claims)
+            cands = _candidates(frame, left, model, params, shifts=shifts)
             if claims is not None and len(cands) > 1:
                 cands = _ranked(frame, left, model, params, cands)
         for T, err in cands:
@@ -819,10 +817,10 @@ def _patch(frame: _Frame, flat: np.ndarray, model: PartModel, tried: np.ndarray)
 
 
 def _candidates(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
-                shifts: int = 0, claims: _Claims | None = None) -> list[tuple[np.ndarray, float]]:
+                shifts: int = 0) -> list[tuple[np.ndarray, float]]:
     """The fits to try in a region: one per vote cluster for a sphere, the best one otherwise."""
     if model.sphere_radius is None:
-        return [_fit_general(frame, flat, model, params, shifts=shifts, claims=claims)]
+        return [_fit_general(frame, flat, model, params, shifts=shifts)]
     pts = frame.xyz.reshape(-1, 3)[flat]
     nrm = _normals_at(frame.xyz, flat)
     centres = vote_centres(pts, nrm, model.sphere_radius, min_votes=max(3, params.min_region_px // 4))
@@ -847,8 +845,22 @@ def _ranked(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams
     return [cands[i] for i in np.argsort(-np.asarray(counts), kind="stable")]
 
 
-def _window_flat(frame: _Frame, T: np.ndarray, model: PartModel) -> np.ndarray:
-    """The zone pixels (flat, ascending) of the posed model's window (:func:`_window`)."""
+def _window_flat(frame: _Frame, T: np.ndarray, model: PartModel, outside: np.ndarray | None = None) -> np.ndarray:
+    """The zone pixels (flat, ascending) of the posed model's window (:func:`_window`), those of ``outside`` (flat,
+    ascending) left out: one kernel walk (:func:`zcut.fits.kernels.window_pixels`)."""
+    win = _window(frame, T, model)
+    if win is None:
+        return np.zeros(0, np.int64)
+    region = np.zeros(0, np.int64) if outside is None else np.ascontiguousarray(outside, np.int64)
+    if len(region) > 1 and not bool(np.all(region[1:] > region[:-1])):  # the walk needs it ascending
+        region = np.unique(region)
+    out: np.ndarray = window_pixels(frame.zone.reshape(-1), region, win[0].start, win[0].stop, win[1].start,
+                                    win[1].stop, frame.valid.shape[1])
+    return out
+
+
+def _window_flat_reference(frame: _Frame, T: np.ndarray, model: PartModel) -> np.ndarray:
+    """:func:`_window_flat` in NumPy (the rounds before 2026-12-06c)."""
     win = _window(frame, T, model)
     if win is None:
         return np.zeros(0, np.int64)
@@ -880,8 +892,7 @@ def _accept(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams
     finite = np.isfinite(d)
     known = (flat[finite], d[finite])
     if claims is not None:  # the window's other zone pixels: the claim, the support and the assignment
-        wf = _window_flat(frame, T, model)
-        wf = wf[~np.isin(wf, flat, assume_unique=True)]
+        wf = _window_flat(frame, T, model, outside=flat)  # the window's other zone pixels
         wd = _model_distance(frame, T, model, wf, tol)
         kf = np.concatenate([flat, wf])  # inf kept: the assignment asks for every window pixel again
         kd = np.concatenate([d, wd])

@@ -19,7 +19,8 @@ import numpy as np
 from .kernels import farthest_points, icp_kernel
 from .model import PartModel
 
-__all__ = ["icp", "icp_reference", "initial_pose", "initial_poses", "initial_rotations", "pose_matrix", "shifted_poses"]
+__all__ = ["guess_translations", "icp", "icp_reference", "initial_pose", "initial_poses", "initial_rotations", "pose_matrix",
+           "shifted_guesses", "shifted_poses"]
 
 
 #: The silhouette's edges act in the directions whose eigenvalue of the surface's (normalised)
@@ -109,6 +110,47 @@ def shifted_poses(points: np.ndarray, rotations: list[np.ndarray], model: PartMo
         sel = farthest_points(np.ascontiguousarray(fs), min(n, len(fs)))  # the NumPy loop's indices, one call
         out.extend(pose_matrix(R, c - R @ fs[j]) for j in sel)
     return out
+
+
+def guess_translations(points: np.ndarray, Rs: np.ndarray, model: PartModel) -> np.ndarray:
+    """(k, 3) the translations of :func:`initial_poses` for the rotations ``Rs`` (k, 3, 3), C-contiguous, without
+    a 4 × 4 matrix per guess: the same arithmetic (NumPy's stacked matmul gives each R @ f as the product of one
+    pair does), so the same bits."""
+    c = points.mean(axis=0)
+    view = c / max(float(np.linalg.norm(c)), 1e-9)
+    facing = model.probe_normals @ (Rs.transpose(0, 2, 1) @ view).T < 0
+    facing = facing.T
+    counts = facing.sum(axis=1)
+    sums = facing.astype(np.float64) @ model.probe_samples
+    allm = model.probe_samples.mean(axis=0)
+    front = np.where(counts[:, None] > 0, sums / np.maximum(counts, 1)[:, None], allm)
+    out: np.ndarray = c - (Rs @ front[:, :, None])[:, :, 0]
+    return out
+
+
+def shifted_guesses(points: np.ndarray, Rs: np.ndarray, model: PartModel, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(rotations (m, 3, 3), translations (m, 3)) of :func:`shifted_poses` for the rotations ``Rs`` (k, 3, 3),
+    C-contiguous, in its order, without a 4 × 4 matrix per guess (the same bits, as
+    :func:`guess_translations`)."""
+    if n < 1 or not len(Rs):
+        return np.zeros((0, 3, 3)), np.zeros((0, 3))
+    c = points.mean(axis=0)
+    view = c / max(float(np.linalg.norm(c)), 1e-9)
+    rs: list[np.ndarray] = []
+    fronts: list[np.ndarray] = []
+    for R in Rs:
+        facing = (model.probe_normals @ R.T) @ view < 0
+        fs = model.probe_samples[facing]
+        if not len(fs):
+            continue
+        sel = farthest_points(np.ascontiguousarray(fs), min(n, len(fs)))
+        rs.append(np.repeat(R[None], len(sel), axis=0))
+        fronts.append(fs[sel])
+    if not rs:
+        return np.zeros((0, 3, 3)), np.zeros((0, 3))
+    R_all = np.concatenate(rs)
+    out: np.ndarray = c - (R_all @ np.concatenate(fronts)[:, :, None])[:, :, 0]
+    return R_all, out
 
 
 def _skew_rows(q: np.ndarray) -> np.ndarray:

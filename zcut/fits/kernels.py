@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["ModelIndex", "build_index", "coarse_search", "edge_distances", "farthest_points", "guess_score", "icp_kernel", "lower_bounds", "surface_distances", "window_rays"]
+__all__ = ["ModelIndex", "build_index", "coarse_search", "edge_distances", "farthest_points", "guess_score", "icp_kernel", "lower_bounds", "occluding_boundary",
+           "surface_distances", "window_band", "window_pixels", "window_rays"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -685,3 +686,72 @@ def window_rays(r0: int, r1: int, c0: int, c1: int, fx: float, fy: float, cx: fl
                 cols[m] = col
                 m += 1
     return rows[:m], cols[:m]
+
+
+@numba.njit(cache=True, nogil=True)
+def occluding_boundary(xyz: np.ndarray, valid: np.ndarray, flat: np.ndarray, H: int, W: int,
+                       jump_mm: float) -> np.ndarray:
+    """The pixels of the region ``flat`` (ascending) whose 4-neighbour outside it (on the H × W grid) is invalid or
+    lies farther than ``jump_mm`` behind (z[nb] > z[f] + ``jump_mm``), ascending: the NumPy test of
+    :func:`zcut.fits.fit._occluding_boundary` pixel by pixel (the same comparisons, so the same pixels).
+    ``xyz`` (H·W, 3), ``valid`` (H·W,) bool."""
+    n = len(flat)
+    if n == 0:
+        return flat[:0].copy()
+    r0, r1, c0, c1 = H, -1, W, -1
+    for i in range(n):
+        r, c = flat[i] // W, flat[i] % W
+        r0, r1, c0, c1 = min(r0, r), max(r1, r), min(c0, c), max(c1, c)
+    r0, c0 = max(r0 - 1, 0), max(c0 - 1, 0)
+    bw = min(c1 + 2, W) - c0
+    inside = np.zeros((min(r1 + 2, H) - r0) * bw, np.bool_)
+    for i in range(n):
+        r, c = flat[i] // W, flat[i] % W
+        inside[(r - r0) * bw + (c - c0)] = True
+    out = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        f = flat[i]
+        r, c = f // W, f % W
+        zf = xyz[f, 2] + jump_mm
+        for s in range(4):
+            rr, cc = r, c
+            if s == 0:
+                cc = c + 1
+            elif s == 1:
+                cc = c - 1
+            elif s == 2:
+                rr = r + 1
+            else:
+                rr = r - 1
+            if rr < 0 or rr >= H or cc < 0 or cc >= W or inside[(rr - r0) * bw + (cc - c0)]:
+                continue
+            nb = rr * W + cc
+            if not valid[nb] or xyz[nb, 2] > zf:
+                out[m] = f
+                m += 1
+                break
+    return out[:m]
+
+
+@numba.njit(cache=True, nogil=True)
+def window_pixels(zone: np.ndarray, region: np.ndarray, r0: int, r1: int, c0: int, c1: int, W: int) -> np.ndarray:
+    """The zone's pixels (flat, ascending) in the window (rows ``r0:r1``, columns ``c0:c1`` of an image ``W``
+    wide) that are not in ``region`` (flat, ascending): the window's zone pixels less a region's, without the
+    window's index arrays and ``np.isin``. ``zone`` (H·W,) bool."""
+    out = np.empty(max(r1 - r0, 0) * max(c1 - c0, 0), np.int64)
+    m = 0
+    k = 0
+    nreg = len(region)
+    for r in range(r0, r1):
+        for cc in range(c0, c1):
+            f = r * W + cc
+            if not zone[f]:
+                continue
+            while k < nreg and region[k] < f:
+                k += 1
+            if k < nreg and region[k] == f:
+                continue
+            out[m] = f
+            m += 1
+    return out[:m]

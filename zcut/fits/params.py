@@ -84,11 +84,6 @@ class FitParams:
         A general part's pose is refined last on up to this many of its region's points within k × Err of
         it (trimmed; all of them, not the ``max_points`` of the search) and kept when its Err does not grow
         (docs/fits.md, "Eighth round"). 0: off.
-    early_share : float
-        With ``claim``: a general part's candidate whose coarse pose overlaps a live fit and explains fewer of its
-        region's points than this share of the pixels that fit claims is refused before its fine ICP and last
-        refinement (docs/fits.md, "Tenth round"). 0 (the default): off; 0.1 saves 0–13 % of a frame's CPU and
-        lost 3 of 215 instances on a held-out ray-traced zinc-nut frame.
     fine_window : bool
         True (the default): the last refinement (``fine_points``) takes the zone's points in the posed model's
         window within k × Err of it, not only its region's (docs/fits.md, "Eleventh round"). False, with
@@ -119,7 +114,6 @@ class FitParams:
     max_overlap: float = 0.05
     first_err_ratio: float = 3.0
     fine_points: int = 3000
-    early_share: float = 0.0
     fine_window: bool = True
     fine_robust: float = 3.0
 
@@ -145,6 +139,5 @@ class FitParams:
         _number(self, "max_overlap", ge=0, le=1)
         _number(self, "first_err_ratio", ge=0)
         _number(self, "fine_points", ge=0, integer=True)
-        _number(self, "early_share", ge=0)
         _boolean(self, "fine_window")
         _number(self, "fine_robust", ge=0)

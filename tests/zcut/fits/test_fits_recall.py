@@ -14,7 +14,7 @@ from zcut.errors import ParameterError
 from zcut.fits import FitParams, PartFit, fit_prepared, pose_error, prepare_model
 
 #: the seventh round's fits: neither step (nor the tenth round's early refusal)
-SEVENTH = FitParams(first_err_ratio=0.0, fine_points=0, early_share=0.0)
+SEVENTH = FitParams(first_err_ratio=0.0, fine_points=0)
 
 
 def _plate(w: float, h: float) -> tuple[np.ndarray, np.ndarray]:
