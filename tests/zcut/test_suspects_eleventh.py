@@ -121,3 +121,50 @@ def test_suspects_with_bounded_workspaces_equals_the_reference() -> None:
             assert gate_workspace().nbytes == 0
     finally:
         ws.max_bytes = SCRATCH_KEPT_BYTES
+
+
+def _kept_ring_scan(lab: np.ndarray, keep: np.ndarray, zone: np.ndarray, valid: np.ndarray, h: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The oracle of ``_kept_ring``: every pixel in raster order (the previous kernel's scan, as a loop)."""
+    H, W = lab.shape
+    mask = keep[lab] & zone
+    idx = np.flatnonzero(mask)
+    rl, rh = [], []
+    for i in range(H):
+        for j in range(W):
+            if mask[i, j] or not valid[i, j] or not np.isfinite(h[i, j]):
+                continue
+            win = (slice(max(i - 1, 0), i + 2), slice(max(j - 1, 0), j + 2))
+            best = int(np.where(mask[win], lab[win], 0).max())
+            if best > 0:
+                rl.append(best)
+                rh.append(h[i, j])
+    return mask, idx, np.array(rl, np.int64), np.array(rh, np.float64)
+
+
+def test_kept_ring_equals_the_scan_of_every_pixel() -> None:
+    """``_kept_ring`` (the ring's candidates from the kept pixels of the rows around each row) against the scan
+    of every pixel: random labels, kept or not, zone and valid holes, NaN and inf heights, kept pixels on
+    every border and corner, one row, one column, one pixel, an empty frame, nothing kept, everything kept."""
+    from zcut.suspects.floating import _kept_ring
+
+    rng = np.random.default_rng(1104)
+    shapes = [(1, 1), (1, 7), (9, 1), (2, 2), (0, 0), (0, 5), (30, 40), (17, 23), (64, 3)]
+    for t in range(300):
+        H, W = shapes[t % len(shapes)]
+        n = int(rng.integers(1, 12))
+        lab = rng.integers(0, n + 1, (H, W)).astype(np.int32)
+        if t % 3 == 0:  # sparse components
+            lab[rng.random((H, W)) < 0.8] = 0
+        keep = rng.random(n + 1) < (0.0 if t % 17 == 0 else 1.0 if t % 13 == 0 else 0.5)
+        keep[0] = False
+        zone = rng.random((H, W)) < 0.9
+        valid = rng.random((H, W)) < 0.85
+        h = rng.normal(0.0, 1.0, (H, W))
+        h[rng.random((H, W)) < 0.05] = np.nan
+        h[rng.random((H, W)) < 0.03] = np.inf
+        mask = np.empty((H, W), bool)
+        idx, rl, rh = _kept_ring(lab, keep, zone, valid, h, H * W, mask)
+        w_mask, w_idx, w_rl, w_rh = _kept_ring_scan(lab, keep, zone, valid, h)
+        assert np.array_equal(mask, w_mask) and np.array_equal(idx, w_idx), t
+        assert np.array_equal(rl, w_rl) and _same_bits(rh, w_rh), t
