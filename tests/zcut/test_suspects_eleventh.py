@@ -168,3 +168,58 @@ def test_kept_ring_equals_the_scan_of_every_pixel() -> None:
         w_mask, w_idx, w_rl, w_rh = _kept_ring_scan(lab, keep, zone, valid, h)
         assert np.array_equal(mask, w_mask) and np.array_equal(idx, w_idx), t
         assert np.array_equal(rl, w_rl) and _same_bits(rh, w_rh), t
+
+
+_CACHE_SCRIPT = r"""
+import json, sys
+import numpy as np
+from numba.core.dispatcher import Dispatcher
+from zcut.edge_surface import EdgeSurfaceParams
+from zcut.params import SuspectParams
+from zcut.suspects import suspects
+
+rng = np.random.default_rng(7)
+z = 1.0 + np.round(rng.normal(0.0, 0.0005, (100, 150)), 4)
+H, W = z.shape
+xyz = np.stack([np.tile(np.arange(W) * 1e-3, (H, 1)), np.repeat(np.arange(H)[:, None] * 1e-3, W, 1), z], axis=2)
+xyz[20:23, 40:43, 2] -= 0.03  # floating pieces
+xyz[60:62, 100:102, 2] -= 0.03
+xyz[20:25, 30:40] = np.nan
+h = -1000.0 * xyz[..., 2]
+suspects(xyz, h, np.isfinite(xyz).all(axis=2), params=SuspectParams(), edge_surface=EdgeSurfaceParams())
+stats = {}
+for name, mod in list(sys.modules.items()):
+    if not name.startswith("zcut.suspects"):
+        continue
+    for attr, obj in list(vars(mod).items()):
+        if isinstance(obj, Dispatcher) and obj.signatures and getattr(obj, "_cache", None) is not None:
+            s = obj.stats
+            stats[f"{name}.{attr}"] = [sum(s.cache_hits.values()), sum(s.cache_misses.values())]
+print(json.dumps(stats))
+"""
+
+
+def test_the_suspects_kernels_load_from_the_cache_in_a_second_process() -> None:
+    """The suspects' numba kernels (this round's ``_label_medians_kernel`` and ``_kept_ring`` among them) are not
+    compiled again by a second fresh process (tests/zcut/test_kernel_cache.py's check, for ``zcut.suspects``)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+
+    def run() -> dict[str, list[int]]:
+        out = subprocess.run([sys.executable, "-c", _CACHE_SCRIPT], cwd=root, capture_output=True, text=True,
+                             timeout=900, env={**os.environ, "PYTHONPATH": str(root)})
+        assert out.returncode == 0, out.stderr[-3000:]
+        stats: dict[str, list[int]] = json.loads(out.stdout.strip().splitlines()[-1])
+        return stats
+
+    run()  # may compile (a fresh checkout) and write the caches
+    stats = run()
+    assert {"zcut.suspects.detectors._label_medians_kernel", "zcut.suspects.floating._kept_ring"} <= set(stats), \
+        sorted(stats)
+    missed = {k: v for k, v in stats.items() if v[1]}
+    assert missed == {}, f"compiled again in a second process (cache hits, misses): {missed}"
