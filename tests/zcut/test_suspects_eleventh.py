@@ -61,6 +61,13 @@ def test_label_medians_equals_the_lexsort() -> None:
     assert _same_bits(label_medians(v32, lab, 5), label_medians_reference(v32, lab, 5))
     assert _same_bits(label_medians(v32.astype(np.float64), lab.astype(np.uint32), 5),
                       label_medians_reference(v32.astype(np.float64), lab.astype(np.uint32), 5))
+    # a middle zero's sign is the stable order's: the k-th zero in the values' order
+    v = np.array([0.0, -0.0, 5.0, -0.0, 0.0, -3.0, 0.0, -0.0])
+    for perm in range(50):
+        p = rng.permutation(v.size)
+        lab = np.ones(v.size, np.int64)
+        lab[: perm % 3] = 2
+        assert _same_bits(label_medians(v[p], lab, 2), label_medians_reference(v[p], lab, 2)), p
     assert label_medians(np.zeros(0), np.zeros(0, np.int64), 0).shape == (0,)
     assert np.isnan(label_medians(np.zeros(0), np.zeros(0, np.int64), 3)).all()
 
