@@ -56,6 +56,7 @@ STEPS = (
     ("suspects.union", "lazy_surfaces", None),
     ("suspects.surfaces", "reach_median", "lazy_surfaces"),
     ("suspects.surfaces", "_gate_median", "lazy_surfaces"),
+    ("suspects.surfaces", "_gate_median_in", "lazy_surfaces"),  # the gate in given arrays (suspects' since 2026-12-06c)
     ("suspects.surfaces", "_ratio_brackets", "_gate_median"),
     ("suspects.surfaces", "_window_exact", "_gate_median"),
     ("suspects.surfaces", "LazySurfaces.distance", None),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
+import numba
 import numpy as np
 
 from ..errors import ParameterError
@@ -44,8 +45,60 @@ def shifted(a: np.ndarray, dr: int, dc: int, fill: float) -> np.ndarray:
     return out
 
 
+@numba.njit(cache=True)
+def _label_medians_kernel(values, labels, n, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`label_medians_reference` of 1-D float64 ``values`` and integer ``labels`` into ``out`` (n, NaN):
+    the finite values of each label 1..n gathered in their order (a counting sort by label), then sorted
+    stably (mergesort): the order ``np.lexsort((v, g))`` gives them (stable too: equal values, -0.0 and 0.0
+    among them, keep their order), so the same middle values and the same mean of the two."""
+    count = np.zeros(n + 2, np.int64)
+    for k in range(values.size):
+        g = labels[k]
+        if 0 < g <= n and np.isfinite(values[k]):
+            count[g] += 1
+    start = np.zeros(n + 2, np.int64)
+    for g in range(1, n + 1):
+        start[g + 1] = start[g] + count[g]
+    buf = np.empty(start[n + 1])
+    at = start.copy()
+    for k in range(values.size):
+        g = labels[k]
+        if 0 < g <= n and np.isfinite(values[k]):
+            buf[at[g]] = values[k]
+            at[g] += 1
+    for g in range(1, n + 1):
+        c = count[g]
+        if c == 0:
+            continue
+        seg = buf[start[g]:start[g] + c]
+        lo = (c - 1) // 2
+        hi = c // 2
+        if c <= 2:
+            a = seg[0] if c == 1 or not seg[1] < seg[0] else seg[1]
+            b = seg[c - 1] if c == 1 or not seg[1] < seg[0] else seg[0]
+        else:
+            order = np.argsort(seg, kind="mergesort")
+            a = seg[order[lo]]
+            b = seg[order[hi]]
+        out[g - 1] = a if lo == hi else 0.5 * (a + b)
+
+
 def label_medians(values: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
-    """Median of the finite ``values`` under each label 1..n (NaN for a label with none)."""
+    """Median of the finite ``values`` under each label 1..n (NaN for a label with none).
+
+    Float64 values and integer labels: one counting sort by label, then each label's values on their own
+    (:func:`_label_medians_kernel`); else :func:`label_medians_reference`. The same values bit for bit."""
+    v = np.asarray(values)
+    g = np.asarray(labels)
+    if v.dtype != np.float64 or g.dtype.kind != "i" or v.shape != g.shape:
+        return label_medians_reference(values, labels, n)
+    out = np.full(n, np.nan)
+    _label_medians_kernel(np.ascontiguousarray(v).reshape(-1), np.ascontiguousarray(g).reshape(-1), n, out)
+    return out
+
+
+def label_medians_reference(values: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
+    """:func:`label_medians` with one lexsort of every finite value by (label, value)."""
     sel = (labels > 0) & np.isfinite(values)
     g = labels[sel]
     v = values[sel]

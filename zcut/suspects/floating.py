@@ -234,35 +234,71 @@ def _kept_ring(lab, keep, zone, valid, h, n_max, mask):  # type: ignore[no-untyp
     rl = np.empty(cap, np.int64)
     rh = np.empty(cap)
     m = 0
+    # each row's kept pixels: idx[first[i] : first[i + 1]] (raster order, so their columns increase)
+    first = np.zeros(H + 1, np.int64)
+    for k in range(n):
+        first[idx[k] // W + 1] += 1
+    for i in range(H):
+        first[i + 1] += first[i]
     for i in range(max(r0 - 1, 0), min(r1 + 2, H)):
-        for j in range(W):
-            if mask[i, j] or not valid[i, j]:
-                continue
-            v = h[i, j]
-            if not np.isfinite(v):
-                continue
-            if 0 < i < H - 1 and 0 < j < W - 1 and not (
-                    mask[i - 1, j - 1] | mask[i - 1, j] | mask[i - 1, j + 1] | mask[i, j - 1] | mask[i, j + 1]
-                    | mask[i + 1, j - 1] | mask[i + 1, j] | mask[i + 1, j + 1]):
-                continue  # no kept neighbour (most pixels: one look at the 8 flags)
-            best = 0
-            for a in range(max(i - 1, 0), min(i + 2, H)):
-                for b in range(max(j - 1, 0), min(j + 2, W)):
-                    if mask[a, b] and lab[a, b] > best:
-                        best = lab[a, b]
-            if best == 0:
-                continue
-            if m == cap:
-                cap *= 2
-                rl2 = np.empty(cap, np.int64)
-                rh2 = np.empty(cap)
-                rl2[:m] = rl[:m]
-                rh2[:m] = rh[:m]
-                rl = rl2
-                rh = rh2
-            rl[m] = best
-            rh[m] = v
-            m += 1
+        # the ring's candidates of row i: the columns within 1 of a kept pixel of rows i - 1 .. i + 1, as
+        # merged intervals [c - 1, c + 1] from the three rows' increasing columns, left to right
+        a0 = first[max(i - 1, 0)]
+        a1 = first[min(i + 2, H)]  # the kept pixels of rows i - 1 .. i + 1: three runs of idx
+        p0 = a0
+        e0 = first[i] if i > 0 else a0
+        p1 = first[i]
+        e1 = first[i + 1]
+        p2 = first[i + 1]
+        e2 = a1 if i + 1 < H else p2
+        lo = -1
+        hi = -2
+        while True:
+            # the smallest column among the three runs' heads (W: none left)
+            c = W
+            if p0 < e0:
+                c = idx[p0] - (i - 1) * W
+            if p1 < e1:
+                c = min(c, idx[p1] - i * W)
+            if p2 < e2:
+                c = min(c, idx[p2] - (i + 1) * W)
+            if c < W and c - 1 <= hi + 1:  # joins the current interval
+                hi = max(hi, min(c + 1, W - 1))
+            else:
+                for j in range(max(lo, 0), hi + 1):  # the interval's pixels, in order
+                    if mask[i, j] or not valid[i, j]:
+                        continue
+                    v = h[i, j]
+                    if not np.isfinite(v):
+                        continue
+                    best = 0
+                    for a in range(max(i - 1, 0), min(i + 2, H)):
+                        for b in range(max(j - 1, 0), min(j + 2, W)):
+                            if mask[a, b] and lab[a, b] > best:
+                                best = lab[a, b]
+                    if best == 0:  # pragma: no cover - every candidate has a kept neighbour
+                        continue
+                    if m == cap:
+                        cap *= 2
+                        rl2 = np.empty(cap, np.int64)
+                        rh2 = np.empty(cap)
+                        rl2[:m] = rl[:m]
+                        rh2[:m] = rh[:m]
+                        rl = rl2
+                        rh = rh2
+                    rl[m] = best
+                    rh[m] = v
+                    m += 1
+                if c == W:
+                    break
+                lo = max(c - 1, 0)
+                hi = min(c + 1, W - 1)
+            if p0 < e0 and idx[p0] - (i - 1) * W == c:
+                p0 += 1
+            elif p1 < e1 and idx[p1] - i * W == c:
+                p1 += 1
+            else:
+                p2 += 1
     return idx[:n], rl[:m], rh[:m]
 
 

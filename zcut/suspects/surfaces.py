@@ -825,15 +825,30 @@ def reach_median(a: np.ndarray, valid: Mask) -> float:
 _GATE = threading.local()
 
 
+#: what a thread's :func:`gate_workspace` keeps between calls at most (its ``max_bytes``): the three arrays of a
+#: frame of up to ~5.5 M pixels (1920 × 1200: 55 MB); after a call on a larger frame it drops them
+GATE_KEPT_BYTES = 128 << 20
+
+
 def gate_workspace() -> SorWorkspace:
-    """The calling thread's workspace of :func:`_gate_median`'s arrays (made on first use, dropped with the
-    thread; it keeps the arrays of the largest frame seen until ``gate_workspace().release()``, or what
-    ``gate_workspace().max_bytes`` allows). A call that finds it in use (re-entry) works in fresh arrays."""
+    """The calling thread's workspace of :func:`_gate_median`'s arrays when it is called on its own (made on
+    first use, dropped with the thread; it keeps the arrays of the largest frame seen, up to
+    :data:`GATE_KEPT_BYTES`, until ``gate_workspace().release()``). A call that finds it in use (re-entry)
+    works in fresh arrays. :func:`zcut.suspects.suspects` gives the gate arrays of its own workspace instead
+    (:func:`lazy_surfaces`' ``gate``)."""
     ws: SorWorkspace | None = getattr(_GATE, "workspace", None)
     if ws is None:
-        ws = SorWorkspace(max_bytes=None)
+        ws = SorWorkspace(max_bytes=GATE_KEPT_BYTES)
         _GATE.workspace = ws
     return ws
+
+
+def gate_arrays(ws: SorWorkspace, n: int, names: tuple[str, str, str] = ("gate_lo", "gate_hi", "gate_at")
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The gate's three arrays of ``n`` entries from ``ws``: the brackets' lower and upper ends (float64) and
+    their pixels (int64, a view of a float64 array of ``names[2]``: one dtype for every name, so a caller can
+    give the names of its own arrays that are not in use while the gate runs)."""
+    return (ws.empty(names[0], (n,)), ws.empty(names[1], (n,)), ws.empty(names[2], (n,)).view(np.int64))
 
 
 def _gate_median(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: float, tan: float
@@ -841,16 +856,13 @@ def _gate_median(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: 
     """(count, median) of the fitted patches' rms / z², the values :func:`zcut.edge_surface._edge_surfaces`
     takes: the count and ``_median_of_temporary`` of its ratios."""
     with gate_workspace().call() as ws:
-        return _gate_median_in(a, valid, params, per_px, tan, ws)
+        return _gate_median_in(a, valid, params, per_px, tan, *gate_arrays(ws, valid.size))
 
 
 def _gate_median_in(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: float, tan: float,
-                    ws: SorWorkspace) -> tuple[int, float]:
-    """:func:`_gate_median` with its arrays taken from ``ws`` (nothing returned is one of them)."""
-    H, W = valid.shape
-    lo = ws.empty("gate_lo", (H * W,))
-    hi = ws.empty("gate_hi", (H * W,))
-    at = ws.empty("gate_at", (H * W,), np.int64)
+                    lo: np.ndarray, hi: np.ndarray, at: np.ndarray) -> tuple[int, float]:
+    """:func:`_gate_median` in the arrays ``lo``, ``hi`` (float64) and ``at`` (int64) of H · W entries each,
+    uninitialized (nothing returned is one of them)."""
     r, min_px, floor = params.patch_radius_px, params.min_patch_px, params.side_step_mm
     m, _, nan = _ratio_brackets(a, valid, r, min_px, per_px, tan, floor, lo, hi, at)
     if m == 0:
@@ -863,7 +875,7 @@ def _gate_median_in(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_p
     # the k-th ratio lies between the k-th smallest lower end and the k-th smallest upper end
     wa = order_pair(lo, ranks[0], ranks[0])[0]
     wb = order_pair(hi, ranks[-1], ranks[-1])[0]
-    vals = ws.empty("gate_vals", (m,))  # only the first `inside` entries are written (few pages)
+    vals = np.empty(m)  # only the first `inside` entries are written (few pages: fresh, not kept)
     below, _, inside = _window_exact(a, valid, r, min_px, per_px, tan, floor, lo, hi, at, wa, wb, vals)
     if not (below <= ranks[0] and ranks[-1] < below + inside):  # pragma: no cover - the brackets hold their ratios
         raise AssertionError("the gate's window does not hold the median: a bracket missed its ratio")
@@ -952,10 +964,16 @@ class LazySurfaces:
         return out
 
 
-def lazy_surfaces(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams) -> LazySurfaces:
+def lazy_surfaces(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, *,
+                  gate: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> LazySurfaces:
     """:func:`zcut.edge_surface._edge_surfaces` (``a`` C-contiguous float64 in mm, finite where ``valid``,
-    C-contiguous too) with the gate from brackets and the surfaces decided when read."""
+    C-contiguous too) with the gate from brackets and the surfaces decided when read. ``gate``: the gate's
+    arrays (:func:`gate_arrays`, H · W entries each) when the caller has them; else :func:`gate_workspace`'s."""
     per_px = reach_median(a, valid)  # 1 / f (_median_of_temporary's value)
     tan = min(math.tan(math.radians(params.max_incidence_deg)), 1e6)
-    m, gate = _gate_median(a, valid, params, per_px, tan)
-    return LazySurfaces(a, valid, params, per_px, tan, params.fit_k * gate if m else float("nan"), m)
+    if gate is None:
+        m, g = _gate_median(a, valid, params, per_px, tan)
+    else:
+        m, g = _gate_median_in(a, valid, params, per_px, tan, *gate)
+    gate_k = params.fit_k * g if m else float("nan")
+    return LazySurfaces(a, valid, params, per_px, tan, gate_k, m)

@@ -22,7 +22,7 @@ from .grouping import group_suspects
 from .noise import NoiseProfile, local_height, noise_profile
 from .residuals import fill_blobs, surface_residuals
 from .select import order_pair
-from .surfaces import LazySurfaces, lazy_surfaces
+from .surfaces import LazySurfaces, gate_arrays, lazy_surfaces
 
 
 @dataclass(frozen=True, slots=True)
@@ -496,19 +496,25 @@ def suspects(
         return _suspects(a, h_img, zone, easy, params, edge_surface, ws)
 
 
-#: the call's scratch images (τ, the jump, the grouping's strength: H · W doubles each, ~55 MB at 1920 × 1200), kept
-#: between calls, one workspace per thread (:func:`scratch_workspace`): made fresh each call, their pages were
-#: faulted in afresh (docs/performance.md, the suspects' tenth round)
+#: the call's scratch images (τ; the jump, then the gate's lower ends; the gate's upper ends, then the grouping's
+#: strength; the gate's pixels: H · W doubles each, ~74 MB at 1920 × 1200), kept between calls, one workspace per
+#: thread (:func:`scratch_workspace`): made fresh each call, their pages were faulted in afresh (docs/performance.md,
+#: the suspects' tenth and eleventh rounds)
 _SCRATCH = threading.local()
+
+#: what a thread's :func:`scratch_workspace` keeps between calls at most (its ``max_bytes``): the images of a frame
+#: of up to ~4.2 M pixels; after a call on a larger frame it drops them
+SCRATCH_KEPT_BYTES = 128 << 20
 
 
 def scratch_workspace() -> SorWorkspace:
     """The calling thread's workspace of :func:`suspects`' scratch images (made on first use, dropped with the
-    thread; it keeps the images of the largest frame seen until ``scratch_workspace().release()``). A call
-    that finds it in use works in fresh arrays. Nothing a call returns is one of them."""
+    thread; it keeps the images of the largest frame seen, up to :data:`SCRATCH_KEPT_BYTES`, until
+    ``scratch_workspace().release()``). A call that finds it in use works in fresh arrays. Nothing a call
+    returns is one of them."""
     ws: SorWorkspace | None = getattr(_SCRATCH, "workspace", None)
     if ws is None:
-        ws = SorWorkspace(max_bytes=None)
+        ws = SorWorkspace(max_bytes=SCRATCH_KEPT_BYTES)
         _SCRATCH.workspace = ws
     return ws
 
@@ -567,7 +573,11 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
             np.multiply(a_mm, 1000.0, out=a_mm)
         if a.dtype != np.float32:
             a_mm, _, _ = _check_args(a_mm, valid, edge_surface)
-        surfaces = lazy_surfaces(a_mm, np.ascontiguousarray(valid), edge_surface)
+        # the gate's arrays: the jump's (read by surface_residuals only), the strength's (not written yet) and one
+        # more; the gate is done with them when lazy_surfaces returns
+        gate = gate_arrays(ws, H * W, ("jump", "strength", "gate_at"))
+        surfaces = lazy_surfaces(a_mm, np.ascontiguousarray(valid), edge_surface, gate=gate)
+        del gate
         d = surfaces.distance_at(at_res)  # by_residual is in the zone, so measured
         near = np.isfinite(d)
         gap.ravel()[at_res[near]] = d[near]
