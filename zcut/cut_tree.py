@@ -476,8 +476,9 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
     (padded, at the pixels in the cuts only: a provisional label), ``gpar`` (the labels'
     union-find, a parent's label smaller than its child's), ``gcnt`` (the pixels that took
     each label) and, if given, ``gls[:m]``: each labelled pixel's label in the order of ``pix`` (for
-    :func:`gentle_prune` to read in order, not gathered from ``gl``). Returns (m, number of labels,
-    labelled).
+    :func:`gentle_prune` to read in order, not gathered from ``gl``; a label of the pixel's set, as ``gl``'s,
+    which a union may later change to the set's root at the pixel NE of the one it unites). Returns (m,
+    number of labels, labelled).
 
     Once ``check`` pixels in the cuts are labelled (at the end of that row), it looks whether the
     labelling pays: if fewer than ``share`` (half) of them lie in sets of ``max_area`` pixels or more
