@@ -561,7 +561,7 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                         nl += 1
                     gl[np.uint64(p)] = lab
                     if gls is not None:
-                        gls[m - 1] = lab
+                        gls[np.uint64(m - 1)] = lab
                     gcnt[lab] += 1
                     lw = lab
                 continue
@@ -618,7 +618,7 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                     nl += 1
                 gl[p] = lab
                 if gls is not None:
-                    gls[m - 1] = lab
+                    gls[np.uint64(m - 1)] = lab
                 gcnt[lab] += 1
                 qw = lv
                 lw = lab
