@@ -532,7 +532,7 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                     if cd < _IN_CUTS:
                         continue
                     p = base + 1 + c
-                    pix[m] = p
+                    pix[np.uint64(m)] = p
                     m += 1
                     ln = np.int64(gl[np.uint64(p - Wp)])  # (read even where not in the cuts: then unused)
                     lnw = np.int64(gl[np.uint64(p - Wp - 1)])
@@ -678,18 +678,19 @@ def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, W, c
     keep = 0
     # the pixels of small sets listed (no branch: the kept pixels' slots are written either way), then
     # marked; the others (86 % of the pile's) are not written
+    # (unsigned indices: no wrap-around test)
     if gls is not None:
         for t in range(m):
-            p = pix[t]
-            pix[keep] = p
-            keep += small[gls[t]]
+            p = pix[np.uint64(t)]
+            pix[np.uint64(keep)] = p
+            keep += small[np.uint64(gls[np.uint64(t)])]
     else:
         for t in range(m):
-            p = pix[t]
-            pix[keep] = p
-            keep += small[gl[p]]
+            p = pix[np.uint64(t)]
+            pix[np.uint64(keep)] = p
+            keep += small[np.uint64(gl[np.uint64(p)])]
     for t in range(keep):
-        st[pix[t]] += KEPT
+        st[np.uint64(pix[np.uint64(t)])] += KEPT
     keep = _uphill(st, pix, keep, W, conn8, top, gpar)
     start[:] = 0
     n = 0
