@@ -562,7 +562,7 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                     gl[np.uint64(p)] = lab
                     if gls is not None:
                         gls[np.uint64(m - 1)] = lab
-                    gcnt[lab] += 1
+                    gcnt[np.uint64(lab)] += 1
                     lw = lab
                 continue
             for c in range(c0, c1):
@@ -695,12 +695,12 @@ def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, W, c
     start[:] = 0
     n = 0
     for t in range(keep):
-        p = pix[t]
-        q = np.int64(st[p]) - KEPT
+        p = pix[np.uint64(t)]
+        q = np.int64(st[np.uint64(p)]) - KEPT
         if q >= 0:
-            pix[n] = p
+            pix[np.uint64(n)] = p
             n += 1
-            start[q + 1] += 1
+            start[np.uint64(q + 1)] += 1
     return n
 
 
@@ -725,8 +725,8 @@ def _uphill(st, pix, keep, W, conn8, top, stack):  # type: ignore[no-untyped-def
         offs = np.array([-Wp, -1, 1, Wp])
     ne = offs.size
     for t in range(keep):
-        p = pix[t]
-        q = np.int64(st[p]) - KEPT
+        p = pix[np.uint64(t)]
+        q = np.int64(st[np.uint64(p)]) - KEPT
         if q < 0:  # left out by a walk already
             continue
         out = q >= top
@@ -734,28 +734,28 @@ def _uphill(st, pix, keep, W, conn8, top, stack):  # type: ignore[no-untyped-def
             for u in range(8):  # (a constant trip count: unrolled)
                 if u >= ne:
                     break
-                s = np.int64(st[p + offs[u]])
+                s = np.int64(st[np.uint64(p + offs[u])])
                 # a left-out neighbour (0 <= s < KEPT: its level) of level s <= q + 1 (one unsigned test)
                 if np.uint64(s) <= np.uint64(q + 1):
                     out = True
                     break
         if not out:
             continue
-        st[p] = q
+        st[np.uint64(p)] = q
         stack[0] = p
         sp = 1
         while sp > 0:
             sp -= 1
-            x = stack[sp]
-            qx = np.int64(st[x])
+            x = stack[np.uint64(sp)]
+            qx = np.int64(st[np.uint64(x)])
             for u in range(8):
                 if u >= ne:
                     break
                 y = x + offs[u]
-                s = np.int64(st[y]) - KEPT
+                s = np.int64(st[np.uint64(y)]) - KEPT
                 if s >= 0 and qx <= s + 1:  # a kept neighbour lying within one level below x
-                    st[y] = s
-                    stack[sp] = y
+                    st[np.uint64(y)] = s
+                    stack[np.uint64(sp)] = y
                     sp += 1
     return keep
 
