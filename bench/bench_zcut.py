@@ -175,13 +175,19 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
     Hz, Wz = z.shape
     thr = hi - top * step  # as zcut_outliers: the window of the pixels in the cuts
     window, bound = ((0, 0, Hz, Wz), Hz * Wz) if not lo < thr else (_window(seg, thr, Wz)[:4], Hz * Wz)
-    st, gl, pix, gpar, gcnt = _scratch((window[2] + 2) * (window[3] + 2), bound)
+    st, gl, pix, gpar, gcnt, gls = _scratch((window[2] + 2) * (window[3] + 2), bound)
+    # as pruned_outliers: the labels in pix's order when at most half the frame may be in the cuts
+    if lo < thr:
+        wn = _window(seg, thr, Wz)
+        labels = (gls,) if 2 * min(wn[4] * 64, wn[2] * wn[3]) <= Hz * Wz else ()
+    else:
+        labels = ()
 
     def levels() -> tuple:
         # as zcut_outliers: the 8-connected gentle components (the z-cut's connectivity)
         args = (z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top))
         rest = (max_area, np.int64(max(PRUNE_CHECK, PRUNE_CHECK_ROWS * Wz)), st, pix, gl, gpar, gcnt)
-        return (*gentle_levels(*args, True, *rest, 0.5, *window), 8)
+        return (*gentle_levels(*args, True, *rest, 0.5, *window, *labels), 8)
 
     m, nl, labelled, gentle = levels()
     state = (st.copy(), pix.copy(), gpar.copy(), gcnt.copy())
@@ -191,7 +197,7 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
 
     def prune(a: tuple) -> int:
         return gentle_prune(a[0], a[1], m, gl, a[2], a[3], nl, max_area, a[4], labelled, window[3], True,
-                            np.int64(top))
+                            np.int64(top), *labels)
 
     a = prune_inputs()
     keep = int(prune(a))

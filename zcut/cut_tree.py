@@ -43,7 +43,7 @@ from numba.cpython.unsafe.numbers import trailing_zeros
 
 __all__ = [
     "FLOOD_MAX_LEVELS",
-    "OUTSIDE",
+    "KEPT",
     "SEGMENT",
     "SHALLOW_LEVELS",
     "cluster_labels",
@@ -354,8 +354,10 @@ def flood_levels(z, seg_max, z_min, z_max, step, hi, top, K, st, start, pix, own
     return m
 
 
-#: ``st`` of :func:`flood_core` at a pixel in the cuts left out of the flood: ``OUTSIDE - level``.
-OUTSIDE = -16
+#: ``st`` of :func:`flood_core_left_out` at a pixel kept for the flood: ``KEPT + level``; a pixel in the cuts
+#: left out of it keeps its level (0 .. ``top`` < ``SHALLOW_LEVELS`` < ``KEPT``), the others are -1. The prune
+#: (:func:`gentle_prune`) so writes the few kept pixels only, not the many left out.
+KEPT = 8192
 
 
 @numba.njit(cache=True, inline="always")
@@ -456,7 +458,7 @@ def _gentle_codes(st, b, c0, c1, Wp, codes):  # type: ignore[no-untyped-def]  # 
 
 @numba.njit(cache=True, nogil=True)
 def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt,  # type: ignore[no-untyped-def]  # numba kernel
-                  share=0.5, wr=0, wc=0, wh=-1, ww=-1):
+                  share=0.5, wr=0, wc=0, wh=-1, ww=-1, gls=None):
     """:func:`flood_levels` without ``own`` and ``pixel_level``, labelling on the way the *gentle
     components*: the components of the pixels in the cuts where two neighbours are joined when
     their levels differ by at most 1.
@@ -472,8 +474,11 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
 
     Writes ``st`` (padded; level or -1), ``pix[:m]`` (padded indices in raster order), ``gl``
     (padded, at the pixels in the cuts only: a provisional label), ``gpar`` (the labels'
-    union-find, a parent's label smaller than its child's) and ``gcnt`` (the pixels that took
-    each label). Returns (m, number of labels, labelled).
+    union-find, a parent's label smaller than its child's), ``gcnt`` (the pixels that took
+    each label) and, if given, ``gls[:m]``: each labelled pixel's label in the order of ``pix`` (for
+    :func:`gentle_prune` to read in order, not gathered from ``gl``; a label of the pixel's set, as ``gl``'s,
+    which a union may later change to the set's root at the pixel NE of the one it unites). Returns (m,
+    number of labels, labelled).
 
     Once ``check`` pixels in the cuts are labelled (at the end of that row), it looks whether the
     labelling pays: if fewer than ``share`` (half) of them lie in sets of ``max_area`` pixels or more
@@ -527,7 +532,7 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                     if cd < _IN_CUTS:
                         continue
                     p = base + 1 + c
-                    pix[m] = p
+                    pix[np.uint64(m)] = p
                     m += 1
                     ln = np.int64(gl[np.uint64(p - Wp)])  # (read even where not in the cuts: then unused)
                     lnw = np.int64(gl[np.uint64(p - Wp - 1)])
@@ -555,7 +560,9 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                         gcnt[nl] = 0
                         nl += 1
                     gl[np.uint64(p)] = lab
-                    gcnt[lab] += 1
+                    if gls is not None:
+                        gls[np.uint64(m - 1)] = lab
+                    gcnt[np.uint64(lab)] += 1
                     lw = lab
                 continue
             for c in range(c0, c1):
@@ -610,6 +617,8 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                     gcnt[nl] = 0
                     nl += 1
                 gl[p] = lab
+                if gls is not None:
+                    gls[np.uint64(m - 1)] = lab
                 gcnt[lab] += 1
                 qw = lv
                 lw = lab
@@ -632,14 +641,16 @@ def _labelling_pays(gpar, gcnt, nl, m, max_area, share):  # type: ignore[no-unty
 
 
 @numba.njit(cache=True, nogil=True)
-def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, W, conn8, top):  # type: ignore[no-untyped-def]  # numba kernel
+def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, W, conn8, top, gls=None):  # type: ignore[no-untyped-def]  # numba kernel
     """Keep in ``pix`` only the pixels of the gentle components (:func:`gentle_levels`) of fewer
     than ``max_area`` pixels that do not lie below a pixel left out (:func:`_uphill`), count them
-    per level in ``start`` (zeroed; ``start[lv + 1]``, as :func:`flood_core` wants), and mark the
-    others ``OUTSIDE - level`` in ``st``. Returns the number kept. Without ``labelled``
-    (:func:`gentle_levels` gave up) every pixel is kept. ``W``: the image's width; ``conn8``: the
-    z-cut's connectivity; ``top``: the deepest level in the cuts (K + 1); ``gpar`` is used as
-    scratch once the sets are read.
+    per level in ``start`` (zeroed; ``start[lv + 1]``, as :func:`flood_core` wants), and mark them
+    ``KEPT + level`` in ``st`` (the pixels left out keep their level). Returns the number kept.
+    Without ``labelled`` (:func:`gentle_levels` gave up) every pixel is kept. ``W``: the image's
+    width; ``conn8``: the z-cut's connectivity; ``top``: the deepest level in the cuts (K + 1);
+    ``gpar`` is used as scratch once the sets are read. ``gls``: the labels in the order of ``pix``
+    (:func:`gentle_levels`' ``gls``), read in order; without it each pixel's label is read from ``gl``
+    (a gather: the pile's pass ~2.5 x dearer, docs/performance.md).
 
     Why the flood over the kept pixels gives the outliers of the whole tree: a tagged node C is a
     component of two cuts k, k + 1, so every neighbour of C has a level >= k + 2 and no gentle
@@ -651,7 +662,10 @@ def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, W, c
     that no left-out pixel lies in a tagged node, so :func:`_uphill` may leave out more."""
     if not labelled:
         for t in range(m):
-            start[np.int64(st[pix[t]]) + 1] += 1
+            p = pix[t]
+            lv = np.int64(st[p])
+            start[lv + 1] += 1
+            st[p] = KEPT + lv
         return m
     for i in range(nl):  # labels in creation order: a parent's label is smaller, flattened first
         r = gpar[gpar[i]]
@@ -662,35 +676,43 @@ def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, W, c
     for i in range(nl):
         small[i] = gcnt[gpar[i]] < max_area
     keep = 0
-    for t in range(m):  # no branch: the kept pixels' slots are written either way
-        p = pix[t]
-        lv = np.int64(st[p])
-        k = small[gl[p]]
-        pix[keep] = p
-        keep += k
-        st[p] = lv if k else OUTSIDE - lv
+    # the pixels of small sets listed (no branch: the kept pixels' slots are written either way), then
+    # marked; the others (86 % of the pile's) are not written
+    # (unsigned indices: no wrap-around test)
+    if gls is not None:
+        for t in range(m):
+            p = pix[np.uint64(t)]
+            pix[np.uint64(keep)] = p
+            keep += small[np.uint64(gls[np.uint64(t)])]
+    else:
+        for t in range(m):
+            p = pix[np.uint64(t)]
+            pix[np.uint64(keep)] = p
+            keep += small[np.uint64(gl[np.uint64(p)])]
+    for t in range(keep):
+        st[np.uint64(pix[np.uint64(t)])] += KEPT
     keep = _uphill(st, pix, keep, W, conn8, top, gpar)
     start[:] = 0
     n = 0
     for t in range(keep):
-        p = pix[t]
-        q = np.int64(st[p])
+        p = pix[np.uint64(t)]
+        q = np.int64(st[np.uint64(p)]) - KEPT
         if q >= 0:
-            pix[n] = p
+            pix[np.uint64(n)] = p
             n += 1
-            start[q + 1] += 1
+            start[np.uint64(q + 1)] += 1
     return n
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _uphill(st, pix, keep, W, conn8, top, stack):  # type: ignore[no-untyped-def]  # numba kernel
-    """Leave out (mark ``OUTSIDE - level`` in ``st``), of the ``keep`` pixels kept so far
+    """Leave out (``st`` back to the level, from ``KEPT + level``), of the ``keep`` pixels kept so far
     (``pix[:keep]``), those that lie *below* a left-out pixel; returns ``keep`` (``pix`` unchanged).
 
     A tagged node C is a component of the cuts k and k + 1, so every neighbour of a pixel p of C
     whose level is at most ``level(p) + 1`` (<= k + 1) lies in C. Hence a pixel with such a
     neighbour in no tagged node is in no tagged node either, and neither is a pixel at level
-    ``top`` (= K + 1: not in the cut at K). The left-out pixels (``st <= OUTSIDE``) are in no
+    ``top`` (= K + 1: not in the cut at K). The left-out pixels (``0 <= st < KEPT``) are in no
     tagged node; one sweep over the kept pixels in raster order leaves out each one that has a
     left-out neighbour of level <= its level + 1 (or lies at ``top``), and from each one left out
     a depth-first walk leaves out at once every kept neighbour that it lies within one level
@@ -703,8 +725,8 @@ def _uphill(st, pix, keep, W, conn8, top, stack):  # type: ignore[no-untyped-def
         offs = np.array([-Wp, -1, 1, Wp])
     ne = offs.size
     for t in range(keep):
-        p = pix[t]
-        q = np.int64(st[p])
+        p = pix[np.uint64(t)]
+        q = np.int64(st[np.uint64(p)]) - KEPT
         if q < 0:  # left out by a walk already
             continue
         out = q >= top
@@ -712,28 +734,28 @@ def _uphill(st, pix, keep, W, conn8, top, stack):  # type: ignore[no-untyped-def
             for u in range(8):  # (a constant trip count: unrolled)
                 if u >= ne:
                     break
-                s = np.int64(st[p + offs[u]])
-                # a left-out neighbour (st <= OUTSIDE) of level OUTSIDE - s <= q + 1
-                if s <= OUTSIDE and s >= OUTSIDE - 1 - q:
+                s = np.int64(st[np.uint64(p + offs[u])])
+                # a left-out neighbour (0 <= s < KEPT: its level) of level s <= q + 1 (one unsigned test)
+                if np.uint64(s) <= np.uint64(q + 1):
                     out = True
                     break
         if not out:
             continue
-        st[p] = OUTSIDE - q
+        st[np.uint64(p)] = q
         stack[0] = p
         sp = 1
         while sp > 0:
             sp -= 1
-            x = stack[sp]
-            qx = OUTSIDE - np.int64(st[x])
+            x = stack[np.uint64(sp)]
+            qx = np.int64(st[np.uint64(x)])
             for u in range(8):
                 if u >= ne:
                     break
                 y = x + offs[u]
-                s = np.int64(st[y])
+                s = np.int64(st[np.uint64(y)]) - KEPT
                 if s >= 0 and qx <= s + 1:  # a kept neighbour lying within one level below x
-                    st[y] = OUTSIDE - s
-                    stack[sp] = y
+                    st[np.uint64(y)] = s
+                    stack[np.uint64(sp)] = y
                     sp += 1
     return keep
 
@@ -1041,7 +1063,7 @@ def union_find_tree(q, W, K, top, conn8, max_area):  # type: ignore[no-untyped-d
 FLOOD_MAX_LEVELS = 32768
 #: Levels 0 .. top with top < this flood with the two-tier bit map (:func:`flood_core`); more with the
 #: three-tier one (:func:`flood_core_deep`). The pruned flood (:func:`pruned_outliers`) takes fewer
-#: than this only (its ``OUTSIDE - level`` marks and float32 codes are checked up to it).
+#: than this only (its float32 codes are checked up to it, and its ``KEPT + level`` marks need it).
 SHALLOW_LEVELS = 4096
 _U1 = np.uint64(1)
 
@@ -1239,10 +1261,11 @@ def _flood_kernel(left_out: bool, deep: bool = False) -> Any:
         cuts in raster order. Writes ``lab`` at those pixels only; returns what :func:`flood_tree`
         returns but ``lab``.
 
-        ``st`` may also hold, at a pixel in the cuts left out of the flood, ``OUTSIDE - level``
-        (:func:`gentle_prune`): such a neighbour is never flooded, but a node whose pixels touch one
-        of level l is not a component of the cut at l, so its end ``e`` is taken as
-        ``min(e, l)`` in the tag (the smallest such l is carried along the stack)."""
+        With ``left_out`` (:func:`flood_core_left_out`) the pixels of ``pix`` hold ``KEPT + level`` in ``st``
+        and the pixels in the cuts left out of the flood their level (:func:`gentle_prune`): such a
+        neighbour is never flooded, but a node whose pixels touch one of level l is not a component of
+        the cut at l, so its end ``e`` is taken as ``min(e, l)`` in the tag (the smallest such l is
+        carried along the stack)."""
         Wp = W + 2
         nlev = top + 1
         for lv in range(nlev):
@@ -1278,7 +1301,7 @@ def _flood_kernel(left_out: bool, deep: bool = False) -> Any:
             # top of the stack, its node and area, and the fill of its bucket (bucket cur's bit in
             # occ is only brought up to date when cur changes)
             p = s
-            cur = np.int64(st[s])
+            cur = np.int64(st[s]) - KEPT if left_out else np.int64(st[s])
             st[p] = -1
             ftop = fill[cur]
             sbeg = start[cur]
@@ -1304,9 +1327,13 @@ def _flood_kernel(left_out: bool, deep: bool = False) -> Any:
                         break
                     nb = p + offs[u]
                     qn = np.int64(st[nb])
-                    if qn < 0:  # seen, or left out of the flood
-                        if left_out and qn <= OUTSIDE:
-                            lmn = min(lmn, OUTSIDE - qn)
+                    if left_out:
+                        if qn < KEPT:  # seen (< 0), or left out of the flood (its level)
+                            if qn >= 0:
+                                lmn = min(lmn, qn)
+                            continue
+                        qn -= KEPT
+                    elif qn < 0:  # seen
                         continue
                     st[nb] = -1
                     if qn == cur:  # queue it
@@ -1497,25 +1524,27 @@ def _aligned(nbytes):  # type: ignore[no-untyped-def]  # numba kernel
 
 
 @numba.njit(cache=True, nogil=True)
-def pruned_scratch(n, bound):  # type: ignore[no-untyped-def]  # numba kernel
+def pruned_scratch(n, bound, n_gls):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`pruned_outliers`' scratch arrays, sized by the window (``n`` padded pixels; the pile's window is
     18 % of the frame) and by the ``bound`` on the pixels in the cuts, not by the frame: ``st`` (n,) int16,
-    ``gl`` (n,) int32, ``pix``, ``gpar``, ``gcnt`` (bound,) int32, all views of one block, each on a 64-byte
-    boundary. One block, not five arrays: glibc raises its mmap and trim thresholds to the largest block
+    ``gl`` (n,) int32, ``pix``, ``gpar``, ``gcnt`` (bound,) int32 and ``gls`` (n_gls,) int32, all views of one
+    block, each on a 64-byte boundary. One block, not five arrays: glibc raises its mmap and trim thresholds to the largest block
     freed, so that a call's scratch, freed, stays in the heap for the next call instead of going back to
     the system to be faulted in again page by page (the pile: ~690 faults a call, ~1.5 µs each, with five
     arrays; none with one block; docs/performance.md)."""
     a_pix = _aligned(4 * n)
     a_par = a_pix + _aligned(4 * bound)
     a_cnt = a_par + _aligned(4 * bound)
-    a_st = a_cnt + _aligned(4 * bound)
+    a_gls = a_cnt + _aligned(4 * bound)
+    a_st = a_gls + _aligned(4 * n_gls)
     block = np.empty(max(a_st + _aligned(2 * n), 1), np.uint8)
     gl = block[:4 * n].view(np.int32)
     pix = block[a_pix:a_pix + 4 * bound].view(np.int32)
     gpar = block[a_par:a_par + 4 * bound].view(np.int32)
     gcnt = block[a_cnt:a_cnt + 4 * bound].view(np.int32)
+    gls = block[a_gls:a_gls + 4 * n_gls].view(np.int32)
     st = block[a_st:a_st + 2 * n].view(np.int16)
-    return st, gl, pix, gpar, gcnt
+    return st, gl, pix, gpar, gcnt, gls
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1546,17 +1575,29 @@ def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, 
     thr = z_max - top * step
     wr, wc, wh, ww = 0, 0, H, W  # the window of the pixels in the cuts
     bound = H * W  # ... and their number, at most
-    if z_min < thr:  # (invalid pixels stand at z_min: outside the cuts, the segments may be skipped)
+    some = z_min < thr  # (invalid pixels stand at z_min: outside the cuts, the segments may be skipped)
+    if some:
         wr, wc, wh, ww, n_read = cuts_window(seg_max, thr, W)
         bound = n_read * SEGMENT
         if bound < minimum:
             return False  # too few pixels in the cuts for the labelling to pay
         bound = min(bound, wh * ww)
-    st, gl, pix, gpar, gcnt = pruned_scratch((wh + 2) * (ww + 2), bound)
-    m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check, st,
-                                    pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww)
-    start = np.zeros(top + 2, np.int64)
-    keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top)
+    # the labels in the order of pix (gls: gentle_prune reads them in order, not gathered from gl) when at most
+    # half the frame may be in the cuts; with more, pix is close to the raster and gl is read nearly in order
+    # anyway, and a frame-sized gls makes the block one that glibc maps anew at every call (page faults: the
+    # dense frame 34 -> 48 ms); under half, the block stays below the largest one before gls (docs/performance.md)
+    listed = some and 2 * bound <= H * W
+    st, gl, pix, gpar, gcnt, gls = pruned_scratch((wh + 2) * (ww + 2), bound, bound if listed else 0)
+    if listed:
+        m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
+                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls)
+        start = np.zeros(top + 2, np.int64)
+        keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top, gls)
+    else:
+        m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
+                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww)
+        start = np.zeros(top + 2, np.int64)
+        keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top)
     kept = pix[:keep]
     # the labels are read; the flood writes its node image over them at the kept pixels
     _, _, node_parent, tagged, fin = flood_core_left_out(st, start, kept, ww, k_eff, top, conn8, max_area, gl)

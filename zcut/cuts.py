@@ -416,11 +416,11 @@ def _window(seg_max: np.ndarray, thr: float, W: int) -> tuple[int, int, int, int
 
 
 def _scratch(n: int, bound: int) -> tuple[np.ndarray, ...]:
-    """The pruned flood's scratch arrays (``st, gl, pix, gpar, gcnt``: :func:`zcut.cut_tree.pruned_scratch`,
+    """The pruned flood's scratch arrays (``st, gl, pix, gpar, gcnt, gls``: :func:`zcut.cut_tree.pruned_scratch`,
     one block sized by the window's ``n`` padded pixels and the ``bound`` on the pixels in the cuts), as
     :func:`zcut.cut_tree.pruned_outliers` allocates them in its call; for the passes timed one by one
     (``bench/bench_zcut.py --passes``)."""
-    return tuple(pruned_scratch(np.int64(n), np.int64(bound)))
+    return tuple(pruned_scratch(np.int64(n), np.int64(bound), np.int64(bound)))
 
 
 def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step: float, K: int,

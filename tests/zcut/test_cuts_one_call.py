@@ -204,11 +204,11 @@ def test_degenerate_frames_through_the_one_call(case: str) -> None:
 
 @pytest.mark.parametrize(("n", "bound"), [(0, 0), (4, 0), (10, 3), (1026 * 572, 254016)])
 def test_scratch_views_are_disjoint_and_on_cache_lines(n: int, bound: int) -> None:
-    """``pruned_scratch``: five views of one block, the sizes asked, each on a 64-byte boundary from the first,
+    """``pruned_scratch``: six views of one block, the sizes asked, each on a 64-byte boundary from the first,
     none overlapping another."""
-    views = pruned_scratch(np.int64(n), np.int64(bound))
-    st, gl, pix, gpar, gcnt = views
-    assert [v.size for v in views] == [n, n, bound, bound, bound]
+    views = pruned_scratch(np.int64(n), np.int64(bound), np.int64(bound // 2))
+    st, gl, pix, gpar, gcnt, gls = views
+    assert [v.size for v in views] == [n, n, bound, bound, bound, bound // 2]
     assert st.dtype == np.int16 and all(v.dtype == np.int32 for v in views[1:])
     base = gl.__array_interface__["data"][0]
     spans = sorted((v.__array_interface__["data"][0], v.__array_interface__["data"][0] + v.nbytes) for v in views)

@@ -16,7 +16,7 @@ from gentle_state import gentle_labelled
 from test_cuts_fast import bumpy, check, height_mm, previous_outliers, pruned_outliers, terraces
 
 from zcut import ZCutParams, find_clusters, zcut_outliers, zcut_outliers_reference
-from zcut.cut_tree import OUTSIDE, gentle_levels, qlevel
+from zcut.cut_tree import KEPT, gentle_levels, qlevel
 from zcut.cuts import _finite_range, _levels
 from zcut.params import n_levels
 
@@ -42,8 +42,8 @@ def prune_state(z: np.ndarray, *, step: float, max_depth: float, max_area: float
     levels = state.levels()
     keep = state.prune(max_area=max_area, connectivity=connectivity)
     after = state.levels()
-    left_out = after <= OUTSIDE
-    assert np.array_equal(np.where(left_out, OUTSIDE - after, after), levels)  # the levels kept in the marks
+    left_out = (after >= 0) & (after < KEPT)  # a pixel left out keeps its level, a kept one is marked KEPT + level
+    assert np.array_equal(np.where(after >= KEPT, after - KEPT, after), levels)  # the levels kept in the marks
     return levels, left_out, state.m, keep, state.top
 
 
