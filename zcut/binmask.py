@@ -301,13 +301,21 @@ def _ring_bounded(g, vin, vout, walls, xyz, r0, c0, out):  # type: ignore[no-unt
     distance is within reach; out of it when no column within reach of ``vout`` has its zero within
     that reach; else by the exact squared distance over those columns. Returns the number of bright
     pixels with a finite point whose squared distance lies in (vin, vout]: those the two bounds do
-    not decide (0 when ``vin == vout``); it stops at the first (``out`` then incomplete)."""
+    not decide (0 when ``vin == vout``); it stops at the first (``out`` then incomplete).
+
+    A row is walked from the right; a span of columns none of which lies within reach of a column
+    whose own vertical distance is within reach (``near``) is out as a whole and skipped: its pixels
+    have no zero within reach either way (a zero is near) and no column that could bring them within
+    reach. The exact squared distance is the minimum over every column within reach (branch-free,
+    so vectorised); the first one within ``vin`` decided the same before (the order changes no
+    minimum)."""
     m, n = g.shape
     r_in = _isqrt_floor(vin)
     reach = _isqrt_floor(vout)
     far = 1 << 40
     zero_left = np.empty(n, np.int64)
     near_left = np.empty(n, np.int64)
+    cap = np.int32(vout + 1)  # vout <= 2^25 (the shapes _bounded_shape takes), g <= _NONE: int32 holds every sum
     for r in range(m):
         gr = g[r]
         wr = walls[r0 + r, c0:c0 + n]
@@ -325,36 +333,34 @@ def _ring_bounded(g, vin, vout, walls, xyz, r0, c0, out):  # type: ignore[no-unt
             near_left[c] = nl
         zr = far
         nr = far
-        for c in range(n - 1, -1, -1):
+        c = n - 1
+        while c >= 0:
             x = gr[c]
             if x == 0:
                 zr = c
             if x <= reach:
                 nr = c
+            elif nr - c > reach and c - near_left[c] > reach:
+                # columns near_left[c] + reach + 1 .. c: none near, so zr and nr stay; every one out
+                c = near_left[c] + reach
+                continue
             if not wr[c]:
+                c -= 1
                 continue
             inside = x <= r_in or min(c - zero_left[c], zr - c) <= r_in
             if not inside and min(c - near_left[c], nr - c) <= reach:
-                # the columns within reach, nearest first: the first within vin decides (the order
-                # changes no minimum)
-                best = vout + 1
-                lo, hi = max(c - reach, 0), min(c + reach, n - 1)
-                for d in range(reach + 1):
-                    dd = d * d
-                    if c - d >= lo:
-                        y = np.int64(gr[c - d])
-                        best = min(best, y * y + dd)
-                    if c + d <= hi:
-                        y = np.int64(gr[c + d])
-                        best = min(best, y * y + dd)
-                    if best <= vin:
-                        break
+                best = cap
+                for j in range(max(c - reach, 0), min(c + reach, n - 1) + 1):
+                    y = np.int32(gr[j])
+                    d = np.int32(j - c)
+                    best = min(best, y * y + d * d)
                 inside = best <= vin
                 if not inside and best <= vout and xr[c, 0] * 0 + xr[c, 1] * 0 + xr[c, 2] * 0 == 0:
                     return 1
             if inside:
                 # 0 * v is 0 for a finite v, NaN for an infinite or NaN one
                 orow[c] = xr[c, 0] * 0 + xr[c, 1] * 0 + xr[c, 2] * 0 == 0
+            c -= 1
     return 0
 
 
