@@ -97,6 +97,33 @@ def fill_holes(mask: Mask) -> Mask:
     return (padded[1:-1, 1:-1] != 2)
 
 
+@numba.njit(cache=True, nogil=True)
+def _pad_component(labels, y, x, chosen, padded):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``padded`` (uint8, the box's shape plus one pixel each side): 1 where the box of ``labels`` at row
+    ``y``, column ``x`` holds ``chosen``, 0 elsewhere and on the frame."""
+    h, w = padded.shape[0] - 2, padded.shape[1] - 2
+    padded[0, :] = 0
+    padded[h + 1, :] = 0
+    for r in range(h):
+        lr = labels[y + r, x:x + w]
+        pr = padded[r + 1]
+        pr[0] = 0
+        pr[w + 1] = 0
+        for c in range(w):
+            pr[c + 1] = lr[c] == chosen
+
+
+def _fill_component(labels: np.ndarray, box: tuple[int, int, int, int], chosen: int) -> Mask:
+    """``fill_holes(labels[y:y + bh, x:x + bw] == chosen)`` for ``box`` = (x, y, bw, bh), without its
+    copies (the comparison written into the padded image at once)."""
+    x, y, bw, bh = box
+    padded = np.empty((bh + 2, bw + 2), np.uint8)
+    _pad_component(labels, y, x, chosen, padded)
+    flood = np.zeros((bh + 4, bw + 4), np.uint8)
+    cv2.floodFill(padded, flood, (0, 0), 2, flags=4)
+    return (padded[1:-1, 1:-1] != 2)
+
+
 def _check_pixels_args(result: BinMaskResult, xyz: XYZ, ring_frac: float, min_ring_px: float) -> np.ndarray:
     a = np.asarray(xyz)
     shape = result.mask.shape
@@ -113,8 +140,10 @@ def _check_pixels_args(result: BinMaskResult, xyz: XYZ, ring_frac: float, min_ri
 
 
 @numba.njit(cache=True, nogil=True)
-def _component_stats(labels, n):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """OpenCV's component statistics (left, top, width, height, area) of labels 0..n-1, by runs."""
+def _component_stats(labels, n, grown):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """OpenCV's component statistics (left, top, width, height, area) of labels 0..n-1, by runs of
+    ``grown`` (the labelled image, 0/1 bytes): a run of equal bytes in a row is 8-connected, so one
+    component (or the background, label 0), and its label is read once, at its start."""
     H, W = labels.shape
     lo_c = np.full(n, W, np.int64)
     hi_c = np.full(n, -1, np.int64)
@@ -122,13 +151,15 @@ def _component_stats(labels, n):  # type: ignore[no-untyped-def]  # numba kernel
     hi_r = np.full(n, -1, np.int64)
     area = np.zeros(n, np.int64)
     for r in range(H):
+        gr = grown[r]
         c = 0
         while c < W:
-            lab = labels[r, c]
+            v = gr[c]
             start = c
             c += 1
-            while c < W and labels[r, c] == lab:
+            while c < W and gr[c] == v:
                 c += 1
+            lab = labels[r, start]
             area[lab] += c - start
             if start < lo_c[lab]:
                 lo_c[lab] = start
@@ -493,7 +524,7 @@ def bin_mask(rgb: RGB, *, params: BinMaskParams = BinMaskParams()) -> BinMaskRes
         grown = cv2.dilate(bright, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
     # the labels of connectedComponentsWithStats (the same algorithm), without its slow statistics
     n, labels = cv2.connectedComponents(grown, connectivity=8, ltype=cv2.CV_32S)
-    stats = _component_stats(labels, n)
+    stats = _component_stats(labels, n, grown)
     n_components = n - 1
     min_area = max(1, int(np.ceil(min_area_frac * h * w)))
     candidates = [i for i in range(1, n) if stats[i, 4] >= min_area]
@@ -508,16 +539,15 @@ def bin_mask(rgb: RGB, *, params: BinMaskParams = BinMaskParams()) -> BinMaskRes
             x, y, bw, bh = stats[i, :4]
             if not (y <= cr < y + bh and x <= cc < x + bw):
                 continue
-            sub = fill_holes(labels[y:y + bh, x:x + bw] == i)
+            sub = _fill_component(labels, (int(x), int(y), int(bw), int(bh)), i)
             if sub[cr - y, cc - x]:
                 chosen, covers, filled = i, True, sub
                 break
     if chosen is None:
         chosen = max(candidates, key=lambda i: stats[i, 4])
     x, y, bw, bh = (int(v) for v in stats[chosen, :4])
-    lab = labels[y:y + bh, x:x + bw]
     if filled is None:
-        filled = fill_holes(lab == chosen)
+        filled = _fill_component(labels, (x, y, bw, bh), chosen)
     f: np.ndarray = filled.view(np.uint8)
     if dilate_px > 0:
         # erode back by the same radius (a closing); outside the box counts as background
