@@ -140,10 +140,8 @@ def _check_pixels_args(result: BinMaskResult, xyz: XYZ, ring_frac: float, min_ri
 
 
 @numba.njit(cache=True, nogil=True)
-def _component_stats(labels, n, grown):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """OpenCV's component statistics (left, top, width, height, area) of labels 0..n-1, by runs of
-    ``grown`` (the labelled image, 0/1 bytes): a run of equal bytes in a row is 8-connected, so one
-    component (or the background, label 0), and its label is read once, at its start."""
+def _component_stats(labels, n):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """OpenCV's component statistics (left, top, width, height, area) of labels 0..n-1, by runs."""
     H, W = labels.shape
     lo_c = np.full(n, W, np.int64)
     hi_c = np.full(n, -1, np.int64)
@@ -151,15 +149,13 @@ def _component_stats(labels, n, grown):  # type: ignore[no-untyped-def]  # numba
     hi_r = np.full(n, -1, np.int64)
     area = np.zeros(n, np.int64)
     for r in range(H):
-        gr = grown[r]
         c = 0
         while c < W:
-            v = gr[c]
+            lab = labels[r, c]
             start = c
             c += 1
-            while c < W and gr[c] == v:
+            while c < W and labels[r, c] == lab:
                 c += 1
-            lab = labels[r, start]
             area[lab] += c - start
             if start < lo_c[lab]:
                 lo_c[lab] = start
@@ -524,7 +520,7 @@ def bin_mask(rgb: RGB, *, params: BinMaskParams = BinMaskParams()) -> BinMaskRes
         grown = cv2.dilate(bright, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
     # the labels of connectedComponentsWithStats (the same algorithm), without its slow statistics
     n, labels = cv2.connectedComponents(grown, connectivity=8, ltype=cv2.CV_32S)
-    stats = _component_stats(labels, n, grown)
+    stats = _component_stats(labels, n)
     n_components = n - 1
     min_area = max(1, int(np.ceil(min_area_frac * h * w)))
     candidates = [i for i in range(1, n) if stats[i, 4] >= min_area]
