@@ -24,6 +24,11 @@ poses gives the same masks (table, easy outliers, bin points, zone), height imag
 then a summary line (largest relative pose difference, frames whose iterations or masks differ, medians of the
 CPU ms).
 
+``--against TREE`` instead alternates the bin mask (``bin_mask``) and the ring (``bin_pixels``) of this tree and of
+the source tree TREE (its ``zcut`` imported under another name, without numba's cache) on every frame of the log,
+``--repeats`` times, the order swapped every other call; every result is compared bit for bit (the masks, the
+counts, the box, the centroid, the ring) and the CPU ms of each, medians, are printed with their ratio.
+
 ``--icp-repeats N`` (default 6) also runs the fine ICP N times on the same frame and input and prints
 how many distinct poses came back and the removal results they give (Open3D's ICP reduces over
 threads in an order that varies: the pose may differ in its last bits from call to call).
@@ -101,7 +106,12 @@ def main() -> None:
     ap.add_argument("--warm", action="store_true", help="also the fine ICP from the previous frame's pose")
     ap.add_argument("--against-open3d", action="store_true",
                     help="also the replay's registration by Open3D (reference=True): poses, iterations, masks, CPU")
+    ap.add_argument("--against", type=Path, help="a source tree: its bin mask and ring alternating with this tree's")
+    ap.add_argument("--repeats", type=int, default=8, help="--against: calls of each a frame")
     args = ap.parse_args()
+    if args.against is not None:
+        against(args.log, args.against, args.repeats)
+        return
     session = ReplaySession.open(args.log, choose_bin_model=lambda reader: bin_model_for(reader, None))
     cfg, pm = session.config, session.prepared
     assert pm is not None and session.seed is not None, "the log needs its bin model and a registered first frame"
@@ -233,6 +243,57 @@ def main() -> None:
         print(f"  against Open3D: largest relative pose difference {worst_rel:.1e}; frames whose iterations differ "
               f"{differ_its}, whose masks differ {differ_masks}, of {len(own)}; CPU ms (median, all frames) "
               f"{new_ms:.1f} new, {o3d_ms:.1f} Open3D ({o3d_ms / new_ms:.2f} x)")
+
+
+def against(log: Path, tree: Path, repeats: int) -> None:
+    """The bin mask and the ring of every frame of ``log`` by this tree's ``zcut`` and by ``tree``'s, alternating
+    ``repeats`` times a frame; every result compared bit for bit; CPU ms medians and their ratio."""
+    import dataclasses
+    import importlib
+    import shutil
+    import tempfile
+
+    import zcut.binmask as this
+
+    root = Path(tempfile.mkdtemp(prefix="zcut_against_"))
+    shutil.copytree(tree / "zcut", root / "zcut_against", ignore=shutil.ignore_patterns("*.nbi", "*.nbc", "__pycache__"))
+    sys.path.insert(0, str(root))
+    prev = importlib.import_module("zcut_against.binmask")
+    prev_params = importlib.import_module("zcut_against.params")
+    session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
+    cfg = session.config
+    params = {"this": cfg.bin_mask, "previous": prev_params.BinMaskParams(
+        **{f.name: getattr(cfg.bin_mask, f.name) for f in dataclasses.fields(cfg.bin_mask)})}
+    mods = {"this": this, "previous": prev}
+    frames = list(session.reader.frames())
+    times: dict[tuple[str, str], list[float]] = {}
+    for rep in range(repeats):
+        for i, frame in enumerate(frames):
+            order = ["this", "previous"] if (rep + i) % 2 == 0 else ["previous", "this"]
+            out = {}
+            for name in order:
+                t0 = time.process_time()
+                bm = mods[name].bin_mask(frame.rgb, params=params[name])
+                t1 = time.process_time()
+                ring = mods[name].bin_pixels(bm, frame.xyz, ring_frac=cfg.registration.ring_frac)
+                t2 = time.process_time()
+                times.setdefault((name, "bin_mask"), []).append(t1 - t0)
+                times.setdefault((name, "bin_pixels"), []).append(t2 - t1)
+                out[name] = (bm, ring)
+            (a, ra), (b, rb) = out["this"], out["previous"]
+            assert np.array_equal(ra, rb), f"frame {i}: the rings differ"
+            for f in ("mask", "walls"):
+                assert np.array_equal(getattr(a, f), getattr(b, f)), f"frame {i}: {f} differs"
+            for f in ("found", "area_px", "n_components", "bbox_rc", "covers_centre"):
+                assert getattr(a, f) == getattr(b, f), f"frame {i}: {f} differs"
+            assert np.array_equal(np.array(a.centroid_rc), np.array(b.centroid_rc), equal_nan=True), f"frame {i}"
+    h, w = frames[0].rgb.shape[:2]
+    print(f"{log.name}: {w}x{h}, {len(frames)} frames x {repeats} alternating calls, every result identical; "
+          f"CPU ms a call (medians); load average {os.getloadavg()[0]:.1f}")
+    for piece in ("bin_mask", "bin_pixels"):
+        o = 1000 * statistics.median(times[("previous", piece)])
+        n = 1000 * statistics.median(times[("this", piece)])
+        print(f"  {piece:11s} previous {o:7.2f}  this {n:7.2f}  previous / this {o / n:5.2f}")
 
 
 if __name__ == "__main__":

@@ -97,6 +97,33 @@ def fill_holes(mask: Mask) -> Mask:
     return (padded[1:-1, 1:-1] != 2)
 
 
+@numba.njit(cache=True, nogil=True)
+def _pad_component(labels, y, x, chosen, padded):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """``padded`` (uint8, the box's shape plus one pixel each side): 1 where the box of ``labels`` at row
+    ``y``, column ``x`` holds ``chosen``, 0 elsewhere and on the frame."""
+    h, w = padded.shape[0] - 2, padded.shape[1] - 2
+    padded[0, :] = 0
+    padded[h + 1, :] = 0
+    for r in range(h):
+        lr = labels[y + r, x:x + w]
+        pr = padded[r + 1]
+        pr[0] = 0
+        pr[w + 1] = 0
+        for c in range(w):
+            pr[c + 1] = lr[c] == chosen
+
+
+def _fill_component(labels: np.ndarray, box: tuple[int, int, int, int], chosen: int) -> Mask:
+    """``fill_holes(labels[y:y + bh, x:x + bw] == chosen)`` for ``box`` = (x, y, bw, bh), without its
+    copies (the comparison written into the padded image at once)."""
+    x, y, bw, bh = box
+    padded = np.empty((bh + 2, bw + 2), np.uint8)
+    _pad_component(labels, y, x, chosen, padded)
+    flood = np.zeros((bh + 4, bw + 4), np.uint8)
+    cv2.floodFill(padded, flood, (0, 0), 2, flags=4)
+    return (padded[1:-1, 1:-1] != 2)
+
+
 def _check_pixels_args(result: BinMaskResult, xyz: XYZ, ring_frac: float, min_ring_px: float) -> np.ndarray:
     a = np.asarray(xyz)
     shape = result.mask.shape
@@ -301,13 +328,21 @@ def _ring_bounded(g, vin, vout, walls, xyz, r0, c0, out):  # type: ignore[no-unt
     distance is within reach; out of it when no column within reach of ``vout`` has its zero within
     that reach; else by the exact squared distance over those columns. Returns the number of bright
     pixels with a finite point whose squared distance lies in (vin, vout]: those the two bounds do
-    not decide (0 when ``vin == vout``); it stops at the first (``out`` then incomplete)."""
+    not decide (0 when ``vin == vout``); it stops at the first (``out`` then incomplete).
+
+    A row is walked from the right; a span of columns none of which lies within reach of a column
+    whose own vertical distance is within reach (``near``) is out as a whole and skipped: its pixels
+    have no zero within reach either way (a zero is near) and no column that could bring them within
+    reach. The exact squared distance is the minimum over every column within reach (branch-free,
+    so vectorised); the first one within ``vin`` decided the same before (the order changes no
+    minimum)."""
     m, n = g.shape
     r_in = _isqrt_floor(vin)
     reach = _isqrt_floor(vout)
     far = 1 << 40
     zero_left = np.empty(n, np.int64)
     near_left = np.empty(n, np.int64)
+    cap = np.int32(vout + 1)  # vout <= 2^25 (the shapes _bounded_shape takes), g <= _NONE: int32 holds every sum
     for r in range(m):
         gr = g[r]
         wr = walls[r0 + r, c0:c0 + n]
@@ -325,36 +360,34 @@ def _ring_bounded(g, vin, vout, walls, xyz, r0, c0, out):  # type: ignore[no-unt
             near_left[c] = nl
         zr = far
         nr = far
-        for c in range(n - 1, -1, -1):
+        c = n - 1
+        while c >= 0:
             x = gr[c]
             if x == 0:
                 zr = c
             if x <= reach:
                 nr = c
+            elif nr - c > reach and c - near_left[c] > reach:
+                # columns near_left[c] + reach + 1 .. c: none near, so zr and nr stay; every one out
+                c = near_left[c] + reach
+                continue
             if not wr[c]:
+                c -= 1
                 continue
             inside = x <= r_in or min(c - zero_left[c], zr - c) <= r_in
             if not inside and min(c - near_left[c], nr - c) <= reach:
-                # the columns within reach, nearest first: the first within vin decides (the order
-                # changes no minimum)
-                best = vout + 1
-                lo, hi = max(c - reach, 0), min(c + reach, n - 1)
-                for d in range(reach + 1):
-                    dd = d * d
-                    if c - d >= lo:
-                        y = np.int64(gr[c - d])
-                        best = min(best, y * y + dd)
-                    if c + d <= hi:
-                        y = np.int64(gr[c + d])
-                        best = min(best, y * y + dd)
-                    if best <= vin:
-                        break
+                best = cap
+                for j in range(max(c - reach, 0), min(c + reach, n - 1) + 1):
+                    y = np.int32(gr[j])
+                    d = np.int32(j - c)
+                    best = min(best, y * y + d * d)
                 inside = best <= vin
                 if not inside and best <= vout and xr[c, 0] * 0 + xr[c, 1] * 0 + xr[c, 2] * 0 == 0:
                     return 1
             if inside:
                 # 0 * v is 0 for a finite v, NaN for an infinite or NaN one
                 orow[c] = xr[c, 0] * 0 + xr[c, 1] * 0 + xr[c, 2] * 0 == 0
+            c -= 1
     return 0
 
 
@@ -502,16 +535,15 @@ def bin_mask(rgb: RGB, *, params: BinMaskParams = BinMaskParams()) -> BinMaskRes
             x, y, bw, bh = stats[i, :4]
             if not (y <= cr < y + bh and x <= cc < x + bw):
                 continue
-            sub = fill_holes(labels[y:y + bh, x:x + bw] == i)
+            sub = _fill_component(labels, (int(x), int(y), int(bw), int(bh)), i)
             if sub[cr - y, cc - x]:
                 chosen, covers, filled = i, True, sub
                 break
     if chosen is None:
         chosen = max(candidates, key=lambda i: stats[i, 4])
     x, y, bw, bh = (int(v) for v in stats[chosen, :4])
-    lab = labels[y:y + bh, x:x + bw]
     if filled is None:
-        filled = fill_holes(lab == chosen)
+        filled = _fill_component(labels, (x, y, bw, bh), chosen)
     f: np.ndarray = filled.view(np.uint8)
     if dilate_px > 0:
         # erode back by the same radius (a closing); outside the box counts as background

@@ -338,3 +338,29 @@ def test_one_opencv_thread_a_pixel_at_the_threshold_is_left_to_opencv(one_opencv
     for frac, least in ((0.01, 10.0), (0.2, 10.0)):
         want = bin_pixels_reference(r, xyz, ring_frac=frac, min_ring_px=least)
         assert np.array_equal(bin_pixels(r, xyz, ring_frac=frac, min_ring_px=least), want)
+
+
+def test_the_component_is_filled_as_fill_holes_fills_it():
+    """``_fill_component`` (the comparison written straight into the padded image) against
+    ``fill_holes(labels[box] == chosen)``: random labels, boxes at the image's edges, one pixel, one row,
+    one column, a label absent from the box, rings with holes."""
+    from zcut.binmask import _fill_component, fill_holes
+
+    rng = np.random.default_rng(11)
+    n = 0
+    for h, w in ((1, 1), (1, 9), (9, 1), (7, 13), (40, 60), (97, 131)):
+        for k in (2, 3, 6):
+            labels = rng.integers(0, k, (h, w)).astype(np.int32)
+            if h > 6 and w > 6:  # a ring of label 1 around holes of other labels
+                labels[1:-1, 1] = labels[1:-1, -2] = labels[1, 1:-1] = labels[-2, 1:-1] = 1
+            for _ in range(6):
+                y, x = int(rng.integers(0, h)), int(rng.integers(0, w))
+                bh, bw = int(rng.integers(1, h - y + 1)), int(rng.integers(1, w - x + 1))
+                for chosen in (0, 1, k):  # k: absent
+                    got = _fill_component(labels, (x, y, bw, bh), chosen)
+                    want = fill_holes(labels[y:y + bh, x:x + bw] == chosen)
+                    assert got.dtype == want.dtype and np.array_equal(got, want), (h, w, x, y, bw, bh, chosen)
+                    n += 1
+            got = _fill_component(labels, (0, 0, w, h), 1)
+            assert np.array_equal(got, fill_holes(labels == 1))
+    assert n > 300
