@@ -103,7 +103,7 @@ def _fit_division(x: np.ndarray, y: np.ndarray, z: np.ndarray, rr: np.ndarray, c
         if not np.isfinite(P).all():
             return np.inf, None, 1.0, False
         sign, ok, res = _division_check(x, y, z, rr, cc, P, s_uv, mu_uv, c0[0], c0[1], lam)
-        return (float(res) if ok else np.inf), P, sign, ok
+        return (float(res) if ok and math.isfinite(res) else np.inf), P, sign, ok  # (NaN: a degenerate sample)
 
     grid = np.linspace(-_LAMBDA_MAX, _LAMBDA_MAX, _LAMBDA_STEPS)
     vals = [at(float(lam))[0] for lam in grid]

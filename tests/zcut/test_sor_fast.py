@@ -474,6 +474,11 @@ def test_the_division_model_camera_changes_no_distance(always: bool, monkeypatch
         clouds += [bank_clouds.pinhole(rng, 90, 120), bank_clouds.quantized(rng, 60, 80),
                    bank_clouds.steep(rng, 80, 100)]
     clouds[0][30:80, 40:120] = np.nan
+    if always:  # degenerate samples: one row, one column, a 4 x 4 patch, coincident points
+        lens = distorted(rng, 60, 80, k1=0.1)
+        flat = lens.copy()
+        flat[..., 2] = 0.5
+        clouds += [lens[30:31], lens[:, 40:41], lens[10:14, 10:14], np.repeat(lens[:1, :1], 30, axis=1), flat]
     for xyz in clouds:
         assert_as_oracle(xyz, ks=(1, 4), ratios=(1.0,))
 
