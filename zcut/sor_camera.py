@@ -43,7 +43,12 @@ def fit_camera(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray) -
     normalisation of the pixel coordinates), or None if the cloud does not look like one camera.
 
     Direct linear transform on a lattice sample of the valid pixels (Hartley normalisation), the
-    sign chosen so that the sample's depths P2·p̃ are positive.
+    sign chosen so that the sample's depths P2·p̃ are positive. When its median reprojection error
+    exceeds ``_DISTORTION_MIN_PX`` (a lens bends the image), P is the pinhole of a division model of
+    radial distortion about the image centre if that reprojects the sample better
+    (:func:`_fit_division`): U and V then stay constant along each ray, and only the lens's smooth
+    bend is left within a band. Any P with positive depths keeps the bounds exact; a better one only
+    makes them tighter.
     """
     H, W = valid.shape
     step = max(1, int(math.sqrt(H * W / _FIT_POINTS)))
