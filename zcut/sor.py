@@ -13,7 +13,8 @@ would only replace one equal value by another. In particular m distances of 0 ar
 and a search never has to look at more than m copies of a duplicated point.
 
 1. *Camera model* (:mod:`zcut.sor_camera`). A 3 × 4 projective map P is fitted to the organized
-   cloud itself (direct linear transform from the 3D points to their pixel coordinates);
+   cloud itself (direct linear transform from the 3D points to their pixel coordinates; through a
+   lens, the pinhole of a division model of radial distortion, so that U and V stay constant along a ray);
    U = P0·p̃ / P2·p̃ and V = P1·p̃ / P2·p̃ then grow with the column and the row. Nothing below
    needs P to be right, only that the depth P2·p̃ is positive at every valid point (checked, else
    no camera bounds): the points of any image region whose U values are all >= t satisfy

@@ -29,6 +29,10 @@ EPS = 1e-12      # relative margin of every camera bound
 KEEP = 1.0 - EPS
 _FIT_POINTS = 4096          # lattice sample for the camera fit
 _FIT_MAX_RESIDUAL_PX = 4.0  # median reprojection error above which the fit is not used
+_DISTORTION_MIN_PX = 0.25   # median reprojection error of the plain DLT above which a lens is modelled
+_LAMBDA_MAX = 0.05          # the division model's λ searched in [-_LAMBDA_MAX, _LAMBDA_MAX] (normalised
+_LAMBDA_STEPS = 21          # pixels: |λ| = 0.05 bends the corners of a 4:3 or 16:10 image by ~30 %) on a grid,
+_LAMBDA_REFINE = 12         # then refined by golden section
 
 
 # --------------------------------------------------------------------------------------------
@@ -39,7 +43,12 @@ def fit_camera(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray) -
     normalisation of the pixel coordinates), or None if the cloud does not look like one camera.
 
     Direct linear transform on a lattice sample of the valid pixels (Hartley normalisation), the
-    sign chosen so that the sample's depths P2·p̃ are positive.
+    sign chosen so that the sample's depths P2·p̃ are positive. When its median reprojection error
+    exceeds ``_DISTORTION_MIN_PX`` (a lens bends the image), P is the pinhole of a division model of
+    radial distortion about the image centre if that reprojects the sample better
+    (:func:`_fit_division`): U and V then stay constant along each ray, and only the lens's smooth
+    bend is left within a band. Any P with positive depths keeps the bounds exact; a better one only
+    makes them tighter.
     """
     H, W = valid.shape
     step = max(1, int(math.sqrt(H * W / _FIT_POINTS)))
@@ -63,9 +72,132 @@ def fit_camera(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray) -
     if not np.isfinite(P).all():
         return None
     sign, ok, median_res = _dlt_check(x, y, z, rr, cc, P, s_uv, mu_uv)
+    if not (ok and median_res <= _DISTORTION_MIN_PX):  # a lens bends the rows and columns?
+        c0 = ((W - 1) / 2.0 - mu_uv[0]) * s_uv, ((H - 1) / 2.0 - mu_uv[1]) * s_uv
+        alt = _fit_division(x, y, z, rr, cc, normal, T, s_uv, mu_uv, c0)
+        if alt is not None and alt[2] and (not ok or alt[3] < median_res):
+            P, sign, ok, median_res = alt
     if not ok or not median_res <= _FIT_MAX_RESIDUAL_PX:
         return None
     return P * sign
+
+
+def _fit_division(x: np.ndarray, y: np.ndarray, z: np.ndarray, rr: np.ndarray, cc: np.ndarray, normal: np.ndarray,
+                  T: np.ndarray, s_uv: float, mu_uv: np.ndarray,
+                  c0: tuple[float, float]) -> tuple[np.ndarray, float, bool, float] | None:
+    """P of the pinhole behind a radially distorted image (division model about the image centre
+    c0, in the normalised pixel coordinates: undistorted = c0 + (pixel - c0) / (1 + λ·r²)), its
+    depth sign, whether the sample's depths are all positive, and the median distance in pixels
+    between the pixels and the points' distorted reprojections; None if no λ gives a finite P.
+
+    A plain DLT fitted to a distorted cloud moves its centre off the rays to bend its columns a
+    little, so that U varies with the depth along a ray (a pile's relief: pixels apart across one
+    band's rows); the pinhole of the division model keeps every ray at one U and V, leaving only
+    the lens's smooth bend within a band. λ minimises that median over a grid and a golden-section
+    refinement. The normal matrix is quadratic in λ (``normal`` its constant term)."""
+    N1, N2 = _division_terms(x, y, z, rr, cc, T, s_uv, mu_uv, c0[0], c0[1])
+    if not (np.isfinite(N1).all() and np.isfinite(N2).all()):
+        return None
+
+    def at(lam: float) -> tuple[float, np.ndarray | None, float, bool]:
+        try:
+            _, vecs = np.linalg.eigh(normal + lam * N1 + (lam * lam) * N2)
+        except np.linalg.LinAlgError:
+            return np.inf, None, 1.0, False
+        P = np.ascontiguousarray(vecs[:, 0].reshape(3, 4) @ T)
+        if not np.isfinite(P).all():
+            return np.inf, None, 1.0, False
+        sign, ok, res = _division_check(x, y, z, rr, cc, P, s_uv, mu_uv, c0[0], c0[1], lam)
+        return (float(res) if ok and math.isfinite(res) else np.inf), P, sign, ok  # (NaN: a degenerate sample)
+
+    grid = np.linspace(-_LAMBDA_MAX, _LAMBDA_MAX, _LAMBDA_STEPS)
+    vals = [at(float(lam))[0] for lam in grid]
+    i = int(np.argmin(vals))
+    if not np.isfinite(vals[i]):
+        return None
+    a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    p, q = b - g * (b - a), a + g * (b - a)
+    fp, fq = at(p)[0], at(q)[0]
+    for _ in range(_LAMBDA_REFINE):
+        if fp <= fq:
+            b, q, fq = q, p, fp
+            p = b - g * (b - a)
+            fp = at(p)[0]
+        else:
+            a, p, fp = p, q, fq
+            q = a + g * (b - a)
+            fq = at(q)[0]
+    best = min((vals[i], float(grid[i])), (fp, p), (fq, q))
+    res, P, sign, ok = at(best[1])
+    if P is None or not ok:
+        return None
+    return P, sign, ok, res
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _division_terms(x, y, z, rr, cc, T, s_uv, muv, c0u, c0v):  # type: ignore[no-untyped-def]  # numba kernel
+    # the DLT rows of the division model are A + λ·B (A: the plain DLT's rows [p̃, 0, -u p̃] and
+    # [0, p̃, -v p̃]; B: r²·[p̃, 0, -c0u p̃] and r²·[0, p̃, -c0v p̃]), so the normal matrix is
+    # AᵀA + λ·(AᵀB + BᵀA) + λ²·BᵀB: returns the last two
+    n = rr.shape[0]
+    N1 = np.zeros((12, 12))
+    N2 = np.zeros((12, 12))
+    A = np.zeros(12)
+    B = np.zeros(12)
+    ph = np.zeros(4)
+    for i in range(n):
+        for a in range(4):
+            ph[a] = T[a, 0] * x[rr[i], cc[i]] + T[a, 1] * y[rr[i], cc[i]] + T[a, 2] * z[rr[i], cc[i]] + T[a, 3]
+        u = (cc[i] - muv[0]) * s_uv
+        v = (rr[i] - muv[1]) * s_uv
+        r2 = (u - c0u) * (u - c0u) + (v - c0v) * (v - c0v)
+        for side in range(2):
+            t = u if side == 0 else v
+            c = c0u if side == 0 else c0v
+            A[:] = 0.0
+            B[:] = 0.0
+            for a in range(4):
+                A[4 * side + a] = ph[a]
+                A[8 + a] = -t * ph[a]
+                B[4 * side + a] = r2 * ph[a]
+                B[8 + a] = -r2 * c * ph[a]
+            for a in range(12):
+                for b in range(12):
+                    N1[a, b] += A[a] * B[b] + B[a] * A[b]
+                    N2[a, b] += B[a] * B[b]
+    return N1, N2
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _division_check(x, y, z, rr, cc, P, s_uv, muv, c0u, c0v, lam):  # type: ignore[no-untyped-def]  # numba kernel
+    # _dlt_check for the division model: the depth sign, whether the sample's depths are all of
+    # it, and the median distance in pixels between each pixel and its point's distorted
+    # reprojection (inf where the model has no distorted image)
+    n = rr.shape[0]
+    d = np.empty(n)
+    res = np.empty(n)
+    for i in range(n):
+        xq = x[rr[i], cc[i]]
+        yq = y[rr[i], cc[i]]
+        zq = z[rr[i], cc[i]]
+        d[i] = P[2, 0] * xq + P[2, 1] * yq + P[2, 2] * zq + P[2, 3]
+        du = (P[0, 0] * xq + P[0, 1] * yq + P[0, 2] * zq + P[0, 3]) / d[i] - c0u
+        dv = (P[1, 0] * xq + P[1, 1] * yq + P[1, 2] * zq + P[1, 3]) / d[i] - c0v
+        disc = 1.0 - 4.0 * lam * (du * du + dv * dv)
+        if not disc >= 0.0:
+            res[i] = np.inf
+            continue
+        k = 2.0 / (1.0 + math.sqrt(disc))
+        eu = c0u + du * k - (cc[i] - muv[0]) * s_uv
+        ev = c0v + dv * k - (rr[i] - muv[1]) * s_uv
+        res[i] = math.sqrt(eu * eu + ev * ev) / s_uv
+    sign = 1.0 if np.median(d) >= 0.0 else -1.0
+    ok = True
+    for i in range(n):
+        if not sign * d[i] > 0.0:
+            ok = False
+    return sign, ok, np.median(res)
 
 
 @nb.njit(cache=True, error_model="numpy")

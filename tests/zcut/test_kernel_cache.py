@@ -40,8 +40,35 @@ print(json.dumps(stats))
 """
 
 
-def _run() -> dict[str, list[int]]:
-    out = subprocess.run([sys.executable, "-c", SCRIPT], cwd=ROOT, capture_output=True, text=True, timeout=600,
+SOR_SCRIPT = r"""
+import json, sys
+import numpy as np
+from numba.core.dispatcher import Dispatcher
+from zcut.sor import sor_outliers
+
+rng = np.random.default_rng(5)
+u, v = np.meshgrid(np.arange(120.0), np.arange(90.0))
+z = 0.5 + 0.02 * np.sin(u / 7.0) + rng.normal(0.0, 1e-4, u.shape)
+xn, yn = (u - 60.0) / 60.0, (v - 45.0) / 60.0
+xyz = np.stack([xn * z, yn * z, z], axis=-1)
+sor_outliers(xyz, k=4)                                           # a pinhole cloud
+bend = 1.0 + 0.1 * (xn * xn + yn * yn)
+sor_outliers(np.stack([xn * bend * z, yn * bend * z, z], axis=-1), k=4, convention="open3d")  # through a lens
+
+stats = {}
+for name, mod in list(sys.modules.items()):
+    if not name.startswith("zcut"):
+        continue
+    for attr, obj in list(vars(mod).items()):
+        if isinstance(obj, Dispatcher) and obj.signatures and getattr(obj, "_cache", None) is not None:
+            s = obj.stats
+            stats[f"{name}.{attr}"] = [sum(s.cache_hits.values()), sum(s.cache_misses.values())]
+print(json.dumps(stats))
+"""
+
+
+def _run(script: str = SCRIPT) -> dict[str, list[int]]:
+    out = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=600,
                          env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
     assert out.returncode == 0, out.stderr[-3000:]
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -55,3 +82,12 @@ def test_the_cuts_kernels_load_from_the_cache_in_a_second_process():
     missed = {k: v for k, v in stats.items() if v[1]}
     assert missed == {}, f"compiled again in a second process (cache hits, misses): {missed}"
     assert all(v[0] for v in flood.values()), flood
+
+
+def test_the_sor_kernels_load_from_the_cache_in_a_second_process():
+    # the division model's kernels (zcut.sor_camera, a distorted cloud) as well as the others
+    _run(SOR_SCRIPT)
+    stats = _run(SOR_SCRIPT)
+    assert {"zcut.sor_camera._division_terms", "zcut.sor_camera._division_check", "zcut.sor_window.window_rows"} <= set(stats)
+    missed = {k: v for k, v in stats.items() if v[1]}
+    assert missed == {}, f"compiled again in a second process (cache hits, misses): {missed}"

@@ -400,6 +400,89 @@ def test_distorted_clouds_grow_in_rows_and_columns(seed: int, k1: float, monkeyp
     assert_as_oracle(bent(bank_clouds.steep(rng, 96, 140), 4.0 * k1), ks=(4,), ratios=(1.0,))  # tall parts on end
 
 
+# ------------------------------------------------------------------------------------------------
+# a distorted cloud's camera: the pinhole behind the lens (division model), not a plain DLT
+# ------------------------------------------------------------------------------------------------
+def _planes(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    valid = np.isfinite(xyz).all(axis=2)
+    x, y, z = (np.where(valid, xyz[..., i], np.inf).astype(np.float64) for i in range(3))
+    return x, y, z, valid
+
+
+def _uv(P: np.ndarray, p: np.ndarray) -> np.ndarray:
+    q = p @ P[:, :3].T + P[:, 3]
+    return q[..., :2] / q[..., 2:]
+
+
+def _parallax(P: np.ndarray, xyz: np.ndarray) -> float:
+    """Median change of (U, V) when a point moves along its own ray (times 0.7 and 1.4), in units of
+    the median U step from one column to the next: a camera whose centre is on the rays has none."""
+    p = xyz[np.isfinite(xyz).all(axis=2)].astype(np.float64)
+    move = np.abs(_uv(P, 1.4 * p) - _uv(P, 0.7 * p)).max(axis=1)
+    uv = _uv(P, xyz.astype(np.float64))
+    step = np.nanmedian(np.abs(np.diff(uv[..., 0], axis=1)))
+    return float(np.median(move) / step)
+
+
+def _plain_dlt(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    from zcut import sor_camera
+
+    rr, cc = np.nonzero(valid)
+    pick = np.linspace(0, rr.size - 1, 4096).astype(np.int64)
+    normal, T, _, _ = sor_camera._dlt_normal_matrix(x, y, z, rr[pick], cc[pick])
+    return np.linalg.eigh(normal)[1][:, 0].reshape(3, 4) @ T
+
+
+@pytest.mark.parametrize(("seed", "k1"), [(44, 0.05), (45, 0.15), (46, -0.08)])
+def test_a_distorted_cloud_is_fitted_with_the_pinhole_behind_its_lens(seed: int, k1: float,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    # a plain DLT fitted to a distorted cloud puts its centre off the rays (U and V change along a
+    # ray: a pile's relief then loosens every band bound); the division model's pinhole keeps every
+    # ray at one U and V. A pinhole cloud never tries the lens (same camera as the plain DLT).
+    from zcut import sor_camera
+
+    rng = np.random.default_rng(seed)
+    xyz = distorted(rng, 150, 230, k1=k1)
+    x, y, z, valid = _planes(xyz)
+    P = sor_camera.fit_camera(x, y, z, valid)
+    assert P is not None
+    # (a point moved along its ray from 0.7 to 1.4 times its depth: 6-21 columns with a plain DLT,
+    # 0.03-0.23 with the lens; the division model is not the cloud's polynomial one)
+    assert _parallax(P, xyz) < 0.05 * _parallax(_plain_dlt(x, y, z, valid), xyz)
+
+    def no_lens(*args: object) -> None:
+        raise AssertionError("a pinhole cloud tried the division model")
+
+    monkeypatch.setattr(sor_camera, "_fit_division", no_lens)
+    pin = bank_clouds.pinhole(rng, 150, 230, f=115.0, flying=0.01)
+    x, y, z, valid = _planes(pin)
+    P = sor_camera.fit_camera(x, y, z, valid)
+    assert P is not None and _parallax(P, pin) < 1e-6
+
+
+@pytest.mark.parametrize("always", [False, True])
+def test_the_division_model_camera_changes_no_distance(always: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    # d̄ and the masks against the oracle with the lens modelled on distorted clouds (and, with
+    # ``always``, tried on every cloud: pinhole, quantized, tall parts on end, a large invalid region)
+    from zcut import sor_camera
+
+    rng = np.random.default_rng(20261206)
+    if always:
+        monkeypatch.setattr(sor_camera, "_DISTORTION_MIN_PX", -1.0)
+    clouds = [distorted(rng, 120, 170, k1=0.1), bent(bank_clouds.steep(rng, 96, 140), 0.3)]
+    if always:
+        clouds += [bank_clouds.pinhole(rng, 90, 120), bank_clouds.quantized(rng, 60, 80),
+                   bank_clouds.steep(rng, 80, 100)]
+    clouds[0][30:80, 40:120] = np.nan
+    if always:  # degenerate samples: one row, one column, a 4 x 4 patch, coincident points
+        lens = distorted(rng, 60, 80, k1=0.1)
+        flat = lens.copy()
+        flat[..., 2] = 0.5
+        clouds += [lens[30:31], lens[:, 40:41], lens[10:14, 10:14], np.repeat(lens[:1, :1], 30, axis=1), flat]
+    for xyz in clouds:
+        assert_as_oracle(xyz, ks=(1, 4), ratios=(1.0,))
+
+
 
 # ------------------------------------------------------------------------------------------------
 # _strips is its two halves, _strips_u and _strips_v, folded: bit for bit the four-term chain
