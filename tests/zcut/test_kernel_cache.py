@@ -5,18 +5,10 @@ and numba keys a closure's cache entry by the closure's pickled bytes, which dif
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-from pathlib import Path
-
-ROOT = Path(__file__).resolve().parents[2]
+from kernel_cache_helpers import missed, second_process_stats
 
 SCRIPT = r"""
-import json, sys
 import numpy as np
-import numba
-from numba.core.dispatcher import Dispatcher
 from zcut.cuts import find_clusters, zcut_outliers
 from zcut.params import ZCutParams
 
@@ -27,23 +19,11 @@ find_clusters(h, params=ZCutParams(step=0.01, max_depth=60.0, max_area=400))    
 zcut_outliers(h, step=1.0, max_depth=20.0, max_area=400)                             # the pruned path
 h[10:30, 20:50] = np.nan
 find_clusters(h, params=ZCutParams(step=1.0, max_depth=20.0, max_area=400))          # with invalid pixels
-
-stats = {}
-for name, mod in list(sys.modules.items()):
-    if not name.startswith("zcut"):
-        continue
-    for attr, obj in list(vars(mod).items()):
-        if isinstance(obj, Dispatcher) and obj.signatures and getattr(obj, "_cache", None) is not None:
-            s = obj.stats
-            stats[f"{name}.{attr}"] = [sum(s.cache_hits.values()), sum(s.cache_misses.values())]
-print(json.dumps(stats))
 """
 
 
 SOR_SCRIPT = r"""
-import json, sys
 import numpy as np
-from numba.core.dispatcher import Dispatcher
 from zcut.sor import sor_outliers
 
 rng = np.random.default_rng(5)
@@ -54,40 +34,19 @@ xyz = np.stack([xn * z, yn * z, z], axis=-1)
 sor_outliers(xyz, k=4)                                           # a pinhole cloud
 bend = 1.0 + 0.1 * (xn * xn + yn * yn)
 sor_outliers(np.stack([xn * bend * z, yn * bend * z, z], axis=-1), k=4, convention="open3d")  # through a lens
-
-stats = {}
-for name, mod in list(sys.modules.items()):
-    if not name.startswith("zcut"):
-        continue
-    for attr, obj in list(vars(mod).items()):
-        if isinstance(obj, Dispatcher) and obj.signatures and getattr(obj, "_cache", None) is not None:
-            s = obj.stats
-            stats[f"{name}.{attr}"] = [sum(s.cache_hits.values()), sum(s.cache_misses.values())]
-print(json.dumps(stats))
 """
 
 
-def _run(script: str = SCRIPT) -> dict[str, list[int]]:
-    out = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=600,
-                         env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
-    assert out.returncode == 0, out.stderr[-3000:]
-    return json.loads(out.stdout.strip().splitlines()[-1])
-
-
 def test_the_cuts_kernels_load_from_the_cache_in_a_second_process():
-    _run()  # the first process may compile (a fresh checkout) and writes the caches
-    stats = _run()
+    stats = second_process_stats(SCRIPT)
     flood = {k: v for k, v in stats.items() if "flood_core" in k}
     assert set(flood) >= {"zcut.cut_tree.flood_core", "zcut.cut_tree.flood_core_deep"}, sorted(stats)
-    missed = {k: v for k, v in stats.items() if v[1]}
-    assert missed == {}, f"compiled again in a second process (cache hits, misses): {missed}"
+    assert missed(stats) == {}, f"compiled again in a second process (cache hits, misses): {missed(stats)}"
     assert all(v[0] for v in flood.values()), flood
 
 
 def test_the_sor_kernels_load_from_the_cache_in_a_second_process():
     # the division model's kernels (zcut.sor_camera, a distorted cloud) as well as the others
-    _run(SOR_SCRIPT)
-    stats = _run(SOR_SCRIPT)
+    stats = second_process_stats(SOR_SCRIPT)
     assert {"zcut.sor_camera._division_terms", "zcut.sor_camera._division_check", "zcut.sor_window.window_rows"} <= set(stats)
-    missed = {k: v for k, v in stats.items() if v[1]}
-    assert missed == {}, f"compiled again in a second process (cache hits, misses): {missed}"
+    assert missed(stats) == {}, f"compiled again in a second process (cache hits, misses): {missed(stats)}"

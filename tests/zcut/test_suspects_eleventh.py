@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from kernel_cache_helpers import missed, second_process_stats
 from suspects_helpers import whole_frame_gate
 from test_suspects_fast import assert_same
 from test_suspects_ninth import _quantized_frame
@@ -178,9 +179,7 @@ def test_kept_ring_equals_the_scan_of_every_pixel() -> None:
 
 
 _CACHE_SCRIPT = r"""
-import json, sys
 import numpy as np
-from numba.core.dispatcher import Dispatcher
 from zcut.edge_surface import EdgeSurfaceParams
 from zcut.params import SuspectParams
 from zcut.suspects import suspects
@@ -194,39 +193,13 @@ xyz[60:62, 100:102, 2] -= 0.03
 xyz[20:25, 30:40] = np.nan
 h = -1000.0 * xyz[..., 2]
 suspects(xyz, h, np.isfinite(xyz).all(axis=2), params=SuspectParams(), edge_surface=EdgeSurfaceParams())
-stats = {}
-for name, mod in list(sys.modules.items()):
-    if not name.startswith("zcut.suspects"):
-        continue
-    for attr, obj in list(vars(mod).items()):
-        if isinstance(obj, Dispatcher) and obj.signatures and getattr(obj, "_cache", None) is not None:
-            s = obj.stats
-            stats[f"{name}.{attr}"] = [sum(s.cache_hits.values()), sum(s.cache_misses.values())]
-print(json.dumps(stats))
 """
 
 
 def test_the_suspects_kernels_load_from_the_cache_in_a_second_process() -> None:
     """The suspects' numba kernels (this round's ``_label_medians_kernel`` and ``_kept_ring`` among them) are not
     compiled again by a second fresh process (tests/zcut/test_kernel_cache.py's check, for ``zcut.suspects``)."""
-    import json
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[2]
-
-    def run() -> dict[str, list[int]]:
-        out = subprocess.run([sys.executable, "-c", _CACHE_SCRIPT], cwd=root, capture_output=True, text=True,
-                             timeout=900, env={**os.environ, "PYTHONPATH": str(root)})
-        assert out.returncode == 0, out.stderr[-3000:]
-        stats: dict[str, list[int]] = json.loads(out.stdout.strip().splitlines()[-1])
-        return stats
-
-    run()  # may compile (a fresh checkout) and write the caches
-    stats = run()
+    stats = second_process_stats(_CACHE_SCRIPT, prefix="zcut.suspects", timeout=900)
     assert {"zcut.suspects.detectors._label_medians_kernel", "zcut.suspects.floating._kept_ring"} <= set(stats), \
         sorted(stats)
-    missed = {k: v for k, v in stats.items() if v[1]}
-    assert missed == {}, f"compiled again in a second process (cache hits, misses): {missed}"
+    assert missed(stats) == {}, f"compiled again in a second process (cache hits, misses): {missed(stats)}"
