@@ -46,11 +46,10 @@ def shifted(a: np.ndarray, dr: int, dc: int, fill: float) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _label_medians_kernel(values, labels, n, out):  # type: ignore[no-untyped-def]  # numba kernel
-    """:func:`label_medians_reference` of 1-D float64 ``values`` and integer ``labels`` into ``out`` (n, NaN):
-    the finite values of each label 1..n gathered in their order (a counting sort by label), then sorted
-    stably (mergesort): the order ``np.lexsort((v, g))`` gives them (stable too: equal values, -0.0 and 0.0
-    among them, keep their order), so the same middle values and the same mean of the two."""
+def label_gather(values, labels, n):  # type: ignore[no-untyped-def]  # numba kernel
+    """The finite ``values`` of each label 1..n gathered in their order (a counting sort by label): ``(buf,
+    start, count)``, label g's values ``buf[start[g]:start[g] + count[g]]``; labels outside 1..n are left out.
+    For :func:`_label_medians_kernel` and :func:`zcut.suspects.grouping._label_classes`."""
     count = np.zeros(n + 2, np.int64)
     for k in range(values.size):
         g = labels[k]
@@ -66,6 +65,16 @@ def _label_medians_kernel(values, labels, n, out):  # type: ignore[no-untyped-de
         if 0 < g <= n and np.isfinite(values[k]):
             buf[at[g]] = values[k]
             at[g] += 1
+    return buf, start, count
+
+
+@numba.njit(cache=True)
+def _label_medians_kernel(values, labels, n, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`label_medians_reference` of 1-D float64 ``values`` and integer ``labels`` into ``out`` (n, NaN):
+    the finite values of each label 1..n gathered in their order (a counting sort by label), then sorted
+    stably (mergesort): the order ``np.lexsort((v, g))`` gives them (stable too: equal values, -0.0 and 0.0
+    among them, keep their order), so the same middle values and the same mean of the two."""
+    buf, start, count = label_gather(values, labels, n)
     for g in range(1, n + 1):
         c = count[g]
         if c == 0:

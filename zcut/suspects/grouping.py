@@ -10,7 +10,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..params import SuspectParams
-from .detectors import DETECTORS
+from .detectors import DETECTORS, label_gather
 
 # grouping: a detector with more components than this is pre-merged with a larger radius first
 MAX_NODES = 1500
@@ -588,19 +588,7 @@ def _label_classes(values, labels, n, bounds):  # type: ignore[no-untyped-def]  
     label, then ``np.sort``) instead of one lexsort of all: the same values in the same order but for the
     sign of a zero, which no median compared with the bounds can tell.
     """
-    count = np.zeros(n + 1, np.int64)
-    for k in range(values.size):
-        if labels[k] > 0 and np.isfinite(values[k]):
-            count[labels[k]] += 1
-    start = np.zeros(n + 2, np.int64)
-    for g in range(1, n + 1):
-        start[g + 1] = start[g] + count[g]
-    buf = np.empty(start[n + 1])
-    at = start.copy()
-    for k in range(values.size):
-        if labels[k] > 0 and np.isfinite(values[k]):
-            buf[at[labels[k]]] = values[k]
-            at[labels[k]] += 1
+    buf, start, count = label_gather(values, labels, n)
     out = np.empty(n, np.int8)
     for g in range(1, n + 1):
         c = count[g]
