@@ -280,6 +280,69 @@ class FrameFits:
         full = np.concatenate([np.asarray(use, np.int32), np.zeros(1, np.int32)])
         return d, np.where(c >= 0, full[np.maximum(c, 0)], c).astype(np.int32), err.astype(np.float32)
 
+    def partly_trusted(self, xyz_mm: np.ndarray, *, max_share: float | None = None, rule: str = "front",
+                       core: float = 1.0, away_px: int = 2) -> FrameFits:
+        """These fits with the fits the camera saw through only partly trusted (:func:`zcut.fit_vetting.see_through`,
+        :func:`zcut.fit_vetting.partly_trusted`; ``max_share`` default :data:`zcut.fit_vetting.MAX_SEE_THROUGH`): the
+        pixels such a fit explains off its own visible surface are judged again against every other surface (the
+        other fits, the bin, the table; :meth:`_against`), each with the Err of its new nearest surface: explained
+        by another within k × Err, or unexplained with that distance. ``self`` when no pixel changes."""
+        from zcut import explained as ex
+        from zcut import fit_vetting as fv
+
+        if self.status != "ready" or self.part_mesh is None or self.surfaces is None or not self.fits:
+            return self
+        share = fv.MAX_SEE_THROUGH if max_share is None else float(max_share)
+        n = len(self.fits)
+        see = fv.see_through(xyz_mm, [self.posed(i) for i in range(n)], self.part_err_mm, f_px=self.f_px, k=self.k,
+                             floor_mm=self.floor_mm)
+        keep = fv.partly_trusted(self.fit_pix, self.fit_of, see, shape=self.shape, max_share=share, k=self.k,
+                                 rule=rule, core=core, away_px=away_px)
+        if keep.all():
+            return self
+        pix, src = self.fit_pix[~keep], self.fit_of[~keep].astype(np.int64)
+        d = np.empty(pix.size, np.float32)
+        c = np.empty(pix.size, np.int32)
+        e = np.empty(pix.size, np.float32)
+        v = self.part_mesh[0]
+        boxes = []
+        for i in range(n):  # each fit's posed mesh's box
+            T = np.asarray(self.fits[i]["pose"], np.float64)
+            q = v @ T[:3, :3].T + T[:3, 3]
+            boxes.append([q.min(axis=0), q.max(axis=0)])
+        box = np.asarray(boxes)
+        pts = np.asarray(xyz_mm, np.float64).reshape(-1, 3)
+        for i in np.unique(src).tolist():
+            at = np.flatnonzero(src == i)
+            p = pts[pix[at]]
+            lo, hi = p.min(axis=0), p.max(axis=0)
+            gap = np.linalg.norm(np.maximum(0.0, np.maximum(box[:, 0] - hi, lo - box[:, 1])), axis=1)
+            gap[i] = np.inf
+            others = np.flatnonzero(np.arange(n) != i)
+            near = others[gap[others] <= REACH_MM]
+            dd, cc, ee = self._against(pix[at], src[at].astype(np.int32), np.array([i]), near, xyz_mm)
+            rest = others[gap[others] > REACH_MM]
+            far = ~(dd < (float(gap[rest].min()) if rest.size else np.inf))
+            if far.any():  # a fit left out may be nearer: searched again among every other fit (exact)
+                dd[far], cc[far], ee[far] = self._against(pix[at][far], src[at][far].astype(np.int32), np.array([i]),
+                                                          others, xyz_mm)
+            d[at], c[at], e[at] = dd, cc, ee
+        off = ex.unexplained(d[None].astype(np.float64), e[None].astype(np.float64), self.k)[0]
+        to_fit = ~off & (c >= 0)
+        fp = np.concatenate([self.fit_pix[keep], pix[to_fit]])
+        fo = np.concatenate([self.fit_of[keep], c[to_fit]]).astype(np.int32)
+        o = np.argsort(fp, kind="stable")
+        up = np.concatenate([self.un_pix, pix[off]])
+        ou = np.argsort(up, kind="stable")
+        moved = int((~keep).sum())
+        return dataclasses.replace(
+            self, fit_pix=fp[o], fit_of=fo[o], un_pix=up[ou],
+            un_dist=np.concatenate([self.un_dist, d[off]]).astype(np.float32)[ou],
+            un_err=np.concatenate([self.un_err, e[off]]).astype(np.float32)[ou],
+            un_code=np.concatenate([self.un_code, c[off]]).astype(np.int32)[ou],
+            message=f"{self.message}; {int((see.share > share).sum())} fits seen through, partly trusted "
+                    f"({moved} px judged again, {int(off.sum())} unexplained)")
+
     def seeded(self, x: int, y: int, xyz_mm: np.ndarray, config: Any) -> FrameFits:
         """These fits with the instances a click at pixel (``x``, ``y``) finds: the part is fitted again on
         the unexplained pixels of a window around it (1.5 × the typical fit's side + 8 px, 16-200 px; else

@@ -479,6 +479,196 @@ def without_fits(xyz_mm: np.ndarray, nearest: Nearest, surfaces: KnownSurfaces,
     return left, Nearest(dist, code)
 
 
-__all__ = ["BEHIND_ERRS", "BEHIND_SEARCH_MM", "INSIDE_SAMPLES", "MAX_BEHIND", "MAX_OVERLAP", "OCCUPANCY_VOXELS", "SPHERE_TOLERANCE", "FitVetting", "Solid", "behind_shares", "explained_px",
+__all__ = ["BEHIND_ERRS", "BEHIND_SEARCH_MM", "INSIDE_SAMPLES", "MAX_BEHIND", "MAX_OVERLAP", "MAX_SEE_THROUGH", "OCCUPANCY_VOXELS", "SPHERE_TOLERANCE", "TRUST_RULES", "FitVetting", "SeeThrough", "Solid", "behind_shares", "explained_px", "partly_trusted", "see_through",
            "inside_samples", "instance_overlaps", "is_closed", "part_overlaps", "pose_overlaps", "solid_of",
            "surface_centroid", "vet_fits", "without_fits"]
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Fits the camera saw through, and the pixels such a fit explains on its own surface (issue 29; docs/labelling.md,
+# "Eleventh round" and "Twelfth round")
+
+#: a fit the camera saw through over more than this share of its silhouette is only partly trusted
+#: (:func:`partly_trusted`)
+MAX_SEE_THROUGH = 0.2
+
+
+@dataclass(frozen=True, slots=True)
+class SeeThrough:
+    """What the camera saw of each posed fit's own mesh (:func:`see_through`).
+
+    Attributes
+    ----------
+    share : (n,) float64 ndarray
+        The share of the fit's silhouette pixels that are seen through (0 for an empty silhouette).
+    pix : tuple of (m_i,) int64 ndarray
+        The fit's silhouette: the flat indices (increasing) of the valid pixels whose camera ray meets its mesh.
+    gap_mm : tuple of (m_i,) float32 ndarray
+        Along each such ray, the point's range minus the first hit's (mm): positive behind the mesh's visible
+        surface, negative in front of it.
+    dist_mm : tuple of (m_i,) float32 ndarray
+        The point's distance to the mesh (mm).
+    err_mm : tuple of (m_i,) float32 ndarray
+        The fit's Err at the pixel: ``max(floor, sqrt(σ² + c²/2))``, c = |z| / f the footprint.
+    through : tuple of (m_i,) bool ndarray
+        Seen through: the point lies behind the first hit farther than k × Err (``gap_mm`` > k × Err).
+    """
+
+    share: np.ndarray
+    pix: tuple[np.ndarray, ...]
+    gap_mm: tuple[np.ndarray, ...]
+    dist_mm: tuple[np.ndarray, ...]
+    err_mm: tuple[np.ndarray, ...]
+    through: tuple[np.ndarray, ...]
+
+
+def _pixel_of_direction(xyz: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """((a_col, b_col), (a_row, b_row)): the least-squares lines column = a · x/z + b and row = a · y/z + b of the
+    valid pixels of an organized (pinhole) cloud — where a direction falls in the image, read off the cloud; None
+    with fewer than 2 distinct columns or rows."""
+    rows, cols = np.nonzero(valid)
+    if rows.size < 2:
+        return None
+    step = max(1, rows.size // 200_000)
+    rows, cols = rows[::step], cols[::step]
+    p = xyz[rows, cols]
+    out = []
+    for a, idx in ((p[:, 0] / p[:, 2], cols), (p[:, 1] / p[:, 2], rows)):
+        if np.ptp(idx) == 0 or np.ptp(a) == 0:
+            return None
+        A = np.stack([a, np.ones_like(a)], axis=1)
+        out.append(np.linalg.lstsq(A, idx.astype(np.float64), rcond=None)[0])
+    return out[0], out[1]
+
+
+def see_through(xyz_mm: np.ndarray, parts: Sequence[tuple[np.ndarray, np.ndarray]], sigma_mm: Sequence[float], *,
+                f_px: float, k: float = 3.0, floor_mm: float = 0.0, margin_px: int = 2) -> SeeThrough:
+    """For each posed fit (``parts``, camera frame, mm; each with its residual σ in ``sigma_mm``), the valid pixels
+    whose camera ray meets its own mesh (its silhouette, the other fits ignored) and which of them the camera saw
+    through: the point lies behind the mesh's first hit along its ray by more than ``k`` × Err (Err = ``max(floor_mm, sqrt(σ² + c²/2))``, c = |z| / ``f_px``). A fit the scan covers (resting on what was
+    measured, or occluded by it) has share 0; one floating in front of the measured surface, 1.
+
+    The rays are the valid points' own directions from the camera (the origin); which pixels a fit may cover is
+    read off the cloud (its columns and rows against x/z and y/z, :func:`_pixel_of_direction`), with ``margin_px``.
+    Invalid pixels are never counted."""
+    a = np.asarray(xyz_mm, np.float64)
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise InputShapeError(f"xyz_mm must be an (H, W, 3) array, got {describe_array(a)}")
+    if len(sigma_mm) != len(parts):
+        raise InputShapeError(f"see_through: {len(parts)} fits but {len(sigma_mm)} residuals")
+    if not (np.isfinite(f_px) and f_px > 0):
+        raise ParameterError(f"the focal length must be a positive number of pixels, got {f_px!r}")
+    if not (np.isfinite(k) and k > 0):
+        raise ParameterError(f"k must be a positive number, got {k!r}")
+    H, W = a.shape[:2]
+    valid = np.isfinite(a).all(axis=2) & (a[..., 2] != 0)
+    n = len(parts)
+    empty_i, empty_f, empty_b = np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, bool)
+    share = np.zeros(n)
+    pix: list[np.ndarray] = [empty_i] * n
+    gap: list[np.ndarray] = [empty_f] * n
+    dist: list[np.ndarray] = [empty_f] * n
+    errs: list[np.ndarray] = [empty_f] * n
+    through: list[np.ndarray] = [empty_b] * n
+    lines = _pixel_of_direction(a, valid) if n else None
+    if lines is not None:
+        import open3d as o3d
+
+        (ac, bc), (ar, br) = lines
+        for i, (v, t) in enumerate(parts):
+            v = np.asarray(v, np.float64)
+            if not (v[:, 2] > 0).all():
+                continue  # a mesh reaching the camera's plane: no silhouette measured
+            c = ac * v[:, 0] / v[:, 2] + bc
+            r = ar * v[:, 1] / v[:, 2] + br
+            c0, c1 = int(np.clip(np.floor(c.min()) - margin_px, 0, W)), int(np.clip(np.ceil(c.max()) + margin_px + 1, 0, W))
+            r0, r1 = int(np.clip(np.floor(r.min()) - margin_px, 0, H)), int(np.clip(np.ceil(r.max()) + margin_px + 1, 0, H))
+            if c1 <= c0 or r1 <= r0:
+                continue
+            win = valid[r0:r1, c0:c1]
+            rr, cc = np.nonzero(win)
+            if not rr.size:
+                continue
+            p = a[r0:r1, c0:c1][rr, cc]
+            rng = np.linalg.norm(p, axis=1)
+            d = p / rng[:, None]
+            scene = _scene(v, t)
+            rays = np.concatenate([np.zeros_like(d), d], axis=1).astype(np.float32)
+            hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
+            on = np.isfinite(hit)
+            if not on.any():
+                continue
+            q = p[on]
+            dd = scene.compute_distance(o3d.core.Tensor(q.astype(np.float32))).numpy().astype(np.float64)  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
+            s = float(sigma_mm[i]) if np.isfinite(sigma_mm[i]) else 0.0
+            foot = np.abs(q[:, 2]) / float(f_px)
+            e = np.maximum(float(floor_mm), np.sqrt(s * s + 0.5 * foot * foot))
+            g = rng[on] - hit[on]
+            th = g > k * e
+            flat = (rr[on] + r0) * W + (cc[on] + c0)
+            order = np.argsort(flat, kind="stable")
+            pix[i], gap[i] = flat[order].astype(np.int64), g[order].astype(np.float32)
+            dist[i], errs[i], through[i] = dd[order].astype(np.float32), e[order].astype(np.float32), th[order]
+            share[i] = float(th.mean())
+    return SeeThrough(share, tuple(pix), tuple(gap), tuple(dist), tuple(errs), tuple(through))
+
+
+#: the ways :func:`partly_trusted` reads "the scan supports the pixel as the fit's part" (see there)
+TRUST_RULES = ("front", "front_core", "tight", "front_away")
+
+
+def partly_trusted(band_pix: np.ndarray, band_of: np.ndarray, see: SeeThrough, *, shape: tuple[int, int],
+                   max_share: float = MAX_SEE_THROUGH, k: float = 3.0, rule: str = "front", core: float = 1.0,
+                   away_px: int = 2) -> np.ndarray:
+    """(b,) bool: which of the band pixels ``band_pix`` (flat, the pixels each fit ``band_of`` explains: its nearest
+    surface, within k × Err) their fit keeps explaining. A fit seen through (:func:`see_through`) over at most
+    ``max_share`` of its silhouette keeps every pixel; one above it is *partly trusted*: it keeps only the pixels
+    that lie on its own visible surface — in its silhouette and within ``k`` × Err of the first hit along their
+    ray (|gap| ≤ k × Err; ``rule`` "front") — and, with ``rule``:
+
+    - "front_core": of those, the 8-connected pieces that hold a pixel within ``core`` × Err of the first hit;
+    - "tight": the silhouette pixels within ``core`` × Err of the mesh;
+    - "front_away": "front" without the pixels within ``away_px`` pixels of a pixel it was seen through at.
+    """
+    if rule not in TRUST_RULES:
+        raise ParameterError(f"rule must be one of {', '.join(TRUST_RULES)}, got {rule!r}")
+    bp = np.asarray(band_pix, np.int64)
+    bo = np.asarray(band_of, np.int64)
+    if bp.shape != bo.shape or bp.ndim != 1:
+        raise InputShapeError(f"band_pix and band_of must be two (b,) arrays, got {describe_array(bp)} and "
+                              f"{describe_array(bo)}")
+    n = len(see.share)
+    if bo.size and (bo.min() < 0 or bo.max() >= n):
+        raise InputShapeError(f"band_of names fit {int(bo.max())} but {n} fits were seen")
+    keep = np.ones(bp.size, bool)
+    H, W = shape
+    for i in np.flatnonzero(see.share > max_share).tolist():
+        mine = np.flatnonzero(bo == i)
+        if not mine.size:
+            continue
+        sil, g, e = see.pix[i], see.gap_mm[i].astype(np.float64), see.err_mm[i].astype(np.float64)
+        if rule == "tight":
+            ok = see.dist_mm[i].astype(np.float64) <= core * e
+        else:
+            ok = np.abs(g) <= k * e
+        if rule == "front_core" and ok.any():
+            from scipy import ndimage
+
+            img = np.zeros(H * W, bool)
+            img[sil[ok]] = True
+            lab, _ = ndimage.label(img.reshape(H, W), structure=np.ones((3, 3), bool))
+            good = np.unique(lab.ravel()[sil[ok & (np.abs(g) <= core * e)]])
+            ok &= np.isin(lab.ravel()[sil], good[good > 0])
+        if rule == "front_away" and see.through[i].any():
+            from scipy import ndimage
+
+            img = np.zeros(H * W, bool)
+            img[sil[see.through[i]]] = True
+            near = ndimage.binary_dilation(img.reshape(H, W), structure=np.ones((3, 3), bool),
+                                           iterations=int(away_px)).ravel()
+            ok &= ~near[sil]
+        j = np.searchsorted(sil, bp[mine])
+        j = np.minimum(j, max(sil.size - 1, 0))
+        inside = (sil.size > 0) & (sil[j] == bp[mine]) if sil.size else np.zeros(mine.size, bool)
+        keep[mine] = inside & ok[j] if sil.size else False
+    return keep
