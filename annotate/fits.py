@@ -296,8 +296,26 @@ class FrameFits:
         n = len(self.fits)
         see = fv.see_through(xyz_mm, [self.posed(i) for i in range(n)], self.part_err_mm, f_px=self.f_px, k=self.k,
                              floor_mm=self.floor_mm)
+        local = err = None
+        if rule == "front_local":  # the edge-aware local surface measured where the fits' own surfaces do not hold
+            front = fv.partly_trusted(self.fit_pix, self.fit_of, see, shape=self.shape, max_share=share, k=self.k)
+            H, W = self.shape
+            pts = np.asarray(xyz_mm, np.float64)
+            where = np.zeros(H * W, bool)
+            where[self.fit_pix[~front]] = True
+            foot = ex.footprint_mm(pts, self.f_px)
+            local = np.full(self.fit_pix.size, np.nan)
+            if where.any():
+                band = np.zeros(H * W, bool)
+                band[self.fit_pix] = True
+                local[~front] = ex.local_surface_distance(
+                    pts, np.isfinite(pts).all(axis=2), where=where.reshape(H, W),
+                    params=ex.local_surface_params(foot, band.reshape(H, W))).ravel()[self.fit_pix[~front]]
+            sig = np.asarray(self.part_err_mm, np.float64)[self.fit_of]
+            c = foot.ravel()[self.fit_pix]
+            err = np.maximum(self.floor_mm, np.sqrt(sig * sig + 0.5 * c * c))
         keep = fv.partly_trusted(self.fit_pix, self.fit_of, see, shape=self.shape, max_share=share, k=self.k,
-                                 rule=rule, core=core, away_px=away_px)
+                                 rule=rule, core=core, away_px=away_px, local_mm=local, band_err_mm=err)
         if keep.all():
             return self
         pix, src = self.fit_pix[~keep], self.fit_of[~keep].astype(np.int64)

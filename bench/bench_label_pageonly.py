@@ -587,10 +587,11 @@ def diagnose(log: Path, work: Path) -> tuple[list[dict], list[dict]]:
         for share, rule in PARTLY_TRUSTED:
             _, xyz, _ = frame_arrays(frame, job)
             t = time.process_time()
-            pt = ff.partly_trusted(xyz, max_share=share, rule=rule)
+            rule, _, core = rule.partition(":")
+            pt = ff.partly_trusted(xyz, max_share=share, rule=rule, core=float(core or 1.0))
             cpu_pt = time.process_time() - t
-            got = diagnose_frame(log, frame, job, pt, cpu + cpu_pt, work=work, variant=f"trust{share:g}{rule}")
-            got.update(partly_trusted_share=share, partly_trusted_rule=rule, cpu_partly_trusted=round(cpu_pt, 2),
+            got = diagnose_frame(log, frame, job, pt, cpu + cpu_pt, work=work, variant=f"trust{share:g}{rule}{core}")
+            got.update(partly_trusted_share=share, partly_trusted_rule=rule, partly_trusted_core=float(core or 1.0), cpu_partly_trusted=round(cpu_pt, 2),
                        partly_trusted_message=pt.message)
             seeded.append(got)
             print(json.dumps({k: got[k] for k in ("log", "variant", "iou", "iou_sensor", "held", "limit", "fits",
@@ -898,7 +899,8 @@ def main() -> int:
                     help="with --diagnose: also score the fits seen through over more than each share S partly "
                     "trusted (docs/labelling.md, 'Twelfth round'), from the same fits; F.partly.json")
     ap.add_argument("--trust-rule", default="front", metavar="R1,R2",
-                    help="with --partly-trusted: the rules of the pixels a partly trusted fit keeps (default front)")
+                    help="with --partly-trusted: the rules of the pixels a partly trusted fit keeps, each RULE or RULE:CORE "
+                    "(zcut.fit_vetting.TRUST_RULES; default front)")
     ap.add_argument("--compare", default="", metavar="BEFORE,AFTER",
                     help="two --diagnose --json files (two trees, the same logs): one table, before -> after")
     args = ap.parse_args()

@@ -614,12 +614,13 @@ def see_through(xyz_mm: np.ndarray, parts: Sequence[tuple[np.ndarray, np.ndarray
 
 
 #: the ways :func:`partly_trusted` reads "the scan supports the pixel as the fit's part" (see there)
-TRUST_RULES = ("front", "front_core", "tight", "front_away")
+TRUST_RULES = ("front", "front_core", "tight", "front_away", "front_local")
 
 
 def partly_trusted(band_pix: np.ndarray, band_of: np.ndarray, see: SeeThrough, *, shape: tuple[int, int],
                    max_share: float = MAX_SEE_THROUGH, k: float = 3.0, rule: str = "front", core: float = 1.0,
-                   away_px: int = 2) -> np.ndarray:
+                   away_px: int = 2, local_mm: np.ndarray | None = None,
+                   band_err_mm: np.ndarray | None = None) -> np.ndarray:
     """(b,) bool: which of the band pixels ``band_pix`` (flat, the pixels each fit ``band_of`` explains: its nearest
     surface, within k × Err) their fit keeps explaining. A fit seen through (:func:`see_through`) over at most
     ``max_share`` of its silhouette keeps every pixel; one above it is *partly trusted*: it keeps only the pixels
@@ -628,7 +629,10 @@ def partly_trusted(band_pix: np.ndarray, band_of: np.ndarray, see: SeeThrough, *
 
     - "front_core": of those, the 8-connected pieces that hold a pixel within ``core`` × Err of the first hit;
     - "tight": the silhouette pixels within ``core`` × Err of the mesh;
-    - "front_away": "front" without the pixels within ``away_px`` pixels of a pixel it was seen through at.
+    - "front_away": "front" without the pixels within ``away_px`` pixels of a pixel it was seen through at;
+    - "front_local": "front", and the band pixels the scan's own edge-aware local surface explains: ``local_mm``
+      (b,) their distance to it (:func:`zcut.explained.local_surface_distance`; NaN: not measured) within ``core`` ×
+      ``band_err_mm`` (b,), the fit's Err there.
     """
     if rule not in TRUST_RULES:
         raise ParameterError(f"rule must be one of {', '.join(TRUST_RULES)}, got {rule!r}")
@@ -667,8 +671,14 @@ def partly_trusted(band_pix: np.ndarray, band_of: np.ndarray, see: SeeThrough, *
             near = ndimage.binary_dilation(img.reshape(H, W), structure=np.ones((3, 3), bool),
                                            iterations=int(away_px)).ravel()
             ok &= ~near[sil]
-        j = np.searchsorted(sil, bp[mine])
-        j = np.minimum(j, max(sil.size - 1, 0))
-        inside = (sil.size > 0) & (sil[j] == bp[mine]) if sil.size else np.zeros(mine.size, bool)
-        keep[mine] = inside & ok[j] if sil.size else False
+        on = np.zeros(mine.size, bool)
+        if sil.size:
+            j = np.minimum(np.searchsorted(sil, bp[mine]), sil.size - 1)
+            on = (sil[j] == bp[mine]) & ok[j]
+        if rule == "front_local":
+            if local_mm is None or band_err_mm is None:
+                raise ParameterError("rule 'front_local' needs local_mm and band_err_mm")
+            with np.errstate(invalid="ignore"):
+                on |= np.abs(np.asarray(local_mm, np.float64)[mine]) <= core * np.asarray(band_err_mm, np.float64)[mine]
+        keep[mine] = on
     return keep
