@@ -153,10 +153,16 @@ def test_a_partly_trusted_fit_keeps_the_pixels_on_its_own_surface(rule):
     stray = int(sil.min()) - W
     band = np.concatenate([[stray], sil])
     of = np.zeros(band.size, np.int64)
-    assert fv.partly_trusted(band, of, see, shape=(H, W), max_share=0.6, rule=rule).all()  # under the share: all
-    keep = fv.partly_trusted(band, of, see, shape=(H, W), max_share=0.2, rule=rule)
-    assert not keep[0]  # off its silhouette: not on its own surface
+    # front_local: the local surface explains the stray pixel and every fourth silhouette pixel (0 mm), not the rest
+    local = np.full(band.size, 50.0)
+    local[0] = 0.0
+    local[1::4] = 0.0
+    err = np.full(band.size, 1.0)
+    kw = {"local_mm": local, "band_err_mm": err}
+    assert fv.partly_trusted(band, of, see, shape=(H, W), max_share=0.6, rule=rule, **kw).all()  # under the share
+    keep = fv.partly_trusted(band, of, see, shape=(H, W), max_share=0.2, rule=rule, **kw)
+    assert keep[0] == (rule == "front_local")  # off its silhouette: not on its own surface
     on = np.abs(see.gap_mm[0]) <= 3.0 * see.err_mm[0]
     want = {"front": on, "front_core": on, "tight": see.dist_mm[0] <= 1.0 * see.err_mm[0],
-            "front_away": on & (cols < W // 2 - 2)}[rule]
+            "front_away": on & (cols < W // 2 - 2), "front_local": on | (local[1:] == 0.0)}[rule]
     np.testing.assert_array_equal(keep[1:], want)
