@@ -42,6 +42,9 @@ variant to ``F.seedN.json``). Both modes save each label with a part model as
 ``--config TOML`` (``--diagnose`` only) prepares the frames with that pipeline config file instead of the defaults (e.g.
 ``[removal] straggler_bound = "off"``: the zone of the seventh round's tree; docs/labelling.md, "Ninth round").
 Each ``--diagnose`` row also splits the truth the proposals miss by cause (:func:`missed_causes`).
+``--fits-cache DIR`` (``--diagnose`` only) pickles each frame's fits in DIR on the first run and scores them from
+there on the next ones (:func:`fitted_frames`): one fitting pass for several scorings (``--large-px``,
+``--ring-below``, the scoring's own changes).
 ``--compare BEFORE.json,AFTER.json`` prints two ``--diagnose --json`` files (two trees, the same logs) as one
 table, before → after, and the largest cause of each log's wrong pixels in the after file.
 
@@ -97,9 +100,6 @@ CONFIG: Path | None = None
 #: ``--fits-cache DIR`` (``--diagnose`` only): each frame's fits pickled there once and read back on later runs
 #: (:func:`fitted_frames`); None, fitted on every run.
 FITS_CACHE: Path | None = None
-#: ``--partly-trusted S1,S2 [--trust-rule R1,R2]`` (``--diagnose`` only): the variants scored from the same fits, each
-#: (share, rule) of :meth:`annotate.fits.FrameFits.partly_trusted` (docs/labelling.md, "Twelfth round")
-PARTLY_TRUSTED: list[tuple[float, str]] = []
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -584,19 +584,6 @@ def diagnose(log: Path, work: Path) -> tuple[list[dict], list[dict]]:
     for frame, job, ff, cpu, config in fitted_frames(log):
         rows.append(diagnose_frame(log, frame, job, ff, cpu, work=work))
         print(json.dumps(rows[-1], indent=1, default=float), flush=True)
-        for share, rule in PARTLY_TRUSTED:
-            _, xyz, _ = frame_arrays(frame, job)
-            t = time.process_time()
-            rule, _, core = rule.partition(":")
-            pt = ff.partly_trusted(xyz, max_share=share, rule=rule, core=float(core or 1.0))
-            cpu_pt = time.process_time() - t
-            got = diagnose_frame(log, frame, job, pt, cpu + cpu_pt, work=work, variant=f"trust{share:g}{rule}{core}")
-            got.update(partly_trusted_share=share, partly_trusted_rule=rule, partly_trusted_core=float(core or 1.0), cpu_partly_trusted=round(cpu_pt, 2),
-                       partly_trusted_message=pt.message)
-            seeded.append(got)
-            print(json.dumps({k: got[k] for k in ("log", "variant", "iou", "iou_sensor", "held", "limit", "fits",
-                                                    "label", "cpu_partly_trusted", "partly_trusted_message",
-                                                    *MISSED)}, indent=1, default=float), flush=True)
         if SEED_PX is not None:
             valid, xyz, heights = frame_arrays(frame, job)
             *_, last = seed_steps(ff, xyz, heights, valid, config, SEED_PX)
@@ -608,15 +595,19 @@ def diagnose(log: Path, work: Path) -> tuple[list[dict], list[dict]]:
 def fitted_frames(log: Path) -> Iterator[tuple[Any, Any, Any, float, Any]]:
     """(frame, job, fits, CPU-s of :func:`annotate.fits.fit_frame`, the session's config) of every frame of ``log``,
     prepared and fitted as the page's server does; with :data:`FITS_CACHE` each frame's (frame, job, fits, CPU-s) is
-    pickled there on the first run (``<log stem>_<log size>_f<frame>.pkl``) and read back on the next ones (then
-    the config is None: no ``--seed-px`` from a cache), so one fitting pass serves several scorings."""
+    pickled there on the first run (``<log stem>_<digest of the log's bytes>_f<frame>.pkl``) and read back on the
+    next ones (then the config is None: no ``--seed-px`` from a cache), so one fitting pass serves several scorings.
+    The cache is the tree's: a tree whose fits differ needs its own DIR."""
+    import hashlib
     import pickle
 
     from annotate.fits import Job, fit_frame
 
+    stem = ""
     if FITS_CACHE is not None:
         FITS_CACHE.mkdir(parents=True, exist_ok=True)
-        stem = f"{log.stem}_{log.stat().st_size}_f"
+        with log.open("rb") as fh:
+            stem = f"{log.stem}_{hashlib.file_digest(fh, 'blake2b').hexdigest()[:16]}_f"
         got = sorted(FITS_CACHE.glob(f"{stem}*.pkl"), key=lambda q: int(q.stem[len(stem):]))
         if got:
             for q in got:
@@ -631,7 +622,7 @@ def fitted_frames(log: Path) -> Iterator[tuple[Any, Any, Any, float, Any]]:
         ff = fit_frame(frame, job, session.config, session.prepared.model if session.prepared is not None else None)
         cpu = time.process_time() - t
         if FITS_CACHE is not None:
-            with (FITS_CACHE / f"{log.stem}_{log.stat().st_size}_f{frame.index}.pkl").open("wb") as fh:
+            with (FITS_CACHE / f"{stem}{frame.index}.pkl").open("wb") as fh:
                 pickle.dump((frame, job, ff, cpu), fh, protocol=pickle.HIGHEST_PROTOCOL)
         yield frame, job, ff, cpu, session.config
 
@@ -669,7 +660,7 @@ _TRUTH_MEMO: dict[tuple[str, int], Any] = {}
 
 
 def diagnose_frame(log: Path, frame, job, ff, cpu: float, *, work: Path,  # type: ignore[no-untyped-def]
-                   seeds: SeedStep | None = None, variant: str | None = None) -> dict:
+                   seeds: SeedStep | None = None) -> dict:
     """:func:`diagnose` on one frame's fits ``ff`` (:func:`annotate.fits.fit_frame` of ``frame`` and ``job``; with
     ``seeds``, their last step's fits: the variant's)."""
     from replay.logs import layout
@@ -679,7 +670,7 @@ def diagnose_frame(log: Path, frame, job, ff, cpu: float, *, work: Path,  # type
         valid, xyz, heights = frame_arrays(frame, job)
         H, W = valid.shape
         label, ids, how = _emulated_person(ff, xyz, heights, valid)
-        variant = variant or ("rule" if seeds is None else f"seed{SEED_PX}")
+        variant = "rule" if seeds is None else f"seed{SEED_PX}"
         work.mkdir(parents=True, exist_ok=True)
         np.save(label_file(work, log, frame.index, variant, "emulated"), label)
         if seeds is not None:
@@ -895,12 +886,6 @@ def main() -> int:
     ap.add_argument("--fits-cache", type=Path, default=None, metavar="DIR",
                     help="with --diagnose: pickle each frame's fits in DIR on the first run and score them from there "
                     "on the next ones (one fitting pass, several scorings; not with --seed-px or --config)")
-    ap.add_argument("--partly-trusted", default="", metavar="S1,S2",
-                    help="with --diagnose: also score the fits seen through over more than each share S partly "
-                    "trusted (docs/labelling.md, 'Twelfth round'), from the same fits; F.partly.json")
-    ap.add_argument("--trust-rule", default="front", metavar="R1,R2",
-                    help="with --partly-trusted: the rules of the pixels a partly trusted fit keeps, each RULE or RULE:CORE "
-                    "(zcut.fit_vetting.TRUST_RULES; default front)")
     ap.add_argument("--compare", default="", metavar="BEFORE,AFTER",
                     help="two --diagnose --json files (two trees, the same logs): one table, before -> after")
     args = ap.parse_args()
@@ -928,10 +913,6 @@ def main() -> int:
         if not args.config.is_file():
             raise SystemExit(f"error: --config: {args.config}: no such file")
         CONFIG = args.config
-    if args.partly_trusted:
-        if not args.diagnose or args.seed_px is not None:
-            raise SystemExit("error: --partly-trusted is a --diagnose option, not with --seed-px")
-        PARTLY_TRUSTED[:] = [(float(v), r) for v in args.partly_trusted.split(",") for r in args.trust_rule.split(",")]
     if args.diagnose:
         rule, seeded = [], []
         for lg in args.diagnose.split(","):
@@ -941,10 +922,6 @@ def main() -> int:
                 seeded += b
         if args.json is not None:
             args.json.write_text(json.dumps(rule, indent=1, default=float))
-            if PARTLY_TRUSTED:
-                other = args.json.with_suffix(".partly.json")
-                other.write_text(json.dumps(seeded, indent=1, default=float))
-                print(f"the rule as written: {args.json}; --partly-trusted: {other}")
             if SEED_PX is not None:
                 other = args.json.with_suffix(f".seed{SEED_PX}.json")
                 other.write_text(json.dumps(seeded, indent=1, default=float))
