@@ -42,6 +42,9 @@ variant to ``F.seedN.json``). Both modes save each label with a part model as
 ``--config TOML`` (``--diagnose`` only) prepares the frames with that pipeline config file instead of the defaults (e.g.
 ``[removal] straggler_bound = "off"``: the zone of the seventh round's tree; docs/labelling.md, "Ninth round").
 Each ``--diagnose`` row also splits the truth the proposals miss by cause (:func:`missed_causes`).
+``--fits-cache DIR`` (``--diagnose`` only) pickles each frame's fits in DIR on the first run and scores them from
+there on the next ones (:func:`fitted_frames`): one fitting pass for several scorings (``--large-px``,
+``--ring-below``, the scoring's own changes).
 ``--compare BEFORE.json,AFTER.json`` prints two ``--diagnose --json`` files (two trees, the same logs) as one
 table, before → after, and the largest cause of each log's wrong pixels in the after file.
 
@@ -94,6 +97,9 @@ SEED_PX: int | None = None
 #: ``--config TOML`` (``--diagnose`` only): the pipeline config file the frames are prepared with (its zone, bin removal
 #: and fits' parameters, e.g. ``[removal] straggler_bound = "off"``); None, the defaults (docs/labelling.md, "Ninth round").
 CONFIG: Path | None = None
+#: ``--fits-cache DIR`` (``--diagnose`` only): each frame's fits pickled there once and read back on later runs
+#: (:func:`fitted_frames`); None, fitted on every run.
+FITS_CACHE: Path | None = None
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -574,23 +580,51 @@ def diagnose(log: Path, work: Path) -> tuple[list[dict], list[dict]]:
     the truth the proposals miss (in a fit's pixels; elsewhere) and the truth in proposals the rule rejected.
     Returns the rows of the rule as written and, with :data:`SEED_PX`, those of the variant from the same fits (its
     seeds applied by :func:`seed_steps`; else no rows). Each label is saved in ``work`` (:func:`label_file`)."""
+    rows, seeded = [], []
+    for frame, job, ff, cpu, config in fitted_frames(log):
+        rows.append(diagnose_frame(log, frame, job, ff, cpu, work=work))
+        print(json.dumps(rows[-1], indent=1, default=float), flush=True)
+        if SEED_PX is not None:
+            valid, xyz, heights = frame_arrays(frame, job)
+            *_, last = seed_steps(ff, xyz, heights, valid, config, SEED_PX)
+            seeded.append(diagnose_frame(log, frame, job, last.ff, cpu, work=work, seeds=last))
+            print(json.dumps(seeded[-1], indent=1, default=float), flush=True)
+    return rows, seeded
+
+
+def fitted_frames(log: Path) -> Iterator[tuple[Any, Any, Any, float, Any]]:
+    """(frame, job, fits, CPU-s of :func:`annotate.fits.fit_frame`, the session's config) of every frame of ``log``,
+    prepared and fitted as the page's server does; with :data:`FITS_CACHE` each frame's (frame, job, fits, CPU-s) is
+    pickled there on the first run (``<log stem>_<digest of the log's bytes>_f<frame>.pkl``) and read back on the
+    next ones (then the config is None: no ``--seed-px`` from a cache), so one fitting pass serves several scorings.
+    The cache is the tree's: a tree whose fits differ needs its own DIR."""
+    import hashlib
+    import pickle
+
     from annotate.fits import Job, fit_frame
 
+    stem = ""
+    if FITS_CACHE is not None:
+        FITS_CACHE.mkdir(parents=True, exist_ok=True)
+        with log.open("rb") as fh:
+            stem = f"{log.stem}_{hashlib.file_digest(fh, 'blake2b').hexdigest()[:16]}_f"
+        got = sorted(FITS_CACHE.glob(f"{stem}*.pkl"), key=lambda q: int(q.stem[len(stem):]))
+        if got:
+            for q in got:
+                with q.open("rb") as fh:
+                    frame, job, ff, cpu = pickle.load(fh)
+                yield frame, job, ff, cpu, None
+            return
     session = pipeline_options().open_session(log)
-    rows, seeded = [], []
     for frame, r in session.results():
         job = Job.of(r)
         t = time.process_time()
         ff = fit_frame(frame, job, session.config, session.prepared.model if session.prepared is not None else None)
         cpu = time.process_time() - t
-        rows.append(diagnose_frame(log, frame, job, ff, cpu, work=work))
-        print(json.dumps(rows[-1], indent=1, default=float), flush=True)
-        if SEED_PX is not None:
-            valid, xyz, heights = frame_arrays(frame, job)
-            *_, last = seed_steps(ff, xyz, heights, valid, session.config, SEED_PX)
-            seeded.append(diagnose_frame(log, frame, job, last.ff, cpu, work=work, seeds=last))
-            print(json.dumps(seeded[-1], indent=1, default=float), flush=True)
-    return rows, seeded
+        if FITS_CACHE is not None:
+            with (FITS_CACHE / f"{stem}{frame.index}.pkl").open("wb") as fh:
+                pickle.dump((frame, job, ff, cpu), fh, protocol=pickle.HIGHEST_PROTOCOL)
+        yield frame, job, ff, cpu, session.config
 
 
 def pipeline_options() -> Any:
@@ -621,6 +655,10 @@ def label_file(work: Path, log: Path, frame: int, variant: str, how: str) -> Pat
     return work / f"{log.stem}_f{frame}_{variant}_{how}.npy"
 
 
+#: the last frame's true surfaces and their nearest-surface image (:func:`diagnose_frame`), by (log, frame index)
+_TRUTH_MEMO: dict[tuple[str, int], Any] = {}
+
+
 def diagnose_frame(log: Path, frame, job, ff, cpu: float, *, work: Path,  # type: ignore[no-untyped-def]
                    seeds: SeedStep | None = None) -> dict:
     """:func:`diagnose` on one frame's fits ``ff`` (:func:`annotate.fits.fit_frame` of ``frame`` and ``job``; with
@@ -645,8 +683,12 @@ def diagnose_frame(log: Path, frame, job, ff, cpu: float, *, work: Path,  # type
         label &= served
         # ---- the truth, read only from here on
         truth = frame.masks[layout.TRUTH_OFF_SURFACE] & served
-        parts, true_s = _true_surfaces(log, frame)
-        near_t = ex.nearest_surface(xyz, true_s, where=served)
+        key = (str(log), frame.index)
+        if key not in _TRUTH_MEMO:  # the variants of one frame are scored against the same truth: rebuilt once
+            _TRUTH_MEMO.clear()
+            parts, true_s = _true_surfaces(log, frame)
+            _TRUTH_MEMO[key] = (parts, ex.nearest_surface(xyz, true_s, where=served))
+        parts, near_t = _TRUTH_MEMO[key]
         tcode, tdist = near_t.surface, near_t.dist_mm.astype(np.float64)
         assert ff.part_mesh is not None
         v0 = ff.part_mesh[0]
@@ -841,6 +883,9 @@ def main() -> int:
     ap.add_argument("--config", type=Path, default=None, metavar="TOML",
                     help="with --diagnose: prepare the frames with this pipeline config (e.g. [removal] "
                     "straggler_bound = \"off\"; default: the defaults)")
+    ap.add_argument("--fits-cache", type=Path, default=None, metavar="DIR",
+                    help="with --diagnose: pickle each frame's fits in DIR on the first run and score them from there "
+                    "on the next ones (one fitting pass, several scorings; not with --seed-px or --config)")
     ap.add_argument("--compare", default="", metavar="BEFORE,AFTER",
                     help="two --diagnose --json files (two trees, the same logs): one table, before -> after")
     args = ap.parse_args()
@@ -850,7 +895,11 @@ def main() -> int:
             raise SystemExit(f"error: --compare takes BEFORE.json,AFTER.json, got {args.compare!r}")
         print("\n".join(compare(*(json.loads(f.read_text()) for f in files))))
         return 0
-    global LARGE_PX, RING_BELOW, SEED_PX, CONFIG
+    global LARGE_PX, RING_BELOW, SEED_PX, CONFIG, FITS_CACHE
+    if args.fits_cache is not None:
+        if not args.diagnose or args.seed_px is not None or args.config is not None:
+            raise SystemExit("error: --fits-cache is a --diagnose option, not with --seed-px or --config")
+        FITS_CACHE = args.fits_cache
     LARGE_PX = args.large_px
     RING_BELOW = args.ring_below
     SEED_PX = args.seed_px

@@ -1,4 +1,5 @@
-"""bench/bench_label_pageonly.py's --compare: two --diagnose runs as one cause table, before -> after."""
+"""bench/bench_label_pageonly.py's --compare: two --diagnose runs as one cause table, before -> after; and its
+other --diagnose helpers (the seeds, --config, the missed truth's causes, --fits-cache)."""
 
 from __future__ import annotations
 
@@ -177,3 +178,58 @@ def test_missed_causes_gives_each_missed_truth_pixel_one_cause(bench):
     assert got == {"missed: displaced patch": 1, "missed: Err above": 1, "missed: misposed": 1,
                    "missed: other instance": 1, "missed: bin or table": 1, "missed: other": 1, "missed": 6}
     assert sum(got[k] for k in bench.MISSED) == got["missed"]
+
+
+def test_fits_cache_fits_once_and_reads_back_the_same(bench, monkeypatch, tmp_path):
+    """--fits-cache DIR: the first run fits every frame (and pickles frame, job, fits, CPU-s), the next ones read them
+    back without opening a session; the same name with other bytes is fitted anew."""
+    from types import SimpleNamespace
+
+    import annotate.fits as af
+
+    calls = {"open": 0, "fit": 0}
+
+    class Session:
+        config = "cfg"
+        prepared = None
+
+        def results(self):
+            for i in range(2):
+                yield SimpleNamespace(index=i), {"frame": i}
+
+    def open_session(log):
+        calls["open"] += 1
+        return Session()
+
+    def fit_frame(frame, job, config, model):
+        calls["fit"] += 1
+        return {"fits of": frame.index, "job": job}
+
+    monkeypatch.setattr(bench, "pipeline_options", lambda: SimpleNamespace(open_session=open_session))
+    monkeypatch.setattr(af, "fit_frame", fit_frame)
+    monkeypatch.setattr(af.Job, "of", staticmethod(lambda r: r))
+    monkeypatch.setattr(bench, "FITS_CACHE", tmp_path / "cache")
+    log = tmp_path / "a.mcap"
+    log.write_bytes(b"x" * 10)
+    first = [(f.index, j, ff, c) for f, j, ff, _, c in bench.fitted_frames(log)]
+    assert calls == {"open": 1, "fit": 2} and [c for *_, c in first] == ["cfg", "cfg"]
+    again = list(bench.fitted_frames(log))
+    assert calls == {"open": 1, "fit": 2}  # read back: no session, no fit
+    assert [(f.index, j, ff) for f, j, ff, _, _ in again] == [t[:3] for t in first]
+    assert [c for *_, c in again] == [None, None] and [cpu for *_, cpu, _ in again] == [cpu for *_, cpu, _ in
+                                                                                        bench.fitted_frames(log)]
+    log.write_bytes(b"y" * 10)  # other bytes, the same size: fitted anew
+    list(bench.fitted_frames(log))
+    assert calls == {"open": 2, "fit": 4}
+    monkeypatch.setattr(bench, "FITS_CACHE", None)  # no cache: fitted on every run
+    list(bench.fitted_frames(log))
+    list(bench.fitted_frames(log))
+    assert calls == {"open": 4, "fit": 8}
+
+
+@pytest.mark.parametrize("argv", [["--fits-cache", "D", "--logs", "a.mcap"],
+                                  ["--fits-cache", "D", "--diagnose", "a.mcap", "--seed-px", "50"]])
+def test_fits_cache_refused(bench, monkeypatch, argv):
+    monkeypatch.setattr("sys.argv", ["bench_label_pageonly.py", *argv])
+    with pytest.raises(SystemExit, match="--fits-cache is a --diagnose option"):
+        bench.main()
