@@ -199,7 +199,7 @@ def main() -> None:
             delta_m, r_bin = rem.tolerance_mm / 1000.0, rem.radius_mm / 1000.0
             timed("removal: classify", rm._classify_codes, a, loc.bin_mask.mask, R, t, index.rim_b + p.rim_offset_m,
                   delta_m > 0, p.robust, *rm._grid_args(g), g.ijk, g.busy, g.box, float(delta_m), float(r_bin),
-                  planes, *rm._bin_hints(rem.surface), index.bin_row, code)
+                  planes, code)
             if index.straggler is not None:
                 gs = index.straggler
                 straggler_m = p.straggler_m + delta_m

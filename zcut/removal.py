@@ -264,16 +264,6 @@ class RemovalIndex:
     straggler: _ModelIndex | None
     tree: cKDTree | None = None
     nearest: _ModelIndex | None = None
-    #: (N,) int64: each model point's row in :attr:`bin`'s arrays (sorted by cell), the inverse of ``bin.order``:
-    #: derived once per model (not kept in a cache), it turns the nearest model points of the frame tolerance's
-    #: query into hints of the bin test (:func:`_classify_codes`)
-    bin_row: np.ndarray = field(init=False, repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        order = self.bin.order
-        row = np.empty(len(order), np.int64)
-        row[order] = np.arange(len(order), dtype=np.int64)
-        object.__setattr__(self, "bin_row", row)
 
 
 def _radius(params: RemovalParams, spacing_m: float, delta_m: float) -> float:
@@ -603,38 +593,13 @@ def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, 
     return -1
 
 
-@numba.njit(cache=True, inline="always")
-def _passes(px, py, pz, pts, nrm, off, j, r2, delta, planes):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """The model point ``j`` (a row of the grid's sorted arrays) lies within the radius (``r2`` its square) of
-    (px, py, pz) and passes the bin test there: :func:`_near_hint`'s test of its hint, the same operations."""
-    d2 = _dist2(px, py, pz, pts, j)
-    if d2 > r2:
-        return False
-    if planes:
-        d = abs(nrm[j, 0] * px + nrm[j, 1] * py + nrm[j, 2] * pz - off[j])
-    else:
-        d = np.sqrt(d2)
-    return d <= delta
-
-
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _classify_codes(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm, off,  # type: ignore[no-untyped-def]  # numba kernel
-                    ijk, busy, box, delta, radius, planes, hint_flat, hint_j, bin_row, code):  # pragma: no cover - numba
-    """:func:`_classify` into one (H, W) uint8 image of class codes (``_INVALID`` .. ``_OPEN``).
-
-    ``hint_flat`` (sorted flat pixel indices) and ``hint_j`` (a model point's index for each, -1: none), with
-    ``bin_row`` (each model point's row in the grid's arrays): points to try as the bin test's hints (the frame
-    tolerance's nearest model points of its queried pixels, :attr:`_Surface.queried`; empty: none). A pixel's bin
-    test tries the point that passed for the pixel before it, then its own hint, then the cells
-    (:func:`_near_hint`). A point that passes answers "some model point within the radius passes" as the cells'
-    search would (:func:`_near_hint`'s argument, whichever point it is): the same codes, whatever the hints. At
-    640 x 480 the query holds every ring pixel, ~40 % of which the previous pixel's point did not settle."""
+                    ijk, busy, box, delta, radius, planes, code):  # pragma: no cover - numba
+    """:func:`_classify` into one (H, W) uint8 image of class codes (``_INVALID`` .. ``_OPEN``)."""
     H, W = fp.shape
-    n_hint = hint_flat.shape[0]
-    r2 = radius * radius
     for r in numba.prange(H):
         hint = -1
-        q = np.searchsorted(hint_flat, r * W) if n_hint else 0  # the row's first hint
         for c in range(W):
             if not (np.isfinite(a[r, c, 0]) and np.isfinite(a[r, c, 1]) and np.isfinite(a[r, c, 2])):
                 code[r, c] = _INVALID
@@ -644,18 +609,11 @@ def _classify_codes(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, 
                 continue
             px, py, pz = _to_bin(a, r, c, R, t)
             k = _OPEN
-            if test_bin and (bin_first or not -pz > easy_above):
-                if hint >= 0 and _passes(px, py, pz, pts, nrm, off, hint, r2, delta, planes):
-                    j = hint
-                else:
-                    here = r * W + c
-                    while q < n_hint and hint_flat[q] < here:
-                        q += 1
-                    own = -1
-                    if q < n_hint and hint_flat[q] == here and 0 <= hint_j[q] < bin_row.shape[0]:
-                        own = bin_row[hint_j[q]]
+            if bin_first:
+                j = -1
+                if test_bin:
                     j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta,
-                                   radius, planes, own)
+                                   radius, planes, hint)
                 if j >= 0:
                     k = _BIN
                     hint = j
@@ -663,6 +621,12 @@ def _classify_codes(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, 
                     k = _EASY
             elif -pz > easy_above:
                 k = _EASY
+            elif test_bin:
+                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,
+                               planes, hint)
+                if j >= 0:
+                    k = _BIN
+                    hint = j
             code[r, c] = k
 
 
@@ -2524,8 +2488,7 @@ def remove_table_and_bin(
         code = np.empty(shape, np.uint8)
         g = index.bin
         _classify_codes(a, fp, R, t, index.rim_b + p.rim_offset_m, delta_m > 0, p.robust, *_grid_args(g),
-                        g.ijk, g.busy, g.box, float(delta_m), float(r_bin), planes, *_bin_hints(surface),
-                        index.bin_row, code)
+                        g.ijk, g.busy, g.box, float(delta_m), float(r_bin), planes, code)
         if index.straggler is not None:
             r_s = r_str if planes else straggler_m
             _straggler_codes(a, code, R, t, index.straggler, straggler_m=straggler_m,
@@ -2561,19 +2524,6 @@ def remove_table_and_bin(
     _finish(a, valid, labelled, plane, float(floor), up, float(z_far), height, xyz_out)
     return RemovalResult(table, easy, binp, zone, height, xyz_out, rim, floor, up, delta_m * 1000.0, residual_mm,
                          r_bin * 1000.0)
-
-
-#: no hints for the bin test (:func:`_classify_codes`)
-_NO_HINTS = (np.zeros(0, np.int64), np.zeros(0, np.int64))
-
-
-def _bin_hints(surface: _Surface | None) -> tuple[np.ndarray, np.ndarray]:
-    """``(hint_flat, hint_j)`` of :func:`_classify_codes`: the pixels the frame tolerance queried (sorted) and
-    their nearest model points (-1: none within reach), or none."""
-    q = None if surface is None else surface.queried
-    if q is None or q.nearest_j is None or q.nearest_j.dtype != np.int64 or q.flat.dtype != np.int64:
-        return _NO_HINTS
-    return q.flat, q.nearest_j
 
 
 def _remove_table(a: np.ndarray, fp: Mask) -> RemovalResult:
