@@ -1331,8 +1331,8 @@ def _query(a: np.ndarray, flat: np.ndarray, index: RemovalIndex, T: np.ndarray) 
     if len(flat) == 0 or len(model.points) == 0:
         return _Queried(flat, np.full((len(flat), 3), np.nan), np.full(len(flat), np.inf), np.full(len(flat), np.inf),
                         np.full(len(flat), np.nan), np.full(len(flat), -1, np.int64))
-    pts, ok = _gather_finite(a, flat, np.ascontiguousarray(T[:3, 3]))
-    p_bin = pts @ T[:3, :3]  # numpy's product, as the reference's: the same rounding
+    pts, ok = _gather_finite(a, flat)
+    p_bin = (pts - T[:3, 3]) @ T[:3, :3]  # numpy's product, as the reference's: the same rounding
     d, j = _nearest_points(p_bin, index)
     if model.normals is None:
         e = np.zeros(0)
@@ -1376,11 +1376,9 @@ def _scatter_query(ok, p_bin, d, j, e, planes):  # type: ignore[no-untyped-def] 
 
 
 @numba.njit(cache=True, nogil=True)
-def _gather_finite(a, flat, t):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+def _gather_finite(a, flat):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """``(pts, ok)``: the float64 points of the pixels ``flat`` whose three coordinates are finite (in
-    order), less ``t`` (3,), and which ones those are: ``a.reshape(-1, 3)[flat].astype(np.float64)``'s finite rows
-    ``- t`` (the subtraction numpy's broadcast makes, one rounding per coordinate: the same doubles; numpy's
-    broadcast over rows of three cost 0.1-0.3 CPU ms a call, its inner loop called once a row)."""
+    order) and which ones those are: ``a.reshape(-1, 3)[flat].astype(np.float64)`` and its finite rows."""
     n = flat.shape[0]
     W = a.shape[1]
     ok = np.zeros(n, np.bool_)
@@ -1394,9 +1392,9 @@ def _gather_finite(a, flat, t):  # type: ignore[no-untyped-def]  # numba kernel 
         z = np.float64(a[r, c, 2])
         if np.isfinite(x) and np.isfinite(y) and np.isfinite(z):
             ok[i] = True
-            pts[m, 0] = x - t[0]
-            pts[m, 1] = y - t[1]
-            pts[m, 2] = z - t[2]
+            pts[m, 0] = x
+            pts[m, 1] = y
+            pts[m, 2] = z
             m += 1
     return pts[:m], ok
 
@@ -1448,8 +1446,8 @@ def _nearest_again(a: np.ndarray, flat: np.ndarray, at: np.ndarray, index: Remov
     out = np.full(len(flat), np.inf)
     if len(flat) == 0 or len(index.model.points) == 0:
         return out
-    pts, ok = _gather_finite(a, flat, np.ascontiguousarray(T[:3, 3]))
-    p_bin = pts @ T[:3, :3]
+    pts, ok = _gather_finite(a, flat)
+    p_bin = (pts - T[:3, 3]) @ T[:3, :3]
     d, same = _same_rows(p_bin, at[ok], q.p_bin, q.nearest_mm)
     if not same.all():
         d[~same] = _nearest_points(p_bin[~same], index)[0] * 1000.0
@@ -1658,19 +1656,6 @@ def _column_means(p):  # type: ignore[no-untyped-def]  # numba kernel  # pragma:
 
 
 @numba.njit(cache=True, nogil=True)
-def _less_row(p, c):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """(M, 3): ``p - c`` for (M, 3) ``p`` and (3,) ``c``, numpy's broadcast subtraction (the same doubles) without
-    its inner loop called once a row (0.13 -> ~0.02 CPU ms on 15k rows)."""
-    m = p.shape[0]
-    q = np.empty((m, 3))
-    for i in range(m):
-        q[i, 0] = p[i, 0] - c[0]
-        q[i, 1] = p[i, 1] - c[1]
-        q[i, 2] = p[i, 2] - c[2]
-    return q
-
-
-@numba.njit(cache=True, nogil=True)
 def _design_columns(n, q, nq):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """(M, 7): :func:`field_design`'s columns ``n``, ``q × n`` (``np.cross``'s products and differences), ``nq``
     (``n·q``, numpy's einsum, given: its summation order is numpy's)."""
@@ -1835,7 +1820,7 @@ def _fit_field(r: np.ndarray, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray,
     if len(r) < FIELD_MIN_PX:
         return None
     centre = _column_means(p)
-    q = _less_row(p, centre)
+    q = p - centre
     A = _design_columns(n, q, np.einsum("ij,ij->i", n, q))
     keep = np.ones(len(r), bool)
     coef = np.zeros(7)
@@ -1861,7 +1846,7 @@ def _fit_field_trimmed(r: np.ndarray, p: np.ndarray, n: np.ndarray, *,
     """:func:`fit_residual_field`'s loop on its finite float64 rows (at least :data:`FIELD_MIN_PX`), the selections,
     the centre, the cross products and the medians in :func:`_fit_field`'s kernels."""
     centre = _column_means(p)
-    q = _less_row(p, centre)
+    q = p - centre
     A = _design_columns(n, q, np.einsum("ij,ij->i", n, q))
     keep = np.ones(len(r), bool)
     coef = np.zeros(7)
