@@ -12,6 +12,14 @@ Every field of the two tolerances (τ, its percentile, the counts, the reach, th
 pixel angle) must be identical bit for bit. Prints CPU ms a call (``time.process_time``, all threads), medians,
 and the ratio OLD / this. After it, OLD_TREE's numba cache names ``zcut_prev``: delete its ``*.nbi``/``*.nbc``
 before importing it as ``zcut`` (``bench/bench_replay.py --against``).
+
+``--pieces`` (no ``--against``): where this tree's fast tolerance spends its CPU, each piece of
+``zcut.removal._frame_tolerance`` timed in its place, in the order the function runs them (the sample, the query's
+gather, bin-frame product, grid, tree, residual parts, einsum and scatter, the neighbours' medians, the field fit,
+the two percentiles, the reach's second query, σ_bin, the pixel angle), then the whole call; CPU ms a frame, medians
+over the frames after the first × ``--repeats``, with the number of queried and sampled pixels. The process is set
+up as ``zcut replay`` sets it (``replay.process.configure_process``: its malloc settings decide how many pages the
+pieces fault in). docs/performance.md, "The 640 × 480 frame's fixed work, measured again" (h/px6).
 """
 
 from __future__ import annotations
@@ -24,6 +32,10 @@ import time
 from pathlib import Path
 from typing import Any
 
+if "--pieces" in sys.argv:  # set up as `zcut replay` sets its process, before numba loads
+    from replay.process import configure_process
+
+    configure_process()
 os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
 
 import numpy as np  # noqa: E402
@@ -64,13 +76,86 @@ def measure(log: Path, frames: int, repeats: int, prev: Any) -> tuple[float, flo
             located[0][0].shape[:2])
 
 
+def _to_bin_frame(pts: np.ndarray, T: np.ndarray) -> np.ndarray:
+    return (pts - T[:3, 3]) @ T[:3, :3]  # zcut.removal._query's product
+
+
+def _tree_rows(tree: Any, p_bin: np.ndarray, d: np.ndarray, j: np.ndarray, unsure: np.ndarray, ub: float) -> None:
+    if unsure.any():  # zcut.removal._nearest_points' rows left to the tree
+        d[unsure], j[unsure] = tree.query(p_bin[unsure], k=1, distance_upper_bound=ub)
+
+
+def pieces(log: Path, frames: int, repeats: int) -> None:
+    """Print the fast tolerance's pieces, each timed in its place (the module docstring's ``--pieces``)."""
+    from zcut import removal as rm
+
+    s, located = located_frames(log, frames + 1)
+    assert s.prepared is not None
+    index = s.prepared.removal
+    p, g = index.params, index.nearest
+    assert g is not None and index.tree is not None and index.model.normals is not None
+    ub = p.max_tolerance_mm / 1000.0
+    times: dict[str, list[float]] = {}
+    counts: tuple[int, int] = (0, 0)
+
+    def timed(name: str, f: Any, *a: Any) -> Any:
+        t0 = time.process_time()
+        out = f(*a)
+        times.setdefault(name, []).append(time.process_time() - t0)
+        return out
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        for _ in range(repeats):
+            for xyz, _, ring, T in located[1:]:
+                T = np.asarray(T, np.float64)
+                t0 = time.process_time()
+                flat, want, own_at, nb_at = timed("sample", rm._sample_ring, xyz, np.ascontiguousarray(ring),
+                                                  rm.MAX_RESIDUAL_PX)
+                pts, ok = timed("query: gather", rm._gather_finite, xyz, want)
+                p_bin = timed("query: bin-frame product", _to_bin_frame, pts, T)
+                d, j, unsure = timed("query: grid", rm._nearest_grid, np.ascontiguousarray(p_bin), g.origin, g.cell,
+                                     g.dims, g.start, g.points, g.empty_to, g.order, ub)
+                timed("query: tree (unsure rows)", _tree_rows, index.tree, p_bin, d, j, unsure, ub)
+                diff, nrm = timed("query: residual parts", rm._residual_parts, p_bin, j, index.model.points,
+                                  index.model.normals)
+                e = timed("query: einsum", np.einsum, "ij,ij->i", diff, nrm)
+                q = rm._Queried(want, *timed("query: scatter", rm._scatter_query, ok, p_bin, d, j, e, True))
+                res, nbr = timed("neighbours", rm._own_and_neighbours, q.residual_mm, own_at, nb_at)
+                around = timed("neighbours' medians", rm._around_median, nbr)
+                with np.errstate(invalid="ignore"):
+                    coherent = np.isfinite(res) & (np.abs(res - around) <= rm.COHERENCE_MM)
+                off = timed("field fit and off-field", rm._off_field_fast, q, own_at, nb_at, coherent,
+                            index.model.normals)
+                keep = coherent & ~off
+                timed("percentile (tau)", rm._percentile_higher, res[keep], p.residual_quantile)
+                near = timed("reach: second query", rm._nearest_again, xyz, flat[keep], own_at[keep], index, T, q)
+                timed("percentile (reach)", rm._percentile_higher, near, p.residual_quantile)
+                timed("sigma_bin", rm.bin_sigma_m, res[keep])
+                timed("pixel angle", rm.pixel_angle, xyz, flat)
+                times.setdefault("the pieces together", []).append(time.process_time() - t0)
+                timed("frame_tolerance (whole)", frame_tolerance, xyz, ring, index, T)
+                counts = (len(want), len(flat))
+    h, w = located[0][0].shape[:2]
+    print(f"{log.name}: {w}x{h}, {counts[0]} queried pixels, {counts[1]} sampled; CPU ms a frame (medians of "
+          f"{len(times['sample'])}); load average {os.getloadavg()[0]:.1f}")
+    for name, v in times.items():
+        print(f"  {name:28s} {1000 * statistics.median(v):7.2f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("log", type=Path, nargs="+")
-    ap.add_argument("--against", type=Path, required=True, help="source tree of the previous commit")
+    ap.add_argument("--against", type=Path, help="source tree of the previous commit")
+    ap.add_argument("--pieces", action="store_true", help="this tree's pieces in place instead (no --against)")
     ap.add_argument("--frames", type=int, default=5, help="frames measured after the first (default 5)")
     ap.add_argument("--repeats", type=int, default=8)
     args = ap.parse_args()
+    if args.pieces:
+        for log in args.log:
+            pieces(log, args.frames, args.repeats)
+        return
+    if args.against is None:
+        ap.error("--against is required (or --pieces)")
     previous_removal(args.against)  # imports OLD_TREE's zcut as zcut_prev
     from zcut_prev.removal import frame_tolerance as prev  # type: ignore[import-not-found]
 
