@@ -722,50 +722,69 @@ def _reach_pilot(xyz, valid, every, out):  # type: ignore[no-untyped-def]  # num
     return m
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _tally_row(buf, m, a, b, vals, cap, inside):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_reach_window`'s tally of one row's samples ``buf[:m]`` (NaN where there is none): (finite, below a,
+    equal to a, ``inside`` + strictly inside, equal to b), those strictly inside appended to ``vals`` from
+    ``inside`` on (as many as fit in ``vals[:cap]``; ``vals[cap]`` takes the rest). Counts and stores without a
+    branch on the values (half the samples fall below a, at random): the counts in the processor's vector lanes,
+    then, when the row has samples inside, one store per sample at the next free entry, kept when inside."""
+    n = 0
+    below = 0
+    n_a = 0
+    n_in = 0
+    n_b = 0
+    for t in range(m):
+        v = buf[t]
+        n += np.isfinite(v)
+        below += v < a
+        n_a += v == a
+        n_in += (v > a) & (v < b)
+        n_b += v == b
+    if n_in:
+        for t in range(m):
+            v = buf[t]
+            vals[min(inside, cap)] = v
+            inside += (v > a) & (v < b)
+    return n, below, n_a, inside, n_b
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _reach_window(xyz, valid, a, b, vals):  # type: ignore[no-untyped-def]  # numba kernel
     """The samples of :func:`zcut.edge_surface._reach_samples` against the window [a, b] (a < b), without
     storing them: (count, below a, equal to a, strictly inside, equal to b), those strictly inside into
-    ``vals`` (as many as fit). The ends are counted apart: a quantized sensor's samples take few values."""
+    ``vals[:-1]`` (as many as fit; the last entry is scratch), in the samples' order. The ends are counted
+    apart: a quantized sensor's samples take few values. A row at a time: its samples (NaN where a pixel of
+    the pair is not valid; a NaN or inf sample is counted nowhere, as it is left out) into a buffer, every
+    pixel's computed (in vector lanes), then tallied (:func:`_tally_row`)."""
     H, W = valid.shape
-    cap = vals.size
+    cap = vals.size - 1
     n = 0
     below = 0
     n_a = 0
     inside = 0
     n_b = 0
-    for i in range(H):
+    buf = np.empty(W)
+    for i in range(H):  # the row-adjacent pairs
         for j in range(W - 1):
-            if valid[i, j] and valid[i, j + 1]:
-                v = _sample_x(xyz, i, j)
-                if np.isfinite(v):
-                    n += 1
-                    if v < a:
-                        below += 1
-                    elif v == a:
-                        n_a += 1
-                    elif v < b:
-                        if inside < cap:
-                            vals[inside] = v
-                        inside += 1
-                    elif v == b:
-                        n_b += 1
-    for i in range(H - 1):
+            v = _sample_x(xyz, i, j)
+            buf[j] = v if valid[i, j] & valid[i, j + 1] else np.nan
+        c = _tally_row(buf, W - 1, a, b, vals, cap, inside)
+        n += c[0]
+        below += c[1]
+        n_a += c[2]
+        inside = c[3]
+        n_b += c[4]
+    for i in range(H - 1):  # the column-adjacent ones
         for j in range(W):
-            if valid[i, j] and valid[i + 1, j]:
-                v = _sample_y(xyz, i, j)
-                if np.isfinite(v):
-                    n += 1
-                    if v < a:
-                        below += 1
-                    elif v == a:
-                        n_a += 1
-                    elif v < b:
-                        if inside < cap:
-                            vals[inside] = v
-                        inside += 1
-                    elif v == b:
-                        n_b += 1
+            v = _sample_y(xyz, i, j)
+            buf[j] = v if valid[i, j] & valid[i + 1, j] else np.nan
+        c = _tally_row(buf, W, a, b, vals, cap, inside)
+        n += c[0]
+        below += c[1]
+        n_a += c[2]
+        inside = c[3]
+        n_b += c[4]
     return n, below, n_a, inside, n_b
 
 
@@ -805,8 +824,9 @@ def reach_median(a: np.ndarray, valid: Mask) -> float:
         hi_v = order_pair(pilot, h + d, h + d)[0]
         if not hi_v > lo_v:  # a quantized sensor: the pilot's middle is one value
             hi_v = float(np.nextafter(lo_v, np.inf))
-        vals = np.empty(max(1 << 16, 2 * H * W // 16))
+        vals = np.empty(max(1 << 16, 2 * H * W // 16) + 1)  # the last entry: _reach_window's scratch
         n, below, n_a, inside, n_b = (int(v) for v in _reach_window(a, valid, lo_v, hi_v, vals))
+        vals = vals[:-1]
         t = (n, below, n_a, inside, n_b)
         if n == 0:
             return 0.0
