@@ -905,6 +905,19 @@ def _gate_median_in(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_p
     return m, float((np.float64(a0) + np.float64(a1)) / 2.0)
 
 
+@numba.njit(cache=True)
+def _listed_state(at, m, state):  # type: ignore[no-untyped-def]  # numba kernel
+    """``state`` (H, W) int8: 2 (not decided yet) at the pixels ``at[:m]`` (:func:`_ratio_brackets`' list: every
+    valid patch with n >= min_px, fitted, z² > 0), 0 (not a surface) elsewhere. A patch not listed is one
+    :func:`zcut.edge_surface._decide` finds not valid, not fitted (the same :func:`_patch_moments` and the same
+    closed form's rule, as the gate's count is the whole-frame pass's) or with z² = 0 (``zz > 0`` fails there):
+    its state 0, its slot -1, as that decision leaves them, without reading its patch."""
+    s = state.reshape(-1)
+    s[:] = 0
+    for k in range(m):
+        s[at[k]] = 2
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _decide_all(xyz, valid, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, state, slot, planes,  # type: ignore[no-untyped-def]  # numba kernel
                 count):
@@ -934,13 +947,14 @@ class LazySurfaces:
                  "n_fitted")
 
     def __init__(self, xyz_mm: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: float, tan: float,
-                 gate_k: float, n_fitted: int) -> None:
+                 gate_k: float, n_fitted: int, state: np.ndarray | None = None) -> None:
         self._xyz, self._valid, self._params = xyz_mm, valid, params
         self._per_px, self._tan, self._gate_k = per_px, tan, gate_k
         self.n_fitted = n_fitted  # fitted patches with z² > 0 (0: no patch is a surface)
         # no ratio: no surface (as _edge_surfaces, which then leaves the mask empty)
-        # per patch: 2 not decided yet, 1 a surface, 0 not (zcut.edge_surface._nearest_search)
-        self._state = np.full(valid.shape, 2 if n_fitted else 0, np.int8)
+        # per patch: 2 not decided yet, 1 a surface, 0 not (zcut.edge_surface._nearest_search); ``state``, when
+        # given: 2 at the gate's listed patches only, the others decided already (:func:`_listed_state`)
+        self._state = state if state is not None and n_fitted else np.full(valid.shape, 2 if n_fitted else 0, np.int8)
         self._slot = np.full(valid.shape, -1, np.int32)
         self._planes = np.empty((1024, 6))
         self._count = np.zeros(1, np.int64)
@@ -991,9 +1005,13 @@ def lazy_surfaces(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, *,
     arrays (:func:`gate_arrays`, H · W entries each) when the caller has them; else :func:`gate_workspace`'s."""
     per_px = reach_median(a, valid)  # 1 / f (_median_of_temporary's value)
     tan = min(math.tan(math.radians(params.max_incidence_deg)), 1e6)
+    state = None
     if gate is None:
         m, g = _gate_median(a, valid, params, per_px, tan)
     else:
         m, g = _gate_median_in(a, valid, params, per_px, tan, *gate)
+        if m:  # the patches the gate did not list are no surface: decided here, not one by one when read
+            state = np.empty(valid.shape, np.int8)
+            _listed_state(gate[2], m, state)
     gate_k = params.fit_k * g if m else float("nan")
-    return LazySurfaces(a, valid, params, per_px, tan, gate_k, m)
+    return LazySurfaces(a, valid, params, per_px, tan, gate_k, m, state)
