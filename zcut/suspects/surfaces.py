@@ -641,26 +641,16 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
     return m, solved, nan
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _window_exact(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at, a, b, vals):  # type: ignore[no-untyped-def]  # numba kernel
-    """Classify the ratios of :func:`_ratio_brackets` against the window [a, b]: (below, above, count
-    in it), by their brackets where these decide, else by their closed-form value (the values in the
-    window into ``vals``)."""
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _window_block(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at, a, b, vals, k0, k1, px, py, pz, inside):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_window_exact`'s brackets ``k0 .. k1 - 1`` that meet the window: their ratios by the bracket when it
+    is one value, else in closed form, those in it into ``vals`` from ``inside`` on. Returns (below, above,
+    inside): those below or above the window by their ratio (added to the block's count of brackets)."""
     H, W = valid.shape
-    side = (2 * r + 1) * (2 * r + 1)
-    px = np.empty(side)
-    py = np.empty(side)
-    pz = np.empty(side)
     below = 0
     above = 0
-    inside = 0
-    for k in range(lo.size):
-        # counted without a branch (a bracket is below the window about half the time, at random)
-        under = hi[k] < a
-        over = lo[k] > b
-        below += under
-        above += over
-        if under | over:
+    for k in range(k0, k1):
+        if (hi[k] < a) | (lo[k] > b):
             continue
         if lo[k] == hi[k]:
             v = lo[k]
@@ -677,6 +667,39 @@ def _window_exact(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at, a, b, v
         else:
             vals[inside] = v
             inside += 1
+    return below, above, inside
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _window_exact(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at, a, b, vals):  # type: ignore[no-untyped-def]  # numba kernel
+    """Classify the ratios of :func:`_ratio_brackets` against the window [a, b]: (below, above, count
+    in it), by their brackets where these decide, else by their closed-form value (the values in the
+    window into ``vals``)."""
+    H, W = valid.shape
+    side = (2 * r + 1) * (2 * r + 1)
+    px = np.empty(side)
+    py = np.empty(side)
+    pz = np.empty(side)
+    below = 0
+    above = 0
+    inside = 0
+    B = 1024
+    for k0 in range(0, lo.size, B):
+        k1 = min(k0 + B, lo.size)
+        # a block's brackets counted without a branch, in vector lanes (a bracket is below the window about
+        # half the time, at random; few are in it)
+        n_in = 0
+        for k in range(k0, k1):
+            under = hi[k] < a
+            over = lo[k] > b
+            below += under
+            above += over
+            n_in += not (under | over)
+        if n_in:
+            bl, ab, inside = _window_block(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at, a, b, vals, k0, k1,
+                                           px, py, pz, inside)
+            below += bl
+            above += ab
     return below, above, inside
 
 
