@@ -759,11 +759,12 @@ def _tally_row(buf, m, a, b, vals, cap, inside):  # type: ignore[no-untyped-def]
     n_b = 0
     for t in range(m):
         v = buf[t]
-        n += np.isfinite(v)
+        fin = np.isfinite(v)  # an inf sample (|z| = 0) is left out, even at an end of the window
+        n += fin
         below += v < a
-        n_a += v == a
+        n_a += (v == a) & fin
         n_in += (v > a) & (v < b)
-        n_b += v == b
+        n_b += (v == b) & fin
     if n_in:
         for t in range(m):
             v = buf[t]
