@@ -15,6 +15,7 @@ from test_suspects_ninth import _quantized_frame
 
 from zcut.edge_surface import EdgeSurfaceParams, _reach_samples, _smallest_eigvec
 from zcut.params import SuspectParams
+from zcut.sor_workspace import SorWorkspace
 from zcut.suspects import suspects, suspects_reference
 from zcut.suspects.surfaces import (
     LazySurfaces,
@@ -26,7 +27,6 @@ from zcut.suspects.surfaces import (
     lazy_surfaces,
     reach_median,
 )
-from zcut.sor_workspace import SorWorkspace
 
 
 def _tally_oracle(a: np.ndarray, valid: np.ndarray, lo: float, hi: float) -> tuple[tuple[int, ...], np.ndarray]:
