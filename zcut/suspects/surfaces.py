@@ -1026,7 +1026,8 @@ def lazy_surfaces(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, *,
                   gate: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> LazySurfaces:
     """:func:`zcut.edge_surface._edge_surfaces` (``a`` C-contiguous float64 in mm, finite where ``valid``,
     C-contiguous too) with the gate from brackets and the surfaces decided when read. ``gate``: the gate's
-    arrays (:func:`gate_arrays`, H · W entries each) when the caller has them; else :func:`gate_workspace`'s."""
+    arrays (:func:`gate_arrays`, H · W entries each) when the caller has them; else :func:`gate_workspace`'s. With
+    ``gate``, the patches the gate did not list start decided (not surfaces, :func:`_listed_state`)."""
     per_px = reach_median(a, valid)  # 1 / f (_median_of_temporary's value)
     tan = min(math.tan(math.radians(params.max_incidence_deg)), 1e6)
     state = None
