@@ -53,6 +53,7 @@ STEPS = (
     ("suspects.union", "local_gaps", None),
     ("suspects.union", "_gap_kernel", None),
     ("suspects.union", "_residual_gaps", None),
+    ("suspects.union", "_frame_mm", None),
     ("suspects.union", "lazy_surfaces", None),
     ("suspects.surfaces", "reach_median", "lazy_surfaces"),
     ("suspects.surfaces", "_gate_median", "lazy_surfaces"),

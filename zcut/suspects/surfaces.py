@@ -641,26 +641,16 @@ def _ratio_brackets(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at):  # t
     return m, solved, nan
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _window_exact(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at, a, b, vals):  # type: ignore[no-untyped-def]  # numba kernel
-    """Classify the ratios of :func:`_ratio_brackets` against the window [a, b]: (below, above, count
-    in it), by their brackets where these decide, else by their closed-form value (the values in the
-    window into ``vals``)."""
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _window_block(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at, a, b, vals, k0, k1, px, py, pz, inside):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_window_exact`'s brackets ``k0 .. k1 - 1`` that meet the window: their ratios by the bracket when it
+    is one value, else in closed form, those in it into ``vals`` from ``inside`` on. Returns (below, above,
+    inside): those below or above the window by their ratio (added to the block's count of brackets)."""
     H, W = valid.shape
-    side = (2 * r + 1) * (2 * r + 1)
-    px = np.empty(side)
-    py = np.empty(side)
-    pz = np.empty(side)
     below = 0
     above = 0
-    inside = 0
-    for k in range(lo.size):
-        # counted without a branch (a bracket is below the window about half the time, at random)
-        under = hi[k] < a
-        over = lo[k] > b
-        below += under
-        above += over
-        if under | over:
+    for k in range(k0, k1):
+        if (hi[k] < a) | (lo[k] > b):
             continue
         if lo[k] == hi[k]:
             v = lo[k]
@@ -677,6 +667,39 @@ def _window_exact(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at, a, b, v
         else:
             vals[inside] = v
             inside += 1
+    return below, above, inside
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _window_exact(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at, a, b, vals):  # type: ignore[no-untyped-def]  # numba kernel
+    """Classify the ratios of :func:`_ratio_brackets` against the window [a, b]: (below, above, count
+    in it), by their brackets where these decide, else by their closed-form value (the values in the
+    window into ``vals``)."""
+    H, W = valid.shape
+    side = (2 * r + 1) * (2 * r + 1)
+    px = np.empty(side)
+    py = np.empty(side)
+    pz = np.empty(side)
+    below = 0
+    above = 0
+    inside = 0
+    B = 1024
+    for k0 in range(0, lo.size, B):
+        k1 = min(k0 + B, lo.size)
+        # a block's brackets counted without a branch, in vector lanes (a bracket is below the window about
+        # half the time, at random; few are in it)
+        n_in = 0
+        for k in range(k0, k1):
+            under = hi[k] < a
+            over = lo[k] > b
+            below += under
+            above += over
+            n_in += not (under | over)
+        if n_in:
+            bl, ab, inside = _window_block(xyz, valid, r, min_px, per_px, tan, floor, lo, hi, at, a, b, vals, k0, k1,
+                                           px, py, pz, inside)
+            below += bl
+            above += ab
     return below, above, inside
 
 
@@ -722,50 +745,70 @@ def _reach_pilot(xyz, valid, every, out):  # type: ignore[no-untyped-def]  # num
     return m
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _tally_row(buf, m, a, b, vals, cap, inside):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_reach_window`'s tally of one row's samples ``buf[:m]`` (NaN where there is none): (finite, below a,
+    equal to a, ``inside`` + strictly inside, equal to b), those strictly inside appended to ``vals`` from
+    ``inside`` on (as many as fit in ``vals[:cap]``; ``vals[cap]`` takes the rest). Counts and stores without a
+    branch on the values (half the samples fall below a, at random): the counts in the processor's vector lanes,
+    then, when the row has samples inside, one store per sample at the next free entry, kept when inside."""
+    n = 0
+    below = 0
+    n_a = 0
+    n_in = 0
+    n_b = 0
+    for t in range(m):
+        v = buf[t]
+        fin = np.isfinite(v)  # an inf sample (|z| = 0) is left out, even at an end of the window
+        n += fin
+        below += v < a
+        n_a += (v == a) & fin
+        n_in += (v > a) & (v < b)
+        n_b += (v == b) & fin
+    if n_in:
+        for t in range(m):
+            v = buf[t]
+            vals[min(inside, cap)] = v
+            inside += (v > a) & (v < b)
+    return n, below, n_a, inside, n_b
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _reach_window(xyz, valid, a, b, vals):  # type: ignore[no-untyped-def]  # numba kernel
     """The samples of :func:`zcut.edge_surface._reach_samples` against the window [a, b] (a < b), without
     storing them: (count, below a, equal to a, strictly inside, equal to b), those strictly inside into
-    ``vals`` (as many as fit). The ends are counted apart: a quantized sensor's samples take few values."""
+    ``vals[:-1]`` (as many as fit; the last entry is scratch), in the samples' order. The ends are counted
+    apart: a quantized sensor's samples take few values. A row at a time: its samples (NaN where a pixel of
+    the pair is not valid; a NaN or inf sample is counted nowhere, as it is left out) into a buffer, every
+    pixel's computed (in vector lanes), then tallied (:func:`_tally_row`)."""
     H, W = valid.shape
-    cap = vals.size
+    cap = vals.size - 1
     n = 0
     below = 0
     n_a = 0
     inside = 0
     n_b = 0
-    for i in range(H):
+    buf = np.empty(W)
+    for i in range(H):  # the row-adjacent pairs
         for j in range(W - 1):
-            if valid[i, j] and valid[i, j + 1]:
-                v = _sample_x(xyz, i, j)
-                if np.isfinite(v):
-                    n += 1
-                    if v < a:
-                        below += 1
-                    elif v == a:
-                        n_a += 1
-                    elif v < b:
-                        if inside < cap:
-                            vals[inside] = v
-                        inside += 1
-                    elif v == b:
-                        n_b += 1
-    for i in range(H - 1):
+            v = _sample_x(xyz, i, j)
+            buf[j] = v if valid[i, j] & valid[i, j + 1] else np.nan
+        c = _tally_row(buf, W - 1, a, b, vals, cap, inside)
+        n += c[0]
+        below += c[1]
+        n_a += c[2]
+        inside = c[3]
+        n_b += c[4]
+    for i in range(H - 1):  # the column-adjacent ones
         for j in range(W):
-            if valid[i, j] and valid[i + 1, j]:
-                v = _sample_y(xyz, i, j)
-                if np.isfinite(v):
-                    n += 1
-                    if v < a:
-                        below += 1
-                    elif v == a:
-                        n_a += 1
-                    elif v < b:
-                        if inside < cap:
-                            vals[inside] = v
-                        inside += 1
-                    elif v == b:
-                        n_b += 1
+            v = _sample_y(xyz, i, j)
+            buf[j] = v if valid[i, j] & valid[i + 1, j] else np.nan
+        c = _tally_row(buf, W, a, b, vals, cap, inside)
+        n += c[0]
+        below += c[1]
+        n_a += c[2]
+        inside = c[3]
+        n_b += c[4]
     return n, below, n_a, inside, n_b
 
 
@@ -805,8 +848,9 @@ def reach_median(a: np.ndarray, valid: Mask) -> float:
         hi_v = order_pair(pilot, h + d, h + d)[0]
         if not hi_v > lo_v:  # a quantized sensor: the pilot's middle is one value
             hi_v = float(np.nextafter(lo_v, np.inf))
-        vals = np.empty(max(1 << 16, 2 * H * W // 16))
+        vals = np.empty(max(1 << 16, 2 * H * W // 16) + 1)  # the last entry: _reach_window's scratch
         n, below, n_a, inside, n_b = (int(v) for v in _reach_window(a, valid, lo_v, hi_v, vals))
+        vals = vals[:-1]
         t = (n, below, n_a, inside, n_b)
         if n == 0:
             return 0.0
@@ -885,6 +929,19 @@ def _gate_median_in(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_p
     return m, float((np.float64(a0) + np.float64(a1)) / 2.0)
 
 
+@numba.njit(cache=True)
+def _listed_state(at, m, state):  # type: ignore[no-untyped-def]  # numba kernel
+    """``state`` (H, W) int8: 2 (not decided yet) at the pixels ``at[:m]`` (:func:`_ratio_brackets`' list: every
+    valid patch with n >= min_px, fitted, z² > 0), 0 (not a surface) elsewhere. A patch not listed is one
+    :func:`zcut.edge_surface._decide` finds not valid, not fitted (the same :func:`_patch_moments` and the same
+    closed form's rule, as the gate's count is the whole-frame pass's) or with z² = 0 (``zz > 0`` fails there):
+    its state 0, its slot -1, as that decision leaves them, without reading its patch."""
+    s = state.reshape(-1)
+    s[:] = 0
+    for k in range(m):
+        s[at[k]] = 2
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _decide_all(xyz, valid, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_max, any_angle, state, slot, planes,  # type: ignore[no-untyped-def]  # numba kernel
                 count):
@@ -914,13 +971,14 @@ class LazySurfaces:
                  "n_fitted")
 
     def __init__(self, xyz_mm: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: float, tan: float,
-                 gate_k: float, n_fitted: int) -> None:
+                 gate_k: float, n_fitted: int, state: np.ndarray | None = None) -> None:
         self._xyz, self._valid, self._params = xyz_mm, valid, params
         self._per_px, self._tan, self._gate_k = per_px, tan, gate_k
         self.n_fitted = n_fitted  # fitted patches with z² > 0 (0: no patch is a surface)
         # no ratio: no surface (as _edge_surfaces, which then leaves the mask empty)
-        # per patch: 2 not decided yet, 1 a surface, 0 not (zcut.edge_surface._nearest_search)
-        self._state = np.full(valid.shape, 2 if n_fitted else 0, np.int8)
+        # per patch: 2 not decided yet, 1 a surface, 0 not (zcut.edge_surface._nearest_search); ``state``, when
+        # given: 2 at the gate's listed patches only, the others decided already (:func:`_listed_state`)
+        self._state = state if state is not None and n_fitted else np.full(valid.shape, 2 if n_fitted else 0, np.int8)
         self._slot = np.full(valid.shape, -1, np.int32)
         self._planes = np.empty((1024, 6))
         self._count = np.zeros(1, np.int64)
@@ -968,12 +1026,17 @@ def lazy_surfaces(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, *,
                   gate: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> LazySurfaces:
     """:func:`zcut.edge_surface._edge_surfaces` (``a`` C-contiguous float64 in mm, finite where ``valid``,
     C-contiguous too) with the gate from brackets and the surfaces decided when read. ``gate``: the gate's
-    arrays (:func:`gate_arrays`, H · W entries each) when the caller has them; else :func:`gate_workspace`'s."""
+    arrays (:func:`gate_arrays`, H · W entries each) when the caller has them; else :func:`gate_workspace`'s. With
+    ``gate``, the patches the gate did not list start decided (not surfaces, :func:`_listed_state`)."""
     per_px = reach_median(a, valid)  # 1 / f (_median_of_temporary's value)
     tan = min(math.tan(math.radians(params.max_incidence_deg)), 1e6)
+    state = None
     if gate is None:
         m, g = _gate_median(a, valid, params, per_px, tan)
     else:
         m, g = _gate_median_in(a, valid, params, per_px, tan, *gate)
+        if m:  # the patches the gate did not list are no surface: decided here, not one by one when read
+            state = np.empty(valid.shape, np.int8)
+            _listed_state(gate[2], m, state)
     gate_k = params.fit_k * g if m else float("nan")
-    return LazySurfaces(a, valid, params, per_px, tan, gate_k, m)
+    return LazySurfaces(a, valid, params, per_px, tan, gate_k, m, state)
