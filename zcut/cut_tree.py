@@ -554,11 +554,6 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
         lw = np.int64(-1)
         for c0 in range(0, W, SEGMENT):
             c1 = min(c0 + SEGMENT, W)
-            if r + 1 < H and (not skip or seg_max[wr + r + 1, (wc + c0) // SEGMENT] >= thr):
-                # the heights of the segment below, read a row from now (a hint: no value changes)
-                nxt = (wr + r + 1) * ZW + wc + c0
-                for j in range(0, c1 - c0, 8):
-                    _prefetch(zf, np.uint64(nxt + j))
             if skip and not seg_max[wr + r, (wc + c0) // SEGMENT] >= thr:
                 st[base + 1 + c0:base + 1 + c1] = -1
                 qw = -1  # type: ignore[assignment]  # numba kernel: an int64 local
