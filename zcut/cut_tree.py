@@ -217,11 +217,9 @@ def _finite_range_float(z, seg_max):  # type: ignore[no-untyped-def]  # numba ke
     return n, lo, hi
 
 
-@intrinsic
-def _prefetch(typingctx, arr, idx):  # type: ignore[no-untyped-def]  # numba intrinsic
-    """``llvm.prefetch`` of ``arr[idx]`` (a read, kept in every cache level): a hint, no effect on any value
-    (x86's prefetch never faults; the callers keep ``idx`` inside ``arr`` all the same)."""
-    sig = nbtypes.void(arr, idx)
+def _prefetch_codegen(write: int) -> Any:
+    """The code of ``llvm.prefetch`` of ``arr[idx]`` (``write``: 0 for a read, 1 for a write; kept in every
+    cache level), for :func:`_prefetch` and :func:`_prefetch_w`."""
 
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]  # numba intrinsic
         aryty = signature.args[0]
@@ -232,10 +230,25 @@ def _prefetch(typingctx, arr, idx):  # type: ignore[no-untyped-def]  # numba int
         i32 = ir.IntType(32)
         fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
                                             "llvm.prefetch.p0")
-        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, write), ir.Constant(i32, 3),
+                          ir.Constant(i32, 1)])
         return context.get_dummy_value()
 
-    return sig, codegen
+    return codegen
+
+
+@intrinsic
+def _prefetch(typingctx, arr, idx):  # type: ignore[no-untyped-def]  # numba intrinsic
+    """``llvm.prefetch`` of ``arr[idx]`` for a read: a hint, no effect on any value (x86's prefetch never
+    faults; the callers keep ``idx`` inside ``arr`` all the same)."""
+    return nbtypes.void(arr, idx), _prefetch_codegen(0)
+
+
+@intrinsic
+def _prefetch_w(typingctx, arr, idx):  # type: ignore[no-untyped-def]  # numba intrinsic
+    """``llvm.prefetch`` of ``arr[idx]`` for a write (the line fetched for ownership before the store
+    needs it): a hint, no effect on any value (the callers keep ``idx`` inside ``arr``)."""
+    return nbtypes.void(arr, idx), _prefetch_codegen(1)
 
 
 #: How far ahead of the segment it reads :func:`finite_range` prefetches the heights, in heights (2 KB: 32
@@ -267,7 +280,9 @@ def finite_range(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
     extremes have no NaN to respect, so LLVM vectorises the loop (the float comparisons' is scalar:
     1.4 ms a 1920 x 1200 frame, ~0.6 ms so). The keys tell -0.0 below +0.0, which the floats do not:
     when an extreme is a zero, the extremes are taken again by :func:`_finite_range_float` (the
-    first of equal extremes in raster order, as :func:`zcut.cuts._finite_min_max`)."""
+    first of equal extremes in raster order, as :func:`zcut.cuts._finite_min_max`). The heights
+    ``PREFETCH_AHEAD`` on are prefetched (:func:`_prefetch`): the frame is seldom in the caches here, and the
+    hardware alone read it at ~10 GB/s."""
     H, W = z.shape
     zi = z.reshape(-1).view(np.int64)
     si = seg_max.reshape(-1).view(np.int64)
@@ -554,6 +569,20 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
         lw = np.int64(-1)
         for c0 in range(0, W, SEGMENT):
             c1 = min(c0 + SEGMENT, W)
+            if r + 1 < H:
+                # the segment below, worked on a row from now (hints, no value changes): its levels in st are
+                # written either way, its heights read and its labels in gl written where it is read; a line
+                # (64 bytes) at a time. Here the hardware did not fetch these short streams ahead itself (the
+                # pile: ~0.1-0.25 ms of its 3, docs/performance.md).
+                nb = base + Wp + 1 + c0
+                for j in range(0, c1 - c0, 32):
+                    _prefetch_w(st, np.uint64(nb + j))
+                if not skip or seg_max[wr + r + 1, (wc + c0) // SEGMENT] >= thr:
+                    nxt = (wr + r + 1) * ZW + wc + c0
+                    for j in range(0, c1 - c0, 8):
+                        _prefetch(zf, np.uint64(nxt + j))
+                    for j in range(0, c1 - c0, 16):
+                        _prefetch_w(gl, np.uint64(nb + j))
             if skip and not seg_max[wr + r, (wc + c0) // SEGMENT] >= thr:
                 st[base + 1 + c0:base + 1 + c1] = -1
                 qw = -1  # type: ignore[assignment]  # numba kernel: an int64 local
