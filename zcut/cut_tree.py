@@ -219,17 +219,17 @@ def _finite_range_float(z, seg_max):  # type: ignore[no-untyped-def]  # numba ke
 
 def _prefetch_codegen(write: int) -> Any:
     """The code of ``llvm.prefetch`` of ``arr[idx]`` (``write``: 0 for a read, 1 for a write; kept in every
-    cache level), for :func:`_prefetch` and :func:`_prefetch_w`."""
+    cache level), for :func:`_prefetch_read` and :func:`_prefetch_write`."""
 
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]  # numba intrinsic
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
         aryty = signature.args[0]
         ary = context.make_array(aryty)(context, builder, args[0])
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1]], wraparound=False,
-                                       boundscheck=False)
+        ptr = cgutils.get_item_pointer(  # type: ignore[no-untyped-call]  # numba's cgutils
+            context, builder, aryty, ary, [args[1]], wraparound=False, boundscheck=False)
         i8p = ir.IntType(8).as_pointer()
         i32 = ir.IntType(32)
-        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
-                                            "llvm.prefetch.p0")
+        fn = cgutils.get_or_insert_function(  # type: ignore[no-untyped-call]  # numba's cgutils
+            builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), "llvm.prefetch.p0")
         builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, write), ir.Constant(i32, 3),
                           ir.Constant(i32, 1)])
         return context.get_dummy_value()
@@ -237,18 +237,22 @@ def _prefetch_codegen(write: int) -> Any:
     return codegen
 
 
-@intrinsic
-def _prefetch(typingctx, arr, idx):  # type: ignore[no-untyped-def]  # numba intrinsic
+def _prefetch_read(typingctx: Any, arr: Any, idx: Any) -> Any:
     """``llvm.prefetch`` of ``arr[idx]`` for a read: a hint, no effect on any value (x86's prefetch never
     faults; the callers keep ``idx`` inside ``arr`` all the same)."""
     return nbtypes.void(arr, idx), _prefetch_codegen(0)
 
 
-@intrinsic
-def _prefetch_w(typingctx, arr, idx):  # type: ignore[no-untyped-def]  # numba intrinsic
+def _prefetch_write(typingctx: Any, arr: Any, idx: Any) -> Any:
     """``llvm.prefetch`` of ``arr[idx]`` for a write (the line fetched for ownership before the store
     needs it): a hint, no effect on any value (the callers keep ``idx`` inside ``arr``)."""
     return nbtypes.void(arr, idx), _prefetch_codegen(1)
+
+
+#: ``_prefetch(arr, idx)`` and ``_prefetch_w(arr, idx)`` in the kernels (:func:`_prefetch_read`,
+#: :func:`_prefetch_write`).
+_prefetch: Any = intrinsic(_prefetch_read)
+_prefetch_w: Any = intrinsic(_prefetch_write)
 
 
 #: How far ahead of the segment it reads :func:`finite_range` prefetches the heights, in heights (2 KB: 32
@@ -281,7 +285,7 @@ def finite_range(z, seg_max):  # type: ignore[no-untyped-def]  # numba kernel
     1.4 ms a 1920 x 1200 frame, ~0.6 ms so). The keys tell -0.0 below +0.0, which the floats do not:
     when an extreme is a zero, the extremes are taken again by :func:`_finite_range_float` (the
     first of equal extremes in raster order, as :func:`zcut.cuts._finite_min_max`). The heights
-    ``PREFETCH_AHEAD`` on are prefetched (:func:`_prefetch`): the frame is seldom in the caches here, and the
+    ``PREFETCH_AHEAD`` on are prefetched (:func:`_prefetch_read`): the frame is seldom in the caches here, and the
     hardware alone read it at ~10 GB/s."""
     H, W = z.shape
     zi = z.reshape(-1).view(np.int64)
