@@ -31,7 +31,8 @@ Prints the times, the ratio reference / fast and checks that the masks are ident
 ``--passes`` also prints where ``zcut_outliers``' CPU time goes (the extremes pass, the level pass with
 the gentle components of the z-cut's connectivity, as ``zcut_outliers``, the prune: the large gentle components and the pixels below them left out, the
 flood of the kept pixels, the read-out) beside the floor of
-reading the heights and writing a mask.
+reading the heights and writing a mask, and the extremes pass again with the heights out of the caches
+(``EVICT_BYTES`` streamed before each call: as in a call of ``zcut_outliers``, where they seldom are cached).
 ``--held-out pile:21,dense:31,...`` adds frames of those kinds at seeds the default frames do not use.
 ``--suspects-call DIR`` times instead the ``find_clusters`` call of the suspects' floating detector (its
 arguments captured on the xyz frames of DIR: a step of 0.1 mm over the zone's whole height range, 1,200–17,000
@@ -63,6 +64,10 @@ from zcut.params import NOMINAL_MAX_DEPTH_MM, NOMINAL_RHO_THR, NOMINAL_STEP_MM, 
 
 H, W = 1200, 1920
 A_MAX = 3000.0  # pixels of a part's largest face
+#: ``--passes``: the bytes streamed before each call of the extremes pass timed with the heights out of the
+#: caches (in a call of ``zcut_outliers`` they seldom are in them: the previous call, or the stage before,
+#: streamed other memory through them; docs/performance.md)
+EVICT_BYTES = 64 << 20
 
 
 def pile_frame(seed: int = 7) -> np.ndarray:
@@ -208,9 +213,11 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
         return flood_core_left_out(b[0], b[1], kept, window[3], np.int64(k_eff), np.int64(top), True, max_area, lab)
 
     _, _, node_parent, tagged, fin = flood((st_kept.copy(), start.copy()))
+    other = np.ones(EVICT_BYTES, np.uint8)  # streamed before each call of the next row: the heights out of the caches
     res = {
         "floor (read heights, write a mask)": timed(lambda: (z.sum(), np.zeros(z.shape, bool).fill(False)), repeat)[1],
         "extremes pass": timed(lambda: _finite_range(z), repeat)[1],
+        "extremes pass, heights not cached": timed_on(lambda: other.sum(), lambda _: _finite_range(z), repeat),
         "level pass + gentle components": timed(levels, repeat)[1],
         "prune (gentle + uphill)": timed_on(prune_inputs, prune, repeat),
         "flood": timed_on(lambda: (st_kept.copy(), start.copy()), flood, repeat),
