@@ -258,14 +258,11 @@ def knn_query(cols, x0, y0, z0, inv, nx, ny, xq, yq, zq, lim, best, max_scan):  
 
     Columns are visited ring by ring around the query's own column (Chebyshev distance 0, 1, ...);
     the search stops after the last ring that can hold a point within the current radius, which
-    shrinks from sqrt(lim) to the m-th distance found. In a column the slabs are scanned outward
-    from the query's own: upward from it, then downward from the one below it, each direction
-    stopping at the last slab the current radius reaches (the nearest candidates come first, so the
-    radius shrinks sooner than scanning the column's z range from its bottom). Every point whose
-    computed squared distance is <= lim, or < the m-th smallest found so far once m are found, is
-    visited; points at exactly the m-th distance could only replace one equal value by another (the
-    multiset of the m smallest is final, whatever the order of the visits). Returns the entries
-    scanned, or -1 when more than ``max_scan`` would be needed (``best`` is then not final).
+    shrinks from sqrt(lim) to the m-th distance found. Every point whose computed squared distance
+    is <= lim, or < the m-th smallest found so far once m are found, is visited; points at exactly
+    the m-th distance could only replace one equal value by another (the multiset of the m smallest
+    is final). Returns the entries scanned, or -1 when more than ``max_scan`` would be needed
+    (``best`` is then not final).
     """
     start, xs, ys, zs, mult, ks = cols
     m = best.shape[0]
@@ -275,7 +272,6 @@ def knn_query(cols, x0, y0, z0, inv, nx, ny, xq, yq, zq, lim, best, max_scan):  
     rad = math.sqrt(lim)
     own_x = cell(xq, x0, inv)
     own_y = cell(yq, y0, inv)
-    own_z = cell(zq, z0, inv)
     kmax = _ring_reach(xq, yq, rad, x0, y0, inv, own_x, own_y)
     scanned = 0
     k = 0
@@ -287,15 +283,13 @@ def knn_query(cols, x0, y0, z0, inv, nx, ny, xq, yq, zq, lim, best, max_scan):  
             for ix in range(own_x - k, own_x + k + 1, step):
                 if ix < 0 or ix >= nx:
                     continue
+                Rz = reach(zq, rad)
                 col = iy * nx + ix
-                s = start[col]
+                j = _first_slab(ks, start[col], start[col + 1], cell(zq - Rz, z0, inv))
+                j0 = j
                 end = start[col + 1]
-                if s == end:
-                    continue
-                jm = _first_slab(ks, s, end, own_z)
-                k_hi = cell(zq + reach(zq, rad), z0, inv)
-                j = jm
-                while j < end and ks[j] <= k_hi:  # upward from the query's slab
+                k_hi = cell(zq + Rz, z0, inv)
+                while j < end and ks[j] <= k_hi:
                     v = d2(xq, yq, zq, xs[j], ys[j], zs[j])
                     if v < best[m - 1]:
                         found = _insert_copies(best, found, v, mult[j])
@@ -305,20 +299,7 @@ def knn_query(cols, x0, y0, z0, inv, nx, ny, xq, yq, zq, lim, best, max_scan):  
                     else:
                         found += mult[j]
                     j += 1
-                scanned += j - jm
-                k_lo = cell(zq - reach(zq, rad), z0, inv)
-                j = jm - 1
-                while j >= s and ks[j] >= k_lo:  # then downward from the slab below it
-                    v = d2(xq, yq, zq, xs[j], ys[j], zs[j])
-                    if v < best[m - 1]:
-                        found = _insert_copies(best, found, v, mult[j])
-                        if found >= m:
-                            rad = math.sqrt(best[m - 1])
-                            k_lo = cell(zq - reach(zq, rad), z0, inv)
-                    else:
-                        found += mult[j]
-                    j -= 1
-                scanned += jm - 1 - j
+                scanned += j - j0
                 if scanned > max_scan:
                     return -1
         if found >= m:
