@@ -431,36 +431,49 @@ def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, ro
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True, inline="always")
 def _row_terms(dbar, valid, open3d, r, row):  # type: ignore[no-untyped-def]  # numba kernel
-    # the summed values of row r, in order, into row (W + 1 entries: every pixel after the last
-    # summed one writes row[k], k = its count, without a branch: valid pixels at random would make
-    # one mispredict); returns their count
-    k = 0
+    # row[c] := what pixel (r, c) adds to the sum of d̄: d̄ where it is summed, +0.0 elsewhere (a
+    # select the compiler vectorizes: no branch, no arithmetic on what invalid pixels hold)
     for c in range(valid.shape[1]):
         d = dbar[r, c]
-        row[k] = d
-        k += valid[r, c] & ((not open3d) | (d > 0.0))
-    return k
+        row[c] = d if valid[r, c] & ((not open3d) | (d > 0.0)) else 0.0
+
+
+@nb.njit(cache=True, inline="always")
+def _row_deviations(dbar, valid, open3d, r, mean, row):  # type: ignore[no-untyped-def]  # numba kernel
+    # row[c] := what pixel (r, c) adds to the sum of squared deviations: (d̄ - mean)² where it is
+    # summed, +0.0 elsewhere (selected after the arithmetic: with a mean of inf, (mean - mean)² is NaN)
+    for c in range(valid.shape[1]):
+        d = dbar[r, c]
+        summed = valid[r, c] & ((not open3d) | (d > 0.0))
+        t = d if summed else mean
+        v = (t - mean) * (t - mean)
+        row[c] = v if summed else 0.0
 
 
 @nb.njit(cache=True)
 def _mean_std(dbar, valid, n, open3d):  # type: ignore[no-untyped-def]  # numba kernel
     # mean and std of the statistics (see _outlier_masks): each sum one accumulator over the summed
-    # values in row-major order, gathered a row at a time into a row buffer (:func:`_row_terms`)
-    # and then added: the same values added in the same order as over one gathered array of all
-    # of them (what this did before: an 18 MB array a 1920 x 1200 frame, faulted in afresh each
-    # call), hence the same sums bit for bit
-    row = np.empty(valid.shape[1] + 1)
+    # values in row-major order. A row's terms are made first (:func:`_row_terms`,
+    # :func:`_row_deviations`: a vectorized select, +0.0 where a pixel is not summed), then added
+    # one by one, every pixel's: an accumulator starts at +0.0 and a sum is -0.0 only when both
+    # operands are, so it is never -0.0, and acc + 0.0 is acc exactly (NaN and inf included). So
+    # the sums are those of adding only the summed values, in the same order, bit for bit. (Adding
+    # d̄ if summed else 0.0 in one loop compiles to a branch per pixel, which valid pixels at random
+    # mispredict; gathering each row's summed values to the front of a buffer, what this did before,
+    # made each pass ~3 times slower once the frame is out of the cache.)
+    H, W = valid.shape
+    row = np.empty(W)
     s = 0.0
-    for r in range(valid.shape[0]):
-        k = _row_terms(dbar, valid, open3d, r, row)
-        for i in range(k):
-            s = s + row[i]
+    for r in range(H):
+        _row_terms(dbar, valid, open3d, r, row)
+        for c in range(W):
+            s = s + row[c]
     mean = s / n
     sq = 0.0
-    for r in range(valid.shape[0]):
-        k = _row_terms(dbar, valid, open3d, r, row)
-        for i in range(k):
-            sq = sq + (row[i] - mean) * (row[i] - mean)
+    for r in range(H):
+        _row_deviations(dbar, valid, open3d, r, mean, row)
+        for c in range(W):
+            sq = sq + row[c]
     return mean, math.sqrt(sq / (n - 1))
 
 

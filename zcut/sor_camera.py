@@ -171,33 +171,8 @@ def _division_terms(x, y, z, rr, cc, T, s_uv, muv, c0u, c0v):  # type: ignore[no
 
 @nb.njit(cache=True, error_model="numpy")
 def _division_check(x, y, z, rr, cc, P, s_uv, muv, c0u, c0v, lam):  # type: ignore[no-untyped-def]  # numba kernel
-    # _dlt_check for the division model: the depth sign, whether the sample's depths are all of
-    # it, and the median distance in pixels between each pixel and its point's distorted
-    # reprojection (inf where the model has no distorted image)
-    n = rr.shape[0]
-    d = np.empty(n)
-    res = np.empty(n)
-    for i in range(n):
-        xq = x[rr[i], cc[i]]
-        yq = y[rr[i], cc[i]]
-        zq = z[rr[i], cc[i]]
-        d[i] = P[2, 0] * xq + P[2, 1] * yq + P[2, 2] * zq + P[2, 3]
-        du = (P[0, 0] * xq + P[0, 1] * yq + P[0, 2] * zq + P[0, 3]) / d[i] - c0u
-        dv = (P[1, 0] * xq + P[1, 1] * yq + P[1, 2] * zq + P[1, 3]) / d[i] - c0v
-        disc = 1.0 - 4.0 * lam * (du * du + dv * dv)
-        if not disc >= 0.0:
-            res[i] = np.inf
-            continue
-        k = 2.0 / (1.0 + math.sqrt(disc))
-        eu = c0u + du * k - (cc[i] - muv[0]) * s_uv
-        ev = c0v + dv * k - (rr[i] - muv[1]) * s_uv
-        res[i] = math.sqrt(eu * eu + ev * ev) / s_uv
-    sign = 1.0 if np.median(d) >= 0.0 else -1.0
-    ok = True
-    for i in range(n):
-        if not sign * d[i] > 0.0:
-            ok = False
-    return sign, ok, np.median(res)
+    # _reprojection_check with the points' images distorted by the division model about (c0u, c0v)
+    return _reprojection_check(x, y, z, rr, cc, P, s_uv, muv, c0u, c0v, lam, True)
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -255,8 +230,16 @@ def _dlt_normal_matrix(x, y, z, rr, cc):  # type: ignore[no-untyped-def]  # numb
 
 @nb.njit(cache=True, error_model="numpy")
 def _dlt_check(x, y, z, rr, cc, P, s_uv, muv):  # type: ignore[no-untyped-def]  # numba kernel
-    # the depth sign that makes the sample's depths positive, whether they all are, and the
-    # median reprojection error in pixels
+    # _reprojection_check of the plain pinhole
+    return _reprojection_check(x, y, z, rr, cc, P, s_uv, muv, 0.0, 0.0, 0.0, False)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _reprojection_check(x, y, z, rr, cc, P, s_uv, muv, c0u, c0v, lam, lens):  # type: ignore[no-untyped-def]  # numba kernel
+    # the depth sign that makes the sample's depths P2·p̃ positive, whether they all are, and the
+    # median distance in pixels between each sample pixel and its point's reprojection: the
+    # pinhole's (lens False) or, with lens, its image distorted by the division model about
+    # (c0u, c0v) with λ = lam (inf where the model has no distorted image)
     n = rr.shape[0]
     d = np.empty(n)
     res = np.empty(n)
@@ -267,9 +250,19 @@ def _dlt_check(x, y, z, rr, cc, P, s_uv, muv):  # type: ignore[no-untyped-def]  
         d[i] = P[2, 0] * xq + P[2, 1] * yq + P[2, 2] * zq + P[2, 3]
         u = (P[0, 0] * xq + P[0, 1] * yq + P[0, 2] * zq + P[0, 3]) / d[i]
         v = (P[1, 0] * xq + P[1, 1] * yq + P[1, 2] * zq + P[1, 3]) / d[i]
-        du = u - (cc[i] - muv[0]) * s_uv
-        dv = v - (rr[i] - muv[1]) * s_uv
-        res[i] = math.sqrt(du * du + dv * dv) / s_uv
+        if lens:
+            du = u - c0u
+            dv = v - c0v
+            disc = 1.0 - 4.0 * lam * (du * du + dv * dv)
+            if not disc >= 0.0:
+                res[i] = np.inf
+                continue
+            k = 2.0 / (1.0 + math.sqrt(disc))
+            u = c0u + du * k
+            v = c0v + dv * k
+        eu = u - (cc[i] - muv[0]) * s_uv
+        ev = v - (rr[i] - muv[1]) * s_uv
+        res[i] = math.sqrt(eu * eu + ev * ev) / s_uv
     sign = 1.0 if np.median(d) >= 0.0 else -1.0
     ok = True
     for i in range(n):

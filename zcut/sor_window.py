@@ -889,17 +889,32 @@ def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, 
 
 @nb.njit(cache=True)
 def unproven_pixels(valid, dbar, unproven):  # type: ignore[no-untyped-def]  # numba kernel
-    """(rows, cols) of the pixels window_rows left unproven, row-major."""
+    """(rows, cols) of the pixels window_rows left unproven, row-major.
+
+    A row with some is read in blocks of 64 columns: whether a block holds one is a vectorized
+    reduction (no branch per pixel: valid pixels at random in sparse clouds would mispredict it);
+    only such a block is gathered, without a branch, and the row is left once its count is found."""
     total = 0
     for r in range(unproven.shape[0]):
         total += unproven[r]
-    rows = np.empty(total + 1, np.int64)
+    rows = np.empty(total + 1, np.int64)  # (a gathered pixel after the last unproven one writes entry total)
     cols = np.empty(total + 1, np.int64)
+    W = valid.shape[1]
     k = 0
     for r in range(unproven.shape[0]):
-        if unproven[r]:
-            for c in range(valid.shape[1]):  # without a branch (valid pixels at random in sparse clouds)
-                rows[k] = r
-                cols[k] = c
-                k += valid[r, c] & (dbar[r, c] < 0.0)
+        if not unproven[r]:
+            continue
+        end = k + unproven[r]
+        for c0 in range(0, W, 64):
+            c1 = min(W, c0 + 64)
+            hit = False
+            for c in range(c0, c1):
+                hit |= valid[r, c] & (dbar[r, c] < 0.0)
+            if hit:
+                for c in range(c0, c1):
+                    rows[k] = r
+                    cols[k] = c
+                    k += valid[r, c] & (dbar[r, c] < 0.0)
+                if k >= end:
+                    break
     return rows[:total], cols[:total]

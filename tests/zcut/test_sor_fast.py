@@ -588,3 +588,47 @@ def test_outlier_masks_sum_in_row_major_order(open3d: bool, shape: tuple[int, in
             thr = mean + ratio * std
             want = valid & ~((dbar > 0.0) & (dbar < thr)) if open3d else valid & (dbar > thr)
             np.testing.assert_array_equal(got[i], want)
+
+
+@pytest.mark.parametrize("open3d", [False, True])
+@pytest.mark.parametrize("case", ["overflow", "inf term", "nan term", "signed zeros", "no term", "subnormal"])
+def test_mean_std_adds_nothing_for_the_pixels_it_skips(open3d: bool, case: str) -> None:
+    # _mean_std adds +0.0 for every pixel it does not sum (branch-free): the sums must still be
+    # those of the literal loop over the summed values only, bit for bit, where a skipped +0.0
+    # could show: an accumulator that overflows to inf (a mean of inf: (mean - mean)² would be
+    # NaN), inf and NaN terms (sor_outliers_from_distances takes any d̄), -0.0 and +0.0 terms,
+    # no summed term at all, subnormal terms; skipped pixels hold NaN, inf, -0.0 or subnormals
+    rng = np.random.default_rng(11)
+    shape = (23, 41)
+    dbar = np.exp(rng.uniform(-5.0, 2.0, shape))
+    valid = rng.random(shape) < 0.5
+    if case == "overflow":
+        dbar[valid] = 1.5e308
+    elif case == "inf term":
+        dbar[3, valid[3]] = np.inf
+    elif case == "nan term":
+        dbar[5, valid[5]] = np.nan
+    elif case == "signed zeros":
+        dbar[rng.random(shape) < 0.5] = -0.0
+        dbar[rng.random(shape) < 0.3] = 0.0
+    elif case == "no term":
+        dbar[:] = 0.0 if open3d else dbar
+        valid[:] = valid if open3d else False
+    else:
+        dbar[rng.random(shape) < 0.5] = 5e-324
+    junk = rng.choice(np.array([np.nan, np.inf, -0.0, 5e-324]), shape)
+    dbar = np.where(valid, dbar, junk)
+    n = float(max(np.count_nonzero(valid), 2))
+    terms = [float(d) for d, ok in zip(dbar.ravel(), valid.ravel()) if ok and (not open3d or d > 0.0)]
+    s = 0.0
+    for t in terms:
+        s = s + t
+    mean = s / n
+    sq = 0.0
+    for t in terms:
+        sq = sq + (t - mean) * (t - mean)
+    with np.errstate(invalid="ignore", over="ignore"):
+        std = math.sqrt(sq / (n - 1)) if not sq < 0.0 else math.nan
+    got = np.array(sor_module._mean_std(dbar, valid, n, open3d))
+    want = np.array([mean, std])
+    assert np.array_equal(got.view(np.uint64), want.view(np.uint64)), (got, want)
