@@ -22,7 +22,8 @@ def segment(xyz: np.ndarray, flat: np.ndarray, *, f_px: float, jump_mm: float, j
     xyz : (H, W, 3) float64 ndarray
         Camera frame, mm (finite at ``flat``).
     flat : (n,) int64 ndarray
-        Flat pixel indices (row-major) of the pixels to segment, sorted ascending.
+        Flat pixel indices (row-major) of the pixels to segment, sorted ascending and distinct (checked: other
+        input, or indices off the grid, go the way of :func:`segment_reference`, whose answer it is).
     f_px : float
         Focal length (pixels) for the footprint z / f.
 
@@ -35,7 +36,8 @@ def segment(xyz: np.ndarray, flat: np.ndarray, *, f_px: float, jump_mm: float, j
     flat = np.asarray(flat, np.int64)
     if len(flat) < min_px:
         return []
-    if xyz.dtype != np.float64:  # the kernel's arithmetic is float64's
+    if xyz.dtype != np.float64 or not _ascending_on_grid(flat, H * W):
+        # the kernel's arithmetic is float64's, and it walks ``flat`` as a sorted set of the grid's pixels
         return segment_reference(xyz, flat, f_px=f_px, jump_mm=jump_mm, jump_px=jump_px, min_px=min_px)
     pts = np.ascontiguousarray(xyz.reshape(-1, 3))
     grouped, counts = _components(pts, np.ascontiguousarray(flat), H, W, float(jump_mm), float(jump_px),
@@ -83,6 +85,21 @@ def segment_reference(xyz: np.ndarray, flat: np.ndarray, *, f_px: float, jump_mm
     order = np.argsort(lab, kind="stable")
     starts = np.concatenate([[0], np.cumsum(counts)])
     return [flat[order[starts[k]:starts[k + 1]]] for k in keep]
+
+
+@numba.njit(cache=True, nogil=True)
+def _ascending_on_grid(flat: np.ndarray, size: int) -> bool:
+    """Whether ``flat`` is strictly ascending (sorted, distinct) within [0, ``size``): what
+    :func:`_components` assumes of it."""
+    n = len(flat)
+    if n == 0:
+        return True
+    if flat[0] < 0 or flat[n - 1] >= size:
+        return False
+    for i in range(1, n):
+        if flat[i] <= flat[i - 1]:
+            return False
+    return True
 
 
 @numba.njit(cache=True, nogil=True)
