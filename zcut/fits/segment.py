@@ -10,6 +10,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from zcut.components import find_root
+
 __all__ = ["segment", "segment_reference"]
 
 
@@ -103,14 +105,6 @@ def _ascending_on_grid(flat: np.ndarray, size: int) -> bool:
 
 
 @numba.njit(cache=True, nogil=True)
-def _root(parent: np.ndarray, i: int) -> int:
-    while parent[i] != i:
-        parent[i] = parent[parent[i]]
-        i = parent[i]
-    return i
-
-
-@numba.njit(cache=True, nogil=True)
 def _components(pts: np.ndarray, flat: np.ndarray, H: int, W: int, jump_mm: float, jump_px: float,
                 f_px: float) -> tuple[np.ndarray, np.ndarray]:
     """The connected components of :func:`segment`'s graph: (the pixels ``flat`` grouped by component, ascending
@@ -149,8 +143,8 @@ def _components(pts: np.ndarray, flat: np.ndarray, H: int, W: int, jump_mm: floa
             d = np.sqrt((dx * dx + dy * dy) + dz * dz)
             z = min(pts[fa, 2], pts[fb, 2])
             if d <= jump_mm + jump_px * abs(z) / f_px:
-                ra = _root(parent, i)
-                rb = _root(parent, k)
+                ra = find_root(parent, i)
+                rb = find_root(parent, k)
                 if ra < rb:
                     parent[rb] = ra
                 elif rb < ra:
@@ -159,7 +153,7 @@ def _components(pts: np.ndarray, flat: np.ndarray, H: int, W: int, jump_mm: floa
     counts = np.zeros(n, np.int64)
     m = 0
     for i in range(n):
-        r = _root(parent, i)
+        r = find_root(parent, i)
         if r == i:
             label[i] = m
             m += 1

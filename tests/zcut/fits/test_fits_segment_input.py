@@ -91,3 +91,32 @@ def test_degenerate_input_is_unchanged():
     assert _same(segment(xyz, np.array([15, 15]), min_px=1, **KW),
                  segment_reference(xyz, np.array([15, 15]), min_px=1, **KW))
     assert _same(segment(xyz, np.array([15]), min_px=1, **KW), [np.array([15])])
+
+
+SEGMENT_SCRIPT = r"""
+import numpy as np
+from zcut.components import speckle_outliers
+from zcut.fits.segment import segment
+
+rng = np.random.default_rng(5)
+xyz = np.stack([rng.normal(0, 1, (40, 50)).cumsum(1), rng.normal(0, 1, (40, 50)).cumsum(0),
+                300 + rng.normal(0, 0.3, (40, 50))], axis=-1)
+segment(xyz, np.arange(0, 2000, 3), f_px=500.0, jump_mm=1.5, jump_px=3.0, min_px=1)
+speckle_outliers(xyz, max_diff_mm=1.0, max_size_px=20)
+"""
+
+
+def test_the_segmentations_kernels_load_from_the_cache_in_a_second_process():
+    # the union-find's root is zcut.components.find_root, inlined in zcut.fits.segment._components
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("kernel_cache_helpers",
+                                                  Path(__file__).resolve().parents[1] / "kernel_cache_helpers.py")
+    assert spec is not None and spec.loader is not None
+    helpers = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(helpers)
+    stats = helpers.second_process_stats(SEGMENT_SCRIPT)
+    assert {"zcut.fits.segment._components", "zcut.fits.segment._ascending_on_grid",
+            "zcut.components._speckle_kernel"} <= set(stats), sorted(stats)
+    assert helpers.missed(stats) == {}, f"compiled again in a second process (cache hits, misses): {helpers.missed(stats)}"
