@@ -104,45 +104,42 @@ def _index_dtype(count: int) -> type:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _closest_on_triangle(px: float, py: float, pz: float, A: np.ndarray, B: np.ndarray, C: np.ndarray,
-                         j: int) -> tuple[float, float, float]:
-    """The point of triangle (A[j], B[j], C[j]) nearest p (Ericson, Real-Time Collision Detection 5.1.5)."""
-    a0, a1, a2 = A[j, 0], A[j, 1], A[j, 2]
-    b0, b1, b2 = B[j, 0], B[j, 1], B[j, 2]
-    c0, c1, c2 = C[j, 0], C[j, 1], C[j, 2]
-    abx, aby, abz = b0 - a0, b1 - a1, b2 - a2
-    acx, acy, acz = c0 - a0, c1 - a1, c2 - a2
-    apx, apy, apz = px - a0, py - a1, pz - a2
+def _closest_on_triangle(px: float, py: float, pz: float, a: np.ndarray, b: np.ndarray,
+                         c: np.ndarray) -> tuple[float, float, float]:
+    """The point of triangle (a, b, c) nearest p (Ericson, Real-Time Collision Detection 5.1.5)."""
+    abx, aby, abz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    acx, acy, acz = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    apx, apy, apz = px - a[0], py - a[1], pz - a[2]
     d1 = abx * apx + aby * apy + abz * apz
     d2 = acx * apx + acy * apy + acz * apz
     if d1 <= 0.0 and d2 <= 0.0:
-        return a0, a1, a2
-    bpx, bpy, bpz = px - b0, py - b1, pz - b2
+        return a[0], a[1], a[2]
+    bpx, bpy, bpz = px - b[0], py - b[1], pz - b[2]
     d3 = abx * bpx + aby * bpy + abz * bpz
     d4 = acx * bpx + acy * bpy + acz * bpz
     if d3 >= 0.0 and d4 <= d3:
-        return b0, b1, b2
+        return b[0], b[1], b[2]
     vc = d1 * d4 - d3 * d2
     if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
         w = d1 / (d1 - d3)
-        return a0 + w * abx, a1 + w * aby, a2 + w * abz
-    cpx, cpy, cpz = px - c0, py - c1, pz - c2
+        return a[0] + w * abx, a[1] + w * aby, a[2] + w * abz
+    cpx, cpy, cpz = px - c[0], py - c[1], pz - c[2]
     d5 = abx * cpx + aby * cpy + abz * cpz
     d6 = acx * cpx + acy * cpy + acz * cpz
     if d6 >= 0.0 and d5 <= d6:
-        return c0, c1, c2
+        return c[0], c[1], c[2]
     vb = d5 * d2 - d1 * d6
     if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
         w = d2 / (d2 - d6)
-        return a0 + w * acx, a1 + w * acy, a2 + w * acz
+        return a[0] + w * acx, a[1] + w * acy, a[2] + w * acz
     va = d3 * d6 - d5 * d4
     if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
         w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        return b0 + w * (c0 - b0), b1 + w * (c1 - b1), b2 + w * (c2 - b2)
+        return b[0] + w * (c[0] - b[0]), b[1] + w * (c[1] - b[1]), b[2] + w * (c[2] - b[2])
     denom = 1.0 / (va + vb + vc)
     v_ = vb * denom
     w = vc * denom
-    return a0 + abx * v_ + acx * w, a1 + aby * v_ + acy * w, a2 + abz * v_ + acz * w
+    return a[0] + abx * v_ + acx * w, a[1] + aby * v_ + acy * w, a[2] + abz * v_ + acz * w
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -162,38 +159,10 @@ def _match(qx: float, qy: float, qz: float, origin: np.ndarray, inv_h: float, sl
     j = _voxel(qx, qy, qz, origin, inv_h, grid)
     if j < 0:
         return -1, np.inf, np.inf, 0.0, 0.0, 0.0
-    cx, cy, cz = _closest_on_triangle(qx, qy, qz, a, b, c, j)
+    cx, cy, cz = _closest_on_triangle(qx, qy, qz, a[j], b[j], c[j])
     dx, dy, dz = qx - cx, qy - cy, qz - cz
     d2 = dx * dx + dy * dy + dz * dz
     r = (qx - a[j, 0]) * n[j, 0] + (qy - a[j, 1]) * n[j, 1] + (qz - a[j, 2]) * n[j, 2]
-    tang = np.sqrt(max(d2 - r * r, 0.0)) - slack
-    d = abs(r) if tang <= 0.0 else np.sqrt(r * r + tang * tang)
-    return j, d, r, cx, cy, cz
-
-
-#: :func:`_match_within` computes a match's closest point only when its plane residual |r| is below its bound
-#: times this. :func:`_match`'s distance is |r| or the rounded sqrt(r·r + tang·tang) >= |r| (1 − 2⁻⁵²) (rounding is
-#: monotone: the sum is at least the rounded r·r, at least r² (1 − 2⁻⁵³), and so is the rounded root of it at least
-#: |r| (1 − 2⁻⁵³)²), so a point whose |r| is at least the bound times this lies farther than the bound.
-WITHIN = 1.0 + 1e-12
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _match_within(qx: float, qy: float, qz: float, origin: np.ndarray, inv_h: float, slack: float, grid: np.ndarray,
-                  a: np.ndarray, b: np.ndarray, c: np.ndarray, n: np.ndarray,
-                  bound: float) -> tuple[int, float, float, float, float, float]:
-    """:func:`_match` of q where its distance may be below ``bound``; where its plane residual says it is not
-    (|r| >= ``bound`` × WITHIN, or NaN), (its triangle, inf, r, 0, 0, 0) without the closest point: every test
-    "d < bound", "d <= bound" and every min(d, bound) is the same with inf as with the distance."""
-    j = _voxel(qx, qy, qz, origin, inv_h, grid)
-    if j < 0:
-        return -1, np.inf, np.inf, 0.0, 0.0, 0.0
-    r = (qx - a[j, 0]) * n[j, 0] + (qy - a[j, 1]) * n[j, 1] + (qz - a[j, 2]) * n[j, 2]
-    if not abs(r) < bound * WITHIN:
-        return j, np.inf, r, 0.0, 0.0, 0.0
-    cx, cy, cz = _closest_on_triangle(qx, qy, qz, a, b, c, j)
-    dx, dy, dz = qx - cx, qy - cy, qz - cz
-    d2 = dx * dx + dy * dy + dz * dz
     tang = np.sqrt(max(d2 - r * r, 0.0)) - slack
     d = abs(r) if tang <= 0.0 else np.sqrt(r * r + tang * tang)
     return j, d, r, cx, cy, cz
@@ -286,7 +255,7 @@ def _band_point(xyz: np.ndarray, f: int, R: np.ndarray, t: np.ndarray, tol: floa
     qx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
     qy = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
     qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
-    _, d, _, _, _, _ = _match_within(qx, qy, qz, origin, inv_h, slack, grid, a, b, c, n, tol)
+    _, d, _, _, _, _ = _match(qx, qy, qz, origin, inv_h, slack, grid, a, b, c, n)
     if d <= tol:
         out[m, 0], out[m, 1], out[m, 2] = xyz[f, 0], xyz[f, 1], xyz[f, 2]
         return m + 1
@@ -341,19 +310,13 @@ def guess_score(points: np.ndarray, edge_points: np.ndarray, R: np.ndarray, t: n
                 p1: np.ndarray) -> tuple[float, float, float]:
     """(share of ``points`` within ``tol`` of the posed model, mean of min(distance, tol) / tol, share of
     ``edge_points`` within ``edge_tol`` of its sharp edges; 1 without edge points)."""
-    inv_h = 1.0 / h
-    slack = 0.8660254037844386 * h
+    d = surface_distances(points, R, t, origin, h, grid, a, b, c, n)
     inl = 0.0
     near = 0.0
-    for i in range(len(points)):
-        px, py, pz = points[i, 0] - t[0], points[i, 1] - t[1], points[i, 2] - t[2]
-        qx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
-        qy = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
-        qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
-        _, d, _, _, _, _ = _match_within(qx, qy, qz, origin, inv_h, slack, grid, a, b, c, n, tol)
-        if d <= tol:
+    for i in range(len(d)):
+        if d[i] <= tol:
             inl += 1.0
-        near += min(d, tol) / tol
+        near += min(d[i], tol) / tol
     e_inl = 1.0
     if len(edge_points):
         de = edge_distances(edge_points, R, t, origin, h, seg_grid, p0, p1)
@@ -362,7 +325,7 @@ def guess_score(points: np.ndarray, edge_points: np.ndarray, R: np.ndarray, t: n
             if de[i] <= edge_tol:
                 e_inl += 1.0
         e_inl /= len(de)
-    m = max(len(points), 1)
+    m = max(len(d), 1)
     return inl / m, near / m, e_inl
 
 
@@ -460,7 +423,7 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
             qx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
             qy = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
             qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
-            j, d, r, cx, cy, cz = _match_within(qx, qy, qz, origin, inv_h, slack, grid, a, b, c, n, gate)
+            j, d, r, cx, cy, cz = _match(qx, qy, qz, origin, inv_h, slack, grid, a, b, c, n)
             if j < 0 or not d < gate:
                 continue
             nx, ny, nz = n[j, 0], n[j, 1], n[j, 2]
@@ -519,7 +482,7 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
                     continue
                 # a silhouette point lies on the part: a mixed pixel between it and what lies
                 # behind (off every surface) says nothing of where the edge is
-                js, ds, _, _, _, _ = _match_within(qx, qy, qz, origin, inv_h, slack, grid, a, b, c, n, gate)
+                js, ds, _, _, _, _ = _match(qx, qy, qz, origin, inv_h, slack, grid, a, b, c, n)
                 if js < 0 or not ds < gate:
                     continue
                 w2 = 1.0 / (1.0 + (de / s3) ** 2)
