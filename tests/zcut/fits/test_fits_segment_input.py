@@ -1,4 +1,4 @@
-"""zcut.fits.segment, round of 2026-12-06d (docs/fits.md, "The fits' CPU and two mends of the segmentation"): the
+"""zcut.fits.segment, round of 2026-12-06d (docs/fits.md, "Seventeenth round"): the
 segmentation's kernel walks its ``flat`` pixels as a sorted set of the grid's pixels; input that is not (unsorted,
 repeated, off the grid) is checked for and goes the reference's way — the answer is ``segment_reference``'s — while
 sorted distinct input still goes the kernel's way."""
