@@ -452,7 +452,7 @@ def residual_field(xyz: XYZ, ring: Mask, index: RemovalIndex, T_cam_bin: np.ndar
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _root(parent, x):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """The root of ``x`` in the union-find ``parent``, halving the path on the way (not ``zcut.components._find``:
+    """The root of ``x`` in the union-find ``parent``, halving the path on the way (not ``zcut.components.find_root``:
     that module loads SciPy's csgraph, which a replay never needs; tests/test_imports_light.py)."""
     while parent[x] != x:
         parent[x] = parent[parent[x]]

@@ -45,6 +45,7 @@ __all__ = [
     "cluster_outliers",
     "cluster_outliers_reference",
     "cluster_stage",
+    "find_root",
     "speckle_outliers",
     "speckle_outliers_reference",
     "speckle_stage",
@@ -55,7 +56,9 @@ __all__ = [
 # union-find over provisional labels, in raster order
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True, nogil=True, inline="always")
-def _find(parent, i):  # type: ignore[no-untyped-def]  # numba kernel
+def find_root(parent, i):  # type: ignore[no-untyped-def]  # numba kernel
+    """The root of ``i`` in the union-find ``parent`` (a numba kernel), the path compressed on the way; also
+    :mod:`zcut.fits.segment`'s."""
     root = i
     while parent[root] != root:
         root = parent[root]
@@ -69,8 +72,8 @@ def _find(parent, i):  # type: ignore[no-untyped-def]  # numba kernel
 @nb.njit(cache=True, nogil=True, inline="always")
 def _union(parent, i, j):  # type: ignore[no-untyped-def]  # numba kernel
     # link the later root to the earlier one: parent[l] <= l for every label l
-    a = _find(parent, i)
-    b = _find(parent, j)
+    a = find_root(parent, i)
+    b = find_root(parent, j)
     if a < b:
         parent[b] = a
     elif b < a:

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from zcut.components import find_root
+
 __all__ = ["segment", "segment_reference"]
 
 
@@ -22,7 +24,8 @@ def segment(xyz: np.ndarray, flat: np.ndarray, *, f_px: float, jump_mm: float, j
     xyz : (H, W, 3) float64 ndarray
         Camera frame, mm (finite at ``flat``).
     flat : (n,) int64 ndarray
-        Flat pixel indices (row-major) of the pixels to segment, sorted ascending.
+        Flat pixel indices (row-major) of the pixels to segment, sorted ascending and distinct (checked: other
+        input, or indices off the grid, go the way of :func:`segment_reference`, whose answer it is).
     f_px : float
         Focal length (pixels) for the footprint z / f.
 
@@ -35,7 +38,8 @@ def segment(xyz: np.ndarray, flat: np.ndarray, *, f_px: float, jump_mm: float, j
     flat = np.asarray(flat, np.int64)
     if len(flat) < min_px:
         return []
-    if xyz.dtype != np.float64:  # the kernel's arithmetic is float64's
+    if xyz.dtype != np.float64 or not _ascending_on_grid(flat, H * W):
+        # the kernel's arithmetic is float64's, and it walks ``flat`` as a sorted set of the grid's pixels
         return segment_reference(xyz, flat, f_px=f_px, jump_mm=jump_mm, jump_px=jump_px, min_px=min_px)
     pts = np.ascontiguousarray(xyz.reshape(-1, 3))
     grouped, counts = _components(pts, np.ascontiguousarray(flat), H, W, float(jump_mm), float(jump_px),
@@ -86,11 +90,18 @@ def segment_reference(xyz: np.ndarray, flat: np.ndarray, *, f_px: float, jump_mm
 
 
 @numba.njit(cache=True, nogil=True)
-def _root(parent: np.ndarray, i: int) -> int:
-    while parent[i] != i:
-        parent[i] = parent[parent[i]]
-        i = parent[i]
-    return i
+def _ascending_on_grid(flat: np.ndarray, size: int) -> bool:
+    """Whether ``flat`` is strictly ascending (sorted, distinct) within [0, ``size``): what
+    :func:`_components` assumes of it."""
+    n = len(flat)
+    if n == 0:
+        return True
+    if flat[0] < 0 or flat[n - 1] >= size:
+        return False
+    for i in range(1, n):
+        if flat[i] <= flat[i - 1]:
+            return False
+    return True
 
 
 @numba.njit(cache=True, nogil=True)
@@ -132,8 +143,8 @@ def _components(pts: np.ndarray, flat: np.ndarray, H: int, W: int, jump_mm: floa
             d = np.sqrt((dx * dx + dy * dy) + dz * dz)
             z = min(pts[fa, 2], pts[fb, 2])
             if d <= jump_mm + jump_px * abs(z) / f_px:
-                ra = _root(parent, i)
-                rb = _root(parent, k)
+                ra = find_root(parent, i)
+                rb = find_root(parent, k)
                 if ra < rb:
                     parent[rb] = ra
                 elif rb < ra:
@@ -142,7 +153,7 @@ def _components(pts: np.ndarray, flat: np.ndarray, H: int, W: int, jump_mm: floa
     counts = np.zeros(n, np.int64)
     m = 0
     for i in range(n):
-        r = _root(parent, i)
+        r = find_root(parent, i)
         if r == i:
             label[i] = m
             m += 1
