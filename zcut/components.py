@@ -32,8 +32,6 @@ from collections.abc import Callable, Iterable
 
 import numba as nb
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from .cloud import Intrinsics
 from .errors import InputShapeError, ParameterError, describe_array
@@ -192,6 +190,10 @@ def _as_grid(xyz: XYZ) -> np.ndarray:
 
 def _labels(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     """Connected-component label of each of n nodes, given the joined pairs (i, j)."""
+    # imported here: the reference path alone needs SciPy's graphs (~0.13 CPU-s to import)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     graph = coo_matrix((np.ones(i.size, dtype=np.int8), (i, j)), shape=(n, n))
     return connected_components(graph, directed=False)[1]
 
