@@ -24,6 +24,10 @@ FLOOR_DIGESTS = {
     "handmade": "79f8a902bba8b825c9282a507c5e69e418e8c643ad068706e8ecdbf6198f93ce",
     "raytraced": "72946e029fa1caca6c65ed09b1b361d901c4371ab2f5d44ef4fd48352860424b",
 }
+#: the ray-traced log's bytes on the second CPU seen (a Xeon with AVX-512 FP16/AMX, 2026-12-06), numpy capped at
+#: AVX2 as above: the machine's stage is not found (docs/labelling.md, "The ray-traced baseline since the eleventh
+#: round"); either machine's bytes are accepted, no third
+RAYTRACED_ALSO = "63ee56580d67babb951590b1549081fc13f62304f985ba707401c4406f8b97a1"
 
 
 def _sha(path) -> str:
@@ -90,7 +94,9 @@ def test_floor_logs_are_byte_for_byte_mains(tmp_path):
     p = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, check=False,
                        env={**os.environ, **NUMPY_AT_AVX2})
     assert p.returncode == 0, p.stderr[-3000:]
-    assert json.loads(p.stdout.strip().splitlines()[-1]) == FLOOR_DIGESTS
+    got = json.loads(p.stdout.strip().splitlines()[-1])
+    assert got["handmade"] == FLOOR_DIGESTS["handmade"]
+    assert got["raytraced"] in (FLOOR_DIGESTS["raytraced"], RAYTRACED_ALSO)
 
 
 def test_lean_walls_is_seeded_and_draws_every_set():
