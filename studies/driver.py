@@ -6,6 +6,8 @@ Named steps, shared by ``zcut batch`` and ``zcut sweep``::
     logs = plan_logs(inputs, job_options)            # hash, resolve, split into units (bad logs noted)
     store = PartStore(out_dir, identity(...))        # refuses another config's run before any work
     results = execute(units, job, executor, store)   # runs what is not done, writes each part
+
+(:func:`run_planned` is the last two, with the executor and the progress.)
 """
 
 from __future__ import annotations
@@ -339,7 +341,7 @@ class ProgressSink(Protocol):
 
 
 class Scaled:
-    """Progress in frames × Δd from units' frames."""
+    """A progress counting ``scale`` steps a unit's frame (a sweep's frames × Δd)."""
 
     def __init__(self, progress: ProgressSink, scale: int) -> None:
         self.progress, self.scale = progress, scale
