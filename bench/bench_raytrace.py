@@ -52,9 +52,16 @@ def variant_options(name: str) -> dict[str, Any]:
     return {}
 
 
+def variant_specular(name: str) -> float:
+    """The factor on every part material's specular share for sensor variant ``name``
+    (:func:`specular_scaled`)."""
+    return 0.5 if name == "spec_half" else 1.0
+
+
 @contextlib.contextmanager
 def specular_scaled(scale: float) -> Iterator[None]:
-    """Within: every part material's specular share times ``scale`` (as ``bench/raytrace_paper.py``)."""
+    """Within: every part material's specular share times ``scale`` (this process only; also
+    ``bench/raytrace_paper.py``'s)."""
     from replay.synth.raytrace import scene
 
     saved = dict(scene.PART_MATERIALS)
@@ -88,7 +95,7 @@ def main() -> None:
         c0 = time.process_time()
         synthesize_frame(kind=kind, seed=args.seed, size=(h, w))
         ref = time.process_time() - c0
-        with kept(), specular_scaled(0.5 if args.variant == "spec_half" else 1.0):
+        with kept(), specular_scaled(variant_specular(args.variant)):
             for index in range(args.frames):
                 r0 = resource.getrusage(resource.RUSAGE_SELF)
                 c0, w0 = time.process_time(), time.perf_counter()

@@ -41,12 +41,9 @@ sensor variant). CPU seconds (``time.process_time``) per variant are printed; lo
 from __future__ import annotations
 
 import argparse
-import contextlib
-import dataclasses
 import json
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -55,9 +52,10 @@ from scipy import ndimage
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench_raytrace import VARIANTS, specular_scaled, variant_options, variant_specular  # noqa: E402  (the variants)
+
 from replay.logs import layout  # noqa: E402
-from replay.synth.raytrace import SensorModel, write_raytraced_log  # noqa: E402
-from replay.synth.raytrace.camera_filters import CameraFilters  # noqa: E402
+from replay.synth.raytrace import write_raytraced_log  # noqa: E402
 from zcut.metrics import ratio  # noqa: E402  (x / 0 = inf, 0 / 0 = NaN, as the reports)
 
 EIGHT = np.ones((3, 3), bool)
@@ -65,36 +63,14 @@ METHODS = ("zcut", "sor", "radius", "cluster")
 SHINY = ("spheres", "zinc_nuts", "rods", "sprockets")
 #: fewer flagged pixels than this (pooled) and a share of them says nothing
 FEW = 30
-VARIANTS = {
-    "base": dict(),
-    "filters": dict(camera_filters=CameraFilters()),
-    "spec_half": dict(spec_scale=0.5),
-    "bounces2": dict(model=SensorModel(bounces=2)),
-    "strict": dict(model=SensorModel(min_contrast=0.5, min_signal=0.008)),
-}
-
-
-@contextlib.contextmanager
-def specular_scaled(scale: float) -> Iterator[None]:
-    """Within: every part material's specular share times ``scale`` (this process only)."""
-    from replay.synth.raytrace import scene
-
-    saved = dict(scene.PART_MATERIALS)
-    try:
-        for k, m in saved.items():
-            scene.PART_MATERIALS[k] = dataclasses.replace(m, specular=m.specular * scale)
-        yield
-    finally:
-        scene.PART_MATERIALS.clear()
-        scene.PART_MATERIALS.update(saved)
 
 
 def make_log(path: Path, kind: str, variant: str, *, seed: int, frames: int, size: tuple[int, int]) -> float:
     """Write the log unless it exists; CPU seconds spent."""
     if path.exists():
         return 0.0
-    opts = dict(VARIANTS[variant])
-    scale = float(opts.pop("spec_scale", 1.0))  # type: ignore[arg-type]
+    opts = variant_options(variant)
+    scale = variant_specular(variant)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".part")
     t0 = time.process_time()

@@ -208,11 +208,16 @@ class OutputLock:
         self.release()
 
     def __del__(self) -> None:
-        if self._fd is not None:
-            try:
-                os.close(self._fd)
-            except OSError:
-                pass
+        _close_quietly(self._fd)
+
+
+def _close_quietly(fd: int | None) -> None:
+    """Close ``fd`` (None: nothing), ignoring the error (what a collected owner still holds)."""
+    if fd is not None:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
 
 
 def _read_pid(fd: int) -> int | None:
@@ -513,8 +518,4 @@ class AtomicOutput:
             self.abort()
 
     def __del__(self) -> None:
-        if self._fd is not None:
-            try:
-                os.close(self._fd)
-            except OSError:
-                pass
+        _close_quietly(self._fd)

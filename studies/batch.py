@@ -191,54 +191,32 @@ def _run_units(options: BatchOptions, stack: ExitStack, overrides: dict[str, Any
     the executor, closed)."""
     import sys
 
-    from studies.driver import (
-        Progress,
-        check_labels,
-        execute,
-        identity,
-        plan_logs,
-        start_units,
-        study_job,
-        study_options,
-    )
-    from studies.executors import make_executor
-    from studies.parts import PartStore
+    from studies.driver import check_labels, plan_logs, run_planned, study_options
     from studies.work import run_batch_unit
 
+    err = sys.stderr
+
+    def planning(i: int, n: int, path: Path) -> None:
+        if n > 5 and (i % 20 == 0 or i == n - 1):
+            print(f"zcut: reading {n} logs: {i + 1}/{n} {path.name}", file=err, flush=True)
+
+    pipe = options.pipeline
+    plans = plan_logs(list(options.inputs), config_file=pipe.config, overrides=overrides, topic=pipe.topic,
+                      frames_per_unit=options.frames_per_unit, whole=options.results or options.rrd,
+                      progress=planning, bin_model=pipe.bin_model)
+    check_labels(options.labels, options.annotator, plans)  # as zcut accuracy: before any work
+    if options.truth is not None:  # the truth asked for is in every log, before any work
+        from studies.sweep_run import check_truth
+
+        check_truth([str(p.path) for p in plans if p.units], labels=options.labels, topic=pipe.topic,
+                    truth=options.truth)
+    ident = study_options(options, overrides) | {"results": options.results, "rrd": options.rrd}
+    if options.results_cloud:  # only then: a study begun before the option keeps its identity
+        ident["results_cloud"] = True
     # the executor is made once every input is checked (a Ray cluster is connected to then): bad input is one
     # line before anything starts
-    executor: Executor | None = None
-    try:
-        err = sys.stderr
-
-        def planning(i: int, n: int, path: Path) -> None:
-            if n > 5 and (i % 20 == 0 or i == n - 1):
-                print(f"zcut: reading {n} logs: {i + 1}/{n} {path.name}", file=err, flush=True)
-
-        pipe = options.pipeline
-        plans = plan_logs(list(options.inputs), config_file=pipe.config, overrides=overrides, topic=pipe.topic,
-                          frames_per_unit=options.frames_per_unit, whole=options.results or options.rrd,
-                          progress=planning, bin_model=pipe.bin_model)
-        check_labels(options.labels, options.annotator, plans)  # as zcut accuracy: before any work
-        if options.truth is not None:  # the truth asked for is in every log, before any work
-            from studies.sweep_run import check_truth
-
-            check_truth([str(p.path) for p in plans if p.units], labels=options.labels, topic=pipe.topic,
-                        truth=options.truth)
-        ident = study_options(options, overrides) | {"results": options.results, "rrd": options.rrd}
-        if options.results_cloud:  # only then: a study begun before the option keeps its identity
-            ident["results_cloud"] = True
-        executor = make_executor(workers=options.workers, ray=options.ray)  # an unreachable cluster fails here
-        store = stack.enter_context(PartStore(options.out, identity("batch", ident, plans),
-                                              start_afresh=options.force))
-        units, todo = start_units(plans, store, what="", executor=executor)
-        job = study_job(options, overrides, plans,
-                        {"out_dir": str(store.root) if (options.results or options.rrd) else None,
-                         "results": options.results, "results_cloud": options.results_cloud, "rrd": options.rrd})
-        progress = Progress(sum(u.n_frames or 0 for u in todo) or None)
-        results = execute(units, job, run_batch_unit, executor, store, progress=progress)
-        progress.finish()
-    finally:
-        if executor is not None:
-            executor.close()
+    store, results, executor = run_planned(
+        "batch", options, stack, plans, ident, overrides=overrides, fn=run_batch_unit,
+        extra={"out_dir": str(Path(options.out)) if (options.results or options.rrd) else None,  # the store's root
+               "results": options.results, "results_cloud": options.results_cloud, "rrd": options.rrd})
     return store, plans, results, executor

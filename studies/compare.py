@@ -1351,17 +1351,11 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
     """Compare A and B on the frames of one unit (in a worker): one row per frame
     (:data:`studies.compare_records.PART_COLUMNS`). Any error of the unit (a damaged log, a bug) is
     caught into the result's ``error``, never raised: one bad unit does not stop the others."""
-    import resource
-    import traceback
-
     from replay.logs import layout
     from studies.compare_outputs import frame_images_bytes
-    from studies.work import UnitResult
+    from studies.work import caught_unit
 
-    t0, c0 = time.perf_counter(), time.process_time()
-    res = UnitResult(unit)
-    truth_src = None
-    try:
+    def body(res: UnitResult, held: list[Any]) -> None:
         opts: CompareOptions = job.extra["options"]
         spec_a: SideSpec = job.extra["a"]
         spec_b: SideSpec = job.extra["b"]
@@ -1372,6 +1366,7 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
             raise CompareError(f"{path.name}: the driver resolved no sides for this log")
         reader, first = _open_unit_log(path, unit.sha256, opts.topic)
         truth_src = _truth_source(opts, path, tuple(reader.mask_topics))
+        held.append(truth_src)
         truth_name = truth_src.name if truth_src is not None else None
         depth_log = path if layout.TRUTH_DEPTH in reader.topics else None  # the displacement classes
         runs: Counter[str] = Counter()
@@ -1406,20 +1401,10 @@ def run_compare_unit(unit: WorkUnit, job: Job) -> UnitResult:
         finally:
             it.close()
             res.damage = list(lost)
-    except ZcutError as e:
-        res.error = str(e)
-    except OSError as e:
-        res.error = f"{e.strerror or e}: {e.filename or unit.log}"
-    except Exception as e:  # noqa: BLE001 - a bug must not stop the other units; its trace goes to the report
-        res.error = f"{type(e).__name__}: {e} ({traceback.format_exc(limit=3).splitlines()[-1]})"
-    finally:
-        if truth_src is not None and hasattr(truth_src, "close"):
-            truth_src.close()
+
+    res = caught_unit(unit, body)
     if res.error is not None:
         res.rows = []
-    res.seconds = time.perf_counter() - t0
-    res.cpu_seconds = time.process_time() - c0
-    res.peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return res
 
 

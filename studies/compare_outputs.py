@@ -94,8 +94,8 @@ def frame_images_bytes(sa: SideFrame, sb: SideFrame, truth: tuple[np.ndarray, np
     who[only_a] = 1
     who[only_b] = 2
     t_at = None if truth is None else (truth[0].ravel()[at_w], truth[1].ravel()[at_w])
-    va = _verdict_at(ma & sa.region.ravel()[at_w], t_at)
-    vb = _verdict_at(mb & sb.region.ravel()[at_w], t_at)
+    va = verdict_image(ma & sa.region.ravel()[at_w], t_at)
+    vb = verdict_image(mb & sb.region.ravel()[at_w], t_at)
     diff = np.zeros(at_w.size, dtype=np.uint8)
     if t_at is None:
         diff[only_a] = 4
@@ -116,19 +116,6 @@ def frame_images_bytes(sa: SideFrame, sb: SideFrame, truth: tuple[np.ndarray, np
         on = diff != 0
         view = _frame_view_at(frame, at_w[on], diff[on])
     return sparse_images_bytes(sa.region.shape, at_w[keep], (va[keep], vb[keep], diff[keep], who[keep]), view)
-
-
-def _verdict_at(pred: np.ndarray, truth: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
-    """:func:`verdict_image` at some pixels (``pred`` and ``truth`` (outliers, scored) given there)."""
-    out = np.zeros(pred.size, dtype=np.uint8)
-    if truth is None:
-        out[pred] = 4
-        return out
-    lab, scored = truth
-    out[pred & lab & scored] = 1
-    out[pred & ~lab & scored] = 2
-    out[~pred & lab & scored] = 3
-    return out
 
 
 #: JPEG quality of the recording's RGB image (as ``zcut replay``'s recording compresses it).
@@ -171,7 +158,7 @@ def _frame_view_at(frame: Frame, at: np.ndarray, codes: np.ndarray) -> FrameView
 
 def verdict_image(pred: np.ndarray, truth: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
     """(H, W) uint8: TP 1, FP 2, FN 3 over the scored pixels (``truth`` = (outliers, scored)); without
-    truth, removed 4."""
+    truth, removed 4. Of any shape: at some pixels, ``pred`` and ``truth`` given there (1-D)."""
     out = np.zeros(pred.shape, dtype=np.uint8)
     if truth is None:
         out[pred] = 4

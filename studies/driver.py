@@ -6,6 +6,8 @@ Named steps, shared by ``zcut batch`` and ``zcut sweep``::
     logs = plan_logs(inputs, job_options)            # hash, resolve, split into units (bad logs noted)
     store = PartStore(out_dir, identity(...))        # refuses another config's run before any work
     results = execute(units, job, executor, store)   # runs what is not done, writes each part
+
+(:func:`run_planned` is the last two, with the executor and the progress.)
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from zcut.errors import ZcutError
 
 if TYPE_CHECKING:
     from collections.abc import Callable
+    from contextlib import ExitStack
 
     import pyarrow as pa
 
@@ -337,6 +340,16 @@ class ProgressSink(Protocol):
     def update(self, n: int, *, note: str = "", force: bool = False) -> None: ...
 
 
+class Scaled:
+    """A progress counting ``scale`` steps a unit's frame (a sweep's frames × Δd)."""
+
+    def __init__(self, progress: ProgressSink, scale: int) -> None:
+        self.progress, self.scale = progress, scale
+
+    def update(self, n: int, *, note: str = "", force: bool = False) -> None:
+        self.progress.update(n * self.scale, note=note, force=force)
+
+
 def execute(units: list[WorkUnit], job: Job, fn: UnitFn, executor: Executor, store: PartStore, *,
             progress: ProgressSink | None = None, schema: pa.Schema | None = None) -> list[UnitResult]:
     """Run the units not done yet; write each finished unit's part at once; return this run's
@@ -354,6 +367,53 @@ def execute(units: list[WorkUnit], job: Job, fn: UnitFn, executor: Executor, sto
     finally:
         executor.close()
     return out
+
+
+def run_planned(kind: str, options: StudyOptions, stack: ExitStack, plans: list[LogPlan], ident: dict[str, Any], *,
+                overrides: dict[str, Any], extra: dict[str, Any], fn: UnitFn, what: str = "", per_frame: int = 1,
+                progress_what: str = "frames") -> tuple[PartStore, list[UnitResult], Executor]:
+    """Run the units of a planned, checked study: make the executor the options choose (a Ray cluster is
+    connected to here), lock ``options.out`` (``stack`` holds the lock), say what will run and run every
+    unit not done yet with ``fn``, showing the progress.
+
+    Parameters
+    ----------
+    kind : str
+        The study's kind in its identity (:func:`identity`).
+    ident : dict
+        The options that identify the study (:func:`study_options` and the study's own).
+    overrides, extra : dict
+        The job's (:func:`study_job`).
+    fn : UnitFn
+        What runs a unit.
+    what : str
+        Said before the count of units (:func:`start_units`).
+    per_frame, progress_what : int, str
+        The progress counts ``per_frame`` steps a frame and names them ``progress_what``.
+
+    Returns
+    -------
+    store : PartStore
+    results : list of UnitResult
+        This run's units'.
+    executor : Executor
+        The one that ran them, closed.
+    """
+    from studies.executors import make_executor
+    from studies.parts import PartStore
+
+    executor = make_executor(workers=options.workers, ray=options.ray)  # an unreachable cluster fails here
+    try:
+        store = stack.enter_context(PartStore(options.out, identity(kind, ident, plans),
+                                              start_afresh=options.force))
+        units, todo = start_units(plans, store, what=what, executor=executor)
+        job = study_job(options, overrides, plans, extra)
+        progress = Progress(sum(u.n_frames or 0 for u in todo) * per_frame or None, what=progress_what)
+        results = execute(units, job, fn, executor, store, progress=Scaled(progress, per_frame))
+        progress.finish()
+    finally:
+        executor.close()
+    return store, results, executor
 
 
 def meta_of(res: UnitResult) -> dict[str, Any]:

@@ -42,7 +42,6 @@ if TYPE_CHECKING:
     from replay.pipeline.config import PipelineConfig
     from replay.pipeline.session import ReplaySession
     from replay.pipeline.zone import Zone
-    from studies.executors import Executor
     from studies.units import WorkUnit
     from studies.validate import FrameCounts, Validation
     from studies.work import TruthSource
@@ -482,53 +481,30 @@ def _run_units(options: SweepOptions, stack: ExitStack, logs: list[str], overrid
     bank, this run's unit results)."""
     from replay.errors import ConfigError
     from studies.bank import make_bank_grid, n_bank_sets
-    from studies.driver import (
-        Progress,
-        check_labels,
-        execute,
-        identity,
-        plan_logs,
-        start_units,
-        study_job,
-        study_options,
-    )
-    from studies.executors import make_executor
+    from studies.driver import check_labels, plan_logs, run_planned, study_options
     from studies.grid import make_grid
-    from studies.parts import PartStore
-    from studies.sweep_run import Scaled
 
+    plans = plan_logs(logs, config_file=options.pipeline.config, overrides=overrides, topic=options.pipeline.topic,
+                      frames_per_unit=options.frames_per_unit, whole=False, bin_model=options.pipeline.bin_model)
+    check_labels(options.labels, options.annotator, plans)  # as zcut accuracy: before any work
+    base = _first_config(plans)
+    grid = make_grid(**axes, config=base, max_points=options.max_points, force=options.force,
+                     study_points=options.study_points)
+    bank = make_bank_grid(bank_axes, base)
+    ident = study_options(options, overrides) | {"grid": grid.as_dict()} | ({"bank": bank} if bank else {})
+    with_sor = base.sor.enabled and "sor" in base.base_methods
+    n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if with_sor else 0)
+    n_bank = n_bank_sets(bank)
+    if n_sets + n_bank > options.max_points and not options.force:
+        raise ConfigError(f"the grid has {n_sets + n_bank} parameter sets (more than {options.max_points}): "
+                          "narrow it, or use --force")
     # the executor is made once every input is checked (a Ray cluster is connected to then): bad input is one
     # line before anything starts
-    executor: Executor | None = None
-    try:
-        plans = plan_logs(logs, config_file=options.pipeline.config, overrides=overrides, topic=options.pipeline.topic,
-                          frames_per_unit=options.frames_per_unit, whole=False, bin_model=options.pipeline.bin_model)
-        check_labels(options.labels, options.annotator, plans)  # as zcut accuracy: before any work
-        base = _first_config(plans)
-        grid = make_grid(**axes, config=base, max_points=options.max_points, force=options.force,
-                         study_points=options.study_points)
-        bank = make_bank_grid(bank_axes, base)
-        ident = study_options(options, overrides) | {"grid": grid.as_dict()} | ({"bank": bank} if bank else {})
-        with_sor = base.sor.enabled and "sor" in base.base_methods
-        n_sets = grid.n_zcut + (grid.n_sor(per_depth=base.sor.region == "top") if with_sor else 0)
-        n_bank = n_bank_sets(bank)
-        if n_sets + n_bank > options.max_points and not options.force:
-            raise ConfigError(f"the grid has {n_sets + n_bank} parameter sets (more than {options.max_points}): "
-                              "narrow it, or use --force")
-        executor = make_executor(workers=options.workers, ray=options.ray)  # an unreachable cluster fails here
-        store = stack.enter_context(PartStore(options.out, identity("sweep", ident, plans),
-                                              start_afresh=options.force))
-        units, todo = start_units(plans, store, executor=executor,
-                                  what=f"{n_sets + n_bank} parameter sets ({grid.n_zcut} z-cut, {n_sets - grid.n_zcut} "
-                                       f"SOR{f', {n_bank} of the filter bank' if n_bank else ''}), ")
-        job = study_job(options, overrides, plans, {"grid": grid_dict(grid), "bank": bank})
-        per_frame = len(grid.steps)
-        progress = Progress(sum((u.n_frames or 0) for u in todo) * per_frame or None, what="frames × Δd")
-        results = execute(units, job, run_sweep_unit, executor, store, progress=Scaled(progress, per_frame))
-        progress.finish()
-    finally:
-        if executor is not None:
-            executor.close()
+    store, results, _ = run_planned(
+        "sweep", options, stack, plans, ident, overrides=overrides, fn=run_sweep_unit,
+        extra={"grid": grid_dict(grid), "bank": bank}, per_frame=len(grid.steps), progress_what="frames × Δd",
+        what=f"{n_sets + n_bank} parameter sets ({grid.n_zcut} z-cut, {n_sets - grid.n_zcut} "
+             f"SOR{f', {n_bank} of the filter bank' if n_bank else ''}), ")
     return plans, store, grid, bank, results
 
 

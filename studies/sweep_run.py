@@ -18,7 +18,6 @@ from studies.grid import DEFAULT_MAX_POINTS
 
 if TYPE_CHECKING:
     from replay.pipeline.config import PipelineConfig
-    from studies.driver import ProgressSink
     from studies.parts import PartStore
     from studies.summary import FlaggedFrame, SweepSummary, Tuned
     from studies.validate import Validation
@@ -196,16 +195,6 @@ def reproduce(options: SweepOptions) -> str:
     if not options.study_points:
         parts.append("--no-study-points")
     return " ".join(shlex.quote(str(p)) for p in parts)
-
-
-class Scaled:
-    """Progress in frames × Δd from units' frames."""
-
-    def __init__(self, progress: ProgressSink, scale: int) -> None:
-        self.progress, self.scale = progress, scale
-
-    def update(self, n: int, *, note: str = "", force: bool = False) -> None:
-        self.progress.update(n * self.scale, note=note, force=force)
 
 
 def write_tuned(store: PartStore, base: PipelineConfig, tuned: Tuned, objective: str,

@@ -210,17 +210,15 @@ def batch_row(unit: WorkUnit, frame: Frame, result: FrameResult, row: FrameRow, 
     return out
 
 
-def run_unit(unit: WorkUnit, job: Job, body: Callable[[UnitResult, ReplaySession, TruthSource], None]) -> UnitResult:
-    """Open the unit's session and truth, run ``body(result, session, truth)`` on them, and return the
-    result with the time and memory spent; any error of the unit (a damaged log, a bug) is caught
-    into ``result.error``, never raised: one bad unit does not stop the others."""
+def caught_unit(unit: WorkUnit, body: Callable[[UnitResult, list[Any]], None]) -> UnitResult:
+    """Run ``body(result, held)`` for ``unit`` and return the result with the time and memory spent; any
+    error of the unit (a damaged log, a bug) is caught into ``result.error``, never raised: one bad unit
+    does not stop the others. What ``body`` puts in ``held`` (its truth source) is closed after it."""
     t0, c0 = time.perf_counter(), time.process_time()
     res = UnitResult(unit)
-    truth_src = None
+    held: list[Any] = []
     try:
-        session = open_unit_session(unit, job)
-        truth_src = truth_source(unit, job, session.reader.mask_topics)
-        body(res, session, truth_src)
+        body(res, held)
     except ZcutError as e:
         res.error = str(e)
     except OSError as e:
@@ -228,12 +226,27 @@ def run_unit(unit: WorkUnit, job: Job, body: Callable[[UnitResult, ReplaySession
     except Exception as e:  # noqa: BLE001 - a bug must not stop the other units; its trace goes to the summary
         res.error = f"{type(e).__name__}: {e} ({traceback.format_exc(limit=3).splitlines()[-1]})"
     finally:
-        if truth_src is not None and hasattr(truth_src, "close"):
-            truth_src.close()
+        for h in held:
+            if h is not None and hasattr(h, "close"):
+                h.close()
     res.seconds = time.perf_counter() - t0
     res.cpu_seconds = time.process_time() - c0
     res.peak_rss_mb = _peak_rss_mb()
     return res
+
+
+def run_unit(unit: WorkUnit, job: Job, body: Callable[[UnitResult, ReplaySession, TruthSource], None]) -> UnitResult:
+    """Open the unit's session and truth, run ``body(result, session, truth)`` on them, and return the
+    result with the time and memory spent; any error of the unit (a damaged log, a bug) is caught
+    into ``result.error``, never raised: one bad unit does not stop the others (:func:`caught_unit`)."""
+
+    def opened(res: UnitResult, held: list[Any]) -> None:
+        session = open_unit_session(unit, job)
+        truth_src = truth_source(unit, job, session.reader.mask_topics)
+        held.append(truth_src)
+        body(res, session, truth_src)
+
+    return caught_unit(unit, opened)
 
 
 def run_batch_unit(unit: WorkUnit, job: Job) -> UnitResult:

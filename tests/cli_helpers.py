@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 from cli.main import main
 
 
@@ -13,6 +15,17 @@ def run_cli(capsys, *argv) -> tuple[int, str, str]:
         rc = e.code
     cap = capsys.readouterr()
     return rc, cap.out, cap.err
+
+
+def accuracy_report(capsys, *argv) -> dict:
+    """``zcut accuracy ARGV --json``'s report (exit 0 asserted), its frames without the bin check (only a
+    log's frames carry it), so that a log's and its results files' reports compare equal."""
+    rc, out, err = run_cli(capsys, "accuracy", *argv, "--json")
+    assert rc == 0, err
+    rep = json.loads(out)
+    for f in rep["frames"]:
+        f.pop("bin_check"), f.pop("bin_flagged")
+    return rep
 
 
 def synth_log(path, *, parts: str, frames: int, seed: int, size: str):

@@ -62,6 +62,24 @@ def without_truth(src: Path, dest: Path) -> None:
             w.write_frame(f)
 
 
+def writer_like(reader, dest: Path, **writer_options):
+    """A :class:`~replay.logs.writer.LogWriter` to ``dest`` with ``reader``'s metadata and its bin model attached."""
+    from replay.logs import layout
+    from replay.logs.writer import LogWriter
+
+    return LogWriter(dest, metadata=reader.metadata, **writer_options,
+                     attachments={layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, reader.bin_model_ply)})
+
+
+def invalid_blobs(xyz: np.ndarray, rng: np.random.Generator) -> None:
+    """Blobs of invalid pixels over ~40 % of an (H, W, 3) cloud's image, in place (12 boxes of up to 50 x 60
+    pixels about seeded centres)."""
+    h, w = xyz.shape[:2]
+    for _ in range(12):
+        r, c = rng.integers(0, h), rng.integers(0, w)
+        xyz[max(0, r - 25):r + 25, max(0, c - 30):c + 30] = np.nan
+
+
 def decoded_in_full(path: Path) -> tuple[dict[int, tuple[np.ndarray, np.ndarray | None]], dict[int, np.ndarray]]:
     """The log's clouds and images decoded message by message into fresh arrays, the oracle of the
     reader's fast decoding: (stamp -> (xyz, the cloud's own colours or None), stamp -> the Image's rgb)."""

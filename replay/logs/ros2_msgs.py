@@ -472,6 +472,22 @@ def check_grid(h: int, w: int, max_pixels: int | None, *, what: str, where: str)
         )
 
 
+def _check_rows(data: memoryview, h: int, w: int, *, step: int, row: int, what: str, short: str, layout: str,
+                where: str, max_pixels: int | None) -> int:
+    """Check that ``h`` rows of ``row`` bytes each, ``step`` bytes apart, fit in ``data`` and that the
+    ``h`` x ``w`` grid is within ``max_pixels``; return the bytes the rows span.
+
+    Raises :class:`LogFormatError` ``"{where}: {what} {short}"`` if ``step < row``, ``"{where}: {layout}
+    needs N bytes of data but has M"`` if the rows do not fit, and :func:`check_grid`'s error."""
+    if step < row:
+        raise LogFormatError(f"{where}: {what} {short}")
+    need = (h - 1) * step + row
+    if need > len(data):
+        raise LogFormatError(f"{where}: {layout} needs {need} bytes of data but has {len(data)}")
+    check_grid(h, w, max_pixels, what=what, where=where)
+    return need
+
+
 def cloud_to_arrays(
     msg: CloudMsg, *, where: str, max_pixels: int | None = None, alloc: Alloc = np.empty,
 ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -506,17 +522,10 @@ def cloud_to_arrays(
         raise LogFormatError(f"{where}: PointCloud2 is empty (height {h}, width {w})")
     if step < 1:
         raise LogFormatError(f"{where}: PointCloud2 point_step is {step}")
-    if row_step < w * step:
-        raise LogFormatError(
-            f"{where}: PointCloud2 row_step {row_step} is smaller than width {w} x point_step {step}"
-        )
-    need = (h - 1) * row_step + w * step
-    if need > len(msg.data):
-        raise LogFormatError(
-            f"{where}: PointCloud2 of {h}x{w} with row_step {row_step}, point_step {step} needs "
-            f"{need} bytes of data but has {len(msg.data)}"
-        )
-    check_grid(h, w, max_pixels, what="PointCloud2", where=where)
+    _check_rows(msg.data, h, w, step=row_step, row=w * step, what="PointCloud2",
+                short=f"row_step {row_step} is smaller than width {w} x point_step {step}",
+                layout=f"PointCloud2 of {h}x{w} with row_step {row_step}, point_step {step}",
+                where=where, max_pixels=max_pixels)
     bo = ">" if msg.is_bigendian else "<"
     coord_types = set()
     for name in ("x", "y", "z"):
@@ -720,17 +729,9 @@ def _image_pixels(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -
     h, w, step = msg.height, msg.width, msg.step
     if h < 1 or w < 1:
         raise LogFormatError(f"{where}: Image is empty (height {h}, width {w})")
-    if step < w * ch:
-        raise LogFormatError(
-            f"{where}: Image step {step} is smaller than width {w} x {ch} bytes ({msg.encoding})"
-        )
-    need = (h - 1) * step + w * ch
-    if need > len(msg.data):
-        raise LogFormatError(
-            f"{where}: Image {h}x{w} {msg.encoding} with step {step} needs {need} bytes of data "
-            f"but has {len(msg.data)}"
-        )
-    check_grid(h, w, max_pixels, what="Image", where=where)
+    need = _check_rows(msg.data, h, w, step=step, row=w * ch, what="Image",
+                       short=f"step {step} is smaller than width {w} x {ch} bytes ({msg.encoding})",
+                       layout=f"Image {h}x{w} {msg.encoding} with step {step}", where=where, max_pixels=max_pixels)
     buf = np.frombuffer(msg.data, dtype=np.uint8, count=need)
     return np.lib.stride_tricks.as_strided(
         buf, shape=(h, w, ch), strides=(step, ch, 1), writeable=False
@@ -770,16 +771,9 @@ def _packed_mask(msg: ImageMsg, *, where: str, max_pixels: int | None) -> np.nda
     if h < 1 or w < 1:
         raise LogFormatError(f"{where}: Image is empty (height {h}, width {w})")
     row = (w + 7) // 8
-    if step < row:
-        raise LogFormatError(f"{where}: Image step {step} is smaller than width {w} / 8 bytes, rounded up "
-                             f"({row}; {PACKED_MASK_ENCODING})")
-    need = (h - 1) * step + row
-    if need > len(msg.data):
-        raise LogFormatError(
-            f"{where}: Image {h}x{w} {PACKED_MASK_ENCODING} with step {step} needs {need} bytes of data "
-            f"but has {len(msg.data)}"
-        )
-    check_grid(h, w, max_pixels, what="Image", where=where)
+    need = _check_rows(msg.data, h, w, step=step, row=row, what="Image",
+                       short=f"step {step} is smaller than width {w} / 8 bytes, rounded up ({row}; {PACKED_MASK_ENCODING})",
+                       layout=f"Image {h}x{w} {PACKED_MASK_ENCODING} with step {step}", where=where, max_pixels=max_pixels)
     buf = np.frombuffer(msg.data, dtype=np.uint8, count=need)
     rows = np.lib.stride_tricks.as_strided(buf, shape=(h, row), strides=(step, 1), writeable=False)
     mask: np.ndarray = np.unpackbits(rows, axis=1, count=w).view(np.bool_)

@@ -5,11 +5,10 @@ commands that need the points refuse it in one line saying how to get them (docs
 from __future__ import annotations
 
 import dataclasses
-import json
 
 import numpy as np
 import pytest
-from cli_helpers import run_cli
+from cli_helpers import accuracy_report, run_cli
 from mcap.reader import make_reader
 
 from annotate.truth import region_of_results_frame
@@ -72,19 +71,10 @@ def test_its_region_is_that_of_the_results_file_with_the_cloud(files, region):
         assert np.array_equal(region_of_results_frame(old, region), want)
 
 
-def _report(capsys, *argv):
-    rc, out, err = run_cli(capsys, "accuracy", *argv, "--json")
-    assert rc == 0, err
-    rep = json.loads(out)
-    for f in rep["frames"]:  # only the log's frames carry the bin check
-        f.pop("bin_check"), f.pop("bin_flagged")
-    return rep
-
-
 @pytest.mark.parametrize("region", ["zone", "valid"])
 def test_accuracy_scores_it_as_the_log_and_the_file_with_the_cloud(files, capsys, region):
     log, lean, full = files
-    reps = [_report(capsys, p, "--region", region) for p in (log, full, lean)]
+    reps = [accuracy_report(capsys, p, "--region", region) for p in (log, full, lean)]
     assert reps[0]["frames"]
     for rep in reps[1:]:
         assert rep["pooled"] == reps[0]["pooled"] and rep["frames"] == reps[0]["frames"]

@@ -9,7 +9,7 @@ import json
 
 import numpy as np
 import pytest
-from cli_helpers import run_cli
+from cli_helpers import accuracy_report, run_cli
 from mcap.reader import make_reader
 
 from replay.errors import LogFormatError
@@ -138,19 +138,10 @@ def test_counts_read_back_are_replays(files, capsys):
         assert got == want and any(z for z, _ in got)
 
 
-def _report(capsys, *argv):
-    rc, out, err = run_cli(capsys, "accuracy", *argv, "--json")
-    assert rc == 0, err
-    rep = json.loads(out)
-    for f in rep["frames"]:  # only the log's frames carry the bin check
-        f.pop("bin_check"), f.pop("bin_flagged")
-    return rep
-
-
 @pytest.mark.parametrize("truth", ["paper", "sensor"])
 def test_accuracy_of_either_layout_is_that_of_the_log(files, capsys, truth):
     log, res, old = files
-    reps = [_report(capsys, p, "--truth", truth) for p in (log, res, old)]
+    reps = [accuracy_report(capsys, p, "--truth", truth) for p in (log, res, old)]
     assert reps[0]["frames"] and reps[0]["pooled"]
     for rep in reps[1:]:
         assert rep["pooled"] == reps[0]["pooled"] and rep["frames"] == reps[0]["frames"]

@@ -23,11 +23,10 @@ from typing import Any
 
 import numpy as np
 import pytest
+from log_helpers import invalid_blobs, writer_like
 
-from replay.logs import layout
 from replay.logs.frame import Frame
 from replay.logs.reader import LogReader
-from replay.logs.writer import LogWriter
 from replay.synth.log import write_synthetic_log
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -140,16 +139,12 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     reader = LogReader(out["spheres"])
     rng = np.random.default_rng(41)
     holes = d / "holes.mcap"
-    with LogWriter(holes, metadata=reader.metadata,
-                   attachments={layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, reader.bin_model_ply)}
-                   ) as w:
+    with writer_like(reader, holes) as w:
         for k, f in enumerate(list(reader.frames()) * 2):
             xyz = f.xyz.copy()
             h, wd = f.shape
             if k == 1:  # blobs of invalid pixels over ~40 % of the image
-                for _ in range(12):
-                    r, c = rng.integers(0, h), rng.integers(0, wd)
-                    xyz[max(0, r - 25):r + 25, max(0, c - 30):c + 30] = np.nan
+                invalid_blobs(xyz, rng)
             elif k == 2:  # the top half invalid
                 xyz[: h // 2] = np.nan
             elif k == 3:  # nothing valid

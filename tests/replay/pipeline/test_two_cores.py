@@ -17,11 +17,10 @@ from typing import Any
 
 import numpy as np
 import pytest
+from log_helpers import invalid_blobs, writer_like
 
-from replay.logs import layout
 from replay.logs.frame import Frame
 from replay.logs.reader import LogReader
-from replay.logs.writer import LogWriter
 from replay.pipeline.bin_model import bin_model_for
 from replay.pipeline.session import FrameRow, ReplaySession
 from replay.pipeline.sinks import FrameSink, ReplayStart
@@ -127,16 +126,12 @@ def test_large_invalid_regions_and_an_almost_empty_frame(logs, tmp_path):
     frames = list(reader.frames())
     rng = np.random.default_rng(5)
     out = tmp_path / "holes.mcap"
-    with LogWriter(out, metadata=reader.metadata,
-                   attachments={layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, reader.bin_model_ply)}
-                   ) as w:
+    with writer_like(reader, out) as w:
         for k, f in enumerate(frames):
             xyz = f.xyz.copy()
             h, wd = f.shape
             if k == 1:  # blobs of invalid pixels over ~40 % of the image
-                for _ in range(12):
-                    r, c = rng.integers(0, h), rng.integers(0, wd)
-                    xyz[max(0, r - 25):r + 25, max(0, c - 30):c + 30] = np.nan
+                invalid_blobs(xyz, rng)
             elif k == 2:  # almost nothing valid: a few scattered points
                 keep = rng.random((h, wd)) < 0.002
                 xyz[~keep] = np.nan
@@ -155,9 +150,7 @@ def test_a_real_kinect_log(real_data, tmp_path):
 def test_a_truncated_log_keeps_the_frames_before_the_damage(logs, tmp_path):
     reader = LogReader(logs["zinc_nuts"])
     whole = tmp_path / "whole.mcap"
-    with LogWriter(whole, metadata=reader.metadata, chunk_size=1024,  # a chunk per message
-                   attachments={layout.BIN_MODEL_ATTACHMENT: (layout.BIN_MODEL_MEDIA_TYPE, reader.bin_model_ply)}
-                   ) as w:
+    with writer_like(reader, whole, chunk_size=1024) as w:  # a chunk per message
         for f in reader.frames():
             w.write_frame(f)
     raw = whole.read_bytes()
