@@ -552,6 +552,20 @@ def test_folded_strips_equal_the_four_term_chain_with_nan_and_signed_zero_bounds
 # ------------------------------------------------------------------------------------------------
 # the statistics: two sequential sums in row-major order, gathered a row at a time
 # ------------------------------------------------------------------------------------------------
+
+def _literal_sums(dbar: np.ndarray, valid: np.ndarray, n: float, open3d: bool) -> tuple[list[float], float, float, float]:
+    """The literal loop of ``_mean_std``'s sums over the summed values only, in raster order: (terms, sum, mean,
+    sum of squared deviations)."""
+    terms = [float(d) for d, ok in zip(dbar.ravel(), valid.ravel()) if ok and (not open3d or d > 0.0)]
+    s = 0.0
+    for t in terms:
+        s = s + t
+    mean = s / n
+    sq = 0.0
+    for t in terms:
+        sq = sq + (t - mean) * (t - mean)
+    return terms, s, mean, sq
+
 @pytest.mark.parametrize("open3d", [False, True])
 @pytest.mark.parametrize("shape", [(1, 2), (1, 9), (9, 1), (37, 53), (120, 301)])  # n >= 2 (callers: n >= k + 1)
 def test_outlier_masks_sum_in_row_major_order(open3d: bool, shape: tuple[int, int]) -> None:
@@ -571,14 +585,7 @@ def test_outlier_masks_sum_in_row_major_order(open3d: bool, shape: tuple[int, in
     ratios = np.array([0.25, 1.0, 3.0])
     got = sor_module._outlier_masks(dbar, valid, n, ratios, open3d)
     got_mean, got_std = sor_module._mean_std(dbar, valid, n, open3d)
-    terms = [float(d) for d, ok in zip(dbar.ravel(), valid.ravel()) if ok and (not open3d or d > 0.0)]
-    s = 0.0
-    for t in terms:
-        s = s + t
-    mean = s / n
-    sq = 0.0
-    for t in terms:
-        sq = sq + (t - mean) * (t - mean)
+    terms, s, mean, sq = _literal_sums(dbar, valid, n, open3d)
     std = math.sqrt(sq / (n - 1))
     assert (got_mean, got_std) == (mean, std)  # bit for bit (no NaN here: n >= 2, finite terms)
     if len(terms) > 1000:  # another order of the same additions would show
@@ -619,14 +626,7 @@ def test_mean_std_adds_nothing_for_the_pixels_it_skips(open3d: bool, case: str) 
     junk = rng.choice(np.array([np.nan, np.inf, -0.0, 5e-324]), shape)
     dbar = np.where(valid, dbar, junk)
     n = float(max(np.count_nonzero(valid), 2))
-    terms = [float(d) for d, ok in zip(dbar.ravel(), valid.ravel()) if ok and (not open3d or d > 0.0)]
-    s = 0.0
-    for t in terms:
-        s = s + t
-    mean = s / n
-    sq = 0.0
-    for t in terms:
-        sq = sq + (t - mean) * (t - mean)
+    terms, s, mean, sq = _literal_sums(dbar, valid, n, open3d)
     with np.errstate(invalid="ignore", over="ignore"):
         std = math.sqrt(sq / (n - 1)) if not sq < 0.0 else math.nan
     got = np.array(sor_module._mean_std(dbar, valid, n, open3d))

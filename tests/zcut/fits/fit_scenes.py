@@ -76,3 +76,16 @@ def hand_made_nut_frame() -> tuple[np.ndarray, np.ndarray, object, tuple[float, 
     xyz, zone, model, K = hand_made("zinc_nuts")
     assert K is not None
     return xyz, zone, model, K
+
+
+def segment_cloud(rng: np.random.Generator, H: int, W: int, nan_share: float) -> np.ndarray:
+    """(H, W, 3) a random-walk cloud with 4 mm steps in depth and a share of NaN pixels: the segmentation tests' input."""
+    xyz = np.stack([rng.normal(0, 1, (H, W)).cumsum(axis=1), rng.normal(0, 1, (H, W)).cumsum(axis=0),
+                    300 + rng.choice([0.0, 0.0, 0.0, 4.0], size=(H, W)) + rng.normal(0, 0.3, (H, W))], axis=-1)
+    xyz[rng.random((H, W)) < nan_share] = np.nan
+    return xyz
+
+
+def same_regions(a: list[np.ndarray], b: list[np.ndarray]) -> bool:
+    """Two segmentations' regions equal, in order, dtype included."""
+    return len(a) == len(b) and all(x.dtype == y.dtype and np.array_equal(x, y) for x, y in zip(a, b))

@@ -7,21 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from fit_scenes import same_regions, segment_cloud
 
 import zcut.fits.segment as S
 from zcut.fits.segment import segment, segment_reference
-
-
-def _cloud(rng: np.random.Generator, H: int, W: int, nan_share: float) -> np.ndarray:
-    xyz = np.stack([rng.normal(0, 1, (H, W)).cumsum(axis=1), rng.normal(0, 1, (H, W)).cumsum(axis=0),
-                    300 + rng.choice([0.0, 0.0, 0.0, 4.0], size=(H, W)) + rng.normal(0, 0.3, (H, W))], axis=-1)
-    xyz[rng.random((H, W)) < nan_share] = np.nan
-    return xyz
-
-
-def _same(a: list[np.ndarray], b: list[np.ndarray]) -> bool:
-    return len(a) == len(b) and all(x.dtype == y.dtype and np.array_equal(x, y) for x, y in zip(a, b))
-
 
 KW = dict(f_px=500.0, jump_mm=1.5, jump_px=3.0)
 
@@ -31,7 +20,7 @@ def test_unsorted_or_repeated_pixels_get_the_references_answer(shape):  # type: 
     rng = np.random.default_rng(sum(shape) + 7)
     H, W = shape
     for trial in range(30):
-        xyz = _cloud(rng, H, W, (0.0, 0.2, 0.5)[trial % 3])
+        xyz = segment_cloud(rng, H, W, (0.0, 0.2, 0.5)[trial % 3])
         flat = np.flatnonzero(np.isfinite(xyz).all(axis=2).reshape(-1) & (rng.random(H * W) < 0.8))
         if len(flat) < 2:
             continue
@@ -43,15 +32,15 @@ def test_unsorted_or_repeated_pixels_get_the_references_answer(shape):  # type: 
             assert not S._ascending_on_grid(bad, H * W)
             for min_px in (1, 4, 40):
                 ref = segment_reference(xyz, bad, min_px=min_px, **KW)
-                assert _same(segment(xyz, bad, min_px=min_px, **KW), ref)
+                assert same_regions(segment(xyz, bad, min_px=min_px, **KW), ref)
         # a strided view of sorted pixels is sorted: the kernel's way, the same regions
         assert S._ascending_on_grid(flat[::2], H * W)
-        assert _same(segment(xyz, flat[::2], min_px=1, **KW), segment_reference(xyz, flat[::2], min_px=1, **KW))
+        assert same_regions(segment(xyz, flat[::2], min_px=1, **KW), segment_reference(xyz, flat[::2], min_px=1, **KW))
 
 
 def test_sorted_distinct_input_goes_the_kernels_way_and_other_input_the_references(monkeypatch):  # type: ignore[no-untyped-def]
     rng = np.random.default_rng(4)
-    xyz = _cloud(rng, 30, 40, 0.1)
+    xyz = segment_cloud(rng, 30, 40, 0.1)
     flat = np.flatnonzero(np.isfinite(xyz).all(axis=2))
     calls: list[int] = []
     reference = S.segment_reference
@@ -70,17 +59,17 @@ def test_sorted_distinct_input_goes_the_kernels_way_and_other_input_the_referenc
 def test_pixels_off_the_grid_are_not_walked():
     rng = np.random.default_rng(9)
     H, W = 12, 15
-    xyz = _cloud(rng, H, W, 0.0)
+    xyz = segment_cloud(rng, H, W, 0.0)
     flat = np.arange(0, H * W, 3)
     assert S._ascending_on_grid(flat, H * W) and S._ascending_on_grid(np.zeros(0, np.int64), H * W)
     # past the end: the reference's answer (it reads no point off the grid there), not the kernel's read past the cloud
     past = np.append(flat, H * W)
     assert not S._ascending_on_grid(past, H * W)
-    assert _same(segment(xyz, past, min_px=1, **KW), segment_reference(xyz, past, min_px=1, **KW))
+    assert same_regions(segment(xyz, past, min_px=1, **KW), segment_reference(xyz, past, min_px=1, **KW))
     # negative: NumPy's wrap-around, as the reference reads it
     neg = np.concatenate([[-1], flat])
     assert not S._ascending_on_grid(neg, H * W)
-    assert _same(segment(xyz, neg, min_px=1, **KW), segment_reference(xyz, neg, min_px=1, **KW))
+    assert same_regions(segment(xyz, neg, min_px=1, **KW), segment_reference(xyz, neg, min_px=1, **KW))
 
 
 def test_degenerate_input_is_unchanged():
@@ -88,9 +77,9 @@ def test_degenerate_input_is_unchanged():
     assert segment(xyz, np.zeros(0, np.int64), min_px=1, **KW) == []
     assert segment(np.zeros((0, 4, 3)), np.zeros(0, np.int64), min_px=1, **KW) == []
     xyz[2, 3] = (0.0, 0.0, 300.0)
-    assert _same(segment(xyz, np.array([15, 15]), min_px=1, **KW),
+    assert same_regions(segment(xyz, np.array([15, 15]), min_px=1, **KW),
                  segment_reference(xyz, np.array([15, 15]), min_px=1, **KW))
-    assert _same(segment(xyz, np.array([15]), min_px=1, **KW), [np.array([15])])
+    assert same_regions(segment(xyz, np.array([15]), min_px=1, **KW), [np.array([15])])
 
 
 SEGMENT_SCRIPT = r"""

@@ -8,21 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from fit_scenes import K_TEST
+from fit_scenes import K_TEST, same_regions, segment_cloud
 
 import zcut.fits.fit as F
 from zcut.fits.segment import segment, segment_reference
-
-
-def _cloud(rng: np.random.Generator, H: int, W: int, nan_share: float) -> np.ndarray:
-    xyz = np.stack([rng.normal(0, 1, (H, W)).cumsum(axis=1), rng.normal(0, 1, (H, W)).cumsum(axis=0),
-                    300 + rng.choice([0.0, 0.0, 0.0, 4.0], size=(H, W)) + rng.normal(0, 0.3, (H, W))], axis=-1)
-    xyz[rng.random((H, W)) < nan_share] = np.nan
-    return xyz
-
-
-def _same(a: list[np.ndarray], b: list[np.ndarray]) -> bool:
-    return len(a) == len(b) and all(x.dtype == y.dtype and np.array_equal(x, y) for x, y in zip(a, b))
 
 
 @pytest.mark.parametrize("shape", [(1, 1), (1, 37), (29, 1), (2, 2), (17, 23), (40, 64)])
@@ -30,12 +19,12 @@ def test_the_segmentation_is_scipys_components_in_scipys_order(shape):  # type: 
     rng = np.random.default_rng(sum(shape))
     H, W = shape
     for trial in range(60):
-        xyz = _cloud(rng, H, W, (0.0, 0.1, 0.5)[trial % 3])
+        xyz = segment_cloud(rng, H, W, (0.0, 0.1, 0.5)[trial % 3])
         valid = np.isfinite(xyz).all(axis=2)
         flat = np.flatnonzero(valid.reshape(-1) & (rng.random(H * W) < rng.uniform(0.3, 1.0)))
         for min_px in (1, 4, 40):
             kw = dict(f_px=500.0, jump_mm=(1.5, 0.5)[trial % 2], jump_px=3.0, min_px=min_px)
-            assert _same(segment(xyz, flat, **kw), segment_reference(xyz, flat, **kw))
+            assert same_regions(segment(xyz, flat, **kw), segment_reference(xyz, flat, **kw))
 
 
 def test_the_segmentation_of_degenerate_input():
@@ -44,19 +33,19 @@ def test_the_segmentation_of_degenerate_input():
     assert segment(xyz, np.zeros(0, np.int64), **kw) == [] == segment_reference(xyz, np.zeros(0, np.int64), **kw)
     xyz[2, 3] = (0.0, 0.0, 300.0)
     one = segment(xyz, np.array([15]), **kw)
-    assert _same(one, segment_reference(xyz, np.array([15]), **kw)) and _same(one, [np.array([15])])
+    assert same_regions(one, segment_reference(xyz, np.array([15]), **kw)) and same_regions(one, [np.array([15])])
     assert segment(np.zeros((0, 4, 3)), np.zeros(0, np.int64), **kw) == []
     # float32 clouds go the reference's way (its arithmetic is float32's)
     rng = np.random.default_rng(3)
-    x32 = _cloud(rng, 20, 30, 0.1).astype(np.float32)
+    x32 = segment_cloud(rng, 20, 30, 0.1).astype(np.float32)
     flat = np.flatnonzero(np.isfinite(x32).all(axis=2))
-    assert _same(segment(x32, flat, **kw), segment_reference(x32, flat, **kw))
+    assert same_regions(segment(x32, flat, **kw), segment_reference(x32, flat, **kw))
 
 
 def test_the_occluding_boundary_and_the_window_pixels_are_numpys():
     rng = np.random.default_rng(12)
     for H, W in ((1, 1), (1, 30), (30, 1), (40, 56)):
-        xyz = _cloud(rng, H, W, 0.1)
+        xyz = segment_cloud(rng, H, W, 0.1)
         valid = np.isfinite(xyz).all(axis=2)
         zone = valid & (rng.random((H, W)) < 0.8)
         frame = F._Frame(xyz=xyz, valid=valid, zone=zone, K=K_TEST)
