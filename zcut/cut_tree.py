@@ -514,7 +514,7 @@ def _gentle_codes(st, b, c0, c1, Wp, codes):  # type: ignore[no-untyped-def]  # 
 
 @numba.njit(cache=True, nogil=True)
 def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt,  # type: ignore[no-untyped-def]  # numba kernel
-                  share=0.5, wr=0, wc=0, wh=-1, ww=-1, gls=None, ring=False):
+                  share=0.5, wr=0, wc=0, wh=-1, ww=-1, gls=None):
     """:func:`flood_levels` without ``own`` and ``pixel_level``, labelling on the way the *gentle
     components*: the components of the pixels in the cuts where two neighbours are joined when
     their levels differ by at most 1.
@@ -562,9 +562,6 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
     labelling = True
     checked = False
     codes = np.empty(W, np.uint8)  # a row's gentle-edge codes (8-connected labelling)
-    # the labels the scan reads: gl itself, or with ``ring`` two rows of it (the row and the row above), 8 KB that
-    # stay in L1 where gl's window streams 1.6-2.3 MB through the caches
-    g = np.empty(2 * Wp, np.int32) if ring else gl
     for r in range(H):
         if labelling and not checked and m >= check:
             checked = True
@@ -572,8 +569,6 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
         base = (r + 1) * Wp
         st[base] = -1
         st[base + W + 1] = -1
-        gb = (r & 1) * Wp if ring else base  # the row's labels in g, and the row above's
-        ga = ((r + 1) & 1) * Wp if ring else base - Wp
         qw = np.int64(-1)  # the level and label of the pixel before (-1: not in the cuts)
         lw = np.int64(-1)
         for c0 in range(0, W, SEGMENT):
@@ -590,9 +585,8 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                     nxt = (wr + r + 1) * ZW + wc + c0
                     for j in range(0, c1 - c0, 8):
                         _prefetch(zf, np.uint64(nxt + j))
-                    if not ring:
-                        for j in range(0, c1 - c0, 16):
-                            _prefetch_w(gl, np.uint64(nb + j))
+                    for j in range(0, c1 - c0, 16):
+                        _prefetch_w(gl, np.uint64(nb + j))
             if skip and not seg_max[wr + r, (wc + c0) // SEGMENT] >= thr:
                 st[base + 1 + c0:base + 1 + c1] = -1
                 qw = -1  # type: ignore[assignment]  # numba kernel: an int64 local
@@ -610,10 +604,9 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                     p = base + 1 + c
                     pix[np.uint64(m)] = p
                     m += 1
-                    pa = ga + 1 + c  # N in g
-                    ln = np.int64(g[np.uint64(pa)])  # (read even where not in the cuts: then unused)
-                    lnw = np.int64(g[np.uint64(pa - 1)])
-                    lne = np.int64(g[np.uint64(pa + 1)])
+                    ln = np.int64(gl[np.uint64(p - Wp)])  # (read even where not in the cuts: then unused)
+                    lnw = np.int64(gl[np.uint64(p - Wp - 1)])
+                    lne = np.int64(gl[np.uint64(p - Wp + 1)])
                     lab = lw if cd & _GW else np.int64(-1)
                     lab = lne if cd & _GNE else lab
                     lab = lnw if cd & _GNW else lab
@@ -630,13 +623,13 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                         if cd & _UNE:
                             # NE (the next pixels' N and NW) takes the root: a label of its set, so its
                             # set's count and every set are unchanged, and fewer unions are tried later
-                            g[np.uint64(pa + 1)] = lab
+                            gl[np.uint64(p - Wp + 1)] = lab
                     if lab < 0:
                         lab = np.int64(nl)
                         gpar[nl] = nl
                         gcnt[nl] = 0
                         nl += 1
-                    g[np.uint64(gb + 1 + c)] = lab
+                    gl[np.uint64(p)] = lab
                     if gls is not None:
                         gls[np.uint64(m - 1)] = lab
                     gcnt[np.uint64(lab)] += 1
@@ -655,15 +648,14 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                 qn = np.int64(st[p - Wp])
                 gw = (qw >= 0) & _near(qw, lv)
                 gn = (qn >= 0) & _near(qn, lv)
-                pa = ga + 1 + c  # N in g
-                ln = np.int64(g[pa])  # (read even where not in the cuts: then unused)
+                ln = np.int64(gl[p - Wp])  # (read even where not in the cuts: then unused)
                 if conn8:
                     qnw = np.int64(st[p - Wp - 1])
                     qne = np.int64(st[p - Wp + 1])
                     gnw = (qnw >= 0) & _near(qnw, lv)
                     gne = (qne >= 0) & _near(qne, lv)
-                    lnw = np.int64(g[pa - 1])
-                    lne = np.int64(g[pa + 1])
+                    lnw = np.int64(gl[p - Wp - 1])
+                    lne = np.int64(gl[p - Wp + 1])
                     lab = lw if gw else np.int64(-1)
                     lab = lne if gne else lab
                     lab = lnw if gnw else lab
@@ -694,7 +686,7 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                     gpar[nl] = nl
                     gcnt[nl] = 0
                     nl += 1
-                g[gb + 1 + c] = lab
+                gl[p] = lab
                 if gls is not None:
                     gls[np.uint64(m - 1)] = lab
                 gcnt[lab] += 1
@@ -1668,7 +1660,7 @@ def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, 
     st, gl, pix, gpar, gcnt, gls = pruned_scratch((wh + 2) * (ww + 2), bound, bound if listed else 0)
     if listed:
         m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
-                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls, True)
+                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls)
         start = np.zeros(top + 2, np.int64)
         keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top, gls)
     else:
