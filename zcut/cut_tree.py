@@ -514,7 +514,7 @@ def _gentle_codes(st, b, c0, c1, Wp, codes):  # type: ignore[no-untyped-def]  # 
 
 @numba.njit(cache=True, nogil=True)
 def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt,  # type: ignore[no-untyped-def]  # numba kernel
-                  share=0.5, wr=0, wc=0, wh=-1, ww=-1, gls=None):
+                  share=0.5, wr=0, wc=0, wh=-1, ww=-1, gls=None, zero=None):
     """:func:`flood_levels` without ``own`` and ``pixel_level``, labelling on the way the *gentle
     components*: the components of the pixels in the cuts where two neighbours are joined when
     their levels differ by at most 1.
@@ -569,6 +569,16 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
         base = (r + 1) * Wp
         st[base] = -1
         st[base + W + 1] = -1
+        if zero is not None:
+            # this row's share of the mask zeroed (the next share's lines fetched for the stores ahead): the
+            # stores overlap the scan's work, where a memset of the whole mask before the call waits on memory
+            za = np.uint64(r * zero.size // H)
+            zb = np.uint64((r + 1) * zero.size // H)
+            zn = np.uint64((r + 2) * zero.size // H) if r + 2 <= H else zb
+            for j in range(zb, zn, 64):
+                _prefetch_w(zero, np.uint64(j))
+            for j in range(za, zb):
+                zero[j] = False
         qw = np.int64(-1)  # the level and label of the pixel before (-1: not in the cuts)
         lw = np.int64(-1)
         for c0 in range(0, W, SEGMENT):
@@ -1660,12 +1670,12 @@ def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, 
     st, gl, pix, gpar, gcnt, gls = pruned_scratch((wh + 2) * (ww + 2), bound, bound if listed else 0)
     if listed:
         m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
-                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls)
+                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls, out)
         start = np.zeros(top + 2, np.int64)
         keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top, gls)
     else:
         m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
-                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww)
+                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, None, out)
         start = np.zeros(top + 2, np.int64)
         keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top)
     kept = pix[:keep]

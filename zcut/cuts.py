@@ -481,11 +481,12 @@ def zcut_outliers(
     z = _check_height(height)
     step, max_depth, max_area, connectivity = _check_params(step, max_depth, max_area, connectivity)
     K = n_levels(step, max_depth)
-    out = np.zeros(z.shape, dtype=bool)
+    out = np.empty(z.shape, dtype=bool)  # zeroed by the pruned flood's level pass, or below
     n, z_min, z_max, seg_max = _finite_range(z)
-    if n == 0 or K < 1:
+    if n > 0 and K >= 1 and _pruned_outliers(z, seg_max, z_min, z_max, step, K, max_area, connectivity, out):
         return out
-    if _pruned_outliers(z, seg_max, z_min, z_max, step, K, max_area, connectivity, out):
+    out[...] = False
+    if n == 0 or K < 1:
         return out
     tree = _flood(z, seg_max, z_min, z_max, step, K, max_area, connectivity)
     if tree is not None:
