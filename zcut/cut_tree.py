@@ -545,7 +545,13 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
     ``wr, wc, wh, ww``: the window of z worked on, rows ``wr .. wr + wh - 1`` and columns ``wc .. wc
     + ww - 1`` (``wc`` a multiple of SEGMENT; ``wh, ww`` = -1: the whole frame); ``st``, ``gl`` and
     the indices in ``pix`` are then the window's (padded: ``(wh + 2) * (ww + 2)``). No pixel in the
-    cuts may lie outside it."""
+    cuts may lie outside it.
+
+    ``zero``: a bool array (the outlier mask of :func:`pruned_outliers`) set to False along the way, its
+    ``r``-th share of ``zero.size // H`` bytes or so at the window's row ``r`` (every byte by the last row),
+    the next share's lines fetched for the stores a row ahead: the stores overlap the scan's work, where a
+    ``np.zeros`` of the mask before the call waited on memory (0.1-0.25 ms of a pile's call; ~1.04-1.06 x,
+    docs/performance.md)."""
     ZW = z.shape[1]
     H = z.shape[0] if wh < 0 else wh
     W = ZW if ww < 0 else ww
@@ -570,8 +576,8 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
         st[base] = -1
         st[base + W + 1] = -1
         if zero is not None:
-            # this row's share of the mask zeroed (the next share's lines fetched for the stores ahead): the
-            # stores overlap the scan's work, where a memset of the whole mask before the call waits on memory
+            # this row's share of the mask zeroed, the next share's lines fetched for the stores a row ahead
+            # (without that hint the change gained nothing, docs/performance.md)
             za = np.uint64(r * zero.size // H)
             zb = np.uint64((r + 1) * zero.size // H)
             zn = np.uint64((r + 2) * zero.size // H) if r + 2 <= H else zb
@@ -1643,9 +1649,9 @@ def cuts_window(seg_max, thr, W):  # type: ignore[no-untyped-def]  # numba kerne
 @numba.njit(cache=True, nogil=True)
 def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check, minimum, out):  # type: ignore[no-untyped-def]  # numba kernel
     """The outlier mask of the flood over the pixels of the small gentle components only, into ``out``
-    ((H * W,) bool, zeroed), in one call: the window of the pixels in the cuts (:func:`cuts_window`), the
-    scratch (:func:`pruned_scratch`), :func:`gentle_levels` (gentle components 8-connected if ``gentle8``,
-    else 4-connected), :func:`gentle_prune`, :func:`flood_core_left_out` and :func:`pruned_outlier_mask`,
+    ((H * W,) bool, zeroed here by :func:`gentle_levels`' level pass: it need not be zeroed before), in one
+    call: the window of the pixels in the cuts (:func:`cuts_window`), the scratch (:func:`pruned_scratch`),
+    :func:`gentle_levels` (gentle components 8-connected if ``gentle8``, else 4-connected), :func:`gentle_prune`, :func:`flood_core_left_out` and :func:`pruned_outlier_mask`,
     as :func:`zcut.cuts._pruned_outliers` called them one by one before (the same arrays, the same order:
     the same result; ~0.25 ms of the pile's 3 fewer, docs/performance.md). False when fewer than
     ``minimum`` pixels may lie in the cuts (counted by row segments: nothing written). ``k_eff`` and

@@ -426,11 +426,11 @@ def _scratch(n: int, bound: int) -> tuple[np.ndarray, ...]:
 def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step: float, K: int,
                      max_area: float, connectivity: int, out: np.ndarray, *, minimum: int = PRUNE_MIN,
                      check: int | None = None, gentle: int | str = "auto") -> bool:
-    """The outlier mask (into ``out``, zeroed) by the flood over the pixels of the small gentle
-    components only (:func:`zcut.cut_tree.gentle_prune`: the same tagged nodes as the whole tree).
-    False when it does not apply (too many levels or pixels, or fewer than ``minimum`` in the cuts:
-    nothing written). ``check``: when the labelling looks whether it pays (default: at
-    ``PRUNE_CHECK`` pixels and ``PRUNE_CHECK_ROWS`` rows' worth). ``gentle``: the connectivity of
+    """The outlier mask (into ``out``, which need not be zeroed: the kernel's level pass zeroes it) by the
+    flood over the pixels of the small gentle components only (:func:`zcut.cut_tree.gentle_prune`: the same
+    tagged nodes as the whole tree). False when it does not apply (too many levels or pixels, or fewer than
+    ``minimum`` in the cuts: nothing written, ``out`` as it was). ``check``: when the labelling looks whether
+    it pays (default: at ``PRUNE_CHECK`` pixels and ``PRUNE_CHECK_ROWS`` rows' worth). ``gentle``: the connectivity of
     the gentle components labelled: 4, the z-cut's ``connectivity``, or ``"auto"``: the
     z-cut's ``connectivity`` (module notes). The window, the scratch, the labelling, the prune, the
     flood and the read-out are one kernel call (:func:`zcut.cut_tree.pruned_outliers`)."""
