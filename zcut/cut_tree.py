@@ -350,11 +350,11 @@ def segments_in_cuts(seg_max, thr):  # type: ignore[no-untyped-def]  # numba ker
     for r in range(H):
         row_n = 0
         first, last = n_seg, 0
-        for s in range(n_seg):  # (no branch: LLVM vectorises it; a branch a segment read 0.044 ms at 1920 x 1200)
-            inn = seg_max[r, s] >= thr
-            row_n += inn
-            first = min(first, s if inn else n_seg)
-            last = max(last, s + 1 if inn else 0)
+        for s in range(n_seg):
+            if seg_max[r, s] >= thr:
+                row_n += 1
+                first = min(first, s)
+                last = s + 1
         if row_n > 0:
             n += row_n
             r0 = min(r0, r)
@@ -524,7 +524,7 @@ def _gentle_codes(st, b, c0, c1, Wp, codes):  # type: ignore[no-untyped-def]  # 
 
 @numba.njit(cache=True, nogil=True)
 def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt,  # type: ignore[no-untyped-def]  # numba kernel
-                  share=0.5, wr=0, wc=0, wh=-1, ww=-1, gls=None, zero=None):
+                  share=0.5, wr=0, wc=0, wh=-1, ww=-1, gls=None):
     """:func:`flood_levels` without ``own`` and ``pixel_level``, labelling on the way the *gentle
     components*: the components of the pixels in the cuts where two neighbours are joined when
     their levels differ by at most 1.
@@ -555,13 +555,7 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
     ``wr, wc, wh, ww``: the window of z worked on, rows ``wr .. wr + wh - 1`` and columns ``wc .. wc
     + ww - 1`` (``wc`` a multiple of SEGMENT; ``wh, ww`` = -1: the whole frame); ``st``, ``gl`` and
     the indices in ``pix`` are then the window's (padded: ``(wh + 2) * (ww + 2)``). No pixel in the
-    cuts may lie outside it.
-
-    ``zero``: a bool array (the outlier mask of :func:`pruned_outliers`) set to False along the way, its
-    ``r``-th share of ``zero.size // H`` bytes or so at the window's row ``r`` (every byte by the last row),
-    the next share's lines fetched for the stores a row ahead: the stores overlap the scan's work, where a
-    ``np.zeros`` of the mask before the call waited on memory (0.1-0.25 ms of a pile's call; ~1.04-1.06 x,
-    docs/performance.md)."""
+    cuts may lie outside it."""
     ZW = z.shape[1]
     H = z.shape[0] if wh < 0 else wh
     W = ZW if ww < 0 else ww
@@ -585,16 +579,6 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
         base = (r + 1) * Wp
         st[base] = -1
         st[base + W + 1] = -1
-        if zero is not None:
-            # this row's share of the mask zeroed, the next share's lines fetched for the stores a row ahead
-            # (without that hint the change gained nothing, docs/performance.md)
-            za = np.uint64(r * zero.size // H)
-            zb = np.uint64((r + 1) * zero.size // H)
-            zn = np.uint64((r + 2) * zero.size // H) if r + 2 <= H else zb
-            for j in range(zb, zn, 64):
-                _prefetch_w(zero, np.uint64(j))
-            for j in range(za, zb):
-                zero[j] = False
         qw = np.int64(-1)  # the level and label of the pixel before (-1: not in the cuts)
         lw = np.int64(-1)
         for c0 in range(0, W, SEGMENT):
@@ -1659,9 +1643,9 @@ def cuts_window(seg_max, thr, W):  # type: ignore[no-untyped-def]  # numba kerne
 @numba.njit(cache=True, nogil=True)
 def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check, minimum, out):  # type: ignore[no-untyped-def]  # numba kernel
     """The outlier mask of the flood over the pixels of the small gentle components only, into ``out``
-    ((H * W,) bool, zeroed here by :func:`gentle_levels`' level pass: it need not be zeroed before), in one
-    call: the window of the pixels in the cuts (:func:`cuts_window`), the scratch (:func:`pruned_scratch`),
-    :func:`gentle_levels` (gentle components 8-connected if ``gentle8``, else 4-connected), :func:`gentle_prune`, :func:`flood_core_left_out` and :func:`pruned_outlier_mask`,
+    ((H * W,) bool, zeroed), in one call: the window of the pixels in the cuts (:func:`cuts_window`), the
+    scratch (:func:`pruned_scratch`), :func:`gentle_levels` (gentle components 8-connected if ``gentle8``,
+    else 4-connected), :func:`gentle_prune`, :func:`flood_core_left_out` and :func:`pruned_outlier_mask`,
     as :func:`zcut.cuts._pruned_outliers` called them one by one before (the same arrays, the same order:
     the same result; ~0.25 ms of the pile's 3 fewer, docs/performance.md). False when fewer than
     ``minimum`` pixels may lie in the cuts (counted by row segments: nothing written). ``k_eff`` and
@@ -1686,12 +1670,12 @@ def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, 
     st, gl, pix, gpar, gcnt, gls = pruned_scratch((wh + 2) * (ww + 2), bound, bound if listed else 0)
     if listed:
         m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
-                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls, out)
+                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls)
         start = np.zeros(top + 2, np.int64)
         keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top, gls)
     else:
         m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
-                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, None, out)
+                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww)
         start = np.zeros(top + 2, np.int64)
         keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top)
     kept = pix[:keep]

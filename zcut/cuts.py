@@ -426,11 +426,11 @@ def _scratch(n: int, bound: int) -> tuple[np.ndarray, ...]:
 def _pruned_outliers(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step: float, K: int,
                      max_area: float, connectivity: int, out: np.ndarray, *, minimum: int = PRUNE_MIN,
                      check: int | None = None, gentle: int | str = "auto") -> bool:
-    """The outlier mask (into ``out``, which need not be zeroed: the kernel's level pass zeroes it) by the
-    flood over the pixels of the small gentle components only (:func:`zcut.cut_tree.gentle_prune`: the same
-    tagged nodes as the whole tree). False when it does not apply (too many levels or pixels, or fewer than
-    ``minimum`` in the cuts: nothing written, ``out`` as it was). ``check``: when the labelling looks whether
-    it pays (default: at ``PRUNE_CHECK`` pixels and ``PRUNE_CHECK_ROWS`` rows' worth). ``gentle``: the connectivity of
+    """The outlier mask (into ``out``, zeroed) by the flood over the pixels of the small gentle
+    components only (:func:`zcut.cut_tree.gentle_prune`: the same tagged nodes as the whole tree).
+    False when it does not apply (too many levels or pixels, or fewer than ``minimum`` in the cuts:
+    nothing written). ``check``: when the labelling looks whether it pays (default: at
+    ``PRUNE_CHECK`` pixels and ``PRUNE_CHECK_ROWS`` rows' worth). ``gentle``: the connectivity of
     the gentle components labelled: 4, the z-cut's ``connectivity``, or ``"auto"``: the
     z-cut's ``connectivity`` (module notes). The window, the scratch, the labelling, the prune, the
     flood and the read-out are one kernel call (:func:`zcut.cut_tree.pruned_outliers`)."""
@@ -481,12 +481,11 @@ def zcut_outliers(
     z = _check_height(height)
     step, max_depth, max_area, connectivity = _check_params(step, max_depth, max_area, connectivity)
     K = n_levels(step, max_depth)
-    out = np.empty(z.shape, dtype=bool)  # zeroed by the pruned flood's level pass, or below
+    out = np.zeros(z.shape, dtype=bool)
     n, z_min, z_max, seg_max = _finite_range(z)
-    if n > 0 and K >= 1 and _pruned_outliers(z, seg_max, z_min, z_max, step, K, max_area, connectivity, out):
-        return out
-    out[...] = False
     if n == 0 or K < 1:
+        return out
+    if _pruned_outliers(z, seg_max, z_min, z_max, step, K, max_area, connectivity, out):
         return out
     tree = _flood(z, seg_max, z_min, z_max, step, K, max_area, connectivity)
     if tree is not None:
