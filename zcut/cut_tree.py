@@ -49,6 +49,7 @@ __all__ = [
     "FLOOD_MAX_LEVELS",
     "KEPT",
     "PREFETCH_AHEAD",
+    "PREFETCH_INTRINSIC",
     "SEGMENT",
     "SHALLOW_LEVELS",
     "cluster_labels",
@@ -217,6 +218,15 @@ def _finite_range_float(z, seg_max):  # type: ignore[no-untyped-def]  # numba ke
     return n, lo, hi
 
 
+#: The name :func:`_prefetch_codegen` declares ``llvm.prefetch`` under. The intrinsic is overloaded on the pointer
+#: type, so each LLVM has its own mangled name (``llvm.prefetch.p0i8`` with typed pointers, LLVM <= 16;
+#: ``llvm.prefetch.p0`` with opaque ones); LLVM's IR parser renames a declaration of any ``llvm.prefetch``
+#: spelling to its own (checked on numba 0.60 / llvmlite 0.43 / LLVM 14, the dependency floor, 0.61 / 0.44 /
+#: LLVM 15 and 0.68 / 0.50 / LLVM 22: the same declaration and a ``prefetcht0`` in the code;
+#: ``tests/zcut/test_prefetch_name.py``), so no floor needs raising and no name needs choosing by version.
+PREFETCH_INTRINSIC = "llvm.prefetch.p0"
+
+
 def _prefetch_codegen(write: int) -> Any:
     """The code of ``llvm.prefetch`` of ``arr[idx]`` (``write``: 0 for a read, 1 for a write; kept in every
     cache level), for :func:`_prefetch_read` and :func:`_prefetch_write`."""
@@ -229,7 +239,7 @@ def _prefetch_codegen(write: int) -> Any:
         i8p = ir.IntType(8).as_pointer()
         i32 = ir.IntType(32)
         fn = cgutils.get_or_insert_function(  # type: ignore[no-untyped-call]  # numba's cgutils
-            builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), "llvm.prefetch.p0")
+            builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), PREFETCH_INTRINSIC)
         builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, write), ir.Constant(i32, 3),
                           ir.Constant(i32, 1)])
         return context.get_dummy_value()
