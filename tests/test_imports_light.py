@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from subprocess_helpers import run_python
 
 ROOT = Path(__file__).resolve().parents[1]
 HEAVY = ("open3d", "rerun", "pyarrow", "pandas", "sklearn", "matplotlib", "dash", "plotly")
@@ -22,7 +23,7 @@ def _loaded(code: str) -> list[str]:
     """The :data:`HEAVY` modules in ``sys.modules`` after ``code`` ran in a fresh interpreter."""
     probe = (f"{code}\nimport sys\n"
              f"print(','.join(m for m in {HEAVY!r} if m in sys.modules), file=sys.__stderr__)\n")
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=str(ROOT), timeout=300)
+    out = run_python(probe, cwd=ROOT, timeout=300)
     assert out.returncode == 0, out.stderr
     last = out.stderr.strip().splitlines()[-1] if out.stderr.strip() else ""
     return [m for m in last.split(",") if m]
@@ -60,7 +61,7 @@ def test_replay_without_outputs_loads_neither_rerun_nor_pyarrow(tmp_path: Path, 
     unused_parts = ("scipy.sparse.csgraph", "zcut.suspects", "zcut.components", "zcut.local_rules", "zcut.radius")
     probe = (_main("replay", str(log))
              + f"print(sorted(m for m in {unused_parts!r} if m in sys.modules), file=sys.__stderr__)\n")
-    unused = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=str(ROOT), timeout=300)
+    unused = run_python(probe, cwd=ROOT, timeout=300)
     assert unused.returncode == 0 and unused.stderr.strip().splitlines()[-1] == "[]", unused.stderr[-2000:]
     # the replay prepared the bin model with Open3D, without the Dash and Plotly its viewer imports
     assert "open3d" in loaded and not {"dash", "plotly"} & set(loaded), loaded
@@ -103,7 +104,7 @@ def test_zcut_names_load_their_module_alone() -> None:
     code = ("import sys\nimport zcut.errors\nfrom zcut import ZCutParams, ParameterError\n"
             "assert ZCutParams.__module__ == 'zcut.params'\n"
             "print(sorted(m for m in ('numba', 'scipy', 'cv2', 'zcut.cuts', 'zcut.suspects') if m in sys.modules))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), timeout=300)
+    out = run_python(code, cwd=ROOT, timeout=300)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]", out.stdout
 
@@ -134,6 +135,6 @@ else:
     raise AssertionError("zcut.no_such_name")
 print("ok")
 '''
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), timeout=300)
+    out = run_python(code, cwd=ROOT, timeout=300)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "ok"

@@ -12,6 +12,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from subprocess_helpers import run_python
+
 ROOT = Path(__file__).resolve().parents[1]
 #: The packages from the bottom up: a package may import those below it, never one above.
 LAYERS = ("zcut", "replay", "annotate", "studies", "cli")
@@ -43,7 +45,7 @@ def test_importing_zcut_keeps_io_modules_out():
         "bad = [m for m in ('rerun', 'mcap', 'mcap_ros2', 'sqlite3', 'fastapi', 'starlette') if m in sys.modules]\n"
         "print(','.join(bad))\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    out = run_python(code, check=True)
     assert out.stdout.strip() == "", f"zcut pulled in: {out.stdout.strip()}"
 
 
@@ -81,7 +83,7 @@ for m in pkgutil.iter_modules(zcut.__path__):
             bad.append(f"{mod.__name__}.{name}: writable ndarray")
 print("\n".join(bad))
 '''
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    out = run_python(code, check=True)
     assert out.stdout.strip() == "", f"mutable module-level state in zcut:\n{out.stdout}"
 
 
@@ -95,7 +97,7 @@ def test_importing_zcut_changes_no_global_setting():
         "print(before == after)\n"
     )
     env = {k: v for k, v in __import__("os").environ.items() if not k.startswith("NUMBA_THREADING")}
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+    out = run_python(code, env=env, check=True)
     assert out.stdout.strip() == "True"
 
 
@@ -143,7 +145,7 @@ def test_replaying_a_real_log_does_not_import_the_scene_generator():
         "from cli.commands import replay\n"
         "print([m for m in sys.modules if m.startswith('replay.synth')])\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    out = run_python(code, check=True)
     assert out.stdout.strip() == "[]"
 
 

@@ -473,17 +473,20 @@ def check_grid(h: int, w: int, max_pixels: int | None, *, what: str, where: str)
 
 
 def _check_rows(data: memoryview, h: int, w: int, *, step: int, row: int, what: str, short: str, layout: str,
-                where: str, max_pixels: int | None) -> int:
+                where: str, max_pixels: int | None, **parts: object) -> int:
     """Check that ``h`` rows of ``row`` bytes each, ``step`` bytes apart, fit in ``data`` and that the
     ``h`` x ``w`` grid is within ``max_pixels``; return the bytes the rows span.
 
-    Raises :class:`LogFormatError` ``"{where}: {what} {short}"`` if ``step < row``, ``"{where}: {layout}
-    needs N bytes of data but has M"`` if the rows do not fit, and :func:`check_grid`'s error."""
+    ``short`` and ``layout`` are :meth:`str.format` templates over ``h``, ``w``, ``step``, ``row`` and ``parts``,
+    formatted only when an error is raised: :class:`LogFormatError` ``"{where}: {what} {short}"`` if
+    ``step < row``, ``"{where}: {layout} needs N bytes of data but has M"`` if the rows do not fit, and
+    :func:`check_grid`'s error."""
     if step < row:
-        raise LogFormatError(f"{where}: {what} {short}")
+        raise LogFormatError(f"{where}: {what} {short.format(h=h, w=w, step=step, row=row, **parts)}")
     need = (h - 1) * step + row
     if need > len(data):
-        raise LogFormatError(f"{where}: {layout} needs {need} bytes of data but has {len(data)}")
+        rows = layout.format(h=h, w=w, step=step, row=row, **parts)
+        raise LogFormatError(f"{where}: {rows} needs {need} bytes of data but has {len(data)}")
     check_grid(h, w, max_pixels, what=what, where=where)
     return need
 
@@ -523,9 +526,9 @@ def cloud_to_arrays(
     if step < 1:
         raise LogFormatError(f"{where}: PointCloud2 point_step is {step}")
     _check_rows(msg.data, h, w, step=row_step, row=w * step, what="PointCloud2",
-                short=f"row_step {row_step} is smaller than width {w} x point_step {step}",
-                layout=f"PointCloud2 of {h}x{w} with row_step {row_step}, point_step {step}",
-                where=where, max_pixels=max_pixels)
+                short="row_step {step} is smaller than width {w} x point_step {point_step}",
+                layout="PointCloud2 of {h}x{w} with row_step {step}, point_step {point_step}",
+                where=where, max_pixels=max_pixels, point_step=step)
     bo = ">" if msg.is_bigendian else "<"
     coord_types = set()
     for name in ("x", "y", "z"):
@@ -717,6 +720,8 @@ COLOR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8")
 PACKED_MASK_ENCODING = "mono1"
 #: the Image encodings a mask is read from
 MASK_ENCODINGS = ("mono8", PACKED_MASK_ENCODING)
+#: the Image row check's layout in its errors (a template for :func:`_check_rows`)
+_IMAGE_LAYOUT = "Image {h}x{w} {encoding} with step {step}"
 
 
 def _image_pixels(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -> np.ndarray:
@@ -730,8 +735,8 @@ def _image_pixels(msg: ImageMsg, *, where: str, max_pixels: int | None = None) -
     if h < 1 or w < 1:
         raise LogFormatError(f"{where}: Image is empty (height {h}, width {w})")
     need = _check_rows(msg.data, h, w, step=step, row=w * ch, what="Image",
-                       short=f"step {step} is smaller than width {w} x {ch} bytes ({msg.encoding})",
-                       layout=f"Image {h}x{w} {msg.encoding} with step {step}", where=where, max_pixels=max_pixels)
+                       short="step {step} is smaller than width {w} x {ch} bytes ({encoding})", layout=_IMAGE_LAYOUT,
+                       where=where, max_pixels=max_pixels, ch=ch, encoding=msg.encoding)
     buf = np.frombuffer(msg.data, dtype=np.uint8, count=need)
     return np.lib.stride_tricks.as_strided(
         buf, shape=(h, w, ch), strides=(step, ch, 1), writeable=False
@@ -772,8 +777,8 @@ def _packed_mask(msg: ImageMsg, *, where: str, max_pixels: int | None) -> np.nda
         raise LogFormatError(f"{where}: Image is empty (height {h}, width {w})")
     row = (w + 7) // 8
     need = _check_rows(msg.data, h, w, step=step, row=row, what="Image",
-                       short=f"step {step} is smaller than width {w} / 8 bytes, rounded up ({row}; {PACKED_MASK_ENCODING})",
-                       layout=f"Image {h}x{w} {PACKED_MASK_ENCODING} with step {step}", where=where, max_pixels=max_pixels)
+                       short="step {step} is smaller than width {w} / 8 bytes, rounded up ({row}; {encoding})",
+                       layout=_IMAGE_LAYOUT, where=where, max_pixels=max_pixels, encoding=PACKED_MASK_ENCODING)
     buf = np.frombuffer(msg.data, dtype=np.uint8, count=need)
     rows = np.lib.stride_tricks.as_strided(buf, shape=(h, row), strides=(step, 1), writeable=False)
     mask: np.ndarray = np.unpackbits(rows, axis=1, count=w).view(np.bool_)

@@ -434,34 +434,15 @@ def _rest(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, u, v):
 
 
 @numba.njit(cache=True, nogil=True)
-def _settle(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, us, vs, roll):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover
-    """Lowest rest among the drop points (us, vs), then downhill moves of ``roll`` mm in 8 directions."""
-    best_b, best_i, best_j, best_u, best_v = -np.inf, 0, 0, 0.0, 0.0
-    for k in range(us.size):
-        b, ci, cj, u, v = _rest(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, us[k], vs[k])
-        if b != -np.inf and (best_b == -np.inf or b < best_b):
-            best_b, best_i, best_j, best_u, best_v = b, ci, cj, u, v
-    if best_b == -np.inf:
-        return best_b, best_i, best_j
-    for _ in range(8):
-        moved = False
-        for a in range(8):
-            u = best_u + roll * np.cos(a * np.pi / 4)
-            v = best_v + roll * np.sin(a * np.pi / 4)
-            b, ci, cj, u, v = _rest(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, u, v)
-            if b != -np.inf and b < best_b - 1e-9:
-                best_b, best_i, best_j, best_u, best_v = b, ci, cj, u, v
-                moved = True
-        if not moved:
-            break
-    return best_b, best_i, best_j
+def _settle(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, us, vs, roll, finest, rounds, gu, gv):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover
+    """Lowest rest among the drop points (us, vs), then downhill moves in 8 directions, ``rounds`` at most of
+    ``roll`` mm, then as many of half that, and so on down to ``finest`` mm; return (base, row, col), base -inf
+    if no drop point lands on the grid.
 
-
-@numba.njit(cache=True, nogil=True)
-def _settle_tilted(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, us, vs, roll, gu, gv):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover
-    """:func:`_settle` under gravity tilted by (gu, gv): the potential is the resting base minus
-    gu·u + gv·v, and the downhill moves shrink from ``roll`` to one grid step, so that a part
-    slides on until it touches what stops it (a wall, another part)."""
+    "Lowest" is the potential: the resting base minus gu·u + gv·v, gravity tilted by (gu, gv) in the bin
+    frame. The floor pile calls it with no tilt (0, 0: the potential is the base itself), 8 rounds and
+    ``finest = roll`` (moves of ``roll`` only); the pile against walls with the tilt, 64 rounds and
+    ``finest`` one grid step, so that a part slides on until it touches what stops it (a wall, another part)."""
     best_p, best_b, best_i, best_j, best_u, best_v = np.inf, -np.inf, 0, 0, 0.0, 0.0
     for k in range(us.size):
         b, ci, cj, u, v = _rest(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_v, us[k], vs[k])
@@ -473,7 +454,7 @@ def _settle_tilted(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_
         return best_b, best_i, best_j
     step = roll
     while True:
-        for _ in range(64):
+        for _ in range(rounds):
             moved = False
             for a in range(8):
                 u = best_u + step * np.cos(a * np.pi / 4)
@@ -486,9 +467,9 @@ def _settle_tilted(height, lo_hit, di, dj, n, x0, y0, g, R2, tx, ty, lim_u, lim_
                         moved = True
             if not moved:
                 break
-        if step <= g:
+        if step <= finest:
             break
-        step = max(0.5 * step, g)
+        step = max(0.5 * step, finest)
     return best_b, best_i, best_j
 
 
@@ -568,16 +549,11 @@ def drop_pile(
         v0 = rng.uniform(-lim_v, lim_v)
         jitter = rng.uniform(-2.0, 2.0, (settle_tries, 2)) * r
         jitter[0] = 0.0
-        if not walls:
-            best = _settle(
-                height, lo[hit], ii - n, jj - n, n, grid.x0, grid.y0, g, R2, pose.x_mm, pose.y_mm,
-                lim_u, lim_v, u0 + jitter[:, 0], v0 + jitter[:, 1], 0.5 * r,
-            )
-        else:
-            best = _settle_tilted(
-                height, lo[hit], ii - n, jj - n, n, grid.x0, grid.y0, g, R2, pose.x_mm, pose.y_mm,
-                lim_u, lim_v, u0 + jitter[:, 0], v0 + jitter[:, 1], 0.5 * r, gu, gv,
-            )
+        best = _settle(
+            height, lo[hit], ii - n, jj - n, n, grid.x0, grid.y0, g, R2, pose.x_mm, pose.y_mm,
+            lim_u, lim_v, u0 + jitter[:, 0], v0 + jitter[:, 1], 0.5 * r, g if walls else 0.5 * r,
+            64 if walls else 8, gu, gv,
+        )
         if best[0] == -np.inf:
             continue
         base, ci, cj = best[0], int(best[1]), int(best[2])

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis.extra.numpy import array_shapes, arrays
+from subprocess_helpers import run_python
 
 from annotate.label_files import export_labels, import_labels, read_label_masks
 from annotate.store import (
@@ -382,8 +383,6 @@ def test_one_page_saving_full_states_is_not_a_conflict(store_frame, rng, valid):
 
 def test_servers_register_beat_and_leave(tmp_path, log_file):
     import os
-    import subprocess
-    import sys
 
     with LabelStore(tmp_path / "s.sqlite") as a, LabelStore(tmp_path / "s.sqlite") as b:
         me = a.register_server(log_sha256="0" * 64, port=8000)
@@ -400,8 +399,7 @@ def test_servers_register_beat_and_leave(tmp_path, log_file):
         a.heartbeat_server(me.id)
         assert [s.id for s in a.live_servers(stale_after_s=0.03)] == [me.id]
         # on this host, a server whose process is gone is gone at once
-        done = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
-                              check=True)
+        done = run_python("import os; print(os.getpid())", check=True)
         dead = int(done.stdout)
         b._db.execute("UPDATE servers SET pid = ? WHERE id = ?", (dead, stale.id))
         assert stale.id not in [s.id for s in a.live_servers(stale_after_s=60)]

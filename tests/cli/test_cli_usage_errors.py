@@ -9,6 +9,7 @@ import sys
 
 import pytest
 from cli_helpers import run_cli
+from subprocess_helpers import run_python
 
 MISTAKES = {
     "bad choice": (["synth", "-o", "x.mcap", "--parts", "bolts"], "zcut synth", "argument --parts: invalid choice"),
@@ -59,7 +60,7 @@ def test_version_and_help_load_no_numerics(argv):
             "try:\n    status = main()\nexcept SystemExit as e:\n    status = e.code\n"
             "heavy = sorted(m for m in ('numpy', 'numba', 'scipy', 'zcut') if m in sys.modules)\n"
             "print('LOADED', heavy, status, file=sys.stderr)\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    out = run_python(code, timeout=300)
     loaded = out.stderr.strip().splitlines()[-1]
     # a command's own options may need numpy (its choices); never numba, scipy or the kernels
     allowed = "LOADED ['numpy']" if argv[:1] == ["synth"] else "LOADED []"

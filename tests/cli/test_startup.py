@@ -12,8 +12,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -30,9 +28,10 @@ RUN_ONLY = ("numba", "llvmlite", "scipy", "cv2", "open3d", "zcut.bin_check", "zc
 
 def _fresh(code: str, env: dict[str, str] | None = None) -> tuple[list[str], str]:
     """(the :data:`RUN_ONLY` modules loaded, stdout) after ``code`` ran in a fresh interpreter."""
+    from subprocess_helpers import run_python  # here: a child imports this module as a plug-in, tests/ not on its path
+
     probe = f"{code}\nimport sys\nprint('loaded:' + ','.join(m for m in {RUN_ONLY!r} if m in sys.modules), file=sys.__stderr__)\n"
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=str(ROOT), timeout=300,
-                         env=env)
+    out = run_python(probe, cwd=ROOT, env=env, timeout=300)
     assert out.returncode == 0, out.stderr
     last = out.stderr.strip().splitlines()[-1]
     assert last.startswith("loaded:"), out.stderr

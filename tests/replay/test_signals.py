@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+from subprocess_helpers import run_python
 
 from cli.main import main
 from replay.process import Interrupted, InterruptState, interrupted_by
@@ -74,7 +75,7 @@ def test_the_command_line_handles_signals_before_it_loads_the_kernels():
     """Importing the console script loads no numba (nor zcut): the handlers are in place before
     the seconds of loading the kernels, so a Ctrl-C then is one line too (and ``--help`` is fast)."""
     code = "import sys, cli.main; print(sorted(m for m in ('numba', 'zcut', 'numpy') if m in sys.modules))"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    out = run_python(code, check=True)
     assert out.stdout.strip() == "[]"
 
 
@@ -93,7 +94,7 @@ def test_a_signal_while_the_command_line_loads_is_one_line_and_128_plus_it(tmp_p
             "sys.argv = ['zcut', '--help']\n"
             "from cli.entry import run\n"
             "sys.exit(run())\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    out = run_python(code, timeout=300)
     assert out.returncode == 128 + sig, out
     assert out.stderr.strip() == f"interrupted ({signal.Signals(sig).name})"
 
@@ -109,7 +110,7 @@ def test_a_signal_after_the_command_finished_keeps_its_status(log, sig):
             f"os.kill(os.getpid(), {int(sig)})\n"
             "time.sleep(0.2)\n"
             "end(status)\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    out = run_python(code, timeout=300)
     assert out.returncode == 0, out
     assert "/camera/points" in out.stdout and "interrupted" not in out.stderr
 
@@ -139,7 +140,7 @@ def test_the_end_of_the_process_waits_for_threads_and_runs_the_exit_handlers(tmp
             "from cli.entry import run\n"
             "run()\n"
             "raise SystemExit('run() returned')\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    out = run_python(code, timeout=300)
     assert out.returncode == 3, out
     assert out.stdout == "buffered, no newline" and out.stderr == ""
     assert (tmp_path / "thread").read_text() == "done"
@@ -210,7 +211,7 @@ def test_a_signal_landing_where_python_ignores_exceptions_still_interrupts(where
         "except Interrupted as e:\n"
         "    print('interrupted', e.signum, state.signals)\n"
     ).replace("WHERE", repr(where))
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    out = run_python(code, timeout=300)
     assert out.returncode == 0, out
     assert out.stdout.strip() == f"interrupted {int(signal.SIGHUP)} [{int(signal.SIGHUP)}]", out
     assert out.stderr == "", out
@@ -304,7 +305,7 @@ def test_a_signal_inside_rerun_s_constructor_leaves_no_traceback():
         "    print('interrupted', e.signum)\n"
         "gc.collect()\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    out = run_python(code, timeout=300)
     assert out.returncode == 0, out
     assert out.stdout.strip() == f"interrupted {int(signal.SIGHUP)}", out
     assert "Exception ignored" not in out.stderr and "Traceback" not in out.stderr, out.stderr

@@ -7,12 +7,11 @@ either side of the list's limit (at most half the frame in the cuts), degenerate
 
 from __future__ import annotations
 
-import sys
 from collections import deque
-from pathlib import Path
 
 import numpy as np
 import pytest
+from bench_frames import bench_kinds
 from test_cuts_fast import height_mm, previous_outliers, pruned_outliers
 
 from zcut import zcut_outliers, zcut_outliers_reference
@@ -21,15 +20,6 @@ from zcut.cuts import _finite_range, _levels
 from zcut.params import n_levels
 
 NOMINAL = dict(step=0.2, max_depth=30.0, max_area=210.0)
-
-
-def bench_kinds() -> tuple:
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-    try:
-        from bench_zcut import dense_frame, holes_frame, pile_frame
-    finally:
-        sys.path.pop(0)
-    return pile_frame, holes_frame, dense_frame
 
 
 def labelled_twice(z: np.ndarray, *, step: float, max_depth: float, max_area: float, gentle8: bool = True
@@ -156,8 +146,7 @@ def check_frame(z: np.ndarray, *, step: float = 0.2, max_depth: float = 30.0, ma
 def test_held_out_piles_keep_the_same_pixels(seed: int) -> None:
     """The full-size piles of seeds 22 and 24 (the dearest held-out ones): the marks and the kept list with and
     without the listed labels; the literal prune on a crop of each (its search is Python, one pixel at a time)."""
-    pile_frame, _, _ = bench_kinds()
-    z = pile_frame(seed)
+    z = bench_kinds()["pile"](seed)
     m, keep = check_frame(z, literal=False)
     assert m > 100_000 and 1000 < keep < m // 10
     check_frame(z[420:620, 760:1060])
@@ -167,11 +156,11 @@ def test_held_out_piles_keep_the_same_pixels(seed: int) -> None:
 def test_large_invalid_regions(seed: int) -> None:
     """Crops of the holes frame (a third of the width and big blocks invalid), with a third of the rows invalid
     more, and a pile crop with NaN columns."""
-    pile_frame, holes_frame, _ = bench_kinds()
-    z = holes_frame(seed)[380:600, 480:860].copy()
+    kinds = bench_kinds()
+    z = kinds["holes"](seed)[380:600, 480:860].copy()
     z[: z.shape[0] // 3] = np.nan
     check_frame(z)
-    z = pile_frame(seed)[500:700, 800:1100].copy()
+    z = kinds["pile"](seed)[500:700, 800:1100].copy()
     z[:, 100:180] = np.nan
     check_frame(z)
 
@@ -222,8 +211,7 @@ def test_either_side_of_the_list_limit() -> None:
     """The one call lists the labels only when at most half the frame may lie in the cuts (a frame-sized list made
     glibc map the scratch anew at every call); frames on either side, and with every pixel in the cuts, give the
     literal loop's mask."""
-    _, _, dense_frame = bench_kinds()
-    base = np.ascontiguousarray(dense_frame(17)[300:420, 200:456])
+    base = np.ascontiguousarray(bench_kinds()["dense"](17)[300:420, 200:456])
     cases = {}
     z = base.copy()
     z[:4, :4] = -100.0  # a few pixels below the cuts: the window is the frame, more than half in it

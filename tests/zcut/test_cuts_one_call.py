@@ -6,11 +6,10 @@ held-out piles at full size (seeds 22 to 26), large invalid regions and degenera
 from __future__ import annotations
 
 import itertools
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from bench_frames import bench_kinds
 
 from zcut import ZCutParams, find_clusters, zcut_outliers, zcut_outliers_reference
 from zcut.cut_tree import (
@@ -27,15 +26,6 @@ from zcut.cuts import PRUNE_CHECK, PRUNE_CHECK_ROWS, _finite_range, _levels, _pr
 from zcut.params import n_levels
 
 NOMINAL = dict(step=0.2, max_depth=30.0, max_area=210.0)
-
-
-def bench_kinds() -> tuple:
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-    try:
-        from bench_zcut import holes_frame, pile_frame
-    finally:
-        sys.path.pop(0)
-    return pile_frame, holes_frame
 
 
 def integer_codes(st: np.ndarray, b: int, c0: int, c1: int, Wp: int) -> np.ndarray:
@@ -145,8 +135,7 @@ def one_call(z: np.ndarray, *, step: float, max_depth: float, max_area: float, c
 def test_held_out_piles_at_full_size(seed: int) -> None:
     """The 1920 x 1200 piles at seeds the bench does not use (22 to 25 hold more pixels in the cuts than its pile):
     zcut_outliers (the one call) equals the passes called one by one and the whole tree's flood."""
-    pile_frame, _ = bench_kinds()
-    z = pile_frame(seed)
+    z = bench_kinds()["pile"](seed)
     got = zcut_outliers(z, **NOMINAL)
     np.testing.assert_array_equal(got, steps_outliers(z, **NOMINAL, minimum=65536))
     np.testing.assert_array_equal(got, find_clusters(z, params=ZCutParams(**NOMINAL)).outliers)
@@ -158,8 +147,8 @@ def test_held_out_piles_at_full_size(seed: int) -> None:
 def test_crops_with_large_invalid_regions(seed: int, connectivity: int) -> None:
     """Crops of the holes frame (a third of the width and big blocks invalid) and of a pile with its top rows
     invalid, through the one call and the passes one by one, against the literal loop."""
-    pile_frame, holes_frame = bench_kinds()
-    for z in (holes_frame(seed)[400:640, 500:900], pile_frame(seed)[450:650, 700:1000]):
+    kinds = bench_kinds()
+    for z in (kinds["holes"](seed)[400:640, 500:900], kinds["pile"](seed)[450:650, 700:1000]):
         z = z.copy()
         z[: z.shape[0] // 3, :] = np.nan  # a large invalid block more
         params = dict(NOMINAL, connectivity=connectivity)

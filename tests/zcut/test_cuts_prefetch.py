@@ -6,11 +6,9 @@ on real clouds; and the z-cut's masks on those frames against the previous full-
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from bench_frames import bench_kinds
 from test_cuts_fast import height_mm, previous_outliers
 
 from zcut import zcut_outliers
@@ -18,15 +16,6 @@ from zcut.cut_tree import PREFETCH_AHEAD, SEGMENT, finite_range
 from zcut.cuts import _finite_min_max, _finite_range
 
 NOMINAL = dict(step=0.2, max_depth=30.0, max_area=210.0)
-
-
-def bench_kinds() -> dict:
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-    try:
-        from bench_zcut import dense_frame, holes_frame, pile_frame
-    finally:
-        sys.path.pop(0)
-    return {"pile": pile_frame, "holes": holes_frame, "dense": dense_frame}
 
 
 def numpy_range(z: np.ndarray) -> tuple[int, float, float, np.ndarray]:

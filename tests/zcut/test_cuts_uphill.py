@@ -7,11 +7,10 @@ path forced whatever the frame's size."""
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from bench_frames import bench_kinds
 from gentle_state import gentle_labelled
 from test_cuts_fast import bumpy, check, height_mm, previous_outliers, pruned_outliers, terraces
 
@@ -21,15 +20,6 @@ from zcut.cuts import _finite_range, _levels
 from zcut.params import n_levels
 
 NOMINAL = dict(step=0.2, max_depth=30.0, max_area=210.0)
-
-
-def bench_frames() -> tuple:
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-    try:
-        from bench_zcut import dense_frame, holes_frame, pile_frame
-    finally:
-        sys.path.pop(0)
-    return pile_frame, dense_frame, holes_frame
 
 
 def prune_state(z: np.ndarray, *, step: float, max_depth: float, max_area: float, connectivity: int = 8,
@@ -211,8 +201,7 @@ def test_held_out_random_fields(seed: int) -> None:
 def test_held_out_bench_frames(kind: str, seed: int) -> None:
     """Crops of the benchmark's frame kinds at seeds the benchmark does not use, at nominal parameters: the
     pile (parts, floating patches, shadows), the dense noisy surface, large invalid regions."""
-    pile_frame, dense_frame, holes_frame = bench_frames()
-    z = {"pile": pile_frame, "dense": dense_frame, "holes": holes_frame}[kind](seed)
+    z = bench_kinds()[kind](seed)
     rng = np.random.default_rng(seed)
     r0, c0 = int(rng.integers(150, 750)), int(rng.integers(200, 1300))
     crop = np.ascontiguousarray(z[r0:r0 + 240, c0:c0 + 320])
@@ -225,8 +214,7 @@ def test_the_uphill_rule_leaves_out_more_of_the_pile() -> None:
     """On the benchmark's pile the pixels below the large gentle components go too: far fewer are flooded
     than the gentle components alone keep (30,422 of the whole frame's 117,023 pixels in the cuts before
     this rule, docs/performance.md), and the mask is the whole flood's."""
-    pile_frame, _, _ = bench_frames()
-    z = np.ascontiguousarray(pile_frame()[300:700, 500:1300])
+    z = np.ascontiguousarray(bench_kinds()["pile"]()[300:700, 500:1300])
     levels, left_out, m, keep, _ = prune_state(z, **NOMINAL)
     want = previous_outliers(z, **NOMINAL)
     assert want.any() and not (left_out & want).any()

@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import gc
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from log_helpers import decoded_in_full
+from subprocess_helpers import run_python
 
 from replay.logs.frame import Frame
 from replay.logs.mcap_scan import BufferPool
@@ -105,7 +105,7 @@ def test_the_command_line_keeps_opencv_threads_from_spinning(given: str | None, 
         env["OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER"] = given
     code = ("import os\nfrom replay.process import OPENCV_NO_SPIN, configure_process\nconfigure_process()\n"
             "print(' '.join(os.environ[n] for n in OPENCV_NO_SPIN))")
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    out = run_python(code, env=env, check=True).stdout
     assert out.split() == [expected, "0"]
 
 
@@ -117,7 +117,7 @@ def test_the_command_line_gives_its_threads_one_malloc_arena_unless_the_user_cho
     if given is not None:
         env["MALLOC_ARENA_MAX"] = given
     code = "from replay.process import one_malloc_arena\nprint(one_malloc_arena())"
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    out = run_python(code, env=env, check=True).stdout
     assert out.strip() == expected
 
 
@@ -133,7 +133,7 @@ def test_the_command_line_keeps_freed_memory_unless_the_user_tunes_malloc(given:
                                                                           expected: str) -> None:
     env = {k: v for k, v in os.environ.items() if not k.startswith(("MALLOC_", "GLIBC_TUNABLES"))} | given
     code = "from replay.process import keep_freed_memory\nprint(keep_freed_memory())"
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    out = run_python(code, env=env, check=True).stdout
     assert out.strip() == expected
 
 
@@ -163,8 +163,7 @@ def test_memory_a_frame_frees_is_reused_without_faulting_it_in_again() -> None:
     env = {k: v for k, v in os.environ.items() if not k.startswith(("MALLOC_", "GLIBC_TUNABLES"))}
     got = {}
     for how in ("configured", "default"):
-        out = subprocess.run([sys.executable, "-c", _REFAULTS, how], env=env, capture_output=True, text=True,
-                             check=True).stdout
+        out = run_python(_REFAULTS, how, env=env, check=True).stdout
         got[how] = [int(v) for v in out.split()]
     first, later = got["configured"][0], got["configured"][1:]
     assert first >= 20 and max(later) <= 2, got  # the first array's pages are faulted in once, then reused

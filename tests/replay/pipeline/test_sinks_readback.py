@@ -8,14 +8,13 @@ message of the results file (its masks and codes, byte for byte) read back equal
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import rerun as rr
 from log_helpers import rrd_rows as log_rrd_rows
 from mcap.reader import make_reader
+from subprocess_helpers import run_python
 
 from replay.logs import layout
 from replay.logs import ros2_msgs as rm
@@ -157,7 +156,7 @@ def test_a_compare_recording_does_not_load_pyarrow_compute(tmp_path):
             "rec.frame(0, 0, jpeg=None, image=v, points=np.zeros((2, 3), np.float32), point_ids=np.ones(2, np.uint8),\n"
             "          verdict_a=v, verdict_b=v, diff=v, scalars={'a/scalars/f1': 0.5})\n"
             "print('pyarrow.compute' in sys.modules)\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), timeout=300)
+    out = run_python(code, cwd=ROOT, timeout=300)
     assert out.returncode == 0 and out.stdout.strip() == "False", out.stderr
 
 
@@ -167,5 +166,5 @@ def test_a_rerun_sink_loads_rerun_when_it_is_made():
             "RerunSink(rrd='never_written.rrd')\nResultsSink('never_written.mcap')\n"
             "assert 'rerun' in sys.modules and 'replay.logs.writer' in sys.modules\n"
             "print('ok')\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), timeout=300)
+    out = run_python(code, cwd=ROOT, timeout=300)
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr

@@ -16,14 +16,13 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 from log_helpers import invalid_blobs, writer_like
+from subprocess_helpers import run_python
 
 from replay.logs.frame import Frame
 from replay.logs.reader import LogReader
@@ -83,8 +82,7 @@ def _replay(logs: list[Path], *, layer: str, in_flight: int, threads: int | None
         env["NUMBA_THREADING_LAYER"] = layer
     if threads is not None:
         env["NUMBA_NUM_THREADS"] = str(threads)
-    out = subprocess.run([sys.executable, "-c", _REPLAY, str(in_flight), *map(str, logs)], env=env, cwd=ROOT,
-                         capture_output=True, text=True)
+    out = run_python(_REPLAY, str(in_flight), *map(str, logs), cwd=ROOT, env=env)
     assert out.returncode == 0, out.stderr[-3000:]
     got: list[dict[str, Any]] = json.loads(out.stdout.strip().splitlines()[-1])
     assert len(got) == len(logs)
@@ -235,8 +233,7 @@ def test_the_parallel_kernels_on_degenerate_shapes_whatever_the_threads(layer):
     env.update(PYTHONPATH=str(ROOT), NUMBA_NUM_THREADS="3")
     if layer != "default":
         env["NUMBA_THREADING_LAYER"] = layer
-    out = subprocess.run([sys.executable, "-c", _KERNELS, "1", "2", "3"], env=env, cwd=ROOT, capture_output=True,
-                         text=True)
+    out = run_python(_KERNELS, "1", "2", "3", cwd=ROOT, env=env)
     assert out.returncode == 0, out.stderr[-3000:]
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got["layer"] == ("omp" if layer == "default" else layer)
@@ -275,7 +272,7 @@ def test_the_command_lines_layer_and_frames_in_flight(env, layer, in_flight, hol
     full = {k: v for k, v in os.environ.items()
             if not k.startswith(("NUMBA_THREADING", "NUMBA_NUM_THREADS", "ZCUT_FRAMES_IN_FLIGHT"))}
     full.update(PYTHONPATH=str(ROOT), **env)
-    out = subprocess.run([sys.executable, "-c", _DEFAULTS], env=full, cwd=ROOT, capture_output=True, text=True)
+    out = run_python(_DEFAULTS, cwd=ROOT, env=full)
     assert out.returncode == 0, out.stderr[-3000:]
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got == {"layer": layer, "before": min(in_flight, 2), "after": in_flight, "holds_lock": holds_lock}
@@ -291,5 +288,5 @@ def test_openmp_workers_do_not_spin_unless_the_user_says(given, expected):
     code = ("import os\nfrom replay.process import configure_process\nconfigure_process()\n"
             "print('|'.join(os.environ.get(n, '-') for n in ('OMP_WAIT_POLICY', 'GOMP_SPINCOUNT',"
             " 'NUMBA_THREADING_LAYER_PRIORITY')))")
-    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True, text=True, check=True)
+    out = run_python(code, cwd=ROOT, env=env, check=True)
     assert out.stdout.strip().split("|") == expected
