@@ -12,10 +12,9 @@ import numba
 import numpy as np
 
 from ..cloud import check_mask
-from ..cut_tree import SHALLOW_LEVELS, qlevel
-from ..cuts import MAX_STAGE_LEVELS, find_clusters, zcut_outliers
+from ..cuts import MAX_STAGE_LEVELS, find_clusters
 from ..errors import InputShapeError, describe_array
-from ..params import SuspectParams, ZCutParams, n_levels
+from ..params import SuspectParams, ZCutParams
 from ..types import FloatImage, Labels, Mask
 from .detectors import _DC, _DR, label_medians
 from .noise import NoiseProfile
@@ -303,135 +302,6 @@ def _kept_ring(lab, keep, zone, valid, h, n_max, mask):  # type: ignore[no-untyp
     return idx[:n], rl[:m], rh[:m]
 
 
-@numba.njit(cache=True)
-def _mask_labels(mask, lab):  # type: ignore[no-untyped-def]  # numba kernel
-    """The 8-connected components of ``mask`` into ``lab`` ((H, W) int32, zeros: 1..n, numbered in raster order
-    of their first pixel, as the z-cut numbers its clusters); their pixel counts (n,) int64."""
-    H, W = mask.shape
-    cap = 1024
-    parent = np.empty(cap, np.int64)
-    px = np.empty(cap, np.int64)
-    m = 0
-    n = 0
-    for i in range(H):
-        for j in range(W):
-            if not mask[i, j]:
-                continue
-            r = -1
-            for a, b in ((i, j - 1), (i - 1, j - 1), (i - 1, j), (i - 1, j + 1)):
-                if a < 0 or b < 0 or b >= W:
-                    continue
-                c = lab[a, b]
-                if c == 0:
-                    continue
-                c -= 1
-                while parent[c] != c:  # its root (the path halved on the way)
-                    parent[c] = parent[parent[c]]
-                    c = parent[c]
-                if r < 0:
-                    r = c
-                elif c != r:  # the smaller provisional label (the one first in raster order) stays the root
-                    if c < r:
-                        parent[r] = c
-                        r = c
-                    else:
-                        parent[c] = r
-            if r < 0:
-                if n == parent.size:
-                    p2 = np.empty(2 * n, np.int64)
-                    p2[:n] = parent
-                    parent = p2
-                parent[n] = n
-                r = n
-                n += 1
-            lab[i, j] = r + 1
-            if m == px.size:
-                q2 = np.empty(2 * m, np.int64)
-                q2[:m] = px
-                px = q2
-            px[m] = i * W + j
-            m += 1
-    final = np.zeros(n, np.int64)
-    k = 0
-    for c in range(n):  # roots in increasing provisional label: raster order of their first pixels
-        if parent[c] == c:
-            k += 1
-            final[c] = k
-        else:
-            final[c] = final[parent[c]]  # the parent's label is smaller: final already
-    areas = np.zeros(k, np.int64)
-    f = lab.reshape(-1)
-    for t in range(m):
-        c = final[f[px[t]] - 1]
-        f[px[t]] = c
-        areas[c - 1] += 1
-    return areas
-
-
-@numba.njit(cache=True)
-def _compressed_levels(hz, z_min, z_max, step, K, out):  # type: ignore[no-untyped-def]  # numba kernel
-    """The z-cut's level q of every finite height of ``hz`` (:func:`zcut.cut_tree.qlevel`, the deepest level Q
-    of ``z_min``), its gaps between occupied levels shortened: ``out`` = -f(q), f(0) = 0, the gap to the next
-    occupied level capped at 3 for the first and 2 for the others; NaN where ``hz`` is not finite. Returns
-    f(Q), or -1 when K < Q (not done)."""
-    H, W = hz.shape
-    Q = qlevel(z_min, z_max, step, np.int64(K + 2))
-    if Q > K:
-        return -1
-    occ = np.zeros(Q + 1, np.bool_)
-    for i in range(H):
-        for j in range(W):
-            v = hz[i, j]
-            if np.isfinite(v):
-                q = qlevel(v, z_max, step, np.int64(K + 2))
-                occ[q] = True
-                out[i, j] = q  # the level, for now
-    f = np.zeros(Q + 1, np.int64)
-    last = 0
-    cur = 0
-    for q in range(1, Q + 1):
-        if occ[q]:
-            cur += min(q - last, 3 if last == 0 else 2)
-            f[q] = cur
-            last = q
-    for i in range(H):
-        for j in range(W):
-            v = hz[i, j]
-            out[i, j] = -np.float64(f[np.int64(out[i, j])]) if np.isfinite(v) else np.nan
-    return f[Q]
-
-
-def floating_clusters(hz: np.ndarray, z_min: float, z_max: float, params: ZCutParams) -> tuple[Labels, np.ndarray]:
-    """:func:`zcut.cuts.find_clusters` ``(hz, params=params)``'s ``clusters`` and ``areas``, bit for bit, for the
-    floating detector's cut: ``z_min``, ``z_max`` the extremes of the finite heights of ``hz`` (C-contiguous
-    float64), ``params`` of the default connectivity (8).
-
-    The outlier mask is :func:`zcut.cuts.zcut_outliers`' (the flood over the small gentle components only), and
-    the clusters are its 8-connected components, numbered in raster order: two outermost tagged nodes are never
-    neighbours (the deeper one's neighbours outside it lie at least two levels below its birth, deeper than the
-    other's pixels), and with ``max_area`` at most the frame's pixels no tagged node holds an invalid pixel (those
-    stand at the deepest level Q, where the cut is the whole frame, the root). With Q + 2 or more levels, the
-    pruned flood does not apply (``SHALLOW_LEVELS``): the heights are replaced by their levels with the gaps
-    between occupied levels shortened (:func:`_compressed_levels`). A node's pixels and size stay the same, and
-    so does whether it lives through two levels (born at b, ending at e: max(b, 1) <= e - 2), so the tagged
-    nodes do too; then the cut is of step 1 and K' = f(Q) + min(K - Q, 1). Other cases: find_clusters."""
-    H, W = hz.shape
-    K = n_levels(params.step, params.max_depth)
-    if params.connectivity != 8 or not params.max_area <= H * W or K > MAX_STAGE_LEVELS:
-        cut = find_clusters(hz, params=params)
-        return cut.clusters, cut.areas
-    Q = int(qlevel(z_min, z_max, params.step, np.int64(K + 2)))
-    if min(K, Q + 1) + 1 < SHALLOW_LEVELS or Q > K:
-        mask = zcut_outliers(hz, step=params.step, max_depth=params.max_depth, max_area=params.max_area)
-    else:
-        z2 = np.empty((H, W))
-        fq = int(_compressed_levels(hz, z_min, z_max, params.step, K, z2))
-        mask = zcut_outliers(z2, step=1.0, max_depth=float(fq + min(K - Q, 1)), max_area=params.max_area)
-    lab = np.zeros((H, W), np.int32)
-    areas = _mask_labels(mask, lab)
-    return lab, areas
-
-
 def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: Mask, params: SuspectParams,
                         a_max: float, step: float, profile: NoiseProfile) -> tuple[Mask, np.ndarray, np.ndarray]:
     """The floating detector: z-cut components over the zone's whole height range (see module notes).
@@ -449,12 +319,11 @@ def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: M
     span = float(hi - lo)  # (a zero's sign may differ from hz[fin]'s max / min: the step and depth do not)
     step = max(step, span / (MAX_STAGE_LEVELS - 2))  # every level of the range within find_clusters' cap
     depth = span + step
-    lab, areas = floating_clusters(hz, float(lo), float(hi),
-                                   ZCutParams(step=step, max_depth=depth, max_area=params.floating_rho * a_max))
-    n = int(areas.size)
+    cut = find_clusters(hz, params=ZCutParams(step=step, max_depth=depth, max_area=params.floating_rho * a_max))
+    n = cut.n_clusters
     if n == 0:
         return none
-    # lab: int32, 1..n, C-contiguous (find_clusters' clusters)
+    lab = cut.clusters  # int32, 1..n, C-contiguous (find_clusters' own array)
     size, holes_n, edges, edges_valid, n_rough, lowest, highest_out = _evidence_kernel(
         lab, np.ascontiguousarray(valid), np.ascontiguousarray(rough), hz, n)
     holes, rough_frac, ring, clearance = _fractions(size, holes_n, edges, edges_valid, n_rough, lowest, highest_out)
@@ -463,11 +332,11 @@ def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: M
     lowest = lowest[1:]
     clear = clearance > np.maximum(FLOATING_CLEARANCE_SIGMAS * profile.sigma_at(lowest),
                                    FLOATING_CLEARANCE_STEPS * profile.step_at(lowest))
-    keep = clear & ((areas < params.plain_rho * a_max) | (holes >= params.evidence_holes)
+    keep = clear & ((cut.areas < params.plain_rho * a_max) | (holes >= params.evidence_holes)
                     | (rough_frac >= params.evidence_inconsistent) | (ring >= params.evidence_ring_valid))
     mask = np.empty((H, W), bool)
     idx, ring_lab, ring_h = _kept_ring(lab, np.concatenate([[False], keep]), zone, valid, height_mm,
-                                       int(areas.sum()), mask)
+                                       int(cut.areas.sum()), mask)
     if idx.size == 0:
         return mask, idx, np.zeros(0)
     ring_med = label_medians(ring_h, ring_lab, n)
