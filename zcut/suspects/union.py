@@ -543,8 +543,9 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
               else off)
     rough = np.empty((H, W), bool)
     _rough(zone, residual, tau, rough)  # in the zone: inf (no continuation) is rough
+    # the zone's heights in the jump's array (surface_residuals, its only reader, is done; the gate takes it later)
     floating, floating_at, floating_gap = floating_components(h_zcut, zone, judged_ctx, rough, params, a_max,
-                                                              step, profile)
+                                                              step, profile, hz=ws.empty("jump", (H, W)))
 
     # the codes, and the gaps: a floating pixel's over the measured pixels bordering its component; a
     # pixel off the surface, its residual (to the nearest continuation) or, with edge_surface, its distance
