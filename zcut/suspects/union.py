@@ -21,7 +21,7 @@ from .gaps import GAP_MAX_RADIUS, GAP_MIN_PIXELS, _gap_kernel
 from .grouping import group_suspects
 from .noise import NoiseProfile, local_height, noise_profile
 from .residuals import fill_blobs, surface_residuals
-from .select import order_pair
+from .select import order_pair_large
 from .surfaces import LazySurfaces, gate_arrays, lazy_surfaces
 
 
@@ -268,9 +268,10 @@ def _interp_in_place(a, xp, fp):  # type: ignore[no-untyped-def]  # numba kernel
             f[s0 + t] = v
 
 
-def _sigma_px(profile: NoiseProfile, context: np.ndarray) -> np.ndarray:
-    """``profile.sigma_at(local_height(context))``, the lookup in place of the local heights."""
-    lh = local_height(context)
+def _sigma_px(profile: NoiseProfile, context: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
+    """``profile.sigma_at(local_height(context))``, the lookup in place of the local heights (in ``out`` when
+    given: :func:`local_height`'s)."""
+    lh = local_height(context, out=out)
     if profile.heights_mm.size == 0:
         return np.zeros(lh.shape)
     xp = np.ascontiguousarray(profile.heights_mm, np.float64)
@@ -424,9 +425,9 @@ def _sigma_and_tau_medians(sigma_px: np.ndarray, params: SuspectParams) -> tuple
 
     h = n // 2
     if n % 2:
-        x = order_pair(sigma_px, h, h)[0]
+        x = order_pair_large(sigma_px, h, h)[0]
         return x, tau(x)
-    a, b = order_pair(sigma_px, h - 1, h)
+    a, b = order_pair_large(sigma_px, h - 1, h)
     return (a + b) / 2.0, (tau(a) + tau(b)) / 2.0
 
 
@@ -496,10 +497,11 @@ def suspects(
         return _suspects(a, h_img, zone, easy, params, edge_surface, ws)
 
 
-#: the call's scratch images (τ; the jump, then the gate's lower ends; the gate's upper ends, then the grouping's
-#: strength; the gate's pixels: H · W doubles each, ~74 MB at 1920 × 1200), kept between calls, one workspace per
-#: thread (:func:`scratch_workspace`): made fresh each call, their pages were faulted in afresh (docs/performance.md,
-#: the suspects' tenth and eleventh rounds)
+#: the call's scratch images (τ; the jump, then the zone's heights of the floating cut, then the gate's lower ends;
+#: σ̂ per pixel, then the gate's upper ends, then the grouping's strength; σ̂ in the zone, then the gate's pixels:
+#: H · W doubles each, ~74 MB at 1920 × 1200), kept between calls, one workspace per thread
+#: (:func:`scratch_workspace`): made fresh each call, their pages were faulted in afresh (docs/performance.md, the
+#: suspects' tenth, eleventh and thirteenth rounds)
 _SCRATCH = threading.local()
 
 #: what a thread's :func:`scratch_workspace` keeps between calls at most (its ``max_bytes``): the images of a frame
@@ -527,12 +529,20 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
     h_zcut = np.ascontiguousarray(h_img, dtype=np.float64)
 
     profile = noise_profile(context, zone)
-    sigma_px = _sigma_px(profile, context)  # profile.sigma_at(local_height(context))
+    # profile.sigma_at(local_height(context)), in the strength's array (not written until after the gate; σ̂ is
+    # read by the thresholds and its medians only)
+    sigma_px = _sigma_px(profile, context, out=ws.empty("strength", (H, W)))
     sigma_px = np.ascontiguousarray(sigma_px, dtype=np.float64)
     tau, jump = ws.empty("tau", (H, W)), ws.empty("jump", (H, W))
     _thresholds(sigma_px, params.noise_k, params.min_residual_mm, params.jump_mm, tau, jump)
-    sigma, threshold = (_sigma_and_tau_medians(sigma_px[zone], params) if zone.any()
-                        else (0.0, float(params.min_residual_mm)))
+    n_zone = int(np.count_nonzero(zone))
+    if n_zone:  # σ̂ in the zone, in the gate's pixels' array (not in use until the gate)
+        in_zone = ws.empty("gate_at", (H * W,))[:n_zone]  # (the gate's size: one array kept, not grown)
+        np.compress(zone.reshape(-1), sigma_px.reshape(-1), out=in_zone)
+        sigma, threshold = _sigma_and_tau_medians(in_zone, params)
+        del in_zone
+    else:
+        sigma, threshold = 0.0, float(params.min_residual_mm)
     step = max(params.floating_step_mm, FLOATING_STEP_SIGMAS * sigma)
     a_max = params.a_max if params.a_max is not None else max(0.01 * H * W, 1.0)
 
