@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import sys
 import threading
 from dataclasses import dataclass
 
@@ -521,6 +522,37 @@ def scratch_workspace() -> SorWorkspace:
     return ws
 
 
+#: the frame in mm (``a.astype(np.float64) * 1000.0``, H · W · 3 doubles, ~55 MB at 1920 × 1200) of the thread's last
+#: call with edge surfaces, which its result's surfaces hold: the next call writes its frame into it when nothing else
+#: holds it any more (that result dropped), else into a fresh one. Made fresh each call, an image that large was
+#: mapped anew, its pages faulted in at every call (docs/performance.md, the suspects' thirteenth round)
+_FRAME = threading.local()
+
+
+def _frame_mm_array(shape: tuple[int, ...]) -> np.ndarray:
+    """An uninitialized float64 array of ``shape`` for the frame in mm: the thread's last one (:data:`_FRAME`) when
+    it has that shape and no one holds it any more (its only references: this function's), else a fresh one."""
+    held = getattr(_FRAME, "a_mm", None)
+    _FRAME.a_mm = None
+    # references: `held` and getrefcount's argument; a result's surfaces, or a view of the array, add theirs
+    if held is not None and held.shape == shape and held.dtype == np.float64 and sys.getrefcount(held) == 2:
+        return held  # type: ignore[no-any-return]
+    del held
+    return np.empty(shape)
+
+
+def _keep_frame_mm(a_mm: np.ndarray, ws: SorWorkspace) -> None:
+    """Keep ``a_mm`` as the thread's last frame in mm (:func:`_frame_mm_array`) when it and the scratch images of
+    ``ws`` hold at most :data:`SCRATCH_KEPT_BYTES` together: what the thread keeps between calls stays bounded."""
+    if a_mm.base is None and a_mm.nbytes + ws.nbytes <= SCRATCH_KEPT_BYTES:
+        _FRAME.a_mm = a_mm
+
+
+def release_frame_mm() -> None:
+    """Drop the calling thread's kept frame in mm (:func:`_frame_mm_array`); a result still holding it keeps it."""
+    _FRAME.a_mm = None
+
+
 def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: SuspectParams,
               edge_surface: EdgeSurfaceParams | None, ws: SorWorkspace) -> SuspectResult:
     """:func:`suspects` after its checks, its scratch images taken from ``ws``."""
@@ -576,7 +608,7 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
         # np.multiply(a, 1000.0, dtype=np.float64) took 3 x as long as a copy then the product in place,
         # which take two); a float32 frame's valid points stay finite in mm, so only a float64 one needs
         # edge_surfaces' check
-        a_mm = np.empty(a.shape)
+        a_mm = _frame_mm_array(a.shape)
         if a.dtype in (np.float32, np.float64) and a.flags.c_contiguous:
             _frame_mm(a, a_mm)  # one pass
         else:
@@ -584,6 +616,7 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
             np.multiply(a_mm, 1000.0, out=a_mm)
         if a.dtype != np.float32:
             a_mm, _, _ = _check_args(a_mm, valid, edge_surface)
+        _keep_frame_mm(a_mm, ws)
         # the gate's arrays: the jump's (read by surface_residuals only), the strength's (not written yet) and one
         # more; the gate is done with them when lazy_surfaces returns
         gate = gate_arrays(ws, H * W, ("jump", "strength", "gate_at"))
