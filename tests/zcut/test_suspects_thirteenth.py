@@ -259,3 +259,20 @@ def test_frame_in_mm_reused_only_when_no_one_holds_it() -> None:
     assert union._FRAME.a_mm.nbytes + union.scratch_workspace().nbytes <= union.SCRATCH_KEPT_BYTES
     union.release_frame_mm()
     assert union._FRAME.a_mm is None
+
+
+def test_in_zone_equals_boolean_indexing() -> None:
+    """σ̂ in the zone gathered into a longer array filled with garbage: ``a[zone]``, in order (NaN, -0.0 kept)."""
+    from zcut.suspects.union import _in_zone
+
+    rng = np.random.default_rng(1309)
+    for t in range(40):
+        H, W = (int(rng.integers(0, 3)), int(rng.integers(0, 4))) if t % 8 == 0 else (int(rng.integers(1, 80)),
+                                                                                    int(rng.integers(1, 90)))
+        a = rng.random((H, W))
+        a[rng.random((H, W)) < 0.1] = np.nan
+        a[rng.random((H, W)) < 0.1] = -0.0
+        zone = rng.random((H, W)) < float(rng.choice([0.0, 0.5, 1.0]))
+        out = np.full(H * W, 1e300)
+        n = int(_in_zone(a, zone, out))
+        assert np.array_equal(out[:n].view(np.int64), a[zone].view(np.int64))

@@ -412,6 +412,19 @@ def _group_tables(groups, codes, n):  # type: ignore[no-untyped-def]  # numba ke
     return size, bits, bbox, idx
 
 
+@numba.njit(cache=True)
+def _in_zone(a, zone, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """``a[zone]`` into ``out`` (H · W entries: each value written at the next free entry, kept when in the zone,
+    without a branch); their count."""
+    f = a.reshape(-1)
+    z = zone.reshape(-1)
+    n = 0
+    for q in range(f.size):
+        out[n] = f[q]
+        n += z[q]
+    return n
+
+
 def _sigma_and_tau_medians(sigma_px: np.ndarray, params: SuspectParams) -> tuple[float, float]:
     """The medians of σ̂ and of τ = max(min_residual_mm, noise_k · σ̂) over the zone (``sigma_px``: σ̂ there,
     not modified), from one selection: τ is a non-decreasing function of σ̂
@@ -567,14 +580,13 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
     sigma_px = np.ascontiguousarray(sigma_px, dtype=np.float64)
     tau, jump = ws.empty("tau", (H, W)), ws.empty("jump", (H, W))
     _thresholds(sigma_px, params.noise_k, params.min_residual_mm, params.jump_mm, tau, jump)
-    n_zone = int(np.count_nonzero(zone))
-    if n_zone:  # σ̂ in the zone, in the gate's pixels' array (not in use until the gate)
-        in_zone = ws.empty("gate_at", (H * W,))[:n_zone]  # (the gate's size: one array kept, not grown)
-        np.compress(zone.reshape(-1), sigma_px.reshape(-1), out=in_zone)
-        sigma, threshold = _sigma_and_tau_medians(in_zone, params)
-        del in_zone
-    else:
-        sigma, threshold = 0.0, float(params.min_residual_mm)
+    # σ̂ in the zone (sigma_px[zone]), in the gate's pixels' array (not in use until the gate; the gate's size: one
+    # array kept, not grown)
+    in_zone = ws.empty("gate_at", (H * W,))
+    n_zone = int(_in_zone(sigma_px, zone, in_zone))
+    sigma, threshold = (_sigma_and_tau_medians(in_zone[:n_zone], params) if n_zone
+                        else (0.0, float(params.min_residual_mm)))
+    del in_zone
     step = max(params.floating_step_mm, FLOATING_STEP_SIGMAS * sigma)
     a_max = params.a_max if params.a_max is not None else max(0.01 * H * W, 1.0)
 
