@@ -218,12 +218,19 @@ def test_local_height_in_a_given_array() -> None:
             local_height(h, out=bad)
 
 
-def test_frame_in_mm_reused_only_when_no_one_holds_it() -> None:
+def test_frame_in_mm_reused_only_when_no_one_holds_it(monkeypatch: pytest.MonkeyPatch) -> None:
     """The thread's last frame in mm is written again by the next call only once the result holding it is gone
     (``suspects_reference``'s results every time, the earlier result kept intact while held); a frame of another
-    shape, or the kept one released, takes a fresh array; nothing the thread keeps exceeds the bound."""
+    shape, or the kept one released, takes a fresh array; nothing the thread keeps exceeds the bound. Frames below
+    ``FRAME_KEPT_MIN_BYTES`` are not kept (the small frames here: kept with the threshold at 0)."""
     from zcut.suspects import union
 
+    union.release_frame_mm()
+    small = np.ascontiguousarray(_fuzz_cloud(np.random.default_rng(1310), 20, 30)) / 1000.0
+    res = suspects(small, -1000.0 * small[..., 2], np.isfinite(small).all(axis=2), params=SuspectParams(),
+                   edge_surface=EdgeSurfaceParams())
+    assert res._surfaces is not None and union._FRAME.a_mm is None  # below the threshold: not kept
+    monkeypatch.setattr(union, "FRAME_KEPT_MIN_BYTES", 0)
     rng = np.random.default_rng(1308)
     frames = [np.ascontiguousarray(_fuzz_cloud(rng, 50, 70)) / 1000.0 for _ in range(2)]
     frames.append(np.ascontiguousarray(_fuzz_cloud(rng, 30, 40)) / 1000.0)
