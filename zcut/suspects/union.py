@@ -279,8 +279,8 @@ def _sigma_px(profile: NoiseProfile, context: np.ndarray, *, out: np.ndarray | N
     fp = np.ascontiguousarray(profile.sigma_mm, np.float64)
     if not (np.isfinite(xp).all() and (xp[1:] >= xp[:-1]).all()):  # not a profile's heights: numpy's lookup
         _nan_to_num(lh, float(xp[0]))
-        out: np.ndarray = np.interp(lh, xp, fp)
-        return out
+        looked_up: np.ndarray = np.interp(lh, xp, fp)
+        return looked_up
     _interp_in_place(lh, xp, fp)
     return lh
 
@@ -549,7 +549,7 @@ def _frame_mm_array(shape: tuple[int, ...]) -> np.ndarray:
     _FRAME.a_mm = None
     # references: `held` and getrefcount's argument; a result's surfaces, or a view of the array, add theirs
     if held is not None and held.shape == shape and held.dtype == np.float64 and sys.getrefcount(held) == 2:
-        return held  # type: ignore[no-any-return]
+        return held
     del held
     return np.empty(shape)
 
