@@ -303,15 +303,22 @@ def _kept_ring(lab, keep, zone, valid, h, n_max, mask):  # type: ignore[no-untyp
 
 
 def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: Mask, params: SuspectParams,
-                        a_max: float, step: float, profile: NoiseProfile) -> tuple[Mask, np.ndarray, np.ndarray]:
+                        a_max: float, step: float, profile: NoiseProfile, *, hz: np.ndarray | None = None
+                        ) -> tuple[Mask, np.ndarray, np.ndarray]:
     """The floating detector: z-cut components over the zone's whole height range (see module notes).
 
     ``height_mm`` C-contiguous float64. Returns the mask, the flat indices of its pixels (raster order)
     and there their gap (mm) over the median height of the measured pixels bordering their component
-    (NaN when none borders it). Without frame-sized temporaries but the zone's heights and the mask.
+    (NaN when none borders it). Without frame-sized temporaries but the zone's heights and the mask; ``hz``:
+    an (H, W) float64 C-contiguous array for the zone's heights (a caller's scratch; nothing returned is a view
+    of it), else a fresh one.
     """
     H, W = zone.shape
-    hz = np.empty((H, W))
+    if hz is None:
+        hz = np.empty((H, W))
+    elif hz.shape != (H, W) or hz.dtype != np.float64 or not hz.flags.c_contiguous:
+        raise InputShapeError(f"hz must be an (H, W) C-contiguous float64 array like zone {(H, W)}, "
+                              f"got {describe_array(hz)}")
     lo, hi = _zone_heights(height_mm, zone, hz)
     none = (np.zeros(zone.shape, bool), np.zeros(0, np.int64), np.zeros(0))
     if not lo <= hi:  # no finite height in the zone

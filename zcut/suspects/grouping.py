@@ -595,10 +595,16 @@ def _label_classes(values, labels, n, bounds):  # type: ignore[no-untyped-def]  
         if c == 0:
             out[g - 1] = bounds.size
             continue
-        seg = np.sort(buf[start[g]:start[g] + c])
-        lo = (c - 1) // 2
-        hi = c // 2
-        med = seg[lo] if lo == hi else 0.5 * (seg[lo] + seg[hi])
+        s0 = start[g]
+        if c == 1:  # most labels: one or two values, no sort (a + b is b + a)
+            med = buf[s0]
+        elif c == 2:
+            med = 0.5 * (buf[s0] + buf[s0 + 1])
+        else:
+            seg = np.sort(buf[s0:s0 + c])
+            lo = (c - 1) // 2
+            hi = c // 2
+            med = seg[lo] if lo == hi else 0.5 * (seg[lo] + seg[hi])
         k = 0
         while k < bounds.size and bounds[k] <= med:
             k += 1

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..cloud import check_mask
+from ..errors import InputShapeError, describe_array
 from ..types import FloatImage, Mask
 from .select import stable_argsort
 
@@ -124,12 +125,17 @@ def _local_height_kernel(h, out):  # type: ignore[no-untyped-def]  # numba kerne
             out[i, j] = lo if n % 2 == 1 else 0.5 * (lo + hi)
 
 
-def local_height(height: FloatImage) -> np.ndarray:
+def local_height(height: FloatImage, *, out: np.ndarray | None = None) -> np.ndarray:
     """The median of each pixel's height and its 4 neighbours' (measured ones only; NaN where the
     pixel is not measured): the height at which to look up the noise of a pixel, so that a spike
-    gets the noise of the surface it sticks out of."""
+    gets the noise of the surface it sticks out of. ``out``: an (H, W) C-contiguous float64 array for it
+    (not the heights' own; a caller's scratch), else a fresh one."""
     h = np.ascontiguousarray(height, dtype=np.float64)
-    out = np.empty(h.shape)
+    if out is None:
+        out = np.empty(h.shape)
+    elif out.shape != h.shape or out.dtype != np.float64 or not out.flags.c_contiguous or np.shares_memory(out, h):
+        raise InputShapeError(f"out must be a C-contiguous float64 array of the heights' shape {h.shape}, apart "
+                              f"from them, got {describe_array(out)}")
     _local_height_kernel(h, out)
     return out
 

@@ -112,6 +112,164 @@ def order_pair(x: np.ndarray, k0: int, k1: int) -> tuple[float, float]:
     return float(t[k0]), float(t[k1])
 
 
+# :func:`kth_of_both`: the sample (every _SAMPLE_EVERY-th value of the first array) and the window's half-width in
+# the sample's ranks, _SAMPLE_SIGMAS × its rank's standard deviation (~sqrt(n) / 2 at the middle) plus a few
+_SAMPLE_EVERY = 32
+_SAMPLE_SIGMAS = 6.0
+# below this many values, :func:`order_pair` of each array
+_SAMPLE_MIN = 1 << 16
+
+
+@numba.njit(cache=True)
+def _window_counts(x, y, a):  # type: ignore[no-untyped-def]  # numba kernel
+    """The counts of x and of y below ``a`` (x.size = y.size), and of the NaN's in either, in one pass without a
+    branch (in vector lanes: a value is below the window about half the time, at random)."""
+    cx = 0
+    cy = 0
+    nan = 0
+    for k in range(x.size):
+        u = x[k]
+        v = y[k]
+        cx += u < a
+        cy += v < a
+        nan += (u != u) | (v != v)
+    return cx, cy, nan
+
+
+@numba.njit(cache=True)
+def _window_values(x, y, a, b, bx, by):  # type: ignore[no-untyped-def]  # numba kernel
+    """The values of x and of y in [a, b] (0 < a <= b; no NaN in x or y), in order, into ``bx`` / ``by``; their
+    counts. A value's bits, less a's, as an unsigned integer, are at most b's less a's exactly when the value is
+    in the window (a value below a, -0.0 and the negatives among them, wraps around to a large one): one
+    comparison a value, its branch rarely taken."""
+    kx = x.view(np.int64)
+    ky = y.view(np.int64)
+    ends = np.empty(2)
+    ends[0] = a
+    ends[1] = b
+    ke = ends.view(np.int64)
+    ka = ke[0]
+    span = np.uint64(ke[1] - ka)
+    nx = 0
+    ny = 0
+    for k in range(x.size):
+        if np.uint64(kx[k] - ka) <= span:
+            bx[nx] = x[k]
+            nx += 1
+        if np.uint64(ky[k] - ka) <= span:
+            by[ny] = y[k]
+            ny += 1
+    return nx, ny
+
+
+@numba.njit(cache=True)
+def _window_count_one(x, a):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_window_counts` of one array: its count below ``a`` and of its NaN's."""
+    c = 0
+    nan = 0
+    for k in range(x.size):
+        u = x[k]
+        c += u < a
+        nan += u != u
+    return c, nan
+
+
+@numba.njit(cache=True)
+def _window_values_one(x, a, b, bx):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`_window_values` of one array."""
+    kx = x.view(np.int64)
+    ends = np.empty(2)
+    ends[0] = a
+    ends[1] = b
+    ke = ends.view(np.int64)
+    ka = ke[0]
+    span = np.uint64(ke[1] - ka)
+    nx = 0
+    for k in range(x.size):
+        if np.uint64(kx[k] - ka) <= span:
+            bx[nx] = x[k]
+            nx += 1
+    return nx
+
+
+def _sample_window(x: np.ndarray, k0: int, k1: int) -> tuple[float, float]:
+    """A window [a, b] that likely holds the k0-th to the k1-th smallest values of ``x`` (k0 <= k1): the values of
+    the sample (every ``_SAMPLE_EVERY``-th value) ``_SAMPLE_SIGMAS`` standard deviations of their rank around
+    them (-inf, +inf past the sample's ends)."""
+    n = x.size
+    sample = np.ascontiguousarray(x[::_SAMPLE_EVERY])
+    ns = sample.size
+    half = int(_SAMPLE_SIGMAS * 0.5 * np.sqrt(ns)) + 4
+    r0 = k0 * ns // n - half
+    r1 = k1 * ns // n + half
+    a = order_pair(sample, r0, r0)[0] if r0 >= 0 else -np.inf
+    b = order_pair(sample, r1, r1)[0] if r1 < ns else np.inf
+    return a, b
+
+
+def order_pair_large(x: np.ndarray, k0: int, k1: int) -> tuple[float, float]:
+    """:func:`order_pair` ``(x, k0, k1)``, the same values, for large arrays: a window from a sample
+    (:func:`_sample_window`), one pass counting the values below it, one gathering those in it, and
+    :func:`order_pair` of these when the count places both ranks in it and it lies above zero (a value is then
+    its bits); else, and below ``_SAMPLE_MIN`` values, :func:`order_pair` of the whole array."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    n = x.size
+    if not 0 <= k0 <= k1 <= min(k0 + 1, n - 1):
+        raise ValueError(f"ranks {k0}, {k1} out of order or range for {n} values")
+    if n < _SAMPLE_MIN:
+        return order_pair(x, k0, k1)
+    a, b = _sample_window(x, k0, k1)
+    if not a > 0.0:  # a zero of either sign may be in the window (order_pair's order of -0.0 and 0.0 is its own)
+        return order_pair(x, k0, k1)
+    c, nan = _window_count_one(x, a)
+    if nan or c > k0:
+        return order_pair(x, k0, k1)
+    bx = np.empty(n)  # only the entries written are touched: few pages
+    m = _window_values_one(x, a, b, bx)
+    if not k1 < c + m:
+        return order_pair(x, k0, k1)
+    return order_pair(bx[:m], k0 - c, k1 - c)
+
+
+def kth_of_both(x: np.ndarray, y: np.ndarray, kx: int, ky: int) -> tuple[float, float]:
+    """``(order_pair(x, kx, kx)[0], order_pair(y, ky, ky)[0])`` of two 1-D float64 arrays of one size whose values
+    lie close to each other entry by entry (the gate's brackets' lower and upper ends), the same values.
+
+    A window [a, b] around the kx-th value is read off a sample of x (every ``_SAMPLE_EVERY``-th value); one pass
+    counts the values of each array below it, a second gathers those in it, and the k-th value is the right one of
+    these when the counts place it in the window: the window is then above zero, so its values are positive and
+    a value is its bits, as in :func:`order_pair`. Otherwise (a window from zero or below, a NaN, a rank outside
+    it), and for small arrays, :func:`order_pair` of the whole array."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    n = x.size
+    if y.size != n:
+        raise ValueError(f"x and y must have one size, got {x.size} and {y.size}")
+    if not (0 <= kx < n and 0 <= ky < n):
+        raise ValueError(f"ranks {kx}, {ky} out of range for {n} values")
+    if n < _SAMPLE_MIN:
+        return order_pair(x, kx, kx)[0], order_pair(y, ky, ky)[0]
+    a, b = _sample_window(x, min(kx, ky), max(kx, ky))
+    if not a > 0.0:  # a zero of either sign may be in the window (order_pair's order of -0.0 and 0.0 is its own)
+        return order_pair(x, kx, kx)[0], order_pair(y, ky, ky)[0]
+    cx, cy, nan = _window_counts(x, y, a)
+    if nan:
+        return order_pair(x, kx, kx)[0], order_pair(y, ky, ky)[0]
+    nx = ny = 0
+    if cx <= kx and cy <= ky:
+        bx, by = np.empty(n), np.empty(n)  # only the entries written are touched: few pages
+        nx, ny = _window_values(x, y, a, b, bx, by)
+    if cx <= kx < cx + nx:
+        vx = order_pair(bx[:nx], kx - cx, kx - cx)[0]
+    else:  # pragma: no cover - the sample's window missed the rank
+        vx = order_pair(x, kx, kx)[0]
+    if cy <= ky < cy + ny:
+        vy = order_pair(by[:ny], ky - cy, ky - cy)[0]
+    else:  # pragma: no cover - the sample's window missed the rank
+        vy = order_pair(y, ky, ky)[0]
+    return vx, vy
+
+
 def median(x: np.ndarray) -> float:
     """``np.median`` of a 1-D float64 array: the middle value, or the mean of the two middle ones as
     ``np.mean`` takes it ((a + b) / 2); NaN when empty or when any value is NaN."""

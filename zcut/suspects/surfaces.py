@@ -46,7 +46,7 @@ from ..edge_surface import (
 )
 from ..sor_workspace import SorWorkspace
 from ..types import Mask
-from .select import median, order_pair
+from .select import kth_of_both, median, order_pair
 
 # the brackets (tr: the covariance's trace). Newton's method stops when its step is at most
 # _NEWTON_TOL · tr (its error is then ~ step² / (λ2 - λ1), well below _CHECK · tr); the characteristic
@@ -917,8 +917,7 @@ def _gate_median_in(a: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_p
     h = m // 2
     ranks = (h,) if m % 2 else (h - 1, h)
     # the k-th ratio lies between the k-th smallest lower end and the k-th smallest upper end
-    wa = order_pair(lo, ranks[0], ranks[0])[0]
-    wb = order_pair(hi, ranks[-1], ranks[-1])[0]
+    wa, wb = kth_of_both(lo, hi, ranks[0], ranks[-1])  # order_pair(lo, ...)[0], order_pair(hi, ...)[0]
     vals = np.empty(m)  # only the first `inside` entries are written (few pages: fresh, not kept)
     below, _, inside = _window_exact(a, valid, r, min_px, per_px, tan, floor, lo, hi, at, wa, wb, vals)
     if not (below <= ranks[0] and ranks[-1] < below + inside):  # pragma: no cover - the brackets hold their ratios

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import sys
 import threading
 from dataclasses import dataclass
 
@@ -21,7 +22,7 @@ from .gaps import GAP_MAX_RADIUS, GAP_MIN_PIXELS, _gap_kernel
 from .grouping import group_suspects
 from .noise import NoiseProfile, local_height, noise_profile
 from .residuals import fill_blobs, surface_residuals
-from .select import order_pair
+from .select import order_pair_large
 from .surfaces import LazySurfaces, gate_arrays, lazy_surfaces
 
 
@@ -268,17 +269,18 @@ def _interp_in_place(a, xp, fp):  # type: ignore[no-untyped-def]  # numba kernel
             f[s0 + t] = v
 
 
-def _sigma_px(profile: NoiseProfile, context: np.ndarray) -> np.ndarray:
-    """``profile.sigma_at(local_height(context))``, the lookup in place of the local heights."""
-    lh = local_height(context)
+def _sigma_px(profile: NoiseProfile, context: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
+    """``profile.sigma_at(local_height(context))``, the lookup in place of the local heights (in ``out`` when
+    given: :func:`local_height`'s)."""
+    lh = local_height(context, out=out)
     if profile.heights_mm.size == 0:
         return np.zeros(lh.shape)
     xp = np.ascontiguousarray(profile.heights_mm, np.float64)
     fp = np.ascontiguousarray(profile.sigma_mm, np.float64)
     if not (np.isfinite(xp).all() and (xp[1:] >= xp[:-1]).all()):  # not a profile's heights: numpy's lookup
         _nan_to_num(lh, float(xp[0]))
-        out: np.ndarray = np.interp(lh, xp, fp)
-        return out
+        looked_up: np.ndarray = np.interp(lh, xp, fp)
+        return looked_up
     _interp_in_place(lh, xp, fp)
     return lh
 
@@ -410,6 +412,19 @@ def _group_tables(groups, codes, n):  # type: ignore[no-untyped-def]  # numba ke
     return size, bits, bbox, idx
 
 
+@numba.njit(cache=True)
+def _in_zone(a, zone, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """``a[zone]`` into ``out`` (H · W entries: each value written at the next free entry, kept when in the zone,
+    without a branch); their count."""
+    f = a.reshape(-1)
+    z = zone.reshape(-1)
+    n = 0
+    for q in range(f.size):
+        out[n] = f[q]
+        n += z[q]
+    return n
+
+
 def _sigma_and_tau_medians(sigma_px: np.ndarray, params: SuspectParams) -> tuple[float, float]:
     """The medians of σ̂ and of τ = max(min_residual_mm, noise_k · σ̂) over the zone (``sigma_px``: σ̂ there,
     not modified), from one selection: τ is a non-decreasing function of σ̂
@@ -424,9 +439,9 @@ def _sigma_and_tau_medians(sigma_px: np.ndarray, params: SuspectParams) -> tuple
 
     h = n // 2
     if n % 2:
-        x = order_pair(sigma_px, h, h)[0]
+        x = order_pair_large(sigma_px, h, h)[0]
         return x, tau(x)
-    a, b = order_pair(sigma_px, h - 1, h)
+    a, b = order_pair_large(sigma_px, h - 1, h)
     return (a + b) / 2.0, (tau(a) + tau(b)) / 2.0
 
 
@@ -496,10 +511,11 @@ def suspects(
         return _suspects(a, h_img, zone, easy, params, edge_surface, ws)
 
 
-#: the call's scratch images (τ; the jump, then the gate's lower ends; the gate's upper ends, then the grouping's
-#: strength; the gate's pixels: H · W doubles each, ~74 MB at 1920 × 1200), kept between calls, one workspace per
-#: thread (:func:`scratch_workspace`): made fresh each call, their pages were faulted in afresh (docs/performance.md,
-#: the suspects' tenth and eleventh rounds)
+#: the call's scratch images (τ; the jump, then the zone's heights of the floating cut, then the gate's lower ends;
+#: σ̂ per pixel, then the gate's upper ends, then the grouping's strength; σ̂ in the zone, then the gate's pixels:
+#: H · W doubles each, ~74 MB at 1920 × 1200), kept between calls, one workspace per thread
+#: (:func:`scratch_workspace`): made fresh each call, their pages were faulted in afresh (docs/performance.md, the
+#: suspects' tenth, eleventh and thirteenth rounds)
 _SCRATCH = threading.local()
 
 #: what a thread's :func:`scratch_workspace` keeps between calls at most (its ``max_bytes``): the images of a frame
@@ -519,6 +535,44 @@ def scratch_workspace() -> SorWorkspace:
     return ws
 
 
+#: the frame in mm (``a.astype(np.float64) * 1000.0``, H · W · 3 doubles, ~55 MB at 1920 × 1200) of the thread's last
+#: call with edge surfaces, which its result's surfaces hold: the next call writes its frame into it when nothing else
+#: holds it any more (that result dropped), else into a fresh one. Made fresh each call, an image that large was
+#: mapped anew, its pages faulted in at every call (docs/performance.md, the suspects' thirteenth round)
+_FRAME = threading.local()
+
+
+def _frame_mm_array(shape: tuple[int, ...]) -> np.ndarray:
+    """An uninitialized float64 array of ``shape`` for the frame in mm: the thread's last one (:data:`_FRAME`) when
+    it has that shape and no one holds it any more (its only references: this function's), else a fresh one."""
+    held = getattr(_FRAME, "a_mm", None)
+    _FRAME.a_mm = None
+    # references: `held` and getrefcount's argument; a result's surfaces, or a view of the array, add theirs
+    if held is not None and held.shape == shape and held.dtype == np.float64 and sys.getrefcount(held) == 2:
+        return held
+    del held
+    return np.empty(shape)
+
+
+#: the frame in mm is kept (:func:`_keep_frame_mm`) from this size on: glibc's largest mmap threshold, above which a
+#: fresh array is mapped anew at every call; a smaller one comes from the heap, whose block the next call's takes
+#: again (the real 640 × 480 scans, 7.4 MB: 1.0-1.1 CPU ms fresh, 1.2-1.5 written into the kept one)
+FRAME_KEPT_MIN_BYTES = 32 << 20
+
+
+def _keep_frame_mm(a_mm: np.ndarray, ws: SorWorkspace) -> None:
+    """Keep ``a_mm`` as the thread's last frame in mm (:func:`_frame_mm_array`) when it holds at least
+    :data:`FRAME_KEPT_MIN_BYTES`, and it and the scratch images of ``ws`` at most :data:`SCRATCH_KEPT_BYTES`
+    together: what the thread keeps between calls stays bounded."""
+    if a_mm.base is None and FRAME_KEPT_MIN_BYTES <= a_mm.nbytes <= SCRATCH_KEPT_BYTES - ws.nbytes:
+        _FRAME.a_mm = a_mm
+
+
+def release_frame_mm() -> None:
+    """Drop the calling thread's kept frame in mm (:func:`_frame_mm_array`); a result still holding it keeps it."""
+    _FRAME.a_mm = None
+
+
 def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: SuspectParams,
               edge_surface: EdgeSurfaceParams | None, ws: SorWorkspace) -> SuspectResult:
     """:func:`suspects` after its checks, its scratch images taken from ``ws``."""
@@ -527,12 +581,19 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
     h_zcut = np.ascontiguousarray(h_img, dtype=np.float64)
 
     profile = noise_profile(context, zone)
-    sigma_px = _sigma_px(profile, context)  # profile.sigma_at(local_height(context))
+    # profile.sigma_at(local_height(context)), in the strength's array (not written until after the gate; σ̂ is
+    # read by the thresholds and its medians only)
+    sigma_px = _sigma_px(profile, context, out=ws.empty("strength", (H, W)))
     sigma_px = np.ascontiguousarray(sigma_px, dtype=np.float64)
     tau, jump = ws.empty("tau", (H, W)), ws.empty("jump", (H, W))
     _thresholds(sigma_px, params.noise_k, params.min_residual_mm, params.jump_mm, tau, jump)
-    sigma, threshold = (_sigma_and_tau_medians(sigma_px[zone], params) if zone.any()
+    # σ̂ in the zone (sigma_px[zone]), in the gate's pixels' array (not in use until the gate; the gate's size: one
+    # array kept, not grown)
+    in_zone = ws.empty("gate_at", (H * W,))
+    n_zone = int(_in_zone(sigma_px, zone, in_zone))
+    sigma, threshold = (_sigma_and_tau_medians(in_zone[:n_zone], params) if n_zone
                         else (0.0, float(params.min_residual_mm)))
+    del in_zone
     step = max(params.floating_step_mm, FLOATING_STEP_SIGMAS * sigma)
     a_max = params.a_max if params.a_max is not None else max(0.01 * H * W, 1.0)
 
@@ -543,8 +604,9 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
               else off)
     rough = np.empty((H, W), bool)
     _rough(zone, residual, tau, rough)  # in the zone: inf (no continuation) is rough
+    # the zone's heights in the jump's array (surface_residuals, its only reader, is done; the gate takes it later)
     floating, floating_at, floating_gap = floating_components(h_zcut, zone, judged_ctx, rough, params, a_max,
-                                                              step, profile)
+                                                              step, profile, hz=ws.empty("jump", (H, W)))
 
     # the codes, and the gaps: a floating pixel's over the measured pixels bordering its component; a
     # pixel off the surface, its residual (to the nearest continuation) or, with edge_surface, its distance
@@ -565,7 +627,7 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
         # np.multiply(a, 1000.0, dtype=np.float64) took 3 x as long as a copy then the product in place,
         # which take two); a float32 frame's valid points stay finite in mm, so only a float64 one needs
         # edge_surfaces' check
-        a_mm = np.empty(a.shape)
+        a_mm = _frame_mm_array(a.shape)
         if a.dtype in (np.float32, np.float64) and a.flags.c_contiguous:
             _frame_mm(a, a_mm)  # one pass
         else:
@@ -573,6 +635,7 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
             np.multiply(a_mm, 1000.0, out=a_mm)
         if a.dtype != np.float32:
             a_mm, _, _ = _check_args(a_mm, valid, edge_surface)
+        _keep_frame_mm(a_mm, ws)
         # the gate's arrays: the jump's (read by surface_residuals only), the strength's (not written yet) and one
         # more; the gate is done with them when lazy_surfaces returns
         gate = gate_arrays(ws, H * W, ("jump", "strength", "gate_at"))
