@@ -10,7 +10,8 @@ it as ``zcut``). Each log's first N frames are located as the replay locates the
 ``bench/bench_removal.py``'s ``located_frames``). On every frame both trees' results are first compared bit for bit (the
 four class masks, the height image, the float32 cloud, τ, the radius, rim, floor and up; the bin check's count, flag,
 reason, ghosts, off-surface count and candidates), then each tree's stage is timed R times per frame, alternating,
-BLAS on one thread as the replay runs it. Prints CPU ms per frame (``time.process_time``, all threads: the machine is
+the process set up as ``zcut replay`` sets it (:func:`replay.process.configure_process`: without it glibc maps every
+frame-sized array afresh and its page faults weigh on whichever tree allocates more) and BLAS on one thread. Prints CPU ms per frame (``time.process_time``, all threads: the machine is
 shared), medians, the ratio previous / this, and the median of the per-frame paired ratios.
 """
 
@@ -25,7 +26,9 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")  # as `zcut` sets it
+from replay.process import configure_process  # noqa: E402
+
+configure_process()  # as `zcut replay` sets itself up: its threading layer, one malloc arena, freed memory kept
 
 import numpy as np  # noqa: E402
 from bench_removal import located_frames, previous_removal  # noqa: E402
