@@ -420,7 +420,7 @@ class Job:
     def of(cls, result: FrameResult) -> Job:
         rem = result.removal
         if rem is not None:  # its cloud and height image are the frame's: not kept twice
-            rem = dataclasses.replace(rem, xyz=np.zeros((0, 0, 3), np.float32), height_mm=np.zeros((0, 0)))
+            rem = dataclasses.replace(rem, cloud=np.zeros((0, 0, 3), np.float32), height_mm=np.zeros((0, 0)))
         return cls(np.asarray(result.valid, bool), np.asarray(result.zone, bool), rem, result.registration)
 
 

@@ -215,7 +215,7 @@ def main() -> None:
                       int(p.straggler_neighbours), rm.STRAGGLER_PASSES, R, t, *grid)
             masks = [np.empty(code.shape, bool) for _ in range(4)]
             timed("removal: finish (masks, heights)", rm._finish_codes, a, code, True, float(rem.floor_m),
-                  rem.up_cam, float("nan"), *masks, np.empty(code.shape), np.empty(a.shape, np.float32))
+                  rem.up_cam, float("nan"), *masks, np.empty(code.shape))
             rim_in_view = min(loc.registration.n_rim / len(pm.icp.rim), 1.0) if len(pm.icp.rim) else 0.0
             timed("removal: bin check", check_bin_removal, rem, loc.ring, params=cfg.removal,
                   band_mm=cfg.zcut.max_depth, rim_in_view=rim_in_view, xyz=a, index=index, T_cam_bin=T)
