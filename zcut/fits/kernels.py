@@ -143,11 +143,20 @@ def _closest_on_triangle(px: float, py: float, pz: float, a: np.ndarray, b: np.n
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _voxel(qx: float, qy: float, qz: float, origin: np.ndarray, inv_h: float, grid: np.ndarray) -> int:
+def _cell(qx: float, qy: float, qz: float, origin: np.ndarray, inv_h: float, grid: np.ndarray) -> tuple[int, int, int]:
+    """The voxel (i, j, k) of q in ``grid``; i = -1 outside it."""
     i = int(np.floor((qx - origin[0]) * inv_h))
     j = int(np.floor((qy - origin[1]) * inv_h))
     k = int(np.floor((qz - origin[2]) * inv_h))
     if i < 0 or j < 0 or k < 0 or i >= grid.shape[0] or j >= grid.shape[1] or k >= grid.shape[2]:
+        return -1, 0, 0
+    return i, j, k
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _voxel(qx: float, qy: float, qz: float, origin: np.ndarray, inv_h: float, grid: np.ndarray) -> int:
+    i, j, k = _cell(qx, qy, qz, origin, inv_h, grid)
+    if i < 0:
         return -1
     return int(grid[i, j, k])
 
@@ -156,7 +165,13 @@ def _voxel(qx: float, qy: float, qz: float, origin: np.ndarray, inv_h: float, gr
 def _match(qx: float, qy: float, qz: float, origin: np.ndarray, inv_h: float, slack: float, grid: np.ndarray,
            a: np.ndarray, b: np.ndarray, c: np.ndarray, n: np.ndarray) -> tuple[int, float, float, float, float, float]:
     """(triangle, distance, plane residual, closest point) of q; triangle -1 outside the grid."""
-    j = _voxel(qx, qy, qz, origin, inv_h, grid)
+    return _match_at(_voxel(qx, qy, qz, origin, inv_h, grid), qx, qy, qz, slack, a, b, c, n)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _match_at(j: int, qx: float, qy: float, qz: float, slack: float, a: np.ndarray, b: np.ndarray, c: np.ndarray,
+              n: np.ndarray) -> tuple[int, float, float, float, float, float]:
+    """:func:`_match` of q given its voxel's triangle ``j`` (-1: outside the grid)."""
     if j < 0:
         return -1, np.inf, np.inf, 0.0, 0.0, 0.0
     cx, cy, cz = _closest_on_triangle(qx, qy, qz, a[j], b[j], c[j])
@@ -172,7 +187,13 @@ def _match(qx: float, qy: float, qz: float, origin: np.ndarray, inv_h: float, sl
 def _match_edge(qx: float, qy: float, qz: float, origin: np.ndarray, inv_h: float, grid: np.ndarray,
                 p0: np.ndarray, p1: np.ndarray) -> tuple[float, float, float, float]:
     """(distance, closest point) of q to the edge segment of its voxel; inf outside the grid."""
-    s = _voxel(qx, qy, qz, origin, inv_h, grid)
+    return _match_edge_at(_voxel(qx, qy, qz, origin, inv_h, grid), qx, qy, qz, p0, p1)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _match_edge_at(s: int, qx: float, qy: float, qz: float, p0: np.ndarray,
+                   p1: np.ndarray) -> tuple[float, float, float, float]:
+    """:func:`_match_edge` of q given its voxel's segment ``s`` (-1: outside the grid)."""
     if s < 0:
         return np.inf, 0.0, 0.0, 0.0
     ex, ey, ez = p1[s, 0] - p0[s, 0], p1[s, 1] - p0[s, 1], p1[s, 2] - p0[s, 2]
@@ -394,6 +415,8 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
     inv_h = 1.0 / h
     slack = 0.8660254037844386 * h
     use_edges = len(edge_points) > 0 and len(p0) > 0
+    if use_edges and seg_grid.shape != grid.shape:
+        raise ValueError("the edges' grid and the triangles' grid differ in shape")
     scale = np.array([extent, extent, extent, 1.0, 1.0, 1.0])
     H = np.zeros((6, 6))
     g = np.zeros(6)
@@ -477,12 +500,14 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
                 qx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
                 qy = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
                 qz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
-                de, ex, ey, ez = _match_edge(qx, qy, qz, origin, inv_h, seg_grid, p0, p1)
+                # the edges' grid and the triangles' are one grid (:func:`build_index`): one voxel for both
+                vi, vj, vk = _cell(qx, qy, qz, origin, inv_h, grid)
+                de, ex, ey, ez = _match_edge_at(-1 if vi < 0 else int(seg_grid[vi, vj, vk]), qx, qy, qz, p0, p1)
                 if not de < egate:
                     continue
                 # a silhouette point lies on the part: a mixed pixel between it and what lies
                 # behind (off every surface) says nothing of where the edge is
-                js, ds, _, _, _, _ = _match(qx, qy, qz, origin, inv_h, slack, grid, a, b, c, n)
+                js, ds, _, _, _, _ = _match_at(-1 if vi < 0 else int(grid[vi, vj, vk]), qx, qy, qz, slack, a, b, c, n)
                 if js < 0 or not ds < gate:
                     continue
                 w2 = 1.0 / (1.0 + (de / s3) ** 2)
