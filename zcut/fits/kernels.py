@@ -523,8 +523,8 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
     sc0, sc1, sc2 = scale[0], scale[1], scale[2]
     # the size of the model frame's coordinates (the grid's box): the facing test's rounding scales with it
     box = 0.0
-    for u in range(3):
-        box += abs(origin[u]) + h * grid.shape[u]
+    for ax in range(3):
+        box += abs(origin[ax]) + h * grid.shape[ax]
     for _ in range(iterations):
         H[:] = 0.0
         g[:] = 0.0
