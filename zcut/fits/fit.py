@@ -325,7 +325,7 @@ def _surface_distances(model: PartModel, points: np.ndarray, T: np.ndarray) -> n
         return model.distance((points - T[:3, 3]) @ T[:3, :3])
     out: np.ndarray = surface_distances(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(T[:3, :3]),
                                         np.ascontiguousarray(T[:3, 3]), ix.origin, ix.h, ix.tri_grid, ix.a, ix.b,
-                                        ix.c, ix.n)
+                                        ix.c, ix.n, ix.tri)
     return out
 
 
@@ -402,7 +402,7 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
             i, R, t, score = coarse_search(coarse, coarse_e, Rs, ts, int(params.coarse_iterations),
                                            float(params.gate_mm), float(params.k), float(params.err_floor_mm),
                                            float(edge_gate), float(model.extent_mm), float(score_tol), 1.5 * px_mm,
-                                           ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid, ix.p0,
+                                           ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.tri, ix.seg_grid, ix.p0,
                                            ix.p1, EDGE_WEAK, STOP_INL if stop else 2.0, STOP_EDGE)
             return (float(score), pose_matrix(R, t)) if i >= 0 else None
         found: tuple[float, np.ndarray] | None = None

@@ -178,7 +178,7 @@ def icp(points: np.ndarray, model: PartModel, T0: np.ndarray, *, iterations: int
     R, t, rms, n = icp_kernel(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(T0[:3, :3], np.float64),
                               np.ascontiguousarray(T0[:3, 3], np.float64), int(iterations), float(gate_mm), float(k),
                               float(floor_mm), e, float(edge_gate_mm), float(model.extent_mm), ix.origin, ix.h,
-                              ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid, ix.p0, ix.p1, EDGE_WEAK,
+                              ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.tri, ix.seg_grid, ix.p0, ix.p1, EDGE_WEAK,
                               float(robust_mm))
     return pose_matrix(R, t), float(rms), int(n)
 

@@ -168,8 +168,8 @@ def test_coarse_search_in_one_call_equals_the_loop_over_the_guesses():
         for i, T0 in enumerate(guesses):
             Tc, _, _ = icp(coarse, model, T0, iterations=4, edge_points=e, **opts)
             inl, near, e_inl = guess_score(coarse, e, np.ascontiguousarray(Tc[:3, :3]), np.ascontiguousarray(Tc[:3, 3]),
-                                           1.0, 0.9, ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid,
-                                           ix.p0, ix.p1)
+                                           1.0, 0.9, ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.tri,
+                                           ix.seg_grid, ix.p0, ix.p1)
             score = inl - 0.01 * near + (0.5 * e_inl if len(e) else 0.0)
             if best is None or score > best[1]:
                 best = (i, score, Tc)
@@ -179,7 +179,7 @@ def test_coarse_search_in_one_call_equals_the_loop_over_the_guesses():
         Ts = np.stack(guesses)
         i, R, tt, score = coarse_search(coarse, e, np.ascontiguousarray(Ts[:, :3, :3]), np.ascontiguousarray(Ts[:, :3, 3]),
                                         4, 4.0, 3.0, 0.1, 1.5, float(model.extent_mm), 1.0, 0.9, ix.origin, ix.h,
-                                        ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid, ix.p0, ix.p1, EDGE_WEAK,
+                                        ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.tri, ix.seg_grid, ix.p0, ix.p1, EDGE_WEAK,
                                         stop_inl, stop_edge)
         assert i == best[0] and score == best[1]
         assert np.array_equal(R, best[2][:3, :3]) and np.array_equal(tt, best[2][:3, 3])
@@ -297,7 +297,7 @@ def test_the_icp_kernel_equals_the_previous_kernel_to_the_bit():
                 args = (pts, np.ascontiguousarray(T0[:3, :3]), np.ascontiguousarray(T0[:3, 3]), its, 4.0, 3.0, 0.1, e,
                         1.5, float(model.extent_mm), ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.seg_grid,
                         ix.p0, ix.p1, EDGE_WEAK)
-                got, want = icp_kernel(*args), icp_kernel_reference(*args)
+                got, want = icp_kernel(*args[:17], ix.tri, *args[17:]), icp_kernel_reference(*args)
                 assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
                 assert got[2] == want[2] or (np.isnan(got[2]) and np.isnan(want[2]))
                 assert got[3] == want[3]
