@@ -305,24 +305,34 @@ def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarr
         def tree() -> tuple[np.ndarray, ...]:  # built only when a tile search runs
             return _search.build_quadtree(tcount, tbox, tuv, P, M, use_cam)
 
-        _fallback(x, y, z, valid, rows, cols, -dbar[rows, cols], m, divisor, use_cam, tree, dbar, run, ws)
+        _fallback(x, y, z, valid, rows, cols, -dbar[rows, cols], m, divisor, use_cam, tree, dbar, run, ws, tbox)
     return dbar
+
+
+def _tile_range(tbox: np.ndarray) -> tuple[float, float, float, float, float, float]:
+    """Smallest and largest x, y and z of the valid pixels (``zcut.sor_search.valid_range``'s values), from the
+    per-tile boxes of :func:`zcut.sor_camera.block_rows` instead of another pass over the frame: every valid pixel
+    is in its tile's box, the boxes of tiles without one are empty (+inf, -inf), and extremes are exact in any
+    order."""
+    lo = tbox[..., :3].min(axis=(0, 1), initial=np.inf)
+    hi = tbox[..., 3:].max(axis=(0, 1), initial=-np.inf)
+    return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]), float(lo[2]), float(hi[2])
 
 
 def _column_stage(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                   lim: np.ndarray, m: int, divisor: float, dbar: np.ndarray, run: Run, ws: SorWorkspace,
-                  n_valid: int) -> np.ndarray:
+                  n_valid: int, tbox: np.ndarray) -> np.ndarray:
     """k-nearest search in columns (:mod:`zcut.columns`) for the unproven pixels with a finite
     bound ``lim`` (:func:`_fallback` calls it when they are many and the tile search would measure
     many pixels for each: tall parts on end, flying pixels everywhere). ``n_valid``: the valid
-    pixels. Writes their d̄ into dbar; returns which it settled."""
+    pixels; ``tbox``: the tiles' boxes (:func:`_tile_range`). Writes their d̄ into dbar; returns which it settled."""
     done = np.zeros(rows.size, dtype=bool)
     rad = np.sqrt(lim)
     eligible = np.isfinite(rad) & (rad > 0.0)
     if not eligible.any():
         return done
     width = float(np.median(rad[eligible])) * _COLUMN_WIDTH
-    x0, x1, y0, y1, z0, z1 = _search.valid_range(x, y, z, valid)
+    x0, x1, y0, y1, z0, z1 = _tile_range(tbox)
     inv = 1.0 / width
     with np.errstate(over="ignore", invalid="ignore"):
         nx, ny = np.floor((x1 - x0) * inv) + 1.0, np.floor((y1 - y0) * inv) + 1.0
@@ -350,7 +360,7 @@ def _column_stage(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray
 
 def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, rows: np.ndarray, cols: np.ndarray,
               lim: np.ndarray, m: int, divisor: float, use_cam: bool, make_tree: Callable[[], tuple[np.ndarray, ...]],
-              dbar: np.ndarray, run: Run, ws: SorWorkspace) -> None:
+              dbar: np.ndarray, run: Run, ws: SorWorkspace, tbox: np.ndarray) -> None:
     """Columns, then a tile search for the unproven pixels left (over the quadtree ``make_tree()``
     builds), then a KD-tree for those it could not finish.
 
@@ -388,7 +398,7 @@ def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, ro
             if not rows.size:
                 return
         if use_columns:
-            done = _column_stage(x, y, z, valid, rows, cols, lim, m, divisor, dbar, run, ws, n_valid)
+            done = _column_stage(x, y, z, valid, rows, cols, lim, m, divisor, dbar, run, ws, n_valid, tbox)
             if done.all():
                 return
             rows, cols, lim = rows[~done], cols[~done], lim[~done]

@@ -379,34 +379,31 @@ def gather_valid(x, y, z, valid):  # type: ignore[no-untyped-def]  # numba kerne
 # --------------------------------------------------------------------------------------------
 # KD-tree
 # --------------------------------------------------------------------------------------------
-@nb.njit(cache=True, inline="always")
-def _key(pts, idx, i, dim):  # type: ignore[no-untyped-def]  # numba kernel
-    return pts[idx[i], dim]
-
-
 @nb.njit(cache=True)
-def _select(pts, idx, lo, hi, kth, dim):  # type: ignore[no-untyped-def]  # numba kernel
-    # Hoare quickselect on idx[lo:hi] by pts[:, dim]: afterwards keys left of kth are <= and keys
-    # right of it >= the kth one; runs of equal keys are split evenly, so duplicates cost O(n)
+def _select(pts, lo, hi, kth, dim):  # type: ignore[no-untyped-def]  # numba kernel
+    # Hoare quickselect on the rows pts[lo:hi] by pts[:, dim], moving the rows themselves: afterwards
+    # keys above row kth are <= and keys below it >= its key; runs of equal keys are split evenly,
+    # so duplicates cost O(n)
     left = lo
     right = hi - 1
     while right > left:
         mid = (left + right) // 2
-        a = _key(pts, idx, left, dim)
-        b = _key(pts, idx, mid, dim)
-        c = _key(pts, idx, right, dim)
+        a = pts[left, dim]
+        b = pts[mid, dim]
+        c = pts[right, dim]
         pivot = max(min(a, b), min(max(a, b), c))  # median of three
         i = left
         j = right
         while i <= j:
-            while _key(pts, idx, i, dim) < pivot:
+            while pts[i, dim] < pivot:
                 i += 1
-            while _key(pts, idx, j, dim) > pivot:
+            while pts[j, dim] > pivot:
                 j -= 1
             if i <= j:
-                t = idx[i]
-                idx[i] = idx[j]
-                idx[j] = t
+                for f in range(3):
+                    t = pts[i, f]
+                    pts[i, f] = pts[j, f]
+                    pts[j, f] = t
                 i += 1
                 j -= 1
         if kth <= j:
@@ -423,10 +420,15 @@ def kd_build(pts):  # type: ignore[no-untyped-def]  # numba kernel
 
     Returns (sorted_pts, lo, hi, start, end, child): the points reordered so that every node is a
     contiguous range; ``child[k]`` is the left child (the right one is ``child[k] + 1``), -1 at
-    leaves; lo / hi are the boxes of the actual points. O(n log n) time, O(n) memory.
+    leaves; lo / hi are the boxes of the actual points. O(n log n) time, O(n) memory. The points
+    are reordered in a copy as the splits go (each node's box and split then read its rows in
+    order, not through an index into the input).
     """
     n = pts.shape[0]
-    idx = np.arange(n)
+    out = np.empty((n, 3))
+    for t in range(n):
+        for a in range(3):
+            out[t, a] = pts[t, a]
     cap = 4 * (n // KD_LEAF + 1) + 1
     lo = np.empty((cap, 3))
     hi = np.empty((cap, 3))
@@ -444,15 +446,17 @@ def kd_build(pts):  # type: ignore[no-untyped-def]  # numba kernel
         k = stack[sp]
         s = start[k]
         e = end[k]
-        for a in range(3):
-            lo[k, a] = np.inf
-            hi[k, a] = -np.inf
+        x0 = y0 = z0 = np.inf  # the box in locals (kept in registers)
+        x1 = y1 = z1 = -np.inf
         for t in range(s, e):
-            p = idx[t]
-            for a in range(3):
-                v = pts[p, a]
-                lo[k, a] = min(lo[k, a], v)
-                hi[k, a] = max(hi[k, a], v)
+            x0 = min(x0, out[t, 0])
+            x1 = max(x1, out[t, 0])
+            y0 = min(y0, out[t, 1])
+            y1 = max(y1, out[t, 1])
+            z0 = min(z0, out[t, 2])
+            z1 = max(z1, out[t, 2])
+        lo[k, 0], lo[k, 1], lo[k, 2] = x0, y0, z0
+        hi[k, 0], hi[k, 1], hi[k, 2] = x1, y1, z1
         if e - s <= KD_LEAF:
             continue
         dim = 0
@@ -462,7 +466,7 @@ def kd_build(pts):  # type: ignore[no-untyped-def]  # numba kernel
                 ext = hi[k, a] - lo[k, a]
                 dim = a
         mid = (s + e) // 2
-        _select(pts, idx, s, e, mid, dim)
+        _select(out, s, e, mid, dim)
         child[k] = nodes
         start[nodes] = s
         end[nodes] = mid
@@ -472,10 +476,6 @@ def kd_build(pts):  # type: ignore[no-untyped-def]  # numba kernel
         stack[sp + 1] = nodes + 1
         sp += 2
         nodes += 2
-    out = np.empty((n, 3))
-    for t in range(n):
-        for a in range(3):
-            out[t, a] = pts[idx[t], a]
     return out, lo[:nodes].copy(), hi[:nodes].copy(), start[:nodes].copy(), end[:nodes].copy(), child[:nodes].copy()
 
 
