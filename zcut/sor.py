@@ -129,6 +129,7 @@ _COLUMNS_COST = 3.0                # ... and a tile search of them would measure
 _COLUMN_WIDTH = 0.25               # column width, times the median bound of the unproven pixels
 _COLUMNS_PER_POINT = 8             # largest column grid, per valid point
 _COLUMN_SCAN = 1024                # entries a column search may scan per query, on average
+_KD_LEAF_FEW = 64                  # the KD-tree's leaf size when it has this many points per query or more
 
 Run = Callable[..., None]
 
@@ -404,7 +405,10 @@ def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, ro
             rows, cols, lim = rows[~done], cols[~done], lim[~done]
 
     def kd_search(pts: np.ndarray, rows: np.ndarray, cols: np.ndarray, lim: np.ndarray) -> None:
-        kd = _search.kd_build(pts)
+        # few queries over many points (the tile searches that hit their cap): larger leaves, a
+        # shallower tree, less to build for the few leaves the queries scan
+        few = rows.size * _KD_LEAF_FEW <= pts.shape[0]
+        kd = _search.kd_build(pts, _KD_LEAF_FEW if few else _search.KD_LEAF)
         out = np.zeros(rows.size)
         run(_search.kd_queries, rows.size, x, y, z, rows, cols, lim, m, divisor, kd, out)
         dbar[rows, cols] = out
@@ -535,7 +539,7 @@ def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl", mask: M
     with thread_workspace().call() as ws, _workers(ws) as run:
         x, y, z, valid, amax, span = _prepare(xyz, run, ws, mask)
         dbar = np.full(valid.shape, np.nan)  # the caller's: never a workspace array
-        n = int(valid.sum())
+        n = int(np.count_nonzero(valid))
         if n == 0:
             return dbar
         m = k + 1 if convention == "pcl" else k
@@ -644,7 +648,7 @@ def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: st
     k, ratio = _check_params(k, std_ratio, convention)
     with thread_workspace().call() as ws, _workers(ws) as run:
         x, y, z, valid, amax, span = _prepare(xyz, run, ws, mask)
-        n = int(valid.sum())
+        n = int(np.count_nonzero(valid))
         if n < k + 1:
             return np.zeros(valid.shape, dtype=bool)
         m = k + 1 if convention == "pcl" else k

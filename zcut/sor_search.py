@@ -415,8 +415,9 @@ def _select(pts, lo, hi, kth, dim):  # type: ignore[no-untyped-def]  # numba ker
 
 
 @nb.njit(cache=True, nogil=True)
-def kd_build(pts):  # type: ignore[no-untyped-def]  # numba kernel
-    """Balanced KD-tree (median split on the widest axis of each node's box).
+def kd_build(pts, leaf=KD_LEAF):  # type: ignore[no-untyped-def]  # numba kernel
+    """Balanced KD-tree (median split on the widest axis of each node's box), nodes of at most
+    ``leaf`` points not split.
 
     Returns (sorted_pts, lo, hi, start, end, child): the points reordered so that every node is a
     contiguous range; ``child[k]`` is the left child (the right one is ``child[k] + 1``), -1 at
@@ -429,7 +430,8 @@ def kd_build(pts):  # type: ignore[no-untyped-def]  # numba kernel
     for t in range(n):
         for a in range(3):
             out[t, a] = pts[t, a]
-    cap = 4 * (n // KD_LEAF + 1) + 1
+    leaf = max(leaf, 1)
+    cap = 4 * (n // leaf + 1) + 1
     lo = np.empty((cap, 3))
     hi = np.empty((cap, 3))
     start = np.empty(cap, np.int64)
@@ -457,7 +459,7 @@ def kd_build(pts):  # type: ignore[no-untyped-def]  # numba kernel
             z1 = max(z1, out[t, 2])
         lo[k, 0], lo[k, 1], lo[k, 2] = x0, y0, z0
         hi[k, 0], hi[k, 1], hi[k, 2] = x1, y1, z1
-        if e - s <= KD_LEAF:
+        if e - s <= leaf:
             continue
         dim = 0
         ext = hi[k, 0] - lo[k, 0]
