@@ -183,9 +183,10 @@ def _prunable(bd, lim, best, found, m):  # type: ignore[no-untyped-def]  # numba
 
 
 @nb.njit(cache=True)
-def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree):  # type: ignore[no-untyped-def]  # numba kernel
+def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree, stack_k, stack_l, stack_b):  # type: ignore[no-untyped-def]  # numba kernel
     # nearest-first search of one pixel; returns (found, aborted): best[] holds the m smallest
-    # squared distances of the pixels measured
+    # squared distances of the pixels measured. stack_*: scratch of 4 · levels + 4 entries (made
+    # once per call of tile_queries, not once per pixel)
     level_off, level_h, level_w, count, box, planes = tree
     H, W = valid.shape
     nlev = level_h.shape[0]
@@ -195,9 +196,6 @@ def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree):  # type
     for i in range(m):
         best[i] = np.inf
     found = 0
-    stack_k = np.empty(4 * nlev + 4, np.int64)
-    stack_l = np.empty(4 * nlev + 4, np.int64)
-    stack_b = np.empty(4 * nlev + 4)
     sp = 1
     stack_k[0] = 0  # the root: (0, 0) on the last level
     stack_l[0] = nlev - 1
@@ -235,9 +233,19 @@ def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree):  # type
                 if cj >= level_w[cl]:
                     continue
                 cij = ci * level_w[cl] + cj
-                bd = _node_bound2(level_off[cl] + cij, count, box, planes, use_cam, xq, yq, zq)
+                kc = level_off[cl] + cij
+                if count[kc] == 0:
+                    continue
+                # the box first: a node it prunes is pruned by any larger bound (the test is
+                # monotone), so its planes are evaluated only when it does not, and never at the
+                # tiles, whose planes are zeros (build_quadtree): bd is _node_bound2's
+                bd = _box_d2(box, kc, xq, yq, zq)
                 if _prunable(bd, lim, best, found, m):
                     continue
+                if use_cam and cl > 0:
+                    bd = _node_bound2(kc, count, box, planes, use_cam, xq, yq, zq)
+                    if _prunable(bd, lim, best, found, m):
+                        continue
                 t = nc  # insertion sort, descending
                 while t > 0 and cb[t - 1] < bd:
                     cb[t] = cb[t - 1]
@@ -265,9 +273,14 @@ def tile_queries(q0, q1, x, y, z, valid, qr, qc, qlim, m, divisor, cap, use_cam,
     search's cost).
     """
     best = np.empty(m)
+    nlev = tree[1].shape[0]
+    stack_k = np.empty(4 * nlev + 4, np.int64)
+    stack_l = np.empty(4 * nlev + 4, np.int64)
+    stack_b = np.empty(4 * nlev + 4)
     for q in range(q0, q1):
         lim = qlim[q]
-        found, aborted = _tile_query(qr[q], qc[q], lim, best, x, y, z, valid, m, cap, use_cam, tree)
+        found, aborted = _tile_query(qr[q], qc[q], lim, best, x, y, z, valid, m, cap, use_cam, tree, stack_k, stack_l,
+                                     stack_b)
         measured[q] = found
         if not aborted:
             out[q] = mean_of_sorted(best, divisor)
@@ -322,7 +335,10 @@ def mark_queries(q0, q1, x, y, z, qr, qc, qrad2, max_tiles, use_cam, tree, mark,
                     if cj >= level_w[cl]:
                         continue
                     cij = ci * level_w[cl] + cj
-                    if _node_bound2(level_off[cl] + cij, count, box, planes, use_cam, xq, yq, zq) <= rad:
+                    kc = level_off[cl] + cij
+                    if count[kc] > 0 and not _box_d2(box, kc, xq, yq, zq) <= rad:  # the box first, as in _tile_query
+                        continue
+                    if _node_bound2(kc, count, box, planes, use_cam and cl > 0, xq, yq, zq) <= rad:
                         stack_k[sp] = cij
                         stack_l[sp] = cl
                         sp += 1
