@@ -158,16 +158,13 @@ def _check_params(k: object, std_ratio: object, convention: object) -> tuple[int
 
 
 @nb.njit(cache=True, nogil=True)
-def _split_rows(b0, b1, a, mask, use_mask, x, y, z, valid, rowmax, span, tcount, tbox):  # type: ignore[no-untyped-def]  # numba kernel
-    # Row blocks b0..b1-1 (``_camera.BLOCK`` rows each): float64 x, y, z planes (+inf where
-    # invalid: infinitely far from every valid point), the valid mask (finite, and in ``mask``
-    # when ``use_mask``), per row the largest |x|, |y|, |z| of its valid points and the span
-    # [first, last] of its valid columns (first > last: none), and the tile counts and boxes of
-    # ``_camera.new_stats`` over the tiles of that span, each row's while it is in the cache (they
-    # were a second pass over the planes, ``_camera.block_rows``'; the same values in the same
-    # order). With a mask, only the columns between its first and last pixel of the row are read.
-    H, W = a.shape[0], a.shape[1]
-    for r in range(b0 * _camera.BLOCK, min(H, b1 * _camera.BLOCK)):
+def _split_rows(r0, r1, a, mask, use_mask, x, y, z, valid, rowmax, span):  # type: ignore[no-untyped-def]  # numba kernel
+    # float64 x, y, z planes (+inf where invalid: infinitely far from every valid point), the
+    # valid mask (finite, and in ``mask`` when ``use_mask``), per row the largest |x|, |y|, |z|
+    # of its valid points and the span [first, last] of its valid columns (first > last: none).
+    # With a mask, only the columns between its first and last pixel of the row are read.
+    W = a.shape[1]
+    for r in range(r0, r1):
         lo = 0
         hi = W - 1
         if use_mask:
@@ -211,42 +208,16 @@ def _split_rows(b0, b1, a, mask, use_mask, x, y, z, valid, rowmax, span, tcount,
         rowmax[r, 2] = mz
         span[r, 0] = first
         span[r, 1] = last
-        if first > last:
-            continue
-        ti = r // _camera.TILE
-        for tj in range(first // _camera.TILE, last // _camera.TILE + 1):  # the tiles' boxes and counts
-            n = 0
-            x0 = y0 = z0 = np.inf
-            x1 = y1 = z1 = -np.inf
-            for c in range(tj * _camera.TILE, min(W, (tj + 1) * _camera.TILE)):
-                ok = valid[r, c]
-                n += ok
-                x0 = min(x0, x[r, c])
-                y0 = min(y0, y[r, c])
-                z0 = min(z0, z[r, c])
-                x1 = max(x1, x[r, c] if ok else -np.inf)
-                y1 = max(y1, y[r, c] if ok else -np.inf)
-                z1 = max(z1, z[r, c] if ok else -np.inf)
-            tcount[ti, tj] += n
-            tbox[ti, tj, 0] = min(tbox[ti, tj, 0], x0)
-            tbox[ti, tj, 1] = min(tbox[ti, tj, 1], y0)
-            tbox[ti, tj, 2] = min(tbox[ti, tj, 2], z0)
-            tbox[ti, tj, 3] = max(tbox[ti, tj, 3], x1)
-            tbox[ti, tj, 4] = max(tbox[ti, tj, 4], y1)
-            tbox[ti, tj, 5] = max(tbox[ti, tj, 5], z1)
 
 
 _NO_MASK = np.ones((1, 1), dtype=bool)
 _NO_MASK.setflags(write=False)
 
 
-def _prepare(xyz: XYZ, run: Run, ws: SorWorkspace,
-             mask: Mask | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                tuple[np.ndarray, ...]]:
-    """float64 x, y, z planes (+inf where invalid), the valid mask, max |coordinate| per axis,
-    per row the first and last valid column (H, 2) (first > last: the row has none), and the
-    statistics of :func:`zcut.sor_camera.new_stats` with their tile counts and boxes filled (the
-    rest is :func:`zcut.sor_camera.block_rows`').
+def _prepare(xyz: XYZ, run: Run, ws: SorWorkspace, mask: Mask | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                                      np.ndarray, np.ndarray, np.ndarray]:
+    """float64 x, y, z planes (+inf where invalid), the valid mask, max |coordinate| per axis, and
+    per row the first and last valid column (H, 2) (first > last: the row has none).
 
     ``mask``: only its pixels may be valid (the same planes as of the cloud with every other pixel
     NaN, without making that copy: ``xyz`` may then be a strided view, e.g. a crop of a frame)."""
@@ -262,10 +233,8 @@ def _prepare(xyz: XYZ, run: Run, ws: SorWorkspace,
     valid = ws.empty("valid", (H, W), bool)
     rowmax = ws.full("rowmax", (H, 3), 0.0)
     span = ws.empty("span", (H, 2), np.int64)
-    stats = _camera.new_stats(H, W, ws)
-    run(_split_rows, -(-H // _camera.BLOCK), a, _NO_MASK if mask is None else mask, mask is not None, x, y, z, valid,
-        rowmax, span, stats[2], stats[3])
-    return x, y, z, valid, rowmax.max(axis=0, initial=0.0), span, stats
+    run(_split_rows, H, a, _NO_MASK if mask is None else mask, mask is not None, x, y, z, valid, rowmax, span)
+    return x, y, z, valid, rowmax.max(axis=0, initial=0.0), span
 
 
 # --------------------------------------------------------------------------------------------
@@ -302,17 +271,17 @@ def _workers(ws: SorWorkspace) -> Iterator[Run]:
 # the search
 # --------------------------------------------------------------------------------------------
 def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, span: np.ndarray, amax: np.ndarray,
-                    stats: tuple[np.ndarray, ...], m: int, divisor: float, run: Run, ws: SorWorkspace) -> np.ndarray:
+                    m: int, divisor: float, run: Run, ws: SorWorkspace) -> np.ndarray:
     """(H, W) d̄ over the m smallest squared distances (self included); anything where invalid.
-    ``span``: per row the first and last valid column, ``stats``: the statistics with their tile
-    counts and boxes (:func:`_prepare`). The result is an array of the workspace ``ws``, like
-    every full-frame temporary of the search."""
+    ``span``: per row the first and last valid column (:func:`_prepare`). The result is an array
+    of the workspace ``ws``, like every full-frame temporary of the search."""
     H, W = valid.shape
     P = _camera.fit_camera(x, y, z, valid) if _USE_CAMERA else None
     use_cam = P is not None
     S = _camera.camera_scale(P, amax) if P is not None else 1.0
     if P is None:
         P = np.zeros((3, 4))
+    stats = _camera.new_stats(H, W, ws)
     run(_camera.block_rows, stats[0].shape[0], x, y, z, valid, span, P, S, use_cam, *stats)
     rowU, colV, tcount, tbox, tuv, bad = stats
     use_cam = use_cam and not bad.any()  # some depth not safely positive: no camera bounds
@@ -568,7 +537,7 @@ def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl", mask: M
     """
     k, _ = _check_params(k, 1.0, convention)
     with thread_workspace().call() as ws, _workers(ws) as run:
-        x, y, z, valid, amax, span, stats = _prepare(xyz, run, ws, mask)
+        x, y, z, valid, amax, span = _prepare(xyz, run, ws, mask)
         dbar = np.full(valid.shape, np.nan)  # the caller's: never a workspace array
         n = int(np.count_nonzero(valid))
         if n == 0:
@@ -581,7 +550,7 @@ def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl", mask: M
             if divisor == 0.0:
                 dbar[valid] = 0.0
                 return dbar
-        np.copyto(dbar, _mean_distances(x, y, z, valid, span, amax, stats, m, divisor, run, ws), where=valid)
+        np.copyto(dbar, _mean_distances(x, y, z, valid, span, amax, m, divisor, run, ws), where=valid)
     return dbar
 
 
@@ -678,11 +647,11 @@ def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: st
     """
     k, ratio = _check_params(k, std_ratio, convention)
     with thread_workspace().call() as ws, _workers(ws) as run:
-        x, y, z, valid, amax, span, stats = _prepare(xyz, run, ws, mask)
+        x, y, z, valid, amax, span = _prepare(xyz, run, ws, mask)
         n = int(np.count_nonzero(valid))
         if n < k + 1:
             return np.zeros(valid.shape, dtype=bool)
         m = k + 1 if convention == "pcl" else k
-        dbar = _mean_distances(x, y, z, valid, span, amax, stats, m, float(k), run, ws)
+        dbar = _mean_distances(x, y, z, valid, span, amax, m, float(k), run, ws)
         # the masks are made by the kernel: the caller's, never workspace arrays
         return _outlier_masks(dbar, valid, float(n), np.array([ratio]), convention == "open3d")[0]

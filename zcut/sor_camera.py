@@ -395,8 +395,7 @@ def _uv_chunk(x, y, z, valid, r, c0, n, P, S, tau, buf):  # type: ignore[no-unty
 
 @nb.njit(cache=True, nogil=True)
 def block_rows(b0, b1, x, y, z, valid, span, P, S, use_cam, rowU, colV, tcount, tbox, tuv, bad):  # type: ignore[no-untyped-def]  # numba kernel
-    """Row blocks b0..b1-1 of the statistics of :func:`new_stats` but the tile counts and boxes
-    (``zcut.sor._split_rows`` makes those while it writes the planes).
+    """Row blocks b0..b1-1 of the statistics of :func:`new_stats`.
 
     Invalid pixels (+inf) change nothing, so a row is read only over the tiles of its valid span
     (``span[r]`` = first, last valid column), and U and V are computed only over its runs of tiles
@@ -412,13 +411,29 @@ def block_rows(b0, b1, x, y, z, valid, span, P, S, use_cam, rowU, colV, tcount, 
             ti = r // TILE
             tj0 = span[r, 0] // TILE
             tj1 = span[r, 1] // TILE
+            for tj in range(tj0, tj1 + 1):  # boxes and counts
+                n = 0
+                x0 = y0 = z0 = np.inf
+                x1 = y1 = z1 = -np.inf
+                for c in range(tj * TILE, min(W, (tj + 1) * TILE)):
+                    ok = valid[r, c]
+                    n += ok
+                    x0 = min(x0, x[r, c])
+                    y0 = min(y0, y[r, c])
+                    z0 = min(z0, z[r, c])
+                    x1 = max(x1, x[r, c] if ok else -np.inf)
+                    y1 = max(y1, y[r, c] if ok else -np.inf)
+                    z1 = max(z1, z[r, c] if ok else -np.inf)
+                rowcount[tj] = n
+                tcount[ti, tj] += n
+                tbox[ti, tj, 0] = min(tbox[ti, tj, 0], x0)
+                tbox[ti, tj, 1] = min(tbox[ti, tj, 1], y0)
+                tbox[ti, tj, 2] = min(tbox[ti, tj, 2], z0)
+                tbox[ti, tj, 3] = max(tbox[ti, tj, 3], x1)
+                tbox[ti, tj, 4] = max(tbox[ti, tj, 4], y1)
+                tbox[ti, tj, 5] = max(tbox[ti, tj, 5], z1)
             if not use_cam:
                 continue
-            for tj in range(tj0, tj1 + 1):  # the row's valid pixels per tile
-                n = 0
-                for c in range(tj * TILE, min(W, (tj + 1) * TILE)):
-                    n += valid[r, c]
-                rowcount[tj] = n
             ta = tj0
             while ta <= tj1:  # U and V over each run of tiles with a valid pixel
                 if rowcount[ta] == 0:
