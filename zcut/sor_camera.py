@@ -399,128 +399,76 @@ def block_rows(b0, b1, x, y, z, valid, span, P, S, use_cam, rowU, colV, tcount, 
 
     Invalid pixels (+inf) change nothing, so a row is read only over the tiles of its valid span
     (``span[r]`` = first, last valid column), and U and V are computed only over its runs of tiles
-    that hold a valid pixel of the row. A tile row's pixels are first folded column by column into
-    per-column extremes and counts (``acc``, ``cnt``: element-wise, so the compiler vectorizes it),
-    and each tile's 8 columns are folded once at the end of its tile row, not once per row; the
-    extremes are exact, so the order changes no value."""
+    that hold a valid pixel of the row."""
     H, W = valid.shape
     tau = 1e-6 * S
     buf = np.empty(5 * _CH)
-    ntw = -(-W // TILE)
-    rowcount = np.zeros(ntw, np.int64)
-    # a tile row's per-column x, y, z lo, x, y, z hi, U lo, U hi, V lo, V hi, depth lo, and count
-    acc = np.empty((11, ntw * TILE))
-    cnt = np.zeros(ntw * TILE, np.int64)
+    rowcount = np.zeros(-(-W // TILE), np.int64)
     for blk in range(b0, b1):
-        for ti in range(blk * (BLOCK // TILE), min(-(-H // TILE), (blk + 1) * (BLOCK // TILE))):
-            r0 = ti * TILE
-            r1 = min(H, r0 + TILE)
-            tlo = ntw
-            thi = -1
-            for r in range(r0, r1):
-                if span[r, 0] <= span[r, 1]:
-                    tlo = min(tlo, span[r, 0] // TILE)
-                    thi = max(thi, span[r, 1] // TILE)
-            if tlo > thi:
+        for r in range(blk * BLOCK, min(H, (blk + 1) * BLOCK)):
+            if span[r, 0] > span[r, 1]:
                 continue
-            ca = tlo * TILE
-            cb = min(W, (thi + 1) * TILE)
-            for c in range(ca, cb):
-                for f in range(0, 11, 2):
-                    acc[f, c] = np.inf
-                for f in range(1, 11, 2):
-                    acc[f, c] = -np.inf
-                cnt[c] = 0
-            for r in range(r0, r1):
-                if span[r, 0] > span[r, 1]:
-                    continue
-                tj0 = span[r, 0] // TILE
-                tj1 = span[r, 1] // TILE
-                for c in range(tj0 * TILE, min(W, (tj1 + 1) * TILE)):  # boxes and counts, per column
-                    ok = valid[r, c]
-                    cnt[c] += ok
-                    acc[0, c] = min(acc[0, c], x[r, c])
-                    acc[2, c] = min(acc[2, c], y[r, c])
-                    acc[4, c] = min(acc[4, c], z[r, c])
-                    acc[1, c] = max(acc[1, c], x[r, c] if ok else -np.inf)
-                    acc[3, c] = max(acc[3, c], y[r, c] if ok else -np.inf)
-                    acc[5, c] = max(acc[5, c], z[r, c] if ok else -np.inf)
-                if not use_cam:
-                    continue
-                for tj in range(tj0, tj1 + 1):
-                    n = 0
-                    for c in range(tj * TILE, min(W, (tj + 1) * TILE)):
-                        n += valid[r, c]
-                    rowcount[tj] = n
-                ta = tj0
-                while ta <= tj1:  # U and V over each run of tiles with a valid pixel
-                    if rowcount[ta] == 0:
-                        ta += 1
-                        continue
-                    te = ta
-                    while te < tj1 and rowcount[te + 1] > 0:
-                        te += 1
-                    c_end = min(W, (te + 1) * TILE)
-                    for c0 in range(ta * TILE, c_end, _CH):  # tile-aligned chunks
-                        n = min(_CH, c_end - c0)
-                        if _uv_chunk(x, y, z, valid, r, c0, n, P, S, tau, buf):
-                            bad[blk] = True
-                        for i in range(n):
-                            c = c0 + i
-                            rowU[blk, c, 0] = min(rowU[blk, c, 0], buf[i])
-                            rowU[blk, c, 1] = max(rowU[blk, c, 1], buf[_CH + i])
-                            acc[6, c] = min(acc[6, c], buf[i])
-                            acc[7, c] = max(acc[7, c], buf[_CH + i])
-                            acc[8, c] = min(acc[8, c], buf[2 * _CH + i])
-                            acc[9, c] = max(acc[9, c], buf[3 * _CH + i])
-                            acc[10, c] = min(acc[10, c], buf[4 * _CH + i])
-                        i0 = 0
-                        while i0 < n:  # V extremes of the row per column block
-                            cbk = (c0 + i0) // BLOCK
-                            i1 = min(n, (cbk + 1) * BLOCK - c0)
-                            v0 = np.inf
-                            v1 = -np.inf
-                            for i in range(i0, i1):
-                                v0 = min(v0, buf[2 * _CH + i])
-                                v1 = max(v1, buf[3 * _CH + i])
-                            colV[cbk, r, 0] = min(colV[cbk, r, 0], v0)
-                            colV[cbk, r, 1] = max(colV[cbk, r, 1], v1)
-                            i0 = i1
-                    ta = te + 1
-            for tj in range(tlo, thi + 1):  # each tile's columns, once a tile row
+            ti = r // TILE
+            tj0 = span[r, 0] // TILE
+            tj1 = span[r, 1] // TILE
+            for tj in range(tj0, tj1 + 1):  # boxes and counts
                 n = 0
-                e0 = e1 = e2 = np.inf
-                e3 = e4 = e5 = -np.inf
+                x0 = y0 = z0 = np.inf
+                x1 = y1 = z1 = -np.inf
                 for c in range(tj * TILE, min(W, (tj + 1) * TILE)):
-                    n += cnt[c]
-                    e0 = min(e0, acc[0, c])
-                    e1 = min(e1, acc[2, c])
-                    e2 = min(e2, acc[4, c])
-                    e3 = max(e3, acc[1, c])
-                    e4 = max(e4, acc[3, c])
-                    e5 = max(e5, acc[5, c])
+                    ok = valid[r, c]
+                    n += ok
+                    x0 = min(x0, x[r, c])
+                    y0 = min(y0, y[r, c])
+                    z0 = min(z0, z[r, c])
+                    x1 = max(x1, x[r, c] if ok else -np.inf)
+                    y1 = max(y1, y[r, c] if ok else -np.inf)
+                    z1 = max(z1, z[r, c] if ok else -np.inf)
+                rowcount[tj] = n
                 tcount[ti, tj] += n
-                tbox[ti, tj, 0] = min(tbox[ti, tj, 0], e0)
-                tbox[ti, tj, 1] = min(tbox[ti, tj, 1], e1)
-                tbox[ti, tj, 2] = min(tbox[ti, tj, 2], e2)
-                tbox[ti, tj, 3] = max(tbox[ti, tj, 3], e3)
-                tbox[ti, tj, 4] = max(tbox[ti, tj, 4], e4)
-                tbox[ti, tj, 5] = max(tbox[ti, tj, 5], e5)
-                if not use_cam:
+                tbox[ti, tj, 0] = min(tbox[ti, tj, 0], x0)
+                tbox[ti, tj, 1] = min(tbox[ti, tj, 1], y0)
+                tbox[ti, tj, 2] = min(tbox[ti, tj, 2], z0)
+                tbox[ti, tj, 3] = max(tbox[ti, tj, 3], x1)
+                tbox[ti, tj, 4] = max(tbox[ti, tj, 4], y1)
+                tbox[ti, tj, 5] = max(tbox[ti, tj, 5], z1)
+            if not use_cam:
+                continue
+            ta = tj0
+            while ta <= tj1:  # U and V over each run of tiles with a valid pixel
+                if rowcount[ta] == 0:
+                    ta += 1
                     continue
-                u0 = v0 = d0 = np.inf
-                u1 = v1 = -np.inf
-                for c in range(tj * TILE, min(W, (tj + 1) * TILE)):
-                    u0 = min(u0, acc[6, c])
-                    u1 = max(u1, acc[7, c])
-                    v0 = min(v0, acc[8, c])
-                    v1 = max(v1, acc[9, c])
-                    d0 = min(d0, acc[10, c])
-                tuv[ti, tj, 0] = min(tuv[ti, tj, 0], u0)
-                tuv[ti, tj, 1] = max(tuv[ti, tj, 1], u1)
-                tuv[ti, tj, 2] = min(tuv[ti, tj, 2], v0)
-                tuv[ti, tj, 3] = max(tuv[ti, tj, 3], v1)
-                tuv[ti, tj, 4] = min(tuv[ti, tj, 4], d0)
+                te = ta
+                while te < tj1 and rowcount[te + 1] > 0:
+                    te += 1
+                c_end = min(W, (te + 1) * TILE)
+                for c0 in range(ta * TILE, c_end, _CH):  # tile-aligned chunks
+                    n = min(_CH, c_end - c0)
+                    if _uv_chunk(x, y, z, valid, r, c0, n, P, S, tau, buf):
+                        bad[blk] = True
+                    for i in range(n):
+                        rowU[blk, c0 + i, 0] = min(rowU[blk, c0 + i, 0], buf[i])
+                        rowU[blk, c0 + i, 1] = max(rowU[blk, c0 + i, 1], buf[_CH + i])
+                    for t0 in range(0, n, TILE):
+                        tj = (c0 + t0) // TILE
+                        u0 = d0 = v0 = np.inf
+                        u1 = v1 = -np.inf
+                        for i in range(t0, min(n, t0 + TILE)):
+                            u0 = min(u0, buf[i])
+                            u1 = max(u1, buf[_CH + i])
+                            v0 = min(v0, buf[2 * _CH + i])
+                            v1 = max(v1, buf[3 * _CH + i])
+                            d0 = min(d0, buf[4 * _CH + i])
+                        tuv[ti, tj, 0] = min(tuv[ti, tj, 0], u0)
+                        tuv[ti, tj, 1] = max(tuv[ti, tj, 1], u1)
+                        tuv[ti, tj, 2] = min(tuv[ti, tj, 2], v0)
+                        tuv[ti, tj, 3] = max(tuv[ti, tj, 3], v1)
+                        tuv[ti, tj, 4] = min(tuv[ti, tj, 4], d0)
+                        cb = (c0 + t0) // BLOCK
+                        colV[cb, r, 0] = min(colV[cb, r, 0], v0)
+                        colV[cb, r, 1] = max(colV[cb, r, 1], v1)
+                ta = te + 1
 
 
 # --------------------------------------------------------------------------------------------
