@@ -129,6 +129,7 @@ _COLUMNS_COST = 3.0                # ... and a tile search of them would measure
 _COLUMN_WIDTH = 0.25               # column width, times the median bound of the unproven pixels
 _COLUMNS_PER_POINT = 8             # largest column grid, per valid point
 _COLUMN_SCAN = 1024                # entries a column search may scan per query, on average
+_KD_LEAF_FEW = 64                  # the KD-tree's leaf size when it has this many points per query or more
 
 Run = Callable[..., None]
 
@@ -305,24 +306,34 @@ def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarr
         def tree() -> tuple[np.ndarray, ...]:  # built only when a tile search runs
             return _search.build_quadtree(tcount, tbox, tuv, P, M, use_cam)
 
-        _fallback(x, y, z, valid, rows, cols, -dbar[rows, cols], m, divisor, use_cam, tree, dbar, run, ws)
+        _fallback(x, y, z, valid, rows, cols, -dbar[rows, cols], m, divisor, use_cam, tree, dbar, run, ws, tbox)
     return dbar
+
+
+def _tile_range(tbox: np.ndarray) -> tuple[float, float, float, float, float, float]:
+    """Smallest and largest x, y and z of the valid pixels (``zcut.sor_search.valid_range``'s values), from the
+    per-tile boxes of :func:`zcut.sor_camera.block_rows` instead of another pass over the frame: every valid pixel
+    is in its tile's box, the boxes of tiles without one are empty (+inf, -inf), and extremes are exact in any
+    order."""
+    lo = tbox[..., :3].min(axis=(0, 1), initial=np.inf)
+    hi = tbox[..., 3:].max(axis=(0, 1), initial=-np.inf)
+    return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]), float(lo[2]), float(hi[2])
 
 
 def _column_stage(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                   lim: np.ndarray, m: int, divisor: float, dbar: np.ndarray, run: Run, ws: SorWorkspace,
-                  n_valid: int) -> np.ndarray:
+                  n_valid: int, tbox: np.ndarray) -> np.ndarray:
     """k-nearest search in columns (:mod:`zcut.columns`) for the unproven pixels with a finite
     bound ``lim`` (:func:`_fallback` calls it when they are many and the tile search would measure
     many pixels for each: tall parts on end, flying pixels everywhere). ``n_valid``: the valid
-    pixels. Writes their d̄ into dbar; returns which it settled."""
+    pixels; ``tbox``: the tiles' boxes (:func:`_tile_range`). Writes their d̄ into dbar; returns which it settled."""
     done = np.zeros(rows.size, dtype=bool)
     rad = np.sqrt(lim)
     eligible = np.isfinite(rad) & (rad > 0.0)
     if not eligible.any():
         return done
     width = float(np.median(rad[eligible])) * _COLUMN_WIDTH
-    x0, x1, y0, y1, z0, z1 = _search.valid_range(x, y, z, valid)
+    x0, x1, y0, y1, z0, z1 = _tile_range(tbox)
     inv = 1.0 / width
     with np.errstate(over="ignore", invalid="ignore"):
         nx, ny = np.floor((x1 - x0) * inv) + 1.0, np.floor((y1 - y0) * inv) + 1.0
@@ -350,7 +361,7 @@ def _column_stage(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray
 
 def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, rows: np.ndarray, cols: np.ndarray,
               lim: np.ndarray, m: int, divisor: float, use_cam: bool, make_tree: Callable[[], tuple[np.ndarray, ...]],
-              dbar: np.ndarray, run: Run, ws: SorWorkspace) -> None:
+              dbar: np.ndarray, run: Run, ws: SorWorkspace, tbox: np.ndarray) -> None:
     """Columns, then a tile search for the unproven pixels left (over the quadtree ``make_tree()``
     builds), then a KD-tree for those it could not finish.
 
@@ -388,13 +399,16 @@ def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, ro
             if not rows.size:
                 return
         if use_columns:
-            done = _column_stage(x, y, z, valid, rows, cols, lim, m, divisor, dbar, run, ws, n_valid)
+            done = _column_stage(x, y, z, valid, rows, cols, lim, m, divisor, dbar, run, ws, n_valid, tbox)
             if done.all():
                 return
             rows, cols, lim = rows[~done], cols[~done], lim[~done]
 
     def kd_search(pts: np.ndarray, rows: np.ndarray, cols: np.ndarray, lim: np.ndarray) -> None:
-        kd = _search.kd_build(pts)
+        # few queries over many points (the tile searches that hit their cap): larger leaves, a
+        # shallower tree, less to build for the few leaves the queries scan
+        few = rows.size * _KD_LEAF_FEW <= pts.shape[0]
+        kd = _search.kd_build(pts, _KD_LEAF_FEW if few else _search.KD_LEAF)
         out = np.zeros(rows.size)
         run(_search.kd_queries, rows.size, x, y, z, rows, cols, lim, m, divisor, kd, out)
         dbar[rows, cols] = out
@@ -525,7 +539,7 @@ def sor_mean_distances(xyz: XYZ, *, k: int = 4, convention: str = "pcl", mask: M
     with thread_workspace().call() as ws, _workers(ws) as run:
         x, y, z, valid, amax, span = _prepare(xyz, run, ws, mask)
         dbar = np.full(valid.shape, np.nan)  # the caller's: never a workspace array
-        n = int(valid.sum())
+        n = int(np.count_nonzero(valid))
         if n == 0:
             return dbar
         m = k + 1 if convention == "pcl" else k
@@ -634,7 +648,7 @@ def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: st
     k, ratio = _check_params(k, std_ratio, convention)
     with thread_workspace().call() as ws, _workers(ws) as run:
         x, y, z, valid, amax, span = _prepare(xyz, run, ws, mask)
-        n = int(valid.sum())
+        n = int(np.count_nonzero(valid))
         if n < k + 1:
             return np.zeros(valid.shape, dtype=bool)
         m = k + 1 if convention == "pcl" else k

@@ -183,9 +183,10 @@ def _prunable(bd, lim, best, found, m):  # type: ignore[no-untyped-def]  # numba
 
 
 @nb.njit(cache=True)
-def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree):  # type: ignore[no-untyped-def]  # numba kernel
+def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree, stack_k, stack_l, stack_b):  # type: ignore[no-untyped-def]  # numba kernel
     # nearest-first search of one pixel; returns (found, aborted): best[] holds the m smallest
-    # squared distances of the pixels measured
+    # squared distances of the pixels measured. stack_*: scratch of 4 · levels + 4 entries (made
+    # once per call of tile_queries, not once per pixel)
     level_off, level_h, level_w, count, box, planes = tree
     H, W = valid.shape
     nlev = level_h.shape[0]
@@ -195,9 +196,6 @@ def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree):  # type
     for i in range(m):
         best[i] = np.inf
     found = 0
-    stack_k = np.empty(4 * nlev + 4, np.int64)
-    stack_l = np.empty(4 * nlev + 4, np.int64)
-    stack_b = np.empty(4 * nlev + 4)
     sp = 1
     stack_k[0] = 0  # the root: (0, 0) on the last level
     stack_l[0] = nlev - 1
@@ -235,9 +233,19 @@ def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree):  # type
                 if cj >= level_w[cl]:
                     continue
                 cij = ci * level_w[cl] + cj
-                bd = _node_bound2(level_off[cl] + cij, count, box, planes, use_cam, xq, yq, zq)
+                kc = level_off[cl] + cij
+                if count[kc] == 0:
+                    continue
+                # the box first: a node it prunes is pruned by any larger bound (the test is
+                # monotone), so its planes are evaluated only when it does not, and never at the
+                # tiles, whose planes are zeros (build_quadtree): bd is _node_bound2's
+                bd = _box_d2(box, kc, xq, yq, zq)
                 if _prunable(bd, lim, best, found, m):
                     continue
+                if use_cam and cl > 0:
+                    bd = _node_bound2(kc, count, box, planes, use_cam, xq, yq, zq)
+                    if _prunable(bd, lim, best, found, m):
+                        continue
                 t = nc  # insertion sort, descending
                 while t > 0 and cb[t - 1] < bd:
                     cb[t] = cb[t - 1]
@@ -265,9 +273,14 @@ def tile_queries(q0, q1, x, y, z, valid, qr, qc, qlim, m, divisor, cap, use_cam,
     search's cost).
     """
     best = np.empty(m)
+    nlev = tree[1].shape[0]
+    stack_k = np.empty(4 * nlev + 4, np.int64)
+    stack_l = np.empty(4 * nlev + 4, np.int64)
+    stack_b = np.empty(4 * nlev + 4)
     for q in range(q0, q1):
         lim = qlim[q]
-        found, aborted = _tile_query(qr[q], qc[q], lim, best, x, y, z, valid, m, cap, use_cam, tree)
+        found, aborted = _tile_query(qr[q], qc[q], lim, best, x, y, z, valid, m, cap, use_cam, tree, stack_k, stack_l,
+                                     stack_b)
         measured[q] = found
         if not aborted:
             out[q] = mean_of_sorted(best, divisor)
@@ -322,7 +335,10 @@ def mark_queries(q0, q1, x, y, z, qr, qc, qrad2, max_tiles, use_cam, tree, mark,
                     if cj >= level_w[cl]:
                         continue
                     cij = ci * level_w[cl] + cj
-                    if _node_bound2(level_off[cl] + cij, count, box, planes, use_cam, xq, yq, zq) <= rad:
+                    kc = level_off[cl] + cij
+                    if count[kc] > 0 and not _box_d2(box, kc, xq, yq, zq) <= rad:  # the box first, as in _tile_query
+                        continue
+                    if _node_bound2(kc, count, box, planes, use_cam and cl > 0, xq, yq, zq) <= rad:
                         stack_k[sp] = cij
                         stack_l[sp] = cl
                         sp += 1
@@ -379,34 +395,31 @@ def gather_valid(x, y, z, valid):  # type: ignore[no-untyped-def]  # numba kerne
 # --------------------------------------------------------------------------------------------
 # KD-tree
 # --------------------------------------------------------------------------------------------
-@nb.njit(cache=True, inline="always")
-def _key(pts, idx, i, dim):  # type: ignore[no-untyped-def]  # numba kernel
-    return pts[idx[i], dim]
-
-
 @nb.njit(cache=True)
-def _select(pts, idx, lo, hi, kth, dim):  # type: ignore[no-untyped-def]  # numba kernel
-    # Hoare quickselect on idx[lo:hi] by pts[:, dim]: afterwards keys left of kth are <= and keys
-    # right of it >= the kth one; runs of equal keys are split evenly, so duplicates cost O(n)
+def _select(pts, lo, hi, kth, dim):  # type: ignore[no-untyped-def]  # numba kernel
+    # Hoare quickselect on the rows pts[lo:hi] by pts[:, dim], moving the rows themselves: afterwards
+    # keys above row kth are <= and keys below it >= its key; runs of equal keys are split evenly,
+    # so duplicates cost O(n)
     left = lo
     right = hi - 1
     while right > left:
         mid = (left + right) // 2
-        a = _key(pts, idx, left, dim)
-        b = _key(pts, idx, mid, dim)
-        c = _key(pts, idx, right, dim)
+        a = pts[left, dim]
+        b = pts[mid, dim]
+        c = pts[right, dim]
         pivot = max(min(a, b), min(max(a, b), c))  # median of three
         i = left
         j = right
         while i <= j:
-            while _key(pts, idx, i, dim) < pivot:
+            while pts[i, dim] < pivot:
                 i += 1
-            while _key(pts, idx, j, dim) > pivot:
+            while pts[j, dim] > pivot:
                 j -= 1
             if i <= j:
-                t = idx[i]
-                idx[i] = idx[j]
-                idx[j] = t
+                for f in range(3):
+                    t = pts[i, f]
+                    pts[i, f] = pts[j, f]
+                    pts[j, f] = t
                 i += 1
                 j -= 1
         if kth <= j:
@@ -418,16 +431,23 @@ def _select(pts, idx, lo, hi, kth, dim):  # type: ignore[no-untyped-def]  # numb
 
 
 @nb.njit(cache=True, nogil=True)
-def kd_build(pts):  # type: ignore[no-untyped-def]  # numba kernel
-    """Balanced KD-tree (median split on the widest axis of each node's box).
+def kd_build(pts, leaf=KD_LEAF):  # type: ignore[no-untyped-def]  # numba kernel
+    """Balanced KD-tree (median split on the widest axis of each node's box), nodes of at most
+    ``leaf`` points not split.
 
     Returns (sorted_pts, lo, hi, start, end, child): the points reordered so that every node is a
     contiguous range; ``child[k]`` is the left child (the right one is ``child[k] + 1``), -1 at
-    leaves; lo / hi are the boxes of the actual points. O(n log n) time, O(n) memory.
+    leaves; lo / hi are the boxes of the actual points. O(n log n) time, O(n) memory. The points
+    are reordered in a copy as the splits go (each node's box and split then read its rows in
+    order, not through an index into the input).
     """
     n = pts.shape[0]
-    idx = np.arange(n)
-    cap = 4 * (n // KD_LEAF + 1) + 1
+    out = np.empty((n, 3))
+    for t in range(n):
+        for a in range(3):
+            out[t, a] = pts[t, a]
+    leaf = max(leaf, 1)
+    cap = 4 * (n // leaf + 1) + 1
     lo = np.empty((cap, 3))
     hi = np.empty((cap, 3))
     start = np.empty(cap, np.int64)
@@ -444,16 +464,18 @@ def kd_build(pts):  # type: ignore[no-untyped-def]  # numba kernel
         k = stack[sp]
         s = start[k]
         e = end[k]
-        for a in range(3):
-            lo[k, a] = np.inf
-            hi[k, a] = -np.inf
+        x0 = y0 = z0 = np.inf  # the box in locals (kept in registers)
+        x1 = y1 = z1 = -np.inf
         for t in range(s, e):
-            p = idx[t]
-            for a in range(3):
-                v = pts[p, a]
-                lo[k, a] = min(lo[k, a], v)
-                hi[k, a] = max(hi[k, a], v)
-        if e - s <= KD_LEAF:
+            x0 = min(x0, out[t, 0])
+            x1 = max(x1, out[t, 0])
+            y0 = min(y0, out[t, 1])
+            y1 = max(y1, out[t, 1])
+            z0 = min(z0, out[t, 2])
+            z1 = max(z1, out[t, 2])
+        lo[k, 0], lo[k, 1], lo[k, 2] = x0, y0, z0
+        hi[k, 0], hi[k, 1], hi[k, 2] = x1, y1, z1
+        if e - s <= leaf:
             continue
         dim = 0
         ext = hi[k, 0] - lo[k, 0]
@@ -462,7 +484,7 @@ def kd_build(pts):  # type: ignore[no-untyped-def]  # numba kernel
                 ext = hi[k, a] - lo[k, a]
                 dim = a
         mid = (s + e) // 2
-        _select(pts, idx, s, e, mid, dim)
+        _select(out, s, e, mid, dim)
         child[k] = nodes
         start[nodes] = s
         end[nodes] = mid
@@ -472,10 +494,6 @@ def kd_build(pts):  # type: ignore[no-untyped-def]  # numba kernel
         stack[sp + 1] = nodes + 1
         sp += 2
         nodes += 2
-    out = np.empty((n, 3))
-    for t in range(n):
-        for a in range(3):
-            out[t, a] = pts[idx[t], a]
     return out, lo[:nodes].copy(), hi[:nodes].copy(), start[:nodes].copy(), end[:nodes].copy(), child[:nodes].copy()
 
 

@@ -632,3 +632,198 @@ def test_mean_std_adds_nothing_for_the_pixels_it_skips(open3d: bool, case: str) 
     got = np.array(sor_module._mean_std(dbar, valid, n, open3d))
     want = np.array([mean, std])
     assert np.array_equal(got.view(np.uint64), want.view(np.uint64)), (got, want)
+
+
+# ------------------------------------------------------------------------------------------------
+# the column stage's range from the tiles' boxes, the KD-tree built on a copy (round of 2026-12-06e)
+# ------------------------------------------------------------------------------------------------
+def _tile_boxes(xyz: np.ndarray, mask: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+    """x, y, z, valid and the tiles' boxes of a call (``_prepare``, then ``block_rows`` without a camera)."""
+    from zcut import sor_camera
+    from zcut.sor_workspace import SorWorkspace
+
+    ws = SorWorkspace(max_bytes=0)
+    run = lambda kernel, n, *args: kernel(0, n, *args) if n else None  # noqa: E731 - the serial runner
+    x, y, z, valid, _, span = sor_module._prepare(xyz, run, ws, mask)
+    stats = sor_camera.new_stats(*valid.shape)
+    sor_camera.block_rows(0, stats[0].shape[0], x, y, z, valid, span, np.zeros((3, 4)), 1.0, False, *stats)
+    return x, y, z, valid, stats[3]
+
+
+@pytest.mark.parametrize("kind", ["steep-holes", "masked-crop", "negative", "signed-zeros", "one-row", "one-valid",
+                                  "all-nan", "single"])
+def test_the_tiles_boxes_give_the_valid_range(kind: str) -> None:
+    # the column stage takes the smallest and largest x, y, z of the valid pixels from the tiles'
+    # boxes (no pass over the frame): the values of the pass it replaced, sor_search.valid_range,
+    # with or without a mask, on blob-shaped holes over half of the image, and when nothing is valid
+    from scipy.ndimage import gaussian_filter
+
+    from zcut.sor_search import valid_range
+
+    rng = np.random.default_rng(64 + len(kind))
+    mask = None
+    if kind in ("steep-holes", "masked-crop"):
+        xyz = bank_clouds.steep(rng, 75, 133)
+        field = gaussian_filter(rng.normal(size=xyz.shape[:2]), 5.0)
+        xyz[field > np.quantile(field, 0.5)] = np.nan
+        if kind == "masked-crop":
+            mask = (rng.random(xyz.shape[:2]) < 0.3)[2:70, 5:131]
+            xyz = xyz[2:70, 5:131]
+    elif kind in ("negative", "signed-zeros"):
+        xyz = -bank_clouds.with_holes(rng, camera(rng, 41, 57), 0.3)
+        if kind == "signed-zeros":
+            xyz[::3, ::2, 0] = -0.0
+            xyz[1::3, ::2, 0] = 0.0
+    else:
+        xyz = bank_clouds.degenerate_clouds()[{"one-row": "row", "one-valid": "one-valid"}.get(kind, kind)]
+    x, y, z, valid, tbox = _tile_boxes(xyz, mask)
+    got, want = sor_module._tile_range(tbox), valid_range(x, y, z, valid)
+    assert np.array_equal(np.array(got), np.array(want)), (got, want)
+    if valid.any():
+        assert all(math.isfinite(v) for v in got)
+    else:
+        assert got == (np.inf, -np.inf, np.inf, -np.inf, np.inf, -np.inf)
+
+
+def _index_kd_build(pts: np.ndarray, leaf: int) -> tuple[np.ndarray, ...]:
+    """The KD-tree build before this round, transcribed literally: an index array permuted by a
+    Hoare quickselect on pts[idx[i], dim], each node's box read through the index."""
+    n = pts.shape[0]
+    idx = np.arange(n)
+    lo, hi, start, end, child = [], [], [0], [n], [-1]
+
+    def select(s: int, e: int, kth: int, dim: int) -> None:
+        left, right = s, e - 1
+        while right > left:
+            mid = (left + right) // 2
+            a, b, c = pts[idx[left], dim], pts[idx[mid], dim], pts[idx[right], dim]
+            pivot = max(min(a, b), min(max(a, b), c))
+            i, j = left, right
+            while i <= j:
+                while pts[idx[i], dim] < pivot:
+                    i += 1
+                while pts[idx[j], dim] > pivot:
+                    j -= 1
+                if i <= j:
+                    idx[i], idx[j] = idx[j], idx[i]
+                    i += 1
+                    j -= 1
+            if kth <= j:
+                right = j
+            elif kth >= i:
+                left = i
+            else:
+                break
+
+    stack = [0]
+    boxes: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    while stack:
+        k = stack.pop()
+        s, e = start[k], end[k]
+        box_lo, box_hi = [math.inf] * 3, [-math.inf] * 3
+        for t in range(s, e):  # in the index's order, the first of equal values kept (-0.0 and 0.0)
+            for a in range(3):
+                box_lo[a] = min(box_lo[a], pts[idx[t], a])
+                box_hi[a] = max(box_hi[a], pts[idx[t], a])
+        boxes[k] = np.array(box_lo), np.array(box_hi)
+        if e - s <= leaf:
+            continue
+        ext = boxes[k][1] - boxes[k][0]
+        dim = 0
+        for a in (1, 2):
+            if ext[a] > ext[dim]:
+                dim = a
+        mid = (s + e) // 2
+        select(s, e, mid, dim)
+        child[k] = len(start)
+        start += [s, mid]
+        end += [mid, e]
+        child += [-1, -1]
+        stack += [child[k], child[k] + 1]
+    lo = np.array([boxes[k][0] for k in range(len(start))])
+    hi = np.array([boxes[k][1] for k in range(len(start))])
+    return pts[idx], lo, hi, np.array(start), np.array(end), np.array(child)
+
+
+@pytest.mark.parametrize("kind", ["uniform", "quantized", "coincident", "one-plane", "two", "one"])
+def test_kd_build_makes_the_index_builds_tree(kind: str) -> None:
+    # kd_build now moves the points themselves as it splits (no index into the input): the same
+    # swaps on the same keys, so the same tree bit for bit, duplicates and ties included
+    from zcut.sor_search import KD_LEAF, kd_build
+
+    rng = np.random.default_rng(1 + len(kind))
+    n = {"two": 2, "one": 1}.get(kind, 700)
+    pts = rng.random((n, 3))
+    if kind == "quantized":
+        pts = np.round(pts * 6.0) / 6.0
+    elif kind == "coincident":
+        pts[:] = pts[0]
+    elif kind == "one-plane":
+        pts[:, 2] = -0.0
+        pts[::2, 2] = 0.0
+    for leaf in (1, 3, KD_LEAF, 64):
+        got = kd_build(pts.copy(), leaf)
+        want = _index_kd_build(pts, leaf)
+        for g, w in zip(got, want, strict=True):
+            assert g.shape == w.shape and g.tobytes() == w.tobytes()
+    assert kd_build(pts)[0].tobytes() == _index_kd_build(pts, KD_LEAF)[0].tobytes()
+
+
+@pytest.mark.parametrize("leaf", [1, 64, 1 << 20])
+@pytest.mark.parametrize("seed", [3, 17])
+def test_the_kd_tree_of_any_leaf_size_gives_the_same_distances(seed: int, leaf: int,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    # every unproven pixel of steep relief with blob-shaped holes sent to the KD-tree of the tiles
+    # within its radius, and to the KD-tree of all points, built with leaves of any size
+    from scipy.ndimage import gaussian_filter
+
+    from zcut import sor_search
+
+    build = sor_search.kd_build
+    leaves = []
+
+    def kd_build(pts, leaf_asked=sor_search.KD_LEAF):  # noqa: ANN001, ANN202 - a spy with the kernel's signature
+        leaves.append(leaf_asked)
+        return build(pts, leaf)
+
+    rng = np.random.default_rng(seed)
+    xyz = bank_clouds.steep(rng, 60, 90)
+    field = gaussian_filter(rng.normal(size=xyz.shape[:2]), 5.0)
+    xyz[field > np.quantile(field, 0.6)] = np.nan
+    monkeypatch.setattr(sor_search, "kd_build", kd_build)
+    monkeypatch.setattr(sor_module, "_TILE_SCAN_CAP", 0)
+    assert_as_oracle(xyz, ks=(1, 4))
+    monkeypatch.setattr(sor_module, "_MARK_MAX_TILES", 0)
+    assert_as_oracle(xyz, ks=(4,))
+    assert leaves
+
+
+def test_few_queries_get_the_large_leaves(monkeypatch: pytest.MonkeyPatch) -> None:
+    # the leaf size follows the points per query: 64 when the tree has at least 64 points per query
+    # (the few tile searches that hit their cap, over the tiles within their radius), the default
+    # for the KD-tree of every point of a cloud that is not organized (as many queries as points)
+    from zcut import sor_search
+
+    build, queries = sor_search.kd_build, sor_search.kd_queries
+    asked: list[list[int]] = []
+
+    def kd_build(pts, leaf=sor_search.KD_LEAF):  # noqa: ANN001, ANN202 - a spy with the kernel's signature
+        asked.append([pts.shape[0], leaf, 0])
+        return build(pts, leaf)
+
+    def kd_queries(q0, q1, *args):  # noqa: ANN001, ANN002, ANN202 - a spy with the kernel's signature
+        asked[-1][2] += q1 - q0
+        return queries(q0, q1, *args)
+
+    rng = np.random.default_rng(5)
+    monkeypatch.setattr(sor_search, "kd_build", kd_build)
+    monkeypatch.setattr(sor_search, "kd_queries", kd_queries)
+    monkeypatch.setattr(sor_module, "_TILE_SCAN_CAP", 8)
+    sor_mean_distances(bank_clouds.steep(rng, 96, 128), k=4)
+    monkeypatch.setattr(sor_module, "_TILE_SCAN_CAP", 0)
+    monkeypatch.setattr(sor_module, "_SAMPLE", 2)
+    sor_mean_distances(bank_clouds.scattered(rng, 40, 50), k=4)
+    assert len(asked) == 2
+    for n, leaf, n_queries in asked:
+        assert leaf == (sor_module._KD_LEAF_FEW if n_queries * sor_module._KD_LEAF_FEW <= n else sor_search.KD_LEAF)
+    assert [leaf for _, leaf, _ in asked] == [sor_module._KD_LEAF_FEW, sor_search.KD_LEAF]
