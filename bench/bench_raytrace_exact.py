@@ -80,12 +80,15 @@ def main() -> None:
     ap.add_argument("--kind", default="zinc_nuts")
     ap.add_argument("--seed", type=int, default=7741)
     ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--keep", type=Path, default=None, help="keep the first rep's frames here (old.npz, new.npz)")
     args = ap.parse_args()
     here = Path(__file__).resolve().parents[1]
     trees = {"old": args.against.resolve(), "new": here}
     cpu: dict[str, list[dict[str, float]]] = {"old": [], "new": []}
     with tempfile.TemporaryDirectory() as d:
-        first = {k: Path(d) / f"{k}.npz" for k in trees}
+        if args.keep is not None:
+            args.keep.mkdir(parents=True, exist_ok=True)
+        first = {k: (args.keep or Path(d)) / f"{k}.npz" for k in trees}
         for rep in range(args.reps):
             order = ["old", "new"] if rep % 2 == 0 else ["new", "old"]
             for name in order:

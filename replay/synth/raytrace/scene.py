@@ -3,7 +3,10 @@
 World frame as :mod:`replay.synth.scene` (z up, table top at 0, camera above the origin looking
 down); camera optical frame: x = world x, y = -world y, z = camera height - world z (mm). Rays are
 cast with Open3D's ``RaycastingScene`` (Embree); every triangle carries its material, its surface
-label and its part index, looked up by the primitive id a ray returns.
+label and its part index, looked up by the primitive id a ray returns. Embree says only whether a ray
+hits and which triangle: the hit's ``t``, barycentric coordinates and face normal are computed in
+float64 from that triangle (Möller–Trumbore), because Embree's float32 answers differ in their last
+bits between CPUs (docs/synthetic.md, "Exact hits").
 """
 
 from __future__ import annotations
