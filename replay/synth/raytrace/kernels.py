@@ -68,7 +68,7 @@ def ray_array(origins: np.ndarray, directions: np.ndarray, out: np.ndarray) -> N
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _hit_tuv(i: int, p: int, o: int, origins: np.ndarray, directions: np.ndarray, v0: np.ndarray, e1: np.ndarray,
+def _hit_tuv(i: int, p: np.int64, o: int, origins: np.ndarray, directions: np.ndarray, v0: np.ndarray, e1: np.ndarray,
              e2: np.ndarray) -> tuple[float, float, float, float]:
     """Möller–Trumbore of ray ``i`` (origin row ``o``) on triangle ``p`` in float64: ``(det, t, u, v)``.
 
@@ -129,7 +129,7 @@ def finish_hits(t32: np.ndarray, prim: np.ndarray, uv32: np.ndarray, geo32: np.n
         o = 0 if one else i
         det, tm, bu, bv = _hit_tuv(i, p, o, origins, directions, v0, e1, e2)
         if det != 0.0 and np.isfinite(tm) and np.isfinite(bu) and np.isfinite(bv):
-            ti = tm
+            ti = np.float64(tm)
             g0, g1, g2 = face_normals[p, 0], face_normals[p, 1], face_normals[p, 2]
         else:
             bu = np.float64(uv32[i, 0])
@@ -173,7 +173,7 @@ def hit_t(t32: np.ndarray, prim: np.ndarray, origins: np.ndarray, directions: np
         if np.isfinite(ti):
             det, tm, bu, bv = _hit_tuv(i, np.int64(prim[i]), 0 if one else i, origins, directions, v0, e1, e2)
             if det != 0.0 and np.isfinite(tm) and np.isfinite(bu) and np.isfinite(bv):
-                ti = tm
+                ti = np.float64(tm)
         t[i] = ti
 
 
