@@ -68,21 +68,55 @@ def ray_array(origins: np.ndarray, directions: np.ndarray, out: np.ndarray) -> N
 
 
 @nb.njit(cache=True, error_model="numpy")
+def _hit_tuv(i: int, p: np.int64, o: int, origins: np.ndarray, directions: np.ndarray, v0: np.ndarray, e1: np.ndarray,
+             e2: np.ndarray) -> tuple[float, float, float, float]:
+    """Möller–Trumbore of ray ``i`` (origin row ``o``) on triangle ``p`` in float64: ``(det, t, u, v)``.
+
+    The operations and their order are ``TracedScene.cast_reference``'s (``_hit_tuv_reference``):
+    ``P = d x e2``, ``det = e1 . P``, ``S = o - v0``, ``Q = S x e1``, ``u = (S . P) / det``,
+    ``v = (d . Q) / det``, ``t = (e2 . Q) / det``, each dot product ``(x + y) + z``.
+    """
+    dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+    ax, ay, az = e1[p, 0], e1[p, 1], e1[p, 2]
+    bx, by, bz = e2[p, 0], e2[p, 1], e2[p, 2]
+    px = dy * bz - dz * by
+    py = dz * bx - dx * bz
+    pz = dx * by - dy * bx
+    det = (ax * px + ay * py) + az * pz
+    sx = origins[o, 0] - v0[p, 0]
+    sy = origins[o, 1] - v0[p, 1]
+    sz = origins[o, 2] - v0[p, 2]
+    qx = sy * az - sz * ay
+    qy = sz * ax - sx * az
+    qz = sx * ay - sy * ax
+    u = ((sx * px + sy * py) + sz * pz) / det
+    v = ((dx * qx + dy * qy) + dz * qz) / det
+    t = ((bx * qx + by * qy) + bz * qz) / det
+    return det, t, u, v
+
+
+@nb.njit(cache=True, error_model="numpy")
 def finish_hits(t32: np.ndarray, prim: np.ndarray, uv32: np.ndarray, geo32: np.ndarray, origins: np.ndarray,
-                directions: np.ndarray, corner_normals: np.ndarray, material_id: np.ndarray, label_id: np.ndarray,
-                part_id: np.ndarray, t: np.ndarray, point: np.ndarray, shade: np.ndarray, geo: np.ndarray,
-                material: np.ndarray, label: np.ndarray, part: np.ndarray) -> None:
+                directions: np.ndarray, v0: np.ndarray, e1: np.ndarray, e2: np.ndarray, face_normals: np.ndarray,
+                corner_normals: np.ndarray, material_id: np.ndarray, label_id: np.ndarray, part_id: np.ndarray,
+                t: np.ndarray, point: np.ndarray, shade: np.ndarray, geo: np.ndarray, material: np.ndarray,
+                label: np.ndarray, part: np.ndarray) -> None:
     """Open3D's raw answers -> the fields of ``Hits`` (see ``TracedScene.cast``), written into the outputs.
 
-    Shading normal: the corner normals blended by the barycentric coordinates, made unit; both
-    normals turned to face the ray's origin; a shading normal turned away from the viewer replaced
-    by the face's. Misses: point NaN, normals 0, material -1, label and part 0.
+    Open3D (Embree) says only whether a ray hits and which triangle: the hit's ``t`` and barycentric
+    ``u, v`` are Möller–Trumbore's in float64 on that triangle (``_hit_tuv``), its geometric normal the
+    triangle's (``face_normals``), so that no bit of a hit comes from Embree's float32 SIMD kernels,
+    which differ between CPUs. A ray in the triangle's plane (``det`` 0) or a non-finite result keeps
+    Embree's float32 ``t``, ``uv`` and normal. Shading normal: the corner normals blended by the
+    barycentric coordinates, made unit; both normals turned to face the ray's origin; a shading
+    normal turned away from the viewer replaced by the face's. Misses: point NaN, normals 0,
+    material -1, label and part 0.
     """
     one = origins.shape[0] == 1
     for i in range(t32.shape[0]):
         ti = np.float64(t32[i])
-        t[i] = ti
         if not np.isfinite(ti):
+            t[i] = ti
             for j in range(3):
                 point[i, j] = np.nan
                 shade[i, j] = 0.0
@@ -92,8 +126,18 @@ def finish_hits(t32: np.ndarray, prim: np.ndarray, uv32: np.ndarray, geo32: np.n
             part[i] = 0
             continue
         p = np.int64(prim[i])
-        bu = np.float64(uv32[i, 0])
-        bv = np.float64(uv32[i, 1])
+        o = 0 if one else i
+        det, tm, bu, bv = _hit_tuv(i, p, o, origins, directions, v0, e1, e2)
+        if det != 0.0 and np.isfinite(tm) and np.isfinite(bu) and np.isfinite(bv):
+            ti = np.float64(tm)
+            g0, g1, g2 = face_normals[p, 0], face_normals[p, 1], face_normals[p, 2]
+        else:
+            bu = np.float64(uv32[i, 0])
+            bv = np.float64(uv32[i, 1])
+            g0 = np.float64(geo32[i, 0])
+            g1 = np.float64(geo32[i, 1])
+            g2 = np.float64(geo32[i, 2])
+        t[i] = ti
         w0 = (1.0 - bu) - bv
         s0 = (w0 * corner_normals[p, 0, 0] + bu * corner_normals[p, 1, 0]) + bv * corner_normals[p, 2, 0]
         s1 = (w0 * corner_normals[p, 0, 1] + bu * corner_normals[p, 1, 1]) + bv * corner_normals[p, 2, 1]
@@ -102,16 +146,12 @@ def finish_hits(t32: np.ndarray, prim: np.ndarray, uv32: np.ndarray, geo32: np.n
         s0 /= den
         s1 /= den
         s2 /= den
-        g0 = np.float64(geo32[i, 0])
-        g1 = np.float64(geo32[i, 1])
-        g2 = np.float64(geo32[i, 2])
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         if _dot(g0, g1, g2, dx, dy, dz) > 0:
             g0, g1, g2 = g0 * -1.0, g1 * -1.0, g2 * -1.0
             s0, s1, s2 = s0 * -1.0, s1 * -1.0, s2 * -1.0
         if _dot(s0, s1, s2, dx, dy, dz) >= 0:
             s0, s1, s2 = g0, g1, g2
-        o = 0 if one else i
         point[i, 0] = origins[o, 0] + ti * dx
         point[i, 1] = origins[o, 1] + ti * dy
         point[i, 2] = origins[o, 2] + ti * dz
@@ -120,6 +160,21 @@ def finish_hits(t32: np.ndarray, prim: np.ndarray, uv32: np.ndarray, geo32: np.n
         material[i] = material_id[p]
         label[i] = label_id[p]
         part[i] = part_id[p]
+
+
+@nb.njit(cache=True, error_model="numpy")
+def hit_t(t32: np.ndarray, prim: np.ndarray, origins: np.ndarray, directions: np.ndarray, v0: np.ndarray,
+          e1: np.ndarray, e2: np.ndarray, t: np.ndarray) -> None:
+    """``t`` of ``finish_hits`` alone (inf for a miss): Möller–Trumbore's in float64 on the triangle
+    Open3D found, Embree's float32 ``t`` where that is not finite or the ray lies in the plane."""
+    one = origins.shape[0] == 1
+    for i in range(t32.shape[0]):
+        ti = np.float64(t32[i])
+        if np.isfinite(ti):
+            det, tm, bu, bv = _hit_tuv(i, np.int64(prim[i]), 0 if one else i, origins, directions, v0, e1, e2)
+            if det != 0.0 and np.isfinite(tm) and np.isfinite(bu) and np.isfinite(bv):
+                ti = np.float64(tm)
+        t[i] = ti
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -143,16 +198,6 @@ def direct_prepare(point: np.ndarray, normal: np.ndarray, geo: np.ndarray, idx: 
         inside = (pz > 0) and (u >= -0.5) and (u <= u_hi) and (v >= -0.5) and (v <= v_hi)
         ok[i] = (inside and _dot(geo[k, 0], geo[k, 1], geo[k, 2], wx, wy, wz) > 0
                  and _dot(normal[k, 0], normal[k, 1], normal[k, 2], wx, wy, wz) > 0)
-
-
-@nb.njit(cache=True, error_model="numpy")
-def shadow_rays(proj: np.ndarray, wi: np.ndarray, sel: np.ndarray, out: np.ndarray) -> None:
-    """(m, 6) float32 rays from the projector toward the points ``sel`` (direction ``-wi``)."""
-    for i in range(sel.shape[0]):
-        k = sel[i]
-        for j in range(3):
-            out[i, j] = np.float32(proj[j])
-            out[i, 3 + j] = np.float32(-wi[k, j])
 
 
 @nb.njit(cache=True, error_model="numpy")

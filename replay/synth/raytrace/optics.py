@@ -351,11 +351,9 @@ def direct_light(scene: TracedScene, model: SensorModel, hits: Hits, idx: np.nda
     for c0 in range(0, lit.size, DIRECT_CHUNK):
         sel = lit[c0:c0 + DIRECT_CHUNK]
         # shadow: the projector's ray toward the point must reach it first
-        rays = np.empty((sel.size, 6), np.float32)
-        kernels.shadow_rays(proj, wi, sel, rays)
-        t = scene.cast_t(rays).astype(np.float64)
+        t = scene.cast_t(proj, -wi[sel])
         sel = sel[t >= dist[sel] - 0.05]
-        del rays, t
+        del t
         ok[sel] = True
         m = sel.size
         if m == 0:

@@ -3,7 +3,10 @@
 World frame as :mod:`replay.synth.scene` (z up, table top at 0, camera above the origin looking
 down); camera optical frame: x = world x, y = -world y, z = camera height - world z (mm). Rays are
 cast with Open3D's ``RaycastingScene`` (Embree); every triangle carries its material, its surface
-label and its part index, looked up by the primitive id a ray returns.
+label and its part index, looked up by the primitive id a ray returns. Embree says only whether a ray
+hits and which triangle: the hit's ``t``, barycentric coordinates and face normal are computed in
+float64 from that triangle (Möller–Trumbore), because Embree's float32 answers differ in their last
+bits between CPUs (docs/synthetic.md, "Exact hits").
 """
 
 from __future__ import annotations
@@ -115,6 +118,14 @@ class TracedScene:
         self.vertices = world.vertices @ _D.T + np.array([0.0, 0.0, camera_height_mm])
         self.triangles = world.triangles
         self.normals = world.normals @ _D.T  # corner normals, camera frame
+        # per triangle, float64: its first corner and two edges (Möller–Trumbore's) and its unit face normal
+        # (e1 x e2, Embree's orientation): a hit's t, uv and geometric normal are computed from these, not
+        # read from Embree's float32 answers, which differ between CPUs (docs/synthetic.md)
+        corners = self.vertices[self.triangles]
+        self.v0 = np.ascontiguousarray(corners[:, 0])
+        self.e1 = corners[:, 1] - corners[:, 0]
+        self.e2 = corners[:, 2] - corners[:, 0]
+        self.face_normals = _unit_cross(self.e1, self.e2)
         self.label = world.label
         self.material_id = np.concatenate(mat_ids)
         self.part_id = np.concatenate(part_ids)
@@ -155,9 +166,9 @@ class TracedScene:
         sl = slice(at, at + n)
         kernels.finish_hits(
             res["t_hit"].numpy(), res["primitive_ids"].numpy(), res["primitive_uvs"].numpy(),
-            res["primitive_normals"].numpy(), origins, directions, self.normals, self.material_id, self.label,
-            self.part_id, out.t[sl], out.point[sl], out.normal[sl], out.geo_normal[sl], out.material[sl],
-            out.label[sl], out.part[sl],
+            res["primitive_normals"].numpy(), origins, directions, self.v0, self.e1, self.e2, self.face_normals,
+            self.normals, self.material_id, self.label, self.part_id, out.t[sl], out.point[sl], out.normal[sl],
+            out.geo_normal[sl], out.material[sl], out.label[sl], out.part[sl],
         )
         return out
 
@@ -168,9 +179,23 @@ class TracedScene:
 
         return TrueSurfaces(self.vertices, self.triangles, scene=self._scene)
 
-    def cast_t(self, rays: np.ndarray) -> np.ndarray:
-        """Ray parameter of the first hit (float32; inf for a miss) of float32 ``rays`` (n, 6): origin, direction."""
-        t: np.ndarray = self._raw(rays)["t_hit"].numpy()
+    def cast_t(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """:meth:`cast`'s ``t`` alone (float64; inf for a miss): the ray parameter of the first hit.
+
+        Parameters
+        ----------
+        origins : (n, 3) or (3,) float ndarray
+        directions : (n, 3) float ndarray
+        """
+        origins = np.ascontiguousarray(np.asarray(origins, np.float64).reshape(-1, 3))
+        directions = np.ascontiguousarray(directions, np.float64)
+        n = directions.shape[0]
+        rays = np.empty((n, 6), np.float32)
+        kernels.ray_array(origins, directions, rays)
+        res = self._raw(rays)
+        t = np.empty(n)
+        kernels.hit_t(res["t_hit"].numpy(), res["primitive_ids"].numpy(), origins, directions, self.v0, self.e1,
+                      self.e2, t)
         return t
 
     def cast_reference(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
@@ -194,6 +219,15 @@ class TracedScene:
         prim = np.where(hit, prim, 0)
         uv = res["primitive_uvs"].numpy().astype(np.float64)
         geo = res["primitive_normals"].numpy().astype(np.float64)
+        # Embree decides hit or miss and the triangle; t, uv and the face normal are float64 Möller–Trumbore's
+        det, tm, bu, bv = _hit_tuv_reference(np.asarray(origins, np.float64), directions, self.v0[prim],
+                                             self.e1[prim], self.e2[prim])
+        with np.errstate(invalid="ignore"):
+            mt = hit & (det != 0.0) & np.isfinite(tm) & np.isfinite(bu) & np.isfinite(bv)
+        t[mt] = tm[mt]
+        uv[mt, 0] = bu[mt]
+        uv[mt, 1] = bv[mt]
+        geo[mt] = self.face_normals[prim[mt]]
         corner = self.normals[prim]  # (n, 3, 3)
         w = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
         shade = np.einsum("nk,nkj->nj", w, corner)
@@ -214,6 +248,36 @@ class TracedScene:
             np.where(hit, self.label[prim], 0).astype(np.uint8),
             np.where(hit, self.part_id[prim], 0).astype(np.int32),
         )
+
+
+def _unit_cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rows ``a x b / max(|a x b|, 1e-12)``, the norm ``sqrt((x² + y²) + z²)``."""
+    c = np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                  a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+    n = np.sqrt((c[:, 0] * c[:, 0] + c[:, 1] * c[:, 1]) + c[:, 2] * c[:, 2])
+    out: np.ndarray = c / np.maximum(n, 1e-12)[:, None]
+    return out
+
+
+def _hit_tuv_reference(o: np.ndarray, d: np.ndarray, v0: np.ndarray, e1: np.ndarray,
+                       e2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``kernels._hit_tuv`` in whole-array numpy, the same operations in the same order: ``(det, t, u, v)``."""
+    px = d[:, 1] * e2[:, 2] - d[:, 2] * e2[:, 1]
+    py = d[:, 2] * e2[:, 0] - d[:, 0] * e2[:, 2]
+    pz = d[:, 0] * e2[:, 1] - d[:, 1] * e2[:, 0]
+    det = (e1[:, 0] * px + e1[:, 1] * py) + e1[:, 2] * pz
+    o = np.broadcast_to(o, d.shape)
+    sx = o[:, 0] - v0[:, 0]
+    sy = o[:, 1] - v0[:, 1]
+    sz = o[:, 2] - v0[:, 2]
+    qx = sy * e1[:, 2] - sz * e1[:, 1]
+    qy = sz * e1[:, 0] - sx * e1[:, 2]
+    qz = sx * e1[:, 1] - sy * e1[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = ((sx * px + sy * py) + sz * pz) / det
+        v = ((d[:, 0] * qx + d[:, 1] * qy) + d[:, 2] * qz) / det
+        t = ((e2[:, 0] * qx + e2[:, 1] * qy) + e2[:, 2] * qz) / det
+    return det, t, u, v
 
 
 def build_scene(pose: BinPose, pile: Pile | None, *, geometry: BinGeometry = BIN,
