@@ -143,6 +143,16 @@ class TracedScene:
         # Tensor.from_numpy shares the rays' memory (Tensor(rays) copied them: 24 bytes a ray, no value changes)
         return self._scene.cast_rays(o3d.core.Tensor.from_numpy(np.ascontiguousarray(rays, np.float32)))
 
+    def _cast_raw(self, origins: np.ndarray, directions: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, dict[str, o3d.core.Tensor]]:
+        """``(origins, directions, Embree's answers)``: the rays as contiguous float64 (origins (n, 3) or one
+        broadcast row), cast as float32 rays (:func:`kernels.ray_array`)."""
+        origins = np.ascontiguousarray(np.asarray(origins, np.float64).reshape(-1, 3))
+        directions = np.ascontiguousarray(directions, np.float64)
+        rays = np.empty((directions.shape[0], 6), np.float32)
+        kernels.ray_array(origins, directions, rays)
+        return origins, directions, self._raw(rays)
+
     def cast(self, origins: np.ndarray, directions: np.ndarray, *, out: Hits | None = None, at: int = 0) -> Hits:
         """First hits of rays ``origins + t * directions`` (camera frame, mm; directions unit length).
 
@@ -154,12 +164,8 @@ class TracedScene:
             Write the hits into ``out``'s rows ``at .. at + n`` (and return ``out``) instead of new arrays.
         at : int
         """
-        origins = np.ascontiguousarray(np.asarray(origins, np.float64).reshape(-1, 3))
-        directions = np.ascontiguousarray(directions, np.float64)
+        origins, directions, res = self._cast_raw(origins, directions)
         n = directions.shape[0]
-        rays = np.empty((n, 6), np.float32)
-        kernels.ray_array(origins, directions, rays)
-        res = self._raw(rays)
         if out is None:
             out = Hits.empty(n)
             at = 0
@@ -187,13 +193,8 @@ class TracedScene:
         origins : (n, 3) or (3,) float ndarray
         directions : (n, 3) float ndarray
         """
-        origins = np.ascontiguousarray(np.asarray(origins, np.float64).reshape(-1, 3))
-        directions = np.ascontiguousarray(directions, np.float64)
-        n = directions.shape[0]
-        rays = np.empty((n, 6), np.float32)
-        kernels.ray_array(origins, directions, rays)
-        res = self._raw(rays)
-        t = np.empty(n)
+        origins, directions, res = self._cast_raw(origins, directions)
+        t = np.empty(directions.shape[0])
         kernels.hit_t(res["t_hit"].numpy(), res["primitive_ids"].numpy(), origins, directions, self.v0, self.e1,
                       self.e2, t)
         return t
