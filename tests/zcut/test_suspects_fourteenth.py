@@ -185,3 +185,57 @@ def test_each_thread_keeps_its_own(kept_from_zero: None) -> None:
     got = _call(f0)
     assert _frame_of(got) is not a0
     assert_same(got, _call(f0, reference=True))
+
+
+def _cut_heights(rng: np.random.Generator, t: int) -> np.ndarray:
+    """Height fields for the floating cut: random terraces and spikes, quantized ones (ties on the thresholds),
+    large unmeasured regions, constant, all NaN, one pixel, one row, one column."""
+    shapes = [(40, 60), (1, 1), (1, 50), (37, 1), (25, 33), (64, 80)]
+    H, W = shapes[t % len(shapes)]
+    h = np.cumsum(rng.normal(size=(H, W)), axis=1) + 3.0 * (rng.random((H, W)) < 0.05)
+    if t % 3 == 1:
+        h = np.round(h * 4.0) / 4.0
+    if t % 4 == 2:
+        h[rng.random((H, W)) < 0.4] = np.nan
+    if t % 11 == 5:
+        h[:] = 2.5
+    if t % 13 == 7:
+        h[:] = np.nan
+    return np.ascontiguousarray(h)
+
+
+def test_floating_cut_equals_find_clusters() -> None:
+    """The floating detector's cut (the flood's tree read out without the pixel levels and the per-level counts)
+    gives ``find_clusters``' clusters and areas bit for bit, over the floating detector's parameters (the whole
+    range of heights, a step of 0.05-1) and a few others (a shallow depth, 4-connectivity, no level)."""
+    from zcut.cuts import find_clusters
+    from zcut.params import ZCutParams
+    from zcut.suspects.floating import _floating_cut
+
+    rng = np.random.default_rng(1411)
+    for t in range(60):
+        h = _cut_heights(rng, t)
+        fin = np.isfinite(h)
+        span = float(h[fin].max() - h[fin].min()) if fin.any() else 0.0
+        step = float(rng.choice([0.05, 0.2, 1.0]))
+        sets = [ZCutParams(step=step, max_depth=span + step, max_area=float(rng.integers(1, 200))),
+                ZCutParams(step=step, max_depth=3 * step, max_area=30.0, connectivity=4),
+                ZCutParams(step=step, max_depth=0.5 * step, max_area=30.0)]
+        for p in sets:
+            want = find_clusters(h, params=p)
+            n, lab, areas = _floating_cut(h, p)
+            assert n == want.n_clusters
+            assert lab.dtype == want.clusters.dtype and np.array_equal(lab, want.clusters)
+            assert areas.dtype == want.areas.dtype and np.array_equal(areas, want.areas)
+
+
+def test_whole_call_equals_the_reference_on_fuzzed_frames() -> None:
+    """``suspects`` with the floating cut read out directly: ``suspects_reference``'s results on fuzzed frames
+    (holes, ties, flat patches) and frames mostly unmeasured."""
+    rng = np.random.default_rng(1412)
+    for t in range(8):
+        xyz = _frame(1420 + t, 48, 64)
+        if t % 2:
+            xyz[rng.random(xyz.shape[:2]) < 0.6] = np.nan
+        with _call(xyz) as got:
+            assert_same(got, _call(xyz, reference=True))
