@@ -12,8 +12,7 @@ import numba
 import numpy as np
 
 from ..cloud import check_mask
-from ..cut_tree import listed_cluster_labels
-from ..cuts import MAX_STAGE_LEVELS, _finite_range, _flood, _stage_params, find_clusters
+from ..cuts import MAX_STAGE_LEVELS, find_clusters
 from ..errors import InputShapeError, describe_array
 from ..params import SuspectParams, ZCutParams
 from ..types import FloatImage, Labels, Mask
@@ -303,26 +302,6 @@ def _kept_ring(lab, keep, zone, valid, h, n_max, mask):  # type: ignore[no-untyp
     return idx[:n], rl[:m], rh[:m]
 
 
-def _floating_cut(hz: np.ndarray, params: ZCutParams) -> tuple[int, Labels, np.ndarray]:
-    """``find_clusters(hz, params=params)``'s (n_clusters, clusters, areas), the same arrays bit for bit, without
-    what the floating detector does not read: the flood's tree (:func:`zcut.cuts._flood`, as
-    :class:`zcut.cuts.StageTree` builds it) without the pixel levels, and the clusters read out of it
-    (:func:`zcut.cut_tree.listed_cluster_labels`, as :meth:`zcut.cuts.StageTree.answer` reads them) without the
-    per-level counts. ``hz`` C-contiguous float64. Where the flood does not apply (no finite height, no level,
-    too many levels or pixels), :func:`zcut.cuts.find_clusters` itself."""
-    step, max_area, connectivity, K = _stage_params(params)
-    n, z_min, z_max, seg_max = _finite_range(hz)
-    tree = _flood(hz, seg_max, z_min, z_max, step, K, max_area, connectivity) if n and K >= 1 else None
-    if tree is None:
-        cut = find_clusters(hz, params=params)
-        return cut.n_clusters, cut.clusters, cut.areas
-    clusters = np.zeros(hz.shape, np.int32)
-    outliers = np.zeros(hz.size, bool)  # (written by the read-out; not read here)
-    _, areas = listed_cluster_labels(tree.lab, tree.pix, tree.own, tree.fin, tree.node_parent, tree.tagged,
-                                     clusters.reshape(-1), outliers)
-    return int(areas.size), clusters, areas
-
-
 def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: Mask, params: SuspectParams,
                         a_max: float, step: float, profile: NoiseProfile, *, hz: np.ndarray | None = None
                         ) -> tuple[Mask, np.ndarray, np.ndarray]:
@@ -347,11 +326,11 @@ def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: M
     span = float(hi - lo)  # (a zero's sign may differ from hz[fin]'s max / min: the step and depth do not)
     step = max(step, span / (MAX_STAGE_LEVELS - 2))  # every level of the range within find_clusters' cap
     depth = span + step
-    # find_clusters' clusters and areas (its pixel levels and per-level counts are not read)
-    n, lab, areas = _floating_cut(hz, ZCutParams(step=step, max_depth=depth, max_area=params.floating_rho * a_max))
+    cut = find_clusters(hz, params=ZCutParams(step=step, max_depth=depth, max_area=params.floating_rho * a_max))
+    n = cut.n_clusters
     if n == 0:
         return none
-    # lab: int32, 1..n, C-contiguous (the cut's own array)
+    lab = cut.clusters  # int32, 1..n, C-contiguous (find_clusters' own array)
     size, holes_n, edges, edges_valid, n_rough, lowest, highest_out = _evidence_kernel(
         lab, np.ascontiguousarray(valid), np.ascontiguousarray(rough), hz, n)
     holes, rough_frac, ring, clearance = _fractions(size, holes_n, edges, edges_valid, n_rough, lowest, highest_out)
@@ -360,11 +339,11 @@ def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: M
     lowest = lowest[1:]
     clear = clearance > np.maximum(FLOATING_CLEARANCE_SIGMAS * profile.sigma_at(lowest),
                                    FLOATING_CLEARANCE_STEPS * profile.step_at(lowest))
-    keep = clear & ((areas < params.plain_rho * a_max) | (holes >= params.evidence_holes)
+    keep = clear & ((cut.areas < params.plain_rho * a_max) | (holes >= params.evidence_holes)
                     | (rough_frac >= params.evidence_inconsistent) | (ring >= params.evidence_ring_valid))
     mask = np.empty((H, W), bool)
     idx, ring_lab, ring_h = _kept_ring(lab, np.concatenate([[False], keep]), zone, valid, height_mm,
-                                       int(areas.sum()), mask)
+                                       int(cut.areas.sum()), mask)
     if idx.size == 0:
         return mask, idx, np.zeros(0)
     ring_med = label_medians(ring_h, ring_lab, n)
