@@ -185,3 +185,16 @@ def test_each_thread_keeps_its_own(kept_from_zero: None) -> None:
     got = _call(f0)
     assert _frame_of(got) is not a0
     assert_same(got, _call(f0, reference=True))
+
+
+def test_whole_call_equals_the_reference_on_fuzzed_frames(kept_from_zero: None) -> None:
+    """Calls one after the other, each result released on leaving its block (so each call writes its frame into
+    the previous one's): ``suspects_reference``'s results on fuzzed frames (holes, ties, flat patches) and frames
+    mostly unmeasured."""
+    rng = np.random.default_rng(1412)
+    for t in range(8):
+        xyz = _frame(1420 + t, 48, 64)
+        if t % 2:
+            xyz[rng.random(xyz.shape[:2]) < 0.6] = np.nan
+        with _call(xyz) as got:
+            assert_same(got, _call(xyz, reference=True))
