@@ -159,7 +159,7 @@ def same(a, b) -> bool:  # type: ignore[no-untyped-def]
 
 
 def _released(res):  # type: ignore[no-untyped-def]
-    """``res`` after handing its frame in mm back (:meth:`zcut.suspects.SuspectResult.release`), as the labelling page
+    """``res`` after handing its frame in mm back (:meth:`zcut.suspects.union.SuspectResult.release`), as the labelling page
     does; a tree before 2026-12-06f has no ``release`` (it reused the frame once nothing held the result)."""
     release = getattr(res, "release", None)
     if release is not None:

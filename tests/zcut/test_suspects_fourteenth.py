@@ -1,6 +1,6 @@
 """The suspects' fourteenth round (issue 32, item 5): the frame in mm has an explicit owner.
 
-A result's surfaces own the frame in mm they were measured on until :meth:`zcut.suspects.SuspectResult.release`
+A result's surfaces own the frame in mm they were measured on until :meth:`zcut.suspects.union.SuspectResult.release`
 hands it back to the calling thread, whose next call with edge surfaces writes its frame into it; no reference
 count decides it (h/sup13 read ``sys.getrefcount``: CPython's counting). The checks: ``suspects_reference``'s
 results every time, a result never released intact whatever the calls after it, the frame reused only after a
@@ -147,6 +147,7 @@ def test_what_a_thread_keeps_stays_bounded(monkeypatch: pytest.MonkeyPatch) -> N
     ``SCRATCH_KEPT_BYTES``: a bound below them drops it at the release, and a call whose scratch images grow past
     the bound drops the one kept."""
     union.release_frame_mm()
+    union.scratch_workspace().release()  # only this test's images (earlier tests' larger frames would not grow)
     f0 = _frame(1408, 40, 60)
     _call(f0).release()
     assert union.kept_frame_mm_bytes() == 0  # 57,600 bytes: below 32 MiB, from the heap anyway
