@@ -182,6 +182,7 @@ def review_groups(xyz: np.ndarray, rgb: np.ndarray | None, *, height_mm: np.ndar
     H, W = valid.shape
     # the suspects' gaps on one side of an edge: a part's real edge is on the surface (docs/labelling.md)
     res = suspects(xyz, height_mm, zone, above_rim, params=params, edge_surface=EdgeSurfaceParams())
+    res.release()  # surface_mm is not read here: its frame in mm goes to the next call (SuspectResult.release)
     ids = res.groups.astype(np.int32).copy()
     methods = tuple(outliers)
     sources = tuple(DETECTORS) + methods

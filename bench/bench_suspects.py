@@ -373,7 +373,9 @@ def time_frame(label: str, xyz: np.ndarray, height: np.ndarray, repeat: int) -> 
     es = EdgeSurfaceParams()
 
     def new():
-        return suspects(xyz, height, zone, params=params, edge_surface=es)
+        res = suspects(xyz, height, zone, params=params, edge_surface=es)
+        res.release()  # the frame in mm handed back for the next call, as the labelling page does
+        return res
 
     def old():
         return suspects_reference(xyz, height, zone, params=params, edge_surface=es)
@@ -430,7 +432,10 @@ for k, path in enumerate(sys.argv[3:]):
     xyz = read_pcd(path).xyz if path.endswith(".pcd") else np.load(path)
     h = -1000.0 * xyz[..., 2].astype(np.float64)
     zone = np.isfinite(xyz).all(axis=2)
-    call = lambda: suspects(xyz, h, zone, params=SuspectParams(), edge_surface=EdgeSurfaceParams())
+    def call():
+        r = suspects(xyz, h, zone, params=SuspectParams(), edge_surface=EdgeSurfaceParams())
+        getattr(r, "release", lambda: None)()  # the frame in mm handed back, as the page does (trees since 2026-12-06f)
+        return r
     r = call()
     ts = []
     for _ in range(repeat):

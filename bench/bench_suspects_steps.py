@@ -158,6 +158,15 @@ def same(a, b) -> bool:  # type: ignore[no-untyped-def]
                for f in ("heights_mm", "sigma_mm", "step_mm"))
 
 
+def _released(res):  # type: ignore[no-untyped-def]
+    """``res`` after handing its frame in mm back (:meth:`zcut.suspects.union.SuspectResult.release`), as the labelling page
+    does; a tree before 2026-12-06f has no ``release`` (it reused the frame once nothing held the result)."""
+    release = getattr(res, "release", None)
+    if release is not None:
+        release()
+    return res
+
+
 def frames(work: Path, pattern: str, real: Path | None):  # type: ignore[no-untyped-def]
     from replay.logs.pcd import read_pcd
 
@@ -194,7 +203,7 @@ def main() -> None:
             es = importlib.import_module(f"{pkg.__name__}.edge_surface").EdgeSurfaceParams()
             fn = importlib.import_module(f"{pkg.__name__}.suspects").suspects
             calls[tag] = (lambda fn=fn, sp=sp, es=es, xyz=xyz, h=h, zone=zone:
-                          fn(xyz, h, zone, params=sp, edge_surface=es))
+                          _released(fn(xyz, h, zone, params=sp, edge_surface=es)))
         results = {tag: calls[tag]() for tag, _ in trees}  # warm-up (numba's caches), and the check
         if args.against is not None and not same(results["old"], results["new"]):
             raise SystemExit(f"{label}: the two trees' results differ")

@@ -218,56 +218,6 @@ def test_local_height_in_a_given_array() -> None:
             local_height(h, out=bad)
 
 
-def test_frame_in_mm_reused_only_when_no_one_holds_it(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The thread's last frame in mm is written again by the next call only once the result holding it is gone
-    (``suspects_reference``'s results every time, the earlier result kept intact while held); a frame of another
-    shape, or the kept one released, takes a fresh array; nothing the thread keeps exceeds the bound. Frames below
-    ``FRAME_KEPT_MIN_BYTES`` are not kept (the small frames here: kept with the threshold at 0)."""
-    from zcut.suspects import union
-
-    union.release_frame_mm()
-    small = np.ascontiguousarray(_fuzz_cloud(np.random.default_rng(1310), 20, 30)) / 1000.0
-    res = suspects(small, -1000.0 * small[..., 2], np.isfinite(small).all(axis=2), params=SuspectParams(),
-                   edge_surface=EdgeSurfaceParams())
-    assert res._surfaces is not None and union._FRAME.a_mm is None  # below the threshold: not kept
-    monkeypatch.setattr(union, "FRAME_KEPT_MIN_BYTES", 0)
-    rng = np.random.default_rng(1308)
-    frames = [np.ascontiguousarray(_fuzz_cloud(rng, 50, 70)) / 1000.0 for _ in range(2)]
-    frames.append(np.ascontiguousarray(_fuzz_cloud(rng, 30, 40)) / 1000.0)
-    kw = dict(params=SuspectParams(), edge_surface=EdgeSurfaceParams())
-
-    def call(xyz: np.ndarray):  # type: ignore[no-untyped-def]
-        h = -1000.0 * xyz[..., 2]
-        zone = np.isfinite(xyz).all(axis=2)
-        return suspects(xyz, h, zone, **kw), suspects_reference(xyz, h, zone, **kw)
-
-    union.release_frame_mm()
-    got, want = call(frames[0])
-    assert_same(got, want)
-    first = got._surfaces._xyz  # type: ignore[union-attr]
-    assert union._FRAME.a_mm is first
-    held = got.surface_mm
-    got2, want2 = call(frames[1])  # the first result still holds its frame: a fresh one
-    assert_same(got2, want2)
-    assert got2._surfaces._xyz is not first  # type: ignore[union-attr]
-    assert np.array_equal(first, frames[0].astype(np.float64) * 1000.0, equal_nan=True)  # intact
-    assert np.array_equal(got._surfaces.distance(), held, equal_nan=True)  # type: ignore[union-attr]
-    second = id(got2._surfaces._xyz)  # type: ignore[union-attr]  # (the thread keeps it: the id stays its own)
-    del got, got2, first, held
-    got3, want3 = call(frames[0])  # nothing holds the second frame any more: written again
-    assert_same(got3, want3)
-    assert id(got3._surfaces._xyz) == second  # type: ignore[union-attr]
-    del got3
-    got4, want4 = call(frames[2])  # another shape: a fresh array
-    assert_same(got4, want4)
-    assert got4._surfaces._xyz.shape == (30, 40, 3)  # type: ignore[union-attr]
-    assert union._FRAME.a_mm is got4._surfaces._xyz  # type: ignore[union-attr]  # kept in the other's place
-    del got4
-    assert union._FRAME.a_mm.nbytes + union.scratch_workspace().nbytes <= union.SCRATCH_KEPT_BYTES
-    union.release_frame_mm()
-    assert union._FRAME.a_mm is None
-
-
 def test_in_zone_equals_boolean_indexing() -> None:
     """σ̂ in the zone gathered into a longer array filled with garbage: ``a[zone]``, in order (NaN, -0.0 kept)."""
     from zcut.suspects.union import _in_zone

@@ -44,6 +44,7 @@ from ..edge_surface import (
     _reach_samples,
     _smallest_eigvec,
 )
+from ..errors import ZcutError
 from ..sor_workspace import SorWorkspace
 from ..types import Mask
 from .select import kth_of_both, median, order_pair
@@ -964,10 +965,12 @@ def _decide_all(xyz, valid, r, min_px, per_px, tan, floor, gate_k, min_fit, cos_
 class LazySurfaces:
     """The surfaces of one frame (:func:`lazy_surfaces`), decided where a distance reads them.
 
-    :meth:`distance` is :meth:`zcut.edge_surface.EdgeSurfaces.distance`, the same values bit for bit."""
+    :meth:`distance` is :meth:`zcut.edge_surface.EdgeSurfaces.distance`, the same values bit for bit. They own the
+    frame in mm they were given until :meth:`release_frame` hands it back; after that nothing reads it."""
 
     __slots__ = ("_xyz", "_valid", "_params", "_per_px", "_tan", "_gate_k", "_state", "_slot", "_planes", "_count",
                  "n_fitted")
+    _xyz: np.ndarray | None
 
     def __init__(self, xyz_mm: np.ndarray, valid: Mask, params: EdgeSurfaceParams, per_px: float, tan: float,
                  gate_k: float, n_fitted: int, state: np.ndarray | None = None) -> None:
@@ -982,11 +985,23 @@ class LazySurfaces:
         self._planes = np.empty((1024, 6))
         self._count = np.zeros(1, np.int64)
 
+    def release_frame(self) -> np.ndarray | None:
+        """The frame in mm these surfaces were given, handed back to the caller (None when it was already): from
+        now on :meth:`distance`, :meth:`distance_at` and :attr:`surface` raise :class:`~zcut.errors.ZcutError`."""
+        a, self._xyz = self._xyz, None
+        return a
+
+    def _frame(self) -> np.ndarray:
+        if self._xyz is None:
+            raise ZcutError("these surfaces' frame in mm was released (SuspectResult.release): "
+                            "read surface_mm before releasing the result")
+        return self._xyz
+
     @property
     def surface(self) -> Mask:
         """(H, W) bool: the patches that are surfaces (every patch decided)."""
         p = self._params
-        self._planes = _decide_all(self._xyz, self._valid, p.patch_radius_px, p.min_patch_px, self._per_px, self._tan,
+        self._planes = _decide_all(self._frame(), self._valid, p.patch_radius_px, p.min_patch_px, self._per_px, self._tan,
                                    p.side_step_mm, self._gate_k, p.min_fit_mm,
                                    math.cos(math.radians(p.max_incidence_deg)), p.max_incidence_deg >= 90.0,
                                    self._state, self._slot, self._planes, self._count)
@@ -995,7 +1010,7 @@ class LazySurfaces:
 
     def _nearest(self, rows: np.ndarray, cols: np.ndarray, d: np.ndarray) -> None:
         p = self._params
-        self._planes = _nearest_search(self._xyz, self._valid, rows, cols, p.patch_radius_px, p.min_patch_px,
+        self._planes = _nearest_search(self._frame(), self._valid, rows, cols, p.patch_radius_px, p.min_patch_px,
                                        self._per_px, self._tan, p.side_step_mm, self._gate_k, p.min_fit_mm,
                                        math.cos(math.radians(p.max_incidence_deg)), p.max_incidence_deg >= 90.0,
                                        p.search_radius_px, p.max_search_radius_px, self._state, self._slot,

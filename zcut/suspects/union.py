@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import sys
 import threading
 from dataclasses import dataclass
 
@@ -100,6 +99,15 @@ class SuspectResult:
         first access (the suspects need it only at the pixels whose gap it gives); until then the
         result holds the frame's surfaces (:class:`zcut.suspects.surfaces.LazySurfaces`: the frame in
         mm, the frame's gate, the patches decided and the planes fitted so far; ~80 MB at 1920 × 1200).
+
+    Notes
+    -----
+    The result owns the frame in mm its surfaces hold (55 MB at 1920 × 1200) until :meth:`release` hands it back
+    to the calling thread, whose next call with ``edge_surface`` then writes its own frame into it instead of
+    mapping a fresh one (:func:`release_frame_mm`). A result never released keeps its frame until it is dropped,
+    and the next call maps a fresh one. ``with suspects(...) as res:`` releases on leaving the block. After
+    :meth:`release` every field reads as before, and so does :attr:`surface_mm` when it was read before; read
+    first, it raises :class:`~zcut.errors.ZcutError`.
     """
 
     mask: Mask
@@ -126,6 +134,22 @@ class SuspectResult:
         if self._surface_mm is None and self._surfaces is not None:
             object.__setattr__(self, "_surface_mm", self._surfaces.distance())
         return self._surface_mm
+
+    def release(self) -> None:
+        """Hand the frame in mm this result's surfaces hold back to the calling thread, for its next call
+        (:func:`release_frame_mm`; nothing without ``edge_surface``, or when released already). Call it when
+        :attr:`surface_mm` will not be read (again): the labelling page's groups do
+        (``annotate/groups.py``)."""
+        if self._surfaces is not None:
+            a_mm = self._surfaces.release_frame()
+            if a_mm is not None:
+                _give_back_frame_mm(a_mm)
+
+    def __enter__(self) -> SuspectResult:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
 
     @property
     def n_groups(self) -> int:
@@ -507,8 +531,11 @@ def suspects(
         if (intrinsics.height, intrinsics.width) != (H, W):
             raise InputShapeError(f"intrinsics are for {intrinsics.height}x{intrinsics.width} images, "
                                   f"the frame is {H}x{W}")
-    with scratch_workspace().call() as ws:
-        return _suspects(a, h_img, zone, easy, params, edge_surface, ws)
+    try:
+        with scratch_workspace().call() as ws:
+            return _suspects(a, h_img, zone, easy, params, edge_surface, ws)
+    finally:
+        _bound_kept_frame_mm()
 
 
 #: the call's scratch images (τ; the jump, then the zone's heights of the floating cut, then the gate's lower ends;
@@ -535,41 +562,59 @@ def scratch_workspace() -> SorWorkspace:
     return ws
 
 
-#: the frame in mm (``a.astype(np.float64) * 1000.0``, H · W · 3 doubles, ~55 MB at 1920 × 1200) of the thread's last
-#: call with edge surfaces, which its result's surfaces hold: the next call writes its frame into it when nothing else
-#: holds it any more (that result dropped), else into a fresh one. Made fresh each call, an image that large was
-#: mapped anew, its pages faulted in at every call (docs/performance.md, the suspects' thirteenth round)
+#: the frame in mm (``a.astype(np.float64) * 1000.0``, H · W · 3 doubles, ~55 MB at 1920 × 1200) a result of this
+#: thread handed back (:meth:`SuspectResult.release`); the thread's next call with edge surfaces takes it and its
+#: result owns it. Its owner is explicit: a result's surfaces until released, then this slot, then the next call's
+#: result; no reference count is read. Made fresh each call, an image that large was mapped anew, its pages faulted
+#: in at every call (docs/performance.md, the suspects' thirteenth and fourteenth rounds)
 _FRAME = threading.local()
 
 
 def _frame_mm_array(shape: tuple[int, ...]) -> np.ndarray:
-    """An uninitialized float64 array of ``shape`` for the frame in mm: the thread's last one (:data:`_FRAME`) when
-    it has that shape and no one holds it any more (its only references: this function's), else a fresh one."""
+    """An uninitialized float64 array of ``shape`` for the frame in mm: the one a result of this thread handed back
+    (:data:`_FRAME`) when it has that shape, else a fresh one. Either way the thread's slot is empty after it: the
+    array belongs to the call's result."""
     held = getattr(_FRAME, "a_mm", None)
     _FRAME.a_mm = None
-    # references: `held` and getrefcount's argument; a result's surfaces, or a view of the array, add theirs
-    if held is not None and held.shape == shape and held.dtype == np.float64 and sys.getrefcount(held) == 2:
+    if held is not None and held.shape == shape:
         return held
     del held
     return np.empty(shape)
 
 
-#: the frame in mm is kept (:func:`_keep_frame_mm`) from this size on: glibc's largest mmap threshold, above which a
-#: fresh array is mapped anew at every call; a smaller one comes from the heap, whose block the next call's takes
-#: again (the real 640 × 480 scans, 7.4 MB: 1.0-1.1 CPU ms fresh, 1.2-1.5 written into the kept one)
+#: a frame in mm handed back is kept (:func:`_give_back_frame_mm`) from this size on: glibc's largest mmap threshold,
+#: above which a fresh array is mapped anew at every call; a smaller one comes from the heap, whose block the next
+#: call's takes again (the real 640 × 480 scans, 7.4 MB: 1.0-1.1 CPU ms fresh, 1.2-1.5 written into the kept one)
 FRAME_KEPT_MIN_BYTES = 32 << 20
 
 
-def _keep_frame_mm(a_mm: np.ndarray, ws: SorWorkspace) -> None:
-    """Keep ``a_mm`` as the thread's last frame in mm (:func:`_frame_mm_array`) when it holds at least
-    :data:`FRAME_KEPT_MIN_BYTES`, and it and the scratch images of ``ws`` at most :data:`SCRATCH_KEPT_BYTES`
-    together: what the thread keeps between calls stays bounded."""
-    if a_mm.base is None and FRAME_KEPT_MIN_BYTES <= a_mm.nbytes <= SCRATCH_KEPT_BYTES - ws.nbytes:
+def _give_back_frame_mm(a_mm: np.ndarray) -> None:
+    """Keep ``a_mm`` (a frame in mm no result owns any more) as the calling thread's (:data:`_FRAME`, in place of
+    the one kept) when it holds at least :data:`FRAME_KEPT_MIN_BYTES`, and it and the thread's scratch images at
+    most :data:`SCRATCH_KEPT_BYTES` together: what the thread keeps between calls stays bounded."""
+    _FRAME.a_mm = None
+    if (a_mm.base is None and a_mm.dtype == np.float64 and a_mm.flags.c_contiguous
+            and FRAME_KEPT_MIN_BYTES <= a_mm.nbytes <= SCRATCH_KEPT_BYTES - scratch_workspace().nbytes):
         _FRAME.a_mm = a_mm
 
 
+def _bound_kept_frame_mm() -> None:
+    """Drop the thread's kept frame in mm when it and the scratch images (grown by a call on a larger frame)
+    hold more than :data:`SCRATCH_KEPT_BYTES` together."""
+    held = getattr(_FRAME, "a_mm", None)
+    if held is not None and held.nbytes > SCRATCH_KEPT_BYTES - scratch_workspace().nbytes:
+        _FRAME.a_mm = None
+
+
+def kept_frame_mm_bytes() -> int:
+    """Bytes of the frame in mm the calling thread keeps for its next call (0: none)."""
+    held = getattr(_FRAME, "a_mm", None)
+    return 0 if held is None else int(held.nbytes)
+
+
 def release_frame_mm() -> None:
-    """Drop the calling thread's kept frame in mm (:func:`_frame_mm_array`); a result still holding it keeps it."""
+    """Drop the frame in mm the calling thread keeps (:meth:`SuspectResult.release` handed it back); the results
+    are not affected."""
     _FRAME.a_mm = None
 
 
@@ -635,7 +680,6 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
             np.multiply(a_mm, 1000.0, out=a_mm)
         if a.dtype != np.float32:
             a_mm, _, _ = _check_args(a_mm, valid, edge_surface)
-        _keep_frame_mm(a_mm, ws)
         # the gate's arrays: the jump's (read by surface_residuals only), the strength's (not written yet) and one
         # more; the gate is done with them when lazy_surfaces returns
         gate = gate_arrays(ws, H * W, ("jump", "strength", "gate_at"))
