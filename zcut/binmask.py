@@ -139,23 +139,56 @@ def _check_pixels_args(result: BinMaskResult, xyz: XYZ, ring_frac: float, min_ri
     return a
 
 
+#: The bytes of ``bin_mask``'s grown image a word holds when all eight are set (0/1 bytes).
+_ONES = np.uint64(0x0101010101010101)
+
+
+def _row_words(img: np.ndarray) -> np.ndarray:
+    """``img`` (H, W) uint8, C order, as (H, W / 8) uint64 words when its rows are whole aligned words;
+    else an (H, 0) array (:func:`_component_stats` then reads bytes only)."""
+    h, w = img.shape
+    if w % 8 == 0 and img.flags.c_contiguous and img.ctypes.data % 8 == 0:
+        return img.view(np.uint64)
+    return np.empty((h, 0), np.uint64)
+
+
 @numba.njit(cache=True, nogil=True)
-def _component_stats(labels, n):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """OpenCV's component statistics (left, top, width, height, area) of labels 0..n-1, by runs."""
+def _component_stats(labels, grown, words, n):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """OpenCV's component statistics (left, top, width, height, area) of labels 0..n-1, by runs.
+
+    ``labels`` are ``cv2.connectedComponents``' of ``grown`` (uint8): 0 where ``grown`` is 0, else the
+    pixel's component. Within a row, a run of nonzero pixels of ``grown`` is one component (neighbours in a
+    row are connected) and a run of zeros is label 0, so the runs of ``labels`` are those of ``grown`` and a
+    run's label is its first pixel's: the image is scanned as bytes (4 times less memory than the labels),
+    eight at a time where a run goes on over whole ``words`` (``_row_words(grown)``: all zero, or all
+    :data:`_ONES`), and a label read once a run. The same statistics as a scan of every label (5.0 -> 2.2
+    CPU ms on a 1920 x 1200 zinc-nut frame's ~25k runs; tests/zcut/test_binmask_stats.py)."""
     H, W = labels.shape
+    nw = words.shape[1]
     lo_c = np.full(n, W, np.int64)
     hi_c = np.full(n, -1, np.int64)
     lo_r = np.full(n, H, np.int64)
     hi_r = np.full(n, -1, np.int64)
     area = np.zeros(n, np.int64)
     for r in range(H):
+        g = grown[r]
+        wr = words[r]
         c = 0
         while c < W:
-            lab = labels[r, c]
+            on = g[c] != 0
             start = c
             c += 1
-            while c < W and labels[r, c] == lab:
+            while c < W and (c & 7) != 0 and (g[c] != 0) == on:  # up to the next word
                 c += 1
+            if c < W and (c & 7) == 0 and (g[c] != 0) == on:  # whole words of the run, then its last bytes
+                t = _ONES if on else np.uint64(0)
+                k = c >> 3
+                while k < nw and wr[k] == t:
+                    k += 1
+                c = k << 3
+                while c < W and (g[c] != 0) == on:
+                    c += 1
+            lab = labels[r, start]
             area[lab] += c - start
             if start < lo_c[lab]:
                 lo_c[lab] = start
@@ -520,7 +553,7 @@ def bin_mask(rgb: RGB, *, params: BinMaskParams = BinMaskParams()) -> BinMaskRes
         grown = cv2.dilate(bright, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
     # the labels of connectedComponentsWithStats (the same algorithm), without its slow statistics
     n, labels = cv2.connectedComponents(grown, connectivity=8, ltype=cv2.CV_32S)
-    stats = _component_stats(labels, n)
+    stats = _component_stats(labels, grown, _row_words(grown), n)
     n_components = n - 1
     min_area = max(1, int(np.ceil(min_area_frac * h * w)))
     candidates = [i for i in range(1, n) if stats[i, 4] >= min_area]
