@@ -113,15 +113,21 @@ def _pad_component(labels, y, x, chosen, padded):  # type: ignore[no-untyped-def
             pr[c + 1] = lr[c] == chosen
 
 
-def _fill_component(labels: np.ndarray, box: tuple[int, int, int, int], chosen: int) -> Mask:
-    """``fill_holes(labels[y:y + bh, x:x + bw] == chosen)`` for ``box`` = (x, y, bw, bh), without its
-    copies (the comparison written into the padded image at once)."""
+def _flooded(labels: np.ndarray, box: tuple[int, int, int, int], chosen: int) -> np.ndarray:
+    """The box (x, y, bw, bh) of ``labels`` padded by one pixel, flooded as :func:`fill_holes` floods it: 1
+    where it holds ``chosen`` (the flood changes only zeros), 0 in the component's holes, 2 outside."""
     x, y, bw, bh = box
     padded = np.empty((bh + 2, bw + 2), np.uint8)
     _pad_component(labels, y, x, chosen, padded)
     flood = np.zeros((bh + 4, bw + 4), np.uint8)
     cv2.floodFill(padded, flood, (0, 0), 2, flags=4)
-    return (padded[1:-1, 1:-1] != 2)
+    return padded
+
+
+def _fill_component(labels: np.ndarray, box: tuple[int, int, int, int], chosen: int) -> Mask:
+    """``fill_holes(labels[y:y + bh, x:x + bw] == chosen)`` for ``box`` = (x, y, bw, bh), without its
+    copies (the comparison written into the padded image at once, :func:`_flooded`)."""
+    return (_flooded(labels, box, chosen)[1:-1, 1:-1] != 2)
 
 
 def _check_pixels_args(result: BinMaskResult, xyz: XYZ, ring_frac: float, min_ring_px: float) -> np.ndarray:
@@ -209,23 +215,25 @@ def _component_stats(labels, grown, words, n):  # type: ignore[no-untyped-def]  
 
 
 @numba.njit(cache=True, nogil=True)
-def _assemble(filled, labels, chosen, bright, y, x, keep_bright, mask, walls):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+def _assemble(filled, flooded, bright, y, x, keep_bright, mask, walls):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """On the chosen component's box (``filled``'s shape at row ``y``, column ``x`` of the full
     images; masks as 0/1 bytes): walls = comp & bright, mask = filled | walls (only ``filled``
-    unless ``keep_bright``); the mask's per-row and per-column counts."""
+    unless ``keep_bright``); the mask's per-row and per-column counts. The component is where the box's
+    flooded image (:func:`_flooded`, one pixel of frame) holds 1: its bytes are read, not the labels'
+    int32 (a quarter of the memory)."""
     H, W = filled.shape
     per_row = np.zeros(H, np.int64)
     per_col = np.zeros(W, np.int64)
     kb = np.uint8(1 if keep_bright else 0)
     for r in range(H):
-        lr = labels[y + r, x:x + W]
+        lr = flooded[r + 1, 1:W + 1]
         br = bright[y + r, x:x + W]
         fr = filled[r]
         mr = mask[y + r, x:x + W]
         wr = walls[y + r, x:x + W]
         k = 0
         for c in range(W):
-            w = np.uint8(lr[c] == chosen) & br[c]
+            w = np.uint8(lr[c] == 1) & br[c]
             m = fr[c] | (kb & w)
             wr[c] = w
             mr[c] = m
@@ -561,22 +569,23 @@ def bin_mask(rgb: RGB, *, params: BinMaskParams = BinMaskParams()) -> BinMaskRes
         return BinMaskResult(empty, empty, False, 0, n_components, (np.nan, np.nan), (0, 0, 0, 0), False)
     chosen = None
     covers = False
-    filled = None
+    flooded = None
     cr, cc = h // 2, w // 2
     if prefer_centre:
         for i in sorted(candidates, key=lambda i: -stats[i, 4]):
             x, y, bw, bh = stats[i, :4]
             if not (y <= cr < y + bh and x <= cc < x + bw):
                 continue
-            sub = _fill_component(labels, (int(x), int(y), int(bw), int(bh)), i)
-            if sub[cr - y, cc - x]:
-                chosen, covers, filled = i, True, sub
+            sub = _flooded(labels, (int(x), int(y), int(bw), int(bh)), i)
+            if sub[cr - y + 1, cc - x + 1] != 2:  # the filled component covers the centre
+                chosen, covers, flooded = i, True, sub
                 break
     if chosen is None:
         chosen = max(candidates, key=lambda i: stats[i, 4])
     x, y, bw, bh = (int(v) for v in stats[chosen, :4])
-    if filled is None:
-        filled = _fill_component(labels, (x, y, bw, bh), chosen)
+    if flooded is None:
+        flooded = _flooded(labels, (x, y, bw, bh), chosen)
+    filled = flooded[1:-1, 1:-1] != 2
     f: np.ndarray = filled.view(np.uint8)
     if dilate_px > 0:
         # erode back by the same radius (a closing); outside the box counts as background
@@ -585,7 +594,7 @@ def bin_mask(rgb: RGB, *, params: BinMaskParams = BinMaskParams()) -> BinMaskRes
                       borderType=cv2.BORDER_CONSTANT, borderValue=0)
     mask = np.zeros((h, w), bool)
     walls = np.zeros((h, w), bool)
-    per_row, per_col = _assemble(np.ascontiguousarray(f), labels, chosen, bright, y, x, dilate_px > 0,
+    per_row, per_col = _assemble(np.ascontiguousarray(f), flooded, bright, y, x, dilate_px > 0,
                                  mask.view(np.uint8), walls.view(np.uint8))
     area = int(per_row.sum())
     r_sum = int(per_row @ np.arange(y, y + bh, dtype=np.int64))
