@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 import pytest
+from bench_frames import bench_kinds, bench_zcut
 from gentle_state import gentle_labelled
 
 from zcut import ZCutParams, find_clusters, zcut_outliers, zcut_outliers_reference
@@ -248,16 +249,9 @@ def test_window_holds_the_segments_in_the_cuts(seed: int) -> None:
 def test_bench_frames_at_nominal_parameters() -> None:
     """The benchmark's two 1920 x 1200 frames: the previous path and the union-find view agree (the
     literal loop takes minutes there; bench/bench_zcut.py compares it)."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-    try:
-        from bench_zcut import A_MAX, dense_frame, pile_frame
-    finally:
-        sys.path.pop(0)
-    for z in (pile_frame(), dense_frame()):
-        check(z, reference=False, step=0.2, max_depth=30.0, max_area=0.07 * A_MAX)
+    bench = bench_zcut()
+    for z in (bench.pile_frame(), bench.dense_frame()):
+        check(z, reference=False, step=0.2, max_depth=30.0, max_area=0.07 * bench.A_MAX)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -361,15 +355,7 @@ def test_pruned_flood_on_random_fields(seed: int) -> None:
 def test_pruned_flood_keeps_few_pixels_of_the_pile() -> None:
     """On the benchmark's pile only the small gentle components are flooded, and the mask is the whole
     flood's."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-    try:
-        from bench_zcut import pile_frame
-    finally:
-        sys.path.pop(0)
-    z = pile_frame()[300:700, 500:1300]
+    z = bench_kinds()["pile"]()[300:700, 500:1300]
     m, keep = pruned_counts(z, step=0.2, max_depth=30.0, max_area=210.0, connectivity=8)
     assert 0 < keep < m / 3
     want = previous_outliers(z, **NOMINAL)
@@ -386,17 +372,9 @@ def test_the_4_connected_components_do_not_pay_on_noisy_relief() -> None:
     """On the benchmark's dense frame (half of the edges gentle, at random) the 4-connected gentle
     components do not pay at the check (the labelling stops there, the levels and the pixel list go on
     to the end), the 8-connected ones do (most pixels left out); every way gives the whole flood's mask."""
-    import sys
-    from pathlib import Path
-
     from zcut.cuts import PRUNE_CHECK
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-    try:
-        from bench_zcut import dense_frame
-    finally:
-        sys.path.pop(0)
-    z = np.ascontiguousarray(dense_frame()[:240, :640])
+    z = np.ascontiguousarray(bench_kinds()["dense"]()[:240, :640])
     H, W = z.shape
     check_at = max(PRUNE_CHECK, 8 * W)
     four = gentle_labelled(z, step=0.2, max_depth=30.0, max_area=210.0, gentle=4, check=check_at)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from fit_scenes import K_TEST, SIZE, hex_nut_mesh, icosphere, pose, render, rotation
+from prepared_models import prepared
 
 from zcut.errors import InputShapeError, ParameterError
 from zcut.fits import FitParams, PartFit, fit_parts, pose_error, prepare_model
@@ -25,7 +26,7 @@ def test_two_nuts_recovered_exactly_from_a_clean_ray_cast_cloud():
     xyz, ids = render([(v, t, T) for T in truths], floor_z_mm=320)
     fits = fit_parts(xyz, ids > 0, v, t, intrinsics=K_TEST)
     assert len(fits) == 2
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     for dt, da in _match(fits, truths, model):
         assert dt < 0.02 and da < 0.1
     for f in fits:
@@ -43,7 +44,7 @@ def test_the_nut_is_found_with_its_symmetries_and_upside_down():
     """A hex nut maps onto itself by 60° turns about its axis and half-turns about its flats: the
     model finds that group, and a nut turned upside down is fitted up to it."""
     v, t = hex_nut_mesh()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     assert len(model.symmetries) == 12 and model.continuous_axis is None
     T = pose(rotation((1, 0, 0), 180) @ rotation((0, 0, 1), 17), (2, 4, 280))
     xyz, ids = render([(v, t, T)], floor_z_mm=290)
@@ -81,7 +82,7 @@ def test_spheres_are_fitted_in_closed_form_exactly():
     centres = [(3.0, 2.0, 300.0), (-17.5, 4.0, 303.0), (20.0, -15.0, 296.0)]
     xyz, ids = _sphere_cloud(centres, 10.0)
     v, t = icosphere(10.0, 4)
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     assert model.sphere_radius == pytest.approx(10.0, abs=1e-9)
     fits = fit_parts(xyz, ids > 0, v, t, intrinsics=K_TEST)
     assert len(fits) == 3
@@ -142,7 +143,7 @@ def test_a_symmetric_equivalent_pose_is_no_error():
     """The nut maps onto itself by 60° turns about its axis and half-turns about its flats: a fit
     off by one of those is exact; a 10° turn is 10° off."""
     v, t = hex_nut_mesh()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     T = pose(rotation((0.3, 1, 0.2), 37), (4, -2, 300))
     c = model.centroid
     for S in model.symmetries:
@@ -164,7 +165,7 @@ def test_the_model_index_matches_the_exact_distances_and_the_reference_icp():
     from zcut.fits.icp import icp, icp_reference
 
     v, t = hex_nut_mesh()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     from zcut.fits.kernels import _index_dtype
 
     # int16 grids where the indices fit (half the memory the lookups walk), int32 beyond
@@ -197,7 +198,7 @@ def test_touching_nuts_in_one_region_are_fitted_patch_by_patch():
     from zcut.fits.segment import segment
 
     v, t = hex_nut_mesh()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     truths = [pose(rotation((1, 0, 0), a) @ rotation((0, 0, 1), b), (1.0, y, 300.0))
               for y, a, b in ((-18.3, 6.0, 3.0), (0.0, -5.0, -2.0), (18.3, 7.0, 1.0))]
     xyz, ids = render([(v, t, T) for T in truths], floor_z_mm=330)
@@ -230,7 +231,7 @@ def test_pixels_without_a_measurement_do_not_count_against_a_fit():
     assert zone.sum() < 0.5 * (ids > 0).sum()
     fits = fit_parts(xyz, zone, v, t, intrinsics=K_TEST)
     assert len(fits) == 1 and fits[0].support > 0.9
-    dt, da = pose_error(fits[0].pose, T, prepare_model(v, t))
+    dt, da = pose_error(fits[0].pose, T, prepared(v, t))
     assert dt < 0.1 and da < 1.5  # 40 % of a nut seen: its turn less held
 
 
@@ -241,7 +242,7 @@ def test_the_second_pass_finds_a_partly_occluded_nut_the_first_pass_misses(axis,
     second pass, seeded on the pixels no fit explains with guesses that put other points of the
     facing side there, finds it. ``seed_shifts=0`` is the first pass alone."""
     v, t = hex_nut_mesh()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     A = pose(rotation((1, 0.3, 0), 20), (45, -20, 300))  # a whole nut: the first pass's noise level
     B = pose(rotation(axis, deg), (15, 10, 305))
     plate = (np.array([[19.0, -300, 0], [-281, -300, 0], [-281, 300, 0], [19.0, 300, 0]]), np.array([[0, 1, 2], [0, 2, 3]]))

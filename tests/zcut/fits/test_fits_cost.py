@@ -6,8 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 from fit_scenes import K_TEST, hex_nut_mesh, icosphere, pose, render, rotation
-
-from zcut.fits import prepare_model
+from prepared_models import prepared
 
 
 def _grid_normals_reference(xyz: np.ndarray, step: int = 2) -> np.ndarray:
@@ -74,7 +73,7 @@ def test_the_lower_bound_spares_only_points_farther_than_the_tolerance():
     from zcut.fits.fit import _near_distances
 
     v, t, T, xyz, ids = _nut_scene()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     rng = np.random.default_rng(3)
     pts = xyz[np.isfinite(xyz).all(axis=2)]
     pts = np.concatenate([pts, pts[rng.choice(len(pts), 3000)] + rng.normal(0, 1.0, (3000, 3)),
@@ -93,7 +92,7 @@ def test_ray_depths_cast_only_the_rays_that_meet_the_box_and_answer_the_same():
     import open3d as o3d
 
     v, t = hex_nut_mesh()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     rng = np.random.default_rng(4)
     origin = np.array([3.0, -2.0, -300.0])
     target = rng.uniform(-25, 25, (20000, 3))
@@ -152,7 +151,7 @@ def test_coarse_search_in_one_call_equals_the_loop_over_the_guesses():
     from zcut.fits.kernels import coarse_search, guess_score
 
     v, t, T, xyz, ids = _nut_scene()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     ix = model.index
     assert ix is not None
     pts = _region(xyz, ids, 1)
@@ -242,7 +241,7 @@ def test_the_support_casting_only_the_rays_near_the_box_equals_casting_the_windo
     from zcut.fits.kernels import window_rays
 
     v, t, T, xyz, ids = _nut_scene()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     valid = np.isfinite(xyz).all(axis=2)
     frame = _Frame(xyz=xyz, valid=valid, zone=valid, K=K_TEST)
     rng = np.random.default_rng(7)
@@ -276,7 +275,7 @@ def test_the_icp_kernel_equals_the_previous_kernel_to_the_bit():
     from zcut.fits.kernels import _stiff, icp_kernel
 
     v, t, T, xyz, ids = _nut_scene()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     ix = model.index
     assert ix is not None
     rng = np.random.default_rng(11)

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from fit_digests import DEFAULTS, DEFAULTS_REAL, degenerate_frames, digest, hand_made, holed, real_crop
 from fit_scenes import K_TEST, hex_nut_mesh, pose, render, rotation
+from prepared_models import prepared
 
-from zcut.fits import fit_prepared, pose_error, prepare_model
+from zcut.fits import fit_prepared, pose_error
 from zcut.fits.icp import initial_rotations
 
 #: a rod lying tilted, its axis (model x) about 40° off the image's rows
@@ -41,7 +42,7 @@ def test_degenerate_frames_of_a_rod_give_no_fits() -> None:
     from replay.synth.surfaces import kind_model_mesh
 
     v, t = kind_model_mesh("rods")
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     xyz, ids = render([(v, t, ROD)], floor_z_mm=440)
     zone = ids == 1
     for x, z in degenerate_frames(xyz, zone):
@@ -54,7 +55,7 @@ def test_degenerate_frames_of_a_rod_give_no_fits() -> None:
 
 def test_initial_rotations_with_the_callers_axes_are_its_own_and_leave_them_alone(rng: np.random.Generator) -> None:
     v, t = hex_nut_mesh()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     for _ in range(20):
         pts = rng.normal(size=(int(rng.integers(3, 600)), 3)) * rng.uniform(0.1, 10.0, 3) + rng.uniform(-50, 50, 3)
         _, ax = np.linalg.eigh(np.cov((pts - pts.mean(axis=0)).T))

@@ -10,8 +10,8 @@ import numba
 import numpy as np
 import pytest
 from fit_scenes import K_TEST, hex_nut_mesh, icosphere, pose, render, rotation
+from prepared_models import prepared
 
-from zcut.fits import prepare_model
 from zcut.fits.kernels import _match, triangle_table
 
 
@@ -64,7 +64,7 @@ def test_the_fast_distances_are_the_exact_matches_to_the_bit(name: str) -> None:
     from zcut.fits.kernels import guess_score, surface_distances
 
     v, t = _MODELS[name]()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     ix = model.index
     assert ix is not None and np.isfinite(ix.tri[:, 15]).all()
     rng = np.random.default_rng(5)
@@ -109,7 +109,7 @@ def test_the_icp_kernel_with_the_fast_path_equals_the_exact_kernel(name: str) ->
     from zcut.fits.kernels import icp_kernel
 
     v, t = _MODELS[name]()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     ix = model.index
     assert ix is not None
     T = pose(rotation((1, 0.3, 0), 25), (2.0, -1.0, 300.0))

@@ -9,10 +9,11 @@ import pytest
 from fit_digests import degenerate_frames
 from fit_digests import digest as _digest
 from fit_scenes import K_TEST, hand_made_nut_frame, hex_nut_mesh, pose, render, rotation
+from prepared_models import prepared
 
 import zcut.fits.fit as F
 from zcut.errors import ParameterError
-from zcut.fits import FitParams, fit_prepared, pose_error, prepare_model
+from zcut.fits import FitParams, fit_prepared, pose_error
 from zcut.fits.icp import icp, icp_reference
 
 NUT = pose(rotation((1, 0.3, 0), 25) @ rotation((0, 0, 1), 20), (0, 0, 300))
@@ -45,7 +46,7 @@ def _noisy_nut(ghost_share: float, seed: int) -> tuple[np.ndarray, object, np.nd
     """A nut's points (ray cast) with depth noise and ``ghost_share`` of them pushed 0.5-1.2 mm along the ray
     (a ghost's or a mixed pixel's depth): (points, model, true pose)."""
     v, t = hex_nut_mesh()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     T = pose(rotation((1, 0.3, 0), 160), (5, -3, 300))
     xyz, ids = render([(v, t, T)], floor_z_mm=320)
     rng = np.random.default_rng(seed)
@@ -78,7 +79,7 @@ def test_the_last_refinement_on_the_window_uses_the_parts_pixels_outside_its_reg
     cuts a region): refined on the window's pixels within its band, the pose comes nearer the truth than on the
     region alone; the window's pixels are the zone's."""
     v, t = hex_nut_mesh()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     xyz, ids = render([(v, t, NUT)], floor_z_mm=330)
     xyz = xyz + np.random.default_rng(10).normal(0, 0.05, xyz.shape)
     zone = ids == 1
@@ -111,7 +112,7 @@ def test_a_ray_traced_nut_has_its_twelve_symmetries_not_the_closures_cap():
     for raytraced in (True, False):
         pm = read_part_model_bytes(part_model_attachment("zinc_nuts", raytraced=raytraced)[PART_MODEL_ATTACHMENT][1])
         v = pm.vertices * (1000.0 if pm.unit == "m" else 1.0)
-        model = prepare_model(v, pm.triangles)
+        model = prepared(v, pm.triangles)
         S = model.symmetries
         assert len(S) == 12 and len(model.guesses) == 12
         c = model.centroid
@@ -126,7 +127,7 @@ def test_a_ray_traced_nut_has_its_twelve_symmetries_not_the_closures_cap():
 
 def test_degenerate_frames_give_no_fits_with_the_new_refinement():
     v, t = hex_nut_mesh()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     xyz, ids = render([(v, t, NUT)], floor_z_mm=330)
     zone = ids == 1
     params = FitParams(fine_window=True, fine_robust=3.0)
@@ -151,7 +152,7 @@ def test_the_band_in_one_kernel_walk_equals_the_union_and_gathers():
     zone pixels within the band, in the same order, to the bit: regions inside, across and outside the window,
     empty, and a pose whose window is off the image."""
     v, t = hex_nut_mesh()
-    model = prepare_model(v, t)
+    model = prepared(v, t)
     xyz, ids = render([(v, t, NUT), (v, t, pose(rotation((0, 1, 0), 70), (25, 10, 305)))], floor_z_mm=330)
     xyz = xyz + np.random.default_rng(4).normal(0, 0.05, xyz.shape)
     frame = _frame(xyz, ids > 0)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from fit_scenes import K_TEST, same_regions, segment_cloud
+from prepared_models import prepared
 
 import zcut.fits.fit as F
 from zcut.fits.segment import segment, segment_reference
@@ -85,7 +86,6 @@ def test_the_guesses_as_arrays_are_the_poses_of_initial_poses_and_shifted_poses(
     a rod-like box's points seen from many poses."""
     from fit_scenes import hex_nut_mesh
 
-    from zcut.fits import prepare_model
     from zcut.fits.icp import guess_translations, initial_poses, initial_rotations, shifted_guesses, shifted_poses
 
     rng = np.random.default_rng(29)
@@ -93,7 +93,7 @@ def test_the_guesses_as_arrays_are_the_poses_of_initial_poses_and_shifted_poses(
     box_v = np.array([[x, y, z] for x in (0, 40) for y in (0, 6) for z in (0, 6)], float)
     box_t = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],
                       [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
-    for model in (prepare_model(v, t), prepare_model(box_v, box_t)):
+    for model in (prepared(v, t), prepared(box_v, box_t)):
         for _ in range(40):
             pts = rng.normal(0, 1, (int(rng.integers(5, 400)), 3)) * rng.uniform(0.5, 12, 3) + (
                 rng.normal(0, 40), rng.normal(0, 40), rng.uniform(200, 600))
