@@ -681,15 +681,12 @@ def _classify_codes(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _classify_finish(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm, off,  # type: ignore[no-untyped-def]  # numba kernel
-                     ijk, busy, box, delta, radius, planes, floor, up, code, table, easy, binp, zone, height,
-                     span):  # pragma: no cover - numba
+                     ijk, busy, box, delta, radius, planes, floor, up, code, table, easy, binp, zone, height):  # pragma: no cover - numba
     """:func:`_classify_codes` and :func:`_finish_codes` (the floor a plane) in one pass over the frame: each pixel's
     class code, its four class masks and its height as :func:`_finish_codes` writes them from that code, while the
     pixel's point is at hand (the frame is read once, not twice: 27.6 MB at 1920 x 1200). Returns the zone's highest
-    height row by row, ``(seen, nan, top)``, as :func:`_finish_codes` does, and writes each row's first and last
-    open column into ``span`` (H, 2) (W and -1: none), where the straggler test's candidates lie
-    (:func:`_straggler_first_span`). The straggler test then labels a few open pixels bin: :func:`_relabel_bin`
-    moves them out of the zone."""
+    height row by row, ``(seen, nan, top)``, as :func:`_finish_codes` does. The straggler test then labels a few
+    open pixels bin: :func:`_relabel_bin` moves them out of the zone."""
     H, W = fp.shape
     seen = np.zeros(H, np.bool_)
     nan = np.zeros(H, np.bool_)
@@ -697,8 +694,6 @@ def _classify_finish(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell,
     for r in numba.prange(H):
         hint = -1
         m = -np.inf
-        lo = W
-        hi = -1
         for c in range(W):
             if not (np.isfinite(a[r, c, 0]) and np.isfinite(a[r, c, 1]) and np.isfinite(a[r, c, 2])):
                 code[r, c] = _INVALID
@@ -750,50 +745,11 @@ def _classify_finish(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell,
                     nan[r] = True
                 elif v > m:
                     m = v
-                lo = min(lo, c)
-                hi = c
             else:
                 zf = (floor - np.float64(a[r, c, 0]) * up[0] - np.float64(a[r, c, 1]) * up[1]) / up[2]
                 height[r, c] = -1000.0 * zf
         top[r] = m
-        span[r, 0] = lo
-        span[r, 1] = hi
     return seen, nan, top
-
-
-@numba.njit(parallel=True, cache=True, nogil=True)
-def _straggler_first_span(a, code, neighbours, R, t, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta,  # type: ignore[no-untyped-def]  # numba kernel
-                          radius, planes, s2, rad, top, span, first):  # pragma: no cover - numba
-    """:func:`_straggler_first` within each row's open columns (``span``, :func:`_classify_finish`): a candidate is
-    an open pixel, so the row's other columns are 0 in ``first`` and their labelled neighbours are not counted (the
-    counts of the span's columns read the columns one either side of it). The same candidates, tested in the same
-    order with the same hints, so the same ``first``."""
-    H, W = code.shape
-    for r in numba.prange(H):
-        c0 = span[r, 0]
-        c1 = span[r, 1]
-        for c in range(W):
-            first[r, c] = 0
-        if c0 > c1:
-            continue
-        b0 = max(c0 - 1, 0)
-        b1 = min(c1 + 2, W)
-        col = np.zeros(W + 2, np.uint8)  # col[c + 1]: labelled pixels of column c in rows r-1..r+1
-        for rr in range(max(r - 1, 0), min(r + 2, H)):
-            for c in range(b0, b1):
-                v = code[rr, c]
-                col[c + 1] += (v == _INVALID) | (v == _TABLE) | (v == _BIN)
-        for c in range(c0, c1 + 1):
-            first[r, c] = (code[r, c] == _OPEN) & (col[c] + col[c + 1] + col[c + 2] >= neighbours)
-        hint = -1
-        for c in range(c0, c1 + 1):
-            if first[r, c]:
-                px, py, pz = _to_bin(a, r, c, R, t)
-                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,
-                               _straggler_delta(a[r, c, 2], -pz, delta, s2, rad, top), radius, planes, hint)
-                if j >= 0:
-                    first[r, c] = 2
-                    hint = j
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1052,19 +1008,15 @@ class _ZoneTop:
 
 def _straggler_codes(a: np.ndarray, code: np.ndarray, R: np.ndarray, t: np.ndarray, index: _ModelIndex, *,
                      straggler_m: float, radius_m: float, planes: bool, neighbours: int,
-                     bound: tuple[float, float, float], span: np.ndarray | None = None) -> np.ndarray:
+                     bound: tuple[float, float, float]) -> np.ndarray:
     """:func:`_straggler_passes` on the class codes (in place): the same passes, each testing only the open
-    neighbours of the pixels the previous one labelled. Returns the pixels it labelled bin (flat indices). ``span``:
-    each row's first and last open column (:func:`_classify_finish`), where the first pass looks for candidates."""
+    neighbours of the pixels the previous one labelled. Returns the pixels it labelled bin (flat indices)."""
     grid = (*_grid_args(index), index.ijk, index.busy, index.box, float(straggler_m), float(radius_m), planes,
             *bound)
     n = code.size
     buf = np.empty(n + (-n % 8), np.uint8)  # ``first``, padded to whole 64-bit words
     buf[n:] = 0
-    if span is None:
-        _straggler_first(a, code, neighbours, R, t, *grid, buf[:n].reshape(code.shape))
-    else:
-        _straggler_first_span(a, code, neighbours, R, t, *grid, span, buf[:n].reshape(code.shape))
+    _straggler_first(a, code, neighbours, R, t, *grid, buf[:n].reshape(code.shape))
     return _straggler_rest(a, code, buf.view(np.uint64), neighbours, STRAGGLER_PASSES, R, t, *grid)  # type: ignore[no-any-return]
 
 
@@ -2722,14 +2674,13 @@ def remove_table_and_bin(
         g = index.bin
         table, easy, binp, zone = (np.empty(shape, bool) for _ in range(4))
         height = np.empty(shape, np.float64)
-        span = np.empty((shape[0], 2), np.int64)
         rows = _classify_finish(a, fp, R, t, index.rim_b + p.rim_offset_m, delta_m > 0, p.robust, *_grid_args(g),
                                 g.ijk, g.busy, g.box, float(delta_m), float(r_bin), planes, float(floor), up,
-                                code, table, easy, binp, zone, height, span)
+                                code, table, easy, binp, zone, height)
         if index.straggler is not None:
             r_s = r_str if planes else straggler_m
             done = _straggler_codes(a, code, R, t, index.straggler, straggler_m=straggler_m, radius_m=r_s,
-                                    planes=planes, neighbours=int(p.straggler_neighbours), bound=bound, span=span)
+                                    planes=planes, neighbours=int(p.straggler_neighbours), bound=bound)
             if done.shape[0]:
                 _relabel_bin(a, done, float(floor), up, binp, zone, height, *rows)
         seen, top = _zone_top_of(*rows)

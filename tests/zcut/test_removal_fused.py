@@ -186,39 +186,3 @@ def test_relabel_bin_rescans_the_rows_that_lost_their_top(seed):
     assert _same(zone, want_zone) and _same(binp, want_bin) and _same(height, want_h)
     for got, want in zip((seen, nan, top), _rows_literal(want_zone, want_h), strict=True):
         assert _same(got, want)
-
-
-@pytest.mark.parametrize("name", ["default", "many-stragglers", "paper"])
-def test_the_first_straggler_pass_within_the_open_spans(logs, name):
-    """``_straggler_first_span`` (the rows' open columns only) writes the ``first`` of ``_straggler_first`` (every
-    column), on the codes of the classification, with the spans ``_classify_finish`` writes."""
-    import zcut.removal as zr
-
-    for log, (model, config, frames) in logs.items():
-        index = prepare_removal_index(model, dataclasses.replace(config.removal, **PARAMS[name]))
-        g, st = index.bin, index.straggler
-        assert st is not None
-        for xyz, fp, ring, T in frames:
-            for a in (xyz, np.where(np.arange(xyz.shape[1])[None, :, None] < xyz.shape[1] // 3, np.nan, xyz)):
-                a = np.ascontiguousarray(a)
-                rem = remove_table_and_bin(a, fp, index=index, T_cam_bin=T, ring=ring)
-                T64 = np.asarray(T, np.float64)
-                R, t = np.ascontiguousarray(T64[:3, :3]), np.ascontiguousarray(T64[:3, 3])
-                p = index.params
-                H, W = fp.shape
-                code = np.empty((H, W), np.uint8)
-                outs = [np.empty((H, W), bool) for _ in range(4)]
-                height, span = np.empty((H, W)), np.empty((H, 2), np.int64)
-                zr._classify_finish(a, fp, R, t, index.rim_b + p.rim_offset_m, True, p.robust, *zr._grid_args(g),
-                                    g.ijk, g.busy, g.box, rem.tolerance_mm / 1000.0, rem.radius_mm / 1000.0, True,
-                                    rem.floor_m, rem.up_cam, code, *outs, height, span)
-                opened = code == zr._OPEN
-                for r in range(H):
-                    cols = np.flatnonzero(opened[r])
-                    want = (cols[0], cols[-1]) if cols.size else (W, -1)
-                    assert tuple(span[r]) == want
-                grid = (*zr._grid_args(st), st.ijk, st.busy, st.box, 0.004, st.cell, True, -1.0, 0.0, np.inf)
-                f_all, f_span = np.zeros((H, W), np.uint8), np.full((H, W), 7, np.uint8)
-                zr._straggler_first(a, code, 3, R, t, *grid, f_all)
-                zr._straggler_first_span(a, code, 3, R, t, *grid, span, f_span)
-                assert _same(f_all, f_span), log
