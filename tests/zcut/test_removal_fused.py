@@ -120,12 +120,15 @@ def test_one_pass_with_holes_and_degenerate_frames(logs):
 
 
 def test_a_bin_seen_from_the_side_takes_the_two_passes(logs):
-    """The frame and the pose turned a quarter about the camera's x axis: the bin's up lies across the view, the
+    """The frame and the pose turned so that the bin's up is the camera's x axis: it lies across the view, the
     floor is the farthest point (known only after the classes), and the fast path still equals the reference."""
     model, config, frames = logs["sprockets-37"]
     xyz, fp, ring, T = frames[0]
+    up = T[:3, :3] @ np.array([0.0, 0.0, -1.0])
+    across = np.cross(up, [1.0, 0.0, 0.0])
+    across /= np.linalg.norm(across)
     Q = np.eye(4)
-    Q[1:3, 1:3] = [[0.0, -1.0], [1.0, 0.0]]
+    Q[:3, :3] = [up, np.cross(across, up), across]  # a rotation taking up to the camera's x axis
     turned = np.ascontiguousarray((xyz.astype(np.float64) @ Q[:3, :3].T).astype(xyz.dtype))
     T2 = Q @ T
     assert abs((T2[:3, :3] @ np.array([0.0, 0.0, -1.0]))[2]) <= 1e-6
