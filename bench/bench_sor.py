@@ -637,12 +637,14 @@ def faults_main(classes: dict[str, object], k: int, std_ratio: float, repeat: in
     return 0
 
 
-def phases_main(classes: dict[str, object], k: int, std_ratio: float, repeat: int) -> int:
+def phases_main(classes: dict[str, object], k: int, std_ratio: float, repeat: int, log: Path | None = None) -> int:
     """Per class and convention: where the CPU time of a ``sor_outliers`` call goes (medians of
     --repeat calls after a first one, CPU ms of all threads): every kernel the call runs on its
     threads (``run: NAME``, see ``zcut.sor._workers``) and the steps around them, timed by wrapping
     them in this process. The steps nest (``_mean_distances`` holds the window phase and the fallback,
-    ``_fallback`` the tile and column searches), so the column does not add up."""
+    ``_fallback`` the tile and column searches), so the column does not add up. With ``log``: the
+    same for the pipeline's SOR stage (``replay.pipeline.zone.sor_on_zone``) on every frame of the log
+    after its bin stages, instead of the classes, and the sum over the frames of each part's medians."""
     import collections
     import contextlib
 
@@ -682,12 +684,33 @@ def phases_main(classes: dict[str, object], k: int, std_ratio: float, repeat: in
     for module, name in ((sor, "_prepare"), (sor, "_mean_distances"), (sor, "_fallback"), (sor, "_column_stage"),
                          (sor, "_outlier_masks"), (sor_camera, "fit_camera"), (sor_camera, "band_tables"),
                          (sor_camera, "corner_tables"), (sor_window, "unproven_pixels"), (sor_search, "build_quadtree"),
-                         (sor_search, "valid_range"), (columns, "mark_columns"), (columns, "count_columns"),
+                         (sor, "_tile_range"), (columns, "mark_columns"), (columns, "count_columns"),
                          (columns, "fill_columns")):
         timed(module, name)
     warm_up(k)
     print(f"zcut {Path(zcut.__file__).parent}, {numba.config.NUMBA_NUM_THREADS} threads, CPU ms of a sor_outliers "
           f"call and of its parts, medians of {repeat} calls after a first one; load average {load_average()}")
+    if log is not None:
+        from replay.pipeline.zone import sor_on_zone
+
+        total: collections.defaultdict[str, float] = collections.defaultdict(float)
+        for i, (frame, zone, config) in enumerate(stage_zones(log)):
+            rows = []
+            for _ in range(repeat + 1):
+                spent.clear()
+                t0 = time.process_time()
+                sor_on_zone(frame, zone, config)  # type: ignore[arg-type]  # stage_zones' items
+                rows.append({"call": time.process_time() - t0, **spent})
+            rows = rows[1:]
+            med = {key: float(np.median([r.get(key, 0.0) for r in rows])) for key in set().union(*rows)}
+            for key, v in med.items():
+                total[key] += v
+            parts = ", ".join(f"{key} {1e3 * v:.1f}" for key, v in sorted(med.items(), key=lambda kv: -kv[1]))
+            print(f"frame {i:3d} {parts}", flush=True)
+        parts = ", ".join(f"{key} {1e3 * v:.1f}" for key, v in sorted(total.items(), key=lambda kv: -kv[1]))
+        print(f"sum of the medians over the frames: {parts}")
+        print(f"load average at the end: {load_average()}")
+        return 0
     for name, make in classes.items():
         xyz = make()
         if isinstance(xyz, str):
@@ -730,13 +753,16 @@ def main() -> int:
     parser.add_argument("--faults", choices=("row", "open3d"),
                         help="print CPU ms, system ms and page faults a call (calls in a row, or Open3D between them)")
     parser.add_argument("--phases", action="store_true",
-                        help="print where the CPU time of a call goes, per kernel and step (no Open3D)")
+                        help="print where the CPU time of a call goes, per kernel and step (no Open3D; with --stage, "
+                             "per frame of the log's SOR stage)")
     parser.add_argument("--serve", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
 
     configure_process()
     if args.serve:
         return _serve()
+    if args.stage and args.phases:
+        return phases_main({}, args.k, args.std_ratio, args.repeat, args.stage)
     if args.stage:
         return stage_main(args.stage, args.against, args.repeat)
     if args.phases:

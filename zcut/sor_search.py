@@ -183,10 +183,10 @@ def _prunable(bd, lim, best, found, m):  # type: ignore[no-untyped-def]  # numba
 
 
 @nb.njit(cache=True)
-def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree, stack_k, stack_l, stack_b):  # type: ignore[no-untyped-def]  # numba kernel
+def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree, stack_k, stack_l, stack_b, cb, ck):  # type: ignore[no-untyped-def]  # numba kernel
     # nearest-first search of one pixel; returns (found, aborted): best[] holds the m smallest
-    # squared distances of the pixels measured. stack_*: scratch of 4 · levels + 4 entries (made
-    # once per call of tile_queries, not once per pixel)
+    # squared distances of the pixels measured. stack_*: scratch of 4 · levels + 4 entries, cb, ck:
+    # of 4 (a node's children, sorted); all made once per call of tile_queries, not once per pixel
     level_off, level_h, level_w, count, box, planes = tree
     H, W = valid.shape
     nlev = level_h.shape[0]
@@ -201,8 +201,6 @@ def _tile_query(r, c, lim, best, x, y, z, valid, m, cap, use_cam, tree, stack_k,
     stack_l[0] = nlev - 1
     stack_b[0] = 0.0
     measured = 0
-    cb = np.empty(4)
-    ck = np.empty(4, np.int64)
     while sp > 0:
         sp -= 1
         lv = stack_l[sp]
@@ -277,10 +275,12 @@ def tile_queries(q0, q1, x, y, z, valid, qr, qc, qlim, m, divisor, cap, use_cam,
     stack_k = np.empty(4 * nlev + 4, np.int64)
     stack_l = np.empty(4 * nlev + 4, np.int64)
     stack_b = np.empty(4 * nlev + 4)
+    cb = np.empty(4)
+    ck = np.empty(4, np.int64)
     for q in range(q0, q1):
         lim = qlim[q]
         found, aborted = _tile_query(qr[q], qc[q], lim, best, x, y, z, valid, m, cap, use_cam, tree, stack_k, stack_l,
-                                     stack_b)
+                                     stack_b, cb, ck)
         measured[q] = found
         if not aborted:
             out[q] = mean_of_sorted(best, divisor)

@@ -577,8 +577,10 @@ def _row_stage(buf, w, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C
     # of at most CH columns, each starting at a valid pixel and ending before a run of more than
     # _GAP invalid ones (the columns between chunks are invalid: their dbar is left as it is).
     # Stage 2 hands the pixels it leaves straight to the growing window, from its 5 x 5 window's
-    # slots (written: d̄, or minus the m-th squared distance found): stage 3 skips them.
+    # slots (written: d̄, or minus the m-th squared distance found): stage 3 skips them. Returns
+    # (stage 2) the number of unproven pixels it left among the columns it read, else 0.
     H, W = x.shape
+    unproven = 0
     c = max(w + 1, first)
     end = min(W - w - 2, last)
     oo = 3 * (2 * w + 1) * (CH + 2 * w) + (8 if w == 1 else 17) * CH
@@ -615,10 +617,14 @@ def _row_stage(buf, w, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C
                 old = dbar[r, cc]
                 keep = merge & ~np.isnan(old)
                 v = buf[oo + i]
-                if valid[r, cc] & np.isnan(v) & ~keep:
+                ok = valid[r, cc]
+                if ok & np.isnan(v) & ~keep:
                     v = _grow_seeded(r, cc, best, _load(buf, _K2, i, init), np.int64(buf[_K2 + 8 * CH + i]), x, y, z,
                                      m, divisor, wmax, use_cam, R, C, Q, floor)
-                dbar[r, cc] = old if keep else v
+                v = old if keep else v
+                dbar[r, cc] = v
+                unproven += ok & (v < 0.0)
+    return unproven
 
 
 # --------------------------------------------------------------------------------------------
@@ -833,9 +839,12 @@ def first_window(m: int, wmax: int) -> int:
 
 
 @nb.njit(cache=True, nogil=True)
-def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven, init):  # type: ignore[no-untyped-def]  # numba kernel
+def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven, init,  # type: ignore[no-untyped-def]  # numba kernel
+                probe):
     """Rows r0..r1-1 of the window phase; ``span[r]`` = the first and last valid column of row r;
-    ``init`` = :func:`slots_for` (m).
+    ``init`` = :func:`slots_for` (m); ``probe``: while the 3 x 3 stage leaves many pixels of a row
+    to the 5 x 5 one, the next rows go straight to the whole-row 5 x 5 stage, and the 3 x 3 stage
+    runs again on every ``probe``-th row only (to tell when to leave it: the d̄ are the same).
 
     Writes into dbar (H, W): d̄ >= 0 where proven; at the other valid pixels minus the m-th
     smallest squared distance found in the window (an upper bound on the true one is its
@@ -856,12 +865,15 @@ def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, 
             continue
         b = (r + BLOCK // 2) // BLOCK
         lo, hi = 0, -1  # the columns the row stages decided (d̄ or NaN)
+        n = 0  # the row's unproven pixels
+        c_a, c_b = last + 1, last + 1  # columns c_a .. c_b - 1: decided and counted by the whole-row 5 x 5 stage
         if w0 == 1 and 0 < r < H - 1 and W >= 5:
             five = 2 <= r < H - 2 and wmax >= 2 and W >= 7
-            if five and sparse and r % 8:  # straight to 5 x 5 (the same d̄ where both prove it)
-                _row_stage(buf, 2, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor, b, dbar,
-                           False, init, best, wmax)
+            if five and sparse and r % probe:  # straight to 5 x 5 (the same d̄ where both prove it)
+                n = _row_stage(buf, 2, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor, b, dbar,
+                               False, init, best, wmax)
                 lo, hi = 3, W - 4
+                c_a, c_b = max(3, first), min(W - 4, last) + 1
             else:
                 _row_stage(buf, 1, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor, b, dbar,
                            True, init, best, wmax)
@@ -873,13 +885,22 @@ def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, 
                         n += valid[r, c] & np.isnan(dbar[r, c])
                     sparse = 8 * n > last - first + 1
                     if sparse:  # many: the whole row, vectorized
-                        _row_stage(buf, 2, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor, b,
-                                   dbar, True, init, best, wmax)
-                    elif n:
-                        _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, Q, floor, b, dbar, init, best,
-                                  wmax)
-        n = 0
-        for c in range(first, last + 1):  # branches only where a pixel grows, as in _row_stage
+                        n = _row_stage(buf, 2, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor,
+                                       b, dbar, True, init, best, wmax)
+                        c_a, c_b = max(3, first), min(W - 4, last) + 1
+                    else:
+                        if n:
+                            _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, Q, floor, b, dbar, init, best,
+                                      wmax)
+                        n = 0
+        # the other columns: grow what the row stages left (branches only where a pixel grows, as in
+        # _row_stage) and count the unproven
+        for c in range(first, min(c_a, last + 1)):
+            ok = valid[r, c]
+            if ok & ~((lo <= c) & (c <= hi) & ~np.isnan(dbar[r, c])):
+                dbar[r, c] = _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor)
+            n += ok & (dbar[r, c] < 0.0)
+        for c in range(max(c_a, c_b), last + 1):
             ok = valid[r, c]
             if ok & ~((lo <= c) & (c <= hi) & ~np.isnan(dbar[r, c])):
                 dbar[r, c] = _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor)

@@ -191,6 +191,38 @@ def test_five_by_five_hands_its_slots_to_the_growing_window(seed: int, monkeypat
         assert_as_oracle(xyz, ks=(4, 5), ratios=(1.0,))
 
 
+@pytest.mark.parametrize("probe", [1, 2, 8, 32, 1 << 40])
+def test_the_rows_between_probes_and_the_count_of_unproven_pixels(probe: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    # rows that go straight to the whole-row 5 x 5 stage (sparse: half of the pixels invalid at
+    # random; steep: tall parts on end) between rows the 3 x 3 stage probes, every _PROBE-th (1:
+    # every row; 1 << 40: never again once sparse), bands of dense rows between them (the probe
+    # must leave the 5 x 5 stage there), valid spans that end near the borders and rows with one
+    # valid pixel. The whole-row 5 x 5 stage counts the unproven pixels of the columns it reads;
+    # window_rows counts only the others: the counts handed to unproven_pixels are checked
+    # against dbar, and d̄ and the masks against the oracle.
+    rng = np.random.default_rng(31)
+    xyz = bank_clouds.steep(rng, 150, 97)
+    xyz[:40][rng.random((40, 97)) < 0.5] = np.nan            # sparse rows ...
+    xyz[70:110][rng.random((40, 97)) < 0.45] = np.nan        # ... a dense band between, then sparse again
+    xyz[75:90, :60] = np.nan                                 # valid spans that start near the right border
+    xyz[95:100, 4:] = np.nan                                 # ... and that end near the left one
+    xyz[100, :] = np.nan
+    xyz[100, 50] = xyz[101, 50]                              # a row with one valid pixel
+    xyz[120:125, 2:95] = np.nan                              # only the border columns valid
+    original = sor_window.unproven_pixels
+    checked = []
+
+    def counted(valid, dbar, unproven):  # type: ignore[no-untyped-def]
+        np.testing.assert_array_equal(unproven, (valid & (dbar < 0.0)).sum(axis=1))
+        checked.append(int(unproven.sum()))
+        return original(valid, dbar, unproven)
+
+    monkeypatch.setattr(sor_window, "unproven_pixels", counted)
+    monkeypatch.setattr(sor_module, "_PROBE", probe)
+    assert_as_oracle(xyz, ks=(1, 4, 5, 8), ratios=(1.0,))
+    assert len(checked) >= 8 and max(checked) > 0
+
+
 # ------------------------------------------------------------------------------------------------
 # the project's frames
 # ------------------------------------------------------------------------------------------------
