@@ -118,7 +118,6 @@ CONVENTIONS = ("pcl", "open3d")
 # search limits (read at call time, so that tests can force each path)
 _USE_CAMERA = True                 # fit a camera model and prove image windows with it
 _WINDOW_MAX = _window.WINDOW_MAX   # largest window half-width, 1..16
-_PROBE = 32                        # rows going straight to the 5 x 5 stage: the 3 x 3 stage on every _PROBE-th only
 _TILE_SCAN_CAP = 2048              # pixels one tile search may measure before the KD-tree takes over
 _MARK_MAX_TILES = 4096             # tiles one pixel may need before the KD-tree takes every point
 _SAMPLE = 256                      # unproven pixels tried first to tell an unorganized cloud
@@ -301,7 +300,7 @@ def _mean_distances(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarr
     dbar = ws.empty("dbar", (H, W))
     unproven = ws.full("unproven", (H,), 0, np.int64)
     run(_window.window_rows, H, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven,
-        _window.slots_for(m), max(int(_PROBE), 1))
+        _window.slots_for(m))
     rows, cols = _window.unproven_pixels(valid, dbar, unproven)  # their dbar: minus the m-th squared distance
     if rows.size:
         def tree() -> tuple[np.ndarray, ...]:  # built only when a tile search runs

@@ -839,12 +839,9 @@ def first_window(m: int, wmax: int) -> int:
 
 
 @nb.njit(cache=True, nogil=True)
-def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven, init,  # type: ignore[no-untyped-def]  # numba kernel
-                probe):
+def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, C, Q, floor, dbar, unproven, init):  # type: ignore[no-untyped-def]  # numba kernel
     """Rows r0..r1-1 of the window phase; ``span[r]`` = the first and last valid column of row r;
-    ``init`` = :func:`slots_for` (m); ``probe``: while the 3 x 3 stage leaves many pixels of a row
-    to the 5 x 5 one, the next rows go straight to the whole-row 5 x 5 stage, and the 3 x 3 stage
-    runs again on every ``probe``-th row only (to tell when to leave it: the d̄ are the same).
+    ``init`` = :func:`slots_for` (m).
 
     Writes into dbar (H, W): d̄ >= 0 where proven; at the other valid pixels minus the m-th
     smallest squared distance found in the window (an upper bound on the true one is its
@@ -869,7 +866,7 @@ def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, 
         c_a, c_b = last + 1, last + 1  # columns c_a .. c_b - 1: decided and counted by the whole-row 5 x 5 stage
         if w0 == 1 and 0 < r < H - 1 and W >= 5:
             five = 2 <= r < H - 2 and wmax >= 2 and W >= 7
-            if five and sparse and r % probe:  # straight to 5 x 5 (the same d̄ where both prove it)
+            if five and sparse and r % 8:  # straight to 5 x 5 (the same d̄ where both prove it)
                 n = _row_stage(buf, 2, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor, b, dbar,
                                False, init, best, wmax)
                 lo, hi = 3, W - 4
