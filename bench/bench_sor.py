@@ -504,7 +504,7 @@ def _serve() -> int:
             res = time_both(np.load(cloud), k, std_ratio, 1)
             np.savez(out, **{f"t_{c}": t for c, (t, _) in res.items()}, **{f"m_{c}": m for c, (_, m) in res.items()})
         elif words[0] == "stage-open":
-            stage = stage_zones(Path(words[1]))
+            stage = stage_zones(Path(words[1]), int(words[2]) if len(words) > 2 else None)
             print(f"done {len(stage)}", flush=True)
             continue
         elif words[0] == "stage":
@@ -526,9 +526,9 @@ def open3d_outliers(pts: np.ndarray, valid: np.ndarray, k: int, std_ratio: float
     return t, out
 
 
-def stage_zones(log: Path) -> list[tuple[object, ...]]:
-    """(frame, zone, config) of every frame of ``log`` after the bin stages (its own bin model, its
-    config), ready for the pipeline's SOR stage."""
+def stage_zones(log: Path, frames: int | None = None) -> list[tuple[object, ...]]:
+    """(frame, zone, config) of every frame of ``log`` (the first ``frames`` only, if given) after the
+    bin stages (its own bin model, its config), ready for the pipeline's SOR stage."""
     from replay.pipeline import stages
     from replay.pipeline.bin_model import bin_model_for
     from replay.pipeline.session import ReplaySession
@@ -537,6 +537,8 @@ def stage_zones(log: Path) -> list[tuple[object, ...]]:
     session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
     out: list[tuple[object, ...]] = []
     for frame in session.reader.frames():
+        if frames is not None and len(out) >= frames:
+            break
         located = stages.locate_bin(frame, session.config, bin_model=session.prepared, seed=session.seed)
         zone = stages.bin_zone(frame, session.config, bin_model=session.prepared, located=located)
         out.append((frame, zone, session.config))
@@ -552,18 +554,18 @@ def time_stage(item: tuple[object, ...]) -> tuple[float, np.ndarray]:
     return t, np.asarray(mask)
 
 
-def stage_main(log: Path, against: Path | None, repeat: int) -> int:
+def stage_main(log: Path, against: Path | None, repeat: int, frames: int | None = None) -> int:
     """Print the SOR stage's CPU ms per frame of ``log``, this code and (``against``) the previous,
     alternately (frame by frame, the order flipping every round); medians of ``repeat`` rounds."""
     import tempfile
 
     print(f"SOR stage of {log}: CPU ms (all threads), median of {repeat} rounds; load average {load_average()}"
           + (f"; previous code: {against}, alternately" if against else ""), flush=True)
-    zones = stage_zones(log)
+    zones = stage_zones(log, frames)
     scratch = tempfile.TemporaryDirectory(prefix="bench-sor-")
     prev = Previous(against, Path(scratch.name)) if against is not None else None
     if prev is not None:
-        prev.ask("stage-open", log)
+        prev.ask("stage-open", log, *([] if frames is None else [frames]))
     times: list[list[float]] = [[] for _ in zones]
     prev_t: list[list[float]] = [[] for _ in zones]
     masks: list[np.ndarray] = [np.zeros(0, bool)] * len(zones)
@@ -637,7 +639,8 @@ def faults_main(classes: dict[str, object], k: int, std_ratio: float, repeat: in
     return 0
 
 
-def phases_main(classes: dict[str, object], k: int, std_ratio: float, repeat: int, log: Path | None = None) -> int:
+def phases_main(classes: dict[str, object], k: int, std_ratio: float, repeat: int, log: Path | None = None,
+                frames: int | None = None) -> int:
     """Per class and convention: where the CPU time of a ``sor_outliers`` call goes (medians of
     --repeat calls after a first one, CPU ms of all threads): every kernel the call runs on its
     threads (``run: NAME``, see ``zcut.sor._workers``) and the steps around them, timed by wrapping
@@ -694,7 +697,7 @@ def phases_main(classes: dict[str, object], k: int, std_ratio: float, repeat: in
         from replay.pipeline.zone import sor_on_zone
 
         total: collections.defaultdict[str, float] = collections.defaultdict(float)
-        for i, (frame, zone, config) in enumerate(stage_zones(log)):
+        for i, (frame, zone, config) in enumerate(stage_zones(log, frames)):
             rows = []
             for _ in range(repeat + 1):
                 spent.clear()
@@ -750,6 +753,7 @@ def main() -> int:
                         help="also time the previous code of this source tree on every cloud, and compare its masks")
     parser.add_argument("--stage", metavar="LOG", type=Path,
                         help="time the pipeline's SOR stage on every frame of this log instead of the classes")
+    parser.add_argument("--frames", type=int, help="with --stage: only the first FRAMES frames of the log")
     parser.add_argument("--faults", choices=("row", "open3d"),
                         help="print CPU ms, system ms and page faults a call (calls in a row, or Open3D between them)")
     parser.add_argument("--phases", action="store_true",
@@ -762,9 +766,9 @@ def main() -> int:
     if args.serve:
         return _serve()
     if args.stage and args.phases:
-        return phases_main({}, args.k, args.std_ratio, args.repeat, args.stage)
+        return phases_main({}, args.k, args.std_ratio, args.repeat, args.stage, args.frames)
     if args.stage:
-        return stage_main(args.stage, args.against, args.repeat)
+        return stage_main(args.stage, args.against, args.repeat, args.frames)
     if args.phases:
         chosen = cloud_classes(args.seed)
         wanted = [c for c in args.classes.split(",") if c]
