@@ -85,6 +85,8 @@ class SliverParams:
         A pose whose solid shares more than this share of its volume with a fitted instance's (or a sliver
         fitted before it), either way, is refused (:func:`zcut.fit_vetting.pose_overlaps`, the fits' own rule
         and default): a part cannot lie inside another, as a part hiding behind a patch of another would.
+    max_regions : int
+        At most this many regions are tried, the largest first (ties: raster order): the pass's CPU bound.
     """
 
     min_px: int = 30
@@ -101,9 +103,10 @@ class SliverParams:
     max_points: int = 400
     free_checks: int = 8
     max_overlap: float = 0.05
+    max_regions: int = 1_000_000
 
     def __post_init__(self) -> None:
-        for name in ("min_px", "max_px", "neighbours", "iterations", "max_points", "free_checks"):
+        for name in ("min_px", "max_px", "neighbours", "iterations", "max_points", "free_checks", "max_regions"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"SliverParams.{name} must be at least 1, got {getattr(self, name)!r}")
         for name in ("gate_mm", "k", "max_residual"):
@@ -217,7 +220,8 @@ def _overlap(model: PartModel, T: np.ndarray, poses: np.ndarray) -> float:
 
 
 def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, model: PartModel,
-                poses: np.ndarray, *, sigma_mm: float, params: SliverParams | None = None) -> list[SliverFit]:
+                poses: np.ndarray, *, sigma_mm: float, params: SliverParams | None = None,
+                intrinsics: tuple[float, float, float, float] | None = None) -> list[SliverFit]:
     """The slivers of ``unexplained`` the part model explains (module docstring), at most one fit a region.
 
     Parameters
@@ -234,11 +238,13 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
     sigma_mm : float
         The frame's median fit residual (the σ of Err; the acceptance's median Err is Err at the region's depth).
     params : SliverParams, optional
+    intrinsics : (fx, fy, cx, cy), optional
+        The camera's; default: estimated from the cloud (:func:`zcut.fits.estimate_intrinsics`).
 
     Returns
     -------
     list of SliverFit
-        In the order of the regions (labelled in raster order).
+        In the order the regions were tried: the largest first, ties in raster order.
     """
     p = params or SliverParams()
     xyz_mm = np.asarray(xyz_mm)
@@ -256,9 +262,11 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
     sizes = np.bincount(labels.ravel(), minlength=n + 1)
     keep = np.flatnonzero((sizes >= p.min_px) & (sizes <= p.max_px))
     keep = keep[keep > 0]
+    keep = keep[np.argsort(-sizes[keep], kind="stable")][:p.max_regions]  # the largest first, at most max_regions
     if not keep.size:
         return []
-    intr = _intrinsics(xyz_mm, valid)
+    intr = _intrinsics(xyz_mm, valid) if intrinsics is None else (
+        float(intrinsics[0]), float(intrinsics[1]), float(intrinsics[2]), float(intrinsics[3]))
     if intr is None:
         return []
     flat_xyz = np.asarray(xyz_mm, np.float64).reshape(-1, 3)
