@@ -87,6 +87,12 @@ class SliverParams:
         and default): a part cannot lie inside another, as a part hiding behind a patch of another would.
     max_regions : int
         At most this many regions are tried, the largest first (ties: raster order): the pass's CPU bound.
+    coarse : int
+        0: every guess runs the full ICP (wide gate, then the gate). Else every guess runs this many of the wide
+        iterations first and only the :attr:`refine` guesses that match the most points (then the lowest RMS)
+        go on with the rest: the pass's CPU per region.
+    refine : int
+        With :attr:`coarse`, the guesses that go on.
     """
 
     min_px: int = 30
@@ -104,11 +110,16 @@ class SliverParams:
     free_checks: int = 8
     max_overlap: float = 0.05
     max_regions: int = 1_000_000
+    coarse: int = 0
+    refine: int = 6
 
     def __post_init__(self) -> None:
-        for name in ("min_px", "max_px", "neighbours", "iterations", "max_points", "free_checks", "max_regions"):
+        for name in ("min_px", "max_px", "neighbours", "iterations", "max_points", "free_checks", "max_regions",
+                     "refine"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"SliverParams.{name} must be at least 1, got {getattr(self, name)!r}")
+        if not 0 <= int(self.coarse) <= int(self.iterations):
+            raise ValueError(f"SliverParams.coarse must lie in [0, iterations], got {self.coarse!r}")
         for name in ("gate_mm", "k", "max_residual"):
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"SliverParams.{name} must be positive, got {getattr(self, name)!r}")
@@ -270,9 +281,11 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
     if intr is None:
         return []
     flat_xyz = np.asarray(xyz_mm, np.float64).reshape(-1, 3)
-    flat_lab = labels.ravel()
-    order = np.argsort(flat_lab, kind="stable")
-    bounds = np.searchsorted(flat_lab[order], np.arange(n + 2))
+    lit = np.flatnonzero(labels.ravel())  # the regions' pixels only, increasing: sorted by region, stable
+    lab = labels.ravel()[lit]
+    srt = np.argsort(lab, kind="stable")
+    order = lit[srt]
+    bounds = np.searchsorted(lab[srt], np.arange(n + 2))  # region j: order[bounds[j]:bounds[j + 1]]
     centres = poses[:, :3, 3]
     taken = poses  # the solids a sliver's part may not enter: the fits', then the slivers' fitted before it
     out: list[SliverFit] = []
@@ -296,10 +309,20 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
         med_err = float(np.median(err_px))
         best: tuple[float, np.ndarray, np.ndarray, float] | None = None
         tried = []
-        for T0 in guesses:
+        if p.coarse:  # every guess a few wide iterations; the refine best (most points matched, then rms) go on
+            first = [icp(use, model, T0, iterations=p.coarse, gate_mm=WIDE * p.gate_mm, k=p.k, floor_mm=p.floor_mm)
+                     for T0 in guesses]
+            rank = sorted((i for i, (_, r, m) in enumerate(first) if np.isfinite(r) and m >= 3),
+                          key=lambda i: (-first[i][2], first[i][1], i))
+            starts = [(first[i][0], p.iterations - p.coarse) for i in rank[:p.refine]]
+        else:
+            starts = [(T0, p.iterations) for T0 in guesses]
+        for T0, wide_left in starts:
             # a wide gate first (a sliver's centroid may lie far from the guess's point), then the gate
-            T, rms, m = icp(use, model, T0, iterations=p.iterations, gate_mm=WIDE * p.gate_mm, k=p.k,
-                            floor_mm=p.floor_mm)
+            T = T0
+            if wide_left > 0:
+                T, rms, m = icp(use, model, T0, iterations=wide_left, gate_mm=WIDE * p.gate_mm, k=p.k,
+                                floor_mm=p.floor_mm)
             T, rms, m = icp(use, model, T, iterations=p.iterations, gate_mm=p.gate_mm, k=p.k, floor_mm=p.floor_mm)
             if not np.isfinite(rms) or m < 3:
                 continue
