@@ -79,8 +79,9 @@ class SliverParams:
     max_points : int
         At most this many of a region's points (an even subsample) take part in the ICP.
     free_checks : int
-        At most this many of a region's poses that pass the residual and the share are checked for free space,
-        lowest residual first (a sliver fits several poses as well: free space tells them apart).
+        At most this many of a region's distinct poses (guesses that converged to one placement count once) that
+        pass the residual and the share are checked for free space, lowest residual first (a sliver fits several
+        poses as well: free space tells them apart).
     max_overlap : float
         A pose whose solid shares more than this share of its volume with a fitted instance's (or a sliver
         fitted before it), either way, is refused (:func:`zcut.fit_vetting.pose_overlaps`, the fits' own rule
@@ -215,6 +216,33 @@ def _distinct(rotations: list[np.ndarray], model: PartModel, tol: float = 0.05) 
     return out
 
 
+def _ball_pose(pts: np.ndarray, model: PartModel, T0: np.ndarray, *, iterations: int = 20) -> np.ndarray:
+    """The ball's pose (no rotation) whose sphere of ``model.sphere_radius`` fits ``pts`` best (Gauss-Newton on the
+    centre from ``T0``'s)."""
+    r = float(model.sphere_radius or 0.0)
+    c = T0[:3, :3] @ model.centroid + T0[:3, 3]
+    for _ in range(iterations):
+        d = pts - c
+        n = np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+        step = np.linalg.lstsq(-d / n[:, None], r - n, rcond=None)[0]
+        c = c + step
+        if not np.isfinite(c).all() or float(np.linalg.norm(step)) < 1e-7:
+            break
+    return pose_matrix(np.eye(3), c - model.centroid)
+
+
+def _same_pose(model: PartModel, A: np.ndarray, B: np.ndarray, *, mm: float = 0.5, tol: float = 0.05) -> bool:
+    """Whether the model posed at ``A`` and at ``B`` is one placement: centroids within ``mm`` and rotations equal up
+    to the model's symmetries (Frobenius distance below ``tol``; a ball: any rotation)."""
+    ca = A[:3, :3] @ model.centroid + A[:3, 3]
+    cb = B[:3, :3] @ model.centroid + B[:3, 3]
+    if float(np.linalg.norm(ca - cb)) > mm:
+        return False
+    if model.sphere_radius is not None:
+        return True
+    return min(float(np.linalg.norm(A[:3, :3] @ S - B[:3, :3])) for S in model.symmetries) < tol
+
+
 def _overlap(model: PartModel, T: np.ndarray, poses: np.ndarray) -> float:
     """The largest share of volume the model posed at ``T`` shares with one posed at any of ``poses`` (either way,
     :func:`zcut.fit_vetting.pose_overlaps`: the fitting's one overlap rule), those whose centres lie within two
@@ -300,7 +328,8 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
         if not Rs:
             continue
         R_all = np.stack(Rs)
-        R_sh, t_sh = shifted_guesses(pts, R_all, model, p.shifts)
+        ball = model.sphere_radius is not None
+        R_sh, t_sh = shifted_guesses(pts, R_all, model, 0 if ball else p.shifts)
         t_c = guess_translations(pts, R_all, model)
         guesses = [pose_matrix(R, t) for R, t in zip(R_all, t_c)] + [pose_matrix(R, t) for R, t in zip(R_sh, t_sh)]
         use = pts[np.linspace(0, len(pts) - 1, min(len(pts), p.max_points)).astype(np.int64)]
@@ -309,7 +338,11 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
         med_err = float(np.median(err_px))
         best: tuple[float, np.ndarray, np.ndarray, float] | None = None
         tried = []
-        if p.coarse:  # every guess a few wide iterations; the refine best (most points matched, then rms) go on
+        refined: list[np.ndarray] = []
+        if ball:  # a ball: its centre by least squares at its radius from the facing guess, no ICP
+            refined = [_ball_pose(use, model, guesses[0])]
+            starts: list[tuple[np.ndarray, int]] = []
+        elif p.coarse:  # every guess a few wide iterations; the refine best (most points matched, then rms) go on
             first = [icp(use, model, T0, iterations=p.coarse, gate_mm=WIDE * p.gate_mm, k=p.k, floor_mm=p.floor_mm)
                      for T0 in guesses]
             rank = sorted((i for i, (_, r, m) in enumerate(first) if np.isfinite(r) and m >= 3),
@@ -324,8 +357,9 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
                 T, rms, m = icp(use, model, T0, iterations=wide_left, gate_mm=WIDE * p.gate_mm, k=p.k,
                                 floor_mm=p.floor_mm)
             T, rms, m = icp(use, model, T, iterations=p.iterations, gate_mm=p.gate_mm, k=p.k, floor_mm=p.floor_mm)
-            if not np.isfinite(rms) or m < 3:
-                continue
+            if np.isfinite(rms) and m >= 3:
+                refined.append(T)
+        for T in refined:
             d = model.distance((pts - T[:3, 3]) @ T[:3, :3])
             inl = d <= p.k * err_px
             share = float(inl.mean())
@@ -336,7 +370,13 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
                 continue
             tried.append((res, T, inl, share))
         tried.sort(key=lambda r: r[0])
-        for res, T, inl, _share in tried[:p.free_checks]:  # the solid and free-space checks, lowest residual first
+        checked: list[np.ndarray] = []
+        for res, T, inl, _share in tried:  # the solid and free-space checks, lowest residual first
+            if len(checked) >= p.free_checks:
+                break
+            if any(_same_pose(model, T, Q) for Q in checked):  # guesses that converged to one pose: checked once
+                continue
+            checked.append(T)
             if _overlap(model, T, taken) > p.max_overlap:
                 continue
             st, sil = see_through_share(xyz_mm, valid, model, T, intrinsics=intr, sigma_mm=sigma_mm, k=p.k,

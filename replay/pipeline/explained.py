@@ -103,8 +103,8 @@ JOIN_SLAB_MM = 5.0
 #: iterations (:attr:`zcut.sliver_fits.SliverParams.coarse`; 0: all of them) and only the best few
 #: (:attr:`zcut.sliver_fits.SliverParams.refine`) on: the pass's CPU bound
 SLIVER_MAX_REGIONS = 24
-SLIVER_COARSE = 4
-SLIVER_REFINE = 4
+SLIVER_COARSE = 2
+SLIVER_REFINE = 8
 
 
 @dataclass(frozen=True, slots=True)
