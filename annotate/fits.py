@@ -6,7 +6,9 @@ attachment), a :class:`Fitter` thread runs the method ``explained``
 distance of every pixel the page serves — the zone and the points above the rim, as
 docs/accuracy.md scores them — to the nearest known surface — fitted instances, registered bin,
 table plane — and the pixels farther than k × Err from all of them) on every frame the catalogue
-prepared, in log order, the frame the page asks for first. The page is usable meanwhile: a frame not fitted yet is
+prepared, in log order, the frame the page asks for first. The method's sliver pass is part of it (the part posed on
+the unexplained regions no fit took, :mod:`zcut.sliver_fits`), so the page's proposals are the method's outliers
+there too. The page is usable meanwhile: a frame not fitted yet is
 answered with its status (``waiting``, ``fitting``), never by holding a worker.
 
 What a frame's fits give the page (:meth:`FrameFits.bundle`, a bundle of :mod:`annotate.payload`):
@@ -127,7 +129,9 @@ class FrameFits:
     message : str
     shape : (int, int)
     fits : tuple of dict
-        Per instance: ``err_mm``, ``support``, ``pose`` (4 x 4 list), ``seeded`` (found from a click).
+        Per instance: ``err_mm``, ``support``, ``pose`` (4 x 4 list), ``seeded`` (found from a click), ``sliver``
+        (posed by the method's sliver pass, :data:`replay.pipeline.explained.SLIVER_MIN_PX`: ``support`` is the share
+        of its region it explains).
     fit_pix, fit_of : (k,) int64, (k,) int32 ndarray
         The zone pixels a fit explains (flat indices, increasing) and which fit (0-based).
     un_pix : (u,) int64 ndarray
@@ -450,12 +454,15 @@ def fit_frame(frame: Frame, job: Job, config: Any, bin_model: BinModel | None) -
     code = np.where(judged, detail.surface, -1).ravel()
     fit_pix = np.flatnonzero(code >= 0)
     un_pix = np.flatnonzero(un.ravel())
-    fits = tuple({"err_mm": float(f.err_mm), "support": float(f.support), "pose": np.asarray(f.pose).tolist()}
-                 for f in detail.fits)
+    first_sliver = len(detail.fits) - detail.slivers  # the sliver pass's fits come last (zcut.sliver_fits)
+    fits = tuple({"err_mm": float(f.err_mm), "support": float(f.support), "pose": np.asarray(f.pose).tolist(),
+                  **({"sliver": True} if i >= first_sliver else {})} for i, f in enumerate(detail.fits))
     vetted = f" ({len(detail.vetted_out)} vetted out: their solids overlap a better-supported fit's)" \
         if detail.vetted_out else ""
     if detail.top_pieces:
         vetted += f" ({detail.top_pieces} found again on unexplained pieces on top of the pile)"
+    if detail.slivers:
+        vetted += f" ({detail.slivers} posed on slivers no fit took)"
     return FrameFits(frame.index, "ready", f"{len(fits)} fits{vetted}, {un_pix.size} unexplained px", (H, W), fits,
                      fit_pix, code[fit_pix].astype(np.int32), un_pix,
                      detail.dist_mm.ravel()[un_pix].astype(np.float32), detail.err_mm.ravel()[un_pix].astype(np.float32),

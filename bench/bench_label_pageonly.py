@@ -100,6 +100,12 @@ CONFIG: Path | None = None
 #: ``--fits-cache DIR`` (``--diagnose`` only): each frame's fits pickled there once and read back on later runs
 #: (:func:`fitted_frames`); None, fitted on every run.
 FITS_CACHE: Path | None = None
+#: ``--slivers N:M[:C:R],…`` (``--diagnose`` only): the sliver pass inside the method (``replay.pipeline.explained``
+#: ``SLIVER_MIN_PX`` = N, ``SLIVER_MAX_REGIONS`` = M, ``SLIVER_COARSE`` = C, ``SLIVER_REFINE`` = R, default 0 and
+#: 1: every guess iterated in full; N = 0: off) scored beside the rule as written, each variant's
+#: fits from the same frame and job, the frame's fits and pieces on top computed once (:func:`sliver_variants`); the
+#: fits cache is then written with the pass off. None: the tree's defaults (docs/labelling.md, "Fourteenth round").
+SLIVERS: list[tuple[int, ...]] | None = None
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -584,6 +590,12 @@ def diagnose(log: Path, work: Path) -> tuple[list[dict], list[dict]]:
     for frame, job, ff, cpu, config in fitted_frames(log):
         rows.append(diagnose_frame(log, frame, job, ff, cpu, work=work))
         print(json.dumps(rows[-1], indent=1, default=float), flush=True)
+        if SLIVERS is not None:
+            for name, vff, vcpu, pass_cpu in sliver_variants(log, frame, job, SLIVERS):
+                row = diagnose_frame(log, frame, job, vff, vcpu, work=work, variant=name)
+                row["cpu_slivers"] = round(pass_cpu, 3)
+                seeded.append(row)
+                print(json.dumps(row, indent=1, default=float), flush=True)
         if SEED_PX is not None:
             valid, xyz, heights = frame_arrays(frame, job)
             *_, last = seed_steps(ff, xyz, heights, valid, config, SEED_PX)
@@ -627,6 +639,72 @@ def fitted_frames(log: Path) -> Iterator[tuple[Any, Any, Any, float, Any]]:
         yield frame, job, ff, cpu, session.config
 
 
+def _memo(fn: Any) -> Any:
+    """``fn`` remembering its last results by the digests of its array arguments (one frame's fits, computed once for
+    every sliver variant: they come before the pass and do not depend on it)."""
+    import hashlib
+
+    memo: dict[tuple[Any, ...], Any] = {}
+
+    def key(a: Any) -> Any:
+        if isinstance(a, np.ndarray):
+            return (a.shape, a.dtype.str, hashlib.blake2b(np.ascontiguousarray(a).view(np.uint8)).hexdigest())
+        try:
+            hash(a)  # parameters (frozen dataclasses), the prepared model (by identity: lru-cached)
+        except TypeError:
+            return id(a)
+        return a
+
+    def wrapped(*args: Any, **kw: Any) -> Any:
+        k = (tuple(key(a) for a in args), tuple((n, key(v)) for n, v in sorted(kw.items())))
+        if k not in memo:
+            memo.clear()
+            memo[k] = fn(*args, **kw)
+        return memo[k]
+
+    return wrapped
+
+
+def sliver_variants(log: Path, frame: Any, job: Any,
+                    variants: Sequence[tuple[int, ...]]) -> Iterator[tuple[str, Any, float, float]]:
+    """(name, the page's fits, their CPU-s, the sliver pass's CPU-s) of ``frame`` for each variant (:data:`SLIVERS`):
+    :func:`annotate.fits.fit_frame` with the pass's constants set (N, M, C, R), the fits and the pieces
+    on top computed once for all (remembered by their inputs' digests: the same inputs, the same fits)."""
+    import replay.pipeline.explained as rex
+    import zcut.fits
+    import zcut.top_pieces
+    from annotate.fits import fit_frame
+
+    session = pipeline_options().open_session(log)
+    bin_model = session.prepared.model if session.prepared is not None else None
+    saved = (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, zcut.fits.fit_prepared,
+             zcut.top_pieces.top_pieces, rex._with_slivers)
+    spent = [0.0]
+    inner = rex._with_slivers
+
+    def timed(*args: Any, **kw: Any) -> Any:
+        t = time.process_time()
+        try:
+            return inner(*args, **kw)
+        finally:
+            spent[0] += time.process_time() - t
+
+    zcut.fits.fit_prepared = _memo(zcut.fits.fit_prepared)  # type: ignore[assignment]
+    zcut.top_pieces.top_pieces = _memo(zcut.top_pieces.top_pieces)  # type: ignore[assignment]
+    rex._with_slivers = timed  # type: ignore[assignment]
+    try:
+        for v in variants:
+            n_px, m, c, r = (*v, 0, 1)[:4]
+            rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE = n_px, m, c, r
+            spent[0] = 0.0
+            t = time.process_time()
+            ff = fit_frame(frame, job, session.config, bin_model)
+            yield "slivers" + "x".join(map(str, v)), ff, time.process_time() - t, spent[0]
+    finally:
+        (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, zcut.fits.fit_prepared,
+         zcut.top_pieces.top_pieces, rex._with_slivers) = saved
+
+
 def pipeline_options() -> Any:
     """The :class:`replay.options.PipelineOptions` ``--diagnose`` prepares each frame with: the z-cut and
     ``explained`` (the zone, the bin stages and the fits the page's server runs), with :data:`CONFIG`'s pipeline
@@ -660,7 +738,7 @@ _TRUTH_MEMO: dict[tuple[str, int], Any] = {}
 
 
 def diagnose_frame(log: Path, frame, job, ff, cpu: float, *, work: Path,  # type: ignore[no-untyped-def]
-                   seeds: SeedStep | None = None) -> dict:
+                   seeds: SeedStep | None = None, variant: str | None = None) -> dict:
     """:func:`diagnose` on one frame's fits ``ff`` (:func:`annotate.fits.fit_frame` of ``frame`` and ``job``; with
     ``seeds``, their last step's fits: the variant's)."""
     from replay.logs import layout
@@ -670,7 +748,7 @@ def diagnose_frame(log: Path, frame, job, ff, cpu: float, *, work: Path,  # type
         valid, xyz, heights = frame_arrays(frame, job)
         H, W = valid.shape
         label, ids, how = _emulated_person(ff, xyz, heights, valid)
-        variant = "rule" if seeds is None else f"seed{SEED_PX}"
+        variant = variant or ("rule" if seeds is None else f"seed{SEED_PX}")
         work.mkdir(parents=True, exist_ok=True)
         np.save(label_file(work, log, frame.index, variant, "emulated"), label)
         if seeds is not None:
@@ -888,6 +966,11 @@ def main() -> int:
                     "on the next ones (one fitting pass, several scorings; not with --seed-px or --config)")
     ap.add_argument("--compare", default="", metavar="BEFORE,AFTER",
                     help="two --diagnose --json files (two trees, the same logs): one table, before -> after")
+    ap.add_argument("--slivers", default="", metavar="N:M[:C:R],…",
+                    help="with --diagnose: also score the sliver pass inside the method at N px, at most M regions "
+                    "(and C coarse ICP iterations for every guess, R guesses refined; default: all) (N = 0: off), "
+                    "from the same frames; rows in JSON.slivers.json (docs/labelling.md, 'Fourteenth "
+                    "round')")
     args = ap.parse_args()
     if args.compare:
         files = [Path(v) for v in args.compare.split(",")]
@@ -895,7 +978,19 @@ def main() -> int:
             raise SystemExit(f"error: --compare takes BEFORE.json,AFTER.json, got {args.compare!r}")
         print("\n".join(compare(*(json.loads(f.read_text()) for f in files))))
         return 0
-    global LARGE_PX, RING_BELOW, SEED_PX, CONFIG, FITS_CACHE
+    global LARGE_PX, RING_BELOW, SEED_PX, CONFIG, FITS_CACHE, SLIVERS
+    if args.slivers:
+        if not args.diagnose or args.seed_px is not None:
+            raise SystemExit("error: --slivers is a --diagnose option, not with --seed-px")
+        try:
+            SLIVERS = [tuple(int(x) for x in v.split(":")) for v in args.slivers.split(",") if v]
+        except ValueError:
+            raise SystemExit(f"error: --slivers takes N:M[:C:R], comma-separated, got {args.slivers!r}") from None
+        if not SLIVERS or any(len(v) not in (2, 4) or v[0] < 0 or min(v[1:]) < 0 or v[1] < 1 for v in SLIVERS):
+            raise SystemExit(f"error: --slivers takes N >= 0, M >= 1 (C >= 0, R >= 1), got {args.slivers!r}")
+        import replay.pipeline.explained as rex
+
+        rex.SLIVER_MIN_PX = 0  # the rule as written and the fits cache: the method without the pass
     if args.fits_cache is not None:
         if not args.diagnose or args.seed_px is not None or args.config is not None:
             raise SystemExit("error: --fits-cache is a --diagnose option, not with --seed-px or --config")
@@ -922,6 +1017,10 @@ def main() -> int:
                 seeded += b
         if args.json is not None:
             args.json.write_text(json.dumps(rule, indent=1, default=float))
+            if SLIVERS is not None:
+                other = args.json.with_suffix(".slivers.json")
+                other.write_text(json.dumps(seeded, indent=1, default=float))
+                print(f"the rule as written: {args.json}; --slivers: {other}")
             if SEED_PX is not None:
                 other = args.json.with_suffix(f".seed{SEED_PX}.json")
                 other.write_text(json.dumps(seeded, indent=1, default=float))

@@ -22,6 +22,12 @@ than ``k`` × Err (``[explained]`` section, :class:`zcut.params.ExplainedParams`
   surrounds it (a piece framed by nearer surfaces is left out), overlaps no fit's solid and lies behind neither
   the bin nor the table; the pixels it is
   nearer to take it and the residuals are measured again (:attr:`ExplainedDetail.top_pieces`).
+- **Slivers no fit took** (:mod:`zcut.sliver_fits`, :data:`SLIVER_MIN_PX`): last, the part is posed on the zone's
+  unexplained regions of :data:`SLIVER_MIN_PX` pixels or more (at most :data:`SLIVER_MAX_REGIONS` of them, the
+  largest first), guessed from the fitted neighbours' orientations; a pose that enters a fit's solid or lies in
+  front of what the camera saw is refused. A sliver fit joins the fits as the pieces on top do
+  (:attr:`ExplainedDetail.slivers`); the labelling page's fits are these (annotate/fits.py), so its proposals stay
+  the method's outliers.
 - **The bin**: the registered model cloud with its normals (the pipeline's bin model), posed by the
   registration; σ_s is the robust residual (:func:`zcut.explained.residual_sigma`) of up to 20,000 of
   the pixels the removal labelled bin.
@@ -57,6 +63,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -87,6 +94,17 @@ SAMPLE_PX = 20_000
 #: fit the part again on the unexplained pieces that lie on top of the pile (:mod:`zcut.top_pieces`;
 #: docs/labelling.md, "Third round: what the label holds beside the truth"); False: the fits as found
 TOP_PIECES = True
+#: the sliver pass (:mod:`zcut.sliver_fits`, :func:`_with_slivers`): the part posed on the zone's unexplained regions
+#: of this many pixels or more after the fits and the pieces on top (docs/labelling.md, "Fourteenth round"); 0: off
+SLIVER_MIN_PX = 150
+#: (mm) :func:`_join` tests the pixels whose nearest surface lies within this only near a new instance's box
+JOIN_SLAB_MM = 5.0
+#: ... at most this many of those regions tried, the largest first, and per region every guess a few wide ICP
+#: iterations (:attr:`zcut.sliver_fits.SliverParams.coarse`; 0: all of them) and only the best few
+#: (:attr:`zcut.sliver_fits.SliverParams.refine`) on: the pass's CPU bound
+SLIVER_MAX_REGIONS = 12
+SLIVER_COARSE = 2
+SLIVER_REFINE = 8
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,6 +139,9 @@ class ExplainedDetail:
     top_pieces : int
         How many of ``fits`` (the last ones) were found on the unexplained pieces on top of the pile
         (:mod:`zcut.top_pieces`).
+    slivers : int
+        How many of ``fits`` (the very last ones, after the pieces on top) the sliver pass posed on the zone's
+        unexplained regions (:mod:`zcut.sliver_fits`, :data:`SLIVER_MIN_PX`).
     """
 
     fits: tuple[PartFit, ...]
@@ -135,6 +156,7 @@ class ExplainedDetail:
     vetted_out: tuple[PartFit, ...] = ()
     top_pieces: int = 0
     vetted_behind: tuple[PartFit, ...] = ()
+    slivers: int = 0
 
     def instance_mesh(self, i: int) -> np.ndarray:
         """The vertices (n, 3) of fit ``i`` posed in the camera frame (mm)."""
@@ -303,6 +325,10 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
     if p.part_model and TOP_PIECES:  # the unexplained pieces on top of the pile fitted again (zcut.top_pieces)
         fits, surfaces, near, top = _with_top_pieces(xyz, zone, near, surfaces, fits, v, t, prepared, intr, footprint,
                                                      judged, p, zone_err=zone_err)
+    slivers = 0
+    if p.part_model and SLIVER_MIN_PX > 0 and fits:  # the slivers no fit took (zcut.sliver_fits)
+        fits, surfaces, near, slivers = _with_slivers(xyz, zone, near, surfaces, fits, v, t, prepared, intr,
+                                                      footprint, judged, p)
     if local is not None:
         near = ex.with_local_surface(near, local)
         surfaces = dataclasses.replace(surfaces, local_err_mm=ex.local_sigma(
@@ -313,7 +339,7 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
     return out, ExplainedDetail(fits, v, t, near.dist_mm, near.surface, err, out,
                                 surface_model=PART_FITS if p.part_model else LOCAL_SURFACE,
                                 local_err_mm=surfaces.local_err_mm, vetted_out=vetted_out, top_pieces=top,
-                                vetted_behind=vetted_behind), warning
+                                vetted_behind=vetted_behind, slivers=slivers), warning
 
 
 def _with_top_pieces(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: tuple[PartFit, ...], v: np.ndarray,
@@ -349,15 +375,70 @@ def _with_top_pieces(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits
             more = [f for f, k in zip(more, kept) if k]
     if not more:
         return fits, surfaces, near, 0
+    fits, surfaces, near = _join(xyz, zone, near, surfaces, fits, more, v, t, judged)
+    return fits, surfaces, near, len(more)
+
+
+def _with_slivers(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: tuple[PartFit, ...], v: np.ndarray,
+                  t: np.ndarray, prepared: Any, intr: Any, footprint: np.ndarray, judged: np.ndarray,
+                  p: Any) -> tuple[tuple[PartFit, ...], Any, Any, int]:
+    """(fits, surfaces, nearest, how many were added) with the slivers :func:`zcut.sliver_fits.fit_slivers` poses on
+    the zone's unexplained regions of :data:`SLIVER_MIN_PX` to its ``max_px`` pixels (at most
+    :data:`SLIVER_MAX_REGIONS`, the largest first), guessed from the fits' orientations, kept out of their solids and
+    of the free space the camera saw. A sliver fit states the frame's median fit residual σ (the one its acceptance
+    used) and joins the fits as the pieces on top do (:func:`_join`): the judged pixels nearer to it take it."""
+    from zcut import explained as ex
+    from zcut.fits import PartFit
+    from zcut.sliver_fits import SliverParams, fit_slivers
+
+    err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm, where=zone.zone)
+    un = ex.unexplained(near.dist_mm, err, p.k) & zone.zone
+    sig = np.asarray(surfaces.part_err_mm, np.float64)
+    sig = sig[np.isfinite(sig)]
+    if not un.any() or not sig.size:
+        return fits, surfaces, near, 0
+    sigma = float(np.median(sig))
+    found = fit_slivers(xyz, np.isfinite(xyz).all(axis=2), un, prepared, np.stack([f.pose for f in fits]),
+                        sigma_mm=sigma, intrinsics=intr,
+                        params=SliverParams(min_px=SLIVER_MIN_PX, max_regions=SLIVER_MAX_REGIONS, coarse=SLIVER_COARSE,
+                                            refine=SLIVER_REFINE, k=float(p.k), floor_mm=float(p.err_floor_mm)))
+    if not found:
+        return fits, surfaces, near, 0
+    more = [PartFit(s.pose, sigma, s.share, s.pixels) for s in found]
+    fits, surfaces, near = _join(xyz, zone, near, surfaces, fits, more, v, t, judged)
+    return fits, surfaces, near, len(more)
+
+
+def _join(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: tuple[PartFit, ...], more: Sequence[PartFit],
+          v: np.ndarray, t: np.ndarray, judged: np.ndarray) -> tuple[tuple[PartFit, ...], Any, Any]:
+    """(fits, surfaces, nearest) with the instances ``more`` joined after ``fits``: the judged pixels a new instance
+    is nearer to than their nearest surface take it (exact: a pixel farther from a new instance's box than from its
+    nearest surface keeps it), and every fit's residual is measured again (:func:`zcut.explained.fit_sigmas`, from
+    the residuals the fits state)."""
+    from zcut import explained as ex
+
     posed = [(v @ f.pose[:3, :3].T + f.pose[:3, 3], t) for f in more]
     d = np.asarray(near.dist_mm, np.float64)
     cand = judged & np.isfinite(xyz).all(axis=2) & ~(d <= 0.0)
     pts = xyz[cand]
     dc = d[cand]
     hit = np.zeros(len(pts), bool)
-    for pv, _ in posed:  # a pixel can be nearer to an instance only when it is nearer to its box
-        gap = np.linalg.norm(np.maximum(0.0, np.maximum(pv.min(axis=0) - pts, pts - pv.max(axis=0))), axis=1)
-        hit |= ~(gap >= dc)  # NaN (not judged) and inf (no surface): searched
+    # a pixel can be nearer to an instance only when it is nearer to its box. The pixels whose surface lies within
+    # JOIN_SLAB_MM are tested only in the instance's slab along x widened by that much (outside it the box lies
+    # farther than their surface along x alone: the same answer); the others, all of them
+    near_ = dc <= JOIN_SLAB_MM
+    far = np.flatnonzero(~near_)
+    close = np.flatnonzero(near_)
+    close = close[np.argsort(pts[close, 0], kind="stable")]
+    xs = pts[close, 0]
+    widen = JOIN_SLAB_MM * (1.0 + 1e-6)
+    for pv, _ in posed:
+        lo, hi = pv.min(axis=0), pv.max(axis=0)
+        a, b = np.searchsorted(xs, [lo[0] - widen, hi[0] + widen], side="left")
+        for idx in (far, close[a:b]):
+            q = pts[idx]
+            gap = np.linalg.norm(np.maximum(0.0, np.maximum(lo - q, q - hi)), axis=1)
+            hit[idx] |= ~(gap >= dc[idx])  # NaN (not judged) and inf (no surface): searched
     where = np.zeros(cand.shape, bool)
     where.reshape(-1)[np.flatnonzero(cand.ravel())[hit]] = True
     add = ex.nearest_surface(xyz, ex.KnownSurfaces(parts=posed, part_err_mm=[f.err_mm for f in more]), where=where)
@@ -370,7 +451,7 @@ def _with_top_pieces(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits
     stated = [float(f.err_mm) for f in fits]
     surfaces = dataclasses.replace(surfaces, parts=[*surfaces.parts, *posed], part_err_mm=stated)
     surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, stated, where=zone.zone))
-    return fits, surfaces, near, len(more)
+    return fits, surfaces, near
 
 
 
