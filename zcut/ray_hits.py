@@ -118,7 +118,7 @@ def hit_t(t32: np.ndarray, prim: np.ndarray, origins: np.ndarray, directions: np
     """
     one = origins.shape[0] == 1
     for i in range(t32.shape[0]):
-        ti = np.float64(t32[i])
+        ti: float = np.float64(t32[i])
         if np.isfinite(ti):
             det, tm, bu, bv = hit_tuv(i, np.int64(prim[i]), 0 if one else i, origins, directions, v0, e1, e2)
             ti = _exact(ti, det, tm, bu, bv)
@@ -132,7 +132,7 @@ def mesh_hit_t(t32: np.ndarray, prim: np.ndarray, origins: np.ndarray, direction
     (k, 3) float64; each hit triangle's ``v0``, ``e1``, ``e2`` are :func:`triangle_edges`' (the same subtractions)."""
     one = origins.shape[0] == 1
     for i in range(t32.shape[0]):
-        ti = np.float64(t32[i])
+        ti: float = np.float64(t32[i])
         if np.isfinite(ti):
             p = np.int64(prim[i])
             o = 0 if one else i
