@@ -17,6 +17,7 @@ import numpy as np
 
 from zcut.errors import InputShapeError, ParameterError, describe_array
 from zcut.fit_vetting import Solid
+from zcut.ray_hits import mesh_hit_t
 
 from .kernels import ModelIndex, build_index
 
@@ -99,7 +100,11 @@ class PartModel:
 
     def ray_depths(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Distance along each ray (model frame, unit directions) to the first hit of the surface,
-        inf where none (a sphere: the closed form)."""
+        inf where none (a sphere: the closed form).
+
+        Open3D's ray casting (Embree) says which rays hit and which triangle; the distance is Möller–Trumbore's in
+        float64 on that triangle (:func:`zcut.ray_hits.mesh_hit_t`), not Embree's float32 ``t_hit``, whose last bits
+        differ between CPUs (docs/fits.md, "The fits' ray casts exact")."""
         if self.sphere_radius is not None:
             oc = origins - self.centroid
             b = np.einsum("ij,ij->i", oc, directions)
@@ -113,9 +118,13 @@ class PartModel:
         hits = _box_hits(origins, directions, self.vertices.min(axis=0), self.vertices.max(axis=0))
         if not hits.any():
             return out
-        rays = np.concatenate([origins[hits], directions[hits]], axis=1).astype(np.float32)
-        t: np.ndarray = self._scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
-        out[hits] = t.astype(np.float64)
+        o = np.ascontiguousarray(origins[hits], np.float64)
+        d = np.ascontiguousarray(directions[hits], np.float64)
+        rays = np.concatenate([o, d], axis=1).astype(np.float32)
+        res = self._scene.cast_rays(o3d.core.Tensor(rays))  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
+        t = np.empty(len(o))
+        mesh_hit_t(res["t_hit"].numpy(), res["primitive_ids"].numpy(), o, d, self.vertices, self.triangles, t)
+        out[hits] = t
         return out
 
     @property

@@ -24,6 +24,11 @@ import math
 import numba as nb
 import numpy as np
 
+# the float64 hit (Möller–Trumbore on the triangle Embree found) is zcut's, shared with the fits' ray casts;
+# hit_t is re-exported for TracedScene.cast_t
+from zcut.ray_hits import hit_t as hit_t
+from zcut.ray_hits import hit_tuv
+
 _TWO_PI = 2 * np.pi
 
 
@@ -68,34 +73,6 @@ def ray_array(origins: np.ndarray, directions: np.ndarray, out: np.ndarray) -> N
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _hit_tuv(i: int, p: np.int64, o: int, origins: np.ndarray, directions: np.ndarray, v0: np.ndarray, e1: np.ndarray,
-             e2: np.ndarray) -> tuple[float, float, float, float]:
-    """Möller–Trumbore of ray ``i`` (origin row ``o``) on triangle ``p`` in float64: ``(det, t, u, v)``.
-
-    The operations and their order are ``TracedScene.cast_reference``'s (``_hit_tuv_reference``):
-    ``P = d x e2``, ``det = e1 . P``, ``S = o - v0``, ``Q = S x e1``, ``u = (S . P) / det``,
-    ``v = (d . Q) / det``, ``t = (e2 . Q) / det``, each dot product ``(x + y) + z``.
-    """
-    dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-    ax, ay, az = e1[p, 0], e1[p, 1], e1[p, 2]
-    bx, by, bz = e2[p, 0], e2[p, 1], e2[p, 2]
-    px = dy * bz - dz * by
-    py = dz * bx - dx * bz
-    pz = dx * by - dy * bx
-    det = (ax * px + ay * py) + az * pz
-    sx = origins[o, 0] - v0[p, 0]
-    sy = origins[o, 1] - v0[p, 1]
-    sz = origins[o, 2] - v0[p, 2]
-    qx = sy * az - sz * ay
-    qy = sz * ax - sx * az
-    qz = sx * ay - sy * ax
-    u = ((sx * px + sy * py) + sz * pz) / det
-    v = ((dx * qx + dy * qy) + dz * qz) / det
-    t = ((bx * qx + by * qy) + bz * qz) / det
-    return det, t, u, v
-
-
-@nb.njit(cache=True, error_model="numpy")
 def finish_hits(t32: np.ndarray, prim: np.ndarray, uv32: np.ndarray, geo32: np.ndarray, origins: np.ndarray,
                 directions: np.ndarray, v0: np.ndarray, e1: np.ndarray, e2: np.ndarray, face_normals: np.ndarray,
                 corner_normals: np.ndarray, material_id: np.ndarray, label_id: np.ndarray, part_id: np.ndarray,
@@ -104,7 +81,7 @@ def finish_hits(t32: np.ndarray, prim: np.ndarray, uv32: np.ndarray, geo32: np.n
     """Open3D's raw answers -> the fields of ``Hits`` (see ``TracedScene.cast``), written into the outputs.
 
     Open3D (Embree) says only whether a ray hits and which triangle: the hit's ``t`` and barycentric
-    ``u, v`` are Möller–Trumbore's in float64 on that triangle (``_hit_tuv``), its geometric normal the
+    ``u, v`` are Möller–Trumbore's in float64 on that triangle (:func:`zcut.ray_hits.hit_tuv`), its geometric normal the
     triangle's (``face_normals``), so that no bit of a hit comes from Embree's float32 SIMD kernels,
     which differ between CPUs. A ray in the triangle's plane (``det`` 0) or a non-finite result keeps
     Embree's float32 ``t``, ``uv`` and normal. Shading normal: the corner normals blended by the
@@ -127,7 +104,7 @@ def finish_hits(t32: np.ndarray, prim: np.ndarray, uv32: np.ndarray, geo32: np.n
             continue
         p = np.int64(prim[i])
         o = 0 if one else i
-        det, tm, bu, bv = _hit_tuv(i, p, o, origins, directions, v0, e1, e2)
+        det, tm, bu, bv = hit_tuv(i, p, o, origins, directions, v0, e1, e2)
         if det != 0.0 and np.isfinite(tm) and np.isfinite(bu) and np.isfinite(bv):
             ti = np.float64(tm)
             g0, g1, g2 = face_normals[p, 0], face_normals[p, 1], face_normals[p, 2]
@@ -160,21 +137,6 @@ def finish_hits(t32: np.ndarray, prim: np.ndarray, uv32: np.ndarray, geo32: np.n
         material[i] = material_id[p]
         label[i] = label_id[p]
         part[i] = part_id[p]
-
-
-@nb.njit(cache=True, error_model="numpy")
-def hit_t(t32: np.ndarray, prim: np.ndarray, origins: np.ndarray, directions: np.ndarray, v0: np.ndarray,
-          e1: np.ndarray, e2: np.ndarray, t: np.ndarray) -> None:
-    """``t`` of ``finish_hits`` alone (inf for a miss): Möller–Trumbore's in float64 on the triangle
-    Open3D found, Embree's float32 ``t`` where that is not finite or the ray lies in the plane."""
-    one = origins.shape[0] == 1
-    for i in range(t32.shape[0]):
-        ti = np.float64(t32[i])
-        if np.isfinite(ti):
-            det, tm, bu, bv = _hit_tuv(i, np.int64(prim[i]), 0 if one else i, origins, directions, v0, e1, e2)
-            if det != 0.0 and np.isfinite(tm) and np.isfinite(bu) and np.isfinite(bv):
-                ti = np.float64(tm)
-        t[i] = ti
 
 
 @nb.njit(cache=True, error_model="numpy")

@@ -23,6 +23,7 @@ from replay.synth.raytrace.meshes import Mesh, bin_mesh, check_mesh, concatenate
 from replay.synth.raytrace.pile import Pile
 from replay.synth.scene import LABEL_TABLE, BinPose
 from replay.synth.sensor import CAMERA_HEIGHT_MM
+from zcut.ray_hits import hit_tuv_reference, triangle_edges
 
 if TYPE_CHECKING:
     import open3d as o3d
@@ -121,10 +122,7 @@ class TracedScene:
         # per triangle, float64: its first corner and two edges (Möller–Trumbore's) and its unit face normal
         # (e1 x e2, Embree's orientation): a hit's t, uv and geometric normal are computed from these, not
         # read from Embree's float32 answers, which differ between CPUs (docs/synthetic.md)
-        corners = self.vertices[self.triangles]
-        self.v0 = np.ascontiguousarray(corners[:, 0])
-        self.e1 = corners[:, 1] - corners[:, 0]
-        self.e2 = corners[:, 2] - corners[:, 0]
+        self.v0, self.e1, self.e2 = triangle_edges(self.vertices, self.triangles)
         self.face_normals = _unit_cross(self.e1, self.e2)
         self.label = world.label
         self.material_id = np.concatenate(mat_ids)
@@ -221,8 +219,8 @@ class TracedScene:
         uv = res["primitive_uvs"].numpy().astype(np.float64)
         geo = res["primitive_normals"].numpy().astype(np.float64)
         # Embree decides hit or miss and the triangle; t, uv and the face normal are float64 Möller–Trumbore's
-        det, tm, bu, bv = _hit_tuv_reference(np.asarray(origins, np.float64), directions, self.v0[prim],
-                                             self.e1[prim], self.e2[prim])
+        det, tm, bu, bv = hit_tuv_reference(np.asarray(origins, np.float64), directions, self.v0[prim],
+                                            self.e1[prim], self.e2[prim])
         with np.errstate(invalid="ignore"):
             mt = hit & (det != 0.0) & np.isfinite(tm) & np.isfinite(bu) & np.isfinite(bv)
         t[mt] = tm[mt]
@@ -258,27 +256,6 @@ def _unit_cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     n = np.sqrt((c[:, 0] * c[:, 0] + c[:, 1] * c[:, 1]) + c[:, 2] * c[:, 2])
     out: np.ndarray = c / np.maximum(n, 1e-12)[:, None]
     return out
-
-
-def _hit_tuv_reference(o: np.ndarray, d: np.ndarray, v0: np.ndarray, e1: np.ndarray,
-                       e2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``kernels._hit_tuv`` in whole-array numpy, the same operations in the same order: ``(det, t, u, v)``."""
-    px = d[:, 1] * e2[:, 2] - d[:, 2] * e2[:, 1]
-    py = d[:, 2] * e2[:, 0] - d[:, 0] * e2[:, 2]
-    pz = d[:, 0] * e2[:, 1] - d[:, 1] * e2[:, 0]
-    det = (e1[:, 0] * px + e1[:, 1] * py) + e1[:, 2] * pz
-    o = np.broadcast_to(o, d.shape)
-    sx = o[:, 0] - v0[:, 0]
-    sy = o[:, 1] - v0[:, 1]
-    sz = o[:, 2] - v0[:, 2]
-    qx = sy * e1[:, 2] - sz * e1[:, 1]
-    qy = sz * e1[:, 0] - sx * e1[:, 2]
-    qz = sx * e1[:, 1] - sy * e1[:, 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = ((sx * px + sy * py) + sz * pz) / det
-        v = ((d[:, 0] * qx + d[:, 1] * qy) + d[:, 2] * qz) / det
-        t = ((e2[:, 0] * qx + e2[:, 1] * qy) + e2[:, 2] * qz) / det
-    return det, t, u, v
 
 
 def build_scene(pose: BinPose, pile: Pile | None, *, geometry: BinGeometry = BIN,

@@ -28,29 +28,47 @@ def pose(R: np.ndarray, t: tuple[float, float, float]) -> np.ndarray:
 def render(meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray]], *, K: tuple[float, float, float, float] = K_TEST,
            size: tuple[int, int] = SIZE, floor_z_mm: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(xyz (H, W, 3) mm, id (H, W) int: 0 floor / nothing, i + 1 the i-th mesh) of ``meshes``
-    given as (vertices, triangles, pose model -> camera), with an optional floor plane z = const."""
+    given as (vertices, triangles, pose model -> camera), with an optional floor plane z = const.
+
+    Open3D's ray casting (Embree) says which mesh and triangle each pixel's ray hits; the depth is Möller–Trumbore's
+    in float64 on that triangle's float64 corners (:func:`zcut.ray_hits.mesh_hit_t`), so that the scene's bytes do not
+    depend on the CPU (Embree's float32 ``t_hit`` does in its last bits: docs/fits.md, "The fits' ray casts exact")."""
     import open3d as o3d
 
+    from zcut.ray_hits import mesh_hit_t
+
     scene = o3d.t.geometry.RaycastingScene()
+    posed: list[tuple[np.ndarray, np.ndarray]] = []
     for v, t, T in meshes:
-        vc = v @ T[:3, :3].T + T[:3, 3]
-        scene.add_triangles(o3d.core.Tensor(vc.astype(np.float32)), o3d.core.Tensor(t.astype(np.uint32)))
+        posed.append((np.asarray(v, np.float64) @ T[:3, :3].T + T[:3, 3], np.asarray(t, np.int64)))
     if floor_z_mm is not None:
         s = 5000.0
-        fv = np.array([[-s, -s, floor_z_mm], [s, -s, floor_z_mm], [s, s, floor_z_mm], [-s, s, floor_z_mm]])
-        scene.add_triangles(o3d.core.Tensor(fv.astype(np.float32)),
-                            o3d.core.Tensor(np.array([[0, 1, 2], [0, 2, 3]], np.uint32)))
+        posed.append((np.array([[-s, -s, floor_z_mm], [s, -s, floor_z_mm], [s, s, floor_z_mm], [-s, s, floor_z_mm]]),
+                      np.array([[0, 1, 2], [0, 2, 3]], np.int64)))
+    for vc, t in posed:
+        scene.add_triangles(o3d.core.Tensor(vc.astype(np.float32)), o3d.core.Tensor(t.astype(np.uint32)))
+    # every geometry's triangles in one table: geometry g's triangle p is row first[g] + p
+    vertices = np.concatenate([vc for vc, _ in posed])
+    first_vertex = np.cumsum([0] + [len(vc) for vc, _ in posed])
+    triangles = np.concatenate([t + first_vertex[g] for g, (_, t) in enumerate(posed)])
+    first = np.cumsum([0] + [len(t) for _, t in posed])
     H, W = size
     fx, fy, cx, cy = K
     rr, cc = np.mgrid[0:H, 0:W]
     d = np.stack([(cc - cx) / fx, (rr - cy) / fy, np.ones((H, W))], axis=-1)
     rays = np.concatenate([np.zeros((H, W, 3)), d], axis=-1).astype(np.float32)
     ans = scene.cast_rays(o3d.core.Tensor(rays))
-    t_hit = ans["t_hit"].numpy().astype(np.float64)
-    gid = ans["geometry_ids"].numpy().astype(np.int64)
+    t32 = ans["t_hit"].numpy().reshape(-1)
+    hit = np.isfinite(t32)
+    gid = ans["geometry_ids"].numpy().astype(np.int64).reshape(-1)
+    prim = np.zeros(t32.shape, np.int64)
+    prim[hit] = first[gid[hit]] + ans["primitive_ids"].numpy().astype(np.int64).reshape(-1)[hit]
+    t_hit = np.empty(t32.shape)
+    mesh_hit_t(t32, prim, np.zeros((1, 3)), np.ascontiguousarray(d.reshape(-1, 3)), vertices, triangles, t_hit)
+    t_hit = t_hit.reshape(H, W)
     xyz = d * t_hit[..., None]  # d has z = 1: t_hit is the depth
     xyz[~np.isfinite(t_hit)] = np.nan
-    ids = np.where(np.isfinite(t_hit) & (gid < len(meshes)), gid + 1, 0)
+    ids = np.where(np.isfinite(t_hit) & (gid.reshape(H, W) < len(meshes)), gid.reshape(H, W) + 1, 0)
     return xyz, ids
 
 

@@ -91,6 +91,8 @@ def test_the_lower_bound_spares_only_points_farther_than_the_tolerance():
 def test_ray_depths_cast_only_the_rays_that_meet_the_box_and_answer_the_same():
     import open3d as o3d
 
+    from zcut.ray_hits import mesh_hit_t
+
     v, t = hex_nut_mesh()
     model = prepared(v, t)
     rng = np.random.default_rng(4)
@@ -103,7 +105,9 @@ def test_ray_depths_cast_only_the_rays_that_meet_the_box_and_answer_the_same():
     got = model.ray_depths(o, d)
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(t.astype(np.uint32)))
-    want = scene.cast_rays(o3d.core.Tensor(np.c_[o, d].astype(np.float32)))["t_hit"].numpy().astype(np.float64)
+    res = scene.cast_rays(o3d.core.Tensor(np.c_[o, d].astype(np.float32)))
+    want = np.empty(len(d))  # every ray cast, the hit's depth exact as ray_depths makes it (zcut.ray_hits)
+    mesh_hit_t(res["t_hit"].numpy(), res["primitive_ids"].numpy(), o, d, v, t, want)
     assert np.isfinite(want).sum() > 1000 and np.isinf(want).sum() > 1000
     assert np.array_equal(got, want)
 
