@@ -1017,7 +1017,7 @@ def _straggler_codes(a: np.ndarray, code: np.ndarray, R: np.ndarray, t: np.ndarr
     buf = np.empty(n + (-n % 8), np.uint8)  # ``first``, padded to whole 64-bit words
     buf[n:] = 0
     _straggler_first(a, code, neighbours, R, t, *grid, buf[:n].reshape(code.shape))
-    return _straggler_rest(a, code, buf.view(np.uint64), neighbours, STRAGGLER_PASSES, R, t, *grid)  # type: ignore[no-any-return]
+    return _straggler_rest(a, code, buf.view(np.uint64), neighbours, STRAGGLER_PASSES, R, t, *grid)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
