@@ -43,6 +43,7 @@ from zcut.fits.icp import guess_translations, icp, pose_matrix, shifted_guesses
 __all__ = ["SliverFit", "SliverParams", "fit_slivers", "see_through_share"]
 
 EIGHT = np.ones((3, 3), bool)
+EIGHT.setflags(write=False)
 #: The first ICP of a guess runs with this many times the gate.
 WIDE = 2.5
 
