@@ -161,6 +161,10 @@ def _run_raytraced(args: argparse.Namespace, what: str, progress: ProgressFn) ->
         n_valid = int(np.isfinite(rf.frame.xyz[..., 2]).sum())
         print(f"frame {i + 1}/{n}: {what} {w}x{h} (ray-traced), {n_parts} parts, {n_valid} valid points, "
               f"{int(rf.truth.sum())} true outliers, {seconds:.1f} s", file=sys.stderr, flush=True)
+        if rf.pile is not None and rf.pile.warnings:  # MuJoCo's own words, not its MUJOCO_LOG.TXT in the cwd
+            print(f"zcut: frame {i + 1}: the pile's simulation warned: {rf.pile.warnings[0]}"
+                  + (f" (and {len(rf.pile.warnings) - 1} more)" if len(rf.pile.warnings) > 1 else "")
+                  + f"; {rf.pile.escaped} part(s) fell out of the bin", file=sys.stderr, flush=True)
 
     import numpy as np
 

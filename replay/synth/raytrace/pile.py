@@ -16,6 +16,8 @@ frame of :mod:`replay.synth.scene` (z up, the table top at z = 0).
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,6 +69,10 @@ class Pile:
         Whether every part came to rest before :data:`MAX_SIM_S`.
     escaped : int
         Parts that left the bin (fell over a wall); they are removed from ``R`` and ``t_mm``.
+    warnings : tuple of str
+        What MuJoCo warned of while the pile settled (e.g. "the simulation is unstable"), in order;
+        kept here instead of the ``MUJOCO_LOG.TXT`` MuJoCo would otherwise write into the working
+        directory (:func:`mujoco_warnings`).
     """
 
     kind: str
@@ -75,9 +81,26 @@ class Pile:
     sim_s: float
     rested: bool
     escaped: int
+    warnings: tuple[str, ...] = ()
 
     def __len__(self) -> int:
         return int(self.t_mm.shape[0])
+
+
+@contextlib.contextmanager
+def mujoco_warnings() -> Iterator[list[str]]:
+    """MuJoCo's warnings while the block runs, collected in the list it yields instead of printed and
+    appended to ``MUJOCO_LOG.TXT`` in the working directory (MuJoCo's default without a handler); the
+    handler in place before is restored on exit."""
+    import mujoco
+
+    got: list[str] = []
+    before = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(got.append)
+    try:
+        yield got
+    finally:
+        mujoco.set_mju_user_warning(before)
 
 
 def part_count(kind: str, fill_mm: float, geometry: BinGeometry = BIN) -> int:
@@ -226,14 +249,15 @@ def drop_parts(
     check = max(1, int(round(0.05 / TIME_STEP_S)))
     rested = False
     i = 0
-    for i in range(1, steps + 1):
-        if i == tilted + 1 and tilted:
-            model.opt.gravity[:] = (0.0, 0.0, -9.81)
-        mujoco.mj_step(model, data)
-        if i % check == 0 and (i - tilted) * TIME_STEP_S > 0.3:
-            if float(np.abs(data.qvel.reshape(n, 6)[:, :3]).max()) < REST_SPEED_M_S:
-                rested = True
-                break
+    with mujoco_warnings() as warned:
+        for i in range(1, steps + 1):
+            if i == tilted + 1 and tilted:
+                model.opt.gravity[:] = (0.0, 0.0, -9.81)
+            mujoco.mj_step(model, data)
+            if i % check == 0 and (i - tilted) * TIME_STEP_S > 0.3:
+                if float(np.abs(data.qvel.reshape(n, 6)[:, :3]).max()) < REST_SPEED_M_S:
+                    rested = True
+                    break
     qpos = data.qpos.reshape(n, 7).copy()
     p_bin = qpos[:, :3] * 1000.0
     R_bin = _quat_to_R(qpos[:, 3:])
@@ -244,4 +268,4 @@ def drop_parts(
     Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     t_world = p_bin[inside] @ Rz.T + np.array([pose.x_mm, pose.y_mm, 0.0])
     R_world = np.einsum("ij,njk->nik", Rz, R_bin[inside])
-    return Pile(kind, R_world, t_world, i * TIME_STEP_S, rested, int((~inside).sum()))
+    return Pile(kind, R_world, t_world, i * TIME_STEP_S, rested, int((~inside).sum()), tuple(warned))
