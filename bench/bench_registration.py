@@ -41,7 +41,9 @@ OpenCV runs on one thread (the one-core case); pin the process (``taskset -c 0``
 first as ``locate_bin`` runs them, by this tree's ``zcut`` and by TREE's (imported as another package from a copy),
 alternating N times a frame in one process, after comparing every result bit for bit (:func:`alternate`). The seed
 check is each tree's own: ``pose_fitness_at_least`` where the tree has it, else ``pose_fitness`` compared with the
-threshold; the two trees' answers must agree.
+threshold; the two trees' answers must agree. The process is set up as a replay's (``configure_process``: one malloc
+arena, freed memory kept; BLAS on one thread), OpenCV on one thread; it prints each log's medians, the median of the
+runs' paired ratios and the CPU ms per Mpx.
 """
 
 from __future__ import annotations
@@ -272,14 +274,20 @@ def pieces_table(log: Path, against: Path | None, repeats: int) -> None:
 
 
 def _tree_as(tree: Path, name: str):  # type: ignore[no-untyped-def]
-    """``tree``'s ``zcut`` package imported as ``name`` (a copy in a temporary directory, without numba's
-    cache files, which are keyed by the module's name): the two trees' kernels side by side in one process."""
+    """``tree``'s ``zcut`` package imported as ``name`` (a copy without ``tree``'s own numba cache files, which
+    are keyed by the module's name): the two trees' kernels side by side in one process. The copy lives in a
+    folder named after ``tree``'s path under the temporary directory and is refreshed file by file with the
+    sources' times kept (``shutil.copy2``), so numba's cache of the copy, written by the first run, is valid
+    for the next ones (a run no longer compiles the other tree's kernels again: 2-7 minutes under load)."""
+    import hashlib
     import importlib
     import shutil
     import sys
 
-    root = Path(tempfile.mkdtemp(prefix="zcut_against_"))
-    shutil.copytree(tree / "zcut", root / name, ignore=shutil.ignore_patterns("*.nbi", "*.nbc", "__pycache__"))
+    key = hashlib.sha1(str(tree.resolve()).encode()).hexdigest()[:12]
+    root = Path(tempfile.gettempdir()) / f"zcut_against_{key}"
+    shutil.copytree(tree / "zcut", root / name, ignore=shutil.ignore_patterns("*.nbi", "*.nbc", "__pycache__"),
+                    dirs_exist_ok=True)
     sys.path.insert(0, str(root))
     return importlib.import_module(name)
 
@@ -295,12 +303,17 @@ def alternate(logs: list[Path], against: Path, repeats: int) -> None:
     import importlib
     import os
 
+    from replay.process import configure_process
+
+    configure_process()  # as a replay sets its process up: one malloc arena, the freed memory kept for the next frame
     import cv2
+    from threadpoolctl import threadpool_limits
 
     from replay.pipeline import stages
     from replay.pipeline.bin_model import bin_model_for
     from replay.pipeline.session import ReplaySession
 
+    threadpool_limits(limits=1, user_api="blas")  # as ReplaySession.run
     cv2.setNumThreads(1)
     _tree_as(against, "zcut_against")
     trees = {}
@@ -364,9 +377,14 @@ def alternate(logs: list[Path], against: Path, repeats: int) -> None:
                     times[k].append(1000 * (time.process_time() - t))
         loads.append(os.getloadavg()[0])
         this, prev = statistics.median(times["this"]), statistics.median(times["previous"])
+        mpx = frames[0].xyz.shape[0] * frames[0].xyz.shape[1] / 1e6
+        # the runs paired as they alternated (run r of one tree beside run r of the other): their ratios' median
+        paired = statistics.median(p / t for p, t in zip(times["previous"], times["this"], strict=True))
         print(f"{log.name}: {len(frames) - 1} frames after the seed, every result identical; bin mask + registration "
               f"CPU ms a frame (medians of {repeats} alternating runs a frame): previous {prev:.2f}, this {this:.2f}, "
-              f"previous / this {prev / this:.3f}; load {min(loads):.1f}-{max(loads):.1f}", flush=True)
+              f"previous / this {prev / this:.3f} (paired {paired:.3f}); per Mpx {prev / mpx:.1f} -> {this / mpx:.1f} "
+              f"({frames[0].xyz.shape[1]}x{frames[0].xyz.shape[0]}); load {min(loads):.1f}-{max(loads):.1f}",
+              flush=True)
 
 
 def main() -> None:
