@@ -842,29 +842,63 @@ def prepare_icp_model(model: BinModel, params: RegistrationParams, *,
 
 
 @numba.njit(cache=True, nogil=True)
-def _subsampled(xyz, pixels, step):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+def _subsampled(xyz, pixels, words, step):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
+    """:func:`subsampled_points`' rows. ``words``: ``pixels`` (0/1 bytes) as (H, W / 8) uint64 when its rows are
+    whole aligned words, else (H, 0): then a word of eight unset pixels is passed over at once (a ring is ~15 %
+    of a frame), and only the columns that are multiples of ``step`` of a word with a set byte are read; the same
+    pixels in the same order either way."""
     H, W = pixels.shape
+    nw = words.shape[1]
     n = 0
     for r in range(0, H, step):
-        for c in range(0, W, step):
-            if pixels[r, c]:
-                n += 1
+        pr = pixels[r]
+        if nw == 0:
+            for c in range(0, W, step):
+                n += pr[c] != 0
+            continue
+        wr = words[r]
+        for k in range(nw):
+            if wr[k] == 0:
+                continue
+            c0 = k << 3
+            c = c0 + (step - c0 % step) % step  # the first multiple of step in the word
+            while c < c0 + 8:
+                n += pr[c] != 0
+                c += step
     out = np.empty((n, 3))
     n = 0
     for r in range(0, H, step):
-        for c in range(0, W, step):
-            if pixels[r, c]:
-                out[n, 0] = np.float64(xyz[r, c, 0])
-                out[n, 1] = np.float64(xyz[r, c, 1])
-                out[n, 2] = np.float64(xyz[r, c, 2])
-                n += 1
+        pr = pixels[r]
+        xr = xyz[r]
+        if nw == 0:
+            for c in range(0, W, step):
+                if pr[c] != 0:
+                    out[n, 0] = np.float64(xr[c, 0])
+                    out[n, 1] = np.float64(xr[c, 1])
+                    out[n, 2] = np.float64(xr[c, 2])
+                    n += 1
+            continue
+        wr = words[r]
+        for k in range(nw):
+            if wr[k] == 0:
+                continue
+            c0 = k << 3
+            c = c0 + (step - c0 % step) % step
+            while c < c0 + 8:
+                if pr[c] != 0:
+                    out[n, 0] = np.float64(xr[c, 0])
+                    out[n, 1] = np.float64(xr[c, 1])
+                    out[n, 2] = np.float64(xr[c, 2])
+                    n += 1
+                c += step
     return out
 
 
 def subsampled_points(xyz: np.ndarray, pixels: np.ndarray, *, step: int) -> np.ndarray:
     """The points of the ``pixels`` of every ``step``-th row and column, as float64: ``xyz[::step,
     ::step][pixels[::step, ::step]].astype(np.float64)`` (the same rows in the same order) in one serial pass
-    (numpy's strided boolean index and cast: 2.6 CPU ms on a 1920 x 1200 frame's ring at step 2).
+    (numpy's strided boolean index and cast: 2.6 CPU ms on a 1920 x 1200 frame's ring at step 2), eight unset
+    pixels at a time where the mask's rows are whole aligned words (:func:`_subsampled`).
 
     Parameters
     ----------
@@ -884,7 +918,11 @@ def subsampled_points(xyz: np.ndarray, pixels: np.ndarray, *, step: int) -> np.n
         raise ParameterError(f"subsampled_points: step must be an integer >= 1, got {step!r}")
     if a.dtype not in (np.float32, np.float64):
         return a[::step, ::step][m[::step, ::step]].astype(np.float64)
-    return _subsampled(a, m, int(step))
+    b = m.view(np.uint8)
+    h, w = b.shape
+    words = (b.view(np.uint64) if w % 8 == 0 and b.flags.c_contiguous and b.ctypes.data % 8 == 0
+             else np.empty((h, 0), np.uint64))
+    return _subsampled(a, b, words, int(step))
 
 
 @dataclass(frozen=True, slots=True)

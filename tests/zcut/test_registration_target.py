@@ -2,7 +2,9 @@
 grid's bounds together) against the composition it replaces, ``_check_points`` then ``voxel_down_points`` (which
 tests/zcut/test_registration_voxels.py holds to Open3D), bit for bit: random clouds in float64 and float32, rows
 with NaN or inf (which take the old path), one row, empty and all-NaN input, strided input, the bin pixels of
-synthetic frames (hand-made, on the walls, ray-traced) with a large invalid region, and the real Kinect scans."""
+synthetic frames (hand-made, on the walls, ray-traced) with a large invalid region, and the real Kinect scans.
+And ``subsampled_points`` (the target's points, eight unset pixels passed over at once) against NumPy's strided
+boolean index on masks of every density, widths that are and are not whole words, steps 1-5, strided masks."""
 
 from __future__ import annotations
 
@@ -12,7 +14,14 @@ import numpy as np
 import pytest
 
 from zcut.errors import InputShapeError
-from zcut.registration import _bounds, _check_points, _checked_copy, prepare_target, voxel_down_points
+from zcut.registration import (
+    _bounds,
+    _check_points,
+    _checked_copy,
+    prepare_target,
+    subsampled_points,
+    voxel_down_points,
+)
 
 REAL = Path("/work/shared/data/real")
 
@@ -118,3 +127,30 @@ def test_real_scans():
         finite = np.ascontiguousarray(flat[np.isfinite(flat).all(axis=1)])
         assert_as_before(finite)
         assert_as_before(finite, 0.005)
+
+
+def test_subsampled_points_against_numpy():
+    rng = np.random.default_rng(78)
+    for t in range(120):
+        h, w = int(rng.integers(1, 60)), int(rng.choice([1, 7, 8, 16, 24, 37, 64, 101, 640]))
+        xyz = rng.normal(0.0, 1.0, (h, w, 3)).astype(np.float32 if t % 2 else np.float64)
+        density = float(rng.choice([0.0, 0.02, 0.15, 0.5, 0.97, 1.0]))
+        m = rng.random((h, w)) < density
+        if t % 5 == 0:  # runs: whole words set and unset, edges anywhere in a word
+            m[:] = False
+            for _ in range(int(rng.integers(0, 6))):
+                r0, c0 = int(rng.integers(0, h)), int(rng.integers(0, w))
+                m[r0:r0 + int(rng.integers(1, 9)), c0:c0 + int(rng.integers(1, 40))] = True
+        for step in (1, 2, 3, 4, 5):
+            want = xyz[::step, ::step][m[::step, ::step]].astype(np.float64)
+            got = subsampled_points(xyz, m, step=step)
+            assert got.dtype == np.float64 and got.shape == want.shape and got.tobytes() == want.tobytes()
+    big = rng.random((40, 96)) < 0.3
+    xyz = rng.normal(0.0, 1.0, (40, 96, 3))
+    for m in (big[:, :48], big[:, ::2], big[1:, 8:], np.asfortranarray(big)):  # strided, unaligned, Fortran
+        x = np.ascontiguousarray(xyz[: m.shape[0], : m.shape[1]])
+        for step in (1, 2, 3):
+            want = x[::step, ::step][m[::step, ::step]].astype(np.float64)
+            assert subsampled_points(x, m, step=step).tobytes() == want.tobytes()
+    for h, w in ((0, 8), (5, 0), (0, 0)):
+        assert subsampled_points(np.zeros((h, w, 3)), np.zeros((h, w), bool), step=1).shape == (0, 3)
