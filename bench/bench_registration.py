@@ -43,7 +43,8 @@ alternating N times a frame in one process, after comparing every result bit for
 check is each tree's own: ``pose_fitness_at_least`` where the tree has it, else ``pose_fitness`` compared with the
 threshold; the two trees' answers must agree. The process is set up as a replay's (``configure_process``: one malloc
 arena, freed memory kept; BLAS on one thread), OpenCV on one thread; it prints each log's medians, the median of the
-runs' paired ratios and the CPU ms per Mpx.
+runs' paired ratios, the means (a replay's CPU a frame is the mean: a few dear frames move it, not the median) and the
+CPU ms per Mpx.
 """
 
 from __future__ import annotations
@@ -382,7 +383,9 @@ def alternate(logs: list[Path], against: Path, repeats: int) -> None:
         paired = statistics.median(p / t for p, t in zip(times["previous"], times["this"], strict=True))
         print(f"{log.name}: {len(frames) - 1} frames after the seed, every result identical; bin mask + registration "
               f"CPU ms a frame (medians of {repeats} alternating runs a frame): previous {prev:.2f}, this {this:.2f}, "
-              f"previous / this {prev / this:.3f} (paired {paired:.3f}); per Mpx {prev / mpx:.1f} -> {this / mpx:.1f} "
+              f"previous / this {prev / this:.3f} (paired {paired:.3f}; means {statistics.mean(times['previous']):.2f} -> "
+              f"{statistics.mean(times['this']):.2f}, {statistics.mean(times['previous']) / statistics.mean(times['this']):.3f}); "
+              f"per Mpx {prev / mpx:.1f} -> {this / mpx:.1f} "
               f"({frames[0].xyz.shape[1]}x{frames[0].xyz.shape[0]}); load {min(loads):.1f}-{max(loads):.1f}",
               flush=True)
 
