@@ -463,36 +463,6 @@ def _voxel_ids(points, vmin, voxel):  # type: ignore[no-untyped-def]  # numba ke
 
 
 @numba.njit(cache=True, nogil=True)
-def _checked_copy(a):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """``(np.array(a, float64, order="C"), lo, hi, True)`` of an (N >= 1, 3) float32 or float64 array whose
-    values are all finite, ``lo``, ``hi`` being :func:`_bounds` of the copy (the same comparisons in the same
-    order); ``(…, False)`` at the first non-finite value (the rest unset). One pass instead of
-    :func:`_check_points`' finite test, its copy and :func:`_bounds`' pass (:func:`prepare_target`)."""
-    n = a.shape[0]
-    out = np.empty((n, 3))
-    lo = np.empty(3)
-    hi = np.empty(3)
-    for c in range(3):
-        v = np.float64(a[0, c])
-        if not np.isfinite(v):
-            return out, lo, hi, False
-        out[0, c] = v
-        lo[c] = v
-        hi[c] = v
-    for i in range(1, n):
-        for c in range(3):
-            v = np.float64(a[i, c])
-            if not np.isfinite(v):
-                return out, lo, hi, False
-            out[i, c] = v
-            if v < lo[c]:
-                lo[c] = v
-            if v > hi[c]:
-                hi[c] = v
-    return out, lo, hi, True
-
-
-@numba.njit(cache=True, nogil=True)
 def _bounds(points):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     """(min, max) of each column of an (N >= 1, 3) array (numpy's axis-0 reductions of a 3-column
     array cost 5 ms on 100k rows)."""
@@ -625,12 +595,6 @@ def voxel_down_points(points: np.ndarray, voxel_m: float, what: str = "the targe
     if len(p) == 0:
         return np.empty((0, 3))
     lo, hi = _bounds(p)
-    return _voxel_down_bounded(p, lo, hi, voxel_m, what)
-
-
-def _voxel_down_bounded(p: np.ndarray, lo: np.ndarray, hi: np.ndarray, voxel_m: float, what: str) -> np.ndarray:
-    """:func:`voxel_down_points` of ``p`` ((N >= 1, 3) float64, C order, finite) whose column bounds
-    :func:`_bounds` gives as ``lo``, ``hi`` (:func:`prepare_target` has them from its own pass)."""
     extent = hi - lo
     if not np.all(np.isfinite(extent)) or float(extent.max()) / voxel_m > _MAX_VOXELS_PER_AXIS:
         raise InputShapeError(f"{what} spans {float(extent.max()):.3g} m, too large for a {voxel_m * 1000:g} mm "
@@ -842,63 +806,29 @@ def prepare_icp_model(model: BinModel, params: RegistrationParams, *,
 
 
 @numba.njit(cache=True, nogil=True)
-def _subsampled(xyz, pixels, words, step):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
-    """:func:`subsampled_points`' rows. ``words``: ``pixels`` (0/1 bytes) as (H, W / 8) uint64 when its rows are
-    whole aligned words, else (H, 0): then a word of eight unset pixels is passed over at once (a ring is ~15 %
-    of a frame), and only the columns that are multiples of ``step`` of a word with a set byte are read; the same
-    pixels in the same order either way."""
+def _subsampled(xyz, pixels, step):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - numba
     H, W = pixels.shape
-    nw = words.shape[1]
     n = 0
     for r in range(0, H, step):
-        pr = pixels[r]
-        if nw == 0:
-            for c in range(0, W, step):
-                n += pr[c] != 0
-            continue
-        wr = words[r]
-        for k in range(nw):
-            if wr[k] == 0:
-                continue
-            c0 = k << 3
-            c = c0 + (step - c0 % step) % step  # the first multiple of step in the word
-            while c < c0 + 8:
-                n += pr[c] != 0
-                c += step
+        for c in range(0, W, step):
+            if pixels[r, c]:
+                n += 1
     out = np.empty((n, 3))
     n = 0
     for r in range(0, H, step):
-        pr = pixels[r]
-        xr = xyz[r]
-        if nw == 0:
-            for c in range(0, W, step):
-                if pr[c] != 0:
-                    out[n, 0] = np.float64(xr[c, 0])
-                    out[n, 1] = np.float64(xr[c, 1])
-                    out[n, 2] = np.float64(xr[c, 2])
-                    n += 1
-            continue
-        wr = words[r]
-        for k in range(nw):
-            if wr[k] == 0:
-                continue
-            c0 = k << 3
-            c = c0 + (step - c0 % step) % step
-            while c < c0 + 8:
-                if pr[c] != 0:
-                    out[n, 0] = np.float64(xr[c, 0])
-                    out[n, 1] = np.float64(xr[c, 1])
-                    out[n, 2] = np.float64(xr[c, 2])
-                    n += 1
-                c += step
+        for c in range(0, W, step):
+            if pixels[r, c]:
+                out[n, 0] = np.float64(xyz[r, c, 0])
+                out[n, 1] = np.float64(xyz[r, c, 1])
+                out[n, 2] = np.float64(xyz[r, c, 2])
+                n += 1
     return out
 
 
 def subsampled_points(xyz: np.ndarray, pixels: np.ndarray, *, step: int) -> np.ndarray:
     """The points of the ``pixels`` of every ``step``-th row and column, as float64: ``xyz[::step,
     ::step][pixels[::step, ::step]].astype(np.float64)`` (the same rows in the same order) in one serial pass
-    (numpy's strided boolean index and cast: 2.6 CPU ms on a 1920 x 1200 frame's ring at step 2), eight unset
-    pixels at a time where the mask's rows are whole aligned words (:func:`_subsampled`).
+    (numpy's strided boolean index and cast: 2.6 CPU ms on a 1920 x 1200 frame's ring at step 2).
 
     Parameters
     ----------
@@ -918,11 +848,7 @@ def subsampled_points(xyz: np.ndarray, pixels: np.ndarray, *, step: int) -> np.n
         raise ParameterError(f"subsampled_points: step must be an integer >= 1, got {step!r}")
     if a.dtype not in (np.float32, np.float64):
         return a[::step, ::step][m[::step, ::step]].astype(np.float64)
-    b = m.view(np.uint8)
-    h, w = b.shape
-    words = (b.view(np.uint64) if w % 8 == 0 and b.flags.c_contiguous and b.ctypes.data % 8 == 0
-             else np.empty((h, 0), np.uint64))
-    return _subsampled(a, b, words, int(step))
+    return _subsampled(a, m, int(step))
 
 
 @dataclass(frozen=True, slots=True)
@@ -984,19 +910,9 @@ def prepare_target(target: np.ndarray, *, voxel_m: float, intrinsics: Intrinsics
     -------
     TargetPoints
     """
-    a = np.asarray(target)
+    t = _check_points(target, "target")
     if intrinsics is not None and not isinstance(intrinsics, Intrinsics):
         raise InputShapeError(f"intrinsics must be a zcut.cloud.Intrinsics or None, got {type(intrinsics).__name__}")
-    if (voxel_m > 0 and a.ndim == 2 and a.shape[0] > 0 and a.shape[1] == 3 and a.dtype in (np.float32, np.float64)
-            and a.flags.c_contiguous):
-        # the usual case (a frame's bin points, all finite): the copy, the finite test and the voxel grid's
-        # bounds in one pass (_checked_copy), then the grid (the same points as _check_points and
-        # voxel_down_points give: tests/zcut/test_registration_target.py)
-        t, lo, hi, finite = _checked_copy(a)
-        if finite:
-            cloud = Points(_voxel_down_bounded(t, lo, hi, voxel_m, "the target"))
-            return TargetPoints(t, cloud, float(voxel_m), intrinsics)
-    t = _check_points(a, "target")
     cloud = Points(voxel_down_points(t, voxel_m) if voxel_m > 0 else t)
     return TargetPoints(t, cloud, float(voxel_m), intrinsics)
 
