@@ -41,7 +41,10 @@ OpenCV runs on one thread (the one-core case); pin the process (``taskset -c 0``
 first as ``locate_bin`` runs them, by this tree's ``zcut`` and by TREE's (imported as another package from a copy),
 alternating N times a frame in one process, after comparing every result bit for bit (:func:`alternate`). The seed
 check is each tree's own: ``pose_fitness_at_least`` where the tree has it, else ``pose_fitness`` compared with the
-threshold; the two trees' answers must agree.
+threshold; the two trees' answers must agree. The process is set up as a replay's (``configure_process``: one malloc
+arena, freed memory kept; BLAS on one thread), OpenCV on one thread; it prints each log's medians, the median of the
+runs' paired ratios, the means (a replay's CPU a frame is the mean: a few dear frames move it, not the median) and the
+CPU ms per Mpx.
 """
 
 from __future__ import annotations
@@ -272,14 +275,20 @@ def pieces_table(log: Path, against: Path | None, repeats: int) -> None:
 
 
 def _tree_as(tree: Path, name: str):  # type: ignore[no-untyped-def]
-    """``tree``'s ``zcut`` package imported as ``name`` (a copy in a temporary directory, without numba's
-    cache files, which are keyed by the module's name): the two trees' kernels side by side in one process."""
+    """``tree``'s ``zcut`` package imported as ``name`` (a copy without ``tree``'s own numba cache files, which
+    are keyed by the module's name): the two trees' kernels side by side in one process. The copy lives in a
+    folder named after ``tree``'s path under the temporary directory and is refreshed file by file with the
+    sources' times kept (``shutil.copy2``), so numba's cache of the copy, written by the first run, is valid
+    for the next ones (a run no longer compiles the other tree's kernels again: 2-7 minutes under load)."""
+    import hashlib
     import importlib
     import shutil
     import sys
 
-    root = Path(tempfile.mkdtemp(prefix="zcut_against_"))
-    shutil.copytree(tree / "zcut", root / name, ignore=shutil.ignore_patterns("*.nbi", "*.nbc", "__pycache__"))
+    key = hashlib.sha1(str(tree.resolve()).encode()).hexdigest()[:12]
+    root = Path(tempfile.gettempdir()) / f"zcut_against_{key}"
+    shutil.copytree(tree / "zcut", root / name, ignore=shutil.ignore_patterns("*.nbi", "*.nbc", "__pycache__"),
+                    dirs_exist_ok=True)
     sys.path.insert(0, str(root))
     return importlib.import_module(name)
 
@@ -295,12 +304,17 @@ def alternate(logs: list[Path], against: Path, repeats: int) -> None:
     import importlib
     import os
 
+    from replay.process import configure_process
+
+    configure_process()  # as a replay sets its process up: one malloc arena, the freed memory kept for the next frame
     import cv2
+    from threadpoolctl import threadpool_limits
 
     from replay.pipeline import stages
     from replay.pipeline.bin_model import bin_model_for
     from replay.pipeline.session import ReplaySession
 
+    threadpool_limits(limits=1, user_api="blas")  # as ReplaySession.run
     cv2.setNumThreads(1)
     _tree_as(against, "zcut_against")
     trees = {}
@@ -364,9 +378,111 @@ def alternate(logs: list[Path], against: Path, repeats: int) -> None:
                     times[k].append(1000 * (time.process_time() - t))
         loads.append(os.getloadavg()[0])
         this, prev = statistics.median(times["this"]), statistics.median(times["previous"])
+        mpx = frames[0].xyz.shape[0] * frames[0].xyz.shape[1] / 1e6
+        # the runs paired as they alternated (run r of one tree beside run r of the other): their ratios' median
+        paired = statistics.median(p / t for p, t in zip(times["previous"], times["this"], strict=True))
         print(f"{log.name}: {len(frames) - 1} frames after the seed, every result identical; bin mask + registration "
               f"CPU ms a frame (medians of {repeats} alternating runs a frame): previous {prev:.2f}, this {this:.2f}, "
-              f"previous / this {prev / this:.3f}; load {min(loads):.1f}-{max(loads):.1f}", flush=True)
+              f"previous / this {prev / this:.3f} (paired {paired:.3f}; means {statistics.mean(times['previous']):.2f} -> "
+              f"{statistics.mean(times['this']):.2f}, {statistics.mean(times['previous']) / statistics.mean(times['this']):.3f}); "
+              f"per Mpx {prev / mpx:.1f} -> {this / mpx:.1f} "
+              f"({frames[0].xyz.shape[1]}x{frames[0].xyz.shape[0]}); load {min(loads):.1f}-{max(loads):.1f}",
+              flush=True)
+
+
+#: What ``--steps`` times inside ``locate_bin``, by module: each name's Python-level calls (a numba kernel called
+#: from another kernel is its caller's time).
+STEP_NAMES = {
+    "replay.pipeline.stages": ("bin_mask", "bin_pixels", "subsampled_points", "prepare_target", "pose_fitness_at_least",
+                               "register_bin", "valid_pixels"),
+    "zcut.binmask": ("_check_rgb", "_component_stats", "_row_words", "_flooded", "_pad_component", "_assemble",
+                     "_column_distances", "_largest_distance", "_ring_bounded", "_check_pixels_args", "_ring",
+                     "_near_bounds", "_ring_threshold", "_vmax"),
+    "zcut.registration": ("_check_points", "_checked_copy", "voxel_down_points", "_voxel_down_bounded", "_bounds",
+                          "_voxel_ids", "_unordered_map_order", "_averages", "_guess", "_top_and_centre", "_percentiles",
+                          "_order_pairs", "_rim_fitness", "_rim_reach", "_rim_in_view", "transform_points", "_cells_for",
+                          "_cell_grid", "_confirmed_in", "_confirmed_reaches", "_least_count", "_finite_pose",
+                          "_subsampled"),
+    "zcut.icp_fast": ("icp", "_check_icp_args", "_icp_plane", "_icp_point"),
+    "cv2": ("cvtColor", "dilate", "erode", "connectedComponents", "floodFill", "getStructuringElement",
+            "distanceTransform"),
+    "numpy.linalg": ("inv",),
+}
+
+
+def steps(log: Path, passes: int, max_frames: int) -> None:
+    """``--steps``: the exclusive CPU ms a frame of every call of :data:`STEP_NAMES` inside ``locate_bin`` (each
+    name wrapped; a call's time less its wrapped callees'), over ``passes`` passes of the frames after the seed,
+    and per Mpx; the rest of ``locate_bin`` as one line. The process is set up as a replay's, OpenCV and BLAS on
+    one thread. The wrappers cost ~1-2 microseconds a call: compare sizes, not the total with ``--alternate``."""
+    import functools
+    import importlib
+    import os
+    from collections import defaultdict
+
+    from replay.process import configure_process
+
+    configure_process()
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    from replay.pipeline import stages
+    from replay.pipeline.bin_model import bin_model_for
+    from replay.pipeline.session import ReplaySession
+
+    threadpool_limits(limits=1, user_api="blas")
+    cv2.setNumThreads(1)
+    excl: dict[str, float] = defaultdict(float)
+    calls: dict[str, int] = defaultdict(int)
+    stack: list[list] = []  # [name, start, callees' time]
+
+    def wrap(name, fn):  # type: ignore[no-untyped-def]
+        @functools.wraps(fn)
+        def w(*a, **k):  # type: ignore[no-untyped-def]
+            stack.append([name, time.process_time(), 0.0])
+            try:
+                return fn(*a, **k)
+            finally:
+                nm, t0, inner = stack.pop()
+                total = time.process_time() - t0
+                excl[nm] += total - inner
+                calls[nm] += 1
+                if stack:
+                    stack[-1][2] += total
+        return w
+
+    for mod_name, names in STEP_NAMES.items():
+        mod = importlib.import_module(mod_name)
+        short = mod_name.rsplit(".", 1)[-1]
+        for n in names:
+            if hasattr(mod, n):
+                setattr(mod, n, wrap(f"{short}.{n}", getattr(mod, n)))
+    session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
+    cfg, prepared = session.config, session.prepared
+    assert prepared is not None, f"{log} has no bin model"
+    frames = list(session.reader.frames())[: (max_frames + 1) if max_frames else None]
+    seed = stages.locate_bin(frames[0], cfg, bin_model=prepared).registration
+    for f in frames[1:]:  # warm
+        stages.locate_bin(f, cfg, bin_model=prepared, seed=seed)
+    excl.clear()
+    calls.clear()
+    totals = []
+    for _ in range(passes):
+        for f in frames[1:]:
+            t = time.process_time()
+            stages.locate_bin(f, cfg, bin_model=prepared, seed=seed)
+            totals.append(time.process_time() - t)
+    n = len(totals)
+    h, w = frames[0].xyz.shape[:2]
+    mpx = h * w / 1e6
+    mean = 1000 * sum(totals) / n
+    print(f"{log.name} ({w}x{h}): locate_bin CPU ms a frame, mean {mean:.2f}, median "
+          f"{1000 * statistics.median(totals):.2f} ({len(frames) - 1} frames x {passes}); load {os.getloadavg()[0]:.1f}")
+    print(f"  {'step':34s} {'ms':>8s} {'ms/Mpx':>8s} {'calls':>6s}")
+    for k, v in sorted(excl.items(), key=lambda kv: -kv[1]):
+        print(f"  {k:34s} {1000 * v / n:8.3f} {1000 * v / n / mpx:8.2f} {calls[k] / n:6.2f}")
+    rest = mean - 1000 * sum(excl.values()) / n
+    print(f"  {'(the rest of locate_bin)':34s} {rest:8.3f} {rest / mpx:8.2f}")
 
 
 def main() -> None:
@@ -376,6 +492,9 @@ def main() -> None:
     ap.add_argument("--against", type=Path, help="--pieces, --alternate: a source tree measured alongside")
     ap.add_argument("--alternate", type=Path, nargs="+", help="logs: the bin mask and registration of this tree and "
                     "--against's, alternating in one process, every result compared bit for bit")
+    ap.add_argument("--steps", type=Path, help="a log: locate_bin's exclusive CPU ms a frame by call (and per Mpx)")
+    ap.add_argument("--passes", type=int, default=3, help="--steps: passes over the frames")
+    ap.add_argument("--max-frames", type=int, default=0, help="--steps: frames after the seed (0: all)")
     ap.add_argument("--size", default="1200x1920", type=parse_size, help="HxW (default 1200x1920)")
     ap.add_argument("--frames", type=int, default=3)
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per frame and method; medians")
@@ -391,6 +510,9 @@ def main() -> None:
         return
     if args.pieces is not None:
         pieces_table(args.pieces, args.against, args.repeats)
+        return
+    if args.steps is not None:
+        steps(args.steps, args.passes, args.max_frames)
         return
     if args.alternate:
         if args.against is None:
