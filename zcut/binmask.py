@@ -445,14 +445,17 @@ def _isqrt_floor(v):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: 
 
 #: The bounded distance transform of :func:`bin_pixels` stands for OpenCV's precise one where that
 #: is the exact Euclidean distance transform: not below 2^14 pixels or on one thread, where OpenCV
-#: runs Intel IPP's (another rounding); not on crops 1448 px wide or more, where the float32
+#: runs Intel IPP's (another rounding); not on crops 1449 px wide or more, where the float32
 #: intersections of its parabolas could, in principle, err by more than the gap between two of them
 #: at a pixel (an error-bound argument, not a formal proof: their error is below |s| 2^-23 for an
 #: intersection s < W, a wrong choice needs a gap below 1/(2 W) over a slope difference below 2 W,
-#: and 4 W^2 2^-23 < 1 below 1448; tests/zcut/test_binmask_fast.py checks it against OpenCV); nor
-#: where the squared distances (row^2 + col^2) leave float32's integers (2^24). Elsewhere: OpenCV's.
+#: and 4 W^2 2^-23 < 1 for W <= 1448, W^2 < 2^21 (1448^2 = 2,096,704; the limit was 1447 until the
+#: round of 2026-12-06g, one column short of its own bound, which sent every 1448 px crop of a
+#: 1920 x 1200 zinc-nut log to OpenCV); tests/zcut/test_binmask_fast.py and test_binmask_wide.py check it
+#: against OpenCV); nor where the squared distances (row^2 + col^2) leave float32's integers (2^24).
+#: Elsewhere: OpenCV's.
 _EXACT_MIN_PX = 1 << 14
-_EXACT_MAX_W = 1447
+_EXACT_MAX_W = 1448
 
 
 #: Where OpenCV runs Intel IPP's transform instead (one thread, or a small crop), its distances are
