@@ -737,6 +737,7 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
     left = region
     attempts = 0
     tried: np.ndarray | None = None  # seeds of patches already fitted in this region (made when first needed)
+    fringe = claims is not None and params.fringe_share > 0
     while len(left) >= min_px and attempts < params.max_instances_per_region:
         progress = False
         many = model.sphere_radius is None and _holds_many(frame, left, model)
@@ -747,7 +748,10 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
             if patch is None:
                 break
             cands = ([_fit_general(frame, patch, model, params, shifts=shifts)]
-                     if len(patch) >= min_px else [])
+                     if len(patch) >= min_px and not (fringe and _fringe(frame, patch, model, params, claims))
+                     else [])
+        elif fringe and _fringe(frame, left, model, params, claims):
+            break  # a live fit's fringe: its candidate would overlap that fit
         else:
             cands = _candidates(frame, left, model, params, shifts=shifts)
             if claims is not None and len(cands) > 1:
@@ -787,6 +791,27 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
         left = parts[0]
         more.extend(parts[1:])
     return more
+
+
+#: :func:`_fringe` measures at most this many of a region's points (an even subsample).
+FRINGE_POINTS = 200
+
+
+def _fringe(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams, claims: _Claims | None) -> bool:
+    """Whether at least ``FitParams.fringe_share`` of the region's points (an even subsample of
+    :data:`FRINGE_POINTS`) lie within ``fringe_mm`` of a live accepted fit whose centre lies within twice the
+    model's extent of theirs: the fringe of a fitted part, whose own candidate would overlap that fit."""
+    if claims is None or not len(claims.poses) or not len(flat):
+        return False
+    pts = frame.xyz.reshape(-1, 3)[_subsample(flat, FRINGE_POINTS)]
+    c = pts.mean(axis=0)
+    near = np.flatnonzero(np.linalg.norm(claims.centres - c, axis=1) < 2.0 * model.extent_mm)
+    if not len(near):
+        return False
+    d = np.full(len(pts), np.inf)
+    for j in near:
+        d = np.minimum(d, _near_distances(model, pts, claims.poses[int(j)], params.fringe_mm))
+    return bool(np.mean(d <= params.fringe_mm) >= params.fringe_share)
 
 
 def _holds_many(frame: _Frame, flat: np.ndarray, model: PartModel) -> bool:

@@ -119,6 +119,8 @@ class FitParams:
     stop_edge: float = 0.7
     seed_stop_edge: float = 0.7
     order_guesses: bool = False
+    fringe_share: float = 0.0
+    fringe_mm: float = 1.5
 
     def __post_init__(self) -> None:
         _number(self, "jump_mm", gt=0)
@@ -147,3 +149,5 @@ class FitParams:
         _number(self, "stop_edge", ge=0, le=1)
         _number(self, "seed_stop_edge", ge=0, le=1)
         _boolean(self, "order_guesses")
+        _number(self, "fringe_share", ge=0, le=1)
+        _number(self, "fringe_mm", gt=0)
