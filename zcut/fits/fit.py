@@ -44,7 +44,6 @@ import numpy as np
 from zcut.errors import InputShapeError, describe_array
 from zcut.fit_vetting import pose_overlaps
 
-from .guess_order import guess_order
 from .icp import EDGE_WEAK, guess_translations, icp, initial_rotations, pose_matrix, shifted_guesses
 from .kernels import (
     coarse_search,
@@ -393,46 +392,27 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
         score = inl - 0.01 * near + (0.5 * e_inl if len(coarse_e) else 0.0)
         return score, inl, e_inl, T
 
-    stop_edge = params.seed_stop_edge if shifts else params.stop_edge
-
     def search(Rs: np.ndarray, ts: np.ndarray, stop: bool) -> tuple[float, np.ndarray] | None:
         """The best (score, pose) of the coarse ICP from each of the poses (``Rs`` (k, 3, 3), ``ts`` (k, 3),
-        C-contiguous; the first of equal scores), stopping at a guess whose points nearly all fit when ``stop``
-        (its boundary on the edges by ``stop_edge``); with ``FitParams.order_guesses`` and ``stop`` the poses are
-        searched in the order of their score where they stand (:func:`zcut.fits.guess_order.guess_order`)."""
+        C-contiguous; the first of equal scores), stopping at a guess whose points nearly all fit when ``stop``."""
         if not len(Rs):
             return None
         ix = model.index
-        if stop and params.order_guesses and len(Rs) > 1:
-            if ix is not None:
-                order = guess_order(coarse, coarse_e, Rs, ts, float(score_tol), 1.5 * px_mm, ix.origin, ix.h,
-                                    ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.tri, ix.seg_grid, ix.p0, ix.p1)
-            else:
-                order = np.argsort([-_guess_score_reference(pose_matrix(R0, t0)) for R0, t0 in zip(Rs, ts)],
-                                   kind="stable")
-            Rs, ts = np.ascontiguousarray(Rs[order]), np.ascontiguousarray(ts[order])
         if ix is not None:  # every guess in one kernel call (:func:`zcut.fits.kernels.coarse_search`)
             i, R, t, score = coarse_search(coarse, coarse_e, Rs, ts, int(params.coarse_iterations),
                                            float(params.gate_mm), float(params.k), float(params.err_floor_mm),
                                            float(edge_gate), float(model.extent_mm), float(score_tol), 1.5 * px_mm,
                                            ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.tri, ix.seg_grid, ix.p0,
-                                           ix.p1, EDGE_WEAK, STOP_INL if stop else 2.0, float(stop_edge))
+                                           ix.p1, EDGE_WEAK, STOP_INL if stop else 2.0, STOP_EDGE)
             return (float(score), pose_matrix(R, t)) if i >= 0 else None
         found: tuple[float, np.ndarray] | None = None
         for R0, t0 in zip(Rs, ts):
             score, inl, e_inl, T = coarse_fit(pose_matrix(R0, t0))
             if found is None or score > found[0]:
                 found = (score, T)
-            if stop and inl >= STOP_INL and e_inl >= stop_edge:
+            if stop and inl >= STOP_INL and e_inl >= STOP_EDGE:
                 break
         return found
-
-    def _guess_score_reference(T: np.ndarray) -> float:
-        # the coarse score at the guess itself (no ICP step), for a model without a voxel index
-        d = _surface_distances(model, coarse, T)
-        inl, near = float(np.mean(d <= score_tol)), float(np.mean(np.minimum(d, score_tol))) / score_tol
-        e_inl = float(np.mean(_edge_distances(model, coarse_e, T) <= 1.5 * px_mm)) if len(coarse_e) else 1.0
-        return inl - 0.01 * near + (0.5 * e_inl if len(coarse_e) else 0.0)
 
     # the points' principal axes, once: the guesses' rotations and the turns' axis (the same arithmetic as
     # initial_rotations' own, so the same bits)
@@ -737,7 +717,6 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
     left = region
     attempts = 0
     tried: np.ndarray | None = None  # seeds of patches already fitted in this region (made when first needed)
-    fringe = claims is not None and params.fringe_share > 0
     while len(left) >= min_px and attempts < params.max_instances_per_region:
         progress = False
         many = model.sphere_radius is None and _holds_many(frame, left, model)
@@ -748,10 +727,7 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
             if patch is None:
                 break
             cands = ([_fit_general(frame, patch, model, params, shifts=shifts)]
-                     if len(patch) >= min_px and not (fringe and _fringe(frame, patch, model, params, claims))
-                     else [])
-        elif fringe and _fringe(frame, left, model, params, claims):
-            break  # a live fit's fringe: its candidate would overlap that fit
+                     if len(patch) >= min_px else [])
         else:
             cands = _candidates(frame, left, model, params, shifts=shifts)
             if claims is not None and len(cands) > 1:
@@ -791,27 +767,6 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
         left = parts[0]
         more.extend(parts[1:])
     return more
-
-
-#: :func:`_fringe` measures at most this many of a region's points (an even subsample).
-FRINGE_POINTS = 200
-
-
-def _fringe(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams, claims: _Claims | None) -> bool:
-    """Whether at least ``FitParams.fringe_share`` of the region's points (an even subsample of
-    :data:`FRINGE_POINTS`) lie within ``fringe_mm`` of a live accepted fit whose centre lies within twice the
-    model's extent of theirs: the fringe of a fitted part, whose own candidate would overlap that fit."""
-    if claims is None or not len(claims.poses) or not len(flat):
-        return False
-    pts = frame.xyz.reshape(-1, 3)[_subsample(flat, FRINGE_POINTS)]
-    c = pts.mean(axis=0)
-    near = np.flatnonzero(np.linalg.norm(claims.centres - c, axis=1) < 2.0 * model.extent_mm)
-    if not len(near):
-        return False
-    d = np.full(len(pts), np.inf)
-    for j in near:
-        d = np.minimum(d, _near_distances(model, pts, claims.poses[int(j)], params.fringe_mm))
-    return bool(np.mean(d <= params.fringe_mm) >= params.fringe_share)
 
 
 def _holds_many(frame: _Frame, flat: np.ndarray, model: PartModel) -> bool:

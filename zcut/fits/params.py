@@ -116,11 +116,6 @@ class FitParams:
     fine_points: int = 3000
     fine_window: bool = True
     fine_robust: float = 3.0
-    stop_edge: float = 0.7
-    seed_stop_edge: float = 0.7
-    order_guesses: bool = False
-    fringe_share: float = 0.0
-    fringe_mm: float = 1.5
 
     def __post_init__(self) -> None:
         _number(self, "jump_mm", gt=0)
@@ -146,8 +141,3 @@ class FitParams:
         _number(self, "fine_points", ge=0, integer=True)
         _boolean(self, "fine_window")
         _number(self, "fine_robust", ge=0)
-        _number(self, "stop_edge", ge=0, le=1)
-        _number(self, "seed_stop_edge", ge=0, le=1)
-        _boolean(self, "order_guesses")
-        _number(self, "fringe_share", ge=0, le=1)
-        _number(self, "fringe_mm", gt=0)
