@@ -465,6 +465,10 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="fit each frame this many times (CPU: the smallest)")
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                     help="a FitParams field (e.g. seed_shifts=0: the fits without their second pass)")
+    ap.add_argument("--variant", action="append", default=[], metavar="LABEL:NAME=VALUE[,NAME=VALUE...]",
+                    help="also fit each frame with these FitParams fields over --param's, in the same process, "
+                         "after the plain run and in the order given (LABEL, at most 6 characters, names its rows; "
+                         "the order is reversed on every other frame: old and new alternate)")
     args = ap.parse_args()
     if args.same:
         _same(*args.same)
@@ -475,6 +479,11 @@ def main() -> None:
     variants = [("after", params)]
     if args.before:  # the fits without the sixth round's claims, on the same frame, just before
         variants.insert(0, ("before", replace(params, claim=False)))
+    for spec in args.variant:
+        label, _, fields = spec.partition(":")
+        pairs = [f.split("=") for f in fields.split(",") if f]
+        variants.append((label[:6], replace(params, **{k: _value(getattr(FitParams(), k), v) for k, v in pairs})))
+    n_frame = 0
     rows = []
     dumped: dict[tuple[str, str, str, int], list[tuple[np.ndarray, float, float, np.ndarray]]] = {}
     print(f"size {w}x{h}, seeds {seeds}; CPU seconds per frame (process_time, all threads)")
@@ -495,7 +504,8 @@ def main() -> None:
                 truth = _frame(sensor, kind, seed, (h, w), args.cache)
                 valid = np.isfinite(truth.xyz_mm).all(axis=2)
                 zone = valid & ((truth.label == LABEL_PART) | truth.outliers | truth.off)
-                for label, p in variants:
+                n_frame += 1
+                for label, p in (variants if n_frame % 2 or not args.variant else variants[::-1]):
                     cpus = []
                     for _ in range(max(1, args.repeat)):
                         c0 = time.process_time()
