@@ -4,9 +4,7 @@ its grid counts equal the counts of the explicit masks."""
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import math
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -41,34 +39,13 @@ def explicit_counts(masks, truth, scored, within=None, plus=None) -> dict[str, n
     return out
 
 
-#: The per-point calls' masks (the oracle) by the frame's bytes and the call's arguments, read-only: the trees of the
-#: two kernels (the ``kernel`` fixture) are held to the same calls on the same frames, made once.
-_PER_POINT: dict[tuple[object, ...], np.ndarray] = {}
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _forget_the_calls() -> Iterator[None]:
-    yield
-    _PER_POINT.clear()
-
-
-def per_point(z: np.ndarray, *, step: float, max_depth: float, max_area: float, connectivity: int) -> np.ndarray:
-    """``zcut_outliers(z, ...)``, made once for each frame and arguments."""
-    key = (hashlib.sha256(z.tobytes()).hexdigest(), z.shape, z.dtype.str, step, max_depth, max_area, connectivity)
-    if key not in _PER_POINT:
-        m = zcut_outliers(z, step=step, max_depth=max_depth, max_area=max_area, connectivity=connectivity)
-        m.setflags(write=False)
-        _PER_POINT[key] = m
-    return _PER_POINT[key]
-
-
 def check_tree(z, tree: ZCutTree, depths, areas, *, clusters: bool = True) -> list[list[np.ndarray]]:
-    """Assert tree.outliers (and n_clusters) equal the per-point calls; return the masks (read-only)."""
+    """Assert tree.outliers (and n_clusters) equal the per-point calls; return the masks."""
     masks = []
     for d in depths:
         row = []
         for a in areas:
-            m = per_point(z, step=tree.step, max_depth=d, max_area=a, connectivity=tree.connectivity)
+            m = zcut_outliers(z, step=tree.step, max_depth=d, max_area=a, connectivity=tree.connectivity)
             got = tree.outliers(d, a)
             assert got.dtype == bool and got.shape == z.shape
             if not np.array_equal(got, m):  # (the message only when needed: real frames are big)
