@@ -3,9 +3,11 @@ cache (tests/zcut/test_kernel_cache.py, test_binmask_kernel_cache.py, test_suspe
 
 A kernel whose cache always misses is compiled anew by every ``zcut`` process (~2 CPU-s for the flood of round
 2026-12-06b, whose closure captured dispatchers: numba keys a closure's cache entry by its pickled bytes), which no
-timing test sees. :func:`second_process_stats` runs a script twice in fresh processes (the first may compile, on a
-fresh checkout, and writes the caches) and returns, for every cached dispatcher of the modules under ``prefix``
-that the second run called, its (cache hits, cache misses)."""
+timing test sees. :func:`second_process_stats` runs a script twice, first in the test's own process (it may
+compile, on a fresh checkout, and writes the caches: numba writes a kernel's cache entry when it compiles it, here as
+in any process; a first fresh process for it cost ~1-2 CPU-s a test), then in a fresh process, and returns, for
+every cached dispatcher of the modules under ``prefix`` that the fresh process called, its (cache hits, cache
+misses)."""
 
 from __future__ import annotations
 
@@ -44,8 +46,8 @@ def _run(script: str, prefix: str, timeout: float) -> dict[str, list[int]]:
 
 def second_process_stats(script: str, *, prefix: str = "zcut", timeout: float = 600) -> dict[str, list[int]]:
     """(cache hits, cache misses) of every cached numba dispatcher of the modules whose name starts with ``prefix``,
-    after ``script`` ran in a second fresh process (the first one ran it to fill the caches)."""
-    _run(script, prefix, timeout)
+    after ``script`` ran in a fresh process (it ran in this process first, to fill the caches)."""
+    exec(compile(script, "<kernel cache script>", "exec"), {"__name__": "kernel_cache_script"})
     return _run(script, prefix, timeout)
 
 

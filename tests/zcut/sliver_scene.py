@@ -12,17 +12,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from explained_helpers import box_mesh  # noqa: E402
 from fit_scenes import K_TEST, hex_nut_mesh, pose, render, rotation  # noqa: E402
+from prepared_models import prepared  # noqa: E402
 
-from zcut.fits import PartModel, prepare_model  # noqa: E402
+from zcut.fits import PartModel  # noqa: E402
 
 FLOOR_Z = 400.0
 FX, FY, CX, CY = K_TEST
 
 
 def nut() -> tuple[np.ndarray, np.ndarray, PartModel]:
-    """(vertices, triangles, prepared model) of the hand-made zinc nut."""
+    """(vertices, triangles, prepared model) of the hand-made zinc nut (the session's model,
+    tests/zcut/fits/prepared_models.py: the fits tests prepare the same nut)."""
     v, t = hex_nut_mesh()
-    return v, t, prepare_model(v, t)
+    return v, t, prepared(v, t)
 
 
 def true_pose() -> np.ndarray:

@@ -21,10 +21,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from explained_helpers import box_mesh  # noqa: E402
 from fit_scenes import K_TEST, hex_nut_mesh, pose, render, rotation  # noqa: E402
+from prepared_models import prepared  # noqa: E402
 
 from zcut import explained as ex  # noqa: E402
 from zcut.errors import InputShapeError  # noqa: E402
-from zcut.fits import FitParams, pose_error, prepare_model  # noqa: E402
+from zcut.fits import FitParams, pose_error  # noqa: E402
 from zcut.top_pieces import nearer_share, top_pieces  # noqa: E402
 
 FLOOR_Z = 320.0
@@ -40,7 +41,7 @@ def _noisy(xyz: np.ndarray, sigma: float = 0.03, seed: int = 0) -> np.ndarray:
 @pytest.fixture(scope="module")
 def nut():
     v, t = hex_nut_mesh()
-    return v, t, prepare_model(v, t)
+    return v, t, prepared(v, t)  # the session's (tests/zcut/fits/prepared_models.py): the fits tests prepare it too
 
 
 def test_a_missed_nut_on_the_floor_is_found_on_its_unexplained_pixels(nut):

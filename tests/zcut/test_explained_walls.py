@@ -33,9 +33,32 @@ def walls(tmp_path_factory):
     assert main(["synth", "-o", str(log), "--parts", "spheres", "--frames", "1", "--seed", "9643", "--size", SIZE,
                  "--pile", "walls"]) == 0
     session = PipelineOptions(methods="zcut,explained").open_session(log)
-    frame, _ = next(iter(session.results()))
+    frames = session.located()  # the frame as read: the methods run on it below, not also here
+    frame, _ = next(frames)
+    frames.close()
     zone = bin_zone(frame, session.config, bin_model=session.prepared)
     return session, frame, zone
+
+
+@pytest.fixture(scope="module")
+def judged_run(walls):
+    """``run_explained(judge_removed_bin=True)`` of the walls frame, and the ``zone_err`` each call of the missed
+    instances on top was given (the vetting's Err image of the zone, or None): computed once, for the tests
+    that read it (the wrapper that records ``zone_err`` passes every argument on)."""
+    from replay.pipeline import explained as pe
+
+    session, frame, zone = walls
+    real = pe._with_top_pieces
+    given = []
+
+    def reuse(*args, zone_err=None, **kw):
+        given.append(zone_err)
+        return real(*args, zone_err=zone_err, **kw)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(pe, "_with_top_pieces", reuse)
+        out = pe.run_explained(frame, zone, session.config, judge_removed_bin=True)
+    return out, given
 
 
 def _wall_pixel(frame, zone, session):
@@ -139,7 +162,7 @@ def test_without_a_part_model_the_removals_bin_pixels_are_not_judged(walls):
 
 
 @pytest.mark.slow
-def test_one_search_judges_the_removals_bin_pixels_as_the_merge_did(walls, monkeypatch):
+def test_one_search_judges_the_removals_bin_pixels_as_the_merge_did(walls, judged_run, monkeypatch):
     """The removal's bin pixels are judged in the zone's own search (the judged set widened, the outliers
     masked with the zone and those pixels): the same outliers, distances, surfaces and Err as the previous
     implementation, a second search over them with the final surfaces merged into the zone's images (its
@@ -162,7 +185,7 @@ def test_one_search_judges_the_removals_bin_pixels_as_the_merge_did(walls, monke
     near, surfaces, foot, kw = calls[-1]  # the final Err image: the final nearest surfaces and known surfaces
     assert kw.get("where") is None and np.array_equal(near.dist_mm, d0.dist_mm, equal_nan=True)
     monkeypatch.setattr(ex, "err_image", real)
-    judged, d, _ = run_explained(frame, zone, config, judge_removed_bin=True)
+    (judged, d, _), _ = judged_run  # run_explained(frame, zone, config, judge_removed_bin=True)
     # the previous removed_bin_judged
     xyz = frame.xyz.astype(np.float64) * 1000.0
     where = zone.removal.bin_points & ~zone.zone
@@ -179,27 +202,20 @@ def test_one_search_judges_the_removals_bin_pixels_as_the_merge_did(walls, monke
 
 
 @pytest.mark.slow
-def test_the_missed_instances_on_top_reuse_the_vettings_err(walls, monkeypatch):
+def test_the_missed_instances_on_top_reuse_the_vettings_err(walls, judged_run, monkeypatch):
     """When the vetting leaves every fit in, the missed instances on top read its Err image of the zone
     instead of computing it again: the same outputs as with it computed again."""
     from replay.pipeline import explained as pe
 
     session, frame, zone = walls
     real = pe._with_top_pieces
-    given = []
+    reused, given = judged_run  # the method as it is: the image it was given passed on
 
     def again(*args, zone_err=None, **kw):  # the image computed again, as before
-        given.append(zone_err)
         return real(*args, **kw)
 
-    def reuse(*args, zone_err=None, **kw):
-        given.append(zone_err)
-        return real(*args, zone_err=zone_err, **kw)
-
-    outs = []
-    for wrapper in (reuse, again):
-        monkeypatch.setattr(pe, "_with_top_pieces", wrapper)
-        outs.append(pe.run_explained(frame, zone, session.config, judge_removed_bin=True))
+    monkeypatch.setattr(pe, "_with_top_pieces", again)
+    outs = [reused, pe.run_explained(frame, zone, session.config, judge_removed_bin=True)]
     assert given[0] is not None  # no fit vetted out on this frame: the vetting's image was passed in
     (o1, d1, _), (o2, d2, _) = outs
     assert d1 is not None and d2 is not None and len(d1.fits) > 0

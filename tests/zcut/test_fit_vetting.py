@@ -170,24 +170,36 @@ def _overlapping_fits(monkeypatch) -> None:  # type: ignore[no-untyped-def]
     monkeypatch.setattr(zcut.fits, "FitParams", functools.partial(zcut.fits.FitParams, claim=False))
 
 
+@pytest.fixture(scope="module")
+def overlapping(tmp_path_factory):  # type: ignore[no-untyped-def]
+    """(session, frame, zone, ``run_explained``'s output) of a real log (``zcut synth``, hand-made spheres,
+    320 × 200) with :func:`_overlapping_fits`: made once for the tests of the method's vetting."""
+    from cli_helpers import synth_log
+
+    from replay.options import PipelineOptions
+    from replay.pipeline.explained import run_explained
+    from replay.pipeline.stages import bin_zone
+
+    with pytest.MonkeyPatch.context() as mp:
+        _overlapping_fits(mp)
+        log = synth_log(tmp_path_factory.mktemp("vetting") / "spheres.mcap", parts="spheres", frames=1, seed=9634,
+                        size="320x200")
+        session = PipelineOptions(methods="zcut,explained").open_session(log)
+        frames = session.located()  # the frame as read: the method runs on it below, not also here
+        frame, _ = next(frames)
+        frames.close()
+        zone = bin_zone(frame, session.config, bin_model=session.prepared)
+        return session, frame, zone, run_explained(frame, zone, session.config)
+
+
 @pytest.mark.slow
-def test_the_method_leaves_out_overlapping_fits_and_judges_their_pixels_again(tmp_path, monkeypatch):
+def test_the_method_leaves_out_overlapping_fits_and_judges_their_pixels_again(overlapping):
     """``explained`` on a real log (hand-made spheres, 320 × 200): no two fits it keeps share more than
     the threshold of their volume, each fit it left out overlaps a kept one, and its distances are those
     of the kept fits, the bin and the table computed from scratch."""
-    from cli_helpers import synth_log
+    from replay.pipeline.explained import bin_and_table_surfaces
 
-    _overlapping_fits(monkeypatch)
-
-    from replay.options import PipelineOptions
-    from replay.pipeline.explained import bin_and_table_surfaces, run_explained
-    from replay.pipeline.stages import bin_zone
-
-    log = synth_log(tmp_path / "spheres.mcap", parts="spheres", frames=1, seed=9634, size="320x200")
-    session = PipelineOptions(methods="zcut,explained").open_session(log)
-    frame, _ = next(iter(session.results()))
-    zone = bin_zone(frame, session.config, bin_model=session.prepared)
-    out, d, _ = run_explained(frame, zone, session.config)
+    session, frame, zone, (out, d, _) = overlapping
     assert d is not None and d.fits and d.vetted_out
     poses = [f.pose for f in d.fits]
     _, share = fv.instance_overlaps(d.vertices_mm, d.triangles, poses)
@@ -215,25 +227,16 @@ def test_the_method_leaves_out_overlapping_fits_and_judges_their_pixels_again(tm
 
 
 @pytest.mark.slow
-def test_a_max_overlap_of_one_keeps_every_fit(tmp_path, monkeypatch):
+def test_a_max_overlap_of_one_keeps_every_fit(overlapping, monkeypatch):
     """``[explained] fit_max_overlap = 1`` switches the vetting off: every fit stays a known surface and
     the method's outliers are those of the same fits judged without it (one frame where the default
     vets fits out)."""
     import dataclasses
 
-    from cli_helpers import synth_log
+    from replay.pipeline.explained import run_explained
 
     _overlapping_fits(monkeypatch)
-
-    from replay.options import PipelineOptions
-    from replay.pipeline.explained import run_explained
-    from replay.pipeline.stages import bin_zone
-
-    log = synth_log(tmp_path / "spheres.mcap", parts="spheres", frames=1, seed=9634, size="320x200")
-    session = PipelineOptions(methods="zcut,explained").open_session(log)
-    frame, _ = next(iter(session.results()))
-    zone = bin_zone(frame, session.config, bin_model=session.prepared)
-    on, d_on, _ = run_explained(frame, zone, session.config)
+    session, frame, zone, (on, d_on, _) = overlapping
     assert d_on is not None and d_on.vetted_out
     p = dataclasses.replace(session.config.bank["explained"], fit_max_overlap=1.0)
     config = dataclasses.replace(session.config, bank={**session.config.bank, "explained": p})

@@ -13,10 +13,8 @@ import dataclasses
 
 import numpy as np
 import pytest
+from removal_inputs import located_frames
 
-from replay.pipeline import stages
-from replay.pipeline.bin_model import bin_model_for
-from replay.pipeline.session import ReplaySession
 from replay.synth.log import write_synthetic_log
 from replay.synth.raytrace import write_raytraced_log
 from zcut.bin_check import _zone_top, check_bin_removal
@@ -35,25 +33,15 @@ PARAMS = {
 }
 
 
-def _inputs(path):
-    s = ReplaySession.open(path, choose_bin_model=lambda reader: bin_model_for(reader, None))
-    out = []
-    for frame in s.reader.frames():
-        loc = stages.locate_bin(frame, s.config, bin_model=s.prepared, seed=s.seed)
-        assert loc.registration is not None and loc.registration.converged
-        out.append((frame.xyz, loc.bin_mask.mask, loc.ring, loc.registration.T_cam_bin))
-    assert s.prepared is not None
-    return s.prepared.model, s.config, out
-
-
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
     d = tmp_path_factory.mktemp("removal_fused")
     made = {}
     for kind, seed, pile in (("zinc_nuts", 31, "floor"), ("sprockets", 37, "floor"), ("spheres", 41, "walls")):
-        made[f"{kind}-{seed}"] = _inputs(write_synthetic_log(d / f"{kind}.mcap", kind=kind, frames=2, seed=seed,
-                                                             size=SIZE, pile=pile))
-    made["raytraced"] = _inputs(write_raytraced_log(d / "rt.mcap", kind="zinc_nuts", frames=1, seed=43, size=(120, 160)))
+        made[f"{kind}-{seed}"] = located_frames(write_synthetic_log(d / f"{kind}.mcap", kind=kind, frames=2,
+                                                                    seed=seed, size=SIZE, pile=pile))
+    made["raytraced"] = located_frames(write_raytraced_log(d / "rt.mcap", kind="zinc_nuts", frames=1, seed=43,
+                                                           size=(120, 160)))
     return made
 
 

@@ -13,6 +13,7 @@ poisoned between calls like the rest.
 
 from __future__ import annotations
 
+import functools
 import threading
 
 import bank_clouds
@@ -153,6 +154,22 @@ def expected(xyz: np.ndarray, n: int, k: int, convention: str, method: str) -> t
     return want, outliers_from_mean_distances_reference(want, k=k, std_ratio=1.0, convention=convention)
 
 
+@functools.cache
+def sequence_expected(convention: str) -> dict[tuple[str, int], tuple[np.ndarray, np.ndarray]]:
+    """:func:`expected` of every cloud of :func:`cloud_sequence` (its NaN-masked copy) for k = 1 and 4, by name and
+    k: the oracle, computed once for the search paths that are held to it (read-only)."""
+    wants = {}
+    for name, xyz, mask in cloud_sequence():
+        copy = masked_copy(xyz, mask)
+        method = "brute" if copy.shape[0] * copy.shape[1] <= 3000 else "kdtree"
+        n = int(np.isfinite(copy).all(axis=2).sum())
+        for k in (1, 4):
+            wants[name, k] = expected(copy, n, k, convention, method)
+            for a in wants[name, k]:
+                a.setflags(write=False)
+    return wants
+
+
 SEARCH_PATHS = {  # the unproven pixels through each search (each takes its arrays from the workspace)
     "default": {},
     "columns": {"_COLUMNS_MIN_SHARE": 1 << 40, "_COLUMNS_COST": 0.0},
@@ -171,13 +188,7 @@ def test_growing_and_shrinking_clouds_equal_the_reference(convention: str, path:
     ws = thread_workspace()
     monkeypatch.setattr(ws, "max_bytes", None)  # kept between calls (not the default): poisoned between them
     clouds = cloud_sequence()
-    wants = {}
-    for name, xyz, mask in clouds:
-        copy = masked_copy(xyz, mask)
-        method = "brute" if copy.shape[0] * copy.shape[1] <= 3000 else "kdtree"
-        n = int(np.isfinite(copy).all(axis=2).sum())
-        for k in (1, 4):
-            wants[name, k] = expected(copy, n, k, convention, method)
+    wants = sequence_expected(convention)
     kept: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
     for round_ in range(2):
         for name, xyz, mask in clouds:

@@ -15,6 +15,7 @@ import hashlib
 
 import numpy as np
 import pytest
+from ulp_nudge import nudge as _nudge
 
 from replay.synth.raytrace import synthesize_raytraced_frame
 from replay.synth.raytrace.camera_filters import CameraFilters
@@ -28,18 +29,6 @@ from replay.synth.synthesize import bin_pose_for, frame_rng
 
 def _same_hits(a: Hits, b: Hits) -> bool:
     return all(np.asarray(getattr(a, f)).tobytes() == np.asarray(getattr(b, f)).tobytes() for f in Hits.__slots__)
-
-
-def _nudge(a: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Each finite element of float32 ``a`` moved by -2, -1, +1 or +2 ulp (inf and NaN kept)."""
-    out = a.copy()
-    steps = rng.choice(np.array([-2, -1, 1, 2]), size=a.shape)
-    for k in (1, 2):
-        for sign in (-1, 1):
-            m = (steps == sign * k) & np.isfinite(out)
-            for _ in range(k):
-                out[m] = np.nextafter(out[m], np.float32(sign * np.inf))
-    return out
 
 
 def _nudge_embree(monkeypatch: pytest.MonkeyPatch, seed: int) -> list[int]:

@@ -6,12 +6,13 @@ as literals and asserts them."""
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from pathlib import Path
 
 import numpy as np
 
-from zcut.fits import PartFit, prepare_model
+from zcut.fits import PartFit
 
 #: a frame in mm, its zone, the prepared part model and the intrinsics (fx, fy, cx, cy) or None (estimated)
 Scene = tuple[np.ndarray, np.ndarray, object, "tuple[float, float, float, float] | None"]
@@ -46,24 +47,41 @@ def digest(fits: list[PartFit]) -> str:
 
 
 def part_model(kind: str) -> object:
-    """The prepared hand-made model of ``kind`` (the log's part-model attachment, in mm)."""
+    """The prepared hand-made model of ``kind`` (the log's part-model attachment, in mm): the session's
+    (tests/zcut/fits/prepared_models.py; the hand-made frames and the real crop share the zinc nut's)."""
+    from prepared_models import prepared
+
     from replay.logs.part_model import PART_MODEL_ATTACHMENT, read_part_model_bytes
     from replay.synth.log import part_model_attachment
 
     pm = read_part_model_bytes(part_model_attachment(kind, raytraced=False)[PART_MODEL_ATTACHMENT][1])
-    return prepare_model(pm.vertices * (1000.0 if pm.unit == "m" else 1.0), pm.triangles)
+    return prepared(pm.vertices * (1000.0 if pm.unit == "m" else 1.0), pm.triangles)
 
 
+@functools.cache
 def hand_made(kind: str) -> Scene:
     """A hand-made frame of ``kind`` (:data:`HAND_MADE_SEED`, :data:`HAND_MADE_SIZE`) in mm, its zone (the parts and
-    the truths), the prepared model and the intrinsics."""
+    the truths), the prepared model and the intrinsics: made once per session (the arrays read-only)."""
     from replay.synth import synthesize_frame
 
     sf = synthesize_frame(kind=kind, seed=HAND_MADE_SEED, size=HAND_MADE_SIZE)
     xyz = sf.frame.xyz.astype(np.float64) * 1000.0
     zone = np.isfinite(xyz).all(axis=2) & ((sf.surface == 5) | sf.truth | sf.off_surface)
     K = sf.frame.intrinsics
+    xyz.setflags(write=False)
+    zone.setflags(write=False)
     return xyz, zone, part_model(kind), (K.fx, K.fy, K.cx, K.cy)
+
+
+@functools.cache
+def hand_made_fits(kind: str) -> tuple[PartFit, ...]:
+    """The defaults' fits of the whole :func:`hand_made` frame of ``kind`` (``zcut.fits.fit_prepared`` with its
+    intrinsics): made once per session, for the digest test and the tests that compare other settings with them (a
+    fit is deterministic; the tests only read the fits)."""
+    from zcut.fits import fit_prepared
+
+    xyz, zone, model, K = hand_made(kind)
+    return tuple(fit_prepared(xyz, zone, model, intrinsics=K))  # type: ignore[arg-type]
 
 
 def holed(xyz: np.ndarray) -> np.ndarray:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from fit_digests import degenerate_frames
+from fit_digests import degenerate_frames, hand_made_fits
 from fit_digests import digest as _digest
 from fit_scenes import K_TEST, hand_made_nut_frame, hex_nut_mesh, pose, render, rotation
 from prepared_models import prepared
@@ -37,8 +37,8 @@ def test_without_the_window_and_the_weights_the_fits_are_the_previous_trees_to_t
     xyz, zone, model, K = hand_made_nut_frame()
     old = fit_prepared(xyz, zone, model, intrinsics=K, params=FitParams(fine_window=False, fine_robust=0.0))
     assert (len(old), _digest(old)) == NINTH
-    new = fit_prepared(xyz, zone, model, intrinsics=K)
-    assert _digest(new) != NINTH[1]
+    new = hand_made_fits("zinc_nuts")  # fit_prepared(xyz, zone, model, intrinsics=K), made once (test_fits_defaults)
+    assert _digest(list(new)) != NINTH[1]
     assert all(f.err_mm <= FitParams().max_err_mm and f.support >= 0.5 for f in new)
 
 

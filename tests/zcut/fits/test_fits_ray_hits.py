@@ -18,21 +18,10 @@ from typing import Any
 import numpy as np
 import pytest
 from fit_scenes import K_TEST, hex_nut_mesh, icosphere, pose, render, rotation
+from ulp_nudge import nudge as _nudge
 
 from zcut.fits import FitParams, fit_parts, prepare_model
 from zcut.ray_hits import hit_t, hit_tuv_reference, mesh_hit_t, triangle_edges
-
-
-def _nudge(a: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Each finite element of float32 ``a`` moved by -2, -1, +1 or +2 ulp (inf and NaN kept)."""
-    out = a.copy()
-    steps = rng.choice(np.array([-2, -1, 1, 2]), size=a.shape)
-    for k in (1, 2):
-        for sign in (-1, 1):
-            m = (steps == sign * k) & np.isfinite(out)
-            for _ in range(k):
-                out[m] = np.nextafter(out[m], np.float32(sign * np.inf))
-    return out
 
 
 class _NudgedScene:
